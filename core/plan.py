@@ -1,0 +1,97 @@
+"""The render plan: analyse the exported scene once and leave out what it cannot use.
+
+Issue 7.  Each flag says whether a stage runs; ``reasons`` says why a stage was
+left out, so the CLI, Blender's info log and the EXR metadata can show it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .settings import RenderSettings
+
+# Convexity test budget: triangles x vertices pairs checked exactly.
+_CONVEX_TEST_MAX = 4_000_000
+
+
+@dataclass
+class RenderPlan:
+    specular_chains: bool = True       # camera paths through mirrors / glass
+    frequency_photons: bool = True     # photons carrying a spectrum (a, b, c)
+    occlusion_grid: bool = True        # voxel grid for a_occ (needs frequency)
+    occlusion_locality: float = 0.0    # metres: voxels farther than this are ignored
+    world_emission: bool = False
+    emitter_kinds: tuple = ()
+    aovs: tuple = ()
+    left_out: list = field(default_factory=list)   # (stage, reason)
+
+    def lines(self) -> list[str]:
+        on = [n for n, v in (("specular chains", self.specular_chains),
+                             ("frequency photons", self.frequency_photons),
+                             ("occlusion grid", self.occlusion_grid),
+                             ("world emission", self.world_emission)) if v]
+        out = [f"Plan: {', '.join(on) if on else 'plain photon mapping'}; emitters: "
+               f"{', '.join(self.emitter_kinds) or 'none'}; AOVs: {', '.join(self.aovs) or 'none'}."]
+        for stage, why in self.left_out:
+            out.append(f"Left out: {stage} ({why}).")
+        return out
+
+    def metadata(self) -> dict:
+        return {"fppm/plan": " ".join(self.lines())}
+
+
+def _can_occlude(tri_p: np.ndarray) -> bool:
+    """False when no surface can occlude another: all triangles coplanar, or a
+    single convex closed object (every vertex on or behind every face plane)."""
+    T = tri_p.shape[0]
+    if T <= 1:
+        return False
+    P = tri_p.astype(np.float64)
+    n = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    V = np.unique(P.reshape(-1, 3), axis=0)
+    if T * V.shape[0] > _CONVEX_TEST_MAX:
+        return True
+    ext = float(np.ptp(V, axis=0).max()) or 1.0
+    eps = 1e-6 * ext
+    s = V @ n.T - np.einsum("ij,ij->i", n, P[:, 0])[None, :]    # (V, T)
+    if np.all(np.abs(s) <= eps):
+        return False                                              # one plane
+    all_behind = np.all(s <= eps) or np.all(s >= -eps)
+    return not all_behind
+
+
+def make_plan(scene, settings: RenderSettings, mtab, light_table) -> RenderPlan:
+    plan = RenderPlan()
+    has_delta = bool(np.any(mtab.has_delta)) if mtab.has_delta.size else False
+    plan.specular_chains = has_delta
+    if not has_delta:
+        plan.left_out.append(("specular chains", "no mirror, glass or transparent material"))
+    freq = settings.use_frequency and settings.frequency_fraction > 0
+    if not settings.use_frequency:
+        plan.left_out.append(("frequency photons", "frequency analysis is off"))
+    elif settings.frequency_fraction <= 0:
+        plan.left_out.append(("frequency photons", "frequency fraction is 0"))
+    elif not np.any(mtab.lambert_only):
+        freq = False
+        plan.left_out.append(("frequency photons", "no Lambert receiver whose radius could be held"))
+    plan.frequency_photons = freq
+    occ = freq and _can_occlude(scene.tri_p)
+    if freq and not occ:
+        plan.left_out.append(("occlusion grid", "nothing in the scene can occlude another surface"))
+    elif not freq:
+        plan.left_out.append(("occlusion grid", "no frequency photons"))
+    plan.occlusion_grid = occ
+    D = scene.diameter()
+    plan.occlusion_locality = 2.0 * D / max(settings.occlusion_grid_res, 1) * np.sqrt(3)
+    plan.world_emission = bool(np.any(np.asarray(scene.world_color) > 0))
+    kinds = sorted({lt.kind for lt in scene.lights})
+    if np.any(mtab.emission.max(axis=1) > 0):
+        kinds.append("MESH")
+    if plan.world_emission:
+        kinds.append("WORLD")
+    plan.emitter_kinds = tuple(kinds)
+    plan.aovs = tuple(n for n in ("aov_radius", "aov_predicted_radius", "aov_spectrum",
+                                  "aov_photon_count", "aov_held") if getattr(settings, n))
+    return plan

@@ -1,0 +1,592 @@
+"""The progressive render loop: the one entry point the add-on, the CLI and tests use.
+
+    r = Renderer(scene, settings, log=print)   # may raise SceneError / SettingsError
+    for line in r.plan_lines(): print(line)
+    result = r.run(should_stop=lambda: False, on_pass=callback)
+
+API CONTRACT
+- ``Renderer(scene: Scene, settings: RenderSettings, log: Callable[[str], None] = print)``
+- ``Renderer.width, Renderer.height``: size of the rendered region (the border
+  crop when ``scene.camera.border`` is set), ``Renderer.offset``: (x0, y0) of that
+  region in Blender's pixel coordinates (y from the bottom).
+- ``Renderer.plan_lines() -> list[str]``: the render plan and export summary.
+- ``Renderer.step() -> PassResult``: runs one pass.
+- ``Renderer.run(should_stop=None, on_pass=None) -> PassResult``: passes until
+  ``settings.max_passes`` or ``settings.time_limit`` is reached or
+  ``should_stop()`` returns True (polled inside passes; a cancelled pass is
+  discarded and the last complete result is returned).  ``on_pass(result)`` is
+  called after every completed pass.
+- ``PassResult``: ``pass_index`` (1-based), ``photons_emitted`` (total so far),
+  ``elapsed`` (s since the first pass started), ``image`` (H, W, 4) float32 RGBA
+  linear radiance with row 0 at the TOP, ``aovs`` dict name -> (H, W, C) float32
+  (row 0 at the top), ``mean_radius_px`` float, ``stats_line() -> str``.
+
+Pass stages (pbrt-v4 SPPM order): 1. camera pass (visible points through
+specular chains, emission seen along them, direct light by next-event
+estimation), 2. grid of visible points, 3. photon pass (deposits after the
+first bounce), 4. gather, 5. per-pixel N/R/tau update, 6. film.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+
+from . import bsdf as B
+from . import frequency as F
+from . import hashgrid
+from . import lights as Lt
+from .accel import Accel, surface_point
+from .camera import CameraModel, FilterSampler
+from .errors import RenderCancelled, SceneError
+from .plan import RenderPlan, make_plan
+from .scene import Scene, drop_invalid_triangles
+from .settings import RenderSettings
+
+LUM = np.array([0.2126, 0.7152, 0.0722])
+PHOTON_CHUNK = 131_072
+
+
+def _dot(a, b):
+    return np.einsum("ij,ij->i", a, b)
+
+
+@dataclass
+class PassResult:
+    pass_index: int
+    photons_emitted: int
+    elapsed: float
+    image: np.ndarray
+    aovs: dict = field(default_factory=dict)
+    mean_radius_px: float = 0.0
+    held_fraction: float = 0.0
+
+    def stats_line(self) -> str:
+        m, s = divmod(int(self.elapsed), 60)
+        return (f"Pass {self.pass_index} | {self.photons_emitted / 1e6:.1f} M photons | "
+                f"{m}:{s:02d} | mean radius {self.mean_radius_px:.2f} px")
+
+
+@dataclass
+class VisiblePoints:
+    """Per-pixel visible points of one camera pass (P = pixels in the region).
+
+    valid (P,) bool; p, ng, ns, wo (P,3) float64 (ng, ns oriented to wo);
+    mat (P,) int32; colors (P,L,3); beta (P,3) path throughput / selection
+    probability; depth (P,) camera depth proxy for the pixel footprint;
+    const (P,) bool (Lambert-only: f = albedo/pi); albedo (P,3).
+    """
+    valid: np.ndarray
+    p: np.ndarray
+    ng: np.ndarray
+    ns: np.ndarray
+    wo: np.ndarray
+    mat: np.ndarray
+    colors: np.ndarray
+    beta: np.ndarray
+    depth: np.ndarray
+    const: np.ndarray
+    albedo: np.ndarray
+
+
+class Renderer:
+    def __init__(self, scene: Scene, settings: RenderSettings,
+                 log: Callable[[str], None] = print):
+        self.settings = settings.validate()
+        self.log = log
+        scene, dropped = drop_invalid_triangles(scene)
+        self.dropped_triangles = dropped
+        if dropped:
+            log(f"FPPM: dropped {dropped} NaN, infinite or zero-area triangle(s).")
+        self.scene = scene
+        cam = scene.camera
+        W, H = (int(v) for v in cam.resolution)
+        if W < 1 or H < 1:
+            raise SceneError(f"The render resolution {W}x{H} is empty: set a resolution of at least 1x1.")
+        self.full_size = (W, H)
+        if cam.border is not None:
+            bx0, by0, bx1, by1 = cam.border
+            x0, x1 = int(np.floor(bx0 * W)), int(np.ceil(bx1 * W))
+            y0, y1 = int(np.floor(by0 * H)), int(np.ceil(by1 * H))
+            x0, y0 = max(x0, 0), max(y0, 0)
+            x1, y1 = min(max(x1, x0 + 1), W), min(max(y1, y0 + 1), H)
+        else:
+            x0, y0, x1, y1 = 0, 0, W, H
+        self.offset = (x0, y0)
+        self.width, self.height = x1 - x0, y1 - y0
+        self.D = scene.diameter()
+        self.light_table = Lt.build_light_table(scene)
+        for w in getattr(self.light_table, "warnings", []):
+            log(f"FPPM: {w}")
+        if not np.any(self.light_table.flux.sum(axis=1) > 0):
+            raise SceneError("The scene has no light: add a light with non-zero power, "
+                             "an emissive material or a world colour.")
+        self.mtab = B.build_material_table(scene.materials, scene.textures)
+        self.accel = Accel(scene.tri_p, self.D)
+        self.camera = CameraModel(cam)
+        self.fsamp = FilterSampler(scene.filter_width)
+        self.plan: RenderPlan = make_plan(scene, self.settings, self.mtab, self.light_table)
+        self.kappa = _triangle_curvature(scene) if self.plan.frequency_photons else None
+        self.occ_grid = None
+        if self.plan.occlusion_grid:
+            from .occlusion import build_occlusion_grid
+            t0 = time.perf_counter()
+            lo, hi = scene.bounds()
+            pad = 1e-3 * self.D
+            self.occ_grid = build_occlusion_grid(scene.tri_p, lo - pad, hi + pad,
+                                                 self.settings.occlusion_grid_res)
+            self.occ_build_seconds = time.perf_counter() - t0
+        # Pixel grid of the region, py counted from the bottom (Blender's).
+        ys, xs = np.mgrid[0:self.height, 0:self.width]
+        self.px = (xs.ravel() + x0).astype(np.float64)
+        self.py = ((self.height - 1 - ys).ravel() + y0).astype(np.float64)
+        P = self.width * self.height
+        # Per-pixel progressive statistics, float64 (frequency.md: float32
+        # counters stall at 2^24).
+        self.R2 = np.zeros(P)            # 0 = not initialised yet
+        self.N = np.zeros(P)
+        self.tau = np.zeros((P, 3))
+        self.L_sum = np.zeros((P, 3))    # direct + emission, summed over passes
+        self.r_pred_last = np.full(P, np.inf)
+        self.held = np.zeros(P, bool)
+        self.M_last = np.zeros(P)
+        self.pass_index = 0
+        self.photons_emitted = 0
+        self.elapsed = 0.0
+        self._fixed_vp: Optional[VisiblePoints] = None
+        self._should_stop = lambda: False
+        self._depth_for_fp = np.zeros(P)
+        self.last_result: Optional[PassResult] = None
+
+    # ------------------------------------------------------------------ API
+    def plan_lines(self) -> list[str]:
+        s = self.scene
+        lines = [f"Scene: {s.n_triangles} triangles, {len(s.materials)} materials, "
+                 f"{len(s.lights)} lights, {self.width}x{self.height} px."]
+        lines += self.plan.lines()
+        return lines
+
+    def run(self, should_stop=None, on_pass=None) -> PassResult:
+        st = self.settings
+        self._should_stop = should_stop or (lambda: False)
+        while True:
+            if st.max_passes and self.pass_index >= st.max_passes:
+                break
+            if st.time_limit and self.elapsed >= st.time_limit:
+                break
+            if self._should_stop():
+                break
+            try:
+                res = self.step()
+            except RenderCancelled:
+                break
+            if on_pass is not None:
+                on_pass(res)
+        if self.last_result is None:
+            self.last_result = self._film()
+        return self.last_result
+
+    def step(self) -> PassResult:
+        t0 = time.perf_counter()
+        k = self.pass_index + 1
+        st = self.settings
+        if st.fixed_visible_points and self._fixed_vp is not None:
+            vp = self._fixed_vp
+            L_pass = self._direct(vp, self._rng(k, 1))
+            L_pass += self._fixed_emit
+        else:
+            vp, L_emit = self._camera_pass(self._rng(k, 0))
+            L_pass = L_emit + self._direct(vp, self._rng(k, 1))
+            if st.fixed_visible_points:
+                self._fixed_vp, self._fixed_emit = vp, L_emit
+        self._check_stop()
+        self._init_radii(vp)
+        self._depth_for_fp = np.where(vp.valid, vp.depth, self._depth_for_fp)
+        M, Phi, r_pred = self._photon_pass(vp, self._rng(k, 2))
+        # Commit the pass only once it is complete (cancel keeps the last one).
+        self.L_sum += L_pass
+        self._update(vp, M, Phi, r_pred)
+        self.pass_index = k
+        self.photons_emitted += st.photons_per_pass
+        self.elapsed += time.perf_counter() - t0
+        self.last_result = self._film()
+        return self.last_result
+
+    # ------------------------------------------------------------ helpers
+    def _rng(self, k: int, stage: int) -> np.random.Generator:
+        # One independent stream per (seed, pass, stage): deterministic, and a
+        # resumed render continues the same sequence.
+        return np.random.Generator(np.random.PCG64(
+            np.random.SeedSequence([self.settings.seed, k, stage])))
+
+    def _check_stop(self):
+        if self._should_stop():
+            raise RenderCancelled("cancelled")
+
+    def _hit_attributes(self, h, idx):
+        s = self.scene
+        return surface_point(s.tri_p, s.tri_n, s.tri_uv, h.prim[idx], h.u[idx], h.v[idx])
+
+    # -------------------------------------------------------- camera pass
+    def _camera_pass(self, rng) -> tuple[VisiblePoints, np.ndarray]:
+        st = self.settings
+        P = self.px.shape[0]
+        u = rng.random((P, 4))
+        rays, dz = self.camera.generate(self.px, self.py, u[:, :2], u[:, 2:], self.fsamp)
+        L = np.zeros((P, 3))
+        nL = self.mtab.kind.shape[1]
+        vp = VisiblePoints(valid=np.zeros(P, bool), p=np.zeros((P, 3)), ng=np.zeros((P, 3)),
+                           ns=np.zeros((P, 3)), wo=np.zeros((P, 3)), mat=np.zeros(P, np.int32),
+                           colors=np.zeros((P, nL, 3)), beta=np.zeros((P, 3)),
+                           depth=np.zeros(P), const=np.zeros(P, bool), albedo=np.zeros((P, 3)))
+        idx = np.arange(P)
+        o, d, tmax = rays.o, rays.d, rays.t_max
+        beta = np.ones((P, 3))
+        path_len = np.zeros(P)
+        last = np.zeros(P, np.int8)      # 0 camera, 1 reflection, 2 transmission
+        max_depth = st.max_bounces if self.plan.specular_chains else 1
+        for depth in range(max_depth):
+            if idx.size == 0:
+                break
+            self._check_stop()
+            h = self.accel.intersect(o, d, tmax)
+            hit = h.hit
+            # Analytic emitters (area lights, light spheres) seen before the hit.
+            for code, name in ((0, "camera"), (1, "glossy"), (2, "transmission")):
+                sel = last == code
+                if np.any(sel):
+                    Le = Lt.emitted_along_rays(self.light_table, o[sel], d[sel],
+                                               np.minimum(h.t[sel], tmax[sel]), name)
+                    L[idx[sel]] += beta[sel] * Le
+            miss = ~hit
+            if np.any(miss):
+                L[idx[miss]] += beta[miss] * Lt.world_radiance(self.light_table)[None, :]
+            ih = np.nonzero(hit)[0]
+            if ih.size == 0:
+                break
+            p, ng, ns, uv = self._hit_attributes(h, ih)
+            wo = -d[ih]
+            mat = self.scene.tri_mat[h.prim[ih]]
+            colors = B.lobe_colors(self.mtab, mat, uv)
+            em = self.mtab.emission[mat]
+            if np.any(em > 0):
+                if self.mtab.emission_tex is not None and np.any(self.mtab.emission_tex[mat] >= 0):
+                    em = em * _emission_texture(self.mtab, self.scene, mat, uv)
+                L[idx[ih]] += beta[ih] * em
+            bt = beta[ih]
+            plen = path_len[ih] + h.t[ih]
+            p_delta = B.delta_probability(self.mtab, mat, colors)
+            ur = rng.random((ih.size, 4))
+            go_delta = ur[:, 0] < p_delta
+            if depth == max_depth - 1:
+                go_delta[:] = False
+            # Visible points where the chain stops (pbrt-v4 SPPM: first
+            # non-specular vertex); throughput divided by the choice probability.
+            mk = ~go_delta & self.mtab.has_nondelta[mat]
+            if np.any(mk):
+                q = idx[ih[mk]]
+                sgn = np.where(_dot(ng[mk], wo[mk]) >= 0, 1.0, -1.0)[:, None]
+                vp.valid[q] = True
+                vp.p[q] = p[mk]
+                vp.ng[q] = ng[mk] * sgn
+                ns_o = ns[mk] * np.where(_dot(ns[mk], wo[mk]) >= 0, 1.0, -1.0)[:, None]
+                vp.ns[q] = ns_o
+                vp.wo[q] = wo[mk]
+                vp.mat[q] = mat[mk]
+                vp.colors[q] = colors[mk]
+                vp.beta[q] = bt[mk] / np.maximum(1.0 - p_delta[mk], 1e-12)[:, None]
+                vp.depth[q] = plen[mk] * np.abs(dz[q])
+                vp.const[q] = self.mtab.lambert_only[mat[mk]]
+                vp.albedo[q] = B.lambert_albedo(self.mtab, mat[mk], colors[mk])
+            cont = go_delta & (p_delta > 0)
+            if not np.any(cont):
+                break
+            c = np.nonzero(cont)[0]
+            wi, wgt, pdf, is_delta, valid = B.sample_bsdf(
+                self.mtab, mat[c], colors[c], ns[c], ng[c], wo[c], ur[c, 1:4],
+                subset="delta", mode="radiance")
+            wgt = wgt / p_delta[c][:, None]
+            ok = valid & np.all(np.isfinite(wgt), axis=1) & (wgt.max(axis=1) > 0)
+            c = c[ok]
+            wi = wi[ok]
+            refl = (_dot(wi, ng[c]) * _dot(wo[c], ng[c])) > 0
+            new_idx = ih[c]
+            o = self.accel.spawn(p[c], ng[c], wi)
+            d = wi
+            beta = bt[c] * wgt[ok]
+            tmax = np.full(c.size, np.inf)
+            path_len = plen[c]
+            last = np.where(refl, 1, 2).astype(np.int8)
+            idx = idx[new_idx]
+        return vp, L
+
+    # -------------------------------------------------------- direct light
+    def _direct(self, vp: VisiblePoints, rng) -> np.ndarray:
+        P = vp.valid.shape[0]
+        L = np.zeros((P, 3))
+        if self.settings.photons_for_direct:
+            return L
+        q = np.nonzero(vp.valid)[0]
+        if q.size == 0:
+            return L
+        smp = Lt.sample_direct(self.light_table, vp.p[q], rng.random((q.size, 3)))
+        wi, dist, wgt = smp["wi"], smp["dist"], smp["weight"]
+        live = (wgt.max(axis=1) > 0) & np.all(np.isfinite(wgt), axis=1)
+        q, wi, dist, wgt = q[live], wi[live], dist[live], wgt[live]
+        if q.size == 0:
+            return L
+        f = B.eval_bsdf(self.mtab, vp.mat[q], vp.colors[q], vp.ns[q], vp.ng[q], vp.wo[q], wi)
+        cos = np.abs(_dot(vp.ns[q], wi))
+        contrib = vp.beta[q] * f * cos[:, None] * wgt
+        nz = contrib.max(axis=1) > 0
+        q, wi, dist, contrib = q[nz], wi[nz], dist[nz], contrib[nz]
+        o = self.accel.spawn(vp.p[q], vp.ng[q], wi)
+        # Stop short of the light sample by the relative offset at its end
+        # (an emissive triangle must not shadow itself).
+        end = vp.p[q] + wi * np.where(np.isfinite(dist), dist, 0.0)[:, None]
+        tmax = np.where(np.isfinite(dist), dist - 2.0 * self.accel.offset_scale(end),
+                        np.inf)
+        blocked = self.accel.occluded(o, wi, np.maximum(tmax, 0.0))
+        L[q[~blocked]] += contrib[~blocked]
+        return L
+
+    # ------------------------------------------------------------- radii
+    def _init_radii(self, vp: VisiblePoints):
+        new = vp.valid & (self.R2 == 0)
+        if not np.any(new):
+            return
+        st = self.settings
+        if st.radius_mode == "WORLD":
+            r = np.full(int(new.sum()), st.initial_radius)
+        else:
+            # Rule: initial radius = initial_radius_px pixel footprints at the
+            # visible point's camera depth (slope ignored).
+            r = st.initial_radius_px * self.camera.footprint(vp.depth[new])
+        r = np.maximum(r, self.radius_floor)
+        self.R2[new] = r * r
+
+    @property
+    def radius_floor(self) -> float:
+        # frequency.md stiff table: R >= 1e-7 D keeps 1/(pi R^2) finite.
+        return 1e-7 * self.D
+
+    # -------------------------------------------------------- photon pass
+    def _photon_pass(self, vp: VisiblePoints, rng):
+        st = self.settings
+        P = vp.valid.shape[0]
+        active = vp.valid & (self.R2 > 0)
+        M = np.zeros(P)
+        Phi = np.zeros((P, 3))
+        r_pred = np.full(P, np.inf)
+        if not np.any(active):
+            return M, Phi, r_pred
+        grid = hashgrid.build_grid(vp.p, np.sqrt(self.R2), active)
+        n_total = st.photons_per_pass
+        n_freq_total = int(round(n_total * st.frequency_fraction)) if self.plan.frequency_photons else 0
+        done = 0
+        while done < n_total:
+            self._check_stop()
+            n = min(PHOTON_CHUNK, n_total - done)
+            n_freq = int(np.clip(n_freq_total - done, 0, n))
+            dep = self._trace_photons(n, n_freq, rng)
+            done += n
+            if dep is None:
+                continue
+            g = hashgrid.gather(grid, dep["p"], dep["ng"], dep["wi"], dep["power"], dep["rpred"],
+                                vp.p, vp.ng, self.R2, vp.const)
+            M += g.M
+            Phi += g.Phi_sum * (vp.albedo / np.pi)
+            if g.pair_vp.size:
+                pv, pp = g.pair_vp, g.pair_ph
+                f = B.eval_bsdf(self.mtab, vp.mat[pv], vp.colors[pv], vp.ns[pv], vp.ng[pv],
+                                vp.wo[pv], dep["wi"][pp])
+                contrib = f * dep["power"][pp]
+                for ch in range(3):
+                    Phi[:, ch] += np.bincount(pv, weights=contrib[:, ch], minlength=P)
+            r_pred = np.minimum(r_pred, g.rpred_min)
+        Phi *= vp.beta
+        return M, Phi, r_pred
+
+    def _trace_photons(self, n: int, n_freq: int, rng):
+        """Trace n photons (the first n_freq carry a spectrum); return deposits."""
+        st = self.settings
+        ph = Lt.sample_photons(self.light_table, n, rng)
+        d = ph["d"]
+        o = ph["o"] + d * self.accel.offset_scale(ph["o"])[:, None]
+        power = ph["power"]
+        alive = np.all(np.isfinite(power), axis=1) & (power.max(axis=1) > 0)
+        is_freq = np.zeros(n, bool)
+        is_freq[:n_freq] = True
+        spec = np.zeros((n, 3))
+        if n_freq:
+            spec = np.asarray(ph["freq_init"], np.float64).copy()
+        idx = np.nonzero(alive)[0]
+        o, d, power, spec, is_freq = o[idx], d[idx], power[idx], spec[idx], is_freq[idx]
+        A_MAX = self.D * self.D
+        model = st.frequency_model
+        out_p, out_ng, out_wi, out_pow, out_r = [], [], [], [], []
+        for bounce in range(st.max_bounces + 1):
+            if o.shape[0] == 0:
+                break
+            h = self.accel.intersect(o, d)
+            keep = h.hit
+            o, d, power, spec, is_freq = o[keep], d[keep], power[keep], spec[keep], is_freq[keep]
+            if o.shape[0] == 0:
+                break
+            ii = np.nonzero(keep)[0]
+            hits = type(h)(h.t[ii], h.prim[ii], h.u[ii], h.v[ii])
+            p, ng, ns, uv = surface_point(self.scene.tri_p, self.scene.tri_n, self.scene.tri_uv,
+                                          hits.prim, hits.u, hits.v)
+            wi = -d
+            mat = self.scene.tri_mat[hits.prim]
+            if np.any(is_freq):
+                fq = np.nonzero(is_freq)[0]
+                s = F.travel(spec[fq], np.minimum(hits.t[fq], self.D), model)
+                if self.occ_grid is not None:
+                    from .occlusion import march_occlusion
+                    a_occ = march_occlusion(self.occ_grid, o[fq], d[fq], hits.t[fq],
+                                            self.plan.occlusion_locality)
+                    s = F.occlude(s, a_occ, model)
+                cos_i = np.abs(_dot(ng[fq], wi[fq]))
+                s = F.onto_surface(s, cos_i, model)
+                spec[fq] = s
+            deposit = self.mtab.has_nondelta[mat]
+            if not (st.photons_for_direct or bounce > 0):
+                deposit = np.zeros_like(deposit)
+            if np.any(deposit):
+                dq = np.nonzero(deposit)[0]
+                sgn = np.where(_dot(ng[dq], wi[dq]) >= 0, 1.0, -1.0)[:, None]
+                out_p.append(p[dq])
+                out_ng.append(ng[dq] * sgn)
+                out_wi.append(wi[dq])
+                out_pow.append(power[dq])
+                r = np.full(dq.size, np.nan)
+                fqd = is_freq[dq]
+                if np.any(fqd):
+                    r[fqd] = F.predicted_radius(spec[dq[fqd]], np.inf, np.inf, model)
+                out_r.append(r)
+            if bounce == st.max_bounces:
+                break
+            colors = B.lobe_colors(self.mtab, mat, uv)
+            u = rng.random((mat.size, 4))
+            wo_new, wgt, pdf, is_delta, valid = B.sample_bsdf(
+                self.mtab, mat, colors, ns, ng, wi, u[:, :3], subset="all", mode="importance")
+            ok = valid & np.all(np.isfinite(wgt), axis=1) & (wgt.max(axis=1) > 0)
+            if bounce + 1 >= st.rr_start:
+                # Russian roulette on the luminance of the bounce weight.
+                q = np.clip(wgt @ LUM, 0.0, 1.0)
+                survive = u[:, 3] < q
+                wgt = wgt / np.maximum(q, 1e-12)[:, None]
+                ok &= survive
+            k = np.nonzero(ok)[0]
+            if is_freq.any():
+                fk = k[is_freq[k]]
+                if fk.size:
+                    s = spec[fk]
+                    cos_o = np.abs(_dot(ng[fk], wo_new[fk]))
+                    s = F.off_surface(s, cos_o, model)
+                    kinds = self.mtab.kind[mat[fk], 0]
+                    rough = self.mtab.roughness[mat[fk], 0]
+                    dl = is_delta[fk]
+                    b_lobe = np.where(dl, 0.0, F.lobe_variance(kinds, rough))
+                    s = F.brdf(s, b_lobe, model)
+                    if self.kappa is not None:
+                        kap = self.kappa[hits.prim[fk]] * np.where(_dot(ng[fk], wi[fk]) >= 0, 1.0, -1.0)
+                        s = np.where(dl[:, None], F.curvature(s, kap, model), s)
+                    spec[fk] = s
+            o = self.accel.spawn(p[k], ng[k], wo_new[k])
+            d = wo_new[k]
+            power = power[k] * wgt[k]
+            spec = spec[k]
+            is_freq = is_freq[k]
+        if not out_p:
+            return None
+        return {"p": np.concatenate(out_p), "ng": np.concatenate(out_ng),
+                "wi": np.concatenate(out_wi), "power": np.concatenate(out_pow),
+                "rpred": np.concatenate(out_r)}
+
+    # --------------------------------------------------------- PPM update
+    def _update(self, vp, M, Phi, r_pred):
+        st = self.settings
+        floor2 = self.radius_floor ** 2
+        if not self.plan.frequency_photons:
+            r_pred = np.full_like(r_pred, np.nan)
+        else:
+            # Only Lambert visible points may hold: the predicted radius is
+            # computed for a diffuse receiver (a_eff = a, r_theta = inf).
+            r_pred = np.where(vp.const, r_pred, np.nan)
+            r_pred = np.where(np.isinf(r_pred), np.nan, r_pred)
+        m = M > 0
+        N2, R2n, tau2, held = F.ppm_radius_update(self.N[m], self.R2[m], self.tau[m], M[m],
+                                                  Phi[m], st.alpha, r_pred[m], floor2)
+        self.N[m], self.R2[m], self.tau[m] = N2, R2n, tau2
+        self.held[:] = False
+        self.held[np.nonzero(m)[0]] = held
+        self.r_pred_last = r_pred
+        self.M_last = M
+
+    # --------------------------------------------------------------- film
+    def _film(self) -> PassResult:
+        P = self.px.shape[0]
+        k = max(self.pass_index, 1)
+        L = self.L_sum / k
+        n_emit = max(self.photons_emitted, 1)
+        R2 = np.where(self.R2 > 0, self.R2, np.inf)
+        L = L + self.tau / (np.pi * R2[:, None] * n_emit)
+        L = np.where(np.isfinite(L), L, 0.0)
+        H, W = self.height, self.width
+        img = np.ones((H, W, 4), np.float32)
+        img[..., :3] = L.reshape(H, W, 3)
+        st = self.settings
+        aovs = {}
+        R = np.sqrt(np.where(self.R2 > 0, self.R2, 0.0))
+        fp = self._footprint_px_cache()
+        r_px = np.where(fp > 0, R / np.maximum(fp, 1e-300), 0.0)
+        if st.aov_radius:
+            aovs["FPPM Radius"] = R.reshape(H, W, 1).astype(np.float32)
+            aovs["FPPM Radius px"] = r_px.reshape(H, W, 1).astype(np.float32)
+        if st.aov_predicted_radius:
+            rp = np.where(np.isfinite(self.r_pred_last), self.r_pred_last, 0.0)
+            aovs["Predicted Radius"] = rp.reshape(H, W, 1).astype(np.float32)
+        if st.aov_photon_count:
+            aovs["Photon Count"] = self.N.reshape(H, W, 1).astype(np.float32)
+        if st.aov_held:
+            aovs["Held"] = self.held.reshape(H, W, 1).astype(np.float32)
+        valid = self.R2 > 0
+        mean_px = float(r_px[valid].mean()) if np.any(valid) else 0.0
+        return PassResult(self.pass_index, self.photons_emitted, self.elapsed, img, aovs,
+                          mean_px, float(self.held.mean()) if P else 0.0)
+
+    def _footprint_px_cache(self):
+        """(P,) pixel footprint [m] at the visible points of the last pass."""
+        return self.camera.footprint(self._depth_for_fp)
+
+
+def _emission_texture(mtab, scene, mat, uv):
+    from .textures import sample_texture
+    out = np.ones((mat.size, 3))
+    for t in np.unique(mtab.emission_tex[mat]):
+        if t < 0:
+            continue
+        sel = mtab.emission_tex[mat] == t
+        out[sel] = sample_texture(scene.textures[t], uv[sel])
+    return out
+
+
+def _triangle_curvature(scene: Scene) -> np.ndarray:
+    """(T,) float64 mean normal curvature of each triangle from its corner normals.
+
+    kappa = mean over edges of dot(n_j - n_i, p_j - p_i) / |p_j - p_i|^2: +1/R
+    on the outside of a sphere of radius R whose normals point outwards, 0 on
+    flat-shaded triangles (issue 4: curvature comes from the shading normals).
+    """
+    P = scene.tri_p.astype(np.float64)
+    N = scene.tri_n.astype(np.float64)
+    k = np.zeros(P.shape[0])
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        dp = P[:, j] - P[:, i]
+        dn = N[:, j] - N[:, i]
+        k += _dot(dn, dp) / np.maximum(_dot(dp, dp), 1e-300)
+    return k / 3.0

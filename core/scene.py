@@ -1,0 +1,242 @@
+"""Scene arrays consumed by the renderer.
+
+The add-on builds a :class:`Scene` from Blender's evaluated depsgraph
+(``addon/export.py``); tests build one in plain Python.  Nothing here imports
+``bpy``.
+
+Conventions (shared by every ``core`` module)
+--------------------------------------------
+- World space is Blender's: right-handed, +Z up, metres.
+- Colours are linear RGB, shape ``(3,)`` or ``(..., 3)``.
+- Light quantities use Cycles' units (``shared/notes/blender.md``):
+  ``Light.strength = color * energy * 2**exposure``.
+- Images produced by ``core`` are ``(H, W, C)`` float32 with row 0 at the TOP.
+  Texture images (as Blender stores them) have row 0 at the BOTTOM, uv (0, 0)
+  at the bottom-left corner.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+# Lobe kinds (closures).  A material is a weighted sum of lobes, like Cycles'
+# closure list after Mix/Add shaders are flattened.
+DIFFUSE = 0       # Lambert (roughness 0) or Oren-Nayar (roughness > 0), f = color/pi
+GLOSSY = 1        # GGX, alpha = roughness**2; roughness 0 = perfect mirror
+GLASS = 2         # dielectric reflection + refraction with exact Fresnel
+REFRACTION = 3    # dielectric refraction only (Cycles' Refraction BSDF)
+TRANSPARENT = 4   # straight pass-through, weight = color
+TRANSLUCENT = 5   # diffuse transmission (Cycles' Translucent BSDF)
+LOBE_NAMES = {DIFFUSE: "diffuse", GLOSSY: "glossy", GLASS: "glass",
+              REFRACTION: "refraction", TRANSPARENT: "transparent",
+              TRANSLUCENT: "translucent"}
+MAX_LOBES = 4
+
+
+@dataclass(frozen=True)
+class Lobe:
+    """One closure of a material.
+
+    kind: one of DIFFUSE, GLOSSY, GLASS, REFRACTION, TRANSPARENT, TRANSLUCENT.
+    color: linear RGB reflectance/transmittance (Cycles' "Color" input).
+    weight: scalar mix weight from Mix/Add shaders (Add may exceed 1).
+    roughness: Cycles' roughness; GGX alpha = roughness**2.
+    ior: index of refraction (GLASS / REFRACTION).
+    color_texture: index into ``Scene.textures`` multiplying ``color``, or -1.
+    """
+    kind: int
+    color: tuple = (0.8, 0.8, 0.8)
+    weight: float = 1.0
+    roughness: float = 0.0
+    ior: float = 1.45
+    color_texture: int = -1
+
+
+@dataclass(frozen=True)
+class Material:
+    """A flattened surface shader.
+
+    lobes: up to MAX_LOBES closures, summed.
+    emission: RGB radiance [W/(m^2 sr)] emitted from both sides (Cycles'
+      Emission color * strength, times its mix weight).
+    emission_texture: index into ``Scene.textures`` multiplying ``emission``, or -1.
+    approximations: human-readable notes of what the exporter approximated.
+    """
+    name: str
+    lobes: tuple = (Lobe(DIFFUSE),)
+    emission: tuple = (0.0, 0.0, 0.0)
+    emission_texture: int = -1
+    approximations: tuple = ()
+
+
+@dataclass(frozen=True)
+class Light:
+    """A Blender light object in Cycles' units.
+
+    kind: 'POINT', 'SPOT', 'SUN' or 'AREA'.
+    strength: RGB, color * energy * 2**exposure (W for point/spot/area,
+      W/m^2 for sun).
+    matrix_world: (4, 4) float64 object-to-world, including scale (an area
+      light's size is scaled by it).  Lights emit along local -Z.
+    radius: point/spot ``shadow_soft_size`` [m].
+    spot_size: full cone angle [rad]; spot_blend in [0, 1].
+    angle: sun angular diameter [rad].
+    shape: 'SQUARE', 'RECTANGLE', 'DISK' or 'ELLIPSE'; size, size_y [m].
+    visible_camera / visible_glossy / visible_transmission: ray visibility
+      (what the camera sees directly, and through mirror / glass chains).
+    """
+    name: str
+    kind: str
+    strength: tuple
+    matrix_world: np.ndarray
+    radius: float = 0.0
+    spot_size: float = np.pi / 4
+    spot_blend: float = 0.15
+    angle: float = 0.0
+    shape: str = "SQUARE"
+    size: float = 1.0
+    size_y: float = 1.0
+    spread: float = np.pi
+    visible_camera: bool = True
+    visible_glossy: bool = True
+    visible_transmission: bool = True
+    cast_shadow: bool = True
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Blender camera parameters, evaluated.
+
+    kind: 'PERSP' or 'ORTHO'.  matrix_world: (4, 4) float64; the camera looks
+    along local -Z with +Y up.  lens, sensor_width, sensor_height in mm;
+    sensor_fit 'AUTO', 'HORIZONTAL' or 'VERTICAL'; ortho_scale in metres;
+    shift_x/shift_y in units of the larger sensor side (Blender's rule).
+    resolution: (width, height) in pixels after the percentage is applied.
+    pixel_aspect: (x, y) Blender pixel aspect.
+    border: (min_x, min_y, max_x, max_y) in [0, 1] (Blender's, y up) or None.
+    aperture_radius [m] and focus_distance [m] for depth of field (0 = pinhole).
+    """
+    kind: str = "PERSP"
+    matrix_world: np.ndarray = field(default_factory=lambda: np.eye(4))
+    lens: float = 50.0
+    sensor_width: float = 36.0
+    sensor_height: float = 24.0
+    sensor_fit: str = "AUTO"
+    ortho_scale: float = 7.0
+    shift_x: float = 0.0
+    shift_y: float = 0.0
+    clip_start: float = 0.1
+    clip_end: float = 1000.0
+    resolution: tuple = (64, 64)
+    pixel_aspect: tuple = (1.0, 1.0)
+    border: Optional[tuple] = None
+    aperture_radius: float = 0.0
+    focus_distance: float = 10.0
+
+
+@dataclass
+class Scene:
+    """Everything the renderer needs, as arrays.
+
+    tri_p: (T, 3, 3) float32 world-space corner positions.
+    tri_n: (T, 3, 3) float32 unit shading normals per corner.
+    tri_uv: (T, 3, 2) float32 UVs per corner (zeros when the mesh has none).
+    tri_mat: (T,) int32 index into ``materials``.
+    materials: list of Material.
+    lights: list of Light.
+    camera: Camera.
+    world_color: (3,) float64 constant background radiance.
+    textures: list of (H, W, 3|4) float32 linear images, row 0 at the bottom.
+    filter_width: Cycles' pixel filter width in pixels (Blackman-Harris).
+    """
+    tri_p: np.ndarray
+    tri_n: np.ndarray
+    tri_uv: np.ndarray
+    tri_mat: np.ndarray
+    materials: list
+    lights: list
+    camera: Camera
+    world_color: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    textures: list = field(default_factory=list)
+    filter_width: float = 1.5
+
+    @property
+    def n_triangles(self) -> int:
+        return int(self.tri_p.shape[0])
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned bounds of the geometry and the camera, float64 (3,) each."""
+        pts = [self.camera.matrix_world[:3, 3][None, :]]
+        if self.n_triangles:
+            pts.append(self.tri_p.reshape(-1, 3).astype(np.float64))
+        for lt in self.lights:
+            if lt.kind != "SUN":
+                pts.append(np.asarray(lt.matrix_world, np.float64)[:3, 3][None, :])
+        allp = np.concatenate(pts, axis=0)
+        return allp.min(axis=0), allp.max(axis=0)
+
+    def diameter(self) -> float:
+        """Scene diameter D used for every relative epsilon (frequency.md)."""
+        lo, hi = self.bounds()
+        return float(max(np.linalg.norm(hi - lo), 1e-30))
+
+
+def make_scene(tri_p, materials, lights, camera, tri_mat=None, tri_n=None,
+               tri_uv=None, world_color=(0.0, 0.0, 0.0), textures=()):
+    """Convenience constructor for tests: fills flat normals and zero UVs.
+
+    tri_p: (T, 3, 3) array-like.  Returns a :class:`Scene`.
+    """
+    tri_p = np.asarray(tri_p, np.float32).reshape(-1, 3, 3)
+    T = tri_p.shape[0]
+    if tri_n is None:
+        e1 = tri_p[:, 1] - tri_p[:, 0]
+        e2 = tri_p[:, 2] - tri_p[:, 0]
+        ng = np.cross(e1.astype(np.float64), e2.astype(np.float64))
+        ng /= np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
+        tri_n = np.repeat(ng[:, None, :], 3, axis=1)
+    if tri_uv is None:
+        tri_uv = np.zeros((T, 3, 2), np.float32)
+    if tri_mat is None:
+        tri_mat = np.zeros(T, np.int32)
+    return Scene(tri_p=tri_p, tri_n=np.asarray(tri_n, np.float32).reshape(T, 3, 3),
+                 tri_uv=np.asarray(tri_uv, np.float32).reshape(T, 3, 2),
+                 tri_mat=np.asarray(tri_mat, np.int32).reshape(T),
+                 materials=list(materials), lights=list(lights), camera=camera,
+                 world_color=np.asarray(world_color, np.float64),
+                 textures=list(textures))
+
+
+def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
+    """Remove triangles with NaN/Inf corners or zero area; return (scene, dropped).
+
+    Zero area is relative: |e1 x e2| <= (1e-7 * longest edge)^2 (so millimetre
+    and kilometre meshes are treated alike).  Non-finite shading normals are
+    replaced by the geometric normal, non-finite UVs by 0.
+    """
+    P = scene.tri_p.astype(np.float64)
+    finite = np.all(np.isfinite(P.reshape(P.shape[0], -1)), axis=1)
+    Pz = np.where(np.isfinite(P), P, 0.0)
+    e1 = Pz[:, 1] - Pz[:, 0]
+    e2 = Pz[:, 2] - Pz[:, 0]
+    e3 = Pz[:, 2] - Pz[:, 1]
+    cross = np.linalg.norm(np.cross(e1, e2), axis=1)
+    longest = np.sqrt(np.maximum.reduce([(e1 * e1).sum(1), (e2 * e2).sum(1), (e3 * e3).sum(1)]))
+    ok = finite & (cross > (1e-7 * longest) ** 2) & (longest > 0)
+    dropped = int((~ok).sum())
+    tri_n = scene.tri_n
+    bad_n = ~np.all(np.isfinite(tri_n.reshape(tri_n.shape[0], -1)), axis=1) | \
+        np.any(np.linalg.norm(tri_n, axis=2) < 1e-6, axis=1)
+    tri_uv = scene.tri_uv
+    if np.any(bad_n[ok]) or not np.all(np.isfinite(tri_uv)) or dropped:
+        ng = np.cross(e1, e2)
+        ng /= np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
+        tri_n = np.where(bad_n[:, None, None], ng[:, None, :].astype(np.float32), tri_n)
+        tri_uv = np.where(np.isfinite(tri_uv), tri_uv, 0.0).astype(np.float32)
+        scene = Scene(tri_p=scene.tri_p[ok], tri_n=tri_n[ok], tri_uv=tri_uv[ok],
+                      tri_mat=scene.tri_mat[ok], materials=scene.materials,
+                      lights=scene.lights, camera=scene.camera, world_color=scene.world_color,
+                      textures=scene.textures, filter_width=scene.filter_width)
+    return scene, dropped

@@ -1,0 +1,104 @@
+"""Render settings: a frozen dataclass mirrored one to one by ``scene.fppm``.
+
+The add-on's PropertyGroup (``addon/properties.py``) has exactly these field
+names; ``tests/test_settings_mirror.py`` checks it.  ``validate()`` is the
+single place where invalid settings are rejected with a clear sentence.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+from dataclasses import dataclass
+
+
+class SettingsError(ValueError):
+    """An invalid setting; the message names the setting and its valid range."""
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    # --- Sampling
+    time_limit: float = 0.0          # seconds of passes; 0 = no limit
+    max_passes: int = 64             # 0 = no limit (then time_limit must be > 0)
+    photons_per_pass: int = 200_000
+    seed: int = 0
+    # --- Kernel
+    radius_mode: str = "AUTO"        # 'AUTO' (pixel footprint) or 'WORLD'
+    initial_radius_px: float = 2.0   # AUTO: radius = this many pixel footprints
+    initial_radius: float = 0.05     # WORLD: radius in metres
+    alpha: float = 0.7               # PPM radius reduction (Hachisuka 2008)
+    # --- Light paths
+    max_bounces: int = 8
+    rr_start: int = 3                # Russian roulette from this bounce on
+    photons_for_direct: bool = False  # classic PPM: photons also for direct light
+    fixed_visible_points: bool = False  # classic PPM: trace visible points once
+    # --- Frequency
+    use_frequency: bool = True
+    frequency_fraction: float = 0.25
+    frequency_model: str = "CORRECTED"  # 'CORRECTED' or 'PAPER'
+    frequency_estimator: str = "MIN"    # 'MIN' or 'QUANTILE'
+    occlusion_grid_res: int = 64
+    # --- Output (AOV passes)
+    aov_radius: bool = False            # FPPM Radius (world and pixels)
+    aov_predicted_radius: bool = False
+    aov_spectrum: bool = False
+    aov_photon_count: bool = False
+    aov_held: bool = False
+
+    def validate(self) -> "RenderSettings":
+        """Raise SettingsError naming the first invalid field; return self."""
+        def bad(name, why):
+            raise SettingsError(f"setting '{name}' = {getattr(self, name)!r}: {why}")
+        for name in ("time_limit", "initial_radius_px", "initial_radius", "alpha",
+                     "frequency_fraction"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v):
+                bad(name, "must be a finite number")
+        if self.time_limit < 0:
+            bad("time_limit", "must be >= 0 (0 = no limit)")
+        if self.max_passes < 0:
+            bad("max_passes", "must be >= 0 (0 = no limit)")
+        if self.max_passes == 0 and self.time_limit == 0:
+            bad("max_passes", "0 (unlimited) needs a time_limit > 0")
+        if not 1 <= self.photons_per_pass <= 100_000_000:
+            bad("photons_per_pass", "must be in [1, 100000000]")
+        if not 0 <= self.seed < 2**31:
+            bad("seed", "must be in [0, 2^31)")
+        if self.radius_mode not in ("AUTO", "WORLD"):
+            bad("radius_mode", "must be 'AUTO' or 'WORLD'")
+        if not 0 < self.initial_radius_px <= 1000:
+            bad("initial_radius_px", "must be in (0, 1000]")
+        if not self.initial_radius > 0:
+            bad("initial_radius", "must be > 0 metres")
+        if not 0 < self.alpha <= 1:
+            bad("alpha", "must be in (0, 1]")
+        if not 1 <= self.max_bounces <= 1024:
+            bad("max_bounces", "must be in [1, 1024]")
+        if not 0 <= self.rr_start <= 1024:
+            bad("rr_start", "must be in [0, 1024]")
+        if not 0 <= self.frequency_fraction <= 1:
+            bad("frequency_fraction", "must be in [0, 1]")
+        if self.frequency_model not in ("CORRECTED", "PAPER"):
+            bad("frequency_model", "must be 'CORRECTED' or 'PAPER'")
+        if self.frequency_estimator not in ("MIN", "QUANTILE"):
+            bad("frequency_estimator", "must be 'MIN' or 'QUANTILE'")
+        if not 4 <= self.occlusion_grid_res <= 512:
+            bad("occlusion_grid_res", "must be in [4, 512]")
+        return self
+
+    def replace(self, **kw) -> "RenderSettings":
+        return dataclasses.replace(self, **kw)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def digest(self) -> str:
+        """Stable hash of every field (checkpoints, caches)."""
+        blob = json.dumps(self.to_dict(), sort_keys=True).encode()
+        return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def field_names() -> list[str]:
+    return [f.name for f in dataclasses.fields(RenderSettings)]
