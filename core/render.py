@@ -131,12 +131,18 @@ class Renderer:
         self.kappa = _triangle_curvature(scene) if self.plan.frequency_photons else None
         self.occ_grid = None
         if self.plan.occlusion_grid:
-            from .occlusion import build_occlusion_grid
+            from .occlusion import build_occlusion_grid, default_locality
             t0 = time.perf_counter()
             lo, hi = scene.bounds()
             pad = 1e-3 * self.D
-            self.occ_grid = build_occlusion_grid(scene.tri_p, lo - pad, hi + pad,
-                                                 self.settings.occlusion_grid_res)
+            res = self.settings.occlusion_grid_res
+            # Locality = 2 voxel diagonals (the grid's default); distances
+            # beyond 4x that are never used, so the build may stop there.
+            diag = float(np.linalg.norm((hi - lo + 2 * pad) / res))
+            self.occ_locality = 2.0 * diag
+            self.occ_grid = build_occlusion_grid(scene.tri_p, lo - pad, hi + pad, res,
+                                                 max_distance=4.0 * self.occ_locality + 2 * diag)
+            self.occ_locality = default_locality(self.occ_grid)
             self.occ_build_seconds = time.perf_counter() - t0
         # Pixel grid of the region, py counted from the bottom (Blender's).
         ys, xs = np.mgrid[0:self.height, 0:self.width]
@@ -156,6 +162,9 @@ class Renderer:
         self.photons_emitted = 0
         self.elapsed = 0.0
         self._fixed_vp: Optional[VisiblePoints] = None
+        # Seconds and rays per stage, for the benchmark (ratios, not bare times).
+        self.stage_seconds = {k: 0.0 for k in ("camera", "direct", "photon_trace", "gather", "update")}
+        self.photon_rays = 0
         self._should_stop = lambda: False
         self._depth_for_fp = np.zeros(P)
         self.last_result: Optional[PassResult] = None
@@ -192,22 +201,26 @@ class Renderer:
         t0 = time.perf_counter()
         k = self.pass_index + 1
         st = self.settings
+        tc = time.perf_counter()
         if st.fixed_visible_points and self._fixed_vp is not None:
-            vp = self._fixed_vp
-            L_pass = self._direct(vp, self._rng(k, 1))
-            L_pass += self._fixed_emit
+            vp, L_emit = self._fixed_vp, self._fixed_emit
         else:
             vp, L_emit = self._camera_pass(self._rng(k, 0))
-            L_pass = L_emit + self._direct(vp, self._rng(k, 1))
             if st.fixed_visible_points:
                 self._fixed_vp, self._fixed_emit = vp, L_emit
+        td = time.perf_counter()
+        self.stage_seconds["camera"] += td - tc
+        L_pass = L_emit + self._direct(vp, self._rng(k, 1))
+        self.stage_seconds["direct"] += time.perf_counter() - td
         self._check_stop()
         self._init_radii(vp)
         self._depth_for_fp = np.where(vp.valid, vp.depth, self._depth_for_fp)
         M, Phi, r_pred = self._photon_pass(vp, self._rng(k, 2))
         # Commit the pass only once it is complete (cancel keeps the last one).
+        tu = time.perf_counter()
         self.L_sum += L_pass
         self._update(vp, M, Phi, r_pred)
+        self.stage_seconds["update"] += time.perf_counter() - tu
         self.pass_index = k
         self.photons_emitted += st.photons_per_pass
         self.elapsed += time.perf_counter() - t0
@@ -390,7 +403,12 @@ class Renderer:
             self._check_stop()
             n = min(PHOTON_CHUNK, n_total - done)
             n_freq = int(np.clip(n_freq_total - done, 0, n))
+            t0 = time.perf_counter()
+            rays0 = self.accel.rays_cast
             dep = self._trace_photons(n, n_freq, rng)
+            self.photon_rays += self.accel.rays_cast - rays0
+            t1 = time.perf_counter()
+            self.stage_seconds["photon_trace"] += t1 - t0
             done += n
             if dep is None:
                 continue
@@ -406,7 +424,10 @@ class Renderer:
                 for ch in range(3):
                     Phi[:, ch] += np.bincount(pv, weights=contrib[:, ch], minlength=P)
             r_pred = np.minimum(r_pred, g.rpred_min)
+            self.stage_seconds["gather"] += time.perf_counter() - t1
         Phi *= vp.beta
+        if st.frequency_model == "PAPER":
+            r_pred = np.where(np.isinf(r_pred), np.inf, -r_pred)
         return M, Phi, r_pred
 
     def _trace_photons(self, n: int, n_freq: int, rng):
@@ -416,6 +437,10 @@ class Renderer:
         d = ph["d"]
         o = ph["o"] + d * self.accel.offset_scale(ph["o"])[:, None]
         power = ph["power"]
+        # Cycles' soft falloff (point/spot with a radius) scales the field by
+        # d^2/(d^2 + r^2); no physical emitter does that, so it is applied at
+        # the photon's first hit (lights.sample_photons gives r^2 per photon).
+        falloff_r2 = np.asarray(ph.get("falloff_r2", np.zeros(n)), np.float64)
         alive = np.all(np.isfinite(power), axis=1) & (power.max(axis=1) > 0)
         is_freq = np.zeros(n, bool)
         is_freq[:n_freq] = True
@@ -424,6 +449,7 @@ class Renderer:
             spec = np.asarray(ph["freq_init"], np.float64).copy()
         idx = np.nonzero(alive)[0]
         o, d, power, spec, is_freq = o[idx], d[idx], power[idx], spec[idx], is_freq[idx]
+        falloff_r2 = falloff_r2[idx]
         A_MAX = self.D * self.D
         model = st.frequency_model
         out_p, out_ng, out_wi, out_pow, out_r = [], [], [], [], []
@@ -437,20 +463,23 @@ class Renderer:
                 break
             ii = np.nonzero(keep)[0]
             hits = type(h)(h.t[ii], h.prim[ii], h.u[ii], h.v[ii])
+            if bounce == 0 and np.any(falloff_r2 > 0):
+                t2 = hits.t ** 2
+                power = power * (t2 / (t2 + falloff_r2[ii]))[:, None]
             p, ng, ns, uv = surface_point(self.scene.tri_p, self.scene.tri_n, self.scene.tri_uv,
                                           hits.prim, hits.u, hits.v)
             wi = -d
             mat = self.scene.tri_mat[hits.prim]
             if np.any(is_freq):
                 fq = np.nonzero(is_freq)[0]
-                s = F.travel(spec[fq], np.minimum(hits.t[fq], self.D), model)
+                s = F.travel(spec[fq], np.minimum(hits.t[fq], self.D), model, A_MAX)
                 if self.occ_grid is not None:
                     from .occlusion import march_occlusion
                     a_occ = march_occlusion(self.occ_grid, o[fq], d[fq], hits.t[fq],
-                                            self.plan.occlusion_locality)
-                    s = F.occlude(s, a_occ, model)
+                                            self.occ_locality)
+                    s = F.occlude(s, a_occ, model, A_MAX)
                 cos_i = np.abs(_dot(ng[fq], wi[fq]))
-                s = F.onto_surface(s, cos_i, model)
+                s = F.onto_surface(s, cos_i, model, A_MAX)
                 spec[fq] = s
             deposit = self.mtab.has_nondelta[mat]
             if not (st.photons_for_direct or bounce > 0):
@@ -465,7 +494,10 @@ class Renderer:
                 r = np.full(dq.size, np.nan)
                 fqd = is_freq[dq]
                 if np.any(fqd):
-                    r[fqd] = F.predicted_radius(spec[dq[fqd]], np.inf, np.inf, model)
+                    rp = F.predicted_radius(spec[dq[fqd]], np.inf, np.inf, model)
+                    # The grid keeps a per-pixel minimum; the paper's rule keeps
+                    # the maximum, so its radii travel negated.
+                    r[fqd] = -rp if model == "PAPER" else rp
                 out_r.append(r)
             if bounce == st.max_bounces:
                 break
@@ -486,15 +518,15 @@ class Renderer:
                 if fk.size:
                     s = spec[fk]
                     cos_o = np.abs(_dot(ng[fk], wo_new[fk]))
-                    s = F.off_surface(s, cos_o, model)
+                    s = F.off_surface(s, cos_o, model, A_MAX)
                     kinds = self.mtab.kind[mat[fk], 0]
                     rough = self.mtab.roughness[mat[fk], 0]
                     dl = is_delta[fk]
                     b_lobe = np.where(dl, 0.0, F.lobe_variance(kinds, rough))
-                    s = F.brdf(s, b_lobe, model)
+                    s = F.brdf(s, b_lobe, model, A_MAX)
                     if self.kappa is not None:
-                        kap = self.kappa[hits.prim[fk]] * np.where(_dot(ng[fk], wi[fk]) >= 0, 1.0, -1.0)
-                        s = np.where(dl[:, None], F.curvature(s, kap, model), s)
+                        kap = self.kappa[hits.prim[fk]] * np.where(_dot(ns[fk], wi[fk]) >= 0, 1.0, -1.0)
+                        s = np.where(dl[:, None], F.curvature(s, kap, model, A_MAX), s)
                     spec[fk] = s
             o = self.accel.spawn(p[k], ng[k], wo_new[k])
             d = wo_new[k]

@@ -86,6 +86,8 @@ class Light:
     shape: 'SQUARE', 'RECTANGLE', 'DISK' or 'ELLIPSE'; size, size_y [m].
     visible_camera / visible_glossy / visible_transmission: ray visibility
       (what the camera sees directly, and through mirror / glass chains).
+    use_soft_falloff: point/spot with radius > 0 act as a disc facing the
+      shading point (Cycles' default), giving I cos / (d^2 + r^2).
     """
     name: str
     kind: str
@@ -103,6 +105,7 @@ class Light:
     visible_glossy: bool = True
     visible_transmission: bool = True
     cast_shadow: bool = True
+    use_soft_falloff: bool = True   # Cycles >= 4.0 point/spot default
 
 
 @dataclass(frozen=True)
