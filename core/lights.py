@@ -62,7 +62,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from core.scene import Scene
+from .scene import Scene
 
 # Emitter kinds (LightTable.kind, photon "kind").
 POINT = 0

@@ -1,0 +1,330 @@
+"""``fppm``: render a .blend file with FPPM from the command line (Blender as a module).
+
+    fppm render SCENE.blend -o OUT.exr [--frame N] [--time-limit S] [--passes N]
+                [--photons N] [--mode fppm|ppm] [--seed N] [--resolution PCT]
+
+The file is opened with its embedded scripts disabled.  Settings come from
+the file's ``scene.fppm`` (defaults when the file never had the add-on), then
+from the flags.  The render goes through the FPPM RenderEngine with
+``bpy.ops.render.render`` (Blender's render-mode depsgraph: the same export,
+and so the same image, as pressing F12).  Output: a multilayer EXR (Combined
+plus the enabled AOV passes, written atomically) and a PNG preview beside it
+through the scene's view transform.
+
+Exit codes (also in README.md):
+    0    the image was written
+    1    internal error (a bug: the traceback is printed)
+    2    usage error: bad flags or an invalid setting
+    3    the input file is missing, unreadable or not a .blend file
+    4    the scene cannot be rendered (no camera, no lights, nothing visible, ...)
+    5    the output file cannot be written
+    130  cancelled with Ctrl-C: the last complete pass was written first
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import tempfile
+import time
+import traceback
+
+EXIT_OK, EXIT_INTERNAL, EXIT_USAGE, EXIT_INPUT, EXIT_SCENE, EXIT_OUTPUT = 0, 1, 2, 3, 4, 5
+EXIT_CANCELLED = 130
+
+# First bytes of a .blend: plain, gzip-compressed (old files), zstd-compressed (3.0+).
+_BLEND_MAGIC = (b"BLENDER", b"\x1f\x8b", b"\x28\xb5\x2f\xfd")
+
+
+class CLIError(Exception):
+    def __init__(self, code: int, msg: str):
+        super().__init__(msg)
+        self.code = code
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="fppm",
+        description="FPPM: frequency-based progressive photon mapping for Blender scenes.",
+        epilog="Exit codes: 0 ok, 1 internal error, 2 usage, 3 input file problem, "
+               "4 scene error, 5 output not writable, 130 cancelled (partial image written).")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    r = sub.add_parser("render", help="render a .blend file to a multilayer EXR and a PNG preview",
+                       description="Render SCENE.blend with FPPM.")
+    r.add_argument("blend", metavar="SCENE.blend", help="the .blend file (scripts are not run)")
+    r.add_argument("-o", "--output", required=True, metavar="OUT.exr",
+                   help="multilayer EXR to write; the PNG preview goes beside it (OUT.png)")
+    r.add_argument("--frame", type=int, metavar="N", help="frame to render (default: the file's)")
+    r.add_argument("--time-limit", type=float, metavar="S",
+                   help="stop after S seconds of passes (0 = no limit)")
+    r.add_argument("--passes", type=int, metavar="N", help="maximum passes (0 = no limit)")
+    r.add_argument("--photons", type=int, metavar="N", help="photons per pass")
+    r.add_argument("--mode", choices=("fppm", "ppm"),
+                   help="fppm: frequency-adapted kernel; ppm: plain progressive photon mapping")
+    r.add_argument("--seed", type=int, metavar="N", help="random seed")
+    r.add_argument("--resolution", type=int, metavar="PCT",
+                   help="resolution percentage (1-1000), overriding the file's")
+    r.add_argument("--no-preview", action="store_true", help="do not write the PNG preview")
+    r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+# ---------------------------------------------------------------------------
+# checks that need no bpy (fast failures)
+
+def check_input(path: str) -> None:
+    if not os.path.exists(path):
+        raise CLIError(EXIT_INPUT, f"input file '{path}' does not exist.")
+    if not os.path.isfile(path):
+        raise CLIError(EXIT_INPUT, f"input '{path}' is not a file.")
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+    except OSError as ex:
+        raise CLIError(EXIT_INPUT, f"cannot read '{path}': {ex.strerror}.")
+    if not head.startswith(_BLEND_MAGIC):
+        raise CLIError(EXIT_INPUT, f"'{path}' is not a .blend file.")
+
+
+def check_output(path: str) -> None:
+    d = os.path.dirname(os.path.abspath(path))
+    if os.path.isdir(path):
+        raise CLIError(EXIT_OUTPUT, f"output '{path}' is a folder.")
+    if not os.path.isdir(d):
+        raise CLIError(EXIT_OUTPUT, f"cannot write '{path}': the folder '{d}' does not exist.")
+    if not os.access(d, os.W_OK | os.X_OK):
+        raise CLIError(EXIT_OUTPUT, f"cannot write '{path}': the folder '{d}' is not writable.")
+    if os.path.exists(path) and not os.access(path, os.W_OK):
+        raise CLIError(EXIT_OUTPUT, f"cannot write '{path}': the file is read-only.")
+
+
+def preview_path(exr_path: str) -> str:
+    root, ext = os.path.splitext(exr_path)
+    return (root if ext.lower() == ".exr" else exr_path) + ".png"
+
+
+def overrides_from_args(a) -> dict:
+    kw = {}
+    if a.time_limit is not None:
+        kw["time_limit"] = float(a.time_limit)
+        if a.passes is None and a.time_limit > 0:
+            kw["max_passes"] = 0  # a time limit alone means: passes until the time is up
+    if a.passes is not None:
+        kw["max_passes"] = a.passes
+    if a.photons is not None:
+        kw["photons_per_pass"] = a.photons
+    if a.seed is not None:
+        kw["seed"] = a.seed
+    if a.mode is not None:
+        kw["use_frequency"] = a.mode == "fppm"
+    return kw
+
+
+# ---------------------------------------------------------------------------
+# progress
+
+class Progress:
+    """A one-line progress bar on stderr (a line per second when not a terminal)."""
+
+    def __init__(self, quiet: bool, stream=None):
+        self.stream = stream or sys.stderr
+        self.quiet = quiet
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.last = 0.0
+        self.shown = False
+
+    def __call__(self, pr, settings) -> None:
+        if self.quiet:
+            return
+        from .engine import progress_fraction
+        f = progress_fraction(pr, settings)
+        now = time.monotonic()
+        done = f >= 1.0
+        if not self.tty and not done and now - self.last < 1.0:
+            return
+        self.last = now
+        n = 24
+        k = int(round(f * n))
+        line = f"[{'#' * k}{'.' * (n - k)}] {f * 100:3.0f}%  {pr.stats_line()}"
+        if self.tty:
+            self.stream.write("\r" + line + "\x1b[K")
+        else:
+            self.stream.write(line + "\n")
+        self.stream.flush()
+        self.shown = True
+
+    def close(self) -> None:
+        if self.shown and self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+# ---------------------------------------------------------------------------
+
+def _say(msg: str) -> None:
+    print(msg, flush=True)
+
+
+def _write_outputs(a, bpy, scene, sess, out_path, elapsed_wall) -> list[str]:
+    """Write the EXR (and the PNG preview); return the written paths."""
+    import numpy as np
+
+    from ..core.imageio import default_file_mode, write_exr
+    from ..core.settings import field_names
+
+    pr = sess.result
+    img = np.array(pr.image, np.float32, copy=True)
+    if sess.gain != 1.0:
+        img[..., :3] *= np.float32(sess.gain)
+    layers = {"Combined": img}
+    for name, arr in pr.aovs.items():
+        layers[name] = arr
+    st = sess.settings
+    meta = {
+        "fppm:version": "0.1.0",
+        "fppm:source": os.path.basename(a.blend),
+        "fppm:frame": str(scene.frame_current),
+        "fppm:passes": str(pr.pass_index),
+        "fppm:photons": str(pr.photons_emitted),
+        "fppm:elapsed": f"{pr.elapsed:.3f}",
+        "fppm:cancelled": str(bool(sess.cancelled)).lower(),
+        "fppm:settings": json.dumps({k: getattr(st, k) for k in field_names()}, sort_keys=True),
+        "fppm:settings_digest": st.digest(),
+    }
+    try:
+        write_exr(out_path, layers, meta)
+    except OSError as ex:
+        raise CLIError(EXIT_OUTPUT, str(ex))
+    written = [out_path]
+    if not a.no_preview:
+        png = preview_path(out_path)
+        rr = bpy.data.images.get("Render Result")
+        if rr is not None:
+            d = os.path.dirname(os.path.abspath(png))
+            fd, tmp = tempfile.mkstemp(prefix=".fppm-", suffix=".png", dir=d)
+            os.close(fd)
+            isettings = scene.render.image_settings
+            try:
+                isettings.file_format = 'PNG'
+                isettings.color_mode = 'RGBA'
+                isettings.color_depth = '8'
+                # save_render applies the scene's view transform and look.
+                rr.save_render(filepath=tmp, scene=scene)
+                os.chmod(tmp, default_file_mode())
+                os.replace(tmp, png)
+                written.append(png)
+            except (OSError, RuntimeError) as ex:
+                try:
+                    os.unlink(tmp)
+                except OSError:
+                    pass
+                raise CLIError(EXIT_OUTPUT, f"cannot write the preview '{png}': {ex}")
+    return written
+
+
+def render(a) -> int:
+    check_input(a.blend)
+    check_output(a.output)
+    if a.resolution is not None and not 1 <= a.resolution <= 1000:
+        raise CLIError(EXIT_USAGE, f"--resolution {a.resolution}: must be in [1, 1000].")
+    overrides = overrides_from_args(a)
+
+    import bpy
+
+    from .. import addon
+    from ..core.errors import FPPMError
+    from ..core.settings import SettingsError
+    from . import engine
+    from .export import NO_CAMERA
+    from .properties import apply_settings, settings_from_scene
+
+    addon.register()
+    try:
+        bpy.ops.wm.open_mainfile(filepath=os.path.abspath(a.blend), load_ui=False,
+                                 use_scripts=False)
+    except RuntimeError as ex:
+        raise CLIError(EXIT_INPUT, f"cannot open '{a.blend}': {str(ex).strip()}")
+    scene = bpy.context.scene
+    if a.frame is not None:
+        scene.frame_set(a.frame)
+    if a.resolution is not None:
+        scene.render.resolution_percentage = a.resolution
+    try:
+        settings = settings_from_scene(scene).replace(**overrides).validate()
+    except SettingsError as ex:
+        raise CLIError(EXIT_USAGE, str(ex))
+    apply_settings(scene.fppm, settings)
+    scene.render.engine = "FPPM"
+    if scene.camera is None:
+        raise CLIError(EXIT_SCENE, NO_CAMERA)
+
+    stop = {"flag": False}
+
+    def on_sigint(signum, frame):
+        if stop["flag"]:            # a second Ctrl-C: give up at once
+            raise KeyboardInterrupt
+        stop["flag"] = True
+
+    progress = Progress(a.quiet)
+    sess = engine.RenderSession(on_pass=progress, log=_say, should_stop=lambda: stop["flag"])
+    prev = signal.signal(signal.SIGINT, on_sigint)
+    t0 = time.monotonic()
+    try:
+        with engine.session(sess):
+            try:
+                bpy.ops.render.render()
+            except RuntimeError:
+                pass  # the engine's report(); the cause is in sess.error
+    finally:
+        signal.signal(signal.SIGINT, prev)
+        progress.close()
+    wall = time.monotonic() - t0
+    if sess.error is not None:
+        if isinstance(sess.error, SettingsError):
+            raise CLIError(EXIT_USAGE, str(sess.error))
+        if isinstance(sess.error, FPPMError):
+            raise CLIError(EXIT_SCENE, str(sess.error))
+        raise CLIError(EXIT_INTERNAL, f"internal error: {type(sess.error).__name__}: {sess.error}")
+    if sess.result is None or sess.result.pass_index == 0:
+        if stop["flag"]:
+            _say("Cancelled before the first pass: nothing written.")
+            return EXIT_CANCELLED
+        raise CLIError(EXIT_INTERNAL, "internal error: the render produced no image.")
+    written = _write_outputs(a, bpy, scene, sess, a.output, wall)
+    pr = sess.result
+    h, w = pr.image.shape[:2]
+    aov = f" + {len(pr.aovs)} AOV{'s' * (len(pr.aovs) != 1)}" if pr.aovs else ""
+    _say(f"Done: {w}x{h} px, {pr.stats_line()}, {wall:.1f} s wall"
+         f"{' (cancelled)' if stop['flag'] else ''}.")
+    _say(f"Wrote {written[0]} (Combined{aov})"
+         + (f" and {written[1]} (view transform '{scene.view_settings.view_transform}')"
+            if len(written) > 1 else "") + ".")
+    return EXIT_CANCELLED if stop["flag"] else EXIT_OK
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    try:
+        a = parser.parse_args(argv)
+    except SystemExit as ex:   # argparse: 2 on usage errors, 0 for --help
+        return int(ex.code or 0)
+    try:
+        if a.command == "render":
+            return render(a)
+        parser.error(f"unknown command {a.command}")
+    except CLIError as ex:
+        print(f"fppm: error: {ex}", file=sys.stderr, flush=True)
+        return ex.code
+    except KeyboardInterrupt:
+        print("fppm: interrupted.", file=sys.stderr, flush=True)
+        return EXIT_CANCELLED
+    except Exception:
+        traceback.print_exc()
+        return EXIT_INTERNAL
+    return EXIT_INTERNAL
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,239 @@
+"""The FPPM render engine: export the evaluated scene, run core's Renderer, stream passes.
+
+Thin on purpose: everything that renders lives in ``core``.  This module turns
+Blender's render callbacks into ``Renderer.run`` and copies each completed pass
+into the render result (rows bottom-to-top, Blender's order), at most
+:data:`UPDATE_INTERVAL` apart so very short passes do not flood the UI.
+
+The command-line tool (``addon/cli.py``) renders through this same engine with
+``bpy.ops.render.render`` (so it gets Blender's render-mode depsgraph:
+``hide_render``, render subdivision levels, ...) and follows the render
+through a :class:`RenderSession`.
+"""
+from __future__ import annotations
+
+import contextlib
+import time
+import traceback
+
+import bpy
+import numpy as np
+
+from ..core.errors import FPPMError
+from ..core.render import Renderer
+from ..core.settings import SettingsError
+from .export import export_scene
+from .properties import settings_from_scene
+
+# (setting that enables it, pass name, channels, chan_id, Blender pass type)
+AOV_PASSES = (
+    ("aov_radius", "FPPM Radius", 1, "X", 'VALUE'),
+    ("aov_radius", "FPPM Radius px", 1, "X", 'VALUE'),
+    ("aov_predicted_radius", "Predicted Radius", 1, "X", 'VALUE'),
+    ("aov_spectrum", "Spectrum", 3, "XYZ", 'VECTOR'),
+    ("aov_photon_count", "Photon Count", 1, "X", 'VALUE'),
+    ("aov_held", "Held", 1, "X", 'VALUE'),
+)
+UPDATE_INTERVAL = 0.25  # s between image-editor updates (at most ~4 per second)
+
+
+def enabled_aovs(settings) -> list[tuple[str, int, str, str]]:
+    """(name, channels, chan_id, type) of the AOV passes the settings ask for."""
+    return [(name, ch, cid, kind) for flag, name, ch, cid, kind in AOV_PASSES
+            if getattr(settings, flag)]
+
+
+def film_gain(scene) -> float:
+    """Cycles' Film > Exposure: a linear scale of the image (1 = unchanged)."""
+    cy = getattr(scene, "cycles", None)
+    return float(getattr(cy, "film_exposure", 1.0)) if cy is not None else 1.0
+
+
+def blender_rows(img: np.ndarray, channels: int) -> np.ndarray:
+    """(H, W, C) row-0-at-top image -> flat float32 for ``rect.foreach_set``.
+
+    Blender's render passes store rows bottom to top; the channel count is
+    padded with zeros or cut to the pass's ``channels``.
+    """
+    img = np.asarray(img, np.float32)
+    if img.ndim == 2:
+        img = img[:, :, None]
+    h, w, c = img.shape
+    if c != channels:
+        out = np.zeros((h, w, channels), np.float32)
+        n = min(c, channels)
+        out[:, :, :n] = img[:, :, :n]
+        img = out
+    return np.ascontiguousarray(img[::-1]).reshape(-1)
+
+
+def format_elapsed(seconds: float) -> str:
+    s = int(seconds)
+    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
+
+
+def progress_fraction(result, settings) -> float:
+    """Fraction of the pass or time budget used (the larger of the two)."""
+    f = 0.0
+    if settings.max_passes > 0:
+        f = max(f, result.pass_index / settings.max_passes)
+    if settings.time_limit > 0:
+        f = max(f, result.elapsed / settings.time_limit)
+    return min(f, 1.0)
+
+
+class RenderSession:
+    """Lets the CLI (or a test) follow a render done by :class:`FPPMRenderEngine`.
+
+    on_pass(result, settings): after every completed pass.
+    log(line): export summary, plan and warnings (instead of printing them).
+    should_stop(): polled with ``test_break``; True cancels the render.
+    After the render: ``result`` (last complete PassResult or None),
+    ``error`` (the FPPMError / SettingsError that stopped it, or None),
+    ``cancelled``, ``settings``, ``gain`` (film exposure applied to Combined).
+    """
+
+    def __init__(self, on_pass=None, log=None, should_stop=None):
+        self.on_pass = on_pass
+        self.log = log
+        self.should_stop = should_stop
+        self.result = None
+        self.error = None
+        self.cancelled = False
+        self.settings = None
+        self.gain = 1.0
+
+
+_session: RenderSession | None = None
+
+
+@contextlib.contextmanager
+def session(s: RenderSession):
+    """Route the engine's next renders to ``s`` (used by the CLI around render.render)."""
+    global _session
+    prev, _session = _session, s
+    try:
+        yield s
+    finally:
+        _session = prev
+
+
+class FPPMRenderEngine(bpy.types.RenderEngine):
+    bl_idname = "FPPM"
+    bl_label = "FPPM"
+    bl_use_preview = False
+    bl_use_postprocess = True
+    # Material/rendered viewport shading falls back to EEVEE; FPPM is final-render only.
+    bl_use_eevee_viewport = True
+
+    def update_render_passes(self, scene=None, renderlayer=None):
+        self.register_pass(scene, renderlayer, "Combined", 4, "RGBA", 'COLOR')
+        for name, ch, cid, kind in enabled_aovs(settings_from_scene(scene)):
+            self.register_pass(scene, renderlayer, name, ch, cid, kind)
+
+    # -- helpers -----------------------------------------------------------
+    def break_requested(self) -> bool:
+        """Esc in Blender (``test_break``) or the CLI's Ctrl-C: polled inside passes."""
+        if self.test_break():
+            return True
+        sess = _session
+        return bool(sess is not None and sess.should_stop is not None and sess.should_stop())
+
+    def _log(self, msg: str) -> None:
+        sess = _session
+        if sess is not None and sess.log is not None:
+            sess.log(msg)
+        else:
+            print(f"FPPM: {msg}")
+        if msg.lower().startswith("warning"):
+            self.report({'WARNING'}, msg)
+
+    def _write(self, rresult, pr, aovs, gain) -> None:
+        layer = rresult.layers[0]
+        img = pr.image if gain == 1.0 else pr.image * np.float32(gain)
+        if gain != 1.0:
+            img[..., 3] = pr.image[..., 3]  # exposure scales colour, not alpha
+        layer.passes["Combined"].rect.foreach_set(blender_rows(img, 4))
+        for name, ch, _cid, _kind in aovs:
+            a = pr.aovs.get(name)
+            p = layer.passes.get(name)
+            if a is not None and p is not None:
+                p.rect.foreach_set(blender_rows(a, ch))
+
+    # -- the render callback -------------------------------------------------
+    def render(self, depsgraph):
+        sess = _session
+        scene = depsgraph.scene
+        try:
+            self._render(depsgraph, scene, sess)
+        except (FPPMError, SettingsError) as ex:
+            # A sentence for the user, no traceback.
+            if sess is not None:
+                sess.error = ex
+            self.report({'ERROR'}, str(ex))
+        except Exception as ex:  # a bug: keep the traceback in the console
+            traceback.print_exc()
+            if sess is not None:
+                sess.error = ex
+            self.report({'ERROR'}, f"FPPM internal error: {type(ex).__name__}: {ex}")
+
+    def _render(self, depsgraph, scene, sess) -> None:
+        settings = settings_from_scene(scene).validate()
+        gain = film_gain(scene)
+        if sess is not None:
+            sess.settings, sess.gain = settings, gain
+        self.update_stats("", "FPPM: exporting scene")
+        cam = self.camera_override
+        if cam is not None:
+            cam = cam.evaluated_get(depsgraph)
+        fscene = export_scene(depsgraph, self._log, camera=cam)
+        if self.break_requested():
+            if sess is not None:
+                sess.cancelled = True
+            return
+        renderer = Renderer(fscene, settings, log=self._log)
+        for line in renderer.plan_lines():
+            self._log(line)
+
+        aovs = enabled_aovs(settings)
+        # The AOV passes come from update_render_passes (register_pass), which
+        # Blender calls when the render starts; add_pass is not needed.
+        # The region Blender expects: the border crop when a border is set.
+        w, h = int(renderer.width), int(renderer.height)
+        rresult = self.begin_result(0, 0, w, h, layer=depsgraph.view_layer.name)
+        last_update = [0.0]
+        shown = [None]
+
+        should_stop = self.break_requested
+
+        def on_pass(pr):
+            now = time.monotonic()
+            self.update_progress(progress_fraction(pr, settings))
+            self.update_stats("", pr.stats_line())
+            if sess is not None:
+                sess.result = pr
+                if sess.on_pass is not None:
+                    sess.on_pass(pr, settings)
+            if now - last_update[0] >= UPDATE_INTERVAL:
+                self._write(rresult, pr, aovs, gain)
+                self.update_result(rresult)
+                shown[0] = pr
+                last_update[0] = time.monotonic()
+
+        self.update_stats("", "FPPM: rendering")
+        try:
+            final = renderer.run(should_stop=should_stop, on_pass=on_pass)
+        except BaseException:
+            # Keep what the user already saw rather than a blank image.
+            self.end_result(rresult, cancel=shown[0] is None)
+            raise
+        cancelled = should_stop()
+        if sess is not None:
+            sess.result = final
+            sess.cancelled = cancelled
+        if final is not None:
+            if final is not shown[0]:
+                self._write(rresult, final, aovs, gain)
+            self.update_progress(1.0 if not cancelled else progress_fraction(final, settings))
+            self.update_stats("", final.stats_line() + (" | cancelled" if cancelled else ""))
+        self.end_result(rresult)

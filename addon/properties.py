@@ -1,0 +1,172 @@
+"""``scene.fppm``: the render settings as a Blender PropertyGroup.
+
+Field names, types and defaults mirror ``core.settings.RenderSettings`` one to
+one (``tests/test_settings_mirror.py`` checks every field).  Enum items have
+explicit indices so files saved by one version read back the same way.
+Validation proper stays in ``RenderSettings.validate()``; the limits here only
+keep the UI inside the valid ranges.
+"""
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty
+from bpy.types import PropertyGroup
+
+from ..core.settings import RenderSettings, field_names
+
+_D = RenderSettings()  # defaults come from core, never duplicated by hand
+
+RADIUS_MODES = (
+    ('AUTO', "Pixel Footprint",
+     "Initial radius in pixels: this many pixel footprints at each visible point", 0),
+    ('WORLD', "World Units",
+     "Initial radius in metres, the same at every visible point", 1),
+)
+FREQUENCY_MODELS = (
+    ('CORRECTED', "Corrected",
+     "Frequency analysis with the corrected curvature and BSDF terms (see the documentation)", 0),
+    ('PAPER', "Paper",
+     "Frequency analysis exactly as printed in Belcour & Soler 2011", 1),
+)
+FREQUENCY_ESTIMATORS = (
+    ('MIN', "Minimum",
+     "Radius from the smallest radius predicted by the frequency photons in the kernel", 0),
+    ('QUANTILE', "Quantile",
+     "Radius from a low quantile of the predicted radii: less sensitive to one outlier photon", 1),
+)
+
+
+class FPPMRenderSettings(PropertyGroup):
+    """FPPM render settings, one property per ``RenderSettings`` field."""
+
+    # --- Sampling
+    time_limit: FloatProperty(
+        name="Time Limit", default=_D.time_limit, min=0.0, soft_max=3600.0,
+        unit='TIME_ABSOLUTE', precision=1,
+        description="Stop after this many seconds of passes (0 = no time limit)")
+    max_passes: IntProperty(
+        name="Max Passes", default=_D.max_passes, min=0, max=1_000_000, soft_max=4096,
+        description="Stop after this many progressive passes "
+                    "(0 = no limit: then a time limit is required)")
+    photons_per_pass: IntProperty(
+        name="Photons per Pass", default=_D.photons_per_pass, min=1, max=100_000_000,
+        soft_min=1000, soft_max=10_000_000,
+        description="Photons traced from the lights in every pass")
+    seed: IntProperty(
+        name="Seed", default=_D.seed, min=0, max=2**31 - 1,
+        description="Random seed: the same seed renders the same image bit for bit")
+
+    # --- Kernel
+    radius_mode: EnumProperty(
+        name="Initial Radius", items=RADIUS_MODES, default=_D.radius_mode,
+        description="How the initial photon gathering radius is chosen")
+    initial_radius_px: FloatProperty(
+        name="Radius (Pixels)", default=_D.initial_radius_px, min=0.01, max=1000.0,
+        soft_min=0.25, soft_max=16.0, precision=2,
+        description="Initial gathering radius in pixel footprints at the visible point")
+    initial_radius: FloatProperty(
+        name="Radius", default=_D.initial_radius, min=1e-6, soft_min=1e-4, soft_max=1.0,
+        subtype='DISTANCE', unit='LENGTH', precision=4,
+        description="Initial gathering radius in world units")
+    alpha: FloatProperty(
+        name="Alpha", default=_D.alpha, min=0.01, max=1.0, soft_min=0.5, soft_max=0.95,
+        subtype='FACTOR',
+        description="Progressive radius reduction (Hachisuka 2008): the fraction of new "
+                    "photons kept per pass; lower shrinks the radius faster")
+
+    # --- Light paths
+    max_bounces: IntProperty(
+        name="Max Bounces", default=_D.max_bounces, min=1, max=1024, soft_max=64,
+        description="Maximum number of bounces of camera and photon paths")
+    rr_start: IntProperty(
+        name="Russian Roulette Start", default=_D.rr_start, min=0, max=1024, soft_max=32,
+        description="Bounce from which paths are terminated at random by their throughput")
+    photons_for_direct: BoolProperty(
+        name="Photons for Direct Light", default=_D.photons_for_direct,
+        description="Classic PPM: estimate direct light with photons too, instead of "
+                    "sampling the lights with shadow rays")
+    fixed_visible_points: BoolProperty(
+        name="Fixed Visible Points", default=_D.fixed_visible_points,
+        description="Classic PPM: trace the visible points once instead of with fresh "
+                    "jitter every pass (no anti-aliasing, no glossy or depth of field)")
+
+    # --- Frequency
+    use_frequency: BoolProperty(
+        name="Frequency Kernel", default=_D.use_frequency,
+        description="Adapt the gathering radius per pixel from the local frequency "
+                    "content of the light (Belcour & Soler 2011)")
+    frequency_fraction: FloatProperty(
+        name="Frequency Photons", default=_D.frequency_fraction, min=0.0, max=1.0,
+        subtype='FACTOR',
+        description="Fraction of each pass's photons that carry a frequency spectrum")
+    frequency_model: EnumProperty(
+        name="Model", items=FREQUENCY_MODELS, default=_D.frequency_model,
+        description="Which equations propagate the light-field spectrum")
+    frequency_estimator: EnumProperty(
+        name="Estimator", items=FREQUENCY_ESTIMATORS, default=_D.frequency_estimator,
+        description="How the predicted radii of the frequency photons become a pixel's radius")
+    occlusion_grid_res: IntProperty(
+        name="Occlusion Grid", default=_D.occlusion_grid_res, min=4, max=512,
+        soft_min=16, soft_max=256,
+        description="Resolution of the voxel grid that estimates occluder frequencies")
+
+    # --- Output (AOV passes)
+    aov_radius: BoolProperty(
+        name="Radius", default=_D.aov_radius,
+        description="Passes 'FPPM Radius' (metres) and 'FPPM Radius px' (pixels): the "
+                    "current gathering radius per pixel")
+    aov_predicted_radius: BoolProperty(
+        name="Predicted Radius", default=_D.aov_predicted_radius,
+        description="Pass 'Predicted Radius': the radius the frequency analysis asks for")
+    aov_spectrum: BoolProperty(
+        name="Spectrum", default=_D.aov_spectrum,
+        description="Pass 'Spectrum': the accumulated local light-field spectrum (a, b, c)")
+    aov_photon_count: BoolProperty(
+        name="Photon Count", default=_D.aov_photon_count,
+        description="Pass 'Photon Count': photons gathered per pixel so far (N)")
+    aov_held: BoolProperty(
+        name="Held", default=_D.aov_held,
+        description="Pass 'Held': 1 where the radius is held back from shrinking by the "
+                    "frequency estimate")
+
+
+def to_settings(props) -> RenderSettings:
+    """Copy every field of ``scene.fppm`` into a (not yet validated) RenderSettings."""
+    kw = {}
+    for name in field_names():
+        v = getattr(props, name)
+        default = getattr(_D, name)
+        # Blender floats are float32: keep Python floats, and round-trip exact
+        # defaults (0.7f != 0.7) so the settings digest matches core's defaults.
+        if isinstance(default, float):
+            v = float(v)
+            if abs(v - default) <= 1e-7 * max(1.0, abs(default)):
+                v = default
+            else:
+                v = float(f"{v:.7g}")
+        kw[name] = v
+    return RenderSettings(**kw)
+
+
+def settings_from_scene(scene) -> RenderSettings:
+    """The scene's settings, or the defaults when ``scene.fppm`` is not registered."""
+    props = getattr(scene, "fppm", None)
+    if props is None:
+        return RenderSettings()
+    return to_settings(props)
+
+
+def apply_settings(props, settings: RenderSettings) -> None:
+    """Write a RenderSettings into ``scene.fppm`` (the CLI's overrides)."""
+    for name in field_names():
+        setattr(props, name, getattr(settings, name))
+
+
+classes = (FPPMRenderSettings,)
+
+
+def register_properties():
+    bpy.types.Scene.fppm = bpy.props.PointerProperty(
+        type=FPPMRenderSettings, name="FPPM", description="FPPM render settings")
+
+
+def unregister_properties():
+    del bpy.types.Scene.fppm

@@ -1,0 +1,155 @@
+"""Multi-layer OpenEXR files (OpenEXR >= 3.3 Python API), written atomically.
+
+Layout of a file written by :func:`write_exr`:
+
+- the layer ``"Combined"`` is stored as the plain channels ``R, G, B, A`` (any
+  EXR viewer shows it as the beauty image);
+- every other layer ``name`` with C channels is stored as ``name.<c>`` with the
+  channel letters of :data:`CHANNEL_LETTERS` (``"FPPM Radius px.X"``,
+  ``"Spectrum.R"`` ...), the usual ``layer.channel`` convention;
+- pixels are float32, ZIP-compressed, row 0 at the TOP (EXR's increasing-y
+  order, the same as ``core``'s images);
+- ``metadata`` becomes string attributes of the header.
+
+Nothing here imports ``bpy``.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+
+import numpy as np
+
+COMBINED = "Combined"
+# Channel letters by channel count (Blender's pass chan_id conventions).
+CHANNEL_LETTERS = {1: "X", 2: "XY", 3: "RGB", 4: "RGBA"}
+_COMBINED_CHANNELS = ("R", "G", "B", "A")
+
+
+def _as_hwc(name: str, img) -> np.ndarray:
+    a = np.asarray(img, dtype=np.float32)
+    if a.ndim == 2:
+        a = a[:, :, None]
+    if a.ndim != 3 or a.shape[2] not in CHANNEL_LETTERS:
+        raise ValueError(f"layer '{name}' must be (H, W, C) with C in 1..4, got shape {a.shape}")
+    return a
+
+
+def _channels_of(layers: dict) -> dict[str, np.ndarray]:
+    """Flatten ``{layer: (H, W, C)}`` to ``{channel name: (H, W) float32}``."""
+    chans: dict[str, np.ndarray] = {}
+    shape = None
+    for name, img in layers.items():
+        if "." in name and name != COMBINED:
+            # A dot would make the layer ambiguous when the file is read back.
+            raise ValueError(f"layer name '{name}' must not contain '.'")
+        a = _as_hwc(name, img)
+        if shape is None:
+            shape = a.shape[:2]
+        elif a.shape[:2] != shape:
+            raise ValueError(f"layer '{name}' is {a.shape[:2]}, other layers are {shape}")
+        if name == COMBINED:
+            if a.shape[2] == 3:
+                # An opaque beauty image: alpha 1.
+                a = np.concatenate([a, np.ones(a.shape[:2] + (1,), np.float32)], axis=2)
+            if a.shape[2] != 4:
+                raise ValueError("layer 'Combined' must have 3 or 4 channels")
+            letters = _COMBINED_CHANNELS
+            prefix = ""
+        else:
+            letters = CHANNEL_LETTERS[a.shape[2]]
+            prefix = name + "."
+        for i, c in enumerate(letters):
+            chans[prefix + c] = np.ascontiguousarray(a[:, :, i])
+    if not chans:
+        raise ValueError("write_exr needs at least one layer")
+    return chans
+
+
+def _check_writable(path: str) -> str:
+    d = os.path.dirname(os.path.abspath(path)) or "."
+    if not os.path.isdir(d):
+        raise OSError(f"Cannot write '{path}': the folder '{d}' does not exist.")
+    if not os.access(d, os.W_OK | os.X_OK):
+        raise OSError(f"Cannot write '{path}': the folder '{d}' is not writable.")
+    if os.path.isdir(path):
+        raise OSError(f"Cannot write '{path}': it is a folder.")
+    return d
+
+
+def default_file_mode() -> int:
+    """0o666 minus the process umask: what ``open()`` would have given the file
+    (``mkstemp`` creates 0o600 files)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def write_exr(path: str, layers: dict, metadata: dict | None = None) -> None:
+    """Write ``layers`` to ``path`` as one multi-channel scanline EXR, atomically.
+
+    layers: ``{name: (H, W, C) float32}``, row 0 at the top, C in 1..4, all the
+      same H and W.  ``"Combined"`` (3 or 4 channels) becomes R, G, B, A.
+    metadata: ``{key: str}`` header attributes.
+    The file is written to a temporary file in the same folder and renamed over
+    ``path`` (``os.replace``), so a reader never sees a half-written image.
+    Raises OSError with a clear sentence when the folder is missing or not
+    writable, ValueError on malformed layers.
+    """
+    import OpenEXR
+
+    chans = _channels_of(layers)
+    d = _check_writable(path)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    for k, v in (metadata or {}).items():
+        header[str(k)] = str(v)
+    fd, tmp = tempfile.mkstemp(prefix=".fppm-", suffix=".exr", dir=d)
+    os.close(fd)
+    try:
+        with OpenEXR.File(header, chans) as f:
+            f.write(tmp)
+        os.chmod(tmp, default_file_mode())
+        os.replace(tmp, path)
+    except BaseException as ex:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        if isinstance(ex, OSError):
+            raise OSError(f"Cannot write '{path}': {ex.strerror or ex}.") from ex
+        raise
+
+
+def read_exr(path: str) -> dict[str, np.ndarray]:
+    """Read an EXR written by :func:`write_exr` (or any single-part EXR).
+
+    Returns ``{layer: (H, W, C) float32}`` (row 0 at the top).  Plain
+    ``R, G, B[, A]`` channels come back as ``"Combined"``; ``name.c`` channels
+    are grouped by ``name`` and ordered by :data:`CHANNEL_LETTERS` (then
+    alphabetically for unknown letters).
+    """
+    import OpenEXR
+
+    if not os.path.isfile(path):
+        raise OSError(f"Cannot read '{path}': no such file.")
+    with OpenEXR.File(path, separate_channels=True) as f:
+        raw = {name: np.asarray(ch.pixels, dtype=np.float32)
+               for name, ch in f.channels().items()}
+    groups: dict[str, dict[str, np.ndarray]] = {}
+    for name, px in raw.items():
+        layer, _, c = name.rpartition(".")
+        groups.setdefault(layer or COMBINED, {})[c] = px
+    order = "RGBAXYZ"
+    out = {}
+    for layer, chs in groups.items():
+        keys = sorted(chs, key=lambda c: (order.find(c) if c in order else len(order), c))
+        out[layer] = np.stack([chs[k] for k in keys], axis=2)
+    return out
+
+
+def read_exr_metadata(path: str) -> dict[str, str]:
+    """The string attributes of an EXR header (e.g. what :func:`write_exr` stored)."""
+    import OpenEXR
+
+    with OpenEXR.File(path, header_only=True) as f:
+        return {k: v for k, v in f.header().items() if isinstance(v, str)}
