@@ -456,6 +456,7 @@ class _Exporter:
             self.notes.append(f"light '{ob.name}': light nodes ignored")
         if kind in ('POINT', 'SPOT'):
             kw["radius"] = float(ld.shadow_soft_size)
+            kw["use_soft_falloff"] = bool(getattr(ld, "use_soft_falloff", True))
             if not getattr(ld, "normalize", True) and ld.shadow_soft_size > 0:
                 self.notes.append(f"light '{ob.name}': 'Normalize' off treated as on")
             if kind == 'SPOT':

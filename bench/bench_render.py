@@ -1,9 +1,19 @@
 """Photon-pass cost against raw Embree ray casting, measured in one process.
 
     .venv/bin/python bench/bench_render.py [--res 256] [--photons 200000] [--passes 3]
+                                           [--frequency] [--numpy]
 
 Prints ratios (issue 2 target: photon pass <= 2x the raw ray casting of its
 rays at 256x256 with 200k photons per pass), never a bare time alone.
+
+"Raw Embree rays" is ``EmbreeScene.run(o32, d32, output=1)`` on prepared
+float32 arrays of as many random rays inside the box as the photon pass cast
+(the bare call, the strictest denominator); the ratio against
+``Accel.intersect`` on float64 arrays (what the old numpy tracer paid per ray)
+is printed too.  Every pass is followed by its own raw-ray timing so that both
+see the same machine load; the ratios use the sums.  With ``--frequency`` a
+second renderer without frequency photons runs interleaved with the first,
+and the tracer is timed on all-frequency vs all-classic batches.
 """
 from __future__ import annotations
 
@@ -19,6 +29,10 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 
 from analytic_scenes import quad, translate  # noqa: E402
+from core import lights as Lt  # noqa: E402
+from core import occlusion as Occ  # noqa: E402
+from core import photon_kernels as PK  # noqa: E402
+from core import photons as Ph  # noqa: E402
 from core.render import Renderer  # noqa: E402
 from core.scene import DIFFUSE, Camera, Light, Lobe, Material, make_scene  # noqa: E402
 from core.settings import RenderSettings  # noqa: E402
@@ -55,15 +69,84 @@ def cornell(res: int, subdiv: int = 0):
     return make_scene(tris, materials, [light], cam, tri_mat=mats)
 
 
-def raw_ray_seconds(accel, n: int, rng) -> float:
-    """Seconds for embreex to cast n random rays from inside the box (closest hit)."""
-    o = rng.uniform([-0.45, -0.45, 0.05], [0.45, 0.45, 0.95], (n, 3))
-    d = rng.normal(size=(n, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    accel.intersect(o[:1000], d[:1000])           # warm-up
-    t0 = time.perf_counter()
-    accel.intersect(o, d)
-    return time.perf_counter() - t0
+class RawRays:
+    """Random rays from inside the box, prepared once (float32 and float64)."""
+
+    def __init__(self, accel, n: int, seed: int = 0):
+        rng = np.random.default_rng(seed)
+        o = rng.uniform([-0.45, -0.45, 0.05], [0.45, 0.45, 0.95], (n, 3))
+        d = rng.normal(size=(n, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        self.accel, self.o64, self.d64 = accel, o, d
+        self.o32 = np.ascontiguousarray(o, np.float32)
+        self.d32 = np.ascontiguousarray(d, np.float32)
+        accel._scene.run(self.o32[:1000], self.d32[:1000], output=1)     # warm-up
+
+    def _chunks(self, n):
+        m = self.o32.shape[0]
+        while n > 0:
+            yield min(n, m)
+            n -= m
+
+    def seconds(self, n: int) -> float:
+        """Bare EmbreeScene.run of n rays."""
+        t0 = time.perf_counter()
+        for k in self._chunks(n):
+            self.accel._scene.run(self.o32[:k], self.d32[:k], output=1)
+        return time.perf_counter() - t0
+
+    def seconds_accel(self, n: int) -> float:
+        """Accel.intersect (float64 in and out) of n rays."""
+        t0 = time.perf_counter()
+        for k in self._chunks(n):
+            self.accel.intersect(self.o64[:k], self.d64[:k])
+        return time.perf_counter() - t0
+
+
+class Timers:
+    """Wall time inside Embree and the occlusion march during photon tracing
+    (wrappers around the functions core.photons calls)."""
+
+    def __init__(self):
+        self.embree = 0.0
+        self.march = 0.0
+        f, g = Ph.intersect_f32, Occ.march_occlusion
+
+        def intersect(*a):
+            t0 = time.perf_counter()
+            r = f(*a)
+            self.embree += time.perf_counter() - t0
+            return r
+
+        def march(*a, **k):
+            t0 = time.perf_counter()
+            r = g(*a, **k)
+            self.march += time.perf_counter() - t0
+            return r
+        Ph.intersect_f32 = intersect
+        Occ.march_occlusion = march
+
+
+def make_renderer(scene, a, use_frequency):
+    st = RenderSettings(max_passes=1000, photons_per_pass=a.photons,
+                        use_frequency=use_frequency)
+    r = Renderer(scene, st, log=lambda s: None)
+    r.tracer.fast = not a.numpy
+    r.step()                                      # warm-up: numba compilation
+    for k in r.stage_seconds:
+        r.stage_seconds[k] = 0.0
+    r.photon_rays = 0
+    return r
+
+
+def photon_pass(r):
+    """(seconds of trace, seconds of gather, rays) of one more pass of r."""
+    s0 = dict(r.stage_seconds)
+    rays0 = r.photon_rays
+    r.step()
+    s = r.stage_seconds
+    return (s["photon_trace"] - s0["photon_trace"], s["gather"] - s0["gather"],
+            r.photon_rays - rays0)
 
 
 def main(argv=None):
@@ -72,30 +155,83 @@ def main(argv=None):
     ap.add_argument("--photons", type=int, default=200_000)
     ap.add_argument("--passes", type=int, default=3)
     ap.add_argument("--frequency", action="store_true", help="25%% frequency photons")
+    ap.add_argument("--numpy", action="store_true", help="the numpy reference tracer")
     a = ap.parse_args(argv)
     scene = cornell(a.res)
-    st = RenderSettings(max_passes=a.passes + 1, photons_per_pass=a.photons,
-                        use_frequency=a.frequency)
-    r = Renderer(scene, st, log=lambda s: None)
-    r.step()                                      # warm-up: numba compilation
-    for k in r.stage_seconds:
-        r.stage_seconds[k] = 0.0
-    r.photon_rays = 0
+    tm = Timers()
+    r = make_renderer(scene, a, a.frequency)
+    r0 = make_renderer(scene, a, False) if a.frequency else None
+    raw = RawRays(r.accel, 4 * a.photons)
+    T = {"trace": 0.0, "gather": 0.0, "rays": 0, "raw": 0.0, "raw_accel": 0.0, "embree": 0.0,
+         "march": 0.0, "trace0": 0.0, "gather0": 0.0}
     for _ in range(a.passes):
-        r.step()
-    s = r.stage_seconds
-    photon_pass = s["photon_trace"] + s["gather"]
-    rays = r.photon_rays
-    ray_s = raw_ray_seconds(r.accel, rays // a.passes, np.random.default_rng(0)) * a.passes
+        e0, m0 = tm.embree, tm.march
+        tr, ga, rays = photon_pass(r)
+        T["embree"] += tm.embree - e0
+        T["march"] += tm.march - m0
+        T["trace"] += tr
+        T["gather"] += ga
+        T["rays"] += rays
+        T["raw"] += raw.seconds(rays)
+        T["raw_accel"] += raw.seconds_accel(rays)
+        if r0 is not None:
+            tr0, ga0, _ = photon_pass(r0)
+            T["trace0"] += tr0
+            T["gather0"] += ga0
+    # Light sampling for one pass' photons, against the raw rays of one pass.
+    rng = np.random.default_rng(5)
+    t0 = time.perf_counter()
+    Lt.sample_photons(r.light_table, a.photons, rng)
+    t_lights_np = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    PK.sample_photons_fast(r.light_table, a.photons, rng)
+    t_lights_fast = time.perf_counter() - t0
+    raw_pass = raw.seconds(T["rays"] // a.passes)
+
+    ray_s = T["raw"]
+    pp = T["trace"] + T["gather"]
     print(f"scene: Cornell box, {scene.n_triangles} triangles, {a.res}x{a.res}, "
-          f"{a.photons} photons/pass, {a.passes} passes, frequency={a.frequency}")
-    print(f"photon rays per pass: {rays / a.passes:,.0f}")
-    print(f"photons/s: {a.photons * a.passes / photon_pass:,.0f}")
-    print(f"photon pass / raw Embree rays: {photon_pass / ray_s:.2f}x  "
-          f"(trace {s['photon_trace'] / ray_s:.2f}x + gather {s['gather'] / ray_s:.2f}x)")
-    total = sum(s.values())
-    print("stage shares: " + ", ".join(f"{k} {v / total:.0%}" for k, v in s.items()))
+          f"{a.photons} photons/pass, {a.passes} passes, frequency={a.frequency}, "
+          f"tracer={'numpy' if a.numpy else 'compiled'}")
+    print(f"photon rays per pass: {T['rays'] / a.passes:,.0f}")
+    print(f"photon pass / raw Embree rays: {pp / ray_s:.2f}x  "
+          f"(trace {T['trace'] / ray_s:.2f}x + gather {T['gather'] / ray_s:.2f}x)")
+    print(f"  trace = Embree calls {T['embree'] / ray_s:.2f}x + occlusion march "
+          f"{T['march'] / ray_s:.2f}x + everything else {(T['trace'] - T['embree'] - T['march']) / ray_s:.2f}x")
+    print(f"  shares of the photon pass: trace {T['trace'] / pp:.0%}, gather {T['gather'] / pp:.0%}")
+    print(f"  against Accel.intersect (float64 API) instead of the bare call: "
+          f"{pp / T['raw_accel']:.2f}x (its own overhead: {T['raw_accel'] / ray_s:.2f}x the bare call)")
+    print(f"light sampling / raw Embree rays of a pass: lights.sample_photons "
+          f"{t_lights_np / raw_pass:.2f}x, compiled {t_lights_fast / raw_pass:.2f}x "
+          f"({'used' if r.tracer.fast_emission and r.tracer.fast else 'not used'})")
+    if r0 is not None:
+        pp0 = T["trace0"] + T["gather0"]
+        print(f"frequency: whole photon pass with {r.settings.frequency_fraction:.0%} "
+              f"frequency photons vs none: {pp / pp0 - 1:+.0%} "
+              f"(trace {T['trace'] / T['trace0'] - 1:+.0%}, gather {T['gather'] / T['gather0'] - 1:+.0%})")
+        n = min(a.photons, Ph_chunk())
+        tf = tc = 0.0
+        m_f = 0.0
+        for k in range(2):
+            rng = np.random.default_rng(100 + k)
+            t0 = time.perf_counter()
+            r.tracer.trace(n, 0, rng)
+            tc += time.perf_counter() - t0
+            m0 = tm.march
+            t0 = time.perf_counter()
+            r.tracer.trace(n, n, rng)
+            tf += time.perf_counter() - t0
+            m_f += tm.march - m0
+        print(f"frequency: per-photon tracing cost, frequency / classic photon: {tf / tc:.2f}x "
+              f"(+{tf / tc - 1:.0%}; occlusion march {m_f / tc:.2f}x of a classic photon's cost)")
+    total = sum(r.stage_seconds.values())
+    print("stage shares: " + ", ".join(f"{k} {v / total:.0%}" for k, v in r.stage_seconds.items()))
     return 0
+
+
+def Ph_chunk():
+    from core.render import PHOTON_CHUNK
+    return PHOTON_CHUNK
 
 
 if __name__ == "__main__":

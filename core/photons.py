@@ -7,6 +7,21 @@ estimation's job) or from the first hit with ``photons_for_direct``.  The
 first ``n_freq`` photons of a batch also carry a light-field spectrum (a, b, c)
 updated by ``core.frequency`` on travel, occlusion, onto/off the surface, the
 BSDF lobe and curvature; each deposit gets its predicted radius.
+
+Two implementations with the same statistics (tests/test_photon_kernels.py):
+
+- the compiled path (default): after each Embree call one numba kernel
+  (``core.photon_kernels.bounce_kernel``) interpolates the hits, stores the
+  deposits, samples Lambert / mirror / smooth-glass closures, plays Russian
+  roulette and compacts the live photons in place.  Photons on any other
+  material (textures, GGX, Oren-Nayar, multi-lobe, translucent...) go through
+  ``bsdf.sample_bsdf`` in numpy, and are appended back.  Frequency photons
+  are traced as a separate batch through the same kernels; their spectrum
+  updates (travel, occlusion, onto/off surface, lobe, curvature, predicted
+  radius) stay the numpy ``core.frequency`` operators, applied to the hits
+  and survivors the kernel records.
+- the numpy path (``PhotonTracer.fast = False``), every closure through
+  ``bsdf.sample_bsdf``: the reference.
 """
 from __future__ import annotations
 
@@ -15,7 +30,8 @@ import numpy as np
 from . import bsdf as B
 from . import lights as Lt
 from . import frequency as F
-from .accel import surface_point
+from . import photon_kernels as PK
+from .accel import REL_OFFSET, intersect_f32, surface_point
 from .scene import Scene
 
 LUM = np.array([0.2126, 0.7152, 0.0722])
@@ -25,17 +41,220 @@ def _dot(a, b):
     return np.einsum("ij,ij->i", a, b)
 
 
+class _Deposits:
+    """Growable deposit buffers (rows 0..n-1 used), float64; r = predicted radius."""
+
+    def __init__(self, cap: int):
+        cap = max(int(cap), 16)
+        self.p = np.empty((cap, 3))
+        self.ng = np.empty((cap, 3))
+        self.wi = np.empty((cap, 3))
+        self.power = np.empty((cap, 3))
+        self.r = np.empty(cap)
+        self.src = np.empty(cap, np.int64)
+        self.bounce = np.empty(cap, np.int32)
+        self.n = 0
+
+    def reserve(self, k: int):
+        """Make room for k more rows (doubling: amortised O(1) per deposit)."""
+        need = self.n + int(k)
+        cap = self.r.shape[0]
+        if need <= cap:
+            return
+        cap = max(2 * cap, need)
+        for name in ("p", "ng", "wi", "power", "r", "src", "bounce"):
+            a = getattr(self, name)
+            b = np.empty((cap,) + a.shape[1:], a.dtype)
+            b[:self.n] = a[:self.n]
+            setattr(self, name, b)
+
+    def result(self):
+        if self.n == 0:
+            return None
+        n = self.n
+        return {"p": self.p[:n], "ng": self.ng[:n], "wi": self.wi[:n],
+                "power": self.power[:n], "rpred": self.r[:n], "bounce": self.bounce[:n]}
+
+
 class PhotonTracer:
     """Traces batches of photons through one scene (state shared across passes)."""
+
+    #: Use the compiled path (False: the numpy reference path).
+    fast = True
 
     def __init__(self, scene, accel, mtab, light_table, settings, plan, kappa, occ_grid,
                  occ_locality, D):
         self.scene, self.accel, self.mtab = scene, accel, mtab
         self.light_table, self.settings, self.plan = light_table, settings, plan
         self.kappa, self.occ_grid, self.occ_locality, self.D = kappa, occ_grid, occ_locality, D
+        self.tris = PK.build_triangle_data(scene)
+        self.fmat = PK.build_fast_materials(mtab)
+        self._tri_uv = None
+        self.fast_emission = PK.fast_emission_ok(light_table)
 
     def trace(self, n: int, n_freq: int, rng):
-        """Trace n photons (the first n_freq carry a spectrum); return deposits."""
+        """Trace n photons (the first n_freq carry a spectrum); return deposits.
+
+        Returns None when nothing is deposited, else a dict of float64 arrays:
+        p (K, 3) hit position, ng (K, 3) geometric normal on the side the
+        photon came from, wi (K, 3) unit direction back to where it came from,
+        power (K, 3), rpred (K,) predicted radius (NaN for classic photons;
+        negated with the PAPER model: the grid keeps a minimum), bounce (K,)
+        int32 index of the path vertex (0 = first hit; diagnostics and tests).
+        """
+        if not self.fast:
+            return self._trace_numpy(n, n_freq, rng)
+        if self.fast_emission:
+            ph = PK.sample_photons_fast(self.light_table, n, rng)
+        else:
+            ph = Lt.sample_photons(self.light_table, n, rng)
+        dep = _Deposits(3 * n)
+        if n_freq:
+            self._trace_batch(ph, 0, n_freq, rng, dep,
+                              np.asarray(ph["freq_init"], np.float64)[:n_freq])
+        if n > n_freq:
+            self._trace_batch(ph, n_freq, n, rng, dep, None)
+        return dep.result()
+
+    # ------------------------------------------------------- compiled path
+    def _trace_batch(self, ph, a: int, b: int, rng, dep: _Deposits, spec):
+        """Trace photons a..b-1 of the emission ``ph``; spec (b-a, 3) or None."""
+        st = self.settings
+        n = b - a
+        fal = ph.get("falloff_r2")
+        fal = np.zeros(n) if fal is None else np.ascontiguousarray(fal[a:b], np.float64)
+        o32 = np.empty((n, 3), np.float32)
+        d32 = np.empty((n, 3), np.float32)
+        d64 = np.empty((n, 3))
+        pw = np.empty((n, 3))
+        fo = np.empty(n)
+        src = np.empty(n, np.int64)
+        rel = REL_OFFSET
+        floor = self.accel.abs_floor / REL_OFFSET
+        K = PK.emit_kernel(np.ascontiguousarray(ph["o"][a:b], np.float64),
+                           np.ascontiguousarray(ph["d"][a:b], np.float64),
+                           np.ascontiguousarray(ph["power"][a:b], np.float64),
+                           fal, rel, floor, o32, d32, d64, pw, fo, src)
+        tr, fm = self.tris, self.fmat
+        record = spec is not None
+        if record:
+            spec = spec[src[:K]]
+        cg = n if fm.any_generic else 1
+        gen = (np.empty(cg, np.int64), np.empty((cg, 3)), np.empty((cg, 3)), np.empty((cg, 3)),
+               np.empty((cg, 3)), np.empty((cg, 3)), np.empty((cg, 3)))
+        cr = n if record else 1
+        rec = (np.empty(cr), np.empty((cr, 3)), np.empty(cr), np.empty(cr, bool))
+        nxt = (np.empty(cr, np.int64), np.empty(cr, bool))
+        for bounce in range(st.max_bounces + 1):
+            if K == 0:
+                break
+            prim, bu, bv, tf = intersect_f32(self.accel, o32[:K], d32[:K])
+            sample = bounce < st.max_bounces
+            store = bool(st.photons_for_direct or bounce > 0)
+            roulette = bounce + 1 >= st.rr_start
+            u = rng.random((K, 4))
+            dep.reserve(K)
+            if record:
+                o_seg = o32[:K].astype(np.float64)
+                d_seg = d64[:K].copy()
+            n0 = dep.n
+            n_next, n_dep, n_gen = PK.bounce_kernel(
+                K, prim, bu, bv, tf, o32, d32, d64, pw, fo, bounce == 0, store, sample,
+                roulette, tr.p, tr.n, tr.ng, tr.mat, fm.cls, fm.col, fm.ior, fm.deposit,
+                u, rel, floor, dep.p, dep.ng, dep.wi, dep.power, dep.r, dep.bounce, n0, bounce,
+                *gen,
+                record, *rec, dep.src, *nxt)
+            dep.n = n_dep
+            if record:
+                spec_hit = self._spectrum_at_hits(spec, K, o_seg, d_seg, rec, dep, n0)
+            if n_gen:
+                n_next = self._generic_bounce(n_gen, n_next, gen, u, roulette, o32, d32, d64,
+                                              pw, nxt if record else None)
+            if record and n_next:
+                spec = self._spectrum_leaving(spec_hit, n_next, prim, rec, nxt, d64)
+            K = n_next
+
+    def _generic_bounce(self, g, n_next, gen, u, roulette, o32, d32, d64, pw, nxt):
+        """bsdf.sample_bsdf for the g hits on materials without a fast path;
+        survivors are appended at row n_next of the live state.  Returns the
+        new number of live photons."""
+        gi, gp, gng, gns, gwi, gpow, gbary = (x[:g] for x in gen)
+        prim = gbary[:, 0].astype(np.int64)
+        mat = self.tris.mat[prim]
+        uv = np.zeros((g, 2))
+        if self.mtab.textures and np.any(self.mtab.tex[mat] >= 0):
+            if self._tri_uv is None:
+                self._tri_uv = np.ascontiguousarray(self.scene.tri_uv, np.float64)
+            PK.gen_attributes(gbary, g, self._tri_uv, uv)
+        colors = B.lobe_colors(self.mtab, mat, uv)
+        ug = u[gi]
+        wo, wgt, pdf, is_delta, valid = B.sample_bsdf(
+            self.mtab, mat, colors, gns, gng, gwi, ug[:, :3], subset="all", mode="importance")
+        ok = valid & np.all(np.isfinite(wgt), axis=1) & (wgt.max(axis=1) > 0)
+        if roulette:
+            q = np.clip(wgt @ LUM, 0.0, 1.0)
+            ok &= ug[:, 3] < q
+            wgt = wgt / np.maximum(q, 1e-12)[:, None]
+        sel = np.nonzero(ok)[0]
+        if sel.size == 0:
+            return n_next
+        PK.append_survivors(n_next, sel, gp, gng, wo, wgt, gpow, REL_OFFSET,
+                            self.accel.abs_floor / REL_OFFSET, o32, d32, d64, pw)
+        if nxt is not None:
+            nxt[0][n_next:n_next + sel.size] = gi[sel]
+            nxt[1][n_next:n_next + sel.size] = is_delta[sel]
+        return n_next + sel.size
+
+    def _spectrum_at_hits(self, spec, K, o_seg, d_seg, rec, dep, n0):
+        """Frequency photons: travel, occlusion and projection onto the hit
+        surface (rays 0..K-1); predicted radius of the deposits n0..dep.n-1.
+        Returns the (K, 3) on-surface spectra (rows of missed rays unused)."""
+        model = self.settings.frequency_model
+        A_MAX = self.D * self.D
+        rec_t, rec_ng, rec_nswi, rec_hit = rec
+        hi = np.nonzero(rec_hit[:K])[0]
+        t = rec_t[hi]
+        s = F.travel(spec[hi], np.minimum(t, self.D), model, A_MAX)
+        if self.occ_grid is not None:
+            from .occlusion import march_occlusion
+            a_occ = march_occlusion(self.occ_grid, o_seg[hi], d_seg[hi], t, self.occ_locality)
+            s = F.occlude(s, a_occ, model, A_MAX)
+        cos_i = np.abs(_dot(rec_ng[hi], d_seg[hi]))
+        s = F.onto_surface(s, cos_i, model, A_MAX)
+        out = np.zeros((K, 3))
+        out[hi] = s
+        if dep.n > n0:
+            rp = F.predicted_radius(out[dep.src[n0:dep.n]], np.inf, np.inf, model)
+            # The grid keeps a per-pixel minimum; the paper's rule keeps the
+            # maximum, so its radii travel negated.
+            dep.r[n0:dep.n] = -rp if model == "PAPER" else rp
+        return out
+
+    def _spectrum_leaving(self, spec_hit, n_next, prim, rec, nxt, d64):
+        """Frequency photons leaving the surface: off_surface, lobe, curvature."""
+        model = self.settings.frequency_model
+        A_MAX = self.D * self.D
+        rec_t, rec_ng, rec_nswi, rec_hit = rec
+        srcs = nxt[0][:n_next]
+        dl = nxt[1][:n_next]
+        s = spec_hit[srcs]
+        cos_o = np.abs(_dot(rec_ng[srcs], d64[:n_next]))
+        s = F.off_surface(s, cos_o, model, A_MAX)
+        pr = prim[srcs]
+        mat = self.tris.mat[pr]
+        kinds = self.mtab.kind[mat, 0]
+        rough = self.mtab.roughness[mat, 0]
+        b_lobe = np.where(dl, 0.0, F.lobe_variance(kinds, rough))
+        s = F.brdf(s, b_lobe, model, A_MAX)
+        if self.kappa is not None:
+            kap = self.kappa[pr] * rec_nswi[srcs]
+            s = np.where(dl[:, None], F.curvature(s, kap, model, A_MAX), s)
+        return s
+
+    # ---------------------------------------------------------- numpy path
+    def _trace_numpy(self, n: int, n_freq: int, rng):
+        """The generic numpy path (every closure through ``bsdf.sample_bsdf``): the
+        reference the compiled path is tested against (``fast = False``)."""
         st = self.settings
         ph = Lt.sample_photons(self.light_table, n, rng)
         d = ph["d"]
@@ -56,7 +275,7 @@ class PhotonTracer:
         falloff_r2 = falloff_r2[idx]
         A_MAX = self.D * self.D
         model = st.frequency_model
-        out_p, out_ng, out_wi, out_pow, out_r = [], [], [], [], []
+        out_p, out_ng, out_wi, out_pow, out_r, out_b = [], [], [], [], [], []
         for bounce in range(st.max_bounces + 1):
             if o.shape[0] == 0:
                 break
@@ -103,6 +322,7 @@ class PhotonTracer:
                     # the maximum, so its radii travel negated.
                     r[fqd] = -rp if model == "PAPER" else rp
                 out_r.append(r)
+                out_b.append(np.full(dq.size, bounce, np.int32))
             if bounce == st.max_bounces:
                 break
             colors = B.lobe_colors(self.mtab, mat, uv)
@@ -141,7 +361,7 @@ class PhotonTracer:
             return None
         return {"p": np.concatenate(out_p), "ng": np.concatenate(out_ng),
                 "wi": np.concatenate(out_wi), "power": np.concatenate(out_pow),
-                "rpred": np.concatenate(out_r)}
+                "rpred": np.concatenate(out_r), "bounce": np.concatenate(out_b)}
 
 
 def triangle_curvature(scene: Scene) -> np.ndarray:

@@ -348,24 +348,42 @@ class Renderer:
         q = np.nonzero(vp.valid)[0]
         if q.size == 0:
             return L
-        smp = Lt.sample_direct(self.light_table, vp.p[q], rng.random((q.size, 3)))
-        wi, dist, wgt = smp["wi"], smp["dist"], smp["weight"]
+        smp = Lt.sample_direct(self.light_table, vp.p[q], rng.random((q.size, 3)), n=vp.ns[q])
+        wi, dist, wgt, shadow = smp["wi"], smp["dist"], smp["weight"], smp["cast_shadow"]
         live = (wgt.max(axis=1) > 0) & np.all(np.isfinite(wgt), axis=1)
-        q, wi, dist, wgt = q[live], wi[live], dist[live], wgt[live]
+        q, wi, dist, wgt, shadow = q[live], wi[live], dist[live], wgt[live], shadow[live]
         if q.size == 0:
             return L
         f = B.eval_bsdf(self.mtab, vp.mat[q], vp.colors[q], vp.ns[q], vp.ng[q], vp.wo[q], wi)
         cos = np.abs(_dot(vp.ns[q], wi))
         contrib = vp.beta[q] * f * cos[:, None] * wgt
         nz = contrib.max(axis=1) > 0
-        q, wi, dist, contrib = q[nz], wi[nz], dist[nz], contrib[nz]
+        q, wi, dist, contrib, shadow = q[nz], wi[nz], dist[nz], contrib[nz], shadow[nz]
         o = self.accel.spawn(vp.p[q], vp.ng[q], wi)
-        # Stop short of the light sample by the relative offset at its end
-        # (an emissive triangle must not shadow itself).
-        end = vp.p[q] + wi * np.where(np.isfinite(dist), dist, 0.0)[:, None]
-        tmax = np.where(np.isfinite(dist), dist - 2.0 * self.accel.offset_scale(end),
-                        np.inf)
-        blocked = self.accel.occluded(o, wi, np.maximum(tmax, 0.0))
+        blocked = np.zeros(q.size, bool)
+        mesh = smp["kind"][live][nz] == Lt.MESH
+        # Analytic lights are not geometry: any hit before them occludes.
+        a = np.nonzero(~mesh)[0]
+        if a.size:
+            blocked[a] = self.accel.occluded(o[a], wi[a], dist[a])
+        # Emissive triangles are geometry: the shadow ray must not be stopped by
+        # the emitter itself.  Embree's float32 hit distance errs by about
+        # offset/|cos| at grazing angles, so a closest hit counts as the emitter
+        # when it lies within that tolerance of the sample.
+        m = np.nonzero(mesh)[0]
+        if m.size:
+            end = vp.p[q[m]] + wi[m] * dist[m][:, None]
+            h = self.accel.intersect(o[m], wi[m], dist[m] * (1 + 1e-6) + self.accel.offset_scale(end))
+            hitm = h.hit
+            cos_l = np.ones(m.size)
+            if np.any(hitm):
+                P = self.scene.tri_p[h.prim[hitm]].astype(np.float64)
+                ngl = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+                ngl /= np.maximum(np.linalg.norm(ngl, axis=1, keepdims=True), 1e-300)
+                cos_l[hitm] = np.abs(_dot(ngl, wi[m][hitm]))
+            tol = 4.0 * self.accel.offset_scale(end) / np.maximum(cos_l, 1e-4)
+            blocked[m] = hitm & (h.t < dist[m] - tol)
+        blocked &= shadow
         L[q[~blocked]] += contrib[~blocked]
         return L
 
@@ -416,8 +434,12 @@ class Renderer:
             done += n
             if dep is None:
                 continue
+            # cos_ng = -1: count photons on every surface inside the sphere
+            # (pbrt-v4 SPPM) but only from the camera's side.  Rejecting the
+            # adjacent wall's photons darkened Cornell-box corners by 13%
+            # against Cycles; accepting them leaves 3% (measured, t_cornell).
             g = hashgrid.gather(grid, dep["p"], dep["ng"], dep["wi"], dep["power"], dep["rpred"],
-                                vp.p, vp.ng, self.R2, vp.const)
+                                vp.p, vp.ng, self.R2, vp.const, cos_ng=-1.0)
             M += g.M
             Phi += g.Phi_sum * (vp.albedo / np.pi)
             if g.pair_vp.size:

@@ -1,0 +1,774 @@
+"""Visible-point hash grid and photon gather (stochastic progressive photon mapping).
+
+Each pass (pbrt-v4 SPPM, Hachisuka & Jensen 2009):
+
+    grid = build_grid(vp_pos, vp_R, active)          # once per pass, O(K)
+    res = gather(grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                 vp_pos, vp_ng, vp_R2, vp_const)    # O(P * candidates)
+
+The grid stores *visible points* (VPs): every active VP is inserted in every
+cell its sphere of radius R overlaps, so a photon looks up exactly one cell.
+This is the hot loop of the renderer.  The gather first counting-sorts the
+photons by cell, copying their data into contiguous sorted arrays, so that
+consecutive photons test the same VPs (the VP records stay in cache) and read
+photon data sequentially; the gather then runs ~2x faster than in photon order.
+
+Counting rule.  Photon p counts for visible point v when
+  (1) |x_p - x_v|^2 < R_v^2                      (disc/sphere kernel of PPM),
+  (2) dot(wi_p, ng_v) > 0                         (photon arrives from the camera's
+                                                   side of the VP's surface),
+  (3) dot(ng_p, ng_v) > cos_ng (default 0.5 = cos 60 deg)
+                                                  (rejects photons on a differently
+                                                   oriented surface, e.g. the other
+                                                   wall of a corner).
+All three tests are evaluated in float64 in a fixed operation order, so the
+numba kernel and :func:`gather_bruteforce` (numpy) agree exactly; each is
+written as "count only if the comparison is True", so a NaN anywhere (radius,
+normal, direction) never counts.
+
+Outputs per VP (see :class:`GatherResult`): the photon count M, Phi_sum = sum of
+photon power for VPs whose BSDF is constant (diffuse: the caller multiplies by
+albedo/pi), (VP, photon) pairs for the other VPs (the caller evaluates the BSDF
+vectorised and scatters), and r_pred = min of the frequency photons' predicted
+radius (Belcour & Soler 2011; shared/notes/frequency.md "Conservative
+accumulation keeps the MINIMUM").
+
+Cell size (documented choice, measured with bench/bench_gather.py):
+  h = CELL_FACTOR * median(active R), CELL_FACTOR = 1.5.
+With VP spacing s on a surface and R = 1.5 s, a photon's cell holds about
+(h + 2R)^2 / s^2 candidates for pi R^2 / s^2 = 7 hits, while each VP is
+stored in about (2R/h + 1)^2 cells.  Build + gather CPU time, K = 65,536,
+P = 600,000 (plane / box), for h/R = 0.75, 1, 1.5, 2, 3:
+165/160, 153/143, 149/142, 149/145, 173/168 ms -- flat between R and 2R;
+1.5 R keeps the memory at ~10 entries per VP.  pbrt-v4 sizes cells from the
+max radius; the median is used so that a few large radii (distant surfaces,
+held frequency radii) do not coarsen the grid for every VP.  Clamp: h grows
+by 25% steps until the grid holds at most ENTRY_BUDGET_PER_VP cell entries per
+active VP on average, which bounds build time and memory whatever the radius
+distribution (a single VP of 100x the median radius would otherwise occupy
+~10^6 cells).
+
+Storage: CSR (cell_start, vp_ids) built by a counting pass, a prefix sum and a
+fill pass.  Dense 3D grid over the active bounds when that has at most as many
+cells as the hash table would have (flat axis-aligned sets); otherwise a
+spatial hash of the integer cell coordinates into a power-of-two table of about
+one slot per cell entry.  Hash collisions only add candidates (rejected by the
+exact test (1)); a VP whose cells collide into one slot is stored once there
+(per-slot last-writer mark), so it is never counted twice.
+
+Pairs: the counting pass records, per photon, a 64-bit mask of the counted
+entries of its cell and the number of pairs; a prefix sum gives each photon
+its output range, and a second pass writes the pairs from the mask (cells of
+more than 64 entries redo the exact tests).  No over-allocation, no growth.
+
+Parallelism: with ``parallel=True`` the sorted photons are split into one
+contiguous chunk per numba thread, each chunk accumulating into its own (K,)
+arrays (race-free, no atomics), summed afterwards; the sort scatters by
+disjoint slot ranges, one per thread.  The build is serial (O(K), ~10% of a
+pass's gather).  Results do not depend on the thread count except for the
+summation order of Phi_sum.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+COS_NG_DEFAULT = 0.5          # cos(60 deg): photon / VP surface orientation test (3)
+CELL_FACTOR = 1.5             # h = CELL_FACTOR * median active radius
+ENTRY_BUDGET_PER_VP = 64      # clamp: mean cell entries per active VP
+PARALLEL_MIN_PHOTONS = 50_000  # below this, thread start-up outweighs the split
+# Insertion radius = R * (1 + REL_PAD) + ABS_PAD * (scene scale): makes the
+# cell overlap test conservative against float64 rounding of the cell bounds
+# and of R^2 (vp_R2 may be computed as R*R by the caller).  Only adds candidates.
+_REL_PAD = 1e-9
+_ABS_PAD = 1e-12
+
+# 64-bit odd multipliers for the spatial hash (splitmix / xxhash constants).
+_H1 = np.uint64(0x9E3779B97F4A7C15)
+_H2 = np.uint64(0xC2B2AE3D27D4EB4F)
+_H3 = np.uint64(0x165667B19E3779F9)
+_HM = np.uint64(0xD6E8FEB86659FD93)
+
+
+@dataclass(frozen=True)
+class Grid:
+    """Visible points bucketed by cell, CSR layout.
+
+    K: number of visible points the grid was built for (active or not).
+    n_active: number of VPs inserted.
+    origin: (3,) float64 world position of cell (0, 0, 0)'s min corner.
+    h: float cell edge [m]; inv_h = 1/h.
+    lo, hi: (3,) float64 bounds of all inserted spheres; photons outside are skipped.
+    dense: True = dense grid of dims (3,) int64 cells; False = spatial hash
+      with 2**log2_table slots.
+    cell_start: (n_slots + 1,) int64; VPs of slot s are vp_ids[cell_start[s]:cell_start[s+1]].
+    vp_ids: (n_entries,) int32, ascending within a slot.
+    R_ins: (K,) float64 insertion radius (0 for inactive VPs); gather requires
+      vp_R2 <= R_ins**2.
+    """
+    K: int
+    n_active: int
+    origin: np.ndarray
+    h: float
+    inv_h: float
+    lo: np.ndarray
+    hi: np.ndarray
+    dense: bool
+    dims: np.ndarray
+    log2_table: int
+    cell_start: np.ndarray
+    vp_ids: np.ndarray
+    R_ins: np.ndarray
+
+    @property
+    def n_slots(self) -> int:
+        return self.cell_start.shape[0] - 1
+
+    @property
+    def n_entries(self) -> int:
+        return self.vp_ids.shape[0]
+
+    def summary(self) -> str:
+        kind = "dense %dx%dx%d" % tuple(self.dims) if self.dense else \
+            "hash 2^%d" % self.log2_table
+        return (f"grid {kind}, h={self.h:.4g}, {self.n_active}/{self.K} VPs, "
+                f"{self.n_entries} entries ({self.n_entries / max(self.n_active, 1):.1f}/VP)")
+
+
+@dataclass
+class GatherResult:
+    """Per-pass photon statistics of the visible points.
+
+    M: (K,) int64 photons counted by each VP (all VPs).
+    Phi_sum: (K, 3) float64 sum of photon power, VPs with vp_const True only
+      (0 elsewhere); the caller multiplies by albedo/pi.
+    pair_vp, pair_ph: (n_pairs,) int32 (VP, photon) pairs for VPs with vp_const
+      False; grouped by photon, otherwise unordered.
+    rpred_min: (K,) float64 min ph_rpred over counted frequency photons
+      (non-NaN ph_rpred); inf when none.
+    rpred_pair_vp: (n_freq_pairs,) int32 and rpred_pair_r: (n_freq_pairs,)
+      float64, every (VP, r_pred) of a counted frequency photon, all VPs; only
+      when gather(..., want_rpred_pairs=True), else None.
+    """
+    M: np.ndarray
+    Phi_sum: np.ndarray
+    pair_vp: np.ndarray
+    pair_ph: np.ndarray
+    rpred_min: np.ndarray
+    rpred_pair_vp: Optional[np.ndarray] = None
+    rpred_pair_r: Optional[np.ndarray] = None
+
+
+# ----------------------------------------------------------------------------
+# Kernels
+# ----------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _slot(ix, iy, iz, dense, nx, ny, nz, shift):
+    """Slot of integer cell (ix, iy, iz): dense index, or -1 outside a dense grid;
+    hash: xor of odd multiples, then a multiplicative (Fibonacci) mix whose top
+    log2_table bits are the slot."""
+    if dense:
+        if ix < 0 or iy < 0 or iz < 0 or ix >= nx or iy >= ny or iz >= nz:
+            return -1
+        return ix + nx * (iy + ny * iz)
+    k = (np.uint64(ix) * _H1) ^ (np.uint64(iy) * _H2) ^ (np.uint64(iz) * _H3)
+    return np.int64((k * _HM) >> np.uint64(shift))
+
+
+@njit(cache=True)
+def _insert(pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
+            n_slots, count, mark, cell_start, vp_ids, fill):
+    """Counting pass (fill=False: count[s] += 1) or fill pass (fill=True:
+    vp_ids[count[s]++] = v, count = running write cursor) over every cell a
+    VP's sphere overlaps.  mark[s] = last VP written to slot s (dedup of hash
+    collisions within one VP)."""
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for v in range(pos.shape[0]):
+        if not active[v]:
+            continue
+        cx, cy, cz = pos[v, 0], pos[v, 1], pos[v, 2]
+        r = R_ins[v]
+        r2 = r * r
+        x0 = np.int64(math.floor((cx - r - ox) * inv_h))
+        x1 = np.int64(math.floor((cx + r - ox) * inv_h))
+        y0 = np.int64(math.floor((cy - r - oy) * inv_h))
+        y1 = np.int64(math.floor((cy + r - oy) * inv_h))
+        z0 = np.int64(math.floor((cz - r - oz) * inv_h))
+        z1 = np.int64(math.floor((cz + r - oz) * inv_h))
+        for iz in range(z0, z1 + 1):
+            bz0 = oz + iz * h
+            dz = max(bz0 - cz, 0.0, cz - (bz0 + h))
+            for iy in range(y0, y1 + 1):
+                by0 = oy + iy * h
+                dy = max(by0 - cy, 0.0, cy - (by0 + h))
+                dyz = dy * dy + dz * dz
+                if dyz > r2:
+                    continue
+                for ix in range(x0, x1 + 1):
+                    bx0 = ox + ix * h
+                    dx = max(bx0 - cx, 0.0, cx - (bx0 + h))
+                    # sphere-box overlap (closest point of the cell box)
+                    if dx * dx + dyz > r2:
+                        continue
+                    s = _slot(ix, iy, iz, dense, nx, ny, nz, shift)
+                    if s < 0:
+                        continue
+                    if not dense:
+                        if mark[s] == v:
+                            continue
+                        mark[s] = v
+                    if fill:
+                        vp_ids[count[s]] = v
+                        count[s] += 1
+                    else:
+                        count[s] += 1
+
+
+@njit(cache=True)
+def _photon_slots(p0, p1, ph_pos, origin, inv_h, lo, hi, dense, nx, ny, nz, shift,
+                  cell_start, ps):
+    """ps[p] = slot of photon p, or -1 outside the grid / in an empty slot."""
+    # Scalars hoisted and a branch-free bounds test: passing the arrays to a
+    # helper per photon was measured 10x slower than the loop body itself.
+    lx, ly, lz, hx, hy, hz = lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    for p in range(p0, p1):
+        x = np.float64(ph_pos[p, 0])
+        y = np.float64(ph_pos[p, 1])
+        z = np.float64(ph_pos[p, 2])
+        # False for NaN too: non-finite photons are never counted.
+        inside = (x >= lx) & (x <= hx) & (y >= ly) & (y <= hy) & (z >= lz) & (z <= hz)
+        s = -1
+        if inside:
+            s = _slot(np.int64(math.floor((x - ox) * inv_h)),
+                      np.int64(math.floor((y - oy) * inv_h)),
+                      np.int64(math.floor((z - oz) * inv_h)), dense, nx, ny, nz, shift)
+            if s >= 0 and cell_start[s + 1] == cell_start[s]:
+                s = -1
+        ps[p] = s
+
+
+@njit(cache=True)
+def _slot_starts(ps, n_slots):
+    """Counting-sort prefix: start[s] = number of photons in slots < s."""
+    start = np.zeros(n_slots + 1, np.int64)
+    for p in range(ps.shape[0]):
+        if ps[p] >= 0:
+            start[ps[p] + 1] += 1
+    for s in range(n_slots):
+        start[s + 1] += start[s]
+    return start
+
+
+@njit(cache=True)
+def _scatter(s0, s1, ps, cursor, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+             order, slot, pos, ng, wi, power, rpred):
+    """Copy the photons of slots s0..s1-1 to their sorted places (stable: by
+    photon index within a slot).  Threads own disjoint slot ranges, hence
+    disjoint cursor entries and output rows."""
+    for p in range(ps.shape[0]):
+        s = ps[p]
+        if s >= s0 and s < s1:
+            q = cursor[s]
+            cursor[s] = q + 1
+            order[q] = p
+            slot[q] = s
+            for k in range(3):
+                pos[q, k] = ph_pos[p, k]
+                ng[q, k] = ph_ng[p, k]
+                wi[q, k] = ph_wi[p, k]
+                power[q, k] = ph_power[p, k]
+            rpred[q] = ph_rpred[p]
+
+
+@njit(cache=True, parallel=True)
+def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                  origin, inv_h, lo, hi, dense, nx, ny, nz, shift, cell_start, n_chunks):
+    """Counting sort of the photons by slot, copying their data into sorted,
+    contiguous arrays.  Consecutive photons then share their candidate VPs and
+    read memory sequentially: measured 2.5x faster than photon order (VP
+    records missing the cache) or sorted indices (photon data missing it).
+    Photons outside the grid or in an empty slot are dropped.  n_chunks
+    threads (1 = serial); the result does not depend on n_chunks.
+    Returns order (n,) int32 original photon index, slot (n,) int64, and the
+    sorted pos, ng, wi (n, 3) (input dtype), power (n, 3), rpred (n,)."""
+    P = ph_pos.shape[0]
+    n_slots = cell_start.shape[0] - 1
+    ps = np.empty(P, np.int64)
+    for c in prange(n_chunks):
+        _photon_slots(c * P // n_chunks, (c + 1) * P // n_chunks, ph_pos, origin, inv_h,
+                      lo, hi, dense, nx, ny, nz, shift, cell_start, ps)
+    start = _slot_starts(ps, n_slots)
+    n = start[n_slots]
+    # Slot ranges holding ~n / n_chunks photons each.
+    bounds = np.empty(n_chunks + 1, np.int64)
+    for c in range(n_chunks + 1):
+        bounds[c] = np.searchsorted(start, c * n // n_chunks)
+    bounds[n_chunks] = n_slots
+    order = np.empty(n, np.int32)
+    slot = np.empty(n, np.int64)
+    pos = np.empty((n, 3), ph_pos.dtype)
+    ng = np.empty((n, 3), ph_ng.dtype)
+    wi = np.empty((n, 3), ph_wi.dtype)
+    power = np.empty((n, 3), np.float64)
+    rpred = np.empty(n, np.float64)
+    for c in prange(n_chunks):
+        _scatter(bounds[c], bounds[c + 1], ps, start, ph_pos, ph_ng, ph_wi, ph_power,
+                 ph_rpred, order, slot, pos, ng, wi, power, rpred)
+    return order, slot, pos, ng, wi, power, rpred
+
+
+@njit(cache=True)
+def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                 vp_rec, cos_ng, cell_start, vp_ids,
+                 M, Phi, rmin, hitmask, n_pair, n_freq):
+    """Sorted photons q0..q1-1 (ph_* already in sorted order): accumulate M,
+    Phi (const VPs), rmin into this chunk's arrays.  n_pair[q] / n_freq[q] =
+    number of non-const / frequency pairs of the photon; hitmask[q] bit j =
+    entry cell_start[s] + j counted (cells of <= 64 entries), so the pair pass
+    need not redo the tests."""
+    one = np.uint64(1)
+    for p in range(q0, q1):
+        q = p
+        s = slot[q]
+        e0 = cell_start[s]
+        e1 = cell_start[s + 1]
+        x = np.float64(ph_pos[p, 0])
+        y = np.float64(ph_pos[p, 1])
+        z = np.float64(ph_pos[p, 2])
+        wx = np.float64(ph_wi[p, 0])
+        wy = np.float64(ph_wi[p, 1])
+        wz = np.float64(ph_wi[p, 2])
+        gx = np.float64(ph_ng[p, 0])
+        gy = np.float64(ph_ng[p, 1])
+        gz = np.float64(ph_ng[p, 2])
+        r = ph_rpred[p]
+        is_freq = not math.isnan(r)
+        npair = 0
+        nfreq = 0
+        mask = np.uint64(0)
+        for e in range(e0, e1):
+            v = vp_ids[e]
+            dx = x - vp_rec[v, 0]
+            dy = y - vp_rec[v, 1]
+            dz = z - vp_rec[v, 2]
+            if not (dx * dx + dy * dy + dz * dz < vp_rec[v, 3]):            # (1)
+                continue
+            nvx = vp_rec[v, 4]
+            nvy = vp_rec[v, 5]
+            nvz = vp_rec[v, 6]
+            if not (wx * nvx + wy * nvy + wz * nvz > 0.0):                  # (2)
+                continue
+            if not (gx * nvx + gy * nvy + gz * nvz > cos_ng):               # (3)
+                continue
+            M[v] += 1
+            if vp_rec[v, 7] != 0.0:
+                Phi[v, 0] += ph_power[p, 0]
+                Phi[v, 1] += ph_power[p, 1]
+                Phi[v, 2] += ph_power[p, 2]
+            else:
+                npair += 1
+            if is_freq:
+                nfreq += 1
+                if r < rmin[v]:
+                    rmin[v] = r
+            if e - e0 < 64:
+                mask |= one << np.uint64(e - e0)
+        hitmask[q] = mask
+        n_pair[q] = npair
+        n_freq[q] = nfreq
+
+
+@njit(cache=True)
+def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
+                 vp_rec, cos_ng, cell_start, vp_ids, hitmask,
+                 n_pair, pair_off, pair_vp, pair_ph,
+                 n_freq, freq_off, fpair_vp, fpair_r, want_freq):
+    """Second pass over photons with pairs: the counted entries come from
+    hitmask, or (cells of > 64 entries) from the same tests as _count_range in
+    the same arithmetic; pairs are written at the photon's prefix-sum offset."""
+    one = np.uint64(1)
+    for q in range(q0, q1):
+        if n_pair[q] == 0 and not (want_freq and n_freq[q] > 0):
+            continue
+        p = order[q]           # original photon index (for pair_ph)
+        s = slot[q]
+        e0 = cell_start[s]
+        e1 = cell_start[s + 1]
+        r = ph_rpred[q]
+        is_freq = want_freq and not math.isnan(r)
+        k = pair_off[q]
+        kf = freq_off[q]
+        if e1 - e0 <= 64:
+            mask = hitmask[q]
+            for j in range(e1 - e0):
+                if (mask >> np.uint64(j)) & one:
+                    v = vp_ids[e0 + j]
+                    if vp_rec[v, 7] == 0.0:
+                        pair_vp[k] = v
+                        pair_ph[k] = p
+                        k += 1
+                    if is_freq:
+                        fpair_vp[kf] = v
+                        fpair_r[kf] = r
+                        kf += 1
+            continue
+        x = np.float64(ph_pos[q, 0])
+        y = np.float64(ph_pos[q, 1])
+        z = np.float64(ph_pos[q, 2])
+        wx = np.float64(ph_wi[q, 0])
+        wy = np.float64(ph_wi[q, 1])
+        wz = np.float64(ph_wi[q, 2])
+        gx = np.float64(ph_ng[q, 0])
+        gy = np.float64(ph_ng[q, 1])
+        gz = np.float64(ph_ng[q, 2])
+        for e in range(e0, e1):
+            v = vp_ids[e]
+            dx = x - vp_rec[v, 0]
+            dy = y - vp_rec[v, 1]
+            dz = z - vp_rec[v, 2]
+            if not (dx * dx + dy * dy + dz * dz < vp_rec[v, 3]):
+                continue
+            nvx = vp_rec[v, 4]
+            nvy = vp_rec[v, 5]
+            nvz = vp_rec[v, 6]
+            if not (wx * nvx + wy * nvy + wz * nvz > 0.0):
+                continue
+            if not (gx * nvx + gy * nvy + gz * nvz > cos_ng):
+                continue
+            if vp_rec[v, 7] == 0.0:
+                pair_vp[k] = v
+                pair_ph[k] = p
+                k += 1
+            if is_freq:
+                fpair_vp[kf] = v
+                fpair_r[kf] = r
+                kf += 1
+
+
+@njit(cache=True)
+def _count_serial(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, cos_ng,
+                  cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq):
+    _count_range(0, slot.shape[0], slot, ph_pos, ph_ng, ph_wi, ph_power,
+                 ph_rpred, vp_rec, cos_ng, cell_start, vp_ids, M[0], Phi[0], rmin[0],
+                 hitmask, n_pair, n_freq)
+
+
+@njit(cache=True, parallel=True)
+def _count_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec,
+                    cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq):
+    # One contiguous range of sorted photons per accumulator row: chunks never
+    # share a row, and the per-photon outputs are indexed by q: no race.
+    n_chunks = M.shape[0]
+    n = slot.shape[0]
+    for c in prange(n_chunks):
+        _count_range(c * n // n_chunks, (c + 1) * n // n_chunks, slot, ph_pos,
+                     ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, cos_ng, cell_start,
+                     vp_ids, M[c], Phi[c], rmin[c], hitmask, n_pair, n_freq)
+
+
+@njit(cache=True)
+def _pairs_serial(order, slot, ph_pos, ph_ng, ph_wi, ph_rpred, vp_rec, cos_ng,
+                  cell_start, vp_ids, hitmask, n_pair, pair_off, pair_vp, pair_ph,
+                  n_freq, freq_off, fpair_vp, fpair_r, want_freq):
+    _pairs_range(0, order.shape[0], order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
+                 vp_rec, cos_ng, cell_start, vp_ids, hitmask, n_pair, pair_off,
+                 pair_vp, pair_ph, n_freq, freq_off, fpair_vp, fpair_r, want_freq)
+
+
+@njit(cache=True, parallel=True)
+def _pairs_parallel(order, slot, ph_pos, ph_ng, ph_wi, ph_rpred, vp_rec, cos_ng,
+                    cell_start, vp_ids, hitmask, n_pair, pair_off, pair_vp, pair_ph,
+                    n_freq, freq_off, fpair_vp, fpair_r, want_freq, n_chunks):
+    # Each photon writes only its own [offset, offset + count) ranges: race-free.
+    n = order.shape[0]
+    for c in prange(n_chunks):
+        _pairs_range(c * n // n_chunks, (c + 1) * n // n_chunks, order, slot, ph_pos,
+                     ph_ng, ph_wi, ph_rpred, vp_rec, cos_ng, cell_start, vp_ids,
+                     hitmask, n_pair, pair_off, pair_vp, pair_ph, n_freq, freq_off,
+                     fpair_vp, fpair_r, want_freq)
+
+
+# ----------------------------------------------------------------------------
+# Build
+# ----------------------------------------------------------------------------
+
+def _bbox_entries(pos, R, origin, inv_h) -> int:
+    """Upper bound on cell entries: sum over VPs of their bounding-box cell count."""
+    a = np.floor((pos - R[:, None] - origin) * inv_h)
+    b = np.floor((pos + R[:, None] - origin) * inv_h)
+    return int(np.prod(b - a + 1.0, axis=1).sum())
+
+
+def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
+               cell_factor: float = CELL_FACTOR, layout: str = "auto",
+               log2_table: Optional[int] = None) -> Grid:
+    """Bucket the active visible points into a grid (see the module docstring).
+
+    vp_pos: (K, 3) float64 world positions.  vp_R: (K,) float64 radii [m].
+    active: (K,) bool; VPs with a non-finite position or radius, or R <= 0, are
+    treated as inactive.  cell_factor: h = cell_factor * median active radius
+    (before the entry-budget clamp).  layout: 'auto', 'dense' or 'hash';
+    log2_table forces a hash table of 2**log2_table slots (tests use tiny
+    tables to exercise collisions).
+    """
+    if layout not in ("auto", "dense", "hash"):
+        raise ValueError("build_grid: layout must be 'auto', 'dense' or 'hash', "
+                         f"not {layout!r}")
+    vp_pos = np.ascontiguousarray(vp_pos, dtype=np.float64).reshape(-1, 3)
+    K = vp_pos.shape[0]
+    vp_R = np.ascontiguousarray(vp_R, dtype=np.float64).reshape(K)
+    active = np.asarray(active, dtype=bool).reshape(K)
+    with np.errstate(invalid="ignore"):
+        act = active & np.isfinite(vp_pos).all(axis=1) & np.isfinite(vp_R) & (vp_R > 0)
+    n_active = int(act.sum())
+    R_ins = np.zeros(K)
+    if n_active == 0:
+        z3 = np.zeros(3)
+        return Grid(K, 0, z3, 1.0, 1.0, np.full(3, np.inf), np.full(3, -np.inf),
+                    True, np.ones(3, np.int64), 0, np.zeros(2, np.int64),
+                    np.zeros(0, np.int32), R_ins)
+
+    P_act = vp_pos[act]
+    R_act = vp_R[act]
+    scale = float(np.abs(P_act).max() + R_act.max())
+    R_act = R_act * (1.0 + _REL_PAD) + _ABS_PAD * scale
+    R_ins[act] = R_act
+    lo = (P_act - R_act[:, None]).min(axis=0)
+    hi = (P_act + R_act[:, None]).max(axis=0)
+    origin = lo.copy()
+
+    h = cell_factor * float(np.median(R_act))
+    budget = ENTRY_BUDGET_PER_VP * n_active
+    while True:
+        inv_h = 1.0 / h
+        est = _bbox_entries(P_act, R_act, origin, inv_h)
+        if est <= budget:
+            break
+        h *= 1.25
+    dims = (np.floor((hi - origin) * inv_h).astype(np.int64) + 1)
+    n_dense = int(np.prod(dims.astype(np.float64)))
+    if log2_table is None:
+        log2_table = max(1, int(math.ceil(math.log2(max(est, 2)))))
+    else:
+        log2_table, layout = max(1, min(int(log2_table), 40)), "hash"
+    dense = {"auto": n_dense <= (1 << log2_table), "dense": True, "hash": False}[layout]
+    if dense:
+        n_slots, shift = n_dense, 0
+    else:
+        n_slots, shift = 1 << log2_table, 64 - log2_table
+
+    count = np.zeros(n_slots + 1, np.int64)
+    mark = np.full(0 if dense else n_slots, -1, np.int64)
+    cell_start = count  # placeholder argument for the counting pass
+    dummy = np.zeros(0, np.int32)
+    args = (vp_pos, R_ins, act, origin, h, inv_h, dense,
+            int(dims[0]), int(dims[1]), int(dims[2]), shift, n_slots)
+    _insert(*args, count, mark, cell_start, dummy, False)
+    cell_start = np.zeros(n_slots + 1, np.int64)
+    np.cumsum(count[:n_slots], out=cell_start[1:])
+    vp_ids = np.empty(int(cell_start[-1]), np.int32)
+    cursor = cell_start.copy()
+    mark[:] = -1
+    _insert(*args, cursor, mark, cell_start, vp_ids, True)
+    return Grid(K, n_active, origin, h, inv_h, lo, hi, bool(dense), dims,
+                0 if dense else log2_table, cell_start, vp_ids, R_ins)
+
+
+# ----------------------------------------------------------------------------
+# Gather
+# ----------------------------------------------------------------------------
+
+def _geom(a, P, dtype):
+    return np.ascontiguousarray(a, dtype=dtype).reshape(P, 3)
+
+
+def _prepare(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_pos, vp_ng, vp_R2, vp_const):
+    ph_pos = np.asarray(ph_pos)
+    P = ph_pos.size // 3
+    # Photon geometry stays float32 when it all comes from Embree (no copy);
+    # any float64 input promotes all three to float64.
+    dt = np.result_type(ph_pos.dtype, np.asarray(ph_ng).dtype, np.asarray(ph_wi).dtype,
+                        np.float32)
+    dt = np.float32 if dt == np.float32 else np.float64
+    ph = (_geom(ph_pos, P, dt), _geom(ph_ng, P, dt), _geom(ph_wi, P, dt),
+          np.ascontiguousarray(ph_power, dtype=np.float64).reshape(P, 3),
+          np.ascontiguousarray(ph_rpred, dtype=np.float64).reshape(P))
+    vp_pos = np.ascontiguousarray(vp_pos, dtype=np.float64).reshape(-1, 3)
+    K = vp_pos.shape[0]
+    vp = (vp_pos, np.ascontiguousarray(vp_ng, dtype=np.float64).reshape(K, 3),
+          np.ascontiguousarray(vp_R2, dtype=np.float64).reshape(K),
+          np.ascontiguousarray(vp_const, dtype=np.bool_).reshape(K))
+    return P, K, ph, vp
+
+
+def _empty_result(K, want_rpred_pairs):
+    e = np.zeros(0, np.int32)
+    return GatherResult(np.zeros(K, np.int64), np.zeros((K, 3)), e, e.copy(),
+                        np.full(K, np.inf),
+                        e.copy() if want_rpred_pairs else None,
+                        np.zeros(0) if want_rpred_pairs else None)
+
+
+def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+           vp_pos, vp_ng, vp_R2, vp_const, cos_ng: float = COS_NG_DEFAULT,
+           want_rpred_pairs: bool = False, parallel: Optional[bool] = None) -> GatherResult:
+    """Count photons into visible points (rules (1)-(3) of the module docstring).
+
+    ph_pos (P, 3) float32/64 photon hit positions; ph_ng (P, 3) geometric normal
+    of the surface the photon hit; ph_wi (P, 3) unit direction towards where the
+    photon came from; ph_power (P, 3) float64; ph_rpred (P,) float64 predicted
+    radius, NaN = not a frequency photon.  vp_pos (K, 3) float64; vp_ng (K, 3)
+    geometric normal oriented to the camera side; vp_R2 (K,) float64 squared
+    radius, must be <= grid.R_ins**2 (build the grid with the pass's radii);
+    vp_const (K,) bool: BSDF is constant (Phi_sum) or not (pairs).  VPs not
+    active in the grid count nothing.  The caller rejects photons with
+    non-finite or non-positive power before the gather.
+    parallel: split photons over numba threads (None = when P >=
+    PARALLEL_MIN_PHOTONS and more than one thread is available).
+    """
+    K = np.asarray(vp_pos).size // 3
+    if K != grid.K:
+        raise ValueError(f"gather: {K} visible points but the grid was built for {grid.K}")
+    P, K, ph, vp = _prepare(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                            vp_pos, vp_ng, vp_R2, vp_const)
+    vp_R2 = vp[2]
+    if np.any((vp_R2 > grid.R_ins * grid.R_ins) & (grid.R_ins > 0)):
+        raise ValueError("gather: vp_R2 exceeds the radius the grid was built with; "
+                         "rebuild the grid after the radii grow")
+    if P == 0 or grid.n_active == 0:
+        return _empty_result(K, want_rpred_pairs)
+
+    n_threads = numba.get_num_threads()
+    if parallel is None:
+        parallel = n_threads > 1 and P >= PARALLEL_MIN_PHOTONS
+    n_chunks = n_threads if parallel else 1
+    ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_ = ph
+    order, slot, ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_ = _sort_photons(
+        ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_, grid.origin, grid.inv_h,
+        grid.lo, grid.hi, grid.dense, int(grid.dims[0]), int(grid.dims[1]), int(grid.dims[2]),
+        0 if grid.dense else 64 - grid.log2_table, grid.cell_start, n_chunks)
+    n = order.shape[0]
+    if n == 0:
+        return _empty_result(K, want_rpred_pairs)
+
+    # One 64-byte record per VP (x, y, z, R^2, ng, const): a candidate reads
+    # one cache line instead of four arrays.
+    vp_rec = np.empty((K, 8))
+    vp_rec[:, 0:3] = vp[0]
+    vp_rec[:, 3] = vp_R2
+    vp_rec[:, 4:7] = vp[1]
+    vp_rec[:, 7] = vp[3]
+    M = np.zeros((n_chunks, K), np.int64)
+    Phi = np.zeros((n_chunks, K, 3))
+    rmin = np.full((n_chunks, K), np.inf)
+    hitmask = np.empty(n, np.uint64)
+    n_pair = np.empty(n, np.int32)
+    n_freq = np.empty(n, np.int32)
+    g = (grid.cell_start, grid.vp_ids)
+    cargs = (slot, ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_, vp_rec,
+             float(cos_ng), *g, M, Phi, rmin, hitmask, n_pair, n_freq)
+    if parallel:
+        _count_parallel(*cargs)
+        M = M.sum(axis=0)
+        Phi = Phi.sum(axis=0)
+        rmin = rmin.min(axis=0)
+    else:
+        _count_serial(*cargs)
+        M, Phi, rmin = M[0], Phi[0], rmin[0]
+
+    pair_off = np.zeros(n + 1, np.int64)
+    np.cumsum(n_pair, out=pair_off[1:])
+    n_pairs = int(pair_off[-1])
+    freq_off = np.zeros(n + 1, np.int64)
+    if want_rpred_pairs:
+        np.cumsum(n_freq, out=freq_off[1:])
+    n_fp = int(freq_off[-1])
+    pair_vp = np.empty(n_pairs, np.int32)
+    pair_ph = np.empty(n_pairs, np.int32)
+    fpair_vp = np.empty(n_fp, np.int32)
+    fpair_r = np.empty(n_fp, np.float64)
+    if n_pairs or n_fp:
+        pargs = (order, slot, ph_pos_, ph_ng_, ph_wi_, ph_rpred_, vp_rec, float(cos_ng),
+                 *g, hitmask, n_pair, pair_off, pair_vp, pair_ph, n_freq, freq_off,
+                 fpair_vp, fpair_r, bool(want_rpred_pairs))
+        if parallel:
+            _pairs_parallel(*pargs, n_chunks)
+        else:
+            _pairs_serial(*pargs)
+    return GatherResult(M, Phi, pair_vp, pair_ph, rmin,
+                        fpair_vp if want_rpred_pairs else None,
+                        fpair_r if want_rpred_pairs else None)
+
+
+# ----------------------------------------------------------------------------
+# Reference
+# ----------------------------------------------------------------------------
+
+def gather_bruteforce(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_pos, vp_ng, vp_R2,
+                      vp_const, active=None, cos_ng: float = COS_NG_DEFAULT,
+                      want_rpred_pairs: bool = False,
+                      block_elems: int = 1 << 22) -> GatherResult:
+    """Reference gather in numpy: tests every (photon, VP) pair, O(P*K).
+
+    Same arguments as :func:`gather` plus active (K,) bool (the mask given to
+    build_grid; None = all).  Same float64 arithmetic in the same order, so M,
+    the pair sets and rpred_min are bit-identical to the grid gather.  Pairs
+    are sorted by (photon, VP).
+    """
+    P, K, ph, vp = _prepare(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                            vp_pos, vp_ng, vp_R2, vp_const)
+    if P == 0 or K == 0:
+        return _empty_result(K, want_rpred_pairs)
+    ph_pos, ph_ng, ph_wi, ph_power, ph_rpred = ph
+    vp_pos, vp_ng, vp_R2, vp_const = vp
+    act = np.ones(K, bool) if active is None else np.asarray(active, bool).reshape(K)
+    with np.errstate(invalid="ignore"):
+        # the VPs build_grid drops: non-finite position or radius
+        act = act & np.isfinite(vp_pos).all(axis=1) & np.isfinite(vp_R2)
+    x = ph_pos.astype(np.float64)
+    wi = ph_wi.astype(np.float64)
+    ng = ph_ng.astype(np.float64)
+    M = np.zeros(K, np.int64)
+    Phi = np.zeros((K, 3))
+    rmin = np.full(K, np.inf)
+    pv, pp, fv, fr = [], [], [], []
+    B = max(1, block_elems // K)
+    for b0 in range(0, P, B):
+        b1 = min(P, b0 + B)
+        sl = slice(b0, b1)
+        dx = x[sl, 0, None] - vp_pos[None, :, 0]
+        dy = x[sl, 1, None] - vp_pos[None, :, 1]
+        dz = x[sl, 2, None] - vp_pos[None, :, 2]
+        ok = (dx * dx + dy * dy + dz * dz) < vp_R2[None, :]
+        ok &= (wi[sl, 0, None] * vp_ng[None, :, 0] + wi[sl, 1, None] * vp_ng[None, :, 1]
+               + wi[sl, 2, None] * vp_ng[None, :, 2]) > 0.0
+        ok &= (ng[sl, 0, None] * vp_ng[None, :, 0] + ng[sl, 1, None] * vp_ng[None, :, 1]
+               + ng[sl, 2, None] * vp_ng[None, :, 2]) > cos_ng
+        ok &= act[None, :]
+        # photons outside the finite range are never counted (as in the grid)
+        ok &= np.isfinite(x[sl]).all(axis=1)[:, None]
+        ip, iv = np.nonzero(ok)
+        ip = ip + b0
+        M += np.bincount(iv, minlength=K)
+        c = vp_const[iv]
+        for ch in range(3):
+            Phi[:, ch] += np.bincount(iv[c], weights=ph_power[ip[c], ch], minlength=K)
+        pv.append(iv[~c])
+        pp.append(ip[~c])
+        r = ph_rpred[ip]
+        f = ~np.isnan(r)
+        np.minimum.at(rmin, iv[f], r[f])
+        fv.append(iv[f])
+        fr.append(r[f])
+    pair_vp = np.concatenate(pv).astype(np.int32)
+    pair_ph = np.concatenate(pp).astype(np.int32)
+    return GatherResult(M, Phi, pair_vp, pair_ph, rmin,
+                        np.concatenate(fv).astype(np.int32) if want_rpred_pairs else None,
+                        np.concatenate(fr) if want_rpred_pairs else None)

@@ -1,0 +1,165 @@
+"""Build the example .blend files shipped with FPPM.
+
+Run:  .venv/bin/python example_blends/make_examples.py [name ...]
+
+Each file: 128x128, camera set, ``render.engine`` 'CYCLES' with caustics on
+and reference settings (no denoising / adaptive sampling / clamping,
+'Standard' view), so the same file renders in Cycles; switch the engine to
+FPPM to render it with the add-on.  Only shader nodes the exporter supports
+are used (Diffuse, Glossy, Glass, Emission, Mix).  Scene helpers live in
+tests/scenes/bpy_kit.py.
+
+  cornell.blend        Cornell box, ceiling area light (the default example)
+  coffee_cup.blend     the seed paper's Figure 1: cardioid caustic inside a
+                       mirror ring lit by a small, low light
+  glass_sphere.blend   glass sphere (IOR 1.5) on a plane, focused caustic
+  point_caustic.blend  caustic from a point light (radius 0), which Cycles
+                       cannot render; the camera sees only diffuse surfaces
+  indirect_room.blend  room lit only indirectly (paper's Figure 6): a spot
+                       lights a ceiling patch behind the camera
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(os.path.dirname(HERE), "tests", "scenes"))
+
+import bpy_kit as K  # noqa: E402
+
+RES = (128, 128)
+
+
+def _note(sc, text):
+    sc["fppm_example"] = text
+
+
+def cornell():
+    sc = K.reset_scene(RES, samples=1024)
+    red = K.material("Red", 'DIFFUSE', (0.63, 0.065, 0.05))
+    green = K.material("Green", 'DIFFUSE', (0.14, 0.45, 0.091))
+    white = K.material("White", 'DIFFUSE', (0.725, 0.71, 0.68))
+    K.quad("Floor", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], white)
+    K.quad("Ceiling", [(-1, -1, 2), (-1, 1, 2), (1, 1, 2), (1, -1, 2)], white)
+    K.quad("BackWall", [(-1, 1, 0), (1, 1, 0), (1, 1, 2), (-1, 1, 2)], white)
+    K.quad("LeftWall", [(-1, -1, 0), (-1, 1, 0), (-1, 1, 2), (-1, -1, 2)], red)
+    K.quad("RightWall", [(1, -1, 0), (1, -1, 2), (1, 1, 2), (1, 1, 0)], green)
+    K.box("ShortBox", (0.6, 0.6, 0.6), white, (0.35, -0.3, 0), -17)
+    K.box("TallBox", (0.6, 0.6, 1.2), white, (-0.35, 0.35, 0), 17)
+    K.light("CeilingLight", 'AREA', 40.0, (0, 0, 1.985), rotation=(0, 0, 0),
+            shape='SQUARE', size=0.5, color=(1.0, 0.92, 0.8))
+    K.camera((0, -3.9, 1.0), (0, 0, 1.0), lens=53)
+    _note(sc, "Cornell box: 40 W ceiling area light (0.5 m square).")
+    return sc
+
+
+def coffee_cup():
+    # Parallel-ish light entering a mirror ring reflects off the far inner
+    # wall and focuses on the floor into the cardioid ("coffee cup") caustic.
+    sc = K.reset_scene(RES, samples=2048, world_color=(0.015, 0.015, 0.02))
+    floor = K.material("Table", 'DIFFUSE', (0.8, 0.78, 0.74))
+    metal = K.material("Mirror", 'GLOSSY', (0.95, 0.9, 0.8), roughness=0.0)
+    K.plane("Table", 6, floor)
+    K.open_cylinder("Ring", 0.5, 0.35, metal, segments=96, smooth=True)
+    # Small spot low on one side (elevation 25 deg, 3 m away), aimed at the
+    # ring; radius 5 cm so Cycles can hit it at all.
+    el = math.radians(25)
+    pos = (-3.0 * math.cos(el), 0.0, 3.0 * math.sin(el))
+    K.light("LowSpot", 'SPOT', 500.0, pos, target=(0, 0, 0.1),
+            visible_camera=False, shadow_soft_size=0.05,
+            spot_size=math.radians(30), spot_blend=0.15,
+            color=(1.0, 0.95, 0.85))
+    K.camera((0.9, -1.6, 1.9), (0.0, 0.05, 0.12), lens=42)
+    _note(sc, "Seed paper Fig. 1: cardioid caustic inside a mirror ring. "
+              "Cycles needs many samples (caustic via a 5 cm light).")
+    return sc
+
+
+def glass_sphere():
+    sc = K.reset_scene(RES, samples=2048, world_color=(0.02, 0.02, 0.025))
+    floor = K.material("Floor", 'DIFFUSE', (0.8, 0.8, 0.8))
+    glass = K.material("Glass", 'GLASS', (1.0, 1.0, 1.0), roughness=0.0, ior=1.5)
+    K.plane("Floor", 6, floor)
+    K.quad("BackWall", [(-3, 1.5, 0), (3, 1.5, 0), (3, 1.5, 2.5), (-3, 1.5, 2.5)],
+           K.material("Wall", 'DIFFUSE', (0.5, 0.55, 0.6)))
+    K.uv_sphere("GlassSphere", 0.35, glass, (0, 0, 0.35), segments=32, rings=16)
+    K.light("Spot", 'SPOT', 400.0, (-1.5, 1.2, 2.4), target=(0, 0, 0.35),
+            visible_camera=False, shadow_soft_size=0.05,
+            spot_size=math.radians(35), spot_blend=0.2)
+    K.camera((0.3, -2.4, 1.3), (0.1, 0, 0.2), lens=40)
+    _note(sc, "Glass sphere (IOR 1.5) focusing a small spot light into a "
+              "caustic inside its shadow.")
+    return sc
+
+
+def point_caustic():
+    # Ball lens (R = 0.3, IOR 1.5, f = 1.5 R from the centre) 0.7 m below a
+    # point light images it near the floor: a caustic Cycles cannot render
+    # (a radius-0 light is never hit by a ray).  The camera looks down at
+    # the floor and back wall only, so a light tracer can serve as reference.
+    sc = K.reset_scene(RES, samples=512)
+    floor = K.material("Floor", 'DIFFUSE', (0.8, 0.8, 0.8))
+    wall = K.material("Wall", 'DIFFUSE', (0.6, 0.6, 0.65))
+    K.plane("Floor", 8, floor)
+    K.quad("BackWall", [(-4, 2.0, 0), (4, 2.0, 0), (4, 2.0, 3.5), (-4, 2.0, 3.5)], wall)
+    K.uv_sphere("GlassSphere", 0.3, K.material("Glass", 'GLASS', (1, 1, 1), ior=1.5),
+                (0, 0, 2.3), segments=32, rings=16)
+    K.box("Box", (0.5, 0.5, 0.5), K.material("Clay", 'DIFFUSE', (0.7, 0.35, 0.2)),
+          (1.0, 0.6, 0), 30)
+    K.light("Point", 'POINT', 250.0, (0, 0, 3.0), visible_camera=False,
+            shadow_soft_size=0.0)
+    K.camera((0, -3.2, 0.9), (0, 0.3, 0.0), lens=50)
+    _note(sc, "Point-light caustic through a glass sphere above the frame; "
+              "Cycles renders the sphere's shadow but not the caustic.")
+    return sc
+
+
+def indirect_room():
+    # Room 4 x 5 x 2.6 m; a spot on the floor behind the camera points up at
+    # the ceiling.  The lit ceiling patch (y < -0.6) is outside the view
+    # (the camera sees the ceiling only for y > 0.5), so every visible
+    # surface is lit by bounces only.
+    sc = K.reset_scene(RES, samples=2048)
+    wall = K.material("Plaster", 'DIFFUSE', (0.75, 0.73, 0.7))
+    blue = K.material("BlueWall", 'DIFFUSE', (0.25, 0.35, 0.65))
+    wood = K.material("Floor", 'DIFFUSE', (0.5, 0.35, 0.2))
+    x0, x1, y0, y1, z1 = -2.0, 2.0, -2.5, 2.5, 2.6
+    K.quad("Floor", [(x0, y0, 0), (x1, y0, 0), (x1, y1, 0), (x0, y1, 0)], wood)
+    K.quad("Ceiling", [(x0, y0, z1), (x0, y1, z1), (x1, y1, z1), (x1, y0, z1)], wall)
+    K.quad("FarWall", [(x0, y1, 0), (x1, y1, 0), (x1, y1, z1), (x0, y1, z1)], blue)
+    K.quad("NearWall", [(x0, y0, 0), (x0, y0, z1), (x1, y0, z1), (x1, y0, 0)], wall)
+    K.quad("LeftWall", [(x0, y0, 0), (x0, y1, 0), (x0, y1, z1), (x0, y0, z1)], wall)
+    K.quad("RightWall", [(x1, y0, 0), (x1, y0, z1), (x1, y1, z1), (x1, y1, 0)], wall)
+    K.box("Table", (1.2, 0.7, 0.75), K.material("Oak", 'DIFFUSE', (0.55, 0.4, 0.25)),
+          (0.4, 1.3, 0), 10)
+    K.uv_sphere("Ball", 0.3, K.mix_material(
+        "Ceramic", 0.15, dict(kind='DIFFUSE', color=(0.8, 0.15, 0.1)),
+        dict(kind='GLOSSY', color=(1, 1, 1), roughness=0.25)),
+        (-0.9, 1.2, 0.3), segments=24, rings=12)
+    K.box("Cabinet", (0.5, 0.8, 1.4), wall, (1.6, -0.2, 0), 0)
+    K.light("UpSpot", 'SPOT', 1500.0, (0, -2.2, 0.3), rotation=(math.pi, 0, 0),
+            visible_camera=False, shadow_soft_size=0.05,
+            spot_size=math.radians(70), spot_blend=0.3)
+    K.camera((0, -1.6, 1.3), (0, 2.5, 0.9), lens=24)
+    _note(sc, "Paper Fig. 6: lit only indirectly, by a spot on a ceiling "
+              "patch behind the camera.")
+    return sc
+
+
+EXAMPLES = [cornell, coffee_cup, glass_sphere, point_caustic, indirect_room]
+
+
+def main(names=None):
+    for fn in EXAMPLES:
+        if names and fn.__name__ not in names:
+            continue
+        fn()
+        path = os.path.join(HERE, fn.__name__ + ".blend")
+        K.save(path)
+        print(f"{fn.__name__}: {os.path.getsize(path) / 1e3:.0f} kB -> {path}")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
