@@ -185,20 +185,8 @@ class _MaterialBuilder:
             c, tex = self.color(node, "Color")
             return Material(n, lobes=(Lobe(DIFFUSE, c, 1.0, self.value(node, "Roughness"),
                                            color_texture=tex),))
-        if t in ('BSDF_GLOSSY', 'BSDF_ANISOTROPIC'):
-            c, tex = self.color(node, "Color")
-            if node.inputs.get("Anisotropy") is not None and self.value(node, "Anisotropy") != 0:
-                self.notes.append(f"{node.name}: anisotropy ignored")
-            return Material(n, lobes=(Lobe(GLOSSY, c, 1.0, self.value(node, "Roughness"),
-                                           color_texture=tex),))
-        if t == 'BSDF_GLASS':
-            c, tex = self.color(node, "Color")
-            return Material(n, lobes=(Lobe(GLASS, c, 1.0, self.value(node, "Roughness"),
-                                           self.value(node, "IOR", 1.45), tex),))
-        if t == 'BSDF_REFRACTION':
-            c, tex = self.color(node, "Color")
-            return Material(n, lobes=(Lobe(REFRACTION, c, 1.0, self.value(node, "Roughness"),
-                                           self.value(node, "IOR", 1.45), tex),))
+        if t in ('BSDF_GLOSSY', 'BSDF_ANISOTROPIC', 'BSDF_GLASS', 'BSDF_REFRACTION'):
+            return Material(n, lobes=(self.microfacet(node),))
         if t == 'BSDF_TRANSPARENT':
             c, tex = self.color(node, "Color")
             return Material(n, lobes=(Lobe(TRANSPARENT, c, 1.0, color_texture=tex),))
@@ -224,6 +212,28 @@ class _MaterialBuilder:
         self.unsupported.append(node.name)
         return Material(n, lobes=(Lobe(DIFFUSE, GREY),))
 
+    def microfacet(self, node) -> Lobe:
+        """Glossy / Glass / Refraction node -> one GGX lobe.
+
+        'MULTI_GGX' (the Glossy and Glass default) is Cycles' Multiscatter GGX,
+        reproduced by ``core.bsdf`` (``multiscatter``); 'GGX' is single
+        scattering.  Beckmann and Ashikhmin-Shirley are rendered as GGX of the
+        same roughness, and noted (they coincide at roughness 0)."""
+        kind = {'BSDF_GLASS': GLASS, 'BSDF_REFRACTION': REFRACTION}.get(node.type, GLOSSY)
+        c, tex = self.color(node, "Color")
+        rough = self.value(node, "Roughness")
+        dist = getattr(node, "distribution", 'GGX')
+        if dist not in ('GGX', 'MULTI_GGX') and rough > 0.0:
+            self.notes.append(f"{node.name}: {dist} distribution rendered as GGX")
+        if kind == GLOSSY and node.inputs.get("Anisotropy") is not None \
+                and self.value(node, "Anisotropy") != 0:
+            self.notes.append(f"{node.name}: anisotropy ignored")
+        ior = self.value(node, "IOR", 1.45) if kind != GLOSSY else 1.45
+        # make_lobe drops multiscatter on REFRACTION (Cycles has no
+        # multiscatter refraction-only closure).
+        return shading.make_lobe(kind, c, 1.0, rough, ior, tex,
+                                 multiscatter=dist == 'MULTI_GGX')
+
     def principled(self, node) -> Material:
         """Principled BSDF through ``core.shading.principled_to_lobes``."""
         base, base_tex = self.color(node, "Base Color")
@@ -245,8 +255,8 @@ class _MaterialBuilder:
             diffuse_roughness=v(node, "Diffuse Roughness", 0.0),
             thin_film_thickness=v(node, "Thin Film Thickness", 0.0),
             emission_color=emis, emission_strength=v(node, "Emission Strength", 0.0),
-            emission_color_texture=emis_tex)
-        notes = [n for n in notes if "returned separately by the exporter" not in n]
+            emission_color_texture=emis_tex,
+            multiscatter=getattr(node, "distribution", 'MULTI_GGX') == 'MULTI_GGX')
         return Material(self.name, tuple(lobes), tuple(float(x) for x in emission),
                         emis_tex if emis_tex >= 0 and np.any(np.asarray(emission) > 0) else -1,
                         tuple(f"{node.name}: {n}" for n in notes))

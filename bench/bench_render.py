@@ -32,6 +32,7 @@ from analytic_scenes import quad, translate  # noqa: E402
 from core import lights as Lt  # noqa: E402
 from core import occlusion as Occ  # noqa: E402
 from core import photon_kernels as PK  # noqa: E402
+from core import hashgrid as Hg  # noqa: E402
 from core import photons as Ph  # noqa: E402
 from core.render import Renderer  # noqa: E402
 from core.scene import DIFFUSE, Camera, Light, Lobe, Material, make_scene  # noqa: E402
@@ -104,49 +105,61 @@ class RawRays:
 
 
 class Timers:
-    """Wall time inside Embree and the occlusion march during photon tracing
-    (wrappers around the functions core.photons calls)."""
+    """Wall and process-CPU seconds of the photon tracer and the gather, and
+    wall seconds inside Embree and the occlusion march during tracing
+    (wrappers around the functions core.photons / core.render call)."""
 
     def __init__(self):
-        self.embree = 0.0
-        self.march = 0.0
-        f, g = Ph.intersect_f32, Occ.march_occlusion
+        self.t = {k: 0.0 for k in ("trace", "trace_cpu", "gather", "gather_cpu", "embree",
+                                   "march")}
+        self._wrap(Ph, "intersect_f32", "embree", cpu=False)
+        self._wrap(Occ, "march_occlusion", "march", cpu=False)
+        self._wrap(Hg, "gather", "gather")
 
-        def intersect(*a):
-            t0 = time.perf_counter()
-            r = f(*a)
-            self.embree += time.perf_counter() - t0
+    def _wrap(self, mod, name, key, cpu=True):
+        f = getattr(mod, name)
+        t = self.t
+
+        def g(*a, **k):
+            t0, c0 = time.perf_counter(), time.process_time()
+            r = f(*a, **k)
+            t[key] += time.perf_counter() - t0
+            if cpu:
+                t[key + "_cpu"] += time.process_time() - c0
             return r
+        setattr(mod, name, g)
 
-        def march(*a, **k):
-            t0 = time.perf_counter()
-            r = g(*a, **k)
-            self.march += time.perf_counter() - t0
-            return r
-        Ph.intersect_f32 = intersect
-        Occ.march_occlusion = march
+    def wrap_tracer(self, tracer):
+        self._wrap(tracer, "trace", "trace")
+
+    def snapshot(self):
+        return dict(self.t)
 
 
-def make_renderer(scene, a, use_frequency):
+def make_renderer(scene, a, use_frequency, tm):
     st = RenderSettings(max_passes=1000, photons_per_pass=a.photons,
                         use_frequency=use_frequency)
     r = Renderer(scene, st, log=lambda s: None)
     r.tracer.fast = not a.numpy
+    tm.wrap_tracer(r.tracer)
     r.step()                                      # warm-up: numba compilation
-    for k in r.stage_seconds:
-        r.stage_seconds[k] = 0.0
-    r.photon_rays = 0
     return r
 
 
-def photon_pass(r):
-    """(seconds of trace, seconds of gather, rays) of one more pass of r."""
-    s0 = dict(r.stage_seconds)
+def photon_pass(r, tm):
+    """Differences of the timers over one more pass of r, and its photon rays."""
+    s0 = tm.snapshot()
     rays0 = r.photon_rays
     r.step()
-    s = r.stage_seconds
-    return (s["photon_trace"] - s0["photon_trace"], s["gather"] - s0["gather"],
-            r.photon_rays - rays0)
+    s = tm.snapshot()
+    return {k: s[k] - s0[k] for k in s}, r.photon_rays - rays0
+
+
+def raw_cpu(raw, rays):
+    """(wall, CPU) seconds of the bare Embree call on `rays` rays."""
+    c0 = time.process_time()
+    w = raw.seconds(rays)
+    return w, time.process_time() - c0
 
 
 def main(argv=None):
@@ -159,25 +172,22 @@ def main(argv=None):
     a = ap.parse_args(argv)
     scene = cornell(a.res)
     tm = Timers()
-    r = make_renderer(scene, a, a.frequency)
-    r0 = make_renderer(scene, a, False) if a.frequency else None
+    r = make_renderer(scene, a, a.frequency, tm)
+    r0 = make_renderer(scene, a, False, tm) if a.frequency else None
     raw = RawRays(r.accel, 4 * a.photons)
-    T = {"trace": 0.0, "gather": 0.0, "rays": 0, "raw": 0.0, "raw_accel": 0.0, "embree": 0.0,
-         "march": 0.0, "trace0": 0.0, "gather0": 0.0}
+    PK.sample_photons_fast(r.light_table, 1000, np.random.default_rng(0))   # compile
+    per_pass = []       # (pass wall / raw wall, pass CPU / raw CPU)
+    acc = {}
     for _ in range(a.passes):
-        e0, m0 = tm.embree, tm.march
-        tr, ga, rays = photon_pass(r)
-        T["embree"] += tm.embree - e0
-        T["march"] += tm.march - m0
-        T["trace"] += tr
-        T["gather"] += ga
-        T["rays"] += rays
-        T["raw"] += raw.seconds(rays)
-        T["raw_accel"] += raw.seconds_accel(rays)
+        d, rays = photon_pass(r, tm)
+        w, c = raw_cpu(raw, rays)
+        d.update(raw=w, raw_cpu=c, rays=rays, raw_accel=raw.seconds_accel(rays))
         if r0 is not None:
-            tr0, ga0, _ = photon_pass(r0)
-            T["trace0"] += tr0
-            T["gather0"] += ga0
+            d0, _ = photon_pass(r0, tm)
+            d.update(trace0=d0["trace"], gather0=d0["gather"])
+        for k, v in d.items():
+            acc[k] = acc.get(k, 0.0) + v
+        per_pass.append(((d["trace"] + d["gather"]) / w, (d["trace_cpu"] + d["gather_cpu"]) / c))
     # Light sampling for one pass' photons, against the raw rays of one pass.
     rng = np.random.default_rng(5)
     t0 = time.perf_counter()
@@ -186,46 +196,54 @@ def main(argv=None):
     t0 = time.perf_counter()
     PK.sample_photons_fast(r.light_table, a.photons, rng)
     t_lights_fast = time.perf_counter() - t0
-    raw_pass = raw.seconds(T["rays"] // a.passes)
+    raw_pass = raw.seconds(int(acc["rays"]) // a.passes)
 
-    ray_s = T["raw"]
-    pp = T["trace"] + T["gather"]
+    R = acc["raw"]
+    pp = acc["trace"] + acc["gather"]
+    pr = np.array(per_pass)
     print(f"scene: Cornell box, {scene.n_triangles} triangles, {a.res}x{a.res}, "
           f"{a.photons} photons/pass, {a.passes} passes, frequency={a.frequency}, "
-          f"tracer={'numpy' if a.numpy else 'compiled'}")
-    print(f"photon rays per pass: {T['rays'] / a.passes:,.0f}")
-    print(f"photon pass / raw Embree rays: {pp / ray_s:.2f}x  "
-          f"(trace {T['trace'] / ray_s:.2f}x + gather {T['gather'] / ray_s:.2f}x)")
-    print(f"  trace = Embree calls {T['embree'] / ray_s:.2f}x + occlusion march "
-          f"{T['march'] / ray_s:.2f}x + everything else {(T['trace'] - T['embree'] - T['march']) / ray_s:.2f}x")
-    print(f"  shares of the photon pass: trace {T['trace'] / pp:.0%}, gather {T['gather'] / pp:.0%}")
+          f"tracer={'numpy' if a.numpy else 'compiled'}, photon threads={Ph.THREADS}")
+    print(f"photon rays per pass: {acc['rays'] / a.passes:,.0f}")
+    print(f"photon pass / raw Embree rays: {pp / R:.2f}x  "
+          f"(trace {acc['trace'] / R:.2f}x + gather {acc['gather'] / R:.2f}x); "
+          f"per pass: median {np.median(pr[:, 0]):.2f}x, min {pr[:, 0].min():.2f}x")
+    print(f"  CPU time (all threads) / raw Embree CPU: "
+          f"{(acc['trace_cpu'] + acc['gather_cpu']) / acc['raw_cpu']:.2f}x  "
+          f"(trace {acc['trace_cpu'] / acc['raw_cpu']:.2f}x + gather "
+          f"{acc['gather_cpu'] / acc['raw_cpu']:.2f}x); per pass median {np.median(pr[:, 1]):.2f}x")
+    print(f"  inside trace (wall, summed over tracing threads): Embree calls "
+          f"{acc['embree'] / R:.2f}x, occlusion march {acc['march'] / R:.2f}x")
+    print(f"  shares of the photon pass: trace {acc['trace'] / pp:.0%}, gather {acc['gather'] / pp:.0%}")
     print(f"  against Accel.intersect (float64 API) instead of the bare call: "
-          f"{pp / T['raw_accel']:.2f}x (its own overhead: {T['raw_accel'] / ray_s:.2f}x the bare call)")
+          f"{pp / acc['raw_accel']:.2f}x (its own overhead: {acc['raw_accel'] / R:.2f}x the bare call)")
     print(f"light sampling / raw Embree rays of a pass: lights.sample_photons "
           f"{t_lights_np / raw_pass:.2f}x, compiled {t_lights_fast / raw_pass:.2f}x "
           f"({'used' if r.tracer.fast_emission and r.tracer.fast else 'not used'})")
     if r0 is not None:
-        pp0 = T["trace0"] + T["gather0"]
+        pp0 = acc["trace0"] + acc["gather0"]
         print(f"frequency: whole photon pass with {r.settings.frequency_fraction:.0%} "
               f"frequency photons vs none: {pp / pp0 - 1:+.0%} "
-              f"(trace {T['trace'] / T['trace0'] - 1:+.0%}, gather {T['gather'] / T['gather0'] - 1:+.0%})")
+              f"(trace {acc['trace'] / acc['trace0'] - 1:+.0%}, "
+              f"gather {acc['gather'] / acc['gather0'] - 1:+.0%})")
         n = min(a.photons, Ph_chunk())
-        tf = tc = 0.0
-        m_f = 0.0
+        tf = tc = m_f = 0.0
         for k in range(2):
             rng = np.random.default_rng(100 + k)
-            t0 = time.perf_counter()
+            s0 = tm.snapshot()
             r.tracer.trace(n, 0, rng)
-            tc += time.perf_counter() - t0
-            m0 = tm.march
-            t0 = time.perf_counter()
+            s1 = tm.snapshot()
             r.tracer.trace(n, n, rng)
-            tf += time.perf_counter() - t0
-            m_f += tm.march - m0
+            s2 = tm.snapshot()
+            tc += s1["trace"] - s0["trace"]
+            tf += s2["trace"] - s1["trace"]
+            m_f += s2["march"] - s1["march"]
         print(f"frequency: per-photon tracing cost, frequency / classic photon: {tf / tc:.2f}x "
-              f"(+{tf / tc - 1:.0%}; occlusion march {m_f / tc:.2f}x of a classic photon's cost)")
+              f"({tf / tc - 1:+.0%}; of which the occlusion march {m_f / tc:.2f}x a classic "
+              f"photon's cost, summed over threads)")
     total = sum(r.stage_seconds.values())
-    print("stage shares: " + ", ".join(f"{k} {v / total:.0%}" for k, v in r.stage_seconds.items()))
+    print("stage shares of the whole render pass: "
+          + ", ".join(f"{k} {v / total:.0%}" for k, v in r.stage_seconds.items()))
     return 0
 
 

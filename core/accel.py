@@ -117,18 +117,23 @@ def surface_point(tri_p: np.ndarray, tri_n: np.ndarray, tri_uv: np.ndarray,
     return p, ng, ns, uv
 
 
+_COUNT_LOCK = __import__("threading").Lock()
+
+
 def intersect_f32(accel: Accel, o32: np.ndarray, d32: np.ndarray):
     """Closest hits of K rays given as C-contiguous (K, 3) float32 arrays, no copies.
 
     Returns Embree's own arrays: prim (K,) int32 (-1 = miss), u, v, tfar (K,)
     float32 (p = (1-u-v) p0 + u p1 + v p2; tfar meaningless on a miss).
-    Counts the rays in ``accel.rays_cast``.  For compiled callers that
+    Counts the rays in ``accel.rays_cast`` (thread-safe; Embree releases the
+    GIL, so callers may trace in several threads).  For compiled callers that
     interpolate hits themselves (``core.photon_kernels``): the float64
     conversions of :meth:`Accel.intersect` cost as much as Embree itself on
     small scenes.
     """
     K = o32.shape[0]
-    accel.rays_cast += K
+    with _COUNT_LOCK:            # photon halves are traced in two threads
+        accel.rays_cast += K
     if accel._scene is None or K == 0:
         return (np.full(K, -1, np.int32), np.zeros(K, np.float32), np.zeros(K, np.float32),
                 np.full(K, np.inf, np.float32))

@@ -15,3 +15,7 @@ class MemoryBudgetError(FPPMError):
 
 class RenderCancelled(FPPMError):
     """Raised inside a pass when the caller's should_stop() turns true."""
+
+
+class CheckpointMismatch(FPPMError):
+    """A checkpoint from another scene or other settings was given to --resume."""

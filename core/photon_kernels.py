@@ -465,88 +465,156 @@ def _basis_world(lx, ly, lz, nx, ny, nz):
             lx * tz + ly * bz + lz * nz)
 
 
+# Columns of the packed light array (one array argument: numba increments and
+# decrements the reference count of every array passed to a call, which cost
+# 100 ns per photon with the LightTable's 16 arrays).
+_KIND, _PSEL, _STR, _FLUX, _CO, _AU, _AV, _DIR = 0, 1, 2, 5, 8, 11, 14, 17
+_LU, _LV, _AREA, _ELL, _RAD, _SPH, _NCOL = 20, 21, 22, 23, 24, 25, 26
+
+
+@njit(cache=True, inline="always")
+def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
+    """One photon of ``lights.sample_photons`` (POINT, AREA, untextured MESH).
+
+    L: (nL, _NCOL) packed light table (:func:`light_arrays`).
+    Returns (o xyz, d xyz, power rgb, falloff r^2, freq_init a b c)."""
+    nL = L.shape[0]
+    # np.searchsorted(cdf, x, side="right"): first index with cdf > x.
+    x = u0 * cdf[nL - 1]
+    lo, hi = 0, nL
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if cdf[mid] <= x:
+            lo = mid + 1
+        else:
+            hi = mid
+    j = lo
+    if j > nL - 1:
+        j = nL - 1
+    if L[j, _PSEL] <= 0.0:
+        j = last
+    inv_p = 1.0 / L[j, _PSEL]
+    kd = int(L[j, _KIND])
+    if kd == 0:          # POINT: sphere model or soft falloff (disc) from the centre
+        z = 1.0 - 2.0 * u3
+        sz = np.sqrt(max(1.0 - z * z, 0.0))
+        ph = 2.0 * np.pi * u4
+        wx, wy, wz = sz * np.cos(ph), sz * np.sin(ph), z
+        sph = L[j, _SPH] != 0.0
+        r = L[j, _RAD] if sph else 0.0
+        fall = 0.0 if sph else L[j, _RAD] * L[j, _RAD]
+        rr = np.sqrt(u1)
+        ph2 = 2.0 * np.pi * u2
+        dx, dy = rr * np.cos(ph2), rr * np.sin(ph2)
+        lift = np.sqrt(max(1.0 - dx * dx - dy * dy, 0.0))
+        ox, oy, oz = _basis_world(dx, dy, lift, wx, wy, wz)
+        return (L[j, _CO] + ox * r, L[j, _CO + 1] + oy * r, L[j, _CO + 2] + oz * r,
+                wx, wy, wz, L[j, _STR] * inv_p, L[j, _STR + 1] * inv_p,
+                L[j, _STR + 2] * inv_p, fall, 0.0, b_diffuse, 0.0)
+    if kd == 3:          # AREA (rectangle or ellipse), one-sided along dir
+        su = u1 - 0.5
+        sv = u2 - 0.5
+        if L[j, _ELL] != 0.0:
+            rr = np.sqrt(u1)
+            ph2 = 2.0 * np.pi * u2
+            su = 0.5 * (rr * np.cos(ph2))
+            sv = 0.5 * (rr * np.sin(ph2))
+        a_ = su * L[j, _LU]
+        b_ = sv * L[j, _LV]
+        ox = L[j, _CO] + a_ * L[j, _AU] + b_ * L[j, _AV]
+        oy = L[j, _CO + 1] + a_ * L[j, _AU + 1] + b_ * L[j, _AV + 1]
+        oz = L[j, _CO + 2] + a_ * L[j, _AU + 2] + b_ * L[j, _AV + 2]
+        nx, ny, nz = L[j, _DIR], L[j, _DIR + 1], L[j, _DIR + 2]
+        p0, p1, p2 = L[j, _FLUX] * inv_p, L[j, _FLUX + 1] * inv_p, L[j, _FLUX + 2] * inv_p
+    else:                # MESH (untextured), two-sided: side chosen by u5
+        sq = np.sqrt(u1)
+        b1 = sq * (1.0 - u2)
+        b2 = sq * u2
+        ox = L[j, _CO] + b1 * L[j, _AU] + b2 * L[j, _AV]
+        oy = L[j, _CO + 1] + b1 * L[j, _AU + 1] + b2 * L[j, _AV + 1]
+        oz = L[j, _CO + 2] + b1 * L[j, _AU + 2] + b2 * L[j, _AV + 2]
+        side = 1.0 if u5 < 0.5 else -1.0
+        nx, ny, nz = L[j, _DIR] * side, L[j, _DIR + 1] * side, L[j, _DIR + 2] * side
+        g = 2.0 * np.pi * L[j, _AREA]
+        p0 = g * L[j, _STR] * inv_p
+        p1 = g * L[j, _STR + 1] * inv_p
+        p2 = g * L[j, _STR + 2] * inv_p
+    # Cosine-weighted direction about n (lights._cosine_local, _to_world).
+    rr = np.sqrt(u3)
+    ph = 2.0 * np.pi * u4
+    lx, ly = rr * np.cos(ph), rr * np.sin(ph)
+    lz = np.sqrt(max(1.0 - lx * lx - ly * ly, 0.0))
+    wx, wy, wz = _basis_world(lx, ly, lz, nx, ny, nz)
+    return (ox, oy, oz, wx, wy, wz, p0, p1, p2, 0.0, L[j, _AREA] / 12.0, b_diffuse, 0.0)
+
+
 @njit(cache=True, nogil=True)
-def emit_lights(u, cdf, p_select, kind, strength, flux, co, axis_u, axis_v, ldir, len_u,
-                len_v, area, ellipse, radius, is_sphere, b_diffuse,
-                o, d, power, falloff, freq):
+def emit_lights(u, cdf, last, L, b_diffuse, o, d, power, falloff, freq):
     """``lights.sample_photons`` for POINT, AREA and untextured MESH emitters,
     same formulas and the same use of the uniforms u (n, 6) (so the same
-    rng state gives the same photons up to round-off).  cdf: cumsum of
-    p_select.  Writes o, d, power, falloff (n,) and freq (n, 3) (light inits).
-    The caller guarantees every emitter with p_select > 0 is of those kinds.
+    rng state gives the same photons up to round-off).  cdf, last, L,
+    b_diffuse from :func:`light_arrays`.  Writes o, d, power, falloff (n,) and
+    freq (n, 3) (light inits).  The caller guarantees every emitter with
+    p_select > 0 is of those kinds (:func:`fast_emission_ok`).
     """
-    nL = p_select.shape[0]
-    last = 0
-    for k in range(nL):
-        if p_select[k] > 0.0:
-            last = k
-    total = cdf[nL - 1]
     for i in range(u.shape[0]):
-        x = u[i, 0] * total
-        j = np.searchsorted(cdf, x, side="right")
-        if j > nL - 1:
-            j = nL - 1
-        if p_select[j] <= 0.0:
-            j = last
-        inv_p = 1.0 / p_select[j]
-        kd = kind[j]
-        falloff[i] = 0.0
-        if kd == 0:          # POINT
-            z = 1.0 - 2.0 * u[i, 3]
-            sz = np.sqrt(max(1.0 - z * z, 0.0))
-            ph = 2.0 * np.pi * u[i, 4]
-            wx, wy, wz = sz * np.cos(ph), sz * np.sin(ph), z
-            r = radius[j] if is_sphere[j] else 0.0
-            if not is_sphere[j]:
-                falloff[i] = radius[j] ** 2
-            rr = np.sqrt(u[i, 1])
-            ph2 = 2.0 * np.pi * u[i, 2]
-            dx, dy = rr * np.cos(ph2), rr * np.sin(ph2)
-            lift = np.sqrt(max(1.0 - dx * dx - dy * dy, 0.0))
-            ox, oy, oz = _basis_world(dx, dy, lift, wx, wy, wz)
-            o[i, 0] = co[j, 0] + ox * r
-            o[i, 1] = co[j, 1] + oy * r
-            o[i, 2] = co[j, 2] + oz * r
-            d[i, 0], d[i, 1], d[i, 2] = wx, wy, wz
-            for c in range(3):
-                power[i, c] = strength[j, c] * inv_p
-            freq[i, 0], freq[i, 1], freq[i, 2] = 0.0, b_diffuse, 0.0
+        r = _emit_one(u[i, 0], u[i, 1], u[i, 2], u[i, 3], u[i, 4], u[i, 5], cdf, last, L,
+                      b_diffuse)
+        o[i, 0], o[i, 1], o[i, 2] = r[0], r[1], r[2]
+        d[i, 0], d[i, 1], d[i, 2] = r[3], r[4], r[5]
+        power[i, 0], power[i, 1], power[i, 2] = r[6], r[7], r[8]
+        falloff[i] = r[9]
+        freq[i, 0], freq[i, 1], freq[i, 2] = r[10], r[11], r[12]
+
+
+@njit(cache=True, nogil=True)
+def emit_lights_state(u, cdf, last, L, b_diffuse, rel, floor, o32, d32, d64, pw, fo,
+                      want_freq, freq):
+    """:func:`emit_lights` fused with :func:`emit_kernel`: photons straight
+    into the live state (finite positive power only, origin offset along d).
+    freq (n, 3) receives the light inits of the kept photons when want_freq.
+    Returns the number K of photons kept."""
+    K = 0
+    for i in range(u.shape[0]):
+        r = _emit_one(u[i, 0], u[i, 1], u[i, 2], u[i, 3], u[i, 4], u[i, 5], cdf, last, L,
+                      b_diffuse)
+        p0, p1, p2 = r[6], r[7], r[8]
+        if not (np.isfinite(p0) and np.isfinite(p1) and np.isfinite(p2)):
             continue
-        if kd == 3:          # AREA
-            su = u[i, 1] - 0.5
-            sv = u[i, 2] - 0.5
-            if ellipse[j]:
-                rr = np.sqrt(u[i, 1])
-                ph2 = 2.0 * np.pi * u[i, 2]
-                su = 0.5 * (rr * np.cos(ph2))
-                sv = 0.5 * (rr * np.sin(ph2))
-            a_ = su * len_u[j]
-            b_ = sv * len_v[j]
-            for c in range(3):
-                o[i, c] = co[j, c] + a_ * axis_u[j, c] + b_ * axis_v[j, c]
-            nx, ny, nz = ldir[j, 0], ldir[j, 1], ldir[j, 2]
-            for c in range(3):
-                power[i, c] = flux[j, c] * inv_p
-            freq[i, 0], freq[i, 1], freq[i, 2] = area[j] / 12.0, b_diffuse, 0.0
-        else:                # MESH (untextured)
-            sq = np.sqrt(u[i, 1])
-            b1 = sq * (1.0 - u[i, 2])
-            b2 = sq * u[i, 2]
-            for c in range(3):
-                o[i, c] = co[j, c] + b1 * axis_u[j, c] + b2 * axis_v[j, c]
-            side = 1.0 if u[i, 5] < 0.5 else -1.0
-            nx, ny, nz = ldir[j, 0] * side, ldir[j, 1] * side, ldir[j, 2] * side
-            g = 2.0 * np.pi * area[j]
-            for c in range(3):
-                power[i, c] = g * strength[j, c] * inv_p
-            freq[i, 0], freq[i, 1], freq[i, 2] = area[j] / 12.0, b_diffuse, 0.0
-        # Cosine-weighted direction about n (lights._cosine_local, _to_world).
-        rr = np.sqrt(u[i, 3])
-        ph = 2.0 * np.pi * u[i, 4]
-        lx, ly = rr * np.cos(ph), rr * np.sin(ph)
-        lz = np.sqrt(max(1.0 - lx * lx - ly * ly, 0.0))
-        wx, wy, wz = _basis_world(lx, ly, lz, nx, ny, nz)
-        d[i, 0], d[i, 1], d[i, 2] = wx, wy, wz
+        if not max(p0, p1, p2) > 0.0:
+            continue
+        sc = _offset_scale(r[0], r[1], r[2], rel, floor)
+        o32[K, 0] = r[0] + r[3] * sc
+        o32[K, 1] = r[1] + r[4] * sc
+        o32[K, 2] = r[2] + r[5] * sc
+        d32[K, 0], d32[K, 1], d32[K, 2] = r[3], r[4], r[5]
+        d64[K, 0], d64[K, 1], d64[K, 2] = r[3], r[4], r[5]
+        pw[K, 0], pw[K, 1], pw[K, 2] = p0, p1, p2
+        fo[K] = r[9]
+        if want_freq:
+            freq[K, 0], freq[K, 1], freq[K, 2] = r[10], r[11], r[12]
+        K += 1
+    return K
+
+
+def light_arrays(table) -> tuple:
+    """(cdf, last, L, b_diffuse) for :func:`emit_lights`: cumsum of p_select,
+    last emitter with p_select > 0, the LightTable packed into one (nL, 26)
+    float64 array, and the diffuse angular variance of the light inits."""
+    from .lights import B_DIFFUSE
+    nL = table.n
+    L = np.zeros((max(nL, 1), _NCOL))
+    L[:nL, _KIND] = table.kind
+    L[:nL, _PSEL] = table.p_select
+    for col, name in ((_STR, "strength"), (_FLUX, "flux"), (_CO, "co"), (_AU, "axis_u"),
+                      (_AV, "axis_v"), (_DIR, "dir")):
+        L[:nL, col:col + 3] = getattr(table, name)
+    for col, name in ((_LU, "len_u"), (_LV, "len_v"), (_AREA, "area"), (_ELL, "ellipse"),
+                      (_RAD, "radius"), (_SPH, "is_sphere")):
+        L[:nL, col] = getattr(table, name)
+    p = np.asarray(table.p_select, np.float64)
+    last = int(np.nonzero(p > 0)[0][-1]) if np.any(p > 0) else 0
+    return np.cumsum(p), last, L, float(B_DIFFUSE)
 
 
 def fast_emission_ok(table) -> bool:
@@ -563,19 +631,11 @@ def fast_emission_ok(table) -> bool:
 def sample_photons_fast(table, n: int, rng) -> dict:
     """Drop-in for ``lights.sample_photons`` when :func:`fast_emission_ok`
     (keys o, d, power, falloff_r2, freq_init; float64)."""
-    from .lights import B_DIFFUSE
     u = rng.random((n, 6))
     o = np.empty((n, 3))
     d = np.empty((n, 3))
     power = np.empty((n, 3))
     falloff = np.empty(n)
     freq = np.empty((n, 3))
-    f64 = lambda a: np.ascontiguousarray(a, np.float64)
-    emit_lights(u, np.cumsum(table.p_select), f64(table.p_select),
-                np.ascontiguousarray(table.kind, np.int64), f64(table.strength), f64(table.flux),
-                f64(table.co), f64(table.axis_u), f64(table.axis_v), f64(table.dir),
-                f64(table.len_u), f64(table.len_v), f64(table.area),
-                np.ascontiguousarray(table.ellipse, np.bool_), f64(table.radius),
-                np.ascontiguousarray(table.is_sphere, np.bool_), float(B_DIFFUSE),
-                o, d, power, falloff, freq)
+    emit_lights(u, *light_arrays(table), o, d, power, falloff, freq)
     return {"o": o, "d": d, "power": power, "falloff_r2": falloff, "freq_init": freq}

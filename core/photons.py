@@ -25,6 +25,8 @@ Two implementations with the same statistics (tests/test_photon_kernels.py):
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from . import bsdf as B
@@ -35,6 +37,23 @@ from .accel import REL_OFFSET, intersect_f32, surface_point
 from .scene import Scene
 
 LUM = np.array([0.2126, 0.7152, 0.0722])
+#: Batches of at least this many photons are traced as two halves (see trace).
+SPLIT_MIN = 8192
+#: Threads tracing the halves: FPPM_PHOTON_THREADS, else min(2, cores).
+THREADS = int(os.environ.get("FPPM_PHOTON_THREADS", "0")) or min(2, os.cpu_count() or 1)
+_POOL = None
+
+
+def _threads() -> int:
+    return THREADS
+
+
+def _pool():
+    global _POOL
+    if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+        _POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="fppm-photons")
+    return _POOL
 
 
 def _dot(a, b):
@@ -68,6 +87,15 @@ class _Deposits:
             b[:self.n] = a[:self.n]
             setattr(self, name, b)
 
+    def extend(self, other: "_Deposits"):
+        """Append the rows of another buffer (one copy of its rows)."""
+        k = other.n
+        self.reserve(k)
+        a, b = self.n, self.n + k
+        for name in ("p", "ng", "wi", "power", "r", "bounce"):
+            getattr(self, name)[a:b] = getattr(other, name)[:k]
+        self.n = b
+
     def result(self):
         if self.n == 0:
             return None
@@ -91,6 +119,9 @@ class PhotonTracer:
         self.fmat = PK.build_fast_materials(mtab)
         self._tri_uv = None
         self.fast_emission = PK.fast_emission_ok(light_table)
+        self._light_arrays = PK.light_arrays(light_table) if self.fast_emission else None
+        # Deposits per photon (max seen, x1.25 margin on use): buffer sizing.
+        self._dpp = 2.0
 
     def trace(self, n: int, n_freq: int, rng):
         """Trace n photons (the first n_freq carry a spectrum); return deposits.
@@ -104,41 +135,73 @@ class PhotonTracer:
         """
         if not self.fast:
             return self._trace_numpy(n, n_freq, rng)
-        if self.fast_emission:
-            ph = PK.sample_photons_fast(self.light_table, n, rng)
+        if n < SPLIT_MIN:
+            return self._trace_part(n, n_freq, rng, int(self._dpp * n) + 64).result()
+        # Two halves on independent child streams, always (the image does not
+        # depend on the number of cores), traced concurrently when there are
+        # two: Embree and the kernels release the GIL.
+        r0, r1 = rng.spawn(2)
+        h, hf = n // 2, n_freq // 2
+        # The first half's buffer is sized for both (deposits per photon seen
+        # so far, +25%): the second half is appended without reallocating.
+        parts = ((h, hf, r0, int(self._dpp * n) + 64), (n - h, n_freq - hf, r1,
+                                                         int(self._dpp * (n - h)) + 64))
+        if _threads() > 1:
+            d0, d1 = _pool().map(lambda a: self._trace_part(*a), parts)
         else:
+            d0, d1 = (self._trace_part(*a) for a in parts)
+        d0.extend(d1)
+        return d0.result()
+
+    def _trace_part(self, n: int, n_freq: int, rng, cap: int) -> "_Deposits":
+        """Emit and trace n photons (the first n_freq with a spectrum) into a
+        deposit buffer of initial capacity cap rows."""
+        dep = _Deposits(cap)
+        if self.fast_emission:
+            u = rng.random((n, 6))
+            ph = None
+        else:
+            u = None
             ph = Lt.sample_photons(self.light_table, n, rng)
-        dep = _Deposits(3 * n)
         if n_freq:
-            self._trace_batch(ph, 0, n_freq, rng, dep,
-                              np.asarray(ph["freq_init"], np.float64)[:n_freq])
+            self._trace_batch(u, ph, 0, n_freq, rng, dep, True)
         if n > n_freq:
-            self._trace_batch(ph, n_freq, n, rng, dep, None)
-        return dep.result()
+            self._trace_batch(u, ph, n_freq, n, rng, dep, False)
+        self._dpp = max(self._dpp, 1.25 * dep.n / max(n, 1))
+        return dep
 
     # ------------------------------------------------------- compiled path
-    def _trace_batch(self, ph, a: int, b: int, rng, dep: _Deposits, spec):
-        """Trace photons a..b-1 of the emission ``ph``; spec (b-a, 3) or None."""
+    def _trace_batch(self, u_emit, ph, a: int, b: int, rng, dep: _Deposits, freq: bool):
+        """Trace photons a..b-1: from the uniforms u_emit (n, 6) of the fused
+        emission kernel, or from the emission ``ph`` of lights.sample_photons.
+        freq: these photons carry a spectrum."""
         st = self.settings
         n = b - a
-        fal = ph.get("falloff_r2")
-        fal = np.zeros(n) if fal is None else np.ascontiguousarray(fal[a:b], np.float64)
         o32 = np.empty((n, 3), np.float32)
         d32 = np.empty((n, 3), np.float32)
         d64 = np.empty((n, 3))
         pw = np.empty((n, 3))
         fo = np.empty(n)
-        src = np.empty(n, np.int64)
         rel = REL_OFFSET
         floor = self.accel.abs_floor / REL_OFFSET
-        K = PK.emit_kernel(np.ascontiguousarray(ph["o"][a:b], np.float64),
-                           np.ascontiguousarray(ph["d"][a:b], np.float64),
-                           np.ascontiguousarray(ph["power"][a:b], np.float64),
-                           fal, rel, floor, o32, d32, d64, pw, fo, src)
+        spec = None
+        if u_emit is not None:
+            spec = np.empty((n if freq else 1, 3))
+            K = PK.emit_lights_state(u_emit[a:b], *self._light_arrays, rel, floor,
+                                     o32, d32, d64, pw, fo, freq, spec)
+            spec = spec[:K] if freq else None
+        else:
+            fal = ph.get("falloff_r2")
+            fal = np.zeros(n) if fal is None else np.ascontiguousarray(fal[a:b], np.float64)
+            src = np.empty(n, np.int64)
+            K = PK.emit_kernel(np.ascontiguousarray(ph["o"][a:b], np.float64),
+                               np.ascontiguousarray(ph["d"][a:b], np.float64),
+                               np.ascontiguousarray(ph["power"][a:b], np.float64),
+                               fal, rel, floor, o32, d32, d64, pw, fo, src)
+            if freq:
+                spec = np.asarray(ph["freq_init"], np.float64)[a:b][src[:K]]
         tr, fm = self.tris, self.fmat
-        record = spec is not None
-        if record:
-            spec = spec[src[:K]]
+        record = freq
         cg = n if fm.any_generic else 1
         gen = (np.empty(cg, np.int64), np.empty((cg, 3)), np.empty((cg, 3)), np.empty((cg, 3)),
                np.empty((cg, 3)), np.empty((cg, 3)), np.empty((cg, 3)))

@@ -38,12 +38,13 @@ from . import bsdf as B
 from . import frequency as F
 from . import hashgrid
 from . import lights as Lt
+from . import memory
 from .accel import Accel, surface_point
 from .camera import CameraModel, FilterSampler
-from .errors import RenderCancelled, SceneError
+from .errors import CheckpointMismatch, RenderCancelled, SceneError
 from .photons import PhotonTracer, triangle_curvature
 from .plan import RenderPlan, make_plan
-from .scene import Scene, drop_invalid_triangles
+from .scene import Scene, drop_invalid_triangles, scene_digest
 from .settings import RenderSettings
 
 LUM = np.array([0.2126, 0.7152, 0.0722])
@@ -118,6 +119,11 @@ class Renderer:
         self.offset = (x0, y0)
         self.width, self.height = x1 - x0, y1 - y0
         self.D = scene.diameter()
+        st0 = self.settings
+        self.memory = memory.estimate(self.width * self.height,
+                                      min(st0.photons_per_pass, PHOTON_CHUNK), scene.n_triangles,
+                                      st0.occlusion_grid_res, st0.use_frequency)
+        memory.check_fits(self.memory)
         self.light_table = Lt.build_light_table(scene)
         for w in getattr(self.light_table, "warnings", []):
             log(f"FPPM: {w}")
@@ -231,6 +237,38 @@ class Renderer:
         self.last_result = self._film()
         return self.last_result
 
+    # ------------------------------------------------------ checkpointing
+    STATE_KEYS = ("R2", "N", "tau", "L_sum", "r_pred_last", "held", "M_last", "_depth_for_fp")
+
+    def state_dict(self) -> dict:
+        """Everything needed to continue this render bit for bit: per-pixel
+        statistics, counters and the digests that must match on resume.  RNG
+        streams are derived from (seed, pass, stage), so no RNG state is kept."""
+        d = {k: getattr(self, k).copy() for k in self.STATE_KEYS}
+        d.update(pass_index=self.pass_index, photons_emitted=self.photons_emitted,
+                 elapsed=self.elapsed, settings_digest=self.settings.image_digest(),
+                 scene_digest=scene_digest(self.scene), size=(self.width, self.height))
+        return d
+
+    def load_state(self, d: dict) -> None:
+        """Continue from ``state_dict()`` output; refuse a different scene or settings."""
+        if d["scene_digest"] != scene_digest(self.scene):
+            raise CheckpointMismatch("The checkpoint was made from a different scene "
+                                     "(geometry, materials, lights or camera changed).")
+        if d["settings_digest"] != self.settings.image_digest():
+            raise CheckpointMismatch("The checkpoint was made with different render settings.")
+        if tuple(d["size"]) != (self.width, self.height):
+            raise CheckpointMismatch("The checkpoint was made at a different resolution.")
+        for k in self.STATE_KEYS:
+            getattr(self, k)[...] = d[k]
+        self.pass_index = int(d["pass_index"])
+        self.photons_emitted = int(d["photons_emitted"])
+        self.elapsed = float(d["elapsed"])
+        if self.settings.fixed_visible_points and self.pass_index > 0:
+            # Fixed visible points come from pass 1's camera stream: rebuild them.
+            self._fixed_vp, self._fixed_emit = self._camera_pass(self._rng(1, 0))
+        self.last_result = self._film()
+
     # ------------------------------------------------------------ helpers
     def _rng(self, k: int, stage: int) -> np.random.Generator:
         # One independent stream per (seed, pass, stage): deterministic, and a
@@ -308,7 +346,9 @@ class Renderer:
                 vp.valid[q] = True
                 vp.p[q] = p[mk]
                 vp.ng[q] = ng[mk] * sgn
-                ns_o = ns[mk] * np.where(_dot(ns[mk], wo[mk]) >= 0, 1.0, -1.0)[:, None]
+                # Cycles flips the shading normal together with the geometric
+                # one (back-face hits), not by its own side of wo.
+                ns_o = ns[mk] * sgn
                 vp.ns[q] = ns_o
                 vp.wo[q] = wo[mk]
                 vp.mat[q] = mat[mk]
@@ -446,7 +486,11 @@ class Renderer:
                 pv, pp = g.pair_vp, g.pair_ph
                 f = B.eval_bsdf(self.mtab, vp.mat[pv], vp.colors[pv], vp.ns[pv], vp.ng[pv],
                                 vp.wo[pv], dep["wi"][pp])
-                contrib = f * dep["power"][pp]
+                # Photons estimate flux per geometric area; radiance wants the
+                # shading cosine: |wi.ns| / |wi.ng| (Veach 1997, 5.3), capped
+                # so a grazing geometric normal cannot spike.
+                corr = np.minimum(B.shading_correction(vp.ns[pv], vp.ng[pv], dep["wi"][pp]), 4.0)
+                contrib = f * (dep["power"][pp] * corr[:, None])
                 for ch in range(3):
                     Phi[:, ch] += np.bincount(pv, weights=contrib[:, ch], minlength=P)
             r_pred = np.minimum(r_pred, g.rpred_min)

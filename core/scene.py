@@ -45,6 +45,20 @@ class Lobe:
     roughness: Cycles' roughness; GGX alpha = roughness**2.
     ior: index of refraction (GLASS / REFRACTION).
     color_texture: index into ``Scene.textures`` multiplying ``color``, or -1.
+
+    Exact Cycles features (``core.bsdf.build_material_table``; the defaults
+    are plain single-scattering GGX / Lambert):
+    multiscatter: Multiscatter GGX energy compensation (GLOSSY / GLASS; the
+      'MULTI_GGX' distribution of the Glossy, Glass and Principled nodes).
+    fresnel: '' | 'DIELECTRIC' | 'F82' (GLOSSY only; the Principled BSDF's
+      layers).  'DIELECTRIC': colour = specular tint, f scaled by the
+      generalised-Schlick Fresnel of ``fresnel_ior``.  'F82': colour = F0 of
+      Cycles' F82-tint conductor with tint ``f82_tint`` (RGB in [0, 1]).
+    layer_ior > 0: a DIFFUSE lying under a dielectric specular layer of that
+      IOR, normal reflectance ``layer_f0``, roughness ``layer_roughness`` and
+      ``layer_multiscatter``, scaled by 1 - the layer's albedo (Cycles'
+      ``closure_layering_weight``).  The other layer_* fields are read only
+      when layer_ior > 0, so set them together.
     """
     kind: int
     color: tuple = (0.8, 0.8, 0.8)
@@ -52,6 +66,15 @@ class Lobe:
     roughness: float = 0.0
     ior: float = 1.45
     color_texture: int = -1
+    # Defaults equal core.shading.CyclesLobe's, so both build the same tables.
+    multiscatter: bool = False
+    fresnel: str = ""
+    fresnel_ior: float = 1.5
+    f82_tint: tuple = (1.0, 1.0, 1.0)
+    layer_ior: float = 0.0
+    layer_f0: float = 0.0
+    layer_roughness: float = 0.0
+    layer_multiscatter: bool = False
 
 
 @dataclass(frozen=True)
@@ -243,3 +266,24 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       lights=scene.lights, camera=scene.camera, world_color=scene.world_color,
                       textures=scene.textures, filter_width=scene.filter_width)
     return scene, dropped
+
+
+def scene_digest(scene: Scene) -> str:
+    """Stable hash of everything that changes the image (geometry, materials,
+    lights, camera, world, textures); used to refuse a stale checkpoint."""
+    import hashlib
+    h = hashlib.sha256()
+    for a in (scene.tri_p, scene.tri_n, scene.tri_uv, scene.tri_mat,
+              np.asarray(scene.world_color, np.float64)):
+        h.update(np.ascontiguousarray(a).tobytes())
+    h.update(repr(scene.materials).encode())
+    for lt in scene.lights:
+        h.update(repr({k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
+                       for k, v in lt.__dict__.items()}).encode())
+    cam = scene.camera
+    h.update(repr({k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
+                   for k, v in cam.__dict__.items()}).encode())
+    for t in scene.textures:
+        h.update(np.ascontiguousarray(t).tobytes())
+    h.update(repr(scene.filter_width).encode())
+    return h.hexdigest()[:16]

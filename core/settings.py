@@ -94,6 +94,15 @@ class RenderSettings:
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
+    # Fields that change when a render stops, not what it converges to.
+    BUDGET_FIELDS = ("time_limit", "max_passes")
+
+    def image_digest(self) -> str:
+        """Hash of the fields that shape the image sequence (not the budget):
+        a checkpoint may be resumed with a larger time limit or pass count."""
+        d = {k: v for k, v in self.to_dict().items() if k not in self.BUDGET_FIELDS}
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+
     def digest(self) -> str:
         """Stable hash of every field (checkpoints, caches)."""
         blob = json.dumps(self.to_dict(), sort_keys=True).encode()

@@ -60,8 +60,10 @@ class MultiscatterLobe(CyclesLobe):
     multiscatter: bool = True
 
 
-_EXTRA = {f.name: f.default for f in dataclasses.fields(CyclesLobe)
-          if f.name not in {g.name for g in dataclasses.fields(Lobe)}}
+# The attributes beyond a Lobe's original six (core.scene.Lobe now declares
+# them too, with these defaults), name -> default.
+_BASE = ("kind", "color", "weight", "roughness", "ior", "color_texture")
+_EXTRA = {f.name: f.default for f in dataclasses.fields(CyclesLobe) if f.name not in _BASE}
 
 
 def make_lobe(kind, color=(0.8, 0.8, 0.8), weight=1.0, roughness=0.0, ior=1.45,

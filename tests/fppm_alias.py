@@ -37,10 +37,15 @@ class _AliasLoader(importlib.abc.Loader):
         self.target = target
 
     def create_module(self, spec):
-        return importlib.import_module(self.target)
+        module = importlib.import_module(self.target)
+        self._saved = (module.__spec__, getattr(module, "__loader__", None),
+                       getattr(module, "__package__", None))
+        return module
 
     def exec_module(self, module):
-        pass
+        # The import system stamped the alias spec on the real module: put the
+        # real one back so relative imports inside it keep working.
+        module.__spec__, module.__loader__, module.__package__ = self._saved
 
 
 class _AliasFinder(importlib.abc.MetaPathFinder):

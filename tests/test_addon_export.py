@@ -223,6 +223,8 @@ def test_materials_from_nodes():
         "Glass": H.node_material("Glass", "BSDF_GLASS", IOR=1.5, Roughness=0.0),
         "Lamp": H.node_material("Lamp", "EMISSION", Color=(1, 0.5, 0.5, 1), Strength=4.0),
         "Gold": H.node_material("Gold", "BSDF_PRINCIPLED", Metallic=1.0, Roughness=0.3),
+        # Sheen has no FPPM lobe: the one approximated material here.
+        "Velvet": H.node_material("Velvet", "BSDF_PRINCIPLED", **{"Sheen Weight": 0.5}),
     }
     mix = H.node_material("Mix", "BSDF_DIFFUSE", Color=(0.8, 0.8, 0.8, 1))
     nt = mix.node_tree
@@ -245,7 +247,14 @@ def test_materials_from_nodes():
     g = M["Glass"].lobes
     assert len(g) == 1 and g[0].kind == S.GLASS and g[0].ior == pytest.approx(1.5)
     assert np.allclose(M["Lamp"].emission, (4.0, 2.0, 2.0))
-    assert {lb.kind for lb in M["Gold"].lobes} == {S.GLOSSY}
+    # Metallic 1 is exact (Cycles' F82-tint conductor, F0 = base colour, the
+    # node's default Multiscatter GGX): one lobe, nothing noted.
+    (gold,) = M["Gold"].lobes
+    assert gold.kind == S.GLOSSY and gold.weight == pytest.approx(1.0)
+    assert gold.color == pytest.approx((0.8, 0.8, 0.8)) and gold.roughness == pytest.approx(0.3)
+    assert getattr(gold, "fresnel", "") == "F82" and getattr(gold, "multiscatter", False)
+    assert tuple(getattr(gold, "f82_tint", (1.0, 1.0, 1.0))) == pytest.approx((1.0, 1.0, 1.0))
+    assert M["Gold"].approximations == ()
     kinds = {lb.kind: lb for lb in M["Mix"].lobes}
     assert set(kinds) == {S.DIFFUSE, S.GLOSSY}
     # Mix fac 0.25: weight x colour = 0.75 x 0.8 diffuse, 0.25 x 0.8 glossy.
@@ -254,7 +263,62 @@ def test_materials_from_nodes():
     assert np.allclose(wd, 0.6) and np.allclose(wg, 0.2)
     # Every triangle points at its object's material.
     assert np.bincount(s.tri_mat, minlength=len(s.materials)).tolist() == [12] * len(mats)
-    assert "Principled BSDF" in lines[1]   # the approximations line names what was approximated
+    # The approximations line names the material, node and what was approximated.
+    assert "material 'Velvet': Principled BSDF: sheen (weight 0.5) ignored" in lines[1]
+    assert "'Gold'" not in lines[1]
+
+
+def _one_node_material(name, idname, distribution, **inputs):
+    m = H.node_material(name, "BSDF_DIFFUSE")
+    nt = m.node_tree
+    nt.nodes.remove(next(n for n in nt.nodes if n.type == 'BSDF_DIFFUSE'))
+    node = nt.nodes.new(idname)
+    node.distribution = distribution
+    for k, v in inputs.items():
+        node.inputs[k].default_value = v
+    nt.links.new(node.outputs[0], next(n for n in nt.nodes if n.type == 'OUTPUT_MATERIAL')
+                 .inputs["Surface"])
+    return m
+
+
+def test_distribution_sets_multiscatter():
+    from fppm.core.bsdf import build_material_table
+    sc = base_scene()
+    # name -> (node, distribution, inputs, kind, multiscatter expected)
+    cases = {
+        "GlossyMulti": ("ShaderNodeBsdfGlossy", 'MULTI_GGX', {"Roughness": 0.5}, S.GLOSSY, True),
+        "GlossyGGX": ("ShaderNodeBsdfGlossy", 'GGX', {"Roughness": 0.5}, S.GLOSSY, False),
+        "GlossyBeckmann": ("ShaderNodeBsdfGlossy", 'BECKMANN', {"Roughness": 0.5}, S.GLOSSY, False),
+        "GlassMulti": ("ShaderNodeBsdfGlass", 'MULTI_GGX', {"Roughness": 0.4, "IOR": 1.33},
+                       S.GLASS, True),
+        "GlassGGX": ("ShaderNodeBsdfGlass", 'GGX', {"Roughness": 0.4, "IOR": 1.33}, S.GLASS, False),
+        # Cycles' Refraction BSDF has no multiscatter variant.
+        "Refraction": ("ShaderNodeBsdfRefraction", 'GGX', {"Roughness": 0.4, "IOR": 1.33},
+                       S.REFRACTION, False),
+        "MetalMulti": ("ShaderNodeBsdfPrincipled", 'MULTI_GGX', {"Metallic": 1.0, "Roughness": 0.5},
+                       S.GLOSSY, True),
+        "MetalGGX": ("ShaderNodeBsdfPrincipled", 'GGX', {"Metallic": 1.0, "Roughness": 0.5},
+                     S.GLOSSY, False),
+    }
+    for i, (name, (idname, dist, inputs, _, _)) in enumerate(cases.items()):
+        H.add_cube(sc, name, location=(2 * i, 0, 0),
+                   material=_one_node_material(name, idname, dist, **inputs))
+    s, lines = export()
+    M = {m.name: m for m in s.materials}
+    table = build_material_table(s.materials, s.textures)
+    for name, (_, dist, inputs, kind, ms) in cases.items():
+        (lobe,) = M[name].lobes
+        assert lobe.kind == kind, name
+        assert lobe.roughness == pytest.approx(inputs["Roughness"]), name
+        if "IOR" in inputs:
+            assert lobe.ior == pytest.approx(inputs["IOR"]), name
+        assert bool(getattr(lobe, "multiscatter", False)) is ms, name
+        # ... and core.bsdf reads it: the table's flag is what the BSDF uses.
+        assert bool(table.multiscatter[s.materials.index(M[name]), 0]) is ms, name
+    # Only the Beckmann glossy is approximated (rendered as GGX).
+    assert "material 'GlossyBeckmann': Glossy BSDF: BECKMANN distribution rendered as GGX" \
+        in lines[1]
+    assert lines[1].count("distribution rendered as GGX") == 1
 
 
 def test_unsupported_node_one_warning_and_grey():
