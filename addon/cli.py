@@ -2,6 +2,8 @@
 
     fppm render SCENE.blend -o OUT.exr [--frame N] [--time-limit S] [--passes N]
                 [--photons N] [--mode fppm|ppm] [--seed N] [--resolution PCT]
+    fppm converge SCENE.blend --time-limit S --out DIR [--reference REF.exr | --cycles-samples N]
+                [--methods fppm,ppm,cycles] [--seeds K] ...   (addon/converge.py)
 
 The file is opened with its embedded scripts disabled.  Settings come from
 the file's ``scene.fppm`` (defaults when the file never had the add-on), then
@@ -68,6 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="resolution percentage (1-1000), overriding the file's")
     r.add_argument("--no-preview", action="store_true", help="do not write the PNG preview")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    from .converge import add_parser as add_converge_parser
+    add_converge_parser(sub)
     return p
 
 
@@ -313,6 +317,12 @@ def main(argv=None) -> int:
     try:
         if a.command == "render":
             return render(a)
+        if a.command == "converge":
+            from .converge import ConvergeError, converge
+            try:
+                return converge(a)
+            except ConvergeError as ex:
+                raise CLIError(ex.code, str(ex))
         parser.error(f"unknown command {a.command}")
     except CLIError as ex:
         print(f"fppm: error: {ex}", file=sys.stderr, flush=True)

@@ -208,7 +208,11 @@ def cycles_render(bpy, scene, samples: int, seed: int, passes: bool = False):
     dt = time.perf_counter() - t0
     rr = bpy.data.images["Render Result"]
     im = scene.render.image_settings
-    im.file_format = "OPEN_EXR_MULTILAYER" if passes else "OPEN_EXR"
+    if hasattr(im, "media_type"):        # Blender >= 5: multilayer is a media type
+        im.media_type = "MULTI_LAYER_IMAGE" if passes else "IMAGE"
+        im.file_format = "OPEN_EXR_MULTILAYER" if passes else "OPEN_EXR"
+    else:
+        im.file_format = "OPEN_EXR_MULTILAYER" if passes else "OPEN_EXR"
     im.color_depth = "32"
     im.color_mode = "RGBA"
     im.exr_codec = "ZIP"
@@ -275,6 +279,10 @@ def load_reference(path: str) -> dict:
     if comb is None or comb.shape[2] < 3:
         raise ConvergeError(3, f"'{path}' has no RGB (Combined) image.")
     var = _layer(layers, "Variance")
+    sib = os.path.splitext(path)[0] + "_var.exr"
+    if var is None and os.path.isfile(sib):
+        # tests/references/<name>_var.exr: per-pixel variance of the reference.
+        var = _layer(read_exr(sib), "Combined")
     return {"image": comb[..., :3].astype(np.float64),
             "var": None if var is None else var[..., :3].astype(np.float64),
             "diff_direct": _layer(layers, "DiffDir"), "diff_indirect": _layer(layers, "DiffInd"),
@@ -342,62 +350,6 @@ def raw_ray_seconds(accel, scene, n_rays: int, cap: int = 2_000_000, seed: int =
     t0 = time.perf_counter()
     accel.intersect(o, d)
     return (time.perf_counter() - t0) * n_rays / n
-
-
-def run_photon_mapping(bpy, scene, fscene, method, seed, budget, photons, ref, masks, log,
-                       progress, stop) -> Run:
-    from ..core.render import Renderer
-    from .engine import film_gain
-    from .properties import settings_from_scene
-    run = Run(method, seed)
-    kw = dict(use_frequency=(method == "fppm"), time_limit=float(budget), max_passes=0, seed=seed)
-    if photons is not None:
-        kw["photons_per_pass"] = photons
-    settings = settings_from_scene(scene).replace(**kw).validate()
-    gain = film_gain(scene)
-    t0 = time.perf_counter()
-    renderer = Renderer(fscene, settings, log=lambda s: None)
-    run.setup_seconds = time.perf_counter() - t0
-    run.renderer = renderer
-
-    def on_pass(pr):
-        img = pr.image[..., :3].astype(np.float64) * gain
-        row = _record(run, masks, ref, pr.pass_index, run.setup_seconds + pr.elapsed,
-                      pr.elapsed, pr.photons_emitted, "", img)
-        progress(f"[{method} seed {seed}] {pr.elapsed:5.1f}/{budget:g} s  pass {pr.pass_index}  "
-                 f"relMSE {row['relmse_all']:.3e}")
-
-    renderer.run(should_stop=lambda: stop["flag"], on_pass=on_pass)
-    run.complete = not stop["flag"]
-    st = renderer.stage_seconds
-    t_photon = st["photon_trace"] + st["gather"]
-    rays = int(renderer.photon_rays)
-    t_raw = raw_ray_seconds(renderer.accel, renderer.scene, rays)
-    run.throughput = {"photon_seconds": t_photon, "photon_rays": rays, "raw_seconds": t_raw,
-                      "ratio": t_photon / t_raw if t_raw and t_raw > 0 else float("nan"),
-                      "stage_seconds": dict(st)}
-    log(f"{method} seed {seed}: {renderer.pass_index} passes, {renderer.photons_emitted / 1e6:.1f} M "
-        f"photons, setup {run.setup_seconds:.2f} s; photon pass {t_photon:.2f} s for "
-        f"{rays / 1e6:.2f} M rays = {run.throughput['ratio']:.2f}x raw Embree ({t_raw:.2f} s).")
-    return run
-
-
-def run_cycles_ladder(bpy, scene, seed, budget, max_samples, ref, masks, log, progress, stop) -> Run:
-    run = Run("cycles", seed)
-    cycles_reference_setup(scene)
-    n = 1
-    while n <= max_samples and not stop["flag"]:
-        layers, dt = cycles_render(bpy, scene, n, seed)
-        img = _layer(layers, "Combined")[..., :3].astype(np.float64)
-        row = _record(run, masks, ref, n, dt, dt, "", n, img)
-        progress(f"[cycles seed {seed}] {n} spp in {dt:.2f} s  relMSE {row['relmse_all']:.3e}",
-                 force=True)
-        if dt > budget:
-            break
-        n *= 2
-    run.complete = not stop["flag"]
-    log(f"cycles seed {seed}: ladder up to {run.rows[-1]['samples'] if run.rows else 0} spp.")
-    return run
 
 
 # ---------------------------------------------------------------------------
@@ -563,7 +515,9 @@ def report(path, a, runs, ref, floors, masks, budget, notes, interrupted) -> dic
     def ratio(num, den, f, excess):
         a_ = error_at(runs, num, f * budget)[0]
         b_ = error_at(runs, den, f * budget)[0]
-        if excess and use_excess:
+        if excess and not use_excess:
+            return float("nan")
+        if excess:
             a_, b_ = a_ - fl, b_ - fl
             if not (a_ > 0 and b_ > 0):
                 return float("nan")
@@ -715,6 +669,13 @@ def converge(a, log=print) -> int:
     interrupted = False
     seeds = list(range(a.seed, a.seed + a.seeds))
     fscene = None
+    def on_sigint(signum, frame):
+        if stop["flag"]:            # a second Ctrl-C: give up at once
+            raise KeyboardInterrupt
+        stop["flag"] = True         # Renderer.run / the ladder stop after the current step
+
+    import signal
+    prev_handler = signal.signal(signal.SIGINT, on_sigint)
     try:
         if "fppm" in methods or "ppm" in methods:
             from ..core.errors import FPPMError
@@ -729,17 +690,23 @@ def converge(a, log=print) -> int:
                                        f"{int(cam[0])}x{int(cam[1])}: match --resolution.")
         for seed in seeds:
             for m in methods:
+                if stop["flag"]:
+                    break
                 if m == "cycles":
                     run = Run("cycles", seed)
-                    runs.append(run)
-                    r2 = run_cycles_ladder_into(run, bpy, scene, seed, budget, a.cycles_max_samples,
-                                                ref["image"], masks, log, progress, stop, H, W)
+                    runs.append(run)        # appended first: Ctrl-C keeps its points
+                    run_cycles_ladder(run, bpy, scene, seed, budget, a.cycles_max_samples,
+                                      ref["image"], masks, log, progress, stop, H, W)
                 else:
-                    run = None
-                    holder = []
-                    r2 = run_photon_mapping_into(holder, runs, bpy, scene, fscene, m, seed, budget,
-                                                 a.photons, ref["image"], masks, log, progress, stop)
+                    run = Run(m, seed)
+                    runs.append(run)
+                    run_photon_mapping(run, scene, fscene, budget, a.photons, ref["image"],
+                                       masks, log, progress, stop)
     except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        signal.signal(signal.SIGINT, prev_handler)
+    if stop["flag"] or interrupted:
         interrupted = True
         log("Interrupted: writing what is done so far.")
     runs = [r for r in runs if r.rows]
@@ -750,53 +717,56 @@ def converge(a, log=print) -> int:
     return 130 if interrupted else 0
 
 
-def run_photon_mapping_into(holder, runs, bpy, scene, fscene, m, seed, budget, photons, ref, masks,
-                            log, progress, stop):
-    """run_photon_mapping, with the Run appended to ``runs`` before it starts (Ctrl-C keeps it)."""
-    placeholder = Run(m, seed)
-    runs.append(placeholder)
-    # Renderer.run calls on_pass per pass; route records into the placeholder so
-    # an interrupt keeps the passes done.
+def run_photon_mapping(run, scene, fscene, budget, photons, ref, masks, log, progress, stop):
+    """FPPM or PPM (run.method) for ``budget`` seconds; records every pass into ``run``."""
     from ..core.render import Renderer
+    from ..core.settings import SettingsError
     from .engine import film_gain
     from .properties import settings_from_scene
+    m, seed = run.method, run.seed
     kw = dict(use_frequency=(m == "fppm"), time_limit=float(budget), max_passes=0, seed=seed)
     if photons is not None:
         kw["photons_per_pass"] = photons
-    from ..core.settings import SettingsError
     try:
         settings = settings_from_scene(scene).replace(**kw).validate()
     except SettingsError as ex:
         raise ConvergeError(2, str(ex))
     gain = film_gain(scene)
+    # Warm-up (not timed): loads numba's compiled kernels from the disk cache,
+    # a one-off per process that Cycles, already loaded, does not pay either.
+    warm = Renderer(fscene, settings.replace(max_passes=1, time_limit=0.0,
+                                             photons_per_pass=min(settings.photons_per_pass, 2000)),
+                    log=lambda s: None)
+    warm.step()
+    del warm
     t0 = time.perf_counter()
     renderer = Renderer(fscene, settings, log=lambda s: None)
-    placeholder.setup_seconds = time.perf_counter() - t0
+    run.setup_seconds = time.perf_counter() - t0
 
     def on_pass(pr):
         img = pr.image[..., :3].astype(np.float64) * gain
-        row = _record(placeholder, masks, ref, pr.pass_index, placeholder.setup_seconds + pr.elapsed,
+        row = _record(run, masks, ref, pr.pass_index, run.setup_seconds + pr.elapsed,
                       pr.elapsed, pr.photons_emitted, "", img)
         progress(f"[{m} seed {seed}] {pr.elapsed:5.1f}/{budget:g} s  pass {pr.pass_index}  "
                  f"relMSE {row['relmse_all']:.3e}")
 
     renderer.run(should_stop=lambda: stop["flag"], on_pass=on_pass)
-    placeholder.complete = True
+    run.complete = True
     st = renderer.stage_seconds
     t_photon = st["photon_trace"] + st["gather"]
     rays = int(renderer.photon_rays)
     t_raw = raw_ray_seconds(renderer.accel, renderer.scene, rays)
-    placeholder.throughput = {"photon_seconds": t_photon, "photon_rays": rays, "raw_seconds": t_raw,
+    run.throughput = {"photon_seconds": t_photon, "photon_rays": rays, "raw_seconds": t_raw,
                               "ratio": t_photon / t_raw if t_raw and t_raw > 0 else float("nan")}
     msg = (f"{m} seed {seed}: {renderer.pass_index} passes, {renderer.photons_emitted / 1e6:.1f} M "
-           f"photons, setup {placeholder.setup_seconds:.2f} s; photon pass {t_photon:.2f} s for "
-           f"{rays / 1e6:.2f} M rays = {placeholder.throughput['ratio']:.2f}x raw Embree "
+           f"photons, setup {run.setup_seconds:.2f} s; photon pass {t_photon:.2f} s for "
+           f"{rays / 1e6:.2f} M rays = {run.throughput['ratio']:.2f}x raw Embree "
            f"({t_raw:.2f} s).")
     log(msg)
-    return placeholder
+    return run
 
 
-def run_cycles_ladder_into(run, bpy, scene, seed, budget, max_samples, ref, masks, log, progress,
+def run_cycles_ladder(run, bpy, scene, seed, budget, max_samples, ref, masks, log, progress,
                            stop, H, W):
     cycles_reference_setup(scene)
     run.ladder_images = {}
@@ -813,7 +783,12 @@ def run_cycles_ladder_into(run, bpy, scene, seed, budget, max_samples, ref, mask
                  force=True)
         if dt > budget:
             break
-        n *= 2
+        # Doubling, except that the step past the budget aims at ~1.1x the
+        # budget rather than up to 2x (the last point only brackets 100%).
+        n_next = 2 * n
+        if 2 * dt > budget and dt > 0:
+            n_next = min(n_next, max(n + 1, int(math.ceil(n * 1.1 * budget / dt))))
+        n = n_next
     run.complete = True
     log(f"cycles seed {seed}: ladder 1..{run.rows[-1]['samples'] if run.rows else 0} spp, "
         f"last {run.rows[-1]['seconds'] if run.rows else 0:.1f} s.")

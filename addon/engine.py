@@ -19,7 +19,7 @@ import traceback
 import bpy
 import numpy as np
 
-from ..core.errors import FPPMError
+from ..core.errors import FPPMError, RenderCancelled
 from ..core.render import Renderer
 from ..core.settings import SettingsError
 from .export import export_scene
@@ -88,15 +88,19 @@ class RenderSession:
     on_pass(result, settings): after every completed pass.
     log(line): export summary, plan and warnings (instead of printing them).
     should_stop(): polled with ``test_break``; True cancels the render.
+    on_renderer(renderer): once the Renderer is built, before the first pass
+    (the CLI loads a checkpoint there); also kept as ``renderer``.
     After the render: ``result`` (last complete PassResult or None),
     ``error`` (the FPPMError / SettingsError that stopped it, or None),
     ``cancelled``, ``settings``, ``gain`` (film exposure applied to Combined).
     """
 
-    def __init__(self, on_pass=None, log=None, should_stop=None):
+    def __init__(self, on_pass=None, log=None, should_stop=None, on_renderer=None):
         self.on_pass = on_pass
         self.log = log
         self.should_stop = should_stop
+        self.on_renderer = on_renderer
+        self.renderer = None
         self.result = None
         self.error = None
         self.cancelled = False
@@ -166,6 +170,10 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
         scene = depsgraph.scene
         try:
             self._render(depsgraph, scene, sess)
+        except RenderCancelled:
+            # Esc / Ctrl-C during the set-up (before any pass): nothing to show.
+            if sess is not None:
+                sess.cancelled = True
         except (FPPMError, SettingsError) as ex:
             # A sentence for the user, no traceback.
             if sess is not None:
@@ -191,7 +199,13 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
             if sess is not None:
                 sess.cancelled = True
             return
-        renderer = Renderer(fscene, settings, log=self._log)
+        # should_stop is also polled while the renderer is set up (BVH,
+        # occlusion grid): RenderCancelled from there is caught in render().
+        renderer = Renderer(fscene, settings, log=self._log, should_stop=self.break_requested)
+        if sess is not None:
+            sess.renderer = renderer
+            if sess.on_renderer is not None:
+                sess.on_renderer(renderer)
         for line in renderer.plan_lines():
             self._log(line)
 

@@ -27,7 +27,8 @@ error against the true image.
 
 Region masks (:func:`region_masks`), derived from the reference when no mask
 image is given (thresholds are module constants, documented there):
-- caustic: a high relative gradient AND brighter than its blurred surround;
+- caustic: a high relative gradient (at or next to the pixel) AND brighter
+  than its blurred surround;
 - smooth: a low relative gradient, and not caustic;
 - indirect: the direct fraction of diffuse light is small (from Cycles'
   DiffDir/DiffInd passes when the reference has them); otherwise a
@@ -47,7 +48,8 @@ BLUR_SIGMA_PX = 4.0
 #: Relative gradient G = |grad log(L + delta)| per pixel (central differences),
 #: delta = LOG_DELTA_FRAC * mean(L) so black areas do not produce huge G.
 LOG_DELTA_FRAC = 0.05
-#: caustic: G > CAUSTIC_GRAD (a >= ~30% change across one pixel) AND
+#: caustic: max of G over the 3x3 neighbourhood > CAUSTIC_GRAD (a >= ~30%
+#: change across one pixel, at or next to the pixel) AND
 #: L > CAUSTIC_RATIO * blur(L) (concentrated light, brighter than its surround)
 #: AND L > 0.1 * mean(L) (not a dim speck).
 CAUSTIC_GRAD = 0.3
@@ -203,6 +205,13 @@ def relative_gradient(L: np.ndarray, delta: float) -> np.ndarray:
     return np.hypot(gx, gy)
 
 
+def max_filter3(a: np.ndarray) -> np.ndarray:
+    """(H, W) maximum over each pixel's 3x3 neighbourhood (edges replicated)."""
+    p = np.pad(np.asarray(a, np.float64), 1, mode="edge")
+    H, W = a.shape
+    return np.max([p[i:i + H, j:j + W] for i in range(3) for j in range(3)], axis=0)
+
+
 def region_masks(ref, diff_direct=None, diff_indirect=None) -> dict[str, np.ndarray]:
     """{"smooth", "caustic", "indirect"}: (H, W) bool masks derived from the reference.
 
@@ -216,7 +225,9 @@ def region_masks(ref, diff_direct=None, diff_indirect=None) -> dict[str, np.ndar
     delta = max(LOG_DELTA_FRAC * mean, 1e-8)
     G = relative_gradient(L, delta)
     Lb = gaussian_blur(L, BLUR_SIGMA_PX)
-    caustic = (G > CAUSTIC_GRAD) & (L > CAUSTIC_RATIO * Lb) & (L > 0.1 * mean)
+    # The gradient test uses the 3x3 maximum of G: the inside of a caustic a
+    # few pixels wide has a flat top, and is caustic all the same.
+    caustic = (max_filter3(G) > CAUSTIC_GRAD) & (L > CAUSTIC_RATIO * Lb) & (L > 0.1 * mean)
     smooth = (G < SMOOTH_GRAD) & ~caustic
     if diff_direct is not None and diff_indirect is not None:
         dd, di = luminance(diff_direct), luminance(diff_indirect)

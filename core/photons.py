@@ -63,7 +63,7 @@ def _dot(a, b):
 class _Deposits:
     """Growable deposit buffers (rows 0..n-1 used), float64; r = predicted radius."""
 
-    def __init__(self, cap: int):
+    def __init__(self, cap):
         cap = max(int(cap), 16)
         self.p = np.empty((cap, 3))
         self.ng = np.empty((cap, 3))
@@ -136,27 +136,31 @@ class PhotonTracer:
         if not self.fast:
             return self._trace_numpy(n, n_freq, rng)
         if n < SPLIT_MIN:
-            return self._trace_part(n, n_freq, rng, int(self._dpp * n) + 64).result()
+            return self._trace_part(n, n_freq, rng, _Deposits(self._dpp * n + 64)).result()
         # Two halves on independent child streams, always (the image does not
         # depend on the number of cores), traced concurrently when there are
-        # two: Embree and the kernels release the GIL.
+        # two threads: Embree and the kernels release the GIL.  The deposits
+        # are the first half's followed by the second's in both cases.
         r0, r1 = rng.spawn(2)
         h, hf = n // 2, n_freq // 2
-        # The first half's buffer is sized for both (deposits per photon seen
-        # so far, +25%): the second half is appended without reallocating.
-        parts = ((h, hf, r0, int(self._dpp * n) + 64), (n - h, n_freq - hf, r1,
-                                                         int(self._dpp * (n - h)) + 64))
+        # The first buffer is sized for both halves (deposits per photon seen
+        # so far, +25%): the second is appended without reallocating.
+        d0 = _Deposits(self._dpp * n + 64)
         if _threads() > 1:
-            d0, d1 = _pool().map(lambda a: self._trace_part(*a), parts)
+            d1 = _Deposits(self._dpp * (n - h) + 64)
+            f0 = _pool().submit(self._trace_part, h, hf, r0, d0)
+            self._trace_part(n - h, n_freq - hf, r1, d1)
+            f0.result()
+            d0.extend(d1)                # one copy of the second half's rows
         else:
-            d0, d1 = (self._trace_part(*a) for a in parts)
-        d0.extend(d1)
+            self._trace_part(h, hf, r0, d0)
+            self._trace_part(n - h, n_freq - hf, r1, d0)
         return d0.result()
 
-    def _trace_part(self, n: int, n_freq: int, rng, cap: int) -> "_Deposits":
-        """Emit and trace n photons (the first n_freq with a spectrum) into a
-        deposit buffer of initial capacity cap rows."""
-        dep = _Deposits(cap)
+    def _trace_part(self, n: int, n_freq: int, rng, dep: "_Deposits") -> "_Deposits":
+        """Emit and trace n photons (the first n_freq with a spectrum); their
+        deposits are appended to dep."""
+        n_before = dep.n
         if self.fast_emission:
             u = rng.random((n, 6))
             ph = None
@@ -167,7 +171,7 @@ class PhotonTracer:
             self._trace_batch(u, ph, 0, n_freq, rng, dep, True)
         if n > n_freq:
             self._trace_batch(u, ph, n_freq, n, rng, dep, False)
-        self._dpp = max(self._dpp, 1.25 * dep.n / max(n, 1))
+        self._dpp = max(self._dpp, 1.25 * (dep.n - n_before) / max(n, 1))
         return dep
 
     # ------------------------------------------------------- compiled path

@@ -95,9 +95,11 @@ class VisiblePoints:
 
 class Renderer:
     def __init__(self, scene: Scene, settings: RenderSettings,
-                 log: Callable[[str], None] = print):
+                 log: Callable[[str], None] = print, should_stop=None):
         self.settings = settings.validate()
         self.log = log
+        # Polled between the set-up stages too (cancel within 1 s, issue 8).
+        self._should_stop = should_stop or (lambda: False)
         scene, dropped = drop_invalid_triangles(scene)
         self.dropped_triangles = dropped
         if dropped:
@@ -131,11 +133,15 @@ class Renderer:
             raise SceneError("The scene has no light: add a light with non-zero power, "
                              "an emissive material or a world colour.")
         self.mtab = B.build_material_table(scene.materials, scene.textures)
+        self._check_stop()
         self.accel = Accel(scene.tri_p, self.D)
+        self._check_stop()
         self.camera = CameraModel(cam)
         self.fsamp = FilterSampler(scene.filter_width)
         self.plan: RenderPlan = make_plan(scene, self.settings, self.mtab, self.light_table)
+        self._check_stop()
         self.kappa = triangle_curvature(scene) if self.plan.frequency_photons else None
+        self._check_stop()
         self.occ_grid = None
         if self.plan.occlusion_grid:
             from .occlusion import build_occlusion_grid, default_locality
@@ -147,7 +153,7 @@ class Renderer:
             # beyond 4x that are never used, so the build may stop there.
             diag = float(np.linalg.norm((hi - lo + 2 * pad) / res))
             self.occ_locality = 2.0 * diag
-            self.occ_grid = build_occlusion_grid(scene.tri_p, lo - pad, hi + pad, res,
+            self.occ_grid = self._interruptible(build_occlusion_grid, scene.tri_p, lo - pad, hi + pad, res,
                                                  max_distance=4.0 * self.occ_locality + 2 * diag)
             self.occ_locality = default_locality(self.occ_grid)
             self.occ_build_seconds = time.perf_counter() - t0
@@ -175,7 +181,12 @@ class Renderer:
         # Seconds and rays per stage, for the benchmark (ratios, not bare times).
         self.stage_seconds = {k: 0.0 for k in ("camera", "direct", "photon_trace", "gather", "update")}
         self.photon_rays = 0
-        self._should_stop = lambda: False
+        st = self.settings
+        self._freq_pairs_needed = self.plan.frequency_photons and (
+            st.frequency_estimator == "QUANTILE" or st.aov_spectrum)
+        self.r_hist = (np.zeros((P, self.HIST_BINS), np.uint32)
+                       if self.plan.frequency_photons and st.frequency_estimator == "QUANTILE" else None)
+        self.spectrum = np.zeros((P, 3)) if st.aov_spectrum else None
         self._depth_for_fp = np.zeros(P)
         self.last_result: Optional[PassResult] = None
 
@@ -189,7 +200,8 @@ class Renderer:
 
     def run(self, should_stop=None, on_pass=None) -> PassResult:
         st = self.settings
-        self._should_stop = should_stop or (lambda: False)
+        if should_stop is not None:
+            self._should_stop = should_stop
         while True:
             if st.max_passes and self.pass_index >= st.max_passes:
                 break
@@ -215,12 +227,12 @@ class Renderer:
         if st.fixed_visible_points and self._fixed_vp is not None:
             vp, L_emit = self._fixed_vp, self._fixed_emit
         else:
-            vp, L_emit = self._camera_pass(self._rng(k, 0))
+            vp, L_emit = self._interruptible(self._camera_pass, self._rng(k, 0))
             if st.fixed_visible_points:
                 self._fixed_vp, self._fixed_emit = vp, L_emit
         td = time.perf_counter()
         self.stage_seconds["camera"] += td - tc
-        L_pass = L_emit + self._direct(vp, self._rng(k, 1))
+        L_pass = L_emit + self._interruptible(self._direct, vp, self._rng(k, 1))
         self.stage_seconds["direct"] += time.perf_counter() - td
         self._check_stop()
         self._init_radii(vp)
@@ -245,6 +257,9 @@ class Renderer:
         statistics, counters and the digests that must match on resume.  RNG
         streams are derived from (seed, pass, stage), so no RNG state is kept."""
         d = {k: getattr(self, k).copy() for k in self.STATE_KEYS}
+        for k in ("r_hist", "spectrum"):
+            if getattr(self, k) is not None:
+                d[k] = getattr(self, k).copy()
         d.update(pass_index=self.pass_index, photons_emitted=self.photons_emitted,
                  elapsed=self.elapsed, settings_digest=self.settings.image_digest(),
                  scene_digest=scene_digest(self.scene), size=(self.width, self.height))
@@ -259,8 +274,9 @@ class Renderer:
             raise CheckpointMismatch("The checkpoint was made with different render settings.")
         if tuple(d["size"]) != (self.width, self.height):
             raise CheckpointMismatch("The checkpoint was made at a different resolution.")
-        for k in self.STATE_KEYS:
-            getattr(self, k)[...] = d[k]
+        for k in self.STATE_KEYS + ("r_hist", "spectrum"):
+            if k in d and getattr(self, k) is not None:
+                getattr(self, k)[...] = d[k]
         self.pass_index = int(d["pass_index"])
         self.photons_emitted = int(d["photons_emitted"])
         self.elapsed = float(d["elapsed"])
@@ -279,6 +295,43 @@ class Renderer:
     def _check_stop(self):
         if self._should_stop():
             raise RenderCancelled("cancelled")
+
+    def _interruptible(self, fn, *args, **kw):
+        """fn(*args, **kw) in a worker thread while this thread polls should_stop.
+
+        For stages whose longest calls cannot poll (the occlusion grid's
+        numba kernels, camera.generate and the hit attributes over every
+        pixel): they release the GIL often enough (numpy, numba nogil) that
+        the poll here runs every ~20 ms and cancel returns at once.  fn must
+        not change the renderer's state (its result is simply dropped).  The
+        worker's own _check_stop sees a threading.Event, not should_stop
+        (which may be Blender's test_break: called from this thread only),
+        so an abandoned worker stops at its next check; it is a daemon.
+        """
+        import threading
+        out = {}
+        stop = threading.Event()
+        caller_should_stop = self._should_stop
+
+        def work():
+            try:
+                out["value"] = fn(*args, **kw)
+            except BaseException as ex:  # re-raised in the caller's thread
+                out["error"] = ex
+        self._should_stop = stop.is_set
+        try:
+            th = threading.Thread(target=work, name="fppm-stage", daemon=True)
+            th.start()
+            while th.is_alive():
+                th.join(0.02)
+                if caller_should_stop():
+                    stop.set()
+                    raise RenderCancelled("cancelled")
+        finally:
+            self._should_stop = caller_should_stop
+        if "error" in out:
+            raise out["error"]
+        return out["value"]
 
     def _hit_attributes(self, h, idx):
         s = self.scene
@@ -494,11 +547,61 @@ class Renderer:
                 for ch in range(3):
                     Phi[:, ch] += np.bincount(pv, weights=contrib[:, ch], minlength=P)
             r_pred = np.minimum(r_pred, g.rpred_min)
+            if self._freq_pairs_needed and n_freq:
+                self._collect_frequency_pairs(grid, dep, vp)
             self.stage_seconds["gather"] += time.perf_counter() - t1
         Phi *= vp.beta
         if st.frequency_model == "PAPER":
             r_pred = np.where(np.isinf(r_pred), np.inf, -r_pred)
+        if st.frequency_estimator == "QUANTILE" and self.plan.frequency_photons:
+            r_pred = self._quantile_radius(r_pred)
         return M, Phi, r_pred
+
+    # Robust estimator (the paper's future work): a per-pixel histogram of the
+    # predicted radii of every frequency photon gathered so far; the radius is
+    # the lower edge of the bin holding the QUANTILE-th fraction, so a few
+    # outliers (false occlusions pinning r near 0) no longer set it.
+    QUANTILE = 0.1
+    HIST_BINS = 24
+
+    def _hist_bin(self, r):
+        lo, hi = 1e-6 * self.D, self.D
+        x = (np.log(np.maximum(np.abs(r), 1e-300)) - np.log(lo)) / (np.log(hi) - np.log(lo))
+        return np.clip((x * (self.HIST_BINS - 1)).astype(np.int64) + 1, 0, self.HIST_BINS - 1)
+
+    def _hist_edge(self, b):
+        lo, hi = 1e-6 * self.D, self.D
+        e = np.exp(np.log(lo) + (b - 1) / (self.HIST_BINS - 1) * (np.log(hi) - np.log(lo)))
+        return np.where(b <= 0, 0.0, e)
+
+    def _collect_frequency_pairs(self, grid, dep, vp):
+        """(VP, frequency photon) pairs: histogram of r, and the spectrum AOV."""
+        fq = np.nonzero(~np.isnan(dep["rpred"]))[0]
+        if fq.size == 0:
+            return
+        g = hashgrid.gather(grid, dep["p"][fq], dep["ng"][fq], dep["wi"][fq], dep["power"][fq],
+                            dep["rpred"][fq], vp.p, vp.ng, self.R2,
+                            np.zeros_like(vp.const), cos_ng=-1.0)
+        pv, pp = g.pair_vp, fq[g.pair_ph]
+        if pv.size == 0:
+            return
+        rr = dep["rpred"][pp]
+        if self.r_hist is not None:
+            np.add.at(self.r_hist, (pv, self._hist_bin(rr)), 1)
+        if self.settings.aov_spectrum and "spec" in dep:
+            # The spectrum of the photon that predicted the smallest radius.
+            order = np.lexsort((np.abs(rr), pv))
+            first = np.ones(order.size, bool)
+            first[1:] = pv[order][1:] != pv[order][:-1]
+            sel = order[first]
+            self.spectrum[pv[sel]] = dep["spec"][pp[sel]]
+
+    def _quantile_radius(self, r_pred_min):
+        h = self.r_hist
+        tot = h.sum(axis=1)
+        cum = np.cumsum(h, axis=1)
+        b = np.argmax(cum >= np.ceil(self.QUANTILE * np.maximum(tot, 1))[:, None], axis=1)
+        return np.where(tot > 0, self._hist_edge(b), r_pred_min)
 
     # --------------------------------------------------------- PPM update
     def _update(self, vp, M, Phi, r_pred):
@@ -543,6 +646,8 @@ class Renderer:
         if st.aov_predicted_radius:
             rp = np.where(np.isfinite(self.r_pred_last), self.r_pred_last, 0.0)
             aovs["Predicted Radius"] = rp.reshape(H, W, 1).astype(np.float32)
+        if st.aov_spectrum:
+            aovs["Spectrum"] = self.spectrum.reshape(H, W, 3).astype(np.float32)
         if st.aov_photon_count:
             aovs["Photon Count"] = self.N.reshape(H, W, 1).astype(np.float32)
         if st.aov_held:

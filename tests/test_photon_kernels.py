@@ -287,3 +287,16 @@ def test_frequency_photons_fast_matches_numpy():
     # Mean predicted radius per surface group: measured relative SE 0.3-1.3%.
     assert np.median(rel) < 0.008 and rel.max() < 0.05, rel
     assert np.all(np.isfinite(fast[:, RADIUS]))
+
+
+def test_threads_do_not_change_deposits(monkeypatch):
+    """The two halves of a batch use their own child streams, and their deposits
+    are concatenated in a fixed order: one or two threads, same bits."""
+    from core import photons
+    tr = _tracer(glass_mirror(), use_frequency=True)
+    out = []
+    for threads in (1, 2):
+        monkeypatch.setattr(photons, "THREADS", threads)
+        out.append(tr.trace(20_000, 5_000, np.random.default_rng(9)))
+    for k in out[0]:
+        assert np.array_equal(out[0][k], out[1][k], equal_nan=True), k

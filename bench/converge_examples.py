@@ -1,0 +1,118 @@
+"""Run ``fppm converge`` on the example scenes and collect the results in docs/convergence/.
+
+    .venv/bin/python bench/converge_examples.py [scene ...] [--budget 60] [--seeds 2] [--collect-only]
+
+One scene at a time (the machine has 2 cores), each in its own process (a
+fresh Blender state).  Writes docs/convergence/<scene>/ (convergence.csv,
+convergence.png, report.md, summary.json, PNG images; the EXRs are deleted to
+keep the folder commit-sized) and docs/convergence/report.md, a table of all
+scenes built from their summary.json.
+
+Reference sample counts are chosen so that each Cycles reference takes about
+2.5-3 minutes on this machine (2 cores, 128x128); references are cached under
+~/.cache/fppm/references (or $FPPM_CACHE_DIR), so a second run skips them.
+point_caustic.blend is skipped: Cycles cannot render point-light caustics and
+no light-tracer reference is available here.
+"""
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import os
+import subprocess
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+DOCS = os.path.join(ROOT, "docs", "convergence")
+
+# scene: (kind for the targets, Cycles reference samples)
+SCENES = {
+    "cornell": ("diffuse", 3072),
+    "indirect_room": ("indirect", 2560),
+    "coffee_cup": ("caustic-small", 8192),
+    "glass_sphere": ("caustic-small", 8192),
+}
+SKIPPED = {"point_caustic": "Cycles cannot render point-light caustics and no light-tracer "
+                            "(e.g. Mitsuba 3 ptracer) reference was made here."}
+
+
+def run_scene(name, budget, seeds):
+    kind, spp = SCENES[name]
+    out = os.path.join(DOCS, name)
+    os.makedirs(out, exist_ok=True)
+    cmd = [sys.executable, "-c",
+           "import sys; from fppm.addon.cli import main; sys.exit(main(sys.argv[1:]))",
+           "converge", os.path.join(ROOT, "example_blends", name + ".blend"),
+           "--time-limit", str(budget), "--out", out, "--cycles-samples", str(spp),
+           "--seeds", str(seeds), "--resolution", "100", "--kind", kind]
+    t0 = time.time()
+    print(f"== {name} ({kind}, reference {spp} spp)", flush=True)
+    rc = subprocess.call(cmd)
+    print(f"== {name}: exit {rc} after {time.time() - t0:.0f} s", flush=True)
+    for f in glob.glob(os.path.join(out, "*.exr")):
+        os.unlink(f)
+    return rc
+
+
+def fmt(v):
+    return "n/a" if v is None else f"{v:.3g}"
+
+
+def collect(budget=60.0, seeds=2):
+    lines = ["# Convergence of the example scenes", "",
+             f"128x128, {budget:g} s per method, {seeds} seed(s) (mean), this machine (2 cores), "
+             "`.venv/bin/python bench/converge_examples.py`.  relMSE at 100% of the "
+             "budget; ratios at equal time (FPPM / other: < 1 means FPPM is better), on the excess "
+             "relMSE (reference noise subtracted) when both are above the floor, else raw.  "
+             "Each scene's folder has the plot, the CSV and the full report.", "",
+             "| scene | kind | FPPM | PPM | Cycles | ref floor | FPPM/PPM | FPPM/Cycles | PPM/Cycles | targets |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for name, (kind, _) in SCENES.items():
+        p = os.path.join(DOCS, name, "summary.json")
+        if not os.path.isfile(p):
+            lines.append(f"| {name} | {kind} | not run | | | | | | | |")
+            continue
+        with open(p) as f:
+            s = json.load(f)
+        m = s["methods"]
+
+        def rel(k):
+            return fmt(m.get(k, {}).get("relmse", {}).get("1.0"))
+
+        def ratio(k):
+            r = s.get("ratios", {}).get(k, {})
+            v = r.get("excess")
+            return fmt(v if v is not None else r.get("raw"))
+        tg = "; ".join(f"{t['target'].split(' (')[0]}: {'met' if t['met'] else 'MISSED'}"
+                       for t in s.get("targets", []))
+        lines.append(f"| [{name}]({name}/report.md) | {kind} | {rel('fppm')} | {rel('ppm')} | "
+                     f"{rel('cycles')} | {fmt(s.get('floor'))} | {ratio('fppm/ppm')} | "
+                     f"{ratio('fppm/cycles')} | {ratio('ppm/cycles')} | {tg} |")
+    for name, why in SKIPPED.items():
+        lines.append(f"| {name} | caustic-point | skipped | | | | | | | {why} |")
+    lines.append("")
+    for name in SCENES:
+        if os.path.isfile(os.path.join(DOCS, name, "convergence.png")):
+            lines += [f"## {name}", "", f"![{name}]({name}/convergence.png)", ""]
+    with open(os.path.join(DOCS, "report.md"), "w") as f:
+        f.write("\n".join(lines))
+    print("\n".join(lines[:len(SCENES) + len(SKIPPED) + 6]))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser()
+    ap.add_argument("scenes", nargs="*", default=list(SCENES))
+    ap.add_argument("--budget", type=float, default=60.0)
+    ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--collect-only", action="store_true")
+    a = ap.parse_args(argv)
+    if not a.collect_only:
+        for name in a.scenes:
+            run_scene(name, a.budget, a.seeds)
+    collect(a.budget, a.seeds)
+
+
+if __name__ == "__main__":
+    main()

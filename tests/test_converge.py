@@ -1,0 +1,206 @@
+"""``fppm converge`` end to end on a tiny scene (subprocesses, as a user runs it).
+
+tests/scenes/t_light_point.blend is 64x64; its Cycles reference is
+tests/references/t_light_point.exr (with _var.exr beside it), so the main run
+needs no Cycles reference render.  A second run makes a tiny Cycles reference
+(8 spp) in a temporary cache and runs only the Cycles ladder, twice (the
+second time from the cache).  Total about 35 s on this machine.
+"""
+import csv
+import json
+import math
+import os
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+
+import bpy_helpers as H
+from core import metrics as M
+from core.imageio import read_exr
+from scenes import refs
+
+BUDGET = 3.0
+SEEDS = (0, 1)
+COLUMNS = (["method", "seed", "point", "seconds", "render_seconds", "photons", "samples"]
+           + [f"{k}_{g}" for g in ("all", "smooth", "caustic", "indirect")
+              for k in ("relmse", "rmse", "mre")])
+
+
+def _env(tmp):
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env["FPPM_CACHE_DIR"] = str(tmp)
+    return env
+
+
+def _run(args, tmp, timeout=180):
+    return subprocess.run(H.fppm_command() + [str(a) for a in args], capture_output=True,
+                          text=True, env=_env(tmp), cwd=str(tmp), timeout=timeout)
+
+
+def _rows(out):
+    with open(out / "convergence.csv") as f:
+        r = csv.DictReader(f)
+        return r.fieldnames, list(r)
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("converge")
+    out = tmp / "out"
+    r = _run(["converge", refs.scene_path("t_light_point"), "--time-limit", BUDGET,
+              "--out", out, "--reference", os.path.join(refs.REFERENCES_DIR, "t_light_point.exr"),
+              "--methods", "fppm,ppm,cycles", "--seeds", len(SEEDS),
+              "--cycles-max-samples", 16, "--kind", "diffuse"], tmp)
+    return r, out
+
+
+def test_tiny_report_runs_and_writes_everything(tiny):
+    r, out = tiny
+    assert r.returncode == 0, r.stderr[-3000:]
+    for f in ("convergence.csv", "report.md", "summary.json", "reference.png",
+              "fppm.exr", "fppm.png", "ppm.exr", "ppm.png", "cycles.exr", "cycles.png"):
+        assert (out / f).is_file(), f
+    try:
+        import matplotlib  # noqa: F401
+        assert (out / "convergence.png").is_file()
+    except ImportError:
+        assert "matplotlib is not installed" in r.stdout
+    # Throughput line: photon pass / raw Embree, for each FPPM/PPM run.
+    assert r.stdout.count("x raw Embree") == 2 * len(SEEDS)
+    # Progress lines on stderr.
+    assert "[fppm seed 0]" in r.stderr and "[cycles seed 1]" in r.stderr
+
+
+def test_csv_columns_rows_and_monotone_time(tiny):
+    r, out = tiny
+    cols, rows = _rows(out)
+    assert cols == COLUMNS
+    for seed in SEEDS:
+        for m in ("fppm", "ppm"):
+            rs = [x for x in rows if x["method"] == m and int(x["seed"]) == seed]
+            assert len(rs) >= 3
+            assert [int(x["point"]) for x in rs] == list(range(1, len(rs) + 1))
+            t = np.array([float(x["seconds"]) for x in rs])
+            ph = np.array([int(x["photons"]) for x in rs])
+            assert np.all(np.diff(t) > 0) and np.all(np.diff(ph) > 0)
+            assert np.all(ph == ph[0] * np.arange(1, len(rs) + 1))   # photons per pass constant
+            # The run stops once the pass time reaches the budget.
+            assert float(rs[-1]["render_seconds"]) >= BUDGET > float(rs[-2]["render_seconds"])
+            # Converging: measured drop over 3 s is >= 10x (3e-3 -> 2.5e-4);
+            # asking for 3x leaves room for the machine's load.
+            e = [float(x["relmse_all"]) for x in rs]
+            assert e[-1] < e[0] / 3
+        cy = [x for x in rows if x["method"] == "cycles" and int(x["seed"]) == seed]
+        # Each point is far below the budget, so the ladder runs to its cap.
+        assert [int(x["samples"]) for x in cy] == [1, 2, 4, 8, 16]
+        assert float(cy[-1]["seconds"]) > float(cy[0]["seconds"])
+
+
+def test_csv_numbers_are_the_metrics_of_the_written_image(tiny):
+    r, out = tiny
+    _, rows = _rows(out)
+    ref, _ = refs.load_reference("t_light_point")
+    img = read_exr(str(out / "fppm.exr"))["Combined"]
+    last = [x for x in rows if x["method"] == "fppm" and int(x["seed"]) == 0][-1]
+    # CSV: 6 significant digits; the EXR is the float32 of the same image.
+    assert float(last["relmse_all"]) == pytest.approx(M.relmse(img, ref), rel=1e-4)
+    assert float(last["rmse_all"]) == pytest.approx(M.rmse(img, ref), rel=1e-4)
+    assert float(last["mre_all"]) == pytest.approx(M.mean_relative_error(img, ref), rel=1e-4)
+
+
+def test_report_tables_and_equal_time_ratios(tiny):
+    r, out = tiny
+    text = (out / "report.md").read_text()
+    for s in ("## Error at fractions of the budget", "| FPPM |", "| PPM |", "| CYCLES |",
+              "## Regions at 100%", "## Equal-time relMSE ratios", "| FPPM / PPM |",
+              "## Bias and noise", "## Throughput", "## Targets"):
+        assert s in text, s
+    assert ("MET" in text) or ("MISSED" in text)
+    with open(out / "summary.json") as f:
+        summ = json.load(f)
+    _, rows = _rows(out)
+
+    def err(m, t):
+        vals = []
+        for seed in SEEDS:
+            rs = [x for x in rows if x["method"] == m and int(x["seed"]) == seed]
+            vals.append(M.loglog_interp(t, [float(x["seconds"]) for x in rs],
+                                        [float(x["relmse_all"]) for x in rs]))
+        return float(np.mean(vals))
+
+    for m in ("fppm", "ppm", "cycles"):
+        for f in ("0.5", "1.0"):
+            assert summ["methods"][m]["relmse"][f] == pytest.approx(err(m, float(f) * BUDGET),
+                                                                   rel=1e-4)
+    assert summ["ratios"]["fppm/ppm"]["raw"] == pytest.approx(
+        err("fppm", BUDGET) / err("ppm", BUDGET), rel=1e-4)
+    # The reference's variance (_var.exr beside it) gives the floor: the
+    # t_light_point.json noise estimate (same formula, same file).
+    meta = refs.load_reference("t_light_point")[1]
+    assert summ["floor"] == pytest.approx(meta["noise"]["relmse"], rel=1e-3)
+    # Bias + noise over 2 seeds reproduce the mean per-seed relMSE of the final images.
+    bn = summ["bias_noise"]["fppm"]
+    assert bn["bias2"] + bn["noise"] == pytest.approx(bn["relmse_per_seed"], rel=1e-9)
+
+
+def test_cycles_reference_is_made_then_cached(tmp_path):
+    out = tmp_path / "c"
+    args = ["converge", refs.scene_path("t_light_point"), "--time-limit", 0.5, "--out", out,
+            "--cycles-samples", 8, "--methods", "cycles", "--cycles-max-samples", 4]
+    r1 = _run(args, tmp_path)
+    assert r1.returncode == 0, r1.stderr[-3000:]
+    cached = list((tmp_path / "references").glob("*.exr"))
+    assert len(cached) == 1
+    layers = read_exr(str(cached[0]))
+    assert layers["Combined"].shape[:2] == (64, 64)
+    assert "Variance" in layers and "DiffDir" in layers and "DiffInd" in layers
+    # An 8-spp Cycles reference of the same scene agrees with the committed one
+    # to its noise: measured relMSE 2e-3 (8 spp); 1e-2 is 5x that.
+    ref, _ = refs.load_reference("t_light_point")
+    assert M.relmse(layers["Combined"], ref) < 1e-2
+    r2 = _run(args, tmp_path)
+    assert r2.returncode == 0 and "Reference: cached" in r2.stdout
+    _, rows = _rows(out)
+    assert [int(x["samples"]) for x in rows] == [1, 2, 4]
+
+
+def test_ctrl_c_writes_what_is_done(tmp_path):
+    out = tmp_path / "i"
+    p = subprocess.Popen(H.fppm_command() + [
+        "converge", refs.scene_path("t_light_point"), "--time-limit", "60", "--out", str(out),
+        "--reference", os.path.join(refs.REFERENCES_DIR, "t_light_point.exr"),
+        "--methods", "fppm,cycles"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env=_env(tmp_path), cwd=str(tmp_path))
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            line = p.stderr.readline()
+            if "[fppm seed 0]" in line or not line:
+                break
+        assert p.poll() is None, "ended before Ctrl-C"
+        time.sleep(1.0)
+        t0 = time.monotonic()
+        p.send_signal(signal.SIGINT)
+        stdout, stderr = p.communicate(timeout=60)
+        dt = time.monotonic() - t0
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 130, stderr[-3000:]
+    assert dt < 10.0           # the pass in flight, the raw-ray timing and the outputs
+    _, rows = _rows(out)
+    assert len(rows) >= 2 and {x["method"] for x in rows} == {"fppm"}
+    assert "Interrupted" in (out / "report.md").read_text()
+
+
+def test_usage_errors(tmp_path):
+    blend = refs.scene_path("t_light_point")
+    r = _run(["converge", blend, "--time-limit", 1, "--out", tmp_path / "o", "--methods", "fppm,mlt"],
+             tmp_path)
+    assert r.returncode == 2 and "mlt" in r.stderr and "Traceback" not in r.stderr
+    r = _run(["converge", tmp_path / "missing.blend", "--time-limit", 1, "--out", tmp_path / "o"],
+             tmp_path)
+    assert r.returncode == 3
