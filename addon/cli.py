@@ -20,6 +20,8 @@ Exit codes (also in README.md):
     3    the input file is missing, unreadable or not a .blend file
     4    the scene cannot be rendered (no camera, no lights, nothing visible, ...)
     5    the output file cannot be written
+    6    --resume: the checkpoint is from another scene or other settings, or damaged
+    7    the render would not fit in memory (the message names the setting to lower)
     130  cancelled with Ctrl-C: the last complete pass was written first
 """
 from __future__ import annotations
@@ -35,6 +37,7 @@ import traceback
 
 EXIT_OK, EXIT_INTERNAL, EXIT_USAGE, EXIT_INPUT, EXIT_SCENE, EXIT_OUTPUT = 0, 1, 2, 3, 4, 5
 EXIT_CANCELLED = 130
+EXIT_CHECKPOINT, EXIT_MEMORY = 6, 7
 
 # First bytes of a .blend: plain, gzip-compressed (old files), zstd-compressed (3.0+).
 _BLEND_MAGIC = (b"BLENDER", b"\x1f\x8b", b"\x28\xb5\x2f\xfd")
@@ -51,7 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="fppm",
         description="FPPM: frequency-based progressive photon mapping for Blender scenes.",
         epilog="Exit codes: 0 ok, 1 internal error, 2 usage, 3 input file problem, "
-               "4 scene error, 5 output not writable, 130 cancelled (partial image written).")
+               "4 scene error, 5 output not writable, 6 checkpoint refused, 7 not enough memory, "
+               "130 cancelled (partial image written).")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     r = sub.add_parser("render", help="render a .blend file to a multilayer EXR and a PNG preview",
                        description="Render SCENE.blend with FPPM.")
@@ -70,6 +74,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="resolution percentage (1-1000), overriding the file's")
     r.add_argument("--no-preview", action="store_true", help="do not write the PNG preview")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--checkpoint", metavar="DIR",
+                   help="save the progressive state in DIR (atomically) every --checkpoint-every "
+                        "seconds and when the render ends or is cancelled")
+    r.add_argument("--checkpoint-every", type=float, default=30.0, metavar="S",
+                   help="seconds between checkpoints (default 30; 0 = after every pass)")
+    r.add_argument("--resume", action="store_true",
+                   help="continue from the checkpoint in --checkpoint DIR (same scene and settings)")
     from .converge import add_parser as add_converge_parser
     add_converge_parser(sub)
     return p
@@ -197,6 +208,9 @@ def _write_outputs(a, bpy, scene, sess, out_path, elapsed_wall) -> list[str]:
         "fppm:settings": json.dumps({k: getattr(st, k) for k in field_names()}, sort_keys=True),
         "fppm:settings_digest": st.digest(),
     }
+    if getattr(sess, "renderer", None) is not None:
+        # The render plan: which stages ran, and what was left out and why.
+        meta.update(sess.renderer.plan.metadata())
     try:
         write_exr(out_path, layers, meta)
     except OSError as ex:
@@ -207,8 +221,11 @@ def _write_outputs(a, bpy, scene, sess, out_path, elapsed_wall) -> list[str]:
         rr = bpy.data.images.get("Render Result")
         if rr is not None:
             d = os.path.dirname(os.path.abspath(png))
-            fd, tmp = tempfile.mkstemp(prefix=".fppm-", suffix=".png", dir=d)
-            os.close(fd)
+            try:
+                fd, tmp = tempfile.mkstemp(prefix=".fppm-", suffix=".png", dir=d)
+                os.close(fd)
+            except OSError as ex:
+                raise CLIError(EXIT_OUTPUT, f"cannot write the preview '{png}': {ex.strerror or ex}.")
             isettings = scene.render.image_settings
             try:
                 isettings.file_format = 'PNG'
@@ -228,17 +245,101 @@ def _write_outputs(a, bpy, scene, sess, out_path, elapsed_wall) -> list[str]:
     return written
 
 
+def check_checkpoint_args(a) -> None:
+    if a.resume and not a.checkpoint:
+        raise CLIError(EXIT_USAGE, "--resume needs --checkpoint DIR (the folder of the checkpoint).")
+    if not (a.checkpoint_every >= 0 and a.checkpoint_every != float("inf")):
+        raise CLIError(EXIT_USAGE, f"--checkpoint-every {a.checkpoint_every}: must be a number "
+                                   f"of seconds >= 0 (0 = after every pass).")
+    if not a.checkpoint:
+        return
+    d = a.checkpoint
+    if os.path.exists(d) and not os.path.isdir(d):
+        raise CLIError(EXIT_OUTPUT, f"--checkpoint '{d}' is not a folder.")
+    try:
+        os.makedirs(d, exist_ok=True)
+    except OSError as ex:
+        raise CLIError(EXIT_OUTPUT, f"cannot create the checkpoint folder '{d}': {ex.strerror or ex}.")
+    if not os.access(d, os.W_OK | os.X_OK):
+        raise CLIError(EXIT_OUTPUT, f"the checkpoint folder '{d}' is not writable.")
+
+
+class Checkpointer:
+    """Keeps ``--checkpoint DIR`` up to date with ``Renderer.state_dict()``.
+
+    Saved only between passes (``on_pass``: a complete pass) at most every
+    ``every`` seconds, and once more when the render ends or is cancelled.
+    A failed save (full disk) is a warning: the render goes on.
+    """
+
+    def __init__(self, directory: str, every: float, log):
+        self.dir, self.every, self.log = directory, every, log
+        self.last_save = time.monotonic()
+        self.saved_pass = 0
+
+    def resume(self, renderer) -> None:
+        from ..core import checkpoint
+        if not checkpoint.exists(self.dir):
+            self.log(f"No checkpoint in '{self.dir}' yet: starting from pass 1.")
+            return
+        renderer.load_state(checkpoint.load(self.dir, renderer.STATE_KEYS))  # CheckpointMismatch
+        self.saved_pass = renderer.pass_index
+        self.log(f"Resumed from '{checkpoint.checkpoint_path(self.dir)}': "
+                 f"{renderer.pass_index} passes, {renderer.photons_emitted:,} photons done.")
+
+    def after_pass(self, renderer) -> None:
+        if time.monotonic() - self.last_save >= self.every:
+            self.save(renderer)
+
+    def save(self, renderer) -> bool:
+        """True when the checkpoint holds the renderer's current pass."""
+        from ..core import checkpoint
+        if renderer is None or renderer.pass_index == 0:
+            return False
+        if renderer.pass_index == self.saved_pass:
+            return True
+        try:
+            checkpoint.save(self.dir, renderer.state_dict())
+        except OSError as ex:
+            self.log(f"Warning: {ex.strerror or ex}; the render goes on.")
+            return False
+        self.saved_pass = renderer.pass_index
+        self.last_save = time.monotonic()
+        return True
+
+
+def _state_kept(ckpt, renderer) -> str:
+    """After an output error: where the render state is, and how to get the image."""
+    from ..core import checkpoint
+    if renderer is None or renderer.pass_index == 0:
+        return ""
+    n = renderer.pass_index
+    if ckpt is not None and ckpt.saved_pass == n:
+        return (f" The render state ({n} passes) is kept in the checkpoint folder '{ckpt.dir}': "
+                f"fix the problem, then run the same command with --resume to write the image "
+                f"without rendering again.")
+    try:
+        d = tempfile.mkdtemp(prefix="fppm-state-")
+        checkpoint.save(d, renderer.state_dict())
+    except OSError as ex:
+        return f" The render state could not be saved either: {ex.strerror or ex}."
+    return (f" The render state ({n} passes) is kept in '{d}': fix the problem, then run the "
+            f"same command with --checkpoint {d} --resume to write the image without "
+            f"rendering again.")
+
+
 def render(a) -> int:
     check_input(a.blend)
     check_output(a.output)
     if a.resolution is not None and not 1 <= a.resolution <= 1000:
         raise CLIError(EXIT_USAGE, f"--resolution {a.resolution}: must be in [1, 1000].")
+    check_checkpoint_args(a)
     overrides = overrides_from_args(a)
 
     import bpy
 
     from .. import addon
-    from ..core.errors import FPPMError
+    from ..core.errors import CheckpointMismatch, FPPMError, MemoryBudgetError
     from ..core.settings import SettingsError
     from . import engine
     from .export import NO_CAMERA
@@ -263,6 +364,15 @@ def render(a) -> int:
     scene.render.engine = "FPPM"
     if scene.camera is None:
         raise CLIError(EXIT_SCENE, NO_CAMERA)
+    rd = scene.render
+    w, h = (rd.resolution_x * rd.resolution_percentage // 100,
+            rd.resolution_y * rd.resolution_percentage // 100)   # the exporter's rule
+    if w < 1 or h < 1:
+        # Blender would only say "Image too small".
+        raise CLIError(EXIT_SCENE, f"The render resolution {w}x{h} is empty "
+                                   f"({rd.resolution_x}x{rd.resolution_y} at "
+                                   f"{rd.resolution_percentage}%): raise the resolution or "
+                                   f"its percentage.")
 
     stop = {"flag": False}
 
@@ -272,8 +382,20 @@ def render(a) -> int:
         stop["flag"] = True
 
     progress = Progress(a.quiet)
-    sess = engine.RenderSession(on_pass=progress, log=_say, should_stop=lambda: stop["flag"])
+    ckpt = Checkpointer(a.checkpoint, a.checkpoint_every, _say) if a.checkpoint else None
+    holder = {}
+
+    def on_pass(pr, st):
+        progress(pr, st)
+        if ckpt is not None:
+            ckpt.after_pass(holder["sess"].renderer)
+
+    sess = engine.RenderSession(on_pass=on_pass, log=_say, should_stop=lambda: stop["flag"],
+                                on_renderer=ckpt.resume if ckpt is not None and a.resume else None)
+    holder["sess"] = sess
     prev = signal.signal(signal.SIGINT, on_sigint)
+    # SIGTERM (a scheduler stopping the job) ends the render the same way.
+    prev_term = signal.signal(signal.SIGTERM, on_sigint)
     t0 = time.monotonic()
     try:
         with engine.session(sess):
@@ -283,11 +405,17 @@ def render(a) -> int:
                 pass  # the engine's report(); the cause is in sess.error
     finally:
         signal.signal(signal.SIGINT, prev)
+        signal.signal(signal.SIGTERM, prev_term)
         progress.close()
     wall = time.monotonic() - t0
     if sess.error is not None:
         if isinstance(sess.error, SettingsError):
             raise CLIError(EXIT_USAGE, str(sess.error))
+        if isinstance(sess.error, CheckpointMismatch):
+            raise CLIError(EXIT_CHECKPOINT, f"{sess.error} Render without --resume to start "
+                                            f"over (the checkpoint is then replaced).")
+        if isinstance(sess.error, MemoryBudgetError):
+            raise CLIError(EXIT_MEMORY, str(sess.error))
         if isinstance(sess.error, FPPMError):
             raise CLIError(EXIT_SCENE, str(sess.error))
         raise CLIError(EXIT_INTERNAL, f"internal error: {type(sess.error).__name__}: {sess.error}")
@@ -296,7 +424,14 @@ def render(a) -> int:
             _say("Cancelled before the first pass: nothing written.")
             return EXIT_CANCELLED
         raise CLIError(EXIT_INTERNAL, "internal error: the render produced no image.")
-    written = _write_outputs(a, bpy, scene, sess, a.output, wall)
+    if ckpt is not None:
+        ckpt.save(sess.renderer)   # the last complete pass, also on Ctrl-C
+    try:
+        written = _write_outputs(a, bpy, scene, sess, a.output, wall)
+    except CLIError as ex:
+        if ex.code != EXIT_OUTPUT:
+            raise
+        raise CLIError(EXIT_OUTPUT, str(ex) + _state_kept(ckpt, sess.renderer))
     pr = sess.result
     h, w = pr.image.shape[:2]
     aov = f" + {len(pr.aovs)} AOV{'s' * (len(pr.aovs) != 1)}" if pr.aovs else ""

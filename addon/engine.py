@@ -208,6 +208,10 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
                 sess.on_renderer(renderer)
         for line in renderer.plan_lines():
             self._log(line)
+            if line.startswith(("Plan:", "Left out:")):
+                # Blender's info log shows what this scene's render leaves out.
+                self.report({'INFO'}, line)
+        self.update_stats("", renderer.plan.lines()[0])
 
         aovs = enabled_aovs(settings)
         # The AOV passes come from update_render_passes (register_pass), which

@@ -21,7 +21,14 @@ Counting rule.  Photon p counts for visible point v when
                                                   (rejects photons on a differently
                                                    oriented surface, e.g. the other
                                                    wall of a corner).
-All three tests are evaluated in float64 in a fixed operation order, so the
+  (4) a photon on a differently oriented surface (dot(ng_p, ng_v) <= 0.5)
+      must not lie behind the VP's tangent plane: dot(x_p - x_v, ng_v) >= 0.
+      A no-op with the default cos_ng; with cos_ng = -1 (the renderer) it keeps
+      the concave corner's other wall (in front of the plane) and rejects
+      photons inside a closed object at its convex edges, which otherwise
+      leak through zero-thickness walls (issue 6: a light sealed in a box lit
+      the box's outer edges; tests/test_stiff_scenes.py).
+All tests are evaluated in float64 in a fixed operation order, so the
 numba kernel and :func:`gather_bruteforce` (numpy) agree exactly; each is
 written as "count only if the comparison is True", so a NaN anywhere (radius,
 normal, direction) never counts.
@@ -367,6 +374,9 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                 continue
             if not (gx * nvx + gy * nvy + gz * nvz > cos_ng):               # (3)
                 continue
+            if (gx * nvx + gy * nvy + gz * nvz <= COS_NG_DEFAULT
+                    and dx * nvx + dy * nvy + dz * nvz < 0.0):               # (4)
+                continue
             M[v] += 1
             if vp_rec[v, 7] != 0.0:
                 Phi[v, 0] += ph_power[p, 0]
@@ -441,6 +451,9 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
             if not (wx * nvx + wy * nvy + wz * nvz > 0.0):
                 continue
             if not (gx * nvx + gy * nvy + gz * nvz > cos_ng):
+                continue
+            if (gx * nvx + gy * nvy + gz * nvz <= COS_NG_DEFAULT
+                    and dx * nvx + dy * nvy + dz * nvz < 0.0):
                 continue
             if vp_rec[v, 7] == 0.0:
                 pair_vp[k] = v
@@ -749,8 +762,12 @@ def gather_bruteforce(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_pos, vp_ng, v
         ok = (dx * dx + dy * dy + dz * dz) < vp_R2[None, :]
         ok &= (wi[sl, 0, None] * vp_ng[None, :, 0] + wi[sl, 1, None] * vp_ng[None, :, 1]
                + wi[sl, 2, None] * vp_ng[None, :, 2]) > 0.0
-        ok &= (ng[sl, 0, None] * vp_ng[None, :, 0] + ng[sl, 1, None] * vp_ng[None, :, 1]
-               + ng[sl, 2, None] * vp_ng[None, :, 2]) > cos_ng
+        cg = (ng[sl, 0, None] * vp_ng[None, :, 0] + ng[sl, 1, None] * vp_ng[None, :, 1]
+              + ng[sl, 2, None] * vp_ng[None, :, 2])
+        ok &= cg > cos_ng
+        # (4): not behind the VP's plane unless similarly oriented
+        ok &= ~((cg <= COS_NG_DEFAULT)
+                & ((dx * vp_ng[None, :, 0] + dy * vp_ng[None, :, 1] + dz * vp_ng[None, :, 2]) < 0.0))
         ok &= act[None, :]
         # photons outside the finite range are never counted (as in the grid)
         ok &= np.isfinite(x[sl]).all(axis=1)[:, None]

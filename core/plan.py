@@ -20,7 +20,6 @@ class RenderPlan:
     specular_chains: bool = True       # camera paths through mirrors / glass
     frequency_photons: bool = True     # photons carrying a spectrum (a, b, c)
     occlusion_grid: bool = True        # voxel grid for a_occ (needs frequency)
-    occlusion_locality: float = 0.0    # metres: voxels farther than this are ignored
     world_emission: bool = False
     emitter_kinds: tuple = ()
     aovs: tuple = ()
@@ -62,29 +61,36 @@ def _can_occlude(tri_p: np.ndarray) -> bool:
     return not all_behind
 
 
-def make_plan(scene, settings: RenderSettings, mtab, light_table) -> RenderPlan:
+STAGES = ("specular chains", "frequency photons", "occlusion grid")
+
+
+def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> RenderPlan:
+    """Decide the stages from the scene.  ``force``: stage names kept even when
+    the scene does not need them (to check that leaving them out changes
+    nothing); a stage switched off by the settings stays off."""
+    unknown = set(force) - set(STAGES)
+    if unknown:
+        raise ValueError(f"unknown stage(s) {sorted(unknown)}; known: {STAGES}")
     plan = RenderPlan()
     has_delta = bool(np.any(mtab.has_delta)) if mtab.has_delta.size else False
-    plan.specular_chains = has_delta
-    if not has_delta:
+    plan.specular_chains = has_delta or "specular chains" in force
+    if not plan.specular_chains:
         plan.left_out.append(("specular chains", "no mirror, glass or transparent material"))
     freq = settings.use_frequency and settings.frequency_fraction > 0
     if not settings.use_frequency:
         plan.left_out.append(("frequency photons", "frequency analysis is off"))
     elif settings.frequency_fraction <= 0:
         plan.left_out.append(("frequency photons", "frequency fraction is 0"))
-    elif not np.any(mtab.lambert_only):
+    elif not np.any(mtab.lambert_only) and "frequency photons" not in force:
         freq = False
         plan.left_out.append(("frequency photons", "no Lambert receiver whose radius could be held"))
     plan.frequency_photons = freq
-    occ = freq and _can_occlude(scene.tri_p)
+    occ = freq and (_can_occlude(scene.tri_p) or "occlusion grid" in force)
     if freq and not occ:
         plan.left_out.append(("occlusion grid", "nothing in the scene can occlude another surface"))
     elif not freq:
         plan.left_out.append(("occlusion grid", "no frequency photons"))
     plan.occlusion_grid = occ
-    D = scene.diameter()
-    plan.occlusion_locality = 2.0 * D / max(settings.occlusion_grid_res, 1) * np.sqrt(3)
     plan.world_emission = bool(np.any(np.asarray(scene.world_color) > 0))
     kinds = sorted({lt.kind for lt in scene.lights})
     if np.any(mtab.emission.max(axis=1) > 0):

@@ -95,7 +95,8 @@ class VisiblePoints:
 
 class Renderer:
     def __init__(self, scene: Scene, settings: RenderSettings,
-                 log: Callable[[str], None] = print, should_stop=None):
+                 log: Callable[[str], None] = print, should_stop=None,
+                 force_stages: tuple = ()):
         self.settings = settings.validate()
         self.log = log
         # Polled between the set-up stages too (cancel within 1 s, issue 8).
@@ -138,7 +139,10 @@ class Renderer:
         self._check_stop()
         self.camera = CameraModel(cam)
         self.fsamp = FilterSampler(scene.filter_width)
-        self.plan: RenderPlan = make_plan(scene, self.settings, self.mtab, self.light_table)
+        # force_stages: stage names the plan must keep even when the scene does
+        # not need them (tests and benchmarks of the leave-out plan).
+        self.plan: RenderPlan = make_plan(scene, self.settings, self.mtab, self.light_table,
+                                          force=tuple(force_stages))
         self._check_stop()
         self.kappa = triangle_curvature(scene) if self.plan.frequency_photons else None
         self._check_stop()

@@ -1,0 +1,120 @@
+"""The leave-out plan (issue 7): each stage is left out only where the scene
+cannot use it, leaving it out changes nothing, and a scene that needs it keeps it.
+
+"Changes nothing" is exact here: every omitted stage either consumes no random
+numbers (occlusion grid, frequency spectra) or stops at the first vertex
+(specular chains), so forcing it on must give the same image bit for bit.
+"""
+import numpy as np
+import pytest
+
+from core.render import Renderer
+from core.scene import DIFFUSE, GLOSSY, Lobe, Material, make_scene
+from core.settings import RenderSettings
+
+from analytic_scenes import furnace_box, mirror_caustic, point_light_plane, quad
+
+
+def _run(scene, force=(), **kw):
+    st = RenderSettings(**{"max_passes": 3, "photons_per_pass": 20_000, "photons_for_direct": True,
+                           **kw})
+    r = Renderer(scene, st, log=lambda s: None, force_stages=force)
+    return r, r.run().image
+
+
+def _left_out(r):
+    return {stage for stage, _ in r.plan.left_out}
+
+
+def test_specular_chains_left_out_without_mirrors_and_kept_with_them():
+    scene, _ = point_light_plane(res=12)
+    r, img = _run(scene)
+    assert "specular chains" in _left_out(r)
+    r2, img2 = _run(scene, force=("specular chains",))
+    assert r2.plan.specular_chains
+    assert np.array_equal(img, img2)
+    scene_m, _, _ = mirror_caustic(res=12)
+    r3, _ = _run(scene_m)
+    assert r3.plan.specular_chains and "specular chains" not in _left_out(r3)
+
+
+def test_occlusion_grid_left_out_when_nothing_can_occlude():
+    scene, _ = point_light_plane(res=12)
+    r, img = _run(scene)
+    assert r.plan.frequency_photons and not r.plan.occlusion_grid
+    assert r.occ_grid is None
+    assert "occlusion grid" in _left_out(r)
+    r2, img2 = _run(scene, force=("occlusion grid",))
+    assert r2.occ_grid is not None
+    assert np.array_equal(img, img2)
+    # The inside of a convex box cannot occlude itself either (every two
+    # points on it see each other).
+    box, _ = furnace_box(res=8)
+    r3, _ = _run(box, max_passes=1, photons_per_pass=2_000)
+    assert not r3.plan.occlusion_grid
+    # A plane with a floating card above it can: the grid is built.
+    card = quad((0.3, 0, 0.5), (0.2, 0, 0), (0, 0.2, 0))
+    occ = make_scene(np.concatenate([scene.tri_p, np.asarray(card, np.float32)]), scene.materials,
+                     scene.lights, scene.camera)
+    r4, _ = _run(occ, max_passes=1, photons_per_pass=2_000)
+    assert r4.plan.occlusion_grid and r4.occ_grid is not None
+
+
+def test_frequency_photons_left_out_without_lambert_receivers():
+    scene, _ = point_light_plane(res=12)
+    glossy = Material("rough metal", (Lobe(GLOSSY, (0.8, 0.8, 0.8), roughness=0.5),))
+    scene.materials = [glossy]
+    r, img = _run(scene)
+    assert not r.plan.frequency_photons
+    assert "frequency photons" in _left_out(r)
+    r2, img2 = _run(scene, force=("frequency photons",))
+    assert r2.plan.frequency_photons
+    assert np.array_equal(img, img2)
+    # A Lambert receiver keeps them.
+    scene.materials = [Material("white", (Lobe(DIFFUSE, (0.8, 0.8, 0.8)),))]
+    r3, _ = _run(scene)
+    assert r3.plan.frequency_photons
+
+
+def test_settings_switch_stages_off_and_say_why():
+    scene, _ = point_light_plane(res=12)
+    r, _ = _run(scene, use_frequency=False)
+    reasons = dict(r.plan.left_out)
+    assert reasons["frequency photons"] == "frequency analysis is off"
+    assert reasons["occlusion grid"] == "no frequency photons"
+    # Forcing cannot override a setting that turns a stage off.
+    r2, _ = _run(scene, use_frequency=False, force=("frequency photons",))
+    assert not r2.plan.frequency_photons
+
+
+def test_aov_and_estimator_arrays_only_when_enabled():
+    scene, _ = point_light_plane(res=12)
+    r, _ = _run(scene)
+    assert r.spectrum is None and r.r_hist is None
+    r2, res2 = _run(scene, aov_spectrum=True, frequency_estimator="QUANTILE")
+    assert r2.spectrum is not None and r2.r_hist is not None
+    assert r2.plan.aovs == ("aov_spectrum",)
+
+
+def test_emitters_and_world_only_when_present():
+    scene, _ = point_light_plane(res=12)
+    r, _ = _run(scene)
+    assert r.plan.emitter_kinds == ("POINT",) and not r.plan.world_emission
+    scene.world_color = np.array([0.1, 0.1, 0.1])
+    r2, _ = _run(scene)
+    assert "WORLD" in r2.plan.emitter_kinds and r2.plan.world_emission
+
+
+def test_plan_lines_and_metadata_name_what_was_left_out():
+    scene, _ = point_light_plane(res=12)
+    r, _ = _run(scene)
+    lines = r.plan_lines()
+    assert any(l.startswith("Plan:") for l in lines)
+    assert "Left out: specular chains (no mirror, glass or transparent material)." in lines
+    assert "specular chains" in r.plan.metadata()["fppm/plan"]
+
+
+def test_unknown_forced_stage_is_an_error():
+    scene, _ = point_light_plane(res=8)
+    with pytest.raises(ValueError, match="unknown stage"):
+        Renderer(scene, RenderSettings(max_passes=1), log=lambda s: None, force_stages=("bogus",))
