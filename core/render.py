@@ -221,6 +221,12 @@ class Renderer:
                 on_pass(res)
         if self.last_result is None:
             self.last_result = self._film()
+        if self.pass_index and not np.any(self.last_result.image[..., :3] > 0):
+            # Issue 6: a hidden emitter or a camera inside a closed object is
+            # rendered as it is (black, like Cycles), but said so.
+            self.log("FPPM: the image is black: no light reaches anything the camera sees "
+                     "(every light is hidden behind geometry, or the camera is inside a "
+                     "closed object).")
         return self.last_result
 
     def step(self) -> PassResult:
