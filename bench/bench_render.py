@@ -212,11 +212,14 @@ def main(argv=None):
           f"{(acc['trace_cpu'] + acc['gather_cpu']) / acc['raw_cpu']:.2f}x  "
           f"(trace {acc['trace_cpu'] / acc['raw_cpu']:.2f}x + gather "
           f"{acc['gather_cpu'] / acc['raw_cpu']:.2f}x); per pass median {np.median(pr[:, 1]):.2f}x")
-    print(f"  inside trace (wall, summed over tracing threads): Embree calls "
-          f"{acc['embree'] / R:.2f}x, occlusion march {acc['march'] / R:.2f}x")
-    print(f"  shares of the photon pass: trace {acc['trace'] / pp:.0%}, gather {acc['gather'] / pp:.0%}")
+    if not a.numpy:
+        print(f"  inside trace (wall, summed over tracing threads): Embree calls "
+              f"{acc['embree'] / R:.2f}x, occlusion march {acc['march'] / R:.2f}x")
+    print(f"  shares of the photon pass: trace {acc['trace'] / pp:.0%}, "
+          f"gather {acc['gather'] / pp:.0%}")
     print(f"  against Accel.intersect (float64 API) instead of the bare call: "
-          f"{pp / acc['raw_accel']:.2f}x (its own overhead: {acc['raw_accel'] / R:.2f}x the bare call)")
+          f"{pp / acc['raw_accel']:.2f}x (its own overhead: {acc['raw_accel'] / R:.2f}x "
+          f"the bare call)")
     print(f"light sampling / raw Embree rays of a pass: lights.sample_photons "
           f"{t_lights_np / raw_pass:.2f}x, compiled {t_lights_fast / raw_pass:.2f}x "
           f"({'used' if r.tracer.fast_emission and r.tracer.fast else 'not used'})")

@@ -45,23 +45,23 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .scene import DIFFUSE, GLASS, GLOSSY
+from .scene import GLASS, GLOSSY
 
 # Fast-path classes of a material.
 GENERIC = 0
 LAMBERT = 1
 MIRROR = 2
 SMOOTH_GLASS = 3
+ABSORBER = 4          # no lobe with a non-zero weight (e.g. emission only)
 
 _LUM0, _LUM1, _LUM2 = 0.2126, 0.7152, 0.0722   # Rec. 709 (bsdf.LUMINANCE)
-_DIFFUSE_ROUGHNESS_EPS = 1e-5                    # bsdf.DIFFUSE_ROUGHNESS_EPS
 
 
 @dataclass
 class FastMaterials:
     """Per-material data of the fast path.  M materials.
 
-    cls: (M,) int8 GENERIC / LAMBERT / MIRROR / SMOOTH_GLASS.
+    cls: (M,) int8 GENERIC / LAMBERT / MIRROR / SMOOTH_GLASS / ABSORBER.
     col: (M, 3) float64 LAMBERT: sum of lobe colour x weight; MIRROR / GLASS:
       the lobe's colour x weight.
     ior: (M,) float64 GLASS index of refraction.
@@ -87,7 +87,10 @@ def build_fast_materials(mtab) -> FastMaterials:
         kinds = mtab.kind[m]
         slots = [j for j in range(kinds.shape[0]) if kinds[j] >= 0]
         used = [j for j in slots if mtab.weight[m, j] != 0.0]
-        if any(mtab.tex[m, j] >= 0 for j in slots) or not used:
+        if not used:
+            cls[m] = ABSORBER           # bsdf.sample_bsdf: no lobe, invalid
+            continue
+        if any(mtab.tex[m, j] >= 0 for j in slots):
             continue
         cw = [mtab.color[m, j] * mtab.weight[m, j] for j in slots]
         if bool(mtab.lambert_only[m]) and not bool(mtab.has_delta[m]):
@@ -381,6 +384,8 @@ def bounce_kernel(K, prim, bu, bv, tfar, o32, d32, d64, pw, fo, first, store, sa
         if not sample:
             continue
         c = m_cls[m]
+        if c == ABSORBER:
+            continue
         if c == GENERIC:
             gen_i[n_gen] = i
             gen_p[n_gen, 0], gen_p[n_gen, 1], gen_p[n_gen, 2] = px, py, pz

@@ -56,6 +56,14 @@ def _pool():
     return _POOL
 
 
+def _children(rng):
+    """Two independent child generators of rng (deterministic)."""
+    try:
+        return rng.spawn(2)
+    except (AttributeError, TypeError, ValueError):    # no SeedSequence behind rng
+        return [np.random.default_rng(int(s)) for s in rng.integers(0, 2**63, 2)]
+
+
 def _dot(a, b):
     return np.einsum("ij,ij->i", a, b)
 
@@ -72,6 +80,7 @@ class _Deposits:
         self.r = np.empty(cap)
         self.src = np.empty(cap, np.int64)
         self.bounce = np.empty(cap, np.int32)
+        self.spec = np.empty((cap, 3))       # (a, b, c); rows of classic photons unused
         self.n = 0
 
     def reserve(self, k: int):
@@ -81,7 +90,7 @@ class _Deposits:
         if need <= cap:
             return
         cap = max(2 * cap, need)
-        for name in ("p", "ng", "wi", "power", "r", "src", "bounce"):
+        for name in ("p", "ng", "wi", "power", "r", "src", "bounce", "spec"):
             a = getattr(self, name)
             b = np.empty((cap,) + a.shape[1:], a.dtype)
             b[:self.n] = a[:self.n]
@@ -92,7 +101,7 @@ class _Deposits:
         k = other.n
         self.reserve(k)
         a, b = self.n, self.n + k
-        for name in ("p", "ng", "wi", "power", "r", "bounce"):
+        for name in ("p", "ng", "wi", "power", "r", "bounce", "spec"):
             getattr(self, name)[a:b] = getattr(other, name)[:k]
         self.n = b
 
@@ -101,7 +110,8 @@ class _Deposits:
             return None
         n = self.n
         return {"p": self.p[:n], "ng": self.ng[:n], "wi": self.wi[:n],
-                "power": self.power[:n], "rpred": self.r[:n], "bounce": self.bounce[:n]}
+                "power": self.power[:n], "rpred": self.r[:n], "bounce": self.bounce[:n],
+                "spec": np.where(np.isnan(self.r[:n])[:, None], 0.0, self.spec[:n])}
 
 
 class PhotonTracer:
@@ -141,7 +151,7 @@ class PhotonTracer:
         # depend on the number of cores), traced concurrently when there are
         # two threads: Embree and the kernels release the GIL.  The deposits
         # are the first half's followed by the second's in both cases.
-        r0, r1 = rng.spawn(2)
+        r0, r1 = _children(rng)
         h, hf = n // 2, n_freq // 2
         # The first buffer is sized for both halves (deposits per photon seen
         # so far, +25%): the second is appended without reallocating.
@@ -291,7 +301,8 @@ class PhotonTracer:
         out = np.zeros((K, 3))
         out[hi] = s
         if dep.n > n0:
-            rp = F.predicted_radius(out[dep.src[n0:dep.n]], np.inf, np.inf, model)
+            dep.spec[n0:dep.n] = out[dep.src[n0:dep.n]]
+            rp = F.predicted_radius(dep.spec[n0:dep.n], np.inf, np.inf, model)
             # The grid keeps a per-pixel minimum; the paper's rule keeps the
             # maximum, so its radii travel negated.
             dep.r[n0:dep.n] = -rp if model == "PAPER" else rp
@@ -342,7 +353,7 @@ class PhotonTracer:
         falloff_r2 = falloff_r2[idx]
         A_MAX = self.D * self.D
         model = st.frequency_model
-        out_p, out_ng, out_wi, out_pow, out_r, out_b = [], [], [], [], [], []
+        out_p, out_ng, out_wi, out_pow, out_r, out_b, out_s = [], [], [], [], [], [], []
         for bounce in range(st.max_bounces + 1):
             if o.shape[0] == 0:
                 break
@@ -390,6 +401,7 @@ class PhotonTracer:
                     r[fqd] = -rp if model == "PAPER" else rp
                 out_r.append(r)
                 out_b.append(np.full(dq.size, bounce, np.int32))
+                out_s.append(spec[dq])
             if bounce == st.max_bounces:
                 break
             colors = B.lobe_colors(self.mtab, mat, uv)
@@ -428,7 +440,8 @@ class PhotonTracer:
             return None
         return {"p": np.concatenate(out_p), "ng": np.concatenate(out_ng),
                 "wi": np.concatenate(out_wi), "power": np.concatenate(out_pow),
-                "rpred": np.concatenate(out_r), "bounce": np.concatenate(out_b)}
+                "rpred": np.concatenate(out_r), "bounce": np.concatenate(out_b),
+                "spec": np.concatenate(out_s)}
 
 
 def triangle_curvature(scene: Scene) -> np.ndarray:

@@ -5,7 +5,9 @@
     result = r.run(should_stop=lambda: False, on_pass=callback)
 
 API CONTRACT
-- ``Renderer(scene: Scene, settings: RenderSettings, log: Callable[[str], None] = print)``
+- ``Renderer(scene: Scene, settings: RenderSettings, log: Callable[[str], None] = print,
+  should_stop=None, ...)``: ``should_stop()`` is polled during the set-up too
+  (BVH, plan, occlusion grid); True raises RenderCancelled (issue 8).
 - ``Renderer.width, Renderer.height``: size of the rendered region (the border
   crop when ``scene.camera.border`` is set), ``Renderer.offset``: (x0, y0) of that
   region in Blender's pixel coordinates (y from the bottom).
@@ -469,6 +471,10 @@ class Renderer:
         a = np.nonzero(~mesh)[0]
         if a.size:
             blocked[a] = self.accel.occluded(o[a], wi[a], dist[a])
+            b = a[blocked[a]]
+            if b.size:
+                blocked[b] = self._grazing_self_hit_retry(vp.p[q[b]], vp.ng[q[b]], o[b],
+                                                          wi[b], dist[b])
         # Emissive triangles are geometry: the shadow ray must not be stopped by
         # the emitter itself.  Embree's float32 hit distance errs by about
         # offset/|cos| at grazing angles, so a closest hit counts as the emitter
@@ -489,6 +495,39 @@ class Renderer:
         blocked &= shadow
         L[q[~blocked]] += contrib[~blocked]
         return L
+
+    def _grazing_self_hit_retry(self, p, ng, o, wi, dist) -> np.ndarray:
+        """(K,) bool: still blocked after discarding float32 self-hits.
+
+        Embree subtracts the ray origin from the vertices in float32, so a
+        triangle's plane is only known to ~|vertex| * 2^-24; a shadow ray
+        leaving a large triangle near the origin at grazing incidence (89.9
+        deg) re-hits its own plane although it starts |p| * REL_OFFSET above
+        it (issue 6: -15 % at 89.9 deg on a rotated 4 m plane).  A first hit
+        whose plane passes within 8 REL_OFFSET |vertex|_max of the origin is
+        such a self-hit: the ray is cast again from an offset relative to
+        that triangle's vertices.  A real occluder is never that close to the
+        origin's plane at a magnitude that large, so shadows are kept.
+        """
+        from .accel import REL_OFFSET
+        h = self.accel.intersect(o, wi, dist)
+        still = h.hit.copy()
+        i = np.nonzero(h.hit)[0]
+        if i.size == 0:
+            return still
+        P = self.scene.tri_p[h.prim[i]].astype(np.float64)
+        n = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        vmax = np.abs(P).max(axis=(1, 2))
+        eps = 8.0 * REL_OFFSET * vmax
+        self_hit = np.abs(_dot(o[i] - P[:, 0], n)) < eps
+        j = i[self_hit]
+        if j.size:
+            side = np.where(_dot(ng[j], wi[j]) >= 0, 1.0, -1.0)
+            off = np.maximum(eps[self_hit], self.accel.offset_scale(p[j]))
+            o2 = p[j] + ng[j] * (side * off)[:, None]
+            still[j] = self.accel.occluded(o2, wi[j], dist[j])
+        return still
 
     # ------------------------------------------------------------- radii
     def _init_radii(self, vp: VisiblePoints):
