@@ -63,6 +63,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .scene import Scene
+from .textures import sample_texture
 
 # Emitter kinds (LightTable.kind, photon "kind").
 POINT = 0
@@ -233,29 +234,6 @@ def _cosine_local(u1, u2):
 def _smoothstep(x):
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3.0 - 2.0 * x)
-
-
-def texture_lookup(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear RGB lookup with repeat, Blender's image layout (row 0 at the bottom).
-
-    img: (H, W, C) float32; uv: (K, 2).  Returns (K, 3) float64.
-    """
-    H, W = img.shape[:2]
-    x = uv[:, 0] * W - 0.5
-    y = uv[:, 1] * H - 0.5
-    x0 = np.floor(x)
-    y0 = np.floor(y)
-    fx = (x - x0)[:, None]
-    fy = (y - y0)[:, None]
-    x0 = x0.astype(np.int64) % W
-    y0 = y0.astype(np.int64) % H
-    x1 = (x0 + 1) % W
-    y1 = (y0 + 1) % H
-    c = np.asarray(img[..., :3], np.float64)
-    if c.shape[-1] < 3:
-        c = np.repeat(c[..., :1], 3, axis=-1)
-    return ((1 - fx) * (1 - fy) * c[y0, x0] + fx * (1 - fy) * c[y0, x1]
-            + (1 - fx) * fy * c[y1, x0] + fx * fy * c[y1, x1])
 
 
 # ----------------------------------------------------------------------------
@@ -663,7 +641,7 @@ def _mesh_emission(table: LightTable, jj, b1, b2):
         for ti in np.unique(tex[tex >= 0]):
             if ti < len(table.textures):
                 mm = tex == ti
-                Le[mm] *= texture_lookup(table.textures[ti], uv[mm])
+                Le[mm] *= sample_texture(table.textures[ti], uv[mm])
     return Le
 
 

@@ -17,6 +17,8 @@ import pytest
 from core import lights as L
 from core.scene import Camera, Light, Material, make_scene
 
+from stats_helpers import chi2_sf
+
 Z = 5.0
 N_CHI_TESTS = 5
 FLOOR = [[[-5, -5, 0], [5, -5, 0], [5, 5, 0]], [[-5, -5, 0], [5, 5, 0], [-5, 5, 0]]]
@@ -422,37 +424,6 @@ def test_direct_world():
 # ---------------------------------------------------------------------------- chi-square
 
 
-def _gammaq(a, x):
-    """Regularised upper incomplete gamma Q(a, x) (series / continued fraction)."""
-    if x <= 0:
-        return 1.0
-    lg = math.lgamma(a)
-    if x < a + 1:
-        s = term = 1.0 / a
-        ap = a
-        for _ in range(10000):
-            ap += 1
-            term *= x / ap
-            s += term
-            if abs(term) < abs(s) * 1e-15:
-                break
-        return 1.0 - s * math.exp(-x + a * math.log(x) - lg)
-    b, c, d = x + 1 - a, 1e300, 1.0 / (x + 1 - a)
-    h = d
-    for i in range(1, 10000):
-        an = -i * (i - a)
-        b += 2
-        d = an * d + b
-        d = 1e-300 if abs(d) < 1e-300 else d
-        c = b + an / c
-        c = 1e-300 if abs(c) < 1e-300 else c
-        d = 1.0 / d
-        h *= d * c
-        if abs(d * c - 1) < 1e-15:
-            break
-    return math.exp(-x + a * math.log(x) - lg) * h
-
-
 def chi_square_p(dirs, axis, cdf_mu, n_mu=24, n_phi=24):
     """p-value of directions vs a pdf uniform in phi with CDF cdf_mu(cos theta)."""
     axis = np.asarray(axis, float) / np.linalg.norm(axis)
@@ -472,7 +443,7 @@ def chi_square_p(dirs, axis, cdf_mu, n_mu=24, n_phi=24):
     keep = e > 0
     chi2 = float(np.sum((o[keep] - e[keep]) ** 2 / e[keep]))
     dof = int(keep.sum()) - 1
-    return _gammaq(dof / 2.0, chi2 / 2.0)
+    return chi2_sf(chi2, dof)
 
 
 def _photon_dirs(light, n=200_000, seed=11):
