@@ -82,6 +82,28 @@ def progress_fraction(result, settings) -> float:
     return min(f, 1.0)
 
 
+def export_cancellable(depsgraph, log, camera, should_stop):
+    """``export_scene`` with a cancellation point before every object (issue 8).
+
+    A stopgap until ``export_scene`` takes ``should_stop`` itself: the same
+    exporter, with ``geometry`` (the per-object cost: foreach_get and the
+    transforms) preceded by a poll; RenderCancelled goes to ``render``.  What
+    follows the object loop (concatenation, invalid-triangle check) is not
+    interruptible: ~0.6 s per million triangles, see docs/reliability.md.
+    """
+    from . import export as X
+    base = getattr(X, "_Exporter", None)
+    if base is None or not hasattr(base, "geometry"):
+        return export_scene(depsgraph, log, camera=camera)
+
+    class _Exporter(base):
+        def geometry(self, inst, ob, parts):
+            if should_stop():
+                raise RenderCancelled("cancelled")
+            return super().geometry(inst, ob, parts)
+    return _Exporter(depsgraph, log).run(camera)
+
+
 class RenderSession:
     """Lets the CLI (or a test) follow a render done by :class:`FPPMRenderEngine`.
 
@@ -146,9 +168,9 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
     def _log(self, msg: str) -> None:
         sess = _session
         if sess is not None and sess.log is not None:
-            sess.log(msg)
-        else:
-            print(f"FPPM: {msg}")
+            sess.log(msg)          # the CLI prints it: no second copy via report
+            return
+        print(f"FPPM: {msg}")
         if msg.lower().startswith("warning"):
             self.report({'WARNING'}, msg)
 
@@ -194,7 +216,7 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
         cam = self.camera_override
         if cam is not None:
             cam = cam.evaluated_get(depsgraph)
-        fscene = export_scene(depsgraph, self._log, camera=cam)
+        fscene = export_cancellable(depsgraph, self._log, cam, self.break_requested)
         if self.break_requested():
             if sess is not None:
                 sess.cancelled = True

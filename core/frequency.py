@@ -308,7 +308,16 @@ def curvature(s, kappa, model="CORRECTED", A_MAX=A_MAX_DEFAULT, factor=2.0):
     det = np.maximum(a * b - c * c, 0.0)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         b1 = np.where(a > 0, (det + c1 * c1) / np.where(a > 0, a, 1.0), b)
-    return sanitize(_stack(a, b1, c1), A_MAX)
+    # b > 0.467 would be clipped alone by sanitize, which moves the focus
+    # -c/b of a wide beam on a strong mirror (a sun, a = D^2, on a parabola of
+    # f = 0.5 m: b = a/f^2 > 1, clipped b put the focus at 1.46 D instead of f
+    # and predicted r = 0.08 m at a point focus, holding the radius there;
+    # tests/test_stiff_scenes.py).  Scaling the whole Q keeps -c/b and a_eff/a,
+    # and a smaller Q is sharper, i.e. conservative.
+    with np.errstate(invalid="ignore"):
+        over = b1 > B_CAP
+    sc = np.where(over, B_CAP / np.where(over, b1, 1.0), 1.0)
+    return sanitize(_stack(a * sc, b1 * sc, c1 * sc), A_MAX)
 
 
 def mirror(s):

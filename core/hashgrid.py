@@ -638,7 +638,7 @@ def _empty_result(K, want_rpred_pairs):
 def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
            vp_pos, vp_ng, vp_R2, vp_const, cos_ng: float = COS_NG_DEFAULT,
            want_rpred_pairs: bool = False, parallel: Optional[bool] = None) -> GatherResult:
-    """Count photons into visible points (rules (1)-(3) of the module docstring).
+    """Count photons into visible points (rules (1)-(4) of the module docstring).
 
     ph_pos (P, 3) float32/64 photon hit positions; ph_ng (P, 3) geometric normal
     of the surface the photon hit; ph_wi (P, 3) unit direction towards where the

@@ -109,6 +109,10 @@ def write_exr(path: str, layers: dict, metadata: dict | None = None) -> None:
         with OpenEXR.File(header, chans) as f:
             f.write(tmp)
         os.chmod(tmp, default_file_mode())
+        # Data on disk before the rename: after a power cut the path holds the
+        # old image or the new one, never an empty file.
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException as ex:
         try:

@@ -49,6 +49,10 @@ def _can_occlude(tri_p: np.ndarray) -> bool:
     P = tri_p.astype(np.float64)
     n = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    # Size check first: np.unique sorts every vertex (2 s at 500k triangles),
+    # and a scene that large almost surely occludes.
+    if T * 3 * T > 4 * _CONVEX_TEST_MAX:
+        return True
     V = np.unique(P.reshape(-1, 3), axis=0)
     if T * V.shape[0] > _CONVEX_TEST_MAX:
         return True

@@ -193,6 +193,7 @@ class Renderer:
         self.r_hist = (np.zeros((P, self.HIST_BINS), np.uint32)
                        if self.plan.frequency_photons and st.frequency_estimator == "QUANTILE" else None)
         self.spectrum = np.zeros((P, 3)) if st.aov_spectrum else None
+        self._pass_hist = self._pass_spec = None
         self._depth_for_fp = np.zeros(P)
         self.last_result: Optional[PassResult] = None
 
@@ -253,6 +254,10 @@ class Renderer:
         # Commit the pass only once it is complete (cancel keeps the last one).
         tu = time.perf_counter()
         self.L_sum += L_pass
+        if self.r_hist is not None and self._pass_hist is not None:
+            self.r_hist += self._pass_hist
+        if self.spectrum is not None and self._pass_spec is not None:
+            self.spectrum[...] = self._pass_spec
         self._update(vp, M, Phi, r_pred)
         self.stage_seconds["update"] += time.perf_counter() - tu
         self.pass_index = k
@@ -559,6 +564,10 @@ class Renderer:
         r_pred = np.full(P, np.inf)
         if not np.any(active):
             return M, Phi, r_pred
+        # Pass-local histogram and spectrum: committed in step() with the
+        # rest of the pass, so a cancelled pass leaves no trace.
+        self._pass_hist = None if self.r_hist is None else np.zeros_like(self.r_hist)
+        self._pass_spec = None if self.spectrum is None else self.spectrum.copy()
         grid = hashgrid.build_grid(vp.p, np.sqrt(self.R2), active)
         n_total = st.photons_per_pass
         n_freq_total = int(round(n_total * st.frequency_fraction)) if self.plan.frequency_photons else 0
@@ -635,18 +644,18 @@ class Renderer:
         if pv.size == 0:
             return
         rr = dep["rpred"][pp]
-        if self.r_hist is not None:
-            np.add.at(self.r_hist, (pv, self._hist_bin(rr)), 1)
+        if self._pass_hist is not None:
+            np.add.at(self._pass_hist, (pv, self._hist_bin(rr)), 1)
         if self.settings.aov_spectrum and "spec" in dep:
             # The spectrum of the photon that predicted the smallest radius.
             order = np.lexsort((np.abs(rr), pv))
             first = np.ones(order.size, bool)
             first[1:] = pv[order][1:] != pv[order][:-1]
             sel = order[first]
-            self.spectrum[pv[sel]] = dep["spec"][pp[sel]]
+            self._pass_spec[pv[sel]] = dep["spec"][pp[sel]]
 
     def _quantile_radius(self, r_pred_min):
-        h = self.r_hist
+        h = self.r_hist + self._pass_hist
         tot = h.sum(axis=1)
         cum = np.cumsum(h, axis=1)
         b = np.argmax(cum >= np.ceil(self.QUANTILE * np.maximum(tot, 1))[:, None], axis=1)
