@@ -2,6 +2,7 @@
 
     fppm render SCENE.blend -o OUT.exr [--frame N] [--time-limit S] [--passes N]
                 [--photons N] [--mode fppm|ppm] [--seed N] [--resolution PCT]
+                [--checkpoint DIR [--checkpoint-every S] [--resume]]
     fppm converge SCENE.blend --time-limit S --out DIR [--reference REF.exr | --cycles-samples N]
                 [--methods fppm,ppm,cycles] [--seeds K] ...   (addon/converge.py)
 
