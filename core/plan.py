@@ -40,9 +40,12 @@ class RenderPlan:
         return {"fppm/plan": " ".join(self.lines())}
 
 
-def _can_occlude(tri_p: np.ndarray) -> bool:
-    """False when no surface can occlude another: all triangles coplanar, or a
-    single convex closed object (every vertex on or behind every face plane)."""
+def _can_occlude(tri_p: np.ndarray, light_points=None, distant_light=False) -> bool:
+    """False when nothing can occlude the light field: all triangles coplanar,
+    or a set of faces that all see each other (every vertex on one side of
+    every face plane: the inside or outside of one convex object) with every
+    local light on that same side.  A sun or world light comes from outside
+    any such set, so with one only the single-plane case is left out."""
     T = tri_p.shape[0]
     if T <= 1:
         return False
@@ -61,6 +64,11 @@ def _can_occlude(tri_p: np.ndarray) -> bool:
     s = V @ n.T - np.einsum("ij,ij->i", n, P[:, 0])[None, :]    # (V, T)
     if np.all(np.abs(s) <= eps):
         return False                                              # one plane
+    if distant_light:
+        return True
+    if light_points is not None and len(light_points):
+        Lp = np.asarray(light_points, np.float64).reshape(-1, 3)
+        s = np.concatenate([s, Lp @ n.T - np.einsum("ij,ij->i", n, P[:, 0])[None, :]])
     all_behind = np.all(s <= eps) or np.all(s >= -eps)
     return not all_behind
 
@@ -89,7 +97,11 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
         freq = False
         plan.left_out.append(("frequency photons", "no Lambert receiver whose radius could be held"))
     plan.frequency_photons = freq
-    occ = freq and (_can_occlude(scene.tri_p) or "occlusion grid" in force)
+    local = [np.asarray(lt.matrix_world, np.float64)[:3, 3] for lt in scene.lights
+             if lt.kind != "SUN"]
+    distant = any(lt.kind == "SUN" for lt in scene.lights) or bool(
+        np.any(np.asarray(scene.world_color) > 0))
+    occ = freq and (_can_occlude(scene.tri_p, local, distant) or "occlusion grid" in force)
     if freq and not occ:
         plan.left_out.append(("occlusion grid", "nothing in the scene can occlude another surface"))
     elif not freq:

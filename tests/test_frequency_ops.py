@@ -341,9 +341,13 @@ def test_corrected_model_exact_values():
     np.testing.assert_allclose(F.off_surface(s, 0.5), [[0.075, 0.2, 0.05]], rtol=1e-14)
     # k = 2 kappa = 0.2: b = 0.2 + 2 k c + k^2 a, c = 0.1 + k a
     np.testing.assert_allclose(F.curvature(s, 0.1), [[0.3, 0.252, 0.16]], rtol=1e-14)
-    # a strong bend would give b = 0.7 > 0.467: capped, and c clamped to sqrt(ab)
+    # a strong bend would give b = 0.7 > 0.467: the whole Q is scaled by
+    # 0.467 / 0.7 (issue 6: clipping b alone moved the focus -c/b), so
+    # b = 0.467, c = 0.4 * 0.667, a = 0.3 * 0.667 and -c/b stays 0.4 / 0.7
     out = F.curvature(s, 0.5)
-    assert out[0, 1] == pytest.approx(F.B_CAP) and out[0, 2] == pytest.approx(math.sqrt(0.3 * F.B_CAP))
+    f = F.B_CAP / 0.7
+    np.testing.assert_allclose(out, [[0.3 * f, F.B_CAP, 0.4 * f]], rtol=1e-12)
+    assert -out[0, 2] / out[0, 1] == pytest.approx(-0.4 / 0.7)
 
 
 def test_lobe_variances():

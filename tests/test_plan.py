@@ -118,3 +118,18 @@ def test_unknown_forced_stage_is_an_error():
     scene, _ = point_light_plane(res=8)
     with pytest.raises(ValueError, match="unknown stage"):
         Renderer(scene, RenderSettings(max_passes=1), log=lambda s: None, force_stages=("bogus",))
+
+
+def test_convex_set_keeps_the_grid_when_a_light_is_outside_it():
+    """Faces that all see each other cannot occlude light from a source on the
+    same side; a light on the other side (or a sun) can be shadowed by them."""
+    from core.scene import Light
+    from analytic_scenes import translate
+    box, _ = furnace_box(res=8)          # closed cube, normals inwards
+    inside = Light("in", "POINT", (10.0,) * 3, translate(0.2, 0.1, 0.3))
+    outside = Light("out", "POINT", (10.0,) * 3, translate(0.0, 0.0, 3.0))
+    sun = Light("sun", "SUN", (3.0,) * 3, np.eye(4))
+    for lights, needs in (([inside], False), ([outside], True), ([sun], True)):
+        box.lights = lights
+        r, _ = _run(box, max_passes=1, photons_per_pass=1_000)
+        assert r.plan.occlusion_grid == needs, lights[0].name
