@@ -705,7 +705,11 @@ class Renderer:
             rp = np.where(np.isfinite(self.r_pred_last), self.r_pred_last, 0.0)
             aovs["Predicted Radius"] = rp.reshape(H, W, 1).astype(np.float32)
         if st.aov_spectrum:
-            aovs["Spectrum"] = self.spectrum.reshape(H, W, 3).astype(np.float32)
+            # The PAPER model is unguarded by design and can overflow: the AOV
+            # stays finite (NaN -> 0, +-inf -> +-float32 max) so viewers cope.
+            f32 = np.finfo(np.float32).max
+            aovs["Spectrum"] = np.nan_to_num(np.clip(self.spectrum, -f32, f32), nan=0.0).reshape(
+                H, W, 3).astype(np.float32)
         if st.aov_photon_count:
             aovs["Photon Count"] = self.N.reshape(H, W, 1).astype(np.float32)
         if st.aov_held:
