@@ -13,7 +13,11 @@ float32 arrays of as many random rays inside the box as the photon pass cast
 is printed too.  Every pass is followed by its own raw-ray timing so that both
 see the same machine load; the ratios use the sums.  With ``--frequency`` a
 second renderer without frequency photons runs interleaved with the first,
-and the tracer is timed on all-frequency vs all-classic batches.
+and the tracer is timed on all-frequency vs all-classic batches.  A third
+renderer runs the frequency photons as before core.frequency_kernels (numpy
+core.frequency operators, voxel-by-voxel ``march_occlusion(dense=True)``), so
+the before/after overheads are measured in the same process; each ratio is
+the best of ``--repeat`` interleaved measurements (the machine is shared).
 """
 from __future__ import annotations
 
@@ -114,6 +118,7 @@ class Timers:
                                    "march")}
         self._wrap(Ph, "intersect_f32", "embree", cpu=False)
         self._wrap(Occ, "march_occlusion", "march", cpu=False)
+        self.dense_march = False        # the march before MarchBlocks (bench "before")
         self._wrap(Hg, "gather", "gather")
 
     def _wrap(self, mod, name, key, cpu=True):
@@ -121,6 +126,8 @@ class Timers:
         t = self.t
 
         def g(*a, **k):
+            if key == "march" and self.dense_march:
+                k = dict(k, dense=True)
             t0, c0 = time.perf_counter(), time.process_time()
             r = f(*a, **k)
             t[key] += time.perf_counter() - t0
@@ -136,23 +143,80 @@ class Timers:
         return dict(self.t)
 
 
-def make_renderer(scene, a, use_frequency, tm):
+def make_renderer(scene, a, use_frequency, tm, before=False):
+    """before: frequency photons as before core.frequency_kernels (numpy
+    operators, dense march)."""
     st = RenderSettings(max_passes=1000, photons_per_pass=a.photons,
                         use_frequency=use_frequency)
     r = Renderer(scene, st, log=lambda s: None)
     r.tracer.fast = not a.numpy
+    r.tracer.compiled_frequency = not before
+    r.bench_before = before
     tm.wrap_tracer(r.tracer)
-    r.step()                                      # warm-up: numba compilation
+    photon_pass(r, tm)                            # warm-up: numba compilation
     return r
 
 
 def photon_pass(r, tm):
     """Differences of the timers over one more pass of r, and its photon rays."""
+    tm.dense_march = getattr(r, "bench_before", False)
     s0 = tm.snapshot()
     rays0 = r.photon_rays
     r.step()
     s = tm.snapshot()
+    tm.dense_march = False
     return {k: s[k] - s0[k] for k in s}, r.photon_rays - rays0
+
+
+def trace_seconds(r, tm, n, n_freq, seed):
+    """Wall seconds of r.tracer.trace(n, n_freq) (and of its march calls)."""
+    tm.dense_march = getattr(r, "bench_before", False)
+    s0 = tm.snapshot()
+    r.tracer.trace(n, n_freq, np.random.default_rng(seed))
+    s1 = tm.snapshot()
+    tm.dense_march = False
+    return s1["trace"] - s0["trace"], s1["march"] - s0["march"]
+
+
+def frequency_report(r, rb, r0, tm, a):
+    """Pass overhead and per-photon cost of frequency photons, after (r) and
+    before (rb) core.frequency_kernels, against r0 (no frequency photons):
+    best of a.repeat interleaved measurements."""
+    pp = {"after": [], "before": []}
+    for _ in range(a.repeat):
+        d0, _ = photon_pass(r0, tm)
+        for key, rr in (("after", r), ("before", rb)):
+            d, _ = photon_pass(rr, tm)
+            pp[key].append((d["trace"] + d["gather"]) / (d0["trace"] + d0["gather"]) - 1)
+    n = min(a.photons, Ph_chunk())
+    cost = {"after": [], "before": [], "no march": []}
+    march_b = []
+    tr = r.tracer
+    if tr._occ_args is None:
+        tr._occ_args = tr._occlusion_args()
+    occ_args = tr._occ_args
+    for k in range(a.repeat):
+        tc, _ = trace_seconds(r0, tm, n, 0, 100 + k)
+        for key, rr in (("after", r), ("before", rb), ("no march", r)):
+            # "no march": the compiled chains without the occlusion step (the
+            # march's share of "after" is the difference)
+            tr._occ_args = (0, occ_args[1]) if key == "no march" else occ_args
+            tf, m = trace_seconds(rr, tm, n, n, 100 + k)
+            cost[key].append(tf / tc)
+            if key == "before":
+                march_b.append(m / tc)
+        tr._occ_args = occ_args
+    print(f"frequency ({r.settings.frequency_fraction:.0%} frequency photons, best of {a.repeat}; "
+          f"all values: {[f'{x:+.0%}' for x in pp['after']]} after, "
+          f"{[f'{x:+.0%}' for x in pp['before']]} before)")
+    print(f"  whole photon pass vs none: after {min(pp['after']):+.0%}, "
+          f"before {min(pp['before']):+.0%}")
+    print(f"  per-photon tracing cost, frequency / classic photon: after "
+          f"{min(cost['after']):.2f}x (without the march {min(cost['no march']):.2f}x), "
+          f"before {min(cost['before']):.2f}x "
+          f"(its march {march_b[int(np.argmin(cost['before']))]:.2f}x"
+          f", summed over threads); all: after {[round(x, 2) for x in cost['after']]}, "
+          f"before {[round(x, 2) for x in cost['before']]}")
 
 
 def raw_cpu(raw, rays):
@@ -169,11 +233,14 @@ def main(argv=None):
     ap.add_argument("--passes", type=int, default=3)
     ap.add_argument("--frequency", action="store_true", help="25%% frequency photons")
     ap.add_argument("--numpy", action="store_true", help="the numpy reference tracer")
+    ap.add_argument("--repeat", type=int, default=3,
+                    help="interleaved repeats of the frequency measurements (best of)")
     a = ap.parse_args(argv)
     scene = cornell(a.res)
     tm = Timers()
     r = make_renderer(scene, a, a.frequency, tm)
     r0 = make_renderer(scene, a, False, tm) if a.frequency else None
+    rb = make_renderer(scene, a, True, tm, before=True) if a.frequency else None
     raw = RawRays(r.accel, 4 * a.photons)
     PK.sample_photons_fast(r.light_table, 1000, np.random.default_rng(0))   # compile
     per_pass = []       # (pass wall / raw wall, pass CPU / raw CPU)
@@ -214,7 +281,11 @@ def main(argv=None):
           f"{acc['gather_cpu'] / acc['raw_cpu']:.2f}x); per pass median {np.median(pr[:, 1]):.2f}x")
     if not a.numpy:
         print(f"  inside trace (wall, summed over tracing threads): Embree calls "
-              f"{acc['embree'] / R:.2f}x, occlusion march {acc['march'] / R:.2f}x")
+              f"{acc['embree'] / R:.2f}x" + (
+                  "" if r.tracer.compiled_frequency else
+                  f", occlusion march {acc['march'] / R:.2f}x") + (
+                  " (the march runs inside core.frequency_kernels: see the "
+                  "frequency lines)" if a.frequency and r.tracer.compiled_frequency else ""))
     print(f"  shares of the photon pass: trace {acc['trace'] / pp:.0%}, "
           f"gather {acc['gather'] / pp:.0%}")
     print(f"  against Accel.intersect (float64 API) instead of the bare call: "
@@ -229,21 +300,7 @@ def main(argv=None):
               f"frequency photons vs none: {pp / pp0 - 1:+.0%} "
               f"(trace {acc['trace'] / acc['trace0'] - 1:+.0%}, "
               f"gather {acc['gather'] / acc['gather0'] - 1:+.0%})")
-        n = min(a.photons, Ph_chunk())
-        tf = tc = m_f = 0.0
-        for k in range(2):
-            rng = np.random.default_rng(100 + k)
-            s0 = tm.snapshot()
-            r.tracer.trace(n, 0, rng)
-            s1 = tm.snapshot()
-            r.tracer.trace(n, n, rng)
-            s2 = tm.snapshot()
-            tc += s1["trace"] - s0["trace"]
-            tf += s2["trace"] - s1["trace"]
-            m_f += s2["march"] - s1["march"]
-        print(f"frequency: per-photon tracing cost, frequency / classic photon: {tf / tc:.2f}x "
-              f"({tf / tc - 1:+.0%}; of which the occlusion march {m_f / tc:.2f}x a classic "
-              f"photon's cost, summed over threads)")
+        frequency_report(r, rb, r0, tm, a)
     total = sum(r.stage_seconds.values())
     print("stage shares of the whole render pass: "
           + ", ".join(f"{k} {v / total:.0%}" for k, v in r.stage_seconds.items()))

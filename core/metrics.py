@@ -257,13 +257,17 @@ def masks_from_image(mask_img, threshold: float = 0.5) -> dict[str, np.ndarray]:
 
 def loglog_interp(t_query: float, t: np.ndarray, e: np.ndarray) -> float:
     """Error at time t_query by linear interpolation in log(t)-log(e) between
-    the recorded points (t ascending, e > 0).  NaN before the first point; the
+    the recorded points (e > 0; sorted by t here).  NaN before the first point; the
     last point's value after it (a render stopped there keeps its image).
     """
     t = np.asarray(t, np.float64)
     e = np.asarray(e, np.float64)
     ok = (t > 0) & np.isfinite(e) & (e > 0)
     t, e = t[ok], e[ok]
+    # Independent renders (a Cycles ladder) on a loaded machine may finish out
+    # of order: interpolate over the points sorted by time.
+    order = np.argsort(t, kind="stable")
+    t, e = t[order], e[order]
     if t.size == 0 or t_query < t[0]:
         return float("nan")
     if t_query >= t[-1]:

@@ -44,10 +44,12 @@ Refinements over the paper, each documented where it happens:
 
 Memory: ``BYTES_PER_VOXEL`` = 41 bytes (dist 4, axis 12, aperture 4,
 occupied 1, near 4, and the march's resolved cone 16): 10.7 MB at 64^3,
-86 MB at 128^3.  The build also holds about 150 bytes per voxel of float64
-temporaries (normal sums, two candidate axes, closest points), 12 bytes per
-(triangle, voxel) overlap and about 100 bytes per triangle (normals, BVH,
-sorted copy); ``bench_occlusion_grid`` measures the peaks.
+86 MB at 128^3; the march derives 20 more bytes a voxel on first use
+(``MarchBlocks``: 5.4 MB at 64^3, none above VOXEL_LEVEL_MAX).  The build
+also holds about 150 bytes per voxel of float64 temporaries (normal sums,
+two candidate axes, closest points), 12 bytes per (triangle, voxel) overlap
+and about 100 bytes per triangle (normals, BVH, sorted copy);
+``bench_occlusion_grid`` measures the peaks.
 
 Scale rule (frequency.md): every epsilon is relative to the voxel size, the
 triangle's own size, or the grid diameter; nothing is in absolute metres.
@@ -56,6 +58,7 @@ from __future__ import annotations
 
 import math
 import time
+import threading
 from dataclasses import dataclass
 
 import numba as nb
@@ -641,8 +644,13 @@ def _cone_meets(cone, vx, vy, vz, dx, dy, dz):
 
 
 @nb.njit(cache=True, nogil=True)
-def _march(dist, cone, lo, cell, R, o, d, t_end,
-           locality, t_skip, out):
+def _march_dense(dist, cone, lo, cell, R, o, d, t_end,
+                 locality, t_skip, out):
+    """The first march (kept as the reference of tests/test_frequency_kernels.py):
+    every voxel the segment crosses, with Lipschitz jumps that may land
+    inside a voxel (which then is sampled on the rest of its piece only).
+    :func:`_march_one` samples the same voxels at the same points except
+    after such a jump."""
     N = o.shape[0]
     diag = math.sqrt(cell[0] ** 2 + cell[1] ** 2 + cell[2] ** 2)
     eps = 1e-6 * min(cell[0], min(cell[1], cell[2]))
@@ -686,50 +694,13 @@ def _march(dist, cone, lo, cell, R, o, d, t_end,
             # stays above `locality` for a further (dv - 1.5 diag - locality).
             lb = dv - 1.5 * diag - locality
             if lb <= 0.0:
-                # sample: the point of this voxel's piece of the segment
-                # closest to the voxel centre
                 ts = 0.0
                 for j in range(3):
                     ts += (lo[j] + (iv[j] + 0.5) * cell[j] - o[i, j]) * d[i, j]
                 ts = min(max(ts, t), min(t_exit, tb))
-                # trilinear interpolation of dist at o + ts d
-                di = 0.0
-                fx = (o[i, 0] + ts * d[i, 0] - lo[0]) / cell[0] - 0.5
-                fy = (o[i, 1] + ts * d[i, 1] - lo[1]) / cell[1] - 0.5
-                fz = (o[i, 2] + ts * d[i, 2] - lo[2]) / cell[2] - 0.5
-                x0 = min(max(int(math.floor(fx)), 0), R - 2)
-                y0 = min(max(int(math.floor(fy)), 0), R - 2)
-                z0 = min(max(int(math.floor(fz)), 0), R - 2)
-                ux = min(max(fx - x0, 0.0), 1.0)
-                uy = min(max(fy - y0, 0.0), 1.0)
-                uz = min(max(fz - z0, 0.0), 1.0)
-                for ka in range(2):
-                    wa = ux if ka else 1.0 - ux
-                    for kb in range(2):
-                        wb = uy if kb else 1.0 - uy
-                        for kc in range(2):
-                            wc = uz if kc else 1.0 - uz
-                            di += wa * wb * wc * dist[x0 + ka, y0 + kb, z0 + kc]
-                if di < locality and di < best:
-                    # Bi-cone test (_cone_meets) of the voxel holding the
-                    # sample; its distance is di.  On a curved surface the
-                    # edge-on patch nearest the ray may sit in a neighbour
-                    # that the ray does not enter: the 8 voxels di was
-                    # interpolated from are tested too, each with the distance
-                    # max(di, its own dist) so that a neighbour looking at
-                    # another surface (a wall beside the floor the ray is
-                    # about to hit) is not credited with the floor's distance.
-                    if _cone_meets(cone, iv[0], iv[1], iv[2], d[i, 0], d[i, 1], d[i, 2]):
-                        best = di
-                    else:
-                        for ka in range(2):
-                            for kb in range(2):
-                                for kc in range(2):
-                                    dn = max(di, np.float64(dist[x0 + ka, y0 + kb, z0 + kc]))
-                                    if dn < locality and dn < best and _cone_meets(
-                                            cone, x0 + ka, y0 + kb, z0 + kc,
-                                            d[i, 0], d[i, 1], d[i, 2]):
-                                        best = dn
+                best = _sample_voxel(dist, cone, lo, cell, R, iv[0], iv[1], iv[2],
+                                     o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2],
+                                     ts, locality, best)
                 t_next = t_exit
             else:
                 t_next = max(t_exit, t + lb)
@@ -738,8 +709,404 @@ def _march(dist, cone, lo, cell, R, o, d, t_end,
             out[i] = best * best
 
 
+@nb.njit(cache=True, inline="always")
+def _sample_voxel(dist, cone, lo, cell, R, ix, iy, iz, ox, oy, oz, dx, dy, dz, ts,
+                  locality, best):
+    """The occluder test of voxel (ix, iy, iz) at the segment point o + ts d:
+    returns min(best, its candidate distance) (best unchanged if none)."""
+    fx = (ox + ts * dx - lo[0]) / cell[0] - 0.5
+    fy = (oy + ts * dy - lo[1]) / cell[1] - 0.5
+    fz = (oz + ts * dz - lo[2]) / cell[2] - 0.5
+    x0 = min(max(int(math.floor(fx)), 0), R - 2)
+    y0 = min(max(int(math.floor(fy)), 0), R - 2)
+    z0 = min(max(int(math.floor(fz)), 0), R - 2)
+    # No candidate unless the own cone or a neighbour's (closer than
+    # min(locality, best): dn = max(di, dist) below) meets the plane: decide
+    # that before paying for the interpolation (same result).
+    if not _cone_meets(cone, ix, iy, iz, dx, dy, dz):
+        thr = min(locality, best)
+        any_n = False
+        for ka in range(2):
+            for kb in range(2):
+                for kc in range(2):
+                    if (not any_n and dist[x0 + ka, y0 + kb, z0 + kc] < thr
+                            and _cone_meets(cone, x0 + ka, y0 + kb, z0 + kc, dx, dy, dz)):
+                        any_n = True
+        if not any_n:
+            return best
+    # trilinear interpolation of dist at o + ts d
+    di = 0.0
+    ux = min(max(fx - x0, 0.0), 1.0)
+    uy = min(max(fy - y0, 0.0), 1.0)
+    uz = min(max(fz - z0, 0.0), 1.0)
+    for ka in range(2):
+        wa = ux if ka else 1.0 - ux
+        for kb in range(2):
+            wb = uy if kb else 1.0 - uy
+            for kc in range(2):
+                wc = uz if kc else 1.0 - uz
+                di += wa * wb * wc * dist[x0 + ka, y0 + kb, z0 + kc]
+    if di < locality and di < best:
+        # Bi-cone test (_cone_meets) of the voxel holding the sample; its
+        # distance is di.  On a curved surface the edge-on patch nearest the
+        # ray may sit in a neighbour that the ray does not enter: the 8
+        # voxels di was interpolated from are tested too, each with the
+        # distance max(di, its own dist) so that a neighbour looking at
+        # another surface (a wall beside the floor the ray is about to hit)
+        # is not credited with the floor's distance.
+        if _cone_meets(cone, ix, iy, iz, dx, dy, dz):
+            best = di
+        else:
+            for ka in range(2):
+                for kb in range(2):
+                    for kc in range(2):
+                        dn = max(di, np.float64(dist[x0 + ka, y0 + kb, z0 + kc]))
+                        if dn < locality and dn < best and _cone_meets(
+                                cone, x0 + ka, y0 + kb, z0 + kc, dx, dy, dz):
+                            best = dn
+    return best
+
+
+# -------------------------------------------------- coarse blocks of the march
+#: Block edge [voxels] of the march's coarse level (see MarchBlocks): a
+#: compile-time power of two (index >> _BLOCK_SHIFT; a runtime integer
+#: division per step cost 15% of the march).
+_BLOCK_SHIFT = 2
+MARCH_BLOCK = 1 << _BLOCK_SHIFT
+# Relative slack of the block tests (float64 rounding of the trilinear
+# weights: a convex combination of values >= m is >= m (1 - 4e-16)).
+_BLOCK_REL = 1e-12
+# Angular slack [rad] of the union cone: covers the float32 axes' norm
+# (1 +- 1e-7) and the float64 rounding of atan2 / asin (~1e-16 rad).
+_UNION_SLACK = 1e-5
+# Union cones wider than pi/2 - this [rad] meet every plane ("unknown").
+_UNION_WIDE = 1e-3
+
+
+@dataclass(frozen=True)
+class MarchBlocks:
+    """Coarse level of the march: blocks of B^3 voxels (NB = ceil(R / B) per axis).
+
+    For each block, over the block *dilated by one voxel* (every voxel a
+    sample inside the block reads: its own, and the 8 its distance is
+    interpolated from):
+    bmin: (NB, NB, NB) float64 the smallest ``dist``;
+    bcone: (NB, NB, NB, 4) float64 a bi-cone (unit axis, sin of half-angle)
+      containing every voxel cone there; sin = 2: some cone is unknown or the
+      union is wider than pi/2 - 1e-3 (meets every plane); sin = -2: no cone
+      meets any plane.
+    The same for each voxel and its 26 neighbours (B = 1), stored float32
+    (rounded conservatively: sin + 1e-6), when R^3 * 20 bytes <= VOXEL_LEVEL_MAX:
+    vmin: (R, R, R) float32, vcone: (R, R, R, 4) float32; else (1, 1, 1)
+    placeholders and has_voxel_level False.
+    A block (voxel) can hold no occluder candidate of a segment when its
+    min >= the current threshold min(locality, best) or its union cone misses
+    the plane orthogonal to d; :func:`_march_one` then skips it.
+    """
+    B: int
+    bmin: np.ndarray
+    bcone: np.ndarray
+    vmin: np.ndarray
+    vcone: np.ndarray
+    has_voxel_level: bool
+
+
+#: Largest per-voxel level of MarchBlocks [bytes] (20 B/voxel: 5 MB at 64^3,
+#: 42 MB at 128^3); finer grids march with the block level only.
+VOXEL_LEVEL_MAX = 64 * 2 ** 20
+
+
+@nb.njit(cache=True, nogil=True)
+def _build_blocks(dist, cone, R, B, NB, bmin, bcone):
+    for bx in range(NB):
+        for by in range(NB):
+            for bz in range(NB):
+                x0, x1 = max(bx * B - 1, 0), min((bx + 1) * B + 1, R)
+                y0, y1 = max(by * B - 1, 0), min((by + 1) * B + 1, R)
+                z0, z1 = max(bz * B - 1, 0), min((bz + 1) * B + 1, R)
+                m = np.inf
+                wide = False
+                n = 0
+                rx = ry = rz = 0.0              # first member's axis (sign reference)
+                sx = sy = sz = 0.0              # sum of the sign-aligned axes
+                for x in range(x0, x1):
+                    for y in range(y0, y1):
+                        for z in range(z0, z1):
+                            m = min(m, np.float64(dist[x, y, z]))
+                            s = np.float64(cone[x, y, z, 3])
+                            if s < -1.0:
+                                continue            # meets no plane
+                            ax = np.float64(cone[x, y, z, 0])
+                            ay = np.float64(cone[x, y, z, 1])
+                            az = np.float64(cone[x, y, z, 2])
+                            nrm = math.sqrt(ax * ax + ay * ay + az * az)
+                            if s + _SIN_TOL >= 1.0 or nrm == 0.0:
+                                wide = True         # unknown: meets every plane
+                                continue
+                            ax, ay, az = ax / nrm, ay / nrm, az / nrm
+                            if n == 0:
+                                rx, ry, rz = ax, ay, az
+                            if ax * rx + ay * ry + az * rz < 0.0:
+                                ax, ay, az = -ax, -ay, -az
+                            sx += ax
+                            sy += ay
+                            sz += az
+                            n += 1
+                bmin[bx, by, bz] = m
+                if wide:
+                    bcone[bx, by, bz, 3] = 2.0
+                    continue
+                if n == 0:
+                    bcone[bx, by, bz, 3] = -2.0
+                    continue
+                nrm = math.sqrt(sx * sx + sy * sy + sz * sz)
+                if nrm < 1e-6 * n:
+                    bcone[bx, by, bz, 3] = 2.0
+                    continue
+                ux, uy, uz = sx / nrm, sy / nrm, sz / nrm
+                psi = 0.0
+                for x in range(x0, x1):
+                    for y in range(y0, y1):
+                        for z in range(z0, z1):
+                            s = np.float64(cone[x, y, z, 3])
+                            if s < -1.0:
+                                continue
+                            ax = np.float64(cone[x, y, z, 0])
+                            ay = np.float64(cone[x, y, z, 1])
+                            az = np.float64(cone[x, y, z, 2])
+                            nrm = math.sqrt(ax * ax + ay * ay + az * az)
+                            # the member meets the plane iff |a.d| <= s + tol,
+                            # i.e. its unit axis is within asin((s + tol)/|a|)
+                            # of the plane; the union axis then within that
+                            # plus the angle between the axes (sign-free).
+                            sk = min((s + _SIN_TOL) / nrm, 1.0)
+                            ax, ay, az = ax / nrm, ay / nrm, az / nrm
+                            cx = uy * az - uz * ay
+                            cy = uz * ax - ux * az
+                            cz = ux * ay - uy * ax
+                            th = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz),
+                                            abs(ux * ax + uy * ay + uz * az))
+                            psi = max(psi, math.asin(sk) + th)
+                psi += _UNION_SLACK
+                bcone[bx, by, bz, 0] = ux
+                bcone[bx, by, bz, 1] = uy
+                bcone[bx, by, bz, 2] = uz
+                bcone[bx, by, bz, 3] = 2.0 if psi >= 0.5 * math.pi - _UNION_WIDE else math.sin(psi)
+
+
+_BLOCKS_LOCK = threading.Lock()
+
+
+def march_blocks(grid: OcclusionGrid, B: int = MARCH_BLOCK) -> MarchBlocks:
+    """The coarse level of ``grid``'s march (built once, cached on the grid;
+    0.14 s and 5.4 MB at 64^3).  Thread-safe.  The march uses B = MARCH_BLOCK."""
+    mb = getattr(grid, "_march_blocks", None)
+    if mb is not None and mb.B == B:
+        return mb
+    with _BLOCKS_LOCK:
+        mb = getattr(grid, "_march_blocks", None)
+        if mb is not None and mb.B == B:
+            return mb
+        R = grid.res
+        NB = -(-R // B)
+        bmin = np.empty((NB, NB, NB))
+        bcone = np.zeros((NB, NB, NB, 4))
+        _build_blocks(grid.dist, grid.cone, R, B, NB, bmin, bcone)
+        if R ** 3 * 20 <= VOXEL_LEVEL_MAX:
+            vm = np.empty((R, R, R))
+            vc = np.zeros((R, R, R, 4))
+            _build_blocks(grid.dist, grid.cone, R, 1, R, vm, vc)
+            # dist is float32, so its minimum is exact in float32; the cone's
+            # sin is rounded up (float32 axis: |a32.d - a.d| <= 2e-7).
+            vmin = vm.astype(np.float32)
+            vc[..., 3] = np.where(np.abs(vc[..., 3]) < 1.5, vc[..., 3] + 1e-6, vc[..., 3])
+            vcone = vc.astype(np.float32)
+            has_v = True
+        else:
+            vmin = np.zeros((1, 1, 1), np.float32)
+            vcone = np.zeros((1, 1, 1, 4), np.float32)
+            has_v = False
+        mb = MarchBlocks(B=B, bmin=bmin, bcone=bcone, vmin=vmin, vcone=vcone,
+                         has_voxel_level=has_v)
+        object.__setattr__(grid, "_march_blocks", mb)    # frozen dataclass: a derived cache
+        return mb
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _axis_exit(lo, c, i, o, d):
+    """Parameter where o + t d leaves voxel slab i of one axis (inf if d = 0)."""
+    if d > 0.0:
+        return (lo + (i + 1) * c - o) / d
+    if d < 0.0:
+        return (lo + i * c - o) / d
+    return np.inf
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _march_one(dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell, R,
+               ox, oy, oz, dx, dy, dz, t_end, locality, t_skip):
+    """a_occ of one segment [o + t_skip d, o + (t_end - t_skip) d] (see
+    :func:`march_occlusion`); scalar in, scalar out, so that the frequency
+    kernels (core.frequency_kernels) can call it inline per photon.
+
+    Two-level 3D-DDA.  The segment enters a block at the voxel holding
+    o + t d (floor, as :func:`_march_dense`); a block whose ``MarchBlocks``
+    bounds prove that no voxel in it can give a candidate below the current
+    threshold min(locality, best) is left at once (its exit + eps).
+    Otherwise the segment steps through the block's voxels (Amanatides-Woo:
+    per-axis exits by the dense march's formula, next voxel where the exit
+    + eps lies) and each is sampled at the point of its piece nearest its
+    centre, exactly as the dense march does, unless its own 27-voxel bounds
+    (vmin, vcone) prove it holds no candidate.  Skipping is exact: a skipped
+    voxel's sample could not have lowered best (its interpolated distance is
+    a convex combination of dist values >= the bound, and no cone it tests
+    meets the plane).  A block skipped for its distance may also be left by
+    a Lipschitz jump (sphere tracing), which lands on the entry of the voxel
+    it reaches, as the voxel walk would; the dense march's jump could land
+    inside a voxel and sample it on part of its piece only, so the result no
+    longer depends on where a jump landed.  Measured: identical a_occ to the
+    dense march on all 143k photon segments of bench_render's Cornell box
+    and on 40k random segments (tests/test_frequency_kernels.py), 1.9-2.2x
+    faster (0.9 us against 2.0 us a segment on the shared 2-core machine).
+    """
+    eps = 1e-6 * min(cell[0], min(cell[1], cell[2]))
+    lo0, lo1, lo2 = lo[0], lo[1], lo[2]
+    c0, c1, c2 = cell[0], cell[1], cell[2]
+    ta = t_skip
+    tb = t_end - t_skip
+    # clip to the grid box (slabs); outside it there is no geometry
+    if dx != 0.0:
+        t0 = (lo0 - ox) / dx
+        t1 = (lo0 + R * c0 - ox) / dx
+        if t0 > t1:
+            t0, t1 = t1, t0
+        ta = max(ta, t0)
+        tb = min(tb, t1)
+    elif ox < lo0 or ox > lo0 + R * c0:
+        tb = -np.inf
+    if dy != 0.0:
+        t0 = (lo1 - oy) / dy
+        t1 = (lo1 + R * c1 - oy) / dy
+        if t0 > t1:
+            t0, t1 = t1, t0
+        ta = max(ta, t0)
+        tb = min(tb, t1)
+    elif oy < lo1 or oy > lo1 + R * c1:
+        tb = -np.inf
+    if dz != 0.0:
+        t0 = (lo2 - oz) / dz
+        t1 = (lo2 + R * c2 - oz) / dz
+        if t0 > t1:
+            t0, t1 = t1, t0
+        ta = max(ta, t0)
+        tb = min(tb, t1)
+    elif oz < lo2 or oz > lo2 + R * c2:
+        tb = -np.inf
+    sx = 1 if dx > 0.0 else -1
+    sy = 1 if dy > 0.0 else -1
+    sz = 1 if dz > 0.0 else -1
+    # 1/cell for the voxel index at block entries (t = an exit + eps, 1e-6
+    # voxel past the face: a product instead of a quotient moves the index
+    # only within ~1e-14 voxel of a face)
+    ic0, ic1, ic2 = 1.0 / c0, 1.0 / c1, 1.0 / c2
+    vjump = 1.5 * math.sqrt(c0 * c0 + c1 * c1 + c2 * c2) * (1.0 + 1e-6)
+    best = np.inf
+    t = ta
+    while t < tb:
+        ix = min(max(int(math.floor((ox + t * dx - lo0) * ic0)), 0), R - 1)
+        iy = min(max(int(math.floor((oy + t * dy - lo1) * ic1)), 0), R - 1)
+        iz = min(max(int(math.floor((oz + t * dz - lo2) * ic2)), 0), R - 1)
+        thr = min(locality, best)
+        bx, by, bz = ix >> _BLOCK_SHIFT, iy >> _BLOCK_SHIFT, iz >> _BLOCK_SHIFT
+        bm = bmin[bx, by, bz]
+        if (bm * (1.0 - _BLOCK_REL) >= thr
+                or abs(bcone[bx, by, bz, 0] * dx + bcone[bx, by, bz, 1] * dy
+                       + bcone[bx, by, bz, 2] * dz) > bcone[bx, by, bz, 3]):
+            # leave the block: same exit formula as a voxel's, with the index
+            # of the block's far face (bit-identical to the last voxel's exit)
+            t_exit = tb
+            t_exit = min(t_exit, _axis_exit(lo0, c0, min((bx + 1) * B, R) - 1 if dx > 0.0
+                                            else bx * B, ox, dx))
+            t_exit = min(t_exit, _axis_exit(lo1, c1, min((by + 1) * B, R) - 1 if dy > 0.0
+                                            else by * B, oy, dy))
+            t_exit = min(t_exit, _axis_exit(lo2, c2, min((bz + 1) * B, R) - 1 if dz > 0.0
+                                            else bz * B, oz, dz))
+            # Far from everything, go further (sphere tracing, exact): o + t d
+            # is within diag/2 of a centre of this block (dist >= bm), so every
+            # point within jump of it has true distance >= bm - diag/2 - jump
+            # and interpolated distance (centres within a diagonal) >= that
+            # - diag >= thr.  Land on the *entry* of the voxel there, as the
+            # voxel walk would: no voxel is sampled on part of its piece.
+            jump = bm * (1.0 - 1e-6) - vjump - thr
+            if t + jump > t_exit:
+                tl = t + jump
+                if not tl < tb:
+                    break
+                jx = min(max(int(math.floor((ox + tl * dx - lo0) * ic0)), 0), R - 1)
+                jy = min(max(int(math.floor((oy + tl * dy - lo1) * ic1)), 0), R - 1)
+                jz = min(max(int(math.floor((oz + tl * dz - lo2) * ic2)), 0), R - 1)
+                # entry = the previous voxel's exit on each axis (same formula)
+                te = t_exit
+                if dx != 0.0:
+                    te = max(te, _axis_exit(lo0, c0, jx - 1 if dx > 0.0 else jx + 1, ox, dx))
+                if dy != 0.0:
+                    te = max(te, _axis_exit(lo1, c1, jy - 1 if dy > 0.0 else jy + 1, oy, dy))
+                if dz != 0.0:
+                    te = max(te, _axis_exit(lo2, c2, jz - 1 if dz > 0.0 else jz + 1, oz, dz))
+                t_exit = te
+            t = t_exit + eps
+            continue
+        # voxel by voxel through this block
+        tnx = _axis_exit(lo0, c0, ix, ox, dx)
+        tny = _axis_exit(lo1, c1, iy, oy, dy)
+        tnz = _axis_exit(lo2, c2, iz, oz, dz)
+        while True:
+            t_exit = min(min(tb, tnx), min(tny, tnz))
+            thr = min(locality, best)
+            if (not has_v or (vmin[ix, iy, iz] * (1.0 - _BLOCK_REL) < thr
+                              and abs(vcone[ix, iy, iz, 0] * dx + vcone[ix, iy, iz, 1] * dy
+                                      + vcone[ix, iy, iz, 2] * dz) <= vcone[ix, iy, iz, 3])):
+                # sample: the point of this voxel's piece nearest its centre
+                ts = 0.0
+                ts += (lo0 + (ix + 0.5) * c0 - ox) * dx
+                ts += (lo1 + (iy + 0.5) * c1 - oy) * dy
+                ts += (lo2 + (iz + 0.5) * c2 - oz) * dz
+                ts = min(max(ts, t), min(t_exit, tb))
+                best = _sample_voxel(dist, cone, lo, cell, R, ix, iy, iz, ox, oy, oz,
+                                     dx, dy, dz, ts, locality, best)
+            t = t_exit + eps
+            if not t < tb:
+                break
+            # the next voxel holds o + t d: step the axes whose exit is behind
+            if tnx < t:
+                ix += sx
+                tnx = _axis_exit(lo0, c0, ix, ox, dx)
+            if tny < t:
+                iy += sy
+                tny = _axis_exit(lo1, c1, iy, oy, dy)
+            if tnz < t:
+                iz += sz
+                tnz = _axis_exit(lo2, c2, iz, oz, dz)
+            if (ix < 0 or ix >= R or iy < 0 or iy >= R or iz < 0 or iz >= R
+                    or ix >> _BLOCK_SHIFT != bx or iy >> _BLOCK_SHIFT != by
+                    or iz >> _BLOCK_SHIFT != bz):
+                break                      # a new block (or the grid's edge)
+    if best < np.inf:
+        return best * best
+    return np.inf
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _march(dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell, R, o, d, t_end,
+           locality, t_skip, out):
+    for i in range(o.shape[0]):
+        out[i] = _march_one(dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell, R,
+                            o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2], t_end[i],
+                            locality, t_skip)
+
+
 def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
-                    skip_voxels: float = 1.0) -> np.ndarray:
+                    skip_voxels: float = 1.0, dense: bool = False) -> np.ndarray:
     """a_occ [m^2] for each photon segment [o, o + t_end d].
 
     o: (N, 3), d: (N, 3) unit directions, t_end: (N,) segment lengths (inf for
@@ -750,13 +1117,17 @@ def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
     receiver it ends on are within a voxel there, and are the surfaces the
     segment connects, not occluders.
 
-    The segment is traversed voxel by voxel (3D-DDA; voxels whose distance
-    proves nothing is within ``locality`` are jumped over, distance field
-    being 1-Lipschitz).  In each voxel the distance at the segment point
-    nearest the voxel centre is interpolated trilinearly; if < locality and
-    the bi-cone meets the plane orthogonal to d, it is an occluder candidate.
+    Every voxel the segment crosses is a sample: the distance at the segment
+    point of its piece nearest the voxel centre is interpolated trilinearly;
+    if < locality and the voxel's bi-cone (or one of the 8 the distance came
+    from) meets the plane orthogonal to d, it is an occluder candidate.
     Returns (N,) float64: (min candidate distance)^2, np.inf without occluder.
-    The kernel releases the GIL: callers may split N across threads.
+    The traversal (:func:`_march_one`) skips whole blocks of voxels that
+    provably hold no candidate below the current minimum (``MarchBlocks``).
+    dense=True runs the first, voxel-by-voxel march (:func:`_march_dense`;
+    the reference of the tests): equal except on segments where its
+    Lipschitz jumps landed inside a voxel.
+    The kernels release the GIL: callers may split N across threads.
     """
     o = np.ascontiguousarray(np.asarray(o, np.float64).reshape(-1, 3))
     d = np.ascontiguousarray(np.asarray(d, np.float64).reshape(-1, 3))
@@ -767,13 +1138,24 @@ def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
     if not np.isfinite(grid.dist).any():
         out[:] = np.inf
         return out
+    check_locality(grid, locality)
+    t_skip = float(skip_voxels) * grid.voxel_diagonal
+    if dense:
+        _march_dense(grid.dist, grid.cone, grid.lo, grid.cell, grid.res, o, d, t_end,
+                     float(locality), t_skip, out)
+        return out
+    mb = march_blocks(grid, MARCH_BLOCK)
+    _march(grid.dist, grid.cone, mb.bmin, mb.bcone, mb.vmin, mb.vcone, mb.has_voxel_level, mb.B,
+           grid.lo, grid.cell, grid.res, o, d, t_end, float(locality), t_skip, out)
+    return out
+
+
+def check_locality(grid: OcclusionGrid, locality: float) -> None:
+    """Raise ValueError when ``locality`` exceeds what the grid's distances
+    are exact for (max_distance - 1.5 voxel diagonals)."""
     if locality > grid.max_distance - 1.5 * grid.voxel_diagonal:
         raise ValueError(f"locality {locality} exceeds the grid's max_distance "
                          f"{grid.max_distance} - 1.5 voxel diagonals")
-    _march(grid.dist, grid.cone, grid.lo, grid.cell, grid.res, o, d, t_end,
-           float(locality), float(skip_voxels) * grid.voxel_diagonal, out)
-    return out
-
 
 # ----------------------------------------------------------------- benchmark
 

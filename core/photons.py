@@ -17,9 +17,12 @@ Two implementations with the same statistics (tests/test_photon_kernels.py):
   material (textures, GGX, Oren-Nayar, multi-lobe, translucent...) go through
   ``bsdf.sample_bsdf`` in numpy, and are appended back.  Frequency photons
   are traced as a separate batch through the same kernels; their spectrum
-  updates (travel, occlusion, onto/off surface, lobe, curvature, predicted
-  radius) stay the numpy ``core.frequency`` operators, applied to the hits
-  and survivors the kernel records.
+  updates run compiled on the hits and survivors the kernel records
+  (``core.frequency_kernels``: travel -> occlusion march -> occlude ->
+  onto_surface -> predicted radius, then off_surface -> lobe -> curvature;
+  the same numbers as the ``core.frequency`` operators, which
+  ``compiled_frequency = False`` runs instead), only for hits that deposit
+  or continue.
 - the numpy path (``PhotonTracer.fast = False``), every closure through
   ``bsdf.sample_bsdf``: the reference.
 """
@@ -32,6 +35,7 @@ import numpy as np
 from . import bsdf as B
 from . import lights as Lt
 from . import frequency as F
+from . import frequency_kernels as FK
 from . import photon_kernels as PK
 from .accel import REL_OFFSET, intersect_f32, surface_point
 from .scene import Scene
@@ -119,6 +123,9 @@ class PhotonTracer:
 
     #: Use the compiled path (False: the numpy reference path).
     fast = True
+    #: Compiled path: frequency spectra by core.frequency_kernels (False: the
+    #: numpy core.frequency operators on the recorded hits; same results).
+    compiled_frequency = True
 
     def __init__(self, scene, accel, mtab, light_table, settings, plan, kappa, occ_grid,
                  occ_locality, D):
@@ -132,6 +139,10 @@ class PhotonTracer:
         self._light_arrays = PK.light_arrays(light_table) if self.fast_emission else None
         # Deposits per photon (max seen, x1.25 margin on use): buffer sizing.
         self._dpp = 2.0
+        self._lobe_b = None          # (lobe_b, lobe_ok) per material, on first use
+        # FK.spectrum_at_hits' occlusion arguments (builds the march's blocks:
+        # 0.14 s at 64^3, here rather than in the first pass)
+        self._occ_args = self._occlusion_args() if occ_grid is not None else None
 
     def trace(self, n: int, n_freq: int, rng):
         """Trace n photons (the first n_freq carry a spectrum); return deposits.
@@ -242,13 +253,17 @@ class PhotonTracer:
                 *gen,
                 record, *rec, dep.src, *nxt)
             dep.n = n_dep
-            if record:
-                spec_hit = self._spectrum_at_hits(spec, K, o_seg, d_seg, rec, dep, n0)
             if n_gen:
                 n_next = self._generic_bounce(n_gen, n_next, gen, u, roulette, o32, d32, d64,
                                               pw, nxt if record else None)
-            if record and n_next:
-                spec = self._spectrum_leaving(spec_hit, n_next, prim, rec, nxt, d64)
+            if record:
+                # After the generic bounce: only hits that deposit or continue
+                # need a spectrum (the bounce reads o_seg/d_seg/rec, not the
+                # live state it appended to).
+                spec_hit = self._spectrum_at_hits(spec, K, o_seg, d_seg, rec, dep, n0,
+                                                  nxt, n_next)
+                if n_next:
+                    spec = self._spectrum_leaving(spec_hit, n_next, prim, rec, nxt, d64)
             K = n_next
 
     def _generic_bounce(self, g, n_next, gen, u, roulette, o32, d32, d64, pw, nxt):
@@ -282,13 +297,23 @@ class PhotonTracer:
             nxt[1][n_next:n_next + sel.size] = is_delta[sel]
         return n_next + sel.size
 
-    def _spectrum_at_hits(self, spec, K, o_seg, d_seg, rec, dep, n0):
+    def _spectrum_at_hits(self, spec, K, o_seg, d_seg, rec, dep, n0, nxt, n_next):
         """Frequency photons: travel, occlusion and projection onto the hit
-        surface (rays 0..K-1); predicted radius of the deposits n0..dep.n-1.
-        Returns the (K, 3) on-surface spectra (rows of missed rays unused)."""
+        surface (rays 0..K-1 that deposit or continue); predicted radius of
+        the deposits n0..dep.n-1.  Returns the (K, 3) on-surface spectra
+        (rows of other rays unused)."""
         model = self.settings.frequency_model
         A_MAX = self.D * self.D
         rec_t, rec_ng, rec_nswi, rec_hit = rec
+        if self.compiled_frequency:
+            out = np.empty((K, 3))
+            if self._occ_args is None:
+                self._occ_args = self._occlusion_args()
+            occ, args = self._occ_args
+            FK.spectrum_at_hits(model == "PAPER", K, spec, rec_t, rec_ng, rec_hit, o_seg, d_seg,
+                                float(self.D), float(A_MAX), n0, dep.n, dep.src, n_next, nxt[0],
+                                np.empty(K, bool), occ, *args, out, dep.spec, dep.r)
+            return out
         hi = np.nonzero(rec_hit[:K])[0]
         t = rec_t[hi]
         s = F.travel(spec[hi], np.minimum(t, self.D), model, A_MAX)
@@ -308,6 +333,20 @@ class PhotonTracer:
             dep.r[n0:dep.n] = -rp if model == "PAPER" else rp
         return out
 
+    def _occlusion_args(self):
+        """(mode, grid arrays) for FK.spectrum_at_hits: mode 0 = no grid, 1 =
+        march, 2 = a grid without geometry (march_occlusion gives inf)."""
+        g = self.occ_grid
+        if g is not None and np.isfinite(g.dist).any():
+            from .occlusion import check_locality, march_blocks
+            check_locality(g, self.occ_locality)
+            mb = march_blocks(g)
+            return 1, (g.dist, g.cone, mb.bmin, mb.bcone, mb.vmin, mb.vcone, mb.has_voxel_level,
+                       mb.B, g.lo, g.cell, g.res, float(self.occ_locality), g.voxel_diagonal)
+        z1, z4 = np.zeros((1, 1, 1), np.float32), np.zeros((1, 1, 1, 4), np.float32)
+        return (0 if g is None else 2), (z1, z4, np.zeros((1, 1, 1)), np.zeros((1, 1, 1, 4)), z1,
+                                         z4, False, 1, np.zeros(3), np.ones(3), 1, 0.0, 0.0)
+
     def _spectrum_leaving(self, spec_hit, n_next, prim, rec, nxt, d64):
         """Frequency photons leaving the surface: off_surface, lobe, curvature."""
         model = self.settings.frequency_model
@@ -315,6 +354,18 @@ class PhotonTracer:
         rec_t, rec_ng, rec_nswi, rec_hit = rec
         srcs = nxt[0][:n_next]
         dl = nxt[1][:n_next]
+        if self.compiled_frequency:
+            if self._lobe_b is None:
+                self._lobe_b = FK.material_lobe_variance(self.mtab)
+            out = np.empty((n_next, 3))
+            kap = self.kappa if self.kappa is not None else np.zeros(1)
+            bad = FK.spectrum_leaving(model == "PAPER", n_next, spec_hit, nxt[0], nxt[1], rec_ng,
+                                      rec_nswi, d64, prim, self.tris.mat, *self._lobe_b, kap,
+                                      self.kappa is not None, float(A_MAX), out)
+            if bad >= 0:       # raise what frequency.lobe_variance raises
+                m = self.tris.mat[prim[srcs[bad]]]
+                F.lobe_variance(self.mtab.kind[m:m + 1, 0], self.mtab.roughness[m:m + 1, 0])
+            return out
         s = spec_hit[srcs]
         cos_o = np.abs(_dot(rec_ng[srcs], d64[:n_next]))
         s = F.off_surface(s, cos_o, model, A_MAX)

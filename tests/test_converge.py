@@ -8,7 +8,6 @@ second time from the cache).  Total about 35 s on this machine.
 """
 import csv
 import json
-import math
 import os
 import signal
 import subprocess
@@ -204,3 +203,25 @@ def test_usage_errors(tmp_path):
     r = _run(["converge", tmp_path / "missing.blend", "--time-limit", 1, "--out", tmp_path / "o"],
              tmp_path)
     assert r.returncode == 3
+
+
+def test_from_csv_rebuilds_the_same_report(tiny, tmp_path):
+    import shutil
+    r, out = tiny
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    with open(out / "summary.json") as f:
+        before = json.load(f)
+    r2 = _run(["converge", refs.scene_path("t_light_point"), "--time-limit", BUDGET, "--out", copy,
+               "--reference", os.path.join(refs.REFERENCES_DIR, "t_light_point.exr"),
+               "--kind", "diffuse", "--from-csv"], tmp_path)
+    assert r2.returncode == 0, r2.stderr[-3000:]
+    with open(copy / "summary.json") as f:
+        after = json.load(f)
+    # Same numbers up to the CSV's 6 significant digits.
+    for m, d in before["methods"].items():
+        for f_, v in d["relmse"].items():
+            assert after["methods"][m]["relmse"][f_] == pytest.approx(v, rel=1e-4)
+    assert after["bias_noise"] == before["bias_noise"]
+    text = (copy / "report.md").read_text()
+    assert "## Bias and noise" in text and "## Throughput" in text and "rebuilt" in text
