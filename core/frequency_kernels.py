@@ -231,8 +231,9 @@ def _kernels(token):
         (K, 3) float64: the segments' origins and unit directions.
         Only rays that deposit (dep_src[n0:n_dep]) or continue (nxt_src[:n_next])
         are evaluated (``need`` (K,) bool scratch): the spectrum of any other hit
-        is never read.  For those, out[i] = onto_surface(occlude(travel(spec[i],
-        min(t, D)), a_occ), |ng . d|), with a_occ = occlusion._march_one of the
+        is never read.  For those, out[i] = onto_surface(travel(occlude(travel(
+        spec[i], t_occ), a_occ), t - t_occ), |ng . d|) (travel(spec, t) and
+        occlude(., inf) without an occluder), with (a_occ, t_occ) = occlusion._march_one of the
         segment [o, o + t d] when occ == 1, inf when occ == 2 (a grid without
         geometry), no occlusion step when occ == 0 (no grid).
         Deposits n0..n_dep-1: dep_spec[k] = out[dep_src[k]] and dep_r[k] = its
@@ -253,15 +254,26 @@ def _kernels(token):
             if not (need[i] and rec_hit[i]):
                 continue
             t = rec_t[i]
-            a, b, c = travel(spec[i, 0], spec[i, 1], spec[i, 2], _fmin(t, D), paper, A_MAX)
             if occ == 1:
-                ao = _march_one(dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell, R,
-                                o_seg[i, 0], o_seg[i, 1], o_seg[i, 2],
-                                d_seg[i, 0], d_seg[i, 1], d_seg[i, 2], t, locality, t_skip)
+                # The blocker acts where it is: travel to it, multiply by its
+                # visibility, travel on (frequency.md, occlusion operator).
+                ao, to = _march_one(dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell,
+                                    R, o_seg[i, 0], o_seg[i, 1], o_seg[i, 2],
+                                    d_seg[i, 0], d_seg[i, 1], d_seg[i, 2], t, locality, t_skip)
                 n_march += 1
-                a, b, c = occlude(a, b, c, ao, paper, A_MAX)
-            elif occ == 2:                    # a grid without geometry: a_occ = inf
-                a, b, c = occlude(a, b, c, np.inf, paper, A_MAX)
+                if ao < np.inf:
+                    a, b, c = travel(spec[i, 0], spec[i, 1], spec[i, 2], _fmin(to, D), paper,
+                                     A_MAX)
+                    a, b, c = occlude(a, b, c, ao, paper, A_MAX)
+                    a, b, c = travel(a, b, c, _fmin(_fmax(t - to, 0.0), D), paper, A_MAX)
+                else:
+                    a, b, c = travel(spec[i, 0], spec[i, 1], spec[i, 2], _fmin(t, D), paper,
+                                     A_MAX)
+                    a, b, c = occlude(a, b, c, ao, paper, A_MAX)
+            else:
+                a, b, c = travel(spec[i, 0], spec[i, 1], spec[i, 2], _fmin(t, D), paper, A_MAX)
+                if occ == 2:                  # a grid without geometry: a_occ = inf
+                    a, b, c = occlude(a, b, c, np.inf, paper, A_MAX)
             cs = abs(rec_ng[i, 0] * d_seg[i, 0] + rec_ng[i, 1] * d_seg[i, 1]
                      + rec_ng[i, 2] * d_seg[i, 2])
             a, b, c = onto_surface(a, b, c, cs, paper, A_MAX)

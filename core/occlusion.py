@@ -1011,6 +1011,7 @@ def _march_one(dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell, R,
     ic0, ic1, ic2 = 1.0 / c0, 1.0 / c1, 1.0 / c2
     vjump = 1.5 * math.sqrt(c0 * c0 + c1 * c1 + c2 * c2) * (1.0 + 1e-6)
     best = np.inf
+    t_best = np.inf
     t = ta
     while t < tb:
         ix = min(max(int(math.floor((ox + t * dx - lo0) * ic0)), 0), R - 1)
@@ -1072,8 +1073,11 @@ def _march_one(dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell, R,
                 ts += (lo1 + (iy + 0.5) * c1 - oy) * dy
                 ts += (lo2 + (iz + 0.5) * c2 - oz) * dz
                 ts = min(max(ts, t), min(t_exit, tb))
-                best = _sample_voxel(dist, cone, lo, cell, R, ix, iy, iz, ox, oy, oz,
-                                     dx, dy, dz, ts, locality, best)
+                nb_ = _sample_voxel(dist, cone, lo, cell, R, ix, iy, iz, ox, oy, oz,
+                                    dx, dy, dz, ts, locality, best)
+                if nb_ < best:
+                    best = nb_
+                    t_best = ts
             t = t_exit + eps
             if not t < tb:
                 break
@@ -1092,21 +1096,21 @@ def _march_one(dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell, R,
                     or iz >> _BLOCK_SHIFT != bz):
                 break                      # a new block (or the grid's edge)
     if best < np.inf:
-        return best * best
-    return np.inf
+        return best * best, t_best
+    return np.inf, np.inf
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
 def _march(dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell, R, o, d, t_end,
-           locality, t_skip, out):
+           locality, t_skip, out, out_t):
     for i in range(o.shape[0]):
-        out[i] = _march_one(dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell, R,
-                            o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2], t_end[i],
-                            locality, t_skip)
+        out[i], out_t[i] = _march_one(dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell,
+                                      R, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2],
+                                      t_end[i], locality, t_skip)
 
 
 def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
-                    skip_voxels: float = 1.0, dense: bool = False) -> np.ndarray:
+                    skip_voxels: float = 1.0, dense: bool = False, return_t: bool = False):
     """a_occ [m^2] for each photon segment [o, o + t_end d].
 
     o: (N, 3), d: (N, 3) unit directions, t_end: (N,) segment lengths (inf for
@@ -1121,7 +1125,11 @@ def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
     point of its piece nearest the voxel centre is interpolated trilinearly;
     if < locality and the voxel's bi-cone (or one of the 8 the distance came
     from) meets the plane orthogonal to d, it is an occluder candidate.
-    Returns (N,) float64: (min candidate distance)^2, np.inf without occluder.
+    Returns (N,) float64: (min candidate distance)^2, np.inf without occluder;
+    with return_t (block march only) also (N,) the segment parameter t of that
+    occluder (inf without one): the occlusion operator acts there, and the
+    light field travels on for t_end - t (frequency.md: occlusion is a
+    multiplication of the field at the blocker).
     The traversal (:func:`_march_one`) skips whole blocks of voxels that
     provably hold no candidate below the current minimum (``MarchBlocks``).
     dense=True runs the first, voxel-by-voxel march (:func:`_march_dense`;
@@ -1133,21 +1141,22 @@ def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
     d = np.ascontiguousarray(np.asarray(d, np.float64).reshape(-1, 3))
     t_end = np.ascontiguousarray(np.broadcast_to(np.asarray(t_end, np.float64), (len(o),)))
     out = np.empty(len(o))
-    if len(o) == 0:
-        return out
-    if not np.isfinite(grid.dist).any():
+    out_t = np.full(len(o), np.inf)
+    if len(o) == 0 or not np.isfinite(grid.dist).any():
         out[:] = np.inf
-        return out
+        return (out, out_t) if return_t else out
     check_locality(grid, locality)
     t_skip = float(skip_voxels) * grid.voxel_diagonal
     if dense:
+        if return_t:
+            raise ValueError("return_t needs the block march (dense=False)")
         _march_dense(grid.dist, grid.cone, grid.lo, grid.cell, grid.res, o, d, t_end,
                      float(locality), t_skip, out)
         return out
     mb = march_blocks(grid, MARCH_BLOCK)
     _march(grid.dist, grid.cone, mb.bmin, mb.bcone, mb.vmin, mb.vcone, mb.has_voxel_level, mb.B,
-           grid.lo, grid.cell, grid.res, o, d, t_end, float(locality), t_skip, out)
-    return out
+           grid.lo, grid.cell, grid.res, o, d, t_end, float(locality), t_skip, out, out_t)
+    return (out, out_t) if return_t else out
 
 
 def check_locality(grid: OcclusionGrid, locality: float) -> None:

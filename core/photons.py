@@ -72,6 +72,20 @@ def _dot(a, b):
     return np.einsum("ij,ij->i", a, b)
 
 
+def _travel_occlude_travel(spec, t, a_occ, t_occ, D, model, A_MAX):
+    """(N, 3) spectra after a segment of length t whose nearest occluder
+    (a_occ, at t_occ; inf = none) acts where it stands: travel t_occ, occlude,
+    travel t - t_occ (the numpy reference of frequency_kernels.spectrum_at_hits)."""
+    has = np.isfinite(a_occ)
+    t1 = np.where(has, t_occ, t)
+    s = F.travel(spec, np.minimum(t1, D), model, A_MAX)
+    s = F.occlude(s, a_occ, model, A_MAX)
+    if np.any(has):
+        s2 = F.travel(s[has], np.minimum(np.maximum(t[has] - t_occ[has], 0.0), D), model, A_MAX)
+        s[has] = s2
+    return s
+
+
 class _Deposits:
     """Growable deposit buffers (rows 0..n-1 used), float64; r = predicted radius."""
 
@@ -316,11 +330,13 @@ class PhotonTracer:
             return out
         hi = np.nonzero(rec_hit[:K])[0]
         t = rec_t[hi]
-        s = F.travel(spec[hi], np.minimum(t, self.D), model, A_MAX)
         if self.occ_grid is not None:
             from .occlusion import march_occlusion
-            a_occ = march_occlusion(self.occ_grid, o_seg[hi], d_seg[hi], t, self.occ_locality)
-            s = F.occlude(s, a_occ, model, A_MAX)
+            a_occ, t_occ = march_occlusion(self.occ_grid, o_seg[hi], d_seg[hi], t,
+                                           self.occ_locality, return_t=True)
+            s = _travel_occlude_travel(spec[hi], t, a_occ, t_occ, self.D, model, A_MAX)
+        else:
+            s = F.travel(spec[hi], np.minimum(t, self.D), model, A_MAX)
         cos_i = np.abs(_dot(rec_ng[hi], d_seg[hi]))
         s = F.onto_surface(s, cos_i, model, A_MAX)
         out = np.zeros((K, 3))
@@ -424,12 +440,14 @@ class PhotonTracer:
             mat = self.scene.tri_mat[hits.prim]
             if np.any(is_freq):
                 fq = np.nonzero(is_freq)[0]
-                s = F.travel(spec[fq], np.minimum(hits.t[fq], self.D), model, A_MAX)
                 if self.occ_grid is not None:
                     from .occlusion import march_occlusion
-                    a_occ = march_occlusion(self.occ_grid, o[fq], d[fq], hits.t[fq],
-                                            self.occ_locality)
-                    s = F.occlude(s, a_occ, model, A_MAX)
+                    a_occ, t_occ = march_occlusion(self.occ_grid, o[fq], d[fq], hits.t[fq],
+                                                   self.occ_locality, return_t=True)
+                    s = _travel_occlude_travel(spec[fq], hits.t[fq], a_occ, t_occ, self.D,
+                                               model, A_MAX)
+                else:
+                    s = F.travel(spec[fq], np.minimum(hits.t[fq], self.D), model, A_MAX)
                 cos_i = np.abs(_dot(ng[fq], wi[fq]))
                 s = F.onto_surface(s, cos_i, model, A_MAX)
                 spec[fq] = s
