@@ -91,6 +91,9 @@ def add_parser(sub) -> None:
                    help="scene class for the targets section (default: all targets listed as 'n/a')")
     c.add_argument("--cycles-max-samples", type=int, default=1 << 20, metavar="N",
                    help="largest Cycles ladder sample count (default: no practical cap)")
+    c.add_argument("--from-csv", action="store_true",
+                   help="no renders: rebuild the report and plot from DIR/convergence.csv "
+                        "(the bias/noise and throughput sections are kept from DIR/report.md)")
     c.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
 
 
@@ -511,11 +514,14 @@ def report(path, a, runs, ref, floors, masks, budget, notes, interrupted) -> dic
     for m in methods:
         rs = [r for r in runs if r.method == m]
         if m != "cycles":
-            lines.append(f"- {m.upper()}: {np.mean([len(r.rows) for r in rs]):.0f} passes, setup "
-                         f"{np.mean([r.setup_seconds for r in rs]):.2f} s, "
-                         f"{rs[0].rows[-1]['photons'] / 1e6 if rs[0].rows else 0:.1f} M photons.")
+            lines.append(f"- {m.upper()}: passes per seed {[len(r.rows) for r in rs]}, photons (M) "
+                         f"{[round(int(r.rows[-1]['photons']) / 1e6, 1) for r in rs if r.rows]}, "
+                         f"setup {np.mean([r.setup_seconds for r in rs]):.2f} s.")
         else:
             lines.append(f"- CYCLES: ladder up to {rs[0].rows[-1]['samples'] if rs[0].rows else 0} spp.")
+            if any(r.rows and r.rows[-1]["seconds"] < budget for r in rs):
+                lines.append("  The ladder stopped before the budget (--cycles-max-samples or "
+                             "Ctrl-C): after its last point Cycles' error is held constant.")
     lines += ["", "## Error at fractions of the budget", "",
               "| method | " + " | ".join(f"relMSE @{int(f * 100)}% ({f * budget:g} s)" for f in FRACTIONS)
               + " | excess @100% | RMSE @100% | MRE @100% |",
@@ -572,8 +578,12 @@ def report(path, a, runs, ref, floors, masks, budget, notes, interrupted) -> dic
                               f"at equal time: PPM/Cycles relMSE = {rv:.3g} "
                               f"({'%.3gx lower' % (1 / rv) if rv < 1 else '%.3gx higher' % rv})."]
 
+    carry = getattr(a, "_carry", None) or {}
     bn = {}
-    if a.seeds >= 2:
+    if "## Bias" in carry:
+        lines += ["", carry["## Bias"]]
+        bn = carry.get("bias_noise", {})
+    elif a.seeds >= 2:
         lines += ["", "## Bias and noise of the final images (relMSE units)", "",
                   "bias2 + noise = expected relMSE of one render (core.metrics.bias_noise).", "",
                   "| method | bias2 | noise | mean-image relMSE |", "|---|---|---|---|"]
@@ -581,12 +591,12 @@ def report(path, a, runs, ref, floors, masks, budget, notes, interrupted) -> dic
             rs = [r for r in runs if r.method == m and r.image is not None]
             if m == "cycles":
                 # The ladder point closest to the budget that every seed has.
-                imgs = []
+                # The largest sample count every seed rendered within the budget.
+                common = None
                 for r in rs:
-                    ok = [row for row in r.rows if row["seconds"] <= budget] or r.rows[:1]
-                    imgs.append((ok[-1]["samples"], r))
-                n_common = min(s for s, _ in imgs) if imgs else 0
-                rs_imgs = [r.ladder_images[n_common] for _, r in imgs] if imgs else []
+                    ok = {row["samples"] for row in r.rows if row["seconds"] <= budget}
+                    common = ok if common is None else common & ok
+                rs_imgs = ([r.ladder_images[max(common)] for r in rs] if common else [])
             else:
                 rs_imgs = [r.image for r in rs]
             if len(rs_imgs) >= 2:
@@ -597,7 +607,10 @@ def report(path, a, runs, ref, floors, masks, budget, notes, interrupted) -> dic
     summary["bias_noise"] = bn
 
     tp = [r for r in runs if r.throughput]
-    if tp:
+    if "## Throughput" in carry:
+        lines += ["", carry["## Throughput"]]
+        summary["throughput"] = carry.get("throughput", {})
+    elif tp:
         lines += ["", "## Throughput", "",
                   "Photon pass (trace + gather) time / raw Embree `accel.intersect` time for the same "
                   "number of random rays, measured in the same process.", "",
@@ -691,6 +704,8 @@ def converge(a, log=print) -> int:
         for k, m in masks.items():
             floors[k] = M.reference_floor(ref["image"], ref["var"], m)
 
+    if getattr(a, "from_csv", False):
+        return rereport(a, ref, floors, masks, budget, notes, log)
     runs: list[Run] = []
     stop = {"flag": False}
     interrupted = False
@@ -820,6 +835,68 @@ def run_cycles_ladder(run, bpy, scene, seed, budget, max_samples, ref, masks, lo
     log(f"cycles seed {seed}: ladder 1..{run.rows[-1]['samples'] if run.rows else 0} spp, "
         f"last {run.rows[-1]['seconds'] if run.rows else 0:.1f} s.")
     return run
+
+
+def _sections(text: str) -> dict:
+    """{"## <first word>": section text up to the next '## '} of a report.md."""
+    out, cur = {}, None
+    for line in text.splitlines():
+        if line.startswith("## "):
+            cur = " ".join(line.split()[:2])
+            out[cur] = [line]
+        elif cur:
+            out[cur].append(line)
+    return {k: "\n".join(v).rstrip() for k, v in out.items()}
+
+
+def rereport(a, ref, floors, masks, budget, notes, log) -> int:
+    """--from-csv: rebuild report.md, summary.json and the plot from DIR/convergence.csv."""
+    path = os.path.join(a.out, "convergence.csv")
+    if not os.path.isfile(path):
+        raise ConvergeError(3, f"--from-csv: '{path}' does not exist.")
+    runs: dict = {}
+    with open(path) as f:
+        for row in csv.DictReader(f):
+            key = (row["method"], int(row["seed"]))
+            r = runs.setdefault(key, Run(*key))
+            d = {k: (v if k in ("method",) else (float(v) if v not in ("", None) else ""))
+                 for k, v in row.items()}
+            d["seed"] = int(row["seed"])
+            for k in ("point", "photons", "samples"):
+                if d[k] != "":
+                    d[k] = int(d[k])
+            r.rows.append(d)
+    runs = list(runs.values())
+    for r in runs:
+        if r.method != "cycles" and r.rows:
+            r.setup_seconds = r.rows[0]["seconds"] - r.rows[0]["render_seconds"]
+    a.seeds = len({r.seed for r in runs})
+    carry = {}
+    rp = os.path.join(a.out, "report.md")
+    if os.path.isfile(rp):
+        with open(rp) as f:
+            sec = _sections(f.read())
+        for k in ("## Bias", "## Throughput"):
+            if k in sec:
+                carry[k] = sec[k]
+    sp = os.path.join(a.out, "summary.json")
+    if os.path.isfile(sp):
+        with open(sp) as f:
+            old = json.load(f)
+        carry["bias_noise"] = old.get("bias_noise", {})
+        carry["throughput"] = old.get("throughput", {})
+    a._carry = carry
+    notes = notes + ["Report rebuilt from convergence.csv (--from-csv); the bias/noise and "
+                     "throughput sections are those of the original run."]
+    msg = plot(os.path.join(a.out, "convergence.png"), runs, budget, floors,
+               f"{os.path.basename(a.blend)}: relMSE vs time ({budget:g} s budget)")
+    if msg:
+        notes.append(msg)
+    summary = report(rp, a, runs, ref, floors, masks, budget, notes, False)
+    with open(sp, "w") as f:
+        json.dump(summary, f, indent=1, default=lambda o: None if not np.isfinite(o) else o)
+    log(f"Rebuilt report.md, summary.json{'' if msg else ', convergence.png'} in {a.out}.")
+    return 0
 
 
 def _write_all(a, runs, ref, floors, masks, budget, notes, interrupted, log):
