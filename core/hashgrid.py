@@ -337,6 +337,28 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
 _sort_photons_serial = njit(cache=True)(_sort_photons.py_func)
 
 
+@njit(cache=True, inline="always")
+def _accepts(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
+    """Gather rules (1)-(4) of the module docstring for photon (x, w, g) and
+    visible point v: the one place they are written (count and pair passes)."""
+    dx = x - vp_rec[v, 0]
+    dy = y - vp_rec[v, 1]
+    dz = z - vp_rec[v, 2]
+    if not (dx * dx + dy * dy + dz * dz < vp_rec[v, 3]):                    # (1)
+        return False
+    nvx = vp_rec[v, 4]
+    nvy = vp_rec[v, 5]
+    nvz = vp_rec[v, 6]
+    if not (wx * nvx + wy * nvy + wz * nvz > 0.0):                          # (2)
+        return False
+    cg = gx * nvx + gy * nvy + gz * nvz
+    if not (cg > cos_ng):                                                   # (3)
+        return False
+    if cg <= COS_NG_DEFAULT and dx * nvx + dy * nvy + dz * nvz < 0.0:       # (4)
+        return False
+    return True
+
+
 @njit(cache=True)
 def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                  vp_rec, cos_ng, cell_start, vp_ids,
@@ -368,20 +390,7 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         mask = np.uint64(0)
         for e in range(e0, e1):
             v = vp_ids[e]
-            dx = x - vp_rec[v, 0]
-            dy = y - vp_rec[v, 1]
-            dz = z - vp_rec[v, 2]
-            if not (dx * dx + dy * dy + dz * dz < vp_rec[v, 3]):            # (1)
-                continue
-            nvx = vp_rec[v, 4]
-            nvy = vp_rec[v, 5]
-            nvz = vp_rec[v, 6]
-            if not (wx * nvx + wy * nvy + wz * nvz > 0.0):                  # (2)
-                continue
-            if not (gx * nvx + gy * nvy + gz * nvz > cos_ng):               # (3)
-                continue
-            if (gx * nvx + gy * nvy + gz * nvz <= COS_NG_DEFAULT
-                    and dx * nvx + dy * nvy + dz * nvz < 0.0):               # (4)
+            if not _accepts(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
                 continue
             M[v] += 1
             if vp_rec[v, 7] != 0.0:
@@ -446,20 +455,7 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
         gz = np.float64(ph_ng[q, 2])
         for e in range(e0, e1):
             v = vp_ids[e]
-            dx = x - vp_rec[v, 0]
-            dy = y - vp_rec[v, 1]
-            dz = z - vp_rec[v, 2]
-            if not (dx * dx + dy * dy + dz * dz < vp_rec[v, 3]):
-                continue
-            nvx = vp_rec[v, 4]
-            nvy = vp_rec[v, 5]
-            nvz = vp_rec[v, 6]
-            if not (wx * nvx + wy * nvy + wz * nvz > 0.0):
-                continue
-            if not (gx * nvx + gy * nvy + gz * nvz > cos_ng):
-                continue
-            if (gx * nvx + gy * nvy + gz * nvz <= COS_NG_DEFAULT
-                    and dx * nvx + dy * nvy + dz * nvz < 0.0):
+            if not _accepts(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
                 continue
             if vp_rec[v, 7] == 0.0:
                 pair_vp[k] = v
