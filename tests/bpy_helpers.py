@@ -195,3 +195,26 @@ def save_blend(path):
     """Save the current file as ``path`` (a copy: the session keeps its own file)."""
     bpy().ops.wm.save_as_mainfile(filepath=str(path), copy=True, check_existing=False)
     return str(path)
+
+
+def interrupt_after(p, marker: str, settle: float, timeout: float = 120.0):
+    """Wait until the subprocess ``p`` prints ``marker`` on stderr, wait
+    ``settle`` seconds, send SIGINT; return (stdout, stderr, seconds from the
+    signal to the exit).  Kills ``p`` if anything goes wrong."""
+    import signal
+    import time
+    try:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            line = p.stderr.readline()
+            if marker in line or not line:
+                break
+        assert p.poll() is None, "the process ended before Ctrl-C"
+        time.sleep(settle)
+        t0 = time.monotonic()
+        p.send_signal(signal.SIGINT)
+        stdout, stderr = p.communicate(timeout=60)
+        return stdout, stderr, time.monotonic() - t0
+    finally:
+        if p.poll() is None:
+            p.kill()

@@ -1,10 +1,8 @@
 """The ``fppm`` command: outputs, settings from the file and the flags, exit codes, Ctrl-C."""
 import json
 import os
-import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -149,22 +147,8 @@ def test_ctrl_c_writes_the_last_complete_pass(blends, tmp_path):
                                              "--passes", "50", "--photons", "400000"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
                          cwd=str(tmp_path))
-    try:
-        # Not a terminal: the progress bar prints a line on the first pass.
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            line = p.stderr.readline()
-            if "Pass 1 " in line or not line:
-                break
-        assert p.poll() is None, "render ended before Ctrl-C"
-        time.sleep(0.2)
-        t0 = time.monotonic()
-        p.send_signal(signal.SIGINT)
-        stdout, stderr = p.communicate(timeout=60)
-        dt = time.monotonic() - t0
-    finally:
-        if p.poll() is None:
-            p.kill()
+    # Not a terminal: the progress bar prints a line on the first pass.
+    stdout, stderr, dt = H.interrupt_after(p, "Pass 1 ", settle=0.2)
     assert p.returncode == 130, stderr[-3000:]
     # Cancelled within a second of the signal (the pass in flight is dropped),
     # plus the time to write the EXR and the PNG.

@@ -9,9 +9,7 @@ second time from the cache).  Total about 35 s on this machine.
 import csv
 import json
 import os
-import signal
 import subprocess
-import time
 
 import numpy as np
 import pytest
@@ -173,21 +171,7 @@ def test_ctrl_c_writes_what_is_done(tmp_path):
         "--reference", os.path.join(refs.REFERENCES_DIR, "t_light_point.exr"),
         "--methods", "fppm,cycles"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env=_env(tmp_path), cwd=str(tmp_path))
-    try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            line = p.stderr.readline()
-            if "[fppm seed 0]" in line or not line:
-                break
-        assert p.poll() is None, "ended before Ctrl-C"
-        time.sleep(1.0)
-        t0 = time.monotonic()
-        p.send_signal(signal.SIGINT)
-        stdout, stderr = p.communicate(timeout=60)
-        dt = time.monotonic() - t0
-    finally:
-        if p.poll() is None:
-            p.kill()
+    stdout, stderr, dt = H.interrupt_after(p, "[fppm seed 0]", settle=1.0)
     assert p.returncode == 130, stderr[-3000:]
     assert dt < 10.0           # the pass in flight, the raw-ray timing and the outputs
     _, rows = _rows(out)
