@@ -56,7 +56,9 @@ from ..core import metrics as M
 
 REF_VERSION = "fppm-converge-ref-2"   # 2: with DiffDir/DiffInd passes
 REF_SEEDS = (1_000_003, 1_000_004)     # independent of every method's seeds
-METHODS = ("fppm", "ppm", "cycles")
+# "paper": FPPM with the paper's printed frequency model (frequency_model =
+# PAPER), to compare the corrected model against it at equal time.
+METHODS = ("fppm", "paper", "ppm", "cycles")
 FRACTIONS = (0.1, 0.5, 1.0)
 KINDS = ("diffuse", "indirect", "caustic-small", "caustic-large")
 
@@ -81,7 +83,8 @@ def add_parser(sub) -> None:
     g.add_argument("--cycles-samples", type=int, metavar="N",
                    help="render the reference with Cycles at N samples (default: the file's)")
     c.add_argument("--methods", default="fppm,ppm,cycles",
-                   help="comma-separated subset of fppm,ppm,cycles (default: all)")
+                   help="comma-separated subset of fppm,paper,ppm,cycles (default: fppm,ppm,cycles; "
+                        "'paper' is FPPM with the paper's printed frequency model)")
     c.add_argument("--seeds", type=int, default=1, metavar="K", help="seeds per method (K >= 2: bias/noise)")
     c.add_argument("--seed", type=int, default=0, metavar="N", help="first seed (default 0)")
     c.add_argument("--resolution", type=int, metavar="PCT", help="resolution percentage (1-1000)")
@@ -429,7 +432,7 @@ def plot(path: str, runs, budget, floors, title) -> str | None:
         import matplotlib.pyplot as plt
     except ImportError:
         return "matplotlib is not installed: convergence.png skipped (pip install matplotlib)."
-    colors = {"fppm": "tab:red", "ppm": "tab:blue", "cycles": "tab:green"}
+    colors = {"fppm": "tab:red", "paper": "tab:orange", "ppm": "tab:blue", "cycles": "tab:green"}
     fig, axes = plt.subplots(2, 2, figsize=(10, 8), sharex=True)
     methods = [m for m in METHODS if any(r.method == m and r.rows for r in runs)]
     for ax, reg in zip(axes.ravel(), M.REGIONS):
@@ -556,7 +559,8 @@ def report(path, a, runs, ref, floors, masks, budget, notes, interrupted) -> dic
                 return float("nan")
         return a_ / b_ if b_ and np.isfinite(a_) and np.isfinite(b_) else float("nan")
 
-    pairs = [(n, d) for n, d in (("fppm", "ppm"), ("fppm", "cycles"), ("ppm", "cycles"))
+    pairs = [(n, d) for n, d in (("fppm", "ppm"), ("fppm", "paper"), ("paper", "ppm"),
+                                  ("fppm", "cycles"), ("ppm", "cycles"))
              if n in methods and d in methods]
     summary["ratios"] = {}
     if pairs:
@@ -661,7 +665,7 @@ def converge(a, log=print) -> int:
     methods = [m.strip() for m in a.methods.split(",") if m.strip()]
     bad = [m for m in methods if m not in METHODS]
     if bad or not methods:
-        raise ConvergeError(2, f"--methods: unknown {bad or 'empty'}; choose from fppm,ppm,cycles.")
+        raise ConvergeError(2, f"--methods: unknown {bad or 'empty'}; choose from fppm,paper,ppm,cycles.")
     if a.seeds < 1:
         raise ConvergeError(2, "--seeds must be >= 1.")
     if a.resolution is not None and not 1 <= a.resolution <= 1000:
@@ -719,7 +723,7 @@ def converge(a, log=print) -> int:
     import signal
     prev_handler = signal.signal(signal.SIGINT, on_sigint)
     try:
-        if "fppm" in methods or "ppm" in methods:
+        if "fppm" in methods or "ppm" in methods or "paper" in methods:
             from ..core.errors import FPPMError
             from .export import export_scene
             try:
@@ -766,7 +770,12 @@ def run_photon_mapping(run, scene, fscene, budget, photons, ref, masks, log, pro
     from .engine import film_gain
     from .properties import settings_from_scene
     m, seed = run.method, run.seed
-    kw = dict(use_frequency=(m == "fppm"), time_limit=float(budget), max_passes=0, seed=seed)
+    kw = dict(use_frequency=(m in ("fppm", "paper")), time_limit=float(budget), max_passes=0,
+              seed=seed)
+    if m == "paper":
+        kw["frequency_model"] = "PAPER"
+    elif m == "fppm":
+        kw["frequency_model"] = "CORRECTED"
     if photons is not None:
         kw["photons_per_pass"] = photons
     try:

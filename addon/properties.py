@@ -71,6 +71,11 @@ class FPPMRenderSettings(PropertyGroup):
         subtype='FACTOR',
         description="Progressive radius reduction (Hachisuka 2008): the fraction of new "
                     "photons kept per pass; lower shrinks the radius faster")
+    cap_radius_at_edges: BoolProperty(
+        name="Cap Radius at Edges", default=_D.cap_radius_at_edges,
+        description="Keep each pixel's initial radius within half the distance to the nearest "
+                    "surface edge seen around it, so that kernels do not darken or blend "
+                    "across the edges of tables, walls and objects")
 
     # --- Light paths
     max_bounces: IntProperty(

@@ -46,6 +46,7 @@ class FPPM_RENDER_PT_kernel(FPPMPanel, Panel):
             col.prop(s, "initial_radius_px")
         else:
             col.prop(s, "initial_radius")
+        col.prop(s, "cap_radius_at_edges")
         col.prop(s, "alpha")
 
 

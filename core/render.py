@@ -37,6 +37,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from . import bsdf as B
+from . import edges
 from . import frequency as F
 from . import hashgrid
 from . import lights as Lt
@@ -184,6 +185,7 @@ class Renderer:
         self.photons_emitted = 0
         self.elapsed = 0.0
         self._fixed_vp: Optional[VisiblePoints] = None
+        self._edge_cap: Optional[np.ndarray] = None
         # Seconds and rays per stage, for the benchmark (ratios, not bare times).
         self.stage_seconds = {k: 0.0 for k in ("camera", "direct", "photon_trace", "gather", "update")}
         self.photon_rays = 0
@@ -355,10 +357,15 @@ class Renderer:
         return surface_point(s.tri_p, s.tri_n, s.tri_uv, h.prim[idx], h.u[idx], h.v[idx])
 
     # -------------------------------------------------------- camera pass
-    def _camera_pass(self, rng) -> tuple[VisiblePoints, np.ndarray]:
+    def _camera_pass(self, rng, centre: bool = False) -> tuple[VisiblePoints, np.ndarray]:
+        """One visible point per pixel; centre=True: through the pixel centre
+        and the lens centre (the boundary cap's pass, core.edges)."""
         st = self.settings
         P = self.px.shape[0]
         u = rng.random((P, 4))
+        if centre:
+            u[:, :2] = 0.5      # FilterSampler.sample(0.5) = 0: the pixel centre
+            u[:, 2:] = 0.0      # lens radius sqrt(0) = 0
         rays, dz = self.camera.generate(self.px, self.py, u[:, :2], u[:, 2:], self.fsamp)
         L = np.zeros((P, 3))
         nL = self.mtab.kind.shape[1]
@@ -546,8 +553,36 @@ class Renderer:
             # Rule: initial radius = initial_radius_px pixel footprints at the
             # visible point's camera depth (slope ignored).
             r = st.initial_radius_px * self.camera.footprint(vp.depth[new])
+        if st.cap_radius_at_edges:
+            r = np.minimum(r, self._boundary_cap()[new])
         r = np.maximum(r, self.radius_floor)
         self.R2[new] = r * r
+
+    def _boundary_cap(self) -> np.ndarray:
+        """(P,) float64 cap on each pixel's initial radius [m] (inf = none):
+        half the distance to the nearest surface boundary seen around the
+        pixel (core.edges.boundary_cap), computed once from a camera pass
+        through the pixel centres.
+
+        Measured on example_blends/indirect_room.blend (128^2, FPPM, 120
+        passes, same seed): relMSE excess against Cycles 8.3e-4 without the
+        cap, 6.3e-4 with it (the pixels next to strong gradients: 6.5e-4 ->
+        4.2e-4).  Taking in addition the minimum over the pixels a filter
+        sample can reach (so that a silhouette pixel's samples on the near
+        object get the near object's radius) gave 8.6e-4: the extra noise of
+        the smaller radii outweighed the bias it removed."""
+        if self._edge_cap is None:
+            st = self.settings
+            vp, _ = self._camera_pass(np.random.default_rng([st.seed, 0xED6E]), centre=True)
+            fp = self.camera.footprint(vp.depth)
+            if st.radius_mode == "WORLD":
+                r_px = st.initial_radius / np.maximum(fp[vp.valid], 1e-300)
+                reach = edges.reach_for(float(r_px.max()) if r_px.size else 1.0)
+            else:
+                reach = edges.reach_for(st.initial_radius_px)
+            self._edge_cap = edges.boundary_cap(vp.p, vp.ng, vp.wo, vp.valid, fp,
+                                                self.height, self.width, reach)
+        return self._edge_cap
 
     @property
     def radius_floor(self) -> float:

@@ -29,8 +29,9 @@ class RenderSettings:
     initial_radius_px: float = 2.0   # AUTO: radius = this many pixel footprints
     initial_radius: float = 0.05     # WORLD: radius in metres
     alpha: float = 0.7               # PPM radius reduction (Hachisuka 2008)
+    cap_radius_at_edges: bool = True  # initial radius <= half the distance to a surface boundary (core.edges)
     # --- Light paths
-    max_bounces: int = 8
+    max_bounces: int = 16            # as the example scenes' Cycles Light Paths
     rr_start: int = 3                # Russian roulette from this bounce on
     photons_for_direct: bool = False  # classic PPM: photons also for direct light
     fixed_visible_points: bool = False  # classic PPM: trace visible points once

@@ -78,7 +78,8 @@ def test_to_settings_round_trips_every_field():
     sc = H.empty_scene()
     s = RenderSettings(time_limit=12.5, max_passes=7, photons_per_pass=12345, seed=99,
                        radius_mode="WORLD", initial_radius_px=3.5, initial_radius=0.02,
-                       alpha=0.6, max_bounces=5, rr_start=2, photons_for_direct=True,
+                       alpha=0.6, cap_radius_at_edges=False, max_bounces=5, rr_start=2,
+                       photons_for_direct=True,
                        fixed_visible_points=True, use_frequency=False, frequency_fraction=0.3,
                        frequency_model="PAPER", frequency_estimator="QUANTILE",
                        occlusion_grid_res=32, aov_radius=True, aov_predicted_radius=True,
