@@ -49,7 +49,7 @@ def tiny(tmp_path_factory):
     out = tmp / "out"
     r = _run(["converge", refs.scene_path("t_light_point"), "--time-limit", BUDGET,
               "--out", out, "--reference", os.path.join(refs.REFERENCES_DIR, "t_light_point.exr"),
-              "--methods", "fppm,ppm,cycles", "--seeds", len(SEEDS),
+              "--methods", "fppm,paper,ppm,cycles", "--seeds", len(SEEDS),
               "--cycles-max-samples", 16, "--kind", "diffuse"], tmp)
     return r, out
 
@@ -66,7 +66,7 @@ def test_tiny_report_runs_and_writes_everything(tiny):
     except ImportError:
         assert "matplotlib is not installed" in r.stdout
     # Throughput line: photon pass / raw Embree, for each FPPM/PPM run.
-    assert r.stdout.count("x raw Embree") == 2 * len(SEEDS)
+    assert r.stdout.count("x raw Embree") == 3 * len(SEEDS)   # fppm, paper, ppm
     # Progress lines on stderr.
     assert "[fppm seed 0]" in r.stderr and "[cycles seed 1]" in r.stderr
 
@@ -113,6 +113,7 @@ def test_report_tables_and_equal_time_ratios(tiny):
     text = (out / "report.md").read_text()
     for s in ("## Error at fractions of the budget", "| FPPM |", "| PPM |", "| CYCLES |",
               "## Regions at 100%", "## Equal-time relMSE ratios", "| FPPM / PPM |",
+              "| PAPER |", "| FPPM / PAPER |",
               "## Bias and noise", "## Throughput", "## Targets"):
         assert s in text, s
     assert ("MET" in text) or ("MISSED" in text)
@@ -128,12 +129,15 @@ def test_report_tables_and_equal_time_ratios(tiny):
                                         [float(x["relmse_all"]) for x in rs]))
         return float(np.mean(vals))
 
-    for m in ("fppm", "ppm", "cycles"):
+    for m in ("fppm", "paper", "ppm", "cycles"):
         for f in ("0.5", "1.0"):
             assert summ["methods"][m]["relmse"][f] == pytest.approx(err(m, float(f) * BUDGET),
                                                                    rel=1e-4)
     assert summ["ratios"]["fppm/ppm"]["raw"] == pytest.approx(
         err("fppm", BUDGET) / err("ppm", BUDGET), rel=1e-4)
+    # The corrected model against the paper's printed one (issue 4).
+    assert summ["ratios"]["fppm/paper"]["raw"] == pytest.approx(
+        err("fppm", BUDGET) / err("paper", BUDGET), rel=1e-4)
     # The reference's variance (_var.exr beside it) gives the floor: the
     # t_light_point.json noise estimate (same formula, same file).
     meta = refs.load_reference("t_light_point")[1]
