@@ -360,8 +360,12 @@ class PhotonTracer:
             return 1, (g.dist, g.cone, mb.bmin, mb.bcone, mb.vmin, mb.vcone, mb.has_voxel_level,
                        mb.B, g.lo, g.cell, g.res, float(self.occ_locality), g.voxel_diagonal)
         z1, z4 = np.zeros((1, 1, 1), np.float32), np.zeros((1, 1, 1, 4), np.float32)
-        return (0 if g is None else 2), (z1, z4, np.zeros((1, 1, 1)), np.zeros((1, 1, 1, 4)), z1,
-                                         z4, False, 1, np.zeros(3), np.ones(3), 1, 0.0, 0.0)
+        # Same dtypes and ranks as a real grid's MarchBlocks (block cones
+        # (NB,NB,NB,8) float64, voxel cones (R,R,R,8) int16), so the kernel
+        # compiles once for both.
+        return (0 if g is None else 2), (z1, z4, np.zeros((1, 1, 1)), np.zeros((1, 1, 1, 8)), z1,
+                                         np.zeros((1, 1, 1, 8), np.int16), False, 1, np.zeros(3),
+                                         np.ones(3), 1, 0.0, 0.0)
 
     def _spectrum_leaving(self, spec_hit, n_next, prim, rec, nxt, d64):
         """Frequency photons leaving the surface: off_surface, lobe, curvature."""

@@ -1,0 +1,119 @@
+"""Occlusion march micro-benchmark: the photon segments of bench_render's Cornell box.
+
+    .venv/bin/python bench/bench_march.py [--photons 40000] [--repeat 15]
+                                          [--ref OLD_OCCLUSION.py]
+
+Captures the segments the frequency photons march (the numpy reference path of
+core.photons calls ``march_occlusion``; the compiled path marches the same
+segments inside core.frequency_kernels), then times the block march
+(``occlusion._march``) against the dense voxel-by-voxel reference
+(``_march_dense``) and, with ``--ref``, against another version of
+core/occlusion.py (e.g. ``git show HEAD~1:core/occlusion.py > /tmp/old.py``),
+on the same segments and 200k random ones, and checks that a_occ (and t_occ
+against --ref) are bit-identical.  Ratios only, each the best of ``--repeat``
+interleaved runs (the machine is shared); the us/segment figure is for scale.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import sys
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "tests"))
+sys.path.insert(0, os.path.join(ROOT, "bench"))
+
+from core import occlusion as Occ  # noqa: E402
+
+
+def capture(photons: int, seed: int = 1):
+    """(grid, locality, o, d, t_end) of the marched segments of `photons`
+    frequency photons in bench_render's Cornell box."""
+    import bench_render as BR
+    from core.render import Renderer
+    from core.settings import RenderSettings
+    r = Renderer(BR.cornell(64), RenderSettings(max_passes=10, photons_per_pass=photons,
+                                                use_frequency=True), log=lambda s: None)
+    tr = r.tracer
+    tr.compiled_frequency = False
+    segs = []
+    f = Occ.march_occlusion
+
+    def rec(grid, o, d, t, loc, **k):
+        segs.append((np.array(o), np.array(d), np.array(t)))
+        return f(grid, o, d, t, loc, **k)
+    Occ.march_occlusion = rec
+    try:
+        tr.trace(photons, photons, np.random.default_rng(seed))
+    finally:
+        Occ.march_occlusion = f
+    o, d, t = (np.concatenate([s[k] for s in segs]) for k in range(3))
+    return r.occ_grid, float(r.occ_locality), o, d, t
+
+
+def _args(mod, g):
+    mb = mod.march_blocks(g)
+    return (g.dist, g.cone, mb.bmin, mb.bcone, mb.vmin, mb.vcone, mb.has_voxel_level, mb.B,
+            g.lo, g.cell, g.res)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--photons", type=int, default=40_000)
+    ap.add_argument("--repeat", type=int, default=15)
+    ap.add_argument("--ref", default=None, help="another core/occlusion.py to compare with")
+    a = ap.parse_args(argv)
+    g, loc, o, d, t = capture(a.photons)
+    t_skip = g.voxel_diagonal
+    rng = np.random.default_rng(3)
+    M = 200_000
+    o2 = g.lo + rng.random((M, 3)) * (g.hi - g.lo)
+    d2 = rng.normal(size=(M, 3))
+    d2 /= np.linalg.norm(d2, axis=1, keepdims=True)
+    t2 = rng.uniform(0, 2, M)
+
+    fns = {"block march": lambda o_, d_, t_, out, ot: Occ._march(
+        *_args(Occ, g), o_, d_, t_, loc, t_skip, out, ot)}
+    if a.ref:
+        spec = importlib.util.spec_from_file_location("occlusion_ref", a.ref)
+        ref = importlib.util.module_from_spec(spec)
+        sys.modules["occlusion_ref"] = ref            # dataclasses look it up
+        spec.loader.exec_module(ref)
+        gr = ref.OcclusionGrid(**{k: getattr(g, k) for k in g.__dataclass_fields__})
+        fns["--ref march"] = lambda o_, d_, t_, out, ot: ref._march(
+            *_args(ref, gr), o_, d_, t_, loc, t_skip, out, ot)
+    fns["dense march"] = lambda o_, d_, t_, out, ot: Occ._march_dense(
+        g.dist, g.cone, g.lo, g.cell, g.res, o_, d_, t_, loc, t_skip, out)
+
+    for name, (oo, dd, tt) in (("Cornell photon segments", (o, d, t)),
+                               ("random segments (length U(0, 2) m)", (o2, d2, t2))):
+        N = len(oo)
+        res, ts = {}, {k: [] for k in fns}
+        for rep in range(a.repeat + 1):           # first round: compilation
+            for k, f in fns.items():
+                out, ot = np.empty(N), np.full(N, np.inf)
+                t0 = time.perf_counter()
+                f(oo, dd, tt, out, ot)
+                if rep:
+                    ts[k].append(time.perf_counter() - t0)
+                res[k] = (out, ot)
+        base = min(ts["block march"])
+        print(f"{name}: {N} segments, {np.isfinite(res['block march'][0]).mean():.0%} occluded; "
+              f"block march {base / N * 1e6:.2f} us/segment (scale only)")
+        for k in fns:
+            if k == "block march":
+                continue
+            same_a = np.array_equal(res[k][0], res["block march"][0])
+            same_t = np.array_equal(res[k][1], res["block march"][1]) if k != "dense march" else None
+            print(f"  {k} / block march: {min(ts[k]) / base:.3f}x; identical a_occ: {same_a}"
+                  + ("" if same_t is None else f", t_occ: {same_t}"))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
