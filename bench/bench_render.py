@@ -156,7 +156,8 @@ def make_renderer(scene, a, use_frequency, tm, before=False):
     """before: frequency photons as before core.frequency_kernels (numpy
     operators, dense march)."""
     st = RenderSettings(max_passes=1000, photons_per_pass=a.photons,
-                        use_frequency=use_frequency)
+                        use_frequency=use_frequency,
+                        max_bounces=a.bounces or RenderSettings().max_bounces)
     r = Renderer(scene, st, log=lambda s: None)
     r.tracer.fast = not a.numpy
     r.tracer.compiled_frequency = not before
@@ -241,6 +242,8 @@ def main(argv=None):
     ap.add_argument("--photons", type=int, default=200_000)
     ap.add_argument("--passes", type=int, default=3)
     ap.add_argument("--frequency", action="store_true", help="25%% frequency photons")
+    ap.add_argument("--bounces", type=int, default=0,
+                    help="max_bounces (default: RenderSettings' default, 16)")
     ap.add_argument("--numpy", action="store_true", help="the numpy reference tracer")
     ap.add_argument("--repeat", type=int, default=3,
                     help="interleaved repeats of the frequency measurements (best of)")

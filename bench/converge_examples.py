@@ -62,9 +62,13 @@ NOTES = [
     "the methods, so their targets are not judged reliably; a light-tracer reference cannot be "
     "made for them (the camera sees the mirror ring / the glass sphere).",
     "'bias2' in the per-scene bias/noise tables is measured against the reference and so "
-    "includes its noise floor (given in each report's header): on indirect_room Cycles' "
-    "bias2 (1.1e-3) equals the floor (1.1e-3), i.e. Cycles is unbiased, as it should be, while "
-    "FPPM's 2.2e-3 leaves a real bias of about 1.1e-3 (PPM 0.9e-3).",
+    "includes its noise floor (given in each report's header): Cycles' own bias2 equals the "
+    "floor (it is unbiased, as it should be); what FPPM's and PPM's bias2 exceed it by is their "
+    "real bias.",
+    "Before this run, FPPM used 8 bounces while the example scenes' Cycles Light Paths use 16: "
+    "the indirectly lit room came out 2.8% darker than Cycles, a bias shared by FPPM and PPM that "
+    "held both at the same error (FPPM/PPM 0.99).  The default is now 16, and each pixel's "
+    "initial radius is capped at surface edges (core/edges.py).",
     "Region masks come from the reference (core/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
 ]
