@@ -134,27 +134,6 @@ def reference_key(blend_bytes: bytes, settings: dict) -> str:
     return h.hexdigest()
 
 
-def read_exr_parts(path: str) -> dict:
-    """{layer: (H, W, C) float32} of every part of a (multi-part) EXR.
-
-    Blender 5 writes a multilayer render as one part per pass ("ViewLayer.Combined",
-    "ViewLayer.Diffuse Direct", ...); core.imageio.read_exr reads the first part only.
-    """
-    import OpenEXR
-    order = "RGBAXYZ"
-    out = {}
-    with OpenEXR.File(path, separate_channels=True) as f:
-        for part in f.parts:
-            groups: dict = {}
-            for name, ch in part.channels.items():
-                layer, _, c = name.rpartition(".")
-                groups.setdefault(layer or "Combined", {})[c] = np.asarray(ch.pixels, np.float32)
-            for layer, chs in groups.items():
-                keys = sorted(chs, key=lambda c: (order.find(c) if c in order else len(order), c))
-                out[layer] = np.stack([chs[k] for k in keys], axis=2)
-    return out
-
-
 def _layer(layers: dict, name: str):
     """A layer of read_exr's dict by exact name or by '<view layer>.<name>' suffix."""
     if name in layers:
@@ -252,7 +231,7 @@ def cycles_render(bpy, scene, samples: int, seed: int, passes: bool = False):
             bpy.ops.render.render()
             dt = time.perf_counter() - t0
             bpy.data.images["Render Result"].save_render(filepath=p, scene=scene)
-        layers = read_exr_parts(p) if passes else read_exr(p)
+        layers = read_exr(p)
     return layers, dt
 
 

@@ -125,29 +125,30 @@ def write_exr(path: str, layers: dict, metadata: dict | None = None) -> None:
 
 
 def read_exr(path: str) -> dict[str, np.ndarray]:
-    """Read an EXR written by :func:`write_exr` (or any single-part EXR).
+    """Read an EXR written by :func:`write_exr`, or any single- or multi-part EXR.
 
     Returns ``{layer: (H, W, C) float32}`` (row 0 at the top).  Plain
     ``R, G, B[, A]`` channels come back as ``"Combined"``; ``name.c`` channels
     are grouped by ``name`` and ordered by :data:`CHANNEL_LETTERS` (then
-    alphabetically for unknown letters).
+    alphabetically for unknown letters).  Every part is read: Blender 5 writes
+    a multilayer render as one part per pass ("ViewLayer.Combined",
+    "ViewLayer.Diffuse Direct", ...).
     """
     import OpenEXR
 
     if not os.path.isfile(path):
         raise OSError(f"Cannot read '{path}': no such file.")
-    with OpenEXR.File(path, separate_channels=True) as f:
-        raw = {name: np.asarray(ch.pixels, dtype=np.float32)
-               for name, ch in f.channels().items()}
-    groups: dict[str, dict[str, np.ndarray]] = {}
-    for name, px in raw.items():
-        layer, _, c = name.rpartition(".")
-        groups.setdefault(layer or COMBINED, {})[c] = px
     order = "RGBAXYZ"
     out = {}
-    for layer, chs in groups.items():
-        keys = sorted(chs, key=lambda c: (order.find(c) if c in order else len(order), c))
-        out[layer] = np.stack([chs[k] for k in keys], axis=2)
+    with OpenEXR.File(path, separate_channels=True) as f:
+        for part in f.parts:
+            groups: dict[str, dict[str, np.ndarray]] = {}
+            for name, ch in part.channels.items():
+                layer, _, c = name.rpartition(".")
+                groups.setdefault(layer or COMBINED, {})[c] = np.asarray(ch.pixels, np.float32)
+            for layer, chs in groups.items():
+                keys = sorted(chs, key=lambda c: (order.find(c) if c in order else len(order), c))
+                out[layer] = np.stack([chs[k] for k in keys], axis=2)
     return out
 
 
