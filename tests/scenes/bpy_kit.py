@@ -15,6 +15,8 @@ import math
 import bpy
 from mathutils import Matrix, Vector
 
+from fppm.addon.converge import cycles_reference_setup
+
 
 # --------------------------------------------------------------------- scene
 def reset_scene(resolution=(64, 64), samples=256, world_color=(0.0, 0.0, 0.0)):
@@ -30,31 +32,18 @@ def reset_scene(resolution=(64, 64), samples=256, world_color=(0.0, 0.0, 0.0)):
     """
     bpy.ops.wm.read_factory_settings(use_empty=True)
     sc = bpy.context.scene
+    # The settings shared with `fppm converge`'s references: engine, CPU,
+    # view transform, no denoising / adaptive sampling / clamping, caustics.
+    cycles_reference_setup(sc)
     r = sc.render
-    r.engine = 'CYCLES'
     r.resolution_x, r.resolution_y = resolution
     r.resolution_percentage = 100
     r.pixel_aspect_x = r.pixel_aspect_y = 1.0
     r.film_transparent = False
     r.use_border = False
-    r.use_persistent_data = False
     r.threads_mode = 'AUTO'
-    vs = sc.view_settings
-    vs.view_transform = 'Standard'
-    vs.look = 'None'
-    vs.exposure = 0.0
-    vs.gamma = 1.0
     c = sc.cycles
-    c.device = 'CPU'
     c.samples = samples
-    c.use_adaptive_sampling = False
-    c.use_denoising = False
-    c.sample_clamp_direct = 0.0
-    c.sample_clamp_indirect = 0.0
-    c.light_sampling_threshold = 0.0
-    c.caustics_reflective = True
-    c.caustics_refractive = True
-    c.blur_glossy = 0.0
     # Deep enough that truncation is negligible in these closed/open scenes
     # (every extra bounce multiplies by albedo * (1 - escape) < 0.6).
     c.max_bounces = 16
@@ -68,7 +57,6 @@ def reset_scene(resolution=(64, 64), samples=256, world_color=(0.0, 0.0, 0.0)):
     c.pixel_filter_type = 'BLACKMAN_HARRIS'
     c.filter_width = 1.5
     c.seed = 0
-    c.use_animated_seed = False
     c.film_exposure = 1.0
     c.use_guiding = False
     set_world(sc, world_color)
