@@ -84,7 +84,8 @@ def add_parser(sub) -> None:
                    help="render the reference with Cycles at N samples (default: the file's)")
     c.add_argument("--methods", default="fppm,ppm,cycles",
                    help="comma-separated subset of fppm,paper,ppm,cycles (default: fppm,ppm,cycles; "
-                        "'paper' is FPPM with the paper's printed frequency model)")
+                        "'fppm' uses the corrected frequency model whatever the file sets, "
+                        "'paper' the paper's printed one)")
     c.add_argument("--seeds", type=int, default=1, metavar="K", help="seeds per method (K >= 2: bias/noise)")
     c.add_argument("--seed", type=int, default=0, metavar="N", help="first seed (default 0)")
     c.add_argument("--resolution", type=int, metavar="PCT", help="resolution percentage (1-1000)")

@@ -80,7 +80,9 @@ class FPPMRenderSettings(PropertyGroup):
     # --- Light paths
     max_bounces: IntProperty(
         name="Max Bounces", default=_D.max_bounces, min=1, max=1024, soft_max=64,
-        description="Maximum number of bounces of camera and photon paths")
+        description="Maximum number of bounces of camera and photon paths. To compare with "
+                    "Cycles, use the same number in Cycles' Light Paths (default 16, as the "
+                    "example scenes)")
     rr_start: IntProperty(
         name="Russian Roulette Start", default=_D.rr_start, min=0, max=1024, soft_max=32,
         description="Bounce from which paths are terminated at random by their throughput")

@@ -1063,6 +1063,21 @@ def march_blocks(grid: OcclusionGrid, B: int = MARCH_BLOCK) -> MarchBlocks:
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _clip_slab(lo, c, R, o, d, ta, tb):
+    """[ta, tb] clipped to the grid's slab [lo, lo + R c] on one axis (empty,
+    tb = -inf, when a ray parallel to the slab lies outside it)."""
+    if d != 0.0:
+        t0 = (lo - o) / d
+        t1 = (lo + R * c - o) / d
+        if t0 > t1:
+            t0, t1 = t1, t0
+        return max(ta, t0), min(tb, t1)
+    if o < lo or o > lo + R * c:
+        return ta, -np.inf
+    return ta, tb
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _axis_exit(lo, c, i, o, d):
     """Parameter where o + t d leaves voxel slab i of one axis (inf if d = 0)."""
     if d > 0.0:
@@ -1131,33 +1146,9 @@ def _march_one(dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell, R,
     ta = t_skip
     tb = t_end - t_skip
     # clip to the grid box (slabs); outside it there is no geometry
-    if dx != 0.0:
-        t0 = (lo0 - ox) / dx
-        t1 = (lo0 + R * c0 - ox) / dx
-        if t0 > t1:
-            t0, t1 = t1, t0
-        ta = max(ta, t0)
-        tb = min(tb, t1)
-    elif ox < lo0 or ox > lo0 + R * c0:
-        tb = -np.inf
-    if dy != 0.0:
-        t0 = (lo1 - oy) / dy
-        t1 = (lo1 + R * c1 - oy) / dy
-        if t0 > t1:
-            t0, t1 = t1, t0
-        ta = max(ta, t0)
-        tb = min(tb, t1)
-    elif oy < lo1 or oy > lo1 + R * c1:
-        tb = -np.inf
-    if dz != 0.0:
-        t0 = (lo2 - oz) / dz
-        t1 = (lo2 + R * c2 - oz) / dz
-        if t0 > t1:
-            t0, t1 = t1, t0
-        ta = max(ta, t0)
-        tb = min(tb, t1)
-    elif oz < lo2 or oz > lo2 + R * c2:
-        tb = -np.inf
+    ta, tb = _clip_slab(lo0, c0, R, ox, dx, ta, tb)
+    ta, tb = _clip_slab(lo1, c1, R, oy, dy, ta, tb)
+    ta, tb = _clip_slab(lo2, c2, R, oz, dz, ta, tb)
     sx = 1 if dx > 0.0 else -1
     sy = 1 if dy > 0.0 else -1
     sz = 1 if dz > 0.0 else -1

@@ -197,6 +197,20 @@ def save_blend(path):
     return str(path)
 
 
+def save_scene_without(path, missing: str, res=(16, 16)):
+    """Save a plane + light + camera scene with one of them ("plane",
+    "light" or "camera") left out: the bad-input files (nothing to see, no
+    light, no camera).  Returns the path as str."""
+    sc = empty_scene(res)
+    if missing != "plane":
+        add_plane(sc)
+    if missing != "light":
+        add_light(sc)
+    if missing != "camera":
+        add_camera(sc)
+    return save_blend(path)
+
+
 def interrupt_after(p, marker: str, settle: float, timeout: float = 120.0):
     """Wait until the subprocess ``p`` prints ``marker`` on stderr, wait
     ``settle`` seconds, send SIGINT; return (stdout, stderr, seconds from the

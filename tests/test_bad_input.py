@@ -27,18 +27,9 @@ def blends(tmp_path_factory):
     out = {}
     H.simple_scene(res=(24, 16), passes=2, photons=2000, seed=1)
     out["simple"] = H.save_blend(d / "simple.blend")
-    sc = H.empty_scene((16, 16))
-    H.add_plane(sc)
-    H.add_light(sc)
-    out["nocam"] = H.save_blend(d / "nocam.blend")
-    sc = H.empty_scene((16, 16))
-    H.add_plane(sc)
-    H.add_camera(sc)
-    out["dark"] = H.save_blend(d / "dark.blend")
-    sc = H.empty_scene((16, 16))
-    H.add_light(sc)
-    H.add_camera(sc)
-    out["empty"] = H.save_blend(d / "empty.blend")
+    out["nocam"] = H.save_scene_without(d / "nocam.blend", "camera")
+    out["dark"] = H.save_scene_without(d / "dark.blend", "light")
+    out["empty"] = H.save_scene_without(d / "empty.blend", "plane")
     # The same plane once with an unsupported node, once with no material.
     for name, mat in (("skin", lambda: H.node_material("Skin", "SUBSURFACE_SCATTERING")),
                       ("nomat", lambda: None)):
