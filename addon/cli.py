@@ -82,7 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds between checkpoints (default 30; 0 = after every pass)")
     r.add_argument("--resume", action="store_true",
                    help="continue from the checkpoint in --checkpoint DIR (same scene and settings)")
-    from .converge import add_parser as add_converge_parser
+    from ..tools.converge import add_parser as add_converge_parser
     add_converge_parser(sub)
     return p
 
@@ -187,7 +187,7 @@ def _write_outputs(a, bpy, scene, sess, out_path, elapsed_wall) -> list[str]:
     """Write the EXR (and the PNG preview); return the written paths."""
     import numpy as np
 
-    from ..core.imageio import default_file_mode, write_exr
+    from ..core.io.exr import default_file_mode, write_exr
     from ..core.settings import field_names
 
     pr = sess.result
@@ -279,7 +279,7 @@ class Checkpointer:
         self.saved_pass = 0
 
     def resume(self, renderer) -> None:
-        from ..core import checkpoint
+        from ..core.io import checkpoint
         if not checkpoint.exists(self.dir):
             self.log(f"No checkpoint in '{self.dir}' yet: starting from pass 1.")
             return
@@ -294,7 +294,7 @@ class Checkpointer:
 
     def save(self, renderer) -> bool:
         """True when the checkpoint holds the renderer's current pass."""
-        from ..core import checkpoint
+        from ..core.io import checkpoint
         if renderer is None or renderer.pass_index == 0:
             return False
         if renderer.pass_index == self.saved_pass:
@@ -311,7 +311,7 @@ class Checkpointer:
 
 def _state_kept(ckpt, renderer) -> str:
     """After an output error: where the render state is, and how to get the image."""
-    from ..core import checkpoint
+    from ..core.io import checkpoint
     if renderer is None or renderer.pass_index == 0:
         return ""
     n = renderer.pass_index
@@ -454,7 +454,7 @@ def main(argv=None) -> int:
         if a.command == "render":
             return render(a)
         if a.command == "converge":
-            from .converge import ConvergeError, converge
+            from ..tools.converge import ConvergeError, converge
             try:
                 return converge(a)
             except ConvergeError as ex:

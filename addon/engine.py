@@ -83,7 +83,7 @@ def progress_fraction(result, settings) -> float:
 
 
 def export_cancellable(depsgraph, log, camera, should_stop):
-    """``export_scene`` with a cancellation point before every object (issue 8).
+    """``export_scene`` with a cancellation point before every object.
 
     A stopgap until ``export_scene`` takes ``should_stop`` itself: the same
     exporter, with ``geometry`` (the per-object cost: foreach_get and the

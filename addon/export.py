@@ -7,7 +7,7 @@ instances, drivers and the current frame are already applied:
   loop triangles with split (corner) normals, the render UV map and material
   indices, all through ``foreach_get`` into numpy (no per-vertex Python);
   transformed by the instance's ``matrix_world``;
-- lights in Cycles' units (shared/notes/blender.md):
+- lights in Cycles' units (docs/cycles_units.md):
   strength = colour x energy x 2^exposure (x blackbody colour when enabled);
 - the world as a constant colour (Background colour x strength);
 - the camera, with sensor fit, shift, clip, border, resolution percentage and
@@ -26,9 +26,9 @@ import warnings
 
 import numpy as np
 
-from ..core import shading
+from ..core.scene import nodes as shading
 from ..core.errors import SceneError
-from ..core.scene import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
+from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
                           TRANSPARENT, Camera, Light, Lobe, Material, Scene,
                           drop_invalid_triangles)
 

@@ -31,7 +31,7 @@ sys.path.insert(0, ROOT)
 
 import numba  # noqa: E402
 
-from core import hashgrid as hg  # noqa: E402
+from core.sppm import hashgrid as hg  # noqa: E402
 
 RES = 256
 N_PHOTONS = 600_000

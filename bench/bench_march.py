@@ -4,8 +4,8 @@
                                           [--ref OLD_OCCLUSION.py]
 
 Captures the segments the frequency photons march (the numpy reference path of
-core.photons calls ``march_occlusion``; the compiled path marches the same
-segments inside core.frequency_kernels), then times the block march
+core.sppm.photons calls ``march_occlusion``; the compiled path marches the same
+segments inside core.frequency.kernels), then times the block march
 (``occlusion._march``) against the dense voxel-by-voxel reference
 (``_march_dense``) and, with ``--ref``, against another version of
 core/occlusion.py (e.g. ``git show HEAD~1:core/occlusion.py > /tmp/old.py``),
@@ -28,7 +28,7 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 sys.path.insert(0, os.path.join(ROOT, "bench"))
 
-from core import occlusion as Occ  # noqa: E402
+from core.frequency import occlusion as Occ  # noqa: E402
 
 
 def capture(photons: int, seed: int = 1):

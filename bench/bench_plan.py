@@ -21,7 +21,7 @@ import fppm_alias  # noqa: E402,F401
 
 from analytic_scenes import point_light_plane  # noqa: E402
 from core.render import Renderer  # noqa: E402
-from core.scene import GLOSSY, Lobe, Material  # noqa: E402
+from core.scene.model import GLOSSY, Lobe, Material  # noqa: E402
 from core.settings import RenderSettings  # noqa: E402
 
 

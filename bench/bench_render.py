@@ -14,8 +14,8 @@ is printed too.  Every pass is followed by its own raw-ray timing so that both
 see the same machine load; the ratios use the sums.  With ``--frequency`` a
 second renderer without frequency photons runs interleaved with the first,
 and the tracer is timed on all-frequency vs all-classic batches.  A third
-renderer runs the frequency photons as before core.frequency_kernels (numpy
-core.frequency operators, voxel-by-voxel ``march_occlusion(dense=True)``), so
+renderer runs the frequency photons as before core.frequency.kernels (numpy
+core.frequency.spectrum operators, voxel-by-voxel ``march_occlusion(dense=True)``), so
 the before/after overheads are measured in the same process; each ratio is
 the best of ``--repeat`` interleaved measurements (the machine is shared).
 """
@@ -33,13 +33,13 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 
 from analytic_scenes import quad, translate  # noqa: E402
-from core import lights as Lt  # noqa: E402
-from core import occlusion as Occ  # noqa: E402
-from core import photon_kernels as PK  # noqa: E402
-from core import hashgrid as Hg  # noqa: E402
-from core import photons as Ph  # noqa: E402
+from core.lights import lights as Lt  # noqa: E402
+from core.frequency import occlusion as Occ  # noqa: E402
+from core.sppm import photon_kernels as PK  # noqa: E402
+from core.sppm import hashgrid as Hg  # noqa: E402
+from core.sppm import photons as Ph  # noqa: E402
 from core.render import Renderer  # noqa: E402
-from core.scene import DIFFUSE, Camera, Light, Lobe, Material, make_scene  # noqa: E402
+from core.scene.model import DIFFUSE, Camera, Light, Lobe, Material, make_scene  # noqa: E402
 from core.settings import RenderSettings  # noqa: E402
 
 
@@ -111,7 +111,7 @@ class RawRays:
 class Timers:
     """Wall and process-CPU seconds of the photon tracer and the gather, and
     wall seconds inside Embree and the occlusion march during tracing
-    (wrappers around the functions core.photons / core.render call)."""
+    (wrappers around the functions core.sppm.photons / core.render call)."""
 
     def __init__(self):
         self.t = {k: 0.0 for k in ("trace", "trace_cpu", "gather", "gather_cpu", "embree",
@@ -153,7 +153,7 @@ class Timers:
 
 
 def make_renderer(scene, a, use_frequency, tm, before=False):
-    """before: frequency photons as before core.frequency_kernels (numpy
+    """before: frequency photons as before core.frequency.kernels (numpy
     operators, dense march)."""
     st = RenderSettings(max_passes=1000, photons_per_pass=a.photons,
                         use_frequency=use_frequency,
@@ -190,7 +190,7 @@ def trace_seconds(r, tm, n, n_freq, seed):
 
 def frequency_report(r, rb, r0, tm, a):
     """Pass overhead and per-photon cost of frequency photons, after (r) and
-    before (rb) core.frequency_kernels, against r0 (no frequency photons):
+    before (rb) core.frequency.kernels, against r0 (no frequency photons):
     best of a.repeat interleaved measurements."""
     pp = {"after": [], "before": []}
     for _ in range(a.repeat):
@@ -296,7 +296,7 @@ def main(argv=None):
               f"{acc['embree'] / R:.2f}x" + (
                   "" if r.tracer.compiled_frequency else
                   f", occlusion march {acc['march'] / R:.2f}x") + (
-                  " (the march runs inside core.frequency_kernels: see the "
+                  " (the march runs inside core.frequency.kernels: see the "
                   "frequency lines)" if a.frequency and r.tracer.compiled_frequency else ""))
     print(f"  shares of the photon pass: trace {acc['trace'] / pp:.0%}, "
           f"gather {acc['gather'] / pp:.0%}")

@@ -9,7 +9,7 @@ Python environments (Mitsuba is not a project dependency):
     MITSUBA_PY bench/point_caustic_reference.py render  SCENE.npz HALVES.npz --spp N
     .venv/bin/python bench/point_caustic_reference.py finish  HALVES.npz REF.exr
 
-``export`` writes the scene FPPM renders (core.scene.Scene from
+``export`` writes the scene FPPM renders (core.scene.model.Scene from
 addon.export.export_scene: corner positions and normals per triangle,
 diffuse/glass materials, lights, camera).  ``render`` (in an environment with
 ``pip install mitsuba``, variant scalar_rgb) renders two halves of N/2
@@ -50,7 +50,7 @@ def export(out_npz: str) -> None:
     from fppm.addon.export import export_scene
     bpy.ops.wm.open_mainfile(filepath=BLEND, load_ui=False, use_scripts=False)
     s = export_scene(bpy.context.evaluated_depsgraph_get(), log=print)
-    from fppm.core.scene import DIFFUSE, GLASS
+    from fppm.core.scene.model import DIFFUSE, GLASS
     mats = []
     for m in s.materials:
         if len(m.lobes) != 1 or m.lobes[0].kind not in (DIFFUSE, GLASS) or any(m.emission):
@@ -153,7 +153,7 @@ def _write_ply(P, N, path):
 def finish(in_npz: str, out_exr: str) -> None:
     sys.path.insert(0, os.path.join(ROOT, "tests"))
     import fppm_alias  # noqa: F401
-    from fppm.core.imageio import write_exr
+    from fppm.core.io.exr import write_exr
     d = np.load(in_npz)
     a, b = d["a"], d["b"]
     ref = 0.5 * (a + b)

@@ -3,7 +3,7 @@
 Embree works in float32 and has no ``tnear``: a ray leaving a surface must
 start slightly off it.  The offset is relative to the magnitude of the hit
 position (float32 positions carry ``|p| * 2**-24`` of rounding), never a fixed
-epsilon, so a 1 mm object and a 1 km plane are both handled (issue 6).
+epsilon, so a 1 mm object and a 1 km plane are both handled.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The render plan: analyse the exported scene once and leave out what it cannot use.
 
-Issue 7.  Each flag says whether a stage runs; ``reasons`` says why a stage was
+Each flag says whether a stage runs; ``reasons`` says why a stage was
 left out, so the CLI, Blender's info log and the EXR metadata can show it.
 """
 from __future__ import annotations

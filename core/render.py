@@ -7,7 +7,7 @@
 API CONTRACT
 - ``Renderer(scene: Scene, settings: RenderSettings, log: Callable[[str], None] = print,
   should_stop=None, ...)``: ``should_stop()`` is polled during the set-up too
-  (BVH, plan, occlusion grid); True raises RenderCancelled (issue 8).
+  (BVH, plan, occlusion grid); True raises RenderCancelled.
 - ``Renderer.width, Renderer.height``: size of the rendered region (the border
   crop when ``scene.camera.border`` is set), ``Renderer.offset``: (x0, y0) of that
   region in Blender's pixel coordinates (y from the bottom).
@@ -36,26 +36,22 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from . import bsdf as B
-from . import edges
-from . import frequency as F
-from . import hashgrid
-from . import lights as Lt
+from .materials import bsdf as B
+from .sppm import edges
+from .frequency import spectrum as F
+from .sppm import hashgrid
+from .lights import lights as Lt
 from . import memory
 from .accel import Accel, surface_point
-from .camera import CameraModel, FilterSampler
+from .scene.camera import CameraModel, FilterSampler
 from .errors import CheckpointMismatch, RenderCancelled, SceneError
-from .photons import PhotonTracer, triangle_curvature
+from .sppm.photons import PhotonTracer, triangle_curvature
 from .plan import RenderPlan, make_plan
-from .scene import Scene, drop_invalid_triangles, scene_digest
+from .scene.model import Scene, drop_invalid_triangles, scene_digest
 from .settings import RenderSettings
+from .mathutil import dot as _dot
 
-LUM = np.array([0.2126, 0.7152, 0.0722])
 PHOTON_CHUNK = 131_072
-
-
-def _dot(a, b):
-    return np.einsum("ij,ij->i", a, b)
 
 
 @dataclass
@@ -102,7 +98,7 @@ class Renderer:
                  force_stages: tuple = ()):
         self.settings = settings.validate()
         self.log = log
-        # Polled between the set-up stages too (cancel within 1 s, issue 8).
+        # Polled between the set-up stages too (cancel within 1 s).
         self._should_stop = should_stop or (lambda: False)
         scene, dropped = drop_invalid_triangles(scene)
         self.dropped_triangles = dropped
@@ -151,7 +147,7 @@ class Renderer:
         self._check_stop()
         self.occ_grid = None
         if self.plan.occlusion_grid:
-            from .occlusion import build_occlusion_grid, default_locality
+            from .frequency.occlusion import build_occlusion_grid, default_locality
             t0 = time.perf_counter()
             lo, hi = scene.bounds()
             pad = 1e-3 * self.D
@@ -172,7 +168,7 @@ class Renderer:
         self.px = (xs.ravel() + x0).astype(np.float64)
         self.py = ((self.height - 1 - ys).ravel() + y0).astype(np.float64)
         P = self.width * self.height
-        # Per-pixel progressive statistics, float64 (frequency.md: float32
+        # Per-pixel progressive statistics, float64 (docs/frequency.md: float32
         # counters stall at 2^24).
         self.R2 = np.zeros(P)            # 0 = not initialised yet
         self.N = np.zeros(P)
@@ -227,7 +223,7 @@ class Renderer:
         if self.last_result is None:
             self.last_result = self._film()
         if self.pass_index and not np.any(self.last_result.image[..., :3] > 0):
-            # Issue 6: a hidden emitter or a camera inside a closed object is
+            # A hidden emitter or a camera inside a closed object is
             # rendered as it is (black, like Cycles), but said so.
             self.log("FPPM: the image is black: no light reaches anything the camera sees "
                      "(every light is hidden behind geometry, or the camera is inside a "
@@ -515,7 +511,7 @@ class Renderer:
         triangle's plane is only known to ~|vertex| * 2^-24; a shadow ray
         leaving a large triangle near the origin at grazing incidence (89.9
         deg) re-hits its own plane although it starts |p| * REL_OFFSET above
-        it (issue 6: -15 % at 89.9 deg on a rotated 4 m plane).  A first hit
+        it (-15 % at 89.9 deg on a rotated 4 m plane).  A first hit
         whose plane passes within 8 REL_OFFSET |vertex|_max of the origin is
         such a self-hit: the ray is cast again from an offset relative to
         that triangle's vertices.  A real occluder is never that close to the
@@ -586,7 +582,7 @@ class Renderer:
 
     @property
     def radius_floor(self) -> float:
-        # frequency.md stiff table: R >= 1e-7 D keeps 1/(pi R^2) finite.
+        # docs/frequency.md stiff table: R >= 1e-7 D keeps 1/(pi R^2) finite.
         return 1e-7 * self.D
 
     # -------------------------------------------------------- photon pass
@@ -760,7 +756,7 @@ class Renderer:
 
 
 def _emission_texture(mtab, scene, mat, uv):
-    from .textures import sample_texture
+    from .scene.textures import sample_texture
     out = np.ones((mat.size, 3))
     for t in np.unique(mtab.emission_tex[mat]):
         if t < 0:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.scene import (DIFFUSE, GLOSSY, Camera, Light, Lobe, Material,
+from core.scene.model import (DIFFUSE, GLOSSY, Camera, Light, Lobe, Material,
                         make_scene)
 
 

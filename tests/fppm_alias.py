@@ -49,7 +49,7 @@ class _AliasLoader(importlib.abc.Loader):
 
 
 class _AliasFinder(importlib.abc.MetaPathFinder):
-    PREFIXES = ("core", "addon")
+    PREFIXES = ("core", "addon", "tools")
 
     def find_spec(self, name, path=None, target=None):
         head = name.split(".")[0]

@@ -10,7 +10,7 @@ import bpy_helpers as H
 bpy = pytest.importorskip("bpy")
 
 import fppm.addon.engine as E  # noqa: E402
-from fppm.core.imageio import read_exr  # noqa: E402
+from fppm.core.io.exr import read_exr  # noqa: E402
 
 
 def render(sc, sess=None):

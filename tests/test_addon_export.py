@@ -10,7 +10,7 @@ import bpy_helpers as H
 bpy = pytest.importorskip("bpy")
 
 from fppm.addon import export as E  # noqa: E402
-from fppm.core import scene as S  # noqa: E402
+from fppm.core.scene import model as S  # noqa: E402
 from fppm.core.errors import SceneError  # noqa: E402
 
 
@@ -282,7 +282,7 @@ def _one_node_material(name, idname, distribution, **inputs):
 
 
 def test_distribution_sets_multiscatter():
-    from fppm.core.bsdf import build_material_table
+    from fppm.core.materials.bsdf import build_material_table
     sc = base_scene()
     # name -> (node, distribution, inputs, kind, multiscatter expected)
     cases = {
@@ -313,7 +313,7 @@ def test_distribution_sets_multiscatter():
         if "IOR" in inputs:
             assert lobe.ior == pytest.approx(inputs["IOR"]), name
         assert bool(getattr(lobe, "multiscatter", False)) is ms, name
-        # ... and core.bsdf reads it: the table's flag is what the BSDF uses.
+        # ... and core.materials.bsdf reads it: the table's flag is what the BSDF uses.
         assert bool(table.multiscatter[s.materials.index(M[name]), 0]) is ms, name
     # Only the Beckmann glossy is approximated (rendered as GGX).
     assert "material 'GlossyBeckmann': Glossy BSDF: BECKMANN distribution rendered as GGX" \

@@ -21,7 +21,7 @@ import bpy_helpers as H
 
 bpy = pytest.importorskip("bpy")
 
-from fppm.core.imageio import read_exr  # noqa: E402
+from fppm.core.io.exr import read_exr  # noqa: E402
 
 ROOT = H.ROOT
 # bpy.__file__ is <site-packages>/bpy/<version>/scripts/modules/bpy/__init__.py.

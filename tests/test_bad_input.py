@@ -16,7 +16,7 @@ bpy = pytest.importorskip("bpy")
 
 from fppm.addon import cli  # noqa: E402
 from fppm.addon.export import NO_CAMERA, NO_LIGHTS, NOTHING_VISIBLE  # noqa: E402
-from fppm.core.imageio import read_exr  # noqa: E402
+from fppm.core.io.exr import read_exr  # noqa: E402
 
 FAST = ["--passes", "2", "--photons", "2000", "-q", "--no-preview"]
 

@@ -1,4 +1,4 @@
-"""Tests of core.bsdf against Cycles' closure formulas.
+"""Tests of core.materials.bsdf against Cycles' closure formulas.
 
 - Chi-square goodness of fit of every sampler against its pdf (Mitsuba 3's
   ``ChiSquareTest``: bin the sphere, integrate the pdf over each bin, pool bins
@@ -12,13 +12,13 @@ import math
 import numpy as np
 import pytest
 
-from core import bsdf as B
-from core.scene import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
+from core.materials import bsdf as B
+from core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
                         TRANSPARENT, Lobe, Material)
-from core.shading import MultiscatterLobe, principled_to_lobes
+from core.scene.nodes import MultiscatterLobe, principled_to_lobes
 
 from stats_helpers import chi2_sf
-from core.textures import sample_texture
+from core.scene.textures import sample_texture
 
 Z = np.array([0.0, 0.0, 1.0])
 
@@ -563,7 +563,7 @@ def test_matches_cycles_render():
     import sys
     if importlib.util.find_spec("bpy") is None:
         pytest.skip("bpy not installed")
-    from core.shading import principled_to_lobes
+    from core.scene.nodes import principled_to_lobes
     v, l = direction(math.radians(30), 0.0), direction(math.radians(50), math.radians(160))
     vr, lr = direction(math.radians(40), 0.0), direction(math.radians(40), math.pi)   # mirror pair
     lb = direction(math.radians(160), math.radians(170))                              # below

@@ -39,7 +39,7 @@ def test_rays_match_blender_projection(kind, fit, res, shift, aspect):
     from mathutils import Vector
 
     from fppm.addon.export import export_scene
-    from fppm.core.camera import CameraModel, FilterSampler
+    from fppm.core.scene.camera import CameraModel, FilterSampler
 
     sc, ob = _setup(kind, fit, res, shift, aspect)
     # A light and a plane so the exporter accepts the scene.

@@ -11,7 +11,7 @@ import bpy_helpers as H
 
 bpy = pytest.importorskip("bpy")
 
-from fppm.core.imageio import read_exr, read_exr_metadata  # noqa: E402
+from fppm.core.io.exr import read_exr, read_exr_metadata  # noqa: E402
 
 FAST = ["--passes", "2", "--photons", "2000", "-q"]
 

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 import bpy_helpers as H
-from core import metrics as M
-from core.imageio import read_exr
+from tools import metrics as M
+from core.io.exr import read_exr
 from scenes import refs
 
 BUDGET = 3.0

@@ -1,4 +1,4 @@
-"""Surface-boundary cap on the initial radius (core.edges, Renderer._boundary_cap).
+"""Surface-boundary cap on the initial radius (core.sppm.edges, Renderer._boundary_cap).
 
 Unit tests on synthetic visible-point grids with known boundaries, and a
 rendered plate whose edge pixels a kernel reaching into the air beside it
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from analytic_scenes import lambert, look_down_ortho, quad, translate
-from core import edges
+from core.sppm import edges
 from core.render import Renderer
-from core.scene import Light, make_scene
+from core.scene.model import Light, make_scene
 from core.settings import RenderSettings
 
 

@@ -1,7 +1,7 @@
-"""Compiled frequency updates (core.frequency_kernels) and the blocked occlusion
-march (core.occlusion.MarchBlocks) against their references.
+"""Compiled frequency updates (core.frequency.kernels) and the blocked occlusion
+march (core.frequency.occlusion.MarchBlocks) against their references.
 
-1. Each compiled operator against the numpy operator of core.frequency, both
+1. Each compiled operator against the numpy operator of core.frequency.spectrum, both
    models, on random spectra plus every row of the stiff table (grazing cos,
    a + a_o -> 0, a_o = inf or >= A_MAX, huge d, c^2 > ab, NaN / inf in every
    input).  The kernels repeat the numpy expressions in the same order with
@@ -24,9 +24,9 @@ march (core.occlusion.MarchBlocks) against their references.
 import numpy as np
 import pytest
 
-from core import frequency as F
-from core import frequency_kernels as FK
-from core import occlusion as Occ
+from core.frequency import spectrum as F
+from core.frequency import kernels as FK
+from core.frequency import occlusion as Occ
 from core.render import Renderer
 from core.settings import RenderSettings
 
@@ -159,7 +159,7 @@ def test_tracer_compiled_chain_matches_numpy_operators(make, model):
     if model == "CORRECTED":
         assert (r > 0).mean() > 0.5                          # radii exercised
     # (PAPER: occlude(a_occ = inf) is a inf / inf = NaN -> r = 0 for every
-    # unoccluded photon, in core.frequency as here: 99.5% zeros.)
+    # unoccluded photon, in core.frequency.spectrum as here: 99.5% zeros.)
 
 
 # ------------------------------------------------------------ 3. the march

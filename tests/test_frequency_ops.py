@@ -23,7 +23,7 @@ import math
 import numpy as np
 import pytest
 
-from core import frequency as F
+from core.frequency import spectrum as F
 
 TOL = 1e-6   # relative to ||Q||; see module docstring
 
@@ -376,8 +376,8 @@ def test_lobe_variances():
     assert F.lobe_variance(1, 0.0) == 0.0                                   # mirror
     assert F.lobe_variance("GGX", 1.0) == pytest.approx(F.B_CAP)
     assert F.lobe_variance("TRANSPARENT", 0.5) == 0.0
-    # per-photon arrays of core.scene lobe kinds
-    from core import scene as S
+    # per-photon arrays of core.scene.model lobe kinds
+    from core.scene import model as S
     kinds = np.array([S.DIFFUSE, S.GLOSSY, S.GLASS, S.TRANSPARENT, S.GLOSSY])
     rough = np.array([0.5, 0.3, 0.0, 0.2, 1.0])
     np.testing.assert_allclose(F.lobe_variance(kinds, rough),

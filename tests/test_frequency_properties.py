@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from core import frequency as F
+from core.frequency import spectrum as F
 
 PROFILE = settings(derandomize=True, max_examples=200, deadline=None, database=None)
 

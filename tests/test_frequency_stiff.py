@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from core import frequency as F
+from core.frequency import spectrum as F
 
 D = 10.0                  # scene diameter [m] used by these tests
 A_MAX = D * D

@@ -1,4 +1,4 @@
-"""core.hashgrid: the grid gather must equal the O(P*K) numpy brute force.
+"""core.sppm.hashgrid: the grid gather must equal the O(P*K) numpy brute force.
 
 The counting tests are evaluated in float64 in the same operation order by the
 numba kernel and by gather_bruteforce, so M, the (VP, photon) pair sets and
@@ -9,7 +9,7 @@ relative 1e-12 bounds n * eps = (a few hundred terms) * 1.1e-16 with a wide marg
 import numpy as np
 import pytest
 
-from core import hashgrid as hg
+from core.sppm import hashgrid as hg
 
 
 def _unit(v):

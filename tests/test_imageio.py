@@ -1,11 +1,11 @@
-"""core.imageio: multi-layer EXR round trip, channel layout, atomic writes, clear errors."""
+"""core.io.exr: multi-layer EXR round trip, channel layout, atomic writes, clear errors."""
 import os
 import stat
 
 import numpy as np
 import pytest
 
-from core.imageio import read_exr, read_exr_metadata, write_exr
+from core.io.exr import read_exr, read_exr_metadata, write_exr
 
 
 def _layers(h=5, w=7, seed=0):
@@ -86,7 +86,7 @@ def test_missing_folder_is_a_clear_oserror(tmp_path):
 def test_read_only_folder_is_a_clear_oserror(tmp_path, monkeypatch):
     # Tests run as root in CI, where chmod cannot make a folder unwritable:
     # os.access is what write_exr consults, so it stands in for the folder.
-    import core.imageio as io
+    import core.io.exr as io
     monkeypatch.setattr(io.os, "access", lambda path, mode: False)
     with pytest.raises(OSError, match="not writable"):
         write_exr(str(tmp_path / "x.exr"), _layers(), {})

@@ -1,4 +1,4 @@
-"""Tests of core.lights against closed forms in Cycles' units.
+"""Tests of core.lights.lights against closed forms in Cycles' units.
 
 Tolerances: every Monte-Carlo comparison uses Z = 5 standard errors, the
 standard error being measured from the same samples (std / sqrt(N)); a correct
@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from core import lights as L
-from core.scene import Camera, Light, Material, make_scene
+from core.lights import lights as L
+from core.scene.model import Camera, Light, Material, make_scene
 
 from stats_helpers import chi2_sf
 

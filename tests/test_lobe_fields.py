@@ -1,6 +1,6 @@
-"""core.scene.Lobe's Principled/multiscatter fields against shading.CyclesLobe.
+"""core.scene.model.Lobe's Principled/multiscatter fields against shading.CyclesLobe.
 
-``core.bsdf.build_material_table`` reads ``multiscatter``, ``fresnel``,
+``core.materials.bsdf.build_material_table`` reads ``multiscatter``, ``fresnel``,
 ``fresnel_ior``, ``f82_tint``, ``layer_*`` with getattr, so a lobe may carry
 them as Lobe fields or as CyclesLobe fields.  These tests pin that both give
 the very same material table (exact equality: the same floats go through the
@@ -12,15 +12,15 @@ import dataclasses
 import numpy as np
 import pytest
 
-from core import shading
-from core.bsdf import build_material_table
-from core.scene import DIFFUSE, GLASS, GLOSSY, REFRACTION, Lobe, Material
+from core.scene import nodes as shading
+from core.materials.bsdf import build_material_table
+from core.scene.model import DIFFUSE, GLASS, GLOSSY, REFRACTION, Lobe, Material
 
 EXTRA = ("multiscatter", "fresnel", "fresnel_ior", "f82_tint", "layer_ior", "layer_f0",
          "layer_roughness", "layer_multiscatter")
 HAS_FIELDS = set(EXTRA) <= set(Lobe.__dataclass_fields__)
 needs_fields = pytest.mark.skipif(
-    not HAS_FIELDS, reason="core.scene.Lobe does not declare the extra lobe fields yet")
+    not HAS_FIELDS, reason="core.scene.model.Lobe does not declare the extra lobe fields yet")
 
 
 def _tables_equal(a, b):

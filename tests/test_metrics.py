@@ -1,10 +1,10 @@
-"""core.metrics against hand-computed values on small arrays."""
+"""tools.metrics against hand-computed values on small arrays."""
 import math
 
 import numpy as np
 import pytest
 
-from core import metrics as M
+from tools import metrics as M
 
 
 def img(*rgb_rows):

@@ -7,7 +7,7 @@ seeds).
 import numpy as np
 import pytest
 
-from core.occlusion import (BYTES_PER_VOXEL, build_occlusion_grid, default_locality,
+from core.frequency.occlusion import (BYTES_PER_VOXEL, build_occlusion_grid, default_locality,
                             march_occlusion)
 
 

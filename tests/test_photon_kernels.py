@@ -1,4 +1,4 @@
-"""The compiled photon path (core.photon_kernels) against the numpy reference.
+"""The compiled photon path (core.sppm.photon_kernels) against the numpy reference.
 
 Three levels:
 1. closures: ``photon_kernels.sample_fast`` and ``bsdf.sample_bsdf`` fed the
@@ -26,11 +26,11 @@ import numpy as np
 import pytest
 
 from analytic_scenes import quad, translate
-from core import bsdf as B
-from core import lights as Lt
-from core import photon_kernels as PK
+from core.materials import bsdf as B
+from core.lights import lights as Lt
+from core.sppm import photon_kernels as PK
 from core.render import Renderer
-from core.scene import (DIFFUSE, GLASS, GLOSSY, Camera, Light, Lobe, Material,
+from core.scene.model import (DIFFUSE, GLASS, GLOSSY, Camera, Light, Lobe, Material,
                         make_scene)
 from core.settings import RenderSettings
 
@@ -302,7 +302,7 @@ def test_frequency_photons_fast_matches_numpy():
 def test_threads_do_not_change_deposits(monkeypatch):
     """The two halves of a batch use their own child streams, and their deposits
     are concatenated in a fixed order: one or two threads, same bits."""
-    from core import photons
+    from core.sppm import photons
     tr = _tracer(glass_mirror(), use_frequency=True)
     out = []
     for threads in (1, 2):

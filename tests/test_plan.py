@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from core.render import Renderer
-from core.scene import DIFFUSE, GLOSSY, Lobe, Material, make_scene
+from core.scene.model import DIFFUSE, GLOSSY, Lobe, Material, make_scene
 from core.settings import RenderSettings
 
 from analytic_scenes import furnace_box, mirror_caustic, point_light_plane, quad
@@ -123,7 +123,7 @@ def test_unknown_forced_stage_is_an_error():
 def test_convex_set_keeps_the_grid_when_a_light_is_outside_it():
     """Faces that all see each other cannot occlude light from a source on the
     same side; a light on the other side (or a sun) can be shadowed by them."""
-    from core.scene import Light
+    from core.scene.model import Light
     from analytic_scenes import translate
     box, _ = furnace_box(res=8)          # closed cube, normals inwards
     inside = Light("in", "POINT", (10.0,) * 3, translate(0.2, 0.1, 0.3))

@@ -21,11 +21,12 @@ import pytest
 
 import bpy_helpers as H
 
-from core import checkpoint, memory
+from core import memory
+from core.io import checkpoint
 from core.errors import CheckpointMismatch, MemoryBudgetError, RenderCancelled
-from core.imageio import read_exr, read_exr_metadata
+from core.io.exr import read_exr, read_exr_metadata
 from core.render import Renderer
-from core.scene import DIFFUSE, Camera, Light, Lobe, Material, make_scene
+from core.scene.model import DIFFUSE, Camera, Light, Lobe, Material, make_scene
 from core.settings import RenderSettings
 
 ROOT = H.ROOT
@@ -331,8 +332,8 @@ import sys
 sys.path.insert(0, sys.argv[1])
 import fppm_alias  # noqa
 import numpy as np
-from core import checkpoint
-from core.imageio import write_exr
+from core.io import checkpoint
+from core.io.exr import write_exr
 rng = np.random.default_rng(0)
 img = rng.random((384, 384, 4), dtype=np.float32)      # incompressible: a slow write
 state = {"R2": rng.random(200_000), "pass_index": 1, "photons_emitted": 2, "elapsed": 0.5,
@@ -405,7 +406,7 @@ def test_cancel_latency_per_core_stage(monkeypatch):
     st = RenderSettings(max_passes=3, photons_per_pass=2_500_000, occlusion_grid_res=96)
     lat = {}
     # 1. occlusion grid build (numba, in a worker thread polled every 20 ms)
-    import core.occlusion as O
+    import core.frequency.occlusion as O
     orig_build = O.build_occlusion_grid
     stop = Stopper()
 

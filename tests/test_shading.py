@@ -1,12 +1,12 @@
-"""Tests of core.shading: Principled BSDF mapping and Mix/Add Shader flattening."""
+"""Tests of core.scene.nodes: Principled BSDF mapping and Mix/Add Shader flattening."""
 import math
 
 import numpy as np
 
-from core import bsdf as B
-from core.scene import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, TRANSLUCENT, TRANSPARENT, Lobe,
+from core.materials import bsdf as B
+from core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, TRANSLUCENT, TRANSPARENT, Lobe,
                         Material)
-from core.shading import (add_materials, f0_from_ior, ior_from_f0, merge_lobes, mix_materials,
+from core.scene.nodes import (add_materials, f0_from_ior, ior_from_f0, merge_lobes, mix_materials,
                           principled_to_lobes)
 
 

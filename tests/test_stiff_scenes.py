@@ -1,6 +1,6 @@
 """Issue 6, scene level: stiff and extreme scenes rendered end to end.
 
-Every case builds a plain-Python scene (``core.scene.make_scene``), renders it
+Every case builds a plain-Python scene (``core.scene.model.make_scene``), renders it
 with every AOV switched on, and checks that the film and all AOVs are finite
 (:func:`render`) plus a number: a closed form where one exists, a same-scene
 comparison otherwise.  docs/stiff_cases.md lists the cases, what happens and
@@ -26,7 +26,7 @@ import pytest
 from core import memory
 from core.errors import MemoryBudgetError
 from core.render import Renderer
-from core.scene import (DIFFUSE, GLOSSY, Camera, Light, Lobe, Material,
+from core.scene.model import (DIFFUSE, GLOSSY, Camera, Light, Lobe, Material,
                         make_scene)
 from core.settings import RenderSettings
 
@@ -146,7 +146,7 @@ def filtered(fn, pts, pix, n=12):
     """Closed form fn(points (..., 3)) averaged over Cycles' pixel filter
     (Blackman-Harris, 1.5 px) at ortho pixel centres pts (H, W, 3) in the
     camera-aligned frame: what each pixel converges to."""
-    from core.camera import FilterSampler
+    from core.scene.camera import FilterSampler
     o = FilterSampler(1.5).sample((np.arange(n) + 0.5) / n) * pix
     acc = np.zeros(pts.shape[:2])
     for ox in o:
@@ -790,7 +790,7 @@ def test_4k_memory_estimated_before_allocating(monkeypatch):
 # CORRECTED, and the N / tau consistency of the PPM update over many passes.
 from hypothesis import given, settings as hyp_settings, strategies as hst  # noqa: E402
 
-from core import frequency as F  # noqa: E402
+from core.frequency import spectrum as F  # noqa: E402
 
 
 def test_paper_model_caustic_focus_and_scale():

@@ -15,7 +15,7 @@ import math
 import bpy
 from mathutils import Matrix, Vector
 
-from fppm.addon.converge import cycles_reference_setup
+from fppm.tools.converge import cycles_reference_setup
 
 
 # --------------------------------------------------------------------- scene

@@ -23,7 +23,7 @@ import zipfile
 
 import numpy as np
 
-from .errors import CheckpointMismatch
+from ..errors import CheckpointMismatch
 
 FILENAME = "fppm-checkpoint.npz"
 FORMAT_VERSION = 1

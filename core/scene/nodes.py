@@ -24,9 +24,10 @@ import math
 
 import numpy as np
 
-from .scene import DIFFUSE, GLASS, GLOSSY, LOBE_NAMES, MAX_LOBES, TRANSPARENT, Lobe
+from .model import DIFFUSE, GLASS, GLOSSY, LOBE_NAMES, MAX_LOBES, TRANSPARENT, Lobe
 
-_LUMA = (0.2126, 0.7152, 0.0722)
+from ..mathutil import LUM_B, LUM_G, LUM_R  # noqa: E402
+_LUMA = (LUM_R, LUM_G, LUM_B)
 # Cycles' CLOSURE_WEIGHT_CUTOFF: closures lighter than this are not created.
 WEIGHT_CUTOFF = 1e-5
 

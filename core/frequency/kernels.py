@@ -31,7 +31,7 @@ import math
 import numpy as np
 from numba import njit
 
-from . import frequency as F
+from . import spectrum as F
 from . import occlusion as _occlusion
 from .occlusion import _march_one
 
@@ -43,7 +43,7 @@ A_MAX_DEFAULT = F.A_MAX_DEFAULT
 
 
 # ------------------------------------------------------------ numpy semantics
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _fmax(x, y):
     """np.maximum: NaN if either is NaN."""
     if x != x or y != y:
@@ -51,7 +51,7 @@ def _fmax(x, y):
     return x if x >= y else y
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _fmin(x, y):
     """np.minimum: NaN if either is NaN."""
     if x != x or y != y:
@@ -59,13 +59,13 @@ def _fmin(x, y):
     return x if x <= y else y
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _clip(x, lo, hi):
     """np.clip(x, lo, hi) = minimum(maximum(x, lo), hi)."""
     return _fmin(_fmax(x, lo), hi)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _nan_to_num(x):
     """np.nan_to_num(x, nan=1.0) for the cosines."""
     if x != x:
@@ -78,7 +78,7 @@ def _nan_to_num(x):
 
 
 # ------------------------------------------------------------ operators
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def sanitize(a, b, c, A_MAX):
     """frequency.sanitize for one spectrum."""
     if a != a or b != b or c != c:
@@ -92,7 +92,7 @@ def sanitize(a, b, c, A_MAX):
     return a, b, c
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def travel(a, b, c, d, paper, A_MAX):
     """frequency.travel (d: distance [m])."""
     if paper:
@@ -106,7 +106,7 @@ def travel(a, b, c, d, paper, A_MAX):
     return sanitize(a1, b, c1, A_MAX)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def occlude(a, b, c, ao, paper, A_MAX):
     """frequency.occlude (ao: a_occ [m^2])."""
     if paper:
@@ -121,7 +121,7 @@ def occlude(a, b, c, ao, paper, A_MAX):
     return sanitize(0.0, b, 0.0, A_MAX)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def onto_surface(a, b, c, cs, paper, A_MAX):
     """frequency.onto_surface (disc=False; cs: cosine to the normal)."""
     if paper:
@@ -131,7 +131,7 @@ def onto_surface(a, b, c, cs, paper, A_MAX):
     return sanitize(a / (cs * cs), b, c / cs, A_MAX)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def off_surface(a, b, c, cs, paper, A_MAX):
     """frequency.off_surface (cos_i = cos_o for PAPER)."""
     if paper:
@@ -141,7 +141,7 @@ def off_surface(a, b, c, cs, paper, A_MAX):
     return sanitize(a * cs * cs, b, c * cs, A_MAX)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def brdf(a, b, c, bl, paper, A_MAX):
     """frequency.brdf (bl: the lobe's angular variance)."""
     if paper:
@@ -151,7 +151,7 @@ def brdf(a, b, c, bl, paper, A_MAX):
     return sanitize(a, b + bl, c, A_MAX)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def curvature(a, b, c, kappa, paper, A_MAX, factor):
     """frequency.curvature (PAPER: identity)."""
     if paper:
@@ -167,7 +167,7 @@ def curvature(a, b, c, kappa, paper, A_MAX, factor):
     return sanitize(a * sc, b1 * sc, c1 * sc, A_MAX)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def predicted_radius(a, b, c, br, z, paper):
     """frequency.predicted_radius (br: receiver lobe variance, inf = diffuse;
     z: camera distance).  NaN -> 0."""
@@ -256,7 +256,7 @@ def _kernels(token):
             t = rec_t[i]
             if occ == 1:
                 # The blocker acts where it is: travel to it, multiply by its
-                # visibility, travel on (frequency.md, occlusion operator).
+                # visibility, travel on (docs/frequency.md, occlusion operator).
                 ao, to = _march_one(dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell,
                                     R, o_seg[i, 0], o_seg[i, 1], o_seg[i, 2],
                                     d_seg[i, 0], d_seg[i, 1], d_seg[i, 2], t, locality, t_skip)

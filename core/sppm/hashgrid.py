@@ -26,7 +26,7 @@ Counting rule.  Photon p counts for visible point v when
       A no-op with the default cos_ng; with cos_ng = -1 (the renderer) it keeps
       the concave corner's other wall (in front of the plane) and rejects
       photons inside a closed object at its convex edges, which otherwise
-      leak through zero-thickness walls (issue 6: a light sealed in a box lit
+      leak through zero-thickness walls (a light sealed in a box lit
       the box's outer edges; tests/test_stiff_scenes.py).
 All tests are evaluated in float64 in a fixed operation order, so the
 numba kernel and :func:`gather_bruteforce` (numpy) agree exactly; each is
@@ -37,7 +37,7 @@ Outputs per VP (see :class:`GatherResult`): the photon count M, Phi_sum = sum of
 photon power for VPs whose BSDF is constant (diffuse: the caller multiplies by
 albedo/pi), (VP, photon) pairs for the other VPs (the caller evaluates the BSDF
 vectorised and scatters), and r_pred = min of the frequency photons' predicted
-radius (Belcour & Soler 2011; shared/notes/frequency.md "Conservative
+radius (Belcour & Soler 2011; docs/frequency.md "Conservative
 accumulation keeps the MINIMUM").
 
 Cell size (documented choice, measured with bench/bench_gather.py):
@@ -333,7 +333,7 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
 
 #: The same sort compiled without ``parallel``: a numba parallel region costs a
 #: thread hand-off even for n_chunks = 1, ~10 ms per call on a loaded 2-core
-#: machine (issue 6: 10,000 small passes took 137 s instead of ~15 s).
+#: machine (10,000 small passes took 137 s instead of ~15 s).
 _sort_photons_serial = njit(cache=True)(_sort_photons.py_func)
 
 

@@ -3,7 +3,7 @@
 One flat structure-of-arrays table (:class:`LightTable`) holds every emitter of a
 :class:`core.scene.Scene`: Blender lights (point, spot, sun, area), emissive
 triangles and the constant world colour.  Units and shapes follow Cycles 5.2
-(``shared/notes/blender.md``, "Cycles' units"), read from Cycles' sources
+(``docs/cycles_units.md``, "Cycles' units"), read from Cycles' sources
 ``intern/cycles/kernel/light/{point,spot,area,distant,background,triangle}.h``
 and ``intern/cycles/scene/light.cpp``:
 
@@ -62,8 +62,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .scene import Scene
-from .textures import sample_texture
+from ..scene.model import Scene
+from ..scene.textures import sample_texture
 
 # Emitter kinds (LightTable.kind, photon "kind").
 POINT = 0
@@ -76,11 +76,11 @@ KIND_NAMES = {POINT: "point", SPOT: "spot", SUN: "sun", AREA: "area",
               MESH: "mesh", WORLD: "world"}
 
 # Angular variance of a cosine-weighted diffuse lobe, pi^2/4 - 2 = 0.467 rad^2
-# (frequency.md "Lobe widths"): the angular init of every non-collimated light.
+# (docs/frequency.md "Lobe widths"): the angular init of every non-collimated light.
 B_DIFFUSE = np.pi ** 2 / 4.0 - 2.0
 
 # Rec. 709 luminance (Blender's default scene-linear space).
-_LUM = np.array([0.2126, 0.7152, 0.0722])
+from ..mathutil import LUMINANCE as _LUM, dot as _dot  # noqa: E402
 
 # Triangles up to this count get one entry each in the per-point NEE selection;
 # above it they share one entry (chosen by distance) and are picked by flux.
@@ -116,7 +116,7 @@ class LightTable:
     tri_uv: (Nl, 3, 2) corner UVs, tex: (Nl,) int32 emission texture or -1.
     visible_camera / visible_glossy / visible_transmission / cast_shadow:
       (Nl,) bool.
-    center (3,), radius_scene: bounding sphere; a_max: D^2 (frequency.md).
+    center (3,), radius_scene: bounding sphere; a_max: D^2 (docs/frequency.md).
     world: (3,) world radiance.  warnings: list of str.
     """
     kind: np.ndarray
@@ -173,10 +173,6 @@ class LightTable:
 
 # ----------------------------------------------------------------------------
 # Small vector helpers, all (K, 3) float64.
-
-def _dot(a, b):
-    return np.einsum("ij,ij->i", a, b)
-
 
 def _normalize(v):
     n = np.linalg.norm(v, axis=-1, keepdims=True)
@@ -494,7 +490,7 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
         tau / (pi R^2 N_emitted); zero for every photon if nothing emits,
       light (n,) int32 emitter row (-1 if nothing emits), kind (n,) int8,
       freq_init (n, 3) float64 spectrum (a, b, c) initial values
-        (frequency.md "Light inits"),
+        (docs/frequency.md "Light inits"),
       falloff_r2 (n,) float64: r^2 of soft-falloff point/spot lights, else 0.
         At the photon's FIRST surface hit, at distance t from o, multiply its
         power by t^2 / (t^2 + r^2): this reproduces Cycles' soft-falloff near

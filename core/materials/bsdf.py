@@ -77,12 +77,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .scene import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
+from ..scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
                     TRANSPARENT)
-from .textures import sample_texture
+from ..scene.textures import sample_texture
 
 # Rec. 709 luminance of linear RGB: lobe-selection weights.
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+from ..mathutil import LUMINANCE, dot as _dot  # noqa: E402
 # Cycles ``roughness_is_almost_specular``: alpha_x * alpha_y <= 2e-10.
 SPECULAR_ALPHA2 = 2e-10
 # Cycles ``diffuse_roughness_is_almost_zero``: roughness < 1e-5 -> Lambert.
@@ -324,10 +324,6 @@ def lambert_albedo(table: MaterialTable, mat: np.ndarray, colors: np.ndarray) ->
 # --------------------------------------------------------------------------
 # Vector helpers
 # --------------------------------------------------------------------------
-def _dot(a, b):
-    return np.einsum("ij,ij->i", a, b)
-
-
 def _normalize(a):
     n = np.sqrt(_dot(a, a))
     return a / np.where(n > 0, n, 1.0)[:, None]

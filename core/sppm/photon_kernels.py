@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .scene import GLASS, GLOSSY
+from ..scene.model import GLASS, GLOSSY
 
 # Fast-path classes of a material.
 GENERIC = 0
@@ -54,7 +54,7 @@ MIRROR = 2
 SMOOTH_GLASS = 3
 ABSORBER = 4          # no lobe with a non-zero weight (e.g. emission only)
 
-_LUM0, _LUM1, _LUM2 = 0.2126, 0.7152, 0.0722   # Rec. 709 (bsdf.LUMINANCE)
+from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0  # noqa: E402
 
 
 @dataclass
@@ -617,7 +617,7 @@ def light_arrays(table) -> tuple:
     """(cdf, last, L, b_diffuse) for :func:`emit_lights`: cumsum of p_select,
     last emitter with p_select > 0, the LightTable packed into one (nL, 26)
     float64 array, and the diffuse angular variance of the light inits."""
-    from .lights import B_DIFFUSE
+    from ..lights.lights import B_DIFFUSE
     nL = table.n
     L = np.zeros((max(nL, 1), _NCOL))
     L[:nL, _KIND] = table.kind

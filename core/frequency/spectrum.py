@@ -7,8 +7,8 @@ angle ``theta`` [rad]):
 
     |L(Omega)|^2 ~ exp(-Omega^T Q Omega)     (power spectrum, Omega in rad/unit)
 
-which makes ``Q`` the covariance of the light field itself (shared/notes/
-frequency.md, "Convention"): ``a`` spatial variance [m^2], ``b`` angular
+which makes ``Q`` the covariance of the light field itself (docs/frequency.md,
+"Convention"): ``a`` spatial variance [m^2], ``b`` angular
 variance [rad^2], ``c`` [m rad].  Larger a or b = smoother light = larger
 admissible kernel.  The local frame is ``x_hat = rot90(ray direction)``; theta > 0
 tilts the ray towards +x_hat.  With the amplitude spectrum |L| instead of |L|^2
@@ -18,7 +18,7 @@ power-spectrum (= light-field covariance) convention.
 Two models, selected by ``model``:
 
 ``'CORRECTED'`` (default)
-    The operators of frequency.md, each verified against a sampled light field
+    The operators of docs/frequency.md, each verified against a sampled light field
     (tests/test_frequency_ops.py).  They are made *stable*: every output goes
     through :func:`sanitize` (the notes' "stiff and extreme cases" table), so a
     chain of operators always returns a finite positive semi-definite Q.
@@ -42,7 +42,7 @@ import numpy as np
 
 # ---------------------------------------------------------------- constants
 #: beta = -ln 0.95: a Gaussian profile exp(-r^2 / 2a) stays >= 95 % of its peak
-#: for r^2 <= 2 beta a (frequency.md "At the hitpoint").
+#: for r^2 <= 2 beta a (docs/frequency.md "At the hitpoint").
 BETA = -math.log(0.95)
 #: Angular variance of a cosine-weighted diffuse lobe in flatland,
 #: int theta^2 cos(theta) / 2 over (-pi/2, pi/2) = pi^2/4 - 2 = 0.4674 rad^2.
@@ -94,7 +94,7 @@ def sanitize(s, A_MAX=A_MAX_DEFAULT):
     s: (..., 3) float array of (a, b, c).  A_MAX: scalar or broadcastable, the
     largest spatial variance (D^2).  Returns (..., 3) float64.
 
-    Guards (frequency.md, "Stiff and extreme cases"):
+    Guards (docs/frequency.md, "Stiff and extreme cases"):
     - a row with any NaN becomes (0, 0, 0): the sharpest spectrum, r = 0, no
       hold -- the conservative outcome of an unknown state;
     - a in [0, A_MAX] (+inf -> A_MAX: "grazing", "huge distance");
@@ -154,7 +154,7 @@ def travel(s, d, model="CORRECTED", A_MAX=A_MAX_DEFAULT):
     s: (N, 3) spectra; d: (N,) or scalar, metres (d < 0 transports backwards).
     Returns (N, 3) float64.
 
-    CORRECTED (frequency.md, Operators, "travel"): a += 2cd + bd^2, c += bd,
+    CORRECTED (docs/frequency.md, Operators, "travel"): a += 2cd + bd^2, c += bd,
     b unchanged.  Written in the PSD-preserving form: the shear has unit
     determinant, so ab - c^2 is invariant and
         a' = (max(ab - c^2, 0) + c'^2) / b,
@@ -181,7 +181,7 @@ def occlude(s, a_occ, model="CORRECTED", A_MAX=A_MAX_DEFAULT):
     """Partial occlusion: multiply l by a Gaussian visibility exp(-x^2 / 2 a_occ).
 
     s: (N, 3); a_occ: (N,) or scalar [m^2], the occluder's spatial variance
-    (frequency.md: (distance to the blocker)^2).  Returns (N, 3) float64.
+    (docs/frequency.md: (distance to the blocker)^2).  Returns (N, 3) float64.
 
     CORRECTED: the product of Gaussians adds precisions; with t = a + a_occ
         a' = a a_occ / t,  c' = c a_occ / t,  b' = b - c^2 / t
@@ -223,7 +223,7 @@ def onto_surface(s, cos_i, model="CORRECTED", A_MAX=A_MAX_DEFAULT, disc=False):
     a <= A_MAX (stiff table "grazing").  ``disc=True`` leaves a and c
     unchanged: only the in-plane axis stretches, so for an isotropic disc
     kernel the unstretched (perpendicular) axis is the conservative choice
-    (frequency.md, "Isotropic disc kernels").
+    (docs/frequency.md, "Isotropic disc kernels").
     PAPER: a cos^2, c cos (inverted).
     """
     m = _model(model)
@@ -292,7 +292,7 @@ def curvature(s, kappa, model="CORRECTED", A_MAX=A_MAX_DEFAULT, factor=2.0):
     (the normal tilts by kappa x, the reflected ray by twice that).
     Returns (N, 3).
 
-    CORRECTED (frequency.md, "curvature", missing in the paper):
+    CORRECTED (docs/frequency.md, "curvature", missing in the paper):
         b += 2kc + k^2 a,  c += k a,  a unchanged,
     in the PSD-preserving form b' = (max(ab - c^2, 0) + c'^2) / a (unit
     determinant, as for travel).
@@ -324,7 +324,7 @@ def mirror(s):
     """Flat mirror: (x, theta) -> (-x, -theta) between rot90 frames.
 
     Q is invariant under a point reflection, so c keeps its sign
-    (frequency.md, "flat mirror").  s: (..., 3) -> (..., 3) float64 copy.
+    (docs/frequency.md, "flat mirror").  s: (..., 3) -> (..., 3) float64 copy.
     """
     return _f64(s).copy()
 
@@ -342,7 +342,7 @@ def lobe_variance(kind, roughness=0.0):
 
     - Phong: the flatland second moment of cos^n(theta) on (-pi/2, pi/2),
       which is 1/(n + 1) within 1 % for n >= 5 (n = 20: 0.0476, as in
-      frequency.md; the peak curvature alone would give 1/n); capped at 0.467;
+      docs/frequency.md; the peak curvature alone would give 1/n); capped at 0.467;
     - GGX: its variance is infinite (slope density ~ |s|^-3 tails), so it is
       replaced by the Gaussian with the same *peak curvature* (Laplace
       approximation), the part that decides where the lobe stays >= 95 % of
@@ -356,7 +356,7 @@ def lobe_variance(kind, roughness=0.0):
     - diffuse / translucent: 0.467 = pi^2/4 - 2 (also the cap);
     - transparent and perfect mirrors (roughness 0): 0.
     """
-    from . import scene as _sc
+    from ..scene import model as _sc
     names = {_sc.DIFFUSE: "DIFFUSE", _sc.GLOSSY: "GGX", _sc.GLASS: "GGX",
              _sc.REFRACTION: "GGX", _sc.TRANSPARENT: "TRANSPARENT",
              _sc.TRANSLUCENT: "TRANSLUCENT"}
@@ -392,7 +392,7 @@ def lobe_variance(kind, roughness=0.0):
 
 def light_init(kind, n=1, *, size=0.0, size_y=None, shape="SQUARE", radius=0.0,
                angle=0.0, spot_size=None, A_MAX=A_MAX_DEFAULT):
-    """Spectra (n, 3) of photons leaving an emitter (frequency.md "Light inits").
+    """Spectra (n, 3) of photons leaving an emitter (docs/frequency.md "Light inits").
 
     kind: 'POINT', 'SPOT', 'AREA' or 'SUN' (``core.scene.Light.kind``).
     Each emitter is fitted from its own *primal* variance (a box spectrum's
@@ -437,7 +437,7 @@ def predicted_radius(s, b_receiver, z_camera, model="CORRECTED"):
     (inf = diffuse); z_camera: (N,) or scalar camera distance projected on
     the normal [m].  Returns (N,) float64, NaN mapped to 0 (no hold).
 
-    CORRECTED (frequency.md "At the hitpoint"):
+    CORRECTED (docs/frequency.md "At the hitpoint"):
         a_eff = a - c^2 / (b + b_r)          (a for a diffuse receiver)
         r_x   = sqrt(2 beta a_eff) = 0.3203 sqrt(a_eff),   beta = -ln 0.95
         r_th  = z tan(sqrt(2 beta (b + b_r))), inf for a diffuse receiver or
@@ -480,7 +480,7 @@ def accumulate(current, new, model="CORRECTED"):
     ``new`` NaN counts as 0 (no hold).  Returns (K,) float64.
 
     CORRECTED: minimum -- conservative; the sharpest photon decides
-    (frequency.md: -2 % at a caustic peak next to broad light).
+    (docs/frequency.md: -2 % at a caustic peak next to broad light).
     PAPER: the paper keeps "the max of each coefficient" of (a, b, c)
     (:func:`accumulate_spectrum_paper`).  Reduced to one scalar radius, which
     grows with a and b, that rule is the maximum of the radii: the smoothest
@@ -519,7 +519,7 @@ def ppm_radius_update(N, R2, tau, M, Phi, alpha, r_pred=None, R2_floor=0.0):
     R2_floor: smallest R^2 (see :func:`radius_floor_sq`).
     Returns (N', R2', tau', held): (K,), (K,), (K, 3) float64 and (K,) bool.
 
-    frequency.md "PPM update" (Hachisuka 2008 and its general form):
+    docs/frequency.md "PPM update" (Hachisuka 2008 and its general form):
         R_ppm = R sqrt((N + alpha M) / (N + M))
         R'    = max(R_ppm, min(R, r_pred))      (R_ppm when r_pred not finite)
         f     = (R'/R)^2,  N' = (N + M) f,  tau' = (tau + Phi) f

@@ -52,7 +52,7 @@ import struct
 
 import numpy as np
 
-from ..core import metrics as M
+from . import metrics as M
 
 REF_VERSION = "fppm-converge-ref-2"   # 2: with DiffDir/DiffInd passes
 REF_SEEDS = (1_000_003, 1_000_004)     # independent of every method's seeds
@@ -180,7 +180,7 @@ def _open(bpy, path: str, resolution) -> object:
 
 
 def cycles_reference_setup(scene) -> None:
-    """Cycles settings for an unbiased, comparable render (shared/notes/blender.md)."""
+    """Cycles settings for an unbiased, comparable render (docs/cycles_units.md)."""
     r = scene.render
     r.engine = "CYCLES"
     r.use_persistent_data = False
@@ -204,7 +204,7 @@ def cycles_reference_setup(scene) -> None:
 
 def cycles_render(bpy, scene, samples: int, seed: int, passes: bool = False):
     """Render with Cycles; returns ({layer: (H, W, C) float32}, wall seconds of render.render)."""
-    from ..core.imageio import read_exr
+    from ..core.io.exr import read_exr
     scene.cycles.samples = int(samples)
     scene.cycles.seed = int(seed)
     vl = bpy.context.view_layer
@@ -238,7 +238,7 @@ def cycles_render(bpy, scene, samples: int, seed: int, passes: bool = False):
 
 def make_reference(bpy, scene, blend_path: str, samples: int, log, progress) -> dict:
     """Cycles reference (cached): {"image", "var", "diff_direct", "diff_indirect", "meta", "path"}."""
-    from ..core.imageio import read_exr, read_exr_metadata, write_exr
+    from ..core.io.exr import read_exr, read_exr_metadata, write_exr
     r = scene.render
     pct = r.resolution_percentage
     W, H = r.resolution_x * pct // 100, r.resolution_y * pct // 100
@@ -283,7 +283,7 @@ def make_reference(bpy, scene, blend_path: str, samples: int, log, progress) -> 
 
 
 def load_reference(path: str) -> dict:
-    from ..core.imageio import read_exr
+    from ..core.io.exr import read_exr
     try:
         layers = read_exr(path)
     except OSError as ex:
@@ -304,7 +304,7 @@ def load_reference(path: str) -> dict:
 
 def load_mask(bpy, path: str, shape) -> dict:
     if path.lower().endswith(".exr"):
-        from ..core.imageio import read_exr
+        from ..core.io.exr import read_exr
         a = _layer(read_exr(path), "Combined")
     else:
         try:
@@ -638,7 +638,7 @@ def report(path, a, runs, ref, floors, masks, budget, notes, interrupted) -> dic
 
 def converge(a, log=print) -> int:
     """Run ``fppm converge``; returns the exit code.  Raises ConvergeError on bad input."""
-    from .cli import check_input
+    from ..addon.cli import check_input
     check_input(a.blend)
     if not a.time_limit or a.time_limit <= 0:
         raise ConvergeError(2, "--time-limit must be > 0 seconds.")
@@ -705,7 +705,7 @@ def converge(a, log=print) -> int:
     try:
         if "fppm" in methods or "ppm" in methods or "paper" in methods:
             from ..core.errors import FPPMError
-            from .export import export_scene
+            from ..addon.export import export_scene
             try:
                 fscene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
             except FPPMError as ex:
@@ -747,8 +747,8 @@ def run_photon_mapping(run, scene, fscene, budget, photons, ref, masks, log, pro
     """FPPM or PPM (run.method) for ``budget`` seconds; records every pass into ``run``."""
     from ..core.render import Renderer
     from ..core.settings import SettingsError
-    from .engine import film_gain
-    from .properties import settings_from_scene
+    from ..addon.engine import film_gain
+    from ..addon.properties import settings_from_scene
     m, seed = run.method, run.seed
     kw = dict(use_frequency=(m in ("fppm", "paper")), time_limit=float(budget), max_passes=0,
               seed=seed)
@@ -889,7 +889,7 @@ def rereport(a, ref, floors, masks, budget, notes, log) -> int:
 
 
 def _write_all(a, runs, ref, floors, masks, budget, notes, interrupted, log):
-    from ..core.imageio import write_exr
+    from ..core.io.exr import write_exr
     out = a.out
     write_csv(os.path.join(out, "convergence.csv"), runs)
     written = ["convergence.csv"]

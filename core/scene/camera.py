@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .scene import Camera
+from .model import Camera
 
 
 def blackman_harris(x: np.ndarray, width: float) -> np.ndarray:

@@ -40,7 +40,7 @@ import numpy as np
 
 RELMSE_EPS = 1e-2
 MRE_EPS = float(np.sqrt(RELMSE_EPS))
-LUMA = np.array([0.2126, 0.7152, 0.0722])    # Rec. 709 luminance weights
+from ..core.mathutil import LUMINANCE as LUMA  # noqa: E402  (Rec. 709)
 
 # --- automatic region thresholds --------------------------------------------
 #: Gaussian blur (std, pixels) that defines a pixel's "surround".

@@ -3,7 +3,7 @@
 A frequency photon must know when it passes close to geometry that blocks part
 of the light field around it: that blocker convolves the local spectrum with a
 Gaussian visibility of variance ``a_occ = (distance to blocker)**2``
-(``shared/notes/frequency.md``, occlusion row; the exact operator is applied by
+(``docs/frequency.md``, occlusion row; the exact operator is applied by
 the caller, ``core.frequency.occlude(s, a_occ)``).  Tracing extra rays per
 photon is too expensive, so the paper pre-computes a voxel grid over the scene
 bounds.  Each voxel stores
@@ -51,7 +51,7 @@ two candidate axes, closest points), 12 bytes per (triangle, voxel) overlap
 and about 100 bytes per triangle (normals, BVH, sorted copy);
 ``bench_occlusion_grid`` measures the peaks.
 
-Scale rule (frequency.md): every epsilon is relative to the voxel size, the
+Scale rule (docs/frequency.md): every epsilon is relative to the voxel size, the
 triangle's own size, or the grid diameter; nothing is in absolute metres.
 """
 from __future__ import annotations
@@ -135,7 +135,7 @@ def default_locality(grid: OcclusionGrid) -> float:
 
 # ----------------------------------------------------------------- kernels
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _closest_point(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     """Closest point of triangle abc to p (Ericson, Real-Time Collision
     Detection, 5.1.5: Voronoi regions of vertices, edges, face).  Corners
@@ -339,7 +339,7 @@ def _accumulate(pair_t, pair_v, pair_w, nrm, mode, S, W, axes, mincos):
                     mincos[v, k] = c
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _box_d2(node_lo, node_hi, k, px, py, pz):
     dx = max(node_lo[k, 0] - px, 0.0, px - node_hi[k, 0])
     dy = max(node_lo[k, 1] - py, 0.0, py - node_hi[k, 1])
@@ -634,7 +634,7 @@ def build_occlusion_grid_for_scene(scene, res: int = 64,
 
 # ----------------------------------------------------------------- marching
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _cone_meets(cone, vx, vy, vz, dx, dy, dz):
     """Does voxel v's bi-cone (``OcclusionGrid.cone``) meet the plane
     orthogonal to d?  It does iff the axis is within the aperture of that
@@ -709,7 +709,7 @@ def _march_dense(dist, cone, lo, cell, R, o, d, t_end,
             out[i] = best * best
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _sample_voxel(dist, cone, lo, cell, R, ix, iy, iz, ox, oy, oz, dx, dy, dz, ts,
                   locality, best):
     """The occluder test of voxel (ix, iy, iz) at the segment point o + ts d:
@@ -834,7 +834,7 @@ class MarchBlocks:
 VOXEL_LEVEL_MAX = 64 * 2 ** 20
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _cut_locality(c0, c1, c2):
     """The locality [m] the union cones of MarchBlocks are cut for:
     default_locality (2 voxel diagonals), by one formula for the build and
@@ -843,7 +843,7 @@ def _cut_locality(c0, c1, c2):
     return 2.0 * math.sqrt(c0 * c0 + c1 * c1 + c2 * c2) * (1.0 + 1e-9)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _in_cut(dist, x, y, z, inner, L):
     """Is voxel (x, y, z)'s cone a member of a union cone cut at locality L?
     A sample reads a neighbour's cone only when that neighbour's dist <
@@ -853,7 +853,7 @@ def _in_cut(dist, x, y, z, inner, L):
     return inner or np.float64(dist[x, y, z]) < L
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def _union_cone(ax_, ay_, az_, sk_, idx, n, out, o):
     """out[o:o+4] = a bi-cone (unit axis, sin of half-angle) containing the
     members idx[:n] (unit axes ax_, ay_, az_; sk_ = sin of the half-angle
@@ -980,7 +980,7 @@ def _build_blocks(dist, cone, R, B, NB, bmin, bcone, L, quant):
                 _store_cones(out, bcone, bx, by, bz, quant)
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def _store_cones(out, bcone, x, y, z, quant):
     if quant:
         _quantize_cone(out, 0, bcone, x, y, z)
@@ -994,7 +994,7 @@ def _store_cones(out, bcone, x, y, z, quant):
 _CONE_Q = 32767.0
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def _quantize_cone(out, o, q, x, y, z):
     """q[x, y, z, o:o+4] = the float64 cone out[o:o+4] in int16 units of
     1 / _CONE_Q, conservatively: an axis component rounds by <= 0.5 / Q, so
@@ -1062,7 +1062,7 @@ def march_blocks(grid: OcclusionGrid, B: int = MARCH_BLOCK) -> MarchBlocks:
         return mb
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def _clip_slab(lo, c, R, o, d, ta, tb):
     """[ta, tb] clipped to the grid's slab [lo, lo + R c] on one axis (empty,
     tb = -inf, when a ray parallel to the slab lies outside it)."""
@@ -1077,7 +1077,7 @@ def _clip_slab(lo, c, R, o, d, ta, tb):
     return ta, tb
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def _axis_exit(lo, c, i, o, d):
     """Parameter where o + t d leaves voxel slab i of one axis (inf if d = 0)."""
     if d > 0.0:
@@ -1087,7 +1087,7 @@ def _axis_exit(lo, c, i, o, d):
     return np.inf
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def _union_meets(c, x, y, z, dx, dy, dz):
     """Does one of the two union cones c[x, y, z] (MarchBlocks bcone / vcone)
     meet the plane orthogonal to d?  (union_meets, per block.)"""
@@ -1097,13 +1097,13 @@ def _union_meets(c, x, y, z, dx, dy, dz):
                    + np.float64(c[x, y, z, 6]) * dz) <= np.float64(c[x, y, z, 7]))
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def _far_face(b, B, R, d):
     """Index of the last voxel of block b along an axis, in direction d."""
     return min((b + 1) * B, R) - 1 if d > 0.0 else b * B
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def _march_one(dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell, R,
                ox, oy, oz, dx, dy, dz, t_end, locality, t_skip):
     """a_occ of one segment [o + t_skip d, o + (t_end - t_skip) d] (see
@@ -1339,7 +1339,7 @@ def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
     Returns (N,) float64: (min candidate distance)^2, np.inf without occluder;
     with return_t (block march only) also (N,) the segment parameter t of that
     occluder (inf without one): the occlusion operator acts there, and the
-    light field travels on for t_end - t (frequency.md: occlusion is a
+    light field travels on for t_end - t (docs/frequency.md: occlusion is a
     multiplication of the field at the blocker).
     The traversal (:func:`_march_one`) skips whole blocks of voxels that
     provably hold no candidate below the current minimum (``MarchBlocks``).

@@ -8,7 +8,7 @@ Conventions (shared by every ``core`` module)
 --------------------------------------------
 - World space is Blender's: right-handed, +Z up, metres.
 - Colours are linear RGB, shape ``(3,)`` or ``(..., 3)``.
-- Light quantities use Cycles' units (``shared/notes/blender.md``):
+- Light quantities use Cycles' units (``docs/cycles_units.md``):
   ``Light.strength = color * energy * 2**exposure``.
 - Images produced by ``core`` are ``(H, W, C)`` float32 with row 0 at the TOP.
   Texture images (as Blender stores them) have row 0 at the BOTTOM, uv (0, 0)
@@ -204,7 +204,7 @@ class Scene:
         return allp.min(axis=0), allp.max(axis=0)
 
     def diameter(self) -> float:
-        """Scene diameter D used for every relative epsilon (frequency.md)."""
+        """Scene diameter D used for every relative epsilon (docs/frequency.md)."""
         lo, hi = self.bounds()
         return float(max(np.linalg.norm(hi - lo), 1e-30))
 

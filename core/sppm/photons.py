@@ -32,15 +32,15 @@ import os
 
 import numpy as np
 
-from . import bsdf as B
-from . import lights as Lt
-from . import frequency as F
-from . import frequency_kernels as FK
+from ..materials import bsdf as B
+from ..lights import lights as Lt
+from ..frequency import spectrum as F
+from ..frequency import kernels as FK
 from . import photon_kernels as PK
-from .accel import REL_OFFSET, intersect_f32, surface_point
-from .scene import Scene
+from ..accel import REL_OFFSET, intersect_f32, surface_point
+from ..scene.model import Scene
 
-LUM = np.array([0.2126, 0.7152, 0.0722])
+from ..mathutil import LUMINANCE as LUM, dot as _dot  # noqa: E402
 #: Batches of at least this many photons are traced as two halves (see trace).
 SPLIT_MIN = 8192
 #: Threads tracing the halves: FPPM_PHOTON_THREADS, else min(2, cores).
@@ -66,10 +66,6 @@ def _children(rng):
         return rng.spawn(2)
     except (AttributeError, TypeError, ValueError):    # no SeedSequence behind rng
         return [np.random.default_rng(int(s)) for s in rng.integers(0, 2**63, 2)]
-
-
-def _dot(a, b):
-    return np.einsum("ij,ij->i", a, b)
 
 
 def _travel_occlude_travel(spec, t, a_occ, t_occ, D, model, A_MAX):
@@ -331,7 +327,7 @@ class PhotonTracer:
         hi = np.nonzero(rec_hit[:K])[0]
         t = rec_t[hi]
         if self.occ_grid is not None:
-            from .occlusion import march_occlusion
+            from ..frequency.occlusion import march_occlusion
             a_occ, t_occ = march_occlusion(self.occ_grid, o_seg[hi], d_seg[hi], t,
                                            self.occ_locality, return_t=True)
             s = _travel_occlude_travel(spec[hi], t, a_occ, t_occ, self.D, model, A_MAX)
@@ -354,7 +350,7 @@ class PhotonTracer:
         march, 2 = a grid without geometry (march_occlusion gives inf)."""
         g = self.occ_grid
         if g is not None and np.isfinite(g.dist).any():
-            from .occlusion import check_locality, march_blocks
+            from ..frequency.occlusion import check_locality, march_blocks
             check_locality(g, self.occ_locality)
             mb = march_blocks(g)
             return 1, (g.dist, g.cone, mb.bmin, mb.bcone, mb.vmin, mb.vcone, mb.has_voxel_level,
@@ -445,7 +441,7 @@ class PhotonTracer:
             if np.any(is_freq):
                 fq = np.nonzero(is_freq)[0]
                 if self.occ_grid is not None:
-                    from .occlusion import march_occlusion
+                    from ..frequency.occlusion import march_occlusion
                     a_occ, t_occ = march_occlusion(self.occ_grid, o[fq], d[fq], hits.t[fq],
                                                    self.occ_locality, return_t=True)
                     s = _travel_occlude_travel(spec[fq], hits.t[fq], a_occ, t_occ, self.D,
@@ -522,7 +518,7 @@ def triangle_curvature(scene: Scene) -> np.ndarray:
 
     kappa = mean over edges of dot(n_j - n_i, p_j - p_i) / |p_j - p_i|^2: +1/R
     on the outside of a sphere of radius R whose normals point outwards, 0 on
-    flat-shaded triangles (issue 4: curvature comes from the shading normals).
+    flat-shaded triangles (curvature comes from the shading normals).
     """
     P = scene.tri_p.astype(np.float64)
     N = scene.tri_n.astype(np.float64)

@@ -1,0 +1,1 @@
+"""Frequency analysis: spectrum operators (numpy specification), compiled chains, occlusion grid."""

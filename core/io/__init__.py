@@ -1,0 +1,1 @@
+"""Files: EXR images, checkpoints, atomic writes."""

@@ -1,0 +1,1 @@
+"""Materials: the table of lobes, BSDF evaluation and sampling, compiled fast path."""

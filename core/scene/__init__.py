@@ -1,0 +1,1 @@
+"""Scene description: the exported model, Cycles node translation, textures, camera."""

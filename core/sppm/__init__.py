@@ -1,0 +1,1 @@
+"""Stochastic progressive photon mapping stages: visible points, hash grid, photon pass, update, film."""

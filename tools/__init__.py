@@ -1,0 +1,1 @@
+"""Evaluation tools (convergence reports, metrics): not part of the shipped extension."""
