@@ -1,4 +1,8 @@
-"""Lights seen by rays: emitters a camera (or mirror / glass) ray hits, and the world.
+"""Lights seen by rays: the analytic emitters a camera, mirror or glass ray hits.
+
+Area lights, point/spot discs or spheres and sun discs are not part of the
+triangle geometry, so rays test them here; emissive triangles are found by
+the ray's hit, and the world by a ray that escapes (:func:`world_radiance`).
 """
 from __future__ import annotations
 

@@ -146,6 +146,20 @@ def _lerp_index(x, n):
     return i, t - i
 
 
+def _bilerp(T, i, ti, j, tj):
+    """Bilinear read of a table T (n, n) at nodes i, j (k,) plus fractions ti, tj (k,)."""
+    return ((1 - ti) * ((1 - tj) * T[i, j] + tj * T[i, j + 1])
+            + ti * ((1 - tj) * T[i + 1, j] + tj * T[i + 1, j + 1]))
+
+
+def _ggx_albedo(rough, mu):
+    """Single-scattering GGX albedo E(rough, mu) and E_avg(rough), (k,) each, from the table."""
+    E_t, Eavg_t = _ms_tables()
+    i, ti = _lerp_index(rough, 32)
+    j, tj = _lerp_index(mu, 32)
+    return _bilerp(E_t, i, ti, j, tj), (1 - ti) * Eavg_t[i] + ti * Eavg_t[i + 1]
+
+
 def layer_transmission(f0, rough, ior, mu, ms=None):
     """1 - albedo (k,) of a Principled dielectric specular layer seen at cosine mu.
 
@@ -165,19 +179,13 @@ def layer_transmission(f0, rough, ior, mu, ms=None):
             sel = k + dk == kk
             T = _schlick_s_slice(int(kk))
             ii, ti_, jj, tj_ = i[sel], ti[sel], j[sel], tj[sel]
-            s[sel] += wk[sel] * ((1 - ti_) * ((1 - tj_) * T[ii, jj] + tj_ * T[ii, jj + 1])
-                                 + ti_ * ((1 - tj_) * T[ii + 1, jj] + tj_ * T[ii + 1, jj + 1]))
+            s[sel] += wk[sel] * _bilerp(T, ii, ti_, jj, tj_)
     A = f0 + (1.0 - f0) * s
     if ms is not None and np.any(ms):
         F0 = f0_from_ior(ior[ms])
         s_ss = np.clip((_fss_dielectric(ior[ms]) - F0) / np.maximum(1.0 - F0, 1e-12), 0.0, 1.0)
         fss = f0[ms] + (1.0 - f0[ms]) * s_ss
-        E_t, Eavg_t = _ms_tables()
-        i2, ti2 = _lerp_index(rough[ms], 32)
-        j2, tj2 = _lerp_index(mu[ms], 32)
-        E = ((1 - ti2) * ((1 - tj2) * E_t[i2, j2] + tj2 * E_t[i2, j2 + 1])
-             + ti2 * ((1 - tj2) * E_t[i2 + 1, j2] + tj2 * E_t[i2 + 1, j2 + 1]))
-        Eavg = (1 - ti2) * Eavg_t[i2] + ti2 * Eavg_t[i2 + 1]
+        E, Eavg = _ggx_albedo(rough[ms], mu[ms])
         fms = fss * Eavg / np.maximum(1.0 - fss * (1.0 - Eavg), 1e-12)
         A[ms] *= E + fms * (1.0 - E)
     return np.clip(1.0 - A, 0.0, 1.0)
@@ -190,12 +198,7 @@ def multiscatter_factor(kind, color, rough, eta, mu):
     eta: (k,) relative ior (glass); mu: (k,) cosine of the view direction.
     """
     if kind != GLASS:
-        E_t, Eavg_t = _ms_tables()
-        i, ti = _lerp_index(rough, 32)
-        j, tj = _lerp_index(mu, 32)
-        E = ((1 - ti) * ((1 - tj) * E_t[i, j] + tj * E_t[i, j + 1])
-             + ti * ((1 - tj) * E_t[i + 1, j] + tj * E_t[i + 1, j + 1]))
-        Eavg = (1 - ti) * Eavg_t[i] + ti * Eavg_t[i + 1]
+        E, Eavg = _ggx_albedo(rough, mu)
     else:
         inv = (eta < 1.0).astype(np.int64)
         ior = np.where(inv == 1, 1.0 / eta, eta)
@@ -212,8 +215,7 @@ def multiscatter_factor(kind, color, rough, eta, mu):
                 sel = (inv == s_) & (k + dk == kk)
                 E_t, Eavg_t = _ms_glass_slice(s_, kk)
                 ii, ti_, jj, tj_ = i[sel], ti[sel], j[sel], tj[sel]
-                E[sel] += wk[sel] * ((1 - ti_) * ((1 - tj_) * E_t[ii, jj] + tj_ * E_t[ii, jj + 1])
-                                     + ti_ * ((1 - tj_) * E_t[ii + 1, jj] + tj_ * E_t[ii + 1, jj + 1]))
+                E[sel] += wk[sel] * _bilerp(E_t, ii, ti_, jj, tj_)
                 Eavg[sel] += wk[sel] * ((1 - ti_) * Eavg_t[ii] + ti_ * Eavg_t[ii + 1])
     E = np.maximum(E, 1e-6)[:, None]
     Eavg = Eavg[:, None]
