@@ -570,7 +570,6 @@ def test_matches_cycles_render():
     import sys
     if importlib.util.find_spec("bpy") is None:
         pytest.skip("bpy not installed")
-    from core.scene.nodes import principled_to_lobes
     v, l = direction(math.radians(30), 0.0), direction(math.radians(50), math.radians(160))
     vr, lr = direction(math.radians(40), 0.0), direction(math.radians(40), math.pi)   # mirror pair
     lb = direction(math.radians(160), math.radians(170))                              # below
