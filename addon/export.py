@@ -216,7 +216,7 @@ class _MaterialBuilder:
         """Glossy / Glass / Refraction node -> one GGX lobe.
 
         'MULTI_GGX' (the Glossy and Glass default) is Cycles' Multiscatter GGX,
-        reproduced by ``core.bsdf`` (``multiscatter``); 'GGX' is single
+        reproduced by ``core.materials`` (``multiscatter``); 'GGX' is single
         scattering.  Beckmann and Ashikhmin-Shirley are rendered as GGX of the
         same roughness, and noted (they coincide at roughness 0)."""
         kind = {'BSDF_GLASS': GLASS, 'BSDF_REFRACTION': REFRACTION}.get(node.type, GLOSSY)
@@ -235,7 +235,7 @@ class _MaterialBuilder:
                                  multiscatter=dist == 'MULTI_GGX')
 
     def principled(self, node) -> Material:
-        """Principled BSDF through ``core.shading.principled_to_lobes``."""
+        """Principled BSDF through ``core.scene.nodes.principled_to_lobes``."""
         base, base_tex = self.color(node, "Base Color")
         emis, emis_tex = self.color(node, "Emission Color")
         v = self.value

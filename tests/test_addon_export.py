@@ -282,7 +282,7 @@ def _one_node_material(name, idname, distribution, **inputs):
 
 
 def test_distribution_sets_multiscatter():
-    from fppm.core.materials.bsdf import build_material_table
+    from fppm.core.materials import build_material_table
     sc = base_scene()
     # name -> (node, distribution, inputs, kind, multiscatter expected)
     cases = {

@@ -1,4 +1,4 @@
-"""Tests of core.materials.bsdf against Cycles' closure formulas.
+"""Tests of core.materials (the BSDF) against Cycles' closure formulas.
 
 - Chi-square goodness of fit of every sampler against its pdf (Mitsuba 3's
   ``ChiSquareTest``: bin the sphere, integrate the pdf over each bin, pool bins
@@ -12,15 +12,22 @@ import math
 import numpy as np
 import pytest
 
-from core.materials import bsdf as B
+from core import materials as B
+from core.materials.microfacet import _normalize
+from core.materials.multiscatter import _ms_tables
 from core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
-                        TRANSPARENT, Lobe, Material)
-from core.scene.nodes import MultiscatterLobe, principled_to_lobes
-
-from stats_helpers import chi2_sf
+                              TRANSPARENT, Lobe, Material)
+from core.scene.nodes import principled_to_lobes
 from core.scene.textures import sample_texture
 
+from stats_helpers import chi2_sf
+
 Z = np.array([0.0, 0.0, 1.0])
+
+
+def ms_lobe(kind, color, **kw):
+    """A Lobe with Multiscatter GGX (the 'MULTI_GGX' distribution of the Glossy / Glass nodes)."""
+    return Lobe(kind, color, multiscatter=True, **kw)
 
 
 def table(lobes, textures=()):
@@ -152,14 +159,14 @@ def test_chi2_importance_mode_and_subsets():
     p, frac, mass = chi2_pvalue(mixed, 0.7, subset="nondelta", seed=5)
     assert p > ALPHA and abs(frac - mass) < 5e-3
     # Tilted normal: the pdf must follow the normal, not the world axes.
-    nrm = B._normalize(np.array([[0.3, -0.2, 1.0]]))[0]
+    nrm = _normalize(np.array([[0.3, -0.2, 1.0]]))[0]
     p, frac, mass = chi2_pvalue([Lobe(GLOSSY, roughness=0.5)], 0.4, normal=nrm, seed=6)
     assert p > ALPHA and abs(frac - mass) < 5e-3
     # Shading normal != geometric normal: samples below the geometric surface are
     # rejected (Cycles) and pdf_bsdf must drop the same region.
     p, frac, mass = chi2_pvalue([Lobe(DIFFUSE, (0.5, 0.5, 0.5)), Lobe(GLOSSY, roughness=0.6),
                                  Lobe(TRANSLUCENT, (0.3, 0.3, 0.3))], 1.2,
-                                normal=B._normalize(np.array([[0.5, 0.0, 1.0]]))[0],
+                                normal=_normalize(np.array([[0.5, 0.0, 1.0]]))[0],
                                 geo_normal=Z, seed=8)
     assert p > ALPHA and abs(frac - mass) < 5e-3 and frac < 0.97
 
@@ -182,7 +189,7 @@ def test_chi2_detects_a_wrong_pdf():
 # ---------------------------------------------------------------- weight = f cos / pdf
 WEIGHT_CASES = {
     "mixed": [Lobe(DIFFUSE, (0.5, 0.3, 0.2), weight=0.5, roughness=0.7),
-              MultiscatterLobe(GLOSSY, (0.9, 0.8, 0.7), weight=0.3, roughness=0.35),
+              ms_lobe(GLOSSY, (0.9, 0.8, 0.7), weight=0.3, roughness=0.35),
               Lobe(GLASS, (1, 1, 1), weight=0.4, roughness=0.5, ior=1.5),
               Lobe(TRANSLUCENT, (0.2, 0.4, 0.2), weight=0.3)],
     "principled": list(principled_to_lobes(base_color=(0.6, 0.5, 0.4), metallic=0.4,
@@ -199,9 +206,9 @@ def test_weight_is_f_cos_over_pdf(mode, case):
     K = 20000
     mat = np.zeros(K, np.int32)
     cols = B.lobe_colors(T, mat, np.zeros((K, 2)))
-    ng = B._normalize(rng.normal(size=(K, 3)))
-    ns = B._normalize(ng + 0.15 * rng.normal(size=(K, 3)))      # perturbed shading normals
-    wo = B._normalize(rng.normal(size=(K, 3)))
+    ng = _normalize(rng.normal(size=(K, 3)))
+    ns = _normalize(ng + 0.15 * rng.normal(size=(K, 3)))      # perturbed shading normals
+    wo = _normalize(rng.normal(size=(K, 3)))
     wi, w, pdf, is_d, ok = B.sample_bsdf(T, mat, cols, ns, ng, wo, rng.random((K, 3)), mode=mode)
     assert ok.mean() > 0.7
     f = B.eval_bsdf(T, mat, cols, ns, ng, wo, wi, mode=mode)
@@ -221,7 +228,7 @@ def albedo_mc(lobes, theta, n=100_000, seed=11, mode="radiance"):
     """∫ f |cos| dω over the sphere by uniform-sphere Monte Carlo: (mean (3,), sd of mean)."""
     T = table(lobes)
     mat, cols, nn, wos = points(T, direction(theta), n)
-    d = B._normalize(np.random.default_rng(seed).normal(size=(n, 3)))
+    d = _normalize(np.random.default_rng(seed).normal(size=(n, 3)))
     f = B.eval_bsdf(T, mat, cols, nn, nn, wos, d, mode=mode)
     x = f * np.abs(d[:, 2:3]) * 4 * np.pi
     return x.mean(0), x.std(0) / math.sqrt(n)
@@ -286,24 +293,24 @@ def test_multiscatter_ggx_white_furnace():
     |albedo - 1| < 0.2% away from grazing (sampler sd < 1e-3), bound 1%."""
     for rough in (0.5, 1.0):
         for th in (0.0, 1.0, 1.4):
-            m, sd = sampler_albedo([MultiscatterLobe(GLOSSY, (1, 1, 1), roughness=rough)], th)
+            m, sd = sampler_albedo([ms_lobe(GLOSSY, (1, 1, 1), roughness=rough)], th)
             assert abs(m[0] - 1) < 0.01 + 5 * sd[0], (rough, th, m[0])
     for th in (0.0, 1.0, math.pi - 0.3):      # glass: entering and exiting
-        m, sd = sampler_albedo([MultiscatterLobe(GLASS, (1, 1, 1), roughness=0.7, ior=1.5)], th)
+        m, sd = sampler_albedo([ms_lobe(GLASS, (1, 1, 1), roughness=0.7, ior=1.5)], th)
         assert abs(m[0] - 1) < 0.01 + 5 * sd[0], (th, m[0])
     # Coloured: albedo = C (E + F_ms (1 - E)), F_ms = C E_avg / (1 - C (1 - E_avg))
     # (Kulla-Conty), with E the single-scattering albedo measured independently.
     C, rough, th = 0.5, 0.9, 0.5
     e_ss, sd1 = sampler_albedo([Lobe(GLOSSY, (1, 1, 1), roughness=rough)], th)
-    m, sd2 = sampler_albedo([MultiscatterLobe(GLOSSY, (C, C, C), roughness=rough)], th)
-    E_t, Eavg_t = B._ms_tables()
+    m, sd2 = sampler_albedo([ms_lobe(GLOSSY, (C, C, C), roughness=rough)], th)
+    E_t, Eavg_t = _ms_tables()
     t = rough * 31
     eavg = Eavg_t[int(t)] * (1 - t % 1) + Eavg_t[int(t) + 1] * (t % 1)
     fms = C * eavg / (1 - C * (1 - eavg))
     expect = C * (e_ss[0] + fms * (1 - e_ss[0]))
     assert abs(m[0] - expect) < 0.005 + 5 * math.hypot(sd2[0], C * sd1[0]), (m[0], expect)
     # Mix weight does not enter F_ms (Cycles uses the node colour only).
-    m2, _ = sampler_albedo([MultiscatterLobe(GLOSSY, (C, C, C), weight=0.5, roughness=rough)], th)
+    m2, _ = sampler_albedo([ms_lobe(GLOSSY, (C, C, C), weight=0.5, roughness=rough)], th)
     np.testing.assert_allclose(m2, 0.5 * m, rtol=1e-12)
 
 
@@ -357,8 +364,8 @@ def test_reflection_reciprocity(lobe):
     rng = np.random.default_rng(3)
     K = 5000
     T = table([lobe])
-    a = B._normalize(rng.normal(size=(K, 3)))
-    b = B._normalize(rng.normal(size=(K, 3)))
+    a = _normalize(rng.normal(size=(K, 3)))
+    b = _normalize(rng.normal(size=(K, 3)))
     a[:, 2] = np.abs(a[:, 2])
     b[:, 2] = np.abs(b[:, 2])
     mat, cols, nn, _ = points(T, Z, K)
@@ -373,8 +380,8 @@ def test_glass_transmission_generalised_reciprocity():
     rng = np.random.default_rng(4)
     K = 5000
     T = table([Lobe(GLASS, (1, 1, 1), roughness=0.5, ior=1.5)])
-    v = B._normalize(rng.normal(size=(K, 3)))
-    l = B._normalize(rng.normal(size=(K, 3)))
+    v = _normalize(rng.normal(size=(K, 3)))
+    l = _normalize(rng.normal(size=(K, 3)))
     v[:, 2] = np.abs(v[:, 2])
     l[:, 2] = -np.abs(l[:, 2])              # v outside (n = 1), l inside (n = 1.5)
     mat, cols, nn, _ = points(T, Z, K)
@@ -466,7 +473,7 @@ def test_lambert_fast_path_matches_eval():
     rng = np.random.default_rng(0)
     K = 1000
     mat, cols, nn, _ = points(T, Z, K)
-    wo = B._normalize(rng.normal(size=(K, 3)))
+    wo = _normalize(rng.normal(size=(K, 3)))
     wi = wo * [-1, -1, 1]
     f = B.eval_bsdf(T, mat, cols, nn, nn, wo, wi)
     np.testing.assert_allclose(f, np.broadcast_to(B.lambert_albedo(T, mat, cols) / np.pi, f.shape))
@@ -563,7 +570,6 @@ def test_matches_cycles_render():
     import sys
     if importlib.util.find_spec("bpy") is None:
         pytest.skip("bpy not installed")
-    from core.scene.nodes import principled_to_lobes
     v, l = direction(math.radians(30), 0.0), direction(math.radians(50), math.radians(160))
     vr, lr = direction(math.radians(40), 0.0), direction(math.radians(40), math.pi)   # mirror pair
     lb = direction(math.radians(160), math.radians(170))                              # below
@@ -580,7 +586,7 @@ def test_matches_cycles_render():
         (gl, "GGX", {"Roughness": 0.5, "Color": W}, [Lobe(GLOSSY, (1, 1, 1), roughness=0.5)],
          v, l, 2e-3),
         (gl, "MULTI_GGX", {"Roughness": 0.8, "Color": (0.5, 0.3, 0.9, 1)},
-         [MultiscatterLobe(GLOSSY, (0.5, 0.3, 0.9), roughness=0.8)], v, l, 2e-3),
+         [ms_lobe(GLOSSY, (0.5, 0.3, 0.9), roughness=0.8)], v, l, 2e-3),
         (df, None, {"Roughness": 0.7, "Color": (0.6, 0.6, 0.6, 1)},
          [Lobe(DIFFUSE, (0.6, 0.6, 0.6), roughness=0.7)], v, l, 2e-3),
         (df, None, {"Roughness": 1.0, "Color": (0.9, 0.5, 0.1, 1)},
@@ -588,12 +594,12 @@ def test_matches_cycles_render():
         (gs, "GGX", {"Roughness": 0.4, "IOR": 1.5, "Color": W},
          [Lobe(GLASS, (1, 1, 1), roughness=0.4, ior=1.5)], vr, lr, 2e-3),
         (gs, "MULTI_GGX", {"Roughness": 0.6, "IOR": 1.5, "Color": W},
-         [MultiscatterLobe(GLASS, (1, 1, 1), roughness=0.6, ior=1.5)], v, l, 2e-3),
+         [ms_lobe(GLASS, (1, 1, 1), roughness=0.6, ior=1.5)], v, l, 2e-3),
         # Transmission: the sun below the plane, seen from above (eta = 1.5).
         (gs, "GGX", {"Roughness": 0.5, "IOR": 1.5, "Color": W},
          [Lobe(GLASS, (1, 1, 1), roughness=0.5, ior=1.5)], v, lb, 2e-3),
         (gs, "MULTI_GGX", {"Roughness": 0.7, "IOR": 1.33, "Color": (0.9, 0.7, 0.5, 1)},
-         [MultiscatterLobe(GLASS, (0.9, 0.7, 0.5), roughness=0.7, ior=1.33)], v, lb, 2e-3),
+         [ms_lobe(GLASS, (0.9, 0.7, 0.5), roughness=0.7, ior=1.33)], v, lb, 2e-3),
         ("ShaderNodeBsdfRefraction", "GGX", {"Roughness": 0.3, "IOR": 1.5, "Color": W},
          [Lobe(REFRACTION, (1, 1, 1), roughness=0.3, ior=1.5)], v, lb, 2e-3),
         ("ShaderNodeBsdfTranslucent", None, {"Color": (0.7, 0.5, 0.3, 1)},

@@ -1,4 +1,4 @@
-"""Tests of core.lights.lights against closed forms in Cycles' units.
+"""Tests of core.lights against closed forms in Cycles' units.
 
 Tolerances: every Monte-Carlo comparison uses Z = 5 standard errors, the
 standard error being measured from the same samples (std / sqrt(N)); a correct
@@ -14,7 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from core.lights import lights as L
+from core import lights as L
+from core.lights.table import _spot_atten
+from core.lights.warps import _basis, _normalize, _uniform_sphere
 from core.scene.model import Camera, Light, Material, make_scene
 
 from stats_helpers import chi2_sf
@@ -168,8 +170,8 @@ def test_photon_power_mean_per_light(light):
         # integral over uniform world directions: Omega = 4 pi E[atten].
         N = 400_000
         rng = np.random.default_rng(3)
-        w = L._uniform_sphere(rng.random(N), rng.random(N))
-        est = 20 / (4 * np.pi) * 4 * np.pi * L._spot_atten(t, np.zeros(N, int), w)
+        w = _uniform_sphere(rng.random(N), rng.random(N))
+        est = 20 / (4 * np.pi) * 4 * np.pi * _spot_atten(t, np.zeros(N, int), w)
         assert abs(est.mean() - t.flux[0, 0]) <= Z * est.std() / math.sqrt(N)
 
 
@@ -427,7 +429,7 @@ def test_direct_world():
 def chi_square_p(dirs, axis, cdf_mu, n_mu=24, n_phi=24):
     """p-value of directions vs a pdf uniform in phi with CDF cdf_mu(cos theta)."""
     axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    t1, t2 = L._basis(axis[None, :])
+    t1, t2 = _basis(axis[None, :])
     mu = np.clip(dirs @ axis, -1, 1)
     phi = np.arctan2(dirs @ t2[0], dirs @ t1[0]) % (2 * np.pi)
     im = np.minimum(((mu + 1) / 2 * n_mu).astype(int), n_mu - 1)
@@ -525,7 +527,7 @@ def test_emitted_along_rays_point_spot_sun():
     P, r = 100.0, 0.25
     Lp = P / (4 * np.pi ** 2 * r * r)
     o = np.array([[0, 0, 0.0], [0.2, 0, 0.0], [0.3, 0, 0.0]])
-    d = L._normalize(np.array([[0, 0, 1.0], [0, 0, 1.0], [0, 0, 1.0]]))
+    d = _normalize(np.array([[0, 0, 1.0], [0, 0, 1.0], [0, 0, 1.0]]))
     inf = np.full(3, np.inf)
     t = L.build_light_table(scene([Light("p", "POINT", (P,) * 3, mat((0, 0, 2)), radius=r)]))
     np.testing.assert_allclose(L.emitted_along_rays(t, o, d, inf)[:, 0], [Lp, Lp, 0], rtol=1e-12)

@@ -1,26 +1,24 @@
-"""core.scene.model.Lobe's Principled/multiscatter fields against shading.CyclesLobe.
+"""core.scene.model.Lobe's Multiscatter GGX / Principled fields and the material table.
 
-``core.materials.bsdf.build_material_table`` reads ``multiscatter``, ``fresnel``,
-``fresnel_ior``, ``f82_tint``, ``layer_*`` with getattr, so a lobe may carry
-them as Lobe fields or as CyclesLobe fields.  These tests pin that both give
-the very same material table (exact equality: the same floats go through the
-same code), and that a Lobe with default fields builds the table a lobe
-without those attributes built before they existed.
+``core.materials.build_material_table`` reads ``multiscatter``, ``fresnel``,
+``fresnel_ior``, ``f82_tint``, ``layer_*`` with getattr.  These tests pin that
+a Lobe with default fields builds the table a lobe without those attributes
+built before they existed, that a lobe object carrying them as plain
+attributes builds the very same table as the Lobe (exact equality: the same
+floats go through the same code), and that ``core.scene.nodes`` makes plain
+Lobes (there is one lobe type).
 """
 import dataclasses
+import types
 
 import numpy as np
-import pytest
 
+from core.materials import build_material_table
 from core.scene import nodes as shading
-from core.materials.bsdf import build_material_table
 from core.scene.model import DIFFUSE, GLASS, GLOSSY, REFRACTION, Lobe, Material
 
 EXTRA = ("multiscatter", "fresnel", "fresnel_ior", "f82_tint", "layer_ior", "layer_f0",
          "layer_roughness", "layer_multiscatter")
-HAS_FIELDS = set(EXTRA) <= set(Lobe.__dataclass_fields__)
-needs_fields = pytest.mark.skipif(
-    not HAS_FIELDS, reason="core.scene.model.Lobe does not declare the extra lobe fields yet")
 
 
 def _tables_equal(a, b):
@@ -36,15 +34,12 @@ def _table(lobes):
     return build_material_table([Material("m", tuple(lobes))], [])
 
 
-@dataclasses.dataclass(frozen=True)
-class _BareLobe:
-    """A lobe with only the six original attributes (what the exporter made before)."""
-    kind: int
-    color: tuple = (0.8, 0.8, 0.8)
-    weight: float = 1.0
-    roughness: float = 0.0
-    ior: float = 1.45
-    color_texture: int = -1
+BASE = ("kind", "color", "weight", "roughness", "ior", "color_texture")
+
+
+def _bare(lobe):
+    """A lobe object with only the six original attributes (what the exporter made before)."""
+    return types.SimpleNamespace(**{k: getattr(lobe, k) for k in BASE})
 
 
 # Every kind, rough and smooth, with the original attributes only.
@@ -56,14 +51,14 @@ PLAIN = [dict(kind=DIFFUSE, color=(0.5, 0.4, 0.3), roughness=0.5),
 
 def test_default_fields_reproduce_plain_lobes():
     for kw in PLAIN:
-        _tables_equal(_table([Lobe(**kw)]), _table([_BareLobe(**kw)]))
+        _tables_equal(_table([Lobe(**kw)]), _table([_bare(Lobe(**kw))]))
 
 
-@needs_fields
-def test_field_defaults_equal_cycles_lobe_defaults():
-    lobe = {f.name: f.default for f in dataclasses.fields(Lobe)}
-    cyc = {f.name: f.default for f in dataclasses.fields(shading.CyclesLobe)}
-    assert {k: lobe[k] for k in EXTRA} == {k: cyc[k] for k in EXTRA}
+def test_nodes_extra_fields_are_the_lobe_fields():
+    assert set(EXTRA) <= set(Lobe.__dataclass_fields__)
+    assert set(shading._EXTRA) == set(EXTRA)
+    assert shading._EXTRA == {f.name: f.default for f in dataclasses.fields(Lobe)
+                              if f.name in EXTRA}
 
 
 # Every extra attribute away from its default, on the kinds that read it.
@@ -78,26 +73,27 @@ FULL = [
 ]
 
 
-@needs_fields
-def test_lobe_and_cycles_lobe_build_identical_tables():
+def _duck(lobe):
+    """The same attributes on an object that is not a Lobe (the table reads them with getattr)."""
+    return types.SimpleNamespace(**dataclasses.asdict(lobe))
+
+
+def test_lobe_fields_build_the_same_table_as_attributes():
     for kw in FULL:
-        _tables_equal(_table([Lobe(**kw)]), _table([shading.CyclesLobe(**kw)]))
-    _tables_equal(_table([Lobe(**kw) for kw in FULL]),
-                  _table([shading.CyclesLobe(**kw) for kw in FULL]))
-    # The Principled mapping's own lobes, converted either way.
+        _tables_equal(_table([Lobe(**kw)]), _table([_duck(Lobe(**kw))]))
+        _tables_equal(_table([Lobe(**kw)]), _table([shading.make_lobe(**kw)]))
+    _tables_equal(_table([Lobe(**kw) for kw in FULL]), _table([_duck(Lobe(**kw)) for kw in FULL]))
+    # The Principled mapping's own lobes are Lobes, and rebuild identically.
     lobes, _, _ = shading.principled_to_lobes(base_color=(0.7, 0.4, 0.2), metallic=0.4,
                                               roughness=0.35, specular_tint=(1.0, 0.9, 0.8),
                                               diffuse_roughness=0.3)
     assert len(lobes) == 3
-    as_lobe = [Lobe(**dataclasses.asdict(lb)) for lb in lobes]
-    as_cyc = [shading.CyclesLobe(**dataclasses.asdict(lb)) for lb in lobes]
-    _tables_equal(_table(lobes), _table(as_lobe))
-    _tables_equal(_table(as_lobe), _table(as_cyc))
+    assert all(type(lb) is Lobe for lb in lobes)
+    _tables_equal(_table(lobes), _table([_duck(lb) for lb in lobes]))
 
 
-@needs_fields
 def test_shading_keeps_lobes_with_different_extras_apart():
-    # make_lobe's extras are plain Lobe fields now ...
+    # make_lobe's extras are plain Lobe fields ...
     lb = shading.make_lobe(GLOSSY, (1.0, 1.0, 1.0), roughness=0.3, multiscatter=True,
                            fresnel="DIELECTRIC", fresnel_ior=1.5)
     assert lb == Lobe(GLOSSY, (1.0, 1.0, 1.0), roughness=0.3, multiscatter=True,

@@ -3,11 +3,11 @@ import math
 
 import numpy as np
 
-from core.materials import bsdf as B
+from core import materials as B
 from core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, TRANSLUCENT, TRANSPARENT, Lobe,
-                        Material)
+                              Material)
 from core.scene.nodes import (add_materials, f0_from_ior, ior_from_f0, merge_lobes, mix_materials,
-                          principled_to_lobes)
+                              principled_to_lobes)
 
 
 def albedo(lobes, theta, n=100_000, seed=0):

@@ -1,8 +1,8 @@
 """Scene arrays consumed by the renderer.
 
 The add-on builds a :class:`Scene` from Blender's evaluated depsgraph
-(``addon/export.py``); tests build one in plain Python.  Nothing here imports
-``bpy``.
+(``addon/export.py``, with ``core.scene.nodes`` turning shader nodes into
+lobes); tests build one in plain Python.  Nothing here imports ``bpy``.
 
 Conventions (shared by every ``core`` module)
 --------------------------------------------
@@ -46,8 +46,8 @@ class Lobe:
     ior: index of refraction (GLASS / REFRACTION).
     color_texture: index into ``Scene.textures`` multiplying ``color``, or -1.
 
-    Exact Cycles features (``core.bsdf.build_material_table``; the defaults
-    are plain single-scattering GGX / Lambert):
+    Exact Cycles features (read by ``core.materials.build_material_table``;
+    the defaults are plain single-scattering GGX / Lambert):
     multiscatter: Multiscatter GGX energy compensation (GLOSSY / GLASS; the
       'MULTI_GGX' distribution of the Glossy, Glass and Principled nodes).
     fresnel: '' | 'DIELECTRIC' | 'F82' (GLOSSY only; the Principled BSDF's
@@ -66,7 +66,6 @@ class Lobe:
     roughness: float = 0.0
     ior: float = 1.45
     color_texture: int = -1
-    # Defaults equal core.shading.CyclesLobe's, so both build the same tables.
     multiscatter: bool = False
     fresnel: str = ""
     fresnel_ior: float = 1.5

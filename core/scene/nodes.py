@@ -13,8 +13,8 @@ curve remapped to F0 = ((ior-1)/(ior+1))^2 * 2 * specular_ior_level; diffuse
 what the specular layer leaves, ``closure_layering_weight``.  Each layer's
 weight is (1 - metallic), (1 - transmission) of the one above.  Metallic,
 specular and the diffuse-under-specular attenuation are reproduced exactly
-(``CyclesLobe`` attributes, checked against Cycles renders in
-tests/test_bsdf.py); sheen, subsurface, coat layering, thin film, anisotropy
+(``Lobe`` fields read by ``core.materials``, checked against Cycles renders
+in tests/test_bsdf.py); sheen, subsurface, coat layering, thin film, anisotropy
 are approximated and reported.
 """
 from __future__ import annotations
@@ -24,56 +24,31 @@ import math
 
 import numpy as np
 
+from ..materials.microfacet import f0_from_ior
+from ..mathutil import LUM_B, LUM_G, LUM_R
 from .model import DIFFUSE, GLASS, GLOSSY, LOBE_NAMES, MAX_LOBES, TRANSPARENT, Lobe
 
-from ..mathutil import LUM_B, LUM_G, LUM_R  # noqa: E402
 _LUMA = (LUM_R, LUM_G, LUM_B)
 # Cycles' CLOSURE_WEIGHT_CUTOFF: closures lighter than this are not created.
 WEIGHT_CUTOFF = 1e-5
 
 
-@dataclasses.dataclass(frozen=True)
-class CyclesLobe(Lobe):
-    """A Lobe with the optional attributes ``core.bsdf`` understands.
-
-    Stop-gap until ``core.scene.Lobe`` has these fields (``build_material_table``
-    reads them with getattr from either):
-    multiscatter: Cycles' Multiscatter GGX (GLOSSY / GLASS).
-    fresnel: '' | 'DIELECTRIC' (Principled specular: colour = specular tint,
-      fresnel_ior) | 'F82' (Principled metal: colour = F0, f82_tint).
-    layer_ior, layer_f0, layer_roughness, layer_multiscatter: a DIFFUSE under
-      a dielectric specular layer (Principled), attenuated by 1 - the layer's
-      albedo.
-    """
-    multiscatter: bool = False
-    fresnel: str = ""
-    fresnel_ior: float = 1.5
-    f82_tint: tuple = (1.0, 1.0, 1.0)
-    layer_ior: float = 0.0
-    layer_f0: float = 0.0
-    layer_roughness: float = 0.0
-    layer_multiscatter: bool = False
-
-
-@dataclasses.dataclass(frozen=True)
-class MultiscatterLobe(CyclesLobe):
-    """A :class:`CyclesLobe` with Multiscatter GGX on by default."""
-    multiscatter: bool = True
-
-
-# The attributes beyond a Lobe's original six (core.scene.Lobe now declares
-# them too, with these defaults), name -> default.
+# The Lobe fields beyond the original six (Multiscatter GGX and the Principled
+# layers), name -> default.
 _BASE = ("kind", "color", "weight", "roughness", "ior", "color_texture")
-_EXTRA = {f.name: f.default for f in dataclasses.fields(CyclesLobe) if f.name not in _BASE}
+_EXTRA = {f.name: f.default for f in dataclasses.fields(Lobe) if f.name not in _BASE}
 
 
 def make_lobe(kind, color=(0.8, 0.8, 0.8), weight=1.0, roughness=0.0, ior=1.45,
               color_texture=-1, **extra) -> Lobe:
-    """A Lobe, or a :class:`CyclesLobe` when an extra attribute is not its default.
+    """A :class:`Lobe` with float colour, weight, roughness and ior.
 
-    extra: multiscatter (GLOSSY/GLASS with the 'MULTI_GGX' distribution, the
-    default of the Glossy, Glass and Principled nodes), fresnel, fresnel_ior,
-    f82_tint, layer_ior, layer_f0, layer_roughness (see CyclesLobe)."""
+    extra: the further Lobe fields, multiscatter (GLOSSY/GLASS with the
+    'MULTI_GGX' distribution, the default of the Glossy, Glass and Principled
+    nodes; ignored on other kinds), fresnel, fresnel_ior, f82_tint, layer_ior,
+    layer_f0, layer_roughness, layer_multiscatter.  Values equal to the
+    field's default are left to the default (the Lobe's repr, hence
+    ``scene_digest``, does not depend on how a default was spelled)."""
     unknown = set(extra) - set(_EXTRA)
     if unknown:
         raise TypeError(f"unknown lobe attributes {sorted(unknown)}")
@@ -82,20 +57,11 @@ def make_lobe(kind, color=(0.8, 0.8, 0.8), weight=1.0, roughness=0.0, ior=1.45,
     if extra.get("multiscatter") and kind not in (GLOSSY, GLASS):
         extra["multiscatter"] = False
     extra = {k: v for k, v in extra.items() if v != _EXTRA[k]}
-    if not extra:
-        return Lobe(**kw)
-    if set(extra) <= set(getattr(Lobe, "__dataclass_fields__", {})):
-        return Lobe(**kw, **extra)
-    return CyclesLobe(**kw, **extra)
+    return Lobe(**kw, **extra)
 
 
 def _extras(lobe) -> tuple:
     return tuple(getattr(lobe, k, d) for k, d in _EXTRA.items())
-
-
-def f0_from_ior(ior: float) -> float:
-    """Normal-incidence dielectric reflectance ((ior - 1)/(ior + 1))^2."""
-    return ((ior - 1.0) / (ior + 1.0)) ** 2
 
 
 def ior_from_f0(f0: float) -> float:

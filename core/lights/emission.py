@@ -1,0 +1,170 @@
+"""Photon emission: :func:`sample_photons` draws photons from the light table.
+
+Photons carry ``power = Phi_light(sample) / p_select`` so that the SPPM
+density estimate is tau / (pi R^2 N_emitted) (pbrt-v4).  Sun and world
+photons start on a disc of radius R (the scene's bounding sphere)
+perpendicular to their direction, at distance R from the scene centre, so
+their total flux is S pi R^2 (sun) and 4 pi^2 R^2 L_w (world).
+
+Point/spot lights with r > 0: Cycles' default soft falloff is a disc of
+radiance L turned towards each receiver, so the irradiance is exactly
+I cos / (d^2 + r^2) (its projected solid angle is pi r^2 / (d^2 + r^2) cos).
+No physical emitter produces that field (it is not a light field), so photons
+leave the centre and carry ``falloff_r2 = r^2``: the photon tracer multiplies
+the power by t^2 / (t^2 + r^2) at the first hit (far field and first-hit field
+then match Cycles, and the bounced light inherits it).  Without soft
+falloff (sphere model) photons leave the sphere, Lambertian about its normal.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _mesh_emission, _smoothstep
+from .warps import (_basis, _cone_local, _cosine_local, _to_world, _triangle_bary, _uniform_sphere,
+                    _unit_disk)
+
+
+# Angular variance of a cosine-weighted diffuse lobe, pi^2/4 - 2 = 0.467 rad^2
+# (docs/frequency.md "Lobe widths"): the angular init of every non-collimated light.
+B_DIFFUSE = np.pi ** 2 / 4.0 - 2.0
+
+
+def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
+    """Emit n photons, choosing emitters with probability ``p_select``.
+
+    Returns a dict of arrays:
+      o (n, 3) float64 origin (exactly on area/mesh/sphere emitters: the
+        caller offsets it), d (n, 3) unit direction,
+      power (n, 3) float64 flux Phi(sample) / p_select: the SPPM estimate is
+        tau / (pi R^2 N_emitted); zero for every photon if nothing emits,
+      light (n,) int32 emitter row (-1 if nothing emits), kind (n,) int8,
+      freq_init (n, 3) float64 spectrum (a, b, c) initial values
+        (docs/frequency.md "Light inits"),
+      falloff_r2 (n,) float64: r^2 of soft-falloff point/spot lights, else 0.
+        At the photon's FIRST surface hit, at distance t from o, multiply its
+        power by t^2 / (t^2 + r^2): this reproduces Cycles' soft-falloff near
+        field I cos / (d^2 + r^2) exactly (a disc of radiance L facing the
+        receiver has projected solid angle pi r^2 / (d^2 + r^2) cos).
+    """
+    n = int(n)
+    o = np.zeros((n, 3))
+    d = np.tile([0.0, 0.0, 1.0], (n, 1))
+    power = np.zeros((n, 3))
+    freq = np.zeros((n, 3))
+    light = np.full(n, -1, np.int32)
+    kind = np.full(n, -1, np.int8)
+    falloff = np.zeros(n)
+    out = dict(o=o, d=d, power=power, light=light, kind=kind, freq_init=freq,
+               falloff_r2=falloff)
+    if n == 0 or table.n == 0 or not np.any(table.p_select > 0):
+        return out
+    u = rng.random((n, 6))
+    cdf = np.cumsum(table.p_select)
+    j = np.searchsorted(cdf, u[:, 0] * cdf[-1], side="right")
+    j = np.minimum(j, table.n - 1)
+    # Guard: never land on a zero-probability row (float ties at the end).
+    bad = table.p_select[j] <= 0
+    if np.any(bad):
+        j[bad] = int(np.nonzero(table.p_select > 0)[0][-1])
+    light[:] = j
+    kind[:] = table.kind[j]
+    inv_p = 1.0 / table.p_select[j]
+    R = table.radius_scene
+
+    for k in (POINT, SPOT):
+        m = np.nonzero(kind == k)[0]
+        if not m.size:
+            continue
+        jj = j[m]
+        if k == POINT:
+            w = _uniform_sphere(u[m, 3], u[m, 4])
+            weight = table.strength[jj]          # Phi = 4 pi I, pdf 1/(4 pi)
+        else:
+            # Uniform in the local cone, mapped by the object matrix;
+            # d omega = |det M| / |M v|^3 d v.
+            cos_h = table.cos_half_spot[jj]
+            v = _cone_local(cos_h, u[m, 3], u[m, 4])
+            v[:, 2] = -v[:, 2]                   # local axis is -Z
+            Mv = np.einsum("kij,kj->ki", table.lin[jj], v)
+            nMv = np.linalg.norm(Mv, axis=1)
+            w = Mv / nMv[:, None]
+            jac = np.abs(np.linalg.det(table.lin[jj])) / nMv ** 3
+            att = _smoothstep((-v[:, 2] - cos_h) * table.spot_smooth[jj])
+            weight = (table.strength[jj] / (4.0 * np.pi)
+                      * (att * jac * 2.0 * np.pi * (1.0 - cos_h))[:, None])
+        # Sphere model (no soft falloff): origin on the sphere, Lambertian about
+        # its normal.  For a given direction w such origins are uniform over
+        # the disc perpendicular to w, lifted onto the hemisphere facing w.
+        # Soft falloff (Cycles' default disc facing the receiver): from the
+        # centre, with the first-hit factor t^2 / (t^2 + r^2) left to the caller.
+        r = np.where(table.is_sphere[jj], table.radius[jj], 0.0)
+        falloff[m] = np.where(table.is_sphere[jj], 0.0, table.radius[jj] ** 2)
+        x, y = _unit_disk(u[m, 1], u[m, 2])
+        t1, t2 = _basis(w)
+        lift = np.sqrt(np.maximum(1.0 - x * x - y * y, 0.0))
+        off = (x[:, None] * t1 + y[:, None] * t2 + lift[:, None] * w) * r[:, None]
+        o[m] = table.co[jj] + off
+        d[m] = w
+        power[m] = weight * inv_p[m, None]
+        freq[m] = (0.0, B_DIFFUSE, 0.0)
+
+    m = np.nonzero(kind == AREA)[0]
+    if m.size:
+        jj = j[m]
+        ell = table.ellipse[jj]
+        su = u[m, 1] - 0.5
+        sv = u[m, 2] - 0.5
+        if np.any(ell):
+            x, y = _unit_disk(u[m, 1], u[m, 2])
+            su = np.where(ell, 0.5 * x, su)
+            sv = np.where(ell, 0.5 * y, sv)
+        o[m] = (table.co[jj] + (su * table.len_u[jj])[:, None] * table.axis_u[jj]
+                + (sv * table.len_v[jj])[:, None] * table.axis_v[jj])
+        d[m] = _to_world(_cosine_local(u[m, 3], u[m, 4]), table.dir[jj])
+        power[m] = table.flux[jj] * inv_p[m, None]
+        freq[m, 0] = table.area[jj] / 12.0       # width w = sqrt(area): w^2/12
+        freq[m, 1] = B_DIFFUSE
+
+    m = np.nonzero(kind == SUN)[0]
+    if m.size:
+        jj = j[m]
+        axis = table.dir[jj]
+        w = axis.copy()
+        h = table.half_angle[jj]
+        cone = h > 0
+        if np.any(cone):
+            mc = np.nonzero(cone)[0]
+            w[mc] = _to_world(_cone_local(table.cos_half_angle[jj[mc]], u[m[mc], 3], u[m[mc], 4]),
+                              axis[mc])
+        x, y = _unit_disk(u[m, 1], u[m, 2])
+        t1, t2 = _basis(axis)
+        o[m] = table.center - R * axis + R * (x[:, None] * t1 + y[:, None] * t2)
+        d[m] = w
+        power[m] = table.flux[jj] * inv_p[m, None]
+        freq[m, 0] = table.a_max
+        freq[m, 1] = h * h / 3.0
+
+    m = np.nonzero(kind == WORLD)[0]
+    if m.size:
+        jj = j[m]
+        w = _uniform_sphere(u[m, 3], u[m, 4])
+        x, y = _unit_disk(u[m, 1], u[m, 2])
+        t1, t2 = _basis(w)
+        o[m] = table.center - R * w + R * (x[:, None] * t1 + y[:, None] * t2)
+        d[m] = w
+        power[m] = table.flux[jj] * inv_p[m, None]
+        freq[m] = (table.a_max, B_DIFFUSE, 0.0)
+
+    m = np.nonzero(kind == MESH)[0]
+    if m.size:
+        jj = j[m]
+        b1, b2 = _triangle_bary(u[m, 1], u[m, 2])
+        o[m] = table.co[jj] + b1[:, None] * table.axis_u[jj] + b2[:, None] * table.axis_v[jj]
+        side = np.where(u[m, 5] < 0.5, 1.0, -1.0)
+        n_side = table.dir[jj] * side[:, None]
+        d[m] = _to_world(_cosine_local(u[m, 3], u[m, 4]), n_side)
+        Le = _mesh_emission(table, jj, b1, b2)
+        power[m] = (2.0 * np.pi * table.area[jj])[:, None] * Le * inv_p[m, None]
+        freq[m, 0] = table.area[jj] / 12.0
+        freq[m, 1] = B_DIFFUSE
+    return out

@@ -1,0 +1,112 @@
+"""Lights seen by rays: the analytic emitters a camera, mirror or glass ray hits.
+
+Area lights, point/spot discs or spheres and sun discs are not part of the
+triangle geometry, so rays test them here; emissive triangles are found by
+the ray's hit, and the world by a ray that escapes (:func:`world_radiance`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..mathutil import dot as _dot
+from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _spot_atten
+from .warps import _normalize
+
+
+def _ray_disc(o, d, c, n, r, t_max):
+    """Hit distance of rays with discs (centre c, unit normal n, radius r), inf on miss."""
+    den = _dot(d, n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = _dot(c - o, n) / den
+    hit = np.isfinite(t) & (t > 0) & (t < t_max)
+    q = o + np.where(hit, t, 0.0)[:, None] * d - c
+    hit &= np.sum(q * q, axis=1) <= r * r
+    return np.where(hit, t, np.inf)
+
+
+def emitted_along_rays(table: LightTable, o: np.ndarray, d: np.ndarray, t_max: np.ndarray,
+                       visibility: str = "camera") -> np.ndarray:
+    """Radiance (K, 3) of analytic emitters hit by rays o + t d, 0 < t < t_max.
+
+    Area lights (front side only), point/spot lights with radius > 0 (Cycles'
+    disc facing the ray origin, or the sphere without soft falloff) and, for
+    rays that escape (t_max = inf), the disc of a sun with angle > 0.  The
+    nearest light hit wins; lights whose ``visible_<visibility>`` flag is off
+    are skipped.  Mesh emission and the world are not included.
+    visibility: 'camera', 'glossy' or 'transmission'.
+    """
+    o = np.asarray(o, np.float64).reshape(-1, 3)
+    d = np.asarray(d, np.float64).reshape(-1, 3)
+    K = o.shape[0]
+    t_max = np.broadcast_to(np.asarray(t_max, np.float64), (K,))
+    Lout = np.zeros((K, 3))
+    if K == 0 or table.n == 0:
+        return Lout
+    flags = {"camera": table.visible_camera, "glossy": table.visible_glossy,
+             "transmission": table.visible_transmission}
+    if visibility not in flags:
+        raise ValueError(f"visibility must be 'camera', 'glossy' or 'transmission', "
+                         f"not {visibility!r}")
+    flag = flags[visibility]
+    best = t_max.copy()
+    for j in np.nonzero(flag & (table.kind != MESH) & (table.kind != WORLD))[0]:
+        k = table.kind[j]
+        if not np.any(table.radiance[j] != 0):
+            continue
+        if k == AREA:
+            n = table.dir[j]
+            den = d @ n
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = ((table.co[j] - o) @ n) / den
+            # Front side: the ray travels against the emission direction.
+            hit = np.isfinite(t) & (t > 0) & (t < best) & (den < 0)
+            q = o + np.where(hit, t, 0.0)[:, None] * d - table.co[j]
+            a = 2.0 * (q @ table.axis_u[j]) / table.len_u[j]
+            b = 2.0 * (q @ table.axis_v[j]) / table.len_v[j]
+            if table.ellipse[j]:
+                hit &= a * a + b * b <= 1.0
+            else:
+                hit &= (np.abs(a) <= 1.0) & (np.abs(b) <= 1.0)
+            L = np.broadcast_to(table.radiance[j], (K, 3))
+        elif k in (POINT, SPOT):
+            r = table.radius[j]
+            if r <= 0:
+                continue
+            c = table.co[j]
+            oc = o - c
+            if table.is_sphere[j]:
+                b = _dot(d, oc)
+                cc = np.sum(oc * oc, axis=1) - r * r
+                disc = b * b - cc
+                sq = np.sqrt(np.maximum(disc, 0.0))
+                t0 = -b - sq
+                t = np.where(t0 > 0, t0, -b + sq)
+                hit = (disc >= 0) & (t > 0) & (t < best)
+            else:
+                n = _normalize(oc)
+                t = _ray_disc(o, d, np.broadcast_to(c, (K, 3)), n, r, best)
+                hit = np.isfinite(t)
+            L = np.broadcast_to(table.radiance[j], (K, 3))
+            if k == SPOT:
+                hit &= _dot(d, oc) < 0                # Cycles: one-sided spot disc
+                att = _spot_atten(table, np.full(K, j), -d)
+                L = L * att[:, None]
+        elif k == SUN:
+            if table.half_angle[j] <= 0:
+                continue
+            t = np.full(K, np.inf)
+            hit = np.isinf(best) & ((-d @ table.dir[j]) >= table.cos_half_angle[j])
+            L = np.broadcast_to(table.radiance[j], (K, 3))
+            # The sun never beats a finite hit; a later finite light would.
+            Lout[hit] = L[hit]
+            continue
+        else:
+            continue
+        best = np.where(hit, t, best)
+        Lout[hit] = L[hit]
+    return Lout
+
+
+def world_radiance(table: LightTable) -> np.ndarray:
+    """(3,) constant world background radiance."""
+    return table.world.copy()

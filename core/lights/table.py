@@ -1,0 +1,386 @@
+"""The light table: every emitter of a scene as one structure of arrays.
+
+Kinds, :class:`LightTable`, :func:`build_light_table`, and what the other
+modules read from a row: the spot cone's attenuation and the emitted radiance
+of a mesh triangle.  The emitter models and their units are listed in the
+package doc (:mod:`core.lights`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..mathutil import LUMINANCE as _LUM
+from ..scene.model import Scene
+from ..scene.textures import sample_texture
+from .warps import _normalize
+
+# Emitter kinds (LightTable.kind, photon "kind").
+POINT = 0
+SPOT = 1
+SUN = 2
+AREA = 3
+MESH = 4
+WORLD = 5
+KIND_NAMES = {POINT: "point", SPOT: "spot", SUN: "sun", AREA: "area",
+              MESH: "mesh", WORLD: "world"}
+
+# Triangles up to this count get one entry each in the per-point NEE selection;
+# above it they share one entry (chosen by distance) and are picked by flux.
+_MAX_TRI_ENTRIES = 16
+
+# A spot's 1/((1 - cos h) * blend) for blend = 0 (hard edge): large, finite so
+# that 0 * smooth stays 0 (no NaN).
+_SMOOTH_MAX = 1e30
+
+
+@dataclass
+class LightTable:
+    """All emitters of a scene, structure of arrays, float64, Nl rows.
+
+    kind: (Nl,) int8 POINT/SPOT/SUN/AREA/MESH/WORLD.
+    source: (Nl,) int32 index into ``scene.lights`` (lights), triangle index
+      (MESH) or -1 (WORLD).
+    strength: (Nl, 3) light strength (W or W/m^2); MESH/WORLD: radiance.
+    radiance: (Nl, 3) emitted radiance of the visible shape [W/(m^2 sr)]
+      (0 for point/spot with r = 0 and sun with angle = 0).
+    flux: (Nl, 3) total emitted flux [W] (sun/world: through the scene disc).
+    p_select: (Nl,) photon light-selection probability, prop. to luminance of
+      flux; 0 for zero-power emitters.
+    co: (Nl, 3) position (triangles: first corner); axis_u, axis_v: (Nl, 3)
+      unit in-plane axes (area) or edges e1, e2 (MESH, not unit);
+      dir: (Nl, 3) unit emission axis (local -Z; MESH: geometric normal).
+    len_u, len_v: (Nl,) area light extents [m]; area: (Nl,) emitting area.
+    ellipse: (Nl,) bool disc/ellipse area light.
+    radius: (Nl,) point/spot radius; is_sphere: (Nl,) bool (no soft falloff).
+    lin, lin_inv: (Nl, 3, 3) object linear part and its inverse (spot cone).
+    cos_half_spot, spot_smooth: (Nl,) Cycles' spot parameters.
+    half_angle, cos_half_angle: (Nl,) sun cone.
+    tri_uv: (Nl, 3, 2) corner UVs, tex: (Nl,) int32 emission texture or -1.
+    visible_camera / visible_glossy / visible_transmission / cast_shadow:
+      (Nl,) bool.
+    center (3,), radius_scene: bounding sphere; a_max: D^2 (docs/frequency.md).
+    world: (3,) world radiance.  warnings: list of str.
+    """
+    kind: np.ndarray
+    source: np.ndarray
+    strength: np.ndarray
+    radiance: np.ndarray
+    flux: np.ndarray
+    p_select: np.ndarray
+    co: np.ndarray
+    axis_u: np.ndarray
+    axis_v: np.ndarray
+    dir: np.ndarray
+    len_u: np.ndarray
+    len_v: np.ndarray
+    area: np.ndarray
+    ellipse: np.ndarray
+    radius: np.ndarray
+    is_sphere: np.ndarray
+    lin: np.ndarray
+    lin_inv: np.ndarray
+    cos_half_spot: np.ndarray
+    spot_smooth: np.ndarray
+    half_angle: np.ndarray
+    cos_half_angle: np.ndarray
+    tri_uv: np.ndarray
+    tex: np.ndarray
+    visible_camera: np.ndarray
+    visible_glossy: np.ndarray
+    visible_transmission: np.ndarray
+    cast_shadow: np.ndarray
+    center: np.ndarray
+    radius_scene: float
+    a_max: float
+    world: np.ndarray
+    textures: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    # Next-event selection (see _direct_entries): entry -> emitter (-1 = the
+    # triangle group), and the group's triangles with their flux-luminance CDF.
+    entry_emitter: np.ndarray = None
+    group_tri: np.ndarray = None
+    group_cdf: np.ndarray = None
+    group_center: np.ndarray = None
+    group_ext2: float = 0.0
+
+    @property
+    def n(self) -> int:
+        return int(self.kind.shape[0])
+
+    @property
+    def total_flux(self) -> np.ndarray:
+        """(3,) sum of ``flux`` over all emitters."""
+        return self.flux.sum(axis=0) if self.n else np.zeros(3)
+
+
+def _lum(rgb):
+    return np.maximum(np.asarray(rgb, np.float64) @ _LUM, 0.0)
+
+
+# ----------------------------------------------------------------------------
+# Spot cone.
+
+def _smoothstep(x):
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def _spot_solid_angle(lin: np.ndarray, cos_h: float, blend: float) -> float:
+    """int smoothstep(...) d omega over world directions [sr].
+
+    Local direction v (unit, in the light frame) maps to omega = normalize(M v);
+    d omega = |det M| / |M v|^3 d v.  For a similarity M that factor is 1 and
+    the integral is closed-form: with mu = -v_z, smoothstep rises over a width
+    w = (1 - cos h) * blend of mu and int_0^1 smoothstep = 1/2, so
+    Omega = 2 pi ((1 - cos h) - w / 2).  Otherwise a (mu, phi) midpoint grid.
+    """
+    g = lin.T @ lin
+    s2 = np.trace(g) / 3.0
+    w = (1.0 - cos_h) * blend
+    if s2 > 0 and np.allclose(g, s2 * np.eye(3), rtol=1e-9, atol=1e-12 * s2):
+        return 2.0 * np.pi * ((1.0 - cos_h) - 0.5 * w)
+    n_mu, n_phi = 512, 256
+    mu = cos_h + (1.0 - cos_h) * (np.arange(n_mu) + 0.5) / n_mu
+    phi = 2.0 * np.pi * (np.arange(n_phi) + 0.5) / n_phi
+    MU, PH = np.meshgrid(mu, phi, indexing="ij")
+    st = np.sqrt(np.maximum(1.0 - MU ** 2, 0.0))
+    v = np.stack([st * np.cos(PH), st * np.sin(PH), -MU], axis=-1).reshape(-1, 3)
+    smooth = 1.0 / w if w > 0 else _SMOOTH_MAX
+    att = _smoothstep((MU.ravel() - cos_h) * smooth)
+    jac = abs(np.linalg.det(lin)) / np.linalg.norm(v @ lin.T, axis=1) ** 3
+    dA = (1.0 - cos_h) / n_mu * 2.0 * np.pi / n_phi
+    return float(np.sum(att * jac) * dA)
+
+
+def _spot_atten(table: LightTable, j: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Cycles' spot attenuation of world directions w (K,3) leaving lights j (K,).
+
+    The direction is mapped to the light's local frame (inverse object matrix,
+    so scale makes the cone elliptic) and its cosine to local -Z is used.
+    """
+    loc = np.einsum("kij,kj->ki", table.lin_inv[j], w)
+    loc = _normalize(loc)
+    return _smoothstep((-loc[:, 2] - table.cos_half_spot[j]) * table.spot_smooth[j])
+
+
+# ----------------------------------------------------------------------------
+# Mesh emission.
+
+def _mesh_emission(table: LightTable, jj, b1, b2):
+    """Emitted radiance (K, 3) at barycentrics (b1, b2) of triangles jj."""
+    Le = table.strength[jj].copy()
+    tex = table.tex[jj]
+    if np.any(tex >= 0):
+        uvc = table.tri_uv[jj]
+        uv = (1.0 - b1 - b2)[:, None] * uvc[:, 0] + b1[:, None] * uvc[:, 1] + b2[:, None] * uvc[:, 2]
+        for ti in np.unique(tex[tex >= 0]):
+            if ti < len(table.textures):
+                mm = tex == ti
+                Le[mm] *= sample_texture(table.textures[ti], uv[mm])
+    return Le
+
+
+# ----------------------------------------------------------------------------
+# Table construction.
+
+def build_light_table(scene: Scene) -> LightTable:
+    """Collect every emitter of ``scene`` into a :class:`LightTable`."""
+    lo, hi = scene.bounds()
+    center = 0.5 * (lo + hi)
+    D = scene.diameter()
+    # Bounding sphere of the box (half diagonal), with a small margin so photon
+    # discs cover the geometry even after float32 rounding.
+    R = 0.5 * D * (1.0 + 1e-4)
+    warnings: list[str] = []
+    rows: list[dict] = []
+    eye = np.eye(3)
+
+    def row(**kw):
+        base = dict(kind=POINT, source=-1, strength=np.zeros(3), radiance=np.zeros(3),
+                    flux=np.zeros(3), co=np.zeros(3), axis_u=np.array([1.0, 0, 0]),
+                    axis_v=np.array([0, 1.0, 0]), dir=np.array([0, 0, -1.0]),
+                    len_u=0.0, len_v=0.0, area=0.0, ellipse=False, radius=0.0,
+                    is_sphere=False, lin=eye, lin_inv=eye, cos_half_spot=-1.0,
+                    spot_smooth=_SMOOTH_MAX, half_angle=0.0, cos_half_angle=1.0,
+                    tri_uv=np.zeros((3, 2)), tex=-1, visible_camera=True,
+                    visible_glossy=True, visible_transmission=True, cast_shadow=True)
+        base.update(kw)
+        rows.append(base)
+
+    for li, lt in enumerate(scene.lights):
+        Mw = np.asarray(lt.matrix_world, np.float64)
+        M = Mw[:3, :3]
+        co = Mw[:3, 3].copy()
+        strength = np.asarray(lt.strength, np.float64).reshape(3)
+        vis = dict(visible_camera=bool(lt.visible_camera), visible_glossy=bool(lt.visible_glossy),
+                   visible_transmission=bool(lt.visible_transmission),
+                   cast_shadow=bool(getattr(lt, "cast_shadow", True)))
+        ez = -M[:, 2]
+        nz = np.linalg.norm(ez)
+        dirv = ez / nz if nz > 0 else np.array([0.0, 0.0, -1.0])
+        kind = lt.kind.upper()
+        if kind in ("POINT", "SPOT"):
+            r = max(float(lt.radius), 0.0)
+            # Cycles: eval_fac = 1 / (pi * area), area = 4 pi r^2 (4 when r = 0,
+            # which makes eval_fac = 1/(4 pi): the intensity factor).
+            radiance = strength / (np.pi * 4.0 * np.pi * r * r) if r > 0 else np.zeros(3)
+            is_sphere = (not bool(getattr(lt, "use_soft_falloff", True))) and r > 0
+            try:
+                lin_inv = np.linalg.inv(M)
+            except np.linalg.LinAlgError:
+                lin_inv = eye
+                warnings.append(f"light '{lt.name}': singular object matrix, scale ignored")
+            common = dict(source=li, strength=strength, radiance=radiance, co=co, dir=dirv,
+                          radius=r, is_sphere=is_sphere, **vis)
+            if kind == "POINT":
+                row(kind=POINT, flux=strength.copy(), **common)
+            else:
+                h = 0.5 * float(lt.spot_size)
+                cos_h = float(np.cos(h))
+                blend = float(np.clip(lt.spot_blend, 0.0, 1.0))
+                w = (1.0 - cos_h) * blend
+                smooth = min(1.0 / w, _SMOOTH_MAX) if w > 0 else _SMOOTH_MAX
+                lin = M if abs(np.linalg.det(M)) > 0 else eye
+                omega = _spot_solid_angle(lin, cos_h, blend)
+                row(kind=SPOT, flux=strength / (4.0 * np.pi) * omega, lin=lin,
+                    lin_inv=lin_inv, cos_half_spot=cos_h, spot_smooth=smooth, **common)
+        elif kind == "SUN":
+            h = 0.5 * max(float(lt.angle), 0.0)
+            radiance = strength / (np.pi * np.sin(h) ** 2) if h > 0 else np.zeros(3)
+            row(kind=SUN, source=li, strength=strength, radiance=radiance,
+                flux=strength * np.pi * R * R, co=co, dir=dirv, half_angle=h,
+                cos_half_angle=float(np.cos(h)), **vis)
+        elif kind == "AREA":
+            shape = lt.shape.upper()
+            sx = float(lt.size)
+            sy = float(lt.size_y) if shape in ("RECTANGLE", "ELLIPSE") else sx
+            cu, cv = M[:, 0], M[:, 1]
+            nu, nv = np.linalg.norm(cu), np.linalg.norm(cv)
+            len_u, len_v = nu * abs(sx), nv * abs(sy)
+            ellipse = shape in ("DISK", "ELLIPSE")
+            area = len_u * len_v * (np.pi / 4.0 if ellipse else 1.0)
+            radiance = strength / (np.pi * area) if area > 0 else np.zeros(3)
+            if float(lt.spread) < np.pi - 1e-4:
+                warnings.append(
+                    f"area light '{lt.name}': spread {np.degrees(lt.spread):.1f} deg is not "
+                    f"supported; rendered as 180 deg")
+            if area <= 0:
+                strength_eff = np.zeros(3)
+                warnings.append(f"area light '{lt.name}' has zero area and emits nothing")
+            else:
+                strength_eff = strength
+            row(kind=AREA, source=li, strength=strength_eff, radiance=radiance,
+                flux=strength_eff.copy(), co=co,
+                axis_u=cu / nu if nu > 0 else np.array([1.0, 0, 0]),
+                axis_v=cv / nv if nv > 0 else np.array([0, 1.0, 0]),
+                dir=dirv, len_u=len_u, len_v=len_v, area=area, ellipse=ellipse, **vis)
+        else:
+            warnings.append(f"light '{lt.name}': unknown kind {lt.kind!r}, ignored")
+
+    # Emissive triangles (Cycles' mesh lights: Emission closure, two-sided).
+    tex_mean = []
+    for img in scene.textures:
+        arr = np.asarray(img, np.float64)
+        rgb = arr[..., :3] if arr.shape[-1] >= 3 else np.repeat(arr[..., :1], 3, axis=-1)
+        tex_mean.append(rgb.reshape(-1, 3).mean(axis=0))
+    emis_mats = [i for i, m in enumerate(scene.materials)
+                 if np.any(np.asarray(m.emission, np.float64) != 0)]
+    tri_rows = None
+    if emis_mats and scene.n_triangles:
+        sel = np.nonzero(np.isin(scene.tri_mat, emis_mats))[0]
+        P = scene.tri_p[sel].astype(np.float64)
+        e1 = P[:, 1] - P[:, 0]
+        e2 = P[:, 2] - P[:, 0]
+        cr = np.cross(e1, e2)
+        A = 0.5 * np.linalg.norm(cr, axis=1)
+        keep = A > 0
+        sel, P, e1, e2, cr, A = sel[keep], P[keep], e1[keep], e2[keep], cr[keep], A[keep]
+        mats = scene.tri_mat[sel]
+        L = np.array([np.asarray(scene.materials[m].emission, np.float64) for m in mats]).reshape(-1, 3)
+        tex = np.array([scene.materials[m].emission_texture for m in mats], np.int32).reshape(-1)
+        tfac = np.ones((sel.shape[0], 3))
+        for t in np.unique(tex):
+            if 0 <= t < len(tex_mean):
+                tfac[tex == t] = tex_mean[t]
+        # Flux of a two-sided Lambertian emitter: 2 sides * pi * A * L
+        # (texture: its image mean, an approximation used only for selection).
+        flux = 2.0 * np.pi * A[:, None] * L * tfac
+        tri_rows = dict(kind=np.full(sel.shape[0], MESH, np.int8), source=sel.astype(np.int32),
+                        strength=L, radiance=L, flux=flux, co=P[:, 0], axis_u=e1, axis_v=e2,
+                        dir=cr / (2.0 * A[:, None]), area=A, tri_uv=scene.tri_uv[sel].astype(np.float64),
+                        tex=tex)
+
+    world = np.asarray(scene.world_color, np.float64).reshape(3)
+    if np.any(world != 0):
+        # Every direction carries L_w through a disc of area pi R^2.
+        row(kind=WORLD, source=-1, strength=world, radiance=world,
+            flux=world * 4.0 * np.pi * np.pi * R * R, co=center)
+
+    table = _assemble(rows, tri_rows, center, R, D, world, warnings, scene.textures)
+    return table
+
+
+def _assemble(rows, tri_rows, center, R, D, world, warnings, textures) -> LightTable:
+    names = ["kind", "source", "strength", "radiance", "flux", "co", "axis_u", "axis_v", "dir",
+             "len_u", "len_v", "area", "ellipse", "radius", "is_sphere", "lin", "lin_inv",
+             "cos_half_spot", "spot_smooth", "half_angle", "cos_half_angle", "tri_uv", "tex",
+             "visible_camera", "visible_glossy", "visible_transmission", "cast_shadow"]
+    dtypes = dict(kind=np.int8, source=np.int32, tex=np.int32, ellipse=bool, is_sphere=bool,
+                  visible_camera=bool, visible_glossy=bool, visible_transmission=bool,
+                  cast_shadow=bool)
+    shapes = dict(strength=(3,), radiance=(3,), flux=(3,), co=(3,), axis_u=(3,), axis_v=(3,),
+                  dir=(3,), lin=(3, 3), lin_inv=(3, 3), tri_uv=(3, 2))
+    defaults = dict(cos_half_spot=-1.0, spot_smooth=_SMOOTH_MAX, cos_half_angle=1.0,
+                    visible_camera=True, visible_glossy=True, visible_transmission=True,
+                    cast_shadow=True, tex=-1)
+    n_tri = 0 if tri_rows is None else tri_rows["kind"].shape[0]
+    cols = {}
+    for nm in names:
+        dt = dtypes.get(nm, np.float64)
+        a = np.array([r[nm] for r in rows], dtype=dt).reshape((len(rows),) + shapes.get(nm, ()))
+        if n_tri:
+            if nm in tri_rows:
+                b = np.asarray(tri_rows[nm], dtype=dt).reshape((n_tri,) + shapes.get(nm, ()))
+            elif nm in ("lin", "lin_inv"):
+                b = np.broadcast_to(np.eye(3), (n_tri, 3, 3)).astype(dt)
+            else:
+                b = np.full((n_tri,) + shapes.get(nm, ()), defaults.get(nm, 0), dtype=dt)
+            # Row order: Blender lights, the world (if any), then triangles.
+            a = np.concatenate([a, b], axis=0)
+        cols[nm] = a
+    lumf = _lum(cols["flux"]) if cols["flux"].shape[0] else np.zeros(0)
+    tot = lumf.sum()
+    p_select = lumf / tot if tot > 0 else np.zeros_like(lumf)
+    t = LightTable(**cols, p_select=p_select, center=np.asarray(center, np.float64),
+                   radius_scene=float(R), a_max=float(D) ** 2, world=world,
+                   textures=list(textures), warnings=warnings)
+    _direct_entries(t)
+    return t
+
+
+def _direct_entries(t: LightTable) -> None:
+    """Entries of the per-point NEE selection.
+
+    Every non-mesh emitter is one entry.  Emissive triangles are one entry each
+    when there are few; otherwise they form one group entry whose weight uses
+    the group's bounding sphere and whose triangle is then drawn by flux.
+    """
+    tri = np.nonzero(t.kind == MESH)[0]
+    other = np.nonzero(t.kind != MESH)[0]
+    lum_tri = _lum(t.flux[tri]) if tri.size else np.zeros(0)
+    tri = tri[lum_tri > 0]
+    lum_tri = lum_tri[lum_tri > 0]
+    if tri.size <= _MAX_TRI_ENTRIES:
+        t.entry_emitter = np.concatenate([other, tri]).astype(np.int64)
+        t.group_tri = np.zeros(0, np.int64)
+        t.group_cdf = np.zeros(0)
+    else:
+        t.entry_emitter = np.concatenate([other, [-1]]).astype(np.int64)
+        t.group_tri = tri.astype(np.int64)
+        t.group_cdf = np.cumsum(lum_tri)
+        pts = np.concatenate([t.co[tri], t.co[tri] + t.axis_u[tri], t.co[tri] + t.axis_v[tri]])
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        t.group_center = 0.5 * (lo + hi)
+        t.group_ext2 = float(0.25 * np.sum((hi - lo) ** 2))

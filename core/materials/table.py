@@ -1,0 +1,249 @@
+"""Materials as arrays: the :class:`MaterialTable` and what is read from it per point.
+
+Lobe colours (colour x mix weight x texture), emitted radiance, the
+luminance weights that choose a lobe, the probability of choosing a delta
+lobe and the Lambert albedo.  Lobe kinds and MAX_LOBES come from
+:mod:`core.scene.model`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..mathutil import LUMINANCE
+from ..scene.model import DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSPARENT
+from ..scene.textures import sample_texture
+from .microfacet import FRESNEL_DIELECTRIC, FRESNEL_F82, _fss_dielectric, f0_from_ior
+
+# Cycles ``roughness_is_almost_specular``: alpha_x * alpha_y <= 2e-10.
+SPECULAR_ALPHA2 = 2e-10
+# Cycles ``diffuse_roughness_is_almost_zero``: roughness < 1e-5 -> Lambert.
+DIFFUSE_ROUGHNESS_EPS = 1e-5
+# Cycles treats refraction as specular when |eta - 1| < 1e-4.
+IOR_ONE_EPS = 1e-4
+# Multiscatter GGX for lobe objects without the attribute (``Lobe``'s own default).
+DEFAULT_MULTISCATTER = False
+
+
+# --------------------------------------------------------------------------
+# Material table
+# --------------------------------------------------------------------------
+@dataclass
+class MaterialTable:
+    """Materials as arrays.  M materials, L = MAX_LOBES lobe slots.
+
+    kind: (M, L) int32 lobe kind, -1 = unused slot.
+    color: (M, L, 3) float64 Cycles "Color".
+    weight: (M, L) float64 mix weight.
+    roughness: (M, L) float64 Cycles roughness, clamped to [0, 1].
+    ior: (M, L) float64.
+    tex: (M, L) int32 texture index multiplying color, -1 = none.
+    multiscatter: (M, L) bool, Cycles' "Multiscatter GGX" energy compensation
+      on a GLOSSY / GLASS lobe (see :func:`multiscatter_factor`).
+    fresnel, fresnel_ior, f82_tint, layer_ior, layer_f0, layer_roughness: the
+      Principled BSDF's layers (see :func:`build_material_table`).
+    emission: (M, 3) float64 radiance; emission_tex: (M,) int32.
+    lobe_delta: (M, L) bool, the lobe is a Dirac delta (mirror, smooth glass /
+      refraction, transparent).
+    has_delta, has_nondelta, lambert_only: (M,) bool per-material flags;
+      lambert_only = has_nondelta and every non-delta lobe is Lambert.
+    textures: list of (H, W, C) images (row 0 at the bottom).
+    """
+    kind: np.ndarray
+    color: np.ndarray
+    weight: np.ndarray
+    roughness: np.ndarray
+    ior: np.ndarray
+    tex: np.ndarray
+    emission: np.ndarray
+    emission_tex: np.ndarray
+    lobe_delta: np.ndarray
+    has_delta: np.ndarray
+    has_nondelta: np.ndarray
+    lambert_only: np.ndarray
+    textures: list = field(default_factory=list)
+    multiscatter: np.ndarray = None     # (M, L) bool, see build_material_table
+    fresnel: np.ndarray = None          # (M, L) int8 FRESNEL_* (GLOSSY only)
+    fresnel_ior: np.ndarray = None      # (M, L) ior of FRESNEL_DIELECTRIC
+    f82_tint: np.ndarray = None         # (M, L, 3) tint of FRESNEL_F82
+    layer_ior: np.ndarray = None        # (M, L) DIFFUSE under a specular layer: its ior (0 = none)
+    layer_f0: np.ndarray = None         # (M, L) that layer's max-channel F0
+    layer_roughness: np.ndarray = None  # (M, L) that layer's roughness
+    layer_ms: np.ndarray = None         # (M, L) bool, that layer is Multiscatter GGX
+    sel_scale: np.ndarray = None        # (M, L) lobe-selection scale (Fresnel-weighted lobes)
+
+    @property
+    def n_materials(self) -> int:
+        return int(self.kind.shape[0])
+
+
+def _is_delta_lobe(kind: int, roughness: float, ior: float) -> bool:
+    if kind == TRANSPARENT:
+        return True
+    if kind in (GLOSSY, GLASS, REFRACTION):
+        alpha = roughness * roughness
+        if alpha * alpha <= SPECULAR_ALPHA2:
+            return True
+        # Cycles makes the refraction singular for |eta - 1| < 1e-4; the
+        # reflection of such glass has F ~ 0, so the whole lobe is delta here.
+        if kind in (GLASS, REFRACTION) and abs(ior - 1.0) < IOR_ONE_EPS:
+            return True
+    return False
+
+
+def build_material_table(materials: list, textures: list) -> MaterialTable:
+    """Pack ``core.scene.Material`` objects into a :class:`MaterialTable`.
+
+    materials: list of Material (lobes beyond MAX_LOBES raise ValueError: the
+      exporter merges them first, see ``core.scene.nodes.merge_lobes``).  The
+      :class:`core.scene.Lobe` fields beyond the original six are read with
+      getattr, so a lobe object without them is plain single-scattering GGX /
+      Lambert: ``multiscatter`` (Cycles' Multiscatter GGX, the default
+      distribution of the Glossy, Glass and Principled nodes; default
+      DEFAULT_MULTISCATTER), and the Principled BSDF's layers
+      (``core.scene.nodes`` sets them): GLOSSY ``fresnel='DIELECTRIC'`` +
+      ``fresnel_ior``: the colour is the specular tint and f is scaled by
+      Cycles' generalised-Schlick Fresnel mix(F0 tint, 1, (F(h.v) - F0)/(1 - F0));
+      ``fresnel='F82'`` + ``f82_tint``: the colour is F0 of Cycles' F82-tint
+      conductor; DIFFUSE ``layer_ior``, ``layer_f0``, ``layer_roughness``,
+      ``layer_multiscatter``: the diffuse lies under a dielectric specular
+      layer and is scaled by 1 - its albedo estimate
+      (``closure_layering_weight``), which depends on the view direction.
+    textures: list of (H, W, C) float32 images.
+    """
+    M, L = max(len(materials), 1), MAX_LOBES
+    kind = np.full((M, L), -1, np.int32)
+    color = np.zeros((M, L, 3))
+    weight = np.zeros((M, L))
+    rough = np.zeros((M, L))
+    ior = np.ones((M, L))
+    tex = np.full((M, L), -1, np.int32)
+    emis = np.zeros((M, 3))
+    emis_tex = np.full(M, -1, np.int32)
+    delta = np.zeros((M, L), bool)
+    ms = np.zeros((M, L), bool)
+    fres = np.zeros((M, L), np.int8)
+    fior = np.ones((M, L))
+    f82t = np.ones((M, L, 3))
+    lior = np.zeros((M, L))
+    lf0 = np.zeros((M, L))
+    lrough = np.zeros((M, L))
+    lms = np.zeros((M, L), bool)
+    sel = np.ones((M, L))
+    for m, mat in enumerate(materials):
+        if len(mat.lobes) > L:
+            raise ValueError(f"material '{mat.name}' has {len(mat.lobes)} lobes; "
+                             f"at most {L} are supported")
+        for j, lobe in enumerate(mat.lobes):
+            kind[m, j] = int(lobe.kind)
+            color[m, j] = np.maximum(np.asarray(lobe.color, np.float64)[:3], 0.0)
+            weight[m, j] = float(lobe.weight)
+            rough[m, j] = min(max(float(lobe.roughness), 0.0), 1.0)
+            ior[m, j] = max(float(lobe.ior), 1e-5)       # Cycles: fmaxf(ior, 1e-5)
+            tex[m, j] = int(lobe.color_texture)
+            delta[m, j] = _is_delta_lobe(kind[m, j], rough[m, j], ior[m, j])
+            # Optional Lobe attribute (the exporter sets it from the node's
+            # distribution); plain GGX when absent.
+            ms[m, j] = (bool(getattr(lobe, "multiscatter", DEFAULT_MULTISCATTER))
+                        and kind[m, j] in (GLOSSY, GLASS) and not delta[m, j])
+            fr = str(getattr(lobe, "fresnel", "") or "").upper()
+            if kind[m, j] == GLOSSY and fr in ("DIELECTRIC", "F82"):
+                fres[m, j] = FRESNEL_DIELECTRIC if fr == "DIELECTRIC" else FRESNEL_F82
+                fior[m, j] = max(float(getattr(lobe, "fresnel_ior", 1.5)), 1e-5)
+                f82t[m, j] = np.clip(np.asarray(getattr(lobe, "f82_tint", (1.0, 1.0, 1.0)),
+                                                np.float64)[:3], 0.0, 1.0)
+                if fr == "DIELECTRIC":
+                    # Selection by the hemispherical Fresnel average (sampling only).
+                    sel[m, j] = _fss_dielectric(fior[m, j])
+            if kind[m, j] == DIFFUSE and float(getattr(lobe, "layer_ior", 0.0)) > 0.0:
+                lior[m, j] = float(lobe.layer_ior)
+                lf0[m, j] = float(getattr(lobe, "layer_f0", f0_from_ior(lior[m, j])))
+                lrough[m, j] = min(max(float(getattr(lobe, "layer_roughness", 0.5)), 0.0), 1.0)
+                lms[m, j] = bool(getattr(lobe, "layer_multiscatter", False))
+        emis[m] = np.asarray(mat.emission, np.float64)[:3]
+        emis_tex[m] = int(mat.emission_texture)
+    used = (kind >= 0) & (weight != 0.0)
+    nondelta = used & ~delta
+    lambert = nondelta & (kind == DIFFUSE) & (rough < DIFFUSE_ROUGHNESS_EPS) & (lior <= 0.0)
+    has_nd = nondelta.any(axis=1)
+    return MaterialTable(
+        kind=kind, color=color, weight=weight, roughness=rough, ior=ior, tex=tex,
+        emission=emis, emission_tex=emis_tex, lobe_delta=delta,
+        has_delta=(used & delta).any(axis=1), has_nondelta=has_nd,
+        lambert_only=has_nd & ~(nondelta & ~lambert).any(axis=1),
+        textures=list(textures), multiscatter=ms, fresnel=fres, fresnel_ior=fior,
+        f82_tint=f82t, layer_ior=lior, layer_f0=lf0, layer_roughness=lrough, layer_ms=lms,
+        sel_scale=sel)
+
+
+# --------------------------------------------------------------------------
+# Per-point values
+# --------------------------------------------------------------------------
+def lobe_colors(table: MaterialTable, mat: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Per-lobe colour x weight x texture.  mat (K,) int, uv (K, 2) -> (K, L, 3) float64."""
+    mat = np.asarray(mat, np.int64)
+    cols = table.color[mat] * table.weight[mat][:, :, None]
+    cols[table.kind[mat] < 0] = 0.0
+    tex = table.tex[mat]
+    if (tex >= 0).any():
+        uv = np.asarray(uv, np.float64)
+        for j in range(tex.shape[1]):
+            for t in np.unique(tex[:, j]):
+                if t < 0:
+                    continue
+                idx = np.nonzero(tex[:, j] == t)[0]
+                cols[idx, j] *= sample_texture(table.textures[t], uv[idx])
+    return cols
+
+
+def emission_radiance(table: MaterialTable, mat: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Emitted radiance (two-sided) of each point: (K,) mat, (K, 2) uv -> (K, 3) float64."""
+    mat = np.asarray(mat, np.int64)
+    e = table.emission[mat].copy()
+    et = table.emission_tex[mat]
+    for t in np.unique(et):
+        if t < 0:
+            continue
+        idx = np.nonzero(et == t)[0]
+        e[idx] *= sample_texture(table.textures[t], np.asarray(uv, np.float64)[idx])
+    return e
+
+
+def _selection_weights(table, mat, colors, subset):
+    """Unnormalised lobe-selection weights (K, L): luminance of weight x colour."""
+    mat = np.asarray(mat, np.int64)
+    w = np.maximum(colors @ LUMINANCE, 0.0)
+    if table.sel_scale is not None:
+        w *= table.sel_scale[mat]
+    w[table.kind[mat] < 0] = 0.0
+    if subset == "delta":
+        w[~table.lobe_delta[mat]] = 0.0
+    elif subset == "nondelta":
+        w[table.lobe_delta[mat]] = 0.0
+    elif subset != "all":
+        raise ValueError(f"subset must be 'all', 'delta' or 'nondelta', not {subset!r}")
+    return w
+
+
+def _selection_probs(table, mat, colors, subset):
+    w = _selection_weights(table, mat, colors, subset)
+    tot = w.sum(axis=1, keepdims=True)
+    return np.where(tot > 0, w / np.where(tot > 0, tot, 1.0), 0.0)
+
+
+def delta_probability(table: MaterialTable, mat: np.ndarray, colors: np.ndarray) -> np.ndarray:
+    """Probability (K,) that luminance-proportional lobe selection picks a delta lobe."""
+    w = _selection_weights(table, mat, colors, "all")
+    tot = w.sum(axis=1)
+    wd = np.where(table.lobe_delta[np.asarray(mat, np.int64)], w, 0.0).sum(axis=1)
+    return np.where(tot > 0, wd / np.where(tot > 0, tot, 1.0), 0.0)
+
+
+def lambert_albedo(table: MaterialTable, mat: np.ndarray, colors: np.ndarray) -> np.ndarray:
+    """Sum (K, 3) of the Lambert (DIFFUSE, roughness 0, not layered) lobe colours."""
+    mat = np.asarray(mat, np.int64)
+    is_l = (table.kind[mat] == DIFFUSE) & (table.roughness[mat] < DIFFUSE_ROUGHNESS_EPS)
+    if table.layer_ior is not None:
+        is_l &= table.layer_ior[mat] <= 0.0
+    return (colors * is_l[:, :, None]).sum(axis=1)
