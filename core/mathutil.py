@@ -14,3 +14,17 @@ LUMINANCE = np.array([LUM_R, LUM_G, LUM_B])
 def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(K,) row-wise dot product of two (K, 3) arrays."""
     return np.einsum("ij,ij->i", a, b)
+
+
+def frame(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Orthonormal tangents (t, b), each (K, 3), of unit normals n (K, 3).
+
+    Duff et al. 2017, "Building an Orthonormal Basis, Revisited": branchless
+    and continuous except across n_z = 0, where the sign flips.
+    """
+    sign = np.where(n[:, 2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + n[:, 2])
+    b = n[:, 0] * n[:, 1] * a
+    t = np.stack([1.0 + sign * n[:, 0] ** 2 * a, sign * b, -sign * n[:, 0]], axis=1)
+    bb = np.stack([b, sign + n[:, 1] ** 2 * a, -n[:, 1]], axis=1)
+    return t, bb

@@ -16,7 +16,8 @@ import pytest
 
 from core import lights as L
 from core.lights.table import _spot_atten
-from core.lights.warps import _basis, _normalize, _uniform_sphere
+from core.lights.warps import _normalize, _uniform_sphere
+from core.mathutil import frame as _basis
 from core.scene.model import Camera, Light, Material, make_scene
 
 from stats_helpers import chi2_sf

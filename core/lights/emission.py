@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..mathutil import frame
+
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _mesh_emission, _smoothstep
-from .warps import (_basis, _cone_local, _cosine_local, _to_world, _triangle_bary, _uniform_sphere,
+from .warps import (_cone_local, _cosine_local, _to_world, _triangle_bary, _uniform_sphere,
                     _unit_disk)
 
 
@@ -100,7 +102,7 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
         r = np.where(table.is_sphere[jj], table.radius[jj], 0.0)
         falloff[m] = np.where(table.is_sphere[jj], 0.0, table.radius[jj] ** 2)
         x, y = _unit_disk(u[m, 1], u[m, 2])
-        t1, t2 = _basis(w)
+        t1, t2 = frame(w)
         lift = np.sqrt(np.maximum(1.0 - x * x - y * y, 0.0))
         off = (x[:, None] * t1 + y[:, None] * t2 + lift[:, None] * w) * r[:, None]
         o[m] = table.co[jj] + off
@@ -137,7 +139,7 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
             w[mc] = _to_world(_cone_local(table.cos_half_angle[jj[mc]], u[m[mc], 3], u[m[mc], 4]),
                               axis[mc])
         x, y = _unit_disk(u[m, 1], u[m, 2])
-        t1, t2 = _basis(axis)
+        t1, t2 = frame(axis)
         o[m] = table.center - R * axis + R * (x[:, None] * t1 + y[:, None] * t2)
         d[m] = w
         power[m] = table.flux[jj] * inv_p[m, None]
@@ -149,7 +151,7 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
         jj = j[m]
         w = _uniform_sphere(u[m, 3], u[m, 4])
         x, y = _unit_disk(u[m, 1], u[m, 2])
-        t1, t2 = _basis(w)
+        t1, t2 = frame(w)
         o[m] = table.center - R * w + R * (x[:, None] * t1 + y[:, None] * t2)
         d[m] = w
         power[m] = table.flux[jj] * inv_p[m, None]

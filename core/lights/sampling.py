@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..mathutil import dot as _dot
+from ..mathutil import dot as _dot, frame
 from .table import (AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _lum, _mesh_emission,
                     _spot_atten)
-from .warps import (_basis, _cone_local, _normalize, _to_world, _triangle_bary, _uniform_sphere,
+from .warps import (_cone_local, _normalize, _to_world, _triangle_bary, _uniform_sphere,
                     _unit_disk)
 
 
@@ -245,7 +245,7 @@ def sample_direct(table: LightTable, p: np.ndarray, u: np.ndarray, n=None) -> di
         dk = (~z) & (~sph)
         if np.any(dk):
             x_, y_ = _unit_disk(u1[m[dk]], u2[m[dk]])
-            t1, t2 = _basis(lightN[dk])
+            t1, t2 = frame(lightN[dk])
             q = co[dk] + r[dk, None] * (x_[:, None] * t1 + y_[:, None] * t2)
             v = q - pc[dk]
             tt = np.linalg.norm(v, axis=1)
@@ -308,7 +308,7 @@ def sample_direct(table: LightTable, p: np.ndarray, u: np.ndarray, n=None) -> di
             r = np.sqrt(u1[m])
             phi = 2.0 * np.pi * u2[m]
             cz = np.sqrt(np.maximum(1.0 - u1[m], 0.0))
-            t, b = _basis(nm)
+            t, b = frame(nm)
             w = (t * (r * np.cos(phi))[:, None] + b * (r * np.sin(phi))[:, None]
                  + nm * cz[:, None])
             # weight = L / pdf with pdf = cos / pi; f*cos*weight = f * L * pi.

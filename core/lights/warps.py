@@ -8,24 +8,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..mathutil import frame
+
 
 def _normalize(v):
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     return v / np.where(n > 0, n, 1.0)
 
 
-def _basis(n):
-    """Orthonormal tangents (t, b) of unit normals n (K, 3) (Duff et al. 2017)."""
-    s = np.where(n[:, 2] >= 0, 1.0, -1.0)
-    a = -1.0 / (s + n[:, 2])
-    b = n[:, 0] * n[:, 1] * a
-    t = np.stack([1.0 + s * n[:, 0] ** 2 * a, s * b, -s * n[:, 0]], axis=1)
-    bb = np.stack([b, s + n[:, 1] ** 2 * a, -n[:, 1]], axis=1)
-    return t, bb
-
-
 def _to_world(local, n):
-    t, b = _basis(n)
+    t, b = frame(n)
     return local[:, :1] * t + local[:, 1:2] * b + local[:, 2:3] * n
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..mathutil import LUMINANCE, dot as _dot
+from ..mathutil import LUMINANCE, dot as _dot, frame
 from ..scene.model import DIFFUSE, GLASS, GLOSSY, REFRACTION, TRANSLUCENT, TRANSPARENT
 from .microfacet import (FRESNEL_DIELECTRIC, FRESNEL_F82, INV_PI, _disk, _microfacet_f,
                          _microfacet_pdf, _normalize, _principled_fresnel, fresnel_dielectric,
@@ -34,16 +34,6 @@ def _orient(n_s, n_g, v):
     front = _dot(n_g, v) >= 0.0
     s = np.where(front, 1.0, -1.0)[:, None]
     return n_s * s, n_g * s, front
-
-
-def _frame(n):
-    """Orthonormal tangents (t, b) of unit normals n (Duff et al. 2017)."""
-    sign = np.where(n[:, 2] >= 0.0, 1.0, -1.0)
-    a = -1.0 / (sign + n[:, 2])
-    b = n[:, 0] * n[:, 1] * a
-    t = np.stack([1.0 + sign * n[:, 0] ** 2 * a, sign * b, -sign * n[:, 0]], axis=1)
-    bb = np.stack([b, sign + n[:, 1] ** 2 * a, -n[:, 1]], axis=1)
-    return t, bb
 
 
 def _cos_hemisphere(u1, u2):
@@ -273,7 +263,7 @@ def sample_bsdf(table: MaterialTable, mat, colors, n_s, n_g, wo, u, subset="all"
     is_delta = np.zeros(K, bool)
     fi = np.nonzero(fast)[0]
     N, Ng, _ = _orient(n_s[fi], n_g[fi], wo[fi])
-    t, b = _frame(N)
+    t, b = frame(N)
     loc = _cos_hemisphere(u[fi, 0], u[fi, 1])
     w = loc[:, 0:1] * t + loc[:, 1:2] * b + loc[:, 2:3] * N
     wt = colors[fi].sum(axis=1)
@@ -312,7 +302,7 @@ def _sample_general(table, mat, colors, n_s, n_g, wo, u, subset, mode):
     c_lo = np.where(j_sel > 0, cdf[rows, np.maximum(j_sel - 1, 0)], 0.0)
     u_re = np.clip((u[:, 2] - c_lo) / np.where(p_sel > 0, p_sel, 1.0), 0.0, 1.0 - 1e-16)
 
-    t, b = _frame(N)
+    t, b = frame(N)
     wl = np.stack([_dot(wo, t), _dot(wo, b), _dot(wo, N)], axis=1)
 
     wi = np.zeros((K, 3))
