@@ -23,7 +23,7 @@ Counting rule.  Photon p counts for visible point v when
                                                    wall of a corner).
   (4) a photon on a differently oriented surface (dot(ng_p, ng_v) <= 0.5)
       must not lie behind the VP's tangent plane: dot(x_p - x_v, ng_v) >= 0.
-      A no-op with the default cos_ng; with cos_ng = -1 (the renderer) it keeps
+      A no-op with the default cos_ng; with cos_ng = -1 (core.sppm.photon_pass) it keeps
       the concave corner's other wall (in front of the plane) and rejects
       photons inside a closed object at its convex edges, which otherwise
       leak through zero-thickness walls (a light sealed in a box lit
