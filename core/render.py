@@ -81,7 +81,7 @@ class Renderer:
         self._setup_scene(scene, force_stages)
         st = self.settings
         P = self.width * self.height
-        # Seconds and rays per stage, for the benchmark (ratios, not bare times).
+        # Seconds per stage, for the benchmark (ratios, not bare times).
         self.stage_seconds = {k: 0.0 for k in ("camera", "direct", "photon_trace", "gather", "update")}
         self.camera_pass = CameraPass(self.scene, self.accel, self.mtab, self.light_table,
                                       self.camera, self.fsamp, self.px, self.py,
