@@ -1,4 +1,4 @@
-"""Benchmark of the SPPM photon gather (core/hashgrid.py) against Embree ray casting.
+"""Benchmark of the SPPM photon gather (core/sppm/hashgrid.py) against Embree ray casting.
 
     .venv/bin/python bench/bench_gather.py [--quick]
 

@@ -1,4 +1,4 @@
-"""Surface-boundary cap on the initial radius (core.sppm.edges, Renderer._boundary_cap).
+"""Surface-boundary cap on the initial radius (core.sppm.edges, core.sppm.update.Radii.edge_cap).
 
 Unit tests on synthetic visible-point grids with known boundaries, and a
 rendered plate whose edge pixels a kernel reaching into the air beside it

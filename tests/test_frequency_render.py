@@ -1,4 +1,4 @@
-"""Frequency photons as rendered (issue 4): where radii are held, where they shrink.
+"""Frequency photons as rendered: where radii are held, where they shrink.
 
 The operators themselves are pinned against sampled light fields in
 test_frequency_ops.py; here the whole pipeline (emission inits, transport,

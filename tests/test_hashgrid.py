@@ -1,8 +1,8 @@
 """core.sppm.hashgrid: the grid gather must equal the O(P*K) numpy brute force.
 
 The counting tests are evaluated in float64 in the same operation order by the
-numba kernel and by gather_bruteforce, so M, the (VP, photon) pair sets and
-rpred_min are compared EXACTLY (no tolerance: a missed candidate or a VP
+numba kernel and by the oracle tests/oracle_gather.py, so M, the (VP, photon)
+pair sets and rpred_min are compared EXACTLY (no tolerance: a missed candidate or a VP
 counted twice changes an integer).  Phi_sum differs only by summation order:
 relative 1e-12 bounds n * eps = (a few hundred terms) * 1.1e-16 with a wide margin.
 """
@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from core.sppm import hashgrid as hg
+from oracle_gather import gather_bruteforce
 
 
 def _unit(v):
@@ -71,7 +72,7 @@ def _args(c):
             c["vp_pos"], c["vp_ng"], c["vp_R2"], c["vp_const"])
 
 
-def assert_same(res, ref, want_rpred_pairs=False):
+def assert_same(res, ref, want_freq_pairs=False):
     np.testing.assert_array_equal(res.M, ref.M)
     np.testing.assert_allclose(res.Phi_sum, ref.Phi_sum, rtol=1e-12, atol=0)
     np.testing.assert_array_equal(res.rpred_min, ref.rpred_min)
@@ -80,17 +81,17 @@ def assert_same(res, ref, want_rpred_pairs=False):
     got = got[np.lexsort(got.T[::-1])]
     exp = exp[np.lexsort(exp.T[::-1])]
     np.testing.assert_array_equal(got, exp)   # same pairs, each exactly once
-    if want_rpred_pairs:    # same multiset of (VP, r_pred)
-        assert sorted(zip(res.rpred_pair_vp.tolist(), res.rpred_pair_r.tolist())) == \
-            sorted(zip(ref.rpred_pair_vp.tolist(), ref.rpred_pair_r.tolist()))
+    if want_freq_pairs:    # same set of (VP, frequency photon) pairs
+        assert sorted(zip(res.freq_pair_vp.tolist(), res.freq_pair_ph.tolist())) == \
+            sorted(zip(ref.freq_pair_vp.tolist(), ref.freq_pair_ph.tolist()))
 
 
 def run_both(c, **build_kw):
     grid = hg.build_grid(c["vp_pos"], c["vp_R"], c["active"], **build_kw)
-    ref = hg.gather_bruteforce(*_args(c), active=c["active"], want_rpred_pairs=True)
+    ref = gather_bruteforce(*_args(c), active=c["active"], want_freq_pairs=True)
     for parallel in (False, True):
-        res = hg.gather(grid, *_args(c), want_rpred_pairs=True, parallel=parallel)
-        assert_same(res, ref, want_rpred_pairs=True)
+        res = hg.gather(grid, *_args(c), want_freq_pairs=True, parallel=parallel)
+        assert_same(res, ref, want_freq_pairs=True)
     return grid, ref
 
 
@@ -144,11 +145,11 @@ def test_photons_on_cell_boundaries():
              ph_wi=np.tile(np.float32([0, 0.6, 0.8]), (P, 1)),
              ph_power=rng.random((P, 3)),
              ph_rpred=np.where(rng.random(P) < 0.5, rng.random(P), np.nan))
-    ref = hg.gather_bruteforce(*_args(c), active=c["active"], want_rpred_pairs=True)
+    ref = gather_bruteforce(*_args(c), active=c["active"], want_freq_pairs=True)
     for kw in ({}, {"layout": "hash"}, {"cell_factor": 2.0}):
         grid = hg.build_grid(vp_pos, vp_R, c["active"], **kw)
         for parallel in (False, True):
-            assert_same(hg.gather(grid, *_args(c), want_rpred_pairs=True,
+            assert_same(hg.gather(grid, *_args(c), want_freq_pairs=True,
                                   parallel=parallel), ref, True)
     # plenty of lattice photons are inside: the case is not empty
     assert ref.M.sum() > 1000
@@ -175,9 +176,9 @@ def test_empty_inputs():
     k0 = dict(c, vp_pos=np.zeros((0, 3)), vp_ng=np.zeros((0, 3)), vp_R=np.zeros(0),
               vp_R2=np.zeros(0), vp_const=np.zeros(0, bool), active=np.zeros(0, bool))
     grid = hg.build_grid(k0["vp_pos"], k0["vp_R"], k0["active"])
-    r = hg.gather(grid, *_args(k0), want_rpred_pairs=True)
+    r = hg.gather(grid, *_args(k0), want_freq_pairs=True)
     assert r.M.shape == (0,) and r.Phi_sum.shape == (0, 3) and len(r.pair_vp) == 0
-    assert len(r.rpred_pair_r) == 0
+    assert len(r.freq_pair_ph) == 0
     # all VPs inactive: nothing counted although photons sit on the VPs
     ia = dict(c, active=np.zeros(50, bool), ph_pos=c["vp_pos"][np.arange(200) % 50])
     grid, ref = run_both(ia)

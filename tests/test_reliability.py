@@ -75,7 +75,8 @@ def test_checkpoint_save_load_and_resume_bit_identical(tmp_path):
     d = checkpoint.load(str(tmp_path), Renderer.STATE_KEYS)
     assert d["pass_index"] == 2 and isinstance(d["scene_digest"], str)
     for k in Renderer.STATE_KEYS:
-        assert np.array_equal(d[k], getattr(a, k), equal_nan=True) and d[k].dtype == getattr(a, k).dtype
+        x = getattr(a.state, k)
+        assert np.array_equal(d[k], x, equal_nan=True) and d[k].dtype == x.dtype
     # A budget change (more passes) is allowed; the result is the 4-pass render, bit for bit.
     b = Renderer(sc, st, log=lambda m: None)
     b.load_state(d)
@@ -112,19 +113,19 @@ def test_cancelled_pass_leaves_the_state_untouched(estimator, spectrum):
     r = Renderer(sc, st, log=lambda m: None)
     r.run(should_stop=lambda: r.pass_index >= 2)
     before = r.state_dict()
-    orig = r._photon_pass
+    orig = r.photon_pass
     chunks = {"n": 0}
 
     def photon_pass(*a):
         r._should_stop = lambda: chunks.__setitem__("n", chunks["n"] + 1) or chunks["n"] > 1
         return orig(*a)
-    r._photon_pass = photon_pass
+    r.photon_pass = photon_pass
     r.run(should_stop=lambda: False)
     assert r.pass_index == 2 and chunks["n"] == 2          # cancelled after one chunk of 3
     after = r.state_dict()
     # The footprint depths are set from the pass's visible points before its
     # photons; the re-run of the pass sets the very same values.
-    for k in set(before) - {"_depth_for_fp"}:
+    for k in set(before) - {"depth"}:
         x, y = np.asarray(before[k]), np.asarray(after[k])
         assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), k
     # So continuing from that state gives the uninterrupted render, bit for bit.
@@ -425,7 +426,7 @@ def test_cancel_latency_per_core_stage(monkeypatch):
     full = {"grid": r.occ_build_seconds, "camera": r.stage_seconds["camera"],
             "photon": r.stage_seconds["photon_trace"] + r.stage_seconds["gather"]}
     # 2.-3. camera pass, photon pass of pass 2
-    for stage, meth in (("camera", "_camera_pass"), ("photon", "_photon_pass")):
+    for stage, meth in (("camera", "camera_pass"), ("photon", "photon_pass")):
         stop = Stopper()
         orig = getattr(r, meth)
 
@@ -435,7 +436,7 @@ def test_cancel_latency_per_core_stage(monkeypatch):
         setattr(r, meth, wrapped)
         res = r.run(should_stop=stop)
         lat[stage] = stop.latency()
-        delattr(r, meth)
+        setattr(r, meth, orig)
         # The cancelled pass is dropped: the last complete one is returned.
         assert res.pass_index == 1 and np.array_equal(res.image, first.image)
     print("uncancelled stage seconds:", {k: round(v, 2) for k, v in full.items()})

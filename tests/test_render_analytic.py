@@ -1,4 +1,4 @@
-"""The renderer against closed-form radiance (issue 2: analytic scenes, furnace).
+"""The renderer against closed-form radiance (analytic scenes, furnace).
 
 Tolerances: each test measures its own noise from two seeds.  The per-pixel
 noise sigma_pix^2 = var(I1 - I2) / 2; neighbouring pixels share photons over a

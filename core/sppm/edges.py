@@ -6,18 +6,14 @@ rest is air over a table's edge, or another face at another irradiance), so
 the density estimate tau / (pi R^2 N_e) darkens or blends there.  Progressive
 radius reduction removes the bias only as fast as R shrinks, and a radius
 held by frequency photons not at all: the spectrum describes the light
-field, not the extent of the receiver.  On the indirectly lit room
-(example_blends/indirect_room.blend, 128^2, FPPM, 120 passes) the 12% of
-pixels next to strong gradients held 6.5e-4 of the 8.3e-4 relMSE excess
-against Cycles, with pixels along the table's and the cabinet's edges
-20-30% dark; the cap brings the whole image to 6.3e-4 (same seed).  On a
-plate floating above a floor (tests/test_edges.py, 3-px radius) its edge
-band goes from -37% to -9%.
+field, not the extent of the receiver.  The measured effect (the indirectly
+lit room against Cycles, a plate floating above a floor in tests/test_edges.py)
+is in docs/method.md, "Surface boundaries".
 
 So the initial radius of each pixel is capped by the distance to the nearest
 *surface boundary* visible around it, found in screen space from one camera
-pass through the pixel centres: a neighbour pixel within ``reach`` pixels is
-on another surface when
+pass through the pixel centres (core.sppm.update.Radii.edge_cap): a
+neighbour pixel within ``reach`` pixels is on another surface when
 
 - it sees nothing (background), or
 - its normal differs by more than ~37 degrees (``COS_SAME``), or

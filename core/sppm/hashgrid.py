@@ -23,22 +23,24 @@ Counting rule.  Photon p counts for visible point v when
                                                    wall of a corner).
   (4) a photon on a differently oriented surface (dot(ng_p, ng_v) <= 0.5)
       must not lie behind the VP's tangent plane: dot(x_p - x_v, ng_v) >= 0.
-      A no-op with the default cos_ng; with cos_ng = -1 (the renderer) it keeps
+      A no-op with the default cos_ng; with cos_ng = -1 (core.sppm.photon_pass) it keeps
       the concave corner's other wall (in front of the plane) and rejects
       photons inside a closed object at its convex edges, which otherwise
       leak through zero-thickness walls (a light sealed in a box lit
       the box's outer edges; tests/test_stiff_scenes.py).
 All tests are evaluated in float64 in a fixed operation order, so the
-numba kernel and :func:`gather_bruteforce` (numpy) agree exactly; each is
+numba kernel and the numpy oracle of tests/oracle_gather.py agree exactly; each is
 written as "count only if the comparison is True", so a NaN anywhere (radius,
 normal, direction) never counts.
 
 Outputs per VP (see :class:`GatherResult`): the photon count M, Phi_sum = sum of
 photon power for VPs whose BSDF is constant (diffuse: the caller multiplies by
 albedo/pi), (VP, photon) pairs for the other VPs (the caller evaluates the BSDF
-vectorised and scatters), and r_pred = min of the frequency photons' predicted
+vectorised and scatters), r_pred = min of the frequency photons' predicted
 radius (Belcour & Soler 2011; docs/frequency.md "Conservative
-accumulation keeps the MINIMUM").
+accumulation keeps the MINIMUM") and, on request, every (VP, frequency photon)
+pair (the QUANTILE estimator's histogram and the spectrum AOV,
+core.sppm.photon_pass).
 
 Cell size (documented choice, measured with bench/bench_gather.py):
   h = CELL_FACTOR * median(active R), CELL_FACTOR = 1.5.
@@ -158,17 +160,18 @@ class GatherResult:
       False; grouped by photon, otherwise unordered.
     rpred_min: (K,) float64 min ph_rpred over counted frequency photons
       (non-NaN ph_rpred); inf when none.
-    rpred_pair_vp: (n_freq_pairs,) int32 and rpred_pair_r: (n_freq_pairs,)
-      float64, every (VP, r_pred) of a counted frequency photon, all VPs; only
-      when gather(..., want_rpred_pairs=True), else None.
+    freq_pair_vp, freq_pair_ph: (n_freq_pairs,) int32 every (VP, photon) pair
+      of a counted frequency photon (non-NaN ph_rpred), all VPs, grouped by
+      photon in the order of pair_vp / pair_ph; only when
+      gather(..., want_freq_pairs=True), else None.
     """
     M: np.ndarray
     Phi_sum: np.ndarray
     pair_vp: np.ndarray
     pair_ph: np.ndarray
     rpred_min: np.ndarray
-    rpred_pair_vp: Optional[np.ndarray] = None
-    rpred_pair_r: Optional[np.ndarray] = None
+    freq_pair_vp: Optional[np.ndarray] = None
+    freq_pair_ph: Optional[np.ndarray] = None
 
 
 # ----------------------------------------------------------------------------
@@ -414,7 +417,7 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
 def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
                  vp_rec, cos_ng, cell_start, vp_ids, hitmask,
                  n_pair, pair_off, pair_vp, pair_ph,
-                 n_freq, freq_off, fpair_vp, fpair_r, want_freq):
+                 n_freq, freq_off, fpair_vp, fpair_ph, want_freq):
     """Second pass over photons with pairs: the counted entries come from
     hitmask, or (cells of > 64 entries) from the same tests as _count_range in
     the same arithmetic; pairs are written at the photon's prefix-sum offset."""
@@ -441,7 +444,7 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
                         k += 1
                     if is_freq:
                         fpair_vp[kf] = v
-                        fpair_r[kf] = r
+                        fpair_ph[kf] = p
                         kf += 1
             continue
         x = np.float64(ph_pos[q, 0])
@@ -463,7 +466,7 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
                 k += 1
             if is_freq:
                 fpair_vp[kf] = v
-                fpair_r[kf] = r
+                fpair_ph[kf] = p
                 kf += 1
 
 
@@ -491,23 +494,23 @@ def _count_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec,
 @njit(cache=True)
 def _pairs_serial(order, slot, ph_pos, ph_ng, ph_wi, ph_rpred, vp_rec, cos_ng,
                   cell_start, vp_ids, hitmask, n_pair, pair_off, pair_vp, pair_ph,
-                  n_freq, freq_off, fpair_vp, fpair_r, want_freq):
+                  n_freq, freq_off, fpair_vp, fpair_ph, want_freq):
     _pairs_range(0, order.shape[0], order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
                  vp_rec, cos_ng, cell_start, vp_ids, hitmask, n_pair, pair_off,
-                 pair_vp, pair_ph, n_freq, freq_off, fpair_vp, fpair_r, want_freq)
+                 pair_vp, pair_ph, n_freq, freq_off, fpair_vp, fpair_ph, want_freq)
 
 
 @njit(cache=True, parallel=True)
 def _pairs_parallel(order, slot, ph_pos, ph_ng, ph_wi, ph_rpred, vp_rec, cos_ng,
                     cell_start, vp_ids, hitmask, n_pair, pair_off, pair_vp, pair_ph,
-                    n_freq, freq_off, fpair_vp, fpair_r, want_freq, n_chunks):
+                    n_freq, freq_off, fpair_vp, fpair_ph, want_freq, n_chunks):
     # Each photon writes only its own [offset, offset + count) ranges: race-free.
     n = order.shape[0]
     for c in prange(n_chunks):
         _pairs_range(c * n // n_chunks, (c + 1) * n // n_chunks, order, slot, ph_pos,
                      ph_ng, ph_wi, ph_rpred, vp_rec, cos_ng, cell_start, vp_ids,
                      hitmask, n_pair, pair_off, pair_vp, pair_ph, n_freq, freq_off,
-                     fpair_vp, fpair_r, want_freq)
+                     fpair_vp, fpair_ph, want_freq)
 
 
 # ----------------------------------------------------------------------------
@@ -623,17 +626,17 @@ def _prepare(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_pos, vp_ng, vp_R2, vp_
     return P, K, ph, vp
 
 
-def _empty_result(K, want_rpred_pairs):
+def _empty_result(K, want_freq_pairs):
     e = np.zeros(0, np.int32)
     return GatherResult(np.zeros(K, np.int64), np.zeros((K, 3)), e, e.copy(),
                         np.full(K, np.inf),
-                        e.copy() if want_rpred_pairs else None,
-                        np.zeros(0) if want_rpred_pairs else None)
+                        e.copy() if want_freq_pairs else None,
+                        e.copy() if want_freq_pairs else None)
 
 
 def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
            vp_pos, vp_ng, vp_R2, vp_const, cos_ng: float = COS_NG_DEFAULT,
-           want_rpred_pairs: bool = False, parallel: Optional[bool] = None) -> GatherResult:
+           want_freq_pairs: bool = False, parallel: Optional[bool] = None) -> GatherResult:
     """Count photons into visible points (rules (1)-(4) of the module docstring).
 
     ph_pos (P, 3) float32/64 photon hit positions; ph_ng (P, 3) geometric normal
@@ -658,7 +661,7 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         raise ValueError("gather: vp_R2 exceeds the radius the grid was built with; "
                          "rebuild the grid after the radii grow")
     if P == 0 or grid.n_active == 0:
-        return _empty_result(K, want_rpred_pairs)
+        return _empty_result(K, want_freq_pairs)
 
     n_threads = numba.get_num_threads()
     if parallel is None:
@@ -672,7 +675,7 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         0 if grid.dense else 64 - grid.log2_table, grid.cell_start, n_chunks)
     n = order.shape[0]
     if n == 0:
-        return _empty_result(K, want_rpred_pairs)
+        return _empty_result(K, want_freq_pairs)
 
     # One 64-byte record per VP (x, y, z, R^2, ng, const): a candidate reads
     # one cache line instead of four arrays.
@@ -703,92 +706,21 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     np.cumsum(n_pair, out=pair_off[1:])
     n_pairs = int(pair_off[-1])
     freq_off = np.zeros(n + 1, np.int64)
-    if want_rpred_pairs:
+    if want_freq_pairs:
         np.cumsum(n_freq, out=freq_off[1:])
     n_fp = int(freq_off[-1])
     pair_vp = np.empty(n_pairs, np.int32)
     pair_ph = np.empty(n_pairs, np.int32)
     fpair_vp = np.empty(n_fp, np.int32)
-    fpair_r = np.empty(n_fp, np.float64)
+    fpair_ph = np.empty(n_fp, np.int32)
     if n_pairs or n_fp:
         pargs = (order, slot, ph_pos_, ph_ng_, ph_wi_, ph_rpred_, vp_rec, float(cos_ng),
                  *g, hitmask, n_pair, pair_off, pair_vp, pair_ph, n_freq, freq_off,
-                 fpair_vp, fpair_r, bool(want_rpred_pairs))
+                 fpair_vp, fpair_ph, bool(want_freq_pairs))
         if parallel:
             _pairs_parallel(*pargs, n_chunks)
         else:
             _pairs_serial(*pargs)
     return GatherResult(M, Phi, pair_vp, pair_ph, rmin,
-                        fpair_vp if want_rpred_pairs else None,
-                        fpair_r if want_rpred_pairs else None)
-
-
-# ----------------------------------------------------------------------------
-# Reference
-# ----------------------------------------------------------------------------
-
-def gather_bruteforce(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_pos, vp_ng, vp_R2,
-                      vp_const, active=None, cos_ng: float = COS_NG_DEFAULT,
-                      want_rpred_pairs: bool = False,
-                      block_elems: int = 1 << 22) -> GatherResult:
-    """Reference gather in numpy: tests every (photon, VP) pair, O(P*K).
-
-    Same arguments as :func:`gather` plus active (K,) bool (the mask given to
-    build_grid; None = all).  Same float64 arithmetic in the same order, so M,
-    the pair sets and rpred_min are bit-identical to the grid gather.  Pairs
-    are sorted by (photon, VP).
-    """
-    P, K, ph, vp = _prepare(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
-                            vp_pos, vp_ng, vp_R2, vp_const)
-    if P == 0 or K == 0:
-        return _empty_result(K, want_rpred_pairs)
-    ph_pos, ph_ng, ph_wi, ph_power, ph_rpred = ph
-    vp_pos, vp_ng, vp_R2, vp_const = vp
-    act = np.ones(K, bool) if active is None else np.asarray(active, bool).reshape(K)
-    with np.errstate(invalid="ignore"):
-        # the VPs build_grid drops: non-finite position or radius
-        act = act & np.isfinite(vp_pos).all(axis=1) & np.isfinite(vp_R2)
-    x = ph_pos.astype(np.float64)
-    wi = ph_wi.astype(np.float64)
-    ng = ph_ng.astype(np.float64)
-    M = np.zeros(K, np.int64)
-    Phi = np.zeros((K, 3))
-    rmin = np.full(K, np.inf)
-    pv, pp, fv, fr = [], [], [], []
-    B = max(1, block_elems // K)
-    for b0 in range(0, P, B):
-        b1 = min(P, b0 + B)
-        sl = slice(b0, b1)
-        dx = x[sl, 0, None] - vp_pos[None, :, 0]
-        dy = x[sl, 1, None] - vp_pos[None, :, 1]
-        dz = x[sl, 2, None] - vp_pos[None, :, 2]
-        ok = (dx * dx + dy * dy + dz * dz) < vp_R2[None, :]
-        ok &= (wi[sl, 0, None] * vp_ng[None, :, 0] + wi[sl, 1, None] * vp_ng[None, :, 1]
-               + wi[sl, 2, None] * vp_ng[None, :, 2]) > 0.0
-        cg = (ng[sl, 0, None] * vp_ng[None, :, 0] + ng[sl, 1, None] * vp_ng[None, :, 1]
-              + ng[sl, 2, None] * vp_ng[None, :, 2])
-        ok &= cg > cos_ng
-        # (4): not behind the VP's plane unless similarly oriented
-        ok &= ~((cg <= COS_NG_DEFAULT)
-                & ((dx * vp_ng[None, :, 0] + dy * vp_ng[None, :, 1] + dz * vp_ng[None, :, 2]) < 0.0))
-        ok &= act[None, :]
-        # photons outside the finite range are never counted (as in the grid)
-        ok &= np.isfinite(x[sl]).all(axis=1)[:, None]
-        ip, iv = np.nonzero(ok)
-        ip = ip + b0
-        M += np.bincount(iv, minlength=K)
-        c = vp_const[iv]
-        for ch in range(3):
-            Phi[:, ch] += np.bincount(iv[c], weights=ph_power[ip[c], ch], minlength=K)
-        pv.append(iv[~c])
-        pp.append(ip[~c])
-        r = ph_rpred[ip]
-        f = ~np.isnan(r)
-        np.minimum.at(rmin, iv[f], r[f])
-        fv.append(iv[f])
-        fr.append(r[f])
-    pair_vp = np.concatenate(pv).astype(np.int32)
-    pair_ph = np.concatenate(pp).astype(np.int32)
-    return GatherResult(M, Phi, pair_vp, pair_ph, rmin,
-                        np.concatenate(fv).astype(np.int32) if want_rpred_pairs else None,
-                        np.concatenate(fr) if want_rpred_pairs else None)
+                        fpair_vp if want_freq_pairs else None,
+                        fpair_ph if want_freq_pairs else None)

@@ -1,0 +1,124 @@
+"""Next-event estimation at the visible points: direct light with a shadow test.
+
+    nee = NextEventEstimation(light_table, mtab, accel, tri_p)
+    L_direct = nee(vp, rng)          # (P, 3) float64
+
+One light sample per visible point (core.lights.lights.sample_direct picks the
+emitter and the point on it), weighted by the BSDF (core.materials.bsdf) and
+the shading cosine, then a shadow ray: analytic lights are not geometry, so
+any hit before them occludes (with a retry that discards float32 self-hits at
+grazing incidence); emissive triangles are geometry, so the emitter's own hit
+does not occlude.  Photons then carry only indirect light (core.sppm.photons
+stores from the second bounce on) unless ``photons_for_direct`` is set, in
+which case the renderer does not call this stage.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..accel import REL_OFFSET
+from ..materials import bsdf as B
+from ..mathutil import dot as _dot
+from . import lights as Lt
+
+if TYPE_CHECKING:
+    from ..sppm.visible_points import VisiblePoints
+
+
+class NextEventEstimation:
+    """Direct light at visible points.  tri_p (T, 3, 3): the triangles of
+    ``accel`` (their planes decide which hits are the emitter or a self-hit)."""
+
+    def __init__(self, light_table, mtab, accel, tri_p: np.ndarray):
+        self.light_table, self.mtab, self.accel, self.tri_p = light_table, mtab, accel, tri_p
+
+    def __call__(self, vp: "VisiblePoints", rng: np.random.Generator) -> np.ndarray:
+        """(P, 3) float64 reflected direct radiance times vp.beta (0 at invalid points)."""
+        P = vp.valid.shape[0]
+        L = np.zeros((P, 3))
+        q = np.nonzero(vp.valid)[0]
+        if q.size == 0:
+            return L
+        smp = Lt.sample_direct(self.light_table, vp.p[q], rng.random((q.size, 3)), n=vp.ns[q])
+        wi, dist, wgt, shadow = smp["wi"], smp["dist"], smp["weight"], smp["cast_shadow"]
+        live = (wgt.max(axis=1) > 0) & np.all(np.isfinite(wgt), axis=1)
+        q, wi, dist, wgt, shadow = q[live], wi[live], dist[live], wgt[live], shadow[live]
+        if q.size == 0:
+            return L
+        f = B.eval_bsdf(self.mtab, vp.mat[q], vp.colors[q], vp.ns[q], vp.ng[q], vp.wo[q], wi)
+        cos = np.abs(_dot(vp.ns[q], wi))
+        contrib = vp.beta[q] * f * cos[:, None] * wgt
+        nz = contrib.max(axis=1) > 0
+        q, wi, dist, contrib, shadow = q[nz], wi[nz], dist[nz], contrib[nz], shadow[nz]
+        mesh = smp["kind"][live][nz] == Lt.MESH
+        blocked = self._blocked(vp.p[q], vp.ng[q], wi, dist, mesh) & shadow
+        L[q[~blocked]] += contrib[~blocked]
+        return L
+
+    def _blocked(self, p, ng, wi, dist, mesh) -> np.ndarray:
+        """(K,) bool: the shadow ray from p (K, 3) towards wi over dist is
+        occluded; mesh (K,) bool: the sample lies on an emissive triangle."""
+        accel = self.accel
+        o = accel.spawn(p, ng, wi)
+        blocked = np.zeros(p.shape[0], bool)
+        # Analytic lights are not geometry: any hit before them occludes.
+        a = np.nonzero(~mesh)[0]
+        if a.size:
+            blocked[a] = accel.occluded(o[a], wi[a], dist[a])
+            b = a[blocked[a]]
+            if b.size:
+                blocked[b] = self._grazing_self_hit_retry(p[b], ng[b], o[b], wi[b], dist[b])
+        # Emissive triangles are geometry: the shadow ray must not be stopped by
+        # the emitter itself.  Embree's float32 hit distance errs by about
+        # offset/|cos| at grazing angles, so a closest hit counts as the emitter
+        # when it lies within that tolerance of the sample.
+        m = np.nonzero(mesh)[0]
+        if m.size:
+            end = p[m] + wi[m] * dist[m][:, None]
+            h = accel.intersect(o[m], wi[m], dist[m] * (1 + 1e-6) + accel.offset_scale(end))
+            hitm = h.hit
+            cos_l = np.ones(m.size)
+            if np.any(hitm):
+                cos_l[hitm] = np.abs(_dot(self._unit_normals(h.prim[hitm]), wi[m][hitm]))
+            tol = 4.0 * accel.offset_scale(end) / np.maximum(cos_l, 1e-4)
+            blocked[m] = hitm & (h.t < dist[m] - tol)
+        return blocked
+
+    def _unit_normals(self, prim) -> np.ndarray:
+        """(K, 3) float64 unit geometric normals of triangles prim (K,)."""
+        P = self.tri_p[prim].astype(np.float64)
+        n = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        return n
+
+    def _grazing_self_hit_retry(self, p, ng, o, wi, dist) -> np.ndarray:
+        """(K,) bool: still blocked after discarding float32 self-hits.
+
+        Embree subtracts the ray origin from the vertices in float32, so a
+        triangle's plane is only known to ~|vertex| * 2^-24; a shadow ray
+        leaving a large triangle near the origin at grazing incidence (89.9
+        deg) re-hits its own plane although it starts |p| * REL_OFFSET above
+        it.  A first hit whose plane passes within 8 REL_OFFSET |vertex|_max
+        of the origin is such a self-hit: the ray is cast again from an
+        offset relative to that triangle's vertices.  A real occluder is
+        never that close to the origin's plane at a magnitude that large, so
+        shadows are kept.
+        """
+        h = self.accel.intersect(o, wi, dist)
+        still = h.hit.copy()
+        i = np.nonzero(h.hit)[0]
+        if i.size == 0:
+            return still
+        P0 = self.tri_p[h.prim[i]].astype(np.float64)
+        n = self._unit_normals(h.prim[i])
+        eps = 8.0 * REL_OFFSET * np.abs(P0).max(axis=(1, 2))
+        self_hit = np.abs(_dot(o[i] - P0[:, 0], n)) < eps
+        j = i[self_hit]
+        if j.size:
+            side = np.where(_dot(ng[j], wi[j]) >= 0, 1.0, -1.0)
+            off = np.maximum(eps[self_hit], self.accel.offset_scale(p[j]))
+            o2 = p[j] + ng[j] * (side * off)[:, None]
+            still[j] = self.accel.occluded(o2, wi[j], dist[j])
+        return still

@@ -1,0 +1,144 @@
+"""Radius of each pixel's kernel: initialisation, the frequency estimators, the progressive update.
+
+Initial radius (docs/method.md "Initial radius"): on the first pass that gives
+a pixel a visible point, initial_radius_px pixel footprints at the point's
+camera depth (the slope ignored), or initial_radius metres with radius_mode
+WORLD; capped by the distance to the nearest surface boundary seen around the
+pixel (core.sppm.edges, docs/method.md "Surface boundaries"); never below the
+radius floor R_FLOOR_REL * D of core.frequency.spectrum (docs/frequency.md
+stiff table: it keeps 1 / (pi R^2) finite).
+
+Predicted radius of a pass (Belcour & Soler 2011; docs/frequency.md): MIN
+keeps the smallest radius any gathered frequency photon predicts
+(core.sppm.hashgrid); QUANTILE (the paper's future work) keeps a per-pixel
+histogram of the predicted radii of every frequency photon gathered so far and
+takes the lower edge of the bin holding the QUANTILE-th fraction, so that a
+few outliers (false occlusions pinning r near 0) no longer set the radius.
+
+Progressive update: core.frequency.spectrum.ppm_radius_update (PPM radius
+reduction, held at the predicted radius).  Only Lambert visible points may
+hold: the prediction is computed for a diffuse receiver.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..frequency import spectrum as F
+from . import edges
+
+QUANTILE = 0.1
+HIST_BINS = 24
+#: Seed of the surface-boundary cap's camera pass (with the render's seed).
+EDGE_PASS_STREAM = 0xED6E
+
+
+class RadiusHistogram:
+    """HIST_BINS bins of predicted radii, log-spaced from 1e-6 D to D
+    (bin 0: below 1e-6 D, the last bin: up to and above D)."""
+
+    def __init__(self, D: float):
+        self.D = D
+
+    def bin(self, r: np.ndarray) -> np.ndarray:
+        """(K,) int64 bin of the radii |r| (K,) [m]."""
+        lo, hi = 1e-6 * self.D, self.D
+        x = (np.log(np.maximum(np.abs(r), 1e-300)) - np.log(lo)) / (np.log(hi) - np.log(lo))
+        return np.clip((x * (HIST_BINS - 1)).astype(np.int64) + 1, 0, HIST_BINS - 1)
+
+    def edge(self, b: np.ndarray) -> np.ndarray:
+        """(K,) float64 lower edge [m] of bins b (K,) (0 for bin 0)."""
+        lo, hi = 1e-6 * self.D, self.D
+        e = np.exp(np.log(lo) + (b - 1) / (HIST_BINS - 1) * (np.log(hi) - np.log(lo)))
+        return np.where(b <= 0, 0.0, e)
+
+    def quantile(self, h: np.ndarray, r_fallback: np.ndarray) -> np.ndarray:
+        """(P,) radius at the QUANTILE-th fraction of the counts h (P, HIST_BINS);
+        r_fallback (P,) where a pixel has no count."""
+        tot = h.sum(axis=1)
+        cum = np.cumsum(h, axis=1)
+        b = np.argmax(cum >= np.ceil(QUANTILE * np.maximum(tot, 1))[:, None], axis=1)
+        return np.where(tot > 0, self.edge(b), r_fallback)
+
+
+class Radii:
+    """Radius policy of a render.
+
+    settings: RenderSettings; camera: CameraModel (pixel footprint); D: scene
+    diameter [m]; frequency: the plan traces frequency photons; camera_pass:
+    core.sppm.visible_points.CameraPass (the boundary cap's pass through the
+    pixel centres); H, W: the region's size.
+    """
+
+    def __init__(self, settings, camera, D: float, frequency: bool, camera_pass, H: int, W: int):
+        self.settings, self.camera, self.frequency = settings, camera, frequency
+        self.camera_pass, self.H, self.W = camera_pass, H, W
+        self.floor = F.R_FLOOR_REL * D
+        self.floor_sq = F.radius_floor_sq(D)
+        self.hist = RadiusHistogram(D)
+        self.quantile = frequency and settings.frequency_estimator == "QUANTILE"
+        self._edge_cap = None
+
+    def initialise(self, state, vp, check_stop=lambda: None) -> None:
+        """Set state.R2 of the pixels whose first visible point this is (R2 == 0)."""
+        new = vp.valid & (state.R2 == 0)
+        if not np.any(new):
+            return
+        st = self.settings
+        if st.radius_mode == "WORLD":
+            r = np.full(int(new.sum()), st.initial_radius)
+        else:
+            r = st.initial_radius_px * self.camera.footprint(vp.depth[new])
+        if st.cap_radius_at_edges:
+            r = np.minimum(r, self.edge_cap(check_stop)[new])
+        r = np.maximum(r, self.floor)
+        state.R2[new] = r * r
+
+    def edge_cap(self, check_stop=lambda: None) -> np.ndarray:
+        """(P,) float64 cap on each pixel's initial radius [m] (inf = none):
+        core.sppm.edges.boundary_cap of one camera pass through the pixel
+        centres, computed once per render."""
+        if self._edge_cap is None:
+            st = self.settings
+            vp, _ = self.camera_pass(np.random.default_rng([st.seed, EDGE_PASS_STREAM]),
+                                     check_stop, centre=True)
+            fp = self.camera.footprint(vp.depth)
+            if st.radius_mode == "WORLD":
+                r_px = st.initial_radius / np.maximum(fp[vp.valid], 1e-300)
+                reach = edges.reach_for(float(r_px.max()) if r_px.size else 1.0)
+            else:
+                reach = edges.reach_for(st.initial_radius_px)
+            self._edge_cap = edges.boundary_cap(vp.p, vp.ng, vp.wo, vp.valid, fp,
+                                                self.H, self.W, reach)
+        return self._edge_cap
+
+    def predicted(self, r_pred_min: np.ndarray, r_hist) -> np.ndarray:
+        """(P,) predicted radius of the pass [m] (inf = no frequency photon) from
+        the gathered minimum r_pred_min (P,) and, for QUANTILE, the committed
+        histogram r_hist (P, HIST_BINS).  The PAPER model predicts negative
+        radii for converging light: their magnitude is the radius."""
+        r_pred = r_pred_min
+        if self.settings.frequency_model == "PAPER":
+            r_pred = np.where(np.isinf(r_pred), np.inf, -r_pred)
+        if self.quantile:
+            r_pred = self.hist.quantile(r_hist, r_pred)
+        return r_pred
+
+    def update(self, state, vp_const: np.ndarray, M: np.ndarray, Phi: np.ndarray,
+               r_pred: np.ndarray) -> None:
+        """Progressive update of state (N, R2, tau, held, r_pred_last, M_last) with
+        this pass's photons: M (P,) count, Phi (P, 3) flux, r_pred (P,) [m];
+        vp_const (P,) bool Lambert-only visible points (the only ones that may hold)."""
+        if not self.frequency:
+            r_pred = np.full_like(r_pred, np.nan)
+        else:
+            r_pred = np.where(vp_const, r_pred, np.nan)
+            r_pred = np.where(np.isinf(r_pred), np.nan, r_pred)
+        m = M > 0
+        N2, R2n, tau2, held = F.ppm_radius_update(state.N[m], state.R2[m], state.tau[m], M[m],
+                                                  Phi[m], self.settings.alpha, r_pred[m],
+                                                  self.floor_sq)
+        state.N[m], state.R2[m], state.tau[m] = N2, R2n, tau2
+        state.held[:] = False
+        state.held[np.nonzero(m)[0]] = held
+        state.r_pred_last = r_pred
+        state.M_last = M

@@ -1,0 +1,174 @@
+"""Visible points: the camera pass of one SPPM pass (pbrt-v4 SPPM, stage 1).
+
+    camera_pass = CameraPass(scene, accel, mtab, light_table, camera, fsamp, px, py, max_depth)
+    vp, L_emit = camera_pass(rng, check_stop)
+
+One camera ray per pixel (filter and lens samples from ``rng``) follows the
+delta (specular) lobes of the surfaces it hits, choosing one lobe per vertex,
+until it reaches a vertex with a non-delta lobe: that vertex is the pixel's
+visible point, where next-event estimation (core.lights.nee) and the photon
+gather (core.sppm.photon_pass) estimate the reflected radiance.  Emission seen
+along the chain (analytic emitters before each hit, emissive triangles, the
+world on a miss) is returned separately as ``L_emit``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..accel import surface_point
+from ..lights import lights as Lt
+from ..materials import bsdf as B
+from ..mathutil import dot as _dot
+
+
+@dataclass
+class VisiblePoints:
+    """Per-pixel visible points of one camera pass (P = pixels in the region).
+
+    valid (P,) bool; p, ng, ns, wo (P,3) float64 (ng, ns oriented to wo);
+    mat (P,) int32; colors (P,L,3); beta (P,3) path throughput / selection
+    probability; depth (P,) camera depth proxy for the pixel footprint;
+    const (P,) bool (Lambert-only: f = albedo/pi); albedo (P,3).
+    """
+    valid: np.ndarray
+    p: np.ndarray
+    ng: np.ndarray
+    ns: np.ndarray
+    wo: np.ndarray
+    mat: np.ndarray
+    colors: np.ndarray
+    beta: np.ndarray
+    depth: np.ndarray
+    const: np.ndarray
+    albedo: np.ndarray
+
+    @classmethod
+    def empty(cls, P: int, n_lobes: int) -> "VisiblePoints":
+        """P invalid visible points (every array zero)."""
+        return cls(valid=np.zeros(P, bool), p=np.zeros((P, 3)), ng=np.zeros((P, 3)),
+                   ns=np.zeros((P, 3)), wo=np.zeros((P, 3)), mat=np.zeros(P, np.int32),
+                   colors=np.zeros((P, n_lobes, 3)), beta=np.zeros((P, 3)),
+                   depth=np.zeros(P), const=np.zeros(P, bool), albedo=np.zeros((P, 3)))
+
+
+class CameraPass:
+    """The camera pass over the pixels (px, py) (P,) float64 of the region,
+    py counted from the bottom (Blender's); max_depth: vertices a delta chain
+    may have (1 = the first hit only)."""
+
+    def __init__(self, scene, accel, mtab, light_table, camera, fsamp, px, py, max_depth: int):
+        self.scene, self.accel, self.mtab, self.light_table = scene, accel, mtab, light_table
+        self.camera, self.fsamp = camera, fsamp
+        self.px, self.py = px, py
+        self.max_depth = int(max_depth)
+
+    def __call__(self, rng: np.random.Generator, check_stop=lambda: None,
+                 centre: bool = False) -> tuple[VisiblePoints, np.ndarray]:
+        """(visible points, L_emit (P, 3) float64 emission seen along the chains).
+
+        centre=True: through the pixel centre and the lens centre (the
+        surface-boundary cap's pass, core.sppm.edges).  check_stop() is called
+        before every vertex (it raises to cancel)."""
+        P = self.px.shape[0]
+        mtab, accel = self.mtab, self.accel
+        u = rng.random((P, 4))
+        if centre:
+            u[:, :2] = 0.5      # FilterSampler.sample(0.5) = 0: the pixel centre
+            u[:, 2:] = 0.0      # lens radius sqrt(0) = 0
+        rays, dz = self.camera.generate(self.px, self.py, u[:, :2], u[:, 2:], self.fsamp)
+        L = np.zeros((P, 3))
+        vp = VisiblePoints.empty(P, mtab.kind.shape[1])
+        idx = np.arange(P)
+        o, d, tmax = rays.o, rays.d, rays.t_max
+        beta = np.ones((P, 3))
+        path_len = np.zeros(P)
+        last = np.zeros(P, np.int8)      # 0 camera, 1 reflection, 2 transmission
+        for depth in range(self.max_depth):
+            if idx.size == 0:
+                break
+            check_stop()
+            h = accel.intersect(o, d, tmax)
+            hit = h.hit
+            # Analytic emitters (area lights, light spheres) seen before the hit.
+            for code, name in ((0, "camera"), (1, "glossy"), (2, "transmission")):
+                sel = last == code
+                if np.any(sel):
+                    Le = Lt.emitted_along_rays(self.light_table, o[sel], d[sel],
+                                               np.minimum(h.t[sel], tmax[sel]), name)
+                    L[idx[sel]] += beta[sel] * Le
+            miss = ~hit
+            if np.any(miss):
+                L[idx[miss]] += beta[miss] * Lt.world_radiance(self.light_table)[None, :]
+            ih = np.nonzero(hit)[0]
+            if ih.size == 0:
+                break
+            s = self.scene
+            p, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, h.prim[ih], h.u[ih], h.v[ih])
+            wo = -d[ih]
+            mat = s.tri_mat[h.prim[ih]]
+            colors = B.lobe_colors(mtab, mat, uv)
+            em = mtab.emission[mat]
+            if np.any(em > 0):
+                if mtab.emission_tex is not None and np.any(mtab.emission_tex[mat] >= 0):
+                    em = em * _emission_texture(mtab, s, mat, uv)
+                L[idx[ih]] += beta[ih] * em
+            bt = beta[ih]
+            plen = path_len[ih] + h.t[ih]
+            p_delta = B.delta_probability(mtab, mat, colors)
+            ur = rng.random((ih.size, 4))
+            go_delta = ur[:, 0] < p_delta
+            if depth == self.max_depth - 1:
+                go_delta[:] = False
+            # Visible points where the chain stops (pbrt-v4 SPPM: first
+            # non-specular vertex); throughput divided by the choice probability.
+            mk = ~go_delta & mtab.has_nondelta[mat]
+            if np.any(mk):
+                q = idx[ih[mk]]
+                sgn = np.where(_dot(ng[mk], wo[mk]) >= 0, 1.0, -1.0)[:, None]
+                vp.valid[q] = True
+                vp.p[q] = p[mk]
+                vp.ng[q] = ng[mk] * sgn
+                # Cycles flips the shading normal together with the geometric
+                # one (back-face hits), not by its own side of wo.
+                vp.ns[q] = ns[mk] * sgn
+                vp.wo[q] = wo[mk]
+                vp.mat[q] = mat[mk]
+                vp.colors[q] = colors[mk]
+                vp.beta[q] = bt[mk] / np.maximum(1.0 - p_delta[mk], 1e-12)[:, None]
+                vp.depth[q] = plen[mk] * np.abs(dz[q])
+                vp.const[q] = mtab.lambert_only[mat[mk]]
+                vp.albedo[q] = B.lambert_albedo(mtab, mat[mk], colors[mk])
+            cont = go_delta & (p_delta > 0)
+            if not np.any(cont):
+                break
+            c = np.nonzero(cont)[0]
+            wi, wgt, pdf, is_delta, valid = B.sample_bsdf(
+                mtab, mat[c], colors[c], ns[c], ng[c], wo[c], ur[c, 1:4],
+                subset="delta", mode="radiance")
+            wgt = wgt / p_delta[c][:, None]
+            ok = valid & np.all(np.isfinite(wgt), axis=1) & (wgt.max(axis=1) > 0)
+            c = c[ok]
+            wi = wi[ok]
+            refl = (_dot(wi, ng[c]) * _dot(wo[c], ng[c])) > 0
+            o = accel.spawn(p[c], ng[c], wi)
+            d = wi
+            beta = bt[c] * wgt[ok]
+            tmax = np.full(c.size, np.inf)
+            path_len = plen[c]
+            last = np.where(refl, 1, 2).astype(np.int8)
+            idx = idx[ih[c]]
+        return vp, L
+
+
+def _emission_texture(mtab, scene, mat, uv):
+    """(K, 3) emission texture factor of materials mat (K,) at uv (K, 2); 1 without texture."""
+    from ..scene.textures import sample_texture
+    out = np.ones((mat.size, 3))
+    for t in np.unique(mtab.emission_tex[mat]):
+        if t < 0:
+            continue
+        sel = mtab.emission_tex[mat] == t
+        out[sel] = sample_texture(scene.textures[t], uv[sel])
+    return out
