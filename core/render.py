@@ -47,9 +47,9 @@ import numpy as np
 from . import memory
 from .accel import Accel
 from .errors import CheckpointMismatch, RenderCancelled, SceneError
-from .lights import lights as Lt
+from .lights import build_light_table
 from .lights.nee import NextEventEstimation
-from .materials import bsdf as B
+from .materials import build_material_table
 from .plan import RenderPlan, make_plan
 from .scene.camera import CameraModel, FilterSampler
 from .scene.model import Scene, drop_invalid_triangles, scene_digest
@@ -130,13 +130,13 @@ class Renderer:
                                       min(st0.photons_per_pass, PHOTON_CHUNK), scene.n_triangles,
                                       st0.occlusion_grid_res, st0.use_frequency)
         memory.check_fits(self.memory)
-        self.light_table = Lt.build_light_table(scene)
+        self.light_table = build_light_table(scene)
         for w in getattr(self.light_table, "warnings", []):
             log(f"FPPM: {w}")
         if not np.any(self.light_table.flux.sum(axis=1) > 0):
             raise SceneError("The scene has no light: add a light with non-zero power, "
                              "an emissive material or a world colour.")
-        self.mtab = B.build_material_table(scene.materials, scene.textures)
+        self.mtab = build_material_table(scene.materials, scene.textures)
         self._check_stop()
         self.accel = Accel(scene.tri_p, self.D)
         self._check_stop()

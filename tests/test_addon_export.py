@@ -313,7 +313,7 @@ def test_distribution_sets_multiscatter():
         if "IOR" in inputs:
             assert lobe.ior == pytest.approx(inputs["IOR"]), name
         assert bool(getattr(lobe, "multiscatter", False)) is ms, name
-        # ... and core.materials.bsdf reads it: the table's flag is what the BSDF uses.
+        # ... and core.materials reads it: the table's flag is what the BSDF uses.
         assert bool(table.multiscatter[s.materials.index(M[name]), 0]) is ms, name
     # Only the Beckmann glossy is approximated (rendered as GGX).
     assert "material 'GlossyBeckmann': Glossy BSDF: BECKMANN distribution rendered as GGX" \

@@ -3,8 +3,8 @@
     nee = NextEventEstimation(light_table, mtab, accel, tri_p)
     L_direct = nee(vp, rng)          # (P, 3) float64
 
-One light sample per visible point (core.lights.lights.sample_direct picks the
-emitter and the point on it), weighted by the BSDF (core.materials.bsdf) and
+One light sample per visible point (core.lights.sampling.sample_direct picks the
+emitter and the point on it), weighted by the BSDF (core.materials.closures) and
 the shading cosine, then a shadow ray: analytic lights are not geometry, so
 any hit before them occludes (with a retry that discards float32 self-hits at
 grazing incidence); emissive triangles are geometry, so the emitter's own hit
@@ -19,9 +19,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..accel import REL_OFFSET
-from ..materials import bsdf as B
+from .. import materials as B
 from ..mathutil import dot as _dot
-from . import lights as Lt
+from .sampling import sample_direct
+from .table import MESH
 
 if TYPE_CHECKING:
     from ..sppm.visible_points import VisiblePoints
@@ -41,7 +42,7 @@ class NextEventEstimation:
         q = np.nonzero(vp.valid)[0]
         if q.size == 0:
             return L
-        smp = Lt.sample_direct(self.light_table, vp.p[q], rng.random((q.size, 3)), n=vp.ns[q])
+        smp = sample_direct(self.light_table, vp.p[q], rng.random((q.size, 3)), n=vp.ns[q])
         wi, dist, wgt, shadow = smp["wi"], smp["dist"], smp["weight"], smp["cast_shadow"]
         live = (wgt.max(axis=1) > 0) & np.all(np.isfinite(wgt), axis=1)
         q, wi, dist, wgt, shadow = q[live], wi[live], dist[live], wgt[live], shadow[live]
@@ -52,7 +53,7 @@ class NextEventEstimation:
         contrib = vp.beta[q] * f * cos[:, None] * wgt
         nz = contrib.max(axis=1) > 0
         q, wi, dist, contrib, shadow = q[nz], wi[nz], dist[nz], contrib[nz], shadow[nz]
-        mesh = smp["kind"][live][nz] == Lt.MESH
+        mesh = smp["kind"][live][nz] == MESH
         blocked = self._blocked(vp.p[q], vp.ng[q], wi, dist, mesh) & shadow
         L[q[~blocked]] += contrib[~blocked]
         return L

@@ -20,7 +20,7 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 
-from ..materials import bsdf as B
+from .. import materials as B
 from . import hashgrid
 from .update import HIST_BINS
 

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..accel import surface_point
-from ..lights import lights as Lt
-from ..materials import bsdf as B
+from .. import lights as Lt
+from .. import materials as B
 from ..mathutil import dot as _dot
 
 
