@@ -17,7 +17,7 @@ from core.frequency.occlusion_march import sample_voxel
 
 
 @nb.njit(cache=True, nogil=True)
-def _march_dense(dist, cone, lo, cell, R, o, d, t_end,
+def march_dense(dist, cone, lo, cell, R, o, d, t_end,
                  locality, t_skip, out):
     """The first march: every voxel the segment crosses, with Lipschitz
     jumps that may land inside a voxel (which then is sampled on the rest of
@@ -93,6 +93,6 @@ def march_occlusion_dense(grid: OcclusionGrid, o, d, t_end, locality: float,
         out[:] = np.inf
         return out
     check_locality(grid, locality)
-    _march_dense(grid.dist, grid.cone, grid.lo, grid.cell, grid.res, o, d, t_end,
+    march_dense(grid.dist, grid.cone, grid.lo, grid.cell, grid.res, o, d, t_end,
                  float(locality), float(skip_voxels) * grid.voxel_diagonal, out)
     return out
