@@ -441,10 +441,12 @@ def _kernels(token):
 spectrum_at_hits, spectrum_leaving, _apply, _radius = _kernels(_dependency_token())
 
 
-def material_lobe_variance(mtab):
-    """(lobe_b (M,), lobe_ok (M,)): ``spectrum.lobe_variance`` of each
-    material's first lobe (kind[:, 0], roughness[:, 0]); lobe_ok False (and
-    lobe_b NaN) where it raises (unused slot, unknown kind)."""
+def surface_lobes(mtab, tri_mat, kappa) -> SurfaceLobes:
+    """SurfaceLobes of a scene: tri_mat (T,) int32, the material table mtab
+    and kappa (T,) float64 triangle curvature or None (no curvature step).
+    lobe_b is ``spectrum.lobe_variance`` of each material's first lobe
+    (kind[:, 0], roughness[:, 0]); lobe_ok False (and lobe_b NaN) where it
+    raises (unused slot, unknown kind)."""
     kinds = np.asarray(mtab.kind)[:, 0]
     rough = np.asarray(mtab.roughness, np.float64)[:, 0]
     M = kinds.shape[0]
@@ -456,13 +458,6 @@ def material_lobe_variance(mtab):
             ok[m] = True
         except ValueError:
             pass
-    return lobe_b, ok
-
-
-def surface_lobes(mtab, tri_mat, kappa) -> SurfaceLobes:
-    """SurfaceLobes of a scene: tri_mat (T,) int32, the material table, and
-    kappa (T,) float64 triangle curvature or None (no curvature step)."""
-    lobe_b, ok = material_lobe_variance(mtab)
     return SurfaceLobes(tri_mat, lobe_b, ok, kappa if kappa is not None else np.zeros(1),
                         kappa is not None)
 
