@@ -3,15 +3,16 @@
     .venv/bin/python bench/bench_march.py [--photons 40000] [--repeat 15]
                                           [--ref OLD_OCCLUSION.py]
 
-Captures the segments the frequency photons march (the numpy reference path of
-core.sppm.photons calls ``march_occlusion``; the compiled path marches the same
-segments inside core.frequency.kernels), then times the block march
-(``occlusion._march``) against the dense voxel-by-voxel reference
-(``_march_dense``) and, with ``--ref``, against another version of
-core/occlusion.py (e.g. ``git show HEAD~1:core/occlusion.py > /tmp/old.py``),
-on the same segments and 200k random ones, and checks that a_occ (and t_occ
-against --ref) are bit-identical.  Ratios only, each the best of ``--repeat``
-interleaved runs (the machine is shared); the us/segment figure is for scale.
+Captures the segments the frequency photons march (the numpy chains of
+tests/oracle_photons.py call ``march_occlusion``; the compiled path marches the
+same segments inside core.frequency.kernels), then times the block march
+(``occlusion_march.march_segment``) against the dense voxel-by-voxel reference
+(tests/oracle_occlusion.py) and, with ``--ref``, against another version of
+core/frequency/occlusion_march.py (e.g. ``git show
+HEAD~1:core/frequency/occlusion_march.py > /tmp/old.py``; a core/occlusion.py
+of before the split works too), on the same segments and 200k random ones,
+and checks that a_occ (and t_occ against --ref) are bit-identical.  Ratios
+only, each the best of ``--repeat`` interleaved runs (the machine is shared); the us/segment figure is for scale.
 """
 from __future__ import annotations
 
@@ -28,7 +29,9 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 sys.path.insert(0, os.path.join(ROOT, "bench"))
 
-from core.frequency import occlusion as Occ  # noqa: E402
+from core.frequency import occlusion_march as Occ  # noqa: E402
+import oracle_occlusion  # noqa: E402
+import oracle_photons  # noqa: E402
 
 
 def capture(photons: int, seed: int = 1):
@@ -39,34 +42,46 @@ def capture(photons: int, seed: int = 1):
     from core.settings import RenderSettings
     r = Renderer(BR.cornell(64), RenderSettings(max_passes=10, photons_per_pass=photons,
                                                 use_frequency=True), log=lambda s: None)
-    tr = r.tracer
-    tr.compiled_frequency = False
+    tr = oracle_photons.use_numpy_chains(r.tracer)
     segs = []
-    f = Occ.march_occlusion
+    f = oracle_photons.march_occlusion
 
     def rec(grid, o, d, t, loc, **k):
         segs.append((np.array(o), np.array(d), np.array(t)))
         return f(grid, o, d, t, loc, **k)
-    Occ.march_occlusion = rec
+    oracle_photons.march_occlusion = rec
     try:
         tr.trace(photons, photons, np.random.default_rng(seed))
     finally:
-        Occ.march_occlusion = f
+        oracle_photons.march_occlusion = f
     o, d, t = (np.concatenate([s[k] for s in segs]) for k in range(3))
     return r.occ_grid, float(r.occ_locality), o, d, t
 
 
-def _args(mod, g):
-    mb = mod.march_blocks(g)
-    return (g.dist, g.cone, mb.bmin, mb.bcone, mb.vmin, mb.vcone, mb.has_voxel_level, mb.B,
-            g.lo, g.cell, g.res)
+def _ref_march(path, g, loc):
+    """The array march of another occlusion_march.py (or a core/occlusion.py
+    of before the split): f(o, d, t, out, out_t)."""
+    spec = importlib.util.spec_from_file_location("core.frequency._occlusion_ref", path)
+    ref = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = ref                  # dataclasses look it up
+    spec.loader.exec_module(ref)
+    if hasattr(ref, "march_grid"):
+        m = ref.march_grid(g, loc)
+        return lambda o_, d_, t_, out, ot: ref._march(m, o_, d_, t_, out, ot)
+    gr = ref.OcclusionGrid(**{k: getattr(g, k) for k in g.__dataclass_fields__})
+    mb = ref.march_blocks(gr)
+    args = (gr.dist, gr.cone, mb.bmin, mb.bcone, mb.vmin, mb.vcone, mb.has_voxel_level, mb.B,
+            gr.lo, gr.cell, gr.res)
+    return lambda o_, d_, t_, out, ot: ref._march(*args, o_, d_, t_, loc, gr.voxel_diagonal,
+                                                  out, ot)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--photons", type=int, default=40_000)
     ap.add_argument("--repeat", type=int, default=15)
-    ap.add_argument("--ref", default=None, help="another core/occlusion.py to compare with")
+    ap.add_argument("--ref", default=None,
+                    help="another core/frequency/occlusion_march.py to compare with")
     a = ap.parse_args(argv)
     g, loc, o, d, t = capture(a.photons)
     t_skip = g.voxel_diagonal
@@ -77,17 +92,11 @@ def main(argv=None):
     d2 /= np.linalg.norm(d2, axis=1, keepdims=True)
     t2 = rng.uniform(0, 2, M)
 
-    fns = {"block march": lambda o_, d_, t_, out, ot: Occ._march(
-        *_args(Occ, g), o_, d_, t_, loc, t_skip, out, ot)}
+    m = Occ.march_grid(g, loc)
+    fns = {"block march": lambda o_, d_, t_, out, ot: Occ._march(m, o_, d_, t_, out, ot)}
     if a.ref:
-        spec = importlib.util.spec_from_file_location("occlusion_ref", a.ref)
-        ref = importlib.util.module_from_spec(spec)
-        sys.modules["occlusion_ref"] = ref            # dataclasses look it up
-        spec.loader.exec_module(ref)
-        gr = ref.OcclusionGrid(**{k: getattr(g, k) for k in g.__dataclass_fields__})
-        fns["--ref march"] = lambda o_, d_, t_, out, ot: ref._march(
-            *_args(ref, gr), o_, d_, t_, loc, t_skip, out, ot)
-    fns["dense march"] = lambda o_, d_, t_, out, ot: Occ._march_dense(
+        fns["--ref march"] = _ref_march(a.ref, g, loc)
+    fns["dense march"] = lambda o_, d_, t_, out, ot: oracle_occlusion.march_dense(
         g.dist, g.cone, g.lo, g.cell, g.res, o_, d_, t_, loc, t_skip, out)
 
     for name, (oo, dd, tt) in (("Cornell photon segments", (o, d, t)),

@@ -14,14 +14,17 @@ is printed too.  Every pass is followed by its own raw-ray timing so that both
 see the same machine load; the ratios use the sums.  With ``--frequency`` a
 second renderer without frequency photons runs interleaved with the first,
 and the tracer is timed on all-frequency vs all-classic batches.  A third
-renderer runs the frequency photons as before core.frequency.kernels (numpy
-core.frequency.spectrum operators, voxel-by-voxel ``march_occlusion(dense=True)``), so
-the before/after overheads are measured in the same process; each ratio is
-the best of ``--repeat`` interleaved measurements (the machine is shared).
+renderer runs the frequency photons as before core.frequency.kernels (the
+numpy chains of tests/oracle_photons.py with the voxel-by-voxel march of
+tests/oracle_occlusion.py), so the before/after overheads are measured in the
+same process; each ratio is the best of ``--repeat`` interleaved measurements
+(the machine is shared).  ``--numpy`` times the numpy reference tracer
+(tests/oracle_photons.py) instead of the compiled one.
 """
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import sys
 import time
@@ -34,7 +37,8 @@ sys.path.insert(0, os.path.join(ROOT, "tests"))
 
 from analytic_scenes import quad, translate  # noqa: E402
 from core.lights import lights as Lt  # noqa: E402
-from core.frequency import occlusion as Occ  # noqa: E402
+import oracle_occlusion  # noqa: E402
+import oracle_photons  # noqa: E402
 from core.sppm import photon_kernels as PK  # noqa: E402
 from core.sppm import hashgrid as Hg  # noqa: E402
 from core.sppm import photons as Ph  # noqa: E402
@@ -110,14 +114,15 @@ class RawRays:
 
 class Timers:
     """Wall and process-CPU seconds of the photon tracer and the gather, and
-    wall seconds inside Embree and the occlusion march during tracing
-    (wrappers around the functions core.sppm.photons / core.render call)."""
+    wall seconds inside Embree and the numpy chains' occlusion march during
+    tracing (wrappers around the functions core.sppm.photons, core.render
+    and tests/oracle_photons.py call)."""
 
     def __init__(self):
         self.t = {k: 0.0 for k in ("trace", "trace_cpu", "gather", "gather_cpu", "embree",
                                    "march")}
         self._wrap(Ph, "intersect_f32", "embree", cpu=False)
-        self._wrap(Occ, "march_occlusion", "march", cpu=False)
+        self._wrap(oracle_photons, "march_occlusion", "march", cpu=False)
         self.dense_march = False        # the march before MarchBlocks (bench "before")
         self._wrap(Hg, "gather", "gather")
 
@@ -130,13 +135,11 @@ class Timers:
                 # "Before": the voxel-by-voxel march gives a_occ; it cannot
                 # say where the blocker is, so t comes from the block march
                 # (timed too: the "before" cost is an upper bound).
-                if k.get("return_t"):
-                    t0 = time.perf_counter()
-                    a_occ = f(*a, **dict(k, dense=True, return_t=False))
-                    _, t_occ = f(*a, **k)
-                    t[key] += time.perf_counter() - t0
-                    return a_occ, t_occ
-                k = dict(k, dense=True)
+                t0 = time.perf_counter()
+                a_occ = oracle_occlusion.march_occlusion_dense(*a)
+                _, t_occ = f(*a, **k)
+                t[key] += time.perf_counter() - t0
+                return (a_occ, t_occ) if k.get("return_t") else a_occ
             t0, c0 = time.perf_counter(), time.process_time()
             r = f(*a, **k)
             t[key] += time.perf_counter() - t0
@@ -154,13 +157,15 @@ class Timers:
 
 def make_renderer(scene, a, use_frequency, tm, before=False):
     """before: frequency photons as before core.frequency.kernels (numpy
-    operators, dense march)."""
+    chains, dense march)."""
     st = RenderSettings(max_passes=1000, photons_per_pass=a.photons,
                         use_frequency=use_frequency,
                         max_bounces=a.bounces or RenderSettings().max_bounces)
     r = Renderer(scene, st, log=lambda s: None)
-    r.tracer.fast = not a.numpy
-    r.tracer.compiled_frequency = not before
+    if a.numpy:
+        r.tracer.trace = functools.partial(oracle_photons.trace_numpy, r.tracer)
+    if before:
+        oracle_photons.use_numpy_chains(r.tracer)
     r.bench_before = before
     tm.wrap_tracer(r.tracer)
     photon_pass(r, tm)                            # warm-up: numba compilation
@@ -202,20 +207,18 @@ def frequency_report(r, rb, r0, tm, a):
     cost = {"after": [], "before": [], "no march": []}
     march_b = []
     tr = r.tracer
-    if tr._occ_args is None:
-        tr._occ_args = tr._occlusion_args()
-    occ_args = tr._occ_args
+    occlusion = tr.occlusion
     for k in range(a.repeat):
         tc, _ = trace_seconds(r0, tm, n, 0, 100 + k)
         for key, rr in (("after", r), ("before", rb), ("no march", r)):
             # "no march": the compiled chains without the occlusion step (the
             # march's share of "after" is the difference)
-            tr._occ_args = (0, occ_args[1]) if key == "no march" else occ_args
+            tr.occlusion = 0 if key == "no march" else occlusion
             tf, m = trace_seconds(rr, tm, n, n, 100 + k)
             cost[key].append(tf / tc)
             if key == "before":
                 march_b.append(m / tc)
-        tr._occ_args = occ_args
+        tr.occlusion = occlusion
     print(f"frequency ({r.settings.frequency_fraction:.0%} frequency photons, best of {a.repeat}; "
           f"all values: {[f'{x:+.0%}' for x in pp['after']]} after, "
           f"{[f'{x:+.0%}' for x in pp['before']]} before)")
@@ -291,13 +294,13 @@ def main(argv=None):
           f"{(acc['trace_cpu'] + acc['gather_cpu']) / acc['raw_cpu']:.2f}x  "
           f"(trace {acc['trace_cpu'] / acc['raw_cpu']:.2f}x + gather "
           f"{acc['gather_cpu'] / acc['raw_cpu']:.2f}x); per pass median {np.median(pr[:, 1]):.2f}x")
-    if not a.numpy:
+    if a.numpy:
+        print(f"  inside trace (wall): occlusion march {acc['march'] / R:.2f}x")
+    else:
         print(f"  inside trace (wall, summed over tracing threads): Embree calls "
               f"{acc['embree'] / R:.2f}x" + (
-                  "" if r.tracer.compiled_frequency else
-                  f", occlusion march {acc['march'] / R:.2f}x") + (
                   " (the march runs inside core.frequency.kernels: see the "
-                  "frequency lines)" if a.frequency and r.tracer.compiled_frequency else ""))
+                  "frequency lines)" if a.frequency else ""))
     print(f"  shares of the photon pass: trace {acc['trace'] / pp:.0%}, "
           f"gather {acc['gather'] / pp:.0%}")
     print(f"  against Accel.intersect (float64 API) instead of the bare call: "
@@ -305,7 +308,7 @@ def main(argv=None):
           f"the bare call)")
     print(f"light sampling / raw Embree rays of a pass: lights.sample_photons "
           f"{t_lights_np / raw_pass:.2f}x, compiled {t_lights_fast / raw_pass:.2f}x "
-          f"({'used' if r.tracer.fast_emission and r.tracer.fast else 'not used'})")
+          f"({'used' if r.tracer.fast_emission and not a.numpy else 'not used'})")
     if r0 is not None:
         pp0 = acc["trace0"] + acc["gather0"]
         print(f"frequency: whole photon pass with {r.settings.frequency_fraction:.0%} "

@@ -1,5 +1,6 @@
 """Compiled frequency updates (core.frequency.kernels) and the blocked occlusion
-march (core.frequency.occlusion.MarchBlocks) against their references.
+march (core.frequency.occlusion_march with occlusion_grid.MarchBlocks) against
+their references (tests/oracle_photons.py, tests/oracle_occlusion.py).
 
 1. Each compiled operator against the numpy operator of core.frequency.spectrum, both
    models, on random spectra plus every row of the stiff table (grazing cos,
@@ -10,7 +11,8 @@ march (core.frequency.occlusion.MarchBlocks) against their references.
    with NaN / inf in the same places.
 2. The photon tracer with the compiled chains (travel -> march -> occlude ->
    onto_surface -> radius; off_surface -> lobe -> curvature) against the
-   same tracer running the numpy operators on the same hits: same deposits
+   same tracer running the numpy chains of tests/oracle_photons.py on the
+   same hits: same deposits
    and predicted radii, to 1e-12 (one fixed stream: the paths are identical).
 3. The blocked march against the dense march: its block / voxel bounds are
    conservative (checked by brute force over every block and 500
@@ -26,11 +28,14 @@ import pytest
 
 from core.frequency import spectrum as F
 from core.frequency import kernels as FK
-from core.frequency import occlusion as Occ
+from core.frequency import occlusion_grid as OG
+from core.frequency import occlusion_march as Occ
 from core.render import Renderer
 from core.settings import RenderSettings
 
+import oracle_photons
 import test_photon_kernels as TPK
+from oracle_occlusion import march_occlusion_dense
 
 A_MAX = 25.0                 # D = 5 m
 RTOL = 1e-12
@@ -145,16 +150,13 @@ def test_tracer_compiled_chain_matches_numpy_operators(make, model):
     spectra and radii for every deposit (both use the blocked march)."""
     tr = _tracer(make(), model)
     assert tr.occ_grid is not None and tr.kappa is not None
-    out = {}
-    for compiled in (True, False):
-        tr.compiled_frequency = compiled
-        out[compiled] = tr.trace(6000, 6000, np.random.default_rng(3))
-    a, b = out[True], out[False]
+    a = tr.trace(6000, 6000, np.random.default_rng(3))
+    b = oracle_photons.use_numpy_chains(_tracer(make(), model)).trace(
+        6000, 6000, np.random.default_rng(3))
     assert a["p"].shape[0] > 5000
     for key in a:
         _same(np.asarray(a[key], np.float64), np.asarray(b[key], np.float64))
-    r = a["rpred"]
-    r = -r if model == "PAPER" else r
+    r = F.radius_from_fold_key(a["rpred"], model)
     assert np.all(r >= 0)
     if model == "CORRECTED":
         assert (r > 0).mean() > 0.5                          # radii exercised
@@ -172,9 +174,9 @@ def _random_tris(rng, n=300):
 @pytest.fixture(scope="module")
 def grids():
     rng = np.random.default_rng(2)
-    g1 = Occ.build_occlusion_grid(_random_tris(rng), np.zeros(3), np.ones(3), 24)
-    g2 = Occ.build_occlusion_grid(TPK.cornell().tri_p, (-0.5, -0.5, 0), (0.5, 0.5, 1), 32,
-                                  max_distance=0.3)
+    g1 = OG.build_occlusion_grid(_random_tris(rng), np.zeros(3), np.ones(3), 24)
+    g2 = OG.build_occlusion_grid(TPK.cornell().tri_p, (-0.5, -0.5, 0), (0.5, 0.5, 1), 32,
+                                 max_distance=0.3)
     return g1, g2
 
 
@@ -194,16 +196,16 @@ def test_block_bounds_are_conservative(grids):
         R = g.res
         cone = g.cone.astype(np.float64)
         meets = (np.abs(np.einsum("xyzk,nk->xyzn", cone[..., :3], d))
-                 <= cone[..., 3:4] + Occ._SIN_TOL)
-        mb = Occ.march_blocks(g, Occ.MARCH_BLOCK)
+                 <= cone[..., 3:4] + OG.SIN_TOL)
+        mb = OG.march_blocks(g, OG.MARCH_BLOCK)
         assert mb.has_voxel_level
-        loc = Occ.default_locality(g)
+        loc = OG.default_locality(g)
         assert loc <= mb.cut_locality <= loc * (1 + 1e-8)
         near = g.dist < mb.cut_locality
         n_cut = n_pass = n_false = 0
-        for B, bmin, bcone in ((Occ.MARCH_BLOCK, mb.bmin, mb.bcone), (1, mb.vmin, mb.vcone)):
+        for B, bmin, bcone in ((OG.MARCH_BLOCK, mb.bmin, mb.bcone), (1, mb.vmin, mb.vcone)):
             # the march's test, vectorised: one of the two cones meets
-            unions = Occ.union_meets(bcone, d)
+            unions = OG.union_meets(bcone, d)
             NB = bmin.shape[0]
             for bx in range(NB):
                 for by in range(NB):
@@ -246,8 +248,8 @@ def test_blocked_march_matches_dense(grids):
         d = rng.normal(size=(M, 3))
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         t = rng.uniform(0, 1.0, M)
-        loc = scale * Occ.default_locality(g)
-        assert (loc <= Occ.march_blocks(g).cut_locality) == (scale == 1.0)
+        loc = scale * OG.default_locality(g)
+        assert (loc <= OG.march_blocks(g).cut_locality) == (scale == 1.0)
         _assert_matches_dense(g, o, d, t, loc, min_same=0.999, min_finite=0.1)
 
 
@@ -265,8 +267,8 @@ def test_blocked_march_on_voxel_corners_and_faces(grids):
                      (1, -1, 1), (-1, 1, 0), (2, 1, 0), (1, 2, 3)], float)
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     # and a grid whose res is no multiple of the block (last block partial)
-    g30 = Occ.build_occlusion_grid(TPK.cornell().tri_p, (-0.5, -0.5, 0), (0.5, 0.5, 1), 30,
-                                   max_distance=0.3)
+    g30 = OG.build_occlusion_grid(TPK.cornell().tri_p, (-0.5, -0.5, 0), (0.5, 0.5, 1), 30,
+                                  max_distance=0.3)
     for g in grids + (g30,):
         R, M = g.res, 4000
         ks = rng.integers(0, R + 1, size=(M, 3))
@@ -276,7 +278,7 @@ def test_blocked_march_on_voxel_corners_and_faces(grids):
         d = dirs[rng.integers(0, len(dirs), M)]
         t = rng.uniform(0, 1.5, M)
         t[:2000] = g.voxel_diagonal * rng.integers(1, 30, 2000)  # ends on corners too
-        loc = Occ.default_locality(g)
+        loc = OG.default_locality(g)
         _assert_matches_dense(g, o, d, t, loc, min_same=0.99, min_finite=0.2)
 
 
@@ -286,7 +288,7 @@ def _assert_matches_dense(g, o, d, t, loc, min_same, min_finite):
     ``min_finite``, and a differing occluder distance off by at most a voxel
     diagonal."""
     a = Occ.march_occlusion(g, o, d, t, loc)
-    b = Occ.march_occlusion(g, o, d, t, loc, dense=True)
+    b = march_occlusion_dense(g, o, d, t, loc)
     same = (a == b) | (np.isinf(a) & np.isinf(b))
     assert same.mean() >= min_same, same.mean()
     assert np.isfinite(a).mean() > min_finite                  # occluders exercised

@@ -332,6 +332,22 @@ def test_paper_model_exact_values():
         [[1, 2, 3], [0.3, 0.5, -0.1]])
 
 
+
+@pytest.mark.parametrize("model", ["CORRECTED", "PAPER"])
+def test_radius_fold_key_minimum_is_the_models_fold(model):
+    """A per-pixel minimum of the fold keys (what the gather computes),
+    decoded, is the model's accumulate rule (min / max) bit for bit; an
+    empty pixel (inf) stays inf."""
+    rng = np.random.default_rng(12)
+    r = rng.uniform(0, 1, (50, 7))
+    r[3, 2] = 0.0
+    m = np.min(F.radius_fold_key(r, model), axis=0)
+    acc = np.full(7, np.inf)
+    for row in r:
+        acc = F.accumulate(acc, row, model)
+    assert np.array_equal(F.radius_from_fold_key(m, model), acc)
+    assert F.radius_from_fold_key(np.array([np.inf]), model)[0] == np.inf
+
 def test_corrected_model_exact_values():
     s = np.array([[0.3, 0.2, 0.1]])
     np.testing.assert_allclose(F.travel(s, 2.0), [[1.5, 0.2, 0.5]], rtol=1e-14)

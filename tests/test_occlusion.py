@@ -1,4 +1,5 @@
-"""Occlusion grid (core/occlusion.py): exact voxel distances, bi-cones, marching.
+"""Occlusion grid (core.frequency.occlusion_grid, occlusion_march): exact voxel
+distances, bi-cones, marching.
 
 Every tolerance below is derived in a comment from the grid's own resolution
 (voxel size h) or from float32 storage; nothing is random at run time (fixed
@@ -7,8 +8,8 @@ seeds).
 import numpy as np
 import pytest
 
-from core.frequency.occlusion import (BYTES_PER_VOXEL, build_occlusion_grid, default_locality,
-                            march_occlusion)
+from core.frequency.occlusion_grid import BYTES_PER_VOXEL, build_occlusion_grid, default_locality
+from core.frequency.occlusion_march import march_occlusion
 
 
 # ------------------------------------------------------------------ helpers

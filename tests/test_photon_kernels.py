@@ -1,13 +1,14 @@
-"""The compiled photon path (core.sppm.photon_kernels) against the numpy reference.
+"""The compiled photon path (core.sppm.photon_kernels, core.materials.fast)
+against the numpy reference (tests/oracle_photons.py).
 
 Three levels:
-1. closures: ``photon_kernels.sample_fast`` and ``bsdf.sample_bsdf`` fed the
+1. closures: ``materials.fast.sample_fast`` and ``bsdf.sample_bsdf`` fed the
    same uniforms give the same direction and weight (round-off only);
 2. emission: ``photon_kernels.sample_photons_fast`` and
    ``lights.sample_photons`` fed the same generator give the same photons;
-3. whole tracer: ``PhotonTracer.trace`` with ``fast=True`` and ``fast=False``
-   (independent random streams) deposit the same power per surface group and
-   per bounce, on a Cornell box and on a scene with a glass cube, a mirror, a
+3. whole tracer: ``PhotonTracer.trace`` and the numpy tracer
+   ``oracle_photons.trace_numpy`` (independent random streams) deposit the
+   same power per surface group and per bounce, on a Cornell box and on a scene with a glass cube, a mirror, a
    rough GGX wall and an Oren-Nayar wall (those two take the generic fallback
    inside the fast path), on a spot + sun + world scene (numpy emission,
    compiled bounces), and frequency photons get the same predicted radii;
@@ -28,11 +29,13 @@ import pytest
 from analytic_scenes import quad, translate
 from core.materials import bsdf as B
 from core.lights import lights as Lt
+from core.materials import fast as FM
 from core.sppm import photon_kernels as PK
 from core.render import Renderer
 from core.scene.model import (DIFFUSE, GLASS, GLOSSY, Camera, Light, Lobe, Material,
                         make_scene)
 from core.settings import RenderSettings
+from oracle_photons import sample_fast_batch, trace_numpy
 
 LUM = np.array([0.2126, 0.7152, 0.0722])
 
@@ -106,13 +109,13 @@ def glass_mirror():
 
 # ------------------------------------------------------- 1. closures
 @pytest.mark.parametrize("lobe, cls", [
-    (Lobe(DIFFUSE, (0.6, 0.3, 0.9)), PK.LAMBERT),
-    (Lobe(GLOSSY, (0.9, 0.8, 0.7), roughness=0.0), PK.MIRROR),
-    (Lobe(GLASS, (1.0, 0.9, 0.8), ior=1.45), PK.SMOOTH_GLASS),
+    (Lobe(DIFFUSE, (0.6, 0.3, 0.9)), FM.LAMBERT),
+    (Lobe(GLOSSY, (0.9, 0.8, 0.7), roughness=0.0), FM.MIRROR),
+    (Lobe(GLASS, (1.0, 0.9, 0.8), ior=1.45), FM.SMOOTH_GLASS),
 ])
 def test_fast_closure_matches_sample_bsdf(lobe, cls):
     tab = B.build_material_table([Material("m", (lobe,))], [])
-    fm = PK.build_fast_materials(tab)
+    fm = FM.build_fast_materials(tab)
     assert fm.cls[0] == cls
     rng = np.random.default_rng(3)
     K = 20000
@@ -127,7 +130,7 @@ def test_fast_closure_matches_sample_bsdf(lobe, cls):
     colors = B.lobe_colors(tab, mat, np.zeros((K, 2)))
     wi_r, w_r, _, dl_r, ok_r = B.sample_bsdf(tab, mat, colors, ns, ng, wo, u,
                                              subset="all", mode="importance")
-    wi_f, w_f, dl_f, ok_f = PK.sample_fast_batch(
+    wi_f, w_f, dl_f, ok_f = sample_fast_batch(
         np.full(K, cls, np.int64), np.repeat(fm.col, K, axis=0), np.repeat(fm.ior, K),
         ns, ng, wo, u)
     # Same formulas in another operation order: validity flips only on ties.
@@ -151,8 +154,8 @@ def test_material_classes():
                                      Lobe(DIFFUSE, (0.4, 0.1, 0.1)))),
             Material("emitter", (), emission=(1.0, 1.0, 1.0))]
     tab = B.build_material_table(mats, [np.ones((2, 2, 3), np.float32)])
-    fm = PK.build_fast_materials(tab)
-    assert list(fm.cls) == [PK.GENERIC] * 4 + [PK.LAMBERT, PK.ABSORBER]
+    fm = FM.build_fast_materials(tab)
+    assert list(fm.cls) == [FM.GENERIC] * 4 + [FM.LAMBERT, FM.ABSORBER]
     np.testing.assert_allclose(fm.col[4], (0.6, 0.3, 0.3))
 
 
@@ -205,12 +208,13 @@ def _bins(dep):
 def _batch_stats(tracer, fast, seed, n_freq=0, n_bounce=6):
     """(N_BATCH, S) per-photon statistics: power luminance per surface group,
     deposits per bounce, power per bounce; with n_freq also mean predicted
-    radius per surface group."""
-    tracer.fast = fast
+    radius per surface group.  fast: the compiled tracer (False: the numpy
+    oracle, oracle_photons.trace_numpy)."""
+    trace = tracer.trace if fast else lambda *a: trace_numpy(tracer, *a)
     rows = []
     for b in range(N_BATCH):
         rng = np.random.default_rng([seed, b])
-        dep = tracer.trace(BATCH, n_freq, rng)
+        dep = trace(BATCH, n_freq, rng)
         g = _bins(dep)
         lum = dep["power"] @ LUM
         bo = np.minimum(dep["bounce"], n_bounce)

@@ -1,14 +1,21 @@
-"""Compiled frequency-photon updates: the ``core.frequency`` operators per photon.
+"""Compiled frequency updates: the ``core.frequency.spectrum`` operators per photon.
 
-``core.frequency`` is the numpy reference (one array operation per guard, per
-operator).  On the photon path its calls cost more than tracing the photon
-(~2.4x a classic photon), so the tracer (``core.photons``) runs the two
-chains of a frequency photon's spectrum (a, b, c) here, one numba loop over
-the photons each, with the occlusion march inlined:
+``core.frequency.spectrum`` is the numpy specification (one array operation
+per guard, per operator).  On the photon path its calls cost more than
+tracing the photon, so the tracer (``core.sppm.photons``) runs the two chains
+of a frequency photon's spectrum (a, b, c) here, one numba loop over the
+photons each, with the occlusion march (``occlusion_march.march_segment``)
+called per photon:
 
-- at the hits:  travel -> occlude (``occlusion._march_one``) -> onto_surface,
+- arriving at a hit (:func:`arrive`): travel -> occlude -> onto_surface,
   then the predicted radius of every deposit (receiver diffuse, z = inf);
-- leaving:      off_surface -> brdf (lobe variance) -> curvature (delta lobes).
+- leaving it (:func:`leave`): off_surface -> brdf (lobe variance) ->
+  curvature (delta lobes).
+
+Each chain is written once, per photon, in :func:`arrive` and :func:`leave`;
+the batch kernels :func:`spectrum_at_hits` and :func:`spectrum_leaving` loop
+them over the bounce kernel's hit record (``core.sppm.photon_kernels``).
+The numpy form of the chains is a test oracle (tests/oracle_photons.py).
 
 Every scalar helper below is the numpy operator of the same name written per
 photon with the same floating-point expressions in the same order, for both
@@ -21,19 +28,21 @@ NaN semantics follow numpy: ``_fmax``/``_fmin``/``_clip`` propagate NaN like
 np.maximum / np.minimum / np.clip.
 
 Arrays: spectra (N, 3) float64 columns (a, b, c); photon-indexed arrays as
-in ``core.photon_kernels.bounce_kernel``'s record buffers.
+in ``core.sppm.photon_kernels.bounce_kernel``'s record buffers.
 """
 from __future__ import annotations
 
 import hashlib
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from . import spectrum as F
-from . import occlusion as _occlusion
-from .occlusion import _march_one
+from . import occlusion_grid as _occlusion_grid
+from . import occlusion_march as _occlusion_march
+from .occlusion_march import march_segment
 
 BETA = F.BETA
 B_CAP = F.B_CAP
@@ -80,7 +89,7 @@ def _nan_to_num(x):
 # ------------------------------------------------------------ operators
 @njit(cache=True)
 def sanitize(a, b, c, A_MAX):
-    """frequency.sanitize for one spectrum."""
+    """spectrum.sanitize for one spectrum."""
     if a != a or b != b or c != c:
         return 0.0, 0.0, 0.0
     a = _clip(a, 0.0, A_MAX)
@@ -94,7 +103,7 @@ def sanitize(a, b, c, A_MAX):
 
 @njit(cache=True)
 def travel(a, b, c, d, paper, A_MAX):
-    """frequency.travel (d: distance [m])."""
+    """spectrum.travel (d: distance [m])."""
     if paper:
         return a - 2 * c * d + b * d * d, b, c - b * d
     a, b, c = sanitize(a, b, c, A_MAX)
@@ -108,7 +117,7 @@ def travel(a, b, c, d, paper, A_MAX):
 
 @njit(cache=True)
 def occlude(a, b, c, ao, paper, A_MAX):
-    """frequency.occlude (ao: a_occ [m^2])."""
+    """spectrum.occlude (ao: a_occ [m^2])."""
     if paper:
         return a * ao / (a + ao), b, c
     a, b, c = sanitize(a, b, c, A_MAX)
@@ -123,7 +132,7 @@ def occlude(a, b, c, ao, paper, A_MAX):
 
 @njit(cache=True)
 def onto_surface(a, b, c, cs, paper, A_MAX):
-    """frequency.onto_surface (disc=False; cs: cosine to the normal)."""
+    """spectrum.onto_surface (disc=False; cs: cosine to the normal)."""
     if paper:
         return a * cs * cs, b, c * cs
     a, b, c = sanitize(a, b, c, A_MAX)
@@ -133,7 +142,7 @@ def onto_surface(a, b, c, cs, paper, A_MAX):
 
 @njit(cache=True)
 def off_surface(a, b, c, cs, paper, A_MAX):
-    """frequency.off_surface (cos_i = cos_o for PAPER)."""
+    """spectrum.off_surface (cos_i = cos_o for PAPER)."""
     if paper:
         return a / (cs * cs), b, c / cs
     a, b, c = sanitize(a, b, c, A_MAX)
@@ -143,7 +152,7 @@ def off_surface(a, b, c, cs, paper, A_MAX):
 
 @njit(cache=True)
 def brdf(a, b, c, bl, paper, A_MAX):
-    """frequency.brdf (bl: the lobe's angular variance)."""
+    """spectrum.brdf (bl: the lobe's angular variance)."""
     if paper:
         return a, b + bl, c
     a, b, c = sanitize(a, b, c, A_MAX)
@@ -153,7 +162,7 @@ def brdf(a, b, c, bl, paper, A_MAX):
 
 @njit(cache=True)
 def curvature(a, b, c, kappa, paper, A_MAX, factor):
-    """frequency.curvature (PAPER: identity)."""
+    """spectrum.curvature (PAPER: identity)."""
     if paper:
         return a, b, c
     a, b, c = sanitize(a, b, c, A_MAX)
@@ -169,7 +178,7 @@ def curvature(a, b, c, kappa, paper, A_MAX, factor):
 
 @njit(cache=True)
 def predicted_radius(a, b, c, br, z, paper):
-    """frequency.predicted_radius (br: receiver lobe variance, inf = diffuse;
+    """spectrum.predicted_radius (br: receiver lobe variance, inf = diffuse;
     z: camera distance).  NaN -> 0."""
     z = abs(z)
     diffuse = br == np.inf or br == -np.inf
@@ -197,19 +206,96 @@ def predicted_radius(a, b, c, br, z, paper):
     return 0.0 if r != r else r
 
 
+# ------------------------------------------------------------ the two chains
+@njit(cache=True)
+def arrive(a, b, c, t, a_occ, t_occ, has_grid, cs, paper, A_MAX, D):
+    """The spectrum (a, b, c) leaving a vertex, after a segment of length t
+    and onto the surface it hits at cosine cs (|ng . d|).
+
+    The blocker acts where it is (docs/frequency.md, occlusion operator):
+    travel to it (t_occ), multiply by its visibility (a_occ), travel on;
+    without a blocker (a_occ = inf) travel t and occlude(inf).  has_grid
+    False: no occlusion step at all (a render without an occlusion grid).
+    Distances are clipped to D.  Returns onto_surface of the result."""
+    if has_grid and a_occ < np.inf:
+        a, b, c = travel(a, b, c, _fmin(t_occ, D), paper, A_MAX)
+        a, b, c = occlude(a, b, c, a_occ, paper, A_MAX)
+        a, b, c = travel(a, b, c, _fmin(_fmax(t - t_occ, 0.0), D), paper, A_MAX)
+    else:
+        a, b, c = travel(a, b, c, _fmin(t, D), paper, A_MAX)
+        if has_grid:
+            a, b, c = occlude(a, b, c, a_occ, paper, A_MAX)
+    return onto_surface(a, b, c, cs, paper, A_MAX)
+
+
+@njit(cache=True)
+def leave(a, b, c, cs, b_lobe, kappa, curved, paper, A_MAX):
+    """The on-surface spectrum (a, b, c) leaving along a direction at cosine
+    cs (|ng . wo|) through a lobe of angular variance b_lobe (0 for a delta
+    lobe); curved: also the curvature kappa [1/m] of a mirror (factor 2)."""
+    a, b, c = off_surface(a, b, c, cs, paper, A_MAX)
+    a, b, c = brdf(a, b, c, b_lobe, paper, A_MAX)
+    if curved:
+        a, b, c = curvature(a, b, c, kappa, paper, A_MAX, 2.0)
+    return a, b, c
+
+
+# ------------------------------------------------------------ kernel arguments
+class ChainParams(NamedTuple):
+    """The frequency model of a render.  paper: the PAPER model's formulas;
+    D [m]: the scene diameter (longest distance); A_MAX = D^2 [m^2] (largest
+    spatial variance); occlusion: 0 = no grid, 1 = march the grid, 2 = a
+    grid without geometry (a_occ = inf for every segment)."""
+    paper: bool
+    D: float
+    A_MAX: float
+    occlusion: int
+
+
+class Segments(NamedTuple):
+    """The segments the photons just travelled: o, d (K, 3) float64 origin
+    and unit direction (copied before the bounce kernel overwrites the live
+    state)."""
+    o: np.ndarray
+    d: np.ndarray
+
+
+class Rows(NamedTuple):
+    """Which rows of a bounce's record the chains read: rays 0..K-1,
+    deposits dep0..dep1-1, survivors 0..n_next-1."""
+    K: int
+    dep0: int
+    dep1: int
+    n_next: int
+
+
+class SurfaceLobes(NamedTuple):
+    """What the leaving chain reads of the hit surfaces.  tri_mat (T,) int32
+    material of each triangle; lobe_b (M,) float64 the angular variance of
+    each material's first lobe (``spectrum.lobe_variance``), lobe_ok (M,)
+    bool False where that raises; kappa (T,) float64 triangle curvature,
+    used when has_kappa (delta lobes only)."""
+    tri_mat: np.ndarray
+    lobe_b: np.ndarray
+    lobe_ok: np.ndarray
+    kappa: np.ndarray
+    has_kappa: bool
+
+
 # ------------------------------------------------------------ cache token
 def _dependency_token() -> int:
     """Hash of the sources compiled into the kernels besides this file.
 
     Numba's on-disk cache is keyed by this file's time stamp and each
-    kernel's own bytecode; the inlined march (core.occlusion) and the
-    constants of core.frequency are invisible to it, so an edit there would
-    keep running stale cached code.  The kernels are closures over this
-    token, whose value is part of numba's cache key (closure variables are
-    hashed): any change to those files recompiles them.
+    kernel's own bytecode; the march (core.frequency.occlusion_march, and
+    the constants of occlusion_grid) and the constants of
+    core.frequency.spectrum are invisible to it, so an edit there would keep
+    running stale cached code.  The kernels are closures over this token,
+    whose value is part of numba's cache key (closure variables are hashed):
+    any change to those files recompiles them.
     """
     h = hashlib.sha256()
-    for mod in (_occlusion, F):
+    for mod in (_occlusion_march, _occlusion_grid, F):
         with open(mod.__file__, "rb") as f:
             h.update(f.read())
     return int(h.hexdigest()[:12], 16)
@@ -220,112 +306,97 @@ def _kernels(token):
 
     # ------------------------------------------------------------ batch kernels
     @njit(cache=True, nogil=True, error_model="numpy")
-    def spectrum_at_hits(paper, K, spec, rec_t, rec_ng, rec_hit, o_seg, d_seg, D, A_MAX,
-                         n0, n_dep, dep_src, n_next, nxt_src, need,
-                         occ, dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell, R,
-                         locality, t_skip, out, dep_spec, dep_r):
-        """Frequency photons arriving at their hits (rays 0..K-1), in place.
+    def spectrum_at_hits(chain, rows, spec, seg, rec, march, dep):
+        """Frequency photons arriving at their hits (rays 0..K-1).
 
-        spec (K, 3): spectra leaving the previous vertex; rec_t (K,), rec_ng
-        (K, 3), rec_hit (K,) bool: the bounce kernel's hit record; o_seg, d_seg
-        (K, 3) float64: the segments' origins and unit directions.
-        Only rays that deposit (dep_src[n0:n_dep]) or continue (nxt_src[:n_next])
-        are evaluated (``need`` (K,) bool scratch): the spectrum of any other hit
-        is never read.  For those, out[i] = onto_surface(travel(occlude(travel(
-        spec[i], t_occ), a_occ), t - t_occ), |ng . d|) (travel(spec, t) and
-        occlude(., inf) without an occluder), with (a_occ, t_occ) = occlusion._march_one of the
-        segment [o, o + t d] when occ == 1, inf when occ == 2 (a grid without
-        geometry), no occlusion step when occ == 0 (no grid).
-        Deposits n0..n_dep-1: dep_spec[k] = out[dep_src[k]] and dep_r[k] = its
-        predicted radius for a diffuse receiver (negated for PAPER: the grid
-        keeps a minimum, the paper's rule a maximum).
-        Returns the number of segments marched.
+        chain: ChainParams; rows: Rows; spec (K, 3): spectra leaving the
+        previous vertex; seg: Segments; rec: the bounce kernel's hit record
+        (``photon_kernels.HitRecord``: t, ng, hit, nxt_src); march: an
+        ``occlusion_march.MarchGrid`` (read when chain.occlusion == 1); dep:
+        the deposit buffers (``photon_kernels.DepositBuffers``: src, spec, r).
+        Only rays that deposit (dep.src[dep0:dep1]) or continue
+        (rec.nxt_src[:n_next]) are evaluated: the spectrum of any other hit
+        is never read.  For those, out[i] = :func:`arrive` with (a_occ,
+        t_occ) = ``march_segment`` of the segment [o, o + t d].
+        Deposits dep0..dep1-1: dep.spec[k] = out[dep.src[k]] and dep.r[k] =
+        its predicted radius for a diffuse receiver.
+        Returns (out (K, 3) float64, rows of other rays unset; the number
+        of segments marched).
         """
         if token < 0:                     # never: ties the code to the token
             raise RuntimeError("token")
-        for i in range(K):
-            need[i] = False
-        for k in range(n0, n_dep):
-            need[dep_src[k]] = True
-        for j in range(n_next):
-            need[nxt_src[j]] = True
+        K = rows.K
+        need = np.zeros(K, np.bool_)
+        for k in range(rows.dep0, rows.dep1):
+            need[dep.src[k]] = True
+        for j in range(rows.n_next):
+            need[rec.nxt_src[j]] = True
+        paper, A_MAX, D = chain.paper, chain.A_MAX, chain.D
+        marched = chain.occlusion == 1
+        has_grid = chain.occlusion != 0
+        out = np.empty((K, 3))
         n_march = 0
         for i in range(K):
-            if not (need[i] and rec_hit[i]):
+            if not (need[i] and rec.hit[i]):
                 continue
-            t = rec_t[i]
-            if occ == 1:
-                # The blocker acts where it is: travel to it, multiply by its
-                # visibility, travel on (docs/frequency.md, occlusion operator).
-                ao, to = _march_one(dist, cone, bmin, bcone, vmin, vcone, has_v, B, lo, cell,
-                                    R, o_seg[i, 0], o_seg[i, 1], o_seg[i, 2],
-                                    d_seg[i, 0], d_seg[i, 1], d_seg[i, 2], t, locality, t_skip)
+            t = rec.t[i]
+            ao, to = np.inf, np.inf
+            if marched:
+                ao, to = march_segment(march, seg.o[i, 0], seg.o[i, 1], seg.o[i, 2],
+                                       seg.d[i, 0], seg.d[i, 1], seg.d[i, 2], t)
                 n_march += 1
-                if ao < np.inf:
-                    a, b, c = travel(spec[i, 0], spec[i, 1], spec[i, 2], _fmin(to, D), paper,
-                                     A_MAX)
-                    a, b, c = occlude(a, b, c, ao, paper, A_MAX)
-                    a, b, c = travel(a, b, c, _fmin(_fmax(t - to, 0.0), D), paper, A_MAX)
-                else:
-                    a, b, c = travel(spec[i, 0], spec[i, 1], spec[i, 2], _fmin(t, D), paper,
-                                     A_MAX)
-                    a, b, c = occlude(a, b, c, ao, paper, A_MAX)
-            else:
-                a, b, c = travel(spec[i, 0], spec[i, 1], spec[i, 2], _fmin(t, D), paper, A_MAX)
-                if occ == 2:                  # a grid without geometry: a_occ = inf
-                    a, b, c = occlude(a, b, c, np.inf, paper, A_MAX)
-            cs = abs(rec_ng[i, 0] * d_seg[i, 0] + rec_ng[i, 1] * d_seg[i, 1]
-                     + rec_ng[i, 2] * d_seg[i, 2])
-            a, b, c = onto_surface(a, b, c, cs, paper, A_MAX)
+            cs = abs(rec.ng[i, 0] * seg.d[i, 0] + rec.ng[i, 1] * seg.d[i, 1]
+                     + rec.ng[i, 2] * seg.d[i, 2])
+            a, b, c = arrive(spec[i, 0], spec[i, 1], spec[i, 2], t, ao, to, has_grid, cs,
+                             paper, A_MAX, D)
             out[i, 0] = a
             out[i, 1] = b
             out[i, 2] = c
-        for k in range(n0, n_dep):
-            i = dep_src[k]
+        for k in range(rows.dep0, rows.dep1):
+            i = dep.src[k]
             a, b, c = out[i, 0], out[i, 1], out[i, 2]
-            dep_spec[k, 0] = a
-            dep_spec[k, 1] = b
-            dep_spec[k, 2] = c
-            r = predicted_radius(a, b, c, np.inf, np.inf, paper)
-            dep_r[k] = -r if paper else r
-        return n_march
+            dep.spec[k, 0] = a
+            dep.spec[k, 1] = b
+            dep.spec[k, 2] = c
+            dep.r[k] = predicted_radius(a, b, c, np.inf, np.inf, paper)
+        return out, n_march
 
 
     @njit(cache=True, nogil=True, error_model="numpy")
-    def spectrum_leaving(paper, n_next, spec_hit, nxt_src, nxt_delta, rec_ng, rec_nswi, d64,
-                         prim, tri_mat, lobe_b, lobe_ok, kappa, has_kappa, A_MAX, out):
+    def spectrum_leaving(chain, n_next, spec_hit, rec, d, prim, lobes):
         """Frequency photons leaving their hits: rows 0..n_next-1 of the live state.
 
-        spec_hit (K, 3): on-surface spectra (``spectrum_at_hits``); nxt_src,
-        nxt_delta: each survivor's ray and whether it sampled a delta lobe;
-        d64 (n_next, 3) its new direction; prim (K,) the hit triangles;
-        lobe_b (M,) the first lobe's angular variance of each material
-        (``frequency.lobe_variance``), lobe_ok (M,) False where that raises;
-        kappa (T,) triangle curvature (used when has_kappa, delta lobes only).
-        out[j] = curvature(brdf(off_surface(spec_hit[i], |ng . wo|), b_lobe), kappa).
-        Returns the first survivor j whose material has no lobe variance, or -1.
+        chain: ChainParams; spec_hit (K, 3): on-surface spectra
+        (``spectrum_at_hits``); rec: the hit record (ng, nswi, and nxt_src,
+        nxt_delta: each survivor's ray and whether it sampled a delta lobe);
+        d (n_next, 3) the survivors' new directions; prim (K,) the hit
+        triangles; lobes: SurfaceLobes.
+        out[j] = :func:`leave` of spec_hit[nxt_src[j]] at |ng . wo|.
+        Returns (out (n_next, 3) float64; the first survivor j whose material
+        has no lobe variance, or -1).
         """
         if token < 0:                     # never: ties the code to the token
             raise RuntimeError("token")
+        paper, A_MAX = chain.paper, chain.A_MAX
+        out = np.empty((n_next, 3))
         bad = -1
         for j in range(n_next):
-            i = nxt_src[j]
-            dl = nxt_delta[j]
-            cs = abs(rec_ng[i, 0] * d64[j, 0] + rec_ng[i, 1] * d64[j, 1] + rec_ng[i, 2] * d64[j, 2])
-            a, b, c = off_surface(spec_hit[i, 0], spec_hit[i, 1], spec_hit[i, 2], cs, paper, A_MAX)
+            i = rec.nxt_src[j]
+            dl = rec.nxt_delta[j]
+            cs = abs(rec.ng[i, 0] * d[j, 0] + rec.ng[i, 1] * d[j, 1] + rec.ng[i, 2] * d[j, 2])
             p = prim[i]
-            m = tri_mat[p]
-            if not lobe_ok[m] and bad < 0:
+            m = lobes.tri_mat[p]
+            if not lobes.lobe_ok[m] and bad < 0:
                 bad = j
-            bl = 0.0 if dl else lobe_b[m]
-            a, b, c = brdf(a, b, c, bl, paper, A_MAX)
-            if has_kappa and dl:
-                a, b, c = curvature(a, b, c, kappa[p] * rec_nswi[i], paper, A_MAX, 2.0)
+            bl = 0.0 if dl else lobes.lobe_b[m]
+            curved = lobes.has_kappa and dl
+            kap = lobes.kappa[p] * rec.nswi[i] if curved else 0.0
+            a, b, c = leave(spec_hit[i, 0], spec_hit[i, 1], spec_hit[i, 2], cs, bl, kap, curved,
+                            paper, A_MAX)
             out[j, 0] = a
             out[j, 1] = b
             out[j, 2] = c
-        return bad
-
+        return out, bad
 
 
     # ------------------------------------------------------------ array wrappers
@@ -370,10 +441,12 @@ def _kernels(token):
 spectrum_at_hits, spectrum_leaving, _apply, _radius = _kernels(_dependency_token())
 
 
-def material_lobe_variance(mtab):
-    """(lobe_b (M,), lobe_ok (M,)): ``frequency.lobe_variance`` of each
-    material's first lobe (kind[:, 0], roughness[:, 0]); lobe_ok False (and
-    lobe_b NaN) where it raises (unused slot, unknown kind)."""
+def surface_lobes(mtab, tri_mat, kappa) -> SurfaceLobes:
+    """SurfaceLobes of a scene: tri_mat (T,) int32, the material table mtab
+    and kappa (T,) float64 triangle curvature or None (no curvature step).
+    lobe_b is ``spectrum.lobe_variance`` of each material's first lobe
+    (kind[:, 0], roughness[:, 0]); lobe_ok False (and lobe_b NaN) where it
+    raises (unused slot, unknown kind)."""
     kinds = np.asarray(mtab.kind)[:, 0]
     rough = np.asarray(mtab.roughness, np.float64)[:, 0]
     M = kinds.shape[0]
@@ -385,7 +458,8 @@ def material_lobe_variance(mtab):
             ok[m] = True
         except ValueError:
             pass
-    return lobe_b, ok
+    return SurfaceLobes(tri_mat, lobe_b, ok, kappa if kappa is not None else np.zeros(1),
+                        kappa is not None)
 
 
 OPS = {"travel": 0, "occlude": 1, "onto_surface": 2, "off_surface": 3, "brdf": 4,
@@ -394,8 +468,8 @@ OPS = {"travel": 0, "occlude": 1, "onto_surface": 2, "off_surface": 3, "brdf": 4
 
 def apply(name, s, x=0.0, model="CORRECTED", A_MAX=A_MAX_DEFAULT):
     """The compiled operator ``name`` on spectra s (N, 3) with its per-photon
-    argument x ((N,) or scalar): equals ``getattr(core.frequency, name)(s, x,
-    model, A_MAX)`` (curvature with factor 2; sanitize ignores x and model)."""
+    argument x ((N,) or scalar): equals ``getattr(core.frequency.spectrum,
+    name)(s, x, model, A_MAX)`` (curvature with factor 2; sanitize ignores x and model)."""
     s = np.ascontiguousarray(np.asarray(s, np.float64).reshape(-1, 3))
     x = np.ascontiguousarray(np.broadcast_to(np.asarray(x, np.float64), (s.shape[0],)))
     out = np.empty_like(s)
@@ -404,7 +478,7 @@ def apply(name, s, x=0.0, model="CORRECTED", A_MAX=A_MAX_DEFAULT):
 
 
 def radius(s, b_receiver, z_camera, model="CORRECTED"):
-    """Compiled ``frequency.predicted_radius``: (N, 3), (N,) or scalar x2 -> (N,)."""
+    """Compiled ``spectrum.predicted_radius``: (N, 3), (N,) or scalar x2 -> (N,)."""
     s = np.ascontiguousarray(np.asarray(s, np.float64).reshape(-1, 3))
     n = s.shape[0]
     br = np.ascontiguousarray(np.broadcast_to(np.asarray(b_receiver, np.float64), (n,)))

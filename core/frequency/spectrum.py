@@ -496,6 +496,33 @@ def accumulate(current, new, model="CORRECTED"):
     return np.minimum(np.where(np.isnan(cur), 0.0, cur), nw)
 
 
+def radius_fold_key(r, model="CORRECTED"):
+    """The value a deposit carries for the per-pixel fold of :func:`accumulate`.
+
+    r: (K,) predicted radii.  Returns (K,) float64.  The gather
+    (``core.sppm.hashgrid``) folds the radii of the photons a pixel collects
+    by a *minimum*, the CORRECTED rule.  The PAPER rule keeps the *maximum*;
+    max(r) = -min(-r), so under PAPER the radii travel negated and the same
+    minimum serves both models: key = r (CORRECTED) or -r (PAPER).  The
+    negation is exact, so the fold is bit-identical to a maximum.
+    :func:`radius_from_fold_key` turns the folded key back into a radius.
+    """
+    r = _f64(r)
+    return -r if _model(model) == "PAPER" else r
+
+
+def radius_from_fold_key(key, model="CORRECTED"):
+    """The radius of a folded :func:`radius_fold_key`: (K,) -> (K,) float64.
+
+    ``inf`` (no frequency photon collected, the fold's start) stays inf for
+    both models; a PAPER key -inf (a photon with r = inf) also gives inf.
+    """
+    key = _f64(key)
+    if _model(model) == "PAPER":
+        return np.where(np.isinf(key), np.inf, -key)
+    return key
+
+
 def accumulate_spectrum_paper(current, new):
     """The paper's per-coefficient max of (a, b, c) over collected photons.
 

@@ -3,116 +3,51 @@
 The numpy photon loop spends ~9x the Embree time on per-bounce array
 bookkeeping (surface_point, lobe_colors, sample_bsdf, compaction), for 30
 triangles and one Lambert material.  Here everything that happens after an
-Embree call is one ``@njit(nogil=True)`` loop over the rays:
+Embree call is one ``@njit(nogil=True)`` loop over the rays
+(:func:`bounce_kernel`):
 
     barycentric p / ng / ns  ->  deposit (has_nondelta, bounce rule)
     ->  importance sampling of the common closures  ->  Russian roulette
     ->  spawn offset  ->  in-place compaction of the live photon state
 
-Fast closures (``FastMaterials``; everything else is "generic" and handed back
-to ``core.bsdf.sample_bsdf`` by the caller, photon by photon):
-
-- LAMBERT: every used lobe is DIFFUSE with roughness 0, no texture, no delta
-  lobe.  Cosine sampling; weight = sum of lobe colours x Veach's
-  shading-normal factor (``bsdf.sample_bsdf`` fast path).
-- MIRROR: a single used lobe, GLOSSY and delta (alpha^2 <= 2e-10), no texture.
-- GLASS: a single used lobe, GLASS and delta (smooth, or |ior - 1| < 1e-4),
-  no texture.  Reflect with probability F (exact dielectric Fresnel), weight
-  C (/eta^2 on refraction, the importance-mode adjoint), x shading factor.
-
-The formulas are those of ``core.bsdf`` (``_cos_hemisphere``, ``_frame``,
-``fresnel_dielectric``, ``_refract``, ``_adjoint_correction``) written per ray
-in float64; ``tests/test_photon_kernels.py`` checks the kernels sample for
-sample against ``bsdf.sample_bsdf`` and the whole tracer against the numpy
-path.  Precision: Embree sees float32 origins/directions; positions, normals,
-powers and deposits are float64.
+The closures sampled in the loop are those of ``core.materials.fast``
+(``FastMaterials``, ``sample_fast``); hits on any other material are
+"generic" and handed back to ``core.materials.bsdf.sample_bsdf`` by the
+caller.  tests/test_photon_kernels.py checks the whole tracer against the
+numpy reference tracer (tests/oracle_photons.py).  Precision: Embree sees
+float32 origins/directions; positions, normals, powers and deposits are
+float64.
 
 Emission (``emit_lights``, ``emit_lights_state``) is ``lights.sample_photons``
 for POINT, AREA and untextured MESH emitters, fed the same uniforms (tested
 equal to round-off); other kinds keep the numpy sampler (``emit_kernel`` then
 only filters and offsets its photons).
 
+The kernels take their arrays grouped in NamedTuples (numba passes them as
+structs): the live photon state (:class:`LiveState`), Embree's hits
+(:class:`EmbreeHits`), the triangles (:class:`TriangleData`), the deposit
+buffers (:class:`DepositBuffers`), the generic hits (:class:`GenericHits`),
+the frequency photons' hit record (:class:`HitRecord`) and the per-bounce
+flags (:class:`BounceStep`).
+
 Kernels use ``error_model="numpy"`` (x/0 gives inf/NaN like the numpy path,
-no exception checks) and ``nogil=True`` (core.photons traces two halves of a
-batch in two threads).  Per-photon helpers take scalars only: numba
+no exception checks) and ``nogil=True`` (core.sppm.photons traces two halves
+of a batch in two threads).  Per-photon helpers take scalars only: numba
 increments and decrements the reference count of every array passed to a
 non-inlined call, which cost ~100 ns per photon with 16 light arrays.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from ..scene.model import GLASS, GLOSSY
-
-# Fast-path classes of a material.
-GENERIC = 0
-LAMBERT = 1
-MIRROR = 2
-SMOOTH_GLASS = 3
-ABSORBER = 4          # no lobe with a non-zero weight (e.g. emission only)
-
-from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0  # noqa: E402
+from ..materials.fast import ABSORBER, GENERIC, sample_fast
+from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 
 
-@dataclass
-class FastMaterials:
-    """Per-material data of the fast path.  M materials.
-
-    cls: (M,) int8 GENERIC / LAMBERT / MIRROR / SMOOTH_GLASS / ABSORBER.
-    col: (M, 3) float64 LAMBERT: sum of lobe colour x weight; MIRROR / GLASS:
-      the lobe's colour x weight.
-    ior: (M,) float64 GLASS index of refraction.
-    deposit: (M,) bool material has a non-delta lobe (photons are stored).
-    """
-    cls: np.ndarray
-    col: np.ndarray
-    ior: np.ndarray
-    deposit: np.ndarray
-
-    @property
-    def any_generic(self) -> bool:
-        return bool(np.any(self.cls == GENERIC))
-
-
-def build_fast_materials(mtab) -> FastMaterials:
-    """Classify the materials of a ``bsdf.MaterialTable`` for the fast path."""
-    M = mtab.kind.shape[0]
-    cls = np.zeros(M, np.int8)
-    col = np.zeros((M, 3))
-    ior = np.ones(M)
-    for m in range(M):
-        kinds = mtab.kind[m]
-        slots = [j for j in range(kinds.shape[0]) if kinds[j] >= 0]
-        used = [j for j in slots if mtab.weight[m, j] != 0.0]
-        if not used:
-            cls[m] = ABSORBER           # bsdf.sample_bsdf: no lobe, invalid
-            continue
-        if any(mtab.tex[m, j] >= 0 for j in slots):
-            continue
-        cw = [mtab.color[m, j] * mtab.weight[m, j] for j in slots]
-        if bool(mtab.lambert_only[m]) and not bool(mtab.has_delta[m]):
-            # bsdf.sample_bsdf's Lambert fast path: weight = sum of all colours.
-            cls[m] = LAMBERT
-            col[m] = np.sum(cw, axis=0)
-        elif len(used) == 1 and mtab.lobe_delta[m, used[0]]:
-            j = used[0]
-            if kinds[j] == GLOSSY:
-                cls[m] = MIRROR
-            elif kinds[j] == GLASS:
-                cls[m] = SMOOTH_GLASS
-                ior[m] = mtab.ior[m, j]
-            else:
-                continue
-            col[m] = mtab.color[m, j] * mtab.weight[m, j]
-    return FastMaterials(cls=cls, col=col, ior=ior,
-                         deposit=np.asarray(mtab.has_nondelta, bool).copy())
-
-
-@dataclass
-class TriangleData:
+class TriangleData(NamedTuple):
     """Float64 per-triangle data for hit interpolation.  T triangles.
 
     p: (T, 3, 3) corners; n: (T, 3, 3) corner shading normals; ng: (T, 3) unit
@@ -123,6 +58,90 @@ class TriangleData:
     n: np.ndarray
     ng: np.ndarray
     mat: np.ndarray
+
+
+class LiveState(NamedTuple):
+    """The live photons (rows 0..K-1 used; cap rows): o32, d32 (cap, 3)
+    float32 the Embree rays; d64 (cap, 3) float64 the unit directions; power
+    (cap, 3) float64; falloff (cap,) float64 the soft-falloff r^2 applied at
+    the first hit."""
+    o32: np.ndarray
+    d32: np.ndarray
+    d64: np.ndarray
+    power: np.ndarray
+    falloff: np.ndarray
+
+
+class EmbreeHits(NamedTuple):
+    """Embree's closest hits of rays 0..K-1: prim (K,) int32 (-1 = miss),
+    bu, bv (K,) float32 barycentrics, tfar (K,) float32 distance."""
+    prim: np.ndarray
+    bu: np.ndarray
+    bv: np.ndarray
+    tfar: np.ndarray
+
+
+class DepositBuffers(NamedTuple):
+    """Deposit rows (cap rows, float64 unless stated): p, ng (oriented to
+    the side the photon came from), wi (unit, back to where it came from),
+    power (cap, 3); r (cap,) the radius fold key (NaN for classic photons,
+    ``spectrum.radius_fold_key``); bounce (cap,) int32 path vertex; src
+    (cap,) int64 the ray of each deposit (frequency photons); spec (cap, 3)
+    the spectrum (a, b, c) of frequency photons."""
+    p: np.ndarray
+    ng: np.ndarray
+    wi: np.ndarray
+    power: np.ndarray
+    r: np.ndarray
+    bounce: np.ndarray
+    src: np.ndarray
+    spec: np.ndarray
+
+
+class GenericHits(NamedTuple):
+    """Hits on GENERIC materials, for ``bsdf.sample_bsdf`` (rows 0..n_gen-1):
+    i (cap,) int64 ray index; p, ng, ns, wi, power (cap, 3) float64; bary
+    (cap, 3) float64 (prim, u, v)."""
+    i: np.ndarray
+    p: np.ndarray
+    ng: np.ndarray
+    ns: np.ndarray
+    wi: np.ndarray
+    power: np.ndarray
+    bary: np.ndarray
+
+
+class HitRecord(NamedTuple):
+    """Per-ray hit data the frequency chains read (written when
+    BounceStep.record): t (K,) float64 hit distance, ng (K, 3) geometric
+    normal, nswi (K,) sign of ns . wi, hit (K,) bool; nxt_src (K,) int64 the
+    ray of each survivor, nxt_delta (K,) bool it sampled a delta lobe."""
+    t: np.ndarray
+    ng: np.ndarray
+    nswi: np.ndarray
+    hit: np.ndarray
+    nxt_src: np.ndarray
+    nxt_delta: np.ndarray
+
+
+class BounceStep(NamedTuple):
+    """One call of :func:`bounce_kernel`: K rays; first: apply the
+    soft-falloff factor t^2/(t^2 + falloff); store: deposits allowed at this
+    bounce; sample: continue the path (False at the last bounce); roulette:
+    Russian roulette on the luminance of the bounce weight; bounce: the
+    path vertex index; dep0: first free deposit row; record: write the
+    HitRecord; rel, floor: the spawn offset (``accel.offset_scale``: max(|p|,
+    floor) * rel)."""
+    K: int
+    first: bool
+    store: bool
+    sample: bool
+    roulette: bool
+    bounce: int
+    dep0: int
+    record: bool
+    rel: float
+    floor: float
 
 
 def build_triangle_data(scene) -> TriangleData:
@@ -144,149 +163,18 @@ def _offset_scale(px, py, pz, rel, floor):
     return max(m, floor) * rel
 
 
-@njit(cache=True, inline="always")
-def _adjoint(nsx, nsy, nsz, ngx, ngy, ngz, wox, woy, woz, wix, wiy, wiz):
-    """bsdf._adjoint_correction: |wo.ns||wi.ng| / (|wo.ng||wi.ns|)."""
-    num = abs(wox * nsx + woy * nsy + woz * nsz) * abs(wix * ngx + wiy * ngy + wiz * ngz)
-    den = abs(wox * ngx + woy * ngy + woz * ngz) * abs(wix * nsx + wiy * nsy + wiz * nsz)
-    if den > 0.0:
-        return num / den
-    return 0.0
-
-
-@njit(cache=True, error_model="numpy")
-def sample_fast(cls, cr, cg, cb, ior, nsx, nsy, nsz, ngx, ngy, ngz, wox, woy, woz,
-                u0, u1, u2):
-    """Importance-mode sample of one fast-path closure (``bsdf.sample_bsdf``).
-
-    ns, ng: unit shading / geometric normals (any orientation); wo: unit, the
-    direction back towards where the photon came from; u0, u1 direction,
-    u2 Fresnel choice.  Returns (wx, wy, wz, weight r, g, b, is_delta, ok);
-    weight = 0 when not ok.
-    """
-    # Orient both normals to wo's side of the geometric normal (Cycles' back faces).
-    front = ngx * wox + ngy * woy + ngz * woz >= 0.0
-    s = 1.0 if front else -1.0
-    Nx, Ny, Nz = nsx * s, nsy * s, nsz * s
-    Gx, Gy, Gz = ngx * s, ngy * s, ngz * s
-    lum = cr * _LUM0 + cg * _LUM1 + cb * _LUM2
-    if cls == LAMBERT:
-        # Shirley-Chiu concentric disk, lifted (bsdf._cos_hemisphere).
-        a = 2.0 * u0 - 1.0
-        b = 2.0 * u1 - 1.0
-        if abs(a) > abs(b):
-            r = a
-            phi = (np.pi / 4) * (b / a)
-        else:
-            r = b
-            if a == 0.0 and b == 0.0:
-                phi = 0.0
-            else:
-                phi = np.pi / 2 - (np.pi / 4) * (a / b)
-        lx = r * np.cos(phi)
-        ly = r * np.sin(phi)
-        lz = np.sqrt(max(0.0, 1.0 - lx * lx - ly * ly))
-        # Tangent frame of N (Duff et al. 2017, bsdf._frame).
-        sg = 1.0 if Nz >= 0.0 else -1.0
-        aa = -1.0 / (sg + Nz)
-        bb = Nx * Ny * aa
-        tx, ty, tz = 1.0 + sg * Nx * Nx * aa, sg * bb, -sg * Nx
-        bx, by, bz = bb, sg + Ny * Ny * aa, -Ny
-        wx = lx * tx + ly * bx + lz * Nx
-        wy = lx * ty + ly * by + lz * Ny
-        wz = lx * tz + ly * bz + lz * Nz
-        ok = (Gx * wx + Gy * wy + Gz * wz > 0.0) and lz > 0.0 and lum > 0.0
-        if not ok:
-            return wx, wy, wz, 0.0, 0.0, 0.0, False, False
-        c = _adjoint(nsx, nsy, nsz, ngx, ngy, ngz, wox, woy, woz, wx, wy, wz)
-        return wx, wy, wz, cr * c, cg * c, cb * c, False, True
-    # Delta microfacet lobes: H = N.
-    if not lum > 0.0:          # no lobe to select (bsdf: any_lobe False)
-        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, False
-    cI = wox * Nx + woy * Ny + woz * Nz
-    hwo = cI
-    refr = False
-    wgt_scale = 1.0
-    if cls == MIRROR:
-        wx = 2.0 * hwo * Nx - wox
-        wy = 2.0 * hwo * Ny - woy
-        wz = 2.0 * hwo * Nz - woz
-    else:
-        eta = ior if front else 1.0 / ior
-        # bsdf.fresnel_dielectric
-        cc = abs(hwo)
-        g2 = eta * eta - 1.0 + cc * cc
-        if g2 <= 0.0:
-            F = 1.0
-            cos_t = 0.0
-        else:
-            g = np.sqrt(g2)
-            A = (g - cc) / (g + cc)
-            B = (cc * (g + cc) - 1.0) / (cc * (g - cc) + 1.0)
-            F = 0.5 * A * A * (1.0 + B * B)
-            cos_t = np.sqrt(max(0.0, 1.0 - (1.0 - cc * cc) / (eta * eta)))
-        u_re = min(max(u2, 0.0), 1.0 - 1e-16)
-        refr = u_re >= F
-        if refr:
-            inv = 1.0 / eta
-            k = inv * hwo - cos_t
-            wx = k * Nx - inv * wox
-            wy = k * Ny - inv * woy
-            wz = k * Nz - inv * woz
-            wgt_scale = 1.0 / (eta * eta)   # adjoint of Cycles' unscaled BTDF
-        else:
-            wx = 2.0 * hwo * Nx - wox
-            wy = 2.0 * hwo * Ny - woy
-            wz = 2.0 * hwo * Nz - woz
-    nrm = np.sqrt(wx * wx + wy * wy + wz * wz)
-    if nrm > 0.0:
-        wx /= nrm
-        wy /= nrm
-        wz /= nrm
-    cN = Nx * wx + Ny * wy + Nz * wz
-    cG = Gx * wx + Gy * wy + Gz * wz
-    if refr:
-        ok = cI > 0.0 and cN < 0.0 and cG < 0.0
-    else:
-        ok = cI > 0.0 and cN > 0.0 and cG > 0.0
-    if not ok:
-        return wx, wy, wz, 0.0, 0.0, 0.0, True, False
-    c = _adjoint(nsx, nsy, nsz, ngx, ngy, ngz, wox, woy, woz, wx, wy, wz) * wgt_scale
-    return wx, wy, wz, cr * c, cg * c, cb * c, True, True
-
-
-@njit(cache=True)
-def sample_fast_batch(cls, col, ior, ns, ng, wo, u):
-    """Vectorised :func:`sample_fast` for tests: per-point class (K,) int,
-    col (K, 3), ior (K,), ns, ng, wo (K, 3), u (K, 3).
-    Returns wi (K, 3), weight (K, 3), is_delta (K,), ok (K,)."""
-    K = cls.shape[0]
-    wi = np.zeros((K, 3))
-    wt = np.zeros((K, 3))
-    dl = np.zeros(K, np.bool_)
-    ok = np.zeros(K, np.bool_)
-    for i in range(K):
-        r = sample_fast(cls[i], col[i, 0], col[i, 1], col[i, 2], ior[i],
-                        ns[i, 0], ns[i, 1], ns[i, 2], ng[i, 0], ng[i, 1], ng[i, 2],
-                        wo[i, 0], wo[i, 1], wo[i, 2], u[i, 0], u[i, 1], u[i, 2])
-        wi[i, 0], wi[i, 1], wi[i, 2] = r[0], r[1], r[2]
-        wt[i, 0], wt[i, 1], wt[i, 2] = r[3], r[4], r[5]
-        dl[i] = r[6]
-        ok[i] = r[7]
-    return wi, wt, dl, ok
-
-
 # ----------------------------------------------------------------------------
 # Emission and bounce kernels.
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def emit_kernel(o, d, power, falloff, rel, floor, o32, d32, d64, pw, fo, src):
+def emit_kernel(o, d, power, falloff, rel, floor, live, src):
     """Keep photons with finite positive power; offset origins along d.
 
     o, d, power (n, 3) float64 from ``lights.sample_photons``, falloff (n,).
-    Writes the K survivors to o32, d32 (float32, Embree input), d64, pw (power),
-    fo (falloff r^2) and src (index in the input).  Returns K.
+    Writes the K survivors to rows 0..K-1 of the LiveState live and src
+    (index in the input).  Returns K.
     """
+    o32, d32, d64, pw, fo = live.o32, live.d32, live.d64, live.power, live.falloff
     K = 0
     for i in range(o.shape[0]):
         p0, p1, p2 = power[i, 0], power[i, 1], power[i, 2]
@@ -307,30 +195,32 @@ def emit_kernel(o, d, power, falloff, rel, floor, o32, d32, d64, pw, fo, src):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def bounce_kernel(K, prim, bu, bv, tfar, o32, d32, d64, pw, fo, first, store, sample,
-                  roulette, tri_p, tri_n, tri_ng, tri_mat, m_cls, m_col, m_ior, m_dep,
-                  u, rel, floor,
-                  dep_p, dep_ng, dep_wi, dep_pow, dep_r, dep_b, n_dep0, bounce,
-                  gen_i, gen_p, gen_ng, gen_ns, gen_wi, gen_pow, gen_bary,
-                  record, rec_t, rec_ng, rec_nswi, rec_hit, dep_src, nxt_src, nxt_delta):
-    """Everything after one Embree call, for rays 0..K-1 (in place).
+def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec):
+    """Everything after one Embree call, for rays 0..step.K-1 (in place).
 
-    prim (K,) int32, bu, bv, tfar (K,) float32: Embree's closest hits.
-    o32, d32 (cap, 3) float32, d64, pw (cap, 3) float64, fo (cap,): live state;
-    survivors of the fast path are compacted in place to rows 0..n_next-1
-    (row j <= i is only written after row i has been read).
-    first: apply the soft-falloff factor t^2/(t^2 + fo); store: deposits
-    allowed at this bounce; sample: continue the path (False at the last
-    bounce); roulette: Russian roulette on the luminance of the bounce weight.
-    u (K, 4) uniforms: direction (0, 1), lobe / Fresnel (2), roulette (3).
-    Deposits go to dep_* rows n_dep0.. (dep_r = NaN, dep_b = bounce).  Hits on GENERIC
-    materials are copied to gen_* (ray index, p, ng, ns, wi, power, (prim, u, v))
-    for ``bsdf.sample_bsdf``.  record: also write per-ray hit data rec_t,
-    rec_ng, rec_nswi (sign of ns.wi), rec_hit, the source ray of each deposit
-    (dep_src) and of each survivor (nxt_src, nxt_delta) -- the frequency
-    photons' spectrum updates need them.
+    step: BounceStep; hits: EmbreeHits; live: LiveState, whose survivors of
+    the fast path are compacted in place to rows 0..n_next-1 (row j <= i is
+    only written after row i has been read); tris: TriangleData; mats:
+    ``materials.fast.FastMaterials``; u (K, 4) uniforms: direction (0, 1),
+    lobe / Fresnel (2), roulette (3).
+    Deposits go to rows dep0.. of the DepositBuffers dep (r = NaN, bounce =
+    step.bounce).  Hits on GENERIC materials are copied to the GenericHits
+    gen for ``bsdf.sample_bsdf``.  step.record: also write the HitRecord rec
+    and the source ray of each deposit (dep.src) -- the frequency photons'
+    spectrum updates need them.
     Returns (n_next, n_dep, n_gen).
     """
+    K, first, store, sample, roulette = step.K, step.first, step.store, step.sample, step.roulette
+    bounce, n_dep0, record, rel, floor = step.bounce, step.dep0, step.record, step.rel, step.floor
+    prim, bu, bv, tfar = hits.prim, hits.bu, hits.bv, hits.tfar
+    o32, d32, d64, pw, fo = live.o32, live.d32, live.d64, live.power, live.falloff
+    tri_p, tri_n, tri_ng, tri_mat = tris.p, tris.n, tris.ng, tris.mat
+    m_cls, m_col, m_ior, m_dep = mats.cls, mats.col, mats.ior, mats.deposit
+    dep_p, dep_ng, dep_wi, dep_pow, dep_r, dep_b = dep.p, dep.ng, dep.wi, dep.power, dep.r, \
+        dep.bounce
+    dep_src = dep.src
+    gen_i, gen_p, gen_ng, gen_ns, gen_wi, gen_pow, gen_bary = gen
+    rec_t, rec_ng, rec_nswi, rec_hit, nxt_src, nxt_delta = rec
     n_next = 0
     n_dep = n_dep0
     n_gen = 0
@@ -446,9 +336,10 @@ def gen_attributes(gen_bary, n, tri_uv, uv):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def append_survivors(j0, sel, gen_p, gen_ng, wo, wgt, gen_pow, rel, floor, o32, d32, d64, pw):
-    """Append generic-path survivors sel (s,) at rows j0.. of the live state
-    (spawn offset as :func:`bounce_kernel`)."""
+def append_survivors(j0, sel, gen_p, gen_ng, wo, wgt, gen_pow, rel, floor, live):
+    """Append generic-path survivors sel (s,) at rows j0.. of the LiveState
+    live (spawn offset as :func:`bounce_kernel`)."""
+    o32, d32, d64, pw = live.o32, live.d32, live.d64, live.power
     for k in range(sel.shape[0]):
         g = sel[k]
         j = j0 + k
@@ -584,12 +475,12 @@ def emit_lights(u, cdf, last, L, b_diffuse, o, d, power, falloff, freq):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def emit_lights_state(u, cdf, last, L, b_diffuse, rel, floor, o32, d32, d64, pw, fo,
-                      want_freq, freq):
+def emit_lights_state(u, cdf, last, L, b_diffuse, rel, floor, live, want_freq, freq):
     """:func:`emit_lights` fused with :func:`emit_kernel`: photons straight
-    into the live state (finite positive power only, origin offset along d).
-    freq (n, 3) receives the light inits of the kept photons when want_freq.
-    Returns the number K of photons kept."""
+    into the LiveState live (finite positive power only, origin offset along
+    d).  freq (n, 3) receives the light inits of the kept photons when
+    want_freq.  Returns the number K of photons kept."""
+    o32, d32, d64, pw, fo = live.o32, live.d32, live.d64, live.power, live.falloff
     K = 0
     for i in range(u.shape[0]):
         r = _emit_one(u[i, 0], u[i, 1], u[i, 2], u[i, 3], u[i, 4], u[i, 5], cdf, last, L,

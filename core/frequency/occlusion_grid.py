@@ -1,0 +1,938 @@
+"""Occlusion grid of Belcour & Soler 2011 (frequency photons, Sec. "occlusion").
+
+A frequency photon must know when it passes close to geometry that blocks part
+of the light field around it: that blocker convolves the local spectrum with a
+Gaussian visibility of variance ``a_occ = (distance to blocker)**2``
+(``docs/frequency.md``, occlusion row; the exact operator is applied by
+the caller, ``core.frequency.spectrum.occlude(s, a_occ)``).  Tracing extra rays per
+photon is too expensive, so the paper pre-computes a voxel grid over the scene
+bounds.  Each voxel stores
+
+- ``dist``: the distance from its centre to the closest triangle (exact
+  point-triangle distance, nearest-triangle query in a BVH);
+- a bi-cone of the normals of the geometry overlapping it: ``axis`` (the
+  sign-free mean normal = principal eigenvector of the area-weighted
+  ``sum n n^T``) and ``aperture`` (half-angle containing every normal;
+  pi/2 = "unknown" for an empty voxel).
+
+The march over this grid is ``core.frequency.occlusion_march``.  Marching a
+photon segment, a voxel near geometry (``dist < locality``) is an
+occluder when its bi-cone intersects the plane orthogonal to the ray: some
+surface there is seen edge-on and clips the light field passing by.  When all
+normals point along the ray the surface is met head-on: it is the reflector /
+receiver at the segment's end, not an occluder.
+
+Refinements over the paper, each documented where it happens:
+
+- An *empty* voxel has no normals of its own ("unknown", which intersects every
+  plane).  Testing it as such would flag the free space just above every
+  receiver as an occluder.  So each voxel also records ``near``, the voxel
+  holding the closest point of its closest triangle, and an empty voxel is
+  tested with that voxel's bi-cone (``cone``, resolved at build time): the
+  geometry at distance ``dist`` is the geometry the test is about.
+- The distance at a sample point on the ray is the trilinear interpolation of
+  ``dist`` (exact for a plane more than a voxel away, error <= h/2 otherwise,
+  the distance field being 1-Lipschitz), rather than the distance from the
+  voxel centre (error up to half a diagonal everywhere).
+- The cones of the 8 voxels the distance was interpolated from are tested
+  too: on a curved surface the edge-on patch may lie in a voxel the ray does
+  not enter (a ray grazing a sphere missed it in 1 of 2000 cases otherwise).
+- The bi-cone axis is the principal eigenvector of sum n n^T, or the mean of
+  the normals oriented into its hemisphere when that gives a narrower cone:
+  at a right-angled edge (floor meets wall) the eigenvector is the heavier of
+  the two normals and needs a 90-degree cone; the oriented mean is the
+  bisector with 45 degrees.
+
+Memory: ``BYTES_PER_VOXEL`` = 41 bytes (dist 4, axis 12, aperture 4,
+occupied 1, near 4, and the march's resolved cone 16): 10.7 MB at 64^3,
+86 MB at 128^3; the march derives 20 more bytes a voxel on first use
+(``MarchBlocks``: 5.5 MB at 64^3, none above VOXEL_LEVEL_MAX).  The build
+also holds about 150 bytes per voxel of float64 temporaries (normal sums,
+two candidate axes, closest points), 12 bytes per (triangle, voxel) overlap
+and about 100 bytes per triangle (normals, BVH, sorted copy);
+bench/bench_occlusion.py measures the peaks.
+
+Scale rule (docs/frequency.md): every epsilon is relative to the voxel size, the
+triangle's own size, or the grid diameter; nothing is in absolute metres.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+# float32 axis/aperture rounding: |axis . d| <= sin(aperture) is tested with this
+# slack so that a wall exactly parallel to the ray (aperture 0) still counts.
+SIN_TOL = 1e-5
+# A triangle overlaps a voxel when its clipped area exceeds this fraction of its
+# own area: an edge or corner merely touching a voxel face has zero clipped
+# area up to rounding (~1e-16 relative), and must not widen that voxel's cone.
+_AREA_FRAC = 1e-7
+# Triangles whose |e1 x e2| < this * (|e1|^2 + |e2|^2) are degenerate (Embree
+# does not hit them either) and are ignored.
+_DEGENERATE = 1e-12
+# BVH leaf size for the nearest-triangle query.
+_LEAF = 4
+
+BYTES_PER_VOXEL = 4 + 12 + 4 + 1 + 4 + 16
+
+
+@dataclass(frozen=True)
+class OcclusionGrid:
+    """Voxel grid over [lo, hi], ``res`` voxels per axis, indexed [ix, iy, iz].
+
+    lo, hi, cell: (3,) float64; cell = (hi - lo) / res (voxels may be boxes).
+    max_distance: dist is exact up to it (see build_occlusion_grid).
+    dist: (R, R, R) float32 distance from voxel centre to the closest triangle
+      (inf when the scene has no triangle).
+    axis: (R, R, R, 3) float32 unit mean-normal axis (sign-free); zeros if empty.
+    aperture: (R, R, R) float32 bi-cone half-angle [rad], pi/2 if empty.
+    occupied: (R, R, R) bool, some triangle overlaps the voxel (clipped area > 0).
+    near: (R, R, R) int32 flat index (ix*R + iy)*R + iz of the voxel holding the
+      closest point of the closest triangle, -1 without triangles (or none
+      within max_distance).
+    cone: (R, R, R, 4) float32 the bi-cone the march tests, resolved once:
+      (axis, sin(aperture)) of the voxel if occupied, else of ``near`` if that
+      is occupied, else (0, 0, 0, 1) = unknown (meets every plane); (0, 0, 0,
+      -2) = farther than max_distance from everything (meets none).
+    """
+    lo: np.ndarray
+    hi: np.ndarray
+    cell: np.ndarray
+    res: int
+    max_distance: float
+    dist: np.ndarray
+    axis: np.ndarray
+    aperture: np.ndarray
+    occupied: np.ndarray
+    near: np.ndarray
+    cone: np.ndarray
+
+    @property
+    def voxel_diagonal(self) -> float:
+        return float(np.linalg.norm(self.cell))
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.dist.nbytes + self.axis.nbytes + self.aperture.nbytes
+                   + self.occupied.nbytes + self.near.nbytes + self.cone.nbytes)
+
+
+def default_locality(grid: OcclusionGrid) -> float:
+    """A locality threshold of two voxel diagonals [m].
+
+    The grid resolves geometry to about a voxel: a sample is up to half a
+    diagonal from the centre whose cone it uses and its interpolated distance
+    errs by up to h/2, so occluders closer than ~1 diagonal are seen
+    reliably; two diagonals leave a margin.  Larger values let geometry far
+    from the photon clip its spectrum (a_occ = l^2 grows, the effect fades).
+    """
+    return 2.0 * grid.voxel_diagonal
+
+
+
+
+def check_locality(grid: OcclusionGrid, locality: float) -> None:
+    """Raise ValueError when ``locality`` exceeds what the grid's distances
+    are exact for (max_distance - 1.5 voxel diagonals)."""
+    if locality > grid.max_distance - 1.5 * grid.voxel_diagonal:
+        raise ValueError(f"locality {locality} exceeds the grid's max_distance "
+                         f"{grid.max_distance} - 1.5 voxel diagonals")
+
+
+# ----------------------------------------------------------------- kernels
+
+@nb.njit(cache=True)
+def _closest_point(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    """Closest point of triangle abc to p (Ericson, Real-Time Collision
+    Detection, 5.1.5: Voronoi regions of vertices, edges, face).  Corners
+    may be float32; the arithmetic is float64."""
+    ax, ay, az = np.float64(ax), np.float64(ay), np.float64(az)
+    bx, by, bz = np.float64(bx), np.float64(by), np.float64(bz)
+    cx, cy, cz = np.float64(cx), np.float64(cy), np.float64(cz)
+    abx, aby, abz = bx - ax, by - ay, bz - az
+    acx, acy, acz = cx - ax, cy - ay, cz - az
+    apx, apy, apz = px - ax, py - ay, pz - az
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    if d1 <= 0.0 and d2 <= 0.0:
+        return ax, ay, az
+    bpx, bpy, bpz = px - bx, py - by, pz - bz
+    d3 = abx * bpx + aby * bpy + abz * bpz
+    d4 = acx * bpx + acy * bpy + acz * bpz
+    if d3 >= 0.0 and d4 <= d3:
+        return bx, by, bz
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        v = d1 / (d1 - d3)
+        return ax + v * abx, ay + v * aby, az + v * abz
+    cpx, cpy, cpz = px - cx, py - cy, pz - cz
+    d5 = abx * cpx + aby * cpy + abz * cpz
+    d6 = acx * cpx + acy * cpy + acz * cpz
+    if d6 >= 0.0 and d5 <= d6:
+        return cx, cy, cz
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        w = d2 / (d2 - d6)
+        return ax + w * acx, ay + w * acy, az + w * acz
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return bx + w * (cx - bx), by + w * (cy - by), bz + w * (cz - bz)
+    den = 1.0 / (va + vb + vc)
+    v = vb * den
+    w = vc * den
+    return (ax + abx * v + acx * w, ay + aby * v + acy * w,
+            az + abz * v + acz * w)
+
+
+@nb.njit(cache=True)
+def _clip_area(tri, blo, bhi, buf_a, buf_b):
+    """Area of triangle ``tri`` (3, 3) float64 clipped to the closed box
+    [blo, bhi] (Sutherland-Hodgman against the 6 slabs; <= 9 vertices)."""
+    for k in range(3):
+        for j in range(3):
+            buf_a[k, j] = tri[k, j]
+    n = 3
+    src, dst = buf_a, buf_b
+    for plane in range(6):
+        ax = plane // 2
+        upper = plane % 2 == 1
+        m = 0
+        for k in range(n):
+            k2 = (k + 1) % n
+            if upper:
+                s0 = bhi[ax] - src[k, ax]
+                s1 = bhi[ax] - src[k2, ax]
+            else:
+                s0 = src[k, ax] - blo[ax]
+                s1 = src[k2, ax] - blo[ax]
+            if s0 >= 0.0:
+                for j in range(3):
+                    dst[m, j] = src[k, j]
+                m += 1
+            if (s0 >= 0.0) != (s1 >= 0.0):
+                f = s0 / (s0 - s1)
+                for j in range(3):
+                    dst[m, j] = src[k, j] + f * (src[k2, j] - src[k, j])
+                # pin the clipped coordinate exactly on the plane
+                dst[m, ax] = bhi[ax] if upper else blo[ax]
+                m += 1
+        n = m
+        if n < 3:
+            return 0.0
+        src, dst = dst, src
+    sx = 0.0
+    sy = 0.0
+    sz = 0.0
+    for k in range(1, n - 1):
+        ux = src[k, 0] - src[0, 0]
+        uy = src[k, 1] - src[0, 1]
+        uz = src[k, 2] - src[0, 2]
+        vx = src[k + 1, 0] - src[0, 0]
+        vy = src[k + 1, 1] - src[0, 1]
+        vz = src[k + 1, 2] - src[0, 2]
+        sx += uy * vz - uz * vy
+        sy += uz * vx - ux * vz
+        sz += ux * vy - uy * vx
+    return 0.5 * math.sqrt(sx * sx + sy * sy + sz * sz)
+
+
+@nb.njit(cache=True)
+def _overlaps(tri_p, nrm, area, valid, lo, cell, R):
+    """Every (triangle, voxel) overlap with clipped area > _AREA_FRAC * area.
+
+    Returns pair_t (P,) int32 triangle, pair_v (P,) int32 flat voxel index,
+    pair_w (P,) float32 clipped area [m^2].  Computed once (clipping is the
+    expensive part) and reused by the three accumulations below; 12 bytes a
+    pair.
+    """
+    T = tri_p.shape[0]
+    cap = max(1024, 4 * T)
+    pair_t = np.empty(cap, np.int32)
+    pair_v = np.empty(cap, np.int32)
+    pair_w = np.empty(cap, np.float32)
+    P = 0
+    tri = np.empty((3, 3))
+    blo = np.empty(3)
+    bhi = np.empty(3)
+    buf_a = np.empty((12, 3))
+    buf_b = np.empty((12, 3))
+    i0 = np.empty(3, np.int64)
+    i1 = np.empty(3, np.int64)
+    for t in range(T):
+        if not valid[t]:
+            continue
+        for k in range(3):
+            for j in range(3):
+                tri[k, j] = tri_p[t, k, j]
+        for j in range(3):
+            mn = min(tri[0, j], tri[1, j], tri[2, j])
+            mx = max(tri[0, j], tri[1, j], tri[2, j])
+            # +-1e-6 voxel: include the voxel on the other side of a face the
+            # triangle lies in; the clip decides.
+            a = int(math.floor((mn - lo[j]) / cell[j] - 1e-6))
+            b = int(math.floor((mx - lo[j]) / cell[j] + 1e-6))
+            i0[j] = min(max(a, 0), R - 1)
+            i1[j] = min(max(b, 0), R - 1)
+        nx, ny, nz = nrm[t, 0], nrm[t, 1], nrm[t, 2]
+        off = nx * tri[0, 0] + ny * tri[0, 1] + nz * tri[0, 2]
+        thr = _AREA_FRAC * area[t]
+        hx, hy, hz = 0.5 * cell[0], 0.5 * cell[1], 0.5 * cell[2]
+        rad = abs(nx) * hx + abs(ny) * hy + abs(nz) * hz
+        for ix in range(i0[0], i1[0] + 1):
+            blo[0] = lo[0] + ix * cell[0]
+            bhi[0] = blo[0] + cell[0]
+            for iy in range(i0[1], i1[1] + 1):
+                blo[1] = lo[1] + iy * cell[1]
+                bhi[1] = blo[1] + cell[1]
+                for iz in range(i0[2], i1[2] + 1):
+                    blo[2] = lo[2] + iz * cell[2]
+                    bhi[2] = blo[2] + cell[2]
+                    # cheap reject: the triangle's plane misses the box
+                    cx = blo[0] + hx
+                    cy = blo[1] + hy
+                    cz = blo[2] + hz
+                    if abs(nx * cx + ny * cy + nz * cz - off) > rad * (1.0 + 1e-9):
+                        continue
+                    w = _clip_area(tri, blo, bhi, buf_a, buf_b)
+                    if w <= thr:
+                        continue
+                    if P == cap:
+                        cap *= 2
+                        nt = np.empty(cap, np.int32)
+                        nv = np.empty(cap, np.int32)
+                        nw = np.empty(cap, np.float32)
+                        nt[:P] = pair_t[:P]
+                        nv[:P] = pair_v[:P]
+                        nw[:P] = pair_w[:P]
+                        pair_t, pair_v, pair_w = nt, nv, nw
+                    pair_t[P] = t
+                    pair_v[P] = (ix * R + iy) * R + iz
+                    pair_w[P] = w
+                    P += 1
+    return pair_t[:P], pair_v[:P], pair_w[:P]     # views: no second copy
+
+
+@nb.njit(cache=True)
+def _accumulate(pair_t, pair_v, pair_w, nrm, mode, S, W, axes, mincos):
+    """mode 0: S[v] += w (nx^2, ny^2, nz^2, nx ny, nx nz, ny nz), W[v] += w
+    (area-weighted second moment of the normals).
+    mode 2: S[v, :3] += w sign(n . axes[v, 0]) n (oriented mean normal).
+    mode 1: mincos[v, k] = min |n . axes[v, k]| (aperture = arccos of it)."""
+    for p in range(pair_t.shape[0]):
+        t = pair_t[p]
+        v = pair_v[p]
+        w = np.float64(pair_w[p])
+        nx, ny, nz = nrm[t, 0], nrm[t, 1], nrm[t, 2]
+        if mode == 0:
+            S[v, 0] += w * nx * nx
+            S[v, 1] += w * ny * ny
+            S[v, 2] += w * nz * nz
+            S[v, 3] += w * nx * ny
+            S[v, 4] += w * nx * nz
+            S[v, 5] += w * ny * nz
+            W[v] += w
+        elif mode == 2:
+            s = nx * axes[v, 0, 0] + ny * axes[v, 0, 1] + nz * axes[v, 0, 2]
+            ws = w if s >= 0.0 else -w
+            S[v, 0] += ws * nx
+            S[v, 1] += ws * ny
+            S[v, 2] += ws * nz
+        else:
+            for k in range(axes.shape[1]):
+                c = abs(nx * axes[v, k, 0] + ny * axes[v, k, 1] + nz * axes[v, k, 2])
+                if c < mincos[v, k]:
+                    mincos[v, k] = c
+
+
+@nb.njit(cache=True)
+def _box_d2(node_lo, node_hi, k, px, py, pz):
+    dx = max(node_lo[k, 0] - px, 0.0, px - node_hi[k, 0])
+    dy = max(node_lo[k, 1] - py, 0.0, py - node_hi[k, 1])
+    dz = max(node_lo[k, 2] - pz, 0.0, pz - node_hi[k, 2])
+    return dx * dx + dy * dy + dz * dz
+
+
+@nb.njit(cache=True, nogil=True)
+def _nearest_all(tris, node_lo, node_hi, n_leaves, lo, cell, R, cap, out_d, out_q):
+    """Exact distance from every voxel centre to the closest triangle.
+
+    tris: (T, 3, 3) float32 in BVH (Morton) order; node boxes in heap order
+    (root 1, children 2k and 2k+1, leaf j = node n_leaves + j holding triangles
+    [j*_LEAF, (j+1)*_LEAF)).  Voxels are visited in grid order and the previous
+    voxel's triangle seeds the bound (its exact distance is an upper bound), so
+    most BVH nodes are pruned at once.  out_q: closest points (R^3, 3).
+    cap: voxels with no triangle closer than cap get out_d = cap, out_q = nan.
+    """
+    cap2 = cap * cap
+    T = tris.shape[0]
+    stack = np.empty(128, np.int64)
+    stack_d = np.empty(128)
+    prev = 0
+    for ix in range(R):
+        px = lo[0] + (ix + 0.5) * cell[0]
+        for iy in range(R):
+            py = lo[1] + (iy + 0.5) * cell[1]
+            for iz in range(R):
+                pz = lo[2] + (iz + 0.5) * cell[2]
+                t = prev
+                qx, qy, qz = _closest_point(
+                    px, py, pz, tris[t, 0, 0], tris[t, 0, 1], tris[t, 0, 2],
+                    tris[t, 1, 0], tris[t, 1, 1], tris[t, 1, 2],
+                    tris[t, 2, 0], tris[t, 2, 1], tris[t, 2, 2])
+                best = (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2
+                bt = t
+                bqx, bqy, bqz = qx, qy, qz
+                if best >= cap2:
+                    best = cap2
+                    bqx = np.nan
+                sp = 0
+                stack[0] = 1
+                stack_d[0] = 0.0
+                sp = 1
+                while sp > 0:
+                    sp -= 1
+                    node = stack[sp]
+                    if stack_d[sp] >= best:
+                        continue
+                    if node >= n_leaves:
+                        first = (node - n_leaves) * _LEAF
+                        last = min(first + _LEAF, T)
+                        for t in range(first, last):
+                            qx, qy, qz = _closest_point(
+                                px, py, pz,
+                                tris[t, 0, 0], tris[t, 0, 1], tris[t, 0, 2],
+                                tris[t, 1, 0], tris[t, 1, 1], tris[t, 1, 2],
+                                tris[t, 2, 0], tris[t, 2, 1], tris[t, 2, 2])
+                            d2 = (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2
+                            if d2 < best:
+                                best = d2
+                                bt = t
+                                bqx, bqy, bqz = qx, qy, qz
+                    else:
+                        l = 2 * node
+                        dl = _box_d2(node_lo, node_hi, l, px, py, pz)
+                        dr = _box_d2(node_lo, node_hi, l + 1, px, py, pz)
+                        # push the far child first so the near one pops first
+                        if dl <= dr:
+                            if dr < best:
+                                stack[sp] = l + 1
+                                stack_d[sp] = dr
+                                sp += 1
+                            if dl < best:
+                                stack[sp] = l
+                                stack_d[sp] = dl
+                                sp += 1
+                        else:
+                            if dl < best:
+                                stack[sp] = l
+                                stack_d[sp] = dl
+                                sp += 1
+                            if dr < best:
+                                stack[sp] = l + 1
+                                stack_d[sp] = dr
+                                sp += 1
+                prev = bt
+                v = (ix * R + iy) * R + iz
+                out_d[v] = cap if bqx != bqx else math.sqrt(best)
+                out_q[v, 0] = bqx
+                out_q[v, 1] = bqy
+                out_q[v, 2] = bqz
+
+
+def _build_bvh(tri: np.ndarray):
+    """Morton-ordered implicit BVH: (sorted tris, node_lo, node_hi, n_leaves).
+
+    Triangles are sorted along a 30-bit Morton curve of their centroids and
+    cut into leaves of _LEAF consecutive triangles; the tree is the complete
+    binary tree over the leaves (padded to a power of two with empty boxes
+    lo = +inf, hi = -inf whose distance is inf), so building it is a few
+    vectorised reductions (LBVH with median splits along the curve).
+    """
+    T = tri.shape[0]
+    cen = tri.mean(axis=1, dtype=np.float64)
+    cmin = cen.min(axis=0)
+    ext = np.maximum(cen.max(axis=0) - cmin, 1e-300)
+    q = np.clip(((cen - cmin) / ext * 1023.0), 0, 1023).astype(np.uint64)
+
+    def spread(x):
+        x = (x | (x << np.uint64(16))) & np.uint64(0x030000FF)
+        x = (x | (x << np.uint64(8))) & np.uint64(0x0300F00F)
+        x = (x | (x << np.uint64(4))) & np.uint64(0x030C30C3)
+        x = (x | (x << np.uint64(2))) & np.uint64(0x09249249)
+        return x
+    code = (spread(q[:, 0]) << np.uint64(2)) | (spread(q[:, 1]) << np.uint64(1)) | spread(q[:, 2])
+    order = np.argsort(code, kind="stable")
+    tris = np.ascontiguousarray(tri[order])
+    n_leaves = 1
+    while n_leaves * _LEAF < T:
+        n_leaves *= 2
+    pad = n_leaves * _LEAF - T
+    tmin = np.concatenate([tris.min(axis=1), np.full((pad, 3), np.inf, np.float32)])
+    tmax = np.concatenate([tris.max(axis=1), np.full((pad, 3), -np.inf, np.float32)])
+    node_lo = np.empty((2 * n_leaves, 3), np.float64)
+    node_hi = np.empty((2 * n_leaves, 3), np.float64)
+    node_lo[n_leaves:] = tmin.reshape(n_leaves, _LEAF, 3).min(axis=1)
+    node_hi[n_leaves:] = tmax.reshape(n_leaves, _LEAF, 3).max(axis=1)
+    s = n_leaves // 2
+    while s >= 1:
+        node_lo[s:2 * s] = np.minimum(node_lo[2 * s:4 * s:2], node_lo[2 * s + 1:4 * s:2])
+        node_hi[s:2 * s] = np.maximum(node_hi[2 * s:4 * s:2], node_hi[2 * s + 1:4 * s:2])
+        s //= 2
+    node_lo[0] = np.inf
+    node_hi[0] = -np.inf
+    return tris, node_lo, node_hi, n_leaves
+
+
+def grid_bounds(lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    """Grid box from scene bounds: each axis at least 1e-3 of the diagonal
+    (a flat scene would otherwise give zero-thickness voxels), and padded by
+    1e-6 of the diagonal so geometry on the bounds is strictly inside."""
+    lo = np.asarray(lo, np.float64).reshape(3)
+    hi = np.asarray(hi, np.float64).reshape(3)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi >= lo)):
+        raise ValueError(f"occlusion grid bounds lo={lo}, hi={hi}: must be finite, lo <= hi")
+    D = float(np.linalg.norm(hi - lo))
+    if D <= 0.0:            # a single point: no scene scale to be relative to
+        D = max(1.0, 1e-3 * float(np.abs(lo).max()))
+    mid = 0.5 * (lo + hi)
+    half = np.maximum(0.5 * (hi - lo), 0.5e-3 * D) + 1e-6 * D
+    return mid - half, mid + half
+
+
+def build_occlusion_grid(tri_p: np.ndarray, lo, hi, res: int = 64,
+                         max_distance: float = np.inf,
+                         stats: dict | None = None) -> OcclusionGrid:
+    """Build the occlusion grid of ``res``^3 voxels over [lo, hi].
+
+    tri_p: (T, 3, 3) float32 world-space triangles (``Scene.tri_p``).
+    lo, hi: (3,) scene bounds (``Scene.bounds()``); widened by ``grid_bounds``.
+    Geometric normals (from the corner positions) define the bi-cones.
+    max_distance [m]: distances are exact up to it; a voxel farther than it
+      from every triangle stores dist = max_distance (a lower bound: the
+      march's Lipschitz skip stays valid), near = -1 and a cone that meets no
+      plane, so ``occlusion_march.march_occlusion`` needs locality <= max_distance - 1.5
+      voxel diagonals (checked).  inf (default) = exact everywhere.  Finite
+      values bound the cost of voxels deep inside closed meshes, where many
+      triangles are nearly equidistant and the BVH cannot prune (a 1M-triangle
+      sphere: see bench/bench_occlusion.py).
+    stats: if a dict, receives the CPU seconds of each stage.
+    """
+    clock = [time.process_time()]
+
+    def stage(name):
+        if stats is not None:
+            now = time.process_time()
+            stats[name] = stats.get(name, 0.0) + now - clock[0]
+            clock[0] = now
+
+    R = int(res)
+    if R < 2:
+        raise ValueError(f"occlusion grid res = {R}: must be >= 2")
+    if not float(max_distance) > 0.0:
+        raise ValueError(f"max_distance = {max_distance}: must be > 0")
+    lo, hi = grid_bounds(lo, hi)
+    cell = (hi - lo) / R
+    nvox = R ** 3
+    tri = np.ascontiguousarray(np.asarray(tri_p, np.float32).reshape(-1, 3, 3))
+    # geometric normals in float64 (edges subtracted in float64: no float32
+    # cancellation for small triangles far from the origin)
+    e1 = tri[:, 1].astype(np.float64) - tri[:, 0]
+    e2 = tri[:, 2].astype(np.float64) - tri[:, 0]
+    nrm = np.cross(e1, e2)
+    n2 = np.linalg.norm(nrm, axis=1)
+    valid = (n2 > _DEGENERATE * (np.einsum("ij,ij->i", e1, e1) + np.einsum("ij,ij->i", e2, e2)))
+    valid &= np.isfinite(tri).all(axis=(1, 2))
+    del e1, e2
+    nrm /= np.where(valid, n2, 1.0)[:, None]
+    area = 0.5 * n2
+    del n2
+    stage("normals")
+
+    # --- bi-cones.  Axis candidate 0: principal eigenvector of the
+    # area-weighted sum n n^T (the paper's sign-free mean).  It fails where
+    # two faces meet at a right angle (x and z normals: the eigenvector is the
+    # heavier normal and the cone must open to 90 degrees, no information).
+    # Candidate 1: the area-weighted mean of the normals oriented into that
+    # eigenvector's hemisphere (the bisector there: 45 degrees).  Keep the
+    # candidate with the narrower bi-cone.
+    S = np.zeros((nvox, 6))
+    W = np.zeros(nvox)
+    axes = np.zeros((nvox, 2, 3))
+    mincos = np.ones((nvox, 2))
+    pair_t, pair_v, pair_w = _overlaps(tri, nrm, area, valid, lo, cell, R)
+    stage("clip triangles to voxels")
+    _accumulate(pair_t, pair_v, pair_w, nrm, 0, S, W, axes, mincos)
+    occ = W > 0.0
+    M = np.empty((int(occ.sum()), 3, 3))
+    So = S[occ]
+    M[:, 0, 0], M[:, 1, 1], M[:, 2, 2] = So[:, 0], So[:, 1], So[:, 2]
+    M[:, 0, 1] = M[:, 1, 0] = So[:, 3]
+    M[:, 0, 2] = M[:, 2, 0] = So[:, 4]
+    M[:, 1, 2] = M[:, 2, 1] = So[:, 5]
+    del So
+    if len(M):
+        axes[occ, 0] = np.linalg.eigh(M)[1][:, :, -1]     # largest eigenvalue
+    del M
+    stage("accumulate, eigh")
+    S[:] = 0.0
+    _accumulate(pair_t, pair_v, pair_w, nrm, 2, S, W, axes, mincos)
+    m = S[:, :3]
+    mn = np.linalg.norm(m, axis=1)
+    axes[:, 1] = np.where((mn > 0)[:, None], m / np.where(mn > 0, mn, 1.0)[:, None], axes[:, 0])
+    del S, m, mn
+    _accumulate(pair_t, pair_v, pair_w, nrm, 1, np.zeros((1, 6)), W, axes, mincos)
+    pick = np.argmax(mincos, axis=1)                      # narrower cone
+    axis = axes[np.arange(nvox), pick]
+    mc = mincos[np.arange(nvox), pick]
+    # canonical sign (largest |component| positive): determinism only
+    big = np.argmax(np.abs(axis), axis=1)
+    axis *= np.where(axis[np.arange(nvox), big] < 0, -1.0, 1.0)[:, None]
+    aperture = np.where(occ, np.arccos(np.clip(mc, 0.0, 1.0)), np.pi / 2)
+    if stats is not None:
+        stats["overlap pairs"] = len(pair_t)
+    del axes, mincos, pair_t, pair_v, pair_w, nrm, area
+    stage("oriented mean, apertures")
+
+    # --- exact distances and the voxel of each closest point
+    dist = np.full(nvox, np.inf)
+    near = np.full(nvox, -1, np.int32)
+    tv = tri if valid.all() else tri[valid]
+    if len(tv):
+        tris, node_lo, node_hi, n_leaves = _build_bvh(tv)
+        stage("bvh build")
+        q = np.empty((nvox, 3))
+        _nearest_all(tris, node_lo, node_hi, n_leaves, lo, cell, R, float(max_distance),
+                     dist, q)
+        stage("nearest-triangle queries")
+        found = np.isfinite(q[:, 0])
+        iq = np.clip(np.floor((np.where(found[:, None], q, 0.0) - lo) / cell).astype(np.int64),
+                     0, R - 1)
+        near = np.where(found, (iq[:, 0] * R + iq[:, 1]) * R + iq[:, 2], -1).astype(np.int32)
+
+    # the cone each voxel is tested with (own, else its closest point's)
+    src = np.where(occ, np.arange(nvox), near)
+    known = (src >= 0) & occ[np.maximum(src, 0)]
+    src = np.maximum(src, 0)
+    cone = np.zeros((nvox, 4), np.float32)
+    cone[:, 3] = 1.0
+    cone[known, :3] = axis[src[known]]
+    cone[known, 3] = np.sin(aperture[src[known]])
+    # beyond max_distance: nothing known and nothing near -> never an occluder
+    cone[~occ & (near < 0) & np.isfinite(dist), 3] = -2.0
+
+    shp = (R, R, R)
+    return OcclusionGrid(lo=lo, hi=hi, cell=cell, res=R, max_distance=float(max_distance),
+                         dist=dist.astype(np.float32).reshape(shp),
+                         axis=axis.astype(np.float32).reshape(shp + (3,)),
+                         aperture=aperture.astype(np.float32).reshape(shp),
+                         occupied=occ.reshape(shp), near=near.reshape(shp),
+                         cone=cone.reshape(shp + (4,)))
+
+
+def build_occlusion_grid_for_scene(scene, res: int = 64,
+                                   max_distance: float = np.inf) -> OcclusionGrid:
+    """``build_occlusion_grid(scene.tri_p, *scene.bounds(), res, max_distance)``;
+    res = ``RenderSettings.occlusion_grid_res``."""
+    lo, hi = scene.bounds()
+    return build_occlusion_grid(scene.tri_p, lo, hi, res, max_distance)
+
+
+# -------------------------------------------------- coarse blocks of the march
+#: Block edge [voxels] of the march's coarse level (see MarchBlocks): a
+#: compile-time power of two (index >> BLOCK_SHIFT; a runtime integer
+#: division per step cost 15% of the march).
+BLOCK_SHIFT = 2
+MARCH_BLOCK = 1 << BLOCK_SHIFT
+# Relative slack of the block tests (float64 rounding of the trilinear
+# weights: a convex combination of values >= m is >= m (1 - 4e-16)).
+BLOCK_REL = 1e-12
+# Angular slack [rad] of the union cone: covers the float32 axes' norm
+# (1 +- 1e-7) and the float64 rounding of atan2 / asin (~1e-16 rad).
+_UNION_SLACK = 1e-5
+# Union cones wider than pi/2 - this [rad] meet every plane ("unknown").
+_UNION_WIDE = 1e-3
+
+
+@dataclass(frozen=True)
+class MarchBlocks:
+    """Coarse level of the march: blocks of B^3 voxels (NB = ceil(R / B) per axis).
+
+    For each block, over the block *dilated by one voxel* (every voxel a
+    sample inside the block reads: its own, and the 8 its distance is
+    interpolated from):
+    bmin: (NB, NB, NB) float64 the smallest ``dist``;
+    bcone: (NB, NB, NB, 8) float64 two bi-cones (unit axis, sin of
+      half-angle; then the second) whose union contains every voxel cone
+      there that a sample can read: the cones of the block's own voxels, and
+      of the dilation's voxels closer than ``cut_locality`` (a sample reads a
+      neighbour's cone only when its dist < min(locality, best), see
+      ``occlusion_march.sample_voxel``).  The members are split in two clusters (two
+      walls meeting at an edge: one cone each); sin = 2: a member is unknown
+      or the cone is wider than pi/2 - 1e-3 (meets every plane); sin = -2:
+      meets no plane (no member).
+    cut_locality: [m] that cut, default_locality(grid) (+1e-9 relative); a
+      march with a larger locality skips by bmin / vmin only.
+    The same for each voxel and its 26 neighbours (B = 1) when R^3 * 20
+    bytes <= VOXEL_LEVEL_MAX: vmin (R, R, R) float32 (exact: a minimum of
+    float32 values), vcone (R, R, R, 8) int16 (axis and sin times _CONE_Q,
+    rounded conservatively, see _quantize_cone); else (1, 1, 1)
+    placeholders and has_voxel_level False.
+    A block (voxel) can hold no occluder candidate of a segment when its
+    min >= the current threshold min(locality, best) or (locality <=
+    cut_locality) neither union cone meets the plane orthogonal to d
+    (:func:`union_meets`); ``occlusion_march.march_segment`` then skips it.
+
+    Tightness, on the Cornell grid of tests/test_frequency_kernels.py and
+    500 directions: the members meet the plane for 0.486 of (block, d)
+    pairs and 0.216 of (voxel, d) pairs; one uncut union per block passed
+    0.852 and 0.489, one cut union 0.665 and 0.338, the two cut unions
+    pass 0.570 and 0.244.  In bench_render's Cornell box the cut
+    made the march 0.89x as long, the second cone 0.89x again (same
+    results, bench/bench_march.py).
+    """
+    B: int
+    bmin: np.ndarray
+    bcone: np.ndarray
+    vmin: np.ndarray
+    vcone: np.ndarray
+    has_voxel_level: bool
+    cut_locality: float
+
+
+#: Largest per-voxel level of MarchBlocks [bytes] (20 B/voxel: 5 MB at 64^3,
+#: 42 MB at 128^3); finer grids march with the block level only.
+VOXEL_LEVEL_MAX = 64 * 2 ** 20
+
+
+@nb.njit(cache=True)
+def cut_locality(c0, c1, c2):
+    """The locality [m] the union cones of MarchBlocks are cut for:
+    default_locality (2 voxel diagonals), by one formula for the build and
+    the march (bit-identical), + 1e-9 relative so that default_locality's
+    own rounding (np.linalg.norm) stays below it."""
+    return 2.0 * math.sqrt(c0 * c0 + c1 * c1 + c2 * c2) * (1.0 + 1e-9)
+
+
+@nb.njit(cache=True)
+def _in_cut(dist, x, y, z, inner, L):
+    """Is voxel (x, y, z)'s cone a member of a union cone cut at locality L?
+    A sample reads a neighbour's cone only when that neighbour's dist <
+    min(locality, best) <= L (occlusion_march.sample_voxel: dist < thr before the
+    interpolation, dn = max(di, dist) < locality after it); its own cone
+    (inner: a voxel of the block itself) always."""
+    return inner or np.float64(dist[x, y, z]) < L
+
+
+@nb.njit(cache=True, nogil=True)
+def _union_cone(ax_, ay_, az_, sk_, idx, n, out, o):
+    """out[o:o+4] = a bi-cone (unit axis, sin of half-angle) containing the
+    members idx[:n] (unit axes ax_, ay_, az_; sk_ = sin of the half-angle
+    within which a member's axis meets a plane): axis = the sign-aligned
+    mean, half-angle = max over members of asin(sk) + angle to the axis,
+    + _UNION_SLACK.  sin = 2: wider than pi/2 - _UNION_WIDE or the axes
+    cancel (meets every plane); -2: no member (meets none)."""
+    if n == 0:
+        out[o + 3] = -2.0
+        return
+    rx, ry, rz = ax_[idx[0]], ay_[idx[0]], az_[idx[0]]     # sign reference
+    sx = sy = sz = 0.0
+    for k in range(n):
+        m = idx[k]
+        ax, ay, az = ax_[m], ay_[m], az_[m]
+        if ax * rx + ay * ry + az * rz < 0.0:
+            ax, ay, az = -ax, -ay, -az
+        sx += ax
+        sy += ay
+        sz += az
+    nrm = math.sqrt(sx * sx + sy * sy + sz * sz)
+    if nrm < 1e-6 * n:
+        out[o + 3] = 2.0
+        return
+    ux, uy, uz = sx / nrm, sy / nrm, sz / nrm
+    psi = 0.0
+    for k in range(n):
+        m = idx[k]
+        ax, ay, az = ax_[m], ay_[m], az_[m]
+        # the member meets the plane iff its unit axis is within asin(sk)
+        # of it; the union axis then within that plus the angle between
+        # the axes (sign-free)
+        cx = uy * az - uz * ay
+        cy = uz * ax - ux * az
+        cz = ux * ay - uy * ax
+        th = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), abs(ux * ax + uy * ay + uz * az))
+        psi = max(psi, math.asin(sk_[m]) + th)
+    psi += _UNION_SLACK
+    out[o] = ux
+    out[o + 1] = uy
+    out[o + 2] = uz
+    out[o + 3] = 2.0 if psi >= 0.5 * math.pi - _UNION_WIDE else math.sin(psi)
+
+
+@nb.njit(cache=True, nogil=True)
+def _build_blocks(dist, cone, R, B, NB, bmin, bcone, L, quant):
+    """bmin (NB, NB, NB) and bcone (NB, NB, NB, 8) of MarchBlocks for blocks
+    of B^3 voxels: float64, or int16 (quant: the voxel level's vcone)."""
+    cap = (B + 2) ** 3
+    ax_ = np.empty(cap)
+    ay_ = np.empty(cap)
+    az_ = np.empty(cap)
+    sk_ = np.empty(cap)
+    ia = np.empty(cap, np.int64)
+    ib = np.empty(cap, np.int64)
+    out = np.empty(8)
+    for bx in range(NB):
+        for by in range(NB):
+            for bz in range(NB):
+                x0, x1 = max(bx * B - 1, 0), min((bx + 1) * B + 1, R)
+                y0, y1 = max(by * B - 1, 0), min((by + 1) * B + 1, R)
+                z0, z1 = max(bz * B - 1, 0), min((bz + 1) * B + 1, R)
+                ix0, ix1 = bx * B, min((bx + 1) * B, R)
+                iy0, iy1 = by * B, min((by + 1) * B, R)
+                iz0, iz1 = bz * B, min((bz + 1) * B, R)
+                m = np.inf
+                wide = False
+                n = 0
+                for x in range(x0, x1):
+                    for y in range(y0, y1):
+                        for z in range(z0, z1):
+                            m = min(m, np.float64(dist[x, y, z]))
+                            s = np.float64(cone[x, y, z, 3])
+                            inner = (ix0 <= x < ix1 and iy0 <= y < iy1 and iz0 <= z < iz1)
+                            if s < -1.0 or not _in_cut(dist, x, y, z, inner, L):
+                                continue            # meets no plane / never read
+                            ax = np.float64(cone[x, y, z, 0])
+                            ay = np.float64(cone[x, y, z, 1])
+                            az = np.float64(cone[x, y, z, 2])
+                            nrm = math.sqrt(ax * ax + ay * ay + az * az)
+                            if s + SIN_TOL >= 1.0 or nrm == 0.0:
+                                wide = True         # unknown: meets every plane
+                                continue
+                            # the member meets the plane iff |a.d| <= s + tol,
+                            # i.e. its unit axis is within asin((s + tol)/|a|)
+                            ax_[n] = ax / nrm
+                            ay_[n] = ay / nrm
+                            az_[n] = az / nrm
+                            sk_[n] = min((s + SIN_TOL) / nrm, 1.0)
+                            n += 1
+                bmin[bx, by, bz] = m
+                for k in range(8):
+                    out[k] = 0.0
+                out[7] = -2.0
+                if wide or n == 0:
+                    out[3] = 2.0 if wide else -2.0
+                    _store_cones(out, bcone, bx, by, bz, quant)
+                    continue
+                # Two clusters: seeded by the first member and the member most
+                # orthogonal to it, each member to the nearer seed (sign-free).
+                # Where two walls meet, the members are the two walls' normals:
+                # one union of both is a ~90-degree cone that meets nearly
+                # every plane, two unions meet only the planes grazing a wall.
+                q = 0
+                cmin = 2.0
+                for k in range(n):
+                    c = abs(ax_[k] * ax_[0] + ay_[k] * ay_[0] + az_[k] * az_[0])
+                    if c < cmin:
+                        cmin = c
+                        q = k
+                na = 0
+                nb_ = 0
+                for k in range(n):
+                    ca = abs(ax_[k] * ax_[0] + ay_[k] * ay_[0] + az_[k] * az_[0])
+                    cb = abs(ax_[k] * ax_[q] + ay_[k] * ay_[q] + az_[k] * az_[q])
+                    if ca >= cb:
+                        ia[na] = k
+                        na += 1
+                    else:
+                        ib[nb_] = k
+                        nb_ += 1
+                _union_cone(ax_, ay_, az_, sk_, ia, na, out, 0)
+                _union_cone(ax_, ay_, az_, sk_, ib, nb_, out, 4)
+                _store_cones(out, bcone, bx, by, bz, quant)
+
+
+@nb.njit(cache=True, nogil=True)
+def _store_cones(out, bcone, x, y, z, quant):
+    if quant:
+        _quantize_cone(out, 0, bcone, x, y, z)
+        _quantize_cone(out, 4, bcone, x, y, z)
+    else:
+        for k in range(8):
+            bcone[x, y, z, k] = out[k]
+
+
+#: int16 scale of the voxel level's union cones (axis and sin times this).
+_CONE_Q = 32767.0
+
+
+@nb.njit(cache=True, nogil=True)
+def _quantize_cone(out, o, q, x, y, z):
+    """q[x, y, z, o:o+4] = the float64 cone out[o:o+4] in int16 units of
+    1 / _CONE_Q, conservatively: an axis component rounds by <= 0.5 / Q, so
+    |a_q . d| <= Q |a . d| + sqrt(3) / 2; sin is rounded up by 3e-5 Q + 1
+    (covers that and the float64 evaluation of the test).  Unknown -> (0,
+    0, 0, 32767), none -> (0, 0, 0, -32768)."""
+    s = out[o + 3]
+    sq = math.ceil((s + 3e-5) * _CONE_Q) + 1.0
+    for k in range(3):
+        q[x, y, z, o + k] = 0
+    if s < -1.5:
+        q[x, y, z, o + 3] = -32768
+    elif s > 1.5 or sq > 32767.0:
+        q[x, y, z, o + 3] = 32767
+    else:
+        for k in range(3):
+            q[x, y, z, o + k] = int(round(out[o + k] * _CONE_Q))
+        q[x, y, z, o + 3] = int(sq)
+
+
+def union_meets(c: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """The march's test of MarchBlocks union cones c (..., 8) (bcone float64
+    or vcone int16) against unit directions d (n, 3): (..., n) bool, True
+    where one of the two cones meets the plane orthogonal to d."""
+    c = np.asarray(c, np.float64)
+    d = np.asarray(d, np.float64)
+    return ((np.abs(np.einsum("...k,nk->...n", c[..., 0:3], d)) <= c[..., 3:4])
+            | (np.abs(np.einsum("...k,nk->...n", c[..., 4:7], d)) <= c[..., 7:8]))
+
+
+_BLOCKS_LOCK = threading.Lock()
+
+
+def march_blocks(grid: OcclusionGrid, B: int = MARCH_BLOCK) -> MarchBlocks:
+    """The coarse level of ``grid``'s march (built once, cached on the grid;
+    about 0.1 s and 5.5 MB at 64^3).  Thread-safe.  The march uses B = MARCH_BLOCK."""
+    mb = getattr(grid, "_march_blocks", None)
+    if mb is not None and mb.B == B:
+        return mb
+    with _BLOCKS_LOCK:
+        mb = getattr(grid, "_march_blocks", None)
+        if mb is not None and mb.B == B:
+            return mb
+        R = grid.res
+        NB = -(-R // B)
+        bmin = np.empty((NB, NB, NB))
+        bcone = np.zeros((NB, NB, NB, 8))
+        L = cut_locality(float(grid.cell[0]), float(grid.cell[1]), float(grid.cell[2]))
+        _build_blocks(grid.dist, grid.cone, R, B, NB, bmin, bcone, L, False)
+        if R ** 3 * 20 <= VOXEL_LEVEL_MAX:
+            vm = np.empty((R, R, R))
+            vcone = np.zeros((R, R, R, 8), np.int16)
+            _build_blocks(grid.dist, grid.cone, R, 1, R, vm, vcone, L, True)
+            # dist is float32, so its minimum is exact in float32
+            vmin = vm.astype(np.float32)
+            del vm
+            has_v = True
+        else:
+            vmin = np.zeros((1, 1, 1), np.float32)
+            vcone = np.zeros((1, 1, 1, 8), np.int16)
+            has_v = False
+        mb = MarchBlocks(B=B, bmin=bmin, bcone=bcone, vmin=vmin, vcone=vcone,
+                         has_voxel_level=has_v, cut_locality=L)
+        object.__setattr__(grid, "_march_blocks", mb)    # frozen dataclass: a derived cache
+        return mb

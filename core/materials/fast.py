@@ -1,0 +1,200 @@
+"""Compiled importance sampling of the common closures (the photon fast path).
+
+The photon tracer (``core.sppm.photons``) samples most hits in one numba loop
+(``core.sppm.photon_kernels.bounce_kernel``); the closures it can sample
+there are classified here (``FastMaterials``; everything else is "generic"
+and handed back to ``core.materials.bsdf.sample_bsdf`` by the caller):
+
+- LAMBERT: every used lobe is DIFFUSE with roughness 0, no texture, no delta
+  lobe.  Cosine sampling; weight = sum of lobe colours x Veach's
+  shading-normal factor (``bsdf.sample_bsdf`` fast path).
+- MIRROR: a single used lobe, GLOSSY and delta (alpha^2 <= 2e-10), no texture.
+- GLASS: a single used lobe, GLASS and delta (smooth, or |ior - 1| < 1e-4),
+  no texture.  Reflect with probability F (exact dielectric Fresnel), weight
+  C (/eta^2 on refraction, the importance-mode adjoint), x shading factor.
+
+The formulas are those of ``core.materials.bsdf`` (``_cos_hemisphere``,
+``_frame``, ``fresnel_dielectric``, ``_refract``, ``_adjoint_correction``)
+written per ray in float64; tests/test_photon_kernels.py checks
+:func:`sample_fast` sample for sample against ``bsdf.sample_bsdf``.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
+from ..scene.model import GLASS, GLOSSY
+
+# Fast-path classes of a material.
+GENERIC = 0
+LAMBERT = 1
+MIRROR = 2
+SMOOTH_GLASS = 3
+ABSORBER = 4          # no lobe with a non-zero weight (e.g. emission only)
+
+
+class FastMaterials(NamedTuple):
+    """Per-material data of the fast path.  M materials.
+
+    cls: (M,) int8 GENERIC / LAMBERT / MIRROR / SMOOTH_GLASS / ABSORBER.
+    col: (M, 3) float64 LAMBERT: sum of lobe colour x weight; MIRROR / GLASS:
+      the lobe's colour x weight.
+    ior: (M,) float64 GLASS index of refraction.
+    deposit: (M,) bool material has a non-delta lobe (photons are stored).
+    """
+    cls: np.ndarray
+    col: np.ndarray
+    ior: np.ndarray
+    deposit: np.ndarray
+
+    @property
+    def any_generic(self) -> bool:
+        return bool(np.any(self.cls == GENERIC))
+
+
+def build_fast_materials(mtab) -> FastMaterials:
+    """Classify the materials of a ``bsdf.MaterialTable`` for the fast path."""
+    M = mtab.kind.shape[0]
+    cls = np.zeros(M, np.int8)
+    col = np.zeros((M, 3))
+    ior = np.ones(M)
+    for m in range(M):
+        kinds = mtab.kind[m]
+        slots = [j for j in range(kinds.shape[0]) if kinds[j] >= 0]
+        used = [j for j in slots if mtab.weight[m, j] != 0.0]
+        if not used:
+            cls[m] = ABSORBER           # bsdf.sample_bsdf: no lobe, invalid
+            continue
+        if any(mtab.tex[m, j] >= 0 for j in slots):
+            continue
+        cw = [mtab.color[m, j] * mtab.weight[m, j] for j in slots]
+        if bool(mtab.lambert_only[m]) and not bool(mtab.has_delta[m]):
+            # bsdf.sample_bsdf's Lambert fast path: weight = sum of all colours.
+            cls[m] = LAMBERT
+            col[m] = np.sum(cw, axis=0)
+        elif len(used) == 1 and mtab.lobe_delta[m, used[0]]:
+            j = used[0]
+            if kinds[j] == GLOSSY:
+                cls[m] = MIRROR
+            elif kinds[j] == GLASS:
+                cls[m] = SMOOTH_GLASS
+                ior[m] = mtab.ior[m, j]
+            else:
+                continue
+            col[m] = mtab.color[m, j] * mtab.weight[m, j]
+    return FastMaterials(cls=cls, col=col, ior=ior,
+                         deposit=np.asarray(mtab.has_nondelta, bool).copy())
+
+
+@njit(cache=True, inline="always")
+def _adjoint(nsx, nsy, nsz, ngx, ngy, ngz, wox, woy, woz, wix, wiy, wiz):
+    """bsdf._adjoint_correction: |wo.ns||wi.ng| / (|wo.ng||wi.ns|)."""
+    num = abs(wox * nsx + woy * nsy + woz * nsz) * abs(wix * ngx + wiy * ngy + wiz * ngz)
+    den = abs(wox * ngx + woy * ngy + woz * ngz) * abs(wix * nsx + wiy * nsy + wiz * nsz)
+    if den > 0.0:
+        return num / den
+    return 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def sample_fast(cls, cr, cg, cb, ior, nsx, nsy, nsz, ngx, ngy, ngz, wox, woy, woz,
+                u0, u1, u2):
+    """Importance-mode sample of one fast-path closure (``bsdf.sample_bsdf``).
+
+    ns, ng: unit shading / geometric normals (any orientation); wo: unit, the
+    direction back towards where the photon came from; u0, u1 direction,
+    u2 Fresnel choice.  Returns (wx, wy, wz, weight r, g, b, is_delta, ok);
+    weight = 0 when not ok.
+    """
+    # Orient both normals to wo's side of the geometric normal (Cycles' back faces).
+    front = ngx * wox + ngy * woy + ngz * woz >= 0.0
+    s = 1.0 if front else -1.0
+    Nx, Ny, Nz = nsx * s, nsy * s, nsz * s
+    Gx, Gy, Gz = ngx * s, ngy * s, ngz * s
+    lum = cr * _LUM0 + cg * _LUM1 + cb * _LUM2
+    if cls == LAMBERT:
+        # Shirley-Chiu concentric disk, lifted (bsdf._cos_hemisphere).
+        a = 2.0 * u0 - 1.0
+        b = 2.0 * u1 - 1.0
+        if abs(a) > abs(b):
+            r = a
+            phi = (np.pi / 4) * (b / a)
+        else:
+            r = b
+            if a == 0.0 and b == 0.0:
+                phi = 0.0
+            else:
+                phi = np.pi / 2 - (np.pi / 4) * (a / b)
+        lx = r * np.cos(phi)
+        ly = r * np.sin(phi)
+        lz = np.sqrt(max(0.0, 1.0 - lx * lx - ly * ly))
+        # Tangent frame of N (Duff et al. 2017, bsdf._frame).
+        sg = 1.0 if Nz >= 0.0 else -1.0
+        aa = -1.0 / (sg + Nz)
+        bb = Nx * Ny * aa
+        tx, ty, tz = 1.0 + sg * Nx * Nx * aa, sg * bb, -sg * Nx
+        bx, by, bz = bb, sg + Ny * Ny * aa, -Ny
+        wx = lx * tx + ly * bx + lz * Nx
+        wy = lx * ty + ly * by + lz * Ny
+        wz = lx * tz + ly * bz + lz * Nz
+        ok = (Gx * wx + Gy * wy + Gz * wz > 0.0) and lz > 0.0 and lum > 0.0
+        if not ok:
+            return wx, wy, wz, 0.0, 0.0, 0.0, False, False
+        c = _adjoint(nsx, nsy, nsz, ngx, ngy, ngz, wox, woy, woz, wx, wy, wz)
+        return wx, wy, wz, cr * c, cg * c, cb * c, False, True
+    # Delta microfacet lobes: H = N.
+    if not lum > 0.0:          # no lobe to select (bsdf: any_lobe False)
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, False
+    cI = wox * Nx + woy * Ny + woz * Nz
+    hwo = cI
+    refr = False
+    wgt_scale = 1.0
+    if cls == MIRROR:
+        wx = 2.0 * hwo * Nx - wox
+        wy = 2.0 * hwo * Ny - woy
+        wz = 2.0 * hwo * Nz - woz
+    else:
+        eta = ior if front else 1.0 / ior
+        # bsdf.fresnel_dielectric
+        cc = abs(hwo)
+        g2 = eta * eta - 1.0 + cc * cc
+        if g2 <= 0.0:
+            F = 1.0
+            cos_t = 0.0
+        else:
+            g = np.sqrt(g2)
+            A = (g - cc) / (g + cc)
+            B = (cc * (g + cc) - 1.0) / (cc * (g - cc) + 1.0)
+            F = 0.5 * A * A * (1.0 + B * B)
+            cos_t = np.sqrt(max(0.0, 1.0 - (1.0 - cc * cc) / (eta * eta)))
+        u_re = min(max(u2, 0.0), 1.0 - 1e-16)
+        refr = u_re >= F
+        if refr:
+            inv = 1.0 / eta
+            k = inv * hwo - cos_t
+            wx = k * Nx - inv * wox
+            wy = k * Ny - inv * woy
+            wz = k * Nz - inv * woz
+            wgt_scale = 1.0 / (eta * eta)   # adjoint of Cycles' unscaled BTDF
+        else:
+            wx = 2.0 * hwo * Nx - wox
+            wy = 2.0 * hwo * Ny - woy
+            wz = 2.0 * hwo * Nz - woz
+    nrm = np.sqrt(wx * wx + wy * wy + wz * wz)
+    if nrm > 0.0:
+        wx /= nrm
+        wy /= nrm
+        wz /= nrm
+    cN = Nx * wx + Ny * wy + Nz * wz
+    cG = Gx * wx + Gy * wy + Gz * wz
+    if refr:
+        ok = cI > 0.0 and cN < 0.0 and cG < 0.0
+    else:
+        ok = cI > 0.0 and cN > 0.0 and cG > 0.0
+    if not ok:
+        return wx, wy, wz, 0.0, 0.0, 0.0, True, False
+    c = _adjoint(nsx, nsy, nsz, ngx, ngy, ngz, wox, woy, woz, wx, wy, wz) * wgt_scale
+    return wx, wy, wz, cr * c, cg * c, cb * c, True, True
