@@ -36,7 +36,7 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 
 from analytic_scenes import quad, translate  # noqa: E402
-from core.lights import lights as Lt  # noqa: E402
+from core import lights as Lt  # noqa: E402
 import oracle_occlusion  # noqa: E402
 import oracle_photons  # noqa: E402
 from core.sppm import photon_kernels as PK  # noqa: E402

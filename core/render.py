@@ -152,7 +152,7 @@ class Renderer:
         self.occ_grid = None
         self.occ_locality = 0.0
         if self.plan.occlusion_grid:
-            from .frequency.occlusion import build_occlusion_grid, default_locality
+            from .frequency.occlusion_grid import build_occlusion_grid, default_locality
             t0 = time.perf_counter()
             lo, hi = scene.bounds()
             pad = 1e-3 * self.D

@@ -1,7 +1,7 @@
 """Scenes with closed-form radiance, built in plain Python (no bpy).
 
 Shared by the analytic renderer tests and the benchmarks.  Units are Cycles'
-(shared/notes/blender.md): a point light of power P has intensity P/(4 pi);
+(docs/cycles_units.md): a point light of power P has intensity P/(4 pi);
 an area light of power P and area A has radiance P/(pi A).
 """
 from __future__ import annotations

@@ -17,8 +17,8 @@ from numba import njit
 from core.accel import surface_point
 from core.frequency import spectrum as F
 from core.frequency.occlusion_march import march_occlusion
-from core.lights import lights as Lt
-from core.materials import bsdf as B
+from core import lights as Lt
+from core import materials as B
 from core.materials.fast import sample_fast
 from core.mathutil import LUMINANCE as LUM, dot as _dot
 

@@ -1,4 +1,4 @@
-"""FPPM against Cycles on the same .blend, in absolute units (issue 2).
+"""FPPM against Cycles on the same .blend, in absolute units.
 
 Each test scene (tests/scenes/*.blend) is exported through the add-on's
 exporter from the evaluated depsgraph and rendered by core at the reference's

@@ -358,7 +358,7 @@ def test_corrected_model_exact_values():
     # k = 2 kappa = 0.2: b = 0.2 + 2 k c + k^2 a, c = 0.1 + k a
     np.testing.assert_allclose(F.curvature(s, 0.1), [[0.3, 0.252, 0.16]], rtol=1e-14)
     # a strong bend would give b = 0.7 > 0.467: the whole Q is scaled by
-    # 0.467 / 0.7 (issue 6: clipping b alone moved the focus -c/b), so
+    # 0.467 / 0.7 (clipping b alone moved the focus -c/b), so
     # b = 0.467, c = 0.4 * 0.667, a = 0.3 * 0.667 and -c/b stays 0.4 / 0.7
     out = F.curvature(s, 0.5)
     f = F.B_CAP / 0.7

@@ -12,6 +12,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from core.frequency import spectrum as F
+from core.sppm.update import ppm_radius_update
 
 PROFILE = settings(derandomize=True, max_examples=200, deadline=None, database=None)
 
@@ -247,7 +248,7 @@ def test_ppm_without_frequency_shrinks_exactly():
     M = np.array([4, 7, 3])
     Phi = np.ones((3, 3))
     for r_pred in (None, np.full(3, np.inf), np.full(3, np.nan), np.zeros(3)):
-        N1, R21, tau1, held = F.ppm_radius_update(N, R2, tau, M, Phi, 0.7, r_pred)
+        N1, R21, tau1, held = ppm_radius_update(N, R2, tau, M, Phi, 0.7, r_pred)
         ratio = (N + 0.7 * M) / (N + M)
         assert np.array_equal(R21, R2 * ratio)
         assert np.array_equal(N1, N + 0.7 * M)
@@ -259,7 +260,7 @@ def test_ppm_held_radius():
     N, R2, tau = np.array([10.0, 10.0, 10.0]), np.full(3, 0.04), np.ones((3, 3))
     M, Phi = np.array([5, 5, 0]), np.full((3, 3), 2.0)
     r_pred = np.array([0.5, 0.19, 0.5])     # >= R, between R_ppm and R, no photons
-    N1, R21, tau1, held = F.ppm_radius_update(N, R2, tau, M, Phi, 0.7, r_pred)
+    N1, R21, tau1, held = ppm_radius_update(N, R2, tau, M, Phi, 0.7, r_pred)
     # held: f = 1 -> N + M, tau + Phi, R unchanged
     assert R21[0] == 0.04 and N1[0] == 15 and np.all(tau1[0] == 3.0) and held[0]
     # partial: R' = r_pred, f = (r/R)^2, N' = (N + M) f
@@ -279,7 +280,7 @@ def test_ppm_held_radius():
 def test_ppm_update_properties(N, R2, tau, M, phi, alpha, r, floor):
     R2 = max(R2, floor)
     rp = None if r is None else np.array([r])
-    N1, R21, tau1, held = F.ppm_radius_update(np.array([N]), np.array([R2]), np.full((1, 3), tau),
+    N1, R21, tau1, held = ppm_radius_update(np.array([N]), np.array([R2]), np.full((1, 3), tau),
                                               np.array([M]), np.full((1, 3), phi), alpha, rp, floor)
     assert R21[0] <= R2 and R21[0] >= floor                       # never grows, floor
     assert np.isfinite(N1).all() and N1[0] >= N                   # (N + M) f >= N + alpha M
@@ -305,7 +306,7 @@ def bump_sim(r_pred, sigma, R0=0.035, rate=500.0, passes=1000, runs=64, alpha=0.
     for _ in range(passes):
         lam = rate * 2 * math.pi * sigma ** 2 * (1 - np.exp(-R2 / (2 * sigma ** 2)))
         M = rng.poisson(lam).astype(float)
-        N, R2, tau, _ = F.ppm_radius_update(N, R2, tau, M, np.repeat(M[:, None], 3, 1), alpha, rp)
+        N, R2, tau, _ = ppm_radius_update(N, R2, tau, M, np.repeat(M[:, None], 3, 1), alpha, rp)
     L = tau[:, 0] / (math.pi * R2 * passes * rate)
     return math.sqrt(np.mean((L - 1) ** 2)), float(np.mean(L) - 1), float(np.sqrt(R2).mean())
 

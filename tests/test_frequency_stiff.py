@@ -1,4 +1,4 @@
-"""The "stiff and extreme cases" table of shared/notes/frequency.md, row by row.
+"""The "stiff and extreme cases" table of docs/frequency.md, row by row.
 
 For each row: the naive result (float32 arithmetic or the PAPER model, as the
 table states it) and the safe behaviour of the CORRECTED operators.
@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from core.frequency import spectrum as F
+from core.sppm.update import ppm_radius_update, radius_floor_sq
 
 D = 10.0                  # scene diameter [m] used by these tests
 A_MAX = D * D
@@ -143,13 +144,13 @@ def test_tan_past_half_pi():
 def test_tiny_radii():
     with np.errstate(over="ignore", divide="ignore"):
         assert np.isinf(f32(1) / (f32(math.pi) * f32(1e-20) * f32(1e-20)))
-    floor = F.radius_floor_sq(D)                          # (1e-7 D)^2 = 1e-12
+    floor = radius_floor_sq(D)                          # (1e-7 D)^2 = 1e-12
     K = 3
     N = np.zeros(K, np.float32)
     R2 = np.full(K, f32(1.1e-12), np.float32)
     tau = np.zeros((K, 3), np.float32)
     for _ in range(50):
-        N, R2, tau, _ = F.ppm_radius_update(N, R2, tau, np.full(K, 10), np.ones((K, 3)),
+        N, R2, tau, _ = ppm_radius_update(N, R2, tau, np.full(K, 10), np.ones((K, 3)),
                                             0.7, None, floor)
     assert R2.dtype == np.float64 and np.all(R2 >= floor) and np.all(R2 <= 1.1e-12)
     assert np.all(np.isfinite(1.0 / (math.pi * R2)))
@@ -158,7 +159,7 @@ def test_tiny_radii():
 def test_float32_counters():
     tau32 = np.full((1, 3), 2.0 ** 24, np.float32)
     assert tau32[0, 0] + np.float32(1) == tau32[0, 0]                 # float32 loses the photon
-    N, R2, tau, held = F.ppm_radius_update(np.array([2.0 ** 24], np.float32), np.array([1e-4]),
+    N, R2, tau, held = ppm_radius_update(np.array([2.0 ** 24], np.float32), np.array([1e-4]),
                                            tau32, np.array([1]), np.ones((1, 3), np.float32),
                                            0.7, np.array([1.0]))
     assert held[0] and tau.dtype == np.float64 and N.dtype == np.float64
@@ -169,10 +170,10 @@ def test_zero_or_nan_photon_power_and_nan_radius():
     power = np.array([[1, 1, 1], [0, 0, 0], [np.nan, 1, 1], [1, -1, 1], [np.inf, 0, 0], [0, 2, 0]])
     np.testing.assert_array_equal(F.valid_photon_power(power), [1, 0, 0, 0, 0, 1])
     # a NaN flux reaching the update leaves the hitpoint untouched (not NaN forever)
-    N, R2, tau, held = F.ppm_radius_update([5.0], [1.0], [[1.0, 1, 1]], [3], [[np.nan, 1, 1]], 0.7)
+    N, R2, tau, held = ppm_radius_update([5.0], [1.0], [[1.0, 1, 1]], [3], [[np.nan, 1, 1]], 0.7)
     assert N[0] == 5 and R2[0] == 1 and np.all(tau == 1)
     # NaN r_pred -> 0 (no hold): plain PPM, the radius keeps shrinking
-    N, R2, tau, held = F.ppm_radius_update([5.0], [1.0], [[1.0, 1, 1]], [3], [[1.0, 1, 1]], 0.7,
+    N, R2, tau, held = ppm_radius_update([5.0], [1.0], [[1.0, 1, 1]], [3], [[1.0, 1, 1]], 0.7,
                                            np.array([np.nan]))
     assert not held[0] and R2[0] == pytest.approx((5 + 0.7 * 3) / 8)
     assert F.accumulate([np.inf, 0.3], [np.nan, 0.2])[0] == 0.0
@@ -196,9 +197,9 @@ def test_scale_invariance(scale):
         s = F.curvature(F.off_surface(s, 0.5, A_MAX=Dk ** 2), 0.1 / k, A_MAX=Dk ** 2)
         s = F.travel(s, 1.0 * k, A_MAX=Dk ** 2)
         r = F.predicted_radius(s, np.array([np.inf, 0.05, 0.0]), 3.0 * k)
-        N, R2, tau, held = F.ppm_radius_update(np.zeros(3), np.full(3, 1e-15 * k * k),
+        N, R2, tau, held = ppm_radius_update(np.zeros(3), np.full(3, 1e-15 * k * k),
                                                np.zeros((3, 3)), np.full(3, 4), np.ones((3, 3)),
-                                               0.7, np.full(3, 1.0 * k), F.radius_floor_sq(Dk))
+                                               0.7, np.full(3, 1.0 * k), radius_floor_sq(Dk))
         return s, r, R2
     s1, r1, R2_1 = run(1.0)
     sk, rk, R2_k = run(scale)

@@ -27,8 +27,8 @@ import numpy as np
 import pytest
 
 from analytic_scenes import quad, translate
-from core.materials import bsdf as B
-from core.lights import lights as Lt
+from core import materials as B
+from core import lights as Lt
 from core.materials import fast as FM
 from core.sppm import photon_kernels as PK
 from core.render import Renderer

@@ -1,4 +1,4 @@
-"""The leave-out plan (issue 7): each stage is left out only where the scene
+"""The leave-out plan: each stage is left out only where the scene
 cannot use it, leaving it out changes nothing, and a scene that needs it keeps it.
 
 "Changes nothing" is exact here: every omitted stage either consumes no random

@@ -1,4 +1,4 @@
-"""Reliability (issue 8): checkpoints and resume, atomic output, cancel latency
+"""Reliability: checkpoints and resume, atomic output, cancel latency
 per stage, memory budget, untrusted files, the manifest's permissions.
 
 Numbers asserted here are exact (bit-identical images, exit codes) or
@@ -407,7 +407,7 @@ def test_cancel_latency_per_core_stage(monkeypatch):
     st = RenderSettings(max_passes=3, photons_per_pass=2_500_000, occlusion_grid_res=96)
     lat = {}
     # 1. occlusion grid build (numba, in a worker thread polled every 20 ms)
-    import core.frequency.occlusion as O
+    import core.frequency.occlusion_grid as O
     orig_build = O.build_occlusion_grid
     stop = Stopper()
 

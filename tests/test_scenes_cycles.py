@@ -1,5 +1,5 @@
 """The Cycles references of the test scenes: present, consistent, and equal to
-the analytic radiance values of shared/notes/blender.md within their own noise.
+the analytic radiance values of docs/cycles_units.md within their own noise.
 
 Nothing here needs the FPPM core.  References are made by
 tests/references/make_references.py from tests/scenes/*.blend

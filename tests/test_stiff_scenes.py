@@ -90,7 +90,7 @@ def settings(**kw):
 
 
 def assert_finite(res, expect_aovs=True):
-    """No NaN or Inf in the film or in any AOV (issue 6, "Must show")."""
+    """No NaN or Inf in the film or in any AOV ("Must show")."""
     assert np.all(np.isfinite(res.image)), "film has NaN/Inf"
     if expect_aovs:
         assert {"FPPM Radius", "FPPM Radius px", "Predicted Radius", "Photon Count",
@@ -791,6 +791,7 @@ def test_4k_memory_estimated_before_allocating(monkeypatch):
 from hypothesis import given, settings as hyp_settings, strategies as hst  # noqa: E402
 
 from core.frequency import spectrum as F  # noqa: E402
+from core.sppm.update import ppm_radius_update  # noqa: E402
 
 
 def test_paper_model_caustic_focus_and_scale():
@@ -834,7 +835,7 @@ def test_ppm_update_sequence_keeps_n_and_tau_consistent(passes, alpha, R0, floor
     the floor, everything stays finite, N never decreases."""
     N, R2, tau = np.zeros(1), np.array([max(R0 * R0, floor)]), np.zeros((1, 3))
     for M, phi, r in passes:
-        N1, R21, tau1, held = F.ppm_radius_update(N, R2, tau, np.array([M]),
+        N1, R21, tau1, held = ppm_radius_update(N, R2, tau, np.array([M]),
                                                   np.full((1, 3), phi), alpha,
                                                   np.array([r]), floor)
         assert np.isfinite(N1).all() and np.isfinite(R21).all() and np.isfinite(tau1).all()

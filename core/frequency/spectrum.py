@@ -59,8 +59,6 @@ ANGLE_MAX = 1.2
 #: Renderers pass A_MAX = D^2 of their scene.
 A_MAX_DEFAULT = 1e30
 #: Radius floor relative to the scene diameter: R >= 1e-7 D (stiff table "tiny radii").
-R_FLOOR_REL = 1e-7
-
 MODELS = ("CORRECTED", "PAPER")
 
 
@@ -106,7 +104,7 @@ def sanitize(s, A_MAX=A_MAX_DEFAULT):
     |d| <= D and the PSD-preserving shear (travel, and its twin in
     curvature), t = a + a_o -> 0 and a_o >= A_MAX (occlude), NaN radius -> 0
     (predicted_radius, accumulate), float64 counters, floor and power checks
-    (ppm_radius_update, valid_photon_power).
+    (core.sppm.update.ppm_radius_update, valid_photon_power).
     """
     a, b, c = _split(s)
     bad = np.isnan(a) | np.isnan(b) | np.isnan(c)
@@ -140,11 +138,6 @@ def valid_photon_power(power):
     """
     p = _f64(power)
     return np.all(np.isfinite(p), axis=-1) & np.all(p >= 0, axis=-1) & (p.sum(axis=-1) > 0)
-
-
-def radius_floor_sq(D):
-    """R2_floor = (1e-7 D)^2 for a scene of diameter D [m] (stiff table "tiny radii")."""
-    return (R_FLOOR_REL * float(D)) ** 2
 
 
 # ---------------------------------------------------------------- operators
@@ -533,52 +526,3 @@ def accumulate_spectrum_paper(current, new):
     a per-coefficient *min* can make Q invalid.
     """
     return np.fmax(_f64(current), _f64(new))
-
-
-# ---------------------------------------------------------------- PPM update
-def ppm_radius_update(N, R2, tau, M, Phi, alpha, r_pred=None, R2_floor=0.0):
-    """Progressive radius update with a frequency-held radius.
-
-    N: (K,) accumulated photon count; R2: (K,) squared radius [m^2];
-    tau: (K, 3) accumulated flux; M: (K,) photons collected this pass;
-    Phi: (K, 3) their flux; alpha: PPM parameter in (0, 1]; r_pred: (K,)
-    predicted radius [m] or None (inf = no frequency photon, NaN = no hold);
-    R2_floor: smallest R^2 (see :func:`radius_floor_sq`).
-    Returns (N', R2', tau', held): (K,), (K,), (K, 3) float64 and (K,) bool.
-
-    docs/frequency.md "PPM update" (Hachisuka 2008 and its general form):
-        R_ppm = R sqrt((N + alpha M) / (N + M))
-        R'    = max(R_ppm, min(R, r_pred))      (R_ppm when r_pred not finite)
-        f     = (R'/R)^2,  N' = (N + M) f,  tau' = (tau + Phi) f
-    so plain PPM gives N' = N + alpha M and a held radius (f = 1) gives
-    N' = N + M, tau' = tau + Phi (keeping N + alpha M while holding R is -31 %
-    biased).  R'^2 >= min(R^2, R2_floor): the floor never makes a radius grow.
-    Rows with M <= 0, or with non-finite / negative Phi, are left unchanged.
-    Everything is float64 (stiff table "float32 counters").
-    """
-    N = _f64(N).copy()
-    R2 = _f64(R2).copy()
-    tau = _f64(tau).copy()
-    M = _f64(M)
-    Phi = _f64(Phi)
-    active = (M > 0) & np.all(np.isfinite(Phi), axis=-1) & np.all(Phi >= 0, axis=-1) \
-        & (R2 > 0) & np.isfinite(R2)
-    Ma = np.where(active, M, 0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        f_ppm = np.where(active, (N + alpha * Ma) / (N + Ma), 1.0)
-        f = f_ppm
-        held = np.zeros(N.shape, bool)
-        if r_pred is not None:
-            r = _f64(r_pred)
-            freq = np.isfinite(r) & active
-            r2 = np.square(np.maximum(np.where(freq, r, 0.0), 0.0))
-            f_lim = np.where(freq, np.minimum(r2 / np.where(active, R2, 1.0), 1.0), 0.0)
-            held = freq & (f_lim > f_ppm)
-            f = np.maximum(f, f_lim)
-        f_floor = np.minimum(_f64(R2_floor) / np.where(active, R2, 1.0), 1.0)
-        f = np.where(active, np.maximum(f, f_floor), 1.0)
-    plain = active & (f == f_ppm)
-    N1 = np.where(plain, N + alpha * Ma, np.where(active, (N + Ma) * f, N))
-    R2_1 = np.where(active, R2 * f, R2)
-    tau1 = np.where(active[..., None], (tau + np.where(active[..., None], Phi, 0.0)) * f[..., None], tau)
-    return N1, R2_1, tau1, held

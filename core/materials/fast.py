@@ -3,7 +3,7 @@
 The photon tracer (``core.sppm.photons``) samples most hits in one numba loop
 (``core.sppm.photon_kernels.bounce_kernel``); the closures it can sample
 there are classified here (``FastMaterials``; everything else is "generic"
-and handed back to ``core.materials.bsdf.sample_bsdf`` by the caller):
+and handed back to ``core.materials.sample_bsdf`` by the caller):
 
 - LAMBERT: every used lobe is DIFFUSE with roughness 0, no texture, no delta
   lobe.  Cosine sampling; weight = sum of lobe colours x Veach's
@@ -13,7 +13,7 @@ and handed back to ``core.materials.bsdf.sample_bsdf`` by the caller):
   no texture.  Reflect with probability F (exact dielectric Fresnel), weight
   C (/eta^2 on refraction, the importance-mode adjoint), x shading factor.
 
-The formulas are those of ``core.materials.bsdf`` (``_cos_hemisphere``,
+The formulas are those of ``core.materials.closures`` (``_cos_hemisphere``,
 ``_frame``, ``fresnel_dielectric``, ``_refract``, ``_adjoint_correction``)
 written per ray in float64; tests/test_photon_kernels.py checks
 :func:`sample_fast` sample for sample against ``bsdf.sample_bsdf``.

@@ -12,7 +12,7 @@ Embree call is one ``@njit(nogil=True)`` loop over the rays
 
 The closures sampled in the loop are those of ``core.materials.fast``
 (``FastMaterials``, ``sample_fast``); hits on any other material are
-"generic" and handed back to ``core.materials.bsdf.sample_bsdf`` by the
+"generic" and handed back to ``core.materials.sample_bsdf`` by the
 caller.  tests/test_photon_kernels.py checks the whole tracer against the
 numpy reference tracer (tests/oracle_photons.py).  Precision: Embree sees
 float32 origins/directions; positions, normals, powers and deposits are
@@ -508,7 +508,7 @@ def light_arrays(table) -> tuple:
     """(cdf, last, L, b_diffuse) for :func:`emit_lights`: cumsum of p_select,
     last emitter with p_select > 0, the LightTable packed into one (nL, 26)
     float64 array, and the diffuse angular variance of the light inits."""
-    from ..lights.lights import B_DIFFUSE
+    from ..lights import B_DIFFUSE
     nL = table.n
     L = np.zeros((max(nL, 1), _NCOL))
     L[:nL, _KIND] = table.kind

@@ -30,8 +30,8 @@ import os
 
 import numpy as np
 
-from ..materials import bsdf as B
-from ..lights import lights as Lt
+from .. import materials as B
+from .. import lights as Lt
 from ..frequency import spectrum as F
 from ..frequency import kernels as FK
 from ..frequency.occlusion_march import march_grid, no_march_grid

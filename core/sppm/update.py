@@ -5,8 +5,8 @@ a pixel a visible point, initial_radius_px pixel footprints at the point's
 camera depth (the slope ignored), or initial_radius metres with radius_mode
 WORLD; capped by the distance to the nearest surface boundary seen around the
 pixel (core.sppm.edges, docs/method.md "Surface boundaries"); never below the
-radius floor R_FLOOR_REL * D of core.frequency.spectrum (docs/frequency.md
-stiff table: it keeps 1 / (pi R^2) finite).
+radius floor R_FLOOR_REL * D (docs/frequency.md stiff table: it keeps
+1 / (pi R^2) finite).
 
 Predicted radius of a pass (Belcour & Soler 2011; docs/frequency.md): MIN
 keeps the smallest radius any gathered frequency photon predicts
@@ -15,8 +15,8 @@ histogram of the predicted radii of every frequency photon gathered so far and
 takes the lower edge of the bin holding the QUANTILE-th fraction, so that a
 few outliers (false occlusions pinning r near 0) no longer set the radius.
 
-Progressive update: core.frequency.spectrum.ppm_radius_update (PPM radius
-reduction, held at the predicted radius).  Only Lambert visible points may
+Progressive update: :func:`ppm_radius_update` (PPM radius reduction, held at
+the predicted radius).  Only Lambert visible points may
 hold: the prediction is computed for a diffuse receiver.
 """
 from __future__ import annotations
@@ -26,6 +26,9 @@ import numpy as np
 from ..frequency import spectrum as F
 from . import edges
 
+#: Smallest radius relative to the scene diameter D (docs/frequency.md stiff
+#: table, "tiny radii").
+R_FLOOR_REL = 1e-7
 QUANTILE = 0.1
 HIST_BINS = 24
 #: Seed of the surface-boundary cap's camera pass (with the render's seed).
@@ -72,8 +75,8 @@ class Radii:
     def __init__(self, settings, camera, D: float, frequency: bool, camera_pass, H: int, W: int):
         self.settings, self.camera, self.frequency = settings, camera, frequency
         self.camera_pass, self.H, self.W = camera_pass, H, W
-        self.floor = F.R_FLOOR_REL * D
-        self.floor_sq = F.radius_floor_sq(D)
+        self.floor = R_FLOOR_REL * D
+        self.floor_sq = radius_floor_sq(D)
         self.hist = RadiusHistogram(D)
         self.quantile = frequency and settings.frequency_estimator == "QUANTILE"
         self._edge_cap = None
@@ -117,8 +120,7 @@ class Radii:
         histogram r_hist (P, HIST_BINS).  The PAPER model predicts negative
         radii for converging light: their magnitude is the radius."""
         r_pred = r_pred_min
-        if self.settings.frequency_model == "PAPER":
-            r_pred = np.where(np.isinf(r_pred), np.inf, -r_pred)
+        r_pred = F.radius_from_fold_key(r_pred, self.settings.frequency_model)
         if self.quantile:
             r_pred = self.hist.quantile(r_hist, r_pred)
         return r_pred
@@ -134,7 +136,7 @@ class Radii:
             r_pred = np.where(vp_const, r_pred, np.nan)
             r_pred = np.where(np.isinf(r_pred), np.nan, r_pred)
         m = M > 0
-        N2, R2n, tau2, held = F.ppm_radius_update(state.N[m], state.R2[m], state.tau[m], M[m],
+        N2, R2n, tau2, held = ppm_radius_update(state.N[m], state.R2[m], state.tau[m], M[m],
                                                   Phi[m], self.settings.alpha, r_pred[m],
                                                   self.floor_sq)
         state.N[m], state.R2[m], state.tau[m] = N2, R2n, tau2
@@ -142,3 +144,56 @@ class Radii:
         state.held[np.nonzero(m)[0]] = held
         state.r_pred_last = r_pred
         state.M_last = M
+
+
+def radius_floor_sq(D):
+    """R2_floor = (1e-7 D)^2 for a scene of diameter D [m] (stiff table "tiny radii")."""
+    return (R_FLOOR_REL * float(D)) ** 2
+
+
+def ppm_radius_update(N, R2, tau, M, Phi, alpha, r_pred=None, R2_floor=0.0):
+    """Progressive radius update with a frequency-held radius.
+
+    N: (K,) accumulated photon count; R2: (K,) squared radius [m^2];
+    tau: (K, 3) accumulated flux; M: (K,) photons collected this pass;
+    Phi: (K, 3) their flux; alpha: PPM parameter in (0, 1]; r_pred: (K,)
+    predicted radius [m] or None (inf = no frequency photon, NaN = no hold);
+    R2_floor: smallest R^2 (see :func:`radius_floor_sq`).
+    Returns (N', R2', tau', held): (K,), (K,), (K, 3) float64 and (K,) bool.
+
+    docs/frequency.md "PPM update" (Hachisuka 2008 and its general form):
+        R_ppm = R sqrt((N + alpha M) / (N + M))
+        R'    = max(R_ppm, min(R, r_pred))      (R_ppm when r_pred not finite)
+        f     = (R'/R)^2,  N' = (N + M) f,  tau' = (tau + Phi) f
+    so plain PPM gives N' = N + alpha M and a held radius (f = 1) gives
+    N' = N + M, tau' = tau + Phi (keeping N + alpha M while holding R is -31 %
+    biased).  R'^2 >= min(R^2, R2_floor): the floor never makes a radius grow.
+    Rows with M <= 0, or with non-finite / negative Phi, are left unchanged.
+    Everything is float64 (stiff table "float32 counters").
+    """
+    N = np.asarray(N, np.float64).copy()
+    R2 = np.asarray(R2, np.float64).copy()
+    tau = np.asarray(tau, np.float64).copy()
+    M = np.asarray(M, np.float64)
+    Phi = np.asarray(Phi, np.float64)
+    active = (M > 0) & np.all(np.isfinite(Phi), axis=-1) & np.all(Phi >= 0, axis=-1) \
+        & (R2 > 0) & np.isfinite(R2)
+    Ma = np.where(active, M, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f_ppm = np.where(active, (N + alpha * Ma) / (N + Ma), 1.0)
+        f = f_ppm
+        held = np.zeros(N.shape, bool)
+        if r_pred is not None:
+            r = np.asarray(r_pred, np.float64)
+            freq = np.isfinite(r) & active
+            r2 = np.square(np.maximum(np.where(freq, r, 0.0), 0.0))
+            f_lim = np.where(freq, np.minimum(r2 / np.where(active, R2, 1.0), 1.0), 0.0)
+            held = freq & (f_lim > f_ppm)
+            f = np.maximum(f, f_lim)
+        f_floor = np.minimum(np.asarray(R2_floor, np.float64) / np.where(active, R2, 1.0), 1.0)
+        f = np.where(active, np.maximum(f, f_floor), 1.0)
+    plain = active & (f == f_ppm)
+    N1 = np.where(plain, N + alpha * Ma, np.where(active, (N + Ma) * f, N))
+    R2_1 = np.where(active, R2 * f, R2)
+    tau1 = np.where(active[..., None], (tau + np.where(active[..., None], Phi, 0.0)) * f[..., None], tau)
+    return N1, R2_1, tau1, held
