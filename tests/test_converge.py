@@ -135,7 +135,7 @@ def test_report_tables_and_equal_time_ratios(tiny):
                                                                    rel=1e-4)
     assert summ["ratios"]["fppm/ppm"]["raw"] == pytest.approx(
         err("fppm", BUDGET) / err("ppm", BUDGET), rel=1e-4)
-    # The corrected model against the paper's printed one (issue 4).
+    # The corrected model against the paper's printed one.
     assert summ["ratios"]["fppm/paper"]["raw"] == pytest.approx(
         err("fppm", BUDGET) / err("paper", BUDGET), rel=1e-4)
     # The reference's variance (_var.exr beside it) gives the floor: the
