@@ -143,6 +143,7 @@ def run_all(a, bpy, methods, ref, masks, budget, log, progress) -> tuple[list[Ru
     runs: list[Run] = []
     stop = {"flag": False}
     interrupted = False
+    warmed = set()
 
     def on_sigint(signum, frame):
         if stop["flag"]:            # a second Ctrl-C: give up at once
@@ -163,7 +164,7 @@ def run_all(a, bpy, methods, ref, masks, budget, log, progress) -> tuple[list[Ru
                                       stop)
                 else:
                     run_photon_mapping(run, a.blend, a.resolution, budget, a.photons,
-                                       ref["image"], masks, log, progress, stop)
+                                       ref["image"], masks, log, progress, stop, warmed)
     except KeyboardInterrupt:
         interrupted = True
     finally:

@@ -109,22 +109,27 @@ def method_overrides(method: str, seed: int, budget: float, photons) -> dict:
     return kw
 
 
-def run_photon_mapping(run, blend, resolution, budget, photons, ref, masks, log, progress, stop):
+def run_photon_mapping(run, blend, resolution, budget, photons, ref, masks, log, progress, stop,
+                       warmed: set):
     """FPPM, paper or PPM (run.method) for ``budget`` seconds; records every pass into ``run``.
 
     stop: ``{"flag": bool}``, set by Ctrl-C; polled during the passes.
+    warmed: the methods already warmed up in this process (updated).
     """
     from ...addon.engine import RenderSession
 
     m, seed = run.method, run.seed
     overrides = method_overrides(m, seed, budget, photons)
     should_stop = lambda: stop["flag"]  # noqa: E731
-    # Warm-up (not timed): loads numba's compiled kernels from the disk cache,
-    # a one-off per process that Cycles, already loaded, does not pay either.
-    warm = dict(overrides, max_passes=1, time_limit=0.0,
-                photons_per_pass=min(photons or WARMUP_PHOTONS, WARMUP_PHOTONS))
-    render_scene(open_blend(blend, resolution=resolution), warm,
-                 RenderSession(log=lambda s: None, should_stop=should_stop))
+    if m not in warmed:
+        # Warm-up (not timed): loads numba's compiled kernels from the disk
+        # cache, a one-off per process that Cycles, already loaded, does not
+        # pay either.
+        warm = dict(overrides, max_passes=1, time_limit=0.0,
+                    photons_per_pass=min(photons or WARMUP_PHOTONS, WARMUP_PHOTONS))
+        render_scene(open_blend(blend, resolution=resolution), warm,
+                     RenderSession(log=lambda s: None, should_stop=should_stop))
+        warmed.add(m)
 
     def on_renderer(renderer):
         run.setup_seconds = time.perf_counter() - t0
