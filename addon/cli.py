@@ -14,9 +14,9 @@ the file's ``scene.fppm`` (defaults when the file never had the add-on), then
 from the flags.  The render goes through the FPPM RenderEngine with
 ``bpy.ops.render.render`` (Blender's render-mode depsgraph: the same export,
 and so the same image, as pressing F12): :func:`open_blend` then
-:func:`render_scene`, which ``fppm converge`` uses too.  Output: a multilayer EXR (Combined plus the
-enabled AOV passes) and a PNG preview beside it through the scene's view
-transform, both written atomically (``core.io.atomic``).
+:func:`render_scene`, which ``fppm converge`` uses too.  Output: a multilayer
+EXR (Combined plus the enabled AOV passes) and a PNG preview beside it through
+the scene's view transform, both written atomically (``core.io.atomic``).
 
 Exit codes (also in README.md):
     0    the image was written
