@@ -16,7 +16,8 @@ VENV    := .venv
 PY      := $(VENV)/bin/python
 STAMP   := $(VENV)/.fppm-installed
 
-# matplotlib: dev/report only (`fppm converge` plots); the render path never imports it.
+# matplotlib: development only (tools/converge: `fppm converge` plots and PNG
+# images); the render path and the extension never import it.
 # Pinned so that the wheels bundled in the extension (blender_manifest.toml)
 # are the very versions the tests ran with.
 BPY_VERSION      := 5.2.3

@@ -1,18 +1,22 @@
-"""``fppm``: render a .blend file with FPPM from the command line (Blender as a module).
+"""``fppm render``: render a .blend file with FPPM from the command line (Blender as a module).
 
     fppm render SCENE.blend -o OUT.exr [--frame N] [--time-limit S] [--passes N]
                 [--photons N] [--mode fppm|ppm] [--seed N] [--resolution PCT]
                 [--checkpoint DIR [--checkpoint-every S] [--resume]]
-    fppm converge SCENE.blend --time-limit S --out DIR [--reference REF.exr | --cycles-samples N]
-                [--methods fppm,ppm,cycles] [--seeds K] ...   (addon/converge.py)
+
+This module is shipped in the extension and runs alone
+(``python -m fppm.addon.cli render ...``).  The ``fppm`` console script of a
+development install is ``tools/cli.py``: the same ``render`` sub-command plus
+the development tools (``fppm converge``).  Nothing here imports ``tools``.
 
 The file is opened with its embedded scripts disabled.  Settings come from
 the file's ``scene.fppm`` (defaults when the file never had the add-on), then
 from the flags.  The render goes through the FPPM RenderEngine with
 ``bpy.ops.render.render`` (Blender's render-mode depsgraph: the same export,
-and so the same image, as pressing F12).  Output: a multilayer EXR (Combined
-plus the enabled AOV passes, written atomically) and a PNG preview beside it
-through the scene's view transform.
+and so the same image, as pressing F12): :func:`open_blend` then
+:func:`render_scene`, which ``fppm converge`` uses too.  Output: a multilayer
+EXR (Combined plus the enabled AOV passes) and a PNG preview beside it through
+the scene's view transform, both written atomically (``core.io.atomic``).
 
 Exit codes (also in README.md):
     0    the image was written
@@ -50,14 +54,8 @@ class CLIError(Exception):
         self.code = code
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="fppm",
-        description="FPPM: frequency-based progressive photon mapping for Blender scenes.",
-        epilog="Exit codes: 0 ok, 1 internal error, 2 usage, 3 input file problem, "
-               "4 scene error, 5 output not writable, 6 checkpoint refused, 7 not enough memory, "
-               "130 cancelled (partial image written).")
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+def add_render_parser(sub) -> None:
+    """Add the ``render`` sub-command to an argparse sub-parsers object."""
     r = sub.add_parser("render", help="render a .blend file to a multilayer EXR and a PNG preview",
                        description="Render SCENE.blend with FPPM.")
     r.add_argument("blend", metavar="SCENE.blend", help="the .blend file (scripts are not run)")
@@ -82,8 +80,20 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds between checkpoints (default 30; 0 = after every pass)")
     r.add_argument("--resume", action="store_true",
                    help="continue from the checkpoint in --checkpoint DIR (same scene and settings)")
-    from ..tools.converge import add_parser as add_converge_parser
-    add_converge_parser(sub)
+
+
+def build_parser(commands: dict) -> argparse.ArgumentParser:
+    """The ``fppm`` parser with one sub-command per entry of ``commands``
+    (``{name: (add_parser(sub), run(args) -> exit code)}``)."""
+    p = argparse.ArgumentParser(
+        prog="fppm",
+        description="FPPM: frequency-based progressive photon mapping for Blender scenes.",
+        epilog="Exit codes: 0 ok, 1 internal error, 2 usage, 3 input file problem, "
+               "4 scene error, 5 output not writable, 6 checkpoint refused, 7 not enough memory, "
+               "130 cancelled (partial image written).")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add_parser, _run in commands.values():
+        add_parser(sub)
     return p
 
 
@@ -187,7 +197,8 @@ def _write_outputs(a, bpy, scene, sess, out_path, elapsed_wall) -> list[str]:
     """Write the EXR (and the PNG preview); return the written paths."""
     import numpy as np
 
-    from ..core.io.exr import default_file_mode, write_exr
+    from ..core.io.atomic import default_file_mode, replace_atomically
+    from ..core.io.exr import write_exr
     from ..core.settings import field_names
 
     pr = sess.result
@@ -221,28 +232,18 @@ def _write_outputs(a, bpy, scene, sess, out_path, elapsed_wall) -> list[str]:
         png = preview_path(out_path)
         rr = bpy.data.images.get("Render Result")
         if rr is not None:
-            d = os.path.dirname(os.path.abspath(png))
-            try:
-                fd, tmp = tempfile.mkstemp(prefix=".fppm-", suffix=".png", dir=d)
-                os.close(fd)
-            except OSError as ex:
-                raise CLIError(EXIT_OUTPUT, f"cannot write the preview '{png}': {ex.strerror or ex}.")
             isettings = scene.render.image_settings
             try:
-                isettings.file_format = 'PNG'
-                isettings.color_mode = 'RGBA'
-                isettings.color_depth = '8'
-                # save_render applies the scene's view transform and look.
-                rr.save_render(filepath=tmp, scene=scene)
-                os.chmod(tmp, default_file_mode())
-                os.replace(tmp, png)
+                with replace_atomically(png, suffix=".png", mode=default_file_mode()) as tmp:
+                    isettings.file_format = 'PNG'
+                    isettings.color_mode = 'RGBA'
+                    isettings.color_depth = '8'
+                    # save_render applies the scene's view transform and look.
+                    rr.save_render(filepath=tmp, scene=scene)
                 written.append(png)
             except (OSError, RuntimeError) as ex:
-                try:
-                    os.unlink(tmp)
-                except OSError:
-                    pass
-                raise CLIError(EXIT_OUTPUT, f"cannot write the preview '{png}': {ex}")
+                detail = (ex.strerror or ex) if isinstance(ex, OSError) else ex
+                raise CLIError(EXIT_OUTPUT, f"cannot write the preview '{png}': {detail}")
     return written
 
 
@@ -329,34 +330,62 @@ def _state_kept(ckpt, renderer) -> str:
             f"rendering again.")
 
 
-def render(a) -> int:
-    check_input(a.blend)
-    check_output(a.output)
-    if a.resolution is not None and not 1 <= a.resolution <= 1000:
-        raise CLIError(EXIT_USAGE, f"--resolution {a.resolution}: must be in [1, 1000].")
-    check_checkpoint_args(a)
-    overrides = overrides_from_args(a)
+def open_blend(path: str, frame=None, resolution=None):
+    """Open ``path`` (scripts disabled) with the add-on registered; returns its scene.
 
+    frame: the frame to set (None: the file's); resolution: the resolution
+    percentage (None: the file's).  Raises CLIError(EXIT_INPUT) when Blender
+    cannot read the file.
+    """
     import bpy
 
     from .. import addon
+
+    addon.register()
+    try:
+        bpy.ops.wm.open_mainfile(filepath=os.path.abspath(path), load_ui=False,
+                                 use_scripts=False)
+    except RuntimeError as ex:
+        raise CLIError(EXIT_INPUT, f"cannot open '{path}': {str(ex).strip()}")
+    scene = bpy.context.scene
+    if frame is not None:
+        scene.frame_set(frame)
+    if resolution is not None:
+        scene.render.resolution_percentage = resolution
+    return scene
+
+
+def render_size(scene) -> tuple[int, int]:
+    """(width, height) in pixels the scene renders at: the exporter's rule."""
+    rd = scene.render
+    return (rd.resolution_x * rd.resolution_percentage // 100,
+            rd.resolution_y * rd.resolution_percentage // 100)
+
+
+def render_scene(scene, overrides: dict, sess) -> None:
+    """Render the open ``scene`` with FPPM: its settings, then ``overrides``.
+
+    The one path from an opened .blend file (:func:`open_blend`) to a
+    sequence of rendered passes: ``fppm render`` and ``fppm converge`` both
+    render through it, with Blender's render-mode depsgraph (the F12 scene).
+
+    overrides: ``{RenderSettings field: value}`` applied over the file's
+      ``scene.fppm`` (written back to it, so the EXR metadata and the engine
+      see the same settings).
+    sess: an ``engine.RenderSession``; its ``on_pass(result, settings)`` is
+      called after every pass, ``should_stop()`` is polled, and after the
+      render it holds the result, the renderer and the settings.
+    Raises CLIError: invalid settings, no camera, an empty resolution, or the
+    error that stopped the render (mapped to its exit code).
+    """
+    import bpy
+
     from ..core.errors import CheckpointMismatch, FPPMError, MemoryBudgetError
     from ..core.settings import SettingsError
     from . import engine
     from .export import NO_CAMERA
     from .properties import apply_settings, settings_from_scene
 
-    addon.register()
-    try:
-        bpy.ops.wm.open_mainfile(filepath=os.path.abspath(a.blend), load_ui=False,
-                                 use_scripts=False)
-    except RuntimeError as ex:
-        raise CLIError(EXIT_INPUT, f"cannot open '{a.blend}': {str(ex).strip()}")
-    scene = bpy.context.scene
-    if a.frame is not None:
-        scene.frame_set(a.frame)
-    if a.resolution is not None:
-        scene.render.resolution_percentage = a.resolution
     try:
         settings = settings_from_scene(scene).replace(**overrides).validate()
     except SettingsError as ex:
@@ -365,50 +394,19 @@ def render(a) -> int:
     scene.render.engine = "FPPM"
     if scene.camera is None:
         raise CLIError(EXIT_SCENE, NO_CAMERA)
-    rd = scene.render
-    w, h = (rd.resolution_x * rd.resolution_percentage // 100,
-            rd.resolution_y * rd.resolution_percentage // 100)   # the exporter's rule
+    w, h = render_size(scene)
     if w < 1 or h < 1:
         # Blender would only say "Image too small".
+        rd = scene.render
         raise CLIError(EXIT_SCENE, f"The render resolution {w}x{h} is empty "
                                    f"({rd.resolution_x}x{rd.resolution_y} at "
                                    f"{rd.resolution_percentage}%): raise the resolution or "
                                    f"its percentage.")
-
-    stop = {"flag": False}
-
-    def on_sigint(signum, frame):
-        if stop["flag"]:            # a second Ctrl-C: give up at once
-            raise KeyboardInterrupt
-        stop["flag"] = True
-
-    progress = Progress(a.quiet)
-    ckpt = Checkpointer(a.checkpoint, a.checkpoint_every, _say) if a.checkpoint else None
-    holder = {}
-
-    def on_pass(pr, st):
-        progress(pr, st)
-        if ckpt is not None:
-            ckpt.after_pass(holder["sess"].renderer)
-
-    sess = engine.RenderSession(on_pass=on_pass, log=_say, should_stop=lambda: stop["flag"],
-                                on_renderer=ckpt.resume if ckpt is not None and a.resume else None)
-    holder["sess"] = sess
-    prev = signal.signal(signal.SIGINT, on_sigint)
-    # SIGTERM (a scheduler stopping the job) ends the render the same way.
-    prev_term = signal.signal(signal.SIGTERM, on_sigint)
-    t0 = time.monotonic()
-    try:
-        with engine.session(sess):
-            try:
-                bpy.ops.render.render()
-            except RuntimeError:
-                pass  # the engine's report(); the cause is in sess.error
-    finally:
-        signal.signal(signal.SIGINT, prev)
-        signal.signal(signal.SIGTERM, prev_term)
-        progress.close()
-    wall = time.monotonic() - t0
+    with engine.session(sess):
+        try:
+            bpy.ops.render.render()
+        except RuntimeError:
+            pass  # the engine's report(); the cause is in sess.error
     if sess.error is not None:
         if isinstance(sess.error, SettingsError):
             raise CLIError(EXIT_USAGE, str(sess.error))
@@ -420,6 +418,50 @@ def render(a) -> int:
         if isinstance(sess.error, FPPMError):
             raise CLIError(EXIT_SCENE, str(sess.error))
         raise CLIError(EXIT_INTERNAL, f"internal error: {type(sess.error).__name__}: {sess.error}")
+
+
+def render(a) -> int:
+    """``fppm render``: returns the exit code; raises CLIError on a documented failure."""
+    check_input(a.blend)
+    check_output(a.output)
+    if a.resolution is not None and not 1 <= a.resolution <= 1000:
+        raise CLIError(EXIT_USAGE, f"--resolution {a.resolution}: must be in [1, 1000].")
+    check_checkpoint_args(a)
+    overrides = overrides_from_args(a)
+
+    import bpy
+
+    from . import engine
+
+    stop = {"flag": False}
+
+    def on_sigint(signum, frame):
+        if stop["flag"]:            # a second Ctrl-C: give up at once
+            raise KeyboardInterrupt
+        stop["flag"] = True
+
+    progress = Progress(a.quiet)
+    ckpt = Checkpointer(a.checkpoint, a.checkpoint_every, _say) if a.checkpoint else None
+
+    def on_pass(pr, st):
+        progress(pr, st)
+        if ckpt is not None:
+            ckpt.after_pass(sess.renderer)
+
+    sess = engine.RenderSession(on_pass=on_pass, log=_say, should_stop=lambda: stop["flag"],
+                                on_renderer=ckpt.resume if ckpt is not None and a.resume else None)
+    scene = open_blend(a.blend, a.frame, a.resolution)
+    prev = signal.signal(signal.SIGINT, on_sigint)
+    # SIGTERM (a scheduler stopping the job) ends the render the same way.
+    prev_term = signal.signal(signal.SIGTERM, on_sigint)
+    t0 = time.monotonic()
+    try:
+        render_scene(scene, overrides, sess)
+    finally:
+        signal.signal(signal.SIGINT, prev)
+        signal.signal(signal.SIGTERM, prev_term)
+        progress.close()
+    wall = time.monotonic() - t0
     if sess.result is None or sess.result.pass_index == 0:
         if stop["flag"]:
             _say("Cancelled before the first pass: nothing written.")
@@ -444,22 +486,25 @@ def render(a) -> int:
     return EXIT_CANCELLED if stop["flag"] else EXIT_OK
 
 
-def main(argv=None) -> int:
-    parser = build_parser()
+# The sub-commands of this module: {name: (add_parser(sub), run(args) -> exit code)}.
+COMMANDS = {"render": (add_render_parser, render)}
+
+
+def main(argv=None, commands: dict | None = None) -> int:
+    """Parse ``argv`` and run the sub-command; returns the exit code (never raises).
+
+    commands: the sub-commands (default :data:`COMMANDS`); ``tools/cli.py``
+    adds the development tools to them.  A run function raises CLIError for
+    a documented failure: its message goes to stderr and its code is returned.
+    """
+    commands = COMMANDS if commands is None else commands
+    parser = build_parser(commands)
     try:
         a = parser.parse_args(argv)
     except SystemExit as ex:   # argparse: 2 on usage errors, 0 for --help
         return int(ex.code or 0)
     try:
-        if a.command == "render":
-            return render(a)
-        if a.command == "converge":
-            from ..tools.converge import ConvergeError, converge
-            try:
-                return converge(a)
-            except ConvergeError as ex:
-                raise CLIError(ex.code, str(ex))
-        parser.error(f"unknown command {a.command}")
+        return commands[a.command][1](a)
     except CLIError as ex:
         print(f"fppm: error: {ex}", file=sys.stderr, flush=True)
         return ex.code
@@ -469,7 +514,6 @@ def main(argv=None) -> int:
     except Exception:
         traceback.print_exc()
         return EXIT_INTERNAL
-    return EXIT_INTERNAL
 
 
 if __name__ == "__main__":

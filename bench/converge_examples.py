@@ -68,14 +68,14 @@ NOTES = [
     "Before this run, FPPM used 8 bounces while the example scenes' Cycles Light Paths use 16: "
     "the indirectly lit room came out 2.8% darker than Cycles, a bias shared by FPPM and PPM that "
     "held both at the same error (FPPM/PPM 0.99).  The default is now 16, and each pixel's "
-    "initial radius is capped at surface edges (core/edges.py).",
-    "Region masks come from the reference (core/metrics.py): in scenes without caustics the "
+    "initial radius is capped at surface edges (core/sppm/edges.py).",
+    "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
 ]
 
 
-# Issue 4: the corrected frequency model against the paper's printed one, at
-# equal time, on the indirectly lit scene and the caustic scene.
+# The corrected frequency model against the paper's printed one, at equal
+# time, on the indirectly lit scene and the caustic scene.
 WITH_PAPER = ("indirect_room", "point_caustic")
 
 
@@ -94,7 +94,7 @@ def run_scene(name, budget, seeds, from_csv=False):
         ref_args = ["--cycles-samples", str(spp)]
     os.makedirs(out, exist_ok=True)
     cmd = [sys.executable, "-c",
-           "import sys; from fppm.addon.cli import main; sys.exit(main(sys.argv[1:]))",
+           "import sys; from fppm.tools.cli import main; sys.exit(main(sys.argv[1:]))",
            "converge", os.path.join(ROOT, "example_blends", name + ".blend"),
            "--time-limit", str(budget), "--out", out, *ref_args,
            "--seeds", str(seeds), "--resolution", "100", "--kind", kind]

@@ -16,9 +16,9 @@ diffuse/glass materials, lights, camera).  ``render`` (in an environment with
 samples with different seeds.  ``finish`` writes REF.exr: Combined = their
 mean, Variance = (A - B)^2 / 4 (what ``fppm converge --reference`` reads).
 
-Unit match (shared/notes/blender.md): a Cycles point light of power P has
-intensity I = P / (4 pi) W/sr in Cycles' radiance units, which is Mitsuba's
-``point`` ``intensity``.  Pixel filter: Cycles' Blackman-Harris of width w
+Unit match (core/lights/lights.py, module docstring): a Cycles point light
+of power P has intensity I = P / (4 pi) W/sr in Cycles' radiance units, which
+is Mitsuba's ``point`` ``intensity``.  Pixel filter: Cycles' Blackman-Harris of width w
 (support +-w px) is replaced by Mitsuba's Gaussian with the same standard
 deviation (0.3 px for w = 1.5), a small difference at edges only.
 """

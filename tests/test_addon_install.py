@@ -6,6 +6,7 @@ llvmlite: ~80 MB per platform): the venv running Blender already has those
 modules, and the manifest's wheel list is checked separately against the
 Makefile's pins.  ``make extension`` builds the real zips with the wheels.
 """
+import ast
 import glob
 import os
 import re
@@ -28,8 +29,8 @@ ROOT = H.ROOT
 _SCRIPTS = os.path.dirname(os.path.dirname(os.path.dirname(bpy.__file__)))
 BLENDER_EXT = sorted(glob.glob(os.path.join(_SCRIPTS, "addons_core", "bl_pkg", "cli",
                                             "blender_ext.py")))
-EXCLUDED_TOP = {"tests", "bench", "example_blends", "dist", "wheels", "out", ".venv", ".git",
-                ".ci", "Makefile", "pyproject.toml", "README.md"}
+EXCLUDED_TOP = {"tests", "bench", "tools", "example_blends", "dist", "wheels", "out", ".venv",
+                ".git", ".ci", "Makefile", "pyproject.toml", "README.md"}
 
 
 def ext_cli(*args):
@@ -92,6 +93,51 @@ def test_zip_contains_the_package_and_nothing_else(test_zip):
     assert not (top & EXCLUDED_TOP), top & EXCLUDED_TOP
     assert "addon/engine.py" in names and "core/render.py" in names
     assert not any(n.endswith((".pyc", ".blend")) for n in names)
+
+
+def imported_modules(name: str, source: str) -> set[str]:
+    """Modules imported by the package file ``name`` ("addon/cli.py"), as dotted
+    paths from the package root ("tools.converge", "core.render"); absolute
+    imports of ``fppm.x`` count as ``x``.  ``from .. import tools`` gives "tools"."""
+    pkg = name.split("/")[:-1]           # the module's own package
+    out = set()
+    for node in ast.walk(ast.parse(source, filename=name)):
+        if isinstance(node, ast.Import):
+            bases = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg[:len(pkg) - (node.level - 1)] if node.level - 1 <= len(pkg) else ["<outside>"]
+                base = ".".join(base + ([node.module] if node.module else []))
+            else:
+                base = node.module or ""
+            bases = [base] + [f"{base}.{a.name}" if base else a.name for a in node.names]
+        else:
+            continue
+        for b in bases:
+            out.add(b[len("fppm."):] if b.startswith("fppm.") else b)
+    return out
+
+
+def test_import_scan_sees_relative_and_absolute_imports():
+    src = ("from ..tools.converge import add_parser\nfrom .. import tools\n"
+           "import fppm.tools.cli\nfrom . import engine\n")
+    mods = imported_modules("addon/cli.py", src)
+    assert {"tools.converge", "tools", "tools.cli", "addon.engine"} <= mods
+
+
+def test_no_shipped_module_imports_tools(test_zip):
+    # tools/ (fppm converge, metrics) is not in the extension: a shipped
+    # module importing it would fail inside Blender.
+    import zipfile
+    z = zipfile.ZipFile(test_zip)
+    bad = {}
+    for n in z.namelist():
+        if n.endswith(".py"):
+            mods = imported_modules(n, z.read(n).decode())
+            hits = sorted(m for m in mods if m == "tools" or m.startswith("tools."))
+            if hits:
+                bad[n] = hits
+    assert not bad, bad
 
 
 INSTALL_AND_RENDER = r"""

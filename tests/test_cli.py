@@ -50,9 +50,29 @@ def test_package_imports_without_the_repository_on_sys_path():
     # The console script runs with only site-packages on sys.path: every
     # module of the package (core included) must import relatively.
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    r = subprocess.run([sys.executable, "-c", "import fppm.addon.cli, fppm.core.render"],
+    r = subprocess.run([sys.executable, "-c",
+                        "import fppm.addon.cli, fppm.core.render, fppm.tools.cli"],
                        capture_output=True, text=True, env=env, cwd="/", timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+# addon/cli.py as the extension ships it: `render` alone, tools/ never imported.
+ADDON_CLI_ALONE = ("import sys; from fppm.addon import cli; rc = cli.main(sys.argv[1:]); "
+                   "assert not [m for m in sys.modules if m.startswith('fppm.tools')]; "
+                   "sys.exit(rc)")
+
+
+def test_addon_cli_renders_alone_without_tools(blends, tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    out = tmp_path / "alone.exr"
+    r = subprocess.run([sys.executable, "-c", ADDON_CLI_ALONE, "render", blends["simple"],
+                        "-o", str(out), "--seed", "3", *FAST, "--no-preview"],
+                       capture_output=True, text=True, env=env, cwd=str(tmp_path), timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert read_exr(str(out))["Combined"].shape == (16, 24, 4)
+    r = subprocess.run([sys.executable, "-c", ADDON_CLI_ALONE, "converge", blends["simple"]],
+                       capture_output=True, text=True, env=env, cwd=str(tmp_path), timeout=300)
+    assert r.returncode == 2 and "invalid choice: 'converge'" in r.stderr
 
 
 def test_render_writes_exr_png_and_summary(blends, tmp_path):

@@ -1,4 +1,4 @@
-"""core.io.exr: multi-layer EXR round trip, channel layout, atomic writes, clear errors."""
+"""core.io.exr and core.io.atomic: multi-layer EXR round trip, channel layout, atomic writes, clear errors."""
 import os
 import stat
 
@@ -98,3 +98,20 @@ def test_bad_layers_rejected(tmp_path):
         write_exr(str(tmp_path / "f.exr"), {"a.b": np.zeros((2, 2, 1), np.float32)}, {})
     with pytest.raises(ValueError, match="C in 1..4"):
         write_exr(str(tmp_path / "f.exr"), {"x": np.zeros((2, 2, 5), np.float32)}, {})
+
+
+def test_replace_atomically_keeps_the_old_file_on_failure(tmp_path):
+    from core.io.atomic import replace_atomically
+    p = tmp_path / "g.bin"
+    p.write_bytes(b"old")
+    with pytest.raises(RuntimeError):
+        with replace_atomically(str(p)) as tmp:
+            with open(tmp, "wb") as fh:
+                fh.write(b"half")
+            raise RuntimeError("writer failed")
+    assert p.read_bytes() == b"old" and os.listdir(tmp_path) == ["g.bin"]
+    with replace_atomically(str(p), mode=0o640) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(b"new")
+    assert p.read_bytes() == b"new" and os.listdir(tmp_path) == ["g.bin"]
+    assert stat.S_IMODE(os.stat(p).st_mode) == 0o640

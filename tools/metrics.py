@@ -38,9 +38,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.mathutil import LUMINANCE as LUMA  # Rec. 709
+
 RELMSE_EPS = 1e-2
 MRE_EPS = float(np.sqrt(RELMSE_EPS))
-from ..core.mathutil import LUMINANCE as LUMA  # noqa: E402  (Rec. 709)
 
 # --- automatic region thresholds --------------------------------------------
 #: Gaussian blur (std, pixels) that defines a pixel's "surround".

@@ -7,10 +7,10 @@ digests and the region size.  No RNG state is stored: every random stream is
 derived from (seed, pass, stage) (``Renderer._rng``), so the pass count and
 the seed (inside the settings digest) are the RNG state.
 
-Atomic save: the file is written to a temporary name in the same folder,
-flushed and ``fsync``-ed, then renamed over the previous checkpoint
-(``os.replace``), and the folder is ``fsync``-ed so the rename itself
-survives a crash.  A process killed at any instant leaves either the
+Atomic save (:func:`core.io.atomic.replace_atomically`): the file is written
+to a temporary name in the same folder, ``fsync``-ed, then renamed over the
+previous checkpoint (``os.replace``), and the folder is ``fsync``-ed so the
+rename itself survives a crash.  A process killed at any instant leaves either the
 previous complete checkpoint or the new complete one, never a mix.
 
 Nothing here imports ``bpy``.
@@ -18,12 +18,12 @@ Nothing here imports ``bpy``.
 from __future__ import annotations
 
 import os
-import tempfile
 import zipfile
 
 import numpy as np
 
 from ..errors import CheckpointMismatch
+from .atomic import replace_atomically
 
 FILENAME = "fppm-checkpoint.npz"
 FORMAT_VERSION = 1
@@ -35,21 +35,6 @@ _SCALARS = {"pass_index": int, "photons_emitted": int, "elapsed": float,
 def checkpoint_path(directory: str) -> str:
     """The checkpoint file inside ``directory``."""
     return os.path.join(directory, FILENAME)
-
-
-def _fsync_dir(directory: str) -> None:
-    # The rename is a change of the folder: without this a power loss may
-    # forget it.  Not possible on Windows (folders cannot be opened): skipped.
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 def save(directory: str, state: dict) -> str:
@@ -67,23 +52,13 @@ def save(directory: str, state: dict) -> str:
             arrays[k] = np.asarray(str(v))                 # 0-d unicode: no pickle
         else:
             arrays[k] = np.asarray(v)
-    fd, tmp = tempfile.mkstemp(prefix=".fppm-checkpoint-", suffix=".tmp", dir=directory)
     try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, **arrays)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException as ex:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        if isinstance(ex, OSError):
-            raise OSError(ex.errno, f"cannot write the checkpoint '{path}': "
-                                    f"{ex.strerror or ex}") from ex
-        raise
-    _fsync_dir(directory)
+        with replace_atomically(path, prefix=".fppm-checkpoint-", sync_dir=True) as tmp:
+            with open(tmp, "wb") as fh:
+                np.savez(fh, **arrays)
+    except OSError as ex:
+        raise OSError(ex.errno, f"cannot write the checkpoint '{path}': "
+                                f"{ex.strerror or ex}") from ex
     return path
 
 

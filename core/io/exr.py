@@ -1,4 +1,5 @@
-"""Multi-layer OpenEXR files (OpenEXR >= 3.3 Python API), written atomically.
+"""Multi-layer OpenEXR files (OpenEXR >= 3.3 Python API), written atomically
+(:func:`core.io.atomic.replace_atomically`).
 
 Layout of a file written by :func:`write_exr`:
 
@@ -16,9 +17,10 @@ Nothing here imports ``bpy``.
 from __future__ import annotations
 
 import os
-import tempfile
 
 import numpy as np
+
+from .atomic import default_file_mode, replace_atomically
 
 COMBINED = "Combined"
 # Channel letters by channel count (Blender's pass chan_id conventions).
@@ -66,7 +68,7 @@ def _channels_of(layers: dict) -> dict[str, np.ndarray]:
     return chans
 
 
-def _check_writable(path: str) -> str:
+def _check_writable(path: str) -> None:
     d = os.path.dirname(os.path.abspath(path)) or "."
     if not os.path.isdir(d):
         raise OSError(f"Cannot write '{path}': the folder '{d}' does not exist.")
@@ -74,15 +76,6 @@ def _check_writable(path: str) -> str:
         raise OSError(f"Cannot write '{path}': the folder '{d}' is not writable.")
     if os.path.isdir(path):
         raise OSError(f"Cannot write '{path}': it is a folder.")
-    return d
-
-
-def default_file_mode() -> int:
-    """0o666 minus the process umask: what ``open()`` would have given the file
-    (``mkstemp`` creates 0o600 files)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask
 
 
 def write_exr(path: str, layers: dict, metadata: dict | None = None) -> None:
@@ -91,37 +84,26 @@ def write_exr(path: str, layers: dict, metadata: dict | None = None) -> None:
     layers: ``{name: (H, W, C) float32}``, row 0 at the top, C in 1..4, all the
       same H and W.  ``"Combined"`` (3 or 4 channels) becomes R, G, B, A.
     metadata: ``{key: str}`` header attributes.
-    The file is written to a temporary file in the same folder and renamed over
-    ``path`` (``os.replace``), so a reader never sees a half-written image.
+    The file is written to a temporary file in the same folder, ``fsync``-ed and
+    renamed over ``path`` (``replace_atomically``), so a reader never sees a
+    half-written image, and after a power cut ``path`` holds the old image or
+    the new one, never an empty file.
     Raises OSError with a clear sentence when the folder is missing or not
     writable, ValueError on malformed layers.
     """
     import OpenEXR
 
     chans = _channels_of(layers)
-    d = _check_writable(path)
+    _check_writable(path)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     for k, v in (metadata or {}).items():
         header[str(k)] = str(v)
-    fd, tmp = tempfile.mkstemp(prefix=".fppm-", suffix=".exr", dir=d)
-    os.close(fd)
     try:
-        with OpenEXR.File(header, chans) as f:
-            f.write(tmp)
-        os.chmod(tmp, default_file_mode())
-        # Data on disk before the rename: after a power cut the path holds the
-        # old image or the new one, never an empty file.
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException as ex:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        if isinstance(ex, OSError):
-            raise OSError(f"Cannot write '{path}': {ex.strerror or ex}.") from ex
-        raise
+        with replace_atomically(path, suffix=".exr", mode=default_file_mode()) as tmp:
+            with OpenEXR.File(header, chans) as f:
+                f.write(tmp)
+    except OSError as ex:
+        raise OSError(f"Cannot write '{path}': {ex.strerror or ex}.") from ex
 
 
 def read_exr(path: str) -> dict[str, np.ndarray]:

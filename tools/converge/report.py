@@ -1,0 +1,321 @@
+"""Outputs of ``fppm converge`` as text: convergence.csv (written and read back) and report.md.
+
+Equal-time comparisons interpolate each run's error linearly in log-log
+between its recorded points (``tools.metrics.loglog_interp``); over seeds the
+interpolated errors are averaged (:func:`error_at`).  report.md has one
+section per function below; :func:`report` also returns the numbers as the
+summary dict (summary.json).
+"""
+from __future__ import annotations
+
+import csv
+import os
+
+import numpy as np
+
+from .. import metrics as M
+from .runs import Run, methods_run
+
+FRACTIONS = (0.1, 0.5, 1.0)
+KINDS = ("diffuse", "indirect", "caustic-small", "caustic-large")
+TARGETS = {
+    # kind: [(description, numerator, denominator, threshold)]
+    "diffuse": [("FPPM relMSE <= 0.7x PPM", "fppm", "ppm", 0.7),
+                ("FPPM relMSE <= 3x Cycles (purely diffuse)", "fppm", "cycles", 3.0)],
+    "indirect": [("FPPM relMSE <= 0.7x PPM", "fppm", "ppm", 0.7),
+                 ("FPPM relMSE <= 3x Cycles (purely diffuse)", "fppm", "cycles", 3.0)],
+    "caustic-small": [("FPPM relMSE <= 1x PPM (no worse)", "fppm", "ppm", 1.0),
+                      ("FPPM relMSE <= 0.1x Cycles (point / very small light)", "fppm", "cycles", 0.1)],
+    "caustic-large": [("FPPM relMSE <= 1x PPM (no worse)", "fppm", "ppm", 1.0),
+                      ("FPPM relMSE <= 1x Cycles (large area light: parity)", "fppm", "cycles", 1.0)],
+}
+# Sections of report.md that --from-csv keeps from the original run (they
+# need the final images, which the CSV does not hold).
+CARRIED = ("## Bias", "## Throughput")
+
+# ---------------------------------------------------------------------------
+# convergence.csv
+
+CSV_HEAD = ["method", "seed", "point", "seconds", "render_seconds", "photons", "samples"]
+
+
+def csv_columns() -> list[str]:
+    cols = list(CSV_HEAD)
+    for reg in M.REGIONS:
+        cols += [f"relmse_{reg}", f"rmse_{reg}", f"mre_{reg}"]
+    return cols
+
+
+def write_csv(path: str, runs) -> None:
+    cols = csv_columns()
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
+        w.writeheader()
+        for run in runs:
+            for row in run.rows:
+                w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v)
+                            for k, v in row.items()})
+
+
+def read_csv(path: str) -> list[Run]:
+    """The runs of a convergence.csv (rows only: no images, no throughput)."""
+    runs: dict = {}
+    with open(path) as f:
+        for row in csv.DictReader(f):
+            key = (row["method"], int(row["seed"]))
+            r = runs.setdefault(key, Run(*key))
+            d = {k: (v if k in ("method",) else (float(v) if v not in ("", None) else ""))
+                 for k, v in row.items()}
+            d["seed"] = int(row["seed"])
+            for k in ("point", "photons", "samples"):
+                if d[k] != "":
+                    d[k] = int(d[k])
+            r.rows.append(d)
+    runs = list(runs.values())
+    for r in runs:
+        if r.method != "cycles" and r.rows:
+            r.setup_seconds = r.rows[0]["seconds"] - r.rows[0]["render_seconds"]
+    return runs
+
+
+def sections(text: str) -> dict:
+    """{"## <first word>": section text up to the next '## '} of a report.md."""
+    out, cur = {}, None
+    for line in text.splitlines():
+        if line.startswith("## "):
+            cur = " ".join(line.split()[:2])
+            out[cur] = [line]
+        elif cur:
+            out[cur].append(line)
+    return {k: "\n".join(v).rstrip() for k, v in out.items()}
+
+
+# ---------------------------------------------------------------------------
+# numbers
+
+def error_at(runs, method, t, key="relmse_all") -> tuple[float, float, float]:
+    """(mean, min, max) over seeds of the log-log interpolated error at time t."""
+    vals = []
+    for r in runs:
+        if r.method != method or not r.rows:
+            continue
+        ts = np.array([row["seconds"] for row in r.rows], float)
+        es = np.array([row[key] for row in r.rows], float)
+        vals.append(M.loglog_interp(t, ts, es))
+    vals = np.array(vals, float)
+    if vals.size == 0 or np.all(np.isnan(vals)):
+        return float("nan"), float("nan"), float("nan")
+    return float(np.nanmean(vals)), float(np.nanmin(vals)), float(np.nanmax(vals))
+
+
+def ratio(runs, num, den, t, floor, excess) -> float:
+    """Equal-time relMSE ratio num / den at time t; with ``excess`` the reference
+    noise floor is subtracted from both (NaN when unknown or not above it)."""
+    a = error_at(runs, num, t)[0]
+    b = error_at(runs, den, t)[0]
+    if excess:
+        if floor is None or not np.isfinite(floor):
+            return float("nan")
+        a, b = a - floor, b - floor
+        if not (a > 0 and b > 0):
+            return float("nan")
+    return a / b if b and np.isfinite(a) and np.isfinite(b) else float("nan")
+
+
+def _fmt(v) -> str:
+    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+        return "n/a"
+    return f"{v:.3g}"
+
+
+# ---------------------------------------------------------------------------
+# report.md, section by section: each returns its lines and fills ``summary``
+
+def _header(a, runs, ref, floor, budget, interrupted) -> list[str]:
+    H, W = ref["image"].shape[:2]
+    known = floor is not None and np.isfinite(floor)
+    lines = [f"# Convergence: {os.path.basename(a.blend)}", ""]
+    if interrupted:
+        lines += ["**Interrupted (Ctrl-C): partial results.**", ""]
+    lines += [f"- Resolution {W}x{H}, budget {budget:g} s per method, seeds "
+              f"{a.seed}..{a.seed + a.seeds - 1}, {os.cpu_count()} CPU threads available "
+              "(FPPM's gather and Cycles both use all of them).",
+              f"- Reference: {ref['meta'].get('samples', '?')} spp Cycles"
+              if "samples" in ref["meta"] else f"- Reference: {ref['path']}",
+              f"- Reference noise floor (expected relMSE of a perfect image against it): "
+              f"{_fmt(floor)}" + ("" if known else " (unknown: no variance layer)"),
+              "- relMSE = mean (x - r)^2 / (r^2 + 0.01) over pixels and RGB; "
+              "excess = relMSE - floor (estimates the error against the true image).",
+              "- Time: FPPM/PPM = render set-up (scene export, BVH, occlusion grid) + passes; "
+              "Cycles = one render.render per ladder point (1, 2, 4, ... spp).  Values at a "
+              "given time are log-log interpolated between recorded points.",
+              ""]
+    for m in methods_run(runs):
+        rs = [r for r in runs if r.method == m]
+        if m != "cycles":
+            lines.append(f"- {m.upper()}: passes per seed {[len(r.rows) for r in rs]}, photons (M) "
+                         f"{[round(int(r.rows[-1]['photons']) / 1e6, 1) for r in rs if r.rows]}, "
+                         f"setup {np.mean([r.setup_seconds for r in rs]):.2f} s.")
+        else:
+            lines.append(f"- CYCLES: ladder up to {rs[0].rows[-1]['samples'] if rs[0].rows else 0} spp.")
+            if any(r.rows and r.rows[-1]["seconds"] < budget for r in rs):
+                lines.append("  The ladder stopped before the budget (--cycles-max-samples or "
+                             "Ctrl-C): after its last point Cycles' error is held constant.")
+    return lines
+
+
+def _fractions(runs, floor, budget, summary) -> list[str]:
+    known = floor is not None and np.isfinite(floor)
+    lines = ["", "## Error at fractions of the budget", "",
+             "| method | " + " | ".join(f"relMSE @{int(f * 100)}% ({f * budget:g} s)" for f in FRACTIONS)
+             + " | excess @100% | RMSE @100% | MRE @100% |",
+             "|---|" + "---|" * (len(FRACTIONS) + 3)]
+    summary["methods"] = {}
+    for m in methods_run(runs):
+        vals = [error_at(runs, m, f * budget)[0] for f in FRACTIONS]
+        ex = vals[-1] - floor if known and np.isfinite(vals[-1]) else float("nan")
+        rm = error_at(runs, m, budget, "rmse_all")[0]
+        mre = error_at(runs, m, budget, "mre_all")[0]
+        summary["methods"][m] = {"relmse": dict(zip(FRACTIONS, vals)), "excess": ex,
+                                 "rmse": rm, "mre": mre}
+        lines.append(f"| {m.upper()} | " + " | ".join(_fmt(v) for v in vals)
+                     + f" | {_fmt(ex)} | {_fmt(rm)} | {_fmt(mre)} |")
+    return lines
+
+
+def _regions(runs, floors, masks, budget, n_pixels) -> list[str]:
+    lines = ["", "## Regions at 100% of the budget (relMSE; floor in brackets)", "",
+             "| method | " + " | ".join(f"{reg} ({int(masks[reg].sum()) if reg in masks else n_pixels} px) "
+                                        f"[{_fmt(floors.get(reg))}]" for reg in M.REGIONS) + " |",
+             "|---|" + "---|" * len(M.REGIONS)]
+    for m in methods_run(runs):
+        lines.append(f"| {m.upper()} | " + " | ".join(
+            _fmt(error_at(runs, m, budget, f"relmse_{reg}")[0]) for reg in M.REGIONS) + " |")
+    return lines
+
+
+def _ratios(runs, floor, budget, summary) -> list[str]:
+    methods = methods_run(runs)
+    pairs = [(n, d) for n, d in (("fppm", "ppm"), ("fppm", "paper"), ("paper", "ppm"),
+                                  ("fppm", "cycles"), ("ppm", "cycles"))
+             if n in methods and d in methods]
+    summary["ratios"] = {}
+    if not pairs:
+        return []
+    lines = ["", "## Equal-time relMSE ratios", "",
+             "Ratio < 1: the first method has the lower error at the same time.  "
+             "'excess' subtracts the reference noise floor from both.", "",
+             "| ratio | " + " | ".join(f"@{int(f * 100)}%" for f in FRACTIONS)
+             + " | @100% (excess) |", "|---|" + "---|" * (len(FRACTIONS) + 1)]
+    for n, d in pairs:
+        rv = [ratio(runs, n, d, f * budget, floor, False) for f in FRACTIONS]
+        rx = ratio(runs, n, d, budget, floor, True)
+        summary["ratios"][f"{n}/{d}"] = {"raw": rv[-1], "excess": rx}
+        lines.append(f"| {n.upper()} / {d.upper()} | " + " | ".join(_fmt(v) for v in rv)
+                     + f" | {_fmt(rx)} |")
+    if ("ppm", "cycles") in pairs:
+        rv = summary["ratios"]["ppm/cycles"]["raw"]
+        if np.isfinite(rv):
+            lines += ["", f"Classic PPM {'beats' if rv < 1 else 'does not beat'} Cycles here "
+                          f"at equal time: PPM/Cycles relMSE = {rv:.3g} "
+                          f"({'%.3gx lower' % (1 / rv) if rv < 1 else '%.3gx higher' % rv})."]
+    return lines
+
+
+def _bias_noise(runs, ref, budget, n_seeds, carry, summary) -> list[str]:
+    lines, bn = [], {}
+    if "## Bias" in carry:
+        lines += ["", carry["## Bias"]]
+        bn = carry.get("bias_noise", {})
+    elif n_seeds >= 2:
+        lines += ["", "## Bias and noise of the final images (relMSE units)", "",
+                  "bias2 + noise = expected relMSE of one render (tools.metrics.bias_noise).", "",
+                  "| method | bias2 | noise | mean-image relMSE |", "|---|---|---|---|"]
+        for m in methods_run(runs):
+            rs = [r for r in runs if r.method == m and r.image is not None]
+            if m == "cycles":
+                # The largest sample count every seed rendered within the budget.
+                common = None
+                for r in rs:
+                    ok = {row["samples"] for row in r.rows if row["seconds"] <= budget}
+                    common = ok if common is None else common & ok
+                imgs = [r.ladder_images[max(common)] for r in rs] if common else []
+            else:
+                imgs = [r.image for r in rs]
+            if len(imgs) >= 2:
+                d = M.bias_noise(imgs, ref["image"])
+                bn[m] = d
+                lines.append(f"| {m.upper()} | {_fmt(d['bias2'])} | {_fmt(d['noise'])} | "
+                             f"{_fmt(d['relmse_mean_image'])} |")
+    summary["bias_noise"] = bn
+    return lines
+
+
+def _throughput(runs, carry, summary) -> list[str]:
+    tp = [r for r in runs if r.throughput]
+    if "## Throughput" in carry:
+        summary["throughput"] = carry.get("throughput", {})
+        return ["", carry["## Throughput"]]
+    if not tp:
+        return []
+    lines = ["", "## Throughput", "",
+             "Photon pass (trace + gather) time / raw Embree `accel.intersect` time for the same "
+             "number of random rays, measured in the same process.", "",
+             "| run | photon pass s | rays (M) | raw Embree s | ratio |", "|---|---|---|---|---|"]
+    for r in tp:
+        t = r.throughput
+        lines.append(f"| {r.method.upper()} seed {r.seed} | {t['photon_seconds']:.2f} | "
+                     f"{t['photon_rays'] / 1e6:.2f} | {t['raw_seconds']:.2f} | {t['ratio']:.2f} |")
+    summary["throughput"] = {f"{r.method}/{r.seed}": r.throughput["ratio"] for r in tp}
+    return lines
+
+
+def _targets(runs, floor, budget, kind, summary) -> list[str]:
+    lines = ["", "## Targets", ""]
+    methods = methods_run(runs)
+    summary["targets"] = []
+    if kind is None:
+        lines.append("No `--kind` given: the scene class is unknown, so no target is judged.")
+        return lines
+    lines.append(f"Scene class: **{kind}**.  Judged at 100% of the budget on the excess relMSE "
+                 "(reference noise subtracted) when both are above the floor, else on raw relMSE.")
+    lines.append("")
+    for desc, n, d, thr in TARGETS[kind]:
+        if n not in methods or d not in methods:
+            lines.append(f"- {desc}: not measured ({d} not run).")
+            continue
+        rx = ratio(runs, n, d, budget, floor, True)
+        basis = "excess"
+        if not np.isfinite(rx):
+            rx, basis = ratio(runs, n, d, budget, floor, False), "raw"
+        met = bool(np.isfinite(rx) and rx <= thr)
+        summary["targets"].append({"target": desc, "ratio": rx, "basis": basis, "met": met})
+        lines.append(f"- {desc}: ratio {_fmt(rx)} ({basis}) -> **{'MET' if met else 'MISSED'}**")
+    return lines
+
+
+def report(path, a, runs, ref, floors, masks, budget, notes, interrupted, carry=None) -> dict:
+    """Write report.md; returns the summary numbers (summary.json).
+
+    a: the ``fppm converge`` arguments (blend, seed, seeds, kind).
+    floors: {"all" | region: reference noise floor}; masks: {region: (H, W) bool}.
+    carry: ``--from-csv``: the :data:`CARRIED` sections of the previous
+      report.md and their "bias_noise" / "throughput" summary entries.
+    """
+    carry = carry or {}
+    floor = floors.get("all")
+    H, W = ref["image"].shape[:2]
+    summary = {"budget": budget, "floor": floor}
+    lines = _header(a, runs, ref, floor, budget, interrupted)
+    lines += _fractions(runs, floor, budget, summary)
+    lines += _regions(runs, floors, masks, budget, H * W)
+    lines += _ratios(runs, floor, budget, summary)
+    lines += _bias_noise(runs, ref, budget, a.seeds, carry, summary)
+    lines += _throughput(runs, carry, summary)
+    lines += _targets(runs, floor, budget, getattr(a, "kind", None), summary)
+    if notes:
+        lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]
+    lines += ["", "Region definitions: tools/metrics.py (module docstring and constants).", ""]
+    with open(path, "w") as f:
+        f.write("\n".join(lines))
+    return summary
