@@ -1,4 +1,4 @@
-"""What the leave-out plan saves (issue 7), measured in one process.
+"""What the leave-out plan saves, measured in one process.
 
     .venv/bin/python bench/bench_plan.py [--res 128] [--photons 100000] [--passes 3]
 

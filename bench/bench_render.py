@@ -3,7 +3,7 @@
     .venv/bin/python bench/bench_render.py [--res 256] [--photons 200000] [--passes 3]
                                            [--frequency] [--numpy]
 
-Prints ratios (issue 2 target: photon pass <= 2x the raw ray casting of its
+Prints ratios (target: photon pass <= 2x the raw ray casting of its
 rays at 256x256 with 200k photons per pass), never a bare time alone.
 
 "Raw Embree rays" is ``EmbreeScene.run(o32, d32, output=1)`` on prepared

@@ -176,7 +176,7 @@ def fppm_command() -> list:
     script = os.path.join(os.path.dirname(sys.executable), "fppm")
     if os.path.exists(script):
         return [script]
-    return [PYTHON, "-m", "fppm.addon.cli"]
+    return [PYTHON, "-m", "fppm.tools.cli"]
 
 
 def run_fppm(*args, timeout=300, cwd=None):
