@@ -1,4 +1,4 @@
-"""Memory estimate before the first pass (issues 6 and 8).
+"""Memory estimate before the first pass.
 
 A render that cannot fit fails up front with the setting to change, instead of
 the machine swapping or the process being killed mid-render.  Per-item costs

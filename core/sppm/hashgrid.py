@@ -414,6 +414,22 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
 
 
 @njit(cache=True)
+def _record_pair(v, p, is_freq, vp_rec, k, kf, pair_vp, pair_ph, fpair_vp, fpair_ph):
+    """Write the accepted (visible point v, photon p) pair at k when v's BSDF is
+    evaluated per pair (vp_rec[v, 7] == 0: not Lambert-only), and at kf when p
+    is a frequency photon; returns the next (k, kf)."""
+    if vp_rec[v, 7] == 0.0:
+        pair_vp[k] = v
+        pair_ph[k] = p
+        k += 1
+    if is_freq:
+        fpair_vp[kf] = v
+        fpair_ph[kf] = p
+        kf += 1
+    return k, kf
+
+
+@njit(cache=True)
 def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
                  vp_rec, cos_ng, cell_start, vp_ids, hitmask,
                  n_pair, pair_off, pair_vp, pair_ph,
@@ -437,15 +453,8 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
             mask = hitmask[q]
             for j in range(e1 - e0):
                 if (mask >> np.uint64(j)) & one:
-                    v = vp_ids[e0 + j]
-                    if vp_rec[v, 7] == 0.0:
-                        pair_vp[k] = v
-                        pair_ph[k] = p
-                        k += 1
-                    if is_freq:
-                        fpair_vp[kf] = v
-                        fpair_ph[kf] = p
-                        kf += 1
+                    k, kf = _record_pair(vp_ids[e0 + j], p, is_freq, vp_rec, k, kf,
+                                         pair_vp, pair_ph, fpair_vp, fpair_ph)
             continue
         x = np.float64(ph_pos[q, 0])
         y = np.float64(ph_pos[q, 1])
@@ -460,14 +469,7 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
             v = vp_ids[e]
             if not _accepts(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
                 continue
-            if vp_rec[v, 7] == 0.0:
-                pair_vp[k] = v
-                pair_ph[k] = p
-                k += 1
-            if is_freq:
-                fpair_vp[kf] = v
-                fpair_ph[kf] = p
-                kf += 1
+            k, kf = _record_pair(v, p, is_freq, vp_rec, k, kf, pair_vp, pair_ph, fpair_vp, fpair_ph)
 
 
 @njit(cache=True)
