@@ -7,8 +7,8 @@ estimate of Hachisuka 2008).  PASSES is the one table of the passes beyond
 Combined: Blender's pass name, channels, channel id and type, the flag that
 turns it on (a RenderSettings field or a view-layer property) and how it is
 computed.  The standard passes follow Cycles' conventions (kernel/film/
-data_passes.h, denoising_passes.h): Depth, IndexOB and IndexMA come from the
-first pass only (Cycles: sample 0), Normal, Mist, Emit and the denoising
+data_passes.h, denoising_passes.h): Depth, Object Index and Material Index come from the
+first pass only (Cycles: sample 0), Normal, Mist, Emission and the denoising
 passes are means over the passes (over filter samples, so edges average);
 docs/cycles_units.md "Passes" lists them.  Alpha (Film > Transparent) is the
 fraction of passes whose camera ray hit geometry.
@@ -129,10 +129,12 @@ def _material_index(x: PassSample):
 
 def _denoising_albedo(x: PassSample):
     """Lambert albedo at the visible point times the specular chain's
-    throughput (Cycles' denoising albedo of a diffuse surface); 0 on no
-    visible point."""
-    v = x.vp
-    return np.where(v.valid[:, None], v.beta * v.albedo, 0.0)
+    throughput (Cycles' denoising albedo of a diffuse surface); a first hit
+    without a visible point (an emission-only surface) gives the emission
+    it shows, as Cycles writes there; 0 on a miss."""
+    v, f = x.vp, x.first
+    emitter = (~v.valid & f.hit)[:, None]
+    return np.where(v.valid[:, None], v.beta * v.albedo, np.where(emitter, f.emit, 0.0))
 
 
 def _denoising_normal(x: PassSample):
@@ -157,10 +159,10 @@ PASSES = (
              lambda mean: 1.0 - mean),
     FilmPass("Normal", 3, "XYZ", "VECTOR", "view_layer.use_pass_normal", "mean",
              lambda x: x.first.n),
-    FilmPass("IndexOB", 1, "X", "VALUE", "view_layer.use_pass_object_index", "first", _object_index),
-    FilmPass("IndexMA", 1, "X", "VALUE", "view_layer.use_pass_material_index", "first",
+    FilmPass("Object Index", 1, "X", "VALUE", "view_layer.use_pass_object_index", "first", _object_index),
+    FilmPass("Material Index", 1, "X", "VALUE", "view_layer.use_pass_material_index", "first",
              _material_index),
-    FilmPass("Emit", 3, "RGB", "COLOR", "view_layer.use_pass_emit", "mean", lambda x: x.first.emit),
+    FilmPass("Emission", 3, "RGB", "COLOR", "view_layer.use_pass_emit", "mean", lambda x: x.first.emit),
     FilmPass("Denoising Normal", 3, "XYZ", "VECTOR", "view_layer.cycles.denoising_store_passes",
              "mean", _denoising_normal),
     FilmPass("Denoising Albedo", 3, "RGB", "COLOR", "view_layer.cycles.denoising_store_passes",
