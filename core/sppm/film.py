@@ -10,7 +10,7 @@ computed.  The standard passes follow Cycles' conventions (kernel/film/
 data_passes.h, denoising_passes.h): Depth, Object Index and Material Index come from the
 first pass only (Cycles: sample 0), Normal, Mist, Emission and the denoising
 passes are means over the passes (over filter samples, so edges average);
-docs/cycles_units.md "Passes" lists them.  Alpha (Film > Transparent) is the
+README.md "Passes" lists them.  Alpha (Film > Transparent) is the
 fraction of passes whose camera ray hit geometry.
 """
 from __future__ import annotations
