@@ -227,3 +227,46 @@ def test_compositor_sees_the_passes():
     names = {o.name for o in rl.outputs if o.enabled}
     assert {"Depth", "Normal", "Mist", "Emission", "Object Index", "Material Index",
             "Denoising Normal", "Denoising Albedo"} <= names, names
+
+
+def test_compositor_denoise_node_uses_the_passes():
+    """Blender's own denoiser (the compositor's Denoise node, OpenImageDenoise)
+    fed by FPPM's Denoising Albedo / Normal: a 2-pass render against Cycles at
+    512 samples.  Measured: RMS error 0.225 noisy, 0.059 denoised (x0.26);
+    asserted x0.5 (the RMS of the noisy image has ~5 % spread between seeds)."""
+    sc = _scene(transparent=False)
+    if not hasattr(sc, "compositing_node_group"):
+        pytest.skip("Blender < 5: compositor node tree API differs")
+    H.small_settings(sc, passes=2, photons=2000, seed=1)
+    tree = bpy.data.node_groups.new("Comp", "CompositorNodeTree")
+    tree.interface.new_socket("Image", in_out='OUTPUT', socket_type='NodeSocketColor')
+    sc.compositing_node_group = tree
+    rl = tree.nodes.new("CompositorNodeRLayers")
+    rl.scene = sc
+    dn = tree.nodes.new("CompositorNodeDenoise")
+    out = tree.nodes.new("NodeGroupOutput")
+    tree.links.new(rl.outputs["Image"], dn.inputs["Image"])
+    tree.links.new(rl.outputs["Denoising Normal"], dn.inputs["Normal"])
+    tree.links.new(rl.outputs["Denoising Albedo"], dn.inputs["Albedo"])
+    tree.links.new(dn.outputs[0], out.inputs[0])
+    sc.render.use_compositing = True
+    tmp = pathlib.Path(tempfile.mkdtemp())
+    sess, _ = _fppm(sc, tmp / "f.exr")
+    noisy = sess.result.image[..., :3]
+    im = sc.render.image_settings
+    if hasattr(im, "media_type"):
+        im.media_type = 'IMAGE'
+    im.file_format, im.color_depth = 'OPEN_EXR', '32'
+    bpy.data.images["Render Result"].save_render(filepath=str(tmp / "d.exr"), scene=sc)
+    denoised = read_exr(str(tmp / "d.exr"))["Combined"][..., :3]
+    sc.render.use_compositing = False
+    sc.render.engine = 'CYCLES'
+    sc.cycles.samples, sc.cycles.use_denoising, sc.cycles.device = 512, False, 'CPU'
+    sc.cycles.use_adaptive_sampling = False
+    bpy.ops.render.render()
+    bpy.data.images["Render Result"].save_render(filepath=str(tmp / "r.exr"), scene=sc)
+    ref = read_exr(str(tmp / "r.exr"))["Combined"][..., :3]
+
+    def rms(a):
+        return float(np.sqrt(np.mean((a - ref) ** 2)))
+    assert rms(denoised) < 0.5 * rms(noisy)
