@@ -78,7 +78,7 @@ class CameraPass:
     """The camera pass over the pixels (px, py) (P,) float64 of the region,
     py counted from the bottom (Blender's); max_depth: vertices a delta chain
     may have (1 = the first hit only).  frame: (W, H) of the full frame when
-    the region is a border: the filter and lens samples are then drawn for
+    the region is a border: the filter and lens samples are then drawn as for
     the whole frame and picked by absolute pixel, so a border pixel's camera
     ray is the full-frame render's (None: the region is the frame).
     transparent: Film > Transparent (camera rays that escape add no world)."""
@@ -90,13 +90,18 @@ class CameraPass:
         self.px, self.py = px, py
         self.max_depth = int(max_depth)
         self.transparent = bool(transparent)
-        self.frame_pixels, self.pixel_id = px.shape[0], None
+        self.pixel_id = None
         if frame is not None:
             Wf, Hf = (int(v) for v in frame)
             # Row 0 of the frame's sample array is the top row (py = Hf - 1).
             pid = ((Hf - 1 - py.astype(np.int64)) * Wf + px.astype(np.int64))
             if not np.array_equal(pid, np.arange(px.shape[0])):
-                self.frame_pixels, self.pixel_id = Wf * Hf, pid
+                # Only the frame rows the region spans are drawn; the others
+                # are skipped (PCG64.advance: one uint64 per float64 draw).
+                r0, r1 = int(pid.min() // Wf), int(pid.max() // Wf) + 1
+                self.skip = (4 * r0 * Wf, 4 * (Hf - r1) * Wf)
+                self.block = (r1 - r0) * Wf
+                self.pixel_id = pid - r0 * Wf
 
     def __call__(self, rng: np.random.Generator, check_stop=lambda: None,
                  centre: bool = False) -> tuple[VisiblePoints, np.ndarray]:
@@ -107,9 +112,12 @@ class CameraPass:
         before every vertex (it raises to cancel)."""
         P = self.px.shape[0]
         mtab, accel = self.mtab, self.accel
-        u = rng.random((self.frame_pixels, 4))
-        if self.pixel_id is not None:
-            u = u[self.pixel_id]
+        if self.pixel_id is None:
+            u = rng.random((P, 4))
+        else:
+            rng.bit_generator.advance(self.skip[0])
+            u = rng.random((self.block, 4))[self.pixel_id]
+            rng.bit_generator.advance(self.skip[1])
         if centre:
             u[:, :2] = 0.5      # FilterSampler.sample(0.5) = 0: the pixel centre
             u[:, 2:] = 0.0      # lens radius sqrt(0) = 0
