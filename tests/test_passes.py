@@ -270,3 +270,50 @@ def test_compositor_denoise_node_uses_the_passes():
     def rms(a):
         return float(np.sqrt(np.mean((a - ref) ** 2)))
     assert rms(denoised) < 0.5 * rms(noisy)
+
+
+def _mix_transparent(name, fac):
+    """Mix Shader: fac of a white Transparent BSDF, 1 - fac of a grey Diffuse."""
+    m = bpy.data.materials.new(name)
+    H._ensure_nodes(m)
+    nt = m.node_tree
+    for nd in list(nt.nodes):
+        if nd.type != 'OUTPUT_MATERIAL':
+            nt.nodes.remove(nd)
+    out = next(nd for nd in nt.nodes if nd.type == 'OUTPUT_MATERIAL')
+    mix = nt.nodes.new("ShaderNodeMixShader")
+    mix.inputs["Fac"].default_value = fac
+    diff = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    diff.inputs["Color"].default_value = (0.5, 0.5, 0.5, 1.0)
+    tr = nt.nodes.new("ShaderNodeBsdfTransparent")
+    nt.links.new(diff.outputs[0], mix.inputs[1])
+    nt.links.new(tr.outputs[0], mix.inputs[2])
+    nt.links.new(mix.outputs[0], out.inputs["Surface"])
+    return m
+
+
+def test_alpha_through_transparent_bsdf_as_cycles():
+    """A 60 % Transparent / 40 % Diffuse card in front of the background and a
+    cube: alpha = 1 - the throughput escaping straight through (Cycles).  Per
+    pass FPPM's alpha is 0 or 1 (the lobe choice), so the per-pixel noise is
+    the Bernoulli one of test_alpha_is_coverage_as_cycles."""
+    sc = _scene(passes=False)
+    card = H.add_plane(sc, name="Card", size=1.2, z=0.0, material=_mix_transparent("Card", 0.6))
+    card.location = (0.3, -2.0, 1.0)
+    card.rotation_euler = (np.radians(80), 0.0, 0.0)
+    tmp = pathlib.Path(tempfile.mkdtemp())
+    _, f = _fppm(sc, tmp / "f.exr")
+    sc.render.engine = 'CYCLES'
+    sc.cycles.samples, sc.cycles.use_denoising, sc.cycles.device = N_CYCLES, False, 'CPU'
+    sc.cycles.use_adaptive_sampling = False
+    bpy.ops.render.render()
+    c = _render_result(sc, tmp / "c.exr")
+    a, b = f["Combined"][..., 3], c["Combined"][..., 3]
+    part = (b > 0.2) & (b < 0.8)
+    assert part.sum() > 20          # the card over the background: alpha ~0.4
+    p = np.clip((a * N_FPPM + b * N_CYCLES) / (N_FPPM + N_CYCLES), 1 / N_FPPM, 1 - 1 / N_FPPM)
+    z = np.abs(a - b) / np.sqrt(p * (1 - p) * (1 / N_FPPM + 1 / N_CYCLES))
+    assert z.max() < 5.0
+    # Mean over the card's see-through pixels: sigma <= 0.12 / sqrt(20).
+    assert abs(a[part].mean() - b[part].mean()) < 0.05
+    assert abs(b[part].mean() - 0.4) < 0.05

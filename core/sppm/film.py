@@ -11,7 +11,8 @@ data_passes.h, denoising_passes.h): Depth, Object Index and Material Index come 
 first pass only (Cycles: sample 0), Normal, Mist, Emission and the denoising
 passes are means over the passes (over filter samples, so edges average);
 README.md "Passes" lists them.  Alpha (Film > Transparent) is the
-fraction of passes whose camera ray hit geometry.
+mean over passes of 1 - the throughput with which the camera ray escaped
+to the world (straight through Transparent BSDFs), Cycles' definition.
 """
 from __future__ import annotations
 
@@ -209,7 +210,7 @@ class Film:
         first = getattr(vp, "first", None)
         if first is None or self.scene is None:
             return
-        self.coverage += first.hit
+        self.coverage += 1.0 - first.escape
         if self.data_passes:
             x = PassSample(first, vp, self.scene, self.eye, self.view, self.R_wc)
             for p in self.data_passes:

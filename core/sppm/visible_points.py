@@ -65,13 +65,17 @@ class FirstHit:
     n (P,3) float64 shading normal facing the ray (Cycles flips N and Ng on
     back-face hits); prim (P,) int64 triangle (-1 on a miss); emit (P,3)
     float64 emission the camera ray sees directly (analytic emitters before
-    the hit and the surface's own; not the world).
+    the hit and the surface's own; not the world); escape (P,) float64 the
+    throughput with which the camera ray escaped to the world straight
+    through transparent surfaces (1 on a miss, 0 on an opaque hit): Cycles'
+    alpha is 1 - escape.
     """
     hit: np.ndarray
     p: np.ndarray
     n: np.ndarray
     prim: np.ndarray
     emit: np.ndarray
+    escape: np.ndarray
 
 
 class CameraPass:
@@ -125,7 +129,11 @@ class CameraPass:
         L = np.zeros((P, 3))
         vp = VisiblePoints.empty(P, mtab.kind.shape[1])
         first = vp.first = FirstHit(hit=np.zeros(P, bool), p=np.zeros((P, 3)), n=np.zeros((P, 3)),
-                                    prim=np.full(P, -1, np.int64), emit=np.zeros((P, 3)))
+                                    prim=np.full(P, -1, np.int64), emit=np.zeros((P, 3)),
+                                    escape=np.zeros(P))
+        # Still "seen through" by the camera: no vertex yet, or only straight
+        # transmissions (Transparent BSDF); Cycles' transparent background.
+        see_through = np.ones(P, bool)
         idx = np.arange(P)
         o, d, tmax = rays.o, rays.d, rays.t_max
         beta = np.ones((P, 3))
@@ -147,8 +155,11 @@ class CameraPass:
                     if depth == 0:
                         first.emit[idx[sel]] += Le
             miss = ~hit
-            if depth == 0 and self.transparent:
-                miss = np.zeros_like(miss)  # Film > Transparent: alpha 0, no world
+            esc = miss & see_through
+            if np.any(esc):
+                first.escape[idx[esc]] += beta[esc].mean(axis=1)
+                if self.transparent:
+                    miss = miss & ~esc      # Film > Transparent: alpha 0, no world
             if np.any(miss):
                 L[idx[miss]] += beta[miss] * Lt.world_radiance(self.light_table)[None, :]
             ih = np.nonzero(hit)[0]
@@ -209,6 +220,7 @@ class CameraPass:
             c = c[ok]
             wi = wi[ok]
             refl = (_dot(wi, ng[c]) * _dot(wo[c], ng[c])) > 0
+            see_through = see_through[ih[c]] & (_dot(wi, d[ih[c]]) > 1.0 - 1e-9)
             o = accel.spawn(p[c], ng[c], wi)
             d = wi
             beta = bt[c] * wgt[ok]
