@@ -317,3 +317,48 @@ def test_alpha_through_transparent_bsdf_as_cycles():
     # Mean over the card's see-through pixels: sigma <= 0.12 / sqrt(20).
     assert abs(a[part].mean() - b[part].mean()) < 0.05
     assert abs(b[part].mean() - 0.4) < 0.05
+
+
+@pytest.mark.parametrize("falloff", ["LINEAR", "INVERSE_QUADRATIC"])
+def test_mist_falloff_as_cycles(falloff):
+    sc = _scene(passes=False)
+    sc.view_layers[0].use_pass_mist = True
+    sc.view_layers[0].use_pass_object_index = True
+    sc.world.mist_settings.falloff = falloff
+    H.small_settings(sc, passes=4, photons=2000, seed=1)
+    tmp = pathlib.Path(tempfile.mkdtemp())
+    _, f = _fppm(sc, tmp / "f.exr")
+    sc.render.engine = 'CYCLES'
+    sc.cycles.samples, sc.cycles.use_denoising, sc.cycles.device = 64, False, 'CPU'
+    bpy.ops.render.render()
+    c = _render_result(sc, tmp / "c.exr")
+    m = _interior(c)
+    tol = 3.0 * _neighbour_span(c["Mist"]) + 1e-4
+    assert np.all(np.abs(f["Mist"] - c["Mist"])[..., 0][m] <= tol[m])
+
+
+def test_checkpoint_resume_keeps_alpha_and_passes():
+    """2 passes, checkpoint, 1 more = 3 passes straight, bit for bit (the
+    film's sums are in the checkpoint)."""
+    from fppm.addon.export import export_scene
+    from fppm.core.render import Renderer
+    from fppm.core.settings import RenderSettings
+    _scene()
+    scene = export_scene(H.evaluated_depsgraph(), log=lambda m: None)
+    assert scene.film_transparent
+    names = ("Depth", "Normal", "Mist", "Denoising Albedo")
+
+    def make(n):
+        return Renderer(scene, RenderSettings(max_passes=n, photons_per_pass=3000, seed=2),
+                        log=lambda m: None, passes=names)
+    straight = make(3).run()
+    r = make(2)
+    r.run()
+    d = r.state_dict()
+    r2 = make(3)
+    r2.load_state(d)
+    resumed = r2.run()
+    assert np.array_equal(resumed.image, straight.image)
+    assert 0.0 < resumed.image[..., 3].mean() < 1.0
+    for n in names:
+        assert np.array_equal(resumed.aovs[n], straight.aovs[n]), n
