@@ -362,3 +362,18 @@ def test_checkpoint_resume_keeps_alpha_and_passes():
     assert 0.0 < resumed.image[..., 3].mean() < 1.0
     for n in names:
         assert np.array_equal(resumed.aovs[n], straight.aovs[n]), n
+
+
+def test_film_exposure_scales_emission_not_data():
+    # Cycles' Film > Exposure scales the light passes (Emission), not the
+    # data passes (Normal, Denoising Albedo).
+    sc = _scene()
+    H.small_settings(sc, passes=1, photons=2000, seed=1)
+    sc.cycles.film_exposure = 2.0
+    tmp = pathlib.Path(tempfile.mkdtemp())
+    sess, f = _fppm(sc, tmp / "f.exr")
+    pr = sess.result
+    assert np.array_equal(f["Emission"], pr.aovs["Emission"] * np.float32(2.0))
+    assert np.any(pr.aovs["Emission"] > 0)
+    for name in ("Normal", "Denoising Albedo", "Depth"):
+        assert np.array_equal(f[name], pr.aovs[name]), name
