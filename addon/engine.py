@@ -22,25 +22,23 @@ import numpy as np
 from ..core.errors import FPPMError, RenderCancelled
 from ..core.render import Renderer
 from ..core.settings import SettingsError
+from ..core.sppm.film import PASSES, pass_enabled
 from .export import export_scene
 from .properties import settings_from_scene
 
-# (setting that enables it, pass name, channels, chan_id, Blender pass type)
-AOV_PASSES = (
-    ("aov_radius", "FPPM Radius", 1, "X", 'VALUE'),
-    ("aov_radius", "FPPM Radius px", 1, "X", 'VALUE'),
-    ("aov_predicted_radius", "Predicted Radius", 1, "X", 'VALUE'),
-    ("aov_spectrum", "Spectrum", 3, "XYZ", 'VECTOR'),
-    ("aov_photon_count", "Photon Count", 1, "X", 'VALUE'),
-    ("aov_held", "Held", 1, "X", 'VALUE'),
-)
+# (flag that enables it, pass name, channels, chan_id, Blender pass type): the
+# table of core.sppm.film.PASSES, FPPM's AOVs and Blender's standard passes.
+AOV_PASSES = tuple((p.flag, p.name, p.channels, p.chan_id, p.kind) for p in PASSES)
+# Light passes Film > Exposure scales too (Cycles: light passes, not data ones).
+EXPOSED_PASSES = frozenset({"Emission"})
 UPDATE_INTERVAL = 0.25  # s between image-editor updates (at most ~4 per second)
 
 
-def enabled_aovs(settings) -> list[tuple[str, int, str, str]]:
-    """(name, channels, chan_id, type) of the AOV passes the settings ask for."""
-    return [(name, ch, cid, kind) for flag, name, ch, cid, kind in AOV_PASSES
-            if getattr(settings, flag)]
+def enabled_aovs(settings, view_layer=None) -> list[tuple[str, int, str, str]]:
+    """(name, channels, chan_id, type) of the passes the settings and the
+    view layer (Passes panel: Z, Mist, Normal, ...) ask for."""
+    return [(p.name, p.channels, p.chan_id, p.kind) for p in PASSES
+            if pass_enabled(p, settings, view_layer)]
 
 
 def film_gain(scene) -> float:
@@ -154,7 +152,7 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
 
     def update_render_passes(self, scene=None, renderlayer=None):
         self.register_pass(scene, renderlayer, "Combined", 4, "RGBA", 'COLOR')
-        for name, ch, cid, kind in enabled_aovs(settings_from_scene(scene)):
+        for name, ch, cid, kind in enabled_aovs(settings_from_scene(scene), renderlayer):
             self.register_pass(scene, renderlayer, name, ch, cid, kind)
 
     # -- helpers -----------------------------------------------------------
@@ -184,6 +182,8 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
             a = pr.aovs.get(name)
             p = layer.passes.get(name)
             if a is not None and p is not None:
+                if name in EXPOSED_PASSES and gain != 1.0:
+                    a = a * np.float32(gain)
                 p.rect.foreach_set(blender_rows(a, ch))
 
     # -- the render callback -------------------------------------------------
@@ -223,7 +223,9 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
             return
         # should_stop is also polled while the renderer is set up (BVH,
         # occlusion grid): RenderCancelled from there is caught in render().
-        renderer = Renderer(fscene, settings, log=self._log, should_stop=self.break_requested)
+        aovs = enabled_aovs(settings, depsgraph.view_layer)
+        renderer = Renderer(fscene, settings, log=self._log, should_stop=self.break_requested,
+                            passes=tuple(a[0] for a in aovs))
         if sess is not None:
             sess.renderer = renderer
             if sess.on_renderer is not None:
@@ -235,7 +237,6 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
                 self.report({'INFO'}, line)
         self.update_stats("", renderer.plan.lines()[0])
 
-        aovs = enabled_aovs(settings)
         # The AOV passes come from update_render_passes (register_pass), which
         # Blender calls when the render starts; add_pass is not needed.
         # The region Blender expects: the border crop when a border is set.

@@ -304,6 +304,8 @@ class _Exporter:
         self.scene = depsgraph.scene
         self.log = log
         self.materials: list[Material] = []
+        self.mat_pass_index: list[int] = []    # material.pass_index per entry of materials
+        self.obj_index_parts: list[np.ndarray] = []   # object.pass_index per triangle of parts
         self.mat_index: dict = {}
         self.textures: list[np.ndarray] = []
         self.tex_index: dict = {}
@@ -358,6 +360,7 @@ class _Exporter:
         if idx is None and mat is None:
             idx = self.mat_index[key] = len(self.materials)
             self.materials.append(DEFAULT_MATERIAL)
+            self.mat_pass_index.append(0)
         if idx is None:
             mb = _MaterialBuilder(self, mat)
             m = mb.build()
@@ -367,6 +370,7 @@ class _Exporter:
                          + " replaced by diffuse grey.")
             idx = len(self.materials)
             self.materials.append(m)
+            self.mat_pass_index.append(int(getattr(mat, "pass_index", 0)))
             self.mat_index[key] = idx
         return idx
 
@@ -523,6 +527,15 @@ class _Exporter:
             self.notes.append("world: linked strength ignored")
         return c * float(st.default_value)
 
+    def mist(self) -> tuple:
+        """(start, depth, falloff exponent) of the world's mist pass; Cycles
+        maps the falloff QUADRATIC / LINEAR / INVERSE_QUADRATIC to 2 / 1 / 0.5."""
+        ms = getattr(self.scene.world, "mist_settings", None)
+        if ms is None:
+            return (5.0, 25.0, 2.0)
+        fall = {'QUADRATIC': 2.0, 'LINEAR': 1.0, 'INVERSE_QUADRATIC': 0.5}.get(ms.falloff, 2.0)
+        return (float(ms.start), float(ms.depth), fall)
+
     # -- camera ----------------------------------------------------------------
     def camera(self, cam_ob) -> Camera:
         if cam_ob is None or cam_ob.type != 'CAMERA':
@@ -599,6 +612,8 @@ class _Exporter:
                 partly_visible.append(ob.name)
             n0 = len(parts)
             self.geometry(inst, ob, parts)
+            self.obj_index_parts += [np.full(len(q[0]), int(getattr(ob, "pass_index", 0)), np.int32)
+                                     for q in parts[n0:]]
             if len(parts) > n0:
                 self.n_objects += 1
                 self.n_instances += bool(inst.is_instance)
@@ -624,7 +639,12 @@ class _Exporter:
         fscene = Scene(tri_p=tri_p, tri_n=tri_n, tri_uv=tri_uv, tri_mat=tri_mat,
                        materials=self.materials, lights=lights, camera=cam,
                        world_color=world, textures=self.textures,
-                       filter_width=float(getattr(cy, "filter_width", 1.5)) if cy else 1.5)
+                       filter_width=float(getattr(cy, "filter_width", 1.5)) if cy else 1.5,
+                       tri_object_index=(np.concatenate(self.obj_index_parts) if parts
+                                         else np.zeros(0, np.int32)),
+                       material_pass_index=np.asarray(self.mat_pass_index, np.int32),
+                       film_transparent=bool(getattr(scene.render, "film_transparent", False)),
+                       mist=self.mist())
         n_all = fscene.n_triangles
         if n_all == 0:
             raise SceneError(NOTHING_VISIBLE)

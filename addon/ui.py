@@ -100,6 +100,28 @@ class FPPM_RENDER_PT_output(FPPMPanel, Panel):
         col.prop(s, "aov_spectrum")
         col.prop(s, "aov_photon_count")
         col.prop(s, "aov_held")
+        draw_view_layer_passes(layout, getattr(context, "view_layer", None))
+
+
+def draw_view_layer_passes(layout, view_layer):
+    """The active view layer's flags of Blender's standard passes FPPM writes
+    (core.sppm.film.PASSES: Depth, Mist, Normal, ..., denoising data)."""
+    if view_layer is None:
+        return
+    from ..core.sppm.film import PASSES
+    col = layout.column(heading="View Layer")
+    seen = set()
+    for p in PASSES:
+        if not p.flag.startswith("view_layer.") or p.flag in seen:
+            continue
+        seen.add(p.flag)
+        owner = view_layer
+        *path, prop = p.flag.split(".")[1:]
+        for part in path:
+            owner = getattr(owner, part, None)
+        if owner is not None and hasattr(owner, prop):
+            col.prop(owner, prop, text="Denoising Data" if prop == "denoising_store_passes"
+                     else p.name)
 
 
 classes = (
@@ -127,7 +149,8 @@ STANDARD_PANELS = {
                           "RENDER_PT_color_management_curves",
                           "RENDER_PT_color_management_white_balance",
                           "RENDER_PT_color_management_advanced"),
-    "film": ("CYCLES_RENDER_PT_film", "CYCLES_RENDER_PT_film_pixel_filter"),
+    "film": ("CYCLES_RENDER_PT_film", "CYCLES_RENDER_PT_film_pixel_filter",
+             "CYCLES_RENDER_PT_film_transparency"),
     "camera": ("DATA_PT_context_camera", "DATA_PT_lens", "DATA_PT_camera",
                "DATA_PT_camera_dof", "DATA_PT_camera_dof_aperture", "DATA_PT_camera_display",
                "DATA_PT_camera_display_composition_guides", "DATA_PT_camera_safe_areas",

@@ -6,8 +6,9 @@
 
 API CONTRACT
 - ``Renderer(scene: Scene, settings: RenderSettings, log: Callable[[str], None] = print,
-  should_stop=None, ...)``: ``should_stop()`` is polled during the set-up too
-  (BVH, plan, occlusion grid); True raises RenderCancelled.
+  should_stop=None, ..., passes=())``: ``should_stop()`` is polled during the set-up too
+  (BVH, plan, occlusion grid); True raises RenderCancelled.  ``passes``: names of
+  core.sppm.film.PASSES (Depth, Normal, ...) to produce in ``PassResult.aovs``.
 - ``Renderer.width, Renderer.height``: size of the rendered region (the border
   crop when ``scene.camera.border`` is set), ``Renderer.offset``: (x0, y0) of that
   region in Blender's pixel coordinates (y from the bottom).
@@ -66,6 +67,19 @@ __all__ = ["Renderer", "PassResult", "VisiblePoints", "PHOTON_CHUNK"]
 _STATE_FIELDS = frozenset(f.name for f in fields(PixelState))
 
 
+def border_rect(border, W: int, H: int) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) pixel rectangle of a render border, exactly as Blender
+    computes its ``disprect`` (render/intern/pipeline.cc, render_init_from_main:
+    ``disprect.xmin = rd->border.xmin * winx`` -- a float32 product truncated
+    to int), so the region has the size of Blender's render result; y from
+    the bottom.  Blender refuses an empty region ("Image too small"); here it
+    is widened to one pixel for callers outside Blender."""
+    f32 = np.float32
+    x0, y0, x1, y1 = (int(f32(b) * f32(n)) for b, n in zip(border, (W, H, W, H)))
+    x0, y0 = min(max(x0, 0), W - 1), min(max(y0, 0), H - 1)
+    return x0, y0, min(max(x1, x0 + 1), W), min(max(y1, y0 + 1), H)
+
+
 class Renderer:
     #: Arrays every checkpoint holds (the optional r_hist / spectrum come with
     #: the settings that need them); derived from the state's fields.
@@ -73,7 +87,7 @@ class Renderer:
 
     def __init__(self, scene: Scene, settings: RenderSettings,
                  log: Callable[[str], None] = print, should_stop=None,
-                 force_stages: tuple = ()):
+                 force_stages: tuple = (), passes: tuple = ()):
         self.settings = settings.validate()
         self.log = log
         # Polled between the set-up stages too (cancel within 1 s).
@@ -85,7 +99,9 @@ class Renderer:
         self.stage_seconds = {k: 0.0 for k in ("camera", "direct", "photon_trace", "gather", "update")}
         self.camera_pass = CameraPass(self.scene, self.accel, self.mtab, self.light_table,
                                       self.camera, self.fsamp, self.px, self.py,
-                                      st.max_bounces if self.plan.specular_chains else 1)
+                                      st.max_bounces if self.plan.specular_chains else 1,
+                                      frame=self.full_size,
+                                      transparent=self.scene.film_transparent)
         self.direct_light = NextEventEstimation(self.light_table, self.mtab, self.accel,
                                                 self.scene.tri_p)
         freq = self.plan.frequency_photons
@@ -93,7 +109,7 @@ class Renderer:
         self.photon_pass = PhotonPass(self.tracer, self.mtab, st, freq,
                                       self.radii.hist if self.radii.quantile else None,
                                       self.stage_seconds)
-        self.film = Film(st, self.camera, self.height, self.width)
+        self.film = Film(st, self.camera, self.height, self.width, self.scene, passes)
         self.state = PixelState.zeros(P, HIST_BINS if self.radii.quantile else 0, st.aov_spectrum)
         self.pass_index = 0
         self.photons_emitted = 0
@@ -115,11 +131,7 @@ class Renderer:
             raise SceneError(f"The render resolution {W}x{H} is empty: set a resolution of at least 1x1.")
         self.full_size = (W, H)
         if cam.border is not None:
-            bx0, by0, bx1, by1 = cam.border
-            x0, x1 = int(np.floor(bx0 * W)), int(np.ceil(bx1 * W))
-            y0, y1 = int(np.floor(by0 * H)), int(np.ceil(by1 * H))
-            x0, y0 = max(x0, 0), max(y0, 0)
-            x1, y1 = min(max(x1, x0 + 1), W), min(max(y1, y0 + 1), H)
+            x0, y0, x1, y1 = border_rect(cam.border, W, H)
         else:
             x0, y0, x1, y1 = 0, 0, W, H
         self.offset = (x0, y0)
@@ -256,6 +268,7 @@ class Renderer:
             state.spectrum[...] = est.spectrum
         r_pred = self.radii.predicted(est.r_pred_min, state.r_hist) if est.gathered else est.r_pred_min
         self.radii.update(state, vp.const, est.M, est.Phi, r_pred)
+        self.film.accumulate(vp)
         clock["update"] += time.perf_counter() - tu
         self.pass_index = k
         self.photons_emitted += st.photons_per_pass
@@ -275,6 +288,7 @@ class Renderer:
         d.update(pass_index=self.pass_index, photons_emitted=self.photons_emitted,
                  elapsed=self.elapsed, settings_digest=self.settings.image_digest(),
                  scene_digest=scene_digest(self.scene), size=(self.width, self.height))
+        d.update(self.film.state_dict())
         return d
 
     def load_state(self, d: dict) -> None:
@@ -287,6 +301,7 @@ class Renderer:
         if tuple(d["size"]) != (self.width, self.height):
             raise CheckpointMismatch("The checkpoint was made at a different resolution.")
         self.state.load_state(d)
+        self.film.load_state(d)
         self.pass_index = int(d["pass_index"])
         self.photons_emitted = int(d["photons_emitted"])
         self.elapsed = float(d["elapsed"])

@@ -175,6 +175,10 @@ class Scene:
     world_color: (3,) float64 constant background radiance.
     textures: list of (H, W, 3|4) float32 linear images, row 0 at the bottom.
     filter_width: Cycles' pixel filter width in pixels (Blackman-Harris).
+    tri_object_index: (T,) int32 the object's pass index (IndexOB pass) or None (0).
+    material_pass_index: (M,) int32 each material's pass index (IndexMA) or None (0).
+    film_transparent: Film > Transparent (camera rays that escape give alpha 0).
+    mist: (start, depth, falloff exponent) of the world's mist pass [m, m, 1].
     """
     tri_p: np.ndarray
     tri_n: np.ndarray
@@ -186,6 +190,10 @@ class Scene:
     world_color: np.ndarray = field(default_factory=lambda: np.zeros(3))
     textures: list = field(default_factory=list)
     filter_width: float = 1.5
+    tri_object_index: Optional[np.ndarray] = None
+    material_pass_index: Optional[np.ndarray] = None
+    film_transparent: bool = False
+    mist: tuple = (5.0, 25.0, 2.0)
 
     @property
     def n_triangles(self) -> int:
@@ -263,7 +271,11 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
         scene = Scene(tri_p=scene.tri_p[ok], tri_n=tri_n[ok], tri_uv=tri_uv[ok],
                       tri_mat=scene.tri_mat[ok], materials=scene.materials,
                       lights=scene.lights, camera=scene.camera, world_color=scene.world_color,
-                      textures=scene.textures, filter_width=scene.filter_width)
+                      textures=scene.textures, filter_width=scene.filter_width,
+                      tri_object_index=None if scene.tri_object_index is None
+                      else scene.tri_object_index[ok],
+                      material_pass_index=scene.material_pass_index,
+                      film_transparent=scene.film_transparent, mist=scene.mist)
     return scene, dropped
 
 
@@ -285,4 +297,6 @@ def scene_digest(scene: Scene) -> str:
     for t in scene.textures:
         h.update(np.ascontiguousarray(t).tobytes())
     h.update(repr(scene.filter_width).encode())
+    if scene.film_transparent:      # (only when set: older checkpoints keep their digest)
+        h.update(b"film_transparent")
     return h.hexdigest()[:16]

@@ -1,15 +1,23 @@
-"""The film: the radiance estimate of every pixel and the AOVs, from the progressive state.
+"""The film: the radiance estimate of every pixel, its alpha and the passes, from the progressive state.
 
     L = L_sum / passes + tau / (pi R^2 N_emitted)        (docs/method.md, "Film")
 
 (direct light and emission averaged over the passes, plus the photon density
-estimate of Hachisuka 2008).  AOVS is the one table of the extra passes: name,
-channels, the RenderSettings flag that turns it on, and how it is computed.
+estimate of Hachisuka 2008).  PASSES is the one table of the passes beyond
+Combined: Blender's pass name, channels, channel id and type, the flag that
+turns it on (a RenderSettings field or a view-layer property) and how it is
+computed.  The standard passes follow Cycles' conventions (kernel/film/
+data_passes.h, denoising_passes.h): Depth, Object Index and Material Index come from the
+first pass only (Cycles: sample 0), Normal, Mist, Emission and the denoising
+passes are means over the passes (over filter samples, so edges average);
+README.md "Passes" lists them.  Alpha (Film > Transparent) is the
+mean over passes of 1 - the throughput with which the camera ray escaped
+to the world (straight through Transparent BSDFs), Cycles' definition.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, NamedTuple
+from typing import Callable, NamedTuple, Optional
 
 import numpy as np
 
@@ -34,14 +42,52 @@ class PassResult:
                 f"{m}:{s:02d} | mean radius {self.mean_radius_px:.2f} px")
 
 
-class Aov(NamedTuple):
-    """One AOV: compute(state, R, r_px) -> (P, channels) or (P,) per-pixel
-    values from the PixelState, the radius R (P,) [m] (0 = none yet) and the
-    radius in pixel footprints r_px (P,)."""
+class FilmPass(NamedTuple):
+    """One pass of the render result beyond Combined.
+
+    name, channels, chan_id, kind: as Blender's RenderEngine.register_pass
+    takes them.  flag: the RenderSettings field that turns it on, or
+    "view_layer.<property>" (a property of the view layer, e.g. use_pass_z,
+    or "view_layer.cycles.denoising_store_passes").  source: how it is made --
+      'state': compute(state, R, r_px) -> (P, C) or (P,) from the PixelState,
+        the radius R (P,) [m] (0 = none yet) and the radius in pixel
+        footprints r_px (P,), at film time;
+      'mean': compute(sample) -> (P, C) per pass from a PassSample, averaged
+        over the passes, then finish(mean) (None: the mean itself);
+      'first': compute(sample) of pass 1 only (Cycles writes these on its
+        first sample: an edge pixel gets one object, not a blend).
+    """
     name: str
     channels: int
-    setting: str
+    chan_id: str
+    kind: str
+    flag: str
+    source: str
     compute: Callable
+    finish: Optional[Callable] = None
+
+
+class PassSample(NamedTuple):
+    """One pass's camera data for the 'mean' / 'first' passes.
+
+    first: core.sppm.visible_points.FirstHit; vp: VisiblePoints (the visible
+    points, where the denoising features are taken, as Cycles follows
+    specular bounces to the first rough surface); scene: core Scene; eye (3,)
+    camera position, view (3,) unit viewing direction, R_wc (3, 3) world ->
+    camera rotation (rows: camera x, y, -z axes in world space, so camera-space
+    z is the distance in front of the camera, Cycles' convention).
+    """
+    first: object
+    vp: object
+    scene: object
+    eye: np.ndarray
+    view: np.ndarray
+    R_wc: np.ndarray
+
+
+#: Cycles' Depth of a pixel whose first sample escaped (its pass accessor
+#: turns the empty value into 1e10).
+DEPTH_MISS = 1e10
 
 
 def _spectrum(s, R, r_px):
@@ -50,23 +96,148 @@ def _spectrum(s, R, r_px):
     return np.nan_to_num(np.clip(s.spectrum, -_F32_MAX, _F32_MAX), nan=0.0)
 
 
-AOVS = (
-    Aov("FPPM Radius", 1, "aov_radius", lambda s, R, r_px: R),
-    Aov("FPPM Radius px", 1, "aov_radius", lambda s, R, r_px: r_px),
-    Aov("Predicted Radius", 1, "aov_predicted_radius",
-        lambda s, R, r_px: np.where(np.isfinite(s.r_pred_last), s.r_pred_last, 0.0)),
-    Aov("Spectrum", 3, "aov_spectrum", _spectrum),
-    Aov("Photon Count", 1, "aov_photon_count", lambda s, R, r_px: s.N),
-    Aov("Held", 1, "aov_held", lambda s, R, r_px: s.held),
+def _depth(x: PassSample):
+    """Camera-space z of the first hit (Cycles camera_z_depth), DEPTH_MISS on a miss."""
+    z = (x.first.p - x.eye) @ x.view
+    return np.where(x.first.hit, z, DEPTH_MISS)
+
+
+def _mist_transmittance(x: PassSample):
+    """(1 - mist) per pass, 0 on a miss; the pass is 1 - its mean (Cycles
+    data_passes.h: mist = saturate((d - start) / depth) ^ falloff, d the
+    distance to the camera (orthographic: along the view direction))."""
+    start, depth, falloff = x.scene.mist
+    d = x.first.p - x.eye
+    dist = np.abs(d @ x.view) if x.scene.camera.kind == "ORTHO" else np.linalg.norm(d, axis=1)
+    m = np.clip((dist - start) / max(depth, 1e-30), 0.0, 1.0) ** falloff
+    return np.where(x.first.hit, 1.0 - m, 0.0)
+
+
+def _object_index(x: PassSample):
+    idx = x.scene.tri_object_index
+    if idx is None:
+        return np.zeros(x.first.hit.shape)
+    return np.where(x.first.hit, idx[np.maximum(x.first.prim, 0)], 0).astype(np.float64)
+
+
+def _material_index(x: PassSample):
+    mpi = x.scene.material_pass_index
+    if mpi is None or len(mpi) == 0:
+        return np.zeros(x.first.hit.shape)
+    mat = x.scene.tri_mat[np.maximum(x.first.prim, 0)]
+    return np.where(x.first.hit, mpi[mat], 0).astype(np.float64)
+
+
+def _denoising_albedo(x: PassSample):
+    """Lambert albedo at the visible point times the specular chain's
+    throughput (Cycles' denoising albedo of a diffuse surface); a first hit
+    without a visible point (an emission-only surface) gives the emission
+    it shows, as Cycles writes there; 0 on a miss."""
+    v, f = x.vp, x.first
+    emitter = (~v.valid & f.hit)[:, None]
+    return np.where(v.valid[:, None], v.beta * v.albedo, np.where(emitter, f.emit, 0.0))
+
+
+def _denoising_normal(x: PassSample):
+    """Shading normal at the visible point in camera space (Cycles
+    denoising_passes.h transforms it with worldtocamera), 0 on none."""
+    v = x.vp
+    return np.where(v.valid[:, None], v.ns @ x.R_wc.T, 0.0)
+
+
+PASSES = (
+    # FPPM's own AOVs, from the progressive state.
+    FilmPass("FPPM Radius", 1, "X", "VALUE", "aov_radius", "state", lambda s, R, r_px: R),
+    FilmPass("FPPM Radius px", 1, "X", "VALUE", "aov_radius", "state", lambda s, R, r_px: r_px),
+    FilmPass("Predicted Radius", 1, "X", "VALUE", "aov_predicted_radius", "state",
+             lambda s, R, r_px: np.where(np.isfinite(s.r_pred_last), s.r_pred_last, 0.0)),
+    FilmPass("Spectrum", 3, "XYZ", "VECTOR", "aov_spectrum", "state", _spectrum),
+    FilmPass("Photon Count", 1, "X", "VALUE", "aov_photon_count", "state", lambda s, R, r_px: s.N),
+    FilmPass("Held", 1, "X", "VALUE", "aov_held", "state", lambda s, R, r_px: s.held),
+    # Blender's standard passes, Cycles' conventions.
+    FilmPass("Depth", 1, "Z", "VALUE", "view_layer.use_pass_z", "first", _depth),
+    FilmPass("Mist", 1, "Z", "VALUE", "view_layer.use_pass_mist", "mean", _mist_transmittance,
+             lambda mean: 1.0 - mean),
+    FilmPass("Normal", 3, "XYZ", "VECTOR", "view_layer.use_pass_normal", "mean",
+             lambda x: x.first.n),
+    FilmPass("Object Index", 1, "X", "VALUE", "view_layer.use_pass_object_index", "first", _object_index),
+    FilmPass("Material Index", 1, "X", "VALUE", "view_layer.use_pass_material_index", "first",
+             _material_index),
+    FilmPass("Emission", 3, "RGB", "COLOR", "view_layer.use_pass_emit", "mean", lambda x: x.first.emit),
+    FilmPass("Denoising Normal", 3, "XYZ", "VECTOR", "view_layer.cycles.denoising_store_passes",
+             "mean", _denoising_normal),
+    FilmPass("Denoising Albedo", 3, "RGB", "COLOR", "view_layer.cycles.denoising_store_passes",
+             "mean", _denoising_albedo),
 )
+#: The AOVs computed from the progressive state (FPPM's own).
+AOVS = tuple(p for p in PASSES if p.source == "state")
+
+
+def pass_enabled(p: FilmPass, settings, view_layer=None) -> bool:
+    """Whether p is on: its RenderSettings field, or its view-layer property
+    (False without a view layer or when the property does not exist)."""
+    if not p.flag.startswith("view_layer."):
+        return bool(getattr(settings, p.flag))
+    obj = view_layer
+    for part in p.flag.split(".")[1:]:
+        obj = getattr(obj, part, None)
+    return bool(obj)
 
 
 class Film:
     """settings: RenderSettings (the AOV flags); camera: CameraModel (pixel
-    footprint); H, W: the region's size."""
+    footprint); H, W: the region's size; scene: the core Scene (camera,
+    transparency, mist, pass indices; None: no data passes, opaque film);
+    passes: names of the 'mean' / 'first' passes of PASSES to produce."""
 
-    def __init__(self, settings, camera, H: int, W: int):
+    def __init__(self, settings, camera, H: int, W: int, scene=None, passes=()):
         self.settings, self.camera, self.H, self.W = settings, camera, H, W
+        self.scene = scene
+        self.transparent = bool(getattr(scene, "film_transparent", False))
+        self.data_passes = tuple(p for p in PASSES if p.source != "state" and p.name in set(passes))
+        P = H * W
+        self.coverage = np.zeros(P)                   # sum over passes of "camera ray hit"
+        self.samples = 0                              # passes accumulated
+        self.sums = {p.name: np.zeros((P, p.channels)) for p in self.data_passes}
+        if scene is not None:
+            M = np.asarray(scene.camera.matrix_world, np.float64)
+            axes = M[:3, :3] / np.maximum(np.linalg.norm(M[:3, :3], axis=0), 1e-300)
+            self.eye, self.view = M[:3, 3].copy(), -axes[:, 2]
+            self.R_wc = np.stack([axes[:, 0], axes[:, 1], -axes[:, 2]])
+
+    def accumulate(self, vp) -> None:
+        """Add one pass's camera data (VisiblePoints with .first) to alpha and the data passes."""
+        first = getattr(vp, "first", None)
+        if first is None or self.scene is None:
+            return
+        self.coverage += 1.0 - first.escape
+        if self.data_passes:
+            x = PassSample(first, vp, self.scene, self.eye, self.view, self.R_wc)
+            for p in self.data_passes:
+                if p.source == "mean" or self.samples == 0:
+                    v = np.asarray(p.compute(x), np.float64).reshape(-1, p.channels)
+                    if p.source == "mean":
+                        self.sums[p.name] += v
+                    else:
+                        self.sums[p.name][...] = v
+        self.samples += 1
+
+    def state_dict(self) -> dict:
+        """The film's sums for a checkpoint (keys 'film_*')."""
+        d = {"film_coverage": self.coverage.copy(), "film_samples": np.asarray(self.samples)}
+        d.update({f"film_{k}": v.copy() for k, v in self.sums.items()})
+        return d
+
+    def load_state(self, d: dict) -> None:
+        """Restore state_dict() output; a checkpoint without film sums (older
+        FPPM) restarts alpha and the data passes from the next pass."""
+        if "film_coverage" not in d:
+            return
+        self.coverage[...] = d["film_coverage"]
+        self.samples = int(d["film_samples"])
+        for k, v in self.sums.items():
+            if f"film_{k}" in d:
+                v[...] = d[f"film_{k}"]
 
     def __call__(self, state, pass_index: int, photons_emitted: int, elapsed: float) -> PassResult:
         """The PassResult of the state after pass_index passes."""
@@ -77,11 +248,19 @@ class Film:
         L = np.where(np.isfinite(L), L, 0.0)
         img = np.ones((H, W, 4), np.float32)
         img[..., :3] = L.reshape(H, W, 3)
+        if self.transparent and self.samples:
+            img[..., 3] = (self.coverage / self.samples).reshape(H, W)
         R = np.sqrt(np.where(state.R2 > 0, state.R2, 0.0))
         fp = self.camera.footprint(state.depth)
         r_px = np.where(fp > 0, R / np.maximum(fp, 1e-300), 0.0)
         aovs = {a.name: a.compute(state, R, r_px).reshape(H, W, a.channels).astype(np.float32)
-                for a in AOVS if getattr(self.settings, a.setting)}
+                for a in AOVS if getattr(self.settings, a.flag)}
+        n = max(self.samples, 1)
+        for p in self.data_passes:
+            v = self.sums[p.name] / (n if p.source == "mean" else 1)
+            if p.finish is not None:
+                v = p.finish(v)
+            aovs[p.name] = v.reshape(H, W, p.channels).astype(np.float32)
         valid = state.R2 > 0
         mean_px = float(r_px[valid].mean()) if np.any(valid) else 0.0
         held = float(state.held.mean()) if state.held.size else 0.0

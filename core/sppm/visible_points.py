@@ -14,6 +14,7 @@ world on a miss) is returned separately as ``L_emit``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
@@ -31,6 +32,7 @@ class VisiblePoints:
     mat (P,) int32; colors (P,L,3); beta (P,3) path throughput / selection
     probability; depth (P,) camera depth proxy for the pixel footprint;
     const (P,) bool (Lambert-only: f = albedo/pi); albedo (P,3).
+    first: FirstHit of the camera rays (the film's data passes), or None.
     """
     valid: np.ndarray
     p: np.ndarray
@@ -43,6 +45,7 @@ class VisiblePoints:
     depth: np.ndarray
     const: np.ndarray
     albedo: np.ndarray
+    first: Optional["FirstHit"] = None
 
     @classmethod
     def empty(cls, P: int, n_lobes: int) -> "VisiblePoints":
@@ -53,16 +56,56 @@ class VisiblePoints:
                    depth=np.zeros(P), const=np.zeros(P, bool), albedo=np.zeros((P, 3)))
 
 
+@dataclass
+class FirstHit:
+    """What each pixel's camera ray meets first (Cycles' data passes are
+    written there: Depth, Normal, Mist, Emit, IndexOB, IndexMA).
+
+    hit (P,) bool (False: the ray escaped to the world); p (P,3) float64;
+    n (P,3) float64 shading normal facing the ray (Cycles flips N and Ng on
+    back-face hits); prim (P,) int64 triangle (-1 on a miss); emit (P,3)
+    float64 emission the camera ray sees directly (analytic emitters before
+    the hit and the surface's own; not the world); escape (P,) float64 the
+    throughput with which the camera ray escaped to the world straight
+    through transparent surfaces (1 on a miss, 0 on an opaque hit): Cycles'
+    alpha is 1 - escape.
+    """
+    hit: np.ndarray
+    p: np.ndarray
+    n: np.ndarray
+    prim: np.ndarray
+    emit: np.ndarray
+    escape: np.ndarray
+
+
 class CameraPass:
     """The camera pass over the pixels (px, py) (P,) float64 of the region,
     py counted from the bottom (Blender's); max_depth: vertices a delta chain
-    may have (1 = the first hit only)."""
+    may have (1 = the first hit only).  frame: (W, H) of the full frame when
+    the region is a border: the filter and lens samples are then drawn as for
+    the whole frame and picked by absolute pixel, so a border pixel's camera
+    ray is the full-frame render's (None: the region is the frame).
+    transparent: Film > Transparent (camera rays that escape add no world)."""
 
-    def __init__(self, scene, accel, mtab, light_table, camera, fsamp, px, py, max_depth: int):
+    def __init__(self, scene, accel, mtab, light_table, camera, fsamp, px, py, max_depth: int,
+                 frame: Optional[tuple] = None, transparent: bool = False):
         self.scene, self.accel, self.mtab, self.light_table = scene, accel, mtab, light_table
         self.camera, self.fsamp = camera, fsamp
         self.px, self.py = px, py
         self.max_depth = int(max_depth)
+        self.transparent = bool(transparent)
+        self.pixel_id = None
+        if frame is not None:
+            Wf, Hf = (int(v) for v in frame)
+            # Row 0 of the frame's sample array is the top row (py = Hf - 1).
+            pid = ((Hf - 1 - py.astype(np.int64)) * Wf + px.astype(np.int64))
+            if not np.array_equal(pid, np.arange(px.shape[0])):
+                # Only the frame rows the region spans are drawn; the others
+                # are skipped (PCG64.advance: one uint64 per float64 draw).
+                r0, r1 = int(pid.min() // Wf), int(pid.max() // Wf) + 1
+                self.skip = (4 * r0 * Wf, 4 * (Hf - r1) * Wf)
+                self.block = (r1 - r0) * Wf
+                self.pixel_id = pid - r0 * Wf
 
     def __call__(self, rng: np.random.Generator, check_stop=lambda: None,
                  centre: bool = False) -> tuple[VisiblePoints, np.ndarray]:
@@ -73,13 +116,24 @@ class CameraPass:
         before every vertex (it raises to cancel)."""
         P = self.px.shape[0]
         mtab, accel = self.mtab, self.accel
-        u = rng.random((P, 4))
+        if self.pixel_id is None:
+            u = rng.random((P, 4))
+        else:
+            rng.bit_generator.advance(self.skip[0])
+            u = rng.random((self.block, 4))[self.pixel_id]
+            rng.bit_generator.advance(self.skip[1])
         if centre:
             u[:, :2] = 0.5      # FilterSampler.sample(0.5) = 0: the pixel centre
             u[:, 2:] = 0.0      # lens radius sqrt(0) = 0
         rays, dz = self.camera.generate(self.px, self.py, u[:, :2], u[:, 2:], self.fsamp)
         L = np.zeros((P, 3))
         vp = VisiblePoints.empty(P, mtab.kind.shape[1])
+        first = vp.first = FirstHit(hit=np.zeros(P, bool), p=np.zeros((P, 3)), n=np.zeros((P, 3)),
+                                    prim=np.full(P, -1, np.int64), emit=np.zeros((P, 3)),
+                                    escape=np.zeros(P))
+        # Still "seen through" by the camera: no vertex yet, or only straight
+        # transmissions (Transparent BSDF); Cycles' transparent background.
+        see_through = np.ones(P, bool)
         idx = np.arange(P)
         o, d, tmax = rays.o, rays.d, rays.t_max
         beta = np.ones((P, 3))
@@ -98,7 +152,14 @@ class CameraPass:
                     Le = Lt.emitted_along_rays(self.light_table, o[sel], d[sel],
                                                np.minimum(h.t[sel], tmax[sel]), name)
                     L[idx[sel]] += beta[sel] * Le
+                    if depth == 0:
+                        first.emit[idx[sel]] += Le
             miss = ~hit
+            esc = miss & see_through
+            if np.any(esc):
+                first.escape[idx[esc]] += beta[esc].mean(axis=1)
+                if self.transparent:
+                    miss = miss & ~esc      # Film > Transparent: alpha 0, no world
             if np.any(miss):
                 L[idx[miss]] += beta[miss] * Lt.world_radiance(self.light_table)[None, :]
             ih = np.nonzero(hit)[0]
@@ -114,6 +175,13 @@ class CameraPass:
                 if mtab.emission_tex is not None and np.any(mtab.emission_tex[mat] >= 0):
                     em = em * _emission_texture(mtab, s, mat, uv)
                 L[idx[ih]] += beta[ih] * em
+            if depth == 0:
+                sgn0 = np.where(_dot(ng, wo) >= 0, 1.0, -1.0)[:, None]
+                q = idx[ih]
+                first.hit[q], first.p[q], first.n[q] = True, p, ns * sgn0
+                first.prim[q] = h.prim[ih]
+                if np.any(em > 0):
+                    first.emit[q] += em
             bt = beta[ih]
             plen = path_len[ih] + h.t[ih]
             p_delta = B.delta_probability(mtab, mat, colors)
@@ -152,6 +220,7 @@ class CameraPass:
             c = c[ok]
             wi = wi[ok]
             refl = (_dot(wi, ng[c]) * _dot(wo[c], ng[c])) > 0
+            see_through = see_through[ih[c]] & (_dot(wi, d[ih[c]]) > 1.0 - 1e-9)
             o = accel.spawn(p[c], ng[c], wi)
             d = wi
             beta = bt[c] * wgt[ok]
