@@ -100,6 +100,13 @@ class Renderer:
         self.elapsed = 0.0
         self._fixed: Optional[tuple[VisiblePoints, np.ndarray]] = None
         self.last_result: Optional[PassResult] = None
+        self.light_tracer = None
+        if st.integrator == "LIGHT":
+            from .integrators.light_tracer import LightTracer
+            self.light_tracer = LightTracer(self.scene, self.accel, self.mtab, self.light_table,
+                                            self.camera, st, self.plan, self.D, self.offset,
+                                            (self.width, self.height), self.scene.filter_width)
+            self.light_splat = np.zeros((P, 3))      # splat sums of every pass
 
     def _setup_scene(self, scene: Scene, force_stages: tuple) -> None:
         """Region, lights, materials, BVH, plan, occlusion grid and photon tracer."""
@@ -228,6 +235,8 @@ class Renderer:
     def step(self) -> PassResult:
         """One pass; the state changes only once the pass is complete (a cancel
         keeps the last one), except the footprint depths of its visible points."""
+        if self.light_tracer is not None:
+            return self._step_light()
         t0 = time.perf_counter()
         k = self.pass_index + 1
         st, state, clock = self.settings, self.state, self.stage_seconds
@@ -263,7 +272,30 @@ class Renderer:
         self.last_result = self._film()
         return self.last_result
 
+    def _step_light(self) -> PassResult:
+        """One pass of light tracing (integrator 'LIGHT'): photons_per_pass
+        light paths splatted to the camera (core.integrators.light_tracer);
+        the image is the splat sums over the light paths traced."""
+        t0 = time.perf_counter()
+        k = self.pass_index + 1
+        st = self.settings
+        sums = self.light_tracer.trace_pass(st.photons_per_pass, self._rng(k, 2),
+                                            self._check_stop)
+        self.light_splat += sums
+        self.pass_index = k
+        self.photons_emitted += st.photons_per_pass
+        dt = time.perf_counter() - t0
+        self.stage_seconds["photon_trace"] += dt
+        self.elapsed += dt
+        self.last_result = self._film()
+        return self.last_result
+
     def _film(self) -> PassResult:
+        if self.light_tracer is not None:
+            L = self.light_splat / max(self.photons_emitted, 1)
+            img = np.ones((self.height, self.width, 4), np.float32)
+            img[..., :3] = L.reshape(self.height, self.width, 3)
+            return PassResult(self.pass_index, self.photons_emitted, self.elapsed, img)
         return self.film(self.state, self.pass_index, self.photons_emitted, self.elapsed)
 
     # ------------------------------------------------------ checkpointing
@@ -275,6 +307,8 @@ class Renderer:
         d.update(pass_index=self.pass_index, photons_emitted=self.photons_emitted,
                  elapsed=self.elapsed, settings_digest=self.settings.image_digest(),
                  scene_digest=scene_digest(self.scene), size=(self.width, self.height))
+        if self.light_tracer is not None:
+            d["light_splat"] = self.light_splat.copy()
         return d
 
     def load_state(self, d: dict) -> None:
@@ -287,6 +321,10 @@ class Renderer:
         if tuple(d["size"]) != (self.width, self.height):
             raise CheckpointMismatch("The checkpoint was made at a different resolution.")
         self.state.load_state(d)
+        if self.light_tracer is not None:
+            if "light_splat" not in d:
+                raise CheckpointMismatch("The checkpoint has no light tracing film.")
+            self.light_splat[...] = d["light_splat"]
         self.pass_index = int(d["pass_index"])
         self.photons_emitted = int(d["photons_emitted"])
         self.elapsed = float(d["elapsed"])

@@ -168,6 +168,17 @@ class PhotonTracer:
             self._trace_part(n - h, n_freq - hf, r1, d0)
         return d0.result()
 
+    def trace_emitted(self, ph: dict, rng):
+        """Trace the photons ph of ``lights.sample_photons`` (keys o, d, power,
+        falloff_r2; n rows) without spectra, in this thread; deposits as
+        :meth:`trace`.  Light tracing needs the emission vertices too
+        (core.integrators.light_tracer), which the fused emission kernel
+        does not return."""
+        n = ph["o"].shape[0]
+        dep = _Deposits(self._dpp * n + 64)
+        self._trace_batch(None, ph, 0, n, rng, dep, False)
+        return dep.result()
+
     def _trace_part(self, n: int, n_freq: int, rng, dep: "_Deposits") -> "_Deposits":
         """Emit and trace n photons (the first n_freq with a spectrum); their
         deposits are appended to dep."""
