@@ -27,7 +27,7 @@ int f_s(-w, w_i) L_i |n_s . w_i| dw_i and the photon identity above:
                          |n_g . w_c| f(x_j - c_p) / (A_pix cos^3 theta d^2) ]
 
 w_c the unit direction y -> l, w_j the photon's incoming direction;
-1 / (A_pix cos^3 d^2) = We |cos theta| / pdf_wi in pbrt-v4's terms
+1 / (A_pix cos^3 d^2) = We / pdf_wi in pbrt-v4's terms
 (``CameraProjection.weight``; We = 1 / (A_pix A_lens cos^4),
 pdf_wi = d^2 / (cos A_lens)).  The shading factor |n_s . w_j| / |n_g . w_j|
 is the photon gather's (Veach 1997 section 5.3, capped at 4 like

@@ -87,7 +87,7 @@ class CameraProjection:
       (pbrt-v4 PDF_We; orthographic: 0 = delta).
     pdf_wi (K,): solid-angle density at the point of choosing the lens point,
       dist^2 / (cos A_lens) (pbrt-v4 SampleWi; orthographic: 0 = delta).
-    weight (K,): We |cos| / pdf_wi = 1 / (A_pix cos^3 dist^2), orthographic
+    weight (K,): We / pdf_wi = 1 / (A_pix cos^3 dist^2), orthographic
       1 / A_pix -- what a light-path vertex multiplies beta f |n.wi| by
       (derivation in core.integrators.light_tracer).
     """
