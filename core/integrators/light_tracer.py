@@ -61,7 +61,8 @@ from numba import njit
 from .. import lights as Lt
 from .. import materials as B
 from ..accel import surface_point
-from ..sppm.photons import PhotonTracer
+from ..sppm import photon_kernels as PK
+from ..sppm.photons import PhotonTracer, _children, _pool, _threads
 
 #: Light paths per chunk (memory bound; a cancel is seen between chunks).
 CHUNK = 65_536
@@ -136,6 +137,13 @@ class LightTracer:
         self.x0, self.y0 = (int(v) for v in offset)
         self.W, self.H = (int(v) for v in size)
         self.filter_width = float(filter_width)
+        t = light_table
+        # Emission vertices are splatted only for AREA lights the camera sees
+        # and MESH emitters; without any, the compiled emission kernel (same
+        # photons, no light index) is used.
+        self.emitters_seen = bool(np.any((t.p_select > 0) & (
+            ((t.kind == Lt.AREA) & t.visible_camera) | (t.kind == Lt.MESH))))
+        self.fast_emission = PK.fast_emission_ok(t) and not self.emitters_seen
         self.rays = 0
 
     # ------------------------------------------------------------------
@@ -148,14 +156,28 @@ class LightTracer:
         while done < n:
             check_stop()
             k = min(CHUNK, n - done)
-            self._chunk(k, rng, film)
+            if k >= 16384 and _threads() > 1:
+                # Two halves on independent child streams in two threads
+                # (Embree, numba and most numpy release the GIL), summed in
+                # a fixed order: the image does not depend on timing.
+                r_a, r_b = _children(rng)
+                film_b = np.zeros_like(film)
+                fut = _pool().submit(self._chunk, k // 2, r_a, film)
+                self._chunk(k - k // 2, r_b, film_b)
+                fut.result()
+                film += film_b
+            else:
+                self._chunk(k, rng, film)
             done += k
         self.rays += self.accel.rays_cast - r0
         return film
 
     def _chunk(self, n: int, rng, film: np.ndarray) -> None:
-        ph = Lt.sample_photons(self.light_table, n, rng)
-        self._emission_vertices(ph, rng, film)
+        if self.fast_emission:
+            ph = PK.sample_photons_fast(self.light_table, n, rng)
+        else:
+            ph = Lt.sample_photons(self.light_table, n, rng)
+            self._emission_vertices(ph, rng, film)
         dep = self.tracer.trace_emitted(ph, rng)
         if dep is None:
             return
