@@ -151,7 +151,9 @@ class Renderer:
         self.fsamp = FilterSampler(scene.filter_width)
         # force_stages: stage names the plan must keep even when the scene does
         # not need them (tests and benchmarks of the leave-out plan).
-        self.plan: RenderPlan = make_plan(scene, self.settings, self.mtab, self.light_table,
+        # Light tracing uses no frequency photons (no occlusion grid either).
+        plan_st = st0.replace(use_frequency=False) if st0.integrator == "LIGHT" else st0
+        self.plan: RenderPlan = make_plan(scene, plan_st, self.mtab, self.light_table,
                                           force=tuple(force_stages))
         self._check_stop()
         self.kappa = triangle_curvature(scene) if self.plan.frequency_photons else None
@@ -202,7 +204,10 @@ class Renderer:
         s = self.scene
         lines = [f"Scene: {s.n_triangles} triangles, {len(s.materials)} materials, "
                  f"{len(s.lights)} lights, {self.width}x{self.height} px."]
-        lines += self.plan.lines()
+        if self.settings.integrator == "LIGHT":
+            lines.append("Integrator: light tracing (photon paths connected to the camera).")
+        else:
+            lines += self.plan.lines()
         return lines
 
     def run(self, should_stop=None, on_pass=None) -> PassResult:
