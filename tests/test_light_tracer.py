@@ -214,22 +214,31 @@ def test_mirror_caustic_closed_form():
     assert gain > 0.02
 
 
-def test_area_light_seen_by_the_camera():
-    """Emission vertices: a camera under a square area light sees its
-    radiance P / (pi A) over the light's image, nothing outside it."""
+@pytest.mark.parametrize("kind", ["AREA", "MESH"])
+def test_emitter_seen_by_the_camera(kind):
+    """Emission vertices: an orthographic camera under a 1 m square emitter
+    (area light of power P facing down: L = P / (pi A); or an emissive mesh
+    quad of strength L, two-sided) sees its radiance L over the emitter's
+    image -- the pixel filter at its edge -- and nothing outside it."""
     P, size, h = 50.0, 1.0, 1.0
-    light = Light("area", "AREA", (P, P, P), np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, h],
-                                                        [0, 0, 0, 1.0]]), shape="SQUARE", size=size)
+    L = P / (np.pi * size * size)
     up = np.diag([1.0, -1.0, -1.0, 1.0])         # ortho camera at z = 0 looking up +Z
     cam = Camera(kind="ORTHO", matrix_world=up, ortho_scale=2.0, resolution=(24, 24),
                  clip_start=0.01, clip_end=100.0)
-    tris = quad((0, 0, -5.0), (10, 0, 0), (0, 10, 0))      # something to bounce on, below
-    scene = make_scene(tris, [lambert("black", 0.0)], [light], cam)
+    tris = quad((0, 0, -5.0), (10, 0, 0), (0, 10, 0))      # a black floor, below
+    if kind == "AREA":
+        m = np.eye(4)
+        m[2, 3] = h
+        scene = make_scene(tris, [lambert("black", 0.0)],
+                           [Light("area", "AREA", (P, P, P), m, shape="SQUARE", size=size)], cam)
+    else:
+        glow = Material("glow", (Lobe(DIFFUSE, (0.0, 0.0, 0.0)),), emission=(L, L, L))
+        scene = make_scene(tris + quad((0, 0, h), (0, 0.5 * size, 0), (0.5 * size, 0, 0)),
+                           [lambert("black", 0.0), glow], [], cam, tri_mat=[0, 0, 1, 1])
     lt = pass_images(scene, integrator="LIGHT", max_passes=8, photons_per_pass=100_000)
     m, s = mean_sigma(lt)
     X, Y = pixel_centres_ortho(scene)
     pix = 2.0 / 24
-    L = P / (np.pi * size * size)
     # The square's indicator seen through the separable filter: exact
     # products of 1D filter masses (a quantile quadrature of a step errs by
     # half a quantile's mass).
