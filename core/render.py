@@ -35,6 +35,9 @@ Pass stages (pbrt-v4 SPPM order), one home each:
 4. photon pass: trace, grid of visible points, gather (core.sppm.photon_pass);
 5. per-pixel N / R / tau update (core.sppm.update), into the state (core.sppm.state);
 6. film and AOVs (core.sppm.film).
+With ``integrator = 'LIGHT'`` a pass is instead photons_per_pass light paths
+connected to the camera (core.integrators.light_tracer); the image is their
+splat sums over the paths traced (no AOVs).
 """
 from __future__ import annotations
 
