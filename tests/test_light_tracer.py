@@ -6,6 +6,7 @@ per pixel through z = (estimate - expected) / sigma, sigma from the spread of
 the independent passes of the same render (S passes: the mean of z^2 over
 pixels is (S-1)/(S-3) for Student-t(S-1) noise, 1.4 for S = 8).
 """
+import json
 import math
 
 import numpy as np
@@ -252,3 +253,24 @@ def test_emitter_seen_by_the_camera(kind):
     z2 = ((m - expected) / np.maximum(s, 1e-12))[s > 0] ** 2
     print("mean z^2", z2.mean())
     assert z2.mean() < 2.0, z2.mean()
+
+
+def test_cli_mode_light_renders_the_light_tracer(tmp_path):
+    """``fppm render --mode light`` sets integrator = LIGHT and writes exactly
+    the image of Renderer(integrator='LIGHT') on the exported scene."""
+    pytest.importorskip("bpy")
+    import bpy_helpers as H
+    from fppm.addon import export as E
+    from fppm.core.io.exr import read_exr, read_exr_metadata
+    sc = H.simple_scene(res=(24, 16), passes=2, photons=20_000, seed=4)
+    blend = H.save_blend(tmp_path / "s.blend")
+    out = tmp_path / "s.exr"
+    r = H.run_fppm("render", blend, "-o", out, "--mode", "light", "-q", "--no-preview")
+    assert r.returncode == 0, r.stderr[-3000:]
+    st = json.loads(read_exr_metadata(str(out))["fppm:settings"])
+    assert st["integrator"] == "LIGHT"
+    img = read_exr(str(out))["Combined"]
+    scene = E.export_scene(H.evaluated_depsgraph(), lambda s: None)
+    want = Renderer(scene, RenderSettings(**st), log=lambda s: None).run().image
+    assert img.shape == want.shape and img[..., :3].max() > 0
+    assert np.array_equal(img, want)
