@@ -102,12 +102,12 @@ def mean_sigma(passes):
 
 
 def checker_scene(cam):
-    """A 2 x 2 m checker of albedo 0.15 / 0.85 (8 x 8 squares) under a point light."""
+    """A 4 x 4 m checker of albedo 0.15 / 0.85 (16 x 16 squares) under a point light."""
     tris, mats = [], []
-    n, s = 8, 0.25
+    n, s = 16, 0.125                             # squares of 2 s = 0.25 m
     for i in range(n):
         for j in range(n):
-            c = (-1.0 + (2 * i + 1) * s / 1.0 * 0.5 * 2, -1.0 + (2 * j + 1) * s, 0.0)
+            c = (-2.0 + (2 * i + 1) * s, -2.0 + (2 * j + 1) * s, 0.0)
             tris += quad(c, (s, 0, 0), (0, s, 0))
             mats += [(i + j) % 2] * 2
     m = np.eye(4)

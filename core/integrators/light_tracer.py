@@ -45,13 +45,20 @@ What light tracing alone cannot render: anything the camera sees through a
 delta (mirror or glass seen directly) -- the camera end of a path must be a
 non-delta vertex, as in pbrt-v4's LightPathIntegrator.
 
-Quantities for MIS (VCM, Georgiev et al. 2012): per connection the camera
-side is complete in ``CameraProjection`` (We, pdf_pos = 1 / A_lens,
-pdf_dir = 1 / (A_pix cos^3) [solid angle], pdf_wi = d^2 / (cos A_lens)); the
-reverse pdf of the vertex toward the camera is pdf_bsdf(w_j <- w_c) (one
-``materials.pdf_bsdf`` call).  The light side needs, per vertex, the forward
-solid-angle pdf of the direction that reached it and its reverse pdf (the
-dVCM / dVC / dVM recursion), which the photon kernels do not record yet.
+Quantities for MIS (VCM, Georgiev et al. 2012, "Light transport simulation
+with vertex connection and merging"; the dVCM / dVC / dVM recursion of their
+implementation notes).  Camera side, per connection, in ``CameraProjection``:
+We, pdf_pos = 1 / A_lens, pdf_dir = 1 / (A_pix cos^3) [solid angle], pdf_wi =
+d^2 / (cos A_lens); the camera-path density of reaching y is pdf_dir |n_g . w_c|
+/ d^2 [area] and the reverse density of the light path's previous vertex is
+pdf_bsdf(w_c -> w_j) (``materials.pdf_bsdf``).  Light side, per vertex (not
+recorded yet -- deposits keep p, ng, wi, power, (prim, u, v)): the emission
+densities pdf_A (p_select / area; a point light's delta position) and pdf_W
+(cos / pi, 1 / (4 pi) for points); at every bounce the forward solid-angle pdf
+of the sampled direction, its reverse pdf, and whether the lobe was a delta;
+with them each deposit carries dVCM, dVC, dVM and the weight of this
+connection follows the paper's recursion (Russian roulette stays out of the
+densities, as there).
 """
 from __future__ import annotations
 
