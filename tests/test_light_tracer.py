@@ -17,7 +17,7 @@ from core.scene.camera import CameraModel, FilterSampler, filter_weight
 from core.scene.model import Camera, Light, Material, Lobe, DIFFUSE, make_scene
 from core.settings import RenderSettings
 
-from analytic_scenes import (area_light_plane, lambert, mirror_caustic, pixel_centres_ortho,
+from analytic_scenes import (lambert, mirror_caustic, pixel_centres_ortho,
                              point_light_plane, quad)
 
 
