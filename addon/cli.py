@@ -66,8 +66,9 @@ def add_render_parser(sub) -> None:
                    help="stop after S seconds of passes (0 = no limit)")
     r.add_argument("--passes", type=int, metavar="N", help="maximum passes (0 = no limit)")
     r.add_argument("--photons", type=int, metavar="N", help="photons per pass")
-    r.add_argument("--mode", choices=("fppm", "ppm"),
-                   help="fppm: frequency-adapted kernel; ppm: plain progressive photon mapping")
+    r.add_argument("--mode", choices=("fppm", "ppm", "light"),
+                   help="fppm: frequency-adapted kernel; ppm: plain progressive photon mapping; "
+                        "light: light tracing alone (photon paths connected to the camera)")
     r.add_argument("--seed", type=int, metavar="N", help="random seed")
     r.add_argument("--resolution", type=int, metavar="PCT",
                    help="resolution percentage (1-1000), overriding the file's")
@@ -143,7 +144,9 @@ def overrides_from_args(a) -> dict:
         kw["photons_per_pass"] = a.photons
     if a.seed is not None:
         kw["seed"] = a.seed
-    if a.mode is not None:
+    if a.mode == "light":
+        kw["integrator"] = "LIGHT"
+    elif a.mode is not None:
         kw["use_frequency"] = a.mode == "fppm"
     return kw
 

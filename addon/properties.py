@@ -20,6 +20,14 @@ RADIUS_MODES = (
     ('WORLD', "World Units",
      "Initial radius in metres, the same at every visible point", 1),
 )
+# PATH (path tracing) has index 1 where it is built; LIGHT keeps 2 either way.
+INTEGRATORS = (
+    ('PHOTON', "Photon Mapping",
+     "Stochastic progressive photon mapping with the frequency kernel (FPPM)", 0),
+    ('LIGHT', "Light Tracing",
+     "Light tracing alone: every diffuse or glossy vertex of the photon paths is connected "
+     "to the camera (sharp point-light caustics; misses what the camera sees in mirrors)", 2),
+)
 FREQUENCY_MODELS = (
     ('CORRECTED', "Corrected",
      "Frequency analysis with the corrected curvature and BSDF terms (see the documentation)", 0),
@@ -38,6 +46,9 @@ class FPPMRenderSettings(PropertyGroup):
     """FPPM render settings, one property per ``RenderSettings`` field."""
 
     # --- Sampling
+    integrator: EnumProperty(
+        name="Integrator", items=INTEGRATORS, default=_D.integrator,
+        description="How light is transported to the camera")
     time_limit: FloatProperty(
         name="Time Limit", default=_D.time_limit, min=0.0, soft_max=3600.0,
         unit='TIME_ABSOLUTE', precision=1,

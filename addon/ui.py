@@ -24,6 +24,7 @@ class FPPM_RENDER_PT_sampling(FPPMPanel, Panel):
         layout.use_property_split = True
         layout.use_property_decorate = False
         s = context.scene.fppm
+        layout.prop(s, "integrator")
         col = layout.column(align=True)
         col.prop(s, "max_passes")
         col.prop(s, "time_limit")

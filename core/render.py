@@ -36,6 +36,9 @@ Pass stages (pbrt-v4 SPPM order), one home each:
 4. photon pass: trace, grid of visible points, gather (core.sppm.photon_pass);
 5. per-pixel N / R / tau update (core.sppm.update), into the state (core.sppm.state);
 6. film and AOVs (core.sppm.film).
+With ``integrator = 'LIGHT'`` a pass is instead photons_per_pass light paths
+connected to the camera (core.integrators.light_tracer); the image is their
+splat sums over the paths traced (no AOVs).
 """
 from __future__ import annotations
 
@@ -116,6 +119,13 @@ class Renderer:
         self.elapsed = 0.0
         self._fixed: Optional[tuple[VisiblePoints, np.ndarray]] = None
         self.last_result: Optional[PassResult] = None
+        self.light_tracer = None
+        if st.integrator == "LIGHT":
+            from .integrators.light_tracer import LightTracer
+            self.light_tracer = LightTracer(self.scene, self.accel, self.mtab, self.light_table,
+                                            self.camera, st, self.plan, self.D, self.offset,
+                                            (self.width, self.height), self.scene.filter_width)
+            self.light_splat = np.zeros((P, 3))      # splat sums of every pass
 
     def _setup_scene(self, scene: Scene, force_stages: tuple) -> None:
         """Region, lights, materials, BVH, plan, occlusion grid and photon tracer."""
@@ -156,7 +166,9 @@ class Renderer:
         self.fsamp = FilterSampler(scene.filter_width)
         # force_stages: stage names the plan must keep even when the scene does
         # not need them (tests and benchmarks of the leave-out plan).
-        self.plan: RenderPlan = make_plan(scene, self.settings, self.mtab, self.light_table,
+        # Light tracing uses no frequency photons (no occlusion grid either).
+        plan_st = st0.replace(use_frequency=False) if st0.integrator == "LIGHT" else st0
+        self.plan: RenderPlan = make_plan(scene, plan_st, self.mtab, self.light_table,
                                           force=tuple(force_stages))
         self._check_stop()
         self.kappa = triangle_curvature(scene) if self.plan.frequency_photons else None
@@ -207,7 +219,10 @@ class Renderer:
         s = self.scene
         lines = [f"Scene: {s.n_triangles} triangles, {len(s.materials)} materials, "
                  f"{len(s.lights)} lights, {self.width}x{self.height} px."]
-        lines += self.plan.lines()
+        if self.settings.integrator == "LIGHT":
+            lines.append("Integrator: light tracing (photon paths connected to the camera).")
+        else:
+            lines += self.plan.lines()
         return lines
 
     def run(self, should_stop=None, on_pass=None) -> PassResult:
@@ -240,6 +255,8 @@ class Renderer:
     def step(self) -> PassResult:
         """One pass; the state changes only once the pass is complete (a cancel
         keeps the last one), except the footprint depths of its visible points."""
+        if self.light_tracer is not None:
+            return self._step_light()
         t0 = time.perf_counter()
         k = self.pass_index + 1
         st, state, clock = self.settings, self.state, self.stage_seconds
@@ -276,7 +293,30 @@ class Renderer:
         self.last_result = self._film()
         return self.last_result
 
+    def _step_light(self) -> PassResult:
+        """One pass of light tracing (integrator 'LIGHT'): photons_per_pass
+        light paths splatted to the camera (core.integrators.light_tracer);
+        the image is the splat sums over the light paths traced."""
+        t0 = time.perf_counter()
+        k = self.pass_index + 1
+        st = self.settings
+        sums = self.light_tracer.trace_pass(st.photons_per_pass, self._rng(k, 2),
+                                            self._check_stop)
+        self.light_splat += sums
+        self.pass_index = k
+        self.photons_emitted += st.photons_per_pass
+        dt = time.perf_counter() - t0
+        self.stage_seconds["photon_trace"] += dt
+        self.elapsed += dt
+        self.last_result = self._film()
+        return self.last_result
+
     def _film(self) -> PassResult:
+        if self.light_tracer is not None:
+            L = self.light_splat / max(self.photons_emitted, 1)
+            img = np.ones((self.height, self.width, 4), np.float32)
+            img[..., :3] = L.reshape(self.height, self.width, 3)
+            return PassResult(self.pass_index, self.photons_emitted, self.elapsed, img)
         return self.film(self.state, self.pass_index, self.photons_emitted, self.elapsed)
 
     # ------------------------------------------------------ checkpointing
@@ -289,6 +329,8 @@ class Renderer:
                  elapsed=self.elapsed, settings_digest=self.settings.image_digest(),
                  scene_digest=scene_digest(self.scene), size=(self.width, self.height))
         d.update(self.film.state_dict())
+        if self.light_tracer is not None:
+            d["light_splat"] = self.light_splat.copy()
         return d
 
     def load_state(self, d: dict) -> None:
@@ -302,6 +344,10 @@ class Renderer:
             raise CheckpointMismatch("The checkpoint was made at a different resolution.")
         self.state.load_state(d)
         self.film.load_state(d)
+        if self.light_tracer is not None:
+            if "light_splat" not in d:
+                raise CheckpointMismatch("The checkpoint has no light tracing film.")
+            self.light_splat[...] = d["light_splat"]
         self.pass_index = int(d["pass_index"])
         self.photons_emitted = int(d["photons_emitted"])
         self.elapsed = float(d["elapsed"])

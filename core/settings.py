@@ -20,6 +20,7 @@ class SettingsError(ValueError):
 @dataclass(frozen=True)
 class RenderSettings:
     # --- Sampling
+    integrator: str = "PHOTON"       # 'PHOTON' (SPPM), 'PATH', 'LIGHT' (light tracing alone)
     time_limit: float = 0.0          # seconds of passes; 0 = no limit
     max_passes: int = 64             # 0 = no limit (then time_limit must be > 0)
     photons_per_pass: int = 200_000
@@ -57,6 +58,8 @@ class RenderSettings:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v):
                 bad(name, "must be a finite number")
+        if self.integrator not in ("PHOTON", "PATH", "LIGHT"):
+            bad("integrator", "must be 'PHOTON', 'PATH' or 'LIGHT'")
         if self.time_limit < 0:
             bad("time_limit", "must be >= 0 (0 = no limit)")
         if self.max_passes < 0:

@@ -16,6 +16,7 @@ ENUM_VALUES = {
     "radius_mode": {"AUTO", "WORLD"},
     "frequency_model": {"CORRECTED", "PAPER"},
     "frequency_estimator": {"MIN", "QUANTILE"},
+    "integrator": {"PHOTON", "LIGHT"},
 }
 
 
@@ -83,7 +84,8 @@ def test_to_settings_round_trips_every_field():
                        fixed_visible_points=True, use_frequency=False, frequency_fraction=0.3,
                        frequency_model="PAPER", frequency_estimator="QUANTILE",
                        occlusion_grid_res=32, aov_radius=True, aov_predicted_radius=True,
-                       aov_spectrum=True, aov_photon_count=True, aov_held=True)
+                       aov_spectrum=True, aov_photon_count=True, aov_held=True,
+                       integrator="LIGHT")
     # Every field differs from its default, so a missed field would show.
     d = RenderSettings()
     assert all(getattr(s, n) != getattr(d, n) for n in field_names())

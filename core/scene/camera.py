@@ -7,6 +7,12 @@ Cycles' default Blackman-Harris of ``filter_width`` px, importance-sampled
 separably in x and y over a support of +-filter_width (Cycles doubles the
 width it passes to the window, film.cpp), so each pixel estimates exactly the
 filtered value Cycles computes.
+
+:meth:`CameraModel.project` is the exact inverse of :meth:`CameraModel.generate`
+(a world point and a lens sample -> raster position) with the camera's
+importance and pdfs (pbrt-v4 PerspectiveCamera::We / PDF_We / SampleWi; Veach
+1997 chapter 10, the t = 1 technique of bidirectional path tracing), for light
+tracing (core.integrators.light_tracer).
 """
 from __future__ import annotations
 
@@ -43,6 +49,59 @@ class FilterSampler:
         i0 = np.minimum(idx.astype(np.int64), len(self.table) - 2)
         f = idx - i0
         return (1.0 - f) * self.table[i0] + f * self.table[i0 + 1]
+
+
+def filter_weight(x: np.ndarray, width: float) -> np.ndarray:
+    """Normalised 1D pixel filter f(x) (x in pixels, integral 1): the density
+    that :class:`FilterSampler` samples, max(blackman_harris, 0) / integral.
+    The integral of the Blackman-Harris window over its support 2*width is
+    2*width*0.35875 (the cosine terms integrate to zero over whole periods).
+    """
+    x = np.asarray(x, np.float64)
+    w = np.maximum(blackman_harris(x, width), 0.0) / (2.0 * width * 0.35875)
+    return np.where(np.abs(x) < width, w, 0.0)
+
+
+@dataclass
+class CameraProjection:
+    """World points seen through the camera (K points, float64).
+
+    raster (K, 2): film position (x, y) in pixels of the full frame, y counted
+      from the BOTTOM; pixel (px, py) covers [px, px+1) x [py, py+1), so
+      ``generate`` draws x = px + 0.5 + filter offset.
+    ok (K,) bool: the point is in front of the lens between the clip
+      distances (the film window is not tested: splats reach neighbours).
+    lens (K, 3): the lens point the connection ends at (pinhole: the camera
+      origin; orthographic: the foot of the point on the camera plane).
+    wi (K, 3) unit direction from the point to the lens, dist (K,) its length.
+    cos_cam (K,): cosine between the camera axis and the ray (lens -> point).
+    We (K,): importance per unit pixel filter, pbrt-v4's
+      1 / (A_pix * A_lens * cos^4): the pixel value is
+      I_p = int f(x - c_p) We L cos dA_lens dw, A_pix the area of one pixel
+      on the plane at unit depth (orthographic: A_pix in metres^2, We =
+      1 / A_pix with a delta direction).
+    pdf_pos (K,): density of the lens point (1 / A_lens; pinhole 1,
+      orthographic 1 / A_pix per pixel of film area).
+    pdf_dir (K,): solid-angle density of this camera ray direction when the
+      camera samples x uniformly over one pixel, 1 / (A_pix cos^3)
+      (pbrt-v4 PDF_We; orthographic: 0 = delta).
+    pdf_wi (K,): solid-angle density at the point of choosing the lens point,
+      dist^2 / (cos A_lens) (pbrt-v4 SampleWi; orthographic: 0 = delta).
+    weight (K,): We / pdf_wi = 1 / (A_pix cos^3 dist^2), orthographic
+      1 / A_pix -- what a light-path vertex multiplies beta f |n.wi| by
+      (derivation in core.integrators.light_tracer).
+    """
+    raster: np.ndarray
+    ok: np.ndarray
+    lens: np.ndarray
+    wi: np.ndarray
+    dist: np.ndarray
+    cos_cam: np.ndarray
+    We: np.ndarray
+    pdf_pos: np.ndarray
+    pdf_dir: np.ndarray
+    pdf_wi: np.ndarray
+    weight: np.ndarray
 
 
 @dataclass
@@ -84,6 +143,85 @@ class CameraModel:
         R = M[:3, :3] / np.maximum(np.linalg.norm(M[:3, :3], axis=0, keepdims=True), 1e-300)
         self.R = R
         self.origin = M[:3, 3].copy()
+
+    @property
+    def pixel_area(self) -> float:
+        """A_pix: area of one pixel on the plane at unit depth (persp) or of
+        the film (ortho), pix * (ycor * pix)."""
+        return self.pix * self.pix * self.ycor
+
+    @property
+    def lens_area(self) -> float:
+        """A_lens: pi r^2 of the thin lens, 1 for a pinhole (pbrt-v4's convention)."""
+        r = self.cam.aperture_radius
+        return np.pi * r * r if (r > 0 and self.cam.kind != "ORTHO") else 1.0
+
+    def lens_point(self, u_lens: np.ndarray) -> np.ndarray:
+        """(K, 3) camera-space lens points from (K, 2) uniforms, as
+        :meth:`generate` samples them (zeros for a pinhole or ortho camera)."""
+        K = u_lens.shape[0]
+        cam = self.cam
+        if cam.aperture_radius > 0 and cam.kind != "ORTHO":
+            r = cam.aperture_radius * np.sqrt(u_lens[:, 0])
+            phi = 2 * np.pi * u_lens[:, 1]
+            return np.stack([r * np.cos(phi), r * np.sin(phi), np.zeros(K)], axis=1)
+        return np.zeros((K, 3))
+
+    def project(self, p: np.ndarray, u_lens: np.ndarray) -> CameraProjection:
+        """Where world points p (K, 3) land on the film through the lens
+        point of uniforms u_lens (K, 2) (the inverse of :meth:`generate`).
+
+        Perspective: the ray lens -> p crosses the focus plane (depth
+        focus_distance; a pinhole projects from the origin) at F, and
+        generate's view-plane point is F / depth_F.  Orthographic: the
+        view-plane point is p's (x, y) in camera space.
+        """
+        p = np.asarray(p, np.float64).reshape(-1, 3)
+        K = p.shape[0]
+        cam = self.cam
+        pc = (p - self.origin) @ self.R          # camera space (R orthonormal)
+        depth = -pc[:, 2]
+        ok = (depth >= cam.clip_start) & (depth <= cam.clip_end)
+        A_pix = self.pixel_area
+        if cam.kind == "ORTHO":
+            xs, ys = pc[:, 0], pc[:, 1]
+            lens_c = np.stack([xs, ys, np.zeros(K)], axis=1)
+        else:
+            lens_c = self.lens_point(u_lens)
+            dep = np.where(depth > 0, depth, 1.0)
+            if cam.aperture_radius > 0:
+                # F = lens + (p - lens) fd / depth; generate's plane point = F / fd.
+                fd = cam.focus_distance
+                s = fd / dep
+                xs = (lens_c[:, 0] + (pc[:, 0] - lens_c[:, 0]) * s) / fd
+                ys = (lens_c[:, 1] + (pc[:, 1] - lens_c[:, 1]) * s) / fd
+            else:
+                xs, ys = pc[:, 0] / dep, pc[:, 1] / dep
+        raster = np.stack([(xs - self.xmin) / self.pix,
+                           (ys - self.ymin) / (self.ycor * self.pix)], axis=1)
+        v = lens_c - pc                          # point -> lens, camera space
+        dist = np.linalg.norm(v, axis=1)
+        dist_s = np.where(dist > 0, dist, 1.0)
+        cos_cam = np.where(dist > 0, v[:, 2] / dist_s, 0.0)   # lens->point along -z
+        cos_s = np.where(cos_cam > 0, cos_cam, 1.0)
+        ok &= cos_cam > 0
+        wi = (v / dist_s[:, None]) @ self.R.T
+        lens_w = lens_c @ self.R.T + self.origin
+        if cam.kind == "ORTHO":
+            We = np.full(K, 1.0 / A_pix)
+            pdf_pos = np.full(K, 1.0 / A_pix)
+            pdf_dir = np.zeros(K)
+            pdf_wi = np.zeros(K)
+            weight = np.full(K, 1.0 / A_pix)
+        else:
+            A_lens = self.lens_area
+            We = 1.0 / (A_pix * A_lens * cos_s ** 4)
+            pdf_pos = np.full(K, 1.0 / A_lens)
+            pdf_dir = 1.0 / (A_pix * cos_s ** 3)
+            pdf_wi = dist_s * dist_s / (cos_s * A_lens)
+            weight = 1.0 / (A_pix * cos_s ** 3 * dist_s * dist_s)
+        return CameraProjection(raster, ok, lens_w, wi, dist, cos_cam, We, pdf_pos, pdf_dir,
+                                pdf_wi, weight)
 
     def footprint(self, depth: np.ndarray) -> np.ndarray:
         """World size of one pixel at camera depth ``depth`` (K,) (z distance)."""

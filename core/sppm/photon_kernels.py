@@ -87,7 +87,9 @@ class DepositBuffers(NamedTuple):
     power (cap, 3); r (cap,) the radius fold key (NaN for classic photons,
     ``spectrum.radius_fold_key``); bounce (cap,) int32 path vertex; src
     (cap,) int64 the ray of each deposit (frequency photons); spec (cap, 3)
-    the spectrum (a, b, c) of frequency photons."""
+    the spectrum (a, b, c) of frequency photons; bary (cap, 3) (prim, u, v)
+    of the hit (light tracing evaluates the BSDF there,
+    core.integrators.light_tracer)."""
     p: np.ndarray
     ng: np.ndarray
     wi: np.ndarray
@@ -96,6 +98,7 @@ class DepositBuffers(NamedTuple):
     bounce: np.ndarray
     src: np.ndarray
     spec: np.ndarray
+    bary: np.ndarray
 
 
 class GenericHits(NamedTuple):
@@ -268,6 +271,7 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec):
             dep_pow[n_dep, 0], dep_pow[n_dep, 1], dep_pow[n_dep, 2] = p0, p1, p2
             dep_r[n_dep] = np.nan
             dep_b[n_dep] = bounce
+            dep.bary[n_dep, 0], dep.bary[n_dep, 1], dep.bary[n_dep, 2] = t, uu, vv
             if record:
                 dep_src[n_dep] = i
             n_dep += 1

@@ -78,7 +78,8 @@ class _Deposits:
             p=np.empty((cap, 3)), ng=np.empty((cap, 3)), wi=np.empty((cap, 3)),
             power=np.empty((cap, 3)), r=np.empty(cap), bounce=np.empty(cap, np.int32),
             src=np.empty(cap, np.int64),
-            spec=np.empty((cap, 3)))          # (a, b, c); rows of classic photons unused
+            spec=np.empty((cap, 3)),          # (a, b, c); rows of classic photons unused
+            bary=np.empty((cap, 3)))          # (prim, u, v): light tracing's BSDF
         self.n = 0
 
     def reserve(self, k: int):
@@ -100,7 +101,7 @@ class _Deposits:
         k = other.n
         self.reserve(k)
         a, b = self.n, self.n + k
-        for name in ("p", "ng", "wi", "power", "r", "bounce", "spec"):
+        for name in ("p", "ng", "wi", "power", "r", "bounce", "spec", "bary"):
             getattr(self.buf, name)[a:b] = getattr(other.buf, name)[:k]
         self.n = b
 
@@ -110,7 +111,8 @@ class _Deposits:
         n, d = self.n, self.buf
         return {"p": d.p[:n], "ng": d.ng[:n], "wi": d.wi[:n],
                 "power": d.power[:n], "rpred": d.r[:n], "bounce": d.bounce[:n],
-                "spec": np.where(np.isnan(d.r[:n])[:, None], 0.0, d.spec[:n])}
+                "spec": np.where(np.isnan(d.r[:n])[:, None], 0.0, d.spec[:n]),
+                "bary": d.bary[:n]}
 
 
 class PhotonTracer:
@@ -141,7 +143,8 @@ class PhotonTracer:
         photon came from, wi (K, 3) unit direction back to where it came from,
         power (K, 3), rpred (K,) the predicted radius's fold key
         (``spectrum.radius_fold_key``; NaN for classic photons), bounce (K,)
-        int32 index of the path vertex (0 = first hit; diagnostics and tests).
+        int32 index of the path vertex (0 = first hit; diagnostics and tests),
+        bary (K, 3) (prim, u, v) of the hit.
         """
         if n < SPLIT_MIN:
             return self._trace_part(n, n_freq, rng, _Deposits(self._dpp * n + 64)).result()
@@ -164,6 +167,17 @@ class PhotonTracer:
             self._trace_part(h, hf, r0, d0)
             self._trace_part(n - h, n_freq - hf, r1, d0)
         return d0.result()
+
+    def trace_emitted(self, ph: dict, rng):
+        """Trace the photons ph of ``lights.sample_photons`` (keys o, d, power,
+        falloff_r2; n rows) without spectra, in this thread; deposits as
+        :meth:`trace`.  Light tracing needs the emission vertices too
+        (core.integrators.light_tracer), which the fused emission kernel
+        does not return."""
+        n = ph["o"].shape[0]
+        dep = _Deposits(self._dpp * n + 64)
+        self._trace_batch(None, ph, 0, n, rng, dep, False)
+        return dep.result()
 
     def _trace_part(self, n: int, n_freq: int, rng, dep: "_Deposits") -> "_Deposits":
         """Emit and trace n photons (the first n_freq with a spectrum); their

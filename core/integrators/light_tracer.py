@@ -1,0 +1,269 @@
+"""Light tracing: every non-delta vertex of a photon path is connected to the camera.
+
+    lt = LightTracer(scene, accel, mtab, light_table, camera, settings, plan, D,
+                     (x0, y0), (W, H), filter_width)
+    sums = lt.trace_pass(n_paths, rng, check_stop)   # (H*W, 3) this pass's splats
+    image = (sum of the passes' sums) / (light paths traced)
+
+The photon tracer (core.sppm.photons, with deposits from the first hit on:
+``photons_for_direct``) generates the light paths; its deposits are exactly
+the non-delta vertices.  Each vertex y with flux weight beta (the photon's
+power: Phi / p_select times the sampled BSDF weights and roulette, so that
+E[sum_j beta_j g(y_j, w_j)] = int int L_i(y, w) |n_g . w| g dw dA) is joined
+to a lens point by a shadow ray and splatted with the pixel filter.
+
+Derivation (Veach 1997 chapter 10, the t = 1 technique; pbrt-v4
+LightPathIntegrator / BDPT ``ConnectBDPT`` with t = 1).  The camera pass
+(core.scene.camera.CameraModel.generate) estimates, for pixel p with centre
+c_p, I_p = int f(x - c_p) <L(l, w(l, x))>_lens dx, f the normalised pixel
+filter, x in pixels, l uniform on the lens (area A_lens).  At fixed l the
+film point x maps to the direction w through the focus plane:
+dx = dw / (A_pix cos^3 theta), A_pix the pixel's area on the unit-depth
+plane, theta the ray's angle to the axis; and dw = |n_g(y) . w| dA(y) / d^2
+at the surface point y, d = |y - l|.  With L(l, w) = L_o(y, -w) =
+int f_s(-w, w_i) L_i |n_s . w_i| dw_i and the photon identity above:
+
+    I_p = E[ sum_j beta_j f_s(w_c, w_j) (|n_s . w_j| / |n_g . w_j|)
+                         |n_g . w_c| f(x_j - c_p) / (A_pix cos^3 theta d^2) ]
+
+w_c the unit direction y -> l, w_j the photon's incoming direction;
+1 / (A_pix cos^3 d^2) = We / pdf_wi in pbrt-v4's terms
+(``CameraProjection.weight``; We = 1 / (A_pix A_lens cos^4),
+pdf_wi = d^2 / (cos A_lens)).  The shading factor |n_s . w_j| / |n_g . w_j|
+is the photon gather's (Veach 1997 section 5.3, capped at 4 like
+core.sppm.photon_pass).  Orthographic cameras: dx = |n_g . w_c| dA / A_pix,
+the weight is 1 / A_pix (a delta direction, no d^2).
+
+Emission vertices (path length 1: the camera sees the emitter) of AREA lights
+visible to the camera and of emissive MESH triangles, whose photons are
+cosine-distributed: Phi_j / pi = L_e / pdf_A(y), so they are splatted with
+f_s = 1 / pi and no shading factor, on the emitting side only.  Point/spot
+lights with a radius (Cycles shows a disc or sphere), sun discs and the world
+are not splatted (they are not seen in LIGHT mode).
+
+What light tracing alone cannot render: anything the camera sees through a
+delta (mirror or glass seen directly) -- the camera end of a path must be a
+non-delta vertex, as in pbrt-v4's LightPathIntegrator.
+
+Quantities for MIS (VCM, Georgiev et al. 2012, "Light transport simulation
+with vertex connection and merging"; the dVCM / dVC / dVM recursion of their
+implementation notes).  Camera side, per connection, in ``CameraProjection``:
+We, pdf_pos = 1 / A_lens, pdf_dir = 1 / (A_pix cos^3) [solid angle], pdf_wi =
+d^2 / (cos A_lens); the camera-path density of reaching y is pdf_dir |n_g . w_c|
+/ d^2 [area] and the reverse density of the light path's previous vertex is
+pdf_bsdf(w_c -> w_j) (``materials.pdf_bsdf``).  Light side, per vertex (not
+recorded yet -- deposits keep p, ng, wi, power, (prim, u, v)): the emission
+densities pdf_A (p_select / area; a point light's delta position) and pdf_W
+(cos / pi, 1 / (4 pi) for points); at every bounce the forward solid-angle pdf
+of the sampled direction, its reverse pdf, and whether the lobe was a delta;
+with them each deposit carries dVCM, dVC, dVM and the weight of this
+connection follows the paper's recursion (Russian roulette stays out of the
+densities, as there).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .. import lights as Lt
+from .. import materials as B
+from ..accel import surface_point
+from ..sppm import photon_kernels as PK
+from ..sppm.photons import PhotonTracer, _children, _pool, _threads
+
+#: Light paths per chunk (memory bound; a cancel is seen between chunks).
+CHUNK = 65_536
+#: Cap of the shading-normal factor, as the photon gather's.
+SHADING_CAP = 4.0
+_BH_A0 = 0.35875
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def splat_kernel(raster, contrib, x0, y0, W, H, width, film):
+    """Add contrib (K, 3) at film positions raster (K, 2) (full-frame pixels,
+    y up) to film (H*W, 3) (row 0 at the TOP of the region x0..x0+W-1,
+    y0..y0+H-1), weighted by the normalised separable pixel filter: Cycles'
+    Blackman-Harris over +-width px (core.scene.camera.filter_weight); a box
+    of one pixel when width <= 0."""
+    box = width <= 0.0
+    w = 0.5 if box else width
+    norm = 1.0 / (2.0 * w * _BH_A0)
+    for k in range(raster.shape[0]):
+        x = raster[k, 0]
+        y = raster[k, 1]
+        ia = int(np.ceil(x - w - 0.5))
+        ib = int(np.floor(x + w - 0.5))
+        ja = int(np.ceil(y - w - 0.5))
+        jb = int(np.floor(y + w - 0.5))
+        if ib < x0 or ia >= x0 + W or jb < y0 or ja >= y0 + H:
+            continue
+        for j in range(max(ja, y0), min(jb, y0 + H - 1) + 1):
+            dy = y - (j + 0.5)
+            if box:
+                fy = 1.0 if abs(dy) < 0.5 else 0.0
+            else:
+                v = 2.0 * np.pi * (dy / (2.0 * w) + 0.5)
+                fy = max(_BH_A0 - 0.48829 * np.cos(v) + 0.14128 * np.cos(2 * v)
+                         - 0.01168 * np.cos(3 * v), 0.0) * norm
+                if abs(dy) >= w:
+                    fy = 0.0
+            if fy == 0.0:
+                continue
+            row = (H - 1 - (j - y0)) * W
+            for i in range(max(ia, x0), min(ib, x0 + W - 1) + 1):
+                dx = x - (i + 0.5)
+                if box:
+                    fx = 1.0 if abs(dx) < 0.5 else 0.0
+                else:
+                    v = 2.0 * np.pi * (dx / (2.0 * w) + 0.5)
+                    fx = max(_BH_A0 - 0.48829 * np.cos(v) + 0.14128 * np.cos(2 * v)
+                             - 0.01168 * np.cos(3 * v), 0.0) * norm
+                    if abs(dx) >= w:
+                        fx = 0.0
+                wgt = fx * fy
+                if wgt == 0.0:
+                    continue
+                q = row + (i - x0)
+                film[q, 0] += wgt * contrib[k, 0]
+                film[q, 1] += wgt * contrib[k, 1]
+                film[q, 2] += wgt * contrib[k, 2]
+
+
+class LightTracer:
+    """Light tracing for one scene.  offset (x0, y0), size (W, H): the render
+    region in Blender's pixel coordinates (y from the bottom)."""
+
+    def __init__(self, scene, accel, mtab, light_table, camera, settings, plan, D,
+                 offset, size, filter_width):
+        self.scene, self.accel, self.mtab = scene, accel, mtab
+        self.light_table, self.camera = light_table, camera
+        # Deposits from the first hit on: every non-delta vertex is connected.
+        self.tracer = PhotonTracer(scene, accel, mtab, light_table,
+                                   settings.replace(photons_for_direct=True), plan, None, None,
+                                   0.0, D)
+        self.x0, self.y0 = (int(v) for v in offset)
+        self.W, self.H = (int(v) for v in size)
+        self.filter_width = float(filter_width)
+        t = light_table
+        # Emission vertices are splatted only for AREA lights the camera sees
+        # and MESH emitters; without any, the compiled emission kernel (same
+        # photons, no light index) is used.
+        self.emitters_seen = bool(np.any((t.p_select > 0) & (
+            ((t.kind == Lt.AREA) & t.visible_camera) | (t.kind == Lt.MESH))))
+        self.fast_emission = PK.fast_emission_ok(t) and not self.emitters_seen
+        self.rays = 0
+
+    # ------------------------------------------------------------------
+    def trace_pass(self, n: int, rng, check_stop=lambda: None) -> np.ndarray:
+        """Trace n light paths; return their splat sums (H*W, 3) float64 (not
+        yet divided by the number of paths)."""
+        film = np.zeros((self.H * self.W, 3))
+        done = 0
+        r0 = self.accel.rays_cast
+        while done < n:
+            check_stop()
+            k = min(CHUNK, n - done)
+            if k >= 16384 and _threads() > 1:
+                # Two halves on independent child streams in two threads
+                # (Embree, numba and most numpy release the GIL), summed in
+                # a fixed order: the image does not depend on timing.
+                r_a, r_b = _children(rng)
+                film_b = np.zeros_like(film)
+                fut = _pool().submit(self._chunk, k // 2, r_a, film)
+                self._chunk(k - k // 2, r_b, film_b)
+                fut.result()
+                film += film_b
+            else:
+                self._chunk(k, rng, film)
+            done += k
+        self.rays += self.accel.rays_cast - r0
+        return film
+
+    def _chunk(self, n: int, rng, film: np.ndarray) -> None:
+        if self.fast_emission:
+            ph = PK.sample_photons_fast(self.light_table, n, rng)
+        else:
+            ph = Lt.sample_photons(self.light_table, n, rng)
+            self._emission_vertices(ph, rng, film)
+        dep = self.tracer.trace_emitted(ph, rng)
+        if dep is None:
+            return
+        bary = dep["bary"]
+        prim = bary[:, 0].astype(np.int64)
+        _, _, ns, uv = surface_point(self.scene.tri_p, self.scene.tri_n, self.scene.tri_uv,
+                                     prim, bary[:, 1], bary[:, 2])
+        mat = np.asarray(self.scene.tri_mat, np.int64)[prim]
+        self.connect(dep["p"], dep["ng"], ns, dep["wi"], dep["power"], mat, uv, rng, film)
+
+    def connect(self, p, ng, ns, wi, power, mat, uv, rng, film) -> None:
+        """Splat the surface vertices (K rows: position p, geometric normal ng,
+        shading normal ns, unit incoming direction wi (back towards the light),
+        flux power (K, 3), material mat, uv) into film (H*W, 3)."""
+        K = p.shape[0]
+        if K == 0:
+            return
+        pr, keep = self._visible(p, ng, rng)
+        if keep.size == 0:
+            return
+        wc = pr.wi[keep]
+        m = mat[keep]
+        colors = B.lobe_colors(self.mtab, m, uv[keep])
+        f = B.eval_bsdf(self.mtab, m, colors, ns[keep], ng[keep], wc, wi[keep])
+        corr = np.minimum(B.shading_correction(ns[keep], ng[keep], wi[keep]), SHADING_CAP)
+        g = np.abs(np.einsum("ij,ij->i", ng[keep], wc)) * corr * pr.weight[keep]
+        contrib = f * power[keep] * g[:, None]
+        self._splat(pr.raster[keep], contrib, film)
+
+    def _emission_vertices(self, ph, rng, film) -> None:
+        """Splat the emission vertices of AREA lights visible to the camera and
+        of MESH emitters: f_s = 1 / pi on the emitting side (module doc)."""
+        t = self.light_table
+        light = ph["light"]
+        ok = light >= 0
+        kind = ph["kind"]
+        lj = np.where(ok, light, 0)
+        sel = ok & (((kind == Lt.AREA) & t.visible_camera[lj]) | (kind == Lt.MESH))
+        idx = np.nonzero(sel)[0]
+        if idx.size == 0:
+            return
+        o = ph["o"][idx]
+        n = t.dir[light[idx]]
+        # MESH photons leave from the side their direction points to.
+        n = n * np.where(np.einsum("ij,ij->i", n, ph["d"][idx]) >= 0, 1.0, -1.0)[:, None]
+        pr, keep = self._visible(o, n, rng)
+        if keep.size == 0:
+            return
+        cos_o = np.einsum("ij,ij->i", n[keep], pr.wi[keep])
+        front = cos_o > 0
+        keep = keep[front]
+        contrib = ph["power"][idx][keep] * (cos_o[front] * pr.weight[keep] / np.pi)[:, None]
+        self._splat(pr.raster[keep], contrib, film)
+
+    def _visible(self, p, ng, rng):
+        """Project p (K, 3) through a fresh lens sample each; (projection,
+        indices of the points in front, near the region and unoccluded)."""
+        K = p.shape[0]
+        cam = self.camera
+        pr = cam.project(p, rng.random((K, 2)))
+        w = max(self.filter_width, 0.5)
+        x, y = pr.raster[:, 0], pr.raster[:, 1]
+        near = (pr.ok & (x > self.x0 - w) & (x < self.x0 + self.W + w)
+                & (y > self.y0 - w) & (y < self.y0 + self.H + w))
+        idx = np.nonzero(near)[0]
+        if idx.size == 0:
+            return pr, idx
+        wc = pr.wi[idx]
+        # The camera ray starts at depth clip_start (generate): geometry in
+        # front of the near clip plane does not occlude.
+        pc_depth = -((p[idx] - cam.origin) @ cam.R[:, 2])
+        t_max = pr.dist[idx] * (pc_depth - cam.cam.clip_start) / np.maximum(pc_depth, 1e-300)
+        o = self.accel.spawn(p[idx], ng[idx], wc)
+        blocked = self.accel.occluded(o, wc, t_max)
+        return pr, idx[~blocked]
+
+    def _splat(self, raster, contrib, film) -> None:
+        good = np.all(np.isfinite(contrib), axis=1)
+        if not np.all(good):
+            raster, contrib = raster[good], contrib[good]
+        splat_kernel(np.ascontiguousarray(raster), np.ascontiguousarray(contrib),
+                     self.x0, self.y0, self.W, self.H, self.filter_width, film)
