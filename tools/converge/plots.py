@@ -35,8 +35,9 @@ def write_png(path: str, img, exposure_gain: float = 1.0) -> None:
     matplotlib.image.imsave(path, srgb8(img, exposure_gain), format="png")
 
 
-def plot(path: str, runs, budget, floors, title) -> None:
-    """convergence.png: relMSE against time, log-log, one panel per region.
+def plot(path: str, runs, budget, floors, title, metric: str = "relmse") -> None:
+    """Error (``metric``: "relmse" or "flip", a CSV column prefix) against time,
+    log-log, one panel per region; ``floors`` {region: floor} drawn as lines.
 
     One seed: its recorded points; several: the geometric mean of the
     log-log interpolated curves, the seed spread shaded.
@@ -44,24 +45,26 @@ def plot(path: str, runs, budget, floors, title) -> None:
     plt = _pyplot()
     fig, axes = plt.subplots(2, 2, figsize=(10, 8), sharex=True)
     for ax, reg in zip(axes.ravel(), M.REGIONS):
-        key = f"relmse_{reg}"
+        key = f"{metric}_{reg}"
         for m in methods_run(runs):
-            mr = [r for r in runs if r.method == m and r.rows]
+            mr = [r for r in runs if r.method == m and r.rows and key in r.rows[0]]
+            if not mr:
+                continue
             tmin = max(min(row["seconds"] for row in r.rows) for r in mr)
             tmax = min(max(row["seconds"] for row in r.rows) for r in mr)
             if len(mr) == 1 or tmax <= tmin:
                 r = mr[0]
                 ax.plot([row["seconds"] for row in r.rows], [row[key] for row in r.rows],
-                        "-" if m != "cycles" else "o-", color=COLORS[m], label=m.upper(), ms=3)
+                        "-" if m != "cycles" else "o-", color=COLORS.get(m), label=m.upper(), ms=3)
                 continue
             grid = np.geomspace(tmin, tmax, 60)
             vals = np.array([[M.loglog_interp(t, [row["seconds"] for row in r.rows],
                                               [row[key] for row in r.rows]) for t in grid]
                              for r in mr])
-            ax.plot(grid, np.exp(np.nanmean(np.log(vals), axis=0)), color=COLORS[m],
+            ax.plot(grid, np.exp(np.nanmean(np.log(vals), axis=0)), color=COLORS.get(m),
                     label=f"{m.upper()} ({len(mr)} seeds)")
             ax.fill_between(grid, np.nanmin(vals, axis=0), np.nanmax(vals, axis=0),
-                            color=COLORS[m], alpha=0.2, lw=0)
+                            color=COLORS.get(m), alpha=0.2, lw=0)
         fl = floors.get(reg)
         if fl is not None and np.isfinite(fl) and fl > 0:
             ax.axhline(fl, color="grey", ls=":", lw=1, label="reference noise")
@@ -70,7 +73,7 @@ def plot(path: str, runs, budget, floors, title) -> None:
         ax.set_yscale("log")
         ax.set_title(f"{reg}")
         ax.grid(True, which="both", alpha=0.3)
-        ax.set_ylabel("relMSE")
+        ax.set_ylabel({"relmse": "relMSE", "flip": "HDR-FLIP"}.get(metric, metric))
     for ax in axes[1]:
         ax.set_xlabel("seconds")
     axes[0, 0].legend(fontsize=8)
