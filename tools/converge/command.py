@@ -242,6 +242,8 @@ def write_all(a, runs, ref, floors, masks, budget, notes, interrupted, log) -> N
     """DIR/convergence.csv, convergence.png, report.md, summary.json, <method>.exr/.png
     (the final image of each method's first seed) and reference.png."""
     out = a.out
+    for r in runs:
+        r.finish()
     R.write_csv(os.path.join(out, "convergence.csv"), runs)
     _plots(out, runs, budget, floors, a)
     summary = R.report(os.path.join(out, "report.md"), a, runs, ref, floors, masks, budget, notes,

@@ -53,8 +53,8 @@ def plot(path: str, runs, budget, floors, title, metric: str = "relmse") -> None
             tmin = max(min(row["seconds"] for row in r.rows) for r in mr)
             tmax = min(max(row["seconds"] for row in r.rows) for r in mr)
             if len(mr) == 1 or tmax <= tmin:
-                r = mr[0]
-                ax.plot([row["seconds"] for row in r.rows], [row[key] for row in r.rows],
+                pts = [(row["seconds"], row[key]) for row in mr[0].rows if np.isfinite(row[key])]
+                ax.plot([p[0] for p in pts], [p[1] for p in pts],
                         "-" if m != "cycles" else "o-", color=COLORS.get(m), label=m.upper(), ms=3)
                 continue
             grid = np.geomspace(tmin, tmax, 60)

@@ -50,6 +50,11 @@ METHODS = tuple(METHOD_SETTINGS) + ("cycles",)
 CYCLES_HELP = "Cycles at 1, 2, 4, ... spp, in a process of its own"
 # Samples/s of the ladder and of a standalone Cycles render must agree within this.
 SPEED_TOLERANCE = 0.05
+# HDR-FLIP costs ~100x relMSE (0.1-0.4 s per 128^2 image): it is computed at
+# points spaced by this factor in time (log-spaced, as the plot and the
+# log-log interpolation use them) and at a run's last point; the other rows
+# hold NaN, which tools.metrics.loglog_interp skips.
+FLIP_TIME_STEP = 1.25
 # Photons per pass of the untimed warm-up render (at most).
 WARMUP_PHOTONS = 2000
 
@@ -72,16 +77,37 @@ class Run:
         self.ladder_images = {}    # cycles: {samples: (H, W, 3) float64}
         self.cycles_process = None  # cycles: the worker's "done" line (numba, embreex, threads)
         self.cycles_speed = None   # cycles, first seed: cycles_speed_check's dict
+        self._next_flip = 0.0
+        self._last = None          # (masks, ref) of the last record
 
     def record(self, masks, ref, point, seconds, render_seconds, photons, samples, img) -> dict:
-        """Append the row of one image (H, W, 3) float64 and keep it as the last image."""
+        """Append the row of one image (H, W, 3) float64 and keep it as the last image.
+
+        FLIP is computed when ``seconds`` has grown by FLIP_TIME_STEP since the
+        last FLIP (else NaN until :meth:`finish`)."""
         row = {"method": self.method, "seed": self.seed, "point": point,
                "seconds": round(seconds, 4), "render_seconds": round(render_seconds, 4),
                "photons": photons, "samples": samples}
-        row.update(M.error_metrics(img, ref, masks))
+        row.update(M.error_metrics(img, ref, masks, with_flip=False))
+        if seconds >= self._next_flip:
+            row.update(self._flip(img, ref, masks))
+            self._next_flip = seconds * FLIP_TIME_STEP
+        else:
+            row.update({k.replace("relmse_", "flip_"): float("nan")
+                        for k in row if k.startswith("relmse_")})
         self.rows.append(row)
         self.image = img
+        self._last = (masks, ref)
         return row
+
+    @staticmethod
+    def _flip(img, ref, masks) -> dict:
+        return {k: v for k, v in M.error_metrics(img, ref, masks).items() if k.startswith("flip_")}
+
+    def finish(self) -> None:
+        """FLIP of the last row when the time spacing skipped it (its image is kept)."""
+        if self.rows and self._last and not np.isfinite(self.rows[-1].get("flip_all", np.nan)):
+            self.rows[-1].update(self._flip(self.image, self._last[1], self._last[0]))
 
 
 class Progress:
