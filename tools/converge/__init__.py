@@ -29,7 +29,7 @@
 4. --seeds K >= 2: every method runs with seeds seed..seed+K-1; bias and noise
    of the final images are separated (``tools.metrics.bias_noise``).
 5. Outputs (``command.py``, ``report.py``, ``plots.py``): DIR/convergence.csv,
-   DIR/convergence.png (relMSE), DIR/convergence_flip.png (HDR-FLIP), DIR/report.md, DIR/summary.json, DIR/<method>.exr and
+   DIR/convergence.png (relMSE and HDR-FLIP), DIR/report.md, DIR/summary.json, DIR/<method>.exr and
    .png (the final image of the first seed), DIR/reference.png.
 6. Throughput: FPPM photon-pass time (trace + gather) / raw Embree time for as
    many random rays, in the same process.

@@ -52,6 +52,9 @@ def add_parser(sub) -> None:
                    help="scene class for the targets section (default: all targets listed as 'n/a')")
     c.add_argument("--cycles-max-samples", type=int, default=1 << 20, metavar="N",
                    help="largest Cycles ladder sample count (default: no practical cap)")
+    c.add_argument("--max-passes", type=int, default=0, metavar="N",
+                   help="also stop each FPPM/PPM run after N passes (default 0: the time budget "
+                        "only); pass-counted runs give the same images on any machine load")
     c.add_argument("--no-cycles-check", action="store_true",
                    help="skip the standalone Cycles render that checks the ladder's samples/s "
                         "(by default the first seed's last ladder point is rendered once more)")
@@ -71,6 +74,8 @@ def check_args(a) -> list[str]:
     if bad or not methods:
         raise CLIError(EXIT_USAGE, f"--methods: unknown {bad or 'empty'}; "
                                    f"choose from {','.join(METHODS)}.")
+    if getattr(a, "max_passes", 0) < 0:
+        raise CLIError(EXIT_USAGE, "--max-passes must be >= 0.")
     if a.seeds < 1:
         raise CLIError(EXIT_USAGE, "--seeds must be >= 1.")
     if a.resolution is not None and not 1 <= a.resolution <= 1000:
@@ -181,7 +186,8 @@ def run_all(a, bpy, methods, ref, masks, budget, log, progress) -> tuple[list[Ru
                         cycles_speed_check(run, a.blend, a.resolution, stop, log)
                 else:
                     run_photon_mapping(run, a.blend, a.resolution, budget, a.photons,
-                                       ref["image"], masks, log, progress, stop, warmed)
+                                       ref["image"], masks, log, progress, stop, warmed,
+                                       getattr(a, "max_passes", 0))
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -198,12 +204,10 @@ def _write_summary(path: str, summary: dict) -> None:
 
 
 def _plots(out, runs, budget, floors, a) -> None:
-    """convergence.png (relMSE) and convergence_flip.png (HDR-FLIP) against time."""
-    name = os.path.basename(a.blend)
+    """convergence.png: relMSE and HDR-FLIP against time."""
     plots.plot(os.path.join(out, "convergence.png"), runs, budget, floors,
-               f"{name}: relMSE vs time ({budget:g} s budget)")
-    plots.plot(os.path.join(out, "convergence_flip.png"), runs, budget, {},
-               f"{name}: HDR-FLIP vs time ({budget:g} s budget)", metric="flip")
+               f"{os.path.basename(a.blend)}: relMSE and HDR-FLIP vs time "
+               f"({budget:g} s budget)")
 
 
 def rereport(a, ref, floors, masks, budget, notes, log) -> int:
@@ -234,7 +238,7 @@ def rereport(a, ref, floors, masks, budget, notes, log) -> int:
     _plots(a.out, runs, budget, floors, a)
     summary = R.report(rp, a, runs, ref, floors, masks, budget, notes, False, carry)
     _write_summary(sp, summary)
-    log(f"Rebuilt report.md, summary.json, convergence.png, convergence_flip.png in {a.out}.")
+    log(f"Rebuilt report.md, summary.json, convergence.png in {a.out}.")
     return EXIT_OK
 
 
@@ -249,8 +253,7 @@ def write_all(a, runs, ref, floors, masks, budget, notes, interrupted, log) -> N
     summary = R.report(os.path.join(out, "report.md"), a, runs, ref, floors, masks, budget, notes,
                        interrupted)
     _write_summary(os.path.join(out, "summary.json"), summary)
-    written = ["convergence.csv", "convergence.png", "convergence_flip.png", "report.md",
-               "summary.json"]
+    written = ["convergence.csv", "convergence.png", "report.md", "summary.json"]
     first = {}
     for r in runs:
         first.setdefault(r.method, r)

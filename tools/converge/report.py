@@ -210,6 +210,10 @@ def _header(a, runs, ref, floor, budget, interrupted, summary) -> list[str]:
               "Cycles = one render.render per ladder point (1, 2, 4, ... spp).  Values at a "
               "given time are log-log interpolated between recorded points.",
               ""]
+    if getattr(a, "max_passes", 0):
+        lines.append(f"- FPPM/PPM runs stop after {a.max_passes} passes (--max-passes) if the "
+                     "budget is not reached first; after its last pass a run's error is held "
+                     "constant.")
     for m in methods_run(runs):
         rs = [r for r in runs if r.method == m]
         if m != "cycles":

@@ -145,17 +145,20 @@ def raw_ray_seconds(accel, scene, n_rays: int, cap: int = 2_000_000, seed: int =
     return (time.perf_counter() - t0) * n_rays / n
 
 
-def method_overrides(method: str, seed: int, budget: float, photons) -> dict:
-    """The RenderSettings overrides of a photon-mapping method: passes until ``budget`` s."""
-    kw = dict(METHOD_SETTINGS[method][0], time_limit=float(budget), max_passes=0, seed=seed)
+def method_overrides(method: str, seed: int, budget: float, photons, max_passes: int = 0) -> dict:
+    """The RenderSettings overrides of a photon-mapping method: passes until ``budget`` s
+    (or ``max_passes`` passes when > 0, whichever comes first)."""
+    kw = dict(METHOD_SETTINGS[method][0], time_limit=float(budget), max_passes=int(max_passes),
+              seed=seed)
     if photons is not None:
         kw["photons_per_pass"] = photons
     return kw
 
 
 def run_photon_mapping(run, blend, resolution, budget, photons, ref, masks, log, progress, stop,
-                       warmed: set):
-    """FPPM, paper or PPM (run.method) for ``budget`` seconds; records every pass into ``run``.
+                       warmed: set, max_passes: int = 0):
+    """FPPM, paper or PPM (run.method) for ``budget`` seconds (at most ``max_passes``
+    passes when > 0); records every pass into ``run``.
 
     stop: ``{"flag": bool}``, set by Ctrl-C; polled during the passes.
     warmed: the methods already warmed up in this process (updated).
@@ -163,7 +166,7 @@ def run_photon_mapping(run, blend, resolution, budget, photons, ref, masks, log,
     from ...addon.engine import RenderSession
 
     m, seed = run.method, run.seed
-    overrides = method_overrides(m, seed, budget, photons)
+    overrides = method_overrides(m, seed, budget, photons, max_passes)
     should_stop = lambda: stop["flag"]  # noqa: E731
     if m not in warmed:
         # Warm-up (not timed): loads numba's compiled kernels from the disk
