@@ -4,6 +4,7 @@
                   [--reference REF.exr | --cycles-samples N] [--methods fppm,ppm,cycles]
                   [--seeds K] [--resolution PCT] [--photons N] [--mask MASK.png|exr]
                   [--kind diffuse|indirect|caustic-small|caustic-large]
+                  [--max-passes N] [--no-cycles-check]
 
 1. Reference (``references.py``): REF.exr, or a Cycles render of the same
    file at N samples (default: the file's Cycles samples) with reference
