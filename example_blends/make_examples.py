@@ -2,11 +2,14 @@
 
 Run:  .venv/bin/python example_blends/make_examples.py [name ...]
 
-Each file: 128x128, camera set, ``render.engine`` 'CYCLES' with caustics on
-and reference settings (no denoising / adaptive sampling / clamping,
-'Standard' view), so the same file renders in Cycles; switch the engine to
-FPPM to render it with the add-on.  Only shader nodes the exporter supports
-are used (Diffuse, Glossy, Glass, Emission, Mix).  Scene helpers live in
+Each file: 128x128, camera set, saved with ``render.engine`` 'FPPM' (the
+add-on is registered while building); the Cycles settings stay set for
+references (caustics on, no denoising / adaptive sampling / clamping,
+'Standard' view; ``fppm converge`` switches the engine to Cycles for its
+reference and ladder), and Cycles' bounces equal FPPM's ``max_bounces`` (16),
+so both trace paths of the same depth (tests/test_converge.py checks it).
+Only shader nodes the exporter supports are used (Diffuse, Glossy, Glass,
+Emission, Mix, Principled BSDF).  Scene helpers live in
 tests/scenes/bpy_kit.py.
 
   cornell.blend        Cornell box, ceiling area light (the default example)
@@ -17,6 +20,13 @@ tests/scenes/bpy_kit.py.
                        cannot render; the camera sees only diffuse surfaces
   indirect_room.blend  room lit only indirectly (paper's Figure 6): a spot
                        lights a ceiling patch behind the camera
+  ring_lambert.blend   the seed paper's Figure 1 setting: a mirror ring section
+                       (half a cylinder) under a 1 m square area light over a
+                       Lambert floor: a caustic from a large light
+  ring_principled.blend  the same ring over a floor of Blender's default
+                       material (Principled BSDF, its default inputs)
+  principled_interior.blend  a room, every object Blender's default material,
+                       lit through a window by an area light outside the view
 """
 from __future__ import annotations
 
@@ -148,16 +158,107 @@ def indirect_room():
     return sc
 
 
-EXAMPLES = [cornell, coffee_cup, glass_sphere, point_caustic, indirect_room]
+def default_material(name):
+    """Blender's default material: a new material's Principled BSDF, inputs untouched."""
+    import bpy
+    m = bpy.data.materials.new(name)
+    nodes = m.node_tree.nodes
+    assert [n.type for n in nodes] == ['BSDF_PRINCIPLED', 'OUTPUT_MATERIAL'] or \
+        {n.type for n in nodes} == {'BSDF_PRINCIPLED', 'OUTPUT_MATERIAL'}, [n.type for n in nodes]
+    return m
+
+
+def ring_arc(name, radius, height, mat, a0_deg, a1_deg, segments=48):
+    """A section of an open cylinder (axis z, on z = 0) from angle a0 to a1 (degrees)."""
+    verts = []
+    for z in (0.0, height):
+        for j in range(segments + 1):
+            ph = math.radians(a0_deg + (a1_deg - a0_deg) * j / segments)
+            verts.append((radius * math.cos(ph), radius * math.sin(ph), z))
+    n = segments + 1
+    faces = [(j, j + 1, n + j + 1, n + j) for j in range(segments)]
+    return K.mesh_object(name, verts, faces, mat, smooth=True)
+
+
+def _ring_scene(make_floor_material):
+    # A half ring of mirror (radius 0.5 m, 0.3 m high) opening towards a
+    # 1 m square area light 2 m away and 1.6 m up: the concave inner wall
+    # focuses the light into a caustic on the floor inside the ring, blurred
+    # by the light's size (the seed paper's Figure 1 setting).
+    sc = K.reset_scene(RES, samples=2048, world_color=(0.01, 0.01, 0.012))
+    K.plane("Floor", 6, make_floor_material())
+    metal = K.material("Mirror", 'GLOSSY', (0.95, 0.9, 0.8), roughness=0.0)
+    ring_arc("Ring", 0.5, 0.3, metal, -90.0, 90.0)
+    K.light("AreaLight", 'AREA', 40.0, (-2.0, 0.0, 1.6), target=(0.2, 0.0, 0.0),
+            visible_camera=False, shape='SQUARE', size=1.0, color=(1.0, 0.95, 0.85))
+    K.camera((0.5, -1.3, 2.1), (0.15, 0.0, 0.05), lens=40)
+    return sc
+
+
+def ring_lambert():
+    sc = _ring_scene(lambda: K.material("Lambert", 'DIFFUSE', (0.8, 0.8, 0.8)))
+    _note(sc, "Seed paper Fig. 1 setting: mirror half ring under a 1 m square area "
+              "light over a Lambert floor.")
+    return sc
+
+
+def ring_principled():
+    sc = _ring_scene(lambda: default_material("Material"))
+    _note(sc, "The mirror half ring of ring_lambert over a floor of Blender's "
+              "default material (Principled BSDF).")
+    return sc
+
+
+def principled_interior():
+    # Room 4 x 4 x 2.5 m with a 1 x 1 m window in the left wall (x = -2); a
+    # 1 m square area light outside, above the window, shines in and down
+    # onto the floor near the wall.  The camera looks at the back and right
+    # of the room: the light is outside the view, and most of what it sees
+    # is lit by bounces.  Every object has Blender's default material.
+    sc = K.reset_scene(RES, samples=2048)
+    mat = default_material("Material")
+    x0, x1, y0, y1, z1 = -2.0, 2.0, -2.0, 2.0, 2.5
+    wy0, wy1, wz0, wz1 = -0.5, 0.5, 0.9, 1.9          # the window in x = x0
+    K.quad("Floor", [(x0, y0, 0), (x1, y0, 0), (x1, y1, 0), (x0, y1, 0)], mat)
+    K.quad("Ceiling", [(x0, y0, z1), (x0, y1, z1), (x1, y1, z1), (x1, y0, z1)], mat)
+    K.quad("BackWall", [(x0, y1, 0), (x1, y1, 0), (x1, y1, z1), (x0, y1, z1)], mat)
+    K.quad("FrontWall", [(x0, y0, 0), (x0, y0, z1), (x1, y0, z1), (x1, y0, 0)], mat)
+    K.quad("RightWall", [(x1, y0, 0), (x1, y0, z1), (x1, y1, z1), (x1, y1, 0)], mat)
+    # Left wall: four quads around the window.
+    for nm, (ya, yb, za, zb) in (("WallBelow", (y0, y1, 0, wz0)), ("WallAbove", (y0, y1, wz1, z1)),
+                                 ("WallFront", (y0, wy0, wz0, wz1)), ("WallBack", (wy1, y1, wz0, wz1))):
+        K.quad("Left" + nm, [(x0, ya, za), (x0, yb, za), (x0, yb, zb), (x0, ya, zb)], mat)
+    K.box("Table", (1.0, 0.6, 0.75), mat, (0.6, 1.0, 0), 15)
+    K.box("Cabinet", (0.5, 0.9, 1.5), mat, (1.65, -0.4, 0), 0)
+    K.uv_sphere("Ball", 0.3, mat, (-0.6, 1.2, 0.3), segments=24, rings=12)
+    K.light("WindowLight", 'AREA', 150.0, (-3.0, 0.0, 2.6), target=(-1.2, 0.2, 0.0),
+            visible_camera=False, shape='SQUARE', size=1.0, color=(1.0, 0.96, 0.9))
+    K.camera((1.2, -1.85, 1.4), (-0.6, 2.0, 0.8), lens=22)
+    _note(sc, "Principled interior: Blender's default material everywhere, lit "
+              "through a window by an area light outside the view.")
+    return sc
+
+
+EXAMPLES = [cornell, coffee_cup, glass_sphere, point_caustic, indirect_room,
+            ring_lambert, ring_principled, principled_interior]
+
+
+def save_for_fppm(sc, path):
+    """Save with FPPM as the render engine; its bounces equal Cycles' (kept for references)."""
+    import fppm.addon as addon
+    addon.register()
+    sc.render.engine = 'FPPM'
+    sc.fppm.max_bounces = sc.cycles.max_bounces
+    K.save(path)
 
 
 def main(names=None):
     for fn in EXAMPLES:
         if names and fn.__name__ not in names:
             continue
-        fn()
+        sc = fn()
         path = os.path.join(HERE, fn.__name__ + ".blend")
-        K.save(path)
+        save_for_fppm(sc, path)
         print(f"{fn.__name__}: {os.path.getsize(path) / 1e3:.0f} kB -> {path}")
 
 

@@ -47,7 +47,8 @@ def test_masks_select_pixels_and_empty_mask_is_nan():
     assert M.rmse(x, r, ~m) == pytest.approx(4.0, rel=1e-12)
     assert math.isnan(M.relmse(x, r, np.zeros((1, 2), bool)))
     e = M.error_metrics(x, r, {"caustic": m})
-    assert set(e) == {f"{k}_{g}" for k in ("relmse", "rmse", "mre") for g in ("all", "caustic")}
+    assert set(e) == {f"{k}_{g}" for k in ("relmse", "rmse", "mre", "flip")
+                      for g in ("all", "caustic")}
     assert e["relmse_all"] == pytest.approx((5 / 1.01 + 3 * 16 / 1.01) / 6, rel=1e-12)
 
 
@@ -144,3 +145,29 @@ def test_masks_from_image_channels():
     assert m["caustic"].sum() == 1 and m["caustic"][0, 0]
     assert m["smooth"].sum() == 1 and m["smooth"][0, 1]
     assert m["indirect"].sum() == 1 and m["indirect"][1, 1]
+
+
+def test_flip_is_flip_evaluators_hdr_mean_and_masks_average_its_map():
+    """M.flip = flip-evaluator's own HDR mean on a tiny pair; regions average the one map."""
+    F = pytest.importorskip("flip_evaluator")
+    rng = np.random.default_rng(1)
+    r = rng.uniform(0.0, 2.0, (16, 12, 3))
+    x = r * rng.uniform(0.7, 1.3, r.shape)
+    _, mean, _ = F.evaluate(r.astype(np.float32), x.astype(np.float32), "HDR")
+    # flip-evaluator averages in float32, tools.metrics in float64: 1e-6 apart.
+    assert M.flip(x, r) == pytest.approx(mean, rel=1e-5)
+    assert M.flip(r, r) == 0.0
+    m = np.zeros((16, 12), bool)
+    m[:5] = True
+    fm = M.flip_map(x, r)
+    e = M.error_metrics(x, r, {"smooth": m})
+    assert e["flip_smooth"] == pytest.approx(fm[:5].mean(), rel=1e-12)
+    assert e["flip_all"] == pytest.approx(mean, rel=1e-5)
+    assert math.isnan(M.flip(x, r, np.zeros((16, 12), bool)))
+    # Negative and NaN pixels (which FLIP's HDR mode rejects) count as black.
+    y = x.copy()
+    y[0, 0] = (-1.0, np.nan, 0.5)
+    z = x.copy()
+    z[0, 0] = (0.0, 0.0, 0.5)
+    assert M.flip(y, r) == M.flip(z, r)
+

@@ -11,6 +11,16 @@ Conventions
 - RMSE  = sqrt(mean (x - r)^2).
 - MRE (mean relative error) = mean |x - r| / (|r| + sqrt(eps)): the same
   regulariser as relMSE, on the radiance scale (0.1).
+- FLIP = the mean of the HDR-FLIP error map (Andersson et al. 2021,
+  "Visualizing Errors in Rendered High Dynamic Range Images"), computed by
+  the ``flip-evaluator`` package (a development dependency, imported only
+  here): the test image and the reference are tone mapped at the exposures
+  the reference's range calls for, and each pixel's perceived colour and
+  feature difference is in [0, 1].  relMSE is a variance-like measure that
+  rewards smooth, biased images (a blur trades noise for a bias it weighs
+  lightly); FLIP also scores blurred edges and lost features as a viewer
+  sees them, so the report gives both.  The region values are means of the one map over
+  the region (the exposure range always comes from the whole reference).
 
 Bias and noise over K seeds (:func:`bias_noise`): with x_k the K images and
 m their mean, per pixel/channel weight w = 1 / (r^2 + eps),
@@ -118,18 +128,45 @@ def mean_relative_error(img, ref, mask=None, eps: float = MRE_EPS) -> float:
     return float(np.mean(np.abs(d) / (np.abs(rr) + eps)))
 
 
-def error_metrics(img, ref, masks: dict | None = None) -> dict[str, float]:
-    """{"relmse_<region>", "rmse_<region>", "mre_<region>"} for "all" and each mask.
+def flip_map(img, ref) -> np.ndarray:
+    """(H, W) float64 HDR-FLIP error map of ``img`` against ``ref`` (module docstring).
+
+    Both (H, W, >=3) linear radiance; negative values and NaN (which FLIP's
+    HDR mode does not accept) are set to 0.  Raises ImportError without the
+    ``flip-evaluator`` package.
+    """
+    import flip_evaluator
+
+    x, r = _check(img, ref)
+    prep = lambda a: np.ascontiguousarray(np.nan_to_num(np.maximum(a, 0.0), nan=0.0,  # noqa: E731
+                                                        posinf=0.0), np.float32)
+    m, _, _ = flip_evaluator.evaluate(prep(r), prep(x), "HDR", applyMagma=False)
+    return np.asarray(m, np.float64).reshape(x.shape[:2])
+
+
+def flip(img, ref, mask=None) -> float:
+    """Mean HDR-FLIP error over (masked) pixels; NaN if empty (see :func:`flip_map`)."""
+    v = _select(flip_map(img, ref)[..., None], mask)
+    return float(np.mean(v)) if v.size else float("nan")
+
+
+def error_metrics(img, ref, masks: dict | None = None, with_flip: bool = True) -> dict[str, float]:
+    """{"relmse_<region>", "rmse_<region>", "mre_<region>", "flip_<region>"} for "all"
+    and each mask (flip only ``with_flip``).
 
     masks: {region name: (H, W) bool}; "all" (no mask) is always included.
     """
     out = {}
     regions = {"all": None}
     regions.update(masks or {})
+    fm = flip_map(img, ref)[..., None] if with_flip else None
     for name, m in regions.items():
         out[f"relmse_{name}"] = relmse(img, ref, m)
         out[f"rmse_{name}"] = rmse(img, ref, m)
         out[f"mre_{name}"] = mean_relative_error(img, ref, m)
+        if fm is not None:
+            v = _select(fm, m)
+            out[f"flip_{name}"] = float(np.mean(v)) if v.size else float("nan")
     return out
 
 

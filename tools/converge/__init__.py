@@ -4,6 +4,7 @@
                   [--reference REF.exr | --cycles-samples N] [--methods fppm,ppm,cycles]
                   [--seeds K] [--resolution PCT] [--photons N] [--mask MASK.png|exr]
                   [--kind diffuse|indirect|caustic-small|caustic-large]
+                  [--max-passes N] [--no-cycles-check]
 
 1. Reference (``references.py``): REF.exr, or a Cycles render of the same
    file at N samples (default: the file's Cycles samples) with reference
@@ -17,15 +18,19 @@
    (``addon.cli.open_blend`` + ``render_scene``: the F12 scene); ``cycles`` at
    1, 2, 4, ... samples, each a separate render timed by wall clock, until
    one takes longer than S.  FPPM/PPM time = render set-up (export, BVH,
-   occlusion grid) + pass time; Cycles time = the whole ``render.render``.
-3. After every pass (or ladder point): time, photons, relMSE / RMSE / MRE over
+   occlusion grid) + pass time; Cycles time = the whole ``render.render``,
+   rendered in a process of its own (``cycles_worker.py``: no numba or
+   Embree threads beside Cycles) whose samples/s is checked against a
+   standalone Cycles render of the first seed's last point (report.md says
+   whether they agree within 5%; ``--no-cycles-check`` skips it).
+3. After every pass (or ladder point): time, photons, relMSE / RMSE / MRE / HDR-FLIP over
    the image and over the smooth / caustic / indirect regions
    (``tools.metrics.region_masks``, or the --mask image: R caustic, G smooth,
    B indirect).
 4. --seeds K >= 2: every method runs with seeds seed..seed+K-1; bias and noise
    of the final images are separated (``tools.metrics.bias_noise``).
 5. Outputs (``command.py``, ``report.py``, ``plots.py``): DIR/convergence.csv,
-   DIR/convergence.png, DIR/report.md, DIR/summary.json, DIR/<method>.exr and
+   DIR/convergence.png (relMSE and HDR-FLIP), DIR/report.md, DIR/summary.json, DIR/<method>.exr and
    .png (the final image of the first seed), DIR/reference.png.
 6. Throughput: FPPM photon-pass time (trace + gather) / raw Embree time for as
    many random rays, in the same process.

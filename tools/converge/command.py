@@ -18,7 +18,15 @@ from ...core.io.exr import write_exr
 from .. import metrics as M
 from . import plots, report as R
 from .references import load_mask, load_reference, make_reference
-from .runs import METHODS, Progress, Run, run_cycles_ladder, run_photon_mapping
+from .runs import (CYCLES_HELP, METHOD_SETTINGS, METHODS, Progress, Run, cycles_speed_check,
+                   run_cycles_ladder, run_photon_mapping)
+
+
+def methods_help() -> str:
+    """The --methods help: every method name and what it runs."""
+    items = [f"'{m}' {h}" for m, (_, h) in METHOD_SETTINGS.items()] + [f"'cycles' {CYCLES_HELP}"]
+    return (f"comma-separated subset of {','.join(METHODS)} (default: fppm,ppm,cycles): "
+            + "; ".join(items))
 
 
 def add_parser(sub) -> None:
@@ -34,10 +42,7 @@ def add_parser(sub) -> None:
     g.add_argument("--reference", metavar="REF.exr", help="reference image (linear RGB EXR)")
     g.add_argument("--cycles-samples", type=int, metavar="N",
                    help="render the reference with Cycles at N samples (default: the file's)")
-    c.add_argument("--methods", default="fppm,ppm,cycles",
-                   help="comma-separated subset of fppm,paper,ppm,cycles (default: fppm,ppm,cycles; "
-                        "'fppm' uses the corrected frequency model whatever the file sets, "
-                        "'paper' the paper's printed one)")
+    c.add_argument("--methods", default="fppm,ppm,cycles", help=methods_help())
     c.add_argument("--seeds", type=int, default=1, metavar="K", help="seeds per method (K >= 2: bias/noise)")
     c.add_argument("--seed", type=int, default=0, metavar="N", help="first seed (default 0)")
     c.add_argument("--resolution", type=int, metavar="PCT", help="resolution percentage (1-1000)")
@@ -47,6 +52,12 @@ def add_parser(sub) -> None:
                    help="scene class for the targets section (default: all targets listed as 'n/a')")
     c.add_argument("--cycles-max-samples", type=int, default=1 << 20, metavar="N",
                    help="largest Cycles ladder sample count (default: no practical cap)")
+    c.add_argument("--max-passes", type=int, default=0, metavar="N",
+                   help="also stop each FPPM/PPM run after N passes (default 0: the time budget "
+                        "only); pass-counted runs give the same images on any machine load")
+    c.add_argument("--no-cycles-check", action="store_true",
+                   help="skip the standalone Cycles render that checks the ladder's samples/s "
+                        "(by default the first seed's last ladder point is rendered once more)")
     c.add_argument("--from-csv", action="store_true",
                    help="no renders: rebuild the report and plot from DIR/convergence.csv "
                         "(the bias/noise and throughput sections are kept from DIR/report.md)")
@@ -62,7 +73,9 @@ def check_args(a) -> list[str]:
     bad = [m for m in methods if m not in METHODS]
     if bad or not methods:
         raise CLIError(EXIT_USAGE, f"--methods: unknown {bad or 'empty'}; "
-                                   f"choose from fppm,paper,ppm,cycles.")
+                                   f"choose from {','.join(METHODS)}.")
+    if getattr(a, "max_passes", 0) < 0:
+        raise CLIError(EXIT_USAGE, "--max-passes must be >= 0.")
     if a.seeds < 1:
         raise CLIError(EXIT_USAGE, "--seeds must be >= 1.")
     if a.resolution is not None and not 1 <= a.resolution <= 1000:
@@ -73,6 +86,11 @@ def check_args(a) -> list[str]:
         import matplotlib  # noqa: F401  (the plot and the PNG images)
     except ImportError:
         raise CLIError(EXIT_INTERNAL, "fppm converge needs matplotlib (pip install matplotlib).")
+    try:
+        import flip_evaluator  # noqa: F401  (the FLIP error metric)
+    except ImportError:
+        raise CLIError(EXIT_INTERNAL, "fppm converge needs flip-evaluator "
+                                      "(pip install flip-evaluator).")
     try:
         os.makedirs(a.out, exist_ok=True)
     except OSError as ex:
@@ -159,12 +177,17 @@ def run_all(a, bpy, methods, ref, masks, budget, log, progress) -> tuple[list[Ru
                 run = Run(m, seed)
                 runs.append(run)        # appended first: Ctrl-C keeps its points
                 if m == "cycles":
-                    run_cycles_ladder(run, bpy, a.blend, a.resolution, budget,
+                    run_cycles_ladder(run, a.blend, a.resolution, budget,
                                       a.cycles_max_samples, ref["image"], masks, log, progress,
                                       stop)
+                    if seed == a.seed and not getattr(a, "no_cycles_check", False):
+                        progress(f"[cycles] standalone render of {run.rows[-1]['samples'] if run.rows else 0} "
+                                 "spp (samples/s check) ...", force=True)
+                        cycles_speed_check(run, a.blend, a.resolution, stop, log)
                 else:
                     run_photon_mapping(run, a.blend, a.resolution, budget, a.photons,
-                                       ref["image"], masks, log, progress, stop, warmed)
+                                       ref["image"], masks, log, progress, stop, warmed,
+                                       getattr(a, "max_passes", 0))
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -180,8 +203,11 @@ def _write_summary(path: str, summary: dict) -> None:
         json.dump(summary, f, indent=1, default=lambda o: None if not np.isfinite(o) else o)
 
 
-def _plot_title(a, budget) -> str:
-    return f"{os.path.basename(a.blend)}: relMSE vs time ({budget:g} s budget)"
+def _plots(out, runs, budget, floors, a) -> None:
+    """convergence.png: relMSE and HDR-FLIP against time."""
+    plots.plot(os.path.join(out, "convergence.png"), runs, budget, floors,
+               f"{os.path.basename(a.blend)}: relMSE and HDR-FLIP vs time "
+               f"({budget:g} s budget)")
 
 
 def rereport(a, ref, floors, masks, budget, notes, log) -> int:
@@ -205,9 +231,11 @@ def rereport(a, ref, floors, masks, budget, notes, log) -> int:
             old = json.load(f)
         carry["bias_noise"] = old.get("bias_noise", {})
         carry["throughput"] = old.get("throughput", {})
+        carry["cycles_speed"] = old.get("cycles_speed")
+        carry["cycles_process"] = old.get("cycles_process")
     notes = notes + ["Report rebuilt from convergence.csv (--from-csv); the bias/noise and "
                      "throughput sections are those of the original run."]
-    plots.plot(os.path.join(a.out, "convergence.png"), runs, budget, floors, _plot_title(a, budget))
+    _plots(a.out, runs, budget, floors, a)
     summary = R.report(rp, a, runs, ref, floors, masks, budget, notes, False, carry)
     _write_summary(sp, summary)
     log(f"Rebuilt report.md, summary.json, convergence.png in {a.out}.")
@@ -218,8 +246,10 @@ def write_all(a, runs, ref, floors, masks, budget, notes, interrupted, log) -> N
     """DIR/convergence.csv, convergence.png, report.md, summary.json, <method>.exr/.png
     (the final image of each method's first seed) and reference.png."""
     out = a.out
+    for r in runs:
+        r.finish()
     R.write_csv(os.path.join(out, "convergence.csv"), runs)
-    plots.plot(os.path.join(out, "convergence.png"), runs, budget, floors, _plot_title(a, budget))
+    _plots(out, runs, budget, floors, a)
     summary = R.report(os.path.join(out, "report.md"), a, runs, ref, floors, masks, budget, notes,
                        interrupted)
     _write_summary(os.path.join(out, "summary.json"), summary)

@@ -18,13 +18,13 @@ import hashlib
 import json
 import os
 import tempfile
-import time
 
 import numpy as np
 
 from ...addon.cli import EXIT_INPUT, EXIT_INTERNAL, EXIT_USAGE, CLIError, render_size
 from ...core.io.exr import read_exr, read_exr_metadata, write_exr
 from .. import metrics as M
+from .cycles_worker import cycles_reference_setup, render_to_file
 
 REF_VERSION = "fppm-converge-ref-2"   # 2: with DiffDir/DiffInd passes
 REF_SEEDS = (1_000_003, 1_000_004)     # independent of every method's seeds
@@ -54,63 +54,13 @@ def layer(layers: dict, name: str):
     return None
 
 
-def cycles_reference_setup(scene) -> None:
-    """Cycles settings for an unbiased, comparable render.
-
-    CPU, caustics on, blur_glossy 0, no denoising / adaptive sampling /
-    clamping / light threshold, view 'Standard' (the image FPPM is compared
-    with, docs/method.md "Validation"); the scene's pixel filter is kept.
-    """
-    r = scene.render
-    r.engine = "CYCLES"
-    r.use_persistent_data = False
-    vs = scene.view_settings
-    vs.view_transform = "Standard"
-    vs.look = "None"
-    vs.exposure = 0.0
-    vs.gamma = 1.0
-    c = scene.cycles
-    c.device = "CPU"
-    c.use_adaptive_sampling = False
-    c.use_denoising = False
-    c.sample_clamp_direct = 0.0
-    c.sample_clamp_indirect = 0.0
-    c.light_sampling_threshold = 0.0
-    c.caustics_reflective = True
-    c.caustics_refractive = True
-    c.blur_glossy = 0.0
-    c.use_animated_seed = False
-
-
 def cycles_render(bpy, scene, samples: int, seed: int, passes: bool = False):
-    """Render with Cycles; returns ({layer: (H, W, C) float32}, wall seconds of render.render)."""
-    scene.cycles.samples = int(samples)
-    scene.cycles.seed = int(seed)
-    vl = bpy.context.view_layer
-    vl.use_pass_diffuse_direct = passes
-    vl.use_pass_diffuse_indirect = passes
-    im = scene.render.image_settings
-    if hasattr(im, "media_type"):        # Blender >= 5: multilayer is a media type
-        im.media_type = "MULTI_LAYER_IMAGE" if passes else "IMAGE"
-    im.file_format = "OPEN_EXR_MULTILAYER" if passes else "OPEN_EXR"
-    im.color_depth = "32"
-    im.color_mode = "RGBA"
-    im.exr_codec = "ZIP"
+    """Render with Cycles in this process; returns ({layer: (H, W, C) float32}, wall
+    seconds of render.render).  For the reference only: the timed ladder renders
+    in a process of its own (``cycles_worker.py``)."""
     with tempfile.TemporaryDirectory() as tmp:
         p = os.path.join(tmp, "r.exr")
-        if passes:
-            # write_still writes every pass (save_render keeps only Combined);
-            # the reference's time is not a measurement, the file write may count.
-            scene.render.filepath = p
-            scene.render.use_file_extension = False
-            t0 = time.perf_counter()
-            bpy.ops.render.render(write_still=True)
-            dt = time.perf_counter() - t0
-        else:
-            t0 = time.perf_counter()
-            bpy.ops.render.render()
-            dt = time.perf_counter() - t0
-            bpy.data.images["Render Result"].save_render(filepath=p, scene=scene)
+        dt = render_to_file(bpy, scene, samples, seed, p, passes)
         layers = read_exr(p)
     return layers, dt
 

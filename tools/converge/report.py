@@ -29,6 +29,9 @@ TARGETS = {
     "caustic-large": [("FPPM relMSE <= 1x PPM (no worse)", "fppm", "ppm", 1.0),
                       ("FPPM relMSE <= 1x Cycles (large area light: parity)", "fppm", "cycles", 1.0)],
 }
+# An excess error (relMSE - reference floor) below this many floors is
+# dominated by the reference's own noise: its ratios are flagged.
+FLOOR_WARN = 3.0
 # Sections of report.md that --from-csv keeps from the original run (they
 # need the final images, which the CSV does not hold).
 CARRIED = ("## Bias", "## Throughput")
@@ -42,7 +45,7 @@ CSV_HEAD = ["method", "seed", "point", "seconds", "render_seconds", "photons", "
 def csv_columns() -> list[str]:
     cols = list(CSV_HEAD)
     for reg in M.REGIONS:
-        cols += [f"relmse_{reg}", f"rmse_{reg}", f"mre_{reg}"]
+        cols += [f"relmse_{reg}", f"rmse_{reg}", f"mre_{reg}", f"flip_{reg}"]
     return cols
 
 
@@ -108,11 +111,12 @@ def error_at(runs, method, t, key="relmse_all") -> tuple[float, float, float]:
     return float(np.nanmean(vals)), float(np.nanmin(vals)), float(np.nanmax(vals))
 
 
-def ratio(runs, num, den, t, floor, excess) -> float:
-    """Equal-time relMSE ratio num / den at time t; with ``excess`` the reference
-    noise floor is subtracted from both (NaN when unknown or not above it)."""
-    a = error_at(runs, num, t)[0]
-    b = error_at(runs, den, t)[0]
+def ratio(runs, num, den, t, floor, excess, key="relmse_all") -> float:
+    """Equal-time error ratio num / den at time t (relMSE unless ``key``); with
+    ``excess`` the reference noise floor is subtracted from both (NaN when
+    unknown or not above it)."""
+    a = error_at(runs, num, t, key)[0]
+    b = error_at(runs, den, t, key)[0]
     if excess:
         if floor is None or not np.isfinite(floor):
             return float("nan")
@@ -120,6 +124,21 @@ def ratio(runs, num, den, t, floor, excess) -> float:
         if not (a > 0 and b > 0):
             return float("nan")
     return a / b if b and np.isfinite(a) and np.isfinite(b) else float("nan")
+
+
+def floor_warnings(runs, methods, floor, t) -> list[str]:
+    """Methods whose excess relMSE at time t is below FLOOR_WARN x the reference floor."""
+    if floor is None or not np.isfinite(floor) or floor <= 0:
+        return []
+    out = []
+    for m in methods:
+        ex = error_at(runs, m, t)[0] - floor
+        if np.isfinite(ex) and ex < FLOOR_WARN * floor:
+            out.append(f"**Warning**: {m.upper()}'s excess relMSE at {t:g} s ({_fmt(ex)}) is below "
+                       f"{FLOOR_WARN:g}x the reference's noise floor ({_fmt(floor)}): its excess "
+                       "ratios measure the reference's noise as much as the method; a reference "
+                       "with more samples is needed to compare it.")
+    return out
 
 
 def _fmt(v) -> str:
@@ -131,7 +150,41 @@ def _fmt(v) -> str:
 # ---------------------------------------------------------------------------
 # report.md, section by section: each returns its lines and fills ``summary``
 
-def _header(a, runs, ref, floor, budget, interrupted) -> list[str]:
+def _cycles_process_lines(rs, summary) -> list[str]:
+    """The Cycles ladder's process and its samples/s against a standalone Cycles render."""
+    lines = []
+    proc = next((r.cycles_process for r in rs if r.cycles_process), None)
+    if proc is None and "cycles_process" in summary:
+        proc = summary["cycles_process"]
+    if proc:
+        summary["cycles_process"] = proc
+    speed = next((r.cycles_speed for r in rs if r.cycles_speed), None)
+    if speed is None and "cycles_speed" in summary:
+        speed = summary["cycles_speed"]
+    if proc:
+        loaded = [k for k in ("numba", "embreex") if proc.get(k)]
+        lines.append("  Rendered in a process of its own (tools/converge/cycles_worker.py): "
+                     + ("numba and embreex never imported there" if not loaded
+                        else f"**{' and '.join(loaded)} imported there**")
+                     + f", {proc.get('threads', '?')} OS threads at the end.")
+    if speed:
+        pct = 100 * (speed["ratio"] - 1)
+        lines.append(f"  Cycles samples/s: ladder {speed['ladder_sps']:.1f} "
+                     f"({speed['samples']} spp in {speed['ladder_seconds']:.2f} s), standalone "
+                     f"Cycles process {speed['standalone_sps']:.1f} "
+                     f"({speed['standalone_seconds']:.2f} s): {pct:+.1f}%, "
+                     + ("**within 5%**: the ladder's times are those of Cycles alone."
+                        if speed["within"] else
+                        "**more than 5% apart**: the machine's load varied, or the ladder is "
+                        "slowed; the ratios against Cycles are uncertain by as much."))
+        summary["cycles_speed"] = speed
+    elif proc or rs:
+        lines.append("  Cycles samples/s not checked against a standalone render "
+                     "(--no-cycles-check, or rebuilt from the CSV).")
+    return lines
+
+
+def _header(a, runs, ref, floor, budget, interrupted, summary) -> list[str]:
     H, W = ref["image"].shape[:2]
     known = floor is not None and np.isfinite(floor)
     lines = [f"# Convergence: {os.path.basename(a.blend)}", ""]
@@ -142,14 +195,25 @@ def _header(a, runs, ref, floor, budget, interrupted) -> list[str]:
               "(FPPM's gather and Cycles both use all of them).",
               f"- Reference: {ref['meta'].get('samples', '?')} spp Cycles"
               if "samples" in ref["meta"] else f"- Reference: {ref['path']}",
-              f"- Reference noise floor (expected relMSE of a perfect image against it): "
-              f"{_fmt(floor)}" + ("" if known else " (unknown: no variance layer)"),
+              f"- Reference noise floor (expected relMSE of a perfect image against it, "
+              f"mean (v / (r^2 + 0.01)) of the reference's per-pixel variance v, "
+              f"tools.metrics.reference_floor): {_fmt(floor)}"
+              + ("" if known else " (unknown: no variance layer)")
+              + f"; an excess below {FLOOR_WARN:g}x it is flagged.",
+              "- FLIP = mean HDR-FLIP error (flip-evaluator; 0 = identical, 1 = maximal), "
+              "reported beside relMSE: relMSE rewards smooth biased images, FLIP also scores "
+              "lost edges and features.  It has no noise-floor correction: the reference's "
+              "own noise adds to it.",
               "- relMSE = mean (x - r)^2 / (r^2 + 0.01) over pixels and RGB; "
               "excess = relMSE - floor (estimates the error against the true image).",
               "- Time: FPPM/PPM = render set-up (scene export, BVH, occlusion grid) + passes; "
               "Cycles = one render.render per ladder point (1, 2, 4, ... spp).  Values at a "
               "given time are log-log interpolated between recorded points.",
               ""]
+    if getattr(a, "max_passes", 0):
+        lines.append(f"- FPPM/PPM runs stop after {a.max_passes} passes (--max-passes) if the "
+                     "budget is not reached first; after its last pass a run's error is held "
+                     "constant.")
     for m in methods_run(runs):
         rs = [r for r in runs if r.method == m]
         if m != "cycles":
@@ -158,6 +222,7 @@ def _header(a, runs, ref, floor, budget, interrupted) -> list[str]:
                          f"setup {np.mean([r.setup_seconds for r in rs]):.2f} s.")
         else:
             lines.append(f"- CYCLES: ladder up to {rs[0].rows[-1]['samples'] if rs[0].rows else 0} spp.")
+            lines += _cycles_process_lines(rs, summary)
             if any(r.rows and r.rows[-1]["seconds"] < budget for r in rs):
                 lines.append("  The ladder stopped before the budget (--cycles-max-samples or "
                              "Ctrl-C): after its last point Cycles' error is held constant.")
@@ -168,18 +233,47 @@ def _fractions(runs, floor, budget, summary) -> list[str]:
     known = floor is not None and np.isfinite(floor)
     lines = ["", "## Error at fractions of the budget", "",
              "| method | " + " | ".join(f"relMSE @{int(f * 100)}% ({f * budget:g} s)" for f in FRACTIONS)
-             + " | excess @100% | RMSE @100% | MRE @100% |",
-             "|---|" + "---|" * (len(FRACTIONS) + 3)]
+             + " | excess @100% | RMSE @100% | MRE @100% | FLIP @100% |",
+             "|---|" + "---|" * (len(FRACTIONS) + 4)]
     summary["methods"] = {}
     for m in methods_run(runs):
         vals = [error_at(runs, m, f * budget)[0] for f in FRACTIONS]
         ex = vals[-1] - floor if known and np.isfinite(vals[-1]) else float("nan")
         rm = error_at(runs, m, budget, "rmse_all")[0]
         mre = error_at(runs, m, budget, "mre_all")[0]
+        fl = [error_at(runs, m, f * budget, "flip_all")[0] for f in FRACTIONS]
         summary["methods"][m] = {"relmse": dict(zip(FRACTIONS, vals)), "excess": ex,
-                                 "rmse": rm, "mre": mre}
+                                 "rmse": rm, "mre": mre, "flip": dict(zip(FRACTIONS, fl))}
         lines.append(f"| {m.upper()} | " + " | ".join(_fmt(v) for v in vals)
-                     + f" | {_fmt(ex)} | {_fmt(rm)} | {_fmt(mre)} |")
+                     + f" | {_fmt(ex)} | {_fmt(rm)} | {_fmt(mre)} | {_fmt(fl[-1])} |")
+    warn = floor_warnings(runs, methods_run(runs), floor, budget)
+    if warn:
+        lines += [""] + warn
+    return lines
+
+
+def _flip(runs, budget, summary) -> list[str]:
+    """HDR-FLIP at fractions of the budget, per region at 100%, and its equal-time ratios."""
+    methods = methods_run(runs)
+    if not methods or not any("flip_all" in row for r in runs for row in r.rows):
+        return []
+    lines = ["", "## FLIP (HDR-FLIP, mean over the region; lower is better)", "",
+             "| method | " + " | ".join(f"FLIP @{int(f * 100)}%" for f in FRACTIONS) + " | "
+             + " | ".join(f"{reg} @100%" for reg in M.REGIONS[1:]) + " |",
+             "|---|" + "---|" * (len(FRACTIONS) + len(M.REGIONS) - 1)]
+    for m in methods:
+        vals = [error_at(runs, m, f * budget, "flip_all")[0] for f in FRACTIONS]
+        regs = [error_at(runs, m, budget, f"flip_{reg}")[0] for reg in M.REGIONS[1:]]
+        lines.append(f"| {m.upper()} | " + " | ".join(_fmt(v) for v in vals + regs) + " |")
+    summary["flip_ratios"] = {}
+    pairs = [(n, d) for n, d in _PAIRS if n in methods and d in methods]
+    if pairs:
+        lines += ["", "| FLIP ratio | " + " | ".join(f"@{int(f * 100)}%" for f in FRACTIONS) + " |",
+                  "|---|" + "---|" * len(FRACTIONS)]
+        for n, d in pairs:
+            rv = [ratio(runs, n, d, f * budget, None, False, "flip_all") for f in FRACTIONS]
+            summary["flip_ratios"][f"{n}/{d}"] = rv[-1]
+            lines.append(f"| {n.upper()} / {d.upper()} | " + " | ".join(_fmt(v) for v in rv) + " |")
     return lines
 
 
@@ -194,11 +288,14 @@ def _regions(runs, floors, masks, budget, n_pixels) -> list[str]:
     return lines
 
 
+# The equal-time ratios reported (numerator, denominator), when both ran.
+_PAIRS = (("fppm", "ppm"), ("fppm", "paper"), ("paper", "ppm"), ("fppm", "cycles"),
+          ("ppm", "cycles"))
+
+
 def _ratios(runs, floor, budget, summary) -> list[str]:
     methods = methods_run(runs)
-    pairs = [(n, d) for n, d in (("fppm", "ppm"), ("fppm", "paper"), ("paper", "ppm"),
-                                  ("fppm", "cycles"), ("ppm", "cycles"))
-             if n in methods and d in methods]
+    pairs = [(n, d) for n, d in _PAIRS if n in methods and d in methods]
     summary["ratios"] = {}
     if not pairs:
         return []
@@ -213,6 +310,10 @@ def _ratios(runs, floor, budget, summary) -> list[str]:
         summary["ratios"][f"{n}/{d}"] = {"raw": rv[-1], "excess": rx}
         lines.append(f"| {n.upper()} / {d.upper()} | " + " | ".join(_fmt(v) for v in rv)
                      + f" | {_fmt(rx)} |")
+    warn = floor_warnings(runs, sorted({m for p in pairs for m in p}, key=methods.index),
+                          floor, budget)
+    if warn:
+        lines += ["", "The '@100% (excess)' column is uncertain where flagged:"] + warn
     if ("ppm", "cycles") in pairs:
         rv = summary["ratios"]["ppm/cycles"]["raw"]
         if np.isfinite(rv):
@@ -289,8 +390,12 @@ def _targets(runs, floor, budget, kind, summary) -> list[str]:
         if not np.isfinite(rx):
             rx, basis = ratio(runs, n, d, budget, floor, False), "raw"
         met = bool(np.isfinite(rx) and rx <= thr)
-        summary["targets"].append({"target": desc, "ratio": rx, "basis": basis, "met": met})
-        lines.append(f"- {desc}: ratio {_fmt(rx)} ({basis}) -> **{'MET' if met else 'MISSED'}**")
+        near = bool(basis == "excess" and floor_warnings(runs, (n, d), floor, budget))
+        summary["targets"].append({"target": desc, "ratio": rx, "basis": basis, "met": met,
+                                   "near_floor": near})
+        lines.append(f"- {desc}: ratio {_fmt(rx)} ({basis}) -> **{'MET' if met else 'MISSED'}**"
+                     + (f" (an excess below {FLOOR_WARN:g}x the reference floor: uncertain)"
+                        if near else ""))
     return lines
 
 
@@ -306,10 +411,14 @@ def report(path, a, runs, ref, floors, masks, budget, notes, interrupted, carry=
     floor = floors.get("all")
     H, W = ref["image"].shape[:2]
     summary = {"budget": budget, "floor": floor}
-    lines = _header(a, runs, ref, floor, budget, interrupted)
+    for k in ("cycles_speed", "cycles_process"):
+        if carry.get(k):
+            summary[k] = carry[k]
+    lines = _header(a, runs, ref, floor, budget, interrupted, summary)
     lines += _fractions(runs, floor, budget, summary)
     lines += _regions(runs, floors, masks, budget, H * W)
     lines += _ratios(runs, floor, budget, summary)
+    lines += _flip(runs, budget, summary)
     lines += _bias_noise(runs, ref, budget, a.seeds, carry, summary)
     lines += _throughput(runs, carry, summary)
     lines += _targets(runs, floor, budget, getattr(a, "kind", None), summary)

@@ -12,23 +12,49 @@ ladder point, with the error metrics of that image against the reference
   built: export, BVH, occlusion grid) + the Renderer's pass time.
 - ``cycles`` (:func:`run_cycles_ladder`): 1, 2, 4, ... samples, each a
   separate ``render.render`` timed by wall clock, until one takes longer than
-  the budget.
+  the budget, rendered in a process of its own (``cycles_worker.py``: no
+  numba or Embree threads alive beside Cycles).  The first seed's last point
+  is then rendered once more by a fresh standalone Cycles process
+  (:func:`cycles_speed_check`): the two samples/s must agree (within
+  :data:`SPEED_TOLERANCE`) for the equal-time ratios against Cycles to be fair.
 """
 from __future__ import annotations
 
-import math
+import json
+import os
+import subprocess
 import sys
+import tempfile
 import time
 
 import numpy as np
 
-from ...addon.cli import EXIT_USAGE, CLIError, open_blend, render_scene
+from ...addon.cli import EXIT_INTERNAL, EXIT_USAGE, CLIError, open_blend, render_scene
+from ...core.io.exr import read_exr
 from .. import metrics as M
-from .references import cycles_reference_setup, cycles_render, layer
+from . import cycles_worker as CW
+from .references import layer
 
-# "paper": FPPM with the paper's printed frequency model (frequency_model =
-# PAPER), to compare the corrected model against it at equal time.
-METHODS = ("fppm", "paper", "ppm", "cycles")
+# The photon-mapping methods: name -> (RenderSettings overrides, --methods help).
+# The time budget, seed and photons per pass are added by method_overrides.
+# "paper": FPPM with the paper's printed frequency model, to compare the
+# corrected model against it at equal time.
+METHOD_SETTINGS = {
+    "fppm": ({"use_frequency": True, "frequency_model": "CORRECTED"},
+             "FPPM, the corrected frequency model whatever the file sets"),
+    "paper": ({"use_frequency": True, "frequency_model": "PAPER"},
+              "FPPM with the paper's printed frequency model"),
+    "ppm": ({"use_frequency": False}, "progressive photon mapping (frequency off)"),
+}
+METHODS = tuple(METHOD_SETTINGS) + ("cycles",)
+CYCLES_HELP = "Cycles at 1, 2, 4, ... spp, in a process of its own"
+# Samples/s of the ladder and of a standalone Cycles render must agree within this.
+SPEED_TOLERANCE = 0.05
+# HDR-FLIP costs ~100x relMSE (0.1-0.4 s per 128^2 image): it is computed at
+# points spaced by this factor in time (log-spaced, as the plot and the
+# log-log interpolation use them) and at a run's last point; the other rows
+# hold NaN, which tools.metrics.loglog_interp skips.
+FLIP_TIME_STEP = 1.25
 # Photons per pass of the untimed warm-up render (at most).
 WARMUP_PHOTONS = 2000
 
@@ -49,16 +75,39 @@ class Run:
         self.throughput = None     # dict for fppm/ppm
         self.complete = False
         self.ladder_images = {}    # cycles: {samples: (H, W, 3) float64}
+        self.cycles_process = None  # cycles: the worker's "done" line (numba, embreex, threads)
+        self.cycles_speed = None   # cycles, first seed: cycles_speed_check's dict
+        self._next_flip = 0.0
+        self._last = None          # (masks, ref) of the last record
 
     def record(self, masks, ref, point, seconds, render_seconds, photons, samples, img) -> dict:
-        """Append the row of one image (H, W, 3) float64 and keep it as the last image."""
+        """Append the row of one image (H, W, 3) float64 and keep it as the last image.
+
+        FLIP is computed when ``seconds`` has grown by FLIP_TIME_STEP since the
+        last FLIP (else NaN until :meth:`finish`)."""
         row = {"method": self.method, "seed": self.seed, "point": point,
                "seconds": round(seconds, 4), "render_seconds": round(render_seconds, 4),
                "photons": photons, "samples": samples}
-        row.update(M.error_metrics(img, ref, masks))
+        row.update(M.error_metrics(img, ref, masks, with_flip=False))
+        if seconds >= self._next_flip:
+            row.update(self._flip(img, ref, masks))
+            self._next_flip = seconds * FLIP_TIME_STEP
+        else:
+            row.update({k.replace("relmse_", "flip_"): float("nan")
+                        for k in row if k.startswith("relmse_")})
         self.rows.append(row)
         self.image = img
+        self._last = (masks, ref)
         return row
+
+    @staticmethod
+    def _flip(img, ref, masks) -> dict:
+        return {k: v for k, v in M.error_metrics(img, ref, masks).items() if k.startswith("flip_")}
+
+    def finish(self) -> None:
+        """FLIP of the last row when the time spacing skipped it (its image is kept)."""
+        if self.rows and self._last and not np.isfinite(self.rows[-1].get("flip_all", np.nan)):
+            self.rows[-1].update(self._flip(self.image, self._last[1], self._last[0]))
 
 
 class Progress:
@@ -96,22 +145,20 @@ def raw_ray_seconds(accel, scene, n_rays: int, cap: int = 2_000_000, seed: int =
     return (time.perf_counter() - t0) * n_rays / n
 
 
-def method_overrides(method: str, seed: int, budget: float, photons) -> dict:
-    """The RenderSettings overrides of a photon-mapping method: passes until ``budget`` s."""
-    kw = dict(use_frequency=(method in ("fppm", "paper")), time_limit=float(budget),
-              max_passes=0, seed=seed)
-    if method == "paper":
-        kw["frequency_model"] = "PAPER"
-    elif method == "fppm":
-        kw["frequency_model"] = "CORRECTED"
+def method_overrides(method: str, seed: int, budget: float, photons, max_passes: int = 0) -> dict:
+    """The RenderSettings overrides of a photon-mapping method: passes until ``budget`` s
+    (or ``max_passes`` passes when > 0, whichever comes first)."""
+    kw = dict(METHOD_SETTINGS[method][0], time_limit=float(budget), max_passes=int(max_passes),
+              seed=seed)
     if photons is not None:
         kw["photons_per_pass"] = photons
     return kw
 
 
 def run_photon_mapping(run, blend, resolution, budget, photons, ref, masks, log, progress, stop,
-                       warmed: set):
-    """FPPM, paper or PPM (run.method) for ``budget`` seconds; records every pass into ``run``.
+                       warmed: set, max_passes: int = 0):
+    """FPPM, paper or PPM (run.method) for ``budget`` seconds (at most ``max_passes``
+    passes when > 0); records every pass into ``run``.
 
     stop: ``{"flag": bool}``, set by Ctrl-C; polled during the passes.
     warmed: the methods already warmed up in this process (updated).
@@ -119,7 +166,7 @@ def run_photon_mapping(run, blend, resolution, budget, photons, ref, masks, log,
     from ...addon.engine import RenderSession
 
     m, seed = run.method, run.seed
-    overrides = method_overrides(m, seed, budget, photons)
+    overrides = method_overrides(m, seed, budget, photons, max_passes)
     should_stop = lambda: stop["flag"]  # noqa: E731
     if m not in warmed:
         # Warm-up (not timed): loads numba's compiled kernels from the disk
@@ -163,33 +210,105 @@ def run_photon_mapping(run, blend, resolution, budget, photons, ref, masks, log,
     return run
 
 
-def run_cycles_ladder(run, bpy, blend, resolution, budget, max_samples, ref, masks, log,
+def cycles_process(cfg: dict, stop, on_point) -> dict:
+    """Run ``cycles_worker.py`` with ``cfg`` (its module docstring) in a new process.
+
+    on_point(d) is called with each render's line ``{"samples", "seconds",
+    "path"}`` as it arrives; when ``stop["flag"]`` is set after a point the
+    worker is ended.  Returns the worker's "done" line ({} when stopped).
+    The worker has its own session, so a Ctrl-C in the terminal reaches only
+    this process, which decides.
+    """
+    cfg_path = os.path.join(cfg["dir"], "config.json")
+    with open(cfg_path, "w") as f:
+        json.dump(cfg, f)
+    err_path = os.path.join(cfg["dir"], "stderr.txt")
+    done = {}
+    with open(err_path, "w") as err:
+        p = subprocess.Popen([sys.executable, CW.__file__, cfg_path], stdout=subprocess.PIPE,
+                             stderr=err, text=True, start_new_session=True)
+        try:
+            for line in p.stdout:
+                if not line.startswith(CW.PREFIX):
+                    continue
+                d = json.loads(line[len(CW.PREFIX):])
+                if d.get("done"):
+                    done = d
+                    continue
+                on_point(d)
+                if stop["flag"]:
+                    break
+        finally:
+            if p.poll() is None and (stop["flag"] or not done):
+                p.kill()
+            p.wait()
+    if p.returncode != 0 and not stop["flag"]:
+        with open(err_path) as f:
+            tail = f.read()[-2000:]
+        raise CLIError(EXIT_INTERNAL, f"the Cycles process failed (exit {p.returncode}):\n{tail}")
+    return done
+
+
+def cycles_image(path: str, shape) -> np.ndarray:
+    """(H, W, 3) float64 Combined image of a worker's EXR; checks the size."""
+    img = layer(read_exr(path), "Combined")[..., :3].astype(np.float64)
+    if img.shape[:2] != tuple(shape):
+        H, W = shape
+        raise CLIError(EXIT_USAGE, f"the reference is {W}x{H} but Cycles renders "
+                                   f"{img.shape[1]}x{img.shape[0]}: match --resolution.")
+    return img
+
+
+def run_cycles_ladder(run, blend, resolution, budget, max_samples, ref, masks, log,
                       progress, stop):
-    """Cycles at 1, 2, 4, ... spp (run.seed) until a render takes longer than ``budget``."""
+    """Cycles at 1, 2, 4, ... spp (run.seed) until a render takes longer than ``budget``,
+    in a process of its own (:func:`cycles_process`)."""
     seed = run.seed
-    H, W = ref.shape[:2]
-    scene = open_blend(blend, resolution=resolution)
-    cycles_reference_setup(scene)
-    n = 1
-    while n <= max_samples and not stop["flag"]:
-        layers, dt = cycles_render(bpy, scene, n, seed)
-        img = layer(layers, "Combined")[..., :3].astype(np.float64)
-        if img.shape[:2] != (H, W):
-            raise CLIError(EXIT_USAGE, f"the reference is {W}x{H} but Cycles renders "
-                                       f"{img.shape[1]}x{img.shape[0]}: match --resolution.")
+
+    def on_point(d):
+        n, dt = int(d["samples"]), float(d["seconds"])
+        img = cycles_image(d["path"], ref.shape[:2])
+        os.remove(d["path"])
         row = run.record(masks, ref, n, dt, dt, "", n, img)
         run.ladder_images[n] = img
         progress(f"[cycles seed {seed}] {n} spp in {dt:.2f} s  relMSE {row['relmse_all']:.3e}",
                  force=True)
-        if dt > budget:
-            break
-        # Doubling, except that the step past the budget aims at ~1.1x the
-        # budget rather than up to 2x (the last point only brackets 100%).
-        n_next = 2 * n
-        if 2 * dt > budget and dt > 0:
-            n_next = min(n_next, max(n + 1, int(math.ceil(n * 1.1 * budget / dt))))
-        n = n_next
+
+    with tempfile.TemporaryDirectory(prefix="fppm-cycles-") as tmp:
+        cfg = {"blend": os.path.abspath(blend), "resolution": resolution, "seed": seed,
+               "dir": tmp, "mode": "ladder", "budget": float(budget),
+               "max_samples": int(max_samples)}
+        run.cycles_process = cycles_process(cfg, stop, on_point)
     run.complete = True
-    log(f"cycles seed {seed}: ladder 1..{run.rows[-1]['samples'] if run.rows else 0} spp, "
-        f"last {run.rows[-1]['seconds'] if run.rows else 0:.1f} s.")
+    last = run.rows[-1] if run.rows else None
+    log(f"cycles seed {seed}: ladder 1..{last['samples'] if last else 0} spp, "
+        f"last {last['seconds'] if last else 0:.1f} s"
+        + (f" = {last['samples'] / last['seconds']:.1f} spp/s" if last and last["seconds"] > 0
+           else "") + " (own process).")
     return run
+
+
+def cycles_speed_check(run, blend, resolution, stop, log) -> dict | None:
+    """Render the ladder's last point again in a fresh standalone Cycles process;
+    sets and returns ``run.cycles_speed``: {"samples", "ladder_seconds",
+    "standalone_seconds", "ladder_sps", "standalone_sps", "ratio" (ladder /
+    standalone samples/s), "within" (|ratio - 1| <= SPEED_TOLERANCE)}."""
+    if not run.rows or stop["flag"]:
+        return None
+    last = run.rows[-1]
+    n, dt = int(last["samples"]), float(last["seconds"])
+    got = {}
+    with tempfile.TemporaryDirectory(prefix="fppm-cycles-") as tmp:
+        cfg = {"blend": os.path.abspath(blend), "resolution": resolution, "seed": run.seed,
+               "dir": tmp, "mode": "fixed", "samples": [n]}
+        cycles_process(cfg, stop, lambda d: got.update(d))
+    if "seconds" not in got or dt <= 0 or got["seconds"] <= 0:
+        return None
+    sps_l, sps_s = n / dt, n / float(got["seconds"])
+    r = sps_l / sps_s
+    run.cycles_speed = {"samples": n, "ladder_seconds": dt, "standalone_seconds": got["seconds"],
+                        "ladder_sps": sps_l, "standalone_sps": sps_s, "ratio": r,
+                        "within": bool(abs(r - 1.0) <= SPEED_TOLERANCE)}
+    log(f"cycles speed: ladder {sps_l:.1f} spp/s, standalone {sps_s:.1f} spp/s "
+        f"({n} spp): ratio {r:.3f}.")
+    return run.cycles_speed
