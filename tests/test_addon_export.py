@@ -420,6 +420,9 @@ EXAMPLES = {
     "point_caustic": (2 + 2 + 2 * 32 * 15 + 12, 1, {"Floor", "Wall", "Glass", "Clay"}),
     "indirect_room": (6 * 2 + 12 + 2 * 24 * 11 + 12, 1,
                       {"Plaster", "BlueWall", "Floor", "Oak", "Ceramic"}),
+    "ring_lambert": (98, 1, {"Lambert", "Mirror"}),
+    "ring_principled": (98, 1, {"Material", "Mirror"}),
+    "principled_interior": (570, 1, {"Material"}),
 }
 
 

@@ -247,7 +247,7 @@ def test_blend_files_are_set_up_for_references():
 
 EXAMPLES_DIR = os.path.join(os.path.dirname(TESTS), "example_blends")
 EXAMPLES = ["cornell", "coffee_cup", "glass_sphere", "point_caustic",
-            "indirect_room"]
+            "indirect_room", "ring_lambert", "ring_principled", "principled_interior"]
 
 
 def _open_example(bpy, name):
@@ -255,7 +255,8 @@ def _open_example(bpy, name):
     assert os.path.getsize(path) < 1_000_000
     bpy.ops.wm.open_mainfile(filepath=path, load_ui=False, use_scripts=False)
     sc = bpy.context.scene
-    assert sc.render.engine == 'CYCLES'
+    # Saved with FPPM as the engine; the Cycles settings for references stay in the file.
+    assert sc.render.engine == 'FPPM'
     assert (sc.render.resolution_x, sc.render.resolution_y) == (128, 128)
     assert sc.cycles.caustics_reflective and sc.cycles.caustics_refractive
     assert sc.cycles.blur_glossy == 0 and sc.camera is not None
