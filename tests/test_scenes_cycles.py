@@ -253,6 +253,8 @@ EXAMPLES = ["cornell", "coffee_cup", "glass_sphere", "point_caustic",
 def _open_example(bpy, name):
     path = os.path.join(EXAMPLES_DIR, name + ".blend")
     assert os.path.getsize(path) < 1_000_000
+    import bpy_helpers
+    bpy_helpers.ensure_registered()      # else Blender replaces the unknown engine by EEVEE
     bpy.ops.wm.open_mainfile(filepath=path, load_ui=False, use_scripts=False)
     sc = bpy.context.scene
     # Saved with FPPM as the engine; the Cycles settings for references stay in the file.
