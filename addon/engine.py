@@ -20,7 +20,6 @@ import bpy
 import numpy as np
 
 from ..core.errors import FPPMError, RenderCancelled
-from ..core.render import Renderer
 from ..core.settings import SettingsError
 from .export import export_scene
 from .properties import settings_from_scene
@@ -223,6 +222,9 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
             return
         # should_stop is also polled while the renderer is set up (BVH,
         # occlusion grid): RenderCancelled from there is caught in render().
+        # Imported here, not at the top: core.render loads numba and Embree,
+        # which enabling the add-on must not pay for (docs/interactive.md).
+        from ..core.render import Renderer
         renderer = Renderer(fscene, settings, log=self._log, should_stop=self.break_requested)
         if sess is not None:
             sess.renderer = renderer
