@@ -5,6 +5,9 @@ adds, and ``unregister()`` removes, exactly:
 - the classes of :data:`classes` (PropertyGroup, RenderEngine, panels);
 - ``bpy.types.Scene.fppm``;
 - "FPPM" in ``COMPAT_ENGINES`` of the standard panels of ``ui.STANDARD_PANELS``.
+It also points core's kernel cache at the extension's user folder (kept by
+updates and reinstalls).  Nothing here imports numba, Embree or the kernels:
+enabling stays cheap (docs/interactive.md).
 """
 import bpy
 
@@ -19,10 +22,23 @@ classes = (
 _registered = False
 
 
+def extension_cache_dir() -> str | None:
+    """``<extension user folder>/cache``, or None when not installed as an extension
+    (tests, the CLI: core then uses the user cache folder)."""
+    package = (__package__ or "").rpartition(".")[0]
+    try:
+        path = bpy.utils.extension_path_user(package, path="cache", create=True)
+    except (ValueError, AttributeError):
+        return None
+    return path or None
+
+
 def register():
     global _registered
     if _registered:
         return
+    from .. import core
+    core.set_cache_dir(extension_cache_dir())
     for cls in classes:
         bpy.utils.register_class(cls)
     properties.register_properties()
