@@ -21,6 +21,7 @@ import numpy as np
 
 from ..core.errors import FPPMError, RenderCancelled
 from ..core.settings import SettingsError
+from ..core.warmup import expected_seconds, is_compiled, warmup
 from .export import export_scene
 from .properties import settings_from_scene
 
@@ -185,6 +186,31 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
             if a is not None and p is not None:
                 p.rect.foreach_set(blender_rows(a, ch))
 
+    def _wait_for_kernels(self) -> bool:
+        """Wait for the kernel warm-up (``core.warmup``) before the Renderer
+        exists, so that compiling never counts against the time limit; False
+        when Esc was pressed meanwhile.  A failed warm-up is reported and the
+        render goes on (the kernels then compile inside the first pass)."""
+        if not warmup.done:
+            first = not is_compiled()
+            expected = expected_seconds() if first else 0.0
+            msg = (f"FPPM: compiling render kernels (first use, about {expected:.0f} s)"
+                   if first else "FPPM: loading render kernels")
+            self.update_stats("", msg)
+            if first:
+                self._log(msg[len("FPPM: "):])
+
+            def on_wait(waited):
+                if expected > 0:
+                    self.update_progress(min(waited / expected, 0.99))
+            if not warmup.wait(should_stop=self.break_requested, on_wait=on_wait):
+                return False
+            self.update_progress(0.0)
+        if warmup.error is not None:
+            self._log(f"Warning: compiling the kernels ahead of the render failed "
+                      f"({warmup.error}); rendering anyway")
+        return True
+
     # -- the render callback -------------------------------------------------
     def render(self, depsgraph):
         sess = _session
@@ -211,12 +237,13 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
         gain = film_gain(scene)
         if sess is not None:
             sess.settings, sess.gain = settings, gain
+        warmup.start()      # compiles (or loads) the kernels while the scene exports
         self.update_stats("", "FPPM: exporting scene")
         cam = self.camera_override
         if cam is not None:
             cam = cam.evaluated_get(depsgraph)
         fscene = export_cancellable(depsgraph, self._log, cam, self.break_requested)
-        if self.break_requested():
+        if self.break_requested() or not self._wait_for_kernels():
             if sess is not None:
                 sess.cancelled = True
             return

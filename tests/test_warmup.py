@@ -3,6 +3,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -83,3 +84,95 @@ def test_cache_dir_order(tmp_path, monkeypatch):
         assert C.cache_dir() == str(tmp_path / "ext")
     finally:
         C.set_cache_dir(None)
+
+
+COVERAGE = r"""
+import json, sys
+sys.path.insert(0, sys.argv[1])
+import fppm_alias  # noqa
+from numba.core.registry import CPUDispatcher
+from fppm.core import warmup as W
+
+
+def signatures():
+    out = {}
+    for name, m in list(sys.modules.items()):
+        if name.startswith("fppm.core"):
+            for k, v in vars(m).items():
+                if isinstance(v, CPUDispatcher):
+                    out[name + "." + k] = len(v.signatures)
+    return out
+
+
+W.compile_kernels()
+before = signatures()
+import bpy
+import fppm.addon as addon
+addon.register()
+from fppm.addon.export import export_scene
+from fppm.addon.properties import settings_from_scene
+from fppm.core.render import Renderer
+new = {}
+for name, kw in [("cornell", dict(aov_radius=True, aov_spectrum=True, aov_held=True)),
+                 ("indirect_room", dict(frequency_estimator="QUANTILE")),
+                 ("glass_sphere", dict(use_frequency=False, photons_for_direct=True,
+                                       fixed_visible_points=True))]:
+    bpy.ops.wm.open_mainfile(filepath=sys.argv[2] + "/" + name + ".blend", load_ui=False)
+    sc = bpy.context.scene
+    sc.render.resolution_percentage = 25
+    scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
+    st = settings_from_scene(sc).replace(max_passes=1, time_limit=0.0, photons_per_pass=30000, **kw)
+    Renderer(scene, st, log=lambda s: None).run()
+after = signatures()
+print(json.dumps({k: after[k] - before.get(k, 0) for k in after if after[k] != before.get(k, 0)}))
+"""
+
+
+def test_warmup_compiles_what_the_example_scenes_use():
+    # After compile_kernels(), rendering the example scenes (frequency with
+    # AOVs, QUANTILE, classic PPM, 30k photons: the gather's parallel path)
+    # compiles nothing more: no compile is left for the first pass.
+    p = subprocess.run([PY, "-c", COVERAGE, os.path.join(ROOT, "tests"),
+                        os.path.join(ROOT, "example_blends")],
+                       capture_output=True, text=True, timeout=900, cwd=ROOT)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert p.stdout.strip().splitlines()[-1] == "{}"
+
+
+def test_wait_returns_within_a_poll_of_should_stop():
+    from fppm.core.warmup import Warmup
+
+    def compile(should_stop):
+        while not should_stop():
+            time.sleep(0.01)
+        return 0.0
+    w = Warmup(compile=compile)
+    t_stop = time.monotonic() + 0.3
+    assert w.wait(should_stop=lambda: time.monotonic() >= t_stop) is False
+    assert time.monotonic() - t_stop < 0.1
+    assert w.running and not w.done
+    w.stop()
+    w._thread.join(1.0)
+    assert not w.running and not w.done   # stopped, not finished: a later start() begins again
+
+
+def test_marker_records_a_first_compile(tmp_path, monkeypatch):
+    from fppm.core import warmup as W
+    monkeypatch.setenv("FPPM_CACHE_DIR", str(tmp_path))
+    assert not W.is_compiled() and W.last_compile_seconds() is None
+    assert W.expected_seconds() == W.DEFAULT_COMPILE_SECONDS
+    w = W.Warmup(compile=lambda should_stop: 12.5)
+    assert w.wait() is True
+    assert w.done and w.error is None and w.was_cold and w.seconds == 12.5
+    assert W.is_compiled()
+    assert W.last_compile_seconds() == 12.5 and W.expected_seconds() == 12.5
+
+
+def test_failed_compile_is_kept_as_a_message():
+    from fppm.core.warmup import Warmup
+
+    def compile(should_stop):
+        raise ImportError("embreex is missing")
+    w = Warmup(compile=compile)
+    assert w.wait() is True
+    assert w.error == "ImportError: embreex is missing"
