@@ -69,6 +69,8 @@ def unregister():
         bpy.app.timers.unregister(start_warmup)
     from ..core.warmup import warmup
     warmup.stop()
+    from .viewport import cancel_all
+    cancel_all()
     ui.remove_from_standard_panels()
     properties.unregister_properties()
     for cls in reversed(classes):

@@ -149,13 +149,74 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
     bl_label = "FPPM"
     bl_use_preview = False
     bl_use_postprocess = True
-    # Material/rendered viewport shading falls back to EEVEE; FPPM is final-render only.
+    # Material preview shading uses EEVEE; Rendered shading is FPPM's
+    # progressive viewport (view_update / view_draw below, addon/viewport.py).
     bl_use_eevee_viewport = True
 
     def update_render_passes(self, scene=None, renderlayer=None):
         self.register_pass(scene, renderlayer, "Combined", 4, "RGBA", 'COLOR')
         for name, ch, cid, kind in enabled_aovs(settings_from_scene(scene)):
             self.register_pass(scene, renderlayer, name, ch, cid, kind)
+
+    # -- rendered viewport: thin; the session logic is addon/viewport.py ------
+    def _viewport(self):
+        ctl = getattr(self, "_fppm_viewport", None)
+        if ctl is None:
+            from .viewport import ViewportController
+            ctl = self._fppm_viewport = ViewportController()
+            self._fppm_texture = None
+        return ctl
+
+    @staticmethod
+    def _view_state(context):
+        from .viewport import ViewState
+        rv3d, region = context.region_data, context.region
+        return ViewState.of(rv3d.view_matrix, rv3d.window_matrix, (region.width, region.height))
+
+    def view_update(self, context, depsgraph):
+        """A depsgraph change (edit, material, light, settings): re-export, maybe restart."""
+        from .properties import viewport_settings_from_scene
+        scene = depsgraph.scene
+        self._viewport().update(depsgraph, self._view_state(context), settings_from_scene(scene),
+                                viewport_settings_from_scene(scene))
+
+    def view_draw(self, context, depsgraph):
+        """Draw the session's latest image; a moved view restarts the session."""
+        ctl = self._viewport()
+        frame = ctl.draw(self._view_state(context))
+        self.update_stats("", ctl.session.status)
+        if frame is not None:
+            self._draw_frame(frame, depsgraph.scene)
+        if ctl.session.busy:
+            self.tag_redraw()       # keep drawing while passes arrive
+
+    def _draw_frame(self, frame, scene) -> None:
+        import gpu
+        from gpu_extras.presets import draw_texture_2d
+        h, w = frame.image.shape[:2]
+        cached = self._fppm_texture
+        if cached is None or cached[0] != frame.serial:
+            gain = film_gain(scene)
+            img = frame.image if gain == 1.0 else frame.image * np.float32(gain)
+            if gain != 1.0:
+                img[..., 3] = frame.image[..., 3]
+            buf = gpu.types.Buffer('FLOAT', w * h * 4, blender_rows(img, 4))
+            self._fppm_texture = cached = (frame.serial, gpu.types.GPUTexture(
+                (w, h), format='RGBA32F', data=buf))
+        gpu.state.blend_set('ALPHA_PREMULT')
+        self.bind_display_space_shader(scene)
+        draw_texture_2d(cached[1], (0, 0), w, h)
+        self.unbind_display_space_shader()
+        gpu.state.blend_set('NONE')
+
+    def __del__(self):
+        # The viewport closed (or shading left Rendered): stop its passes.
+        try:
+            ctl = getattr(self, "_fppm_viewport", None)
+        except ReferenceError:      # the RNA struct is already gone
+            return
+        if ctl is not None:
+            ctl.free()
 
     # -- helpers -----------------------------------------------------------
     def break_requested(self) -> bool:

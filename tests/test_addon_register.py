@@ -123,7 +123,7 @@ class _Layout:
 
 
 def test_panels_draw_every_setting(unregistered):
-    from fppm.core.settings import field_names
+    from fppm.core.settings import field_names, viewport_field_names
     addon.register()
     sc = bpy.context.scene
     drawn = set()
@@ -137,7 +137,7 @@ def test_panels_draw_every_setting(unregistered):
             cls.draw(type("P", (), {"layout": lay})(), Ctx)
             if hasattr(cls, "draw_header"):
                 cls.draw_header(type("P", (), {"layout": lay})(), Ctx)
-    assert drawn == set(field_names())
+    assert drawn == set(field_names()) | set(viewport_field_names())
 
 
 def test_enable_imports_no_kernels():
