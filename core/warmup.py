@@ -11,18 +11,23 @@ surfaces and every light kind, so that the camera, direct-light, photon
 occlusion, edge and gather kernels all compile.  With a warm on-disk cache the same call
 only loads them.
 
-:class:`Warmup` runs that once per process in a background thread:
+:class:`Warmup` runs that once per process in a background thread, and on
+a first use (nothing compiled yet for these sources) has a subprocess do the
+compiling (:func:`compile_then_load`):
 
-- a thread, not a subprocess: the compiled kernels end up in this process
-  (a subprocess would fill the disk cache, and the render would still have to
-  load every kernel from it), it needs no Python executable or ``sys.path``
-  reconstruction (Blender's bundled interpreter, the extension's wheels), and
-  the kernel modules keep the module names they are imported under here,
-  which is what the cache is keyed by (``core/_numba_cache.py``).  The cost is
-  the GIL: numba's type inference is Python, so the thread competes with the
-  caller's Python; Python hands the GIL over every 5 ms
-  (``sys.getswitchinterval``) and LLVM's code generation releases it, so the
-  caller stays responsive (``tests/test_warmup.py`` measures the latency).
+- the compile runs in a separate process: numba's compiler is Python, and a
+  compiling thread inside Blender holds the GIL and, worse, makes the cyclic
+  garbage collector run full collections over the whole process (compiling
+  creates ~100 000 cyclic objects at a time): measured pauses of 0.3-0.7 s
+  of every other Python thread, i.e. Blender's UI (docs/interactive.md).  A
+  subprocess shares neither, and uses another core.  It imports ``core``
+  under this process's very module name (``bl_ext.<repo>.fppm.core`` inside
+  Blender; the cache is keyed by it, ``core/_numba_cache.py``) and writes the
+  kernels to the same cache folder;
+- then this process's thread renders the same synthetic scenes, which now
+  only loads the kernels from disk (a few seconds), so that they are in
+  memory when the first render starts.  If the subprocess cannot run (no
+  usable Python executable), the thread compiles them itself.
 - :meth:`Warmup.wait` polls ``should_stop`` every 50 ms, so a render waiting
   for the compile can be cancelled at once; the compile itself goes on in the
   background (it is needed by the next render anyway).
@@ -36,6 +41,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import subprocess
 import sys
 import threading
 import time
@@ -165,6 +171,81 @@ def compile_kernels(should_stop: Optional[Callable[[], bool]] = None) -> float:
     return time.perf_counter() - t0
 
 
+# Run by compile_in_subprocess: load the package under the parent's module name
+# (stub parents for a dotted name such as bl_ext.user_default.fppm), then compile.
+_CHILD = r"""
+import importlib, importlib.util, os, sys, types
+name, root = sys.argv[1], sys.argv[2]
+parts = name.split(".")
+for i in range(1, len(parts)):
+    parent = ".".join(parts[:i])
+    if parent not in sys.modules:
+        stub = types.ModuleType(parent)
+        stub.__path__ = []
+        sys.modules[parent] = stub
+spec = importlib.util.spec_from_file_location(name, os.path.join(root, "__init__.py"),
+                                              submodule_search_locations=[root])
+pkg = importlib.util.module_from_spec(spec)
+sys.modules[name] = pkg
+spec.loader.exec_module(pkg)
+importlib.import_module(name + ".core.warmup").compile_kernels()
+"""
+
+
+def package_name() -> str:
+    """The module name the package holding ``core`` is imported under."""
+    return __name__.rsplit(".core.warmup", 1)[0]
+
+
+def compile_in_subprocess(should_stop: Optional[Callable[[], bool]] = None,
+                          poll: float = 0.05) -> float:
+    """:func:`compile_kernels` in a child Python filling this process's kernel
+    cache; returns its seconds.  Raises RenderCancelled (the child is killed)
+    when ``should_stop()``, RuntimeError when the child fails."""
+    from .errors import RenderCancelled
+    root = _numba_cache.cache_dir()
+    if root is None:
+        raise RuntimeError("no writable kernel cache folder")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p),
+               **{_numba_cache.ENV_VAR: root})
+    t0 = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-c", _CHILD, package_name(), os.path.dirname(_CORE)],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, env=env, cwd=root)
+    try:
+        while proc.poll() is None:
+            if should_stop is not None and should_stop():
+                raise RenderCancelled("cancelled")
+            time.sleep(poll)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    err = proc.stderr.read().decode(errors="replace")
+    proc.stderr.close()
+    if proc.returncode != 0:
+        raise RuntimeError(f"the compiling process ended with code {proc.returncode}: "
+                           f"{err.strip().splitlines()[-1] if err.strip() else 'no message'}")
+    return time.perf_counter() - t0
+
+
+def compile_then_load(should_stop: Optional[Callable[[], bool]] = None) -> float:
+    """The warm-up of :class:`Warmup`: on a first use a subprocess compiles,
+    then this process loads the kernels (see the module docstring); seconds."""
+    from .errors import RenderCancelled
+    t0 = time.perf_counter()
+    if not is_compiled():
+        try:
+            compile_in_subprocess(should_stop)
+        except RenderCancelled:
+            raise
+        except (OSError, RuntimeError) as ex:
+            print(f"FPPM: compiling the kernels in a separate process failed ({ex}); "
+                  f"compiling them in this one.")
+    compile_kernels(should_stop)
+    return time.perf_counter() - t0
+
+
 def source_key() -> str:
     """Hash of everything a compiled kernel depends on: core's sources, the
     numba and Python versions, and the module name core is imported under."""
@@ -245,12 +326,12 @@ class Warmup:
     ends or ``should_stop()``; afterwards ``done``, ``error`` (the exception
     text, or None), ``seconds`` and ``was_cold`` (a compile, not a load).
     ``stop()`` asks it to end at the next poll (unregister, tests).
-    ``compile(should_stop) -> seconds`` is :func:`compile_kernels` (tests pass
-    a stand-in).
+    ``compile(should_stop) -> seconds`` is :func:`compile_then_load` (tests
+    pass a stand-in).
     """
 
     def __init__(self, compile: Callable = None):
-        self._compile = compile or compile_kernels
+        self._compile = compile or compile_then_load
         self._lock = threading.Lock()
         self._thread: Optional[threading.Thread] = None
         self._done = threading.Event()

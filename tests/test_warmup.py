@@ -176,3 +176,40 @@ def test_failed_compile_is_kept_as_a_message():
     w = Warmup(compile=compile)
     assert w.wait() is True
     assert w.error == "ImportError: embreex is missing"
+
+
+FIRST_USE = r"""
+import json, sys, time
+sys.path.insert(0, sys.argv[1])
+import fppm_alias  # noqa
+from fppm.core.warmup import warmup
+t0 = time.perf_counter()
+warmup.start()
+last, gaps = time.perf_counter(), []
+while not warmup.done:
+    time.sleep(0.001)
+    now = time.perf_counter()
+    gaps.append(now - last)
+    last = now
+from numba.core.registry import CPUDispatcher
+compiled_here = sorted(f"{n}.{k}" for n, m in list(sys.modules.items()) if n.startswith("fppm.core")
+                       for k, v in vars(m).items()
+                       if isinstance(v, CPUDispatcher) and v.stats.cache_misses)
+print(json.dumps({"error": warmup.error, "cold": warmup.was_cold, "max_gap": max(gaps),
+                  "compiled_here": compiled_here}))
+"""
+
+
+def test_first_use_compiles_in_a_subprocess_and_keeps_this_process_responsive(tmp_path):
+    # Empty cache: the kernels compile in a child process (under this
+    # process's module names, into the same cache), this process only loads
+    # them: nothing compiles here, and a 1 ms sleep loop on the main thread
+    # never waits long (no GIL or garbage-collector pauses from the compiler).
+    env = dict(os.environ, FPPM_CACHE_DIR=str(tmp_path / "cache"))
+    p = subprocess.run([PY, "-c", FIRST_USE, os.path.join(ROOT, "tests")], capture_output=True,
+                       text=True, timeout=1200, cwd=str(tmp_path), env=env)
+    assert p.returncode == 0, p.stderr[-3000:]
+    out = __import__("json").loads(p.stdout.strip().splitlines()[-1])
+    assert out["error"] is None and out["cold"] is True
+    assert out["compiled_here"] == []
+    assert out["max_gap"] < 0.25, out["max_gap"]
