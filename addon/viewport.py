@@ -8,13 +8,16 @@ everything that decides what to render lives here and runs without a GPU:
 - :func:`export_view`: the evaluated depsgraph exported with that camera (the
   scene needs no camera object of its own).  Runs on Blender's main thread.
 - :class:`ViewportSession`: renders in a daemon thread: waits for the kernel
-  warm-up (``core.warmup``), renders one pass at the resolution divided by
-  ``viewport_resolution_divider`` (a first image after every change), then
+  warm-up (``core.warmup``), renders one quick pass at the resolution divided
+  by ``viewport_resolution_divider`` (a first image after every change:
+  fewer photons, no frequency analysis), then
   passes at full resolution up to ``viewport_max_passes``.  The full
   resolution passes are ``Renderer`` passes with the scene's own settings, so
   pass k is bit for bit pass k of a final render of the same camera.
-  ``restart`` and ``cancel`` only set a flag and start a thread: they never
-  block the caller; a cancelled job stops at the Renderer's next poll.
+  ``restart`` and ``cancel`` only set flags and hand the job to the
+  session's worker thread (which waits for jobs; starting a thread per
+  restart would wait for the new thread to be scheduled): they never block
+  the caller; a cancelled job stops at the Renderer's next poll.
 - :class:`ViewportController`: what the engine calls: re-exports on a
   depsgraph update and restarts only when the scene or the settings really
   changed (``scene_digest``: a selection does not restart); restarts with a
@@ -128,8 +131,8 @@ class _Job:
     settings: RenderSettings
     viewport: ViewportSettings
     generation: int
-    stop: threading.Event
-    thread: Optional[threading.Thread] = None
+    stop: threading.Event = dataclasses.field(default_factory=threading.Event)
+    finished: threading.Event = dataclasses.field(default_factory=threading.Event)
 
 
 def enlarge(img: np.ndarray, factor: int, size) -> np.ndarray:
@@ -150,6 +153,8 @@ class ViewportSession:
 
     def __init__(self, on_frame: Optional[Callable[[], None]] = None):
         self._lock = threading.Lock()
+        self._wake = threading.Condition(self._lock)
+        self._thread: Optional[threading.Thread] = None
         self._job: Optional[_Job] = None
         self._frame: Optional[Frame] = None
         self._generation = 0
@@ -171,14 +176,18 @@ class ViewportSession:
             if self._job is not None:
                 self._job.stop.set()
             self._generation += 1
-            job = _Job(scene, settings, viewport, self._generation, threading.Event())
+            job = _Job(scene, settings, viewport, self._generation)
             self._job = job
             self.error = None
             self.status = "FPPM: starting"
             self._seen = time.monotonic()
-        job.thread = threading.Thread(target=self._work, args=(job,),
-                                      name=f"fppm-viewport-{job.generation}", daemon=True)
-        job.thread.start()
+            self._wake.notify()
+            start = self._thread is None or not self._thread.is_alive()
+            if start:
+                self._thread = threading.Thread(target=self._loop, name="fppm-viewport",
+                                                daemon=True)
+        if start:
+            self._thread.start()     # the first restart only (or after an idle exit)
         return job.generation
 
     def cancel(self) -> None:
@@ -197,18 +206,32 @@ class ViewportSession:
     @property
     def busy(self) -> bool:
         job = self._job
-        return job is not None and job.thread is not None and job.thread.is_alive() \
-            and not job.stop.is_set()
+        return job is not None and not job.finished.is_set() and not job.stop.is_set()
 
     def join(self, timeout: float = None) -> bool:
-        """Wait for the current job's thread to end (tests); True if it has."""
+        """Wait for the current job to end (tests); True if it has."""
         job = self._job
-        if job is None or job.thread is None:
-            return True
-        job.thread.join(timeout)
-        return not job.thread.is_alive()
+        return job is None or job.finished.wait(timeout)
 
     # -- the worker -------------------------------------------------------------
+    IDLE_EXIT_SECONDS = 30.0     # the worker thread ends after this long without a job
+
+    def _loop(self) -> None:
+        done: Optional[_Job] = None
+        while True:
+            with self._lock:
+                while self._job is done or self._job is None:
+                    if not self._wake.wait(self.IDLE_EXIT_SECONDS):
+                        if self._job is done or self._job is None:
+                            self._thread = None
+                            return
+                job = self._job
+            try:
+                self._work(job)
+            finally:
+                job.finished.set()
+                done = job
+
     def _publish(self, job: _Job, image: np.ndarray, pass_index: int, status: str) -> None:
         with self._lock:
             if job.generation != self._generation or job.stop.is_set():
@@ -246,7 +269,11 @@ class ViewportSession:
             if d > 1 and W * H > 1:
                 small = dataclasses.replace(scene, camera=dataclasses.replace(
                     scene.camera, resolution=(max(1, -(-W // d)), max(1, -(-H // d)))))
-                pst = st.replace(max_passes=1, photons_per_pass=max(1000, st.photons_per_pass // (d * d)))
+                # A quick look, not a pass of the render: 1/d^2 of the photons
+                # and without the frequency analysis, whose set-up (occlusion
+                # grid, ~0.3-0.5 s whatever the resolution) would delay it.
+                pst = st.replace(max_passes=1, use_frequency=False,
+                                 photons_per_pass=max(1000, st.photons_per_pass // (d * d)))
                 r = Renderer(small, pst, log=lambda _m: None, should_stop=stop)
                 res = r.run(should_stop=stop)
                 if stop():

@@ -6,9 +6,10 @@ Every measurement runs in a fresh Python process (what a Blender start is):
   start-up is not counted); also says whether numba or Embree were imported.
 - cold (empty kernel cache, ``FPPM_CACHE_DIR`` = a new folder), two ways:
   "no warm-up": the Renderer compiles inside its set-up and pass 1 (what a
-  render did before core/warmup.py); "background": the warm-up thread
-  compiles while the main thread measures its own responsiveness (the
-  longest wait of a 1 ms sleep loop = how long Blender's UI could stall),
+  render did before core/warmup.py); "background": the warm-up
+  (``core.warmup.warmup``: a subprocess compiles, a thread loads) runs while
+  the main thread measures its own responsiveness (the longest wait of a
+  1 ms sleep loop = how long Blender's UI could stall),
   then the first render's set-up + pass 1 (the "after the background
   compile" number).
 - warm (a new process, the cache filled): the warm-up (now loading kernels
@@ -110,7 +111,7 @@ for i in range(4):
     t0 = time.perf_counter()
     s.restart(scene, settings, vs)
     if old is not None:
-        old.thread.join(5)
+        old.finished.wait(5)
         stops.append(time.perf_counter() - t0)
     while s.frame() is None:
         time.sleep(0.002)
