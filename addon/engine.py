@@ -49,6 +49,15 @@ def film_gain(scene) -> float:
     return float(getattr(cy, "film_exposure", 1.0)) if cy is not None else 1.0
 
 
+def exposed(image: np.ndarray, gain: float) -> np.ndarray:
+    """(H, W, 4) RGBA with the film exposure applied: colour scaled, alpha kept."""
+    if gain == 1.0:
+        return image
+    img = image * np.float32(gain)
+    img[..., 3] = image[..., 3]
+    return img
+
+
 def blender_rows(img: np.ndarray, channels: int) -> np.ndarray:
     """(H, W, C) row-0-at-top image -> flat float32 for ``rect.foreach_set``.
 
@@ -196,10 +205,7 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
         h, w = frame.image.shape[:2]
         cached = self._fppm_texture
         if cached is None or cached[0] != frame.serial:
-            gain = film_gain(scene)
-            img = frame.image if gain == 1.0 else frame.image * np.float32(gain)
-            if gain != 1.0:
-                img[..., 3] = frame.image[..., 3]
+            img = exposed(frame.image, film_gain(scene))
             buf = gpu.types.Buffer('FLOAT', w * h * 4, blender_rows(img, 4))
             self._fppm_texture = cached = (frame.serial, gpu.types.GPUTexture(
                 (w, h), format='RGBA32F', data=buf))
@@ -237,10 +243,7 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
 
     def _write(self, rresult, pr, aovs, gain) -> None:
         layer = rresult.layers[0]
-        img = pr.image if gain == 1.0 else pr.image * np.float32(gain)
-        if gain != 1.0:
-            img[..., 3] = pr.image[..., 3]  # exposure scales colour, not alpha
-        layer.passes["Combined"].rect.foreach_set(blender_rows(img, 4))
+        layer.passes["Combined"].rect.foreach_set(blender_rows(exposed(pr.image, gain), 4))
         for name, ch, _cid, _kind in aovs:
             a = pr.aovs.get(name)
             p = layer.passes.get(name)
