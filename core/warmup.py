@@ -43,6 +43,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import traceback
@@ -172,10 +173,20 @@ def compile_kernels(should_stop: Optional[Callable[[], bool]] = None) -> float:
 
 
 # Run by compile_in_subprocess: load the package under the parent's module name
-# (stub parents for a dotted name such as bl_ext.user_default.fppm), then compile.
+# (stub parents for a dotted name such as bl_ext.user_default.fppm), then
+# compile.  It ends with its parent (a quit Blender, an interrupted CLI).
 _CHILD = r"""
-import importlib, importlib.util, os, sys, types
+import importlib, importlib.util, os, sys, threading, time, types
 name, root = sys.argv[1], sys.argv[2]
+
+
+def exit_with_parent(ppid=os.getppid()):
+    while os.getppid() == ppid:
+        time.sleep(0.5)
+    os._exit(1)
+
+
+threading.Thread(target=exit_with_parent, daemon=True).start()
 parts = name.split(".")
 for i in range(1, len(parts)):
     parent = ".".join(parts[:i])
@@ -209,20 +220,25 @@ def compile_in_subprocess(should_stop: Optional[Callable[[], bool]] = None,
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p),
                **{_numba_cache.ENV_VAR: root})
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-c", _CHILD, package_name(), os.path.dirname(_CORE)],
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, env=env, cwd=root)
-    try:
-        while proc.poll() is None:
-            if should_stop is not None and should_stop():
-                raise RenderCancelled("cancelled")
-            time.sleep(poll)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    err = proc.stderr.read().decode(errors="replace")
-    proc.stderr.close()
+    # Its own process group: Ctrl-C in the CLI's terminal stops the render
+    # (which polls), not the compile that the next render needs.
+    group = ({"creationflags": subprocess.CREATE_NEW_PROCESS_GROUP} if sys.platform == "win32"
+             else {"start_new_session": True})
+    with tempfile.TemporaryFile() as log:     # a file: a full pipe would block the child
+        proc = subprocess.Popen([sys.executable, "-c", _CHILD, package_name(),
+                                 os.path.dirname(_CORE)], stdin=subprocess.DEVNULL,
+                                stdout=subprocess.DEVNULL, stderr=log, env=env, cwd=root, **group)
+        try:
+            while proc.poll() is None:
+                if should_stop is not None and should_stop():
+                    raise RenderCancelled("cancelled")
+                time.sleep(poll)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        log.seek(0)
+        err = log.read().decode(errors="replace")
     if proc.returncode != 0:
         raise RuntimeError(f"the compiling process ended with code {proc.returncode}: "
                            f"{err.strip().splitlines()[-1] if err.strip() else 'no message'}")
