@@ -145,8 +145,9 @@ def enlarge(img: np.ndarray, factor: int, size) -> np.ndarray:
 class ViewportSession:
     """A progressive render of one view, restarted on every change.
 
-    ``status`` is a short line for the viewport header ("Compiling render
-    kernels ...", "Pass 3/64", an error sentence).  ``on_frame()`` (optional)
+    ``status`` is a short line for the viewport header ("FPPM: compiling
+    render kernels ...", "FPPM: Pass 3 | ... (of 64 passes)", an error
+    sentence).  ``on_frame()`` (optional)
     is called from the worker thread after each new frame; it must not touch
     bpy (the engine redraws from ``view_draw`` instead).
     """
@@ -251,6 +252,7 @@ class ViewportSession:
         from ..core.errors import FPPMError, RenderCancelled
         from ..core.settings import SettingsError
         from ..core.warmup import expected_seconds, is_compiled, warmup
+
         def stop():
             if not job.stop.is_set() and time.monotonic() - self._seen > IDLE_STOP_SECONDS:
                 job.stop.set()
@@ -283,9 +285,8 @@ class ViewportSession:
             r = Renderer(scene, st, log=lambda _m: None, should_stop=stop)
 
             def on_pass(pr):
-                self._publish(job, pr.image, pr.pass_index,
-                              f"FPPM: {pr.stats_line()} of {st.max_passes}"
-                              if job.viewport.viewport_max_passes else f"FPPM: {pr.stats_line()}")
+                cap = f" (of {st.max_passes} passes)" if job.viewport.viewport_max_passes else ""
+                self._publish(job, pr.image, pr.pass_index, f"FPPM: {pr.stats_line()}{cap}")
             r.run(should_stop=stop, on_pass=on_pass)
             if not stop():
                 self._set_status(job, self.status + " | done")
