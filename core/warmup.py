@@ -217,6 +217,10 @@ def compile_in_subprocess(should_stop: Optional[Callable[[], bool]] = None,
     root = _numba_cache.cache_dir()
     if root is None:
         raise RuntimeError("no writable kernel cache folder")
+    if not os.path.basename(sys.executable).lower().startswith("python"):
+        # Blender >= 2.91 sets sys.executable to its bundled Python; never
+        # start a second Blender by mistake.
+        raise RuntimeError(f"{sys.executable!r} is not a Python interpreter")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p),
                **{_numba_cache.ENV_VAR: root})
     t0 = time.perf_counter()

@@ -212,3 +212,16 @@ def test_first_use_compiles_in_a_subprocess_and_keeps_this_process_responsive(tm
     assert out["error"] is None and out["cold"] is True
     assert out["compiled_here"] == []
     assert out["max_gap"] < 0.25, out["max_gap"]
+
+
+def test_without_a_python_executable_the_thread_compiles(monkeypatch, capsys):
+    # Never start something that is not Python (an old Blender's
+    # sys.executable was Blender itself): compile in this process instead.
+    from fppm.core import warmup as W
+    calls = []
+    monkeypatch.setattr(sys, "executable", "/opt/blender/blender")
+    monkeypatch.setattr(W, "is_compiled", lambda: False)
+    monkeypatch.setattr(W, "compile_kernels", lambda should_stop=None: calls.append(1))
+    W.compile_then_load()
+    assert calls == [1]
+    assert "is not a Python interpreter" in capsys.readouterr().out
