@@ -20,9 +20,9 @@ import bpy
 import numpy as np
 
 from ..core.errors import FPPMError, RenderCancelled
-from ..core.render import Renderer
 from ..core.settings import SettingsError
 from ..core.sppm.film import PASSES, pass_enabled
+from ..core.warmup import expected_seconds, is_compiled, warmup
 from .export import export_scene
 from .properties import settings_from_scene
 
@@ -45,6 +45,15 @@ def film_gain(scene) -> float:
     """Cycles' Film > Exposure: a linear scale of the image (1 = unchanged)."""
     cy = getattr(scene, "cycles", None)
     return float(getattr(cy, "film_exposure", 1.0)) if cy is not None else 1.0
+
+
+def exposed(image: np.ndarray, gain: float) -> np.ndarray:
+    """(H, W, 4) RGBA with the film exposure applied: colour scaled, alpha kept."""
+    if gain == 1.0:
+        return image
+    img = image * np.float32(gain)
+    img[..., 3] = image[..., 3]
+    return img
 
 
 def blender_rows(img: np.ndarray, channels: int) -> np.ndarray:
@@ -147,13 +156,71 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
     bl_label = "FPPM"
     bl_use_preview = False
     bl_use_postprocess = True
-    # Material/rendered viewport shading falls back to EEVEE; FPPM is final-render only.
+    # Material preview shading uses EEVEE; Rendered shading is FPPM's
+    # progressive viewport (view_update / view_draw below, addon/viewport.py).
     bl_use_eevee_viewport = True
 
     def update_render_passes(self, scene=None, renderlayer=None):
         self.register_pass(scene, renderlayer, "Combined", 4, "RGBA", 'COLOR')
         for name, ch, cid, kind in enabled_aovs(settings_from_scene(scene), renderlayer):
             self.register_pass(scene, renderlayer, name, ch, cid, kind)
+
+    # -- rendered viewport: thin; the session logic is addon/viewport.py ------
+    def _viewport(self):
+        ctl = getattr(self, "_fppm_viewport", None)
+        if ctl is None:
+            from .viewport import ViewportController
+            ctl = self._fppm_viewport = ViewportController()
+            self._fppm_texture = None
+        return ctl
+
+    @staticmethod
+    def _view_state(context):
+        from .viewport import ViewState
+        rv3d, region = context.region_data, context.region
+        return ViewState.of(rv3d.view_matrix, rv3d.window_matrix, (region.width, region.height))
+
+    def view_update(self, context, depsgraph):
+        """A depsgraph change (edit, material, light, settings): re-export, maybe restart."""
+        from .properties import viewport_settings_from_scene
+        scene = depsgraph.scene
+        self._viewport().update(depsgraph, self._view_state(context), settings_from_scene(scene),
+                                viewport_settings_from_scene(scene))
+
+    def view_draw(self, context, depsgraph):
+        """Draw the session's latest image; a moved view restarts the session."""
+        ctl = self._viewport()
+        frame = ctl.draw(self._view_state(context))
+        self.update_stats("", ctl.session.status)
+        if frame is not None:
+            self._draw_frame(frame, depsgraph.scene)
+        if ctl.session.busy:
+            self.tag_redraw()       # keep drawing while passes arrive
+
+    def _draw_frame(self, frame, scene) -> None:
+        import gpu
+        from gpu_extras.presets import draw_texture_2d
+        h, w = frame.image.shape[:2]
+        cached = self._fppm_texture
+        if cached is None or cached[0] != frame.serial:
+            img = exposed(frame.image, film_gain(scene))
+            buf = gpu.types.Buffer('FLOAT', w * h * 4, blender_rows(img, 4))
+            self._fppm_texture = cached = (frame.serial, gpu.types.GPUTexture(
+                (w, h), format='RGBA32F', data=buf))
+        gpu.state.blend_set('ALPHA_PREMULT')
+        self.bind_display_space_shader(scene)
+        draw_texture_2d(cached[1], (0, 0), w, h)
+        self.unbind_display_space_shader()
+        gpu.state.blend_set('NONE')
+
+    def __del__(self):
+        # The viewport closed (or shading left Rendered): stop its passes.
+        try:
+            ctl = getattr(self, "_fppm_viewport", None)
+        except ReferenceError:      # the RNA struct is already gone
+            return
+        if ctl is not None:
+            ctl.free()
 
     # -- helpers -----------------------------------------------------------
     def break_requested(self) -> bool:
@@ -174,10 +241,7 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
 
     def _write(self, rresult, pr, aovs, gain) -> None:
         layer = rresult.layers[0]
-        img = pr.image if gain == 1.0 else pr.image * np.float32(gain)
-        if gain != 1.0:
-            img[..., 3] = pr.image[..., 3]  # exposure scales colour, not alpha
-        layer.passes["Combined"].rect.foreach_set(blender_rows(img, 4))
+        layer.passes["Combined"].rect.foreach_set(blender_rows(exposed(pr.image, gain), 4))
         for name, ch, _cid, _kind in aovs:
             a = pr.aovs.get(name)
             p = layer.passes.get(name)
@@ -185,6 +249,31 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
                 if name in EXPOSED_PASSES and gain != 1.0:
                     a = a * np.float32(gain)
                 p.rect.foreach_set(blender_rows(a, ch))
+
+    def _wait_for_kernels(self) -> bool:
+        """Wait for the kernel warm-up (``core.warmup``) before the Renderer
+        exists, so that compiling never counts against the time limit; False
+        when Esc was pressed meanwhile.  A failed warm-up is reported and the
+        render goes on (the kernels then compile inside the first pass)."""
+        if not warmup.done:
+            first = not is_compiled()
+            expected = expected_seconds() if first else 0.0
+            msg = (f"FPPM: compiling render kernels (first use, about {expected:.0f} s)"
+                   if first else "FPPM: loading render kernels")
+            self.update_stats("", msg)
+            if first:
+                self._log(msg[len("FPPM: "):])
+
+            def on_wait(waited):
+                if expected > 0:
+                    self.update_progress(min(waited / expected, 0.99))
+            if not warmup.wait(should_stop=self.break_requested, on_wait=on_wait):
+                return False
+            self.update_progress(0.0)
+        if warmup.error is not None:
+            self._log(f"Warning: compiling the kernels ahead of the render failed "
+                      f"({warmup.error}); rendering anyway")
+        return True
 
     # -- the render callback -------------------------------------------------
     def render(self, depsgraph):
@@ -212,18 +301,22 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
         gain = film_gain(scene)
         if sess is not None:
             sess.settings, sess.gain = settings, gain
+        warmup.start()      # compiles (or loads) the kernels while the scene exports
         self.update_stats("", "FPPM: exporting scene")
         cam = self.camera_override
         if cam is not None:
             cam = cam.evaluated_get(depsgraph)
         fscene = export_cancellable(depsgraph, self._log, cam, self.break_requested)
-        if self.break_requested():
+        if self.break_requested() or not self._wait_for_kernels():
             if sess is not None:
                 sess.cancelled = True
             return
         # should_stop is also polled while the renderer is set up (BVH,
         # occlusion grid): RenderCancelled from there is caught in render().
         aovs = enabled_aovs(settings, depsgraph.view_layer)
+        # Imported here, not at the top: core.render loads numba and Embree,
+        # which enabling the add-on must not pay for (docs/interactive.md).
+        from ..core.render import Renderer
         renderer = Renderer(fscene, settings, log=self._log, should_stop=self.break_requested,
                             passes=tuple(a[0] for a in aovs))
         if sess is not None:

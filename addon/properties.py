@@ -1,7 +1,8 @@
 """``scene.fppm``: the render settings as a Blender PropertyGroup.
 
-Field names, types and defaults mirror ``core.settings.RenderSettings`` one to
-one (``tests/test_settings_mirror.py`` checks every field).  Enum items have
+Field names, types and defaults mirror ``core.settings.RenderSettings`` and
+``core.settings.ViewportSettings`` one to one (``tests/test_settings_mirror.py``
+checks every field).  Enum items have
 explicit indices so files saved by one version read back the same way.
 Validation proper stays in ``RenderSettings.validate()``; the limits here only
 keep the UI inside the valid ranges.
@@ -10,9 +11,10 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty
 from bpy.types import PropertyGroup
 
-from ..core.settings import RenderSettings, field_names
+from ..core.settings import RenderSettings, ViewportSettings, field_names, viewport_field_names
 
 _D = RenderSettings()  # defaults come from core, never duplicated by hand
+_V = ViewportSettings()
 
 RADIUS_MODES = (
     ('AUTO', "Pixel Footprint",
@@ -126,6 +128,17 @@ class FPPMRenderSettings(PropertyGroup):
         soft_min=16, soft_max=256,
         description="Resolution of the voxel grid that estimates occluder frequencies")
 
+    # --- Viewport (rendered shading of the 3D viewport)
+    viewport_resolution_divider: IntProperty(
+        name="Start Resolution Divider", default=_V.viewport_resolution_divider, min=1, max=64,
+        soft_max=16,
+        description="The viewport's first pass renders at its resolution divided by this, "
+                    "for a quick first image after every change (1 = full resolution)")
+    viewport_max_passes: IntProperty(
+        name="Viewport Passes", default=_V.viewport_max_passes, min=0, max=1_000_000,
+        soft_max=4096,
+        description="The rendered viewport stops after this many passes (0 = no limit)")
+
     # --- Output (AOV passes)
     aov_radius: BoolProperty(
         name="Radius", default=_D.aov_radius,
@@ -162,6 +175,14 @@ def to_settings(props) -> RenderSettings:
                 v = float(f"{v:.7g}")
         kw[name] = v
     return RenderSettings(**kw)
+
+
+def viewport_settings_from_scene(scene) -> ViewportSettings:
+    """The scene's viewport settings, or the defaults when ``scene.fppm`` is not registered."""
+    props = getattr(scene, "fppm", None)
+    if props is None:
+        return ViewportSettings()
+    return ViewportSettings(**{n: getattr(props, n) for n in viewport_field_names()})
 
 
 def settings_from_scene(scene) -> RenderSettings:

@@ -5,6 +5,13 @@ from bpy.types import Panel
 ENGINE = "FPPM"
 
 
+def split(layout):
+    """``layout`` with labels beside the values (Blender's property split)."""
+    layout.use_property_split = True
+    layout.use_property_decorate = False
+    return layout
+
+
 class FPPMPanel:
     bl_space_type = 'PROPERTIES'
     bl_region_type = 'WINDOW'
@@ -15,14 +22,17 @@ class FPPMPanel:
     def poll(cls, context):
         return context.engine in cls.COMPAT_ENGINES
 
+    def split_layout(self):
+        """The panel's layout with labels beside the values (Blender's property split)."""
+        layout = split(self.layout)
+        return layout
+
 
 class FPPM_RENDER_PT_sampling(FPPMPanel, Panel):
     bl_label = "Sampling"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split(self.layout)
         s = context.scene.fppm
         layout.prop(s, "integrator")
         col = layout.column(align=True)
@@ -33,13 +43,23 @@ class FPPM_RENDER_PT_sampling(FPPMPanel, Panel):
         col.prop(s, "seed")
 
 
+class FPPM_RENDER_PT_viewport(FPPMPanel, Panel):
+    bl_label = "Viewport"
+    bl_parent_id = "FPPM_RENDER_PT_sampling"
+
+    def draw(self, context):
+        layout = split(self.layout)
+        s = context.scene.fppm
+        col = layout.column(align=True)
+        col.prop(s, "viewport_max_passes", text="Max Passes")
+        col.prop(s, "viewport_resolution_divider")
+
+
 class FPPM_RENDER_PT_kernel(FPPMPanel, Panel):
     bl_label = "Kernel"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split(self.layout)
         s = context.scene.fppm
         col = layout.column()
         col.prop(s, "radius_mode")
@@ -55,9 +75,7 @@ class FPPM_RENDER_PT_light_paths(FPPMPanel, Panel):
     bl_label = "Light Paths"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split(self.layout)
         s = context.scene.fppm
         col = layout.column()
         col.prop(s, "max_bounces")
@@ -74,9 +92,7 @@ class FPPM_RENDER_PT_frequency(FPPMPanel, Panel):
         self.layout.prop(context.scene.fppm, "use_frequency", text="")
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split(self.layout)
         s = context.scene.fppm
         col = layout.column()
         col.active = s.use_frequency
@@ -91,9 +107,7 @@ class FPPM_RENDER_PT_output(FPPMPanel, Panel):
     bl_options = {'DEFAULT_CLOSED'}
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split(self.layout)
         s = context.scene.fppm
         col = layout.column(heading="Include")
         col.prop(s, "aov_radius")
@@ -127,6 +141,7 @@ def draw_view_layer_passes(layout, view_layer):
 
 classes = (
     FPPM_RENDER_PT_sampling,
+    FPPM_RENDER_PT_viewport,
     FPPM_RENDER_PT_kernel,
     FPPM_RENDER_PT_light_paths,
     FPPM_RENDER_PT_frequency,

@@ -115,3 +115,27 @@ class RenderSettings:
 
 def field_names() -> list[str]:
     return [f.name for f in dataclasses.fields(RenderSettings)]
+
+
+@dataclass(frozen=True)
+class ViewportSettings:
+    """Settings of the rendered viewport only (``addon/viewport.py``).
+
+    Kept apart from RenderSettings so that they never enter the image digest:
+    they change how the viewport gets to an image, not the image of a pass.
+    """
+    viewport_resolution_divider: int = 4  # first pass at 1/this of the viewport's resolution (1 = off)
+    viewport_max_passes: int = 64         # passes after which the viewport stops (0 = no cap)
+
+    def validate(self) -> "ViewportSettings":
+        if not 1 <= self.viewport_resolution_divider <= 64:
+            raise SettingsError(f"setting 'viewport_resolution_divider' = "
+                                f"{self.viewport_resolution_divider!r}: must be in [1, 64]")
+        if not 0 <= self.viewport_max_passes <= 1_000_000:
+            raise SettingsError(f"setting 'viewport_max_passes' = {self.viewport_max_passes!r}: "
+                                f"must be in [0, 1000000] (0 = no cap)")
+        return self
+
+
+def viewport_field_names() -> list[str]:
+    return [f.name for f in dataclasses.fields(ViewportSettings)]

@@ -191,3 +191,64 @@ def test_film_exposure_scales_combined(tmp_path):
     assert sess.gain == 2.0
     assert np.array_equal(rr[..., :3], sess.result.image[..., :3] * np.float32(2.0))
     assert np.array_equal(rr[..., 3], sess.result.image[..., 3])
+
+
+# --- kernel warm-up before the first render (core/warmup.py) -----------------
+
+def _fake_warmup(monkeypatch, compile, first=True):
+    """Give the engine a fresh Warmup whose compile is ``compile``."""
+    from fppm.core.warmup import Warmup
+    w = Warmup(compile=compile)
+    monkeypatch.setattr(E, "warmup", w)
+    monkeypatch.setattr(E, "is_compiled", lambda: not first)
+    monkeypatch.setattr(E, "expected_seconds", lambda: 42.0)
+    return w
+
+
+def test_compile_runs_before_the_render_clock(monkeypatch):
+    # The warm-up (here 1 s) happens before the Renderer exists: it is shown
+    # as "compiling" (the same text goes to the status line), and the render's elapsed time (which the time limit
+    # counts) does not include it.
+    def compile(should_stop):
+        time.sleep(1.0)
+        return 1.0
+    w = _fake_warmup(monkeypatch, compile)
+    sc = H.simple_scene(res=(8, 8), passes=1, photons=500)
+    lines = []
+    t0 = time.monotonic()
+    sess = render(sc, E.RenderSession(log=lines.append))
+    wall = time.monotonic() - t0
+    assert sess.error is None and sess.result.pass_index == 1
+    assert w.done and w.error is None
+    assert "compiling render kernels (first use, about 42 s)" in lines
+    assert wall >= 1.0 and sess.result.elapsed < wall - 0.9
+
+
+def test_esc_while_compiling_cancels_at_once(monkeypatch):
+    def compile(should_stop):
+        t = time.monotonic()
+        while time.monotonic() - t < 10 and not should_stop():
+            time.sleep(0.01)
+        return 10.0
+    w = _fake_warmup(monkeypatch, compile)
+    t_esc = time.monotonic() + 0.5
+    monkeypatch.setattr(E.FPPMRenderEngine, "break_requested",
+                        lambda self: time.monotonic() >= t_esc)
+    sc = H.simple_scene(res=(8, 8), passes=1, photons=500)
+    sess = render(sc)
+    assert time.monotonic() - t_esc < 0.1 + 0.05
+    assert sess.cancelled and sess.result is None and sess.error is None
+    assert not w.done          # the compile goes on in the background
+    w.stop()
+
+
+def test_failed_warmup_is_reported_and_the_render_goes_on(monkeypatch):
+    def compile(should_stop):
+        raise RuntimeError("no compiler today")
+    _fake_warmup(monkeypatch, compile, first=False)
+    sc = H.simple_scene(res=(8, 8), passes=1, photons=500)
+    lines = []
+    sess = render(sc, E.RenderSession(log=lines.append))
+    assert sess.error is None and sess.result.pass_index == 1
+    assert ("Warning: compiling the kernels ahead of the render failed "
+            "(RuntimeError: no compiler today); rendering anyway") in lines

@@ -123,7 +123,7 @@ class _Layout:
 
 
 def test_panels_draw_every_setting(unregistered):
-    from fppm.core.settings import field_names
+    from fppm.core.settings import field_names, viewport_field_names
     addon.register()
     sc = bpy.context.scene
     drawn = set()
@@ -137,4 +137,18 @@ def test_panels_draw_every_setting(unregistered):
             cls.draw(type("P", (), {"layout": lay})(), Ctx)
             if hasattr(cls, "draw_header"):
                 cls.draw_header(type("P", (), {"layout": lay})(), Ctx)
-    assert drawn == set(field_names())
+    assert drawn == set(field_names()) | set(viewport_field_names())
+
+
+def test_enable_imports_no_kernels():
+    # Enabling the add-on must stay cheap: numba, Embree and the compiled
+    # kernels load at the first render (or the background warm-up), never at
+    # register().  A fresh interpreter, as at a Blender start.
+    import subprocess
+    import sys
+    code = ("import sys, bpy, fppm\nfppm.register()\n"
+            "bad = [m for m in ('numba', 'embreex', 'llvmlite', 'fppm.core.render') if m in sys.modules]\n"
+            "print(bad)")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.strip().splitlines()[-1] == "[]"

@@ -8,7 +8,8 @@ import bpy_helpers as H
 bpy = pytest.importorskip("bpy")
 
 from fppm.addon import properties as P  # noqa: E402
-from fppm.core.settings import RenderSettings, SettingsError, field_names  # noqa: E402
+from fppm.core.settings import (RenderSettings, SettingsError, ViewportSettings,  # noqa: E402
+                                field_names, viewport_field_names)
 
 RNA_TYPE = {bool: "BOOLEAN", int: "INT", float: "FLOAT", str: "ENUM"}
 # The values RenderSettings.validate() accepts for each string field.
@@ -27,20 +28,20 @@ def rna():
 
 
 def test_every_field_has_a_property_of_the_same_type_and_default(rna):
-    d = RenderSettings()
     names = [p.identifier for p in rna if p.identifier not in ("rna_type", "name")]
-    assert sorted(names) == sorted(field_names())
-    for f in dataclasses.fields(RenderSettings):
-        p = rna[f.name]
-        default = getattr(d, f.name)
-        assert p.type == RNA_TYPE[type(default)], f.name
-        if p.type == "FLOAT":
-            # Blender stores float32: equal to the double default within float32 rounding.
-            assert p.default == pytest.approx(default, rel=1e-7, abs=1e-12), f.name
-        else:
-            assert p.default == default, f.name
-        assert p.description, f"{f.name} has no description"
-        assert p.name, f"{f.name} has no UI name"
+    assert sorted(names) == sorted(field_names() + viewport_field_names())
+    for d in (RenderSettings(), ViewportSettings()):
+        for f in dataclasses.fields(d):
+            p = rna[f.name]
+            default = getattr(d, f.name)
+            assert p.type == RNA_TYPE[type(default)], f.name
+            if p.type == "FLOAT":
+                # Blender stores float32: equal to the double default within float32 rounding.
+                assert p.default == pytest.approx(default, rel=1e-7, abs=1e-12), f.name
+            else:
+                assert p.default == default, f.name
+            assert p.description, f"{f.name} has no description"
+            assert p.name, f"{f.name} has no UI name"
 
 
 def test_enums_have_explicit_stable_indices(rna):
@@ -96,6 +97,19 @@ def test_to_settings_round_trips_every_field():
     # Defaults read back exactly too (float32 0.7 -> 0.7), so digests agree.
     P.apply_settings(sc.fppm, d)
     assert P.to_settings(sc.fppm) == d
+
+
+def test_viewport_limits_stay_inside_what_validate_accepts(rna):
+    sc = H.empty_scene()
+    for name in viewport_field_names():
+        p = rna[name]
+        for bound in (p.hard_min, p.hard_max):
+            setattr(sc.fppm, name, bound)
+            P.viewport_settings_from_scene(sc).validate()
+        setattr(sc.fppm, name, getattr(ViewportSettings(), name))
+    assert P.viewport_settings_from_scene(sc) == ViewportSettings()
+    with pytest.raises(SettingsError, match="viewport_resolution_divider"):
+        ViewportSettings(viewport_resolution_divider=0).validate()
 
 
 def test_invalid_combination_is_a_settings_error():

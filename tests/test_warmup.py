@@ -1,0 +1,227 @@
+"""Kernel cache location and the warm-up (core/_numba_cache.py, core/warmup.py)."""
+import os
+import shutil
+import subprocess
+import sys
+import time
+
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+PY = sys.executable
+
+
+def _copy_package(dst):
+    """The shipped part of the repository as ``dst/fppm`` (what an extension install holds)."""
+    pkg = os.path.join(dst, "fppm")
+    shutil.copytree(ROOT, pkg, ignore=shutil.ignore_patterns(
+        ".venv", ".git", "tests", "bench", "tools", "docs", "example_blends", "__pycache__",
+        "*.egg-info", "dist", "out", "wheels"))
+    return pkg
+
+
+def _run(code, env, cwd):
+    env = {k: v for k, v in env.items() if k not in ("PYTHONPATH", "FPPM_CACHE_DIR",
+                                                     "XDG_CACHE_HOME")} | env.get("_extra", {})
+    env.pop("_extra", None)
+    return subprocess.run([PY, "-c", code], capture_output=True, text=True, env=env, cwd=cwd,
+                          timeout=600)
+
+
+PROBE = (
+    "import json\n"
+    "import fppm.core.render\n"
+    "from fppm.core.sppm import hashgrid\n"
+    "import numpy as np\n"
+    "print(json.dumps({'path': hashgrid._slot_starts._cache._cache_path,\n"
+    "                  'n': int(hashgrid._slot_starts(np.zeros(3, np.int64), 4).sum())}))\n")
+
+
+def test_read_only_package_and_unwritable_home_fall_back_to_temp(tmp_path):
+    # An installed extension's folder may be read-only and HOME unwritable:
+    # importing the renderer must still work, with the kernels cached in the
+    # temporary folder, and nothing written into the package.
+    pkg = _copy_package(tmp_path / "site")
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    for d, _, files in os.walk(pkg):
+        for f in files:
+            os.chmod(os.path.join(d, f), 0o444)
+        os.chmod(d, 0o555)
+    try:
+        env = dict(os.environ, HOME="/dev/null/home", TMPDIR=str(tmp),
+                   PYTHONDONTWRITEBYTECODE="1",
+                   _extra={"PYTHONPATH": str(tmp_path / "site")})
+        p = _run(PROBE, env, str(tmp_path))
+        assert p.returncode == 0, p.stderr[-3000:]
+        import json
+        out = json.loads(p.stdout.strip().splitlines()[-1])
+        assert out["path"].startswith(str(tmp) + os.sep), out
+        assert out["path"].endswith(os.path.join("numba", "fppm.core.sppm.hashgrid"))
+        assert any(f.endswith(".nbi") for f in os.listdir(out["path"]))
+        written = [os.path.join(d, f) for d, _, fs in os.walk(pkg) for f in fs
+                   if f.endswith((".nbi", ".nbc"))]
+        assert written == []
+    finally:
+        for d, _, _ in os.walk(pkg):
+            os.chmod(d, 0o755)
+
+
+def test_cache_dir_order(tmp_path, monkeypatch):
+    from fppm.core import _numba_cache as C
+    monkeypatch.delenv(C.ENV_VAR, raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    monkeypatch.setattr(C, "_chosen_dir", None)
+    if sys.platform.startswith("linux"):
+        assert C.cache_dir() == str(tmp_path / "xdg" / "fppm")
+    C.set_cache_dir(str(tmp_path / "ext"))
+    try:
+        assert C.cache_dir() == str(tmp_path / "ext")
+        monkeypatch.setenv(C.ENV_VAR, str(tmp_path / "env"))
+        assert C.cache_dir() == str(tmp_path / "env")
+        # An unwritable choice is skipped, never an error.
+        monkeypatch.setenv(C.ENV_VAR, "/dev/null/nope")
+        assert C.cache_dir() == str(tmp_path / "ext")
+    finally:
+        C.set_cache_dir(None)
+
+
+COVERAGE = r"""
+import json, sys
+sys.path.insert(0, sys.argv[1])
+import fppm_alias  # noqa
+from numba.core.registry import CPUDispatcher
+from fppm.core import warmup as W
+
+
+def signatures():
+    out = {}
+    for name, m in list(sys.modules.items()):
+        if name.startswith("fppm.core"):
+            for k, v in vars(m).items():
+                if isinstance(v, CPUDispatcher):
+                    out[name + "." + k] = len(v.signatures)
+    return out
+
+
+W.compile_kernels()
+before = signatures()
+import bpy
+import fppm.addon as addon
+addon.register()
+from fppm.addon.export import export_scene
+from fppm.addon.properties import settings_from_scene
+from fppm.core.render import Renderer
+new = {}
+for name, kw in [("cornell", dict(aov_radius=True, aov_spectrum=True, aov_held=True)),
+                 ("indirect_room", dict(frequency_estimator="QUANTILE")),
+                 ("glass_sphere", dict(use_frequency=False, photons_for_direct=True,
+                                       fixed_visible_points=True))]:
+    bpy.ops.wm.open_mainfile(filepath=sys.argv[2] + "/" + name + ".blend", load_ui=False)
+    sc = bpy.context.scene
+    sc.render.resolution_percentage = 25
+    scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
+    st = settings_from_scene(sc).replace(max_passes=1, time_limit=0.0, photons_per_pass=30000, **kw)
+    Renderer(scene, st, log=lambda s: None).run()
+after = signatures()
+print(json.dumps({k: after[k] - before.get(k, 0) for k in after if after[k] != before.get(k, 0)}))
+"""
+
+
+def test_warmup_compiles_what_the_example_scenes_use():
+    # After compile_kernels(), rendering the example scenes (frequency with
+    # AOVs, QUANTILE, classic PPM, 30k photons: the gather's parallel path)
+    # compiles nothing more: no compile is left for the first pass.
+    p = subprocess.run([PY, "-c", COVERAGE, os.path.join(ROOT, "tests"),
+                        os.path.join(ROOT, "example_blends")],
+                       capture_output=True, text=True, timeout=900, cwd=ROOT)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert p.stdout.strip().splitlines()[-1] == "{}"
+
+
+def test_wait_returns_within_a_poll_of_should_stop():
+    from fppm.core.warmup import Warmup
+
+    def compile(should_stop):
+        while not should_stop():
+            time.sleep(0.01)
+        return 0.0
+    w = Warmup(compile=compile)
+    t_stop = time.monotonic() + 0.3
+    assert w.wait(should_stop=lambda: time.monotonic() >= t_stop) is False
+    assert time.monotonic() - t_stop < 0.1
+    assert w.running and not w.done
+    w.stop()
+    w._thread.join(1.0)
+    assert not w.running and not w.done   # stopped, not finished: a later start() begins again
+
+
+def test_marker_records_a_first_compile(tmp_path, monkeypatch):
+    from fppm.core import warmup as W
+    monkeypatch.setenv("FPPM_CACHE_DIR", str(tmp_path))
+    assert not W.is_compiled() and W.last_compile_seconds() is None
+    assert W.expected_seconds() == W.DEFAULT_COMPILE_SECONDS
+    w = W.Warmup(compile=lambda should_stop: 12.5)
+    assert w.wait() is True
+    assert w.done and w.error is None and w.was_cold and w.seconds == 12.5
+    assert W.is_compiled()
+    assert W.last_compile_seconds() == 12.5 and W.expected_seconds() == 12.5
+
+
+def test_failed_compile_is_kept_as_a_message():
+    from fppm.core.warmup import Warmup
+
+    def compile(should_stop):
+        raise ImportError("embreex is missing")
+    w = Warmup(compile=compile)
+    assert w.wait() is True
+    assert w.error == "ImportError: embreex is missing"
+
+
+FIRST_USE = r"""
+import json, sys, time
+sys.path.insert(0, sys.argv[1])
+import fppm_alias  # noqa
+from fppm.core.warmup import warmup
+t0 = time.perf_counter()
+warmup.start()
+last, gaps = time.perf_counter(), []
+while not warmup.done:
+    time.sleep(0.001)
+    now = time.perf_counter()
+    gaps.append(now - last)
+    last = now
+from numba.core.registry import CPUDispatcher
+compiled_here = sorted(f"{n}.{k}" for n, m in list(sys.modules.items()) if n.startswith("fppm.core")
+                       for k, v in vars(m).items()
+                       if isinstance(v, CPUDispatcher) and v.stats.cache_misses)
+print(json.dumps({"error": warmup.error, "cold": warmup.was_cold, "max_gap": max(gaps),
+                  "compiled_here": compiled_here}))
+"""
+
+
+def test_first_use_compiles_in_a_subprocess_and_keeps_this_process_responsive(tmp_path):
+    # Empty cache: the kernels compile in a child process (under this
+    # process's module names, into the same cache), this process only loads
+    # them: nothing compiles here, and a 1 ms sleep loop on the main thread
+    # never waits long (no GIL or garbage-collector pauses from the compiler).
+    env = dict(os.environ, FPPM_CACHE_DIR=str(tmp_path / "cache"))
+    p = subprocess.run([PY, "-c", FIRST_USE, os.path.join(ROOT, "tests")], capture_output=True,
+                       text=True, timeout=1200, cwd=str(tmp_path), env=env)
+    assert p.returncode == 0, p.stderr[-3000:]
+    out = __import__("json").loads(p.stdout.strip().splitlines()[-1])
+    assert out["error"] is None and out["cold"] is True
+    assert out["compiled_here"] == []
+    assert out["max_gap"] < 0.25, out["max_gap"]
+
+
+def test_without_a_python_executable_the_thread_compiles(monkeypatch, capsys):
+    # Never start something that is not Python (an old Blender's
+    # sys.executable was Blender itself): compile in this process instead.
+    from fppm.core import warmup as W
+    calls = []
+    monkeypatch.setattr(sys, "executable", "/opt/blender/blender")
+    monkeypatch.setattr(W, "is_compiled", lambda: False)
+    monkeypatch.setattr(W, "compile_kernels", lambda should_stop=None: calls.append(1))
+    W.compile_then_load()
+    assert calls == [1]
+    assert "is not a Python interpreter" in capsys.readouterr().out
