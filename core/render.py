@@ -286,6 +286,13 @@ class Renderer:
             raise CheckpointMismatch("The checkpoint was made with different render settings.")
         if tuple(d["size"]) != (self.width, self.height):
             raise CheckpointMismatch("The checkpoint was made at a different resolution.")
+        # Every array and counter is checked before use (core.sppm.state.check_state).
+        why = self.state.check_state(d)
+        if why is None and int(d["photons_emitted"]) != int(d["pass_index"]) * self.settings.photons_per_pass:
+            why = (f"{d['photons_emitted']} photons for {d['pass_index']} passes of "
+                   f"{self.settings.photons_per_pass}")
+        if why is not None:
+            raise CheckpointMismatch(f"The checkpoint is damaged ({why}): delete it to start over.")
         self.state.load_state(d)
         self.pass_index = int(d["pass_index"])
         self.photons_emitted = int(d["photons_emitted"])
