@@ -543,7 +543,9 @@ def check_stored(props, overrides: dict) -> None:
 
 def render(a) -> int:
     """``fppm render``: returns the exit code; raises CLIError on a documented failure."""
-    stop = getattr(a, "stop", None) or StopFlag()
+    stop = getattr(a, "stop", None)
+    if stop is None:               # called without main (a test): no signal handling
+        stop = StopFlag()
     check_input(a.blend)
     check_output(a.output, a.blend, a.overwrite, not a.no_preview)
     check_numbers(a)

@@ -51,6 +51,7 @@ from .lights import build_light_table
 from .lights.nee import NextEventEstimation
 from .materials import build_material_table
 from .plan import RenderPlan, make_plan
+from .sanity import check_scene
 from .scene.camera import CameraModel, FilterSampler
 from .scene.model import Scene, drop_invalid_triangles, scene_digest
 from .settings import RenderSettings
@@ -104,6 +105,7 @@ class Renderer:
     def _setup_scene(self, scene: Scene, force_stages: tuple) -> None:
         """Region, lights, materials, BVH, plan, occlusion grid and photon tracer."""
         log = self.log
+        check_scene(scene)          # refusals: non-finite lights or camera, float32 range
         scene, dropped = drop_invalid_triangles(scene)
         self.dropped_triangles = dropped
         if dropped:

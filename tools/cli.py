@@ -33,8 +33,23 @@ from .converge import add_parser as add_converge_parser, converge  # noqa: E402
 COMMANDS = {**cli.COMMANDS, "converge": (add_converge_parser, converge)}
 
 
-def main(argv=None) -> int:
-    return cli.main(argv, COMMANDS, early_signals=_EARLY_SIGNALS)
+def main(argv=None, exit_process: bool = True) -> int:
+    """Run ``fppm ARGV``.  exit_process (the console script): end the process
+    with the exit code as soon as the command returns, with ``os._exit`` after
+    flushing stdout and stderr: Blender's and numba's teardown at interpreter
+    exit reset the signal handlers (a Ctrl-C then killed the process with -2)
+    and could crash (-11) while a cancelled stage's daemon thread still ran.
+    Every file is complete and renamed into place before the command returns.
+    """
+    rc = cli.main(argv, COMMANDS, early_signals=_EARLY_SIGNALS)
+    if not exit_process:
+        return rc
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    _os._exit(rc)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,108 @@
+"""Scenes the renderer refuses before the first pass, because it would render them wrong.
+
+Cycles renders some of these as a black or otherwise silently wrong image; FPPM
+says what to change instead (docs/reliability.md, "Bad input"), with SceneError
+(the CLI's exit code 4):
+
+- a light, emissive material or world with an infinite, NaN or negative
+  strength (negative lights are not supported: photons carry flux >= 0);
+- a camera whose transform is not finite or not invertible (scaled to 0);
+- a scene whose coordinates float32 cannot hold: Embree works in float32
+  (core/accel.py), and squared distances of a scene wider than
+  :data:`MAX_EXTENT` overflow float32 (3.4e38).
+
+Nothing here imports ``bpy``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import SceneError
+
+# Widest scene [m] whose squared diameter and every squared distance inside it
+# stay finite in float32 (sqrt(3.4e38) = 1.8e19), with a margin of 10^3 for
+# the sums of squares and the kernels' r^2 * area products.
+MAX_EXTENT = 1e16
+# A transform whose 3x3 part has |det| below this fraction of its largest
+# entry cubed cannot be inverted in float64 without losing the digits of the
+# image (it is a scale to 0 on some axis, up to rounding).
+MIN_RELATIVE_DET = 1e-12
+
+
+def _rgb_problem(v) -> str | None:
+    a = np.asarray(v, np.float64)
+    if not np.all(np.isfinite(a)):
+        return "an infinite or NaN"
+    if np.any(a < 0):
+        return "a negative"
+    return None
+
+
+def check_lights(scene) -> None:
+    """Every light, emissive material and the world: finite strengths >= 0."""
+    for lt in scene.lights:
+        why = _rgb_problem(lt.strength)
+        if why is not None:
+            s = ", ".join(f"{x:g}" for x in np.asarray(lt.strength, np.float64).reshape(-1))
+            fix = ("negative lights are not supported: set a power >= 0"
+                   if why == "a negative" else "set a finite power")
+            raise SceneError(f"Light '{lt.name}' has {why} power (strength {s}): {fix}.")
+        if not np.all(np.isfinite(np.asarray(lt.matrix_world, np.float64))):
+            raise SceneError(f"Light '{lt.name}' has an infinite or NaN transform: "
+                             f"fix its location, rotation and scale.")
+        for attr in ("radius", "size", "size_y", "angle", "spot_size", "spread"):
+            v = getattr(lt, attr, 0.0)
+            if not np.isfinite(v):
+                raise SceneError(f"Light '{lt.name}' has an infinite or NaN {attr}: set a finite value.")
+    for m in scene.materials:
+        why = _rgb_problem(m.emission)
+        if why is not None:
+            raise SceneError(f"Material '{m.name}' emits with {why} strength: set a finite "
+                             f"emission strength >= 0.")
+    why = _rgb_problem(scene.world_color)
+    if why is not None:
+        raise SceneError(f"The world has {why} colour or strength: set a finite strength >= 0.")
+
+
+def check_camera(cam) -> None:
+    """A finite, invertible camera transform and finite lens values."""
+    M = np.asarray(cam.matrix_world, np.float64)
+    if not np.all(np.isfinite(M)):
+        raise SceneError("The camera has an infinite or NaN transform: fix its location, "
+                         "rotation and scale.")
+    A = M[:3, :3]
+    s = float(np.abs(A).max())
+    if s == 0.0 or abs(np.linalg.det(A / s)) < MIN_RELATIVE_DET:
+        raise SceneError("The camera is scaled to 0 on some axis (its transform cannot be "
+                         "inverted): set the camera's scale to 1.")
+    for attr in ("lens", "sensor_width", "sensor_height", "ortho_scale"):
+        v = float(getattr(cam, attr))
+        if not (np.isfinite(v) and v > 0):
+            raise SceneError(f"The camera's {attr.replace('_', ' ')} is {v:g}: it must be a "
+                             f"finite number > 0.")
+
+
+def check_extent(scene) -> None:
+    """Refuse coordinates float32 cannot hold (see :data:`MAX_EXTENT`).
+
+    Over the finite triangle corners (the NaN or infinite ones are dropped
+    later, with a warning), the camera and the lights that have a position.
+    """
+    pts = np.asarray(scene.tri_p, np.float64).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    reach = float(np.abs(pts).max()) if pts.size else 0.0
+    for M in [scene.camera.matrix_world] + [lt.matrix_world for lt in scene.lights
+                                           if lt.kind != "SUN"]:
+        co = np.asarray(M, np.float64)[:3, 3]
+        reach = max(reach, float(np.abs(co).max()))
+    if reach > MAX_EXTENT:
+        raise SceneError(f"The scene reaches {reach:.3g} m from the origin; FPPM traces rays in "
+                         f"float32 and renders scenes up to {MAX_EXTENT:.0e} m from it: scale "
+                         f"the scene down or move it nearer the origin.")
+
+
+def check_scene(scene) -> None:
+    """All the refusals above, in the order a user would fix them."""
+    check_extent(scene)
+    check_camera(scene.camera)
+    check_lights(scene)

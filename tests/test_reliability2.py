@@ -1,0 +1,296 @@
+"""Reliability, second round: outputs never destroy data, every fault gets its exit code.
+
+One test (or parametrised case) per finding of the review, each the finding's
+reproduction with the documented exit code asserted (docs/reliability.md):
+1 outputs that would destroy data, 2-3 full disks, 4 signals at any instant,
+7 black images from bad input, 8 crafted checkpoints, 9 smaller cases, 6 scale.
+"""
+import errno
+import math
+import os
+import shutil
+import signal
+import stat
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+import pytest
+
+import bpy_helpers as H
+from core.io import checkpoint
+from core.io.exr import read_exr, read_exr_metadata
+
+bpy = pytest.importorskip("bpy")
+
+FLAGS = ["--passes", "2", "--photons", "2000", "--seed", "1", "-q"]
+EXIT_USAGE, EXIT_SCENE, EXIT_OUTPUT, EXIT_CHECKPOINT, EXIT_CANCELLED = 2, 4, 5, 6, 130
+
+
+def cli_main(*args):
+    from fppm.addon.cli import main
+    return main([str(a) for a in args])
+
+
+def run_wrapped(code, *args, timeout=300):
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    return subprocess.run([sys.executable, "-c", code, *[str(a) for a in args]],
+                          capture_output=True, text=True, timeout=timeout, env=env, cwd="/")
+
+
+@pytest.fixture(scope="module")
+def blends(tmp_path_factory):
+    d = tmp_path_factory.mktemp("rel2")
+    out = {}
+    H.simple_scene(res=(24, 16), passes=2, photons=2000, seed=1)
+    out["simple"] = H.save_blend(d / "simple.blend")
+    # 7: a light of infinite power; a light of -1000 W; a camera scaled to 0.
+    sc = H.simple_scene(res=(24, 16))
+    bpy.data.lights["Point"].energy = math.inf
+    out["inf_light"] = H.save_blend(d / "inf_light.blend")
+    bpy.data.lights["Point"].energy = -1000.0
+    out["neg_light"] = H.save_blend(d / "neg_light.blend")
+    bpy.data.lights["Point"].energy = 200.0
+    sc.camera.scale = (0.0, 0.0, 0.0)
+    out["cam0"] = H.save_blend(d / "cam0.blend")
+    return out
+
+
+@pytest.fixture
+def scratch(tmp_path):
+    return tmp_path
+
+
+# ---------------------------------------------------------------------------
+# 1. -o never replaces the input, a device, a FIFO or a symlink (exit 5)
+
+def test_output_over_the_input_file_is_refused(blends, tmp_path, capsys):
+    v = tmp_path / "v.blend"
+    shutil.copy(blends["simple"], v)
+    before = v.read_bytes()
+    # The finding: `-o v.blend` (not .exr) -> usage error, the scene untouched.
+    assert cli_main("render", v, "-o", v, *FLAGS) == EXIT_USAGE
+    assert "must be an OpenEXR file ending in .exr" in capsys.readouterr().err
+    # The input file under an .exr name (a hard link): refused, exit 5.
+    link = tmp_path / "v.exr"
+    os.link(v, link)
+    assert cli_main("render", v, "-o", link, *FLAGS) == EXIT_OUTPUT
+    assert "is the input file" in capsys.readouterr().err
+    assert v.read_bytes() == before and link.read_bytes() == before
+    # The preview name may not be the input either.
+    w = tmp_path / "w.exr"
+    png = tmp_path / "w.png"
+    os.link(v, png)
+    assert cli_main("render", v, "-o", w, *FLAGS) == EXIT_OUTPUT
+    assert v.read_bytes() == before and not w.exists()
+
+
+def test_output_symlink_fifo_and_device_are_refused(blends, tmp_path, capsys):
+    target = tmp_path / "precious.txt"
+    target.write_text("keep me")
+    ln = tmp_path / "ln.exr"
+    ln.symlink_to(target)
+    assert cli_main("render", blends["simple"], "-o", ln, *FLAGS) == EXIT_OUTPUT
+    assert "is a symbolic link" in capsys.readouterr().err
+    assert ln.is_symlink() and target.read_text() == "keep me"
+    fifo = tmp_path / "f.exr"
+    os.mkfifo(fifo)
+    assert cli_main("render", blends["simple"], "-o", fifo, *FLAGS) == EXIT_OUTPUT
+    assert "not a regular file" in capsys.readouterr().err
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    # A device node (as root: a copy of /dev/null's node; else /dev/null itself
+    # through a symlink, which is refused the same way).
+    dev = tmp_path / "null.exr"
+    if os.geteuid() == 0:
+        os.mknod(dev, 0o666 | stat.S_IFCHR, os.stat("/dev/null").st_rdev)
+        assert cli_main("render", blends["simple"], "-o", dev, *FLAGS, "--overwrite") == EXIT_OUTPUT
+        assert stat.S_ISCHR(os.lstat(dev).st_mode)
+    # With --overwrite a symlink is replaced (the link, never its target).
+    assert cli_main("render", blends["simple"], "-o", ln, *FLAGS, "--no-preview",
+                    "--overwrite") == 0
+    assert not ln.is_symlink() and target.read_text() == "keep me"
+    assert read_exr(str(ln))["Combined"].shape == (16, 24, 4)
+
+
+# ---------------------------------------------------------------------------
+# 2-3. a full disk: exit 5, nothing partial, the state kept and resumable
+
+needs_root = pytest.mark.skipif(os.geteuid() != 0 or not sys.platform.startswith("linux"),
+                                reason="mounts a tmpfs (root on Linux)")
+
+
+@pytest.fixture
+def tiny_disk():
+    """A fresh tmpfs of 1 MiB; yields (mount point, fill(n_free_bytes))."""
+    d = tempfile.mkdtemp(prefix="fppm-tmpfs-")
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", d],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        os.rmdir(d)
+        pytest.skip(f"cannot mount a tmpfs: {r.stderr.strip()}")
+
+    def leave_free(n):
+        st = os.statvfs(d)
+        free = st.f_bavail * st.f_frsize
+        with open(os.path.join(d, "filler"), "wb") as fh:
+            fh.write(bytes(free - n))
+        st = os.statvfs(d)
+        return st.f_bavail * st.f_frsize
+    try:
+        yield d, leave_free
+    finally:
+        subprocess.run(["umount", d])
+        os.rmdir(d)
+
+
+# The CLI with the free-space pre-check off: the writers themselves meet the
+# full disk (OpenEXR raises RuntimeError; Blender's save_render says nothing).
+NO_PRECHECK = """
+import sys
+from fppm.core.io import atomic
+atomic.free_bytes = lambda d: None
+from fppm.addon.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def _resume_writes_the_image(blend, out, stderr, *flags):
+    """The message's --resume command writes the image from the kept state."""
+    ck = stderr.split("--checkpoint ")[1].split()[0]
+    try:
+        assert cli_main("render", blend, "-o", out, *flags, "--checkpoint", ck, "--resume") == 0
+        assert read_exr_metadata(str(out))["fppm:passes"] == "2"
+    finally:
+        shutil.rmtree(ck)
+
+
+@needs_root
+@pytest.mark.parametrize("precheck", [True, False], ids=["pre-check", "writer-fails"])
+def test_disk_full_while_writing_the_exr(blends, tiny_disk, tmp_path, precheck):
+    # The finding: a 64 KiB disk, --resolution 200: OpenEXR's RuntimeError was
+    # a traceback, exit 1.  Here 96x64 px (an EXR of ~90 KiB), 8 KiB free.
+    d, leave_free = tiny_disk
+    leave_free(8 * 1024)
+    out = os.path.join(d, "o.exr")
+    code = "from fppm.addon.cli import main; import sys; sys.exit(main(sys.argv[1:]))"
+    r = run_wrapped(code if precheck else NO_PRECHECK, "render", blends["simple"], "-o", out,
+                    "--resolution", "400", *FLAGS)
+    assert r.returncode == EXIT_OUTPUT, r.stderr[-3000:]
+    assert "No space left on device" in r.stderr and "Traceback" not in r.stderr
+    assert ("needed" in r.stderr) == precheck          # the pre-check says how much
+    assert sorted(os.listdir(d)) == ["filler"]          # nothing partial, no temporary
+    assert "(2 passes) is kept in" in r.stderr
+    _resume_writes_the_image(blends["simple"], tmp_path / "o.exr", r.stderr,
+                             "--resolution", "400", *FLAGS)
+
+
+@needs_root
+def test_disk_full_while_writing_the_png(blends, tiny_disk, tmp_path):
+    # The finding: the EXR fits, the PNG does not; save_render failed silently
+    # and a 0-byte PNG was renamed into place with exit 0.
+    d, leave_free = tiny_disk
+    out = os.path.join(tmp_path, "probe.exr")
+    assert cli_main("render", blends["simple"], "-o", out, "--resolution", "400", *FLAGS) == 0
+    exr_size = os.path.getsize(out)
+    png_size = os.path.getsize(os.path.join(tmp_path, "probe.png"))
+    assert png_size > 4096
+    leave_free(exr_size + 4096 + 4096 - exr_size % 4096)  # the EXR + less than the PNG
+    out = os.path.join(d, "o.exr")
+    r = run_wrapped(NO_PRECHECK, "render", blends["simple"], "-o", out, "--resolution", "400",
+                    *FLAGS)
+    assert r.returncode == EXIT_OUTPUT, r.stderr[-3000:]
+    assert "cannot write the preview" in r.stderr and "Traceback" not in r.stderr
+    assert sorted(os.listdir(d)) == ["filler", "o.exr"]  # no PNG, no temporary
+    assert read_exr_metadata(out)["fppm:passes"] == "2"
+    _resume_writes_the_image(blends["simple"], tmp_path / "o.exr", r.stderr,
+                             "--resolution", "400", *FLAGS)
+    # The pre-check alone refuses before writing anything.
+    os.remove(out)
+    r = run_wrapped("from fppm.addon.cli import main; import sys; sys.exit(main(sys.argv[1:]))",
+                    "render", blends["simple"], "-o", out, "--resolution", "400", *FLAGS)
+    assert r.returncode == EXIT_OUTPUT and "needed" in r.stderr
+    assert sorted(os.listdir(d)) == ["filler"]
+    shutil.rmtree(r.stderr.split("--checkpoint ")[1].split()[0])
+
+
+def test_silent_writer_failure_never_replaces_the_file(blends, tmp_path):
+    # Without a tmpfs: what Blender's save_render leaves on a full disk (an
+    # empty or truncated file, no error) is refused before the rename.
+    from fppm.addon.cli import verify_png
+    from core.io.atomic import replace_atomically
+    out = tmp_path / "p.exr"
+    assert cli_main("render", blends["simple"], "-o", out, *FLAGS) == 0
+    good = (tmp_path / "p.png").read_bytes()
+    verify_png(str(tmp_path / "p.png"), (24, 16))
+    target = tmp_path / "t.png"
+    target.write_bytes(b"old")
+    for bad in (b"", good[:len(good) // 2], good[:-1]):
+        with pytest.raises(OSError, match="empty|incomplete|not a PNG"):
+            with replace_atomically(str(target), verify=verify_png) as tmp:
+                with open(tmp, "wb") as fh:
+                    fh.write(bad)
+        assert target.read_bytes() == b"old" and sorted(os.listdir(tmp_path)) == [
+            "p.exr", "p.png", "t.png"]
+    with pytest.raises(OSError, match="incomplete"):
+        verify_png(str(tmp_path / "p.png"), (16, 24))      # another size
+
+
+# ---------------------------------------------------------------------------
+# 4. SIGINT / SIGTERM at any instant: 130, never a crash, never lost
+
+def _signal_at(blend, tmp_path, sig, marker=None, delay=0.0, passes=6):
+    """Start the console script, send ``sig`` when ``marker`` appears in its
+    output (None: at once) plus ``delay`` seconds; returns (rc, output, exr exists)."""
+    out = tmp_path / f"c{time.monotonic_ns()}.exr"
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    p = subprocess.Popen(H.fppm_command() + ["render", blend, "-o", str(out), "--passes",
+                                             str(passes), "--photons", "20000", "--no-preview"],
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                         bufsize=1, env=env, cwd=str(tmp_path))
+    lines = []
+    sent = False
+    try:
+        if marker is None:
+            time.sleep(delay)
+            p.send_signal(sig)
+            sent = True
+        for line in p.stdout:
+            lines.append(line)
+            if not sent and marker in line:
+                time.sleep(delay)
+                p.send_signal(sig)
+                sent = True
+        p.wait(timeout=300)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert sent, "".join(lines)[-2000:]
+    return p.returncode, "".join(lines), out.exists()
+
+
+# Instants: during the import of bpy (0.2 s, 0.6 s after the start), right
+# after the file is read, during the export and plan, during the first pass.
+# (Before ~0.06 s the interpreter itself is starting: no FPPM code has run.)
+INSTANTS = [(None, 0.2), (None, 0.6), ("Read blend", 0.0), ("Exported", 0.0),
+            ("Plan:", 0.0), ("Plan:", 0.3)]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["INT", "TERM"])
+@pytest.mark.parametrize("marker, delay", INSTANTS, ids=[f"{m}+{d}" for m, d in INSTANTS])
+def test_signal_at_any_instant_exits_130(blends, tmp_path, sig, marker, delay):
+    rc, out, wrote = _signal_at(blends["simple"], tmp_path, sig, marker, delay)
+    assert rc == EXIT_CANCELLED, out[-3000:]
+    assert "Traceback" not in out
+    # Either nothing (cancelled before the first pass) or a complete image.
+    if wrote:
+        assert "(cancelled)" in out
+    else:
+        assert "nothing written" in out or "interrupted" in out
+
+
+def test_signal_after_a_pass_writes_it(blends, tmp_path):
+    rc, out, wrote = _signal_at(blends["simple"], tmp_path, signal.SIGINT, "Pass 1 ",
+                                passes=100000)
+    assert rc == EXIT_CANCELLED and wrote and "(cancelled)" in out, out[-3000:]
