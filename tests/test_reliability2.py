@@ -294,3 +294,163 @@ def test_signal_after_a_pass_writes_it(blends, tmp_path):
     rc, out, wrote = _signal_at(blends["simple"], tmp_path, signal.SIGINT, "Pass 1 ",
                                 passes=100000)
     assert rc == EXIT_CANCELLED and wrote and "(cancelled)" in out, out[-3000:]
+
+
+# ---------------------------------------------------------------------------
+# 7. black images from bad input: a message and exit 4, not a black "success"
+
+@pytest.mark.parametrize("case, message", [
+    ("inf_light", "Light 'Point' has an infinite or NaN power (strength inf, inf, inf): "
+                  "set a finite power."),
+    ("neg_light", "Light 'Point' has a negative power (strength -1000, -1000, -1000): negative "
+                  "lights are not supported: set a power >= 0."),
+    ("cam0", "The camera is scaled to 0 on some axis (its transform cannot be inverted): set "
+             "the camera's scale to 1."),
+])
+def test_black_image_causes_are_refused(blends, tmp_path, capsys, case, message):
+    out = tmp_path / "b.exr"
+    assert cli_main("render", blends[case], "-o", out, *FLAGS) == EXIT_SCENE
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and "hidden" not in err
+    assert not out.exists()
+
+
+def test_non_finite_pixels_are_refused(blends, tmp_path, capsys):
+    # Whatever the cause (a value out of range that no check above knows),
+    # NaN pixels are never written as a success.
+    from fppm.addon import cli
+    from fppm.core.sppm import film
+    orig = film.Film.__call__
+
+    def nan_film(self, *a, **k):
+        r = orig(self, *a, **k)
+        r.image[0, 0, 0] = np.nan
+        return r
+    film.Film.__call__ = nan_film
+    try:
+        out = tmp_path / "n.exr"
+        assert cli.main(["render", blends["simple"], "-o", str(out), *FLAGS]) == EXIT_SCENE
+    finally:
+        film.Film.__call__ = orig
+    assert "1 pixel(s) that are not finite" in capsys.readouterr().err
+    assert not out.exists()
+
+
+# ---------------------------------------------------------------------------
+# 8. crafted checkpoints: every array and scalar checked, exit 6; the folder locked
+
+@pytest.fixture(scope="module")
+def saved_checkpoint(blends, tmp_path_factory):
+    ck = tmp_path_factory.mktemp("ck_src")
+    assert cli_main("render", blends["simple"], "-o", ck / "a.exr", *FLAGS, "--no-preview",
+                    "--checkpoint", ck) == 0
+    with np.load(checkpoint.checkpoint_path(str(ck))) as z:
+        return {k: z[k] for k in z.files}
+
+
+def _write_npz(directory, arrays):
+    os.makedirs(directory, exist_ok=True)
+    with open(checkpoint.checkpoint_path(str(directory)), "wb") as fh:
+        np.savez(fh, **arrays)
+
+
+CRAFTED = [
+    ("wrong shape", {"R2": lambda a: a[:-1]}, "'R2' has shape"),
+    ("scalar R2", {"R2": lambda a: np.asarray(1.0)}, "'R2' has shape ()"),
+    ("negative pass count", {"pass_index": lambda a: np.asarray(-1)}, "pass count -1"),
+    ("pass count 1e15", {"pass_index": lambda a: np.asarray(10**15)}, "pass count 1000000000000000"),
+    ("pass count vs photons", {"pass_index": lambda a: np.asarray(7)}, "photons for 7 passes"),
+    ("NaN elapsed", {"elapsed": lambda a: np.asarray(np.nan)}, "elapsed time nan"),
+    ("NaN statistics", {"tau": lambda a: np.where(np.arange(a.size).reshape(a.shape) == 5,
+                                                  np.nan, a)}, "'tau' has NaN"),
+    ("negative N", {"N": lambda a: a - 1e9}, "'N' has values that are negative"),
+    ("float32 R2", {"R2": lambda a: a.astype(np.float32) * 0 + a.astype(np.float32)}, None),
+    ("int N", {"N": lambda a: a.astype(np.int64)}, "'N' is int64"),
+    ("array pass count", {"pass_index": lambda a: np.asarray([2, 2])}, "not a scalar"),
+    ("bad size", {"size": lambda a: np.asarray([24])}, "'size' is"),
+]
+
+
+@pytest.mark.parametrize("case, change, message", CRAFTED, ids=[c[0] for c in CRAFTED])
+def test_crafted_checkpoint_is_refused(blends, saved_checkpoint, tmp_path, capsys, case, change,
+                                       message):
+    arrays = dict(saved_checkpoint)
+    for k, f in change.items():
+        arrays[k] = f(arrays[k])
+    ck = tmp_path / "ck"
+    _write_npz(ck, arrays)
+    out = tmp_path / "r.exr"
+    code = cli_main("render", blends["simple"], "-o", out, "--passes", "3", "--photons", "2000",
+                    "--seed", "1", "-q", "--checkpoint", ck, "--resume")
+    err = capsys.readouterr().err
+    if message is None:            # a lossless dtype (float32 -> float64) is accepted
+        assert code == 0, err[-2000:]
+        return
+    assert code == EXIT_CHECKPOINT, err[-3000:]
+    assert message in err and "Traceback" not in err and not out.exists()
+
+
+def test_checkpoint_folder_is_locked_and_stale_temporaries_removed(blends, tmp_path, capsys):
+    ck = tmp_path / "ck"
+    ck.mkdir()
+    stale = ck / ".fppm-checkpoint-abc123.tmp"     # a render killed during a save
+    stale.write_bytes(b"")
+    held = checkpoint.lock(str(ck))                # another render holds the folder
+    assert not stale.exists()
+    try:
+        code = cli_main("render", blends["simple"], "-o", tmp_path / "a.exr", *FLAGS,
+                        "--checkpoint", ck, "--resume")
+        err = capsys.readouterr().err
+        assert code == EXIT_CHECKPOINT, err[-2000:]
+        assert f"is in use by another FPPM render (process {os.getpid()})" in err
+    finally:
+        held.release()
+    assert cli_main("render", blends["simple"], "-o", tmp_path / "a.exr", *FLAGS,
+                    "--checkpoint", ck, "--resume") == 0
+    assert sorted(os.listdir(ck)) == [".fppm-lock", "fppm-checkpoint.npz"]
+
+
+def test_lock_is_dropped_when_the_holder_is_killed(tmp_path):
+    ck = tmp_path / "ck"
+    p = subprocess.Popen([sys.executable, "-c",
+                          "import sys, time; sys.path.insert(0, sys.argv[2]); import fppm_alias; "
+                          "from core.io import checkpoint; checkpoint.lock(sys.argv[1]); "
+                          "print('locked', flush=True); time.sleep(60)",
+                          str(ck), os.path.dirname(__file__)],
+                         stdout=subprocess.PIPE, text=True)
+    try:
+        assert p.stdout.readline().strip() == "locked"
+        from core.errors import CheckpointBusy
+        with pytest.raises(CheckpointBusy):
+            checkpoint.lock(str(ck))
+        p.kill()
+        p.wait(timeout=30)
+        checkpoint.lock(str(ck)).release()          # SIGKILL released it
+    finally:
+        if p.poll() is None:
+            p.kill()
+
+
+# ---------------------------------------------------------------------------
+# 9. numbers out of range: usage errors (exit 2), never a traceback or a clamp
+
+@pytest.mark.parametrize("args, message", [
+    (["--passes", str(2**40)], f"--passes {2**40}: must be in [0, 1000000]."),
+    (["--passes", "2000000"], "--passes 2000000: must be in [0, 1000000]."),
+    (["--frame", str(2**40)], f"--frame {2**40}: must be in [-1048574, 1048574]"),
+    (["--time-limit", "1e-40"], "--time-limit 1e-40: must be 0 (no limit) or at least 0.001 s."),
+    (["--time-limit", "nan"], "--time-limit nan: must be a number of seconds >= 0"),
+    (["--photons", str(2**40)], f"must be in [1, 100000000]"),
+], ids=["passes-2^40", "passes-2e6", "frame-2^40", "time-1e-40", "time-nan", "photons-2^40"])
+def test_numbers_out_of_range_are_usage_errors(blends, tmp_path, capsys, args, message):
+    out = tmp_path / "u.exr"
+    assert cli_main("render", blends["simple"], "-o", out, "-q", *args) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and not out.exists()
+
+
+def test_time_limit_of_a_millisecond_is_accepted(blends, tmp_path):
+    out = tmp_path / "t.exr"
+    assert cli_main("render", blends["simple"], "-o", out, "--time-limit", "0.001",
+                    "--photons", "2000", "-q", "--no-preview") == 0
+    assert int(read_exr_metadata(str(out))["fppm:passes"]) >= 1
