@@ -51,7 +51,7 @@ from .lights import build_light_table
 from .lights.nee import NextEventEstimation
 from .materials import build_material_table
 from .plan import RenderPlan, make_plan
-from .sanity import check_scene
+from .sanity import check_resolution, check_scene, recentre
 from .scene.camera import CameraModel, FilterSampler
 from .scene.model import Scene, drop_invalid_triangles, scene_digest
 from .settings import RenderSettings
@@ -110,6 +110,10 @@ class Renderer:
         self.dropped_triangles = dropped
         if dropped:
             log(f"FPPM: dropped {dropped} NaN, infinite or zero-area triangle(s).")
+        # A scene far from the origin is moved to it before Embree's float32
+        # copy (core.sanity.recentre); self.origin [m] is where it was.
+        scene, self.origin = recentre(scene)
+        check_resolution(scene)
         self.scene = scene
         cam = scene.camera
         W, H = (int(v) for v in cam.resolution)

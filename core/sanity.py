@@ -9,7 +9,13 @@ says what to change instead (docs/reliability.md, "Bad input"), with SceneError
 - a camera whose transform is not finite or not invertible (scaled to 0);
 - a scene whose coordinates float32 cannot hold: Embree works in float32
   (core/accel.py), and squared distances of a scene wider than
-  :data:`MAX_EXTENT` overflow float32 (3.4e38).
+  :data:`MAX_EXTENT` overflow float32 (3.4e38);
+- a scene so wide that float32 cannot resolve the camera's clip start in it
+  (:func:`check_resolution`): hit points are interpolated from Embree's
+  float32 barycentrics, whose error is 2^-24 of the triangle's size.
+
+A scene far from the origin is moved to it (:func:`recentre`) before the
+float32 copy that Embree gets, so its image does not depend on where it is.
 
 Nothing here imports ``bpy``.
 """
@@ -27,6 +33,9 @@ MAX_EXTENT = 1e16
 # entry cubed cannot be inverted in float64 without losing the digits of the
 # image (it is a scale to 0 on some axis, up to rounding).
 MIN_RELATIVE_DET = 1e-12
+# float32 resolution used for the resolution check: 4 ulps of a coordinate
+# (Embree's watertight test and the barycentric interpolation, core/accel.py).
+F32_RESOLUTION = 2.0 ** -22
 
 
 def _rgb_problem(v) -> str | None:
@@ -99,6 +108,54 @@ def check_extent(scene) -> None:
         raise SceneError(f"The scene reaches {reach:.3g} m from the origin; FPPM traces rays in "
                          f"float32 and renders scenes up to {MAX_EXTENT:.0e} m from it: scale "
                          f"the scene down or move it nearer the origin.")
+
+
+def check_resolution(scene) -> None:
+    """Refuse a scene whose float32 resolution is coarser than the camera's clip start.
+
+    After :func:`recentre` coordinates reach D/2 (D the scene diameter), so
+    float32 resolves F32_RESOLUTION * D/2 at worst, and a hit on a triangle of
+    size up to D is interpolated to F32_RESOLUTION * D.  The camera's clip
+    start is the smallest distance the user says matters; when the
+    resolution is coarser, shading points, shadow-ray offsets and photon hits
+    move by more than that, and the image is wrong without any sign.
+    """
+    D = scene.diameter()
+    res = F32_RESOLUTION * D
+    clip = float(scene.camera.clip_start)
+    if res > clip:
+        raise SceneError(f"The scene is {D:.3g} m wide: FPPM traces rays in float32, which "
+                         f"resolves only {res:.2g} m at that size, more than the camera's clip "
+                         f"start ({clip:g} m): make the largest objects (a ground plane, a far "
+                         f"light) smaller, or raise the clip start to {res:.2g} m or more.")
+
+
+def recentre(scene):
+    """(scene, origin): the scene moved by -origin when it lies far from the origin.
+
+    origin (3,) float64 is the centre of the scene's bounds when that centre
+    is farther from the origin than the scene's diameter (float32 would lose
+    more than a bit there), else zeros and the scene itself (unchanged, so a
+    scene near the origin renders bit for bit as before).  Triangles are
+    moved in float64 and rounded to float32 once; lights and the camera are
+    moved in their float64 matrices.  Radiance does not depend on a
+    translation: the image is the same, with the precision of a scene at the
+    origin.
+    """
+    import dataclasses
+    lo, hi = scene.bounds()
+    c = 0.5 * (lo + hi)
+    if not np.abs(c).max() > scene.diameter():
+        return scene, np.zeros(3)
+
+    def moved(M):
+        M = np.array(M, np.float64, copy=True)
+        M[:3, 3] -= c
+        return M
+    tri_p = (np.asarray(scene.tri_p, np.float64) - c).astype(np.float32)
+    lights = [dataclasses.replace(lt, matrix_world=moved(lt.matrix_world)) for lt in scene.lights]
+    camera = dataclasses.replace(scene.camera, matrix_world=moved(scene.camera.matrix_world))
+    return dataclasses.replace(scene, tri_p=tri_p, lights=lights, camera=camera), c
 
 
 def check_scene(scene) -> None:
