@@ -2,7 +2,7 @@
 
     fppm render SCENE.blend -o OUT.exr [--frame N] [--time-limit S] [--passes N]
                 [--photons N] [--mode fppm|ppm] [--seed N] [--resolution PCT]
-                [--checkpoint DIR [--checkpoint-every S] [--resume]]
+                [--checkpoint DIR [--checkpoint-every S] [--resume]] [--overwrite]
 
 This module is shipped in the extension and runs alone
 (``python -m fppm.addon.cli render ...``).  The ``fppm`` console script of a
@@ -24,10 +24,12 @@ Exit codes (also in README.md):
     2    usage error: bad flags or an invalid setting
     3    the input file is missing, unreadable or not a .blend file
     4    the scene cannot be rendered (no camera, no lights, nothing visible, ...)
-    5    the output file cannot be written
-    6    --resume: the checkpoint is from another scene or other settings, or damaged
+    5    the output file cannot be written, or would replace the input, a link or a device
+    6    --resume: the checkpoint is from another scene or other settings, or damaged;
+         or the checkpoint folder is in use by another render
     7    the render would not fit in memory (the message names the setting to lower)
-    130  cancelled with Ctrl-C: the last complete pass was written first
+    130  cancelled with Ctrl-C or SIGTERM at any instant: the last complete pass
+         was written first, if there was one
 """
 from __future__ import annotations
 
@@ -128,12 +130,12 @@ def check_output(path: str, blend: str | None = None, overwrite: bool = False,
     """
     from ..core.io.atomic import check_target
 
-    if os.path.splitext(path)[1].lower() != ".exr":
-        raise CLIError(EXIT_USAGE, f"-o '{path}': the output must be an OpenEXR file ending in "
-                                   f".exr (the PNG preview is written beside it, with .png).")
     d = os.path.dirname(os.path.abspath(path))
     if os.path.isdir(path):
         raise CLIError(EXIT_OUTPUT, f"output '{path}' is a folder.")
+    if os.path.splitext(path)[1].lower() != ".exr":
+        raise CLIError(EXIT_USAGE, f"-o '{path}': the output must be an OpenEXR file ending in "
+                                   f".exr (the PNG preview is written beside it, with .png).")
     if not os.path.isdir(d):
         raise CLIError(EXIT_OUTPUT, f"cannot write '{path}': the folder '{d}' does not exist.")
     if not os.access(d, os.W_OK | os.X_OK):

@@ -132,9 +132,13 @@ class Renderer:
         self.width, self.height = x1 - x0, y1 - y0
         self.D = scene.diameter()
         st0 = self.settings
+        from .sppm.film import AOVS
         self.memory = memory.estimate(self.width * self.height,
                                       min(st0.photons_per_pass, PHOTON_CHUNK), scene.n_triangles,
-                                      st0.occlusion_grid_res, st0.use_frequency)
+                                      st0.occlusion_grid_res, st0.use_frequency,
+                                      aov_channels=sum(a.channels for a in AOVS
+                                                       if getattr(st0, a.setting)),
+                                      hist_bins=HIST_BINS if st0.frequency_estimator == "QUANTILE" else 0)
         memory.check_fits(self.memory)
         self.light_table = build_light_table(scene)
         for w in getattr(self.light_table, "warnings", []):
