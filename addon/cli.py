@@ -520,7 +520,7 @@ def check_numbers(a) -> None:
                                    f"{FRAME_RANGE[1]}] (Blender's frame range).")
     if a.time_limit is not None:
         t = a.time_limit
-        if not math.isfinite(t) or t < 0:
+        if not math.isfinite(t):       # (negative: the settings' own message)
             raise CLIError(EXIT_USAGE, f"--time-limit {t}: must be a number of seconds >= 0 "
                                        f"(0 = no limit).")
         if 0 < t < MIN_TIME_LIMIT:

@@ -24,6 +24,11 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
   gather's sorted copies -> BYTES_PER_PHOTON
 - per triangle: scene arrays, Embree BVH, the plan's copies -> BYTES_PER_TRIANGLE
 - per occlusion voxel: kept + during the build -> BYTES_PER_VOXEL
+- textures: one more copy of their pixels (float64 gathers of the texels a
+  pass touches, bounded by the image) -> their bytes
+- the compiled kernels numba loads at the first pass and Embree's per-thread
+  buffers -> KERNEL_BYTES (measured: 110 MiB between the estimate and the
+  peak of a 64^2 render of 2000 photons, with every other part ~60 MiB)
 """
 from __future__ import annotations
 
@@ -37,6 +42,7 @@ BYTES_PER_HIST_BIN = 12
 BYTES_PER_PHOTON = 1229
 BYTES_PER_TRIANGLE = 400
 BYTES_PER_VOXEL = 192
+KERNEL_BYTES = 96 * 2**20
 BASE_BYTES = 300 * 2**20          # resident size when the OS cannot say (Python, numpy, numba, Embree)
 
 
@@ -65,11 +71,12 @@ def peak_bytes_so_far() -> int:
 
 def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
              use_grid: bool, aov_channels: int = 0, hist_bins: int = 0,
-             resident: int | None = None) -> dict:
+             texture_bytes: int = 0, resident: int | None = None) -> dict:
     """Bytes per component and 'total' (ints): an upper bound on the peak.
 
     aov_channels: channels of the enabled AOVs (all layers together);
     hist_bins: radius-histogram bins per pixel (0 without the Quantile estimator);
+    texture_bytes: bytes of the scene's texture images;
     resident: bytes already held (None: :func:`resident_bytes`).  'runtime' is
     that resident size; 'total' is at least the peak so far.
     """
@@ -79,6 +86,8 @@ def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
         "photons": photon_chunk * BYTES_PER_PHOTON,
         "geometry": n_triangles * BYTES_PER_TRIANGLE,
         "occlusion_grid": (grid_res ** 3) * BYTES_PER_VOXEL if use_grid else 0,
+        "textures": int(texture_bytes),
+        "kernels": KERNEL_BYTES,
         "runtime": resident_bytes() if resident is None else int(resident),
     }
     total = sum(parts.values())
@@ -115,7 +124,9 @@ def check_fits(parts: dict, available: int | None = None) -> None:
                        "turn AOVs off",
              "photons": "lower 'Photons per pass'",
              "geometry": "simplify the geometry (fewer triangles)",
-             "occlusion_grid": "lower 'Occlusion grid' resolution or turn frequency analysis off"}
+             "occlusion_grid": "lower 'Occlusion grid' resolution or turn frequency analysis off",
+             "textures": "use smaller images for the textures",
+             "kernels": "close other programs"}
     worst = max(hints, key=lambda k: parts.get(k, 0))
     gib = 2.0 ** 30
     raise MemoryBudgetError(

@@ -138,7 +138,8 @@ class Renderer:
                                       st0.occlusion_grid_res, st0.use_frequency,
                                       aov_channels=sum(a.channels for a in AOVS
                                                        if getattr(st0, a.setting)),
-                                      hist_bins=HIST_BINS if st0.frequency_estimator == "QUANTILE" else 0)
+                                      hist_bins=HIST_BINS if st0.frequency_estimator == "QUANTILE" else 0,
+                                      texture_bytes=sum(np.asarray(t).nbytes for t in scene.textures))
         memory.check_fits(self.memory)
         self.light_table = build_light_table(scene)
         for w in getattr(self.light_table, "warnings", []):
