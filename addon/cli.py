@@ -682,7 +682,12 @@ class StopFlag:
                 self._previous[sig] = signal.signal(sig, self.handler)
         return self
 
-    def restore(self) -> None:
+    def restore(self, defaults: bool = False) -> None:
+        """Put back the handlers found by install() (defaults: Python's own:
+        KeyboardInterrupt for SIGINT, the system's for SIGTERM)."""
+        if defaults:
+            self._previous = {sig: (signal.default_int_handler if sig == signal.SIGINT
+                                    else signal.SIG_DFL) for sig in self._previous}
         for sig, h in self._previous.items():
             signal.signal(sig, h if h is not None else signal.SIG_DFL)
         self._previous.clear()
@@ -714,6 +719,10 @@ def main(argv=None, commands: dict | None = None, early_signals=()) -> int:
             print("fppm: interrupted.", file=sys.stderr, flush=True)
             return EXIT_CANCELLED
         a.stop = stop
+        if a.command != "render":
+            # Other commands (fppm converge) handle SIGINT themselves; SIGTERM
+            # keeps its default (end the process) there.
+            stop.restore(defaults=True)
         try:
             return commands[a.command][1](a)
         except CLIError as ex:
