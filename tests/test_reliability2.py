@@ -5,7 +5,6 @@ reproduction with the documented exit code asserted (docs/reliability.md):
 1 outputs that would destroy data, 2-3 full disks, 4 signals at any instant,
 7 black images from bad input, 8 crafted checkpoints, 9 smaller cases, 6 scale.
 """
-import errno
 import math
 import os
 import shutil
@@ -56,11 +55,6 @@ def blends(tmp_path_factory):
     sc.camera.scale = (0.0, 0.0, 0.0)
     out["cam0"] = H.save_blend(d / "cam0.blend")
     return out
-
-
-@pytest.fixture
-def scratch(tmp_path):
-    return tmp_path
 
 
 # ---------------------------------------------------------------------------
