@@ -221,7 +221,7 @@ def _write_outputs(a, bpy, scene, sess, out_path, elapsed_wall) -> list[str]:
     import numpy as np
 
     from ..core.io.atomic import default_file_mode, ensure_free_space, replace_atomically
-    from ..core.io.exr import write_exr
+    from ..core.io.exr import layers_size_bound, write_exr
     from ..core.settings import field_names
 
     pr = sess.result
@@ -249,7 +249,7 @@ def _write_outputs(a, bpy, scene, sess, out_path, elapsed_wall) -> list[str]:
     h, w = img.shape[:2]
     try:
         # Room for both files before writing either (upper bounds).
-        need = exr_size_bound_of(layers, meta) + (0 if a.no_preview else png_size_bound(w, h))
+        need = layers_size_bound(layers, meta) + (0 if a.no_preview else png_size_bound(w, h))
         ensure_free_space(out_path, need)
         write_exr(out_path, layers, meta)
     except OSError as ex:
@@ -283,12 +283,6 @@ def _os_error_text(ex: OSError, path: str) -> str:
     if path not in text:
         text = f"Cannot write '{path}': {text}"
     return text if text.endswith(".") else text + "."
-
-
-def exr_size_bound_of(layers: dict, meta: dict) -> int:
-    """Upper bound on the bytes of the EXR :func:`write_exr` makes of ``layers``."""
-    from ..core.io.exr import _channels_of, exr_size_bound
-    return exr_size_bound(_channels_of(layers), meta)
 
 
 def png_size_bound(w: int, h: int) -> int:

@@ -586,3 +586,21 @@ def test_memory_estimate_bounds_the_peak(memory_blends, tmp_path, case, resoluti
     ratio = rec["estimate"] / rec["peak"]
     print(case, resolution, f"peak {rec['peak'] / 2**20:.0f} MiB, estimate / peak {ratio:.3f}")
     assert 1.0 <= ratio <= 1.5
+
+
+def test_exr_size_bound_holds_for_incompressible_images(tmp_path):
+    # The free-space pre-check must never refuse a file that fits: the bound
+    # is >= the file for the worst case (random float32, ZIP cannot compress)
+    # and, for such images, within 2 % of it (measured 0.3 %).
+    from core.io.exr import layers_size_bound, write_exr
+    rng = np.random.default_rng(0)
+    for h, w in [(1, 1), (16, 24), (97, 131), (512, 300)]:
+        layers = {"Combined": rng.random((h, w, 4), dtype=np.float32),
+                  "Spectrum": rng.random((h, w, 3), dtype=np.float32)}
+        meta = {"fppm:settings": "x" * 3000}
+        p = tmp_path / f"r{h}.exr"
+        write_exr(str(p), layers, meta)
+        size, bound = os.path.getsize(p), layers_size_bound(layers, meta)
+        assert size <= bound
+        if h * w > 10_000:
+            assert bound <= 1.02 * size

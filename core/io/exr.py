@@ -95,6 +95,11 @@ def exr_size_bound(chans: dict, header: dict) -> int:
     return int(n_raw * (1 + 5 / 16384)) + blocks * (16 + 6) + head
 
 
+def layers_size_bound(layers: dict, metadata: dict | None = None) -> int:
+    """Upper bound on the bytes of the file :func:`write_exr` makes of ``layers``."""
+    return exr_size_bound(_channels_of(layers), dict(metadata or {}))
+
+
 def verify_exr(path: str, names, size: tuple) -> None:
     """Read ``path`` back and raise OSError unless it holds exactly the channels
     ``names``, each of ``size`` = (H, W) (a writer that stopped early, a disk that lost data)."""
