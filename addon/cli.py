@@ -2,7 +2,7 @@
 
     fppm render SCENE.blend -o OUT.exr [--frame N] [--time-limit S] [--passes N]
                 [--photons N] [--mode fppm|ppm] [--seed N] [--resolution PCT]
-                [--checkpoint DIR [--checkpoint-every S] [--resume]]
+                [--checkpoint DIR [--checkpoint-every S] [--resume]] [--overwrite]
 
 This module is shipped in the extension and runs alone
 (``python -m fppm.addon.cli render ...``).  The ``fppm`` console script of a
@@ -24,10 +24,12 @@ Exit codes (also in README.md):
     2    usage error: bad flags or an invalid setting
     3    the input file is missing, unreadable or not a .blend file
     4    the scene cannot be rendered (no camera, no lights, nothing visible, ...)
-    5    the output file cannot be written
-    6    --resume: the checkpoint is from another scene or other settings, or damaged
+    5    the output file cannot be written, or would replace the input, a link or a device
+    6    --resume: the checkpoint is from another scene or other settings, or damaged;
+         or the checkpoint folder is in use by another render
     7    the render would not fit in memory (the message names the setting to lower)
-    130  cancelled with Ctrl-C: the last complete pass was written first
+    130  cancelled with Ctrl-C or SIGTERM at any instant: the last complete pass
+         was written first, if there was one
 """
 from __future__ import annotations
 
@@ -73,6 +75,9 @@ def add_render_parser(sub) -> None:
     r.add_argument("--resolution", type=int, metavar="PCT",
                    help="resolution percentage (1-1000), overriding the file's")
     r.add_argument("--no-preview", action="store_true", help="do not write the PNG preview")
+    r.add_argument("--overwrite", action="store_true",
+                   help="allow -o (or its PNG preview) to replace a symbolic link or the input "
+                        "file itself (devices, FIFOs and folders are never replaced)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     r.add_argument("--checkpoint", metavar="DIR",
                    help="save the progressive state in DIR (atomically) every --checkpoint-every "
@@ -115,14 +120,32 @@ def check_input(path: str) -> None:
         raise CLIError(EXIT_INPUT, f"'{path}' is not a .blend file.")
 
 
-def check_output(path: str) -> None:
+def check_output(path: str, blend: str | None = None, overwrite: bool = False,
+                 preview: bool = True) -> None:
+    """Refuse an output that cannot be written or whose replacement would destroy data.
+
+    The output must end in .exr (the format is chosen by the extension, and
+    the preview is the same name with .png).  Neither it nor its preview may
+    be a folder, a device, a FIFO or a socket; a symbolic link or the input
+    file itself only with ``overwrite`` (core.io.atomic.check_target).
+    """
+    from ..core.io.atomic import check_target
+
     d = os.path.dirname(os.path.abspath(path))
     if os.path.isdir(path):
         raise CLIError(EXIT_OUTPUT, f"output '{path}' is a folder.")
+    if os.path.splitext(path)[1].lower() != ".exr":
+        raise CLIError(EXIT_USAGE, f"-o '{path}': the output must be an OpenEXR file ending in "
+                                   f".exr (the PNG preview is written beside it, with .png).")
     if not os.path.isdir(d):
         raise CLIError(EXIT_OUTPUT, f"cannot write '{path}': the folder '{d}' does not exist.")
     if not os.access(d, os.W_OK | os.X_OK):
         raise CLIError(EXIT_OUTPUT, f"cannot write '{path}': the folder '{d}' is not writable.")
+    for target in (path, preview_path(path)) if preview else (path,):
+        try:
+            check_target(target, protected=(blend,) if blend else (), overwrite=overwrite)
+        except OSError as ex:
+            raise CLIError(EXIT_OUTPUT, f"will not write '{target}': {ex.strerror or ex}.")
     if os.path.exists(path) and not os.access(path, os.W_OK):
         raise CLIError(EXIT_OUTPUT, f"cannot write '{path}': the file is read-only.")
 
@@ -200,8 +223,8 @@ def _write_outputs(a, bpy, scene, sess, out_path, elapsed_wall) -> list[str]:
     """Write the EXR (and the PNG preview); return the written paths."""
     import numpy as np
 
-    from ..core.io.atomic import default_file_mode, replace_atomically
-    from ..core.io.exr import write_exr
+    from ..core.io.atomic import default_file_mode, ensure_free_space, replace_atomically
+    from ..core.io.exr import layers_size_bound, write_exr
     from ..core.settings import field_names
 
     pr = sess.result
@@ -226,10 +249,14 @@ def _write_outputs(a, bpy, scene, sess, out_path, elapsed_wall) -> list[str]:
     if getattr(sess, "renderer", None) is not None:
         # The render plan: which stages ran, and what was left out and why.
         meta.update(sess.renderer.plan.metadata())
+    h, w = img.shape[:2]
     try:
+        # Room for both files before writing either (upper bounds).
+        need = layers_size_bound(layers, meta) + (0 if a.no_preview else png_size_bound(w, h))
+        ensure_free_space(out_path, need)
         write_exr(out_path, layers, meta)
     except OSError as ex:
-        raise CLIError(EXIT_OUTPUT, str(ex))
+        raise CLIError(EXIT_OUTPUT, _os_error_text(ex, out_path))
     written = [out_path]
     if not a.no_preview:
         png = preview_path(out_path)
@@ -237,17 +264,60 @@ def _write_outputs(a, bpy, scene, sess, out_path, elapsed_wall) -> list[str]:
         if rr is not None:
             isettings = scene.render.image_settings
             try:
-                with replace_atomically(png, suffix=".png", mode=default_file_mode()) as tmp:
+                with replace_atomically(png, suffix=".png", mode=default_file_mode(),
+                                        verify=verify_png) as tmp:
                     isettings.file_format = 'PNG'
                     isettings.color_mode = 'RGBA'
                     isettings.color_depth = '8'
                     # save_render applies the scene's view transform and look.
+                    # It fails silently on a full disk (an empty or truncated
+                    # file): verify_png catches that before the rename.
                     rr.save_render(filepath=tmp, scene=scene)
                 written.append(png)
             except (OSError, RuntimeError) as ex:
                 detail = (ex.strerror or ex) if isinstance(ex, OSError) else ex
-                raise CLIError(EXIT_OUTPUT, f"cannot write the preview '{png}': {detail}")
+                raise CLIError(EXIT_OUTPUT, f"cannot write the preview '{png}': {detail}.")
     return written
+
+
+def _os_error_text(ex: OSError, path: str) -> str:
+    """One sentence for an OSError (its own sentence when it has one)."""
+    text = str(ex.strerror or ex).strip()
+    if path not in text:
+        text = f"Cannot write '{path}': {text}"
+    return text if text.endswith(".") else text + "."
+
+
+def png_size_bound(w: int, h: int) -> int:
+    """Upper bound on an 8-bit RGBA PNG of w x h: the raw scanlines (a filter byte
+    each) after deflate's worst case (5 bytes per 16 KiB stored block), the
+    chunk headers of IDAT chunks of 8 KiB and 4 KiB of other chunks."""
+    raw = (4 * w + 1) * h
+    return int(raw * (1 + 5 / 16384)) + 12 * (raw // 8192 + 2) + 4096
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+
+
+def verify_png(path: str, size: tuple | None = None) -> None:
+    """Raise OSError unless ``path`` is a complete PNG (of ``size`` = (w, h) when
+    given): signature, IHDR and the IEND chunk at the very end (Blender's ``save_render`` does not
+    report a full disk: it leaves an empty or truncated file)."""
+    import errno
+    import struct
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(24)
+            fh.seek(max(os.path.getsize(path) - 12, 0))
+            tail = fh.read(12)
+    except OSError as ex:
+        raise OSError(ex.errno, f"the preview written cannot be read back ({ex.strerror})")
+    if len(head) < 24 or not head.startswith(_PNG_SIGNATURE) or head[12:16] != b"IHDR":
+        raise OSError(errno.EIO, "the preview written is not a PNG (is the disk full?)")
+    dims = struct.unpack(">II", head[16:24])
+    if (size is not None and dims != tuple(size)) or min(dims) < 1 or tail != _PNG_IEND:
+        raise OSError(errno.EIO, "the preview written is incomplete (is the disk full?)")
 
 
 def check_checkpoint_args(a) -> None:
@@ -393,7 +463,11 @@ def render_scene(scene, overrides: dict, sess) -> None:
         settings = settings_from_scene(scene).replace(**overrides).validate()
     except SettingsError as ex:
         raise CLIError(EXIT_USAGE, str(ex))
-    apply_settings(scene.fppm, settings)
+    try:
+        apply_settings(scene.fppm, settings)
+    except (OverflowError, ValueError, TypeError):
+        pass                       # check_stored names the value Blender could not hold
+    check_stored(scene.fppm, overrides)
     scene.render.engine = "FPPM"
     if scene.camera is None:
         raise CLIError(EXIT_SCENE, NO_CAMERA)
@@ -423,25 +497,89 @@ def render_scene(scene, overrides: dict, sess) -> None:
         raise CLIError(EXIT_INTERNAL, f"internal error: {type(sess.error).__name__}: {sess.error}")
 
 
-def render(a) -> int:
-    """``fppm render``: returns the exit code; raises CLIError on a documented failure."""
-    check_input(a.blend)
-    check_output(a.output)
+# Blender's frame range (MINAFRAME .. MAXFRAME in DNA_scene_types.h).
+FRAME_RANGE = (-1048574, 1048574)
+# --time-limit: 0 (no limit) or this many seconds at least (Blender stores it
+# as a float32 property: 1e-40 s would become a subnormal or 0).
+MIN_TIME_LIMIT = 1e-3
+# The flag each overridden setting comes from (for the messages).
+_FLAG_OF = {"time_limit": "--time-limit", "max_passes": "--passes",
+            "photons_per_pass": "--photons", "seed": "--seed", "use_frequency": "--mode"}
+
+
+def check_numbers(a) -> None:
+    """Usage errors of numeric flags the settings cannot see (exit code 2)."""
+    import math
     if a.resolution is not None and not 1 <= a.resolution <= 1000:
         raise CLIError(EXIT_USAGE, f"--resolution {a.resolution}: must be in [1, 1000].")
+    if a.frame is not None and not FRAME_RANGE[0] <= a.frame <= FRAME_RANGE[1]:
+        raise CLIError(EXIT_USAGE, f"--frame {a.frame}: must be in [{FRAME_RANGE[0]}, "
+                                   f"{FRAME_RANGE[1]}] (Blender's frame range).")
+    if a.time_limit is not None:
+        t = a.time_limit
+        if not math.isfinite(t):       # (negative: the settings' own message)
+            raise CLIError(EXIT_USAGE, f"--time-limit {t}: must be a number of seconds >= 0 "
+                                       f"(0 = no limit).")
+        if 0 < t < MIN_TIME_LIMIT:
+            raise CLIError(EXIT_USAGE, f"--time-limit {t}: must be 0 (no limit) or at least "
+                                       f"{MIN_TIME_LIMIT} s.")
+
+
+def check_stored(props, overrides: dict) -> None:
+    """Refuse an override that ``scene.fppm`` cannot hold as given (Blender would
+    clamp it to the property's range, or overflow): exit code 2 naming the range."""
+    for name, v in overrides.items():
+        back = getattr(props, name)
+        same = (abs(back - v) <= 1e-6 * abs(v)) if isinstance(v, float) else back == v
+        if not same:
+            rna = props.bl_rna.properties[name]
+            lo, hi = getattr(rna, "hard_min", None), getattr(rna, "hard_max", None)
+            def num(x):
+                return f"{x:d}" if isinstance(x, int) else f"{x:g}"
+            raise CLIError(EXIT_USAGE, f"{_FLAG_OF.get(name, name)} {v}: must be in "
+                                       f"[{num(lo)}, {num(hi)}].")
+
+
+def render(a) -> int:
+    """``fppm render``: returns the exit code; raises CLIError on a documented failure."""
+    stop = getattr(a, "stop", None)
+    if stop is None:               # called without main (a test): no signal handling
+        stop = StopFlag()
+    check_input(a.blend)
+    check_output(a.output, a.blend, a.overwrite, not a.no_preview)
+    check_numbers(a)
     check_checkpoint_args(a)
     overrides = overrides_from_args(a)
+    lock = None
+    if a.checkpoint:
+        from ..core.errors import CheckpointBusy
+        from ..core.io import checkpoint
+        try:
+            lock = checkpoint.lock(a.checkpoint)   # also removes stale temporaries
+        except CheckpointBusy as ex:
+            raise CLIError(EXIT_CHECKPOINT, str(ex))
+        except OSError as ex:
+            raise CLIError(EXIT_OUTPUT, f"cannot lock the checkpoint folder '{a.checkpoint}': "
+                                        f"{ex.strerror or ex}.")
+    try:
+        return _render_locked(a, stop, overrides)
+    finally:
+        if lock is not None:
+            lock.release()
+
+
+def _cancelled_early(stop) -> int:
+    _say("Cancelled before the first pass: nothing written.")
+    return EXIT_CANCELLED
+
+
+def _render_locked(a, stop, overrides) -> int:
+    if stop:
+        return _cancelled_early(stop)
 
     import bpy
 
     from . import engine
-
-    stop = {"flag": False}
-
-    def on_sigint(signum, frame):
-        if stop["flag"]:            # a second Ctrl-C: give up at once
-            raise KeyboardInterrupt
-        stop["flag"] = True
 
     progress = Progress(a.quiet)
     ckpt = Checkpointer(a.checkpoint, a.checkpoint_every, _say) if a.checkpoint else None
@@ -451,27 +589,26 @@ def render(a) -> int:
         if ckpt is not None:
             ckpt.after_pass(sess.renderer)
 
-    sess = engine.RenderSession(on_pass=on_pass, log=_say, should_stop=lambda: stop["flag"],
+    sess = engine.RenderSession(on_pass=on_pass, log=_say, should_stop=lambda: bool(stop),
                                 on_renderer=ckpt.resume if ckpt is not None and a.resume else None)
+    if stop:
+        return _cancelled_early(stop)
     scene = open_blend(a.blend, a.frame, a.resolution)
-    prev = signal.signal(signal.SIGINT, on_sigint)
-    # SIGTERM (a scheduler stopping the job) ends the render the same way.
-    prev_term = signal.signal(signal.SIGTERM, on_sigint)
+    if stop:
+        return _cancelled_early(stop)
     t0 = time.monotonic()
     try:
         render_scene(scene, overrides, sess)
     finally:
-        signal.signal(signal.SIGINT, prev)
-        signal.signal(signal.SIGTERM, prev_term)
         progress.close()
     wall = time.monotonic() - t0
     if sess.result is None or sess.result.pass_index == 0:
-        if stop["flag"]:
-            _say("Cancelled before the first pass: nothing written.")
-            return EXIT_CANCELLED
+        if stop:
+            return _cancelled_early(stop)
         raise CLIError(EXIT_INTERNAL, "internal error: the render produced no image.")
     if ckpt is not None:
         ckpt.save(sess.renderer)   # the last complete pass, also on Ctrl-C
+    check_image(sess, stop)
     try:
         written = _write_outputs(a, bpy, scene, sess, a.output, wall)
     except CLIError as ex:
@@ -482,41 +619,120 @@ def render(a) -> int:
     h, w = pr.image.shape[:2]
     aov = f" + {len(pr.aovs)} AOV{'s' * (len(pr.aovs) != 1)}" if pr.aovs else ""
     _say(f"Done: {w}x{h} px, {pr.stats_line()}, {wall:.1f} s wall"
-         f"{' (cancelled)' if stop['flag'] else ''}.")
+         f"{' (cancelled)' if stop else ''}.")
     _say(f"Wrote {written[0]} (Combined{aov})"
          + (f" and {written[1]} (view transform '{scene.view_settings.view_transform}')"
             if len(written) > 1 else "") + ".")
-    return EXIT_CANCELLED if stop["flag"] else EXIT_OK
+    return EXIT_CANCELLED if stop else EXIT_OK
+
+
+def check_image(sess, stop) -> None:
+    """Refuse an image that is not a render: non-finite pixels (exit code 4).
+
+    A black image from a light hidden behind geometry is a correct render
+    (Cycles renders it black too): the renderer says so and it is written.
+    """
+    import numpy as np
+    img = np.asarray(sess.result.image)[..., :3]
+    bad = ~np.isfinite(img)
+    if bad.any():
+        raise CLIError(EXIT_SCENE, f"The image has {int(bad.any(axis=-1).sum())} pixel(s) that "
+                                   f"are not finite numbers (NaN or infinite): a light, material "
+                                   f"or camera value of the scene is out of range; nothing "
+                                   f"written.")
+
+
+class StopFlag:
+    """SIGINT (Ctrl-C) and SIGTERM as a flag, never as an exception.
+
+    Installed by :func:`main` before anything else (and by ``tools/cli.py``
+    before importing the add-on, which imports bpy): a signal at any instant
+    sets the flag, which the CLI checks between its steps and the renderer
+    polls inside passes.  Raising KeyboardInterrupt instead could unwind
+    through Blender's or numba's C frames (a crash, or a signal swallowed).
+    A second signal quits at once with exit code 130, writing nothing.
+
+    early: signals received before this object existed (``tools/cli.py``).
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self, early=()):
+        # The same list as the early handler's, so a signal between the two
+        # installations is not lost.
+        self.received = early if isinstance(early, list) else list(early)
+        self._previous = {}
+
+    def __bool__(self) -> bool:
+        return bool(self.received)
+
+    def handler(self, signum, frame) -> None:
+        self.received.append(signum)
+        if len(self.received) >= 2:
+            os.write(2, b"fppm: interrupted twice: quitting now, nothing written.\n")
+            os._exit(EXIT_CANCELLED)
+
+    def install(self) -> "StopFlag":
+        import threading
+        if threading.current_thread() is threading.main_thread():
+            for sig in self.SIGNALS:
+                self._previous[sig] = signal.signal(sig, self.handler)
+        return self
+
+    def restore(self, defaults: bool = False) -> None:
+        """Put back the handlers found by install() (defaults: Python's own:
+        KeyboardInterrupt for SIGINT, the system's for SIGTERM)."""
+        if defaults:
+            self._previous = {sig: (signal.default_int_handler if sig == signal.SIGINT
+                                    else signal.SIG_DFL) for sig in self._previous}
+        for sig, h in self._previous.items():
+            signal.signal(sig, h if h is not None else signal.SIG_DFL)
+        self._previous.clear()
 
 
 # The sub-commands of this module: {name: (add_parser(sub), run(args) -> exit code)}.
 COMMANDS = {"render": (add_render_parser, render)}
 
 
-def main(argv=None, commands: dict | None = None) -> int:
+def main(argv=None, commands: dict | None = None, early_signals=()) -> int:
     """Parse ``argv`` and run the sub-command; returns the exit code (never raises).
 
     commands: the sub-commands (default :data:`COMMANDS`); ``tools/cli.py``
     adds the development tools to them.  A run function raises CLIError for
     a documented failure: its message goes to stderr and its code is returned.
+    early_signals: SIGINT / SIGTERM received before main (``tools/cli.py``'s
+    first instruction installs a handler that records them).
+    SIGINT and SIGTERM set ``args.stop`` (:class:`StopFlag`) from here on.
     """
-    commands = COMMANDS if commands is None else commands
-    parser = build_parser(commands)
+    stop = StopFlag(early_signals).install()
     try:
-        a = parser.parse_args(argv)
-    except SystemExit as ex:   # argparse: 2 on usage errors, 0 for --help
-        return int(ex.code or 0)
-    try:
-        return commands[a.command][1](a)
-    except CLIError as ex:
-        print(f"fppm: error: {ex}", file=sys.stderr, flush=True)
-        return ex.code
-    except KeyboardInterrupt:
-        print("fppm: interrupted.", file=sys.stderr, flush=True)
-        return EXIT_CANCELLED
-    except Exception:
-        traceback.print_exc()
-        return EXIT_INTERNAL
+        commands = COMMANDS if commands is None else commands
+        parser = build_parser(commands)
+        try:
+            a = parser.parse_args(argv)
+        except SystemExit as ex:   # argparse: 2 on usage errors, 0 for --help
+            return int(ex.code or 0)
+        if stop:
+            print("fppm: interrupted.", file=sys.stderr, flush=True)
+            return EXIT_CANCELLED
+        a.stop = stop
+        if a.command != "render":
+            # Other commands (fppm converge) handle SIGINT themselves; SIGTERM
+            # keeps its default (end the process) there.
+            stop.restore(defaults=True)
+        try:
+            return commands[a.command][1](a)
+        except CLIError as ex:
+            print(f"fppm: error: {ex}", file=sys.stderr, flush=True)
+            return ex.code
+        except KeyboardInterrupt:
+            print("fppm: interrupted.", file=sys.stderr, flush=True)
+            return EXIT_CANCELLED
+        except Exception:
+            traceback.print_exc()
+            return EXIT_INTERNAL
+    finally:
+        stop.restore()
 
 
 if __name__ == "__main__":

@@ -19,3 +19,7 @@ class RenderCancelled(FPPMError):
 
 class CheckpointMismatch(FPPMError):
     """A checkpoint from another scene or other settings was given to --resume."""
+
+
+class CheckpointBusy(FPPMError):
+    """The checkpoint folder is locked by another render that is still running."""

@@ -1,16 +1,34 @@
-"""Memory estimate before the first pass.
+"""Memory estimate before the first pass: an upper bound on the render's peak.
 
 A render that cannot fit fails up front with the setting to change, instead of
-the machine swapping or the process being killed mid-render.  Per-item costs
-are upper bounds read off the arrays the renderer allocates (float64 SoA):
+the machine swapping or the process being killed mid-render.
 
-- per pixel: progressive state (R^2, N, tau, L_sum, r_pred, held, M, depth:
-  ~90 B) + one pass's visible points (p, ng, ns, wo, colours, beta, albedo...:
-  ~300 B) + camera-pass temporaries (~600 B)            -> 1 KiB
-- per photon of a chunk: emission, bounce and deposit arrays (~800 B) and the
-  gather's sorted copies (~100 B per deposit, ~4 deposits) -> 1.2 KiB
-- per triangle: scene arrays (100 B), Embree BVH (~150 B), exporter copies -> 400 B
-- per occlusion voxel: 41 B kept + ~150 B during the build -> 192 B
+peak <= resident + pixels + AOVs + photons + geometry + occlusion grid, where
+``resident`` is what the process holds when the Renderer is built (Python,
+numpy, numba, Embree, Blender and the exported scene, textures included: they
+are loaded by then and the core makes no full copy of them), read from the
+OS, and the other parts are what the passes still allocate.  Only those other
+parts need free memory (:func:`check_fits`).  The estimate is also never less
+than the process's own peak so far (``VmHWM``: the export's peak).
+
+Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
+"Memory"; tests/test_reliability2.py checks estimate >= peak <= 1.5 x peak):
+
+- per pixel: progressive state (R^2, N, tau, L_sum, r_pred, held, M, depth),
+  one pass's visible points and the camera-pass temporaries -> BYTES_PER_PIXEL
+- per AOV channel per pixel: the film's float32 layer, its float64 source and
+  the EXR's copy -> BYTES_PER_AOV_CHANNEL
+- per radius-histogram bin per pixel (Quantile estimator): the uint32 state,
+  one pass's histogram and its sum -> 3 x 4 bytes
+- per photon of a chunk: emission, bounce and deposit arrays and the
+  gather's sorted copies -> BYTES_PER_PHOTON
+- per triangle: scene arrays, Embree BVH, the plan's copies -> BYTES_PER_TRIANGLE
+- per occlusion voxel: kept + during the build -> BYTES_PER_VOXEL
+- textures: one more copy of their pixels (float64 gathers of the texels a
+  pass touches, bounded by the image) -> their bytes
+- the compiled kernels numba loads at the first pass and Embree's per-thread
+  buffers -> KERNEL_BYTES (measured: 110 MiB between the estimate and the
+  peak of a 64^2 render of 2000 photons, with every other part ~60 MiB)
 """
 from __future__ import annotations
 
@@ -18,24 +36,62 @@ import os
 
 from .errors import MemoryBudgetError
 
-BYTES_PER_PIXEL = 1024
+BYTES_PER_PIXEL = 1600
+BYTES_PER_AOV_CHANNEL = 48
+BYTES_PER_HIST_BIN = 12
 BYTES_PER_PHOTON = 1229
 BYTES_PER_TRIANGLE = 400
 BYTES_PER_VOXEL = 192
-BASE_BYTES = 300 * 2**20          # Python, numpy, numba, Embree runtime
+KERNEL_BYTES = 96 * 2**20
+BASE_BYTES = 300 * 2**20          # resident size when the OS cannot say (Python, numpy, numba, Embree)
+
+
+def _proc_status(key: str) -> int | None:
+    """A ``/proc/self/status`` size in bytes (VmRSS, VmHWM), or None off Linux."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith(key + ":"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def resident_bytes() -> int:
+    """Memory the process holds now (VmRSS), BASE_BYTES when unknown."""
+    v = _proc_status("VmRSS")
+    return BASE_BYTES if v is None else v
+
+
+def peak_bytes_so_far() -> int:
+    """The process's peak resident size so far (VmHWM), 0 when unknown."""
+    return _proc_status("VmHWM") or 0
 
 
 def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
-             use_grid: bool) -> dict:
-    """Bytes per component and 'total' (ints)."""
+             use_grid: bool, aov_channels: int = 0, hist_bins: int = 0,
+             texture_bytes: int = 0, resident: int | None = None) -> dict:
+    """Bytes per component and 'total' (ints): an upper bound on the peak.
+
+    aov_channels: channels of the enabled AOVs (all layers together);
+    hist_bins: radius-histogram bins per pixel (0 without the Quantile estimator);
+    texture_bytes: bytes of the scene's texture images;
+    resident: bytes already held (None: :func:`resident_bytes`).  'runtime' is
+    that resident size; 'total' is at least the peak so far.
+    """
     parts = {
-        "pixels": n_pixels * BYTES_PER_PIXEL,
+        "pixels": n_pixels * (BYTES_PER_PIXEL + BYTES_PER_AOV_CHANNEL * aov_channels
+                              + BYTES_PER_HIST_BIN * hist_bins),
         "photons": photon_chunk * BYTES_PER_PHOTON,
         "geometry": n_triangles * BYTES_PER_TRIANGLE,
         "occlusion_grid": (grid_res ** 3) * BYTES_PER_VOXEL if use_grid else 0,
-        "runtime": BASE_BYTES,
+        "textures": int(texture_bytes),
+        "kernels": KERNEL_BYTES,
+        "runtime": resident_bytes() if resident is None else int(resident),
     }
-    parts["total"] = sum(parts.values())
+    total = sum(parts.values())
+    parts["total"] = max(total, peak_bytes_so_far()) if resident is None else total
     return parts
 
 
@@ -55,17 +111,25 @@ def available_bytes() -> int | None:
 
 
 def check_fits(parts: dict, available: int | None = None) -> None:
-    """Raise MemoryBudgetError naming the largest component and its setting."""
+    """Raise MemoryBudgetError naming the largest component and its setting.
+
+    What the passes still allocate (every part but 'runtime', which the
+    process holds already) must fit in the memory available now.
+    """
     avail = available_bytes() if available is None else available
-    if avail is None or parts["total"] <= avail:
+    more = sum(v for k, v in parts.items() if k not in ("total", "runtime"))
+    if avail is None or more <= avail:
         return
-    hints = {"pixels": "lower the resolution (or its percentage) or render a border region",
+    hints = {"pixels": "lower the resolution (or its percentage), render a border region or "
+                       "turn AOVs off",
              "photons": "lower 'Photons per pass'",
              "geometry": "simplify the geometry (fewer triangles)",
              "occlusion_grid": "lower 'Occlusion grid' resolution or turn frequency analysis off",
-             "runtime": "close other programs"}
-    worst = max((k for k in parts if k != "total"), key=lambda k: parts[k])
+             "textures": "use smaller images for the textures",
+             "kernels": "close other programs"}
+    worst = max(hints, key=lambda k: parts.get(k, 0))
     gib = 2.0 ** 30
     raise MemoryBudgetError(
-        f"This render needs about {parts['total'] / gib:.1f} GiB but only {avail / gib:.1f} GiB "
-        f"is free (largest part: {worst}, {parts[worst] / gib:.1f} GiB): {hints[worst]}.")
+        f"This render needs about {more / gib:.1f} GiB more (peak {parts['total'] / gib:.1f} GiB) "
+        f"but only {avail / gib:.1f} GiB is free (largest part: {worst}, "
+        f"{parts[worst] / gib:.1f} GiB): {hints[worst]}.")

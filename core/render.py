@@ -55,6 +55,7 @@ from .lights import build_light_table
 from .lights.nee import NextEventEstimation
 from .materials import build_material_table
 from .plan import RenderPlan, make_plan
+from .sanity import check_resolution, check_scene, recentre
 from .scene.camera import CameraModel, FilterSampler
 from .scene.model import Scene, drop_invalid_triangles, scene_digest
 from .settings import RenderSettings
@@ -130,10 +131,15 @@ class Renderer:
     def _setup_scene(self, scene: Scene, force_stages: tuple) -> None:
         """Region, lights, materials, BVH, plan, occlusion grid and photon tracer."""
         log = self.log
+        check_scene(scene)          # refusals: non-finite lights or camera, float32 range
         scene, dropped = drop_invalid_triangles(scene)
         self.dropped_triangles = dropped
         if dropped:
             log(f"FPPM: dropped {dropped} NaN, infinite or zero-area triangle(s).")
+        # A scene far from the origin is moved to it before Embree's float32
+        # copy (core.sanity.recentre); self.origin [m] is where it was.
+        scene, self.origin = recentre(scene)
+        check_resolution(scene)
         self.scene = scene
         cam = scene.camera
         W, H = (int(v) for v in cam.resolution)
@@ -148,9 +154,14 @@ class Renderer:
         self.width, self.height = x1 - x0, y1 - y0
         self.D = scene.diameter()
         st0 = self.settings
+        from .sppm.film import AOVS
         self.memory = memory.estimate(self.width * self.height,
                                       min(st0.photons_per_pass, PHOTON_CHUNK), scene.n_triangles,
-                                      st0.occlusion_grid_res, st0.use_frequency)
+                                      st0.occlusion_grid_res, st0.use_frequency,
+                                      aov_channels=sum(a.channels for a in AOVS
+                                                       if getattr(st0, a.setting)),
+                                      hist_bins=HIST_BINS if st0.frequency_estimator == "QUANTILE" else 0,
+                                      texture_bytes=sum(np.asarray(t).nbytes for t in scene.textures))
         memory.check_fits(self.memory)
         self.light_table = build_light_table(scene)
         for w in getattr(self.light_table, "warnings", []):
@@ -342,6 +353,13 @@ class Renderer:
             raise CheckpointMismatch("The checkpoint was made with different render settings.")
         if tuple(d["size"]) != (self.width, self.height):
             raise CheckpointMismatch("The checkpoint was made at a different resolution.")
+        # Every array and counter is checked before use (core.sppm.state.check_state).
+        why = self.state.check_state(d)
+        if why is None and int(d["photons_emitted"]) != int(d["pass_index"]) * self.settings.photons_per_pass:
+            why = (f"{d['photons_emitted']} photons for {d['pass_index']} passes of "
+                   f"{self.settings.photons_per_pass}")
+        if why is not None:
+            raise CheckpointMismatch(f"The checkpoint is damaged ({why}): delete it to start over.")
         self.state.load_state(d)
         self.film.load_state(d)
         if self.light_tracer is not None:

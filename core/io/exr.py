@@ -16,11 +16,12 @@ Nothing here imports ``bpy``.
 """
 from __future__ import annotations
 
+import errno
 import os
 
 import numpy as np
 
-from .atomic import default_file_mode, replace_atomically
+from .atomic import default_file_mode, ensure_free_space, replace_atomically
 
 COMBINED = "Combined"
 # Channel letters by channel count (Blender's pass chan_id conventions).
@@ -78,6 +79,47 @@ def _check_writable(path: str) -> None:
         raise OSError(f"Cannot write '{path}': it is a folder.")
 
 
+def exr_size_bound(chans: dict, header: dict) -> int:
+    """Upper bound on the bytes of the scanline EXR of ``chans`` ({name: (H, W) float32}).
+
+    ZIP (zlib deflate) never grows a 16-line block by more than 5 bytes per
+    16 KiB plus 6 bytes (RFC 1950/1951 stored blocks); OpenEXR stores a block
+    uncompressed when compression does not help.  Plus the offset table (8
+    bytes per block), 8 bytes of block header, and the header attributes.
+    """
+    n_raw = sum(int(a.size) * 4 for a in chans.values())
+    H = next(iter(chans.values())).shape[0]
+    blocks = -(-H // 16)
+    head = 4096 + sum(len(str(k)) + len(str(v)) + 32 for k, v in header.items())
+    head += 64 * len(chans)
+    return int(n_raw * (1 + 5 / 16384)) + blocks * (16 + 6) + head
+
+
+def layers_size_bound(layers: dict, metadata: dict | None = None) -> int:
+    """Upper bound on the bytes of the file :func:`write_exr` makes of ``layers``."""
+    return exr_size_bound(_channels_of(layers), dict(metadata or {}))
+
+
+def verify_exr(path: str, names, size: tuple) -> None:
+    """Read ``path`` back and raise OSError unless it holds exactly the channels
+    ``names``, each of ``size`` = (H, W) (a writer that stopped early, a disk that lost data)."""
+    import OpenEXR
+
+    H, W = size
+    try:
+        with OpenEXR.File(path, separate_channels=True) as f:
+            hd = f.header()
+            (x0, y0), (x1, y1) = (np.asarray(v) for v in hd["dataWindow"])
+            got = {name: np.asarray(ch.pixels) for name, ch in f.parts[0].channels.items()}
+    except (RuntimeError, ValueError, KeyError, OSError) as ex:
+        raise OSError(errno.EIO, f"the file written does not read back ({ex})") from ex
+    if (int(x1 - x0 + 1), int(y1 - y0 + 1)) != (W, H) or set(got) != set(names):
+        raise OSError(errno.EIO, "the file written does not read back with the channels and "
+                                 "size that were written")
+    if any(a.shape != (H, W) for a in got.values()):
+        raise OSError(errno.EIO, "the file written holds incomplete channels")
+
+
 def write_exr(path: str, layers: dict, metadata: dict | None = None) -> None:
     """Write ``layers`` to ``path`` as one multi-channel scanline EXR, atomically.
 
@@ -88,8 +130,13 @@ def write_exr(path: str, layers: dict, metadata: dict | None = None) -> None:
     renamed over ``path`` (``replace_atomically``), so a reader never sees a
     half-written image, and after a power cut ``path`` holds the old image or
     the new one, never an empty file.
-    Raises OSError with a clear sentence when the folder is missing or not
-    writable, ValueError on malformed layers.
+    Before writing, the folder must have room for the file's upper bound
+    (:func:`exr_size_bound`); after writing, the temporary file is read back
+    (:func:`verify_exr`) before the rename.
+    Raises OSError with a clear sentence when the folder is missing, not
+    writable or full, or when OpenEXR fails (its RuntimeError, e.g. "No space
+    left on device", becomes an OSError: every writer failure is a write
+    failure); ValueError on malformed layers.
     """
     import OpenEXR
 
@@ -99,11 +146,23 @@ def write_exr(path: str, layers: dict, metadata: dict | None = None) -> None:
     for k, v in (metadata or {}).items():
         header[str(k)] = str(v)
     try:
-        with replace_atomically(path, suffix=".exr", mode=default_file_mode()) as tmp:
-            with OpenEXR.File(header, chans) as f:
-                f.write(tmp)
+        ensure_free_space(path, exr_size_bound(chans, header))
+        # OpenEXR.File turns the arrays of chans into its Channel objects: keep
+        # what the read-back must find.
+        names, size = tuple(chans), next(iter(chans.values())).shape
+        with replace_atomically(path, suffix=".exr", mode=default_file_mode(),
+                                verify=lambda tmp: verify_exr(tmp, names, size)) as tmp:
+            try:
+                with OpenEXR.File(header, chans) as f:
+                    f.write(tmp)
+            except RuntimeError as ex:
+                # OpenEXR reports every I/O failure (full disk included) as
+                # RuntimeError('Failed to write ... No space left on device.').
+                msg = str(ex).strip().rstrip(".")
+                code = errno.ENOSPC if "space left" in msg else errno.EIO
+                raise OSError(code, msg.rsplit(". ", 1)[-1] if code == errno.ENOSPC else msg) from ex
     except OSError as ex:
-        raise OSError(f"Cannot write '{path}': {ex.strerror or ex}.") from ex
+        raise OSError(ex.errno, f"Cannot write '{path}': {ex.strerror or ex}.") from ex
 
 
 def read_exr(path: str) -> dict[str, np.ndarray]:

@@ -61,6 +61,40 @@ class PixelState:
         return {f.name: getattr(self, f.name).copy() for f in fields(self)
                 if getattr(self, f.name) is not None}
 
+    # Value range of each float field in a checkpoint (docs/reliability.md,
+    # "Checkpoints"): counts, squared radii and depths are >= 0; r_pred_last
+    # is a radius > 0, +inf or NaN (no prediction); the sums are finite.
+    _RANGES = {"R2": "nonneg", "N": "nonneg", "M_last": "nonneg", "depth": "nonneg",
+               "tau": "finite", "L_sum": "finite", "spectrum": "finite",
+               "r_pred_last": "radius"}
+
+    def check_state(self, d: dict) -> Optional[str]:
+        """Why ``d`` (a loaded checkpoint) cannot be loaded into this state, or None.
+
+        Every field this state has must be in d with this state's shape and a
+        dtype that converts without loss (same kind: float to float, bool, the
+        histogram's unsigned integers), and its values in the field's range.
+        """
+        for f in fields(self):
+            a = getattr(self, f.name)
+            if a is None:
+                continue
+            if f.name not in d:
+                return f"no '{f.name}'"
+            v = np.asarray(d[f.name])
+            if v.shape != a.shape:
+                return f"'{f.name}' has shape {v.shape}, this render needs {a.shape}"
+            if v.dtype.kind != a.dtype.kind or v.dtype.itemsize > a.dtype.itemsize:
+                return f"'{f.name}' is {v.dtype}, this render needs {a.dtype}"
+            rule = self._RANGES.get(f.name)
+            if rule == "nonneg" and not (np.isfinite(v).all() and (v >= 0).all()):
+                return f"'{f.name}' has values that are negative, NaN or infinite"
+            if rule == "finite" and not np.isfinite(v).all():
+                return f"'{f.name}' has NaN or infinite values"
+            if rule == "radius" and (v <= 0).any():
+                return f"'{f.name}' has radii <= 0"
+        return None
+
     def load_state(self, d: dict) -> None:
         """Overwrite (in place, keeping dtypes) every field present in d and not None here."""
         for f in fields(self):
