@@ -46,6 +46,7 @@ import numpy as np
 
 from . import memory
 from .accel import Accel
+from .integrators import PathTracer
 from .errors import CheckpointMismatch, RenderCancelled, SceneError
 from .lights import build_light_table
 from .lights.nee import NextEventEstimation
@@ -94,6 +95,11 @@ class Renderer:
                                       self.radii.hist if self.radii.quantile else None,
                                       self.stage_seconds)
         self.film = Film(st, self.camera, self.height, self.width)
+        # integrator 'PATH': camera paths alone (core.integrators) into the same film.
+        self.path_tracer = (PathTracer(self.scene, self.accel, self.mtab, self.light_table,
+                                       self.camera, self.fsamp, self.px, self.py, st,
+                                       self.direct_light)
+                            if st.integrator == "PATH" else None)
         self.state = PixelState.zeros(P, HIST_BINS if self.radii.quantile else 0, st.aov_spectrum)
         self.pass_index = 0
         self.photons_emitted = 0
@@ -228,6 +234,8 @@ class Renderer:
     def step(self) -> PassResult:
         """One pass; the state changes only once the pass is complete (a cancel
         keeps the last one), except the footprint depths of its visible points."""
+        if self.path_tracer is not None:
+            return self._step_path()
         t0 = time.perf_counter()
         k = self.pass_index + 1
         st, state, clock = self.settings, self.state, self.stage_seconds
@@ -259,6 +267,19 @@ class Renderer:
         clock["update"] += time.perf_counter() - tu
         self.pass_index = k
         self.photons_emitted += st.photons_per_pass
+        self.elapsed += time.perf_counter() - t0
+        self.last_result = self._film()
+        return self.last_result
+
+    def _step_path(self) -> PassResult:
+        """One pass of the path tracer: camera_samples paths per pixel, averaged
+        over the passes by the film (L_sum / passes; no photons)."""
+        t0 = time.perf_counter()
+        k = self.pass_index + 1
+        L_pass = self._interruptible(self.path_tracer, self._rng(k, 3), self._check_stop)
+        self.stage_seconds["camera"] += time.perf_counter() - t0
+        self.state.L_sum += L_pass
+        self.pass_index = k
         self.elapsed += time.perf_counter() - t0
         self.last_result = self._film()
         return self.last_result
