@@ -20,6 +20,12 @@ RADIUS_MODES = (
     ('WORLD', "World Units",
      "Initial radius in metres, the same at every visible point", 1),
 )
+INTEGRATORS = (
+    ('PHOTON', "Photon Mapping",
+     "Stochastic progressive photon mapping with the frequency-adapted kernel", 0),
+    ('PATH', "Path Tracing",
+     "Camera paths alone: path tracing with next-event estimation and MIS, like Cycles", 1),
+)
 FREQUENCY_MODELS = (
     ('CORRECTED', "Corrected",
      "Frequency analysis with the corrected curvature and BSDF terms (see the documentation)", 0),
@@ -53,6 +59,14 @@ class FPPMRenderSettings(PropertyGroup):
     seed: IntProperty(
         name="Seed", default=_D.seed, min=0, max=2**31 - 1,
         description="Random seed: the same seed renders the same image bit for bit")
+
+    # --- Integrator
+    integrator: EnumProperty(
+        name="Integrator", items=INTEGRATORS, default=_D.integrator,
+        description="Which strategies estimate the image")
+    camera_samples: IntProperty(
+        name="Camera Samples", default=_D.camera_samples, min=1, max=4096, soft_max=64,
+        description="Path Tracing: camera paths per pixel in every pass")
 
     # --- Kernel
     radius_mode: EnumProperty(
