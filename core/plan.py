@@ -31,10 +31,12 @@ class RenderPlan:
                              ("frequency photons", self.frequency_photons),
                              ("occlusion grid", self.occlusion_grid),
                              ("world emission", self.world_emission)) if v]
-        bare = "plain photon mapping" if "photon mapping" in self.strategies else "no photon stages"
-        out = [f"Plan: {', '.join(on) if on else bare}; emitters: "
-               f"{', '.join(self.emitter_kinds) or 'none'}; AOVs: {', '.join(self.aovs) or 'none'}."]
-        out.append(f"Strategies: {', '.join(self.strategies)}.")
+        bare = "plain photon mapping"
+        if "photon mapping" not in self.strategies:
+            on, bare = [], "no photon stages"
+        out = [f"Plan: {', '.join(on) if on else bare}; strategies: {', '.join(self.strategies)}; "
+               f"emitters: {', '.join(self.emitter_kinds) or 'none'}; "
+               f"AOVs: {', '.join(self.aovs) or 'none'}."]
         for stage, why in self.left_out:
             out.append(f"Left out: {stage} ({why}).")
         return out

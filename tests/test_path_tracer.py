@@ -216,10 +216,11 @@ def test_settings_are_validated_and_photon_mode_is_default():
         RenderSettings(camera_samples=0).validate()
     scene, _ = point_light_plane(res=8)
     r = Renderer(scene, RenderSettings(integrator="PATH", max_passes=1), log=lambda s: None)
-    assert any(l.startswith("Strategies: camera paths") for l in r.plan_lines())
+    # The plan line (Blender's status bar, the CLI, EXR metadata) names the strategies.
+    assert "strategies: camera paths (path tracing" in r.plan.lines()[0]
     r = Renderer(scene, RenderSettings(max_passes=1), log=lambda s: None)
     assert r.path_tracer is None
-    assert "Strategies: photon mapping." in r.plan_lines()
+    assert "strategies: photon mapping;" in r.plan.lines()[0]
 
 
 # ---------------------------------------------------------------- Cycles
