@@ -261,3 +261,29 @@ def test_agrees_with_cycles(name):
     assert sigma_mean < 0.0067 * r
     assert abs(m / r - 1.0) < 0.02
     assert relmse < 1.5 * (noise + float(meta["noise"]["relmse"]))
+
+
+def test_cli_mode_path(tmp_path):
+    """``fppm render --mode path`` renders with the path tracer: the settings in
+    the EXR say so, and its image mean agrees with an in-process PATH render of
+    the same file (another seed) within 4 sigma of their pixel noise."""
+    pytest.importorskip("bpy")
+    import json
+    import bpy_helpers as H
+    from fppm.addon.export import export_scene
+    from fppm.core.io.exr import read_exr, read_exr_metadata
+    H.simple_scene(res=(24, 16))
+    blend = H.save_blend(tmp_path / "s.blend")
+    out = tmp_path / "p.exr"
+    r = H.run_fppm("render", blend, "-o", out, "--mode", "path", "--passes", "8", "--seed", "1",
+                   "-q", "--no-preview")
+    assert r.returncode == 0, r.stderr[-3000:]
+    st = json.loads(read_exr_metadata(str(out))["fppm:settings"])
+    assert st["integrator"] == "PATH"
+    a = read_exr(str(out))["Combined"][..., :3].astype(np.float64)
+    scene = export_scene(H.evaluated_depsgraph(), log=lambda s: None)
+    b = _render(scene, 2, max_passes=8)
+    d = (a - b).mean(axis=2)
+    sigma = np.sqrt(np.var(d) / d.size)
+    assert sigma < 0.01 * a.mean()
+    assert abs(a.mean() - b.mean()) < 4 * sigma
