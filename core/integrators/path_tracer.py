@@ -21,8 +21,11 @@ Georgiev et al. 2012; docs/integrators.md).  Like Cycles' path tracer:
 - ``max_bounces`` counts bounces as Cycles' Total: light samples at vertices
   0..max_bounces (vertex 0 = the camera ray's hit, so max_bounces = 0 is
   direct light only), and the emission found by the last vertex's BSDF ray;
-- Russian roulette from vertex ``rr_start`` on, survival probability the
-  largest throughput component (pbrt-v4), weight divided by it.
+- Russian roulette from vertex ``rr_start`` on, survival probability
+  min(1, sqrt(largest throughput component)) as Cycles'
+  ``path_state_continuation_probability``, weight divided by it;
+- the filter, lens and first light sample of a pixel's camera_samples paths
+  are stratified (:func:`stratified`).
 
 All paths of a pass are traced together as a structure of arrays, masked and
 compacted per vertex (Mitsuba 3 style wavefront); throughput is float64.
@@ -52,6 +55,28 @@ def power_heuristic(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:
     a2, b2 = pdf_a * pdf_a, pdf_b * pdf_b
     s = a2 + b2
     return np.where(s > 0, a2 / np.where(s > 0, s, 1.0), 1.0)
+
+
+def stratified(rng: np.random.Generator, n: int, B: int, pairs: int) -> np.ndarray:
+    """(n, B, 2 pairs) float64 uniforms: for each of B pixels, n samples whose
+    dimension pairs (2i, 2i+1) are stratified: jittered on a sqrt(n) x sqrt(n)
+    grid when n is a square, else N-rooks (each 1-D projection in n strata);
+    cells shuffled independently per pixel and pair (Shirley 1991; Cycles'
+    multi-jittered sequences serve the same end).  Every sample is uniform on
+    its own, so estimates stay unbiased; within a pixel the samples spread."""
+    out = np.empty((n, B, 2 * pairs))
+    m = int(round(np.sqrt(n)))
+    for i in range(pairs):
+        # A random permutation of the n cells per pixel.
+        perm = np.argsort(rng.random((n, B)), axis=0)
+        j = rng.random((n, B, 2))
+        if m * m == n:
+            out[..., 2 * i] = (perm % m + j[..., 0]) / m
+            out[..., 2 * i + 1] = (perm // m + j[..., 1]) / m
+        else:
+            out[..., 2 * i] = (perm + j[..., 0]) / n
+            out[..., 2 * i + 1] = (np.argsort(rng.random((n, B)), axis=0) + j[..., 1]) / n
+    return out
 
 
 @dataclass
@@ -114,23 +139,27 @@ class PathTracer:
     def __call__(self, rng: np.random.Generator, check_stop=lambda: None) -> np.ndarray:
         """(P, 3) float64: the mean over ``camera_samples`` paths per pixel of
         the radiance each carries (filter-importance-sampled, so a plain mean)."""
-        P = self.px.shape[0]
-        total = P * self.samples
+        P, n = self.px.shape[0], self.samples
         L = np.zeros((P, 3))
-        for a in range(0, total, PATH_CHUNK):
-            pix = np.arange(a, min(a + PATH_CHUNK, total)) % P
-            Lp = self._trace(pix, rng, check_stop)
+        block = max(1, PATH_CHUNK // n)
+        for a in range(0, P, block):
+            pix_b = np.arange(a, min(a + block, P))
+            # Paths sample-major: row s * B + b is sample s of pixel pix_b[b].
+            pix = np.tile(pix_b, n)
+            u = stratified(rng, n, pix_b.size, 4).reshape(n * pix_b.size, 8)
+            Lp = self._trace(pix, u, rng, check_stop)
             for c in range(3):
-                L[:, c] += np.bincount(pix, Lp[:, c], minlength=P)
-        return L / self.samples
+                L[a:a + pix_b.size, c] += np.bincount(pix - a, Lp[:, c], minlength=pix_b.size)
+        return L / n
 
     # ------------------------------------------------------------------ paths
-    def _trace(self, pix, rng, check_stop) -> np.ndarray:
-        """(K, 3) radiance of one camera path per entry of pix (K,) (pixel rows)."""
+    def _trace(self, pix, u, rng, check_stop) -> np.ndarray:
+        """(K, 3) radiance of one camera path per entry of pix (K,) (pixel rows);
+        u (K, 8) the stratified numbers of the path's first dimensions: filter
+        (0:2), lens (2:4), first light sample (4:7)."""
         mtab, accel, s, lt = self.mtab, self.accel, self.scene, self.lights
         K = pix.size
-        u = rng.random((K, 4))
-        rays, _ = self.camera.generate(self.px[pix], self.py[pix], u[:, :2], u[:, 2:], self.fsamp)
+        rays, _ = self.camera.generate(self.px[pix], self.py[pix], u[:, :2], u[:, 2:4], self.fsamp)
         out = np.zeros((K, 3))
         path = np.arange(K)
         o, d, tmax = rays.o, rays.d, rays.t_max
@@ -183,7 +212,8 @@ class PathTracer:
                              colors=B.lobe_colors(mtab, mat, uv), beta=beta[ih])
             nd = np.nonzero(mtab.has_nondelta[mat])[0]
             if nd.size:
-                self._direct(v.take(nd), rng, out)
+                ud = u[v.path[nd], 4:7] if depth == 0 else rng.random((nd.size, 3))
+                self._direct(v.take(nd), ud, out)
             # Continue by sampling the BSDF (all lobes).
             ur = rng.random((ih.size, 4))
             wi, wgt, pdf, is_delta, valid = B.sample_bsdf(mtab, v.mat, v.colors, v.ns, v.ng, v.wo,
@@ -191,7 +221,7 @@ class PathTracer:
             bt = v.beta * wgt
             ok = valid & np.all(np.isfinite(bt), axis=1) & (bt.max(axis=1) > 0)
             if depth >= self.rr_start:
-                q = np.minimum(bt.max(axis=1), 1.0)
+                q = np.minimum(np.sqrt(bt.max(axis=1)), 1.0)
                 ok &= ur[:, 3] < q
                 bt = bt / np.maximum(q, 1e-300)[:, None]
             c = np.nonzero(ok)[0]
@@ -218,11 +248,11 @@ class PathTracer:
             w[m] = power_heuristic(pdf_bsdf[m], pl)
         return w
 
-    def _direct(self, v: PathVertices, rng, out) -> None:
+    def _direct(self, v: PathVertices, u, out) -> None:
         """Adds to out[v.path] the light sample of each vertex (all have a
-        non-delta lobe), MIS-weighted against BSDF sampling."""
+        non-delta lobe), MIS-weighted against BSDF sampling; u (K, 3) uniforms."""
         mtab, lt = self.mtab, self.lights
-        smp = Lt.sample_direct(lt, v.p, rng.random((v.p.shape[0], 3)), n=v.ns)
+        smp = Lt.sample_direct(lt, v.p, u, n=v.ns)
         wi, dist, wgt, light = smp["wi"], smp["dist"], smp["weight"], smp["light"]
         live = np.nonzero((wgt.max(axis=1) > 0) & np.all(np.isfinite(wgt), axis=1))[0]
         if live.size == 0:
@@ -241,7 +271,7 @@ class PathTracer:
         mesh = lt.kind[light] == MESH
         blocked = self.nee._blocked(v.p, v.ng, wi, dist, mesh) & shadow
         keep = ~blocked
-        np.add.at(out, v.path[keep], contrib[keep] * w[keep, None])
+        out[v.path[keep]] += contrib[keep] * w[keep, None]     # one vertex per path
 
     def mis_light(self, v: PathVertices, wi, dist, light) -> np.ndarray:
         """(K,) power-heuristic weight of the light samples (wi, dist, light) (K,)
