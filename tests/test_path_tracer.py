@@ -21,7 +21,8 @@ What is asserted, and where each tolerance comes from:
 - Against the Cycles references (tests/references, as in
   tests/test_cycles_agreement.py): mean within 2% with sigma < 0.67% (the same
   bounds FPPM meets there) and relMSE under 1.5 x (own noise + reference
-  noise) with no bias allowance: path tracing has no kernel bias.
+  noise) with no bias allowance (path tracing has no kernel bias); the noise
+  comes from four seeds (see the test).
 """
 from __future__ import annotations
 
@@ -239,10 +240,15 @@ def test_agrees_with_cycles(name):
     scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
     ref_img, meta = load_reference(name)
     ref = ref_img[..., :3].astype(np.float64)
-    a1, a2 = (_render(scene, s, max_passes=16, max_bounces=16) for s in (1, 2))
-    mean_img = 0.5 * (a1 + a2)
+    # Four seeds (3 degrees of freedom per pixel for the noise estimate: with
+    # two, pixels where rare events - a filter sample on an edge, a light
+    # seen through a gap - happen equally often in both seeds show error but
+    # no noise, and the relMSE bound fails by chance; measured on
+    # t_light_area_disk over 6 seeds: squared bias 3e-4 +- 3e-4, noise 5e-3).
+    runs = np.stack([_render(scene, s, max_passes=8, max_bounces=16) for s in (1, 2, 3, 4)])
+    mean_img = runs.mean(axis=0)
     denom = ref ** 2 + RELMSE_EPS
-    noise = np.mean((a1 - a2) ** 2 / 4.0 / denom)
+    noise = np.mean(runs.var(axis=0, ddof=1) / runs.shape[0] / denom)
     relmse = float(np.mean((mean_img - ref) ** 2 / denom))
     # Pixels that see an emitter directly are left out of the mean, as in
     # tests/test_cycles_agreement.py (their anti-aliased edge dominates the noise).
@@ -254,8 +260,9 @@ def test_agrees_with_cycles(name):
             near |= np.roll(np.roll(bright, dy, axis=0), dx, axis=1)
     mask = ~near
     m, r = mean_img[mask].mean(), ref[mask].mean()
-    d = ((a1 - a2).mean(axis=2) * mask).reshape(8, 8, 8, 8).sum(axis=(1, 3))
-    sigma_mean = np.sqrt(np.sum(d ** 2 / 4.0)) / mask.sum()
+    # Batch means over 8x8-pixel blocks (pixels are independent here).
+    blocks = (runs.mean(axis=3) * mask).reshape(4, 8, 8, 8, 8).sum(axis=(2, 4))
+    sigma_mean = np.sqrt(np.sum(blocks.var(axis=0, ddof=1) / 4.0)) / mask.sum()
     print(f"{name}: mean {m:.5f} vs Cycles {r:.5f} (ratio {m / r:.4f}, sigma {sigma_mean / r:.2%});"
           f" relMSE {relmse:.2e}, noise {noise:.2e} + ref {meta['noise']['relmse']:.2e}")
     assert sigma_mean < 0.0067 * r
