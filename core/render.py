@@ -35,6 +35,8 @@ Pass stages (pbrt-v4 SPPM order), one home each:
 4. photon pass: trace, grid of visible points, gather (core.sppm.photon_pass);
 5. per-pixel N / R / tau update (core.sppm.update), into the state (core.sppm.state);
 6. film and AOVs (core.sppm.film).
+With ``integrator = 'PATH'`` a pass is instead camera paths alone
+(core.integrators.PathTracer, docs/integrators.md) into the same film.
 """
 from __future__ import annotations
 

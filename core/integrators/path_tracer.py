@@ -42,8 +42,10 @@ from .. import materials as B
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..mathutil import dot as _dot
 
-#: Paths traced together at most (memory: ~1 kB per path in flight).
-PATH_CHUNK = 1 << 18
+#: Paths traced together at most: ~1 kB each in flight (64 MiB), and past the
+#: ~30k paths per batch where the per-vertex numpy overhead is amortised
+#: (docs/integrators.md, "Camera samples per pass").
+PATH_CHUNK = 1 << 16
 
 # Visibility flag of the ray that left a vertex (core.lights.seen names).
 _VIS = ("camera", "glossy", "transmission")
