@@ -86,8 +86,9 @@ class PathVertices:
     """The scattering vertices of the live camera paths, K rows (structure of arrays).
 
     path (K,) int64 row into the pass' path list (pixel = path % P);
-    p, ng, ns, wo (K, 3) float64, ng and ns oriented to wo's side (Cycles'
-    back-face flip); mat (K,) int; colors (K, L, 3); beta (K, 3) float64
+    p, ng, ns, wo (K, 3) float64, ng and ns as the mesh has them (the
+    materials orient them themselves, and tell entering from leaving glass by
+    wo's side of ng); mat (K,) int; colors (K, L, 3); beta (K, 3) float64
     throughput from the camera, divided by the sampling densities so far.
 
     Room for VCM (Georgiev et al. 2012, technical report section 4): the
@@ -109,6 +110,11 @@ class PathVertices:
     def take(self, i: np.ndarray) -> "PathVertices":
         """The rows i (compaction)."""
         return PathVertices(**{k: v[i] for k, v in self.__dict__.items()})
+
+    def ns_wo(self) -> np.ndarray:
+        """(K, 3) shading normal flipped with ng to wo's side (Cycles' back-face
+        flip): the receiver normal of light sampling (core.lights.nee's convention)."""
+        return self.ns * np.where(_dot(self.ng, self.wo) >= 0, 1.0, -1.0)[:, None]
 
 
 class PathTracer:
@@ -208,9 +214,7 @@ class PathTracer:
                 out[path[e]] += beta[e] * Le * w[:, None]
             if depth > self.max_bounces:
                 break       # the last BSDF ray only collects emission
-            wo = -d[ih]
-            sgn = np.where(_dot(ng, wo) >= 0, 1.0, -1.0)[:, None]
-            v = PathVertices(path=path[ih], p=p, ng=ng * sgn, ns=ns * sgn, wo=wo, mat=mat,
+            v = PathVertices(path=path[ih], p=p, ng=ng, ns=ns, wo=-d[ih], mat=mat,
                              colors=B.lobe_colors(mtab, mat, uv), beta=beta[ih])
             nd = np.nonzero(mtab.has_nondelta[mat])[0]
             if nd.size:
@@ -234,7 +238,7 @@ class PathTracer:
             tmax = np.full(c.size, np.inf)
             beta = bt[c]
             pdf_prev = np.where(is_delta[c], 0.0, pdf[c])
-            p_prev, n_prev = v.p[c], v.ns[c]
+            p_prev, n_prev = v.p[c], v.ns_wo()[c]
             vis = np.where(refl, 1, 2).astype(np.int8)
             path = v.path[c]
         return out
@@ -254,7 +258,8 @@ class PathTracer:
         """Adds to out[v.path] the light sample of each vertex (all have a
         non-delta lobe), MIS-weighted against BSDF sampling; u (K, 3) uniforms."""
         mtab, lt = self.mtab, self.lights
-        smp = Lt.sample_direct(lt, v.p, u, n=v.ns)
+        n_l = v.ns_wo()
+        smp = Lt.sample_direct(lt, v.p, u, n=n_l)
         wi, dist, wgt, light = smp["wi"], smp["dist"], smp["weight"], smp["light"]
         live = np.nonzero((wgt.max(axis=1) > 0) & np.all(np.isfinite(wgt), axis=1))[0]
         if live.size == 0:
@@ -269,17 +274,17 @@ class PathTracer:
             return
         v, wi, dist, contrib, light, shadow = (v.take(nz), wi[nz], dist[nz], contrib[nz],
                                                light[nz], shadow[nz])
-        w = self.mis_light(v, wi, dist, light)
+        w = self.mis_light(v, wi, dist, light, n_l[live][nz])
         mesh = lt.kind[light] == MESH
         blocked = self.nee._blocked(v.p, v.ng, wi, dist, mesh) & shadow
         keep = ~blocked
         out[v.path[keep]] += contrib[keep] * w[keep, None]     # one vertex per path
 
-    def mis_light(self, v: PathVertices, wi, dist, light) -> np.ndarray:
+    def mis_light(self, v: PathVertices, wi, dist, light, n_l=None) -> np.ndarray:
         """(K,) power-heuristic weight of the light samples (wi, dist, light) (K,)
-        taken at vertices v: against the BSDF density of wi where a BSDF ray
-        along wi would find the emitter (not a delta light, visible to that
-        ray type), else 1."""
+        taken at vertices v (receiver normals n_l, default v.ns_wo()): against
+        the BSDF density of wi where a BSDF ray along wi would find the emitter
+        (not a delta light, visible to that ray type), else 1."""
         mtab, lt = self.mtab, self.lights
         refl = (_dot(wi, v.ng) * _dot(v.wo, v.ng)) > 0
         seen = self.hittable[light] & np.where(
@@ -289,7 +294,8 @@ class PathTracer:
         w = np.ones(light.shape[0])
         m = np.nonzero(seen)[0]
         if m.size:
-            pl = Lt.pdf_direct(lt, v.p[m], wi[m], light[m], dist[m], n=v.ns[m])
+            n_l = v.ns_wo() if n_l is None else n_l
+            pl = Lt.pdf_direct(lt, v.p[m], wi[m], light[m], dist[m], n=n_l[m])
             pb = B.pdf_bsdf(mtab, v.mat[m], v.colors[m], v.ns[m], v.ng[m], v.wo[m], wi[m],
                             subset="all")
             w[m] = power_heuristic(pl, pb)
