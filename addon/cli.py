@@ -1,7 +1,7 @@
 """``fppm render``: render a .blend file with FPPM from the command line (Blender as a module).
 
     fppm render SCENE.blend -o OUT.exr [--frame N] [--time-limit S] [--passes N]
-                [--photons N] [--mode fppm|ppm] [--seed N] [--resolution PCT]
+                [--photons N] [--mode fppm|ppm|path|light] [--seed N] [--resolution PCT]
                 [--checkpoint DIR [--checkpoint-every S] [--resume]] [--overwrite]
 
 This module is shipped in the extension and runs alone
@@ -68,8 +68,9 @@ def add_render_parser(sub) -> None:
                    help="stop after S seconds of passes (0 = no limit)")
     r.add_argument("--passes", type=int, metavar="N", help="maximum passes (0 = no limit)")
     r.add_argument("--photons", type=int, metavar="N", help="photons per pass")
-    r.add_argument("--mode", choices=("fppm", "ppm", "light"),
+    r.add_argument("--mode", choices=("fppm", "ppm", "path", "light"),
                    help="fppm: frequency-adapted kernel; ppm: plain progressive photon mapping; "
+                        "path: path tracing (integrator PATH); "
                         "light: light tracing alone (photon paths connected to the camera)")
     r.add_argument("--seed", type=int, metavar="N", help="random seed")
     r.add_argument("--resolution", type=int, metavar="PCT",
@@ -169,7 +170,10 @@ def overrides_from_args(a) -> dict:
         kw["seed"] = a.seed
     if a.mode == "light":
         kw["integrator"] = "LIGHT"
+    elif a.mode == "path":
+        kw["integrator"] = "PATH"
     elif a.mode is not None:
+        kw["integrator"] = "PHOTON"
         kw["use_frequency"] = a.mode == "fppm"
     return kw
 

@@ -22,10 +22,11 @@ RADIUS_MODES = (
     ('WORLD', "World Units",
      "Initial radius in metres, the same at every visible point", 1),
 )
-# PATH (path tracing) has index 1 where it is built; LIGHT keeps 2 either way.
 INTEGRATORS = (
     ('PHOTON', "Photon Mapping",
-     "Stochastic progressive photon mapping with the frequency kernel (FPPM)", 0),
+     "Stochastic progressive photon mapping with the frequency-adapted kernel (FPPM)", 0),
+    ('PATH', "Path Tracing",
+     "Camera paths alone: path tracing with next-event estimation and MIS, like Cycles", 1),
     ('LIGHT', "Light Tracing",
      "Light tracing alone: every diffuse or glossy vertex of the photon paths is connected "
      "to the camera (sharp point-light caustics; misses what the camera sees in mirrors)", 2),
@@ -66,6 +67,14 @@ class FPPMRenderSettings(PropertyGroup):
     seed: IntProperty(
         name="Seed", default=_D.seed, min=0, max=2**31 - 1,
         description="Random seed: the same seed renders the same image bit for bit")
+
+    # --- Integrator
+    integrator: EnumProperty(
+        name="Integrator", items=INTEGRATORS, default=_D.integrator,
+        description="Which strategies estimate the image")
+    camera_samples: IntProperty(
+        name="Camera Samples", default=_D.camera_samples, min=1, max=4096, soft_max=64,
+        description="Path Tracing: camera paths per pixel in every pass")
 
     # --- Kernel
     radius_mode: EnumProperty(

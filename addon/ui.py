@@ -39,7 +39,11 @@ class FPPM_RENDER_PT_sampling(FPPMPanel, Panel):
         col.prop(s, "max_passes")
         col.prop(s, "time_limit")
         col = layout.column()
-        col.prop(s, "photons_per_pass")
+        col.prop(s, "integrator")
+        if s.integrator == 'PATH':
+            col.prop(s, "camera_samples")
+        else:
+            col.prop(s, "photons_per_pass")
         col.prop(s, "seed")
 
 

@@ -23,6 +23,7 @@ class RenderPlan:
     world_emission: bool = False
     emitter_kinds: tuple = ()
     aovs: tuple = ()
+    strategies: tuple = ("photon mapping",)   # what estimates the image (docs/integrators.md)
     left_out: list = field(default_factory=list)   # (stage, reason)
 
     def lines(self) -> list[str]:
@@ -30,8 +31,12 @@ class RenderPlan:
                              ("frequency photons", self.frequency_photons),
                              ("occlusion grid", self.occlusion_grid),
                              ("world emission", self.world_emission)) if v]
-        out = [f"Plan: {', '.join(on) if on else 'plain photon mapping'}; emitters: "
-               f"{', '.join(self.emitter_kinds) or 'none'}; AOVs: {', '.join(self.aovs) or 'none'}."]
+        bare = "plain photon mapping"
+        if "photon mapping" not in self.strategies:
+            on, bare = [], "no photon stages"
+        out = [f"Plan: {', '.join(on) if on else bare}; strategies: {', '.join(self.strategies)}; "
+               f"emitters: {', '.join(self.emitter_kinds) or 'none'}; "
+               f"AOVs: {', '.join(self.aovs) or 'none'}."]
         for stage, why in self.left_out:
             out.append(f"Left out: {stage} ({why}).")
         return out
@@ -84,12 +89,18 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
     if unknown:
         raise ValueError(f"unknown stage(s) {sorted(unknown)}; known: {STAGES}")
     plan = RenderPlan()
+    if settings.integrator == "PATH":
+        plan.strategies = (f"camera paths (path tracing, next-event estimation and MIS, "
+                           f"{settings.camera_samples} per pixel and pass)",)
     has_delta = bool(np.any(mtab.has_delta)) if mtab.has_delta.size else False
     plan.specular_chains = has_delta or "specular chains" in force
     if not plan.specular_chains:
         plan.left_out.append(("specular chains", "no mirror, glass or transparent material"))
     freq = settings.use_frequency and settings.frequency_fraction > 0
-    if not settings.use_frequency:
+    if settings.integrator != "PHOTON":
+        freq = False
+        plan.left_out.append(("frequency photons", "no photon mapping (integrator PATH)"))
+    elif not settings.use_frequency:
         plan.left_out.append(("frequency photons", "frequency analysis is off"))
     elif settings.frequency_fraction <= 0:
         plan.left_out.append(("frequency photons", "frequency fraction is 0"))

@@ -39,6 +39,8 @@ Pass stages (pbrt-v4 SPPM order), one home each:
 With ``integrator = 'LIGHT'`` a pass is instead photons_per_pass light paths
 connected to the camera (core.integrators.light_tracer); the image is their
 splat sums over the paths traced (no AOVs).
+With ``integrator = 'PATH'`` a pass is instead camera paths alone
+(core.integrators.PathTracer, docs/integrators.md) into the same film.
 """
 from __future__ import annotations
 
@@ -50,6 +52,7 @@ import numpy as np
 
 from . import memory
 from .accel import Accel
+from .integrators import PathTracer
 from .errors import CheckpointMismatch, RenderCancelled, SceneError
 from .lights import build_light_table
 from .lights.nee import NextEventEstimation
@@ -114,6 +117,11 @@ class Renderer:
                                       self.radii.hist if self.radii.quantile else None,
                                       self.stage_seconds)
         self.film = Film(st, self.camera, self.height, self.width, self.scene, passes)
+        # integrator 'PATH': camera paths alone (core.integrators) into the same film.
+        self.path_tracer = (PathTracer(self.scene, self.accel, self.mtab, self.light_table,
+                                       self.camera, self.fsamp, self.px, self.py, st,
+                                       self.direct_light)
+                            if st.integrator == "PATH" else None)
         self.state = PixelState.zeros(P, HIST_BINS if self.radii.quantile else 0, st.aov_spectrum)
         self.pass_index = 0
         self.photons_emitted = 0
@@ -268,6 +276,8 @@ class Renderer:
         keeps the last one), except the footprint depths of its visible points."""
         if self.light_tracer is not None:
             return self._step_light()
+        if self.path_tracer is not None:
+            return self._step_path()
         t0 = time.perf_counter()
         k = self.pass_index + 1
         st, state, clock = self.settings, self.state, self.stage_seconds
@@ -319,6 +329,19 @@ class Renderer:
         dt = time.perf_counter() - t0
         self.stage_seconds["photon_trace"] += dt
         self.elapsed += dt
+        self.last_result = self._film()
+        return self.last_result
+
+    def _step_path(self) -> PassResult:
+        """One pass of the path tracer: camera_samples paths per pixel, averaged
+        over the passes by the film (L_sum / passes; no photons)."""
+        t0 = time.perf_counter()
+        k = self.pass_index + 1
+        L_pass = self._interruptible(self.path_tracer, self._rng(k, 3), self._check_stop)
+        self.stage_seconds["camera"] += time.perf_counter() - t0
+        self.state.L_sum += L_pass
+        self.pass_index = k
+        self.elapsed += time.perf_counter() - t0
         self.last_result = self._film()
         return self.last_result
 

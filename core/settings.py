@@ -25,6 +25,9 @@ class RenderSettings:
     max_passes: int = 64             # 0 = no limit (then time_limit must be > 0)
     photons_per_pass: int = 200_000
     seed: int = 0
+    # --- Integrator (docs/integrators.md)
+    integrator: str = "PHOTON"       # 'PHOTON' (photon mapping) or 'PATH' (path tracing alone)
+    camera_samples: int = 4          # PATH: camera paths per pixel and pass
     # --- Kernel
     radius_mode: str = "AUTO"        # 'AUTO' (pixel footprint) or 'WORLD'
     initial_radius_px: float = 2.0   # AUTO: radius = this many pixel footprints
@@ -70,6 +73,10 @@ class RenderSettings:
             bad("photons_per_pass", "must be in [1, 100000000]")
         if not 0 <= self.seed < 2**31:
             bad("seed", "must be in [0, 2^31)")
+        if self.integrator not in ("PHOTON", "PATH"):
+            bad("integrator", "must be 'PHOTON' or 'PATH'")
+        if not 1 <= self.camera_samples <= 4096:
+            bad("camera_samples", "must be in [1, 4096]")
         if self.radius_mode not in ("AUTO", "WORLD"):
             bad("radius_mode", "must be 'AUTO' or 'WORLD'")
         if not 0 < self.initial_radius_px <= 1000:

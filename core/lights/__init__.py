@@ -37,13 +37,15 @@ world         constant radiance L_w from every direction.
 
 Modules: :mod:`.table` (:class:`LightTable`, :func:`build_light_table`, the
 kinds), :mod:`.emission` (:func:`sample_photons`), :mod:`.sampling`
-(:func:`sample_direct`, next-event estimation), :mod:`.seen`
+(:func:`sample_direct`, next-event estimation), :mod:`.pdf` (:func:`pdf_direct`,
+its density for a given direction: MIS), :mod:`.seen`
 (:func:`emitted_along_rays`, :func:`world_radiance`: lights seen by rays) and
 :mod:`.warps` (the shape warps emission and sampling share).
 """
 from __future__ import annotations
 
 from .emission import B_DIFFUSE, sample_photons
+from .pdf import pdf_direct
 from .sampling import sample_direct
 from .seen import emitted_along_rays, world_radiance
 from .table import (AREA, KIND_NAMES, MESH, POINT, SPOT, SUN, WORLD, LightTable,
@@ -51,6 +53,6 @@ from .table import (AREA, KIND_NAMES, MESH, POINT, SPOT, SUN, WORLD, LightTable,
 
 __all__ = [
     "POINT", "SPOT", "SUN", "AREA", "MESH", "WORLD", "KIND_NAMES", "LightTable",
-    "build_light_table", "B_DIFFUSE", "sample_photons", "sample_direct",
+    "build_light_table", "B_DIFFUSE", "sample_photons", "sample_direct", "pdf_direct",
     "emitted_along_rays", "world_radiance",
 ]

@@ -25,7 +25,7 @@ def _ray_disc(o, d, c, n, r, t_max):
 
 
 def emitted_along_rays(table: LightTable, o: np.ndarray, d: np.ndarray, t_max: np.ndarray,
-                       visibility: str = "camera") -> np.ndarray:
+                       visibility: str = "camera", return_hit: bool = False):
     """Radiance (K, 3) of analytic emitters hit by rays o + t d, 0 < t < t_max.
 
     Area lights (front side only), point/spot lights with radius > 0 (Cycles'
@@ -34,14 +34,21 @@ def emitted_along_rays(table: LightTable, o: np.ndarray, d: np.ndarray, t_max: n
     nearest light hit wins; lights whose ``visible_<visibility>`` flag is off
     are skipped.  Mesh emission and the world are not included.
     visibility: 'camera', 'glossy' or 'transmission'.
+    return_hit=True: returns (radiance, light (K,) int64 emitter row hit or
+    -1, t (K,) its distance, inf for the sun) for multiple importance sampling.
     """
     o = np.asarray(o, np.float64).reshape(-1, 3)
     d = np.asarray(d, np.float64).reshape(-1, 3)
     K = o.shape[0]
     t_max = np.broadcast_to(np.asarray(t_max, np.float64), (K,))
     Lout = np.zeros((K, 3))
+    row = np.full(K, -1, np.int64)
+    t_hit = np.full(K, np.inf)
+
+    def result():
+        return (Lout, row, t_hit) if return_hit else Lout
     if K == 0 or table.n == 0:
-        return Lout
+        return result()
     flags = {"camera": table.visible_camera, "glossy": table.visible_glossy,
              "transmission": table.visible_transmission}
     if visibility not in flags:
@@ -99,12 +106,16 @@ def emitted_along_rays(table: LightTable, o: np.ndarray, d: np.ndarray, t_max: n
             L = np.broadcast_to(table.radiance[j], (K, 3))
             # The sun never beats a finite hit; a later finite light would.
             Lout[hit] = L[hit]
+            row[hit] = j
+            t_hit[hit] = np.inf
             continue
         else:
             continue
         best = np.where(hit, t, best)
         Lout[hit] = L[hit]
-    return Lout
+        row[hit] = j
+        t_hit[hit] = t[hit]
+    return result()
 
 
 def world_radiance(table: LightTable) -> np.ndarray:

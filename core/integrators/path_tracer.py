@@ -1,0 +1,302 @@
+"""Camera paths: unidirectional path tracing with next-event estimation and MIS.
+
+    pt = PathTracer(scene, accel, mtab, light_table, camera, fsamp, px, py, settings, nee)
+    L = pt(rng, check_stop)          # (P, 3) float64, mean of camera_samples paths per pixel
+
+The first strategy of a combined integrator (vertex connection and merging,
+Georgiev et al. 2012; docs/integrators.md).  Like Cycles' path tracer:
+
+- every camera path continues by BSDF sampling (core.materials.sample_bsdf,
+  all lobes, delta ones included);
+- at every vertex with a non-delta lobe one light sample
+  (core.lights.sample_direct) is weighted by the BSDF and tested with the
+  shadow ray of core.lights.nee;
+- emission found by a BSDF-sampled ray (area lights, point/spot discs and
+  spheres, sun discs, emissive triangles, the world) and the light sample of
+  the vertex it left are combined by the power heuristic (Veach 1997, eq.
+  9.13): w_light = p_light^2 / (p_light^2 + p_bsdf^2) with p_light from
+  core.lights.pdf_direct and p_bsdf from core.materials.pdf_bsdf; emission
+  seen from the camera or after a delta scattering has weight 1 (the other
+  strategy cannot produce it);
+- ``max_bounces`` counts bounces as Cycles' Total: light samples at vertices
+  0..max_bounces (vertex 0 = the camera ray's hit, so max_bounces = 0 is
+  direct light only), and the emission found by the last vertex's BSDF ray;
+- Russian roulette from vertex ``rr_start`` on, survival probability
+  min(1, sqrt(largest throughput component)) as Cycles'
+  ``path_state_continuation_probability``, weight divided by it;
+- the filter, lens and first light sample of a pixel's camera_samples paths
+  are stratified (:func:`stratified`).
+
+All paths of a pass are traced together as a structure of arrays, masked and
+compacted per vertex (Mitsuba 3 style wavefront); throughput is float64.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..accel import surface_point
+from .. import lights as Lt
+from .. import materials as B
+from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
+from ..mathutil import dot as _dot
+
+#: Paths traced together at most: ~1 kB each in flight (64 MiB), and past the
+#: ~30k paths per batch where the per-vertex numpy overhead is amortised
+#: (docs/integrators.md, "Camera samples per pass").
+PATH_CHUNK = 1 << 16
+
+# Visibility flag of the ray that left a vertex (core.lights.seen names).
+_VIS = ("camera", "glossy", "transmission")
+
+
+def power_heuristic(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:
+    """(K,) MIS weight of strategy a: pdf_a^2 / (pdf_a^2 + pdf_b^2) (Veach 1997,
+    eq. 9.13, beta = 2); 1 where both are 0 (the strategy a is then the only one)."""
+    a2, b2 = pdf_a * pdf_a, pdf_b * pdf_b
+    s = a2 + b2
+    return np.where(s > 0, a2 / np.where(s > 0, s, 1.0), 1.0)
+
+
+def stratified(rng: np.random.Generator, n: int, B: int, pairs: int) -> np.ndarray:
+    """(n, B, 2 pairs) float64 uniforms: for each of B pixels, n samples whose
+    dimension pairs (2i, 2i+1) are stratified: jittered on a sqrt(n) x sqrt(n)
+    grid when n is a square, else N-rooks (each 1-D projection in n strata);
+    cells shuffled independently per pixel and pair (Shirley 1991; Cycles'
+    multi-jittered sequences serve the same end).  Every sample is uniform on
+    its own, so estimates stay unbiased; within a pixel the samples spread."""
+    out = np.empty((n, B, 2 * pairs))
+    m = int(round(np.sqrt(n)))
+    for i in range(pairs):
+        # A random permutation of the n cells per pixel.
+        perm = np.argsort(rng.random((n, B)), axis=0)
+        j = rng.random((n, B, 2))
+        if m * m == n:
+            out[..., 2 * i] = (perm % m + j[..., 0]) / m
+            out[..., 2 * i + 1] = (perm // m + j[..., 1]) / m
+        else:
+            out[..., 2 * i] = (perm + j[..., 0]) / n
+            out[..., 2 * i + 1] = (np.argsort(rng.random((n, B)), axis=0) + j[..., 1]) / n
+    return out
+
+
+@dataclass
+class PathVertices:
+    """The scattering vertices of the live camera paths, K rows (structure of arrays).
+
+    path (K,) int64 row into the pass' path list (pixel = path % P);
+    p, ng, ns, wo (K, 3) float64, ng and ns as the mesh has them (the
+    materials orient them themselves, and tell entering from leaving glass by
+    wo's side of ng); mat (K,) int; colors (K, L, 3); beta (K, 3) float64
+    throughput from the camera, divided by the sampling densities so far.
+
+    Room for VCM (Georgiev et al. 2012, technical report section 4): the
+    recursive MIS quantities dVCM, dVC, dVM (K,) float64 per vertex are
+    updated from the pdfs this class's users already compute (the forward
+    BSDF pdf of the sample that reached the vertex, the reverse pdf from
+    pdf_bsdf with wo and wi swapped, the cosine at the vertex); they are
+    fields to add here, next to beta, and carried through ``take``.
+    """
+    path: np.ndarray
+    p: np.ndarray
+    ng: np.ndarray
+    ns: np.ndarray
+    wo: np.ndarray
+    mat: np.ndarray
+    colors: np.ndarray
+    beta: np.ndarray
+
+    def take(self, i: np.ndarray) -> "PathVertices":
+        """The rows i (compaction)."""
+        return PathVertices(**{k: v[i] for k, v in self.__dict__.items()})
+
+    def ns_wo(self) -> np.ndarray:
+        """(K, 3) shading normal flipped with ng to wo's side (Cycles' back-face
+        flip): the receiver normal of light sampling (core.lights.nee's convention)."""
+        return self.ns * np.where(_dot(self.ng, self.wo) >= 0, 1.0, -1.0)[:, None]
+
+
+class PathTracer:
+    """Camera paths over the pixels (px, py) (P,) float64 of the region, py from
+    the bottom; settings: RenderSettings (max_bounces, rr_start,
+    camera_samples); nee: core.lights.nee.NextEventEstimation (its shadow test)."""
+
+    def __init__(self, scene, accel, mtab, light_table, camera, fsamp, px, py, settings, nee):
+        self.scene, self.accel, self.mtab, self.lights = scene, accel, mtab, light_table
+        self.camera, self.fsamp, self.px, self.py = camera, fsamp, px, py
+        self.max_bounces = int(settings.max_bounces)
+        self.rr_start = int(settings.rr_start)
+        self.samples = int(settings.camera_samples)
+        self.nee = nee
+        # Emitter row of every emissive triangle (-1: none) and of the world:
+        # what a BSDF-sampled ray hit, for the light-sampling pdf.
+        T = scene.tri_p.shape[0]
+        self.tri_light = np.full(T, -1, np.int64)
+        mesh = np.nonzero(light_table.kind == MESH)[0]
+        self.tri_light[light_table.source[mesh]] = mesh
+        w = np.nonzero(light_table.kind == WORLD)[0]
+        self.world_row = int(w[0]) if w.size else -1
+        self.world = Lt.world_radiance(light_table)
+        # Emitters a BSDF-sampled ray can hit (not delta): MIS applies to them.
+        lt = light_table
+        self.hittable = ((lt.kind == AREA) | (lt.kind == MESH) | (lt.kind == WORLD)
+                         | ((lt.kind == SUN) & (lt.half_angle > 0))
+                         | (((lt.kind == POINT) | (lt.kind == SPOT)) & (lt.radius > 0)))
+
+    def __call__(self, rng: np.random.Generator, check_stop=lambda: None) -> np.ndarray:
+        """(P, 3) float64: the mean over ``camera_samples`` paths per pixel of
+        the radiance each carries (filter-importance-sampled, so a plain mean)."""
+        P, n = self.px.shape[0], self.samples
+        L = np.zeros((P, 3))
+        block = max(1, PATH_CHUNK // n)
+        for a in range(0, P, block):
+            pix_b = np.arange(a, min(a + block, P))
+            # Paths sample-major: row s * B + b is sample s of pixel pix_b[b].
+            pix = np.tile(pix_b, n)
+            u = stratified(rng, n, pix_b.size, 4).reshape(n * pix_b.size, 8)
+            Lp = self._trace(pix, u, rng, check_stop)
+            for c in range(3):
+                L[a:a + pix_b.size, c] += np.bincount(pix - a, Lp[:, c], minlength=pix_b.size)
+        return L / n
+
+    # ------------------------------------------------------------------ paths
+    def _trace(self, pix, u, rng, check_stop) -> np.ndarray:
+        """(K, 3) radiance of one camera path per entry of pix (K,) (pixel rows);
+        u (K, 8) the stratified numbers of the path's first dimensions: filter
+        (0:2), lens (2:4), first light sample (4:7)."""
+        mtab, accel, s, lt = self.mtab, self.accel, self.scene, self.lights
+        K = pix.size
+        rays, _ = self.camera.generate(self.px[pix], self.py[pix], u[:, :2], u[:, 2:4], self.fsamp)
+        out = np.zeros((K, 3))
+        path = np.arange(K)
+        o, d, tmax = rays.o, rays.d, rays.t_max
+        beta = np.ones((K, 3))
+        # The vertex the ray left: its BSDF pdf (0 = camera or delta sample:
+        # no MIS), position and oriented shading normal (light pdf there).
+        pdf_prev = np.zeros(K)
+        p_prev = np.zeros((K, 3))
+        n_prev = np.zeros((K, 3))
+        vis = np.zeros(K, np.int8)
+        for depth in range(self.max_bounces + 2):
+            if path.size == 0:
+                break
+            check_stop()
+            h = accel.intersect(o, d, tmax)
+            t_end = np.minimum(np.where(h.hit, h.t, np.inf), tmax)
+            # Analytic emitters before the hit, per ray type's visibility flag.
+            for code, name in enumerate(_VIS):
+                sel = np.nonzero(vis == code)[0]
+                if sel.size == 0:
+                    continue
+                Le, row, t = Lt.emitted_along_rays(lt, o[sel], d[sel], t_end[sel], name,
+                                                   return_hit=True)
+                w = self._mis_bsdf(pdf_prev[sel], p_prev[sel], n_prev[sel], d[sel], row, t)
+                out[path[sel]] += beta[sel] * Le * w[:, None]
+            miss = np.nonzero(~h.hit)[0]
+            if miss.size and np.any(self.world > 0):
+                row = np.full(miss.size, self.world_row, np.int64)
+                w = self._mis_bsdf(pdf_prev[miss], p_prev[miss], n_prev[miss], d[miss], row,
+                                   np.full(miss.size, np.inf))
+                out[path[miss]] += beta[miss] * self.world[None, :] * w[:, None]
+            ih = np.nonzero(h.hit)[0]
+            if ih.size == 0:
+                break
+            prim = h.prim[ih]
+            p, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, h.u[ih], h.v[ih])
+            mat = s.tri_mat[prim]
+            em = np.nonzero(mtab.emission[mat].max(axis=1) > 0)[0]
+            if em.size:
+                Le = B.emission_radiance(mtab, mat[em], uv[em])
+                e = ih[em]
+                w = self._mis_bsdf(pdf_prev[e], p_prev[e], n_prev[e], d[e],
+                                   self.tri_light[prim[em]], h.t[e])
+                out[path[e]] += beta[e] * Le * w[:, None]
+            if depth > self.max_bounces:
+                break       # the last BSDF ray only collects emission
+            v = PathVertices(path=path[ih], p=p, ng=ng, ns=ns, wo=-d[ih], mat=mat,
+                             colors=B.lobe_colors(mtab, mat, uv), beta=beta[ih])
+            nd = np.nonzero(mtab.has_nondelta[mat])[0]
+            if nd.size:
+                ud = u[v.path[nd], 4:7] if depth == 0 else rng.random((nd.size, 3))
+                self._direct(v.take(nd), ud, out)
+            # Continue by sampling the BSDF (all lobes).
+            ur = rng.random((ih.size, 4))
+            wi, wgt, pdf, is_delta, valid = B.sample_bsdf(mtab, v.mat, v.colors, v.ns, v.ng, v.wo,
+                                                          ur[:, :3], subset="all", mode="radiance")
+            bt = v.beta * wgt
+            ok = valid & np.all(np.isfinite(bt), axis=1) & (bt.max(axis=1) > 0)
+            if depth >= self.rr_start:
+                q = np.minimum(np.sqrt(bt.max(axis=1)), 1.0)
+                ok &= ur[:, 3] < q
+                bt = bt / np.maximum(q, 1e-300)[:, None]
+            c = np.nonzero(ok)[0]
+            wi = wi[c]
+            refl = (_dot(wi, v.ng[c]) * _dot(v.wo[c], v.ng[c])) > 0
+            o = accel.spawn(v.p[c], v.ng[c], wi)
+            d = wi
+            tmax = np.full(c.size, np.inf)
+            beta = bt[c]
+            pdf_prev = np.where(is_delta[c], 0.0, pdf[c])
+            p_prev, n_prev = v.p[c], v.ns_wo()[c]
+            vis = np.where(refl, 1, 2).astype(np.int8)
+            path = v.path[c]
+        return out
+
+    def _mis_bsdf(self, pdf_bsdf, p_prev, n_prev, wi, light, dist) -> np.ndarray:
+        """(K,) power-heuristic weight of emission reached by BSDF sampling:
+        1 after the camera or a delta sample (pdf_bsdf = 0), else against the
+        density of the light sample taken at the previous vertex."""
+        w = np.ones(pdf_bsdf.shape[0])
+        m = np.nonzero((pdf_bsdf > 0) & (light >= 0))[0]
+        if m.size:
+            pl = Lt.pdf_direct(self.lights, p_prev[m], wi[m], light[m], dist[m], n=n_prev[m])
+            w[m] = power_heuristic(pdf_bsdf[m], pl)
+        return w
+
+    def _direct(self, v: PathVertices, u, out) -> None:
+        """Adds to out[v.path] the light sample of each vertex (all have a
+        non-delta lobe), MIS-weighted against BSDF sampling; u (K, 3) uniforms."""
+        mtab, lt = self.mtab, self.lights
+        n_l = v.ns_wo()
+        smp = Lt.sample_direct(lt, v.p, u, n=n_l)
+        wi, dist, wgt, light = smp["wi"], smp["dist"], smp["weight"], smp["light"]
+        live = np.nonzero((wgt.max(axis=1) > 0) & np.all(np.isfinite(wgt), axis=1))[0]
+        if live.size == 0:
+            return
+        v, wi, dist, wgt, light = v.take(live), wi[live], dist[live], wgt[live], light[live]
+        shadow = smp["cast_shadow"][live]
+        f = B.eval_bsdf(mtab, v.mat, v.colors, v.ns, v.ng, v.wo, wi)
+        cos = np.abs(_dot(v.ns, wi))
+        contrib = v.beta * f * (cos[:, None] * wgt)
+        nz = np.nonzero(contrib.max(axis=1) > 0)[0]
+        if nz.size == 0:
+            return
+        v, wi, dist, contrib, light, shadow = (v.take(nz), wi[nz], dist[nz], contrib[nz],
+                                               light[nz], shadow[nz])
+        w = self.mis_light(v, wi, dist, light, n_l[live][nz])
+        mesh = lt.kind[light] == MESH
+        blocked = self.nee._blocked(v.p, v.ng, wi, dist, mesh) & shadow
+        keep = ~blocked
+        out[v.path[keep]] += contrib[keep] * w[keep, None]     # one vertex per path
+
+    def mis_light(self, v: PathVertices, wi, dist, light, n_l=None) -> np.ndarray:
+        """(K,) power-heuristic weight of the light samples (wi, dist, light) (K,)
+        taken at vertices v (receiver normals n_l, default v.ns_wo()): against
+        the BSDF density of wi where a BSDF ray along wi would find the emitter
+        (not a delta light, visible to that ray type), else 1."""
+        mtab, lt = self.mtab, self.lights
+        refl = (_dot(wi, v.ng) * _dot(v.wo, v.ng)) > 0
+        seen = self.hittable[light] & np.where(
+            lt.kind[light] == MESH, True,
+            np.where(refl, lt.visible_glossy[light], lt.visible_transmission[light])
+            | (lt.kind[light] == WORLD))
+        w = np.ones(light.shape[0])
+        m = np.nonzero(seen)[0]
+        if m.size:
+            n_l = v.ns_wo() if n_l is None else n_l
+            pl = Lt.pdf_direct(lt, v.p[m], wi[m], light[m], dist[m], n=n_l[m])
+            pb = B.pdf_bsdf(mtab, v.mat[m], v.colors[m], v.ns[m], v.ng[m], v.wo[m], wi[m],
+                            subset="all")
+            w[m] = power_heuristic(pl, pb)
+        return w
