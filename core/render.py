@@ -62,7 +62,7 @@ from .sanity import check_resolution, check_scene, recentre
 from .scene.camera import CameraModel, FilterSampler
 from .scene.model import Scene, drop_invalid_triangles, scene_digest
 from .settings import RenderSettings
-from .sppm.film import Film, PassResult
+from .sppm.film import PASSES, Film, PassResult, pass_enabled
 from .sppm.photon_pass import PHOTON_CHUNK, PhotonPass
 from .sppm.photons import PhotonTracer, triangle_curvature
 from .sppm.state import PixelState
@@ -99,7 +99,7 @@ class Renderer:
         self.log = log
         # Polled between the set-up stages too (cancel within 1 s).
         self._should_stop = should_stop or (lambda: False)
-        self._setup_scene(scene, force_stages)
+        self._setup_scene(scene, force_stages, passes)
         st = self.settings
         P = self.width * self.height
         # Seconds per stage, for the benchmark (ratios, not bare times).
@@ -136,7 +136,7 @@ class Renderer:
                                             (self.width, self.height), self.scene.filter_width)
             self.light_splat = np.zeros((P, 3))      # splat sums of every pass
 
-    def _setup_scene(self, scene: Scene, force_stages: tuple) -> None:
+    def _setup_scene(self, scene: Scene, force_stages: tuple, passes: tuple = ()) -> None:
         """Region, lights, materials, BVH, plan, occlusion grid and photon tracer."""
         log = self.log
         check_scene(scene)          # refusals: non-finite lights or camera, float32 range
@@ -162,12 +162,11 @@ class Renderer:
         self.width, self.height = x1 - x0, y1 - y0
         self.D = scene.diameter()
         st0 = self.settings
-        from .sppm.film import AOVS
         self.memory = memory.estimate(self.width * self.height,
                                       min(st0.photons_per_pass, PHOTON_CHUNK), scene.n_triangles,
                                       st0.occlusion_grid_res, st0.use_frequency,
-                                      aov_channels=sum(a.channels for a in AOVS
-                                                       if getattr(st0, a.setting)),
+                                      aov_channels=sum(p.channels for p in PASSES
+                                                       if p.name in passes or pass_enabled(p, st0)),
                                       hist_bins=HIST_BINS if st0.frequency_estimator == "QUANTILE" else 0,
                                       texture_bytes=sum(np.asarray(t).nbytes for t in scene.textures))
         memory.check_fits(self.memory)

@@ -20,13 +20,12 @@ class SettingsError(ValueError):
 @dataclass(frozen=True)
 class RenderSettings:
     # --- Sampling
-    integrator: str = "PHOTON"       # 'PHOTON' (SPPM), 'PATH', 'LIGHT' (light tracing alone)
     time_limit: float = 0.0          # seconds of passes; 0 = no limit
     max_passes: int = 64             # 0 = no limit (then time_limit must be > 0)
     photons_per_pass: int = 200_000
     seed: int = 0
     # --- Integrator (docs/integrators.md)
-    integrator: str = "PHOTON"       # 'PHOTON' (photon mapping) or 'PATH' (path tracing alone)
+    integrator: str = "PHOTON"       # 'PHOTON' (photon mapping), 'PATH' or 'LIGHT' (tracing alone)
     camera_samples: int = 4          # PATH: camera paths per pixel and pass
     # --- Kernel
     radius_mode: str = "AUTO"        # 'AUTO' (pixel footprint) or 'WORLD'
@@ -73,8 +72,6 @@ class RenderSettings:
             bad("photons_per_pass", "must be in [1, 100000000]")
         if not 0 <= self.seed < 2**31:
             bad("seed", "must be in [0, 2^31)")
-        if self.integrator not in ("PHOTON", "PATH"):
-            bad("integrator", "must be 'PHOTON' or 'PATH'")
         if not 1 <= self.camera_samples <= 4096:
             bad("camera_samples", "must be in [1, 4096]")
         if self.radius_mode not in ("AUTO", "WORLD"):
