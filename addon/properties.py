@@ -49,9 +49,6 @@ class FPPMRenderSettings(PropertyGroup):
     """FPPM render settings, one property per ``RenderSettings`` field."""
 
     # --- Sampling
-    integrator: EnumProperty(
-        name="Integrator", items=INTEGRATORS, default=_D.integrator,
-        description="How light is transported to the camera")
     time_limit: FloatProperty(
         name="Time Limit", default=_D.time_limit, min=0.0, soft_max=3600.0,
         unit='TIME_ABSOLUTE', precision=1,
@@ -71,7 +68,8 @@ class FPPMRenderSettings(PropertyGroup):
     # --- Integrator
     integrator: EnumProperty(
         name="Integrator", items=INTEGRATORS, default=_D.integrator,
-        description="Which strategies estimate the image")
+        description="Which strategies estimate the image: photon mapping (FPPM), path "
+                    "tracing alone or light tracing alone")
     camera_samples: IntProperty(
         name="Camera Samples", default=_D.camera_samples, min=1, max=4096, soft_max=64,
         description="Path Tracing: camera paths per pixel in every pass")

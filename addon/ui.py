@@ -34,7 +34,6 @@ class FPPM_RENDER_PT_sampling(FPPMPanel, Panel):
     def draw(self, context):
         layout = split(self.layout)
         s = context.scene.fppm
-        layout.prop(s, "integrator")
         col = layout.column(align=True)
         col.prop(s, "max_passes")
         col.prop(s, "time_limit")

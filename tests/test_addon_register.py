@@ -127,8 +127,10 @@ def test_panels_draw_every_setting(unregistered):
     addon.register()
     sc = bpy.context.scene
     drawn = set()
-    for mode in ("AUTO", "WORLD"):
+    # Each conditional row shows under one of these states.
+    for mode, integrator in (("AUTO", "PHOTON"), ("WORLD", "PATH")):
         sc.fppm.radius_mode = mode
+        sc.fppm.integrator = integrator
         for cls in ui.classes:
             lay = _Layout(drawn)
 
