@@ -21,6 +21,8 @@ from typing import Optional
 
 import numpy as np
 
+from .textures import EnvironmentMap
+
 # Lobe kinds (closures).  A material is a weighted sum of lobes, like Cycles'
 # closure list after Mix/Add shaders are flattened.
 DIFFUSE = 0       # Lambert (roughness 0) or Oren-Nayar (roughness > 0), f = color/pi
@@ -172,7 +174,11 @@ class Scene:
     materials: list of Material.
     lights: list of Light.
     camera: Camera.
-    world_color: (3,) float64 constant background radiance.
+    world_color: (3,) float64 constant background radiance (with ``world_map``:
+      the map's mean radiance, for plans and summaries).
+    world_map: the world's Environment Texture
+      (:class:`core.scene.textures.EnvironmentMap`) or None.
+    approximations: what the exporter approximated or ignored, one sentence each.
     textures: list of (H, W, 3|4) float32 linear images, row 0 at the bottom.
     filter_width: Cycles' pixel filter width in pixels (Blackman-Harris).
     """
@@ -186,6 +192,8 @@ class Scene:
     world_color: np.ndarray = field(default_factory=lambda: np.zeros(3))
     textures: list = field(default_factory=list)
     filter_width: float = 1.5
+    world_map: Optional[EnvironmentMap] = None
+    approximations: tuple = ()
 
     @property
     def n_triangles(self) -> int:
@@ -263,7 +271,8 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
         scene = Scene(tri_p=scene.tri_p[ok], tri_n=tri_n[ok], tri_uv=tri_uv[ok],
                       tri_mat=scene.tri_mat[ok], materials=scene.materials,
                       lights=scene.lights, camera=scene.camera, world_color=scene.world_color,
-                      textures=scene.textures, filter_width=scene.filter_width)
+                      textures=scene.textures, filter_width=scene.filter_width,
+                      world_map=scene.world_map, approximations=scene.approximations)
     return scene, dropped
 
 
@@ -285,4 +294,6 @@ def scene_digest(scene: Scene) -> str:
     for t in scene.textures:
         h.update(np.ascontiguousarray(t).tobytes())
     h.update(repr(scene.filter_width).encode())
+    if scene.world_map is not None:
+        h.update(scene.world_map.digest_bytes())
     return h.hexdigest()[:16]

@@ -100,7 +100,7 @@ class CameraPass:
                     L[idx[sel]] += beta[sel] * Le
             miss = ~hit
             if np.any(miss):
-                L[idx[miss]] += beta[miss] * Lt.world_radiance(self.light_table)[None, :]
+                L[idx[miss]] += beta[miss] * Lt.world_radiance(self.light_table, d[miss])
             ih = np.nonzero(hit)[0]
             if ih.size == 0:
                 break
