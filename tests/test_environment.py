@@ -222,3 +222,177 @@ def test_photon_power_mean_is_the_map_flux():
     assert np.all(np.abs(m - flux) <= Z * se + 3e-3 * flux), (m, flux, se)
     # The table's flux (used for light selection only) is the region-mean sum: within 1 %.
     np.testing.assert_allclose(t.flux[0], flux, rtol=1e-2)
+
+
+# ---------------------------------------------------------------------------- Blender
+
+def hdri_world(sc, img, strength=1.0, rotation=None, coord=None, coord_object=None):
+    """The world: Texture Coordinate -> Mapping -> Environment Texture -> Background.
+
+    img: (H, W, 4) float32 pixels (row 0 = nadir), made into a float image;
+    rotation: the Mapping node's Euler XYZ (None: no Mapping node);
+    coord: 'Generated' or 'Object' (None: no Texture Coordinate node)."""
+    import bpy
+    H, W = img.shape[:2]
+    im = bpy.data.images.new("HDRI", W, H, alpha=True, float_buffer=True)
+    im.colorspace_settings.name = 'Linear Rec.709'
+    im.pixels.foreach_set(np.ascontiguousarray(img, np.float32).ravel())
+    im.pack()
+    w = bpy.data.worlds.new("HDRI World")
+    nt = w.node_tree
+    nt.nodes.clear()
+    out = nt.nodes.new('ShaderNodeOutputWorld')
+    bg = nt.nodes.new('ShaderNodeBackground')
+    bg.inputs["Strength"].default_value = strength
+    env = nt.nodes.new('ShaderNodeTexEnvironment')
+    env.image = im
+    nt.links.new(env.outputs["Color"], bg.inputs["Color"])
+    nt.links.new(bg.outputs[0], out.inputs["Surface"])
+    vec = env.inputs["Vector"]
+    if rotation is not None:
+        mp = nt.nodes.new('ShaderNodeMapping')
+        mp.inputs["Rotation"].default_value = rotation
+        nt.links.new(mp.outputs[0], vec)
+        vec = mp.inputs["Vector"]
+    if coord is not None:
+        tc = nt.nodes.new('ShaderNodeTexCoord')
+        tc.object = coord_object
+        nt.links.new(tc.outputs[coord], vec)
+    sc.world = w
+    return w
+
+
+def _export():
+    import bpy
+
+    from fppm.addon.export import export_scene
+    lines = []
+    s = export_scene(bpy.context.evaluated_depsgraph_get(), log=lines.append)
+    return s, lines
+
+
+def test_export_reads_the_map_mapping_and_coordinates():
+    bpy = pytest.importorskip("bpy")
+    import bpy_helpers as H
+    from mathutils import Euler
+    sc = H.empty_scene((16, 16))
+    H.add_plane(sc)
+    H.add_camera(sc)
+    img = spiky_image()
+    rot = (0.3, -0.2, 1.0)
+    hdri_world(sc, img, strength=2.5, rotation=rot, coord='Generated')
+    s, lines = _export()
+    m = s.world_map
+    np.testing.assert_array_equal(m.image, img)
+    np.testing.assert_array_equal(m.strength, [2.5, 2.5, 2.5])
+    R = np.array(Euler(rot, 'XYZ').to_matrix())
+    np.testing.assert_allclose(m.to_texture, R, atol=1e-7)
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    np.testing.assert_allclose(s.world_color, EnvironmentLight.build(m).mean_radiance)
+    # Texture Coordinate Object: the object's inverse matrix, then the mapping.
+    e = bpy.data.objects.new("Turn", None)
+    e.rotation_euler = (0.0, 0.4, 0.9)
+    H.link(e, sc)
+    hdri_world(sc, img, rotation=rot, coord='Object', coord_object=e)
+    s, lines = _export()
+    Mi = np.linalg.inv(np.array(Euler((0.0, 0.4, 0.9), 'XYZ').to_matrix()))
+    np.testing.assert_allclose(s.world_map.to_texture, R @ Mi, atol=1e-6)
+    assert lines[1] == "Approximated: nothing.", lines[1]
+
+
+# Passes and photons per pass: as tests/test_cycles_agreement.py's default and
+# its glossy floor (one camera sample per pass: the glossy floor's reflections
+# of the sky need the passes).
+HDRI_BUDGET = {"diffuse": (12, 100_000), "glossy": (64, 40_000)}
+# Per seed, two seeds: the reference's own noise on the mean is then ~0.05 %
+# (measured: 0.01-0.02 % at 512), negligible against FPPM's.
+CYCLES_SAMPLES = 128
+
+
+def _hdri_image():
+    """64 x 32 sky: a dim gradient and a few bright texels above the horizon."""
+    H, W = 32, 64
+    img = np.zeros((H, W, 4), np.float32)
+    rows = (np.arange(H) + 0.5) / H
+    img[..., 0] = (0.15 + 0.25 * rows)[:, None]
+    img[..., 1] = 0.25
+    img[..., 2] = (0.45 - 0.2 * rows)[:, None]
+    img[..., 3] = 1.0
+    img[26, 9, :3] = (300.0, 240.0, 180.0)
+    img[22, 40, :3] = (60.0, 90.0, 150.0)
+    img[19, 55, :3] = (0.0, 120.0, 0.0)
+    return img
+
+
+def _hdri_scene(kind):
+    import bpy  # noqa: F401
+    from scenes import bpy_kit as K
+    sc = K.reset_scene((64, 64), samples=CYCLES_SAMPLES)
+    floor = (K.material("Floor", "DIFFUSE", color=(0.8, 0.8, 0.8)) if kind == "diffuse"
+             else K.material("Floor", "GLOSSY", color=(0.9, 0.9, 0.9), roughness=0.3))
+    K.plane("Floor", 6.0, floor)
+    K.box("Box", (1.0, 1.0, 1.0), K.material("Red", "DIFFUSE", color=(0.8, 0.2, 0.1)),
+          rot_z_deg=30.0)
+    K.camera((0.0, -5.0, 2.5), (0.0, 0.0, 0.3))
+    hdri_world(sc, _hdri_image(), strength=1.0,
+               rotation=(0.0, 0.0, 0.0) if kind == "diffuse" else (0.2, 0.0, 1.3),
+               coord='Generated')
+    return sc
+
+
+def _cycles(sc, seed, path):
+    sc.render.engine = 'CYCLES'
+    sc.cycles.samples = CYCLES_SAMPLES
+    sc.cycles.seed = seed
+    sc.cycles.use_animated_seed = False
+    im = sc.render.image_settings
+    im.file_format, im.color_depth, im.color_mode = 'OPEN_EXR', '32', 'RGBA'
+    sc.render.filepath = str(path)
+    sc.render.use_file_extension = False
+    import bpy
+
+    from scenes.refs import read_exr
+    bpy.ops.render.render(write_still=True)
+    return read_exr(str(path))[..., :3].astype(np.float64)
+
+
+@pytest.mark.parametrize("kind", ["diffuse", "glossy"])
+def test_hdri_agrees_with_cycles(kind, tmp_path):
+    """The bounds of tests/test_cycles_agreement.py, with the reference
+    rendered here (two seeds: its noise is measured the same way)."""
+    pytest.importorskip("bpy")
+    from test_cycles_agreement import BIAS_ALLOWANCE, render
+
+    from scenes.refs import RELMSE_EPS
+    sc = _hdri_scene(kind)
+    scene, _ = _export()
+    assert scene.world_map is not None
+    c1 = _cycles(sc, 0, tmp_path / "c0.exr")
+    c2 = _cycles(sc, 1, tmp_path / "c1.exr")
+    ref = 0.5 * (c1 + c2)
+    passes, photons = HDRI_BUDGET[kind]
+    a1 = render(scene, 1, passes, photons)
+    a2 = render(scene, 2, passes, photons)
+    mean_img = 0.5 * (a1 + a2)
+    denom = ref ** 2 + RELMSE_EPS
+    noise_fppm = np.mean((a1 - a2) ** 2 / 4.0 / denom)
+    noise_ref = np.mean((c1 - c2) ** 2 / 4.0 / denom)
+    relmse = float(np.mean((mean_img - ref) ** 2 / denom))
+    lum = ref.mean(axis=2)
+    bright = lum > 4.0 * np.percentile(lum, 90)
+    near = bright.copy()
+    for dy in range(-2, 3):
+        for dx in range(-2, 3):
+            near |= np.roll(np.roll(bright, dy, axis=0), dx, axis=1)
+    mask = ~near
+    m, r = mean_img[mask].mean(), ref[mask].mean()
+    d = ((a1 - a2).mean(axis=2) * mask).reshape(8, 8, 8, 8).sum(axis=(1, 3))
+    sigma_mean = np.sqrt(np.sum(d ** 2 / 4.0)) / mask.sum()
+    dc = ((c1 - c2).mean(axis=2) * mask).reshape(8, 8, 8, 8).sum(axis=(1, 3))
+    sigma_ref = np.sqrt(np.sum(dc ** 2 / 4.0)) / mask.sum()
+    print(f"hdri {kind}: mean {m:.5f} vs Cycles {r:.5f} (ratio {m / r:.4f}, sigma {sigma_mean / r:.2%}"
+          f" + Cycles {sigma_ref / r:.2%}, {mask.mean():.0%} of pixels); relMSE {relmse:.2e}, "
+          f"noise fppm {noise_fppm:.2e} + ref {noise_ref:.2e}")
+    assert math.hypot(sigma_mean, sigma_ref) < 0.0067 * r
+    assert abs(m / r - 1.0) < 0.02
+    assert relmse < 1.5 * (noise_fppm + noise_ref) + BIAS_ALLOWANCE
