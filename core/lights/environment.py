@@ -11,11 +11,13 @@ piecewise-constant distribution over the image's texel regions: region (i, j)
 covers v in [i/H, (i+1)/H), u in [j/W, (j+1)/W), i.e. the band of z = cos(theta)
 from -cos(pi i / H) to -cos(pi (i+1) / H), solid angle
 Omega_i = (2 pi / W) (cos(pi i / H) - cos(pi (i+1) / H)) (the exact integral of
-sin(theta) over the row).  Its weight is f_ij Omega_i, with f_ij the mean over
-the region of the bilinear image's average |rgb| (Cycles: average(fabs(rgb))):
-the texels convolved with (1/8, 3/4, 1/8) along each axis, which is positive
-wherever the interpolated radiance is non-zero (the estimator stays unbiased;
-Cycles needs no such guarantee because it combines the map with BSDF sampling).
+sin(theta) over the row).  Its weight is f_ij Omega_i, with f_ij the MAXIMUM
+over the region of the bilinear image's average |rgb| (Cycles weighs by
+average(fabs(rgb)) at the region's centre).  The maximum is positive wherever
+the interpolated radiance is non-zero, so the estimator stays unbiased without
+Cycles' BSDF-sampling half, and it bounds L / pdf by the map's total: a
+region-mean weight let the half-lit neighbours of a bright texel through at
+16x the mean weight (fireflies on glossy surfaces).
 Inside a region the direction is uniform in u and in z, so the density is
 constant in solid angle there: pdf = f_ij / sum(f Omega) [1/sr].
 
@@ -34,6 +36,22 @@ from ..scene.textures import (EnvironmentMap, environment_radiance, equirectangu
                               equirectangular_uv)
 
 
+def _region_max(a: np.ndarray) -> np.ndarray:
+    """(H, W) maximum over each texel's region of the bilinear interpolation of
+    a (H, W) (periodic in both axes, like the lookup): the largest of the texel
+    itself, the 4 edge midpoints (means of 2 texels) and the 4 corners (means
+    of 4); a bilinear patch takes its extremes at those points."""
+    def sh(di, dj):
+        return np.roll(np.roll(a, di, axis=0), dj, axis=1)
+    m = a.copy()
+    for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        m = np.maximum(m, 0.5 * (a + sh(di, dj)))
+    for di in (1, -1):
+        for dj in (1, -1):
+            m = np.maximum(m, 0.25 * (a + sh(di, 0) + sh(0, dj) + sh(di, dj)))
+    return m
+
+
 def _blur_118(a: np.ndarray, axis: int) -> np.ndarray:
     """Mean of a linearly interpolated periodic signal over each sample's cell:
     (1/8, 3/4, 1/8) along ``axis`` with wrapping (the bilinear lookup repeats)."""
@@ -49,7 +67,8 @@ class EnvironmentLight:
     cdf: (H W,) cumulative ``weight`` in row-major order; total = cdf[-1].
     A, A_inv: (3, 3) to_texture and its inverse; det: |det A|.
     mean_radiance: (3,) (1 / 4 pi) int L d omega, per channel (the sum of the
-    region means of the image times Omega_i, times strength).
+    region means of the bilinear image, the texels convolved with
+    (1/8, 3/4, 1/8) along each axis, times Omega_i, times strength).
     """
     env: EnvironmentMap
     H: int
@@ -70,7 +89,7 @@ class EnvironmentLight:
         H, W = img.shape[:2]
         rgb = img[:, :, [0, 1, 2] if img.shape[2] >= 3 else [0, 0, 0]].astype(np.float64)
         region = _blur_118(_blur_118(rgb, 0), 1)              # (H, W, 3) region means
-        f = _blur_118(_blur_118(np.abs(rgb).mean(axis=2), 0), 1)
+        f = _region_max(np.abs(rgb).mean(axis=2))
         z_edges = -np.cos(np.pi * np.arange(H + 1) / H)
         z_edges[0], z_edges[-1] = -1.0, 1.0
         omega = (2.0 * np.pi / W) * np.diff(z_edges)          # (H,)
