@@ -326,6 +326,12 @@ def _partly_visible(ob) -> bool:
     return ob.type in GEOMETRY_TYPES and any(vis) and not all(vis)
 
 
+def _world_partly_visible(world) -> bool:
+    vis = getattr(world, "cycles_visibility", None) if world is not None else None
+    return vis is not None and not all(getattr(vis, k, True) for k in (
+        "camera", "diffuse", "glossy", "transmission", "scatter"))
+
+
 # The one table of scene features that FPPM ignores or approximates: (feature,
 # check(bpy scene, rendered objects) -> the objects concerned (a list) or a
 # bool, message; "{}" receives the objects).  Every hit is one sentence of
@@ -339,6 +345,8 @@ FEATURE_CHECKS = (
      "(the right eye repeats the left)"),
     ("ray visibility", lambda sc, obs: [ob for ob in obs if _partly_visible(ob)],
      "ray visibility of {} treated as fully visible"),
+    ("world ray visibility", lambda sc, obs: _world_partly_visible(sc.world),
+     "world: ray visibility treated as fully visible"),
     ("light linking", lambda sc, obs: [ob for ob in obs if _light_linked(ob)],
      "light linking of {} ignored: every light reaches every surface"),
     ("hair", lambda sc, obs: [ob for ob in obs if _has_hair(ob)],
@@ -616,8 +624,11 @@ class _Exporter:
             if env is not None:
                 return self.env_mean(env), env
         elif src.type == 'TEX_SKY':
-            self.notes.append(f"world: Sky Texture '{src.name}' is not supported: "
-                              f"the Background colour is used")
+            # Cycles evaluates the sky model in its kernel; bpy offers no
+            # way to evaluate it by direction short of a second render.
+            self.notes.append(f"world: Sky Texture '{src.name}' is not supported: the "
+                              f"Background colour is used (bake the sky to an "
+                              f"equirectangular image for an Environment Texture)")
             return c * strength, None
         else:
             self.notes.append(f"world: '{src.name}' replaced by the Background colour")

@@ -77,6 +77,10 @@ def _world_volume(sc):
     nt.links.new(vol.outputs[0], out.inputs["Volume"])
 
 
+def _world_visibility(sc):
+    H.set_world(sc, (0.1, 0.1, 0.1)).cycles_visibility.camera = False
+
+
 def _sky(sc):
     w, nt, bg, sky = _world_node(sc, 'ShaderNodeTexSky')
     nt.links.new(sky.outputs[0], bg.inputs["Color"])
@@ -112,7 +116,9 @@ CASES = [
                       "surfaces"),
     (_volume_object, "volume object(s) not rendered: 1 object(s) (Smoke)"),
     (_world_volume, "world: volume ignored"),
-    (_sky, "world: Sky Texture 'Sky Texture' is not supported: the Background colour is used"),
+    (_world_visibility, "world: ray visibility treated as fully visible"),
+    (_sky, "world: Sky Texture 'Sky Texture' is not supported: the Background colour is used "
+           "(bake the sky to an equirectangular image for an Environment Texture)"),
     (_hdri_no_image, "world: 'Environment Texture' has no image: the Background colour is used"),
     (_mapping_location, "world: location of 'Mapping' ignored"),
 ]
