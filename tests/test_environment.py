@@ -391,8 +391,8 @@ def test_hdri_agrees_with_cycles(kind, tmp_path):
     sigma_mean = np.sqrt(np.sum(d ** 2 / 4.0)) / mask.sum()
     dc = ((c1 - c2).mean(axis=2) * mask).reshape(8, 8, 8, 8).sum(axis=(1, 3))
     sigma_ref = np.sqrt(np.sum(dc ** 2 / 4.0)) / mask.sum()
-    print(f"hdri {kind}: mean {m:.5f} vs Cycles {r:.5f} (ratio {m / r:.4f}, sigma {sigma_mean / r:.2%}"
-          f" + Cycles {sigma_ref / r:.2%}, {mask.mean():.0%} of pixels); relMSE {relmse:.2e}, "
+    print(f"hdri {kind}: mean {m:.5f} vs Cycles {r:.5f} (ratio {m / r:.4f}, "
+          f"sigma {sigma_mean / r:.2%} + Cycles {sigma_ref / r:.2%}, {mask.mean():.0%} of pixels); relMSE {relmse:.2e}, "
           f"noise fppm {noise_fppm:.2e} + ref {noise_ref:.2e}")
     assert math.hypot(sigma_mean, sigma_ref) < 0.0067 * r
     assert abs(m / r - 1.0) < 0.02

@@ -332,8 +332,8 @@ def sample_direct(table: LightTable, p: np.ndarray, u: np.ndarray, n=None) -> di
 
     m = np.nonzero(kind == WORLD)[0]
     if m.size and table.environment is not None:
-        fill(m, *_sample_environment(table.environment, u1[m], u2[m],
-                                     None if n is None else np.asarray(n, np.float64).reshape(-1, 3)[m]))
+        nm = None if n is None else np.asarray(n, np.float64).reshape(-1, 3)[m]
+        fill(m, *_sample_environment(table.environment, u1[m], u2[m], nm))
     elif m.size:
         jj = j[m]
         if n is None:
