@@ -31,6 +31,7 @@ import numpy as np
 
 from ..core.scene import nodes as shading
 from ..core.errors import SceneError
+from ..core.lights.environment import mean_radiance
 from ..core.scene.textures import EnvironmentMap
 from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
                           TRANSPARENT, Camera, Light, Lobe, Material, Scene,
@@ -622,7 +623,8 @@ class _Exporter:
         if src.type == 'TEX_ENVIRONMENT':
             env = self.environment(src, strength)
             if env is not None:
-                return self.env_mean(env), env
+                # Scene.world_color: the map's mean radiance.
+                return mean_radiance(env), env
         elif src.type == 'TEX_SKY':
             # Cycles evaluates the sky model in its kernel; bpy offers no
             # way to evaluate it by direction short of a second render.
@@ -634,11 +636,6 @@ class _Exporter:
             self.notes.append(f"world: '{src.name}' replaced by the Background colour")
         return c * strength, None
 
-    @staticmethod
-    def env_mean(env) -> np.ndarray:
-        """(3,) the map's mean radiance (Scene.world_color with a map)."""
-        from ..core.lights.environment import EnvironmentLight
-        return np.asarray(EnvironmentLight.build(env).mean_radiance, np.float64)
 
     def environment(self, node, strength: float) -> EnvironmentMap | None:
         """An Environment Texture node -> EnvironmentMap, or None (and a note)."""

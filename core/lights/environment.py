@@ -41,21 +41,50 @@ def _region_max(a: np.ndarray) -> np.ndarray:
     a (H, W) (periodic in both axes, like the lookup): the largest of the texel
     itself, the 4 edge midpoints (means of 2 texels) and the 4 corners (means
     of 4); a bilinear patch takes its extremes at those points."""
-    def sh(di, dj):
-        return np.roll(np.roll(a, di, axis=0), dj, axis=1)
-    m = a.copy()
-    for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        m = np.maximum(m, 0.5 * (a + sh(di, dj)))
-    for di in (1, -1):
-        for dj in (1, -1):
-            m = np.maximum(m, 0.25 * (a + sh(di, 0) + sh(0, dj) + sh(di, dj)))
+    # Edge midpoints between rows (i, i+1) and columns (j, j+1), then corners.
+    ev = 0.5 * (a + np.roll(a, -1, axis=0))          # between row i and i + 1
+    eh = 0.5 * (a + np.roll(a, -1, axis=1))          # between column j and j + 1
+    c = 0.5 * (ev + np.roll(ev, -1, axis=1))         # corner (i + 1/2, j + 1/2)
+    m = np.maximum(a, ev)
+    np.maximum(m, np.roll(ev, 1, axis=0), out=m)
+    np.maximum(m, eh, out=m)
+    np.maximum(m, np.roll(eh, 1, axis=1), out=m)
+    np.maximum(m, c, out=m)
+    np.maximum(m, np.roll(c, 1, axis=0), out=m)
+    np.maximum(m, np.roll(c, 1, axis=1), out=m)
+    np.maximum(m, np.roll(np.roll(c, 1, axis=0), 1, axis=1), out=m)
     return m
 
 
 def _blur_118(a: np.ndarray, axis: int) -> np.ndarray:
-    """Mean of a linearly interpolated periodic signal over each sample's cell:
-    (1/8, 3/4, 1/8) along ``axis`` with wrapping (the bilinear lookup repeats)."""
+    """(1/8, 3/4, 1/8) along ``axis`` with wrapping: the mean of a linearly
+    interpolated periodic signal over each sample's cell, or (as here, on the
+    row solid angles) the weight each row's sum gets in the total of those
+    means (the bilinear lookup repeats in v too)."""
     return 0.75 * a + 0.125 * (np.roll(a, 1, axis=axis) + np.roll(a, -1, axis=axis))
+
+
+def _row_omega(H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
+    """(z at the H + 1 row edges, solid angle (H,) of one texel region per row)."""
+    z_edges = -np.cos(np.pi * np.arange(H + 1) / H)
+    z_edges[0], z_edges[-1] = -1.0, 1.0
+    return z_edges, (2.0 * np.pi / W) * np.diff(z_edges)
+
+
+def mean_radiance(env: EnvironmentMap) -> np.ndarray:
+    """(3,) (1 / 4 pi) int L d omega of the map, per channel: the region means
+    of the bilinear image times Omega_i.  Their sum is cheap: the (1/8, 3/4,
+    1/8) blur along u keeps each row's sum, and the one along v moves onto the
+    row solid angles."""
+    img = np.asarray(env.image)
+    if img.ndim == 2:
+        img = img[:, :, None]
+    H, W = img.shape[:2]
+    rgb = img[:, :, :3] if img.shape[2] >= 3 else np.repeat(img[:, :, :1], 3, axis=2)
+    rows = rgb.sum(axis=1, dtype=np.float64)                  # (H, 3)
+    omega = _row_omega(H, W)[1]
+    return ((rows * _blur_118(omega, 0)[:, None]).sum(axis=0) / (4.0 * np.pi)
+            * np.asarray(env.strength, np.float64).reshape(3))
 
 
 @dataclass
@@ -66,9 +95,8 @@ class EnvironmentLight:
     edges (z_edges[0] = -1, the nadir).  weight: (H, W) f_ij Omega_i.
     cdf: (H W,) cumulative ``weight`` in row-major order; total = cdf[-1].
     A, A_inv: (3, 3) to_texture and its inverse; det: |det A|.
-    mean_radiance: (3,) (1 / 4 pi) int L d omega, per channel (the sum of the
-    region means of the bilinear image, the texels convolved with
-    (1/8, 3/4, 1/8) along each axis, times Omega_i, times strength).
+    mean_radiance: (3,) (1 / 4 pi) int L d omega, per channel
+    (:func:`mean_radiance`).
     """
     env: EnvironmentMap
     H: int
@@ -87,15 +115,12 @@ class EnvironmentLight:
         if img.ndim == 2:
             img = img[:, :, None]
         H, W = img.shape[:2]
-        rgb = img[:, :, [0, 1, 2] if img.shape[2] >= 3 else [0, 0, 0]].astype(np.float64)
-        region = _blur_118(_blur_118(rgb, 0), 1)              # (H, W, 3) region means
-        f = _region_max(np.abs(rgb).mean(axis=2))
-        z_edges = -np.cos(np.pi * np.arange(H + 1) / H)
-        z_edges[0], z_edges[-1] = -1.0, 1.0
-        omega = (2.0 * np.pi / W) * np.diff(z_edges)          # (H,)
+        rgb = img[:, :, :3] if img.shape[2] >= 3 else np.repeat(img[:, :, :1], 3, axis=2)
+        f = _region_max(np.abs(rgb).mean(axis=2, dtype=np.float32)).astype(np.float64)
+        z_edges, omega = _row_omega(H, W)
         weight = f * omega[:, None]
         strength = np.asarray(env.strength, np.float64).reshape(3)
-        mean = (region * omega[:, None, None]).sum(axis=(0, 1)) / (4.0 * np.pi) * strength
+        mean = mean_radiance(env)
         A = np.asarray(env.to_texture, np.float64).reshape(3, 3)
         det = float(abs(np.linalg.det(A)))
         A_inv = np.linalg.inv(A) if det > 0 else np.eye(3)
