@@ -344,6 +344,8 @@ FEATURE_CHECKS = (
     ("stereo", lambda sc, obs: bool(sc.render.use_multiview),
      "stereo 3D / multi-view: every view is rendered from the scene camera "
      "(the right eye repeats the left)"),
+    ("transparent film", lambda sc, obs: bool(sc.render.film_transparent),
+     "Film > Transparent ignored: the world is rendered as the background"),
     ("ray visibility", lambda sc, obs: [ob for ob in obs if _partly_visible(ob)],
      "ray visibility of {} treated as fully visible"),
     ("world ray visibility", lambda sc, obs: _world_partly_visible(sc.world),

@@ -38,6 +38,10 @@ def _stereo(sc):
     sc.render.views_format = 'STEREO_3D'
 
 
+def _film_transparent(sc):
+    sc.render.film_transparent = True
+
+
 def _ray_visibility(sc):
     bpy.data.objects["Cube"].visible_glossy = False
 
@@ -106,6 +110,7 @@ CASES = [
     (_motion_blur, "motion blur ignored: the scene is rendered at the current frame"),
     (_stereo, "stereo 3D / multi-view: every view is rendered from the scene camera "
               "(the right eye repeats the left)"),
+    (_film_transparent, "Film > Transparent ignored: the world is rendered as the background"),
     (_ray_visibility, "ray visibility of 1 object(s) (Cube) treated as fully visible"),
     (_light_linking, "light linking of 1 object(s) (Point) ignored: every light reaches "
                      "every surface"),
