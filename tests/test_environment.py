@@ -303,7 +303,7 @@ def test_export_reads_the_map_mapping_and_coordinates():
 # Passes and photons per pass: as tests/test_cycles_agreement.py's default, and
 # for the glossy floor 1.5x its glossy floor's passes (measured sigma of the
 # mean: diffuse 0.41 %, glossy 0.56 % at 96 passes, 0.7 % expected at 64).
-HDRI_BUDGET = {"diffuse": (12, 100_000), "glossy": (96, 40_000)}
+HDRI_BUDGET = {"diffuse": (12, 100_000), "object": (12, 100_000), "glossy": (96, 40_000)}
 # Per seed, two seeds: the reference's own noise on the mean is then ~0.05 %
 # (measured: 0.01-0.02 % at 512), negligible against FPPM's.
 CYCLES_SAMPLES = 128
@@ -325,15 +325,23 @@ def _hdri_image():
 
 
 def _hdri_scene(kind):
-    import bpy  # noqa: F401
+    import bpy
     from scenes import bpy_kit as K
     sc = K.reset_scene((64, 64), samples=CYCLES_SAMPLES)
-    floor = (K.material("Floor", "DIFFUSE", color=(0.8, 0.8, 0.8)) if kind == "diffuse"
+    floor = (K.material("Floor", "DIFFUSE", color=(0.8, 0.8, 0.8)) if kind != "glossy"
              else K.material("Floor", "GLOSSY", color=(0.9, 0.9, 0.9), roughness=0.3))
     K.plane("Floor", 6.0, floor)
     K.box("Box", (1.0, 1.0, 1.0), K.material("Red", "DIFFUSE", color=(0.8, 0.2, 0.1)),
           rot_z_deg=30.0)
     K.camera((0.0, -5.0, 2.5), (0.0, 0.0, 0.3))
+    if kind == "object":
+        # Texture Coordinate Object: the map turns with an empty (at the origin).
+        turn = bpy.data.objects.new("Turn", None)
+        turn.rotation_euler = (0.3, -0.2, 2.0)
+        K.link(turn)
+        hdri_world(sc, _hdri_image(), strength=1.0, rotation=(0.0, 0.0, 0.5), coord='Object',
+                   coord_object=turn)
+        return sc
     hdri_world(sc, _hdri_image(), strength=1.0,
                rotation=(0.0, 0.0, 0.0) if kind == "diffuse" else (0.2, 0.0, 1.3),
                coord='Generated')
@@ -356,7 +364,7 @@ def _cycles(sc, seed, path):
     return read_exr(str(path))[..., :3].astype(np.float64)
 
 
-@pytest.mark.parametrize("kind", ["diffuse", "glossy"])
+@pytest.mark.parametrize("kind", ["diffuse", "glossy", "object"])
 def test_hdri_agrees_with_cycles(kind, tmp_path):
     """The bounds of tests/test_cycles_agreement.py, with the reference
     rendered here (two seeds: its noise is measured the same way)."""
