@@ -89,6 +89,12 @@ def progress_fraction(result, settings) -> float:
     return min(f, 1.0)
 
 
+def report_warning(engine, msg: str) -> None:
+    """One WARNING in Blender's reports (the Info log; printed as "Warning:
+    ..." in background mode).  Module-level so that tests can count calls."""
+    engine.report({'WARNING'}, msg)
+
+
 def export_cancellable(depsgraph, log, camera, should_stop):
     """``export_scene`` with a cancellation point before every object.
 
@@ -241,14 +247,22 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
 
     def _write(self, rresult, pr, aovs, gain) -> None:
         layer = rresult.layers[0]
-        layer.passes["Combined"].rect.foreach_set(blender_rows(exposed(pr.image, gain), 4))
+        img = exposed(pr.image, gain)
+        # Multi-view (stereo 3D): every view gets the scene camera's image
+        # (the exporter notes it); otherwise the right eye would stay black.
+        views = [v.name for v in rresult.views] or [""]
+        for view in views:
+            p = layer.passes.find_by_name("Combined", view) if view else layer.passes["Combined"]
+            if p is not None:
+                p.rect.foreach_set(blender_rows(img, 4))
         for name, ch, _cid, _kind in aovs:
             a = pr.aovs.get(name)
-            p = layer.passes.get(name)
-            if a is not None and p is not None:
-                if name in EXPOSED_PASSES and gain != 1.0:
-                    a = a * np.float32(gain)
-                p.rect.foreach_set(blender_rows(a, ch))
+            if a is not None and name in EXPOSED_PASSES and gain != 1.0:
+                a = a * np.float32(gain)
+            for view in views:
+                p = layer.passes.find_by_name(name, view) if view else layer.passes.get(name)
+                if a is not None and p is not None:
+                    p.rect.foreach_set(blender_rows(a, ch))
 
     def _wait_for_kernels(self) -> bool:
         """Wait for the kernel warm-up (``core.warmup``) before the Renderer
@@ -307,6 +321,11 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
         if cam is not None:
             cam = cam.evaluated_get(depsgraph)
         fscene = export_cancellable(depsgraph, self._log, cam, self.break_requested)
+        if sess is None or sess.log is None:
+            # Blender's Info log: one warning per approximation, once per
+            # render (the CLI prints them in the exporter's "Approximated:" line).
+            for msg in getattr(fscene, "approximations", ()):
+                report_warning(self, msg)
         if self.break_requested() or not self._wait_for_kernels():
             if sess is not None:
                 sess.cancelled = True

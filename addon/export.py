@@ -9,7 +9,10 @@ instances, drivers and the current frame are already applied:
   transformed by the instance's ``matrix_world``;
 - lights in Cycles' units (docs/cycles_units.md):
   strength = colour x energy x 2^exposure (x blackbody colour when enabled);
-- the world as a constant colour (Background colour x strength);
+- the world as a constant colour (Background colour x strength) or an
+  equirectangular Environment Texture with its Mapping / Texture Coordinate;
+- what is ignored or approximated: one table, :data:`FEATURE_CHECKS`, plus the
+  notes of materials and the world, gathered in ``Scene.approximations``;
 - the camera, with sensor fit, shift, clip, border, resolution percentage and
   depth of field as Cycles computes them;
 - materials by walking the node tree from the active Material Output's Surface.
@@ -28,6 +31,8 @@ import numpy as np
 
 from ..core.scene import nodes as shading
 from ..core.errors import SceneError
+from ..core.lights.environment import mean_radiance
+from ..core.scene.textures import EnvironmentMap
 from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
                           TRANSPARENT, Camera, Light, Lobe, Material, Scene,
                           drop_invalid_triangles)
@@ -296,6 +301,83 @@ class _MaterialBuilder:
 
 
 # ---------------------------------------------------------------------------
+# features FPPM ignores or approximates
+
+def _objects(obs) -> str:
+    """'2 object(s) (A, B)': the subject of a check's message."""
+    names = sorted({ob.name for ob in obs})
+    return f"{len(names)} object(s) ({', '.join(names[:3])}{', ...' if len(names) > 3 else ''})"
+
+
+def _light_linked(ob) -> bool:
+    ll = getattr(ob, "light_linking", None)
+    return ll is not None and (ll.receiver_collection is not None
+                               or ll.blocker_collection is not None)
+
+
+def _has_hair(ob) -> bool:
+    return ob.type == 'CURVES' or any(
+        ps.settings.type == 'HAIR' and ps.settings.render_type == 'PATH'
+        for ps in getattr(ob, "particle_systems", ()))
+
+
+def _partly_visible(ob) -> bool:
+    vis = [getattr(ob, "visible_" + k, True)
+           for k in ("camera", "diffuse", "glossy", "transmission", "shadow")]
+    return ob.type in GEOMETRY_TYPES and any(vis) and not all(vis)
+
+
+def _world_partly_visible(world) -> bool:
+    vis = getattr(world, "cycles_visibility", None) if world is not None else None
+    return vis is not None and not all(getattr(vis, k, True) for k in (
+        "camera", "diffuse", "glossy", "transmission", "scatter"))
+
+
+# The one table of scene features that FPPM ignores or approximates: (feature,
+# check(bpy scene, rendered objects) -> the objects concerned (a list) or a
+# bool, message; "{}" receives the objects).  Every hit is one sentence of
+# Scene.approximations: the CLI's "Approximated:" line and one warning in
+# Blender's Info log per render (addon/engine.py).
+FEATURE_CHECKS = (
+    ("motion blur", lambda sc, obs: bool(sc.render.use_motion_blur),
+     "motion blur ignored: the scene is rendered at the current frame"),
+    ("stereo", lambda sc, obs: bool(sc.render.use_multiview),
+     "stereo 3D / multi-view: every view is rendered from the scene camera "
+     "(the right eye repeats the left)"),
+    ("ray visibility", lambda sc, obs: [ob for ob in obs if _partly_visible(ob)],
+     "ray visibility of {} treated as fully visible"),
+    ("world ray visibility", lambda sc, obs: _world_partly_visible(sc.world),
+     "world: ray visibility treated as fully visible"),
+    ("light linking", lambda sc, obs: [ob for ob in obs if _light_linked(ob)],
+     "light linking of {} ignored: every light reaches every surface"),
+    ("hair", lambda sc, obs: [ob for ob in obs if _has_hair(ob)],
+     "hair of {} not rendered"),
+    ("holdout", lambda sc, obs: [ob for ob in obs if ob.type in GEOMETRY_TYPES
+                                 and getattr(ob, "is_holdout", False)],
+     "holdout of {} ignored: rendered as ordinary surfaces"),
+    ("shadow catcher", lambda sc, obs: [ob for ob in obs if ob.type in GEOMETRY_TYPES
+                                        and getattr(ob, "is_shadow_catcher", False)],
+     "shadow catcher of {} ignored: rendered as ordinary surfaces"),
+    ("volume objects", lambda sc, obs: [ob for ob in obs if ob.type == 'VOLUME'],
+     "volume object(s) not rendered: {}"),
+)
+
+
+def feature_notes(scene, objects) -> list[str]:
+    """The messages of :data:`FEATURE_CHECKS` that apply to ``scene`` whose
+    rendered (evaluated) objects are ``objects``."""
+    out = []
+    for _feature, check, message in FEATURE_CHECKS:
+        hit = check(scene, objects)
+        if isinstance(hit, list):
+            if hit:
+                out.append(message.format(_objects(hit)))
+        elif hit:
+            out.append(message)
+    return out
+
+
+# ---------------------------------------------------------------------------
 # the exporter
 
 class _Exporter:
@@ -323,12 +405,28 @@ class _Exporter:
         key = img.name_full
         if key in self.tex_index:
             return self.tex_index[key]
+        px = self.pixels(img, mb.notes)
+        if px is None:
+            self.tex_index[key] = -1
+            return -1
+        vec, _ = _follow(node.inputs.get("Vector")) if node.inputs.get("Vector") else (None, None)
+        if vec is not None and vec.type not in ('UVMAP', 'TEX_COORD'):
+            mb.notes.append(f"{node.name}: vector input '{vec.name}' ignored (UVs used)")
+        if getattr(node, "projection", 'FLAT') != 'FLAT':
+            mb.notes.append(f"{node.name}: projection '{node.projection}' treated as flat")
+        self.tex_index[key] = len(self.textures)
+        self.textures.append(px)
+        return self.tex_index[key]
+
+    @staticmethod
+    def pixels(img, notes) -> np.ndarray | None:
+        """(H, W, C >= 3) float32 scene-linear pixels of a Blender image, row 0
+        at the bottom, or None (and a note) when it has none."""
         w, h = img.size
         c = img.channels
         if w * h == 0 or c == 0:
-            mb.notes.append(f"image '{img.name}' could not be loaded")
-            self.tex_index[key] = -1
-            return -1
+            notes.append(f"image '{img.name}' could not be loaded")
+            return None
         px = np.empty(w * h * c, np.float32)
         img.pixels.foreach_get(px)
         px = px.reshape(h, w, c)          # Blender's order: row 0 at the bottom
@@ -343,15 +441,8 @@ class _Exporter:
             elif cs not in ('Non-Color', 'Linear Rec.709', 'Linear', 'Raw', 'Linear CIE-XYZ E'):
                 px = px.copy()
                 px[:, :, :3] = srgb_to_linear(px[:, :, :3])
-                mb.notes.append(f"image '{img.name}': colour space '{cs}' decoded as sRGB")
-        vec, _ = _follow(node.inputs.get("Vector")) if node.inputs.get("Vector") else (None, None)
-        if vec is not None and vec.type not in ('UVMAP', 'TEX_COORD'):
-            mb.notes.append(f"{node.name}: vector input '{vec.name}' ignored (UVs used)")
-        if getattr(node, "projection", 'FLAT') != 'FLAT':
-            mb.notes.append(f"{node.name}: projection '{node.projection}' treated as flat")
-        self.tex_index[key] = len(self.textures)
-        self.textures.append(np.ascontiguousarray(px, np.float32))
-        return self.tex_index[key]
+                notes.append(f"image '{img.name}': colour space '{cs}' decoded as sRGB")
+        return np.ascontiguousarray(px, np.float32)
 
     # -- materials -------------------------------------------------------------
     def material(self, mat) -> int:
@@ -495,37 +586,137 @@ class _Exporter:
         return Light(strength=tuple(float(x) for x in strength), **kw)
 
     # -- world -----------------------------------------------------------------
-    def world_color(self) -> np.ndarray:
+    def world(self) -> tuple[np.ndarray, EnvironmentMap | None]:
+        """(constant colour (3,), environment map or None) of the scene's world.
+
+        The Background node's Color: unlinked or an RGB node -> a constant;
+        an Environment Texture (equirectangular) -> a map, with the Mapping
+        and Texture Coordinate (Generated/Object) nodes on its Vector input
+        as Cycles evaluates them (:meth:`world_vector`).  Anything else falls
+        back to the Background colour with a note."""
         w = self.scene.world
         if w is None:
-            return np.zeros(3)
+            return np.zeros(3), None
         if not _use_nodes(w):
-            return np.array(w.color, np.float64)[:3]
+            return np.array(w.color, np.float64)[:3], None
         outs = [nd for nd in w.node_tree.nodes if nd.type == 'OUTPUT_WORLD'
                 and getattr(nd, "target", 'ALL') in ('ALL', 'CYCLES')]
         active = [nd for nd in outs if nd.is_active_output] or outs
         if not active:
-            return np.zeros(3)
+            return np.zeros(3), None
+        vol = active[0].inputs.get("Volume")
+        if vol is not None and vol.is_linked:
+            self.notes.append("world: volume ignored")
         node, _ = _follow(active[0].inputs["Surface"])
         if node is None:
-            return np.zeros(3)
+            return np.zeros(3), None
         if node.type != 'BACKGROUND':
             self.notes.append(f"world: '{node.name}' replaced by black")
-            return np.zeros(3)
+            return np.zeros(3), None
         col = node.inputs["Color"]
-        src, _ = _follow(col)
-        if src is not None:
-            if src.type == 'RGB':
-                c = np.array(src.outputs[0].default_value, np.float64)[:3]
-            else:
-                self.notes.append(f"world: '{src.name}' replaced by the Background colour")
-                c = np.array(col.default_value, np.float64)[:3]
-        else:
-            c = np.array(col.default_value, np.float64)[:3]
         st = node.inputs["Strength"]
         if st.is_linked:
             self.notes.append("world: linked strength ignored")
-        return c * float(st.default_value)
+        strength = float(st.default_value)
+        c = np.array(col.default_value, np.float64)[:3]
+        src, _ = _follow(col)
+        if src is None:
+            return c * strength, None
+        if src.type == 'RGB':
+            return np.array(src.outputs[0].default_value, np.float64)[:3] * strength, None
+        if src.type == 'TEX_ENVIRONMENT':
+            env = self.environment(src, strength)
+            if env is not None:
+                # Scene.world_color: the map's mean radiance.
+                return mean_radiance(env), env
+        elif src.type == 'TEX_SKY':
+            # Cycles evaluates the sky model in its kernel; bpy offers no
+            # way to evaluate it by direction short of a second render.
+            self.notes.append(f"world: Sky Texture '{src.name}' is not supported: the "
+                              f"Background colour is used (bake the sky to an "
+                              f"equirectangular image for an Environment Texture)")
+            return c * strength, None
+        else:
+            self.notes.append(f"world: '{src.name}' replaced by the Background colour")
+        return c * strength, None
+
+
+    def environment(self, node, strength: float) -> EnvironmentMap | None:
+        """An Environment Texture node -> EnvironmentMap, or None (and a note)."""
+        img = node.image
+        fallback = "the Background colour is used"
+        if img is None:
+            self.notes.append(f"world: '{node.name}' has no image: {fallback}")
+            return None
+        if getattr(node, "projection", 'EQUIRECTANGULAR') != 'EQUIRECTANGULAR':
+            self.notes.append(f"world: '{node.name}' projection '{node.projection}' is not "
+                              f"supported: {fallback}")
+            return None
+        notes: list[str] = []
+        px = self.pixels(img, notes)
+        self.notes += [f"world: {n}" for n in notes]
+        if px is None:
+            return None
+        interp = getattr(node, "interpolation", 'Linear')
+        if interp != 'Linear':
+            self.notes.append(f"world: '{node.name}' interpolation '{interp}' rendered as Linear")
+        A = self.world_vector(node.inputs.get("Vector"))
+        return EnvironmentMap(image=px, strength=np.full(3, strength), to_texture=A,
+                              name=img.name)
+
+    def world_vector(self, socket) -> np.ndarray:
+        """(3, 3) linear map world direction -> texture vector of a world
+        texture's Vector input (Cycles normalises the vector afterwards).
+
+        Unlinked or Texture Coordinate Generated: the direction itself
+        (``sd->P = ray_D`` in a background shader).  Object output: the
+        object's inverse matrix (``object_inverse_position_transform``).
+        A Mapping node in between: Cycles' ``svm_mapping`` (POINT: R (S v) + L,
+        TEXTURE: R^T (v - L) / S, VECTOR: R (S v), NORMAL: R (v / S)), R the
+        Euler XYZ rotation.  Translations move a direction-dependent
+        point, not a direction: they are left out with a note."""
+        from mathutils import Euler
+        A = np.eye(3)
+        node, out = _follow(socket) if socket is not None else (None, None)
+        if node is not None and node.type == 'MAPPING':
+            vt = node.vector_type
+            if any(node.inputs[k].is_linked for k in ("Location", "Rotation", "Scale")
+                   if node.inputs.get(k) is not None):
+                self.notes.append(f"world: linked inputs of '{node.name}' ignored")
+            R = np.array(Euler(tuple(node.inputs["Rotation"].default_value), 'XYZ').to_matrix(),
+                         np.float64)
+            S = np.diag(np.array(node.inputs["Scale"].default_value, np.float64)) \
+                if node.inputs.get("Scale") is not None else np.eye(3)
+            loc = node.inputs.get("Location")
+            if vt in ('POINT', 'TEXTURE') and loc is not None and \
+                    np.any(np.array(loc.default_value) != 0):
+                self.notes.append(f"world: location of '{node.name}' ignored")
+            with np.errstate(divide="ignore"):
+                S_inv = np.diag(np.where(np.diag(S) != 0, 1.0 / np.diag(S), 0.0))
+            A = {'POINT': R @ S, 'VECTOR': R @ S, 'TEXTURE': S_inv @ R.T,
+                 'NORMAL': R @ S_inv}.get(vt, R @ S)
+            node, out = _follow(node.inputs["Vector"])
+        if node is None:
+            pass
+        elif node.type == 'TEX_COORD' and out.name in ('Generated', 'Object'):
+            ob = node.object if out.name == 'Object' else None
+            if ob is not None:
+                M = _mat4(ob.evaluated_get(self.dg).matrix_world)
+                try:
+                    Minv = np.linalg.inv(M)
+                except np.linalg.LinAlgError:
+                    Minv = np.eye(4)
+                if np.any(np.abs(Minv[:3, 3]) > 1e-9):
+                    self.notes.append(f"world: location of texture coordinate object "
+                                      f"'{ob.name}' ignored")
+                A = A @ Minv[:3, :3]
+        else:
+            self.notes.append(f"world: vector input '{node.name}' ignored "
+                              f"(the view direction is used)")
+        if abs(np.linalg.det(A)) < 1e-12:
+            self.notes.append("world: degenerate mapping ignored")
+            A = np.eye(3)
+        return A
 
     def mist(self) -> tuple:
         """(start, depth, falloff exponent) of the world's mist pass; Cycles
@@ -586,7 +777,7 @@ class _Exporter:
         scene = self.scene
         cam = self.camera(camera_object if camera_object is not None else scene.camera)
         parts, lights = [], []
-        partly_visible = []
+        seen = {}
         render_mode = getattr(self.dg, "mode", 'RENDER') == 'RENDER'
         for inst in self.dg.object_instances:
             ob = inst.object
@@ -597,6 +788,7 @@ class _Exporter:
             # sources still render through their instances, as in Cycles.
             if not inst.is_instance and not render_mode and ob.original.hide_render:
                 continue
+            seen.setdefault(ob.name, ob)
             if ob.type == 'LIGHT':
                 lt = self.light(inst, ob)
                 if lt is not None:
@@ -608,8 +800,6 @@ class _Exporter:
                    for k in ("camera", "diffuse", "glossy", "transmission", "shadow")]
             if not any(vis):
                 continue
-            if not all(vis):
-                partly_visible.append(ob.name)
             n0 = len(parts)
             self.geometry(inst, ob, parts)
             self.obj_index_parts += [np.full(len(q[0]), int(getattr(ob, "pass_index", 0)), np.int32)
@@ -617,10 +807,7 @@ class _Exporter:
             if len(parts) > n0:
                 self.n_objects += 1
                 self.n_instances += bool(inst.is_instance)
-        if partly_visible:
-            self.notes.append(f"ray visibility of {len(partly_visible)} object(s) "
-                              f"({', '.join(partly_visible[:3])}{', ...' if len(partly_visible) > 3 else ''}) "
-                              f"treated as fully visible")
+        self.notes += feature_notes(scene, list(seen.values()))
         if parts:
             tri_p = np.concatenate([q[0] for q in parts])
             tri_n = np.concatenate([q[1] for q in parts])
@@ -631,14 +818,14 @@ class _Exporter:
             tri_n = np.zeros((0, 3, 3), np.float32)
             tri_uv = np.zeros((0, 3, 2), np.float32)
             tri_mat = np.zeros(0, np.int32)
-        world = self.world_color()
+        world, world_map = self.world()
         cy = getattr(scene, "cycles", None)
         if cy is not None and getattr(cy, "pixel_filter_type", 'BLACKMAN_HARRIS') != 'BLACKMAN_HARRIS':
             self.notes.append(f"pixel filter '{cy.pixel_filter_type}' rendered as Blackman-Harris "
                               f"of the same width")
         fscene = Scene(tri_p=tri_p, tri_n=tri_n, tri_uv=tri_uv, tri_mat=tri_mat,
                        materials=self.materials, lights=lights, camera=cam,
-                       world_color=world, textures=self.textures,
+                       world_color=world, textures=self.textures, world_map=world_map,
                        filter_width=float(getattr(cy, "filter_width", 1.5)) if cy else 1.5,
                        tri_object_index=(np.concatenate(self.obj_index_parts) if parts
                                          else np.zeros(0, np.int32)),
@@ -660,6 +847,9 @@ class _Exporter:
             raise SceneError(NO_LIGHTS)
         dt = time.perf_counter() - t0
         wc = ", ".join(f"{x:.3g}" for x in world)
+        if world_map is not None:
+            h, w = world_map.image.shape[:2]
+            wc = f"map '{world_map.name}' {w}x{h}, mean {wc}"
         self.log(f"Exported {self.n_objects} objects ({self.n_instances} instances), "
                  f"{fscene.n_triangles:,} triangles, {len(self.materials)} materials, "
                  f"{len(lights)} lights, {len(self.textures)} textures, world ({wc}), "
@@ -669,6 +859,7 @@ class _Exporter:
         for m in self.materials:
             approx += [f"material '{m.name}': {a}" for a in m.approximations]
         self.log("Approximated: " + ("; ".join(approx) if approx else "nothing") + ".")
+        fscene.approximations = tuple(approx)
         return fscene
 
 

@@ -32,7 +32,9 @@ area          one-sided Lambertian towards local -Z, L = strength / (pi A),
               as 180 deg, noted in ``LightTable.warnings``).  Never occludes.
 mesh          Cycles' Emission closure: L = Material.emission (times its
               texture), two-sided, per-triangle flux 2 * pi * A * L.
-world         constant radiance L_w from every direction.
+world         constant radiance L_w from every direction, or an equirectangular
+              environment map (:mod:`.environment`: Cycles' lookup, sampled by
+              a piecewise-constant distribution over its texel regions).
 ============  =================================================================
 
 Modules: :mod:`.table` (:class:`LightTable`, :func:`build_light_table`, the
@@ -40,7 +42,8 @@ kinds), :mod:`.emission` (:func:`sample_photons`), :mod:`.sampling`
 (:func:`sample_direct`, next-event estimation), :mod:`.pdf` (:func:`pdf_direct`,
 its density for a given direction: MIS), :mod:`.seen`
 (:func:`emitted_along_rays`, :func:`world_radiance`: lights seen by rays) and
-:mod:`.warps` (the shape warps emission and sampling share).
+:mod:`.warps` (the shape warps emission and sampling share) and
+:mod:`.environment` (:class:`.environment.EnvironmentLight`, the world map).
 """
 from __future__ import annotations
 

@@ -4,7 +4,9 @@ Photons carry ``power = Phi_light(sample) / p_select`` so that the SPPM
 density estimate is tau / (pi R^2 N_emitted) (pbrt-v4).  Sun and world
 photons start on a disc of radius R (the scene's bounding sphere)
 perpendicular to their direction, at distance R from the scene centre, so
-their total flux is S pi R^2 (sun) and 4 pi^2 R^2 L_w (world).
+their total flux is S pi R^2 (sun) and 4 pi^2 R^2 L_w (world).  With an
+environment map the direction follows the map's distribution
+(:mod:`.environment`) and the power is pi R^2 L(omega) / pdf(omega).
 
 Point/spot lights with r > 0: Cycles' default soft falloff is a disc of
 radiance L turned towards each receiver, so the irradiance is exactly
@@ -149,12 +151,21 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
     m = np.nonzero(kind == WORLD)[0]
     if m.size:
         jj = j[m]
-        w = _uniform_sphere(u[m, 3], u[m, 4])
+        env = table.environment
+        if env is None:
+            w = _uniform_sphere(u[m, 3], u[m, 4])
+            power[m] = table.flux[jj] * inv_p[m, None]
+        else:
+            # Towards the map by its distribution: the photon travels along
+            # -omega and carries pi R^2 L(omega) / pdf(omega).
+            omega, pdf = env.sample(u[m, 3], u[m, 4])
+            w = -omega
+            Lw = env.radiance(omega) * (np.pi * R * R / np.maximum(pdf, 1e-300))[:, None]
+            power[m] = np.where((pdf > 0)[:, None], Lw, 0.0) * inv_p[m, None]
         x, y = _unit_disk(u[m, 1], u[m, 2])
         t1, t2 = frame(w)
         o[m] = table.center - R * w + R * (x[:, None] * t1 + y[:, None] * t2)
         d[m] = w
-        power[m] = table.flux[jj] * inv_p[m, None]
         freq[m] = (table.a_max, B_DIFFUSE, 0.0)
 
     m = np.nonzero(kind == MESH)[0]

@@ -21,8 +21,8 @@ import numpy as np
 from ..accel import REL_OFFSET
 from .. import materials as B
 from ..mathutil import dot as _dot
-from .sampling import sample_direct
-from .table import MESH
+from .sampling import environment_pdf, sample_direct
+from .table import MESH, WORLD
 
 if TYPE_CHECKING:
     from ..sppm.visible_points import VisiblePoints
@@ -43,6 +43,9 @@ class NextEventEstimation:
         if q.size == 0:
             return L
         smp = sample_direct(self.light_table, vp.p[q], rng.random((q.size, 3)), n=vp.ns[q])
+        env = self.light_table.environment
+        if env is not None and env.total > 0:
+            L += self._environment_bsdf(vp, rng)
         wi, dist, wgt, shadow = smp["wi"], smp["dist"], smp["weight"], smp["cast_shadow"]
         live = (wgt.max(axis=1) > 0) & np.all(np.isfinite(wgt), axis=1)
         q, wi, dist, wgt, shadow = q[live], wi[live], dist[live], wgt[live], shadow[live]
@@ -51,10 +54,47 @@ class NextEventEstimation:
         f = B.eval_bsdf(self.mtab, vp.mat[q], vp.colors[q], vp.ns[q], vp.ng[q], vp.wo[q], wi)
         cos = np.abs(_dot(vp.ns[q], wi))
         contrib = vp.beta[q] * f * cos[:, None] * wgt
+        if env is not None and env.total > 0:
+            # An environment map: its light samples share the directions with
+            # BSDF samples (_environment_bsdf), balance heuristic (Veach 1997).
+            wk = np.nonzero(smp["kind"][live] == WORLD)[0]
+            if wk.size:
+                qk = q[wk]
+                pl = environment_pdf(self.light_table, vp.p[qk], vp.ns[qk], wi[wk])
+                pb = B.pdf_bsdf(self.mtab, vp.mat[qk], vp.colors[qk], vp.ns[qk], vp.ng[qk],
+                                vp.wo[qk], wi[wk], subset="nondelta")
+                contrib[wk] *= (pl / np.maximum(pl + pb, 1e-300))[:, None]
         nz = contrib.max(axis=1) > 0
         q, wi, dist, contrib, shadow = q[nz], wi[nz], dist[nz], contrib[nz], shadow[nz]
         mesh = smp["kind"][live][nz] == MESH
         blocked = self._blocked(vp.p[q], vp.ng[q], wi, dist, mesh) & shadow
+        L[q[~blocked]] += contrib[~blocked]
+        return L
+
+    def _environment_bsdf(self, vp: "VisiblePoints", rng: np.random.Generator) -> np.ndarray:
+        """(P, 3) the environment map seen along one BSDF sample per visible
+        point (non-delta lobes), weighted by pdf_bsdf / (pdf_bsdf + pdf_light):
+        the BSDF half of the multiple importance sampling of the map.  A rough
+        mirror's reflection of a smooth sky is found here; the map's bright
+        texels by the light samples."""
+        P = vp.valid.shape[0]
+        L = np.zeros((P, 3))
+        q = np.nonzero(vp.valid)[0]
+        if q.size == 0:
+            return L
+        wi, wgt, pdf, is_delta, ok = B.sample_bsdf(
+            self.mtab, vp.mat[q], vp.colors[q], vp.ns[q], vp.ng[q], vp.wo[q],
+            rng.random((q.size, 3)), subset="nondelta")
+        k = np.nonzero(ok & ~is_delta & (pdf > 0) & (wgt.max(axis=1) > 0)
+                       & np.all(np.isfinite(wgt), axis=1))[0]
+        if k.size == 0:
+            return L
+        q, wi, wgt, pdf = q[k], wi[k], wgt[k], pdf[k]
+        pl = environment_pdf(self.light_table, vp.p[q], vp.ns[q], wi)
+        contrib = (vp.beta[q] * wgt * self.light_table.environment.radiance(wi)
+                   * (pdf / (pdf + pl))[:, None])
+        blocked = self._blocked(vp.p[q], vp.ng[q], wi, np.full(q.size, np.inf),
+                                np.zeros(q.size, bool))
         L[q[~blocked]] += contrib[~blocked]
         return L
 

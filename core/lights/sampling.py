@@ -13,8 +13,8 @@ import numpy as np
 from ..mathutil import dot as _dot, frame
 from .table import (AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _lum, _mesh_emission,
                     _spot_atten)
-from .warps import (_cone_local, _normalize, _to_world, _triangle_bary, _uniform_sphere,
-                    _unit_disk)
+from .warps import (_cone_local, _cosine_local, _normalize, _to_world, _triangle_bary,
+                    _uniform_sphere, _unit_disk)
 
 
 # ----------------------------------------------------------------------------
@@ -107,6 +107,58 @@ def _sample_spherical_tri(p, A, B, C, u1, u2):
     ch_perp = _normalize(c_hat - _dot(c_hat, b)[:, None] * b)
     w = z[:, None] * b + np.sqrt(np.maximum(1.0 - z * z, 0.0))[:, None] * ch_perp
     return _normalize(w), omega
+
+
+# ----------------------------------------------------------------------------
+# The environment map.
+
+def _sample_environment(env, u1, u2, n=None):
+    """(directions (K, 3), inf distances (K,), L / pdf (K, 3)) towards an
+    environment map (:mod:`.environment`).
+
+    Without normals: the map's distribution.  With unit normals n (K, 3): one
+    sample of the mixture 1/2 map + 1/2 cosine about n (u2 < 1/2 picks the
+    map), weighted by the mixture's density (one-sample balance heuristic,
+    Veach 1997 sec. 9.2.4): bright texels come from the map and the smooth
+    rest from the cosine lobe that matches f cos.
+    """
+    K = u1.shape[0]
+    if n is None:
+        w, pdf = env.sample(u1, u2)
+    else:
+        pick_map = u2 < 0.5
+        v2 = np.where(pick_map, 2.0 * u2, 2.0 * u2 - 1.0)
+        w = np.empty((K, 3))
+        mm = np.nonzero(pick_map)[0]
+        mc = np.nonzero(~pick_map)[0]
+        if mm.size:
+            w[mm] = env.sample(u1[mm], v2[mm])[0]
+        if mc.size:
+            w[mc] = _normalize(_to_world(_cosine_local(u1[mc], v2[mc]), n[mc]))
+        pdf = 0.5 * env.pdf(w) + 0.5 * np.maximum(_dot(w, n), 0.0) / np.pi
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Lw = env.radiance(w) / pdf[:, None]
+    Lw[~(pdf > 0)] = 0.0
+    return w, np.full(K, np.inf), Lw
+
+
+def environment_pdf(table: LightTable, p: np.ndarray, n: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(K,) solid-angle density, selection included, with which
+    :func:`sample_direct` (table, p, u, n) returns direction w (K, 3) from the
+    environment map: p_select(world | p) (1/2 pdf_map(w) + 1/2 max(n.w, 0) / pi).
+    0 without a map.  For multiple importance sampling with BSDF samples."""
+    p = np.asarray(p, np.float64).reshape(-1, 3)
+    w = np.asarray(w, np.float64).reshape(-1, 3)
+    env = table.environment
+    e = np.nonzero((table.entry_emitter >= 0)
+                   & (table.kind[np.maximum(table.entry_emitter, 0)] == WORLD))[0]
+    if env is None or env.total <= 0 or e.size == 0 or p.shape[0] == 0:
+        return np.zeros(p.shape[0])
+    W = _entry_weights(table, p)
+    tot = W.sum(axis=1)
+    p_sel = np.where(tot > 0, W[:, e[0]] / np.where(tot > 0, tot, 1.0), 0.0)
+    n = np.asarray(n, np.float64).reshape(-1, 3)
+    return p_sel * (0.5 * env.pdf(w) + 0.5 * np.maximum(_dot(w, n), 0.0) / np.pi)
 
 
 # ----------------------------------------------------------------------------
@@ -298,7 +350,10 @@ def sample_direct(table: LightTable, p: np.ndarray, u: np.ndarray, n=None) -> di
         fill(m, w_dir, np.full(m.size, np.inf), Lw)
 
     m = np.nonzero(kind == WORLD)[0]
-    if m.size:
+    if m.size and table.environment is not None:
+        nm = None if n is None else np.asarray(n, np.float64).reshape(-1, 3)[m]
+        fill(m, *_sample_environment(table.environment, u1[m], u2[m], nm))
+    elif m.size:
         jj = j[m]
         if n is None:
             fill(m, _uniform_sphere(u1[m], u2[m]), np.full(m.size, np.inf),

@@ -14,6 +14,7 @@ import numpy as np
 from ..mathutil import LUMINANCE as _LUM
 from ..scene.model import Scene
 from ..scene.textures import sample_texture
+from .environment import EnvironmentLight
 from .warps import _normalize
 
 # Emitter kinds (LightTable.kind, photon "kind").
@@ -61,7 +62,9 @@ class LightTable:
     visible_camera / visible_glossy / visible_transmission / cast_shadow:
       (Nl,) bool.
     center (3,), radius_scene: bounding sphere; a_max: D^2 (docs/frequency.md).
-    world: (3,) world radiance.  warnings: list of str.
+    world: (3,) world radiance (with an environment map: its mean).
+    environment: the world's :class:`.environment.EnvironmentLight` or None
+      (a constant world).  warnings: list of str.
     """
     kind: np.ndarray
     source: np.ndarray
@@ -104,6 +107,7 @@ class LightTable:
     group_cdf: np.ndarray = None
     group_center: np.ndarray = None
     group_ext2: float = 0.0
+    environment: EnvironmentLight = None
 
     @property
     def n(self) -> int:
@@ -313,12 +317,19 @@ def build_light_table(scene: Scene) -> LightTable:
                         tex=tex)
 
     world = np.asarray(scene.world_color, np.float64).reshape(3)
+    env = None
+    if getattr(scene, "world_map", None) is not None:
+        # An environment map: the row's radiance is the map's mean (used for
+        # selection weights); directions and powers come from the map.
+        env = EnvironmentLight.build(scene.world_map)
+        world = env.mean_radiance if env.total > 0 else np.zeros(3)
     if np.any(world != 0):
         # Every direction carries L_w through a disc of area pi R^2.
         row(kind=WORLD, source=-1, strength=world, radiance=world,
             flux=world * 4.0 * np.pi * np.pi * R * R, co=center)
 
     table = _assemble(rows, tri_rows, center, R, D, world, warnings, scene.textures)
+    table.environment = env
     return table
 
 

@@ -21,6 +21,8 @@ from typing import Optional
 
 import numpy as np
 
+from .textures import EnvironmentMap
+
 # Lobe kinds (closures).  A material is a weighted sum of lobes, like Cycles'
 # closure list after Mix/Add shaders are flattened.
 DIFFUSE = 0       # Lambert (roughness 0) or Oren-Nayar (roughness > 0), f = color/pi
@@ -172,7 +174,11 @@ class Scene:
     materials: list of Material.
     lights: list of Light.
     camera: Camera.
-    world_color: (3,) float64 constant background radiance.
+    world_color: (3,) float64 constant background radiance (with ``world_map``:
+      the map's mean radiance, for plans and summaries).
+    world_map: the world's Environment Texture
+      (:class:`core.scene.textures.EnvironmentMap`) or None.
+    approximations: what the exporter approximated or ignored, one sentence each.
     textures: list of (H, W, 3|4) float32 linear images, row 0 at the bottom.
     filter_width: Cycles' pixel filter width in pixels (Blackman-Harris).
     tri_object_index: (T,) int32 the object's pass index (IndexOB pass) or None (0).
@@ -194,6 +200,8 @@ class Scene:
     material_pass_index: Optional[np.ndarray] = None
     film_transparent: bool = False
     mist: tuple = (5.0, 25.0, 2.0)
+    world_map: Optional[EnvironmentMap] = None
+    approximations: tuple = ()
 
     @property
     def n_triangles(self) -> int:
@@ -275,7 +283,8 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       tri_object_index=None if scene.tri_object_index is None
                       else scene.tri_object_index[ok],
                       material_pass_index=scene.material_pass_index,
-                      film_transparent=scene.film_transparent, mist=scene.mist)
+                      film_transparent=scene.film_transparent, mist=scene.mist,
+                      world_map=scene.world_map, approximations=scene.approximations)
     return scene, dropped
 
 
@@ -299,4 +308,6 @@ def scene_digest(scene: Scene) -> str:
     h.update(repr(scene.filter_width).encode())
     if scene.film_transparent:      # (only when set: older checkpoints keep their digest)
         h.update(b"film_transparent")
+    if scene.world_map is not None:
+        h.update(scene.world_map.digest_bytes())
     return h.hexdigest()[:16]

@@ -9,6 +9,8 @@ stores them: row 0 at the BOTTOM, so ``v = 0`` is row 0 with no flip.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 
@@ -51,3 +53,65 @@ def sample_texture(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     if tx_bad.any():
         out[tx_bad] = 0.0
     return out
+
+
+# ----------------------------------------------------------------------------
+# World environment maps (Cycles' Environment Texture node, equirectangular).
+
+@dataclass
+class EnvironmentMap:
+    """The world's Environment Texture as Cycles evaluates it.
+
+    image: (H, W, C) float32 linear image, row 0 at the bottom (as
+      :func:`sample_texture` reads it); looked up bilinearly with repeat in
+      both u and v (Cycles' ``image_params``: extension REPEAT always).
+    strength: (3,) float64 factor on the texture: the Background node's
+      Strength (times a constant colour multiplier, if any).
+    to_texture: (3, 3) float64 linear map from a world direction to the
+      texture-space vector (Texture Coordinate Object / Mapping node), which
+      Cycles normalises before :func:`equirectangular_uv`.  Identity: the
+      world direction itself (Cycles' default vector is ``sd->P = ray_D``).
+    name: the image's name (for summaries).
+    """
+    image: np.ndarray
+    strength: np.ndarray = field(default_factory=lambda: np.ones(3))
+    to_texture: np.ndarray = field(default_factory=lambda: np.eye(3))
+    name: str = ""
+
+    def digest_bytes(self) -> bytes:
+        """Everything that changes the image, as bytes (for scene digests)."""
+        return b"".join(np.ascontiguousarray(a).tobytes() for a in (
+            np.asarray(self.image, np.float32), np.asarray(self.strength, np.float64),
+            np.asarray(self.to_texture, np.float64)))
+
+
+def equirectangular_uv(c: np.ndarray) -> np.ndarray:
+    """(K, 3) unit texture-space directions -> (K, 2) uv, Cycles' convention.
+
+    ``direction_to_equirectangular`` (kernel/camera/projection.h) with range
+    (-2 pi, pi, -pi, pi): u = (atan2(y, x) - pi) / (-2 pi) = 1/2 - atan2(y, x) / (2 pi),
+    v = (acos(z) - pi) / (-pi) = 1 - acos(z) / pi.  So +X is u = 1/2, +Y
+    u = 1/4, the zenith +Z v = 1 (top row) and the nadir v = 0 (row 0).
+    """
+    c = np.asarray(c, np.float64).reshape(-1, 3)
+    u = 0.5 - np.arctan2(c[:, 1], c[:, 0]) / (2.0 * np.pi)
+    v = 1.0 - np.arccos(np.clip(c[:, 2], -1.0, 1.0)) / np.pi
+    return np.stack([u, v], axis=1)
+
+
+def equirectangular_direction(u: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`equirectangular_uv` given u (K,) and z = cos(theta) (K,):
+    phi = pi - 2 pi u, direction (sin(theta) cos(phi), sin(theta) sin(phi), z)."""
+    phi = np.pi - 2.0 * np.pi * np.asarray(u, np.float64)
+    z = np.asarray(z, np.float64)
+    s = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    return np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=1)
+
+
+def environment_radiance(env: EnvironmentMap, d: np.ndarray) -> np.ndarray:
+    """(K, 3) float64 radiance of the world map seen along unit world directions d (K, 3)."""
+    d = np.asarray(d, np.float64).reshape(-1, 3)
+    c = d @ np.asarray(env.to_texture, np.float64).T
+    n = np.linalg.norm(c, axis=1, keepdims=True)
+    c = c / np.where(n > 0, n, 1.0)
+    return sample_texture(env.image, equirectangular_uv(c)) * np.asarray(env.strength)[None, :]

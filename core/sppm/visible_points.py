@@ -161,7 +161,7 @@ class CameraPass:
                 if self.transparent:
                     miss = miss & ~esc      # Film > Transparent: alpha 0, no world
             if np.any(miss):
-                L[idx[miss]] += beta[miss] * Lt.world_radiance(self.light_table)[None, :]
+                L[idx[miss]] += beta[miss] * Lt.world_radiance(self.light_table, d[miss])
             ih = np.nonzero(hit)[0]
             if ih.size == 0:
                 break

@@ -1,0 +1,182 @@
+"""Every feature FPPM ignores or approximates reaches the user exactly once.
+
+Each case enables one feature on the same small scene (a plane, a cube, a
+point light) and asserts the exporter's single sentence for it
+(``Scene.approximations``, the CLI's "Approximated:" line); a render through
+the engine then sends each sentence once to Blender's report (the Info log),
+and in background mode Blender prints it as "Warning: ...".
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+import bpy_helpers as H  # noqa: E402
+
+
+def _export():
+    from fppm.addon.export import export_scene
+    lines = []
+    s = export_scene(H.evaluated_depsgraph(), log=lines.append)
+    return s, lines
+
+
+def _world_node(sc, idname):
+    w = H.set_world(sc, (0.1, 0.1, 0.1))
+    nt = w.node_tree
+    return w, nt, next(nd for nd in nt.nodes if nd.type == 'BACKGROUND'), nt.nodes.new(idname)
+
+
+def _motion_blur(sc):
+    sc.render.use_motion_blur = True
+
+
+def _stereo(sc):
+    sc.render.use_multiview = True
+    sc.render.views_format = 'STEREO_3D'
+
+
+def _ray_visibility(sc):
+    bpy.data.objects["Cube"].visible_glossy = False
+
+
+def _light_linking(sc):
+    coll = bpy.data.collections.new("Lit")
+    coll.objects.link(bpy.data.objects["Cube"])
+    bpy.data.objects["Point"].light_linking.receiver_collection = coll
+
+
+def _particle_hair(sc):
+    plane = bpy.data.objects["Plane"]
+    mod = plane.modifiers.new("Fur", 'PARTICLE_SYSTEM')
+    mod.particle_system.settings.type = 'HAIR'
+    mod.particle_system.settings.count = 10
+
+
+def _curves_hair(sc):
+    H.link(bpy.data.objects.new("Strands", bpy.data.hair_curves.new("Strands")), sc)
+
+
+def _holdout(sc):
+    bpy.data.objects["Cube"].is_holdout = True
+
+
+def _shadow_catcher(sc):
+    bpy.data.objects["Cube"].is_shadow_catcher = True
+
+
+def _volume_object(sc):
+    H.link(bpy.data.objects.new("Smoke", bpy.data.volumes.new("Smoke")), sc)
+
+
+def _world_volume(sc):
+    w, nt, bg, vol = _world_node(sc, 'ShaderNodeVolumePrincipled')
+    out = next(nd for nd in nt.nodes if nd.type == 'OUTPUT_WORLD')
+    nt.links.new(vol.outputs[0], out.inputs["Volume"])
+
+
+def _world_visibility(sc):
+    H.set_world(sc, (0.1, 0.1, 0.1)).cycles_visibility.camera = False
+
+
+def _sky(sc):
+    w, nt, bg, sky = _world_node(sc, 'ShaderNodeTexSky')
+    nt.links.new(sky.outputs[0], bg.inputs["Color"])
+
+
+def _hdri_no_image(sc):
+    w, nt, bg, env = _world_node(sc, 'ShaderNodeTexEnvironment')
+    nt.links.new(env.outputs[0], bg.inputs["Color"])
+
+
+def _mapping_location(sc):
+    w, nt, bg, env = _world_node(sc, 'ShaderNodeTexEnvironment')
+    im = bpy.data.images.new("Sky", 8, 4, float_buffer=True)
+    im.pixels.foreach_set(np.full(8 * 4 * 4, 0.5, np.float32))
+    env.image = im
+    mp = nt.nodes.new('ShaderNodeMapping')
+    mp.inputs["Location"].default_value = (0.0, 0.0, 1.0)
+    nt.links.new(mp.outputs[0], env.inputs["Vector"])
+    nt.links.new(env.outputs[0], bg.inputs["Color"])
+
+
+CASES = [
+    (_motion_blur, "motion blur ignored: the scene is rendered at the current frame"),
+    (_stereo, "stereo 3D / multi-view: every view is rendered from the scene camera "
+              "(the right eye repeats the left)"),
+    (_ray_visibility, "ray visibility of 1 object(s) (Cube) treated as fully visible"),
+    (_light_linking, "light linking of 1 object(s) (Point) ignored: every light reaches "
+                     "every surface"),
+    (_particle_hair, "hair of 1 object(s) (Plane) not rendered"),
+    (_curves_hair, "hair of 1 object(s) (Strands) not rendered"),
+    (_holdout, "holdout of 1 object(s) (Cube) ignored: rendered as ordinary surfaces"),
+    (_shadow_catcher, "shadow catcher of 1 object(s) (Cube) ignored: rendered as ordinary "
+                      "surfaces"),
+    (_volume_object, "volume object(s) not rendered: 1 object(s) (Smoke)"),
+    (_world_volume, "world: volume ignored"),
+    (_world_visibility, "world: ray visibility treated as fully visible"),
+    (_sky, "world: Sky Texture 'Sky Texture' is not supported: the Background colour is used "
+           "(bake the sky to an equirectangular image for an Environment Texture)"),
+    (_hdri_no_image, "world: 'Environment Texture' has no image: the Background colour is used"),
+    (_mapping_location, "world: location of 'Mapping' ignored"),
+]
+
+
+def test_plain_scene_has_no_message():
+    H.simple_scene(res=(16, 16), passes=1)
+    s, lines = _export()
+    assert s.approximations == ()
+    assert lines[1] == "Approximated: nothing."
+
+
+@pytest.mark.parametrize("enable, message", CASES, ids=[c[0].__name__[1:] for c in CASES])
+def test_each_feature_gives_its_single_message(enable, message):
+    sc = H.simple_scene(res=(16, 16), passes=1)
+    enable(sc)
+    s, lines = _export()
+    assert s.approximations == (message,)
+    assert lines[1] == f"Approximated: {message}."
+
+
+def test_render_reports_each_message_once_and_fills_the_right_eye(monkeypatch):
+    from fppm.addon import engine as E
+    sc = H.simple_scene(res=(16, 16), passes=1)
+    for enable, _ in CASES[:3]:
+        enable(sc)
+    reported = []
+    monkeypatch.setattr(E, "report_warning", lambda engine, msg: reported.append(msg))
+    eyes = {}
+    write = E.FPPMRenderEngine._write
+
+    def spy(self, rresult, pr, aovs, gain):
+        write(self, rresult, pr, aovs, gain)
+        layer = rresult.layers[0]
+        for v in rresult.views:
+            p = layer.passes.find_by_name("Combined", v.name)
+            px = np.empty(len(p.rect) * 4, np.float32)
+            p.rect.foreach_get(px)
+            eyes[v.name] = px
+    monkeypatch.setattr(E.FPPMRenderEngine, "_write", spy)
+    bpy.ops.render.render()
+    assert reported == [m for _, m in CASES[:3]]
+    assert set(eyes) == {"left", "right"}
+    assert eyes["left"].max() > 0 and np.array_equal(eyes["left"], eyes["right"])
+
+
+def test_blender_prints_the_report_in_background_mode(tmp_path):
+    """The real RenderEngine.report: Blender prints "Warning: <message>" once."""
+    script = tmp_path / "r.py"
+    script.write_text(
+        "import sys\n"
+        f"sys.path.insert(0, {H.ROOT + '/tests'!r})\n"
+        "import bpy_helpers as H, bpy\n"
+        "sc = H.simple_scene(res=(8, 8), passes=1)\n"
+        "sc.render.use_motion_blur = True\n"
+        "bpy.ops.render.render()\n")
+    import subprocess
+    out = subprocess.run([H.PYTHON, str(script)], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    msg = "Warning: motion blur ignored: the scene is rendered at the current frame"
+    assert (out.stdout + out.stderr).splitlines().count(msg) == 1, out.stdout[-3000:]
