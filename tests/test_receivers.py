@@ -96,7 +96,7 @@ def test_principled_floor_image_agrees_with_its_closed_form():
     checked against Cycles to 1e-3 in test_bsdf.py).  Measured (seed 0, 16 x
     50k photons): image mean 0.997 of the closed form (plain PPM 0.998);
     the 0.6 m centre square with the highlight 0.986 (PPM 0.988: the
-    pixel filter and kernel both flatten the peak).  Seeds 0-2: mean 0.993
+    pixel filter and kernel both flatten the peak).  Seeds 0-3: mean 0.993
     to 1.000, centre 0.978 to 0.989, so the 2 % (the Lambert test's bound)
     and 3 % bounds leave >= 2 sigma of that scatter beyond the bias."""
     scene, r, res = _plane(_principled())
