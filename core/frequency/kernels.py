@@ -32,6 +32,7 @@ in ``core.sppm.photon_kernels.bounce_kernel``'s record buffers.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 from typing import NamedTuple
@@ -39,6 +40,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .. import materials as B
+from ..scene import model as _sc
 from . import spectrum as F
 from . import occlusion_grid as _occlusion_grid
 from . import occlusion_march as _occlusion_march
@@ -509,13 +512,11 @@ class Receivers:
     LUMA = np.array([0.2126, 0.7152, 0.0722])
 
     def __init__(self, mtab):
-        from ..scene import model as _sc
         used = (np.asarray(mtab.kind) >= 0) & (np.asarray(mtab.weight) != 0.0)
         nondelta = used & ~np.asarray(mtab.lobe_delta, bool)
         self.mtab = mtab
         self.b_receiver = F.receiver_variance(mtab.kind, mtab.roughness, nondelta)
         smooth = np.isin(mtab.kind, (_sc.DIFFUSE, _sc.TRANSLUCENT))
-        import dataclasses
         self.smooth = dataclasses.replace(mtab, weight=np.where(smooth, mtab.weight, 0.0))
 
     def radius_keys(self, vp, dep, pv, pp, model="CORRECTED"):
@@ -526,7 +527,6 @@ class Receivers:
         z: the visible point's camera depth times |cos| to the normal, at
         most its distance projected on the normal (a smaller z is a smaller,
         conservative r_theta)."""
-        from .. import materials as B
         if pv.size == 0:
             return np.zeros(0)
         mat = vp.mat[pv]

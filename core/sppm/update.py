@@ -162,8 +162,8 @@ def ppm_radius_update(N, R2, tau, M, Phi, alpha, r_pred=None, R2_floor=0.0, hold
     Phi: (K, 3) their flux; alpha: PPM parameter in (0, 1]; r_pred: (K,)
     predicted radius [m] or None (inf = no frequency photon, NaN = no hold);
     R2_floor: smallest R^2 (see :func:`radius_floor_sq`); hold_alpha: the
-    PPM parameter of a held radius, in (0, 1] (<= alpha: never held) (1 = held forever, the
-    inconsistent rule of Belcour & Soler 2011).
+    PPM parameter of a held radius, in (0, 1]: 1 holds it forever (the
+    inconsistent rule of Belcour & Soler 2011), <= alpha never holds.
     Returns (N', R2', tau', held): (K,), (K,), (K, 3) float64 and (K,) bool.
 
     docs/frequency.md "PPM update" and docs/method.md "Consistent holds":
@@ -172,9 +172,9 @@ def ppm_radius_update(N, R2, tau, M, Phi, alpha, r_pred=None, R2_floor=0.0, hold
                                                     (f_alpha when r_pred not finite)
         R'^2  = R^2 f,  N' = (N + M) f,  tau' = (tau + Phi) f
     so plain PPM gives N' = N + alpha M; a radius the prediction calls smooth
-    shrinks like PPM with hold_alpha (never slower), which keeps the
-    estimate consistent for hold_alpha < 1 (Knaus & Zwicker 2011);
-    a prediction between the two rates sets R' = r_pred.
+    shrinks like PPM with hold_alpha (no slower), which keeps the estimate
+    consistent for hold_alpha < 1 (Knaus & Zwicker 2011); a prediction
+    between the two rates sets R' = r_pred.
     R'^2 >= min(R^2, R2_floor): the floor never makes a radius grow.
     Rows with M <= 0, or with non-finite / negative Phi, are left unchanged.
     Everything is float64 (stiff table "float32 counters").
