@@ -140,3 +140,17 @@ def test_rough_glossy_floor_agrees_with_cycles_with_frequency_on():
     noise = np.mean((a1 - a2) ** 2 / 4.0 / den) + float(meta["noise"]["relmse"])
     assert abs(m.mean() / ref.mean() - 1) < 0.02
     assert np.mean((m - ref) ** 2 / den) < 1.5 * noise + BIAS_ALLOWANCE
+
+
+def test_oren_nayar_floor_predicts_exactly_the_lambert_radius():
+    """An Oren-Nayar receiver is diffuse (b_r = inf, glossy share 0): on the
+    open plane every photon deposit is a first hit, identical for both
+    floors, so the predicted radii agree bit for bit although the Oren-Nayar
+    points go through the pair path and the Lambert ones through the gather."""
+    _, _, res_l = _plane(None, max_passes=4)
+    _, r_on, res_on = _plane(Material("oren-nayar", (Lobe(DIFFUSE, (0.8,) * 3, roughness=0.5),)),
+                             max_passes=4)
+    assert not r_on.mtab.lambert_only[0]
+    rl = res_l.aovs["Predicted Radius"]
+    assert np.isfinite(rl).all() and np.median(rl) > 0.2
+    assert np.array_equal(rl, res_on.aovs["Predicted Radius"])
