@@ -130,6 +130,12 @@ class FPPMRenderSettings(PropertyGroup):
     frequency_estimator: EnumProperty(
         name="Estimator", items=FREQUENCY_ESTIMATORS, default=_D.frequency_estimator,
         description="How the predicted radii of the frequency photons become a pixel's radius")
+    hold_alpha: FloatProperty(
+        name="Hold Alpha", default=_D.hold_alpha, min=0.01, max=1.0, soft_min=0.7, soft_max=1.0,
+        subtype='FACTOR',
+        description="Radius reduction where the light is predicted smooth: a held radius "
+                    "shrinks like PPM with this alpha (at least Alpha), so its bias still "
+                    "vanishes; 1 holds it forever (the paper's rule, inconsistent)")
     occlusion_grid_res: IntProperty(
         name="Occlusion Grid", default=_D.occlusion_grid_res, min=4, max=512,
         soft_min=16, soft_max=256,

@@ -102,6 +102,7 @@ class FPPM_RENDER_PT_frequency(FPPMPanel, Panel):
         col.prop(s, "frequency_fraction", slider=True)
         col.prop(s, "frequency_model")
         col.prop(s, "frequency_estimator")
+        col.prop(s, "hold_alpha", slider=True)
         col.prop(s, "occlusion_grid_res")
 
 

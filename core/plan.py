@@ -104,9 +104,12 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
         plan.left_out.append(("frequency photons", "frequency analysis is off"))
     elif settings.frequency_fraction <= 0:
         plan.left_out.append(("frequency photons", "frequency fraction is 0"))
-    elif not np.any(mtab.lambert_only) and "frequency photons" not in force:
+    elif not np.any(mtab.has_nondelta) and "frequency photons" not in force:
+        # Any non-delta lobe is a receiver whose radius can be held
+        # (core.frequency.kernels.Receivers); only mirrors and glass cannot.
         freq = False
-        plan.left_out.append(("frequency photons", "no Lambert receiver whose radius could be held"))
+        plan.left_out.append(("frequency photons", "no diffuse or glossy receiver whose radius "
+                                                   "could be held"))
     plan.frequency_photons = freq
     local = [np.asarray(lt.matrix_world, np.float64)[:3, 3] for lt in scene.lights
              if lt.kind != "SUN"]

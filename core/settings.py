@@ -43,6 +43,7 @@ class RenderSettings:
     frequency_fraction: float = 0.25
     frequency_model: str = "CORRECTED"  # 'CORRECTED' or 'PAPER'
     frequency_estimator: str = "MIN"    # 'MIN' or 'QUANTILE'
+    hold_alpha: float = 0.9             # PPM alpha of a held radius (1 = held forever; docs/method.md)
     occlusion_grid_res: int = 64
     # --- Output (AOV passes)
     aov_radius: bool = False            # FPPM Radius (world and pixels)
@@ -56,7 +57,7 @@ class RenderSettings:
         def bad(name, why):
             raise SettingsError(f"setting '{name}' = {getattr(self, name)!r}: {why}")
         for name in ("time_limit", "initial_radius_px", "initial_radius", "alpha",
-                     "frequency_fraction"):
+                     "frequency_fraction", "hold_alpha"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v):
                 bad(name, "must be a finite number")
@@ -82,6 +83,9 @@ class RenderSettings:
             bad("initial_radius", "must be > 0 metres")
         if not 0 < self.alpha <= 1:
             bad("alpha", "must be in (0, 1]")
+        if not 0 < self.hold_alpha <= 1:
+            bad("hold_alpha", "must be in (0, 1] (1 = a held radius never shrinks; "
+                              "<= alpha = never hold)")
         if not 1 <= self.max_bounces <= 1024:
             bad("max_bounces", "must be in [1, 1024]")
         if not 0 <= self.rr_start <= 1024:

@@ -27,14 +27,17 @@ def _render(scene, **kw):
 def test_open_plane_radii_are_held(estimator):
     """A point light over an open Lambert plane: the light field is smooth at
     the scale of a few pixels, so every pixel's radius is held (the paper's
-    claim), and the image stays within 2% of the closed form."""
+    claim), and the image stays within 2% of the closed form.  Held radii
+    still shrink, at the hold rate (docs/method.md "Consistent holds")."""
     scene, Lfun = point_light_plane(res=24)
     X, Y = pixel_centres_ortho(scene)
     r, res = _render(scene, frequency_estimator=estimator)
     held = res.aovs["Held"][..., 0]
     assert held.mean() > 0.95
-    # Radius stays at its initial 2 px footprint instead of shrinking.
-    assert res.aovs["FPPM Radius px"].mean() > 1.9
+    # Held: the radius shrinks like PPM with hold_alpha = 0.9, from 2 px to
+    # 2 prod_k sqrt((N + 0.9 M)/(N + M)) = 1.665 px after 16 passes of equal M
+    # (measured 1.68: M varies per pass), not like plain PPM's 1.03 px.
+    assert 1.6 < res.aovs["FPPM Radius px"].mean() < 1.75
     # Predicted radius for a point light at h = 1 m: travel gives a = 0.467 d^2,
     # r_x = 0.3203 sqrt(a) = 0.22 d; 0.22-0.35 m over the view (d = 1..1.4 m,
     # divided by cos at the plane).  The quantile estimator reports a bin's

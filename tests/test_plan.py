@@ -60,20 +60,24 @@ def test_occlusion_grid_left_out_when_nothing_can_occlude():
     assert r4.plan.occlusion_grid and r4.occ_grid is not None
 
 
-def test_frequency_photons_left_out_without_lambert_receivers():
+def test_frequency_photons_left_out_only_without_any_receiver():
+    # A perfect mirror has no non-delta lobe: no visible point could hold.
     scene, _ = point_light_plane(res=12)
-    glossy = Material("rough metal", (Lobe(GLOSSY, (0.8, 0.8, 0.8), roughness=0.5),))
-    scene.materials = [glossy]
+    scene.materials = [Material("mirror", (Lobe(GLOSSY, (0.8, 0.8, 0.8), roughness=0.0),))]
     r, img = _run(scene)
     assert not r.plan.frequency_photons
     assert "frequency photons" in _left_out(r)
     r2, img2 = _run(scene, force=("frequency photons",))
     assert r2.plan.frequency_photons
     assert np.array_equal(img, img2)
-    # A Lambert receiver keeps them.
-    scene.materials = [Material("white", (Lobe(DIFFUSE, (0.8, 0.8, 0.8)),))]
+    # A rough glossy receiver keeps them (core.frequency.kernels.Receivers),
+    # and so does a Lambert one.
+    scene.materials = [Material("rough metal", (Lobe(GLOSSY, (0.8, 0.8, 0.8), roughness=0.5),))]
     r3, _ = _run(scene)
-    assert r3.plan.frequency_photons
+    assert r3.plan.frequency_photons and "frequency photons" not in _left_out(r3)
+    scene.materials = [Material("white", (Lobe(DIFFUSE, (0.8, 0.8, 0.8)),))]
+    r4, _ = _run(scene)
+    assert r4.plan.frequency_photons
 
 
 def test_settings_switch_stages_off_and_say_why():

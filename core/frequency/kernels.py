@@ -32,6 +32,7 @@ in ``core.sppm.photon_kernels.bounce_kernel``'s record buffers.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 from typing import NamedTuple
@@ -39,6 +40,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .. import materials as B
+from ..scene import model as _sc
 from . import spectrum as F
 from . import occlusion_grid as _occlusion_grid
 from . import occlusion_march as _occlusion_march
@@ -486,3 +489,55 @@ def radius(s, b_receiver, z_camera, model="CORRECTED"):
     out = np.empty(n)
     _radius(s, br, z, str(model).upper() == "PAPER", out)
     return out
+
+
+class Receivers:
+    """The predicted radius of a deposit at a visible point of any material
+    (docs/frequency.md "Receivers").
+
+    The deposit keeps its spectrum (a, b, c) on the surface; the visible point
+    knows its receiver: b_receiver (M,) = ``spectrum.receiver_variance`` of
+    each material, and the split of its BSDF into a diffuse part (Lambert,
+    Oren-Nayar, translucent lobes: ``smooth``, a copy of the material table
+    with the other lobes' weights zeroed) and a glossy part (the rest).  For
+    a (visible point, frequency photon) pair the glossy share is
+    w = 1 - Y(f_smooth) / Y(f) (Y: luminance of the BSDF values), and the
+    radius is ``spectrum.layered_radius`` of the diffuse radius (b_r = inf)
+    and the glossy one (b_r, camera distance z) -- combined where the pairs
+    are already formed (the gather's non-Lambert pairs), so that a Lambert
+    scene pays nothing.
+    mtab: core.materials MaterialTable.
+    """
+
+    LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+    def __init__(self, mtab):
+        used = (np.asarray(mtab.kind) >= 0) & (np.asarray(mtab.weight) != 0.0)
+        nondelta = used & ~np.asarray(mtab.lobe_delta, bool)
+        self.mtab = mtab
+        self.b_receiver = F.receiver_variance(mtab.kind, mtab.roughness, nondelta)
+        smooth = np.isin(mtab.kind, (_sc.DIFFUSE, _sc.TRANSLUCENT))
+        self.smooth = dataclasses.replace(mtab, weight=np.where(smooth, mtab.weight, 0.0))
+
+    def radius_keys(self, vp, dep, pv, pp, model="CORRECTED"):
+        """Fold keys (``spectrum.radius_fold_key``) of the predicted radii of
+        the pairs (visible point pv, frequency photon pp) (K,): vp the camera
+        pass's visible points (mat, colors, ns, ng, wo, depth), dep the
+        deposits (spec (P, 3), wi (P, 3)).  Returns (K,) float64.
+        z: the visible point's camera depth times |cos| to the normal, at
+        most its distance projected on the normal (a smaller z is a smaller,
+        conservative r_theta)."""
+        if pv.size == 0:
+            return np.zeros(0)
+        mat = vp.mat[pv]
+        args = (mat, vp.colors[pv], vp.ns[pv], vp.ng[pv], vp.wo[pv], dep["wi"][pp])
+        Y = B.eval_bsdf(self.mtab, *args) @ self.LUMA
+        Ys = B.eval_bsdf(self.smooth, *args) @ self.LUMA
+        with np.errstate(divide="ignore", invalid="ignore"):
+            w = np.where(Y > 0, 1.0 - Ys / Y, 0.0)
+        s = dep["spec"][pp]
+        z = vp.depth[pv] * np.abs(np.einsum("ij,ij->i", vp.ng[pv], vp.wo[pv]))
+        r_s = radius(s, np.inf, np.inf, model)
+        r_g = radius(s, self.b_receiver[mat], z, model)
+        r = F.layered_radius(r_s, r_g, w)
+        return F.radius_fold_key(r, model)

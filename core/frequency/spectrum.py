@@ -466,6 +466,55 @@ def predicted_radius(s, b_receiver, z_camera, model="CORRECTED"):
     return np.where(np.isnan(r), 0.0, r)
 
 
+def receiver_variance(kind, roughness, nondelta):
+    """Angular variance b_r [rad^2] of each material's sharpest receiver lobe.
+
+    kind, roughness: (M, L) lobe kinds (core.scene constants) and Cycles
+    roughness; nondelta: (M, L) bool, the lobes a visible point can stop on.
+    Returns (M,) float64 (docs/frequency.md "Receivers"):
+    - Lambert, Oren-Nayar and translucent lobes: inf (a diffuse receiver:
+      Oren-Nayar varies with angle only through cosines and |l.v|, no
+      narrower than the cosine lobe);
+    - glossy, glass and refraction (rough GGX): :func:`lobe_variance`, the
+      peak-matched Gaussian alpha^2 / (1 - alpha^2);
+    - the material: the minimum over its non-delta lobes (inf if none).
+    """
+    from ..scene import model as _sc
+    kind = np.asarray(kind)
+    r = _f64(roughness)
+    glossy = np.isin(kind, (_sc.GLOSSY, _sc.GLASS, _sc.REFRACTION)) & np.asarray(nondelta, bool)
+    out = np.full(kind.shape, np.inf)
+    if glossy.any():
+        out[glossy] = lobe_variance("GGX", r[glossy])
+    return out.min(axis=-1) if out.ndim > 1 else out
+
+
+def layered_radius(r_smooth, r_sharp, w_sharp):
+    """Predicted radius [m] of a receiver with a diffuse and a glossy part.
+
+    r_smooth: (K,) :func:`predicted_radius` for the diffuse part (b_r = inf);
+    r_sharp: (K,) for the glossy part (b_r = :func:`receiver_variance`);
+    w_sharp: (K,) the glossy part's share of the reflected radiance in [0, 1]
+    (NaN counts as 1).  Returns (K,) float64 (docs/frequency.md "Receivers"):
+
+        1 / r^2 = (1 - w) / r_smooth^2 + w / r_sharp^2
+
+    Two Gaussian profiles peaking together, shares 1 - w and w, variances
+    A_s, A_g: to second order the sum stays >= 95 % of its peak while
+    x^2 / 2 ((1 - w) / A_s + w / A_g) <= beta, and r^2 = 2 beta A; a lobe's
+    share weights its precision.  w = 0 gives r_smooth, w = 1 r_sharp; a 0
+    radius (no hold) in a part with w > 0 gives 0.
+    """
+    rs = np.abs(_f64(r_smooth))
+    rg = np.abs(_f64(r_sharp))
+    w = _f64(w_sharp)
+    w = np.where(np.isnan(w), 1.0, np.clip(w, 0.0, 1.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(w < 1.0, (1.0 - w) / (rs * rs), 0.0) + np.where(w > 0.0, w / (rg * rg), 0.0)
+        r = 1.0 / np.sqrt(inv)
+    return np.where(np.isnan(r), 0.0, r)
+
+
 def accumulate(current, new, model="CORRECTED"):
     """Fold one pass's predicted radii into the per-hitpoint r_pred.
 

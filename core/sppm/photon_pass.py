@@ -21,6 +21,7 @@ from typing import NamedTuple, Optional
 import numpy as np
 
 from .. import materials as B
+from ..frequency.kernels import Receivers
 from . import hashgrid
 from .update import HIST_BINS
 
@@ -61,6 +62,8 @@ class PhotonPass:
         self.frequency, self.radius_histogram = frequency, radius_histogram
         self.stage_seconds = stage_seconds
         self.rays = 0
+        # Non-Lambert visible points: the radius for their own receiver lobes.
+        self.receivers = Receivers(mtab) if frequency else None
 
     def __call__(self, vp, R2: np.ndarray, spectrum: Optional[np.ndarray],
                  rng: np.random.Generator, check_stop=lambda: None) -> PhotonEstimate:
@@ -102,9 +105,16 @@ class PhotonPass:
             Phi += g.Phi_sum * (vp.albedo / np.pi)
             if g.pair_vp.size:
                 Phi += self._reflected(vp, dep, g.pair_vp, g.pair_ph, P)
-            r_pred = np.minimum(r_pred, g.rpred_min)
+            if self.receivers is None:
+                r_pred = np.minimum(r_pred, g.rpred_min)
+            else:
+                r_pred = np.minimum(r_pred, np.where(vp.const, g.rpred_min, np.inf))
+                fr = ~np.isnan(dep["rpred"][g.pair_ph])
+                pv, pp = g.pair_vp[fr], g.pair_ph[fr]
+                np.minimum.at(r_pred, pv, self.receivers.radius_keys(
+                    vp, dep, pv, pp, st.frequency_model))
             if g.freq_pair_vp is not None and g.freq_pair_vp.size:
-                self._frequency_pairs(g.freq_pair_vp, g.freq_pair_ph, dep, hist, spec)
+                self._frequency_pairs(g.freq_pair_vp, g.freq_pair_ph, dep, hist, spec, vp)
             self.stage_seconds["gather"] += time.perf_counter() - t1
         Phi *= vp.beta
         return PhotonEstimate(True, M, Phi, r_pred, hist, spec)
@@ -124,11 +134,15 @@ class PhotonPass:
             out[:, ch] = np.bincount(pv, weights=contrib[:, ch], minlength=P)
         return out
 
-    def _frequency_pairs(self, pv, pp, dep, hist, spec) -> None:
+    def _frequency_pairs(self, pv, pp, dep, hist, spec, vp) -> None:
         """(visible point pv, frequency photon pp) pairs (K,): add the
         predicted radii to hist (P, HIST_BINS) and keep in spec (P, 3) the
         spectrum of each point's photon that predicted the smallest radius."""
-        rr = dep["rpred"][pp]
+        rr = dep["rpred"][pp].copy()
+        nc = ~vp.const[pv]
+        if np.any(nc):
+            rr[nc] = self.receivers.radius_keys(vp, dep, pv[nc], pp[nc],
+                                                self.settings.frequency_model)
         if hist is not None:
             np.add.at(hist, (pv, self.radius_histogram.bin(rr)), 1)
         if spec is not None and "spec" in dep:

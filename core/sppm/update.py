@@ -15,9 +15,11 @@ histogram of the predicted radii of every frequency photon gathered so far and
 takes the lower edge of the bin holding the QUANTILE-th fraction, so that a
 few outliers (false occlusions pinning r near 0) no longer set the radius.
 
-Progressive update: :func:`ppm_radius_update` (PPM radius reduction, held at
-the predicted radius).  Only Lambert visible points may
-hold: the prediction is computed for a diffuse receiver.
+Progressive update: :func:`ppm_radius_update` (PPM radius reduction, slowed
+to the hold rate hold_alpha where the predicted radius says the light is
+smooth; docs/method.md "Consistent holds").  Every visible point may hold:
+core.sppm.photon_pass predicts the radius for the visible point's own
+receiver lobes (docs/frequency.md "At the hitpoint").
 """
 from __future__ import annotations
 
@@ -128,17 +130,18 @@ class Radii:
     def update(self, state, vp_const: np.ndarray, M: np.ndarray, Phi: np.ndarray,
                r_pred: np.ndarray) -> None:
         """Progressive update of state (N, R2, tau, held, r_pred_last, M_last) with
-        this pass's photons: M (P,) count, Phi (P, 3) flux, r_pred (P,) [m];
-        vp_const (P,) bool Lambert-only visible points (the only ones that may hold)."""
+        this pass's photons: M (P,) count, Phi (P, 3) flux, r_pred (P,) [m]
+        predicted for each visible point's receiver lobes (any material);
+        vp_const (P,) bool Lambert-only visible points (unused: kept for the
+        caller's signature)."""
         if not self.frequency:
             r_pred = np.full_like(r_pred, np.nan)
         else:
-            r_pred = np.where(vp_const, r_pred, np.nan)
             r_pred = np.where(np.isinf(r_pred), np.nan, r_pred)
         m = M > 0
         N2, R2n, tau2, held = ppm_radius_update(state.N[m], state.R2[m], state.tau[m], M[m],
                                                   Phi[m], self.settings.alpha, r_pred[m],
-                                                  self.floor_sq)
+                                                  self.floor_sq, self.settings.hold_alpha)
         state.N[m], state.R2[m], state.tau[m] = N2, R2n, tau2
         state.held[:] = False
         state.held[np.nonzero(m)[0]] = held
@@ -151,23 +154,28 @@ def radius_floor_sq(D):
     return (R_FLOOR_REL * float(D)) ** 2
 
 
-def ppm_radius_update(N, R2, tau, M, Phi, alpha, r_pred=None, R2_floor=0.0):
+def ppm_radius_update(N, R2, tau, M, Phi, alpha, r_pred=None, R2_floor=0.0, hold_alpha=1.0):
     """Progressive radius update with a frequency-held radius.
 
     N: (K,) accumulated photon count; R2: (K,) squared radius [m^2];
     tau: (K, 3) accumulated flux; M: (K,) photons collected this pass;
     Phi: (K, 3) their flux; alpha: PPM parameter in (0, 1]; r_pred: (K,)
     predicted radius [m] or None (inf = no frequency photon, NaN = no hold);
-    R2_floor: smallest R^2 (see :func:`radius_floor_sq`).
+    R2_floor: smallest R^2 (see :func:`radius_floor_sq`); hold_alpha: the
+    PPM parameter of a held radius, in (0, 1]: 1 holds it forever (the
+    inconsistent rule of Belcour & Soler 2011), <= alpha never holds.
     Returns (N', R2', tau', held): (K,), (K,), (K, 3) float64 and (K,) bool.
 
-    docs/frequency.md "PPM update" (Hachisuka 2008 and its general form):
-        R_ppm = R sqrt((N + alpha M) / (N + M))
-        R'    = max(R_ppm, min(R, r_pred))      (R_ppm when r_pred not finite)
-        f     = (R'/R)^2,  N' = (N + M) f,  tau' = (tau + Phi) f
-    so plain PPM gives N' = N + alpha M and a held radius (f = 1) gives
-    N' = N + M, tau' = tau + Phi (keeping N + alpha M while holding R is -31 %
-    biased).  R'^2 >= min(R^2, R2_floor): the floor never makes a radius grow.
+    docs/frequency.md "PPM update" and docs/method.md "Consistent holds":
+        f_a   = (N + a M) / (N + M)                 (Hachisuka 2008 with a)
+        f     = max(f_alpha, min((r_pred/R)^2, f_hold_alpha))
+                                                    (f_alpha when r_pred not finite)
+        R'^2  = R^2 f,  N' = (N + M) f,  tau' = (tau + Phi) f
+    so plain PPM gives N' = N + alpha M; a radius the prediction calls smooth
+    shrinks like PPM with hold_alpha (no slower), which keeps the estimate
+    consistent for hold_alpha < 1 (Knaus & Zwicker 2011); a prediction
+    between the two rates sets R' = r_pred.
+    R'^2 >= min(R^2, R2_floor): the floor never makes a radius grow.
     Rows with M <= 0, or with non-finite / negative Phi, are left unchanged.
     Everything is float64 (stiff table "float32 counters").
     """
@@ -188,6 +196,8 @@ def ppm_radius_update(N, R2, tau, M, Phi, alpha, r_pred=None, R2_floor=0.0):
             freq = np.isfinite(r) & active
             r2 = np.square(np.maximum(np.where(freq, r, 0.0), 0.0))
             f_lim = np.where(freq, np.minimum(r2 / np.where(active, R2, 1.0), 1.0), 0.0)
+            if hold_alpha < 1.0:
+                f_lim = np.minimum(f_lim, np.where(active, (N + hold_alpha * Ma) / (N + Ma), 1.0))
             held = freq & (f_lim > f_ppm)
             f = np.maximum(f, f_lim)
         f_floor = np.minimum(np.asarray(R2_floor, np.float64) / np.where(active, R2, 1.0), 1.0)
