@@ -304,7 +304,7 @@ class Renderer:
         if est.spectrum is not None:
             state.spectrum[...] = est.spectrum
         r_pred = self.radii.predicted(est.r_pred_min, state.r_hist) if est.gathered else est.r_pred_min
-        self.radii.update(state, vp.const, est.M, est.Phi, r_pred)
+        self.radii.update(state, est.M, est.Phi, r_pred)
         self.film.accumulate(vp)
         clock["update"] += time.perf_counter() - tu
         self.pass_index = k

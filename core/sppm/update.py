@@ -127,13 +127,10 @@ class Radii:
             r_pred = self.hist.quantile(r_hist, r_pred)
         return r_pred
 
-    def update(self, state, vp_const: np.ndarray, M: np.ndarray, Phi: np.ndarray,
-               r_pred: np.ndarray) -> None:
+    def update(self, state, M: np.ndarray, Phi: np.ndarray, r_pred: np.ndarray) -> None:
         """Progressive update of state (N, R2, tau, held, r_pred_last, M_last) with
         this pass's photons: M (P,) count, Phi (P, 3) flux, r_pred (P,) [m]
-        predicted for each visible point's receiver lobes (any material);
-        vp_const (P,) bool Lambert-only visible points (unused: kept for the
-        caller's signature)."""
+        predicted for each visible point's receiver lobes (any material)."""
         if not self.frequency:
             r_pred = np.full_like(r_pred, np.nan)
         else:
