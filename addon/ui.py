@@ -450,6 +450,7 @@ STANDARD_PANELS = {
     "light": ("DATA_PT_context_light", "DATA_PT_custom_props_light"),
     "world": ("WORLD_PT_context_world", "WORLD_PT_custom_props"),
     "material": ("MATERIAL_PT_custom_props",),
+    "custom properties": ("OBJECT_PT_custom_props", "STRIP_PT_custom_props"),
     "mesh": ("DATA_PT_context_mesh", "DATA_PT_vertex_groups", "DATA_PT_shape_keys",
              "DATA_PT_uv_texture", "DATA_PT_vertex_colors", "DATA_PT_mesh_attributes",
              "DATA_PT_customdata", "DATA_PT_custom_props_mesh"),
@@ -495,6 +496,8 @@ EQUIVALENTS = {
                                     "pass index (Material Index pass)"),
     "CYCLES_WORLD_PT_surface": ("FPPM_WORLD_PT_surface", "Background colour and strength"),
     "CYCLES_WORLD_PT_mist": ("FPPM_WORLD_PT_mist", "mist start, depth, falloff"),
+    "CYCLES_CAMERA_PT_dof": ("DATA_PT_camera_dof", "focus distance/object, F-stop"),
+    "CYCLES_CAMERA_PT_dof_aperture": ("DATA_PT_camera_dof_aperture", "F-stop, blades, rotation"),
     "CYCLES_OBJECT_PT_visibility": ("FPPM_OBJECT_PT_visibility",
                                     "selectable, show in viewports/renders"),
     "CYCLES_OBJECT_PT_visibility_ray_visibility": (
@@ -523,6 +526,7 @@ HIDDEN = {
     "CYCLES_RENDER_PT_performance": "Cycles' threads, tiles and BVH",
     "CYCLES_RENDER_PT_bake": "baking: FPPM does not bake",
     "RENDER_PT_freestyle": "Freestyle lines: ignored",
+    "CYCLES_RENDER_PT_debug": "Cycles' developer options",
     # view layer tab
     "CYCLES_RENDER_PT_filter": "Cycles' per-layer filter of surfaces/curves/volumes",
     "CYCLES_RENDER_PT_passes_light": "light passes: only the Combined pass is split by light",
@@ -541,6 +545,16 @@ HIDDEN = {
     "CYCLES_LIGHT_PT_nodes": "light nodes: ignored",
     "CYCLES_MATERIAL_PT_preview": "FPPM renders no previews (bl_use_preview is False)",
     "CYCLES_MATERIAL_PT_volume": "volumes: ignored",
+    "CYCLES_MATERIAL_PT_settings_surface": "displacement method, emission sampling, "
+                                           "transparent shadows, thin walls: ignored",
+    "CYCLES_MATERIAL_PT_settings_volume": "volumes: ignored",
+    "CYCLES_CAMERA_PT_lens_custom_parameters": "custom (OSL) cameras: FPPM renders "
+                                               "perspective and orthographic cameras",
+    "DATA_PT_context_lightprobe": "light probes (EEVEE's): ignored",
+    "DATA_PT_lightprobe": "light probes (EEVEE's): ignored",
+    "DATA_PT_lightprobe_display": "light probes (EEVEE's): ignored",
+    "DATA_PT_lightprobe_parallax": "light probes (EEVEE's): ignored",
+    "DATA_PT_lightprobe_visibility": "light probes (EEVEE's): ignored",
     "CYCLES_MATERIAL_PT_displacement": "displacement: ignored",
     "EEVEE_MATERIAL_PT_viewport_settings": "EEVEE's blend/shadow modes: ignored",
     "CYCLES_WORLD_PT_preview": "FPPM renders no previews (bl_use_preview is False)",
