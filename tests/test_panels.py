@@ -30,11 +30,9 @@ def scene():
     addon.register()
     sc = bpy.data.scenes.new("panels")
     sc.world = bpy.data.worlds.new("panels world")
-    sc.world.use_nodes = True
     mesh = bpy.data.meshes.new("panels mesh")
     mesh.from_pydata([(0, 0, 0), (1, 0, 0), (0, 1, 0)], [], [(0, 1, 2)])
     mat = bpy.data.materials.new("panels material")
-    mat.use_nodes = True
     mesh.materials.append(mat)
     obs = {"mesh": bpy.data.objects.new("panels mesh", mesh),
            "light": bpy.data.objects.new("panels light", bpy.data.lights.new("panels light", 'SPOT')),
