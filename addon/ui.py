@@ -506,8 +506,8 @@ EQUIVALENTS = {
 }
 
 # Panels a Cycles user sees that FPPM hides, because FPPM ignores what they
-# set (the reason is the row of addon/export.py SUPPORT, or why it has no
-# meaning for FPPM).  A panel whose parent is hidden is hidden with it.
+# set ("<feature>: ignored" names a row of addon/export.py SUPPORT), or why
+# they have no meaning for FPPM.  A panel whose parent is hidden is hidden with it.
 HIDDEN = {
     # render tab: Cycles' integrator, devices and features FPPM does not have
     "CYCLES_RENDER_PT_sampling_viewport_denoise": "no denoiser (use the compositor's)",
@@ -534,29 +534,29 @@ HIDDEN = {
     "CYCLES_RENDER_PT_passes_aov": "shader AOVs: ignored",
     "CYCLES_RENDER_PT_passes_lightgroups": "light groups: ignored",
     "VIEWLAYER_PT_layer_passes_lightgroups": "light groups: ignored",
-    "VIEWLAYER_PT_override": "material override and sample override: ignored",
+    "VIEWLAYER_PT_override": "material and sample override: ignored",
     # object tab
-    "CYCLES_OBJECT_PT_visibility_culling": "camera/distance culling: ignored",
+    "CYCLES_OBJECT_PT_visibility_culling": "camera and distance culling: ignored",
     "CYCLES_OBJECT_PT_motion_blur": "motion blur: ignored",
-    "OBJECT_PT_shading": "Cycles' shadow terminator, caustics flags, light group: ignored",
-    "OBJECT_PT_shadow_terminator": "shadow terminator offsets: ignored",
+    "OBJECT_PT_shading": "shadow terminator, caustics flags: ignored",
+    "OBJECT_PT_shadow_terminator": "shadow terminator, caustics flags: ignored",
     # data / material / world tabs
     "CYCLES_LIGHT_PT_preview": "FPPM renders no previews (bl_use_preview is False)",
     "CYCLES_LIGHT_PT_nodes": "light nodes: ignored",
     "CYCLES_MATERIAL_PT_preview": "FPPM renders no previews (bl_use_preview is False)",
     "CYCLES_MATERIAL_PT_volume": "volumes: ignored",
-    "CYCLES_MATERIAL_PT_settings_surface": "displacement method, emission sampling, "
-                                           "transparent shadows, thin walls: ignored",
+    "CYCLES_MATERIAL_PT_settings_surface": "Cycles' displacement method, emission "
+                                           "sampling, transparent shadows, thin walls",
     "CYCLES_MATERIAL_PT_settings_volume": "volumes: ignored",
     "CYCLES_CAMERA_PT_lens_custom_parameters": "custom (OSL) cameras: FPPM renders "
                                                "perspective and orthographic cameras",
-    "DATA_PT_context_lightprobe": "light probes (EEVEE's): ignored",
-    "DATA_PT_lightprobe": "light probes (EEVEE's): ignored",
-    "DATA_PT_lightprobe_display": "light probes (EEVEE's): ignored",
-    "DATA_PT_lightprobe_parallax": "light probes (EEVEE's): ignored",
-    "DATA_PT_lightprobe_visibility": "light probes (EEVEE's): ignored",
+    "DATA_PT_context_lightprobe": "light probes: ignored",
+    "DATA_PT_lightprobe": "light probes: ignored",
+    "DATA_PT_lightprobe_display": "light probes: ignored",
+    "DATA_PT_lightprobe_parallax": "light probes: ignored",
+    "DATA_PT_lightprobe_visibility": "light probes: ignored",
     "CYCLES_MATERIAL_PT_displacement": "displacement: ignored",
-    "EEVEE_MATERIAL_PT_viewport_settings": "EEVEE's blend/shadow modes: ignored",
+    "EEVEE_MATERIAL_PT_viewport_settings": "EEVEE material settings: ignored",
     "CYCLES_WORLD_PT_preview": "FPPM renders no previews (bl_use_preview is False)",
     "CYCLES_WORLD_PT_volume": "volumes: ignored",
     "CYCLES_WORLD_PT_ray_visibility": "world ray visibility: ignored",
