@@ -90,7 +90,6 @@ SUPPORT = (
     ("motion blur", IGNORED, ""),
     ("adaptive subdivision", IGNORED, ""),
     ("clamping", IGNORED, ""),
-    ("Freestyle lines", IGNORED, ""),
     ("Cryptomatte", IGNORED, ""),
     ("shader AOVs", IGNORED, ""),
     ("light groups", IGNORED, ""),

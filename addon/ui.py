@@ -505,6 +505,16 @@ EQUIVALENTS = {
         "lights: camera/glossy/transmission; mesh flags are treated as all on"),
 }
 
+# Blender's engine-independent panels that FPPM's own replace (as Cycles'
+# add-on excludes them from its copies): they would show twice.
+REPLACED = {
+    "OBJECT_PT_visibility": "FPPM_OBJECT_PT_visibility",
+    "DATA_PT_light": "FPPM_LIGHT_PT_light",
+    "DATA_PT_spot": "FPPM_LIGHT_PT_beam_shape",
+    "MATERIAL_PT_context_material": "FPPM_PT_context_material",
+    "VIEWLAYER_PT_layer_passes": "FPPM_VIEWLAYER_PT_passes",
+}
+
 # Panels a Cycles user sees that FPPM hides, because FPPM ignores what they
 # set ("<feature>: ignored" names a row of addon/export.py SUPPORT), or why
 # they have no meaning for FPPM.  A panel whose parent is hidden is hidden with it.
@@ -525,7 +535,6 @@ HIDDEN = {
     "CYCLES_RENDER_PT_motion_blur": "motion blur: ignored",
     "CYCLES_RENDER_PT_performance": "Cycles' threads, tiles and BVH",
     "CYCLES_RENDER_PT_bake": "baking: FPPM does not bake",
-    "RENDER_PT_freestyle": "Freestyle lines: ignored",
     "CYCLES_RENDER_PT_debug": "Cycles' developer options",
     # view layer tab
     "CYCLES_RENDER_PT_filter": "Cycles' per-layer filter of surfaces/curves/volumes",
@@ -581,10 +590,19 @@ def compat_panels() -> list:
     seen = set(out)
     for p in _panel_classes():
         if p not in seen and ANY_ENGINE <= set(getattr(p, "COMPAT_ENGINES", ())) \
-                and p.__name__ not in HIDDEN:
+                and p.__name__ not in REPLACED and not hidden_reason(p.__name__):
             out.append(p)
             seen.add(p)
     return out
+
+
+def hidden_reason(name: str) -> str | None:
+    """HIDDEN's reason for the panel ``name`` or a panel it is drawn inside."""
+    while name is not None:
+        if name in HIDDEN:
+            return HIDDEN[name]
+        name = getattr(getattr(bpy.types, name, None), "bl_parent_id", None)
+    return None
 
 
 def _panel_classes():

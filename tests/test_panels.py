@@ -70,15 +70,6 @@ def shown(panel, ctx) -> bool:
         return False   # a poll that needs a member this context lacks
 
 
-def hidden_reason(name, panels):
-    """HIDDEN's reason for ``name`` or one of its parents, else None."""
-    while name is not None:
-        if name in ui.HIDDEN:
-            return ui.HIDDEN[name]
-        name = getattr(panels.get(name), "bl_parent_id", None)
-    return None
-
-
 needs_cycles = pytest.mark.skipif(not hasattr(bpy.types, "CYCLES_RENDER_PT_film"),
                                   reason="the Cycles add-on is not enabled")
 
@@ -93,7 +84,7 @@ def test_every_cycles_panel_is_covered(scene):
         cy_ctx = [i for i, c in enumerate(contexts("CYCLES", sc, obs)) if shown(p, c)]
         if not cy_ctx and not (compat and 'CYCLES' in compat):
             continue
-        if hidden_reason(name, panels):
+        if ui.hidden_reason(name):
             continue
         checked += 1
         fp = list(contexts("FPPM", sc, obs))
@@ -128,6 +119,10 @@ def test_the_panels_of_the_issue_show(scene):
                  "VIEWLAYER_PT_layer", "FPPM_VIEWLAYER_PT_passes", "PHYSICS_PT_add",
                  "PARTICLE_PT_context_particles", "TEXTURE_PT_context"):
         assert any(shown(panels[name], c) for c in fp), name
+    for name, own in ui.REPLACED.items():
+        assert own in panels, own
+        if name in panels:
+            assert not any(shown(panels[name], c) for c in fp), name
     for name in ui.HIDDEN:
         # Hidden: it, or a panel it is drawn inside, refuses FPPM.
         chain, n = [], name
