@@ -218,3 +218,22 @@ def test_material_and_world_surface_draw_the_node_tree(scene):
     assert [v[1:] for v in lay.node_views] == [('OUTPUT_WORLD', "Surface")]
     assert draw(ui.FPPM_MATERIAL_PT_settings, ctx).props == ["pass_index"]
     draw(ui.FPPM_PT_context_material, ctx)   # slots: runs against the real object
+
+
+@pytest.mark.parametrize("kind", ['POINT', 'SPOT', 'SUN', 'AREA'])
+def test_every_fppm_panel_draws_where_it_shows(scene, kind):
+    sc, obs = scene
+    obs["light"].data.type = kind
+    sc.view_layers[0].use_pass_mist = True      # the mist panel shows with a mist pass
+    try:
+        n = 0
+        for ctx in contexts("FPPM", sc, obs):
+            for cls in ui.classes:
+                if cls.bl_context != "render" and cls.poll(ctx):
+                    draw(cls, ctx)
+                    n += 1
+        # mesh: slots, surface, settings, world x2, visibility, view layer passes;
+        # light: + light (+ beam shape), ray visibility; camera: the shared ones.
+        assert n >= 17
+    finally:
+        sc.view_layers[0].use_pass_mist = False
