@@ -4,7 +4,8 @@ Everything here is thin: the rendering itself is ``core``.  ``register()``
 adds, and ``unregister()`` removes, exactly:
 - the classes of :data:`classes` (PropertyGroup, RenderEngine, panels);
 - ``bpy.types.Scene.fppm``;
-- "FPPM" in ``COMPAT_ENGINES`` of the standard panels of ``ui.STANDARD_PANELS``;
+- "FPPM" in ``COMPAT_ENGINES`` of the standard panels of ``ui.STANDARD_PANELS``
+  and of Blender's engine-independent panels (``ui.ANY_ENGINE``, less ``ui.HIDDEN``);
 - a one-shot timer that starts the background kernel warm-up (``core.warmup``).
 It also points core's kernel cache at the extension's user folder (kept by
 updates and reinstalls).  Nothing here imports numba, Embree or the kernels:

@@ -49,6 +49,64 @@ NOTHING_VISIBLE = ("Nothing is visible to render: the scene has no mesh objects 
 # ---------------------------------------------------------------------------
 # small helpers
 
+# What the exporter does with each Blender feature, as data for the README's
+# "What FPPM supports" table, the UI (addon/ui.py hides the panels of ignored
+# features) and tests/test_support_table.py.  Rows: (feature, status, message),
+# status "supported", "approximated" or "ignored"; message is the text the
+# exporter logs in its "Approximated:" / "Warning:" lines (a template, as in the
+# code below or core/scene/nodes.py), or "" when nothing is said because no
+# panel offers the feature under FPPM.
+SUPPORTED, APPROXIMATED, IGNORED = "supported", "approximated", "ignored"
+SUPPORT = (
+    ("meshes, curves, surfaces, text, metaballs (evaluated: modifiers, geometry nodes, "
+     "instances)", SUPPORTED, ""),
+    ("split normals, the render UV map", SUPPORTED, ""),
+    ("perspective and orthographic cameras, depth of field, border, resolution %",
+     SUPPORTED, ""),
+    ("point, spot, sun and area lights (every shape, spread), colour, temperature, "
+     "power, exposure, radius, soft falloff, cast shadow", SUPPORTED, ""),
+    ("light ray visibility: camera, glossy, transmission", SUPPORTED, ""),
+    ("world Background colour x strength; mist pass settings", SUPPORTED, ""),
+    ("Diffuse, Glossy, Glass, Refraction, Transparent, Translucent, Emission, Mix Shader, "
+     "Add Shader, Principled BSDF; RGB, Value and Image Texture inputs", SUPPORTED, ""),
+    ("film transparency, pixel filter width, object and material pass index", SUPPORTED, ""),
+    ("other shader nodes", APPROXIMATED, "unsupported node(s) "),
+    ("other nodes linked into an input (the input's value is used)", APPROXIMATED,
+     "'{src.name}' into {node.name}.{name} ignored"),
+    ("Beckmann / Ashikhmin-Shirley distributions", APPROXIMATED,
+     "{node.name}: {dist} distribution rendered as GGX"),
+    ("more closures than a material holds", APPROXIMATED,
+     "closures cut to the {MAX_LOBES} heaviest"),
+    ("Principled subsurface", APPROXIMATED, "rendered as diffuse"),
+    ("'Normalize' off on point and spot lights", APPROXIMATED, "'Normalize' off treated as on"),
+    ("per-ray visibility of objects", APPROXIMATED, "treated as fully visible"),
+    ("pixel filters other than Blackman-Harris", APPROXIMATED,
+     "rendered as Blackman-Harris "),
+    ("world textures", APPROXIMATED, "replaced by the Background colour"),
+    ("world shaders other than Background", APPROXIMATED, "replaced by black"),
+    ("Principled sheen", IGNORED, "ignored: no sheen lobe"),
+    ("anisotropy", IGNORED, "anisotropy ignored"),
+    ("thin-film iridescence", IGNORED, "thin-film iridescence ignored"),
+    ("volumes", IGNORED, "volume ignored"),
+    ("displacement", IGNORED, "displacement ignored"),
+    ("light nodes", IGNORED, "light nodes ignored"),
+    ("a linked world strength", IGNORED, "linked strength ignored"),
+    ("hair curves", IGNORED, ""),
+    ("motion blur", IGNORED, ""),
+    ("adaptive subdivision", IGNORED, ""),
+    ("clamping", IGNORED, ""),
+    ("Cryptomatte", IGNORED, ""),
+    ("shader AOVs", IGNORED, ""),
+    ("light groups", IGNORED, ""),
+    ("light probes", IGNORED, ""),
+    ("material and sample override", IGNORED, ""),
+    ("camera and distance culling", IGNORED, ""),
+    ("shadow terminator, caustics flags", IGNORED, ""),
+    ("world ray visibility", IGNORED, ""),
+    ("EEVEE material settings", IGNORED, ""),
+)
+
+
 def _mat4(m) -> np.ndarray:
     return np.array(m, dtype=np.float64).reshape(4, 4)
 
