@@ -67,6 +67,8 @@ SUPPORT = (
      "power, exposure, radius, soft falloff, cast shadow", SUPPORTED, ""),
     ("light ray visibility: camera, glossy, transmission", SUPPORTED, ""),
     ("world Background colour x strength; mist pass settings", SUPPORTED, ""),
+    ("world Environment Texture (equirectangular) with Mapping and Texture Coordinate "
+     "(Generated, Object): HDRI lighting, importance-sampled", SUPPORTED, ""),
     ("Diffuse, Glossy, Glass, Refraction, Transparent, Translucent, Emission, Mix Shader, "
      "Add Shader, Principled BSDF; RGB, Value and Image Texture inputs", SUPPORTED, ""),
     ("film transparency, pixel filter width, object and material pass index", SUPPORTED, ""),
@@ -82,7 +84,8 @@ SUPPORT = (
     ("per-ray visibility of objects", APPROXIMATED, "treated as fully visible"),
     ("pixel filters other than Blackman-Harris", APPROXIMATED,
      "rendered as Blackman-Harris "),
-    ("world textures", APPROXIMATED, "replaced by the Background colour"),
+    ("Sky Texture", APPROXIMATED, "is not supported: the Background colour is used"),
+    ("stereo 3D / multi-view", APPROXIMATED, "every view is rendered from the scene camera"),
     ("world shaders other than Background", APPROXIMATED, "replaced by black"),
     ("Principled sheen", IGNORED, "ignored: no sheen lobe"),
     ("anisotropy", IGNORED, "anisotropy ignored"),
@@ -91,8 +94,11 @@ SUPPORT = (
     ("displacement", IGNORED, "displacement ignored"),
     ("light nodes", IGNORED, "light nodes ignored"),
     ("a linked world strength", IGNORED, "linked strength ignored"),
-    ("hair curves", IGNORED, ""),
-    ("motion blur", IGNORED, ""),
+    ("hair curves", IGNORED, "not rendered"),
+    ("motion blur", IGNORED, "motion blur ignored"),
+    ("light linking", IGNORED, "ignored: every light reaches every surface"),
+    ("holdout, shadow catcher", IGNORED, "ignored: rendered as ordinary surfaces"),
+    ("volume objects", IGNORED, "volume object(s) not rendered"),
     ("adaptive subdivision", IGNORED, ""),
     ("clamping", IGNORED, ""),
     ("Cryptomatte", IGNORED, ""),
@@ -102,7 +108,7 @@ SUPPORT = (
     ("material and sample override", IGNORED, ""),
     ("camera and distance culling", IGNORED, ""),
     ("shadow terminator, caustics flags", IGNORED, ""),
-    ("world ray visibility", IGNORED, ""),
+    ("world ray visibility", IGNORED, "world: ray visibility treated as fully visible"),
     ("EEVEE material settings", IGNORED, ""),
 )
 
