@@ -29,6 +29,7 @@ render job.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from typing import Callable, Optional
@@ -71,13 +72,15 @@ class PreviewOutcome:
     drawn), 'unsupported' (the preview scene could not be rendered: nothing
     drawn; ``message`` says why); image: the last written (H, W, 4) float32
     image (row 0 at the top) or None; passes: completed passes; seconds: wall
-    time of the whole call.
+    time of the whole call; first_seconds: from the call to the first image
+    written (None when none was).
     """
     status: str
     image: Optional[np.ndarray] = None
     passes: int = 0
     seconds: float = 0.0
     message: str = ""
+    first_seconds: Optional[float] = None
 
 
 class EngineSink:
@@ -121,12 +124,14 @@ def render_preview(depsgraph, sink, should_stop: Callable[[], bool] = lambda: Fa
     began = False
     out = PreviewOutcome("done")
     try:
-        from .export import export_scene
         # The evaluated camera: the preview scene's original objects are never
         # given their evaluated transforms (the original camera sits at the origin).
         cam = depsgraph.scene.camera
-        fscene = export_scene(depsgraph, log,
-                              camera=None if cam is None else cam.evaluated_get(depsgraph))
+        fscene = _PreviewExporter(depsgraph, log).run(
+            None if cam is None else cam.evaluated_get(depsgraph))
+        # Cycles' material and light previews have a transparent background
+        # (the UI draws its own behind); the world preview is handled below.
+        fscene = dataclasses.replace(fscene, film_transparent=True)
         if should_stop():
             return PreviewOutcome("cancelled", seconds=time.perf_counter() - t0)
         from ..core.render import Renderer
@@ -138,6 +143,8 @@ def render_preview(depsgraph, sink, should_stop: Callable[[], bool] = lambda: Fa
         def on_pass(pr):
             sink.update(pr.image)
             out.image, out.passes = pr.image, out.passes + 1
+            if out.first_seconds is None:
+                out.first_seconds = time.perf_counter() - t0
 
         r.run(should_stop=should_stop, on_pass=on_pass)
         if should_stop():
@@ -162,6 +169,30 @@ def render_preview(depsgraph, sink, should_stop: Callable[[], bool] = lambda: Fa
             sink.end()
     out.seconds = time.perf_counter() - t0
     return out
+
+
+#: Materials of Blender's preview scene (release/datafiles/preview.blend) that
+#: hide their object from camera rays with a Light Path node into the alpha
+#: (the floor under the preview sphere): FPPM has no per-ray-type alpha, so
+#: the preview leaves such an object out, as Cycles' camera does not see it.
+CAMERA_HIDDEN_MATERIALS = frozenset({"FloorHidden"})
+
+
+def _exporter_class():
+    from .export import _Exporter
+
+    class PreviewExporter(_Exporter):
+        def geometry(self, inst, ob, parts):
+            mats = [sl.material for sl in getattr(ob, "material_slots", ())]
+            if mats and all(m is not None and m.name in CAMERA_HIDDEN_MATERIALS for m in mats):
+                return
+            return super().geometry(inst, ob, parts)
+    return PreviewExporter
+
+
+def _PreviewExporter(depsgraph, log):
+    """``addon/export.py``'s exporter leaving out CAMERA_HIDDEN_MATERIALS objects."""
+    return _exporter_class()(depsgraph, log)
 
 
 def _world_image(depsgraph, log) -> Optional[np.ndarray]:
