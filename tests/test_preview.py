@@ -173,3 +173,30 @@ def test_test_break_stops_after_the_current_pass(warm):
     sink = _Sink()
     o = P.render_preview(H.evaluated_depsgraph(), sink, should_stop=lambda: bool(sink.images))
     assert o.status == "cancelled" and o.passes == 1 and len(sink.images) == 1
+
+
+def test_previews_skipped_while_compiling_are_rendered_after_the_warmup(warm, monkeypatch):
+    """While the kernels compile a preview draws nothing; once the warm-up is
+    done, ``refresh_when_compiled`` clears the skipped previews (Blender renders
+    a cleared preview again when it is next drawn, here ``previews_ensure``)."""
+    from fppm.addon import preview as P
+
+    class NotYet:
+        done = False
+
+        def start(self):
+            pass
+    H.empty_scene((64, 64))
+    m = red_material("SkippedRed")
+    m.preview_ensure()
+    monkeypatch.setattr(P, "warmup", NotYet())
+    bpy.ops.wm.previews_ensure()
+    assert P._missed[0]
+    assert not preview_pixels(m)[..., :3].any()          # nothing drawn
+    assert P.refresh_when_compiled() == 1.0               # still compiling: poll again
+    monkeypatch.setattr(P, "warmup", warm)
+    assert P.refresh_when_compiled() is None and not P._missed[0]
+    assert tuple(m.preview.image_size) == (0, 0)          # cleared
+    bpy.ops.wm.previews_ensure()
+    cb = _centre(preview_pixels(m)).reshape(-1, 3).mean(axis=0)
+    assert cb[0] > 1.6 * cb[1], cb                        # the red sphere now
