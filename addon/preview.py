@@ -127,7 +127,7 @@ def render_preview(depsgraph, sink, should_stop: Callable[[], bool] = lambda: Fa
         # The evaluated camera: the preview scene's original objects are never
         # given their evaluated transforms (the original camera sits at the origin).
         cam = depsgraph.scene.camera
-        fscene = _PreviewExporter(depsgraph, log).run(
+        fscene = preview_exporter(depsgraph, log).run(
             None if cam is None else cam.evaluated_get(depsgraph))
         # Cycles' material and light previews have a transparent background
         # (the UI draws its own behind); the world preview is handled below.
@@ -151,7 +151,9 @@ def render_preview(depsgraph, sink, should_stop: Callable[[], bool] = lambda: Fa
             out.status = "cancelled"
     except SceneError as ex:
         # Blender's world preview is the camera alone (nothing visible): the
-        # image is the world's colour, which every camera ray sees.
+        # image is the world's colour, which every camera ray sees.  The same
+        # holds with no light at all (then the world is black, and so is
+        # everything).
         flat = None if began else _world_image(depsgraph, log)
         if flat is None:
             out.status, out.message = "unsupported", str(ex)
@@ -178,7 +180,9 @@ def render_preview(depsgraph, sink, should_stop: Callable[[], bool] = lambda: Fa
 CAMERA_HIDDEN_MATERIALS = frozenset({"FloorHidden"})
 
 
-def _exporter_class():
+def preview_exporter(depsgraph, log):
+    """``addon/export.py``'s exporter leaving out the objects whose every
+    material is in :data:`CAMERA_HIDDEN_MATERIALS`."""
     from .export import _Exporter
 
     class PreviewExporter(_Exporter):
@@ -187,17 +191,12 @@ def _exporter_class():
             if mats and all(m is not None and m.name in CAMERA_HIDDEN_MATERIALS for m in mats):
                 return
             return super().geometry(inst, ob, parts)
-    return PreviewExporter
-
-
-def _PreviewExporter(depsgraph, log):
-    """``addon/export.py``'s exporter leaving out CAMERA_HIDDEN_MATERIALS objects."""
-    return _exporter_class()(depsgraph, log)
+    return PreviewExporter(depsgraph, log)
 
 
 def _world_image(depsgraph, log) -> Optional[np.ndarray]:
-    """(H, W, 4) float32 of the world colour at the render size, or None when
-    the depsgraph has no camera or the world is black (nothing to show)."""
+    """(H, W, 4) float32 of the world colour at the render size (alpha 1), or
+    None when the depsgraph has no usable camera."""
     try:
         from .export import _Exporter
         ex = _Exporter(depsgraph, log)
@@ -205,8 +204,6 @@ def _world_image(depsgraph, log) -> Optional[np.ndarray]:
         cam = ex.camera(None if cam is None else cam.evaluated_get(depsgraph))
         c = ex.world_color()
     except Exception:  # noqa: BLE001 - see render_preview
-        return None
-    if not np.any(c > 0):
         return None
     w, h = cam.resolution
     img = np.ones((h, w, 4), np.float32)

@@ -158,10 +158,16 @@ def test_unsupported_preview_scene_never_raises(warm):
     sink = _Sink()
     assert P.render_preview(object(), sink).status == "unsupported"     # not a depsgraph
     sc = H.empty_scene((16, 16))
+    H.add_plane(sc, material=red_material("NoCameraRed"))
+    H.add_light(sc, "POINT", 100.0)
+    o = P.render_preview(H.evaluated_depsgraph(), sink)      # no camera
+    assert o.status == "unsupported" and sink.begun == 0 and o.message
     H.add_camera(sc)
+    bpy.data.objects.remove(bpy.data.objects["Plane"])
     H.set_world(sc, color=(0.0, 0.0, 0.0))
     o = P.render_preview(H.evaluated_depsgraph(), sink)      # nothing visible, black world
-    assert o.status == "unsupported" and sink.begun == 0 and o.message
+    assert o.status == "done" and sink.begun == 1            # what the camera sees: black
+    assert o.image.shape == (16, 16, 4) and not o.image[..., :3].any()
 
 
 def test_test_break_stops_after_the_current_pass(warm):
