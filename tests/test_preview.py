@@ -206,3 +206,26 @@ def test_previews_skipped_while_compiling_are_rendered_after_the_warmup(warm, mo
     bpy.ops.wm.previews_ensure()
     cb = _centre(preview_pixels(m)).reshape(-1, 3).mean(axis=0)
     assert cb[0] > 1.6 * cb[1], cb                        # the red sphere now
+
+
+def test_every_preview_shape_renders_the_material(warm, outcomes, monkeypatch):
+    """Blender's other preview shapes (cube, flat, hair, shader ball, cloth,
+    fluid) hold objects the exporter must take: curves, text, several meshes.
+    Each renders, and its mean colour is the red material's: the 128 px
+    images' mean R/G was 5.5-16 (a grey world of 0.031 behind), R/G = 1
+    would be a grey image."""
+    from fppm.addon import preview as P
+    monkeypatch.setattr(P, "PREVIEW_SECONDS", 0.3)     # the colour, not the noise
+    H.empty_scene((64, 64))
+    shapes = ('FLAT', 'CUBE', 'HAIR', 'SHADERBALL', 'CLOTH', 'FLUID')
+    for t in shapes:
+        m = red_material("Shape" + t)
+        m.preview_render_type = t
+        m.preview_ensure()
+    bpy.ops.wm.previews_ensure()
+    assert all(o.status == "done" for o in outcomes), [(o.status, o.message) for o in outcomes]
+    big = [o for o in outcomes if o.image.shape[:2] == (128, 128)]
+    assert len(big) == len(shapes)
+    for o in big:
+        mean = o.image[..., :3].reshape(-1, 3).mean(axis=0)
+        assert mean[0] > 4.0 * mean[1], mean
