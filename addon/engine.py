@@ -160,7 +160,8 @@ def session(s: RenderSession):
 class FPPMRenderEngine(bpy.types.RenderEngine):
     bl_idname = "FPPM"
     bl_label = "FPPM"
-    bl_use_preview = False
+    # Material/light/world previews of the Properties editor: addon/preview.py.
+    bl_use_preview = True
     bl_use_postprocess = True
     # Material preview shading uses EEVEE; Rendered shading is FPPM's
     # progressive viewport (view_update / view_draw below, addon/viewport.py).
@@ -291,6 +292,10 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
 
     # -- the render callback -------------------------------------------------
     def render(self, depsgraph):
+        if self.is_preview:
+            from .preview import render_engine_preview
+            render_engine_preview(self, depsgraph)
+            return
         sess = _session
         scene = depsgraph.scene
         try:
