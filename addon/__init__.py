@@ -45,6 +45,13 @@ def start_warmup():
     return None         # a one-shot timer
 
 
+def refresh_previews():
+    """Timer: once the kernels are compiled, re-render the material, light and
+    world previews skipped meanwhile (addon/preview.py); polls every second."""
+    from .preview import refresh_when_compiled
+    return refresh_when_compiled()
+
+
 def register():
     global _registered
     if _registered:
@@ -59,6 +66,7 @@ def register():
     # fires from the event loop, not during start-up; bpy as a module never
     # runs timers: the CLI's first render does the warm-up).
     bpy.app.timers.register(start_warmup, first_interval=WARMUP_DELAY, persistent=True)
+    bpy.app.timers.register(refresh_previews, first_interval=WARMUP_DELAY + 1.0, persistent=True)
     _registered = True
 
 
@@ -66,8 +74,9 @@ def unregister():
     global _registered
     if not _registered:
         return
-    if bpy.app.timers.is_registered(start_warmup):
-        bpy.app.timers.unregister(start_warmup)
+    for timer in (start_warmup, refresh_previews):
+        if bpy.app.timers.is_registered(timer):
+            bpy.app.timers.unregister(timer)
     from ..core.warmup import warmup
     warmup.stop()
     from .viewport import cancel_all

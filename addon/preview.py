@@ -202,7 +202,7 @@ def _world_image(depsgraph, log) -> Optional[np.ndarray]:
         ex = _Exporter(depsgraph, log)
         cam = depsgraph.scene.camera
         cam = ex.camera(None if cam is None else cam.evaluated_get(depsgraph))
-        c = ex.world_color()
+        c, _env = ex.world()      # an environment map is previewed by its constant part
     except Exception:  # noqa: BLE001 - see render_preview
         return None
     w, h = cam.resolution

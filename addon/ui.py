@@ -327,6 +327,37 @@ class FPPM_MATERIAL_PT_settings(FPPMDataPanel, Panel):
         split(self.layout).prop(context.material, "pass_index")
 
 
+class FPPMPreviewPanel(FPPMDataPanel):
+    """The datablock's preview, rendered by FPPM (addon/preview.py); Cycles'
+    preview panels poll true for Cycles only."""
+    bl_label = "Preview"
+    bl_options = {'DEFAULT_CLOSED'}
+
+
+class FPPM_MATERIAL_PT_preview(FPPMPreviewPanel, Panel):
+    bl_context = "material"
+    poll_data = classmethod(lambda cls, context: getattr(context, "material", None) is not None)
+
+    def draw(self, context):
+        self.layout.template_preview(context.material)
+
+
+class FPPM_LIGHT_PT_preview(FPPMPreviewPanel, Panel):
+    bl_context = "data"
+    poll_data = classmethod(lambda cls, context: getattr(context, "light", None) is not None)
+
+    def draw(self, context):
+        self.layout.template_preview(context.light)
+
+
+class FPPM_WORLD_PT_preview(FPPMPreviewPanel, Panel):
+    bl_context = "world"
+    poll_data = classmethod(lambda cls, context: getattr(context, "world", None) is not None)
+
+    def draw(self, context):
+        self.layout.template_preview(context.world)
+
+
 class FPPM_WORLD_PT_surface(FPPMDataPanel, Panel):
     bl_label = "Surface"
     bl_context = "world"
@@ -413,11 +444,14 @@ classes = (
     FPPM_RENDER_PT_frequency,
     FPPM_RENDER_PT_output,
     FPPM_VIEWLAYER_PT_passes,
+    FPPM_LIGHT_PT_preview,
     FPPM_LIGHT_PT_light,
     FPPM_LIGHT_PT_beam_shape,
     FPPM_PT_context_material,
+    FPPM_MATERIAL_PT_preview,
     FPPM_MATERIAL_PT_surface,
     FPPM_MATERIAL_PT_settings,
+    FPPM_WORLD_PT_preview,
     FPPM_WORLD_PT_surface,
     FPPM_WORLD_PT_mist,
     FPPM_OBJECT_PT_visibility,
@@ -471,6 +505,10 @@ ANY_ENGINE = frozenset({'BLENDER_RENDER', 'BLENDER_EEVEE', 'BLENDER_WORKBENCH'})
 # tests/test_panels.py: every panel a Cycles user sees is shown under FPPM, is
 # a key here (its equivalent shows), or is in HIDDEN.
 EQUIVALENTS = {
+    "CYCLES_LIGHT_PT_preview": ("FPPM_LIGHT_PT_preview", "the light's preview, rendered by FPPM"),
+    "CYCLES_MATERIAL_PT_preview": ("FPPM_MATERIAL_PT_preview",
+                                   "the material's preview, rendered by FPPM"),
+    "CYCLES_WORLD_PT_preview": ("FPPM_WORLD_PT_preview", "the world's preview, rendered by FPPM"),
     "CYCLES_RENDER_PT_sampling": ("FPPM_RENDER_PT_sampling",
                                   "passes, time limit, photons per pass, seed"),
     "CYCLES_RENDER_PT_sampling_render": ("FPPM_RENDER_PT_sampling", "max passes, time limit"),
@@ -551,9 +589,7 @@ HIDDEN = {
     "OBJECT_PT_shading": "shadow terminator, caustics flags: ignored",
     "OBJECT_PT_shadow_terminator": "shadow terminator, caustics flags: ignored",
     # data / material / world tabs
-    "CYCLES_LIGHT_PT_preview": "FPPM renders no previews (bl_use_preview is False)",
     "CYCLES_LIGHT_PT_nodes": "light nodes: ignored",
-    "CYCLES_MATERIAL_PT_preview": "FPPM renders no previews (bl_use_preview is False)",
     "CYCLES_MATERIAL_PT_volume": "volumes: ignored",
     "CYCLES_MATERIAL_PT_settings_surface": "Cycles' displacement method, emission "
                                            "sampling, transparent shadows, thin walls",
@@ -567,7 +603,6 @@ HIDDEN = {
     "DATA_PT_lightprobe_visibility": "light probes: ignored",
     "CYCLES_MATERIAL_PT_displacement": "displacement: ignored",
     "EEVEE_MATERIAL_PT_viewport_settings": "EEVEE material settings: ignored",
-    "CYCLES_WORLD_PT_preview": "FPPM renders no previews (bl_use_preview is False)",
     "CYCLES_WORLD_PT_volume": "volumes: ignored",
     "CYCLES_WORLD_PT_ray_visibility": "world ray visibility: ignored",
     "CYCLES_WORLD_PT_settings": "Cycles' world sampling (the world is a constant colour)",

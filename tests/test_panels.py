@@ -150,6 +150,7 @@ class Layout:
     def __init__(self):
         self.props = []
         self.node_views = []
+        self.previews = []
         self.use_property_split = False
         self.use_property_decorate = True
         self.active = True
@@ -160,6 +161,9 @@ class Layout:
 
     def template_node_view(self, ntree, node, socket):
         self.node_views.append((ntree, node.type, socket.name))
+
+    def template_preview(self, id_data, **kw):
+        self.previews.append(id_data)
 
     def operator(self, *a, **kw):
         return type("Op", (), {})()
