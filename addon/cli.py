@@ -148,7 +148,7 @@ def _walk_blocks(read, skip, size: int | None) -> str | None:
         head += read(max(0, hsize - 12))
         if (len(head) != hsize or head[9:10] != b"-" or head[10:12] != b"01"
                 or head[12:13] not in (b"v", b"V") or not head[13:hsize].isdigit()):
-            return f"unknown header {head[:hsize]!r}"
+            return f"unknown header {head[:17]!r}"
         endian = "<" if head[12:13] == b"v" else ">"
         bhead = struct.Struct(endian + "4siQqq")      # code, SDNA index, old address, len, nr
         fields = lambda b: (b[0], b[3], b[4], b[1])    # noqa: E731
@@ -200,7 +200,7 @@ def blend_damage(path: str) -> str | None:
     except OSError as ex:
         return ex.strerror
     with fh:
-        magic = fh.read(4)
+        magic = fh.read(7)
         fh.seek(0)
         try:
             if magic.startswith(b"BLENDER"):
@@ -213,7 +213,7 @@ def blend_damage(path: str) -> str | None:
                 return _walk_blocks(fh.read, skip, size)
             if magic.startswith(b"\x1f\x8b"):
                 stream = gzip.GzipFile(fileobj=fh)
-            elif magic == b"\x28\xb5\x2f\xfd":
+            elif magic.startswith(b"\x28\xb5\x2f\xfd"):
                 try:
                     import zstandard
                 except ImportError:

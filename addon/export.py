@@ -360,10 +360,11 @@ class _Exporter:
         avail = available_bytes()
         if avail is None or need <= avail:
             return
-        gib = 2.0 ** 30
+        def size(b):
+            return f"{b / 2 ** 30:.1f} GiB" if b >= 2 ** 30 else f"{b / 2 ** 20:.0f} MiB"
         raise MemoryBudgetError(
-            f"Image '{img.name}' ({w}x{h}, {c} channels) needs about {need / gib:.1f} GiB to "
-            f"load but only {avail / gib:.1f} GiB is free: use a smaller image (a lower-"
+            f"Image '{img.name}' ({w}x{h}, {c} channels) needs about {size(need)} to "
+            f"load but only {size(avail)} is free: use a smaller image (a lower-"
             f"resolution file, or scale it down in the Image Editor: Image > Resize), or "
             f"close other programs.")
 
