@@ -126,8 +126,41 @@ def check_input(path: str) -> None:
 # ---------------------------------------------------------------------------
 # a damaged .blend must not crash the process (docs/reliability.md, "Bad input")
 
-# The block codes of a .blend: upper-case letters, digits, NUL padding.
-_CODE_BYTES = frozenset(b"ABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789\0")
+# The block codes of a .blend: these, or an ID's two upper-case letters and two
+# NULs (b"OB\0\0").  A bit flip that turned DATA into another word crashed
+# Blender's reader (docs/reliability.md).
+_BLOCK_CODES = frozenset((b"DATA", b"GLOB", b"DNA1", b"TEST", b"REND", b"USER", b"ENDB"))
+_UPPER = frozenset(b"ABCDEFGHIJKLMNOPQRSTUVWXYZ")
+
+
+def _known_code(code: bytes) -> bool:
+    return code in _BLOCK_CODES or (code[2:] == b"\0\0" and set(code[:2]) <= _UPPER)
+
+
+def _sdna_struct_count(dna: bytes, endian: str) -> int | None:
+    """Number of structs in a DNA1 block's data (SDNA NAME TYPE TLEN STRC), or None."""
+    try:
+        i = 8                                          # b"SDNANAME"
+        n = struct.unpack_from(endian + "i", dna, i)[0]
+        i += 4
+        for _ in range(n):
+            i = dna.index(b"\0", i) + 1
+        i = (i + 3) & ~3
+        if dna[i:i + 4] != b"TYPE":
+            return None
+        n = struct.unpack_from(endian + "i", dna, i + 4)[0]
+        i += 8
+        for _ in range(n):
+            i = dna.index(b"\0", i) + 1
+        i = (i + 3) & ~3
+        if dna[i:i + 4] != b"TLEN":
+            return None
+        i = (i + 4 + 2 * n + 3) & ~3
+        if dna[i:i + 4] != b"STRC":
+            return None
+        return struct.unpack_from(endian + "i", dna, i + 4)[0]
+    except (ValueError, struct.error):
+        return None
 
 
 def _walk_blocks(read, skip, size: int | None) -> str | None:
@@ -161,7 +194,8 @@ def _walk_blocks(read, skip, size: int | None) -> str | None:
         bhead = struct.Struct(endian + ("4siQii" if ptr == b"-" else "4siIii"))
         fields = lambda b: (b[0], b[1], b[4], b[3])    # noqa: E731
         pos = 12
-    has_dna = False
+    n_structs = None
+    max_sdna = 0
     while True:
         raw = read(bhead.size)
         if len(raw) < bhead.size:
@@ -169,16 +203,21 @@ def _walk_blocks(read, skip, size: int | None) -> str | None:
         code, length, nr, sdna = fields(bhead.unpack(raw))
         pos += bhead.size
         if code == b"ENDB":
-            return None if has_dna else "no DNA block"
-        if not code or not set(code) <= _CODE_BYTES or code[0] == 0:
+            if n_structs is None:
+                return "no DNA block"
+            if max_sdna >= n_structs:
+                return f"a block names struct {max_sdna} of {n_structs}"
+            return None
+        if not _known_code(code):
             return f"garbled block code {code!r} at byte {pos - bhead.size}"
         if length < 0 or nr < 0 or sdna < 0 or (size is not None and pos + length > size):
             return f"block {code.decode('latin-1')!r} at byte {pos - bhead.size} has a bad length"
+        max_sdna = max(max_sdna, sdna)
         if code == b"DNA1":
             data = read(length)
-            if len(data) < length or not data.startswith(b"SDNANAME"):
+            n_structs = _sdna_struct_count(data, endian) if len(data) == length else None
+            if not data.startswith(b"SDNANAME") or not n_structs or n_structs < 0:
                 return "damaged DNA block"
-            has_dna = True
         elif skip(length) < length:
             return f"truncated at byte {pos} (no end block)"
         pos += length
