@@ -139,20 +139,19 @@ def _known_code(code: bytes) -> bool:
 
 def _sdna_struct_count(dna: bytes, endian: str) -> int | None:
     """Number of structs in a DNA1 block's data (SDNA NAME TYPE TLEN STRC), or None."""
-    try:
-        i = 8                                          # b"SDNANAME"
-        n = struct.unpack_from(endian + "i", dna, i)[0]
-        i += 4
-        for _ in range(n):
-            i = dna.index(b"\0", i) + 1
-        i = (i + 3) & ~3
-        if dna[i:i + 4] != b"TYPE":
-            return None
+    def strings(i: int, tag: bytes) -> tuple[int, int]:
+        """After the 4-byte tag at i: a count and that many NUL-ended strings;
+        returns (count, the 4-aligned offset after them)."""
+        if dna[i:i + 4] != tag:
+            raise ValueError(tag)
         n = struct.unpack_from(endian + "i", dna, i + 4)[0]
         i += 8
         for _ in range(n):
             i = dna.index(b"\0", i) + 1
-        i = (i + 3) & ~3
+        return n, (i + 3) & ~3
+    try:
+        _, i = strings(4, b"NAME")                     # after b"SDNA"
+        n, i = strings(i, b"TYPE")
         if dna[i:i + 4] != b"TLEN":
             return None
         i = (i + 4 + 2 * n + 3) & ~3
