@@ -56,6 +56,34 @@ def _never() -> bool:
     return False
 
 
+def _file_image_header(path: str) -> tuple[int, int, int] | None:
+    """(width, height, bytes a pixel Blender will hold) from a PNG or JPEG
+    file's header, read without decoding it; None for other formats or
+    unreadable files.  Blender holds 8-bit images as RGBA bytes (4 a pixel)
+    and 16-bit PNGs as RGBA float (16 a pixel)."""
+    import struct
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(26)
+            if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+                w, h, depth = struct.unpack(">IIB", head[16:25])
+                return w, h, 16 if depth == 16 else 4
+            if head[:2] == b"\xff\xd8":
+                fh.seek(2)
+                while True:
+                    m = fh.read(4)
+                    if len(m) < 4 or m[0] != 0xFF:
+                        return None
+                    size = struct.unpack(">H", m[2:])[0]
+                    if 0xC0 <= m[1] <= 0xCF and m[1] not in (0xC4, 0xC8, 0xCC):
+                        h, w = struct.unpack(">HH", fh.read(5)[1:])
+                        return w, h, 4
+                    fh.seek(size - 2, 1)
+    except (OSError, struct.error):
+        return None
+    return None
+
+
 # ---------------------------------------------------------------------------
 # small helpers
 
@@ -340,16 +368,26 @@ class _Exporter:
         """Refuse (MemoryBudgetError) an image whose pixels would not fit in memory.
 
         Checked before its pixels are read: Blender's own buffer (generated
-        images are made, file images decoded, on the first access), our
+        images are made, file images decoded, on the first access; their size
+        comes from the generated size or a PNG / JPEG header, other formats
+        are decoded by ``Image.size`` before the check), our
         float32 copy (``Image.pixels``: 4 bytes a channel) and, for 1- or
         2-channel images, the RGB copy made from it.  An 8192^2 texture used
         to peak at 4.4 GB before the render's memory estimate ran
         (docs/reliability.md, "Memory").
         """
         from ..core.memory import available_bytes
+        header = None
+        if img.source == 'FILE' and not img.has_data and img.packed_file is None:
+            header = _file_image_header(img.filepath_from_user())
         if img.source == 'GENERATED' and not img.has_data:
             w, h = int(img.generated_width), int(img.generated_height)
             c, held = 4, (_FLOAT_BYTES if img.use_generated_float else 1)
+        elif header is not None:
+            # A PNG or JPEG not decoded yet: its size from the header; the
+            # pixels read back as 4 channels.
+            w, h, per_pixel = header
+            c, held = 4, per_pixel // 4
         else:
             w, h = (int(x) for x in img.size)       # loads the file, if not yet
             c, held = int(img.channels), (_FLOAT_BYTES if img.is_float else 1)

@@ -130,6 +130,14 @@ def test_cancel_latency_big_texture(monkeypatch):
 # ---------------------------------------------------------------------------
 # an image that does not fit in memory is refused before its pixels are read
 
+def _short_of_memory(monkeypatch, available):
+    """Free memory reported as ``available`` bytes, once the engine's background
+    kernel warm-up (a Renderer of its own, with its own memory check) is done."""
+    from core.warmup import warmup
+    warmup.wait()
+    monkeypatch.setattr(memory, "available_bytes", lambda: available)
+
+
 def test_image_too_big_for_memory_is_refused(monkeypatch):
     import fppm.addon.engine as E
     from fppm.addon import cli
@@ -137,7 +145,7 @@ def test_image_too_big_for_memory_is_refused(monkeypatch):
     assert not img.has_data            # generated on first access: not yet
     # 2048^2 x 4 channels x (1 byte Blender's + 4 bytes our float32 copy) = 80 MiB.
     need = 2048 * 2048 * 4 * 5
-    monkeypatch.setattr(memory, "available_bytes", lambda: need - 1)
+    _short_of_memory(monkeypatch, need - 1)
     sess = E.RenderSession(log=lambda m: None)
     with pytest.raises(cli.CLIError) as ei:
         cli.render_scene(H.bpy().context.scene, {}, sess)
@@ -148,9 +156,32 @@ def test_image_too_big_for_memory_is_refused(monkeypatch):
     assert not img.has_data            # refused before Blender made its pixels
     # Exactly enough: exported (the render's own estimate comes after).
     from fppm.addon.export import export_scene
-    monkeypatch.setattr(memory, "available_bytes", lambda: need)
+    _short_of_memory(monkeypatch, need)
     fs = export_scene(H.evaluated_depsgraph(), lambda m: None)
     assert len(fs.textures) == 1 and fs.textures[0].shape == (2048, 2048, 4)
+
+
+@pytest.mark.parametrize("fmt, ext", [("PNG", "png"), ("JPEG", "jpg")])
+def test_image_file_too_big_is_refused_before_decoding(monkeypatch, tmp_path, fmt, ext):
+    # A PNG / JPEG texture: its size read from the file's header, so Blender
+    # has not decoded it when the export refuses it.
+    from fppm.addon.export import export_scene
+    bpy = H.bpy()
+    img = _textured_floor(2048)
+    img.filepath_raw = str(tmp_path / f"big.{ext}")
+    img.file_format = fmt
+    img.save()
+    loaded = bpy.data.images.load(str(tmp_path / f"big.{ext}"), check_existing=False)
+    bpy.data.objects["Plane"].active_material.node_tree.nodes["Image Texture"].image = loaded
+    assert not loaded.has_data
+    need = 2048 * 2048 * 4 * 5         # 4 bytes a pixel Blender's + 16 our float32 copy
+    _short_of_memory(monkeypatch, need - 1)
+    with pytest.raises(MemoryBudgetError, match=r"\(2048x2048, 4 channels\)"):
+        export_scene(H.evaluated_depsgraph(), lambda m: None)
+    assert not loaded.has_data
+    _short_of_memory(monkeypatch, need)
+    fs = export_scene(H.evaluated_depsgraph(), lambda m: None)
+    assert fs.textures[0].shape[:2] == (2048, 2048)
 
 
 # ---------------------------------------------------------------------------
