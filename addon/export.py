@@ -44,7 +44,7 @@ NOTHING_VISIBLE = ("Nothing is visible to render: the scene has no mesh objects 
 
 # Rows (triangles, texels) per step of a large copy: a cancel is polled
 # between steps, so one step must stay well under the 0.1 s promised by
-# docs/reliability.md ("Cancel"; ~10 ms a step measured there).
+# docs/reliability.md ("Cancel").
 CHUNK = 1 << 15
 
 # Image formats whose pixels Blender holds as float (4 bytes a channel);
@@ -372,9 +372,9 @@ class _Exporter:
         comes from the generated size or a PNG / JPEG header, other formats
         are decoded by ``Image.size`` before the check), our
         float32 copy (``Image.pixels``: 4 bytes a channel) and, for 1- or
-        2-channel images, the RGB copy made from it.  An 8192^2 texture used
-        to peak at 4.4 GB before the render's memory estimate ran
-        (docs/reliability.md, "Memory").
+        2-channel images, the RGB copy made from it: the export's own peak
+        comes before the render's memory estimate (docs/reliability.md,
+        "Memory").
         """
         from ..core.memory import available_bytes
         header = None
@@ -423,8 +423,8 @@ class _Exporter:
             mb.notes.append(f"image '{img.name}' could not be loaded")
             self.tex_index[key] = -1
             return -1
-        # Image.pixels has no partial read: one foreach_get (~15 ms a
-        # megatexel, docs/reliability.md), polled before and after.
+        # Image.pixels has no partial read: one foreach_get, polled before
+        # and after (its cost: docs/reliability.md, "Cancel").
         px = np.empty(w * h * c, np.float32)
         img.pixels.foreach_get(px)
         self.poll()
@@ -492,14 +492,14 @@ class _Exporter:
         if T == 0:
             z = np.zeros((0, 3, 3), np.float32)
             return z, z, np.zeros((0, 3, 2), np.float32), np.zeros(0, np.int32)
-        # One call, not interruptible (no raw array behind it): ~0.4 us a
-        # triangle, the longest step of the export (docs/reliability.md).
+        # One call, not interruptible (no raw array behind it): the longest
+        # step of the export (docs/reliability.md, "Cancel").
         corners = np.empty(T * 3, np.int32)
         tris.foreach_get("loops", corners)
         poll()
         slot = np.empty(T, np.int32)
-        # Through the attributes when Blender has them: a raw copy (~1 ms a
-        # million) where the per-item properties take ~0.3 s a million.
+        # Through the attributes when Blender has them: a raw copy, where the
+        # per-item properties cost as much as the read above.
         mi = me.attributes.get("material_index")
         if mi is None:
             slot[:] = 0                      # Blender's default: every face slot 0
@@ -617,7 +617,7 @@ class _Exporter:
         """``drop_invalid_triangles`` band by band, polled between bands.
 
         The check is per triangle, so the bands give the same scene as one
-        call (~0.6 s a million triangles in one call, docs/reliability.md).
+        call, which takes long for big meshes (docs/reliability.md).
         """
         T = fscene.n_triangles
         if T <= CHUNK:
