@@ -37,6 +37,8 @@ import argparse
 import json
 import os
 import signal
+import struct
+import subprocess
 import sys
 import tempfile
 import time
@@ -119,6 +121,206 @@ def check_input(path: str) -> None:
         raise CLIError(EXIT_INPUT, f"cannot read '{path}': {ex.strerror}.")
     if not head.startswith(_BLEND_MAGIC):
         raise CLIError(EXIT_INPUT, f"'{path}' is not a .blend file.")
+
+
+# ---------------------------------------------------------------------------
+# a damaged .blend must not crash the process (docs/reliability.md, "Bad input")
+
+# The block codes of a .blend: these, or an ID's two upper-case letters and two
+# NULs (b"OB\0\0").  A bit flip that turned DATA into another word crashed
+# Blender's reader (docs/reliability.md).
+_BLOCK_CODES = frozenset((b"DATA", b"GLOB", b"DNA1", b"TEST", b"REND", b"USER", b"ENDB"))
+_UPPER = frozenset(b"ABCDEFGHIJKLMNOPQRSTUVWXYZ")
+
+
+def _known_code(code: bytes) -> bool:
+    return code in _BLOCK_CODES or (code[2:] == b"\0\0" and set(code[:2]) <= _UPPER)
+
+
+def _sdna_struct_count(dna: bytes, endian: str) -> int | None:
+    """Number of structs in a DNA1 block's data (SDNA NAME TYPE TLEN STRC), or None."""
+    def strings(i: int, tag: bytes) -> tuple[int, int]:
+        """After the 4-byte tag at i: a count and that many NUL-ended strings;
+        returns (count, the 4-aligned offset after them)."""
+        if dna[i:i + 4] != tag:
+            raise ValueError(tag)
+        n = struct.unpack_from(endian + "i", dna, i + 4)[0]
+        i += 8
+        for _ in range(n):
+            i = dna.index(b"\0", i) + 1
+        return n, (i + 3) & ~3
+    try:
+        _, i = strings(4, b"NAME")                     # after b"SDNA"
+        n, i = strings(i, b"TYPE")
+        if dna[i:i + 4] != b"TLEN":
+            return None
+        i = (i + 4 + 2 * n + 3) & ~3
+        if dna[i:i + 4] != b"STRC":
+            return None
+        return struct.unpack_from(endian + "i", dna, i + 4)[0]
+    except (ValueError, struct.error):
+        return None
+
+
+def _walk_blocks(read, skip, size: int | None) -> str | None:
+    """Walk the file-block chain of an uncompressed .blend stream to ENDB.
+
+    read(n) -> bytes (fewer at the end), skip(n) -> bytes skipped; size:
+    the stream's length when known.  Returns None when the chain is sound,
+    else what is wrong.  Only headers are read (a block's data is skipped):
+    the header magic and version, every block's code and lengths, that
+    the blocks end exactly at ENDB and that the DNA block is there.
+    """
+    head = read(12)
+    if len(head) < 12 or not head.startswith(b"BLENDER"):
+        return "no .blend header"
+    if head[7:9].isdigit():
+        # Blender 5 header: BLENDER + header size + '-' + file format + 'v' + version.
+        hsize = int(head[7:9])
+        head += read(max(0, hsize - 12))
+        if (len(head) != hsize or head[9:10] != b"-" or head[10:12] != b"01"
+                or head[12:13] not in (b"v", b"V") or not head[13:hsize].isdigit()):
+            return f"unknown header {head[:17]!r}"
+        endian = "<" if head[12:13] == b"v" else ">"
+        bhead = struct.Struct(endian + "4siQqq")      # code, SDNA index, old address, len, nr
+        fields = lambda b: (b[0], b[3], b[4], b[1])    # noqa: E731
+        pos = hsize
+    else:
+        ptr, end, version = head[7:8], head[8:9], head[9:12]
+        if ptr not in (b"_", b"-") or end not in (b"v", b"V") or not version.isdigit():
+            return f"unknown header {head!r}"
+        endian = "<" if end == b"v" else ">"
+        bhead = struct.Struct(endian + ("4siQii" if ptr == b"-" else "4siIii"))
+        fields = lambda b: (b[0], b[1], b[4], b[3])    # noqa: E731
+        pos = 12
+    n_structs = None
+    max_sdna = 0
+    while True:
+        raw = read(bhead.size)
+        if len(raw) < bhead.size:
+            return f"truncated at byte {pos} (no end block)"
+        code, length, nr, sdna = fields(bhead.unpack(raw))
+        pos += bhead.size
+        if code == b"ENDB":
+            if n_structs is None:
+                return "no DNA block"
+            if max_sdna >= n_structs:
+                return f"a block names struct {max_sdna} of {n_structs}"
+            return None
+        if not _known_code(code):
+            return f"garbled block code {code!r} at byte {pos - bhead.size}"
+        if length < 0 or nr < 0 or sdna < 0 or (size is not None and pos + length > size):
+            return f"block {code.decode('latin-1')!r} at byte {pos - bhead.size} has a bad length"
+        max_sdna = max(max_sdna, sdna)
+        if code == b"DNA1":
+            data = read(length)
+            n_structs = _sdna_struct_count(data, endian) if len(data) == length else None
+            if not data.startswith(b"SDNANAME") or not n_structs or n_structs < 0:
+                return "damaged DNA block"
+        elif skip(length) < length:
+            return f"truncated at byte {pos} (no end block)"
+        pos += length
+
+
+def blend_damage(path: str) -> str | None:
+    """None when ``path`` is a sound .blend (plain, gzip or zstd), else what is wrong.
+
+    A cheap structural check done before Blender reads the file: Blender's
+    reader trusts the file, and a damaged one can crash it (a bit-flipped
+    file segfaulted it, exit 139).  Plain files: only the block headers are
+    read.  Compressed files are decompressed as a stream (zstd needs the
+    ``zstandard`` module, which bpy installs; without it only the header is
+    checked).
+    """
+    import gzip
+    try:
+        fh = open(path, "rb")
+    except OSError as ex:
+        return ex.strerror
+    with fh:
+        magic = fh.read(7)
+        fh.seek(0)
+        try:
+            if magic.startswith(b"BLENDER"):
+                size = os.fstat(fh.fileno()).st_size
+
+                def skip(n):
+                    start = fh.tell()
+                    fh.seek(min(start + n, size))
+                    return fh.tell() - start
+                return _walk_blocks(fh.read, skip, size)
+            if magic.startswith(b"\x1f\x8b"):
+                stream = gzip.GzipFile(fileobj=fh)
+            elif magic.startswith(b"\x28\xb5\x2f\xfd"):
+                try:
+                    import zstandard
+                except ImportError:
+                    return None
+                stream = zstandard.ZstdDecompressor().stream_reader(fh, read_across_frames=True)
+            else:
+                return "not a .blend file"
+
+            def skip_stream(n):
+                done = 0
+                while done < n:
+                    got = len(stream.read(min(n - done, 1 << 20)))
+                    if got == 0:
+                        break
+                    done += got
+                return done
+            return _walk_blocks(stream.read, skip_stream, None)
+        except (OSError, EOFError, ValueError, struct.error) as ex:
+            return f"cannot decompress it ({ex})"
+        except Exception as ex:   # zstandard.ZstdError and the like
+            return f"cannot decompress it ({type(ex).__name__}: {ex})"
+
+
+# The child that opens a suspect file: Blender's reader, scripts disabled.
+_PROBE = ("import sys\n"
+          "import bpy\n"
+          "try:\n"
+          "    bpy.ops.wm.open_mainfile(filepath=sys.argv[1], load_ui=False, use_scripts=False)\n"
+          "except RuntimeError as ex:\n"
+          "    print(str(ex).strip(), file=sys.stderr)\n"
+          "    sys.exit(3)\n")
+
+
+def probe_command(path: str) -> list:
+    """The command that opens ``path`` in a child process (tests replace it)."""
+    return [sys.executable, "-c", _PROBE, os.path.abspath(path)]
+
+
+def probe_blend(path: str, reason: str, should_stop=None) -> bool:
+    """Open a suspect ``path`` in a child process first; CLIError(EXIT_INPUT) if
+    Blender fails or crashes there.  Returns False when should_stop() turned
+    true while waiting (the child is killed), True when the child read it."""
+    proc = subprocess.Popen(probe_command(path), stdin=subprocess.DEVNULL,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            start_new_session=True)   # Ctrl-C goes to the parent only
+    err = b""
+    while True:
+        try:
+            _, err = proc.communicate(timeout=0.05)
+            break
+        except subprocess.TimeoutExpired:
+            if should_stop is not None and should_stop():
+                proc.kill()
+                proc.communicate()
+                return False
+    rc = proc.returncode
+    if rc == 0:
+        return True
+    if rc < 0:
+        try:
+            sig = signal.Signals(-rc).name
+        except ValueError:
+            sig = f"signal {-rc}"
+        raise CLIError(EXIT_INPUT, f"cannot open '{path}': the file is damaged ({reason}) and "
+                                   f"Blender's reader crashed on it ({sig}): restore it from a "
+                                   f"backup (Blender keeps the previous save as '.blend1').")
+    lines = [ln for ln in err.decode("utf-8", "replace").splitlines() if ln.strip()]
+    said = lines[-1].strip() if rc == EXIT_INPUT and lines else f"Blender exited with code {rc}"
+    raise CLIError(EXIT_INPUT, f"cannot open '{path}': the file is damaged ({reason}): {said}")
 
 
 def check_output(path: str, blend: str | None = None, overwrite: bool = False,
@@ -407,17 +609,22 @@ def _state_kept(ckpt, renderer) -> str:
             f"rendering again.")
 
 
-def open_blend(path: str, frame=None, resolution=None):
+def open_blend(path: str, frame=None, resolution=None, should_stop=None):
     """Open ``path`` (scripts disabled) with the add-on registered; returns its scene.
 
     frame: the frame to set (None: the file's); resolution: the resolution
     percentage (None: the file's).  Raises CLIError(EXIT_INPUT) when Blender
-    cannot read the file.
+    cannot read the file, also when it would crash reading it: a file that
+    fails :func:`blend_damage` is opened in a child process first
+    (:func:`probe_blend`).  Returns None if should_stop() turned true then.
     """
     import bpy
 
     from .. import addon
 
+    damage = blend_damage(path)
+    if damage is not None and not probe_blend(path, damage, should_stop):
+        return None
     addon.register()
     try:
         bpy.ops.wm.open_mainfile(filepath=os.path.abspath(path), load_ui=False,
@@ -597,8 +804,8 @@ def _render_locked(a, stop, overrides) -> int:
                                 on_renderer=ckpt.resume if ckpt is not None and a.resume else None)
     if stop:
         return _cancelled_early(stop)
-    scene = open_blend(a.blend, a.frame, a.resolution)
-    if stop:
+    scene = open_blend(a.blend, a.frame, a.resolution, should_stop=lambda: bool(stop))
+    if stop or scene is None:
         return _cancelled_early(stop)
     t0 = time.monotonic()
     try:

@@ -96,25 +96,10 @@ def report_warning(engine, msg: str) -> None:
 
 
 def export_cancellable(depsgraph, log, camera, should_stop):
-    """``export_scene`` with a cancellation point before every object.
-
-    A stopgap until ``export_scene`` takes ``should_stop`` itself: the same
-    exporter, with ``geometry`` (the per-object cost: foreach_get and the
-    transforms) preceded by a poll; RenderCancelled goes to ``render``.  What
-    follows the object loop (concatenation, invalid-triangle check) is not
-    interruptible: ~0.6 s per million triangles, see docs/reliability.md.
-    """
-    from . import export as X
-    base = getattr(X, "_Exporter", None)
-    if base is None or not hasattr(base, "geometry"):
-        return export_scene(depsgraph, log, camera=camera)
-
-    class _Exporter(base):
-        def geometry(self, inst, ob, parts):
-            if should_stop():
-                raise RenderCancelled("cancelled")
-            return super().geometry(inst, ob, parts)
-    return _Exporter(depsgraph, log).run(camera)
+    """``export_scene`` polling ``should_stop`` between objects, textures and bands
+    of the large copies (docs/reliability.md, "Cancel"); RenderCancelled goes
+    to ``render``."""
+    return export_scene(depsgraph, log, camera=camera, should_stop=should_stop)
 
 
 class RenderSession:

@@ -23,6 +23,7 @@ approximated.  Degenerate/NaN triangles are dropped and counted.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 import warnings
@@ -30,7 +31,7 @@ import warnings
 import numpy as np
 
 from ..core.scene import nodes as shading
-from ..core.errors import SceneError
+from ..core.errors import MemoryBudgetError, RenderCancelled, SceneError
 from ..core.lights.environment import mean_radiance
 from ..core.scene.textures import EnvironmentMap
 from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
@@ -44,6 +45,48 @@ NO_LIGHTS = "The scene has no lights: add a light, an emissive material or a wor
 NO_CAMERA = "The scene has no camera: add a camera and set it as the scene camera."
 NOTHING_VISIBLE = ("Nothing is visible to render: the scene has no mesh objects enabled "
                    "for rendering (check 'Disable in Renders' and ray visibility).")
+
+
+# Rows (triangles, texels) per step of a large copy: a cancel is polled
+# between steps, so one step must stay well under the 0.1 s promised by
+# docs/reliability.md ("Cancel").
+CHUNK = 1 << 15
+
+# Image formats whose pixels Blender holds as float (4 bytes a channel);
+# any other is 1 byte a channel until it is read through Image.pixels.
+_FLOAT_BYTES = 4
+
+
+def _never() -> bool:
+    return False
+
+
+def _file_image_header(path: str) -> tuple[int, int, int] | None:
+    """(width, height, bytes a pixel Blender will hold) from a PNG or JPEG
+    file's header, read without decoding it; None for other formats or
+    unreadable files.  Blender holds 8-bit images as RGBA bytes (4 a pixel)
+    and 16-bit PNGs as RGBA float (16 a pixel)."""
+    import struct
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(26)
+            if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+                w, h, depth = struct.unpack(">IIB", head[16:25])
+                return w, h, 16 if depth == 16 else 4
+            if head[:2] == b"\xff\xd8":
+                fh.seek(2)
+                while True:
+                    m = fh.read(4)
+                    if len(m) < 4 or m[0] != 0xFF:
+                        return None
+                    size = struct.unpack(">H", m[2:])[0]
+                    if 0xC0 <= m[1] <= 0xCF and m[1] not in (0xC4, 0xC8, 0xCC):
+                        h, w = struct.unpack(">HH", fh.read(5)[1:])
+                        return w, h, 4
+                    fh.seek(size - 2, 1)
+    except (OSError, struct.error):
+        return None
+    return None
 
 
 # ---------------------------------------------------------------------------
@@ -445,8 +488,9 @@ def feature_notes(scene, objects) -> list[str]:
 # the exporter
 
 class _Exporter:
-    def __init__(self, depsgraph, log):
+    def __init__(self, depsgraph, log, should_stop=None):
         self.dg = depsgraph
+        self.should_stop = should_stop or _never
         self.scene = depsgraph.scene
         self.log = log
         self.materials: list[Material] = []
@@ -460,7 +504,54 @@ class _Exporter:
         self.n_objects = 0
         self.n_instances = 0
 
+    def poll(self) -> None:
+        """A cancellation point: RenderCancelled when should_stop() is true."""
+        if self.should_stop():
+            raise RenderCancelled("cancelled")
+
     # -- textures --------------------------------------------------------------
+    def check_image_memory(self, img) -> None:
+        """Refuse (MemoryBudgetError) an image whose pixels would not fit in memory.
+
+        Checked before its pixels are read: Blender's own buffer (generated
+        images are made, file images decoded, on the first access; their size
+        comes from the generated size or a PNG / JPEG header, other formats
+        are decoded by ``Image.size`` before the check), our
+        float32 copy (``Image.pixels``: 4 bytes a channel) and, for 1- or
+        2-channel images, the RGB copy made from it: the export's own peak
+        comes before the render's memory estimate (docs/reliability.md,
+        "Memory").
+        """
+        from ..core.memory import available_bytes
+        header = None
+        if img.source == 'FILE' and not img.has_data and img.packed_file is None:
+            header = _file_image_header(img.filepath_from_user())
+        if img.source == 'GENERATED' and not img.has_data:
+            w, h = int(img.generated_width), int(img.generated_height)
+            c, held = 4, (_FLOAT_BYTES if img.use_generated_float else 1)
+        elif header is not None:
+            # A PNG or JPEG not decoded yet: its size from the header; the
+            # pixels read back as 4 channels.
+            w, h, per_pixel = header
+            c, held = 4, per_pixel // 4
+        else:
+            w, h = (int(x) for x in img.size)       # loads the file, if not yet
+            c, held = int(img.channels), (_FLOAT_BYTES if img.is_float else 1)
+            if img.has_data:
+                held = 0                             # already in memory
+        n = w * h
+        need = n * c * held + n * c * 4 + (n * 3 * 4 if 0 < c < 3 else 0)
+        avail = available_bytes()
+        if avail is None or need <= avail:
+            return
+        def size(b):
+            return f"{b / 2 ** 30:.1f} GiB" if b >= 2 ** 30 else f"{b / 2 ** 20:.0f} MiB"
+        raise MemoryBudgetError(
+            f"Image '{img.name}' ({w}x{h}, {c} channels) needs about {size(need)} to "
+            f"load but only {size(avail)} is free: use a smaller image (a lower-"
+            f"resolution file, or scale it down in the Image Editor: Image > Resize), or "
+            f"close other programs.")
+
     def texture(self, node, mb: _MaterialBuilder) -> int:
         img = node.image
         if img is None:
@@ -482,30 +573,43 @@ class _Exporter:
         self.textures.append(px)
         return self.tex_index[key]
 
-    @staticmethod
-    def pixels(img, notes) -> np.ndarray | None:
+    def pixels(self, img, notes) -> np.ndarray | None:
         """(H, W, C >= 3) float32 scene-linear pixels of a Blender image, row 0
-        at the bottom, or None (and a note) when it has none."""
+        at the bottom, or None (and a note) when it has none.  Checked against
+        free memory before loading; cancel is polled between the copies."""
+        self.poll()
+        self.check_image_memory(img)
         w, h = img.size
         c = img.channels
+        self.poll()
         if w * h == 0 or c == 0:
             notes.append(f"image '{img.name}' could not be loaded")
             return None
+        # Image.pixels has no partial read: one foreach_get, polled before
+        # and after (its cost: docs/reliability.md, "Cancel").
         px = np.empty(w * h * c, np.float32)
         img.pixels.foreach_get(px)
+        self.poll()
         px = px.reshape(h, w, c)          # Blender's order: row 0 at the bottom
+        rows = max(1, CHUNK // w)
         if c < 3:
-            px = np.repeat(px[:, :, :1], 3, axis=2)
+            grey = px
+            px = np.empty((h, w, 3), np.float32)
+            for r in range(0, h, rows):
+                px[r:r + rows] = grey[r:r + rows, :, :1]
+                self.poll()
+            del grey
         cs = img.colorspace_settings.name
         if not img.is_float:
             # Byte images come back undecoded; float images are scene linear.
-            if cs == 'sRGB':
-                px = px.copy()
-                px[:, :, :3] = srgb_to_linear(px[:, :, :3])
-            elif cs not in ('Non-Color', 'Linear Rec.709', 'Linear', 'Raw', 'Linear CIE-XYZ E'):
-                px = px.copy()
-                px[:, :, :3] = srgb_to_linear(px[:, :, :3])
+            # Decoded in place (px is our own copy), a band of rows at a time.
+            decode = cs not in ('Non-Color', 'Linear Rec.709', 'Linear', 'Raw', 'Linear CIE-XYZ E')
+            if decode and cs != 'sRGB':
                 notes.append(f"image '{img.name}': colour space '{cs}' decoded as sRGB")
+            if decode:
+                for r in range(0, h, rows):
+                    px[r:r + rows, :, :3] = srgb_to_linear(px[r:r + rows, :, :3])
+                    self.poll()
         return np.ascontiguousarray(px, np.float32)
 
     # -- materials -------------------------------------------------------------
@@ -531,34 +635,71 @@ class _Exporter:
 
     # -- geometry --------------------------------------------------------------
     @staticmethod
-    def mesh_arrays(me):
-        """Local-space (T,3,3) positions and normals, (T,3,2) uvs, (T,) slot index."""
+    def mesh_arrays(me, poll=_never):
+        """Local-space (T,3,3) positions and normals, (T,3,2) uvs, (T,) slot index.
+
+        poll: called between the reads and between bands of CHUNK triangles
+        of the corner gathers (a cancellation point, ``_Exporter.poll``).
+        """
+        poll = poll or _never
         tris = me.loop_triangles
         T = len(tris)
         if T == 0:
             z = np.zeros((0, 3, 3), np.float32)
             return z, z, np.zeros((0, 3, 2), np.float32), np.zeros(0, np.int32)
+        # One call, not interruptible (no raw array behind it): the longest
+        # step of the export (docs/reliability.md, "Cancel").
         corners = np.empty(T * 3, np.int32)
         tris.foreach_get("loops", corners)
+        poll()
         slot = np.empty(T, np.int32)
-        tris.foreach_get("material_index", slot)
+        # Through the attributes when Blender has them: a raw copy, where the
+        # per-item properties cost as much as the read above.
+        mi = me.attributes.get("material_index")
+        if mi is None:
+            slot[:] = 0                      # Blender's default: every face slot 0
+        elif mi.domain == 'FACE' and mi.data_type == 'INT':
+            face = np.empty(T, np.int32)
+            me.loop_triangle_polygons.foreach_get("value", face)
+            per_face = np.empty(len(me.polygons), np.int32)
+            mi.data.foreach_get("value", per_face)
+            slot = per_face[face]
+        else:
+            tris.foreach_get("material_index", slot)
+        poll()
         V = len(me.vertices)
         co = np.empty(V * 3, np.float32)
         me.vertices.foreach_get("co", co)
         L = len(me.loops)
         cv = np.empty(L, np.int32)
-        me.loops.foreach_get("vertex_index", cv)
+        corner_vert = me.attributes.get(".corner_vert")
+        if corner_vert is not None and corner_vert.data_type == 'INT' and len(corner_vert.data) == L:
+            corner_vert.data.foreach_get("value", cv)
+        else:
+            me.loops.foreach_get("vertex_index", cv)
+        poll()
         cn = np.empty(L * 3, np.float32)
         me.corner_normals.foreach_get("vector", cn)
-        p = co.reshape(V, 3)[cv[corners]].reshape(T, 3, 3)
-        n = cn.reshape(L, 3)[corners].reshape(T, 3, 3)
+        poll()
         layer = me.uv_layers.active_render or me.uv_layers.active
+        uvl = None
         if layer is not None and L:
-            uv = np.empty(L * 2, np.float32)
-            layer.uv.foreach_get("vector", uv)
-            uv = uv.reshape(L, 2)[corners].reshape(T, 3, 2)
-        else:
-            uv = np.zeros((T, 3, 2), np.float32)
+            uvl = np.empty(L * 2, np.float32)
+            layer.uv.foreach_get("vector", uvl)
+            uvl = uvl.reshape(L, 2)
+            poll()
+        co, cn = co.reshape(V, 3), cn.reshape(L, 3)
+        corners = corners.reshape(T, 3)
+        p = np.empty((T, 3, 3), np.float32)
+        n = np.empty((T, 3, 3), np.float32)
+        uv = np.zeros((T, 3, 2), np.float32)
+        for a in range(0, T, CHUNK):
+            k = corners[a:a + CHUNK]
+            p[a:a + CHUNK] = co[cv[k]]
+            n[a:a + CHUNK] = cn[k]
+            if uvl is not None:
+                uv[a:a + CHUNK] = uvl[k]
+            poll()
         return p, n, uv, slot
 
     def geometry(self, inst, ob, parts):
@@ -567,7 +708,7 @@ class _Exporter:
             key = me.as_pointer()
             arrs = self.mesh_cache.get(key)
             if arrs is None:
-                arrs = self.mesh_arrays(me)
+                arrs = self.mesh_arrays(me, self.poll)
                 self.mesh_cache[key] = arrs
             mats = [s.material for s in ob.material_slots] or list(me.materials)
         else:
@@ -578,7 +719,7 @@ class _Exporter:
             if me is None:
                 return
             try:
-                arrs = self.mesh_arrays(me)
+                arrs = self.mesh_arrays(me, self.poll)
                 mats = [s.material for s in ob.material_slots] or list(me.materials)
             finally:
                 ob.to_mesh_clear()
@@ -587,15 +728,21 @@ class _Exporter:
             return
         M = _mat4(inst.matrix_world)
         A, t = M[:3, :3], M[:3, 3]
-        pw = (_linear(A, p.reshape(-1, 3)) + t).reshape(p.shape)
         # Normals transform with the inverse transpose; renormalised.
         try:
             Ninv = np.linalg.inv(A)
         except np.linalg.LinAlgError:
             return  # zero scale: no surface
-        nw = _linear(Ninv.T, n.reshape(-1, 3))
-        nw /= np.maximum(np.linalg.norm(nw, axis=1, keepdims=True), 1e-30)
-        nw = nw.reshape(n.shape)
+        T = p.shape[0]
+        # Computed in float64 and rounded to float32 once (band by band).
+        pw = np.empty((T, 3, 3), np.float32)
+        nw = np.empty((T, 3, 3), np.float32)
+        for a in range(0, T, CHUNK):
+            pw[a:a + CHUNK] = (_linear(A, p[a:a + CHUNK].reshape(-1, 3)) + t).reshape(-1, 3, 3)
+            nb = _linear(Ninv.T, n[a:a + CHUNK].reshape(-1, 3))
+            nb /= np.maximum(np.linalg.norm(nb, axis=1, keepdims=True), 1e-30)
+            nw[a:a + CHUNK] = nb.reshape(-1, 3, 3)
+            self.poll()
         if np.linalg.det(A) < 0:
             # A mirroring transform flips the winding; swap two corners so the
             # geometric normal keeps agreeing with the shading normals.
@@ -604,7 +751,48 @@ class _Exporter:
             uv = uv[:, [0, 2, 1]]
         lut = np.array([self.material(m) for m in mats] or [self.material(None)], np.int32)
         mat = lut[np.clip(slot, 0, len(lut) - 1)]
-        parts.append((pw.astype(np.float32), nw.astype(np.float32), uv, mat))
+        parts.append((pw, nw, uv, mat))
+
+    def concatenate(self, arrays: list, dtype) -> np.ndarray:
+        """``np.concatenate(arrays).astype(dtype)``, copied in bands of CHUNK rows
+        with a poll between them; a single array of that dtype is not copied."""
+        if len(arrays) == 1 and arrays[0].dtype == dtype:
+            return arrays[0]
+        out = np.empty((sum(len(a) for a in arrays),) + arrays[0].shape[1:], dtype)
+        at = 0
+        for a in arrays:
+            for b in range(0, len(a), CHUNK):
+                band = a[b:b + CHUNK]
+                out[at:at + len(band)] = band
+                at += len(band)
+                self.poll()
+        return out
+
+    def drop_invalid(self, fscene: Scene) -> tuple[Scene, int]:
+        """``drop_invalid_triangles`` band by band, polled between bands.
+
+        The check is per triangle, so the bands give the same scene as one
+        call, which takes long for big meshes (docs/reliability.md).
+        """
+        T = fscene.n_triangles
+        if T <= CHUNK:
+            return drop_invalid_triangles(fscene)
+        per_tri = ("tri_p", "tri_n", "tri_uv", "tri_mat", "tri_object_index")
+        bands, dropped = [], 0
+        for a in range(0, T, CHUNK):
+            band = dataclasses.replace(fscene, **{
+                k: (None if getattr(fscene, k) is None else getattr(fscene, k)[a:a + CHUNK])
+                for k in per_tri})
+            band, d = drop_invalid_triangles(band)
+            bands.append(band)
+            dropped += d
+            self.poll()
+        if not dropped:
+            return fscene, 0
+        return dataclasses.replace(fscene, **{
+            k: (None if getattr(fscene, k) is None
+                else np.concatenate([getattr(b, k) for b in bands]))
+            for k in per_tri}), dropped
 
     # -- lights ----------------------------------------------------------------
     def light(self, inst, ob) -> Light | None:
@@ -844,6 +1032,7 @@ class _Exporter:
         seen = {}
         render_mode = getattr(self.dg, "mode", 'RENDER') == 'RENDER'
         for inst in self.dg.object_instances:
+            self.poll()
             ob = inst.object
             if ob is None:
                 continue
@@ -873,10 +1062,10 @@ class _Exporter:
                 self.n_instances += bool(inst.is_instance)
         self.notes += feature_notes(scene, list(seen.values()))
         if parts:
-            tri_p = np.concatenate([q[0] for q in parts])
-            tri_n = np.concatenate([q[1] for q in parts])
-            tri_uv = np.concatenate([q[2] for q in parts]).astype(np.float32)
-            tri_mat = np.concatenate([q[3] for q in parts]).astype(np.int32)
+            tri_p = self.concatenate([q[0] for q in parts], np.float32)
+            tri_n = self.concatenate([q[1] for q in parts], np.float32)
+            tri_uv = self.concatenate([q[2] for q in parts], np.float32)
+            tri_mat = self.concatenate([q[3] for q in parts], np.int32)
         else:
             tri_p = np.zeros((0, 3, 3), np.float32)
             tri_n = np.zeros((0, 3, 3), np.float32)
@@ -899,7 +1088,7 @@ class _Exporter:
         n_all = fscene.n_triangles
         if n_all == 0:
             raise SceneError(NOTHING_VISIBLE)
-        fscene, dropped = drop_invalid_triangles(fscene)
+        fscene, dropped = self.drop_invalid(fscene)
         if dropped:
             self.log(f"Warning: dropped {dropped} of {n_all} triangles with NaN/infinite "
                      f"corners or zero area.")
@@ -927,7 +1116,7 @@ class _Exporter:
         return fscene
 
 
-def export_scene(depsgraph, log=print, camera=None) -> Scene:
+def export_scene(depsgraph, log=print, camera=None, should_stop=None) -> Scene:
     """Build a ``core`` Scene from an evaluated depsgraph.
 
     depsgraph: ``bpy.types.Depsgraph`` (render or viewport).
@@ -935,5 +1124,8 @@ def export_scene(depsgraph, log=print, camera=None) -> Scene:
     camera: camera object overriding ``scene.camera`` (RenderEngine.camera_override).
     Raises SceneError with a sentence for the user (no camera, no lights,
     nothing visible).  Empty material slots get a diffuse grey "(no material)".
+    should_stop: polled between objects, textures and bands of large copies
+    (RenderCancelled when it turns true); None = never.  Raises
+    MemoryBudgetError when an image's pixels would not fit in free memory.
     """
-    return _Exporter(depsgraph, log).run(camera)
+    return _Exporter(depsgraph, log, should_stop).run(camera)

@@ -38,9 +38,9 @@ def main():
     t_arr = []
     orig = E._Exporter.mesh_arrays
 
-    def timed(me):
+    def timed(me, *a):
         t = time.perf_counter()
-        r = orig(me)
+        r = orig(me, *a)
         t_arr.append(time.perf_counter() - t)
         return r
     E._Exporter.mesh_arrays = staticmethod(timed)
