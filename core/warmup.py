@@ -382,7 +382,7 @@ class Warmup:
         self._stop.set()
 
     def _run(self) -> None:
-        from .errors import RenderCancelled
+        from .errors import FPPMError, RenderCancelled
         try:
             cold = not is_compiled()
             secs = self._compile(should_stop=self._stop.is_set)
@@ -393,6 +393,9 @@ class Warmup:
             self._done.set()
         except RenderCancelled:
             pass                       # stopped: a later start() begins again
+        except FPPMError as ex:        # a user-facing condition (e.g. memory): the
+            self.error = str(ex)       # render that follows says it again, clearly
+            self._done.set()
         except Exception as ex:        # noqa: BLE001 - reported by the caller
             self.error = f"{type(ex).__name__}: {ex}"
             traceback.print_exc()
