@@ -68,6 +68,7 @@ from numba import njit
 from .. import lights as Lt
 from .. import materials as B
 from ..accel import surface_point
+from ..scene.camera import BH_A0, BH_A1, BH_A2, BH_A3
 from ..sppm import photon_kernels as PK
 from ..sppm.photons import PhotonTracer, _children, _pool, _threads
 
@@ -75,7 +76,19 @@ from ..sppm.photons import PhotonTracer, _children, _pool, _threads
 CHUNK = 65_536
 #: Cap of the shading-normal factor, as the photon gather's.
 SHADING_CAP = 4.0
-_BH_A0 = 0.35875
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _filter_1d(d, w, norm, box):
+    """The normalised 1D pixel filter at offset d [px] (core.scene.camera.
+    filter_weight, compiled): Blackman-Harris over +-w, or a one-pixel box."""
+    if box:
+        return 1.0 if abs(d) < 0.5 else 0.0
+    if abs(d) >= w:
+        return 0.0
+    v = 2.0 * np.pi * (d / (2.0 * w) + 0.5)
+    return max(BH_A0 - BH_A1 * np.cos(v) + BH_A2 * np.cos(2 * v) - BH_A3 * np.cos(3 * v),
+               0.0) * norm
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -87,7 +100,7 @@ def splat_kernel(raster, contrib, x0, y0, W, H, width, film):
     of one pixel when width <= 0."""
     box = width <= 0.0
     w = 0.5 if box else width
-    norm = 1.0 / (2.0 * w * _BH_A0)
+    norm = 1.0 / (2.0 * w * BH_A0)
     for k in range(raster.shape[0]):
         x = raster[k, 0]
         y = raster[k, 1]
@@ -98,28 +111,12 @@ def splat_kernel(raster, contrib, x0, y0, W, H, width, film):
         if ib < x0 or ia >= x0 + W or jb < y0 or ja >= y0 + H:
             continue
         for j in range(max(ja, y0), min(jb, y0 + H - 1) + 1):
-            dy = y - (j + 0.5)
-            if box:
-                fy = 1.0 if abs(dy) < 0.5 else 0.0
-            else:
-                v = 2.0 * np.pi * (dy / (2.0 * w) + 0.5)
-                fy = max(_BH_A0 - 0.48829 * np.cos(v) + 0.14128 * np.cos(2 * v)
-                         - 0.01168 * np.cos(3 * v), 0.0) * norm
-                if abs(dy) >= w:
-                    fy = 0.0
+            fy = _filter_1d(y - (j + 0.5), w, norm, box)
             if fy == 0.0:
                 continue
             row = (H - 1 - (j - y0)) * W
             for i in range(max(ia, x0), min(ib, x0 + W - 1) + 1):
-                dx = x - (i + 0.5)
-                if box:
-                    fx = 1.0 if abs(dx) < 0.5 else 0.0
-                else:
-                    v = 2.0 * np.pi * (dx / (2.0 * w) + 0.5)
-                    fx = max(_BH_A0 - 0.48829 * np.cos(v) + 0.14128 * np.cos(2 * v)
-                             - 0.01168 * np.cos(3 * v), 0.0) * norm
-                    if abs(dx) >= w:
-                        fx = 0.0
+                fx = _filter_1d(x - (i + 0.5), w, norm, box)
                 wgt = fx * fy
                 if wgt == 0.0:
                     continue

@@ -23,10 +23,14 @@ import numpy as np
 from .model import Camera
 
 
+#: Cycles' Blackman-Harris coefficients: a0 - a1 cos v + a2 cos 2v - a3 cos 3v.
+BH_A0, BH_A1, BH_A2, BH_A3 = 0.35875, 0.48829, 0.14128, 0.01168
+
+
 def blackman_harris(x: np.ndarray, width: float) -> np.ndarray:
     """Cycles' window over [-width, width] (total support 2*width)."""
     v = 2.0 * np.pi * (x / (2.0 * width) + 0.5)
-    return 0.35875 - 0.48829 * np.cos(v) + 0.14128 * np.cos(2 * v) - 0.01168 * np.cos(3 * v)
+    return BH_A0 - BH_A1 * np.cos(v) + BH_A2 * np.cos(2 * v) - BH_A3 * np.cos(3 * v)
 
 
 class FilterSampler:
@@ -55,10 +59,10 @@ def filter_weight(x: np.ndarray, width: float) -> np.ndarray:
     """Normalised 1D pixel filter f(x) (x in pixels, integral 1): the density
     that :class:`FilterSampler` samples, max(blackman_harris, 0) / integral.
     The integral of the Blackman-Harris window over its support 2*width is
-    2*width*0.35875 (the cosine terms integrate to zero over whole periods).
+    2*width*BH_A0 (the cosine terms integrate to zero over whole periods).
     """
     x = np.asarray(x, np.float64)
-    w = np.maximum(blackman_harris(x, width), 0.0) / (2.0 * width * 0.35875)
+    w = np.maximum(blackman_harris(x, width), 0.0) / (2.0 * width * BH_A0)
     return np.where(np.abs(x) < width, w, 0.0)
 
 
