@@ -35,6 +35,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from scenes.refs import RELMSE_EPS, load_reference, reference_names, scene_path  # noqa: E402
+from stats_helpers import emitter_free_mask, two_seed_block_sigma, two_seed_relmse_noise  # noqa: E402
 
 BIAS_ALLOWANCE = 2e-3
 # Photons per pass and passes per scene: enough for the noise bound above in a
@@ -68,22 +69,12 @@ def test_agrees_with_cycles(name):
     a2 = render(scene, 2, passes, photons)
     mean_img = 0.5 * (a1 + a2)
     denom = ref ** 2 + RELMSE_EPS
-    # Noise of the two-seed mean, per pixel: (a1 - a2)^2 / 4.
-    noise_fppm = np.mean((a1 - a2) ** 2 / 4.0 / denom)
+    noise_fppm = two_seed_relmse_noise(a1, a2, denom)
     noise_ref = float(meta["noise"]["relmse"])
     relmse = float(np.mean((mean_img - ref) ** 2 / denom))
-    lum = ref.mean(axis=2)
-    bright = lum > 4.0 * np.percentile(lum, 90)
-    near = bright.copy()
-    for dy in range(-2, 3):
-        for dx in range(-2, 3):
-            near |= np.roll(np.roll(bright, dy, axis=0), dx, axis=1)
-    mask = ~near
+    mask = emitter_free_mask(ref)
     m, r = mean_img[mask].mean(), ref[mask].mean()
-    # Batch means: 8x8-pixel blocks are far wider than the ~2 px kernel, so
-    # block means are nearly independent even though pixels share photons.
-    d = ((a1 - a2).mean(axis=2) * mask).reshape(8, 8, 8, 8).sum(axis=(1, 3))
-    sigma_mean = np.sqrt(np.sum(d ** 2 / 4.0)) / mask.sum()
+    sigma_mean = two_seed_block_sigma(a1, a2, mask)
     print(f"{name}: mean {m:.5f} vs Cycles {r:.5f} (ratio {m / r:.4f}, sigma {sigma_mean / r:.2%}, "
           f"{mask.mean():.0%} of pixels); relMSE {relmse:.2e}, "
           f"noise fppm {noise_fppm:.2e} + ref {noise_ref:.2e}")

@@ -19,7 +19,7 @@ from core.lights.environment import EnvironmentLight
 from core.scene.model import Camera, Material, make_scene
 from core.scene.textures import (EnvironmentMap, environment_radiance, equirectangular_direction,
                                  equirectangular_uv)
-from stats_helpers import chi2_sf
+from stats_helpers import chi2_sf, emitter_free_mask, two_seed_block_sigma, two_seed_relmse_noise
 
 Z = 4.5
 N_CHI_TESTS = 3
@@ -383,21 +383,13 @@ def test_hdri_agrees_with_cycles(kind, tmp_path):
     a2 = render(scene, 2, passes, photons)
     mean_img = 0.5 * (a1 + a2)
     denom = ref ** 2 + RELMSE_EPS
-    noise_fppm = np.mean((a1 - a2) ** 2 / 4.0 / denom)
-    noise_ref = np.mean((c1 - c2) ** 2 / 4.0 / denom)
+    noise_fppm = two_seed_relmse_noise(a1, a2, denom)
+    noise_ref = two_seed_relmse_noise(c1, c2, denom)
     relmse = float(np.mean((mean_img - ref) ** 2 / denom))
-    lum = ref.mean(axis=2)
-    bright = lum > 4.0 * np.percentile(lum, 90)
-    near = bright.copy()
-    for dy in range(-2, 3):
-        for dx in range(-2, 3):
-            near |= np.roll(np.roll(bright, dy, axis=0), dx, axis=1)
-    mask = ~near
+    mask = emitter_free_mask(ref)
     m, r = mean_img[mask].mean(), ref[mask].mean()
-    d = ((a1 - a2).mean(axis=2) * mask).reshape(8, 8, 8, 8).sum(axis=(1, 3))
-    sigma_mean = np.sqrt(np.sum(d ** 2 / 4.0)) / mask.sum()
-    dc = ((c1 - c2).mean(axis=2) * mask).reshape(8, 8, 8, 8).sum(axis=(1, 3))
-    sigma_ref = np.sqrt(np.sum(dc ** 2 / 4.0)) / mask.sum()
+    sigma_mean = two_seed_block_sigma(a1, a2, mask)
+    sigma_ref = two_seed_block_sigma(c1, c2, mask)
     print(f"hdri {kind}: mean {m:.5f} vs Cycles {r:.5f} (ratio {m / r:.4f}, "
           f"sigma {sigma_mean / r:.2%} + Cycles {sigma_ref / r:.2%}, {mask.mean():.0%} of pixels); relMSE {relmse:.2e}, "
           f"noise fppm {noise_fppm:.2e} + ref {noise_ref:.2e}")

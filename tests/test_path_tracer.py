@@ -36,6 +36,7 @@ from core.render import Renderer
 from core.scene.model import DIFFUSE, Light, Lobe, Material, make_scene
 from core.settings import RenderSettings, SettingsError
 
+from stats_helpers import emitter_free_mask  # noqa: E402
 from analytic_scenes import (area_light_plane, furnace_box, look_down_ortho, pixel_centres_ortho,
                              point_light_plane, polygon_irradiance, quad, translate)
 
@@ -233,18 +234,6 @@ def _export_reference_scene(name):
     return export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
 
 
-def _emitter_free_mask(ref):
-    """(H, W) bool: pixels farther than 2 px from a pixel brighter than 4x the
-    90th percentile (tests/test_cycles_agreement.py's rule: the filter spans +-1.5 px)."""
-    lum = ref.mean(axis=2)
-    bright = lum > 4.0 * np.percentile(lum, 90)
-    near = bright.copy()
-    for dy in range(-2, 3):
-        for dx in range(-2, 3):
-            near |= np.roll(np.roll(bright, dy, axis=0), dx, axis=1)
-    return ~near
-
-
 @pytest.mark.parametrize("name, passes, tol", [("t_glass_caustic", 8, 0.01),
                                                ("t_mirror_caustic", 20, 0.02)])
 def test_caustic_scenes_mean_agrees_with_cycles(name, passes, tol):
@@ -262,7 +251,7 @@ def test_caustic_scenes_mean_agrees_with_cycles(name, passes, tol):
     from scenes.refs import load_reference
     scene = _export_reference_scene(name)
     ref = load_reference(name)[0][..., :3].astype(np.float64)
-    mask = _emitter_free_mask(ref)
+    mask = emitter_free_mask(ref)
     ratios = np.array([_render(scene, s, max_passes=passes)[mask].mean() for s in range(1, 9)])
     ratios /= ref[mask].mean()
     sigma = ratios.std(ddof=1) / np.sqrt(ratios.size)
@@ -295,7 +284,7 @@ def test_agrees_with_cycles(name):
     relmse = float(np.mean((mean_img - ref) ** 2 / denom))
     # Pixels that see an emitter directly are left out of the mean, as in
     # tests/test_cycles_agreement.py (their anti-aliased edge dominates the noise).
-    mask = _emitter_free_mask(ref)
+    mask = emitter_free_mask(ref)
     m, r = mean_img[mask].mean(), ref[mask].mean()
     # Batch means over 8x8-pixel blocks (pixels are independent here).
     blocks = (runs.mean(axis=3) * mask).reshape(4, 8, 8, 8, 8).sum(axis=(2, 4))
