@@ -404,10 +404,11 @@ class Stopper:
 
 def test_cancel_latency_per_core_stage(monkeypatch):
     # Big enough that every stage takes > 1 s uncancelled (asserted below):
-    # 180k triangles, a 96^3 occlusion grid, 800x800 px, 2.5M photons a pass
-    # (each stage ~1.5-2x the 1 s it must exceed on an idle machine).
+    # 180k triangles, a 96^3 occlusion grid, 800x800 px, 5M photons a pass
+    # (each stage ~1.5-2x the 1 s it must exceed on an idle machine; 2.5M
+    # photons took 0.85 s on an idle 2-core machine once the tracer got faster).
     sc = core_scene(n=300, res=800)
-    st = RenderSettings(max_passes=3, photons_per_pass=2_500_000, occlusion_grid_res=96)
+    st = RenderSettings(max_passes=3, photons_per_pass=5_000_000, occlusion_grid_res=96)
     lat = {}
     # 1. occlusion grid build (numba, in a worker thread polled every 20 ms)
     import core.frequency.occlusion_grid as O
@@ -453,9 +454,11 @@ def test_cancel_latency_per_core_stage(monkeypatch):
 def test_cancel_latency_export(monkeypatch):
     bpy = pytest.importorskip("bpy")
     import fppm.addon.engine as E
-    # 70 objects of 20k triangles: the object loop of the export takes > 1 s.
+    # 160 objects of 20k triangles: the object loop of the export takes > 1 s
+    # (70 took 0.86 s on an idle 2-core machine once meshes were read through
+    # Mesh.attributes).
     sc = H.simple_scene(res=(16, 16), passes=1, photons=1000)
-    for i in range(70):
+    for i in range(160):
         bpy.ops.mesh.primitive_grid_add(x_subdivisions=100, y_subdivisions=100, size=4,
                                         location=(0, 0, 0.002 * (i + 1)))
     stop = Stopper()
