@@ -33,6 +33,7 @@ import os
 import signal
 import struct
 import sys
+import threading
 import time
 import warnings
 
@@ -263,12 +264,32 @@ def _child_allowed() -> bool:
     return sys.platform.startswith("linux") and hasattr(os, "fork")
 
 
+# Threads reaping killed children (see _kill).
+_reapers: list = []
+
+
+def _kill(pid: int) -> None:
+    """SIGKILL the child and reap it in a daemon thread: the kernel takes tens
+    of ms to free a killed child's memory, which ``waitpid`` would wait for."""
+    os.kill(pid, signal.SIGKILL)
+    t = threading.Thread(target=os.waitpid, args=(pid, 0), daemon=True,
+                         name=f"fppm-reap-{pid}")
+    t.start()
+    _reapers[:] = [r for r in _reapers if r.is_alive()] + [t]
+
+
+def reap(timeout: float = 5.0) -> None:
+    """Wait until every killed child is reaped (tests; nothing needs it)."""
+    for t in list(_reapers):
+        t.join(timeout)
+
+
 def _read_in_child(img, capacity: int, poll):
     """The read of :func:`_read_in_process` in a forked child, written into
     shared memory; the parent polls every CHILD_POLL s and kills the child on
-    a cancel (RenderCancelled).  None when the child failed (the caller then
-    reads in-process): an image larger than ``capacity`` floats, an error,
-    a crash."""
+    a cancel (RenderCancelled; the child is reaped in the background).  None
+    when the child failed (the caller then reads in-process): an image larger
+    than ``capacity`` floats, an error, a crash."""
     buf = mmap.mmap(-1, _HEADER.size + 4 * capacity)
     with warnings.catch_warnings():
         # Python warns that fork() of a threaded process may deadlock the
@@ -295,9 +316,7 @@ def _read_in_child(img, capacity: int, poll):
             poll()
             time.sleep(CHILD_POLL)
     except BaseException:                         # RenderCancelled from poll()
-        if pid:
-            os.kill(pid, signal.SIGKILL)
-            os.waitpid(pid, 0)
+        _kill(pid)
         buf.close()
         raise
     if not os.WIFEXITED(status) or os.WEXITSTATUS(status) != 0:
