@@ -37,7 +37,7 @@ from ..core.scene.textures import EnvironmentMap
 from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
                           TRANSPARENT, Camera, Light, Lobe, Material, Scene,
                           drop_invalid_triangles)
-from .export_read import CHUNK, image_pixels, mesh_arrays
+from .export_read import CHUNK, _never, image_pixels, mesh_arrays
 
 GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
 GREY = (0.8, 0.8, 0.8)
@@ -52,10 +52,6 @@ NOTHING_VISIBLE = ("Nothing is visible to render: the scene has no mesh objects 
 # Image formats whose pixels Blender holds as float (4 bytes a channel);
 # any other is 1 byte a channel until it is read through Image.pixels.
 _FLOAT_BYTES = 4
-
-
-def _never() -> bool:
-    return False
 
 
 def _file_image_header(path: str) -> tuple[int, int, int] | None:
@@ -580,7 +576,8 @@ class _Exporter:
         self.poll()
         # Image.pixels has no partial read: made / decoded and read in a
         # child process that a cancel kills (export_read.image_pixels).
-        px, w, h, c, is_float = image_pixels(img, capacity, self.poll)
+        px, w, h, c, is_float = image_pixels(
+            img, capacity, self.poll if self.should_stop is not _never else _never)
         self.poll()
         if w * h == 0 or c == 0:
             notes.append(f"image '{img.name}' could not be loaded")

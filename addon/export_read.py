@@ -54,6 +54,13 @@ CHILD_MIN_FLOATS = 1 << 20
 # Interval at which the parent polls while the child reads (s).
 CHILD_POLL = 0.005
 
+# A child not done after CHILD_TIMEOUT[0] s + CHILD_TIMEOUT[1] s a float is
+# killed and the image read in-process: a child that deadlocked (a lock held
+# by another thread of Blender at the fork) costs time, never the image.
+# An 8192^2 texture (268M floats) took up to 18 s on a loaded machine; the
+# bound gives it 37 s.
+CHILD_TIMEOUT = (10.0, 1e-7)
+
 # The child's answer: width, height, channels, is_float, in front of the pixels.
 _HEADER = struct.Struct("<4q")
 
@@ -308,12 +315,17 @@ def _read_in_child(img, capacity: int, poll):
                 code = 0
         finally:
             os._exit(code)
+    deadline = time.monotonic() + CHILD_TIMEOUT[0] + CHILD_TIMEOUT[1] * capacity
     try:
         while True:
             done, status = os.waitpid(pid, os.WNOHANG)
             if done:
                 break
             poll()
+            if time.monotonic() > deadline:
+                _kill(pid)
+                buf.close()
+                return None
             time.sleep(CHILD_POLL)
     except BaseException:                         # RenderCancelled from poll()
         _kill(pid)
@@ -333,11 +345,12 @@ def image_pixels(img, capacity: int, poll=_never):
 
     capacity: an upper bound of width x height x channels, known without
     making or decoding the image (``_Exporter.check_image_memory``).  At
-    least CHILD_MIN_FLOATS on Linux: made / decoded and read in a child
-    process, so a cancel (``poll`` raising RenderCancelled) returns within
-    CHILD_POLL s plus the kill; otherwise in-process (one call).
+    least CHILD_MIN_FLOATS on Linux, with a ``poll`` (a render that can be
+    cancelled; not the viewport or previews): made / decoded and read in a
+    child process, so a cancel (``poll`` raising RenderCancelled) returns
+    within CHILD_POLL s plus the kill; otherwise in-process (one call).
     """
-    if capacity >= CHILD_MIN_FLOATS and _child_allowed():
+    if capacity >= CHILD_MIN_FLOATS and poll is not _never and _child_allowed():
         r = _read_in_child(img, capacity, poll)
         if r is not None:
             return r

@@ -207,7 +207,7 @@ def test_mesh_reads_equal_loop_triangles_on_the_test_scenes():
     _assert_mesh_equal(me, "special quads")
 
 
-def test_image_reads_equal_the_single_call():
+def test_image_reads_equal_the_single_call(monkeypatch):
     from fppm.addon import export_read as R
     from test_reliability3 import _textured_floor
     bpy = H.bpy()
@@ -223,8 +223,12 @@ def test_image_reads_equal_the_single_call():
     cases.append(("PNG file", png, 1024 * 1024 * 4))
     small = bpy.data.images.new("Small", 1024, 1024)
     cases.append(("capacity too small: read in-process", small, R.CHILD_MIN_FLOATS))
+    timed_out = bpy.data.images.new("Slow", 1024, 1024)
+    cases.append(("child timed out: read in-process", timed_out, 1024 * 1024 * 4))
     for label, im, cap in cases:
-        got = R.image_pixels(im, cap)
+        if im is timed_out:
+            monkeypatch.setattr(R, "CHILD_TIMEOUT", (0.0, 0.0))
+        got = R.image_pixels(im, cap, poll=lambda: None)   # a poll: in a child
         ref = O.image_pixels(im)
         assert got[1:] == ref[1:], label
         assert np.array_equal(got[0], ref[0]), label
