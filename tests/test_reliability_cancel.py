@@ -33,34 +33,44 @@ class Recorder:
         return False
 
 
-class StopAt:
-    """should_stop() that turns true ``delay`` s after arm()."""
+class StopAfter:
+    """should_stop() whose ``n``-th call (from 0) still answers False and
+    records that instant as the cancel; every later call answers True.  The
+    latency is then the gap after that poll plus the unwinding: the wait of
+    a cancel that arrives just after it, the worst instant in that gap."""
 
-    def __init__(self, delay):
-        self.delay = delay
+    def __init__(self, n):
+        self.n = n
+        self.calls = 0
+        self.t_cancel = None
 
     def arm(self):
-        self.t_cancel = time.perf_counter() + self.delay
+        pass
 
     def __call__(self):
-        return time.perf_counter() >= self.t_cancel
+        self.calls += 1
+        if self.calls - 1 == self.n:
+            self.t_cancel = time.perf_counter()
+        return self.calls - 1 > self.n
 
 
-def _cancel_instants(rec: Recorder, full: float) -> list:
-    """Just after the polls that open the three longest gaps between polls in
-    the first 70 % of an uncancelled run (a cancel arriving there waits the
-    longest; a later instant may come after a faster run's end), and half way."""
-    t = np.array([0.0] + [c for c in rec.calls if c < 0.7 * full] + [0.7 * full])
+def _cancel_polls(rec: Recorder, full: float) -> list:
+    """The polls that open the three longest gaps between polls of an
+    uncancelled run (a cancel arriving just after them waits the longest),
+    and the poll half way through."""
+    t = np.array(rec.calls + [full])
     longest = np.argsort(np.diff(t))[::-1][:3]
-    return sorted(float(t[i]) + 1e-3 for i in longest) + [0.5 * full]
+    return sorted(set(int(i) for i in longest) | {int(np.searchsorted(t, 0.5 * full))})
 
 
 def _assert_cancels_within_promise(prepare, export, what):
     """prepare() -> the evaluated depsgraph of a fresh export (not timed);
     export(depsgraph, should_stop) runs it.  Uncancelled twice (the faster
-    run's duration and gaps between polls), then cancelled at :func:`_cancel_instants`:
-    every cancel must land inside the export (RenderCancelled) and return
-    within PROMISED, best of 2 tries per instant (the machine is shared)."""
+    run's duration and gaps between polls), then cancelled just after the
+    polls of :func:`_cancel_polls`: every cancel must land inside the export
+    (RenderCancelled) and return within PROMISED, best of 2 tries per poll
+    (the machine is shared; a run that polls fewer times, as when it waits
+    for a child process, is tried again)."""
     full = np.inf
     for _ in range(2):                          # the faster of 2 (the first warms up)
         r = Recorder()
@@ -71,23 +81,21 @@ def _assert_cancels_within_promise(prepare, export, what):
         if time.perf_counter() - r.t0 < full:
             full, cpu, rec = time.perf_counter() - r.t0, time.process_time() - c0, r
     lats = []
-    for at in _cancel_instants(rec, full):
+    for n in _cancel_polls(rec, full):
         best = np.inf
         for _ in range(3):
-            stop = StopAt(at)
-            dg = prepare()
-            stop.arm()
+            stop = StopAfter(n)
+            export_dg = prepare()
             try:
-                export(dg, stop)
-                assert time.perf_counter() < stop.t_cancel  # done before the instant
-                continue                        # (a faster run): try again
+                export(export_dg, stop)
+                continue                        # fewer polls than n: try again
             except RenderCancelled:
                 best = min(best, time.perf_counter() - stop.t_cancel)
             if best < PROMISED:
                 break
-        lats.append((at, best))
-    print(f"{what}: export {full:.3f} s ({cpu:.3f} s CPU) uncancelled, worst poll gap "
-          f"{np.diff([0.0] + rec.calls + [full]).max() * 1e3:.0f} ms; cancel at "
+        lats.append((rec.calls[n], best))
+    print(f"{what}: export {full:.3f} s ({cpu:.3f} s CPU) uncancelled, {len(rec.calls)} "
+          f"polls, worst gap {np.diff(rec.calls + [full]).max() * 1e3:.0f} ms; cancel at "
           + ", ".join(f"{a:.3f} s -> {x * 1e3:.0f} ms" for a, x in lats))
     assert full > 0.5, full                     # the cancels land mid-export
     assert max(x for _, x in lats) < PROMISED, lats
@@ -118,22 +126,25 @@ def _export(dg, should_stop):
 # ---------------------------------------------------------------------------
 # cancel inside one 1M-triangle object
 
-def test_cancel_within_promise_inside_a_1_7m_triangle_mesh():
-    # One object of 2 x 920^2 = 1.69M triangles, smooth shaded (the finding:
-    # 1.65 s to cancel one 1M-triangle object).  Every export starts from a
-    # fresh evaluated mesh, so Blender computes its normals again as on a
-    # first render.
+def test_cancel_within_promise_inside_1m_triangle_meshes():
+    # Two objects of 2 x 707^2 = 999,698 triangles each, smooth shaded (the
+    # finding: 1.65 s to cancel one 1M-triangle object; two, so that the
+    # export takes > 1 s idle).  Every export starts from fresh evaluated
+    # meshes, so Blender computes their normals again as on a first render.
     bpy = H.bpy()
     H.simple_scene(res=(16, 16), passes=1, photons=1000)
-    bpy.ops.mesh.primitive_grid_add(x_subdivisions=920, y_subdivisions=920, size=4,
-                                    location=(0, 0, 0.01))
-    grid = bpy.context.active_object
-    grid.data.shade_smooth()
+    grids = []
+    for z in (0.01, 0.02):
+        bpy.ops.mesh.primitive_grid_add(x_subdivisions=707, y_subdivisions=707, size=4,
+                                        location=(0, 0, z))
+        grids.append(bpy.context.active_object)
+        grids[-1].data.shade_smooth()
 
     def prepare():
-        grid.data.update()                     # Blender's caches (normals) dropped
+        for g in grids:
+            g.data.update()                    # Blender's caches (normals) dropped
         return H.evaluated_depsgraph()
-    _assert_cancels_within_promise(prepare, _export, "one 1.7M-triangle object")
+    _assert_cancels_within_promise(prepare, _export, "two 1M-triangle objects")
 
 
 # ---------------------------------------------------------------------------
@@ -150,10 +161,17 @@ def test_cancel_within_promise_inside_a_4k_texture(monkeypatch):
     # this process (the child made its own copy).
     assert _children() == []
     assert not img.has_data
-    # Through F12: the engine reports a cancel, no error, no result.
-    lat, sess, inside = _render_cancelled_at(monkeypatch, 0.3)
-    assert sess.error is None and sess.cancelled and sess.result is None, sess.error
-    assert inside and lat < PROMISED, lat
+    # Through F12 (best of 2): the engine reports a cancel, no error, no result.
+    lats = []
+    for _ in range(2):
+        lat, sess, inside = _render_cancelled_at(monkeypatch, 0.3)
+        assert sess.error is None and sess.cancelled and sess.result is None, sess.error
+        assert inside
+        lats.append(lat)
+        if lat < PROMISED:
+            break
+    print(f"F12 cancelled 0.3 s into the export: {', '.join(f'{x * 1e3:.0f}' for x in lats)} ms")
+    assert min(lats) < PROMISED, lats
     assert _children() == []
 
 
