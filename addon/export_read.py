@@ -28,6 +28,7 @@ Both give the same arrays as the single calls, bit for bit
 """
 from __future__ import annotations
 
+import gc
 import mmap
 import os
 import signal
@@ -44,8 +45,12 @@ import numpy as np
 # docs/reliability.md ("Cancel").
 CHUNK = 1 << 15
 
-# Triangles read one by one from Blender per step (~0.5 us each).
+# Triangles read one by one from Blender per step (~0.6-3 us each).
 ITEM_CHUNK = 1 << 13
+
+# Meshes of up to this many triangles are read in one call
+# (``loop_triangles.foreach_get``, ~0.1-0.4 us a triangle: <= 0.05 s).
+SINGLE_MAX = 1 << 17
 
 # Images of at least this many floats are read in a child process: below,
 # the in-process read takes a few ms, less than the fork.
@@ -101,7 +106,7 @@ def _quad_flips(pa, pb, pc, pd):
     return dot > 0, unsure
 
 
-def corner_triangles(me, face, co, cv, poll=_never) -> np.ndarray:
+def corner_triangles(me, face, co, cv, poll=_never, single_max=None) -> np.ndarray:
     """(T, 3) int32 corner indices of the mesh's triangles, equal to
     ``me.loop_triangles.foreach_get("loops")``.
 
@@ -110,12 +115,16 @@ def corner_triangles(me, face, co, cv, poll=_never) -> np.ndarray:
     Faces are contiguous runs of corners in face order (Blender's face
     offsets), a face of n corners has n - 2 triangles, consecutive.
     poll: called between bands of CHUNK (ITEM_CHUNK read one by one) triangles.
+    single_max: up to this many triangles, Blender's single call (default
+    SINGLE_MAX; tests: 0).
     """
     T, F, L = len(face), len(me.polygons), len(cv)
+    single_max = SINGLE_MAX if single_max is None else single_max
     n_tri = np.bincount(face, minlength=F) if T else np.zeros(F, np.int64)
     size = n_tri + 2
-    if T == 0 or len(n_tri) != F or int(size.sum()) != L or T != L - 2 * F:
-        # Not the layout assumed (faces of < 3 corners?): Blender's own read.
+    if T <= single_max or len(n_tri) != F or int(size.sum()) != L or T != L - 2 * F:
+        # Small enough for one call well within the cancel promise, or not
+        # the layout assumed (faces of < 3 corners?): Blender's own read.
         out = np.empty(T * 3, np.int32)
         me.loop_triangles.foreach_get("loops", out)
         return out.reshape(T, 3)
@@ -150,20 +159,35 @@ def corner_triangles(me, face, co, cv, poll=_never) -> np.ndarray:
             fq = q[flip & ~unsure]
             c[fq, 2] = s[fq] + 3                        # (0, 1, 3)
             c[fq + 1, 0] = s[fq] + 1                    # (1, 2, 3)
-            uq = q[unsure]
-            ask.append(a + uq)
-            ask.append(a + uq + 1)
-        ask.append(a + np.flatnonzero(n > 4))
+            need = n > 4
+            need[q[unsure]] = need[q[unsure] + 1] = True
+        else:
+            need = n > 4
+        ask.append(a + np.flatnonzero(need))     # increasing: no sort needed
         out[a:b] = c
         a = b
         poll()
     ask = np.concatenate(ask)
     if len(ask):
+        # Runs of consecutive triangles (an n-gon's), read as slices of the
+        # collection (~0.6 us a triangle), ITEM_CHUNK at most between polls.
+        # The garbage collector is off meanwhile: the many short-lived
+        # objects would trigger a full collection, ~90 ms with bpy and numba
+        # loaded (they are freed by reference counting, no cycles).
         tris = me.loop_triangles
-        for b in range(0, len(ask), ITEM_CHUNK):
-            for t in ask[b:b + ITEM_CHUNK].tolist():
-                out[t] = tris[t].loops
-            poll()
+        cut = np.flatnonzero(np.diff(ask) != 1) + 1
+        was_enabled = gc.isenabled()
+        gc.disable()
+        try:
+            for run in np.split(ask, cut):
+                for b in range(0, len(run), ITEM_CHUNK):
+                    lo = int(run[b])
+                    hi = int(run[min(b + ITEM_CHUNK, len(run)) - 1]) + 1
+                    out[lo:hi] = [x.loops[:] for x in tris[lo:hi]]
+                    poll()
+        finally:
+            if was_enabled:
+                gc.enable()
     return out
 
 
