@@ -96,20 +96,13 @@ def bench_mesh(tris, repeat):
 
 
 def bench_image(size, repeat):
-    import bpy
     from fppm.addon import export as E
     from fppm.addon import export_read as R
     import oracle_export_read as O
-    H.simple_scene(res=(16, 16))
+    from test_reliability3 import _textured_floor
     t_exp, t_child, t_one, gaps = [], [], [], Gaps()
     for _ in range(repeat):
-        img = bpy.data.images.new("Big", size, size)
-        img.generated_type = "COLOR_GRID"
-        nt = bpy.data.objects["Plane"].active_material.node_tree
-        tex = nt.nodes.new("ShaderNodeTexImage")
-        tex.image = img
-        bsdf = next(n for n in nt.nodes if n.type == "BSDF_DIFFUSE")
-        nt.links.new(tex.outputs["Color"], bsdf.inputs["Color"])
+        img = _textured_floor(size)            # a new scene and image, not made yet
         t = time.perf_counter()
         gaps.last = None
         E.export_scene(H.evaluated_depsgraph(), log=lambda m: None, should_stop=gaps)
@@ -120,8 +113,6 @@ def bench_image(size, repeat):
         t = time.perf_counter()
         O.image_pixels(img)                            # made and read in-process
         t_one.append(time.perf_counter() - t)
-        nt.nodes.remove(tex)
-        bpy.data.images.remove(img)
     print(f"image {size}^2 generated: export_scene {min(t_exp):.3f} s (best of {repeat})")
     print(f"  make + read in a child {min(t_child):.3f} s, in-process (one call) "
           f"{min(t_one):.3f} s: ratio {min(t_child) / min(t_one):.2f}")
