@@ -315,6 +315,14 @@ def reap(timeout: float = 5.0) -> None:
         t.join(timeout)
 
 
+def _die_with_parent() -> None:
+    """In the child: SIGKILL when the parent dies (``prctl(PR_SET_PDEATHSIG)``),
+    as when the CLI quits at once on a second Ctrl-C."""
+    import ctypes
+    PR_SET_PDEATHSIG = 1
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+
+
 def _read_in_child(img, capacity: int, poll):
     """The read of :func:`_read_in_process` in a forked child, written into
     shared memory; the parent polls every CHILD_POLL s and kills the child on
@@ -330,6 +338,7 @@ def _read_in_child(img, capacity: int, poll):
     if pid == 0:                                  # the child
         code = 3
         try:
+            _die_with_parent()
             w, h = (int(x) for x in img.size)
             c = int(img.channels)
             if 0 < w * h * c <= capacity:
