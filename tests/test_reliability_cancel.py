@@ -44,9 +44,6 @@ class StopAfter:
         self.calls = 0
         self.t_cancel = None
 
-    def arm(self):
-        pass
-
     def __call__(self):
         self.calls += 1
         if self.calls - 1 == self.n:
@@ -68,9 +65,9 @@ def _assert_cancels_within_promise(prepare, export, what):
     export(depsgraph, should_stop) runs it.  Uncancelled twice (the faster
     run's duration and gaps between polls), then cancelled just after the
     polls of :func:`_cancel_polls`: every cancel must land inside the export
-    (RenderCancelled) and return within PROMISED, best of 2 tries per poll
+    (RenderCancelled) and return within PROMISED, best of 3 tries per poll
     (the machine is shared; a run that polls fewer times, as when it waits
-    for a child process, is tried again)."""
+    for a child process, and so never cancels, counts as a try)."""
     full = np.inf
     for _ in range(2):                          # the faster of 2 (the first warms up)
         r = Recorder()
