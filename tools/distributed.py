@@ -1,0 +1,273 @@
+"""Photon passes split over Dask workers: ``fppm render --workers N`` / ``--cluster ADDRESS``.
+
+    client = connect(workers=2)                  # or connect(address="tcp://host:8786")
+    DistributedPhotonPass(client, renderer)      # takes over renderer.photon_pass
+    renderer.run()
+    client.close()
+
+The driver (the process that exported the scene and runs
+``core.render.Renderer``) keeps every stage of a pass but the photons.  It
+sends the exported scene and the settings to the workers once (a broadcast
+``scatter``); each worker builds its own BVH, light and material tables,
+render plan, occlusion grid and photon tracer from them (the scene half of a
+Renderer, no per-pixel state).  Each pass the driver broadcasts the visible
+points and their squared radii, and submits one task per photon chunk
+(``PhotonPass.chunks``).  A task traces chunk c with its own random stream
+``chunk_rng(pass stream, c)``, gathers it against the pass's grid (built once
+per pass on each worker) and returns the chunk's sums at the pixels it
+touched (``ChunkSums``: M, Phi, the smallest predicted radius, the radius
+histogram and spectrum of the frequency photons).  The driver adds them in
+chunk order (``PassSums.add``) and runs the normal update and film.
+
+Same image as one process: a single process with ``photon_pass.chunk_streams``
+(``local_chunk_streams``) computes and adds exactly the same chunk sums in the
+same order, so the images are bit for bit equal as long as every worker runs
+the gather on as many numba threads as the driver (the per-thread Phi sums
+of ``hashgrid.gather`` are added in thread order; another thread count changes
+the last bits).  The default single-process render uses one random stream per
+pass instead: same noise level, other random numbers.
+
+A worker that dies mid-pass: the scheduler gives its chunks to another worker
+(a nanny restarts a local one); a chunk depends on its inputs alone, so the
+result is identical.  The scene and the pass data are broadcast to every
+worker, so any survivor holds them.
+
+Dask is imported only here and only when these flags are used; the Blender
+extension never imports this module (tools/ is not shipped).
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import threading
+import uuid
+from typing import Optional
+
+import numpy as np
+
+from ..core.render import Renderer
+from ..core.sppm.photon_pass import PassSums, PhotonEstimate, PhotonPass, chunk_rng
+from ..core.sppm.update import Radii
+
+DASK_MISSING = ("--workers and --cluster need Dask: install it with "
+                "`pip install \"dask[distributed]\"` (`make venv` does).")
+#: Seconds to wait for the scheduler of --cluster.
+CONNECT_TIMEOUT = 10
+#: Seconds between two polls of should_stop while waiting for a chunk.
+POLL = 0.05
+
+
+class DaskMissing(ImportError):
+    """dask.distributed is not installed (the CLI's usage error)."""
+
+
+def _distributed():
+    try:
+        import distributed
+    except ImportError as ex:
+        raise DaskMissing(DASK_MISSING) from ex
+    return distributed
+
+
+def connect(workers: Optional[int] = None, address: Optional[str] = None):
+    """A dask.distributed Client: of a new local cluster of ``workers``
+    processes (one task thread each, no memory limit, no dashboard), or of the
+    scheduler at ``address``.  Raises DaskMissing."""
+    distributed = _distributed()
+    if address:
+        return distributed.Client(address, set_as_default=False, timeout=CONNECT_TIMEOUT)
+    cluster = distributed.LocalCluster(n_workers=int(workers), threads_per_worker=1,
+                                       processes=True, memory_limit=0,
+                                       dashboard_address=None, silence_logs=logging.ERROR)
+    client = distributed.Client(cluster, set_as_default=False)
+    # Closing the client also closes the local cluster.
+    client._fppm_cluster = cluster
+    return client
+
+
+def close(client) -> None:
+    """Close a Client made by :func:`connect` (and its local cluster)."""
+    cluster = getattr(client, "_fppm_cluster", None)
+    client.close()
+    if cluster is not None:
+        cluster.close()
+
+
+def local_chunk_streams(renderer: Renderer, chunk: Optional[int] = None) -> Renderer:
+    """Make a single-process renderer draw one random stream per chunk, the
+    streams the workers use: its image equals the distributed render's."""
+    renderer.photon_pass.chunk_streams = True
+    if chunk is not None:
+        renderer.photon_pass.chunk = int(chunk)
+    return renderer
+
+
+# ----------------------------------------------------------------------------
+# What the driver sends
+# ----------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class SceneJob:
+    """(A dataclass, not a tuple: Dask would scatter a tuple's items one by one.)
+    Sent once per render: the renderer's scene (after its clean-up and
+    recentring, which are then no-ops), its settings, its plan (the workers
+    check they made the same) and a token naming the render."""
+    token: str
+    scene: object
+    settings: object
+    plan: object
+
+
+@dataclasses.dataclass(frozen=True)
+class PassJob:
+    """Sent once per pass: the visible points (without the film's first-hit
+    data), their squared radii R2 (P,), whether the spectrum AOV is on."""
+    key: str
+    vp: object
+    R2: np.ndarray
+    spectrum_aov: bool
+
+    @property
+    def nbytes(self) -> int:
+        arrays = [getattr(self.vp, f.name) for f in dataclasses.fields(self.vp)]
+        return self.R2.nbytes + sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))
+
+
+# ----------------------------------------------------------------------------
+# Worker side
+# ----------------------------------------------------------------------------
+
+class _SceneSide(Renderer):
+    """The scene half of a Renderer (``Renderer._setup_scene``: BVH, lights,
+    materials, plan, occlusion grid, photon tracer) and its photon pass,
+    without the per-pixel state, camera pass and film."""
+
+    def __init__(self, job: SceneJob):
+        self.settings = job.settings
+        self.log = lambda line: None
+        self._should_stop = lambda: False
+        self._setup_scene(job.scene, ())
+        if self.plan != job.plan:
+            raise RuntimeError("FPPM worker: the render plan differs from the driver's "
+                               "(another FPPM version on this worker?)")
+        freq = self.plan.frequency_photons
+        radii = Radii(job.settings, None, self.D, freq, None, self.height, self.width)
+        self.photon_pass = PhotonPass(self.tracer, self.mtab, job.settings, freq,
+                                      radii.hist if radii.quantile else None,
+                                      {"photon_trace": 0.0, "gather": 0.0})
+
+
+# Per worker process: the scene side of the current render and the grid of
+# the current pass.  One task at a time per process (the tracer and the
+# gather use the process's threads themselves).
+_WORKER: dict = {}
+_WORKER_LOCK = threading.Lock()
+
+
+def _scene_side(job: SceneJob) -> _SceneSide:
+    side = _WORKER.get("scene")
+    if side is None or _WORKER.get("token") != job.token:
+        _WORKER.clear()
+        side = _SceneSide(job)
+        _WORKER.update(scene=side, token=job.token)
+    return side
+
+
+def setup_task(job: SceneJob) -> int:
+    """Build the scene side on this worker ahead of the first pass; returns its pid."""
+    with _WORKER_LOCK:
+        _scene_side(job)
+    return os.getpid()
+
+
+def chunk_task(job: SceneJob, pj: PassJob, n: int, n_freq: int, rng):
+    """Chunk sums (core.sppm.photon_pass.ChunkSums) of n photons (n_freq with
+    a spectrum) traced with rng and gathered at the pass's visible points."""
+    with _WORKER_LOCK:
+        pp = _scene_side(job).photon_pass
+        if _WORKER.get("pass") != pj.key:
+            _WORKER.update(grid=pp.begin(pj.vp, pj.R2, pj.spectrum_aov), **{"pass": pj.key})
+        return pp.chunk_sums(_WORKER["grid"], n, n_freq, rng)
+
+
+# ----------------------------------------------------------------------------
+# Driver side
+# ----------------------------------------------------------------------------
+
+class DistributedPhotonPass:
+    """Takes the place of ``renderer.photon_pass`` (same call, same
+    PhotonEstimate): the chunks of every pass go to the Dask workers of
+    ``client``.  ``local``: the renderer's own PhotonPass (chunking, the
+    empty pass, the throughput).  ``rays``: rays cast by the workers;
+    ``reductions``: per pass (bytes broadcast, bytes returned, seconds the
+    driver spent adding the chunk sums).  warm: build the scene on every
+    current worker now (BVH, kernels loaded) rather than in the first pass."""
+
+    def __init__(self, client, renderer: Renderer, warm: bool = True, retries: int = 3):
+        self.client, self.renderer, self.retries = client, renderer, retries
+        self.local: PhotonPass = renderer.photon_pass
+        self.stage_seconds = renderer.stage_seconds
+        self.rays = self.local.rays
+        self.reductions: list[tuple[int, int, float]] = []
+        self.token = uuid.uuid4().hex
+        job = SceneJob(self.token, renderer.scene, renderer.settings, renderer.plan)
+        self.scene_future = client.scatter(job, broadcast=True, hash=False)
+        self._passes = 0
+        if warm:
+            workers = list(client.scheduler_info()["workers"])
+            client.gather([client.submit(setup_task, self.scene_future, workers=[w],
+                                         allow_other_workers=False, pure=False,
+                                         key=f"fppm-setup-{self.token}-{i}")
+                           for i, w in enumerate(workers)])
+        renderer.photon_pass = self
+
+    def __call__(self, vp, R2: np.ndarray, spectrum: Optional[np.ndarray],
+                 rng: np.random.Generator, check_stop=lambda: None) -> PhotonEstimate:
+        import time
+        local = self.local
+        if not np.any(local.active(vp, R2)):
+            return local(vp, R2, spectrum, rng, check_stop)     # traces nothing
+        client = self.client
+        self._passes += 1
+        tag = f"{self.token}-{self._passes}"
+        pj = PassJob(tag, dataclasses.replace(vp, first=None), R2, spectrum is not None)
+        pass_future = client.scatter(pj, broadcast=True, hash=False)
+        futures = [client.submit(chunk_task, self.scene_future, pass_future, n, n_freq,
+                                 chunk_rng(rng, c), key=f"fppm-chunk-{tag}-{c}",
+                                 retries=self.retries, pure=False)
+                   for c, (n, n_freq) in enumerate(local.chunks())]
+        acc = PassSums.zeros(vp.valid.shape[0], local.radius_histogram is not None, spectrum)
+        returned, add_seconds = 0, 0.0
+        try:
+            for f in futures:                 # in chunk order: the same sums as one process
+                part = self._result(f, check_stop)
+                t0 = time.perf_counter()
+                acc.add(part)
+                add_seconds += time.perf_counter() - t0
+                returned += part.nbytes
+                self.rays += part.rays
+                self.stage_seconds["photon_trace"] += part.trace_seconds
+                self.stage_seconds["gather"] += part.gather_seconds
+        except BaseException:
+            client.cancel(futures)
+            raise
+        finally:
+            del pass_future
+        self.reductions.append((pj.nbytes, returned, add_seconds))
+        return local.finish(vp, acc)
+
+    @staticmethod
+    def _result(future, check_stop):
+        """The future's result, polling check_stop (RenderCancelled) meanwhile."""
+        while True:
+            check_stop()
+            try:
+                return future.result(timeout=POLL)
+            except TimeoutError:
+                continue
+
+    def close(self) -> None:
+        """Release the scene on the workers (the client stays open)."""
+        self.scene_future.release()
+        self.renderer.photon_pass = self.local
