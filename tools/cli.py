@@ -80,11 +80,14 @@ def render(a) -> int:
     from . import distributed
     client = None
     if a.workers is not None or a.cluster is not None:
-        _spawn_without_main()
         try:
-            client = distributed.connect(a.workers, a.cluster)
+            distributed.require()
         except distributed.DaskMissing as ex:
             raise cli.CLIError(cli.EXIT_USAGE, str(ex))
+        if a.workers is not None:
+            _spawn_without_main()
+        try:
+            client = distributed.connect(a.workers, a.cluster)
         except (OSError, ValueError) as ex:       # unreachable / malformed ADDRESS
             raise cli.CLIError(cli.EXIT_USAGE, f"--cluster {a.cluster}: cannot reach the Dask "
                                                f"scheduler ({ex}).")

@@ -62,7 +62,8 @@ class DaskMissing(ImportError):
     """dask.distributed is not installed (the CLI's usage error)."""
 
 
-def _distributed():
+def require():
+    """The dask.distributed module; DaskMissing when it is not installed."""
     try:
         import distributed
     except ImportError as ex:
@@ -74,7 +75,7 @@ def connect(workers: Optional[int] = None, address: Optional[str] = None):
     """A dask.distributed Client: of a new local cluster of ``workers``
     processes (one task thread each, no memory limit, no dashboard), or of the
     scheduler at ``address``.  Raises DaskMissing."""
-    distributed = _distributed()
+    distributed = require()
     if address:
         return distributed.Client(address, set_as_default=False, timeout=CONNECT_TIMEOUT)
     cluster = distributed.LocalCluster(n_workers=int(workers), threads_per_worker=1,
@@ -214,6 +215,7 @@ class DistributedPhotonPass:
         job = SceneJob(self.token, renderer.scene, renderer.settings, renderer.plan)
         self.scene_future = client.scatter(job, broadcast=True, hash=False)
         self._passes = 0
+        self.pending: list = []          # the futures of the pass under way
         if warm:
             workers = list(client.scheduler_info()["workers"])
             client.gather([client.submit(setup_task, self.scene_future, workers=[w],
@@ -237,6 +239,7 @@ class DistributedPhotonPass:
                                  chunk_rng(rng, c), key=f"fppm-chunk-{tag}-{c}",
                                  retries=self.retries, pure=False)
                    for c, (n, n_freq) in enumerate(local.chunks())]
+        self.pending = futures
         acc = PassSums.zeros(vp.valid.shape[0], local.radius_histogram is not None, spectrum)
         returned, add_seconds = 0, 0.0
         try:
@@ -253,6 +256,7 @@ class DistributedPhotonPass:
             client.cancel(futures)
             raise
         finally:
+            self.pending = []
             del pass_future
         self.reductions.append((pj.nbytes, returned, add_seconds))
         return local.finish(vp, acc)
@@ -260,12 +264,15 @@ class DistributedPhotonPass:
     @staticmethod
     def _result(future, check_stop):
         """The future's result, polling check_stop (RenderCancelled) meanwhile."""
-        while True:
+        # A done-callback and an Event rather than result(timeout=...): a
+        # timed-out result() could fail inside distributed's sync() while a
+        # worker was being replaced.
+        done = threading.Event()
+        future.add_done_callback(lambda f: done.set())
+        while not done.wait(POLL):
             check_stop()
-            try:
-                return future.result(timeout=POLL)
-            except TimeoutError:
-                continue
+        check_stop()
+        return future.result()
 
     def close(self) -> None:
         """Release the scene on the workers (the client stays open)."""
