@@ -41,14 +41,16 @@ import dataclasses
 import logging
 import os
 import threading
+import time
 import uuid
-from typing import Optional
+from typing import NamedTuple, Optional
 
 import numpy as np
 
 from ..core.render import Renderer
 from ..core.sppm.photon_pass import PassSums, PhotonEstimate, PhotonPass, chunk_rng
 from ..core.sppm.update import Radii
+from ..core.sppm.visible_points import VisiblePoints
 
 DASK_MISSING = ("--workers and --cluster need Dask: install it with "
                 "`pip install \"dask[distributed]\"` (`make venv` does).")
@@ -122,17 +124,51 @@ class SceneJob:
 
 @dataclasses.dataclass(frozen=True)
 class PassJob:
-    """Sent once per pass: the visible points (without the film's first-hit
-    data), their squared radii R2 (P,), whether the spectrum AOV is on."""
+    """Sent once per pass: what the gather reads of the active visible points
+    (valid, with a radius), at their pixels idx (K,) int64: p, ng, albedo
+    (K, 3), R2 (K,), const (K,); for the non-Lambert ones alone (their
+    positions nc (J,) among the K) the BSDF inputs mat, colors, ns, wo and
+    the depth of the receiver radius.  The throughput beta and the film's
+    first-hit data stay on the driver.  A Lambert point costs 89 bytes."""
     key: str
-    vp: object
+    idx: np.ndarray
+    p: np.ndarray
+    ng: np.ndarray
+    albedo: np.ndarray
     R2: np.ndarray
+    const: np.ndarray
+    nc: np.ndarray
+    mat: np.ndarray
+    colors: np.ndarray
+    ns: np.ndarray
+    wo: np.ndarray
+    depth: np.ndarray
     spectrum_aov: bool
+
+    @classmethod
+    def pack(cls, key: str, vp, R2: np.ndarray, active: np.ndarray,
+             spectrum_aov: bool) -> "PassJob":
+        idx = np.flatnonzero(active)
+        nc = np.flatnonzero(~vp.const[idx])
+        sub = idx[nc]
+        return cls(key, idx, vp.p[idx], vp.ng[idx], vp.albedo[idx], R2[idx], vp.const[idx], nc,
+                   vp.mat[sub], vp.colors[sub], vp.ns[sub], vp.wo[sub], vp.depth[sub],
+                   spectrum_aov)
+
+    def unpack(self):
+        """(VisiblePoints (K,), R2 (K,)): the active points alone, every one
+        valid; the BSDF inputs of the Lambert ones are zeros (never read)."""
+        vp = VisiblePoints.empty(self.idx.size, self.colors.shape[1])
+        vp.valid[:] = True
+        vp.p[:], vp.ng[:], vp.albedo[:], vp.const[:] = self.p, self.ng, self.albedo, self.const
+        nc = self.nc
+        vp.mat[nc], vp.colors[nc], vp.ns[nc], vp.wo[nc], vp.depth[nc] = (
+            self.mat, self.colors, self.ns, self.wo, self.depth)
+        return vp, self.R2
 
     @property
     def nbytes(self) -> int:
-        arrays = [getattr(self.vp, f.name) for f in dataclasses.fields(self.vp)]
-        return self.R2.nbytes + sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))
+        return sum(a.nbytes for a in dataclasses.astuple(self) if isinstance(a, np.ndarray))
 
 
 # ----------------------------------------------------------------------------
@@ -188,21 +224,34 @@ def chunk_task(job: SceneJob, pj: PassJob, n: int, n_freq: int, rng):
     with _WORKER_LOCK:
         pp = _scene_side(job).photon_pass
         if _WORKER.get("pass") != pj.key:
-            _WORKER.update(grid=pp.begin(pj.vp, pj.R2, pj.spectrum_aov), **{"pass": pj.key})
-        return pp.chunk_sums(_WORKER["grid"], n, n_freq, rng)
+            _WORKER.update(grid=pp.begin(*pj.unpack(), pj.spectrum_aov), **{"pass": pj.key})
+        part = pp.chunk_sums(_WORKER["grid"], n, n_freq, rng)
+    # From the active points' numbering back to the pixels'.
+    return part._replace(idx=pj.idx[part.idx], spec_idx=pj.idx[part.spec_idx])
 
 
 # ----------------------------------------------------------------------------
 # Driver side
 # ----------------------------------------------------------------------------
 
+class PassStats(NamedTuple):
+    """One distributed photon pass: bytes broadcast (visible points and
+    radii, sent to every worker), bytes returned (the chunk sums, all of
+    them), seconds the driver spent adding the sums, wall seconds of the
+    whole photon pass, chunks."""
+    broadcast_bytes: int
+    returned_bytes: int
+    add_seconds: float
+    wall_seconds: float
+    chunks: int
+
+
 class DistributedPhotonPass:
     """Takes the place of ``renderer.photon_pass`` (same call, same
     PhotonEstimate): the chunks of every pass go to the Dask workers of
     ``client``.  ``local``: the renderer's own PhotonPass (chunking, the
     empty pass, the throughput).  ``rays``: rays cast by the workers;
-    ``reductions``: per pass (bytes broadcast, bytes returned, seconds the
-    driver spent adding the chunk sums).  warm: build the scene on every
+    ``stats``: a PassStats per distributed pass.  warm: build the scene on every
     current worker now (BVH, kernels loaded) rather than in the first pass."""
 
     def __init__(self, client, renderer: Renderer, warm: bool = True, retries: int = 3):
@@ -210,7 +259,7 @@ class DistributedPhotonPass:
         self.local: PhotonPass = renderer.photon_pass
         self.stage_seconds = renderer.stage_seconds
         self.rays = self.local.rays
-        self.reductions: list[tuple[int, int, float]] = []
+        self.stats: list[PassStats] = []
         self.token = uuid.uuid4().hex
         job = SceneJob(self.token, renderer.scene, renderer.settings, renderer.plan)
         self.scene_future = client.scatter(job, broadcast=True, hash=False)
@@ -226,14 +275,15 @@ class DistributedPhotonPass:
 
     def __call__(self, vp, R2: np.ndarray, spectrum: Optional[np.ndarray],
                  rng: np.random.Generator, check_stop=lambda: None) -> PhotonEstimate:
-        import time
+        t_pass = time.perf_counter()
         local = self.local
-        if not np.any(local.active(vp, R2)):
+        active = local.active(vp, R2)
+        if not np.any(active):
             return local(vp, R2, spectrum, rng, check_stop)     # traces nothing
         client = self.client
         self._passes += 1
         tag = f"{self.token}-{self._passes}"
-        pj = PassJob(tag, dataclasses.replace(vp, first=None), R2, spectrum is not None)
+        pj = PassJob.pack(tag, vp, R2, active, spectrum is not None)
         pass_future = client.scatter(pj, broadcast=True, hash=False)
         futures = [client.submit(chunk_task, self.scene_future, pass_future, n, n_freq,
                                  chunk_rng(rng, c), key=f"fppm-chunk-{tag}-{c}",
@@ -258,8 +308,10 @@ class DistributedPhotonPass:
         finally:
             self.pending = []
             del pass_future
-        self.reductions.append((pj.nbytes, returned, add_seconds))
-        return local.finish(vp, acc)
+        est = local.finish(vp, acc)
+        self.stats.append(PassStats(pj.nbytes, returned, add_seconds,
+                                    time.perf_counter() - t_pass, len(futures)))
+        return est
 
     @staticmethod
     def _result(future, check_stop):
