@@ -75,14 +75,15 @@ def require():
 
 def connect(workers: Optional[int] = None, address: Optional[str] = None):
     """A dask.distributed Client: of a new local cluster of ``workers``
-    processes (one task thread each, no memory limit, no dashboard), or of the
+    processes (one task thread each, no memory limit, its HTTP endpoints on a
+    free port), or of the
     scheduler at ``address``.  Raises DaskMissing."""
     distributed = require()
     if address:
         return distributed.Client(address, set_as_default=False, timeout=CONNECT_TIMEOUT)
     cluster = distributed.LocalCluster(n_workers=int(workers), threads_per_worker=1,
                                        processes=True, memory_limit=0,
-                                       dashboard_address=None, silence_logs=logging.ERROR)
+                                       dashboard_address=":0", silence_logs=logging.ERROR)
     client = distributed.Client(cluster, set_as_default=False)
     # Closing the client also closes the local cluster.
     client._fppm_cluster = cluster
@@ -211,9 +212,14 @@ def _scene_side(job: SceneJob) -> _SceneSide:
     return side
 
 
-def setup_task(job: SceneJob) -> int:
-    """Build the scene side on this worker ahead of the first pass; returns its pid."""
+def setup_task(job: SceneJob, kernels: bool = False) -> int:
+    """Build the scene side on this worker ahead of the first pass (and with
+    ``kernels`` load every compiled kernel now, core.warmup, rather than
+    each at its first call inside a pass); returns the worker's pid."""
     with _WORKER_LOCK:
+        if kernels:
+            from ..core import warmup
+            warmup.compile_kernels()
         _scene_side(job)
     return os.getpid()
 
@@ -251,10 +257,14 @@ class DistributedPhotonPass:
     PhotonEstimate): the chunks of every pass go to the Dask workers of
     ``client``.  ``local``: the renderer's own PhotonPass (chunking, the
     empty pass, the throughput).  ``rays``: rays cast by the workers;
-    ``stats``: a PassStats per distributed pass.  warm: build the scene on every
-    current worker now (BVH, kernels loaded) rather than in the first pass."""
+    ``stats``: a PassStats per distributed pass.  warm: build the scene on
+    every current worker now rather than in the first pass (a worker that
+    joins later builds it at its first chunk); load_kernels: load the
+    compiled kernels there too (they otherwise load at their first call,
+    inside pass 1)."""
 
-    def __init__(self, client, renderer: Renderer, warm: bool = True, retries: int = 3):
+    def __init__(self, client, renderer: Renderer, warm: bool = True,
+                 load_kernels: bool = False, retries: int = 3):
         self.client, self.renderer, self.retries = client, renderer, retries
         self.local: PhotonPass = renderer.photon_pass
         self.stage_seconds = renderer.stage_seconds
@@ -267,8 +277,8 @@ class DistributedPhotonPass:
         self.pending: list = []          # the futures of the pass under way
         if warm:
             workers = list(client.scheduler_info()["workers"])
-            client.gather([client.submit(setup_task, self.scene_future, workers=[w],
-                                         allow_other_workers=False, pure=False,
+            client.gather([client.submit(setup_task, self.scene_future, load_kernels,
+                                         workers=[w], allow_other_workers=False, pure=False,
                                          key=f"fppm-setup-{self.token}-{i}")
                            for i, w in enumerate(workers)])
         renderer.photon_pass = self
