@@ -76,8 +76,7 @@ def require():
 def connect(workers: Optional[int] = None, address: Optional[str] = None):
     """A dask.distributed Client: of a new local cluster of ``workers``
     processes (one task thread each, no memory limit, its HTTP endpoints on a
-    free port), or of the
-    scheduler at ``address``.  Raises DaskMissing."""
+    free port), or of the scheduler at ``address``.  Raises DaskMissing."""
     distributed = require()
     if address:
         return distributed.Client(address, set_as_default=False, timeout=CONNECT_TIMEOUT)
@@ -85,8 +84,7 @@ def connect(workers: Optional[int] = None, address: Optional[str] = None):
                                        processes=True, memory_limit=0,
                                        dashboard_address=":0", silence_logs=logging.ERROR)
     client = distributed.Client(cluster, set_as_default=False)
-    # Closing the client also closes the local cluster.
-    client._fppm_cluster = cluster
+    client._fppm_cluster = cluster          # closed by close()
     return client
 
 
