@@ -6,20 +6,24 @@ spectrum AOV (the spectrum a later chunk overwrites), so every sum a chunk
 returns is exercised.  One process with one random stream per chunk is the
 reference: the workers must give it bit for bit (max abs difference 0).
 """
+import importlib.util
 import os
 import signal
 
 import numpy as np
 import pytest
 
-pytest.importorskip("distributed")
 bpy = pytest.importorskip("bpy")
 
 import bpy_helpers as H  # noqa: E402
 
 from fppm.core.io.exr import read_exr  # noqa: E402
 from fppm.core.render import Renderer  # noqa: E402
+from fppm.core.sppm.photon_pass import PassSums, chunk_rng  # noqa: E402
 from fppm.tools import distributed as D  # noqa: E402
+
+needs_dask = pytest.mark.skipif(importlib.util.find_spec("distributed") is None,
+                                reason="dask.distributed is not installed")
 
 SCENE = os.path.join(H.ROOT, "tests", "scenes", "t_glossy_floor.blend")
 PASSES, PHOTONS, CHUNK, SEED = 3, 40_000, 10_000, 5      # 4 chunks per pass
@@ -55,6 +59,37 @@ def reference(glossy):
     return res
 
 
+def test_chunk_sums_do_not_depend_on_the_order_chunks_are_traced(glossy):
+    # What lets any worker trace any chunk: each pass's chunks traced last to
+    # first (chunk_sums, as a worker would) and added in chunk order give the
+    # one-process estimate exactly.
+    r = _renderer(glossy)
+    pp = r.photon_pass
+    compared = []
+
+    def both_orders(vp, R2, spectrum, rng, check_stop=lambda: None):
+        est = pp(vp, R2, spectrum, rng, check_stop)
+        pg = pp.begin(vp, R2, spectrum is not None)
+        chunks = list(enumerate(pp.chunks()))
+        parts = {c: pp.chunk_sums(pg, n, n_freq, chunk_rng(rng, c))
+                 for c, (n, n_freq) in reversed(chunks)}
+        acc = PassSums.zeros(vp.valid.shape[0], pp.radius_histogram is not None, spectrum)
+        for c, _ in chunks:
+            acc.add(parts[c])
+        again = pp.finish(vp, acc)
+        for name in ("M", "Phi", "r_pred_min", "r_hist", "spectrum"):
+            assert np.array_equal(getattr(est, name), getattr(again, name)), name
+        compared.append(len(chunks))
+        return est
+
+    both_orders.rays = 0
+    r.photon_pass = both_orders
+    for _ in range(2):
+        r.step()
+    assert compared == [PHOTONS // CHUNK] * 2
+
+
+@needs_dask
 def test_workers_2_same_image_as_one_process(glossy, reference, tmp_path):
     # `fppm render --workers 2` (a local cluster of 2 processes) against the
     # one-process render of the same file, seed and chunking.
@@ -69,6 +104,7 @@ def test_workers_2_same_image_as_one_process(glossy, reference, tmp_path):
     assert np.abs(got["Spectrum"] - reference.aovs["Spectrum"]).max() == 0.0
 
 
+@needs_dask
 def test_killed_worker_gives_the_same_image(glossy, reference):
     client = D.connect(workers=2)
     try:
@@ -99,6 +135,7 @@ def test_killed_worker_gives_the_same_image(glossy, reference):
     assert np.abs(res.aovs["Spectrum"] - reference.aovs["Spectrum"]).max() == 0.0
 
 
+@needs_dask
 @pytest.mark.parametrize("flags, needs", [
     (["--workers", "0"], "must be at least 1"),
     (["--workers", "2", "--cluster", "tcp://127.0.0.1:1"], "exclude each other"),
