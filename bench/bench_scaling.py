@@ -134,7 +134,8 @@ def main(argv=None):
         add_share = sum(s.add_seconds for s in stats) / sum(s.wall_seconds for s in stats)
         print(f"{n:>7} {thr:>11,.0f} {thr / base:>11.2f} {thr * wall1 / photons:>12.2f} "
               f"{bc / 1e6:>11.2f} MB {rb / 1e6:>10.2f} MB {per_chunk / 1e3:>7.0f} kB "
-              f"{per_chunk / P:>10.1f} {add_share:>9.1%} {busy:>5.0%} {cpu / cpu1:>13.2f} {diff:>10.3g}")
+              f"{per_chunk / P:>10.1f} {add_share:>9.1%} {busy:>5.0%} {cpu / cpu1:>13.2f} "
+              f"{diff:>10.3g}")
     all_stats = [s for row in rows for s in row[3]]
     add_rate = sum(s.returned_bytes for s in all_stats) / sum(s.add_seconds for s in all_stats)
     print(f"\nBroadcast per pixel: {bc / P:.0f} B; returned per pixel per chunk: "

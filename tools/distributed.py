@@ -3,15 +3,16 @@
     client = connect(workers=2)                  # or connect(address="tcp://host:8786")
     DistributedPhotonPass(client, renderer)      # takes over renderer.photon_pass
     renderer.run()
-    client.close()
+    close(client)
 
 The driver (the process that exported the scene and runs
 ``core.render.Renderer``) keeps every stage of a pass but the photons.  It
 sends the exported scene and the settings to the workers once (a broadcast
 ``scatter``); each worker builds its own BVH, light and material tables,
 render plan, occlusion grid and photon tracer from them (the scene half of a
-Renderer, no per-pixel state).  Each pass the driver broadcasts the visible
-points and their squared radii, and submits one task per photon chunk
+Renderer, no per-pixel state).  Each pass the driver broadcasts what the
+gather reads of the active visible points and their squared radii
+(``PassJob``), and submits one task per photon chunk
 (``PhotonPass.chunks``).  A task traces chunk c with its own random stream
 ``chunk_rng(pass stream, c)``, gathers it against the pass's grid (built once
 per pass on each worker) and returns the chunk's sums at the pixels it
@@ -22,7 +23,7 @@ chunk order (``PassSums.add``) and runs the normal update and film.
 Same image as one process: a single process with ``photon_pass.chunk_streams``
 (``local_chunk_streams``) computes and adds exactly the same chunk sums in the
 same order, so the images are bit for bit equal as long as every worker runs
-the gather on as many numba threads as the driver (the per-thread Phi sums
+the gather on as many numba threads as that process (the per-thread Phi sums
 of ``hashgrid.gather`` are added in thread order; another thread count changes
 the last bits).  The default single-process render uses one random stream per
 pass instead: same noise level, other random numbers.
