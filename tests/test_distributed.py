@@ -127,9 +127,12 @@ def test_killed_worker_gives_the_same_image(glossy, reference):
             return False
 
         res = r.run(should_stop=kill_one_mid_pass)
+        client.wait_for_workers(2, timeout=60)           # the nanny replaced it
+        replaced = client.run(os.getpid)
     finally:
         D.close(client)
     assert killed, "no chunk of pass 2 was seen on a worker"
+    assert pids[killed[0]] not in replaced.values() and len(replaced) == 2
     assert r.pass_index == PASSES
     assert np.abs(res.image - reference.image).max() == 0.0
     assert np.abs(res.aovs["Spectrum"] - reference.aovs["Spectrum"]).max() == 0.0

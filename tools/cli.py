@@ -44,7 +44,8 @@ def add_render_parser(sub) -> None:
                    help="trace the photon chunks on the workers of the Dask scheduler at ADDRESS "
                         "(e.g. tcp://10.0.0.1:8786)")
     g.add_argument("--chunk", type=int, metavar="N",
-                   help="photons per chunk (default 131072)")
+                   help="photons per chunk (default 131072; a chunk is traced at once, "
+                        "about 1.2 KB per photon)")
 
 
 def _spawn_without_main() -> None:
