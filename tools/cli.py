@@ -90,8 +90,9 @@ def render(a) -> int:
         try:
             client = distributed.connect(a.workers, a.cluster)
         except (OSError, ValueError) as ex:       # unreachable / malformed ADDRESS
-            raise cli.CLIError(cli.EXIT_USAGE, f"--cluster {a.cluster}: cannot reach the Dask "
-                                               f"scheduler ({ex}).")
+            what = (f"--cluster {a.cluster}: cannot reach the Dask scheduler" if a.cluster
+                    else f"--workers {a.workers}: the local Dask cluster did not start")
+            raise cli.CLIError(cli.EXIT_USAGE, f"{what} ({ex}).")
 
     def on_renderer(renderer):
         if renderer.settings.integrator != "PHOTON":
