@@ -86,7 +86,24 @@ def connect(workers: Optional[int] = None, address: Optional[str] = None):
                                        dashboard_address=":0", silence_logs=logging.ERROR)
     client = distributed.Client(cluster, set_as_default=False)
     client._fppm_cluster = cluster          # closed by close()
+    client.register_plugin(_worker_ignores_sigint(), name="fppm-ignore-sigint")
     return client
+
+
+def _worker_ignores_sigint():
+    """A WorkerPlugin: a local worker ignores SIGINT.  Ctrl-C in a terminal
+    reaches the whole process group; the driver cancels the render and closes
+    the cluster itself, and the workers would only print KeyboardInterrupt
+    tracebacks.  (Set in the worker's event-loop thread, its main thread.)"""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class IgnoreSigint(WorkerPlugin):
+        def setup(self, worker):
+            import signal
+            import threading
+            if threading.current_thread() is threading.main_thread():
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return IgnoreSigint()
 
 
 def close(client) -> None:
