@@ -12,6 +12,11 @@ camera's side: rejecting the adjacent wall's photons darkened Cornell-box
 corners against Cycles, docs/method.md).  The estimate is pass-local: the
 renderer commits it only once the pass is complete, so a cancelled pass
 leaves no trace.
+
+A chunk is also the unit of work another process can do
+(tools/distributed.py): with ``chunk_streams`` each chunk draws its own
+random stream (``chunk_rng``) and its sums (``chunk_sums``) are added in
+chunk order (``PassSums.add``), whichever process traced it.
 """
 from __future__ import annotations
 
