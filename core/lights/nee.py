@@ -51,7 +51,10 @@ class NextEventEstimation:
         q, wi, dist, wgt, shadow = q[live], wi[live], dist[live], wgt[live], shadow[live]
         if q.size == 0:
             return L
-        f = B.eval_bsdf(self.mtab, vp.mat[q], vp.colors[q], vp.ns[q], vp.ng[q], vp.wo[q], wi)
+        # The normals as the mesh has them: the BSDF tells a visible point
+        # inside glass (wo behind ng) by them, for the relative IOR.
+        ns_m, ng_m = vp.mesh_normals(q)
+        f = B.eval_bsdf(self.mtab, vp.mat[q], vp.colors[q], ns_m, ng_m, vp.wo[q], wi)
         cos = np.abs(_dot(vp.ns[q], wi))
         contrib = vp.beta[q] * f * cos[:, None] * wgt
         if env is not None and env.total > 0:
@@ -61,7 +64,7 @@ class NextEventEstimation:
             if wk.size:
                 qk = q[wk]
                 pl = environment_pdf(self.light_table, vp.p[qk], vp.ns[qk], wi[wk])
-                pb = B.pdf_bsdf(self.mtab, vp.mat[qk], vp.colors[qk], vp.ns[qk], vp.ng[qk],
+                pb = B.pdf_bsdf(self.mtab, vp.mat[qk], vp.colors[qk], ns_m[wk], ng_m[wk],
                                 vp.wo[qk], wi[wk], subset="nondelta")
                 contrib[wk] *= (pl / np.maximum(pl + pb, 1e-300))[:, None]
         nz = contrib.max(axis=1) > 0
@@ -82,8 +85,9 @@ class NextEventEstimation:
         q = np.nonzero(vp.valid)[0]
         if q.size == 0:
             return L
+        ns_m, ng_m = vp.mesh_normals(q)
         wi, wgt, pdf, is_delta, ok = B.sample_bsdf(
-            self.mtab, vp.mat[q], vp.colors[q], vp.ns[q], vp.ng[q], vp.wo[q],
+            self.mtab, vp.mat[q], vp.colors[q], ns_m, ng_m, vp.wo[q],
             rng.random((q.size, 3)), subset="nondelta")
         k = np.nonzero(ok & ~is_delta & (pdf > 0) & (wgt.max(axis=1) > 0)
                        & np.all(np.isfinite(wgt), axis=1))[0]

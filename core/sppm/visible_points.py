@@ -32,6 +32,9 @@ class VisiblePoints:
     mat (P,) int32; colors (P,L,3); beta (P,3) path throughput / selection
     probability; depth (P,) camera depth proxy for the pixel footprint;
     const (P,) bool (Lambert-only: f = albedo/pi); albedo (P,3).
+    front (P,) bool: wo lies on the mesh's geometric-normal side (ng and ns
+    were not flipped).  The BSDF tells entering from leaving glass by it:
+    :meth:`mesh_normals` gives the normals as the mesh has them.
     first: FirstHit of the camera rays (the film's data passes), or None.
     """
     valid: np.ndarray
@@ -45,6 +48,7 @@ class VisiblePoints:
     depth: np.ndarray
     const: np.ndarray
     albedo: np.ndarray
+    front: Optional[np.ndarray] = None
     first: Optional["FirstHit"] = None
 
     @classmethod
@@ -53,7 +57,15 @@ class VisiblePoints:
         return cls(valid=np.zeros(P, bool), p=np.zeros((P, 3)), ng=np.zeros((P, 3)),
                    ns=np.zeros((P, 3)), wo=np.zeros((P, 3)), mat=np.zeros(P, np.int32),
                    colors=np.zeros((P, n_lobes, 3)), beta=np.zeros((P, 3)),
-                   depth=np.zeros(P), const=np.zeros(P, bool), albedo=np.zeros((P, 3)))
+                   depth=np.zeros(P), const=np.zeros(P, bool), albedo=np.zeros((P, 3)),
+                   front=np.ones(P, bool))
+
+    def mesh_normals(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """(ns, ng) (K, 3) of visible points q as the mesh has them (the
+        materials orient them to wo themselves and use that side for the
+        relative IOR, core.materials.eval_bsdf)."""
+        s = np.where(self.front[q], 1.0, -1.0)[:, None]
+        return self.ns[q] * s, self.ng[q] * s
 
 
 @dataclass
@@ -196,6 +208,7 @@ class CameraPass:
                 q = idx[ih[mk]]
                 sgn = np.where(_dot(ng[mk], wo[mk]) >= 0, 1.0, -1.0)[:, None]
                 vp.valid[q] = True
+                vp.front[q] = sgn[:, 0] > 0
                 vp.p[q] = p[mk]
                 vp.ng[q] = ng[mk] * sgn
                 # Cycles flips the shading normal together with the geometric
