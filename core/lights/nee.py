@@ -32,8 +32,10 @@ class NextEventEstimation:
     """Direct light at visible points.  tri_p (T, 3, 3): the triangles of
     ``accel`` (their planes decide which hits are the emitter or a self-hit)."""
 
-    def __init__(self, light_table, mtab, accel, tri_p: np.ndarray):
+    def __init__(self, light_table, mtab, accel, tri_p: np.ndarray, compiled: bool = True):
         self.light_table, self.mtab, self.accel, self.tri_p = light_table, mtab, accel, tri_p
+        self.compiled = bool(compiled)
+        self._lights = None
 
     def __call__(self, vp: "VisiblePoints", rng: np.random.Generator) -> np.ndarray:
         """(P, 3) float64 reflected direct radiance times vp.beta (0 at invalid points)."""
@@ -42,25 +44,42 @@ class NextEventEstimation:
         q = np.nonzero(vp.valid)[0]
         if q.size == 0:
             return L
-        smp = sample_direct(self.light_table, vp.p[q], rng.random((q.size, 3)), n=vp.ns[q])
+        u = rng.random((q.size, 3))
+        if self.compiled and self._compiled_lights() is not None:
+            wi, dist, wgt, shadow, kind, cos, contrib = self._sample_compiled(vp, q, u)
+            done = vp.const[q]      # f of Lambert-only points is in contrib already
+        else:
+            smp = sample_direct(self.light_table, vp.p[q], u, n=vp.ns[q])
+            wi, dist, wgt, shadow, kind = (smp["wi"], smp["dist"], smp["weight"],
+                                           smp["cast_shadow"], smp["kind"])
+            cos = contrib = None
+            done = np.zeros(q.size, bool)
         env = self.light_table.environment
         if env is not None and env.total > 0:
             L += self._environment_bsdf(vp, rng)
-        wi, dist, wgt, shadow = smp["wi"], smp["dist"], smp["weight"], smp["cast_shadow"]
         live = (wgt.max(axis=1) > 0) & np.all(np.isfinite(wgt), axis=1)
-        q, wi, dist, wgt, shadow = q[live], wi[live], dist[live], wgt[live], shadow[live]
+        q, wi, dist, wgt, shadow, kind = q[live], wi[live], dist[live], wgt[live], shadow[live], \
+            kind[live]
         if q.size == 0:
             return L
-        # The normals as the mesh has them: the BSDF tells a visible point
-        # inside glass (wo behind ng) by them, for the relative IOR.
-        ns_m, ng_m = vp.mesh_normals(q)
-        f = B.eval_bsdf(self.mtab, vp.mat[q], vp.colors[q], ns_m, ng_m, vp.wo[q], wi)
-        cos = np.abs(_dot(vp.ns[q], wi))
-        contrib = vp.beta[q] * f * cos[:, None] * wgt
+        if contrib is None:
+            cos = np.abs(_dot(vp.ns[q], wi))
+            contrib = np.zeros((q.size, 3))
+        else:
+            cos, contrib = cos[live], contrib[live]
+        r = np.nonzero(~done[live])[0]
+        if r.size:
+            qr = q[r]
+            # The normals as the mesh has them: the BSDF tells a visible point
+            # inside glass (wo behind ng) by them, for the relative IOR.
+            ns_m, ng_m = vp.mesh_normals(qr)
+            f = B.eval_bsdf(self.mtab, vp.mat[qr], vp.colors[qr], ns_m, ng_m, vp.wo[qr], wi[r])
+            contrib[r] = vp.beta[qr] * f * cos[r, None] * wgt[r]
         if env is not None and env.total > 0:
             # An environment map: its light samples share the directions with
             # BSDF samples (_environment_bsdf), balance heuristic (Veach 1997).
-            wk = np.nonzero(smp["kind"][live] == WORLD)[0]
+            # (Only the numpy sampler handles maps: r is every live row here.)
+            wk = np.nonzero(kind == WORLD)[0]
             if wk.size:
                 qk = q[wk]
                 pl = environment_pdf(self.light_table, vp.p[qk], vp.ns[qk], wi[wk])
@@ -69,10 +88,38 @@ class NextEventEstimation:
                 contrib[wk] *= (pl / np.maximum(pl + pb, 1e-300))[:, None]
         nz = contrib.max(axis=1) > 0
         q, wi, dist, contrib, shadow = q[nz], wi[nz], dist[nz], contrib[nz], shadow[nz]
-        mesh = smp["kind"][live][nz] == MESH
+        mesh = kind[nz] == MESH
         blocked = self._blocked(vp.p[q], vp.ng[q], wi, dist, mesh) & shadow
         L[q[~blocked]] += contrib[~blocked]
         return L
+
+    def _compiled_lights(self):
+        """The light table for ``direct_kernels`` (None: it needs the numpy sampler)."""
+        if self._lights is None:
+            from . import direct_kernels as DK
+            self._lights = (DK.build_direct_lights(self.light_table)
+                            if DK.compiled_lights_ok(self.light_table) else False)
+        return self._lights or None
+
+    def _sample_compiled(self, vp, q, u):
+        """sample_direct plus the Lambert-only BSDF in ``direct_kernels``, two
+        halves in two threads: (wi, dist, weight, cast_shadow, kind, |cos|,
+        contrib) per row of q (contrib 0 where the material is not Lambert-only)."""
+        from . import direct_kernels as DK
+        from ..sppm.camera_kernels import SPLIT_MIN
+        from ..sppm.photons import _pool
+        K = q.size
+        R = DK.Receivers(q, vp.p, vp.ns, vp.beta, vp.albedo, vp.const, u)
+        out = DK.alloc_samples(K)
+        lights = self._compiled_lights()
+        if K >= SPLIT_MIN:
+            h = K // 2
+            f1 = _pool().submit(DK.direct_kernel, h, K, lights, R, out)
+            DK.direct_kernel(0, h, lights, R, out)
+            f1.result()
+        else:
+            DK.direct_kernel(0, K, lights, R, out)
+        return out.wi, out.dist, out.weight, out.shadow, out.kind, out.cos, out.contrib
 
     def _environment_bsdf(self, vp: "VisiblePoints", rng: np.random.Generator) -> np.ndarray:
         """(P, 3) the environment map seen along one BSDF sample per visible
