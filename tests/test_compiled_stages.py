@@ -41,14 +41,7 @@ from core.sppm import camera_kernels as CK
 from core.warmup import warmup_scene
 
 from analytic_scenes import look_down_ortho, quad, translate
-
-
-def _rot_x(deg, at):
-    m = translate(*at)
-    a = np.radians(deg)
-    c, s = np.cos(a), np.sin(a)
-    m[:3, :3] = [[1, 0, 0], [0, c, -s], [0, s, c]]
-    return m
+from test_path_tracer import _rot_x
 
 
 def _mixed_scene(res, n_small_tris=20, textured_emission=True):

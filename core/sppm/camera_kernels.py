@@ -32,6 +32,8 @@ the result does not depend on the split.
 """
 from __future__ import annotations
 
+from collections import namedtuple
+from dataclasses import fields
 from typing import NamedTuple
 
 import numpy as np
@@ -40,6 +42,7 @@ from numba import njit
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 from ..materials.table import DIFFUSE_ROUGHNESS_EPS
 from ..scene.model import DIFFUSE
+from .visible_points import VisiblePoints
 
 #: Wavefronts of at least this many rays run as two halves in two threads.
 SPLIT_MIN = 4096
@@ -67,20 +70,14 @@ class CameraMaterials(NamedTuple):
     tri_n: np.ndarray
 
 
-class VPBuffers(NamedTuple):
-    """The visible points (``VisiblePoints``' arrays, P pixels), written by pixel."""
-    valid: np.ndarray
-    front: np.ndarray
-    p: np.ndarray
-    ng: np.ndarray
-    ns: np.ndarray
-    wo: np.ndarray
-    mat: np.ndarray
-    colors: np.ndarray
-    beta: np.ndarray
-    depth: np.ndarray
-    const: np.ndarray
-    albedo: np.ndarray
+#: The visible points' arrays (``VisiblePoints``' fields but ``first``, P
+#: pixels), written by pixel: one list of fields, the dataclass's.
+VPBuffers = namedtuple("VPBuffers", [f.name for f in fields(VisiblePoints) if f.name != "first"])
+
+
+def vp_buffers(vp: VisiblePoints) -> VPBuffers:
+    """The kernel's view of vp's arrays (no copies)."""
+    return VPBuffers(*(getattr(vp, n) for n in VPBuffers._fields))
 
 
 class FirstBuffers(NamedTuple):

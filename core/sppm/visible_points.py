@@ -28,10 +28,18 @@ from ..mathutil import dot as _dot
 class VisiblePoints:
     """Per-pixel visible points of one camera pass (P = pixels in the region).
 
-    valid (P,) bool; p, ng, ns, wo (P,3) float64 (ng, ns oriented to wo);
-    mat (P,) int32; colors (P,L,3); beta (P,3) path throughput / selection
-    probability; depth (P,) camera depth proxy for the pixel footprint;
-    const (P,) bool (Lambert-only: f = albedo/pi); albedo (P,3).
+    Each quantity in the smallest dtype its use allows (core.memory counts
+    them): positions and geometric normals float64 (spawn offsets and the
+    gather's plane tests are relative to |p| ~ 2^-18); directions, colours
+    and throughputs float32 (their consumers compute in float64; 6e-8
+    relative is far below the estimators' noise).
+
+    valid (P,) bool; p, ng (P,3) float64; ns, wo (P,3) float32 (ng, ns
+    oriented to wo); mat (P,) int16 (int32 beyond 32767 materials); colors
+    (P,L,3) float32; beta (P,3) float32 path throughput / selection
+    probability; depth (P,) float32 camera depth proxy for the pixel
+    footprint; const (P,) bool (Lambert-only: f = albedo/pi); albedo (P,3)
+    float32.
     front (P,) bool: wo lies on the mesh's geometric-normal side (ng and ns
     were not flipped).  The BSDF tells entering from leaving glass by it:
     :meth:`mesh_normals` gives the normals as the mesh has them.
@@ -52,13 +60,15 @@ class VisiblePoints:
     first: Optional["FirstHit"] = None
 
     @classmethod
-    def empty(cls, P: int, n_lobes: int) -> "VisiblePoints":
+    def empty(cls, P: int, n_lobes: int, n_materials: int = 1) -> "VisiblePoints":
         """P invalid visible points (every array zero)."""
+        f32 = np.float32
         return cls(valid=np.zeros(P, bool), p=np.zeros((P, 3)), ng=np.zeros((P, 3)),
-                   ns=np.zeros((P, 3)), wo=np.zeros((P, 3)), mat=np.zeros(P, np.int32),
-                   colors=np.zeros((P, n_lobes, 3)), beta=np.zeros((P, 3)),
-                   depth=np.zeros(P), const=np.zeros(P, bool), albedo=np.zeros((P, 3)),
-                   front=np.ones(P, bool))
+                   ns=np.zeros((P, 3), f32), wo=np.zeros((P, 3), f32),
+                   mat=np.zeros(P, np.int16 if n_materials < 2**15 else np.int32),
+                   colors=np.zeros((P, n_lobes, 3), f32), beta=np.zeros((P, 3), f32),
+                   depth=np.zeros(P, f32), const=np.zeros(P, bool),
+                   albedo=np.zeros((P, 3), f32), front=np.ones(P, bool))
 
     def mesh_normals(self, q) -> tuple[np.ndarray, np.ndarray]:
         """(ns, ng) (K, 3) of visible points q as the mesh has them (the
@@ -75,7 +85,7 @@ class FirstHit:
 
     hit (P,) bool (False: the ray escaped to the world); p (P,3) float64;
     n (P,3) float64 shading normal facing the ray (Cycles flips N and Ng on
-    back-face hits); prim (P,) int64 triangle (-1 on a miss); emit (P,3)
+    back-face hits); prim (P,) int32 triangle (-1 on a miss); emit (P,3)
     float64 emission the camera ray sees directly (analytic emitters before
     the hit and the surface's own; not the world); escape (P,) float64 the
     throughput with which the camera ray escaped to the world straight
@@ -143,9 +153,9 @@ class CameraPass:
             u[:, :2] = 0.5      # FilterSampler.sample(0.5) = 0: the pixel centre
             u[:, 2:] = 0.0      # lens radius sqrt(0) = 0
         rays, dz = self.camera.generate(self.px, self.py, u[:, :2], u[:, 2:], self.fsamp)
-        vp = VisiblePoints.empty(P, mtab.kind.shape[1])
+        vp = VisiblePoints.empty(P, mtab.kind.shape[1], mtab.kind.shape[0])
         vp.first = FirstHit(hit=np.zeros(P, bool), p=np.zeros((P, 3)), n=np.zeros((P, 3)),
-                            prim=np.full(P, -1, np.int64), emit=np.zeros((P, 3)),
+                            prim=np.full(P, -1, np.int32), emit=np.zeros((P, 3)),
                             escape=np.zeros(P))
         L = np.zeros((P, 3))
         trace = self._trace_compiled if self.compiled else self._trace_numpy
@@ -286,9 +296,9 @@ class CameraPass:
                 tex |= mtab.emission_tex >= 0
             self._textured = tex
         mats, textured = self._cmats, self._textured
+        dz = np.ascontiguousarray(dz, np.float64)   # one kernel signature (C layout)
         Lb = mtab.kind.shape[1]
-        vb = CK.VPBuffers(vp.valid, vp.front, vp.p, vp.ng, vp.ns, vp.wo, vp.mat, vp.colors,
-                          vp.beta, vp.depth, vp.const, vp.albedo)
+        vb = CK.vp_buffers(vp)
         fb = CK.FirstBuffers(first.hit, first.p, first.n, first.prim, first.emit, L)
         see_through = np.ones(P, bool)
         idx = np.arange(P)
