@@ -162,13 +162,24 @@ class CameraPass:
         trace(rng, rays, dz, vp, L, check_stop)
         return vp, L
 
-    def _seen_along(self, depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through):
+    def _seen_along(self, depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
+                    fast=False):
         """The emission rays (K,) of one vertex see before their hit t (K,)
         float64 (inf on a miss): analytic emitters, and on a miss the world
-        (or, for camera rays seen through, alpha under Film > Transparent)."""
+        (or, for camera rays seen through, alpha under Film > Transparent).
+        fast: skip the masks and scatters that change nothing (the camera
+        rays of depth 0 are every pixel in order; a black constant world
+        adds 0); the same sums."""
+        whole = fast and depth == 0             # idx = arange(P), last = 0 (camera)
         for code, name in ((0, "camera"), (1, "glossy"), (2, "transmission")):
+            if whole:
+                if code == 0 and self._any_seen("camera"):
+                    Le = Lt.emitted_along_rays(self.light_table, o, d, np.minimum(t, tmax), name)
+                    L += beta * Le
+                    first.emit += Le
+                continue
             sel = last == code
-            if np.any(sel):
+            if np.any(sel) and (not fast or self._any_seen(name)):
                 Le = Lt.emitted_along_rays(self.light_table, o[sel], d[sel],
                                            np.minimum(t[sel], tmax[sel]), name)
                 L[idx[sel]] += beta[sel] * Le
@@ -180,8 +191,19 @@ class CameraPass:
             first.escape[idx[esc]] += beta[esc].mean(axis=1)
             if self.transparent:
                 miss = miss & ~esc      # Film > Transparent: alpha 0, no world
+        lt = self.light_table
+        if fast and lt.environment is None and not np.any(lt.world):
+            return
         if np.any(miss):
             L[idx[miss]] += beta[miss] * Lt.world_radiance(self.light_table, d[miss])
+
+    def _any_seen(self, visibility: str) -> bool:
+        """Whether any analytic emitter can be seen by rays of this kind
+        (``core.lights.seen.emitted_along_rays`` adds 0 otherwise)."""
+        lt = self.light_table
+        flag = getattr(lt, "visible_" + visibility)
+        return bool(np.any(flag & (lt.kind != Lt.MESH) & (lt.kind != Lt.WORLD)
+                           & np.any(lt.radiance != 0, axis=1)))
 
     def _trace_numpy(self, rng, rays, dz, vp, L, check_stop):
         """The camera pass in numpy (the reference of :meth:`_trace_compiled`)."""
@@ -315,7 +337,8 @@ class CameraPass:
             prim, bu, bv, tfar = _intersect(accel, o, d, tmax)
             hit = prim >= 0
             t = np.where(hit, tfar, np.inf).astype(np.float64)
-            self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through)
+            self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
+                             fast=True)
             nh = int(np.count_nonzero(hit))
             if nh == 0:
                 break
