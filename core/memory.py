@@ -16,7 +16,7 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
 
 - per pixel: progressive state (R^2, N, tau, L_sum, r_pred, held, M, depth),
   one pass's visible points (core.sppm.visible_points: float64 positions and
-  geometric normals, float32 directions, colours and throughputs, ~180 B) and
+  geometric normals, float32 directions, colours and throughputs: 153 B) and
   the camera and direct-light temporaries -> BYTES_PER_PIXEL.  Measured peak
   growth 646 B per pixel with the compiled stages (64^2 .. 640^2, a point
   light; 997 B before them); the bound also covers the numpy light sampler
