@@ -107,12 +107,12 @@ class NextEventEstimation:
         contrib) per row of q (contrib 0 where the material is not Lambert-only)."""
         from . import direct_kernels as DK
         from ..sppm.camera_kernels import SPLIT_MIN
-        from ..sppm.photons import _pool
+        from ..sppm.photons import _pool, _threads
         K = q.size
         R = DK.Receivers(q, vp.p, vp.ns, vp.beta, vp.albedo, vp.const, u)
         out = DK.alloc_samples(K)
         lights = self._compiled_lights()
-        if K >= SPLIT_MIN:
+        if K >= SPLIT_MIN and _threads() > 1:
             h = K // 2
             f1 = _pool().submit(DK.direct_kernel, h, K, lights, R, out)
             DK.direct_kernel(0, h, lights, R, out)

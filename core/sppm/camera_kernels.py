@@ -26,7 +26,8 @@ p_delta and the throughput agree to 1e-15 relative, everything else bit for
 bit.
 
 Threads: a wavefront of at least ``SPLIT_MIN`` rays is processed as two
-halves in two threads (``nogil``), each compacting its continuing chains
+halves in two threads (``nogil``; the photon tracer's pool and its
+``FPPM_PHOTON_THREADS`` setting, core.sppm.photons), each compacting its continuing chains
 into its own half of the output; the halves are then joined in order, so
 the result does not depend on the split.
 """

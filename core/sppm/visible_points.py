@@ -308,7 +308,7 @@ class CameraPass:
         """The camera pass with the per-hit work in ``camera_kernels.hit_kernel``
         (same random numbers, same results as :meth:`_trace_numpy`)."""
         from . import camera_kernels as CK
-        from .photons import _pool
+        from .photons import _pool, _threads
         P = self.px.shape[0]
         mtab, accel, first, s = self.mtab, self.accel, vp.first, self.scene
         if self._cmats is None:
@@ -362,7 +362,7 @@ class CameraPass:
                               path_len, dz, ur, pre, colors_pre, em_pre)
             ch = CK.alloc_chains(K, Lb)
             lastv = depth == self.max_depth - 1
-            if K >= CK.SPLIT_MIN:
+            if K >= CK.SPLIT_MIN and _threads() > 1:
                 h = K // 2
                 u1 = int(np.count_nonzero(hit[:h]))
                 f1 = _pool().submit(CK.hit_kernel, h, K, u1, h, depth == 0, lastv, wf, mats,
