@@ -535,3 +535,75 @@ def direct_kernel(k0, k1, L, R, out):
             out.contrib[k, 0] = R.beta[i, 0] * f0 * c * w0
             out.contrib[k, 1] = R.beta[i, 1] * f1 * c * w1
             out.contrib[k, 2] = R.beta[i, 2] * f2 * c * w2
+
+
+class ShadowRays(NamedTuple):
+    """The shadow rays of :func:`shadow_kernel`, compacted: o32, d32 (K, 3)
+    float32 Embree's origins (``accel.spawn``) and directions, t32 (K,)
+    float32 lengths; rows (K,) int64 the receiver row of each; mesh (K,)
+    int64 the rows lit by emissive triangles (their test is
+    ``NextEventEstimation._blocked``'s, in numpy)."""
+    o32: np.ndarray
+    d32: np.ndarray
+    t32: np.ndarray
+    rows: np.ndarray
+    mesh: np.ndarray
+
+
+def alloc_shadow(K: int) -> ShadowRays:
+    return ShadowRays(o32=np.empty((K, 3), np.float32), d32=np.empty((K, 3), np.float32),
+                      t32=np.empty(K, np.float32), rows=np.empty(K, np.int64),
+                      mesh=np.empty(K, np.int64))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def shadow_kernel(q, p, ng, S, rel, floor, sh, L):
+    """The shadow rays of the DirectSamples S (receiver rows k, pixels q[k]).
+
+    Rows whose contribution is not positive are dropped; rows of lights that
+    cast no shadow are added to L (P, 3) at once; rows lit by emissive
+    triangles go to sh.mesh; the others get a ray from ``accel.spawn``'s
+    origin (offset max(|p|_inf, floor) * rel along ng, to wi's side), in
+    float32 as Embree takes it.  Returns (rays, mesh rows)."""
+    n = 0
+    nm = 0
+    for k in range(q.shape[0]):
+        c0, c1, c2 = S.contrib[k, 0], S.contrib[k, 1], S.contrib[k, 2]
+        # numpy: contrib.max(axis=1) > 0 (NaN: False)
+        if np.isnan(c0) or np.isnan(c1) or np.isnan(c2) or not (c0 > 0 or c1 > 0 or c2 > 0):
+            continue
+        i = q[k]
+        if not S.shadow[k]:
+            L[i, 0] += c0
+            L[i, 1] += c1
+            L[i, 2] += c2
+            continue
+        if S.kind[k] == MESH:
+            sh.mesh[nm] = k
+            nm += 1
+            continue
+        wx, wy, wz = S.wi[k, 0], S.wi[k, 1], S.wi[k, 2]
+        gx, gy, gz = ng[i, 0], ng[i, 1], ng[i, 2]
+        px, py, pz = p[i, 0], p[i, 1], p[i, 2]
+        side = 1.0 if gx * wx + gy * wy + gz * wz >= 0 else -1.0
+        off = side * (max(max(abs(px), abs(py), abs(pz)), floor) * rel)
+        sh.o32[n, 0] = px + gx * off
+        sh.o32[n, 1] = py + gy * off
+        sh.o32[n, 2] = pz + gz * off
+        sh.d32[n, 0], sh.d32[n, 1], sh.d32[n, 2] = wx, wy, wz
+        sh.t32[n] = min(S.dist[k], 3e37)
+        sh.rows[n] = k
+        n += 1
+    return n, nm
+
+
+@njit(cache=True, nogil=True)
+def accumulate(q, rows, blocked, contrib, L):
+    """L[q[rows[m]]] += contrib[rows[m]] for the rays m not blocked."""
+    for m in range(rows.shape[0]):
+        if not blocked[m]:
+            k = rows[m]
+            i = q[k]
+            L[i, 0] += contrib[k, 0]
+            L[i, 1] += contrib[k, 1]
+            L[i, 2] += contrib[k, 2]

@@ -46,40 +46,26 @@ class NextEventEstimation:
             return L
         u = rng.random((q.size, 3))
         if self.compiled and self._compiled_lights() is not None:
-            wi, dist, wgt, shadow, kind, cos, contrib = self._sample_compiled(vp, q, u)
-            done = vp.const[q]      # f of Lambert-only points is in contrib already
-        else:
-            smp = sample_direct(self.light_table, vp.p[q], u, n=vp.ns[q])
-            wi, dist, wgt, shadow, kind = (smp["wi"], smp["dist"], smp["weight"],
-                                           smp["cast_shadow"], smp["kind"])
-            cos = contrib = None
-            done = np.zeros(q.size, bool)
+            return self._direct_compiled(vp, q, u, L)
+        smp = sample_direct(self.light_table, vp.p[q], u, n=vp.ns[q])
         env = self.light_table.environment
         if env is not None and env.total > 0:
             L += self._environment_bsdf(vp, rng)
+        wi, dist, wgt, shadow = smp["wi"], smp["dist"], smp["weight"], smp["cast_shadow"]
         live = (wgt.max(axis=1) > 0) & np.all(np.isfinite(wgt), axis=1)
-        q, wi, dist, wgt, shadow, kind = q[live], wi[live], dist[live], wgt[live], shadow[live], \
-            kind[live]
+        q, wi, dist, wgt, shadow = q[live], wi[live], dist[live], wgt[live], shadow[live]
         if q.size == 0:
             return L
-        if contrib is None:
-            cos = np.abs(_dot(vp.ns[q], wi))
-            contrib = np.zeros((q.size, 3))
-        else:
-            cos, contrib = cos[live], contrib[live]
-        r = np.nonzero(~done[live])[0]
-        if r.size:
-            qr = q[r]
-            # The normals as the mesh has them: the BSDF tells a visible point
-            # inside glass (wo behind ng) by them, for the relative IOR.
-            ns_m, ng_m = vp.mesh_normals(qr)
-            f = B.eval_bsdf(self.mtab, vp.mat[qr], vp.colors[qr], ns_m, ng_m, vp.wo[qr], wi[r])
-            contrib[r] = vp.beta[qr] * f * cos[r, None] * wgt[r]
+        # The normals as the mesh has them: the BSDF tells a visible point
+        # inside glass (wo behind ng) by them, for the relative IOR.
+        ns_m, ng_m = vp.mesh_normals(q)
+        f = B.eval_bsdf(self.mtab, vp.mat[q], vp.colors[q], ns_m, ng_m, vp.wo[q], wi)
+        cos = np.abs(_dot(vp.ns[q], wi))
+        contrib = vp.beta[q] * f * cos[:, None] * wgt
         if env is not None and env.total > 0:
             # An environment map: its light samples share the directions with
             # BSDF samples (_environment_bsdf), balance heuristic (Veach 1997).
-            # (Only the numpy sampler handles maps: r is every live row here.)
-            wk = np.nonzero(kind == WORLD)[0]
+            wk = np.nonzero(smp["kind"][live] == WORLD)[0]
             if wk.size:
                 qk = q[wk]
                 pl = environment_pdf(self.light_table, vp.p[qk], vp.ns[qk], wi[wk])
@@ -88,9 +74,44 @@ class NextEventEstimation:
                 contrib[wk] *= (pl / np.maximum(pl + pb, 1e-300))[:, None]
         nz = contrib.max(axis=1) > 0
         q, wi, dist, contrib, shadow = q[nz], wi[nz], dist[nz], contrib[nz], shadow[nz]
-        mesh = kind[nz] == MESH
+        mesh = smp["kind"][live][nz] == MESH
         blocked = self._blocked(vp.p[q], vp.ng[q], wi, dist, mesh) & shadow
         L[q[~blocked]] += contrib[~blocked]
+        return L
+
+    def _direct_compiled(self, vp, q, u, L) -> np.ndarray:
+        """The numpy path above with the light sample, the Lambert BSDF, the
+        shadow rays and the sums in ``direct_kernels`` (no environment map:
+        see ``_compiled_lights``).  Adds to and returns L (P, 3)."""
+        from . import direct_kernels as DK
+        S = self._sample_compiled(vp, q, u)
+        # f of the points that are not Lambert-only: eval_bsdf on their rows.
+        r = np.nonzero(~vp.const[q] & (S.weight.max(axis=1) > 0))[0]
+        if r.size:
+            qr = q[r]
+            ns_m, ng_m = vp.mesh_normals(qr)
+            f = B.eval_bsdf(self.mtab, vp.mat[qr], vp.colors[qr], ns_m, ng_m, vp.wo[qr], S.wi[r])
+            S.contrib[r] = vp.beta[qr] * f * S.cos[r, None] * S.weight[r]
+        accel = self.accel
+        sh = DK.alloc_shadow(q.size)
+        n, nm = DK.shadow_kernel(q, vp.p, vp.ng, S, REL_OFFSET, accel.abs_floor / REL_OFFSET,
+                                 sh, L)
+        if n:
+            rows = sh.rows[:n]
+            blocked = _occluded_f32(accel, sh.o32[:n], sh.d32[:n], sh.t32[:n])
+            b = np.nonzero(blocked)[0]
+            if b.size:
+                kb = rows[b]
+                pb, gb, wb = vp.p[q[kb]], vp.ng[q[kb]], S.wi[kb]
+                blocked[b] = self._grazing_self_hit_retry(pb, gb, accel.spawn(pb, gb, wb), wb,
+                                                          S.dist[kb])
+            DK.accumulate(q, rows, blocked, S.contrib, L)
+        if nm:
+            km = sh.mesh[:nm]
+            qm = q[km]
+            blocked = self._blocked(vp.p[qm], vp.ng[qm], S.wi[km], S.dist[km],
+                                    np.ones(nm, bool))
+            DK.accumulate(q, km, blocked, S.contrib, L)
         return L
 
     def _compiled_lights(self):
@@ -103,8 +124,8 @@ class NextEventEstimation:
 
     def _sample_compiled(self, vp, q, u):
         """sample_direct plus the Lambert-only BSDF in ``direct_kernels``, two
-        halves in two threads: (wi, dist, weight, cast_shadow, kind, |cos|,
-        contrib) per row of q (contrib 0 where the material is not Lambert-only)."""
+        halves in two threads: the ``DirectSamples`` of the rows q (contrib 0
+        where the material is not Lambert-only)."""
         from . import direct_kernels as DK
         from ..sppm.camera_kernels import SPLIT_MIN
         from ..sppm.photons import _pool, _threads
@@ -119,7 +140,7 @@ class NextEventEstimation:
             f1.result()
         else:
             DK.direct_kernel(0, K, lights, R, out)
-        return out.wi, out.dist, out.weight, out.shadow, out.kind, out.cos, out.contrib
+        return out
 
     def _environment_bsdf(self, vp: "VisiblePoints", rng: np.random.Generator) -> np.ndarray:
         """(P, 3) the environment map seen along one BSDF sample per visible
@@ -214,3 +235,13 @@ class NextEventEstimation:
             o2 = p[j] + ng[j] * (side * off)[:, None]
             still[j] = self.accel.occluded(o2, wi[j], dist[j])
         return still
+
+
+def _occluded_f32(accel, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray) -> np.ndarray:
+    """``Accel.occluded`` of rays already in Embree's float32 (C-contiguous
+    (K, 3), (K, 3), (K,)): (K,) bool, no conversions."""
+    K = o32.shape[0]
+    accel.rays_cast += K
+    if accel._scene is None or K == 0:
+        return np.zeros(K, bool)
+    return np.asarray(accel._scene.run(o32, d32, dists=t32, query="OCCLUDED")) >= 0
