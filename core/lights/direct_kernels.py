@@ -9,7 +9,11 @@ about the receiver normal) written per visible point in float64, followed by
 the BSDF of Lambert-only materials (f = sum of the Lambert lobes / pi on
 the lit side) and the contribution beta f |cos| weight, in one loop over the
 visible points.  Other materials get their f from
-``core.materials.eval_bsdf`` afterwards (``NextEventEstimation``).
+``core.materials.eval_bsdf`` afterwards (``NextEventEstimation``).  Then
+:func:`shadow_kernel` writes the shadow rays in Embree's float32 (one
+occlusion call for all of them) and :func:`accumulate` adds the unblocked
+contributions; the grazing self-hit retry and the emissive triangles' own
+test stay ``NextEventEstimation._blocked``'s numpy code, on their rows.
 
 Not compiled (``compiled_lights_ok`` is False, the numpy sampler is used):
 an environment map (its importance sampling lives in
