@@ -66,7 +66,7 @@ $(PY):
 	echo "Creating $(VENV) with $$py"; \
 	"$$py" -m venv $(VENV)
 
-$(STAMP): $(PY) pyproject.toml
+$(STAMP): $(PY) pyproject.toml Makefile
 	$(PY) -m pip install --quiet $(DEPS)
 	$(PY) -m pip install --quiet --no-deps -e .
 	rm -rf fppm.egg-info build
