@@ -1,0 +1,247 @@
+"""Normal Map, Bump, Mapping / Texture Coordinate, image alpha and node groups
+against Cycles (real bpy), and the tangent-space math of core.scene.normals.
+
+Every Cycles scene is one plane seen from straight above by an orthographic
+camera (32 x 32 px) under a sun: no indirect light, so both renderers give
+rho/pi E max(n'.l, 0) up to pixel-filter noise, and the tolerance is the
+measured difference of two seeds of each (a few times it, plus 1 % of the
+mean for the remaining sampling differences).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from core.scene import normals as SN
+from core.scene.textures import scalar_gradient
+
+RES = 32
+CYCLES_SAMPLES = 16
+
+
+# ---------------------------------------------------------------------------- math
+
+def _rot(axis, ang):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + math.sin(ang) * K + (1 - math.cos(ang)) * K @ K
+
+
+def test_tangent_space_normal_is_the_frame_change():
+    rng = np.random.default_rng(0)
+    K = 200
+    R = np.stack([_rot(rng.normal(size=3), rng.uniform(0, 3)) for _ in range(K)])
+    T, B, N = R[:, :, 0], R[:, :, 1], R[:, :, 2]
+    sign = np.where(rng.random(K) < 0.5, -1.0, 1.0)
+    B = B * sign[:, None] * 1.0
+    # A right-handed frame (T, sign N x T, N): c in that frame -> world.
+    c = rng.normal(size=(K, 3))
+    c[:, 2] = np.abs(c[:, 2]) + 0.1
+    out = SN.tangent_space_normal(c, N, T, sign, N)
+    want = c[:, 0:1] * T + c[:, 1:2] * (sign[:, None] * np.cross(N, T)) + c[:, 2:3] * N
+    want /= np.linalg.norm(want, axis=1, keepdims=True)
+    np.testing.assert_allclose(out, want, atol=1e-12)
+    # Flat colour (0.5, 0.5, 1) = c (0, 0, 1) gives the normal back; scaling T
+    # or N (unnormalised interpolants) does not move an axis-aligned c.
+    flat = SN.tangent_space_normal(np.tile([0.0, 0.0, 1.0], (K, 1)), 3 * N, 0.5 * T, sign, N)
+    np.testing.assert_allclose(flat, N, atol=1e-12)
+    # Strength 0 is the shading normal; strength 0.5 lies between.
+    np.testing.assert_allclose(SN.tangent_space_normal(c, N, T, sign, N, 0.0), N, atol=1e-12)
+    half = SN.tangent_space_normal(c, N, T, sign, N, 0.5)
+    np.testing.assert_allclose(np.cross(np.cross(N, out), half).sum(1) * 0, 0)
+    assert np.all(np.einsum("ij,ij->i", half, N) >= np.einsum("ij,ij->i", out, N) - 1e-12)
+
+
+def test_uv_frame_solves_the_triangle():
+    rng = np.random.default_rng(1)
+    dpdu, dpdv = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
+    o = rng.normal(size=(50, 3))
+    UV = rng.random((50, 3, 2))
+    P = o[:, None] + UV[:, :, 0:1] * dpdu[:, None] + UV[:, :, 1:2] * dpdv[:, None]
+    a, b, ok = SN.triangle_uv_frame(P, UV)
+    assert ok.all()
+    np.testing.assert_allclose(a, dpdu, atol=1e-9)
+    np.testing.assert_allclose(b, dpdv, atol=1e-9)
+    UV[0] = [[0, 0], [1, 1], [2, 2]]          # degenerate uv
+    assert not SN.triangle_uv_frame(P, UV)[2][0]
+
+
+def test_bump_of_a_linear_height_is_the_tilted_plane():
+    # h = g . (u, v) on the plane z = 0 with P = (u, v, 0): the bumped surface
+    # z = d h has normal (-d g_u, -d g_v, 1) / norm, whatever the tangent scale.
+    g = np.array([0.3, -0.7])
+    n = np.tile([0.0, 0.0, 1.0], (4, 1))
+    for s in (1.0, 0.01):
+        dpdx = np.tile([s, 0.0, 0.0], (4, 1))
+        dpdy = np.tile([0.0, s, 0.0], (4, 1))
+        for d, inv in ((1.0, False), (0.5, True)):
+            out = SN.bump_normal(n, dpdx, dpdy, np.full(4, g[0] * s), np.full(4, g[1] * s),
+                                 distance=d, invert=inv)
+            dd = -d if inv else d
+            want = np.array([-dd * g[0], -dd * g[1], 1.0])
+            np.testing.assert_allclose(out[0], want / np.linalg.norm(want), atol=1e-12)
+    # The bilinear height's exact gradient: a linear ramp along u, 8 texels.
+    img = np.zeros((4, 8, 3), np.float32)
+    img[:] = (np.arange(8, dtype=np.float32) / 8)[None, :, None]
+    h, du, dv = scalar_gradient(img, np.array([[0.3, 0.4], [0.6, 0.1]]))
+    np.testing.assert_allclose(du, 1.0, rtol=1e-6)
+    np.testing.assert_allclose(dv, 0.0, atol=1e-9)
+
+
+def test_surface_point_perturbs_only_normal_mapped_materials():
+    from core.accel import surface_point
+    from core.scene.model import Camera, Material, make_scene
+    # Two triangles of the plane z = 0 with uv = (x, y); the first has a
+    # normal map of constant colour c: its normal is c in the (+x, +y, +z) frame.
+    tris = [[(0, 0, 0), (1, 0, 0), (1, 1, 0)], [(0, 0, 0), (1, 1, 0), (0, 1, 0)]]
+    uv = np.array(tris, np.float32)[:, :, :2]
+    c = np.array([0.3, -0.2, 0.9])
+    img = np.full((2, 2, 3), (c + 1) / 2, np.float32)
+    mats = [Material("nm", normal=SN.NormalInput(SN.NORMAL_MAP, 0)), Material("plain")]
+    sc = make_scene(tris, mats, [], Camera(), tri_mat=[0, 1], tri_uv=uv, textures=[img])
+    _, _, ns, _ = surface_point(sc.tri_p, sc.tri_n, sc.tri_uv, np.array([0, 1]),
+                                np.array([0.2, 0.2]), np.array([0.3, 0.3]))
+    np.testing.assert_allclose(ns[0], c / np.linalg.norm(c), atol=1e-6)
+    np.testing.assert_allclose(ns[1], [0, 0, 1], atol=1e-12)
+    # A scene without normal inputs attaches nothing.
+    plain = make_scene(tris, [Material("a")], [], Camera())
+    assert SN.attached(plain.tri_n) is None and SN.attached(sc.tri_n) is not None
+
+
+# ---------------------------------------------------------------------------- Blender
+
+def _image(name, px, non_color=True):
+    import bpy
+    H, W = px.shape[:2]
+    im = bpy.data.images.new(name, W, H, alpha=True, float_buffer=True)
+    im.colorspace_settings.name = 'Non-Color' if non_color else 'Linear Rec.709'
+    rgba = np.ones((H, W, 4), np.float32)
+    rgba[..., :px.shape[2]] = px
+    im.pixels.foreach_set(rgba.ravel())
+    im.pack()
+    return im
+
+
+def normal_map_pixels(n=16):
+    """A smooth tangent-space normal map: bumps of slope up to ~0.6 (rgb in [0, 1])."""
+    y, x = (np.mgrid[0:n, 0:n] + 0.5) / n
+    cx = 0.6 * np.sin(2 * np.pi * x) * np.cos(2 * np.pi * y)
+    cy = 0.4 * np.cos(2 * np.pi * x + 1.0)
+    c = np.stack([cx, cy, np.ones_like(cx)], -1)
+    c /= np.linalg.norm(c, axis=-1, keepdims=True)
+    return ((c + 1) / 2).astype(np.float32)
+
+
+def height_pixels(n=16):
+    y, x = (np.mgrid[0:n, 0:n] + 0.5) / n
+    return (0.5 + 0.5 * np.sin(2 * np.pi * x) * np.sin(2 * np.pi * (y + 0.1)))[..., None] \
+        * np.ones(3, np.float32)
+
+
+def plane_scene(build_material, rot_z=0.5):
+    """A 2 m plane (turned by rot_z about z, so tangents are not the axes)
+    seen from above, a tilted sun; build_material(nodes, links, out_socket)."""
+    import bpy
+    from scenes import bpy_kit as K
+    sc = K.reset_scene((RES, RES), samples=CYCLES_SAMPLES)
+    sc.render.engine = 'CYCLES'
+    m = bpy.data.materials.new("Surf")
+    nt = m.node_tree
+    nt.nodes.clear()
+    out = nt.nodes.new('ShaderNodeOutputMaterial')
+    build_material(nt.nodes, nt.links, out.inputs["Surface"])
+    ob = K.plane("Plane", 2.0, m, rotation=(0, 0, rot_z))
+    uvl = ob.data.uv_layers.new(name="UVMap")
+    for loop in ob.data.loops:      # uv = 0.75 (x + 1): 1.5 repeats across the plane
+        co = ob.data.vertices[loop.vertex_index].co
+        uvl.data[loop.index].uv = (0.75 * (co.x + 1.0), 0.75 * (co.y + 1.0))
+    cam_d = bpy.data.cameras.new("Cam")
+    cam_d.type = 'ORTHO'
+    cam_d.ortho_scale = 1.4
+    cam = bpy.data.objects.new("Cam", cam_d)
+    cam.location = (0, 0, 3)
+    K.link(cam)
+    sc.camera = cam
+    ld = bpy.data.lights.new("Sun", 'SUN')
+    ld.energy = 3.0
+    ld.angle = 0.0
+    sun = bpy.data.objects.new("Sun", ld)
+    sun.rotation_euler = (0.5, 0.3, 0.0)
+    K.link(sun)
+    return sc, ob
+
+
+def diffuse_with_normal(nodes, links, surface, normal_socket_fn=None, color=(0.8, 0.8, 0.8)):
+    d = nodes.new('ShaderNodeBsdfDiffuse')
+    d.inputs["Color"].default_value = (*color, 1.0)
+    links.new(d.outputs[0], surface)
+    if normal_socket_fn is not None:
+        links.new(normal_socket_fn(nodes, links), d.inputs["Normal"])
+    return d
+
+
+def _normal_map_node(nodes, links, strength=1.0):
+    tex = nodes.new('ShaderNodeTexImage')
+    tex.image = _image("NM", normal_map_pixels())
+    nm = nodes.new('ShaderNodeNormalMap')
+    nm.inputs["Strength"].default_value = strength
+    links.new(tex.outputs["Color"], nm.inputs["Color"])
+    return nm.outputs["Normal"]
+
+
+def _bump_node(nodes, links, distance=0.15, invert=False):
+    tex = nodes.new('ShaderNodeTexImage')
+    tex.image = _image("H", height_pixels())
+    b = nodes.new('ShaderNodeBump')
+    b.inputs["Distance"].default_value = distance
+    b.invert = invert
+    links.new(tex.outputs["Color"], b.inputs["Height"])
+    return b.outputs["Normal"]
+
+
+def _export():
+    import bpy
+
+    from fppm.addon.export import export_scene
+    lines = []
+    s = export_scene(bpy.context.evaluated_depsgraph_get(), log=lines.append)
+    return s, lines
+
+
+def _fppm(scene, seed):
+    from fppm.core.render import Renderer
+    from fppm.core.settings import RenderSettings
+    st = RenderSettings(max_passes=8, photons_per_pass=2000, seed=seed, use_frequency=False,
+                        max_bounces=4)
+    return Renderer(scene, st, log=lambda s: None).run().image[..., :3].astype(np.float64)
+
+
+def _cycles(sc, seed, path):
+    import bpy
+
+    from scenes.refs import read_exr
+    sc.render.engine = 'CYCLES'
+    sc.cycles.samples = CYCLES_SAMPLES
+    sc.cycles.seed = seed
+    im = sc.render.image_settings
+    im.file_format, im.color_depth, im.color_mode = 'OPEN_EXR', '32', 'RGBA'
+    sc.render.filepath = str(path)
+    sc.render.use_file_extension = False
+    bpy.ops.render.render(write_still=True)
+    return read_exr(str(path))[..., :3].astype(np.float64)
+
+
+def compare(sc, tmp_path, label):
+    """(per-pixel mean |FPPM - Cycles| / mean, its noise bound) from two seeds each."""
+    scene, lines = _export()
+    c1, c2 = _cycles(sc, 0, tmp_path / "c0.exr"), _cycles(sc, 1, tmp_path / "c1.exr")
+    a1, a2 = _fppm(scene, 1), _fppm(scene, 2)
+    ref, img = (c1 + c2) / 2, (a1 + a2) / 2
+    mean = ref.mean()
+    err = np.abs(img - ref).mean() / mean
+    noise = (np.abs(a1 - a2).mean() + np.abs(c1 - c2).mean()) / 2 / mean
+    print(f"{label}: mean {img.mean():.4f} vs Cycles {mean:.4f}; mean |diff| {err:.4f} "
+          f"of the mean, seed-to-seed noise {noise:.4f}")
+    return err, noise, img, ref, scene, lines
