@@ -748,17 +748,34 @@ class _Exporter:
         if img is None:
             mb.notes.append(f"{node.name}: no image")
             return -1
+        # Cycles' Image Texture gives the colour associated with (multiplied
+        # by) alpha unless its Alpha output is linked (NODE_IMAGE_ALPHA_UNASSOCIATE).
+        out = node.outputs.get("Alpha")
+        associate = (out is not None and not out.is_linked
+                     and getattr(img, "alpha_mode", 'STRAIGHT') == 'STRAIGHT')
         key = img.name_full
+        if associate and (key, True) in self.tex_index:
+            return self.tex_index[(key, True)]
         if key in self.tex_index:
-            return self.tex_index[key]
-        px = self.pixels(img, mb.notes)
-        if px is None:
-            self.tex_index[key] = -1
-            return -1
+            t = self.tex_index[key]
+            if not associate or t < 0 or self.textures[t].shape[2] < 4:
+                return t
+            px = self.textures[t]
+        else:
+            px = self.pixels(img, mb.notes)
+            if px is None:
+                self.tex_index[key] = -1
+                return -1
+            self.tex_index[key] = len(self.textures)
+            self.textures.append(px)
         if getattr(node, "projection", 'FLAT') != 'FLAT':
             mb.notes.append(f"{node.name}: projection '{node.projection}' treated as flat")
-        self.tex_index[key] = len(self.textures)
-        self.textures.append(px)
+        if associate and px.shape[2] >= 4 and np.any(px[..., 3] < 1.0):
+            assoc = px.copy()
+            assoc[..., :3] *= assoc[..., 3:4]
+            self.tex_index[(key, True)] = len(self.textures)
+            self.textures.append(assoc)
+            return self.tex_index[(key, True)]
         return self.tex_index[key]
 
     def pixels(self, img, notes) -> np.ndarray | None:
