@@ -34,7 +34,7 @@ from ..core.scene import nodes as shading
 from ..core.errors import MemoryBudgetError, RenderCancelled, SceneError
 from ..core.lights.environment import mean_radiance
 from ..core.scene.normals import BUMP, NORMAL_MAP, NormalInput
-from ..core.scene.textures import EnvironmentMap
+from ..core.scene.textures import EnvironmentMap, UnassociatedImage
 from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
                           TRANSPARENT, Camera, Light, Lobe, Material, Scene,
                           drop_invalid_triangles)
@@ -748,17 +748,19 @@ class _Exporter:
         if img is None:
             mb.notes.append(f"{node.name}: no image")
             return -1
-        # Cycles' Image Texture gives the colour associated with (multiplied
-        # by) alpha unless its Alpha output is linked (NODE_IMAGE_ALPHA_UNASSOCIATE).
+        # Cycles interpolates the colour associated with (multiplied by)
+        # alpha, and divides by the interpolated alpha only when the node's
+        # Alpha output is linked (NODE_IMAGE_ALPHA_UNASSOCIATE).
         out = node.outputs.get("Alpha")
-        associate = (out is not None and not out.is_linked
-                     and getattr(img, "alpha_mode", 'STRAIGHT') == 'STRAIGHT')
+        mode = 'UNASSOCIATED' if out is not None and out.is_linked else 'ASSOCIATED'
+        if getattr(img, "alpha_mode", 'STRAIGHT') != 'STRAIGHT':
+            mode = 'STRAIGHT'     # read as stored
         key = img.name_full
-        if associate and (key, True) in self.tex_index:
-            return self.tex_index[(key, True)]
+        if (key, mode) in self.tex_index:
+            return self.tex_index[(key, mode)]
         if key in self.tex_index:
             t = self.tex_index[key]
-            if not associate or t < 0 or self.textures[t].shape[2] < 4:
+            if t < 0 or self.textures[t].shape[2] < 4:
                 return t
             px = self.textures[t]
         else:
@@ -770,13 +772,15 @@ class _Exporter:
             self.textures.append(px)
         if getattr(node, "projection", 'FLAT') != 'FLAT':
             mb.notes.append(f"{node.name}: projection '{node.projection}' treated as flat")
-        if associate and px.shape[2] >= 4 and np.any(px[..., 3] < 1.0):
-            assoc = px.copy()
-            assoc[..., :3] *= assoc[..., 3:4]
-            self.tex_index[(key, True)] = len(self.textures)
-            self.textures.append(assoc)
-            return self.tex_index[(key, True)]
-        return self.tex_index[key]
+        if mode == 'STRAIGHT' or px.shape[2] < 4 or not np.any(px[..., 3] < 1.0):
+            return self.tex_index[key]
+        assoc = px.copy()
+        assoc[..., :3] *= assoc[..., 3:4]
+        if mode == 'UNASSOCIATED':
+            assoc = assoc.view(UnassociatedImage)
+        self.tex_index[(key, mode)] = len(self.textures)
+        self.textures.append(assoc)
+        return self.tex_index[(key, mode)]
 
     def pixels(self, img, notes) -> np.ndarray | None:
         """(H, W, C >= 3) float32 scene-linear pixels of a Blender image, row 0

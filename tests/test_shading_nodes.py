@@ -360,12 +360,10 @@ def test_image_alpha_is_transparency_like_cycles(how, tmp_path):
     assert lines[1] == "Approximated: nothing.", lines[1]
     # Pass-through is a per-sample coin flip: pixels are noisy (~11 %), so the
     # image means are compared, within 4 standard errors (the per-pixel noise
-    # over sqrt(pixels)) plus a 3 % bias allowance: with its Alpha output
-    # linked, Cycles interpolates the associated colour and divides by the
-    # interpolated alpha, FPPM interpolates the straight colour, which differs
-    # inside texels where alpha varies (measured on this 8 x 8 image: -2.1 %
-    # Principled, -2.5 % Mix; with a constant alpha: -0.05 %).
-    assert abs(img.mean() / ref.mean() - 1.0) < 4.0 * noise / RES + 0.03
+    # over sqrt(pixels)) plus 0.5 %.  Measured: -0.35 % Principled, -0.33 %
+    # Mix (-2.1 %, -2.5 % when the straight colour was interpolated: Cycles
+    # interpolates the associated colour, then divides by the alpha).
+    assert abs(img.mean() / ref.mean() - 1.0) < 4.0 * noise / RES + 0.005
     # The floor shows through: red dominates where the alpha is low.
     assert (ref[..., 0] > 2 * ref[..., 1]).mean() > 0.1
 

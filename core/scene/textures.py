@@ -45,6 +45,14 @@ def _bilinear_corners(img: np.ndarray, uv: np.ndarray, ch):
     return rd(iy, ix), rd(iy, nix), rd(niy, ix), rd(niy, nix), tx, ty, W, H, bad
 
 
+class UnassociatedImage(np.ndarray):
+    """An image stored with associated alpha (rgb x a, a) whose colour reads
+    unassociated: the interpolated rgb divided by the interpolated alpha
+    (Cycles' Image Texture with its Alpha output linked,
+    ``NODE_IMAGE_ALPHA_UNASSOCIATE``); 0 where that alpha is 0.  Make one
+    with ``associated_pixels.view(UnassociatedImage)``."""
+
+
 def _as_image(img) -> np.ndarray:
     img = np.asarray(img)
     return img[:, :, None] if img.ndim == 2 else img
@@ -58,10 +66,16 @@ def sample_texture(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     uv: (K, 2) float array of texture coordinates.
     Returns (K, 3) float64 linear RGB.
     """
+    unassociate = isinstance(img, UnassociatedImage)
     img = _as_image(img)
     ch = [0, 1, 2] if img.shape[2] >= 3 else [0, 0, 0]
+    if unassociate and img.shape[2] >= 4:
+        ch = [0, 1, 2, 3]
     a, b, c, d, tx, ty, _, _, bad = _bilinear_corners(img, uv, ch)
     out = (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d)
+    if out.shape[1] == 4:
+        al = out[:, 3:4]
+        out = np.where(al > 0, out[:, :3] / np.where(al > 0, al, 1.0), 0.0)
     if bad.any():
         out[bad] = 0.0
     return out
