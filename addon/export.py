@@ -115,10 +115,25 @@ SUPPORT = (
      "(Generated, Object): HDRI lighting, importance-sampled", SUPPORTED, ""),
     ("Diffuse, Glossy, Glass, Refraction, Transparent, Translucent, Emission, Mix Shader, "
      "Add Shader, Principled BSDF; RGB, Value and Image Texture inputs", SUPPORTED, ""),
+    ("Normal Map (tangent space, MikkTSpace tangents of the render UV map, OpenGL and "
+     "DirectX) and Bump (Strength, Distance, Invert) from an Image Texture", SUPPORTED, ""),
+    ("Mapping (Point, Texture, Vector) and Texture Coordinate (UV, Generated, Object) "
+     "into Image Texture vectors", SUPPORTED, ""),
+    ("image alpha into the Principled Alpha or a Mix Shader's Fac (stochastic "
+     "pass-through); the colour associated with alpha as Cycles reads it", SUPPORTED, ""),
+    ("node groups (flattened, nested)", SUPPORTED, ""),
     ("film transparency, pixel filter width, object and material pass index", SUPPORTED, ""),
     ("other shader nodes", APPROXIMATED, "unsupported node(s) "),
     ("other nodes linked into an input (the input's value is used)", APPROXIMATED,
      "'{src.name}' into {node.name}.{name} ignored"),
+    ("photon bounces on normal-mapped or bumped surfaces", APPROXIMATED,
+     "photons scatter off the interpolated normal"),
+    ("Normal Map in object or world space", APPROXIMATED, "space ignored (tangent space only)"),
+    ("Normal Map or Bump fed by other nodes", APPROXIMATED, "is not an Image Texture: ignored"),
+    ("different Normal inputs on the shaders of one material", APPROXIMATED,
+     "applied to all"),
+    ("different vector inputs on the image textures of one material", APPROXIMATED,
+     "used for all"),
     ("Beckmann / Ashikhmin-Shirley distributions", APPROXIMATED,
      "{node.name}: {dist} distribution rendered as GGX"),
     ("more closures than a material holds", APPROXIMATED,
@@ -1247,26 +1262,15 @@ class _Exporter:
         TEXTURE: R^T (v - L) / S, VECTOR: R (S v), NORMAL: R (v / S)), R the
         Euler XYZ rotation.  Translations move a direction-dependent
         point, not a direction: they are left out with a note."""
-        from mathutils import Euler
         A = np.eye(3)
         node, out = _follow(socket) if socket is not None else (None, None)
         if node is not None and node.type == 'MAPPING':
-            vt = node.vector_type
-            if any(node.inputs[k].is_linked for k in ("Location", "Rotation", "Scale")
-                   if node.inputs.get(k) is not None):
-                self.notes.append(f"world: linked inputs of '{node.name}' ignored")
-            R = np.array(Euler(tuple(node.inputs["Rotation"].default_value), 'XYZ').to_matrix(),
-                         np.float64)
-            S = np.diag(np.array(node.inputs["Scale"].default_value, np.float64)) \
-                if node.inputs.get("Scale") is not None else np.eye(3)
-            loc = node.inputs.get("Location")
-            if vt in ('POINT', 'TEXTURE') and loc is not None and \
-                    np.any(np.array(loc.default_value) != 0):
+            notes = []
+            M = _mapping_matrix(node, notes)
+            self.notes += [f"world: {n}" for n in notes]
+            if np.any(M[:3, 3] != 0):
                 self.notes.append(f"world: location of '{node.name}' ignored")
-            with np.errstate(divide="ignore"):
-                S_inv = np.diag(np.where(np.diag(S) != 0, 1.0 / np.diag(S), 0.0))
-            A = {'POINT': R @ S, 'VECTOR': R @ S, 'TEXTURE': S_inv @ R.T,
-                 'NORMAL': R @ S_inv}.get(vt, R @ S)
+            A = M[:3, :3]
             node, out = _follow(node.inputs["Vector"])
         if node is None:
             pass
@@ -1382,6 +1386,9 @@ class _Exporter:
                 self.n_objects += 1
                 self.n_instances += bool(inst.is_instance)
         self.notes += feature_notes(scene, list(seen.values()))
+        if any(getattr(m, "normal", None) is not None for m in self.materials):
+            self.notes.append("normal maps and bump: photons scatter off the interpolated "
+                              "normal (the camera side shades with the perturbed one)")
         if parts:
             tri_p = self.concatenate([q[0] for q in parts], np.float32)
             tri_n = self.concatenate([q[1] for q in parts], np.float32)

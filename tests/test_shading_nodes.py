@@ -19,6 +19,9 @@ from core.scene.textures import scalar_gradient
 
 RES = 32
 CYCLES_SAMPLES = 16
+# The one message of a scene with normal maps (docs/shading.md).
+PHOTON_NOTE = ("Approximated: normal maps and bump: photons scatter off the interpolated "
+               "normal (the camera side shades with the perturbed one).")
 
 
 # ---------------------------------------------------------------------------- math
@@ -274,9 +277,11 @@ def test_normal_map_and_bump_agree_with_cycles(kind, tmp_path):
         node = lambda n, lk: _bump_node(n, lk, distance=0.15, invert=True)   # noqa: E731
     sc, _ = plane_scene(lambda n, lk, s: diffuse_with_normal(n, lk, s, node))
     err, noise, img, ref, scene, lines = compare(sc, tmp_path, kind)
-    assert scene.materials[0].normal is not None and lines[1] == "Approximated: nothing."
+    assert scene.materials[0].normal is not None and lines[1] == PHOTON_NOTE, lines
     flat = _fppm(_without_normals(scene), 1)
-    _check(err, noise, np.abs(flat - ref).mean() / ref.mean())
+    effect = np.abs(flat - ref).mean() / ref.mean()
+    print(f"{kind}: without the perturbation mean |diff| {effect:.4f}")
+    _check(err, noise, effect)
 
 
 def _color_pixels(n=8):
@@ -429,7 +434,7 @@ def test_node_groups_are_flattened_like_cycles(tmp_path):
     err, noise, img, ref, scene, lines = compare(sc, tmp_path, "group")
     m = scene.materials[0]
     assert m.normal is not None and m.lobes[0].color == pytest.approx((0.7, 0.4, 0.2), abs=1e-6)
-    assert lines[1] == "Approximated: nothing.", lines[1]
+    assert lines[1] == PHOTON_NOTE, lines[1]
     _check(err, noise)
 
 
@@ -455,3 +460,37 @@ def test_unsupported_nodes_give_one_warning_per_material():
     scene, lines = _export()
     warn = [ln for ln in lines if ln.startswith("Warning:")]
     assert len(warn) == 1 and "'Surf'" in warn[0], lines
+
+
+def test_real_scene_example_exports_its_shading():
+    """example_blends/real_scene.blend: saved with FPPM, an HDRI world, a
+    normal-mapped floor with MikkTSpace tangents through Mapping (scale 2),
+    Principled materials; only the photon-bounce approximation is said."""
+    import os
+
+    import bpy
+    pytest.importorskip("bpy")
+    import bpy_helpers as H
+    path = os.path.join(H.ROOT, "example_blends", "real_scene.blend")
+    bpy.ops.wm.open_mainfile(filepath=path, load_ui=False, use_scripts=False)
+    H.ensure_registered()
+    assert bpy.context.scene.render.engine == 'FPPM'
+    scene, lines = _export()
+    assert scene.world_map is not None
+    tiles = [i for i, m in enumerate(scene.materials) if m.name == "Tiles"][0]
+    assert scene.materials[tiles].normal.kind == SN.NORMAL_MAP
+    floor = scene.tri_mat == tiles
+    tt = scene.tri_tangent[floor]
+    # The floor's tangent is +x with sign +1 (uv = x / 8 + 1/2); its uvs are
+    # scaled by the Mapping node: 2 (x / 8 + 1/2).
+    np.testing.assert_allclose(tt[..., :3].reshape(-1, 3), [[1, 0, 0]] * (tt.shape[0] * 3),
+                               atol=1e-6)
+    assert np.all(tt[..., 3] == 1.0)
+    p = scene.tri_p[floor].reshape(-1, 3)
+    np.testing.assert_allclose(scene.tri_uv[floor].reshape(-1, 2),
+                               2 * (p[:, :2] / 8 + 0.5), atol=1e-6)
+    assert lines[1] == PHOTON_NOTE, lines
+    assert not [ln for ln in lines if ln.startswith("Warning")]
+    total = sum(os.path.getsize(os.path.join(H.ROOT, "example_blends", f))
+                for f in ("real_scene.blend",))
+    assert total < 2e6
