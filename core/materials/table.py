@@ -74,6 +74,7 @@ class MaterialTable:
     sel_scale: np.ndarray = None        # (M, L) lobe-selection scale (Fresnel-weighted lobes)
     alpha_tex: np.ndarray = None        # (M, L) int32 texture whose alpha scales the lobe, -1 = none
     alpha_inv: np.ndarray = None        # (M, L) bool, scaled by 1 - alpha instead
+    bump_correction: np.ndarray = None  # (M,) bool, Normal Map / Bump: Cycles' normal tilt
 
     @property
     def n_materials(self) -> int:
@@ -189,7 +190,9 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
         lambert_only=has_nd & ~(nondelta & ~lambert).any(axis=1),
         textures=textures, multiscatter=ms, fresnel=fres, fresnel_ior=fior,
         f82_tint=f82t, layer_ior=lior, layer_f0=lf0, layer_roughness=lrough, layer_ms=lms,
-        sel_scale=sel, alpha_tex=atex, alpha_inv=ainv)
+        sel_scale=sel, alpha_tex=atex, alpha_inv=ainv,
+        bump_correction=np.array([getattr(mat, "normal", None) is not None
+                                  for mat in materials] or [False], bool))
 
 
 # --------------------------------------------------------------------------

@@ -21,6 +21,12 @@ homogeneity makes equivalent in the limit of a small footprint),
 
 d the Distance (negated by Invert), k the Strength clamped to [0, 1].
 
+Cycles also tilts a perturbed normal whose mirror direction of the view
+would go below the surface (``ensure_valid_specular_reflection``, on with
+the material's default bump-map correction): :func:`valid_specular_normal`,
+applied by ``core.materials`` to materials with a Normal Map / Bump input
+(``MaterialTable.bump_correction``), where the view direction is known.
+
 Where the perturbed normal is used: wherever ``core.accel.surface_point``
 gives a shading normal (visible points, next-event estimation, the path and
 light tracers' BSDF evaluation and sampling, the Normal pass).  The photon
@@ -159,6 +165,39 @@ def bump_normal(n: np.ndarray, dpdx: np.ndarray, dpdy: np.ndarray, dhdx: np.ndar
     out = _safe_unit(np.abs(det)[:, None] * n - d * np.sign(det)[:, None] * surfgrad, n)
     k = min(max(float(strength), 0.0), 1.0)
     return _safe_unit(k * out + (1.0 - k) * n, n)
+
+
+def valid_specular_normal(ng: np.ndarray, i: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Cycles' ``ensure_valid_specular_reflection`` (K, 3): n tilted towards
+    ng just enough that the mirror direction of i about it rises to
+    t = min(0.9 i.ng, 0.01) above the geometric surface.  ng, n (K, 3) unit on
+    i's side (i.ng >= 0), i (K, 3) unit, pointing away from the surface.
+
+    In the frame Z = ng, X = n's part orthogonal to ng, the new normal
+    (Nx, 0, Nz) solves 2 (Nx i.x + Nz i.z) Nz - i.z = t; squaring gives
+    4 a Nz^4 - 2 b Nz^2 + c = 0 with a = i.x^2 + i.z^2, b = 2 (a + i.z t),
+    c = (i.z + t)^2, and the root taken is the one of the unsquared equation."""
+    dot = lambda a, b: np.einsum("ij,ij->i", a, b)   # noqa: E731
+    R = 2.0 * dot(n, i)[:, None] * n - i
+    iz = dot(i, ng)
+    t = np.minimum(0.9 * iz, 0.01)
+    bad = dot(ng, R) < t
+    if not bad.any():
+        return n
+    out = n.copy()
+    nb, gb, ib, izb, tb = n[bad], ng[bad], i[bad], iz[bad], t[bad]
+    X = _safe_unit(nb - dot(nb, gb)[:, None] * gb, nb)
+    ix = dot(ib, X)
+    a = ix * ix + izb * izb
+    b = 2.0 * (a + izb * tb)
+    c = (tb + izb) ** 2
+    root = np.sqrt(np.maximum(b * b - 4.0 * a * c, 0.0))
+    a_safe = np.where(a > 0, a, 1.0)
+    nz2 = np.where(ix < 0, 0.25 * (b + root) / a_safe, 0.25 * (b - root) / a_safe)
+    nx = np.sqrt(np.maximum(1.0 - nz2, 0.0))
+    nz = np.sqrt(np.maximum(nz2, 0.0))
+    out[bad] = np.where((a > 0)[:, None], nx[:, None] * X + nz[:, None] * gb, nb)
+    return out
 
 
 def _fallback_tangent(P, UV, N):
