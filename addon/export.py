@@ -270,6 +270,15 @@ def _mix(a: Material, b: Material, fac: float, name: str) -> Material:
     return Material(name, tuple(lobes), em, tex, tuple(notes))
 
 
+def _uses_normal_map(inp) -> bool:
+    """A NormalInput that is, or sits on, a tangent-space Normal Map."""
+    while inp is not None:
+        if inp.kind == NORMAL_MAP:
+            return True
+        inp = inp.base
+    return False
+
+
 def _mix_by_alpha(a: Material, b: Material, texture: int, name: str) -> Material:
     """Mix Shader whose Fac is an image's alpha a(uv): (1 - a) A + a B."""
     lobes, notes = shading.mix_by_alpha(a.lobes, b.lobes, texture)
@@ -417,9 +426,10 @@ class _MaterialBuilder:
         self.notes.append(f"{tex_node.name}: vector input '{node.name}' ignored (UVs used)")
         return ('UV', None, np.eye(4))
 
-    def normal_input(self, node):
-        """The NormalInput of a shader node's Normal input (None: unlinked or
-        unsupported, with a note)."""
+    def normal_input(self, node, depth=0):
+        """The NormalInput of a node's Normal input (None: unlinked or
+        unsupported, with a note).  A Bump's own Normal input may be a Normal
+        Map (``NormalInput.base``)."""
         sock = node.inputs.get("Normal")
         if sock is None or not sock.is_linked:
             return None
@@ -443,7 +453,11 @@ class _MaterialBuilder:
             return NormalInput(NORMAL_MAP, t, strength=self.value(src, "Strength", 1.0),
                                directx=getattr(src, "convention", 'OPENGL') == 'DIRECTX')
         if src.type == 'BUMP':
-            if src.inputs.get("Normal") is not None and src.inputs["Normal"].is_linked:
+            base = self.normal_input(src, depth + 1) if depth < 1 else None
+            if base is not None and base.kind != NORMAL_MAP:
+                base = None
+            if base is None and src.inputs.get("Normal") is not None \
+                    and src.inputs["Normal"].is_linked:
                 self.notes.append(f"'{src.name}': its Normal input ignored")
             img, iout, _ = self.follow(src.inputs["Height"])
             if img is None or img.type != 'TEX_IMAGE':
@@ -455,7 +469,7 @@ class _MaterialBuilder:
             return NormalInput(BUMP, t, strength=self.value(src, "Strength", 1.0),
                                distance=self.value(src, "Distance", 1.0),
                                invert=bool(getattr(src, "invert", False)),
-                               channel='ALPHA' if iout.name == 'Alpha' else 'COLOR')
+                               channel='ALPHA' if iout.name == 'Alpha' else 'COLOR', base=base)
         self.notes.append(f"'{src.name}' into {node.name}.Normal ignored")
         return None
 
@@ -1049,8 +1063,7 @@ class _Exporter:
                 self.poll()
             if new_uv is not None:
                 parts[i] = (pw, nw, new_uv, mat)
-            needs = any(getattr(self.materials[m].normal, "kind", None) == NORMAL_MAP
-                        for m in used)
+            needs = any(_uses_normal_map(self.materials[m].normal) for m in used)
             self.tangent_parts.append(self.tangents(inst, ob) if needs else None)
 
     def texture_vectors(self, inst, ob, src, obname, pw, uv):

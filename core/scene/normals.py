@@ -60,6 +60,8 @@ class NormalInput:
     strength: the node's Strength.  distance, invert: Bump only.
     channel: Bump height from the image's 'COLOR' (luminance) or 'ALPHA'.
     directx: Normal Map with the DirectX convention (green points down).
+    base: Bump only, the NormalInput feeding the Bump's own Normal input (a
+      Normal Map under the bump), or None (the interpolated normal).
     """
     kind: str
     texture: int
@@ -68,6 +70,7 @@ class NormalInput:
     invert: bool = False
     channel: str = "COLOR"
     directx: bool = False
+    base: object = None
 
 
 @dataclass(frozen=True)
@@ -201,13 +204,44 @@ def valid_specular_normal(ng: np.ndarray, i: np.ndarray, n: np.ndarray) -> np.nd
 
 
 def _fallback_tangent(P, UV, N):
-    """Per-triangle tangent dP/du made orthogonal to N and its bitangent sign,
-    for triangles without MikkTSpace tangents (equal to MikkTSpace on flat,
-    uniformly mapped faces)."""
+    """Per-triangle unit tangent along dP/du, orthogonal to N, and its
+    bitangent sign, for triangles without MikkTSpace tangents (Cycles:
+    normalize(dPdu); equal to MikkTSpace on flat, uniformly mapped faces)."""
     dpdu, dpdv, ok = triangle_uv_frame(P, UV)
-    T = dpdu - np.einsum("ij,ij->i", dpdu, N)[:, None] * N
+    T = _safe_unit(dpdu - np.einsum("ij,ij->i", dpdu, N)[:, None] * N, dpdu)
     sign = np.where(np.einsum("ij,ij->i", np.cross(N, T), dpdv) < 0, -1.0, 1.0)
     return T, sign, ok
+
+
+def _apply(spec: ShadingSpec, inp: NormalInput, t, u, v, n, uv):
+    """(normals (k, 3), ok (k,)) of one NormalInput at hits (t, u, v) with unit
+    normals n (k, 3) and texture coordinates uv (k, 2)."""
+    if inp.texture < 0 or inp.texture >= len(spec.textures):
+        return n, np.zeros(len(t), bool)
+    img = spec.textures[inp.texture]
+    w = np.stack([1.0 - u - v, u, v], axis=1)[:, :, None]          # (k, 3, 1)
+    P = spec.tri_p[t].astype(np.float64)
+    UV = spec.tri_uv[t].astype(np.float64)
+    if inp.kind == NORMAL_MAP:
+        N = (w * spec.tri_n[t].astype(np.float64)).sum(axis=1)
+        T, sign, ok = _fallback_tangent(P, UV, n)
+        if spec.tri_tangent is not None:
+            tt = np.asarray(spec.tri_tangent)[t].astype(np.float64)
+            has = tt[:, 0, 3] != 0.0
+            T = np.where(has[:, None], (w * tt[:, :, :3]).sum(axis=1), T)
+            sign = np.where(has, np.sign(tt[:, 0, 3]), sign)
+            ok = ok | has
+        c = 2.0 * sample_texture(img, uv) - 1.0
+        if inp.directx:
+            c[:, 1] = -c[:, 1]
+        return tangent_space_normal(c, N, T, sign, n, inp.strength), ok
+    if inp.base is not None:
+        # The Bump's Normal input: the normal map below it (Cycles: normal_in).
+        nb, okb = _apply(spec, inp.base, t, u, v, n, uv)
+        n = np.where(okb[:, None], nb, n)
+    dpdu, dpdv, ok = triangle_uv_frame(P, UV)
+    _, dhdu, dhdv = scalar_gradient(img, uv, inp.channel)
+    return bump_normal(n, dpdu, dpdv, dhdu, dhdv, inp.strength, inp.distance, inp.invert), ok
 
 
 def perturb(spec: ShadingSpec, prim: np.ndarray, u: np.ndarray, v: np.ndarray,
@@ -226,29 +260,6 @@ def perturb(spec: ShadingSpec, prim: np.ndarray, u: np.ndarray, v: np.ndarray,
             continue
         if out is ns:
             out = ns.copy()
-        img = spec.textures[inp.texture]
-        t = prim[sel]
-        w = np.stack([1.0 - u[sel] - v[sel], u[sel], v[sel]], axis=1)[:, :, None]   # (k, 3, 1)
-        n = ns[sel]
-        P = spec.tri_p[t].astype(np.float64)
-        UV = spec.tri_uv[t].astype(np.float64)
-        if inp.kind == NORMAL_MAP:
-            N = (w * spec.tri_n[t].astype(np.float64)).sum(axis=1)
-            T, sign, ok = _fallback_tangent(P, UV, n)
-            if spec.tri_tangent is not None:
-                tt = np.asarray(spec.tri_tangent)[t].astype(np.float64)
-                has = tt[:, 0, 3] != 0.0
-                T = np.where(has[:, None], (w * tt[:, :, :3]).sum(axis=1), T)
-                sign = np.where(has, np.sign(tt[:, 0, 3]), sign)
-                ok = ok | has
-            c = 2.0 * sample_texture(img, uv[sel]) - 1.0
-            if inp.directx:
-                c[:, 1] = -c[:, 1]
-            res = tangent_space_normal(c, N, T, sign, n, inp.strength)
-        else:
-            dpdu, dpdv, ok = triangle_uv_frame(P, UV)
-            _, dhdu, dhdv = scalar_gradient(img, uv[sel], inp.channel)
-            res = bump_normal(n, dpdu, dpdv, dhdu, dhdv, inp.strength, inp.distance,
-                              inp.invert)
-        out[sel] = np.where(ok[:, None] & np.all(np.isfinite(res), axis=1)[:, None], res, n)
+        res, ok = _apply(spec, inp, prim[sel], u[sel], v[sel], ns[sel], uv[sel])
+        out[sel] = np.where(ok[:, None] & np.all(np.isfinite(res), axis=1)[:, None], res, ns[sel])
     return out
