@@ -190,7 +190,7 @@ def plane_scene(build_material, rot_z=0.5, sun_rotation=(0.5, 0.3, 0.0)):
     seen from above, a tilted sun; build_material(nodes, links, out_socket)."""
     import bpy
     from scenes import bpy_kit as K
-    sc = K.reset_scene((RES, RES), samples=CYCLES_SAMPLES)
+    sc = K.reset_scene((RES, RES))
     sc.render.engine = 'CYCLES'
     m = bpy.data.materials.new("Surf")
     nt = m.node_tree
@@ -287,18 +287,15 @@ def _fppm(scene, seed):
 
 
 def _cycles(sc, seed, path):
-    import bpy
-
-    from scenes.refs import read_exr
-    sc.render.engine = 'CYCLES'
-    sc.cycles.samples = CYCLES_SAMPLES
-    sc.cycles.seed = seed
-    im = sc.render.image_settings
-    im.file_format, im.color_depth, im.color_mode = 'OPEN_EXR', '32', 'RGBA'
-    sc.render.filepath = str(path)
-    sc.render.use_file_extension = False
-    bpy.ops.render.render(write_still=True)
-    return read_exr(str(path))[..., :3].astype(np.float64)
+    """tests/test_environment.py's Cycles render, at CYCLES_SAMPLES (these
+    direct-light-only scenes need few)."""
+    import test_environment as TE
+    kept = TE.CYCLES_SAMPLES
+    TE.CYCLES_SAMPLES = CYCLES_SAMPLES
+    try:
+        return TE._cycles(sc, seed, path)
+    finally:
+        TE.CYCLES_SAMPLES = kept
 
 
 def compare(sc, tmp_path, label):
