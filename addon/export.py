@@ -718,7 +718,8 @@ class _Exporter:
         self.obj_index_parts: list[np.ndarray] = []   # object.pass_index per triangle of parts
         self.mat_index: dict = {}
         self.textures: list[np.ndarray] = []
-        self.tex_index: dict = {}
+        self.tex_index: dict = {}      # (image name, reading) -> index into textures
+        self.tex_pixels: dict = {}     # image name -> its pixels (or None)
         self.mesh_cache: dict = {}
         self.notes: list[str] = []
         self.n_objects = 0
@@ -779,36 +780,30 @@ class _Exporter:
             return -1
         # Cycles interpolates the colour associated with (multiplied by)
         # alpha, and divides by the interpolated alpha only when the node's
-        # Alpha output is linked (NODE_IMAGE_ALPHA_UNASSOCIATE).
+        # Alpha output is linked (NODE_IMAGE_ALPHA_UNASSOCIATE).  One entry
+        # of textures per image and reading; the pixels are read once.
         out = node.outputs.get("Alpha")
         mode = 'UNASSOCIATED' if out is not None and out.is_linked else 'ASSOCIATED'
-        if getattr(img, "alpha_mode", 'STRAIGHT') != 'STRAIGHT':
-            mode = 'STRAIGHT'     # read as stored
         key = img.name_full
-        if (key, mode) in self.tex_index:
-            return self.tex_index[(key, mode)]
-        if key in self.tex_index:
-            t = self.tex_index[key]
-            if t < 0 or self.textures[t].shape[2] < 4:
-                return t
-            px = self.textures[t]
-        else:
+        if key not in self.tex_pixels:
             px = self.pixels(img, mb.notes)
-            if px is None:
-                self.tex_index[key] = -1
-                return -1
-            self.tex_index[key] = len(self.textures)
+            self.tex_pixels[key] = px
+            if getattr(node, "projection", 'FLAT') != 'FLAT':
+                mb.notes.append(f"{node.name}: projection '{node.projection}' treated as flat")
+        px = self.tex_pixels[key]
+        if px is None:
+            return -1
+        if (getattr(img, "alpha_mode", 'STRAIGHT') != 'STRAIGHT' or px.shape[2] < 4
+                or not np.any(px[..., 3] < 1.0)):
+            mode = 'STRAIGHT'     # read as stored
+        if (key, mode) not in self.tex_index:
+            if mode != 'STRAIGHT':
+                px = px.copy()
+                px[..., :3] *= px[..., 3:4]
+                if mode == 'UNASSOCIATED':
+                    px = px.view(UnassociatedImage)
+            self.tex_index[(key, mode)] = len(self.textures)
             self.textures.append(px)
-        if getattr(node, "projection", 'FLAT') != 'FLAT':
-            mb.notes.append(f"{node.name}: projection '{node.projection}' treated as flat")
-        if mode == 'STRAIGHT' or px.shape[2] < 4 or not np.any(px[..., 3] < 1.0):
-            return self.tex_index[key]
-        assoc = px.copy()
-        assoc[..., :3] *= assoc[..., 3:4]
-        if mode == 'UNASSOCIATED':
-            assoc = assoc.view(UnassociatedImage)
-        self.tex_index[(key, mode)] = len(self.textures)
-        self.textures.append(assoc)
         return self.tex_index[(key, mode)]
 
     def pixels(self, img, notes) -> np.ndarray | None:
