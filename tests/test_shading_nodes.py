@@ -1,11 +1,14 @@
 """Normal Map, Bump, Mapping / Texture Coordinate, image alpha and node groups
 against Cycles (real bpy), and the tangent-space math of core.scene.normals.
 
-Every Cycles scene is one plane seen from straight above by an orthographic
-camera (32 x 32 px) under a sun: no indirect light, so both renderers give
-rho/pi E max(n'.l, 0) up to pixel-filter noise, and the tolerance is the
-measured difference of two seeds of each (a few times it, plus 1 % of the
-mean for the remaining sampling differences).
+Every Cycles scene is one plane (or a UV sphere) seen from straight above by
+an orthographic camera (32 x 32 px) under a sun: no indirect light, so both
+renderers give rho/pi E max(n'.l, 0) up to pixel-filter noise.  The bound
+is 2x the measured seed-to-seed difference of the two renderers plus 1 % of
+the mean; each perturbation test also checks that dropping the perturbation
+moves the image by more than 3x that bound.  Image alpha is a per-sample coin
+flip in both renderers, so those tests compare image means.  FPPM: 8 passes
+of 2000 photons, Cycles 16 samples, two seeds each.
 """
 from __future__ import annotations
 
@@ -38,12 +41,12 @@ def test_tangent_space_normal_is_the_frame_change():
     R = np.stack([_rot(rng.normal(size=3), rng.uniform(0, 3)) for _ in range(K)])
     T, B, N = R[:, :, 0], R[:, :, 1], R[:, :, 2]
     sign = np.where(rng.random(K) < 0.5, -1.0, 1.0)
-    B = B * sign[:, None] * 1.0
-    # A right-handed frame (T, sign N x T, N): c in that frame -> world.
+    # Rotations are right-handed (B = N x T): c = (x, y, z) in the tangent
+    # frame is R (x, sign y, z) in the world, normalised.
     c = rng.normal(size=(K, 3))
     c[:, 2] = np.abs(c[:, 2]) + 0.1
     out = SN.tangent_space_normal(c, N, T, sign, N)
-    want = c[:, 0:1] * T + c[:, 1:2] * (sign[:, None] * np.cross(N, T)) + c[:, 2:3] * N
+    want = np.einsum("kij,kj->ki", R, c * np.stack([np.ones(K), sign, np.ones(K)], 1))
     want /= np.linalg.norm(want, axis=1, keepdims=True)
     np.testing.assert_allclose(out, want, atol=1e-12)
     # Flat colour (0.5, 0.5, 1) = c (0, 0, 1) gives the normal back; scaling T
@@ -53,7 +56,6 @@ def test_tangent_space_normal_is_the_frame_change():
     # Strength 0 is the shading normal; strength 0.5 lies between.
     np.testing.assert_allclose(SN.tangent_space_normal(c, N, T, sign, N, 0.0), N, atol=1e-12)
     half = SN.tangent_space_normal(c, N, T, sign, N, 0.5)
-    np.testing.assert_allclose(np.cross(np.cross(N, out), half).sum(1) * 0, 0)
     assert np.all(np.einsum("ij,ij->i", half, N) >= np.einsum("ij,ij->i", out, N) - 1e-12)
 
 
