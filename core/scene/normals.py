@@ -103,7 +103,11 @@ def attach(tri_n: np.ndarray, spec: ShadingSpec | None) -> None:
         if e is not None and e[0] is ref:
             del _ATTACHED[key]
 
-    _ATTACHED[key] = (weakref.ref(tri_n, gone), spec)
+    try:
+        ref = weakref.ref(tri_n, gone)
+    except TypeError:          # not an ndarray (Scene always holds one)
+        return
+    _ATTACHED[key] = (ref, spec)
 
 
 def attached(tri_n) -> ShadingSpec | None:
