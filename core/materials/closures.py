@@ -308,8 +308,6 @@ def sample_bsdf(table: MaterialTable, mat, colors, n_s, n_g, wo, u, subset="all"
     # Fast path: materials made only of Lambert lobes (the common wall) need no
     # lobe choice, eval or pdf: cosine sampling has weight = sum of colours.
     fast = table.lambert_only[mat] & ~table.has_delta[mat]
-    if mode == "radiance" and getattr(table, "bump_correction", None) is not None:
-        fast &= ~table.bump_correction[mat]       # bump shadowing: the general path
     if subset == "delta" or not fast.any():
         return _sample_general(table, mat, colors, n_s, n_g, wo, u, subset, mode)
     wi = np.zeros((K, 3))

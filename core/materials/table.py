@@ -47,7 +47,11 @@ class MaterialTable:
     lobe_delta: (M, L) bool, the lobe is a Dirac delta (mirror, smooth glass /
       refraction, transparent).
     has_delta, has_nondelta, lambert_only: (M,) bool per-material flags;
-      lambert_only = has_nondelta and every non-delta lobe is Lambert.
+      lambert_only = has_nondelta and every non-delta lobe is Lambert, and
+      no Normal Map / Bump (their visible points evaluate the BSDF with the
+      perturbed normal and Cycles' bump terms); lambert_lobes: the same
+      without the last condition (what the photon tracer's Lambert bounce
+      needs: photons scatter off the interpolated normal).
     textures: list of (H, W, C) images (row 0 at the bottom).
     """
     kind: np.ndarray
@@ -75,6 +79,7 @@ class MaterialTable:
     alpha_tex: np.ndarray = None        # (M, L) int32 texture whose alpha scales the lobe, -1 = none
     alpha_inv: np.ndarray = None        # (M, L) bool, scaled by 1 - alpha instead
     bump_correction: np.ndarray = None  # (M,) bool, Normal Map / Bump: Cycles' normal tilt
+    lambert_lobes: np.ndarray = None    # (M,) bool, lambert_only before the Normal Map / Bump test
 
     @property
     def n_materials(self) -> int:
@@ -183,16 +188,17 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
     nondelta = used & ~delta
     lambert = nondelta & (kind == DIFFUSE) & (rough < DIFFUSE_ROUGHNESS_EPS) & (lior <= 0.0)
     has_nd = nondelta.any(axis=1)
+    bump = np.array([getattr(mat, "normal", None) is not None for mat in materials] or [False],
+                    bool)
+    lambert_lobes = has_nd & ~(nondelta & ~lambert).any(axis=1)
     return MaterialTable(
         kind=kind, color=color, weight=weight, roughness=rough, ior=ior, tex=tex,
         emission=emis, emission_tex=emis_tex, lobe_delta=delta,
         has_delta=(used & delta).any(axis=1), has_nondelta=has_nd,
-        lambert_only=has_nd & ~(nondelta & ~lambert).any(axis=1),
+        lambert_only=lambert_lobes & ~bump, lambert_lobes=lambert_lobes,
         textures=textures, multiscatter=ms, fresnel=fres, fresnel_ior=fior,
         f82_tint=f82t, layer_ior=lior, layer_f0=lf0, layer_roughness=lrough, layer_ms=lms,
-        sel_scale=sel, alpha_tex=atex, alpha_inv=ainv,
-        bump_correction=np.array([getattr(mat, "normal", None) is not None
-                                  for mat in materials] or [False], bool))
+        sel_scale=sel, alpha_tex=atex, alpha_inv=ainv, bump_correction=bump)
 
 
 # --------------------------------------------------------------------------

@@ -224,7 +224,9 @@ class Scene:
         """Let ``core.accel.surface_point`` perturb this scene's shading normals
         by its materials' Normal Map / Bump inputs (``core.scene.normals``).
         Called on construction; call again after replacing the triangle
-        arrays or materials in place."""
+        arrays or materials in place.  The spec is attached to the tri_n
+        array: scenes sharing one (``dataclasses.replace``) share the last
+        constructed one's, so give a scene with other materials its own copy."""
         from . import normals
         inputs = tuple(getattr(m, "normal", None) for m in self.materials)
         if not any(inp is not None for inp in inputs):
