@@ -524,7 +524,8 @@ class _MaterialBuilder:
             return _add(a, b, n)
         if t == 'BSDF_PRINCIPLED':
             return self.principled(node)
-        self.unsupported.append(node.name)
+        if node.name not in self.unsupported:    # (a group instanced twice: once)
+            self.unsupported.append(node.name)
         return Material(n, lobes=(Lobe(DIFFUSE, GREY),))
 
     def microfacet(self, node) -> Lobe:
@@ -1452,7 +1453,11 @@ class _Exporter:
                  f"{cam.resolution[0]}x{cam.resolution[1]} in {dt:.2f} s.")
         approx = list(self.notes)
         for m in self.materials:
-            approx += [f"material '{m.name}': {a}" for a in m.approximations]
+            # One sentence per material (one warning in Blender's Info log),
+            # its notes in order, repeats (group instances) said once.
+            if m.approximations:
+                approx.append(f"material '{m.name}': "
+                              + "; ".join(dict.fromkeys(m.approximations)))
         self.log("Approximated: " + ("; ".join(approx) if approx else "nothing") + ".")
         fscene.approximations = tuple(approx)
         return fscene

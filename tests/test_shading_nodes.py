@@ -587,8 +587,10 @@ def test_node_groups_are_flattened_like_cycles(tmp_path):
 
 
 def test_unsupported_nodes_give_one_warning_per_material():
-    """A group holding an unsupported shader and a procedural texture: one
-    Warning line for the material, whatever the number of nodes."""
+    """A group holding an unsupported shader, instanced twice, and a
+    procedural texture on the Mix Fac: one Warning line for the material,
+    whatever the number of nodes, and one sentence of its notes (one warning
+    in Blender's Info log, addon/engine.py)."""
     pytest.importorskip("bpy")
 
     def inner(nodes, links, gi, go):
@@ -598,6 +600,8 @@ def test_unsupported_nodes_give_one_warning_per_material():
     def mat(nodes, links, surface):
         g = _group("Odd", inner)
         mix = nodes.new('ShaderNodeMixShader')
+        noise = nodes.new('ShaderNodeTexNoise')
+        links.new(noise.outputs["Fac"], mix.inputs["Fac"])
         a, b = nodes.new('ShaderNodeGroup'), nodes.new('ShaderNodeGroup')
         a.node_tree = b.node_tree = g
         links.new(a.outputs[0], mix.inputs[1])
@@ -607,7 +611,12 @@ def test_unsupported_nodes_give_one_warning_per_material():
     plane_scene(mat)
     scene, lines = _export()
     warn = [ln for ln in lines if ln.startswith("Warning:")]
-    assert len(warn) == 1 and "'Surf'" in warn[0], lines
+    assert warn == ["Warning: material 'Surf': unsupported node(s) 'Toon BSDF' replaced by "
+                    "diffuse grey."], lines
+    mine = [a for a in scene.approximations if a.startswith("material 'Surf'")]
+    assert len(mine) == 1, scene.approximations
+    assert "'Noise Texture' into Mix Shader.Fac ignored" in mine[0]
+    assert "'Toon BSDF'" in mine[0] and "-> diffuse grey" in mine[0]
 
 
 def test_real_scene_example_exports_its_shading():
