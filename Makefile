@@ -18,7 +18,8 @@ STAMP   := $(VENV)/.fppm-installed
 
 # matplotlib, flip-evaluator: development only (tools/converge: `fppm converge`
 # plots and PNG images; the HDR-FLIP metric of tools/metrics.py); the render
-# path and the extension never import them.
+# path and the extension never import them.  dask[distributed]: `fppm render
+# --workers/--cluster` only (tools/distributed.py), never in the extension.
 # Pinned so that the wheels bundled in the extension (blender_manifest.toml)
 # are the very versions the tests ran with.
 BPY_VERSION      := 5.2.3
@@ -27,9 +28,10 @@ OPENEXR_VERSION  := 3.5.3
 NUMBA_VERSION    := 0.68.1
 LLVMLITE_VERSION := 0.50.0
 FLIP_VERSION     := 1.7
+DASK_VERSION     := 2026.8.0
 DEPS := bpy==$(BPY_VERSION) numpy embreex==$(EMBREEX_VERSION) OpenEXR==$(OPENEXR_VERSION) \
         numba==$(NUMBA_VERSION) llvmlite==$(LLVMLITE_VERSION) pytest hypothesis matplotlib \
-        flip-evaluator==$(FLIP_VERSION)
+        flip-evaluator==$(FLIP_VERSION) "dask[distributed]==$(DASK_VERSION)"
 
 BLENDER_EXT = $(shell ls -d $(VENV)/lib/python3.13/site-packages/bpy/*/scripts/addons_core/bl_pkg/cli/blender_ext.py 2>/dev/null | head -n1)
 WHEEL_PLATFORMS := manylinux_2_28_x86_64 win_amd64 macosx_14_0_arm64

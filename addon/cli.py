@@ -800,8 +800,18 @@ def _render_locked(a, stop, overrides) -> int:
         if ckpt is not None:
             ckpt.after_pass(sess.renderer)
 
+    resume = ckpt.resume if ckpt is not None and a.resume else None
+    # a.on_renderer: a caller's hook on the built Renderer (tools/cli.py's
+    # --workers / --cluster hand its photon pass to Dask workers there).
+    hook = getattr(a, "on_renderer", None)
+
+    def on_renderer(renderer):
+        for f in (resume, hook):
+            if f is not None:
+                f(renderer)
+
     sess = engine.RenderSession(on_pass=on_pass, log=_say, should_stop=lambda: bool(stop),
-                                on_renderer=ckpt.resume if ckpt is not None and a.resume else None)
+                                on_renderer=on_renderer)
     if stop:
         return _cancelled_early(stop)
     scene = open_blend(a.blend, a.frame, a.resolution, should_stop=lambda: bool(stop))

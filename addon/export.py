@@ -38,6 +38,7 @@ from ..core.scene.textures import EnvironmentMap, UnassociatedImage
 from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
                           TRANSPARENT, Camera, Light, Lobe, Material, Scene,
                           drop_invalid_triangles)
+from .export_read import CHUNK, _never, image_pixels, mesh_arrays
 
 GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
 GREY = (0.8, 0.8, 0.8)
@@ -48,18 +49,10 @@ NOTHING_VISIBLE = ("Nothing is visible to render: the scene has no mesh objects 
                    "for rendering (check 'Disable in Renders' and ray visibility).")
 
 
-# Rows (triangles, texels) per step of a large copy: a cancel is polled
-# between steps, so one step must stay well under the 0.1 s promised by
-# docs/reliability.md ("Cancel").
-CHUNK = 1 << 15
 
 # Image formats whose pixels Blender holds as float (4 bytes a channel);
 # any other is 1 byte a channel until it is read through Image.pixels.
 _FLOAT_BYTES = 4
-
-
-def _never() -> bool:
-    return False
 
 
 def _file_image_header(path: str) -> tuple[int, int, int] | None:
@@ -732,8 +725,9 @@ class _Exporter:
             raise RenderCancelled("cancelled")
 
     # -- textures --------------------------------------------------------------
-    def check_image_memory(self, img) -> None:
-        """Refuse (MemoryBudgetError) an image whose pixels would not fit in memory.
+    def check_image_memory(self, img) -> int:
+        """Refuse (MemoryBudgetError) an image whose pixels would not fit in
+        memory; else return an upper bound of its width x height x channels.
 
         Checked before its pixels are read: Blender's own buffer (generated
         images are made, file images decoded, on the first access; their size
@@ -765,7 +759,7 @@ class _Exporter:
         need = n * c * held + n * c * 4 + (n * 3 * 4 if 0 < c < 3 else 0)
         avail = available_bytes()
         if avail is None or need <= avail:
-            return
+            return n * c
         def size(b):
             return f"{b / 2 ** 30:.1f} GiB" if b >= 2 ** 30 else f"{b / 2 ** 20:.0f} MiB"
         raise MemoryBudgetError(
@@ -812,18 +806,16 @@ class _Exporter:
         at the bottom, or None (and a note) when it has none.  Checked against
         free memory before loading; cancel is polled between the copies."""
         self.poll()
-        self.check_image_memory(img)
-        w, h = img.size
-        c = img.channels
+        capacity = self.check_image_memory(img)
+        self.poll()
+        # Image.pixels has no partial read: made / decoded and read in a
+        # child process that a cancel kills (export_read.image_pixels).
+        px, w, h, c, is_float = image_pixels(
+            img, capacity, self.poll if self.should_stop is not _never else _never)
         self.poll()
         if w * h == 0 or c == 0:
             notes.append(f"image '{img.name}' could not be loaded")
             return None
-        # Image.pixels has no partial read: one foreach_get, polled before
-        # and after (its cost: docs/reliability.md, "Cancel").
-        px = np.empty(w * h * c, np.float32)
-        img.pixels.foreach_get(px)
-        self.poll()
         px = px.reshape(h, w, c)          # Blender's order: row 0 at the bottom
         rows = max(1, CHUNK // w)
         if c < 3:
@@ -834,7 +826,7 @@ class _Exporter:
                 self.poll()
             del grey
         cs = img.colorspace_settings.name
-        if not img.is_float:
+        if not is_float:
             # Byte images come back undecoded; float images are scene linear.
             # Decoded in place (px is our own copy), a band of rows at a time.
             decode = cs not in ('Non-Color', 'Linear Rec.709', 'Linear', 'Raw', 'Linear CIE-XYZ E')
@@ -872,71 +864,9 @@ class _Exporter:
     # -- geometry --------------------------------------------------------------
     @staticmethod
     def mesh_arrays(me, poll=_never):
-        """Local-space (T,3,3) positions and normals, (T,3,2) uvs, (T,) slot index.
-
-        poll: called between the reads and between bands of CHUNK triangles
-        of the corner gathers (a cancellation point, ``_Exporter.poll``).
-        """
-        poll = poll or _never
-        tris = me.loop_triangles
-        T = len(tris)
-        if T == 0:
-            z = np.zeros((0, 3, 3), np.float32)
-            return z, z, np.zeros((0, 3, 2), np.float32), np.zeros(0, np.int32)
-        # One call, not interruptible (no raw array behind it): the longest
-        # step of the export (docs/reliability.md, "Cancel").
-        corners = np.empty(T * 3, np.int32)
-        tris.foreach_get("loops", corners)
-        poll()
-        slot = np.empty(T, np.int32)
-        # Through the attributes when Blender has them: a raw copy, where the
-        # per-item properties cost as much as the read above.
-        mi = me.attributes.get("material_index")
-        if mi is None:
-            slot[:] = 0                      # Blender's default: every face slot 0
-        elif mi.domain == 'FACE' and mi.data_type == 'INT':
-            face = np.empty(T, np.int32)
-            me.loop_triangle_polygons.foreach_get("value", face)
-            per_face = np.empty(len(me.polygons), np.int32)
-            mi.data.foreach_get("value", per_face)
-            slot = per_face[face]
-        else:
-            tris.foreach_get("material_index", slot)
-        poll()
-        V = len(me.vertices)
-        co = np.empty(V * 3, np.float32)
-        me.vertices.foreach_get("co", co)
-        L = len(me.loops)
-        cv = np.empty(L, np.int32)
-        corner_vert = me.attributes.get(".corner_vert")
-        if corner_vert is not None and corner_vert.data_type == 'INT' and len(corner_vert.data) == L:
-            corner_vert.data.foreach_get("value", cv)
-        else:
-            me.loops.foreach_get("vertex_index", cv)
-        poll()
-        cn = np.empty(L * 3, np.float32)
-        me.corner_normals.foreach_get("vector", cn)
-        poll()
-        layer = me.uv_layers.active_render or me.uv_layers.active
-        uvl = None
-        if layer is not None and L:
-            uvl = np.empty(L * 2, np.float32)
-            layer.uv.foreach_get("vector", uvl)
-            uvl = uvl.reshape(L, 2)
-            poll()
-        co, cn = co.reshape(V, 3), cn.reshape(L, 3)
-        corners = corners.reshape(T, 3)
-        p = np.empty((T, 3, 3), np.float32)
-        n = np.empty((T, 3, 3), np.float32)
-        uv = np.zeros((T, 3, 2), np.float32)
-        for a in range(0, T, CHUNK):
-            k = corners[a:a + CHUNK]
-            p[a:a + CHUNK] = co[cv[k]]
-            n[a:a + CHUNK] = cn[k]
-            if uvl is not None:
-                uv[a:a + CHUNK] = uvl[k]
-            poll()
-        return p, n, uv, slot
+        """Local-space (T,3,3) positions and normals, (T,3,2) uvs, (T,) slot
+        index: ``export_read.mesh_arrays`` (its reads are cut for cancel)."""
+        return mesh_arrays(me, poll)
 
     def geometry(self, inst, ob, parts):
         if ob.type == 'MESH':

@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/bench_render.py [--res 256] [--photons 200000] [--passes 3]
                                            [--frequency] [--numpy]
+    .venv/bin/python bench/bench_render.py --stages [--stage-res 256 1024] [--repeat 3]
 
 Prints ratios (target: photon pass <= 2x the raw ray casting of its
 rays at 256x256 with 200k photons per pass), never a bare time alone.
@@ -20,6 +21,14 @@ tests/oracle_occlusion.py), so the before/after overheads are measured in the
 same process; each ratio is the best of ``--repeat`` interleaved measurements
 (the machine is shared).  ``--numpy`` times the numpy reference tracer
 (tests/oracle_photons.py) instead of the compiled one.
+
+``--stages``: the camera pass and the direct light (next-event estimation)
+of the same visible points, numpy reference (``compiled=False``) against the
+compiled kernels (core.sppm.camera_kernels, core.lights.direct_kernels), at
+each ``--stage-res``: the ratio numpy / compiled of wall and CPU time (best
+of ``--repeat`` interleaved runs), the cores the compiled stages used (CPU /
+wall), and one whole compiled pass (camera, direct, photons, gather,
+update) against the bare Embree time of as many random rays as the pass cast.
 """
 from __future__ import annotations
 
@@ -250,7 +259,13 @@ def main(argv=None):
     ap.add_argument("--numpy", action="store_true", help="the numpy reference tracer")
     ap.add_argument("--repeat", type=int, default=3,
                     help="interleaved repeats of the frequency measurements (best of)")
+    ap.add_argument("--stages", action="store_true",
+                    help="camera + direct light: numpy vs compiled (ratios), and whole passes")
+    ap.add_argument("--stage-res", type=int, nargs="+", default=[256, 1024])
     a = ap.parse_args(argv)
+    if a.stages:
+        stage_report(a)
+        return 0
     scene = cornell(a.res)
     tm = Timers()
     r = make_renderer(scene, a, a.frequency, tm)
@@ -320,6 +335,52 @@ def main(argv=None):
     print("stage shares of the whole render pass: "
           + ", ".join(f"{k} {v / total:.0%}" for k, v in r.stage_seconds.items()))
     return 0
+
+
+def stage_report(a):
+    """The --stages measurement (see the module docstring); prints ratios."""
+    print(f"camera + direct light, numpy reference vs compiled (Cornell box, best of "
+          f"{a.repeat} interleaved; OPENBLAS_NUM_THREADS="
+          f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, threads {Ph.THREADS})")
+    for res in a.stage_res:
+        scene = cornell(res)
+        r = Renderer(scene, RenderSettings(max_passes=1000, photons_per_pass=a.photons),
+                     log=lambda s: None)
+        cam, nee = r.camera_pass, r.direct_light
+        vp, _ = cam(np.random.default_rng(1))
+        best = {}
+        for rep in range(a.repeat + 1):           # the first round compiles / warms up
+            for compiled in (False, True):
+                cam.compiled = nee.compiled = compiled
+                for key, f in (("camera", lambda: cam(np.random.default_rng(1))),
+                               ("direct", lambda: nee(vp, np.random.default_rng(2)))):
+                    w0, c0 = time.perf_counter(), time.process_time()
+                    f()
+                    w, c = time.perf_counter() - w0, time.process_time() - c0
+                    if rep:
+                        k = (key, compiled)
+                        bw, bc = best.get(k, (np.inf, np.inf))
+                        best[k] = (min(bw, w), min(bc, c))
+        cam.compiled = nee.compiled = True
+        line = []
+        for key in ("camera", "direct"):
+            (nw, nc), (cw, cc) = best[(key, False)], best[(key, True)]
+            line.append(f"{key} {nw / cw:.2f}x wall, {nc / cc:.2f}x CPU "
+                        f"(compiled {cc / cw:.2f} cores, {cw / (res * res) * 1e9:.0f} ns/px)")
+        (nw, nc) = tuple(best[("camera", False)][i] + best[("direct", False)][i] for i in (0, 1))
+        (cw, cc) = tuple(best[("camera", True)][i] + best[("direct", True)][i] for i in (0, 1))
+        print(f"  {res}^2: camera+direct {nw / cw:.2f}x wall, {nc / cc:.2f}x CPU faster "
+              f"compiled ({cc / cw:.2f} cores used, numpy {nc / nw:.2f}); " + "; ".join(line))
+        # One whole compiled pass against the bare Embree time of its rays.
+        raw = RawRays(r.accel, min(4 * a.photons, 2_000_000))
+        r.step()
+        rays0, w0, c0 = r.accel.rays_cast, time.perf_counter(), time.process_time()
+        r.step()
+        pw, pc = time.perf_counter() - w0, time.process_time() - c0
+        rays = r.accel.rays_cast - rays0
+        rw = raw.seconds(rays)
+        print(f"  {res}^2: whole pass ({rays:,} rays, {a.photons:,} photons) = "
+              f"{pw / rw:.2f}x raw Embree rays (wall), {pc / pw:.2f} cores used")
 
 
 def Ph_chunk():

@@ -1,6 +1,6 @@
 """Run ``fppm converge`` on the example scenes and collect the results in docs/convergence/.
 
-    .venv/bin/python bench/converge_examples.py [scene ...] [--budget 60] [--seeds 2] [--collect-only | --rereport]
+    .venv/bin/python bench/converge_examples.py [scene ...] [--budget 60] [--seeds 4] [--methods M,...] [--collect-only | --rereport]
     .venv/bin/python bench/converge_examples.py --cycles-speed [scene] [--samples 128] [--repeats 2]
 
 One scene at a time (the machine has 2 cores), each in its own process (a
@@ -45,7 +45,7 @@ SCENES = {
     "glass_sphere": ("caustic-small", 16384),
     # Cycles cannot render this caustic: the reference is Mitsuba 3's light
     # tracer (bench/point_caustic_reference.py), 16384 spp, in the cache folder.
-    "point_caustic": ("caustic-small", "point_caustic_mitsuba_ptracer_16384.exr"),
+    "point_caustic": ("caustic-point", "point_caustic_mitsuba_ptracer_16384.exr"),
     # A 1 m square area light: caustics from a large light, where Cycles can
     # sample the light well (the targets are parity with Cycles).
     "ring_lambert": ("caustic-large", 8192),
@@ -94,12 +94,18 @@ NOTES = [
 ]
 
 
+# Every method of `fppm converge` (tools/converge/runs.py): the photon
+# mappers (FPPM, PPM and the two published per-pixel radius rules APPM and
+# CPPM), the single strategies of the combined integrator (path and light
+# tracing), the combined integrator, and Cycles.  4 seeds x 60 s x 8 methods
+# is 32 minutes of rendering per scene on this machine.
+METHODS = "fppm,ppm,appm,cppm,path,light,combined,cycles"
 # The corrected frequency model against the paper's printed one, at equal
 # time, on the indirectly lit scene and the caustic scene.
 WITH_PAPER = ("indirect_room", "point_caustic")
 
 
-def run_scene(name, budget, seeds, from_csv=False):
+def run_scene(name, budget, seeds, from_csv=False, methods=METHODS):
     kind, spp = SCENES[name]
     out = os.path.join(DOCS, name)
     if isinstance(spp, str):
@@ -118,8 +124,9 @@ def run_scene(name, budget, seeds, from_csv=False):
            "converge", os.path.join(ROOT, "example_blends", name + ".blend"),
            "--time-limit", str(budget), "--out", out, *ref_args,
            "--seeds", str(seeds), "--resolution", "100", "--kind", kind]
-    if name in WITH_PAPER:
-        cmd += ["--methods", "fppm,paper,ppm,cycles"]
+    if name in WITH_PAPER and "fppm" in methods.split(","):
+        methods = methods.replace("fppm", "fppm,paper", 1)
+    cmd += ["--methods", methods]
     if from_csv:
         if not os.path.isfile(os.path.join(out, "convergence.csv")):
             return None
@@ -137,26 +144,41 @@ def fmt(v):
     return "n/a" if v is None else f"{v:.3g}"
 
 
-def collect(budget=60.0, seeds=2):
-    lines = ["# Convergence of the example scenes", "",
-             f"128x128, {budget:g} s per method, {seeds} seed(s) (mean), this machine (2 cores), "
-             "`.venv/bin/python bench/converge_examples.py`.  relMSE at 100% of the "
-             "budget; ratios at equal time (FPPM / other: < 1 means FPPM is better), on the excess "
-             "relMSE (reference noise subtracted) when both are above the floor, else raw.  "
-             "Each scene's folder has the plot, the CSV and the full report.", "",
-             "FLIP columns: mean HDR-FLIP at 100% of the budget and its equal-time ratios "
-             "(raw: FLIP has no noise-floor correction).  'Cycles spp/s' is the ladder's "
-             "samples/s against a standalone Cycles process (+x%: the ladder was faster).", "",
-             "| scene | kind | FPPM | PPM | Cycles | ref floor | FPPM/PPM | FPPM/paper model | FPPM/Cycles | PPM/Cycles "
-             "| FLIP FPPM / PPM / Cycles | FLIP FPPM/PPM | FLIP FPPM/Cycles | Cycles spp/s | targets |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for name, (kind, _) in SCENES.items():
+# The equal-time ratios of the table (tools/converge/report.py computes them).
+TABLE_RATIOS = ("fppm/ppm", "fppm/appm", "fppm/cppm", "fppm/paper", "fppm/cycles", "combined/fppm",
+                "combined/path", "combined/light", "combined/cycles")
+
+
+def collect(budget=60.0, seeds=4):
+    """docs/convergence/report.md: one table of every scene's summary.json."""
+    summaries = {}
+    for name in SCENES:
         p = os.path.join(DOCS, name, "summary.json")
-        if not os.path.isfile(p):
-            lines.append(f"| {name} | {kind} | not run |" + " |" * 12)
+        if os.path.isfile(p):
+            with open(p) as f:
+                summaries[name] = json.load(f)
+    all_methods = [m for m in METHODS.split(",")
+                   if any(m in s["methods"] for s in summaries.values())]
+    ratios = [r for r in TABLE_RATIOS if any(r in s.get("ratios", {}) for s in summaries.values())]
+    lines = ["# Convergence of the example scenes", "",
+             f"128x128, {budget:g} s per method, {seeds} seed(s) (mean; min-max of the seeds in "
+             "each scene's report), this machine (2 cores), "
+             "`.venv/bin/python bench/converge_examples.py`.  relMSE at 100% of the "
+             "budget; ratios at equal time (first / second: < 1 means the first is better), on the "
+             "excess relMSE (reference noise subtracted) when both are above the floor, else raw.  "
+             "Each scene's folder has the plot, the CSV and the full report.", "",
+             "FLIP: mean HDR-FLIP at 100% of the budget (raw: FLIP has no noise-floor "
+             "correction).  'Cycles spp/s' is the ladder's samples/s against a standalone Cycles "
+             "process (+x%: the ladder was faster).", "",
+             "| scene | kind | " + " | ".join(m.upper() for m in all_methods) + " | ref floor | "
+             + " | ".join(r.upper() for r in ratios) + " | FLIP " + " / ".join(m.upper() for m in all_methods)
+             + " | Cycles spp/s | targets |",
+             "|---|---|" + "---|" * (len(all_methods) + len(ratios) + 4)]
+    for name, (kind, _) in SCENES.items():
+        s = summaries.get(name)
+        if s is None:
+            lines.append(f"| {name} | {kind} | not run |" + " |" * (len(all_methods) + len(ratios) + 3))
             continue
-        with open(p) as f:
-            s = json.load(f)
         m = s["methods"]
 
         def rel(k):
@@ -166,24 +188,22 @@ def collect(budget=60.0, seeds=2):
             r = s.get("ratios", {}).get(k, {})
             v = r.get("excess")
             return fmt(v if v is not None else r.get("raw"))
+
         def flip(k):
             return fmt(m.get(k, {}).get("flip", {}).get("1.0"))
-
-        def flip_ratio(k):
-            return fmt(s.get("flip_ratios", {}).get(k))
         sp = s.get("cycles_speed")
         speed = (f"{sp['ladder_sps']:.0f} vs {sp['standalone_sps']:.0f} ({100 * (sp['ratio'] - 1):+.0f}%)"
                  if sp else "n/a")
         tg = "; ".join(f"{t['target'].split(' (')[0]}: {'met' if t['met'] else 'MISSED'}"
                        + (" (near floor)" if t.get("near_floor") else "")
                        for t in s.get("targets", []))
-        lines.append(f"| [{name}]({name}/report.md) | {kind} | {rel('fppm')} | {rel('ppm')} | "
-                     f"{rel('cycles')} | {fmt(s.get('floor'))} | {ratio('fppm/ppm')} | {ratio('fppm/paper')} | "
-                     f"{ratio('fppm/cycles')} | {ratio('ppm/cycles')} | "
-                     f"{flip('fppm')} / {flip('ppm')} / {flip('cycles')} | {flip_ratio('fppm/ppm')} | "
-                     f"{flip_ratio('fppm/cycles')} | {speed} | {tg} |")
+        lines.append(f"| [{name}]({name}/report.md) | {kind} | "
+                     + " | ".join(rel(k) for k in all_methods) + f" | {fmt(s.get('floor'))} | "
+                     + " | ".join(ratio(r) for r in ratios) + " | "
+                     + " / ".join(flip(k) for k in all_methods) + f" | {speed} | {tg} |")
     for name, why in SKIPPED.items():
-        lines.append(f"| {name} | caustic-point | skipped |" + " |" * 11 + f" {why} |")
+        lines.append(f"| {name} | caustic-point | skipped |" + " |" * (len(all_methods) + len(ratios) + 2)
+                     + f" {why} |")
     lines += ["", "Notes", ""] + [f"- {n}" for n in NOTES]
     lines.append("")
     for name in SCENES:
@@ -191,7 +211,7 @@ def collect(budget=60.0, seeds=2):
             lines += [f"## {name}", "", f"![{name}]({name}/convergence.png)", ""]
     with open(os.path.join(DOCS, "report.md"), "w") as f:
         f.write("\n".join(lines))
-    print("\n".join(lines[:len(SCENES) + len(SKIPPED) + 6]))
+    print("\n".join(lines[:len(SCENES) + len(SKIPPED) + 8]))
 
 
 def cycles_speed(name="ring_lambert", samples=128, repeats=2, fppm_seconds=20.0):
@@ -261,14 +281,16 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("scenes", nargs="*", default=list(SCENES))
     ap.add_argument("--budget", type=float, default=60.0)
-    ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--seeds", type=int, default=4)
+    ap.add_argument("--methods", default=METHODS,
+                    help=f"comma-separated methods of fppm converge (default {METHODS})")
     ap.add_argument("--collect-only", action="store_true")
     ap.add_argument("--rereport", action="store_true",
                     help="no renders: rebuild each scene's report from its CSV (fppm converge --from-csv)")
     a = ap.parse_args(argv)
     if not a.collect_only:
         for name in a.scenes:
-            run_scene(name, a.budget, a.seeds, from_csv=a.rereport)
+            run_scene(name, a.budget, a.seeds, from_csv=a.rereport, methods=a.methods)
     collect(a.budget, a.seeds)
 
 

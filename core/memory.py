@@ -15,7 +15,13 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
 "Memory"; tests/test_reliability2.py checks estimate >= peak <= 1.5 x peak):
 
 - per pixel: progressive state (R^2, N, tau, L_sum, r_pred, held, M, depth),
-  one pass's visible points and the camera-pass temporaries -> BYTES_PER_PIXEL
+  one pass's visible points (core.sppm.visible_points: float64 positions and
+  geometric normals, float32 directions, colours and throughputs: 153 B) and
+  the camera and direct-light temporaries -> BYTES_PER_PIXEL.  Measured peak
+  growth 646 B per pixel with the compiled stages (64^2 .. 640^2, a point
+  light; 997 B before them); the bound also covers the numpy light sampler
+  (environment maps, textured emitters: <= 890 B) and the delta chains'
+  buffers where every pixel continues (+272 B)
 - per AOV channel per pixel: the film's float32 layer, its float64 source and
   the EXR's copy -> BYTES_PER_AOV_CHANNEL
 - per radius-histogram bin per pixel (Quantile estimator): the uint32 state,
@@ -36,7 +42,7 @@ import os
 
 from .errors import MemoryBudgetError
 
-BYTES_PER_PIXEL = 1600
+BYTES_PER_PIXEL = 1100
 BYTES_PER_AOV_CHANNEL = 48
 BYTES_PER_HIST_BIN = 12
 BYTES_PER_PHOTON = 1229

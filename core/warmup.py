@@ -6,9 +6,10 @@ pass 1, where it would count against the time limit and where Esc cannot
 interrupt it.  :func:`compile_kernels` instead renders tiny synthetic scenes
 through ``Renderer`` for one pass per settings variant (:func:`warmup_jobs`):
 a closed room with diffuse, rough glossy, mirror, glass and emissive
-surfaces and every light kind, so that the camera, direct-light, photon
-(Lambert, mirror, glass and generic closures), emission, frequency,
-occlusion, edge and gather kernels all compile.  With a warm on-disk cache the same call
+surfaces and every light kind, so that the camera (``core.sppm.camera_kernels``),
+direct-light (``core.lights.direct_kernels``: every analytic light kind and
+emissive triangles), photon (Lambert, mirror, glass and generic closures),
+emission, frequency, occlusion, edge and gather kernels all compile.  With a warm on-disk cache the same call
 only loads them.
 
 :class:`Warmup` runs that once per process in a background thread, and on

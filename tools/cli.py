@@ -30,7 +30,93 @@ import sys  # noqa: E402
 from ..addon import cli  # noqa: E402  (imports bpy)
 from .converge import add_parser as add_converge_parser, converge  # noqa: E402
 
-COMMANDS = {**cli.COMMANDS, "converge": (add_converge_parser, converge)}
+
+def add_render_parser(sub) -> None:
+    """``fppm render`` of the add-on plus the scale-out flags (tools/distributed.py)."""
+    cli.add_render_parser(sub)
+    g = sub.choices["render"].add_argument_group(
+        "scale-out (Dask, docs/scale_out.md)",
+        "Split each pass's photons into chunks with one random stream each; with the same "
+        "--seed and --chunk, one process and any number of workers give the same image.")
+    g.add_argument("--workers", type=int, metavar="N",
+                   help="trace the photon chunks on a local Dask cluster of N processes")
+    g.add_argument("--cluster", metavar="ADDRESS",
+                   help="trace the photon chunks on the workers of the Dask scheduler at ADDRESS "
+                        "(e.g. tcp://10.0.0.1:8786)")
+    g.add_argument("--chunk", type=int, metavar="N",
+                   help="photons per chunk (default 131072; a chunk is traced at once, "
+                        "about 1.2 KB per photon)")
+
+
+def _spawn_without_main() -> None:
+    """Keep the spawned Dask worker processes from re-running this command.
+
+    multiprocessing's spawn method imports the parent's main module in every
+    child (by path, or by name with ``python -m``): here that is this module,
+    which imports bpy, and bpy does not even load in a child that inherits
+    Blender's script folders on sys.path.  The workers need fppm.core alone;
+    a main module with neither ``__spec__`` nor ``__file__`` (like an
+    interactive session's) is not re-imported."""
+    main = sys.modules.get("__main__")
+    if main is not None:
+        main.__spec__ = None
+        main.__dict__.pop("__file__", None)
+
+
+def render(a) -> int:
+    """``fppm render`` with --workers / --cluster / --chunk (else the add-on's own)."""
+    if a.workers is None and a.cluster is None and a.chunk is None:
+        return cli.render(a)
+    if a.workers is not None and a.cluster is not None:
+        raise cli.CLIError(cli.EXIT_USAGE, "--workers and --cluster exclude each other: "
+                                           "give one (a local cluster, or an existing scheduler).")
+    if a.workers is not None and a.workers < 1:
+        raise cli.CLIError(cli.EXIT_USAGE, f"--workers {a.workers}: must be at least 1.")
+    if a.chunk is not None and a.chunk < 1:
+        raise cli.CLIError(cli.EXIT_USAGE, f"--chunk {a.chunk}: must be at least 1 photon.")
+    # The failures that need no cluster first (the render repeats them).
+    cli.check_input(a.blend)
+    cli.check_output(a.output, a.blend, a.overwrite, not a.no_preview)
+    cli.check_numbers(a)
+    from . import distributed
+    client = None
+    if a.workers is not None or a.cluster is not None:
+        try:
+            distributed.require()
+        except distributed.DaskMissing as ex:
+            raise cli.CLIError(cli.EXIT_USAGE, str(ex))
+        if a.workers is not None:
+            _spawn_without_main()
+        try:
+            client = distributed.connect(a.workers, a.cluster)
+        except (OSError, ValueError) as ex:       # unreachable / malformed ADDRESS
+            what = (f"--cluster {a.cluster}: cannot reach the Dask scheduler" if a.cluster
+                    else f"--workers {a.workers}: the local Dask cluster did not start")
+            raise cli.CLIError(cli.EXIT_USAGE, f"{what} ({ex}).")
+
+    def on_renderer(renderer):
+        if renderer.settings.integrator != "PHOTON":
+            renderer.log(f"FPPM: integrator {renderer.settings.integrator} has no photon pass: "
+                         f"rendered in this process.")
+            return
+        chunk = distributed.local_chunk_streams(renderer, a.chunk).photon_pass.chunk
+        where = "this process"
+        if client is not None:
+            distributed.DistributedPhotonPass(client, renderer)
+            n = len(client.scheduler_info()["workers"])
+            where = f"{n} Dask worker{'s' * (n != 1)}" + (f" of {a.cluster}" if a.cluster else "")
+        renderer.log(f"Photons: chunks of {chunk}, one random stream each, on {where}.")
+
+    a.on_renderer = on_renderer
+    try:
+        return cli.render(a)
+    finally:
+        if client is not None:
+            distributed.close(client)
+
+
+COMMANDS = {**cli.COMMANDS, "render": (add_render_parser, render),
+            "converge": (add_converge_parser, converge)}
 
 
 def main(argv=None, exit_process: bool = True) -> int:

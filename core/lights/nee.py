@@ -32,8 +32,10 @@ class NextEventEstimation:
     """Direct light at visible points.  tri_p (T, 3, 3): the triangles of
     ``accel`` (their planes decide which hits are the emitter or a self-hit)."""
 
-    def __init__(self, light_table, mtab, accel, tri_p: np.ndarray):
+    def __init__(self, light_table, mtab, accel, tri_p: np.ndarray, compiled: bool = True):
         self.light_table, self.mtab, self.accel, self.tri_p = light_table, mtab, accel, tri_p
+        self.compiled = bool(compiled)
+        self._lights = None
 
     def __call__(self, vp: "VisiblePoints", rng: np.random.Generator) -> np.ndarray:
         """(P, 3) float64 reflected direct radiance times vp.beta (0 at invalid points)."""
@@ -42,7 +44,10 @@ class NextEventEstimation:
         q = np.nonzero(vp.valid)[0]
         if q.size == 0:
             return L
-        smp = sample_direct(self.light_table, vp.p[q], rng.random((q.size, 3)), n=vp.ns[q])
+        u = rng.random((q.size, 3))
+        if self.compiled and self._compiled_lights() is not None:
+            return self._direct_compiled(vp, q, u, L)
+        smp = sample_direct(self.light_table, vp.p[q], u, n=vp.ns[q])
         env = self.light_table.environment
         if env is not None and env.total > 0:
             L += self._environment_bsdf(vp, rng)
@@ -51,7 +56,10 @@ class NextEventEstimation:
         q, wi, dist, wgt, shadow = q[live], wi[live], dist[live], wgt[live], shadow[live]
         if q.size == 0:
             return L
-        f = B.eval_bsdf(self.mtab, vp.mat[q], vp.colors[q], vp.ns[q], vp.ng[q], vp.wo[q], wi)
+        # The normals as the mesh has them: the BSDF tells a visible point
+        # inside glass (wo behind ng) by them, for the relative IOR.
+        ns_m, ng_m = vp.mesh_normals(q)
+        f = B.eval_bsdf(self.mtab, vp.mat[q], vp.colors[q], ns_m, ng_m, vp.wo[q], wi)
         cos = np.abs(_dot(vp.ns[q], wi))
         contrib = vp.beta[q] * f * cos[:, None] * wgt
         if env is not None and env.total > 0:
@@ -61,7 +69,7 @@ class NextEventEstimation:
             if wk.size:
                 qk = q[wk]
                 pl = environment_pdf(self.light_table, vp.p[qk], vp.ns[qk], wi[wk])
-                pb = B.pdf_bsdf(self.mtab, vp.mat[qk], vp.colors[qk], vp.ns[qk], vp.ng[qk],
+                pb = B.pdf_bsdf(self.mtab, vp.mat[qk], vp.colors[qk], ns_m[wk], ng_m[wk],
                                 vp.wo[qk], wi[wk], subset="nondelta")
                 contrib[wk] *= (pl / np.maximum(pl + pb, 1e-300))[:, None]
         nz = contrib.max(axis=1) > 0
@@ -70,6 +78,69 @@ class NextEventEstimation:
         blocked = self._blocked(vp.p[q], vp.ng[q], wi, dist, mesh) & shadow
         L[q[~blocked]] += contrib[~blocked]
         return L
+
+    def _direct_compiled(self, vp, q, u, L) -> np.ndarray:
+        """The numpy path above with the light sample, the Lambert BSDF, the
+        shadow rays and the sums in ``direct_kernels`` (no environment map:
+        see ``_compiled_lights``).  Adds to and returns L (P, 3)."""
+        from . import direct_kernels as DK
+        S = self._sample_compiled(vp, q, u)
+        # f of the points that are not Lambert-only: eval_bsdf on their rows.
+        r = np.nonzero(~vp.const[q] & (S.weight.max(axis=1) > 0))[0]
+        if r.size:
+            qr = q[r]
+            ns_m, ng_m = vp.mesh_normals(qr)
+            f = B.eval_bsdf(self.mtab, vp.mat[qr], vp.colors[qr], ns_m, ng_m, vp.wo[qr], S.wi[r])
+            S.contrib[r] = vp.beta[qr] * f * S.cos[r, None] * S.weight[r]
+        accel = self.accel
+        sh = DK.alloc_shadow(q.size)
+        n, nm = DK.shadow_kernel(q, vp.p, vp.ng, S, REL_OFFSET, accel.abs_floor / REL_OFFSET,
+                                 sh, L)
+        if n:
+            rows = sh.rows[:n]
+            blocked = _occluded_f32(accel, sh.o32[:n], sh.d32[:n], sh.t32[:n])
+            b = np.nonzero(blocked)[0]
+            if b.size:
+                kb = rows[b]
+                pb, gb, wb = vp.p[q[kb]], vp.ng[q[kb]], S.wi[kb]
+                blocked[b] = self._grazing_self_hit_retry(pb, gb, accel.spawn(pb, gb, wb), wb,
+                                                          S.dist[kb])
+            DK.accumulate(q, rows, blocked, S.contrib, L)
+        if nm:
+            km = sh.mesh[:nm]
+            qm = q[km]
+            blocked = self._blocked(vp.p[qm], vp.ng[qm], S.wi[km], S.dist[km],
+                                    np.ones(nm, bool))
+            DK.accumulate(q, km, blocked, S.contrib, L)
+        return L
+
+    def _compiled_lights(self):
+        """The light table for ``direct_kernels`` (None: it needs the numpy sampler)."""
+        if self._lights is None:
+            from . import direct_kernels as DK
+            self._lights = (DK.build_direct_lights(self.light_table)
+                            if DK.compiled_lights_ok(self.light_table) else False)
+        return self._lights or None
+
+    def _sample_compiled(self, vp, q, u):
+        """sample_direct plus the Lambert-only BSDF in ``direct_kernels``, two
+        halves in two threads: the ``DirectSamples`` of the rows q (contrib 0
+        where the material is not Lambert-only)."""
+        from . import direct_kernels as DK
+        from ..sppm.camera_kernels import SPLIT_MIN
+        from ..sppm.photons import _pool, _threads
+        K = q.size
+        R = DK.Receivers(q, vp.p, vp.ns, vp.beta, vp.albedo, vp.const, u)
+        out = DK.alloc_samples(K)
+        lights = self._compiled_lights()
+        if K >= SPLIT_MIN and _threads() > 1:
+            h = K // 2
+            f1 = _pool().submit(DK.direct_kernel, h, K, lights, R, out)
+            DK.direct_kernel(0, h, lights, R, out)
+            f1.result()
+        else:
+            DK.direct_kernel(0, K, lights, R, out)
+        return out
 
     def _environment_bsdf(self, vp: "VisiblePoints", rng: np.random.Generator) -> np.ndarray:
         """(P, 3) the environment map seen along one BSDF sample per visible
@@ -82,8 +153,9 @@ class NextEventEstimation:
         q = np.nonzero(vp.valid)[0]
         if q.size == 0:
             return L
+        ns_m, ng_m = vp.mesh_normals(q)
         wi, wgt, pdf, is_delta, ok = B.sample_bsdf(
-            self.mtab, vp.mat[q], vp.colors[q], vp.ns[q], vp.ng[q], vp.wo[q],
+            self.mtab, vp.mat[q], vp.colors[q], ns_m, ng_m, vp.wo[q],
             rng.random((q.size, 3)), subset="nondelta")
         k = np.nonzero(ok & ~is_delta & (pdf > 0) & (wgt.max(axis=1) > 0)
                        & np.all(np.isfinite(wgt), axis=1))[0]
@@ -163,3 +235,13 @@ class NextEventEstimation:
             o2 = p[j] + ng[j] * (side * off)[:, None]
             still[j] = self.accel.occluded(o2, wi[j], dist[j])
         return still
+
+
+def _occluded_f32(accel, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray) -> np.ndarray:
+    """``Accel.occluded`` of rays already in Embree's float32 (C-contiguous
+    (K, 3), (K, 3), (K,)): (K,) bool, no conversions."""
+    K = o32.shape[0]
+    accel.rays_cast += K
+    if accel._scene is None or K == 0:
+        return np.zeros(K, bool)
+    return np.asarray(accel._scene.run(o32, d32, dists=t32, query="OCCLUDED")) >= 0

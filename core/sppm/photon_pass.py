@@ -12,10 +12,16 @@ camera's side: rejecting the adjacent wall's photons darkened Cornell-box
 corners against Cycles, docs/method.md).  The estimate is pass-local: the
 renderer commits it only once the pass is complete, so a cancelled pass
 leaves no trace.
+
+A chunk is also the unit of work another process can do
+(tools/distributed.py): with ``chunk_streams`` each chunk draws its own
+random stream (``chunk_rng``) and its sums (``chunk_sums``) are added in
+chunk order (``PassSums.add``), whichever process traced it.
 """
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import NamedTuple, Optional
 
 import numpy as np
@@ -48,6 +54,96 @@ class PhotonEstimate(NamedTuple):
     spectrum: Optional[np.ndarray] = None
 
 
+def chunk_rng(rng: np.random.Generator, c: int) -> np.random.Generator:
+    """The stream of chunk c of a pass whose stream is rng: the c-th child of
+    rng's SeedSequence (numpy's spawn key), so a chunk's photons depend on
+    (seed, pass, chunk) alone, not on the process that traces it or when."""
+    ss = rng.bit_generator.seed_seq
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(
+        ss.entropy, spawn_key=tuple(ss.spawn_key) + (int(c),), pool_size=ss.pool_size)))
+
+
+class PassGrid(NamedTuple):
+    """What every chunk of a pass gathers into (``PhotonPass.begin``): the
+    visible points vp, their squared radii R2 (P,), the grid of the active
+    ones, whether the frequency pairs are needed, whether the spectrum AOV is on."""
+    vp: object
+    R2: np.ndarray
+    grid: object
+    want_pairs: bool
+    spectrum_aov: bool
+
+
+class ChunkSums(NamedTuple):
+    """One chunk's sums at the pixels it touched (``PassSums.sparse``).
+
+    idx (T,) int64 touched pixels; M (T,), Phi (T, 3) (before the throughput
+    beta), r_pred (T,) float64; hist (T, HIST_BINS) uint32 or None;
+    spec_idx (S,) int64 pixels whose spectrum the chunk set, spec (S, 3);
+    rays cast, trace and gather seconds (for the statistics).
+    """
+    idx: np.ndarray
+    M: np.ndarray
+    Phi: np.ndarray
+    r_pred: np.ndarray
+    hist: Optional[np.ndarray]
+    spec_idx: np.ndarray
+    spec: np.ndarray
+    rays: int = 0
+    trace_seconds: float = 0.0
+    gather_seconds: float = 0.0
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in (self.idx, self.M, self.Phi, self.r_pred, self.hist,
+                                      self.spec_idx, self.spec) if a is not None)
+
+
+@dataclass
+class PassSums:
+    """A pass's accumulators (P pixels): M (P,), Phi (P, 3) before beta,
+    r_pred (P,) float64; hist (P, HIST_BINS) uint32 or None; spec (P, 3) or
+    None; spec_set (P,) bool: pixels whose spec a chunk set (chunk sums only)."""
+    M: np.ndarray
+    Phi: np.ndarray
+    r_pred: np.ndarray
+    hist: Optional[np.ndarray] = None
+    spec: Optional[np.ndarray] = None
+    spec_set: Optional[np.ndarray] = None
+
+    @classmethod
+    def zeros(cls, P: int, hist: bool, spectrum: Optional[np.ndarray]) -> "PassSums":
+        """Empty sums; spectrum (P, 3): the committed spectrum AOV (copied), or None."""
+        return cls(np.zeros(P), np.zeros((P, 3)), np.full(P, np.inf),
+                   np.zeros((P, HIST_BINS), np.uint32) if hist else None,
+                   None if spectrum is None else spectrum.copy())
+
+    def sparse(self, rays=0, trace_seconds=0.0, gather_seconds=0.0) -> ChunkSums:
+        """These sums at the pixels they touch (what a worker sends back)."""
+        touched = (self.M != 0) | np.any(self.Phi != 0, axis=1) | (self.r_pred != np.inf)
+        if self.hist is not None:
+            touched |= np.any(self.hist != 0, axis=1)
+        idx = np.flatnonzero(touched)
+        spec_idx = (np.zeros(0, np.int64) if self.spec_set is None
+                    else np.flatnonzero(self.spec_set))
+        return ChunkSums(idx, self.M[idx], self.Phi[idx], self.r_pred[idx],
+                         None if self.hist is None else self.hist[idx], spec_idx,
+                         np.zeros((0, 3)) if self.spec is None else self.spec[spec_idx],
+                         rays, trace_seconds, gather_seconds)
+
+    def add(self, part: ChunkSums) -> None:
+        """Add the next chunk's sums (chunks are added in chunk order: the
+        float sums, and the spectrum a later chunk overwrites, depend on it)."""
+        i = part.idx
+        self.M[i] += part.M
+        self.Phi[i] += part.Phi
+        self.r_pred[i] = np.minimum(self.r_pred[i], part.r_pred)
+        if self.hist is not None:
+            self.hist[i] += part.hist
+        if self.spec is not None:
+            self.spec[part.spec_idx] = part.spec
+
+
 class PhotonPass:
     """tracer: core.sppm.photons.PhotonTracer; mtab: material table; settings:
     RenderSettings; frequency: the plan traces frequency photons;
@@ -62,6 +158,11 @@ class PhotonPass:
         self.frequency, self.radius_histogram = frequency, radius_histogram
         self.stage_seconds = stage_seconds
         self.rays = 0
+        # Photons per chunk, and one random stream per chunk (chunk_rng) rather
+        # than one per pass: chunks then split over processes
+        # (tools/distributed.py) and give the same image in any of them.
+        self.chunk = PHOTON_CHUNK
+        self.chunk_streams = False
         # Non-Lambert visible points: the radius for their own receiver lobes.
         self.receivers = Receivers(mtab) if frequency else None
 
@@ -69,55 +170,100 @@ class PhotonPass:
                  rng: np.random.Generator, check_stop=lambda: None) -> PhotonEstimate:
         """Photons of one pass at the visible points vp with squared radii R2
         (P,) (0 = none yet); spectrum (P, 3): the committed spectrum AOV (None:
-        no spectrum AOV).  check_stop() is called before every chunk."""
-        st = self.settings
+        no spectrum AOV).  check_stop() is called before every chunk.
+        With ``chunk_streams`` chunk c is traced with ``chunk_rng(rng, c)`` and
+        its sums are added in chunk order (``chunk_sums``, ``PassSums.add``):
+        what another process computes for that chunk."""
         P = vp.valid.shape[0]
-        active = vp.valid & (R2 > 0)
-        M = np.zeros(P)
-        Phi = np.zeros((P, 3))
-        r_pred = np.full(P, np.inf)
-        if not np.any(active):
-            return PhotonEstimate(False, M, Phi, r_pred)
-        hist = None if self.radius_histogram is None else np.zeros((P, HIST_BINS), np.uint32)
-        spec = None if spectrum is None else spectrum.copy()
-        want_pairs = self.frequency and (hist is not None or spec is not None)
-        grid = hashgrid.build_grid(vp.p, np.sqrt(R2), active)
+        acc = PassSums.zeros(P, self.radius_histogram is not None, spectrum)
+        pg = self.begin(vp, R2, spectrum is not None)
+        if pg is None:
+            return PhotonEstimate(False, acc.M, acc.Phi, acc.r_pred)
+        for c, (n, n_freq) in enumerate(self.chunks()):
+            check_stop()
+            if self.chunk_streams:
+                acc.add(self.chunk_sums(pg, n, n_freq, chunk_rng(rng, c)))
+            else:
+                self._trace_gather(pg, n, n_freq, rng, acc)
+        return self.finish(vp, acc)
+
+    def active(self, vp, R2: np.ndarray) -> np.ndarray:
+        """(P,) bool: the visible points that gather this pass (valid, with a radius)."""
+        return vp.valid & (R2 > 0)
+
+    def chunks(self) -> list[tuple[int, int]]:
+        """(n, n_freq) of every chunk of a pass: ``chunk`` photons each (the
+        last one fewer); the first n_total * frequency_fraction photons of the
+        pass carry a spectrum."""
+        st = self.settings
         n_total = st.photons_per_pass
         n_freq_total = int(round(n_total * st.frequency_fraction)) if self.frequency else 0
-        done = 0
-        while done < n_total:
-            check_stop()
-            n = min(PHOTON_CHUNK, n_total - done)
-            n_freq = int(np.clip(n_freq_total - done, 0, n))
-            t0 = time.perf_counter()
-            rays0 = self.tracer.accel.rays_cast
-            dep = self.tracer.trace(n, n_freq, rng)
-            self.rays += self.tracer.accel.rays_cast - rays0
-            t1 = time.perf_counter()
-            self.stage_seconds["photon_trace"] += t1 - t0
-            done += n
-            if dep is None:
-                continue
-            g = hashgrid.gather(grid, dep["p"], dep["ng"], dep["wi"], dep["power"], dep["rpred"],
-                                vp.p, vp.ng, R2, vp.const, cos_ng=-1.0,
-                                want_freq_pairs=want_pairs and n_freq > 0)
-            M += g.M
-            Phi += g.Phi_sum * (vp.albedo / np.pi)
-            if g.pair_vp.size:
-                Phi += self._reflected(vp, dep, g.pair_vp, g.pair_ph, P)
-            if self.receivers is None:
-                r_pred = np.minimum(r_pred, g.rpred_min)
-            else:
-                r_pred = np.minimum(r_pred, np.where(vp.const, g.rpred_min, np.inf))
-                fr = ~np.isnan(dep["rpred"][g.pair_ph])
-                pv, pp = g.pair_vp[fr], g.pair_ph[fr]
-                np.minimum.at(r_pred, pv, self.receivers.radius_keys(
-                    vp, dep, pv, pp, st.frequency_model))
-            if g.freq_pair_vp is not None and g.freq_pair_vp.size:
-                self._frequency_pairs(g.freq_pair_vp, g.freq_pair_ph, dep, hist, spec, vp)
-            self.stage_seconds["gather"] += time.perf_counter() - t1
-        Phi *= vp.beta
-        return PhotonEstimate(True, M, Phi, r_pred, hist, spec)
+        out = []
+        for a in range(0, n_total, self.chunk):
+            n = min(self.chunk, n_total - a)
+            out.append((n, int(np.clip(n_freq_total - a, 0, n))))
+        return out
+
+    def begin(self, vp, R2: np.ndarray, spectrum_aov: bool) -> Optional["PassGrid"]:
+        """The grid of this pass's active visible points (None: none is active)."""
+        active = self.active(vp, R2)
+        if not np.any(active):
+            return None
+        want_pairs = self.frequency and (self.radius_histogram is not None or spectrum_aov)
+        return PassGrid(vp, R2, hashgrid.build_grid(vp.p, np.sqrt(R2), active), want_pairs,
+                        spectrum_aov)
+
+    def chunk_sums(self, pg: "PassGrid", n: int, n_freq: int,
+                   rng: np.random.Generator) -> "ChunkSums":
+        """Trace one chunk of n photons (n_freq with a spectrum) with rng and
+        gather it into pg: its sums alone (ChunkSums), for ``PassSums.add``."""
+        P = pg.vp.valid.shape[0]
+        part = PassSums.zeros(P, self.radius_histogram is not None,
+                              np.zeros((P, 3)) if pg.spectrum_aov else None)
+        part.spec_set = None if part.spec is None else np.zeros(P, bool)
+        rays0 = self.rays
+        t = self.stage_seconds["photon_trace"], self.stage_seconds["gather"]
+        self._trace_gather(pg, n, n_freq, rng, part)
+        return part.sparse(self.rays - rays0, self.stage_seconds["photon_trace"] - t[0],
+                           self.stage_seconds["gather"] - t[1])
+
+    def finish(self, vp, acc: "PassSums") -> PhotonEstimate:
+        """The pass's estimate from its summed chunks (Phi times the visible
+        points' throughput, once)."""
+        acc.Phi *= vp.beta
+        return PhotonEstimate(True, acc.M, acc.Phi, acc.r_pred, acc.hist, acc.spec)
+
+    def _trace_gather(self, pg: "PassGrid", n: int, n_freq: int, rng, acc: "PassSums") -> None:
+        """Trace n photons (the first n_freq with a spectrum) and gather them
+        into acc (in place)."""
+        st, vp, P = self.settings, pg.vp, pg.vp.valid.shape[0]
+        t0 = time.perf_counter()
+        rays0 = self.tracer.accel.rays_cast
+        dep = self.tracer.trace(n, n_freq, rng)
+        self.rays += self.tracer.accel.rays_cast - rays0
+        t1 = time.perf_counter()
+        self.stage_seconds["photon_trace"] += t1 - t0
+        if dep is None:
+            return
+        g = hashgrid.gather(pg.grid, dep["p"], dep["ng"], dep["wi"], dep["power"], dep["rpred"],
+                            vp.p, vp.ng, pg.R2, vp.const, cos_ng=-1.0,
+                            want_freq_pairs=pg.want_pairs and n_freq > 0)
+        acc.M += g.M
+        acc.Phi += g.Phi_sum * (vp.albedo / np.pi)
+        if g.pair_vp.size:
+            acc.Phi += self._reflected(vp, dep, g.pair_vp, g.pair_ph, P)
+        if self.receivers is None:
+            acc.r_pred = np.minimum(acc.r_pred, g.rpred_min)
+        else:
+            acc.r_pred = np.minimum(acc.r_pred, np.where(vp.const, g.rpred_min, np.inf))
+            fr = ~np.isnan(dep["rpred"][g.pair_ph])
+            pv, pp = g.pair_vp[fr], g.pair_ph[fr]
+            np.minimum.at(acc.r_pred, pv, self.receivers.radius_keys(
+                vp, dep, pv, pp, st.frequency_model))
+        if g.freq_pair_vp is not None and g.freq_pair_vp.size:
+            self._frequency_pairs(g.freq_pair_vp, g.freq_pair_ph, dep, acc.hist, acc.spec, vp,
+                                  acc.spec_set)
+        self.stage_seconds["gather"] += time.perf_counter() - t1
 
     def _reflected(self, vp, dep, pv, pp, P) -> np.ndarray:
         """(P, 3) BSDF-weighted power of the (visible point pv, photon pp)
@@ -134,10 +280,11 @@ class PhotonPass:
             out[:, ch] = np.bincount(pv, weights=contrib[:, ch], minlength=P)
         return out
 
-    def _frequency_pairs(self, pv, pp, dep, hist, spec, vp) -> None:
+    def _frequency_pairs(self, pv, pp, dep, hist, spec, vp, spec_set=None) -> None:
         """(visible point pv, frequency photon pp) pairs (K,): add the
         predicted radii to hist (P, HIST_BINS) and keep in spec (P, 3) the
-        spectrum of each point's photon that predicted the smallest radius."""
+        spectrum of each point's photon that predicted the smallest radius
+        (marked in spec_set (P,) bool when given)."""
         rr = dep["rpred"][pp].copy()
         nc = ~vp.const[pv]
         if np.any(nc):
@@ -151,3 +298,5 @@ class PhotonPass:
             first[1:] = pv[order][1:] != pv[order][:-1]
             sel = order[first]
             spec[pv[sel]] = dep["spec"][pp[sel]]
+            if spec_set is not None:
+                spec_set[pv[sel]] = True

@@ -28,10 +28,21 @@ from ..mathutil import dot as _dot
 class VisiblePoints:
     """Per-pixel visible points of one camera pass (P = pixels in the region).
 
-    valid (P,) bool; p, ng, ns, wo (P,3) float64 (ng, ns oriented to wo);
-    mat (P,) int32; colors (P,L,3); beta (P,3) path throughput / selection
-    probability; depth (P,) camera depth proxy for the pixel footprint;
-    const (P,) bool (Lambert-only: f = albedo/pi); albedo (P,3).
+    Each quantity in the smallest dtype its use allows (core.memory counts
+    them): positions and geometric normals float64 (spawn offsets and the
+    gather's plane tests are relative to |p| ~ 2^-18); directions, colours
+    and throughputs float32 (their consumers compute in float64; 6e-8
+    relative is far below the estimators' noise).
+
+    valid (P,) bool; p, ng (P,3) float64; ns, wo (P,3) float32 (ng, ns
+    oriented to wo); mat (P,) int16 (int32 beyond 32767 materials); colors
+    (P,L,3) float32; beta (P,3) float32 path throughput / selection
+    probability; depth (P,) float32 camera depth proxy for the pixel
+    footprint; const (P,) bool (Lambert-only: f = albedo/pi); albedo (P,3)
+    float32.
+    front (P,) bool: wo lies on the mesh's geometric-normal side (ng and ns
+    were not flipped).  The BSDF tells entering from leaving glass by it:
+    :meth:`mesh_normals` gives the normals as the mesh has them.
     first: FirstHit of the camera rays (the film's data passes), or None.
     """
     valid: np.ndarray
@@ -45,15 +56,26 @@ class VisiblePoints:
     depth: np.ndarray
     const: np.ndarray
     albedo: np.ndarray
+    front: Optional[np.ndarray] = None
     first: Optional["FirstHit"] = None
 
     @classmethod
-    def empty(cls, P: int, n_lobes: int) -> "VisiblePoints":
+    def empty(cls, P: int, n_lobes: int, n_materials: int = 1) -> "VisiblePoints":
         """P invalid visible points (every array zero)."""
+        f32 = np.float32
         return cls(valid=np.zeros(P, bool), p=np.zeros((P, 3)), ng=np.zeros((P, 3)),
-                   ns=np.zeros((P, 3)), wo=np.zeros((P, 3)), mat=np.zeros(P, np.int32),
-                   colors=np.zeros((P, n_lobes, 3)), beta=np.zeros((P, 3)),
-                   depth=np.zeros(P), const=np.zeros(P, bool), albedo=np.zeros((P, 3)))
+                   ns=np.zeros((P, 3), f32), wo=np.zeros((P, 3), f32),
+                   mat=np.zeros(P, np.int16 if n_materials < 2**15 else np.int32),
+                   colors=np.zeros((P, n_lobes, 3), f32), beta=np.zeros((P, 3), f32),
+                   depth=np.zeros(P, f32), const=np.zeros(P, bool),
+                   albedo=np.zeros((P, 3), f32), front=np.ones(P, bool))
+
+    def mesh_normals(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """(ns, ng) (K, 3) of visible points q as the mesh has them (the
+        materials orient them to wo themselves and use that side for the
+        relative IOR, core.materials.eval_bsdf)."""
+        s = np.where(self.front[q], 1.0, -1.0)[:, None]
+        return self.ns[q] * s, self.ng[q] * s
 
 
 @dataclass
@@ -63,7 +85,7 @@ class FirstHit:
 
     hit (P,) bool (False: the ray escaped to the world); p (P,3) float64;
     n (P,3) float64 shading normal facing the ray (Cycles flips N and Ng on
-    back-face hits); prim (P,) int64 triangle (-1 on a miss); emit (P,3)
+    back-face hits); prim (P,) int32 triangle (-1 on a miss); emit (P,3)
     float64 emission the camera ray sees directly (analytic emitters before
     the hit and the surface's own; not the world); escape (P,) float64 the
     throughput with which the camera ray escaped to the world straight
@@ -85,11 +107,16 @@ class CameraPass:
     the region is a border: the filter and lens samples are then drawn as for
     the whole frame and picked by absolute pixel, so a border pixel's camera
     ray is the full-frame render's (None: the region is the frame).
-    transparent: Film > Transparent (camera rays that escape add no world)."""
+    transparent: Film > Transparent (camera rays that escape add no world).
+    compiled: the per-hit work in ``core.sppm.camera_kernels`` (False: the
+    numpy reference, the same results)."""
 
     def __init__(self, scene, accel, mtab, light_table, camera, fsamp, px, py, max_depth: int,
-                 frame: Optional[tuple] = None, transparent: bool = False):
+                 frame: Optional[tuple] = None, transparent: bool = False,
+                 compiled: bool = True):
         self.scene, self.accel, self.mtab, self.light_table = scene, accel, mtab, light_table
+        self.compiled = bool(compiled)
+        self._cmats = None
         self.camera, self.fsamp = camera, fsamp
         self.px, self.py = px, py
         self.max_depth = int(max_depth)
@@ -126,11 +153,62 @@ class CameraPass:
             u[:, :2] = 0.5      # FilterSampler.sample(0.5) = 0: the pixel centre
             u[:, 2:] = 0.0      # lens radius sqrt(0) = 0
         rays, dz = self.camera.generate(self.px, self.py, u[:, :2], u[:, 2:], self.fsamp)
+        vp = VisiblePoints.empty(P, mtab.kind.shape[1], mtab.kind.shape[0])
+        vp.first = FirstHit(hit=np.zeros(P, bool), p=np.zeros((P, 3)), n=np.zeros((P, 3)),
+                            prim=np.full(P, -1, np.int32), emit=np.zeros((P, 3)),
+                            escape=np.zeros(P))
         L = np.zeros((P, 3))
-        vp = VisiblePoints.empty(P, mtab.kind.shape[1])
-        first = vp.first = FirstHit(hit=np.zeros(P, bool), p=np.zeros((P, 3)), n=np.zeros((P, 3)),
-                                    prim=np.full(P, -1, np.int64), emit=np.zeros((P, 3)),
-                                    escape=np.zeros(P))
+        trace = self._trace_compiled if self.compiled else self._trace_numpy
+        trace(rng, rays, dz, vp, L, check_stop)
+        return vp, L
+
+    def _seen_along(self, depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
+                    fast=False):
+        """The emission rays (K,) of one vertex see before their hit t (K,)
+        float64 (inf on a miss): analytic emitters, and on a miss the world
+        (or, for camera rays seen through, alpha under Film > Transparent).
+        fast: skip the masks and scatters that change nothing (the camera
+        rays of depth 0 are every pixel in order; a black constant world
+        adds 0); the same sums."""
+        whole = fast and depth == 0             # idx = arange(P), last = 0 (camera)
+        for code, name in ((0, "camera"), (1, "glossy"), (2, "transmission")):
+            if whole:
+                if code == 0 and self._any_seen("camera"):
+                    Le = Lt.emitted_along_rays(self.light_table, o, d, np.minimum(t, tmax), name)
+                    L += beta * Le
+                    first.emit += Le
+                continue
+            sel = last == code
+            if np.any(sel) and (not fast or self._any_seen(name)):
+                Le = Lt.emitted_along_rays(self.light_table, o[sel], d[sel],
+                                           np.minimum(t[sel], tmax[sel]), name)
+                L[idx[sel]] += beta[sel] * Le
+                if depth == 0:
+                    first.emit[idx[sel]] += Le
+        miss = ~hit
+        esc = miss & see_through
+        if np.any(esc):
+            first.escape[idx[esc]] += beta[esc].mean(axis=1)
+            if self.transparent:
+                miss = miss & ~esc      # Film > Transparent: alpha 0, no world
+        lt = self.light_table
+        if fast and lt.environment is None and not np.any(lt.world):
+            return
+        if np.any(miss):
+            L[idx[miss]] += beta[miss] * Lt.world_radiance(self.light_table, d[miss])
+
+    def _any_seen(self, visibility: str) -> bool:
+        """Whether any analytic emitter can be seen by rays of this kind
+        (``core.lights.seen.emitted_along_rays`` adds 0 otherwise)."""
+        lt = self.light_table
+        flag = getattr(lt, "visible_" + visibility)
+        return bool(np.any(flag & (lt.kind != Lt.MESH) & (lt.kind != Lt.WORLD)
+                           & np.any(lt.radiance != 0, axis=1)))
+
+    def _trace_numpy(self, rng, rays, dz, vp, L, check_stop):
+        """The camera pass in numpy (the reference of :meth:`_trace_compiled`)."""
+        P = self.px.shape[0]
+        mtab, accel, first = self.mtab, self.accel, vp.first
         # Still "seen through" by the camera: no vertex yet, or only straight
         # transmissions (Transparent BSDF); Cycles' transparent background.
         see_through = np.ones(P, bool)
@@ -146,22 +224,7 @@ class CameraPass:
             h = accel.intersect(o, d, tmax)
             hit = h.hit
             # Analytic emitters (area lights, light spheres) seen before the hit.
-            for code, name in ((0, "camera"), (1, "glossy"), (2, "transmission")):
-                sel = last == code
-                if np.any(sel):
-                    Le = Lt.emitted_along_rays(self.light_table, o[sel], d[sel],
-                                               np.minimum(h.t[sel], tmax[sel]), name)
-                    L[idx[sel]] += beta[sel] * Le
-                    if depth == 0:
-                        first.emit[idx[sel]] += Le
-            miss = ~hit
-            esc = miss & see_through
-            if np.any(esc):
-                first.escape[idx[esc]] += beta[esc].mean(axis=1)
-                if self.transparent:
-                    miss = miss & ~esc      # Film > Transparent: alpha 0, no world
-            if np.any(miss):
-                L[idx[miss]] += beta[miss] * Lt.world_radiance(self.light_table, d[miss])
+            self._seen_along(depth, L, first, o, d, tmax, h.t, hit, idx, beta, last, see_through)
             ih = np.nonzero(hit)[0]
             if ih.size == 0:
                 break
@@ -196,6 +259,7 @@ class CameraPass:
                 q = idx[ih[mk]]
                 sgn = np.where(_dot(ng[mk], wo[mk]) >= 0, 1.0, -1.0)[:, None]
                 vp.valid[q] = True
+                vp.front[q] = sgn[:, 0] > 0
                 vp.p[q] = p[mk]
                 vp.ng[q] = ng[mk] * sgn
                 # Cycles flips the shading normal together with the geometric
@@ -212,23 +276,127 @@ class CameraPass:
             if not np.any(cont):
                 break
             c = np.nonzero(cont)[0]
-            wi, wgt, pdf, is_delta, valid = B.sample_bsdf(
-                mtab, mat[c], colors[c], ns[c], ng[c], wo[c], ur[c, 1:4],
-                subset="delta", mode="radiance")
-            wgt = wgt / p_delta[c][:, None]
-            ok = valid & np.all(np.isfinite(wgt), axis=1) & (wgt.max(axis=1) > 0)
-            c = c[ok]
-            wi = wi[ok]
-            refl = (_dot(wi, ng[c]) * _dot(wo[c], ng[c])) > 0
-            see_through = see_through[ih[c]] & (_dot(wi, d[ih[c]]) > 1.0 - 1e-9)
-            o = accel.spawn(p[c], ng[c], wi)
-            d = wi
-            beta = bt[c] * wgt[ok]
-            tmax = np.full(c.size, np.inf)
-            path_len = plen[c]
-            last = np.where(refl, 1, 2).astype(np.int8)
-            idx = idx[ih[c]]
-        return vp, L
+            nxt = self._continue(p[c], ng[c], ns[c], wo[c], mat[c], colors[c], bt[c], plen[c],
+                                 p_delta[c], ur[c, 1:4], see_through[ih[c]], d[ih[c]])
+            if nxt is None:
+                break
+            keep, o, d, beta, path_len, last, see_through = nxt
+            tmax = np.full(keep.size, np.inf)
+            idx = idx[ih[c[keep]]]
+
+    def _continue(self, p, ng, ns, wo, mat, colors, bt, plen, p_delta, u, see_through, d_in):
+        """Sample the delta lobes of the K chains that continue (mesh normals
+        ng, ns; throughput bt before the lobe; u (K, 3) uniforms).  Returns
+        (kept rows (n,), o, d, beta (n, 3), path length (n,), last (n,) int8
+        1 reflection / 2 transmission, see_through (n,)), None when none is kept."""
+        mtab = self.mtab
+        wi, wgt, pdf, is_delta, valid = B.sample_bsdf(mtab, mat, colors, ns, ng, wo, u,
+                                                      subset="delta", mode="radiance")
+        wgt = wgt / p_delta[:, None]
+        ok = valid & np.all(np.isfinite(wgt), axis=1) & (wgt.max(axis=1) > 0)
+        keep = np.nonzero(ok)[0]
+        if keep.size == 0:
+            return None
+        wi = wi[keep]
+        refl = (_dot(wi, ng[keep]) * _dot(wo[keep], ng[keep])) > 0
+        st = see_through[keep] & (_dot(wi, d_in[keep]) > 1.0 - 1e-9)
+        o = self.accel.spawn(p[keep], ng[keep], wi)
+        return (keep, o, wi, bt[keep] * wgt[keep], plen[keep],
+                np.where(refl, 1, 2).astype(np.int8), st)
+
+    def _trace_compiled(self, rng, rays, dz, vp, L, check_stop):
+        """The camera pass with the per-hit work in ``camera_kernels.hit_kernel``
+        (same random numbers, same results as :meth:`_trace_numpy`)."""
+        from . import camera_kernels as CK
+        from .photons import _pool, _threads
+        P = self.px.shape[0]
+        mtab, accel, first, s = self.mtab, self.accel, vp.first, self.scene
+        if self._cmats is None:
+            self._cmats = CK.build_camera_materials(mtab, s)
+            tex = np.any(mtab.tex >= 0, axis=1)
+            if mtab.emission_tex is not None:
+                tex |= mtab.emission_tex >= 0
+            self._textured = tex
+        mats, textured = self._cmats, self._textured
+        dz = np.ascontiguousarray(dz, np.float64)   # one kernel signature (C layout)
+        Lb = mtab.kind.shape[1]
+        vb = CK.vp_buffers(vp)
+        fb = CK.FirstBuffers(first.hit, first.p, first.n, first.prim, first.emit, L)
+        see_through = np.ones(P, bool)
+        idx = np.arange(P)
+        o, d, tmax = rays.o, rays.d, rays.t_max
+        beta = np.ones((P, 3))
+        path_len = np.zeros(P)
+        last = np.zeros(P, np.int8)
+        no_pre = (np.zeros((0, Lb, 3)), np.zeros((0, 3)))
+        for depth in range(self.max_depth):
+            K = idx.size
+            if K == 0:
+                break
+            check_stop()
+            prim, bu, bv, tfar = _intersect(accel, o, d, tmax)
+            hit = prim >= 0
+            t = np.where(hit, tfar, np.inf).astype(np.float64)
+            self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
+                             fast=True)
+            nh = int(np.count_nonzero(hit))
+            if nh == 0:
+                break
+            pre = np.full(K, -1, np.int64)
+            colors_pre, em_pre = no_pre
+            mat_h = s.tri_mat[prim[hit]]
+            if textured.any() and textured[mat_h].any():
+                # Textured materials: their colours and emission in numpy (rows only).
+                it = np.nonzero(hit)[0][textured[mat_h]]
+                pr = prim[it]
+                _, _, _, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, pr,
+                                            bu[it].astype(np.float64), bv[it].astype(np.float64))
+                mt = s.tri_mat[pr]
+                colors_pre = B.lobe_colors(mtab, mt, uv)
+                em_pre = mtab.emission[mt]
+                if mtab.emission_tex is not None and np.any(mtab.emission_tex[mt] >= 0):
+                    em_pre = em_pre * _emission_texture(mtab, s, mt, uv)
+                pre[it] = np.arange(it.size)
+            ur = rng.random((nh, 4))
+            wf = CK.Wavefront(prim, bu, bv, tfar, idx, np.ascontiguousarray(d, np.float64), beta,
+                              path_len, dz, ur, pre, colors_pre, em_pre)
+            ch = CK.alloc_chains(K, Lb)
+            lastv = depth == self.max_depth - 1
+            if K >= CK.SPLIT_MIN and _threads() > 1:
+                h = K // 2
+                u1 = int(np.count_nonzero(hit[:h]))
+                f1 = _pool().submit(CK.hit_kernel, h, K, u1, h, depth == 0, lastv, wf, mats,
+                                    vb, fb, ch)
+                n0 = CK.hit_kernel(0, h, 0, 0, depth == 0, lastv, wf, mats, vb, fb, ch)
+                n1 = f1.result()
+                rows = np.r_[0:n0, h:h + n1]
+            else:
+                rows = np.arange(CK.hit_kernel(0, K, 0, 0, depth == 0, lastv, wf, mats, vb, fb,
+                                               ch))
+            if rows.size == 0:
+                break
+            k = ch.k[rows]
+            nxt = self._continue(ch.p[rows], ch.ng[rows], ch.ns[rows], ch.wo[rows], ch.mat[rows],
+                                 ch.colors[rows], ch.beta[rows], ch.plen[rows],
+                                 ch.p_delta[rows], ch.u[rows], see_through[k], d[k])
+            if nxt is None:
+                break
+            keep, o, d, beta, path_len, last, see_through = nxt
+            tmax = np.full(keep.size, np.inf)
+            idx = idx[k[keep]]
+
+
+def _intersect(accel, o, d, tmax):
+    """Embree's closest hits of rays o + t d, t < tmax (K,): (prim (K,) int32,
+    u, v, tfar (K,) float32), as ``Accel.intersect`` casts them (float32 in)."""
+    K = o.shape[0]
+    accel.rays_cast += K
+    if accel._scene is None or K == 0:
+        return (np.full(K, -1, np.int32), np.zeros(K, np.float32), np.zeros(K, np.float32),
+                np.full(K, np.inf, np.float32))
+    f32 = accel._f32
+    r = accel._scene.run(f32(o), f32(d), dists=f32(np.minimum(tmax, 3e37)), output=1)
+    return r["primID"].astype(np.int32, copy=False), r["u"], r["v"], r["tfar"]
 
 
 def _emission_texture(mtab, scene, mat, uv):

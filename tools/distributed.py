@@ -1,0 +1,358 @@
+"""Photon passes split over Dask workers: ``fppm render --workers N`` / ``--cluster ADDRESS``.
+
+    client = connect(workers=2)                  # or connect(address="tcp://host:8786")
+    DistributedPhotonPass(client, renderer)      # takes over renderer.photon_pass
+    renderer.run()
+    close(client)
+
+The driver (the process that exported the scene and runs
+``core.render.Renderer``) keeps every stage of a pass but the photons.  It
+sends the exported scene and the settings to the workers once (a broadcast
+``scatter``); each worker builds its own BVH, light and material tables,
+render plan, occlusion grid and photon tracer from them (the scene half of a
+Renderer, no per-pixel state).  Each pass the driver broadcasts what the
+gather reads of the active visible points and their squared radii
+(``PassJob``), and submits one task per photon chunk
+(``PhotonPass.chunks``).  A task traces chunk c with its own random stream
+``chunk_rng(pass stream, c)``, gathers it against the pass's grid (built once
+per pass on each worker) and returns the chunk's sums at the pixels it
+touched (``ChunkSums``: M, Phi, the smallest predicted radius, the radius
+histogram and spectrum of the frequency photons).  The driver adds them in
+chunk order (``PassSums.add``) and runs the normal update and film.
+
+Same image as one process: a single process with ``photon_pass.chunk_streams``
+(``local_chunk_streams``) computes and adds exactly the same chunk sums in the
+same order, so the images are bit for bit equal as long as every worker runs
+the gather on as many numba threads as that process (the per-thread Phi sums
+of ``hashgrid.gather`` are added in thread order; another thread count changes
+the last bits).  The default single-process render uses one random stream per
+pass instead: same noise level, other random numbers.
+
+A worker that dies mid-pass: the scheduler gives its chunks to another worker
+(a nanny restarts a local one); a chunk depends on its inputs alone, so the
+result is identical.  The scene and the pass data are broadcast to every
+worker, so any survivor holds them.
+
+Dask is imported only here and only when these flags are used; the Blender
+extension never imports this module (tools/ is not shipped).
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import threading
+import time
+import uuid
+from typing import NamedTuple, Optional
+
+import numpy as np
+
+from ..core.render import Renderer
+from ..core.sppm.photon_pass import PassSums, PhotonEstimate, PhotonPass, chunk_rng
+from ..core.sppm.update import Radii
+from ..core.sppm.visible_points import VisiblePoints
+
+DASK_MISSING = ("--workers and --cluster need Dask: install it with "
+                "`pip install \"dask[distributed]\"` (`make venv` does).")
+#: Seconds to wait for the scheduler of --cluster.
+CONNECT_TIMEOUT = 10
+#: Seconds between two polls of should_stop while waiting for a chunk.
+POLL = 0.05
+
+
+class DaskMissing(ImportError):
+    """dask.distributed is not installed (the CLI's usage error)."""
+
+
+def require():
+    """The dask.distributed module; DaskMissing when it is not installed."""
+    try:
+        import distributed
+    except ImportError as ex:
+        raise DaskMissing(DASK_MISSING) from ex
+    return distributed
+
+
+def connect(workers: Optional[int] = None, address: Optional[str] = None):
+    """A dask.distributed Client: of a new local cluster of ``workers``
+    processes (one task thread each, no memory limit, its HTTP endpoints on a
+    free port), or of the scheduler at ``address``.  Raises DaskMissing."""
+    distributed = require()
+    if address:
+        return distributed.Client(address, set_as_default=False, timeout=CONNECT_TIMEOUT)
+    cluster = distributed.LocalCluster(n_workers=int(workers), threads_per_worker=1,
+                                       processes=True, memory_limit=0,
+                                       dashboard_address=":0", silence_logs=logging.ERROR)
+    client = distributed.Client(cluster, set_as_default=False)
+    client._fppm_cluster = cluster          # closed by close()
+    client.register_plugin(_worker_ignores_sigint(), name="fppm-ignore-sigint")
+    return client
+
+
+def _worker_ignores_sigint():
+    """A WorkerPlugin: a local worker ignores SIGINT.  Ctrl-C in a terminal
+    reaches the whole process group; the driver cancels the render and closes
+    the cluster itself, and the workers would only print KeyboardInterrupt
+    tracebacks.  (Set in the worker's event-loop thread, its main thread.)"""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class IgnoreSigint(WorkerPlugin):
+        def setup(self, worker):
+            import signal
+            import threading
+            if threading.current_thread() is threading.main_thread():
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return IgnoreSigint()
+
+
+def close(client) -> None:
+    """Close a Client made by :func:`connect` (and its local cluster)."""
+    cluster = getattr(client, "_fppm_cluster", None)
+    client.close()
+    if cluster is not None:
+        cluster.close()
+
+
+def local_chunk_streams(renderer: Renderer, chunk: Optional[int] = None) -> Renderer:
+    """Make a single-process renderer draw one random stream per chunk, the
+    streams the workers use: its image equals the distributed render's."""
+    renderer.photon_pass.chunk_streams = True
+    if chunk is not None:
+        renderer.photon_pass.chunk = int(chunk)
+    return renderer
+
+
+# ----------------------------------------------------------------------------
+# What the driver sends
+# ----------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class SceneJob:
+    """(A dataclass, not a tuple: Dask would scatter a tuple's items one by one.)
+    Sent once per render: the renderer's scene (after its clean-up and
+    recentring, which are then no-ops), its settings, its plan (the workers
+    check they made the same) and a token naming the render."""
+    token: str
+    scene: object
+    settings: object
+    plan: object
+
+
+@dataclasses.dataclass(frozen=True)
+class PassJob:
+    """Sent once per pass: what the gather reads of the active visible points
+    (valid, with a radius), at their pixels idx (K,) int64: p, ng, albedo
+    (K, 3), R2 (K,), const (K,); for the non-Lambert ones alone (their
+    positions nc (J,) among the K) the BSDF inputs mat, colors, ns, wo and
+    the depth of the receiver radius.  The throughput beta and the film's
+    first-hit data stay on the driver.  A Lambert point costs 89 bytes."""
+    key: str
+    idx: np.ndarray
+    p: np.ndarray
+    ng: np.ndarray
+    albedo: np.ndarray
+    R2: np.ndarray
+    const: np.ndarray
+    nc: np.ndarray
+    mat: np.ndarray
+    colors: np.ndarray
+    ns: np.ndarray
+    wo: np.ndarray
+    depth: np.ndarray
+    spectrum_aov: bool
+
+    @classmethod
+    def pack(cls, key: str, vp, R2: np.ndarray, active: np.ndarray,
+             spectrum_aov: bool) -> "PassJob":
+        idx = np.flatnonzero(active)
+        nc = np.flatnonzero(~vp.const[idx])
+        sub = idx[nc]
+        return cls(key, idx, vp.p[idx], vp.ng[idx], vp.albedo[idx], R2[idx], vp.const[idx], nc,
+                   vp.mat[sub], vp.colors[sub], vp.ns[sub], vp.wo[sub], vp.depth[sub],
+                   spectrum_aov)
+
+    def unpack(self):
+        """(VisiblePoints (K,), R2 (K,)): the active points alone, every one
+        valid; the BSDF inputs of the Lambert ones are zeros (never read)."""
+        vp = VisiblePoints.empty(self.idx.size, self.colors.shape[1])
+        vp.valid[:] = True
+        vp.p[:], vp.ng[:], vp.albedo[:], vp.const[:] = self.p, self.ng, self.albedo, self.const
+        nc = self.nc
+        vp.mat[nc], vp.colors[nc], vp.ns[nc], vp.wo[nc], vp.depth[nc] = (
+            self.mat, self.colors, self.ns, self.wo, self.depth)
+        return vp, self.R2
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in dataclasses.astuple(self) if isinstance(a, np.ndarray))
+
+
+# ----------------------------------------------------------------------------
+# Worker side
+# ----------------------------------------------------------------------------
+
+class _SceneSide(Renderer):
+    """The scene half of a Renderer (``Renderer._setup_scene``: BVH, lights,
+    materials, plan, occlusion grid, photon tracer) and its photon pass,
+    without the per-pixel state, camera pass and film."""
+
+    def __init__(self, job: SceneJob):
+        self.settings = job.settings
+        self.log = lambda line: None
+        self._should_stop = lambda: False
+        self._setup_scene(job.scene, ())
+        if self.plan != job.plan:
+            raise RuntimeError("FPPM worker: the render plan differs from the driver's "
+                               "(another FPPM version on this worker?)")
+        freq = self.plan.frequency_photons
+        radii = Radii(job.settings, None, self.D, freq, None, self.height, self.width)
+        self.photon_pass = PhotonPass(self.tracer, self.mtab, job.settings, freq,
+                                      radii.hist if radii.quantile else None,
+                                      {"photon_trace": 0.0, "gather": 0.0})
+
+
+# Per worker process: the scene side of the current render and the grid of
+# the current pass.  One task at a time per process (the tracer and the
+# gather use the process's threads themselves).
+_WORKER: dict = {}
+_WORKER_LOCK = threading.Lock()
+
+
+def _scene_side(job: SceneJob) -> _SceneSide:
+    side = _WORKER.get("scene")
+    if side is None or _WORKER.get("token") != job.token:
+        _WORKER.clear()
+        side = _SceneSide(job)
+        _WORKER.update(scene=side, token=job.token)
+    return side
+
+
+def setup_task(job: SceneJob, kernels: bool = False) -> int:
+    """Build the scene side on this worker ahead of the first pass (and with
+    ``kernels`` load every compiled kernel now, core.warmup, rather than
+    each at its first call inside a pass); returns the worker's pid."""
+    with _WORKER_LOCK:
+        if kernels:
+            from ..core import warmup
+            warmup.compile_kernels()
+        _scene_side(job)
+    return os.getpid()
+
+
+def chunk_task(job: SceneJob, pj: PassJob, n: int, n_freq: int, rng):
+    """Chunk sums (core.sppm.photon_pass.ChunkSums) of n photons (n_freq with
+    a spectrum) traced with rng and gathered at the pass's visible points."""
+    with _WORKER_LOCK:
+        pp = _scene_side(job).photon_pass
+        if _WORKER.get("pass") != pj.key:
+            _WORKER.update(grid=pp.begin(*pj.unpack(), pj.spectrum_aov), **{"pass": pj.key})
+        part = pp.chunk_sums(_WORKER["grid"], n, n_freq, rng)
+    # From the active points' numbering back to the pixels'.
+    return part._replace(idx=pj.idx[part.idx], spec_idx=pj.idx[part.spec_idx])
+
+
+# ----------------------------------------------------------------------------
+# Driver side
+# ----------------------------------------------------------------------------
+
+class PassStats(NamedTuple):
+    """One distributed photon pass: bytes broadcast (visible points and
+    radii, sent to every worker), bytes returned (the chunk sums, all of
+    them), seconds the driver spent adding the sums, wall seconds of the
+    whole photon pass, chunks."""
+    broadcast_bytes: int
+    returned_bytes: int
+    add_seconds: float
+    wall_seconds: float
+    chunks: int
+
+
+class DistributedPhotonPass:
+    """Takes the place of ``renderer.photon_pass`` (same call, same
+    PhotonEstimate): the chunks of every pass go to the Dask workers of
+    ``client``.  ``local``: the renderer's own PhotonPass (chunking, the
+    empty pass, the throughput).  ``rays``: rays cast by the workers;
+    ``stats``: a PassStats per distributed pass.  warm: build the scene on
+    every current worker now rather than in the first pass (a worker that
+    joins later builds it at its first chunk); load_kernels: load the
+    compiled kernels there too (they otherwise load at their first call,
+    inside pass 1)."""
+
+    def __init__(self, client, renderer: Renderer, warm: bool = True,
+                 load_kernels: bool = False, retries: int = 3):
+        self.client, self.renderer, self.retries = client, renderer, retries
+        self.local: PhotonPass = renderer.photon_pass
+        self.stage_seconds = renderer.stage_seconds
+        self.rays = self.local.rays
+        self.stats: list[PassStats] = []
+        self.token = uuid.uuid4().hex
+        job = SceneJob(self.token, renderer.scene, renderer.settings, renderer.plan)
+        self.scene_future = client.scatter(job, broadcast=True, hash=False)
+        self._passes = 0
+        self.pending: list = []          # the futures of the pass under way
+        if warm:
+            workers = list(client.scheduler_info()["workers"])
+            client.gather([client.submit(setup_task, self.scene_future, load_kernels,
+                                         workers=[w], allow_other_workers=False, pure=False,
+                                         key=f"fppm-setup-{self.token}-{i}")
+                           for i, w in enumerate(workers)])
+        renderer.photon_pass = self
+
+    def __call__(self, vp, R2: np.ndarray, spectrum: Optional[np.ndarray],
+                 rng: np.random.Generator, check_stop=lambda: None) -> PhotonEstimate:
+        t_pass = time.perf_counter()
+        local = self.local
+        active = local.active(vp, R2)
+        if not np.any(active):
+            return local(vp, R2, spectrum, rng, check_stop)     # traces nothing
+        client = self.client
+        self._passes += 1
+        tag = f"{self.token}-{self._passes}"
+        pj = PassJob.pack(tag, vp, R2, active, spectrum is not None)
+        pass_future = client.scatter(pj, broadcast=True, hash=False)
+        futures = [client.submit(chunk_task, self.scene_future, pass_future, n, n_freq,
+                                 chunk_rng(rng, c), key=f"fppm-chunk-{tag}-{c}",
+                                 retries=self.retries, pure=False)
+                   for c, (n, n_freq) in enumerate(local.chunks())]
+        self.pending = futures
+        acc = PassSums.zeros(vp.valid.shape[0], local.radius_histogram is not None, spectrum)
+        returned, add_seconds = 0, 0.0
+        try:
+            for f in futures:                 # in chunk order: the same sums as one process
+                part = self._result(f, check_stop)
+                t0 = time.perf_counter()
+                acc.add(part)
+                add_seconds += time.perf_counter() - t0
+                returned += part.nbytes
+                self.rays += part.rays
+                self.stage_seconds["photon_trace"] += part.trace_seconds
+                self.stage_seconds["gather"] += part.gather_seconds
+        except BaseException:
+            client.cancel(futures)
+            raise
+        finally:
+            self.pending = []
+            del pass_future
+        est = local.finish(vp, acc)
+        self.stats.append(PassStats(pj.nbytes, returned, add_seconds,
+                                    time.perf_counter() - t_pass, len(futures)))
+        return est
+
+    @staticmethod
+    def _result(future, check_stop):
+        """The future's result, polling check_stop (RenderCancelled) meanwhile."""
+        # A done-callback and an Event rather than result(timeout=...): a
+        # timed-out result() could fail inside distributed's sync() while a
+        # worker was being replaced.
+        done = threading.Event()
+        future.add_done_callback(lambda f: done.set())
+        while not done.wait(POLL):
+            check_stop()
+        check_stop()
+        return future.result()
+
+    def close(self) -> None:
+        """Release the scene on the workers (the client stays open)."""
+        self.scene_future.release()
+        self.renderer.photon_pass = self.local
