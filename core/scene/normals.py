@@ -98,10 +98,11 @@ def attach(tri_n: np.ndarray, spec: ShadingSpec | None) -> None:
         _ATTACHED.pop(key, None)
         return
 
-    def gone(ref, key=key):
-        e = _ATTACHED.get(key)
+    def gone(ref, key=key, table=_ATTACHED):
+        # (table bound here: module globals may be None at interpreter exit)
+        e = table.get(key)
         if e is not None and e[0] is ref:
-            del _ATTACHED[key]
+            del table[key]
 
     try:
         ref = weakref.ref(tri_n, gone)
