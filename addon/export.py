@@ -33,7 +33,8 @@ import numpy as np
 from ..core.scene import nodes as shading
 from ..core.errors import MemoryBudgetError, RenderCancelled, SceneError
 from ..core.lights.environment import mean_radiance
-from ..core.scene.textures import EnvironmentMap
+from ..core.scene.normals import BUMP, NORMAL_MAP, NormalInput
+from ..core.scene.textures import EnvironmentMap, UnassociatedImage
 from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
                           TRANSPARENT, Camera, Light, Lobe, Material, Scene,
                           drop_invalid_triangles)
@@ -107,10 +108,25 @@ SUPPORT = (
      "(Generated, Object): HDRI lighting, importance-sampled", SUPPORTED, ""),
     ("Diffuse, Glossy, Glass, Refraction, Transparent, Translucent, Emission, Mix Shader, "
      "Add Shader, Principled BSDF; RGB, Value and Image Texture inputs", SUPPORTED, ""),
+    ("Normal Map (tangent space, MikkTSpace tangents of the render UV map, OpenGL and "
+     "DirectX) and Bump (Strength, Distance, Invert) from an Image Texture", SUPPORTED, ""),
+    ("Mapping (Point, Texture, Vector) and Texture Coordinate (UV, Generated, Object) "
+     "into Image Texture vectors", SUPPORTED, ""),
+    ("image alpha into the Principled Alpha or a Mix Shader's Fac (stochastic "
+     "pass-through); the colour associated with alpha as Cycles reads it", SUPPORTED, ""),
+    ("node groups (flattened, nested)", SUPPORTED, ""),
     ("film transparency, pixel filter width, object and material pass index", SUPPORTED, ""),
     ("other shader nodes", APPROXIMATED, "unsupported node(s) "),
     ("other nodes linked into an input (the input's value is used)", APPROXIMATED,
      "'{src.name}' into {node.name}.{name} ignored"),
+    ("photon bounces on normal-mapped or bumped surfaces", APPROXIMATED,
+     "photons scatter off the interpolated normal"),
+    ("Normal Map in object or world space", APPROXIMATED, "space ignored (tangent space only)"),
+    ("Normal Map or Bump fed by other nodes", APPROXIMATED, "is not an Image Texture: ignored"),
+    ("different Normal inputs on the shaders of one material", APPROXIMATED,
+     "applied to all"),
+    ("different vector inputs on the image textures of one material", APPROXIMATED,
+     "used for all"),
     ("Beckmann / Ashikhmin-Shirley distributions", APPROXIMATED,
      "{node.name}: {dist} distribution rendered as GGX"),
     ("more closures than a material holds", APPROXIMATED,
@@ -191,6 +207,36 @@ def _follow(socket):
     return None, None
 
 
+def _mapping_matrix(node, notes) -> np.ndarray:
+    """(4, 4) affine map of a Mapping node as Cycles' ``svm_mapping`` applies
+    it to a point: POINT R S v + L, TEXTURE S^-1 R^T (v - L), VECTOR R S v,
+    NORMAL R S^-1 v (not renormalised here); R the Euler XYZ rotation."""
+    from mathutils import Euler
+    if any(node.inputs[k].is_linked for k in ("Location", "Rotation", "Scale")
+           if node.inputs.get(k) is not None):
+        notes.append(f"linked inputs of '{node.name}' ignored")
+    R = np.array(Euler(tuple(node.inputs["Rotation"].default_value), 'XYZ').to_matrix(),
+                 np.float64)
+    sc = np.array(node.inputs["Scale"].default_value, np.float64) \
+        if node.inputs.get("Scale") is not None else np.ones(3)
+    loc = np.array(node.inputs["Location"].default_value, np.float64) \
+        if node.inputs.get("Location") is not None else np.zeros(3)
+    with np.errstate(divide="ignore"):
+        s_inv = np.where(sc != 0, 1.0 / np.where(sc != 0, sc, 1.0), 0.0)
+    M = np.eye(4)
+    vt = node.vector_type
+    if vt == 'TEXTURE':
+        M[:3, :3] = np.diag(s_inv) @ R.T
+        M[:3, 3] = -M[:3, :3] @ loc
+    elif vt == 'NORMAL':
+        M[:3, :3] = R @ np.diag(s_inv)
+    else:
+        M[:3, :3] = R @ np.diag(sc)
+        if vt == 'POINT':
+            M[:3, 3] = loc
+    return M
+
+
 # ---------------------------------------------------------------------------
 # materials
 
@@ -217,6 +263,25 @@ def _mix(a: Material, b: Material, fac: float, name: str) -> Material:
     return Material(name, tuple(lobes), em, tex, tuple(notes))
 
 
+def _uses_normal_map(inp) -> bool:
+    """A NormalInput that is, or sits on, a tangent-space Normal Map."""
+    while inp is not None:
+        if inp.kind == NORMAL_MAP:
+            return True
+        inp = inp.base
+    return False
+
+
+def _mix_by_alpha(a: Material, b: Material, texture: int, name: str) -> Material:
+    """Mix Shader whose Fac is an image's alpha a(uv): (1 - a) A + a B."""
+    lobes, notes = shading.mix_by_alpha(a.lobes, b.lobes, texture)
+    notes = list(a.approximations) + list(b.approximations) + list(notes)
+    em, tex = _emission_sum([(0.5, a), (0.5, b)], notes)
+    if any(em):
+        notes.append("emission mixed by an image alpha: mixed half and half")
+    return Material(name, tuple(lobes), em, tex, tuple(notes))
+
+
 def _add(a: Material, b: Material, name: str) -> Material:
     """A + B, like Cycles' Add Shader."""
     lobes, notes = shading.add_materials(a.lobes, b.lobes)
@@ -234,6 +299,48 @@ class _MaterialBuilder:
         self.name = mat.name
         self.unsupported: list[str] = []   # node labels -> warning line
         self.notes: list[str] = []         # approximations
+        self.ctx: dict = {}                # node pointer -> the group nodes it sits in
+        self.normals: list = []            # (shader node name, NormalInput or None)
+        self.vectors: list = []            # texture vector specs (see vector())
+        self.vector_spec = None            # the one applied to the material (build())
+
+    # -- links, through reroutes and node groups ----------------------------
+    def follow(self, socket):
+        """(node, output socket, value socket) feeding ``socket``: the node
+        and its output, through reroutes and into / out of node groups
+        (flattened: a Group node's output continues at its Group Output's
+        input, a Group Input's output at the Group node's input).  When
+        nothing is linked, node and output are None and the value socket is
+        the one whose ``default_value`` applies (a group's input, if the
+        chain ends at a Group Input)."""
+        stack = self.ctx.get(socket.node.as_pointer(), ()) if socket is not None else ()
+        for _ in range(256):
+            node, out = _follow(socket)
+            if node is None:
+                return None, None, socket
+            if node.type == 'GROUP' and node.node_tree is not None:
+                outs = [nd for nd in node.node_tree.nodes if nd.type == 'GROUP_OUTPUT']
+                act = [nd for nd in outs if nd.is_active_output] or outs
+                inner = [i for i in (act[0].inputs if act else ())
+                         if i.identifier == out.identifier]
+                if not inner:
+                    return None, None, socket
+                stack = stack + (node,)
+                socket = inner[0]
+                continue
+            if node.type == 'GROUP_INPUT':
+                if not stack:
+                    return None, None, socket
+                outer = [i for i in stack[-1].inputs if i.identifier == out.identifier]
+                stack = stack[:-1]
+                if not outer:
+                    return None, None, socket
+                socket = outer[0]
+                self.ctx[socket.node.as_pointer()] = stack
+                continue
+            self.ctx[node.as_pointer()] = stack
+            return node, out, socket
+        return None, None, socket
 
     # -- inputs --------------------------------------------------------------
     def color(self, node, name):
@@ -241,12 +348,12 @@ class _MaterialBuilder:
         sock = node.inputs.get(name)
         if sock is None:
             return GREY, -1
-        src, out = _follow(sock)
+        src, out, sock = self.follow(sock)
         if src is None:
             v = tuple(sock.default_value)
             return (float(v[0]), float(v[1]), float(v[2])), -1
-        if src.type == 'TEX_IMAGE':
-            t = self.ex.texture(src, self)
+        if src.type == 'TEX_IMAGE' and out.name == 'Color':
+            t = self.image(src)
             if t >= 0:
                 return (1.0, 1.0, 1.0), t
         elif src.type == 'RGB':
@@ -260,7 +367,7 @@ class _MaterialBuilder:
         sock = node.inputs.get(name)
         if sock is None:
             return default
-        src, out = _follow(sock)
+        src, out, sock = self.follow(sock)
         if src is None:
             return float(sock.default_value)
         if src.type == 'VALUE':
@@ -268,9 +375,100 @@ class _MaterialBuilder:
         self.notes.append(f"'{src.name}' into {node.name}.{name} ignored")
         return float(sock.default_value)
 
+    def alpha_texture(self, node, name) -> int:
+        """Texture index when an Image Texture's Alpha output feeds the input, else -1."""
+        sock = node.inputs.get(name)
+        if sock is None:
+            return -1
+        src, out, _ = self.follow(sock)
+        if src is not None and src.type == 'TEX_IMAGE' and out.name == 'Alpha':
+            return self.image(src)
+        return -1
+
+    def image(self, tex_node) -> int:
+        """An Image Texture node's texture index; its Vector input is recorded."""
+        t = self.ex.texture(tex_node, self)
+        if t >= 0:
+            self.vectors.append(self.vector(tex_node))
+        return t
+
+    def vector(self, tex_node):
+        """(source, object, A) of an Image Texture's Vector input: the texture
+        coordinates 'UV', 'Generated' or 'Object' (of ``object``, None = the
+        shaded object), then A (4, 4) the composed Mapping nodes (Cycles'
+        flat projection reads x, y of the result)."""
+        A = np.eye(4)
+        node, out, _ = self.follow(tex_node.inputs.get("Vector"))
+        while node is not None and node.type == 'MAPPING':
+            A = A @ _mapping_matrix(node, self.notes)
+            if node.vector_type == 'NORMAL':
+                self.notes.append(f"'{node.name}': Normal mapping of texture coordinates "
+                                  f"not renormalised")
+            vec = node.inputs["Vector"]
+            node, out, _ = self.follow(vec)
+        if node is None:
+            return ('UV', None, A)
+        if node.type == 'UVMAP':
+            if node.uv_map:
+                self.notes.append(f"'{node.name}': UV map '{node.uv_map}' read as the "
+                                  f"render UV map")
+            return ('UV', None, A)
+        if node.type == 'TEX_COORD' and out.name in ('UV', 'Generated', 'Object'):
+            ob = node.object if out.name == 'Object' else None
+            return (out.name, ob.name if ob is not None else None, A)
+        self.notes.append(f"{tex_node.name}: vector input '{node.name}' ignored (UVs used)")
+        return ('UV', None, np.eye(4))
+
+    def normal_input(self, node, depth=0):
+        """The NormalInput of a node's Normal input (None: unlinked or
+        unsupported, with a note).  A Bump's own Normal input may be a Normal
+        Map (``NormalInput.base``)."""
+        sock = node.inputs.get("Normal")
+        if sock is None or not sock.is_linked:
+            return None
+        src, out, _ = self.follow(sock)
+        if src is None:
+            return None
+        if src.type == 'NORMAL_MAP':
+            if getattr(src, "space", 'TANGENT') != 'TANGENT':
+                self.notes.append(f"'{src.name}': {src.space} space ignored (tangent space only)")
+                return None
+            if getattr(src, "uv_map", ""):
+                self.notes.append(f"'{src.name}': tangents of UV map '{src.uv_map}' taken "
+                                  f"from the render UV map")
+            img, iout, _ = self.follow(src.inputs["Color"])
+            if img is None or img.type != 'TEX_IMAGE' or iout.name != 'Color':
+                self.notes.append(f"'{src.name}': colour input is not an Image Texture: ignored")
+                return None
+            t = self.image(img)
+            if t < 0:
+                return None
+            return NormalInput(NORMAL_MAP, t, strength=self.value(src, "Strength", 1.0),
+                               directx=getattr(src, "convention", 'OPENGL') == 'DIRECTX')
+        if src.type == 'BUMP':
+            base = self.normal_input(src, depth + 1) if depth < 1 else None
+            if base is not None and base.kind != NORMAL_MAP:
+                base = None
+            if base is None and src.inputs.get("Normal") is not None \
+                    and src.inputs["Normal"].is_linked:
+                self.notes.append(f"'{src.name}': its Normal input ignored")
+            img, iout, _ = self.follow(src.inputs["Height"])
+            if img is None or img.type != 'TEX_IMAGE':
+                self.notes.append(f"'{src.name}': height is not an Image Texture: ignored")
+                return None
+            t = self.image(img)
+            if t < 0:
+                return None
+            return NormalInput(BUMP, t, strength=self.value(src, "Strength", 1.0),
+                               distance=self.value(src, "Distance", 1.0),
+                               invert=bool(getattr(src, "invert", False)),
+                               channel='ALPHA' if iout.name == 'Alpha' else 'COLOR', base=base)
+        self.notes.append(f"'{src.name}' into {node.name}.Normal ignored")
+        return None
+
     # -- shaders --------------------------------------------------------------
     def shader(self, socket, depth=0) -> Material:
-        node, out = _follow(socket)
+        node, out, _ = self.follow(socket)
         if node is None:
             # An unconnected shader socket is black (no closure), as in Cycles.
             return Material(self.name, lobes=(), emission=(0.0, 0.0, 0.0))
@@ -286,6 +484,8 @@ class _MaterialBuilder:
             return Material(self.name, lobes=(), emission=(0.0, 0.0, 0.0))
         t = node.type
         n = self.name
+        if t.startswith('BSDF_') or t in ('SUBSURFACE_SCATTERING',):
+            self.normals.append((node.name, self.normal_input(node)))
         if t == 'BSDF_DIFFUSE':
             c, tex = self.color(node, "Color")
             return Material(n, lobes=(Lobe(DIFFUSE, c, 1.0, self.value(node, "Roughness"),
@@ -304,9 +504,12 @@ class _MaterialBuilder:
             return Material(n, lobes=(), emission=(c[0] * s, c[1] * s, c[2] * s),
                             emission_texture=tex)
         if t == 'MIX_SHADER':
-            fac = min(max(self.value(node, "Fac", 0.5), 0.0), 1.0)
+            at = self.alpha_texture(node, "Fac")
+            fac = 0.5 if at >= 0 else min(max(self.value(node, "Fac", 0.5), 0.0), 1.0)
             a = self.shader(node.inputs[1], depth + 1)
             b = self.shader(node.inputs[2], depth + 1)
+            if at >= 0:
+                return _mix_by_alpha(a, b, at, n)
             return _mix(a, b, fac, n)
         if t == 'ADD_SHADER':
             a = self.shader(node.inputs[0], depth + 1)
@@ -314,7 +517,8 @@ class _MaterialBuilder:
             return _add(a, b, n)
         if t == 'BSDF_PRINCIPLED':
             return self.principled(node)
-        self.unsupported.append(node.name)
+        if node.name not in self.unsupported:    # (a group instanced twice: once)
+            self.unsupported.append(node.name)
         return Material(n, lobes=(Lobe(DIFFUSE, GREY),))
 
     def microfacet(self, node) -> Lobe:
@@ -344,10 +548,11 @@ class _MaterialBuilder:
         base, base_tex = self.color(node, "Base Color")
         emis, emis_tex = self.color(node, "Emission Color")
         v = self.value
+        alpha_tex = self.alpha_texture(node, "Alpha")
         lobes, emission, notes = shading.principled_to_lobes(
-            base_color=base, base_color_texture=base_tex,
+            base_color=base, base_color_texture=base_tex, alpha_texture=alpha_tex,
             metallic=v(node, "Metallic", 0.0), roughness=v(node, "Roughness", 0.5),
-            ior=v(node, "IOR", 1.5), alpha=v(node, "Alpha", 1.0),
+            ior=v(node, "IOR", 1.5), alpha=1.0 if alpha_tex >= 0 else v(node, "Alpha", 1.0),
             transmission=v(node, "Transmission Weight", 0.0),
             coat_weight=v(node, "Coat Weight", 0.0),
             coat_roughness=v(node, "Coat Roughness", 0.03), coat_ior=v(node, "Coat IOR", 1.5),
@@ -393,11 +598,24 @@ class _MaterialBuilder:
             # Pure black: keep one black diffuse lobe so core's tables stay regular.
             m = Material(m.name, (Lobe(DIFFUSE, (0.0, 0.0, 0.0)),), m.emission,
                          m.emission_texture, m.approximations)
+        normal = None
+        found = [(nm, inp) for nm, inp in self.normals if inp is not None]
+        if found:
+            normal = found[0][1]
+            if len({inp for _, inp in self.normals}) > 1:
+                self.notes.append(f"the shaders' Normal inputs differ: '{found[0][0]}''s "
+                                  f"applied to all")
+        vecs = {(src, ob, tuple(np.round(A, 9).ravel())) for src, ob, A in self.vectors}
+        self.vector_spec = self.vectors[0] if self.vectors else None
+        if len(vecs) > 1:
+            self.notes.append("image textures with different vector inputs: the first one's "
+                              "used for all")
         notes = list(m.approximations) + self.notes
         if self.unsupported:
             notes.append("unsupported " + ", ".join(f"'{u}'" for u in self.unsupported)
                          + " -> diffuse grey")
-        return Material(self.name, m.lobes, m.emission, m.emission_texture, tuple(notes))
+        return Material(self.name, m.lobes, m.emission, m.emission_texture, tuple(notes),
+                        normal=normal)
 
 
 # ---------------------------------------------------------------------------
@@ -488,10 +706,14 @@ class _Exporter:
         self.log = log
         self.materials: list[Material] = []
         self.mat_pass_index: list[int] = []    # material.pass_index per entry of materials
+        self.mat_vector: list = []     # texture vector spec per material (_MaterialBuilder.vector)
+        self.tangent_parts: list = []  # (T, 3, 4) float32 per entry of parts, or None
+        self.tangent_cache: dict = {}
         self.obj_index_parts: list[np.ndarray] = []   # object.pass_index per triangle of parts
         self.mat_index: dict = {}
         self.textures: list[np.ndarray] = []
-        self.tex_index: dict = {}
+        self.tex_index: dict = {}      # (image name, reading) -> index into textures
+        self.tex_pixels: dict = {}     # image name -> its pixels (or None)
         self.mesh_cache: dict = {}
         self.notes: list[str] = []
         self.n_objects = 0
@@ -551,21 +773,33 @@ class _Exporter:
         if img is None:
             mb.notes.append(f"{node.name}: no image")
             return -1
+        # Cycles interpolates the colour associated with (multiplied by)
+        # alpha, and divides by the interpolated alpha only when the node's
+        # Alpha output is linked (NODE_IMAGE_ALPHA_UNASSOCIATE).  One entry
+        # of textures per image and reading; the pixels are read once.
+        out = node.outputs.get("Alpha")
+        mode = 'UNASSOCIATED' if out is not None and out.is_linked else 'ASSOCIATED'
         key = img.name_full
-        if key in self.tex_index:
-            return self.tex_index[key]
-        px = self.pixels(img, mb.notes)
+        if key not in self.tex_pixels:
+            px = self.pixels(img, mb.notes)
+            self.tex_pixels[key] = px
+            if getattr(node, "projection", 'FLAT') != 'FLAT':
+                mb.notes.append(f"{node.name}: projection '{node.projection}' treated as flat")
+        px = self.tex_pixels[key]
         if px is None:
-            self.tex_index[key] = -1
             return -1
-        vec, _ = _follow(node.inputs.get("Vector")) if node.inputs.get("Vector") else (None, None)
-        if vec is not None and vec.type not in ('UVMAP', 'TEX_COORD'):
-            mb.notes.append(f"{node.name}: vector input '{vec.name}' ignored (UVs used)")
-        if getattr(node, "projection", 'FLAT') != 'FLAT':
-            mb.notes.append(f"{node.name}: projection '{node.projection}' treated as flat")
-        self.tex_index[key] = len(self.textures)
-        self.textures.append(px)
-        return self.tex_index[key]
+        if (getattr(img, "alpha_mode", 'STRAIGHT') != 'STRAIGHT' or px.shape[2] < 4
+                or not np.any(px[..., 3] < 1.0)):
+            mode = 'STRAIGHT'     # read as stored
+        if (key, mode) not in self.tex_index:
+            if mode != 'STRAIGHT':
+                px = px.copy()
+                px[..., :3] *= px[..., 3:4]
+                if mode == 'UNASSOCIATED':
+                    px = px.view(UnassociatedImage)
+            self.tex_index[(key, mode)] = len(self.textures)
+            self.textures.append(px)
+        return self.tex_index[(key, mode)]
 
     def pixels(self, img, notes) -> np.ndarray | None:
         """(H, W, C >= 3) float32 scene-linear pixels of a Blender image, row 0
@@ -612,6 +846,7 @@ class _Exporter:
             idx = self.mat_index[key] = len(self.materials)
             self.materials.append(DEFAULT_MATERIAL)
             self.mat_pass_index.append(0)
+            self.mat_vector.append(None)
         if idx is None:
             mb = _MaterialBuilder(self, mat)
             m = mb.build()
@@ -622,6 +857,7 @@ class _Exporter:
             idx = len(self.materials)
             self.materials.append(m)
             self.mat_pass_index.append(int(getattr(mat, "pass_index", 0)))
+            self.mat_vector.append(mb.vector_spec)
             self.mat_index[key] = idx
         return idx
 
@@ -707,7 +943,7 @@ class _Exporter:
         T = fscene.n_triangles
         if T <= CHUNK:
             return drop_invalid_triangles(fscene)
-        per_tri = ("tri_p", "tri_n", "tri_uv", "tri_mat", "tri_object_index")
+        per_tri = ("tri_p", "tri_n", "tri_uv", "tri_mat", "tri_object_index", "tri_tangent")
         bands, dropped = [], 0
         for a in range(0, T, CHUNK):
             band = dataclasses.replace(fscene, **{
@@ -723,6 +959,114 @@ class _Exporter:
             k: (None if getattr(fscene, k) is None
                 else np.concatenate([getattr(b, k) for b in bands]))
             for k in per_tri}), dropped
+
+    # -- shading attributes: texture coordinates and tangents -------------------
+    def shading_attributes(self, inst, ob, parts, n0: int) -> None:
+        """For the parts[n0:] that ``geometry`` just added for ``ob``: the
+        texture coordinates of materials whose Image Textures read Generated,
+        Object or mapped UV coordinates (``tri_uv`` rewritten to x, y of the
+        mapped vector, exact per corner since every mapping is affine), and
+        the MikkTSpace tangents of Normal Map materials (``tangent_parts``)."""
+        for i in range(n0, len(parts)):
+            pw, nw, uv, mat = parts[i]
+            used = np.unique(mat)
+            new_uv = None
+            for m in used:
+                spec = self.mat_vector[m]
+                if spec is None:
+                    continue
+                src, obname, A = spec
+                if src == 'UV' and np.allclose(A, np.eye(4)):
+                    continue
+                rows = np.nonzero(mat == m)[0]
+                v3 = self.texture_vectors(inst, ob, src, obname, pw[rows], uv[rows])
+                if v3 is None:
+                    continue
+                if new_uv is None:
+                    new_uv = uv.copy()       # uv may be the mesh cache's array
+                v3 = v3 @ A[:3, :3].T + A[:3, 3]
+                new_uv[rows] = v3[..., :2].astype(np.float32)
+                self.poll()
+            if new_uv is not None:
+                parts[i] = (pw, nw, new_uv, mat)
+            needs = any(_uses_normal_map(self.materials[m].normal) for m in used)
+            self.tangent_parts.append(self.tangents(inst, ob) if needs else None)
+
+    def texture_vectors(self, inst, ob, src, obname, pw, uv):
+        """(k, 3, 3) float64 texture vectors at the corners: UV (u, v, 0),
+        Generated (the object-space position in the mesh's texture space,
+        0..1 over its bounds) or Object (the position in ``obname``'s space,
+        or ``ob``'s); None (and a note) when unavailable."""
+        if src == 'UV':
+            return np.concatenate([uv.astype(np.float64), np.zeros(uv.shape[:2] + (1,))], axis=2)
+        M = _mat4(inst.matrix_world)
+        if src == 'Object' and obname is not None:
+            other = self.scene.objects.get(obname)
+            if other is None:
+                return None
+            M = _mat4(other.evaluated_get(self.dg).matrix_world)
+        try:
+            Minv = np.linalg.inv(M)
+        except np.linalg.LinAlgError:
+            return None
+        local = pw.astype(np.float64) @ Minv[:3, :3].T + Minv[:3, 3]
+        if src == 'Object':
+            return local
+        data = getattr(ob, "data", None)
+        loc = getattr(data, "texspace_location", None)
+        size = getattr(data, "texspace_size", None)
+        if loc is None or size is None:
+            self.notes.append(f"Generated coordinates of '{ob.name}' unavailable: UVs used")
+            return None
+        loc, size = np.array(loc, np.float64), np.array(size, np.float64)
+        size = np.where(np.abs(size) > 1e-12, size, 1.0)
+        return (local - (loc - size)) / (2.0 * size)
+
+    def tangents(self, inst, ob):
+        """(T, 3, 4) float32 world-space MikkTSpace tangents (xyz) and
+        bitangent signs (w) at the corners of ``ob``'s loop triangles, in the
+        corner order of ``geometry``; None when the mesh has no UV map or the
+        tangents cannot be computed (then ``core.scene.normals`` uses each
+        triangle's dP/du)."""
+        if ob.type != 'MESH':
+            return None
+        me = ob.data
+        key = me.as_pointer()
+        local = self.tangent_cache.get(key, False)
+        if local is False:
+            local = None
+            layer = me.uv_layers.active_render or me.uv_layers.active
+            if layer is not None and len(me.loop_triangles):
+                try:
+                    me.calc_tangents(uvmap=layer.name)
+                    L = len(me.loops)
+                    t = np.empty(L * 3, np.float32)
+                    sg = np.empty(L, np.float32)
+                    me.loops.foreach_get("tangent", t)
+                    me.loops.foreach_get("bitangent_sign", sg)
+                    me.free_tangents()
+                    corners = np.empty(len(me.loop_triangles) * 3, np.int32)
+                    me.loop_triangles.foreach_get("loops", corners)
+                    local = np.concatenate([t.reshape(L, 3)[corners], sg[corners, None]],
+                                           axis=1).reshape(-1, 3, 4)
+                except RuntimeError as e:
+                    self.notes.append(f"'{ob.name}': tangents not computed ({e}): "
+                                      f"per-triangle tangents used")
+            self.tangent_cache[key] = local
+            self.poll()
+        if local is None:
+            return None
+        A = _mat4(inst.matrix_world)[:3, :3]
+        tw = _linear(A, local[..., :3].reshape(-1, 3))
+        tw /= np.maximum(np.linalg.norm(tw, axis=1, keepdims=True), 1e-30)
+        out = np.empty(local.shape, np.float32)
+        out[..., :3] = tw.reshape(-1, 3, 3)
+        det = np.linalg.det(A)
+        # A mirroring transform flips the bitangent (and geometry() swaps corners).
+        out[..., 3] = local[..., 3] * (1.0 if det >= 0 else -1.0)
+        if det < 0:
+            out = out[:, [0, 2, 1]]
+        return out
 
     # -- lights ----------------------------------------------------------------
     def light(self, inst, ob) -> Light | None:
@@ -857,26 +1201,15 @@ class _Exporter:
         TEXTURE: R^T (v - L) / S, VECTOR: R (S v), NORMAL: R (v / S)), R the
         Euler XYZ rotation.  Translations move a direction-dependent
         point, not a direction: they are left out with a note."""
-        from mathutils import Euler
         A = np.eye(3)
         node, out = _follow(socket) if socket is not None else (None, None)
         if node is not None and node.type == 'MAPPING':
-            vt = node.vector_type
-            if any(node.inputs[k].is_linked for k in ("Location", "Rotation", "Scale")
-                   if node.inputs.get(k) is not None):
-                self.notes.append(f"world: linked inputs of '{node.name}' ignored")
-            R = np.array(Euler(tuple(node.inputs["Rotation"].default_value), 'XYZ').to_matrix(),
-                         np.float64)
-            S = np.diag(np.array(node.inputs["Scale"].default_value, np.float64)) \
-                if node.inputs.get("Scale") is not None else np.eye(3)
-            loc = node.inputs.get("Location")
-            if vt in ('POINT', 'TEXTURE') and loc is not None and \
-                    np.any(np.array(loc.default_value) != 0):
+            notes = []
+            M = _mapping_matrix(node, notes)
+            self.notes += [f"world: {n}" for n in notes]
+            if np.any(M[:3, 3] != 0):
                 self.notes.append(f"world: location of '{node.name}' ignored")
-            with np.errstate(divide="ignore"):
-                S_inv = np.diag(np.where(np.diag(S) != 0, 1.0 / np.diag(S), 0.0))
-            A = {'POINT': R @ S, 'VECTOR': R @ S, 'TEXTURE': S_inv @ R.T,
-                 'NORMAL': R @ S_inv}.get(vt, R @ S)
+            A = M[:3, :3]
             node, out = _follow(node.inputs["Vector"])
         if node is None:
             pass
@@ -985,22 +1318,32 @@ class _Exporter:
                 continue
             n0 = len(parts)
             self.geometry(inst, ob, parts)
+            self.shading_attributes(inst, ob, parts, n0)
             self.obj_index_parts += [np.full(len(q[0]), int(getattr(ob, "pass_index", 0)), np.int32)
                                      for q in parts[n0:]]
             if len(parts) > n0:
                 self.n_objects += 1
                 self.n_instances += bool(inst.is_instance)
         self.notes += feature_notes(scene, list(seen.values()))
+        if any(getattr(m, "normal", None) is not None for m in self.materials):
+            self.notes.append("normal maps and bump: photons scatter off the interpolated "
+                              "normal (the camera side shades with the perturbed one)")
         if parts:
             tri_p = self.concatenate([q[0] for q in parts], np.float32)
             tri_n = self.concatenate([q[1] for q in parts], np.float32)
             tri_uv = self.concatenate([q[2] for q in parts], np.float32)
             tri_mat = self.concatenate([q[3] for q in parts], np.int32)
+            tri_tangent = None
+            if any(t is not None for t in self.tangent_parts):
+                tri_tangent = self.concatenate(
+                    [t if t is not None else np.zeros((len(q[0]), 3, 4), np.float32)
+                     for t, q in zip(self.tangent_parts, parts)], np.float32)
         else:
             tri_p = np.zeros((0, 3, 3), np.float32)
             tri_n = np.zeros((0, 3, 3), np.float32)
             tri_uv = np.zeros((0, 3, 2), np.float32)
             tri_mat = np.zeros(0, np.int32)
+            tri_tangent = None
         world, world_map = self.world()
         cy = getattr(scene, "cycles", None)
         if cy is not None and getattr(cy, "pixel_filter_type", 'BLACKMAN_HARRIS') != 'BLACKMAN_HARRIS':
@@ -1014,7 +1357,7 @@ class _Exporter:
                                          else np.zeros(0, np.int32)),
                        material_pass_index=np.asarray(self.mat_pass_index, np.int32),
                        film_transparent=bool(getattr(scene.render, "film_transparent", False)),
-                       mist=self.mist())
+                       mist=self.mist(), tri_tangent=tri_tangent)
         n_all = fscene.n_triangles
         if n_all == 0:
             raise SceneError(NOTHING_VISIBLE)
@@ -1040,7 +1383,11 @@ class _Exporter:
                  f"{cam.resolution[0]}x{cam.resolution[1]} in {dt:.2f} s.")
         approx = list(self.notes)
         for m in self.materials:
-            approx += [f"material '{m.name}': {a}" for a in m.approximations]
+            # One sentence per material (one warning in Blender's Info log),
+            # its notes in order, repeats (group instances) said once.
+            if m.approximations:
+                approx.append(f"material '{m.name}': "
+                              + "; ".join(dict.fromkeys(m.approximations)))
         self.log("Approximated: " + ("; ".join(approx) if approx else "nothing") + ".")
         fscene.approximations = tuple(approx)
         return fscene

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .scene import normals as shading_normals
+
 # Relative offset: 2**-18 ~ 3.8e-6 of |p|, i.e. 64 float32 ulps of the
 # coordinate, which covers Embree's watertight-intersection error while staying
 # far below any feature we render (1 mm at 260 m).
@@ -101,7 +103,8 @@ def surface_point(tri_p: np.ndarray, tri_n: np.ndarray, tri_uv: np.ndarray,
 
     Returns p (K,3) position from barycentrics (more precise than o + t d),
     ng (K,3) unit geometric normal (winding order), ns (K,3) unit shading
-    normal, uv (K,2).
+    normal (perturbed by the material's Normal Map / Bump when the scene
+    attached one to tri_n: ``core.scene.normals``), uv (K,2).
     """
     P = tri_p[prim].astype(np.float64)           # (K,3,3)
     w0 = (1.0 - u - v)[:, None]
@@ -114,6 +117,10 @@ def surface_point(tri_p: np.ndarray, tri_n: np.ndarray, tri_uv: np.ndarray,
     ns = np.where(nlen > 1e-12, ns / np.maximum(nlen, 1e-300), ng)
     UV = tri_uv[prim].astype(np.float64)
     uv = w0 * UV[:, 0] + u[:, None] * UV[:, 1] + v[:, None] * UV[:, 2]
+    # Normal Map / Bump materials: the spec the Scene attached to its tri_n.
+    spec = shading_normals.attached(tri_n)
+    if spec is not None:
+        ns = shading_normals.perturb(spec, prim, u, v, ns, uv)
     return p, ng, ns, uv
 
 

@@ -9,7 +9,8 @@ references (caustics on, no denoising / adaptive sampling / clamping,
 reference and ladder), and Cycles' bounces equal FPPM's ``max_bounces`` (16),
 so both trace paths of the same depth (tests/test_converge.py checks it).
 Only shader nodes the exporter supports are used (Diffuse, Glossy, Glass,
-Emission, Mix, Principled BSDF).  Scene helpers live in
+Emission, Mix, Principled BSDF; real_scene adds Image Texture, Normal Map,
+Mapping, Texture Coordinate and Environment Texture).  Scene helpers live in
 tests/scenes/bpy_kit.py.
 
   cornell.blend        Cornell box, ceiling area light (the default example)
@@ -27,6 +28,11 @@ tests/scenes/bpy_kit.py.
                        material (Principled BSDF, its default inputs)
   principled_interior.blend  a room, every object Blender's default material,
                        lit through a window by an area light outside the view
+  real_scene.blend     a user's set-up: Principled materials, an HDRI world
+                       (a small procedural equirectangular sky with a sun,
+                       packed) and a normal-mapped tiled floor (a generated,
+                       packed tangent-space normal map, Mapping + Texture
+                       Coordinate UV)
 """
 from __future__ import annotations
 
@@ -239,8 +245,113 @@ def principled_interior():
     return sc
 
 
+def _packed_image(name, px, non_color):
+    """A packed float image from (H, W, 4) float32 pixels (row 0 = bottom)."""
+    import bpy
+    import numpy as np
+    H, W = px.shape[:2]
+    im = bpy.data.images.new(name, W, H, alpha=True, float_buffer=True)
+    im.colorspace_settings.name = 'Non-Color' if non_color else 'Linear Rec.709'
+    im.pixels.foreach_set(np.ascontiguousarray(px, np.float32).ravel())
+    im.pack()
+    return im
+
+
+def sky_pixels(W=128, H=64):
+    """An equirectangular HDR sky (Cycles' convention: row 0 = nadir): a blue
+    gradient above the horizon, a warm ground below and a small bright sun
+    (about 3 degrees) 35 degrees up."""
+    import numpy as np
+    v = (np.arange(H) + 0.5) / H
+    u = (np.arange(W) + 0.5) / W
+    elev = (v - 0.5) * np.pi                       # -pi/2 .. pi/2
+    phi = np.pi - 2 * np.pi * u
+    E, P = np.meshgrid(elev, phi, indexing="ij")
+    up = np.clip(np.sin(E), 0, 1)
+    sky = np.stack([0.25 + 0.35 * (1 - up), 0.45 + 0.3 * (1 - up), 0.9 + 0.1 * up], -1) * 0.8
+    ground = np.broadcast_to(np.array([0.18, 0.15, 0.12]), sky.shape)
+    img = np.where((E > 0)[..., None], sky, ground)
+    d = np.stack([np.cos(E) * np.cos(P), np.cos(E) * np.sin(P), np.sin(E)], -1)
+    s_el, s_az = np.radians(35.0), np.radians(-40.0)
+    s = np.array([np.cos(s_el) * np.cos(s_az), np.cos(s_el) * np.sin(s_az), np.sin(s_el)])
+    img = img + (d @ s > np.cos(np.radians(3.0)))[..., None] * np.array([600.0, 520.0, 420.0])
+    out = np.ones((H, W, 4), np.float32)
+    out[..., :3] = img
+    return out
+
+
+def tile_normal_pixels(n=64, tiles=4, bevel=0.12):
+    """A tangent-space normal map of tiles with bevelled edges (OpenGL
+    convention, rgb = (n + 1) / 2)."""
+    import numpy as np
+    t = ((np.arange(n) + 0.5) / n * tiles) % 1.0
+    def slope(x):       # the bevel's slope across a tile: -1 .. 1 near the edges
+        return np.where(x < bevel, -(1 - x / bevel), np.where(x > 1 - bevel, (x - 1 + bevel) / bevel, 0.0))
+    sy, sx = np.meshgrid(slope(t), slope(t), indexing="ij")
+    nrm = np.stack([0.8 * sx, 0.8 * sy, np.ones_like(sx)], -1)
+    nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
+    out = np.ones((n, n, 4), np.float32)
+    out[..., :3] = (nrm + 1) / 2
+    return out
+
+
+def _principled(name, base, roughness=0.5, metallic=0.0, coat=0.0):
+    m, nt, out = K._new_material(name)
+    p = nt.nodes.new('ShaderNodeBsdfPrincipled')
+    p.inputs["Base Color"].default_value = (*base, 1.0)
+    p.inputs["Roughness"].default_value = roughness
+    p.inputs["Metallic"].default_value = metallic
+    p.inputs["Coat Weight"].default_value = coat
+    nt.links.new(p.outputs[0], out.inputs["Surface"])
+    return m, nt, p
+
+
+def real_scene():
+    # A tiled floor under an HDRI sky with three Principled objects: what a
+    # user's first scene looks like.  The floor's normal map comes through
+    # Texture Coordinate (UV) -> Mapping (scale 2) -> Image Texture -> Normal Map.
+    import bpy
+    sc = K.reset_scene(RES, samples=1024)
+    floor, nt, p = _principled("Tiles", (0.55, 0.5, 0.45), roughness=0.35)
+    tex = nt.nodes.new('ShaderNodeTexImage')
+    tex.image = _packed_image("TileNormal", tile_normal_pixels(), non_color=True)
+    mp = nt.nodes.new('ShaderNodeMapping')
+    mp.inputs["Scale"].default_value = (2.0, 2.0, 1.0)
+    tc = nt.nodes.new('ShaderNodeTexCoord')
+    nm = nt.nodes.new('ShaderNodeNormalMap')
+    nt.links.new(tc.outputs["UV"], mp.inputs["Vector"])
+    nt.links.new(mp.outputs["Vector"], tex.inputs["Vector"])
+    nt.links.new(tex.outputs["Color"], nm.inputs["Color"])
+    nt.links.new(nm.outputs["Normal"], p.inputs["Normal"])
+    ob = K.plane("Floor", 8.0, floor)
+    uvl = ob.data.uv_layers.new(name="UVMap")
+    for loop in ob.data.loops:
+        co = ob.data.vertices[loop.vertex_index].co
+        uvl.data[loop.index].uv = (co.x / 8.0 + 0.5, co.y / 8.0 + 0.5)
+    K.uv_sphere("Ball", 0.5, _principled("RedPlastic", (0.7, 0.08, 0.05), 0.25)[0],
+                (-0.7, 0.3, 0.5), segments=32, rings=16)
+    K.box("Block", (0.8, 0.8, 0.8), _principled("Gold", (1.0, 0.76, 0.33), 0.3, 1.0)[0],
+          (0.8, 0.6, 0.0), 25)
+    K.uv_sphere("Pebble", 0.25, _principled("Chalk", (0.8, 0.8, 0.78), 0.8)[0],
+                (0.2, -0.6, 0.25), segments=24, rings=12)
+    w = bpy.data.worlds.new("Sky")
+    wt = w.node_tree
+    wt.nodes.clear()
+    out = wt.nodes.new('ShaderNodeOutputWorld')
+    bg = wt.nodes.new('ShaderNodeBackground')
+    env = wt.nodes.new('ShaderNodeTexEnvironment')
+    env.image = _packed_image("SkyHDR", sky_pixels(), non_color=False)
+    wt.links.new(env.outputs["Color"], bg.inputs["Color"])
+    wt.links.new(bg.outputs[0], out.inputs["Surface"])
+    sc.world = w
+    K.camera((0.0, -4.2, 1.8), (0.0, 0.2, 0.35), lens=35)
+    _note(sc, "Real-scene set-up: Principled materials, an HDRI world and a "
+              "normal-mapped tiled floor.")
+    return sc
+
+
 EXAMPLES = [cornell, coffee_cup, glass_sphere, point_caustic, indirect_room,
-            ring_lambert, ring_principled, principled_interior]
+            ring_lambert, ring_principled, principled_interior, real_scene]
 
 
 def save_for_fppm(sc, path):

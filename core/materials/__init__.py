@@ -40,7 +40,12 @@ Deliberate differences from Cycles (all tiny or sampling-only): lobe choice is
 by luminance of weight x colour (Cycles: closure sample weights); rough
 refraction pairs with h.v and h.l of equal sign are zero in eval (Cycles'
 eval leaves them, its sampler never makes them); Cycles' bump-map normal
-correction ``ensure_valid_specular_reflection`` is not applied.
+correction ``ensure_valid_specular_reflection`` is applied only to materials
+with a Normal Map / Bump input (``MaterialTable.bump_correction``; Cycles
+also tilts plain smooth normals) and only where the view direction is known
+(radiance mode), and there the diffuse lobes get Cycles'
+``bump_shadowing_term`` with the geometric normal standing for the smooth
+one (docs/shading.md).
 
 Conventions
 -----------

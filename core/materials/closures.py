@@ -48,6 +48,23 @@ def _refract(wo, H, cos_t, eta):
     return ((inv * _dot(H, wo) - cos_t)[:, None] * H) - inv[:, None] * wo
 
 
+def _bump_corrected(table, mat, n_s, n_g, view):
+    """n_s with Cycles' ``ensure_valid_specular_reflection`` for the view
+    direction on materials with a Normal Map / Bump input
+    (``table.bump_correction``); others unchanged.  Same orientation as n_s."""
+    flag = getattr(table, "bump_correction", None)
+    if flag is None or not flag.any():
+        return n_s
+    sel = np.nonzero(flag[mat])[0]
+    if sel.size == 0:
+        return n_s
+    from ..scene.normals import valid_specular_normal
+    s = np.where(_dot(n_g[sel], view[sel]) >= 0.0, 1.0, -1.0)[:, None]
+    out = n_s.copy()
+    out[sel] = s * valid_specular_normal(n_g[sel] * s, view[sel], n_s[sel] * s)
+    return out
+
+
 def _adjoint_correction(n_s, n_g, wo, wi):
     """pbrt's CorrectShadingNormal |wo.ns||wi.ng| / (|wo.ng||wi.ns|) (K,)."""
     num = np.abs(_dot(wo, n_s)) * np.abs(_dot(wi, n_g))
@@ -138,8 +155,10 @@ def eval_bsdf(table: MaterialTable, mat, colors, n_s, n_g, wo, wi, mode="radianc
         v, l = wi, wo
     else:
         raise ValueError(f"mode must be 'radiance' or 'importance', not {mode!r}")
-    N, _, front = _orient(n_s, n_g, v)
-    return _eval_nd(table, mat, colors, N, front, v, l)
+    n_s = _bump_corrected(table, mat, n_s, n_g, v)
+    N, Ng, front = _orient(n_s, n_g, v)
+    return _eval_nd(table, mat, colors, N, front, v, l,
+                    Ng_bump=Ng if mode == "radiance" else None)
 
 
 def _groups(valid, kinds):
@@ -158,8 +177,36 @@ def _groups(valid, kinds):
                 yield j, int(k), np.nonzero(m)[0]
 
 
-def _eval_nd(table, mat, colors, N, front_v, v, l):
+def _bump_shadowing(Ns, N, l):
+    """Cycles' ``bump_shadowing_term`` for a diffuse closure (K,): Conty
+    Estevez, Lecocq and Stein 2019, "A Microfacet-Based Shadowing Function to
+    Solve the Bump Terminator Problem".  Ns: the surface normal without the
+    bump (Cycles: the smooth normal; FPPM's materials see the geometric one,
+    equal on flat faces), N: the perturbed normal, l: the light direction.
+    0 when l and N lie on different sides of the unbumped surface; else the
+    GGX masking G1(cos_i) of alpha^2 = min(tan^2(theta_d) / 8, 1), theta_d
+    the angle between N and Ns, cos_i = |Ns.l|."""
+    cos_si = _dot(Ns, l)
+    cos_sn = _dot(Ns, N)
+    cos_ni = _dot(N, l)
+    wrong = cos_si * cos_sn * cos_ni < 0.0
+    cos_i = np.abs(cos_si)
+    cos_d = np.abs(cos_sn)
+    a2 = np.clip(0.125 * (1.0 / np.maximum(cos_d, 1e-12) ** 2 - 1.0), 0.0, 1.0)
+    tan2_i = (1.0 - cos_i * cos_i) / np.maximum(cos_i * cos_i, 1e-300)
+    g1 = 2.0 / (1.0 + np.sqrt(1.0 + a2 * tan2_i))
+    g1 = np.where((cos_d >= 1.0) | (cos_i >= 1.0), 1.0, np.where(cos_i < 1e-6, 0.0, g1))
+    return np.where(wrong, 0.0, g1)
+
+
+def _eval_nd(table, mat, colors, N, front_v, v, l, Ng_bump=None):
+    """Σ of the non-delta lobes' f (K, 3).  Ng_bump (K, 3): the geometric
+    normal oriented like N, to apply Cycles' bump shadowing to the diffuse
+    lobes of Normal Map / Bump materials (camera side); None: not applied."""
     K = len(mat)
+    flag = getattr(table, "bump_correction", None)
+    if Ng_bump is not None and (flag is None or not flag[mat].any()):
+        Ng_bump = None
     f = np.zeros((K, 3))
     kinds = table.kind[mat]
     nd = (kinds >= 0) & ~table.lobe_delta[mat]
@@ -187,7 +234,11 @@ def _eval_nd(table, mat, colors, N, front_v, v, l):
             if not (ms is not None and ms.any()):
                 w = table.weight[mj, j][:, None]
                 ucol = np.where(w != 0.0, col / np.where(w != 0.0, w, 1.0), 0.0)
-        f[idx] += _lobe_f(k, col, ucol, rough, eta, N[idx], v[idx], l[idx], ms, ext)
+        fk = _lobe_f(k, col, ucol, rough, eta, N[idx], v[idx], l[idx], ms, ext)
+        if Ng_bump is not None and k in (DIFFUSE, TRANSLUCENT):
+            term = _bump_shadowing(Ng_bump[idx], N[idx], l[idx])
+            fk = fk * np.where(flag[mj], term, 1.0)[:, None]
+        f[idx] += fk
     return f
 
 
@@ -214,6 +265,7 @@ def pdf_bsdf(table: MaterialTable, mat, colors, n_s, n_g, wo, wi, subset="all"):
     """
     mat = np.asarray(mat, np.int64)
     n_s, n_g, wo, wi = _prep(n_s, n_g, wo, wi)
+    n_s = _bump_corrected(table, mat, n_s, n_g, wo)
     N, Ng, front = _orient(n_s, n_g, wo)
     return _pdf_nd(table, mat, _selection_probs(table, mat, colors, subset), N, Ng, front, wo, wi)
 
@@ -250,6 +302,8 @@ def sample_bsdf(table: MaterialTable, mat, colors, n_s, n_g, wo, u, subset="all"
         raise ValueError(f"mode must be 'radiance' or 'importance', not {mode!r}")
     if subset not in ("all", "delta", "nondelta"):
         raise ValueError(f"subset must be 'all', 'delta' or 'nondelta', not {subset!r}")
+    if mode == "radiance":
+        n_s = _bump_corrected(table, mat, n_s, n_g, wo)
     K = len(mat)
     # Fast path: materials made only of Lambert lobes (the common wall) need no
     # lobe choice, eval or pdf: cosine sampling has weight = sum of colours.
@@ -406,7 +460,8 @@ def _sample_general(table, mat, colors, n_s, n_g, wo, u, subset, mode):
     if len(nd):
         pdf_n = _pdf_nd(table, mat[nd], p[nd], N[nd], Ng[nd], front[nd], wo[nd], wi[nd])
         if mode == "radiance":
-            f = _eval_nd(table, mat[nd], colors[nd], N[nd], front[nd], wo[nd], wi[nd])
+            f = _eval_nd(table, mat[nd], colors[nd], N[nd], front[nd], wo[nd], wi[nd],
+                         Ng_bump=Ng[nd])
         else:
             Nv, _, fv = _orient(n_s[nd], n_g[nd], wi[nd])
             f = _eval_nd(table, mat[nd], colors[nd], Nv, fv, wi[nd], wo[nd])

@@ -71,7 +71,10 @@ def build_fast_materials(mtab) -> FastMaterials:
         if any(mtab.tex[m, j] >= 0 for j in slots):
             continue
         cw = [mtab.color[m, j] * mtab.weight[m, j] for j in slots]
-        if bool(mtab.lambert_only[m]) and not bool(mtab.has_delta[m]):
+        # Photons bounce off the interpolated normal (docs/shading.md): a
+        # Normal Map / Bump Lambert material still bounces them as Lambert.
+        lambert = mtab.lambert_lobes if mtab.lambert_lobes is not None else mtab.lambert_only
+        if bool(lambert[m]) and not bool(mtab.has_delta[m]):
             # bsdf.sample_bsdf's Lambert fast path: weight = sum of all colours.
             cls[m] = LAMBERT
             col[m] = np.sum(cw, axis=0)

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..mathutil import LUMINANCE
 from ..scene.model import DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSPARENT
-from ..scene.textures import sample_texture
+from ..scene.textures import sample_alpha, sample_texture
 from .microfacet import FRESNEL_DIELECTRIC, FRESNEL_F82, _fss_dielectric, f0_from_ior
 
 # Cycles ``roughness_is_almost_specular``: alpha_x * alpha_y <= 2e-10.
@@ -47,7 +47,11 @@ class MaterialTable:
     lobe_delta: (M, L) bool, the lobe is a Dirac delta (mirror, smooth glass /
       refraction, transparent).
     has_delta, has_nondelta, lambert_only: (M,) bool per-material flags;
-      lambert_only = has_nondelta and every non-delta lobe is Lambert.
+      lambert_only = has_nondelta and every non-delta lobe is Lambert, and
+      no Normal Map / Bump (their visible points evaluate the BSDF with the
+      perturbed normal and Cycles' bump terms); lambert_lobes: the same
+      without the last condition (what the photon tracer's Lambert bounce
+      needs: photons scatter off the interpolated normal).
     textures: list of (H, W, C) images (row 0 at the bottom).
     """
     kind: np.ndarray
@@ -72,6 +76,10 @@ class MaterialTable:
     layer_roughness: np.ndarray = None  # (M, L) that layer's roughness
     layer_ms: np.ndarray = None         # (M, L) bool, that layer is Multiscatter GGX
     sel_scale: np.ndarray = None        # (M, L) lobe-selection scale (Fresnel-weighted lobes)
+    alpha_tex: np.ndarray = None        # (M, L) int32 texture whose alpha scales the lobe, -1 = none
+    alpha_inv: np.ndarray = None        # (M, L) bool, scaled by 1 - alpha instead
+    bump_correction: np.ndarray = None  # (M,) bool, Normal Map / Bump: Cycles' normal tilt
+    lambert_lobes: np.ndarray = None    # (M,) bool, lambert_only before the Normal Map / Bump test
 
     @property
     def n_materials(self) -> int:
@@ -131,6 +139,10 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
     lrough = np.zeros((M, L))
     lms = np.zeros((M, L), bool)
     sel = np.ones((M, L))
+    atex = np.full((M, L), -1, np.int32)
+    ainv = np.zeros((M, L), bool)
+    textures = list(textures)
+    white = None
     for m, mat in enumerate(materials):
         if len(mat.lobes) > L:
             raise ValueError(f"material '{mat.name}' has {len(mat.lobes)} lobes; "
@@ -142,6 +154,15 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
             rough[m, j] = min(max(float(lobe.roughness), 0.0), 1.0)
             ior[m, j] = max(float(lobe.ior), 1e-5)       # Cycles: fmaxf(ior, 1e-5)
             tex[m, j] = int(lobe.color_texture)
+            atex[m, j] = int(getattr(lobe, "alpha_texture", -1))
+            ainv[m, j] = bool(getattr(lobe, "alpha_invert", False))
+            if atex[m, j] >= 0 and tex[m, j] < 0:
+                # A white 1x1 colour texture: the photon tracer computes uvs
+                # (and leaves its fast paths) only for lobes with a texture.
+                if white is None:
+                    white = len(textures)
+                    textures.append(np.ones((1, 1, 3), np.float32))
+                tex[m, j] = white
             delta[m, j] = _is_delta_lobe(kind[m, j], rough[m, j], ior[m, j])
             # Optional Lobe attribute (the exporter sets it from the node's
             # distribution); plain GGX when absent.
@@ -167,21 +188,27 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
     nondelta = used & ~delta
     lambert = nondelta & (kind == DIFFUSE) & (rough < DIFFUSE_ROUGHNESS_EPS) & (lior <= 0.0)
     has_nd = nondelta.any(axis=1)
+    bump = np.array([getattr(mat, "normal", None) is not None for mat in materials] or [False],
+                    bool)
+    lambert_lobes = has_nd & ~(nondelta & ~lambert).any(axis=1)
     return MaterialTable(
         kind=kind, color=color, weight=weight, roughness=rough, ior=ior, tex=tex,
         emission=emis, emission_tex=emis_tex, lobe_delta=delta,
         has_delta=(used & delta).any(axis=1), has_nondelta=has_nd,
-        lambert_only=has_nd & ~(nondelta & ~lambert).any(axis=1),
-        textures=list(textures), multiscatter=ms, fresnel=fres, fresnel_ior=fior,
+        lambert_only=lambert_lobes & ~bump, lambert_lobes=lambert_lobes,
+        textures=textures, multiscatter=ms, fresnel=fres, fresnel_ior=fior,
         f82_tint=f82t, layer_ior=lior, layer_f0=lf0, layer_roughness=lrough, layer_ms=lms,
-        sel_scale=sel)
+        sel_scale=sel, alpha_tex=atex, alpha_inv=ainv, bump_correction=bump)
 
 
 # --------------------------------------------------------------------------
 # Per-point values
 # --------------------------------------------------------------------------
 def lobe_colors(table: MaterialTable, mat: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Per-lobe colour x weight x texture.  mat (K,) int, uv (K, 2) -> (K, L, 3) float64."""
+    """Per-lobe colour x weight x texture (x alpha or 1 - alpha of an image,
+    ``alpha_tex``: a stochastic pass-through like Cycles', since lobes are
+    chosen by these colours' luminance).  mat (K,) int, uv (K, 2) -> (K, L, 3)
+    float64."""
     mat = np.asarray(mat, np.int64)
     cols = table.color[mat] * table.weight[mat][:, :, None]
     cols[table.kind[mat] < 0] = 0.0
@@ -194,6 +221,17 @@ def lobe_colors(table: MaterialTable, mat: np.ndarray, uv: np.ndarray) -> np.nda
                     continue
                 idx = np.nonzero(tex[:, j] == t)[0]
                 cols[idx, j] *= sample_texture(table.textures[t], uv[idx])
+    atex = table.alpha_tex[mat] if table.alpha_tex is not None else None
+    if atex is not None and (atex >= 0).any():
+        uv = np.asarray(uv, np.float64)
+        inv = table.alpha_inv[mat]
+        for j in range(atex.shape[1]):
+            for t in np.unique(atex[:, j]):
+                if t < 0:
+                    continue
+                idx = np.nonzero(atex[:, j] == t)[0]
+                a = np.clip(sample_alpha(table.textures[t], uv[idx]), 0.0, 1.0)
+                cols[idx, j] *= np.where(inv[idx, j], 1.0 - a, a)[:, None]
     return cols
 
 

@@ -61,6 +61,11 @@ class Lobe:
       ``layer_multiscatter``, scaled by 1 - the layer's albedo (Cycles'
       ``closure_layering_weight``).  The other layer_* fields are read only
       when layer_ior > 0, so set them together.
+    alpha_texture >= 0: the lobe's colour is scaled by that texture's alpha
+      a(uv), or by 1 - a(uv) when ``alpha_invert`` (an Image Texture's Alpha
+      into the Principled Alpha or a Mix Shader's Fac: the Transparent lobe
+      gets 1 - a, the others a).  Left out of the repr when unset (the
+      ``scene_digest`` of scenes without them is unchanged).
     """
     kind: int
     color: tuple = (0.8, 0.8, 0.8)
@@ -76,6 +81,8 @@ class Lobe:
     layer_f0: float = 0.0
     layer_roughness: float = 0.0
     layer_multiscatter: bool = False
+    alpha_texture: int = field(default=-1, repr=False)
+    alpha_invert: bool = field(default=False, repr=False)
 
 
 @dataclass(frozen=True)
@@ -87,12 +94,15 @@ class Material:
       Emission color * strength, times its mix weight).
     emission_texture: index into ``Scene.textures`` multiplying ``emission``, or -1.
     approximations: human-readable notes of what the exporter approximated.
+    normal: a :class:`core.scene.normals.NormalInput` (Normal Map or Bump
+      node feeding the shaders' Normal inputs) or None.
     """
     name: str
     lobes: tuple = (Lobe(DIFFUSE),)
     emission: tuple = (0.0, 0.0, 0.0)
     emission_texture: int = -1
     approximations: tuple = ()
+    normal: object = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -185,6 +195,9 @@ class Scene:
     material_pass_index: (M,) int32 each material's pass index (IndexMA) or None (0).
     film_transparent: Film > Transparent (camera rays that escape give alpha 0).
     mist: (start, depth, falloff exponent) of the world's mist pass [m, m, 1].
+    tri_tangent: (T, 3, 4) float32 per-corner MikkTSpace tangent (xyz, unit)
+      and bitangent sign (w, +-1; 0 = none: the triangle's dP/du is used), for
+      Normal Map materials; or None.
     """
     tri_p: np.ndarray
     tri_n: np.ndarray
@@ -202,6 +215,26 @@ class Scene:
     mist: tuple = (5.0, 25.0, 2.0)
     world_map: Optional[EnvironmentMap] = None
     approximations: tuple = ()
+    tri_tangent: Optional[np.ndarray] = None
+
+    def __post_init__(self):
+        self.attach_shading_normals()
+
+    def attach_shading_normals(self) -> None:
+        """Let ``core.accel.surface_point`` perturb this scene's shading normals
+        by its materials' Normal Map / Bump inputs (``core.scene.normals``).
+        Called on construction; call again after replacing the triangle
+        arrays or materials in place.  The spec is attached to the tri_n
+        array: scenes sharing one (``dataclasses.replace``) share the last
+        constructed one's, so give a scene with other materials its own copy."""
+        from . import normals
+        inputs = tuple(getattr(m, "normal", None) for m in self.materials)
+        if not any(inp is not None for inp in inputs):
+            normals.attach(self.tri_n, None)
+            return
+        normals.attach(self.tri_n, normals.ShadingSpec(
+            tri_p=self.tri_p, tri_n=self.tri_n, tri_uv=self.tri_uv, tri_mat=self.tri_mat,
+            tri_tangent=self.tri_tangent, inputs=inputs, textures=self.textures))
 
     @property
     def n_triangles(self) -> int:
@@ -284,7 +317,8 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       else scene.tri_object_index[ok],
                       material_pass_index=scene.material_pass_index,
                       film_transparent=scene.film_transparent, mist=scene.mist,
-                      world_map=scene.world_map, approximations=scene.approximations)
+                      world_map=scene.world_map, approximations=scene.approximations,
+                      tri_tangent=None if scene.tri_tangent is None else scene.tri_tangent[ok])
     return scene, dropped
 
 
@@ -297,6 +331,15 @@ def scene_digest(scene: Scene) -> str:
               np.asarray(scene.world_color, np.float64)):
         h.update(np.ascontiguousarray(a).tobytes())
     h.update(repr(scene.materials).encode())
+    # Fields left out of the reprs (only when set: older checkpoints keep their digest).
+    extra = [(i, m.normal) for i, m in enumerate(scene.materials)
+             if getattr(m, "normal", None) is not None]
+    extra += [(i, j, lb.alpha_texture, lb.alpha_invert) for i, m in enumerate(scene.materials)
+              for j, lb in enumerate(m.lobes) if getattr(lb, "alpha_texture", -1) >= 0]
+    if extra:
+        h.update(repr(extra).encode())
+    if scene.tri_tangent is not None:
+        h.update(np.ascontiguousarray(scene.tri_tangent).tobytes())
     for lt in scene.lights:
         h.update(repr({k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
                        for k, v in lt.__dict__.items()}).encode())

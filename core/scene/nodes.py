@@ -88,7 +88,7 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
                         specular_tint=(1.0, 1.0, 1.0), anisotropic=0.0, diffuse_roughness=0.0,
                         thin_film_thickness=0.0, emission_color=(1.0, 1.0, 1.0),
                         emission_strength=0.0, base_color_texture=-1,
-                        emission_color_texture=-1, multiscatter=True):
+                        emission_color_texture=-1, multiscatter=True, alpha_texture=-1):
     """Map Principled BSDF inputs onto FPPM lobes.
 
     Colours are linear RGB triples; ``*_texture`` are indices into
@@ -97,6 +97,9 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
     emission: the returned emission leaves the colour out, and the caller sets
     ``Material.emission_texture``).  multiscatter: the node's
     distribution is 'MULTI_GGX' (default) rather than 'GGX'.
+    alpha_texture >= 0: the Alpha input is that image's alpha a(uv): the
+    lobes are built for alpha = 1, then scaled by a, under a Transparent
+    lobe scaled by 1 - a (:func:`alpha_scaled`).
     Returns (lobes: tuple[Lobe], emission: (3,) float64 radiance,
     approximations: tuple[str]).
     """
@@ -212,6 +215,13 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
     if thin_film_thickness > 0.1:
         notes.append("thin-film iridescence ignored")
 
+    if int(alpha_texture) >= 0:
+        clear, _ = alpha_scaled([Lobe(TRANSPARENT, (1.0, 1.0, 1.0))], alpha_texture, invert=True)
+        opaque, more = alpha_scaled(lobes, alpha_texture)
+        lobes = list(clear) + list(opaque)
+        notes.extend(more)
+        if emission_strength > 0:
+            notes.append("emission not attenuated by the textured alpha")
     lobes, more = merge_lobes(lobes)
     notes.extend(more)
     # Emission is attenuated by alpha and the coat/sheen layers (Cycles).
@@ -224,6 +234,29 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
                                   * f0_from_ior(max(float(coat_ior), 1.0)))
         emission = emission * w_rgb
     return tuple(lobes), emission, tuple(notes)
+
+
+def alpha_scaled(lobes, texture: int, invert: bool = False):
+    """Lobes scaled by an image's alpha a(uv) (by 1 - a when invert), through
+    ``Lobe.alpha_texture``.  A lobe can follow one alpha only: lobes already
+    scaled by another keep theirs (noted).  Returns (list[Lobe], list[str])."""
+    out, notes = [], []
+    for lb in lobes:
+        if getattr(lb, "alpha_texture", -1) >= 0:
+            notes.append("nested texture-driven mixes: the inner alpha kept, the outer ignored")
+            out.append(lb)
+            continue
+        out.append(dataclasses.replace(lb, alpha_texture=int(texture), alpha_invert=bool(invert)))
+    return out, notes
+
+
+def mix_by_alpha(mat_a_lobes, mat_b_lobes, texture: int):
+    """Mix Shader whose Fac is an image's alpha a(uv): (1 - a) A + a B.
+    Returns (tuple[Lobe], tuple[str] notes)."""
+    a, na = alpha_scaled(mat_a_lobes, texture, invert=True)
+    b, nb = alpha_scaled(mat_b_lobes, texture)
+    lobes, notes = merge_lobes(a + b)
+    return lobes, tuple(na + nb) + tuple(notes)
 
 
 def _lum(c):

@@ -14,18 +14,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-def sample_texture(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear, repeat-wrapped texture lookup.
+def _bilinear_corners(img: np.ndarray, uv: np.ndarray, ch):
+    """The four texels around each uv and the blend weights (Cycles' interp_linear).
 
-    img: (H, W, C) float array (C = 1, 3 or 4; alpha is ignored, one channel is
-      replicated to grey), row 0 = bottom.
-    uv: (K, 2) float array of texture coordinates.
-    Returns (K, 3) float64 linear RGB.
-    """
-    img = np.asarray(img)
-    if img.ndim == 2:
-        img = img[:, :, None]
-    H, W, C = img.shape
+    Returns (a, b, c, d, tx, ty, W, H, bad): texels (K, len(ch)) float64 at
+    (row iy, col ix), (iy, ix+1), (iy+1, ix), (iy+1, ix+1) with repeat
+    wrapping, tx, ty (K, 1) the fractions, and bad (K,) non-finite uv."""
+    H, W, _ = img.shape
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
     # Half-texel shift: texel i covers [i, i+1) and its centre is i + 0.5.
     x = uv[:, 0] * W - 0.5
@@ -41,18 +36,107 @@ def sample_texture(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     iy = np.mod(fy.astype(np.int64), H)
     nix = np.mod(ix + 1, W)
     niy = np.mod(iy + 1, H)
-    ch = [0, 1, 2] if C >= 3 else [0, 0, 0]
     im = img[:, :, ch]
 
     def rd(r, c):
         return im[r, c].astype(np.float64)
 
-    out = ((1.0 - ty) * ((1.0 - tx) * rd(iy, ix) + tx * rd(iy, nix))
-           + ty * ((1.0 - tx) * rd(niy, ix) + tx * rd(niy, nix)))
-    tx_bad = ~np.isfinite(tx[:, 0]) | ~np.isfinite(ty[:, 0])
-    if tx_bad.any():
-        out[tx_bad] = 0.0
+    bad = ~np.isfinite(tx[:, 0]) | ~np.isfinite(ty[:, 0])
+    return rd(iy, ix), rd(iy, nix), rd(niy, ix), rd(niy, nix), tx, ty, W, H, bad
+
+
+class UnassociatedImage(np.ndarray):
+    """An image stored with associated alpha (rgb x a, a) whose colour reads
+    unassociated: the interpolated rgb divided by the interpolated alpha
+    (Cycles' Image Texture with its Alpha output linked,
+    ``NODE_IMAGE_ALPHA_UNASSOCIATE``); 0 where that alpha is 0.  Make one
+    with ``associated_pixels.view(UnassociatedImage)``."""
+
+
+def _as_image(img) -> np.ndarray:
+    img = np.asarray(img)
+    return img[:, :, None] if img.ndim == 2 else img
+
+
+def sample_texture(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear, repeat-wrapped texture lookup.
+
+    img: (H, W, C) float array (C = 1, 3 or 4; alpha is ignored, one channel is
+      replicated to grey), row 0 = bottom.
+    uv: (K, 2) float array of texture coordinates.
+    Returns (K, 3) float64 linear RGB.
+    """
+    unassociate = isinstance(img, UnassociatedImage)
+    img = _as_image(img)
+    ch = [0, 1, 2] if img.shape[2] >= 3 else [0, 0, 0]
+    if unassociate and img.shape[2] >= 4:
+        ch = [0, 1, 2, 3]
+    a, b, c, d, tx, ty, _, _, bad = _bilinear_corners(img, uv, ch)
+    out = (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d)
+    if out.shape[1] == 4:
+        al = out[:, 3:4]
+        out = np.where(al > 0, out[:, :3] / np.where(al > 0, al, 1.0), 0.0)
+    if bad.any():
+        out[bad] = 0.0
     return out
+
+
+def sample_alpha(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """(K,) float64 alpha of an Image Texture at uv (K, 2), bilinear like
+    :func:`sample_texture`; 1 for images without an alpha channel (Cycles)."""
+    img = _as_image(img)
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    if img.shape[2] < 4:
+        return np.ones(uv.shape[0])
+    a, b, c, d, tx, ty, _, _, bad = _bilinear_corners(img, uv, [3])
+    out = ((1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d))[:, 0]
+    out[bad] = 1.0
+    return out
+
+
+def scalar_weights(img: np.ndarray, channel: str = "COLOR") -> np.ndarray:
+    """Channel weights (C,) turning a texel into the float Cycles reads when an
+    Image Texture output feeds a float socket: 'COLOR' -> Rec.709 luminance
+    (``linear_rgb_to_gray``), 'ALPHA' -> the alpha channel (1 without one)."""
+    from ..mathutil import LUM_B, LUM_G, LUM_R
+    img = _as_image(img)
+    C = img.shape[2]
+    w = np.zeros(C)
+    if channel == "ALPHA":
+        if C >= 4:
+            w[3] = 1.0
+        return w
+    if C >= 3:
+        w[:3] = (LUM_R, LUM_G, LUM_B)
+    else:
+        w[0] = 1.0
+    return w
+
+
+def scalar_gradient(img: np.ndarray, uv: np.ndarray, channel: str = "COLOR"):
+    """Value and exact uv-gradient of the bilinear interpolant of a scalar
+    read of the image (see :func:`scalar_weights`).
+
+    Returns h (K,), dh_du (K,), dh_dv (K,) float64.  The bilinear
+    interpolant is piecewise bilinear, so its derivative is what a finite
+    difference much smaller than a texel measures (Cycles' Bump node with a
+    pixel footprint below the texel size)."""
+    img = _as_image(img)
+    w = scalar_weights(img, channel)
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    if channel == "ALPHA" and img.shape[2] < 4:
+        one = np.ones(uv.shape[0])
+        return one, 0.0 * one, 0.0 * one
+    ch = list(range(img.shape[2]))
+    a, b, c, d, tx, ty, W, H, bad = _bilinear_corners(img, uv, ch)
+    a, b, c, d = a @ w, b @ w, c @ w, d @ w
+    tx, ty = tx[:, 0], ty[:, 0]
+    h = (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d)
+    du = W * ((1.0 - ty) * (b - a) + ty * (d - c))
+    dv = H * ((1.0 - tx) * (c - a) + tx * (d - b))
+    for arr in (h, du, dv):
+        arr[bad] = 0.0
+    return h, du, dv
 
 
 # ----------------------------------------------------------------------------

@@ -19,6 +19,7 @@ from typing import Optional
 import numpy as np
 
 from ..accel import surface_point
+from ..scene import normals as shading_normals
 from .. import lights as Lt
 from .. import materials as B
 from ..mathutil import dot as _dot
@@ -115,7 +116,10 @@ class CameraPass:
                  frame: Optional[tuple] = None, transparent: bool = False,
                  compiled: bool = True):
         self.scene, self.accel, self.mtab, self.light_table = scene, accel, mtab, light_table
-        self.compiled = bool(compiled)
+        # The compiled kernel interpolates tri_n itself: scenes whose shading
+        # normals are perturbed (Normal Map / Bump, core.scene.normals) take
+        # the numpy pass, whose surface_point applies the perturbation.
+        self.compiled = bool(compiled) and shading_normals.attached(scene.tri_n) is None
         self._cmats = None
         self.camera, self.fsamp = camera, fsamp
         self.px, self.py = px, py
