@@ -18,6 +18,7 @@ ENUM_VALUES = {
     "frequency_model": {"CORRECTED", "PAPER"},
     "frequency_estimator": {"MIN", "QUANTILE"},
     "integrator": {"PHOTON", "PATH", "LIGHT"},
+    "radius_rule": {"PPM", "APPM", "CPPM"},
 }
 
 

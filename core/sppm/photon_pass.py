@@ -23,7 +23,7 @@ import numpy as np
 from .. import materials as B
 from ..frequency.kernels import Receivers
 from . import hashgrid
-from .update import HIST_BINS
+from .update import HIST_BINS, needs_sectors
 
 PHOTON_CHUNK = 131_072
 
@@ -39,6 +39,9 @@ class PhotonEstimate(NamedTuple):
     r_hist (P, HIST_BINS) uint32 counts of the predicted radii of the counted
       frequency photons (core.sppm.update.RadiusHistogram), or None.
     spectrum (P, 3) float64 the spectrum AOV after this pass, or None.
+    sectors (P, SECTOR_CELLS) float64 photons counted per sector cell of each
+      kernel disc (core.sppm.hashgrid), or None unless the radius rule needs
+      them (core.sppm.update.needs_sectors).
     """
     gathered: bool
     M: np.ndarray
@@ -46,6 +49,7 @@ class PhotonEstimate(NamedTuple):
     r_pred_min: np.ndarray
     r_hist: Optional[np.ndarray] = None
     spectrum: Optional[np.ndarray] = None
+    sectors: Optional[np.ndarray] = None
 
 
 class PhotonPass:
@@ -64,6 +68,7 @@ class PhotonPass:
         self.rays = 0
         # Non-Lambert visible points: the radius for their own receiver lobes.
         self.receivers = Receivers(mtab) if frequency else None
+        self.sectors = needs_sectors(settings, frequency)
 
     def __call__(self, vp, R2: np.ndarray, spectrum: Optional[np.ndarray],
                  rng: np.random.Generator, check_stop=lambda: None) -> PhotonEstimate:
@@ -80,6 +85,7 @@ class PhotonPass:
             return PhotonEstimate(False, M, Phi, r_pred)
         hist = None if self.radius_histogram is None else np.zeros((P, HIST_BINS), np.uint32)
         spec = None if spectrum is None else spectrum.copy()
+        sec = np.zeros((P, hashgrid.SECTOR_CELLS)) if self.sectors else None
         want_pairs = self.frequency and (hist is not None or spec is not None)
         grid = hashgrid.build_grid(vp.p, np.sqrt(R2), active)
         n_total = st.photons_per_pass
@@ -100,8 +106,11 @@ class PhotonPass:
                 continue
             g = hashgrid.gather(grid, dep["p"], dep["ng"], dep["wi"], dep["power"], dep["rpred"],
                                 vp.p, vp.ng, R2, vp.const, cos_ng=-1.0,
-                                want_freq_pairs=want_pairs and n_freq > 0)
+                                want_freq_pairs=want_pairs and n_freq > 0,
+                                sectors=self.sectors)
             M += g.M
+            if sec is not None:
+                sec += g.sectors
             Phi += g.Phi_sum * (vp.albedo / np.pi)
             if g.pair_vp.size:
                 Phi += self._reflected(vp, dep, g.pair_vp, g.pair_ph, P)
@@ -117,7 +126,7 @@ class PhotonPass:
                 self._frequency_pairs(g.freq_pair_vp, g.freq_pair_ph, dep, hist, spec, vp)
             self.stage_seconds["gather"] += time.perf_counter() - t1
         Phi *= vp.beta
-        return PhotonEstimate(True, M, Phi, r_pred, hist, spec)
+        return PhotonEstimate(True, M, Phi, r_pred, hist, spec, sec)
 
     def _reflected(self, vp, dep, pv, pp, P) -> np.ndarray:
         """(P, 3) BSDF-weighted power of the (visible point pv, photon pp)
