@@ -207,3 +207,20 @@ def test_caustic_line_holds_are_released():
             caustic = np.argsort(img)[-max(1, img.size // 50):]
         held[verify] = r.state.held[caustic].mean()
     assert held[True] <= held[False] / 2
+
+
+def test_sector_counts_are_checkpointed():
+    """The sector counts are a PixelState field: saved, checked and loaded
+    with the others (a resumed render continues the same test)."""
+    from core.sppm.state import PixelState
+    a = PixelState.zeros(6, sector_cells=hg.SECTOR_CELLS)
+    a.sectors[:] = np.arange(6 * hg.SECTOR_CELLS).reshape(6, -1)
+    d = a.state_dict()
+    b = PixelState.zeros(6, sector_cells=hg.SECTOR_CELLS)
+    assert b.check_state(d) is None
+    b.load_state(d)
+    assert np.array_equal(b.sectors, a.sectors)
+    assert "sectors" in b.check_state({k: v for k, v in d.items() if k != "sectors"})
+    d["sectors"][0, 0] = -1.0
+    assert "negative" in b.check_state(d)
+    assert PixelState.zeros(6).sectors is None      # no rule needs them: no field
