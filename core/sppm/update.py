@@ -25,8 +25,9 @@ Radius rules (setting radius_rule, docs/method.md "Radius rules"): the
 radius a pass asks ppm_radius_update to keep comes from the frequency
 prediction (PPM with frequency photons), from the MSE-optimal radius of the
 sector counts (APPM, :func:`appm_radius`) or from the chi-square uniformity
-test of the sector counts (CPPM, :func:`chi2_rejects`); with verify_holds the
-test also releases frequency holds the photons contradict.  Every rule only
+test of the sector counts (CPPM, :func:`chi2_rejects`); with verify_holds a
+test of the same counts (for a linear density) also releases frequency holds
+the photons contradict.  Every rule only
 chooses the per-pass factor between the PPM rate alpha and the hold rate
 hold_alpha, so every rule converges by the same argument.
 """
@@ -46,13 +47,32 @@ HIST_BINS = 24
 #: Seed of the surface-boundary cap's camera pass (with the render's seed).
 EDGE_PASS_STREAM = 0xED6E
 #: Chi-square test of the sector counts (CPPM, Lin et al. 2020): false
-#: rejection rate and its critical value for SECTOR_CELLS - 1 = 7 degrees of
-#: freedom (the 0.99 quantile of chi2(7), statistics tables).
+#: rejection rate and its critical values, the 0.99 quantiles of chi2(7)
+#: (uniformity: SECTOR_CELLS - 1 degrees of freedom) and of chi2(5) (the
+#: verified holds' test, two fewer: the fitted linear gradient); statistics
+#: tables.
 CHI2_ALPHA = 0.01
 CHI2_CRITICAL = 18.475
+CHI2_CRITICAL_LINEAR = 15.086
 #: The test needs an expected count of at least 5 per cell (Cochran 1952's
 #: rule for Pearson's statistic); with fewer photons it cannot reject.
 CHI2_MIN_EXPECTED = 5.0
+
+
+def _gradient_patterns() -> np.ndarray:
+    """(2, SECTOR_CELLS) expected count pattern of a unit linear gradient
+    along the tangent frame's u and w axes: each cell's centroid, the ring's
+    radial centroid (2/3)(b^3 - a^3)/(b^2 - a^2) (R = 1, rings split at
+    1/sqrt 2) times the quadrant's direction at 45 + 90 q degrees."""
+    a2 = 1.0 / np.sqrt(2.0)
+    rings = [(0.0, a2), (a2, 1.0)]
+    rho = [2.0 / 3.0 * (b ** 3 - a ** 3) / (b ** 2 - a ** 2) for a, b in rings]
+    th = np.radians(45.0 + 90.0 * np.arange(SECTOR_QUADRANTS))
+    return np.array([np.concatenate([r * np.cos(th) for r in rho]),
+                     np.concatenate([r * np.sin(th) for r in rho])])
+
+
+_GRADIENT = _gradient_patterns()
 
 
 def needs_sectors(settings, frequency: bool) -> bool:
@@ -61,17 +81,27 @@ def needs_sectors(settings, frequency: bool) -> bool:
     return settings.radius_rule != "PPM" or (frequency and settings.verify_holds)
 
 
-def chi2_rejects(S: np.ndarray) -> np.ndarray:
-    """(P,) bool: Pearson's chi-square test rejects that the photons counted
-    in the SECTOR_CELLS equal-area cells S (P, SECTOR_CELLS) are uniform over
-    the disc, at level CHI2_ALPHA; False where the expected count per cell
-    is below CHI2_MIN_EXPECTED.
-        E = sum(S) / C,  X^2 = sum_i (S_i - E)^2 / E  > CHI2_CRITICAL"""
+def chi2_rejects(S: np.ndarray, linear: bool = False) -> np.ndarray:
+    """(P,) bool: Pearson's chi-square test rejects, at level CHI2_ALPHA, that
+    the photons counted in the SECTOR_CELLS equal-area cells S (P,
+    SECTOR_CELLS) are uniform over the disc (CPPM's hypothesis), or with
+    linear=True that their density is linear (uniform plus a gradient, which
+    leaves the symmetric disc estimate unbiased: the verified holds' test).
+    False where the expected count per cell is below CHI2_MIN_EXPECTED.
+        E = sum(S) / C,  X^2 = |S - E|^2 / E                  vs chi2(C - 1)
+        linear: X^2 - sum_g (g.S)^2 / (|g|^2 E), g = the two gradient
+        patterns (orthogonal to each other and to a constant)  vs chi2(C - 3)"""
     S = np.asarray(S, np.float64)
     E = S.sum(axis=1) / SECTOR_CELLS
+    r2 = np.square(S - E[:, None]).sum(axis=1)
+    crit = CHI2_CRITICAL
+    if linear:
+        proj = S @ _GRADIENT.T                                   # (P, 2)
+        r2 = r2 - (np.square(proj) / np.square(_GRADIENT).sum(axis=1)).sum(axis=1)
+        crit = CHI2_CRITICAL_LINEAR
     with np.errstate(divide="ignore", invalid="ignore"):
-        X2 = np.square(S - E[:, None]).sum(axis=1) / E
-    return (E >= CHI2_MIN_EXPECTED) & (X2 > CHI2_CRITICAL)
+        X2 = r2 / E
+    return (E >= CHI2_MIN_EXPECTED) & (X2 > crit)
 
 
 def appm_radius(S: np.ndarray, R2: np.ndarray) -> np.ndarray:
@@ -213,13 +243,16 @@ class Radii:
             r_pred = np.full_like(r_pred, np.nan)
         else:
             r_pred = np.where(np.isinf(r_pred), np.nan, r_pred)
-            if S is not None:
-                # Verified holds: the photons veto the prediction.
-                r_pred = np.where(chi2_rejects(S), np.nan, r_pred)
+        r_hold = r_pred
+        if S is not None and rule == "PPM":
+            # Verified holds: the photons veto the prediction where they show
+            # more than a linear gradient (the prediction itself is kept for
+            # the Predicted Radius pass).
+            r_hold = np.where(chi2_rejects(S, linear=True), np.nan, r_pred)
         m = M > 0
         R2_old = state.R2[m]
         N2, R2n, tau2, held = ppm_radius_update(state.N[m], state.R2[m], state.tau[m], M[m],
-                                                  Phi[m], self.settings.alpha, r_pred[m],
+                                                  Phi[m], self.settings.alpha, r_hold[m],
                                                   self.floor_sq, self.settings.hold_alpha)
         state.N[m], state.R2[m], state.tau[m] = N2, R2n, tau2
         if S is not None:
