@@ -31,6 +31,17 @@ INTEGRATORS = (
      "Light tracing alone: every diffuse or glossy vertex of the photon paths is connected "
      "to the camera (sharp point-light caustics; misses what the camera sees in mirrors)", 2),
 )
+RADIUS_RULES = (
+    ('PPM', "PPM",
+     "One reduction rate alpha for every pixel (Hachisuka et al. 2008), slowed where the "
+     "Frequency Kernel predicts smooth light", 0),
+    ('APPM', "Adaptive (APPM)",
+     "Per-pixel radius that minimises the estimated error, the bias from the photons' "
+     "Laplacian (Kaplanyan & Dachsbacher 2013); needs Frequency Kernel off", 1),
+    ('CPPM', "Chi-Squared (CPPM)",
+     "Keep a pixel's radius while its photons pass a chi-squared uniformity test, shrink it "
+     "where they fail (Lin et al. 2020); needs Frequency Kernel off", 2),
+)
 FREQUENCY_MODELS = (
     ('CORRECTED', "Corrected",
      "Frequency analysis with the corrected curvature and BSDF terms (see the documentation)", 0),
@@ -96,6 +107,9 @@ class FPPMRenderSettings(PropertyGroup):
         description="Keep each pixel's initial radius within half the distance to the nearest "
                     "surface edge seen around it, so that kernels do not darken or blend "
                     "across the edges of tables, walls and objects")
+    radius_rule: EnumProperty(
+        name="Radius Rule", items=RADIUS_RULES, default=_D.radius_rule,
+        description="How each pixel's gathering radius shrinks over passes")
 
     # --- Light paths
     max_bounces: IntProperty(
@@ -136,6 +150,11 @@ class FPPMRenderSettings(PropertyGroup):
         description="Radius reduction where the light is predicted smooth: a held radius "
                     "shrinks like PPM with this alpha (at least Alpha), so its bias still "
                     "vanishes; 1 holds it forever (the paper's rule, inconsistent)")
+    verify_holds: BoolProperty(
+        name="Verify Holds", default=_D.verify_holds,
+        description="Slow a radius down only where the photons in its kernel also look "
+                    "uniform (chi-squared test of their sector counts), not on the "
+                    "frequency prediction alone")
     occlusion_grid_res: IntProperty(
         name="Occlusion Grid", default=_D.occlusion_grid_res, min=4, max=512,
         soft_min=16, soft_max=256,

@@ -72,6 +72,9 @@ class FPPM_RENDER_PT_kernel(FPPMPanel, Panel):
             col.prop(s, "initial_radius")
         col.prop(s, "cap_radius_at_edges")
         col.prop(s, "alpha")
+        row = col.row()
+        row.active = not s.use_frequency  # APPM / CPPM are the baselines without it
+        row.prop(s, "radius_rule")
 
 
 class FPPM_RENDER_PT_light_paths(FPPMPanel, Panel):
@@ -103,6 +106,7 @@ class FPPM_RENDER_PT_frequency(FPPMPanel, Panel):
         col.prop(s, "frequency_model")
         col.prop(s, "frequency_estimator")
         col.prop(s, "hold_alpha", slider=True)
+        col.prop(s, "verify_holds")
         col.prop(s, "occlusion_grid_res")
 
 

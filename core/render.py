@@ -122,7 +122,8 @@ class Renderer:
                                        self.camera, self.fsamp, self.px, self.py, st,
                                        self.direct_light)
                             if st.integrator == "PATH" else None)
-        self.state = PixelState.zeros(P, HIST_BINS if self.radii.quantile else 0, st.aov_spectrum)
+        self.state = PixelState.zeros(P, HIST_BINS if self.radii.quantile else 0, st.aov_spectrum,
+                                      self.radii.sector_cells)
         self.pass_index = 0
         self.photons_emitted = 0
         self.elapsed = 0.0
@@ -304,7 +305,7 @@ class Renderer:
         if est.spectrum is not None:
             state.spectrum[...] = est.spectrum
         r_pred = self.radii.predicted(est.r_pred_min, state.r_hist) if est.gathered else est.r_pred_min
-        self.radii.update(state, est.M, est.Phi, r_pred)
+        self.radii.update(state, est.M, est.Phi, r_pred, est.sectors)
         self.film.accumulate(vp)
         clock["update"] += time.perf_counter() - tu
         self.pass_index = k

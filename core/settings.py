@@ -33,6 +33,7 @@ class RenderSettings:
     initial_radius: float = 0.05     # WORLD: radius in metres
     alpha: float = 0.7               # PPM radius reduction (Hachisuka 2008)
     cap_radius_at_edges: bool = True  # initial radius <= half the distance to a surface boundary (core.edges)
+    radius_rule: str = "PPM"         # 'PPM' (global alpha), 'APPM' or 'CPPM' (per pixel; docs/method.md "Radius rules")
     # --- Light paths
     max_bounces: int = 16            # as the example scenes' Cycles Light Paths
     rr_start: int = 3                # Russian roulette from this bounce on
@@ -44,6 +45,7 @@ class RenderSettings:
     frequency_model: str = "CORRECTED"  # 'CORRECTED' or 'PAPER'
     frequency_estimator: str = "MIN"    # 'MIN' or 'QUANTILE'
     hold_alpha: float = 0.9             # PPM alpha of a held radius (1 = held forever; docs/method.md)
+    verify_holds: bool = True           # hold only where the photons' chi-square sector test agrees
     occlusion_grid_res: int = 64
     # --- Output (AOV passes)
     aov_radius: bool = False            # FPPM Radius (world and pixels)
@@ -86,6 +88,12 @@ class RenderSettings:
         if not 0 < self.hold_alpha <= 1:
             bad("hold_alpha", "must be in (0, 1] (1 = a held radius never shrinks; "
                               "<= alpha = never hold)")
+        if self.radius_rule not in ("PPM", "APPM", "CPPM"):
+            bad("radius_rule", "must be 'PPM', 'APPM' or 'CPPM'")
+        if self.radius_rule != "PPM" and self.use_frequency and self.integrator == "PHOTON":
+            bad("radius_rule", "APPM and CPPM are the per-pixel radius baselines without "
+                               "frequency photons: turn Frequency off (use_frequency), or use "
+                               "'PPM' with verify_holds for frequency holds the photons check")
         if not 1 <= self.max_bounces <= 1024:
             bad("max_bounces", "must be in [1, 1024]")
         if not 0 <= self.rr_start <= 1024:

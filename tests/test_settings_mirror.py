@@ -18,6 +18,7 @@ ENUM_VALUES = {
     "frequency_model": {"CORRECTED", "PAPER"},
     "frequency_estimator": {"MIN", "QUANTILE"},
     "integrator": {"PHOTON", "PATH", "LIGHT"},
+    "radius_rule": {"PPM", "APPM", "CPPM"},
 }
 
 
@@ -86,7 +87,8 @@ def test_to_settings_round_trips_every_field():
                        frequency_model="PAPER", frequency_estimator="QUANTILE",
                        occlusion_grid_res=32, aov_radius=True, aov_predicted_radius=True,
                        aov_spectrum=True, aov_photon_count=True, aov_held=True,
-                       integrator="LIGHT", camera_samples=8, hold_alpha=0.8)
+                       integrator="LIGHT", camera_samples=8, hold_alpha=0.8,
+                       radius_rule="CPPM", verify_holds=False)
     # Every field differs from its default, so a missed field would show.
     d = RenderSettings()
     assert all(getattr(s, n) != getattr(d, n) for n in field_names())

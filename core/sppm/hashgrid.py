@@ -40,7 +40,9 @@ vectorised and scatters), r_pred = min of the frequency photons' predicted
 radius (Belcour & Soler 2011; docs/frequency.md "Conservative
 accumulation keeps the MINIMUM") and, on request, every (VP, frequency photon)
 pair (the QUANTILE estimator's histogram and the spectrum AOV,
-core.sppm.photon_pass).
+core.sppm.photon_pass) and the photon counts per sector cell of the kernel
+disc (4 tangent-plane quadrants x 2 equal-area rings: the radius rules of
+core.sppm.update).
 
 Cell size (documented choice, measured with bench/bench_gather.py):
   h = CELL_FACTOR * median(active R), CELL_FACTOR = 1.5.
@@ -91,6 +93,13 @@ COS_NG_DEFAULT = 0.5          # cos(60 deg): photon / VP surface orientation tes
 CELL_FACTOR = 1.5             # h = CELL_FACTOR * median active radius
 ENTRY_BUDGET_PER_VP = 64      # clamp: mean cell entries per active VP
 PARALLEL_MIN_PHOTONS = 50_000  # below this, thread start-up outweighs the split
+# Sector counts (gather(..., sectors=True)): the kernel disc split into the 4
+# quadrants of the visible point's tangent frame times 2 rings of equal area
+# (inner |d| < R / sqrt 2), 8 cells of equal area: the chi-square uniformity
+# test of CPPM (Lin et al. 2020) and the Laplacian of APPM read them
+# (core.sppm.update; docs/method.md "Radius rules").
+SECTOR_QUADRANTS = 4
+SECTOR_CELLS = 2 * SECTOR_QUADRANTS
 # Insertion radius = R * (1 + REL_PAD) + ABS_PAD * (scene scale): makes the
 # cell overlap test conservative against float64 rounding of the cell bounds
 # and of R^2 (vp_R2 may be computed as R*R by the caller).  Only adds candidates.
@@ -164,6 +173,9 @@ class GatherResult:
       of a counted frequency photon (non-NaN ph_rpred), all VPs, grouped by
       photon in the order of pair_vp / pair_ph; only when
       gather(..., want_freq_pairs=True), else None.
+    sectors: (K, SECTOR_CELLS) int64 photons counted by each VP per sector cell
+      (rows sum to M; see _sector_cell), only when gather(..., sectors=True),
+      else None.
     """
     M: np.ndarray
     Phi_sum: np.ndarray
@@ -172,6 +184,7 @@ class GatherResult:
     rpred_min: np.ndarray
     freq_pair_vp: Optional[np.ndarray] = None
     freq_pair_ph: Optional[np.ndarray] = None
+    sectors: Optional[np.ndarray] = None
 
 
 # ----------------------------------------------------------------------------
@@ -362,16 +375,58 @@ def _accepts(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
     return True
 
 
+@njit(cache=True, inline="always")
+def _sector_cell(vp_rec, tframe, v, x, y, z):
+    """Sector cell (0 .. SECTOR_CELLS-1) of a counted photon at (x, y, z) in
+    visible point v's kernel: quadrant of its offset in the tangent frame
+    tframe[v] = (t1, t2), plus SECTOR_QUADRANTS for the outer ring
+    (|d|^2 >= R^2 / 2).  The SECTOR_CELLS cells have equal areas on the disc."""
+    dx = x - vp_rec[v, 0]
+    dy = y - vp_rec[v, 1]
+    dz = z - vp_rec[v, 2]
+    u = dx * tframe[v, 0] + dy * tframe[v, 1] + dz * tframe[v, 2]
+    w = dx * tframe[v, 3] + dy * tframe[v, 4] + dz * tframe[v, 5]
+    c = 0
+    if u < 0.0:
+        c = 1 if w >= 0.0 else 2
+    elif w < 0.0:
+        c = 3
+    if 2.0 * (dx * dx + dy * dy + dz * dz) >= vp_rec[v, 3]:
+        c += SECTOR_QUADRANTS
+    return c
+
+
+def tangent_frames(ng: np.ndarray) -> np.ndarray:
+    """(K, 6) float64 (t1, t2): an orthonormal tangent frame of each unit
+    normal ng (K, 3), continuous except across ng.z = 0 (Duff et al. 2017,
+    "Building an orthonormal basis, revisited"); the same normal always gets
+    the same frame, so sector counts of a pixel add up across passes."""
+    n = np.asarray(ng, np.float64).reshape(-1, 3)
+    sign = np.where(n[:, 2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + n[:, 2])
+    b = n[:, 0] * n[:, 1] * a
+    t = np.empty((n.shape[0], 6))
+    t[:, 0] = 1.0 + sign * n[:, 0] * n[:, 0] * a
+    t[:, 1] = sign * b
+    t[:, 2] = -sign * n[:, 0]
+    t[:, 3] = b
+    t[:, 4] = sign + n[:, 1] * n[:, 1] * a
+    t[:, 5] = -n[:, 1]
+    return t
+
+
 @njit(cache=True)
 def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                  vp_rec, cos_ng, cell_start, vp_ids,
-                 M, Phi, rmin, hitmask, n_pair, n_freq):
+                 M, Phi, rmin, hitmask, n_pair, n_freq, tframe, S):
     """Sorted photons q0..q1-1 (ph_* already in sorted order): accumulate M,
-    Phi (const VPs), rmin into this chunk's arrays.  n_pair[q] / n_freq[q] =
+    Phi (const VPs), rmin into this chunk's arrays, and (S with SECTOR_CELLS
+    columns, else 0 columns) each counted photon's sector cell into S.  n_pair[q] / n_freq[q] =
     number of non-const / frequency pairs of the photon; hitmask[q] bit j =
     entry cell_start[s] + j counted (cells of <= 64 entries), so the pair pass
     need not redo the tests."""
     one = np.uint64(1)
+    with_sectors = S.shape[1] > 0
     for p in range(q0, q1):
         q = p
         s = slot[q]
@@ -396,6 +451,8 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
             if not _accepts(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
                 continue
             M[v] += 1
+            if with_sectors:
+                S[v, _sector_cell(vp_rec, tframe, v, x, y, z)] += 1
             if vp_rec[v, 7] != 0.0:
                 Phi[v, 0] += ph_power[p, 0]
                 Phi[v, 1] += ph_power[p, 1]
@@ -474,15 +531,16 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
 
 @njit(cache=True)
 def _count_serial(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, cos_ng,
-                  cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq):
+                  cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq, tframe, S):
     _count_range(0, slot.shape[0], slot, ph_pos, ph_ng, ph_wi, ph_power,
                  ph_rpred, vp_rec, cos_ng, cell_start, vp_ids, M[0], Phi[0], rmin[0],
-                 hitmask, n_pair, n_freq)
+                 hitmask, n_pair, n_freq, tframe, S[0])
 
 
 @njit(cache=True, parallel=True)
 def _count_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec,
-                    cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq):
+                    cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq,
+                    tframe, S):
     # One contiguous range of sorted photons per accumulator row: chunks never
     # share a row, and the per-photon outputs are indexed by q: no race.
     n_chunks = M.shape[0]
@@ -490,7 +548,7 @@ def _count_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec,
     for c in prange(n_chunks):
         _count_range(c * n // n_chunks, (c + 1) * n // n_chunks, slot, ph_pos,
                      ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, cos_ng, cell_start,
-                     vp_ids, M[c], Phi[c], rmin[c], hitmask, n_pair, n_freq)
+                     vp_ids, M[c], Phi[c], rmin[c], hitmask, n_pair, n_freq, tframe, S[c])
 
 
 @njit(cache=True)
@@ -628,17 +686,19 @@ def _prepare(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_pos, vp_ng, vp_R2, vp_
     return P, K, ph, vp
 
 
-def _empty_result(K, want_freq_pairs):
+def _empty_result(K, want_freq_pairs, sectors=False):
     e = np.zeros(0, np.int32)
     return GatherResult(np.zeros(K, np.int64), np.zeros((K, 3)), e, e.copy(),
                         np.full(K, np.inf),
                         e.copy() if want_freq_pairs else None,
-                        e.copy() if want_freq_pairs else None)
+                        e.copy() if want_freq_pairs else None,
+                        np.zeros((K, SECTOR_CELLS), np.int64) if sectors else None)
 
 
 def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
            vp_pos, vp_ng, vp_R2, vp_const, cos_ng: float = COS_NG_DEFAULT,
-           want_freq_pairs: bool = False, parallel: Optional[bool] = None) -> GatherResult:
+           want_freq_pairs: bool = False, parallel: Optional[bool] = None,
+           sectors: bool = False) -> GatherResult:
     """Count photons into visible points (rules (1)-(4) of the module docstring).
 
     ph_pos (P, 3) float32/64 photon hit positions; ph_ng (P, 3) geometric normal
@@ -652,6 +712,8 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     non-finite or non-positive power before the gather.
     parallel: split photons over numba threads (None = when P >=
     PARALLEL_MIN_PHOTONS and more than one thread is available).
+    sectors: also count each VP's photons per sector cell (GatherResult.sectors);
+    the other outputs are the same bits either way.
     """
     K = np.asarray(vp_pos).size // 3
     if K != grid.K:
@@ -663,7 +725,7 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         raise ValueError("gather: vp_R2 exceeds the radius the grid was built with; "
                          "rebuild the grid after the radii grow")
     if P == 0 or grid.n_active == 0:
-        return _empty_result(K, want_freq_pairs)
+        return _empty_result(K, want_freq_pairs, sectors)
 
     n_threads = numba.get_num_threads()
     if parallel is None:
@@ -677,7 +739,7 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         0 if grid.dense else 64 - grid.log2_table, grid.cell_start, n_chunks)
     n = order.shape[0]
     if n == 0:
-        return _empty_result(K, want_freq_pairs)
+        return _empty_result(K, want_freq_pairs, sectors)
 
     # One 64-byte record per VP (x, y, z, R^2, ng, const): a candidate reads
     # one cache line instead of four arrays.
@@ -692,17 +754,20 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     hitmask = np.empty(n, np.uint64)
     n_pair = np.empty(n, np.int32)
     n_freq = np.empty(n, np.int32)
+    tframe = tangent_frames(vp[1]) if sectors else np.zeros((0, 6))
+    S = np.zeros((n_chunks, K, SECTOR_CELLS if sectors else 0), np.int64)
     g = (grid.cell_start, grid.vp_ids)
     cargs = (slot, ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_, vp_rec,
-             float(cos_ng), *g, M, Phi, rmin, hitmask, n_pair, n_freq)
+             float(cos_ng), *g, M, Phi, rmin, hitmask, n_pair, n_freq, tframe, S)
     if parallel:
         _count_parallel(*cargs)
         M = M.sum(axis=0)
         Phi = Phi.sum(axis=0)
         rmin = rmin.min(axis=0)
+        S = S.sum(axis=0)
     else:
         _count_serial(*cargs)
-        M, Phi, rmin = M[0], Phi[0], rmin[0]
+        M, Phi, rmin, S = M[0], Phi[0], rmin[0], S[0]
 
     pair_off = np.zeros(n + 1, np.int64)
     np.cumsum(n_pair, out=pair_off[1:])
@@ -725,4 +790,5 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
             _pairs_serial(*pargs)
     return GatherResult(M, Phi, pair_vp, pair_ph, rmin,
                         fpair_vp if want_freq_pairs else None,
-                        fpair_ph if want_freq_pairs else None)
+                        fpair_ph if want_freq_pairs else None,
+                        S if sectors else None)

@@ -29,7 +29,7 @@ import numpy as np
 from .. import materials as B
 from ..frequency.kernels import Receivers
 from . import hashgrid
-from .update import HIST_BINS
+from .update import HIST_BINS, needs_sectors
 
 PHOTON_CHUNK = 131_072
 
@@ -45,6 +45,9 @@ class PhotonEstimate(NamedTuple):
     r_hist (P, HIST_BINS) uint32 counts of the predicted radii of the counted
       frequency photons (core.sppm.update.RadiusHistogram), or None.
     spectrum (P, 3) float64 the spectrum AOV after this pass, or None.
+    sectors (P, SECTOR_CELLS) float64 photons counted per sector cell of each
+      kernel disc (core.sppm.hashgrid), or None unless the radius rule needs
+      them (core.sppm.update.needs_sectors).
     """
     gathered: bool
     M: np.ndarray
@@ -52,6 +55,7 @@ class PhotonEstimate(NamedTuple):
     r_pred_min: np.ndarray
     r_hist: Optional[np.ndarray] = None
     spectrum: Optional[np.ndarray] = None
+    sectors: Optional[np.ndarray] = None
 
 
 def chunk_rng(rng: np.random.Generator, c: int) -> np.random.Generator:
@@ -89,6 +93,7 @@ class ChunkSums(NamedTuple):
     hist: Optional[np.ndarray]
     spec_idx: np.ndarray
     spec: np.ndarray
+    sectors: Optional[np.ndarray] = None
     rays: int = 0
     trace_seconds: float = 0.0
     gather_seconds: float = 0.0
@@ -96,7 +101,7 @@ class ChunkSums(NamedTuple):
     @property
     def nbytes(self) -> int:
         return sum(a.nbytes for a in (self.idx, self.M, self.Phi, self.r_pred, self.hist,
-                                      self.spec_idx, self.spec) if a is not None)
+                                      self.spec_idx, self.spec, self.sectors) if a is not None)
 
 
 @dataclass
@@ -110,25 +115,32 @@ class PassSums:
     hist: Optional[np.ndarray] = None
     spec: Optional[np.ndarray] = None
     spec_set: Optional[np.ndarray] = None
+    sectors: Optional[np.ndarray] = None
 
     @classmethod
-    def zeros(cls, P: int, hist: bool, spectrum: Optional[np.ndarray]) -> "PassSums":
-        """Empty sums; spectrum (P, 3): the committed spectrum AOV (copied), or None."""
+    def zeros(cls, P: int, hist: bool, spectrum: Optional[np.ndarray],
+              sectors: bool = False) -> "PassSums":
+        """Empty sums; spectrum (P, 3): the committed spectrum AOV (copied), or None;
+        sectors: with the photons' sector counts (P, hashgrid.SECTOR_CELLS) float64."""
         return cls(np.zeros(P), np.zeros((P, 3)), np.full(P, np.inf),
                    np.zeros((P, HIST_BINS), np.uint32) if hist else None,
-                   None if spectrum is None else spectrum.copy())
+                   None if spectrum is None else spectrum.copy(),
+                   sectors=np.zeros((P, hashgrid.SECTOR_CELLS)) if sectors else None)
 
     def sparse(self, rays=0, trace_seconds=0.0, gather_seconds=0.0) -> ChunkSums:
         """These sums at the pixels they touch (what a worker sends back)."""
         touched = (self.M != 0) | np.any(self.Phi != 0, axis=1) | (self.r_pred != np.inf)
         if self.hist is not None:
             touched |= np.any(self.hist != 0, axis=1)
+        if self.sectors is not None:
+            touched |= np.any(self.sectors != 0, axis=1)
         idx = np.flatnonzero(touched)
         spec_idx = (np.zeros(0, np.int64) if self.spec_set is None
                     else np.flatnonzero(self.spec_set))
         return ChunkSums(idx, self.M[idx], self.Phi[idx], self.r_pred[idx],
                          None if self.hist is None else self.hist[idx], spec_idx,
                          np.zeros((0, 3)) if self.spec is None else self.spec[spec_idx],
+                         None if self.sectors is None else self.sectors[idx],
                          rays, trace_seconds, gather_seconds)
 
     def add(self, part: ChunkSums) -> None:
@@ -142,6 +154,8 @@ class PassSums:
             self.hist[i] += part.hist
         if self.spec is not None:
             self.spec[part.spec_idx] = part.spec
+        if self.sectors is not None:
+            self.sectors[i] += part.sectors
 
 
 class PhotonPass:
@@ -165,6 +179,7 @@ class PhotonPass:
         self.chunk_streams = False
         # Non-Lambert visible points: the radius for their own receiver lobes.
         self.receivers = Receivers(mtab) if frequency else None
+        self.sectors = needs_sectors(settings, frequency)
 
     def __call__(self, vp, R2: np.ndarray, spectrum: Optional[np.ndarray],
                  rng: np.random.Generator, check_stop=lambda: None) -> PhotonEstimate:
@@ -175,7 +190,7 @@ class PhotonPass:
         its sums are added in chunk order (``chunk_sums``, ``PassSums.add``):
         what another process computes for that chunk."""
         P = vp.valid.shape[0]
-        acc = PassSums.zeros(P, self.radius_histogram is not None, spectrum)
+        acc = PassSums.zeros(P, self.radius_histogram is not None, spectrum, self.sectors)
         pg = self.begin(vp, R2, spectrum is not None)
         if pg is None:
             return PhotonEstimate(False, acc.M, acc.Phi, acc.r_pred)
@@ -219,7 +234,7 @@ class PhotonPass:
         gather it into pg: its sums alone (ChunkSums), for ``PassSums.add``."""
         P = pg.vp.valid.shape[0]
         part = PassSums.zeros(P, self.radius_histogram is not None,
-                              np.zeros((P, 3)) if pg.spectrum_aov else None)
+                              np.zeros((P, 3)) if pg.spectrum_aov else None, self.sectors)
         part.spec_set = None if part.spec is None else np.zeros(P, bool)
         rays0 = self.rays
         t = self.stage_seconds["photon_trace"], self.stage_seconds["gather"]
@@ -231,7 +246,7 @@ class PhotonPass:
         """The pass's estimate from its summed chunks (Phi times the visible
         points' throughput, once)."""
         acc.Phi *= vp.beta
-        return PhotonEstimate(True, acc.M, acc.Phi, acc.r_pred, acc.hist, acc.spec)
+        return PhotonEstimate(True, acc.M, acc.Phi, acc.r_pred, acc.hist, acc.spec, acc.sectors)
 
     def _trace_gather(self, pg: "PassGrid", n: int, n_freq: int, rng, acc: "PassSums") -> None:
         """Trace n photons (the first n_freq with a spectrum) and gather them
@@ -247,8 +262,11 @@ class PhotonPass:
             return
         g = hashgrid.gather(pg.grid, dep["p"], dep["ng"], dep["wi"], dep["power"], dep["rpred"],
                             vp.p, vp.ng, pg.R2, vp.const, cos_ng=-1.0,
-                            want_freq_pairs=pg.want_pairs and n_freq > 0)
+                            want_freq_pairs=pg.want_pairs and n_freq > 0,
+                            sectors=self.sectors)
         acc.M += g.M
+        if acc.sectors is not None:
+            acc.sectors += g.sectors
         acc.Phi += g.Phi_sum * (vp.albedo / np.pi)
         if g.pair_vp.size:
             acc.Phi += self._reflected(vp, dep, g.pair_vp, g.pair_ph, P)
@@ -268,8 +286,11 @@ class PhotonPass:
     def _reflected(self, vp, dep, pv, pp, P) -> np.ndarray:
         """(P, 3) BSDF-weighted power of the (visible point pv, photon pp)
         pairs (K,) of the non-Lambert visible points, summed per point."""
-        f = B.eval_bsdf(self.mtab, vp.mat[pv], vp.colors[pv], vp.ns[pv], vp.ng[pv],
-                        vp.wo[pv], dep["wi"][pp])
+        # The mesh's normals, not the ones flipped to the viewer: the
+        # materials tell a rough-glass point seen from inside by wo's side of
+        # ng and use 1/eta there (VisiblePoints.mesh_normals).
+        ns_m, ng_m = vp.mesh_normals(pv)
+        f = B.eval_bsdf(self.mtab, vp.mat[pv], vp.colors[pv], ns_m, ng_m, vp.wo[pv], dep["wi"][pp])
         # Photons estimate flux per geometric area; radiance wants the
         # shading cosine: |wi.ns| / |wi.ng| (Veach 1997, 5.3), capped so a
         # grazing geometric normal cannot spike.

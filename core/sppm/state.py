@@ -30,6 +30,10 @@ class PixelState:
       photons gathered so far (QUANTILE estimator, core.sppm.update), or None.
     spectrum (P, 3) float64 spectrum AOV (the photon that predicted the
       smallest radius in the latest pass that had one), or None.
+    sectors (P, C) float64 photons counted per sector cell of the kernel disc
+      (core.sppm.hashgrid.SECTOR_CELLS = C), accumulated over passes and
+      scaled with N by each radius reduction (the radius rules APPM, CPPM and
+      the verified holds, core.sppm.update), or None.
     """
     R2: np.ndarray
     N: np.ndarray
@@ -41,15 +45,19 @@ class PixelState:
     depth: np.ndarray
     r_hist: Optional[np.ndarray] = None
     spectrum: Optional[np.ndarray] = None
+    sectors: Optional[np.ndarray] = None
 
     @classmethod
-    def zeros(cls, P: int, hist_bins: int = 0, spectrum: bool = False) -> "PixelState":
-        """The state before the first pass; hist_bins = 0: no radius histogram."""
+    def zeros(cls, P: int, hist_bins: int = 0, spectrum: bool = False,
+              sector_cells: int = 0) -> "PixelState":
+        """The state before the first pass; hist_bins = 0: no radius histogram;
+        sector_cells = 0: no sector counts."""
         return cls(R2=np.zeros(P), N=np.zeros(P), tau=np.zeros((P, 3)), L_sum=np.zeros((P, 3)),
                    r_pred_last=np.full(P, np.inf), held=np.zeros(P, bool), M_last=np.zeros(P),
                    depth=np.zeros(P),
                    r_hist=np.zeros((P, hist_bins), np.uint32) if hist_bins else None,
-                   spectrum=np.zeros((P, 3)) if spectrum else None)
+                   spectrum=np.zeros((P, 3)) if spectrum else None,
+                   sectors=np.zeros((P, sector_cells)) if sector_cells else None)
 
     @classmethod
     def required_keys(cls) -> tuple[str, ...]:
@@ -65,7 +73,7 @@ class PixelState:
     # "Checkpoints"): counts, squared radii and depths are >= 0; r_pred_last
     # is a radius > 0, +inf or NaN (no prediction); the sums are finite.
     _RANGES = {"R2": "nonneg", "N": "nonneg", "M_last": "nonneg", "depth": "nonneg",
-               "tau": "finite", "L_sum": "finite", "spectrum": "finite",
+               "sectors": "nonneg", "tau": "finite", "L_sum": "finite", "spectrum": "finite",
                "r_pred_last": "radius"}
 
     def check_state(self, d: dict) -> Optional[str]:

@@ -20,6 +20,16 @@ to the hold rate hold_alpha where the predicted radius says the light is
 smooth; docs/method.md "Consistent holds").  Every visible point may hold:
 core.sppm.photon_pass predicts the radius for the visible point's own
 receiver lobes (docs/frequency.md "At the hitpoint").
+
+Radius rules (setting radius_rule, docs/method.md "Radius rules"): the
+radius a pass asks ppm_radius_update to keep comes from the frequency
+prediction (PPM with frequency photons), from the MSE-optimal radius of the
+sector counts (APPM, :func:`appm_radius`) or from the chi-square uniformity
+test of the sector counts (CPPM, :func:`chi2_rejects`); with verify_holds a
+test of the same counts (for a linear density) also releases frequency holds
+the photons contradict.  Every rule only
+chooses the per-pass factor between the PPM rate alpha and the hold rate
+hold_alpha, so every rule converges by the same argument.
 """
 from __future__ import annotations
 
@@ -27,6 +37,7 @@ import numpy as np
 
 from ..frequency import spectrum as F
 from . import edges
+from .hashgrid import SECTOR_CELLS, SECTOR_QUADRANTS
 
 #: Smallest radius relative to the scene diameter D (docs/frequency.md stiff
 #: table, "tiny radii").
@@ -35,6 +46,87 @@ QUANTILE = 0.1
 HIST_BINS = 24
 #: Seed of the surface-boundary cap's camera pass (with the render's seed).
 EDGE_PASS_STREAM = 0xED6E
+#: Chi-square test of the sector counts (CPPM, Lin et al. 2020): false
+#: rejection rate and its critical values, the 0.99 quantiles of chi2(7)
+#: (uniformity: SECTOR_CELLS - 1 degrees of freedom) and of chi2(5) (the
+#: verified holds' test, two fewer: the fitted linear gradient); statistics
+#: tables.
+CHI2_ALPHA = 0.01
+CHI2_CRITICAL = 18.475
+CHI2_CRITICAL_LINEAR = 15.086
+#: The test needs an expected count of at least 5 per cell (Cochran 1952's
+#: rule for Pearson's statistic); with fewer photons it cannot reject.
+CHI2_MIN_EXPECTED = 5.0
+
+
+def _gradient_patterns() -> np.ndarray:
+    """(2, SECTOR_CELLS) expected count pattern of a unit linear gradient
+    along the tangent frame's u and w axes: each cell's centroid, the ring's
+    radial centroid (2/3)(b^3 - a^3)/(b^2 - a^2) (R = 1, rings split at
+    1/sqrt 2) times the quadrant's direction at 45 + 90 q degrees."""
+    a2 = 1.0 / np.sqrt(2.0)
+    rings = [(0.0, a2), (a2, 1.0)]
+    rho = [2.0 / 3.0 * (b ** 3 - a ** 3) / (b ** 2 - a ** 2) for a, b in rings]
+    th = np.radians(45.0 + 90.0 * np.arange(SECTOR_QUADRANTS))
+    return np.array([np.concatenate([r * np.cos(th) for r in rho]),
+                     np.concatenate([r * np.sin(th) for r in rho])])
+
+
+_GRADIENT = _gradient_patterns()
+
+
+def needs_sectors(settings, frequency: bool) -> bool:
+    """The gather must count photons per sector cell: the APPM or CPPM rule,
+    or frequency holds verified by the photons."""
+    return settings.radius_rule != "PPM" or (frequency and settings.verify_holds)
+
+
+def chi2_rejects(S: np.ndarray, linear: bool = False) -> np.ndarray:
+    """(P,) bool: Pearson's chi-square test rejects, at level CHI2_ALPHA, that
+    the photons counted in the SECTOR_CELLS equal-area cells S (P,
+    SECTOR_CELLS) are uniform over the disc (CPPM's hypothesis), or with
+    linear=True that their density is linear (uniform plus a gradient, which
+    leaves the symmetric disc estimate unbiased: the verified holds' test).
+    False where the expected count per cell is below CHI2_MIN_EXPECTED.
+        E = sum(S) / C,  X^2 = |S - E|^2 / E                  vs chi2(C - 1)
+        linear: X^2 - sum_g (g.S)^2 / (|g|^2 E), g = the two gradient
+        patterns (orthogonal to each other and to a constant)  vs chi2(C - 3)"""
+    S = np.asarray(S, np.float64)
+    E = S.sum(axis=1) / SECTOR_CELLS
+    r2 = np.square(S - E[:, None]).sum(axis=1)
+    crit = CHI2_CRITICAL
+    if linear:
+        proj = S @ _GRADIENT.T                                   # (P, 2)
+        r2 = r2 - (np.square(proj) / np.square(_GRADIENT).sum(axis=1)).sum(axis=1)
+        crit = CHI2_CRITICAL_LINEAR
+    with np.errstate(divide="ignore", invalid="ignore"):
+        X2 = r2 / E
+    return (E >= CHI2_MIN_EXPECTED) & (X2 > crit)
+
+
+def appm_radius(S: np.ndarray, R2: np.ndarray) -> np.ndarray:
+    """(P,) radius [m] minimising the estimated MSE of the disc estimate
+    (Kaplanyan & Dachsbacher 2013), from the sector counts S (P,
+    SECTOR_CELLS) gathered with squared radii R2 (P,); inf where the
+    Laplacian estimate is zero (any radius is as good: keep it).
+
+    For density L + x.g + x'Hx/2 over the disc of radius R, the inner ring
+    (|x| < R/sqrt 2) and the outer ring of equal area differ by
+    n_out - n_in = pi lap(L) R^4 / 16 photons (n = n_in + n_out ~ pi R^2 L),
+    so the relative Laplacian is lambda = 16 (n_out - n_in) / (n R^2).  The
+    disc's bias is L lambda r^2 / 8 and its relative variance R^2 / (n r^2),
+    so MSE(r) / L^2 = lambda^2 r^4 / 64 + R^2 / (n r^2) is least at
+        r^6 = 32 R^2 / (n lambda^2) = R^6 n / (8 D^2),
+    D^2 = (n_out - n_in)^2 - n: the square of the difference, less its
+    Poisson variance (n), so that noise alone does not shrink the radius."""
+    S = np.asarray(S, np.float64)
+    n_in = S[:, :SECTOR_QUADRANTS].sum(axis=1)
+    n_out = S[:, SECTOR_QUADRANTS:].sum(axis=1)
+    n = n_in + n_out
+    D2 = np.maximum(np.square(n_out - n_in) - n, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.sqrt(R2) * np.power(n / (8.0 * D2), 1.0 / 6.0)
+    return np.where(D2 > 0, r, np.inf)
 
 
 class RadiusHistogram:
@@ -81,6 +173,7 @@ class Radii:
         self.floor_sq = radius_floor_sq(D)
         self.hist = RadiusHistogram(D)
         self.quantile = frequency and settings.frequency_estimator == "QUANTILE"
+        self.sector_cells = SECTOR_CELLS if needs_sectors(settings, frequency) else 0
         self._edge_cap = None
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
@@ -127,19 +220,46 @@ class Radii:
             r_pred = self.hist.quantile(r_hist, r_pred)
         return r_pred
 
-    def update(self, state, M: np.ndarray, Phi: np.ndarray, r_pred: np.ndarray) -> None:
-        """Progressive update of state (N, R2, tau, held, r_pred_last, M_last) with
-        this pass's photons: M (P,) count, Phi (P, 3) flux, r_pred (P,) [m]
-        predicted for each visible point's receiver lobes (any material)."""
-        if not self.frequency:
+    def update(self, state, M: np.ndarray, Phi: np.ndarray, r_pred: np.ndarray,
+               sectors=None) -> None:
+        """Progressive update of state (N, R2, tau, held, r_pred_last, M_last,
+        sectors) with this pass's photons: M (P,) count, Phi (P, 3) flux,
+        r_pred (P,) [m] predicted for each visible point's receiver lobes (any
+        material), sectors (P, SECTOR_CELLS) this pass's sector counts (None
+        unless :func:`needs_sectors`)."""
+        rule = self.settings.radius_rule
+        S = None
+        if state.sectors is not None and sectors is not None:
+            S = state.sectors + sectors
+        # APPM / CPPM keep a radius (r_pred = R: the hold rate) where the MSE
+        # optimum is not smaller (no curvature seen) / the test accepts.
+        keep = np.sqrt(np.where(state.R2 > 0, state.R2, np.nan))
+        if rule == "APPM":
+            r_pred = appm_radius(S, state.R2)
+            r_pred = np.where(np.isinf(r_pred), keep, r_pred)
+        elif rule == "CPPM":
+            r_pred = np.where(chi2_rejects(S), np.nan, keep)
+        elif not self.frequency:
             r_pred = np.full_like(r_pred, np.nan)
         else:
             r_pred = np.where(np.isinf(r_pred), np.nan, r_pred)
+        r_hold = r_pred
+        if S is not None and rule == "PPM":
+            # Verified holds: the photons veto the prediction where they show
+            # more than a linear gradient (the prediction itself is kept for
+            # the Predicted Radius pass).
+            r_hold = np.where(chi2_rejects(S, linear=True), np.nan, r_pred)
         m = M > 0
+        R2_old = state.R2[m]
         N2, R2n, tau2, held = ppm_radius_update(state.N[m], state.R2[m], state.tau[m], M[m],
-                                                  Phi[m], self.settings.alpha, r_pred[m],
+                                                  Phi[m], self.settings.alpha, r_hold[m],
                                                   self.floor_sq, self.settings.hold_alpha)
         state.N[m], state.R2[m], state.tau[m] = N2, R2n, tau2
+        if S is not None:
+            # The counts shrink with the disc, as N does (N' = (N + M) f).
+            f = np.where(R2_old > 0, R2n / np.where(R2_old > 0, R2_old, 1.0), 1.0)
+            S[m] *= f[:, None]
+            state.sectors[...] = S
         state.held[:] = False
         state.held[np.nonzero(m)[0]] = held
         state.r_pred_last = r_pred

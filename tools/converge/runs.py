@@ -45,6 +45,10 @@ METHOD_SETTINGS = {
     "paper": ({"use_frequency": True, "frequency_model": "PAPER"},
               "FPPM with the paper's printed frequency model"),
     "ppm": ({"use_frequency": False}, "progressive photon mapping (frequency off)"),
+    "appm": ({"use_frequency": False, "radius_rule": "APPM"},
+             "adaptive PPM (Kaplanyan & Dachsbacher 2013), per-pixel MSE-optimal radius"),
+    "cppm": ({"use_frequency": False, "radius_rule": "CPPM"},
+             "chi-squared PPM (Lin et al. 2020), radius kept while the photons look uniform"),
 }
 METHODS = tuple(METHOD_SETTINGS) + ("cycles",)
 CYCLES_HELP = "Cycles at 1, 2, 4, ... spp, in a process of its own"
