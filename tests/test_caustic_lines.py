@@ -118,8 +118,10 @@ def test_predicted_radius_on_the_caustic_line_under_a_1m_light(monkeypatch):
     photons (the brightest pixels overall include directly lit floor near
     the light, which no frequency photon reaches).  Smooth region: the pixels
     with frequency photons below the median brightness of those.
-    Measured: median predicted / PPM radius on the caustic line RATIO_C, on
-    the smooth region RATIO_S (before: 3.6 and 4.3 at 64x64)."""
+    Measured (deterministic for the seed): median predicted / PPM radius
+    0.24 on the caustic line (3 pixels; 0.23 on the brightest 5%) and 1.55
+    on the smooth region (42 pixels); with the mean edge curvature 2.19 and
+    1.85.  Under a 5 cm light the caustic line gives 0.009."""
     img, R, rp = _render_ring(1.0, monkeypatch)
     fin = np.isfinite(rp)
     idx = np.nonzero(fin)[0]
@@ -128,6 +130,5 @@ def test_predicted_radius_on_the_caustic_line_under_a_1m_light(monkeypatch):
     smooth = order[: idx.size // 2]
     ratio_c = np.median(rp[caustic] / R[caustic])
     ratio_s = np.median(rp[smooth] / R[smooth])
-    print("caustic", ratio_c, "smooth", ratio_s, caustic.size, smooth.size)
-    assert ratio_c < 1.0
-    assert ratio_s > 1.0
+    assert ratio_c < 0.5
+    assert ratio_s > 1.2
