@@ -64,7 +64,8 @@ from .scene.model import Scene, drop_invalid_triangles, scene_digest
 from .settings import RenderSettings
 from .sppm.film import PASSES, Film, PassResult, pass_enabled
 from .sppm.photon_pass import PHOTON_CHUNK, PhotonPass
-from .sppm.photons import PhotonTracer, triangle_curvature
+from .frequency.curvature import scene_curvature
+from .sppm.photons import PhotonTracer
 from .sppm.state import PixelState
 from .sppm.update import HIST_BINS, Radii
 from .sppm.visible_points import CameraPass, VisiblePoints
@@ -190,7 +191,7 @@ class Renderer:
         self.plan: RenderPlan = make_plan(scene, plan_st, self.mtab, self.light_table,
                                           force=tuple(force_stages))
         self._check_stop()
-        self.kappa = triangle_curvature(scene) if self.plan.frequency_photons else None
+        self.kappa = scene_curvature(scene) if self.plan.frequency_photons else None
         self._check_stop()
         self.occ_grid = None
         self.occ_locality = 0.0

@@ -94,11 +94,7 @@ def _render_ring(size, monkeypatch):
     bpy_helpers.ensure_registered()
     from fppm.addon.export import export_scene
     from fppm.addon.properties import settings_from_scene
-    import core.render
     from core.render import Renderer
-    # The renderer reads core.render.triangle_curvature (core/sppm/photons.py);
-    # until that delegates to scene_curvature, route it here.
-    monkeypatch.setattr(core.render, "triangle_curvature", scene_curvature)
     bpy.ops.wm.open_mainfile(filepath=RING, load_ui=False, use_scripts=False)
     sc = bpy.context.scene
     sc.render.resolution_percentage = 25                      # 32 x 32

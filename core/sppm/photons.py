@@ -326,20 +326,3 @@ class PhotonTracer:
             m = self.tris.mat[prim[rec.nxt_src[bad]]]
             F.lobe_variance(self.mtab.kind[m:m + 1, 0], self.mtab.roughness[m:m + 1, 0])
         return out
-
-
-def triangle_curvature(scene: Scene) -> np.ndarray:
-    """(T,) float64 mean normal curvature of each triangle from its corner normals.
-
-    kappa = mean over edges of dot(n_j - n_i, p_j - p_i) / |p_j - p_i|^2: +1/R
-    on the outside of a sphere of radius R whose normals point outwards, 0 on
-    flat-shaded triangles (curvature comes from the shading normals).
-    """
-    P = scene.tri_p.astype(np.float64)
-    N = scene.tri_n.astype(np.float64)
-    k = np.zeros(P.shape[0])
-    for i, j in ((0, 1), (1, 2), (2, 0)):
-        dp = P[:, j] - P[:, i]
-        dn = N[:, j] - N[:, i]
-        k += _dot(dn, dp) / np.maximum(_dot(dp, dp), 1e-300)
-    return k / 3.0
