@@ -157,6 +157,63 @@ class CameraMIS:
         return w
 
 
+def first_hit_ratios(t, kn, light, z0, d, p, ng):
+    """(B0, B1) (K,) at the first vertex z_1 = p of light paths from the
+    emitter points z0 (a point or soft light's centre) of rows light along
+    d; kn = K / N_L.  B0 = kn c_k' / (l_k l_{k-1}) (the camera-side density
+    of the emitter point without its BSDF density at z_1, applied later;
+    0 for point and soft lights, which no ray hits), B1 = kn n_k / (l_k l_{k-1})
+    with n_k the next-event density of z0 from z_1."""
+    kind = t.kind[light]
+    a = (kind == AREA) | (kind == MESH)
+    cos_l = np.abs(_dot(t.dir[light], d))
+    wz = p - z0
+    dz = np.linalg.norm(wz, axis=1)
+    wz = wz / np.maximum(dz, 1e-300)[:, None]
+    cos_z = np.abs(_dot(ng, wz))
+    pA = M.emit_pdf_pos(t, light)
+    pW = M.emit_pdf_dir(t, light, wz)
+    nee = np.where(a, 0.0, _selection_probability(t, p, light))
+    aa = np.nonzero(a)[0]
+    if aa.size:
+        nee[aa] = Lt.pdf_direct(t, p[aa], -wz[aa], light[aa], dz[aa]) * cos_l[aa]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        B0 = np.where(a, kn * cos_l / (pA * pW * cos_z), 0.0)
+        B1 = np.where(a, kn * nee / (pA * pW * cos_z), kn * nee / pA * dz * dz / (pW * cos_z))
+    return _finite(B0), _finite(B1)
+
+
+def scatter_factors(pr, ng, wn, pdf, is_delta, first):
+    """(pend, pend1) (K,): what B0 and B1 are multiplied by when a light path
+    leaves a vertex (normal ng) along wn with forward density pdf: pr |cos| /
+    pdf (pr the camera-side density of the previous light vertex from here,
+    deferred from the splat; densities 1 at a delta), divided by |cos| at the
+    next vertex on arrival.  B1 skips pr at the first vertex (q_1 has no
+    camera-side density at the emitter)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pend1 = _finite(np.abs(_dot(ng, wn)) / np.where(is_delta, 1.0, pdf))
+    pend = pr * pend1
+    return pend, (pend1 if first else pend)
+
+
+def splat_weight(B0, B1, pf, c1, first, soft):
+    """(K,) w_LT of light vertices connected to the camera: 1 / (1 + (B0 pf
+    c_1)^2 + (B1 pf c_1)^2), c_1 the camera density of the vertex, pf the
+    camera path's BSDF density there towards the light side (not in B1 at
+    the first vertex, see scatter_factors); soft lights: no PT term."""
+    b0 = np.where(soft, 0.0, B0 * pf * c1)
+    b1 = B1 * c1 * (1.0 if first else pf)
+    return _finite(1.0 / (1.0 + b0 * b0 + b1 * b1))
+
+
+def emission_splat_weight(kn, c1, pA, full):
+    """(K,) w_LT of emitter points seen by the camera (paths of one segment):
+    against PT only, q_0 / q_L = kn c_1 / pA; 0 for emitters not in the
+    three-way scheme (class NO_LT)."""
+    r = kn * c1 / pA
+    return np.where(full, 1.0 / (1.0 + r * r), 0.0)
+
+
 class CombinedLightTracer(LightTracer):
     """Light paths traced in numpy with their MIS ratios (B0 = q_0 / q_L and
     B1 = q_1 / q_L without the camera-side factors of the current vertex),
@@ -199,9 +256,8 @@ class CombinedLightTracer(LightTracer):
         pA = M.emit_pdf_pos(t, light)
 
         def emis_w(rows, weight, cos_o):
-            j = light[rows]
-            r = kn * weight * cos_o / pA[rows]
-            return np.where(self.cls[j] == M.FULL, 1.0 / (1.0 + r * r), 0.0)
+            return emission_splat_weight(kn, weight * cos_o, pA[rows],
+                                         self.cls[light[rows]] == M.FULL)
         self._emission_vertices(ph, rng, film, mis=emis_w)
         kind = t.kind[light]
         ar = (kind == AREA) | (kind == MESH)
@@ -228,48 +284,26 @@ class CombinedLightTracer(LightTracer):
             mat = s.tri_mat[prim]
             cos_in = np.abs(_dot(ng, d))
             j = light[idx]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                if bounce == 0:
-                    tt = h.t[ih]
-                    fr = falloff[idx] > 0
-                    if np.any(fr):
-                        power[fr] *= (tt[fr] ** 2 / (tt[fr] ** 2 + falloff[idx][fr]))[:, None]
-                    a = ar[idx]
-                    # B0 = (K/N_L) c_k / (l_k l_{k-1}), c_k's pf deferred;
-                    # B1 = (K/N_L) n_k / (l_k l_{k-1}) (next-event density at z_1).
-                    cos_l = np.abs(_dot(t.dir[j], d))
-                    wz = p - z0[idx]
-                    dz = np.linalg.norm(wz, axis=1)
-                    wz = wz / np.maximum(dz, 1e-300)[:, None]
-                    cos_z = np.abs(_dot(ng, wz))
-                    pW = M.emit_pdf_dir(t, j, wz)
-                    B0 = np.where(a, kn * cos_l / (pA[idx] * pW * cos_z), 0.0)
-                    nee = np.where(a, 0.0, _selection_probability(t, p, j))
-                    aa = np.nonzero(a)[0]
-                    if aa.size:
-                        nee[aa] = Lt.pdf_direct(t, p[aa], -wz[aa], j[aa], dz[aa]) * cos_l[aa]
-                    B1 = np.where(a, kn * nee / (pA[idx] * pW * cos_z),
-                                  kn * nee / pA[idx] * dz * dz / (pW * cos_z))
-                else:
-                    B0 = pend[ih] * B0[ih] / cos_in
-                    B1 = pend1[ih] * B1[ih] / cos_in
-            B0, B1 = _finite(B0), _finite(B1)
+            if bounce == 0:
+                tt = h.t[ih]
+                fr = falloff[idx] > 0
+                if np.any(fr):
+                    power[fr] *= (tt[fr] ** 2 / (tt[fr] ** 2 + falloff[idx][fr]))[:, None]
+                B0, B1 = first_hit_ratios(t, kn, j, z0[idx], d, p, ng)
+            else:
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    B0 = _finite(pend[ih] * B0[ih] / cos_in)
+                    B1 = _finite(pend1[ih] * B1[ih] / cos_in)
             colors = B.lobe_colors(mtab, mat, uv)
             wi = -d
             nd = np.nonzero(mtab.has_nondelta[mat])[0]
             if nd.size:
                 def splat_w(keep, pr, col, nd=nd, first=bounce == 0):
-                    # X = pf c_1: the camera density of this vertex (c_1) and
-                    # its BSDF density towards the light side (pf), which
-                    # belongs to the next vertex's c; q_1 has no c at the
-                    # emitter, so at the first vertex B1 takes c_1 alone.
                     r = nd[keep]
                     wc = pr.wi[keep]
                     pf = B.pdf_bsdf(mtab, mat[r], col, ns[r], ng[r], wc, wi[r], subset="all")
                     c1 = pr.weight[keep] * np.abs(_dot(ng[r], wc))
-                    b0 = np.where(soft[idx[r]], 0.0, B0[r] * pf * c1)
-                    b1 = B1[r] * c1 * (1.0 if first else pf)
-                    return _finite(1.0 / (1.0 + b0 * b0 + b1 * b1))
+                    return splat_weight(B0[r], B1[r], pf, c1, first, soft[idx[r]])
                 self.connect(p[nd], ng[nd], ns[nd], wi[nd], power[nd], mat[nd], uv[nd], rng,
                              film, mis=splat_w)
             if bounce >= self.max_bounces:
@@ -291,11 +325,7 @@ class CombinedLightTracer(LightTracer):
                 k = c[nd]
                 pr[nd] = B.pdf_bsdf(mtab, mat[k], colors[k], ns[k], ng[k], wn[nd], wi[k],
                                     subset="all")
-            with np.errstate(divide="ignore", invalid="ignore"):
-                pend1 = _finite(np.abs(_dot(ng[c], wn)) / np.where(is_delta, 1.0, pdf))
-            pend = pr * pend1
-            if bounce > 0:
-                pend1 = pend
+            pend, pend1 = scatter_factors(pr, ng[c], wn, pdf, is_delta, bounce == 0)
             B0, B1 = B0[c], B1[c]
             if bounce == 0:
                 B1 = np.where(is_delta, 0.0, B1)     # no light sample at a delta z_1
