@@ -3,7 +3,8 @@
     .venv/bin/python bench/measure_cpu.py BLEND PCT BUDGET RUNS [--ref light:SECONDS]
 
 RUNS: comma-separated fppm, ppm, path<K>, light, combined<K> (K = camera
-samples, default 4), cycles.  The reference is Cycles at 8192 spp (cached
+samples, default 4), cycles; a suffix :p<N> sets photons_per_pass (light
+paths per pass for light and combined).  The reference is Cycles at 8192 spp (cached
 under ~/.cache/fppm/references/ as ``fppm converge`` does), or with
 ``--ref light:S`` a light-tracing render of S CPU seconds (for scenes Cycles
 cannot render, such as a radius-0 point light's caustic; cached in
@@ -31,6 +32,9 @@ from fppm.tools.converge.references import (cycles_reference_setup, cycles_rende
 
 
 def settings_of(run: str) -> dict:
+    if ":p" in run:                          # e.g. combined4:p50000
+        run, n = run.split(":p")
+        return dict(settings_of(run), photons_per_pass=int(n))
     if run.startswith("path"):
         return dict(integrator="PATH", camera_samples=int(run[4:] or 4))
     if run.startswith("combined"):
