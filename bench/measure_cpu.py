@@ -4,7 +4,8 @@
 
 RUNS: comma-separated fppm, ppm, path<K>, light, combined<K> (K = camera
 samples, default 4), cycles; a suffix :p<N> sets photons_per_pass (light
-paths per pass for light and combined).  The reference is Cycles at 8192 spp (cached
+paths per pass for light and combined), :n<N> renders N passes whatever
+the time (equal light paths).  The reference is Cycles at 8192 spp (cached
 under ~/.cache/fppm/references/ as ``fppm converge`` does), or with
 ``--ref light:S`` a light-tracing render of S CPU seconds (for scenes Cycles
 cannot render, such as a radius-0 point light's caustic; cached in
@@ -32,6 +33,9 @@ from fppm.tools.converge.references import (cycles_reference_setup, cycles_rende
 
 
 def settings_of(run: str) -> dict:
+    if ":n" in run:                          # e.g. light:n40 -- 40 passes, no time budget
+        run, n = run.split(":n")
+        return dict(settings_of(run), max_passes=int(n))
     if ":p" in run:                          # e.g. combined4:p50000
         run, n = run.split(":p")
         return dict(settings_of(run), photons_per_pass=int(n))
@@ -46,7 +50,9 @@ def settings_of(run: str) -> dict:
 
 def render_cpu(blend, pct, budget, run, seed=7, log=True):
     """(image, cpu seconds, passes) of ``run`` stopped after ``budget`` CPU seconds."""
-    kw = dict(settings_of(run), time_limit=0.0, max_passes=100000, seed=seed)
+    kw = dict(dict(max_passes=100000), **settings_of(run), time_limit=0.0, seed=seed)
+    if kw["max_passes"] < 100000:
+        budget = float("inf")                # equal passes, not equal time
     # Untimed warm-up: numba kernels from the disk cache.
     render_scene(open_blend(blend, resolution=pct), dict(kw, max_passes=1),
                  RenderSession(log=lambda s: None))

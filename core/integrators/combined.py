@@ -20,7 +20,7 @@ from .. import materials as B
 from ..accel import surface_point
 from ..lights.pdf import _selection_probability
 from ..lights.table import AREA, MESH
-from ..mathutil import LUMINANCE as LUM, dot as _dot
+from ..mathutil import dot as _dot
 from . import mis as M
 from .light_tracer import CHUNK, LightTracer
 
@@ -202,7 +202,7 @@ def splat_weight(B0, B1, pf, c1, first, soft):
     camera path's BSDF density there towards the light side (not in B1 at
     the first vertex, see scatter_factors); soft lights: no PT term."""
     b0 = np.where(soft, 0.0, B0 * pf * c1)
-    b1 = B1 * c1 * (1.0 if first else pf)
+    b1 = B1 * c1 * np.where(first, 1.0, pf)
     return _finite(1.0 / (1.0 + b0 * b0 + b1 * b1))
 
 
@@ -261,75 +261,122 @@ class CombinedLightTracer(LightTracer):
         self._emission_vertices(ph, rng, film, mis=emis_w)
         kind = t.kind[light]
         ar = (kind == AREA) | (kind == MESH)
-        n_l = t.dir[light] * np.where(_dot(t.dir[light], ph["d"]) >= 0, 1.0, -1.0)[:, None]
-        o = np.where(ar[:, None], self.accel.spawn(ph["o"], n_l, ph["d"]), ph["o"])
-        d = ph["d"]
-        power = ph["power"].copy()
-        falloff = ph["falloff_r2"]
         z0 = np.where(ar[:, None], ph["o"], t.co[light])     # the light end of the weights
         soft = self.cls[light] == M.SOFT
-        B0 = B1 = None
-        pend = None                   # pr |cos| / pl of the last scattering (per live path)
-        idx = np.arange(live.size)    # row into the chunk's light arrays
+        dep, B0d, B1d, first = self._trace(ph, z0, rng)
+        if dep is None:
+            return
+        bary = dep["bary"]
+        prim = bary[:, 0].astype(np.int64)
+        _, _, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, bary[:, 1], bary[:, 2])
+        mat = np.asarray(s.tri_mat, np.int64)[prim]
+        sft = soft[dep["src_photon"]]
+        ng, wi = dep["ng"], dep["wi"]
+
+        def splat_w(keep, pr, col):
+            wc = pr.wi[keep]
+            pf = B.pdf_bsdf(mtab, mat[keep], col, ns[keep], ng[keep], wc, wi[keep], subset="all")
+            c1 = pr.weight[keep] * np.abs(_dot(ng[keep], wc))
+            return splat_weight(B0d[keep], B1d[keep], pf, c1, first[keep], sft[keep])
+        self.connect(dep["p"], ng, ns, wi, dep["power"], mat, uv, rng, film, mis=splat_w)
+
+    def _trace(self, ph, z0, rng):
+        """Trace the photons ph with the compiled photon kernels
+        (core.sppm.photon_kernels, deposits from the first hit on, hit
+        records on) and follow B0, B1 along each path in numpy from the
+        records: the first-hit ratios, then per scattering the forward and
+        reverse BSDF densities of the direction the kernel sampled.
+        Returns (deposits + src_photon (row of ph), B0, B1, first) or Nones."""
+        from ..accel import REL_OFFSET, intersect_f32
+        from ..sppm import photon_kernels as PK
+        from ..sppm.photons import _Deposits
+        tr, t, mtab, s = self.tracer, self.light_table, self.mtab, self.scene
+        n = ph["o"].shape[0]
+        live = PK.LiveState(o32=np.empty((n, 3), np.float32), d32=np.empty((n, 3), np.float32),
+                            d64=np.empty((n, 3)), power=np.empty((n, 3)), falloff=np.empty(n))
+        rel, floor = REL_OFFSET, self.accel.abs_floor / REL_OFFSET
+        src = np.empty(n, np.int64)
+        K = PK.emit_kernel(np.ascontiguousarray(ph["o"], np.float64),
+                           np.ascontiguousarray(ph["d"], np.float64),
+                           np.ascontiguousarray(ph["power"], np.float64),
+                           np.ascontiguousarray(ph["falloff_r2"], np.float64), rel, floor, live,
+                           src)
+        row = src[:K].copy()                 # photon of each live ray
+        light = ph["light"].astype(np.int64)
+        cg = n if tr.fmat.any_generic else 1
+        gen = PK.GenericHits(np.empty(cg, np.int64), *(np.empty((cg, 3)) for _ in range(6)))
+        rec = PK.HitRecord(t=np.empty(n), ng=np.empty((n, 3)), nswi=np.empty(n),
+                           hit=np.empty(n, bool), nxt_src=np.empty(n, np.int64),
+                           nxt_delta=np.empty(n, bool))
+        dep = _Deposits(2.0 * n + 64)
+        kn = self.kn
+        Bp0 = Bp1 = None
+        out_B0, out_B1, out_first, out_row = [], [], [], []
         for bounce in range(self.max_bounces + 1):
-            if idx.size == 0:
+            if K == 0:
                 break
-            h = self.accel.intersect(o, d, np.full(idx.size, np.inf))
-            ih = np.nonzero(h.hit)[0]
-            if ih.size == 0:
-                break
-            idx, d, power = idx[ih], d[ih], power[ih]
-            prim = h.prim[ih]
-            p, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, h.u[ih], h.v[ih])
-            mat = s.tri_mat[prim]
-            cos_in = np.abs(_dot(ng, d))
-            j = light[idx]
+            hits = PK.EmbreeHits(*intersect_f32(self.accel, live.o32[:K], live.d32[:K]))
+            step = PK.BounceStep(K=K, first=bounce == 0, store=True,
+                                 sample=bounce < self.max_bounces,
+                                 roulette=bounce + 1 >= self.rr_start, bounce=bounce,
+                                 dep0=dep.n, record=True, rel=rel, floor=floor)
+            u = rng.random((K, 4))
+            dep.reserve(K)
+            d_old = live.d64[:K].copy()
+            dep0 = dep.n
+            n_next, n_dep, n_gen = PK.bounce_kernel(step, hits, live, tr.tris, tr.fmat, u,
+                                                    dep.buf, gen, rec)
+            dep.n = n_dep
+            if n_gen:
+                n_next = tr._generic_bounce(n_gen, n_next, gen, u, step.roulette, live, rec)
+            # B at the vertices hit (rays i of this bounce).
+            hit = np.nonzero(rec.hit[:K])[0]
+            prim = hits.prim[hit].astype(np.int64)
+            p, ngh, nsh, uvh = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim,
+                                             hits.bu[hit].astype(np.float64),
+                                             hits.bv[hit].astype(np.float64))
+            dh = d_old[hit]
+            B0 = np.zeros(K)
+            B1 = np.zeros(K)
             if bounce == 0:
-                tt = h.t[ih]
-                fr = falloff[idx] > 0
-                if np.any(fr):
-                    power[fr] *= (tt[fr] ** 2 / (tt[fr] ** 2 + falloff[idx][fr]))[:, None]
-                B0, B1 = first_hit_ratios(t, kn, j, z0[idx], d, p, ng)
+                j = light[row[hit]]
+                B0[hit], B1[hit] = first_hit_ratios(t, kn, j, z0[row[hit]], dh, p, ngh)
             else:
+                cos_in = np.abs(_dot(ngh, dh))
                 with np.errstate(divide="ignore", invalid="ignore"):
-                    B0 = _finite(pend[ih] * B0[ih] / cos_in)
-                    B1 = _finite(pend1[ih] * B1[ih] / cos_in)
-            colors = B.lobe_colors(mtab, mat, uv)
-            wi = -d
-            nd = np.nonzero(mtab.has_nondelta[mat])[0]
-            if nd.size:
-                def splat_w(keep, pr, col, nd=nd, first=bounce == 0):
-                    r = nd[keep]
-                    wc = pr.wi[keep]
-                    pf = B.pdf_bsdf(mtab, mat[r], col, ns[r], ng[r], wc, wi[r], subset="all")
-                    c1 = pr.weight[keep] * np.abs(_dot(ng[r], wc))
-                    return splat_weight(B0[r], B1[r], pf, c1, first, soft[idx[r]])
-                self.connect(p[nd], ng[nd], ns[nd], wi[nd], power[nd], mat[nd], uv[nd], rng,
-                             film, mis=splat_w)
-            if bounce >= self.max_bounces:
+                    B0[hit] = _finite(Bp0[hit] / cos_in)
+                    B1[hit] = _finite(Bp1[hit] / cos_in)
+            ds = dep.buf.src[dep0:n_dep]
+            out_B0.append(B0[ds])
+            out_B1.append(B1[ds])
+            out_first.append(np.full(ds.size, bounce == 0))
+            out_row.append(row[ds])
+            if n_next == 0:
                 break
-            u = rng.random((idx.size, 4))
-            wn, wgt, pdf, is_delta, valid = B.sample_bsdf(mtab, mat, colors, ns, ng, wi,
-                                                          u[:, :3], subset="all",
-                                                          mode="importance")
-            ok = valid & np.all(np.isfinite(wgt), axis=1) & (wgt.max(axis=1) > 0)
-            if bounce + 1 >= self.rr_start:
-                q = np.clip(wgt @ LUM, 0.0, 1.0)
-                ok &= u[:, 3] < q
-                wgt = wgt / np.maximum(q, 1e-12)[:, None]
-            c = np.nonzero(ok)[0]
-            wn, pdf, is_delta = wn[c], pdf[c], is_delta[c]
-            pr = np.ones(c.size)
-            nd = np.nonzero(~is_delta)[0]
+            # The scatterings the kernel sampled: survivor jn came from ray i.
+            i = rec.nxt_src[:n_next].copy()
+            delta = rec.nxt_delta[:n_next].copy()
+            wn = live.d64[:n_next]
+            where = np.full(K, -1, np.int64)
+            where[hit] = np.arange(hit.size)
+            h = where[i]
+            pl = np.ones(n_next)
+            pr = np.ones(n_next)
+            nd = np.nonzero(~delta)[0]
             if nd.size:
-                k = c[nd]
-                pr[nd] = B.pdf_bsdf(mtab, mat[k], colors[k], ns[k], ng[k], wn[nd], wi[k],
-                                    subset="all")
-            pend, pend1 = scatter_factors(pr, ng[c], wn, pdf, is_delta, bounce == 0)
-            B0, B1 = B0[c], B1[c]
-            if bounce == 0:
-                B1 = np.where(is_delta, 0.0, B1)     # no light sample at a delta z_1
-            o = self.accel.spawn(p[c], ng[c], wn)
-            d = wn
-            power = power[c] * wgt[c]
-            idx = idx[c]
+                hn = h[nd]
+                mat = np.asarray(s.tri_mat, np.int64)[prim[hn]]
+                col = B.lobe_colors(mtab, mat, uvh[hn])
+                wo = -dh[hn]
+                pl[nd] = B.pdf_bsdf(mtab, mat, col, nsh[hn], ngh[hn], wo, wn[nd], subset="all")
+                pr[nd] = B.pdf_bsdf(mtab, mat, col, nsh[hn], ngh[hn], wn[nd], wo, subset="all")
+            pend, pend1 = scatter_factors(pr, ngh[h], wn, pl, delta, bounce == 0)
+            Bp0 = B0[i] * pend
+            Bp1 = np.where(delta & (bounce == 0), 0.0, B1[i] * pend1)
+            row = row[i]
+            K = n_next
+        res = dep.result()
+        if res is None:
+            return None, None, None, None
+        res["src_photon"] = np.concatenate(out_row)
+        return res, np.concatenate(out_B0), np.concatenate(out_B1), np.concatenate(out_first)
