@@ -22,6 +22,7 @@ from ..lights.pdf import _selection_probability
 from ..lights.table import AREA, MESH
 from ..mathutil import dot as _dot
 from . import mis as M
+from . import mis_kernels as MK
 from .light_tracer import CHUNK, LightTracer
 
 
@@ -331,18 +332,17 @@ class CombinedLightTracer(LightTracer):
                 n_next = tr._generic_bounce(n_gen, n_next, gen, u, step.roulette, live, rec)
             # B at the vertices hit (rays i of this bounce).
             hit = np.nonzero(rec.hit[:K])[0]
-            prim = hits.prim[hit].astype(np.int64)
-            p, ngh, nsh, uvh = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim,
-                                             hits.bu[hit].astype(np.float64),
-                                             hits.bv[hit].astype(np.float64))
-            dh = d_old[hit]
             B0 = np.zeros(K)
             B1 = np.zeros(K)
             if bounce == 0:
+                p, ngh, _, _ = surface_point(s.tri_p, s.tri_n, s.tri_uv,
+                                             hits.prim[hit].astype(np.int64),
+                                             hits.bu[hit].astype(np.float64),
+                                             hits.bv[hit].astype(np.float64))
                 j = light[row[hit]]
-                B0[hit], B1[hit] = first_hit_ratios(t, kn, j, z0[row[hit]], dh, p, ngh)
+                B0[hit], B1[hit] = first_hit_ratios(t, kn, j, z0[row[hit]], d_old[hit], p, ngh)
             else:
-                cos_in = np.abs(_dot(ngh, dh))
+                cos_in = np.abs(_dot(tr.tris.ng[hits.prim[hit]], d_old[hit]))
                 with np.errstate(divide="ignore", invalid="ignore"):
                     B0[hit] = _finite(Bp0[hit] / cos_in)
                     B1[hit] = _finite(Bp1[hit] / cos_in)
@@ -355,24 +355,26 @@ class CombinedLightTracer(LightTracer):
                 break
             # The scatterings the kernel sampled: survivor jn came from ray i.
             i = rec.nxt_src[:n_next].copy()
-            delta = rec.nxt_delta[:n_next].copy()
-            wn = live.d64[:n_next]
-            where = np.full(K, -1, np.int64)
-            where[hit] = np.arange(hit.size)
-            h = where[i]
-            pl = np.ones(n_next)
-            pr = np.ones(n_next)
-            nd = np.nonzero(~delta)[0]
-            if nd.size:
-                hn = h[nd]
-                mat = np.asarray(s.tri_mat, np.int64)[prim[hn]]
-                col = B.lobe_colors(mtab, mat, uvh[hn])
-                wo = -dh[hn]
-                pl[nd] = B.pdf_bsdf(mtab, mat, col, nsh[hn], ngh[hn], wo, wn[nd], subset="all")
-                pr[nd] = B.pdf_bsdf(mtab, mat, col, nsh[hn], ngh[hn], wn[nd], wo, subset="all")
-            pend, pend1 = scatter_factors(pr, ngh[h], wn, pl, delta, bounce == 0)
-            Bp0 = B0[i] * pend
-            Bp1 = np.where(delta & (bounce == 0), 0.0, B1[i] * pend1)
+            Bp0, Bp1 = np.empty(n_next), np.empty(n_next)
+            generic = np.empty(n_next, bool)
+            MK.scatter_ratios(n_next, rec.nxt_src, rec.nxt_delta, live.d64, hits.prim, hits.bu,
+                              hits.bv, d_old, tr.tris.n, tr.tris.ng, tr.tris.mat, tr.fmat.cls,
+                              B0, B1, bounce == 0, Bp0, Bp1, generic)
+            g = np.nonzero(generic)[0]
+            if g.size:
+                ig = i[g]
+                _, ngg, nsg, uvg = surface_point(s.tri_p, s.tri_n, s.tri_uv,
+                                                 hits.prim[ig].astype(np.int64),
+                                                 hits.bu[ig].astype(np.float64),
+                                                 hits.bv[ig].astype(np.float64))
+                mat = np.asarray(s.tri_mat, np.int64)[hits.prim[ig]]
+                col = B.lobe_colors(mtab, mat, uvg)
+                wo, wg = -d_old[ig], live.d64[g]
+                pl = B.pdf_bsdf(mtab, mat, col, nsg, ngg, wo, wg, subset="all")
+                pr = B.pdf_bsdf(mtab, mat, col, nsg, ngg, wg, wo, subset="all")
+                pend, pend1 = scatter_factors(pr, ngg, wg, pl, np.zeros(g.size, bool),
+                                              bounce == 0)
+                Bp0[g], Bp1[g] = B0[ig] * pend, B1[ig] * pend1
             row = row[i]
             K = n_next
         res = dep.result()
