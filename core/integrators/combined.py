@@ -216,8 +216,10 @@ def emission_splat_weight(kn, c1, pA, full):
 
 
 class CombinedLightTracer(LightTracer):
-    """Light paths traced in numpy with their MIS ratios (B0 = q_0 / q_L and
-    B1 = q_1 / q_L without the camera-side factors of the current vertex),
+    """Light paths traced by the compiled photon kernels, with their MIS
+    ratios (B0 = q_0 / q_L and B1 = q_1 / q_L without the camera-side
+    factors of the current vertex) followed from the kernels' hit records
+    (:mod:`.mis_kernels`),
     every non-delta vertex splatted with w_LT = 1 / (1 + (B0 X)^2 + (B1 X)^2),
     X = pf c_1 (the camera path's BSDF density there and its camera density).
     Light from emitters of class NO_LT (sun, world) is not traced."""
