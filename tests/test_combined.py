@@ -348,3 +348,21 @@ def test_plan_names_the_strategies():
     r = Renderer(scene, RenderSettings(integrator="COMBINED", max_passes=1), log=lambda s: None)
     line = r.plan_lines()[1]
     assert "strategies: camera paths" in line and "light tracing" in line and "MIS" in line
+
+
+@pytest.mark.parametrize("integrator", ["LIGHT", "COMBINED"])
+def test_no_light_through_a_single_sided_quad(integrator):
+    """A quad (normal facing the camera below it) lit only on its far side by
+    a point light: nothing reaches the camera.  The splat's BSDF must get the
+    mesh's normals (the deposit's ng is flipped to the photon's side; with
+    the mesh's ns that made eval_bsdf see wo and wi on one side, +94% on
+    example_blends/principled_interior.blend)."""
+    tris = quad((0, 0, 1.0), (0, 2.0, 0), (2.0, 0, 0))            # normal -Z
+    cam = Camera(kind="ORTHO", matrix_world=np.diag([1.0, -1.0, -1.0, 1.0]), ortho_scale=1.5,
+                 resolution=(8, 8), clip_start=0.01, clip_end=100.0)   # at z = 0 looking up
+    scene = make_scene(tris, [lambert("ceiling", 0.8)],
+                       [Light("p", "POINT", (100.0,) * 3, translate(0, 0, 1.5))], cam)
+    img = Renderer(scene, RenderSettings(integrator=integrator, max_passes=2,
+                                         photons_per_pass=20_000, seed=1),
+                   log=lambda s: None).run().image[..., :3]
+    assert np.all(img == 0)

@@ -124,8 +124,12 @@ class CameraMIS:
         if s.size and depth >= 1:
             i = idx[s]
             delta = pdf_prev[i] <= 0
-            r = self.soft_ratio(vprev.take(i), row[s], depth - 1)
-            wl = np.where(delta, 1.0, r * r / (1.0 + r * r))
+            vp = vprev.take(i)
+            r = self.soft_ratio(vp, row[s], depth - 1)
+            # After a delta at y_{k-1} next-event estimation cannot take the
+            # path: light tracing takes it all if it can (Q > 0: y_1 is not
+            # a delta), else path tracing alone (a light seen in a mirror).
+            wl = np.where(delta, np.where(vp.Q > 0, 1.0, 0.0), r * r / (1.0 + r * r))
             w[s] *= 1.0 - wl
         return w
 
@@ -271,10 +275,11 @@ class CombinedLightTracer(LightTracer):
             return
         bary = dep["bary"]
         prim = bary[:, 0].astype(np.int64)
-        _, _, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, bary[:, 1], bary[:, 2])
+        # The mesh's ng, as LightTracer._chunk (not the deposit's flipped one).
+        _, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, bary[:, 1], bary[:, 2])
         mat = np.asarray(s.tri_mat, np.int64)[prim]
         sft = soft[dep["src_photon"]]
-        ng, wi = dep["ng"], dep["wi"]
+        wi = dep["wi"]
 
         def splat_w(keep, pr, col):
             wc = pr.wi[keep]
