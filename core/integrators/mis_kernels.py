@@ -14,6 +14,7 @@ import numpy as np
 from numba import njit
 
 from ..materials.fast import LAMBERT
+from ..sppm.photon_kernels import shading_normal
 
 _INV_PI = 1.0 / np.pi
 
@@ -51,17 +52,7 @@ def scatter_ratios(n_next, nxt_src, nxt_delta, wn, prim, bu, bv, d_old, tri_n, t
                 continue
             uu = np.float64(bu[i])
             vv = np.float64(bv[i])
-            w0 = 1.0 - uu - vv
-            sx = w0 * tri_n[t, 0, 0] + uu * tri_n[t, 1, 0] + vv * tri_n[t, 2, 0]
-            sy = w0 * tri_n[t, 0, 1] + uu * tri_n[t, 1, 1] + vv * tri_n[t, 2, 1]
-            sz = w0 * tri_n[t, 0, 2] + uu * tri_n[t, 1, 2] + vv * tri_n[t, 2, 2]
-            nl = np.sqrt(sx * sx + sy * sy + sz * sz)
-            if nl > 1e-12:
-                sx /= nl
-                sy /= nl
-                sz /= nl
-            else:
-                sx, sy, sz = gx, gy, gz
+            sx, sy, sz = shading_normal(tri_n, t, 1.0 - uu - vv, uu, vv, gx, gy, gz)
             ox, oy, oz = -d_old[i, 0], -d_old[i, 1], -d_old[i, 2]
             pl = _lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz)
             pr = _lambert_pdf(sx, sy, sz, gx, gy, gz, wx, wy, wz, ox, oy, oz)
