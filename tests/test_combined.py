@@ -270,6 +270,19 @@ def test_soft_light_weights_depend_on_the_prefix_only(rig, spec):
     np.testing.assert_allclose(w / w2, 1.0 - w_lt, rtol=1e-9)
 
 
+@pytest.mark.parametrize("spec,w_pt", [([(2, M1)], 1.0), ([(0, F1), (2, M1)], 0.0)])
+def test_soft_light_after_a_mirror(rig, spec, w_pt):
+    """A soft light found by a BSDF ray right after a mirror: no light sample
+    can take the path; light tracing takes it all when y_1 is diffuse
+    (camera side 0, light side 1), path tracing when y_1 is the mirror
+    (camera side 1, light side 0: a light seen in a mirror)."""
+    t = rig.light_table
+    path = build(rig, spec) + [light_vtx(rig, 2, t.co[2])]
+    w, _ = camera_side(rig, path)
+    assert w == w_pt
+    assert light_side(rig, path) == 1.0 - w_pt
+
+
 # ------------------------------------------------------------------ images
 def _render(scene, seed, **kw):
     st = RenderSettings(**{"integrator": "COMBINED", "max_passes": 4, "camera_samples": 4,

@@ -127,9 +127,10 @@ class CameraMIS:
             vp = vprev.take(i)
             r = self.soft_ratio(vp, row[s], depth - 1)
             # After a delta at y_{k-1} next-event estimation cannot take the
-            # path: light tracing takes it all if it can (Q > 0: y_1 is not
-            # a delta), else path tracing alone (a light seen in a mirror).
-            wl = np.where(delta, np.where(vp.Q > 0, 1.0, 0.0), r * r / (1.0 + r * r))
+            # path: light tracing takes it all if it can (the ray's Q > 0: y_1
+            # did not scatter by a delta), else path tracing alone (a light
+            # seen in a mirror).
+            wl = np.where(delta, np.where(Qs[i] > 0, 1.0, 0.0), r * r / (1.0 + r * r))
             w[s] *= 1.0 - wl
         return w
 
