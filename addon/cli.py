@@ -70,10 +70,11 @@ def add_render_parser(sub) -> None:
                    help="stop after S seconds of passes (0 = no limit)")
     r.add_argument("--passes", type=int, metavar="N", help="maximum passes (0 = no limit)")
     r.add_argument("--photons", type=int, metavar="N", help="photons per pass")
-    r.add_argument("--mode", choices=("fppm", "ppm", "path", "light"),
+    r.add_argument("--mode", choices=("fppm", "ppm", "path", "light", "combined"),
                    help="fppm: frequency-adapted kernel; ppm: plain progressive photon mapping; "
                         "path: path tracing (integrator PATH); "
-                        "light: light tracing alone (photon paths connected to the camera)")
+                        "light: light tracing alone (photon paths connected to the camera); "
+                        "combined: path and light tracing weighted by MIS (integrator COMBINED)")
     r.add_argument("--seed", type=int, metavar="N", help="random seed")
     r.add_argument("--resolution", type=int, metavar="PCT",
                    help="resolution percentage (1-1000), overriding the file's")
@@ -374,6 +375,8 @@ def overrides_from_args(a) -> dict:
         kw["integrator"] = "LIGHT"
     elif a.mode == "path":
         kw["integrator"] = "PATH"
+    elif a.mode == "combined":
+        kw["integrator"] = "COMBINED"
     elif a.mode is not None:
         kw["integrator"] = "PHOTON"
         kw["use_frequency"] = a.mode == "fppm"

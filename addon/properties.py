@@ -30,6 +30,9 @@ INTEGRATORS = (
     ('LIGHT', "Light Tracing",
      "Light tracing alone: every diffuse or glossy vertex of the photon paths is connected "
      "to the camera (sharp point-light caustics; misses what the camera sees in mirrors)", 2),
+    ('COMBINED', "Combined",
+     "Path tracing and light tracing weighted by multiple importance sampling: each path is "
+     "counted by the strategy that samples it best", 3),
 )
 RADIUS_RULES = (
     ('PPM', "PPM",
@@ -80,10 +83,10 @@ class FPPMRenderSettings(PropertyGroup):
     integrator: EnumProperty(
         name="Integrator", items=INTEGRATORS, default=_D.integrator,
         description="Which strategies estimate the image: photon mapping (FPPM), path "
-                    "tracing alone or light tracing alone")
+                    "tracing alone, light tracing alone, or path and light tracing combined")
     camera_samples: IntProperty(
         name="Camera Samples", default=_D.camera_samples, min=1, max=4096, soft_max=64,
-        description="Path Tracing: camera paths per pixel in every pass")
+        description="Path Tracing and Combined: camera paths per pixel in every pass")
 
     # --- Kernel
     radius_mode: EnumProperty(

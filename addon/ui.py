@@ -39,7 +39,7 @@ class FPPM_RENDER_PT_sampling(FPPMPanel, Panel):
         col.prop(s, "time_limit")
         col = layout.column()
         col.prop(s, "integrator")
-        if s.integrator == 'PATH':
+        if s.integrator in ('PATH', 'COMBINED'):
             col.prop(s, "camera_samples")
         else:
             col.prop(s, "photons_per_pass")

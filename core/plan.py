@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .lights.table import AREA, MESH
 from .settings import RenderSettings
 
 # Convexity test budget: triangles x vertices pairs checked exactly.
@@ -92,6 +93,20 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
     if settings.integrator == "PATH":
         plan.strategies = (f"camera paths (path tracing, next-event estimation and MIS, "
                            f"{settings.camera_samples} per pixel and pass)",)
+    if settings.integrator == "COMBINED":
+        # Light tracing ends on a non-delta surface the camera sees (or on an
+        # area / mesh emitter it sees); without any it has nothing to splat.
+        seen = (bool(np.any(mtab.has_nondelta)) if mtab.has_nondelta.size else False) or bool(
+            np.any((light_table.kind == MESH)
+                   | ((light_table.kind == AREA) & light_table.visible_camera)))
+        plan.strategies = (f"camera paths (path tracing and next-event estimation, "
+                           f"{settings.camera_samples} per pixel and pass)",)
+        if seen:
+            plan.strategies += ("light tracing",)
+        else:
+            plan.left_out.append(("light tracing", "no diffuse or glossy surface for the "
+                                                   "camera to see"))
+        plan.strategies += ("power-heuristic MIS",)
     has_delta = bool(np.any(mtab.has_delta)) if mtab.has_delta.size else False
     plan.specular_chains = has_delta or "specular chains" in force
     if not plan.specular_chains:
@@ -99,7 +114,8 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
     freq = settings.use_frequency and settings.frequency_fraction > 0
     if settings.integrator != "PHOTON":
         freq = False
-        plan.left_out.append(("frequency photons", "no photon mapping (integrator PATH)"))
+        plan.left_out.append(("frequency photons",
+                              f"no photon mapping (integrator {settings.integrator})"))
     elif not settings.use_frequency:
         plan.left_out.append(("frequency photons", "frequency analysis is off"))
     elif settings.frequency_fraction <= 0:

@@ -122,7 +122,7 @@ class Renderer:
         self.path_tracer = (PathTracer(self.scene, self.accel, self.mtab, self.light_table,
                                        self.camera, self.fsamp, self.px, self.py, st,
                                        self.direct_light)
-                            if st.integrator == "PATH" else None)
+                            if st.integrator in ("PATH", "COMBINED") else None)
         self.state = PixelState.zeros(P, HIST_BINS if self.radii.quantile else 0, st.aov_spectrum,
                                       self.radii.sector_cells)
         self.pass_index = 0
@@ -137,6 +137,19 @@ class Renderer:
                                             self.camera, st, self.plan, self.D, self.offset,
                                             (self.width, self.height), self.scene.filter_width)
             self.light_splat = np.zeros((P, 3))      # splat sums of every pass
+        # integrator 'COMBINED': camera paths + light tracing, MIS-weighted
+        # (core.integrators.combined); the splats go to their own buffer.
+        self.combined_lt = None
+        if st.integrator == "COMBINED":
+            from .integrators.combined import CameraMIS, CombinedLightTracer
+            self.path_tracer.vc = CameraMIS(self.light_table, self.mtab, self.camera,
+                                            st.photons_per_pass, st.camera_samples)
+            if "light tracing" in self.plan.strategies:
+                self.combined_lt = CombinedLightTracer(
+                    self.scene, self.accel, self.mtab, self.light_table, self.camera, st,
+                    self.plan, self.D, self.offset, (self.width, self.height),
+                    self.scene.filter_width, camera_samples=st.camera_samples)
+            self.light_splat = np.zeros((P, 3))
 
     def _setup_scene(self, scene: Scene, force_stages: tuple, passes: tuple = ()) -> None:
         """Region, lights, materials, BVH, plan, occlusion grid and photon tracer."""
@@ -187,7 +200,7 @@ class Renderer:
         # force_stages: stage names the plan must keep even when the scene does
         # not need them (tests and benchmarks of the leave-out plan).
         # Light tracing uses no frequency photons (no occlusion grid either).
-        plan_st = st0.replace(use_frequency=False) if st0.integrator == "LIGHT" else st0
+        plan_st = st0.replace(use_frequency=False) if st0.integrator in ("LIGHT", "COMBINED") else st0
         self.plan: RenderPlan = make_plan(scene, plan_st, self.mtab, self.light_table,
                                           force=tuple(force_stages))
         self._check_stop()
@@ -339,7 +352,15 @@ class Renderer:
         t0 = time.perf_counter()
         k = self.pass_index + 1
         L_pass = self._interruptible(self.path_tracer, self._rng(k, 3), self._check_stop)
-        self.stage_seconds["camera"] += time.perf_counter() - t0
+        tl = time.perf_counter()
+        self.stage_seconds["camera"] += tl - t0
+        if self.combined_lt is not None:
+            st = self.settings
+            sums = self._interruptible(self.combined_lt.trace_pass, st.photons_per_pass,
+                                       self._rng(k, 2), self._check_stop)
+            self.stage_seconds["photon_trace"] += time.perf_counter() - tl
+            self.light_splat += sums
+            self.photons_emitted += st.photons_per_pass
         self.state.L_sum += L_pass
         self.pass_index = k
         self.elapsed += time.perf_counter() - t0
@@ -352,7 +373,11 @@ class Renderer:
             img = np.ones((self.height, self.width, 4), np.float32)
             img[..., :3] = L.reshape(self.height, self.width, 3)
             return PassResult(self.pass_index, self.photons_emitted, self.elapsed, img)
-        return self.film(self.state, self.pass_index, self.photons_emitted, self.elapsed)
+        res = self.film(self.state, self.pass_index, self.photons_emitted, self.elapsed)
+        if self.combined_lt is not None and self.photons_emitted:
+            L = self.light_splat / self.photons_emitted
+            res.image[..., :3] += L.reshape(self.height, self.width, 3).astype(np.float32)
+        return res
 
     # ------------------------------------------------------ checkpointing
     def state_dict(self) -> dict:
@@ -364,7 +389,7 @@ class Renderer:
                  elapsed=self.elapsed, settings_digest=self.settings.image_digest(),
                  scene_digest=scene_digest(self.scene), size=(self.width, self.height))
         d.update(self.film.state_dict())
-        if self.light_tracer is not None:
+        if self.light_tracer is not None or self.combined_lt is not None:
             d["light_splat"] = self.light_splat.copy()
         return d
 
@@ -386,7 +411,7 @@ class Renderer:
             raise CheckpointMismatch(f"The checkpoint is damaged ({why}): delete it to start over.")
         self.state.load_state(d)
         self.film.load_state(d)
-        if self.light_tracer is not None:
+        if self.light_tracer is not None or self.combined_lt is not None:
             if "light_splat" not in d:
                 raise CheckpointMismatch("The checkpoint has no light tracing film.")
             self.light_splat[...] = d["light_splat"]

@@ -25,8 +25,8 @@ class RenderSettings:
     photons_per_pass: int = 200_000
     seed: int = 0
     # --- Integrator (docs/integrators.md)
-    integrator: str = "PHOTON"       # 'PHOTON' (photon mapping), 'PATH' or 'LIGHT' (tracing alone)
-    camera_samples: int = 4          # PATH: camera paths per pixel and pass
+    integrator: str = "PHOTON"       # 'PHOTON' (photon mapping), 'PATH' or 'LIGHT' (tracing alone), 'COMBINED'
+    camera_samples: int = 4          # PATH, COMBINED: camera paths per pixel and pass
     # --- Kernel
     radius_mode: str = "AUTO"        # 'AUTO' (pixel footprint) or 'WORLD'
     initial_radius_px: float = 2.0   # AUTO: radius = this many pixel footprints
@@ -63,8 +63,8 @@ class RenderSettings:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v):
                 bad(name, "must be a finite number")
-        if self.integrator not in ("PHOTON", "PATH", "LIGHT"):
-            bad("integrator", "must be 'PHOTON', 'PATH' or 'LIGHT'")
+        if self.integrator not in ("PHOTON", "PATH", "LIGHT", "COMBINED"):
+            bad("integrator", "must be 'PHOTON', 'PATH', 'LIGHT' or 'COMBINED'")
         if self.time_limit < 0:
             bad("time_limit", "must be >= 0 (0 = no limit)")
         if self.max_passes < 0:

@@ -276,11 +276,12 @@ def test_cli_mode_light_renders_the_light_tracer(tmp_path):
     assert np.array_equal(img, want)
 
 
-def test_light_checkpoint_resumes_bit_for_bit():
-    """The splat film is part of the checkpoint: 2 passes, save, resume, 1
-    more pass equals 3 passes in one go."""
+@pytest.mark.parametrize("integrator", ["LIGHT", "COMBINED"])
+def test_light_checkpoint_resumes_bit_for_bit(integrator):
+    """The splat film is part of the checkpoint (COMBINED: with the camera
+    paths' L_sum): 2 passes, save, resume, 1 more pass equals 3 in one go."""
     scene, _ = point_light_plane(res=12)
-    st = RenderSettings(integrator="LIGHT", max_passes=3, photons_per_pass=20_000, seed=5)
+    st = RenderSettings(integrator=integrator, max_passes=3, photons_per_pass=20_000, seed=5)
     full = Renderer(scene, st, log=lambda s: None).run().image
     a = Renderer(scene, st.replace(max_passes=2), log=lambda s: None)
     a.run()

@@ -17,7 +17,7 @@ ENUM_VALUES = {
     "radius_mode": {"AUTO", "WORLD"},
     "frequency_model": {"CORRECTED", "PAPER"},
     "frequency_estimator": {"MIN", "QUANTILE"},
-    "integrator": {"PHOTON", "PATH", "LIGHT"},
+    "integrator": {"PHOTON", "PATH", "LIGHT", "COMBINED"},
     "radius_rule": {"PPM", "APPM", "CPPM"},
 }
 

@@ -106,10 +106,14 @@ class PathVertices:
     mat: np.ndarray
     colors: np.ndarray
     beta: np.ndarray
+    # Integrator 'COMBINED' (core.integrators.mis): Q (K,) the light-tracing
+    # ratio carried to the vertex, c (K,) its area density from the camera.
+    Q: np.ndarray | None = None
+    c: np.ndarray | None = None
 
     def take(self, i: np.ndarray) -> "PathVertices":
         """The rows i (compaction)."""
-        return PathVertices(**{k: v[i] for k, v in self.__dict__.items()})
+        return PathVertices(**{k: (None if v is None else v[i]) for k, v in self.__dict__.items()})
 
     def ns_wo(self) -> np.ndarray:
         """(K, 3) shading normal flipped with ng to wo's side (Cycles' back-face
@@ -129,6 +133,9 @@ class PathTracer:
         self.rr_start = int(settings.rr_start)
         self.samples = int(settings.camera_samples)
         self.nee = nee
+        # Integrator 'COMBINED': core.integrators.combined.CameraMIS (the
+        # light-tracing and merging terms of the weights); None = PATH.
+        self.vc = None
         # Emitter row of every emissive triangle (-1: none) and of the world:
         # what a BSDF-sampled ray hit, for the light-sampling pdf.
         T = scene.tri_p.shape[0]
@@ -178,6 +185,9 @@ class PathTracer:
         p_prev = np.zeros((K, 3))
         n_prev = np.zeros((K, 3))
         vis = np.zeros(K, np.int8)
+        vc = self.vc
+        if vc is not None:
+            Qs, pf, vprev = vc.camera_state(d), None, None
         for depth in range(self.max_bounces + 2):
             if path.size == 0:
                 break
@@ -192,6 +202,8 @@ class PathTracer:
                 Le, row, t = Lt.emitted_along_rays(lt, o[sel], d[sel], t_end[sel], name,
                                                    return_hit=True)
                 w = self._mis_bsdf(pdf_prev[sel], p_prev[sel], n_prev[sel], d[sel], row, t)
+                if vc is not None:
+                    w = vc.emission(w, sel, row, d, t, None, depth, Qs, pf, pdf_prev, vprev)
                 out[path[sel]] += beta[sel] * Le * w[:, None]
             miss = np.nonzero(~h.hit)[0]
             if miss.size and np.any(self.world > 0):
@@ -211,15 +223,20 @@ class PathTracer:
                 e = ih[em]
                 w = self._mis_bsdf(pdf_prev[e], p_prev[e], n_prev[e], d[e],
                                    self.tri_light[prim[em]], h.t[e])
+                if vc is not None:
+                    w = vc.emission(w, e, self.tri_light[prim[em]], d, h.t[e], ng[em], depth,
+                                    Qs, pf, pdf_prev, vprev)
                 out[path[e]] += beta[e] * Le * w[:, None]
             if depth > self.max_bounces:
                 break       # the last BSDF ray only collects emission
             v = PathVertices(path=path[ih], p=p, ng=ng, ns=ns, wo=-d[ih], mat=mat,
                              colors=B.lobe_colors(mtab, mat, uv), beta=beta[ih])
+            if vc is not None:
+                v.Q, v.c = vc.at_hit(Qs[ih], pf, ih, d[ih], ng, h.t[ih], depth)
             nd = np.nonzero(mtab.has_nondelta[mat])[0]
             if nd.size:
                 ud = u[v.path[nd], 4:7] if depth == 0 else rng.random((nd.size, 3))
-                self._direct(v.take(nd), ud, out)
+                self._direct(v.take(nd), ud, out, depth)
             # Continue by sampling the BSDF (all lobes).
             ur = rng.random((ih.size, 4))
             wi, wgt, pdf, is_delta, valid = B.sample_bsdf(mtab, v.mat, v.colors, v.ns, v.ng, v.wo,
@@ -231,6 +248,9 @@ class PathTracer:
                 ok &= ur[:, 3] < q
                 bt = bt / np.maximum(q, 1e-300)[:, None]
             c = np.nonzero(ok)[0]
+            if vc is not None:
+                Qs, pf = vc.continued(v, c, wi[c], pdf[c], is_delta[c], depth)
+                vprev = v.take(c)
             wi = wi[c]
             refl = (_dot(wi, v.ng[c]) * _dot(v.wo[c], v.ng[c])) > 0
             o = accel.spawn(v.p[c], v.ng[c], wi)
@@ -254,7 +274,7 @@ class PathTracer:
             w[m] = power_heuristic(pdf_bsdf[m], pl)
         return w
 
-    def _direct(self, v: PathVertices, u, out) -> None:
+    def _direct(self, v: PathVertices, u, out, depth: int = 0) -> None:
         """Adds to out[v.path] the light sample of each vertex (all have a
         non-delta lobe), MIS-weighted against BSDF sampling; u (K, 3) uniforms."""
         mtab, lt = self.mtab, self.lights
@@ -275,6 +295,8 @@ class PathTracer:
         v, wi, dist, contrib, light, shadow = (v.take(nz), wi[nz], dist[nz], contrib[nz],
                                                light[nz], shadow[nz])
         w = self.mis_light(v, wi, dist, light, n_l[live][nz])
+        if self.vc is not None:
+            w = self.vc.nee(w, v, wi, dist, light, depth)
         mesh = lt.kind[light] == MESH
         blocked = self.nee._blocked(v.p, v.ng, wi, dist, mesh) & shadow
         keep = ~blocked

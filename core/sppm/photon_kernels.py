@@ -197,6 +197,20 @@ def emit_kernel(o, d, power, falloff, rel, floor, live, src):
     return K
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def shading_normal(tri_n, t, w0, uu, vv, gx, gy, gz):
+    """Unit shading normal of triangle t at barycentrics (w0, uu, vv) from its
+    corner normals tri_n (T, 3, 3); the geometric normal (gx, gy, gz) where
+    they cancel."""
+    sx = w0 * tri_n[t, 0, 0] + uu * tri_n[t, 1, 0] + vv * tri_n[t, 2, 0]
+    sy = w0 * tri_n[t, 0, 1] + uu * tri_n[t, 1, 1] + vv * tri_n[t, 2, 1]
+    sz = w0 * tri_n[t, 0, 2] + uu * tri_n[t, 1, 2] + vv * tri_n[t, 2, 2]
+    nl = np.sqrt(sx * sx + sy * sy + sz * sz)
+    if nl > 1e-12:
+        return sx / nl, sy / nl, sz / nl
+    return gx, gy, gz
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec):
     """Everything after one Embree call, for rays 0..step.K-1 (in place).
@@ -241,16 +255,7 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec):
         py = w0 * tri_p[t, 0, 1] + uu * tri_p[t, 1, 1] + vv * tri_p[t, 2, 1]
         pz = w0 * tri_p[t, 0, 2] + uu * tri_p[t, 1, 2] + vv * tri_p[t, 2, 2]
         gx, gy, gz = tri_ng[t, 0], tri_ng[t, 1], tri_ng[t, 2]
-        sx = w0 * tri_n[t, 0, 0] + uu * tri_n[t, 1, 0] + vv * tri_n[t, 2, 0]
-        sy = w0 * tri_n[t, 0, 1] + uu * tri_n[t, 1, 1] + vv * tri_n[t, 2, 1]
-        sz = w0 * tri_n[t, 0, 2] + uu * tri_n[t, 1, 2] + vv * tri_n[t, 2, 2]
-        nl = np.sqrt(sx * sx + sy * sy + sz * sz)
-        if nl > 1e-12:
-            sx /= nl
-            sy /= nl
-            sz /= nl
-        else:
-            sx, sy, sz = gx, gy, gz
+        sx, sy, sz = shading_normal(tri_n, t, w0, uu, vv, gx, gy, gz)
         wx, wy, wz = -d64[i, 0], -d64[i, 1], -d64[i, 2]
         p0, p1, p2 = pw[i, 0], pw[i, 1], pw[i, 2]
         if first and fo[i] > 0.0:

@@ -49,6 +49,12 @@ METHOD_SETTINGS = {
              "adaptive PPM (Kaplanyan & Dachsbacher 2013), per-pixel MSE-optimal radius"),
     "cppm": ({"use_frequency": False, "radius_rule": "CPPM"},
              "chi-squared PPM (Lin et al. 2020), radius kept while the photons look uniform"),
+    "path": ({"integrator": "PATH", "use_frequency": False},
+             "path tracing alone (camera paths, next-event estimation, MIS)"),
+    "light": ({"integrator": "LIGHT", "use_frequency": False},
+              "light tracing alone (photon paths connected to the camera)"),
+    "combined": ({"integrator": "COMBINED", "use_frequency": False},
+                 "path tracing + light tracing weighted by MIS (integrator COMBINED)"),
 }
 METHODS = tuple(METHOD_SETTINGS) + ("cycles",)
 CYCLES_HELP = "Cycles at 1, 2, 4, ... spp, in a process of its own"
@@ -199,8 +205,8 @@ def run_photon_mapping(run, blend, resolution, budget, photons, ref, masks, log,
     render_scene(scene, overrides, sess)
     run.complete = True
     renderer = sess.renderer
-    if renderer is None or renderer.pass_index == 0:
-        return run
+    if renderer is None or renderer.pass_index == 0 or renderer.settings.integrator != "PHOTON":
+        return run       # the photon-pass throughput is FPPM's and PPM's
     st = renderer.stage_seconds
     t_photon = st["photon_trace"] + st["gather"]
     rays = int(renderer.photon_rays)

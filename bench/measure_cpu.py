@@ -1,0 +1,123 @@
+"""Equal-CPU-time relMSE of FPPM's integrators against a reference (docs/integrators.md).
+
+    .venv/bin/python bench/measure_cpu.py BLEND PCT BUDGET RUNS [--ref light:SECONDS]
+
+RUNS: comma-separated fppm, ppm, path<K>, light, combined<K> (K = camera
+samples, default 4), cycles; a suffix :p<N> sets photons_per_pass (light
+paths per pass for light and combined), :n<N> renders N passes whatever
+the time (equal light paths).  The reference is Cycles at 8192 spp (cached
+under ~/.cache/fppm/references/ as ``fppm converge`` does), or with
+``--ref light:S`` a light-tracing render of S CPU seconds (for scenes Cycles
+cannot render, such as a radius-0 point light's caustic; cached in
+~/.cache/fppm/references/ by blend, resolution and seconds).
+
+CPU time = time.process_time() of this process (all its threads: Cycles',
+numba's, Embree's): the machine is shared, wall time is not a clock.
+relMSE = mean (x - r)^2 / (r^2 + 0.01).
+"""
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                "tests"))
+import fppm_alias  # noqa: F401,E402  (fppm.* importable)
+import bpy  # noqa: E402
+from fppm.addon.cli import open_blend, render_scene  # noqa: E402
+from fppm.addon.engine import RenderSession  # noqa: E402
+from fppm.tools.converge.references import (cycles_reference_setup, cycles_render,  # noqa: E402
+                                            layer, make_reference)
+
+
+def settings_of(run: str) -> dict:
+    if ":n" in run:                          # e.g. light:n40 -- 40 passes, no time budget
+        run, n = run.split(":n")
+        return dict(settings_of(run), max_passes=int(n))
+    if ":p" in run:                          # e.g. combined4:p50000
+        run, n = run.split(":p")
+        return dict(settings_of(run), photons_per_pass=int(n))
+    if run.startswith("path"):
+        return dict(integrator="PATH", camera_samples=int(run[4:] or 4))
+    if run.startswith("combined"):
+        return dict(integrator="COMBINED", camera_samples=int(run[8:] or 4))
+    if run == "light":
+        return dict(integrator="LIGHT")
+    return dict(integrator="PHOTON", use_frequency=(run == "fppm"))
+
+
+def render_cpu(blend, pct, budget, run, seed=7, log=True):
+    """(image, cpu seconds, passes) of ``run`` stopped after ``budget`` CPU seconds."""
+    kw = dict(dict(max_passes=100000), **settings_of(run), time_limit=0.0, seed=seed)
+    if kw["max_passes"] < 100000:
+        budget = float("inf")                # equal passes, not equal time
+    # Untimed warm-up: numba kernels from the disk cache.
+    render_scene(open_blend(blend, resolution=pct), dict(kw, max_passes=1),
+                 RenderSession(log=lambda s: None))
+    last = {}
+
+    def on_pass(pr, settings):
+        last.update(img=pr.image[..., :3].astype(float) * sess.gain,
+                    cpu=time.process_time() - c0, wall=time.perf_counter() - w0, n=pr.pass_index)
+    sess = RenderSession(on_pass=on_pass, log=lambda s: None,
+                         should_stop=lambda: time.process_time() - c0 > budget)
+    scene = open_blend(blend, resolution=pct)
+    c0, w0 = time.process_time(), time.perf_counter()
+    render_scene(scene, kw, sess)
+    return last
+
+
+def light_reference(blend, pct, seconds):
+    from fppm.tools.converge.references import cache_dir
+    key = f"light_{os.path.basename(blend)}_{pct}_{seconds:g}.npy"
+    path = os.path.join(cache_dir(), key)
+    if os.path.isfile(path):
+        print(f"Reference: cached {path}", flush=True)
+        return np.load(path)
+    last = render_cpu(blend, pct, seconds, "light", seed=12345)
+    print(f"Reference: light tracing, {last['n']} passes, {last['cpu']:.0f} s CPU", flush=True)
+    np.save(path, last["img"])
+    return last["img"]
+
+
+def main(argv):
+    blend, pct, budget, runs = argv[0], int(argv[1]), float(argv[2]), argv[3].split(",")
+    if "--ref" in argv:
+        spec = argv[argv.index("--ref") + 1]
+        ref = light_reference(blend, pct, float(spec.split(":")[1]))
+    else:
+        ref = make_reference(bpy, open_blend(blend, resolution=pct), blend, 8192, print,
+                             lambda s, force=False: print(s, flush=True))["image"]
+
+    def relmse(x):
+        return float(np.mean((x - ref) ** 2 / (ref ** 2 + 0.01)))
+    for run in runs:
+        if run == "cycles":
+            scene = open_blend(blend, resolution=pct)
+            cycles_reference_setup(scene)
+            pts, n = [], 16
+            while True:
+                c0 = time.process_time()
+                lay, dt = cycles_render(bpy, scene, n, 7)
+                cpu = time.process_time() - c0
+                pts.append((cpu, relmse(layer(lay, "Combined")[..., :3].astype(float))))
+                print(f"  cycles {n} spp cpu {cpu:.1f} s (wall {dt:.1f}) relMSE {pts[-1][1]:.3e}",
+                      flush=True)
+                if cpu > budget:
+                    break
+                n *= 2
+            (t0, e0), (t1, e1) = pts[-2], pts[-1]
+            e = math.exp(math.log(e0) + (math.log(budget) - math.log(t0))
+                         / (math.log(t1) - math.log(t0)) * (math.log(e1) - math.log(e0)))
+            print(f"RESULT cycles relMSE@{budget:g}s cpu {e:.3e}", flush=True)
+            continue
+        last = render_cpu(blend, pct, budget, run)
+        print(f"RESULT {run} relMSE@{last['cpu']:.1f}s cpu (wall {last['wall']:.1f}) "
+              f"{relmse(last['img']):.3e} passes {last['n']} mean ratio "
+              f"{last['img'].mean() / ref.mean():.4f}", flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

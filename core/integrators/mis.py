@@ -1,0 +1,129 @@
+"""MIS of the combined integrator: path tracing, next-event estimation, light tracing.
+
+For a path y_0 (lens) y_1 ... y_k (on an emitter), numbered from the camera,
+the strategies of integrator 'COMBINED' (docs/integrators.md, "Combined") and
+their sample densities (area measure, counts included) are
+
+    PT  (emission found by a BSDF ray, s = 0):  q_0 = K   c_1 c_2 ... c_k
+    NEE (light sample at y_{k-1},      s = 1):  q_1 = K   c_1 ... c_{k-1} n_k
+    LT  (light vertex y_1 to the lens, t = 1):  q_L = N_L l_1 l_2 ... l_k
+
+K camera paths per pixel and pass, N_L light paths per pass; c_i the area
+density of y_i on the camera path (c_1 = the one-pixel image density
+1 / (A_pix cos^3) |cos_1| / d_01^2, the pixel filter left out of the weights
+as in SmallVCM: any weights that sum to one keep the estimate unbiased),
+l_i on the light path (l_k = emission position, l_{k-1} = emission direction
+x |cos| / d^2, then the BSDF densities), n_k = the next-event density of y_k.
+Weights: power heuristic, w_s = q_s^2 / sum_t q_t^2 (Veach 1997, 9.13).
+
+Ratios are running products (VCM's recursion, Georgiev et al. 2012, reduced
+to these three strategies).  With r_i = l_i / c_i, the camera side carries
+``Q`` = (N_L / K) r_1 ... r_{j-1} / pr_j at vertex y_j (the light-side BSDF
+density pr_j at y_j needs the next direction, so it is applied one step
+later), and the light side carries ``B`` = (K / N_L) prod (c_i / l_i) over
+the vertices from the emitter, the camera-side BSDF density at the current
+vertex again deferred.  Delta scattering: both densities are taken as 1
+(they cancel), and a strategy that must connect or hit through a delta is
+excluded (its q is 0: LT when y_1 scattered by a delta lobe, NEE when y_{k-1}
+did, PT for delta lights).
+
+Emitters: AREA and MESH (any position) and POINT / SPOT of radius 0 are
+weighted over whole paths.  Point and spot lights of radius > 0 (Cycles'
+soft falloff disc, not a light field) are weighted over the path without
+its emitter point: LT against the camera strategies by q_L / q_C with q_C
+the next-event density of the light's centre as a point light, then PT and
+NEE split (1 - w_LT) by their usual two-way power heuristic; both sides use
+the centre, so the weights depend only on y_1 .. y_{k-1} and sum to one.
+Sun and world light is left to the camera strategies (LT does not splat it).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..lights.pdf import _selection_probability
+from ..lights.table import AREA, MESH, POINT, SPOT
+from ..mathutil import dot as _dot
+
+#: Strategy classes of an emitter row (``light_classes``).
+NO_LT, FULL, SOFT = 0, 1, 2
+
+
+def light_classes(table) -> np.ndarray:
+    """(Nl,) int8: FULL (area, mesh, radius-0 point/spot: three-way weights),
+    SOFT (point/spot of radius > 0: LT weighted against the camera strategies
+    on the path prefix) or NO_LT (sun, world, lights hidden from glossy or
+    transmission rays: camera strategies only)."""
+    kind = table.kind
+    pt = (kind == POINT) | (kind == SPOT)
+    vis = (table.visible_glossy & table.visible_transmission) | (kind == MESH)
+    cls = np.full(table.n, NO_LT, np.int8)
+    cls[((kind == AREA) | (kind == MESH) | (pt & (table.radius <= 0))) & vis] = FULL
+    cls[pt & (table.radius > 0) & vis] = SOFT
+    cls[table.p_select <= 0] = NO_LT
+    return cls
+
+
+def emit_select(table, light) -> np.ndarray:
+    """(K,) probability that sample_photons picks emitter row light."""
+    ps = table.p_select
+    return ps[light] / ps.sum()
+
+
+def emit_pdf_pos(table, light) -> np.ndarray:
+    """(K,) emission density of the photon's origin: selection / area for AREA
+    and MESH; the selection alone for point and spot lights (their delta
+    position cancels against next-event estimation's)."""
+    pa = emit_select(table, light)
+    ar = (table.kind[light] == AREA) | (table.kind[light] == MESH)
+    return np.where(ar, pa / np.where(ar, table.area[light], 1.0), pa)
+
+
+def emit_pdf_dir(table, light, w) -> np.ndarray:
+    """(K,) solid-angle density with which the emitter rows light (K,) send a
+    photon along unit w (K, 3) (sample_photons): cosine about the front
+    normal (AREA), cosine about either side with 1/2 per side (MESH),
+    uniform on the sphere (POINT) or in the spot's local cone mapped by its
+    object matrix (SPOT: |M v|^3 / (|det M| 2 pi (1 - cos_h)))."""
+    K = light.shape[0]
+    out = np.zeros(K)
+    kind = table.kind[light]
+    n = table.dir[light]
+    c = _dot(n, w)
+    out = np.where(kind == AREA, np.maximum(c, 0.0) / np.pi, out)
+    out = np.where(kind == MESH, 0.5 * np.abs(c) / np.pi, out)
+    out = np.where(kind == POINT, 1.0 / (4.0 * np.pi), out)
+    m = np.nonzero(kind == SPOT)[0]
+    if m.size:
+        j = light[m]
+        v = np.einsum("kij,kj->ki", table.lin_inv[j], w[m])
+        v /= np.linalg.norm(v, axis=1, keepdims=True)
+        Mv = np.linalg.norm(np.einsum("kij,kj->ki", table.lin[j], v), axis=1)
+        cos_h = table.cos_half_spot[j]
+        inside = -v[:, 2] >= cos_h
+        pdf = Mv ** 3 / (np.abs(np.linalg.det(table.lin[j])) * 2.0 * np.pi * (1.0 - cos_h))
+        out[m] = np.where(inside, pdf, 0.0)
+    return out
+
+
+def point_emit_over_nee(table, p, light, wi_out, dist) -> np.ndarray:
+    """(K,) l_{k-1} n_k^-1 l_k ... the factor of q_L / q_1 at the light end
+    for a point/spot (or a soft light's centre) at dist along -wi_out from
+    p: emission direction density x 1 / d^2 (the |cos| at p is the caller's)
+    x emission selection / next-event selection."""
+    nee = _selection_probability(table, p, light)
+    return (emit_pdf_dir(table, light, wi_out) / (dist * dist) * emit_select(table, light)
+            / np.where(nee > 0, nee, np.inf))
+
+
+def area_emit_over_nee(table, light, wi_out, pdf_nee, cos_light) -> np.ndarray:
+    """(K,) the same factor (without |cos| at p) for an AREA or MESH point:
+    emission direction density / d^2 x emission position density / next-event
+    area density (pdf_nee |cos_light| / d^2), the d^2 cancelling."""
+    return (emit_pdf_dir(table, light, wi_out) * emit_pdf_pos(table, light)
+            / np.where(pdf_nee * cos_light > 0, pdf_nee * cos_light, np.inf))
+
+
+def power3(r_a, r_b) -> np.ndarray:
+    """(K,) power-heuristic weight of a strategy whose density ratios to the
+    two others are r_a, r_b: 1 / (1 + r_a^2 + r_b^2)."""
+    return 1.0 / (1.0 + r_a * r_a + r_b * r_b)
