@@ -79,6 +79,9 @@ def _can_occlude(tri_p: np.ndarray, light_points=None, distant_light=False) -> b
     return not all_behind
 
 
+#: The strategy name of photon merging in integrator 'COMBINED'.
+MERGING = "photon merging (caustics seen through mirrors and glass)"
+
 STAGES = ("specular chains", "frequency photons", "occlusion grid")
 
 
@@ -90,6 +93,9 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
     if unknown:
         raise ValueError(f"unknown stage(s) {sorted(unknown)}; known: {STAGES}")
     plan = RenderPlan()
+    has_delta = bool(np.any(mtab.has_delta)) if mtab.has_delta.size else False
+    has_nondelta = bool(np.any(mtab.has_nondelta)) if mtab.has_nondelta.size else False
+    merging = False
     if settings.integrator == "PATH":
         plan.strategies = (f"camera paths (path tracing, next-event estimation and MIS, "
                            f"{settings.camera_samples} per pixel and pass)",)
@@ -107,12 +113,21 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
             plan.left_out.append(("light tracing", "no diffuse or glossy surface for the "
                                                    "camera to see"))
         plan.strategies += ("power-heuristic MIS",)
-    has_delta = bool(np.any(mtab.has_delta)) if mtab.has_delta.size else False
+        # Merging owns the paths whose camera end is a delta chain to a
+        # non-delta point lit through a delta vertex (core.integrators.merge):
+        # none without both kinds of material.
+        merging = has_delta and has_nondelta
+        if merging:
+            plan.strategies += (MERGING,)
+        else:
+            plan.left_out.append(("photon merging", "no mirror or glass to see a caustic "
+                                                    "through" if has_nondelta else
+                                  "no diffuse or glossy surface to gather on"))
     plan.specular_chains = has_delta or "specular chains" in force
     if not plan.specular_chains:
         plan.left_out.append(("specular chains", "no mirror, glass or transparent material"))
     freq = settings.use_frequency and settings.frequency_fraction > 0
-    if settings.integrator != "PHOTON":
+    if settings.integrator != "PHOTON" and not merging:
         freq = False
         plan.left_out.append(("frequency photons",
                               f"no photon mapping (integrator {settings.integrator})"))

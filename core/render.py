@@ -57,7 +57,7 @@ from .errors import CheckpointMismatch, RenderCancelled, SceneError
 from .lights import build_light_table
 from .lights.nee import NextEventEstimation
 from .materials import build_material_table
-from .plan import RenderPlan, make_plan
+from .plan import MERGING, RenderPlan, make_plan
 from .sanity import check_resolution, check_scene, recentre
 from .scene.camera import CameraModel, FilterSampler
 from .scene.model import Scene, drop_invalid_triangles, scene_digest
@@ -140,10 +140,15 @@ class Renderer:
         # integrator 'COMBINED': camera paths + light tracing, MIS-weighted
         # (core.integrators.combined); the splats go to their own buffer.
         self.combined_lt = None
+        # Photon merging in 'COMBINED' (core.integrators.merge): SPPM on the
+        # visible points seen through a delta vertex, caustic photons only.
+        self.merging = st.integrator == "COMBINED" and MERGING in self.plan.strategies
         if st.integrator == "COMBINED":
             from .integrators.combined import CameraMIS, CombinedLightTracer
             self.path_tracer.vc = CameraMIS(self.light_table, self.mtab, self.camera,
                                             st.photons_per_pass, st.camera_samples)
+            self.path_tracer.vc.merging = self.merging
+            self.tracer.after_delta_only = self.merging
             if "light tracing" in self.plan.strategies:
                 self.combined_lt = CombinedLightTracer(
                     self.scene, self.accel, self.mtab, self.light_table, self.camera, st,
@@ -200,7 +205,8 @@ class Renderer:
         # force_stages: stage names the plan must keep even when the scene does
         # not need them (tests and benchmarks of the leave-out plan).
         # Light tracing uses no frequency photons (no occlusion grid either).
-        plan_st = st0.replace(use_frequency=False) if st0.integrator in ("LIGHT", "COMBINED") else st0
+        # COMBINED's plan keeps them for photon merging alone (core.plan).
+        plan_st = st0.replace(use_frequency=False) if st0.integrator == "LIGHT" else st0
         self.plan: RenderPlan = make_plan(scene, plan_st, self.mtab, self.light_table,
                                           force=tuple(force_stages))
         self._check_stop()
@@ -360,12 +366,40 @@ class Renderer:
                                        self._rng(k, 2), self._check_stop)
             self.stage_seconds["photon_trace"] += time.perf_counter() - tl
             self.light_splat += sums
-            self.photons_emitted += st.photons_per_pass
+        if self.merging:
+            self._merge(k)
+        if self.combined_lt is not None or self.merging:
+            self.photons_emitted += self.settings.photons_per_pass
         self.state.L_sum += L_pass
         self.pass_index = k
         self.elapsed += time.perf_counter() - t0
         self.last_result = self._film()
         return self.last_result
+
+    def _merge(self, k: int) -> None:
+        """Photon merging of pass k (integrator 'COMBINED'): the SPPM stages
+        of :meth:`step` -- camera pass, radii, photon pass, progressive update --
+        on the visible points reached through a delta vertex, with the caustic
+        photons the tracer keeps (``after_delta_only``); the film adds
+        tau / (pi R^2 N_emitted).  No next-event estimation or emission here:
+        the camera paths have them."""
+        from dataclasses import replace
+        state, clock = self.state, self.stage_seconds
+        tc = time.perf_counter()
+        vp, _ = self._interruptible(self.camera_pass, self._rng(k, 0), self._check_stop)
+        vp = replace(vp, valid=vp.through_delta)
+        clock["camera"] += time.perf_counter() - tc
+        self.radii.initialise(state, vp, self._check_stop)
+        state.depth = np.where(vp.valid, vp.depth, state.depth)
+        est = self.photon_pass(vp, state.R2, state.spectrum, self._rng(k, 4), self._check_stop)
+        tu = time.perf_counter()
+        if est.r_hist is not None:
+            state.r_hist += est.r_hist
+        if est.spectrum is not None:
+            state.spectrum[...] = est.spectrum
+        r_pred = self.radii.predicted(est.r_pred_min, state.r_hist) if est.gathered else est.r_pred_min
+        self.radii.update(state, est.M, est.Phi, r_pred, est.sectors)
+        clock["update"] += time.perf_counter() - tu
 
     def _film(self) -> PassResult:
         if self.light_tracer is not None:

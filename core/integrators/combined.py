@@ -45,6 +45,8 @@ class CameraMIS:
         self.ratio = float(n_light) / float(K)      # N_L / K
         self.cls = M.light_classes(table)
         self.ortho = camera.cam.kind == "ORTHO"
+        # Photon merging owns some paths (core.integrators.merge): set by the renderer.
+        self.merging = False
 
     # ---------------------------------------------------------- densities
     def c1(self, d, cos_surf, t):

@@ -41,6 +41,7 @@ from .. import lights as Lt
 from .. import materials as B
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..mathutil import dot as _dot
+from .merge import CameraPartition
 
 #: Paths traced together at most: ~1 kB each in flight (64 MiB), and past the
 #: ~30k paths per batch where the per-vertex numpy overhead is amortised
@@ -110,6 +111,9 @@ class PathVertices:
     # ratio carried to the vertex, c (K,) its area density from the camera.
     Q: np.ndarray | None = None
     c: np.ndarray | None = None
+    # Photon merging's partition (core.integrators.merge): (K,) 0 where
+    # merging owns the path, else 1; None without merging.
+    m: np.ndarray | None = None
 
     def take(self, i: np.ndarray) -> "PathVertices":
         """The rows i (compaction)."""
@@ -188,6 +192,7 @@ class PathTracer:
         vc = self.vc
         if vc is not None:
             Qs, pf, vprev = vc.camera_state(d), None, None
+        part = CameraPartition(K) if getattr(vc, "merging", False) else None
         for depth in range(self.max_bounces + 2):
             if path.size == 0:
                 break
@@ -204,6 +209,8 @@ class PathTracer:
                 w = self._mis_bsdf(pdf_prev[sel], p_prev[sel], n_prev[sel], d[sel], row, t)
                 if vc is not None:
                     w = vc.emission(w, sel, row, d, t, None, depth, Qs, pf, pdf_prev, vprev)
+                if part is not None:
+                    w = w * part.weight(sel)
                 out[path[sel]] += beta[sel] * Le * w[:, None]
             miss = np.nonzero(~h.hit)[0]
             if miss.size and np.any(self.world > 0):
@@ -226,6 +233,8 @@ class PathTracer:
                 if vc is not None:
                     w = vc.emission(w, e, self.tri_light[prim[em]], d, h.t[e], ng[em], depth,
                                     Qs, pf, pdf_prev, vprev)
+                if part is not None:
+                    w = w * part.weight(e)
                 out[path[e]] += beta[e] * Le * w[:, None]
             if depth > self.max_bounces:
                 break       # the last BSDF ray only collects emission
@@ -233,6 +242,9 @@ class PathTracer:
                              colors=B.lobe_colors(mtab, mat, uv), beta=beta[ih])
             if vc is not None:
                 v.Q, v.c = vc.at_hit(Qs[ih], pf, ih, d[ih], ng, h.t[ih], depth)
+            if part is not None:
+                part.keep(ih)
+                v.m = part.weight()
             nd = np.nonzero(mtab.has_nondelta[mat])[0]
             if nd.size:
                 ud = u[v.path[nd], 4:7] if depth == 0 else rng.random((nd.size, 3))
@@ -248,6 +260,9 @@ class PathTracer:
                 ok &= ur[:, 3] < q
                 bt = bt / np.maximum(q, 1e-300)[:, None]
             c = np.nonzero(ok)[0]
+            if part is not None:
+                part.sampled(is_delta)
+                part.keep(c)
             if vc is not None:
                 Qs, pf = vc.continued(v, c, wi[c], pdf[c], is_delta[c], depth)
                 vprev = v.take(c)
@@ -297,6 +312,8 @@ class PathTracer:
         w = self.mis_light(v, wi, dist, light, n_l[live][nz])
         if self.vc is not None:
             w = self.vc.nee(w, v, wi, dist, light, depth)
+        if v.m is not None:
+            w = w * v.m
         mesh = lt.kind[light] == MESH
         blocked = self.nee._blocked(v.p, v.ng, wi, dist, mesh) & shadow
         keep = ~blocked

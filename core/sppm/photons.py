@@ -115,6 +115,14 @@ class _Deposits:
                 "bary": d.bary[:n]}
 
 
+def _keep_rows(dep: "_Deposits", a: int, keep: np.ndarray) -> None:
+    """Keep the deposit rows a..dep.n-1 where keep (dep.n - a,) bool, compacted in order."""
+    rows = a + np.flatnonzero(keep)
+    for arr in dep.buf:
+        arr[a:a + rows.size] = arr[rows]
+    dep.n = a + rows.size
+
+
 class PhotonTracer:
     """Traces batches of photons through one scene (state shared across passes)."""
 
@@ -134,6 +142,10 @@ class PhotonTracer:
         # The march's arguments (builds its blocks: 0.14 s at 64^3, here
         # rather than in the first pass).
         self.occlusion, self.march = self._occlusion_march()
+        # Integrator 'COMBINED' (photon merging, core.integrators.merge): keep
+        # only deposits whose previous scattering sampled a delta lobe
+        # (caustic photons).  Off for PHOTON, whose deposits stay as they are.
+        self.after_delta_only = False
 
     def trace(self, n: int, n_freq: int, rng):
         """Trace n photons (the first n_freq carry a spectrum); return deposits.
@@ -222,7 +234,11 @@ class PhotonTracer:
                                fal, rel, floor, live, src)
             if freq:
                 spec = np.asarray(ph["freq_init"], np.float64)[a:b][src[:K]]
-        record = freq
+        caustic = self.after_delta_only
+        # Hit records: frequency photons' chains, and the delta flag of the
+        # scattering each survivor sampled (caustic photons).
+        record = freq or caustic
+        prev_delta = np.zeros(K, bool) if caustic else None
         cg = n if self.fmat.any_generic else 1
         gen = PK.GenericHits(np.empty(cg, np.int64), *(np.empty((cg, 3)) for _ in range(6)))
         cr = n if record else 1
@@ -240,7 +256,7 @@ class PhotonTracer:
                                  dep0=dep.n, record=record, rel=rel, floor=floor)
             u = rng.random((K, 4))
             dep.reserve(K)
-            if record:
+            if freq:
                 # the segments just travelled: the kernel overwrites the live state
                 seg = FK.Segments(live.o32[:K].astype(np.float64), live.d64[:K].copy())
             n_next, n_dep, n_gen = PK.bounce_kernel(step, hits, live, self.tris, self.fmat, u,
@@ -249,7 +265,7 @@ class PhotonTracer:
             if n_gen:
                 n_next = self._generic_bounce(n_gen, n_next, gen, u, step.roulette, live,
                                               rec if record else None)
-            if record:
+            if freq:
                 # After the generic bounce: only hits that deposit or continue
                 # need a spectrum (the bounce reads seg and rec, not the live
                 # state it appended to).
@@ -257,6 +273,9 @@ class PhotonTracer:
                                                   FK.Rows(K, step.dep0, dep.n, n_next))
                 if n_next:
                     spec = self._spectrum_leaving(spec_hit, n_next, hits.prim, rec, live.d64)
+            if caustic:
+                _keep_rows(dep, step.dep0, prev_delta[dep.buf.src[step.dep0:dep.n]])
+                prev_delta = rec.nxt_delta[:n_next].copy()
             K = n_next
 
     def _generic_bounce(self, g, n_next, gen, u, roulette, live, rec):

@@ -45,6 +45,8 @@ class VisiblePoints:
     were not flipped).  The BSDF tells entering from leaving glass by it:
     :meth:`mesh_normals` gives the normals as the mesh has them.
     first: FirstHit of the camera rays (the film's data passes), or None.
+    through_delta (P,) bool: the visible point was reached through at least
+    one delta vertex (it is not the camera ray's first hit), or None.
     """
     valid: np.ndarray
     p: np.ndarray
@@ -59,6 +61,7 @@ class VisiblePoints:
     albedo: np.ndarray
     front: Optional[np.ndarray] = None
     first: Optional["FirstHit"] = None
+    through_delta: Optional[np.ndarray] = None
 
     @classmethod
     def empty(cls, P: int, n_lobes: int, n_materials: int = 1) -> "VisiblePoints":
@@ -164,6 +167,9 @@ class CameraPass:
         L = np.zeros((P, 3))
         trace = self._trace_compiled if self.compiled else self._trace_numpy
         trace(rng, rays, dz, vp, L, check_stop)
+        # A delta chain never returns to its first hit: the point is the
+        # first hit's exactly when no delta vertex came before it.
+        vp.through_delta = vp.valid & np.any(vp.p != vp.first.p, axis=1)
         return vp, L
 
     def _seen_along(self, depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
