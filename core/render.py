@@ -315,17 +315,9 @@ class Renderer:
             L_pass = L_pass + self._interruptible(self.direct_light, vp, self._rng(k, 1))
         clock["direct"] += time.perf_counter() - td
         self._check_stop()
-        self.radii.initialise(state, vp, self._check_stop)
-        state.depth = np.where(vp.valid, vp.depth, state.depth)
-        est = self.photon_pass(vp, state.R2, state.spectrum, self._rng(k, 2), self._check_stop)
+        self._photons(vp, self._rng(k, 2))
         tu = time.perf_counter()
         state.L_sum += L_pass
-        if est.r_hist is not None:
-            state.r_hist += est.r_hist
-        if est.spectrum is not None:
-            state.spectrum[...] = est.spectrum
-        r_pred = self.radii.predicted(est.r_pred_min, state.r_hist) if est.gathered else est.r_pred_min
-        self.radii.update(state, est.M, est.Phi, r_pred, est.sectors)
         self.film.accumulate(vp)
         clock["update"] += time.perf_counter() - tu
         self.pass_index = k
@@ -384,14 +376,19 @@ class Renderer:
         tau / (pi R^2 N_emitted).  No next-event estimation or emission here:
         the camera paths have them."""
         from dataclasses import replace
-        state, clock = self.state, self.stage_seconds
         tc = time.perf_counter()
         vp, _ = self._interruptible(self.camera_pass, self._rng(k, 0), self._check_stop)
         vp = replace(vp, valid=vp.through_delta)
-        clock["camera"] += time.perf_counter() - tc
+        self.stage_seconds["camera"] += time.perf_counter() - tc
+        self._photons(vp, self._rng(k, 4))
+
+    def _photons(self, vp, rng) -> None:
+        """SPPM stages 3-5 on the visible points vp: initial radii, the photon
+        pass, the progressive update of the state."""
+        state = self.state
         self.radii.initialise(state, vp, self._check_stop)
         state.depth = np.where(vp.valid, vp.depth, state.depth)
-        est = self.photon_pass(vp, state.R2, state.spectrum, self._rng(k, 4), self._check_stop)
+        est = self.photon_pass(vp, state.R2, state.spectrum, rng, self._check_stop)
         tu = time.perf_counter()
         if est.r_hist is not None:
             state.r_hist += est.r_hist
@@ -399,7 +396,7 @@ class Renderer:
             state.spectrum[...] = est.spectrum
         r_pred = self.radii.predicted(est.r_pred_min, state.r_hist) if est.gathered else est.r_pred_min
         self.radii.update(state, est.M, est.Phi, r_pred, est.sectors)
-        clock["update"] += time.perf_counter() - tu
+        self.stage_seconds["update"] += time.perf_counter() - tu
 
     def _film(self) -> PassResult:
         if self.light_tracer is not None:
