@@ -15,6 +15,10 @@ c_i = p_bsdf(y_{i-1}: y_{i-2} -> y_i) |cos_i| / d^2, l_k = emission position
 density, l_{k-1} = emission direction density |cos| / d^2, l_i =
 p_bsdf(y_{i+1}: y_{i+2} -> y_i) |cos_i| / d^2; a mirror's densities are 1
 (deltas cancel).  Lambert: p_bsdf = cos(n, wi) / pi on wo's side, else 0.
+
+Photon merging (core.integrators.merge) owns a path when its first
+non-mirror vertex y_v has v > 1 and y_{v+1} is a mirror (``merge_owned``):
+then the weight is 1 for merging and 0 for every strategy above.
 """
 from __future__ import annotations
 
@@ -80,3 +84,20 @@ def densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir, nee_area, hittable)
 def power_weights(q):
     q = np.asarray(q, float)
     return q * q / np.sum(q * q)
+
+
+def merge_owned(path) -> bool:
+    """Whether photon merging owns the path y_0 .. y_k: y_v the first vertex
+    after the lens that is not a mirror, v > 1, and y_{v+1} a mirror (not
+    the emitter)."""
+    kinds = [v["kind"] for v in path[1:-1]]          # y_1 .. y_{k-1}
+    v = next((i + 1 for i, kd in enumerate(kinds) if kd != "mirror"), None)
+    return v is not None and v > 1 and v + 1 <= len(kinds) and kinds[v] == "mirror"
+
+
+def merge_weights(path, q):
+    """(w_PT, w_NEE, w_LT, w_merge): the power heuristic of q on the paths
+    merging does not own, (0, 0, 0, 1) on the ones it does."""
+    if merge_owned(path):
+        return np.array([0.0, 0.0, 0.0, 1.0])
+    return np.append(power_weights(q), 0.0)

@@ -1,9 +1,10 @@
 """Photon merging in integrator 'COMBINED' (core.integrators.merge).
 
-1. The partition: on enumerated paths of both classes, merging's weight
-   (0 or 1) plus the camera strategies' weights (the PathTracer's partition
-   factor times the MIS of tests/oracle_mis.py) sum to one, and the
-   PathTracer's per-vertex classification equals the oracle's.
+1. The partition: on concrete paths of both classes in test_combined's rig,
+   merging's weight (0 or 1) and the tracers' weights times the
+   PathTracer's partition factor equal tests/oracle_mis.py's and sum to one;
+   on every lobe sequence up to 5 vertices the classification equals the
+   oracle's.
 2. Images: a point light's caustic (a mirror above the light) seen through
    a second mirror -- only merging renders it (path tracing cannot hit a
    radius-0 light, next-event estimation cannot go through the mirror,
@@ -17,52 +18,78 @@ import math
 import numpy as np
 import pytest
 
-from core.integrators.merge import CameraPartition, owned
+from core.integrators.merge import CameraPartition
 from core.render import Renderer
 from core.scene.model import GLOSSY, Camera, Light, Lobe, Material, make_scene
 from core.settings import RenderSettings
 
 import oracle_mis as O
 from analytic_scenes import lambert, quad, translate
+from test_combined import LA, M1, PATHS, F1, build, camera_side, light_side, oracle, rig  # noqa: F401
 
-KINDS = ("delta", "nondelta")
+KINDS = ("lambert", "mirror")
+F3 = (0.6, -0.4, 0.0)
+M2 = (1.5, -0.1, 1.2)
+# Paths of the rig of test_combined beyond its MIS paths: merging owns the
+# ones whose first non-mirror vertex is seen in the mirror and lit through it.
+MERGE_PATHS = {
+    "mirror-floor-mirror-area": [(2, M1), (0, F1), (2, M2), ("L", LA)],
+    "mirror-floor-mirror-point": [(2, M1), (0, F1), (2, M2), ("P", None)],
+    "mirror-floor-mirror-floor-area": [(2, M1), (0, F1), (2, M2), (0, F3), ("L", LA)],
+    "mirror-floor-mirror-floor-point": [(2, M1), (0, F1), (2, M2), (0, F3), ("P", None)],
+}
 
 
-def _partition_weight(kinds):
-    """The PathTracer's factor for the strategy that ends the path y_1 ..
-    y_k: emission found after the vertices kinds (all sampled), or next-event
-    estimation at the last one (kinds[-1] == 'nondelta', not sampled)."""
-    K = 1
-    p = CameraPartition(K)
-    for kd in kinds[:-1]:
-        p.sampled(np.array([kd == "delta"]))
-    pt = p.weight()[0]
-    w_nee = p.weight()[0] if kinds[-1] == "nondelta" else None   # NEE at the last vertex
-    p.sampled(np.array([kinds[-1] == "delta"]))
-    return p.weight()[0], w_nee, pt
+def _partition(path):
+    """(PT factor, NEE factor) of CameraPartition fed the path's lobes as the
+    PathTracer feeds it: NEE is taken at y_{k-1} (before its sample), PT
+    emission after the sample at y_{k-1}."""
+    p = CameraPartition(1)
+    for v in path[1:-2]:
+        p.sampled(np.array([v["kind"] == "mirror"]))
+    f_nee = p.weight()[0]
+    p.sampled(np.array([path[-2]["kind"] == "mirror"]))
+    return p.weight()[0], f_nee
+
+
+@pytest.mark.parametrize("name", sorted(PATHS) + sorted(MERGE_PATHS))
+def test_partition_weights_sum_to_one(rig, name):
+    """The rig's paths of both classes: the implementation's weights (MIS of
+    the tracers times the partition factor, merging's 0/1) equal the
+    oracle's and sum to one."""
+    path = build(rig, {**PATHS, **MERGE_PATHS}[name])
+    w_or = O.merge_weights(path, oracle(rig, path))
+    f_pt, f_nee = _partition(path)
+    w_pt, w_nee = camera_side(rig, path)
+    w_lt = light_side(rig, path)
+    w_m = 1.0 - f_pt
+    if name == "mirror-floor-mirror-area":
+        assert w_pt == 1.0              # path tracing's alone before the partition
+    if path[-2]["kind"] != "mirror":
+        assert f_pt == f_nee                      # one class per path
+    else:
+        assert w_nee == 0.0                       # no light sample at a mirror
+    w = np.array([w_pt * f_pt, w_nee * f_nee, w_lt, w_m])
+    print(name, "oracle", w_or, "impl", w)
+    assert (name in MERGE_PATHS) == O.merge_owned(path) == (w_m == 1.0)
+    np.testing.assert_allclose(w, w_or, rtol=1e-9, atol=1e-12)
+    assert abs(w.sum() - 1.0) < 1e-9
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 4, 5])
-def test_partition_sums_to_one_and_matches_the_oracle(n):
-    """Every lobe sequence of n scattering vertices: the camera factor is
-    1 - merge weight, for both strategies that can end the path there."""
+def test_partition_of_every_lobe_sequence(n):
+    """Every sequence of n scattering vertices (mirror or Lambert) before the
+    emitter: the PathTracer's classification equals the oracle's."""
     classes = set()
     for kinds in itertools.product(KINDS, repeat=n):
-        w_pt, w_nee, _ = _partition_weight(list(kinds))
-        own = owned(list(kinds))
+        path = ([dict(kind="camera")] + [dict(kind=k) for k in kinds] + [dict(kind="light")])
+        f_pt, f_nee = _partition(path)
+        own = O.merge_owned(path)
         classes.add(own)
-        assert w_pt + own == 1.0                     # PT: emission after y_n
-        if w_nee is not None:
-            # NEE at y_n (its lobe non-delta): the path y_1 .. y_n, light.
-            assert w_nee + owned(list(kinds)) == 1.0
-        # With MIS among the camera strategies and light tracing (weights
-        # summing to one on every path), the total is 1 on both classes.
-        q = np.array([1.0, 2.0, 0.0 if kinds[0] == "delta" else 3.0])
-        assert abs((1.0 - own) * O.power_weights(q).sum() + own - 1.0) < 1e-12
-    if n >= 3:
-        assert classes == {True, False}              # both classes enumerated
-    assert owned(["delta", "nondelta", "delta"]) and not owned(["nondelta", "delta", "delta"])
-    assert not owned(["delta", "nondelta"]) and not owned(["delta", "nondelta", "nondelta"])
+        assert f_pt == 1.0 - own
+        if kinds[-1] == "lambert":
+            assert f_nee == 1.0 - own
+    assert classes == ({True, False} if n >= 3 else {False})
 
 
 # ------------------------------------------------------------------ images

@@ -24,14 +24,6 @@ from __future__ import annotations
 import numpy as np
 
 
-def owned(kinds) -> bool:
-    """Whether merging owns the path whose vertices y_1 .. y_k have kinds
-    (a sequence of 'delta', 'nondelta' for the scattering vertices y_1 ..
-    y_{k-1}, the emitter y_k last and not listed): the oracle's form."""
-    v = next((i for i, k in enumerate(kinds) if k != "delta"), None)
-    return v is not None and v >= 1 and v + 1 < len(kinds) and kinds[v + 1] == "delta"
-
-
 class CameraPartition:
     """The classification of K live camera paths, updated per vertex by
     PathTracer (arrays compacted with the paths).
