@@ -33,7 +33,7 @@ class RenderPlan:
                              ("occlusion grid", self.occlusion_grid),
                              ("world emission", self.world_emission)) if v]
         bare = "plain photon mapping"
-        if "photon mapping" not in self.strategies:
+        if "photon mapping" not in self.strategies and MERGING not in self.strategies:
             on, bare = [], "no photon stages"
         out = [f"Plan: {', '.join(on) if on else bare}; strategies: {', '.join(self.strategies)}; "
                f"emitters: {', '.join(self.emitter_kinds) or 'none'}; "
