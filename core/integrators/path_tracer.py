@@ -217,6 +217,8 @@ class PathTracer:
                 row = np.full(miss.size, self.world_row, np.int64)
                 w = self._mis_bsdf(pdf_prev[miss], p_prev[miss], n_prev[miss], d[miss], row,
                                    np.full(miss.size, np.inf))
+                if part is not None:
+                    w = w * part.weight(miss)
                 out[path[miss]] += beta[miss] * self.world[None, :] * w[:, None]
             ih = np.nonzero(h.hit)[0]
             if ih.size == 0:
