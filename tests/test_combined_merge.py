@@ -25,7 +25,7 @@ from core.settings import RenderSettings
 
 import oracle_mis as O
 from analytic_scenes import lambert, quad, translate
-from test_combined import LA, M1, PATHS, F1, build, camera_side, light_side, oracle, rig  # noqa: F401
+from test_combined import LA, M1, MAT, PATHS, F1, build, camera_side, light_side, oracle, rig  # noqa: F401
 
 KINDS = ("lambert", "mirror")
 F3 = (0.6, -0.4, 0.0)
@@ -190,3 +190,24 @@ def test_plan_leaves_merging_out_without_mirror_or_glass():
     assert not r.merging
     assert "photon merging" in dict(r.plan.left_out)
     assert not r.plan.frequency_photons
+
+
+def test_tracer_keeps_the_deposits_after_a_delta_scattering(rig):
+    """PhotonTracer.after_delta_only on the rig (floor, wall, mirror; both
+    photon batches): the same random stream gives the deposits of the plain
+    tracer whose ray back along wi meets the mirror first, in order."""
+    tr = rig.tracer
+    try:
+        tr.after_delta_only = False
+        full = tr.trace(20_000, 5_000, np.random.default_rng(5))
+        tr.after_delta_only = True
+        kept = tr.trace(20_000, 5_000, np.random.default_rng(5))
+    finally:
+        tr.after_delta_only = rig.merging
+    h = rig.accel.intersect(rig.accel.spawn(full["p"], full["ng"], full["wi"]), full["wi"],
+                            np.full(full["p"].shape[0], np.inf))
+    from_mirror = h.hit & (rig.scene.tri_mat[np.maximum(h.prim, 0)] == MAT["mirror"])
+    print("deposits", full["p"].shape[0], "after the mirror", int(from_mirror.sum()))
+    assert 100 < from_mirror.sum() < 0.5 * from_mirror.size
+    for k in ("p", "wi", "power", "bounce"):
+        np.testing.assert_array_equal(kept[k], full[k][from_mirror])
