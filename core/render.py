@@ -352,14 +352,16 @@ class Renderer:
         L_pass = self._interruptible(self.path_tracer, self._rng(k, 3), self._check_stop)
         tl = time.perf_counter()
         self.stage_seconds["camera"] += tl - t0
+        sums = None
         if self.combined_lt is not None:
             st = self.settings
             sums = self._interruptible(self.combined_lt.trace_pass, st.photons_per_pass,
                                        self._rng(k, 2), self._check_stop)
             self.stage_seconds["photon_trace"] += time.perf_counter() - tl
-            self.light_splat += sums
         if self.merging:
-            self._merge(k)
+            self._merge(k)       # last: a cancel inside leaves the splats uncommitted
+        if sums is not None:
+            self.light_splat += sums
         if self.combined_lt is not None or self.merging:
             self.photons_emitted += self.settings.photons_per_pass
         self.state.L_sum += L_pass

@@ -211,3 +211,17 @@ def test_tracer_keeps_the_deposits_after_a_delta_scattering(rig):
     assert 100 < from_mirror.sum() < 0.5 * from_mirror.size
     for k in ("p", "wi", "power", "bounce"):
         np.testing.assert_array_equal(kept[k], full[k][from_mirror])
+
+
+def test_checkpoint_resumes_merging_bit_for_bit():
+    """Two passes, a checkpoint, one more pass = three passes straight (the
+    merging state lives in the PixelState, its streams per pass and stage)."""
+    st = RenderSettings(integrator="COMBINED", max_passes=3, camera_samples=1,
+                        photons_per_pass=5_000, seed=3, max_bounces=4)
+    whole = Renderer(_scene(), st, log=lambda s: None).run().image
+    a = Renderer(_scene(), st, log=lambda s: None)
+    a.step(), a.step()
+    b = Renderer(_scene(), st, log=lambda s: None)
+    b.load_state(a.state_dict())
+    assert b.merging and np.any(b.state.tau > 0)
+    np.testing.assert_array_equal(b.run().image, whole)
