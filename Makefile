@@ -86,7 +86,7 @@ demo: $(STAMP) $(DEMO_SCENE)
 
 # --- tests ------------------------------------------------------------------
 test: $(STAMP)
-	$(PY) -m pytest -q tests/
+	$(PY) -m pytest -q --durations=15 tests/
 
 # --- extension --------------------------------------------------------------
 wheels: $(STAMP)
