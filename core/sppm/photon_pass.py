@@ -180,6 +180,9 @@ class PhotonPass:
         # Non-Lambert visible points: the radius for their own receiver lobes.
         self.receivers = Receivers(mtab) if frequency else None
         self.sectors = needs_sectors(settings, frequency)
+        # Per-thread gather accumulators, allocated at the first chunk and
+        # reused by every chunk of every pass (hashgrid.GatherBuffers).
+        self.gather_buffers: Optional[hashgrid.GatherBuffers] = None
 
     def __call__(self, vp, R2: np.ndarray, spectrum: Optional[np.ndarray],
                  rng: np.random.Generator, check_stop=lambda: None) -> PhotonEstimate:
@@ -260,20 +263,20 @@ class PhotonPass:
         self.stage_seconds["photon_trace"] += t1 - t0
         if dep is None:
             return
+        buf = self._buffers(P)
         g = hashgrid.gather(pg.grid, dep["p"], dep["ng"], dep["wi"], dep["power"], dep["rpred"],
                             vp.p, vp.ng, pg.R2, vp.const, cos_ng=-1.0,
                             want_freq_pairs=pg.want_pairs and n_freq > 0,
-                            sectors=self.sectors)
-        acc.M += g.M
-        if acc.sectors is not None:
-            acc.sectors += g.sectors
-        acc.Phi += g.Phi_sum * (vp.albedo / np.pi)
+                            buffers=buf)
+        # M, sectors, Phi of the Lambert points (times albedo / pi) and, for
+        # them alone when the receivers own the others, the smallest predicted
+        # radius: added at the touched points only, the same bits as adding
+        # the chunk's dense GatherResult (GatherBuffers.fold).
+        buf.fold(acc.M, acc.Phi, vp.albedo, np.pi, acc.r_pred,
+                 None if self.receivers is None else vp.const, acc.sectors)
         if g.pair_vp.size:
             acc.Phi += self._reflected(vp, dep, g.pair_vp, g.pair_ph, P)
-        if self.receivers is None:
-            acc.r_pred = np.minimum(acc.r_pred, g.rpred_min)
-        else:
-            acc.r_pred = np.minimum(acc.r_pred, np.where(vp.const, g.rpred_min, np.inf))
+        if self.receivers is not None:
             fr = ~np.isnan(dep["rpred"][g.pair_ph])
             pv, pp = g.pair_vp[fr], g.pair_ph[fr]
             np.minimum.at(acc.r_pred, pv, self.receivers.radius_keys(
@@ -282,6 +285,14 @@ class PhotonPass:
             self._frequency_pairs(g.freq_pair_vp, g.freq_pair_ph, dep, acc.hist, acc.spec, vp,
                                   acc.spec_set)
         self.stage_seconds["gather"] += time.perf_counter() - t1
+
+    def _buffers(self, P: int) -> "hashgrid.GatherBuffers":
+        """The gather buffers for P visible points (allocated once per render:
+        P changes only with the resolution)."""
+        b = self.gather_buffers
+        if b is None or b.K != P or b.with_sectors != self.sectors:
+            b = self.gather_buffers = hashgrid.GatherBuffers(P, self.sectors)
+        return b
 
     def _reflected(self, vp, dep, pv, pp, P) -> np.ndarray:
         """(P, 3) BSDF-weighted power of the (visible point pv, photon pp)
