@@ -767,14 +767,19 @@ class GatherBuffers:
         the rows: M (K,) += sum M rows; Phi (K, 3) += (sum Phi rows) *
         (phi_scale (K, 3) / phi_div); rmin (K,) = min(rmin, min rmin rows)
         where rmin_mask (K,) bool (None: everywhere); S (K, SECTOR_CELLS) +=
-        sum S rows when given.  The rows are summed in thread order, as
+        sum S rows when given; phi_scale float32 or float64, divided by
+        phi_div in its own dtype.  The rows are summed in thread order, as
         ``gather`` without buffers does, then scaled and added with the same
         float64 operations as ``acc += g.Phi_sum * (scale / div)`` in numpy:
         the same bits as adding that chunk's GatherResult."""
+        # The division in phi_scale's dtype, as numpy does (NEP 50: a float32
+        # albedo / pi is a float32), then the product in float64.
+        scale = np.ascontiguousarray(phi_scale)
+        if scale.dtype not in (np.float32, np.float64):
+            scale = scale.astype(np.float64)
         empty2 = np.zeros((0, 0))
         _fold(self.M, self.Phi, self.rmin, self.S, self.touched, self.n_touched,
-              self.n_used, M, Phi, np.ascontiguousarray(phi_scale, np.float64),
-              float(phi_div), rmin,
+              self.n_used, M, Phi, scale, scale.dtype.type(phi_div), rmin,
               np.zeros(0, np.bool_) if rmin_mask is None else rmin_mask,
               empty2 if S is None else S)
 
