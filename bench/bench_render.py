@@ -33,7 +33,8 @@ update) against the bare Embree time of as many random rays as the pass cast.
 
 ``--gather``: the photon pass's gather with the per-thread buffers allocated
 once per render (hashgrid.GatherBuffers, folded at the touched points) against
-the per-chunk dense sums it replaced (``per_chunk_trace_gather``: one set of
+the per-chunk dense sums it replaced (tests/test_gather_buffers.py
+``per_chunk_trace_gather``: one set of
 pixel-sized thread rows allocated, summed and added per chunk), passes of the
 same renderer interleaved at each ``--gather-res``: the gather's CPU seconds
 and share of the pass, and the whole pass's CPU seconds, as ratios
@@ -399,35 +400,10 @@ def stage_report(a):
               f"{pw / rw:.2f}x raw Embree rays (wall), {pc / pw:.2f} cores used")
 
 
-def per_chunk_trace_gather(self, pg, n, n_freq, rng, acc):
-    """PhotonPass._trace_gather as it was before hashgrid.GatherBuffers (the
-    bench's "before"): a dense GatherResult per chunk, added with numpy."""
-    vp, P = pg.vp, pg.vp.valid.shape[0]
-    t0 = time.perf_counter()
-    rays0 = self.tracer.accel.rays_cast
-    dep = self.tracer.trace(n, n_freq, rng)
-    self.rays += self.tracer.accel.rays_cast - rays0
-    t1 = time.perf_counter()
-    self.stage_seconds["photon_trace"] += t1 - t0
-    if dep is None:
-        return
-    g = Hg.gather(pg.grid, dep["p"], dep["ng"], dep["wi"], dep["power"], dep["rpred"],
-                  vp.p, vp.ng, pg.R2, vp.const, cos_ng=-1.0,
-                  want_freq_pairs=pg.want_pairs and n_freq > 0, sectors=self.sectors)
-    acc.M += g.M
-    if acc.sectors is not None:
-        acc.sectors += g.sectors
-    acc.Phi += g.Phi_sum * (vp.albedo / np.pi)
-    if g.pair_vp.size:
-        acc.Phi += self._reflected(vp, dep, g.pair_vp, g.pair_ph, P)
-    assert self.receivers is None and g.freq_pair_vp is None, "plain photons only"
-    acc.r_pred = np.minimum(acc.r_pred, g.rpred_min)
-    self.stage_seconds["gather"] += time.perf_counter() - t1
-
-
 def gather_report(a):
     """The --gather measurement (see the module docstring); prints ratios."""
     import types
+    import test_gather_buffers
     print(f"gather: per-chunk dense sums (before) vs buffers once per render (after); "
           f"Cornell box, {a.photons:,} photons/pass (chunks of {Ph_chunk():,}), "
           f"{a.repeat} interleaved passes each, numba threads {Hg.numba.get_num_threads()}")
@@ -438,22 +414,21 @@ def gather_report(a):
                      log=lambda s: None)
         pp = r.photon_pass
         after = pp._trace_gather
-        before = types.MethodType(per_chunk_trace_gather, pp)
+        before = types.MethodType(test_gather_buffers.per_chunk_trace_gather, pp)
         cpu = {}
 
         def timed(f):
             def g(*args):
                 c0 = time.process_time()
-                tr0 = pp.stage_seconds["photon_trace"]
                 f(*args)
                 cpu["tg"] += time.process_time() - c0
-                cpu["trace_wall"] += pp.stage_seconds["photon_trace"] - tr0
             return g
-        tot = {k: np.zeros(6) for k in ("before", "after")}  # pass cpu, wall, gather cpu/wall, trace
+        # pass CPU, pass wall, gather CPU, gather wall (seconds, summed over repeats)
+        tot = {k: np.zeros(4) for k in ("before", "after")}
         for rep in range(a.repeat + 1):           # the first round compiles / warms up
             for key, f in (("before", before), ("after", after)):
                 pp._trace_gather = timed(f)
-                cpu.update(tg=0.0, trace_wall=0.0)
+                cpu["tg"] = 0.0
                 tc0 = tm_trace_cpu(pp)
                 g0 = pp.stage_seconds["gather"]
                 w0, c0 = time.perf_counter(), time.process_time()
@@ -461,8 +436,8 @@ def gather_report(a):
                 pw, pc = time.perf_counter() - w0, time.process_time() - c0
                 gc = cpu["tg"] - (tm_trace_cpu(pp) - tc0)
                 if rep:
-                    tot[key] += (pc, pw, gc, pp.stage_seconds["gather"] - g0, 0, 0)
-        (bc, bw, bg, bgw, _, _), (ac, aw, ag, agw, _, _) = tot["before"], tot["after"]
+                    tot[key] += (pc, pw, gc, pp.stage_seconds["gather"] - g0)
+        (bc, bw, bg, bgw), (ac, aw, ag, agw) = tot["before"], tot["after"]
         print(f"  {w}x{h}: gather CPU before/after {bg / ag:.2f}x "
               f"(share of the pass's CPU {bg / bc:.0%} -> {ag / ac:.0%}; wall "
               f"{bgw / bw:.0%} -> {agw / aw:.0%}); whole pass CPU before/after "

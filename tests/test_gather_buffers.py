@@ -7,13 +7,56 @@ GatherResult per chunk, added with numpy: ``acc.M += g.M``,
 The fold sums the thread rows in the same order and scales with the same
 float64 operations, so every sum is compared EXACTLY (no tolerance).
 """
+import time
+import types
+
 import numpy as np
 import pytest
 
+from analytic_scenes import look_down_ortho, quad, translate
+from core.render import Renderer
+from core.scene.model import DIFFUSE, GLOSSY, Light, Lobe, Material, make_scene
+from core.settings import RenderSettings
 from core.sppm import hashgrid as hg
 from test_hashgrid import _args, random_case
 
 CHUNKS = 4
+
+
+def per_chunk_trace_gather(self, pg, n, n_freq, rng, acc):
+    """PhotonPass._trace_gather before hashgrid.GatherBuffers (the reference
+    here and bench/bench_render.py --gather's "before"): one dense
+    GatherResult per chunk, pixel-sized thread rows summed and added with numpy."""
+    st, vp, P = self.settings, pg.vp, pg.vp.valid.shape[0]
+    t0 = time.perf_counter()
+    rays0 = self.tracer.accel.rays_cast
+    dep = self.tracer.trace(n, n_freq, rng)
+    self.rays += self.tracer.accel.rays_cast - rays0
+    t1 = time.perf_counter()
+    self.stage_seconds["photon_trace"] += t1 - t0
+    if dep is None:
+        return
+    g = hg.gather(pg.grid, dep["p"], dep["ng"], dep["wi"], dep["power"], dep["rpred"],
+                  vp.p, vp.ng, pg.R2, vp.const, cos_ng=-1.0,
+                  want_freq_pairs=pg.want_pairs and n_freq > 0, sectors=self.sectors)
+    acc.M += g.M
+    if acc.sectors is not None:
+        acc.sectors += g.sectors
+    acc.Phi += g.Phi_sum * (vp.albedo / np.pi)
+    if g.pair_vp.size:
+        acc.Phi += self._reflected(vp, dep, g.pair_vp, g.pair_ph, P)
+    if self.receivers is None:
+        acc.r_pred = np.minimum(acc.r_pred, g.rpred_min)
+    else:
+        acc.r_pred = np.minimum(acc.r_pred, np.where(vp.const, g.rpred_min, np.inf))
+        fr = ~np.isnan(dep["rpred"][g.pair_ph])
+        pv, pp = g.pair_vp[fr], g.pair_ph[fr]
+        np.minimum.at(acc.r_pred, pv, self.receivers.radius_keys(
+            vp, dep, pv, pp, st.frequency_model))
+    if g.freq_pair_vp is not None and g.freq_pair_vp.size:
+        self._frequency_pairs(g.freq_pair_vp, g.freq_pair_ph, dep, acc.hist, acc.spec, vp,
+                              acc.spec_set)
+    self.stage_seconds["gather"] += time.perf_counter() - t1
 
 
 def _chunked(c, n_chunks):
@@ -29,10 +72,16 @@ def _sums(K):
     return np.zeros(K), np.zeros((K, 3)), np.full(K, np.inf), np.zeros((K, hg.SECTOR_CELLS))
 
 
-@pytest.mark.parametrize("parallel,masked,albedo_dtype", [(False, False, np.float64),
-                                                          (True, True, np.float32)])
-def test_buffers_equal_the_per_chunk_path(parallel, masked, albedo_dtype):
+@pytest.mark.parametrize("parallel,masked,albedo_dtype,dense_fold",
+                         [(False, False, np.float64, False), (True, True, np.float32, False),
+                          (True, False, np.float32, True)])
+def test_buffers_equal_the_per_chunk_path(parallel, masked, albedo_dtype, dense_fold,
+                                          monkeypatch):
     # float32 albedo: numpy divides it by pi in float32 (NEP 50), the fold too.
+    # dense_fold: the fold visits every VP (parallel) instead of the touched lists.
+    if dense_fold:
+        monkeypatch.setattr(hg, "FOLD_DENSE_MIN_VPS", 0)
+        monkeypatch.setattr(hg, "FOLD_DENSE_FRACTION", 10 ** 9)
     c = random_case(7, K=1500, P=12_000)
     K = c["vp_pos"].shape[0]
     grid = hg.build_grid(c["vp_pos"], c["vp_R"], c["active"])
@@ -71,3 +120,50 @@ def test_buffers_equal_the_per_chunk_path(parallel, masked, albedo_dtype):
     # radii, sectors; each chunk touches a subset of the points only.
     assert M0.sum() > 4000 and np.isfinite(r0).sum() > 200 and (Phi0 > 0).any()
     assert all(0 < t < 2 * K for t in touched) and min(touched) < K
+
+
+def _floor_scene(res=24):
+    """A floor, half Lambert (Phi_sum), half Lambert + GGX (pairs, receivers),
+    in an open box of Lambert walls (photons deposit after a bounce) under a
+    square area light."""
+    tris = quad((-0.75, 0, 0), (0.75, 0, 0), (0, 1.5, 0)) + \
+        quad((0.75, 0, 0), (0.75, 0, 0), (0, 1.5, 0))
+    for c, a, b in (((1.5, 0, 0.75), (0, 1.5, 0), (0, 0, 0.75)),
+                    ((-1.5, 0, 0.75), (0, 0, 0.75), (0, 1.5, 0)),
+                    ((0, 1.5, 0.75), (0, 0, 0.75), (1.5, 0, 0)),
+                    ((0, -1.5, 0.75), (1.5, 0, 0), (0, 0, 0.75))):
+        tris += quad(c, a, b)
+    mats = [Material("matte", (Lobe(DIFFUSE, (0.7, 0.6, 0.5)),)),
+            Material("glossy", (Lobe(DIFFUSE, (0.4, 0.4, 0.4)),
+                                Lobe(GLOSSY, (0.5, 0.5, 0.5), roughness=0.4)))]
+    light = Light("area", "AREA", (50.0, 50.0, 50.0), translate(0, 0, 1.0),
+                  shape="SQUARE", size=1.0)
+    return make_scene(tris, mats, [light], look_down_ortho(3.0, 2.0, res),
+                      tri_mat=[0, 0, 1, 1] + [0] * 8)
+
+
+@pytest.mark.parametrize("frequency", [True, False])
+def test_render_equals_the_per_chunk_path(frequency):
+    # Multi-chunk passes (3 chunks of 4000 photons, the last one smaller) through
+    # the renderer: every sum of the pass (M, Phi, radius histograms, spectrum,
+    # sector counts) is the same bits, so the images and AOVs are identical.
+    st = RenderSettings(max_passes=2, time_limit=0.0, photons_per_pass=10_000, seed=3,
+                        use_frequency=frequency, frequency_estimator="QUANTILE",
+                        aov_spectrum=frequency, aov_photon_count=True, aov_radius=True)
+    out = []
+    for old in (False, True):
+        r = Renderer(_floor_scene(), st, log=lambda s: None)
+        pp = r.photon_pass
+        pp.chunk = 4000
+        assert len(pp.chunks()) == 3
+        if old:
+            pp._trace_gather = types.MethodType(per_chunk_trace_gather, pp)
+        out.append((r.run(), pp.gather_buffers))
+    (new, buf), (ref, _) = out
+    assert buf is not None and buf.allocations == 1    # once per render
+    assert buf.with_sectors == frequency               # verify_holds reads them
+    np.testing.assert_array_equal(new.image, ref.image)
+    assert new.aovs.keys() == ref.aovs.keys() and len(new.aovs) >= 2
+    for k in new.aovs:
+        np.testing.assert_array_equal(new.aovs[k], ref.aovs[k], err_msg=k)
+    assert np.asarray(new.image).max() > 0

@@ -93,6 +93,10 @@ COS_NG_DEFAULT = 0.5          # cos(60 deg): photon / VP surface orientation tes
 CELL_FACTOR = 1.5             # h = CELL_FACTOR * median active radius
 ENTRY_BUDGET_PER_VP = 64      # clamp: mean cell entries per active VP
 PARALLEL_MIN_PHOTONS = 50_000  # below this, thread start-up outweighs the split
+# GatherBuffers.fold visits every VP in parallel, not the touched lists, when
+# at least 1/FOLD_DENSE_FRACTION of at least FOLD_DENSE_MIN_VPS were touched.
+FOLD_DENSE_FRACTION = 8
+FOLD_DENSE_MIN_VPS = 50_000
 # Sector counts (gather(..., sectors=True)): the kernel disc split into the 4
 # quadrants of the visible point's tangent frame times 2 rings of equal area
 # (inner |d| < R / sqrt 2), 8 cells of equal area: the chi-square uniformity
@@ -778,51 +782,77 @@ class GatherBuffers:
         if scale.dtype not in (np.float32, np.float64):
             scale = scale.astype(np.float64)
         empty2 = np.zeros((0, 0))
-        _fold(self.M, self.Phi, self.rmin, self.S, self.touched, self.n_touched,
+        # Sparse (serial, random access) while few VPs were touched; when many
+        # were (large radii, high resolution), every VP in order, in parallel.
+        dense = self.T > 1 and self.n_touched.sum() * FOLD_DENSE_FRACTION >= self.K \
+            and self.K >= FOLD_DENSE_MIN_VPS
+        (_fold_dense if dense else _fold)(self.M, self.Phi, self.rmin, self.S, self.touched, self.n_touched,
               self.n_used, M, Phi, scale, scale.dtype.type(phi_div), rmin,
               np.zeros(0, np.bool_) if rmin_mask is None else rmin_mask,
               empty2 if S is None else S)
 
 
+@njit(cache=True, inline="always")
+def _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S):
+    """Fold visible point v's rows (thread order) into the sums and zero them."""
+    m = bM[0, v]
+    r = brmin[0, v]
+    p0, p1, p2 = bPhi[0, v, 0], bPhi[0, v, 1], bPhi[0, v, 2]
+    for t in range(1, n_used):
+        m += bM[t, v]
+        r = min(r, brmin[t, v])
+        p0 += bPhi[t, v, 0]
+        p1 += bPhi[t, v, 1]
+        p2 += bPhi[t, v, 2]
+    M[v] += m
+    Phi[v, 0] += p0 * (scale[v, 0] / div)
+    Phi[v, 1] += p1 * (scale[v, 1] / div)
+    Phi[v, 2] += p2 * (scale[v, 2] / div)
+    if rmin_mask.shape[0] == 0 or rmin_mask[v]:
+        rmin[v] = min(rmin[v], r)
+    for t in range(n_used):
+        if S.shape[0] > 0:
+            for j in range(S.shape[1]):
+                S[v, j] += bS[t, v, j]
+        bM[t, v] = 0
+        brmin[t, v] = np.inf
+        bPhi[t, v, 0] = 0.0
+        bPhi[t, v, 1] = 0.0
+        bPhi[t, v, 2] = 0.0
+        for j in range(bS.shape[2]):
+            bS[t, v, j] = 0
+
+
 @njit(cache=True)
 def _fold(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div, rmin,
           rmin_mask, S):
-    """GatherBuffers.fold: every VP listed by a row is folded once (its M rows
-    are zero afterwards, which marks it done for the other rows' lists)."""
-    masked = rmin_mask.shape[0] > 0
-    with_s = S.shape[0] > 0
+    """GatherBuffers.fold, sparse: every VP listed by a row is folded once (its
+    M rows are zero afterwards, which marks it done for the other rows' lists)."""
     for c in range(n_used):
         for i in range(n_touched[c]):
             v = touched[c, i]
-            if bM[c, v] == 0:
-                continue                  # folded from an earlier row's list
-            m = bM[0, v]
-            r = brmin[0, v]
-            p0, p1, p2 = bPhi[0, v, 0], bPhi[0, v, 1], bPhi[0, v, 2]
-            for t in range(1, n_used):
-                m += bM[t, v]
-                r = min(r, brmin[t, v])
-                p0 += bPhi[t, v, 0]
-                p1 += bPhi[t, v, 1]
-                p2 += bPhi[t, v, 2]
-            M[v] += m
-            Phi[v, 0] += p0 * (scale[v, 0] / div)
-            Phi[v, 1] += p1 * (scale[v, 1] / div)
-            Phi[v, 2] += p2 * (scale[v, 2] / div)
-            if not masked or rmin_mask[v]:
-                rmin[v] = min(rmin[v], r)
-            for t in range(n_used):
-                if with_s:
-                    for j in range(S.shape[1]):
-                        S[v, j] += bS[t, v, j]
-                bM[t, v] = 0
-                brmin[t, v] = np.inf
-                bPhi[t, v, 0] = 0.0
-                bPhi[t, v, 1] = 0.0
-                bPhi[t, v, 2] = 0.0
-                for j in range(bS.shape[2]):
-                    bS[t, v, j] = 0
+            if bM[c, v] != 0:         # else folded from an earlier row's list
+                _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
+                          rmin_mask, S)
         n_touched[c] = 0
+
+
+@njit(cache=True, parallel=True)
+def _fold_dense(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div,
+                rmin, rmin_mask, S):
+    """GatherBuffers.fold when most VPs were touched: every VP with a count,
+    in contiguous ranges (sequential memory), one per thread."""
+    K = bM.shape[1]
+    n_blocks = bM.shape[0]
+    for c in prange(n_blocks):
+        for v in range(c * K // n_blocks, (c + 1) * K // n_blocks):
+            counted = False
+            for t in range(n_used):
+                counted |= bM[t, v] != 0
+            if counted:
+                _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
+                          rmin_mask, S)
+    n_touched[:] = 0
 
 
 def _check_radii(grid: Grid, vp_R2) -> None:
