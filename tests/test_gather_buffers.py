@@ -27,15 +27,11 @@ def per_chunk_trace_gather(self, pg, n, n_freq, rng, acc):
     """PhotonPass._trace_gather before hashgrid.GatherBuffers (the reference
     here and bench/bench_render.py --gather's "before"): one dense
     GatherResult per chunk, pixel-sized thread rows summed and added with numpy."""
-    st, vp, P = self.settings, pg.vp, pg.vp.valid.shape[0]
-    t0 = time.perf_counter()
-    rays0 = self.tracer.accel.rays_cast
-    dep = self.tracer.trace(n, n_freq, rng)
-    self.rays += self.tracer.accel.rays_cast - rays0
-    t1 = time.perf_counter()
-    self.stage_seconds["photon_trace"] += t1 - t0
+    vp = pg.vp
+    dep = self._trace(n, n_freq, rng)
     if dep is None:
         return
+    t1 = time.perf_counter()
     g = hg.gather(pg.grid, dep["p"], dep["ng"], dep["wi"], dep["power"], dep["rpred"],
                   vp.p, vp.ng, pg.R2, vp.const, cos_ng=-1.0,
                   want_freq_pairs=pg.want_pairs and n_freq > 0, sectors=self.sectors)
@@ -43,19 +39,9 @@ def per_chunk_trace_gather(self, pg, n, n_freq, rng, acc):
     if acc.sectors is not None:
         acc.sectors += g.sectors
     acc.Phi += g.Phi_sum * (vp.albedo / np.pi)
-    if g.pair_vp.size:
-        acc.Phi += self._reflected(vp, dep, g.pair_vp, g.pair_ph, P)
-    if self.receivers is None:
-        acc.r_pred = np.minimum(acc.r_pred, g.rpred_min)
-    else:
-        acc.r_pred = np.minimum(acc.r_pred, np.where(vp.const, g.rpred_min, np.inf))
-        fr = ~np.isnan(dep["rpred"][g.pair_ph])
-        pv, pp = g.pair_vp[fr], g.pair_ph[fr]
-        np.minimum.at(acc.r_pred, pv, self.receivers.radius_keys(
-            vp, dep, pv, pp, st.frequency_model))
-    if g.freq_pair_vp is not None and g.freq_pair_vp.size:
-        self._frequency_pairs(g.freq_pair_vp, g.freq_pair_ph, dep, acc.hist, acc.spec, vp,
-                              acc.spec_set)
+    acc.r_pred = np.minimum(acc.r_pred, g.rpred_min if self.receivers is None
+                            else np.where(vp.const, g.rpred_min, np.inf))
+    self._add_pairs(vp, dep, g, acc)      # the pairs: the same code
     self.stage_seconds["gather"] += time.perf_counter() - t1
 
 
@@ -72,16 +58,15 @@ def _sums(K):
     return np.zeros(K), np.zeros((K, 3)), np.full(K, np.inf), np.zeros((K, hg.SECTOR_CELLS))
 
 
-@pytest.mark.parametrize("parallel,masked,albedo_dtype,dense_fold",
-                         [(False, False, np.float64, False), (True, True, np.float32, False),
-                          (True, False, np.float32, True)])
-def test_buffers_equal_the_per_chunk_path(parallel, masked, albedo_dtype, dense_fold,
-                                          monkeypatch):
+@pytest.mark.parametrize("parallel,masked,albedo_dtype,fold",
+                         [(False, False, np.float64, "lists"), (True, True, np.float32, "lists"),
+                          (True, False, np.float32, "sweep"),
+                          (True, False, np.float64, "parallel sweep")])
+def test_buffers_equal_the_per_chunk_path(parallel, masked, albedo_dtype, fold, monkeypatch):
     # float32 albedo: numpy divides it by pi in float32 (NEP 50), the fold too.
-    # dense_fold: the fold visits every VP (parallel) instead of the touched lists.
-    if dense_fold:
-        monkeypatch.setattr(hg, "FOLD_DENSE_MIN_VPS", 0)
-        monkeypatch.setattr(hg, "FOLD_DENSE_FRACTION", 10 ** 9)
+    # fold: the touched lists, or a sweep of every VP (serial or on 2 threads).
+    monkeypatch.setattr(hg, "FOLD_DENSE_FRACTION", 0 if fold == "lists" else 10 ** 9)
+    monkeypatch.setattr(hg, "FOLD_PARALLEL_MIN_VPS", 0 if fold == "parallel sweep" else 10 ** 9)
     c = random_case(7, K=1500, P=12_000)
     K = c["vp_pos"].shape[0]
     grid = hg.build_grid(c["vp_pos"], c["vp_R"], c["active"])

@@ -93,10 +93,12 @@ COS_NG_DEFAULT = 0.5          # cos(60 deg): photon / VP surface orientation tes
 CELL_FACTOR = 1.5             # h = CELL_FACTOR * median active radius
 ENTRY_BUDGET_PER_VP = 64      # clamp: mean cell entries per active VP
 PARALLEL_MIN_PHOTONS = 50_000  # below this, thread start-up outweighs the split
-# GatherBuffers.fold visits every VP in parallel, not the touched lists, when
-# at least 1/FOLD_DENSE_FRACTION of at least FOLD_DENSE_MIN_VPS were touched.
+# GatherBuffers.fold visits every VP in order, not the touched lists, when at
+# least 1/FOLD_DENSE_FRACTION of them were touched (the lists' random access
+# cost ~250 ns a VP, a sequential sweep ~65 ns for every VP: 256², loaded
+# machine), on two threads from FOLD_PARALLEL_MIN_VPS VPs.
 FOLD_DENSE_FRACTION = 8
-FOLD_DENSE_MIN_VPS = 50_000
+FOLD_PARALLEL_MIN_VPS = 1_000_000
 # Sector counts (gather(..., sectors=True)): the kernel disc split into the 4
 # quadrants of the visible point's tangent frame times 2 rings of equal area
 # (inner |d| < R / sqrt 2), 8 cells of equal area: the chi-square uniformity
@@ -782,11 +784,12 @@ class GatherBuffers:
         if scale.dtype not in (np.float32, np.float64):
             scale = scale.astype(np.float64)
         empty2 = np.zeros((0, 0))
-        # Sparse (serial, random access) while few VPs were touched; when many
-        # were (large radii, high resolution), every VP in order, in parallel.
-        dense = self.T > 1 and self.n_touched.sum() * FOLD_DENSE_FRACTION >= self.K \
-            and self.K >= FOLD_DENSE_MIN_VPS
-        (_fold_dense if dense else _fold)(self.M, self.Phi, self.rmin, self.S, self.touched, self.n_touched,
+        # The touched lists while few VPs were touched, else every VP in order.
+        fold = _fold
+        if self.n_touched.sum() * FOLD_DENSE_FRACTION >= self.K:
+            fold = _fold_dense if self.T > 1 and self.K >= FOLD_PARALLEL_MIN_VPS \
+                else _fold_dense_serial
+        fold(self.M, self.Phi, self.rmin, self.S, self.touched, self.n_touched,
               self.n_used, M, Phi, scale, scale.dtype.type(phi_div), rmin,
               np.zeros(0, np.bool_) if rmin_mask is None else rmin_mask,
               empty2 if S is None else S)
@@ -840,8 +843,8 @@ def _fold(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div, r
 @njit(cache=True, parallel=True)
 def _fold_dense(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div,
                 rmin, rmin_mask, S):
-    """GatherBuffers.fold when most VPs were touched: every VP with a count,
-    in contiguous ranges (sequential memory), one per thread."""
+    """GatherBuffers.fold when many VPs were touched: every VP with a count,
+    in contiguous ranges (sequential memory), one per accumulator row."""
     K = bM.shape[1]
     n_blocks = bM.shape[0]
     for c in prange(n_blocks):
@@ -853,6 +856,11 @@ def _fold_dense(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, 
                 _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
                           rmin_mask, S)
     n_touched[:] = 0
+
+
+#: The same sweep without a parallel region (its thread hand-off costs more
+#: than the sweep below FOLD_PARALLEL_MIN_VPS on a loaded machine).
+_fold_dense_serial = njit(cache=True)(_fold_dense.py_func)
 
 
 def _check_radii(grid: Grid, vp_R2) -> None:

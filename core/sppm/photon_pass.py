@@ -254,15 +254,11 @@ class PhotonPass:
     def _trace_gather(self, pg: "PassGrid", n: int, n_freq: int, rng, acc: "PassSums") -> None:
         """Trace n photons (the first n_freq with a spectrum) and gather them
         into acc (in place)."""
-        st, vp, P = self.settings, pg.vp, pg.vp.valid.shape[0]
-        t0 = time.perf_counter()
-        rays0 = self.tracer.accel.rays_cast
-        dep = self.tracer.trace(n, n_freq, rng)
-        self.rays += self.tracer.accel.rays_cast - rays0
-        t1 = time.perf_counter()
-        self.stage_seconds["photon_trace"] += t1 - t0
+        vp, P = pg.vp, pg.vp.valid.shape[0]
+        dep = self._trace(n, n_freq, rng)
         if dep is None:
             return
+        t1 = time.perf_counter()
         buf = self._buffers(P)
         g = hashgrid.gather(pg.grid, dep["p"], dep["ng"], dep["wi"], dep["power"], dep["rpred"],
                             vp.p, vp.ng, pg.R2, vp.const, cos_ng=-1.0,
@@ -274,17 +270,33 @@ class PhotonPass:
         # the chunk's dense GatherResult (GatherBuffers.fold).
         buf.fold(acc.M, acc.Phi, vp.albedo, np.pi, acc.r_pred,
                  None if self.receivers is None else vp.const, acc.sectors)
+        self._add_pairs(vp, dep, g, acc)
+        self.stage_seconds["gather"] += time.perf_counter() - t1
+
+    def _add_pairs(self, vp, dep, g: "hashgrid.GatherResult", acc: "PassSums") -> None:
+        """Add the (visible point, photon) pairs of the gather g to acc: the
+        non-Lambert points' reflected flux and predicted radii (their own
+        receiver lobes), the frequency photons' histograms and spectrum."""
         if g.pair_vp.size:
-            acc.Phi += self._reflected(vp, dep, g.pair_vp, g.pair_ph, P)
+            acc.Phi += self._reflected(vp, dep, g.pair_vp, g.pair_ph, vp.valid.shape[0])
         if self.receivers is not None:
             fr = ~np.isnan(dep["rpred"][g.pair_ph])
             pv, pp = g.pair_vp[fr], g.pair_ph[fr]
             np.minimum.at(acc.r_pred, pv, self.receivers.radius_keys(
-                vp, dep, pv, pp, st.frequency_model))
+                vp, dep, pv, pp, self.settings.frequency_model))
         if g.freq_pair_vp is not None and g.freq_pair_vp.size:
             self._frequency_pairs(g.freq_pair_vp, g.freq_pair_ph, dep, acc.hist, acc.spec, vp,
                                   acc.spec_set)
-        self.stage_seconds["gather"] += time.perf_counter() - t1
+
+    def _trace(self, n: int, n_freq: int, rng) -> Optional[dict]:
+        """The deposits of n photons (the first n_freq with a spectrum), or
+        None; counts the rays and the trace's wall seconds."""
+        t0 = time.perf_counter()
+        rays0 = self.tracer.accel.rays_cast
+        dep = self.tracer.trace(n, n_freq, rng)
+        self.rays += self.tracer.accel.rays_cast - rays0
+        self.stage_seconds["photon_trace"] += time.perf_counter() - t0
+        return dep
 
     def _buffers(self, P: int) -> "hashgrid.GatherBuffers":
         """The gather buffers for P visible points (allocated once per render:
