@@ -438,10 +438,13 @@ def gather_report(a):
                 if rep:
                     tot[key] += (pc, pw, gc, pp.stage_seconds["gather"] - g0)
         (bc, bw, bg, bgw), (ac, aw, ag, agw) = tot["before"], tot["after"]
-        print(f"  {w}x{h}: gather CPU before/after {bg / ag:.2f}x "
+        n = a.repeat
+        print(f"  {w}x{h}: gather CPU before/after {bg / ag:.2f}x ({bg / n:.3f} -> "
+              f"{ag / n:.3f} s a pass) "
               f"(share of the pass's CPU {bg / bc:.0%} -> {ag / ac:.0%}; wall "
               f"{bgw / bw:.0%} -> {agw / aw:.0%}); whole pass CPU before/after "
-              f"{bc / ac:.2f}x, wall {bw / aw:.2f}x; cores used {bc / bw:.2f} -> {ac / aw:.2f}")
+              f"{bc / ac:.2f}x ({bc / n:.2f} -> {ac / n:.2f} s), wall {bw / aw:.2f}x; "
+              f"cores used {bc / bw:.2f} -> {ac / aw:.2f}")
 
 
 def tm_trace_cpu(pp):
