@@ -60,13 +60,11 @@ def _sums(K):
 
 @pytest.mark.parametrize("parallel,masked,albedo_dtype,fold",
                          [(False, False, np.float64, "lists"), (True, True, np.float32, "lists"),
-                          (True, False, np.float32, "sweep"),
-                          (True, False, np.float64, "parallel sweep")])
+                          (True, False, np.float32, "sweep")])
 def test_buffers_equal_the_per_chunk_path(parallel, masked, albedo_dtype, fold, monkeypatch):
     # float32 albedo: numpy divides it by pi in float32 (NEP 50), the fold too.
-    # fold: the touched lists, or a sweep of every VP (serial or on 2 threads).
-    monkeypatch.setattr(hg, "FOLD_DENSE_FRACTION", 0 if fold == "lists" else 10 ** 9)
-    monkeypatch.setattr(hg, "FOLD_PARALLEL_MIN_VPS", 0 if fold == "parallel sweep" else 10 ** 9)
+    # fold: the touched lists, or a sweep of every VP.
+    monkeypatch.setattr(hg, "FOLD_SWEEP_FRACTION", 0 if fold == "lists" else 10 ** 9)
     c = random_case(7, K=1500, P=12_000)
     K = c["vp_pos"].shape[0]
     grid = hg.build_grid(c["vp_pos"], c["vp_R"], c["active"])

@@ -74,7 +74,8 @@ more than 64 entries redo the exact tests).  No over-allocation, no growth.
 
 Parallelism: with ``parallel=True`` the sorted photons are split into one
 contiguous chunk per numba thread, each chunk accumulating into its own (K,)
-arrays (race-free, no atomics), summed afterwards; the sort scatters by
+arrays (race-free, no atomics), summed afterwards (or, with GatherBuffers,
+rows reused by every chunk and folded at the touched VPs); the sort scatters by
 disjoint slot ranges, one per thread.  The build is serial (O(K), ~10% of a
 pass's gather).  Results do not depend on the thread count except for the
 summation order of Phi_sum.
@@ -94,11 +95,10 @@ CELL_FACTOR = 1.5             # h = CELL_FACTOR * median active radius
 ENTRY_BUDGET_PER_VP = 64      # clamp: mean cell entries per active VP
 PARALLEL_MIN_PHOTONS = 50_000  # below this, thread start-up outweighs the split
 # GatherBuffers.fold visits every VP in order, not the touched lists, when at
-# least 1/FOLD_DENSE_FRACTION of them were touched (the lists' random access
+# least 1/FOLD_SWEEP_FRACTION of them were touched (the lists' random access
 # cost ~250 ns a VP, a sequential sweep ~65 ns for every VP: 256², loaded
-# machine), on two threads from FOLD_PARALLEL_MIN_VPS VPs.
-FOLD_DENSE_FRACTION = 8
-FOLD_PARALLEL_MIN_VPS = 1_000_000
+# machine).  Serial: a parallel region's hand-off cost more than the sweep.
+FOLD_SWEEP_FRACTION = 8
 # Sector counts (gather(..., sectors=True)): the kernel disc split into the 4
 # quadrants of the visible point's tangent frame times 2 rings of equal area
 # (inner |d| < R / sqrt 2), 8 cells of equal area: the chi-square uniformity
@@ -723,9 +723,11 @@ class GatherBuffers:
     (``gather(..., buffers=)``), folded into a pass's sums by :meth:`fold`.
 
     Allocating and summing (threads, K) arrays for every photon chunk cost
-    O(K) per chunk, most of a chunk's gather at 1080p; here the count pass
-    also lists the VPs each thread touched, and ``fold`` visits those alone
-    and zeroes them again, so a chunk costs O(photons + touched VPs).
+    O(K) per chunk in allocations, page faults and passes over pixel-sized
+    arrays, most of a chunk's gather at 1080p; here the count pass also lists
+    the VPs each thread touched, and ``fold`` adds and zeroes those alone (or,
+    when many were touched, sweeps every VP's counts in order), so a chunk
+    costs O(photons + touched VPs) with no allocation of pixel size.
 
     K visible points, threads accumulator rows, sectors: with sector counts.
     M (threads, K) int64, Phi (threads, K, 3) float64, rmin (threads, K)
@@ -785,14 +787,11 @@ class GatherBuffers:
             scale = scale.astype(np.float64)
         empty2 = np.zeros((0, 0))
         # The touched lists while few VPs were touched, else every VP in order.
-        fold = _fold
-        if self.n_touched.sum() * FOLD_DENSE_FRACTION >= self.K:
-            fold = _fold_dense if self.T > 1 and self.K >= FOLD_PARALLEL_MIN_VPS \
-                else _fold_dense_serial
-        fold(self.M, self.Phi, self.rmin, self.S, self.touched, self.n_touched,
+        sweep = bool(self.n_touched.sum() * FOLD_SWEEP_FRACTION >= self.K)
+        _fold(self.M, self.Phi, self.rmin, self.S, self.touched, self.n_touched,
               self.n_used, M, Phi, scale, scale.dtype.type(phi_div), rmin,
               np.zeros(0, np.bool_) if rmin_mask is None else rmin_mask,
-              empty2 if S is None else S)
+              empty2 if S is None else S, sweep)
 
 
 @njit(cache=True, inline="always")
@@ -828,9 +827,21 @@ def _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mas
 
 @njit(cache=True)
 def _fold(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div, rmin,
-          rmin_mask, S):
-    """GatherBuffers.fold, sparse: every VP listed by a row is folded once (its
-    M rows are zero afterwards, which marks it done for the other rows' lists)."""
+          rmin_mask, S, sweep):
+    """GatherBuffers.fold.  sweep False: every VP listed by a row, once (its M
+    rows are zero afterwards, which marks it done for the other rows' lists);
+    sweep True: every VP with a count, in order (sequential memory).  One
+    kernel for both, so that the warm-up compiles the one the renders use."""
+    if sweep:
+        for v in range(bM.shape[1]):
+            counted = False
+            for t in range(n_used):
+                counted |= bM[t, v] != 0
+            if counted:
+                _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
+                          rmin_mask, S)
+        n_touched[:] = 0
+        return
     for c in range(n_used):
         for i in range(n_touched[c]):
             v = touched[c, i]
@@ -838,29 +849,6 @@ def _fold(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div, r
                 _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
                           rmin_mask, S)
         n_touched[c] = 0
-
-
-@njit(cache=True, parallel=True)
-def _fold_dense(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div,
-                rmin, rmin_mask, S):
-    """GatherBuffers.fold when many VPs were touched: every VP with a count,
-    in contiguous ranges (sequential memory), one per accumulator row."""
-    K = bM.shape[1]
-    n_blocks = bM.shape[0]
-    for c in prange(n_blocks):
-        for v in range(c * K // n_blocks, (c + 1) * K // n_blocks):
-            counted = False
-            for t in range(n_used):
-                counted |= bM[t, v] != 0
-            if counted:
-                _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
-                          rmin_mask, S)
-    n_touched[:] = 0
-
-
-#: The same sweep without a parallel region (its thread hand-off costs more
-#: than the sweep below FOLD_PARALLEL_MIN_VPS on a loaded machine).
-_fold_dense_serial = njit(cache=True)(_fold_dense.py_func)
 
 
 def _check_radii(grid: Grid, vp_R2) -> None:
