@@ -707,10 +707,10 @@ def _empty_result(K, want_freq_pairs, sectors=False):
                         np.zeros((K, SECTOR_CELLS), np.int64) if sectors else None)
 
 
-def _vp_records(vp_pos, vp_ng, vp_R2, vp_const, out=None):
+def _vp_records(vp_pos, vp_ng, vp_R2, vp_const):
     """(K, 8) float64: one 64-byte record per VP (x, y, z, R^2, ng, const), so a
     candidate reads one cache line instead of four arrays."""
-    vp_rec = np.empty((vp_pos.shape[0], 8)) if out is None else out
+    vp_rec = np.empty((vp_pos.shape[0], 8))
     vp_rec[:, 0:3] = vp_pos
     vp_rec[:, 3] = vp_R2
     vp_rec[:, 4:7] = vp_ng
@@ -730,12 +730,16 @@ class GatherBuffers:
     costs O(photons + touched VPs) with no allocation of pixel size.
 
     K visible points, threads accumulator rows, sectors: with sector counts.
-    M (threads, K) int64, Phi (threads, K, 3) float64, rmin (threads, K)
-    float64 (inf), S (threads, K, SECTOR_CELLS or 0) int64; touched (threads,
-    K) int32 with n_touched (threads,) int64 entries each.  Between chunks
-    every row is zero (rmin inf).  vp_rec (K, 8) and tframe (K, 6) are built
-    once per grid (``bind``): the visible points must not change while the
-    grid does not.  ``allocations`` counts the (re)allocations.
+    M (threads, K) int32, Phi (threads, K, 3) float64, rmin (threads, K)
+    float64 (inf), S (threads, K, SECTOR_CELLS or 0) int32 (a VP counts a
+    photon once: int32 holds any gather of fewer than 2**31 photons between
+    two folds); touched (threads, K) int32 with n_touched (threads,) int64
+    entries each: 144 B a VP with two threads and sectors, 80 B without.
+    Between chunks every row is zero (rmin inf).  vp_rec (K, 8) and tframe
+    (K, 6) are built once per grid (``bind``; the visible points must not
+    change while the grid does not) and dropped by ``unbind`` (end of a pass:
+    they are not held through the other stages).  ``allocations`` counts the
+    (re)allocations of the rows.
     """
 
     def __init__(self, K: int, sectors: bool = False, threads: Optional[int] = None):
@@ -746,17 +750,19 @@ class GatherBuffers:
     def _allocate(self, T: int) -> None:
         K = self.K
         self.T = T
-        self.M = np.zeros((T, K), np.int64)
+        self.M = np.zeros((T, K), np.int32)
         self.Phi = np.zeros((T, K, 3))
         self.rmin = np.full((T, K), np.inf)
-        self.S = np.zeros((T, K, SECTOR_CELLS if self.with_sectors else 0), np.int64)
+        self.S = np.zeros((T, K, SECTOR_CELLS if self.with_sectors else 0), np.int32)
         self.touched = np.empty((T, K), np.int32)
         self.n_touched = np.zeros(T, np.int64)
-        self.vp_rec = np.empty((K, 8))
-        self.tframe = np.zeros((0, 6))
         self.n_used = 1
-        self.grid = None
+        self.unbind()
         self.allocations += 1
+
+    def unbind(self) -> None:
+        """Drop the per-pass records (the next gather rebuilds them)."""
+        self.grid = self.vp_rec = self.tframe = None
 
     def bind(self, grid: Grid, vp, n_chunks: int) -> None:
         """Records of the prepared VPs vp = (pos, ng, R2, const) for grid (once
@@ -766,7 +772,7 @@ class GatherBuffers:
         if self.grid is grid:
             return
         _check_radii(grid, vp[2])
-        _vp_records(*vp, out=self.vp_rec)
+        self.vp_rec = _vp_records(*vp)
         self.tframe = tangent_frames(vp[1]) if self.with_sectors else np.zeros((0, 6))
         self.grid = grid
 

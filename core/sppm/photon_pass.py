@@ -249,6 +249,8 @@ class PhotonPass:
         """The pass's estimate from its summed chunks (Phi times the visible
         points' throughput, once)."""
         acc.Phi *= vp.beta
+        if self.gather_buffers is not None:
+            self.gather_buffers.unbind()
         return PhotonEstimate(True, acc.M, acc.Phi, acc.r_pred, acc.hist, acc.spec, acc.sectors)
 
     def _trace_gather(self, pg: "PassGrid", n: int, n_freq: int, rng, acc: "PassSums") -> None:
