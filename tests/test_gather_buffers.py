@@ -97,6 +97,11 @@ def test_buffers_equal_the_per_chunk_path(parallel, masked, albedo_dtype, fold, 
         assert np.all(buf.rmin == np.inf) and not buf.n_touched.any()
     assert buf.allocations == 1
     assert all(a is b for a, b in zip(rows, (buf.M, buf.Phi, buf.rmin, buf.S, buf.touched)))
+    # A gather left unfolded (an interrupted pass) is cleared, not carried.
+    hg.gather(grid, *_args(c), parallel=parallel, buffers=buf)
+    assert buf.M.any()
+    buf.clear()
+    assert not buf.M.any() and not buf.S.any() and np.all(buf.rmin == np.inf)
     for got, exp in ((M1, M0), (Phi1, Phi0), (r1, r0), (S1, S0)):
         assert np.array_equal(got, exp), np.abs(got - exp).max()
     # The case exercises what a fold adds: counts, Lambert flux, frequency

@@ -760,6 +760,16 @@ class GatherBuffers:
         self.unbind()
         self.allocations += 1
 
+    def clear(self) -> None:
+        """Zero rows a gather left unfolded (a pass interrupted between its
+        gather and fold); nothing to do when every gather was folded."""
+        if self.n_touched.any():
+            self.M[:] = 0
+            self.Phi[:] = 0.0
+            self.rmin[:] = np.inf
+            self.S[:] = 0
+            self.n_touched[:] = 0
+
     def unbind(self) -> None:
         """Drop the per-pass records (the next gather rebuilds them)."""
         self.grid = self.vp_rec = self.tframe = None

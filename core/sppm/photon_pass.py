@@ -225,6 +225,8 @@ class PhotonPass:
     def begin(self, vp, R2: np.ndarray, spectrum_aov: bool) -> Optional["PassGrid"]:
         """The grid of this pass's active visible points (None: none is active)."""
         active = self.active(vp, R2)
+        if self.gather_buffers is not None:
+            self.gather_buffers.clear()
         if not np.any(active):
             return None
         want_pairs = self.frequency and (self.radius_histogram is not None or spectrum_aov)
