@@ -3,6 +3,7 @@
     .venv/bin/python bench/bench_render.py [--res 256] [--photons 200000] [--passes 3]
                                            [--frequency] [--numpy]
     .venv/bin/python bench/bench_render.py --stages [--stage-res 256 1024] [--repeat 3]
+    .venv/bin/python bench/bench_render.py --gather [--gather-res 256x256 1920x1080] [--repeat 2]
 
 Prints ratios (target: photon pass <= 2x the raw ray casting of its
 rays at 256x256 with 200k photons per pass), never a bare time alone.
@@ -29,6 +30,15 @@ each ``--stage-res``: the ratio numpy / compiled of wall and CPU time (best
 of ``--repeat`` interleaved runs), the cores the compiled stages used (CPU /
 wall), and one whole compiled pass (camera, direct, photons, gather,
 update) against the bare Embree time of as many random rays as the pass cast.
+
+``--gather``: the photon pass's gather with the per-thread buffers allocated
+once per render (hashgrid.GatherBuffers, folded at the touched points) against
+the per-chunk dense sums it replaced (tests/test_gather_buffers.py
+``per_chunk_trace_gather``: one set of
+pixel-sized thread rows allocated, summed and added per chunk), passes of the
+same renderer interleaved at each ``--gather-res``: the gather's CPU seconds
+and share of the pass, and the whole pass's CPU seconds, as ratios
+before / after (CPU time: the machine is shared), and the cores used.
 """
 from __future__ import annotations
 
@@ -56,8 +66,9 @@ from core.scene.model import DIFFUSE, Camera, Light, Lobe, Material, make_scene 
 from core.settings import RenderSettings  # noqa: E402
 
 
-def cornell(res: int, subdiv: int = 0):
-    """Cornell box (1 m cube, open front) with a ceiling area light and two blocks."""
+def cornell(res: int, subdiv: int = 0, height: int = 0):
+    """Cornell box (1 m cube, open front) with a ceiling area light and two
+    blocks, res x (height or res) pixels."""
     tris, mats = [], []
     white, red, green = 0, 1, 2
     def add(q, m):
@@ -83,7 +94,7 @@ def cornell(res: int, subdiv: int = 0):
     # Camera at y = -1.9 looking along +Y: rotate local -Z onto +Y.
     M = np.array([[1, 0, 0, 0], [0, 0, -1, -1.9], [0, 1, 0, 0.5], [0, 0, 0, 1]], float)
     cam = Camera(kind="PERSP", matrix_world=M, lens=35.0, sensor_width=36.0,
-                 resolution=(res, res), clip_start=0.01, clip_end=100.0)
+                 resolution=(res, height or res), clip_start=0.01, clip_end=100.0)
     return make_scene(tris, materials, [light], cam, tri_mat=mats)
 
 
@@ -262,9 +273,15 @@ def main(argv=None):
     ap.add_argument("--stages", action="store_true",
                     help="camera + direct light: numpy vs compiled (ratios), and whole passes")
     ap.add_argument("--stage-res", type=int, nargs="+", default=[256, 1024])
+    ap.add_argument("--gather", action="store_true",
+                    help="gather buffers once per render vs per-chunk dense sums (ratios)")
+    ap.add_argument("--gather-res", nargs="+", default=["256x256", "1920x1080"])
     a = ap.parse_args(argv)
     if a.stages:
         stage_report(a)
+        return 0
+    if a.gather:
+        gather_report(a)
         return 0
     scene = cornell(a.res)
     tm = Timers()
@@ -381,6 +398,69 @@ def stage_report(a):
         rw = raw.seconds(rays)
         print(f"  {res}^2: whole pass ({rays:,} rays, {a.photons:,} photons) = "
               f"{pw / rw:.2f}x raw Embree rays (wall), {pc / pw:.2f} cores used")
+
+
+def gather_report(a):
+    """The --gather measurement (see the module docstring); prints ratios."""
+    import types
+    import test_gather_buffers
+    print(f"gather: per-chunk dense sums (before) vs buffers once per render (after); "
+          f"Cornell box, {a.photons:,} photons/pass (chunks of {Ph_chunk():,}), "
+          f"{a.repeat} interleaved passes each, numba threads {Hg.numba.get_num_threads()}")
+    for wh in a.gather_res:
+        w, h = (int(x) for x in wh.split("x"))
+        r = Renderer(cornell(w, height=h),
+                     RenderSettings(max_passes=1000, photons_per_pass=a.photons),
+                     log=lambda s: None)
+        pp = r.photon_pass
+        after = pp._trace_gather
+        before = types.MethodType(test_gather_buffers.per_chunk_trace_gather, pp)
+        cpu = {}
+
+        def timed(f):
+            def g(*args):
+                c0 = time.process_time()
+                f(*args)
+                cpu["tg"] += time.process_time() - c0
+            return g
+        # pass CPU, pass wall, gather CPU, gather wall (seconds, summed over repeats)
+        tot = {k: np.zeros(4) for k in ("before", "after")}
+        for rep in range(a.repeat + 1):           # the first round compiles / warms up
+            for key, f in (("before", before), ("after", after)):
+                pp._trace_gather = timed(f)
+                cpu["tg"] = 0.0
+                tc0 = tm_trace_cpu(pp)
+                g0 = pp.stage_seconds["gather"]
+                w0, c0 = time.perf_counter(), time.process_time()
+                r.step()
+                pw, pc = time.perf_counter() - w0, time.process_time() - c0
+                gc = cpu["tg"] - (tm_trace_cpu(pp) - tc0)
+                if rep:
+                    tot[key] += (pc, pw, gc, pp.stage_seconds["gather"] - g0)
+        (bc, bw, bg, bgw), (ac, aw, ag, agw) = tot["before"], tot["after"]
+        n = a.repeat
+        print(f"  {w}x{h}: gather CPU before/after {bg / ag:.2f}x ({bg / n:.3f} -> "
+              f"{ag / n:.3f} s a pass) "
+              f"(share of the pass's CPU {bg / bc:.0%} -> {ag / ac:.0%}; wall "
+              f"{bgw / bw:.0%} -> {agw / aw:.0%}); whole pass CPU before/after "
+              f"{bc / ac:.2f}x ({bc / n:.2f} -> {ac / n:.2f} s), wall {bw / aw:.2f}x; "
+              f"cores used {bc / bw:.2f} -> {ac / aw:.2f}")
+
+
+def tm_trace_cpu(pp):
+    """Process CPU seconds spent in pp.tracer.trace so far (wrapped on first use)."""
+    t = pp.tracer
+    if not hasattr(t, "bench_cpu"):
+        t.bench_cpu, f = 0.0, t.trace
+
+        def g(*args, **kw):
+            c0 = time.process_time()
+            try:
+                return f(*args, **kw)
+            finally:
+                t.bench_cpu += time.process_time() - c0
+        t.trace = g
+    return t.bench_cpu
 
 
 def Ph_chunk():

@@ -74,7 +74,8 @@ more than 64 entries redo the exact tests).  No over-allocation, no growth.
 
 Parallelism: with ``parallel=True`` the sorted photons are split into one
 contiguous chunk per numba thread, each chunk accumulating into its own (K,)
-arrays (race-free, no atomics), summed afterwards; the sort scatters by
+arrays (race-free, no atomics), summed afterwards (or, with GatherBuffers,
+rows reused by every chunk and folded at the touched VPs); the sort scatters by
 disjoint slot ranges, one per thread.  The build is serial (O(K), ~10% of a
 pass's gather).  Results do not depend on the thread count except for the
 summation order of Phi_sum.
@@ -93,6 +94,11 @@ COS_NG_DEFAULT = 0.5          # cos(60 deg): photon / VP surface orientation tes
 CELL_FACTOR = 1.5             # h = CELL_FACTOR * median active radius
 ENTRY_BUDGET_PER_VP = 64      # clamp: mean cell entries per active VP
 PARALLEL_MIN_PHOTONS = 50_000  # below this, thread start-up outweighs the split
+# GatherBuffers.fold visits every VP in order, not the touched lists, when at
+# least 1/FOLD_SWEEP_FRACTION of them were touched (the lists' random access
+# cost ~250 ns a VP, a sequential sweep ~65 ns for every VP: 256², loaded
+# machine).  Serial: a parallel region's hand-off cost more than the sweep.
+FOLD_SWEEP_FRACTION = 8
 # Sector counts (gather(..., sectors=True)): the kernel disc split into the 4
 # quadrants of the visible point's tangent frame times 2 rings of equal area
 # (inner |d| < R / sqrt 2), 8 cells of equal area: the chi-square uniformity
@@ -418,15 +424,17 @@ def tangent_frames(ng: np.ndarray) -> np.ndarray:
 @njit(cache=True)
 def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                  vp_rec, cos_ng, cell_start, vp_ids,
-                 M, Phi, rmin, hitmask, n_pair, n_freq, tframe, S):
+                 M, Phi, rmin, hitmask, n_pair, n_freq, tframe, S, touched, n_touched):
     """Sorted photons q0..q1-1 (ph_* already in sorted order): accumulate M,
     Phi (const VPs), rmin into this chunk's arrays, and (S with SECTOR_CELLS
     columns, else 0 columns) each counted photon's sector cell into S.  n_pair[q] / n_freq[q] =
     number of non-const / frequency pairs of the photon; hitmask[q] bit j =
     entry cell_start[s] + j counted (cells of <= 64 entries), so the pair pass
-    need not redo the tests."""
+    need not redo the tests.  touched (K,) int32 (size 0: not recorded): each
+    VP whose M goes from 0 to 1 is appended at n_touched[0] (GatherBuffers)."""
     one = np.uint64(1)
     with_sectors = S.shape[1] > 0
+    track = touched.shape[0] > 0
     for p in range(q0, q1):
         q = p
         s = slot[q]
@@ -451,6 +459,9 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
             if not _accepts(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
                 continue
             M[v] += 1
+            if track and M[v] == 1:
+                touched[n_touched[0]] = v
+                n_touched[0] += 1
             if with_sectors:
                 S[v, _sector_cell(vp_rec, tframe, v, x, y, z)] += 1
             if vp_rec[v, 7] != 0.0:
@@ -531,24 +542,25 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
 
 @njit(cache=True)
 def _count_serial(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, cos_ng,
-                  cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq, tframe, S):
+                  cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq, tframe, S,
+                  touched, n_touched):
     _count_range(0, slot.shape[0], slot, ph_pos, ph_ng, ph_wi, ph_power,
                  ph_rpred, vp_rec, cos_ng, cell_start, vp_ids, M[0], Phi[0], rmin[0],
-                 hitmask, n_pair, n_freq, tframe, S[0])
+                 hitmask, n_pair, n_freq, tframe, S[0], touched[0], n_touched[0:1])
 
 
 @njit(cache=True, parallel=True)
 def _count_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec,
                     cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq,
-                    tframe, S):
+                    tframe, S, touched, n_touched, n_chunks):
     # One contiguous range of sorted photons per accumulator row: chunks never
     # share a row, and the per-photon outputs are indexed by q: no race.
-    n_chunks = M.shape[0]
     n = slot.shape[0]
     for c in prange(n_chunks):
         _count_range(c * n // n_chunks, (c + 1) * n // n_chunks, slot, ph_pos,
                      ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, cos_ng, cell_start,
-                     vp_ids, M[c], Phi[c], rmin[c], hitmask, n_pair, n_freq, tframe, S[c])
+                     vp_ids, M[c], Phi[c], rmin[c], hitmask, n_pair, n_freq, tframe, S[c],
+                     touched[c], n_touched[c:c + 1])
 
 
 @njit(cache=True)
@@ -695,10 +707,176 @@ def _empty_result(K, want_freq_pairs, sectors=False):
                         np.zeros((K, SECTOR_CELLS), np.int64) if sectors else None)
 
 
+def _vp_records(vp_pos, vp_ng, vp_R2, vp_const):
+    """(K, 8) float64: one 64-byte record per VP (x, y, z, R^2, ng, const), so a
+    candidate reads one cache line instead of four arrays."""
+    vp_rec = np.empty((vp_pos.shape[0], 8))
+    vp_rec[:, 0:3] = vp_pos
+    vp_rec[:, 3] = vp_R2
+    vp_rec[:, 4:7] = vp_ng
+    vp_rec[:, 7] = vp_const
+    return vp_rec
+
+
+class GatherBuffers:
+    """Per-thread gather accumulators allocated once and reused by every chunk
+    (``gather(..., buffers=)``), folded into a pass's sums by :meth:`fold`.
+
+    Allocating and summing (threads, K) arrays for every photon chunk cost
+    O(K) per chunk in allocations, page faults and passes over pixel-sized
+    arrays, most of a chunk's gather at 1080p; here the count pass also lists
+    the VPs each thread touched, and ``fold`` adds and zeroes those alone (or,
+    when many were touched, sweeps every VP's counts in order), so a chunk
+    costs O(photons + touched VPs) with no allocation of pixel size.
+
+    K visible points, threads accumulator rows, sectors: with sector counts.
+    M (threads, K) int32, Phi (threads, K, 3) float64, rmin (threads, K)
+    float64 (inf), S (threads, K, SECTOR_CELLS or 0) int32 (a VP counts a
+    photon once: int32 holds any gather of fewer than 2**31 photons between
+    two folds); touched (threads, K) int32 with n_touched (threads,) int64
+    entries each: 144 B a VP with two threads and sectors, 80 B without.
+    Between chunks every row is zero (rmin inf).  vp_rec (K, 8) and tframe
+    (K, 6) are built once per grid (``bind``; the visible points must not
+    change while the grid does not) and dropped by ``unbind`` (end of a pass:
+    they are not held through the other stages).  ``allocations`` counts the
+    (re)allocations of the rows.
+    """
+
+    def __init__(self, K: int, sectors: bool = False, threads: Optional[int] = None):
+        self.K, self.with_sectors, self.allocations = int(K), bool(sectors), 0
+        self.grid = None
+        self._allocate(max(1, int(threads or numba.get_num_threads())))
+
+    def _allocate(self, T: int) -> None:
+        K = self.K
+        self.T = T
+        self.M = np.zeros((T, K), np.int32)
+        self.Phi = np.zeros((T, K, 3))
+        self.rmin = np.full((T, K), np.inf)
+        self.S = np.zeros((T, K, SECTOR_CELLS if self.with_sectors else 0), np.int32)
+        self.touched = np.empty((T, K), np.int32)
+        self.n_touched = np.zeros(T, np.int64)
+        self.n_used = 1
+        self.unbind()
+        self.allocations += 1
+
+    def clear(self) -> None:
+        """Zero rows a gather left unfolded (a pass interrupted between its
+        gather and fold); nothing to do when every gather was folded."""
+        if self.n_touched.any():
+            self.M[:] = 0
+            self.Phi[:] = 0.0
+            self.rmin[:] = np.inf
+            self.S[:] = 0
+            self.n_touched[:] = 0
+
+    def unbind(self) -> None:
+        """Drop the per-pass records (the next gather rebuilds them)."""
+        self.grid = self.vp_rec = self.tframe = None
+
+    def bind(self, grid: Grid, vp, n_chunks: int) -> None:
+        """Records of the prepared VPs vp = (pos, ng, R2, const) for grid (once
+        per grid), room for n_chunks rows."""
+        if n_chunks > self.T:
+            self._allocate(n_chunks)
+        if self.grid is grid:
+            return
+        _check_radii(grid, vp[2])
+        self.vp_rec = _vp_records(*vp)
+        self.tframe = tangent_frames(vp[1]) if self.with_sectors else np.zeros((0, 6))
+        self.grid = grid
+
+    def fold(self, M, Phi, phi_scale, phi_div: float, rmin, rmin_mask=None, S=None) -> None:
+        """Add the rows' sums at the touched VPs into a pass's sums and zero
+        the rows: M (K,) += sum M rows; Phi (K, 3) += (sum Phi rows) *
+        (phi_scale (K, 3) / phi_div); rmin (K,) = min(rmin, min rmin rows)
+        where rmin_mask (K,) bool (None: everywhere); S (K, SECTOR_CELLS) +=
+        sum S rows when given; phi_scale float32 or float64, divided by
+        phi_div in its own dtype.  The rows are summed in thread order, as
+        ``gather`` without buffers does, then scaled and added with the same
+        float64 operations as ``acc += g.Phi_sum * (scale / div)`` in numpy:
+        the same bits as adding that chunk's GatherResult."""
+        # The division in phi_scale's dtype, as numpy does (NEP 50: a float32
+        # albedo / pi is a float32), then the product in float64.
+        scale = np.ascontiguousarray(phi_scale)
+        if scale.dtype not in (np.float32, np.float64):
+            scale = scale.astype(np.float64)
+        empty2 = np.zeros((0, 0))
+        # The touched lists while few VPs were touched, else every VP in order.
+        sweep = bool(self.n_touched.sum() * FOLD_SWEEP_FRACTION >= self.K)
+        _fold(self.M, self.Phi, self.rmin, self.S, self.touched, self.n_touched,
+              self.n_used, M, Phi, scale, scale.dtype.type(phi_div), rmin,
+              np.zeros(0, np.bool_) if rmin_mask is None else rmin_mask,
+              empty2 if S is None else S, sweep)
+
+
+@njit(cache=True, inline="always")
+def _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S):
+    """Fold visible point v's rows (thread order) into the sums and zero them."""
+    m = bM[0, v]
+    r = brmin[0, v]
+    p0, p1, p2 = bPhi[0, v, 0], bPhi[0, v, 1], bPhi[0, v, 2]
+    for t in range(1, n_used):
+        m += bM[t, v]
+        r = min(r, brmin[t, v])
+        p0 += bPhi[t, v, 0]
+        p1 += bPhi[t, v, 1]
+        p2 += bPhi[t, v, 2]
+    M[v] += m
+    Phi[v, 0] += p0 * (scale[v, 0] / div)
+    Phi[v, 1] += p1 * (scale[v, 1] / div)
+    Phi[v, 2] += p2 * (scale[v, 2] / div)
+    if rmin_mask.shape[0] == 0 or rmin_mask[v]:
+        rmin[v] = min(rmin[v], r)
+    for t in range(n_used):
+        if S.shape[0] > 0:
+            for j in range(S.shape[1]):
+                S[v, j] += bS[t, v, j]
+        bM[t, v] = 0
+        brmin[t, v] = np.inf
+        bPhi[t, v, 0] = 0.0
+        bPhi[t, v, 1] = 0.0
+        bPhi[t, v, 2] = 0.0
+        for j in range(bS.shape[2]):
+            bS[t, v, j] = 0
+
+
+@njit(cache=True)
+def _fold(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div, rmin,
+          rmin_mask, S, sweep):
+    """GatherBuffers.fold.  sweep False: every VP listed by a row, once (its M
+    rows are zero afterwards, which marks it done for the other rows' lists);
+    sweep True: every VP with a count, in order (sequential memory).  One
+    kernel for both, so that the warm-up compiles the one the renders use."""
+    if sweep:
+        for v in range(bM.shape[1]):
+            counted = False
+            for t in range(n_used):
+                counted |= bM[t, v] != 0
+            if counted:
+                _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
+                          rmin_mask, S)
+        n_touched[:] = 0
+        return
+    for c in range(n_used):
+        for i in range(n_touched[c]):
+            v = touched[c, i]
+            if bM[c, v] != 0:         # else folded from an earlier row's list
+                _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
+                          rmin_mask, S)
+        n_touched[c] = 0
+
+
+def _check_radii(grid: Grid, vp_R2) -> None:
+    if np.any((vp_R2 > grid.R_ins * grid.R_ins) & (grid.R_ins > 0)):
+        raise ValueError("gather: vp_R2 exceeds the radius the grid was built with; "
+                         "rebuild the grid after the radii grow")
+
+
 def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
            vp_pos, vp_ng, vp_R2, vp_const, cos_ng: float = COS_NG_DEFAULT,
            want_freq_pairs: bool = False, parallel: Optional[bool] = None,
-           sectors: bool = False) -> GatherResult:
+           sectors: bool = False, buffers: Optional[GatherBuffers] = None) -> GatherResult:
     """Count photons into visible points (rules (1)-(4) of the module docstring).
 
     ph_pos (P, 3) float32/64 photon hit positions; ph_ng (P, 3) geometric normal
@@ -714,23 +892,30 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     PARALLEL_MIN_PHOTONS and more than one thread is available).
     sectors: also count each VP's photons per sector cell (GatherResult.sectors);
     the other outputs are the same bits either way.
+    buffers: accumulate M, Phi_sum, rpred_min and the sectors (when
+    buffers.with_sectors; the ``sectors`` argument is then ignored) in these
+    reused per-thread rows instead; the result's M, Phi_sum, rpred_min and
+    sectors are then None until ``buffers.fold``.  Pairs are returned as usual.
     """
     K = np.asarray(vp_pos).size // 3
     if K != grid.K:
         raise ValueError(f"gather: {K} visible points but the grid was built for {grid.K}")
     P, K, ph, vp = _prepare(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                             vp_pos, vp_ng, vp_R2, vp_const)
-    vp_R2 = vp[2]
-    if np.any((vp_R2 > grid.R_ins * grid.R_ins) & (grid.R_ins > 0)):
-        raise ValueError("gather: vp_R2 exceeds the radius the grid was built with; "
-                         "rebuild the grid after the radii grow")
-    if P == 0 or grid.n_active == 0:
-        return _empty_result(K, want_freq_pairs, sectors)
-
     n_threads = numba.get_num_threads()
     if parallel is None:
         parallel = n_threads > 1 and P >= PARALLEL_MIN_PHOTONS
     n_chunks = n_threads if parallel else 1
+    if buffers is None:
+        _check_radii(grid, vp[2])
+    else:
+        if buffers.K != K:
+            raise ValueError(f"gather: buffers for {buffers.K} visible points, not {K}")
+        buffers.bind(grid, vp, n_chunks)
+        sectors = buffers.with_sectors
+    if P == 0 or grid.n_active == 0:
+        return _no_photons(K, want_freq_pairs, sectors, buffers)
+
     ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_ = ph
     sort = _sort_photons if parallel else _sort_photons_serial
     order, slot, ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_ = sort(
@@ -739,34 +924,40 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         0 if grid.dense else 64 - grid.log2_table, grid.cell_start, n_chunks)
     n = order.shape[0]
     if n == 0:
-        return _empty_result(K, want_freq_pairs, sectors)
+        return _no_photons(K, want_freq_pairs, sectors, buffers)
 
-    # One 64-byte record per VP (x, y, z, R^2, ng, const): a candidate reads
-    # one cache line instead of four arrays.
-    vp_rec = np.empty((K, 8))
-    vp_rec[:, 0:3] = vp[0]
-    vp_rec[:, 3] = vp_R2
-    vp_rec[:, 4:7] = vp[1]
-    vp_rec[:, 7] = vp[3]
-    M = np.zeros((n_chunks, K), np.int64)
-    Phi = np.zeros((n_chunks, K, 3))
-    rmin = np.full((n_chunks, K), np.inf)
+    if buffers is None:
+        vp_rec = _vp_records(*vp)
+        M = np.zeros((n_chunks, K), np.int64)
+        Phi = np.zeros((n_chunks, K, 3))
+        rmin = np.full((n_chunks, K), np.inf)
+        tframe = tangent_frames(vp[1]) if sectors else np.zeros((0, 6))
+        S = np.zeros((n_chunks, K, SECTOR_CELLS if sectors else 0), np.int64)
+        touched, n_touched = np.empty((n_chunks, 0), np.int32), np.zeros(n_chunks, np.int64)
+    else:
+        b = buffers
+        vp_rec, M, Phi, rmin, tframe, S = b.vp_rec, b.M, b.Phi, b.rmin, b.tframe, b.S
+        touched, n_touched = b.touched, b.n_touched
+        b.n_used = max(b.n_used, n_chunks) if n_touched.any() else n_chunks
     hitmask = np.empty(n, np.uint64)
     n_pair = np.empty(n, np.int32)
     n_freq = np.empty(n, np.int32)
-    tframe = tangent_frames(vp[1]) if sectors else np.zeros((0, 6))
-    S = np.zeros((n_chunks, K, SECTOR_CELLS if sectors else 0), np.int64)
     g = (grid.cell_start, grid.vp_ids)
     cargs = (slot, ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_, vp_rec,
-             float(cos_ng), *g, M, Phi, rmin, hitmask, n_pair, n_freq, tframe, S)
+             float(cos_ng), *g, M, Phi, rmin, hitmask, n_pair, n_freq, tframe, S,
+             touched, n_touched)
     if parallel:
-        _count_parallel(*cargs)
+        _count_parallel(*cargs, n_chunks)
+    else:
+        _count_serial(*cargs)
+    if buffers is not None:
+        M = Phi = rmin = S = None
+    elif parallel:
         M = M.sum(axis=0)
         Phi = Phi.sum(axis=0)
         rmin = rmin.min(axis=0)
         S = S.sum(axis=0)
     else:
-        _count_serial(*cargs)
         M, Phi, rmin, S = M[0], Phi[0], rmin[0], S[0]
 
     pair_off = np.zeros(n + 1, np.int64)
@@ -791,4 +982,12 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     return GatherResult(M, Phi, pair_vp, pair_ph, rmin,
                         fpair_vp if want_freq_pairs else None,
                         fpair_ph if want_freq_pairs else None,
-                        S if sectors else None)
+                        S if sectors and buffers is None else None)
+
+
+def _no_photons(K, want_freq_pairs, sectors, buffers) -> GatherResult:
+    """The result of a gather that counted nothing."""
+    r = _empty_result(K, want_freq_pairs, sectors)
+    if buffers is not None:
+        r.M = r.Phi_sum = r.rpred_min = r.sectors = None
+    return r

@@ -180,6 +180,9 @@ class PhotonPass:
         # Non-Lambert visible points: the radius for their own receiver lobes.
         self.receivers = Receivers(mtab) if frequency else None
         self.sectors = needs_sectors(settings, frequency)
+        # Per-thread gather accumulators, allocated at the first chunk and
+        # reused by every chunk of every pass (hashgrid.GatherBuffers).
+        self.gather_buffers: Optional[hashgrid.GatherBuffers] = None
 
     def __call__(self, vp, R2: np.ndarray, spectrum: Optional[np.ndarray],
                  rng: np.random.Generator, check_stop=lambda: None) -> PhotonEstimate:
@@ -222,6 +225,8 @@ class PhotonPass:
     def begin(self, vp, R2: np.ndarray, spectrum_aov: bool) -> Optional["PassGrid"]:
         """The grid of this pass's active visible points (None: none is active)."""
         active = self.active(vp, R2)
+        if self.gather_buffers is not None:
+            self.gather_buffers.clear()
         if not np.any(active):
             return None
         want_pairs = self.frequency and (self.radius_histogram is not None or spectrum_aov)
@@ -246,42 +251,64 @@ class PhotonPass:
         """The pass's estimate from its summed chunks (Phi times the visible
         points' throughput, once)."""
         acc.Phi *= vp.beta
+        if self.gather_buffers is not None:
+            self.gather_buffers.unbind()
         return PhotonEstimate(True, acc.M, acc.Phi, acc.r_pred, acc.hist, acc.spec, acc.sectors)
 
     def _trace_gather(self, pg: "PassGrid", n: int, n_freq: int, rng, acc: "PassSums") -> None:
         """Trace n photons (the first n_freq with a spectrum) and gather them
         into acc (in place)."""
-        st, vp, P = self.settings, pg.vp, pg.vp.valid.shape[0]
+        vp, P = pg.vp, pg.vp.valid.shape[0]
+        dep = self._trace(n, n_freq, rng)
+        if dep is None:
+            return
+        t1 = time.perf_counter()
+        buf = self._buffers(P)
+        g = hashgrid.gather(pg.grid, dep["p"], dep["ng"], dep["wi"], dep["power"], dep["rpred"],
+                            vp.p, vp.ng, pg.R2, vp.const, cos_ng=-1.0,
+                            want_freq_pairs=pg.want_pairs and n_freq > 0,
+                            buffers=buf)
+        # M, sectors, Phi of the Lambert points (times albedo / pi) and, for
+        # them alone when the receivers own the others, the smallest predicted
+        # radius: added at the touched points only, the same bits as adding
+        # the chunk's dense GatherResult (GatherBuffers.fold).
+        buf.fold(acc.M, acc.Phi, vp.albedo, np.pi, acc.r_pred,
+                 None if self.receivers is None else vp.const, acc.sectors)
+        self._add_pairs(vp, dep, g, acc)
+        self.stage_seconds["gather"] += time.perf_counter() - t1
+
+    def _add_pairs(self, vp, dep, g: "hashgrid.GatherResult", acc: "PassSums") -> None:
+        """Add the (visible point, photon) pairs of the gather g to acc: the
+        non-Lambert points' reflected flux and predicted radii (their own
+        receiver lobes), the frequency photons' histograms and spectrum."""
+        if g.pair_vp.size:
+            acc.Phi += self._reflected(vp, dep, g.pair_vp, g.pair_ph, vp.valid.shape[0])
+        if self.receivers is not None:
+            fr = ~np.isnan(dep["rpred"][g.pair_ph])
+            pv, pp = g.pair_vp[fr], g.pair_ph[fr]
+            np.minimum.at(acc.r_pred, pv, self.receivers.radius_keys(
+                vp, dep, pv, pp, self.settings.frequency_model))
+        if g.freq_pair_vp is not None and g.freq_pair_vp.size:
+            self._frequency_pairs(g.freq_pair_vp, g.freq_pair_ph, dep, acc.hist, acc.spec, vp,
+                                  acc.spec_set)
+
+    def _trace(self, n: int, n_freq: int, rng) -> Optional[dict]:
+        """The deposits of n photons (the first n_freq with a spectrum), or
+        None; counts the rays and the trace's wall seconds."""
         t0 = time.perf_counter()
         rays0 = self.tracer.accel.rays_cast
         dep = self.tracer.trace(n, n_freq, rng)
         self.rays += self.tracer.accel.rays_cast - rays0
-        t1 = time.perf_counter()
-        self.stage_seconds["photon_trace"] += t1 - t0
-        if dep is None:
-            return
-        g = hashgrid.gather(pg.grid, dep["p"], dep["ng"], dep["wi"], dep["power"], dep["rpred"],
-                            vp.p, vp.ng, pg.R2, vp.const, cos_ng=-1.0,
-                            want_freq_pairs=pg.want_pairs and n_freq > 0,
-                            sectors=self.sectors)
-        acc.M += g.M
-        if acc.sectors is not None:
-            acc.sectors += g.sectors
-        acc.Phi += g.Phi_sum * (vp.albedo / np.pi)
-        if g.pair_vp.size:
-            acc.Phi += self._reflected(vp, dep, g.pair_vp, g.pair_ph, P)
-        if self.receivers is None:
-            acc.r_pred = np.minimum(acc.r_pred, g.rpred_min)
-        else:
-            acc.r_pred = np.minimum(acc.r_pred, np.where(vp.const, g.rpred_min, np.inf))
-            fr = ~np.isnan(dep["rpred"][g.pair_ph])
-            pv, pp = g.pair_vp[fr], g.pair_ph[fr]
-            np.minimum.at(acc.r_pred, pv, self.receivers.radius_keys(
-                vp, dep, pv, pp, st.frequency_model))
-        if g.freq_pair_vp is not None and g.freq_pair_vp.size:
-            self._frequency_pairs(g.freq_pair_vp, g.freq_pair_ph, dep, acc.hist, acc.spec, vp,
-                                  acc.spec_set)
-        self.stage_seconds["gather"] += time.perf_counter() - t1
+        self.stage_seconds["photon_trace"] += time.perf_counter() - t0
+        return dep
+
+    def _buffers(self, P: int) -> "hashgrid.GatherBuffers":
+        """The gather buffers for P visible points (allocated once per render:
+        P changes only with the resolution)."""
+        b = self.gather_buffers
+        if b is None or b.K != P or b.with_sectors != self.sectors:
+            b = self.gather_buffers = hashgrid.GatherBuffers(P, self.sectors)
+        return b
 
     def _reflected(self, vp, dep, pv, pp, P) -> np.ndarray:
         """(P, 3) BSDF-weighted power of the (visible point pv, photon pp)
