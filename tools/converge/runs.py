@@ -53,8 +53,9 @@ METHOD_SETTINGS = {
              "path tracing alone (camera paths, next-event estimation, MIS)"),
     "light": ({"integrator": "LIGHT", "use_frequency": False},
               "light tracing alone (photon paths connected to the camera)"),
-    "combined": ({"integrator": "COMBINED", "use_frequency": False},
-                 "path tracing + light tracing weighted by MIS (integrator COMBINED)"),
+    "combined": ({"integrator": "COMBINED", "use_frequency": True},
+                 "path tracing + light tracing weighted by MIS, and photon merging with the "
+                 "frequency radius for caustics seen through mirrors and glass (integrator COMBINED)"),
 }
 METHODS = tuple(METHOD_SETTINGS) + ("cycles",)
 CYCLES_HELP = "Cycles at 1, 2, 4, ... spp, in a process of its own"
