@@ -77,7 +77,7 @@ def _assert_cancels_within_promise(prepare, export, what):
         export(dg, r)
         if time.perf_counter() - r.t0 < full:
             full, cpu, rec = time.perf_counter() - r.t0, time.process_time() - c0, r
-    lats = []
+    lats, missed = [], []
     for n in _cancel_polls(rec, full):
         best = np.inf
         for _ in range(3):
@@ -90,12 +90,18 @@ def _assert_cancels_within_promise(prepare, export, what):
                 best = min(best, time.perf_counter() - stop.t_cancel)
             if best < PROMISED:
                 break
-        lats.append((rec.calls[n], best))
+        (lats if np.isfinite(best) else missed).append((rec.calls[n], best))
     print(f"{what}: export {full:.3f} s ({cpu:.3f} s CPU) uncancelled, {len(rec.calls)} "
           f"polls, worst gap {np.diff(rec.calls + [full]).max() * 1e3:.0f} ms; cancel at "
-          + ", ".join(f"{a:.3f} s -> {x * 1e3:.0f} ms" for a, x in lats))
+          + ", ".join(f"{a:.3f} s -> {x * 1e3:.0f} ms" for a, x in lats)
+          + (f"; never reached: {', '.join(f'{a:.3f} s' for a, _ in missed)}" if missed else ""))
     assert full > 0.5, full                     # the cancels land mid-export
-    assert max(x for _, x in lats) < PROMISED, lats
+    # The number of polls varies between runs (a child's image read is polled
+    # every 5 ms): a poll near the end may never be reached in 3 tries, when
+    # the export finished first.  That is no latency; at most one may miss,
+    # and only a late one.
+    assert len(missed) <= 1 and all(a > 0.5 * full for a, _ in missed), (lats, missed)
+    assert lats and max(x for _, x in lats) < PROMISED, lats
 
 
 def _children():
