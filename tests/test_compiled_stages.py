@@ -41,7 +41,7 @@ from core.sppm import camera_kernels as CK
 from core.warmup import warmup_scene
 
 from analytic_scenes import look_down_ortho, quad, translate
-from test_path_tracer import _rot_x
+from test_path_tracer import every_light_kind
 
 
 def _mixed_scene(res, n_small_tris=20, textured_emission=True):
@@ -67,17 +67,7 @@ def _mixed_scene(res, n_small_tris=20, textured_emission=True):
             Material("emit", emission=(3.0, 2.0, 1.0))]
     tri_mat = [0, 0, 1, 1, 2, 2] + [3] * n_small_tris
     uv = np.random.default_rng(2).random((len(tris), 3, 2))
-    lights = [
-        Light("rect", "AREA", (40, 40, 40), _rot_x(160, (0, 0, 2)), shape="RECTANGLE",
-              size=1.0, size_y=0.6),
-        Light("disk", "AREA", (20, 20, 20), translate(-2, 1, 1.5), shape="DISK", size=0.8),
-        Light("sphere", "POINT", (30, 30, 30), translate(1, -2, 1.2), radius=0.3,
-              use_soft_falloff=False),
-        Light("soft", "POINT", (30, 30, 30), translate(-1, -2, 1.0), radius=0.25),
-        Light("tiny", "POINT", (5, 5, 5), translate(2, 2, 1.0)),
-        Light("spot", "SPOT", (60, 60, 60), translate(0, 2, 2.5), radius=0.2, spot_size=1.5),
-        Light("sun", "SUN", (2, 2, 2), _rot_x(20, (0, 0, 9)), angle=0.2),
-    ]
+    lights = every_light_kind(Light("tiny", "POINT", (5, 5, 5), translate(2, 2, 1.0)))
     return make_scene(tris, mats, lights, look_down_ortho(3.0, 9.0, res), tri_mat=tri_mat,
                       tri_uv=uv, world_color=(0.1, 0.2, 0.3), textures=[tex])
 

@@ -49,6 +49,22 @@ def _rot_x(deg, at):
     return m
 
 
+def every_light_kind(*extra):
+    """One light of every kind with a shape (rectangle, disc, sphere, soft
+    disc, spot, sun) above the test scenes' z = 0 floor, then ``extra``."""
+    return [
+        Light("rect", "AREA", (40, 40, 40), _rot_x(160, (0, 0, 2)), shape="RECTANGLE",
+              size=1.0, size_y=0.6),
+        Light("disk", "AREA", (20, 20, 20), translate(-2, 1, 1.5), shape="DISK", size=0.8),
+        Light("sphere", "POINT", (30, 30, 30), translate(1, -2, 1.2), radius=0.3,
+              use_soft_falloff=False),
+        Light("soft", "POINT", (30, 30, 30), translate(-1, -2, 1.0), radius=0.25),
+        Light("spot", "SPOT", (60, 60, 60), translate(0, 2, 2.5), radius=0.2, spot_size=1.5),
+        Light("sun", "SUN", (2, 2, 2), _rot_x(20, (0, 0, 9)), angle=0.2),
+        *extra,
+    ]
+
+
 def _many_lights_scene(n_small_tris: int):
     """Floor, an emissive quad (2 big triangles) and n_small_tris small emissive
     triangles (> 16: the triangle-group entry of the NEE selection), a tilted
@@ -63,16 +79,7 @@ def _many_lights_scene(n_small_tris: int):
     mats = [Material("floor", (Lobe(DIFFUSE, (0.8,) * 3),)),
             Material("emit", emission=(3.0, 2.0, 1.0))]
     tri_mat = [0, 0] + [1] * (len(tris) - 2)
-    lights = [
-        Light("rect", "AREA", (40, 40, 40), _rot_x(160, (0, 0, 2)), shape="RECTANGLE",
-              size=1.0, size_y=0.6),
-        Light("disk", "AREA", (20, 20, 20), translate(-2, 1, 1.5), shape="DISK", size=0.8),
-        Light("sphere", "POINT", (30, 30, 30), translate(1, -2, 1.2), radius=0.3,
-              use_soft_falloff=False),
-        Light("soft", "POINT", (30, 30, 30), translate(-1, -2, 1.0), radius=0.25),
-        Light("spot", "SPOT", (60, 60, 60), translate(0, 2, 2.5), radius=0.2, spot_size=1.5),
-        Light("sun", "SUN", (2, 2, 2), _rot_x(20, (0, 0, 9)), angle=0.2),
-    ]
+    lights = every_light_kind()
     return make_scene(tris, mats, lights, look_down_ortho(3.0, 2.0, 8), tri_mat=tri_mat,
                       world_color=(0.1, 0.2, 0.3))
 
