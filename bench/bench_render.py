@@ -4,6 +4,8 @@
                                            [--frequency] [--numpy]
     .venv/bin/python bench/bench_render.py --stages [--stage-res 256 1024] [--repeat 3]
     .venv/bin/python bench/bench_render.py --gather [--gather-res 256x256 1920x1080] [--repeat 2]
+    .venv/bin/python bench/bench_render.py --frequency --blend example_blends/cornell.blend
+                                           [--blend-res 64] [--blend-passes 12] [--repeat 2]
 
 Prints ratios (target: photon pass <= 2x the raw ray casting of its
 rays at 256x256 with 200k photons per pass), never a bare time alone.
@@ -252,6 +254,42 @@ def frequency_report(r, rb, r0, tm, a):
           f"before {[round(x, 2) for x in cost['before']]}")
 
 
+def blend_report(a):
+    """``--blend``: CPU seconds per pass of FPPM and of PPM (use_frequency
+    off) on a .blend at ``--blend-res``, rendered as ``fppm render`` does
+    (addon/cli.py; needs bpy), interleaved, best of ``--repeat``; the set-up
+    (export, occlusion grid) is left out: per pass = (CPU at the last pass -
+    CPU at the first) / (passes - 1).  Prints the ratio and the passes each
+    renders in equal CPU time."""
+    import fppm_alias  # noqa: F401  (fppm.* importable)
+    import bpy  # noqa: F401
+    from fppm.addon.cli import open_blend, render_scene
+    from fppm.addon.engine import RenderSession
+
+    def per_pass(freq, passes):
+        marks = []
+        sess = RenderSession(log=lambda s: None,
+                             on_pass=lambda pr, st: marks.append(time.process_time()))
+        scene = open_blend(a.blend)
+        scene.render.resolution_x = scene.render.resolution_y = a.blend_res
+        scene.render.resolution_percentage = 100
+        render_scene(scene, dict(integrator="PHOTON", use_frequency=freq, max_passes=passes,
+                                 time_limit=0.0, seed=7), sess)
+        return (marks[-1] - marks[0]) / (len(marks) - 1)
+    per_pass(True, 2)
+    per_pass(False, 2)                            # warm-up: kernels from the cache
+    best = {True: np.inf, False: np.inf}
+    for _ in range(a.repeat):
+        for freq in (False, True):
+            best[freq] = min(best[freq], per_pass(freq, a.blend_passes))
+    q = best[True] / best[False]
+    budget = 60.0
+    print(f"{os.path.basename(a.blend)} at {a.blend_res}^2, {a.blend_passes} passes, best of "
+          f"{a.repeat}: CPU per pass FPPM {best[True] * 1e3:.0f} ms, PPM {best[False] * 1e3:.0f} "
+          f"ms: FPPM / PPM {q:.2f}x; in {budget:.0f} s of CPU FPPM renders "
+          f"{budget / best[True]:.0f} passes to PPM's {budget / best[False]:.0f}")
+
+
 def raw_cpu(raw, rays):
     """(wall, CPU) seconds of the bare Embree call on `rays` rays."""
     c0 = time.process_time()
@@ -276,7 +314,14 @@ def main(argv=None):
     ap.add_argument("--gather", action="store_true",
                     help="gather buffers once per render vs per-chunk dense sums (ratios)")
     ap.add_argument("--gather-res", nargs="+", default=["256x256", "1920x1080"])
+    ap.add_argument("--blend", default="",
+                    help="with --frequency: FPPM vs PPM CPU per pass on this .blend (needs bpy)")
+    ap.add_argument("--blend-res", type=int, default=64)
+    ap.add_argument("--blend-passes", type=int, default=12)
     a = ap.parse_args(argv)
+    if a.blend:
+        blend_report(a)
+        return 0
     if a.stages:
         stage_report(a)
         return 0
