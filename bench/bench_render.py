@@ -22,7 +22,8 @@ renderer runs the frequency photons as before core.frequency.kernels (the
 numpy chains of tests/oracle_photons.py with the voxel-by-voxel march of
 tests/oracle_occlusion.py), so the before/after overheads are measured in the
 same process; each ratio is the best of ``--repeat`` interleaved measurements
-(the machine is shared).  ``--numpy`` times the numpy reference tracer
+of the process's CPU time (all threads: the machine is shared, its wall time
+is no clock).  ``--numpy`` times the numpy reference tracer
 (tests/oracle_photons.py) instead of the compiled one.
 
 ``--stages``: the camera pass and the direct light (next-event estimation)
@@ -206,13 +207,14 @@ def photon_pass(r, tm):
 
 
 def trace_seconds(r, tm, n, n_freq, seed):
-    """Wall seconds of r.tracer.trace(n, n_freq) (and of its march calls)."""
+    """CPU seconds (all threads) of r.tracer.trace(n, n_freq), and wall
+    seconds of its march calls (the numpy chains' only)."""
     tm.dense_march = getattr(r, "bench_before", False)
     s0 = tm.snapshot()
     r.tracer.trace(n, n_freq, np.random.default_rng(seed))
     s1 = tm.snapshot()
     tm.dense_march = False
-    return s1["trace"] - s0["trace"], s1["march"] - s0["march"]
+    return s1["trace_cpu"] - s0["trace_cpu"], s1["march"] - s0["march"]
 
 
 def frequency_report(r, rb, r0, tm, a):
@@ -224,7 +226,8 @@ def frequency_report(r, rb, r0, tm, a):
         d0, _ = photon_pass(r0, tm)
         for key, rr in (("after", r), ("before", rb)):
             d, _ = photon_pass(rr, tm)
-            pp[key].append((d["trace"] + d["gather"]) / (d0["trace"] + d0["gather"]) - 1)
+            pp[key].append((d["trace_cpu"] + d["gather_cpu"])
+                           / (d0["trace_cpu"] + d0["gather_cpu"]) - 1)
     n = min(a.photons, Ph_chunk())
     cost = {"after": [], "before": [], "no march": []}
     march_b = []
@@ -241,7 +244,8 @@ def frequency_report(r, rb, r0, tm, a):
             if key == "before":
                 march_b.append(m / tc)
         tr.occlusion = occlusion
-    print(f"frequency ({r.settings.frequency_fraction:.0%} frequency photons, best of {a.repeat}; "
+    print(f"frequency ({r.settings.frequency_fraction:.0%} frequency photons, CPU time of all "
+          f"threads, best of {a.repeat}; "
           f"all values: {[f'{x:+.0%}' for x in pp['after']]} after, "
           f"{[f'{x:+.0%}' for x in pp['before']]} before)")
     print(f"  whole photon pass vs none: after {min(pp['after']):+.0%}, "
@@ -250,7 +254,7 @@ def frequency_report(r, rb, r0, tm, a):
           f"{min(cost['after']):.2f}x (without the march {min(cost['no march']):.2f}x), "
           f"before {min(cost['before']):.2f}x "
           f"(its march {march_b[int(np.argmin(cost['before']))]:.2f}x"
-          f", summed over threads); all: after {[round(x, 2) for x in cost['after']]}, "
+          f" wall / classic CPU); all: after {[round(x, 2) for x in cost['after']]}, "
           f"before {[round(x, 2) for x in cost['before']]}")
 
 
@@ -343,7 +347,7 @@ def main(argv=None):
         d.update(raw=w, raw_cpu=c, rays=rays, raw_accel=raw.seconds_accel(rays))
         if r0 is not None:
             d0, _ = photon_pass(r0, tm)
-            d.update(trace0=d0["trace"], gather0=d0["gather"])
+            d.update(trace0=d0["trace_cpu"], gather0=d0["gather_cpu"])
         for k, v in d.items():
             acc[k] = acc.get(k, 0.0) + v
         per_pass.append(((d["trace"] + d["gather"]) / w, (d["trace_cpu"] + d["gather_cpu"]) / c))
@@ -388,10 +392,11 @@ def main(argv=None):
           f"({'used' if r.tracer.fast_emission and not a.numpy else 'not used'})")
     if r0 is not None:
         pp0 = acc["trace0"] + acc["gather0"]
+        ppc = acc["trace_cpu"] + acc["gather_cpu"]
         print(f"frequency: whole photon pass with {r.settings.frequency_fraction:.0%} "
-              f"frequency photons vs none: {pp / pp0 - 1:+.0%} "
-              f"(trace {acc['trace'] / acc['trace0'] - 1:+.0%}, "
-              f"gather {acc['gather'] / acc['gather0'] - 1:+.0%})")
+              f"frequency photons vs none, CPU time, all {a.passes} passes: {ppc / pp0 - 1:+.0%} "
+              f"(trace {acc['trace_cpu'] / acc['trace0'] - 1:+.0%}, "
+              f"gather {acc['gather_cpu'] / acc['gather0'] - 1:+.0%})")
         frequency_report(r, rb, r0, tm, a)
     total = sum(r.stage_seconds.values())
     print("stage shares of the whole render pass: "
