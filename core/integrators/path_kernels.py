@@ -1,0 +1,358 @@
+"""Compiled per-vertex work of the camera paths (numba), between two Embree calls.
+
+``core.integrators.path_tracer.PathTracer`` traces its paths as a wavefront;
+with ``compiled=True`` (the default, where :func:`compiled_scene_ok` holds)
+the work per vertex that dominated the numpy path is done by these kernels,
+the Embree calls (closest hits, shadow rays) staying in Python between them
+as in the photon tracer (core.sppm.photon_kernels):
+
+- next-event estimation: the light sample and the Lambert BSDF are
+  ``core.lights.direct_kernels.direct_kernel`` (the SPPM direct light's
+  kernel, unchanged), then :func:`nee_mis_kernel` weights each sample by the
+  power heuristic against BSDF sampling (``PathTracer.mis_light``);
+- the light-sampling density of a direction (``core.lights.pdf_direct``):
+  :func:`pdf_light` per sample, :func:`pdf_kernel` over arrays (the MIS
+  weight of emission found by BSDF-sampled rays);
+- the continuation (:func:`continue_kernel`): BSDF sampling with
+  ``core.materials.fast.sample_fast`` (its direction; the radiance-mode
+  weight is the lobe colour), throughput, Russian roulette, the spawn offset
+  of ``Accel.spawn`` and the compaction of the surviving paths.
+
+Scope (:func:`compiled_scene_ok`; otherwise the numpy path runs): materials
+Lambert-only, perfect mirror, smooth glass or emission-only (the photon fast
+path's classes), untextured, no Normal Map / Bump; lights as
+``direct_kernels.compiled_lights_ok`` (no environment map, no textured
+emissive triangles); no photon merging in COMBINED.  The emission found along
+rays (analytic emitters, the world, emissive triangles), the COMBINED
+ratios (``combined.CameraMIS``) and the shadow test stay numpy, on their rows.
+
+Precision: the same formulas as the numpy path in float64, but the Lambert f
+is (sum of colours)/pi against the per-lobe sum, products are grouped as
+``direct_kernel`` groups them, the Lambert sample density is N.wi/pi against
+the sampler's local z/pi, and numba's libm may differ from numpy's in the
+last bit (amplified near the spherical rectangle's degenerate ends, see
+``direct_kernels``); paths make the same random decisions, so images agree
+to ~1e-12 relative (tests/test_path_kernels.py).
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from ..lights.direct_kernels import (SPH_TRI_MIN, _entry_weight, _spherical_rect,
+                                     _spherical_tri)
+from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
+from ..materials.fast import ABSORBER, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
+
+_PI = np.pi
+_INV_PI = 1.0 / np.pi
+
+
+class LightPdf(NamedTuple):
+    """What :func:`pdf_light` reads besides ``DirectLights`` (Nl emitters):
+    entry (Nl,) int64 the selection entry of each emitter (the group's for
+    group triangles, -1: none); group_frac (Nl,) float64 its share of the
+    group (1 outside it); hittable (Nl,) bool a BSDF ray can find it;
+    vis_glossy, vis_trans (Nl,) bool its visibility to reflected /
+    transmitted rays."""
+    entry: np.ndarray
+    group_frac: np.ndarray
+    hittable: np.ndarray
+    vis_glossy: np.ndarray
+    vis_trans: np.ndarray
+
+
+class PathMaterials(NamedTuple):
+    """Per-material data of :func:`continue_kernel` (M materials): cls (M,)
+    int8 ``materials.fast`` class; ior (M,) float64; col (M, 3) float64 the
+    radiance-mode sample weight: the sum of the lobe colours (Lambert) or the
+    lobe's colour (mirror, glass); lum_col (M, 3) the photon fast path's
+    colour (its luminance gates a sample, as there)."""
+    cls: np.ndarray
+    ior: np.ndarray
+    col: np.ndarray
+    lum_col: np.ndarray
+
+
+class NextRays(NamedTuple):
+    """The paths that continue (rows 0..n-1 of cap rows, written by
+    :func:`continue_kernel`): src (cap,) int64 row of the vertex it left;
+    o, d (cap, 3) float64 origin (spawned) and unit direction; beta (cap, 3)
+    throughput; pdf (cap,) the sample's density (1 for a delta sample);
+    delta (cap,) bool; n_prev (cap, 3) the vertex's shading normal flipped to
+    wo's side; vis (cap,) int8 1 reflected, 2 transmitted."""
+    src: np.ndarray
+    o: np.ndarray
+    d: np.ndarray
+    beta: np.ndarray
+    pdf: np.ndarray
+    delta: np.ndarray
+    n_prev: np.ndarray
+    vis: np.ndarray
+
+
+def compiled_scene_ok(mtab, fmat, table, merging: bool) -> bool:
+    """Whether the kernels cover the scene (module docstring: scope)."""
+    from ..lights.direct_kernels import compiled_lights_ok
+    if merging or not compiled_lights_ok(table):
+        return False
+    if np.any(mtab.tex >= 0) or np.any(mtab.emission_tex >= 0):
+        return False
+    if mtab.alpha_tex is not None and np.any(mtab.alpha_tex >= 0):
+        return False
+    if mtab.bump_correction is not None and np.any(mtab.bump_correction):
+        return False
+    cls_ok = np.isin(fmat.cls, (LAMBERT, MIRROR, SMOOTH_GLASS, ABSORBER))
+    # Lambert here is the radiance-mode Lambert (lambert_only), not the photons' lambert_lobes.
+    lam_ok = (fmat.cls != LAMBERT) | np.asarray(mtab.lambert_only, bool)
+    return bool(np.all(cls_ok & lam_ok))
+
+
+def build_light_pdf(table, hittable) -> LightPdf:
+    n = table.kind.shape[0]
+    entry = np.full(n, -1, np.int64)
+    em = table.entry_emitter
+    entry[em[em >= 0]] = np.nonzero(em >= 0)[0]
+    frac = np.ones(n)
+    if table.group_tri is not None and table.group_tri.size:
+        entry[table.group_tri] = int(np.nonzero(em < 0)[0][0])
+        cdf = table.group_cdf
+        frac[table.group_tri] = np.diff(np.concatenate([[0.0], cdf])) / cdf[-1]
+    return LightPdf(entry=entry, group_frac=frac, hittable=np.asarray(hittable, bool).copy(),
+                    vis_glossy=np.asarray(table.visible_glossy, bool).copy(),
+                    vis_trans=np.asarray(table.visible_transmission, bool).copy())
+
+
+def build_path_materials(mtab, fmat, colors) -> PathMaterials:
+    """colors (M, L, 3): ``lobe_colors`` of each (untextured) material."""
+    M = fmat.cls.shape[0]
+    col = np.zeros((M, 3))
+    for m in range(M):
+        if fmat.cls[m] == LAMBERT:
+            col[m] = colors[m].sum(axis=0)           # sample_bsdf's colors.sum(axis=1)
+        elif fmat.cls[m] in (MIRROR, SMOOTH_GLASS):
+            # The single used lobe (materials.fast.build_fast_materials).
+            j = [i for i in range(mtab.kind.shape[1])
+                 if mtab.kind[m, i] >= 0 and mtab.weight[m, i] != 0.0][0]
+            col[m] = colors[m, j]
+    return PathMaterials(cls=np.ascontiguousarray(fmat.cls, np.int8),
+                         ior=np.ascontiguousarray(fmat.ior, np.float64), col=col,
+                         lum_col=np.ascontiguousarray(fmat.col, np.float64))
+
+
+# ----------------------------------------------------------------------------
+# The light-sampling density (core.lights.pdf.pdf_direct, one direction).
+
+@njit(cache=True, error_model="numpy")
+def _selection(L, Q, j, px, py, pz):
+    """pdf._selection_probability of emitter j at p: its entry's weight over
+    the sum (``direct_kernel``'s selection), times its share of the group."""
+    e_j = Q.entry[j]
+    if e_j < 0:
+        return 0.0
+    E = L.entry.shape[0]
+    G = L.group_cdf.shape[0]
+    tot = 0.0
+    we = 0.0
+    for e in range(E):
+        i = L.entry[e]
+        if i < 0:
+            d2 = (px - L.group[0]) ** 2 + (py - L.group[1]) ** 2 + (pz - L.group[2]) ** 2
+            w = L.group_cdf[G - 1] / (2.0 * _PI * (d2 + L.group[3]))
+        else:
+            w = _entry_weight(L, i, px, py, pz)
+        if not np.isfinite(w):
+            w = 0.0
+        tot += w
+        if e == e_j:
+            we = w
+    if not tot > 0:
+        return 0.0
+    return we / tot * Q.group_frac[j]
+
+
+@njit(cache=True, error_model="numpy")
+def pdf_light(L, Q, j, px, py, pz, wx, wy, wz, dist, nx, ny, nz):
+    """core.lights.pdf_direct of one direction: the solid-angle density with
+    which next-event estimation at p (receiver normal n, oriented) picks
+    emitter j (-1: 0) and the point p + dist w on it; 0 for delta emitters."""
+    if j < 0:
+        return 0.0
+    k = L.kind[j]
+    d2 = dist * dist
+    pdf = 0.0
+    if k == POINT or k == SPOT:
+        r = L.radius[j]
+        if r > 0:
+            dx, dy, dz = px - L.co[j, 0], py - L.co[j, 1], pz - L.co[j, 2]
+            d = np.sqrt(dx * dx + dy * dy + dz * dz)
+            if L.is_sphere[j]:
+                if d > r:
+                    sin2 = (r / max(d, 1e-300)) ** 2
+                    omc = sin2 / (1.0 + np.sqrt(max(1.0 - sin2, 0.0)))
+                else:
+                    omc = 2.0
+                pdf = 1.0 / (2.0 * _PI * max(omc, 1e-300))
+            else:
+                dm = max(d, 1e-300)
+                cosl = abs(wx * (dx / dm) + wy * (dy / dm) + wz * (dz / dm))
+                pdf = d2 / max(_PI * r * r * cosl, 1e-300)
+    elif k == SUN:
+        if L.half_angle[j] > 0:
+            pdf = 1.0 / (2.0 * _PI * max(1.0 - L.cos_half_angle[j], 1e-300))
+    elif k == WORLD:
+        pdf = max(nx * wx + ny * wy + nz * wz, 0.0) / _PI
+    elif k == AREA:
+        cosl = -(wx * L.dir[j, 0] + wy * L.dir[j, 1] + wz * L.dir[j, 2])
+        front = ((px - L.co[j, 0]) * L.dir[j, 0] + (py - L.co[j, 1]) * L.dir[j, 1]
+                 + (pz - L.co[j, 2]) * L.dir[j, 2]) > 0
+        if front:
+            if cosl > 0:
+                pdf = d2 / max(L.area[j] * max(cosl, 0.0), 1e-300)
+            if not L.ellipse[j]:
+                hu, hv = 0.5 * L.len_u[j], 0.5 * L.len_v[j]
+                sx = L.co[j, 0] - hu * L.axis_u[j, 0] - hv * L.axis_v[j, 0]
+                sy = L.co[j, 1] - hu * L.axis_u[j, 1] - hv * L.axis_v[j, 1]
+                sz = L.co[j, 2] - hu * L.axis_u[j, 2] - hv * L.axis_v[j, 2]
+                S = _spherical_rect(px, py, pz, sx, sy, sz, L.axis_u[j, 0], L.axis_u[j, 1],
+                                    L.axis_u[j, 2], L.len_u[j], L.axis_v[j, 0], L.axis_v[j, 1],
+                                    L.axis_v[j, 2], L.len_v[j], 0.5, 0.5)[3]
+                if S > 1e-6:
+                    pdf = 1.0 / max(S, 1e-300)
+    elif k == MESH:
+        p0x, p0y, p0z = L.co[j, 0], L.co[j, 1], L.co[j, 2]
+        e1x, e1y, e1z = L.axis_u[j, 0], L.axis_u[j, 1], L.axis_u[j, 2]
+        e2x, e2y, e2z = L.axis_v[j, 0], L.axis_v[j, 1], L.axis_v[j, 2]
+        omega = _spherical_tri(px, py, pz, p0x, p0y, p0z, p0x + e1x, p0y + e1y, p0z + e1z,
+                               p0x + e2x, p0y + e2y, p0z + e2z, 0.5, 0.5)[3]
+        if omega > SPH_TRI_MIN:
+            pdf = 1.0 / max(omega, 1e-300)
+        else:
+            cosl = abs(wx * L.dir[j, 0] + wy * L.dir[j, 1] + wz * L.dir[j, 2])
+            pdf = d2 / max(L.area[j] * cosl, 1e-300)
+    pdf *= _selection(L, Q, j, px, py, pz)
+    if not np.isfinite(pdf):
+        return 0.0
+    return pdf
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pdf_kernel(L, Q, p, wi, light, dist, n, out):
+    """out (K,) = :func:`pdf_light` of rows k of p, wi, n (K, 3), light, dist (K,)."""
+    for k in range(p.shape[0]):
+        out[k] = pdf_light(L, Q, light[k], p[k, 0], p[k, 1], p[k, 2], wi[k, 0], wi[k, 1],
+                           wi[k, 2], dist[k], n[k, 0], n[k, 1], n[k, 2])
+
+
+@njit(cache=True, inline="always")
+def _power(a, b):
+    """path_tracer.power_heuristic of one pair."""
+    a2, b2 = a * a, b * b
+    s = a2 + b2
+    return a2 / s if s > 0 else 1.0
+
+
+# ----------------------------------------------------------------------------
+# Next-event estimation's MIS weight and the continuation.
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def nee_mis_kernel(L, Q, p, ng, n_l, wo, S, w, live):
+    """For the light samples S (``direct_kernels.DirectSamples``, K rows) taken
+    at Lambert-only vertices p, ng, wo (K, 3) with receiver normals n_l (the
+    shading normal flipped to wo's side): live (K,) bool the sample adds
+    something (contrib > 0, finite); w (K,) its power-heuristic weight against
+    BSDF sampling where a BSDF ray along it would find the emitter, else 1
+    (``PathTracer.mis_light``)."""
+    for k in range(p.shape[0]):
+        c0, c1, c2 = S.contrib[k, 0], S.contrib[k, 1], S.contrib[k, 2]
+        ok = (np.isfinite(c0) and np.isfinite(c1) and np.isfinite(c2)
+              and (c0 > 0 or c1 > 0 or c2 > 0))
+        live[k] = ok
+        w[k] = 1.0
+        if not ok:
+            continue
+        j = S.light[k]
+        wx, wy, wz = S.wi[k, 0], S.wi[k, 1], S.wi[k, 2]
+        gw = ng[k, 0] * wx + ng[k, 1] * wy + ng[k, 2] * wz
+        go = ng[k, 0] * wo[k, 0] + ng[k, 1] * wo[k, 1] + ng[k, 2] * wo[k, 2]
+        kind = L.kind[j]
+        if not Q.hittable[j]:
+            continue
+        if kind != MESH and kind != WORLD:
+            if not (Q.vis_glossy[j] if gw * go > 0 else Q.vis_trans[j]):
+                continue
+        nx, ny, nz = n_l[k, 0], n_l[k, 1], n_l[k, 2]
+        pl = pdf_light(L, Q, j, p[k, 0], p[k, 1], p[k, 2], wx, wy, wz, S.dist[k], nx, ny, nz)
+        # Lambert: cos / pi about the normal on wo's side, 0 below the
+        # geometric surface (closures._lobe_pdf, the sampler's density).
+        sg = 1.0 if go >= 0.0 else -1.0
+        cn = nx * wx + ny * wy + nz * wz
+        pb = max(cn, 0.0) * _INV_PI if sg * gw > 0.0 else 0.0
+        w[k] = _power(pl, pb)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def continue_kernel(M, mat, p, ng, ns, wo, beta, u, roulette, rel, floor, nx):
+    """Sample the BSDF at the K vertices (mat (K,), p, ng, ns, wo, beta (K, 3),
+    u (K, 4): direction (0, 1), lobe / Fresnel (2), roulette (3)) as
+    ``sample_bsdf(subset='all', mode='radiance')`` does for the materials of
+    ``PathMaterials`` M, multiply the throughput, apply Russian roulette
+    (``roulette``: survival min(1, sqrt(max component))) and write the
+    survivors to the NextRays nx (origin from ``Accel.spawn``: offset
+    max(|p|_inf, floor) rel along ng to wi's side).  Returns their number."""
+    n = 0
+    for k in range(mat.shape[0]):
+        m = mat[k]
+        c = M.cls[m]
+        if c != LAMBERT and c != MIRROR and c != SMOOTH_GLASS:
+            continue
+        sx, sy, sz = ns[k, 0], ns[k, 1], ns[k, 2]
+        gx, gy, gz = ng[k, 0], ng[k, 1], ng[k, 2]
+        ox, oy, oz = wo[k, 0], wo[k, 1], wo[k, 2]
+        r = sample_fast(c, M.lum_col[m, 0], M.lum_col[m, 1], M.lum_col[m, 2], M.ior[m],
+                        sx, sy, sz, gx, gy, gz, ox, oy, oz, u[k, 0], u[k, 1], u[k, 2])
+        if not r[7]:
+            continue
+        wx, wy, wz, is_delta = r[0], r[1], r[2], r[6]
+        b0 = beta[k, 0] * M.col[m, 0]
+        b1 = beta[k, 1] * M.col[m, 1]
+        b2 = beta[k, 2] * M.col[m, 2]
+        if not (np.isfinite(b0) and np.isfinite(b1) and np.isfinite(b2)):
+            continue
+        bm = max(b0, b1, b2)
+        if not bm > 0:
+            continue
+        if roulette:
+            q = min(np.sqrt(bm), 1.0)
+            if not u[k, 3] < q:
+                continue
+            qq = max(q, 1e-300)
+            b0, b1, b2 = b0 / qq, b1 / qq, b2 / qq
+        go = gx * ox + gy * oy + gz * oz
+        gw = gx * wx + gy * wy + gz * wz
+        sg = 1.0 if go >= 0 else -1.0
+        if is_delta:
+            pdf = 1.0
+        else:
+            # Cosine sampling about the normal on wo's side.
+            pdf = (sg * (sx * wx + sy * wy + sz * wz)) * _INV_PI
+        px, py, pz = p[k, 0], p[k, 1], p[k, 2]
+        off = (1.0 if gw >= 0 else -1.0) * (max(max(abs(px), abs(py), abs(pz)), floor) * rel)
+        nx.src[n] = k
+        nx.o[n, 0], nx.o[n, 1], nx.o[n, 2] = px + gx * off, py + gy * off, pz + gz * off
+        nx.d[n, 0], nx.d[n, 1], nx.d[n, 2] = wx, wy, wz
+        nx.beta[n, 0], nx.beta[n, 1], nx.beta[n, 2] = b0, b1, b2
+        nx.pdf[n] = pdf
+        nx.delta[n] = is_delta
+        nx.n_prev[n, 0], nx.n_prev[n, 1], nx.n_prev[n, 2] = sx * sg, sy * sg, sz * sg
+        nx.vis[n] = 1 if gw * go > 0 else 2
+        n += 1
+    return n
+
+
+def alloc_next(K: int) -> NextRays:
+    return NextRays(src=np.empty(K, np.int64), o=np.empty((K, 3)), d=np.empty((K, 3)),
+                    beta=np.empty((K, 3)), pdf=np.empty(K), delta=np.empty(K, bool),
+                    n_prev=np.empty((K, 3)), vis=np.empty(K, np.int8))
