@@ -88,6 +88,28 @@ class CameraMIS:
             Q = np.where(is_delta, 0.0, Q)
         return Q, np.where(is_delta, 1.0, pdf)
 
+    def nee_compiled(self, w, v, wi, dist, light, depth, kern):
+        """:meth:`nee` for vertices in the scope of the path kernels
+        (``path_kernels.camera_nee_kernel``; kern: ``PathTracer.kernels()``)."""
+        from . import path_kernels as PK
+        if getattr(self, "_mis_lights", None) is None:
+            self._mis_lights = PK.build_mis_lights(self.t, self.cls)
+        w = np.array(w, np.float64)
+        c = np.ascontiguousarray
+        PK.camera_nee_kernel(kern[0], kern[1], self._mis_lights, depth == 0, c(v.Q), c(v.c),
+                             c(v.p), c(v.ng), c(v.ns), c(v.wo), c(wi), c(dist),
+                             c(light, np.int64), w)
+        return w
+
+    def continued_compiled(self, v, nx, depth):
+        """:meth:`continued` for the NextRays nx of ``path_kernels.continue_kernel``."""
+        from . import path_kernels as PK
+        Q = np.empty(nx.src.size)
+        c = np.ascontiguousarray
+        PK.camera_continued_kernel(depth == 0, nx.src, nx.delta, nx.d, c(v.ng), c(v.ns),
+                                   c(v.wo), c(v.Q), c(v.c), Q)
+        return Q, nx.pdf
+
     def _reverse(self, v, wo_light, depth):
         """(K,) pr at vertices v for light arriving along wo_light (1 at the first vertex)."""
         if depth == 0:

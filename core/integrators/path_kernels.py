@@ -45,6 +45,8 @@ from ..lights.direct_kernels import (SPH_TRI_MIN, _entry_weight, _spherical_rect
                                      _spherical_tri)
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..materials.fast import ABSORBER, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
+from .mis import FULL, SOFT
+from .mis_kernels import _lambert_pdf
 
 _PI = np.pi
 _INV_PI = 1.0 / np.pi
@@ -145,7 +147,7 @@ def build_path_materials(mtab, fmat, colors) -> PathMaterials:
 # ----------------------------------------------------------------------------
 # The light-sampling density (core.lights.pdf.pdf_direct, one direction).
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _selection(L, Q, j, px, py, pz):
     """pdf._selection_probability of emitter j at p: its entry's weight over
     the sum (``direct_kernel``'s selection), times its share of the group."""
@@ -173,7 +175,7 @@ def _selection(L, Q, j, px, py, pz):
     return we / tot * Q.group_frac[j]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def pdf_light(L, Q, j, px, py, pz, wx, wy, wz, dist, nx, ny, nz):
     """core.lights.pdf_direct of one direction: the solid-angle density with
     which next-event estimation at p (receiver normal n, oriented) picks
@@ -258,10 +260,10 @@ def _power(a, b):
 # Next-event estimation's MIS weight and the continuation.
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def nee_mis_kernel(L, Q, p, ng, n_l, wo, S, w, live):
+def nee_mis_kernel(L, Q, p, ng, ns, n_l, wo, S, w, live):
     """For the light samples S (``direct_kernels.DirectSamples``, K rows) taken
-    at Lambert-only vertices p, ng, wo (K, 3) with receiver normals n_l (the
-    shading normal flipped to wo's side): live (K,) bool the sample adds
+    at Lambert-only vertices p, ng, ns, wo (K, 3) with receiver normals n_l
+    (ns flipped to wo's side): live (K,) bool the sample adds
     something (contrib > 0, finite); w (K,) its power-heuristic weight against
     BSDF sampling where a BSDF ray along it would find the emitter, else 1
     (``PathTracer.mis_light``)."""
@@ -283,13 +285,10 @@ def nee_mis_kernel(L, Q, p, ng, n_l, wo, S, w, live):
         if kind != MESH and kind != WORLD:
             if not (Q.vis_glossy[j] if gw * go > 0 else Q.vis_trans[j]):
                 continue
-        nx, ny, nz = n_l[k, 0], n_l[k, 1], n_l[k, 2]
-        pl = pdf_light(L, Q, j, p[k, 0], p[k, 1], p[k, 2], wx, wy, wz, S.dist[k], nx, ny, nz)
-        # Lambert: cos / pi about the normal on wo's side, 0 below the
-        # geometric surface (closures._lobe_pdf, the sampler's density).
-        sg = 1.0 if go >= 0.0 else -1.0
-        cn = nx * wx + ny * wy + nz * wz
-        pb = max(cn, 0.0) * _INV_PI if sg * gw > 0.0 else 0.0
+        pl = pdf_light(L, Q, j, p[k, 0], p[k, 1], p[k, 2], wx, wy, wz, S.dist[k],
+                       n_l[k, 0], n_l[k, 1], n_l[k, 2])
+        pb = _lambert_pdf(ns[k, 0], ns[k, 1], ns[k, 2], ng[k, 0], ng[k, 1], ng[k, 2],
+                          wo[k, 0], wo[k, 1], wo[k, 2], wx, wy, wz)
         w[k] = _power(pl, pb)
 
 
@@ -333,11 +332,8 @@ def continue_kernel(M, mat, p, ng, ns, wo, beta, u, roulette, rel, floor, nx):
         go = gx * ox + gy * oy + gz * oz
         gw = gx * wx + gy * wy + gz * wz
         sg = 1.0 if go >= 0 else -1.0
-        if is_delta:
-            pdf = 1.0
-        else:
-            # Cosine sampling about the normal on wo's side.
-            pdf = (sg * (sx * wx + sy * wy + sz * wz)) * _INV_PI
+        # Cosine sampling (Lambert): the density of the direction drawn.
+        pdf = 1.0 if is_delta else _lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz)
         px, py, pz = p[k, 0], p[k, 1], p[k, 2]
         off = (1.0 if gw >= 0 else -1.0) * (max(max(abs(px), abs(py), abs(pz)), floor) * rel)
         nx.src[n] = k
@@ -356,3 +352,130 @@ def alloc_next(K: int) -> NextRays:
     return NextRays(src=np.empty(K, np.int64), o=np.empty((K, 3)), d=np.empty((K, 3)),
                     beta=np.empty((K, 3)), pdf=np.empty(K), delta=np.empty(K, bool),
                     n_prev=np.empty((K, 3)), vis=np.empty(K, np.int8))
+
+
+# ----------------------------------------------------------------------------
+# COMBINED: the light-tracing terms of the camera strategies' weights
+# (combined.CameraMIS.nee and .continued for the vertices in the kernels' scope:
+# their reverse density is the Lambert pdf, 1 at the first vertex).
+
+class MisLights(NamedTuple):
+    """The emitter data of the COMBINED ratios (Nl emitters): cls (Nl,) int8
+    ``mis.light_classes``; sel (Nl,) float64 ``mis.emit_select``; lin (Nl, 3, 3)
+    the spot's object matrix, det (Nl,) |det lin|."""
+    cls: np.ndarray
+    sel: np.ndarray
+    lin: np.ndarray
+    det: np.ndarray
+
+
+def build_mis_lights(table, cls) -> MisLights:
+    ps = np.asarray(table.p_select, np.float64)
+    lin = np.ascontiguousarray(np.asarray(table.lin, np.float64).reshape(-1, 3, 3))
+    return MisLights(cls=np.ascontiguousarray(cls, np.int8), sel=ps / ps.sum(), lin=lin,
+                     det=np.abs(np.linalg.det(lin)) if lin.shape[0] else np.zeros(0))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _fin(x):
+    return x if np.isfinite(x) else 0.0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _emit_pdf_dir(L, X, j, wx, wy, wz):
+    """mis.emit_pdf_dir of one direction w leaving emitter j."""
+    k = L.kind[j]
+    c = L.dir[j, 0] * wx + L.dir[j, 1] * wy + L.dir[j, 2] * wz
+    if k == AREA:
+        return max(c, 0.0) / _PI
+    if k == MESH:
+        return 0.5 * abs(c) / _PI
+    if k == POINT:
+        return 1.0 / (4.0 * _PI)
+    if k == SPOT:
+        M = L.lin_inv
+        vx = M[j, 0, 0] * wx + M[j, 0, 1] * wy + M[j, 0, 2] * wz
+        vy = M[j, 1, 0] * wx + M[j, 1, 1] * wy + M[j, 1, 2] * wz
+        vz = M[j, 2, 0] * wx + M[j, 2, 1] * wy + M[j, 2, 2] * wz
+        vn = np.sqrt(vx * vx + vy * vy + vz * vz)
+        vx, vy, vz = vx / vn, vy / vn, vz / vn
+        N = X.lin
+        mx = N[j, 0, 0] * vx + N[j, 0, 1] * vy + N[j, 0, 2] * vz
+        my = N[j, 1, 0] * vx + N[j, 1, 1] * vy + N[j, 1, 2] * vz
+        mz = N[j, 2, 0] * vx + N[j, 2, 1] * vy + N[j, 2, 2] * vz
+        Mv = np.sqrt(mx * mx + my * my + mz * mz)
+        cos_h = L.cos_half_spot[j]
+        if not -vz >= cos_h:
+            return 0.0
+        return Mv ** 3 / (X.det[j] * 2.0 * _PI * (1.0 - cos_h))
+    return 0.0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _point_emit_over_nee(L, Q, X, j, px, py, pz, wx, wy, wz, dist):
+    """mis.point_emit_over_nee of one sample (w = wi_out)."""
+    nee = _selection(L, Q, j, px, py, pz)
+    return (_emit_pdf_dir(L, X, j, wx, wy, wz) / (dist * dist) * X.sel[j]
+            / (nee if nee > 0 else np.inf))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def camera_nee_kernel(L, Q, X, first, Qv, cv, p, ng, ns, wo, wi, dist, light, w):
+    """combined.CameraMIS.nee at Lambert vertices (K rows: Qv, cv (K,) the
+    vertex's Q and c; p, ng, ns, wo, wi (K, 3); dist, light (K,)): w (K,),
+    the NEE-vs-PT weights, shrunk in place by the light-tracing ratio (FULL
+    emitters) or scaled by 1 / (1 + r^2) (SOFT).  first: vertex 0 (reverse
+    density 1)."""
+    for k in range(p.shape[0]):
+        j = light[k]
+        cl = X.cls[j]
+        if cl != FULL and cl != SOFT:
+            continue
+        px, py, pz = p[k, 0], p[k, 1], p[k, 2]
+        sx, sy, sz = ns[k, 0], ns[k, 1], ns[k, 2]
+        gx, gy, gz = ng[k, 0], ng[k, 1], ng[k, 2]
+        ox, oy, oz = wo[k, 0], wo[k, 1], wo[k, 2]
+        if cl == FULL:
+            wx, wy, wz = wi[k, 0], wi[k, 1], wi[k, 2]
+            kind = L.kind[j]
+            if kind == AREA or kind == MESH:
+                sg = 1.0 if gx * ox + gy * oy + gz * oz >= 0 else -1.0
+                pl = pdf_light(L, Q, j, px, py, pz, wx, wy, wz, dist[k], sx * sg, sy * sg,
+                               sz * sg)
+                cos_l = abs(wx * L.dir[j, 0] + wy * L.dir[j, 1] + wz * L.dir[j, 2])
+                den = pl * cos_l
+                pos = X.sel[j] / L.area[j]
+                T = _emit_pdf_dir(L, X, j, -wx, -wy, -wz) * pos / (den if den > 0 else np.inf)
+            else:
+                T = _point_emit_over_nee(L, Q, X, j, px, py, pz, -wx, -wy, -wz, dist[k])
+        else:
+            wx, wy, wz = L.co[j, 0] - px, L.co[j, 1] - py, L.co[j, 2] - pz
+            dc = np.sqrt(wx * wx + wy * wy + wz * wz)
+            dm = max(dc, 1e-300)
+            wx, wy, wz = wx / dm, wy / dm, wz / dm
+            T = _point_emit_over_nee(L, Q, X, j, px, py, pz, -wx, -wy, -wz, dc)
+        pr = 1.0 if first else _lambert_pdf(sx, sy, sz, gx, gy, gz, wx, wy, wz, ox, oy, oz)
+        r = _fin(Qv[k] * pr * abs(gx * wx + gy * wy + gz * wz) * T / cv[k])
+        if cl == FULL:
+            wk = w[k]
+            w[k] = _fin(wk / (1.0 + wk * r * r))
+        else:
+            w[k] *= 1.0 / (1.0 + r * r)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def camera_continued_kernel(first, src, delta, d, ng, ns, wo, Qv, cv, Q):
+    """combined.CameraMIS.continued for the NextRays (src, delta, d) left by
+    Lambert or delta vertices (ng, ns, wo, Qv, cv by vertex row): Q (n,) =
+    Q_v pr |ng.wi| / c_v, pr the reverse Lambert density (1 at the first
+    vertex or after a delta), 0 after a delta at the first vertex."""
+    for n in range(src.shape[0]):
+        k = src[n]
+        wx, wy, wz = d[n, 0], d[n, 1], d[n, 2]
+        gx, gy, gz = ng[k, 0], ng[k, 1], ng[k, 2]
+        pr = 1.0
+        if not first and not delta[n]:
+            pr = _lambert_pdf(ns[k, 0], ns[k, 1], ns[k, 2], gx, gy, gz, wx, wy, wz,
+                              wo[k, 0], wo[k, 1], wo[k, 2])
+        q = _fin(Qv[k] * pr * abs(gx * wx + gy * wy + gz * wz) / cv[k])
+        Q[n] = 0.0 if (first and delta[n]) else q

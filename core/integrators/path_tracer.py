@@ -271,8 +271,10 @@ class PathTracer:
                 out[path[e]] += beta[e] * Le * w[:, None]
             if depth > self.max_bounces:
                 break       # the last BSDF ray only collects emission
-            # Untextured in the kernels' scope: the colours are the material's.
-            colors = kern[3][mat] if kern else B.lobe_colors(mtab, mat, uv)
+            # Untextured in the kernels' scope: the colours are the material's
+            # (read by the numpy CameraMIS terms only).
+            colors = (B.lobe_colors(mtab, mat, uv) if not kern
+                      else kern[3][mat] if vc is not None else None)
             v = PathVertices(path=path[ih], p=p, ng=ng, ns=ns, wo=-d[ih], mat=mat,
                              colors=colors, beta=beta[ih])
             if vc is not None:
@@ -283,14 +285,15 @@ class PathTracer:
             nd = np.nonzero(mtab.has_nondelta[mat])[0]
             if nd.size:
                 ud = u[v.path[nd], 4:7] if depth == 0 else rng.random((nd.size, 3))
-                (self._direct_compiled if kern else self._direct)(v.take(nd), ud, out, depth)
+                vn = v if nd.size == ih.size else v.take(nd)
+                (self._direct_compiled if kern else self._direct)(vn, ud, out, depth)
             # Continue by sampling the BSDF (all lobes).
             ur = rng.random((ih.size, 4))
             if kern:
                 nx = self._continue_compiled(v, ur, depth >= self.rr_start)
                 c = nx.src
                 if vc is not None:
-                    Qs, pf = vc.continued(v, c, nx.d, nx.pdf, nx.delta, depth)
+                    Qs, pf = vc.continued_compiled(v, nx, depth)
                     vprev = v.take(c)
                 o, d, beta = nx.o, nx.d, nx.beta
                 tmax = np.full(c.size, np.inf)
@@ -385,17 +388,25 @@ class PathTracer:
         DK.direct_kernel(0, K, L, R, S)
         w = np.empty(K)
         live = np.empty(K, bool)
-        PK.nee_mis_kernel(L, Q, R.p, c(v.ng), n_l, c(v.wo), S, w, live)
+        PK.nee_mis_kernel(L, Q, R.p, c(v.ng), c(v.ns), n_l, c(v.wo), S, w, live)
         r = np.nonzero(live)[0]
-        if r.size:
-            self._add_direct(v.take(r), S.wi[r], S.dist[r], S.contrib[r], S.light[r],
-                             S.shadow[r], w[r], out, depth)
+        if r.size == 0:
+            return
+        if r.size < K:
+            v = v.take(r)
+        wi, dist, light, w = S.wi[r], S.dist[r], S.light[r], w[r]
+        if self.vc is not None:
+            w = self.vc.nee_compiled(w, v, wi, dist, light, depth, self.kernels())
+        self._add_direct(v, wi, dist, S.contrib[r], light, S.shadow[r], w, out, depth,
+                         camera_mis=False)
 
-    def _add_direct(self, v, wi, dist, contrib, light, shadow, w, out, depth) -> None:
+    def _add_direct(self, v, wi, dist, contrib, light, shadow, w, out, depth,
+                    camera_mis=True) -> None:
         """Adds the light samples (wi, dist, light, contrib = beta f |cos| weight,
         shadow: the light casts shadows) at vertices v with PT-vs-NEE weights
-        w to out[v.path]: the COMBINED and merging factors, the shadow test."""
-        if self.vc is not None:
+        w to out[v.path]: the COMBINED (unless camera_mis is False: applied
+        already) and merging factors, the shadow test."""
+        if self.vc is not None and camera_mis:
             w = self.vc.nee(w, v, wi, dist, light, depth)
         if v.m is not None:
             w = w * v.m
