@@ -88,9 +88,10 @@ class CameraMIS:
             Q = np.where(is_delta, 0.0, Q)
         return Q, np.where(is_delta, 1.0, pdf)
 
-    def nee_compiled(self, w, v, wi, dist, light, depth, kern):
+    def nee_compiled(self, w, v, wi, dist, light, pl, depth, kern):
         """:meth:`nee` for vertices in the scope of the path kernels
-        (``path_kernels.camera_nee_kernel``; kern: ``PathTracer.kernels()``)."""
+        (``path_kernels.camera_nee_kernel``; pl the samples' light-sampling
+        density; kern: ``PathTracer.kernels()``)."""
         from . import path_kernels as PK
         if getattr(self, "_mis_lights", None) is None:
             self._mis_lights = PK.build_mis_lights(self.t, self.cls)
@@ -98,7 +99,7 @@ class CameraMIS:
         c = np.ascontiguousarray
         PK.camera_nee_kernel(kern[0], kern[1], self._mis_lights, depth == 0, c(v.Q), c(v.c),
                              c(v.p), c(v.ng), c(v.ns), c(v.wo), c(wi), c(dist),
-                             c(light, np.int64), w)
+                             c(light, np.int64), c(pl), w)
         return w
 
     def continued_compiled(self, v, nx, depth):

@@ -260,23 +260,27 @@ def _power(a, b):
 # Next-event estimation's MIS weight and the continuation.
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def nee_mis_kernel(L, Q, p, ng, ns, n_l, wo, S, w, live):
+def nee_mis_kernel(L, Q, p, ng, ns, n_l, wo, S, w, live, pl):
     """For the light samples S (``direct_kernels.DirectSamples``, K rows) taken
     at Lambert-only vertices p, ng, ns, wo (K, 3) with receiver normals n_l
     (ns flipped to wo's side): live (K,) bool the sample adds
     something (contrib > 0, finite); w (K,) its power-heuristic weight against
     BSDF sampling where a BSDF ray along it would find the emitter, else 1
-    (``PathTracer.mis_light``)."""
+    (``PathTracer.mis_light``); pl (K,) its light-sampling density
+    (:func:`pdf_light`; the COMBINED ratios read it)."""
     for k in range(p.shape[0]):
         c0, c1, c2 = S.contrib[k, 0], S.contrib[k, 1], S.contrib[k, 2]
         ok = (np.isfinite(c0) and np.isfinite(c1) and np.isfinite(c2)
               and (c0 > 0 or c1 > 0 or c2 > 0))
         live[k] = ok
         w[k] = 1.0
+        pl[k] = 0.0
         if not ok:
             continue
         j = S.light[k]
         wx, wy, wz = S.wi[k, 0], S.wi[k, 1], S.wi[k, 2]
+        pl[k] = pdf_light(L, Q, j, p[k, 0], p[k, 1], p[k, 2], wx, wy, wz, S.dist[k],
+                          n_l[k, 0], n_l[k, 1], n_l[k, 2])
         gw = ng[k, 0] * wx + ng[k, 1] * wy + ng[k, 2] * wz
         go = ng[k, 0] * wo[k, 0] + ng[k, 1] * wo[k, 1] + ng[k, 2] * wo[k, 2]
         kind = L.kind[j]
@@ -285,11 +289,9 @@ def nee_mis_kernel(L, Q, p, ng, ns, n_l, wo, S, w, live):
         if kind != MESH and kind != WORLD:
             if not (Q.vis_glossy[j] if gw * go > 0 else Q.vis_trans[j]):
                 continue
-        pl = pdf_light(L, Q, j, p[k, 0], p[k, 1], p[k, 2], wx, wy, wz, S.dist[k],
-                       n_l[k, 0], n_l[k, 1], n_l[k, 2])
         pb = _lambert_pdf(ns[k, 0], ns[k, 1], ns[k, 2], ng[k, 0], ng[k, 1], ng[k, 2],
                           wo[k, 0], wo[k, 1], wo[k, 2], wx, wy, wz)
-        w[k] = _power(pl, pb)
+        w[k] = _power(pl[k], pb)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -420,9 +422,10 @@ def _point_emit_over_nee(L, Q, X, j, px, py, pz, wx, wy, wz, dist):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def camera_nee_kernel(L, Q, X, first, Qv, cv, p, ng, ns, wo, wi, dist, light, w):
+def camera_nee_kernel(L, Q, X, first, Qv, cv, p, ng, ns, wo, wi, dist, light, pl, w):
     """combined.CameraMIS.nee at Lambert vertices (K rows: Qv, cv (K,) the
-    vertex's Q and c; p, ng, ns, wo, wi (K, 3); dist, light (K,)): w (K,),
+    vertex's Q and c; p, ng, ns, wo, wi (K, 3); dist, light, pl (K,), pl the
+    light sample's density from :func:`nee_mis_kernel`): w (K,),
     the NEE-vs-PT weights, shrunk in place by the light-tracing ratio (FULL
     emitters) or scaled by 1 / (1 + r^2) (SOFT).  first: vertex 0 (reverse
     density 1)."""
@@ -439,11 +442,8 @@ def camera_nee_kernel(L, Q, X, first, Qv, cv, p, ng, ns, wo, wi, dist, light, w)
             wx, wy, wz = wi[k, 0], wi[k, 1], wi[k, 2]
             kind = L.kind[j]
             if kind == AREA or kind == MESH:
-                sg = 1.0 if gx * ox + gy * oy + gz * oz >= 0 else -1.0
-                pl = pdf_light(L, Q, j, px, py, pz, wx, wy, wz, dist[k], sx * sg, sy * sg,
-                               sz * sg)
                 cos_l = abs(wx * L.dir[j, 0] + wy * L.dir[j, 1] + wz * L.dir[j, 2])
-                den = pl * cos_l
+                den = pl[k] * cos_l
                 pos = X.sel[j] / L.area[j]
                 T = _emit_pdf_dir(L, X, j, -wx, -wy, -wz) * pos / (den if den > 0 else np.inf)
             else:

@@ -386,9 +386,9 @@ class PathTracer:
                          np.ones(K, bool), c(u, np.float64))
         S = DK.alloc_samples(K)
         DK.direct_kernel(0, K, L, R, S)
-        w = np.empty(K)
+        w, pl = np.empty(K), np.empty(K)
         live = np.empty(K, bool)
-        PK.nee_mis_kernel(L, Q, R.p, c(v.ng), c(v.ns), n_l, c(v.wo), S, w, live)
+        PK.nee_mis_kernel(L, Q, R.p, c(v.ng), c(v.ns), n_l, c(v.wo), S, w, live, pl)
         r = np.nonzero(live)[0]
         if r.size == 0:
             return
@@ -396,7 +396,7 @@ class PathTracer:
             v = v.take(r)
         wi, dist, light, w = S.wi[r], S.dist[r], S.light[r], w[r]
         if self.vc is not None:
-            w = self.vc.nee_compiled(w, v, wi, dist, light, depth, self.kernels())
+            w = self.vc.nee_compiled(w, v, wi, dist, light, pl[r], depth, self.kernels())
         self._add_direct(v, wi, dist, S.contrib[r], light, S.shadow[r], w, out, depth,
                          camera_mis=False)
 
