@@ -22,7 +22,7 @@ Scope (:func:`compiled_scene_ok`; otherwise the numpy path runs): materials
 Lambert-only, perfect mirror, smooth glass or emission-only (the photon fast
 path's classes), untextured, no Normal Map / Bump; lights as
 ``direct_kernels.compiled_lights_ok`` (no environment map, no textured
-emissive triangles); no photon merging in COMBINED.  The emission found along
+emissive triangles).  The emission found along
 rays (analytic emitters, the world, emissive triangles), the COMBINED
 ratios (``combined.CameraMIS``) and the shadow test stay numpy, on their rows.
 
@@ -95,10 +95,10 @@ class NextRays(NamedTuple):
     vis: np.ndarray
 
 
-def compiled_scene_ok(mtab, fmat, table, merging: bool) -> bool:
+def compiled_scene_ok(mtab, fmat, table) -> bool:
     """Whether the kernels cover the scene (module docstring: scope)."""
     from ..lights.direct_kernels import compiled_lights_ok
-    if merging or not compiled_lights_ok(table):
+    if not compiled_lights_ok(table):
         return False
     if np.any(mtab.tex >= 0) or np.any(mtab.emission_tex >= 0):
         return False

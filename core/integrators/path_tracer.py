@@ -173,9 +173,7 @@ class PathTracer:
             from ..lights import direct_kernels as DK
             from ..materials.fast import build_fast_materials
             fmat = build_fast_materials(self.mtab)
-            ok = PK.compiled_scene_ok(self.mtab, fmat, self.lights,
-                                      getattr(self.vc, "merging", False))
-            if ok:
+            if PK.compiled_scene_ok(self.mtab, fmat, self.lights):
                 M = self.mtab.kind.shape[0]
                 colors = B.lobe_colors(self.mtab, np.arange(M), np.zeros((M, 2)))
                 self._kernels = (DK.build_direct_lights(self.lights),
@@ -292,6 +290,10 @@ class PathTracer:
             if kern:
                 nx = self._continue_compiled(v, ur, depth >= self.rr_start)
                 c = nx.src
+                if part is not None:
+                    # part.sampled is per row: on the survivors only, as numpy's keep(c) after.
+                    part.keep(c)
+                    part.sampled(nx.delta)
                 if vc is not None:
                     Qs, pf = vc.continued_compiled(v, nx, depth)
                     vprev = v.take(c)
