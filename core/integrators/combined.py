@@ -88,18 +88,18 @@ class CameraMIS:
             Q = np.where(is_delta, 0.0, Q)
         return Q, np.where(is_delta, 1.0, pdf)
 
-    def nee_compiled(self, w, v, wi, dist, light, pl, depth, kern):
+    def nee_compiled(self, w, v, wi, dist, light, pl, sel, depth):
         """:meth:`nee` for vertices in the scope of the path kernels
-        (``path_kernels.camera_nee_kernel``; pl the samples' light-sampling
-        density; kern: ``PathTracer.kernels()``)."""
+        (``path_kernels.camera_nee_kernel``; pl, sel the samples'
+        light-sampling density and selection probability)."""
         from . import path_kernels as PK
         if getattr(self, "_mis_lights", None) is None:
             self._mis_lights = PK.build_mis_lights(self.t, self.cls)
         w = np.array(w, np.float64)
         c = np.ascontiguousarray
-        PK.camera_nee_kernel(kern[0], kern[1], self._mis_lights, depth == 0, c(v.Q), c(v.c),
-                             c(v.p), c(v.ng), c(v.ns), c(v.wo), c(wi), c(dist),
-                             c(light, np.int64), c(pl), w)
+        PK.camera_nee_kernel(self._mis_lights, depth == 0, c(v.Q), c(v.c), c(v.p),
+                             c(v.ng), c(v.ns), c(v.wo), c(wi), c(dist), c(light, np.int64),
+                             c(pl), c(sel), w)
         return w
 
     def continued_compiled(self, v, nx, depth):

@@ -11,8 +11,7 @@ as in the photon tracer (core.sppm.photon_kernels):
   kernel, unchanged), then :func:`nee_mis_kernel` weights each sample by the
   power heuristic against BSDF sampling (``PathTracer.mis_light``);
 - the light-sampling density of a direction (``core.lights.pdf_direct``):
-  :func:`pdf_light` per sample, :func:`pdf_kernel` over arrays (the MIS
-  weight of emission found by BSDF-sampled rays);
+  :func:`selection_kernel` and :func:`pdf_kernel` over arrays;
 - the continuation (:func:`continue_kernel`): BSDF sampling with
   ``core.materials.fast.sample_fast`` (its direction; the radiance-mode
   weight is the lobe colour), throughput, Russian roulette, the spawn offset
@@ -52,18 +51,44 @@ _PI = np.pi
 _INV_PI = 1.0 / np.pi
 
 
+
+class EntryLights(NamedTuple):
+    """The ``DirectLights`` fields ``direct_kernels._entry_weight`` reads (the
+    same arrays).  Every call of a numba function taking a tuple of arrays
+    pays the reference counting of each array (~11 ns, measured): the 25 of
+    DirectLights cost 270 ns per selection weight against 4 ns for the
+    formula of an area light; these 12, 140 ns."""
+    kind: np.ndarray
+    lum_flux: np.ndarray
+    lum_strength: np.ndarray
+    co: np.ndarray
+    radius: np.ndarray
+    lin_inv: np.ndarray
+    cos_half_spot: np.ndarray
+    spot_smooth: np.ndarray
+    dir: np.ndarray
+    area: np.ndarray
+    axis_u: np.ndarray
+    axis_v: np.ndarray
+
+
+def entry_lights(L) -> EntryLights:
+    return EntryLights(*(getattr(L, f) for f in EntryLights._fields))
+
+
 class LightPdf(NamedTuple):
-    """What :func:`pdf_light` reads besides ``DirectLights`` (Nl emitters):
+    """What :func:`pdf_kernel` reads besides ``DirectLights`` (Nl emitters):
     entry (Nl,) int64 the selection entry of each emitter (the group's for
     group triangles, -1: none); group_frac (Nl,) float64 its share of the
     group (1 outside it); hittable (Nl,) bool a BSDF ray can find it;
     vis_glossy, vis_trans (Nl,) bool its visibility to reflected /
-    transmitted rays."""
+    transmitted rays; E the :class:`EntryLights` of the same table."""
     entry: np.ndarray
     group_frac: np.ndarray
     hittable: np.ndarray
     vis_glossy: np.ndarray
     vis_trans: np.ndarray
+    E: EntryLights
 
 
 class PathMaterials(NamedTuple):
@@ -112,7 +137,8 @@ def compiled_scene_ok(mtab, fmat, table) -> bool:
     return bool(np.all(cls_ok & lam_ok))
 
 
-def build_light_pdf(table, hittable) -> LightPdf:
+def build_light_pdf(table, hittable, L) -> LightPdf:
+    """L: the table's ``DirectLights``."""
     n = table.kind.shape[0]
     entry = np.full(n, -1, np.int64)
     em = table.entry_emitter
@@ -124,7 +150,8 @@ def build_light_pdf(table, hittable) -> LightPdf:
         frac[table.group_tri] = np.diff(np.concatenate([[0.0], cdf])) / cdf[-1]
     return LightPdf(entry=entry, group_frac=frac, hittable=np.asarray(hittable, bool).copy(),
                     vis_glossy=np.asarray(table.visible_glossy, bool).copy(),
-                    vis_trans=np.asarray(table.visible_transmission, bool).copy())
+                    vis_trans=np.asarray(table.visible_transmission, bool).copy(),
+                    E=entry_lights(L))
 
 
 def build_path_materials(mtab, fmat, colors) -> PathMaterials:
@@ -147,105 +174,110 @@ def build_path_materials(mtab, fmat, colors) -> PathMaterials:
 # ----------------------------------------------------------------------------
 # The light-sampling density (core.lights.pdf.pdf_direct, one direction).
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _selection(L, Q, j, px, py, pz):
-    """pdf._selection_probability of emitter j at p: its entry's weight over
-    the sum (``direct_kernel``'s selection), times its share of the group."""
-    e_j = Q.entry[j]
-    if e_j < 0:
-        return 0.0
+@njit(cache=True, nogil=True, error_model="numpy")
+def selection_kernel(L, Q, p, light, out):
+    """out (K,) = pdf._selection_probability: the probability that next-event
+    estimation at p (K, 3) picks emitter light (K,) (-1: 0), its entry's
+    weight over the sum (``direct_kernel``'s selection) times its share of
+    the triangle group.  The per-row work of :func:`pdf_kernel` and of the
+    COMBINED ratios is written as loops over rows, not as per-row functions
+    taking the light tables (see :class:`EntryLights`)."""
     E = L.entry.shape[0]
     G = L.group_cdf.shape[0]
-    tot = 0.0
-    we = 0.0
-    for e in range(E):
-        i = L.entry[e]
-        if i < 0:
-            d2 = (px - L.group[0]) ** 2 + (py - L.group[1]) ** 2 + (pz - L.group[2]) ** 2
-            w = L.group_cdf[G - 1] / (2.0 * _PI * (d2 + L.group[3]))
-        else:
-            w = _entry_weight(L, i, px, py, pz)
-        if not np.isfinite(w):
-            w = 0.0
-        tot += w
-        if e == e_j:
-            we = w
-    if not tot > 0:
-        return 0.0
-    return we / tot * Q.group_frac[j]
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def pdf_light(L, Q, j, px, py, pz, wx, wy, wz, dist, nx, ny, nz):
-    """core.lights.pdf_direct of one direction: the solid-angle density with
-    which next-event estimation at p (receiver normal n, oriented) picks
-    emitter j (-1: 0) and the point p + dist w on it; 0 for delta emitters."""
-    if j < 0:
-        return 0.0
-    k = L.kind[j]
-    d2 = dist * dist
-    pdf = 0.0
-    if k == POINT or k == SPOT:
-        r = L.radius[j]
-        if r > 0:
-            dx, dy, dz = px - L.co[j, 0], py - L.co[j, 1], pz - L.co[j, 2]
-            d = np.sqrt(dx * dx + dy * dy + dz * dz)
-            if L.is_sphere[j]:
-                if d > r:
-                    sin2 = (r / max(d, 1e-300)) ** 2
-                    omc = sin2 / (1.0 + np.sqrt(max(1.0 - sin2, 0.0)))
-                else:
-                    omc = 2.0
-                pdf = 1.0 / (2.0 * _PI * max(omc, 1e-300))
+    for k in range(p.shape[0]):
+        j = light[k]
+        out[k] = 0.0
+        if j < 0:
+            continue
+        e_j = Q.entry[j]
+        if e_j < 0:
+            continue
+        px, py, pz = p[k, 0], p[k, 1], p[k, 2]
+        tot = 0.0
+        we = 0.0
+        for e in range(E):
+            i = L.entry[e]
+            if i < 0:
+                d2 = (px - L.group[0]) ** 2 + (py - L.group[1]) ** 2 + (pz - L.group[2]) ** 2
+                w = L.group_cdf[G - 1] / (2.0 * _PI * (d2 + L.group[3]))
             else:
-                dm = max(d, 1e-300)
-                cosl = abs(wx * (dx / dm) + wy * (dy / dm) + wz * (dz / dm))
-                pdf = d2 / max(_PI * r * r * cosl, 1e-300)
-    elif k == SUN:
-        if L.half_angle[j] > 0:
-            pdf = 1.0 / (2.0 * _PI * max(1.0 - L.cos_half_angle[j], 1e-300))
-    elif k == WORLD:
-        pdf = max(nx * wx + ny * wy + nz * wz, 0.0) / _PI
-    elif k == AREA:
-        cosl = -(wx * L.dir[j, 0] + wy * L.dir[j, 1] + wz * L.dir[j, 2])
-        front = ((px - L.co[j, 0]) * L.dir[j, 0] + (py - L.co[j, 1]) * L.dir[j, 1]
-                 + (pz - L.co[j, 2]) * L.dir[j, 2]) > 0
-        if front:
-            if cosl > 0:
-                pdf = d2 / max(L.area[j] * max(cosl, 0.0), 1e-300)
-            if not L.ellipse[j]:
-                hu, hv = 0.5 * L.len_u[j], 0.5 * L.len_v[j]
-                sx = L.co[j, 0] - hu * L.axis_u[j, 0] - hv * L.axis_v[j, 0]
-                sy = L.co[j, 1] - hu * L.axis_u[j, 1] - hv * L.axis_v[j, 1]
-                sz = L.co[j, 2] - hu * L.axis_u[j, 2] - hv * L.axis_v[j, 2]
-                S = _spherical_rect(px, py, pz, sx, sy, sz, L.axis_u[j, 0], L.axis_u[j, 1],
-                                    L.axis_u[j, 2], L.len_u[j], L.axis_v[j, 0], L.axis_v[j, 1],
-                                    L.axis_v[j, 2], L.len_v[j], 0.5, 0.5)[3]
-                if S > 1e-6:
-                    pdf = 1.0 / max(S, 1e-300)
-    elif k == MESH:
-        p0x, p0y, p0z = L.co[j, 0], L.co[j, 1], L.co[j, 2]
-        e1x, e1y, e1z = L.axis_u[j, 0], L.axis_u[j, 1], L.axis_u[j, 2]
-        e2x, e2y, e2z = L.axis_v[j, 0], L.axis_v[j, 1], L.axis_v[j, 2]
-        omega = _spherical_tri(px, py, pz, p0x, p0y, p0z, p0x + e1x, p0y + e1y, p0z + e1z,
-                               p0x + e2x, p0y + e2y, p0z + e2z, 0.5, 0.5)[3]
-        if omega > SPH_TRI_MIN:
-            pdf = 1.0 / max(omega, 1e-300)
-        else:
-            cosl = abs(wx * L.dir[j, 0] + wy * L.dir[j, 1] + wz * L.dir[j, 2])
-            pdf = d2 / max(L.area[j] * cosl, 1e-300)
-    pdf *= _selection(L, Q, j, px, py, pz)
-    if not np.isfinite(pdf):
-        return 0.0
-    return pdf
+                w = _entry_weight(Q.E, i, px, py, pz)
+            if not np.isfinite(w):
+                w = 0.0
+            tot += w
+            if e == e_j:
+                we = w
+        if tot > 0:
+            out[k] = we / tot * Q.group_frac[j]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def pdf_kernel(L, Q, p, wi, light, dist, n, out):
-    """out (K,) = :func:`pdf_light` of rows k of p, wi, n (K, 3), light, dist (K,)."""
+def pdf_kernel(L, Q, p, wi, light, dist, n, sel, out):
+    """out (K,) = core.lights.pdf_direct: the solid-angle density with which
+    next-event estimation at p (receiver normal n, oriented; p, wi, n (K, 3))
+    picks emitter light (K,) (-1: 0) and the point p + dist wi on it; 0 for
+    delta emitters.  sel (K,): :func:`selection_kernel` of the same rows."""
     for k in range(p.shape[0]):
-        out[k] = pdf_light(L, Q, light[k], p[k, 0], p[k, 1], p[k, 2], wi[k, 0], wi[k, 1],
-                           wi[k, 2], dist[k], n[k, 0], n[k, 1], n[k, 2])
+        j = light[k]
+        out[k] = 0.0
+        if j < 0:
+            continue
+        px, py, pz = p[k, 0], p[k, 1], p[k, 2]
+        wx, wy, wz = wi[k, 0], wi[k, 1], wi[k, 2]
+        kind = L.kind[j]
+        d2 = dist[k] * dist[k]
+        pdf = 0.0
+        if kind == POINT or kind == SPOT:
+            r = L.radius[j]
+            if r > 0:
+                dx, dy, dz = px - L.co[j, 0], py - L.co[j, 1], pz - L.co[j, 2]
+                d = np.sqrt(dx * dx + dy * dy + dz * dz)
+                if L.is_sphere[j]:
+                    if d > r:
+                        sin2 = (r / max(d, 1e-300)) ** 2
+                        omc = sin2 / (1.0 + np.sqrt(max(1.0 - sin2, 0.0)))
+                    else:
+                        omc = 2.0
+                    pdf = 1.0 / (2.0 * _PI * max(omc, 1e-300))
+                else:
+                    dm = max(d, 1e-300)
+                    cosl = abs(wx * (dx / dm) + wy * (dy / dm) + wz * (dz / dm))
+                    pdf = d2 / max(_PI * r * r * cosl, 1e-300)
+        elif kind == SUN:
+            if L.half_angle[j] > 0:
+                pdf = 1.0 / (2.0 * _PI * max(1.0 - L.cos_half_angle[j], 1e-300))
+        elif kind == WORLD:
+            pdf = max(n[k, 0] * wx + n[k, 1] * wy + n[k, 2] * wz, 0.0) / _PI
+        elif kind == AREA:
+            cosl = -(wx * L.dir[j, 0] + wy * L.dir[j, 1] + wz * L.dir[j, 2])
+            front = ((px - L.co[j, 0]) * L.dir[j, 0] + (py - L.co[j, 1]) * L.dir[j, 1]
+                     + (pz - L.co[j, 2]) * L.dir[j, 2]) > 0
+            if front:
+                if cosl > 0:
+                    pdf = d2 / max(L.area[j] * max(cosl, 0.0), 1e-300)
+                if not L.ellipse[j]:
+                    hu, hv = 0.5 * L.len_u[j], 0.5 * L.len_v[j]
+                    sx = L.co[j, 0] - hu * L.axis_u[j, 0] - hv * L.axis_v[j, 0]
+                    sy = L.co[j, 1] - hu * L.axis_u[j, 1] - hv * L.axis_v[j, 1]
+                    sz = L.co[j, 2] - hu * L.axis_u[j, 2] - hv * L.axis_v[j, 2]
+                    S = _spherical_rect(px, py, pz, sx, sy, sz, L.axis_u[j, 0], L.axis_u[j, 1],
+                                        L.axis_u[j, 2], L.len_u[j], L.axis_v[j, 0],
+                                        L.axis_v[j, 1], L.axis_v[j, 2], L.len_v[j], 0.5, 0.5)[3]
+                    if S > 1e-6:
+                        pdf = 1.0 / max(S, 1e-300)
+        elif kind == MESH:
+            p0x, p0y, p0z = L.co[j, 0], L.co[j, 1], L.co[j, 2]
+            e1x, e1y, e1z = L.axis_u[j, 0], L.axis_u[j, 1], L.axis_u[j, 2]
+            e2x, e2y, e2z = L.axis_v[j, 0], L.axis_v[j, 1], L.axis_v[j, 2]
+            omega = _spherical_tri(px, py, pz, p0x, p0y, p0z, p0x + e1x, p0y + e1y, p0z + e1z,
+                                   p0x + e2x, p0y + e2y, p0z + e2z, 0.5, 0.5)[3]
+            if omega > SPH_TRI_MIN:
+                pdf = 1.0 / max(omega, 1e-300)
+            else:
+                cosl = abs(wx * L.dir[j, 0] + wy * L.dir[j, 1] + wz * L.dir[j, 2])
+                pdf = d2 / max(L.area[j] * cosl, 1e-300)
+        pdf *= sel[k]
+        out[k] = pdf if np.isfinite(pdf) else 0.0
 
 
 @njit(cache=True, inline="always")
@@ -260,27 +292,27 @@ def _power(a, b):
 # Next-event estimation's MIS weight and the continuation.
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def nee_mis_kernel(L, Q, p, ng, ns, n_l, wo, S, w, live, pl):
+def nee_mis_kernel(L, Q, p, ng, ns, n_l, wo, S, w, live, pl, sel):
     """For the light samples S (``direct_kernels.DirectSamples``, K rows) taken
     at Lambert-only vertices p, ng, ns, wo (K, 3) with receiver normals n_l
     (ns flipped to wo's side): live (K,) bool the sample adds
     something (contrib > 0, finite); w (K,) its power-heuristic weight against
     BSDF sampling where a BSDF ray along it would find the emitter, else 1
-    (``PathTracer.mis_light``); pl (K,) its light-sampling density
-    (:func:`pdf_light`; the COMBINED ratios read it)."""
+    (``PathTracer.mis_light``); pl, sel (K,) its light-sampling density and
+    selection probability (:func:`pdf_kernel`, :func:`selection_kernel`;
+    the COMBINED ratios read them)."""
+    selection_kernel(L, Q, p, S.light, sel)
+    pdf_kernel(L, Q, p, S.wi, S.light, S.dist, n_l, sel, pl)
     for k in range(p.shape[0]):
         c0, c1, c2 = S.contrib[k, 0], S.contrib[k, 1], S.contrib[k, 2]
         ok = (np.isfinite(c0) and np.isfinite(c1) and np.isfinite(c2)
               and (c0 > 0 or c1 > 0 or c2 > 0))
         live[k] = ok
         w[k] = 1.0
-        pl[k] = 0.0
         if not ok:
             continue
         j = S.light[k]
         wx, wy, wz = S.wi[k, 0], S.wi[k, 1], S.wi[k, 2]
-        pl[k] = pdf_light(L, Q, j, p[k, 0], p[k, 1], p[k, 2], wx, wy, wz, S.dist[k],
-                          n_l[k, 0], n_l[k, 1], n_l[k, 2])
         gw = ng[k, 0] * wx + ng[k, 1] * wy + ng[k, 2] * wz
         go = ng[k, 0] * wo[k, 0] + ng[k, 1] * wo[k, 1] + ng[k, 2] * wo[k, 2]
         kind = L.kind[j]
@@ -362,19 +394,32 @@ def alloc_next(K: int) -> NextRays:
 # their reverse density is the Lambert pdf, 1 at the first vertex).
 
 class MisLights(NamedTuple):
-    """The emitter data of the COMBINED ratios (Nl emitters): cls (Nl,) int8
-    ``mis.light_classes``; sel (Nl,) float64 ``mis.emit_select``; lin (Nl, 3, 3)
-    the spot's object matrix, det (Nl,) |det lin|."""
+    """The emitter data of the COMBINED ratios (Nl emitters; few arrays, see
+    :class:`EntryLights`): cls (Nl,) int8 ``mis.light_classes``; sel (Nl,)
+    float64 ``mis.emit_select``; kind (Nl,) int8; co, dir (Nl, 3); area,
+    cos_half_spot (Nl,); lin, lin_inv (Nl, 3, 3) the spot's object matrix and
+    its inverse, det (Nl,) |det lin|."""
     cls: np.ndarray
     sel: np.ndarray
+    kind: np.ndarray
+    co: np.ndarray
+    dir: np.ndarray
+    area: np.ndarray
+    cos_half_spot: np.ndarray
     lin: np.ndarray
+    lin_inv: np.ndarray
     det: np.ndarray
 
 
 def build_mis_lights(table, cls) -> MisLights:
+    c = np.ascontiguousarray
     ps = np.asarray(table.p_select, np.float64)
-    lin = np.ascontiguousarray(np.asarray(table.lin, np.float64).reshape(-1, 3, 3))
-    return MisLights(cls=np.ascontiguousarray(cls, np.int8), sel=ps / ps.sum(), lin=lin,
+    lin = c(np.asarray(table.lin, np.float64).reshape(-1, 3, 3))
+    return MisLights(cls=c(cls, np.int8), sel=ps / ps.sum(), kind=c(table.kind, np.int8),
+                     co=c(table.co, np.float64), dir=c(table.dir, np.float64),
+                     area=c(table.area, np.float64),
+                     cos_half_spot=c(table.cos_half_spot, np.float64), lin=lin,
+                     lin_inv=c(np.asarray(table.lin_inv, np.float64).reshape(-1, 3, 3)),
                      det=np.abs(np.linalg.det(lin)) if lin.shape[0] else np.zeros(0))
 
 
@@ -384,10 +429,10 @@ def _fin(x):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _emit_pdf_dir(L, X, j, wx, wy, wz):
+def _emit_pdf_dir(X, j, wx, wy, wz):
     """mis.emit_pdf_dir of one direction w leaving emitter j."""
-    k = L.kind[j]
-    c = L.dir[j, 0] * wx + L.dir[j, 1] * wy + L.dir[j, 2] * wz
+    k = X.kind[j]
+    c = X.dir[j, 0] * wx + X.dir[j, 1] * wy + X.dir[j, 2] * wz
     if k == AREA:
         return max(c, 0.0) / _PI
     if k == MESH:
@@ -395,7 +440,7 @@ def _emit_pdf_dir(L, X, j, wx, wy, wz):
     if k == POINT:
         return 1.0 / (4.0 * _PI)
     if k == SPOT:
-        M = L.lin_inv
+        M = X.lin_inv
         vx = M[j, 0, 0] * wx + M[j, 0, 1] * wy + M[j, 0, 2] * wz
         vy = M[j, 1, 0] * wx + M[j, 1, 1] * wy + M[j, 1, 2] * wz
         vz = M[j, 2, 0] * wx + M[j, 2, 1] * wy + M[j, 2, 2] * wz
@@ -406,7 +451,7 @@ def _emit_pdf_dir(L, X, j, wx, wy, wz):
         my = N[j, 1, 0] * vx + N[j, 1, 1] * vy + N[j, 1, 2] * vz
         mz = N[j, 2, 0] * vx + N[j, 2, 1] * vy + N[j, 2, 2] * vz
         Mv = np.sqrt(mx * mx + my * my + mz * mz)
-        cos_h = L.cos_half_spot[j]
+        cos_h = X.cos_half_spot[j]
         if not -vz >= cos_h:
             return 0.0
         return Mv ** 3 / (X.det[j] * 2.0 * _PI * (1.0 - cos_h))
@@ -414,18 +459,19 @@ def _emit_pdf_dir(L, X, j, wx, wy, wz):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _point_emit_over_nee(L, Q, X, j, px, py, pz, wx, wy, wz, dist):
-    """mis.point_emit_over_nee of one sample (w = wi_out)."""
-    nee = _selection(L, Q, j, px, py, pz)
-    return (_emit_pdf_dir(L, X, j, wx, wy, wz) / (dist * dist) * X.sel[j]
+def _point_emit_over_nee(X, j, nee, wx, wy, wz, dist):
+    """mis.point_emit_over_nee of one sample (w = wi_out; nee the
+    next-event selection probability of j there)."""
+    return (_emit_pdf_dir(X, j, wx, wy, wz) / (dist * dist) * X.sel[j]
             / (nee if nee > 0 else np.inf))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def camera_nee_kernel(L, Q, X, first, Qv, cv, p, ng, ns, wo, wi, dist, light, pl, w):
+def camera_nee_kernel(X, first, Qv, cv, p, ng, ns, wo, wi, dist, light, pl, sel, w):
     """combined.CameraMIS.nee at Lambert vertices (K rows: Qv, cv (K,) the
-    vertex's Q and c; p, ng, ns, wo, wi (K, 3); dist, light, pl (K,), pl the
-    light sample's density from :func:`nee_mis_kernel`): w (K,),
+    vertex's Q and c; p, ng, ns, wo, wi (K, 3); dist, light, pl, sel (K,),
+    pl and sel the light sample's density and selection probability from
+    :func:`nee_mis_kernel`): w (K,),
     the NEE-vs-PT weights, shrunk in place by the light-tracing ratio (FULL
     emitters) or scaled by 1 / (1 + r^2) (SOFT).  first: vertex 0 (reverse
     density 1)."""
@@ -440,20 +486,20 @@ def camera_nee_kernel(L, Q, X, first, Qv, cv, p, ng, ns, wo, wi, dist, light, pl
         ox, oy, oz = wo[k, 0], wo[k, 1], wo[k, 2]
         if cl == FULL:
             wx, wy, wz = wi[k, 0], wi[k, 1], wi[k, 2]
-            kind = L.kind[j]
+            kind = X.kind[j]
             if kind == AREA or kind == MESH:
-                cos_l = abs(wx * L.dir[j, 0] + wy * L.dir[j, 1] + wz * L.dir[j, 2])
+                cos_l = abs(wx * X.dir[j, 0] + wy * X.dir[j, 1] + wz * X.dir[j, 2])
                 den = pl[k] * cos_l
-                pos = X.sel[j] / L.area[j]
-                T = _emit_pdf_dir(L, X, j, -wx, -wy, -wz) * pos / (den if den > 0 else np.inf)
+                pos = X.sel[j] / X.area[j]
+                T = _emit_pdf_dir(X, j, -wx, -wy, -wz) * pos / (den if den > 0 else np.inf)
             else:
-                T = _point_emit_over_nee(L, Q, X, j, px, py, pz, -wx, -wy, -wz, dist[k])
+                T = _point_emit_over_nee(X, j, sel[k], -wx, -wy, -wz, dist[k])
         else:
-            wx, wy, wz = L.co[j, 0] - px, L.co[j, 1] - py, L.co[j, 2] - pz
+            wx, wy, wz = X.co[j, 0] - px, X.co[j, 1] - py, X.co[j, 2] - pz
             dc = np.sqrt(wx * wx + wy * wy + wz * wz)
             dm = max(dc, 1e-300)
             wx, wy, wz = wx / dm, wy / dm, wz / dm
-            T = _point_emit_over_nee(L, Q, X, j, px, py, pz, -wx, -wy, -wz, dc)
+            T = _point_emit_over_nee(X, j, sel[k], -wx, -wy, -wz, dc)
         pr = 1.0 if first else _lambert_pdf(sx, sy, sz, gx, gy, gz, wx, wy, wz, ox, oy, oz)
         r = _fin(Qv[k] * pr * abs(gx * wx + gy * wy + gz * wz) * T / cv[k])
         if cl == FULL:

@@ -176,8 +176,8 @@ class PathTracer:
             if PK.compiled_scene_ok(self.mtab, fmat, self.lights):
                 M = self.mtab.kind.shape[0]
                 colors = B.lobe_colors(self.mtab, np.arange(M), np.zeros((M, 2)))
-                self._kernels = (DK.build_direct_lights(self.lights),
-                                 PK.build_light_pdf(self.lights, self.hittable),
+                L = DK.build_direct_lights(self.lights)
+                self._kernels = (L, PK.build_light_pdf(self.lights, self.hittable, L),
                                  PK.build_path_materials(self.mtab, fmat, colors), colors)
             else:
                 self._kernels = False
@@ -347,10 +347,13 @@ class PathTracer:
         kern = self.kernels()
         if not kern:
             return Lt.pdf_direct(self.lights, p, wi, light, dist, n=n)
-        out = np.empty(p.shape[0])
+        K = p.shape[0]
         c = np.ascontiguousarray
-        PK.pdf_kernel(kern[0], kern[1], c(p, np.float64), c(wi, np.float64),
-                      c(light, np.int64), c(dist, np.float64), c(n, np.float64), out)
+        p, light = c(p, np.float64), c(light, np.int64)
+        sel, out = np.empty(K), np.empty(K)
+        PK.selection_kernel(kern[0], kern[1], p, light, sel)
+        PK.pdf_kernel(kern[0], kern[1], p, c(wi, np.float64), light, c(dist, np.float64),
+                      c(n, np.float64), sel, out)
         return out
 
     def _direct(self, v: PathVertices, u, out, depth: int = 0) -> None:
@@ -388,9 +391,9 @@ class PathTracer:
                          np.ones(K, bool), c(u, np.float64))
         S = DK.alloc_samples(K)
         DK.direct_kernel(0, K, L, R, S)
-        w, pl = np.empty(K), np.empty(K)
+        w, pl, sel = np.empty(K), np.empty(K), np.empty(K)
         live = np.empty(K, bool)
-        PK.nee_mis_kernel(L, Q, R.p, c(v.ng), c(v.ns), n_l, c(v.wo), S, w, live, pl)
+        PK.nee_mis_kernel(L, Q, R.p, c(v.ng), c(v.ns), n_l, c(v.wo), S, w, live, pl, sel)
         r = np.nonzero(live)[0]
         if r.size == 0:
             return
@@ -398,7 +401,7 @@ class PathTracer:
             v = v.take(r)
         wi, dist, light, w = S.wi[r], S.dist[r], S.light[r], w[r]
         if self.vc is not None:
-            w = self.vc.nee_compiled(w, v, wi, dist, light, pl[r], depth, self.kernels())
+            w = self.vc.nee_compiled(w, v, wi, dist, light, pl[r], sel[r], depth)
         self._add_direct(v, wi, dist, S.contrib[r], light, S.shadow[r], w, out, depth,
                          camera_mis=False)
 
