@@ -6,6 +6,8 @@ the work per vertex that dominated the numpy path is done by these kernels,
 the Embree calls (closest hits, shadow rays) staying in Python between them
 as in the photon tracer (core.sppm.photon_kernels):
 
+- the shading point of each hit (:func:`hit_kernel`: ``accel.surface_point``
+  with the photon tracer's triangle data and shading normal);
 - next-event estimation: the light sample and the Lambert BSDF are
   ``core.lights.direct_kernels.direct_kernel`` (the SPPM direct light's
   kernel, unchanged), then :func:`nee_mis_kernel` weights each sample by the
@@ -19,7 +21,8 @@ as in the photon tracer (core.sppm.photon_kernels):
 
 Scope (:func:`compiled_scene_ok`; otherwise the numpy path runs): materials
 Lambert-only, perfect mirror, smooth glass or emission-only (the photon fast
-path's classes), untextured, no Normal Map / Bump; lights as
+path's classes), untextured, no Normal Map / Bump (nor a shading-normal
+spec attached to the mesh normals); lights as
 ``direct_kernels.compiled_lights_ok`` (no environment map, no textured
 emissive triangles).  The emission found along
 rays (analytic emitters, the world, emissive triangles), the COMBINED
@@ -44,6 +47,7 @@ from ..lights.direct_kernels import (SPH_TRI_MIN, _entry_weight, _spherical_rect
                                      _spherical_tri)
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..materials.fast import ABSORBER, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
+from ..sppm.photon_kernels import shading_normal
 from .mis import FULL, SOFT
 from .mis_kernels import _lambert_pdf
 
@@ -120,10 +124,11 @@ class NextRays(NamedTuple):
     vis: np.ndarray
 
 
-def compiled_scene_ok(mtab, fmat, table) -> bool:
+def compiled_scene_ok(mtab, fmat, table, tri_n) -> bool:
     """Whether the kernels cover the scene (module docstring: scope)."""
     from ..lights.direct_kernels import compiled_lights_ok
-    if not compiled_lights_ok(table):
+    from ..scene import normals
+    if not compiled_lights_ok(table) or normals.attached(tri_n) is not None:
         return False
     if np.any(mtab.tex >= 0) or np.any(mtab.emission_tex >= 0):
         return False
@@ -289,7 +294,23 @@ def _power(a, b):
 
 
 # ----------------------------------------------------------------------------
-# Next-event estimation's MIS weight and the continuation.
+# The shading points, next-event estimation's MIS weight and the continuation.
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def hit_kernel(T, prim, bu, bv, p, ng, ns):
+    """accel.surface_point of the hits prim (K,) at barycentrics bu, bv (K,)
+    float64 on the triangles T (``photon_kernels.TriangleData``): p, ng, ns
+    (K, 3), the same operations in the same order (bit for bit)."""
+    for k in range(prim.shape[0]):
+        t = prim[k]
+        uu, vv = bu[k], bv[k]
+        w0 = 1.0 - uu - vv
+        for c in range(3):
+            p[k, c] = w0 * T.p[t, 0, c] + uu * T.p[t, 1, c] + vv * T.p[t, 2, c]
+            ng[k, c] = T.ng[t, c]
+        ns[k, 0], ns[k, 1], ns[k, 2] = shading_normal(T.n, t, w0, uu, vv, T.ng[t, 0],
+                                                      T.ng[t, 1], T.ng[t, 2])
+
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def nee_mis_kernel(L, Q, p, ng, ns, n_l, wo, S, w, live, pl, sel):

@@ -162,7 +162,8 @@ class PathTracer:
                          | ((lt.kind == SUN) & (lt.half_angle > 0))
                          | (((lt.kind == POINT) | (lt.kind == SPOT)) & (lt.radius > 0)))
         self.compiled = compiled
-        self._kernels = None        # (DirectLights, LightPdf, PathMaterials, colors) or False
+        # (DirectLights, LightPdf, PathMaterials, colors, TriangleData) or False
+        self._kernels = None
 
     def kernels(self):
         """The kernels' view of the scene, None where they do not cover it
@@ -172,13 +173,15 @@ class PathTracer:
         if self._kernels is None:
             from ..lights import direct_kernels as DK
             from ..materials.fast import build_fast_materials
+            from ..sppm.photon_kernels import build_triangle_data
             fmat = build_fast_materials(self.mtab)
-            if PK.compiled_scene_ok(self.mtab, fmat, self.lights):
+            if PK.compiled_scene_ok(self.mtab, fmat, self.lights, self.scene.tri_n):
                 M = self.mtab.kind.shape[0]
                 colors = B.lobe_colors(self.mtab, np.arange(M), np.zeros((M, 2)))
                 L = DK.build_direct_lights(self.lights)
                 self._kernels = (L, PK.build_light_pdf(self.lights, self.hittable, L),
-                                 PK.build_path_materials(self.mtab, fmat, colors), colors)
+                                 PK.build_path_materials(self.mtab, fmat, colors), colors,
+                                 build_triangle_data(self.scene))
             else:
                 self._kernels = False
         return self._kernels or None
@@ -253,7 +256,13 @@ class PathTracer:
             if ih.size == 0:
                 break
             prim = h.prim[ih]
-            p, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, h.u[ih], h.v[ih])
+            if kern:
+                p, ng, ns = (np.empty((ih.size, 3)) for _ in range(3))
+                PK.hit_kernel(kern[4], prim, h.u[ih], h.v[ih], p, ng, ns)
+                uv = np.zeros((ih.size, 2))         # untextured in the kernels' scope
+            else:
+                p, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, h.u[ih],
+                                              h.v[ih])
             mat = s.tri_mat[prim]
             em = np.nonzero(mtab.emission[mat].max(axis=1) > 0)[0]
             if em.size:
@@ -383,7 +392,7 @@ class PathTracer:
         """_direct with the light sample, the Lambert f and the MIS weight in
         the kernels (every vertex here is Lambert-only: path_kernels' scope)."""
         from ..lights import direct_kernels as DK
-        L, Q, M, _ = self.kernels()
+        L, Q, M = self.kernels()[:3]
         K = v.path.size
         n_l = v.ns_wo()
         c = np.ascontiguousarray
