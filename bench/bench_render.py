@@ -411,7 +411,8 @@ def paths_report(a):
     camera_samples 4) with the numpy reference (``compiled=False``) and the
     kernels of core.integrators.path_kernels, interleaved, best of --repeat
     (the first round compiles / warms up); CPU time (the machine is shared),
-    and the paths per CPU second of each."""
+    and the paths per CPU second of each; for COMBINED also one light-tracing
+    pass of --photons light paths against the compiled camera paths."""
     print(f"camera paths, numpy reference vs compiled (Cornell box, camera_samples 4, "
           f"best of {a.repeat} interleaved, CPU time)")
     for res in a.stage_res:
@@ -431,9 +432,18 @@ def paths_report(a):
                     if rep:
                         best[compiled] = min(best.get(compiled, np.inf), c)
             paths = 4 * res * res
+            extra = ""
+            if r.combined_lt is not None:
+                # The other half of a COMBINED pass: its light paths.
+                c0 = time.process_time()
+                r.combined_lt.trace_pass(a.photons, np.random.default_rng(9))
+                extra = (f"; light tracing of {a.photons:,} light paths = "
+                         f"{(time.process_time() - c0) / best[True]:.1f}x the compiled "
+                         f"camera paths")
             print(f"  {res}^2 {integ}: numpy / compiled {best[False] / best[True]:.2f}x CPU "
                   f"(numpy {paths / best[False]:,.0f} paths per CPU s, compiled "
-                  f"{paths / best[True]:,.0f}; kernels used: {pt.kernels() is not None})")
+                  f"{paths / best[True]:,.0f}; kernels used: {pt.kernels() is not None})"
+                  + extra)
 
 
 def gather_report(a):
