@@ -17,16 +17,19 @@ as in the photon tracer (core.sppm.photon_kernels):
 - the continuation (:func:`continue_kernel`): BSDF sampling with
   ``core.materials.fast.sample_fast`` (its direction; the radiance-mode
   weight is the lobe colour), throughput, Russian roulette, the spawn offset
-  of ``Accel.spawn`` and the compaction of the surviving paths.
+  of ``Accel.spawn`` and the compaction of the surviving paths;
+- COMBINED: the light-tracing ratios of ``combined.CameraMIS.nee`` and
+  ``.continued`` (:func:`camera_nee_kernel`, :func:`camera_continued_kernel`).
 
 Scope (:func:`compiled_scene_ok`; otherwise the numpy path runs): materials
 Lambert-only, perfect mirror, smooth glass or emission-only (the photon fast
 path's classes), untextured, no Normal Map / Bump (nor a shading-normal
 spec attached to the mesh normals); lights as
 ``direct_kernels.compiled_lights_ok`` (no environment map, no textured
-emissive triangles).  The emission found along
-rays (analytic emitters, the world, emissive triangles), the COMBINED
-ratios (``combined.CameraMIS``) and the shadow test stay numpy, on their rows.
+emissive triangles).  Photon merging's partition (core.integrators.merge)
+is applied by the caller.  The emission found along rays (analytic emitters,
+the world, emissive triangles) with its MIS and COMBINED weights, and the
+shadow test, stay numpy, on their rows.
 
 Precision: the same formulas as the numpy path in float64, but the Lambert f
 is (sum of colours)/pi against the per-lobe sum, products are grouped as
@@ -34,7 +37,7 @@ is (sum of colours)/pi against the per-lobe sum, products are grouped as
 the sampler's local z/pi, and numba's libm may differ from numpy's in the
 last bit (amplified near the spherical rectangle's degenerate ends, see
 ``direct_kernels``); paths make the same random decisions, so images agree
-to ~1e-12 relative (tests/test_path_kernels.py).
+to ~1e-14 relative (tests/test_path_kernels.py).
 """
 from __future__ import annotations
 
