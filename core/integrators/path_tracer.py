@@ -317,7 +317,9 @@ class PathTracer:
         if v.m is not None:
             w = w * v.m
         mesh = lt.kind[light] == MESH
-        tr = self.nee.transmittance(v.p, v.ng, wi, dist, mesh, shadow)   # (K, 3)
+        # Transparent shadows for the lights BSDF rays cannot hit: a BSDF ray
+        # reaching the others through a transparent (delta) crossing has weight 1.
+        tr = self.nee.transmittance(v.p, v.ng, wi, dist, mesh, shadow, ~self.hittable[light])
         keep = tr.max(axis=1) > 0
         out[v.path[keep]] += contrib[keep] * tr[keep] * w[keep, None]     # one vertex per path
 

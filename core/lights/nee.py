@@ -185,18 +185,20 @@ class NextEventEstimation:
                                                    np.zeros(q.size, bool)))
         return L
 
-    def transmittance(self, p, ng, wi, dist, mesh, cast_shadow=None) -> np.ndarray:
+    def transmittance(self, p, ng, wi, dist, mesh, cast_shadow=None, through=None) -> np.ndarray:
         """(K, 3) float64 light let through by the shadow rays of ``_blocked``
         (same arguments; cast_shadow (K,) bool, False: the light casts no
         shadow, 1): 0 or 1 in scenes without transparent materials (one
         occlusion test), else the product of the pass-through weights of the
         transparent surfaces crossed (core.lights.shadow, Cycles'
-        transparent shadows)."""
+        transparent shadows).  through (K,) bool or None (all): the rows
+        whose light is not also found by another strategy through the
+        transparent surfaces; on the others any surface blocks."""
         blocked = self._blocked(p, ng, wi, dist, mesh)
         if cast_shadow is not None:
             blocked &= cast_shadow
         T = np.repeat((~blocked)[:, None].astype(np.float64), 3, axis=1)
-        b = np.nonzero(blocked)[0]
+        b = np.nonzero(blocked if through is None else blocked & through)[0]
         if b.size and shadow.attached(self.accel) is not None:
             T[b] = self._followed(p[b], ng[b], wi[b], dist[b], mesh[b])
         return T
