@@ -8,7 +8,9 @@ emitter and the point on it), weighted by the BSDF (core.materials.closures) and
 the shading cosine, then a shadow ray: analytic lights are not geometry, so
 any hit before them occludes (with a retry that discards float32 self-hits at
 grazing incidence); emissive triangles are geometry, so the emitter's own hit
-does not occlude.  Photons then carry only indirect light (core.sppm.photons
+does not occlude.  In scenes with Transparent lobes (the plan's "transparent
+shadows") the rays that test blocks are followed through transparent
+surfaces (core.lights.shadow: Cycles' transparent shadows).  Photons then carry only indirect light (core.sppm.photons
 stores from the second bounce on) unless ``photons_for_direct`` is set, in
 which case the renderer does not call this stage.
 """
