@@ -82,6 +82,26 @@ def test_an_emissive_end_is_not_its_own_blocker():
     assert shadow.transmittance(acc, o, d, [1.0], emitter=[False]).max() == 0.0
 
 
+def test_a_wall_standing_on_the_floor_still_blocks_next_to_it():
+    """Float32 self-hits are stepped over only on planes parallel to the
+    surface left: a receiver 0.02 mm from a 2 m wall (closer than the wall's
+    self-hit plane tolerance, 8 REL_OFFSET x 2 m = 0.06 mm) stays in its
+    shadow."""
+    tris = quad((0, 0, 0), (10, 0, 0), (0, 10, 0))
+    tris += quad((0, 0, 1), (0, 0, 1), (0, 1, 0))                         # wall x = 0
+    tris += quad((-2, 0, 3), (0.5, 0, 0), (0, 0.5, 0))                    # a clear sheet
+    mats = [Material("opaque"), Material("clear", (Lobe(TRANSPARENT, (1, 1, 1)),))]
+    sc = make_scene(np.asarray(tris, np.float32), mats, [], Camera(), tri_mat=[0, 0, 0, 0, 1, 1])
+    acc = Accel(sc.tri_p, 20.0)
+    assert shadow.attach(acc, sc, build_material_table(sc.materials, sc.textures))
+    up = np.array([[0.0, 0.0, 1.0]])
+    p = np.array([[-2e-5, 0.3, 0.0]])
+    d = np.array([[1.0, 0.0, 1.0]]) / np.sqrt(2)
+    o = acc.spawn(p, up, d)
+    assert shadow.self_hit(acc.tri_p, np.array([2]), o)[0][0]       # the plane test alone
+    assert shadow.transmittance(acc, o, d, [5.0], n0=up).max() == 0.0
+
+
 # ------------------------------------------------------------------ against Cycles
 
 def _checker_alpha(n=8):

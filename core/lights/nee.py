@@ -209,7 +209,7 @@ class NextEventEstimation:
         """(K, 3) ``shadow.transmittance`` of shadow rays that the opaque test
         found blocked: their first hit may be a transparent surface."""
         return shadow.transmittance(self.accel, self.accel.spawn(p, ng, wi), wi, dist,
-                                    emitter=mesh)
+                                    emitter=mesh, n0=ng)
 
     def _blocked(self, p, ng, wi, dist, mesh) -> np.ndarray:
         """(K,) bool: the shadow ray from p (K, 3) towards wi over dist is

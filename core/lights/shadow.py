@@ -109,7 +109,8 @@ def pass_through(sm: ShadowMaterials, prim: np.ndarray, u: np.ndarray, v: np.nda
     return out
 
 
-def transmittance(accel, o: np.ndarray, d: np.ndarray, t_max, emitter=None) -> np.ndarray:
+def transmittance(accel, o: np.ndarray, d: np.ndarray, t_max, emitter=None,
+                  n0=None) -> np.ndarray:
     """(K, 3) float64: the light let through along the segments o + t d,
     t in (0, t_max) (o, d (K, 3); t_max (K,) or a scalar, np.inf allowed):
     0 where an opaque surface lies on the segment, else the product of the
@@ -119,8 +120,12 @@ def transmittance(accel, o: np.ndarray, d: np.ndarray, t_max, emitter=None) -> n
     (geometry): a hit within Embree's float32 tolerance of the end, about
     offset / |cos| at grazing angles, is that emitter and ends the segment
     unblocked (``NextEventEstimation._blocked``'s rule).  o must already be
-    off the surface it leaves (``Accel.spawn``); a later hit on a plane
-    through the current origin is a float32 self-hit and is stepped over.
+    off the surface it leaves (``Accel.spawn``).  n0 (K, 3) or None: the
+    unit geometric normals of the surfaces the segments leave.  A hit on a
+    plane parallel to the surface last left (n0, then each crossed one) and
+    passing through the current origin is a float32 self-hit (see
+    :func:`self_hit`) and is stepped over; an occluder standing on the
+    surface (a wall on a floor) is not parallel to it and still blocks.
     """
     o = np.asarray(o, np.float64)
     K = o.shape[0]
@@ -136,6 +141,7 @@ def transmittance(accel, o: np.ndarray, d: np.ndarray, t_max, emitter=None) -> n
     cur, t_rem = o.copy(), t_max.astype(np.float64).copy()
     live = np.arange(K)
     crossings = np.zeros(K, np.int64)
+    n_prev = np.zeros((K, 3)) if n0 is None else np.array(n0, np.float64)
     tri_p = accel.tri_p
     # Each step crosses one surface or steps over one self-hit per ray; the
     # bound only guards against a ray that never leaves a surface.
@@ -156,10 +162,11 @@ def transmittance(accel, o: np.ndarray, d: np.ndarray, t_max, emitter=None) -> n
         if not hit.any():
             break
         live, hi = live[hit], np.nonzero(hit)[0]
-        prim, u, v, t = h.prim[hi], h.u[hi], h.v[hi], h.t[hi]
+        prim, u, v = h.prim[hi], h.u[hi], h.v[hi]
         sh, eps = self_hit(tri_p, prim, cur[live])
-        p = _surface(tri_p, prim, u, v)
         n = unit_normals(tri_p, prim)
+        sh &= np.abs(_dot(n, n_prev[live])) > 1.0 - 1e-6
+        p = _surface(tri_p, prim, u, v)
         # Crossed surfaces (not self-hits) weigh in; opaque ones give 0.
         c = np.nonzero(~sh)[0]
         if c.size:
@@ -175,6 +182,7 @@ def transmittance(accel, o: np.ndarray, d: np.ndarray, t_max, emitter=None) -> n
         dd = np.einsum("ij,ij->i", d[live], d[live])
         t_rem[live] -= _dot(new - cur[live], d[live]) / dd
         cur[live] = new
+        n_prev[live] = n
         go = (T[live].max(axis=1) > 0) & (t_rem[live] > 0)
         live = live[go]
     else:
