@@ -270,7 +270,7 @@ class LightTracer:
         pc_depth = -((p[idx] - cam.origin) @ cam.R[:, 2])
         t_max = pr.dist[idx] * (pc_depth - cam.cam.clip_start) / np.maximum(pc_depth, 1e-300)
         o = self.accel.spawn(p[idx], ng[idx], wc)
-        tr = transmittance(self.accel, o, wc, t_max)
+        tr = transmittance(self.accel, o, wc, t_max, n0=ng[idx])
         lit = tr.max(axis=1) > 0
         return pr, idx[lit], tr[lit]
 

@@ -10,9 +10,11 @@ any hit before them occludes (with a retry that discards float32 self-hits at
 grazing incidence); emissive triangles are geometry, so the emitter's own hit
 does not occlude.  In scenes with Transparent lobes (the plan's "transparent
 shadows") the rays that test blocks are followed through transparent
-surfaces (core.lights.shadow: Cycles' transparent shadows).  Photons then carry only indirect light (core.sppm.photons
-stores from the second bounce on) unless ``photons_for_direct`` is set, in
-which case the renderer does not call this stage.
+surfaces (core.lights.shadow: Cycles' transparent shadows).  Photons then
+carry only indirect light (core.sppm.photons stores from the second bounce
+on, and not the light that crossed only transparent surfaces) unless
+``photons_for_direct`` is set, in which case the renderer does not call this
+stage.
 """
 from __future__ import annotations
 
