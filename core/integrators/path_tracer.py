@@ -317,9 +317,11 @@ class PathTracer:
         if v.m is not None:
             w = w * v.m
         mesh = lt.kind[light] == MESH
-        blocked = self.nee._blocked(v.p, v.ng, wi, dist, mesh) & shadow
-        keep = ~blocked
-        out[v.path[keep]] += contrib[keep] * w[keep, None]     # one vertex per path
+        # Transparent shadows for the lights BSDF rays cannot hit: a BSDF ray
+        # reaching the others through a transparent (delta) crossing has weight 1.
+        tr = self.nee.transmittance(v.p, v.ng, wi, dist, mesh, shadow, ~self.hittable[light])
+        keep = tr.max(axis=1) > 0
+        out[v.path[keep]] += contrib[keep] * tr[keep] * w[keep, None]     # one vertex per path
 
     def mis_light(self, v: PathVertices, wi, dist, light, n_l=None) -> np.ndarray:
         """(K,) power-heuristic weight of the light samples (wi, dist, light) (K,)
