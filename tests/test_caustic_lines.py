@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from core.frequency import spectrum as F
-from core.frequency.curvature import principal_curvature, scene_curvature
+from core.frequency.curvature import principal_curvature, principal_frame, scene_curvature
 
 RING = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                     "example_blends", "ring_lambert.blend")
@@ -128,3 +128,18 @@ def test_predicted_radius_on_the_caustic_line_under_a_1m_light(monkeypatch):
     ratio_s = np.median(rp[smooth] / R[smooth])
     assert ratio_c < 0.5
     assert ratio_s > 1.2
+
+
+def test_principal_frame_of_a_cylinder():
+    """Both principal curvatures and the first direction: on the ring's
+    cylinder k1 = 1/R across the axis (e1 horizontal, normal to the axis), k2 = 0
+    along it; on a sphere k1 = k2 = 1/R."""
+    P, N = _cylinder(0.5, 0.3, 48)
+    cv = principal_frame(P, N)
+    assert np.allclose(cv.k1, 2.0, rtol=1e-4) and np.allclose(cv.k2, 0.0, atol=1e-6)
+    assert np.allclose(np.abs(cv.e1[:, 2]), 0.0, atol=1e-6)        # perpendicular to the axis z
+    assert np.allclose(np.linalg.norm(cv.e1, axis=1), 1.0)
+    radial = P.mean(axis=1) * [1, 1, 0]
+    assert np.allclose(np.einsum("ij,ij->i", cv.e1, radial), 0.0, atol=0.02)
+    sp = principal_frame(*_sphere_patch(2.0))
+    assert np.allclose(sp.k1, 0.5, rtol=1e-3) and np.allclose(sp.k2, 0.5, rtol=1e-3)

@@ -332,15 +332,16 @@ def interface(s, scale, mu, k, model="CORRECTED", A_MAX=A_MAX_DEFAULT):
     return sanitize(_stack(a1 * f, b1 * f, c1 * f), A_MAX)
 
 
-def interface_map(cos_i, cos_t, eta, kappa_t, kappa_s, reflect):
+def interface_map(cos_i, cos_t, eta, kappa_t, kappa_s, tau, reflect):
     """(scale, mu, k) of :func:`interface` at a delta bounce, each (N,) float64.
 
     cos_i, cos_t: |cos| of the incident and the leaving ray to the normal
     (clamped to [1e-3, 1]); eta = n_i / n_t (refraction; ignored when
     reflect); kappa_t, kappa_s [1/m]: the normal curvatures of the surface
     along the plane of incidence (tangential) and across it (sagittal),
-    > 0 convex seen from the incident side; reflect: (N,) bool, a mirror
-    reflection (else a refraction).
+    > 0 convex seen from the incident side; tau [1/m] the twist (the
+    off-diagonal of the shape operator in those axes; its sign does not
+    matter); reflect: (N,) bool, a mirror reflection (else a refraction).
 
     Linearised Snell (n_i cos_i dtheta_i = n_t cos_t dtheta_t, angles taken
     from the local normal, which tilts by kappa u) gives, per axis
@@ -354,27 +355,32 @@ def interface_map(cos_i, cos_t, eta, kappa_t, kappa_s, reflect):
     - a mirror: the same with eta = -1, cos_t = cos_i, in the reflected
       rot90 frame: tangential (1, 1, 2 kappa_t), sagittal (1, 1, 2 kappa_s cos_i^2).
 
-    Flatland keeps one axis: the one that focuses more, the smaller signed
-    power (theta' per unit of the outgoing beam's x): g kappa_t / cos_t^2 or
-    g kappa_s (mirror: 2 kappa_t / cos_i or 2 kappa_s cos_i); ties go
-    tangential.
+    In the outgoing beam's units the bend is the symmetric power matrix
+    [[g kappa_t / cos_t^2, g tau / cos_t], [., g kappa_s]] (mirror:
+    [[2 kappa_t / cos_i, 2 tau], [., 2 kappa_s cos_i]]).  Flatland keeps
+    one axis: its most focusing eigenvalue p (the smaller, signed), with the
+    scale and mu of the axis its eigenvector is closer to (the one with the
+    smaller diagonal power; ties tangential), and k = p cos_t (tangential)
+    or p cos_i (sagittal).  Without twist p is that axis' own power; on a
+    cylinder lit obliquely (rank-1 shape operator) p is the sum of both.
     """
     ci = np.clip(np.abs(np.nan_to_num(_f64(cos_i), nan=1.0)), COS_MIN, 1.0)
     ct = np.clip(np.abs(np.nan_to_num(_f64(cos_t), nan=1.0)), COS_MIN, 1.0)
-    kt = np.nan_to_num(_f64(kappa_t), nan=0.0, posinf=0.0, neginf=0.0)
-    ks = np.nan_to_num(_f64(kappa_s), nan=0.0, posinf=0.0, neginf=0.0)
+    kt, ks, tw = (np.nan_to_num(_f64(v), nan=0.0, posinf=0.0, neginf=0.0)
+                  for v in (kappa_t, kappa_s, tau))
     rf = np.asarray(reflect, bool)
-    ci, ct, eta, kt, ks, rf = np.broadcast_arrays(ci, ct, np.nan_to_num(_f64(eta), nan=1.0),
-                                                  kt, ks, rf)
+    ci, ct, eta, kt, ks, tw, rf = np.broadcast_arrays(
+        ci, ct, np.nan_to_num(_f64(eta), nan=1.0), kt, ks, tw, rf)
     ct = np.where(rf, ci, ct)
     g = np.where(rf, -2.0 * ci, eta * ci - ct)
     p_t = np.where(rf, 2.0 * kt / ci, g * kt / (ct * ct))
     p_s = np.where(rf, 2.0 * ks * ci, g * ks)
+    p_x = np.where(rf, 2.0 * tw, g * tw / ct)
+    p = 0.5 * (p_t + p_s) - np.sqrt((0.5 * (p_t - p_s)) ** 2 + p_x * p_x)
     sag = p_s < p_t
     scale = np.where(sag, ci / ct, 1.0)
     mu = np.where(rf, 1.0, np.where(sag, eta, eta * ci / ct))
-    k = np.where(rf, np.where(sag, 2.0 * ks * ci * ci, 2.0 * kt),
-                 np.where(sag, g * ks * ci, g * kt / ct))
+    k = p * np.where(sag, ci, ct)
     return scale.astype(np.float64), mu.astype(np.float64), k.astype(np.float64)
 
 
