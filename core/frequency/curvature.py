@@ -1,14 +1,18 @@
-"""Curvature of a triangle mesh for the frequency photons' curvature operator.
+"""Curvature of a triangle mesh for the frequency photons' interface operator.
 
-``spectrum.curvature`` bends a frequency photon's spectrum by the curvature of
-the mirror it leaves, ``theta' = theta + 2 kappa x`` along the flatland axis
-x.  A curved mirror focuses most strongly along its principal direction of
-largest curvature, and that focus is where the caustic line forms
-(docs/frequency.md "Curvature of a mesh").  :func:`principal_curvature`
-estimates, per triangle, the principal curvature of largest magnitude from
-its corner (shading) normals: the shape operator fitted to the triangle's
-edges (Rusinkiewicz 2004, "Estimating curvatures and their derivatives on
-triangle meshes", per-face step).
+At a delta bounce (mirror, smooth glass) ``spectrum.interface`` bends a
+frequency photon's spectrum by the surface's curvature along its flatland
+axis, with Coddington's cosines for oblique incidence and Snell's angle
+scaling for refraction (docs/frequency.md "Refraction and oblique
+incidence").  :func:`principal_frame` estimates, per triangle, both
+principal curvatures and the first principal direction from its corner
+(shading) normals: the shape operator fitted to the triangle's edges
+(Rusinkiewicz 2004, "Estimating curvatures and their derivatives on
+triangle meshes", per-face step); :func:`bounce_interface` turns them into
+the operator for a photon's plane of incidence.  A curved mirror focuses
+most strongly along its principal direction of largest curvature, and that
+focus is where the caustic line forms (docs/frequency.md "Curvature of a
+mesh").
 
 The mean of the edges' normal curvatures ``dot(dn, dp) / |dp|^2`` is not a
 substitute: on a cylinder of radius R split into tall thin triangles (a ring
