@@ -282,7 +282,8 @@ class PhotonTracer:
                 spec_hit = self._spectrum_at_hits(spec, seg, rec, dep,
                                                   FK.Rows(K, step.dep0, dep.n, n_next))
                 if n_next:
-                    spec = self._spectrum_leaving(spec_hit, n_next, hits.prim, rec, live.d64)
+                    spec = self._spectrum_leaving(spec_hit, n_next, hits.prim, rec, live.d64,
+                                                  seg.d)
             if caustic:
                 _keep_rows(dep, step.dep0, prev_delta[dep.buf.src[step.dep0:dep.n]])
                 prev_delta = rec.nxt_delta[:n_next].copy()
@@ -362,12 +363,13 @@ class PhotonTracer:
             return 1, march_grid(g, float(self.occ_locality))
         return (0 if g is None else 2), no_march_grid()
 
-    def _spectrum_leaving(self, spec_hit, n_next, prim, rec, d64):
-        """Frequency photons leaving the surface: off_surface, lobe, curvature."""
+    def _spectrum_leaving(self, spec_hit, n_next, prim, rec, d64, din):
+        """Frequency photons leaving the surface: interface (delta lobes),
+        off_surface, lobe; din (K, 3) the directions the rays arrived along."""
         if self._lobes is None:
             self._lobes = FK.surface_lobes(self.mtab, self.tris.mat, self.kappa)
         out, bad = FK.spectrum_leaving(self.chain_params(), n_next, spec_hit, rec, d64, prim,
-                                       self._lobes)
+                                       self._lobes, din)
         if bad >= 0:       # raise what spectrum.lobe_variance raises
             m = self.tris.mat[prim[rec.nxt_src[bad]]]
             F.lobe_variance(self.mtab.kind[m:m + 1, 0], self.mtab.roughness[m:m + 1, 0])
