@@ -68,6 +68,7 @@ from numba import njit
 from .. import lights as Lt
 from .. import materials as B
 from ..accel import surface_point
+from ..lights.shadow import transmittance
 from ..scene.camera import BH_A0, BH_A1, BH_A2, BH_A3
 from ..sppm import photon_kernels as PK
 from ..sppm.photons import PhotonTracer, _children, _pool, _threads
@@ -205,7 +206,7 @@ class LightTracer:
         K = p.shape[0]
         if K == 0:
             return
-        pr, keep = self._visible(p, ng, rng)
+        pr, keep, tr = self._visible(p, ng, rng)
         if keep.size == 0:
             return
         wc = pr.wi[keep]
@@ -214,7 +215,7 @@ class LightTracer:
         f = B.eval_bsdf(self.mtab, m, colors, ns[keep], ng[keep], wc, wi[keep])
         corr = np.minimum(B.shading_correction(ns[keep], ng[keep], wi[keep]), SHADING_CAP)
         g = np.abs(np.einsum("ij,ij->i", ng[keep], wc)) * corr * pr.weight[keep]
-        contrib = f * power[keep] * g[:, None]
+        contrib = f * power[keep] * tr * g[:, None]
         if mis is not None:
             contrib *= mis(keep, pr, colors)[:, None]
         self._splat(pr.raster[keep], contrib, film)
@@ -237,20 +238,22 @@ class LightTracer:
         n = t.dir[light[idx]]
         # MESH photons leave from the side their direction points to.
         n = n * np.where(np.einsum("ij,ij->i", n, ph["d"][idx]) >= 0, 1.0, -1.0)[:, None]
-        pr, keep = self._visible(o, n, rng)
+        pr, keep, tr = self._visible(o, n, rng)
         if keep.size == 0:
             return
         cos_o = np.einsum("ij,ij->i", n[keep], pr.wi[keep])
         front = cos_o > 0
         keep = keep[front]
-        contrib = ph["power"][idx][keep] * (cos_o[front] * pr.weight[keep] / np.pi)[:, None]
+        contrib = (ph["power"][idx][keep] * tr[front]
+                   * (cos_o[front] * pr.weight[keep] / np.pi)[:, None])
         if mis is not None:
             contrib *= mis(idx[keep], pr.weight[keep], cos_o[front])[:, None]
         self._splat(pr.raster[keep], contrib, film)
 
     def _visible(self, p, ng, rng):
         """Project p (K, 3) through a fresh lens sample each; (projection,
-        indices of the points in front, near the region and unoccluded)."""
+        indices of the points in front, near the region and not blocked,
+        their (k, 3) transmittance to the lens: core.lights.shadow)."""
         K = p.shape[0]
         cam = self.camera
         pr = cam.project(p, rng.random((K, 2)))
@@ -260,15 +263,16 @@ class LightTracer:
                 & (y > self.y0 - w) & (y < self.y0 + self.H + w))
         idx = np.nonzero(near)[0]
         if idx.size == 0:
-            return pr, idx
+            return pr, idx, np.ones((0, 3))
         wc = pr.wi[idx]
         # The camera ray starts at depth clip_start (generate): geometry in
         # front of the near clip plane does not occlude.
         pc_depth = -((p[idx] - cam.origin) @ cam.R[:, 2])
         t_max = pr.dist[idx] * (pc_depth - cam.cam.clip_start) / np.maximum(pc_depth, 1e-300)
         o = self.accel.spawn(p[idx], ng[idx], wc)
-        blocked = self.accel.occluded(o, wc, t_max)
-        return pr, idx[~blocked]
+        tr = transmittance(self.accel, o, wc, t_max, n0=ng[idx])
+        lit = tr.max(axis=1) > 0
+        return pr, idx[lit], tr[lit]
 
     def _splat(self, raster, contrib, film) -> None:
         good = np.all(np.isfinite(contrib), axis=1)

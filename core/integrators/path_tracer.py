@@ -419,19 +419,24 @@ class PathTracer:
         """Adds the light samples (wi, dist, light, contrib = beta f |cos| weight,
         shadow: the light casts shadows) at vertices v with PT-vs-NEE weights
         w to out[v.path]: the COMBINED (unless camera_mis is False: applied
-        already) and merging factors, the shadow test."""
+        already) and merging factors, the shadow test (:meth:`transmittance`)."""
         if self.vc is not None and camera_mis:
             w = self.vc.nee(w, v, wi, dist, light, depth)
         if v.m is not None:
             w = w * v.m
-        blocked = self.shadowed(v.p, v.ng, wi, dist, light) & shadow
-        keep = ~blocked
-        out[v.path[keep]] += contrib[keep] * w[keep, None]     # one vertex per path
+        tr = self.transmittance(v.p, v.ng, wi, dist, light, shadow)
+        keep = tr.max(axis=1) > 0
+        out[v.path[keep]] += contrib[keep] * tr[keep] * w[keep, None]     # one vertex per path
 
-    def shadowed(self, p, ng, wi, dist, light) -> np.ndarray:
-        """(K,) bool: the light sample (wi, dist) of emitter rows light taken
-        at p (normal ng) is occluded -- the one shadow test of the camera paths."""
-        return self.nee._blocked(p, ng, wi, dist, self.lights.kind[light] == MESH)
+    def transmittance(self, p, ng, wi, dist, light, shadow) -> np.ndarray:
+        """(K, 3) light let through to the samples (wi, dist) of emitter rows
+        light taken at p (normal ng); shadow (K,) bool the light casts
+        shadows -- the one shadow test of the camera paths (numpy and
+        compiled).  Transparent shadows for the lights BSDF rays cannot hit:
+        a BSDF ray reaching the others through a transparent (delta)
+        crossing has weight 1."""
+        return self.nee.transmittance(p, ng, wi, dist, self.lights.kind[light] == MESH, shadow,
+                                      ~self.hittable[light])
 
     def _continue_compiled(self, v: PathVertices, ur, roulette: bool) -> "PK.NextRays":
         """The continuation of the vertices v (path_kernels.continue_kernel):
