@@ -100,7 +100,8 @@ def _translate(x, y, z):
     return m
 
 
-def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"), glossy: bool = True):
+def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
+                 glossy: bool = True):
     """A synthetic scene of the warm-up (``core.scene.model.Scene``), res x res px.
 
     A closed 4 x 4 x 2 m room (so that nearly every photon is deposited, and a

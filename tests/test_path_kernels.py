@@ -4,10 +4,10 @@ What is asserted, and where each tolerance comes from:
 - One pass of PATH and of COMBINED with ``PathTracer.compiled`` on equals the
   numpy reference (``compiled = False``) fed the same random numbers, within
   rtol 1e-9 plus 1e-9 of the image's largest pixel (measured: 5e-16 of the
-  largest pixel, 1.4e-14 relative per pixel): the kernels compute the same formulas in float64, but group
-  some products differently (direct_kernels' beta f cos weight), take the
-  Lambert f as (sum of colours)/pi, the sampled density as N.wi/pi instead of
-  the sampler's local z/pi, and numba's libm may round arccos/sin/cos
+  largest pixel, 1.4e-14 relative per pixel): the kernels compute the same
+  formulas in float64, but group some products differently (direct_kernels'
+  beta f cos weight), take the Lambert f as (sum of colours)/pi, the sampled
+  density as N.wi/pi instead of the sampler's local z/pi, and numba's libm may round arccos/sin/cos
   differently from numpy's, which the spherical rectangle and triangle
   inversions amplify near their degenerate ends (tests/test_compiled_stages.py,
   the same 1e-9).  Paths make the same decisions (roulette, lobe, glass
@@ -16,8 +16,8 @@ What is asserted, and where each tolerance comes from:
   perfect mirror, a smooth glass block, every analytic light kind with a
   shape, a radius-0 point light (delta), emissive triangles (single, and a
   group of more than 16), a constant world, seen by a perspective camera.
-- The compiled light-sampling density (``path_kernels.pdf_light`` through
-  ``PathTracer.pdf_light``) equals ``core.lights.pdf_direct`` for samples of
+- The compiled light-sampling density (``path_kernels.selection_kernel`` and
+  ``pdf_kernel`` through ``PathTracer.pdf_light``) equals ``core.lights.pdf_direct`` for samples of
   every emitter kind, rtol 1e-9 (the same libm argument).
 - A scene outside the kernels' scope (a rough glossy lobe) uses the numpy
   path (``kernels()`` is None).

@@ -55,7 +55,6 @@ from .mis import FULL, SOFT
 from .mis_kernels import _lambert_pdf
 
 _PI = np.pi
-_INV_PI = 1.0 / np.pi
 
 
 
