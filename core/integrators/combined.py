@@ -88,6 +88,29 @@ class CameraMIS:
             Q = np.where(is_delta, 0.0, Q)
         return Q, np.where(is_delta, 1.0, pdf)
 
+    def nee_compiled(self, w, v, wi, dist, light, pl, sel, depth):
+        """:meth:`nee` for vertices in the scope of the path kernels
+        (``path_kernels.camera_nee_kernel``; pl, sel the samples'
+        light-sampling density and selection probability)."""
+        from . import path_kernels as PK
+        if getattr(self, "_mis_lights", None) is None:
+            self._mis_lights = PK.build_mis_lights(self.t, self.cls)
+        w = np.array(w, np.float64)
+        c = np.ascontiguousarray
+        PK.camera_nee_kernel(self._mis_lights, depth == 0, c(v.Q), c(v.c), c(v.p),
+                             c(v.ng), c(v.ns), c(v.wo), c(wi), c(dist), c(light, np.int64),
+                             c(pl), c(sel), w)
+        return w
+
+    def continued_compiled(self, v, nx, depth):
+        """:meth:`continued` for the NextRays nx of ``path_kernels.continue_kernel``."""
+        from . import path_kernels as PK
+        Q = np.empty(nx.src.size)
+        c = np.ascontiguousarray
+        PK.camera_continued_kernel(depth == 0, nx.src, nx.delta, nx.d, c(v.ng), c(v.ns),
+                                   c(v.wo), c(v.Q), c(v.c), Q)
+        return Q, nx.pdf
+
     def _reverse(self, v, wo_light, depth):
         """(K,) pr at vertices v for light arriving along wo_light (1 at the first vertex)."""
         if depth == 0:
