@@ -16,7 +16,7 @@ import math
 import numpy as np
 import pytest
 
-from analytic_scenes import quad
+from analytic_scenes import quad, translate
 from core.accel import Accel
 from core.lights import shadow
 from core.materials import build_material_table
@@ -373,3 +373,45 @@ def test_path_mis_through_a_cutout_under_an_area_light(tmp_path, monkeypatch):
 
 SEEDS = (1, 2, 3, 4)
 SPREAD_FACTOR = 0.25
+
+
+
+
+@pytest.mark.parametrize("shape", ["SQUARE", "DISK"])
+def test_path_through_a_tinted_sheet_under_an_area_light(shape):
+    """test_a_tinted_sheet_between_light_camera_and_floor with an area light,
+    which a BSDF ray can hit (MIS), and PATH: the image is c^2 times the bare
+    plane's closed form (Lambert's contour formula; the disc as a 256-gon).
+    The weights of the light sample and of the BSDF ray that crossed the
+    sheet sum to 1 only if the emitter's density is taken at the floor: its
+    solid angle (square) and its distance (disc: d^2 / (A cos)) from there,
+    not from the sheet."""
+    from analytic_scenes import lambert, look_down_ortho, pixel_centres_ortho, polygon_irradiance
+
+    from core.render import Renderer
+    from core.scene.model import Light
+    from core.settings import RenderSettings
+    c = np.array([0.9, 0.5, 0.2])
+    P, size = 50.0, 0.5
+    tris = np.asarray(quad((0, 0, 0), (10, 0, 0), (0, 10, 0))
+                      + quad((0, 0, 0.5), (10, 0, 0), (0, 10, 0)), np.float32)
+    light = Light("area", "AREA", (P, P, P), translate(0, 0, 1.0), shape=shape, size=size)
+    mats = [lambert("floor", 0.8), Material("sheet", (Lobe(TRANSPARENT, color=tuple(c)),))]
+    scene = make_scene(tris, mats, [light], look_down_ortho(3.0, 2.0, 16), tri_mat=[0, 0, 1, 1])
+    st = RenderSettings(max_passes=4, photons_per_pass=100, seed=3, use_frequency=False,
+                        max_bounces=4, integrator="PATH", camera_samples=4)
+    r = Renderer(scene, st, log=lambda s: None)
+    img = r.run().image[..., :3].reshape(-1, 3).astype(np.float64)
+    x, y = pixel_centres_ortho(scene)
+    if shape == "SQUARE":
+        h = size / 2
+        poly, area = np.array([[-h, -h], [h, -h], [h, h], [-h, h]]), size * size
+    else:
+        a = np.linspace(0, 2 * np.pi, 256, endpoint=False)
+        poly, area = size / 2 * np.stack([np.cos(a), np.sin(a)], 1), np.pi * size * size / 4
+    poly = np.c_[poly, np.ones(len(poly))]
+    pts = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    want = (0.8 / np.pi * P / (np.pi * area) * polygon_irradiance(pts, poly))[:, None] * c * c
+    ratio = img.mean(axis=0) / want.mean(axis=0)
+    print(shape, "area light, PATH: image / (c^2 bare plane):", ratio.round(4))
+    np.testing.assert_allclose(ratio, 1.0, atol=0.01)
