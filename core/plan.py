@@ -163,7 +163,10 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
     plan.transparent_shadows = clear and settings.integrator != "COMBINED"
     if clear and not plan.transparent_shadows:
         # Its MIS weights (core.integrators.combined) count a transparent
-        # crossing as a delta vertex that no connection passes.
+        # crossing as a delta vertex that no connection passes.  PATH skips
+        # the crossing in its MIS (path_tracer._trace); here the light
+        # subpaths' weights, camera connections and photons would have to
+        # skip it too, or the strategies' weights no longer sum to 1.
         plan.left_out.append(("transparent shadows", "integrator COMBINED weighs a "
                                                      "transparent crossing as a delta vertex"))
     kinds = sorted({lt.kind for lt in scene.lights})

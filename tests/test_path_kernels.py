@@ -19,8 +19,8 @@ What is asserted, and where each tolerance comes from:
 - The compiled light-sampling density (``path_kernels.selection_kernel`` and
   ``pdf_kernel`` through ``PathTracer.pdf_light``) equals ``core.lights.pdf_direct`` for samples of
   every emitter kind, rtol 1e-9 (the same libm argument).
-- A scene outside the kernels' scope (a rough glossy lobe) uses the numpy
-  path (``kernels()`` is None).
+- A scene outside the kernels' scope (a rough glossy lobe, a Transparent
+  lobe) uses the numpy path (``kernels()`` is None).
 """
 from __future__ import annotations
 
@@ -30,7 +30,8 @@ import pytest
 from core import lights as Lt
 from core.materials.fast import MIRROR, SMOOTH_GLASS, build_fast_materials
 from core.render import Renderer
-from core.scene.model import DIFFUSE, GLASS, GLOSSY, Camera, Light, Lobe, Material, make_scene
+from core.scene.model import (DIFFUSE, GLASS, GLOSSY, TRANSPARENT, Camera, Light, Lobe, Material,
+                              make_scene)
 from core.settings import RenderSettings
 
 from analytic_scenes import quad, translate
@@ -45,7 +46,7 @@ def _box(c, s):
             + quad((x, y + s, z), (0, 0, s), (s, 0, 0)) + quad((x, y - s, z), (s, 0, 0), (0, 0, s)))
 
 
-def _scene(res=16, n_small_tris=4, glossy=False):
+def _scene(res=16, n_small_tris=4, glossy=False, clear=False):
     tris = quad((0, 0, 0), (4, 0, 0), (0, 4, 0))                     # floor
     tris += quad((0, 4, 1.5), (4, 0, 0), (0, 0, 1.5))                 # back wall
     tris += quad((2.5, 0, 2.0), (0, 0.5, 0), (0.5, 0, 0))             # emissive quad, facing down
@@ -59,7 +60,8 @@ def _scene(res=16, n_small_tris=4, glossy=False):
     mats = [Material("floor", (Lobe(DIFFUSE, (0.8, 0.7, 0.6)),)),
             Material("wall", (Lobe(DIFFUSE, (0.5, 0.2, 0.2), weight=0.6), top)),
             Material("emit", emission=(3.0, 2.0, 1.0)),
-            Material("mirror", (Lobe(GLOSSY, (0.9, 0.9, 0.9), roughness=0.0),)),
+            Material("mirror", (Lobe(TRANSPARENT, (0.9, 0.9, 0.9)) if clear
+                                else Lobe(GLOSSY, (0.9, 0.9, 0.9), roughness=0.0),)),
             Material("glass", (Lobe(GLASS, (1.0, 1.0, 1.0), roughness=0.0, ior=1.5),))]
     tri_mat = [0, 0, 1, 1, 2, 2, 3, 3] + [4] * 12 + [2] * n_small_tris
     lights = every_light_kind(Light("tiny", "POINT", (5, 5, 5), translate(2, 2, 1.0)))
@@ -111,3 +113,6 @@ def test_compiled_light_pdf_equals_pdf_direct():
 
 def test_scenes_outside_the_kernels_use_numpy():
     assert _tracer("PATH", glossy=True).kernels() is None
+    # A Transparent lobe: its crossings are no MIS vertex, which only the
+    # numpy continuation tells (PathTracer._trace).
+    assert _tracer("PATH", clear=True).kernels() is None

@@ -23,7 +23,7 @@ as in the photon tracer (core.sppm.photon_kernels):
 
 Scope (:func:`compiled_scene_ok`; otherwise the numpy path runs): materials
 Lambert-only, perfect mirror, smooth glass or emission-only (the photon fast
-path's classes), untextured, no Normal Map / Bump (nor a shading-normal
+path's classes; no Transparent lobe), untextured, no Normal Map / Bump (nor a shading-normal
 spec attached to the mesh normals); lights as
 ``direct_kernels.compiled_lights_ok`` (no environment map, no textured
 emissive triangles).  Photon merging's partition (core.integrators.merge)
@@ -129,12 +129,17 @@ class NextRays(NamedTuple):
 def compiled_scene_ok(mtab, fmat, table, tri_n) -> bool:
     """Whether the kernels cover the scene (module docstring: scope)."""
     from ..lights.direct_kernels import compiled_lights_ok
+    from ..lights.shadow import transparent_materials
     from ..scene import normals
     if not compiled_lights_ok(table) or normals.attached(tri_n) is not None:
         return False
     if np.any(mtab.tex >= 0) or np.any(mtab.emission_tex >= 0):
         return False
     if mtab.alpha_tex is not None and np.any(mtab.alpha_tex >= 0):
+        return False
+    # Transparent lobes (GENERIC class anyway): their crossings are no MIS
+    # vertex (PathTracer._trace), which only the numpy continuation tells.
+    if transparent_materials(mtab).any():
         return False
     if mtab.bump_correction is not None and np.any(mtab.bump_correction):
         return False

@@ -18,6 +18,12 @@ Georgiev et al. 2012; docs/integrators.md).  Like Cycles' path tracer:
   core.lights.pdf_direct and p_bsdf from core.materials.pdf_bsdf; emission
   seen from the camera or after a delta scattering has weight 1 (the other
   strategy cannot produce it);
+- transparent shadows (core.lights.shadow attached, not COMBINED): as in
+  Cycles a transparent crossing (a Transparent lobe's sample) is no
+  scattering vertex for MIS: the ray keeps the BSDF pdf, position and
+  normal of the vertex before it, the emitter's distance is measured from
+  there, and the light sample's shadow ray passes transparent surfaces for
+  every light;
 - ``max_bounces`` counts bounces as Cycles' Total: light samples at vertices
   0..max_bounces (vertex 0 = the camera ray's hit, so max_bounces = 0 is
   direct light only), and the emission found by the last vertex's BSDF ray;
@@ -43,6 +49,7 @@ import numpy as np
 from ..accel import surface_point
 from .. import lights as Lt
 from .. import materials as B
+from ..lights import shadow as Sh
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..mathutil import dot as _dot
 from . import path_kernels as PK
@@ -221,7 +228,17 @@ class PathTracer:
         p_prev = np.zeros((K, 3))
         n_prev = np.zeros((K, 3))
         vis = np.zeros(K, np.int8)
+        # Distance from the ray's origin back to p_prev along d: > 0 after
+        # transparent crossings (below), which are no MIS vertex.
+        t_acc = np.zeros(K)
         vc = self.vc
+        # Transparent crossings skipped by MIS (Cycles: a transparent bounce
+        # leaves mis_ray_pdf and mis_origin alone), as the shadow rays of
+        # next-event estimation pass those surfaces for every light
+        # (core.lights.shadow attached).  COMBINED keeps them delta vertices:
+        # its weights (core.integrators.combined) count them so.
+        clear = (Sh.transparent_materials(mtab)
+                 if vc is None and Sh.attached(accel) is not None else None)
         if vc is not None:
             Qs, pf, vprev = vc.camera_state(d), None, None
         part = CameraPartition(K) if getattr(vc, "merging", False) else None
@@ -238,7 +255,8 @@ class PathTracer:
                     continue
                 Le, row, t = Lt.emitted_along_rays(lt, o[sel], d[sel], t_end[sel], name,
                                                    return_hit=True)
-                w = self._mis_bsdf(pdf_prev[sel], p_prev[sel], n_prev[sel], d[sel], row, t)
+                w = self._mis_bsdf(pdf_prev[sel], p_prev[sel], n_prev[sel], d[sel], row,
+                                   t + t_acc[sel])
                 if vc is not None:
                     w = vc.emission(w, sel, row, d, t, None, depth, Qs, pf, pdf_prev, vprev)
                 if part is not None:
@@ -269,7 +287,7 @@ class PathTracer:
                 Le = B.emission_radiance(mtab, mat[em], uv[em])
                 e = ih[em]
                 w = self._mis_bsdf(pdf_prev[e], p_prev[e], n_prev[e], d[e],
-                                   self.tri_light[prim[em]], h.t[e])
+                                   self.tri_light[prim[em]], h.t[e] + t_acc[e])
                 if vc is not None:
                     w = vc.emission(w, e, self.tri_light[prim[em]], d, h.t[e], ng[em], depth,
                                     Qs, pf, pdf_prev, vprev)
@@ -310,6 +328,7 @@ class PathTracer:
                 tmax = np.full(c.size, np.inf)
                 pdf_prev = np.where(nx.delta, 0.0, nx.pdf)
                 p_prev, n_prev, vis = v.p[c], nx.n_prev, nx.vis
+                t_acc = np.zeros(c.size)    # no transparent material in the kernels' scope
                 path = v.path[c]
                 continue
             wi, wgt, pdf, is_delta, valid = B.sample_bsdf(mtab, v.mat, v.colors, v.ns, v.ng, v.wo,
@@ -329,13 +348,24 @@ class PathTracer:
                 vprev = v.take(c)
             wi = wi[c]
             refl = (_dot(wi, v.ng[c]) * _dot(v.wo[c], v.ng[c])) > 0
+            o_prev = o
             o = accel.spawn(v.p[c], v.ng[c], wi)
             d = wi
             tmax = np.full(c.size, np.inf)
             beta = bt[c]
+            prev = (pdf_prev[ih[c]], p_prev[ih[c]], n_prev[ih[c]], vis[ih[c]],
+                    t_acc[ih[c]] + _dot(o - o_prev[ih[c]], d))
             pdf_prev = np.where(is_delta[c], 0.0, pdf[c])
             p_prev, n_prev = v.p[c], v.ns_wo()[c]
             vis = np.where(refl, 1, 2).astype(np.int8)
+            t_acc = np.zeros(c.size)
+            if clear is not None:
+                # A Transparent lobe's sample (wi = -wo exactly): the ray goes
+                # on from the last real vertex, with its pdf, normal, origin
+                # and visibility flag.
+                x = np.nonzero(is_delta[c] & clear[v.mat[c]] & np.all(wi == -v.wo[c], axis=1))[0]
+                for a, b in zip((pdf_prev, p_prev, n_prev, vis, t_acc), prev):
+                    a[x] = b[x]
             path = v.path[c]
         return out
 
@@ -432,11 +462,10 @@ class PathTracer:
         """(K, 3) light let through to the samples (wi, dist) of emitter rows
         light taken at p (normal ng); shadow (K,) bool the light casts
         shadows -- the one shadow test of the camera paths (numpy and
-        compiled).  Transparent shadows for the lights BSDF rays cannot hit:
-        a BSDF ray reaching the others through a transparent (delta)
-        crossing has weight 1."""
-        return self.nee.transmittance(p, ng, wi, dist, self.lights.kind[light] == MESH, shadow,
-                                      ~self.hittable[light])
+        compiled).  Transparent shadows for every light: a BSDF ray crossing
+        a transparent surface is weighed against the light sample of the
+        vertex before it (``_trace``: the crossing is no MIS vertex)."""
+        return self.nee.transmittance(p, ng, wi, dist, self.lights.kind[light] == MESH, shadow)
 
     def _continue_compiled(self, v: PathVertices, ur, roulette: bool) -> "PK.NextRays":
         """The continuation of the vertices v (path_kernels.continue_kernel):
