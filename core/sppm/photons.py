@@ -260,7 +260,7 @@ class PhotonTracer:
                 # the segments just travelled: the kernel overwrites the live state
                 seg = FK.Segments(live.o32[:K].astype(np.float64), live.d64[:K].copy())
             n_next, n_dep, n_gen = PK.bounce_kernel(step, hits, live, self.tris, self.fmat, u,
-                                                    dep.buf, gen, rec)
+                                                    dep.buf, gen, rec, PK.NO_MIS)
             dep.n = n_dep
             if n_gen:
                 n_next = self._generic_bounce(n_gen, n_next, gen, u, step.roulette, live,
