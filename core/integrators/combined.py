@@ -254,7 +254,7 @@ class CombinedLightTracer(LightTracer):
         return film
 
     def _chunk(self, n: int, rng, film: np.ndarray) -> None:
-        t, mtab, s = self.light_table, self.mtab, self.scene
+        t = self.light_table
         # The compiled emission (same uniforms, same photons up to round-off)
         # where every emitter is of a kind it covers.
         ph = (PK.sample_photons_fast(t, n, rng) if self.tracer.fast_emission
@@ -280,20 +280,7 @@ class CombinedLightTracer(LightTracer):
         dep, B0d, B1d, first = self._trace(ph, z0, rng)
         if dep is None:
             return
-        bary = dep["bary"]
-        prim = bary[:, 0].astype(np.int64)
-        # The mesh's ng, as LightTracer._chunk (not the deposit's flipped one).
-        _, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, bary[:, 1], bary[:, 2])
-        mat = np.asarray(s.tri_mat, np.int64)[prim]
-        sft = soft[dep["src_photon"]]
-        wi = dep["wi"]
-
-        def splat_w(keep, pr, col):
-            wc = pr.wi[keep]
-            pf = B.pdf_bsdf(mtab, mat[keep], col, ns[keep], ng[keep], wc, wi[keep], subset="all")
-            c1 = pr.weight[keep] * np.abs(_dot(ng[keep], wc))
-            return splat_weight(B0d[keep], B1d[keep], pf, c1, first[keep], sft[keep])
-        self.connect(dep["p"], ng, ns, wi, dep["power"], mat, uv, rng, film, mis=splat_w)
+        self.connect(dep, rng, film, mis=(B0d, B1d, first, soft[dep["src_photon"]]))
 
     def _trace(self, ph, z0, rng):
         """Trace the photons ph with the compiled photon kernels
@@ -303,7 +290,7 @@ class CombinedLightTracer(LightTracer):
         B0, B1 = the first-hit ratios of the photon (numpy, once per photon)
         times the factors of each deposit.
         Returns (deposits + src_photon (row of ph), B0, B1, first) or Nones."""
-        tr, t, s = self.tracer, self.light_table, self.scene
+        tr = self.tracer
         n = ph["o"].shape[0]
         live = PK.LiveState(o32=np.empty((n, 3), np.float32), d32=np.empty((n, 3), np.float32),
                             d64=np.empty((n, 3)), power=np.empty((n, 3)), falloff=np.empty(n))

@@ -63,69 +63,16 @@ densities, as there).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
-
 from .. import lights as Lt
 from .. import materials as B
-from ..accel import surface_point
-from ..scene.camera import BH_A0, BH_A1, BH_A2, BH_A3
+from ..accel import REL_OFFSET, surface_point
 from ..sppm import photon_kernels as PK
 from ..sppm.photons import PhotonTracer, _children, _pool, _threads
+from . import light_kernels as LK
+from .light_kernels import SHADING_CAP, splat_kernel
 
 #: Light paths per chunk (memory bound; a cancel is seen between chunks).
 CHUNK = 65_536
-#: Cap of the shading-normal factor, as the photon gather's.
-SHADING_CAP = 4.0
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _filter_1d(d, w, norm, box):
-    """The normalised 1D pixel filter at offset d [px] (core.scene.camera.
-    filter_weight, compiled): Blackman-Harris over +-w, or a one-pixel box."""
-    if box:
-        return 1.0 if abs(d) < 0.5 else 0.0
-    if abs(d) >= w:
-        return 0.0
-    v = 2.0 * np.pi * (d / (2.0 * w) + 0.5)
-    return max(BH_A0 - BH_A1 * np.cos(v) + BH_A2 * np.cos(2 * v) - BH_A3 * np.cos(3 * v),
-               0.0) * norm
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def splat_kernel(raster, contrib, x0, y0, W, H, width, film):
-    """Add contrib (K, 3) at film positions raster (K, 2) (full-frame pixels,
-    y up) to film (H*W, 3) (row 0 at the TOP of the region x0..x0+W-1,
-    y0..y0+H-1), weighted by the normalised separable pixel filter: Cycles'
-    Blackman-Harris over +-width px (core.scene.camera.filter_weight); a box
-    of one pixel when width <= 0."""
-    box = width <= 0.0
-    w = 0.5 if box else width
-    norm = 1.0 / (2.0 * w * BH_A0)
-    for k in range(raster.shape[0]):
-        x = raster[k, 0]
-        y = raster[k, 1]
-        ia = int(np.ceil(x - w - 0.5))
-        ib = int(np.floor(x + w - 0.5))
-        ja = int(np.ceil(y - w - 0.5))
-        jb = int(np.floor(y + w - 0.5))
-        if ib < x0 or ia >= x0 + W or jb < y0 or ja >= y0 + H:
-            continue
-        for j in range(max(ja, y0), min(jb, y0 + H - 1) + 1):
-            fy = _filter_1d(y - (j + 0.5), w, norm, box)
-            if fy == 0.0:
-                continue
-            row = (H - 1 - (j - y0)) * W
-            for i in range(max(ia, x0), min(ib, x0 + W - 1) + 1):
-                fx = _filter_1d(x - (i + 0.5), w, norm, box)
-                wgt = fx * fy
-                if wgt == 0.0:
-                    continue
-                q = row + (i - x0)
-                film[q, 0] += wgt * contrib[k, 0]
-                film[q, 1] += wgt * contrib[k, 1]
-                film[q, 2] += wgt * contrib[k, 2]
-
-
 class LightTracer:
     """Light tracing for one scene.  offset (x0, y0), size (W, H): the render
     region in Blender's pixel coordinates (y from the bottom)."""
@@ -148,6 +95,9 @@ class LightTracer:
         self.emitters_seen = bool(np.any((t.p_select > 0) & (
             ((t.kind == Lt.AREA) & t.visible_camera) | (t.kind == Lt.MESH))))
         self.fast_emission = PK.fast_emission_ok(t) and not self.emitters_seen
+        self.cam_params = LK.camera_params(camera, self.x0, self.y0, self.W, self.H,
+                                           self.filter_width)
+        self.fast_mat = LK.fast_materials(scene, mtab, self.tracer.fmat)
         self.rays = 0
 
     # ------------------------------------------------------------------
@@ -183,9 +133,46 @@ class LightTracer:
             ph = Lt.sample_photons(self.light_table, n, rng)
             self._emission_vertices(ph, rng, film)
         dep = self.tracer.trace_emitted(ph, rng)
-        if dep is None:
+        if dep is not None:
+            self.connect(dep, rng, film)
+
+    def connect(self, dep, rng, film: np.ndarray, mis=None) -> None:
+        """Splat the deposits dep (a PhotonTracer deposit dict: p, ng, wi
+        (unit, back towards the light), power (K, 3), bary (K, 3) (prim, u,
+        v)) into film (H*W, 3): one lens sample each, the projection and the
+        shadow rays compiled (light_kernels.project_kernel), one occlusion
+        call (:meth:`_occluded`), the splat compiled on LAMBERT materials
+        (light_kernels.splat_fast) and in numpy on the others (:meth:`_slow`).
+        mis: None, or (B0, B1, first, soft) (K,) of integrator 'COMBINED'
+        (combined.splat_weight)."""
+        p = dep["p"]
+        K = p.shape[0]
+        if K == 0:
             return
-        bary = dep["bary"]
+        u_lens = rng.random((K, 2))
+        con = LK.connections(K)
+        nc = LK.project_kernel(self.cam_params, p, dep["ng"], u_lens, REL_OFFSET,
+                               self.accel.abs_floor / REL_OFFSET, con)
+        if nc == 0:
+            return
+        blocked = self._occluded(con.o[:nc], con.wc[:nc], con.t_max[:nc])
+        one = np.zeros(1)
+        B0, B1, first, soft = mis if mis is not None else (one, one, one > 0, one > 0)
+        vin = LK.SplatInputs(dep["bary"], dep["wi"], dep["power"], B0, B1, first, soft)
+        tris = self.tracer.tris
+        slow = np.empty(nc, np.int64)
+        ns = LK.splat_fast(con, nc, blocked, vin, tris.n, tris.ng, tris.mat, self.fast_mat,
+                           self.tracer.fmat.col, mis is not None, self.cam_params,
+                           self.filter_width, film, slow)
+        if ns:
+            self._slow(con, slow[:ns], vin, mis is not None, film)
+
+    def _slow(self, con, c, vin, mis, film) -> None:
+        """The connections c whose material the splat kernel does not cover:
+        eval_bsdf (and pdf_bsdf for the MIS weight) in numpy."""
+        from .combined import splat_weight
+        rows = con.row[c]
+        bary = vin.bary[rows]
         prim = bary[:, 0].astype(np.int64)
         # The mesh's own ng, not the deposit's (flipped to the photon's side):
         # the materials orient ns with ng, and a flipped ng against an
@@ -193,31 +180,18 @@ class LightTracer:
         # wo and wi on opposite sides: +94% on principled_interior.blend).
         _, ng, ns, uv = surface_point(self.scene.tri_p, self.scene.tri_n, self.scene.tri_uv,
                                       prim, bary[:, 1], bary[:, 2])
-        mat = np.asarray(self.scene.tri_mat, np.int64)[prim]
-        self.connect(dep["p"], ng, ns, dep["wi"], dep["power"], mat, uv, rng, film)
-
-    def connect(self, p, ng, ns, wi, power, mat, uv, rng, film, mis=None) -> None:
-        """Splat the surface vertices (K rows: position p, geometric normal ng,
-        shading normal ns, unit incoming direction wi (back towards the light),
-        flux power (K, 3), material mat, uv) into film (H*W, 3).  mis: None,
-        or mis(keep, projection, colors) -> (k,) MIS weights of the rows keep
-        (integrator 'COMBINED')."""
-        K = p.shape[0]
-        if K == 0:
-            return
-        pr, keep = self._visible(p, ng, rng)
-        if keep.size == 0:
-            return
-        wc = pr.wi[keep]
-        m = mat[keep]
-        colors = B.lobe_colors(self.mtab, m, uv[keep])
-        f = B.eval_bsdf(self.mtab, m, colors, ns[keep], ng[keep], wc, wi[keep])
-        corr = np.minimum(B.shading_correction(ns[keep], ng[keep], wi[keep]), SHADING_CAP)
-        g = np.abs(np.einsum("ij,ij->i", ng[keep], wc)) * corr * pr.weight[keep]
-        contrib = f * power[keep] * g[:, None]
-        if mis is not None:
-            contrib *= mis(keep, pr, colors)[:, None]
-        self._splat(pr.raster[keep], contrib, film)
+        m = np.asarray(self.scene.tri_mat, np.int64)[prim]
+        wc, wi, weight = con.wc[c], vin.wi[rows], con.weight[c]
+        colors = B.lobe_colors(self.mtab, m, uv)
+        f = B.eval_bsdf(self.mtab, m, colors, ns, ng, wc, wi)
+        corr = np.minimum(B.shading_correction(ns, ng, wi), SHADING_CAP)
+        c1 = np.abs(np.einsum("ij,ij->i", ng, wc)) * weight
+        contrib = f * vin.power[rows] * (c1 * corr)[:, None]
+        if mis:
+            pf = B.pdf_bsdf(self.mtab, m, colors, ns, ng, wc, wi, subset="all")
+            contrib *= splat_weight(vin.B0[rows], vin.B1[rows], pf, c1, vin.first[rows],
+                                    vin.soft[rows])[:, None]
+        self._splat(con.raster[c], contrib, film)
 
     def _emission_vertices(self, ph, rng, film, mis=None) -> None:
         """Splat the emission vertices of AREA lights visible to the camera and
@@ -267,8 +241,13 @@ class LightTracer:
         pc_depth = -((p[idx] - cam.origin) @ cam.R[:, 2])
         t_max = pr.dist[idx] * (pc_depth - cam.cam.clip_start) / np.maximum(pc_depth, 1e-300)
         o = self.accel.spawn(p[idx], ng[idx], wc)
-        blocked = self.accel.occluded(o, wc, t_max)
-        return pr, idx[~blocked]
+        return pr, idx[~self._occluded(o, wc, t_max)]
+
+    def _occluded(self, o, d, t_max) -> np.ndarray:
+        """(K,) bool: the shadow rays from o (K, 3) along unit d towards the
+        lens are blocked before t_max (K,).  Every connection of the light
+        tracers is tested here (one batched Embree call)."""
+        return self.accel.occluded(o, d, t_max)
 
     def _splat(self, raster, contrib, film) -> None:
         good = np.all(np.isfinite(contrib), axis=1)
