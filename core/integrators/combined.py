@@ -24,7 +24,7 @@ from ..mathutil import dot as _dot
 from . import mis as M
 from ..sppm import photon_kernels as PK
 from ..sppm.photons import _Deposits
-from .light_tracer import CHUNK, LightTracer
+from .light_tracer import LightTracer
 
 
 def _finite(w):
@@ -240,18 +240,10 @@ class CombinedLightTracer(LightTracer):
         self.rr_start = int(self.tracer.settings.rr_start)
 
     def trace_pass(self, n: int, rng, check_stop=lambda: None) -> np.ndarray:
-        """Trace n light paths; their weighted splat sums (H*W, 3)."""
-        film = np.zeros((self.H * self.W, 3))
+        """Trace n light paths; their weighted splat sums (H*W, 3) (chunks
+        and threads as LightTracer.trace_pass)."""
         self.kn = self.K / float(n)          # K / N_L
-        done = 0
-        r0 = self.accel.rays_cast
-        while done < n:
-            check_stop()
-            k = min(CHUNK, n - done)
-            self._chunk(k, rng, film)
-            done += k
-        self.rays += self.accel.rays_cast - r0
-        return film
+        return super().trace_pass(n, rng, check_stop)
 
     def _chunk(self, n: int, rng, film: np.ndarray) -> None:
         t = self.light_table
@@ -264,8 +256,10 @@ class CombinedLightTracer(LightTracer):
                           & (ph["power"].max(axis=1) > 0))[0]
         if live.size == 0:
             return
-        ph = {k: v[live] for k, v in ph.items()}
-        light = light[live]
+        if live.size < n:
+            ph = {k: v[live] for k, v in ph.items()}
+            light = light[live]
+        ph["light"] = light
         kn = self.kn
         pA = M.emit_pdf_pos(t, light)
 
@@ -324,8 +318,7 @@ class CombinedLightTracer(LightTracer):
             if mis.d0.shape[0] < dep.buf.r.shape[0]:
                 mis = _grow_deposit_rows(mis, dep.buf.r.shape[0], dep.n)
             if bounce == 0:
-                self._first_hit(hits, K, live.d64[:K].copy(), mis.row[:K].copy(), ph, z0,
-                                fb0, fb1)
+                self._first_hit(hits, K, live.d64[:K], mis.row[:K], ph, z0, fb0, fb1)
             # Generic survivors need their rays' photon rows and directions
             # from before the kernel compacts them.
             row = mis.row[:K].copy() if tr.fmat.any_generic else None
@@ -352,7 +345,10 @@ class CombinedLightTracer(LightTracer):
 
     def _first_hit(self, hits, K, d, row, ph, z0, fb0, fb1):
         """fb0, fb1 [photon] = first_hit_ratios at the first hits of rays 0..K-1
-        (positions from the barycentrics, the triangles' geometric normals)."""
+        (positions from the barycentrics, the triangles' geometric normals).
+        In numpy: a compiled version through direct_kernels._entry_weight was
+        slower (numba increments and decrements the reference count of the
+        light table's arrays at every access; docs/integrators.md)."""
         tris = self.tracer.tris
         hit = np.nonzero(hits.prim[:K] >= 0)[0]
         if hit.size == 0:
@@ -363,9 +359,8 @@ class CombinedLightTracer(LightTracer):
         P = tris.p[prim]
         p = (1.0 - u - v) * P[:, 0] + u * P[:, 1] + v * P[:, 2]
         r = row[hit]
-        fb0[r], fb1[r] = first_hit_ratios(self.light_table, self.kn,
-                                          ph["light"][r].astype(np.int64), z0[r], d[hit], p,
-                                          tris.ng[prim])
+        fb0[r], fb1[r] = first_hit_ratios(self.light_table, self.kn, ph["light"][r], z0[r],
+                                          d[hit], p, tris.ng[prim])
 
     def _generic_factors(self, a, b, hits, rec, live, d_old, row, mis, first):
         """The MIS factors of the generic-material survivors a..b-1 (appended by
