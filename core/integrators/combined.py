@@ -247,9 +247,7 @@ class CombinedLightTracer(LightTracer):
 
     def _chunk(self, n: int, rng, film: np.ndarray) -> None:
         t = self.light_table
-        # The compiled emission (same uniforms, same photons up to round-off)
-        # where every emitter is of a kind it covers.
-        ph = (PK.sample_photons_fast(t, n, rng) if self.tracer.fast_emission
+        ph = (PK.sample_photons_fast(t, n, rng) if self.fast_emission
               else Lt.sample_photons(t, n, rng))
         light = ph["light"].astype(np.int64)
         live = np.nonzero((light >= 0) & (self.cls[np.maximum(light, 0)] != M.NO_LT)

@@ -48,12 +48,13 @@ def _filter_1d(d, w, norm, box):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _splat_one(x, y, c0, c1, c2, x0, y0, W, H, width, film):
+def _splat_one(x, y, c0, c1, c2, x0, y0, W, H, width, film, fx):
     """Add (c0, c1, c2) at film position (x, y) (full-frame pixels, y up) to
     film (H*W, 3) (row 0 at the TOP of the region x0..x0+W-1, y0..y0+H-1),
     weighted by the normalised separable pixel filter: Cycles'
     Blackman-Harris over +-width px (core.scene.camera.filter_weight); a box
-    of one pixel when width <= 0."""
+    of one pixel when width <= 0.  fx: scratch (>= 2 width + 2,) for the
+    column weights (each evaluated once)."""
     box = width <= 0.0
     w = 0.5 if box else width
     norm = 1.0 / (2.0 * w * BH_A0)
@@ -63,14 +64,17 @@ def _splat_one(x, y, c0, c1, c2, x0, y0, W, H, width, film):
     jb = int(np.floor(y + w - 0.5))
     if ib < x0 or ia >= x0 + W or jb < y0 or ja >= y0 + H:
         return
+    i0 = max(ia, x0)
+    i1 = min(ib, x0 + W - 1)
+    for i in range(i0, i1 + 1):
+        fx[i - i0] = _filter_1d(x - (i + 0.5), w, norm, box)
     for j in range(max(ja, y0), min(jb, y0 + H - 1) + 1):
         fy = _filter_1d(y - (j + 0.5), w, norm, box)
         if fy == 0.0:
             continue
         row = (H - 1 - (j - y0)) * W
-        for i in range(max(ia, x0), min(ib, x0 + W - 1) + 1):
-            fx = _filter_1d(x - (i + 0.5), w, norm, box)
-            wgt = fx * fy
+        for i in range(i0, i1 + 1):
+            wgt = fx[i - i0] * fy
             if wgt == 0.0:
                 continue
             q = row + (i - x0)
@@ -83,9 +87,10 @@ def _splat_one(x, y, c0, c1, c2, x0, y0, W, H, width, film):
 def splat_kernel(raster, contrib, x0, y0, W, H, width, film):
     """Add contrib (K, 3) at film positions raster (K, 2) to film (H*W, 3)
     (:func:`_splat_one`)."""
+    fx = np.empty(int(2.0 * max(width, 0.5)) + 3)
     for k in range(raster.shape[0]):
         _splat_one(raster[k, 0], raster[k, 1], contrib[k, 0], contrib[k, 1], contrib[k, 2],
-                   x0, y0, W, H, width, film)
+                   x0, y0, W, H, width, film, fx)
 
 
 class CameraParams(NamedTuple):
@@ -260,6 +265,7 @@ def splat_fast(con, n, blocked, vin, tri_n, tri_ng, tri_mat, fast, col, mis, cam
     The indices of the other unoccluded connections go to slow; returns
     their number."""
     ns_ = 0
+    fx = np.empty(int(2.0 * max(width, 0.5)) + 3)
     for c in range(n):
         if blocked[c]:
             continue
@@ -299,5 +305,5 @@ def splat_fast(con, n, blocked, vin, tri_n, tri_ng, tri_mat, fast, col, mis, cam
         if not (np.isfinite(c0) and np.isfinite(c1_) and np.isfinite(c2)):
             continue
         _splat_one(con.raster[c, 0], con.raster[c, 1], c0, c1_, c2, cam.x0, cam.y0, cam.W,
-                   cam.H, width, film)
+                   cam.H, width, film, fx)
     return ns_

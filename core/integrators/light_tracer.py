@@ -90,11 +90,11 @@ class LightTracer:
         self.filter_width = float(filter_width)
         t = light_table
         # Emission vertices are splatted only for AREA lights the camera sees
-        # and MESH emitters; without any, the compiled emission kernel (same
-        # photons, no light index) is used.
+        # and MESH emitters.  The compiled emission (same uniforms, same
+        # photons up to round-off) where it covers every emitter kind.
         self.emitters_seen = bool(np.any((t.p_select > 0) & (
             ((t.kind == Lt.AREA) & t.visible_camera) | (t.kind == Lt.MESH))))
-        self.fast_emission = PK.fast_emission_ok(t) and not self.emitters_seen
+        self.fast_emission = PK.fast_emission_ok(t)
         self.cam_params = LK.camera_params(camera, self.x0, self.y0, self.W, self.H,
                                            self.filter_width)
         self.fast_mat = LK.fast_materials(scene, mtab, self.tracer.fmat)
@@ -131,6 +131,7 @@ class LightTracer:
             ph = PK.sample_photons_fast(self.light_table, n, rng)
         else:
             ph = Lt.sample_photons(self.light_table, n, rng)
+        if self.emitters_seen:
             self._emission_vertices(ph, rng, film)
         dep = self.tracer.trace_emitted(ph, rng)
         if dep is not None:
@@ -149,13 +150,9 @@ class LightTracer:
         K = p.shape[0]
         if K == 0:
             return
-        u_lens = rng.random((K, 2))
-        con = LK.connections(K)
-        nc = LK.project_kernel(self.cam_params, p, dep["ng"], u_lens, REL_OFFSET,
-                               self.accel.abs_floor / REL_OFFSET, con)
+        con, nc, blocked = self._connections(p, dep["ng"], rng)
         if nc == 0:
             return
-        blocked = self._occluded(con.o[:nc], con.wc[:nc], con.t_max[:nc])
         one = np.zeros(1)
         B0, B1, first, soft = mis if mis is not None else (one, one, one > 0, one > 0)
         vin = LK.SplatInputs(dep["bary"], dep["wi"], dep["power"], B0, B1, first, soft)
@@ -211,37 +208,31 @@ class LightTracer:
         n = t.dir[light[idx]]
         # MESH photons leave from the side their direction points to.
         n = n * np.where(np.einsum("ij,ij->i", n, ph["d"][idx]) >= 0, 1.0, -1.0)[:, None]
-        pr, keep = self._visible(o, n, rng)
-        if keep.size == 0:
-            return
-        cos_o = np.einsum("ij,ij->i", n[keep], pr.wi[keep])
+        con, nc, blocked = self._connections(o, n, rng)
+        keep = np.nonzero(~blocked)[0]
+        rows = con.row[keep]
+        cos_o = np.einsum("ij,ij->i", n[rows], con.wc[keep])
         front = cos_o > 0
-        keep = keep[front]
-        contrib = ph["power"][idx][keep] * (cos_o[front] * pr.weight[keep] / np.pi)[:, None]
+        keep, rows, cos_o = keep[front], rows[front], cos_o[front]
+        weight = con.weight[keep]
+        contrib = ph["power"][idx[rows]] * (cos_o * weight / np.pi)[:, None]
         if mis is not None:
-            contrib *= mis(idx[keep], pr.weight[keep], cos_o[front])[:, None]
-        self._splat(pr.raster[keep], contrib, film)
+            contrib *= mis(idx[rows], weight, cos_o)[:, None]
+        self._splat(con.raster[keep], contrib, film)
 
-    def _visible(self, p, ng, rng):
-        """Project p (K, 3) through a fresh lens sample each; (projection,
-        indices of the points in front, near the region and unoccluded)."""
+    def _connections(self, p, ng, rng):
+        """Join the points p (K, 3) (geometric normals ng, any side) to a
+        fresh lens sample each: (Connections of the points in front and near
+        the region (rows 0..n-1; light_kernels.project_kernel), n, blocked
+        (n,) bool from one occlusion call)."""
         K = p.shape[0]
-        cam = self.camera
-        pr = cam.project(p, rng.random((K, 2)))
-        w = max(self.filter_width, 0.5)
-        x, y = pr.raster[:, 0], pr.raster[:, 1]
-        near = (pr.ok & (x > self.x0 - w) & (x < self.x0 + self.W + w)
-                & (y > self.y0 - w) & (y < self.y0 + self.H + w))
-        idx = np.nonzero(near)[0]
-        if idx.size == 0:
-            return pr, idx
-        wc = pr.wi[idx]
-        # The camera ray starts at depth clip_start (generate): geometry in
-        # front of the near clip plane does not occlude.
-        pc_depth = -((p[idx] - cam.origin) @ cam.R[:, 2])
-        t_max = pr.dist[idx] * (pc_depth - cam.cam.clip_start) / np.maximum(pc_depth, 1e-300)
-        o = self.accel.spawn(p[idx], ng[idx], wc)
-        return pr, idx[~self._occluded(o, wc, t_max)]
+        u_lens = rng.random((K, 2))
+        con = LK.connections(K)
+        n = LK.project_kernel(self.cam_params, p, ng, u_lens, REL_OFFSET,
+                              self.accel.abs_floor / REL_OFFSET, con)
+        if n == 0:
+            return con, 0, np.zeros(0, bool)
+        return con, n, self._occluded(con.o[:n], con.wc[:n], con.t_max[:n])
 
     def _occluded(self, o, d, t_max) -> np.ndarray:
         """(K,) bool: the shadow rays from o (K, 3) along unit d towards the
