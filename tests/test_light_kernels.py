@@ -4,7 +4,8 @@ against the numpy path it replaces.
 1. ``project_kernel`` = ``CameraModel.project`` + the region test + accel.spawn
    and the near-clip t_max of the shadow rays, on every test camera
    (perspective, shifted, orthographic, thin lens, border), to round-off.
-2. ``splat_fast`` (LAMBERT vertices: f, shading factor, the MIS weight of
+2. ``first_hits`` (point lights, rectangles) = ``combined.first_hit_ratios``.
+3. ``splat_fast`` (LAMBERT vertices: f, shading factor, the MIS weight of
    'COMBINED') = the numpy splat (eval_bsdf, pdf_bsdf, combined.splat_weight)
    that ``LightTracer._slow`` applies to every other material: the same
    deposits and lens samples splatted both ways give the same film.
@@ -12,13 +13,18 @@ against the numpy path it replaces.
 import numpy as np
 import pytest
 
+from core import lights as Lt
+from core.accel import intersect_f32, surface_point
 from core.integrators import light_kernels as LK
+from core.integrators.combined import first_hit_ratios
 from core.render import Renderer
 from core.scene.camera import CameraModel
 from core.scene.model import GLOSSY, Lobe, Material, make_scene
 from core.settings import RenderSettings
+from core.sppm import photon_kernels as PK
 
 from analytic_scenes import lambert, quad
+from test_combined import rig  # noqa: F401  (the fixture)
 from test_light_tracer import CAMERAS, camera, checker_scene
 
 
@@ -103,3 +109,34 @@ def test_compiled_splat_equals_numpy(integrator):
     fast, ref = _films(lt, dep, mis)
     assert ref.sum() > 0
     np.testing.assert_allclose(fast, ref, rtol=1e-10, atol=1e-12 * ref.max())
+
+
+def test_first_hits_equal_first_hit_ratios(rig):
+    """CombinedLightTracer._first_hit (compiled for point lights and
+    rectangles) equals combined.first_hit_ratios at the first hits of
+    photons from the rig's area, point and soft point lights."""
+    lt = rig.combined_lt
+    lt.kn = 4 / 5000.0
+    t = lt.light_table
+    ph = Lt.sample_photons(t, 6000, np.random.default_rng(8))
+    ph["light"] = ph["light"].astype(np.int64)
+    assert set(np.unique(t.kind[ph["light"]])) == {Lt.POINT, Lt.AREA}
+    o32 = (ph["o"] + 1e-4 * ph["d"]).astype(np.float32)
+    hits = PK.EmbreeHits(*intersect_f32(lt.accel, o32, ph["d"].astype(np.float32)))
+    K = o32.shape[0]
+    area = t.kind[ph["light"]] == Lt.AREA
+    z0 = np.where(area[:, None], ph["o"], t.co[ph["light"]])
+    fb0, fb1 = np.full(K, -1.0), np.full(K, -1.0)
+    lt._first_hit(hits, K, ph["d"], np.arange(K), ph, z0, fb0, fb1)
+    hit = np.nonzero(hits.prim >= 0)[0]
+    P = lt.tracer.tris.p[hits.prim[hit]]
+    u, v = hits.bu[hit, None].astype(float), hits.bv[hit, None].astype(float)
+    p = (1 - u - v) * P[:, 0] + u * P[:, 1] + v * P[:, 2]
+    _, ng, _, _ = surface_point(lt.scene.tri_p, lt.scene.tri_n, lt.scene.tri_uv,
+                                hits.prim[hit].astype(np.int64), hits.bu[hit].astype(float),
+                                hits.bv[hit].astype(float))
+    B0, B1 = first_hit_ratios(t, lt.kn, ph["light"][hit], z0[hit], ph["d"][hit], p, ng)
+    a = area[hit]
+    assert np.count_nonzero(B1[a]) > 500 and np.count_nonzero(B1[~a]) > 500
+    np.testing.assert_allclose(fb0[hit], B0, rtol=1e-9, atol=0)
+    np.testing.assert_allclose(fb1[hit], B1, rtol=1e-9, atol=0)

@@ -21,6 +21,7 @@ from ..accel import REL_OFFSET, intersect_f32, surface_point
 from ..lights.pdf import _selection_probability
 from ..lights.table import AREA, MESH
 from ..mathutil import dot as _dot
+from . import light_kernels as LK
 from . import mis as M
 from ..sppm import photon_kernels as PK
 from ..sppm.photons import _Deposits
@@ -238,6 +239,8 @@ class CombinedLightTracer(LightTracer):
         self.K = int(camera_samples)
         self.max_bounces = int(self.tracer.settings.max_bounces)
         self.rr_start = int(self.tracer.settings.rr_start)
+        t = self.light_table
+        self.first_lights = LK.first_hit_lights(t, M.emit_select(t, np.arange(t.n)))
 
     def trace_pass(self, n: int, rng, check_stop=lambda: None) -> np.ndarray:
         """Trace n light paths; their weighted splat sums (H*W, 3) (chunks
@@ -343,11 +346,10 @@ class CombinedLightTracer(LightTracer):
 
     def _first_hit(self, hits, K, d, row, ph, z0, fb0, fb1):
         """fb0, fb1 [photon] = first_hit_ratios at the first hits of rays 0..K-1
-        (positions from the barycentrics, the triangles' geometric normals).
-        In numpy: a compiled version through direct_kernels._entry_weight was
-        slower (numba increments and decrements the reference count of the
-        light table's arrays at every access; docs/integrators.md)."""
-        tris = self.tracer.tris
+        (positions from the barycentrics, the triangles' geometric normals):
+        compiled for point lights and rectangles (light_kernels.first_hits,
+        the selection probabilities in numpy), first_hit_ratios for the others."""
+        t, tris = self.light_table, self.tracer.tris
         hit = np.nonzero(hits.prim[:K] >= 0)[0]
         if hit.size == 0:
             return
@@ -356,9 +358,16 @@ class CombinedLightTracer(LightTracer):
         v = hits.bv[hit].astype(np.float64)[:, None]
         P = tris.p[prim]
         p = (1.0 - u - v) * P[:, 0] + u * P[:, 1] + v * P[:, 2]
+        ng = tris.ng[prim]
         r = row[hit]
-        fb0[r], fb1[r] = first_hit_ratios(self.light_table, self.kn, ph["light"][r], z0[r],
-                                          d[hit], p, tris.ng[prim])
+        light, zr, dh = ph["light"][r], z0[r], d[hit]
+        b0, b1 = np.empty(hit.size), np.empty(hit.size)
+        LK.first_hits(self.first_lights, self.kn, p, ng, dh, zr, light,
+                      _selection_probability(t, p, light), b0, b1)
+        s = np.nonzero(np.isnan(b0))[0]
+        if s.size:
+            b0[s], b1[s] = first_hit_ratios(t, self.kn, light[s], zr[s], dh[s], p[s], ng[s])
+        fb0[r], fb1[r] = b0, b1
 
     def _generic_factors(self, a, b, hits, rec, live, d_old, row, mis, first):
         """The MIS factors of the generic-material survivors a..b-1 (appended by

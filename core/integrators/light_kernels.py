@@ -25,10 +25,13 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ..lights.direct_kernels import _spherical_rect
+from ..lights.table import AREA, POINT
 from ..scene.camera import BH_A0, BH_A1, BH_A2, BH_A3
 from ..sppm.photon_kernels import _offset_scale, lambert_pdf, shading_normal
 
 _INV_PI = 1.0 / np.pi
+_INV_4PI = 1.0 / (4.0 * np.pi)
 
 #: Cap of the shading-normal factor, as the photon gather's.
 SHADING_CAP = 4.0
@@ -307,3 +310,87 @@ def splat_fast(con, n, blocked, vin, tri_n, tri_ng, tri_mat, fast, col, mis, cam
         _splat_one(con.raster[c, 0], con.raster[c, 1], c0, c1_, c2, cam.x0, cam.y0, cam.W,
                    cam.H, width, film, fx)
     return ns_
+
+
+class FirstHitLights(NamedTuple):
+    """The emitters' arrays of :func:`first_hits` (Nl rows, float64 unless
+    stated): kind (Nl,) int8; co, dir, axis_u, axis_v (Nl, 3); len_u, len_v,
+    area (Nl,); rect (Nl,) bool an AREA rectangle (not an ellipse); p_emit
+    (Nl,) the emission selection probability (mis.emit_select)."""
+    kind: np.ndarray
+    co: np.ndarray
+    dir: np.ndarray
+    axis_u: np.ndarray
+    axis_v: np.ndarray
+    len_u: np.ndarray
+    len_v: np.ndarray
+    area: np.ndarray
+    rect: np.ndarray
+    p_emit: np.ndarray
+
+
+def first_hit_lights(table, p_emit) -> FirstHitLights:
+    c = np.ascontiguousarray
+    return FirstHitLights(c(table.kind, np.int8), c(table.co, np.float64),
+                          c(table.dir, np.float64), c(table.axis_u, np.float64),
+                          c(table.axis_v, np.float64), c(table.len_u, np.float64),
+                          c(table.len_v, np.float64), c(table.area, np.float64),
+                          c((table.kind == AREA) & ~np.asarray(table.ellipse, bool)),
+                          c(p_emit, np.float64))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def first_hits(fl, kn, p, ng, d, z0, light, sel, b0, b1):
+    """combined.first_hit_ratios for first hits p (n, 3) (geometric normals
+    ng, arrival directions d, emitter points z0 (n, 3), emitter rows light
+    (n,), next-event selection probabilities sel (n,) of those rows at p:
+    lights.pdf._selection_probability) from POINT emitters (radius 0 or
+    soft: the centre) and AREA rectangles; b0, b1 (n,) out.  Rows of other
+    emitters are left NaN for the caller.  The rectangle's next-event
+    density is pdf_direct's: 1 / S of the spherical rectangle
+    (direct_kernels._spherical_rect) where S > 1e-6, else by area, 0 behind
+    the light."""
+    kind, co, ldir, au, av = fl.kind, fl.co, fl.dir, fl.axis_u, fl.axis_v
+    len_u, len_v, area, rect, p_emit = fl.len_u, fl.len_v, fl.area, fl.rect, fl.p_emit
+    for i in range(p.shape[0]):
+        j = light[i]
+        point = kind[j] == POINT
+        b0[i] = np.nan
+        b1[i] = np.nan
+        if not (point or rect[j]):
+            continue
+        px, py, pz = p[i, 0], p[i, 1], p[i, 2]
+        wx, wy, wz = px - z0[i, 0], py - z0[i, 1], pz - z0[i, 2]
+        dz = np.sqrt(wx * wx + wy * wy + wz * wz)
+        s = max(dz, 1e-300)
+        wx /= s
+        wy /= s
+        wz /= s
+        cos_z = abs(ng[i, 0] * wx + ng[i, 1] * wy + ng[i, 2] * wz)
+        if point:
+            x0 = 0.0
+            x1 = kn * sel[i] / p_emit[j] * dz * dz / (_INV_4PI * cos_z)
+        else:
+            nx, ny, nz = ldir[j, 0], ldir[j, 1], ldir[j, 2]
+            cos_l = abs(nx * d[i, 0] + ny * d[i, 1] + nz * d[i, 2])
+            pA = p_emit[j] / area[j]
+            cw = nx * wx + ny * wy + nz * wz
+            pW = max(cw, 0.0) * _INV_PI
+            front = ((px - co[j, 0]) * nx + (py - co[j, 1]) * ny + (pz - co[j, 2]) * nz) > 0
+            res = dz * dz / max(area[j] * max(cw, 0.0), 1e-300) if cw > 0 else 0.0
+            hu, hv = 0.5 * len_u[j], 0.5 * len_v[j]
+            S = _spherical_rect(px, py, pz, co[j, 0] - hu * au[j, 0] - hv * av[j, 0],
+                                co[j, 1] - hu * au[j, 1] - hv * av[j, 1],
+                                co[j, 2] - hu * au[j, 2] - hv * av[j, 2],
+                                au[j, 0], au[j, 1], au[j, 2], len_u[j],
+                                av[j, 0], av[j, 1], av[j, 2], len_v[j], 0.5, 0.5)[3]
+            if S > 1e-6:
+                res = 1.0 / max(S, 1e-300)
+            nee = (res if front else 0.0) * sel[i]
+            if not np.isfinite(nee):
+                nee = 0.0
+            nee *= cos_l
+            x0 = kn * cos_l / (pA * pW * cos_z)
+            x1 = kn * nee / (pA * pW * cos_z)
+        b0[i] = x0 if np.isfinite(x0) else 0.0
+        b1[i] = x1 if np.isfinite(x1) else 0.0
