@@ -5,7 +5,9 @@ against the numpy path it replaces.
    and the near-clip t_max of the shadow rays, on every test camera
    (perspective, shifted, orthographic, thin lens, border), to round-off.
 2. ``first_hits`` (point lights, rectangles) = ``combined.first_hit_ratios``.
-3. ``splat_fast`` (LAMBERT vertices: f, shading factor, the MIS weight of
+3. ``splat_emitters`` (emitters seen directly) = the numpy splat of
+   ``combined.emission_splat_weight``.
+4. ``splat_fast`` (LAMBERT vertices: f, shading factor, the MIS weight of
    'COMBINED') = the numpy splat (eval_bsdf, pdf_bsdf, combined.splat_weight)
    that ``LightTracer._slow`` applies to every other material: the same
    deposits and lens samples splatted both ways give the same film.
@@ -16,14 +18,15 @@ import pytest
 from core import lights as Lt
 from core.accel import intersect_f32, surface_point
 from core.integrators import light_kernels as LK
-from core.integrators.combined import first_hit_ratios
+from core.integrators import mis as M
+from core.integrators.combined import emission_splat_weight, first_hit_ratios
 from core.render import Renderer
 from core.scene.camera import CameraModel
 from core.scene.model import GLOSSY, Lobe, Material, make_scene
 from core.settings import RenderSettings
 from core.sppm import photon_kernels as PK
 
-from analytic_scenes import lambert, quad
+from analytic_scenes import furnace_box, lambert, quad
 from test_combined import rig  # noqa: F401  (the fixture)
 from test_light_tracer import CAMERAS, camera, checker_scene
 
@@ -111,7 +114,7 @@ def test_compiled_splat_equals_numpy(integrator):
     np.testing.assert_allclose(fast, ref, rtol=1e-10, atol=1e-12 * ref.max())
 
 
-def test_first_hits_equal_first_hit_ratios(rig):
+def test_first_hits_equal_first_hit_ratios(rig):  # noqa: F811  (the fixture)
     """CombinedLightTracer._first_hit (compiled for point lights and
     rectangles) equals combined.first_hit_ratios at the first hits of
     photons from the rig's area, point and soft point lights."""
@@ -140,3 +143,43 @@ def test_first_hits_equal_first_hit_ratios(rig):
     assert np.count_nonzero(B1[a]) > 500 and np.count_nonzero(B1[~a]) > 500
     np.testing.assert_allclose(fb0[hit], B0, rtol=1e-9, atol=0)
     np.testing.assert_allclose(fb1[hit], B1, rtol=1e-9, atol=0)
+
+
+def test_emission_splat_equals_numpy():
+    """LightTracer._emission_vertices (compiled splat, 'COMBINED' weights)
+    equals the numpy splat of the same emission vertices and lens samples:
+    CameraModel.project, the shadow rays, f_s = 1 / pi on the emitting side
+    and combined.emission_splat_weight (mesh emitters seen directly)."""
+    scene, _ = furnace_box(res=8)
+    r = Renderer(scene, RenderSettings(integrator="COMBINED", photons_per_pass=4000,
+                                       max_passes=1), log=lambda s: None)
+    lt, t = r.combined_lt, r.light_table
+    lt.kn = 4 / 4000.0
+    ph = Lt.sample_photons(t, 200_000, np.random.default_rng(2))
+    light = ph["light"].astype(np.int64)
+    pA = M.emit_pdf_pos(t, light)
+    full = lt.cls[light] == M.FULL
+    film = np.zeros((lt.H * lt.W, 3))
+    lt._emission_vertices(ph, np.random.default_rng(3), film, mis=(lt.kn, pA, full))
+    # numpy: every photon is a MESH emission vertex here.
+    assert np.all(t.kind[light] == Lt.MESH)
+    o = ph["o"]
+    n = t.dir[light] * np.where(np.sum(t.dir[light] * ph["d"], axis=1) >= 0, 1.0, -1.0)[:, None]
+    pr = lt.camera.project(o, np.random.default_rng(3).random((o.shape[0], 2)))
+    cp = lt.cam_params
+    x, y = pr.raster[:, 0], pr.raster[:, 1]
+    k = np.nonzero(pr.ok & (x > cp.x0 - cp.w) & (x < cp.x0 + cp.W + cp.w)
+                   & (y > cp.y0 - cp.w) & (y < cp.y0 + cp.H + cp.w))[0]
+    depth = -((o[k] - lt.camera.origin) @ lt.camera.R[:, 2])
+    t_max = pr.dist[k] * (depth - lt.camera.cam.clip_start) / depth
+    k = k[~lt.accel.occluded(lt.accel.spawn(o[k], n[k], pr.wi[k]), pr.wi[k], t_max)]
+    cos_o = np.sum(n[k] * pr.wi[k], axis=1)
+    k, cos_o = k[cos_o > 0], cos_o[cos_o > 0]
+    c1 = cos_o * pr.weight[k]
+    contrib = (ph["power"][k] * (c1 / np.pi)[:, None]
+               * emission_splat_weight(lt.kn, c1, pA[k], full[k])[:, None])
+    ref = np.zeros_like(film)
+    LK.splat_kernel(np.ascontiguousarray(pr.raster[k]), contrib, lt.x0, lt.y0, lt.W, lt.H,
+                    lt.filter_width, ref)
+    assert k.size > 300 and ref.sum() > 0
+    np.testing.assert_allclose(film, ref, rtol=1e-10, atol=1e-12 * ref.max())

@@ -261,13 +261,9 @@ class CombinedLightTracer(LightTracer):
             ph = {k: v[live] for k, v in ph.items()}
             light = light[live]
         ph["light"] = light
-        kn = self.kn
-        pA = M.emit_pdf_pos(t, light)
-
-        def emis_w(rows, weight, cos_o):
-            return emission_splat_weight(kn, weight * cos_o, pA[rows],
-                                         self.cls[light[rows]] == M.FULL)
-        self._emission_vertices(ph, rng, film, mis=emis_w)
+        if self.emitters_seen:
+            self._emission_vertices(ph, rng, film, mis=(self.kn, M.emit_pdf_pos(t, light),
+                                                        self.cls[light] == M.FULL))
         kind = t.kind[light]
         ar = (kind == AREA) | (kind == MESH)
         z0 = np.where(ar[:, None], ph["o"], t.co[light])     # the light end of the weights

@@ -312,6 +312,35 @@ def splat_fast(con, n, blocked, vin, tri_n, tri_ng, tri_mat, fast, col, mis, cam
     return ns_
 
 
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def splat_emitters(con, n, blocked, nrm, power, mis, kn, pA, full, cam, width, film):
+    """Splat the unoccluded connections 0..n-1 of emission vertices (emitting
+    normals nrm (K, 3), flux power (K, 3); LightTracer._emission_vertices):
+    f_s = 1 / pi on the emitting side, beta |n.wc| weight / pi, times the
+    weight against path tracing when mis (combined.emission_splat_weight:
+    1 / (1 + (kn c_1 / pA)^2), c_1 = |n.wc| weight; 0 unless full (K,))."""
+    fx = np.empty(int(2.0 * max(width, 0.5)) + 3)
+    for c in range(n):
+        if blocked[c]:
+            continue
+        k = con.row[c]
+        cos_o = nrm[k, 0] * con.wc[c, 0] + nrm[k, 1] * con.wc[c, 1] + nrm[k, 2] * con.wc[c, 2]
+        if not cos_o > 0.0:
+            continue
+        c1 = cos_o * con.weight[c]
+        g = c1 * _INV_PI
+        if mis:
+            if not full[k]:
+                continue
+            r = kn * c1 / pA[k]
+            g *= 1.0 / (1.0 + r * r)
+        c0, c1_, c2 = power[k, 0] * g, power[k, 1] * g, power[k, 2] * g
+        if not (np.isfinite(c0) and np.isfinite(c1_) and np.isfinite(c2)):
+            continue
+        _splat_one(con.raster[c, 0], con.raster[c, 1], c0, c1_, c2, cam.x0, cam.y0, cam.W,
+                   cam.H, width, film, fx)
+
 class FirstHitLights(NamedTuple):
     """The emitters' arrays of :func:`first_hits` (Nl rows, float64 unless
     stated): kind (Nl,) int8; co, dir, axis_u, axis_v (Nl, 3); len_u, len_v,

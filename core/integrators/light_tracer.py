@@ -192,9 +192,10 @@ class LightTracer:
 
     def _emission_vertices(self, ph, rng, film, mis=None) -> None:
         """Splat the emission vertices of AREA lights visible to the camera and
-        of MESH emitters: f_s = 1 / pi on the emitting side (module doc).
-        mis: None, or mis(rows of ph, projection rows, |cos| at the emitter)
-        -> MIS weights (integrator 'COMBINED')."""
+        of MESH emitters: f_s = 1 / pi on the emitting side (module doc;
+        light_kernels.splat_emitters).  mis: None, or (kn, pA, full) of
+        integrator 'COMBINED' (combined.emission_splat_weight; pA, full per
+        row of ph)."""
         t = self.light_table
         light = ph["light"]
         ok = light >= 0
@@ -209,16 +210,14 @@ class LightTracer:
         # MESH photons leave from the side their direction points to.
         n = n * np.where(np.einsum("ij,ij->i", n, ph["d"][idx]) >= 0, 1.0, -1.0)[:, None]
         con, nc, blocked = self._connections(o, n, rng)
-        keep = np.nonzero(~blocked)[0]
-        rows = con.row[keep]
-        cos_o = np.einsum("ij,ij->i", n[rows], con.wc[keep])
-        front = cos_o > 0
-        keep, rows, cos_o = keep[front], rows[front], cos_o[front]
-        weight = con.weight[keep]
-        contrib = ph["power"][idx[rows]] * (cos_o * weight / np.pi)[:, None]
+        if nc == 0:
+            return
+        kn, pA, full = mis if mis is not None else (0.0, np.ones(1), np.ones(1, bool))
         if mis is not None:
-            contrib *= mis(idx[rows], weight, cos_o)[:, None]
-        self._splat(con.raster[keep], contrib, film)
+            pA, full = np.ascontiguousarray(pA[idx]), np.ascontiguousarray(full[idx])
+        LK.splat_emitters(con, nc, blocked, n, np.ascontiguousarray(ph["power"][idx]),
+                          mis is not None, float(kn), pA, full, self.cam_params,
+                          self.filter_width, film)
 
     def _connections(self, p, ng, rng):
         """Join the points p (K, 3) (geometric normals ng, any side) to a
