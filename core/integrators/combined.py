@@ -240,6 +240,7 @@ class CombinedLightTracer(LightTracer):
         self.max_bounces = int(self.tracer.settings.max_bounces)
         self.rr_start = int(self.tracer.settings.rr_start)
         t = self.light_table
+        self.all_traced = not np.any((t.p_select > 0) & (self.cls == M.NO_LT))
         self.first_lights = LK.first_hit_lights(t, M.emit_select(t, np.arange(t.n)))
 
     def trace_pass(self, n: int, rng, check_stop=lambda: None) -> np.ndarray:
@@ -252,14 +253,18 @@ class CombinedLightTracer(LightTracer):
         t = self.light_table
         ph = (PK.sample_photons_fast(t, n, rng) if self.fast_emission
               else Lt.sample_photons(t, n, rng))
-        light = ph["light"].astype(np.int64)
-        live = np.nonzero((light >= 0) & (self.cls[np.maximum(light, 0)] != M.NO_LT)
-                          & (ph["power"].max(axis=1) > 0))[0]
-        if live.size == 0:
-            return
-        if live.size < n:
-            ph = {k: v[live] for k, v in ph.items()}
-            light = light[live]
+        light = np.asarray(ph["light"], np.int64)
+        if not (self.fast_emission and self.all_traced):
+            # Emitters that light tracing leaves out, or none at all (the
+            # compiled emission covers neither; its zero-power photons are
+            # dropped by the emission kernel).
+            live = np.nonzero((light >= 0) & (self.cls[np.maximum(light, 0)] != M.NO_LT)
+                              & (ph["power"].max(axis=1) > 0))[0]
+            if live.size == 0:
+                return
+            if live.size < n:
+                ph = {k: v[live] for k, v in ph.items()}
+                light = light[live]
         ph["light"] = light
         if self.emitters_seen:
             self._emission_vertices(ph, rng, film, mis=(self.kn, M.emit_pdf_pos(t, light),

@@ -51,14 +51,17 @@ implementation notes).  Camera side, per connection, in ``CameraProjection``:
 We, pdf_pos = 1 / A_lens, pdf_dir = 1 / (A_pix cos^3) [solid angle], pdf_wi =
 d^2 / (cos A_lens); the camera-path density of reaching y is pdf_dir |n_g . w_c|
 / d^2 [area] and the reverse density of the light path's previous vertex is
-pdf_bsdf(w_c -> w_j) (``materials.pdf_bsdf``).  Light side, per vertex (not
-recorded yet -- deposits keep p, ng, wi, power, (prim, u, v)): the emission
-densities pdf_A (p_select / area; a point light's delta position) and pdf_W
-(cos / pi, 1 / (4 pi) for points); at every bounce the forward solid-angle pdf
-of the sampled direction, its reverse pdf, and whether the lobe was a delta;
-with them each deposit carries dVCM, dVC, dVM and the weight of this
-connection follows the paper's recursion (Russian roulette stays out of the
-densities, as there).
+pdf_bsdf(w_c -> w_j) (``materials.pdf_bsdf``).  Light side, per vertex: the
+emission densities pdf_A (p_select / area; a point light's delta position)
+and pdf_W (cos / pi, 1 / (4 pi) for points); at every bounce the forward
+solid-angle pdf of the sampled direction, its reverse pdf, and whether the
+lobe was a delta.  Integrator 'COMBINED' follows them as running ratios in
+the bounce kernel (``photon_kernels.MisState``, core.integrators.combined);
+Russian roulette stays out of the densities, as in the paper.
+
+The connection itself (projection, shadow rays, BSDF towards the lens, MIS
+weight, splat) is compiled: core.integrators.light_kernels, around one
+batched occlusion call (:meth:`LightTracer._occluded`).
 """
 from __future__ import annotations
 
