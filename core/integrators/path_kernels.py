@@ -52,7 +52,7 @@ from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..materials.fast import ABSORBER, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
 from ..sppm.photon_kernels import shading_normal
 from .mis import FULL, SOFT
-from .mis_kernels import _lambert_pdf
+from .light_kernels import lambert_pdf as _lambert_pdf
 
 _PI = np.pi
 

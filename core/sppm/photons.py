@@ -270,7 +270,7 @@ class PhotonTracer:
             if straight is not None:
                 d_in, prim_in = live.d64[:K].copy(), hits.prim[:K].astype(np.int64)
             n_next, n_dep, n_gen = PK.bounce_kernel(step, hits, live, self.tris, self.fmat, u,
-                                                    dep.buf, gen, rec)
+                                                    dep.buf, gen, rec, PK.NO_MIS)
             dep.n = n_dep
             if n_gen:
                 n_next = self._generic_bounce(n_gen, n_next, gen, u, step.roulette, live,
