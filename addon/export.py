@@ -113,9 +113,9 @@ SUPPORT = (
     ("Mapping (Point, Texture, Vector) and Texture Coordinate (UV, Generated, Object) "
      "into Image Texture vectors", SUPPORTED, ""),
     ("image alpha into the Principled Alpha or a Mix Shader's Fac (stochastic "
-     "pass-through of camera and photon paths; shadow rays of next-event estimation are "
-     "still blocked by a cut-out, docs/shading.md); the colour associated with alpha as "
-     "Cycles reads it", SUPPORTED, ""),
+     "pass-through of camera and photon paths; shadow rays pass cut-outs and Transparent "
+     "BSDFs with Cycles' weights, except with the Combined integrator, docs/shading.md); "
+     "the colour associated with alpha as Cycles reads it", SUPPORTED, ""),
     ("node groups (flattened, nested)", SUPPORTED, ""),
     ("film transparency, pixel filter width, object and material pass index", SUPPORTED, ""),
     ("other shader nodes", APPROXIMATED, "unsupported node(s) "),

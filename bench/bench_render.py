@@ -6,6 +6,7 @@
     .venv/bin/python bench/bench_render.py --gather [--gather-res 256x256 1920x1080] [--repeat 2]
     .venv/bin/python bench/bench_render.py --frequency --blend example_blends/cornell.blend
                                            [--blend-res 64] [--blend-passes 12] [--repeat 2]
+    .venv/bin/python bench/bench_render.py --paths [--stage-res 64 256] [--repeat 3]
 
 Prints ratios (target: photon pass <= 2x the raw ray casting of its
 rays at 256x256 with 200k photons per pass), never a bare time alone.
@@ -322,9 +323,14 @@ def main(argv=None):
                     help="with --frequency: FPPM vs PPM CPU per pass on this .blend (needs bpy)")
     ap.add_argument("--blend-res", type=int, default=64)
     ap.add_argument("--blend-passes", type=int, default=12)
+    ap.add_argument("--paths", action="store_true",
+                    help="camera paths (PATH, COMBINED): numpy vs compiled (CPU ratios)")
     a = ap.parse_args(argv)
     if a.blend:
         blend_report(a)
+        return 0
+    if a.paths:
+        paths_report(a)
         return 0
     if a.stages:
         stage_report(a)
@@ -448,6 +454,46 @@ def stage_report(a):
         rw = raw.seconds(rays)
         print(f"  {res}^2: whole pass ({rays:,} rays, {a.photons:,} photons) = "
               f"{pw / rw:.2f}x raw Embree rays (wall), {pc / pw:.2f} cores used")
+
+
+def paths_report(a):
+    """The --paths measurement: one pass of camera paths (``PathTracer``,
+    camera_samples 4) with the numpy reference (``compiled=False``) and the
+    kernels of core.integrators.path_kernels, interleaved, best of --repeat
+    (the first round compiles / warms up); CPU time (the machine is shared),
+    and the paths per CPU second of each; for COMBINED also one light-tracing
+    pass of --photons light paths against the compiled camera paths."""
+    print(f"camera paths, numpy reference vs compiled (Cornell box, camera_samples 4, "
+          f"best of {a.repeat} interleaved, CPU time)")
+    for res in a.stage_res:
+        for integ in ("PATH", "COMBINED"):
+            r = Renderer(cornell(res), RenderSettings(max_passes=1000, integrator=integ,
+                                                      camera_samples=4,
+                                                      photons_per_pass=a.photons),
+                         log=lambda s: None)
+            pt = r.path_tracer
+            best = {}
+            for rep in range(a.repeat + 1):
+                for compiled in (False, True):
+                    pt.compiled = compiled
+                    c0 = time.process_time()
+                    pt(np.random.default_rng(rep))
+                    c = time.process_time() - c0
+                    if rep:
+                        best[compiled] = min(best.get(compiled, np.inf), c)
+            paths = 4 * res * res
+            extra = ""
+            if r.combined_lt is not None:
+                # The other half of a COMBINED pass: its light paths.
+                c0 = time.process_time()
+                r.combined_lt.trace_pass(a.photons, np.random.default_rng(9))
+                extra = (f"; light tracing of {a.photons:,} light paths = "
+                         f"{(time.process_time() - c0) / best[True]:.1f}x the compiled "
+                         f"camera paths")
+            print(f"  {res}^2 {integ}: numpy / compiled {best[False] / best[True]:.2f}x CPU "
+                  f"(numpy {paths / best[False]:,.0f} paths per CPU s, compiled "
+                  f"{paths / best[True]:,.0f}; kernels used: {pt.kernels() is not None})"
+                  + extra)
 
 
 def gather_report(a):

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .lights.shadow import transparent_materials
 from .lights.table import AREA, MESH
 from .settings import RenderSettings
 
@@ -22,6 +23,7 @@ class RenderPlan:
     frequency_photons: bool = True     # photons carrying a spectrum (a, b, c)
     occlusion_grid: bool = True        # voxel grid for a_occ (needs frequency)
     world_emission: bool = False
+    transparent_shadows: bool = False  # shadow rays pass transparent surfaces (core.lights.shadow)
     emitter_kinds: tuple = ()
     aovs: tuple = ()
     strategies: tuple = ("photon mapping",)   # what estimates the image (docs/integrators.md)
@@ -35,6 +37,8 @@ class RenderPlan:
         bare = "plain photon mapping"
         if "photon mapping" not in self.strategies and MERGING not in self.strategies:
             on, bare = [], "no photon stages"
+        if self.transparent_shadows:
+            on.append("transparent shadows")
         out = [f"Plan: {', '.join(on) if on else bare}; strategies: {', '.join(self.strategies)}; "
                f"emitters: {', '.join(self.emitter_kinds) or 'none'}; "
                f"AOVs: {', '.join(self.aovs) or 'none'}."]
@@ -153,6 +157,18 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
         plan.left_out.append(("occlusion grid", "no frequency photons"))
     plan.occlusion_grid = occ
     plan.world_emission = bool(np.any(np.asarray(scene.world_color) > 0))
+    # Shadow rays follow through Transparent BSDFs and alpha cut-outs; without
+    # any, they stay one occlusion test (core.lights.shadow).
+    clear = bool(transparent_materials(mtab).any()) if mtab.kind.size else False
+    plan.transparent_shadows = clear and settings.integrator != "COMBINED"
+    if clear and not plan.transparent_shadows:
+        # Its MIS weights (core.integrators.combined) count a transparent
+        # crossing as a delta vertex that no connection passes.  PATH skips
+        # the crossing in its MIS (path_tracer._trace); here the light
+        # subpaths' weights, camera connections and photons would have to
+        # skip it too, or the strategies' weights no longer sum to 1.
+        plan.left_out.append(("transparent shadows", "integrator COMBINED weighs a "
+                                                     "transparent crossing as a delta vertex"))
     kinds = sorted({lt.kind for lt in scene.lights})
     if np.any(mtab.emission.max(axis=1) > 0):
         kinds.append("MESH")

@@ -55,6 +55,7 @@ from .accel import Accel
 from .integrators import PathTracer
 from .errors import CheckpointMismatch, RenderCancelled, SceneError
 from .lights import build_light_table
+from .lights import shadow
 from .lights.nee import NextEventEstimation
 from .materials import build_material_table
 from .plan import MERGING, RenderPlan, make_plan
@@ -209,6 +210,8 @@ class Renderer:
         plan_st = st0.replace(use_frequency=False) if st0.integrator == "LIGHT" else st0
         self.plan: RenderPlan = make_plan(scene, plan_st, self.mtab, self.light_table,
                                           force=tuple(force_stages))
+        if self.plan.transparent_shadows:
+            shadow.attach(self.accel, scene, self.mtab)     # core.lights.shadow
         self._check_stop()
         self.kappa = scene_curvature(scene) if self.plan.frequency_photons else None
         self._check_stop()

@@ -100,7 +100,8 @@ def _translate(x, y, z):
     return m
 
 
-def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA")):
+def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
+                 glossy: bool = True):
     """A synthetic scene of the warm-up (``core.scene.model.Scene``), res x res px.
 
     A closed 4 x 4 x 2 m room (so that nearly every photon is deposited, and a
@@ -108,11 +109,14 @@ def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA")):
     with a diffuse floor and walls, a rough glossy wall, a mirror, a glass
     cube and an emissive ceiling quad, lit by ``analytic_lights`` (kinds of
     ``core.scene.model.Light``; POINT and AREA photons are emitted by the
-    compiled sampler, SPOT and SUN by the numpy one).
+    compiled sampler, SPOT and SUN by the numpy one).  glossy=False makes the
+    rough glossy wall diffuse (the camera-path kernels,
+    core.integrators.path_kernels, cover scenes without rough lobes).
     """
     mats = [Material("diffuse", (Lobe(DIFFUSE, (0.8, 0.8, 0.8)),)),
             Material("glossy", (Lobe(GLOSSY, (0.8, 0.6, 0.4), roughness=0.3),
-                                Lobe(DIFFUSE, (0.2, 0.2, 0.2), weight=0.5))),
+                                Lobe(DIFFUSE, (0.2, 0.2, 0.2), weight=0.5))
+                     if glossy else (Lobe(DIFFUSE, (0.8, 0.6, 0.4)),)),
             Material("mirror", (Lobe(GLOSSY, (0.9, 0.9, 0.9), roughness=0.0),)),
             Material("glass", (Lobe(GLASS, (1.0, 1.0, 1.0), ior=1.5),)),
             Material("emitter", (Lobe(DIFFUSE, (0.0, 0.0, 0.0)),), emission=(5.0, 5.0, 5.0))]
@@ -153,7 +157,10 @@ def warmup_jobs() -> list:
                                 aov_photon_count=True, aov_held=True, radius_mode="WORLD")),
             (warmup_scene(analytic_lights=("SPOT", "SUN")),
              base.replace(use_frequency=False, photons_for_direct=True,
-                          fixed_visible_points=True, cap_radius_at_edges=False))]
+                          fixed_visible_points=True, cap_radius_at_edges=False)),
+            # The compiled camera paths and the combined integrator's kernels.
+            (warmup_scene(glossy=False),
+             base.replace(integrator="COMBINED", photons_per_pass=2000, camera_samples=1))]
 
 
 def compile_kernels(should_stop: Optional[Callable[[], bool]] = None) -> float:

@@ -16,6 +16,7 @@ from numba import njit
 
 from core.accel import surface_point
 from core.frequency import spectrum as F
+from core.frequency.curvature import bounce_interface, delta_ior
 from core.frequency.occlusion_march import march_occlusion
 from core import lights as Lt
 from core import materials as B
@@ -52,20 +53,28 @@ def arrive_numpy(tracer, spec, o, d, t, ng):
     return F.onto_surface(s, np.abs(_dot(ng, d)), model, A_MAX)
 
 
-def leave_numpy(tracer, spec, ng, wo, mat, delta, kappa):
+def leave_numpy(tracer, spec, ng, wo, mat, delta, iface):
     """The leaving chain (``kernels.leave``) of on-surface spectra spec (N, 3)
     along wo (N, 3) from surfaces of geometric normal ng (N, 3) and material
-    mat (N,); delta (N,) bool a delta lobe was sampled; kappa (N,) the signed
-    curvature, or None (no curvature step).  Returns (N, 3)."""
+    mat (N,); delta (N,) bool a delta lobe was sampled; iface the (scale, mu,
+    k) of ``curvature.bounce_interface``, or None (no interface step).
+    Returns (N, 3)."""
     model = tracer.settings.frequency_model
     A_MAX = tracer.D * tracer.D
+    if iface is not None:
+        spec = np.where(delta[:, None], F.interface(spec, *iface, model, A_MAX), spec)
     s = F.off_surface(spec, np.abs(_dot(ng, wo)), model, A_MAX)
     b_lobe = np.where(delta, 0.0, F.lobe_variance(tracer.mtab.kind[mat, 0],
                                                   tracer.mtab.roughness[mat, 0]))
-    s = F.brdf(s, b_lobe, model, A_MAX)
-    if kappa is not None:
-        s = np.where(delta[:, None], F.curvature(s, kappa, model, A_MAX), s)
-    return s
+    return F.brdf(s, b_lobe, model, A_MAX)
+
+
+def _iface(tracer, prim, sign, ng, d_in, d_out, mat):
+    """``curvature.bounce_interface`` of a tracer's hits, or None without curvature."""
+    if tracer.kappa is None:
+        return None
+    return bounce_interface(tracer.kappa, prim, sign, ng, d_in, d_out,
+                            delta_ior(tracer.mtab)[mat])
 
 
 def spectrum_at_hits_numpy(self, spec, seg, rec, dep, rows):
@@ -84,13 +93,14 @@ def spectrum_at_hits_numpy(self, spec, seg, rec, dep, rows):
     return out
 
 
-def spectrum_leaving_numpy(self, spec_hit, n_next, prim, rec, d64):
+def spectrum_leaving_numpy(self, spec_hit, n_next, prim, rec, d64, din):
     """``PhotonTracer._spectrum_leaving`` by :func:`leave_numpy`."""
     srcs = rec.nxt_src[:n_next]
     pr = prim[srcs]
-    kap = None if self.kappa is None else self.kappa[pr] * rec.nswi[srcs]
-    return leave_numpy(self, spec_hit[srcs], rec.ng[srcs], d64[:n_next], self.tris.mat[pr],
-                       rec.nxt_delta[:n_next], kap)
+    mat = self.tris.mat[pr]
+    iface = _iface(self, pr, rec.nswi[srcs], rec.ng[srcs], din[srcs], d64[:n_next], mat)
+    return leave_numpy(self, spec_hit[srcs], rec.ng[srcs], d64[:n_next], mat,
+                       rec.nxt_delta[:n_next], iface)
 
 
 def use_numpy_chains(tracer):
@@ -181,12 +191,10 @@ def trace_numpy(self, n: int, n_freq: int, rng):
         if is_freq.any():
             fk = k[is_freq[k]]
             if fk.size:
-                kap = None
-                if self.kappa is not None:
-                    kap = self.kappa[hits.prim[fk]] * np.where(_dot(ns[fk], wi[fk]) >= 0,
-                                                               1.0, -1.0)
+                sgn = np.where(_dot(ns[fk], wi[fk]) >= 0, 1.0, -1.0)
+                iface = _iface(self, hits.prim[fk], sgn, ng[fk], -wi[fk], wo_new[fk], mat[fk])
                 spec[fk] = leave_numpy(self, spec[fk], ng[fk], wo_new[fk], mat[fk],
-                                       is_delta[fk], kap)
+                                       is_delta[fk], iface)
         o = self.accel.spawn(p[k], ng[k], wo_new[k])
         d = wo_new[k]
         power = power[k] * wgt[k]

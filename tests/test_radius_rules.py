@@ -214,7 +214,10 @@ def test_caustic_line_holds_are_released():
     passes (the prediction misses the lines; docs/method.md).  Verified by the
     photons most holds are released.  Measured at 32x32, 16 passes of 50k
     photons, seed 0, on the 20 brightest pixels: 35% held -> 15% (7 -> 3
-    pixels; deterministic for the seed)."""
+    pixels; deterministic for the seed).  Since the interface operator
+    (oblique incidence: the ring's curvature is sagittal, docs/frequency.md
+    "Refraction and oblique incidence") the spectrum alone holds 10% there
+    (2 pixels) and verification keeps those two."""
     bpy_helpers = pytest.importorskip("bpy_helpers")
     bpy = bpy_helpers.bpy()
     bpy_helpers.ensure_registered()
@@ -233,7 +236,8 @@ def test_caustic_line_holds_are_released():
         if not verify:
             caustic = np.argsort(img)[-max(1, img.size // 50):]
         held[verify] = r.state.held[caustic].mean()
-    assert held[True] <= held[False] / 2
+    assert held[False] <= 0.15
+    assert held[True] <= held[False]
 
 
 def test_sector_counts_are_checkpointed():

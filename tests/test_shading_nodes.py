@@ -494,8 +494,9 @@ def test_image_alpha_is_transparency_like_cycles(how, tmp_path):
             links.new(mix.outputs[0], surface)
 
     sc, _ = plane_scene(mat)
-    # An emitting floor: its radiance does not depend on the shadow of the
-    # plane (FPPM's shadow rays stop at transparent surfaces, Cycles' pass).
+    # An emitting floor: its radiance does not depend on the plane's shadow,
+    # so this test measures the camera paths' alpha alone (transparent
+    # shadows are tests/test_transparent_shadows.py's).
     K.plane("Floor", 4.0, K.material("Red", "EMISSION", color=(0.8, 0.1, 0.05)),
             location=(0, 0, -0.5))
     err, noise, img, ref, scene, lines = compare(sc, tmp_path, how)

@@ -9,8 +9,8 @@ of a bounce's segments in one call:
 
 - arriving at a hit (:func:`arrive`): travel -> occlude -> onto_surface,
   then the predicted radius of every deposit (receiver diffuse, z = inf);
-- leaving it (:func:`leave`): off_surface -> brdf (lobe variance) ->
-  curvature (delta lobes).
+- leaving it (:func:`leave`): interface (delta lobes: reflection or
+  refraction at the curved surface) -> off_surface -> brdf (lobe variance).
 
 Each chain is written once, per photon, in :func:`arrive` and :func:`leave`;
 the batch kernels :func:`spectrum_at_hits` and :func:`spectrum_leaving` loop
@@ -43,6 +43,7 @@ from numba import njit
 from .. import materials as B
 from ..scene import model as _sc
 from . import spectrum as F
+from . import curvature as _curv
 from . import occlusion_grid as _occlusion_grid
 from . import occlusion_march as _occlusion_march
 from .occlusion_march import march_segments
@@ -165,18 +166,75 @@ def brdf(a, b, c, bl, paper, A_MAX):
 
 @njit(cache=True)
 def curvature(a, b, c, kappa, paper, A_MAX, factor):
-    """spectrum.curvature (PAPER: identity)."""
+    """spectrum.curvature (PAPER: identity): interface(1, 1, factor kappa)."""
+    return interface(a, b, c, 1.0, 1.0, factor * kappa, paper, A_MAX)
+
+
+@njit(cache=True)
+def interface(a, b, c, sc, mu, k, paper, A_MAX):
+    """spectrum.interface: (u, theta) -> (sc u, mu theta + k u) (PAPER: identity)."""
     if paper:
         return a, b, c
     a, b, c = sanitize(a, b, c, A_MAX)
-    k = factor * kappa
+    if not (sc - sc == 0.0):
+        sc = 1.0
+    if not (mu - mu == 0.0):
+        mu = 1.0
     if not (k - k == 0.0):
         k = 0.0
-    c1 = c + k * a
-    det = _fmax(a * b - c * c, 0.0)
-    b1 = (det + c1 * c1) / a if a > 0 else b
-    sc = B_CAP / b1 if b1 > B_CAP else 1.0
-    return sanitize(a * sc, b1 * sc, c1 * sc, A_MAX)
+    a1 = sc * sc * a
+    c1 = sc * (mu * c + k * a)
+    det = sc * sc * mu * mu * _fmax(a * b - c * c, 0.0)
+    b1 = (det + c1 * c1) / a1 if a1 > 0 else mu * mu * b
+    f = B_CAP / b1 if b1 > B_CAP else 1.0
+    return sanitize(a1 * f, b1 * f, c1 * f, A_MAX)
+
+
+@njit(cache=True)
+def interface_map(ci, ct, eta, kt, ks, tw, reflect):
+    """spectrum.interface_map for one bounce: (scale, mu, k)."""
+    ci = _clip(abs(_nan_to_num(ci)), COS_MIN, 1.0)
+    ct = _clip(abs(_nan_to_num(ct)), COS_MIN, 1.0)
+    eta = 1.0 if eta != eta else eta
+    kt = kt if kt - kt == 0.0 else 0.0
+    ks = ks if ks - ks == 0.0 else 0.0
+    tw = tw if tw - tw == 0.0 else 0.0
+    if reflect:
+        ct = ci
+        p_t = 2.0 * kt / ci
+        p_s = 2.0 * ks * ci
+        p_x = 2.0 * tw
+        mu_t, mu_s = 1.0, 1.0
+    else:
+        g = eta * ci - ct
+        p_t = g * kt / (ct * ct)
+        p_s = g * ks
+        p_x = g * tw / ct
+        mu_t, mu_s = eta * ci / ct, eta
+    p = 0.5 * (p_t + p_s) - math.sqrt((0.5 * (p_t - p_s)) ** 2 + p_x * p_x)
+    if p_s < p_t:
+        return ci / ct, mu_s, p * ci
+    return 1.0, mu_t, p * ct
+
+
+@njit(cache=True)
+def bounce_interface(k1, k2, e1x, e1y, e1z, sign, ngx, ngy, ngz, dix, diy, diz,
+                     dox, doy, doz, ior):
+    """curvature.bounce_interface for one delta bounce: (scale, mu, k)."""
+    ni = ngx * dix + ngy * diy + ngz * diz
+    no = ngx * dox + ngy * doy + ngz * doz
+    tx, ty, tz = dix - ni * ngx, diy - ni * ngy, diz - ni * ngz
+    t2 = tx * tx + ty * ty + tz * tz
+    if t2 > 1e-12:
+        e = e1x * tx + e1y * ty + e1z * tz
+        c2 = _fmin(e * e / t2, 1.0)
+    else:
+        c2 = 1.0
+    kt = sign * (k1 * c2 + k2 * (1.0 - c2))
+    ks = sign * (k1 * (1.0 - c2) + k2 * c2)
+    tw = (k1 - k2) * math.sqrt(c2 * (1.0 - c2))
+    eta = 1.0 / ior if ni < 0.0 else ior
+    return interface_map(abs(ni), abs(no), eta, kt, ks, tw, ni * no <= 0.0)
 
 
 @njit(cache=True)
@@ -232,15 +290,15 @@ def arrive(a, b, c, t, a_occ, t_occ, has_grid, cs, paper, A_MAX, D):
 
 
 @njit(cache=True)
-def leave(a, b, c, cs, b_lobe, kappa, curved, paper, A_MAX):
+def leave(a, b, c, cs, b_lobe, sc, mu, k, curved, paper, A_MAX):
     """The on-surface spectrum (a, b, c) leaving along a direction at cosine
     cs (|ng . wo|) through a lobe of angular variance b_lobe (0 for a delta
-    lobe); curved: also the curvature kappa [1/m] of a mirror (factor 2)."""
-    a, b, c = off_surface(a, b, c, cs, paper, A_MAX)
-    a, b, c = brdf(a, b, c, b_lobe, paper, A_MAX)
+    lobe); curved: first the interface (sc, mu, k) of a delta bounce
+    (:func:`bounce_interface`), in surface coordinates."""
     if curved:
-        a, b, c = curvature(a, b, c, kappa, paper, A_MAX, 2.0)
-    return a, b, c
+        a, b, c = interface(a, b, c, sc, mu, k, paper, A_MAX)
+    a, b, c = off_surface(a, b, c, cs, paper, A_MAX)
+    return brdf(a, b, c, b_lobe, paper, A_MAX)
 
 
 # ------------------------------------------------------------ kernel arguments
@@ -276,13 +334,19 @@ class SurfaceLobes(NamedTuple):
     """What the leaving chain reads of the hit surfaces.  tri_mat (T,) int32
     material of each triangle; lobe_b (M,) float64 the angular variance of
     each material's first lobe (``spectrum.lobe_variance``), lobe_ok (M,)
-    bool False where that raises; kappa (T,) float64 triangle curvature,
-    used when has_kappa (delta lobes only)."""
+    bool False where that raises; delta_ior (M,) float64 the ior of the
+    first delta GLASS / REFRACTION lobe (1 without one); kappa, kappa2 (T,)
+    float64 and e1 (T, 3) the triangles' principal curvatures and first
+    principal direction (``curvature.Curvature``), used when has_kappa
+    (delta lobes only)."""
     tri_mat: np.ndarray
     lobe_b: np.ndarray
     lobe_ok: np.ndarray
     kappa: np.ndarray
     has_kappa: bool
+    kappa2: np.ndarray = np.zeros(1)
+    e1: np.ndarray = np.zeros((1, 3))
+    delta_ior: np.ndarray = np.ones(1)
 
 
 # ------------------------------------------------------------ cache token
@@ -376,15 +440,17 @@ def _kernels(token):
 
 
     @njit(cache=True, nogil=True, error_model="numpy")
-    def spectrum_leaving(chain, n_next, spec_hit, rec, d, prim, lobes):
+    def spectrum_leaving(chain, n_next, spec_hit, rec, d, prim, lobes, din):
         """Frequency photons leaving their hits: rows 0..n_next-1 of the live state.
 
         chain: ChainParams; spec_hit (K, 3): on-surface spectra
         (``spectrum_at_hits``); rec: the hit record (ng, nswi, and nxt_src,
         nxt_delta: each survivor's ray and whether it sampled a delta lobe);
         d (n_next, 3) the survivors' new directions; prim (K,) the hit
-        triangles; lobes: SurfaceLobes.
-        out[j] = :func:`leave` of spec_hit[nxt_src[j]] at |ng . wo|.
+        triangles; lobes: SurfaceLobes; din (K, 3) the directions the rays
+        arrived along (``Segments.d``).
+        out[j] = :func:`leave` of spec_hit[nxt_src[j]] at |ng . wo|, after
+        a delta lobe through the interface :func:`bounce_interface`.
         Returns (out (n_next, 3) float64; the first survivor j whose material
         has no lobe variance, or -1).
         """
@@ -403,9 +469,15 @@ def _kernels(token):
                 bad = j
             bl = 0.0 if dl else lobes.lobe_b[m]
             curved = lobes.has_kappa and dl
-            kap = lobes.kappa[p] * rec.nswi[i] if curved else 0.0
-            a, b, c = leave(spec_hit[i, 0], spec_hit[i, 1], spec_hit[i, 2], cs, bl, kap, curved,
-                            paper, A_MAX)
+            sc, mu, k = 1.0, 1.0, 0.0
+            if curved:
+                sc, mu, k = bounce_interface(
+                    lobes.kappa[p], lobes.kappa2[p], lobes.e1[p, 0], lobes.e1[p, 1],
+                    lobes.e1[p, 2], rec.nswi[i], rec.ng[i, 0], rec.ng[i, 1], rec.ng[i, 2],
+                    din[i, 0], din[i, 1], din[i, 2], d[j, 0], d[j, 1], d[j, 2],
+                    lobes.delta_ior[m])
+            a, b, c = leave(spec_hit[i, 0], spec_hit[i, 1], spec_hit[i, 2], cs, bl, sc, mu, k,
+                            curved, paper, A_MAX)
             out[j, 0] = a
             out[j, 1] = b
             out[j, 2] = c
@@ -456,10 +528,11 @@ spectrum_at_hits, spectrum_leaving, _apply, _radius = _kernels(_dependency_token
 
 def surface_lobes(mtab, tri_mat, kappa) -> SurfaceLobes:
     """SurfaceLobes of a scene: tri_mat (T,) int32, the material table mtab
-    and kappa (T,) float64 triangle curvature or None (no curvature step).
-    lobe_b is ``spectrum.lobe_variance`` of each material's first lobe
-    (kind[:, 0], roughness[:, 0]); lobe_ok False (and lobe_b NaN) where it
-    raises (unused slot, unknown kind)."""
+    and kappa a ``curvature.Curvature`` of the triangles or None (no
+    interface step).  lobe_b is ``spectrum.lobe_variance`` of each
+    material's first lobe (kind[:, 0], roughness[:, 0]); lobe_ok False (and
+    lobe_b NaN) where it raises (unused slot, unknown kind); delta_ior
+    ``curvature.delta_ior``."""
     kinds = np.asarray(mtab.kind)[:, 0]
     rough = np.asarray(mtab.roughness, np.float64)[:, 0]
     M = kinds.shape[0]
@@ -471,8 +544,11 @@ def surface_lobes(mtab, tri_mat, kappa) -> SurfaceLobes:
             ok[m] = True
         except ValueError:
             pass
-    return SurfaceLobes(tri_mat, lobe_b, ok, kappa if kappa is not None else np.zeros(1),
-                        kappa is not None)
+    if kappa is None:
+        return SurfaceLobes(tri_mat, lobe_b, ok, np.zeros(1), False)
+    return SurfaceLobes(tri_mat, lobe_b, ok, np.ascontiguousarray(kappa.k1, np.float64), True,
+                        np.ascontiguousarray(kappa.k2, np.float64),
+                        np.ascontiguousarray(kappa.e1, np.float64), _curv.delta_ior(mtab))
 
 
 OPS = {"travel": 0, "occlude": 1, "onto_surface": 2, "off_surface": 3, "brdf": 4,

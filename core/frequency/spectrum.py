@@ -277,13 +277,14 @@ def brdf(s, b_lobe, model="CORRECTED", A_MAX=A_MAX_DEFAULT):
 
 
 def curvature(s, kappa, model="CORRECTED", A_MAX=A_MAX_DEFAULT, factor=2.0):
-    """Curved reflector: theta' = theta + k x with k = factor * kappa.
+    """Curved reflector at normal incidence: theta' = theta + k x with k = factor * kappa.
 
     s: (N, 3) in the outgoing frame (apply :func:`mirror` first); kappa: (N,)
     or scalar signed curvature [1/m] of the surface along x_hat, kappa > 0
     convex (rays diverge), kappa < 0 concave (focusing); factor = 2 for a mirror
     (the normal tilts by kappa x, the reflected ray by twice that).
-    Returns (N, 3).
+    Returns (N, 3).  The renderer uses the general :func:`interface` (oblique
+    incidence, refraction); this is its case scale = mu = 1, k = factor kappa.
 
     CORRECTED (docs/frequency.md, "curvature", missing in the paper):
         b += 2kc + k^2 a,  c += k a,  a unchanged,
@@ -291,26 +292,96 @@ def curvature(s, kappa, model="CORRECTED", A_MAX=A_MAX_DEFAULT, factor=2.0):
     determinant, as for travel).
     PAPER: the paper has no curvature operator: identity.
     """
+    return interface(s, 1.0, 1.0, factor * _f64(kappa), model, A_MAX)
+
+
+def interface(s, scale, mu, k, model="CORRECTED", A_MAX=A_MAX_DEFAULT):
+    """A reflection or refraction at a curved interface, in surface coordinates.
+
+    s: (N, 3) on-surface spectra (after :func:`onto_surface`, before
+    :func:`off_surface`); scale, mu, k: (N,) or scalars from
+    :func:`interface_map`.  The linear map (u, theta) -> (scale u, mu theta + k u):
+    mu scales the angles (Snell's law linearised), k [1/m] bends them by the
+    tilt of the normal along the surface (docs/frequency.md "Refraction and
+    oblique incidence").  Returns (N, 3):
+
+        a' = s^2 a,  c' = s (mu c + k a),  b' = (s^2 mu^2 max(ab - c^2, 0) + c'^2) / a',
+
+    (b' = mu^2 b when a = 0).  When b' > 0.467 the whole Q is scaled, not b
+    clipped: clipping b alone moves the focus -c/b of a wide beam (a sun,
+    a = D^2, on a parabola of f = 0.5 m: clipped b put the focus at 1.46 D
+    instead of f and predicted r = 0.08 m at a point focus, holding the
+    radius there; tests/test_stiff_scenes.py).  Scaling keeps -c/b and
+    a_eff/a, and a smaller Q is sharper, i.e. conservative.
+    PAPER: no such operator in the paper: identity.
+    """
     m = _model(model)
     if m == "PAPER":
         return _f64(s).copy()
     a, b, c = _split(sanitize(s, A_MAX))
-    k = factor * _f64(kappa)
-    k = np.where(np.isfinite(k), k, 0.0)
-    c1 = c + k * a
-    det = np.maximum(a * b - c * c, 0.0)
+    sc, mu, k = (np.where(np.isfinite(v), v, d) for v, d in
+                 ((_f64(scale), 1.0), (_f64(mu), 1.0), (_f64(k), 0.0)))
+    a1 = sc * sc * a
+    c1 = sc * (mu * c + k * a)
+    det = sc * sc * mu * mu * np.maximum(a * b - c * c, 0.0)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        b1 = np.where(a > 0, (det + c1 * c1) / np.where(a > 0, a, 1.0), b)
-    # b > 0.467 would be clipped alone by sanitize, which moves the focus
-    # -c/b of a wide beam on a strong mirror (a sun, a = D^2, on a parabola of
-    # f = 0.5 m: b = a/f^2 > 1, clipped b put the focus at 1.46 D instead of f
-    # and predicted r = 0.08 m at a point focus, holding the radius there;
-    # tests/test_stiff_scenes.py).  Scaling the whole Q keeps -c/b and a_eff/a,
-    # and a smaller Q is sharper, i.e. conservative.
+        b1 = np.where(a1 > 0, (det + c1 * c1) / np.where(a1 > 0, a1, 1.0), mu * mu * b)
     with np.errstate(invalid="ignore"):
         over = b1 > B_CAP
-    sc = np.where(over, B_CAP / np.where(over, b1, 1.0), 1.0)
-    return sanitize(_stack(a * sc, b1 * sc, c1 * sc), A_MAX)
+    f = np.where(over, B_CAP / np.where(over, b1, 1.0), 1.0)
+    return sanitize(_stack(a1 * f, b1 * f, c1 * f), A_MAX)
+
+
+def interface_map(cos_i, cos_t, eta, kappa_t, kappa_s, tau, reflect):
+    """(scale, mu, k) of :func:`interface` at a delta bounce, each (N,) float64.
+
+    cos_i, cos_t: |cos| of the incident and the leaving ray to the normal
+    (clamped to [1e-3, 1]); eta = n_i / n_t (refraction; ignored when
+    reflect); kappa_t, kappa_s [1/m]: the normal curvatures of the surface
+    along the plane of incidence (tangential) and across it (sagittal),
+    > 0 convex seen from the incident side; tau [1/m] the twist (the
+    off-diagonal of the shape operator in those axes; its sign does not
+    matter); reflect: (N,) bool, a mirror reflection (else a refraction).
+
+    Linearised Snell (n_i cos_i dtheta_i = n_t cos_t dtheta_t, angles taken
+    from the local normal, which tilts by kappa u) gives, per axis
+    (Coddington's equations; docs/frequency.md "Refraction and oblique
+    incidence"), with g = eta cos_i - cos_t:
+
+    - tangential: scale 1, mu = eta cos_i / cos_t, k = g kappa_t / cos_t
+      (the footprint stretch is onto_surface / off_surface's);
+    - sagittal: scale cos_i / cos_t (undoes that stretch), mu = eta,
+      k = g kappa_s cos_i;
+    - a mirror: the same with eta = -1, cos_t = cos_i, in the reflected
+      rot90 frame: tangential (1, 1, 2 kappa_t), sagittal (1, 1, 2 kappa_s cos_i^2).
+
+    In the outgoing beam's units the bend is the symmetric power matrix
+    [[g kappa_t / cos_t^2, g tau / cos_t], [., g kappa_s]] (mirror:
+    [[2 kappa_t / cos_i, 2 tau], [., 2 kappa_s cos_i]]).  Flatland keeps
+    one axis: its most focusing eigenvalue p (the smaller, signed), with the
+    scale and mu of the axis its eigenvector is closer to (the one with the
+    smaller diagonal power; ties tangential), and k = p cos_t (tangential)
+    or p cos_i (sagittal).  Without twist p is that axis' own power; on a
+    cylinder lit obliquely (rank-1 shape operator) p is the sum of both.
+    """
+    ci = np.clip(np.abs(np.nan_to_num(_f64(cos_i), nan=1.0)), COS_MIN, 1.0)
+    ct = np.clip(np.abs(np.nan_to_num(_f64(cos_t), nan=1.0)), COS_MIN, 1.0)
+    kt, ks, tw = (np.nan_to_num(_f64(v), nan=0.0, posinf=0.0, neginf=0.0)
+                  for v in (kappa_t, kappa_s, tau))
+    rf = np.asarray(reflect, bool)
+    ci, ct, eta, kt, ks, tw, rf = np.broadcast_arrays(
+        ci, ct, np.nan_to_num(_f64(eta), nan=1.0), kt, ks, tw, rf)
+    ct = np.where(rf, ci, ct)
+    g = np.where(rf, -2.0 * ci, eta * ci - ct)
+    p_t = np.where(rf, 2.0 * kt / ci, g * kt / (ct * ct))
+    p_s = np.where(rf, 2.0 * ks * ci, g * ks)
+    p_x = np.where(rf, 2.0 * tw, g * tw / ct)
+    p = 0.5 * (p_t + p_s) - np.sqrt((0.5 * (p_t - p_s)) ** 2 + p_x * p_x)
+    sag = p_s < p_t
+    scale = np.where(sag, ci / ct, 1.0)
+    mu = np.where(rf, 1.0, np.where(sag, eta, eta * ci / ct))
+    k = p * np.where(sag, ci, ct)
+    return scale.astype(np.float64), mu.astype(np.float64), k.astype(np.float64)
 
 
 def mirror(s):

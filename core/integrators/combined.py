@@ -17,13 +17,15 @@ import numpy as np
 
 from .. import lights as Lt
 from .. import materials as B
-from ..accel import surface_point
+from ..accel import REL_OFFSET, intersect_f32, surface_point
 from ..lights.pdf import _selection_probability
 from ..lights.table import AREA, MESH
 from ..mathutil import dot as _dot
+from . import light_kernels as LK
 from . import mis as M
-from . import mis_kernels as MK
-from .light_tracer import CHUNK, LightTracer
+from ..sppm import photon_kernels as PK
+from ..sppm.photons import _Deposits
+from .light_tracer import LightTracer
 
 
 def _finite(w):
@@ -87,6 +89,29 @@ class CameraMIS:
         if depth == 0:
             Q = np.where(is_delta, 0.0, Q)
         return Q, np.where(is_delta, 1.0, pdf)
+
+    def nee_compiled(self, w, v, wi, dist, light, pl, sel, depth):
+        """:meth:`nee` for vertices in the scope of the path kernels
+        (``path_kernels.camera_nee_kernel``; pl, sel the samples'
+        light-sampling density and selection probability)."""
+        from . import path_kernels as PK
+        if getattr(self, "_mis_lights", None) is None:
+            self._mis_lights = PK.build_mis_lights(self.t, self.cls)
+        w = np.array(w, np.float64)
+        c = np.ascontiguousarray
+        PK.camera_nee_kernel(self._mis_lights, depth == 0, c(v.Q), c(v.c), c(v.p),
+                             c(v.ng), c(v.ns), c(v.wo), c(wi), c(dist), c(light, np.int64),
+                             c(pl), c(sel), w)
+        return w
+
+    def continued_compiled(self, v, nx, depth):
+        """:meth:`continued` for the NextRays nx of ``path_kernels.continue_kernel``."""
+        from . import path_kernels as PK
+        Q = np.empty(nx.src.size)
+        c = np.ascontiguousarray
+        PK.camera_continued_kernel(depth == 0, nx.src, nx.delta, nx.d, c(v.ng), c(v.ns),
+                                   c(v.wo), c(v.Q), c(v.c), Q)
+        return Q, nx.pdf
 
     def _reverse(self, v, wo_light, depth):
         """(K,) pr at vertices v for light arriving along wo_light (1 at the first vertex)."""
@@ -225,8 +250,8 @@ def emission_splat_weight(kn, c1, pA, full):
 class CombinedLightTracer(LightTracer):
     """Light paths traced by the compiled photon kernels, with their MIS
     ratios (B0 = q_0 / q_L and B1 = q_1 / q_L without the camera-side
-    factors of the current vertex) followed from the kernels' hit records
-    (:mod:`.mis_kernels`),
+    factors of the current vertex) followed by the bounce kernel
+    (``photon_kernels.MisState``),
     every non-delta vertex splatted with w_LT = 1 / (1 + (B0 X)^2 + (B1 X)^2),
     X = pf c_1 (the camera path's BSDF density there and its camera density).
     Light from emitters of class NO_LT (sun, world) is not traced."""
@@ -237,38 +262,36 @@ class CombinedLightTracer(LightTracer):
         self.K = int(camera_samples)
         self.max_bounces = int(self.tracer.settings.max_bounces)
         self.rr_start = int(self.tracer.settings.rr_start)
+        t = self.light_table
+        self.all_traced = not np.any((t.p_select > 0) & (self.cls == M.NO_LT))
+        self.first_lights = LK.first_hit_lights(t, M.emit_select(t, np.arange(t.n)))
 
     def trace_pass(self, n: int, rng, check_stop=lambda: None) -> np.ndarray:
-        """Trace n light paths; their weighted splat sums (H*W, 3)."""
-        film = np.zeros((self.H * self.W, 3))
+        """Trace n light paths; their weighted splat sums (H*W, 3) (chunks
+        and threads as LightTracer.trace_pass)."""
         self.kn = self.K / float(n)          # K / N_L
-        done = 0
-        r0 = self.accel.rays_cast
-        while done < n:
-            check_stop()
-            k = min(CHUNK, n - done)
-            self._chunk(k, rng, film)
-            done += k
-        self.rays += self.accel.rays_cast - r0
-        return film
+        return super().trace_pass(n, rng, check_stop)
 
     def _chunk(self, n: int, rng, film: np.ndarray) -> None:
-        t, mtab, s = self.light_table, self.mtab, self.scene
-        ph = Lt.sample_photons(t, n, rng)
-        light = ph["light"].astype(np.int64)
-        live = np.nonzero((light >= 0) & (self.cls[np.maximum(light, 0)] != M.NO_LT)
-                          & (ph["power"].max(axis=1) > 0))[0]
-        if live.size == 0:
-            return
-        ph = {k: v[live] for k, v in ph.items()}
-        light = light[live]
-        kn = self.kn
-        pA = M.emit_pdf_pos(t, light)
-
-        def emis_w(rows, weight, cos_o):
-            return emission_splat_weight(kn, weight * cos_o, pA[rows],
-                                         self.cls[light[rows]] == M.FULL)
-        self._emission_vertices(ph, rng, film, mis=emis_w)
+        t = self.light_table
+        ph = (PK.sample_photons_fast(t, n, rng) if self.fast_emission
+              else Lt.sample_photons(t, n, rng))
+        light = np.asarray(ph["light"], np.int64)
+        if not (self.fast_emission and self.all_traced):
+            # Emitters that light tracing leaves out, or none at all (the
+            # compiled emission covers neither; its zero-power photons are
+            # dropped by the emission kernel).
+            live = np.nonzero((light >= 0) & (self.cls[np.maximum(light, 0)] != M.NO_LT)
+                              & (ph["power"].max(axis=1) > 0))[0]
+            if live.size == 0:
+                return
+            if live.size < n:
+                ph = {k: v[live] for k, v in ph.items()}
+                light = light[live]
+        ph["light"] = light
+        if self.emitters_seen:
+            self._emission_vertices(ph, rng, film, mis=(self.kn, M.emit_pdf_pos(t, light),
+                                                        self.cls[light] == M.FULL))
         kind = t.kind[light]
         ar = (kind == AREA) | (kind == MESH)
         z0 = np.where(ar[:, None], ph["o"], t.co[light])     # the light end of the weights
@@ -276,32 +299,17 @@ class CombinedLightTracer(LightTracer):
         dep, B0d, B1d, first = self._trace(ph, z0, rng)
         if dep is None:
             return
-        bary = dep["bary"]
-        prim = bary[:, 0].astype(np.int64)
-        # The mesh's ng, as LightTracer._chunk (not the deposit's flipped one).
-        _, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, bary[:, 1], bary[:, 2])
-        mat = np.asarray(s.tri_mat, np.int64)[prim]
-        sft = soft[dep["src_photon"]]
-        wi = dep["wi"]
-
-        def splat_w(keep, pr, col):
-            wc = pr.wi[keep]
-            pf = B.pdf_bsdf(mtab, mat[keep], col, ns[keep], ng[keep], wc, wi[keep], subset="all")
-            c1 = pr.weight[keep] * np.abs(_dot(ng[keep], wc))
-            return splat_weight(B0d[keep], B1d[keep], pf, c1, first[keep], sft[keep])
-        self.connect(dep["p"], ng, ns, wi, dep["power"], mat, uv, rng, film, mis=splat_w)
+        self.connect(dep, rng, film, mis=(B0d, B1d, first, soft[dep["src_photon"]]))
 
     def _trace(self, ph, z0, rng):
         """Trace the photons ph with the compiled photon kernels
-        (core.sppm.photon_kernels, deposits from the first hit on, hit
-        records on) and follow B0, B1 along each path in numpy from the
-        records: the first-hit ratios, then per scattering the forward and
-        reverse BSDF densities of the direction the kernel sampled.
+        (core.sppm.photon_kernels, deposits from the first hit on), which
+        follow the MIS factors per scattering (``MisState``: LAMBERT and
+        delta samples in the kernel, other materials by ``pdf_bsdf`` here);
+        B0, B1 = the first-hit ratios of the photon (numpy, once per photon)
+        times the factors of each deposit.
         Returns (deposits + src_photon (row of ph), B0, B1, first) or Nones."""
-        from ..accel import REL_OFFSET, intersect_f32
-        from ..sppm import photon_kernels as PK
-        from ..sppm.photons import _Deposits
-        tr, t, mtab, s = self.tracer, self.light_table, self.mtab, self.scene
+        tr = self.tracer
         n = ph["o"].shape[0]
         live = PK.LiveState(o32=np.empty((n, 3), np.float32), d32=np.empty((n, 3), np.float32),
                             d64=np.empty((n, 3)), power=np.empty((n, 3)), falloff=np.empty(n))
@@ -312,17 +320,16 @@ class CombinedLightTracer(LightTracer):
                            np.ascontiguousarray(ph["power"], np.float64),
                            np.ascontiguousarray(ph["falloff_r2"], np.float64), rel, floor, live,
                            src)
-        row = src[:K].copy()                 # photon of each live ray
-        light = ph["light"].astype(np.int64)
         cg = n if tr.fmat.any_generic else 1
         gen = PK.GenericHits(np.empty(cg, np.int64), *(np.empty((cg, 3)) for _ in range(6)))
-        rec = PK.HitRecord(t=np.empty(n), ng=np.empty((n, 3)), nswi=np.empty(n),
-                           hit=np.empty(n, bool), nxt_src=np.empty(n, np.int64),
+        rec = PK.HitRecord(t=np.empty(1), ng=np.empty((1, 3)), nswi=np.empty(1),
+                           hit=np.empty(1, bool), nxt_src=np.empty(n, np.int64),
                            nxt_delta=np.empty(n, bool))
         dep = _Deposits(2.0 * n + 64)
-        kn = self.kn
-        Bp0 = Bp1 = None
-        out_B0, out_B1, out_first, out_row = [], [], [], []
+        mis = PK.mis_state(n, dep.buf.r.shape[0])
+        mis.row[:K] = src[:K]
+        # First-hit ratios per photon (B0, B1 at z_1).
+        fb0, fb1 = np.zeros(n), np.zeros(n)
         for bounce in range(self.max_bounces + 1):
             if K == 0:
                 break
@@ -330,65 +337,92 @@ class CombinedLightTracer(LightTracer):
             step = PK.BounceStep(K=K, first=bounce == 0, store=True,
                                  sample=bounce < self.max_bounces,
                                  roulette=bounce + 1 >= self.rr_start, bounce=bounce,
-                                 dep0=dep.n, record=True, rel=rel, floor=floor)
+                                 dep0=dep.n, record=False, rel=rel, floor=floor, mis=True)
             u = rng.random((K, 4))
             dep.reserve(K)
-            d_old = live.d64[:K].copy()
-            dep0 = dep.n
+            if mis.d0.shape[0] < dep.buf.r.shape[0]:
+                mis = _grow_deposit_rows(mis, dep.buf.r.shape[0], dep.n)
+            if bounce == 0:
+                self._first_hit(hits, K, live.d64[:K], mis.row[:K], ph, z0, fb0, fb1)
+            # Generic survivors need their rays' photon rows and directions
+            # from before the kernel compacts them.
+            row = mis.row[:K].copy() if tr.fmat.any_generic else None
+            d_old = live.d64[:K].copy() if tr.fmat.any_generic else None
             n_next, n_dep, n_gen = PK.bounce_kernel(step, hits, live, tr.tris, tr.fmat, u,
-                                                    dep.buf, gen, rec)
+                                                    dep.buf, gen, rec, mis)
             dep.n = n_dep
             if n_gen:
+                n_fast = n_next
                 n_next = tr._generic_bounce(n_gen, n_next, gen, u, step.roulette, live, rec)
-            # B at the vertices hit (rays i of this bounce).
-            hit = np.nonzero(rec.hit[:K])[0]
-            B0 = np.zeros(K)
-            B1 = np.zeros(K)
-            if bounce == 0:
-                p, ngh, _, _ = surface_point(s.tri_p, s.tri_n, s.tri_uv,
-                                             hits.prim[hit].astype(np.int64),
-                                             hits.bu[hit].astype(np.float64),
-                                             hits.bv[hit].astype(np.float64))
-                j = light[row[hit]]
-                B0[hit], B1[hit] = first_hit_ratios(t, kn, j, z0[row[hit]], d_old[hit], p, ngh)
-            else:
-                cos_in = np.abs(_dot(tr.tris.ng[hits.prim[hit]], d_old[hit]))
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    B0[hit] = _finite(Bp0[hit] / cos_in)
-                    B1[hit] = _finite(Bp1[hit] / cos_in)
-            ds = dep.buf.src[dep0:n_dep]
-            out_B0.append(B0[ds])
-            out_B1.append(B1[ds])
-            out_first.append(np.full(ds.size, bounce == 0))
-            out_row.append(row[ds])
-            if n_next == 0:
-                break
-            # The scatterings the kernel sampled: survivor jn came from ray i.
-            i = rec.nxt_src[:n_next].copy()
-            Bp0, Bp1 = np.empty(n_next), np.empty(n_next)
-            generic = np.empty(n_next, bool)
-            MK.scatter_ratios(n_next, rec.nxt_src, rec.nxt_delta, live.d64, hits.prim, hits.bu,
-                              hits.bv, d_old, tr.tris.n, tr.tris.ng, tr.tris.mat, tr.fmat.cls,
-                              B0, B1, bounce == 0, Bp0, Bp1, generic)
-            g = np.nonzero(generic)[0]
-            if g.size:
-                ig = i[g]
-                _, ngg, nsg, uvg = surface_point(s.tri_p, s.tri_n, s.tri_uv,
-                                                 hits.prim[ig].astype(np.int64),
-                                                 hits.bu[ig].astype(np.float64),
-                                                 hits.bv[ig].astype(np.float64))
-                mat = np.asarray(s.tri_mat, np.int64)[hits.prim[ig]]
-                col = B.lobe_colors(mtab, mat, uvg)
-                wo, wg = -d_old[ig], live.d64[g]
-                pl = B.pdf_bsdf(mtab, mat, col, nsg, ngg, wo, wg, subset="all")
-                pr = B.pdf_bsdf(mtab, mat, col, nsg, ngg, wg, wo, subset="all")
-                pend, pend1 = scatter_factors(pr, ngg, wg, pl, np.zeros(g.size, bool),
-                                              bounce == 0)
-                Bp0[g], Bp1[g] = B0[ig] * pend, B1[ig] * pend1
-            row = row[i]
+                if n_next > n_fast:
+                    self._generic_factors(n_fast, n_next, hits, rec, live, d_old, row, mis,
+                                          bounce == 0)
             K = n_next
         res = dep.result()
         if res is None:
             return None, None, None, None
-        res["src_photon"] = np.concatenate(out_row)
-        return res, np.concatenate(out_B0), np.concatenate(out_B1), np.concatenate(out_first)
+        nd = dep.n
+        drow = mis.drow[:nd]
+        res["src_photon"] = drow
+        B0 = _finite(fb0[drow] * mis.d0[:nd])
+        B1 = _finite(fb1[drow] * mis.d1[:nd])
+        return res, B0, B1, res["bounce"] == 0
+
+    def _first_hit(self, hits, K, d, row, ph, z0, fb0, fb1):
+        """fb0, fb1 [photon] = first_hit_ratios at the first hits of rays 0..K-1
+        (positions from the barycentrics, the triangles' geometric normals):
+        compiled for point lights and rectangles (light_kernels.first_hits,
+        the selection probabilities in numpy), first_hit_ratios for the others."""
+        t, tris = self.light_table, self.tracer.tris
+        hit = np.nonzero(hits.prim[:K] >= 0)[0]
+        if hit.size == 0:
+            return
+        prim = hits.prim[hit]
+        u = hits.bu[hit].astype(np.float64)[:, None]
+        v = hits.bv[hit].astype(np.float64)[:, None]
+        P = tris.p[prim]
+        p = (1.0 - u - v) * P[:, 0] + u * P[:, 1] + v * P[:, 2]
+        ng = tris.ng[prim]
+        r = row[hit]
+        light, zr, dh = ph["light"][r], z0[r], d[hit]
+        b0, b1 = np.empty(hit.size), np.empty(hit.size)
+        LK.first_hits(self.first_lights, self.kn, p, ng, dh, zr, light,
+                      _selection_probability(t, p, light), b0, b1)
+        s = np.nonzero(np.isnan(b0))[0]
+        if s.size:
+            b0[s], b1[s] = first_hit_ratios(t, self.kn, light[s], zr[s], dh[s], p[s], ng[s])
+        fb0[r], fb1[r] = b0, b1
+
+    def _generic_factors(self, a, b, hits, rec, live, d_old, row, mis, first):
+        """The MIS factors of the generic-material survivors a..b-1 (appended by
+        PhotonTracer._generic_bounce): pdf_bsdf in numpy, delta samples 1."""
+        s, mtab = self.scene, self.mtab
+        j = np.arange(a, b)
+        i = rec.nxt_src[a:b]
+        delta = rec.nxt_delta[a:b]
+        _, ngg, nsg, uvg = surface_point(s.tri_p, s.tri_n, s.tri_uv,
+                                         hits.prim[i].astype(np.int64),
+                                         hits.bu[i].astype(np.float64),
+                                         hits.bv[i].astype(np.float64))
+        mat = np.asarray(s.tri_mat, np.int64)[hits.prim[i]]
+        col = B.lobe_colors(mtab, mat, uvg)
+        wo, wg = -d_old[i], live.d64[a:b]
+        pl = np.ones(j.size)
+        pr = np.ones(j.size)
+        nd = np.nonzero(~delta)[0]
+        if nd.size:
+            pl[nd] = B.pdf_bsdf(mtab, mat[nd], col[nd], nsg[nd], ngg[nd], wo[nd], wg[nd],
+                                subset="all")
+            pr[nd] = B.pdf_bsdf(mtab, mat[nd], col[nd], nsg[nd], ngg[nd], wg[nd], wo[nd],
+                                subset="all")
+        pend, pend1 = scatter_factors(pr, ngg, wg, pl, delta, first)
+        mis.f0[a:b] = mis.h0[i] * pend
+        mis.f1[a:b] = np.where(delta, 0.0, mis.h1[i] * pend1) if first else mis.h1[i] * pend
+        mis.row[a:b] = row[i]
+
+
+def _grow_deposit_rows(mis, cap, n):
+    """A MisState whose deposit rows hold cap (the first n copied)."""
+    g = PK.mis_state(1, cap)
+    g.d0[:n], g.d1[:n], g.drow[:n] = mis.d0[:n], mis.d1[:n], mis.drow[:n]
+    return mis._replace(d0=g.d0, d1=g.d1, drow=g.drow)

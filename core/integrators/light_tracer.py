@@ -51,81 +51,32 @@ implementation notes).  Camera side, per connection, in ``CameraProjection``:
 We, pdf_pos = 1 / A_lens, pdf_dir = 1 / (A_pix cos^3) [solid angle], pdf_wi =
 d^2 / (cos A_lens); the camera-path density of reaching y is pdf_dir |n_g . w_c|
 / d^2 [area] and the reverse density of the light path's previous vertex is
-pdf_bsdf(w_c -> w_j) (``materials.pdf_bsdf``).  Light side, per vertex (not
-recorded yet -- deposits keep p, ng, wi, power, (prim, u, v)): the emission
-densities pdf_A (p_select / area; a point light's delta position) and pdf_W
-(cos / pi, 1 / (4 pi) for points); at every bounce the forward solid-angle pdf
-of the sampled direction, its reverse pdf, and whether the lobe was a delta;
-with them each deposit carries dVCM, dVC, dVM and the weight of this
-connection follows the paper's recursion (Russian roulette stays out of the
-densities, as there).
+pdf_bsdf(w_c -> w_j) (``materials.pdf_bsdf``).  Light side, per vertex: the
+emission densities pdf_A (p_select / area; a point light's delta position)
+and pdf_W (cos / pi, 1 / (4 pi) for points); at every bounce the forward
+solid-angle pdf of the sampled direction, its reverse pdf, and whether the
+lobe was a delta.  Integrator 'COMBINED' follows them as running ratios in
+the bounce kernel (``photon_kernels.MisState``, core.integrators.combined);
+Russian roulette stays out of the densities, as in the paper.
+
+The connection itself (projection, shadow rays, BSDF towards the lens, MIS
+weight, splat) is compiled: core.integrators.light_kernels, around one
+batched occlusion call (:meth:`LightTracer._transmittance`).
 """
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
-
 from .. import lights as Lt
 from .. import materials as B
-from ..accel import surface_point
-from ..scene.camera import BH_A0, BH_A1, BH_A2, BH_A3
+from ..accel import REL_OFFSET, surface_point
+from ..lights.shadow import transmittance
 from ..sppm import photon_kernels as PK
 from ..sppm.photons import PhotonTracer, _children, _pool, _threads
+from . import light_kernels as LK
+from .light_kernels import SHADING_CAP, splat_kernel
 
 #: Light paths per chunk (memory bound; a cancel is seen between chunks).
 CHUNK = 65_536
-#: Cap of the shading-normal factor, as the photon gather's.
-SHADING_CAP = 4.0
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _filter_1d(d, w, norm, box):
-    """The normalised 1D pixel filter at offset d [px] (core.scene.camera.
-    filter_weight, compiled): Blackman-Harris over +-w, or a one-pixel box."""
-    if box:
-        return 1.0 if abs(d) < 0.5 else 0.0
-    if abs(d) >= w:
-        return 0.0
-    v = 2.0 * np.pi * (d / (2.0 * w) + 0.5)
-    return max(BH_A0 - BH_A1 * np.cos(v) + BH_A2 * np.cos(2 * v) - BH_A3 * np.cos(3 * v),
-               0.0) * norm
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def splat_kernel(raster, contrib, x0, y0, W, H, width, film):
-    """Add contrib (K, 3) at film positions raster (K, 2) (full-frame pixels,
-    y up) to film (H*W, 3) (row 0 at the TOP of the region x0..x0+W-1,
-    y0..y0+H-1), weighted by the normalised separable pixel filter: Cycles'
-    Blackman-Harris over +-width px (core.scene.camera.filter_weight); a box
-    of one pixel when width <= 0."""
-    box = width <= 0.0
-    w = 0.5 if box else width
-    norm = 1.0 / (2.0 * w * BH_A0)
-    for k in range(raster.shape[0]):
-        x = raster[k, 0]
-        y = raster[k, 1]
-        ia = int(np.ceil(x - w - 0.5))
-        ib = int(np.floor(x + w - 0.5))
-        ja = int(np.ceil(y - w - 0.5))
-        jb = int(np.floor(y + w - 0.5))
-        if ib < x0 or ia >= x0 + W or jb < y0 or ja >= y0 + H:
-            continue
-        for j in range(max(ja, y0), min(jb, y0 + H - 1) + 1):
-            fy = _filter_1d(y - (j + 0.5), w, norm, box)
-            if fy == 0.0:
-                continue
-            row = (H - 1 - (j - y0)) * W
-            for i in range(max(ia, x0), min(ib, x0 + W - 1) + 1):
-                fx = _filter_1d(x - (i + 0.5), w, norm, box)
-                wgt = fx * fy
-                if wgt == 0.0:
-                    continue
-                q = row + (i - x0)
-                film[q, 0] += wgt * contrib[k, 0]
-                film[q, 1] += wgt * contrib[k, 1]
-                film[q, 2] += wgt * contrib[k, 2]
-
-
 class LightTracer:
     """Light tracing for one scene.  offset (x0, y0), size (W, H): the render
     region in Blender's pixel coordinates (y from the bottom)."""
@@ -143,11 +94,14 @@ class LightTracer:
         self.filter_width = float(filter_width)
         t = light_table
         # Emission vertices are splatted only for AREA lights the camera sees
-        # and MESH emitters; without any, the compiled emission kernel (same
-        # photons, no light index) is used.
+        # and MESH emitters.  The compiled emission (same uniforms, same
+        # photons up to round-off) where it covers every emitter kind.
         self.emitters_seen = bool(np.any((t.p_select > 0) & (
             ((t.kind == Lt.AREA) & t.visible_camera) | (t.kind == Lt.MESH))))
-        self.fast_emission = PK.fast_emission_ok(t) and not self.emitters_seen
+        self.fast_emission = PK.fast_emission_ok(t)
+        self.cam_params = LK.camera_params(camera, self.x0, self.y0, self.W, self.H,
+                                           self.filter_width)
+        self.fast_mat = LK.fast_materials(scene, mtab, self.tracer.fmat)
         self.rays = 0
 
     # ------------------------------------------------------------------
@@ -181,11 +135,45 @@ class LightTracer:
             ph = PK.sample_photons_fast(self.light_table, n, rng)
         else:
             ph = Lt.sample_photons(self.light_table, n, rng)
+        if self.emitters_seen:
             self._emission_vertices(ph, rng, film)
         dep = self.tracer.trace_emitted(ph, rng)
-        if dep is None:
+        if dep is not None:
+            self.connect(dep, rng, film)
+
+    def connect(self, dep, rng, film: np.ndarray, mis=None) -> None:
+        """Splat the deposits dep (a PhotonTracer deposit dict: p, ng, wi
+        (unit, back towards the light), power (K, 3), bary (K, 3) (prim, u,
+        v)) into film (H*W, 3): one lens sample each, the projection and the
+        shadow rays compiled (light_kernels.project_kernel), the shadow rays
+        (:meth:`_transmittance`), the splat compiled on LAMBERT materials
+        (light_kernels.splat_fast) and in numpy on the others (:meth:`_slow`).
+        mis: None, or (B0, B1, first, soft) (K,) of integrator 'COMBINED'
+        (combined.splat_weight)."""
+        p = dep["p"]
+        K = p.shape[0]
+        if K == 0:
             return
-        bary = dep["bary"]
+        con, nc, tr = self._connections(p, dep["ng"], rng)
+        if nc == 0:
+            return
+        one = np.zeros(1)
+        B0, B1, first, soft = mis if mis is not None else (one, one, one > 0, one > 0)
+        vin = LK.SplatInputs(dep["bary"], dep["wi"], dep["power"], B0, B1, first, soft)
+        tris = self.tracer.tris
+        slow = np.empty(nc, np.int64)
+        ns = LK.splat_fast(con, nc, tr, vin, tris.n, tris.ng, tris.mat, self.fast_mat,
+                           self.tracer.fmat.col, mis is not None, self.cam_params,
+                           self.filter_width, film, slow)
+        if ns:
+            self._slow(con, slow[:ns], tr, vin, mis is not None, film)
+
+    def _slow(self, con, c, tr, vin, mis, film) -> None:
+        """The connections c whose material the splat kernel does not cover:
+        eval_bsdf (and pdf_bsdf for the MIS weight) in numpy."""
+        from .combined import splat_weight
+        rows = con.row[c]
+        bary = vin.bary[rows]
         prim = bary[:, 0].astype(np.int64)
         # The mesh's own ng, not the deposit's (flipped to the photon's side):
         # the materials orient ns with ng, and a flipped ng against an
@@ -193,37 +181,25 @@ class LightTracer:
         # wo and wi on opposite sides: +94% on principled_interior.blend).
         _, ng, ns, uv = surface_point(self.scene.tri_p, self.scene.tri_n, self.scene.tri_uv,
                                       prim, bary[:, 1], bary[:, 2])
-        mat = np.asarray(self.scene.tri_mat, np.int64)[prim]
-        self.connect(dep["p"], ng, ns, dep["wi"], dep["power"], mat, uv, rng, film)
-
-    def connect(self, p, ng, ns, wi, power, mat, uv, rng, film, mis=None) -> None:
-        """Splat the surface vertices (K rows: position p, geometric normal ng,
-        shading normal ns, unit incoming direction wi (back towards the light),
-        flux power (K, 3), material mat, uv) into film (H*W, 3).  mis: None,
-        or mis(keep, projection, colors) -> (k,) MIS weights of the rows keep
-        (integrator 'COMBINED')."""
-        K = p.shape[0]
-        if K == 0:
-            return
-        pr, keep = self._visible(p, ng, rng)
-        if keep.size == 0:
-            return
-        wc = pr.wi[keep]
-        m = mat[keep]
-        colors = B.lobe_colors(self.mtab, m, uv[keep])
-        f = B.eval_bsdf(self.mtab, m, colors, ns[keep], ng[keep], wc, wi[keep])
-        corr = np.minimum(B.shading_correction(ns[keep], ng[keep], wi[keep]), SHADING_CAP)
-        g = np.abs(np.einsum("ij,ij->i", ng[keep], wc)) * corr * pr.weight[keep]
-        contrib = f * power[keep] * g[:, None]
-        if mis is not None:
-            contrib *= mis(keep, pr, colors)[:, None]
-        self._splat(pr.raster[keep], contrib, film)
+        m = np.asarray(self.scene.tri_mat, np.int64)[prim]
+        wc, wi, weight = con.wc[c], vin.wi[rows], con.weight[c]
+        colors = B.lobe_colors(self.mtab, m, uv)
+        f = B.eval_bsdf(self.mtab, m, colors, ns, ng, wc, wi)
+        corr = np.minimum(B.shading_correction(ns, ng, wi), SHADING_CAP)
+        c1 = np.abs(np.einsum("ij,ij->i", ng, wc)) * weight
+        contrib = f * vin.power[rows] * tr[c] * (c1 * corr)[:, None]
+        if mis:
+            pf = B.pdf_bsdf(self.mtab, m, colors, ns, ng, wc, wi, subset="all")
+            contrib *= splat_weight(vin.B0[rows], vin.B1[rows], pf, c1, vin.first[rows],
+                                    vin.soft[rows])[:, None]
+        self._splat(con.raster[c], contrib, film)
 
     def _emission_vertices(self, ph, rng, film, mis=None) -> None:
         """Splat the emission vertices of AREA lights visible to the camera and
-        of MESH emitters: f_s = 1 / pi on the emitting side (module doc).
-        mis: None, or mis(rows of ph, projection rows, |cos| at the emitter)
-        -> MIS weights (integrator 'COMBINED')."""
+        of MESH emitters: f_s = 1 / pi on the emitting side (module doc;
+        light_kernels.splat_emitters).  mis: None, or (kn, pA, full) of
+        integrator 'COMBINED' (combined.emission_splat_weight; pA, full per
+        row of ph)."""
         t = self.light_table
         light = ph["light"]
         ok = light >= 0
@@ -237,38 +213,38 @@ class LightTracer:
         n = t.dir[light[idx]]
         # MESH photons leave from the side their direction points to.
         n = n * np.where(np.einsum("ij,ij->i", n, ph["d"][idx]) >= 0, 1.0, -1.0)[:, None]
-        pr, keep = self._visible(o, n, rng)
-        if keep.size == 0:
+        con, nc, tr = self._connections(o, n, rng)
+        if nc == 0:
             return
-        cos_o = np.einsum("ij,ij->i", n[keep], pr.wi[keep])
-        front = cos_o > 0
-        keep = keep[front]
-        contrib = ph["power"][idx][keep] * (cos_o[front] * pr.weight[keep] / np.pi)[:, None]
+        kn, pA, full = mis if mis is not None else (0.0, np.ones(1), np.ones(1, bool))
         if mis is not None:
-            contrib *= mis(idx[keep], pr.weight[keep], cos_o[front])[:, None]
-        self._splat(pr.raster[keep], contrib, film)
+            pA, full = np.ascontiguousarray(pA[idx]), np.ascontiguousarray(full[idx])
+        LK.splat_emitters(con, nc, tr, n, np.ascontiguousarray(ph["power"][idx]),
+                          mis is not None, float(kn), pA, full, self.cam_params,
+                          self.filter_width, film)
 
-    def _visible(self, p, ng, rng):
-        """Project p (K, 3) through a fresh lens sample each; (projection,
-        indices of the points in front, near the region and unoccluded)."""
+    def _connections(self, p, ng, rng):
+        """Join the points p (K, 3) (geometric normals ng, any side) to a
+        fresh lens sample each: (Connections of the points in front and near
+        the region (rows 0..n-1; light_kernels.project_kernel), n, their
+        (n, 3) transmittance to the lens: :meth:`_transmittance`)."""
         K = p.shape[0]
-        cam = self.camera
-        pr = cam.project(p, rng.random((K, 2)))
-        w = max(self.filter_width, 0.5)
-        x, y = pr.raster[:, 0], pr.raster[:, 1]
-        near = (pr.ok & (x > self.x0 - w) & (x < self.x0 + self.W + w)
-                & (y > self.y0 - w) & (y < self.y0 + self.H + w))
-        idx = np.nonzero(near)[0]
-        if idx.size == 0:
-            return pr, idx
-        wc = pr.wi[idx]
-        # The camera ray starts at depth clip_start (generate): geometry in
-        # front of the near clip plane does not occlude.
-        pc_depth = -((p[idx] - cam.origin) @ cam.R[:, 2])
-        t_max = pr.dist[idx] * (pc_depth - cam.cam.clip_start) / np.maximum(pc_depth, 1e-300)
-        o = self.accel.spawn(p[idx], ng[idx], wc)
-        blocked = self.accel.occluded(o, wc, t_max)
-        return pr, idx[~blocked]
+        u_lens = rng.random((K, 2))
+        con = LK.connections(K)
+        n = LK.project_kernel(self.cam_params, p, ng, u_lens, REL_OFFSET,
+                              self.accel.abs_floor / REL_OFFSET, con)
+        if n == 0:
+            return con, 0, np.zeros((0, 3))
+        return con, n, self._transmittance(con.o[:n], con.wc[:n], con.t_max[:n],
+                                           ng[con.row[:n]])
+
+    def _transmittance(self, o, d, t_max, n0) -> np.ndarray:
+        """(K, 3): the light the shadow rays from o (K, 3) along unit d let
+        through to the lens before t_max (K,), leaving surfaces of unit
+        normals n0 (K, 3) (core.lights.shadow: a single batched Embree call
+        without transparent materials; 0 = blocked).  Every connection of
+        the light tracers is tested here."""
+        return transmittance(self.accel, o, d, t_max, n0=n0)
 
     def _splat(self, raster, contrib, film) -> None:
         good = np.all(np.isfinite(contrib), axis=1)

@@ -18,6 +18,12 @@ Georgiev et al. 2012; docs/integrators.md).  Like Cycles' path tracer:
   core.lights.pdf_direct and p_bsdf from core.materials.pdf_bsdf; emission
   seen from the camera or after a delta scattering has weight 1 (the other
   strategy cannot produce it);
+- transparent shadows (core.lights.shadow attached, not COMBINED): as in
+  Cycles a transparent crossing (a Transparent lobe's sample) is no
+  scattering vertex for MIS: the ray keeps the BSDF pdf, position and
+  normal of the vertex before it, the emitter's distance is measured from
+  there, and the light sample's shadow ray passes transparent surfaces for
+  every light;
 - ``max_bounces`` counts bounces as Cycles' Total: light samples at vertices
   0..max_bounces (vertex 0 = the camera ray's hit, so max_bounces = 0 is
   direct light only), and the emission found by the last vertex's BSDF ray;
@@ -29,6 +35,10 @@ Georgiev et al. 2012; docs/integrators.md).  Like Cycles' path tracer:
 
 All paths of a pass are traced together as a structure of arrays, masked and
 compacted per vertex (Mitsuba 3 style wavefront); throughput is float64.
+With ``compiled`` (default) and a scene the kernels cover, the light sample
+and its MIS weight, the light-sampling densities and the continuation (BSDF
+sample, throughput, roulette, spawn, compaction) are the numba kernels of
+:mod:`.path_kernels`; ``compiled = False`` is the numpy reference.
 """
 from __future__ import annotations
 
@@ -39,8 +49,10 @@ import numpy as np
 from ..accel import surface_point
 from .. import lights as Lt
 from .. import materials as B
+from ..lights import shadow as Sh
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..mathutil import dot as _dot
+from . import path_kernels as PK
 from .merge import CameraPartition
 
 #: Paths traced together at most: ~1 kB each in flight (64 MiB), and past the
@@ -128,9 +140,11 @@ class PathVertices:
 class PathTracer:
     """Camera paths over the pixels (px, py) (P,) float64 of the region, py from
     the bottom; settings: RenderSettings (max_bounces, rr_start,
-    camera_samples); nee: core.lights.nee.NextEventEstimation (its shadow test)."""
+    camera_samples); nee: core.lights.nee.NextEventEstimation (its shadow test);
+    compiled: use :mod:`.path_kernels` where they cover the scene."""
 
-    def __init__(self, scene, accel, mtab, light_table, camera, fsamp, px, py, settings, nee):
+    def __init__(self, scene, accel, mtab, light_table, camera, fsamp, px, py, settings, nee,
+                 compiled: bool = True):
         self.scene, self.accel, self.mtab, self.lights = scene, accel, mtab, light_table
         self.camera, self.fsamp, self.px, self.py = camera, fsamp, px, py
         self.max_bounces = int(settings.max_bounces)
@@ -154,6 +168,30 @@ class PathTracer:
         self.hittable = ((lt.kind == AREA) | (lt.kind == MESH) | (lt.kind == WORLD)
                          | ((lt.kind == SUN) & (lt.half_angle > 0))
                          | (((lt.kind == POINT) | (lt.kind == SPOT)) & (lt.radius > 0)))
+        self.compiled = compiled
+        # (DirectLights, LightPdf, PathMaterials, colors, TriangleData) or False
+        self._kernels = None
+
+    def kernels(self):
+        """The kernels' view of the scene, None where they do not cover it
+        (``path_kernels.compiled_scene_ok``) or ``compiled`` is off."""
+        if not self.compiled:
+            return None
+        if self._kernels is None:
+            from ..lights import direct_kernels as DK
+            from ..materials.fast import build_fast_materials
+            from ..sppm.photon_kernels import build_triangle_data
+            fmat = build_fast_materials(self.mtab)
+            if PK.compiled_scene_ok(self.mtab, fmat, self.lights, self.scene.tri_n):
+                M = self.mtab.kind.shape[0]
+                colors = B.lobe_colors(self.mtab, np.arange(M), np.zeros((M, 2)))
+                L = DK.build_direct_lights(self.lights)
+                self._kernels = (L, PK.build_light_pdf(self.lights, self.hittable, L),
+                                 PK.build_path_materials(self.mtab, fmat, colors), colors,
+                                 build_triangle_data(self.scene))
+            else:
+                self._kernels = False
+        return self._kernels or None
 
     def __call__(self, rng: np.random.Generator, check_stop=lambda: None) -> np.ndarray:
         """(P, 3) float64: the mean over ``camera_samples`` paths per pixel of
@@ -178,6 +216,7 @@ class PathTracer:
         (0:2), lens (2:4), first light sample (4:7)."""
         mtab, accel, s, lt = self.mtab, self.accel, self.scene, self.lights
         K = pix.size
+        kern = self.kernels()
         rays, _ = self.camera.generate(self.px[pix], self.py[pix], u[:, :2], u[:, 2:4], self.fsamp)
         out = np.zeros((K, 3))
         path = np.arange(K)
@@ -189,7 +228,17 @@ class PathTracer:
         p_prev = np.zeros((K, 3))
         n_prev = np.zeros((K, 3))
         vis = np.zeros(K, np.int8)
+        # Distance from the ray's origin back to p_prev along d: > 0 after
+        # transparent crossings (below), which are no MIS vertex.
+        t_acc = np.zeros(K)
         vc = self.vc
+        # Transparent crossings skipped by MIS (Cycles: a transparent bounce
+        # leaves mis_ray_pdf and mis_origin alone), as the shadow rays of
+        # next-event estimation pass those surfaces for every light
+        # (core.lights.shadow attached).  COMBINED keeps them delta vertices:
+        # its weights (core.integrators.combined) count them so.
+        clear = (Sh.transparent_materials(mtab)
+                 if vc is None and Sh.attached(accel) is not None else None)
         if vc is not None:
             Qs, pf, vprev = vc.camera_state(d), None, None
         part = CameraPartition(K) if getattr(vc, "merging", False) else None
@@ -206,7 +255,8 @@ class PathTracer:
                     continue
                 Le, row, t = Lt.emitted_along_rays(lt, o[sel], d[sel], t_end[sel], name,
                                                    return_hit=True)
-                w = self._mis_bsdf(pdf_prev[sel], p_prev[sel], n_prev[sel], d[sel], row, t)
+                w = self._mis_bsdf(pdf_prev[sel], p_prev[sel], n_prev[sel], d[sel], row,
+                                   t + t_acc[sel])
                 if vc is not None:
                     w = vc.emission(w, sel, row, d, t, None, depth, Qs, pf, pdf_prev, vprev)
                 if part is not None:
@@ -224,14 +274,20 @@ class PathTracer:
             if ih.size == 0:
                 break
             prim = h.prim[ih]
-            p, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, h.u[ih], h.v[ih])
+            if kern:
+                p, ng, ns = (np.empty((ih.size, 3)) for _ in range(3))
+                PK.hit_kernel(kern[4], prim, h.u[ih], h.v[ih], p, ng, ns)
+                uv = np.zeros((ih.size, 2))         # untextured in the kernels' scope
+            else:
+                p, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, h.u[ih],
+                                              h.v[ih])
             mat = s.tri_mat[prim]
             em = np.nonzero(mtab.emission[mat].max(axis=1) > 0)[0]
             if em.size:
                 Le = B.emission_radiance(mtab, mat[em], uv[em])
                 e = ih[em]
                 w = self._mis_bsdf(pdf_prev[e], p_prev[e], n_prev[e], d[e],
-                                   self.tri_light[prim[em]], h.t[e])
+                                   self.tri_light[prim[em]], h.t[e] + t_acc[e])
                 if vc is not None:
                     w = vc.emission(w, e, self.tri_light[prim[em]], d, h.t[e], ng[em], depth,
                                     Qs, pf, pdf_prev, vprev)
@@ -240,8 +296,12 @@ class PathTracer:
                 out[path[e]] += beta[e] * Le * w[:, None]
             if depth > self.max_bounces:
                 break       # the last BSDF ray only collects emission
+            # Untextured in the kernels' scope: the colours are the material's
+            # (read by the numpy CameraMIS terms only).
+            colors = (B.lobe_colors(mtab, mat, uv) if not kern
+                      else kern[3][mat] if vc is not None else None)
             v = PathVertices(path=path[ih], p=p, ng=ng, ns=ns, wo=-d[ih], mat=mat,
-                             colors=B.lobe_colors(mtab, mat, uv), beta=beta[ih])
+                             colors=colors, beta=beta[ih])
             if vc is not None:
                 v.Q, v.c = vc.at_hit(Qs[ih], pf, ih, d[ih], ng, h.t[ih], depth)
             if part is not None:
@@ -250,9 +310,27 @@ class PathTracer:
             nd = np.nonzero(mtab.has_nondelta[mat])[0]
             if nd.size:
                 ud = u[v.path[nd], 4:7] if depth == 0 else rng.random((nd.size, 3))
-                self._direct(v.take(nd), ud, out, depth)
+                vn = v if nd.size == ih.size else v.take(nd)
+                (self._direct_compiled if kern else self._direct)(vn, ud, out, depth)
             # Continue by sampling the BSDF (all lobes).
             ur = rng.random((ih.size, 4))
+            if kern:
+                nx = self._continue_compiled(v, ur, depth >= self.rr_start)
+                c = nx.src
+                if part is not None:
+                    # part.sampled is per row: on the survivors only, as numpy's keep(c) after.
+                    part.keep(c)
+                    part.sampled(nx.delta)
+                if vc is not None:
+                    Qs, pf = vc.continued_compiled(v, nx, depth)
+                    vprev = v.take(c)
+                o, d, beta = nx.o, nx.d, nx.beta
+                tmax = np.full(c.size, np.inf)
+                pdf_prev = np.where(nx.delta, 0.0, nx.pdf)
+                p_prev, n_prev, vis = v.p[c], nx.n_prev, nx.vis
+                t_acc = np.zeros(c.size)    # no transparent material in the kernels' scope
+                path = v.path[c]
+                continue
             wi, wgt, pdf, is_delta, valid = B.sample_bsdf(mtab, v.mat, v.colors, v.ns, v.ng, v.wo,
                                                           ur[:, :3], subset="all", mode="radiance")
             bt = v.beta * wgt
@@ -270,13 +348,24 @@ class PathTracer:
                 vprev = v.take(c)
             wi = wi[c]
             refl = (_dot(wi, v.ng[c]) * _dot(v.wo[c], v.ng[c])) > 0
+            o_prev = o
             o = accel.spawn(v.p[c], v.ng[c], wi)
             d = wi
             tmax = np.full(c.size, np.inf)
             beta = bt[c]
+            prev = (pdf_prev[ih[c]], p_prev[ih[c]], n_prev[ih[c]], vis[ih[c]],
+                    t_acc[ih[c]] + _dot(o - o_prev[ih[c]], d))
             pdf_prev = np.where(is_delta[c], 0.0, pdf[c])
             p_prev, n_prev = v.p[c], v.ns_wo()[c]
             vis = np.where(refl, 1, 2).astype(np.int8)
+            t_acc = np.zeros(c.size)
+            if clear is not None:
+                # A Transparent lobe's sample (wi = -wo exactly): the ray goes
+                # on from the last real vertex, with its pdf, normal, origin
+                # and visibility flag.
+                x = np.nonzero(is_delta[c] & clear[v.mat[c]] & np.all(wi == -v.wo[c], axis=1))[0]
+                for a, b in zip((pdf_prev, p_prev, n_prev, vis, t_acc), prev):
+                    a[x] = b[x]
             path = v.path[c]
         return out
 
@@ -287,9 +376,24 @@ class PathTracer:
         w = np.ones(pdf_bsdf.shape[0])
         m = np.nonzero((pdf_bsdf > 0) & (light >= 0))[0]
         if m.size:
-            pl = Lt.pdf_direct(self.lights, p_prev[m], wi[m], light[m], dist[m], n=n_prev[m])
+            pl = self.pdf_light(p_prev[m], wi[m], light[m], dist[m], n_prev[m])
             w[m] = power_heuristic(pdf_bsdf[m], pl)
         return w
+
+    def pdf_light(self, p, wi, light, dist, n) -> np.ndarray:
+        """(K,) core.lights.pdf_direct(lights, p, wi, light, dist, n=n), compiled
+        (path_kernels.pdf_kernel) where the kernels cover the scene."""
+        kern = self.kernels()
+        if not kern:
+            return Lt.pdf_direct(self.lights, p, wi, light, dist, n=n)
+        K = p.shape[0]
+        c = np.ascontiguousarray
+        p, light = c(p, np.float64), c(light, np.int64)
+        sel, out = np.empty(K), np.empty(K)
+        PK.selection_kernel(kern[0], kern[1], p, light, sel)
+        PK.pdf_kernel(kern[0], kern[1], p, c(wi, np.float64), light, c(dist, np.float64),
+                      c(n, np.float64), sel, out)
+        return out
 
     def _direct(self, v: PathVertices, u, out, depth: int = 0) -> None:
         """Adds to out[v.path] the light sample of each vertex (all have a
@@ -312,14 +416,69 @@ class PathTracer:
         v, wi, dist, contrib, light, shadow = (v.take(nz), wi[nz], dist[nz], contrib[nz],
                                                light[nz], shadow[nz])
         w = self.mis_light(v, wi, dist, light, n_l[live][nz])
+        self._add_direct(v, wi, dist, contrib, light, shadow, w, out, depth)
+
+    def _direct_compiled(self, v: PathVertices, u, out, depth: int = 0) -> None:
+        """_direct with the light sample, the Lambert f and the MIS weight in
+        the kernels (every vertex here is Lambert-only: path_kernels' scope)."""
+        from ..lights import direct_kernels as DK
+        L, Q, M = self.kernels()[:3]
+        K = v.path.size
+        n_l = v.ns_wo()
+        c = np.ascontiguousarray
+        R = DK.Receivers(np.arange(K), c(v.p), n_l, c(v.beta), c(M.col[v.mat]),
+                         np.ones(K, bool), c(u, np.float64))
+        S = DK.alloc_samples(K)
+        DK.direct_kernel(0, K, L, R, S)
+        w, pl, sel = np.empty(K), np.empty(K), np.empty(K)
+        live = np.empty(K, bool)
+        PK.nee_mis_kernel(L, Q, R.p, c(v.ng), c(v.ns), n_l, c(v.wo), S, w, live, pl, sel)
+        r = np.nonzero(live)[0]
+        if r.size == 0:
+            return
+        if r.size < K:
+            v = v.take(r)
+        wi, dist, light, w = S.wi[r], S.dist[r], S.light[r], w[r]
         if self.vc is not None:
+            w = self.vc.nee_compiled(w, v, wi, dist, light, pl[r], sel[r], depth)
+        self._add_direct(v, wi, dist, S.contrib[r], light, S.shadow[r], w, out, depth,
+                         camera_mis=False)
+
+    def _add_direct(self, v, wi, dist, contrib, light, shadow, w, out, depth,
+                    camera_mis=True) -> None:
+        """Adds the light samples (wi, dist, light, contrib = beta f |cos| weight,
+        shadow: the light casts shadows) at vertices v with PT-vs-NEE weights
+        w to out[v.path]: the COMBINED (unless camera_mis is False: applied
+        already) and merging factors, the shadow test (:meth:`transmittance`)."""
+        if self.vc is not None and camera_mis:
             w = self.vc.nee(w, v, wi, dist, light, depth)
         if v.m is not None:
             w = w * v.m
-        mesh = lt.kind[light] == MESH
-        blocked = self.nee._blocked(v.p, v.ng, wi, dist, mesh) & shadow
-        keep = ~blocked
-        out[v.path[keep]] += contrib[keep] * w[keep, None]     # one vertex per path
+        tr = self.transmittance(v.p, v.ng, wi, dist, light, shadow)
+        keep = tr.max(axis=1) > 0
+        out[v.path[keep]] += contrib[keep] * tr[keep] * w[keep, None]     # one vertex per path
+
+    def transmittance(self, p, ng, wi, dist, light, shadow) -> np.ndarray:
+        """(K, 3) light let through to the samples (wi, dist) of emitter rows
+        light taken at p (normal ng); shadow (K,) bool the light casts
+        shadows -- the one shadow test of the camera paths (numpy and
+        compiled).  Transparent shadows for every light: a BSDF ray crossing
+        a transparent surface is weighed against the light sample of the
+        vertex before it (``_trace``: the crossing is no MIS vertex)."""
+        return self.nee.transmittance(p, ng, wi, dist, self.lights.kind[light] == MESH, shadow)
+
+    def _continue_compiled(self, v: PathVertices, ur, roulette: bool) -> "PK.NextRays":
+        """The continuation of the vertices v (path_kernels.continue_kernel):
+        the NextRays of the survivors, trimmed to their number."""
+        from ..accel import REL_OFFSET
+        M = self.kernels()[2]
+        K = v.path.size
+        nx = PK.alloc_next(K)
+        c = np.ascontiguousarray
+        n = PK.continue_kernel(M, c(v.mat, np.int64), c(v.p), c(v.ng), c(v.ns), c(v.wo),
+                               c(v.beta), ur, bool(roulette), REL_OFFSET,
+                               self.accel.abs_floor / REL_OFFSET, nx)
+        return PK.NextRays(*(a[:n] for a in nx))
 
     def mis_light(self, v: PathVertices, wi, dist, light, n_l=None) -> np.ndarray:
         """(K,) power-heuristic weight of the light samples (wi, dist, light) (K,)
@@ -336,7 +495,7 @@ class PathTracer:
         m = np.nonzero(seen)[0]
         if m.size:
             n_l = v.ns_wo() if n_l is None else n_l
-            pl = Lt.pdf_direct(lt, v.p[m], wi[m], light[m], dist[m], n=n_l[m])
+            pl = self.pdf_light(v.p[m], wi[m], light[m], dist[m], n_l[m])
             pb = B.pdf_bsdf(mtab, v.mat[m], v.colors[m], v.ns[m], v.ng[m], v.wo[m], wi[m],
                             subset="all")
             w[m] = power_heuristic(pl, pb)

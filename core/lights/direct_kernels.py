@@ -97,7 +97,8 @@ class DirectSamples(NamedTuple):
     (inf: sun, world); weight (K, 3) L_e G / pdf / p_select (0: nothing);
     cos (K,) |n . wi|; contrib (K, 3) beta f cos weight (Lambert-only rows;
     others: 0 until the caller multiplies f in); kind (K,) int8 (-1 none);
-    shadow (K,) bool casts shadows."""
+    shadow (K,) bool casts shadows; light (K,) int64 the emitter row
+    sampled (-1 none; the path tracer's MIS needs its pdf)."""
     wi: np.ndarray
     dist: np.ndarray
     weight: np.ndarray
@@ -105,6 +106,7 @@ class DirectSamples(NamedTuple):
     contrib: np.ndarray
     kind: np.ndarray
     shadow: np.ndarray
+    light: np.ndarray
 
 
 def compiled_lights_ok(table) -> bool:
@@ -146,7 +148,8 @@ def alloc_samples(K: int) -> DirectSamples:
     """Zeroed DirectSamples for K receivers (rows without a light stay so)."""
     return DirectSamples(wi=np.zeros((K, 3)), dist=np.zeros(K), weight=np.zeros((K, 3)),
                          cos=np.zeros(K), contrib=np.zeros((K, 3)),
-                         kind=np.full(K, -1, np.int8), shadow=np.ones(K, bool))
+                         kind=np.full(K, -1, np.int8), shadow=np.ones(K, bool),
+                         light=np.full(K, -1, np.int64))
 
 
 # ----------------------------------------------------------------------------
@@ -372,6 +375,7 @@ def direct_kernel(k0, k1, L, R, out):
             j = L.group_tri[ti]
         kind = L.kind[j]
         out.kind[k] = kind
+        out.light[k] = j
         out.shadow[k] = L.cast_shadow[j]
         u1, u2 = R.u[k, 1], R.u[k, 2]
         wx, wy, wz = 0.0, 0.0, 1.0

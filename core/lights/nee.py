@@ -8,9 +8,13 @@ emitter and the point on it), weighted by the BSDF (core.materials.closures) and
 the shading cosine, then a shadow ray: analytic lights are not geometry, so
 any hit before them occludes (with a retry that discards float32 self-hits at
 grazing incidence); emissive triangles are geometry, so the emitter's own hit
-does not occlude.  Photons then carry only indirect light (core.sppm.photons
-stores from the second bounce on) unless ``photons_for_direct`` is set, in
-which case the renderer does not call this stage.
+does not occlude.  In scenes with Transparent lobes (the plan's "transparent
+shadows") the rays that test blocks are followed through transparent
+surfaces (core.lights.shadow: Cycles' transparent shadows).  Photons then
+carry only indirect light (core.sppm.photons stores from the second bounce
+on, and not the light that crossed only transparent surfaces) unless
+``photons_for_direct`` is set, in which case the renderer does not call this
+stage.
 """
 from __future__ import annotations
 
@@ -21,6 +25,7 @@ import numpy as np
 from ..accel import REL_OFFSET
 from .. import materials as B
 from ..mathutil import dot as _dot
+from . import shadow
 from .sampling import environment_pdf, sample_direct
 from .table import MESH, WORLD
 
@@ -51,9 +56,9 @@ class NextEventEstimation:
         env = self.light_table.environment
         if env is not None and env.total > 0:
             L += self._environment_bsdf(vp, rng)
-        wi, dist, wgt, shadow = smp["wi"], smp["dist"], smp["weight"], smp["cast_shadow"]
+        wi, dist, wgt, casts = smp["wi"], smp["dist"], smp["weight"], smp["cast_shadow"]
         live = (wgt.max(axis=1) > 0) & np.all(np.isfinite(wgt), axis=1)
-        q, wi, dist, wgt, shadow = q[live], wi[live], dist[live], wgt[live], shadow[live]
+        q, wi, dist, wgt, casts = q[live], wi[live], dist[live], wgt[live], casts[live]
         if q.size == 0:
             return L
         # The normals as the mesh has them: the BSDF tells a visible point
@@ -73,10 +78,9 @@ class NextEventEstimation:
                                 vp.wo[qk], wi[wk], subset="nondelta")
                 contrib[wk] *= (pl / np.maximum(pl + pb, 1e-300))[:, None]
         nz = contrib.max(axis=1) > 0
-        q, wi, dist, contrib, shadow = q[nz], wi[nz], dist[nz], contrib[nz], shadow[nz]
+        q, wi, dist, contrib, casts = q[nz], wi[nz], dist[nz], contrib[nz], casts[nz]
         mesh = smp["kind"][live][nz] == MESH
-        blocked = self._blocked(vp.p[q], vp.ng[q], wi, dist, mesh) & shadow
-        L[q[~blocked]] += contrib[~blocked]
+        _add_lit(L, q, contrib, self.transmittance(vp.p[q], vp.ng[q], wi, dist, mesh, casts))
         return L
 
     def _direct_compiled(self, vp, q, u, L) -> np.ndarray:
@@ -106,13 +110,28 @@ class NextEventEstimation:
                 blocked[b] = self._grazing_self_hit_retry(pb, gb, accel.spawn(pb, gb, wb), wb,
                                                           S.dist[kb])
             DK.accumulate(q, rows, blocked, S.contrib, L)
+            self._through_transparent(vp, q, rows, blocked, S, L)
         if nm:
             km = sh.mesh[:nm]
             qm = q[km]
             blocked = self._blocked(vp.p[qm], vp.ng[qm], S.wi[km], S.dist[km],
                                     np.ones(nm, bool))
             DK.accumulate(q, km, blocked, S.contrib, L)
+            self._through_transparent(vp, q, km, blocked, S, L, mesh=True)
         return L
+
+    def _through_transparent(self, vp, q, rows, blocked, S, L, mesh=False) -> None:
+        """Adds to L (P, 3) the light of the blocked shadow rays rows[blocked]
+        (rows of the DirectSamples S) that transparent surfaces let through
+        (core.lights.shadow); nothing in scenes without any."""
+        if shadow.attached(self.accel) is None:
+            return
+        k = rows[np.nonzero(blocked)[0]]
+        if k.size:
+            qk = q[k]
+            _add_lit(L, qk, S.contrib[k],
+                     self._followed(vp.p[qk], vp.ng[qk], S.wi[k], S.dist[k],
+                                    np.full(k.size, mesh)))
 
     def _compiled_lights(self):
         """The light table for ``direct_kernels`` (None: it needs the numpy sampler)."""
@@ -165,10 +184,34 @@ class NextEventEstimation:
         pl = environment_pdf(self.light_table, vp.p[q], vp.ns[q], wi)
         contrib = (vp.beta[q] * wgt * self.light_table.environment.radiance(wi)
                    * (pdf / (pdf + pl))[:, None])
-        blocked = self._blocked(vp.p[q], vp.ng[q], wi, np.full(q.size, np.inf),
-                                np.zeros(q.size, bool))
-        L[q[~blocked]] += contrib[~blocked]
+        _add_lit(L, q, contrib, self.transmittance(vp.p[q], vp.ng[q], wi,
+                                                   np.full(q.size, np.inf),
+                                                   np.zeros(q.size, bool)))
         return L
+
+    def transmittance(self, p, ng, wi, dist, mesh, cast_shadow=None, through=None) -> np.ndarray:
+        """(K, 3) float64 light let through by the shadow rays of ``_blocked``
+        (same arguments; cast_shadow (K,) bool, False: the light casts no
+        shadow, 1): 0 or 1 in scenes without transparent materials (one
+        occlusion test), else the product of the pass-through weights of the
+        transparent surfaces crossed (core.lights.shadow, Cycles'
+        transparent shadows).  through (K,) bool or None (all): the rows
+        whose light is not also found by another strategy through the
+        transparent surfaces; on the others any surface blocks."""
+        blocked = self._blocked(p, ng, wi, dist, mesh)
+        if cast_shadow is not None:
+            blocked &= cast_shadow
+        T = np.repeat((~blocked)[:, None].astype(np.float64), 3, axis=1)
+        b = np.nonzero(blocked if through is None else blocked & through)[0]
+        if b.size and shadow.attached(self.accel) is not None:
+            T[b] = self._followed(p[b], ng[b], wi[b], dist[b], mesh[b])
+        return T
+
+    def _followed(self, p, ng, wi, dist, mesh) -> np.ndarray:
+        """(K, 3) ``shadow.transmittance`` of shadow rays that the opaque test
+        found blocked: their first hit may be a transparent surface."""
+        return shadow.transmittance(self.accel, self.accel.spawn(p, ng, wi), wi, dist,
+                                    emitter=mesh, n0=ng)
 
     def _blocked(self, p, ng, wi, dist, mesh) -> np.ndarray:
         """(K,) bool: the shadow ray from p (K, 3) towards wi over dist is
@@ -201,10 +244,7 @@ class NextEventEstimation:
 
     def _unit_normals(self, prim) -> np.ndarray:
         """(K, 3) float64 unit geometric normals of triangles prim (K,)."""
-        P = self.tri_p[prim].astype(np.float64)
-        n = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        return n
+        return shadow.unit_normals(self.tri_p, prim)
 
     def _grazing_self_hit_retry(self, p, ng, o, wi, dist) -> np.ndarray:
         """(K,) bool: still blocked after discarding float32 self-hits.
@@ -224,10 +264,7 @@ class NextEventEstimation:
         i = np.nonzero(h.hit)[0]
         if i.size == 0:
             return still
-        P0 = self.tri_p[h.prim[i]].astype(np.float64)
-        n = self._unit_normals(h.prim[i])
-        eps = 8.0 * REL_OFFSET * np.abs(P0).max(axis=(1, 2))
-        self_hit = np.abs(_dot(o[i] - P0[:, 0], n)) < eps
+        self_hit, eps = shadow.self_hit(self.tri_p, h.prim[i], o[i])
         j = i[self_hit]
         if j.size:
             side = np.where(_dot(ng[j], wi[j]) >= 0, 1.0, -1.0)
@@ -235,6 +272,14 @@ class NextEventEstimation:
             o2 = p[j] + ng[j] * (side * off)[:, None]
             still[j] = self.accel.occluded(o2, wi[j], dist[j])
         return still
+
+
+def _add_lit(L: np.ndarray, q: np.ndarray, contrib: np.ndarray, T: np.ndarray) -> None:
+    """L[q] += contrib * T on the rows that let light through (T (K, 3) > 0
+    somewhere; q (K,) distinct): blocked rows are skipped, not multiplied by
+    0, so an infinite contribution behind a wall stays out."""
+    k = np.nonzero(T.max(axis=1) > 0)[0]
+    L[q[k]] += contrib[k] * T[k]
 
 
 def _occluded_f32(accel, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray) -> np.ndarray:

@@ -134,7 +134,8 @@ class BounceStep(NamedTuple):
     Russian roulette on the luminance of the bounce weight; bounce: the
     path vertex index; dep0: first free deposit row; record: write the
     HitRecord; rel, floor: the spawn offset (``accel.offset_scale``: max(|p|,
-    floor) * rel)."""
+    floor) * rel); mis: follow the light side's MIS factors (:class:`MisState`,
+    integrator 'COMBINED'; off for the photon pass, which passes a placeholder)."""
     K: int
     first: bool
     store: bool
@@ -145,6 +146,44 @@ class BounceStep(NamedTuple):
     record: bool
     rel: float
     floor: float
+    mis: bool = False
+
+
+class MisState(NamedTuple):
+    """The light side's MIS factors of integrator 'COMBINED'
+    (core.integrators.combined, docs/integrators.md "Combined"), followed by
+    :func:`bounce_kernel` when BounceStep.mis.  B0 and B1 of a light vertex
+    z_m are (the first-hit ratios of the photon, numpy) x (these factors):
+    1 at the first hit, then per scattering ``pr |cos_out| / pl`` (B1 at the
+    first vertex: ``|cos_out| / pl``, 0 after a delta there) and per arrival
+    ``1 / |cos_in|`` (core.integrators.combined.scatter_factors).  Delta
+    samples: pl = pr = 1; LAMBERT: the closed-form diffuse densities
+    (:func:`lambert_pdf`); GENERIC materials: the caller (numpy pdf_bsdf).
+
+    f0, f1 (cap,) float64: the factors of the live rays (compacted with them;
+    the arrival division pending).  row (cap,) int64: the photon of each live
+    ray (compacted).  h0, h1 (cap,) float64: the factors at this bounce's hit
+    of ray i (after the arrival division; read for generic survivors).
+    d0, d1 (dcap,) float64, drow (dcap,) int64: per deposit row (as the
+    DepositBuffers' rows).  A placeholder (1-row arrays) when off."""
+    f0: np.ndarray
+    f1: np.ndarray
+    row: np.ndarray
+    h0: np.ndarray
+    h1: np.ndarray
+    d0: np.ndarray
+    d1: np.ndarray
+    drow: np.ndarray
+
+
+def mis_state(cap: int, dcap: int) -> MisState:
+    """Empty MisState for cap live rays and dcap deposits (1, 1: placeholder)."""
+    return MisState(np.empty(cap), np.empty(cap), np.empty(cap, np.int64), np.empty(cap),
+                    np.empty(cap), np.empty(dcap), np.empty(dcap), np.empty(dcap, np.int64))
+
+
+#: The placeholder MisState of the photon pass (never written: BounceStep.mis off).
+NO_MIS = mis_state(1, 1)
 
 
 def build_triangle_data(scene) -> TriangleData:
@@ -211,8 +250,22 @@ def shading_normal(tri_n, t, w0, uu, vv, gx, gy, gz):
     return gx, gy, gz
 
 
+_INV_PI = 1.0 / np.pi
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz, ix, iy, iz):
+    """core.materials.pdf_bsdf of a LAMBERT material (diffuse lobes only,
+    selection probabilities summing to one) for wo = o, wi = i: max(N.wi, 0)
+    / pi where Ng.wi > 0, the normals flipped to wo's side of Ng."""
+    s = 1.0 if gx * ox + gy * oy + gz * oz >= 0.0 else -1.0
+    if s * (gx * ix + gy * iy + gz * iz) <= 0.0:
+        return 0.0
+    return max(s * (sx * ix + sy * iy + sz * iz), 0.0) * _INV_PI
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
-def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec):
+def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
     """Everything after one Embree call, for rays 0..step.K-1 (in place).
 
     step: BounceStep; hits: EmbreeHits; live: LiveState, whose survivors of
@@ -224,7 +277,8 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec):
     step.bounce).  Hits on GENERIC materials are copied to the GenericHits
     gen for ``bsdf.sample_bsdf``.  step.record: also write the HitRecord rec
     and the source ray of each deposit (dep.src) -- the frequency photons'
-    spectrum updates need them.
+    spectrum updates need them.  step.mis: follow the MisState mis (its
+    class doc) and write its rows of the deposits.
     Returns (n_next, n_dep, n_gen).
     """
     K, first, store, sample, roulette = step.K, step.first, step.store, step.sample, step.roulette
@@ -238,6 +292,8 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec):
     dep_src = dep.src
     gen_i, gen_p, gen_ng, gen_ns, gen_wi, gen_pow, gen_bary = gen
     rec_t, rec_ng, rec_nswi, rec_hit, nxt_src, nxt_delta = rec
+    use_mis = step.mis
+    mf0, mf1, mrow, mh0, mh1, md0, md1, mdrow = mis
     n_next = 0
     n_dep = n_dep0
     n_gen = 0
@@ -268,6 +324,22 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec):
             rec_ng[i, 0], rec_ng[i, 1], rec_ng[i, 2] = gx, gy, gz
             rec_nswi[i] = 1.0 if sx * wx + sy * wy + sz * wz >= 0.0 else -1.0
         m = tri_mat[t]
+        a0 = 1.0
+        a1 = 1.0
+        prow = 0
+        if use_mis:
+            prow = mrow[i]
+            if not first:
+                # Arrival: divide by |cos| of the geometric normal (inf/NaN -> 0).
+                ci = abs(gx * wx + gy * wy + gz * wz)
+                a0 = mf0[i] / ci
+                a1 = mf1[i] / ci
+                if not np.isfinite(a0):
+                    a0 = 0.0
+                if not np.isfinite(a1):
+                    a1 = 0.0
+            mh0[i] = a0
+            mh1[i] = a1
         if store and m_dep[m]:
             sg = 1.0 if gx * wx + gy * wy + gz * wz >= 0.0 else -1.0
             dep_p[n_dep, 0], dep_p[n_dep, 1], dep_p[n_dep, 2] = px, py, pz
@@ -279,6 +351,10 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec):
             dep.bary[n_dep, 0], dep.bary[n_dep, 1], dep.bary[n_dep, 2] = t, uu, vv
             if record:
                 dep_src[n_dep] = i
+            if use_mis:
+                md0[n_dep] = a0
+                md1[n_dep] = a1
+                mdrow[n_dep] = prow
             n_dep += 1
         if not sample:
             continue
@@ -328,6 +404,22 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec):
         if record:
             nxt_src[j] = i
             nxt_delta[j] = r[6]
+        if use_mis:
+            # Leaving along o: pr |cos_out| / pl (combined.scatter_factors).
+            if r[6]:
+                pl = 1.0
+                pr = 1.0
+            else:      # LAMBERT (the only non-delta fast class)
+                pl = lambert_pdf(sx, sy, sz, gx, gy, gz, wx, wy, wz, ox, oy, oz)
+                pr = lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz)
+            co = abs(gx * ox + gy * oy + gz * oz)
+            pend1 = co / pl if pl > 0.0 else 0.0
+            mf0[j] = a0 * pr * pend1
+            if first:
+                mf1[j] = 0.0 if r[6] else a1 * pend1
+            else:
+                mf1[j] = a1 * pr * pend1
+            mrow[j] = prow
         n_next += 1
     return n_next, n_dep, n_gen
 
@@ -393,7 +485,8 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
     """One photon of ``lights.sample_photons`` (POINT, AREA, untextured MESH).
 
     L: (nL, _NCOL) packed light table (:func:`light_arrays`).
-    Returns (o xyz, d xyz, power rgb, falloff r^2, freq_init a b c)."""
+    Returns (o xyz, d xyz, power rgb, falloff r^2, freq_init a b c, the
+    emitter row)."""
     nL = L.shape[0]
     # np.searchsorted(cdf, x, side="right"): first index with cdf > x.
     x = u0 * cdf[nL - 1]
@@ -426,7 +519,7 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
         ox, oy, oz = _basis_world(dx, dy, lift, wx, wy, wz)
         return (L[j, _CO] + ox * r, L[j, _CO + 1] + oy * r, L[j, _CO + 2] + oz * r,
                 wx, wy, wz, L[j, _STR] * inv_p, L[j, _STR + 1] * inv_p,
-                L[j, _STR + 2] * inv_p, fall, 0.0, b_diffuse, 0.0)
+                L[j, _STR + 2] * inv_p, fall, 0.0, b_diffuse, 0.0, j)
     if kd == 3:          # AREA (rectangle or ellipse), one-sided along dir
         su = u1 - 0.5
         sv = u2 - 0.5
@@ -461,16 +554,16 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
     lx, ly = rr * np.cos(ph), rr * np.sin(ph)
     lz = np.sqrt(max(1.0 - lx * lx - ly * ly, 0.0))
     wx, wy, wz = _basis_world(lx, ly, lz, nx, ny, nz)
-    return (ox, oy, oz, wx, wy, wz, p0, p1, p2, 0.0, L[j, _AREA] / 12.0, b_diffuse, 0.0)
+    return (ox, oy, oz, wx, wy, wz, p0, p1, p2, 0.0, L[j, _AREA] / 12.0, b_diffuse, 0.0, j)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def emit_lights(u, cdf, last, L, b_diffuse, o, d, power, falloff, freq):
+def emit_lights(u, cdf, last, L, b_diffuse, o, d, power, falloff, freq, light):
     """``lights.sample_photons`` for POINT, AREA and untextured MESH emitters,
     same formulas and the same use of the uniforms u (n, 6) (so the same
     rng state gives the same photons up to round-off).  cdf, last, L,
-    b_diffuse from :func:`light_arrays`.  Writes o, d, power, falloff (n,) and
-    freq (n, 3) (light inits).  The caller guarantees every emitter with
+    b_diffuse from :func:`light_arrays`.  Writes o, d, power, falloff (n,),
+    freq (n, 3) (light inits) and light (n,) int64 (the emitter rows).  The caller guarantees every emitter with
     p_select > 0 is of those kinds (:func:`fast_emission_ok`).
     """
     for i in range(u.shape[0]):
@@ -481,6 +574,7 @@ def emit_lights(u, cdf, last, L, b_diffuse, o, d, power, falloff, freq):
         power[i, 0], power[i, 1], power[i, 2] = r[6], r[7], r[8]
         falloff[i] = r[9]
         freq[i, 0], freq[i, 1], freq[i, 2] = r[10], r[11], r[12]
+        light[i] = r[13]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -546,12 +640,15 @@ def fast_emission_ok(table) -> bool:
 
 def sample_photons_fast(table, n: int, rng) -> dict:
     """Drop-in for ``lights.sample_photons`` when :func:`fast_emission_ok`
-    (keys o, d, power, falloff_r2, freq_init; float64)."""
+    (keys o, d, power, falloff_r2, freq_init float64; light int64, kind:
+    the emitter row and its kind)."""
     u = rng.random((n, 6))
     o = np.empty((n, 3))
     d = np.empty((n, 3))
     power = np.empty((n, 3))
     falloff = np.empty(n)
     freq = np.empty((n, 3))
-    emit_lights(u, *light_arrays(table), o, d, power, falloff, freq)
-    return {"o": o, "d": d, "power": power, "falloff_r2": falloff, "freq_init": freq}
+    light = np.empty(n, np.int64)
+    emit_lights(u, *light_arrays(table), o, d, power, falloff, freq, light)
+    return {"o": o, "d": d, "power": power, "falloff_r2": falloff, "freq_init": freq,
+            "light": light, "kind": np.asarray(table.kind)[light]}

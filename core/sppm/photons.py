@@ -146,6 +146,13 @@ class PhotonTracer:
         # only deposits whose previous scattering sampled a delta lobe
         # (caustic photons).  Off for PHOTON, whose deposits stay as they are.
         self.after_delta_only = False
+        # Transparent shadows (core.lights.shadow): next-event estimation
+        # already carries the light that reached a surface through
+        # Transparent BSDFs only, so photons that have crossed nothing but
+        # transparent surfaces since the light deposit nothing.
+        self.skip_straight = (bool(getattr(plan, "transparent_shadows", False))
+                              and not settings.photons_for_direct)
+        self._clear = None
 
     def trace(self, n: int, n_freq: int, rng):
         """Trace n photons (the first n_freq carry a spectrum); return deposits.
@@ -237,8 +244,9 @@ class PhotonTracer:
         caustic = self.after_delta_only
         # Hit records: frequency photons' chains, and the delta flag of the
         # scattering each survivor sampled (caustic photons).
-        record = freq or caustic
+        record = freq or caustic or self.skip_straight
         prev_delta = np.zeros(K, bool) if caustic else None
+        straight = np.ones(K, bool) if self.skip_straight else None
         cg = n if self.fmat.any_generic else 1
         gen = PK.GenericHits(np.empty(cg, np.int64), *(np.empty((cg, 3)) for _ in range(6)))
         cr = n if record else 1
@@ -259,8 +267,10 @@ class PhotonTracer:
             if freq:
                 # the segments just travelled: the kernel overwrites the live state
                 seg = FK.Segments(live.o32[:K].astype(np.float64), live.d64[:K].copy())
+            if straight is not None:
+                d_in, prim_in = live.d64[:K].copy(), hits.prim[:K].astype(np.int64)
             n_next, n_dep, n_gen = PK.bounce_kernel(step, hits, live, self.tris, self.fmat, u,
-                                                    dep.buf, gen, rec)
+                                                    dep.buf, gen, rec, PK.NO_MIS)
             dep.n = n_dep
             if n_gen:
                 n_next = self._generic_bounce(n_gen, n_next, gen, u, step.roulette, live,
@@ -272,11 +282,29 @@ class PhotonTracer:
                 spec_hit = self._spectrum_at_hits(spec, seg, rec, dep,
                                                   FK.Rows(K, step.dep0, dep.n, n_next))
                 if n_next:
-                    spec = self._spectrum_leaving(spec_hit, n_next, hits.prim, rec, live.d64)
+                    spec = self._spectrum_leaving(spec_hit, n_next, hits.prim, rec, live.d64,
+                                                  seg.d)
             if caustic:
                 _keep_rows(dep, step.dep0, prev_delta[dep.buf.src[step.dep0:dep.n]])
                 prev_delta = rec.nxt_delta[:n_next].copy()
+            if straight is not None:
+                straight = self._straight_filter(dep, step.dep0, straight, d_in, prim_in,
+                                                 rec, live, n_next)
             K = n_next
+
+    def _straight_filter(self, dep, dep0, straight, d_in, prim_in, rec, live, n_next):
+        """Drops the deposits dep0.. of photons that so far crossed only
+        transparent surfaces (``skip_straight``); returns the flag (n_next,)
+        of the survivors: still straight when the scattering just sampled
+        kept the direction on a material with a Transparent lobe."""
+        if self._clear is None:
+            from ..lights.shadow import transparent_materials
+            self._clear = transparent_materials(self.mtab)
+        _keep_rows(dep, dep0, ~straight[dep.buf.src[dep0:dep.n]])
+        src = rec.nxt_src[:n_next]
+        d_out = live.d64[:n_next]
+        same = np.einsum("ij,ij->i", d_out, d_in[src]) > 1.0 - 1e-9
+        return straight[src] & same & self._clear[self.tris.mat[prim_in[src]]]
 
     def _generic_bounce(self, g, n_next, gen, u, roulette, live, rec):
         """bsdf.sample_bsdf for the g hits on materials without a fast path;
@@ -335,12 +363,13 @@ class PhotonTracer:
             return 1, march_grid(g, float(self.occ_locality))
         return (0 if g is None else 2), no_march_grid()
 
-    def _spectrum_leaving(self, spec_hit, n_next, prim, rec, d64):
-        """Frequency photons leaving the surface: off_surface, lobe, curvature."""
+    def _spectrum_leaving(self, spec_hit, n_next, prim, rec, d64, din):
+        """Frequency photons leaving the surface: interface (delta lobes),
+        off_surface, lobe; din (K, 3) the directions the rays arrived along."""
         if self._lobes is None:
             self._lobes = FK.surface_lobes(self.mtab, self.tris.mat, self.kappa)
         out, bad = FK.spectrum_leaving(self.chain_params(), n_next, spec_hit, rec, d64, prim,
-                                       self._lobes)
+                                       self._lobes, din)
         if bad >= 0:       # raise what spectrum.lobe_variance raises
             m = self.tris.mat[prim[rec.nxt_src[bad]]]
             F.lobe_variance(self.mtab.kind[m:m + 1, 0], self.mtab.roughness[m:m + 1, 0])

@@ -1,0 +1,555 @@
+"""Compiled per-vertex work of the camera paths (numba), between two Embree calls.
+
+``core.integrators.path_tracer.PathTracer`` traces its paths as a wavefront;
+with ``compiled=True`` (the default, where :func:`compiled_scene_ok` holds)
+the work per vertex that dominated the numpy path is done by these kernels,
+the Embree calls (closest hits, shadow rays) staying in Python between them
+as in the photon tracer (core.sppm.photon_kernels):
+
+- the shading point of each hit (:func:`hit_kernel`: ``accel.surface_point``
+  with the photon tracer's triangle data and shading normal);
+- next-event estimation: the light sample and the Lambert BSDF are
+  ``core.lights.direct_kernels.direct_kernel`` (the SPPM direct light's
+  kernel, unchanged), then :func:`nee_mis_kernel` weights each sample by the
+  power heuristic against BSDF sampling (``PathTracer.mis_light``);
+- the light-sampling density of a direction (``core.lights.pdf_direct``):
+  :func:`selection_kernel` and :func:`pdf_kernel` over arrays;
+- the continuation (:func:`continue_kernel`): BSDF sampling with
+  ``core.materials.fast.sample_fast`` (its direction; the radiance-mode
+  weight is the lobe colour), throughput, Russian roulette, the spawn offset
+  of ``Accel.spawn`` and the compaction of the surviving paths;
+- COMBINED: the light-tracing ratios of ``combined.CameraMIS.nee`` and
+  ``.continued`` (:func:`camera_nee_kernel`, :func:`camera_continued_kernel`).
+
+Scope (:func:`compiled_scene_ok`; otherwise the numpy path runs): materials
+Lambert-only, perfect mirror, smooth glass or emission-only (the photon fast
+path's classes; no Transparent lobe), untextured, no Normal Map / Bump (nor a shading-normal
+spec attached to the mesh normals); lights as
+``direct_kernels.compiled_lights_ok`` (no environment map, no textured
+emissive triangles).  Photon merging's partition (core.integrators.merge)
+is applied by the caller.  The emission found along rays (analytic emitters,
+the world, emissive triangles) with its MIS and COMBINED weights, and the
+shadow test, stay numpy, on their rows.
+
+Precision: the same formulas as the numpy path in float64, but the Lambert f
+is (sum of colours)/pi against the per-lobe sum, products are grouped as
+``direct_kernel`` groups them, the Lambert sample density is N.wi/pi against
+the sampler's local z/pi, and numba's libm may differ from numpy's in the
+last bit (amplified near the spherical rectangle's degenerate ends, see
+``direct_kernels``); paths make the same random decisions, so images agree
+to ~1e-14 relative (tests/test_path_kernels.py).
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from ..lights.direct_kernels import (SPH_TRI_MIN, _entry_weight, _spherical_rect,
+                                     _spherical_tri)
+from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
+from ..materials.fast import ABSORBER, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
+from ..sppm.photon_kernels import shading_normal
+from .mis import FULL, SOFT
+from .light_kernels import lambert_pdf as _lambert_pdf
+
+_PI = np.pi
+
+
+
+class EntryLights(NamedTuple):
+    """The ``DirectLights`` fields ``direct_kernels._entry_weight`` reads (the
+    same arrays).  Every call of a numba function taking a tuple of arrays
+    pays the reference counting of each array (~11 ns, measured): the 25 of
+    DirectLights cost 270 ns per selection weight against 4 ns for the
+    formula of an area light; these 12, 140 ns."""
+    kind: np.ndarray
+    lum_flux: np.ndarray
+    lum_strength: np.ndarray
+    co: np.ndarray
+    radius: np.ndarray
+    lin_inv: np.ndarray
+    cos_half_spot: np.ndarray
+    spot_smooth: np.ndarray
+    dir: np.ndarray
+    area: np.ndarray
+    axis_u: np.ndarray
+    axis_v: np.ndarray
+
+
+def entry_lights(L) -> EntryLights:
+    return EntryLights(*(getattr(L, f) for f in EntryLights._fields))
+
+
+class LightPdf(NamedTuple):
+    """What :func:`pdf_kernel` reads besides ``DirectLights`` (Nl emitters):
+    entry (Nl,) int64 the selection entry of each emitter (the group's for
+    group triangles, -1: none); group_frac (Nl,) float64 its share of the
+    group (1 outside it); hittable (Nl,) bool a BSDF ray can find it;
+    vis_glossy, vis_trans (Nl,) bool its visibility to reflected /
+    transmitted rays; E the :class:`EntryLights` of the same table."""
+    entry: np.ndarray
+    group_frac: np.ndarray
+    hittable: np.ndarray
+    vis_glossy: np.ndarray
+    vis_trans: np.ndarray
+    E: EntryLights
+
+
+class PathMaterials(NamedTuple):
+    """Per-material data of :func:`continue_kernel` (M materials): cls (M,)
+    int8 ``materials.fast`` class; ior (M,) float64; col (M, 3) float64 the
+    radiance-mode sample weight: the sum of the lobe colours (Lambert) or the
+    lobe's colour (mirror, glass); lum_col (M, 3) the photon fast path's
+    colour (its luminance gates a sample, as there)."""
+    cls: np.ndarray
+    ior: np.ndarray
+    col: np.ndarray
+    lum_col: np.ndarray
+
+
+class NextRays(NamedTuple):
+    """The paths that continue (rows 0..n-1 of cap rows, written by
+    :func:`continue_kernel`): src (cap,) int64 row of the vertex it left;
+    o, d (cap, 3) float64 origin (spawned) and unit direction; beta (cap, 3)
+    throughput; pdf (cap,) the sample's density (1 for a delta sample);
+    delta (cap,) bool; n_prev (cap, 3) the vertex's shading normal flipped to
+    wo's side; vis (cap,) int8 1 reflected, 2 transmitted."""
+    src: np.ndarray
+    o: np.ndarray
+    d: np.ndarray
+    beta: np.ndarray
+    pdf: np.ndarray
+    delta: np.ndarray
+    n_prev: np.ndarray
+    vis: np.ndarray
+
+
+def compiled_scene_ok(mtab, fmat, table, tri_n) -> bool:
+    """Whether the kernels cover the scene (module docstring: scope)."""
+    from ..lights.direct_kernels import compiled_lights_ok
+    from ..lights.shadow import transparent_materials
+    from ..scene import normals
+    if not compiled_lights_ok(table) or normals.attached(tri_n) is not None:
+        return False
+    if np.any(mtab.tex >= 0) or np.any(mtab.emission_tex >= 0):
+        return False
+    if mtab.alpha_tex is not None and np.any(mtab.alpha_tex >= 0):
+        return False
+    # Transparent lobes (GENERIC class anyway): their crossings are no MIS
+    # vertex (PathTracer._trace), which only the numpy continuation tells.
+    if transparent_materials(mtab).any():
+        return False
+    if mtab.bump_correction is not None and np.any(mtab.bump_correction):
+        return False
+    cls_ok = np.isin(fmat.cls, (LAMBERT, MIRROR, SMOOTH_GLASS, ABSORBER))
+    # Lambert here is the radiance-mode Lambert (lambert_only), not the photons' lambert_lobes.
+    lam_ok = (fmat.cls != LAMBERT) | np.asarray(mtab.lambert_only, bool)
+    return bool(np.all(cls_ok & lam_ok))
+
+
+def build_light_pdf(table, hittable, L) -> LightPdf:
+    """L: the table's ``DirectLights``."""
+    n = table.kind.shape[0]
+    entry = np.full(n, -1, np.int64)
+    em = table.entry_emitter
+    entry[em[em >= 0]] = np.nonzero(em >= 0)[0]
+    frac = np.ones(n)
+    if table.group_tri is not None and table.group_tri.size:
+        entry[table.group_tri] = int(np.nonzero(em < 0)[0][0])
+        cdf = table.group_cdf
+        frac[table.group_tri] = np.diff(np.concatenate([[0.0], cdf])) / cdf[-1]
+    return LightPdf(entry=entry, group_frac=frac, hittable=np.asarray(hittable, bool).copy(),
+                    vis_glossy=np.asarray(table.visible_glossy, bool).copy(),
+                    vis_trans=np.asarray(table.visible_transmission, bool).copy(),
+                    E=entry_lights(L))
+
+
+def build_path_materials(mtab, fmat, colors) -> PathMaterials:
+    """colors (M, L, 3): ``lobe_colors`` of each (untextured) material."""
+    M = fmat.cls.shape[0]
+    col = np.zeros((M, 3))
+    for m in range(M):
+        if fmat.cls[m] == LAMBERT:
+            col[m] = colors[m].sum(axis=0)           # sample_bsdf's colors.sum(axis=1)
+        elif fmat.cls[m] in (MIRROR, SMOOTH_GLASS):
+            # The single used lobe (materials.fast.build_fast_materials).
+            j = [i for i in range(mtab.kind.shape[1])
+                 if mtab.kind[m, i] >= 0 and mtab.weight[m, i] != 0.0][0]
+            col[m] = colors[m, j]
+    return PathMaterials(cls=np.ascontiguousarray(fmat.cls, np.int8),
+                         ior=np.ascontiguousarray(fmat.ior, np.float64), col=col,
+                         lum_col=np.ascontiguousarray(fmat.col, np.float64))
+
+
+# ----------------------------------------------------------------------------
+# The light-sampling density (core.lights.pdf.pdf_direct, one direction).
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def selection_kernel(L, Q, p, light, out):
+    """out (K,) = pdf._selection_probability: the probability that next-event
+    estimation at p (K, 3) picks emitter light (K,) (-1: 0), its entry's
+    weight over the sum (``direct_kernel``'s selection) times its share of
+    the triangle group.  The per-row work of :func:`pdf_kernel` and of the
+    COMBINED ratios is written as loops over rows, not as per-row functions
+    taking the light tables (see :class:`EntryLights`)."""
+    E = L.entry.shape[0]
+    G = L.group_cdf.shape[0]
+    for k in range(p.shape[0]):
+        j = light[k]
+        out[k] = 0.0
+        if j < 0:
+            continue
+        e_j = Q.entry[j]
+        if e_j < 0:
+            continue
+        px, py, pz = p[k, 0], p[k, 1], p[k, 2]
+        tot = 0.0
+        we = 0.0
+        for e in range(E):
+            i = L.entry[e]
+            if i < 0:
+                d2 = (px - L.group[0]) ** 2 + (py - L.group[1]) ** 2 + (pz - L.group[2]) ** 2
+                w = L.group_cdf[G - 1] / (2.0 * _PI * (d2 + L.group[3]))
+            else:
+                w = _entry_weight(Q.E, i, px, py, pz)
+            if not np.isfinite(w):
+                w = 0.0
+            tot += w
+            if e == e_j:
+                we = w
+        if tot > 0:
+            out[k] = we / tot * Q.group_frac[j]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pdf_kernel(L, Q, p, wi, light, dist, n, sel, out):
+    """out (K,) = core.lights.pdf_direct: the solid-angle density with which
+    next-event estimation at p (receiver normal n, oriented; p, wi, n (K, 3))
+    picks emitter light (K,) (-1: 0) and the point p + dist wi on it; 0 for
+    delta emitters.  sel (K,): :func:`selection_kernel` of the same rows."""
+    for k in range(p.shape[0]):
+        j = light[k]
+        out[k] = 0.0
+        if j < 0:
+            continue
+        px, py, pz = p[k, 0], p[k, 1], p[k, 2]
+        wx, wy, wz = wi[k, 0], wi[k, 1], wi[k, 2]
+        kind = L.kind[j]
+        d2 = dist[k] * dist[k]
+        pdf = 0.0
+        if kind == POINT or kind == SPOT:
+            r = L.radius[j]
+            if r > 0:
+                dx, dy, dz = px - L.co[j, 0], py - L.co[j, 1], pz - L.co[j, 2]
+                d = np.sqrt(dx * dx + dy * dy + dz * dz)
+                if L.is_sphere[j]:
+                    if d > r:
+                        sin2 = (r / max(d, 1e-300)) ** 2
+                        omc = sin2 / (1.0 + np.sqrt(max(1.0 - sin2, 0.0)))
+                    else:
+                        omc = 2.0
+                    pdf = 1.0 / (2.0 * _PI * max(omc, 1e-300))
+                else:
+                    dm = max(d, 1e-300)
+                    cosl = abs(wx * (dx / dm) + wy * (dy / dm) + wz * (dz / dm))
+                    pdf = d2 / max(_PI * r * r * cosl, 1e-300)
+        elif kind == SUN:
+            if L.half_angle[j] > 0:
+                pdf = 1.0 / (2.0 * _PI * max(1.0 - L.cos_half_angle[j], 1e-300))
+        elif kind == WORLD:
+            pdf = max(n[k, 0] * wx + n[k, 1] * wy + n[k, 2] * wz, 0.0) / _PI
+        elif kind == AREA:
+            cosl = -(wx * L.dir[j, 0] + wy * L.dir[j, 1] + wz * L.dir[j, 2])
+            front = ((px - L.co[j, 0]) * L.dir[j, 0] + (py - L.co[j, 1]) * L.dir[j, 1]
+                     + (pz - L.co[j, 2]) * L.dir[j, 2]) > 0
+            if front:
+                if cosl > 0:
+                    pdf = d2 / max(L.area[j] * max(cosl, 0.0), 1e-300)
+                if not L.ellipse[j]:
+                    hu, hv = 0.5 * L.len_u[j], 0.5 * L.len_v[j]
+                    sx = L.co[j, 0] - hu * L.axis_u[j, 0] - hv * L.axis_v[j, 0]
+                    sy = L.co[j, 1] - hu * L.axis_u[j, 1] - hv * L.axis_v[j, 1]
+                    sz = L.co[j, 2] - hu * L.axis_u[j, 2] - hv * L.axis_v[j, 2]
+                    S = _spherical_rect(px, py, pz, sx, sy, sz, L.axis_u[j, 0], L.axis_u[j, 1],
+                                        L.axis_u[j, 2], L.len_u[j], L.axis_v[j, 0],
+                                        L.axis_v[j, 1], L.axis_v[j, 2], L.len_v[j], 0.5, 0.5)[3]
+                    if S > 1e-6:
+                        pdf = 1.0 / max(S, 1e-300)
+        elif kind == MESH:
+            p0x, p0y, p0z = L.co[j, 0], L.co[j, 1], L.co[j, 2]
+            e1x, e1y, e1z = L.axis_u[j, 0], L.axis_u[j, 1], L.axis_u[j, 2]
+            e2x, e2y, e2z = L.axis_v[j, 0], L.axis_v[j, 1], L.axis_v[j, 2]
+            omega = _spherical_tri(px, py, pz, p0x, p0y, p0z, p0x + e1x, p0y + e1y, p0z + e1z,
+                                   p0x + e2x, p0y + e2y, p0z + e2z, 0.5, 0.5)[3]
+            if omega > SPH_TRI_MIN:
+                pdf = 1.0 / max(omega, 1e-300)
+            else:
+                cosl = abs(wx * L.dir[j, 0] + wy * L.dir[j, 1] + wz * L.dir[j, 2])
+                pdf = d2 / max(L.area[j] * cosl, 1e-300)
+        pdf *= sel[k]
+        out[k] = pdf if np.isfinite(pdf) else 0.0
+
+
+@njit(cache=True, inline="always")
+def _power(a, b):
+    """path_tracer.power_heuristic of one pair."""
+    a2, b2 = a * a, b * b
+    s = a2 + b2
+    return a2 / s if s > 0 else 1.0
+
+
+# ----------------------------------------------------------------------------
+# The shading points, next-event estimation's MIS weight and the continuation.
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def hit_kernel(T, prim, bu, bv, p, ng, ns):
+    """accel.surface_point of the hits prim (K,) at barycentrics bu, bv (K,)
+    float64 on the triangles T (``photon_kernels.TriangleData``): p, ng, ns
+    (K, 3), the same operations in the same order (bit for bit)."""
+    for k in range(prim.shape[0]):
+        t = prim[k]
+        uu, vv = bu[k], bv[k]
+        w0 = 1.0 - uu - vv
+        for c in range(3):
+            p[k, c] = w0 * T.p[t, 0, c] + uu * T.p[t, 1, c] + vv * T.p[t, 2, c]
+            ng[k, c] = T.ng[t, c]
+        ns[k, 0], ns[k, 1], ns[k, 2] = shading_normal(T.n, t, w0, uu, vv, T.ng[t, 0],
+                                                      T.ng[t, 1], T.ng[t, 2])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def nee_mis_kernel(L, Q, p, ng, ns, n_l, wo, S, w, live, pl, sel):
+    """For the light samples S (``direct_kernels.DirectSamples``, K rows) taken
+    at Lambert-only vertices p, ng, ns, wo (K, 3) with receiver normals n_l
+    (ns flipped to wo's side): live (K,) bool the sample adds
+    something (contrib > 0, finite); w (K,) its power-heuristic weight against
+    BSDF sampling where a BSDF ray along it would find the emitter, else 1
+    (``PathTracer.mis_light``); pl, sel (K,) its light-sampling density and
+    selection probability (:func:`pdf_kernel`, :func:`selection_kernel`;
+    the COMBINED ratios read them)."""
+    selection_kernel(L, Q, p, S.light, sel)
+    pdf_kernel(L, Q, p, S.wi, S.light, S.dist, n_l, sel, pl)
+    for k in range(p.shape[0]):
+        c0, c1, c2 = S.contrib[k, 0], S.contrib[k, 1], S.contrib[k, 2]
+        ok = (np.isfinite(c0) and np.isfinite(c1) and np.isfinite(c2)
+              and (c0 > 0 or c1 > 0 or c2 > 0))
+        live[k] = ok
+        w[k] = 1.0
+        if not ok:
+            continue
+        j = S.light[k]
+        wx, wy, wz = S.wi[k, 0], S.wi[k, 1], S.wi[k, 2]
+        gw = ng[k, 0] * wx + ng[k, 1] * wy + ng[k, 2] * wz
+        go = ng[k, 0] * wo[k, 0] + ng[k, 1] * wo[k, 1] + ng[k, 2] * wo[k, 2]
+        kind = L.kind[j]
+        if not Q.hittable[j]:
+            continue
+        if kind != MESH and kind != WORLD:
+            if not (Q.vis_glossy[j] if gw * go > 0 else Q.vis_trans[j]):
+                continue
+        pb = _lambert_pdf(ns[k, 0], ns[k, 1], ns[k, 2], ng[k, 0], ng[k, 1], ng[k, 2],
+                          wo[k, 0], wo[k, 1], wo[k, 2], wx, wy, wz)
+        w[k] = _power(pl[k], pb)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def continue_kernel(M, mat, p, ng, ns, wo, beta, u, roulette, rel, floor, nx):
+    """Sample the BSDF at the K vertices (mat (K,), p, ng, ns, wo, beta (K, 3),
+    u (K, 4): direction (0, 1), lobe / Fresnel (2), roulette (3)) as
+    ``sample_bsdf(subset='all', mode='radiance')`` does for the materials of
+    ``PathMaterials`` M, multiply the throughput, apply Russian roulette
+    (``roulette``: survival min(1, sqrt(max component))) and write the
+    survivors to the NextRays nx (origin from ``Accel.spawn``: offset
+    max(|p|_inf, floor) rel along ng to wi's side).  Returns their number."""
+    n = 0
+    for k in range(mat.shape[0]):
+        m = mat[k]
+        c = M.cls[m]
+        if c != LAMBERT and c != MIRROR and c != SMOOTH_GLASS:
+            continue
+        sx, sy, sz = ns[k, 0], ns[k, 1], ns[k, 2]
+        gx, gy, gz = ng[k, 0], ng[k, 1], ng[k, 2]
+        ox, oy, oz = wo[k, 0], wo[k, 1], wo[k, 2]
+        r = sample_fast(c, M.lum_col[m, 0], M.lum_col[m, 1], M.lum_col[m, 2], M.ior[m],
+                        sx, sy, sz, gx, gy, gz, ox, oy, oz, u[k, 0], u[k, 1], u[k, 2])
+        if not r[7]:
+            continue
+        wx, wy, wz, is_delta = r[0], r[1], r[2], r[6]
+        b0 = beta[k, 0] * M.col[m, 0]
+        b1 = beta[k, 1] * M.col[m, 1]
+        b2 = beta[k, 2] * M.col[m, 2]
+        if not (np.isfinite(b0) and np.isfinite(b1) and np.isfinite(b2)):
+            continue
+        bm = max(b0, b1, b2)
+        if not bm > 0:
+            continue
+        if roulette:
+            q = min(np.sqrt(bm), 1.0)
+            if not u[k, 3] < q:
+                continue
+            qq = max(q, 1e-300)
+            b0, b1, b2 = b0 / qq, b1 / qq, b2 / qq
+        go = gx * ox + gy * oy + gz * oz
+        gw = gx * wx + gy * wy + gz * wz
+        sg = 1.0 if go >= 0 else -1.0
+        # Cosine sampling (Lambert): the density of the direction drawn.
+        pdf = 1.0 if is_delta else _lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz)
+        px, py, pz = p[k, 0], p[k, 1], p[k, 2]
+        off = (1.0 if gw >= 0 else -1.0) * (max(max(abs(px), abs(py), abs(pz)), floor) * rel)
+        nx.src[n] = k
+        nx.o[n, 0], nx.o[n, 1], nx.o[n, 2] = px + gx * off, py + gy * off, pz + gz * off
+        nx.d[n, 0], nx.d[n, 1], nx.d[n, 2] = wx, wy, wz
+        nx.beta[n, 0], nx.beta[n, 1], nx.beta[n, 2] = b0, b1, b2
+        nx.pdf[n] = pdf
+        nx.delta[n] = is_delta
+        nx.n_prev[n, 0], nx.n_prev[n, 1], nx.n_prev[n, 2] = sx * sg, sy * sg, sz * sg
+        nx.vis[n] = 1 if gw * go > 0 else 2
+        n += 1
+    return n
+
+
+def alloc_next(K: int) -> NextRays:
+    return NextRays(src=np.empty(K, np.int64), o=np.empty((K, 3)), d=np.empty((K, 3)),
+                    beta=np.empty((K, 3)), pdf=np.empty(K), delta=np.empty(K, bool),
+                    n_prev=np.empty((K, 3)), vis=np.empty(K, np.int8))
+
+
+# ----------------------------------------------------------------------------
+# COMBINED: the light-tracing terms of the camera strategies' weights
+# (combined.CameraMIS.nee and .continued for the vertices in the kernels' scope:
+# their reverse density is the Lambert pdf, 1 at the first vertex).
+
+class MisLights(NamedTuple):
+    """The emitter data of the COMBINED ratios (Nl emitters; few arrays, see
+    :class:`EntryLights`): cls (Nl,) int8 ``mis.light_classes``; sel (Nl,)
+    float64 ``mis.emit_select``; kind (Nl,) int8; co, dir (Nl, 3); area,
+    cos_half_spot (Nl,); lin, lin_inv (Nl, 3, 3) the spot's object matrix and
+    its inverse, det (Nl,) |det lin|."""
+    cls: np.ndarray
+    sel: np.ndarray
+    kind: np.ndarray
+    co: np.ndarray
+    dir: np.ndarray
+    area: np.ndarray
+    cos_half_spot: np.ndarray
+    lin: np.ndarray
+    lin_inv: np.ndarray
+    det: np.ndarray
+
+
+def build_mis_lights(table, cls) -> MisLights:
+    c = np.ascontiguousarray
+    ps = np.asarray(table.p_select, np.float64)
+    lin = c(np.asarray(table.lin, np.float64).reshape(-1, 3, 3))
+    return MisLights(cls=c(cls, np.int8), sel=ps / ps.sum(), kind=c(table.kind, np.int8),
+                     co=c(table.co, np.float64), dir=c(table.dir, np.float64),
+                     area=c(table.area, np.float64),
+                     cos_half_spot=c(table.cos_half_spot, np.float64), lin=lin,
+                     lin_inv=c(np.asarray(table.lin_inv, np.float64).reshape(-1, 3, 3)),
+                     det=np.abs(np.linalg.det(lin)) if lin.shape[0] else np.zeros(0))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _fin(x):
+    return x if np.isfinite(x) else 0.0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _emit_pdf_dir(X, j, wx, wy, wz):
+    """mis.emit_pdf_dir of one direction w leaving emitter j."""
+    k = X.kind[j]
+    c = X.dir[j, 0] * wx + X.dir[j, 1] * wy + X.dir[j, 2] * wz
+    if k == AREA:
+        return max(c, 0.0) / _PI
+    if k == MESH:
+        return 0.5 * abs(c) / _PI
+    if k == POINT:
+        return 1.0 / (4.0 * _PI)
+    if k == SPOT:
+        M = X.lin_inv
+        vx = M[j, 0, 0] * wx + M[j, 0, 1] * wy + M[j, 0, 2] * wz
+        vy = M[j, 1, 0] * wx + M[j, 1, 1] * wy + M[j, 1, 2] * wz
+        vz = M[j, 2, 0] * wx + M[j, 2, 1] * wy + M[j, 2, 2] * wz
+        vn = np.sqrt(vx * vx + vy * vy + vz * vz)
+        vx, vy, vz = vx / vn, vy / vn, vz / vn
+        N = X.lin
+        mx = N[j, 0, 0] * vx + N[j, 0, 1] * vy + N[j, 0, 2] * vz
+        my = N[j, 1, 0] * vx + N[j, 1, 1] * vy + N[j, 1, 2] * vz
+        mz = N[j, 2, 0] * vx + N[j, 2, 1] * vy + N[j, 2, 2] * vz
+        Mv = np.sqrt(mx * mx + my * my + mz * mz)
+        cos_h = X.cos_half_spot[j]
+        if not -vz >= cos_h:
+            return 0.0
+        return Mv ** 3 / (X.det[j] * 2.0 * _PI * (1.0 - cos_h))
+    return 0.0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _point_emit_over_nee(X, j, nee, wx, wy, wz, dist):
+    """mis.point_emit_over_nee of one sample (w = wi_out; nee the
+    next-event selection probability of j there)."""
+    return (_emit_pdf_dir(X, j, wx, wy, wz) / (dist * dist) * X.sel[j]
+            / (nee if nee > 0 else np.inf))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def camera_nee_kernel(X, first, Qv, cv, p, ng, ns, wo, wi, dist, light, pl, sel, w):
+    """combined.CameraMIS.nee at Lambert vertices (K rows: Qv, cv (K,) the
+    vertex's Q and c; p, ng, ns, wo, wi (K, 3); dist, light, pl, sel (K,),
+    pl and sel the light sample's density and selection probability from
+    :func:`nee_mis_kernel`): w (K,),
+    the NEE-vs-PT weights, shrunk in place by the light-tracing ratio (FULL
+    emitters) or scaled by 1 / (1 + r^2) (SOFT).  first: vertex 0 (reverse
+    density 1)."""
+    for k in range(p.shape[0]):
+        j = light[k]
+        cl = X.cls[j]
+        if cl != FULL and cl != SOFT:
+            continue
+        px, py, pz = p[k, 0], p[k, 1], p[k, 2]
+        sx, sy, sz = ns[k, 0], ns[k, 1], ns[k, 2]
+        gx, gy, gz = ng[k, 0], ng[k, 1], ng[k, 2]
+        ox, oy, oz = wo[k, 0], wo[k, 1], wo[k, 2]
+        if cl == FULL:
+            wx, wy, wz = wi[k, 0], wi[k, 1], wi[k, 2]
+            kind = X.kind[j]
+            if kind == AREA or kind == MESH:
+                cos_l = abs(wx * X.dir[j, 0] + wy * X.dir[j, 1] + wz * X.dir[j, 2])
+                den = pl[k] * cos_l
+                pos = X.sel[j] / X.area[j]
+                T = _emit_pdf_dir(X, j, -wx, -wy, -wz) * pos / (den if den > 0 else np.inf)
+            else:
+                T = _point_emit_over_nee(X, j, sel[k], -wx, -wy, -wz, dist[k])
+        else:
+            wx, wy, wz = X.co[j, 0] - px, X.co[j, 1] - py, X.co[j, 2] - pz
+            dc = np.sqrt(wx * wx + wy * wy + wz * wz)
+            dm = max(dc, 1e-300)
+            wx, wy, wz = wx / dm, wy / dm, wz / dm
+            T = _point_emit_over_nee(X, j, sel[k], -wx, -wy, -wz, dc)
+        pr = 1.0 if first else _lambert_pdf(sx, sy, sz, gx, gy, gz, wx, wy, wz, ox, oy, oz)
+        r = _fin(Qv[k] * pr * abs(gx * wx + gy * wy + gz * wz) * T / cv[k])
+        if cl == FULL:
+            wk = w[k]
+            w[k] = _fin(wk / (1.0 + wk * r * r))
+        else:
+            w[k] *= 1.0 / (1.0 + r * r)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def camera_continued_kernel(first, src, delta, d, ng, ns, wo, Qv, cv, Q):
+    """combined.CameraMIS.continued for the NextRays (src, delta, d) left by
+    Lambert or delta vertices (ng, ns, wo, Qv, cv by vertex row): Q (n,) =
+    Q_v pr |ng.wi| / c_v, pr the reverse Lambert density (1 at the first
+    vertex or after a delta), 0 after a delta at the first vertex."""
+    for n in range(src.shape[0]):
+        k = src[n]
+        wx, wy, wz = d[n, 0], d[n, 1], d[n, 2]
+        gx, gy, gz = ng[k, 0], ng[k, 1], ng[k, 2]
+        pr = 1.0
+        if not first and not delta[n]:
+            pr = _lambert_pdf(ns[k, 0], ns[k, 1], ns[k, 2], gx, gy, gz, wx, wy, wz,
+                              wo[k, 0], wo[k, 1], wo[k, 2])
+        q = _fin(Qv[k] * pr * abs(gx * wx + gy * wy + gz * wz) / cv[k])
+        Q[n] = 0.0 if (first and delta[n]) else q
