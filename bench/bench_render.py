@@ -4,6 +4,8 @@
                                            [--frequency] [--numpy]
     .venv/bin/python bench/bench_render.py --stages [--stage-res 256 1024] [--repeat 3]
     .venv/bin/python bench/bench_render.py --gather [--gather-res 256x256 1920x1080] [--repeat 2]
+    .venv/bin/python bench/bench_render.py --frequency --blend example_blends/cornell.blend
+                                           [--blend-res 64] [--blend-passes 12] [--repeat 2]
     .venv/bin/python bench/bench_render.py --paths [--stage-res 64 256] [--repeat 3]
 
 Prints ratios (target: photon pass <= 2x the raw ray casting of its
@@ -21,7 +23,8 @@ renderer runs the frequency photons as before core.frequency.kernels (the
 numpy chains of tests/oracle_photons.py with the voxel-by-voxel march of
 tests/oracle_occlusion.py), so the before/after overheads are measured in the
 same process; each ratio is the best of ``--repeat`` interleaved measurements
-(the machine is shared).  ``--numpy`` times the numpy reference tracer
+of the process's CPU time (all threads: the machine is shared, its wall time
+is no clock).  ``--numpy`` times the numpy reference tracer
 (tests/oracle_photons.py) instead of the compiled one.
 
 ``--stages``: the camera pass and the direct light (next-event estimation)
@@ -205,13 +208,14 @@ def photon_pass(r, tm):
 
 
 def trace_seconds(r, tm, n, n_freq, seed):
-    """Wall seconds of r.tracer.trace(n, n_freq) (and of its march calls)."""
+    """CPU seconds (all threads) of r.tracer.trace(n, n_freq), and wall
+    seconds of its march calls (the numpy chains' only)."""
     tm.dense_march = getattr(r, "bench_before", False)
     s0 = tm.snapshot()
     r.tracer.trace(n, n_freq, np.random.default_rng(seed))
     s1 = tm.snapshot()
     tm.dense_march = False
-    return s1["trace"] - s0["trace"], s1["march"] - s0["march"]
+    return s1["trace_cpu"] - s0["trace_cpu"], s1["march"] - s0["march"]
 
 
 def frequency_report(r, rb, r0, tm, a):
@@ -223,7 +227,8 @@ def frequency_report(r, rb, r0, tm, a):
         d0, _ = photon_pass(r0, tm)
         for key, rr in (("after", r), ("before", rb)):
             d, _ = photon_pass(rr, tm)
-            pp[key].append((d["trace"] + d["gather"]) / (d0["trace"] + d0["gather"]) - 1)
+            pp[key].append((d["trace_cpu"] + d["gather_cpu"])
+                           / (d0["trace_cpu"] + d0["gather_cpu"]) - 1)
     n = min(a.photons, Ph_chunk())
     cost = {"after": [], "before": [], "no march": []}
     march_b = []
@@ -240,7 +245,8 @@ def frequency_report(r, rb, r0, tm, a):
             if key == "before":
                 march_b.append(m / tc)
         tr.occlusion = occlusion
-    print(f"frequency ({r.settings.frequency_fraction:.0%} frequency photons, best of {a.repeat}; "
+    print(f"frequency ({r.settings.frequency_fraction:.0%} frequency photons, CPU time of all "
+          f"threads, best of {a.repeat}; "
           f"all values: {[f'{x:+.0%}' for x in pp['after']]} after, "
           f"{[f'{x:+.0%}' for x in pp['before']]} before)")
     print(f"  whole photon pass vs none: after {min(pp['after']):+.0%}, "
@@ -249,8 +255,44 @@ def frequency_report(r, rb, r0, tm, a):
           f"{min(cost['after']):.2f}x (without the march {min(cost['no march']):.2f}x), "
           f"before {min(cost['before']):.2f}x "
           f"(its march {march_b[int(np.argmin(cost['before']))]:.2f}x"
-          f", summed over threads); all: after {[round(x, 2) for x in cost['after']]}, "
+          f" wall / classic CPU); all: after {[round(x, 2) for x in cost['after']]}, "
           f"before {[round(x, 2) for x in cost['before']]}")
+
+
+def blend_report(a):
+    """``--blend``: CPU seconds per pass of FPPM and of PPM (use_frequency
+    off) on a .blend at ``--blend-res``, rendered as ``fppm render`` does
+    (addon/cli.py; needs bpy), interleaved, best of ``--repeat``; the set-up
+    (export, occlusion grid) is left out: per pass = (CPU at the last pass -
+    CPU at the first) / (passes - 1).  Prints the ratio and the passes each
+    renders in equal CPU time."""
+    import fppm_alias  # noqa: F401  (fppm.* importable)
+    import bpy  # noqa: F401
+    from fppm.addon.cli import open_blend, render_scene
+    from fppm.addon.engine import RenderSession
+
+    def per_pass(freq, passes):
+        marks = []
+        sess = RenderSession(log=lambda s: None,
+                             on_pass=lambda pr, st: marks.append(time.process_time()))
+        scene = open_blend(a.blend)
+        scene.render.resolution_x = scene.render.resolution_y = a.blend_res
+        scene.render.resolution_percentage = 100
+        render_scene(scene, dict(integrator="PHOTON", use_frequency=freq, max_passes=passes,
+                                 time_limit=0.0, seed=7), sess)
+        return (marks[-1] - marks[0]) / (len(marks) - 1)
+    per_pass(True, 2)
+    per_pass(False, 2)                            # warm-up: kernels from the cache
+    best = {True: np.inf, False: np.inf}
+    for _ in range(a.repeat):
+        for freq in (False, True):
+            best[freq] = min(best[freq], per_pass(freq, a.blend_passes))
+    q = best[True] / best[False]
+    budget = 60.0
+    print(f"{os.path.basename(a.blend)} at {a.blend_res}^2, {a.blend_passes} passes, best of "
+          f"{a.repeat}: CPU per pass FPPM {best[True] * 1e3:.0f} ms, PPM {best[False] * 1e3:.0f} "
+          f"ms: FPPM / PPM {q:.2f}x; in {budget:.0f} s of CPU FPPM renders "
+          f"{budget / best[True]:.0f} passes to PPM's {budget / best[False]:.0f}")
 
 
 def raw_cpu(raw, rays):
@@ -277,9 +319,16 @@ def main(argv=None):
     ap.add_argument("--gather", action="store_true",
                     help="gather buffers once per render vs per-chunk dense sums (ratios)")
     ap.add_argument("--gather-res", nargs="+", default=["256x256", "1920x1080"])
+    ap.add_argument("--blend", default="",
+                    help="with --frequency: FPPM vs PPM CPU per pass on this .blend (needs bpy)")
+    ap.add_argument("--blend-res", type=int, default=64)
+    ap.add_argument("--blend-passes", type=int, default=12)
     ap.add_argument("--paths", action="store_true",
                     help="camera paths (PATH, COMBINED): numpy vs compiled (CPU ratios)")
     a = ap.parse_args(argv)
+    if a.blend:
+        blend_report(a)
+        return 0
     if a.paths:
         paths_report(a)
         return 0
@@ -304,7 +353,7 @@ def main(argv=None):
         d.update(raw=w, raw_cpu=c, rays=rays, raw_accel=raw.seconds_accel(rays))
         if r0 is not None:
             d0, _ = photon_pass(r0, tm)
-            d.update(trace0=d0["trace"], gather0=d0["gather"])
+            d.update(trace0=d0["trace_cpu"], gather0=d0["gather_cpu"])
         for k, v in d.items():
             acc[k] = acc.get(k, 0.0) + v
         per_pass.append(((d["trace"] + d["gather"]) / w, (d["trace_cpu"] + d["gather_cpu"]) / c))
@@ -349,10 +398,11 @@ def main(argv=None):
           f"({'used' if r.tracer.fast_emission and not a.numpy else 'not used'})")
     if r0 is not None:
         pp0 = acc["trace0"] + acc["gather0"]
+        ppc = acc["trace_cpu"] + acc["gather_cpu"]
         print(f"frequency: whole photon pass with {r.settings.frequency_fraction:.0%} "
-              f"frequency photons vs none: {pp / pp0 - 1:+.0%} "
-              f"(trace {acc['trace'] / acc['trace0'] - 1:+.0%}, "
-              f"gather {acc['gather'] / acc['gather0'] - 1:+.0%})")
+              f"frequency photons vs none, CPU time, all {a.passes} passes: {ppc / pp0 - 1:+.0%} "
+              f"(trace {acc['trace_cpu'] / acc['trace0'] - 1:+.0%}, "
+              f"gather {acc['gather_cpu'] / acc['gather0'] - 1:+.0%})")
         frequency_report(r, rb, r0, tm, a)
     total = sum(r.stage_seconds.values())
     print("stage shares of the whole render pass: "

@@ -218,9 +218,10 @@ class Renderer:
         self.occ_grid = None
         self.occ_locality = 0.0
         if self.plan.occlusion_grid:
-            from .frequency.occlusion_grid import build_occlusion_grid, default_locality
+            from .frequency.occlusion_grid import (build_occlusion_grid, default_locality,
+                                                   geometry_bounds)
             t0 = time.perf_counter()
-            lo, hi = scene.bounds()
+            lo, hi = geometry_bounds(scene)
             pad = 1e-3 * self.D
             res = self.settings.occlusion_grid_res
             # Locality = 2 voxel diagonals (the grid's default); distances

@@ -4,8 +4,8 @@
 per guard, per operator).  On the photon path its calls cost more than
 tracing the photon, so the tracer (``core.sppm.photons``) runs the two chains
 of a frequency photon's spectrum (a, b, c) here, one numba loop over the
-photons each, with the occlusion march (``occlusion_march.march_segment``)
-called per photon:
+photons each, with the occlusion march (``occlusion_march.march_segments``)
+of a bounce's segments in one call:
 
 - arriving at a hit (:func:`arrive`): travel -> occlude -> onto_surface,
   then the predicted radius of every deposit (receiver diffuse, z = inf);
@@ -46,7 +46,7 @@ from . import spectrum as F
 from . import curvature as _curv
 from . import occlusion_grid as _occlusion_grid
 from . import occlusion_march as _occlusion_march
-from .occlusion_march import march_segment
+from .occlusion_march import march_segments
 
 BETA = F.BETA
 B_CAP = F.B_CAP
@@ -384,7 +384,7 @@ def _kernels(token):
         Only rays that deposit (dep.src[dep0:dep1]) or continue
         (rec.nxt_src[:n_next]) are evaluated: the spectrum of any other hit
         is never read.  For those, out[i] = :func:`arrive` with (a_occ,
-        t_occ) = ``march_segment`` of the segment [o, o + t d].
+        t_occ) = ``march_segments`` of the segment [o, o + t d].
         Deposits dep0..dep1-1: dep.spec[k] = out[dep.src[k]] and dep.r[k] =
         its predicted radius for a diffuse receiver.
         Returns (out (K, 3) float64, rows of other rays unset; the number
@@ -402,16 +402,26 @@ def _kernels(token):
         marched = chain.occlusion == 1
         has_grid = chain.occlusion != 0
         out = np.empty((K, 3))
+        # The segments to march, in one call (march_segments unpacks the
+        # grid's arrays once per call, not per segment)
+        rows_m = np.empty(K, np.int64)
         n_march = 0
+        for i in range(K):
+            if need[i] and rec.hit[i]:
+                rows_m[n_march] = i
+                n_march += 1
+        if not marched:
+            n_march = 0
+        a_occ = np.empty(K)
+        t_occ = np.empty(K)
+        march_segments(march, seg.o, seg.d, rec.t, rows_m, n_march, a_occ, t_occ)
         for i in range(K):
             if not (need[i] and rec.hit[i]):
                 continue
             t = rec.t[i]
             ao, to = np.inf, np.inf
             if marched:
-                ao, to = march_segment(march, seg.o[i, 0], seg.o[i, 1], seg.o[i, 2],
-                                       seg.d[i, 0], seg.d[i, 1], seg.d[i, 2], t)
-                n_march += 1
+                ao, to = a_occ[i], t_occ[i]
             cs = abs(rec.ng[i, 0] * seg.d[i, 0] + rec.ng[i, 1] * seg.d[i, 1]
                      + rec.ng[i, 2] * seg.d[i, 2])
             a, b, c = arrive(spec[i, 0], spec[i, 1], spec[i, 2], t, ao, to, has_grid, cs,

@@ -511,7 +511,7 @@ def build_occlusion_grid(tri_p: np.ndarray, lo, hi, res: int = 64,
     """Build the occlusion grid of ``res``^3 voxels over [lo, hi].
 
     tri_p: (T, 3, 3) float32 world-space triangles (``Scene.tri_p``).
-    lo, hi: (3,) scene bounds (``Scene.bounds()``); widened by ``grid_bounds``.
+    lo, hi: (3,) bounds (``geometry_bounds``); widened by ``grid_bounds``.
     Geometric normals (from the corner positions) define the bi-cones.
     max_distance [m]: distances are exact up to it; a voxel farther than it
       from every triangle stores dist = max_distance (a lower bound: the
@@ -635,11 +635,27 @@ def build_occlusion_grid(tri_p: np.ndarray, lo, hi, res: int = 64,
                          cone=cone.reshape(shp + (4,)))
 
 
+def geometry_bounds(scene) -> tuple[np.ndarray, np.ndarray]:
+    """The box the occlusion grid needs: the bounds of the triangles, float64
+    (3,) each (``Scene.bounds()`` when the scene has none).
+
+    Not ``Scene.bounds()``, which also holds the camera and the lights: no
+    occluder is outside the triangles' box (the march clips segments to the
+    grid), and a camera 4 m in front of a 2 m box (example_blends/cornell.blend)
+    stretched the voxels 2.4x along that axis, the locality (2 voxel
+    diagonals) with them, and so the stretch of every segment the march
+    samples voxel by voxel (docs/frequency.md, "Cost")."""
+    if not scene.n_triangles:
+        return scene.bounds()
+    p = np.asarray(scene.tri_p, np.float64).reshape(-1, 3)
+    return p.min(axis=0), p.max(axis=0)
+
+
 def build_occlusion_grid_for_scene(scene, res: int = 64,
                                    max_distance: float = np.inf) -> OcclusionGrid:
-    """``build_occlusion_grid(scene.tri_p, *scene.bounds(), res, max_distance)``;
-    res = ``RenderSettings.occlusion_grid_res``."""
-    lo, hi = scene.bounds()
+    """``build_occlusion_grid(scene.tri_p, *geometry_bounds(scene), res,
+    max_distance)``; res = ``RenderSettings.occlusion_grid_res``."""
+    lo, hi = geometry_bounds(scene)
     return build_occlusion_grid(scene.tri_p, lo, hi, res, max_distance)
 
 

@@ -26,7 +26,12 @@ class MarchGrid(NamedTuple):
     float32 and cone (R, R, R, 4) float32, its MarchBlocks (bmin (NB, NB, NB)
     float64, bcone (NB, NB, NB, 8) float64, vmin (R, R, R) float32, vcone
     (R, R, R, 8) int16, has_voxel_level, B), lo and cell (3,) float64, res R;
-    locality [m] and t_skip [m] (the segment ends ignored) of the march."""
+    locality [m] and t_skip [m] (the segment ends ignored) of the march;
+    and what every segment's set-up would compute again (``march_grid``, by
+    the same expressions: the same bits): icell (3,) float64 1 / cell, eps
+    [m] the step past an exit (1e-6 of the smallest cell side), vjump [m]
+    the margin of a Lipschitz jump (1.5 voxel diagonals, +1e-6), cones:
+    the union cones of the MarchBlocks apply (locality <= cut_locality)."""
     dist: np.ndarray
     cone: np.ndarray
     bmin: np.ndarray
@@ -40,6 +45,22 @@ class MarchGrid(NamedTuple):
     res: int
     locality: float
     t_skip: float
+    icell: np.ndarray
+    eps: float
+    vjump: float
+    cones: bool
+
+
+def _constants(cell, locality):
+    """(icell, eps, vjump, cones) of a MarchGrid (see there)."""
+    c0, c1, c2 = (float(x) for x in cell)
+    icell = np.array([1.0 / c0, 1.0 / c1, 1.0 / c2])
+    eps = 1e-6 * min(c0, min(c1, c2))
+    vjump = 1.5 * math.sqrt(c0 * c0 + c1 * c1 + c2 * c2) * (1.0 + 1e-6)
+    # The union cones leave out neighbours farther than the cut locality
+    # (MarchBlocks): valid for a march with locality <= it.  A larger
+    # locality skips by distance only (bmin, vmin hold every member).
+    return icell, eps, vjump, bool(locality <= cut_locality(c0, c1, c2))
 
 
 def march_grid(grid: OcclusionGrid, locality: float, skip_voxels: float = 1.0) -> MarchGrid:
@@ -50,7 +71,8 @@ def march_grid(grid: OcclusionGrid, locality: float, skip_voxels: float = 1.0) -
     mb = march_blocks(grid, MARCH_BLOCK)
     return MarchGrid(grid.dist, grid.cone, mb.bmin, mb.bcone, mb.vmin, mb.vcone,
                      bool(mb.has_voxel_level), int(mb.B), grid.lo, grid.cell, int(grid.res),
-                     float(locality), float(skip_voxels) * grid.voxel_diagonal)
+                     float(locality), float(skip_voxels) * grid.voxel_diagonal,
+                     *_constants(grid.cell, float(locality)))
 
 
 def no_march_grid() -> MarchGrid:
@@ -59,7 +81,7 @@ def no_march_grid() -> MarchGrid:
     z1 = np.zeros((1, 1, 1), np.float32)
     return MarchGrid(z1, np.zeros((1, 1, 1, 4), np.float32), np.zeros((1, 1, 1)),
                      np.zeros((1, 1, 1, 8)), z1, np.zeros((1, 1, 1, 8), np.int16), False, 1,
-                     np.zeros(3), np.ones(3), 1, 0.0, 0.0)
+                     np.zeros(3), np.ones(3), 1, 0.0, 0.0, *_constants(np.ones(3), 0.0))
 
 
 @nb.njit(cache=True)
@@ -154,7 +176,7 @@ def _axis_exit(lo, c, i, o, d):
     return np.inf
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, inline="always")
 def _union_meets(c, x, y, z, dx, dy, dz):
     """Does one of the two union cones c[x, y, z] (MarchBlocks bcone / vcone)
     meet the plane orthogonal to d?  (union_meets, per block.)"""
@@ -171,12 +193,17 @@ def _far_face(b, B, R, d):
 
 
 @nb.njit(cache=True, nogil=True)
-def march_segment(m, ox, oy, oz, dx, dy, dz, t_end):
-    """(a_occ, t_occ) of one segment [o + t_skip d, o + (t_end - t_skip) d]
-    (see :func:`march_occlusion`): m a :class:`MarchGrid`, o and d (unit)
-    scalars; a_occ [m^2] and the segment parameter t_occ of that occluder,
-    (inf, inf) without one.  Scalars in and out, so that the frequency
-    chains (core.frequency.kernels) call it per photon.
+def march_segments(m, o, d, t_end, rows, n, out, out_t):
+    """(a_occ, t_occ) of segments: for i = rows[k], k < n, out[i], out_t[i] =
+    those of the segment [o[i] + t_skip d[i], o[i] + (t_end[i] - t_skip)
+    d[i]] (see :func:`march_occlusion`): m a :class:`MarchGrid`; o, d (N, 3)
+    float64 (d unit), t_end (N,); rows (>= n,) int64; out, out_t (N,)
+    float64 get a_occ [m^2] and the segment parameter t_occ of that
+    occluder, (inf, inf) without one.  The frequency chains
+    (core.frequency.kernels) march the rows of one bounce in one call: the
+    arrays of m are unpacked once per call, not per segment: numba counts
+    the references of each array it takes out of m, and those counts cost
+    as much as a fifth of the march (docs/frequency.md, "Cost").
 
     Two-level 3D-DDA.  The segment enters the grid at the voxel holding
     o + t d (floor, as the dense march, tests/oracle_occlusion.py) and steps from block to block
@@ -211,182 +238,194 @@ def march_segment(m, ox, oy, oz, dx, dy, dz, t_end):
     dist, cone, bmin, bcone, vmin, vcone = m.dist, m.cone, m.bmin, m.bcone, m.vmin, m.vcone
     has_v, B, lo, cell, R = m.has_voxel_level, m.B, m.lo, m.cell, m.res
     locality, t_skip = m.locality, m.t_skip
-    eps = 1e-6 * min(cell[0], min(cell[1], cell[2]))
+    eps = m.eps
     lo0, lo1, lo2 = lo[0], lo[1], lo[2]
     c0, c1, c2 = cell[0], cell[1], cell[2]
-    ta = t_skip
-    tb = t_end - t_skip
-    # clip to the grid box (slabs); outside it there is no geometry
-    ta, tb = _clip_slab(lo0, c0, R, ox, dx, ta, tb)
-    ta, tb = _clip_slab(lo1, c1, R, oy, dy, ta, tb)
-    ta, tb = _clip_slab(lo2, c2, R, oz, dz, ta, tb)
-    sx = 1 if dx > 0.0 else -1
-    sy = 1 if dy > 0.0 else -1
-    sz = 1 if dz > 0.0 else -1
     # 1/cell for the voxel index at block entries (t = an exit + eps, 1e-6
     # voxel past the face: a product instead of a quotient moves the index
     # only within ~1e-14 voxel of a face)
-    ic0, ic1, ic2 = 1.0 / c0, 1.0 / c1, 1.0 / c2
-    vjump = 1.5 * math.sqrt(c0 * c0 + c1 * c1 + c2 * c2) * (1.0 + 1e-6)
-    # The union cones leave out neighbours farther than the cut locality
-    # (MarchBlocks): valid for a march with locality <= it.  A larger
-    # locality skips by distance only (bmin, vmin hold every member).
-    cones = locality <= cut_locality(c0, c1, c2)
+    ic0, ic1, ic2 = m.icell[0], m.icell[1], m.icell[2]
+    vjump = m.vjump
+    cones = m.cones
     NB = bmin.shape[0]
-    best = np.inf
-    t_best = np.inf
-    t = ta
-    # Block DDA: the block (bx, by, bz) holding o + t d and the parameters
-    # where the segment crosses its far faces (tbx, tby, tbz: the voxel exit
-    # formula at the block's last voxel, so bit-identical to the exits of
-    # the voxel walk).  Stepping the axes whose exit is behind t replaces a
-    # floor and three divisions per block by one division.
-    bx = by = bz = 0
-    tbx = tby = tbz = np.inf
-    ix = iy = iz = 0
-    init = True          # locate o + t d by floor (at the start, after a jump)
-    have_v = False       # (ix, iy, iz) is the voxel holding o + t d
-    # The last voxel exit of each axis (index kx, parameter tnx): a walk that
-    # starts in the slab the previous walk ended in reuses it (same bits).
-    kx = ky = kz = -2
-    tnx = tny = tnz = np.inf
-    while t < tb:
-        if init:
-            ix = min(max(int(math.floor((ox + t * dx - lo0) * ic0)), 0), R - 1)
-            iy = min(max(int(math.floor((oy + t * dy - lo1) * ic1)), 0), R - 1)
-            iz = min(max(int(math.floor((oz + t * dz - lo2) * ic2)), 0), R - 1)
-            bx, by, bz = ix >> BLOCK_SHIFT, iy >> BLOCK_SHIFT, iz >> BLOCK_SHIFT
-            tbx = _axis_exit(lo0, c0, _far_face(bx, B, R, dx), ox, dx)
-            tby = _axis_exit(lo1, c1, _far_face(by, B, R, dy), oy, dy)
-            tbz = _axis_exit(lo2, c2, _far_face(bz, B, R, dz), oz, dz)
-            init = False
-            have_v = True
-        thr = min(locality, best)
-        bm = bmin[bx, by, bz]
-        if (bm * (1.0 - BLOCK_REL) >= thr
-                or (cones and not _union_meets(bcone, bx, by, bz, dx, dy, dz))):
-            # leave the block
-            t_exit = min(min(tb, tbx), min(tby, tbz))
-            # Far from everything, go further (sphere tracing, exact): o + t d
-            # is within diag/2 of a centre of this block (dist >= bm), so every
-            # point within jump of it has true distance >= bm - diag/2 - jump
-            # and interpolated distance (centres within a diagonal) >= that
-            # - diag >= thr.  Land on the *entry* of the voxel there, as the
-            # voxel walk would: no voxel is sampled on part of its piece.
-            jump = bm * (1.0 - 1e-6) - vjump - thr
-            if t + jump > t_exit:
-                tl = t + jump
-                if not tl < tb:
-                    break
-                jx = min(max(int(math.floor((ox + tl * dx - lo0) * ic0)), 0), R - 1)
-                jy = min(max(int(math.floor((oy + tl * dy - lo1) * ic1)), 0), R - 1)
-                jz = min(max(int(math.floor((oz + tl * dz - lo2) * ic2)), 0), R - 1)
-                # entry = the previous voxel's exit on each axis (same formula)
-                te = t_exit
-                if dx != 0.0:
-                    te = max(te, _axis_exit(lo0, c0, jx - 1 if dx > 0.0 else jx + 1, ox, dx))
-                if dy != 0.0:
-                    te = max(te, _axis_exit(lo1, c1, jy - 1 if dy > 0.0 else jy + 1, oy, dy))
-                if dz != 0.0:
-                    te = max(te, _axis_exit(lo2, c2, jz - 1 if dz > 0.0 else jz + 1, oz, dz))
-                t = te + eps
-                init = True
-                continue
-            t = t_exit + eps
-            if not t < tb:
-                break
-            # the next block holds o + t d: step the axes whose exit is behind
-            if tbx < t:
-                bx += sx
+    for k in range(n):
+        i = rows[k]
+        ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
+        dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
+        out[i] = np.inf
+        out_t[i] = np.inf
+        ta = t_skip
+        tb = t_end[i] - t_skip
+        if not ta < tb:
+            continue                         # nothing between the skipped ends
+        # clip to the grid box (slabs); outside it there is no geometry
+        ta, tb = _clip_slab(lo0, c0, R, ox, dx, ta, tb)
+        ta, tb = _clip_slab(lo1, c1, R, oy, dy, ta, tb)
+        ta, tb = _clip_slab(lo2, c2, R, oz, dz, ta, tb)
+        sx = 1 if dx > 0.0 else -1
+        sy = 1 if dy > 0.0 else -1
+        sz = 1 if dz > 0.0 else -1
+        best = np.inf
+        t_best = np.inf
+        t = ta
+        # Block DDA: the block (bx, by, bz) holding o + t d and the parameters
+        # where the segment crosses its far faces (tbx, tby, tbz: the voxel exit
+        # formula at the block's last voxel, so bit-identical to the exits of
+        # the voxel walk).  Stepping the axes whose exit is behind t replaces a
+        # floor and three divisions per block by one division.
+        bx = by = bz = 0
+        tbx = tby = tbz = np.inf
+        ix = iy = iz = 0
+        init = True          # locate o + t d by floor (at the start, after a jump)
+        have_v = False       # (ix, iy, iz) is the voxel holding o + t d
+        # The last voxel exit of each axis (index kx, parameter tnx): a walk that
+        # starts in the slab the previous walk ended in reuses it (same bits).
+        kx = ky = kz = -2
+        tnx = tny = tnz = np.inf
+        while t < tb:
+            if init:
+                ix = min(max(int(math.floor((ox + t * dx - lo0) * ic0)), 0), R - 1)
+                iy = min(max(int(math.floor((oy + t * dy - lo1) * ic1)), 0), R - 1)
+                iz = min(max(int(math.floor((oz + t * dz - lo2) * ic2)), 0), R - 1)
+                bx, by, bz = ix >> BLOCK_SHIFT, iy >> BLOCK_SHIFT, iz >> BLOCK_SHIFT
                 tbx = _axis_exit(lo0, c0, _far_face(bx, B, R, dx), ox, dx)
-            if tby < t:
-                by += sy
                 tby = _axis_exit(lo1, c1, _far_face(by, B, R, dy), oy, dy)
-            if tbz < t:
-                bz += sz
                 tbz = _axis_exit(lo2, c2, _far_face(bz, B, R, dz), oz, dz)
-            if bx < 0 or bx >= NB or by < 0 or by >= NB or bz < 0 or bz >= NB:
-                init = True                # rounding at the grid's edge
-            have_v = False
-            continue
-        if not have_v:
-            # entered by a block step: the voxel holding o + t d (floor, as
-            # the dense march), in this block unless t sits on a tie of two
-            # exits that the step resolved otherwise (then locate again)
-            ix = min(max(int(math.floor((ox + t * dx - lo0) * ic0)), 0), R - 1)
-            iy = min(max(int(math.floor((oy + t * dy - lo1) * ic1)), 0), R - 1)
-            iz = min(max(int(math.floor((oz + t * dz - lo2) * ic2)), 0), R - 1)
-            if (ix >> BLOCK_SHIFT != bx or iy >> BLOCK_SHIFT != by
-                    or iz >> BLOCK_SHIFT != bz):
-                init = True
-                continue
-        # voxel by voxel through this block
-        if ix != kx:
-            tnx = _axis_exit(lo0, c0, ix, ox, dx)
-        if iy != ky:
-            tny = _axis_exit(lo1, c1, iy, oy, dy)
-        if iz != kz:
-            tnz = _axis_exit(lo2, c2, iz, oz, dz)
-        while True:
-            t_exit = min(min(tb, tnx), min(tny, tnz))
+                init = False
+                have_v = True
             thr = min(locality, best)
-            if (not has_v or (vmin[ix, iy, iz] * (1.0 - BLOCK_REL) < thr
-                              and (not cones
-                                   or _union_meets(vcone, ix, iy, iz, dx, dy, dz)))):
-                # sample: the point of this voxel's piece nearest its centre
-                ts = 0.0
-                ts += (lo0 + (ix + 0.5) * c0 - ox) * dx
-                ts += (lo1 + (iy + 0.5) * c1 - oy) * dy
-                ts += (lo2 + (iz + 0.5) * c2 - oz) * dz
-                ts = min(max(ts, t), min(t_exit, tb))
-                nb_ = sample_voxel(dist, cone, lo, cell, R, ix, iy, iz, ox, oy, oz,
-                                    dx, dy, dz, ts, locality, best)
-                if nb_ < best:
-                    best = nb_
-                    t_best = ts
-            t = t_exit + eps
-            if not t < tb:
-                break
-            # the next voxel holds o + t d: step the axes whose exit is behind
-            if tnx < t:
-                ix += sx
+            bm = bmin[bx, by, bz]
+            if (bm * (1.0 - BLOCK_REL) >= thr
+                    or (cones and not _union_meets(bcone, bx, by, bz, dx, dy, dz))):
+                # leave the block
+                t_exit = min(min(tb, tbx), min(tby, tbz))
+                # Far from everything, go further (sphere tracing, exact): o + t d
+                # is within diag/2 of a centre of this block (dist >= bm), so every
+                # point within jump of it has true distance >= bm - diag/2 - jump
+                # and interpolated distance (centres within a diagonal) >= that
+                # - diag >= thr.  Land on the *entry* of the voxel there, as the
+                # voxel walk would: no voxel is sampled on part of its piece.
+                jump = bm * (1.0 - 1e-6) - vjump - thr
+                if t + jump > t_exit:
+                    tl = t + jump
+                    if not tl < tb:
+                        break
+                    jx = min(max(int(math.floor((ox + tl * dx - lo0) * ic0)), 0), R - 1)
+                    jy = min(max(int(math.floor((oy + tl * dy - lo1) * ic1)), 0), R - 1)
+                    jz = min(max(int(math.floor((oz + tl * dz - lo2) * ic2)), 0), R - 1)
+                    # entry = the previous voxel's exit on each axis (same formula)
+                    te = t_exit
+                    if dx != 0.0:
+                        te = max(te, _axis_exit(lo0, c0, jx - 1 if dx > 0.0 else jx + 1, ox, dx))
+                    if dy != 0.0:
+                        te = max(te, _axis_exit(lo1, c1, jy - 1 if dy > 0.0 else jy + 1, oy, dy))
+                    if dz != 0.0:
+                        te = max(te, _axis_exit(lo2, c2, jz - 1 if dz > 0.0 else jz + 1, oz, dz))
+                    t = te + eps
+                    init = True
+                    continue
+                t = t_exit + eps
+                if not t < tb:
+                    break
+                # the next block holds o + t d: step the axes whose exit is behind
+                if tbx < t:
+                    bx += sx
+                    tbx = _axis_exit(lo0, c0, _far_face(bx, B, R, dx), ox, dx)
+                if tby < t:
+                    by += sy
+                    tby = _axis_exit(lo1, c1, _far_face(by, B, R, dy), oy, dy)
+                if tbz < t:
+                    bz += sz
+                    tbz = _axis_exit(lo2, c2, _far_face(bz, B, R, dz), oz, dz)
+                if bx < 0 or bx >= NB or by < 0 or by >= NB or bz < 0 or bz >= NB:
+                    init = True                # rounding at the grid's edge
+                have_v = False
+                continue
+            if not have_v:
+                # entered by a block step: the voxel holding o + t d (floor, as
+                # the dense march), in this block unless t sits on a tie of two
+                # exits that the step resolved otherwise (then locate again)
+                ix = min(max(int(math.floor((ox + t * dx - lo0) * ic0)), 0), R - 1)
+                iy = min(max(int(math.floor((oy + t * dy - lo1) * ic1)), 0), R - 1)
+                iz = min(max(int(math.floor((oz + t * dz - lo2) * ic2)), 0), R - 1)
+                if (ix >> BLOCK_SHIFT != bx or iy >> BLOCK_SHIFT != by
+                        or iz >> BLOCK_SHIFT != bz):
+                    init = True
+                    continue
+            # voxel by voxel through this block
+            if ix != kx:
                 tnx = _axis_exit(lo0, c0, ix, ox, dx)
-            if tny < t:
-                iy += sy
+            if iy != ky:
                 tny = _axis_exit(lo1, c1, iy, oy, dy)
-            if tnz < t:
-                iz += sz
+            if iz != kz:
                 tnz = _axis_exit(lo2, c2, iz, oz, dz)
-            nx, ny, nz = ix >> BLOCK_SHIFT, iy >> BLOCK_SHIFT, iz >> BLOCK_SHIFT
-            if nx != bx or ny != by or nz != bz or ix >= R or iy >= R or iz >= R:
-                # a new block (ix = R may still be in the last block when B
-                # does not divide R): its voxel is the stepped one; its
-                # far-face exit changes on the axes that stepped only
-                kx, ky, kz = ix, iy, iz
-                if ix < 0 or ix >= R or iy < 0 or iy >= R or iz < 0 or iz >= R:
-                    init = True            # rounding at the grid's edge
-                else:
-                    if nx != bx:
-                        bx = nx
-                        tbx = _axis_exit(lo0, c0, _far_face(bx, B, R, dx), ox, dx)
-                    if ny != by:
-                        by = ny
-                        tby = _axis_exit(lo1, c1, _far_face(by, B, R, dy), oy, dy)
-                    if nz != bz:
-                        bz = nz
-                        tbz = _axis_exit(lo2, c2, _far_face(bz, B, R, dz), oz, dz)
-                    have_v = True
-                break
-    if best < np.inf:
-        return best * best, t_best
-    return np.inf, np.inf
+            while True:
+                t_exit = min(min(tb, tnx), min(tny, tnz))
+                thr = min(locality, best)
+                if (not has_v or (vmin[ix, iy, iz] * (1.0 - BLOCK_REL) < thr
+                                  and (not cones
+                                       or _union_meets(vcone, ix, iy, iz, dx, dy, dz)))):
+                    # sample: the point of this voxel's piece nearest its centre
+                    ts = 0.0
+                    ts += (lo0 + (ix + 0.5) * c0 - ox) * dx
+                    ts += (lo1 + (iy + 0.5) * c1 - oy) * dy
+                    ts += (lo2 + (iz + 0.5) * c2 - oz) * dz
+                    ts = min(max(ts, t), min(t_exit, tb))
+                    nb_ = sample_voxel(dist, cone, lo, cell, R, ix, iy, iz, ox, oy, oz,
+                                        dx, dy, dz, ts, locality, best)
+                    if nb_ < best:
+                        best = nb_
+                        t_best = ts
+                t = t_exit + eps
+                if not t < tb:
+                    break
+                # the next voxel holds o + t d: step the axes whose exit is behind
+                if tnx < t:
+                    ix += sx
+                    tnx = _axis_exit(lo0, c0, ix, ox, dx)
+                if tny < t:
+                    iy += sy
+                    tny = _axis_exit(lo1, c1, iy, oy, dy)
+                if tnz < t:
+                    iz += sz
+                    tnz = _axis_exit(lo2, c2, iz, oz, dz)
+                nx, ny, nz = ix >> BLOCK_SHIFT, iy >> BLOCK_SHIFT, iz >> BLOCK_SHIFT
+                if nx != bx or ny != by or nz != bz or ix >= R or iy >= R or iz >= R:
+                    # a new block (ix = R may still be in the last block when B
+                    # does not divide R): its voxel is the stepped one; its
+                    # far-face exit changes on the axes that stepped only
+                    kx, ky, kz = ix, iy, iz
+                    if ix < 0 or ix >= R or iy < 0 or iy >= R or iz < 0 or iz >= R:
+                        init = True            # rounding at the grid's edge
+                    else:
+                        if nx != bx:
+                            bx = nx
+                            tbx = _axis_exit(lo0, c0, _far_face(bx, B, R, dx), ox, dx)
+                        if ny != by:
+                            by = ny
+                            tby = _axis_exit(lo1, c1, _far_face(by, B, R, dy), oy, dy)
+                        if nz != bz:
+                            bz = nz
+                            tbz = _axis_exit(lo2, c2, _far_face(bz, B, R, dz), oz, dz)
+                        have_v = True
+                    break
+        if best < np.inf:
+            out[i] = best * best
+            out_t[i] = t_best
+
+
+def march_segment(m, ox, oy, oz, dx, dy, dz, t_end):
+    """(a_occ, t_occ) of one segment (:func:`march_segments` on one row):
+    m a :class:`MarchGrid`, o and d (unit) scalars."""
+    out, out_t = np.empty(1), np.empty(1)
+    march_segments(m, np.array([[ox, oy, oz]], np.float64), np.array([[dx, dy, dz]], np.float64),
+                   np.array([t_end], np.float64), np.zeros(1, np.int64), 1, out, out_t)
+    return out[0], out_t[0]
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
 def _march(m, o, d, t_end, out, out_t):
-    for i in range(o.shape[0]):
-        out[i], out_t[i] = march_segment(m, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2],
-                                         t_end[i])
+    march_segments(m, o, d, t_end, np.arange(o.shape[0]), o.shape[0], out, out_t)
 
 
 def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
