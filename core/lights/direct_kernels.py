@@ -78,6 +78,27 @@ class DirectLights(NamedTuple):
     group: np.ndarray
 
 
+class EntryLights(NamedTuple):
+    """The ``DirectLights`` fields :func:`_entry_weight` and :func:`_spot_atten`
+    read (the same arrays), built once per kernel call by
+    :func:`entry_lights`.  Every call of a numba function taking a tuple of
+    arrays pays the reference counting of each array (~11 ns, measured): the
+    25 of DirectLights cost 270 ns per selection weight against 4 ns for the
+    formula of an area light; these 12, 140 ns."""
+    kind: np.ndarray
+    lum_flux: np.ndarray
+    lum_strength: np.ndarray
+    co: np.ndarray
+    radius: np.ndarray
+    lin_inv: np.ndarray
+    cos_half_spot: np.ndarray
+    spot_smooth: np.ndarray
+    dir: np.ndarray
+    area: np.ndarray
+    axis_u: np.ndarray
+    axis_v: np.ndarray
+
+
 class Receivers(NamedTuple):
     """The visible points to light, K rows: q (K,) int64 pixel; and per pixel
     (P rows) p, n (oriented shading normal), beta, albedo (P, 3) float64 and
@@ -144,6 +165,14 @@ def build_direct_lights(table) -> DirectLights:
         group=np.array([gcen[0], gcen[1], gcen[2], float(table.group_ext2)], np.float64))
 
 
+@njit(cache=True)
+def entry_lights(L):
+    """The :class:`EntryLights` of the DirectLights L (callable from Python
+    and from the kernels)."""
+    return EntryLights(L.kind, L.lum_flux, L.lum_strength, L.co, L.radius, L.lin_inv,
+                       L.cos_half_spot, L.spot_smooth, L.dir, L.area, L.axis_u, L.axis_v)
+
+
 def alloc_samples(K: int) -> DirectSamples:
     """Zeroed DirectSamples for K receivers (rows without a light stay so)."""
     return DirectSamples(wi=np.zeros((K, 3)), dist=np.zeros(K), weight=np.zeros((K, 3)),
@@ -194,7 +223,7 @@ def _cross(ax, ay, az, bx, by, bz):
 
 @njit(cache=True)
 def _spot_atten(L, j, wx, wy, wz):
-    """table._spot_atten of one direction leaving light j."""
+    """table._spot_atten of one direction leaving light j (L: EntryLights)."""
     M = L.lin_inv
     lx = M[j, 0, 0] * wx + M[j, 0, 1] * wy + M[j, 0, 2] * wz
     ly = M[j, 1, 0] * wx + M[j, 1, 1] * wy + M[j, 1, 2] * wz
@@ -293,7 +322,8 @@ def _spherical_tri(px, py, pz, Ax, Ay, Az, Bx, By, Bz, Cx, Cy, Cz, u1, u2):
 
 @njit(cache=True, error_model="numpy")
 def _entry_weight(L, j, px, py, pz):
-    """One column of sampling._entry_weights (entry of emitter j >= 0)."""
+    """One column of sampling._entry_weights (entry of emitter j >= 0; L:
+    EntryLights, not DirectLights: see there)."""
     k = L.kind[j]
     lf = L.lum_flux[j]
     if lf <= 0:
@@ -331,6 +361,7 @@ def direct_kernel(k0, k1, L, R, out):
     E = L.entry.shape[0]
     G = L.group_cdf.shape[0]
     W = np.empty(E)
+    EL = entry_lights(L)
     for k in range(k0, k1):
         i = R.q[k]
         px, py, pz = R.p[i, 0], R.p[i, 1], R.p[i, 2]
@@ -343,7 +374,7 @@ def direct_kernel(k0, k1, L, R, out):
                       + (pz - L.group[2]) ** 2)
                 w = L.group_cdf[G - 1] / (2.0 * _PI * (d2 + L.group[3]))
             else:
-                w = _entry_weight(L, j, px, py, pz)
+                w = _entry_weight(EL, j, px, py, pz)
             if not np.isfinite(w):
                 w = 0.0
             W[e] = w
@@ -428,7 +459,7 @@ def direct_kernel(k0, k1, L, R, out):
                 l0, l1, l2 = L.radiance[j, 0] * g, L.radiance[j, 1] * g, L.radiance[j, 2] * g
                 t = max(tt, 0.0)
             if kind == SPOT:
-                att = _spot_atten(L, j, -wx, -wy, -wz)
+                att = _spot_atten(EL, j, -wx, -wy, -wz)
                 if sphere and r != 0 and d <= r:
                     att = 1.0
                 l0, l1, l2 = l0 * att, l1 * att, l2 * att
