@@ -46,8 +46,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..lights.direct_kernels import (SPH_TRI_MIN, _entry_weight, _spherical_rect,
-                                     _spherical_tri)
+from ..lights.direct_kernels import (SPH_TRI_MIN, EntryLights, _entry_weight,
+                                     _spherical_rect, _spherical_tri, entry_lights)
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..materials.fast import ABSORBER, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
 from ..sppm.photon_kernels import shading_normal
@@ -56,30 +56,6 @@ from .light_kernels import lambert_pdf as _lambert_pdf
 
 _PI = np.pi
 
-
-
-class EntryLights(NamedTuple):
-    """The ``DirectLights`` fields ``direct_kernels._entry_weight`` reads (the
-    same arrays).  Every call of a numba function taking a tuple of arrays
-    pays the reference counting of each array (~11 ns, measured): the 25 of
-    DirectLights cost 270 ns per selection weight against 4 ns for the
-    formula of an area light; these 12, 140 ns."""
-    kind: np.ndarray
-    lum_flux: np.ndarray
-    lum_strength: np.ndarray
-    co: np.ndarray
-    radius: np.ndarray
-    lin_inv: np.ndarray
-    cos_half_spot: np.ndarray
-    spot_smooth: np.ndarray
-    dir: np.ndarray
-    area: np.ndarray
-    axis_u: np.ndarray
-    axis_v: np.ndarray
-
-
-def entry_lights(L) -> EntryLights:
-    return EntryLights(*(getattr(L, f) for f in EntryLights._fields))
 
 
 class LightPdf(NamedTuple):
