@@ -8,6 +8,13 @@ What is asserted, and why the tolerances are zero:
   Perspective with shift and a non-square pixel aspect, orthographic, a
   filter of width 0; the one-thread and the split (PARALLEL_MIN) paths; the
   thin lens takes the numpy path in both.
+- The grid build (core.sppm.hashgrid ``_insert_parallel``: each VP's slots
+  by VP ranges, then a counting sort by slot ranges) gives the serial
+  two-pass ``_insert``'s CSR arrays exactly (integers: no rounding): a dense
+  grid, hash tables small enough that most cells collide, a VP whose sphere
+  covers more than ``_DEDUP_SCAN`` slots of a small table (the sort path of
+  the deduplication), inactive and non-finite VPs, on one thread and split
+  (PARALLEL_MIN_VPS).
 """
 from __future__ import annotations
 
@@ -16,6 +23,7 @@ import numpy as np
 import pytest
 
 from core.scene import camera as C
+from core.sppm import hashgrid as Hg
 from core.scene.camera import CameraModel, FilterSampler
 from core.scene.model import Camera
 
@@ -53,3 +61,38 @@ def test_thin_lens_takes_the_numpy_path():
     b, _ = cm.generate(px, py, u[:, :2], u[:, 2:], fs)
     assert np.array_equal(a.o, b.o) and np.array_equal(a.d, b.d)
     assert np.ptp(a.o[:, 0]) > 0.01          # the lens spreads the origins
+
+
+def _vps(K, seed):
+    """K visible points on three faces of a unit box (the Cornell box's
+    kind of distribution), radii around 1/sqrt(K), a few inactive or NaN."""
+    rng = np.random.default_rng(seed)
+    p = rng.random((K, 3))
+    face = rng.integers(0, 3, K)
+    p[np.arange(K), face] = 0.0
+    R = rng.uniform(0.5, 1.5, K) / np.sqrt(K)
+    active = rng.random(K) > 0.05
+    p[:3] = np.nan
+    R[3:6] = np.inf
+    return p, R, active
+
+
+@pytest.mark.parametrize("K,layout,log2_table", [
+    (3000, "auto", None), (3000, "dense", None), (3000, "hash", None),
+    (3000, "hash", 6), (Hg.PARALLEL_MIN_VPS + 5, "auto", None),
+    (Hg.PARALLEL_MIN_VPS + 5, "hash", 9)])
+def test_parallel_grid_build_equals_serial(K, layout, log2_table):
+    p, R, active = _vps(K, K)
+    if log2_table == 9:
+        R[10] = 40.0 / np.sqrt(K)         # > _DEDUP_SCAN of its cells share 512 slots
+    a = Hg.build_grid(p, R, active, layout=layout, log2_table=log2_table, parallel=False)
+    b = Hg.build_grid(p, R, active, layout=layout, log2_table=log2_table)
+    for f in ("K", "n_active", "h", "dense", "log2_table"):
+        assert getattr(a, f) == getattr(b, f), f
+    for f in ("origin", "lo", "hi", "dims", "cell_start", "vp_ids", "R_ins"):
+        x, y = getattr(a, f), getattr(b, f)
+        assert x.dtype == y.dtype and np.array_equal(x, y), f
+    assert a.n_entries > 5 * a.n_active
+    if log2_table == 9:
+        big = np.flatnonzero(a.vp_ids == 10).size
+        assert Hg._DEDUP_SCAN < big <= 512

@@ -94,6 +94,10 @@ COS_NG_DEFAULT = 0.5          # cos(60 deg): photon / VP surface orientation tes
 CELL_FACTOR = 1.5             # h = CELL_FACTOR * median active radius
 ENTRY_BUDGET_PER_VP = 64      # clamp: mean cell entries per active VP
 PARALLEL_MIN_PHOTONS = 50_000  # below this, thread start-up outweighs the split
+PARALLEL_MIN_VPS = 1 << 15      # build_grid: below this many active VPs, one thread
+# A VP's slots are deduplicated by a scan of the ones it already has up to
+# this many, then by a sort (a VP far larger than the cells).
+_DEDUP_SCAN = 64
 # GatherBuffers.fold visits every VP in order, not the touched lists, when at
 # least 1/FOLD_SWEEP_FRACTION of them were touched (the lists' random access
 # cost ~250 ns a VP, a sequential sweep ~65 ns for every VP: 256², loaded
@@ -257,6 +261,159 @@ def _insert(pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
                         count[s] += 1
                     else:
                         count[s] += 1
+
+
+@njit(cache=True)
+def _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf):
+    """The slots of the cells VP v's sphere overlaps (the cells and tests of
+    :func:`_insert`), each once (a hash may map two of its cells to one
+    slot), in buf (grown by doubling when full; any order); returns (n, buf)."""
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    cx, cy, cz = pos[v, 0], pos[v, 1], pos[v, 2]
+    r = R_ins[v]
+    r2 = r * r
+    x0 = np.int64(math.floor((cx - r - ox) * inv_h))
+    x1 = np.int64(math.floor((cx + r - ox) * inv_h))
+    y0 = np.int64(math.floor((cy - r - oy) * inv_h))
+    y1 = np.int64(math.floor((cy + r - oy) * inv_h))
+    z0 = np.int64(math.floor((cz - r - oz) * inv_h))
+    z1 = np.int64(math.floor((cz + r - oz) * inv_h))
+    n = 0
+    unchecked = False          # past _DEDUP_SCAN slots: sorted and made unique at the end
+    for iz in range(z0, z1 + 1):
+        bz0 = oz + iz * h
+        dz = max(bz0 - cz, 0.0, cz - (bz0 + h))
+        for iy in range(y0, y1 + 1):
+            by0 = oy + iy * h
+            dy = max(by0 - cy, 0.0, cy - (by0 + h))
+            dyz = dy * dy + dz * dz
+            if dyz > r2:
+                continue
+            for ix in range(x0, x1 + 1):
+                bx0 = ox + ix * h
+                dx = max(bx0 - cx, 0.0, cx - (bx0 + h))
+                if dx * dx + dyz > r2:
+                    continue
+                s = _slot(ix, iy, iz, dense, nx, ny, nz, shift)
+                if s < 0:
+                    continue
+                if not dense and not unchecked:
+                    seen = False
+                    for i in range(n):
+                        if buf[i] == s:
+                            seen = True
+                            break
+                    if seen:
+                        continue
+                if n == buf.shape[0]:
+                    grown = np.empty(2 * n, buf.dtype)
+                    grown[:n] = buf
+                    buf = grown
+                buf[n] = s
+                n += 1
+                if n >= _DEDUP_SCAN:
+                    unchecked = True
+    if unchecked and not dense:
+        srt = np.sort(buf[:n])
+        m = 0
+        for i in range(n):
+            if i == 0 or srt[i] != srt[i - 1]:
+                buf[m] = srt[i]
+                m += 1
+        n = m
+    return n, buf
+
+
+@njit(cache=True)
+def _count_cells(k0, k1, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift, n_ent):
+    """n_ent[v] = number of slots VP v is stored in, for VPs k0..k1-1."""
+    buf = np.empty(_DEDUP_SCAN, np.int64)
+    for v in range(k0, k1):
+        n = 0
+        if active[v]:
+            n, buf = _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf)
+        n_ent[v] = n
+
+
+@njit(cache=True)
+def _fill_cells(k0, k1, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift, off,
+                ent_slot):
+    """ent_slot[off[v]:off[v + 1]] = the slots of VP v, for VPs k0..k1-1."""
+    buf = np.empty(_DEDUP_SCAN, np.int64)
+    for v in range(k0, k1):
+        if active[v]:
+            n, buf = _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf)
+            o = off[v]
+            for i in range(n):
+                ent_slot[o + i] = buf[i]
+
+
+@njit(cache=True)
+def _slot_range_counts(s0, s1, ent_slot, cell_start):
+    """cell_start[s + 1] = entries in slot s, for the slots s0..s1-1."""
+    for e in range(ent_slot.shape[0]):
+        s = ent_slot[e]
+        if s >= s0 and s < s1:
+            cell_start[s + 1] += 1
+
+
+@njit(cache=True)
+def _slot_range_fill(s0, s1, off, ent_slot, cursor, vp_ids):
+    """vp_ids[cursor[s]++] = v for the entries (v, s) with s0 <= s < s1, in VP
+    order (so the VPs of a slot are ascending, as _insert stores them)."""
+    for v in range(off.shape[0] - 1):
+        for e in range(off[v], off[v + 1]):
+            s = ent_slot[e]
+            if s >= s0 and s < s1:
+                q = cursor[s]
+                vp_ids[q] = v
+                cursor[s] = q + 1
+
+
+@njit(cache=True, parallel=True)
+def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
+                     n_slots, slot_proto):
+    """The CSR arrays (cell_start (n_slots + 1,) int64, vp_ids (n_entries,)
+    int32) that :func:`_insert`'s counting and fill passes build, computed
+    by n_chunks threads: each VP's slots (VP ranges in parallel), then a
+    counting sort of the entries by slot (slot ranges in parallel).  No
+    (n_slots,) mark array: a VP's hash collisions are removed from its own
+    list.  slot_proto: an empty array of the entries' slot dtype."""
+    K = pos.shape[0]
+    n_ent = np.empty(K, np.int64)
+    for c in prange(n_chunks):
+        _count_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
+                     h, inv_h, dense, nx, ny, nz, shift, n_ent)
+    off = np.empty(K + 1, np.int64)
+    off[0] = 0
+    for v in range(K):
+        off[v + 1] = off[v] + n_ent[v]
+    E = off[K]
+    ent_slot = np.empty(E, slot_proto.dtype)
+    for c in prange(n_chunks):
+        _fill_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
+                    h, inv_h, dense, nx, ny, nz, shift, off, ent_slot)
+    cell_start = np.zeros(n_slots + 1, np.int64)
+    for c in prange(n_chunks):
+        _slot_range_counts(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks, ent_slot,
+                           cell_start)
+    for s in range(n_slots):
+        cell_start[s + 1] += cell_start[s]
+    vp_ids = np.empty(E, np.int32)
+    # cell_start is the fill cursor: slot s ends at the start of s + 1; then
+    # shifted back by one slot.
+    for c in prange(n_chunks):
+        _slot_range_fill(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks, off,
+                         ent_slot, cell_start, vp_ids)
+    for s in range(n_slots, 0, -1):
+        cell_start[s] = cell_start[s - 1]
+    cell_start[0] = 0
+    return cell_start, vp_ids
+
+
+#: The same build compiled without ``parallel`` (small grids: a parallel
+#: region's thread hand-off costs more than their build).
+_insert_serial = njit(cache=True)(_insert_parallel.py_func)
 
 
 @njit(cache=True)
@@ -598,7 +755,7 @@ def _bbox_entries(pos, R, origin, inv_h) -> int:
 
 def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
                cell_factor: float = CELL_FACTOR, layout: str = "auto",
-               log2_table: Optional[int] = None) -> Grid:
+               log2_table: Optional[int] = None, parallel: bool = True) -> Grid:
     """Bucket the active visible points into a grid (see the module docstring).
 
     vp_pos: (K, 3) float64 world positions.  vp_R: (K,) float64 radii [m].
@@ -606,7 +763,9 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     treated as inactive.  cell_factor: h = cell_factor * median active radius
     (before the entry-budget clamp).  layout: 'auto', 'dense' or 'hash';
     log2_table forces a hash table of 2**log2_table slots (tests use tiny
-    tables to exercise collisions).
+    tables to exercise collisions).  parallel: the CSR arrays from
+    ``_insert_parallel`` (numba threads from PARALLEL_MIN_VPS active VPs);
+    False: the serial two-pass ``_insert``, its reference (the same arrays).
     """
     if layout not in ("auto", "dense", "hash"):
         raise ValueError("build_grid: layout must be 'auto', 'dense' or 'hash', "
@@ -654,12 +813,21 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     else:
         n_slots, shift = 1 << log2_table, 64 - log2_table
 
+    args = (vp_pos, R_ins, act, origin, h, inv_h, dense,
+            int(dims[0]), int(dims[1]), int(dims[2]), shift, n_slots)
+    if parallel:
+        proto = np.empty(0, np.int32 if n_slots < 2**31 else np.int64)
+        T = numba.get_num_threads()
+        if n_active >= PARALLEL_MIN_VPS and T > 1:
+            cell_start, vp_ids = _insert_parallel(T, *args, proto)
+        else:
+            cell_start, vp_ids = _insert_serial(1, *args, proto)
+        return Grid(K, n_active, origin, h, inv_h, lo, hi, bool(dense), dims,
+                    0 if dense else log2_table, cell_start, vp_ids, R_ins)
     count = np.zeros(n_slots + 1, np.int64)
     mark = np.full(0 if dense else n_slots, -1, np.int64)
     cell_start = count  # placeholder argument for the counting pass
     dummy = np.zeros(0, np.int32)
-    args = (vp_pos, R_ins, act, origin, h, inv_h, dense,
-            int(dims[0]), int(dims[1]), int(dims[2]), shift, n_slots)
     _insert(*args, count, mark, cell_start, dummy, False)
     cell_start = np.zeros(n_slots + 1, np.int64)
     np.cumsum(count[:n_slots], out=cell_start[1:])
