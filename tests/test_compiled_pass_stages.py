@@ -15,6 +15,17 @@ What is asserted, and why the tolerances are zero:
   covers more than ``_DEDUP_SCAN`` slots of a small table (the sort path of
   the deduplication), inactive and non-finite VPs, on one thread and split
   (PARALLEL_MIN_VPS).
+- The PPM rule's update (core.sppm.update ``_ppm_update_range``) leaves the
+  numpy path's state bit for bit: the same operations in the same order,
+  numpy's pairwise sum of the 8 sector counts and OpenBLAS's FMA chain for
+  the gradient projection written out.  Rows with no photons, negative or
+  NaN flux, no radius yet, infinite, NaN, negative and tiny predicted
+  radii (the floor), sector counts that the linear test rejects and
+  accepts; with and without frequency photons, sector counts and the hold
+  rate; one thread and split (PARALLEL_MIN).
+- The camera pass's Embree call split in two threads
+  (visible_points.INTERSECT_SPLIT_MIN) gives the one-call visible points
+  bit for bit (each ray's hit is its own).
 """
 from __future__ import annotations
 
@@ -23,7 +34,13 @@ import numpy as np
 import pytest
 
 from core.scene import camera as C
+from core.render import Renderer
+from core.settings import RenderSettings
+from core.sppm import visible_points as V
+from core.warmup import warmup_scene
 from core.sppm import hashgrid as Hg
+from core.sppm import update as U
+from core.sppm.state import PixelState
 from core.scene.camera import CameraModel, FilterSampler
 from core.scene.model import Camera
 
@@ -96,3 +113,72 @@ def test_parallel_grid_build_equals_serial(K, layout, log2_table):
     if log2_table == 9:
         big = np.flatnonzero(a.vp_ids == 10).size
         assert Hg._DEDUP_SCAN < big <= 512
+
+
+def _update_case(P, seed, sectors):
+    """A state after some passes and one pass's photons, P pixels."""
+    rng = np.random.default_rng(seed)
+    st = PixelState.zeros(P, sector_cells=Hg.SECTOR_CELLS if sectors else 0)
+    st.R2[:] = rng.uniform(1e-6, 1e-4, P) * (rng.random(P) > 0.05)
+    st.N[:] = rng.uniform(0, 500, P)
+    st.tau[:] = rng.uniform(0, 2, (P, 3))
+    M = rng.poisson(40, P).astype(float) * (rng.random(P) > 0.1)
+    Phi = rng.uniform(0, 0.1, (P, 3)) * M[:, None]
+    Phi[rng.random(P) < 0.02, 1] = -1e-3
+    Phi[rng.random(P) < 0.02, 2] = np.nan
+    r_pred = np.sqrt(st.R2) * rng.uniform(0.3, 1.5, P)
+    pick = rng.random(P)
+    r_pred[pick < 0.2] = np.inf
+    r_pred[(pick > 0.2) & (pick < 0.25)] = np.nan
+    r_pred[(pick > 0.25) & (pick < 0.3)] *= -1.0
+    r_pred[(pick > 0.3) & (pick < 0.35)] = 1e-12           # below the floor
+    S_pass = None
+    if sectors:
+        st.sectors[:] = rng.poisson(30, (P, Hg.SECTOR_CELLS)) * rng.uniform(0.2, 1, (P, 1))
+        ramp = np.r_[np.linspace(0.2, 1.8, 4), np.linspace(0.0, 2.0, 4)]
+        steep = rng.random(P) < 0.3                     # more than a gradient: rejected
+        st.sectors[steep] *= ramp
+        S_pass = rng.multinomial(1, np.full(Hg.SECTOR_CELLS, 1 / Hg.SECTOR_CELLS),
+                                 (P, 40)).sum(axis=1).astype(float)
+        S_pass *= (M / 40.0)[:, None]
+    return st, M, Phi, r_pred, S_pass
+
+
+@pytest.mark.parametrize("P", [3000, U.PARALLEL_MIN + 3])
+@pytest.mark.parametrize("frequency,sectors,hold_alpha", [
+    (True, True, 0.9), (True, False, 0.9), (True, True, 1.0), (False, False, 0.9)])
+def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha):
+    settings = RenderSettings(hold_alpha=hold_alpha, verify_holds=sectors)
+    radii = U.Radii(settings, None, 10.0, frequency, None, 1, P)
+    radii.floor_sq = 1e-9                                # reached by the tiny predictions
+    ref, M, Phi, r_pred, S_pass = _update_case(P, P, sectors)
+    new = PixelState(**{k: v.copy() for k, v in ref.state_dict().items()})
+    radii.compiled = False
+    radii.update(ref, M, Phi, r_pred, S_pass)
+    radii.compiled = True
+    radii.update(new, M, Phi, r_pred, S_pass)
+    for f in ("N", "R2", "tau", "held", "r_pred_last", "M_last", "sectors"):
+        x, y = getattr(ref, f), getattr(new, f)
+        if x is None:
+            assert y is None
+            continue
+        assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=True), f
+    if frequency:
+        assert 0.05 < ref.held.mean() < 0.6
+    if sectors:                # the linear test vetoes some holds and not others
+        vetoed = U.chi2_rejects(ref.sectors, linear=True)
+        assert 0.05 < vetoed.mean() < 0.6
+
+
+def test_split_camera_intersect_equals_one_call(monkeypatch):
+    res = 192                                            # 192^2 > INTERSECT_SPLIT_MIN
+    assert res * res > V.INTERSECT_SPLIT_MIN
+    r = Renderer(warmup_scene(res, ("POINT", "AREA")), RenderSettings(max_passes=1, seed=1),
+                 log=lambda _m: None)
+    vp_s, L_s = r.camera_pass(np.random.default_rng(5))
+    monkeypatch.setattr(V, "INTERSECT_SPLIT_MIN", 1 << 40)
+    vp_1, L_1 = r.camera_pass(np.random.default_rng(5))
+    assert vp_1.valid.mean() > 0.5
+    for f in ("valid", "p", "ng", "ns", "wo", "mat", "colors", "beta", "depth"):
+        assert np.array_equal(getattr(vp_s, f), getattr(vp_1, f)), f
+    assert np.array_equal(L_s, L_1)
