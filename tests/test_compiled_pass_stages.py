@@ -23,6 +23,15 @@ What is asserted, and why the tolerances are zero:
   radii (the floor), sector counts that the linear test rejects and
   accepts; with and without frequency photons, sector counts and the hold
   rate; one thread and split (PARALLEL_MIN).
+- The film's image, radius and radius in pixels (core.sppm.film
+  ``_film_range``) equal ``Film(..., compiled=False)``'s bit for bit (the
+  same operations in the same order; float32 rounding of the same float64):
+  pixels without a radius, with an infinite sum (set to 0), a transparent
+  film's alpha, perspective and orthographic footprints, every AOV of the
+  state; one thread and split (PARALLEL_MIN).
+- The glossy pairs' reflected flux summed at the touched points alone
+  (photon_pass.REFLECTED_DENSE_FRACTION) gives the dense per-point sums'
+  image bit for bit: each point's pairs are summed in the same order.
 - The camera pass's Embree call split in two threads
   (visible_points.INTERSECT_SPLIT_MIN) gives the one-call visible points
   bit for bit (each ray's hit is its own).
@@ -38,6 +47,8 @@ from core.render import Renderer
 from core.settings import RenderSettings
 from core.sppm import visible_points as V
 from core.warmup import warmup_scene
+from core.sppm import film as Fm
+from core.sppm import photon_pass as PP
 from core.sppm import hashgrid as Hg
 from core.sppm import update as U
 from core.sppm.state import PixelState
@@ -182,3 +193,51 @@ def test_split_camera_intersect_equals_one_call(monkeypatch):
     for f in ("valid", "p", "ng", "ns", "wo", "mat", "colors", "beta", "depth"):
         assert np.array_equal(getattr(vp_s, f), getattr(vp_1, f)), f
     assert np.array_equal(L_s, L_1)
+
+
+@pytest.mark.parametrize("P", [60 * 50, 260 * 260])
+@pytest.mark.parametrize("kind,transparent", [("PERSP", False), ("ORTHO", True)])
+def test_compiled_film_equals_numpy(P, kind, transparent):
+    assert (P >= Fm.PARALLEL_MIN) == (P == 260 * 260)
+    W = 60 if P < Fm.PARALLEL_MIN else 260
+    H = P // W
+    cam = _camera(kind, W, H)
+    st, M, Phi, r_pred, _ = _update_case(P, 7, False)
+    rng = np.random.default_rng(8)
+    st.L_sum[:] = rng.uniform(0, 3, (P, 3))
+    st.L_sum[5, 1] = np.inf
+    st.depth[:] = rng.uniform(0.5, 4, P)
+    st.r_pred_last[:] = r_pred
+    scene = type("S", (), {"film_transparent": transparent, "camera": cam})()
+    settings = RenderSettings(aov_radius=True, aov_predicted_radius=True,
+                              aov_photon_count=True, aov_held=True)
+    out = []
+    for compiled in (False, True):
+        film = Fm.Film(settings, CameraModel(cam), H, W, scene, compiled=compiled)
+        film.coverage[:] = rng.uniform(0, 3, P) if not out else out[0][1]
+        film.samples = 3
+        out.append((film(st, 4, 10**6, 1.0), film.coverage.copy()))
+    a, b = out[0][0], out[1][0]
+    assert a.image.dtype == b.image.dtype and np.array_equal(a.image, b.image)
+    assert a.aovs.keys() == b.aovs.keys() and len(a.aovs) == 5
+    for k in a.aovs:
+        assert np.array_equal(a.aovs[k], b.aovs[k]), k
+    assert a.mean_radius_px == b.mean_radius_px and a.held_fraction == b.held_fraction
+    assert a.image[..., :3].reshape(P, 3)[5, 1] == 0.0
+    assert (np.ptp(a.image[..., 3]) > 0.5) == transparent
+
+
+def test_sparse_reflected_sums_equal_dense(monkeypatch):
+    from test_gather_buffers import _floor_scene
+    st = RenderSettings(max_passes=2, photons_per_pass=6000, seed=4, aov_photon_count=True)
+    calls = []
+    images = []
+    for fraction in (0, 10**9):                 # always dense, always sparse
+        monkeypatch.setattr(PP, "REFLECTED_DENSE_FRACTION", fraction)
+        r = Renderer(_floor_scene(), st, log=lambda _m: None)
+        f = r.photon_pass._reflected
+        r.photon_pass._reflected = lambda vp, dep, pv, pp, Phi: (calls.append(pv.size),
+                                                                f(vp, dep, pv, pp, Phi))
+        images.append(r.run().image)
+    assert min(calls) > 100                      # glossy pairs in every chunk
+    assert images[0].max() > 0 and np.array_equal(images[0], images[1])
