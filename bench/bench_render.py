@@ -5,6 +5,7 @@
     .venv/bin/python bench/bench_render.py --stages [--stage-res 256 1024] [--repeat 3]
     .venv/bin/python bench/bench_render.py --gather [--gather-res 256x256 1920x1080] [--repeat 2]
     .venv/bin/python bench/bench_render.py --pass [--pass-res 256x256 1920x1080] [--passes 2]
+                                           [--plain]
 
 Prints ratios (target: photon pass <= 2x the raw ray casting of its
 rays at 256x256 with 200k photons per pass), never a bare time alone.
@@ -291,6 +292,7 @@ def main(argv=None):
     ap.add_argument("--pass", dest="whole_pass", action="store_true",
                     help="stage shares, pass vs raw Embree, cores used, peak memory (issue 17)")
     ap.add_argument("--pass-res", nargs="+", default=["256x256", "1920x1080"])
+    ap.add_argument("--plain", action="store_true", help="--pass without frequency photons")
     ap.add_argument("--pass-one", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.pass_one:
@@ -476,14 +478,16 @@ PASS_STAGES = ("camera", "direct", "radius_init", "grid_build", "photon_trace", 
 def pass_report(a):
     """The --pass measurement: one process per resolution (see the module docstring)."""
     import subprocess
-    print(f"whole passes (Cornell box, {a.photons:,} photons/pass, no frequency photons, "
+    print(f"whole passes (Cornell box, {a.photons:,} photons/pass, "
+          f"{'no frequency photons' if a.plain else 'defaults: 25% frequency photons'}, "
           f"{a.passes} passes after a warm-up one; numba threads "
           f"{Hg.numba.get_num_threads()}, photon threads {Ph.THREADS}, "
           f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
           f"load average {os.getloadavg()[0]:.1f})")
     for wh in a.pass_res:
         cmd = [sys.executable, os.path.abspath(__file__), "--pass-one", wh,
-               "--photons", str(a.photons), "--passes", str(a.passes)]
+               "--photons", str(a.photons), "--passes", str(a.passes)] + (
+                   ["--plain"] if a.plain else [])
         subprocess.run(cmd, check=True)
 
 
@@ -546,7 +550,8 @@ def pass_one(a):
     from core import memory
     w, h = (int(x) for x in a.pass_one.split("x"))
     rss0 = memory.resident_bytes()
-    r = Renderer(cornell(w, height=h), RenderSettings(max_passes=1000, photons_per_pass=a.photons),
+    r = Renderer(cornell(w, height=h), RenderSettings(max_passes=1000, photons_per_pass=a.photons,
+                                                      use_frequency=not a.plain),
                  log=lambda s: None)
     r.step()                                      # warm-up (kernels, the edge cap's pass)
     clock = StageClock(r)
