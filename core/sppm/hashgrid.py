@@ -350,24 +350,37 @@ def _fill_cells(k0, k1, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz,
 
 @njit(cache=True)
 def _slot_range_counts(s0, s1, ent_slot, cell_start):
-    """cell_start[s + 1] = entries in slot s, for the slots s0..s1-1."""
+    """cell_start[s] = the entries before slot s among the slots s0..s1-1
+    (a local exclusive prefix); returns the range's entries."""
     for e in range(ent_slot.shape[0]):
         s = ent_slot[e]
         if s >= s0 and s < s1:
-            cell_start[s + 1] += 1
+            cell_start[s] += 1
+    run = 0
+    for s in range(s0, s1):
+        c = cell_start[s]
+        cell_start[s] = run
+        run += c
+    return run
 
 
 @njit(cache=True)
-def _slot_range_fill(s0, s1, off, ent_slot, cursor, vp_ids):
-    """vp_ids[cursor[s]++] = v for the entries (v, s) with s0 <= s < s1, in VP
-    order (so the VPs of a slot are ascending, as _insert stores them)."""
+def _slot_range_fill(s0, s1, base, off, ent_slot, cell_start, vp_ids):
+    """vp_ids[base + cell_start[s]++] = v for the entries (v, s) with s0 <= s
+    < s1, in VP order (so the VPs of a slot are ascending, as _insert stores
+    them); then cell_start[s0..s1-1] = base + the local starts (the cursor
+    ends at the next slot's start: shifted back by one)."""
     for v in range(off.shape[0] - 1):
         for e in range(off[v], off[v + 1]):
             s = ent_slot[e]
             if s >= s0 and s < s1:
-                q = cursor[s]
-                vp_ids[q] = v
-                cursor[s] = q + 1
+                q = cell_start[s]
+                vp_ids[base + q] = v
+                cell_start[s] = q + 1
+    for s in range(s1 - 1, s0, -1):
+        cell_start[s] = base + cell_start[s - 1]
+    if s1 > s0:
+        cell_start[s0] = base
 
 
 @njit(cache=True, parallel=True)
@@ -393,21 +406,20 @@ def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, 
     for c in prange(n_chunks):
         _fill_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
                     h, inv_h, dense, nx, ny, nz, shift, off, ent_slot)
+    # Slot ranges, one per thread: local counts and prefix, then each range's
+    # base (the entries of the ranges before it), the fill, the shift back.
     cell_start = np.zeros(n_slots + 1, np.int64)
+    base = np.zeros(n_chunks + 1, np.int64)
     for c in prange(n_chunks):
-        _slot_range_counts(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks, ent_slot,
-                           cell_start)
-    for s in range(n_slots):
-        cell_start[s + 1] += cell_start[s]
+        base[c + 1] = _slot_range_counts(c * n_slots // n_chunks,
+                                         (c + 1) * n_slots // n_chunks, ent_slot, cell_start)
+    for c in range(n_chunks):
+        base[c + 1] += base[c]
     vp_ids = np.empty(E, np.int32)
-    # cell_start is the fill cursor: slot s ends at the start of s + 1; then
-    # shifted back by one slot.
     for c in prange(n_chunks):
-        _slot_range_fill(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks, off,
+        _slot_range_fill(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks, base[c], off,
                          ent_slot, cell_start, vp_ids)
-    for s in range(n_slots, 0, -1):
-        cell_start[s] = cell_start[s - 1]
-    cell_start[0] = 0
+    cell_start[n_slots] = E
     return cell_start, vp_ids
 
 
@@ -746,6 +758,89 @@ def _pairs_parallel(order, slot, ph_pos, ph_ng, ph_wi, ph_rpred, vp_rec, cos_ng,
 # Build
 # ----------------------------------------------------------------------------
 
+@njit(cache=True, parallel=True)
+def _active_extent(n_chunks, pos, R, active):
+    """build_grid's active VPs and their extent, by n_chunks threads (the
+    numpy lines of ``build_grid(..., parallel=False)``, the same values:
+    minima, maxima and the same per-VP arithmetic).  Returns act (K,) bool
+    (active, finite, R > 0), R_ins (K,) (0 where inactive), R_act (n_active,)
+    the active insertion radii in VP order, lo, hi (3,)."""
+    K = pos.shape[0]
+    act = np.empty(K, np.bool_)
+    cnt = np.zeros(n_chunks, np.int64)
+    pmax = np.zeros(n_chunks)
+    rmax = np.full(n_chunks, -np.inf)
+    for c in prange(n_chunks):
+        n, pm, rm = 0, 0.0, -np.inf
+        for v in range(c * K // n_chunks, (c + 1) * K // n_chunks):
+            x, y, z, r = pos[v, 0], pos[v, 1], pos[v, 2], R[v]
+            a = (active[v] and np.isfinite(x) and np.isfinite(y) and np.isfinite(z)
+                 and np.isfinite(r) and r > 0)
+            act[v] = a
+            if a:
+                n += 1
+                pm = max(pm, abs(x), abs(y), abs(z))
+                rm = max(rm, r)
+        cnt[c], pmax[c], rmax[c] = n, pm, rm
+    n_active = 0
+    for c in range(n_chunks):
+        n_active += cnt[c]
+    R_ins = np.zeros(K)
+    R_act = np.empty(n_active)
+    lo = np.full((n_chunks, 3), np.inf)
+    hi = np.full((n_chunks, 3), -np.inf)
+    if n_active == 0:
+        return act, R_ins, R_act, lo[0], hi[0]
+    scale = pmax.max() + rmax.max()
+    start = np.zeros(n_chunks + 1, np.int64)
+    for c in range(n_chunks):
+        start[c + 1] = start[c] + cnt[c]
+    for c in prange(n_chunks):
+        j = start[c]
+        for v in range(c * K // n_chunks, (c + 1) * K // n_chunks):
+            if act[v]:
+                r = R[v] * (1.0 + _REL_PAD) + _ABS_PAD * scale
+                R_ins[v] = r
+                R_act[j] = r
+                j += 1
+                for k in range(3):
+                    lo[c, k] = min(lo[c, k], pos[v, k] - r)
+                    hi[c, k] = max(hi[c, k], pos[v, k] + r)
+    lo_all = np.full(3, np.inf)
+    hi_all = np.full(3, -np.inf)
+    for c in range(n_chunks):
+        for k in range(3):
+            lo_all[k] = min(lo_all[k], lo[c, k])
+            hi_all[k] = max(hi_all[k], hi[c, k])
+    return act, R_ins, R_act, lo_all, hi_all
+
+
+@njit(cache=True, parallel=True)
+def _bbox_cells(n_chunks, pos, R_ins, act, origin, inv_h):
+    """_bbox_entries of the active VPs, by n_chunks threads (an integer sum:
+    the same number)."""
+    K = pos.shape[0]
+    tot = np.zeros(n_chunks, np.int64)
+    for c in prange(n_chunks):
+        n = 0
+        for v in range(c * K // n_chunks, (c + 1) * K // n_chunks):
+            if act[v]:
+                r = R_ins[v]
+                m = 1
+                for k in range(3):
+                    a = math.floor((pos[v, k] - r - origin[k]) * inv_h)
+                    b = math.floor((pos[v, k] + r - origin[k]) * inv_h)
+                    m *= np.int64(b - a + 1.0)
+                n += m
+        tot[c] = n
+    return tot.sum()
+
+
+#: Serial builds of the two (small grids: no thread hand-off).
+_active_extent_serial = njit(cache=True)(_active_extent.py_func)
+_bbox_cells_serial = njit(cache=True)(_bbox_cells.py_func)
+
+
 def _bbox_entries(pos, R, origin, inv_h) -> int:
     """Upper bound on cell entries: sum over VPs of their bounding-box cell count."""
     a = np.floor((pos - R[:, None] - origin) * inv_h)
@@ -774,30 +869,41 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     K = vp_pos.shape[0]
     vp_R = np.ascontiguousarray(vp_R, dtype=np.float64).reshape(K)
     active = np.asarray(active, dtype=bool).reshape(K)
-    with np.errstate(invalid="ignore"):
-        act = active & np.isfinite(vp_pos).all(axis=1) & np.isfinite(vp_R) & (vp_R > 0)
-    n_active = int(act.sum())
-    R_ins = np.zeros(K)
+    if parallel:
+        T = numba.get_num_threads() if K >= PARALLEL_MIN_VPS else 1
+        act, R_ins, R_act, lo, hi = (_active_extent if T > 1 else _active_extent_serial)(
+            T, vp_pos, vp_R, active)
+        n_active = R_act.shape[0]
+    else:
+        with np.errstate(invalid="ignore"):
+            act = active & np.isfinite(vp_pos).all(axis=1) & np.isfinite(vp_R) & (vp_R > 0)
+        n_active = int(act.sum())
+        R_ins = np.zeros(K)
     if n_active == 0:
         z3 = np.zeros(3)
         return Grid(K, 0, z3, 1.0, 1.0, np.full(3, np.inf), np.full(3, -np.inf),
                     True, np.ones(3, np.int64), 0, np.zeros(2, np.int64),
                     np.zeros(0, np.int32), R_ins)
 
-    P_act = vp_pos[act]
-    R_act = vp_R[act]
-    scale = float(np.abs(P_act).max() + R_act.max())
-    R_act = R_act * (1.0 + _REL_PAD) + _ABS_PAD * scale
-    R_ins[act] = R_act
-    lo = (P_act - R_act[:, None]).min(axis=0)
-    hi = (P_act + R_act[:, None]).max(axis=0)
+    if not parallel:
+        P_act = vp_pos[act]
+        R_act = vp_R[act]
+        scale = float(np.abs(P_act).max() + R_act.max())
+        R_act = R_act * (1.0 + _REL_PAD) + _ABS_PAD * scale
+        R_ins[act] = R_act
+        lo = (P_act - R_act[:, None]).min(axis=0)
+        hi = (P_act + R_act[:, None]).max(axis=0)
     origin = lo.copy()
 
     h = cell_factor * float(np.median(R_act))
     budget = ENTRY_BUDGET_PER_VP * n_active
     while True:
         inv_h = 1.0 / h
-        est = _bbox_entries(P_act, R_act, origin, inv_h)
+        if parallel:
+            est = int((_bbox_cells if T > 1 else _bbox_cells_serial)(
+                T, vp_pos, R_ins, act, origin, inv_h))
+        else:
+            est = _bbox_entries(P_act, R_act, origin, inv_h)
         if est <= budget:
             break
         h *= 1.25
@@ -817,7 +923,6 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
             int(dims[0]), int(dims[1]), int(dims[2]), shift, n_slots)
     if parallel:
         proto = np.empty(0, np.int32 if n_slots < 2**31 else np.int64)
-        T = numba.get_num_threads()
         if n_active >= PARALLEL_MIN_VPS and T > 1:
             cell_start, vp_ids = _insert_parallel(T, *args, proto)
         else:
