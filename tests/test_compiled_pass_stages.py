@@ -8,9 +8,11 @@ What is asserted, and why the tolerances are zero:
   Perspective with shift and a non-square pixel aspect, orthographic, a
   filter of width 0; the one-thread and the split (PARALLEL_MIN) paths; the
   thin lens takes the numpy path in both.
-- The grid build (core.sppm.hashgrid ``_insert_parallel``: each VP's slots
-  by VP ranges, then a counting sort by slot ranges) gives the serial
-  two-pass ``_insert``'s CSR arrays exactly (integers: no rounding): a dense
+- The grid build (core.sppm.hashgrid ``_active_extent``, ``_bbox_cells``,
+  ``_insert_parallel``: each VP's slots by VP ranges, then a counting sort by
+  slot ranges) gives the grid of the numpy extent and serial two-pass
+  insertion it replaced (tests/oracle_grid.py) exactly (minima, maxima,
+  the same per-VP arithmetic, integer counts: no rounding): a dense
   grid, hash tables small enough that most cells collide, a VP whose sphere
   covers more than ``_DEDUP_SCAN`` slots of a small table (the sort path of
   the deduplication), inactive and non-finite VPs, on one thread and split
@@ -47,6 +49,8 @@ from core.render import Renderer
 from core.settings import RenderSettings
 from core.sppm import visible_points as V
 from core.warmup import warmup_scene
+
+import oracle_grid
 from core.sppm import film as Fm
 from core.sppm import photon_pass as PP
 from core.sppm import hashgrid as Hg
@@ -113,13 +117,14 @@ def test_parallel_grid_build_equals_serial(K, layout, log2_table):
     p, R, active = _vps(K, K)
     if log2_table == 9:
         R[10] = 40.0 / np.sqrt(K)         # > _DEDUP_SCAN of its cells share 512 slots
-    a = Hg.build_grid(p, R, active, layout=layout, log2_table=log2_table, parallel=False)
-    b = Hg.build_grid(p, R, active, layout=layout, log2_table=log2_table)
-    for f in ("K", "n_active", "h", "dense", "log2_table"):
-        assert getattr(a, f) == getattr(b, f), f
-    for f in ("origin", "lo", "hi", "dims", "cell_start", "vp_ids", "R_ins"):
-        x, y = getattr(a, f), getattr(b, f)
-        assert x.dtype == y.dtype and np.array_equal(x, y), f
+    a = oracle_grid.build_grid_reference(p, R, active, layout=layout, log2_table=log2_table)
+    for parallel in (True, False):
+        b = Hg.build_grid(p, R, active, layout=layout, log2_table=log2_table, parallel=parallel)
+        for f in ("K", "n_active", "h", "inv_h", "dense", "log2_table"):
+            assert getattr(a, f) == getattr(b, f), f
+        for f in ("origin", "lo", "hi", "dims", "cell_start", "vp_ids", "R_ins"):
+            x, y = getattr(a, f), getattr(b, f)
+            assert x.dtype == y.dtype and np.array_equal(x, y), f
     assert a.n_entries > 5 * a.n_active
     if log2_table == 9:
         big = np.flatnonzero(a.vp_ids == 10).size

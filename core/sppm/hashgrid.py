@@ -59,13 +59,14 @@ active VP on average, which bounds build time and memory whatever the radius
 distribution (a single VP of 100x the median radius would otherwise occupy
 ~10^6 cells).
 
-Storage: CSR (cell_start, vp_ids) built by a counting pass, a prefix sum and a
-fill pass.  Dense 3D grid over the active bounds when that has at most as many
+Storage: CSR (cell_start, vp_ids): each active VP's slots (a counting pass
+and, after a prefix sum over the VPs, a fill pass), then a counting sort of
+these entries by slot, so the VPs of a slot are in ascending order.  Dense 3D grid over the active bounds when that has at most as many
 cells as the hash table would have (flat axis-aligned sets); otherwise a
 spatial hash of the integer cell coordinates into a power-of-two table of about
 one slot per cell entry.  Hash collisions only add candidates (rejected by the
 exact test (1)); a VP whose cells collide into one slot is stored once there
-(per-slot last-writer mark), so it is never counted twice.
+(its own slots are deduplicated), so it is never counted twice.
 
 Pairs: the counting pass records, per photon, a 64-bit mask of the counted
 entries of its cell and the number of pairs; a prefix sum gives each photon
@@ -76,9 +77,11 @@ Parallelism: with ``parallel=True`` the sorted photons are split into one
 contiguous chunk per numba thread, each chunk accumulating into its own (K,)
 arrays (race-free, no atomics), summed afterwards (or, with GatherBuffers,
 rows reused by every chunk and folded at the touched VPs); the sort scatters by
-disjoint slot ranges, one per thread.  The build is serial (O(K), ~10% of a
-pass's gather).  Results do not depend on the thread count except for the
-summation order of Phi_sum.
+disjoint slot ranges, one per thread.  The build splits the VPs into one
+range per thread for their slots, and the slots into one range per thread
+for the counting sort (each thread reads every entry and keeps its slots).
+Results do not depend on the thread count except for the summation order of
+Phi_sum; the grid does not depend on it at all.
 """
 from __future__ import annotations
 
@@ -215,58 +218,9 @@ def _slot(ix, iy, iz, dense, nx, ny, nz, shift):
 
 
 @njit(cache=True)
-def _insert(pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
-            n_slots, count, mark, cell_start, vp_ids, fill):
-    """Counting pass (fill=False: count[s] += 1) or fill pass (fill=True:
-    vp_ids[count[s]++] = v, count = running write cursor) over every cell a
-    VP's sphere overlaps.  mark[s] = last VP written to slot s (dedup of hash
-    collisions within one VP)."""
-    ox, oy, oz = origin[0], origin[1], origin[2]
-    for v in range(pos.shape[0]):
-        if not active[v]:
-            continue
-        cx, cy, cz = pos[v, 0], pos[v, 1], pos[v, 2]
-        r = R_ins[v]
-        r2 = r * r
-        x0 = np.int64(math.floor((cx - r - ox) * inv_h))
-        x1 = np.int64(math.floor((cx + r - ox) * inv_h))
-        y0 = np.int64(math.floor((cy - r - oy) * inv_h))
-        y1 = np.int64(math.floor((cy + r - oy) * inv_h))
-        z0 = np.int64(math.floor((cz - r - oz) * inv_h))
-        z1 = np.int64(math.floor((cz + r - oz) * inv_h))
-        for iz in range(z0, z1 + 1):
-            bz0 = oz + iz * h
-            dz = max(bz0 - cz, 0.0, cz - (bz0 + h))
-            for iy in range(y0, y1 + 1):
-                by0 = oy + iy * h
-                dy = max(by0 - cy, 0.0, cy - (by0 + h))
-                dyz = dy * dy + dz * dz
-                if dyz > r2:
-                    continue
-                for ix in range(x0, x1 + 1):
-                    bx0 = ox + ix * h
-                    dx = max(bx0 - cx, 0.0, cx - (bx0 + h))
-                    # sphere-box overlap (closest point of the cell box)
-                    if dx * dx + dyz > r2:
-                        continue
-                    s = _slot(ix, iy, iz, dense, nx, ny, nz, shift)
-                    if s < 0:
-                        continue
-                    if not dense:
-                        if mark[s] == v:
-                            continue
-                        mark[s] = v
-                    if fill:
-                        vp_ids[count[s]] = v
-                        count[s] += 1
-                    else:
-                        count[s] += 1
-
-
-@njit(cache=True)
 def _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf):
-    """The slots of the cells VP v's sphere overlaps (the cells and tests of
-    :func:`_insert`), each once (a hash may map two of its cells to one
+    """The slots of the cells VP v's sphere overlaps (sphere-box overlap:
+    the closest point of the cell box), each once (a hash may map two of its cells to one
     slot), in buf (grown by doubling when full; any order); returns (n, buf)."""
     ox, oy, oz = origin[0], origin[1], origin[2]
     cx, cy, cz = pos[v, 0], pos[v, 1], pos[v, 2]
@@ -367,8 +321,7 @@ def _slot_range_counts(s0, s1, ent_slot, cell_start):
 @njit(cache=True)
 def _slot_range_fill(s0, s1, base, off, ent_slot, cell_start, vp_ids):
     """vp_ids[base + cell_start[s]++] = v for the entries (v, s) with s0 <= s
-    < s1, in VP order (so the VPs of a slot are ascending, as _insert stores
-    them); then cell_start[s0..s1-1] = base + the local starts (the cursor
+    < s1, in VP order (so the VPs of a slot are ascending); then cell_start[s0..s1-1] = base + the local starts (the cursor
     ends at the next slot's start: shifted back by one)."""
     for v in range(off.shape[0] - 1):
         for e in range(off[v], off[v + 1]):
@@ -387,8 +340,7 @@ def _slot_range_fill(s0, s1, base, off, ent_slot, cell_start, vp_ids):
 def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
                      n_slots, slot_proto):
     """The CSR arrays (cell_start (n_slots + 1,) int64, vp_ids (n_entries,)
-    int32) that :func:`_insert`'s counting and fill passes build, computed
-    by n_chunks threads: each VP's slots (VP ranges in parallel), then a
+    int32, the VPs of a slot ascending), computed by n_chunks threads: each VP's slots (VP ranges in parallel), then a
     counting sort of the entries by slot (slot ranges in parallel).  No
     (n_slots,) mark array: a VP's hash collisions are removed from its own
     list.  slot_proto: an empty array of the entries' slot dtype."""
@@ -760,9 +712,8 @@ def _pairs_parallel(order, slot, ph_pos, ph_ng, ph_wi, ph_rpred, vp_rec, cos_ng,
 
 @njit(cache=True, parallel=True)
 def _active_extent(n_chunks, pos, R, active):
-    """build_grid's active VPs and their extent, by n_chunks threads (the
-    numpy lines of ``build_grid(..., parallel=False)``, the same values:
-    minima, maxima and the same per-VP arithmetic).  Returns act (K,) bool
+    """build_grid's active VPs and their extent, by n_chunks threads (exact:
+    minima, maxima and per-VP arithmetic, whatever n_chunks).  Returns act (K,) bool
     (active, finite, R > 0), R_ins (K,) (0 where inactive), R_act (n_active,)
     the active insertion radii in VP order, lo, hi (3,)."""
     K = pos.shape[0]
@@ -817,8 +768,8 @@ def _active_extent(n_chunks, pos, R, active):
 
 @njit(cache=True, parallel=True)
 def _bbox_cells(n_chunks, pos, R_ins, act, origin, inv_h):
-    """_bbox_entries of the active VPs, by n_chunks threads (an integer sum:
-    the same number)."""
+    """Upper bound on cell entries: the sum over the active VPs of their
+    bounding box's cell count, by n_chunks threads."""
     K = pos.shape[0]
     tot = np.zeros(n_chunks, np.int64)
     for c in prange(n_chunks):
@@ -841,13 +792,6 @@ _active_extent_serial = njit(cache=True)(_active_extent.py_func)
 _bbox_cells_serial = njit(cache=True)(_bbox_cells.py_func)
 
 
-def _bbox_entries(pos, R, origin, inv_h) -> int:
-    """Upper bound on cell entries: sum over VPs of their bounding-box cell count."""
-    a = np.floor((pos - R[:, None] - origin) * inv_h)
-    b = np.floor((pos + R[:, None] - origin) * inv_h)
-    return int(np.prod(b - a + 1.0, axis=1).sum())
-
-
 def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
                cell_factor: float = CELL_FACTOR, layout: str = "auto",
                log2_table: Optional[int] = None, parallel: bool = True) -> Grid:
@@ -858,9 +802,10 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     treated as inactive.  cell_factor: h = cell_factor * median active radius
     (before the entry-budget clamp).  layout: 'auto', 'dense' or 'hash';
     log2_table forces a hash table of 2**log2_table slots (tests use tiny
-    tables to exercise collisions).  parallel: the CSR arrays from
-    ``_insert_parallel`` (numba threads from PARALLEL_MIN_VPS active VPs);
-    False: the serial two-pass ``_insert``, its reference (the same arrays).
+    tables to exercise collisions).  parallel: numba threads from
+    PARALLEL_MIN_VPS VPs (False: one thread; the same grid).
+    tests/oracle_grid.py is the reference it is checked against (the numpy
+    extent and the serial two-pass insertion it replaced).
     """
     if layout not in ("auto", "dense", "hash"):
         raise ValueError("build_grid: layout must be 'auto', 'dense' or 'hash', "
@@ -869,41 +814,23 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     K = vp_pos.shape[0]
     vp_R = np.ascontiguousarray(vp_R, dtype=np.float64).reshape(K)
     active = np.asarray(active, dtype=bool).reshape(K)
-    if parallel:
-        T = numba.get_num_threads() if K >= PARALLEL_MIN_VPS else 1
-        act, R_ins, R_act, lo, hi = (_active_extent if T > 1 else _active_extent_serial)(
-            T, vp_pos, vp_R, active)
-        n_active = R_act.shape[0]
-    else:
-        with np.errstate(invalid="ignore"):
-            act = active & np.isfinite(vp_pos).all(axis=1) & np.isfinite(vp_R) & (vp_R > 0)
-        n_active = int(act.sum())
-        R_ins = np.zeros(K)
+    T = numba.get_num_threads() if (parallel and K >= PARALLEL_MIN_VPS) else 1
+    act, R_ins, R_act, lo, hi = (_active_extent if T > 1 else _active_extent_serial)(
+        T, vp_pos, vp_R, active)
+    n_active = R_act.shape[0]
     if n_active == 0:
         z3 = np.zeros(3)
         return Grid(K, 0, z3, 1.0, 1.0, np.full(3, np.inf), np.full(3, -np.inf),
                     True, np.ones(3, np.int64), 0, np.zeros(2, np.int64),
                     np.zeros(0, np.int32), R_ins)
-
-    if not parallel:
-        P_act = vp_pos[act]
-        R_act = vp_R[act]
-        scale = float(np.abs(P_act).max() + R_act.max())
-        R_act = R_act * (1.0 + _REL_PAD) + _ABS_PAD * scale
-        R_ins[act] = R_act
-        lo = (P_act - R_act[:, None]).min(axis=0)
-        hi = (P_act + R_act[:, None]).max(axis=0)
     origin = lo.copy()
 
     h = cell_factor * float(np.median(R_act))
     budget = ENTRY_BUDGET_PER_VP * n_active
     while True:
         inv_h = 1.0 / h
-        if parallel:
-            est = int((_bbox_cells if T > 1 else _bbox_cells_serial)(
-                T, vp_pos, R_ins, act, origin, inv_h))
-        else:
-            est = _bbox_entries(P_act, R_act, origin, inv_h)
+        est = int((_bbox_cells if T > 1 else _bbox_cells_serial)(
+            T, vp_pos, R_ins, act, origin, inv_h))
         if est <= budget:
             break
         h *= 1.25
@@ -921,25 +848,11 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
 
     args = (vp_pos, R_ins, act, origin, h, inv_h, dense,
             int(dims[0]), int(dims[1]), int(dims[2]), shift, n_slots)
-    if parallel:
-        proto = np.empty(0, np.int32 if n_slots < 2**31 else np.int64)
-        if n_active >= PARALLEL_MIN_VPS and T > 1:
-            cell_start, vp_ids = _insert_parallel(T, *args, proto)
-        else:
-            cell_start, vp_ids = _insert_serial(1, *args, proto)
-        return Grid(K, n_active, origin, h, inv_h, lo, hi, bool(dense), dims,
-                    0 if dense else log2_table, cell_start, vp_ids, R_ins)
-    count = np.zeros(n_slots + 1, np.int64)
-    mark = np.full(0 if dense else n_slots, -1, np.int64)
-    cell_start = count  # placeholder argument for the counting pass
-    dummy = np.zeros(0, np.int32)
-    _insert(*args, count, mark, cell_start, dummy, False)
-    cell_start = np.zeros(n_slots + 1, np.int64)
-    np.cumsum(count[:n_slots], out=cell_start[1:])
-    vp_ids = np.empty(int(cell_start[-1]), np.int32)
-    cursor = cell_start.copy()
-    mark[:] = -1
-    _insert(*args, cursor, mark, cell_start, vp_ids, True)
+    proto = np.empty(0, np.int32 if n_slots < 2**31 else np.int64)
+    if n_active >= PARALLEL_MIN_VPS and T > 1:
+        cell_start, vp_ids = _insert_parallel(T, *args, proto)
+    else:
+        cell_start, vp_ids = _insert_serial(1, *args, proto)
     return Grid(K, n_active, origin, h, inv_h, lo, hi, bool(dense), dims,
                 0 if dense else log2_table, cell_start, vp_ids, R_ins)
 
