@@ -710,53 +710,65 @@ def _pairs_parallel(order, slot, ph_pos, ph_ng, ph_wi, ph_rpred, vp_rec, cos_ng,
 # Build
 # ----------------------------------------------------------------------------
 
+@njit(cache=True)
+def _active_range(k0, k1, pos, R, active, act):
+    """act[v] for VPs k0..k1-1 (active, finite, R > 0); returns their count,
+    max |coordinate| and max R."""
+    n, pm, rm = 0, 0.0, -np.inf
+    for v in range(k0, k1):
+        x, y, z, r = pos[v, 0], pos[v, 1], pos[v, 2], R[v]
+        a = (active[v] and np.isfinite(x) and np.isfinite(y) and np.isfinite(z)
+             and np.isfinite(r) and r > 0)
+        act[v] = a
+        if a:
+            n += 1
+            pm = max(pm, abs(x), abs(y), abs(z))
+            rm = max(rm, r)
+    return n, pm, rm
+
+
+@njit(cache=True)
+def _extent_range(k0, k1, j, pos, R, act, scale, R_ins, R_act, lo, hi):
+    """R_ins, R_act[j..] (in VP order) of the active VPs k0..k1-1, and the
+    bounds lo, hi (3,) of their spheres (updated in place)."""
+    for v in range(k0, k1):
+        if act[v]:
+            r = R[v] * (1.0 + _REL_PAD) + _ABS_PAD * scale
+            R_ins[v] = r
+            R_act[j] = r
+            j += 1
+            for k in range(3):
+                lo[k] = min(lo[k], pos[v, k] - r)
+                hi[k] = max(hi[k], pos[v, k] + r)
+
+
 @njit(cache=True, parallel=True)
 def _active_extent(n_chunks, pos, R, active):
     """build_grid's active VPs and their extent, by n_chunks threads (exact:
-    minima, maxima and per-VP arithmetic, whatever n_chunks).  Returns act (K,) bool
-    (active, finite, R > 0), R_ins (K,) (0 where inactive), R_act (n_active,)
-    the active insertion radii in VP order, lo, hi (3,)."""
+    minima, maxima and per-VP arithmetic, whatever n_chunks).  Returns act
+    (K,) bool (active, finite, R > 0), R_ins (K,) (0 where inactive), R_act
+    (n_active,) the active insertion radii in VP order, lo, hi (3,)."""
     K = pos.shape[0]
     act = np.empty(K, np.bool_)
     cnt = np.zeros(n_chunks, np.int64)
     pmax = np.zeros(n_chunks)
     rmax = np.full(n_chunks, -np.inf)
     for c in prange(n_chunks):
-        n, pm, rm = 0, 0.0, -np.inf
-        for v in range(c * K // n_chunks, (c + 1) * K // n_chunks):
-            x, y, z, r = pos[v, 0], pos[v, 1], pos[v, 2], R[v]
-            a = (active[v] and np.isfinite(x) and np.isfinite(y) and np.isfinite(z)
-                 and np.isfinite(r) and r > 0)
-            act[v] = a
-            if a:
-                n += 1
-                pm = max(pm, abs(x), abs(y), abs(z))
-                rm = max(rm, r)
-        cnt[c], pmax[c], rmax[c] = n, pm, rm
-    n_active = 0
+        cnt[c], pmax[c], rmax[c] = _active_range(c * K // n_chunks, (c + 1) * K // n_chunks,
+                                                 pos, R, active, act)
+    start = np.zeros(n_chunks + 1, np.int64)
     for c in range(n_chunks):
-        n_active += cnt[c]
+        start[c + 1] = start[c] + cnt[c]
+    n_active = start[n_chunks]
     R_ins = np.zeros(K)
     R_act = np.empty(n_active)
     lo = np.full((n_chunks, 3), np.inf)
     hi = np.full((n_chunks, 3), -np.inf)
-    if n_active == 0:
-        return act, R_ins, R_act, lo[0], hi[0]
-    scale = pmax.max() + rmax.max()
-    start = np.zeros(n_chunks + 1, np.int64)
-    for c in range(n_chunks):
-        start[c + 1] = start[c] + cnt[c]
-    for c in prange(n_chunks):
-        j = start[c]
-        for v in range(c * K // n_chunks, (c + 1) * K // n_chunks):
-            if act[v]:
-                r = R[v] * (1.0 + _REL_PAD) + _ABS_PAD * scale
-                R_ins[v] = r
-                R_act[j] = r
-                j += 1
-                for k in range(3):
-                    lo[c, k] = min(lo[c, k], pos[v, k] - r)
-                    hi[c, k] = max(hi[c, k], pos[v, k] + r)
+    if n_active > 0:
+        scale = pmax.max() + rmax.max()
+        for c in prange(n_chunks):
+            _extent_range(c * K // n_chunks, (c + 1) * K // n_chunks, start[c], pos, R, act,
+                          scale, R_ins, R_act, lo[c], hi[c])
     lo_all = np.full(3, np.inf)
     hi_all = np.full(3, -np.inf)
     for c in range(n_chunks):
@@ -766,6 +778,22 @@ def _active_extent(n_chunks, pos, R, active):
     return act, R_ins, R_act, lo_all, hi_all
 
 
+@njit(cache=True)
+def _bbox_range(k0, k1, pos, R_ins, act, origin, inv_h):
+    """The bounding-box cell counts of the active VPs k0..k1-1, summed."""
+    n = 0
+    for v in range(k0, k1):
+        if act[v]:
+            r = R_ins[v]
+            m = 1
+            for k in range(3):
+                a = math.floor((pos[v, k] - r - origin[k]) * inv_h)
+                b = math.floor((pos[v, k] + r - origin[k]) * inv_h)
+                m *= np.int64(b - a + 1.0)
+            n += m
+    return n
+
+
 @njit(cache=True, parallel=True)
 def _bbox_cells(n_chunks, pos, R_ins, act, origin, inv_h):
     """Upper bound on cell entries: the sum over the active VPs of their
@@ -773,17 +801,8 @@ def _bbox_cells(n_chunks, pos, R_ins, act, origin, inv_h):
     K = pos.shape[0]
     tot = np.zeros(n_chunks, np.int64)
     for c in prange(n_chunks):
-        n = 0
-        for v in range(c * K // n_chunks, (c + 1) * K // n_chunks):
-            if act[v]:
-                r = R_ins[v]
-                m = 1
-                for k in range(3):
-                    a = math.floor((pos[v, k] - r - origin[k]) * inv_h)
-                    b = math.floor((pos[v, k] + r - origin[k]) * inv_h)
-                    m *= np.int64(b - a + 1.0)
-                n += m
-        tot[c] = n
+        tot[c] = _bbox_range(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, act,
+                             origin, inv_h)
     return tot.sum()
 
 
