@@ -16,7 +16,7 @@ What is asserted, and why the tolerances are zero:
   grid, hash tables small enough that most cells collide, a VP whose sphere
   covers more than ``_DEDUP_SCAN`` slots of a small table (the sort path of
   the deduplication), inactive and non-finite VPs, on one thread and split
-  (PARALLEL_MIN_VPS).
+  (PARALLEL_MIN_VPS, lowered for the test).
 - The PPM rule's update (core.sppm.update ``_ppm_update_range``) leaves the
   numpy path's state bit for bit: the same operations in the same order,
   numpy's pairwise sum of the 8 sector counts and OpenBLAS's FMA chain for
@@ -111,9 +111,9 @@ def _vps(K, seed):
 
 @pytest.mark.parametrize("K,layout,log2_table", [
     (3000, "auto", None), (3000, "dense", None), (3000, "hash", None),
-    (3000, "hash", 6), (Hg.PARALLEL_MIN_VPS + 5, "auto", None),
-    (Hg.PARALLEL_MIN_VPS + 5, "hash", 9)])
-def test_parallel_grid_build_equals_serial(K, layout, log2_table):
+    (3000, "hash", 6), (9000, "auto", None), (9000, "hash", 9)])
+def test_parallel_grid_build_equals_serial(K, layout, log2_table, monkeypatch):
+    monkeypatch.setattr(Hg, "PARALLEL_MIN_VPS", 4096)    # 9000 VPs: split
     p, R, active = _vps(K, K)
     if log2_table == 9:
         R[10] = 40.0 / np.sqrt(K)         # > _DEDUP_SCAN of its cells share 512 slots

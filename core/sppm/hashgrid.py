@@ -97,7 +97,7 @@ COS_NG_DEFAULT = 0.5          # cos(60 deg): photon / VP surface orientation tes
 CELL_FACTOR = 1.5             # h = CELL_FACTOR * median active radius
 ENTRY_BUDGET_PER_VP = 64      # clamp: mean cell entries per active VP
 PARALLEL_MIN_PHOTONS = 50_000  # below this, thread start-up outweighs the split
-PARALLEL_MIN_VPS = 1 << 15      # build_grid: below this many active VPs, one thread
+PARALLEL_MIN_VPS = 1 << 18      # build_grid: below this many VPs, one thread
 # A VP's slots are deduplicated by a scan of the ones it already has up to
 # this many, then by a sort (a VP far larger than the cells).
 _DEDUP_SCAN = 64
@@ -217,11 +217,12 @@ def _slot(ix, iy, iz, dense, nx, ny, nz, shift):
     return np.int64((k * _HM) >> np.uint64(shift))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf):
     """The slots of the cells VP v's sphere overlaps (sphere-box overlap:
-    the closest point of the cell box), each once (a hash may map two of its cells to one
-    slot), in buf (grown by doubling when full; any order); returns (n, buf)."""
+    the closest point of the cell box), each once (a hash may map two of its
+    cells to one slot), in buf (any order; its size at least the VP's
+    bounding-box cell count, see _bbox_range); returns how many.""" 
     ox, oy, oz = origin[0], origin[1], origin[2]
     cx, cy, cz = pos[v, 0], pos[v, 1], pos[v, 2]
     r = R_ins[v]
@@ -259,10 +260,6 @@ def _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf):
                             break
                     if seen:
                         continue
-                if n == buf.shape[0]:
-                    grown = np.empty(2 * n, buf.dtype)
-                    grown[:n] = buf
-                    buf = grown
                 buf[n] = s
                 n += 1
                 if n >= _DEDUP_SCAN:
@@ -275,28 +272,30 @@ def _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf):
                 buf[m] = srt[i]
                 m += 1
         n = m
-    return n, buf
+    return n
 
 
 @njit(cache=True)
-def _count_cells(k0, k1, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift, n_ent):
-    """n_ent[v] = number of slots VP v is stored in, for VPs k0..k1-1."""
-    buf = np.empty(_DEDUP_SCAN, np.int64)
+def _count_cells(k0, k1, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift, n_ent,
+                 cap):
+    """n_ent[v] = number of slots VP v is stored in, for VPs k0..k1-1; cap:
+    the largest bounding-box cell count of a VP."""
+    buf = np.empty(cap, np.int64)
     for v in range(k0, k1):
         n = 0
         if active[v]:
-            n, buf = _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf)
+            n = _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf)
         n_ent[v] = n
 
 
 @njit(cache=True)
 def _fill_cells(k0, k1, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift, off,
-                ent_slot):
+                ent_slot, cap):
     """ent_slot[off[v]:off[v + 1]] = the slots of VP v, for VPs k0..k1-1."""
-    buf = np.empty(_DEDUP_SCAN, np.int64)
+    buf = np.empty(cap, np.int64)
     for v in range(k0, k1):
         if active[v]:
-            n, buf = _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf)
+            n = _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf)
             o = off[v]
             for i in range(n):
                 ent_slot[o + i] = buf[i]
@@ -338,17 +337,18 @@ def _slot_range_fill(s0, s1, base, off, ent_slot, cell_start, vp_ids):
 
 @njit(cache=True, parallel=True)
 def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
-                     n_slots, slot_proto):
+                     n_slots, slot_proto, cap):
     """The CSR arrays (cell_start (n_slots + 1,) int64, vp_ids (n_entries,)
     int32, the VPs of a slot ascending), computed by n_chunks threads: each VP's slots (VP ranges in parallel), then a
     counting sort of the entries by slot (slot ranges in parallel).  No
     (n_slots,) mark array: a VP's hash collisions are removed from its own
-    list.  slot_proto: an empty array of the entries' slot dtype."""
+    list.  slot_proto: an empty array of the entries' slot dtype; cap: the
+    largest bounding-box cell count of a VP."""
     K = pos.shape[0]
     n_ent = np.empty(K, np.int64)
     for c in prange(n_chunks):
         _count_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
-                     h, inv_h, dense, nx, ny, nz, shift, n_ent)
+                     h, inv_h, dense, nx, ny, nz, shift, n_ent, cap)
     off = np.empty(K + 1, np.int64)
     off[0] = 0
     for v in range(K):
@@ -357,7 +357,7 @@ def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, 
     ent_slot = np.empty(E, slot_proto.dtype)
     for c in prange(n_chunks):
         _fill_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
-                    h, inv_h, dense, nx, ny, nz, shift, off, ent_slot)
+                    h, inv_h, dense, nx, ny, nz, shift, off, ent_slot, cap)
     # Slot ranges, one per thread: local counts and prefix, then each range's
     # base (the entries of the ranges before it), the fill, the shift back.
     cell_start = np.zeros(n_slots + 1, np.int64)
@@ -780,8 +780,10 @@ def _active_extent(n_chunks, pos, R, active):
 
 @njit(cache=True)
 def _bbox_range(k0, k1, pos, R_ins, act, origin, inv_h):
-    """The bounding-box cell counts of the active VPs k0..k1-1, summed."""
+    """The bounding-box cell counts of the active VPs k0..k1-1: their sum
+    and their largest."""
     n = 0
+    mx = 0
     for v in range(k0, k1):
         if act[v]:
             r = R_ins[v]
@@ -791,19 +793,21 @@ def _bbox_range(k0, k1, pos, R_ins, act, origin, inv_h):
                 b = math.floor((pos[v, k] + r - origin[k]) * inv_h)
                 m *= np.int64(b - a + 1.0)
             n += m
-    return n
+            mx = max(mx, m)
+    return n, mx
 
 
 @njit(cache=True, parallel=True)
 def _bbox_cells(n_chunks, pos, R_ins, act, origin, inv_h):
     """Upper bound on cell entries: the sum over the active VPs of their
-    bounding box's cell count, by n_chunks threads."""
+    bounding box's cell count, and the largest count, by n_chunks threads."""
     K = pos.shape[0]
     tot = np.zeros(n_chunks, np.int64)
+    mx = np.zeros(n_chunks, np.int64)
     for c in prange(n_chunks):
-        tot[c] = _bbox_range(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, act,
-                             origin, inv_h)
-    return tot.sum()
+        tot[c], mx[c] = _bbox_range(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins,
+                                    act, origin, inv_h)
+    return tot.sum(), mx.max()
 
 
 #: Serial builds of the two (small grids: no thread hand-off).
@@ -848,8 +852,9 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     budget = ENTRY_BUDGET_PER_VP * n_active
     while True:
         inv_h = 1.0 / h
-        est = int((_bbox_cells if T > 1 else _bbox_cells_serial)(
-            T, vp_pos, R_ins, act, origin, inv_h))
+        est, cap = (_bbox_cells if T > 1 else _bbox_cells_serial)(
+            T, vp_pos, R_ins, act, origin, inv_h)
+        est = int(est)
         if est <= budget:
             break
         h *= 1.25
@@ -869,9 +874,9 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
             int(dims[0]), int(dims[1]), int(dims[2]), shift, n_slots)
     proto = np.empty(0, np.int32 if n_slots < 2**31 else np.int64)
     if n_active >= PARALLEL_MIN_VPS and T > 1:
-        cell_start, vp_ids = _insert_parallel(T, *args, proto)
+        cell_start, vp_ids = _insert_parallel(T, *args, proto, int(cap))
     else:
-        cell_start, vp_ids = _insert_serial(1, *args, proto)
+        cell_start, vp_ids = _insert_serial(1, *args, proto, int(cap))
     return Grid(K, n_active, origin, h, inv_h, lo, hi, bool(dense), dims,
                 0 if dense else log2_table, cell_start, vp_ids, R_ins)
 
