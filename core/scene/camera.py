@@ -226,7 +226,7 @@ class CameraModel:
         M = np.asarray(cam.matrix_world, np.float64)
         # Remove scale from the rotation (Blender normalises the camera matrix).
         R = M[:3, :3] / np.maximum(np.linalg.norm(M[:3, :3], axis=0, keepdims=True), 1e-300)
-        self.R = R
+        self.R = np.ascontiguousarray(R)     # one kernel signature (C layout)
         self.origin = M[:3, 3].copy()
 
     @property
