@@ -139,9 +139,11 @@ class CameraRays:
 
 
 @intrinsic
-def _fma(typingctx, a, b, c):
+def fma(typingctx, a, b, c):
     """a * b + c rounded once (LLVM's llvm.fma.f64), what OpenBLAS's dgemm
-    kernels compute on every x86-64 with FMA (Haswell and later)."""
+    kernels compute on every x86-64 with FMA (Haswell and later); for
+    numba kernels that repeat a numpy matrix product's bits (also
+    core.sppm.update)."""
     sig = types.float64(types.float64, types.float64, types.float64)
 
     def codegen(context, builder, signature, args):
@@ -179,10 +181,10 @@ def _pinhole_range(k0, k1, px, py, uf, table, view, R, origin, ortho, o, d, tmax
         t0 = c0 / max(-cz, 1e-12)
         t1 = c1 / max(-cz, 1e-12)
         for j in range(3):
-            dw = _fma(cz, R[j, 2], _fma(cy, R[j, 1], cx * R[j, 0]))
+            dw = fma(cz, R[j, 2], fma(cy, R[j, 1], cx * R[j, 0]))
             ow = origin[j]
             if ortho:
-                ow = _fma(0.0, R[j, 2], _fma(ys, R[j, 1], xs * R[j, 0])) + origin[j]
+                ow = fma(0.0, R[j, 2], fma(ys, R[j, 1], xs * R[j, 0])) + origin[j]
             d[k, j] = dw
             o[k, j] = ow + dw * t0
         tmax[k] = t1 - t0

@@ -50,7 +50,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from ..scene.camera import _fma
+from ..scene.camera import fma
 
 from ..frequency import spectrum as F
 from . import edges
@@ -364,7 +364,7 @@ def _chi2_linear_rejects(Si, grad, gnorm2, tmp):
     for j in range(2):
         pj = Si[0] * grad[j, 0]
         for k in range(1, SECTOR_CELLS):
-            pj = _fma(Si[k], grad[j, k], pj)
+            pj = fma(Si[k], grad[j, k], pj)
         q = q + pj * pj / gnorm2[j] if j else pj * pj / gnorm2[j]
     r2 = r2 - q
     if E == 0.0:
