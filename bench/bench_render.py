@@ -7,6 +7,8 @@
     .venv/bin/python bench/bench_render.py --frequency --blend example_blends/cornell.blend
                                            [--blend-res 64] [--blend-passes 12] [--repeat 2]
     .venv/bin/python bench/bench_render.py --paths [--stage-res 64 256] [--repeat 3]
+    .venv/bin/python bench/bench_render.py --pass [--pass-res 256x256 1920x1080] [--passes 2]
+                                           [--plain]
 
 Prints ratios (target: photon pass <= 2x the raw ray casting of its
 rays at 256x256 with 200k photons per pass), never a bare time alone.
@@ -34,6 +36,17 @@ each ``--stage-res``: the ratio numpy / compiled of wall and CPU time (best
 of ``--repeat`` interleaved runs), the cores the compiled stages used (CPU /
 wall), and one whole compiled pass (camera, direct, photons, gather,
 update) against the bare Embree time of as many random rays as the pass cast.
+
+``--pass``: the issue-17 targets, each resolution in its own process (so
+that its peak memory is its own): the share of every stage in the pass's
+wall and CPU time (camera, direct, radius init, grid build, photon trace,
+gather, update, film, the rest), the pass's wall and CPU time against the
+bare Embree call on as many random rays as the pass cast, split over the
+photon tracer's threads (core.sppm.photons.THREADS), the photon pass
+(trace + grid + gather) against the raw time of its photon rays, the cores
+used (CPU / wall), and the peak resident size (``VmHWM``) and its growth
+from before the Renderer was built.  The first pass (numba loading, the
+boundary cap's camera pass) is not measured; the next ``--passes`` are summed.
 
 ``--gather``: the photon pass's gather with the per-thread buffers allocated
 once per render (hashgrid.GatherBuffers, folded at the touched points) against
@@ -325,12 +338,23 @@ def main(argv=None):
     ap.add_argument("--blend-passes", type=int, default=12)
     ap.add_argument("--paths", action="store_true",
                     help="camera paths (PATH, COMBINED): numpy vs compiled (CPU ratios)")
+    ap.add_argument("--pass", dest="whole_pass", action="store_true",
+                    help="stage shares, pass vs raw Embree, cores used, peak memory (issue 17)")
+    ap.add_argument("--pass-res", nargs="+", default=["256x256", "1920x1080"])
+    ap.add_argument("--plain", action="store_true", help="--pass without frequency photons")
+    ap.add_argument("--pass-one", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.blend:
         blend_report(a)
         return 0
     if a.paths:
         paths_report(a)
+        return 0
+    if a.pass_one:
+        pass_one(a)
+        return 0
+    if a.whole_pass:
+        pass_report(a)
         return 0
     if a.stages:
         stage_report(a)
@@ -541,6 +565,133 @@ def gather_report(a):
               f"{bgw / bw:.0%} -> {agw / aw:.0%}); whole pass CPU before/after "
               f"{bc / ac:.2f}x ({bc / n:.2f} -> {ac / n:.2f} s), wall {bw / aw:.2f}x; "
               f"cores used {bc / bw:.2f} -> {ac / aw:.2f}")
+
+
+PASS_STAGES = ("camera", "direct", "radius_init", "grid_build", "photon_trace", "gather",
+               "update", "film")
+
+
+def pass_report(a):
+    """The --pass measurement: one process per resolution (see the module docstring)."""
+    import subprocess
+    print(f"whole passes (Cornell box, {a.photons:,} photons/pass, "
+          f"{'no frequency photons' if a.plain else 'defaults: 25% frequency photons'}, "
+          f"{a.passes} passes after a warm-up one; numba threads "
+          f"{Hg.numba.get_num_threads()}, photon threads {Ph.THREADS}, "
+          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
+          f"load average {os.getloadavg()[0]:.1f})")
+    for wh in a.pass_res:
+        cmd = [sys.executable, os.path.abspath(__file__), "--pass-one", wh,
+               "--photons", str(a.photons), "--passes", str(a.passes)] + (
+                   ["--plain"] if a.plain else [])
+        subprocess.run(cmd, check=True)
+
+
+class StageClock:
+    """Wall and process-CPU seconds per stage of Renderer.step (PASS_STAGES),
+    by wrapping the objects and functions a pass calls (bench only)."""
+
+    def __init__(self, r):
+        self.wall = dict.fromkeys(PASS_STAGES, 0.0)
+        self.cpu = dict.fromkeys(PASS_STAGES, 0.0)
+        self.nest = 0
+        pp = r.photon_pass
+        r.camera_pass = self._timed(r.camera_pass, "camera")
+        r.direct_light = self._timed(r.direct_light, "direct")
+        r.radii.initialise = self._timed(r.radii.initialise, "radius_init")
+        r.radii.predicted = self._timed(r.radii.predicted, "update")
+        r.radii.update = self._timed(r.radii.update, "update")
+        r.film.accumulate = self._timed(r.film.accumulate, "film")
+        r._film = self._timed(r._film, "film")
+        pp.tracer.trace = self._timed(pp.tracer.trace, "photon_trace")
+        # The gather: everything of a chunk but the trace (gather, fold, pairs).
+        self._gather_inner = pp._trace_gather
+        pp._trace_gather = self._timed(pp._trace_gather, "gather")
+        Hg.build_grid = self._timed(Hg.build_grid, "grid_build")
+
+    def _timed(self, f, key):
+        def g(*args, **kw):
+            w0, c0 = time.perf_counter(), time.process_time()
+            try:
+                return f(*args, **kw)
+            finally:
+                w, c = time.perf_counter() - w0, time.process_time() - c0
+                self.wall[key] += w
+                self.cpu[key] += c
+                if key == "photon_trace":        # inside a gather call: not the gather's
+                    self.wall["gather"] -= w
+                    self.cpu["gather"] -= c
+        return g
+
+    def snapshot(self):
+        return dict(self.wall), dict(self.cpu)
+
+
+def raw_threads(raw, rays: int, threads: int):
+    """(wall, CPU) seconds of the bare Embree call on `rays` rays split into
+    `threads` Python threads (EmbreeScene.run releases the GIL)."""
+    from concurrent.futures import ThreadPoolExecutor
+    c0, w0 = time.process_time(), time.perf_counter()
+    if threads > 1:
+        with ThreadPoolExecutor(threads) as ex:
+            list(ex.map(raw.seconds, [rays // threads + (k < rays % threads)
+                                      for k in range(threads)]))
+    else:
+        raw.seconds(rays)
+    return time.perf_counter() - w0, time.process_time() - c0
+
+
+def pass_one(a):
+    """One resolution of --pass, in this process."""
+    from core import memory
+    w, h = (int(x) for x in a.pass_one.split("x"))
+    rss0 = memory.resident_bytes()
+    r = Renderer(cornell(w, height=h), RenderSettings(max_passes=1000, photons_per_pass=a.photons,
+                                                      use_frequency=not a.plain),
+                 log=lambda s: None)
+    r.step()                                      # warm-up (kernels, the edge cap's pass)
+    clock = StageClock(r)
+    raw = RawRays(r.accel, min(4 * a.photons, 2_000_000))
+    tot = np.zeros(4)                             # pass wall, pass CPU, raw wall, raw CPU
+    ph = np.zeros(3)                              # photon pass wall, CPU, photon rays
+    pass_rays = 0
+    for _ in range(a.passes):
+        rays0, prays0 = r.accel.rays_cast, r.photon_rays
+        w0, c0 = time.perf_counter(), time.process_time()
+        sw0, sc0 = clock.snapshot()
+        r.step()
+        pw, pc = time.perf_counter() - w0, time.process_time() - c0
+        sw, sc = clock.snapshot()
+        pass_rays += r.accel.rays_cast - rays0
+        rw, rc = raw_threads(raw, r.accel.rays_cast - rays0, Ph.THREADS)
+        tot += (pw, pc, rw, rc)
+        ph += [sum(sw[k] - sw0[k] for k in ("grid_build", "photon_trace", "gather")),
+               sum(sc[k] - sc0[k] for k in ("grid_build", "photon_trace", "gather")),
+               r.photon_rays - prays0]
+    pw, pc, rw, rc = tot
+    n = a.passes
+    # The photon rays' own raw time (same threads), for the photon-pass target.
+    prw, prc = raw_threads(raw, int(ph[2] / n), Ph.THREADS)
+    wall, cpu = clock.wall, clock.cpu
+    rest_w = pw - sum(wall.values())
+    rest_c = pc - sum(cpu.values())
+    hwm = memory.peak_bytes_so_far()
+    print(f"  {w}x{h}: pass {pw / n:.2f} s wall, {pc / n:.2f} s CPU; "
+          f"pass / raw Embree of its rays ({Ph.THREADS} threads): {pw / rw:.2f}x wall, "
+          f"{pc / rc:.2f}x CPU; cores used {pc / pw:.2f} (raw Embree {rc / rw:.2f})")
+    print(f"    photon pass (grid + trace + gather) / raw Embree of its photon rays: "
+          f"{ph[0] / n / prw:.2f}x wall, {ph[1] / n / prc:.2f}x CPU")
+    print(f"    {pass_rays / n:,.0f} rays a pass; raw Embree rate {pass_rays / rw / 1e6:.2f} M rays/s "
+          f"on {Ph.THREADS} threads: the 4 s target is {4.0 / (rw / n):.1f}x the raw time "
+          f"of the pass's rays (measured {pw / rw:.1f}x)")
+    print("    stage shares, wall: " + ", ".join(
+        f"{k} {wall[k] / pw:.0%}" for k in PASS_STAGES) + f", rest {rest_w / pw:.0%}")
+    print("    stage shares, CPU:  " + ", ".join(
+        f"{k} {cpu[k] / pc:.0%}" for k in PASS_STAGES) + f", rest {rest_c / pc:.0%}")
+    print("    cores used per stage: " + ", ".join(
+        f"{k} {cpu[k] / wall[k]:.2f}" for k in PASS_STAGES if wall[k] > 0))
+    print(f"    peak resident (VmHWM) {hwm / 2**30:.2f} GiB, growth from before the Renderer "
+          f"{(hwm - rss0) / 2**20:.0f} MiB ({(hwm - rss0) / (w * h):.0f} B a pixel)")
 
 
 def tm_trace_cpu(pp):

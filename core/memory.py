@@ -26,6 +26,10 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
   the EXR's copy -> BYTES_PER_AOV_CHANNEL
 - per radius-histogram bin per pixel (Quantile estimator): the uint32 state,
   one pass's histogram and its sum -> 3 x 4 bytes
+- per sector cell per pixel (the radius rules and verified holds that read
+  the photons' sector counts, core.sppm.update.needs_sectors: on by
+  default): the float64 state, the pass's float64 sums and two threads'
+  int32 gather rows -> BYTES_PER_SECTOR_CELL
 - per photon of a chunk: emission, bounce and deposit arrays and the
   gather's sorted copies -> BYTES_PER_PHOTON
 - per triangle: scene arrays, Embree BVH, the plan's copies -> BYTES_PER_TRIANGLE
@@ -45,6 +49,7 @@ from .errors import MemoryBudgetError
 BYTES_PER_PIXEL = 1100
 BYTES_PER_AOV_CHANNEL = 48
 BYTES_PER_HIST_BIN = 12
+BYTES_PER_SECTOR_CELL = 24
 BYTES_PER_PHOTON = 1229
 BYTES_PER_TRIANGLE = 400
 BYTES_PER_VOXEL = 192
@@ -77,18 +82,21 @@ def peak_bytes_so_far() -> int:
 
 def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
              use_grid: bool, aov_channels: int = 0, hist_bins: int = 0,
-             texture_bytes: int = 0, resident: int | None = None) -> dict:
+             texture_bytes: int = 0, resident: int | None = None,
+             sector_cells: int = 0) -> dict:
     """Bytes per component and 'total' (ints): an upper bound on the peak.
 
     aov_channels: channels of the enabled AOVs (all layers together);
     hist_bins: radius-histogram bins per pixel (0 without the Quantile estimator);
+    sector_cells: sector counts per pixel (0 unless the gather counts them);
     texture_bytes: bytes of the scene's texture images;
     resident: bytes already held (None: :func:`resident_bytes`).  'runtime' is
     that resident size; 'total' is at least the peak so far.
     """
     parts = {
         "pixels": n_pixels * (BYTES_PER_PIXEL + BYTES_PER_AOV_CHANNEL * aov_channels
-                              + BYTES_PER_HIST_BIN * hist_bins),
+                              + BYTES_PER_HIST_BIN * hist_bins
+                              + BYTES_PER_SECTOR_CELL * sector_cells),
         "photons": photon_chunk * BYTES_PER_PHOTON,
         "geometry": n_triangles * BYTES_PER_TRIANGLE,
         "occlusion_grid": (grid_res ** 3) * BYTES_PER_VOXEL if use_grid else 0,

@@ -68,7 +68,7 @@ from .sppm.photon_pass import PHOTON_CHUNK, PhotonPass
 from .frequency.curvature import scene_curvature
 from .sppm.photons import PhotonTracer
 from .sppm.state import PixelState
-from .sppm.update import HIST_BINS, Radii
+from .sppm.update import HIST_BINS, SECTOR_CELLS, Radii, needs_sectors
 from .sppm.visible_points import CameraPass, VisiblePoints
 
 __all__ = ["Renderer", "PassResult", "VisiblePoints", "PHOTON_CHUNK"]
@@ -189,7 +189,8 @@ class Renderer:
                                       aov_channels=sum(p.channels for p in PASSES
                                                        if p.name in passes or pass_enabled(p, st0)),
                                       hist_bins=HIST_BINS if st0.frequency_estimator == "QUANTILE" else 0,
-                                      texture_bytes=sum(np.asarray(t).nbytes for t in scene.textures))
+                                      texture_bytes=sum(np.asarray(t).nbytes for t in scene.textures),
+                                      sector_cells=SECTOR_CELLS if needs_sectors(st0, st0.use_frequency) else 0)
         memory.check_fits(self.memory)
         self.light_table = build_light_table(scene)
         for w in getattr(self.light_table, "warnings", []):

@@ -172,12 +172,39 @@ def compile_kernels(should_stop: Optional[Callable[[], bool]] = None) -> float:
     from .errors import RenderCancelled
     from .render import Renderer
     t0 = time.perf_counter()
-    for scene, st in warmup_jobs():
-        r = Renderer(scene, st, log=lambda _m: None, should_stop=should_stop)
-        r.run(should_stop=should_stop)
+    for k, (scene, st) in enumerate(warmup_jobs()):
+        with _split_paths(k == 0):
+            r = Renderer(scene, st, log=lambda _m: None, should_stop=should_stop)
+            r.run(should_stop=should_stop)
         if should_stop is not None and should_stop():
             raise RenderCancelled("cancelled")
     return time.perf_counter() - t0
+
+
+class _split_paths:
+    """With on=True, the per-pixel stages take their threaded paths at any
+    size (their thresholds set to 1 for the block), so that the first job
+    compiles the kernels a large render uses (camera rays, grid build,
+    update, film)."""
+    _LIMITS = (("scene.camera", "PARALLEL_MIN"), ("sppm.update", "PARALLEL_MIN"),
+               ("sppm.film", "PARALLEL_MIN"), ("sppm.hashgrid", "PARALLEL_MIN_VPS"),
+               ("sppm.visible_points", "INTERSECT_SPLIT_MIN"))
+
+    def __init__(self, on: bool):
+        import importlib
+        self.on = on
+        self.mods = [(importlib.import_module("." + m, __package__), a) for m, a in self._LIMITS]
+
+    def __enter__(self):
+        if self.on:
+            self.saved = [getattr(m, a) for m, a in self.mods]
+            for m, a in self.mods:
+                setattr(m, a, 1)
+
+    def __exit__(self, *exc):
+        if self.on:
+            for (m, a), v in zip(self.mods, self.saved):
+                setattr(m, a, v)
 
 
 # Run by compile_in_subprocess: load the package under the parent's module name

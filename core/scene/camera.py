@@ -13,14 +13,36 @@ filtered value Cycles computes.
 importance and pdfs (pbrt-v4 PerspectiveCamera::We / PDF_We / SampleWi; Veach
 1997 chapter 10, the t = 1 technique of bidirectional path tracing), for light
 tracing (core.integrators.light_tracer).
+
+:meth:`CameraModel.generate` runs one compiled kernel per pixel range
+(``_pinhole_range``: filter offsets, view-plane point, rotation to the world,
+clip distances) for the pinhole and orthographic cameras, split over the
+numba threads from PARALLEL_MIN rays.  The numpy version
+(``generate(..., compiled=False)``) is its reference: the same operations
+in the same order, and the rotation's (K, 3) @ (3, 3) product written as
+the fused multiply-adds OpenBLAS's dgemm kernel computes (fma(v2, r2,
+fma(v1, r1, v0 r0))), so the rays are the same bits
+(tests/test_compiled_stages.py).  The matrix product itself went to
+multi-threaded OpenBLAS, whose threads busy-wait after every call and took
+the CPU the other stages' threads needed.  The thin lens (depth of field)
+keeps the numpy path.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
+from llvmlite import ir
+from numba import njit, prange
+from numba.core import types
+from numba.extending import intrinsic
 
 from .model import Camera
+
+#: Rays from which generate's kernel splits over the numba threads (a
+#: parallel region's hand-off costs more than ~16k rays of work).
+PARALLEL_MIN = 1 << 16
 
 
 #: Cycles' Blackman-Harris coefficients: a0 - a1 cos v + a2 cos 2v - a3 cos 3v.
@@ -116,6 +138,67 @@ class CameraRays:
     t_max: np.ndarray
 
 
+@intrinsic
+def fma(typingctx, a, b, c):
+    """a * b + c rounded once (LLVM's llvm.fma.f64), what OpenBLAS's dgemm
+    kernels compute on every x86-64 with FMA (Haswell and later); for
+    numba kernels that repeat a numpy matrix product's bits (also
+    core.sppm.update)."""
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        f64 = ir.DoubleType()
+        fn = builder.module.declare_intrinsic("llvm.fma", [f64], ir.FunctionType(f64, [f64] * 3))
+        return builder.call(fn, args)
+    return sig, codegen
+
+
+@njit(cache=True, inline="always")
+def _filter_offset(table, u):
+    """FilterSampler.sample of one uniform u (the same operations)."""
+    n = table.shape[0]
+    idx = u * (n - 1)
+    i0 = min(np.int64(idx), n - 2)
+    f = idx - i0
+    return (1.0 - f) * table[i0] + f * table[i0 + 1]
+
+
+@njit(cache=True)
+def _pinhole_range(k0, k1, px, py, uf, table, view, R, origin, ortho, o, d, tmax, dz):
+    """Rays k0..k1-1 of :meth:`CameraModel.generate` without a thin lens:
+    view = (xmin, ymin, pix, ycor, clip_start, clip_end)."""
+    xmin, ymin, pix, ycor, c0, c1 = view[0], view[1], view[2], view[3], view[4], view[5]
+    for k in range(k0, k1):
+        ox = _filter_offset(table, uf[k, 0])
+        oy = _filter_offset(table, uf[k, 1])
+        xs = xmin + (px[k] + 0.5 + ox) * pix
+        ys = ymin + (py[k] + 0.5 + oy) * ycor * pix
+        if ortho:
+            cx, cy, cz = 0.0, 0.0, -1.0
+        else:
+            nrm = np.sqrt(xs * xs + ys * ys + 1.0)
+            cx, cy, cz = xs / nrm, ys / nrm, -1.0 / nrm
+        t0 = c0 / max(-cz, 1e-12)
+        t1 = c1 / max(-cz, 1e-12)
+        for j in range(3):
+            dw = fma(cz, R[j, 2], fma(cy, R[j, 1], cx * R[j, 0]))
+            ow = origin[j]
+            if ortho:
+                ow = fma(0.0, R[j, 2], fma(ys, R[j, 1], xs * R[j, 0])) + origin[j]
+            d[k, j] = dw
+            o[k, j] = ow + dw * t0
+        tmax[k] = t1 - t0
+        dz[k] = cz
+
+
+@njit(cache=True, parallel=True)
+def _pinhole_parallel(n_chunks, px, py, uf, table, view, R, origin, ortho, o, d, tmax, dz):
+    K = px.shape[0]
+    for c in prange(n_chunks):
+        _pinhole_range(c * K // n_chunks, (c + 1) * K // n_chunks, px, py, uf, table, view, R,
+                       origin, ortho, o, d, tmax, dz)
+
+
 class CameraModel:
     """Maps film positions to world rays for one Blender camera."""
 
@@ -145,7 +228,7 @@ class CameraModel:
         M = np.asarray(cam.matrix_world, np.float64)
         # Remove scale from the rotation (Blender normalises the camera matrix).
         R = M[:3, :3] / np.maximum(np.linalg.norm(M[:3, :3], axis=0, keepdims=True), 1e-300)
-        self.R = R
+        self.R = np.ascontiguousarray(R)     # one kernel signature (C layout)
         self.origin = M[:3, 3].copy()
 
     @property
@@ -234,13 +317,18 @@ class CameraModel:
         return depth * self.pix
 
     def generate(self, px: np.ndarray, py: np.ndarray, u_filter: np.ndarray,
-                 u_lens: np.ndarray, fsamp: FilterSampler) -> tuple[CameraRays, np.ndarray]:
-        """Rays through pixels (px, py) (K,) int, py counted from the BOTTOM.
+                 u_lens: np.ndarray, fsamp: FilterSampler,
+                 compiled: bool = True) -> tuple[CameraRays, np.ndarray]:
+        """Rays through pixels (px, py) (K,) int or float64, py counted from the BOTTOM.
 
         u_filter, u_lens: (K,2) uniforms.  Returns the rays and the camera-space
         z-component of the unit direction (K,) (negative), used to turn ray
-        distance into depth.
+        distance into depth.  compiled=False: the numpy reference (the
+        same bits, see the module docstring); the thin lens always takes it.
         """
+        cam = self.cam
+        if compiled and not (cam.aperture_radius > 0 and cam.kind != "ORTHO"):
+            return self._generate_compiled(px, py, u_filter, fsamp)
         ox = fsamp.sample(u_filter[:, 0])
         oy = fsamp.sample(u_filter[:, 1])
         xs = self.xmin + (px + 0.5 + ox) * self.pix
@@ -271,3 +359,22 @@ class CameraModel:
         d_w = d_c @ self.R.T
         o_w = o_w + d_w * t0[:, None]
         return CameraRays(o_w, d_w, t1 - t0), dz
+
+    def _generate_compiled(self, px, py, u_filter, fsamp):
+        """:meth:`generate` of a pinhole or orthographic camera in ``_pinhole_range``."""
+        px = np.asarray(px, np.float64)
+        py = np.asarray(py, np.float64)
+        uf = np.ascontiguousarray(u_filter, np.float64)   # one kernel signature
+        K = px.shape[0]
+        o, d = np.empty((K, 3)), np.empty((K, 3))
+        tmax, dz = np.empty(K), np.empty(K)
+        cam = self.cam
+        view = np.array([self.xmin, self.ymin, self.pix, self.ycor, cam.clip_start,
+                         cam.clip_end], np.float64)
+        args = (px, py, uf, fsamp.table, view, self.R, self.origin, cam.kind == "ORTHO",
+                o, d, tmax, dz)
+        if K >= PARALLEL_MIN and numba.get_num_threads() > 1:
+            _pinhole_parallel(numba.get_num_threads(), *args)
+        else:
+            _pinhole_range(0, K, *args)
+        return CameraRays(o, d, tmax), dz

@@ -13,15 +13,25 @@ passes are means over the passes (over filter samples, so edges average);
 README.md "Passes" lists them.  Alpha (Film > Transparent) is the
 mean over passes of 1 - the throughput with which the camera ray escaped
 to the world (straight through Transparent BSDFs), Cycles' definition.
+
+The image, the radius and the radius in pixels come from one compiled
+kernel per pixel range (``_film_range``, split over the numba threads from
+PARALLEL_MIN pixels); ``Film(..., compiled=False)`` is its numpy reference,
+the same operations in the same order (tests/test_compiled_pass_stages.py:
+the same bits).  The AOVs are numpy.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from typing import Callable, NamedTuple, Optional
 
+import numba
 import numpy as np
+from numba import njit, prange
 
 _F32_MAX = np.finfo(np.float32).max
+#: Pixels from which the film kernel splits over the numba threads.
+PARALLEL_MIN = 1 << 16
 
 
 @dataclass
@@ -190,8 +200,10 @@ class Film:
     transparency, mist, pass indices; None: no data passes, opaque film);
     passes: names of the 'mean' / 'first' passes of PASSES to produce."""
 
-    def __init__(self, settings, camera, H: int, W: int, scene=None, passes=()):
+    def __init__(self, settings, camera, H: int, W: int, scene=None, passes=(),
+                 compiled: bool = True):
         self.settings, self.camera, self.H, self.W = settings, camera, H, W
+        self.compiled = compiled
         self.scene = scene
         self.transparent = bool(getattr(scene, "film_transparent", False))
         self.data_passes = tuple(p for p in PASSES if p.source != "state" and p.name in set(passes))
@@ -242,17 +254,21 @@ class Film:
     def __call__(self, state, pass_index: int, photons_emitted: int, elapsed: float) -> PassResult:
         """The PassResult of the state after pass_index passes."""
         H, W = self.H, self.W
-        L = state.L_sum / max(pass_index, 1)
-        R2 = np.where(state.R2 > 0, state.R2, np.inf)
-        L = L + state.tau / (np.pi * R2[:, None] * max(photons_emitted, 1))
-        L = np.where(np.isfinite(L), L, 0.0)
         img = np.ones((H, W, 4), np.float32)
-        img[..., :3] = L.reshape(H, W, 3)
-        if self.transparent and self.samples:
-            img[..., 3] = (self.coverage / self.samples).reshape(H, W)
-        R = np.sqrt(np.where(state.R2 > 0, state.R2, 0.0))
-        fp = self.camera.footprint(state.depth)
-        r_px = np.where(fp > 0, R / np.maximum(fp, 1e-300), 0.0)
+        alpha = self.transparent and self.samples
+        if self.compiled:
+            R, r_px = self._image_compiled(state, pass_index, photons_emitted, img, alpha)
+        else:
+            L = state.L_sum / max(pass_index, 1)
+            R2 = np.where(state.R2 > 0, state.R2, np.inf)
+            L = L + state.tau / (np.pi * R2[:, None] * max(photons_emitted, 1))
+            L = np.where(np.isfinite(L), L, 0.0)
+            img[..., :3] = L.reshape(H, W, 3)
+            if alpha:
+                img[..., 3] = (self.coverage / self.samples).reshape(H, W)
+            R = np.sqrt(np.where(state.R2 > 0, state.R2, 0.0))
+            fp = self.camera.footprint(state.depth)
+            r_px = np.where(fp > 0, R / np.maximum(fp, 1e-300), 0.0)
         aovs = {a.name: a.compute(state, R, r_px).reshape(H, W, a.channels).astype(np.float32)
                 for a in AOVS if getattr(self.settings, a.flag)}
         n = max(self.samples, 1)
@@ -265,3 +281,62 @@ class Film:
         mean_px = float(r_px[valid].mean()) if np.any(valid) else 0.0
         held = float(state.held.mean()) if state.held.size else 0.0
         return PassResult(pass_index, photons_emitted, elapsed, img, aovs, mean_px, held)
+
+    def _image_compiled(self, state, pass_index, photons_emitted, img, alpha):
+        """img's pixels (in place), R and r_px (P,) from ``_film_range``."""
+        P = state.R2.shape[0]
+        R, r_px = np.empty(P), np.empty(P)
+        cam = self.camera
+        ortho = cam.cam.kind == "ORTHO"
+        prm = np.array([max(pass_index, 1), max(photons_emitted, 1),
+                        self.samples if alpha else 0, cam.pix], np.float64)
+        a = FilmArrays(state.L_sum, state.tau, state.R2, state.depth, self.coverage,
+                       img.reshape(P, 4), R, r_px)
+        T = numba.get_num_threads()
+        if P >= PARALLEL_MIN and T > 1:
+            _film_parallel(T, a, prm, bool(alpha), ortho)
+        else:
+            _film_range(0, P, a, prm, bool(alpha), ortho)
+        return R, r_px
+
+
+class FilmArrays(NamedTuple):
+    """The film kernel's arrays (P pixels).  In: L_sum, tau (P, 3), R2,
+    depth, coverage (P,) float64.  Out: img (P, 4) float32 (its alpha
+    column already 1), R, r_px (P,) float64."""
+    L_sum: np.ndarray
+    tau: np.ndarray
+    R2: np.ndarray
+    depth: np.ndarray
+    coverage: np.ndarray
+    img: np.ndarray
+    R: np.ndarray
+    r_px: np.ndarray
+
+
+@njit(cache=True)
+def _film_range(i0, i1, a, prm, alpha, ortho):
+    """Film.__call__'s image, R and r_px for pixels i0..i1-1 (its numpy
+    operations in their order); prm = (passes, photons emitted, alpha's
+    sample count, CameraModel.pix)."""
+    passes, n_emit, samples, pix = prm[0], prm[1], prm[2], prm[3]
+    for i in range(i0, i1):
+        R2 = a.R2[i]
+        R2d = R2 if R2 > 0 else np.inf
+        den = np.pi * R2d * n_emit
+        for c in range(3):
+            L = a.L_sum[i, c] / passes + a.tau[i, c] / den
+            a.img[i, c] = L if np.isfinite(L) else 0.0
+        if alpha:
+            a.img[i, 3] = a.coverage[i] / samples
+        R = np.sqrt(R2 if R2 > 0 else 0.0)
+        fp = pix if ortho else a.depth[i] * pix
+        a.R[i] = R
+        a.r_px[i] = R / max(fp, 1e-300) if fp > 0 else 0.0
+
+
+@njit(cache=True, parallel=True)
+def _film_parallel(n_chunks, a, prm, alpha, ortho):
+    P = a.R2.shape[0]
+    for c in prange(n_chunks):
+        _film_range(c * P // n_chunks, (c + 1) * P // n_chunks, a, prm, alpha, ortho)

@@ -59,13 +59,14 @@ active VP on average, which bounds build time and memory whatever the radius
 distribution (a single VP of 100x the median radius would otherwise occupy
 ~10^6 cells).
 
-Storage: CSR (cell_start, vp_ids) built by a counting pass, a prefix sum and a
-fill pass.  Dense 3D grid over the active bounds when that has at most as many
+Storage: CSR (cell_start, vp_ids): each active VP's slots (a counting pass
+and, after a prefix sum over the VPs, a fill pass), then a counting sort of
+these entries by slot, so the VPs of a slot are in ascending order.  Dense 3D grid over the active bounds when that has at most as many
 cells as the hash table would have (flat axis-aligned sets); otherwise a
 spatial hash of the integer cell coordinates into a power-of-two table of about
 one slot per cell entry.  Hash collisions only add candidates (rejected by the
 exact test (1)); a VP whose cells collide into one slot is stored once there
-(per-slot last-writer mark), so it is never counted twice.
+(its own slots are deduplicated), so it is never counted twice.
 
 Pairs: the counting pass records, per photon, a 64-bit mask of the counted
 entries of its cell and the number of pairs; a prefix sum gives each photon
@@ -76,9 +77,11 @@ Parallelism: with ``parallel=True`` the sorted photons are split into one
 contiguous chunk per numba thread, each chunk accumulating into its own (K,)
 arrays (race-free, no atomics), summed afterwards (or, with GatherBuffers,
 rows reused by every chunk and folded at the touched VPs); the sort scatters by
-disjoint slot ranges, one per thread.  The build is serial (O(K), ~10% of a
-pass's gather).  Results do not depend on the thread count except for the
-summation order of Phi_sum.
+disjoint slot ranges, one per thread.  The build splits the VPs into one
+range per thread for their slots, and the slots into one range per thread
+for the counting sort (each thread reads every entry and keeps its slots).
+Results do not depend on the thread count except for the summation order of
+Phi_sum; the grid does not depend on it at all.
 """
 from __future__ import annotations
 
@@ -94,6 +97,10 @@ COS_NG_DEFAULT = 0.5          # cos(60 deg): photon / VP surface orientation tes
 CELL_FACTOR = 1.5             # h = CELL_FACTOR * median active radius
 ENTRY_BUDGET_PER_VP = 64      # clamp: mean cell entries per active VP
 PARALLEL_MIN_PHOTONS = 50_000  # below this, thread start-up outweighs the split
+PARALLEL_MIN_VPS = 1 << 18      # build_grid: below this many VPs, one thread
+# A VP's slots are deduplicated by a scan of the ones it already has up to
+# this many, then by a sort (a VP far larger than the cells).
+_DEDUP_SCAN = 64
 # GatherBuffers.fold visits every VP in order, not the touched lists, when at
 # least 1/FOLD_SWEEP_FRACTION of them were touched (the lists' random access
 # cost ~250 ns a VP, a sequential sweep ~65 ns for every VP: 256², loaded
@@ -210,53 +217,167 @@ def _slot(ix, iy, iz, dense, nx, ny, nz, shift):
     return np.int64((k * _HM) >> np.uint64(shift))
 
 
-@njit(cache=True)
-def _insert(pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
-            n_slots, count, mark, cell_start, vp_ids, fill):
-    """Counting pass (fill=False: count[s] += 1) or fill pass (fill=True:
-    vp_ids[count[s]++] = v, count = running write cursor) over every cell a
-    VP's sphere overlaps.  mark[s] = last VP written to slot s (dedup of hash
-    collisions within one VP)."""
+@njit(cache=True, inline="always")
+def _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf):
+    """The slots of the cells VP v's sphere overlaps (sphere-box overlap:
+    the closest point of the cell box), each once (a hash may map two of its
+    cells to one slot), in buf (any order; its size at least the VP's
+    bounding-box cell count, see _bbox_range); returns how many.""" 
     ox, oy, oz = origin[0], origin[1], origin[2]
-    for v in range(pos.shape[0]):
-        if not active[v]:
-            continue
-        cx, cy, cz = pos[v, 0], pos[v, 1], pos[v, 2]
-        r = R_ins[v]
-        r2 = r * r
-        x0 = np.int64(math.floor((cx - r - ox) * inv_h))
-        x1 = np.int64(math.floor((cx + r - ox) * inv_h))
-        y0 = np.int64(math.floor((cy - r - oy) * inv_h))
-        y1 = np.int64(math.floor((cy + r - oy) * inv_h))
-        z0 = np.int64(math.floor((cz - r - oz) * inv_h))
-        z1 = np.int64(math.floor((cz + r - oz) * inv_h))
-        for iz in range(z0, z1 + 1):
-            bz0 = oz + iz * h
-            dz = max(bz0 - cz, 0.0, cz - (bz0 + h))
-            for iy in range(y0, y1 + 1):
-                by0 = oy + iy * h
-                dy = max(by0 - cy, 0.0, cy - (by0 + h))
-                dyz = dy * dy + dz * dz
-                if dyz > r2:
+    cx, cy, cz = pos[v, 0], pos[v, 1], pos[v, 2]
+    r = R_ins[v]
+    r2 = r * r
+    x0 = np.int64(math.floor((cx - r - ox) * inv_h))
+    x1 = np.int64(math.floor((cx + r - ox) * inv_h))
+    y0 = np.int64(math.floor((cy - r - oy) * inv_h))
+    y1 = np.int64(math.floor((cy + r - oy) * inv_h))
+    z0 = np.int64(math.floor((cz - r - oz) * inv_h))
+    z1 = np.int64(math.floor((cz + r - oz) * inv_h))
+    n = 0
+    unchecked = False          # past _DEDUP_SCAN slots: sorted and made unique at the end
+    for iz in range(z0, z1 + 1):
+        bz0 = oz + iz * h
+        dz = max(bz0 - cz, 0.0, cz - (bz0 + h))
+        for iy in range(y0, y1 + 1):
+            by0 = oy + iy * h
+            dy = max(by0 - cy, 0.0, cy - (by0 + h))
+            dyz = dy * dy + dz * dz
+            if dyz > r2:
+                continue
+            for ix in range(x0, x1 + 1):
+                bx0 = ox + ix * h
+                dx = max(bx0 - cx, 0.0, cx - (bx0 + h))
+                if dx * dx + dyz > r2:
                     continue
-                for ix in range(x0, x1 + 1):
-                    bx0 = ox + ix * h
-                    dx = max(bx0 - cx, 0.0, cx - (bx0 + h))
-                    # sphere-box overlap (closest point of the cell box)
-                    if dx * dx + dyz > r2:
+                s = _slot(ix, iy, iz, dense, nx, ny, nz, shift)
+                if s < 0:
+                    continue
+                if not dense and not unchecked:
+                    seen = False
+                    for i in range(n):
+                        if buf[i] == s:
+                            seen = True
+                            break
+                    if seen:
                         continue
-                    s = _slot(ix, iy, iz, dense, nx, ny, nz, shift)
-                    if s < 0:
-                        continue
-                    if not dense:
-                        if mark[s] == v:
-                            continue
-                        mark[s] = v
-                    if fill:
-                        vp_ids[count[s]] = v
-                        count[s] += 1
-                    else:
-                        count[s] += 1
+                buf[n] = s
+                n += 1
+                if n >= _DEDUP_SCAN:
+                    unchecked = True
+    if unchecked and not dense:
+        srt = np.sort(buf[:n])
+        m = 0
+        for i in range(n):
+            if i == 0 or srt[i] != srt[i - 1]:
+                buf[m] = srt[i]
+                m += 1
+        n = m
+    return n
+
+
+@njit(cache=True)
+def _count_cells(k0, k1, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift, n_ent,
+                 cap):
+    """n_ent[v] = number of slots VP v is stored in, for VPs k0..k1-1; cap:
+    the largest bounding-box cell count of a VP."""
+    buf = np.empty(cap, np.int64)
+    for v in range(k0, k1):
+        n = 0
+        if active[v]:
+            n = _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf)
+        n_ent[v] = n
+
+
+@njit(cache=True)
+def _fill_cells(k0, k1, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift, off,
+                ent_slot, cap):
+    """ent_slot[off[v]:off[v + 1]] = the slots of VP v, for VPs k0..k1-1."""
+    buf = np.empty(cap, np.int64)
+    for v in range(k0, k1):
+        if active[v]:
+            n = _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf)
+            o = off[v]
+            for i in range(n):
+                ent_slot[o + i] = buf[i]
+
+
+@njit(cache=True)
+def _slot_range_counts(s0, s1, ent_slot, cell_start):
+    """cell_start[s] = the entries before slot s among the slots s0..s1-1
+    (a local exclusive prefix); returns the range's entries."""
+    for e in range(ent_slot.shape[0]):
+        s = ent_slot[e]
+        if s >= s0 and s < s1:
+            cell_start[s] += 1
+    run = 0
+    for s in range(s0, s1):
+        c = cell_start[s]
+        cell_start[s] = run
+        run += c
+    return run
+
+
+@njit(cache=True)
+def _slot_range_fill(s0, s1, base, off, ent_slot, cell_start, vp_ids):
+    """vp_ids[base + cell_start[s]++] = v for the entries (v, s) with s0 <= s
+    < s1, in VP order (so the VPs of a slot are ascending); then cell_start[s0..s1-1] = base + the local starts (the cursor
+    ends at the next slot's start: shifted back by one)."""
+    for v in range(off.shape[0] - 1):
+        for e in range(off[v], off[v + 1]):
+            s = ent_slot[e]
+            if s >= s0 and s < s1:
+                q = cell_start[s]
+                vp_ids[base + q] = v
+                cell_start[s] = q + 1
+    for s in range(s1 - 1, s0, -1):
+        cell_start[s] = base + cell_start[s - 1]
+    if s1 > s0:
+        cell_start[s0] = base
+
+
+@njit(cache=True, parallel=True)
+def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
+                     n_slots, slot_proto, cap):
+    """The CSR arrays (cell_start (n_slots + 1,) int64, vp_ids (n_entries,)
+    int32, the VPs of a slot ascending), computed by n_chunks threads: each VP's slots (VP ranges in parallel), then a
+    counting sort of the entries by slot (slot ranges in parallel).  No
+    (n_slots,) mark array: a VP's hash collisions are removed from its own
+    list.  slot_proto: an empty array of the entries' slot dtype; cap: the
+    largest bounding-box cell count of a VP."""
+    K = pos.shape[0]
+    n_ent = np.empty(K, np.int64)
+    for c in prange(n_chunks):
+        _count_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
+                     h, inv_h, dense, nx, ny, nz, shift, n_ent, cap)
+    off = np.empty(K + 1, np.int64)
+    off[0] = 0
+    for v in range(K):
+        off[v + 1] = off[v] + n_ent[v]
+    E = off[K]
+    ent_slot = np.empty(E, slot_proto.dtype)
+    for c in prange(n_chunks):
+        _fill_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
+                    h, inv_h, dense, nx, ny, nz, shift, off, ent_slot, cap)
+    # Slot ranges, one per thread: local counts and prefix, then each range's
+    # base (the entries of the ranges before it), the fill, the shift back.
+    cell_start = np.zeros(n_slots + 1, np.int64)
+    base = np.zeros(n_chunks + 1, np.int64)
+    for c in prange(n_chunks):
+        base[c + 1] = _slot_range_counts(c * n_slots // n_chunks,
+                                         (c + 1) * n_slots // n_chunks, ent_slot, cell_start)
+    for c in range(n_chunks):
+        base[c + 1] += base[c]
+    vp_ids = np.empty(E, np.int32)
+    for c in prange(n_chunks):
+        _slot_range_fill(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks, base[c], off,
+                         ent_slot, cell_start, vp_ids)
+    cell_start[n_slots] = E
+    return cell_start, vp_ids
+
+
+#: The same build compiled without ``parallel`` (small grids: a parallel
+#: region's thread hand-off costs more than their build).
+_insert_serial = njit(cache=True)(_insert_parallel.py_func)
 
 
 @njit(cache=True)
@@ -589,16 +710,114 @@ def _pairs_parallel(order, slot, ph_pos, ph_ng, ph_wi, ph_rpred, vp_rec, cos_ng,
 # Build
 # ----------------------------------------------------------------------------
 
-def _bbox_entries(pos, R, origin, inv_h) -> int:
-    """Upper bound on cell entries: sum over VPs of their bounding-box cell count."""
-    a = np.floor((pos - R[:, None] - origin) * inv_h)
-    b = np.floor((pos + R[:, None] - origin) * inv_h)
-    return int(np.prod(b - a + 1.0, axis=1).sum())
+@njit(cache=True)
+def _active_range(k0, k1, pos, R, active, act):
+    """act[v] for VPs k0..k1-1 (active, finite, R > 0); returns their count,
+    max |coordinate| and max R."""
+    n, pm, rm = 0, 0.0, -np.inf
+    for v in range(k0, k1):
+        x, y, z, r = pos[v, 0], pos[v, 1], pos[v, 2], R[v]
+        a = (active[v] and np.isfinite(x) and np.isfinite(y) and np.isfinite(z)
+             and np.isfinite(r) and r > 0)
+        act[v] = a
+        if a:
+            n += 1
+            pm = max(pm, abs(x), abs(y), abs(z))
+            rm = max(rm, r)
+    return n, pm, rm
+
+
+@njit(cache=True)
+def _extent_range(k0, k1, j, pos, R, act, scale, R_ins, R_act, lo, hi):
+    """R_ins, R_act[j..] (in VP order) of the active VPs k0..k1-1, and the
+    bounds lo, hi (3,) of their spheres (updated in place)."""
+    for v in range(k0, k1):
+        if act[v]:
+            r = R[v] * (1.0 + _REL_PAD) + _ABS_PAD * scale
+            R_ins[v] = r
+            R_act[j] = r
+            j += 1
+            for k in range(3):
+                lo[k] = min(lo[k], pos[v, k] - r)
+                hi[k] = max(hi[k], pos[v, k] + r)
+
+
+@njit(cache=True, parallel=True)
+def _active_extent(n_chunks, pos, R, active):
+    """build_grid's active VPs and their extent, by n_chunks threads (exact:
+    minima, maxima and per-VP arithmetic, whatever n_chunks).  Returns act
+    (K,) bool (active, finite, R > 0), R_ins (K,) (0 where inactive), R_act
+    (n_active,) the active insertion radii in VP order, lo, hi (3,)."""
+    K = pos.shape[0]
+    act = np.empty(K, np.bool_)
+    cnt = np.zeros(n_chunks, np.int64)
+    pmax = np.zeros(n_chunks)
+    rmax = np.full(n_chunks, -np.inf)
+    for c in prange(n_chunks):
+        cnt[c], pmax[c], rmax[c] = _active_range(c * K // n_chunks, (c + 1) * K // n_chunks,
+                                                 pos, R, active, act)
+    start = np.zeros(n_chunks + 1, np.int64)
+    for c in range(n_chunks):
+        start[c + 1] = start[c] + cnt[c]
+    n_active = start[n_chunks]
+    R_ins = np.zeros(K)
+    R_act = np.empty(n_active)
+    lo = np.full((n_chunks, 3), np.inf)
+    hi = np.full((n_chunks, 3), -np.inf)
+    if n_active > 0:
+        scale = pmax.max() + rmax.max()
+        for c in prange(n_chunks):
+            _extent_range(c * K // n_chunks, (c + 1) * K // n_chunks, start[c], pos, R, act,
+                          scale, R_ins, R_act, lo[c], hi[c])
+    lo_all = np.full(3, np.inf)
+    hi_all = np.full(3, -np.inf)
+    for c in range(n_chunks):
+        for k in range(3):
+            lo_all[k] = min(lo_all[k], lo[c, k])
+            hi_all[k] = max(hi_all[k], hi[c, k])
+    return act, R_ins, R_act, lo_all, hi_all
+
+
+@njit(cache=True)
+def _bbox_range(k0, k1, pos, R_ins, act, origin, inv_h):
+    """The bounding-box cell counts of the active VPs k0..k1-1: their sum
+    and their largest."""
+    n = 0
+    mx = 0
+    for v in range(k0, k1):
+        if act[v]:
+            r = R_ins[v]
+            m = 1
+            for k in range(3):
+                a = math.floor((pos[v, k] - r - origin[k]) * inv_h)
+                b = math.floor((pos[v, k] + r - origin[k]) * inv_h)
+                m *= np.int64(b - a + 1.0)
+            n += m
+            mx = max(mx, m)
+    return n, mx
+
+
+@njit(cache=True, parallel=True)
+def _bbox_cells(n_chunks, pos, R_ins, act, origin, inv_h):
+    """Upper bound on cell entries: the sum over the active VPs of their
+    bounding box's cell count, and the largest count, by n_chunks threads."""
+    K = pos.shape[0]
+    tot = np.zeros(n_chunks, np.int64)
+    mx = np.zeros(n_chunks, np.int64)
+    for c in prange(n_chunks):
+        tot[c], mx[c] = _bbox_range(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins,
+                                    act, origin, inv_h)
+    return tot.sum(), mx.max()
+
+
+#: Serial builds of the two (small grids: no thread hand-off).
+_active_extent_serial = njit(cache=True)(_active_extent.py_func)
+_bbox_cells_serial = njit(cache=True)(_bbox_cells.py_func)
 
 
 def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
                cell_factor: float = CELL_FACTOR, layout: str = "auto",
-               log2_table: Optional[int] = None) -> Grid:
+               log2_table: Optional[int] = None, parallel: bool = True) -> Grid:
     """Bucket the active visible points into a grid (see the module docstring).
 
     vp_pos: (K, 3) float64 world positions.  vp_R: (K,) float64 radii [m].
@@ -606,7 +825,10 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     treated as inactive.  cell_factor: h = cell_factor * median active radius
     (before the entry-budget clamp).  layout: 'auto', 'dense' or 'hash';
     log2_table forces a hash table of 2**log2_table slots (tests use tiny
-    tables to exercise collisions).
+    tables to exercise collisions).  parallel: numba threads from
+    PARALLEL_MIN_VPS VPs (False: one thread; the same grid).
+    tests/oracle_grid.py is the reference it is checked against (the numpy
+    extent and the serial two-pass insertion it replaced).
     """
     if layout not in ("auto", "dense", "hash"):
         raise ValueError("build_grid: layout must be 'auto', 'dense' or 'hash', "
@@ -615,30 +837,24 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     K = vp_pos.shape[0]
     vp_R = np.ascontiguousarray(vp_R, dtype=np.float64).reshape(K)
     active = np.asarray(active, dtype=bool).reshape(K)
-    with np.errstate(invalid="ignore"):
-        act = active & np.isfinite(vp_pos).all(axis=1) & np.isfinite(vp_R) & (vp_R > 0)
-    n_active = int(act.sum())
-    R_ins = np.zeros(K)
+    T = numba.get_num_threads() if (parallel and K >= PARALLEL_MIN_VPS) else 1
+    act, R_ins, R_act, lo, hi = (_active_extent if T > 1 else _active_extent_serial)(
+        T, vp_pos, vp_R, active)
+    n_active = R_act.shape[0]
     if n_active == 0:
         z3 = np.zeros(3)
         return Grid(K, 0, z3, 1.0, 1.0, np.full(3, np.inf), np.full(3, -np.inf),
                     True, np.ones(3, np.int64), 0, np.zeros(2, np.int64),
                     np.zeros(0, np.int32), R_ins)
-
-    P_act = vp_pos[act]
-    R_act = vp_R[act]
-    scale = float(np.abs(P_act).max() + R_act.max())
-    R_act = R_act * (1.0 + _REL_PAD) + _ABS_PAD * scale
-    R_ins[act] = R_act
-    lo = (P_act - R_act[:, None]).min(axis=0)
-    hi = (P_act + R_act[:, None]).max(axis=0)
     origin = lo.copy()
 
     h = cell_factor * float(np.median(R_act))
     budget = ENTRY_BUDGET_PER_VP * n_active
     while True:
         inv_h = 1.0 / h
-        est = _bbox_entries(P_act, R_act, origin, inv_h)
+        est, cap = (_bbox_cells if T > 1 else _bbox_cells_serial)(
+            T, vp_pos, R_ins, act, origin, inv_h)
+        est = int(est)
         if est <= budget:
             break
         h *= 1.25
@@ -654,19 +870,13 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     else:
         n_slots, shift = 1 << log2_table, 64 - log2_table
 
-    count = np.zeros(n_slots + 1, np.int64)
-    mark = np.full(0 if dense else n_slots, -1, np.int64)
-    cell_start = count  # placeholder argument for the counting pass
-    dummy = np.zeros(0, np.int32)
     args = (vp_pos, R_ins, act, origin, h, inv_h, dense,
             int(dims[0]), int(dims[1]), int(dims[2]), shift, n_slots)
-    _insert(*args, count, mark, cell_start, dummy, False)
-    cell_start = np.zeros(n_slots + 1, np.int64)
-    np.cumsum(count[:n_slots], out=cell_start[1:])
-    vp_ids = np.empty(int(cell_start[-1]), np.int32)
-    cursor = cell_start.copy()
-    mark[:] = -1
-    _insert(*args, cursor, mark, cell_start, vp_ids, True)
+    proto = np.empty(0, np.int32 if n_slots < 2**31 else np.int64)
+    if n_active >= PARALLEL_MIN_VPS and T > 1:
+        cell_start, vp_ids = _insert_parallel(T, *args, proto, int(cap))
+    else:
+        cell_start, vp_ids = _insert_serial(1, *args, proto, int(cap))
     return Grid(K, n_active, origin, h, inv_h, lo, hi, bool(dense), dims,
                 0 if dense else log2_table, cell_start, vp_ids, R_ins)
 

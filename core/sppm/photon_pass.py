@@ -32,6 +32,10 @@ from . import hashgrid
 from .update import HIST_BINS, needs_sectors
 
 PHOTON_CHUNK = 131_072
+#: _reflected sums at the touched points alone when there are fewer than
+#: P / REFLECTED_DENSE_FRACTION pairs (sorting them is then cheaper than
+#: three passes over P points).
+REFLECTED_DENSE_FRACTION = 8
 
 
 class PhotonEstimate(NamedTuple):
@@ -282,7 +286,7 @@ class PhotonPass:
         non-Lambert points' reflected flux and predicted radii (their own
         receiver lobes), the frequency photons' histograms and spectrum."""
         if g.pair_vp.size:
-            acc.Phi += self._reflected(vp, dep, g.pair_vp, g.pair_ph, vp.valid.shape[0])
+            self._reflected(vp, dep, g.pair_vp, g.pair_ph, acc.Phi)
         if self.receivers is not None:
             fr = ~np.isnan(dep["rpred"][g.pair_ph])
             pv, pp = g.pair_vp[fr], g.pair_ph[fr]
@@ -310,9 +314,10 @@ class PhotonPass:
             b = self.gather_buffers = hashgrid.GatherBuffers(P, self.sectors)
         return b
 
-    def _reflected(self, vp, dep, pv, pp, P) -> np.ndarray:
-        """(P, 3) BSDF-weighted power of the (visible point pv, photon pp)
-        pairs (K,) of the non-Lambert visible points, summed per point."""
+    def _reflected(self, vp, dep, pv, pp, Phi: np.ndarray) -> None:
+        """Add to Phi (P, 3) the BSDF-weighted power of the (visible point pv,
+        photon pp) pairs (K,) of the non-Lambert visible points, summed per
+        point (in pair order, then added: the same bits either way below)."""
         # The mesh's normals, not the ones flipped to the viewer: the
         # materials tell a rough-glass point seen from inside by wo's side of
         # ng and use 1/eta there (VisiblePoints.mesh_normals).
@@ -323,10 +328,16 @@ class PhotonPass:
         # grazing geometric normal cannot spike.
         corr = np.minimum(B.shading_correction(vp.ns[pv], vp.ng[pv], dep["wi"][pp]), 4.0)
         contrib = f * (dep["power"][pp] * corr[:, None])
-        out = np.zeros((P, 3))
+        P = Phi.shape[0]
+        if pv.size * REFLECTED_DENSE_FRACTION < P:
+            # Few pairs: sums at the touched points only, no (P, 3) array per
+            # chunk (np.unique's inverse keeps each point's pairs in order).
+            pts, inv = np.unique(pv, return_inverse=True)
+            for ch in range(3):
+                Phi[pts, ch] += np.bincount(inv, weights=contrib[:, ch], minlength=pts.size)
+            return
         for ch in range(3):
-            out[:, ch] = np.bincount(pv, weights=contrib[:, ch], minlength=P)
-        return out
+            Phi[:, ch] += np.bincount(pv, weights=contrib[:, ch], minlength=P)
 
     def _frequency_pairs(self, pv, pp, dep, hist, spec, vp, spec_set=None) -> None:
         """(visible point pv, frequency photon pp) pairs (K,): add the

@@ -30,10 +30,27 @@ test of the same counts (for a linear density) also releases frequency holds
 the photons contradict.  Every rule only
 chooses the per-pass factor between the PPM rate alpha and the hold rate
 hold_alpha, so every rule converges by the same argument.
+
+The PPM rule's update (the default: frequency holds, verified by the
+sector counts) runs as one compiled kernel per pixel range
+(:func:`_ppm_update_range`, split over the numba threads from
+PARALLEL_MIN pixels); the numpy functions below are its reference and do
+the APPM and CPPM rules.  It repeats their operations in their order:
+numpy's sum of 8 sector counts is its pairwise tree, and the gradient
+projection S @ _GRADIENT.T is written as OpenBLAS's dgemm kernel computes
+it, a chain of fused multiply-adds; tests/test_compiled_pass_stages.py
+checks the state is the same bits.
 """
 from __future__ import annotations
 
+import math
+from typing import NamedTuple
+
+import numba
 import numpy as np
+from numba import njit, prange
+
+from ..scene.camera import fma
 
 from ..frequency import spectrum as F
 from . import edges
@@ -57,6 +74,8 @@ CHI2_CRITICAL_LINEAR = 15.086
 #: The test needs an expected count of at least 5 per cell (Cochran 1952's
 #: rule for Pearson's statistic); with fewer photons it cannot reject.
 CHI2_MIN_EXPECTED = 5.0
+#: Pixels from which the compiled update splits over the numba threads.
+PARALLEL_MIN = 1 << 16
 
 
 def _gradient_patterns() -> np.ndarray:
@@ -73,6 +92,8 @@ def _gradient_patterns() -> np.ndarray:
 
 
 _GRADIENT = _gradient_patterns()
+#: |g|^2 of the two gradient patterns, as chi2_rejects computes them.
+_GRADIENT_NORM2 = np.square(_GRADIENT).sum(axis=1)
 
 
 def needs_sectors(settings, frequency: bool) -> bool:
@@ -175,6 +196,9 @@ class Radii:
         self.quantile = frequency and settings.frequency_estimator == "QUANTILE"
         self.sector_cells = SECTOR_CELLS if needs_sectors(settings, frequency) else 0
         self._edge_cap = None
+        # The PPM rule's update in _ppm_update_range (False: the numpy
+        # reference, the same state).
+        self.compiled = True
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
         """Set state.R2 of the pixels whose first visible point this is (R2 == 0)."""
@@ -228,6 +252,9 @@ class Radii:
         material), sectors (P, SECTOR_CELLS) this pass's sector counts (None
         unless :func:`needs_sectors`)."""
         rule = self.settings.radius_rule
+        if rule == "PPM" and self.compiled and (state.sectors is None) == (sectors is None):
+            self._update_compiled(state, M, Phi, r_pred, sectors)
+            return
         S = None
         if state.sectors is not None and sectors is not None:
             S = state.sectors + sectors
@@ -264,6 +291,154 @@ class Radii:
         state.held[np.nonzero(m)[0]] = held
         state.r_pred_last = r_pred
         state.M_last = M
+
+    def _update_compiled(self, state, M, Phi, r_pred, sectors) -> None:
+        """:meth:`update` of the PPM rule in ``_ppm_update_range`` (the same bits)."""
+        P = M.shape[0]
+        st = self.settings
+        none = np.zeros((P, 0))
+        a = UpdateArrays(state.N, state.R2, state.tau, state.held,
+                         none if state.sectors is None else state.sectors,
+                         np.ascontiguousarray(M, np.float64),
+                         np.ascontiguousarray(Phi, np.float64),
+                         np.ascontiguousarray(r_pred, np.float64),
+                         none if sectors is None else np.ascontiguousarray(sectors, np.float64),
+                         np.empty(P))
+        prm = np.array([st.alpha, self.floor_sq, st.hold_alpha])
+        args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2)
+        T = numba.get_num_threads()
+        if P >= PARALLEL_MIN and T > 1:
+            _ppm_update_parallel(T, *args)
+        else:
+            _ppm_update_range(0, P, *args)
+        state.r_pred_last = a.r_pred_last
+        state.M_last = M
+
+
+class UpdateArrays(NamedTuple):
+    """The compiled PPM update's arrays (P pixels).  In place: N, R2 (P,),
+    tau (P, 3), held (P,) bool, S (P, SECTOR_CELLS) the state's sector
+    counts ((P, 0): none).  In: M (P,), Phi (P, 3), r_pred (P,) the
+    predicted radius, sectors (P, SECTOR_CELLS) this pass's counts ((P, 0):
+    none).  Out: r_pred_last (P,).  All float64 but held."""
+    N: np.ndarray
+    R2: np.ndarray
+    tau: np.ndarray
+    held: np.ndarray
+    S: np.ndarray
+    M: np.ndarray
+    Phi: np.ndarray
+    r_pred: np.ndarray
+    sectors: np.ndarray
+    r_pred_last: np.ndarray
+
+
+@njit(cache=True, inline="always")
+def _np_max(a, b):
+    """np.maximum of two floats (NaN wins)."""
+    return a if (a >= b or a != a) else b
+
+
+@njit(cache=True, inline="always")
+def _np_min(a, b):
+    """np.minimum of two floats (NaN wins)."""
+    return a if (a <= b or a != a) else b
+
+
+@njit(cache=True, inline="always")
+def _sum8(x):
+    """numpy's sum of 8 float64 (its pairwise tree of 8 accumulators)."""
+    return ((x[0] + x[1]) + (x[2] + x[3])) + ((x[4] + x[5]) + (x[6] + x[7]))
+
+
+@njit(cache=True)
+def _chi2_linear_rejects(Si, grad, gnorm2, tmp):
+    """chi2_rejects(S, linear=True) of one pixel's counts Si (SECTOR_CELLS,);
+    tmp: (SECTOR_CELLS,) scratch."""
+    E = _sum8(Si) / SECTOR_CELLS
+    for k in range(SECTOR_CELLS):
+        d = Si[k] - E
+        tmp[k] = d * d
+    r2 = _sum8(tmp)
+    q = 0.0
+    for j in range(2):
+        pj = Si[0] * grad[j, 0]
+        for k in range(1, SECTOR_CELLS):
+            pj = fma(Si[k], grad[j, k], pj)
+        q = q + pj * pj / gnorm2[j] if j else pj * pj / gnorm2[j]
+    r2 = r2 - q
+    if E == 0.0:
+        return False                # X^2 is NaN or inf but E < CHI2_MIN_EXPECTED
+    return E >= CHI2_MIN_EXPECTED and r2 / E > CHI2_CRITICAL_LINEAR
+
+
+@njit(cache=True)
+def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2):
+    """Radii.update with the PPM rule for pixels i0..i1-1: the verified
+    holds' chi-square test, then :func:`ppm_radius_update` (its operations
+    and order), the sector counts scaled with N; prm = (alpha, R2_floor,
+    hold_alpha)."""
+    alpha, floor_sq, hold_alpha = prm[0], prm[1], prm[2]
+    with_S = a.S.shape[1] == SECTOR_CELLS
+    Si = np.empty(SECTOR_CELLS)
+    tmp = np.empty(SECTOR_CELLS)
+    for i in range(i0, i1):
+        r = a.r_pred[i]
+        if not frequency or math.isinf(r):
+            r = np.nan
+        a.r_pred_last[i] = r
+        if with_S:
+            for k in range(SECTOR_CELLS):
+                Si[k] = a.S[i, k] + a.sectors[i, k]
+            if _chi2_linear_rejects(Si, grad, gnorm2, tmp):
+                r = np.nan
+        held = False
+        M = a.M[i]
+        if M > 0:
+            N, R2 = a.N[i], a.R2[i]
+            p0, p1, p2 = a.Phi[i, 0], a.Phi[i, 1], a.Phi[i, 2]
+            active = (np.isfinite(p0) and np.isfinite(p1) and np.isfinite(p2)
+                      and p0 >= 0 and p1 >= 0 and p2 >= 0 and R2 > 0 and np.isfinite(R2))
+            if active:
+                f_ppm = (N + alpha * M) / (N + M)
+                f = f_ppm
+                freq = np.isfinite(r)
+                f_lim = 0.0
+                if freq:
+                    rr = _np_max(r, 0.0)
+                    f_lim = _np_min(rr * rr / R2, 1.0)
+                if hold_alpha < 1.0:
+                    f_lim = _np_min(f_lim, (N + hold_alpha * M) / (N + M))
+                held = freq and f_lim > f_ppm
+                f = _np_max(f, f_lim)
+                f = _np_max(f, _np_min(floor_sq / R2, 1.0))
+                if f == f_ppm:
+                    a.N[i] = N + alpha * M
+                else:
+                    a.N[i] = (N + M) * f
+                R2n = R2 * f
+                a.R2[i] = R2n
+                for c in range(3):
+                    a.tau[i, c] = (a.tau[i, c] + a.Phi[i, c]) * f
+            else:
+                R2n = R2
+            if with_S:
+                # The counts shrink with the disc, as N does (N' = (N + M) f).
+                fs = R2n / R2 if R2 > 0 else 1.0
+                for k in range(SECTOR_CELLS):
+                    Si[k] *= fs
+        a.held[i] = held
+        if with_S:
+            for k in range(SECTOR_CELLS):
+                a.S[i, k] = Si[k]
+
+
+@njit(cache=True, parallel=True)
+def _ppm_update_parallel(n_chunks, a, prm, frequency, grad, gnorm2):
+    P = a.M.shape[0]
+    for c in prange(n_chunks):
+        _ppm_update_range(c * P // n_chunks, (c + 1) * P // n_chunks, a, prm, frequency, grad,
+                          gnorm2)
 
 
 def radius_floor_sq(D):

@@ -24,6 +24,9 @@ from .. import lights as Lt
 from .. import materials as B
 from ..mathutil import dot as _dot
 
+#: Camera rays from which a wavefront's Embree call is split in two threads.
+INTERSECT_SPLIT_MIN = 1 << 15
+
 
 @dataclass
 class VisiblePoints:
@@ -405,7 +408,18 @@ def _intersect(accel, o, d, tmax):
         return (np.full(K, -1, np.int32), np.zeros(K, np.float32), np.zeros(K, np.float32),
                 np.full(K, np.inf, np.float32))
     f32 = accel._f32
-    r = accel._scene.run(f32(o), f32(d), dists=f32(np.minimum(tmax, 3e37)), output=1)
+    o32, d32, t32 = f32(o), f32(d), f32(np.minimum(tmax, 3e37))
+    from .photons import _pool, _threads
+    if K >= INTERSECT_SPLIT_MIN and _threads() > 1:
+        # Two halves in two threads (EmbreeScene.run releases the GIL); each
+        # ray's hit does not depend on the split.
+        h = K // 2
+        f1 = _pool().submit(accel._scene.run, o32[h:], d32[h:], dists=t32[h:], output=1)
+        r0 = accel._scene.run(o32[:h], d32[:h], dists=t32[:h], output=1)
+        r1 = f1.result()
+        r = {k: np.concatenate([r0[k], r1[k]]) for k in ("primID", "u", "v", "tfar")}
+    else:
+        r = accel._scene.run(o32, d32, dists=t32, output=1)
     return r["primID"].astype(np.int32, copy=False), r["u"], r["v"], r["tfar"]
 
 

@@ -1,0 +1,248 @@
+"""The compiled per-pixel stages of a pass (issue 17) against their references.
+
+What is asserted, and why the tolerances are zero:
+- Camera rays (core.scene.camera ``_pinhole_range``) equal
+  ``CameraModel.generate(..., compiled=False)`` bit for bit: the same
+  operations in the same order, and the rotation written as the fused
+  multiply-adds of OpenBLAS's dgemm kernel (every x86-64 with FMA).
+  Perspective with shift and a non-square pixel aspect, orthographic, a
+  filter of width 0; the one-thread and the split (PARALLEL_MIN) paths; the
+  thin lens takes the numpy path in both.
+- The grid build (core.sppm.hashgrid ``_active_extent``, ``_bbox_cells``,
+  ``_insert_parallel``: each VP's slots by VP ranges, then a counting sort by
+  slot ranges) gives the grid of the numpy extent and serial two-pass
+  insertion it replaced (tests/oracle_grid.py) exactly (minima, maxima,
+  the same per-VP arithmetic, integer counts: no rounding): a dense
+  grid, hash tables small enough that most cells collide, a VP whose sphere
+  covers more than ``_DEDUP_SCAN`` slots of a small table (the sort path of
+  the deduplication), inactive and non-finite VPs, on one thread and split
+  (PARALLEL_MIN_VPS, lowered for the test).
+- The PPM rule's update (core.sppm.update ``_ppm_update_range``) leaves the
+  numpy path's state bit for bit: the same operations in the same order,
+  numpy's pairwise sum of the 8 sector counts and OpenBLAS's FMA chain for
+  the gradient projection written out.  Rows with no photons, negative or
+  NaN flux, no radius yet, infinite, NaN, negative and tiny predicted
+  radii (the floor), sector counts that the linear test rejects and
+  accepts; with and without frequency photons, sector counts and the hold
+  rate; one thread and split (PARALLEL_MIN).
+- The film's image, radius and radius in pixels (core.sppm.film
+  ``_film_range``) equal ``Film(..., compiled=False)``'s bit for bit (the
+  same operations in the same order; float32 rounding of the same float64):
+  pixels without a radius, with an infinite sum (set to 0), a transparent
+  film's alpha, perspective and orthographic footprints, every AOV of the
+  state; one thread and split (PARALLEL_MIN).
+- The glossy pairs' reflected flux summed at the touched points alone
+  (photon_pass.REFLECTED_DENSE_FRACTION) gives the dense per-point sums'
+  image bit for bit: each point's pairs are summed in the same order.
+- The camera pass's Embree call split in two threads
+  (visible_points.INTERSECT_SPLIT_MIN) gives the one-call visible points
+  bit for bit (each ray's hit is its own).
+"""
+from __future__ import annotations
+
+
+import numpy as np
+import pytest
+
+from core.scene import camera as C
+from core.render import Renderer
+from core.settings import RenderSettings
+from core.sppm import visible_points as V
+from core.warmup import warmup_scene
+
+import oracle_grid
+from core.sppm import film as Fm
+from core.sppm import photon_pass as PP
+from core.sppm import hashgrid as Hg
+from core.sppm import update as U
+from core.sppm.state import PixelState
+from core.scene.camera import CameraModel, FilterSampler
+from core.scene.model import Camera
+
+
+def _camera(kind, W, H, aperture=0.0):
+    M = np.array([[0.8, 0.0, 0.6, 0.3], [0.6, 0.0, -0.8, -1.9], [0.0, 1.0, 0.0, 0.5],
+                  [0, 0, 0, 1]], float)
+    return Camera(kind=kind, matrix_world=M, lens=35.0, sensor_width=36.0, resolution=(W, H),
+                  clip_start=0.01, clip_end=100.0, shift_x=0.1, shift_y=-0.05,
+                  pixel_aspect=(1.0, 1.3), ortho_scale=2.5, aperture_radius=aperture,
+                  focus_distance=2.0)
+
+
+@pytest.mark.parametrize("kind", ["PERSP", "ORTHO"])
+@pytest.mark.parametrize("K", [1000, C.PARALLEL_MIN + 7])
+@pytest.mark.parametrize("width", [1.5, 0.0])
+def test_compiled_camera_rays_equal_numpy(kind, K, width):
+    cm, fs = CameraModel(_camera(kind, 300, 250)), FilterSampler(width)
+    rng = np.random.default_rng(K)
+    px = rng.integers(0, 300, K)
+    py = rng.integers(0, 250, K).astype(np.float64)
+    u = rng.random((K, 4))
+    a, dz_a = cm.generate(px, py, u[:, :2], u[:, 2:], fs, compiled=False)
+    b, dz_b = cm.generate(px, py, u[:, :2], u[:, 2:], fs)
+    for x, y in ((a.o, b.o), (a.d, b.d), (a.t_max, b.t_max), (dz_a, dz_b)):
+        assert x.dtype == y.dtype and np.array_equal(x, y)
+    assert np.ptp(b.d[:, 0]) > 0.1 or kind == "ORTHO"
+
+
+def test_thin_lens_takes_the_numpy_path():
+    cm, fs = CameraModel(_camera("PERSP", 64, 48, aperture=0.05)), FilterSampler(1.5)
+    rng = np.random.default_rng(2)
+    px, py, u = rng.integers(0, 64, 500), rng.integers(0, 48, 500), rng.random((500, 4))
+    a, _ = cm.generate(px, py, u[:, :2], u[:, 2:], fs, compiled=False)
+    b, _ = cm.generate(px, py, u[:, :2], u[:, 2:], fs)
+    assert np.array_equal(a.o, b.o) and np.array_equal(a.d, b.d)
+    assert np.ptp(a.o[:, 0]) > 0.01          # the lens spreads the origins
+
+
+def _vps(K, seed):
+    """K visible points on three faces of a unit box (the Cornell box's
+    kind of distribution), radii around 1/sqrt(K), a few inactive or NaN."""
+    rng = np.random.default_rng(seed)
+    p = rng.random((K, 3))
+    face = rng.integers(0, 3, K)
+    p[np.arange(K), face] = 0.0
+    R = rng.uniform(0.5, 1.5, K) / np.sqrt(K)
+    active = rng.random(K) > 0.05
+    p[:3] = np.nan
+    R[3:6] = np.inf
+    return p, R, active
+
+
+@pytest.mark.parametrize("K,layout,log2_table", [
+    (3000, "auto", None), (3000, "dense", None), (3000, "hash", None),
+    (3000, "hash", 6), (9000, "auto", None), (9000, "hash", 9)])
+def test_parallel_grid_build_equals_serial(K, layout, log2_table, monkeypatch):
+    monkeypatch.setattr(Hg, "PARALLEL_MIN_VPS", 4096)    # 9000 VPs: split
+    p, R, active = _vps(K, K)
+    if log2_table == 9:
+        R[10] = 40.0 / np.sqrt(K)         # > _DEDUP_SCAN of its cells share 512 slots
+    a = oracle_grid.build_grid_reference(p, R, active, layout=layout, log2_table=log2_table)
+    for parallel in (True, False):
+        b = Hg.build_grid(p, R, active, layout=layout, log2_table=log2_table, parallel=parallel)
+        for f in ("K", "n_active", "h", "inv_h", "dense", "log2_table"):
+            assert getattr(a, f) == getattr(b, f), f
+        for f in ("origin", "lo", "hi", "dims", "cell_start", "vp_ids", "R_ins"):
+            x, y = getattr(a, f), getattr(b, f)
+            assert x.dtype == y.dtype and np.array_equal(x, y), f
+    assert a.n_entries > 5 * a.n_active
+    if log2_table == 9:
+        big = np.flatnonzero(a.vp_ids == 10).size
+        assert Hg._DEDUP_SCAN < big <= 512
+
+
+def _update_case(P, seed, sectors):
+    """A state after some passes and one pass's photons, P pixels."""
+    rng = np.random.default_rng(seed)
+    st = PixelState.zeros(P, sector_cells=Hg.SECTOR_CELLS if sectors else 0)
+    st.R2[:] = rng.uniform(1e-6, 1e-4, P) * (rng.random(P) > 0.05)
+    st.N[:] = rng.uniform(0, 500, P)
+    st.tau[:] = rng.uniform(0, 2, (P, 3))
+    M = rng.poisson(40, P).astype(float) * (rng.random(P) > 0.1)
+    Phi = rng.uniform(0, 0.1, (P, 3)) * M[:, None]
+    Phi[rng.random(P) < 0.02, 1] = -1e-3
+    Phi[rng.random(P) < 0.02, 2] = np.nan
+    r_pred = np.sqrt(st.R2) * rng.uniform(0.3, 1.5, P)
+    pick = rng.random(P)
+    r_pred[pick < 0.2] = np.inf
+    r_pred[(pick > 0.2) & (pick < 0.25)] = np.nan
+    r_pred[(pick > 0.25) & (pick < 0.3)] *= -1.0
+    r_pred[(pick > 0.3) & (pick < 0.35)] = 1e-12           # below the floor
+    S_pass = None
+    if sectors:
+        st.sectors[:] = rng.poisson(30, (P, Hg.SECTOR_CELLS)) * rng.uniform(0.2, 1, (P, 1))
+        ramp = np.r_[np.linspace(0.2, 1.8, 4), np.linspace(0.0, 2.0, 4)]
+        steep = rng.random(P) < 0.3                     # more than a gradient: rejected
+        st.sectors[steep] *= ramp
+        S_pass = rng.multinomial(1, np.full(Hg.SECTOR_CELLS, 1 / Hg.SECTOR_CELLS),
+                                 (P, 40)).sum(axis=1).astype(float)
+        S_pass *= (M / 40.0)[:, None]
+    return st, M, Phi, r_pred, S_pass
+
+
+@pytest.mark.parametrize("P", [3000, U.PARALLEL_MIN + 3])
+@pytest.mark.parametrize("frequency,sectors,hold_alpha", [
+    (True, True, 0.9), (True, False, 0.9), (True, True, 1.0), (False, False, 0.9)])
+def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha):
+    settings = RenderSettings(hold_alpha=hold_alpha, verify_holds=sectors)
+    radii = U.Radii(settings, None, 10.0, frequency, None, 1, P)
+    radii.floor_sq = 1e-9                                # reached by the tiny predictions
+    ref, M, Phi, r_pred, S_pass = _update_case(P, P, sectors)
+    new = PixelState(**{k: v.copy() for k, v in ref.state_dict().items()})
+    radii.compiled = False
+    radii.update(ref, M, Phi, r_pred, S_pass)
+    radii.compiled = True
+    radii.update(new, M, Phi, r_pred, S_pass)
+    for f in ("N", "R2", "tau", "held", "r_pred_last", "M_last", "sectors"):
+        x, y = getattr(ref, f), getattr(new, f)
+        if x is None:
+            assert y is None
+            continue
+        assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=True), f
+    if frequency:
+        assert 0.05 < ref.held.mean() < 0.6
+    if sectors:                # the linear test vetoes some holds and not others
+        vetoed = U.chi2_rejects(ref.sectors, linear=True)
+        assert 0.05 < vetoed.mean() < 0.6
+
+
+def test_split_camera_intersect_equals_one_call(monkeypatch):
+    res = 192                                            # 192^2 > INTERSECT_SPLIT_MIN
+    assert res * res > V.INTERSECT_SPLIT_MIN
+    r = Renderer(warmup_scene(res, ("POINT", "AREA")), RenderSettings(max_passes=1, seed=1),
+                 log=lambda _m: None)
+    vp_s, L_s = r.camera_pass(np.random.default_rng(5))
+    monkeypatch.setattr(V, "INTERSECT_SPLIT_MIN", 1 << 40)
+    vp_1, L_1 = r.camera_pass(np.random.default_rng(5))
+    assert vp_1.valid.mean() > 0.5
+    for f in ("valid", "p", "ng", "ns", "wo", "mat", "colors", "beta", "depth"):
+        assert np.array_equal(getattr(vp_s, f), getattr(vp_1, f)), f
+    assert np.array_equal(L_s, L_1)
+
+
+@pytest.mark.parametrize("P", [60 * 50, 260 * 260])
+@pytest.mark.parametrize("kind,transparent", [("PERSP", False), ("ORTHO", True)])
+def test_compiled_film_equals_numpy(P, kind, transparent):
+    assert (P >= Fm.PARALLEL_MIN) == (P == 260 * 260)
+    W = 60 if P < Fm.PARALLEL_MIN else 260
+    H = P // W
+    cam = _camera(kind, W, H)
+    st, M, Phi, r_pred, _ = _update_case(P, 7, False)
+    rng = np.random.default_rng(8)
+    st.L_sum[:] = rng.uniform(0, 3, (P, 3))
+    st.L_sum[5, 1] = np.inf
+    st.depth[:] = rng.uniform(0.5, 4, P)
+    st.r_pred_last[:] = r_pred
+    scene = type("S", (), {"film_transparent": transparent, "camera": cam})()
+    settings = RenderSettings(aov_radius=True, aov_predicted_radius=True,
+                              aov_photon_count=True, aov_held=True)
+    out = []
+    for compiled in (False, True):
+        film = Fm.Film(settings, CameraModel(cam), H, W, scene, compiled=compiled)
+        film.coverage[:] = rng.uniform(0, 3, P) if not out else out[0][1]
+        film.samples = 3
+        out.append((film(st, 4, 10**6, 1.0), film.coverage.copy()))
+    a, b = out[0][0], out[1][0]
+    assert a.image.dtype == b.image.dtype and np.array_equal(a.image, b.image)
+    assert a.aovs.keys() == b.aovs.keys() and len(a.aovs) == 5
+    for k in a.aovs:
+        assert np.array_equal(a.aovs[k], b.aovs[k]), k
+    assert a.mean_radius_px == b.mean_radius_px and a.held_fraction == b.held_fraction
+    assert a.image[..., :3].reshape(P, 3)[5, 1] == 0.0
+    assert (np.ptp(a.image[..., 3]) > 0.5) == transparent
+
+
+def test_sparse_reflected_sums_equal_dense(monkeypatch):
+    from test_gather_buffers import _floor_scene
+    st = RenderSettings(max_passes=2, photons_per_pass=6000, seed=4, aov_photon_count=True)
+    calls = []
+    images = []
+    for fraction in (0, 10**9):                 # always dense, always sparse
+        monkeypatch.setattr(PP, "REFLECTED_DENSE_FRACTION", fraction)
+        r = Renderer(_floor_scene(), st, log=lambda _m: None)
+        f = r.photon_pass._reflected
+        r.photon_pass._reflected = lambda vp, dep, pv, pp, Phi: (calls.append(pv.size),
+                                                                f(vp, dep, pv, pp, Phi))
+        images.append(r.run().image)
+    assert min(calls) > 100                      # glossy pairs in every chunk
+    assert images[0].max() > 0 and np.array_equal(images[0], images[1])
