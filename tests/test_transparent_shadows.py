@@ -356,8 +356,7 @@ def test_path_mis_through_a_cutout_under_an_area_light(tmp_path, monkeypatch):
             out.append(r.run().image[..., :3].astype(np.float64)[SHADOW].mean(axis=0))
         return np.array(out)                                     # (seeds, 3)
     new = means()
-    c = [_cycles(sc, i, tmp_path / f"c{i}.exr", CYCLES_SAMPLES)[SHADOW].mean(axis=0)
-         for i in range(2)]
+    c = _alpha_cycles(sc, tmp_path)
     mref = (c[0] + c[1]) / 2
     with monkeypatch.context() as m:
         _old_path_mis(m)
@@ -377,19 +376,68 @@ def test_path_mis_through_a_cutout_under_an_area_light(tmp_path, monkeypatch):
 
 SEEDS = (1, 2, 3, 4)
 SPREAD_FACTOR = 0.25
+_CYCLES = {}
+
+
+def _alpha_cycles(sc, tmp_path):
+    """Cycles' shadow mean (3,) of the alpha scene, two seeds (computed once
+    per session: the PATH and COMBINED tests compare with the same)."""
+    if "alpha" not in _CYCLES:
+        from test_shading_nodes import _cycles
+        _CYCLES["alpha"] = [_cycles(sc, i, tmp_path / f"c{i}.exr", CYCLES_SAMPLES)[SHADOW]
+                            .mean(axis=0) for i in range(2)]
+    return _CYCLES["alpha"]
+
+
+def test_combined_through_a_cutout_under_an_area_light(tmp_path):
+    """COMBINED on the scene of test_path_mis_through_a_cutout_under_an_area_light:
+    a transparent crossing is no vertex on either side (camera paths as
+    PATH; light paths keep their running ratios and take z_1 past the
+    crossings, photons that only crossed the sheet are light tracing's and
+    next-event estimation's, not merging's), so PT, NEE and light tracing
+    share the light through the holes with weights summing to 1: the
+    shadow mean of four seeds agrees with Cycles within 3x the seed noise
+    plus 2 %."""
+    pytest.importorskip("bpy")
+    from test_shading_nodes import _export
+
+    from fppm.core.render import Renderer
+    from fppm.core.settings import RenderSettings
+    sc = _sheet_scene("alpha")
+    scene, _lines = _export()
+    new = []
+    for seed in SEEDS:
+        st = RenderSettings(max_passes=4, photons_per_pass=2000, seed=seed,
+                            use_frequency=False, max_bounces=4, integrator="COMBINED",
+                            camera_samples=1)
+        r = Renderer(scene, st, log=lambda s: None)
+        assert "transparent shadows" in r.plan.lines()[0]
+        new.append(r.run().image[..., :3].astype(np.float64)[SHADOW].mean(axis=0))
+    new = np.array(new)
+    c = _alpha_cycles(sc, tmp_path)
+    mref = (c[0] + c[1]) / 2
+    h = len(SEEDS) // 2
+    noise = (np.abs(new[:h].mean(axis=0) - new[h:].mean(axis=0)) + np.abs(c[0] - c[1])) / 2
+    bound = 3.0 * noise + 0.02 * mref
+    print(f"alpha (COMBINED, area light): shadow mean {new.mean(axis=0).round(4)} vs Cycles "
+          f"{mref.round(4)} (|diff| {(np.abs(new.mean(axis=0) - mref) / mref).round(4)}, "
+          f"bound {(bound / mref).round(4)}); per seed {(new[:, 0] / mref[0] - 1).round(3)}")
+    assert np.all(np.abs(new.mean(axis=0) - mref) < bound), (new, mref, bound)
 
 
 
 
-@pytest.mark.parametrize("shape", ["SQUARE", "DISK"])
-def test_path_through_a_tinted_sheet_under_an_area_light(shape):
+@pytest.mark.parametrize("shape,integrator", [("SQUARE", "PATH"), ("DISK", "PATH"),
+                                               ("SQUARE", "COMBINED")])
+def test_path_through_a_tinted_sheet_under_an_area_light(shape, integrator):
     """test_a_tinted_sheet_between_light_camera_and_floor with an area light,
     which a BSDF ray can hit (MIS), and PATH: the image is c^2 times the bare
     plane's closed form (Lambert's contour formula; the disc as a 256-gon).
     The weights of the light sample and of the BSDF ray that crossed the
     sheet sum to 1 only if the emitter's density is taken at the floor: its
     solid angle (square) and its distance (disc: d^2 / (A cos)) from there,
-    not from the sheet."""
+    not from the sheet.  COMBINED: the same with light tracing's splats,
+    whose light paths take the floor as z_1 (the crossing is no vertex)."""
     from analytic_scenes import lambert, look_down_ortho, pixel_centres_ortho, polygon_irradiance
 
     from core.render import Renderer
@@ -403,8 +451,9 @@ def test_path_through_a_tinted_sheet_under_an_area_light(shape):
     mats = [lambert("floor", 0.8), Material("sheet", (Lobe(TRANSPARENT, color=tuple(c)),))]
     scene = make_scene(tris, mats, [light], look_down_ortho(3.0, 2.0, 16), tri_mat=[0, 0, 1, 1])
     st = RenderSettings(max_passes=4, photons_per_pass=100, seed=3, use_frequency=False,
-                        max_bounces=4, integrator="PATH", camera_samples=4)
+                        max_bounces=4, integrator=integrator, camera_samples=4)
     r = Renderer(scene, st, log=lambda s: None)
+    assert "transparent shadows" in r.plan.lines()[0]
     img = r.run().image[..., :3].reshape(-1, 3).astype(np.float64)
     x, y = pixel_centres_ortho(scene)
     if shape == "SQUARE":
@@ -417,5 +466,5 @@ def test_path_through_a_tinted_sheet_under_an_area_light(shape):
     pts = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
     want = (0.8 / np.pi * P / (np.pi * area) * polygon_irradiance(pts, poly))[:, None] * c * c
     ratio = img.mean(axis=0) / want.mean(axis=0)
-    print(shape, "area light, PATH: image / (c^2 bare plane):", ratio.round(4))
+    print(shape, f"area light, {integrator}: image / (c^2 bare plane):", ratio.round(4))
     np.testing.assert_allclose(ratio, 1.0, atol=0.01)

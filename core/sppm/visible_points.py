@@ -173,6 +173,14 @@ class CameraPass:
         # A delta chain never returns to its first hit: the point is the
         # first hit's exactly when no delta vertex came before it.
         vp.through_delta = vp.valid & np.any(vp.p != vp.first.p, axis=1)
+        # Transparent crossings are no vertex (transparent shadows, photon
+        # merging's partition): a point still on the camera ray's line (up to
+        # the crossings' spawn offsets) was reached through them only.
+        w = vp.p - rays.o
+        off = np.linalg.norm(np.cross(w, rays.d), axis=1)
+        on_line = ((np.einsum("ij,ij->i", w, rays.d) > 0)
+                   & (off <= 1e-4 * (np.linalg.norm(w, axis=1) + np.linalg.norm(rays.o, axis=1))))
+        vp.through_delta &= ~on_line
         return vp, L
 
     def _seen_along(self, depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
