@@ -18,12 +18,14 @@ Georgiev et al. 2012; docs/integrators.md).  Like Cycles' path tracer:
   core.lights.pdf_direct and p_bsdf from core.materials.pdf_bsdf; emission
   seen from the camera or after a delta scattering has weight 1 (the other
   strategy cannot produce it);
-- transparent shadows (core.lights.shadow attached, not COMBINED): as in
-  Cycles a transparent crossing (a Transparent lobe's sample) is no
-  scattering vertex for MIS: the ray keeps the BSDF pdf, position and
-  normal of the vertex before it, the emitter's distance is measured from
-  there, and the light sample's shadow ray passes transparent surfaces for
-  every light;
+- transparent shadows (core.lights.shadow attached): as in Cycles a
+  transparent crossing (a Transparent lobe's sample) is no scattering
+  vertex for MIS: the ray keeps the BSDF pdf, position and normal of the
+  vertex before it, the emitter's distance is measured from there, and the
+  light sample's shadow ray passes transparent surfaces for every light;
+  COMBINED's camera-side state and merging's partition go on unchanged
+  too (core.integrators.combined.CameraMIS: ``first``, the rays still on
+  the camera ray's line);
 - ``max_bounces`` counts bounces as Cycles' Total: light samples at vertices
   0..max_bounces (vertex 0 = the camera ray's hit, so max_bounces = 0 is
   direct light only), and the emission found by the last vertex's BSDF ray;
