@@ -342,32 +342,15 @@ def test_path_mis_through_a_cutout_under_an_area_light(tmp_path, monkeypatch):
     rule's (crossing = delta vertex, light through the holes found by BSDF
     rays alone)."""
     pytest.importorskip("bpy")
-    from test_shading_nodes import _cycles, _export
-
-    from fppm.core.render import Renderer
-    from fppm.core.settings import RenderSettings
+    from test_shading_nodes import _export
     sc = _sheet_scene("alpha")
     scene, _lines = _export()
 
-    def means():
-        out = []
-        for seed in SEEDS:
-            st = RenderSettings(max_passes=8, photons_per_pass=2000, seed=seed,
-                                use_frequency=False, max_bounces=4, integrator="PATH",
-                                camera_samples=1)
-            r = Renderer(scene, st, log=lambda s: None)
-            assert "transparent shadows" in r.plan.lines()[0]
-            out.append(r.run().image[..., :3].astype(np.float64)[SHADOW].mean(axis=0))
-        return np.array(out)                                     # (seeds, 3)
-    new = means()
-    c = _alpha_cycles(sc, tmp_path)
-    mref = (c[0] + c[1]) / 2
+    new = _shadow_means(scene, "PATH", 8)
+    mref, bound = _cycles_bound(new, _alpha_cycles(sc, tmp_path))
     with monkeypatch.context() as m:
         _old_path_mis(m)
-        old = means()
-    h = len(SEEDS) // 2
-    noise = (np.abs(new[:h].mean(axis=0) - new[h:].mean(axis=0)) + np.abs(c[0] - c[1])) / 2
-    bound = 3.0 * noise + 0.02 * mref
+        old = _shadow_means(scene, "PATH", 8)
     spread, spread_old = (np.ptp(x, axis=0) / mref for x in (new, old))
     print(f"alpha (PATH, area light): shadow mean {new.mean(axis=0).round(4)} vs Cycles "
           f"{mref.round(4)} (|diff| {(np.abs(new.mean(axis=0) - mref) / mref).round(4)}, "
@@ -381,6 +364,30 @@ def test_path_mis_through_a_cutout_under_an_area_light(tmp_path, monkeypatch):
 SEEDS = (1, 2, 3, 4)
 SPREAD_FACTOR = 0.25
 _CYCLES = {}
+
+
+def _shadow_means(scene, integrator, passes):
+    """(seeds, 3) the shadow's mean radiance of the exported scene, one row per seed."""
+    from fppm.core.render import Renderer
+    from fppm.core.settings import RenderSettings
+    out = []
+    for seed in SEEDS:
+        st = RenderSettings(max_passes=passes, photons_per_pass=2000, seed=seed,
+                            use_frequency=False, max_bounces=4, integrator=integrator,
+                            camera_samples=1)
+        r = Renderer(scene, st, log=lambda s: None)
+        assert "transparent shadows" in r.plan.lines()[0]
+        out.append(r.run().image[..., :3].astype(np.float64)[SHADOW].mean(axis=0))
+    return np.array(out)
+
+
+def _cycles_bound(new, c):
+    """(Cycles' mean, the bound on |new's mean - it|): 3x the seed noise
+    (half the seeds against the other half, and Cycles' two) plus 2 %."""
+    mref = (c[0] + c[1]) / 2
+    h = len(SEEDS) // 2
+    noise = (np.abs(new[:h].mean(axis=0) - new[h:].mean(axis=0)) + np.abs(c[0] - c[1])) / 2
+    return mref, 3.0 * noise + 0.02 * mref
 
 
 def _alpha_cycles(sc, tmp_path):
@@ -404,25 +411,10 @@ def test_combined_through_a_cutout_under_an_area_light(tmp_path):
     plus 2 %."""
     pytest.importorskip("bpy")
     from test_shading_nodes import _export
-
-    from fppm.core.render import Renderer
-    from fppm.core.settings import RenderSettings
     sc = _sheet_scene("alpha")
     scene, _lines = _export()
-    new = []
-    for seed in SEEDS:
-        st = RenderSettings(max_passes=4, photons_per_pass=2000, seed=seed,
-                            use_frequency=False, max_bounces=4, integrator="COMBINED",
-                            camera_samples=1)
-        r = Renderer(scene, st, log=lambda s: None)
-        assert "transparent shadows" in r.plan.lines()[0]
-        new.append(r.run().image[..., :3].astype(np.float64)[SHADOW].mean(axis=0))
-    new = np.array(new)
-    c = _alpha_cycles(sc, tmp_path)
-    mref = (c[0] + c[1]) / 2
-    h = len(SEEDS) // 2
-    noise = (np.abs(new[:h].mean(axis=0) - new[h:].mean(axis=0)) + np.abs(c[0] - c[1])) / 2
-    bound = 3.0 * noise + 0.02 * mref
+    new = _shadow_means(scene, "COMBINED", 4)
+    mref, bound = _cycles_bound(new, _alpha_cycles(sc, tmp_path))
     print(f"alpha (COMBINED, area light): shadow mean {new.mean(axis=0).round(4)} vs Cycles "
           f"{mref.round(4)} (|diff| {(np.abs(new.mean(axis=0) - mref) / mref).round(4)}, "
           f"bound {(bound / mref).round(4)}); per seed {(new[:, 0] / mref[0] - 1).round(3)}")
