@@ -159,16 +159,9 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
     plan.world_emission = bool(np.any(np.asarray(scene.world_color) > 0))
     # Shadow rays follow through Transparent BSDFs and alpha cut-outs; without
     # any, they stay one occlusion test (core.lights.shadow).
-    clear = bool(transparent_materials(mtab).any()) if mtab.kind.size else False
-    plan.transparent_shadows = clear and settings.integrator != "COMBINED"
-    if clear and not plan.transparent_shadows:
-        # Its MIS weights (core.integrators.combined) count a transparent
-        # crossing as a delta vertex that no connection passes.  PATH skips
-        # the crossing in its MIS (path_tracer._trace); here the light
-        # subpaths' weights, camera connections and photons would have to
-        # skip it too, or the strategies' weights no longer sum to 1.
-        plan.left_out.append(("transparent shadows", "integrator COMBINED weighs a "
-                                                     "transparent crossing as a delta vertex"))
+    # Every integrator: a transparent crossing is no vertex of the MIS
+    # weights (PATH, COMBINED's both sides) nor of merging's partition.
+    plan.transparent_shadows = bool(transparent_materials(mtab).any()) if mtab.kind.size else False
     kinds = sorted({lt.kind for lt in scene.lights})
     if np.any(mtab.emission.max(axis=1) > 0):
         kinds.append("MESH")

@@ -18,7 +18,9 @@ import numpy as np
 from .. import lights as Lt
 from .. import materials as B
 from ..accel import REL_OFFSET, intersect_f32, surface_point
+from ..lights import shadow
 from ..lights.pdf import _selection_probability
+from ..lights.shadow import transparent_materials
 from ..lights.table import AREA, MESH
 from ..mathutil import dot as _dot
 from . import light_kernels as LK
@@ -30,6 +32,18 @@ from .light_tracer import LightTracer
 
 def _finite(w):
     return np.where(np.isfinite(w), w, 0.0)
+
+
+def _y1(depth):
+    """Whether vertices are y_1: depth the vertex index (int, every row:
+    depth == 0) or (K,) bool per row (PathTracer with transparent crossings,
+    which are no vertex: only crossings since the lens)."""
+    return np.bool_(depth == 0) if np.ndim(depth) == 0 else np.asarray(depth, bool)
+
+
+def _rows(flag, i):
+    """flag (a bool or an array) at rows i."""
+    return flag if np.ndim(flag) == 0 else flag[i]
 
 
 def _shrink(w, r):
@@ -65,29 +79,35 @@ class CameraMIS:
         return np.full(d.shape[0], self.ratio)
 
     def at_hit(self, Qs, pf, ih, d, ng, t, depth):
-        """(Q, c) at the vertices hit by rays ih at distance t."""
+        """(Q, c) at the vertices hit by rays ih at distance t from the vertex
+        they left (past transparent crossings, which are no vertex); depth:
+        as :func:`_y1` (per hit: the hit is y_1)."""
+        first = _y1(depth)
         cos = np.abs(_dot(ng, d))
-        if depth == 0:
+        if np.all(first):
             return Qs, self.c1(d, cos, t)
         with np.errstate(divide="ignore", invalid="ignore"):
-            return Qs / (t * t), pf[ih] * cos / (t * t)
+            Q, c = Qs / (t * t), pf[ih] * cos / (t * t)
+        if np.any(first):
+            Q, c = np.where(first, Qs, Q), np.where(first, self.c1(d, cos, t), c)
+        return Q, c
 
     def continued(self, v, c, wi, pdf, is_delta, depth):
         """(Qs, pf) of the rays leaving the vertices v[c] along wi: Q times
         the light-side density pr at the vertex (from the second vertex on;
         1 after a delta) times |cos| / c; Q = 0 after a delta at the first
-        vertex (light tracing cannot connect there)."""
+        vertex (light tracing cannot connect there).  depth: as :func:`_y1`
+        (per vertex of v)."""
         pr = np.ones(c.size)
-        if depth >= 1:
-            nd = np.nonzero(~is_delta)[0]
-            if nd.size:
-                i = c[nd]
-                pr[nd] = B.pdf_bsdf(self.mtab, v.mat[i], v.colors[i], v.ns[i], v.ng[i],
-                                    wi[nd], v.wo[i], subset="all")
+        fc = np.broadcast_to(_y1(depth), (v.p.shape[0],))[c]
+        nd = np.nonzero(~is_delta & ~fc)[0]
+        if nd.size:
+            i = c[nd]
+            pr[nd] = B.pdf_bsdf(self.mtab, v.mat[i], v.colors[i], v.ns[i], v.ng[i],
+                                wi[nd], v.wo[i], subset="all")
         with np.errstate(divide="ignore", invalid="ignore"):
             Q = _finite(v.Q[c] * pr * np.abs(_dot(v.ng[c], wi)) / v.c[c])
-        if depth == 0:
-            Q = np.where(is_delta, 0.0, Q)
+        Q = np.where(is_delta & fc, 0.0, Q)
         return Q, np.where(is_delta, 1.0, pdf)
 
     def nee_compiled(self, w, v, wi, dist, light, pl, sel, depth):
@@ -114,13 +134,18 @@ class CameraMIS:
         return Q, nx.pdf
 
     def _reverse(self, v, wo_light, depth):
-        """(K,) pr at vertices v for light arriving along wo_light (1 at the first vertex)."""
-        if depth == 0:
-            return np.ones(v.p.shape[0])
-        return B.pdf_bsdf(self.mtab, v.mat, v.colors, v.ns, v.ng, wo_light, v.wo, subset="all")
+        """(K,) pr at vertices v for light arriving along wo_light (1 at the
+        first vertex; depth as :func:`_y1`)."""
+        pr = np.ones(v.p.shape[0])
+        i = np.nonzero(~np.broadcast_to(_y1(depth), pr.shape))[0]
+        if i.size:
+            pr[i] = B.pdf_bsdf(self.mtab, v.mat[i], v.colors[i], v.ns[i], v.ng[i], wo_light[i],
+                               v.wo[i], subset="all")
+        return pr
 
     def soft_ratio(self, v, light, depth):
-        """(K,) q_L / q_C of a soft light's centre seen from vertices v."""
+        """(K,) q_L / q_C of a soft light's centre seen from vertices v
+        (depth as :func:`_y1`)."""
         wc = self.t.co[light] - v.p
         dc = np.linalg.norm(wc, axis=1)
         wc = wc / np.maximum(dc, 1e-300)[:, None]
@@ -131,7 +156,12 @@ class CameraMIS:
     # ------------------------------------------------------------ weights
     def emission(self, w, idx, row, d, t, ng, depth, Qs, pf, pdf_prev, vprev):
         """(k,) weights of emission found by rays idx (emitter rows row, -1 =
-        none) given their PT-vs-NEE weights w."""
+        none) at distance t from the vertex they left (past transparent
+        crossings) given their PT-vs-NEE weights w; depth: the index of the
+        vertex hit (int) or (K,) bool per ray, the camera ray (only
+        transparent crossings since the lens: :func:`_y1`), the vertices
+        vprev the rays left then carrying ``first`` (y_1)."""
+        first = _rows(_y1(depth), idx)
         w = w.copy()
         ok = row >= 0
         cls = np.where(ok, self.cls[np.maximum(row, 0)], M.NO_LT)
@@ -140,19 +170,19 @@ class CameraMIS:
             j, dd = row[f], d[idx[f]]
             cos_l = np.abs(_dot(dd, self.t.dir[j]))
             pA = M.emit_pdf_pos(self.t, j)
+            fr = _rows(first, f)
             with np.errstate(divide="ignore", invalid="ignore"):
-                if depth == 0:
-                    r = Qs[idx[f]] * pA / self.c1(dd, cos_l, t[f])
-                else:
-                    r = (Qs[idx[f]] * M.emit_pdf_dir(self.t, j, -dd) * pA
-                         / (pf[idx[f]] * cos_l))
+                r = Qs[idx[f]] * pA / self.c1(dd, cos_l, t[f])
+                if not np.all(fr):
+                    r = np.where(fr, r, Qs[idx[f]] * M.emit_pdf_dir(self.t, j, -dd) * pA
+                                 / (pf[idx[f]] * cos_l))
             w[f] = _shrink(w[f], _finite(r))
-        s = np.nonzero(cls == M.SOFT)[0]
-        if s.size and depth >= 1:
+        s = np.nonzero((cls == M.SOFT) & ~first)[0]
+        if s.size:
             i = idx[s]
             delta = pdf_prev[i] <= 0
             vp = vprev.take(i)
-            r = self.soft_ratio(vp, row[s], depth - 1)
+            r = self.soft_ratio(vp, row[s], depth - 1 if np.ndim(depth) == 0 else vp.first)
             # After a delta at y_{k-1} next-event estimation cannot take the
             # path: light tracing takes it all if it can (the ray's Q > 0: y_1
             # did not scatter by a delta), else path tracing alone (a light
@@ -163,7 +193,8 @@ class CameraMIS:
 
     def nee(self, w, v, wi, dist, light, depth):
         """(K,) weights of the light samples (wi, dist, light) at vertices v
-        given their NEE-vs-PT weights w."""
+        given their NEE-vs-PT weights w; depth as :func:`_y1`."""
+        first = np.broadcast_to(_y1(depth), light.shape)
         w = w.copy()
         cls = self.cls[light]
         f = np.nonzero(cls == M.FULL)[0]
@@ -180,12 +211,12 @@ class CameraMIS:
             if p.size:
                 T[p] = M.point_emit_over_nee(self.t, vf.p[p], j[p], -wf[p], dist[f][p])
             with np.errstate(divide="ignore", invalid="ignore"):
-                r = _finite(vf.Q * self._reverse(vf, wf, depth) * np.abs(_dot(vf.ng, wf)) * T
+                r = _finite(vf.Q * self._reverse(vf, wf, first[f]) * np.abs(_dot(vf.ng, wf)) * T
                             / vf.c)
             w[f] = _shrink(w[f], r)
         s = np.nonzero(cls == M.SOFT)[0]
         if s.size:
-            r = self.soft_ratio(v.take(s), light[s], depth)
+            r = self.soft_ratio(v.take(s), light[s], first[s])
             w[s] *= 1.0 / (1.0 + r * r)
         return w
 
@@ -222,11 +253,11 @@ def scatter_factors(pr, ng, wn, pdf, is_delta, first):
     pdf (pr the camera-side density of the previous light vertex from here,
     deferred from the splat; densities 1 at a delta), divided by |cos| at the
     next vertex on arrival.  B1 skips pr at the first vertex (q_1 has no
-    camera-side density at the emitter)."""
+    camera-side density at the emitter); first: bool or (K,) bool."""
     with np.errstate(divide="ignore", invalid="ignore"):
         pend1 = _finite(np.abs(_dot(ng, wn)) / np.where(is_delta, 1.0, pdf))
     pend = pr * pend1
-    return pend, (pend1 if first else pend)
+    return pend, np.where(first, pend1, pend)
 
 
 def splat_weight(B0, B1, pf, c1, first, soft):
@@ -328,6 +359,10 @@ class CombinedLightTracer(LightTracer):
         dep = _Deposits(2.0 * n + 64)
         mis = PK.mis_state(n, dep.buf.r.shape[0])
         mis.row[:K] = src[:K]
+        # Transparent shadows: a transparent crossing is no vertex (the
+        # photons straight from the light keep MisState.first).
+        clear = (transparent_materials(self.mtab) if shadow.attached(self.accel) is not None
+                 else None)
         # First-hit ratios per photon (B0, B1 at z_1).
         fb0, fb1 = np.zeros(n), np.zeros(n)
         for bounce in range(self.max_bounces + 1):
@@ -342,21 +377,28 @@ class CombinedLightTracer(LightTracer):
             dep.reserve(K)
             if mis.d0.shape[0] < dep.buf.r.shape[0]:
                 mis = _grow_deposit_rows(mis, dep.buf.r.shape[0], dep.n)
-            if bounce == 0:
-                self._first_hit(hits, K, live.d64[:K], mis.row[:K], ph, z0, fb0, fb1)
+            # The rays hitting z_1 now (all at the first bounce).
+            fst = mis.first[:K].copy()
+            self._first_hit(hits, K, live.d64[:K], mis.row[:K], ph, z0, fb0, fb1, fst)
             # Generic survivors need their rays' photon rows and directions
             # from before the kernel compacts them.
             row = mis.row[:K].copy() if tr.fmat.any_generic else None
             d_old = live.d64[:K].copy() if tr.fmat.any_generic else None
+            dep0 = dep.n
             n_next, n_dep, n_gen = PK.bounce_kernel(step, hits, live, tr.tris, tr.fmat, u,
                                                     dep.buf, gen, rec, mis)
             dep.n = n_dep
+            # B0, B1 of this bounce's deposits: their photon's first-hit ratios
+            # (rewritten at z_1 when a photon crossed transparent surfaces).
+            r = mis.drow[dep0:n_dep]
+            mis.d0[dep0:n_dep] *= fb0[r]
+            mis.d1[dep0:n_dep] *= fb1[r]
             if n_gen:
                 n_fast = n_next
                 n_next = tr._generic_bounce(n_gen, n_next, gen, u, step.roulette, live, rec)
                 if n_next > n_fast:
                     self._generic_factors(n_fast, n_next, hits, rec, live, d_old, row, mis,
-                                          bounce == 0)
+                                          fst, clear)
             K = n_next
         res = dep.result()
         if res is None:
@@ -364,17 +406,17 @@ class CombinedLightTracer(LightTracer):
         nd = dep.n
         drow = mis.drow[:nd]
         res["src_photon"] = drow
-        B0 = _finite(fb0[drow] * mis.d0[:nd])
-        B1 = _finite(fb1[drow] * mis.d1[:nd])
-        return res, B0, B1, res["bounce"] == 0
+        return res, _finite(mis.d0[:nd]), _finite(mis.d1[:nd]), mis.dfirst[:nd].copy()
 
-    def _first_hit(self, hits, K, d, row, ph, z0, fb0, fb1):
-        """fb0, fb1 [photon] = first_hit_ratios at the first hits of rays 0..K-1
-        (positions from the barycentrics, the triangles' geometric normals):
+    def _first_hit(self, hits, K, d, row, ph, z0, fb0, fb1, sel=True):
+        """fb0, fb1 [photon] = first_hit_ratios at the hits of the rays
+        0..K-1 where sel (K,) bool (default all; z_1: their first hit, or
+        the first past transparent crossings) (positions from the barycentrics, the
+        triangles' geometric normals):
         compiled for point lights and rectangles (light_kernels.first_hits,
         the selection probabilities in numpy), first_hit_ratios for the others."""
         t, tris = self.light_table, self.tracer.tris
-        hit = np.nonzero(hits.prim[:K] >= 0)[0]
+        hit = np.nonzero((hits.prim[:K] >= 0) & sel)[0]
         if hit.size == 0:
             return
         prim = hits.prim[hit]
@@ -393,9 +435,13 @@ class CombinedLightTracer(LightTracer):
             b0[s], b1[s] = first_hit_ratios(t, self.kn, light[s], zr[s], dh[s], p[s], ng[s])
         fb0[r], fb1[r] = b0, b1
 
-    def _generic_factors(self, a, b, hits, rec, live, d_old, row, mis, first):
+    def _generic_factors(self, a, b, hits, rec, live, d_old, row, mis, fst, clear):
         """The MIS factors of the generic-material survivors a..b-1 (appended by
-        PhotonTracer._generic_bounce): pdf_bsdf in numpy, delta samples 1."""
+        PhotonTracer._generic_bounce): pdf_bsdf in numpy, delta samples 1;
+        fst (K,) bool the hits' MisState.first.  clear (materials,) bool the
+        transparent materials when transparent shadows are on (else None):
+        a Transparent lobe's sample (straight on) is no vertex -- its factors
+        pass unchanged (|cos| in = |cos| out) and a ray from z_0 stays first."""
         s, mtab = self.scene, self.mtab
         j = np.arange(a, b)
         i = rec.nxt_src[a:b]
@@ -415,14 +461,21 @@ class CombinedLightTracer(LightTracer):
                                 subset="all")
             pr[nd] = B.pdf_bsdf(mtab, mat[nd], col[nd], nsg[nd], ngg[nd], wg[nd], wo[nd],
                                 subset="all")
+        first = fst[i]
         pend, pend1 = scatter_factors(pr, ngg, wg, pl, delta, first)
         mis.f0[a:b] = mis.h0[i] * pend
-        mis.f1[a:b] = np.where(delta, 0.0, mis.h1[i] * pend1) if first else mis.h1[i] * pend
+        mis.f1[a:b] = np.where(first, np.where(delta, 0.0, mis.h1[i] * pend1), mis.h1[i] * pend)
         mis.row[a:b] = row[i]
+        through = np.zeros(j.size, bool)
+        if clear is not None:
+            through = (delta & clear[mat]
+                       & (np.einsum("ij,ij->i", wg, d_old[i]) > 1.0 - 1e-9))
+        mis.first[a:b] = through & first
 
 
 def _grow_deposit_rows(mis, cap, n):
     """A MisState whose deposit rows hold cap (the first n copied)."""
     g = PK.mis_state(1, cap)
     g.d0[:n], g.d1[:n], g.drow[:n] = mis.d0[:n], mis.d1[:n], mis.drow[:n]
-    return mis._replace(d0=g.d0, d1=g.d1, drow=g.drow)
+    g.dfirst[:n] = mis.dfirst[:n]
+    return mis._replace(d0=g.d0, d1=g.d1, drow=g.drow, dfirst=g.dfirst)

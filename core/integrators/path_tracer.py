@@ -18,12 +18,14 @@ Georgiev et al. 2012; docs/integrators.md).  Like Cycles' path tracer:
   core.lights.pdf_direct and p_bsdf from core.materials.pdf_bsdf; emission
   seen from the camera or after a delta scattering has weight 1 (the other
   strategy cannot produce it);
-- transparent shadows (core.lights.shadow attached, not COMBINED): as in
-  Cycles a transparent crossing (a Transparent lobe's sample) is no
-  scattering vertex for MIS: the ray keeps the BSDF pdf, position and
-  normal of the vertex before it, the emitter's distance is measured from
-  there, and the light sample's shadow ray passes transparent surfaces for
-  every light;
+- transparent shadows (core.lights.shadow attached): as in Cycles a
+  transparent crossing (a Transparent lobe's sample) is no scattering
+  vertex for MIS: the ray keeps the BSDF pdf, position and normal of the
+  vertex before it, the emitter's distance is measured from there, and the
+  light sample's shadow ray passes transparent surfaces for every light;
+  COMBINED's camera-side state and merging's partition go on unchanged
+  too (core.integrators.combined.CameraMIS: ``first``, the rays still on
+  the camera ray's line);
 - ``max_bounces`` counts bounces as Cycles' Total: light samples at vertices
   0..max_bounces (vertex 0 = the camera ray's hit, so max_bounces = 0 is
   direct light only), and the emission found by the last vertex's BSDF ray;
@@ -94,6 +96,18 @@ def stratified(rng: np.random.Generator, n: int, B: int, pairs: int) -> np.ndarr
     return out
 
 
+#: The per-path arrays of merging's partition (core.integrators.merge.CameraPartition).
+_PART = ("chain", "seen", "pend", "owned")
+
+
+def _put_rows(v, x, w) -> None:
+    """v's rows x = the PathVertices w (the fields both hold)."""
+    for k, a in v.__dict__.items():
+        b = getattr(w, k)
+        if a is not None and b is not None:
+            a[x] = b
+
+
 @dataclass
 class PathVertices:
     """The scattering vertices of the live camera paths, K rows (structure of arrays).
@@ -126,6 +140,9 @@ class PathVertices:
     # Photon merging's partition (core.integrators.merge): (K,) 0 where
     # merging owns the path, else 1; None without merging.
     m: np.ndarray | None = None
+    # 'COMBINED' with transparent crossings: (K,) bool, the vertex is y_1
+    # (only transparent crossings since the lens).
+    first: np.ndarray | None = None
 
     def take(self, i: np.ndarray) -> "PathVertices":
         """The rows i (compaction)."""
@@ -235,12 +252,13 @@ class PathTracer:
         # Transparent crossings skipped by MIS (Cycles: a transparent bounce
         # leaves mis_ray_pdf and mis_origin alone), as the shadow rays of
         # next-event estimation pass those surfaces for every light
-        # (core.lights.shadow attached).  COMBINED keeps them delta vertices:
-        # its weights (core.integrators.combined) count them so.
-        clear = (Sh.transparent_materials(mtab)
-                 if vc is None and Sh.attached(accel) is not None else None)
+        # (core.lights.shadow attached).  COMBINED's camera-side state (Q, pf,
+        # the vertex left, merging's partition) goes on unchanged as well, and
+        # ``first`` tells the rays still on the camera ray's line.
+        clear = Sh.transparent_materials(mtab) if Sh.attached(accel) is not None else None
+        first = np.ones(K, bool)
         if vc is not None:
-            Qs, pf, vprev = vc.camera_state(d), None, None
+            Qs, pf, vprev = vc.camera_state(d), np.ones(K), None
         part = CameraPartition(K) if getattr(vc, "merging", False) else None
         for depth in range(self.max_bounces + 2):
             if path.size == 0:
@@ -255,10 +273,10 @@ class PathTracer:
                     continue
                 Le, row, t = Lt.emitted_along_rays(lt, o[sel], d[sel], t_end[sel], name,
                                                    return_hit=True)
-                w = self._mis_bsdf(pdf_prev[sel], p_prev[sel], n_prev[sel], d[sel], row,
-                                   t + t_acc[sel])
+                t = t + t_acc[sel]
+                w = self._mis_bsdf(pdf_prev[sel], p_prev[sel], n_prev[sel], d[sel], row, t)
                 if vc is not None:
-                    w = vc.emission(w, sel, row, d, t, None, depth, Qs, pf, pdf_prev, vprev)
+                    w = vc.emission(w, sel, row, d, t, None, first, Qs, pf, pdf_prev, vprev)
                 if part is not None:
                     w = w * part.weight(sel)
                 out[path[sel]] += beta[sel] * Le * w[:, None]
@@ -289,8 +307,8 @@ class PathTracer:
                 w = self._mis_bsdf(pdf_prev[e], p_prev[e], n_prev[e], d[e],
                                    self.tri_light[prim[em]], h.t[e] + t_acc[e])
                 if vc is not None:
-                    w = vc.emission(w, e, self.tri_light[prim[em]], d, h.t[e], ng[em], depth,
-                                    Qs, pf, pdf_prev, vprev)
+                    w = vc.emission(w, e, self.tri_light[prim[em]], d, h.t[e] + t_acc[e],
+                                    ng[em], first, Qs, pf, pdf_prev, vprev)
                 if part is not None:
                     w = w * part.weight(e)
                 out[path[e]] += beta[e] * Le * w[:, None]
@@ -303,7 +321,8 @@ class PathTracer:
             v = PathVertices(path=path[ih], p=p, ng=ng, ns=ns, wo=-d[ih], mat=mat,
                              colors=colors, beta=beta[ih])
             if vc is not None:
-                v.Q, v.c = vc.at_hit(Qs[ih], pf, ih, d[ih], ng, h.t[ih], depth)
+                v.Q, v.c = vc.at_hit(Qs[ih], pf, ih, d[ih], ng, h.t[ih] + t_acc[ih], first[ih])
+            v.first = first[ih]
             if part is not None:
                 part.keep(ih)
                 v.m = part.weight()
@@ -329,6 +348,7 @@ class PathTracer:
                 pdf_prev = np.where(nx.delta, 0.0, nx.pdf)
                 p_prev, n_prev, vis = v.p[c], nx.n_prev, nx.vis
                 t_acc = np.zeros(c.size)    # no transparent material in the kernels' scope
+                first = np.zeros(c.size, bool)
                 path = v.path[c]
                 continue
             wi, wgt, pdf, is_delta, valid = B.sample_bsdf(mtab, v.mat, v.colors, v.ns, v.ng, v.wo,
@@ -340,12 +360,29 @@ class PathTracer:
                 ok &= ur[:, 3] < q
                 bt = bt / np.maximum(q, 1e-300)[:, None]
             c = np.nonzero(ok)[0]
+            # A Transparent lobe's sample (wi = -wo exactly): the ray goes on
+            # from the last real vertex, with its pdf, normal, origin,
+            # visibility flag and COMBINED's state (rows x of c).
+            x = (np.nonzero(is_delta[c] & clear[v.mat[c]] & np.all(wi[c] == -v.wo[c], axis=1))[0]
+                 if clear is not None else np.zeros(0, np.int64))
             if part is not None:
+                before = {k: getattr(part, k)[c[x]] for k in _PART}   # per vertex (keep(ih))
                 part.sampled(is_delta)
                 part.keep(c)
+                for k in _PART:
+                    getattr(part, k)[x] = before[k]
             if vc is not None:
-                Qs, pf = vc.continued(v, c, wi[c], pdf[c], is_delta[c], depth)
-                vprev = v.take(c)
+                state = (Qs[ih[c[x]]], pf[ih[c[x]]], None if vprev is None else
+                         vprev.take(ih[c[x]]))
+                Qs, pf = vc.continued(v, c, wi[c], pdf[c], is_delta[c], v.first)
+                vnew = v.take(c)
+                if x.size:
+                    Qs[x], pf[x] = state[0], state[1]
+                    if state[2] is not None:
+                        _put_rows(vnew, x, state[2])
+                vprev = vnew
+            first = np.zeros(c.size, bool)
+            first[x] = v.first[c[x]]
             wi = wi[c]
             refl = (_dot(wi, v.ng[c]) * _dot(v.wo[c], v.ng[c])) > 0
             o_prev = o
@@ -359,13 +396,8 @@ class PathTracer:
             p_prev, n_prev = v.p[c], v.ns_wo()[c]
             vis = np.where(refl, 1, 2).astype(np.int8)
             t_acc = np.zeros(c.size)
-            if clear is not None:
-                # A Transparent lobe's sample (wi = -wo exactly): the ray goes
-                # on from the last real vertex, with its pdf, normal, origin
-                # and visibility flag.
-                x = np.nonzero(is_delta[c] & clear[v.mat[c]] & np.all(wi == -v.wo[c], axis=1))[0]
-                for a, b in zip((pdf_prev, p_prev, n_prev, vis, t_acc), prev):
-                    a[x] = b[x]
+            for a, b in zip((pdf_prev, p_prev, n_prev, vis, t_acc), prev):
+                a[x] = b[x]
             path = v.path[c]
         return out
 
@@ -451,7 +483,7 @@ class PathTracer:
         w to out[v.path]: the COMBINED (unless camera_mis is False: applied
         already) and merging factors, the shadow test (:meth:`transmittance`)."""
         if self.vc is not None and camera_mis:
-            w = self.vc.nee(w, v, wi, dist, light, depth)
+            w = self.vc.nee(w, v, wi, dist, light, depth if v.first is None else v.first)
         if v.m is not None:
             w = w * v.m
         tr = self.transmittance(v.p, v.ng, wi, dist, light, shadow)

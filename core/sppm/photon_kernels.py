@@ -159,13 +159,19 @@ class MisState(NamedTuple):
     ``1 / |cos_in|`` (core.integrators.combined.scatter_factors).  Delta
     samples: pl = pr = 1; LAMBERT: the closed-form diffuse densities
     (:func:`lambert_pdf`); GENERIC materials: the caller (numpy pdf_bsdf).
+    "First" is per ray (``first``): with transparent shadows a transparent
+    crossing is no vertex, so a ray that crossed only transparent surfaces
+    since the light hits z_1 (the caller sets the flag of such survivors).
 
     f0, f1 (cap,) float64: the factors of the live rays (compacted with them;
     the arrival division pending).  row (cap,) int64: the photon of each live
     ray (compacted).  h0, h1 (cap,) float64: the factors at this bounce's hit
     of ray i (after the arrival division; read for generic survivors).
-    d0, d1 (dcap,) float64, drow (dcap,) int64: per deposit row (as the
-    DepositBuffers' rows).  A placeholder (1-row arrays) when off."""
+    first (cap,) bool: the live ray's hit is z_1 (compacted; True for all at
+    the first bounce, False for the fast path's survivors).
+    d0, d1 (dcap,) float64, drow (dcap,) int64, dfirst (dcap,) bool: per
+    deposit row (as the DepositBuffers' rows).  A placeholder (1-row arrays)
+    when off."""
     f0: np.ndarray
     f1: np.ndarray
     row: np.ndarray
@@ -174,12 +180,15 @@ class MisState(NamedTuple):
     d0: np.ndarray
     d1: np.ndarray
     drow: np.ndarray
+    first: np.ndarray
+    dfirst: np.ndarray
 
 
 def mis_state(cap: int, dcap: int) -> MisState:
     """Empty MisState for cap live rays and dcap deposits (1, 1: placeholder)."""
     return MisState(np.empty(cap), np.empty(cap), np.empty(cap, np.int64), np.empty(cap),
-                    np.empty(cap), np.empty(dcap), np.empty(dcap), np.empty(dcap, np.int64))
+                    np.empty(cap), np.empty(dcap), np.empty(dcap), np.empty(dcap, np.int64),
+                    np.ones(cap, np.bool_), np.empty(dcap, np.bool_))
 
 
 #: The placeholder MisState of the photon pass (never written: BounceStep.mis off).
@@ -293,7 +302,7 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
     gen_i, gen_p, gen_ng, gen_ns, gen_wi, gen_pow, gen_bary = gen
     rec_t, rec_ng, rec_nswi, rec_hit, nxt_src, nxt_delta = rec
     use_mis = step.mis
-    mf0, mf1, mrow, mh0, mh1, md0, md1, mdrow = mis
+    mf0, mf1, mrow, mh0, mh1, md0, md1, mdrow, mfirst, mdfirst = mis
     n_next = 0
     n_dep = n_dep0
     n_gen = 0
@@ -327,9 +336,11 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
         a0 = 1.0
         a1 = 1.0
         prow = 0
+        fz = first
         if use_mis:
             prow = mrow[i]
-            if not first:
+            fz = mfirst[i]
+            if not fz:
                 # Arrival: divide by |cos| of the geometric normal (inf/NaN -> 0).
                 ci = abs(gx * wx + gy * wy + gz * wz)
                 a0 = mf0[i] / ci
@@ -355,6 +366,7 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
                 md0[n_dep] = a0
                 md1[n_dep] = a1
                 mdrow[n_dep] = prow
+                mdfirst[n_dep] = fz
             n_dep += 1
         if not sample:
             continue
@@ -415,11 +427,12 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
             co = abs(gx * ox + gy * oy + gz * oz)
             pend1 = co / pl if pl > 0.0 else 0.0
             mf0[j] = a0 * pr * pend1
-            if first:
+            if fz:
                 mf1[j] = 0.0 if r[6] else a1 * pend1
             else:
                 mf1[j] = a1 * pr * pend1
             mrow[j] = prow
+            mfirst[j] = False
         n_next += 1
     return n_next, n_dep, n_gen
 

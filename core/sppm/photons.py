@@ -150,8 +150,8 @@ class PhotonTracer:
         # already carries the light that reached a surface through
         # Transparent BSDFs only, so photons that have crossed nothing but
         # transparent surfaces since the light deposit nothing.
-        self.skip_straight = (bool(getattr(plan, "transparent_shadows", False))
-                              and not settings.photons_for_direct)
+        self.clear_through = bool(getattr(plan, "transparent_shadows", False))
+        self.skip_straight = self.clear_through and not settings.photons_for_direct
         self._clear = None
 
     def trace(self, n: int, n_freq: int, rng):
@@ -267,7 +267,8 @@ class PhotonTracer:
             if freq:
                 # the segments just travelled: the kernel overwrites the live state
                 seg = FK.Segments(live.o32[:K].astype(np.float64), live.d64[:K].copy())
-            if straight is not None:
+            through = straight is not None or (caustic and self.clear_through)
+            if through:
                 d_in, prim_in = live.d64[:K].copy(), hits.prim[:K].astype(np.int64)
             n_next, n_dep, n_gen = PK.bounce_kernel(step, hits, live, self.tris, self.fmat, u,
                                                     dep.buf, gen, rec, PK.NO_MIS)
@@ -284,27 +285,37 @@ class PhotonTracer:
                 if n_next:
                     spec = self._spectrum_leaving(spec_hit, n_next, hits.prim, rec, live.d64,
                                                   seg.d)
+            if through:
+                th = self._through(d_in, prim_in, rec, live, n_next)
             if caustic:
                 _keep_rows(dep, step.dep0, prev_delta[dep.buf.src[step.dep0:dep.n]])
-                prev_delta = rec.nxt_delta[:n_next].copy()
+                nxt = rec.nxt_delta[:n_next].copy()
+                if through:
+                    # A transparent crossing is no vertex (transparent
+                    # shadows): the flag of the scattering before it goes on.
+                    nxt = np.where(th, prev_delta[rec.nxt_src[:n_next]], nxt)
+                prev_delta = nxt
             if straight is not None:
-                straight = self._straight_filter(dep, step.dep0, straight, d_in, prim_in,
-                                                 rec, live, n_next)
+                straight = self._straight_filter(dep, step.dep0, straight, th, rec, n_next)
             K = n_next
 
-    def _straight_filter(self, dep, dep0, straight, d_in, prim_in, rec, live, n_next):
+    def _straight_filter(self, dep, dep0, straight, th, rec, n_next):
         """Drops the deposits dep0.. of photons that so far crossed only
         transparent surfaces (``skip_straight``); returns the flag (n_next,)
-        of the survivors: still straight when the scattering just sampled
-        kept the direction on a material with a Transparent lobe."""
+        of the survivors: still straight when they just passed through (th,
+        :meth:`_through`)."""
+        _keep_rows(dep, dep0, ~straight[dep.buf.src[dep0:dep.n]])
+        return straight[rec.nxt_src[:n_next]] & th
+
+    def _through(self, d_in, prim_in, rec, live, n_next):
+        """(n_next,) bool: the survivors' scattering kept the direction on a
+        material with a Transparent lobe (a transparent crossing)."""
         if self._clear is None:
             from ..lights.shadow import transparent_materials
             self._clear = transparent_materials(self.mtab)
-        _keep_rows(dep, dep0, ~straight[dep.buf.src[dep0:dep.n]])
         src = rec.nxt_src[:n_next]
-        d_out = live.d64[:n_next]
-        same = np.einsum("ij,ij->i", d_out, d_in[src]) > 1.0 - 1e-9
-        return straight[src] & same & self._clear[self.tris.mat[prim_in[src]]]
+        same = np.einsum("ij,ij->i", live.d64[:n_next], d_in[src]) > 1.0 - 1e-9
+        return same & self._clear[self.tris.mat[prim_in[src]]]
 
     def _generic_bounce(self, g, n_next, gen, u, roulette, live, rec):
         """bsdf.sample_bsdf for the g hits on materials without a fast path;

@@ -107,6 +107,26 @@ class FirstHit:
     escape: np.ndarray
 
 
+def _crossings_only(accel, rays, vp) -> None:
+    """Transparent crossings are no vertex (transparent shadows attached to
+    accel, core.lights.shadow; photon merging's partition,
+    core.integrators.merge): clears ``through_delta`` of the visible points
+    reached through them only -- still on the camera ray's line (up to the
+    crossings' spawn offsets) with nothing but transparent surfaces between
+    the lens and them (glass at normal incidence keeps the line too)."""
+    from ..lights import shadow
+    if shadow.attached(accel) is None:
+        return
+    w = vp.p - rays.o
+    lw = np.linalg.norm(w, axis=1)
+    tol = 1e-4 * (lw + np.linalg.norm(rays.o, axis=1))
+    i = np.nonzero(vp.through_delta & (np.einsum("ij,ij->i", w, rays.d) > 0)
+                   & (np.linalg.norm(np.cross(w, rays.d), axis=1) <= tol))[0]
+    if i.size:
+        T = shadow.transmittance(accel, rays.o[i], w[i] / lw[i, None], lw[i] - tol[i])
+        vp.through_delta[i[T.max(axis=1) > 0]] = False
+
+
 class CameraPass:
     """The camera pass over the pixels (px, py) (P,) float64 of the region,
     py counted from the bottom (Blender's); max_depth: vertices a delta chain
@@ -173,6 +193,7 @@ class CameraPass:
         # A delta chain never returns to its first hit: the point is the
         # first hit's exactly when no delta vertex came before it.
         vp.through_delta = vp.valid & np.any(vp.p != vp.first.p, axis=1)
+        _crossings_only(accel, rays, vp)
         return vp, L
 
     def _seen_along(self, depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
