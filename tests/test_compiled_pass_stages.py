@@ -1,7 +1,7 @@
 """The compiled per-pixel stages of a pass (issue 17) against their references.
 
 What is asserted, and why the tolerances are zero:
-- Camera rays (core.scene.camera ``_pinhole_range``) equal
+- Camera rays (core.scene.camera_kernels ``_pinhole_range``) equal
   ``CameraModel.generate(..., compiled=False)`` bit for bit: the same
   operations in the same order, and the rotation written as the fused
   multiply-adds of OpenBLAS's dgemm kernel (every x86-64 with FMA).

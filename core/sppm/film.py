@@ -15,7 +15,7 @@ mean over passes of 1 - the throughput with which the camera ray escaped
 to the world (straight through Transparent BSDFs), Cycles' definition.
 
 The image, the radius and the radius in pixels come from one compiled
-kernel per pixel range (``_film_range``, split over the numba threads from
+kernel per pixel range (``core.sppm.film_kernels``, split over the numba threads from
 PARALLEL_MIN pixels); ``Film(..., compiled=False)`` is its numpy reference,
 the same operations in the same order (tests/test_compiled_pass_stages.py:
 the same bits).  The AOVs are numpy.
@@ -25,9 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable, NamedTuple, Optional
 
-import numba
 import numpy as np
-from numba import njit, prange
 
 _F32_MAX = np.finfo(np.float32).max
 #: Pixels from which the film kernel splits over the numba threads.
@@ -290,6 +288,10 @@ class Film:
         ortho = cam.cam.kind == "ORTHO"
         prm = np.array([max(pass_index, 1), max(photons_emitted, 1),
                         self.samples if alpha else 0, cam.pix], np.float64)
+        # Loaded here, not at import: the add-on imports this module at
+        # register, which must not load numba (tests/test_addon_register.py).
+        import numba
+        from .film_kernels import FilmArrays, _film_parallel, _film_range
         a = FilmArrays(state.L_sum, state.tau, state.R2, state.depth, self.coverage,
                        img.reshape(P, 4), R, r_px)
         T = numba.get_num_threads()
@@ -298,45 +300,3 @@ class Film:
         else:
             _film_range(0, P, a, prm, bool(alpha), ortho)
         return R, r_px
-
-
-class FilmArrays(NamedTuple):
-    """The film kernel's arrays (P pixels).  In: L_sum, tau (P, 3), R2,
-    depth, coverage (P,) float64.  Out: img (P, 4) float32 (its alpha
-    column already 1), R, r_px (P,) float64."""
-    L_sum: np.ndarray
-    tau: np.ndarray
-    R2: np.ndarray
-    depth: np.ndarray
-    coverage: np.ndarray
-    img: np.ndarray
-    R: np.ndarray
-    r_px: np.ndarray
-
-
-@njit(cache=True)
-def _film_range(i0, i1, a, prm, alpha, ortho):
-    """Film.__call__'s image, R and r_px for pixels i0..i1-1 (its numpy
-    operations in their order); prm = (passes, photons emitted, alpha's
-    sample count, CameraModel.pix)."""
-    passes, n_emit, samples, pix = prm[0], prm[1], prm[2], prm[3]
-    for i in range(i0, i1):
-        R2 = a.R2[i]
-        R2d = R2 if R2 > 0 else np.inf
-        den = np.pi * R2d * n_emit
-        for c in range(3):
-            L = a.L_sum[i, c] / passes + a.tau[i, c] / den
-            a.img[i, c] = L if np.isfinite(L) else 0.0
-        if alpha:
-            a.img[i, 3] = a.coverage[i] / samples
-        R = np.sqrt(R2 if R2 > 0 else 0.0)
-        fp = pix if ortho else a.depth[i] * pix
-        a.R[i] = R
-        a.r_px[i] = R / max(fp, 1e-300) if fp > 0 else 0.0
-
-
-@njit(cache=True, parallel=True)
-def _film_parallel(n_chunks, a, prm, alpha, ortho):
-    P = a.R2.shape[0]
-    for c in prange(n_chunks):
-        _film_range(c * P // n_chunks, (c + 1) * P // n_chunks, a, prm, alpha, ortho)

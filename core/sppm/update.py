@@ -50,7 +50,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from ..scene.camera import fma
+from ..scene.camera_kernels import fma
 
 from ..frequency import spectrum as F
 from . import edges
