@@ -148,7 +148,7 @@ def warmup_jobs() -> list:
     the QUANTILE estimator's pair search takes it too; the third covers the
     classic-PPM options and the numpy-sampled light kinds.
     """
-    base = RenderSettings(max_passes=1, photons_per_pass=3000, seed=1)
+    base = RenderSettings(integrator="PHOTON", max_passes=1, photons_per_pass=3000, seed=1)
     room = warmup_scene()
     return [(room, base),
             (room, base.replace(photons_per_pass=40_000, frequency_fraction=1.0,

@@ -3,8 +3,9 @@
 Each variant opens an example scene (``example_blends/<scene>.blend``) with
 bpy, sets its resolution percentage to 25 %, exports it through the add-on
 (``fppm.addon.export.export_scene``) and renders 3 passes of 30,000 photons
-with seed 7 through ``core.render.Renderer``, with the scene's own settings
-plus the overrides of :data:`VARIANTS`.  The film and every AOV switched on
+with seed 7 through ``core.render.Renderer`` (integrator PHOTON: every variant
+is a photon-mapping feature), with the scene's own settings plus the
+overrides of :data:`VARIANTS`.  The film and every AOV switched on
 are stored in ``tests/references/pinned/<scene>_<variant>.npz``;
 ``tests/test_same_image.py`` renders them again and compares the bytes.
 
@@ -113,8 +114,8 @@ def render_variants(names):
             continue
         scene, base = _export(scene_name)
         for variant in todo:
-            st = base.replace(max_passes=PASSES, time_limit=0.0, photons_per_pass=PHOTONS_PER_PASS,
-                              seed=SEED, **vs[variant])
+            st = base.replace(integrator="PHOTON", max_passes=PASSES, time_limit=0.0,
+                              photons_per_pass=PHOTONS_PER_PASS, seed=SEED, **vs[variant])
             res = Renderer(scene, st, log=lambda s: None).run()
             arrays = {"image": np.asarray(res.image)}
             for k, v in res.aovs.items():

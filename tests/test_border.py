@@ -95,7 +95,7 @@ def exported():
 def _render(scene, border, seed, passes=8):
     cam = dataclasses.replace(scene.camera, border=border)
     s = dataclasses.replace(scene, camera=cam)
-    st = RenderSettings(max_passes=passes, photons_per_pass=20000, seed=seed)
+    st = RenderSettings(integrator="PHOTON", max_passes=passes, photons_per_pass=20000, seed=seed)
     r = Renderer(s, st, log=lambda m: None, passes=("Depth", "Normal"))
     return r, r.run()
 

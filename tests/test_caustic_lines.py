@@ -109,7 +109,7 @@ def _render(path, edit=None):
     if edit is not None:
         edit(bpy)
     scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
-    st = settings_from_scene(sc).replace(max_passes=16, photons_per_pass=50_000,
+    st = settings_from_scene(sc).replace(integrator="PHOTON", max_passes=16, photons_per_pass=50_000,
                                          verify_holds=False)
     r = Renderer(scene, st, log=lambda s: None)
     for _ in range(16):

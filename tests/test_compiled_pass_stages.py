@@ -164,7 +164,7 @@ def _update_case(P, seed, sectors):
 @pytest.mark.parametrize("frequency,sectors,hold_alpha", [
     (True, True, 0.9), (True, False, 0.9), (True, True, 1.0), (False, False, 0.9)])
 def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha):
-    settings = RenderSettings(hold_alpha=hold_alpha, verify_holds=sectors)
+    settings = RenderSettings(integrator="PHOTON", hold_alpha=hold_alpha, verify_holds=sectors)
     radii = U.Radii(settings, None, 10.0, frequency, None, 1, P)
     radii.floor_sq = 1e-9                                # reached by the tiny predictions
     ref, M, Phi, r_pred, S_pass = _update_case(P, P, sectors)
@@ -189,8 +189,8 @@ def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha):
 def test_split_camera_intersect_equals_one_call(monkeypatch):
     res = 192                                            # 192^2 > INTERSECT_SPLIT_MIN
     assert res * res > V.INTERSECT_SPLIT_MIN
-    r = Renderer(warmup_scene(res, ("POINT", "AREA")), RenderSettings(max_passes=1, seed=1),
-                 log=lambda _m: None)
+    r = Renderer(warmup_scene(res, ("POINT", "AREA")),
+                 RenderSettings(integrator="PHOTON", max_passes=1, seed=1), log=lambda _m: None)
     vp_s, L_s = r.camera_pass(np.random.default_rng(5))
     monkeypatch.setattr(V, "INTERSECT_SPLIT_MIN", 1 << 40)
     vp_1, L_1 = r.camera_pass(np.random.default_rng(5))
@@ -214,7 +214,7 @@ def test_compiled_film_equals_numpy(P, kind, transparent):
     st.depth[:] = rng.uniform(0.5, 4, P)
     st.r_pred_last[:] = r_pred
     scene = type("S", (), {"film_transparent": transparent, "camera": cam})()
-    settings = RenderSettings(aov_radius=True, aov_predicted_radius=True,
+    settings = RenderSettings(integrator="PHOTON", aov_radius=True, aov_predicted_radius=True,
                               aov_photon_count=True, aov_held=True)
     out = []
     for compiled in (False, True):
@@ -234,7 +234,8 @@ def test_compiled_film_equals_numpy(P, kind, transparent):
 
 def test_sparse_reflected_sums_equal_dense(monkeypatch):
     from test_gather_buffers import _floor_scene
-    st = RenderSettings(max_passes=2, photons_per_pass=6000, seed=4, aov_photon_count=True)
+    st = RenderSettings(integrator="PHOTON",
+                        max_passes=2, photons_per_pass=6000, seed=4, aov_photon_count=True)
     calls = []
     images = []
     for fraction in (0, 10**9):                 # always dense, always sparse

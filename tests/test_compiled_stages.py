@@ -82,7 +82,7 @@ assert 40 * 40 < CK.SPLIT_MIN < 72 * 72
 
 def _stages(name, res):
     scene = SCENES[name](res)
-    r = Renderer(scene, RenderSettings(max_passes=1, photons_per_pass=100, seed=1),
+    r = Renderer(scene, RenderSettings(integrator="PHOTON", max_passes=1, photons_per_pass=100, seed=1),
                  log=lambda _m: None)
     return r.camera_pass, r.direct_light
 
@@ -138,7 +138,8 @@ def _back_lit_rough_glass(res=24):
 
 def test_nee_back_face_rough_glass_matches_path():
     scene = _back_lit_rough_glass()
-    base = RenderSettings(max_passes=4, photons_per_pass=500, seed=3, use_frequency=False)
+    base = RenderSettings(integrator="PHOTON",
+                          max_passes=4, photons_per_pass=500, seed=3, use_frequency=False)
     img_photon = Renderer(scene, base, log=lambda _m: None).run().image[..., :3]
     img_path = Renderer(scene, base.replace(integrator="PATH", camera_samples=4),
                         log=lambda _m: None).run().image[..., :3]

@@ -54,7 +54,7 @@ def export(name):
 def render(scene, seed, passes, photons):
     from fppm.core.render import Renderer
     from fppm.core.settings import RenderSettings
-    st = RenderSettings(max_passes=passes, photons_per_pass=photons, seed=seed,
+    st = RenderSettings(integrator="PHOTON", max_passes=passes, photons_per_pass=photons, seed=seed,
                         use_frequency=False, max_bounces=16)
     return Renderer(scene, st, log=lambda s: None).run().image[..., :3].astype(np.float64)
 

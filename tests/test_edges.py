@@ -113,7 +113,7 @@ def test_plate_edge_band(cap, request):
     # interior (> 4 px from the edge) is the same with and without
     # (-0.2 / +0.5 / -0.3%, its seed-to-seed spread).
     scene, L_true = plate_scene()
-    st = RenderSettings(max_passes=6, photons_per_pass=200_000, use_frequency=False,
+    st = RenderSettings(integrator="PHOTON", max_passes=6, photons_per_pass=200_000, use_frequency=False,
                         photons_for_direct=True, max_bounces=1, initial_radius_px=3.0,
                         cap_radius_at_edges=cap, seed=0)
     img = Renderer(scene, st, log=lambda s: None).run().image[..., :3].mean(-1)

@@ -421,7 +421,8 @@ def test_lambert_plane_under_a_map_has_the_closed_form_radiance(photons_for_dire
     expected = rho / np.pi * _irradiance_quadrature(EnvironmentLight.build(env), (0, 0, 1))
     imgs = []
     for seed in (1, 2):
-        st = RenderSettings(max_passes=48, photons_per_pass=30_000, use_frequency=False, seed=seed,
+        st = RenderSettings(integrator="PHOTON",
+                            max_passes=48, photons_per_pass=30_000, use_frequency=False, seed=seed,
                             photons_for_direct=photons_for_direct, initial_radius_px=1.0)
         imgs.append(Renderer(sc, st, log=lambda s: None).run().image[..., :3].astype(np.float64))
     a, b = imgs

@@ -137,7 +137,7 @@ def test_random_chains_match_numpy(model):
 
 # ------------------------------------------------------------ 2. in the tracer
 def _tracer(scene, model):
-    st = RenderSettings(max_passes=1, photons_per_pass=4000, use_frequency=True,
+    st = RenderSettings(integrator="PHOTON", max_passes=1, photons_per_pass=4000, use_frequency=True,
                         frequency_model=model)
     return Renderer(scene, st, log=lambda s: None).tracer
 

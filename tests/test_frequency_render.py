@@ -16,7 +16,8 @@ from analytic_scenes import pixel_centres_ortho, point_light_plane
 
 
 def _render(scene, **kw):
-    st = RenderSettings(**{"max_passes": 16, "photons_per_pass": 50_000, "photons_for_direct": True,
+    st = RenderSettings(**{"integrator": "PHOTON",
+                           "max_passes": 16, "photons_per_pass": 50_000, "photons_for_direct": True,
                            "aov_held": True, "aov_predicted_radius": True, "aov_radius": True,
                            "aov_spectrum": True, **kw})
     r = Renderer(scene, st, log=lambda s: None)
@@ -76,7 +77,8 @@ def test_coffee_cup_predicted_radius_smallest_at_the_caustic():
     bpy.ops.wm.open_mainfile(filepath=path, load_ui=False, use_scripts=False)
     scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
     scene.camera = type(scene.camera)(**{**scene.camera.__dict__, "resolution": (64, 64)})
-    st = RenderSettings(max_passes=8, photons_per_pass=100_000, aov_predicted_radius=True)
+    st = RenderSettings(integrator="PHOTON",
+                        max_passes=8, photons_per_pass=100_000, aov_predicted_radius=True)
     r = Renderer(scene, st, log=lambda s: None)
     res = r.run()
     L_ind = r.tau.mean(axis=1) / (np.pi * np.where(r.R2 > 0, r.R2, np.inf) * r.photons_emitted)

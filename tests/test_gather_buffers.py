@@ -135,7 +135,7 @@ def test_render_equals_the_per_chunk_path(frequency):
     # Multi-chunk passes (3 chunks of 4000 photons, the last one smaller) through
     # the renderer: every sum of the pass (M, Phi, radius histograms, spectrum,
     # sector counts) is the same bits, so the images and AOVs are identical.
-    st = RenderSettings(max_passes=2, time_limit=0.0, photons_per_pass=10_000, seed=3,
+    st = RenderSettings(integrator="PHOTON", max_passes=2, time_limit=0.0, photons_per_pass=10_000, seed=3,
                         use_frequency=frequency, frequency_estimator="QUANTILE",
                         aov_spectrum=frequency, aov_photon_count=True, aov_radius=True)
     out = []

@@ -100,7 +100,7 @@ def _edge_errors(hold_alpha, checkpoints=(8, 64)):
     scene, Lfun = _shadow_edge_scene()
     X, Y = pixel_centres_ortho(scene)
     L = Lfun(X, Y)
-    st = RenderSettings(max_passes=max(checkpoints), photons_per_pass=50_000,
+    st = RenderSettings(integrator="PHOTON", max_passes=max(checkpoints), photons_per_pass=50_000,
                         photons_for_direct=True, initial_radius_px=4.0,
                         cap_radius_at_edges=False, hold_alpha=hold_alpha,
                         verify_holds=False)  # the hold schedule alone (no photon check)

@@ -84,7 +84,7 @@ def test_project_rejects_behind_and_clipped():
 
 def pass_images(scene, **kw):
     """(S, H, W) luminance-free grey images of each independent pass."""
-    st = RenderSettings(**{"seed": 1, **kw})
+    st = RenderSettings(**{"integrator": "PHOTON", "seed": 1, **kw})
     prev = [None]
     out = []
 

@@ -349,7 +349,8 @@ def test_checkpoint_resume_keeps_alpha_and_passes():
     names = ("Depth", "Normal", "Mist", "Denoising Albedo")
 
     def make(n):
-        return Renderer(scene, RenderSettings(max_passes=n, photons_per_pass=3000, seed=2),
+        return Renderer(scene, RenderSettings(integrator="PHOTON",
+                                              max_passes=n, photons_per_pass=3000, seed=2),
                         log=lambda m: None, passes=names)
     straight = make(3).run()
     r = make(2)

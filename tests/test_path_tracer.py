@@ -217,8 +217,8 @@ def test_max_bounces_counts_like_cycles():
     assert abs(mean - 1.75) < 4 * sigma
 
 
-def test_settings_are_validated_and_photon_mode_is_default():
-    assert RenderSettings().integrator == "PHOTON"
+def test_settings_are_validated_and_combined_is_default():
+    assert RenderSettings().integrator == "COMBINED"
     with pytest.raises(SettingsError, match="integrator"):
         RenderSettings(integrator="BDPT").validate()
     with pytest.raises(SettingsError, match="camera_samples"):
@@ -227,7 +227,7 @@ def test_settings_are_validated_and_photon_mode_is_default():
     r = Renderer(scene, RenderSettings(integrator="PATH", max_passes=1), log=lambda s: None)
     # The plan line (Blender's status bar, the CLI, EXR metadata) names the strategies.
     assert "strategies: camera paths (path tracing" in r.plan.lines()[0]
-    r = Renderer(scene, RenderSettings(max_passes=1), log=lambda s: None)
+    r = Renderer(scene, RenderSettings(integrator="PHOTON", max_passes=1), log=lambda s: None)
     assert r.path_tracer is None
     assert "strategies: photon mapping;" in r.plan.lines()[0]
 

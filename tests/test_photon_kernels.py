@@ -188,7 +188,7 @@ N_BATCH, BATCH = 16, 12_500          # 200k photons per path
 
 
 def _tracer(scene, **kw):
-    st = RenderSettings(max_passes=1, photons_per_pass=BATCH, **kw)
+    st = RenderSettings(integrator="PHOTON", max_passes=1, photons_per_pass=BATCH, **kw)
     return Renderer(scene, st, log=lambda s: None).tracer
 
 

@@ -16,7 +16,8 @@ from analytic_scenes import furnace_box, mirror_caustic, point_light_plane, quad
 
 
 def _run(scene, force=(), **kw):
-    st = RenderSettings(**{"max_passes": 3, "photons_per_pass": 20_000, "photons_for_direct": True,
+    st = RenderSettings(**{"integrator": "PHOTON",
+                           "max_passes": 3, "photons_per_pass": 20_000, "photons_for_direct": True,
                            **kw})
     r = Renderer(scene, st, log=lambda s: None, force_stages=force)
     return r, r.run().image
@@ -121,7 +122,8 @@ def test_plan_lines_and_metadata_name_what_was_left_out():
 def test_unknown_forced_stage_is_an_error():
     scene, _ = point_light_plane(res=8)
     with pytest.raises(ValueError, match="unknown stage"):
-        Renderer(scene, RenderSettings(max_passes=1), log=lambda s: None, force_stages=("bogus",))
+        Renderer(scene, RenderSettings(integrator="PHOTON", max_passes=1), log=lambda s: None,
+                 force_stages=("bogus",))
 
 
 def test_convex_set_keeps_the_grid_when_a_light_is_outside_it():

@@ -116,7 +116,8 @@ def _sun_edge_scene(res=24):
 def _render(scene, Lfun, passes=(8, 64), **kw):
     X, Y = pixel_centres_ortho(scene)
     L = Lfun(X, Y)
-    st = RenderSettings(max_passes=max(passes), photons_per_pass=20_000, photons_for_direct=True,
+    st = RenderSettings(integrator="PHOTON",
+                        max_passes=max(passes), photons_per_pass=20_000, photons_for_direct=True,
                         initial_radius_px=4.0, cap_radius_at_edges=False, **kw)
     r = Renderer(scene, st, log=lambda s: None)
     out = {}
@@ -168,8 +169,8 @@ def test_per_pixel_rules_converge_and_shrink_at_the_edge(rule):
 
 def test_rules_need_frequency_off():
     with pytest.raises(SettingsError, match="radius_rule"):
-        RenderSettings(radius_rule="CPPM").validate()
-    RenderSettings(radius_rule="APPM", use_frequency=False).validate()
+        RenderSettings(integrator="PHOTON", radius_rule="CPPM").validate()
+    RenderSettings(integrator="PHOTON", radius_rule="APPM", use_frequency=False).validate()
 
 
 def test_wrong_prediction_is_released_by_the_photons():
@@ -184,7 +185,7 @@ def test_wrong_prediction_is_released_by_the_photons():
     scene, Lfun = _shadow_edge_scene()
     X, Y = pixel_centres_ortho(scene)
     L = Lfun(X, Y)
-    st = RenderSettings(max_passes=64, photons_per_pass=50_000, photons_for_direct=True,
+    st = RenderSettings(integrator="PHOTON", max_passes=64, photons_per_pass=50_000, photons_for_direct=True,
                         initial_radius_px=4.0, cap_radius_at_edges=False, verify_holds=True)
     r = Renderer(scene, st, log=lambda s: None)
     r.radii.predicted = lambda rmin, rh: np.where(np.isfinite(rmin), 10.0, rmin)
@@ -227,7 +228,7 @@ def test_caustic_line_holds_are_released():
     sc = bpy.context.scene
     sc.render.resolution_percentage = 25
     scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
-    base = settings_from_scene(sc).replace(max_passes=16, photons_per_pass=50_000)
+    base = settings_from_scene(sc).replace(integrator="PHOTON", max_passes=16, photons_per_pass=50_000)
     held = {}
     for verify in (False, True):
         r = Renderer(scene, base.replace(verify_holds=verify), log=lambda s: None)

@@ -65,7 +65,8 @@ def _plane(material, **kw):
     scene, _ = point_light_plane(res=24)
     if material is not None:
         scene.materials = [material]
-    st = RenderSettings(**{"max_passes": 16, "photons_per_pass": 50_000, "photons_for_direct": True,
+    st = RenderSettings(**{"integrator": "PHOTON",
+                           "max_passes": 16, "photons_per_pass": 50_000, "photons_for_direct": True,
                            "aov_held": True, "aov_predicted_radius": True, **kw})
     r = Renderer(scene, st, log=lambda s: None)
     return scene, r, r.run()
@@ -132,7 +133,8 @@ def test_rough_glossy_floor_agrees_with_cycles_with_frequency_on():
     ref_img, meta = load_reference("t_glossy_floor")
     ref = ref_img[..., :3].astype(np.float64)
     scene = export("t_glossy_floor")
-    imgs = [Renderer(scene, RenderSettings(max_passes=64, photons_per_pass=40_000, seed=seed),
+    imgs = [Renderer(scene, RenderSettings(integrator="PHOTON",
+                                           max_passes=64, photons_per_pass=40_000, seed=seed),
                      log=lambda s: None).run().image[..., :3].astype(np.float64) for seed in (1, 2)]
     a1, a2 = imgs
     m = 0.5 * (a1 + a2)

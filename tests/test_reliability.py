@@ -66,7 +66,7 @@ def core_scene(n=8, res=12):
 
 def test_checkpoint_save_load_and_resume_bit_identical(tmp_path):
     sc = core_scene()
-    st = RenderSettings(max_passes=4, photons_per_pass=3000, seed=7)
+    st = RenderSettings(integrator="PHOTON", max_passes=4, photons_per_pass=3000, seed=7)
     full = Renderer(sc, st, log=lambda m: None).run()
     a = Renderer(sc, st.replace(max_passes=2), log=lambda m: None)
     a.run()
@@ -108,7 +108,7 @@ def test_cancelled_pass_leaves_the_state_untouched(estimator, spectrum):
     # What a checkpoint saved on Ctrl-C relies on: the state after a pass
     # cancelled half way through its photons is the last complete pass's.
     sc = core_scene()
-    st = RenderSettings(max_passes=4, photons_per_pass=300_000, seed=3,
+    st = RenderSettings(integrator="PHOTON", max_passes=4, photons_per_pass=300_000, seed=3,
                         frequency_estimator=estimator, aov_spectrum=spectrum)
     r = Renderer(sc, st, log=lambda m: None)
     r.run(should_stop=lambda: r.pass_index >= 2)
@@ -316,7 +316,7 @@ def test_memory_budget_error(monkeypatch, blends, tmp_path):
     monkeypatch.setattr(memory, "available_bytes", lambda: 2**20)
     with pytest.raises(MemoryBudgetError, match=r"needs about .* GiB more .* but only 0\.0 GiB "
                                                  r"is free \(largest part: kernels"):
-        Renderer(core_scene(), RenderSettings(max_passes=1, photons_per_pass=1000))
+        Renderer(core_scene(), RenderSettings(integrator="PHOTON", max_passes=1, photons_per_pass=1000))
     # The CLI: exit code 7 and the setting to change.
     wrapper = ("import sys; from fppm.core import memory\n"
                "memory.available_bytes = lambda: 2**20\n"
@@ -409,7 +409,7 @@ def test_cancel_latency_per_core_stage(monkeypatch):
     # (on an idle 2-core machine the grid and the photons take ~1.5-2 s, the
     # compiled camera pass 0.6-1 s).
     sc = core_scene(n=300, res=1400)
-    st = RenderSettings(max_passes=3, photons_per_pass=5_000_000, occlusion_grid_res=96)
+    st = RenderSettings(integrator="PHOTON", max_passes=3, photons_per_pass=5_000_000, occlusion_grid_res=96)
     lat = {}
     # 1. occlusion grid build (numba, in a worker thread polled every 20 ms)
     import core.frequency.occlusion_grid as O

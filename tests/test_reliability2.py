@@ -483,7 +483,7 @@ def _closed_form_mean():
 def _render_mean(scene):
     from core.render import Renderer
     from core.settings import RenderSettings
-    r = Renderer(scene, RenderSettings(max_passes=8, photons_per_pass=50_000, seed=1),
+    r = Renderer(scene, RenderSettings(integrator="PHOTON", max_passes=8, photons_per_pass=50_000, seed=1),
                  log=lambda s: None)
     return r.run().image[..., :3]
 
@@ -520,7 +520,7 @@ def test_scenes_float32_cannot_resolve_are_refused(floor_scale, message):
     from core.settings import RenderSettings
     import re
     with pytest.raises(SceneError, match=re.escape(message)):
-        Renderer(_point_light_floor(floor_scale), RenderSettings(max_passes=1))
+        Renderer(_point_light_floor(floor_scale), RenderSettings(integrator="PHOTON", max_passes=1))
 
 
 def test_floor_scaled_1e10_in_blender_is_exit_4(tmp_path, capsys):

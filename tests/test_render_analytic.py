@@ -22,7 +22,8 @@ from analytic_scenes import (area_light_plane, furnace_box, mirror_caustic,
 
 
 def render(scene, **kw):
-    st = RenderSettings(**{"max_passes": 8, "photons_per_pass": 60_000, "use_frequency": False,
+    st = RenderSettings(**{"integrator": "PHOTON",
+                           "max_passes": 8, "photons_per_pass": 60_000, "use_frequency": False,
                            **kw})
     r = Renderer(scene, st, log=lambda s: None)
     return r.run().image[..., :3].astype(np.float64)
@@ -113,7 +114,8 @@ def test_white_furnace():
 
 def test_same_seed_same_image():
     scene, _ = point_light_plane(res=12)
-    st = RenderSettings(max_passes=3, photons_per_pass=5_000, seed=7, photons_for_direct=True)
+    st = RenderSettings(integrator="PHOTON",
+                        max_passes=3, photons_per_pass=5_000, seed=7, photons_for_direct=True)
     a = Renderer(scene, st, log=lambda s: None).run().image
     b = Renderer(scene, st, log=lambda s: None).run().image
     assert np.array_equal(a, b)

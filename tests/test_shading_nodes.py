@@ -283,7 +283,8 @@ def _export():
 def _fppm(scene, seed, photons=2000):
     from fppm.core.render import Renderer
     from fppm.core.settings import RenderSettings
-    st = RenderSettings(max_passes=8, photons_per_pass=photons, seed=seed, use_frequency=False,
+    st = RenderSettings(integrator="PHOTON",
+                        max_passes=8, photons_per_pass=photons, seed=seed, use_frequency=False,
                         max_bounces=4)
     return Renderer(scene, st, log=lambda s: None).run().image[..., :3].astype(np.float64)
 

@@ -84,7 +84,7 @@ def box(lo, hi):
 
 
 def settings(**kw):
-    base = dict(max_passes=4, photons_per_pass=20_000, seed=1, **ALL_AOVS)
+    base = dict(integrator="PHOTON", max_passes=4, photons_per_pass=20_000, seed=1, **ALL_AOVS)
     base.update(kw)
     return RenderSettings(**base)
 

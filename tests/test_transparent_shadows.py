@@ -294,7 +294,7 @@ def test_compiled_direct_light_equals_numpy_through_transparent_sheets():
     scene = make_scene(tris, mats, every_light_kind(Light("pt", "POINT", (5, 5, 5),
                                                           translate(1, 1, 1.0))),
                        look_down_ortho(3.0, 5.0, 40), tri_mat=[0, 0, 1, 1, 2, 2, 3, 3])
-    r = Renderer(scene, RenderSettings(max_passes=1, photons_per_pass=100, seed=1),
+    r = Renderer(scene, RenderSettings(integrator="PHOTON", max_passes=1, photons_per_pass=100, seed=1),
                  log=lambda _m: None)
     nee = r.direct_light
     assert nee._compiled_lights() is not None and shadow.attached(r.accel) is not None
@@ -306,7 +306,7 @@ def test_compiled_direct_light_equals_numpy_through_transparent_sheets():
     L_n, L_c = out
     np.testing.assert_allclose(L_c, L_n, rtol=1e-9, atol=1e-12 * float(L_n.max()))
     # Some light came through the sheets, tinted: the pass-through shows.
-    ref = Renderer(scene, RenderSettings(max_passes=1, photons_per_pass=100, seed=1),
+    ref = Renderer(scene, RenderSettings(integrator="PHOTON", max_passes=1, photons_per_pass=100, seed=1),
                    log=lambda _m: None)
     setattr(ref.accel, shadow._ATTR, None)      # the old rule, same samples
     L_o = ref.direct_light(vp, np.random.default_rng(12))

@@ -120,7 +120,8 @@ for name, kw in [("cornell", dict(aov_radius=True, aov_spectrum=True, aov_held=T
     sc = bpy.context.scene
     sc.render.resolution_percentage = 25
     scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
-    st = settings_from_scene(sc).replace(max_passes=1, time_limit=0.0, photons_per_pass=30000, **kw)
+    st = settings_from_scene(sc).replace(integrator="PHOTON", max_passes=1, time_limit=0.0,
+                                         photons_per_pass=30000, **kw)
     Renderer(scene, st, log=lambda s: None).run()
 after = signatures()
 print(json.dumps({k: after[k] - before.get(k, 0) for k in after if after[k] != before.get(k, 0)}))

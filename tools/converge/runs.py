@@ -40,14 +40,14 @@ from .references import layer
 # "paper": FPPM with the paper's printed frequency model, to compare the
 # corrected model against it at equal time.
 METHOD_SETTINGS = {
-    "fppm": ({"use_frequency": True, "frequency_model": "CORRECTED"},
+    "fppm": ({"integrator": "PHOTON", "use_frequency": True, "frequency_model": "CORRECTED"},
              "FPPM, the corrected frequency model whatever the file sets"),
-    "paper": ({"use_frequency": True, "frequency_model": "PAPER"},
+    "paper": ({"integrator": "PHOTON", "use_frequency": True, "frequency_model": "PAPER"},
               "FPPM with the paper's printed frequency model"),
-    "ppm": ({"use_frequency": False}, "progressive photon mapping (frequency off)"),
-    "appm": ({"use_frequency": False, "radius_rule": "APPM"},
+    "ppm": ({"integrator": "PHOTON", "use_frequency": False}, "progressive photon mapping (frequency off)"),
+    "appm": ({"integrator": "PHOTON", "use_frequency": False, "radius_rule": "APPM"},
              "adaptive PPM (Kaplanyan & Dachsbacher 2013), per-pixel MSE-optimal radius"),
-    "cppm": ({"use_frequency": False, "radius_rule": "CPPM"},
+    "cppm": ({"integrator": "PHOTON", "use_frequency": False, "radius_rule": "CPPM"},
              "chi-squared PPM (Lin et al. 2020), radius kept while the photons look uniform"),
     "path": ({"integrator": "PATH", "use_frequency": False},
              "path tracing alone (camera paths, next-event estimation, MIS)"),
