@@ -217,8 +217,10 @@ def test_max_bounces_counts_like_cycles():
     assert abs(mean - 1.75) < 4 * sigma
 
 
-def test_settings_are_validated_and_combined_is_default():
-    assert RenderSettings().integrator == "COMBINED"
+def test_settings_are_validated_and_photon_mode_is_default():
+    # Photon mapping stays the default until COMBINED has the passes, film
+    # alpha and Dask scale-out (README, "Which integrator to choose").
+    assert RenderSettings().integrator == "PHOTON"
     with pytest.raises(SettingsError, match="integrator"):
         RenderSettings(integrator="BDPT").validate()
     with pytest.raises(SettingsError, match="camera_samples"):
