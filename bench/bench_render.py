@@ -339,7 +339,7 @@ def main(argv=None):
     ap.add_argument("--paths", action="store_true",
                     help="camera paths (PATH, COMBINED): numpy vs compiled (CPU ratios)")
     ap.add_argument("--pass", dest="whole_pass", action="store_true",
-                    help="stage shares, pass vs raw Embree, cores used, peak memory (issue 17)")
+                    help="stage shares, pass vs raw Embree, cores used, peak memory")
     ap.add_argument("--pass-res", nargs="+", default=["256x256", "1920x1080"])
     ap.add_argument("--plain", action="store_true", help="--pass without frequency photons")
     ap.add_argument("--pass-one", default=None, help=argparse.SUPPRESS)
