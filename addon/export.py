@@ -114,7 +114,7 @@ SUPPORT = (
      "into Image Texture vectors", SUPPORTED, ""),
     ("image alpha into the Principled Alpha or a Mix Shader's Fac (stochastic "
      "pass-through of camera and photon paths; shadow rays pass cut-outs and Transparent "
-     "BSDFs with Cycles' weights, except with the Combined integrator, docs/shading.md); "
+     "BSDFs with Cycles' weights in every integrator, docs/shading.md); "
      "the colour associated with alpha as Cycles reads it", SUPPORTED, ""),
     ("node groups (flattened, nested)", SUPPORTED, ""),
     ("film transparency, pixel filter width, object and material pass index", SUPPORTED, ""),
