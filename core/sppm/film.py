@@ -46,8 +46,12 @@ class PassResult:
 
     def stats_line(self) -> str:
         m, s = divmod(int(self.elapsed), 60)
-        return (f"Pass {self.pass_index} | {self.photons_emitted / 1e6:.1f} M photons | "
-                f"{m}:{s:02d} | mean radius {self.mean_radius_px:.2f} px")
+        line = (f"Pass {self.pass_index} | {self.photons_emitted / 1e6:.1f} M photons | "
+                f"{m}:{s:02d}")
+        # Path and light tracing have no kernel radius (0): say nothing of it.
+        if self.mean_radius_px > 0:
+            line += f" | mean radius {self.mean_radius_px:.2f} px"
+        return line
 
 
 class FilmPass(NamedTuple):
