@@ -46,8 +46,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..lights.direct_kernels import (SPH_TRI_MIN, EntryLights, _entry_weight,
-                                     _spherical_rect, _spherical_tri, entry_lights)
+from ..lights.direct_kernels import (SPH_TRI_MIN, _entry_weight, _spherical_rect,
+                                     _spherical_tri)
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..materials.fast import ABSORBER, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
 from ..sppm.photon_kernels import shading_normal
@@ -64,13 +64,12 @@ class LightPdf(NamedTuple):
     group triangles, -1: none); group_frac (Nl,) float64 its share of the
     group (1 outside it); hittable (Nl,) bool a BSDF ray can find it;
     vis_glossy, vis_trans (Nl,) bool its visibility to reflected /
-    transmitted rays; E the :class:`EntryLights` of the same table."""
+    transmitted rays.  The selection weights read ``DirectLights.sel``."""
     entry: np.ndarray
     group_frac: np.ndarray
     hittable: np.ndarray
     vis_glossy: np.ndarray
     vis_trans: np.ndarray
-    E: EntryLights
 
 
 class PathMaterials(NamedTuple):
@@ -138,8 +137,7 @@ def build_light_pdf(table, hittable, L) -> LightPdf:
         frac[table.group_tri] = np.diff(np.concatenate([[0.0], cdf])) / cdf[-1]
     return LightPdf(entry=entry, group_frac=frac, hittable=np.asarray(hittable, bool).copy(),
                     vis_glossy=np.asarray(table.visible_glossy, bool).copy(),
-                    vis_trans=np.asarray(table.visible_transmission, bool).copy(),
-                    E=entry_lights(L))
+                    vis_trans=np.asarray(table.visible_transmission, bool).copy())
 
 
 def build_path_materials(mtab, fmat, colors) -> PathMaterials:
@@ -189,7 +187,7 @@ def selection_kernel(L, Q, p, light, out):
                 d2 = (px - L.group[0]) ** 2 + (py - L.group[1]) ** 2 + (pz - L.group[2]) ** 2
                 w = L.group_cdf[G - 1] / (2.0 * _PI * (d2 + L.group[3]))
             else:
-                w = _entry_weight(Q.E, i, px, py, pz)
+                w = _entry_weight(L.sel, i, px, py, pz)
             if not np.isfinite(w):
                 w = 0.0
             tot += w
