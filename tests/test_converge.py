@@ -7,6 +7,12 @@ needs no Cycles reference render.  Its FPPM/PPM runs are counted in passes
 on numba's compile time.  A second run makes a tiny Cycles reference
 (8 spp) in a temporary cache and runs only the Cycles ladder, twice (the
 second time from the cache).  Total about 35 s on this machine.
+
+The subprocesses share this session's kernel cache (``$FPPM_CACHE_DIR`` as
+inherited): the CLI imports the kernels under the same module names as the
+tests (tests/fppm_alias.py), so they compile once per suite, not once per
+subprocess.  Only the reference-cache test points ``$FPPM_CACHE_DIR`` at a
+temporary folder, since the rendered reference is what it checks.
 """
 import csv
 import json
@@ -31,15 +37,16 @@ COLUMNS = (["method", "seed", "point", "seconds", "render_seconds", "photons", "
               for k in ("relmse", "rmse", "mre", "flip")])
 
 
-def _env(tmp):
+def _env(tmp, own_cache=False):
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    env["FPPM_CACHE_DIR"] = str(tmp)
+    if own_cache:
+        env["FPPM_CACHE_DIR"] = str(tmp)
     return env
 
 
-def _run(args, tmp, timeout=900):
+def _run(args, tmp, timeout=900, own_cache=False):
     return subprocess.run(H.fppm_command() + [str(a) for a in args], capture_output=True,
-                          text=True, env=_env(tmp), cwd=str(tmp), timeout=timeout)
+                          text=True, env=_env(tmp, own_cache), cwd=str(tmp), timeout=timeout)
 
 
 def _rows(out):
@@ -199,7 +206,7 @@ def test_cycles_reference_is_made_then_cached(tmp_path):
     args = ["converge", refs.scene_path("t_light_point"), "--time-limit", 0.5, "--out", out,
             "--cycles-samples", 8, "--methods", "cycles", "--cycles-max-samples", 4,
             "--no-cycles-check"]
-    r1 = _run(args, tmp_path)
+    r1 = _run(args, tmp_path, own_cache=True)
     assert r1.returncode == 0, r1.stderr[-3000:]
     cached = list((tmp_path / "references").glob("*.exr"))
     assert len(cached) == 1
@@ -210,7 +217,7 @@ def test_cycles_reference_is_made_then_cached(tmp_path):
     # to its noise: measured relMSE 2e-3 (8 spp); 1e-2 is 5x that.
     ref, _ = refs.load_reference("t_light_point")
     assert M.relmse(layers["Combined"], ref) < 1e-2
-    r2 = _run(args, tmp_path)
+    r2 = _run(args, tmp_path, own_cache=True)
     assert r2.returncode == 0 and "Reference: cached" in r2.stdout
     _, rows = _rows(out)
     assert [int(x["samples"]) for x in rows] == [1, 2, 4]
