@@ -310,8 +310,8 @@ def marked_segments(rows, rec, dep, march_all, need, used):
     glass, transparent), whose spectrum reaches the next deposit without a
     lobe's blur.  A ray that only continues through a non-delta lobe (the
     first hit without ``photons_for_direct``) travels without its occluder
-    (docs/frequency.md "Cost": the lobe's blur and the next segment's
-    travel outweigh it).  march_all: used = need."""
+    (docs/frequency.md "Cost": what that changes, measured).  march_all:
+    used = need."""
     for k in range(rows.dep0, rows.dep1):
         need[dep.src[k]] = True
         used[dep.src[k]] = True

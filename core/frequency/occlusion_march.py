@@ -210,7 +210,12 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t, cut):
     d[i]] (see :func:`march_occlusion`): m a :class:`MarchGrid`; o, d (N, 3)
     float64 (d unit), t_end (N,); rows (>= n,) int64; out, out_t (N,)
     float64 get a_occ [m^2] and the segment parameter t_occ of that
-    occluder, (inf, inf) without one.  The frequency chains
+    occluder, (inf, inf) without one.  cut (N, 3) float64 (q0, q1, q2): a
+    candidate at distance l at t counts only if l^2 < q0 + 2 q1 t + q2 t^2
+    (``kernels.radius_cut``: farther ones cannot bring the deposit's radius
+    below the pixels'), inf = every candidate; the skips take that
+    threshold's largest value over the block, voxel piece or jump (a convex
+    quadratic: at an end).  The frequency chains
     (core.frequency.kernels) march the rows of one bounce in one call: the
     arrays of m are unpacked once per call, not per segment: numba counts
     the references of each array it takes out of m, and those counts cost
@@ -452,8 +457,13 @@ def march_segment(m, ox, oy, oz, dx, dy, dz, t_end):
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
-def _march(m, o, d, t_end, out, out_t, cut):
+def _march_cut(m, o, d, t_end, out, out_t, cut):
     march_segments(m, o, d, t_end, np.arange(o.shape[0]), o.shape[0], out, out_t, cut)
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _march(m, o, d, t_end, out, out_t):
+    _march_cut(m, o, d, t_end, out, out_t, np.full((o.shape[0], 3), np.inf))
 
 
 def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
@@ -477,6 +487,7 @@ def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
     without one): the occlusion operator acts there, and the light field
     travels on for t_end - t (docs/frequency.md: occlusion is a
     multiplication of the field at the blocker).
+    cut: None, or (N, 3) the per-segment threshold of :func:`march_segments`.
     The traversal (:func:`march_segment`) skips whole blocks of voxels that
     provably hold no candidate below the current minimum (``MarchBlocks``);
     tests/oracle_occlusion.py holds the voxel-by-voxel reference.
@@ -490,7 +501,9 @@ def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
     if len(o) == 0 or not np.isfinite(grid.dist).any():
         out[:] = np.inf
         return (out, out_t) if return_t else out
-    cut = (np.full((len(o), 3), np.inf) if cut is None
-           else np.ascontiguousarray(np.asarray(cut, np.float64).reshape(-1, 3)))
-    _march(march_grid(grid, locality, skip_voxels), o, d, t_end, out, out_t, cut)
+    if cut is None:
+        _march(march_grid(grid, locality, skip_voxels), o, d, t_end, out, out_t)
+    else:
+        _march_cut(march_grid(grid, locality, skip_voxels), o, d, t_end, out, out_t,
+                   np.ascontiguousarray(np.asarray(cut, np.float64).reshape(-1, 3)))
     return (out, out_t) if return_t else out
