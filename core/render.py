@@ -395,6 +395,7 @@ class Renderer:
         state = self.state
         self.radii.initialise(state, vp, self._check_stop)
         state.depth = np.where(vp.valid, vp.depth, state.depth)
+        self.tracer.set_radius_cut(state.R2)
         est = self.photon_pass(vp, state.R2, state.spectrum, rng, self._check_stop)
         tu = time.perf_counter()
         if est.r_hist is not None:

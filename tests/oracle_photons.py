@@ -38,15 +38,38 @@ def travel_occlude_travel(spec, t, a_occ, t_occ, D, model, A_MAX):
     return s
 
 
-def arrive_numpy(tracer, spec, o, d, t, ng):
+def radius_cut_numpy(spec, t, r_cut, D):
+    """``kernels.radius_cut`` of spectra spec (N, 3) over segments of length
+    t (N,): (N, 3) rows (q0, q1, q2), inf where there is no cut."""
+    A_MAX = D * D
+    s = F.sanitize(np.asarray(spec, np.float64), A_MAX)
+    ae = F.travel(s, np.minimum(t, D), "CORRECTED", A_MAX)[:, 0]
+    den = 2.0 * F.BETA * ae - r_cut * r_cut
+    ok = (den > 0) & np.isfinite(r_cut)
+    L = np.where(ok, r_cut * r_cut / np.where(ok, den, 1.0), 0.0)
+    q = s[:, [0, 2, 1]] * L[:, None]
+    q[~ok] = np.inf
+    return q
+
+
+def arrive_numpy(tracer, spec, o, d, t, ng, used=None):
     """The arriving chain (``kernels.arrive``) of spectra spec (N, 3) along
     segments o, d (N, 3), t (N,) onto surfaces of geometric normal ng (N, 3),
-    with the tracer's model, occlusion grid and D.  Returns (N, 3)."""
+    with the tracer's model, occlusion grid and D.  used (N,) bool: the
+    segments whose occluder is marched (``kernels.marked_segments``; the
+    others get a_occ = inf), None = all.  Returns (N, 3)."""
     model = tracer.settings.frequency_model
     A_MAX = tracer.D * tracer.D
     if tracer.occ_grid is not None:
-        a_occ, t_occ = march_occlusion(tracer.occ_grid, o, d, t, tracer.occ_locality,
-                                       return_t=True)
+        a_occ, t_occ = np.full(len(t), np.inf), np.full(len(t), np.inf)
+        u = np.ones(len(t), bool) if used is None else np.asarray(used, bool)
+        cut = None
+        r_cut = float(getattr(tracer, "radius_cut", np.inf))
+        if model == "CORRECTED" and r_cut < np.inf:
+            cut = radius_cut_numpy(spec[u], t[u], r_cut, tracer.D)
+        if u.any():
+            a_occ[u], t_occ[u] = march_occlusion(tracer.occ_grid, o[u], d[u], t[u],
+                                                 tracer.occ_locality, return_t=True, cut=cut)
         s = travel_occlude_travel(spec, t, a_occ, t_occ, tracer.D, model, A_MAX)
     else:
         s = F.travel(spec, np.minimum(t, tracer.D), model, A_MAX)
@@ -78,12 +101,18 @@ def _iface(tracer, prim, sign, ng, d_in, d_out, mat):
 
 
 def spectrum_at_hits_numpy(self, spec, seg, rec, dep, rows):
-    """``PhotonTracer._spectrum_at_hits`` by :func:`arrive_numpy` (every hit)."""
+    """``PhotonTracer._spectrum_at_hits`` by :func:`arrive_numpy` (every hit;
+    the occluder of the segments ``kernels.marked_segments`` marks)."""
     model = self.settings.frequency_model
     K = rows.K
     hi = np.nonzero(rec.hit[:K])[0]
+    used = np.zeros(K, bool)
+    used[dep.buf.src[rows.dep0:rows.dep1]] = True
+    nxt = rec.nxt_src[:rows.n_next]
+    used[nxt[rec.nxt_delta[:rows.n_next] | self.chain_params().march_all]] = True
     out = np.zeros((K, 3))
-    out[hi] = arrive_numpy(self, spec[hi], seg.o[hi], seg.d[hi], rec.t[hi], rec.ng[hi])
+    out[hi] = arrive_numpy(self, spec[hi], seg.o[hi], seg.d[hi], rec.t[hi], rec.ng[hi],
+                           used[hi])
     a, b = rows.dep0, rows.dep1
     if b > a:
         buf = dep.buf
@@ -154,7 +183,13 @@ def trace_numpy(self, n: int, n_freq: int, rng):
         wi = -d
         mat = self.scene.tri_mat[hits.prim]
         if np.any(is_freq):
+            # the occluder is marched on the segments kernels.marked_segments
+            # marks: deposits (spec) and delta survivors; the others continue
+            # with spec_plain (chosen after sampling)
             fq = np.nonzero(is_freq)[0]
+            spec_plain = spec.copy()
+            spec_plain[fq] = arrive_numpy(self, spec[fq], o[fq], d[fq], hits.t[fq], ng[fq],
+                                          np.zeros(fq.size, bool))
             spec[fq] = arrive_numpy(self, spec[fq], o[fq], d[fq], hits.t[fq], ng[fq])
         deposit = self.mtab.has_nondelta[mat]
         if not (st.photons_for_direct or bounce > 0):
@@ -189,6 +224,8 @@ def trace_numpy(self, n: int, n_freq: int, rng):
             ok &= survive
         k = np.nonzero(ok)[0]
         if is_freq.any():
+            plain = is_freq & ~deposit & ~is_delta
+            spec[plain] = spec_plain[plain]
             fk = k[is_freq[k]]
             if fk.size:
                 sgn = np.where(_dot(ns[fk], wi[fk]) >= 0, 1.0, -1.0)

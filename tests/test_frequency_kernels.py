@@ -22,6 +22,10 @@ their references (tests/oracle_photons.py, tests/oracle_occlusion.py).
    segments of the benchmark's Cornell box (bench/bench_march.py), 0 of the
    3 x 20000 random segments below, 31 of the 12000 segments on voxel
    corners and faces).
+4. What the march may skip (docs/frequency.md "Marching only what can
+   matter"): with the radius cut, every deposit radius below the cut is
+   unchanged bit for bit; the compiled tracer with the cut and the
+   used-segment rule equals the numpy chains with both.
 """
 import numpy as np
 import pytest
@@ -294,3 +298,59 @@ def _assert_matches_dense(g, o, d, t, loc, min_same, min_finite):
     assert np.isfinite(a).mean() > min_finite                  # occluders exercised
     both = ~same & np.isfinite(a) & np.isfinite(b)
     assert np.all(np.abs(np.sqrt(a[both]) - np.sqrt(b[both])) <= g.voxel_diagonal)
+
+
+# ------------------------------------------------------------ 4. what the march may skip
+def test_radius_cut_keeps_every_radius_below_it(grids):
+    """``kernels.radius_cut``: the march ignores an occluder that cannot
+    bring the deposit's diffuse radius below r_cut.  On random segments
+    through the Cornell grid with random leaving spectra (a point light's
+    rank-1 beam, area-light and post-bounce ones): every deposit whose
+    radius without the cut is below r_cut keeps it bit for bit, and every
+    radius the cut leaves at or above r_cut was at or above it without the
+    cut (the held-radius decision of a pixel of radius <= r_cut cannot
+    change).  The cut must skip something: radii above r_cut change."""
+    g = grids[1]
+    rng = np.random.default_rng(9)
+    M, D = 20000, 2.0
+    o = g.lo + rng.random((M, 3)) * (g.hi - g.lo)
+    d = rng.normal(size=(M, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t = rng.uniform(0.05, 1.0, M)
+    a = np.where(rng.random(M) < 0.2, 0.0, 10.0 ** rng.uniform(-4, 0, M))
+    b = np.full(M, F.B_DIFFUSE)
+    c = rng.uniform(-1, 1, M) * np.sqrt(a * b)
+    spec = np.stack([a, b, c], 1)
+    loc = OG.default_locality(g)
+    cs = rng.uniform(0.05, 1.0, M)
+
+    def radius(cut):
+        ao, to = Occ.march_occlusion(g, o, d, t, loc, return_t=True, cut=cut)
+        s = oracle_photons.travel_occlude_travel(spec, t, ao, to, D, "CORRECTED", D * D)
+        return F.predicted_radius(F.onto_surface(s, cs, "CORRECTED", D * D), np.inf, np.inf)
+    full = radius(None)
+    for r_cut in (0.01, 0.03):
+        cut = oracle_photons.radius_cut_numpy(spec, t, r_cut, D)
+        # the compiled twin gives the same rows
+        got = np.array([FK.radius_cut(*spec[i], t[i], r_cut, D * D, D) for i in range(200)])
+        np.testing.assert_array_equal(got, cut[:200])
+        r = radius(cut)
+        below = full < r_cut
+        assert below.sum() > 100                              # the decision exercised
+        np.testing.assert_array_equal(r[below], full[below])
+        assert np.all(full[r >= r_cut] >= r_cut)
+        assert (r != full).sum() > 100                        # something skipped
+
+
+def test_tracer_with_radius_cut_matches_numpy_chains():
+    """The compiled tracer with a radius cut (set_radius_cut) and the used
+    segments only (kernels.marked_segments) against the numpy chains with
+    the same cut and rule: same deposits and radii (same stream)."""
+    trs = [_tracer(TPK.cornell(), "CORRECTED") for _ in range(2)]
+    for tr in trs:
+        tr.set_radius_cut(np.array([0.0, 0.02 ** 2]))
+        assert tr.radius_cut == pytest.approx(0.02)
+    a = trs[0].trace(3000, 3000, np.random.default_rng(5))
+    b = oracle_photons.use_numpy_chains(trs[1]).trace(3000, 3000, np.random.default_rng(5))
+    for key in a:
+        _same(np.asarray(a[key], np.float64), np.asarray(b[key], np.float64))

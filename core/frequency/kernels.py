@@ -301,16 +301,69 @@ def leave(a, b, c, cs, b_lobe, sc, mu, k, curved, paper, A_MAX):
     return brdf(a, b, c, b_lobe, paper, A_MAX)
 
 
+@njit(cache=True)
+def marked_segments(rows, rec, dep, march_all, need, used):
+    """Which of a bounce's rays 0..K-1 the arriving chain reads: need (K,)
+    bool, set for the rays that deposit (dep.src[dep0:dep1]) or continue
+    (rec.nxt_src[:n_next]); used (K,) bool, set for the rays whose occluder
+    is marched: the deposits, and the survivors of a delta lobe (mirror,
+    glass, transparent), whose spectrum reaches the next deposit without a
+    lobe's blur.  A ray that only continues through a non-delta lobe (the
+    first hit without ``photons_for_direct``) travels without its occluder
+    (docs/frequency.md "Cost": what that changes, measured).  march_all:
+    used = need."""
+    for k in range(rows.dep0, rows.dep1):
+        need[dep.src[k]] = True
+        used[dep.src[k]] = True
+    for j in range(rows.n_next):
+        i = rec.nxt_src[j]
+        need[i] = True
+        if march_all or rec.nxt_delta[j]:
+            used[i] = True
+
+
+@njit(cache=True)
+def radius_cut(a, b, c, t, r_cut, A_MAX, D):
+    """(q0, q1, q2): the march of a segment of length t leaving with the
+    spectrum (a, b, c) may ignore an occluder at distance l at t_o when l^2
+    >= q0 + 2 q1 t_o + q2 t_o^2 = L a(t_o), the spatial variance there times
+    L = r_cut^2 / (2 BETA a_end - r_cut^2); (inf, inf, inf) when the
+    unoccluded deposit's radius sqrt(2 BETA a_end) is not above r_cut.
+
+    Why (docs/frequency.md "Cost"): occluding Q at t_o with a_o = l^2 and
+    travelling on gives, in any direction u = (1, s), u^T Q'' u =
+    u^T Q u - (e1^T Q u)^2 / (a(t_o) + l^2) >= a_end l^2 / (a(t_o) + l^2)
+    (Cauchy-Schwarz), so the deposit's diffuse radius sqrt(2 BETA a'') (and
+    onto_surface only widens it) stays >= r_cut: no pixel's decision
+    changes.  An occluder that could bring it below r_cut is still found,
+    and the nearest such one is returned."""
+    a, b, c = sanitize(a, b, c, A_MAX)
+    ae = travel(a, b, c, _fmin(t, D), False, A_MAX)[0]
+    den = 2.0 * BETA * ae - r_cut * r_cut
+    if not (den > 0.0) or not (r_cut < np.inf):
+        return np.inf, np.inf, np.inf
+    L = r_cut * r_cut / den
+    return L * a, L * c, L * b
+
+
 # ------------------------------------------------------------ kernel arguments
 class ChainParams(NamedTuple):
     """The frequency model of a render.  paper: the PAPER model's formulas;
     D [m]: the scene diameter (longest distance); A_MAX = D^2 [m^2] (largest
     spatial variance); occlusion: 0 = no grid, 1 = march the grid, 2 = a
-    grid without geometry (a_occ = inf for every segment)."""
+    grid without geometry (a_occ = inf for every segment); march_all: march
+    every segment whose spectrum is read, not only the used ones
+    (:func:`marked_segments`; the rule before docs/frequency.md "Cost",
+    kept for the benchmarks); r_cut [m]: a radius no pixel's decision can
+    tell from infinity (the largest pixel radius), inf = none: the march
+    ignores the occluders that cannot bring a deposit's radius below it
+    (:func:`radius_cut`; CORRECTED only)."""
     paper: bool
     D: float
     A_MAX: float
     occlusion: int
+    march_all: bool = False
+    r_cut: float = np.inf
 
 
 class Segments(NamedTuple):
@@ -394,10 +447,8 @@ def _kernels(token):
             raise RuntimeError("token")
         K = rows.K
         need = np.zeros(K, np.bool_)
-        for k in range(rows.dep0, rows.dep1):
-            need[dep.src[k]] = True
-        for j in range(rows.n_next):
-            need[rec.nxt_src[j]] = True
+        used = np.zeros(K, np.bool_)
+        marked_segments(rows, rec, dep, chain.march_all, need, used)
         paper, A_MAX, D = chain.paper, chain.A_MAX, chain.D
         marched = chain.occlusion == 1
         has_grid = chain.occlusion != 0
@@ -407,20 +458,28 @@ def _kernels(token):
         rows_m = np.empty(K, np.int64)
         n_march = 0
         for i in range(K):
-            if need[i] and rec.hit[i]:
+            if used[i] and rec.hit[i]:
                 rows_m[n_march] = i
                 n_march += 1
         if not marched:
             n_march = 0
         a_occ = np.empty(K)
         t_occ = np.empty(K)
-        march_segments(march, seg.o, seg.d, rec.t, rows_m, n_march, a_occ, t_occ)
+        cut = np.empty((K, 3))
+        for k in range(n_march):
+            i = rows_m[k]
+            if paper or not (chain.r_cut < np.inf):
+                cut[i, 0] = cut[i, 1] = cut[i, 2] = np.inf
+            else:
+                cut[i, 0], cut[i, 1], cut[i, 2] = radius_cut(
+                    spec[i, 0], spec[i, 1], spec[i, 2], rec.t[i], chain.r_cut, A_MAX, D)
+        march_segments(march, seg.o, seg.d, rec.t, rows_m, n_march, a_occ, t_occ, cut)
         for i in range(K):
             if not (need[i] and rec.hit[i]):
                 continue
             t = rec.t[i]
             ao, to = np.inf, np.inf
-            if marched:
+            if marched and used[i]:
                 ao, to = a_occ[i], t_occ[i]
             cs = abs(rec.ng[i, 0] * seg.d[i, 0] + rec.ng[i, 1] * seg.d[i, 1]
                      + rec.ng[i, 2] * seg.d[i, 2])

@@ -193,13 +193,29 @@ def _far_face(b, B, R, d):
 
 
 @nb.njit(cache=True, nogil=True)
-def march_segments(m, o, d, t_end, rows, n, out, out_t):
+def _cut_over(q0, q1, q2, t0, t1):
+    """The largest l_cut(t) = sqrt(q0 + 2 q1 t + q2 t^2) over [t0, t1] (q2
+    >= 0: the largest at an end)."""
+    return math.sqrt(max(max(q0 + t0 * (2.0 * q1 + t0 * q2), q0 + t1 * (2.0 * q1 + t1 * q2)),
+                         0.0))
+
+
+NO_CUT = np.full((1, 3), np.inf)
+
+
+@nb.njit(cache=True, nogil=True)
+def march_segments(m, o, d, t_end, rows, n, out, out_t, cut):
     """(a_occ, t_occ) of segments: for i = rows[k], k < n, out[i], out_t[i] =
     those of the segment [o[i] + t_skip d[i], o[i] + (t_end[i] - t_skip)
     d[i]] (see :func:`march_occlusion`): m a :class:`MarchGrid`; o, d (N, 3)
     float64 (d unit), t_end (N,); rows (>= n,) int64; out, out_t (N,)
     float64 get a_occ [m^2] and the segment parameter t_occ of that
-    occluder, (inf, inf) without one.  The frequency chains
+    occluder, (inf, inf) without one.  cut (N, 3) float64 (q0, q1, q2): a
+    candidate at distance l at t counts only if l^2 < q0 + 2 q1 t + q2 t^2
+    (``kernels.radius_cut``: farther ones cannot bring the deposit's radius
+    below the pixels'), inf = every candidate; the skips take that
+    threshold's largest value over the block, voxel piece or jump (a convex
+    quadratic: at an end).  The frequency chains
     (core.frequency.kernels) march the rows of one bounce in one call: the
     arrays of m are unpacked once per call, not per segment: numba counts
     the references of each array it takes out of m, and those counts cost
@@ -258,6 +274,10 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t):
         tb = t_end[i] - t_skip
         if not ta < tb:
             continue                         # nothing between the skipped ends
+        # l_cut(t)^2 = q0 + 2 q1 t + q2 t^2 (see the docstring): a convex
+        # quadratic, so its largest value over [t0, t1] is at an end
+        q0, q1, q2 = cut[i, 0], cut[i, 1], cut[i, 2]
+        has_cut = q0 < np.inf
         # clip to the grid box (slabs); outside it there is no geometry
         ta, tb = _clip_slab(lo0, c0, R, ox, dx, ta, tb)
         ta, tb = _clip_slab(lo1, c1, R, oy, dy, ta, tb)
@@ -294,11 +314,13 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t):
                 init = False
                 have_v = True
             thr = min(locality, best)
+            t_exit = min(min(tb, tbx), min(tby, tbz))
+            if has_cut:
+                thr = min(thr, _cut_over(q0, q1, q2, t, t_exit))
             bm = bmin[bx, by, bz]
             if (bm * (1.0 - BLOCK_REL) >= thr
                     or (cones and not _union_meets(bcone, bx, by, bz, dx, dy, dz))):
                 # leave the block
-                t_exit = min(min(tb, tbx), min(tby, tbz))
                 # Far from everything, go further (sphere tracing, exact): o + t d
                 # is within diag/2 of a centre of this block (dist >= bm), so every
                 # point within jump of it has true distance >= bm - diag/2 - jump
@@ -306,6 +328,12 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t):
                 # - diag >= thr.  Land on the *entry* of the voxel there, as the
                 # voxel walk would: no voxel is sampled on part of its piece.
                 jump = bm * (1.0 - 1e-6) - vjump - thr
+                if has_cut and jump > 0.0:
+                    # the threshold over the whole jump: at most that over
+                    # [t, t + jump], so the shorter jump it gives is covered
+                    thr = min(min(locality, best),
+                              _cut_over(q0, q1, q2, t, max(t_exit, t + jump)))
+                    jump = bm * (1.0 - 1e-6) - vjump - thr
                 if t + jump > t_exit:
                     tl = t + jump
                     if not tl < tb:
@@ -362,6 +390,9 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t):
             while True:
                 t_exit = min(min(tb, tnx), min(tny, tnz))
                 thr = min(locality, best)
+                loc = locality
+                if has_cut:
+                    thr = min(thr, _cut_over(q0, q1, q2, t, t_exit))
                 if (not has_v or (vmin[ix, iy, iz] * (1.0 - BLOCK_REL) < thr
                                   and (not cones
                                        or _union_meets(vcone, ix, iy, iz, dx, dy, dz)))):
@@ -371,8 +402,10 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t):
                     ts += (lo1 + (iy + 0.5) * c1 - oy) * dy
                     ts += (lo2 + (iz + 0.5) * c2 - oz) * dz
                     ts = min(max(ts, t), min(t_exit, tb))
+                    if has_cut:
+                        loc = min(locality, _cut_over(q0, q1, q2, ts, ts))
                     nb_ = sample_voxel(dist, cone, lo, cell, R, ix, iy, iz, ox, oy, oz,
-                                        dx, dy, dz, ts, locality, best)
+                                        dx, dy, dz, ts, loc, best)
                     if nb_ < best:
                         best = nb_
                         t_best = ts
@@ -419,17 +452,22 @@ def march_segment(m, ox, oy, oz, dx, dy, dz, t_end):
     m a :class:`MarchGrid`, o and d (unit) scalars."""
     out, out_t = np.empty(1), np.empty(1)
     march_segments(m, np.array([[ox, oy, oz]], np.float64), np.array([[dx, dy, dz]], np.float64),
-                   np.array([t_end], np.float64), np.zeros(1, np.int64), 1, out, out_t)
+                   np.array([t_end], np.float64), np.zeros(1, np.int64), 1, out, out_t, NO_CUT)
     return out[0], out_t[0]
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
+def _march_cut(m, o, d, t_end, out, out_t, cut):
+    march_segments(m, o, d, t_end, np.arange(o.shape[0]), o.shape[0], out, out_t, cut)
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _march(m, o, d, t_end, out, out_t):
-    march_segments(m, o, d, t_end, np.arange(o.shape[0]), o.shape[0], out, out_t)
+    _march_cut(m, o, d, t_end, out, out_t, np.full((o.shape[0], 3), np.inf))
 
 
 def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
-                    skip_voxels: float = 1.0, return_t: bool = False):
+                    skip_voxels: float = 1.0, return_t: bool = False, cut=None):
     """a_occ [m^2] for each photon segment [o, o + t_end d].
 
     o: (N, 3), d: (N, 3) unit directions, t_end: (N,) segment lengths (inf for
@@ -449,6 +487,7 @@ def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
     without one): the occlusion operator acts there, and the light field
     travels on for t_end - t (docs/frequency.md: occlusion is a
     multiplication of the field at the blocker).
+    cut: None, or (N, 3) the per-segment threshold of :func:`march_segments`.
     The traversal (:func:`march_segment`) skips whole blocks of voxels that
     provably hold no candidate below the current minimum (``MarchBlocks``);
     tests/oracle_occlusion.py holds the voxel-by-voxel reference.
@@ -462,5 +501,9 @@ def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
     if len(o) == 0 or not np.isfinite(grid.dist).any():
         out[:] = np.inf
         return (out, out_t) if return_t else out
-    _march(march_grid(grid, locality, skip_voxels), o, d, t_end, out, out_t)
+    if cut is None:
+        _march(march_grid(grid, locality, skip_voxels), o, d, t_end, out, out_t)
+    else:
+        _march_cut(march_grid(grid, locality, skip_voxels), o, d, t_end, out, out_t,
+                   np.ascontiguousarray(np.asarray(cut, np.float64).reshape(-1, 3)))
     return (out, out_t) if return_t else out

@@ -153,6 +153,9 @@ class PhotonTracer:
         self.clear_through = bool(getattr(plan, "transparent_shadows", False))
         self.skip_straight = self.clear_through and not settings.photons_for_direct
         self._clear = None
+        # The march ignores occluders that cannot bring a deposit's radius
+        # below this [m] (set_radius_cut; kernels.ChainParams.r_cut).
+        self.radius_cut = np.inf
 
     def trace(self, n: int, n_freq: int, rng):
         """Trace n photons (the first n_freq carry a spectrum); return deposits.
@@ -352,7 +355,19 @@ class PhotonTracer:
     def chain_params(self) -> FK.ChainParams:
         """The frequency model of this render, for the compiled chains."""
         return FK.ChainParams(paper=self.settings.frequency_model == "PAPER", D=float(self.D),
-                              A_MAX=float(self.D * self.D), occlusion=self.occlusion)
+                              A_MAX=float(self.D * self.D), occlusion=self.occlusion,
+                              r_cut=float(self.radius_cut))
+
+    def set_radius_cut(self, R2):
+        """Before a pass: radius_cut = the largest pixel radius sqrt(R2 (P,)),
+        which no pixel's held-radius decision tells from infinity
+        (docs/frequency.md "Cost"); inf (every occluder marched) when the
+        predicted radii are shown (AOVs) or the radius rule is not PPM's."""
+        st = self.settings
+        R2 = np.asarray(R2)
+        exact = (st.aov_predicted_radius or st.aov_spectrum or st.radius_rule != "PPM"
+                 or not R2.size or not np.isfinite(R2).all())
+        self.radius_cut = np.inf if exact else float(np.sqrt(R2.max()))
 
     def _spectrum_at_hits(self, spec, seg, rec, dep, rows):
         """Frequency photons: travel, occlusion and projection onto the hit
