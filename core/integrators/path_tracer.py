@@ -158,11 +158,15 @@ class PathTracer:
     """Camera paths over the pixels (px, py) (P,) float64 of the region, py from
     the bottom; settings: RenderSettings (max_bounces, rr_start,
     camera_samples); nee: core.lights.nee.NextEventEstimation (its shadow test);
-    compiled: use :mod:`.path_kernels` where they cover the scene."""
+    compiled: use :mod:`.path_kernels` where they cover the scene; transparent:
+    Film > Transparent (a camera ray that escapes directly or straight through
+    Transparent BSDFs adds no world, as in Cycles and core.sppm.visible_points;
+    the film's alpha is its coverage)."""
 
     def __init__(self, scene, accel, mtab, light_table, camera, fsamp, px, py, settings, nee,
-                 compiled: bool = True):
+                 compiled: bool = True, transparent: bool = False):
         self.scene, self.accel, self.mtab, self.lights = scene, accel, mtab, light_table
+        self.transparent = bool(transparent)
         self.camera, self.fsamp, self.px, self.py = camera, fsamp, px, py
         self.max_bounces = int(settings.max_bounces)
         self.rr_start = int(settings.rr_start)
@@ -281,6 +285,9 @@ class PathTracer:
                     w = w * part.weight(sel)
                 out[path[sel]] += beta[sel] * Le * w[:, None]
             miss = np.nonzero(~h.hit)[0]
+            if self.transparent:
+                # ``first``: only transparent crossings since the lens.
+                miss = miss[~first[miss]]
             if miss.size and np.any(self.world > 0):
                 row = np.full(miss.size, self.world_row, np.int64)
                 w = self._mis_bsdf(pdf_prev[miss], p_prev[miss], n_prev[miss], d[miss], row,

@@ -219,6 +219,13 @@ class Film:
             self.eye, self.view = M[:3, 3].copy(), -axes[:, 2]
             self.R_wc = np.stack([axes[:, 0], axes[:, 1], -axes[:, 2]])
 
+    @property
+    def needs_camera(self) -> bool:
+        """Whether :meth:`accumulate` uses a pass's camera data (alpha or a
+        data pass is on): integrators without visible points of their own
+        (PATH, COMBINED) run the camera pass for it only then."""
+        return self.scene is not None and (self.transparent or bool(self.data_passes))
+
     def accumulate(self, vp) -> None:
         """Add one pass's camera data (VisiblePoints with .first) to alpha and the data passes."""
         first = getattr(vp, "first", None)
