@@ -217,10 +217,10 @@ def test_max_bounces_counts_like_cycles():
     assert abs(mean - 1.75) < 4 * sigma
 
 
-def test_settings_are_validated_and_photon_mode_is_default():
-    # Photon mapping stays the default until COMBINED has the passes, film
-    # alpha and Dask scale-out (README, "Which integrator to choose").
-    assert RenderSettings().integrator == "PHOTON"
+def test_settings_are_validated_and_combined_is_default():
+    # COMBINED is the default (README, "Which integrator to choose"): it has
+    # the passes and film alpha (tests/test_passes.py) too.
+    assert RenderSettings().integrator == "COMBINED"
     with pytest.raises(SettingsError, match="integrator"):
         RenderSettings(integrator="BDPT").validate()
     with pytest.raises(SettingsError, match="camera_samples"):
