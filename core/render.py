@@ -40,7 +40,10 @@ With ``integrator = 'LIGHT'`` a pass is instead photons_per_pass light paths
 connected to the camera (core.integrators.light_tracer); the image is their
 splat sums over the paths traced (no AOVs).
 With ``integrator = 'PATH'`` a pass is instead camera paths alone
-(core.integrators.PathTracer, docs/integrators.md) into the same film.
+(core.integrators.PathTracer, docs/integrators.md) into the same film;
+``'COMBINED'`` (the default) adds light tracing and photon merging.  Both
+take the film's alpha and data passes from stage 1's camera pass, run when
+merging or the film needs it (docs/integrators.md, "Passes and film alpha").
 """
 from __future__ import annotations
 

@@ -13,6 +13,8 @@ passes are means over the passes (over filter samples, so edges average);
 README.md "Passes" lists them.  Alpha (Film > Transparent) is the
 mean over passes of 1 - the throughput with which the camera ray escaped
 to the world (straight through Transparent BSDFs), Cycles' definition.
+Every integrator with camera rays (PHOTON, PATH, COMBINED) accumulates the
+camera pass's first hits here, so the alpha and passes are computed once.
 
 The image, the radius and the radius in pixels come from one compiled
 kernel per pixel range (``core.sppm.film_kernels``, split over the numba threads from
