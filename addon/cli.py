@@ -1,7 +1,7 @@
 """``fppm render``: render a .blend file with FPPM from the command line (Blender as a module).
 
     fppm render SCENE.blend -o OUT.exr [--frame N] [--time-limit S] [--passes N]
-                [--photons N] [--mode fppm|ppm|path|light] [--seed N] [--resolution PCT]
+                [--photons N] [--mode combined|fppm|ppm|path|light] [--seed N] [--resolution PCT]
                 [--checkpoint DIR [--checkpoint-every S] [--resume]] [--overwrite]
 
 This module is shipped in the extension and runs alone
@@ -70,11 +70,13 @@ def add_render_parser(sub) -> None:
                    help="stop after S seconds of passes (0 = no limit)")
     r.add_argument("--passes", type=int, metavar="N", help="maximum passes (0 = no limit)")
     r.add_argument("--photons", type=int, metavar="N", help="photons per pass")
-    r.add_argument("--mode", choices=("fppm", "ppm", "path", "light", "combined"),
-                   help="fppm: frequency-adapted kernel; ppm: plain progressive photon mapping; "
+    r.add_argument("--mode", choices=("combined", "fppm", "ppm", "path", "light"),
+                   help="the integrator (default: the file's; Combined when it never set one): "
+                        "combined: path and light tracing weighted by MIS, with photon merging "
+                        "(integrator COMBINED); fppm: photon mapping with the frequency-adapted "
+                        "kernel; ppm: plain progressive photon mapping; "
                         "path: path tracing (integrator PATH); "
-                        "light: light tracing alone (photon paths connected to the camera); "
-                        "combined: path and light tracing weighted by MIS (integrator COMBINED)")
+                        "light: light tracing alone (photon paths connected to the camera)")
     r.add_argument("--seed", type=int, metavar="N", help="random seed")
     r.add_argument("--resolution", type=int, metavar="PCT",
                    help="resolution percentage (1-1000), overriding the file's")

@@ -117,7 +117,8 @@ SUPPORT = (
      "BSDFs with Cycles' weights in every integrator, docs/shading.md); "
      "the colour associated with alpha as Cycles reads it", SUPPORTED, ""),
     ("node groups (flattened, nested)", SUPPORTED, ""),
-    ("film transparency, pixel filter width, object and material pass index", SUPPORTED, ""),
+    ("film transparency, pixel filter width, object and material pass index (every "
+     "integrator but Light Tracing, whose film is opaque)", SUPPORTED, ""),
     ("other shader nodes", APPROXIMATED, "unsupported node(s) "),
     ("other nodes linked into an input (the input's value is used)", APPROXIMATED,
      "'{src.name}' into {node.name}.{name} ignored"),

@@ -37,7 +37,8 @@ def main() -> None:
     scenes = (("Cornell box", cornell(a.res)),
               ("room, 4 analytic lights", warmup_scene(a.res, ("POINT", "AREA", "SPOT", "SUN"))))
     for name, scene in scenes:
-        r = Renderer(scene, RenderSettings(max_passes=1, photons_per_pass=100, seed=1),
+        r = Renderer(scene, RenderSettings(integrator="PHOTON", max_passes=1,
+                                           photons_per_pass=100, seed=1),
                      log=lambda _m: None)
         vp, _ = r.camera_pass(np.random.default_rng(1))
         q = np.nonzero(vp.valid)[0]

@@ -40,7 +40,8 @@ def capture(photons: int, seed: int = 1):
     import bench_render as BR
     from core.render import Renderer
     from core.settings import RenderSettings
-    r = Renderer(BR.cornell(64), RenderSettings(max_passes=10, photons_per_pass=photons,
+    r = Renderer(BR.cornell(64), RenderSettings(integrator="PHOTON", max_passes=10,
+                                                photons_per_pass=photons,
                                                 use_frequency=True), log=lambda s: None)
     tr = oracle_photons.use_numpy_chains(r.tracer)
     segs = []

@@ -52,7 +52,8 @@ def main(argv=None):
     ap.add_argument("--photons", type=int, default=100_000)
     ap.add_argument("--passes", type=int, default=3)
     a = ap.parse_args(argv)
-    st = RenderSettings(max_passes=a.passes, photons_per_pass=a.photons, photons_for_direct=True)
+    st = RenderSettings(integrator="PHOTON", max_passes=a.passes, photons_per_pass=a.photons,
+                        photons_for_direct=True)
     plane, _ = point_light_plane(res=a.res)
     Renderer(plane, st.replace(max_passes=1), log=lambda s: None).run()      # warm-up (numba)
     rows = []

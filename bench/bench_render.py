@@ -195,7 +195,7 @@ class Timers:
 def make_renderer(scene, a, use_frequency, tm, before=False):
     """before: frequency photons as before core.frequency.kernels (numpy
     chains, dense march)."""
-    st = RenderSettings(max_passes=1000, photons_per_pass=a.photons,
+    st = RenderSettings(integrator="PHOTON", max_passes=1000, photons_per_pass=a.photons,
                         use_frequency=use_frequency,
                         max_bounces=a.bounces or RenderSettings().max_bounces)
     r = Renderer(scene, st, log=lambda s: None)
@@ -441,7 +441,8 @@ def stage_report(a):
           f"{os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, threads {Ph.THREADS})")
     for res in a.stage_res:
         scene = cornell(res)
-        r = Renderer(scene, RenderSettings(max_passes=1000, photons_per_pass=a.photons),
+        r = Renderer(scene, RenderSettings(integrator="PHOTON", max_passes=1000,
+                                           photons_per_pass=a.photons),
                      log=lambda s: None)
         cam, nee = r.camera_pass, r.direct_light
         vp, _ = cam(np.random.default_rng(1))
@@ -530,7 +531,8 @@ def gather_report(a):
     for wh in a.gather_res:
         w, h = (int(x) for x in wh.split("x"))
         r = Renderer(cornell(w, height=h),
-                     RenderSettings(max_passes=1000, photons_per_pass=a.photons),
+                     RenderSettings(integrator="PHOTON", max_passes=1000,
+                                    photons_per_pass=a.photons),
                      log=lambda s: None)
         pp = r.photon_pass
         after = pp._trace_gather
@@ -646,7 +648,8 @@ def pass_one(a):
     from core import memory
     w, h = (int(x) for x in a.pass_one.split("x"))
     rss0 = memory.resident_bytes()
-    r = Renderer(cornell(w, height=h), RenderSettings(max_passes=1000, photons_per_pass=a.photons,
+    r = Renderer(cornell(w, height=h), RenderSettings(integrator="PHOTON", max_passes=1000,
+                                                      photons_per_pass=a.photons,
                                                       use_frequency=not a.plain),
                  log=lambda s: None)
     r.step()                                      # warm-up (kernels, the edge cap's pass)

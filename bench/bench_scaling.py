@@ -95,7 +95,8 @@ def main(argv=None):
                     help="threads per process (driver and workers; default: numba's)")
     a = ap.parse_args(argv)
     scene = cornell(a.res)
-    st = RenderSettings(max_passes=a.passes, photons_per_pass=a.photons, seed=11,
+    st = RenderSettings(integrator="PHOTON", max_passes=a.passes,
+                        photons_per_pass=a.photons, seed=11,
                         time_limit=0.0)
     n_chunks = -(-a.photons // a.chunk)
     photons = a.passes * a.photons

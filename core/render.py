@@ -40,7 +40,10 @@ With ``integrator = 'LIGHT'`` a pass is instead photons_per_pass light paths
 connected to the camera (core.integrators.light_tracer); the image is their
 splat sums over the paths traced (no AOVs).
 With ``integrator = 'PATH'`` a pass is instead camera paths alone
-(core.integrators.PathTracer, docs/integrators.md) into the same film.
+(core.integrators.PathTracer, docs/integrators.md) into the same film;
+``'COMBINED'`` (the default) adds light tracing and photon merging.  Both
+take the film's alpha and data passes from stage 1's camera pass, run when
+merging or the film needs it (docs/integrators.md, "Passes and film alpha").
 """
 from __future__ import annotations
 
@@ -122,7 +125,8 @@ class Renderer:
         # integrator 'PATH': camera paths alone (core.integrators) into the same film.
         self.path_tracer = (PathTracer(self.scene, self.accel, self.mtab, self.light_table,
                                        self.camera, self.fsamp, self.px, self.py, st,
-                                       self.direct_light)
+                                       self.direct_light,
+                                       transparent=self.scene.film_transparent)
                             if st.integrator in ("PATH", "COMBINED") else None)
         self.state = PixelState.zeros(P, HIST_BINS if self.radii.quantile else 0, st.aov_spectrum,
                                       self.radii.sector_cells)
@@ -254,6 +258,14 @@ class Renderer:
         return self.radii.floor
 
     @property
+    def photons_per_step(self) -> int:
+        """Photons (light paths) one pass emits: none for camera paths alone
+        (PATH, or COMBINED with neither light tracing nor merging)."""
+        if self.path_tracer is not None and self.combined_lt is None and not self.merging:
+            return 0
+        return self.settings.photons_per_pass
+
+    @property
     def photon_rays(self) -> int:
         """Rays cast by the photon passes so far."""
         return self.photon_pass.rays
@@ -351,12 +363,20 @@ class Renderer:
 
     def _step_path(self) -> PassResult:
         """One pass of the path tracer: camera_samples paths per pixel, averaged
-        over the passes by the film (L_sum / passes; no photons)."""
+        over the passes by the film (L_sum / passes; no photons).  The camera
+        pass's visible points (stream 0, as :meth:`step`'s) feed photon
+        merging and the film's alpha and data passes: first-hit quantities,
+        computed as photon mapping computes them (core.sppm.film PASSES)."""
         t0 = time.perf_counter()
         k = self.pass_index + 1
         L_pass = self._interruptible(self.path_tracer, self._rng(k, 3), self._check_stop)
         tl = time.perf_counter()
         self.stage_seconds["camera"] += tl - t0
+        vp = None
+        if self.merging or self.film.needs_camera:
+            vp, _ = self._interruptible(self.camera_pass, self._rng(k, 0), self._check_stop)
+            self.stage_seconds["camera"] += time.perf_counter() - tl
+            tl = time.perf_counter()
         sums = None
         if self.combined_lt is not None:
             st = self.settings
@@ -364,30 +384,27 @@ class Renderer:
                                        self._rng(k, 2), self._check_stop)
             self.stage_seconds["photon_trace"] += time.perf_counter() - tl
         if self.merging:
-            self._merge(k)       # last: a cancel inside leaves the splats uncommitted
+            self._merge(k, vp)   # last: a cancel inside leaves the splats uncommitted
         if sums is not None:
             self.light_splat += sums
-        if self.combined_lt is not None or self.merging:
-            self.photons_emitted += self.settings.photons_per_pass
+        self.photons_emitted += self.photons_per_step
         self.state.L_sum += L_pass
+        if vp is not None:
+            self.film.accumulate(vp)
         self.pass_index = k
         self.elapsed += time.perf_counter() - t0
         self.last_result = self._film()
         return self.last_result
 
-    def _merge(self, k: int) -> None:
+    def _merge(self, k: int, vp: VisiblePoints) -> None:
         """Photon merging of pass k (integrator 'COMBINED'): the SPPM stages
-        of :meth:`step` -- camera pass, radii, photon pass, progressive update --
-        on the visible points reached through a delta vertex, with the caustic
-        photons the tracer keeps (``after_delta_only``); the film adds
-        tau / (pi R^2 N_emitted).  No next-event estimation or emission here:
-        the camera paths have them."""
+        of :meth:`step` -- radii, photon pass, progressive update -- on the
+        camera pass's visible points vp reached through a delta vertex, with
+        the caustic photons the tracer keeps (``after_delta_only``); the film
+        adds tau / (pi R^2 N_emitted).  No next-event estimation or emission
+        here: the camera paths have them."""
         from dataclasses import replace
-        tc = time.perf_counter()
-        vp, _ = self._interruptible(self.camera_pass, self._rng(k, 0), self._check_stop)
-        vp = replace(vp, valid=vp.through_delta)
-        self.stage_seconds["camera"] += time.perf_counter() - tc
-        self._photons(vp, self._rng(k, 4))
+        self._photons(replace(vp, valid=vp.through_delta), self._rng(k, 4))
 
     def _photons(self, vp, rng) -> None:
         """SPPM stages 3-5 on the visible points vp: initial radii, the photon
@@ -443,9 +460,9 @@ class Renderer:
             raise CheckpointMismatch("The checkpoint was made at a different resolution.")
         # Every array and counter is checked before use (core.sppm.state.check_state).
         why = self.state.check_state(d)
-        if why is None and int(d["photons_emitted"]) != int(d["pass_index"]) * self.settings.photons_per_pass:
+        if why is None and int(d["photons_emitted"]) != int(d["pass_index"]) * self.photons_per_step:
             why = (f"{d['photons_emitted']} photons for {d['pass_index']} passes of "
-                   f"{self.settings.photons_per_pass}")
+                   f"{self.photons_per_step}")
         if why is not None:
             raise CheckpointMismatch(f"The checkpoint is damaged ({why}): delete it to start over.")
         self.state.load_state(d)

@@ -25,7 +25,7 @@ class RenderSettings:
     photons_per_pass: int = 200_000
     seed: int = 0
     # --- Integrator (docs/integrators.md)
-    integrator: str = "PHOTON"       # 'PHOTON' (photon mapping), 'PATH' or 'LIGHT' (tracing alone), 'COMBINED'
+    integrator: str = "COMBINED"     # 'COMBINED' (path + light tracing, merging), 'PHOTON', 'PATH', 'LIGHT'
     camera_samples: int = 4          # PATH, COMBINED: camera paths per pixel and pass
     # --- Kernel
     radius_mode: str = "AUTO"        # 'AUTO' (pixel footprint) or 'WORLD'

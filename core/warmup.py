@@ -158,7 +158,8 @@ def warmup_jobs() -> list:
             (warmup_scene(analytic_lights=("SPOT", "SUN")),
              base.replace(use_frequency=False, photons_for_direct=True,
                           fixed_visible_points=True, cap_radius_at_edges=False)),
-            # The compiled camera paths and the combined integrator's kernels.
+            # The compiled camera paths and the combined integrator's kernels
+            # (COMBINED is the default integrator: tests/test_warmup.py renders it).
             (warmup_scene(glossy=False),
              base.replace(integrator="COMBINED", photons_per_pass=2000, camera_samples=1))]
 

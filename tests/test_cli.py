@@ -128,6 +128,7 @@ def test_file_without_fppm_settings_uses_defaults(blends, tmp_path):
     d = RenderSettings().to_dict()
     d.update(max_passes=1, photons_per_pass=1000)
     assert st == d
+    assert st["integrator"] == "COMBINED"          # the default integrator
 
 
 @pytest.mark.parametrize("args, code, message", [

@@ -13,6 +13,8 @@ passes are means over the passes (over filter samples, so edges average);
 README.md "Passes" lists them.  Alpha (Film > Transparent) is the
 mean over passes of 1 - the throughput with which the camera ray escaped
 to the world (straight through Transparent BSDFs), Cycles' definition.
+Every integrator with camera rays (PHOTON, PATH, COMBINED) accumulates the
+camera pass's first hits here, so the alpha and passes are computed once.
 
 The image, the radius and the radius in pixels come from one compiled
 kernel per pixel range (``core.sppm.film_kernels``, split over the numba threads from
@@ -218,6 +220,13 @@ class Film:
             axes = M[:3, :3] / np.maximum(np.linalg.norm(M[:3, :3], axis=0), 1e-300)
             self.eye, self.view = M[:3, 3].copy(), -axes[:, 2]
             self.R_wc = np.stack([axes[:, 0], axes[:, 1], -axes[:, 2]])
+
+    @property
+    def needs_camera(self) -> bool:
+        """Whether :meth:`accumulate` uses a pass's camera data (alpha or a
+        data pass is on): integrators without visible points of their own
+        (PATH, COMBINED) run the camera pass for it only then."""
+        return self.scene is not None and (self.transparent or bool(self.data_passes))
 
     def accumulate(self, vp) -> None:
         """Add one pass's camera data (VisiblePoints with .first) to alpha and the data passes."""
