@@ -106,6 +106,9 @@ def connect(workers: Optional[int] = None, address: Optional[str] = None):
                                        dashboard_address=":0", silence_logs=logging.ERROR)
     client = distributed.Client(cluster, set_as_default=False)
     client._fppm_cluster = cluster          # closed by close()
+    # Every worker registered before the scene is built on "every worker"
+    # and the log counts them (a loaded machine starts them late).
+    client.wait_for_workers(int(workers), timeout=60)
     client.register_plugin(_worker_ignores_sigint(), name="fppm-ignore-sigint")
     return client
 
