@@ -101,9 +101,15 @@ def connect(workers: Optional[int] = None, address: Optional[str] = None):
     distributed = require()
     if address:
         return distributed.Client(address, set_as_default=False, timeout=CONNECT_TIMEOUT)
-    cluster = distributed.LocalCluster(n_workers=int(workers), threads_per_worker=1,
-                                       processes=True, memory_limit=0,
-                                       dashboard_address=":0", silence_logs=logging.ERROR)
+    import dask
+    # No Active Memory Manager: its ReduceReplicas policy drops the copies
+    # of the broadcast scene and pass data that no queued task waits for
+    # (after ~2 s), and a worker that then dies takes the last copy with it
+    # (scattered data cannot be recomputed: every chunk fails).
+    with dask.config.set({"distributed.scheduler.active-memory-manager.start": False}):
+        cluster = distributed.LocalCluster(n_workers=int(workers), threads_per_worker=1,
+                                           processes=True, memory_limit=0,
+                                           dashboard_address=":0", silence_logs=logging.ERROR)
     client = distributed.Client(cluster, set_as_default=False)
     client._fppm_cluster = cluster          # closed by close()
     # Every worker registered before the scene is built on "every worker"
@@ -410,9 +416,11 @@ class DistributedPhotonPass:
         tag = f"{self.token}-{self._passes}"
         pj = PassJob.pack(tag, vp, R2, active, spectrum is not None)
         pass_future = client.scatter(pj, broadcast=True, hash=False)
+        # Ahead of light chunks submitted for the next pass (COMBINED's
+        # merging waits for these now; DistributedLightTracer.prefetch).
         futures = [client.submit(chunk_task, self.scene_future, pass_future, n, n_freq,
                                  chunk_rng(rng, c), key=f"fppm-chunk-{tag}-{c}",
-                                 retries=self.retries, pure=False)
+                                 retries=self.retries, pure=False, priority=1)
                    for c, (n, n_freq) in enumerate(local.chunks())]
         self.pending = futures
         acc = PassSums.zeros(vp.valid.shape[0], local.radius_histogram is not None, spectrum)
