@@ -28,16 +28,13 @@ import os
 import sys
 import time
 
-# --threads T: numba and photon-tracer threads of every process, set before
-# numba loads and inherited by the workers (one thread: a worker is a core).
-for _i, _a in enumerate(sys.argv[:-1]):
-    if _a == "--threads":
-        os.environ["NUMBA_NUM_THREADS"] = os.environ["FPPM_PHOTON_THREADS"] = sys.argv[_i + 1]
-
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, os.path.join(ROOT, "tests"))
 sys.path.insert(0, os.path.join(ROOT, "bench"))
 
+# First: bench_scaling applies --threads T (numba and photon-tracer threads of
+# every process, inherited by the workers) before numba loads, and puts
+# tests/ on the path for fppm_alias.
+import bench_scaling  # noqa: E402,F401
 import fppm_alias  # noqa: E402,F401  (core.x is fppm.core.x: one numba cache)
 
 import numpy as np  # noqa: E402

@@ -35,25 +35,32 @@ SCENE = os.path.join(H.ROOT, "tests", "scenes", "t_glossy_floor.blend")
 PASSES, PHOTONS, CHUNK, SEED = 3, 40_000, 10_000, 5      # 4 chunks per pass
 
 
-@pytest.fixture(scope="module")
-def glossy(tmp_path_factory):
-    """(saved .blend, exported core Scene, settings) of the small glossy scene."""
+def _export(blend, tmp_path_factory, photons, **kw):
+    """(saved copy, exported core Scene, settings) of blend at 25 % with the
+    test's passes and seed, photons per pass and the settings kw."""
     H.ensure_registered()
     from fppm.addon.export import export_scene
     from fppm.addon.properties import settings_from_scene
-    bpy.ops.wm.open_mainfile(filepath=SCENE, load_ui=False, use_scripts=False)
+    bpy.ops.wm.open_mainfile(filepath=blend, load_ui=False, use_scripts=False)
     sc = bpy.context.scene
     sc.render.resolution_percentage = 25
-    H.small_settings(sc, PASSES, PHOTONS, SEED, frequency_estimator="QUANTILE",
-                     aov_spectrum=True)
-    path = H.save_blend(tmp_path_factory.mktemp("dist") / "glossy.blend")
+    H.small_settings(sc, PASSES, photons, SEED, **kw)
+    path = H.save_blend(tmp_path_factory.mktemp("dist") / os.path.basename(blend))
     scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
     return path, scene, settings_from_scene(sc)
 
 
-def _renderer(glossy):
-    _, scene, st = glossy
-    return D.local_chunk_streams(Renderer(scene, st, log=lambda s: None), CHUNK)
+@pytest.fixture(scope="module")
+def glossy(tmp_path_factory):
+    """(saved .blend, exported core Scene, settings) of the small glossy scene."""
+    return _export(SCENE, tmp_path_factory, PHOTONS, frequency_estimator="QUANTILE",
+                   aov_spectrum=True)
+
+
+def _renderer(exported, chunk=CHUNK):
+    """A one-process renderer of an exported scene with chunk streams."""
+    _, scene, st = exported
+    return D.local_chunk_streams(Renderer(scene, st, log=lambda s: None), chunk)
 
 
 @pytest.fixture(scope="module")
@@ -95,16 +102,21 @@ def test_chunk_sums_do_not_depend_on_the_order_chunks_are_traced(glossy):
     assert compared == [PHOTONS // CHUNK] * 2
 
 
+def _render_on_2_workers(exported, chunk, out):
+    """`fppm render --workers 2 --chunk chunk` of the saved file: (its log, the
+    EXR's layers)."""
+    two = H.run_fppm("render", exported[0], "-o", out, "--workers", 2, "--chunk", chunk,
+                     "-q", "--no-preview")
+    assert two.returncode == 0, two.stderr[-2000:]
+    return two.stdout + two.stderr, read_exr(str(out))
+
+
 @needs_dask
 def test_workers_2_same_image_as_one_process(glossy, reference, tmp_path):
     # `fppm render --workers 2` (a local cluster of 2 processes) against the
     # one-process render of the same file, seed and chunking.
-    out = tmp_path / "two.exr"
-    two = H.run_fppm("render", glossy[0], "-o", out, "--workers", 2, "--chunk", CHUNK,
-                     "-q", "--no-preview")
-    assert two.returncode == 0, two.stderr[-2000:]
-    assert "on 2 Dask workers" in two.stdout + two.stderr
-    got = read_exr(str(out))
+    log, got = _render_on_2_workers(glossy, CHUNK, tmp_path / "two.exr")
+    assert "on 2 Dask workers" in log
     assert set(got) == {"Combined", "Spectrum"}
     assert np.abs(got["Combined"] - reference.image).max() == 0.0
     assert np.abs(got["Spectrum"] - reference.aovs["Spectrum"]).max() == 0.0
@@ -119,6 +131,18 @@ def client():
     D.close(c)
 
 
+def _kill_holder(client, pids, futures, killed, kept=False):
+    """SIGKILL, once, a worker processing one of futures (with kept: or
+    keeping its result); its address goes into killed."""
+    keys = {f.key for f in futures}
+    holders = {w for ws in client.who_has(futures).values() for w in ws} if kept else set()
+    for addr, tasks in client.processing().items():
+        if (keys & set(tasks) or addr in holders) and addr in pids:
+            os.kill(pids[addr], signal.SIGKILL)
+            killed.append(addr)
+            return
+
+
 @needs_dask
 def test_killed_worker_gives_the_same_image(glossy, reference, client):
     pids = client.run(os.getpid)            # {worker address: pid}
@@ -129,14 +153,8 @@ def test_killed_worker_gives_the_same_image(glossy, reference, client):
     def kill_one_mid_pass():
         # Polled while the driver waits for this pass's chunks: kill, once,
         # a worker holding a chunk of pass 2 that has not come back.
-        if killed or r.pass_index != 1 or not dist.pending:
-            return False
-        keys = {f.key for f in dist.pending if not f.done()}
-        for addr, tasks in client.processing().items():
-            if keys & set(tasks) and addr in pids:
-                os.kill(pids[addr], signal.SIGKILL)
-                killed.append(addr)
-                break
+        if not killed and r.pass_index == 1 and dist.pending:
+            _kill_holder(client, pids, [f for f in dist.pending if not f.done()], killed)
         return False
 
     res = r.run(should_stop=kill_one_mid_pass)
@@ -178,27 +196,13 @@ C_PATHS, C_CHUNK = 20_000, 5_000          # 4 chunks of light paths (and of phot
 @pytest.fixture(scope="module")
 def caustic(tmp_path_factory):
     """(saved .blend, exported core Scene, settings) of the glass caustic, COMBINED."""
-    H.ensure_registered()
-    from fppm.addon.export import export_scene
-    from fppm.addon.properties import settings_from_scene
-    bpy.ops.wm.open_mainfile(filepath=CAUSTIC, load_ui=False, use_scripts=False)
-    sc = bpy.context.scene
-    sc.render.resolution_percentage = 25
-    H.small_settings(sc, PASSES, C_PATHS, SEED, integrator="COMBINED", camera_samples=1)
-    path = H.save_blend(tmp_path_factory.mktemp("dist") / "caustic.blend")
-    scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
-    return path, scene, settings_from_scene(sc)
-
-
-def _combined(caustic):
-    _, scene, st = caustic
-    return D.local_chunk_streams(Renderer(scene, st, log=lambda s: None), C_CHUNK)
+    return _export(CAUSTIC, tmp_path_factory, C_PATHS, integrator="COMBINED", camera_samples=1)
 
 
 @pytest.fixture(scope="module")
 def combined_reference(caustic):
     """The one-process COMBINED render (chunk streams)."""
-    r = _combined(caustic)
+    r = _renderer(caustic, C_CHUNK)
     assert r.merging and r.combined_lt is not None      # both light-side stages split
     res = r.run()
     assert r.pass_index == PASSES and r.combined_lt.chunks(C_PATHS) == [C_CHUNK] * 4
@@ -209,7 +213,7 @@ def test_light_chunk_sums_do_not_depend_on_the_order_chunks_are_traced(caustic):
     # What lets any worker trace any chunk of light paths: the chunks of a
     # pass traced last to first (chunk_sums, as workers would) and added in
     # chunk order give the one-process pass exactly.
-    lt = _combined(caustic).combined_lt
+    lt = _renderer(caustic, C_CHUNK).combined_lt
     rng = np.random.default_rng(np.random.SeedSequence([SEED, 1, 2]))
     film = lt.trace_pass(C_PATHS, rng)
     chunks = list(enumerate(lt.chunks(C_PATHS)))
@@ -231,14 +235,9 @@ def test_light_chunk_sums_do_not_depend_on_the_order_chunks_are_traced(caustic):
 
 @needs_dask
 def test_combined_workers_2_same_image_as_one_process(caustic, combined_reference, tmp_path):
-    out = tmp_path / "two.exr"
-    two = H.run_fppm("render", caustic[0], "-o", out, "--workers", 2, "--chunk", C_CHUNK,
-                     "-q", "--no-preview")
-    assert two.returncode == 0, two.stderr[-2000:]
-    log = two.stdout + two.stderr
+    log, got = _render_on_2_workers(caustic, C_CHUNK, tmp_path / "two.exr")
     assert ("Light paths in chunks of 5000 and merging photons in chunks of 5000, one random "
             "stream each, on 2 Dask workers") in log
-    got = read_exr(str(out))
     assert np.abs(got["Combined"] - combined_reference.image).max() == 0.0
 
 
@@ -248,23 +247,15 @@ def test_combined_killed_worker_gives_the_same_image(caustic, combined_reference
     # killed: Dask traces that chunk again elsewhere, with the same stream.
     client.wait_for_workers(2, timeout=60)
     pids = client.run(os.getpid)            # {worker address: pid}
-    r = _combined(caustic)
+    r = _renderer(caustic, C_CHUNK)
     light, photons = D.distribute(client, r)
     killed = []
 
     def kill_one_in_pass_2():
         # Polled between passes and during the stages: pass 2's light
         # chunks are submitted as pass 1's come back (in_flight).
-        if killed or r.pass_index != 1:
-            return False
-        keys = {f.key for f in light.in_flight()}
-        holders = {w for k, ws in client.who_has(list(light.in_flight())).items()
-                   for w in ws}
-        for addr, tasks in client.processing().items():
-            if (keys & set(tasks) or addr in holders) and addr in pids:
-                os.kill(pids[addr], signal.SIGKILL)
-                killed.append(addr)
-                break
+        if not killed and r.pass_index == 1:
+            _kill_holder(client, pids, light.in_flight(), killed, kept=True)
         return False
 
     res = r.run(should_stop=kill_one_in_pass_2)

@@ -352,6 +352,23 @@ class Session:
                                          key=f"fppm-setup-{self.token}-{i}")
                            for i, w in enumerate(workers)])
 
+    def reduce(self, futures, add, check_stop) -> tuple[int, float]:
+        """add(result) of every future in turn (in chunk order: the same sums
+        as one process), polling check_stop meanwhile; cancel them all on
+        any exception.  Returns (bytes returned, seconds spent in add)."""
+        returned, seconds = 0, 0.0
+        try:
+            for f in futures:
+                part = self.result(f, check_stop)
+                t0 = time.perf_counter()
+                add(part)
+                seconds += time.perf_counter() - t0
+                returned += part.nbytes
+        except BaseException:
+            self.client.cancel(futures)
+            raise
+        return returned, seconds
+
     @staticmethod
     def result(future, check_stop):
         """The future's result, polling check_stop (RenderCancelled) meanwhile."""
@@ -424,20 +441,14 @@ class DistributedPhotonPass:
                    for c, (n, n_freq) in enumerate(local.chunks())]
         self.pending = futures
         acc = PassSums.zeros(vp.valid.shape[0], local.radius_histogram is not None, spectrum)
-        returned, add_seconds = 0, 0.0
+
+        def add(part):
+            acc.add(part)
+            self.rays += part.rays
+            self.stage_seconds["photon_trace"] += part.trace_seconds
+            self.stage_seconds["gather"] += part.gather_seconds
         try:
-            for f in futures:                 # in chunk order: the same sums as one process
-                part = self.session.result(f, check_stop)
-                t0 = time.perf_counter()
-                acc.add(part)
-                add_seconds += time.perf_counter() - t0
-                returned += part.nbytes
-                self.rays += part.rays
-                self.stage_seconds["photon_trace"] += part.trace_seconds
-                self.stage_seconds["gather"] += part.gather_seconds
-        except BaseException:
-            client.cancel(futures)
-            raise
+            returned, add_seconds = self.session.reduce(futures, add, check_stop)
         finally:
             self.pending = []
             del pass_future
@@ -507,18 +518,12 @@ class DistributedLightTracer:
             futures = self._submit(n, rng)
         self.pending = futures
         film = np.zeros((self.local.H * self.local.W, 3))
-        returned, add_seconds = 0, 0.0
+
+        def add(part):
+            part.add_to(film)
+            self.rays += part.rays
         try:
-            for f in futures:                 # in chunk order: the same sums as one process
-                part = self.session.result(f, check_stop)
-                t0 = time.perf_counter()
-                part.add_to(film)
-                add_seconds += time.perf_counter() - t0
-                returned += part.nbytes
-                self.rays += part.rays
-        except BaseException:
-            self.session.client.cancel(futures)
-            raise
+            returned, add_seconds = self.session.reduce(futures, add, check_stop)
         finally:
             self.pending = []
         self._submit_next(n)
