@@ -43,13 +43,15 @@ task traces chunk c with ``chunk_rng(pass stream, c)`` and returns its
 splat sums at the pixels it touched (``SplatSums``), added by the driver in
 chunk order.  Nothing is broadcast per pass: a chunk needs the scene alone.
 The driver submits pass k+1's light chunks as soon as pass k's are in
-(``prefetch``), so the workers trace them while the driver traces pass
-k+1's camera paths.
+(``prefetch``), so the workers trace them while the driver finishes pass k
+(merging) and traces pass k+1's camera paths; merging's photon chunks go
+ahead of them (Dask priority 1).
 
 A worker that dies mid-pass: the scheduler gives its chunks to another worker
 (a nanny restarts a local one); a chunk depends on its inputs alone, so the
 result is identical.  The scene and the pass data are broadcast to every
-worker, so any survivor holds them.
+worker, so any survivor holds them (the local cluster runs without Dask's
+Active Memory Manager, which would drop the extra copies: :func:`connect`).
 
 Dask is imported only here and only when these flags are used; the Blender
 extension never imports this module (tools/ is not shipped).
