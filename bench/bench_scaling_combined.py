@@ -10,8 +10,9 @@ light tracing (splat sums returned) and photon merging (visible points
 broadcast, photon sums returned), next to the camera paths the driver
 traces.  Every configuration renders the same passes with the same seed and
 chunking (``tools.distributed.local_chunk_streams``): one process, then a
-local cluster of 1 and of 2 workers (all started first; scene set-up and
-kernel loading precede the timed passes), round robin ``--repeat`` times,
+local cluster of 1 and of 2 workers, and of 2 with the next pass's light
+chunks submitted ahead (``distribute(prefetch=True)``) (all started first;
+scene set-up and kernel loading precede the timed passes), round robin ``--repeat`` times,
 the fastest run of each kept.  Printed per configuration: wall seconds of
 the passes and their ratio to one worker and to one process, CPU seconds of
 driver + workers against one process, and per pass the bytes the driver
@@ -55,7 +56,7 @@ def mirror_cornell(res: int):
     return dataclasses.replace(s, materials=mats, tri_mat=tri_mat)
 
 
-def render(scene, st, chunk, client=None, prefetch=True):
+def render(scene, st, chunk, client=None, prefetch=False):
     """(image, wall seconds of the passes, CPU seconds of driver + workers,
     the distributed stages)."""
     r = D.local_chunk_streams(Renderer(scene, st, log=lambda s: None), chunk)
@@ -101,9 +102,9 @@ def main(argv=None):
           f"{a.chunk}; {os.cpu_count()} cores (possibly shared).")
     render(mirror_cornell(16), st.replace(max_passes=1, photons_per_pass=4096), a.chunk)
     clients = {n: D.connect(workers=n) for n in a.workers}
-    # (workers, prefetch): the largest cluster also without the next pass's
+    # (workers, prefetch): the largest cluster also with the next pass's
     # light chunks submitted ahead.
-    configs = [(0, True)] + [(n, True) for n in a.workers] + [(a.workers[-1], False)]
+    configs = [(0, False)] + [(n, False) for n in a.workers] + [(a.workers[-1], True)]
     best = {}
     try:
         for _ in range(a.repeat):   # round robin: every configuration sees the same load
@@ -114,15 +115,15 @@ def main(argv=None):
     finally:
         for c in clients.values():
             D.close(c)
-    ref, wall0, cpu0, _ = best[0, True]
-    w1 = best[a.workers[0], True][1]
+    ref, wall0, cpu0, _ = best[0, False]
+    w1 = best[a.workers[0], False][1]
     print(f"one process: {wall0:.2f} s for the passes (CPU {cpu0:.1f} s); best of {a.repeat}.")
     print(f"\n{'workers':>10} {'wall s':>7} {'vs 1st':>6} {'vs 1 proc':>9} {'CPU vs 1 proc':>13} "
           f"{'light returned/pass':>19} {'merge returned/pass':>19} {'merge broadcast/pass':>20} "
           f"{'max |diff|':>10}")
     for n, pre in configs[1:]:
         img, wall, cpu, stages = best[n, pre]
-        name = f"{n}" + ("" if pre else " no pre.")
+        name = f"{n}" + (" prefetch" if pre else "")
         print(f"{name:>10} {wall:>7.2f} {w1 / wall:>6.2f} {wall0 / wall:>9.2f} {cpu / cpu0:>13.2f} "
               f"{per_pass(stages, 'DistributedLightTracer', 'returned_bytes') / 1e3:>16.0f} kB "
               f"{per_pass(stages, 'DistributedPhotonPass', 'returned_bytes') / 1e3:>16.0f} kB "

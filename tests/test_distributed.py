@@ -245,10 +245,12 @@ def test_combined_workers_2_same_image_as_one_process(caustic, combined_referenc
 def test_combined_killed_worker_gives_the_same_image(caustic, combined_reference, client):
     # A worker holding (tracing or keeping) a light chunk of pass 2 is
     # killed: Dask traces that chunk again elsewhere, with the same stream.
+    # (With prefetch pass 2's light chunks exist from the end of pass 1's
+    # light tracing on: the kill cannot miss them.)
     client.wait_for_workers(2, timeout=60)
     pids = client.run(os.getpid)            # {worker address: pid}
     r = _renderer(caustic, C_CHUNK)
-    light, photons = D.distribute(client, r)
+    light, photons = D.distribute(client, r, prefetch=True)
     killed = []
 
     def kill_one_in_pass_2():

@@ -42,10 +42,12 @@ and submits one task per chunk of light paths (``LightTracer.chunks``); a
 task traces chunk c with ``chunk_rng(pass stream, c)`` and returns its
 splat sums at the pixels it touched (``SplatSums``), added by the driver in
 chunk order.  Nothing is broadcast per pass: a chunk needs the scene alone.
-The driver submits pass k+1's light chunks as soon as pass k's are in
-(``prefetch``), so the workers trace them while the driver finishes pass k
-(merging) and traces pass k+1's camera paths; merging's photon chunks go
-ahead of them (Dask priority 1).
+With ``prefetch`` the driver submits pass k+1's light chunks as soon as
+pass k's are in, so the workers trace them while the driver finishes pass
+k (merging) and traces pass k+1's camera paths; merging's photon chunks go
+ahead of them (Dask priority 1).  Off by default: on 2 shared cores it was
+1.3x slower than waiting (the workers took the cores the driver's camera
+paths needed; docs/scale_out.md).
 
 A worker that dies mid-pass: the scheduler gives its chunks to another worker
 (a nanny restarts a local one); a chunk depends on its inputs alone, so the
@@ -481,7 +483,7 @@ class DistributedLightTracer:
     size cancels them and submits its own."""
 
     def __init__(self, session: Session, renderer: Renderer, retries: int = 3,
-                 prefetch: bool = True):
+                 prefetch: bool = False):
         self.session, self.renderer, self.retries = session, renderer, retries
         self.attr = "light_tracer" if renderer.light_tracer is not None else "combined_lt"
         self.local = getattr(renderer, self.attr)
@@ -553,7 +555,7 @@ class DistributedLightTracer:
 
 
 def distribute(client, renderer: Renderer, warm: bool = True, load_kernels: bool = False,
-               prefetch: bool = True) -> list:
+               prefetch: bool = False) -> list:
     """Hand the renderer's chunked stages to the workers of client (module
     doc); the renderer must draw chunk streams (:func:`local_chunk_streams`).
     Returns the stages installed ([] for PATH, or a COMBINED plan with
