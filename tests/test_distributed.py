@@ -1,10 +1,15 @@
-"""Photon chunks on Dask workers (``fppm render --workers/--cluster``, tools/distributed.py).
+"""Photon and light-path chunks on Dask workers (``fppm render --workers/--cluster``, tools/distributed.py).
 
 The scene: tests/scenes/t_glossy_floor.blend at 16x16 (a GGX floor: the
 non-Lambert pairs), with the Quantile estimator (radius histograms) and the
 spectrum AOV (the spectrum a later chunk overwrites), so every sum a chunk
 returns is exercised.  One process with one random stream per chunk is the
 reference: the workers must give it bit for bit (max abs difference 0).
+
+Integrator COMBINED: tests/scenes/t_glass_caustic.blend at 16x16 (a glass
+caustic: light tracing and photon merging both on), 3 passes of 4 chunks of
+5,000 light paths and 4 of 5,000 merging photons, against one process with
+the same chunk streams, bit for bit.
 """
 import importlib.util
 import os
@@ -20,6 +25,7 @@ import bpy_helpers as H  # noqa: E402
 from fppm.core.io.exr import read_exr  # noqa: E402
 from fppm.core.render import Renderer  # noqa: E402
 from fppm.core.sppm.photon_pass import PassSums, chunk_rng  # noqa: E402
+from fppm.core.integrators.light_tracer import SplatSums  # noqa: E402
 from fppm.tools import distributed as D  # noqa: E402
 
 needs_dask = pytest.mark.skipif(importlib.util.find_spec("distributed") is None,
@@ -29,25 +35,32 @@ SCENE = os.path.join(H.ROOT, "tests", "scenes", "t_glossy_floor.blend")
 PASSES, PHOTONS, CHUNK, SEED = 3, 40_000, 10_000, 5      # 4 chunks per pass
 
 
-@pytest.fixture(scope="module")
-def glossy(tmp_path_factory):
-    """(saved .blend, exported core Scene, settings) of the small glossy scene."""
+def _export(blend, tmp_path_factory, photons, **kw):
+    """(saved copy, exported core Scene, settings) of blend at 25 % with the
+    test's passes and seed, photons per pass and the settings kw."""
     H.ensure_registered()
     from fppm.addon.export import export_scene
     from fppm.addon.properties import settings_from_scene
-    bpy.ops.wm.open_mainfile(filepath=SCENE, load_ui=False, use_scripts=False)
+    bpy.ops.wm.open_mainfile(filepath=blend, load_ui=False, use_scripts=False)
     sc = bpy.context.scene
     sc.render.resolution_percentage = 25
-    H.small_settings(sc, PASSES, PHOTONS, SEED, frequency_estimator="QUANTILE",
-                     aov_spectrum=True)
-    path = H.save_blend(tmp_path_factory.mktemp("dist") / "glossy.blend")
+    H.small_settings(sc, PASSES, photons, SEED, **kw)
+    path = H.save_blend(tmp_path_factory.mktemp("dist") / os.path.basename(blend))
     scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
     return path, scene, settings_from_scene(sc)
 
 
-def _renderer(glossy):
-    _, scene, st = glossy
-    return D.local_chunk_streams(Renderer(scene, st, log=lambda s: None), CHUNK)
+@pytest.fixture(scope="module")
+def glossy(tmp_path_factory):
+    """(saved .blend, exported core Scene, settings) of the small glossy scene."""
+    return _export(SCENE, tmp_path_factory, PHOTONS, frequency_estimator="QUANTILE",
+                   aov_spectrum=True)
+
+
+def _renderer(exported, chunk=CHUNK):
+    """A one-process renderer of an exported scene with chunk streams."""
+    _, scene, st = exported
+    return D.local_chunk_streams(Renderer(scene, st, log=lambda s: None), chunk)
 
 
 @pytest.fixture(scope="module")
@@ -89,48 +102,65 @@ def test_chunk_sums_do_not_depend_on_the_order_chunks_are_traced(glossy):
     assert compared == [PHOTONS // CHUNK] * 2
 
 
+def _render_on_2_workers(exported, chunk, out):
+    """`fppm render --workers 2 --chunk chunk` of the saved file: (its log, the
+    EXR's layers)."""
+    two = H.run_fppm("render", exported[0], "-o", out, "--workers", 2, "--chunk", chunk,
+                     "-q", "--no-preview")
+    assert two.returncode == 0, two.stderr[-2000:]
+    return two.stdout + two.stderr, read_exr(str(out))
+
+
 @needs_dask
 def test_workers_2_same_image_as_one_process(glossy, reference, tmp_path):
     # `fppm render --workers 2` (a local cluster of 2 processes) against the
     # one-process render of the same file, seed and chunking.
-    out = tmp_path / "two.exr"
-    two = H.run_fppm("render", glossy[0], "-o", out, "--workers", 2, "--chunk", CHUNK,
-                     "-q", "--no-preview")
-    assert two.returncode == 0, two.stderr[-2000:]
-    assert "on 2 Dask workers" in two.stdout + two.stderr
-    got = read_exr(str(out))
+    log, got = _render_on_2_workers(glossy, CHUNK, tmp_path / "two.exr")
+    assert "on 2 Dask workers" in log
     assert set(got) == {"Combined", "Spectrum"}
     assert np.abs(got["Combined"] - reference.image).max() == 0.0
     assert np.abs(got["Spectrum"] - reference.aovs["Spectrum"]).max() == 0.0
 
 
+@pytest.fixture(scope="module")
+def client():
+    """A local cluster of 2 workers, shared by the killed-worker tests (the
+    nanny replaces a killed worker)."""
+    c = D.connect(workers=2)
+    yield c
+    D.close(c)
+
+
+def _kill_holder(client, pids, futures, killed, kept=False):
+    """SIGKILL, once, a worker processing one of futures (with kept: or
+    keeping its result); its address goes into killed."""
+    keys = {f.key for f in futures}
+    holders = {w for ws in client.who_has(futures).values() for w in ws} if kept else set()
+    for addr, tasks in client.processing().items():
+        if (keys & set(tasks) or addr in holders) and addr in pids:
+            os.kill(pids[addr], signal.SIGKILL)
+            killed.append(addr)
+            return
+
+
 @needs_dask
-def test_killed_worker_gives_the_same_image(glossy, reference):
-    client = D.connect(workers=2)
-    try:
-        pids = client.run(os.getpid)            # {worker address: pid}
-        r = _renderer(glossy)
-        dist = D.DistributedPhotonPass(client, r)
-        killed = []
+def test_killed_worker_gives_the_same_image(glossy, reference, client):
+    pids = client.run(os.getpid)            # {worker address: pid}
+    r = _renderer(glossy)
+    dist = D.DistributedPhotonPass(client, r)
+    killed = []
 
-        def kill_one_mid_pass():
-            # Polled while the driver waits for this pass's chunks: kill, once,
-            # a worker holding a chunk of pass 2 that has not come back.
-            if killed or r.pass_index != 1 or not dist.pending:
-                return False
-            keys = {f.key for f in dist.pending if not f.done()}
-            for addr, tasks in client.processing().items():
-                if keys & set(tasks) and addr in pids:
-                    os.kill(pids[addr], signal.SIGKILL)
-                    killed.append(addr)
-                    break
-            return False
+    def kill_one_mid_pass():
+        # Polled while the driver waits for this pass's chunks: kill, once,
+        # a worker holding a chunk of pass 2 that has not come back.
+        if not killed and r.pass_index == 1 and dist.pending:
+            _kill_holder(client, pids, [f for f in dist.pending if not f.done()], killed)
+        return False
 
-        res = r.run(should_stop=kill_one_mid_pass)
-        client.wait_for_workers(2, timeout=60)           # the nanny replaced it
-        replaced = client.run(os.getpid)
-    finally:
-        D.close(client)
+    res = r.run(should_stop=kill_one_mid_pass)
+    dist.close()
+    client.wait_for_workers(2, timeout=60)           # the nanny replaced it
+    replaced = client.run(os.getpid)
     assert killed, "no chunk of pass 2 was seen on a worker"
     assert pids[killed[0]] not in replaced.values() and len(replaced) == 2
     assert r.pass_index == PASSES
@@ -153,3 +183,90 @@ def test_usage_errors(glossy, tmp_path, monkeypatch, capsys, flags, needs):
     assert rc == 2
     assert needs in capsys.readouterr().err
     assert not os.path.exists(tmp_path / "x.exr")
+
+
+# ----------------------------------------------------------------------------
+# Integrator COMBINED: light-path chunks and merging-photon chunks
+# ----------------------------------------------------------------------------
+
+CAUSTIC = os.path.join(H.ROOT, "tests", "scenes", "t_glass_caustic.blend")
+C_PATHS, C_CHUNK = 20_000, 5_000          # 4 chunks of light paths (and of photons) per pass
+
+
+@pytest.fixture(scope="module")
+def caustic(tmp_path_factory):
+    """(saved .blend, exported core Scene, settings) of the glass caustic, COMBINED."""
+    return _export(CAUSTIC, tmp_path_factory, C_PATHS, integrator="COMBINED", camera_samples=1)
+
+
+@pytest.fixture(scope="module")
+def combined_reference(caustic):
+    """The one-process COMBINED render (chunk streams)."""
+    r = _renderer(caustic, C_CHUNK)
+    assert r.merging and r.combined_lt is not None      # both light-side stages split
+    res = r.run()
+    assert r.pass_index == PASSES and r.combined_lt.chunks(C_PATHS) == [C_CHUNK] * 4
+    return res
+
+
+def test_light_chunk_sums_do_not_depend_on_the_order_chunks_are_traced(caustic):
+    # What lets any worker trace any chunk of light paths: the chunks of a
+    # pass traced last to first (chunk_sums, as workers would) and added in
+    # chunk order give the one-process pass exactly.
+    lt = _renderer(caustic, C_CHUNK).combined_lt
+    rng = np.random.default_rng(np.random.SeedSequence([SEED, 1, 2]))
+    film = lt.trace_pass(C_PATHS, rng)
+    chunks = list(enumerate(lt.chunks(C_PATHS)))
+    parts = {c: lt.chunk_sums(C_PATHS, n, chunk_rng(rng, c)) for c, n in reversed(chunks)}
+    acc = np.zeros_like(film)
+    for c, _ in chunks:
+        parts[c].add_to(acc)
+    assert film.sum() > 0 and np.array_equal(acc, film)
+    # A chunk that touches few pixels comes back sparse, with the same sums.
+    lit = np.flatnonzero(film.any(axis=1))[:2]
+    few = np.zeros_like(film)
+    few[lit] = film[lit]
+    part = SplatSums.sparse(few)
+    assert part.idx.tolist() == lit.tolist() and part.nbytes == 2 * (24 + 8)
+    again = film.copy()
+    part.add_to(again)
+    assert np.array_equal(again, film + few)
+
+
+@needs_dask
+def test_combined_workers_2_same_image_as_one_process(caustic, combined_reference, tmp_path):
+    log, got = _render_on_2_workers(caustic, C_CHUNK, tmp_path / "two.exr")
+    assert ("Light paths in chunks of 5000 and merging photons in chunks of 5000, one random "
+            "stream each, on 2 Dask workers") in log
+    assert np.abs(got["Combined"] - combined_reference.image).max() == 0.0
+
+
+@needs_dask
+def test_combined_killed_worker_gives_the_same_image(caustic, combined_reference, client):
+    # A worker holding (tracing or keeping) a light chunk of pass 2 is
+    # killed: Dask traces that chunk again elsewhere, with the same stream.
+    # (With prefetch pass 2's light chunks exist from the end of pass 1's
+    # light tracing on: the kill cannot miss them.)
+    client.wait_for_workers(2, timeout=60)
+    pids = client.run(os.getpid)            # {worker address: pid}
+    r = _renderer(caustic, C_CHUNK)
+    light, photons = D.distribute(client, r, prefetch=True)
+    killed = []
+
+    def kill_one_in_pass_2():
+        # Polled between passes and during the stages: pass 2's light
+        # chunks are submitted as pass 1's come back (in_flight).
+        if not killed and r.pass_index == 1:
+            _kill_holder(client, pids, light.in_flight(), killed, kept=True)
+        return False
+
+    res = r.run(should_stop=kill_one_in_pass_2)
+    light.close()
+    photons.close()
+    light.session.release()
+    client.wait_for_workers(2, timeout=60)           # the nanny replaced it
+    replaced = client.run(os.getpid)
+    assert killed, "no light chunk of pass 2 was seen on a worker"
+    assert pids[killed[0]] not in replaced.values()
+    assert r.pass_index == PASSES
+    assert np.abs(res.image - combined_reference.image).max() == 0.0

@@ -36,16 +36,17 @@ def add_render_parser(sub) -> None:
     cli.add_render_parser(sub)
     g = sub.choices["render"].add_argument_group(
         "scale-out (Dask, docs/scale_out.md)",
-        "Split each pass's photons into chunks with one random stream each; with the same "
+        "Split each pass's photons (and light paths: integrators Light and Combined) into "
+        "chunks with one random stream each; with the same "
         "--seed and --chunk, one process and any number of workers give the same image.")
     g.add_argument("--workers", type=int, metavar="N",
-                   help="trace the photon chunks on a local Dask cluster of N processes")
+                   help="trace the chunks on a local Dask cluster of N processes")
     g.add_argument("--cluster", metavar="ADDRESS",
-                   help="trace the photon chunks on the workers of the Dask scheduler at ADDRESS "
+                   help="trace the chunks on the workers of the Dask scheduler at ADDRESS "
                         "(e.g. tcp://10.0.0.1:8786)")
     g.add_argument("--chunk", type=int, metavar="N",
-                   help="photons per chunk (default 131072; a chunk is traced at once, "
-                        "about 1.2 KB per photon)")
+                   help="photons or light paths per chunk (default 131072 photons, 65536 light "
+                        "paths; a chunk is traced at once, about 1.2 KB per photon)")
 
 
 def _spawn_without_main() -> None:
@@ -95,22 +96,26 @@ def render(a) -> int:
             raise cli.CLIError(cli.EXIT_USAGE, f"{what} ({ex}).")
 
     def on_renderer(renderer):
-        if renderer.settings.integrator != "PHOTON":
-            renderer.log(f"FPPM: integrator {renderer.settings.integrator} has no photon pass: "
-                         f"rendered in this process.")
+        what = distributed.chunked_stages(distributed.local_chunk_streams(renderer, a.chunk))
+        if not what:
+            renderer.log(f"FPPM: integrator {renderer.settings.integrator} has no photon pass "
+                         f"or light tracing: rendered in this process.")
             return
-        chunk = distributed.local_chunk_streams(renderer, a.chunk).photon_pass.chunk
         where = "this process"
         if client is not None:
-            distributed.DistributedPhotonPass(client, renderer)
+            stages.extend(distributed.distribute(client, renderer))
             n = len(client.scheduler_info()["workers"])
             where = f"{n} Dask worker{'s' * (n != 1)}" + (f" of {a.cluster}" if a.cluster else "")
-        renderer.log(f"Photons: chunks of {chunk}, one random stream each, on {where}.")
+        renderer.log(f"{what}, one random stream each, on {where}.")
+
+    stages: list = []
 
     a.on_renderer = on_renderer
     try:
         return cli.render(a)
     finally:
+        for stage in stages:
+            stage.close()
         if client is not None:
             distributed.close(client)
 

@@ -3,7 +3,7 @@
     cam = CameraMIS(light_table, mtab, camera, n_light_paths, camera_samples)
     path_tracer.vc = cam                      # PathTracer then weights with it
     lt = CombinedLightTracer(<LightTracer arguments>, camera_samples)
-    splats = lt.trace_pass(n_light_paths, rng, check_stop)
+    splats = lt.trace_pass(n_light_paths, rng, check_stop)   # chunks: LightTracer
 
 Image = (camera paths: mean over the passes of each pass' mean of
 camera_samples paths per pixel) + (light tracing: splat sums / light paths).
@@ -297,11 +297,9 @@ class CombinedLightTracer(LightTracer):
         self.all_traced = not np.any((t.p_select > 0) & (self.cls == M.NO_LT))
         self.first_lights = LK.first_hit_lights(t, M.emit_select(t, np.arange(t.n)))
 
-    def trace_pass(self, n: int, rng, check_stop=lambda: None) -> np.ndarray:
-        """Trace n light paths; their weighted splat sums (H*W, 3) (chunks
-        and threads as LightTracer.trace_pass)."""
-        self.kn = self.K / float(n)          # K / N_L
-        return super().trace_pass(n, rng, check_stop)
+    def begin_pass(self, n: int) -> None:
+        """A pass of n light paths (all its chunks): the weights' K / N_L."""
+        self.kn = self.K / float(n)
 
     def _chunk(self, n: int, rng, film: np.ndarray) -> None:
         t = self.light_table

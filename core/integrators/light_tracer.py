@@ -65,18 +65,57 @@ batched occlusion call (:meth:`LightTracer._transmittance`).
 """
 from __future__ import annotations
 
+import time
+from typing import NamedTuple, Optional
+
 import numpy as np
 from .. import lights as Lt
 from .. import materials as B
 from ..accel import REL_OFFSET, surface_point
 from ..lights.shadow import transmittance
 from ..sppm import photon_kernels as PK
+from ..sppm.photon_pass import chunk_rng
 from ..sppm.photons import PhotonTracer, _children, _pool, _threads
 from . import light_kernels as LK
 from .light_kernels import SHADING_CAP, splat_kernel
 
 #: Light paths per chunk (memory bound; a cancel is seen between chunks).
 CHUNK = 65_536
+#: Chunks of at least this many paths are traced as two halves.
+SPLIT_MIN = 16_384
+
+
+class SplatSums(NamedTuple):
+    """One chunk's splat sums (what a worker sends back): at the pixels idx
+    (T,) int64, sums (T, 3) float64; idx None: every pixel (dense, when that
+    is smaller); rays cast and seconds (for the statistics)."""
+    idx: Optional[np.ndarray]
+    sums: np.ndarray
+    rays: int = 0
+    seconds: float = 0.0
+
+    @classmethod
+    def sparse(cls, film: np.ndarray, rays: int = 0, seconds: float = 0.0) -> "SplatSums":
+        """The sums of film (P, 3) at its non-zero pixels, or film itself when
+        the pixel indices would cost more than the zeros they leave out."""
+        idx = np.flatnonzero(np.any(film != 0, axis=1))
+        if idx.size * (film.itemsize * 3 + idx.itemsize) >= film.nbytes:
+            return cls(None, film, rays, seconds)
+        return cls(idx, film[idx], rays, seconds)
+
+    def add_to(self, film: np.ndarray) -> None:
+        """film (P, 3) += these sums: the same bits as adding the chunk's
+        dense film (x + 0 = x at the pixels left out)."""
+        if self.idx is None:
+            film += self.sums
+        else:
+            film[self.idx] += self.sums
+
+    @property
+    def nbytes(self) -> int:
+        return self.sums.nbytes + (0 if self.idx is None else self.idx.nbytes)
+
+
 class LightTracer:
     """Light tracing for one scene.  offset (x0, y0), size (W, H): the render
     region in Blender's pixel coordinates (y from the bottom)."""
@@ -103,32 +142,73 @@ class LightTracer:
                                            self.filter_width)
         self.fast_mat = LK.fast_materials(scene, mtab, self.tracer.fmat)
         self.rays = 0
+        # Paths per chunk, and one random stream per chunk (chunk_rng) rather
+        # than one per pass: chunks then split over processes
+        # (tools/distributed.py) and give the same image in any of them.
+        self.chunk = CHUNK
+        self.chunk_streams = False
 
     # ------------------------------------------------------------------
     def trace_pass(self, n: int, rng, check_stop=lambda: None) -> np.ndarray:
         """Trace n light paths; return their splat sums (H*W, 3) float64 (not
-        yet divided by the number of paths)."""
+        yet divided by the number of paths).  With ``chunk_streams`` chunk c
+        (``chunks``) draws ``chunk_rng(rng, c)`` and its sums are added in
+        chunk order: what another process computes for that chunk
+        (:meth:`chunk_sums`, tools/distributed.py)."""
+        self.begin_pass(n)
         film = np.zeros((self.H * self.W, 3))
-        done = 0
         r0 = self.accel.rays_cast
-        while done < n:
+        for c, k in enumerate(self.chunks(n)):
             check_stop()
-            k = min(CHUNK, n - done)
-            if k >= 16384 and _threads() > 1:
-                # Two halves on independent child streams in two threads
-                # (Embree, numba and most numpy release the GIL), summed in
-                # a fixed order: the image does not depend on timing.
-                r_a, r_b = _children(rng)
-                film_b = np.zeros_like(film)
-                fut = _pool().submit(self._chunk, k // 2, r_a, film)
-                self._chunk(k - k // 2, r_b, film_b)
-                fut.result()
-                film += film_b
+            if self.chunk_streams:
+                film += self._chunk_film(k, chunk_rng(rng, c))
             else:
-                self._chunk(k, rng, film)
-            done += k
+                self._trace_chunk(k, rng, film)
         self.rays += self.accel.rays_cast - r0
         return film
+
+    def begin_pass(self, n: int) -> None:
+        """Per-pass state of n light paths (set before tracing any chunk)."""
+
+    def chunks(self, n: int) -> list[int]:
+        """Light paths of every chunk of a pass of n: ``chunk`` each (the last fewer)."""
+        return [min(self.chunk, n - a) for a in range(0, n, self.chunk)]
+
+    def chunk_sums(self, n_pass: int, n: int, rng) -> "SplatSums":
+        """One chunk of n light paths of a pass of n_pass traced with rng:
+        its splat sums at the pixels it touched (for ``SplatSums.add_to``)."""
+        self.begin_pass(n_pass)
+        r0, t0 = self.accel.rays_cast, time.perf_counter()
+        film = self._chunk_film(n, rng)
+        rays = self.accel.rays_cast - r0
+        self.rays += rays
+        return SplatSums.sparse(film, rays, time.perf_counter() - t0)
+
+    def _chunk_film(self, k: int, rng) -> np.ndarray:
+        """The splat sums (H*W, 3) of one chunk of k paths alone."""
+        film = np.zeros((self.H * self.W, 3))
+        self._trace_chunk(k, rng, film)
+        return film
+
+    def _trace_chunk(self, k: int, rng, film: np.ndarray) -> None:
+        """Trace k light paths with rng, splatted into film (H*W, 3)."""
+        if k < SPLIT_MIN:
+            self._chunk(k, rng, film)
+            return
+        # Two halves on independent child streams, always (the image does
+        # not depend on the number of cores, as PhotonTracer.trace), in two
+        # threads when there are two (Embree, numba and most numpy release
+        # the GIL), summed in a fixed order: it does not depend on timing.
+        r_a, r_b = _children(rng)
+        film_b = np.zeros_like(film)
+        if _threads() > 1:
+            fut = _pool().submit(self._chunk, k // 2, r_a, film)
+            self._chunk(k - k // 2, r_b, film_b)
+            fut.result()
+        else:
+            self._chunk(k // 2, r_a, film)
+            self._chunk(k - k // 2, r_b, film_b)
+        film += film_b
 
     def _chunk(self, n: int, rng, film: np.ndarray) -> None:
         if self.fast_emission:
