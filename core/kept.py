@@ -2,7 +2,7 @@
 page-fault its outputs in afresh.
 
     kept = KeptArrays()
-    arrays = kept.get(make)     # make() -> list of new arrays, each filled with one value
+    arrays = kept.get(make, key)   # make() -> list of new arrays, each filled with one value
 
 A stage that returns pixel-sized arrays (the camera pass's visible points and
 first hits, the photon pass's sums) used to allocate them every pass.  Arrays
@@ -41,21 +41,23 @@ class KeptArrays:
     def __init__(self):
         self._arrays: list | None = None
         self._fills: list = []
+        self._key = None
         self.reused = 0
 
-    def get(self, make) -> list:
+    def get(self, make, key=None) -> list:
         """The arrays of the last call, cleared to the values they were made
-        with, when none is referenced outside this object; else make()'s new
-        arrays (each uniformly filled: np.zeros, np.ones, np.full), kept for
-        the next call."""
+        with, when that call had the same key (what decides their shapes and
+        dtypes) and none of them is referenced outside this object; else
+        make()'s new arrays (each uniformly filled: np.zeros, np.ones,
+        np.full), kept for the next call."""
         held = self._arrays
-        if held is not None and max(_refcounts(held)) <= _ALONE:
+        if held is not None and key == self._key and max(_refcounts(held)) <= _ALONE:
             _clear(held, self._fills)
             self.reused += 1
             return list(held)
         arrays = list(make())
         self._fills = [a.reshape(-1)[0] if a.size else 0 for a in arrays]
-        self._arrays = arrays
+        self._arrays, self._key = arrays, key
         return list(arrays)
 
 

@@ -27,6 +27,7 @@ from typing import NamedTuple, Optional
 import numpy as np
 
 from .. import materials as B
+from ..kept import KeptArrays
 from ..frequency.kernels import Receivers
 from . import hashgrid
 from .update import HIST_BINS, needs_sectors
@@ -187,6 +188,7 @@ class PhotonPass:
         # Per-thread gather accumulators, allocated at the first chunk and
         # reused by every chunk of every pass (hashgrid.GatherBuffers).
         self.gather_buffers: Optional[hashgrid.GatherBuffers] = None
+        self._kept = KeptArrays()
 
     def __call__(self, vp, R2: np.ndarray, spectrum: Optional[np.ndarray],
                  rng: np.random.Generator, check_stop=lambda: None) -> PhotonEstimate:
@@ -197,7 +199,7 @@ class PhotonPass:
         its sums are added in chunk order (``chunk_sums``, ``PassSums.add``):
         what another process computes for that chunk."""
         P = vp.valid.shape[0]
-        acc = PassSums.zeros(P, self.radius_histogram is not None, spectrum, self.sectors)
+        acc = self._zero_sums(P, spectrum)
         pg = self.begin(vp, R2, spectrum is not None)
         if pg is None:
             return PhotonEstimate(False, acc.M, acc.Phi, acc.r_pred)
@@ -208,6 +210,21 @@ class PhotonPass:
             else:
                 self._trace_gather(pg, n, n_freq, rng, acc)
         return self.finish(vp, acc)
+
+    def _zero_sums(self, P: int, spectrum: Optional[np.ndarray]) -> "PassSums":
+        """``PassSums.zeros`` of a pass, on the last pass's arrays when the
+        renderer has dropped them (core.kept: the serial fold no longer
+        page-faults fresh pixel-sized sums in every pass).  M is new every
+        pass: the state keeps it (``PixelState.M_last``)."""
+        hist = self.radius_histogram is not None
+        names = ("Phi", "r_pred") + ("hist",) * hist + ("sectors",) * self.sectors
+
+        def make():
+            z = PassSums.zeros(P, hist, None, self.sectors)
+            return [getattr(z, n) for n in names]
+        a = self._kept.get(make, (P, hist, self.sectors))
+        return PassSums(M=np.zeros(P), **dict(zip(names, a)),
+                        spec=None if spectrum is None else spectrum.copy())
 
     def active(self, vp, R2: np.ndarray) -> np.ndarray:
         """(P,) bool: the visible points that gather this pass (valid, with a radius)."""

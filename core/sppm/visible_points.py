@@ -220,7 +220,7 @@ class CameraPass:
                              escape=np.zeros(P))
             return ([getattr(vp, f) for f in _VP_ARRAYS] + [getattr(first, f) for f in _FIRST]
                     + [np.zeros((P, 3))])
-        a = self._kept.get(make)
+        a = self._kept.get(make, P)
         n = len(_VP_ARRAYS)
         vp = VisiblePoints(**dict(zip(_VP_ARRAYS, a[:n])))
         vp.first = FirstHit(**dict(zip(_FIRST, a[n:n + len(_FIRST)])))
