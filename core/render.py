@@ -306,6 +306,8 @@ class Renderer:
         t0 = time.perf_counter()
         k = self.pass_index + 1
         st, state, clock = self.settings, self.state, self.stage_seconds
+        rng_photons = self._rng(k, 2)
+        self.photon_pass.trace_ahead(rng_photons)    # overlaps the camera and direct light
         tc = time.perf_counter()
         if st.fixed_visible_points and self._fixed is not None:
             vp, L_emit = self._fixed
@@ -320,7 +322,7 @@ class Renderer:
             L_pass = L_pass + self._interruptible(self.direct_light, vp, self._rng(k, 1))
         clock["direct"] += time.perf_counter() - td
         self._check_stop()
-        self._photons(vp, self._rng(k, 2))
+        self._photons(vp, rng_photons)
         tu = time.perf_counter()
         state.L_sum += L_pass
         self.film.accumulate(vp)

@@ -286,7 +286,7 @@ def _occluded_f32(accel, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray) -> n
     """``Accel.occluded`` of rays already in Embree's float32 (C-contiguous
     (K, 3), (K, 3), (K,)): (K,) bool, no conversions."""
     K = o32.shape[0]
-    accel.rays_cast += K
+    accel.count_rays(K)
     if accel._scene is None or K == 0:
         return np.zeros(K, bool)
     from ..sppm.camera_kernels import SPLIT_MIN

@@ -21,6 +21,7 @@ chunk order (``PassSums.add``), whichever process traced it.
 from __future__ import annotations
 
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import NamedTuple, Optional
 
@@ -37,6 +38,19 @@ PHOTON_CHUNK = 131_072
 #: P / REFLECTED_DENSE_FRACTION pairs (sorting them is then cheaper than
 #: three passes over P points).
 REFLECTED_DENSE_FRACTION = 8
+
+
+_AHEAD = None
+
+
+def _ahead_executor():
+    """The one thread that traces passes ahead (``PhotonPass.trace_ahead``);
+    its traces split their halves over core.sppm.photons' pool, like the others."""
+    global _AHEAD
+    if _AHEAD is None:
+        from concurrent.futures import ThreadPoolExecutor
+        _AHEAD = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fppm-ahead")
+    return _AHEAD
 
 
 class PhotonEstimate(NamedTuple):
@@ -189,6 +203,8 @@ class PhotonPass:
         # reused by every chunk of every pass (hashgrid.GatherBuffers).
         self.gather_buffers: Optional[hashgrid.GatherBuffers] = None
         self._kept = KeptArrays()
+        # (rng, deque of the futures of the chunks' deposits) of trace_ahead, or None.
+        self._ahead = None
 
     def __call__(self, vp, R2: np.ndarray, spectrum: Optional[np.ndarray],
                  rng: np.random.Generator, check_stop=lambda: None) -> PhotonEstimate:
@@ -202,6 +218,7 @@ class PhotonPass:
         acc = self._zero_sums(P, spectrum)
         pg = self.begin(vp, R2, spectrum is not None)
         if pg is None:
+            self._drop_ahead()
             return PhotonEstimate(False, acc.M, acc.Phi, acc.r_pred)
         for c, (n, n_freq) in enumerate(self.chunks()):
             check_stop()
@@ -209,7 +226,34 @@ class PhotonPass:
                 acc.add(self.chunk_sums(pg, n, n_freq, chunk_rng(rng, c)))
             else:
                 self._trace_gather(pg, n, n_freq, rng, acc)
+        self._drop_ahead()
         return self.finish(vp, acc)
+
+    def trace_ahead(self, rng: np.random.Generator) -> None:
+        """Start tracing the chunks of the pass whose stream is rng now, one
+        after the other in a thread of their own: the trace does not depend
+        on the visible points (only the gather does), so it overlaps the
+        camera and direct-light stages.  The next call with this very rng
+        gathers them in chunk order: the same photons as tracing them there
+        (the same stream, drawn in the same order).  Not with
+        ``chunk_streams`` (each chunk is traced where it is gathered)."""
+        self._drop_ahead()
+        if self.chunk_streams:
+            return
+        ex = _ahead_executor()
+        self._ahead = (rng, deque(ex.submit(self._trace_now, n, n_freq, rng)
+                                  for n, n_freq in self.chunks()))
+
+    def _drop_ahead(self) -> None:
+        """Cancel the chunks traced ahead and not started, wait for the one
+        running (a pass that was cancelled or found no visible point)."""
+        if self._ahead is not None:
+            futures, self._ahead = list(self._ahead[1]), None
+            for f in futures:
+                f.cancel()
+            for f in futures:
+                if not f.cancelled():
+                    f.exception()
 
     def _zero_sums(self, P: int, spectrum: Optional[np.ndarray]) -> "PassSums":
         """``PassSums.zeros`` of a pass, on the last pass's arrays when the
@@ -315,11 +359,19 @@ class PhotonPass:
 
     def _trace(self, n: int, n_freq: int, rng) -> Optional[dict]:
         """The deposits of n photons (the first n_freq with a spectrum), or
-        None; counts the rays and the trace's wall seconds."""
+        None: the next chunk ``trace_ahead`` traced with this rng, else
+        traced now."""
+        if self._ahead is not None and self._ahead[0] is rng and self._ahead[1]:
+            return self._ahead[1].popleft().result()
+        self._drop_ahead()
+        return self._trace_now(n, n_freq, rng)
+
+    def _trace_now(self, n: int, n_freq: int, rng) -> Optional[dict]:
+        """``_trace`` in this thread; counts the rays and the trace's wall seconds."""
         t0 = time.perf_counter()
-        rays0 = self.tracer.accel.rays_cast
+        rays0 = self.tracer.rays_cast
         dep = self.tracer.trace(n, n_freq, rng)
-        self.rays += self.tracer.accel.rays_cast - rays0
+        self.rays += self.tracer.rays_cast - rays0
         self.stage_seconds["photon_trace"] += time.perf_counter() - t0
         return dep
 

@@ -484,7 +484,7 @@ def _intersect(accel, o, d, tmax):
     (EmbreeScene.run releases the GIL).  Each ray's hit does not depend on
     the blocks."""
     K = o.shape[0]
-    accel.rays_cast += K
+    accel.count_rays(K)
     if accel._scene is None or K == 0:
         return (np.full(K, -1, np.int32), np.zeros(K, np.float32), np.zeros(K, np.float32),
                 np.full(K, np.inf, np.float32))

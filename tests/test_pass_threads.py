@@ -1,5 +1,6 @@
-"""Arrays kept from one pass to the next (core.kept), and the camera pass's
-blocked, two-thread Embree calls and emitter look-ups.
+"""Arrays kept from one pass to the next (core.kept), the camera pass's
+blocked, two-thread Embree calls and emitter look-ups, and the photons traced
+ahead of the camera pass (PhotonPass.trace_ahead).
 
 What is asserted, and why the tolerances are zero:
 - ``KeptArrays.get`` returns the last call's arrays, cleared to the values
@@ -15,12 +16,18 @@ What is asserted, and why the tolerances are zero:
   (visible_points.INTERSECT_BLOCK) and the emitters seen by camera rays in
   small blocks over two threads (SEEN_SPLIT_MIN, SEEN_BLOCK) gives the
   one-call visible points bit for bit: each ray's hit and emission is its own.
+- Photons traced ahead, in their own thread while the camera and direct
+  light run, give the image of photons traced at the gather bit for bit
+  (the same stream drawn in the same order), with the same photon ray count;
+  a pass whose traced-ahead photons are not gathered (another stream) traces
+  its own and gives the same image too.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from core.kept import KeptArrays
+from core.sppm.photon_pass import PhotonPass
 from core.render import Renderer
 from core.settings import RenderSettings
 from core.sppm import visible_points as V
@@ -110,3 +117,21 @@ def test_blocked_camera_calls_equal_one_call(monkeypatch):
     blocked = r.camera_pass(np.random.default_rng(7))
     assert np.any(one[0].first.emit > 0)
     _assert_same_camera_pass(one, blocked)
+
+
+def test_photons_traced_ahead_give_the_same_image(monkeypatch):
+    def render(passes=3):
+        r = _renderer(24, photons_per_pass=20_000)       # two halves, two chunks
+        r.photon_pass.chunk = 12_000
+        return [r.step().image for _ in range(passes)], r.photon_rays
+    ahead, rays_ahead = render()
+    monkeypatch.setattr(PhotonPass, "trace_ahead", lambda self, rng: None)
+    here, rays_here = render()
+    for a, b in zip(ahead, here):
+        assert np.array_equal(a, b)
+    assert rays_ahead == rays_here > 20_000
+    r = _renderer(24, photons_per_pass=20_000)
+    r.photon_pass.chunk = 12_000
+    r.photon_pass.trace_ahead(np.random.default_rng(99))   # never gathered: dropped
+    monkeypatch.undo()
+    assert np.array_equal(r.step().image, here[0])
