@@ -307,7 +307,11 @@ class Renderer:
         k = self.pass_index + 1
         st, state, clock = self.settings, self.state, self.stage_seconds
         rng_photons = self._rng(k, 2)
-        self.photon_pass.trace_ahead(rng_photons)    # overlaps the camera and direct light
+        # The photons are traced while the camera and direct light run; a
+        # stand-in photon pass (tools/distributed.py: the workers trace) may not.
+        ahead = getattr(self.photon_pass, "trace_ahead", None)
+        if ahead is not None:
+            ahead(rng_photons)
         tc = time.perf_counter()
         if st.fixed_visible_points and self._fixed is not None:
             vp, L_emit = self._fixed

@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from core.kept import KeptArrays
-from core.sppm.photon_pass import PhotonPass
+from core.sppm import photon_pass as PP
 from core.render import Renderer
 from core.settings import RenderSettings
 from core.sppm import visible_points as V
@@ -125,13 +125,14 @@ def test_photons_traced_ahead_give_the_same_image(monkeypatch):
         r.photon_pass.chunk = 12_000
         return [r.step().image for _ in range(passes)], r.photon_rays
     ahead, rays_ahead = render()
-    monkeypatch.setattr(PhotonPass, "trace_ahead", lambda self, rng: None)
+    monkeypatch.setattr(PP, "TRACE_AHEAD", False)
     here, rays_here = render()
     for a, b in zip(ahead, here):
         assert np.array_equal(a, b)
     assert rays_ahead == rays_here > 20_000
+    monkeypatch.undo()
     r = _renderer(24, photons_per_pass=20_000)
     r.photon_pass.chunk = 12_000
     r.photon_pass.trace_ahead(np.random.default_rng(99))   # never gathered: dropped
-    monkeypatch.undo()
+    assert r.photon_pass._ahead is not None
     assert np.array_equal(r.step().image, here[0])

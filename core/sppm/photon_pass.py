@@ -40,6 +40,10 @@ PHOTON_CHUNK = 131_072
 REFLECTED_DENSE_FRACTION = 8
 
 
+#: ``PhotonPass.trace_ahead`` traces a pass's photons while its camera and
+#: direct light run (False: each chunk is traced where it is gathered; the
+#: same image either way).
+TRACE_AHEAD = True
 _AHEAD = None
 
 
@@ -238,7 +242,7 @@ class PhotonPass:
         (the same stream, drawn in the same order).  Not with
         ``chunk_streams`` (each chunk is traced where it is gathered)."""
         self._drop_ahead()
-        if self.chunk_streams:
+        if self.chunk_streams or not TRACE_AHEAD:
             return
         ex = _ahead_executor()
         self._ahead = (rng, deque(ex.submit(self._trace_now, n, n_freq, rng)

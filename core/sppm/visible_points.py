@@ -93,7 +93,8 @@ class VisiblePoints:
 
 
 #: The arrays of ``VisiblePoints.empty`` (``first`` and ``through_delta`` are set per pass).
-_VP_ARRAYS = tuple(f.name for f in fields(VisiblePoints) if f.name not in ("first", "through_delta"))
+_VP_ARRAYS = tuple(f.name for f in fields(VisiblePoints)
+                   if f.name not in ("first", "through_delta"))
 
 
 @dataclass
