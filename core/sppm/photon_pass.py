@@ -13,6 +13,10 @@ corners against Cycles, docs/method.md).  The estimate is pass-local: the
 renderer commits it only once the pass is complete, so a cancelled pass
 leaves no trace.
 
+The trace does not depend on the visible points: ``trace_ahead`` starts a
+pass's chunks in a thread of their own before the camera pass, and the
+gather takes them in order (the same photons).
+
 A chunk is also the unit of work another process can do
 (tools/distributed.py): with ``chunk_streams`` each chunk draws its own
 random stream (``chunk_rng``) and its sums (``chunk_sums``) are added in
