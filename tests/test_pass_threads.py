@@ -121,8 +121,8 @@ def test_blocked_camera_calls_equal_one_call(monkeypatch):
 
 def test_photons_traced_ahead_give_the_same_image(monkeypatch):
     def render(passes=3):
-        r = _renderer(24, photons_per_pass=20_000)       # two halves, two chunks
-        r.photon_pass.chunk = 12_000
+        r = _renderer(24, photons_per_pass=20_000)       # 4 chunks: 2 queued ahead (AHEAD_CHUNKS)
+        r.photon_pass.chunk = 6_000
         return [r.step().image for _ in range(passes)], r.photon_rays
     ahead, rays_ahead = render()
     monkeypatch.setattr(PP, "TRACE_AHEAD", False)
@@ -132,7 +132,7 @@ def test_photons_traced_ahead_give_the_same_image(monkeypatch):
     assert rays_ahead == rays_here > 20_000
     monkeypatch.undo()
     r = _renderer(24, photons_per_pass=20_000)
-    r.photon_pass.chunk = 12_000
+    r.photon_pass.chunk = 6_000
     r.photon_pass.trace_ahead(np.random.default_rng(99))   # never gathered: dropped
     assert r.photon_pass._ahead is not None
     assert np.array_equal(r.step().image, here[0])

@@ -48,6 +48,10 @@ REFLECTED_DENSE_FRACTION = 8
 #: direct light run (False: each chunk is traced where it is gathered; the
 #: same image either way).
 TRACE_AHEAD = True
+#: Chunks queued ahead of the one being gathered: the trace of chunk c + 1
+#: overlaps the gather of chunk c, and a cancelled pass leaves at most this
+#: many chunks tracing in the background.
+AHEAD_CHUNKS = 2
 _AHEAD = None
 
 
@@ -211,7 +215,8 @@ class PhotonPass:
         # reused by every chunk of every pass (hashgrid.GatherBuffers).
         self.gather_buffers: Optional[hashgrid.GatherBuffers] = None
         self._kept = KeptArrays()
-        # (rng, deque of the futures of the chunks' deposits) of trace_ahead, or None.
+        # trace_ahead's (rng, futures of the queued chunks' deposits, chunks
+        # not queued yet), or None.
         self._ahead = None
 
     def __call__(self, vp, R2: np.ndarray, spectrum: Optional[np.ndarray],
@@ -239,18 +244,27 @@ class PhotonPass:
 
     def trace_ahead(self, rng: np.random.Generator) -> None:
         """Start tracing the chunks of the pass whose stream is rng now, one
-        after the other in a thread of their own: the trace does not depend
-        on the visible points (only the gather does), so it overlaps the
-        camera and direct-light stages.  The next call with this very rng
-        gathers them in chunk order: the same photons as tracing them there
-        (the same stream, drawn in the same order).  Not with
-        ``chunk_streams`` (each chunk is traced where it is gathered)."""
+        after the other in a thread of their own, AHEAD_CHUNKS ahead of the
+        gather: the trace does not depend on the visible points (only the
+        gather does), so it overlaps the camera and direct-light stages and
+        then the gather.  The next call with this very rng gathers them in
+        chunk order: the same photons as tracing them there (the same
+        stream, drawn in the same order).  Not with ``chunk_streams`` (each
+        chunk is traced where it is gathered)."""
         self._drop_ahead()
         if self.chunk_streams or not TRACE_AHEAD:
             return
-        ex = _ahead_executor()
-        self._ahead = (rng, deque(ex.submit(self._trace_now, n, n_freq, rng)
-                                  for n, n_freq in self.chunks()))
+        self._ahead = (rng, deque(), deque(self.chunks()))
+        for _ in range(AHEAD_CHUNKS):
+            self._submit_ahead()
+
+    def _submit_ahead(self) -> None:
+        """Queue the trace of the next chunk not yet queued (in chunk order:
+        one thread, one stream)."""
+        rng, futures, todo = self._ahead
+        if todo:
+            n, n_freq = todo.popleft()
+            futures.append(_ahead_executor().submit(self._trace_now, n, n_freq, rng))
 
     def _drop_ahead(self) -> None:
         """Cancel the chunks traced ahead and not started, wait for the one
@@ -370,7 +384,9 @@ class PhotonPass:
         None: the next chunk ``trace_ahead`` traced with this rng, else
         traced now."""
         if self._ahead is not None and self._ahead[0] is rng and self._ahead[1]:
-            return self._ahead[1].popleft().result()
+            f = self._ahead[1].popleft()
+            self._submit_ahead()            # traced while this chunk is gathered
+            return f.result()
         self._drop_ahead()
         return self._trace_now(n, n_freq, rng)
 
