@@ -121,7 +121,7 @@ def test_blocked_camera_calls_equal_one_call(monkeypatch):
 
 def test_photons_traced_ahead_give_the_same_image(monkeypatch):
     def render(passes=3):
-        r = _renderer(24, photons_per_pass=20_000)       # 4 chunks: 2 queued ahead (AHEAD_CHUNKS)
+        r = _renderer(24, photons_per_pass=20_000)       # 4 chunks, one queued ahead at a time
         r.photon_pass.chunk = 6_000
         return [r.step().image for _ in range(passes)], r.photon_rays
     ahead, rays_ahead = render()

@@ -48,10 +48,11 @@ REFLECTED_DENSE_FRACTION = 8
 #: direct light run (False: each chunk is traced where it is gathered; the
 #: same image either way).
 TRACE_AHEAD = True
-#: Chunks queued ahead of the one being gathered: the trace of chunk c + 1
-#: overlaps the gather of chunk c, and a cancelled pass leaves at most this
-#: many chunks tracing in the background.
-AHEAD_CHUNKS = 2
+#: Chunks queued ahead of the one being gathered: the trace of chunk 0
+#: overlaps the camera and direct light, that of chunk c + 1 the gather of
+#: chunk c; a cancelled pass or dropped renderer leaves at most this many
+#: chunks tracing in the background (and the next trace_ahead waits for them).
+AHEAD_CHUNKS = 1
 _AHEAD = None
 
 
