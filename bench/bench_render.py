@@ -63,6 +63,7 @@ import argparse
 import functools
 import os
 import sys
+import threading
 import time
 
 import numpy as np
@@ -620,7 +621,9 @@ class StageClock:
                 w, c = time.perf_counter() - w0, time.process_time() - c0
                 self.wall[key] += w
                 self.cpu[key] += c
-                if key == "photon_trace":        # inside a gather call: not the gather's
+                if key == "photon_trace" and threading.current_thread() is threading.main_thread():
+                    # inside a gather call: not the gather's (photons traced
+                    # ahead run in their own thread, PhotonPass.trace_ahead)
                     self.wall["gather"] -= w
                     self.cpu["gather"] -= c
         return g

@@ -53,6 +53,12 @@ class Accel:
             self._scene = rtcs.EmbreeScene()
             TriangleMesh(self._scene, self.tri_p)
 
+    def count_rays(self, K: int) -> None:
+        """rays_cast += K, thread-safe: photons may be traced (two threads)
+        while the camera and shadow rays are cast (PhotonPass.trace_ahead)."""
+        with _COUNT_LOCK:
+            self.rays_cast += K
+
     @staticmethod
     def _f32(a):
         return np.ascontiguousarray(a, dtype=np.float32)
@@ -60,7 +66,7 @@ class Accel:
     def intersect(self, o: np.ndarray, d: np.ndarray, t_max=None) -> Hits:
         """Closest hit of rays o (K,3) + t d (K,3), t in (0, t_max)."""
         K = o.shape[0]
-        self.rays_cast += K
+        self.count_rays(K)
         if self._scene is None or K == 0:
             return Hits(np.full(K, np.inf), np.full(K, -1, np.int32),
                         np.zeros(K), np.zeros(K))
@@ -75,7 +81,7 @@ class Accel:
     def occluded(self, o: np.ndarray, d: np.ndarray, t_max) -> np.ndarray:
         """(K,) bool: anything hit in (0, t_max)?  t_max may be np.inf."""
         K = o.shape[0]
-        self.rays_cast += K
+        self.count_rays(K)
         if self._scene is None or K == 0:
             return np.zeros(K, bool)
         dists = self._f32(np.minimum(np.broadcast_to(t_max, (K,)), 3e37))
@@ -139,8 +145,7 @@ def intersect_f32(accel: Accel, o32: np.ndarray, d32: np.ndarray):
     small scenes.
     """
     K = o32.shape[0]
-    with _COUNT_LOCK:            # photon halves are traced in two threads
-        accel.rays_cast += K
+    accel.count_rays(K)
     if accel._scene is None or K == 0:
         return (np.full(K, -1, np.int32), np.zeros(K, np.float32), np.zeros(K, np.float32),
                 np.full(K, np.inf, np.float32))

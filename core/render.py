@@ -318,6 +318,12 @@ class Renderer:
         t0 = time.perf_counter()
         k = self.pass_index + 1
         st, state, clock = self.settings, self.state, self.stage_seconds
+        rng_photons = self._rng(k, 2)
+        # The photons are traced while the camera and direct light run; a
+        # stand-in photon pass (tools/distributed.py: the workers trace) may not.
+        ahead = getattr(self.photon_pass, "trace_ahead", None)
+        if ahead is not None:
+            ahead(rng_photons)
         tc = time.perf_counter()
         if st.fixed_visible_points and self._fixed is not None:
             vp, L_emit = self._fixed
@@ -332,7 +338,7 @@ class Renderer:
             L_pass = L_pass + self._interruptible(self.direct_light, vp, self._rng(k, 1))
         clock["direct"] += time.perf_counter() - td
         self._check_stop()
-        self._photons(vp, self._rng(k, 2))
+        self._photons(vp, rng_photons)
         tu = time.perf_counter()
         state.L_sum += L_pass
         self.film.accumulate(vp)

@@ -286,7 +286,17 @@ def _occluded_f32(accel, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray) -> n
     """``Accel.occluded`` of rays already in Embree's float32 (C-contiguous
     (K, 3), (K, 3), (K,)): (K,) bool, no conversions."""
     K = o32.shape[0]
-    accel.rays_cast += K
+    accel.count_rays(K)
     if accel._scene is None or K == 0:
         return np.zeros(K, bool)
-    return np.asarray(accel._scene.run(o32, d32, dists=t32, query="OCCLUDED")) >= 0
+    from ..sppm.camera_kernels import SPLIT_MIN
+    from ..sppm.photons import _pool, _threads
+    run = accel._scene.run
+    if K >= SPLIT_MIN and _threads() > 1:
+        # Two halves in two threads (Embree releases the GIL); a ray's answer
+        # does not depend on the split.
+        h = K // 2
+        f1 = _pool().submit(run, o32[h:], d32[h:], dists=t32[h:], query="OCCLUDED")
+        b0 = np.asarray(run(o32[:h], d32[:h], dists=t32[:h], query="OCCLUDED")) >= 0
+        return np.concatenate([b0, np.asarray(f1.result()) >= 0])
+    return np.asarray(run(o32, d32, dists=t32, query="OCCLUDED")) >= 0

@@ -13,6 +13,10 @@ corners against Cycles, docs/method.md).  The estimate is pass-local: the
 renderer commits it only once the pass is complete, so a cancelled pass
 leaves no trace.
 
+The trace does not depend on the visible points: ``trace_ahead`` starts a
+pass's chunks in a thread of their own before the camera pass, and the
+gather takes them in order (the same photons).
+
 A chunk is also the unit of work another process can do
 (tools/distributed.py): with ``chunk_streams`` each chunk draws its own
 random stream (``chunk_rng``) and its sums (``chunk_sums``) are added in
@@ -21,12 +25,14 @@ chunk order (``PassSums.add``), whichever process traced it.
 from __future__ import annotations
 
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import NamedTuple, Optional
 
 import numpy as np
 
 from .. import materials as B
+from ..kept import KeptArrays
 from ..frequency.kernels import Receivers
 from . import hashgrid
 from .update import HIST_BINS, needs_sectors
@@ -36,6 +42,28 @@ PHOTON_CHUNK = 131_072
 #: P / REFLECTED_DENSE_FRACTION pairs (sorting them is then cheaper than
 #: three passes over P points).
 REFLECTED_DENSE_FRACTION = 8
+
+
+#: ``PhotonPass.trace_ahead`` traces a pass's photons while its camera and
+#: direct light run (False: each chunk is traced where it is gathered; the
+#: same image either way).
+TRACE_AHEAD = True
+#: Chunks queued ahead of the one being gathered: the trace of chunk 0
+#: overlaps the camera and direct light, that of chunk c + 1 the gather of
+#: chunk c; a cancelled pass or dropped renderer leaves at most this many
+#: chunks tracing in the background (and the next trace_ahead waits for them).
+AHEAD_CHUNKS = 1
+_AHEAD = None
+
+
+def _ahead_executor():
+    """The one thread that traces passes ahead (``PhotonPass.trace_ahead``);
+    its traces split their halves over core.sppm.photons' pool, like the others."""
+    global _AHEAD
+    if _AHEAD is None:
+        from concurrent.futures import ThreadPoolExecutor
+        _AHEAD = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fppm-ahead")
+    return _AHEAD
 
 
 class PhotonEstimate(NamedTuple):
@@ -187,6 +215,10 @@ class PhotonPass:
         # Per-thread gather accumulators, allocated at the first chunk and
         # reused by every chunk of every pass (hashgrid.GatherBuffers).
         self.gather_buffers: Optional[hashgrid.GatherBuffers] = None
+        self._kept = KeptArrays()
+        # trace_ahead's (rng, futures of the queued chunks' deposits, chunks
+        # not queued yet), or None.
+        self._ahead = None
 
     def __call__(self, vp, R2: np.ndarray, spectrum: Optional[np.ndarray],
                  rng: np.random.Generator, check_stop=lambda: None) -> PhotonEstimate:
@@ -197,9 +229,10 @@ class PhotonPass:
         its sums are added in chunk order (``chunk_sums``, ``PassSums.add``):
         what another process computes for that chunk."""
         P = vp.valid.shape[0]
-        acc = PassSums.zeros(P, self.radius_histogram is not None, spectrum, self.sectors)
+        acc = self._zero_sums(P, spectrum)
         pg = self.begin(vp, R2, spectrum is not None)
         if pg is None:
+            self._drop_ahead()
             return PhotonEstimate(False, acc.M, acc.Phi, acc.r_pred)
         for c, (n, n_freq) in enumerate(self.chunks()):
             check_stop()
@@ -207,7 +240,58 @@ class PhotonPass:
                 acc.add(self.chunk_sums(pg, n, n_freq, chunk_rng(rng, c)))
             else:
                 self._trace_gather(pg, n, n_freq, rng, acc)
+        self._drop_ahead()
         return self.finish(vp, acc)
+
+    def trace_ahead(self, rng: np.random.Generator) -> None:
+        """Start tracing the chunks of the pass whose stream is rng now, one
+        after the other in a thread of their own, AHEAD_CHUNKS ahead of the
+        gather: the trace does not depend on the visible points (only the
+        gather does), so it overlaps the camera and direct-light stages and
+        then the gather.  The next call with this very rng gathers them in
+        chunk order: the same photons as tracing them there (the same
+        stream, drawn in the same order).  Not with ``chunk_streams`` (each
+        chunk is traced where it is gathered)."""
+        self._drop_ahead()
+        if self.chunk_streams or not TRACE_AHEAD:
+            return
+        self._ahead = (rng, deque(), deque(self.chunks()))
+        for _ in range(AHEAD_CHUNKS):
+            self._submit_ahead()
+
+    def _submit_ahead(self) -> None:
+        """Queue the trace of the next chunk not yet queued (in chunk order:
+        one thread, one stream)."""
+        rng, futures, todo = self._ahead
+        if todo:
+            n, n_freq = todo.popleft()
+            futures.append(_ahead_executor().submit(self._trace_now, n, n_freq, rng))
+
+    def _drop_ahead(self) -> None:
+        """Cancel the chunks traced ahead and not started, wait for the one
+        running (a pass that was cancelled or found no visible point)."""
+        if self._ahead is not None:
+            futures, self._ahead = list(self._ahead[1]), None
+            for f in futures:
+                f.cancel()
+            for f in futures:
+                if not f.cancelled():
+                    f.exception()
+
+    def _zero_sums(self, P: int, spectrum: Optional[np.ndarray]) -> "PassSums":
+        """``PassSums.zeros`` of a pass, on the last pass's arrays when the
+        renderer has dropped them (core.kept: the serial fold no longer
+        page-faults fresh pixel-sized sums in every pass).  M is new every
+        pass: the state keeps it (``PixelState.M_last``)."""
+        hist = self.radius_histogram is not None
+        names = ("Phi", "r_pred") + ("hist",) * hist + ("sectors",) * self.sectors
+
+        def make():
+            z = PassSums.zeros(P, hist, None, self.sectors)
+            return [getattr(z, n) for n in names]
+        a = self._kept.get(make, (P, hist, self.sectors))
+        return PassSums(M=np.zeros(P), **dict(zip(names, a)),
+                        spec=None if spectrum is None else spectrum.copy())
 
     def active(self, vp, R2: np.ndarray) -> np.ndarray:
         """(P,) bool: the visible points that gather this pass (valid, with a radius)."""
@@ -298,11 +382,21 @@ class PhotonPass:
 
     def _trace(self, n: int, n_freq: int, rng) -> Optional[dict]:
         """The deposits of n photons (the first n_freq with a spectrum), or
-        None; counts the rays and the trace's wall seconds."""
+        None: the next chunk ``trace_ahead`` traced with this rng, else
+        traced now."""
+        if self._ahead is not None and self._ahead[0] is rng and self._ahead[1]:
+            f = self._ahead[1].popleft()
+            self._submit_ahead()            # traced while this chunk is gathered
+            return f.result()
+        self._drop_ahead()
+        return self._trace_now(n, n_freq, rng)
+
+    def _trace_now(self, n: int, n_freq: int, rng) -> Optional[dict]:
+        """``_trace`` in this thread; counts the rays and the trace's wall seconds."""
         t0 = time.perf_counter()
-        rays0 = self.tracer.accel.rays_cast
+        rays0 = self.tracer.rays_cast
         dep = self.tracer.trace(n, n_freq, rng)
-        self.rays += self.tracer.accel.rays_cast - rays0
+        self.rays += self.tracer.rays_cast - rays0
         self.stage_seconds["photon_trace"] += time.perf_counter() - t0
         return dep
 

@@ -37,7 +37,7 @@ from ..frequency import kernels as FK
 from ..frequency.occlusion_march import march_grid, no_march_grid
 from ..materials.fast import build_fast_materials
 from . import photon_kernels as PK
-from ..accel import REL_OFFSET, intersect_f32
+from ..accel import _COUNT_LOCK, REL_OFFSET, intersect_f32
 from ..scene.model import Scene
 
 from ..mathutil import LUMINANCE as LUM, dot as _dot  # noqa: E402
@@ -133,6 +133,9 @@ class PhotonTracer:
         self.kappa, self.occ_grid, self.occ_locality, self.D = kappa, occ_grid, occ_locality, D
         self.tris = PK.build_triangle_data(scene)
         self.fmat = build_fast_materials(mtab)
+        # Photon rays cast by this tracer (accel.rays_cast also counts the
+        # camera's, which may be cast meanwhile: PhotonPass.trace_ahead).
+        self.rays_cast = 0
         self._tri_uv = None
         self.fast_emission = PK.fast_emission_ok(light_table)
         self._light_arrays = PK.light_arrays(light_table) if self.fast_emission else None
@@ -260,6 +263,8 @@ class PhotonTracer:
             if K == 0:
                 break
             hits = PK.EmbreeHits(*intersect_f32(self.accel, live.o32[:K], live.d32[:K]))
+            with _COUNT_LOCK:                    # the halves run in two threads
+                self.rays_cast += K
             step = PK.BounceStep(K=K, first=bounce == 0,
                                  store=bool(st.photons_for_direct or bounce > 0),
                                  sample=bounce < st.max_bounces,

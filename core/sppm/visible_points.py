@@ -13,12 +13,13 @@ world on a miss) is returned separately as ``L_emit``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Optional
 
 import numpy as np
 
 from ..accel import surface_point
+from ..kept import KeptArrays
 from ..scene import normals as shading_normals
 from .. import lights as Lt
 from .. import materials as B
@@ -26,6 +27,12 @@ from ..mathutil import dot as _dot
 
 #: Camera rays from which a wavefront's Embree call is split in two threads.
 INTERSECT_SPLIT_MIN = 1 << 15
+#: Rays per Embree call of the camera pass (``_intersect``).
+INTERSECT_BLOCK = 1 << 14
+#: Camera rays from which the emitters they see are found in blocks of
+#: SEEN_BLOCK rays shared by two threads (``CameraPass._seen_by_camera``).
+SEEN_SPLIT_MIN = 1 << 16
+SEEN_BLOCK = 1 << 14
 
 
 @dataclass
@@ -85,6 +92,11 @@ class VisiblePoints:
         return self.ns[q] * s, self.ng[q] * s
 
 
+#: The arrays of ``VisiblePoints.empty`` (``first`` and ``through_delta`` are set per pass).
+_VP_ARRAYS = tuple(f.name for f in fields(VisiblePoints)
+                   if f.name not in ("first", "through_delta"))
+
+
 @dataclass
 class FirstHit:
     """What each pixel's camera ray meets first (Cycles' data passes are
@@ -105,6 +117,9 @@ class FirstHit:
     prim: np.ndarray
     emit: np.ndarray
     escape: np.ndarray
+
+
+_FIRST = tuple(f.name for f in fields(FirstHit))
 
 
 def _crossings_only(accel, rays, vp) -> None:
@@ -152,6 +167,7 @@ class CameraPass:
         self.max_depth = int(max_depth)
         self.transparent = bool(transparent)
         self.pixel_id = None
+        self._kept = KeptArrays()
         if frame is not None:
             Wf, Hf = (int(v) for v in frame)
             # Row 0 of the frame's sample array is the top row (py = Hf - 1).
@@ -183,11 +199,7 @@ class CameraPass:
             u[:, :2] = 0.5      # FilterSampler.sample(0.5) = 0: the pixel centre
             u[:, 2:] = 0.0      # lens radius sqrt(0) = 0
         rays, dz = self.camera.generate(self.px, self.py, u[:, :2], u[:, 2:], self.fsamp)
-        vp = VisiblePoints.empty(P, mtab.kind.shape[1], mtab.kind.shape[0])
-        vp.first = FirstHit(hit=np.zeros(P, bool), p=np.zeros((P, 3)), n=np.zeros((P, 3)),
-                            prim=np.full(P, -1, np.int32), emit=np.zeros((P, 3)),
-                            escape=np.zeros(P))
-        L = np.zeros((P, 3))
+        vp, L = self._outputs(P)
         trace = self._trace_compiled if self.compiled else self._trace_numpy
         trace(rng, rays, dz, vp, L, check_stop)
         # A delta chain never returns to its first hit: the point is the
@@ -195,6 +207,25 @@ class CameraPass:
         vp.through_delta = vp.valid & np.any(vp.p != vp.first.p, axis=1)
         _crossings_only(accel, rays, vp)
         return vp, L
+
+    def _outputs(self, P: int) -> tuple[VisiblePoints, np.ndarray]:
+        """Cleared visible points (with their FirstHit) and L (P, 3) for one
+        pass: the last pass's arrays when the caller has dropped them
+        (core.kept: no page faults of fresh pixel-sized arrays every pass)."""
+        mtab = self.mtab
+
+        def make():
+            vp = VisiblePoints.empty(P, mtab.kind.shape[1], mtab.kind.shape[0])
+            first = FirstHit(hit=np.zeros(P, bool), p=np.zeros((P, 3)), n=np.zeros((P, 3)),
+                             prim=np.full(P, -1, np.int32), emit=np.zeros((P, 3)),
+                             escape=np.zeros(P))
+            return ([getattr(vp, f) for f in _VP_ARRAYS] + [getattr(first, f) for f in _FIRST]
+                    + [np.zeros((P, 3))])
+        a = self._kept.get(make, P)
+        n = len(_VP_ARRAYS)
+        vp = VisiblePoints(**dict(zip(_VP_ARRAYS, a[:n])))
+        vp.first = FirstHit(**dict(zip(_FIRST, a[n:n + len(_FIRST)])))
+        return vp, a[-1]
 
     def _seen_along(self, depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
                     fast=False):
@@ -208,9 +239,7 @@ class CameraPass:
         for code, name in ((0, "camera"), (1, "glossy"), (2, "transmission")):
             if whole:
                 if code == 0 and self._any_seen("camera"):
-                    Le = Lt.emitted_along_rays(self.light_table, o, d, np.minimum(t, tmax), name)
-                    L += beta * Le
-                    first.emit += Le
+                    self._seen_by_camera(L, first.emit, o, d, tmax, t, beta)
                 continue
             sel = last == code
             if np.any(sel) and (not fast or self._any_seen(name)):
@@ -230,6 +259,31 @@ class CameraPass:
             return
         if np.any(miss):
             L[idx[miss]] += beta[miss] * Lt.world_radiance(self.light_table, d[miss])
+
+    def _seen_by_camera(self, L, emit, o, d, tmax, t, beta) -> None:
+        """L += beta * Le and emit += Le, Le the analytic emitters the camera
+        rays (every pixel, in order) see before t (K,) (``_seen_along``).
+        Above SEEN_SPLIT_MIN rays: in blocks of SEEN_BLOCK rays (so that
+        ``emitted_along_rays``' temporaries stay small and are not page-faulted
+        in afresh), the blocks shared by two threads (numpy releases the GIL);
+        each ray's Le depends on that ray alone, so the sums are the same bits."""
+        from .photons import _pool, _threads
+
+        def blocks(a0, a1):
+            for a in range(a0, a1, SEEN_BLOCK):
+                b = min(a + SEEN_BLOCK, a1)
+                Le = Lt.emitted_along_rays(self.light_table, o[a:b], d[a:b],
+                                           np.minimum(t[a:b], tmax[a:b]), "camera")
+                L[a:b] += beta[a:b] * Le
+                emit[a:b] += Le
+        K = o.shape[0]
+        if K < SEEN_SPLIT_MIN or _threads() < 2:
+            blocks(0, K)
+            return
+        h = (K // 2 // SEEN_BLOCK) * SEEN_BLOCK
+        f1 = _pool().submit(blocks, h, K)
+        blocks(0, h)
+        f1.result()
 
     def _any_seen(self, visibility: str) -> bool:
         """Whether any analytic emitter can be seen by rays of this kind
@@ -422,26 +476,37 @@ class CameraPass:
 
 def _intersect(accel, o, d, tmax):
     """Embree's closest hits of rays o + t d, t < tmax (K,): (prim (K,) int32,
-    u, v, tfar (K,) float32), as ``Accel.intersect`` casts them (float32 in)."""
+    u, v, tfar (K,) float32), as ``Accel.intersect`` casts them (float32 in).
+
+    In blocks of INTERSECT_BLOCK rays, converted to float32 block by block:
+    at 1080p the whole wavefront's float32 copies and Embree's own outputs
+    were ~110 MB of fresh arrays per call, page-faulted in every pass.  From
+    INTERSECT_SPLIT_MIN rays the blocks are shared by two threads
+    (EmbreeScene.run releases the GIL).  Each ray's hit does not depend on
+    the blocks."""
     K = o.shape[0]
-    accel.rays_cast += K
+    accel.count_rays(K)
     if accel._scene is None or K == 0:
         return (np.full(K, -1, np.int32), np.zeros(K, np.float32), np.zeros(K, np.float32),
                 np.full(K, np.inf, np.float32))
-    f32 = accel._f32
-    o32, d32, t32 = f32(o), f32(d), f32(np.minimum(tmax, 3e37))
+    f32, run = accel._f32, accel._scene.run
+    prim = np.empty(K, np.int32)
+    bu, bv, tfar = np.empty(K, np.float32), np.empty(K, np.float32), np.empty(K, np.float32)
+
+    def blocks(a0, a1):
+        for a in range(a0, a1, INTERSECT_BLOCK):
+            b = min(a + INTERSECT_BLOCK, a1)
+            r = run(f32(o[a:b]), f32(d[a:b]), dists=f32(np.minimum(tmax[a:b], 3e37)), output=1)
+            prim[a:b], bu[a:b], bv[a:b], tfar[a:b] = r["primID"], r["u"], r["v"], r["tfar"]
     from .photons import _pool, _threads
     if K >= INTERSECT_SPLIT_MIN and _threads() > 1:
-        # Two halves in two threads (EmbreeScene.run releases the GIL); each
-        # ray's hit does not depend on the split.
         h = K // 2
-        f1 = _pool().submit(accel._scene.run, o32[h:], d32[h:], dists=t32[h:], output=1)
-        r0 = accel._scene.run(o32[:h], d32[:h], dists=t32[:h], output=1)
-        r1 = f1.result()
-        r = {k: np.concatenate([r0[k], r1[k]]) for k in ("primID", "u", "v", "tfar")}
+        f1 = _pool().submit(blocks, h, K)
+        blocks(0, h)
+        f1.result()
     else:
-        r = accel._scene.run(o32, d32, dists=t32, output=1)
-    return r["primID"].astype(np.int32, copy=False), r["u"], r["v"], r["tfar"]
+        blocks(0, K)
+    return prim, bu, bv, tfar
 
 
 def _emission_texture(mtab, scene, mat, uv):

@@ -1,0 +1,85 @@
+"""Pixel-sized arrays kept from one pass to the next, so that a pass does not
+page-fault its outputs in afresh.
+
+    kept = KeptArrays()
+    arrays = kept.get(make, key)   # make() -> list of new arrays, each filled with one value
+
+A stage that returns pixel-sized arrays (the camera pass's visible points and
+first hits, the photon pass's sums) used to allocate them every pass.  Arrays
+that large come from ``mmap`` and go back to the kernel when freed; on the
+virtual machines FPPM is measured on, freed memory also goes back to the host
+(virtio balloon free page reporting), so each pass paid their page faults
+again, in the kernel and mostly on one core at a time (docs/architecture.md,
+"Cores used").  Here the arrays of the last call are cleared (a memset of
+memory already mapped, in two threads) and returned again -- but only when
+nothing else holds any of them any more: a caller that keeps a result (fixed
+visible points, a test comparing two passes, a view of one array) gets new
+arrays, and its result is never overwritten.
+"""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+#: Arrays of at least this many bytes are cleared in two threads.
+CLEAR_SPLIT_BYTES = 1 << 22
+
+
+def _refcounts(arrays: list) -> list:
+    return [sys.getrefcount(a) for a in arrays]
+
+
+#: References to an array that a list alone holds, counted as ``_refcounts``
+#: counts them (the list, the loop variable, the call's argument).
+_ALONE = _refcounts([np.empty(0)])[0]
+
+
+class KeptArrays:
+    """The arrays last returned by :meth:`get`, and the value each is cleared to."""
+
+    def __init__(self):
+        self._arrays: list | None = None
+        self._fills: list = []
+        self._key = None
+        self.reused = 0
+
+    def get(self, make, key=None) -> list:
+        """The arrays of the last call, cleared to the values they were made
+        with, when that call had the same key (what decides their shapes and
+        dtypes) and none of them is referenced outside this object; else
+        make()'s new arrays (each uniformly filled: np.zeros, np.ones,
+        np.full), kept for the next call."""
+        held = self._arrays
+        if held is not None and key == self._key and max(_refcounts(held)) <= _ALONE:
+            _clear(held, self._fills)
+            self.reused += 1
+            return list(held)
+        arrays = list(make())
+        self._fills = [a.reshape(-1)[0] if a.size else 0 for a in arrays]
+        self._arrays, self._key = arrays, key
+        return list(arrays)
+
+
+def _clear(arrays: list, fills: list) -> None:
+    """arrays[i][...] = fills[i]; the large ones as two halves in two threads
+    (numpy releases the GIL while it fills)."""
+    from .sppm.photons import _pool, _threads
+    big = [(a.reshape(-1), f) for a, f in zip(arrays, fills) if a.nbytes >= CLEAR_SPLIT_BYTES]
+    for a, f in zip(arrays, fills):
+        if a.nbytes < CLEAR_SPLIT_BYTES:
+            a[...] = f
+    if not big:
+        return
+
+    def second_halves():
+        for flat, f in big:
+            flat[flat.size // 2:] = f
+    if _threads() > 1:
+        fut = _pool().submit(second_halves)
+        for flat, f in big:
+            flat[:flat.size // 2] = f
+        fut.result()
+    else:
+        for flat, f in big:
+            flat[...] = f

@@ -1,0 +1,138 @@
+"""Arrays kept from one pass to the next (core.kept), the camera pass's
+blocked, two-thread Embree calls and emitter look-ups, and the photons traced
+ahead of the camera pass (PhotonPass.trace_ahead).
+
+What is asserted, and why the tolerances are zero:
+- ``KeptArrays.get`` returns the last call's arrays, cleared to the values
+  they were made with, only when nothing else references any of them: a
+  caller holding an array, a view of one, or an object holding one gets new
+  arrays, and what it holds is left as it was; a new key gives new arrays.
+- A camera pass on reused arrays gives the visible points, first hits and
+  emission of a fresh camera pass bit for bit (the clear restores every
+  value ``VisiblePoints.empty`` starts from), and a result the caller keeps
+  is never overwritten by the next pass.  The photon pass's sums, reused,
+  give a whole render the same image bit for bit.
+- The camera pass with its Embree calls in small blocks
+  (visible_points.INTERSECT_BLOCK) and the emitters seen by camera rays in
+  small blocks over two threads (SEEN_SPLIT_MIN, SEEN_BLOCK) gives the
+  one-call visible points bit for bit: each ray's hit and emission is its own.
+- Photons traced ahead, in their own thread while the camera and direct
+  light run, give the image of photons traced at the gather bit for bit
+  (the same stream drawn in the same order), with the same photon ray count;
+  a pass whose traced-ahead photons are not gathered (another stream) traces
+  its own and gives the same image too.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from core.kept import KeptArrays
+from core.sppm import photon_pass as PP
+from core.render import Renderer
+from core.settings import RenderSettings
+from core.sppm import visible_points as V
+from core.warmup import warmup_scene
+
+
+def _make():
+    return [np.zeros((5000, 3)), np.full(5000, -1, np.int32), np.ones(7, bool)]
+
+
+def test_kept_arrays_reused_only_when_unshared():
+    k = KeptArrays()
+    a = k.get(_make, 1)
+    a[0][:] = 3.0
+    a[1][:] = 9
+    a[2][:] = False
+    ids = [id(x) for x in a]
+    del a
+    b = k.get(_make, 1)
+    assert [id(x) for x in b] == ids and k.reused == 1
+    assert not b[0].any() and np.all(b[1] == -1) and b[2].all()
+    for hold in (lambda arrs: arrs[1], lambda arrs: arrs[0][10:20], lambda arrs: {"x": arrs[2]}):
+        b[0][:] = 5.0
+        held = hold(b)
+        before = np.array(held["x"] if isinstance(held, dict) else held, copy=True)
+        del b
+        b = k.get(_make, 1)
+        assert k.reused == 1, "an array still referenced was reused"
+        after = held["x"] if isinstance(held, dict) else held
+        assert np.array_equal(after, before)
+        del held, after
+    del b
+    assert len(k.get(_make, 2)) == 3 and k.reused == 1      # another key: new arrays
+
+
+def _renderer(res, **kw):
+    return Renderer(warmup_scene(res, ("POINT", "AREA")),
+                    RenderSettings(integrator="PHOTON", max_passes=4, seed=1, **kw),
+                    log=lambda _m: None)
+
+
+def _assert_same_camera_pass(a, b):
+    (vp_a, L_a), (vp_b, L_b) = a, b
+    for f in V._VP_ARRAYS:
+        assert np.array_equal(getattr(vp_a, f), getattr(vp_b, f)), f
+    for f in V._FIRST:
+        assert np.array_equal(getattr(vp_a.first, f), getattr(vp_b.first, f)), f
+    assert np.array_equal(vp_a.through_delta, vp_b.through_delta)
+    assert np.array_equal(L_a, L_b)
+
+
+def test_reused_camera_pass_equals_fresh():
+    cam = _renderer(40).camera_pass
+    fresh = _renderer(40).camera_pass(np.random.default_rng(6))
+    kept = cam(np.random.default_rng(5))
+    kept_copy = {f: getattr(kept[0], f).copy() for f in V._VP_ARRAYS}
+    second = cam(np.random.default_rng(6))        # the first result is held: new arrays
+    assert cam._kept.reused == 0
+    for f, v in kept_copy.items():
+        assert np.array_equal(getattr(kept[0], f), v), f
+    del kept, second
+    reused = cam(np.random.default_rng(6))
+    assert cam._kept.reused == 1
+    assert reused[0].valid.mean() > 0.5 and np.any(reused[0].first.emit > 0)
+    _assert_same_camera_pass(reused, fresh)
+
+
+def test_reused_photon_sums_give_the_same_image(monkeypatch):
+    r = _renderer(24, photons_per_pass=20_000)
+    for _ in range(3):
+        img = r.step().image
+    assert r.photon_pass._kept.reused == 2
+    monkeypatch.setattr(KeptArrays, "get", lambda self, make, key=None: list(make()))
+    r2 = _renderer(24, photons_per_pass=20_000)
+    for _ in range(3):
+        img2 = r2.step().image
+    assert np.array_equal(img, img2)
+
+
+def test_blocked_camera_calls_equal_one_call(monkeypatch):
+    r = _renderer(64)
+    one = r.camera_pass(np.random.default_rng(7))
+    monkeypatch.setattr(V, "INTERSECT_BLOCK", 300)
+    monkeypatch.setattr(V, "INTERSECT_SPLIT_MIN", 1000)
+    monkeypatch.setattr(V, "SEEN_BLOCK", 256)
+    monkeypatch.setattr(V, "SEEN_SPLIT_MIN", 1000)
+    blocked = r.camera_pass(np.random.default_rng(7))
+    assert np.any(one[0].first.emit > 0)
+    _assert_same_camera_pass(one, blocked)
+
+
+def test_photons_traced_ahead_give_the_same_image(monkeypatch):
+    def render(passes=3):
+        r = _renderer(24, photons_per_pass=20_000)       # 4 chunks, one queued ahead at a time
+        r.photon_pass.chunk = 6_000
+        return [r.step().image for _ in range(passes)], r.photon_rays
+    ahead, rays_ahead = render()
+    monkeypatch.setattr(PP, "TRACE_AHEAD", False)
+    here, rays_here = render()
+    for a, b in zip(ahead, here):
+        assert np.array_equal(a, b)
+    assert rays_ahead == rays_here > 20_000
+    monkeypatch.undo()
+    r = _renderer(24, photons_per_pass=20_000)
+    r.photon_pass.chunk = 6_000
+    r.photon_pass.trace_ahead(np.random.default_rng(99))   # never gathered: dropped
+    assert r.photon_pass._ahead is not None
+    assert np.array_equal(r.step().image, here[0])
