@@ -1,6 +1,7 @@
 """Equal-CPU-time relMSE of FPPM's integrators against a reference (docs/integrators.md).
 
     .venv/bin/python bench/measure_cpu.py BLEND PCT BUDGET RUNS [--ref light:SECONDS]
+    .venv/bin/python bench/measure_cpu.py BLEND PCT ROUNDS RUNS --cost
 
 RUNS: comma-separated fppm, ppm, path<K>, light, combined<K> (K = camera
 samples, default 4), cycles; a suffix :p<N> sets photons_per_pass (light
@@ -11,9 +12,19 @@ under ~/.cache/fppm/references/ as ``fppm converge`` does), or with
 cannot render, such as a radius-0 point light's caustic; cached in
 ~/.cache/fppm/references/ by blend, resolution and seconds).
 
+"camera share": the camera paths' part of the camera + light-tracing
+wall seconds of the passes (``stage_seconds``; the effort split of COMBINED).
+
 CPU time = time.process_time() of this process (all its threads: Cycles',
 numba's, Embree's): the machine is shared, wall time is not a clock.
 relMSE = mean (x - r)^2 / (r^2 + 0.01).
+
+``--cost``: CPU seconds of one pass of each run, the runs' passes stepped in
+turn (round robin, ROUNDS passes each after a first untimed one) so that
+the load of a shared machine falls on all of them alike; no reference.
+With a run's passes n and relMSE e from an equal-CPU run, e * n is its
+error after one pass (seeded, so free of the load) and e * n * (CPU of a
+pass) / T its error at T CPU seconds.
 """
 import math
 import os
@@ -66,7 +77,33 @@ def render_cpu(blend, pct, budget, run, seed=7, log=True):
     scene = open_blend(blend, resolution=pct)
     c0, w0 = time.process_time(), time.perf_counter()
     render_scene(scene, kw, sess)
+    stages = getattr(sess.renderer, "stage_seconds", {})
+    side = stages.get("camera", 0.0) + stages.get("photon_trace", 0.0)
+    last["camera_share"] = stages.get("camera", 0.0) / side if side > 0 else float("nan")
     return last
+
+
+def pass_costs(blend, pct, rounds, runs):
+    """{run: (CPU s of a pass, camera share)}, passes stepped round robin."""
+    rend = {}
+    for run in runs:
+        kw = dict(settings_of(run), time_limit=0.0, max_passes=1, seed=7)
+        sess = RenderSession(log=lambda s: None)
+        render_scene(open_blend(blend, resolution=pct), kw, sess)
+        rend[run] = sess.renderer
+        rend[run]._should_stop = lambda: False     # the Blender engine is gone
+    cpu = dict.fromkeys(runs, 0.0)
+    for _ in range(rounds):
+        for run, r in rend.items():
+            c0 = time.process_time()
+            r.step()
+            cpu[run] += time.process_time() - c0
+    out = {}
+    for run, r in rend.items():
+        st = r.stage_seconds
+        side = st.get("camera", 0.0) + st.get("photon_trace", 0.0)
+        out[run] = (cpu[run] / rounds, st.get("camera", 0.0) / side if side > 0 else float("nan"))
+    return out
 
 
 def light_reference(blend, pct, seconds):
@@ -84,6 +121,10 @@ def light_reference(blend, pct, seconds):
 
 def main(argv):
     blend, pct, budget, runs = argv[0], int(argv[1]), float(argv[2]), argv[3].split(",")
+    if "--cost" in argv:
+        for run, (c, share) in pass_costs(blend, pct, int(budget), runs).items():
+            print(f"COST {run} cpu per pass {c:.4f} s camera share {share:.2f}", flush=True)
+        return
     if "--ref" in argv:
         spec = argv[argv.index("--ref") + 1]
         ref = light_reference(blend, pct, float(spec.split(":")[1]))
@@ -116,7 +157,8 @@ def main(argv):
         last = render_cpu(blend, pct, budget, run)
         print(f"RESULT {run} relMSE@{last['cpu']:.1f}s cpu (wall {last['wall']:.1f}) "
               f"{relmse(last['img']):.3e} passes {last['n']} mean ratio "
-              f"{last['img'].mean() / ref.mean():.4f}", flush=True)
+              f"{last['img'].mean() / ref.mean():.4f} camera share {last['camera_share']:.2f}",
+              flush=True)
 
 
 if __name__ == "__main__":
