@@ -77,10 +77,15 @@ def render_cpu(blend, pct, budget, run, seed=7, log=True):
     scene = open_blend(blend, resolution=pct)
     c0, w0 = time.process_time(), time.perf_counter()
     render_scene(scene, kw, sess)
-    stages = getattr(sess.renderer, "stage_seconds", {})
-    side = stages.get("camera", 0.0) + stages.get("photon_trace", 0.0)
-    last["camera_share"] = stages.get("camera", 0.0) / side if side > 0 else float("nan")
+    last["camera_share"] = camera_share(sess.renderer)
     return last
+
+
+def camera_share(renderer) -> float:
+    """The camera paths' part of the camera + light-tracing seconds of the passes."""
+    st = getattr(renderer, "stage_seconds", {})
+    side = st.get("camera", 0.0) + st.get("photon_trace", 0.0)
+    return st.get("camera", 0.0) / side if side > 0 else float("nan")
 
 
 def pass_costs(blend, pct, rounds, runs):
@@ -98,12 +103,7 @@ def pass_costs(blend, pct, rounds, runs):
             c0 = time.process_time()
             r.step()
             cpu[run] += time.process_time() - c0
-    out = {}
-    for run, r in rend.items():
-        st = r.stage_seconds
-        side = st.get("camera", 0.0) + st.get("photon_trace", 0.0)
-        out[run] = (cpu[run] / rounds, st.get("camera", 0.0) / side if side > 0 else float("nan"))
-    return out
+    return {run: (cpu[run] / rounds, camera_share(r)) for run, r in rend.items()}
 
 
 def light_reference(blend, pct, seconds):
