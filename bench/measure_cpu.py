@@ -5,7 +5,8 @@
 
 RUNS: comma-separated fppm, ppm, path<K>, light, combined<K> (K = camera
 samples, default 4), cycles; a suffix :p<N> sets photons_per_pass (light
-paths per pass for light and combined), :n<N> renders N passes whatever
+paths per pass for light and combined), :r<X> sets light_paths_per_camera_path
+(combined: X light paths per camera path), :n<N> renders N passes whatever
 the time (equal light paths).  The reference is Cycles at 8192 spp (cached
 under ~/.cache/fppm/references/ as ``fppm converge`` does), or with
 ``--ref light:S`` a light-tracing render of S CPU seconds (for scenes Cycles
@@ -47,6 +48,9 @@ def settings_of(run: str) -> dict:
     if ":n" in run:                          # e.g. light:n40 -- 40 passes, no time budget
         run, n = run.split(":n")
         return dict(settings_of(run), max_passes=int(n))
+    if ":r" in run:                          # e.g. combined4:r12.2 -- light paths per camera path
+        run, r = run.split(":r")
+        return dict(settings_of(run), light_paths_per_camera_path=float(r))
     if ":p" in run:                          # e.g. combined4:p50000
         run, n = run.split(":p")
         return dict(settings_of(run), photons_per_pass=int(n))
