@@ -87,6 +87,12 @@ class FPPMRenderSettings(PropertyGroup):
     camera_samples: IntProperty(
         name="Camera Samples", default=_D.camera_samples, min=1, max=4096, soft_max=64,
         description="Path Tracing and Combined: camera paths per pixel in every pass")
+    light_paths_per_camera_path: FloatProperty(
+        name="Light Paths per Camera Path", default=_D.light_paths_per_camera_path,
+        min=0.0, max=10_000.0, soft_max=64.0, precision=1,
+        description="Combined: light paths in every pass per camera path of the pass "
+                    "(Camera Samples x pixels), the same balance at any resolution; "
+                    "0 = Photons per Pass")
 
     # --- Kernel
     radius_mode: EnumProperty(

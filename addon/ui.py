@@ -41,6 +41,8 @@ class FPPM_RENDER_PT_sampling(FPPMPanel, Panel):
         col.prop(s, "integrator")
         if s.integrator in ('PATH', 'COMBINED'):
             col.prop(s, "camera_samples")
+            if s.integrator == 'COMBINED':
+                col.prop(s, "light_paths_per_camera_path")
         else:
             col.prop(s, "photons_per_pass")
         col.prop(s, "seed")

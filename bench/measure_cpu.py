@@ -1,19 +1,31 @@
 """Equal-CPU-time relMSE of FPPM's integrators against a reference (docs/integrators.md).
 
     .venv/bin/python bench/measure_cpu.py BLEND PCT BUDGET RUNS [--ref light:SECONDS]
+    .venv/bin/python bench/measure_cpu.py BLEND PCT ROUNDS RUNS --cost
 
 RUNS: comma-separated fppm, ppm, path<K>, light, combined<K> (K = camera
 samples, default 4), cycles; a suffix :p<N> sets photons_per_pass (light
-paths per pass for light and combined), :n<N> renders N passes whatever
+paths per pass for light and combined), :r<X> sets light_paths_per_camera_path
+(combined: X light paths per camera path), :n<N> renders N passes whatever
 the time (equal light paths).  The reference is Cycles at 8192 spp (cached
 under ~/.cache/fppm/references/ as ``fppm converge`` does), or with
 ``--ref light:S`` a light-tracing render of S CPU seconds (for scenes Cycles
 cannot render, such as a radius-0 point light's caustic; cached in
 ~/.cache/fppm/references/ by blend, resolution and seconds).
 
+"camera share": the camera paths' part of the camera + light-tracing
+wall seconds of the passes (``stage_seconds``; the effort split of COMBINED).
+
 CPU time = time.process_time() of this process (all its threads: Cycles',
 numba's, Embree's): the machine is shared, wall time is not a clock.
 relMSE = mean (x - r)^2 / (r^2 + 0.01).
+
+``--cost``: CPU seconds of one pass of each run, the runs' passes stepped in
+turn (round robin, ROUNDS passes each after a first untimed one) so that
+the load of a shared machine falls on all of them alike; no reference.
+With a run's passes n and relMSE e from an equal-CPU run, e * n is its
+error after one pass (seeded, so free of the load) and e * n * (CPU of a
+pass) / T its error at T CPU seconds.
 """
 import math
 import os
@@ -36,6 +48,9 @@ def settings_of(run: str) -> dict:
     if ":n" in run:                          # e.g. light:n40 -- 40 passes, no time budget
         run, n = run.split(":n")
         return dict(settings_of(run), max_passes=int(n))
+    if ":r" in run:                          # e.g. combined4:r12.2 -- light paths per camera path
+        run, r = run.split(":r")
+        return dict(settings_of(run), light_paths_per_camera_path=float(r))
     if ":p" in run:                          # e.g. combined4:p50000
         run, n = run.split(":p")
         return dict(settings_of(run), photons_per_pass=int(n))
@@ -66,7 +81,33 @@ def render_cpu(blend, pct, budget, run, seed=7, log=True):
     scene = open_blend(blend, resolution=pct)
     c0, w0 = time.process_time(), time.perf_counter()
     render_scene(scene, kw, sess)
+    last["camera_share"] = camera_share(sess.renderer)
     return last
+
+
+def camera_share(renderer) -> float:
+    """The camera paths' part of the camera + light-tracing seconds of the passes."""
+    st = getattr(renderer, "stage_seconds", {})
+    side = st.get("camera", 0.0) + st.get("photon_trace", 0.0)
+    return st.get("camera", 0.0) / side if side > 0 else float("nan")
+
+
+def pass_costs(blend, pct, rounds, runs):
+    """{run: (CPU s of a pass, camera share)}, passes stepped round robin."""
+    rend = {}
+    for run in runs:
+        kw = dict(settings_of(run), time_limit=0.0, max_passes=1, seed=7)
+        sess = RenderSession(log=lambda s: None)
+        render_scene(open_blend(blend, resolution=pct), kw, sess)
+        rend[run] = sess.renderer
+        rend[run]._should_stop = lambda: False     # the Blender engine is gone
+    cpu = dict.fromkeys(runs, 0.0)
+    for _ in range(rounds):
+        for run, r in rend.items():
+            c0 = time.process_time()
+            r.step()
+            cpu[run] += time.process_time() - c0
+    return {run: (cpu[run] / rounds, camera_share(r)) for run, r in rend.items()}
 
 
 def light_reference(blend, pct, seconds):
@@ -84,6 +125,10 @@ def light_reference(blend, pct, seconds):
 
 def main(argv):
     blend, pct, budget, runs = argv[0], int(argv[1]), float(argv[2]), argv[3].split(",")
+    if "--cost" in argv:
+        for run, (c, share) in pass_costs(blend, pct, int(budget), runs).items():
+            print(f"COST {run} cpu per pass {c:.4f} s camera share {share:.2f}", flush=True)
+        return
     if "--ref" in argv:
         spec = argv[argv.index("--ref") + 1]
         ref = light_reference(blend, pct, float(spec.split(":")[1]))
@@ -116,7 +161,8 @@ def main(argv):
         last = render_cpu(blend, pct, budget, run)
         print(f"RESULT {run} relMSE@{last['cpu']:.1f}s cpu (wall {last['wall']:.1f}) "
               f"{relmse(last['img']):.3e} passes {last['n']} mean ratio "
-              f"{last['img'].mean() / ref.mean():.4f}", flush=True)
+              f"{last['img'].mean() / ref.mean():.4f} camera share {last['camera_share']:.2f}",
+              flush=True)
 
 
 if __name__ == "__main__":

@@ -105,6 +105,7 @@ class Renderer:
         # Polled between the set-up stages too (cancel within 1 s).
         self._should_stop = should_stop or (lambda: False)
         self._setup_scene(scene, force_stages, passes)
+        self.settings = self.settings.effort_split(self.width * self.height)   # COMBINED's light paths
         st = self.settings
         P = self.width * self.height
         # Seconds per stage, for the benchmark (ratios, not bare times).

@@ -27,6 +27,7 @@ class RenderSettings:
     # --- Integrator (docs/integrators.md)
     integrator: str = "COMBINED"     # 'COMBINED' (path + light tracing, merging), 'PHOTON', 'PATH', 'LIGHT'
     camera_samples: int = 4          # PATH, COMBINED: camera paths per pixel and pass
+    light_paths_per_camera_path: float = 0.0  # COMBINED: light paths per pass / camera paths (0 = photons_per_pass)
     # --- Kernel
     radius_mode: str = "AUTO"        # 'AUTO' (pixel footprint) or 'WORLD'
     initial_radius_px: float = 2.0   # AUTO: radius = this many pixel footprints
@@ -77,6 +78,9 @@ class RenderSettings:
             bad("seed", "must be in [0, 2^31)")
         if not 1 <= self.camera_samples <= 4096:
             bad("camera_samples", "must be in [1, 4096]")
+        if not (math.isfinite(self.light_paths_per_camera_path)
+                and 0 <= self.light_paths_per_camera_path <= 10_000):
+            bad("light_paths_per_camera_path", "must be in [0, 10000] (0 = photons_per_pass)")
         if self.radius_mode not in ("AUTO", "WORLD"):
             bad("radius_mode", "must be 'AUTO' or 'WORLD'")
         if not 0 < self.initial_radius_px <= 1000:
@@ -107,6 +111,19 @@ class RenderSettings:
         if not 4 <= self.occlusion_grid_res <= 512:
             bad("occlusion_grid_res", "must be in [4, 512]")
         return self
+
+    def effort_split(self, n_pixels: int) -> "RenderSettings":
+        """The settings of a COMBINED render of ``n_pixels`` pixels with its
+        light paths per pass set by ``light_paths_per_camera_path`` (> 0):
+        that many light paths per camera path of the pass (camera_samples x
+        pixels), clamped to photons_per_pass' range, so that the balance of
+        the two sides measured at one resolution holds at any other
+        (docs/integrators.md, "Effort split").  Otherwise self."""
+        r = self.light_paths_per_camera_path
+        if self.integrator != "COMBINED" or r <= 0:
+            return self
+        n = int(round(r * self.camera_samples * int(n_pixels)))
+        return self.replace(photons_per_pass=min(max(n, 1), 100_000_000))
 
     def replace(self, **kw) -> "RenderSettings":
         return dataclasses.replace(self, **kw)

@@ -137,7 +137,7 @@ def test_panels_draw_every_setting(unregistered):
     sc = bpy.context.scene
     drawn = set()
     # Each conditional row shows under one of these states.
-    for mode, integrator in (("AUTO", "PHOTON"), ("WORLD", "PATH")):
+    for mode, integrator in (("AUTO", "PHOTON"), ("WORLD", "PATH"), ("AUTO", "COMBINED")):
         sc.fppm.radius_mode = mode
         sc.fppm.integrator = integrator
         for cls in _settings_panels():
