@@ -78,8 +78,12 @@ contiguous chunk per numba thread, each chunk accumulating into its own (K,)
 arrays (race-free, no atomics), summed afterwards (or, with GatherBuffers,
 rows reused by every chunk and folded at the touched VPs); the sort scatters by
 disjoint slot ranges, one per thread.  The build splits the VPs into one
-range per thread for their slots, and the slots into one range per thread
-for the counting sort (each thread reads every entry and keeps its slots).
+range per thread for their slots; the counting sort splits the entries
+into one VP range per thread (about the same number of entries each): each
+thread counts its entries per slot in its own cursor row, a prefix sum over
+slots x threads (by slot ranges) turns the rows into write cursors, and each
+thread places its own entries (threads in VP order, so a slot's VPs stay
+ascending).
 Results do not depend on the thread count except for the summation order of
 Phi_sum; the grid does not depend on it at all.
 """
@@ -302,76 +306,107 @@ def _fill_cells(k0, k1, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz,
 
 
 @njit(cache=True)
-def _slot_range_counts(s0, s1, ent_slot, cell_start):
-    """cell_start[s] = the entries before slot s among the slots s0..s1-1
-    (a local exclusive prefix); returns the range's entries."""
-    for e in range(ent_slot.shape[0]):
-        s = ent_slot[e]
-        if s >= s0 and s < s1:
-            cell_start[s] += 1
-    run = 0
-    for s in range(s0, s1):
-        c = cell_start[s]
-        cell_start[s] = run
-        run += c
-    return run
+def _entry_counts(e0, e1, ent_slot, cnt, sh):
+    """cnt[ent_slot[e] + sh] += 1 for the entries e0..e1-1 (one thread's)."""
+    for e in range(e0, e1):
+        cnt[ent_slot[e] + sh] += 1
 
 
 @njit(cache=True)
-def _slot_range_fill(s0, s1, base, off, ent_slot, cell_start, vp_ids):
-    """vp_ids[base + cell_start[s]++] = v for the entries (v, s) with s0 <= s
-    < s1, in VP order (so the VPs of a slot are ascending); then cell_start[s0..s1-1] = base + the local starts (the cursor
-    ends at the next slot's start: shifted back by one)."""
-    for v in range(off.shape[0] - 1):
+def _slot_range_total(s0, s1, cur, cell_start):
+    """The entries of slots s0..s1-1, every thread's: cur[c, s] (threads
+    before the last) and cell_start[s + 1] (the last thread's counts)."""
+    t = 0
+    for s in range(s0, s1):
+        t += cell_start[s + 1]
+        for c in range(cur.shape[0]):
+            t += cur[c, s]
+    return t
+
+
+@njit(cache=True)
+def _slot_range_cursors(s0, s1, run, cur, cell_start):
+    """Counts to write cursors for slots s0..s1-1, run = the entries of the
+    slots before s0: thread c's entries of slot s start after those of the
+    threads before it (cur[c, s]); the last thread's cursor is kept in
+    cell_start[s + 1], which its fill leaves at the start of slot s + 1."""
+    for s in range(s0, s1):
+        for c in range(cur.shape[0]):
+            n = cur[c, s]
+            cur[c, s] = run
+            run += n
+        n = cell_start[s + 1]
+        cell_start[s + 1] = run
+        run += n
+
+
+@njit(cache=True)
+def _entry_fill(v0, v1, off, ent_slot, cur, sh, vp_ids):
+    """vp_ids[cur[s + sh]++] = v for the entries (v, s) of VPs v0..v1-1, in VP
+    order (so the VPs of a slot are ascending)."""
+    for v in range(v0, v1):
         for e in range(off[v], off[v + 1]):
-            s = ent_slot[e]
-            if s >= s0 and s < s1:
-                q = cell_start[s]
-                vp_ids[base + q] = v
-                cell_start[s] = q + 1
-    for s in range(s1 - 1, s0, -1):
-        cell_start[s] = base + cell_start[s - 1]
-    if s1 > s0:
-        cell_start[s0] = base
+            s = ent_slot[e] + sh
+            q = cur[s]
+            vp_ids[q] = v
+            cur[s] = q + 1
 
 
 @njit(cache=True, parallel=True)
 def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
-                     n_slots, slot_proto, cap):
+                     n_slots, slot_proto, cur_proto, cap):
     """The CSR arrays (cell_start (n_slots + 1,) int64, vp_ids (n_entries,)
-    int32, the VPs of a slot ascending), computed by n_chunks threads: each VP's slots (VP ranges in parallel), then a
-    counting sort of the entries by slot (slot ranges in parallel).  No
-    (n_slots,) mark array: a VP's hash collisions are removed from its own
-    list.  slot_proto: an empty array of the entries' slot dtype; cap: the
-    largest bounding-box cell count of a VP."""
+    int32, the VPs of a slot ascending), computed by n_chunks threads: each
+    VP's slots (VP ranges in parallel), then a counting sort of the entries
+    by slot, each thread counting and placing the entries of its own VP range
+    (about E / n_chunks entries).  No (n_slots,) mark array: a VP's hash
+    collisions are removed from its own list.  slot_proto: an empty array of
+    the entries' slot dtype; cur_proto: of the cursors' (int32 when the entry
+    bound fits); cap: the largest bounding-box cell count of a VP.  Temporary
+    memory: (n_chunks - 1, n_slots) cursors, the (E,) slots of the entries."""
     K = pos.shape[0]
-    n_ent = np.empty(K, np.int64)
-    for c in prange(n_chunks):
-        _count_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
-                     h, inv_h, dense, nx, ny, nz, shift, n_ent, cap)
     off = np.empty(K + 1, np.int64)
     off[0] = 0
+    for c in prange(n_chunks):
+        _count_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
+                     h, inv_h, dense, nx, ny, nz, shift, off[1:], cap)
     for v in range(K):
-        off[v + 1] = off[v] + n_ent[v]
+        off[v + 1] += off[v]
     E = off[K]
     ent_slot = np.empty(E, slot_proto.dtype)
     for c in prange(n_chunks):
         _fill_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
                     h, inv_h, dense, nx, ny, nz, shift, off, ent_slot, cap)
-    # Slot ranges, one per thread: local counts and prefix, then each range's
-    # base (the entries of the ranges before it), the fill, the shift back.
+    # One VP range per thread with about E / n_chunks entries each.
+    vb = np.searchsorted(off, np.arange(n_chunks + 1) * E // n_chunks)
+    vb[0], vb[n_chunks] = 0, K
+    # Thread c < last counts its entries per slot in cur[c]; the last thread
+    # counts in cell_start[s + 1] (so that its cursors end as the starts).
     cell_start = np.zeros(n_slots + 1, np.int64)
+    cur = np.zeros((n_chunks - 1, n_slots), cur_proto.dtype)
+    last = n_chunks - 1
+    for c in prange(n_chunks):
+        if c < last:
+            _entry_counts(off[vb[c]], off[vb[c + 1]], ent_slot, cur[c], 0)
+        else:
+            _entry_counts(off[vb[c]], off[vb[c + 1]], ent_slot, cell_start, 1)
+    # Cursors: a prefix sum over slots x threads, by slot ranges (their
+    # totals, a prefix over the ranges, then each range in place).
     base = np.zeros(n_chunks + 1, np.int64)
     for c in prange(n_chunks):
-        base[c + 1] = _slot_range_counts(c * n_slots // n_chunks,
-                                         (c + 1) * n_slots // n_chunks, ent_slot, cell_start)
+        base[c + 1] = _slot_range_total(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks,
+                                        cur, cell_start)
     for c in range(n_chunks):
         base[c + 1] += base[c]
+    for c in prange(n_chunks):
+        _slot_range_cursors(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks, base[c],
+                            cur, cell_start)
     vp_ids = np.empty(E, np.int32)
     for c in prange(n_chunks):
-        _slot_range_fill(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks, base[c], off,
-                         ent_slot, cell_start, vp_ids)
-    cell_start[n_slots] = E
+        if c < last:
+            _entry_fill(vb[c], vb[c + 1], off, ent_slot, cur[c], 0, vp_ids)
+        else:
+            _entry_fill(vb[c], vb[c + 1], off, ent_slot, cell_start, 1, vp_ids)
     return cell_start, vp_ids
 
 
@@ -873,10 +908,11 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     args = (vp_pos, R_ins, act, origin, h, inv_h, dense,
             int(dims[0]), int(dims[1]), int(dims[2]), shift, n_slots)
     proto = np.empty(0, np.int32 if n_slots < 2**31 else np.int64)
+    cur_proto = np.empty(0, np.int32 if est < 2**31 else np.int64)   # E <= est
     if n_active >= PARALLEL_MIN_VPS and T > 1:
-        cell_start, vp_ids = _insert_parallel(T, *args, proto, int(cap))
+        cell_start, vp_ids = _insert_parallel(T, *args, proto, cur_proto, int(cap))
     else:
-        cell_start, vp_ids = _insert_serial(1, *args, proto, int(cap))
+        cell_start, vp_ids = _insert_serial(1, *args, proto, cur_proto, int(cap))
     return Grid(K, n_active, origin, h, inv_h, lo, hi, bool(dense), dims,
                 0 if dense else log2_table, cell_start, vp_ids, R_ins)
 
