@@ -42,6 +42,7 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
 """
 from __future__ import annotations
 
+import ctypes
 import os
 
 from .errors import MemoryBudgetError
@@ -107,6 +108,30 @@ def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
     total = sum(parts.values())
     parts["total"] = max(total, peak_bytes_so_far()) if resident is None else total
     return parts
+
+
+_LIBC = []
+
+
+def release_free_heap() -> bool:
+    """Return the free pages of malloc's heaps to the OS (glibc's
+    ``malloc_trim(0)``); False where there is no glibc (macOS, Windows, musl).
+
+    numpy's pixel-sized arrays up to glibc's dynamic mmap threshold (32 MiB
+    at most) live in the heap, and glibc keeps their pages resident after
+    they are freed; later, larger arrays are mmapped beside them, so the
+    kept pages add to the peak.  A call costs milliseconds (it walks the
+    heap): once a pass, for large images.
+    """
+    if not _LIBC:
+        try:
+            _LIBC.append(ctypes.CDLL("libc.so.6").malloc_trim)
+        except (OSError, AttributeError):
+            _LIBC.append(None)
+    if _LIBC[0] is None:
+        return False
+    _LIBC[0](0)
+    return True
 
 
 def available_bytes() -> int | None:

@@ -97,6 +97,8 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from .. import memory
+
 COS_NG_DEFAULT = 0.5          # cos(60 deg): photon / VP surface orientation test (3)
 CELL_FACTOR = 1.5             # h = CELL_FACTOR * median active radius
 ENTRY_BUDGET_PER_VP = 64      # clamp: mean cell entries per active VP
@@ -141,7 +143,8 @@ class Grid:
     lo, hi: (3,) float64 bounds of all inserted spheres; photons outside are skipped.
     dense: True = dense grid of dims (3,) int64 cells; False = spatial hash
       with 2**log2_table slots.
-    cell_start: (n_slots + 1,) int64; VPs of slot s are vp_ids[cell_start[s]:cell_start[s+1]].
+    cell_start: (n_slots + 1,) int32 (int64 when the entry bound reaches 2^31:
+      see start_dtype); VPs of slot s are vp_ids[cell_start[s]:cell_start[s+1]].
     vp_ids: (n_entries,) int32, ascending within a slot.
     R_ins: (K,) float64 insertion radius (0 for inactive VPs); gather requires
       vp_R2 <= R_ins**2.
@@ -355,14 +358,14 @@ def _entry_fill(v0, v1, off, ent_slot, cur, sh, vp_ids):
 @njit(cache=True, parallel=True)
 def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
                      n_slots, slot_proto, cur_proto, cap):
-    """The CSR arrays (cell_start (n_slots + 1,) int64, vp_ids (n_entries,)
-    int32, the VPs of a slot ascending), computed by n_chunks threads: each
+    """The CSR arrays (cell_start (n_slots + 1,) of cur_proto's dtype, vp_ids
+    (n_entries,) int32, the VPs of a slot ascending), computed by n_chunks threads: each
     VP's slots (VP ranges in parallel), then a counting sort of the entries
     by slot, each thread counting and placing the entries of its own VP range
     (about E / n_chunks entries).  No (n_slots,) mark array: a VP's hash
     collisions are removed from its own list.  slot_proto: an empty array of
-    the entries' slot dtype; cur_proto: of the cursors' (int32 when the entry
-    bound fits); cap: the largest bounding-box cell count of a VP.  Temporary
+    the entries' slot dtype; cur_proto: of the cursors' and cell starts'
+    (int32 when the entry bound fits); cap: the largest bounding-box cell count of a VP.  Temporary
     memory: (n_chunks - 1, n_slots) cursors, the (E,) slots of the entries."""
     K = pos.shape[0]
     off = np.empty(K + 1, np.int64)
@@ -382,7 +385,7 @@ def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, 
     vb[0], vb[n_chunks] = 0, K
     # Thread c < last counts its entries per slot in cur[c]; the last thread
     # counts in cell_start[s + 1] (so that its cursors end as the starts).
-    cell_start = np.zeros(n_slots + 1, np.int64)
+    cell_start = np.zeros(n_slots + 1, cur_proto.dtype)
     cur = np.zeros((n_chunks - 1, n_slots), cur_proto.dtype)
     last = n_chunks - 1
     for c in prange(n_chunks):
@@ -850,6 +853,13 @@ _active_extent_serial = njit(cache=True)(_active_extent.py_func)
 _bbox_cells_serial = njit(cache=True)(_bbox_cells.py_func)
 
 
+def start_dtype(entry_bound: int):
+    """The dtype of Grid.cell_start (and of the build's cursors) for at most
+    entry_bound entries: int32 while it fits (the table of about one slot
+    per entry is the grid's largest array; int32 halves it)."""
+    return np.int32 if entry_bound < 2**31 else np.int64
+
+
 def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
                cell_factor: float = CELL_FACTOR, layout: str = "auto",
                log2_table: Optional[int] = None, parallel: bool = True) -> Grid:
@@ -873,13 +883,19 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     vp_R = np.ascontiguousarray(vp_R, dtype=np.float64).reshape(K)
     active = np.asarray(active, dtype=bool).reshape(K)
     T = numba.get_num_threads() if (parallel and K >= PARALLEL_MIN_VPS) else 1
+    if K >= PARALLEL_MIN_VPS:
+        # The camera and direct-light stages' freed pixel-sized temporaries
+        # stay resident in glibc's heap: hand them back before the build's
+        # own arrays and the gather's records (the pass's peak,
+        # docs/architecture.md "Performance").
+        memory.release_free_heap()
     act, R_ins, R_act, lo, hi = (_active_extent if T > 1 else _active_extent_serial)(
         T, vp_pos, vp_R, active)
     n_active = R_act.shape[0]
     if n_active == 0:
         z3 = np.zeros(3)
         return Grid(K, 0, z3, 1.0, 1.0, np.full(3, np.inf), np.full(3, -np.inf),
-                    True, np.ones(3, np.int64), 0, np.zeros(2, np.int64),
+                    True, np.ones(3, np.int64), 0, np.zeros(2, np.int32),
                     np.zeros(0, np.int32), R_ins)
     origin = lo.copy()
 
@@ -908,7 +924,7 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     args = (vp_pos, R_ins, act, origin, h, inv_h, dense,
             int(dims[0]), int(dims[1]), int(dims[2]), shift, n_slots)
     proto = np.empty(0, np.int32 if n_slots < 2**31 else np.int64)
-    cur_proto = np.empty(0, np.int32 if est < 2**31 else np.int64)   # E <= est
+    cur_proto = np.empty(0, start_dtype(est))
     if n_active >= PARALLEL_MIN_VPS and T > 1:
         cell_start, vp_ids = _insert_parallel(T, *args, proto, cur_proto, int(cap))
     else:
@@ -1031,6 +1047,8 @@ class GatherBuffers:
         self.vp_rec = _vp_records(*vp)
         self.tframe = tangent_frames(vp[1]) if self.with_sectors else np.zeros((0, 6))
         self.grid = grid
+        if self.K >= PARALLEL_MIN_VPS:
+            memory.release_free_heap()     # the frames' numpy temporaries (build_grid)
 
     def fold(self, M, Phi, phi_scale, phi_div: float, rmin, rmin_mask=None, S=None) -> None:
         """Add the rows' sums at the touched VPs into a pass's sums and zero
