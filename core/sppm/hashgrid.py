@@ -541,16 +541,33 @@ def _accepts(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
 
 
 @njit(cache=True, inline="always")
-def _sector_cell(vp_rec, tframe, v, x, y, z):
+def _tangent_frame(n0, n1, n2):
+    """(t1, t2) as 6 floats: an orthonormal tangent frame of the unit normal
+    (n0, n1, n2), continuous except across n2 = 0 (Duff et al. 2017,
+    "Building an orthonormal basis, revisited"); the same normal always gets
+    the same frame, so sector counts of a pixel add up across passes.
+    Computed per counted photon from the VP's record instead of a stored
+    (K, 6) array (48 B a pixel during the photons)."""
+    sign = 1.0 if n2 >= 0.0 else -1.0
+    a = -1.0 / (sign + n2)
+    b = n0 * n1 * a
+    return (1.0 + sign * n0 * n0 * a, sign * b, -sign * n0,
+            b, sign + n1 * n1 * a, -n1)
+
+
+@njit(cache=True, inline="always")
+def _sector_cell(vp_rec, v, x, y, z):
     """Sector cell (0 .. SECTOR_CELLS-1) of a counted photon at (x, y, z) in
     visible point v's kernel: quadrant of its offset in the tangent frame
-    tframe[v] = (t1, t2), plus SECTOR_QUADRANTS for the outer ring
-    (|d|^2 >= R^2 / 2).  The SECTOR_CELLS cells have equal areas on the disc."""
+    (t1, t2) of its normal (_tangent_frame), plus SECTOR_QUADRANTS for the
+    outer ring (|d|^2 >= R^2 / 2).  The SECTOR_CELLS cells have equal areas
+    on the disc."""
     dx = x - vp_rec[v, 0]
     dy = y - vp_rec[v, 1]
     dz = z - vp_rec[v, 2]
-    u = dx * tframe[v, 0] + dy * tframe[v, 1] + dz * tframe[v, 2]
-    w = dx * tframe[v, 3] + dy * tframe[v, 4] + dz * tframe[v, 5]
+    t0, t1, t2, t3, t4, t5 = _tangent_frame(vp_rec[v, 4], vp_rec[v, 5], vp_rec[v, 6])
+    u = dx * t0 + dy * t1 + dz * t2
+    w = dx * t3 + dy * t4 + dz * t5
     c = 0
     if u < 0.0:
         c = 1 if w >= 0.0 else 2
@@ -561,29 +578,10 @@ def _sector_cell(vp_rec, tframe, v, x, y, z):
     return c
 
 
-def tangent_frames(ng: np.ndarray) -> np.ndarray:
-    """(K, 6) float64 (t1, t2): an orthonormal tangent frame of each unit
-    normal ng (K, 3), continuous except across ng.z = 0 (Duff et al. 2017,
-    "Building an orthonormal basis, revisited"); the same normal always gets
-    the same frame, so sector counts of a pixel add up across passes."""
-    n = np.asarray(ng, np.float64).reshape(-1, 3)
-    sign = np.where(n[:, 2] >= 0.0, 1.0, -1.0)
-    a = -1.0 / (sign + n[:, 2])
-    b = n[:, 0] * n[:, 1] * a
-    t = np.empty((n.shape[0], 6))
-    t[:, 0] = 1.0 + sign * n[:, 0] * n[:, 0] * a
-    t[:, 1] = sign * b
-    t[:, 2] = -sign * n[:, 0]
-    t[:, 3] = b
-    t[:, 4] = sign + n[:, 1] * n[:, 1] * a
-    t[:, 5] = -n[:, 1]
-    return t
-
-
 @njit(cache=True)
 def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                  vp_rec, cos_ng, cell_start, vp_ids,
-                 M, Phi, rmin, hitmask, n_pair, n_freq, tframe, S, touched, n_touched):
+                 M, Phi, rmin, hitmask, n_pair, n_freq, S, touched, n_touched):
     """Sorted photons q0..q1-1 (ph_* already in sorted order): accumulate M,
     Phi (const VPs), rmin into this chunk's arrays, and (S with SECTOR_CELLS
     columns, else 0 columns) each counted photon's sector cell into S.  n_pair[q] / n_freq[q] =
@@ -622,7 +620,7 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                 touched[n_touched[0]] = v
                 n_touched[0] += 1
             if with_sectors:
-                S[v, _sector_cell(vp_rec, tframe, v, x, y, z)] += 1
+                S[v, _sector_cell(vp_rec, v, x, y, z)] += 1
             if vp_rec[v, 7] != 0.0:
                 Phi[v, 0] += ph_power[p, 0]
                 Phi[v, 1] += ph_power[p, 1]
@@ -701,24 +699,24 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
 
 @njit(cache=True)
 def _count_serial(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, cos_ng,
-                  cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq, tframe, S,
+                  cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq, S,
                   touched, n_touched):
     _count_range(0, slot.shape[0], slot, ph_pos, ph_ng, ph_wi, ph_power,
                  ph_rpred, vp_rec, cos_ng, cell_start, vp_ids, M[0], Phi[0], rmin[0],
-                 hitmask, n_pair, n_freq, tframe, S[0], touched[0], n_touched[0:1])
+                 hitmask, n_pair, n_freq, S[0], touched[0], n_touched[0:1])
 
 
 @njit(cache=True, parallel=True)
 def _count_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec,
                     cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq,
-                    tframe, S, touched, n_touched, n_chunks):
+                    S, touched, n_touched, n_chunks):
     # One contiguous range of sorted photons per accumulator row: chunks never
     # share a row, and the per-photon outputs are indexed by q: no race.
     n = slot.shape[0]
     for c in prange(n_chunks):
         _count_range(c * n // n_chunks, (c + 1) * n // n_chunks, slot, ph_pos,
                      ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, cos_ng, cell_start,
-                     vp_ids, M[c], Phi[c], rmin[c], hitmask, n_pair, n_freq, tframe, S[c],
+                     vp_ids, M[c], Phi[c], rmin[c], hitmask, n_pair, n_freq, S[c],
                      touched[c], n_touched[c:c + 1])
 
 
@@ -997,8 +995,8 @@ class GatherBuffers:
     photon once: int32 holds any gather of fewer than 2**31 photons between
     two folds); touched (threads, K) int32 with n_touched (threads,) int64
     entries each: 144 B a VP with two threads and sectors, 80 B without.
-    Between chunks every row is zero (rmin inf).  vp_rec (K, 8) and tframe
-    (K, 6) are built once per grid (``bind``; the visible points must not
+    Between chunks every row is zero (rmin inf).  vp_rec (K, 8) is built
+    once per grid (``bind``; the visible points must not
     change while the grid does not) and dropped by ``unbind`` (end of a pass:
     they are not held through the other stages).  ``allocations`` counts the
     (re)allocations of the rows.
@@ -1034,7 +1032,7 @@ class GatherBuffers:
 
     def unbind(self) -> None:
         """Drop the per-pass records (the next gather rebuilds them)."""
-        self.grid = self.vp_rec = self.tframe = None
+        self.grid = self.vp_rec = None
 
     def bind(self, grid: Grid, vp, n_chunks: int) -> None:
         """Records of the prepared VPs vp = (pos, ng, R2, const) for grid (once
@@ -1045,10 +1043,7 @@ class GatherBuffers:
             return
         _check_radii(grid, vp[2])
         self.vp_rec = _vp_records(*vp)
-        self.tframe = tangent_frames(vp[1]) if self.with_sectors else np.zeros((0, 6))
         self.grid = grid
-        if self.K >= PARALLEL_MIN_VPS:
-            memory.release_free_heap()     # the frames' numpy temporaries (build_grid)
 
     def fold(self, M, Phi, phi_scale, phi_div: float, rmin, rmin_mask=None, S=None) -> None:
         """Add the rows' sums at the touched VPs into a pass's sums and zero
@@ -1195,12 +1190,11 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         M = np.zeros((n_chunks, K), np.int64)
         Phi = np.zeros((n_chunks, K, 3))
         rmin = np.full((n_chunks, K), np.inf)
-        tframe = tangent_frames(vp[1]) if sectors else np.zeros((0, 6))
         S = np.zeros((n_chunks, K, SECTOR_CELLS if sectors else 0), np.int64)
         touched, n_touched = np.empty((n_chunks, 0), np.int32), np.zeros(n_chunks, np.int64)
     else:
         b = buffers
-        vp_rec, M, Phi, rmin, tframe, S = b.vp_rec, b.M, b.Phi, b.rmin, b.tframe, b.S
+        vp_rec, M, Phi, rmin, S = b.vp_rec, b.M, b.Phi, b.rmin, b.S
         touched, n_touched = b.touched, b.n_touched
         b.n_used = max(b.n_used, n_chunks) if n_touched.any() else n_chunks
     hitmask = np.empty(n, np.uint64)
@@ -1208,7 +1202,7 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     n_freq = np.empty(n, np.int32)
     g = (grid.cell_start, grid.vp_ids)
     cargs = (slot, ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_, vp_rec,
-             float(cos_ng), *g, M, Phi, rmin, hitmask, n_pair, n_freq, tframe, S,
+             float(cos_ng), *g, M, Phi, rmin, hitmask, n_pair, n_freq, S,
              touched, n_touched)
     if parallel:
         _count_parallel(*cargs, n_chunks)
