@@ -307,6 +307,7 @@ class Renderer:
         k = self.pass_index + 1
         st, state, clock = self.settings, self.state, self.stage_seconds
         tc = time.perf_counter()
+        memory.release_free_heap(state.R2.size)   # the last pass's freed temporaries
         if st.fixed_visible_points and self._fixed is not None:
             vp, L_emit = self._fixed
         else:

@@ -359,14 +359,15 @@ def _entry_fill(v0, v1, off, ent_slot, cur, sh, vp_ids):
 def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
                      n_slots, slot_proto, cur_proto, cap):
     """The CSR arrays (cell_start (n_slots + 1,) of cur_proto's dtype, vp_ids
-    (n_entries,) int32, the VPs of a slot ascending), computed by n_chunks threads: each
-    VP's slots (VP ranges in parallel), then a counting sort of the entries
-    by slot, each thread counting and placing the entries of its own VP range
-    (about E / n_chunks entries).  No (n_slots,) mark array: a VP's hash
-    collisions are removed from its own list.  slot_proto: an empty array of
-    the entries' slot dtype; cur_proto: of the cursors' and cell starts'
-    (int32 when the entry bound fits); cap: the largest bounding-box cell count of a VP.  Temporary
-    memory: (n_chunks - 1, n_slots) cursors, the (E,) slots of the entries."""
+    (n_entries,) int32, the VPs of a slot ascending), computed by n_chunks
+    threads: each VP's slots (VP ranges in parallel), then a counting sort of
+    the entries by slot, each thread counting and placing the entries of its
+    own VP range (about E / n_chunks entries: no thread scans another's).  No
+    (n_slots,) mark array: a VP's hash collisions are removed from its own
+    list.  slot_proto: an empty array of the entries' slot dtype; cur_proto:
+    of the cursors' and cell starts' (start_dtype); cap: the largest
+    bounding-box cell count of a VP.  Temporary memory: (n_chunks - 1,
+    n_slots) cursors, the (E,) slots of the entries."""
     K = pos.shape[0]
     off = np.empty(K + 1, np.int64)
     off[0] = 0
@@ -881,12 +882,10 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     vp_R = np.ascontiguousarray(vp_R, dtype=np.float64).reshape(K)
     active = np.asarray(active, dtype=bool).reshape(K)
     T = numba.get_num_threads() if (parallel and K >= PARALLEL_MIN_VPS) else 1
-    if K >= PARALLEL_MIN_VPS:
-        # The camera and direct-light stages' freed pixel-sized temporaries
-        # stay resident in glibc's heap: hand them back before the build's
-        # own arrays and the gather's records (the pass's peak,
-        # docs/architecture.md "Performance").
-        memory.release_free_heap()
+    # The camera and direct-light stages' freed pixel-sized temporaries stay
+    # resident in glibc's heap: hand them back before the build's own arrays
+    # and the gather's (the pass's peak, docs/architecture.md "Performance").
+    memory.release_free_heap(K)
     act, R_ins, R_act, lo, hi = (_active_extent if T > 1 else _active_extent_serial)(
         T, vp_pos, vp_R, active)
     n_active = R_act.shape[0]
