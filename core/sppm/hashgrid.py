@@ -104,6 +104,11 @@ CELL_FACTOR = 1.5             # h = CELL_FACTOR * median active radius
 ENTRY_BUDGET_PER_VP = 64      # clamp: mean cell entries per active VP
 PARALLEL_MIN_PHOTONS = 50_000  # below this, thread start-up outweighs the split
 PARALLEL_MIN_VPS = 1 << 18      # build_grid: below this many VPs, one thread
+# The build's counting sort splits the entries into at most this many VP
+# ranges, each with its own (n_slots,) row of cursors (128 MiB at 1080p):
+# more threads split each range's slots, and scan its entries (the memory
+# of a row per thread would grow with the cores).
+SORT_GROUPS = 2
 # A VP's slots are deduplicated by a scan of the ones it already has up to
 # this many, then by a sort (a VP far larger than the cells).
 _DEDUP_SCAN = 64
@@ -309,10 +314,13 @@ def _fill_cells(k0, k1, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz,
 
 
 @njit(cache=True)
-def _entry_counts(e0, e1, ent_slot, cnt, sh):
-    """cnt[ent_slot[e] + sh] += 1 for the entries e0..e1-1 (one thread's)."""
+def _entry_counts(e0, e1, s0, s1, ent_slot, cnt, sh):
+    """cnt[ent_slot[e] + sh] += 1 for the entries e0..e1-1 whose slot is in
+    s0..s1-1 (one thread's)."""
     for e in range(e0, e1):
-        cnt[ent_slot[e] + sh] += 1
+        s = ent_slot[e]
+        if s >= s0 and s < s1:
+            cnt[s + sh] += 1
 
 
 @njit(cache=True)
@@ -344,15 +352,16 @@ def _slot_range_cursors(s0, s1, run, cur, cell_start):
 
 
 @njit(cache=True)
-def _entry_fill(v0, v1, off, ent_slot, cur, sh, vp_ids):
-    """vp_ids[cur[s + sh]++] = v for the entries (v, s) of VPs v0..v1-1, in VP
-    order (so the VPs of a slot are ascending)."""
+def _entry_fill(v0, v1, s0, s1, off, ent_slot, cur, sh, vp_ids):
+    """vp_ids[cur[s + sh]++] = v for the entries (v, s) of VPs v0..v1-1 with
+    s in s0..s1-1, in VP order (so the VPs of a slot are ascending)."""
     for v in range(v0, v1):
         for e in range(off[v], off[v + 1]):
-            s = ent_slot[e] + sh
-            q = cur[s]
-            vp_ids[q] = v
-            cur[s] = q + 1
+            s = ent_slot[e]
+            if s >= s0 and s < s1:
+                q = cur[s + sh]
+                vp_ids[q] = v
+                cur[s + sh] = q + 1
 
 
 @njit(cache=True, parallel=True)
@@ -362,11 +371,12 @@ def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, 
     (n_entries,) int32, the VPs of a slot ascending), computed by n_chunks
     threads: each VP's slots (VP ranges in parallel), then a counting sort of
     the entries by slot, each thread counting and placing the entries of its
-    own VP range (about E / n_chunks entries: no thread scans another's).  No
+    VP range (one of SORT_GROUPS with about E / SORT_GROUPS entries each),
+    split by slot ranges when there are more threads than groups.  No
     (n_slots,) mark array: a VP's hash collisions are removed from its own
     list.  slot_proto: an empty array of the entries' slot dtype; cur_proto:
     of the cursors' and cell starts' (start_dtype); cap: the largest
-    bounding-box cell count of a VP.  Temporary memory: (n_chunks - 1,
+    bounding-box cell count of a VP.  Temporary memory: (SORT_GROUPS - 1,
     n_slots) cursors, the (E,) slots of the entries."""
     K = pos.shape[0]
     off = np.empty(K + 1, np.int64)
@@ -381,19 +391,24 @@ def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, 
     for c in prange(n_chunks):
         _fill_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
                     h, inv_h, dense, nx, ny, nz, shift, off, ent_slot, cap)
-    # One VP range per thread with about E / n_chunks entries each.
-    vb = np.searchsorted(off, np.arange(n_chunks + 1) * E // n_chunks)
-    vb[0], vb[n_chunks] = 0, K
-    # Thread c < last counts its entries per slot in cur[c]; the last thread
-    # counts in cell_start[s + 1] (so that its cursors end as the starts).
+    # G VP ranges ("groups") with about E / G entries each, each split in S
+    # slot ranges: task (g, j) counts and places group g's entries of slot
+    # range j.  Group g < last counts per slot in cur[g], the last group in
+    # cell_start[s + 1] (so that its cursors end as the starts).
+    G = min(n_chunks, SORT_GROUPS)
+    S = n_chunks // G
+    vb = np.searchsorted(off, np.arange(G + 1) * E // G)
+    vb[0], vb[G] = 0, K
     cell_start = np.zeros(n_slots + 1, cur_proto.dtype)
-    cur = np.zeros((n_chunks - 1, n_slots), cur_proto.dtype)
-    last = n_chunks - 1
-    for c in prange(n_chunks):
-        if c < last:
-            _entry_counts(off[vb[c]], off[vb[c + 1]], ent_slot, cur[c], 0)
+    cur = np.zeros((G - 1, n_slots), cur_proto.dtype)
+    last = G - 1
+    for t in prange(G * S):
+        g, j = t // S, t % S
+        s0, s1 = j * n_slots // S, (j + 1) * n_slots // S
+        if g < last:
+            _entry_counts(off[vb[g]], off[vb[g + 1]], s0, s1, ent_slot, cur[g], 0)
         else:
-            _entry_counts(off[vb[c]], off[vb[c + 1]], ent_slot, cell_start, 1)
+            _entry_counts(off[vb[g]], off[vb[g + 1]], s0, s1, ent_slot, cell_start, 1)
     # Cursors: a prefix sum over slots x threads, by slot ranges (their
     # totals, a prefix over the ranges, then each range in place).
     base = np.zeros(n_chunks + 1, np.int64)
@@ -406,11 +421,13 @@ def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, 
         _slot_range_cursors(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks, base[c],
                             cur, cell_start)
     vp_ids = np.empty(E, np.int32)
-    for c in prange(n_chunks):
-        if c < last:
-            _entry_fill(vb[c], vb[c + 1], off, ent_slot, cur[c], 0, vp_ids)
+    for t in prange(G * S):
+        g, j = t // S, t % S
+        s0, s1 = j * n_slots // S, (j + 1) * n_slots // S
+        if g < last:
+            _entry_fill(vb[g], vb[g + 1], s0, s1, off, ent_slot, cur[g], 0, vp_ids)
         else:
-            _entry_fill(vb[c], vb[c + 1], off, ent_slot, cell_start, 1, vp_ids)
+            _entry_fill(vb[g], vb[g + 1], s0, s1, off, ent_slot, cell_start, 1, vp_ids)
     return cell_start, vp_ids
 
 
