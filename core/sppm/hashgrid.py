@@ -79,10 +79,11 @@ arrays (race-free, no atomics), summed afterwards (or, with GatherBuffers,
 rows reused by every chunk and folded at the touched VPs); the sort scatters by
 disjoint slot ranges, one per thread.  The build splits the VPs into one
 range per thread for their slots; the counting sort splits the entries
-into one VP range per thread (about the same number of entries each): each
-thread counts its entries per slot in its own cursor row, a prefix sum over
-slots x threads (by slot ranges) turns the rows into write cursors, and each
-thread places its own entries (threads in VP order, so a slot's VPs stay
+into SORT_GROUPS VP ranges (about the same number of entries each; with
+more threads, each range is split further by slot ranges): each range
+counts its entries per slot in its own cursor row, a prefix sum over slots
+x ranges (by slot ranges) turns the rows into write cursors, and each
+thread places its own entries (ranges in VP order, so a slot's VPs stay
 ascending).
 Results do not depend on the thread count except for the summation order of
 Phi_sum; the grid does not depend on it at all.
