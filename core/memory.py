@@ -21,7 +21,9 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
   growth 646 B per pixel with the compiled stages (64^2 .. 640^2, a point
   light; 997 B before them); the bound also covers the numpy light sampler
   (environment maps, textured emitters: <= 890 B) and the delta chains'
-  buffers where every pixel continues (+272 B)
+  buffers where every pixel continues (+272 B).  1100 B until the visible
+  points' hash grid kept its cell starts in int32 (64 B less a pixel with
+  the Cornell box's 16 slots a pixel)
 - per AOV channel per pixel: the film's float32 layer, its float64 source and
   the EXR's copy -> BYTES_PER_AOV_CHANNEL
 - per radius-histogram bin per pixel (Quantile estimator): the uint32 state,
@@ -42,11 +44,12 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
 """
 from __future__ import annotations
 
+import ctypes
 import os
 
 from .errors import MemoryBudgetError
 
-BYTES_PER_PIXEL = 1100
+BYTES_PER_PIXEL = 1040
 BYTES_PER_AOV_CHANNEL = 48
 BYTES_PER_HIST_BIN = 12
 BYTES_PER_SECTOR_CELL = 24
@@ -107,6 +110,37 @@ def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
     total = sum(parts.values())
     parts["total"] = max(total, peak_bytes_so_far()) if resident is None else total
     return parts
+
+
+_LIBC = []
+# release_free_heap does nothing for fewer items (pixels, visible points):
+# the heap a smaller image leaves is not worth a call.
+RELEASE_MIN_ITEMS = 1 << 18
+
+
+def release_free_heap(items: int = RELEASE_MIN_ITEMS) -> bool:
+    """Return the free pages of malloc's heaps to the OS (glibc's
+    ``malloc_trim(0)``) when items (the pixels or visible points of the
+    arrays just freed) >= RELEASE_MIN_ITEMS; False when it did not (fewer
+    items, or no glibc: macOS, Windows, musl).
+
+    numpy's pixel-sized arrays up to glibc's dynamic mmap threshold (32 MiB
+    at most) live in the heap, and glibc keeps their pages resident after
+    they are freed; later, larger arrays are mmapped beside them, so the
+    kept pages add to the peak.  A call costs milliseconds (it walks the
+    heap): a few a pass, for large images.
+    """
+    if items < RELEASE_MIN_ITEMS:
+        return False
+    if not _LIBC:
+        try:
+            _LIBC.append(ctypes.CDLL("libc.so.6").malloc_trim)
+        except (OSError, AttributeError):
+            _LIBC.append(None)
+    if _LIBC[0] is None:
+        return False
+    _LIBC[0](0)
+    return True
 
 
 def available_bytes() -> int | None:

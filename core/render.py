@@ -326,6 +326,7 @@ class Renderer:
         if ahead is not None:
             ahead(rng_photons)
         tc = time.perf_counter()
+        memory.release_free_heap(state.R2.size)   # the last pass's freed temporaries
         if st.fixed_visible_points and self._fixed is not None:
             vp, L_emit = self._fixed
         else:

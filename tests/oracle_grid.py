@@ -66,6 +66,7 @@ def build_grid_reference(vp_pos, vp_R, active, cell_factor=hg.CELL_FACTOR, layou
     cursor = cell_start.copy()
     mark[:] = -1
     _insert(*args, cursor, mark, cell_start, vp_ids, True)
+    cell_start = cell_start.astype(hg.start_dtype(est))      # the build's storage dtype
     return hg.Grid(K, n_active, origin, h, inv_h, lo, hi, bool(dense), dims,
                    0 if dense else log2_table, cell_start, vp_ids, R_ins)
 

@@ -131,6 +131,25 @@ def test_parallel_grid_build_equals_serial(K, layout, log2_table, monkeypatch):
         assert Hg._DEDUP_SCAN < big <= 512
 
 
+@pytest.mark.parametrize("threads", [3, 4, 5])
+def test_grid_build_with_more_threads_than_sort_groups(threads, monkeypatch):
+    """More threads than the counting sort's SORT_GROUPS entry ranges: each
+    range is split by slots too; the grid is still the oracle's, bit for bit
+    (the thread count is the build's chunk count: any number runs on the
+    machine's threads)."""
+    monkeypatch.setattr(Hg, "PARALLEL_MIN_VPS", 4096)
+    monkeypatch.setattr(Hg.numba, "get_num_threads", lambda: threads)
+    p, R, active = _vps(9000, threads)
+    R[10] = 40.0 / np.sqrt(9000)
+    for layout, log2_table in (("auto", None), ("hash", 9)):
+        a = oracle_grid.build_grid_reference(p, R, active, layout=layout, log2_table=log2_table)
+        b = Hg.build_grid(p, R, active, layout=layout, log2_table=log2_table)
+        for f in ("cell_start", "vp_ids", "R_ins"):
+            x, y = getattr(a, f), getattr(b, f)
+            assert x.dtype == y.dtype and np.array_equal(x, y), f
+        assert a.n_entries > 5 * a.n_active
+
+
 def _update_case(P, seed, sectors):
     """A state after some passes and one pass's photons, P pixels."""
     rng = np.random.default_rng(seed)

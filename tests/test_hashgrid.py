@@ -239,3 +239,34 @@ def test_nonfinite_photons_and_vps_ignored():
     assert grid.n_active == int((c["active"] & np.isfinite(c["vp_pos"]).all(1)).sum())
     assert all(ref.M[k::11].sum() == 0 for k in (0, 3, 4))
     assert ref.M.sum() > 100
+
+
+def _tangent_frames_numpy(ng):
+    """(K, 6) the gather's frames as the numpy code computed them before they
+    were computed per photon (Duff et al. 2017), the reference of the sector
+    cells of every pinned image."""
+    n = np.asarray(ng, np.float64).reshape(-1, 3)
+    sign = np.where(n[:, 2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + n[:, 2])
+    b = n[:, 0] * n[:, 1] * a
+    return np.stack([1.0 + sign * n[:, 0] * n[:, 0] * a, sign * b, -sign * n[:, 0],
+                     b, sign + n[:, 1] * n[:, 1] * a, -n[:, 1]], axis=1)
+
+
+def test_inline_tangent_frame_equals_numpy_frames():
+    """The frame computed per counted photon is the same bits as the numpy
+    (K, 6) frames it replaced, on random unit normals, both hemispheres,
+    n_z = +-0 and the poles; and it is orthonormal to the normal."""
+    rng = np.random.default_rng(5)
+    ng = _unit(rng.normal(size=(4000, 3)))
+    ng[:200, 2] = 0.0
+    ng[200:400, 2] = -0.0
+    ng[:400] = _unit(ng[:400])
+    ng[400:402] = [[0, 0, 1], [0, 0, -1]]
+    ref = _tangent_frames_numpy(ng)
+    got = np.array([hg._tangent_frame(*n) for n in ng])
+    assert np.array_equal(got.view(np.int64), ref.view(np.int64))
+    t1, t2 = got[:, :3], got[:, 3:]
+    for a, b in ((t1, ng), (t2, ng), (t1, t2)):
+        assert np.abs((a * b).sum(axis=1)).max() < 1e-12
+    assert np.abs(np.linalg.norm(t1, axis=1) - 1).max() < 1e-12

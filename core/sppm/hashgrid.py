@@ -78,8 +78,13 @@ contiguous chunk per numba thread, each chunk accumulating into its own (K,)
 arrays (race-free, no atomics), summed afterwards (or, with GatherBuffers,
 rows reused by every chunk and folded at the touched VPs); the sort scatters by
 disjoint slot ranges, one per thread.  The build splits the VPs into one
-range per thread for their slots, and the slots into one range per thread
-for the counting sort (each thread reads every entry and keeps its slots).
+range per thread for their slots; the counting sort splits the entries
+into SORT_GROUPS VP ranges (about the same number of entries each; with
+more threads, each range is split further by slot ranges): each range
+counts its entries per slot in its own cursor row, a prefix sum over slots
+x ranges (by slot ranges) turns the rows into write cursors, and each
+thread places its own entries (ranges in VP order, so a slot's VPs stay
+ascending).
 Results do not depend on the thread count except for the summation order of
 Phi_sum; the grid does not depend on it at all.
 """
@@ -93,11 +98,18 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from .. import memory
+
 COS_NG_DEFAULT = 0.5          # cos(60 deg): photon / VP surface orientation test (3)
 CELL_FACTOR = 1.5             # h = CELL_FACTOR * median active radius
 ENTRY_BUDGET_PER_VP = 64      # clamp: mean cell entries per active VP
 PARALLEL_MIN_PHOTONS = 50_000  # below this, thread start-up outweighs the split
 PARALLEL_MIN_VPS = 1 << 18      # build_grid: below this many VPs, one thread
+# The build's counting sort splits the entries into at most this many VP
+# ranges, each with its own (n_slots,) row of cursors (128 MiB at 1080p):
+# more threads split each range's slots, and scan its entries (the memory
+# of a row per thread would grow with the cores).
+SORT_GROUPS = 2
 # A VP's slots are deduplicated by a scan of the ones it already has up to
 # this many, then by a sort (a VP far larger than the cells).
 _DEDUP_SCAN = 64
@@ -137,7 +149,8 @@ class Grid:
     lo, hi: (3,) float64 bounds of all inserted spheres; photons outside are skipped.
     dense: True = dense grid of dims (3,) int64 cells; False = spatial hash
       with 2**log2_table slots.
-    cell_start: (n_slots + 1,) int64; VPs of slot s are vp_ids[cell_start[s]:cell_start[s+1]].
+    cell_start: (n_slots + 1,) int32 (int64 when the entry bound reaches 2^31:
+      see start_dtype); VPs of slot s are vp_ids[cell_start[s]:cell_start[s+1]].
     vp_ids: (n_entries,) int32, ascending within a slot.
     R_ins: (K,) float64 insertion radius (0 for inactive VPs); gather requires
       vp_R2 <= R_ins**2.
@@ -302,76 +315,120 @@ def _fill_cells(k0, k1, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz,
 
 
 @njit(cache=True)
-def _slot_range_counts(s0, s1, ent_slot, cell_start):
-    """cell_start[s] = the entries before slot s among the slots s0..s1-1
-    (a local exclusive prefix); returns the range's entries."""
-    for e in range(ent_slot.shape[0]):
+def _entry_counts(e0, e1, s0, s1, ent_slot, cnt, sh):
+    """cnt[ent_slot[e] + sh] += 1 for the entries e0..e1-1 whose slot is in
+    s0..s1-1 (one thread's)."""
+    for e in range(e0, e1):
         s = ent_slot[e]
         if s >= s0 and s < s1:
-            cell_start[s] += 1
-    run = 0
-    for s in range(s0, s1):
-        c = cell_start[s]
-        cell_start[s] = run
-        run += c
-    return run
+            cnt[s + sh] += 1
 
 
 @njit(cache=True)
-def _slot_range_fill(s0, s1, base, off, ent_slot, cell_start, vp_ids):
-    """vp_ids[base + cell_start[s]++] = v for the entries (v, s) with s0 <= s
-    < s1, in VP order (so the VPs of a slot are ascending); then cell_start[s0..s1-1] = base + the local starts (the cursor
-    ends at the next slot's start: shifted back by one)."""
-    for v in range(off.shape[0] - 1):
+def _slot_range_total(s0, s1, cur, cell_start):
+    """The entries of slots s0..s1-1, every thread's: cur[c, s] (threads
+    before the last) and cell_start[s + 1] (the last thread's counts)."""
+    t = 0
+    for s in range(s0, s1):
+        t += cell_start[s + 1]
+        for c in range(cur.shape[0]):
+            t += cur[c, s]
+    return t
+
+
+@njit(cache=True)
+def _slot_range_cursors(s0, s1, run, cur, cell_start):
+    """Counts to write cursors for slots s0..s1-1, run = the entries of the
+    slots before s0: thread c's entries of slot s start after those of the
+    threads before it (cur[c, s]); the last thread's cursor is kept in
+    cell_start[s + 1], which its fill leaves at the start of slot s + 1."""
+    for s in range(s0, s1):
+        for c in range(cur.shape[0]):
+            n = cur[c, s]
+            cur[c, s] = run
+            run += n
+        n = cell_start[s + 1]
+        cell_start[s + 1] = run
+        run += n
+
+
+@njit(cache=True)
+def _entry_fill(v0, v1, s0, s1, off, ent_slot, cur, sh, vp_ids):
+    """vp_ids[cur[s + sh]++] = v for the entries (v, s) of VPs v0..v1-1 with
+    s in s0..s1-1, in VP order (so the VPs of a slot are ascending)."""
+    for v in range(v0, v1):
         for e in range(off[v], off[v + 1]):
             s = ent_slot[e]
             if s >= s0 and s < s1:
-                q = cell_start[s]
-                vp_ids[base + q] = v
-                cell_start[s] = q + 1
-    for s in range(s1 - 1, s0, -1):
-        cell_start[s] = base + cell_start[s - 1]
-    if s1 > s0:
-        cell_start[s0] = base
+                q = cur[s + sh]
+                vp_ids[q] = v
+                cur[s + sh] = q + 1
 
 
 @njit(cache=True, parallel=True)
 def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
-                     n_slots, slot_proto, cap):
-    """The CSR arrays (cell_start (n_slots + 1,) int64, vp_ids (n_entries,)
-    int32, the VPs of a slot ascending), computed by n_chunks threads: each VP's slots (VP ranges in parallel), then a
-    counting sort of the entries by slot (slot ranges in parallel).  No
+                     n_slots, slot_proto, cur_proto, cap):
+    """The CSR arrays (cell_start (n_slots + 1,) of cur_proto's dtype, vp_ids
+    (n_entries,) int32, the VPs of a slot ascending), computed by n_chunks
+    threads: each VP's slots (VP ranges in parallel), then a counting sort of
+    the entries by slot, each thread counting and placing the entries of its
+    VP range (one of SORT_GROUPS with about E / SORT_GROUPS entries each),
+    split by slot ranges when there are more threads than groups.  No
     (n_slots,) mark array: a VP's hash collisions are removed from its own
-    list.  slot_proto: an empty array of the entries' slot dtype; cap: the
-    largest bounding-box cell count of a VP."""
+    list.  slot_proto: an empty array of the entries' slot dtype; cur_proto:
+    of the cursors' and cell starts' (start_dtype); cap: the largest
+    bounding-box cell count of a VP.  Temporary memory: (SORT_GROUPS - 1,
+    n_slots) cursors, the (E,) slots of the entries."""
     K = pos.shape[0]
-    n_ent = np.empty(K, np.int64)
-    for c in prange(n_chunks):
-        _count_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
-                     h, inv_h, dense, nx, ny, nz, shift, n_ent, cap)
     off = np.empty(K + 1, np.int64)
     off[0] = 0
+    for c in prange(n_chunks):
+        _count_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
+                     h, inv_h, dense, nx, ny, nz, shift, off[1:], cap)
     for v in range(K):
-        off[v + 1] = off[v] + n_ent[v]
+        off[v + 1] += off[v]
     E = off[K]
     ent_slot = np.empty(E, slot_proto.dtype)
     for c in prange(n_chunks):
         _fill_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
                     h, inv_h, dense, nx, ny, nz, shift, off, ent_slot, cap)
-    # Slot ranges, one per thread: local counts and prefix, then each range's
-    # base (the entries of the ranges before it), the fill, the shift back.
-    cell_start = np.zeros(n_slots + 1, np.int64)
+    # G VP ranges ("groups") with about E / G entries each, each split in S
+    # slot ranges: task (g, j) counts and places group g's entries of slot
+    # range j.  Group g < last counts per slot in cur[g], the last group in
+    # cell_start[s + 1] (so that its cursors end as the starts).
+    G = min(n_chunks, SORT_GROUPS)
+    S = n_chunks // G
+    vb = np.searchsorted(off, np.arange(G + 1) * E // G)
+    vb[0], vb[G] = 0, K
+    cell_start = np.zeros(n_slots + 1, cur_proto.dtype)
+    cur = np.zeros((G - 1, n_slots), cur_proto.dtype)
+    last = G - 1
+    for t in prange(G * S):
+        g, j = t // S, t % S
+        s0, s1 = j * n_slots // S, (j + 1) * n_slots // S
+        if g < last:
+            _entry_counts(off[vb[g]], off[vb[g + 1]], s0, s1, ent_slot, cur[g], 0)
+        else:
+            _entry_counts(off[vb[g]], off[vb[g + 1]], s0, s1, ent_slot, cell_start, 1)
+    # Cursors: a prefix sum over slots x threads, by slot ranges (their
+    # totals, a prefix over the ranges, then each range in place).
     base = np.zeros(n_chunks + 1, np.int64)
     for c in prange(n_chunks):
-        base[c + 1] = _slot_range_counts(c * n_slots // n_chunks,
-                                         (c + 1) * n_slots // n_chunks, ent_slot, cell_start)
+        base[c + 1] = _slot_range_total(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks,
+                                        cur, cell_start)
     for c in range(n_chunks):
         base[c + 1] += base[c]
-    vp_ids = np.empty(E, np.int32)
     for c in prange(n_chunks):
-        _slot_range_fill(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks, base[c], off,
-                         ent_slot, cell_start, vp_ids)
-    cell_start[n_slots] = E
+        _slot_range_cursors(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks, base[c],
+                            cur, cell_start)
+    vp_ids = np.empty(E, np.int32)
+    for t in prange(G * S):
+        g, j = t // S, t % S
+        s0, s1 = j * n_slots // S, (j + 1) * n_slots // S
+        if g < last:
+            _entry_fill(vb[g], vb[g + 1], s0, s1, off, ent_slot, cur[g], 0, vp_ids)
+        else:
+            _entry_fill(vb[g], vb[g + 1], s0, s1, off, ent_slot, cell_start, 1, vp_ids)
     return cell_start, vp_ids
 
 
@@ -503,16 +560,33 @@ def _accepts(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
 
 
 @njit(cache=True, inline="always")
-def _sector_cell(vp_rec, tframe, v, x, y, z):
+def _tangent_frame(n0, n1, n2):
+    """(t1, t2) as 6 floats: an orthonormal tangent frame of the unit normal
+    (n0, n1, n2), continuous except across n2 = 0 (Duff et al. 2017,
+    "Building an orthonormal basis, revisited"); the same normal always gets
+    the same frame, so sector counts of a pixel add up across passes.
+    Computed per counted photon from the VP's record instead of a stored
+    (K, 6) array (48 B a pixel during the photons)."""
+    sign = 1.0 if n2 >= 0.0 else -1.0
+    a = -1.0 / (sign + n2)
+    b = n0 * n1 * a
+    return (1.0 + sign * n0 * n0 * a, sign * b, -sign * n0,
+            b, sign + n1 * n1 * a, -n1)
+
+
+@njit(cache=True, inline="always")
+def _sector_cell(vp_rec, v, x, y, z):
     """Sector cell (0 .. SECTOR_CELLS-1) of a counted photon at (x, y, z) in
     visible point v's kernel: quadrant of its offset in the tangent frame
-    tframe[v] = (t1, t2), plus SECTOR_QUADRANTS for the outer ring
-    (|d|^2 >= R^2 / 2).  The SECTOR_CELLS cells have equal areas on the disc."""
+    (t1, t2) of its normal (_tangent_frame), plus SECTOR_QUADRANTS for the
+    outer ring (|d|^2 >= R^2 / 2).  The SECTOR_CELLS cells have equal areas
+    on the disc."""
     dx = x - vp_rec[v, 0]
     dy = y - vp_rec[v, 1]
     dz = z - vp_rec[v, 2]
-    u = dx * tframe[v, 0] + dy * tframe[v, 1] + dz * tframe[v, 2]
-    w = dx * tframe[v, 3] + dy * tframe[v, 4] + dz * tframe[v, 5]
+    t0, t1, t2, t3, t4, t5 = _tangent_frame(vp_rec[v, 4], vp_rec[v, 5], vp_rec[v, 6])
+    u = dx * t0 + dy * t1 + dz * t2
+    w = dx * t3 + dy * t4 + dz * t5
     c = 0
     if u < 0.0:
         c = 1 if w >= 0.0 else 2
@@ -523,29 +597,10 @@ def _sector_cell(vp_rec, tframe, v, x, y, z):
     return c
 
 
-def tangent_frames(ng: np.ndarray) -> np.ndarray:
-    """(K, 6) float64 (t1, t2): an orthonormal tangent frame of each unit
-    normal ng (K, 3), continuous except across ng.z = 0 (Duff et al. 2017,
-    "Building an orthonormal basis, revisited"); the same normal always gets
-    the same frame, so sector counts of a pixel add up across passes."""
-    n = np.asarray(ng, np.float64).reshape(-1, 3)
-    sign = np.where(n[:, 2] >= 0.0, 1.0, -1.0)
-    a = -1.0 / (sign + n[:, 2])
-    b = n[:, 0] * n[:, 1] * a
-    t = np.empty((n.shape[0], 6))
-    t[:, 0] = 1.0 + sign * n[:, 0] * n[:, 0] * a
-    t[:, 1] = sign * b
-    t[:, 2] = -sign * n[:, 0]
-    t[:, 3] = b
-    t[:, 4] = sign + n[:, 1] * n[:, 1] * a
-    t[:, 5] = -n[:, 1]
-    return t
-
-
 @njit(cache=True)
 def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                  vp_rec, cos_ng, cell_start, vp_ids,
-                 M, Phi, rmin, hitmask, n_pair, n_freq, tframe, S, touched, n_touched):
+                 M, Phi, rmin, hitmask, n_pair, n_freq, S, touched, n_touched):
     """Sorted photons q0..q1-1 (ph_* already in sorted order): accumulate M,
     Phi (const VPs), rmin into this chunk's arrays, and (S with SECTOR_CELLS
     columns, else 0 columns) each counted photon's sector cell into S.  n_pair[q] / n_freq[q] =
@@ -584,7 +639,7 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                 touched[n_touched[0]] = v
                 n_touched[0] += 1
             if with_sectors:
-                S[v, _sector_cell(vp_rec, tframe, v, x, y, z)] += 1
+                S[v, _sector_cell(vp_rec, v, x, y, z)] += 1
             if vp_rec[v, 7] != 0.0:
                 Phi[v, 0] += ph_power[p, 0]
                 Phi[v, 1] += ph_power[p, 1]
@@ -663,24 +718,24 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
 
 @njit(cache=True)
 def _count_serial(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, cos_ng,
-                  cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq, tframe, S,
+                  cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq, S,
                   touched, n_touched):
     _count_range(0, slot.shape[0], slot, ph_pos, ph_ng, ph_wi, ph_power,
                  ph_rpred, vp_rec, cos_ng, cell_start, vp_ids, M[0], Phi[0], rmin[0],
-                 hitmask, n_pair, n_freq, tframe, S[0], touched[0], n_touched[0:1])
+                 hitmask, n_pair, n_freq, S[0], touched[0], n_touched[0:1])
 
 
 @njit(cache=True, parallel=True)
 def _count_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec,
                     cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq,
-                    tframe, S, touched, n_touched, n_chunks):
+                    S, touched, n_touched, n_chunks):
     # One contiguous range of sorted photons per accumulator row: chunks never
     # share a row, and the per-photon outputs are indexed by q: no race.
     n = slot.shape[0]
     for c in prange(n_chunks):
         _count_range(c * n // n_chunks, (c + 1) * n // n_chunks, slot, ph_pos,
                      ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, cos_ng, cell_start,
-                     vp_ids, M[c], Phi[c], rmin[c], hitmask, n_pair, n_freq, tframe, S[c],
+                     vp_ids, M[c], Phi[c], rmin[c], hitmask, n_pair, n_freq, S[c],
                      touched[c], n_touched[c:c + 1])
 
 
@@ -815,6 +870,13 @@ _active_extent_serial = njit(cache=True)(_active_extent.py_func)
 _bbox_cells_serial = njit(cache=True)(_bbox_cells.py_func)
 
 
+def start_dtype(entry_bound: int):
+    """The dtype of Grid.cell_start (and of the build's cursors) for at most
+    entry_bound entries: int32 while it fits (the table of about one slot
+    per entry is the grid's largest array; int32 halves it)."""
+    return np.int32 if entry_bound < 2**31 else np.int64
+
+
 def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
                cell_factor: float = CELL_FACTOR, layout: str = "auto",
                log2_table: Optional[int] = None, parallel: bool = True) -> Grid:
@@ -838,13 +900,17 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     vp_R = np.ascontiguousarray(vp_R, dtype=np.float64).reshape(K)
     active = np.asarray(active, dtype=bool).reshape(K)
     T = numba.get_num_threads() if (parallel and K >= PARALLEL_MIN_VPS) else 1
+    # The camera and direct-light stages' freed pixel-sized temporaries stay
+    # resident in glibc's heap: hand them back before the build's own arrays
+    # and the gather's (the pass's peak, docs/architecture.md "Performance").
+    memory.release_free_heap(K)
     act, R_ins, R_act, lo, hi = (_active_extent if T > 1 else _active_extent_serial)(
         T, vp_pos, vp_R, active)
     n_active = R_act.shape[0]
     if n_active == 0:
         z3 = np.zeros(3)
         return Grid(K, 0, z3, 1.0, 1.0, np.full(3, np.inf), np.full(3, -np.inf),
-                    True, np.ones(3, np.int64), 0, np.zeros(2, np.int64),
+                    True, np.ones(3, np.int64), 0, np.zeros(2, np.int32),
                     np.zeros(0, np.int32), R_ins)
     origin = lo.copy()
 
@@ -873,10 +939,11 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     args = (vp_pos, R_ins, act, origin, h, inv_h, dense,
             int(dims[0]), int(dims[1]), int(dims[2]), shift, n_slots)
     proto = np.empty(0, np.int32 if n_slots < 2**31 else np.int64)
+    cur_proto = np.empty(0, start_dtype(est))
     if n_active >= PARALLEL_MIN_VPS and T > 1:
-        cell_start, vp_ids = _insert_parallel(T, *args, proto, int(cap))
+        cell_start, vp_ids = _insert_parallel(T, *args, proto, cur_proto, int(cap))
     else:
-        cell_start, vp_ids = _insert_serial(1, *args, proto, int(cap))
+        cell_start, vp_ids = _insert_serial(1, *args, proto, cur_proto, int(cap))
     return Grid(K, n_active, origin, h, inv_h, lo, hi, bool(dense), dims,
                 0 if dense else log2_table, cell_start, vp_ids, R_ins)
 
@@ -945,8 +1012,8 @@ class GatherBuffers:
     photon once: int32 holds any gather of fewer than 2**31 photons between
     two folds); touched (threads, K) int32 with n_touched (threads,) int64
     entries each: 144 B a VP with two threads and sectors, 80 B without.
-    Between chunks every row is zero (rmin inf).  vp_rec (K, 8) and tframe
-    (K, 6) are built once per grid (``bind``; the visible points must not
+    Between chunks every row is zero (rmin inf).  vp_rec (K, 8) is built
+    once per grid (``bind``; the visible points must not
     change while the grid does not) and dropped by ``unbind`` (end of a pass:
     they are not held through the other stages).  ``allocations`` counts the
     (re)allocations of the rows.
@@ -982,7 +1049,7 @@ class GatherBuffers:
 
     def unbind(self) -> None:
         """Drop the per-pass records (the next gather rebuilds them)."""
-        self.grid = self.vp_rec = self.tframe = None
+        self.grid = self.vp_rec = None
 
     def bind(self, grid: Grid, vp, n_chunks: int) -> None:
         """Records of the prepared VPs vp = (pos, ng, R2, const) for grid (once
@@ -993,7 +1060,6 @@ class GatherBuffers:
             return
         _check_radii(grid, vp[2])
         self.vp_rec = _vp_records(*vp)
-        self.tframe = tangent_frames(vp[1]) if self.with_sectors else np.zeros((0, 6))
         self.grid = grid
 
     def fold(self, M, Phi, phi_scale, phi_div: float, rmin, rmin_mask=None, S=None) -> None:
@@ -1141,12 +1207,11 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         M = np.zeros((n_chunks, K), np.int64)
         Phi = np.zeros((n_chunks, K, 3))
         rmin = np.full((n_chunks, K), np.inf)
-        tframe = tangent_frames(vp[1]) if sectors else np.zeros((0, 6))
         S = np.zeros((n_chunks, K, SECTOR_CELLS if sectors else 0), np.int64)
         touched, n_touched = np.empty((n_chunks, 0), np.int32), np.zeros(n_chunks, np.int64)
     else:
         b = buffers
-        vp_rec, M, Phi, rmin, tframe, S = b.vp_rec, b.M, b.Phi, b.rmin, b.tframe, b.S
+        vp_rec, M, Phi, rmin, S = b.vp_rec, b.M, b.Phi, b.rmin, b.S
         touched, n_touched = b.touched, b.n_touched
         b.n_used = max(b.n_used, n_chunks) if n_touched.any() else n_chunks
     hitmask = np.empty(n, np.uint64)
@@ -1154,7 +1219,7 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     n_freq = np.empty(n, np.int32)
     g = (grid.cell_start, grid.vp_ids)
     cargs = (slot, ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_, vp_rec,
-             float(cos_ng), *g, M, Phi, rmin, hitmask, n_pair, n_freq, tframe, S,
+             float(cos_ng), *g, M, Phi, rmin, hitmask, n_pair, n_freq, S,
              touched, n_touched)
     if parallel:
         _count_parallel(*cargs, n_chunks)
