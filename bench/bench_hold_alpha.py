@@ -61,6 +61,37 @@ def run(scene, st, passes):
     return np.stack(imgs), np.array(cpu), held
 
 
+def ppm_at_cpu(err, cpu, t):
+    """PPM's relMSE at CPU time t: log-log interpolation over its passes, or,
+    beyond its last pass, the power law of its last octave of passes
+    extrapolated (flagged True)."""
+    le, lc = np.log(err), np.log(cpu)
+    if t <= cpu[-1]:
+        return float(np.exp(np.interp(np.log(t), lc, le))), False
+    h = len(err) // 2 - 1
+    slope = (le[-1] - le[h]) / (lc[-1] - lc[h])
+    return float(np.exp(le[-1] + slope * (np.log(t) - lc[-1]))), True
+
+
+def cost(scene, st, passes, say):
+    """CPU seconds per pass of PPM and FPPM, stepped alternately in one
+    process so that the machine's load drifts over both alike (the first 2
+    passes, compilation and warm-up, are left out)."""
+    rs = {"ppm": Renderer(scene, st.replace(use_frequency=False, max_passes=passes), log=lambda s: None),
+          "fppm": Renderer(scene, st.replace(max_passes=passes), log=lambda s: None)}
+    cpu = {k: [] for k in rs}
+    for _ in range(passes):
+        for k, r in rs.items():
+            c0 = time.process_time()
+            r.step()
+            cpu[k].append(time.process_time() - c0)
+    c = {k: np.array(v[2:]) for k, v in cpu.items()}
+    for k, v in c.items():
+        say(f"cost {k}: {1e3 * v.mean():.1f} ms CPU per pass (median {1e3 * np.median(v):.1f}, n {v.size})")
+    say(f"cost fppm/ppm: mean {c['fppm'].mean() / c['ppm'].mean():.3f}, "
+        f"median {np.median(c['fppm']) / np.median(c['ppm']):.3f}")
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("scene")
@@ -72,6 +103,9 @@ def main():
     ap.add_argument("--photons", type=int, default=100_000)
     ap.add_argument("--ref-passes", type=int, default=100)
     ap.add_argument("--ref-photons", type=int, default=300_000)
+    ap.add_argument("--cost-only", type=int, default=0, metavar="K",
+                    help="only measure CPU per pass, PPM and FPPM (--hold's first value) "
+                         "stepped alternately K passes each in this process")
     a = ap.parse_args()
     scene, base = export(a.scene)
     base = base.replace(photons_per_pass=a.photons)
@@ -79,6 +113,8 @@ def main():
     say(f"# {a.scene}: {base.photons_per_pass} photons/pass, alpha {base.alpha}, "
         f"verify_holds {base.verify_holds}, file hold_alpha {base.hold_alpha}")
 
+    if a.cost_only:
+        return cost(scene, base.replace(hold_alpha=float(a.hold.split(",")[0])), a.cost_only, say)
     t0 = time.process_time()
     ref_imgs, _, _ = run(scene, base.replace(use_frequency=False, seed=100,
                                              photons_per_pass=a.ref_photons), a.ref_passes)
@@ -97,17 +133,17 @@ def main():
         e, c = ppm[seed]
         for p in report:
             say(f"ppm seed {seed} pass {p} relmse {e[p - 1]:.4e} cpu {c[p - 1]:.2f}")
-    for h in [float(x) for x in a.hold.split(",")]:
+    for h in [float(x) for x in a.hold.split(",") if x]:   # --hold "": PPM only
         for seed in seeds:
             imgs, cpu, held = run(scene, base.replace(hold_alpha=h, seed=seed), a.passes)
             e = np.array([relmse(im, ref) for im in imgs])
             c = np.cumsum(cpu)
             pe, pc = ppm[seed]
             for p in report:
-                # PPM's relMSE at FPPM's CPU time (log-log interpolation in CPU).
-                pe_t = float(np.exp(np.interp(np.log(c[p - 1]), np.log(pc), np.log(pe))))
+                pe_t, extra = ppm_at_cpu(pe, pc, c[p - 1])
                 say(f"fppm hold {h} seed {seed} pass {p} relmse {e[p - 1]:.4e} cpu {c[p - 1]:.2f} "
                     f"ratio_pass {e[p - 1] / pe[p - 1]:.3f} ratio_cpu {e[p - 1] / pe_t:.3f}"
+                    + ("(extrapolated)" if extra else "")
                     + (f" held {held:.3f}" if p == report[-1] else ""))
 
 
