@@ -2,16 +2,23 @@
 
     .venv/bin/python bench/bench_hold_alpha.py indirect_room [--hold 0.9,0.95,0.98,1.0]
         [--passes 64] [--seeds 0,1] [--photons 100000] [--ref-passes 100] [--ref-photons 300000]
+    .venv/bin/python bench/bench_hold_alpha.py indirect_room --hold "" --passes 116 --report 29,58,116
+        (PPM only, to read it at FPPM's CPU time)
+    .venv/bin/python bench/bench_hold_alpha.py indirect_room --cost-only 24
+        (CPU per pass of PPM and FPPM, stepped alternately in one process)
 
 The protocol of docs/method.md ("Consistent holds", "Radius rules"): the
 .blend at 50 % resolution (64x64) with the file's settings, photon mapping
 only, one numba thread; relMSE against a PPM render of seed 100 with more
 photons and passes (its floor: the relMSE between its half- and full-pass
 images).  Every method renders with ``Renderer.step`` from the same export.
-CPU time (``time.process_time``, one thread: the shared machine's load does
-not enter it) is recorded per pass, so PPM's relMSE is also read at FPPM's
+CPU time (``time.process_time``, one thread: less sensitive than wall time to
+the shared machine's load) is recorded per pass, so PPM's relMSE is also read at FPPM's
 CPU time (PPM renders ``--ppm-extra`` more passes for that and its error is
-interpolated in log-log).  Prints one line per method, seed and report pass.
+interpolated in log-log).  Per-run CPU times scatter under a shared
+machine's load; ``--cost-only`` gives the FPPM/PPM cost ratio robustly, and
+PPM's error at ``ratio x`` FPPM's passes is then the equal-time comparison
+(docs/method.md "hold_alpha sweep").  Prints one line per method, seed and report pass.
 """
 from __future__ import annotations
 
