@@ -150,7 +150,7 @@ def main():
                 pe_t, extra = ppm_at_cpu(pe, pc, c[p - 1])
                 say(f"fppm hold {h} seed {seed} pass {p} relmse {e[p - 1]:.4e} cpu {c[p - 1]:.2f} "
                     f"ratio_pass {e[p - 1] / pe[p - 1]:.3f} ratio_cpu {e[p - 1] / pe_t:.3f}"
-                    + ("(extrapolated)" if extra else "")
+                    + (" (extrapolated)" if extra else "")
                     + (f" held {held:.3f}" if p == report[-1] else ""))
 
 
