@@ -166,3 +166,26 @@ def install_when_numba_loads() -> None:
         install()
     elif not any(isinstance(f, _AfterNumbaImport) for f in sys.meta_path):
         sys.meta_path.insert(0, _AfterNumbaImport())
+
+
+def serial_twin(kernel):
+    """``njit(cache=True)`` of a ``parallel=True`` kernel's Python function,
+    cached under a name of its own (``<qualname>_serial``).
+
+    Numba's on-disk index is one file per function name and first line, and
+    its key is the signature, the CPU and the bytecode, not the compile
+    flags.  ``njit(cache=True)(kernel.py_func)`` therefore shares the
+    parallel kernel's cache entries: whichever of the two compiled first is
+    loaded for both, so on a cache first filled by a small render the
+    "parallel" kernel ran the serial code on one thread.  A copy of the
+    function with its own name gets its own index file.
+    """
+    import types
+
+    from numba import njit
+    f = kernel.py_func
+    code = f.__code__.replace(co_name=f.__name__ + "_serial",
+                              co_qualname=f.__qualname__ + "_serial")
+    twin = types.FunctionType(code, f.__globals__, code.co_name, f.__defaults__, f.__closure__)
+    twin.__module__, twin.__doc__ = f.__module__, f.__doc__
+    return njit(cache=True)(twin)

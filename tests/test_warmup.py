@@ -66,6 +66,34 @@ def test_read_only_package_and_unwritable_home_fall_back_to_temp(tmp_path):
             os.chmod(d, 0o755)
 
 
+def test_every_cached_kernel_has_an_index_file_of_its_own():
+    # Numba's cache index is keyed by name and line, signature and bytecode,
+    # not by the compile flags: a serial njit of a parallel kernel's Python
+    # function shared its index file, and the parallel kernel then loaded
+    # whichever compiled first (the grid build ran on one thread).
+    # core._numba_cache.serial_twin gives the serial copy its own name.
+    import importlib
+    import pkgutil
+
+    from numba.core.registry import CPUDispatcher
+
+    import fppm.core as core
+    owners = {}
+    for m in pkgutil.walk_packages(core.__path__, core.__name__ + "."):
+        mod = importlib.import_module(m.name)
+        for name, d in vars(mod).items():
+            if isinstance(d, CPUDispatcher) and d._cache is not None \
+                    and getattr(d._cache, "_cache_file", None) is not None:
+                key = (d._cache._cache_path, d._cache._cache_file._index_name)
+                owners.setdefault(key, set()).add(id(d))
+    shared = {k[1] for k, ids in owners.items() if len(ids) > 1}
+    assert len(owners) > 50
+    assert not shared, shared
+    from fppm.core.sppm import hashgrid as Hg
+    assert Hg._insert_parallel.targetoptions.get("parallel") is True
+    assert not Hg._insert_serial.targetoptions.get("parallel")
+
+
 def test_cache_dir_order(tmp_path, monkeypatch):
     from fppm.core import _numba_cache as C
     monkeypatch.delenv(C.ENV_VAR, raising=False)

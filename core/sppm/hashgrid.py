@@ -99,6 +99,7 @@ import numpy as np
 from numba import njit, prange
 
 from .. import memory
+from .._numba_cache import serial_twin
 
 COS_NG_DEFAULT = 0.5          # cos(60 deg): photon / VP surface orientation test (3)
 CELL_FACTOR = 1.5             # h = CELL_FACTOR * median active radius
@@ -434,7 +435,7 @@ def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, 
 
 #: The same build compiled without ``parallel`` (small grids: a parallel
 #: region's thread hand-off costs more than their build).
-_insert_serial = njit(cache=True)(_insert_parallel.py_func)
+_insert_serial = serial_twin(_insert_parallel)
 
 
 @njit(cache=True)
@@ -534,7 +535,7 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
 #: The same sort compiled without ``parallel``: a numba parallel region costs a
 #: thread hand-off even for n_chunks = 1, ~10 ms per call on a loaded 2-core
 #: machine (10,000 small passes took 137 s instead of ~15 s).
-_sort_photons_serial = njit(cache=True)(_sort_photons.py_func)
+_sort_photons_serial = serial_twin(_sort_photons)
 
 
 @njit(cache=True, inline="always")
@@ -866,8 +867,8 @@ def _bbox_cells(n_chunks, pos, R_ins, act, origin, inv_h):
 
 
 #: Serial builds of the two (small grids: no thread hand-off).
-_active_extent_serial = njit(cache=True)(_active_extent.py_func)
-_bbox_cells_serial = njit(cache=True)(_bbox_cells.py_func)
+_active_extent_serial = serial_twin(_active_extent)
+_bbox_cells_serial = serial_twin(_bbox_cells)
 
 
 def start_dtype(entry_bound: int):
