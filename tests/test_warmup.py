@@ -211,11 +211,27 @@ def test_failed_compile_is_kept_as_a_message():
     assert w.error == "ImportError: embreex is missing"
 
 
+# One small job instead of warmup_jobs(): the mechanism under test (compile in
+# a child, load here) is the same for any job list, and the full list costs
+# a whole cold compile of every kernel (about 100 s on CI) that the rest of
+# the suite pays once anyway.  The child gets the same list.
+SMALL_JOBS = ("lambda: [(W.warmup_scene(res=8, glossy=False), S.RenderSettings("
+              "integrator='PATH', max_passes=1, camera_samples=1, seed=1))]")
+
 FIRST_USE = r"""
 import json, sys, time
 sys.path.insert(0, sys.argv[1])
 import fppm_alias  # noqa
+import fppm.core.settings as S
+import fppm.core.warmup as W
 from fppm.core.warmup import warmup
+SMALL = sys.argv[2]
+W.warmup_jobs = eval(SMALL)
+CALL = 'importlib.import_module(name + ".core.warmup").compile_kernels()'
+assert CALL in W._CHILD
+W._CHILD = W._CHILD.replace(CALL, "W = importlib.import_module(name + '.core.warmup'); "
+                            "S = importlib.import_module(name + '.core.settings'); "
+                            "W.warmup_jobs = " + SMALL + "; W.compile_kernels()")
 t0 = time.perf_counter()
 warmup.start()
 last, gaps = time.perf_counter(), []
@@ -239,7 +255,8 @@ def test_first_use_compiles_in_a_subprocess_and_keeps_this_process_responsive(tm
     # them: nothing compiles here, and a 1 ms sleep loop on the main thread
     # never waits long (no GIL or garbage-collector pauses from the compiler).
     env = dict(os.environ, FPPM_CACHE_DIR=str(tmp_path / "cache"))
-    p = subprocess.run([PY, "-c", FIRST_USE, os.path.join(ROOT, "tests")], capture_output=True,
+    p = subprocess.run([PY, "-c", FIRST_USE, os.path.join(ROOT, "tests"), SMALL_JOBS],
+                       capture_output=True,
                        text=True, timeout=1200, cwd=str(tmp_path), env=env)
     assert p.returncode == 0, p.stderr[-3000:]
     out = __import__("json").loads(p.stdout.strip().splitlines()[-1])
