@@ -147,18 +147,12 @@ class NextEventEstimation:
         where the material is not Lambert-only)."""
         from . import direct_kernels as DK
         from ..sppm.camera_kernels import SPLIT_MIN
-        from ..sppm.photons import _pool, _threads
+        from ..sppm.photons import in_two_halves
         K = q.size
         R = DK.Receivers(q, vp.p, vp.ns, vp.beta, vp.albedo, vp.const, u)
         out = DK.alloc_samples(K)
         lights = self._compiled_lights()
-        if K >= SPLIT_MIN and _threads() > 1:
-            h = K // 2
-            f1 = _pool().submit(DK.direct_kernel, h, K, lights, R, out)
-            DK.direct_kernel(0, h, lights, R, out)
-            f1.result()
-        else:
-            DK.direct_kernel(0, K, lights, R, out)
+        in_two_halves(lambda a, b: DK.direct_kernel(a, b, lights, R, out), K, SPLIT_MIN)
         return out
 
     def _environment_bsdf(self, vp: "VisiblePoints", rng: np.random.Generator) -> np.ndarray:
@@ -290,13 +284,10 @@ def _occluded_f32(accel, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray) -> n
     if accel._scene is None or K == 0:
         return np.zeros(K, bool)
     from ..sppm.camera_kernels import SPLIT_MIN
-    from ..sppm.photons import _pool, _threads
-    run = accel._scene.run
-    if K >= SPLIT_MIN and _threads() > 1:
-        # Two halves in two threads (Embree releases the GIL); a ray's answer
-        # does not depend on the split.
-        h = K // 2
-        f1 = _pool().submit(run, o32[h:], d32[h:], dists=t32[h:], query="OCCLUDED")
-        b0 = np.asarray(run(o32[:h], d32[:h], dists=t32[:h], query="OCCLUDED")) >= 0
-        return np.concatenate([b0, np.asarray(f1.result()) >= 0])
-    return np.asarray(run(o32, d32, dists=t32, query="OCCLUDED")) >= 0
+    from ..sppm.photons import in_two_halves
+    run, out = accel._scene.run, np.empty(K, bool)
+
+    def block(a, b):       # Embree releases the GIL; a ray's answer is its own
+        out[a:b] = np.asarray(run(o32[a:b], d32[a:b], dists=t32[a:b], query="OCCLUDED")) >= 0
+    in_two_halves(block, K, SPLIT_MIN)
+    return out

@@ -60,6 +60,21 @@ def _pool():
     return _POOL
 
 
+def in_two_halves(work, K: int, split_min: int, align: int = 1) -> None:
+    """work(a0, a1) over the rows [0, K): as one call below split_min rows
+    or with one thread, else [0, h) in this thread and [h, K) in the pool's,
+    h = K / 2 rounded down to a multiple of align.  For work whose result
+    for a row depends on that row alone (the same bits either way); work
+    that releases the GIL (Embree, numba, large numpy operations)."""
+    if K < split_min or _threads() < 2:
+        work(0, K)
+        return
+    h = (K // 2 // align) * align
+    f1 = _pool().submit(work, h, K)
+    work(0, h)
+    f1.result()
+
+
 def _children(rng):
     """Two independent child generators of rng (deterministic)."""
     try:

@@ -267,7 +267,7 @@ class CameraPass:
         ``emitted_along_rays``' temporaries stay small and are not page-faulted
         in afresh), the blocks shared by two threads (numpy releases the GIL);
         each ray's Le depends on that ray alone, so the sums are the same bits."""
-        from .photons import _pool, _threads
+        from .photons import in_two_halves
 
         def blocks(a0, a1):
             for a in range(a0, a1, SEEN_BLOCK):
@@ -276,14 +276,7 @@ class CameraPass:
                                            np.minimum(t[a:b], tmax[a:b]), "camera")
                 L[a:b] += beta[a:b] * Le
                 emit[a:b] += Le
-        K = o.shape[0]
-        if K < SEEN_SPLIT_MIN or _threads() < 2:
-            blocks(0, K)
-            return
-        h = (K // 2 // SEEN_BLOCK) * SEEN_BLOCK
-        f1 = _pool().submit(blocks, h, K)
-        blocks(0, h)
-        f1.result()
+        in_two_halves(blocks, o.shape[0], SEEN_SPLIT_MIN, align=SEEN_BLOCK)
 
     def _any_seen(self, visibility: str) -> bool:
         """Whether any analytic emitter can be seen by rays of this kind
@@ -498,14 +491,8 @@ def _intersect(accel, o, d, tmax):
             b = min(a + INTERSECT_BLOCK, a1)
             r = run(f32(o[a:b]), f32(d[a:b]), dists=f32(np.minimum(tmax[a:b], 3e37)), output=1)
             prim[a:b], bu[a:b], bv[a:b], tfar[a:b] = r["primID"], r["u"], r["v"], r["tfar"]
-    from .photons import _pool, _threads
-    if K >= INTERSECT_SPLIT_MIN and _threads() > 1:
-        h = K // 2
-        f1 = _pool().submit(blocks, h, K)
-        blocks(0, h)
-        f1.result()
-    else:
-        blocks(0, K)
+    from .photons import in_two_halves
+    in_two_halves(blocks, K, INTERSECT_SPLIT_MIN)
     return prim, bu, bv, tfar
 
 
