@@ -309,8 +309,11 @@ class LightTracer:
         the region (rows 0..n-1; light_kernels.project_kernel), n, their
         (n, 3) transmittance to the lens: :meth:`_transmittance`)."""
         K = p.shape[0]
-        u_lens = rng.random((K, 2))
-        con = LK.connections(K)
+        # Reused arrays (PhotonTracer.pool: no page faults per batch); the
+        # same lens samples as rng.random((K, 2)).
+        u_lens = self.tracer.uniforms(K, 2, rng)
+        con = self.tracer.pool.take("connections", K, lambda r: list(LK.connections(r)),
+                                    lambda a: LK.Connections(*a))
         n = LK.project_kernel(self.cam_params, p, ng, u_lens, REL_OFFSET,
                               self.accel.abs_floor / REL_OFFSET, con)
         if n == 0:

@@ -208,7 +208,7 @@ class PhotonTracer:
         # Deposits per photon (max seen, x1.25 margin on use): buffer sizing.
         self._dpp = 2.0
         # Deposit rows, live photons and uniforms reused across batches (ArrayPool).
-        self._pool = ArrayPool()
+        self.pool = ArrayPool()
         self._lobes = None           # FK.SurfaceLobes, on first use
         # The march's arguments (builds its blocks: 0.14 s at 64^3, here
         # rather than in the first pass).
@@ -240,7 +240,7 @@ class PhotonTracer:
         bary (K, 3) (prim, u, v) of the hit.
         """
         if n < SPLIT_MIN:
-            return self._trace_part(n, n_freq, rng, self._deposits(n)).result()
+            return self._trace_part(n, n_freq, rng, self.deposit_buffers(n)).result()
         # Two halves on independent child streams, always (the image does not
         # depend on the number of cores), traced concurrently when there are
         # two threads: Embree and the kernels release the GIL.  The deposits
@@ -249,9 +249,9 @@ class PhotonTracer:
         h, hf = n // 2, n_freq // 2
         # The first buffer is sized for both halves (deposits per photon seen
         # so far, +25%): the second is appended without reallocating.
-        d0 = self._deposits(n)
+        d0 = self.deposit_buffers(n)
         if _threads() > 1:
-            d1 = self._deposits(n - h)
+            d1 = self.deposit_buffers(n - h)
             f0 = _pool().submit(self._trace_part, h, hf, r0, d0)
             self._trace_part(n - h, n_freq - hf, r1, d1)
             f0.result()
@@ -268,20 +268,24 @@ class PhotonTracer:
         (core.integrators.light_tracer), which the fused emission kernel
         does not return."""
         n = ph["o"].shape[0]
-        dep = self._deposits(n)
+        dep = self.deposit_buffers(n)
         self._trace_batch(None, ph, 0, n, rng, dep, False)
-        self._dpp = max(self._dpp, 1.25 * dep.n / max(n, 1))
+        self.note_deposits(n, dep.n)
         return dep.result()
 
-    def _deposits(self, n: int) -> "_Deposits":
-        """Deposit buffers for n photons (deposits per photon seen so far,
-        +25%), from the tracer's pool."""
-        return _Deposits(self._dpp * n + 64, self._pool)
+    def deposit_buffers(self, n: int) -> "_Deposits":
+        """Empty deposit buffers for n photons (deposits per photon seen so
+        far, +25%: :meth:`note_deposits`), from the tracer's pool."""
+        return _Deposits(self._dpp * n + 64, self.pool)
 
-    def _uniforms(self, K: int, m: int, rng) -> np.ndarray:
+    def note_deposits(self, n: int, k: int) -> None:
+        """n photons left k deposits: sizes the next deposit_buffers."""
+        self._dpp = max(self._dpp, 1.25 * k / max(n, 1))
+
+    def uniforms(self, K: int, m: int, rng) -> np.ndarray:
         """rng.random((K, m)) (the same numbers: drawn in the same order) into
-        an array of the pool; the caller drops it before its next call."""
-        u = self._pool.take("uniforms", K * m, lambda r: [np.empty(r)],
+        an array of the pool (one still referenced is never handed out)."""
+        u = self.pool.take("uniforms", K * m, lambda r: [np.empty(r)],
                             lambda a: a[0][:K * m].reshape(K, m))
         rng.random(out=u)
         return u
@@ -291,7 +295,7 @@ class PhotonTracer:
         deposits are appended to dep."""
         n_before = dep.n
         if self.fast_emission:
-            u = self._uniforms(n, 6, rng)
+            u = self.uniforms(n, 6, rng)
             ph = None
         else:
             u = None
@@ -300,7 +304,7 @@ class PhotonTracer:
             self._trace_batch(u, ph, 0, n_freq, rng, dep, True)
         if n > n_freq:
             self._trace_batch(u, ph, n_freq, n, rng, dep, False)
-        self._dpp = max(self._dpp, 1.25 * (dep.n - n_before) / max(n, 1))
+        self.note_deposits(n, dep.n - n_before)
         return dep
 
     def _trace_batch(self, u_emit, ph, a: int, b: int, rng, dep: _Deposits, freq: bool):
@@ -309,7 +313,7 @@ class PhotonTracer:
         freq: these photons carry a spectrum."""
         st = self.settings
         n = b - a
-        live = self._pool.take("live", n, _live_arrays, lambda a: PK.LiveState(*a))
+        live = self.pool.take("live", n, _live_arrays, lambda a: PK.LiveState(*a))
         rel = REL_OFFSET
         floor = self.accel.abs_floor / REL_OFFSET
         spec = None
@@ -351,7 +355,7 @@ class PhotonTracer:
                                  sample=bounce < st.max_bounces,
                                  roulette=bounce + 1 >= st.rr_start, bounce=bounce,
                                  dep0=dep.n, record=record, rel=rel, floor=floor)
-            u = self._uniforms(K, 4, rng)
+            u = self.uniforms(K, 4, rng)
             dep.reserve(K)
             if freq:
                 # the segments just travelled: the kernel overwrites the live state
