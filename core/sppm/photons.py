@@ -144,6 +144,8 @@ class _Deposits:
         self.pool = pool
         self.buf = self._arrays(max(int(cap), 16))
         self.n = 0
+        # Rows of frequency photons were written (else no spec row is read).
+        self.spec_rows = False
 
     def _arrays(self, cap: int) -> "PK.DepositBuffers":
         wrap = lambda a: PK.DepositBuffers(*a)          # noqa: E731
@@ -167,8 +169,10 @@ class _Deposits:
         k = other.n
         self.reserve(k)
         a, b = self.n, self.n + k
-        for name in ("p", "ng", "wi", "power", "r", "bounce", "spec", "bary"):
+        for name in ("p", "ng", "wi", "power", "r", "bounce", "bary") + (
+                ("spec",) if other.spec_rows else ()):
             getattr(self.buf, name)[a:b] = getattr(other.buf, name)[:k]
+        self.spec_rows |= other.spec_rows
         self.n = b
 
     def result(self):
@@ -177,7 +181,8 @@ class _Deposits:
         n, d = self.n, self.buf
         return {"p": d.p[:n], "ng": d.ng[:n], "wi": d.wi[:n],
                 "power": d.power[:n], "rpred": d.r[:n], "bounce": d.bounce[:n],
-                "spec": np.where(np.isnan(d.r[:n])[:, None], 0.0, d.spec[:n]),
+                "spec": (np.where(np.isnan(d.r[:n])[:, None], 0.0, d.spec[:n])
+                         if self.spec_rows else np.zeros((n, 3))),
                 "bary": d.bary[:n]}
 
 
@@ -332,6 +337,7 @@ class PhotonTracer:
                                fal, rel, floor, live, src)
             if freq:
                 spec = np.asarray(ph["freq_init"], np.float64)[a:b][src[:K]]
+        dep.spec_rows |= freq
         caustic = self.after_delta_only
         # Hit records: frequency photons' chains, and the delta flag of the
         # scattering each survivor sampled (caustic photons).
