@@ -72,7 +72,7 @@ import numpy as np
 from .. import lights as Lt
 from .. import materials as B
 from ..accel import REL_OFFSET, surface_point
-from ..lights.shadow import transmittance
+from ..lights.shadow import attached as shadow_materials, transmittance
 from ..sppm import photon_kernels as PK
 from ..sppm.photon_pass import chunk_rng
 from ..sppm.photons import PhotonTracer, _children, _pool, _threads
@@ -318,15 +318,17 @@ class LightTracer:
                               self.accel.abs_floor / REL_OFFSET, con)
         if n == 0:
             return con, 0, np.zeros((0, 3))
-        return con, n, self._transmittance(con.o[:n], con.wc[:n], con.t_max[:n],
-                                           ng[con.row[:n]])
+        # The leaving surfaces' normals matter to transparent shadows alone
+        # (their self-hit test); opaque scenes skip the (n, 3) gather.
+        n0 = ng[con.row[:n]] if shadow_materials(self.accel) is not None else None
+        return con, n, self._transmittance(con.o[:n], con.wc[:n], con.t_max[:n], n0)
 
     def _transmittance(self, o, d, t_max, n0) -> np.ndarray:
         """(K, 3): the light the shadow rays from o (K, 3) along unit d let
         through to the lens before t_max (K,), leaving surfaces of unit
-        normals n0 (K, 3) (core.lights.shadow: a single batched Embree call
-        without transparent materials; 0 = blocked).  Every connection of
-        the light tracers is tested here."""
+        normals n0 (K, 3) or None (core.lights.shadow: a single batched
+        Embree call without transparent materials, which do not read n0;
+        0 = blocked).  Every connection of the light tracers is tested here."""
         return transmittance(self.accel, o, d, t_max, n0=n0)
 
     def _splat(self, raster, contrib, film) -> None:
