@@ -370,6 +370,10 @@ def main(argv=None):
         gather_report(a)
         return 0
     scene = cornell(a.res)
+    # The trace's and the gather's process-CPU clocks must not hold the
+    # camera stage's CPU: no trace-ahead here (photon_pass_alone).
+    from core.sppm import photon_pass as PPm
+    PPm.TRACE_AHEAD = False
     tm = Timers()
     r = make_renderer(scene, a, a.frequency, tm)
     r0 = make_renderer(scene, a, False, tm) if a.frequency else None
