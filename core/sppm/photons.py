@@ -27,6 +27,7 @@ the chains by the ``core.frequency.spectrum`` operators, is a test oracle
 from __future__ import annotations
 
 import os
+import threading
 
 import numpy as np
 
@@ -86,9 +87,10 @@ def _children(rng):
 
 class ArrayPool:
     """Sets of arrays reused from one batch, chunk and pass to the next, so
-    that the tracer does not page-fault its deposit rows and live photons in
-    afresh each time (the photon pass's trace: 139 -> 122 ms of CPU for 200k
-    photons, docs/architecture.md "Photon trace").  A set is handed out only
+    that the tracer does not page-fault its deposit rows, live photons and
+    uniforms in afresh each time (docs/architecture.md "Photon trace against
+    raw Embree": the faults were inside the bounce kernel's time, and
+    serialised the two tracing threads).  A set is handed out only
     while nothing but the pool references any of its arrays (the rule of
     core.kept: a caller that keeps deposits, a view of them or a result
     dict, keeps them untouched); uninitialised like np.empty.  Thread-safe:
@@ -97,7 +99,7 @@ class ArrayPool:
     def __init__(self, max_sets: int = 8):
         self.max_sets = int(max_sets)      # per kind
         self._sets: dict = {}              # kind -> [[rows, [arrays]], ...]
-        self._lock = __import__("threading").Lock()
+        self._lock = threading.Lock()
 
     def take(self, kind: str, rows: int, make, wrap=list):
         """wrap(arrays) of a free set of this kind with at least rows rows
