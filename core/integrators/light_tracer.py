@@ -289,6 +289,8 @@ class LightTracer:
         idx = np.nonzero(sel)[0]
         if idx.size == 0:
             return
+        if idx.size == sel.size:
+            idx = slice(None)        # every photon (one emitter, seen): views, no copies
         o = ph["o"][idx]
         n = t.dir[light[idx]]
         # MESH photons leave from the side their direction points to.
