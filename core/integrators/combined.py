@@ -26,7 +26,6 @@ from ..mathutil import dot as _dot
 from . import light_kernels as LK
 from . import mis as M
 from ..sppm import photon_kernels as PK
-from ..sppm.photons import _Deposits
 from .light_tracer import LightTracer
 
 
@@ -354,7 +353,7 @@ class CombinedLightTracer(LightTracer):
         rec = PK.HitRecord(t=np.empty(1), ng=np.empty((1, 3)), nswi=np.empty(1),
                            hit=np.empty(1, bool), nxt_src=np.empty(n, np.int64),
                            nxt_delta=np.empty(n, bool))
-        dep = _Deposits(2.0 * n + 64)
+        dep = tr.deposit_buffers(n)
         mis = PK.mis_state(n, dep.buf.r.shape[0])
         mis.row[:K] = src[:K]
         # Transparent shadows: a transparent crossing is no vertex (the
@@ -398,6 +397,7 @@ class CombinedLightTracer(LightTracer):
                     self._generic_factors(n_fast, n_next, hits, rec, live, d_old, row, mis,
                                           fst, clear)
             K = n_next
+        tr.note_deposits(n, dep.n)
         res = dep.result()
         if res is None:
             return None, None, None, None
