@@ -225,3 +225,174 @@ def test_checkpoint_resumes_merging_bit_for_bit():
     b.load_state(a.state_dict())
     assert b.merging and np.any(b.state.tau > 0)
     np.testing.assert_array_equal(b.run().image, whole)
+
+
+# ------------------------------------------------- merging as an MIS strategy
+from core import materials as Bm  # noqa: E402
+from core.integrators.combined import first_hit_ratios, scatter_factors, splat_weight  # noqa: E402
+from core.integrators.merge import CameraMerge, merge_weight  # noqa: E402
+from core.integrators.merge_kernels import y1_terms  # noqa: E402
+from test_combined import K_CAM, N_L, _pv, _unit  # noqa: E402
+
+# Paths where merging is a strategy at v = 1 (light tracing competes) and
+# v = 2 (through the mirror), with the area light and the radius-0 point light.
+VCM_PATHS = {
+    **PATHS, **MERGE_PATHS,
+    "floor-mirror-floor-point": [(0, F1), (2, M1), (0, F3), ("P", None)],
+    "mirror-floor-wall-area": [(2, M1), (0, F1), (1, (0.3, 2.0, 1.2)), ("L", LA)],
+    "mirror-floor-wall-point": [(2, M1), (0, F1), (1, (0.3, 2.0, 1.2)), ("P", None)],
+}
+
+# The paths merging can sample (k >= v + 2).
+VCM_MERGED = {"floor-wall-area", "floor-wall-floor-area", "floor-wall-point",
+              "floor-mirror-area", "floor-mirror-point", "floor-wall-mirror-point",
+              "floor-mirror-floor-point", *MERGE_PATHS, "mirror-floor-wall-area",
+              "mirror-floor-wall-point"}
+
+
+@pytest.fixture
+def mis_rig(rig):  # noqa: F811
+    """The rig with merging as an MIS strategy: per-pixel radii 0.07 .. 0.17."""
+    r = rig
+    R2 = np.random.default_rng(3).uniform(0.005, 0.03, r.width * r.height)
+    region = (*r.offset, r.width, r.height)
+    r.path_tracer.vc.mis_merge = (R2, float(N_L), region)
+    try:
+        yield r, R2, region
+    finally:
+        r.path_tracer.vc.mis_merge = None
+
+
+def _r2_of(r, R2, region, y1):
+    rows = y1_terms(r.camera, np.asarray(y1, float)[None], np.full((1, 2), 0.5), region)[0]
+    return R2[rows[0]]
+
+
+def camera_side_mis(r, path):
+    """(w_PT, w_NEE) of the PathTracer's steps with merging's CameraMerge."""
+    pt, cam = r.path_tracer, r.path_tracer.vc
+    k = len(path) - 1
+    y = [np.asarray(v["p"], float) for v in path]
+    row = np.array([path[k]["row"]])
+    d = _unit(y[1] - y[0])[None]
+    t = np.array([np.linalg.norm(y[1] - y[0])])
+    Qs, mg = cam.camera_state(d), CameraMerge(1)
+    if k == 1:
+        return cam.emission(np.ones(1), np.zeros(1, np.int64), row, d, t, None, 0, Qs, None,
+                            np.zeros(1), None, np.zeros(1))[0], 0.0
+    v = _pv(r, path[1], -d[0])
+    v.Q, v.c = cam.at_hit(Qs, None, np.zeros(1, np.int64), d, v.ng, t, 0)
+    mg.scale = cam.merge_scale(v.p, np.full((1, 2), 0.5))
+    v.QM = mg.at_vertex(t)
+    w_nee = 0.0
+    for j in range(1, k):
+        depth = j - 1
+        delta = path[j]["kind"] == "mirror"
+        if j == k - 1 and not delta:
+            wi = _unit(y[k] - y[j])[None]
+            dist = np.array([np.linalg.norm(y[k] - y[j])])
+            w2 = pt.mis_light(v, wi, dist, row)
+            w_nee = cam.nee(w2, v, wi, dist, row, depth)[0]
+        wi = _unit(y[j + 1] - y[j])[None]
+        t = np.array([np.linalg.norm(y[j + 1] - y[j])])
+        pdf = np.ones(1) if delta else Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, v.wo,
+                                                     wi, subset="all")
+        i0 = np.zeros(1, np.int64)
+        QMn = cam.continued(v, i0, wi, pdf, np.array([delta]), depth, Q=v.QM)[0]
+        mg.sampled(QMn, np.abs(np.sum(v.ng * wi, axis=1)), np.array([delta]))
+        Qs, pf = cam.continued(v, i0, wi, pdf, np.array([delta]), depth)
+        pdf_prev = np.zeros(1) if delta else pdf
+        if j + 1 == k:
+            if not pt.hittable[row[0]]:
+                return 0.0, w_nee
+            w2 = pt._mis_bsdf(pdf_prev, v.p, v.ns_wo(), wi, row, t)
+            return cam.emission(w2, i0, row, wi, t, None, j, Qs, pf, pdf_prev, v,
+                                np.where(mg.em, mg.Qs, 0.0))[0], w_nee
+        v = _pv(r, path[j + 1], -wi[0])
+        v.Q, v.c = cam.at_hit(Qs, pf, i0, wi, v.ng, t, j)
+        v.QM = mg.at_vertex(t)
+
+
+def light_side_mis(r, path, R2, region):
+    """(w_LT, w_M) from the light path's B0, B1 (CombinedLightTracer's
+    functions): the splat at y_1 with merging's term, the merge at y_v."""
+    t = r.light_table
+    k = len(path) - 1
+    y = [np.asarray(v["p"], float) for v in path]
+    row = np.array([path[k]["row"]])
+    kn = K_CAM / N_L
+    kinds = [q["kind"] for q in path]
+    vv = next((i for i in range(1, k) if kinds[i] != "mirror"), None)
+    pr = r.camera.project(y[1][None], np.full((1, 2), 0.5))
+    r2 = _r2_of(r, R2, region, y[1])
+    c1_y1 = pr.weight * abs(np.dot(path[1]["n"], pr.wi[0]))
+    if k == 1:
+        return 1.0 - camera_side_mis(r, path)[0], 0.0
+    z0 = y[k] if t.kind[row[0]] in (3, 4) else t.co[row[0]]
+    B0, B1 = first_hit_ratios(t, kn, row, z0[None], _unit(y[k - 1] - z0)[None],
+                              y[k - 1][None], path[k - 1]["n"][None])
+    soft = np.array([False])
+    w_lt = w_m = 0.0
+    for m in range(1, k):
+        i = k - m                                   # z_m = y_i
+        v = _pv(r, path[i], _unit(y[i + 1] - y[i]))
+        if i == vv and m >= 2:
+            wo = _unit(y[i - 1] - y[i])[None]       # towards the camera
+            pf = Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, wo, v.wo, subset="all")
+            w_m = merge_weight(B0, B1, pf, np.array([1.0 / (np.pi * r2)]), c1_y1,
+                               np.array([vv == 1]))[0]
+        if i == 1:
+            if kinds[1] != "mirror":
+                wc = pr.wi
+                pf = Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, wc, v.wo, subset="all")
+                bm = np.array([0.0 if m == 1 else np.pi * r2 * c1_y1[0]])
+                w_lt = splat_weight(B0, B1, pf, c1_y1, m == 1, soft, bm)[0]
+            return w_lt, w_m
+        delta = kinds[i] == "mirror"
+        wn = _unit(y[i - 1] - y[i])[None]
+        pdf = np.ones(1) if delta else Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, v.wo,
+                                                     wn, subset="all")
+        prv = np.ones(1) if delta else Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, wn,
+                                                     v.wo, subset="all")
+        pend, pend1 = scatter_factors(prv, v.ng, wn, pdf, np.array([delta]), m == 1)
+        if m == 1 and delta:
+            B1 = np.zeros(1)
+        cos_in = abs(np.dot(path[i - 1]["n"], wn[0]))
+        B0, B1 = pend * B0 / cos_in, pend1 * B1 / cos_in
+
+
+@pytest.mark.parametrize("name", sorted(VCM_PATHS))
+def test_merging_mis_weights_equal_the_oracle_and_sum_to_one(mis_rig, name):
+    """PT, NEE (camera side with CameraMerge), LT (the splat with merging's
+    term) and M (merge_weight of the photon's B0, B1 at y_v) equal the power
+    heuristic of the oracle's four brute-force densities and sum to one."""
+    r, R2, region = mis_rig
+    path = build(r, VCM_PATHS[name])
+    # q_M from the oracle's products (its c and l), r of y_1's pixel.
+    q = _vcm_oracle(r, path, _r2_of(r, R2, region, path[1]["p"]))
+    np.testing.assert_allclose(q[:3], oracle(r, path), rtol=1e-12)
+    assert (q[3] > 0) == (name in VCM_MERGED)
+    w_or = O.power_weights(q)
+    w_pt, w_nee = camera_side_mis(r, path)
+    w_lt, w_m = light_side_mis(r, path, R2, region)
+    w = np.array([w_pt, w_nee, w_lt, w_m])
+    print(name, "q", q, "oracle", w_or, "impl", w)
+    np.testing.assert_allclose(w, w_or, rtol=1e-9, atol=1e-12)
+    assert abs(w.sum() - 1.0) < 1e-9
+
+
+def _vcm_oracle(r, path, r2):
+    """oracle() of test_combined with q_M (tests/oracle_mis.vcm_densities)."""
+    import test_combined as TC
+    captured = {}
+    real = O.densities
+
+    def grab(*a):
+        captured["a"] = a
+        return real(*a)
+    O.densities = grab
+    try:
+        TC.oracle(r, path)
+    finally:
+        O.densities = real
+    return np.array(O.vcm_densities(*captured["a"], N_L, r2))
