@@ -313,15 +313,18 @@ def test_point_light_plane_closed_form():
     assert z2 < 1.5
 
 
-def test_mirror_caustic_that_path_tracing_misses():
+@pytest.mark.parametrize("merge_weights", ["PARTITION", "MIS"])
+def test_mirror_caustic_that_path_tracing_misses(merge_weights):
     """Point light under a mirror (max_bounces 1): the floor's caustic is
-    reached by light tracing only (w_LT = 1 through the mirror); the combined
-    image matches the closed form inside the footprint, where PATH is 13% dark."""
+    reached by light tracing only (w_LT = 1 through the mirror) -- and, with
+    merging as an MIS strategy, by merging at y_1 as well (light tracing and
+    merging share it by q_M / q_L = pi r^2 c_1); the combined image matches
+    the closed form inside the footprint, where PATH is 13% dark."""
     scene, Lfun, half = mirror_caustic(res=16)
     X, Y = pixel_centres_ortho(scene)
     pix = scene.camera.ortho_scale / scene.camera.resolution[0]
     exp = filtered(Lfun, X, Y, pix, n=32)
-    m, s = _two_seeds(scene, max_bounces=1)
+    m, s = _two_seeds(scene, max_bounces=1, merge_weights=merge_weights)
     inside = (np.abs(X) < half - 2 * pix) & (np.abs(Y) < half - 2 * pix)
     s_in = s / math.sqrt(inside.sum())
     ratio = m[inside].mean() / exp[inside].mean()

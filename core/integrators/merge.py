@@ -119,8 +119,8 @@ def merge_weight(B0, B1, pf, x, c1, v1):
     containing y_1), pf the camera-side BSDF density at the visible point
     towards the photon, c_1 the camera density of y_1 (v1: the visible point
     is y_1, light tracing competes)."""
-    b0, b1 = B0 * pf * x, B1 * pf * x
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        b0, b1 = B0 * pf * x, B1 * pf * x
         bl = np.where(v1, x / c1, 0.0)
         w = 1.0 / (1.0 + b0 * b0 + b1 * b1 + bl * bl)
     return np.where(np.isfinite(w) & (x < np.inf), w, 0.0)
