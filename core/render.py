@@ -444,7 +444,8 @@ class Renderer:
             Lm, M = merge_gather(vp, R2, R2, dep, self.mtab, self.camera, region)
             sums = sums + Lm
             P = R2.shape[0]
-            self.radii.update(state, M, np.zeros((P, 3)), np.full(P, np.inf), None)
+            self.radii.update(state, M.astype(np.float64), np.zeros((P, 3)), np.full(P, np.inf),
+                              None)
         self.stage_seconds["update"] += time.perf_counter() - tg
         self.light_splat += sums
         self.photons_emitted += self.photons_per_step

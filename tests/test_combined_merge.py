@@ -220,17 +220,21 @@ def test_tracer_keeps_the_deposits_after_a_delta_scattering(rig):
         np.testing.assert_array_equal(kept[k], full[k][from_mirror])
 
 
-def test_checkpoint_resumes_merging_bit_for_bit():
+@pytest.mark.parametrize("merge_weights", ["PARTITION", "MIS"])
+def test_checkpoint_resumes_merging_bit_for_bit(merge_weights):
     """Two passes, a checkpoint, one more pass = three passes straight (the
-    merging state lives in the PixelState, its streams per pass and stage)."""
+    merging state lives in the PixelState, its streams per pass and stage;
+    MIS: the merged radiance in the splat sums)."""
     st = RenderSettings(integrator="COMBINED", max_passes=3, camera_samples=1,
-                        photons_per_pass=5_000, seed=3, max_bounces=4)
+                        photons_per_pass=5_000, seed=3, max_bounces=4,
+                        merge_weights=merge_weights)
     whole = Renderer(_scene(), st, log=lambda s: None).run().image
     a = Renderer(_scene(), st, log=lambda s: None)
     a.step(), a.step()
     b = Renderer(_scene(), st, log=lambda s: None)
     b.load_state(a.state_dict())
-    assert b.merging and np.any(b.state.tau > 0)
+    assert b.merging and (b.merge_mis or np.any(b.state.tau > 0))
+    assert b.merge_mis == (merge_weights == "MIS")
     np.testing.assert_array_equal(b.run().image, whole)
 
 

@@ -18,6 +18,11 @@ Merging is SPPM (core.sppm: visible points, progressive radii, the
 frequency kernel) restricted to visible points with ``through_delta`` and
 to deposits whose previous scattering sampled a delta lobe
 (``PhotonTracer.after_delta_only``).
+
+With ``RenderSettings.merge_weights = 'MIS'`` merging is instead a fourth
+strategy of the power heuristic (``CameraMerge``, ``merge_weight`` below,
+core.integrators.merge_kernels; docs/integrators.md "Merging as an MIS
+strategy").
 """
 from __future__ import annotations
 
