@@ -425,7 +425,9 @@ def test_merging_takes_a_share_of_the_point_caustic(monkeypatch):
     merging as an MIS strategy the merged radiance is a sizeable part of the
     image (light tracing and merging share the caustic paths; measured 14%
     of the image's mean at the initial radius), and the radius reduction
-    counts photons."""
+    counts photons.  The Lambert kernel of the gather equals its numpy
+    path (eval_bsdf, pdf_bsdf: visible points marked non-Lambert), 1e-12."""
+    from dataclasses import replace
     from analytic_scenes import mirror_caustic
     import core.integrators.merge_kernels as MK
     scene, _, _ = mirror_caustic(res=16)
@@ -435,6 +437,12 @@ def test_merging_takes_a_share_of_the_point_caustic(monkeypatch):
     def spy(*a, **k):
         L, M = real(*a, **k)
         got.append((L.mean(), M.sum()))
+        if len(got) == 1:
+            vp = a[0]
+            L2, M2 = real(replace(vp, const=np.zeros_like(vp.const)), *a[1:], **k)
+            np.testing.assert_array_equal(M2, M)
+            np.testing.assert_allclose(L2, L, rtol=1e-12, atol=1e-12 * L.max())
+            assert vp.const[vp.valid].all() and L.max() > 0
         return L, M
     monkeypatch.setattr(MK, "merge_gather", spy)
     r = Renderer(scene, RenderSettings(integrator="COMBINED", max_passes=2, max_bounces=1,

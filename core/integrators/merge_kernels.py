@@ -22,6 +22,7 @@ from numba import njit
 from .. import materials as B
 from ..mathutil import dot as _dot
 from ..sppm import hashgrid as HG
+from ..sppm.photon_kernels import lambert_pdf
 from .merge import merge_weight
 
 
@@ -57,6 +58,33 @@ def y1_terms(camera, p1, u_lens, region):
     return pixel_rows(pr.raster, region), pr.weight, pr.wi
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def _lambert_pairs(pv, ph, ns, ng, wo, albedo, wi, power, B0, B1, R2, x, c1, v1, L):
+    """The accepted pairs (pv, ph) of Lambert visible points (f = albedo /
+    pi, pf = the Lambert density: ``lambert_pdf``, the camera paths' own):
+    L[pv] += w_M f power / (pi R2[pv]) with w_M = merge.merge_weight (the
+    same expression; x[pv], c1[pv], v1[pv] per visible point).  ns, ng the
+    visible points' mesh normals, wo towards the camera."""
+    for n in range(pv.shape[0]):
+        v = pv[n]
+        p = ph[n]
+        if not (x[v] < np.inf):
+            continue
+        pf = lambert_pdf(ns[v, 0], ns[v, 1], ns[v, 2], ng[v, 0], ng[v, 1], ng[v, 2],
+                         wo[v, 0], wo[v, 1], wo[v, 2], wi[p, 0], wi[p, 1], wi[p, 2])
+        if pf <= 0.0:
+            continue
+        b0 = B0[p] * pf * x[v]
+        b1 = B1[p] * pf * x[v]
+        bl = x[v] / c1[v] if v1[v] else 0.0
+        w = 1.0 / (1.0 + b0 * b0 + b1 * b1 + bl * bl)
+        if not np.isfinite(w):
+            continue
+        g = w / (np.pi * R2[v]) / np.pi
+        for c in range(3):
+            L[v, c] += albedo[v, c] * power[p, c] * g
+
+
 def merge_gather(vp, R2, scale_R2, dep, mtab, camera, region, n_ratio: float = 1.0):
     """This pass' merging at the visible points vp (VisiblePoints, all valid
     ones: v = 1 allowed) of the deposits dep (dict: p, ng, wi, power (n, 3),
@@ -90,19 +118,33 @@ def merge_gather(vp, R2, scale_R2, dep, mtab, camera, region, n_ratio: float = 1
     c1 = np.zeros(P)
     pix[q] = rows
     c1[q] = wt * np.abs(_dot(vp.ng[q], wc))
-    ns, ng = vp.mesh_normals(pv)
-    mat = vp.mat[pv].astype(np.int64)
-    col = vp.colors[pv].astype(np.float64)
-    wo = vp.wo[pv].astype(np.float64)
-    wi = dep["wi"][ph].astype(np.float64)
-    f = B.eval_bsdf(mtab, mat, col, ns, ng, wo, wi)
-    pf = B.pdf_bsdf(mtab, mat, col, ns, ng, wo, wi, subset="all")
-    r2 = scale_R2[pix[pv]]
+    r2 = scale_R2[pix]
     with np.errstate(divide="ignore"):
-        x = np.where(r2 > 0, n_ratio / (np.pi * r2), np.inf)
-    w = merge_weight(dep["B0"][ph], dep["B1"][ph], pf, x, c1[pv], v1[pv])
-    contrib = f * dep["power"][ph] * (w / (np.pi * R2[pv]))[:, None]
-    for c in range(3):
-        L[:, c] = np.bincount(pv, contrib[:, c], minlength=P)
+        x = np.where(r2 > 0, n_ratio / (np.pi * np.where(r2 > 0, r2, 1.0)), np.inf)
+    # Lambert visible points in the kernel, the others in numpy.
+    fast = vp.const[pv]
+    a = np.nonzero(fast)[0]
+    if a.size:
+        ns_all, ng_all = vp.mesh_normals(np.arange(P))
+        c = np.ascontiguousarray
+        _lambert_pairs(c(pv[a]), c(ph[a]), c(ns_all, np.float64), c(ng_all, np.float64),
+                       c(vp.wo, np.float64), c(vp.albedo, np.float64),
+                       c(dep["wi"], np.float64), c(dep["power"], np.float64),
+                       c(dep["B0"], np.float64), c(dep["B1"], np.float64), c(R2, np.float64),
+                       x, c1, c(v1), L)
+    s = np.nonzero(~fast)[0]
+    if s.size:
+        pv, ph = pv[s], ph[s]
+        ns, ng = vp.mesh_normals(pv)
+        mat = vp.mat[pv].astype(np.int64)
+        col = vp.colors[pv].astype(np.float64)
+        wo = vp.wo[pv].astype(np.float64)
+        wi = dep["wi"][ph].astype(np.float64)
+        f = B.eval_bsdf(mtab, mat, col, ns, ng, wo, wi)
+        pf = B.pdf_bsdf(mtab, mat, col, ns, ng, wo, wi, subset="all")
+        w = merge_weight(dep["B0"][ph], dep["B1"][ph], pf, x[pv], c1[pv], v1[pv])
+        contrib = f * dep["power"][ph] * (w / (np.pi * R2[pv]))[:, None]
+        for k in range(3):
+            L[:, k] += np.bincount(pv, contrib[:, k], minlength=P)
     L *= vp.beta.astype(np.float64)
     return L, g.M
