@@ -240,12 +240,10 @@ def test_checkpoint_resumes_merging_bit_for_bit(merge_weights):
 
 # ------------------------------------------------- merging as an MIS strategy
 from core import materials as Bm  # noqa: E402
-from core.integrators.combined import first_hit_ratios, scatter_factors, splat_weight  # noqa: E402
-from core.integrators.merge import CameraMerge, merge_weight  # noqa: E402
+from core.integrators.combined import first_hit_ratios, splat_weight  # noqa: E402
+from core.integrators.merge import merge_weight  # noqa: E402
 from core.integrators.merge_kernels import y1_terms  # noqa: E402
-from core.integrators import path_kernels as PKp  # noqa: E402
-from core.lights.pdf import _selection_probability  # noqa: E402
-from test_combined import K_CAM, N_L, _pv, _unit  # noqa: E402
+from test_combined import K_CAM, N_L, _pv, _unit, light_scatter  # noqa: E402
 
 # Paths where merging is a strategy at v = 1 (light tracing competes) and
 # v = 2 (through the mirror), with the area light and the radius-0 point light.
@@ -281,60 +279,6 @@ def _r2_of(r, R2, region, y1):
     return R2[rows[0]]
 
 
-def camera_side_mis(r, path):
-    """(w_PT, w_NEE) of the PathTracer's steps with merging's CameraMerge;
-    the compiled twins (nee_compiled, continued_compiled: Lambert and mirror
-    vertices) give the same numbers (1e-12)."""
-    pt, cam = r.path_tracer, r.path_tracer.vc
-    k = len(path) - 1
-    y = [np.asarray(v["p"], float) for v in path]
-    row = np.array([path[k]["row"]])
-    d = _unit(y[1] - y[0])[None]
-    t = np.array([np.linalg.norm(y[1] - y[0])])
-    Qs, mg = cam.camera_state(d), CameraMerge(1)
-    if k == 1:
-        return cam.emission(np.ones(1), np.zeros(1, np.int64), row, d, t, None, 0, Qs, None,
-                            np.zeros(1), None, np.zeros(1))[0], 0.0
-    v = _pv(r, path[1], -d[0])
-    v.Q, v.c = cam.at_hit(Qs, None, np.zeros(1, np.int64), d, v.ng, t, 0)
-    mg.scale = cam.merge_scale(v.p, np.full((1, 2), 0.5))
-    v.QM = mg.at_vertex(t)
-    w_nee = 0.0
-    for j in range(1, k):
-        depth = j - 1
-        delta = path[j]["kind"] == "mirror"
-        if j == k - 1 and not delta:
-            wi = _unit(y[k] - y[j])[None]
-            dist = np.array([np.linalg.norm(y[k] - y[j])])
-            w2 = pt.mis_light(v, wi, dist, row)
-            w_nee = cam.nee(w2, v, wi, dist, row, depth)[0]
-            pl = pt.pdf_light(v.p, wi, row, dist, v.ns_wo())
-            sel = _selection_probability(r.light_table, v.p, row)
-            np.testing.assert_allclose(cam.nee_compiled(w2, v, wi, dist, row, pl, sel, depth),
-                                       w_nee, rtol=1e-12, atol=1e-15)
-        wi = _unit(y[j + 1] - y[j])[None]
-        t = np.array([np.linalg.norm(y[j + 1] - y[j])])
-        pdf = np.ones(1) if delta else Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, v.wo,
-                                                     wi, subset="all")
-        i0 = np.zeros(1, np.int64)
-        QMn = cam.continued(v, i0, wi, pdf, np.array([delta]), depth, Q=v.QM)[0]
-        nx = PKp.NextRays(i0, v.p, wi, np.ones((1, 3)), pdf, np.array([delta]), v.ns, np.ones(1))
-        np.testing.assert_allclose(cam.continued_compiled(v, nx, depth, Q=v.QM)[0], QMn,
-                                   rtol=1e-12, atol=1e-300)
-        mg.sampled(QMn, np.abs(np.sum(v.ng * wi, axis=1)), np.array([delta]))
-        Qs, pf = cam.continued(v, i0, wi, pdf, np.array([delta]), depth)
-        pdf_prev = np.zeros(1) if delta else pdf
-        if j + 1 == k:
-            if not pt.hittable[row[0]]:
-                return 0.0, w_nee
-            w2 = pt._mis_bsdf(pdf_prev, v.p, v.ns_wo(), wi, row, t)
-            return cam.emission(w2, i0, row, wi, t, None, j, Qs, pf, pdf_prev, v,
-                                np.where(mg.em, mg.Qs, 0.0))[0], w_nee
-        v = _pv(r, path[j + 1], -wi[0])
-        v.Q, v.c = cam.at_hit(Qs, pf, i0, wi, v.ng, t, j)
-        v.QM = mg.at_vertex(t)
-
-
 def light_side_mis(r, path, R2, region):
     """(w_LT, w_M) from the light path's B0, B1 (CombinedLightTracer's
     functions): the splat at y_1 with merging's term, the merge at y_v."""
@@ -349,7 +293,7 @@ def light_side_mis(r, path, R2, region):
     r2 = _r2_of(r, R2, region, y[1])
     c1_y1 = pr.weight * abs(np.dot(path[1]["n"], pr.wi[0]))
     if k == 1:
-        return 1.0 - camera_side_mis(r, path)[0], 0.0
+        return 1.0 - camera_side(r, path, merge=True)[0], 0.0
     z0 = y[k] if t.kind[row[0]] in (3, 4) else t.co[row[0]]
     B0, B1 = first_hit_ratios(t, kn, row, z0[None], _unit(y[k - 1] - z0)[None],
                               y[k - 1][None], path[k - 1]["n"][None])
@@ -370,17 +314,7 @@ def light_side_mis(r, path, R2, region):
                 bm = np.array([0.0 if m == 1 else np.pi * r2 * c1_y1[0]])
                 w_lt = splat_weight(B0, B1, pf, c1_y1, m == 1, soft, bm)[0]
             return w_lt, w_m
-        delta = kinds[i] == "mirror"
-        wn = _unit(y[i - 1] - y[i])[None]
-        pdf = np.ones(1) if delta else Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, v.wo,
-                                                     wn, subset="all")
-        prv = np.ones(1) if delta else Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, wn,
-                                                     v.wo, subset="all")
-        pend, pend1 = scatter_factors(prv, v.ng, wn, pdf, np.array([delta]), m == 1)
-        if m == 1 and delta:
-            B1 = np.zeros(1)
-        cos_in = abs(np.dot(path[i - 1]["n"], wn[0]))
-        B0, B1 = pend * B0 / cos_in, pend1 * B1 / cos_in
+        B0, B1 = light_scatter(r, path, y, i, m, v, B0, B1)
 
 
 @pytest.mark.parametrize("name", sorted(VCM_PATHS))
@@ -395,7 +329,7 @@ def test_merging_mis_weights_equal_the_oracle_and_sum_to_one(mis_rig, name):
     np.testing.assert_allclose(q[:3], oracle(r, path), rtol=1e-12)
     assert (q[3] > 0) == (name in VCM_MERGED)
     w_or = O.power_weights(q)
-    w_pt, w_nee = camera_side_mis(r, path)
+    w_pt, w_nee = camera_side(r, path, merge=True)
     w_lt, w_m = light_side_mis(r, path, R2, region)
     w = np.array([w_pt, w_nee, w_lt, w_m])
     print(name, "q", q, "oracle", w_or, "impl", w)
