@@ -378,13 +378,12 @@ class CombinedLightTracer(LightTracer):
 
     def merge_deposits(self):
         """The pass' deposits kept for merging (dict: p, ng, wi, power, B0, B1,
-        first), in an order that does not depend on the threads (sorted by
-        position and power), or None."""
+        first), or None; chunk by chunk in an order that does not depend on
+        the threads (the chunks' deposit counts and first positions)."""
         if not self.kept:
             return None
-        d = {k: np.concatenate([c[k] for c in self.kept]) for k in self.kept[0]}
-        o = np.lexsort((d["power"][:, 0], d["p"][:, 2], d["p"][:, 1], d["p"][:, 0]))
-        return {k: v[o] for k, v in d.items()}
+        kept = [c for _, c in sorted(self.kept, key=lambda kc: kc[0])]
+        return {k: np.concatenate([c[k] for c in kept]) for k in kept[0]}
 
     def _chunk(self, n: int, rng, film: np.ndarray) -> None:
         t = self.light_table
@@ -417,8 +416,10 @@ class CombinedLightTracer(LightTracer):
         if getattr(self, "kept", None) is not None:
             # Merging as an MIS strategy: q_M / q_L = pi r^2 c_1 (N_M = N_L).
             mis = mis + (np.pi * self.merge_R2,)
-            self.kept.append(dict(p=dep["p"], ng=dep["ng"], wi=dep["wi"], power=dep["power"],
-                                  B0=B0d, B1=B1d, first=first))
+            p = dep["p"]
+            self.kept.append(((p.shape[0], *(float(x) for x in p[0])),
+                              dict(p=p, ng=dep["ng"], wi=dep["wi"], power=dep["power"],
+                                   B0=B0d, B1=B1d, first=first)))
         self.connect(dep, rng, film, mis=mis)
 
     def _trace(self, ph, z0, rng):
