@@ -243,7 +243,7 @@ from core import materials as Bm  # noqa: E402
 from core.integrators.combined import first_hit_ratios, splat_weight  # noqa: E402
 from core.integrators.merge import merge_weight  # noqa: E402
 from core.integrators.merge_kernels import y1_terms  # noqa: E402
-from test_combined import K_CAM, N_L, _pv, _unit, light_scatter  # noqa: E402
+from test_combined import K_CAM, N_L, W1, _pv, _unit, light_scatter, light_vtx  # noqa: E402
 
 # Paths where merging is a strategy at v = 1 (light tracing competes) and
 # v = 2 (through the mirror), with the area light and the radius-0 point light.
@@ -297,7 +297,7 @@ def light_side_mis(r, path, R2, region):
     z0 = y[k] if t.kind[row[0]] in (3, 4) else t.co[row[0]]
     B0, B1 = first_hit_ratios(t, kn, row, z0[None], _unit(y[k - 1] - z0)[None],
                               y[k - 1][None], path[k - 1]["n"][None])
-    soft = np.array([False])
+    soft = np.array([t.radius[row[0]] > 0])
     w_lt = w_m = 0.0
     for m in range(1, k):
         i = k - m                                   # z_m = y_i
@@ -392,3 +392,39 @@ def test_merging_takes_a_share_of_the_point_caustic(monkeypatch):
     assert all(g[1] > 0 for g in got)
     valid = R2_0 > 0
     assert np.all(r.state.R2[valid] <= R2_0[valid]) and np.any(r.state.R2[valid] < R2_0[valid])
+
+
+SOFT_SPECS = {
+    "floor-wall-soft": [(0, F1), (1, W1)],
+    "floor-wall-floor-soft": [(0, F1), (1, W1), (0, F3)],
+    "mirror-floor-wall-soft": [(2, M1), (0, F1), (1, W1)],
+    "floor-mirror-soft": [(0, F1), (2, M1)],
+    "mirror-floor-mirror-soft": [(2, M1), (0, F1), (2, M2)],
+}
+
+
+@pytest.mark.parametrize("name", sorted(SOFT_SPECS))
+def test_soft_light_merging_weights_sum_to_one(mis_rig, name):
+    """A soft point light (radius 0.1; light tracing and merging against the
+    camera strategies as one, at the light's centre): the camera side's
+    factor (NEE's weight over its two-way weight, or PT's after a mirror at
+    y_{k-1}) + w_LT + w_M = 1 (1e-9), merging > 0 on each of these paths."""
+    r, R2, region = mis_rig
+    t = r.light_table
+    path = build(r, SOFT_SPECS[name]) + [light_vtx(r, 2, t.co[2])]
+    k = len(path) - 1
+    y = [np.asarray(v["p"], float) for v in path]
+    w_pt, w_nee = camera_side(r, path, merge=True)
+    w_lt, w_m = light_side_mis(r, path, R2, region)
+    if path[k - 1]["kind"] == "mirror":
+        camera = w_pt               # a light sample cannot take it: 0 when LT or M can
+        assert camera == 0.0
+    else:
+        v = _pv(r, path[k - 1], _unit(y[k - 2] - y[k - 1]))
+        wc = _unit(y[k] - y[k - 1])[None]
+        w2 = r.path_tracer.mis_light(v, wc, np.array([np.linalg.norm(y[k] - y[k - 1])]),
+                                     np.array([2]))[0]
+        camera = w_nee / w2
+    print(name, "camera", camera, "LT", w_lt, "M", w_m)
+    assert w_m > 0.0
+    assert abs(camera + w_lt + w_m - 1.0) < 1e-9
