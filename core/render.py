@@ -162,6 +162,17 @@ class Renderer:
                               and "light tracing" in self.plan.strategies)
             if self.merge_mis:
                 self.path_tracer.vc.merging = self.tracer.after_delta_only = False
+                # The frequency kernel's radii (predicted radius, holds): a
+                # pass of frequency photons alone (frequency_fraction of the
+                # light paths), whose flux is not used.
+                self.merge_freq_pass = None
+                if self.plan.frequency_photons and st.frequency_fraction > 0:
+                    from dataclasses import replace
+                    n_f = max(1, int(round(st.photons_per_pass * st.frequency_fraction)))
+                    self.merge_freq_pass = PhotonPass(
+                        self.tracer, self.mtab,
+                        replace(st, photons_per_pass=n_f, frequency_fraction=1.0), True,
+                        self.radii.hist if self.radii.quantile else None, self.stage_seconds)
             if "light tracing" in self.plan.strategies:
                 self.combined_lt = CombinedLightTracer(
                     self.scene, self.accel, self.mtab, self.light_table, self.camera, st,
@@ -418,9 +429,10 @@ class Renderer:
         pass first (its visible points' radii initialised), so that the
         camera paths, light tracing's splats and the weighted gather of light
         tracing's own deposits (core.integrators.merge_kernels) read the same
-        radii; the radius reduction counts the gathered photons unweighted
-        (PPM rule, no frequency prediction); the merged radiance joins the
-        splats (both / light paths traced)."""
+        radii.  The radius reduction counts the gathered photons unweighted,
+        its predicted radii and holds from a pass of frequency photons alone
+        (``merge_freq_pass``; plain PPM without one); the merged radiance
+        joins the splats (both / light paths traced)."""
         from .integrators.merge_kernels import merge_gather
         st, state = self.settings, self.state
         vp, _ = self._interruptible(self.camera_pass, self._rng(k, 0), self._check_stop)
@@ -440,13 +452,28 @@ class Renderer:
         self.combined_lt.kept = None
         tg = time.perf_counter()
         self.stage_seconds["photon_trace"] += tg - tp
+        P = R2.shape[0]
+        M, r_pred, sectors = np.zeros(P), np.full(P, np.inf), None
         if dep is not None:
             Lm, M = merge_gather(vp, R2, R2, dep, self.mtab, self.camera, region)
             sums = sums + Lm
-            P = R2.shape[0]
-            self.radii.update(state, M.astype(np.float64), np.zeros((P, 3)), np.full(P, np.inf),
-                              None)
-        self.stage_seconds["update"] += time.perf_counter() - tg
+        self.stage_seconds["gather"] += time.perf_counter() - tg
+        if self.merge_freq_pass is not None:
+            self.tracer.set_radius_cut(R2)
+            est = self.merge_freq_pass(vp, R2, state.spectrum, self._rng(k, 4),
+                                       self._check_stop)
+            if est.r_hist is not None:
+                state.r_hist += est.r_hist
+            if est.spectrum is not None:
+                state.spectrum[...] = est.spectrum
+            r_pred = (self.radii.predicted(est.r_pred_min, state.r_hist) if est.gathered
+                      else est.r_pred_min)
+            sectors = est.sectors
+        tu = time.perf_counter()
+        if state.sectors is not None and sectors is None:
+            sectors = np.zeros_like(state.sectors)
+        self.radii.update(state, np.asarray(M, np.float64), np.zeros((P, 3)), r_pred, sectors)
+        self.stage_seconds["update"] += time.perf_counter() - tu
         self.light_splat += sums
         self.photons_emitted += self.photons_per_step
         self.state.L_sum += L_pass
