@@ -80,7 +80,8 @@ class CameraMIS:
         self.merging = False
         # Merging as an MIS strategy (merge_weights 'MIS', core.integrators.merge):
         # (R2 (P,) the pass' squared radii by pixel, N_M merging photons per
-        # pass), set by the renderer before each pass; None = no such term.
+        # pass, the region (x0, y0, W, H)), set by the renderer before each
+        # pass; None = no such term.
         self.mis_merge = None
         self.K = int(K)
 
