@@ -56,7 +56,7 @@ import numpy as np
 from . import memory
 from .accel import Accel
 from .integrators import PathTracer
-from .errors import CheckpointMismatch, RenderCancelled, SceneError
+from .errors import CheckpointMismatch, FPPMError, RenderCancelled, SceneError
 from .lights import build_light_table
 from .lights import shadow
 from .lights.nee import NextEventEstimation
@@ -434,6 +434,10 @@ class Renderer:
         (``merge_freq_pass``; plain PPM without one); the merged radiance
         joins the splats (both / light paths traced)."""
         from .integrators.merge_kernels import merge_gather
+        if not hasattr(self.combined_lt, "merge_deposits"):
+            raise FPPMError("Merging as an MIS strategy needs light tracing's paths in this "
+                            "process (not with tools/distributed.py): use merge weights "
+                            "'PARTITION'.")
         st, state = self.settings, self.state
         vp, _ = self._interruptible(self.camera_pass, self._rng(k, 0), self._check_stop)
         self.radii.initialise(state, vp, self._check_stop)
