@@ -24,7 +24,8 @@ RADIUS_MODES = (
 )
 MERGE_WEIGHTS = (
     ('PARTITION', "Partition",
-     "Merging takes whole path classes (caustics seen through mirrors and glass), weight 0 or 1", 0),
+     "Merging takes whole path classes (caustics seen through mirrors and glass), "
+     "weight 0 or 1", 0),
     ('MIS', "MIS",
      "Merging is a fourth MIS strategy at the visible point: its weight grows with the "
      "gathering radius", 1),

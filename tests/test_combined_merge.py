@@ -354,13 +354,15 @@ def _vcm_oracle(r, path, r2):
     return np.array(O.vcm_densities(*captured["a"], N_L, r2))
 
 
-def test_merging_takes_a_share_of_the_point_caustic(monkeypatch):
+@pytest.mark.parametrize("use_frequency", [True, False])
+def test_merging_takes_a_share_of_the_point_caustic(monkeypatch, use_frequency):
     """The point light's caustic under a mirror seen directly (v = 1): with
     merging as an MIS strategy the merged radiance is a sizeable part of the
     image (light tracing and merging share the caustic paths; measured 14%
     of the image's mean at the initial radius), and the radius reduction
-    counts photons.  The Lambert kernel of the gather equals its numpy
-    path (eval_bsdf, pdf_bsdf: visible points marked non-Lambert), 1e-12."""
+    counts photons (with the frequency kernel's holds or the PPM rule).  The
+    Lambert kernel of the gather equals its numpy path (eval_bsdf,
+    pdf_bsdf: visible points marked non-Lambert), 1e-12."""
     from dataclasses import replace
     from analytic_scenes import mirror_caustic
     import core.integrators.merge_kernels as MK
@@ -380,8 +382,11 @@ def test_merging_takes_a_share_of_the_point_caustic(monkeypatch):
         return L, M
     monkeypatch.setattr(MK, "merge_gather", spy)
     r = Renderer(scene, RenderSettings(integrator="COMBINED", max_passes=2, max_bounces=1,
-                                       photons_per_pass=20_000, seed=1, merge_weights="MIS"),
+                                       photons_per_pass=20_000, seed=1, merge_weights="MIS",
+                                       use_frequency=use_frequency),
                  log=lambda s: None)
+    # The frequency kernel's radii come from a pass of frequency photons alone.
+    assert (r.merge_freq_pass is not None) == use_frequency
     r.step()
     R2_0 = r.state.R2.copy()
     img = r.run().image[..., :3].astype(np.float64)
