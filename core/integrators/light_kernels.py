@@ -29,6 +29,7 @@ from ..lights.direct_kernels import _spherical_rect
 from ..lights.table import AREA, POINT
 from ..scene.camera import BH_A0, BH_A1, BH_A2, BH_A3
 from ..sppm.photon_kernels import _offset_scale, lambert_pdf, shading_normal
+from .merge_kernels import pixel_row
 
 _INV_PI = 1.0 / np.pi
 _INV_4PI = 1.0 / (4.0 * np.pi)
@@ -271,6 +272,10 @@ class SplatInputs(NamedTuple):
     B1: np.ndarray
     first: np.ndarray
     soft: np.ndarray
+    # Merging as an MIS strategy (core.integrators.merge): (P,) (N_M / N_L)
+    # pi r^2 by pixel of the region, the factor of q_M / q_L = that x c_1 at
+    # the splatted vertex (not a first hit); size 0 = no merging term.
+    mR2: np.ndarray = np.zeros(0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -318,7 +323,12 @@ def splat_fast(con, n, tr, vin, tri_n, tri_ng, tri_mat, fast, col, mis, cam, wid
             pf = lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz, ix, iy, iz)
             b0 = 0.0 if vin.soft[k] else vin.B0[k] * pf * c1
             b1 = vin.B1[k] * c1 * (1.0 if vin.first[k] else pf)
-            wl = 1.0 / (1.0 + b0 * b0 + b1 * b1)
+            den = 1.0 + b0 * b0 + b1 * b1
+            if vin.mR2.shape[0] > 0 and not vin.first[k]:
+                bm = vin.mR2[pixel_row(con.raster[c, 0], con.raster[c, 1], cam.x0, cam.y0,
+                                       cam.W, cam.H)] * c1
+                den += bm * bm
+            wl = 1.0 / den
             if not np.isfinite(wl):
                 wl = 0.0
             g *= wl

@@ -229,7 +229,8 @@ class LightTracer:
         (:meth:`_transmittance`), the splat compiled on LAMBERT materials
         (light_kernels.splat_fast) and in numpy on the others (:meth:`_slow`).
         mis: None, or (B0, B1, first, soft) (K,) of integrator 'COMBINED'
-        (combined.splat_weight)."""
+        (combined.splat_weight), optionally followed by mR2 (P,) (merging as
+        an MIS strategy: SplatInputs.mR2)."""
         p = dep["p"]
         K = p.shape[0]
         if K == 0:
@@ -238,8 +239,9 @@ class LightTracer:
         if nc == 0:
             return
         one = np.zeros(1)
-        B0, B1, first, soft = mis if mis is not None else (one, one, one > 0, one > 0)
-        vin = LK.SplatInputs(dep["bary"], dep["wi"], dep["power"], B0, B1, first, soft)
+        B0, B1, first, soft = mis[:4] if mis is not None else (one, one, one > 0, one > 0)
+        vin = LK.SplatInputs(dep["bary"], dep["wi"], dep["power"], B0, B1, first, soft,
+                             *(mis[4:] if mis is not None else ()))
         tris = self.tracer.tris
         slow = np.empty(nc, np.int64)
         ns = LK.splat_fast(con, nc, tr, vin, tris.n, tris.ng, tris.mat, self.fast_mat,
@@ -270,8 +272,14 @@ class LightTracer:
         contrib = f * vin.power[rows] * tr[c] * (c1 * corr)[:, None]
         if mis:
             pf = B.pdf_bsdf(self.mtab, m, colors, ns, ng, wc, wi, subset="all")
+            bm = None
+            if vin.mR2.shape[0] > 0:
+                from .merge_kernels import pixel_rows
+                cp = self.cam_params
+                bm = np.where(vin.first[rows], 0.0,
+                              vin.mR2[pixel_rows(con.raster[c], (cp.x0, cp.y0, cp.W, cp.H))] * c1)
             contrib *= splat_weight(vin.B0[rows], vin.B1[rows], pf, c1, vin.first[rows],
-                                    vin.soft[rows])[:, None]
+                                    vin.soft[rows], bm)[:, None]
         self._splat(con.raster[c], contrib, film)
 
     def _emission_vertices(self, ph, rng, film, mis=None) -> None:
