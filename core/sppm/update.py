@@ -195,6 +195,9 @@ class Radii:
         self.hist = RadiusHistogram(D)
         self.quantile = frequency and settings.frequency_estimator == "QUANTILE"
         self.sector_cells = SECTOR_CELLS if needs_sectors(settings, frequency) else 0
+        # Amortised frequency photons (frequency_decay > 0): a pass without a
+        # frequency photon at a pixel keeps the pixel's last prediction.
+        self.keep_predictions = frequency and settings.frequency_decay > 0
         self._edge_cap = None
         # The PPM rule's update in _ppm_update_range (False: the numpy
         # reference, the same state).
@@ -252,6 +255,8 @@ class Radii:
         material), sectors (P, SECTOR_CELLS) this pass's sector counts (None
         unless :func:`needs_sectors`)."""
         rule = self.settings.radius_rule
+        if self.keep_predictions:
+            r_pred = kept_prediction(r_pred, state.r_pred_last)
         if rule == "PPM" and self.compiled and (state.sectors is None) == (sectors is None):
             self._update_compiled(state, M, Phi, r_pred, sectors)
             return
@@ -313,6 +318,17 @@ class Radii:
             _ppm_update_range(0, P, *args)
         state.r_pred_last = a.r_pred_last
         state.M_last = M
+
+
+def kept_prediction(r_pred: np.ndarray, r_last: np.ndarray) -> np.ndarray:
+    """(P,) the prediction a pass's update uses with amortised frequency
+    photons (docs/method.md "Amortised frequency photons"): this pass's
+    r_pred (P,) [m] where a frequency photon reached the pixel, else the
+    pixel's last prediction r_last (P,) (PixelState.r_pred_last: a radius,
+    NaN = none, inf = none yet).  The spectrum is a property of the light
+    field at the pixel, not of the pass; whatever it is, the update only
+    chooses f between f_alpha and f_hold_alpha, so convergence is unchanged."""
+    return np.where(np.isinf(r_pred), r_last, r_pred)
 
 
 class UpdateArrays(NamedTuple):
