@@ -181,17 +181,25 @@ def breakdown(scene, base, passes, say):
     rs = {k: Renderer(scene, v.replace(max_passes=passes), log=lambda s: None)
           for k, v in variants.items()}
     cpu = {k: [] for k in rs}
-    for _ in range(passes):
+    pairs = {k: [] for k in rs}
+    for i in range(passes):
         for k, r in rs.items():
+            if i == 2:
+                for c in r.stage_seconds:
+                    r.stage_seconds[c] = 0.0
             c0 = time.process_time()
             r.step()
             cpu[k].append(time.process_time() - c0)
+            pairs[k].append(r.state.M_last.sum())
     ppm = np.mean(cpu["ppm"][2:])
     for k, v in cpu.items():
         v = np.array(v[2:])
+        st = rs[k].stage_seconds
         say(f"breakdown {k:>24}: {1e3 * v.mean():.1f} ms CPU per pass (median "
             f"{1e3 * np.median(v):.1f}), {v.mean() / ppm:.3f} x PPM; last 4 passes "
-            f"{1e3 * v[-4:].mean():.1f} ms")
+            f"{1e3 * v[-4:].mean():.1f} ms; photons gathered per pass {np.mean(pairs[k][2:]):.3g}; "
+            f"wall ms per pass: " + ", ".join(f"{c} {1e3 * t / v.size:.0f}" for c, t in st.items())
+            + f"; held {np.mean(rs[k].state.held):.3f}")
 
 
 def main():
