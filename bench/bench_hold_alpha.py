@@ -131,6 +131,8 @@ def method_settings(base, method):
     if ":" in method:                       # "fppm:decay=0" etc.
         for kv in method.split(":")[1:]:
             k, v = kv.split("=")
+            if k == "keep":                 # a Radii attribute, set in equal_cpu
+                continue
             over[k] = type(getattr(base, k))(float(v) if isinstance(getattr(base, k), float) else v)
     return base.replace(**over)
 
@@ -144,6 +146,12 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
     rs = {m: Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=0,
                                                                 time_limit=1e9), log=lambda s: None)
           for m in methods}
+    for m in methods:
+        # "fppm:keep=min": the running minimum of the predictions; "keep=none": none kept.
+        if ":keep=min" in m:
+            rs[m].radii.keep_minimum = True
+        if ":keep=none" in m:
+            rs[m].radii.keep_predictions = False
     cpu = {m: [0.0] for m in methods}
     err = {m: [np.nan] for m in methods}
     while True:

@@ -87,3 +87,7 @@ def test_kept_prediction():
     r = kept_prediction(np.array([0.2, np.inf, np.inf, np.inf, np.nan]),
                         np.array([0.5, 0.3, np.nan, np.inf, 0.3]))
     assert r[0] == 0.2 and r[1] == 0.3 and np.isnan(r[2]) and np.isinf(r[3]) and np.isnan(r[4])
+    # The running minimum: the smaller of the two; NaN and inf are no prediction.
+    m = kept_prediction(np.array([0.2, 0.6, np.inf, np.nan, np.inf]),
+                        np.array([0.5, 0.3, 0.3, 0.3, np.nan]), minimum=True)
+    assert m[:4].tolist() == [0.2, 0.3, 0.3, 0.3] and not np.isfinite(m[4])
