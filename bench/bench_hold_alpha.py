@@ -6,6 +6,12 @@
         (PPM only, to read it at FPPM's CPU time)
     .venv/bin/python bench/bench_hold_alpha.py indirect_room --cost-only 24
         (CPU per pass of PPM and FPPM, stepped alternately in one process)
+    .venv/bin/python bench/bench_hold_alpha.py indirect_room --breakdown 12
+        (CPU per pass of PPM and FPPM variants: the frequency photons, verify_holds, the schedule)
+    .venv/bin/python bench/bench_hold_alpha.py indirect_room --equal-cpu 15 --ref-passes 200 \
+        --methods fppm,fppm:frequency_decay=0,ppm,appm,cppm
+        (relMSE at equal CPU time, docs/method.md "Amortised frequency photons";
+        'fppm:keep=min' / 'fppm:keep=none': the other prediction-keeping rules)
 
 The protocol of docs/method.md ("Consistent holds", "Radius rules"): the
 .blend at 50 % resolution (64x64) with the file's settings, photon mapping
