@@ -158,6 +158,11 @@ class FPPMRenderSettings(PropertyGroup):
         name="Frequency Photons", default=_D.frequency_fraction, min=0.0, max=1.0,
         subtype='FACTOR',
         description="Fraction of each pass's photons that carry a frequency spectrum")
+    frequency_decay: FloatProperty(
+        name="Frequency Decay", default=_D.frequency_decay, min=0.0, max=2.0,
+        description="Pass k traces Frequency Photons / k^decay frequency photons, and each "
+                    "pixel keeps its last prediction through passes that bring it none "
+                    "(0 = the same fraction every pass, each pass's own prediction)")
     frequency_model: EnumProperty(
         name="Model", items=FREQUENCY_MODELS, default=_D.frequency_model,
         description="Which equations propagate the light-field spectrum")

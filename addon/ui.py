@@ -106,6 +106,7 @@ class FPPM_RENDER_PT_frequency(FPPMPanel, Panel):
         col = layout.column()
         col.active = s.use_frequency
         col.prop(s, "frequency_fraction", slider=True)
+        col.prop(s, "frequency_decay")
         col.prop(s, "frequency_model")
         col.prop(s, "frequency_estimator")
         col.prop(s, "hold_alpha", slider=True)

@@ -6,6 +6,12 @@
         (PPM only, to read it at FPPM's CPU time)
     .venv/bin/python bench/bench_hold_alpha.py indirect_room --cost-only 24
         (CPU per pass of PPM and FPPM, stepped alternately in one process)
+    .venv/bin/python bench/bench_hold_alpha.py indirect_room --breakdown 12
+        (CPU per pass of PPM and FPPM variants: the frequency photons, verify_holds, the schedule)
+    .venv/bin/python bench/bench_hold_alpha.py indirect_room --equal-cpu 15 --ref-passes 200 \
+        --methods fppm,fppm:frequency_decay=0,ppm,appm,cppm
+        (relMSE at equal CPU time, docs/method.md "Amortised frequency photons";
+        'fppm:keep=min' / 'fppm:keep=none': the other prediction-keeping rules)
 
 The protocol of docs/method.md ("Consistent holds", "Radius rules"): the
 .blend at 50 % resolution (64x64) with the file's settings, photon mapping
@@ -99,6 +105,117 @@ def cost(scene, st, passes, say):
         f"median {np.median(c['fppm']) / np.median(c['ppm']):.3f}")
 
 
+def reference(name, scene, base, passes, photons, say):
+    """(reference image (H, W, 3) float64, its floor): a PPM render of seed
+    100 with ``photons`` x ``passes``, cached under $TMPDIR (the same scene,
+    passes and photons give the same image); the floor is the relMSE
+    between its half- and full-pass images."""
+    import tempfile
+    path = os.path.join(tempfile.gettempdir(), "fppm_bench_refs", f"{name}_{passes}x{photons}.npz")
+    if os.path.exists(path):
+        d = np.load(path)
+        return d["ref"], float(d["floor"])
+    t0 = time.process_time()
+    imgs, _, _ = run(scene, base.replace(use_frequency=False, seed=100, photons_per_pass=photons),
+                     passes)
+    ref, floor = imgs[-1], relmse(imgs[passes // 2 - 1], imgs[-1])
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    np.savez(path, ref=ref, floor=floor)
+    say(f"# reference computed in {time.process_time() - t0:.0f} s CPU")
+    return ref, floor
+
+
+#: The methods of the equal-CPU comparison: FPPM with the file's settings and
+#: the radius rules of tools/converge/runs.py METHOD_SETTINGS (frequency off).
+EQUAL_CPU_METHODS = ("fppm", "ppm", "appm", "cppm")
+
+
+def method_settings(base, method):
+    from fppm.tools.converge.runs import METHOD_SETTINGS
+    over = dict(METHOD_SETTINGS[method.split(":")[0]][0])
+    over.pop("frequency_model", None)
+    if ":" in method:                       # "fppm:decay=0" etc.
+        for kv in method.split(":")[1:]:
+            k, v = kv.split("=")
+            if k == "keep":                 # a Radii attribute, set in equal_cpu
+                continue
+            over[k] = type(getattr(base, k))(float(v) if isinstance(getattr(base, k), float) else v)
+    return base.replace(**over)
+
+
+def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
+    """relMSE of every method at equal CPU time: the renderers are stepped
+    in one process, always the one with the least CPU so far, so that the
+    machine's load drifts over all alike, until each has ``budget`` CPU
+    seconds; each method's error is read at the ``report`` fractions of the
+    budget by log-log interpolation over its passes."""
+    rs = {m: Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=0,
+                                                                time_limit=1e9), log=lambda s: None)
+          for m in methods}
+    for m in methods:
+        # "fppm:keep=min": the running minimum of the predictions; "keep=none": none kept.
+        if ":keep=min" in m:
+            rs[m].radii.keep_minimum = True
+        if ":keep=none" in m:
+            rs[m].radii.keep_predictions = False
+    cpu = {m: [0.0] for m in methods}
+    err = {m: [np.nan] for m in methods}
+    while True:
+        m = min(methods, key=lambda k: cpu[k][-1])
+        if cpu[m][-1] >= budget:
+            break
+        c0 = time.process_time()
+        res = rs[m].step()
+        cpu[m].append(cpu[m][-1] + time.process_time() - c0)
+        err[m].append(relmse(np.asarray(res.image[..., :3], np.float64), ref))
+    out = {}
+    for m in methods:
+        c, e = np.array(cpu[m][1:]), np.array(err[m][1:])
+        held = getattr(rs[m].state, "held", None)
+        out[m] = [float(np.exp(np.interp(np.log(budget * q), np.log(c), np.log(e)))) for q in report]
+        say(f"seed {seed} {m:>24}: passes {len(c)}, cpu {c[-1]:.1f} s, relmse at "
+            + ", ".join(f"{budget * q:.0f} s {v:.3e}" for q, v in zip(report, out[m]))
+            + (f", held {np.mean(held):.3f}" if held is not None else ""))
+    for m in methods:
+        say(f"seed {seed} {m:>24} / ppm: "
+            + " ".join(f"{a / b:.3f}" for a, b in zip(out[m], out["ppm"])))
+    return out
+
+
+def breakdown(scene, base, passes, say):
+    """CPU per pass of FPPM variants stepped alternately (the first 2 passes
+    left out): what the frequency photons, the verified holds and the
+    gather-side frequency work each add to a PPM pass."""
+    variants = {"ppm": base.replace(use_frequency=False),
+                "fppm decay 0": base.replace(frequency_decay=0.0),
+                "fppm decay 0, no verify": base.replace(frequency_decay=0.0, verify_holds=False),
+                "fppm 1 frequency photon": base.replace(frequency_decay=0.0,
+                                                        frequency_fraction=1.0 / base.photons_per_pass),
+                "fppm": base}
+    rs = {k: Renderer(scene, v.replace(max_passes=passes), log=lambda s: None)
+          for k, v in variants.items()}
+    cpu = {k: [] for k in rs}
+    pairs = {k: [] for k in rs}
+    for i in range(passes):
+        for k, r in rs.items():
+            if i == 2:
+                for c in r.stage_seconds:
+                    r.stage_seconds[c] = 0.0
+            c0 = time.process_time()
+            r.step()
+            cpu[k].append(time.process_time() - c0)
+            pairs[k].append(r.state.M_last.sum())
+    ppm = np.mean(cpu["ppm"][2:])
+    for k, v in cpu.items():
+        v = np.array(v[2:])
+        st = rs[k].stage_seconds
+        say(f"breakdown {k:>24}: {1e3 * v.mean():.1f} ms CPU per pass (median "
+            f"{1e3 * np.median(v):.1f}), {v.mean() / ppm:.3f} x PPM; last 4 passes "
+            f"{1e3 * v[-4:].mean():.1f} ms; photons gathered per pass {np.mean(pairs[k][2:]):.3g}; "
+            f"wall ms per pass: " + ", ".join(f"{c} {1e3 * t / v.size:.0f}" for c, t in st.items())
+            + f"; held {np.mean(rs[k].state.held):.3f}")
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("scene")
@@ -113,6 +230,12 @@ def main():
     ap.add_argument("--cost-only", type=int, default=0, metavar="K",
                     help="only measure CPU per pass, PPM and FPPM (--hold's first value) "
                          "stepped alternately K passes each in this process")
+    ap.add_argument("--breakdown", type=int, default=0, metavar="K",
+                    help="CPU per pass of PPM and FPPM variants, stepped alternately K passes")
+    ap.add_argument("--equal-cpu", type=float, default=0.0, metavar="SECONDS",
+                    help="relMSE of --methods at equal CPU time, SECONDS each per seed")
+    ap.add_argument("--methods", default=",".join(EQUAL_CPU_METHODS),
+                    help="equal-CPU methods; 'fppm:frequency_decay=0' sets a field")
     a = ap.parse_args()
     scene, base = export(a.scene)
     base = base.replace(photons_per_pass=a.photons)
@@ -122,6 +245,19 @@ def main():
 
     if a.cost_only:
         return cost(scene, base.replace(hold_alpha=float(a.hold.split(",")[0])), a.cost_only, say)
+    if a.breakdown:
+        return breakdown(scene, base, a.breakdown, say)
+    if a.equal_cpu:
+        ref, floor = reference(a.scene, scene, base, a.ref_passes, a.ref_photons, say)
+        say(f"# reference: {a.ref_passes} passes x {a.ref_photons} photons, seed 100; "
+            f"floor (half vs full) {floor:.3e}; load {os.getloadavg()[0]:.1f}")
+        if not a.methods:                   # --methods "": the reference only
+            return
+        methods = a.methods.split(",")
+        for seed in [int(x) for x in a.seeds.split(",")]:
+            equal_cpu(scene, base, methods, seed, a.equal_cpu, [0.25, 0.5, 1.0], ref, say)
+        say(f"# load at the end {os.getloadavg()[0]:.1f}")
+        return
     t0 = time.process_time()
     ref_imgs, _, _ = run(scene, base.replace(use_frequency=False, seed=100,
                                              photons_per_pass=a.ref_photons), a.ref_passes)

@@ -122,6 +122,7 @@ class Renderer:
         self.photon_pass = PhotonPass(self.tracer, self.mtab, st, freq,
                                       self.radii.hist if self.radii.quantile else None,
                                       self.stage_seconds)
+        self.photon_pass.next_pass = lambda: self.pass_index + 1
         self.film = Film(st, self.camera, self.height, self.width, self.scene, passes)
         # integrator 'PATH': camera paths alone (core.integrators) into the same film.
         self.path_tracer = (PathTracer(self.scene, self.accel, self.mtab, self.light_table,

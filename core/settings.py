@@ -44,6 +44,7 @@ class RenderSettings:
     # --- Frequency
     use_frequency: bool = True
     frequency_fraction: float = 0.25
+    frequency_decay: float = 0.5        # pass k: frequency_fraction * k^-decay (docs/method.md "Amortised ...")
     frequency_model: str = "CORRECTED"  # 'CORRECTED' or 'PAPER'
     frequency_estimator: str = "MIN"    # 'MIN' or 'QUANTILE'
     hold_alpha: float = 0.9             # PPM alpha of a held radius (1 = held forever; docs/method.md)
@@ -61,7 +62,7 @@ class RenderSettings:
         def bad(name, why):
             raise SettingsError(f"setting '{name}' = {getattr(self, name)!r}: {why}")
         for name in ("time_limit", "initial_radius_px", "initial_radius", "alpha",
-                     "frequency_fraction", "hold_alpha"):
+                     "frequency_fraction", "frequency_decay", "hold_alpha"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v):
                 bad(name, "must be a finite number")
@@ -107,6 +108,8 @@ class RenderSettings:
             bad("rr_start", "must be in [0, 1024]")
         if not 0 <= self.frequency_fraction <= 1:
             bad("frequency_fraction", "must be in [0, 1]")
+        if not 0 <= self.frequency_decay <= 2:
+            bad("frequency_decay", "must be in [0, 2] (0 = every pass traces frequency_fraction)")
         if self.frequency_model not in ("CORRECTED", "PAPER"):
             bad("frequency_model", "must be 'CORRECTED' or 'PAPER'")
         if self.frequency_estimator not in ("MIN", "QUANTILE"):

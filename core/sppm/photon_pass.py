@@ -190,6 +190,16 @@ class PassSums:
             self.sectors[i] += part.sectors
 
 
+def frequency_photons(settings, k: int) -> int:
+    """Photons of pass k (1-based) that carry a spectrum: photons_per_pass x
+    frequency_fraction x k^-frequency_decay (docs/method.md "Amortised
+    frequency photons": the spectrum belongs to the light field at the pixel,
+    not to the pass, so a pixel keeps its prediction and later passes need
+    fewer frequency photons; decay 0: the same fraction in every pass)."""
+    f = settings.frequency_fraction * float(max(k, 1)) ** -settings.frequency_decay
+    return int(round(settings.photons_per_pass * f))
+
+
 class PhotonPass:
     """tracer: core.sppm.photons.PhotonTracer; mtab: material table; settings:
     RenderSettings; frequency: the plan traces frequency photons;
@@ -219,6 +229,9 @@ class PhotonPass:
         # trace_ahead's (rng, futures of the queued chunks' deposits, chunks
         # not queued yet), or None.
         self._ahead = None
+        # The 1-based index of the pass being traced (its share of frequency
+        # photons, frequency_photons); the renderer sets it to its own count.
+        self.next_pass = lambda: 1
 
     def __call__(self, vp, R2: np.ndarray, spectrum: Optional[np.ndarray],
                  rng: np.random.Generator, check_stop=lambda: None) -> PhotonEstimate:
@@ -299,11 +312,11 @@ class PhotonPass:
 
     def chunks(self) -> list[tuple[int, int]]:
         """(n, n_freq) of every chunk of a pass: ``chunk`` photons each (the
-        last one fewer); the first n_total * frequency_fraction photons of the
-        pass carry a spectrum."""
+        last one fewer); the first :func:`frequency_photons` of the pass
+        (``next_pass()``, the pass being traced) carry a spectrum."""
         st = self.settings
         n_total = st.photons_per_pass
-        n_freq_total = int(round(n_total * st.frequency_fraction)) if self.frequency else 0
+        n_freq_total = frequency_photons(st, self.next_pass()) if self.frequency else 0
         out = []
         for a in range(0, n_total, self.chunk):
             n = min(self.chunk, n_total - a)

@@ -14,6 +14,10 @@ keeps the smallest radius any gathered frequency photon predicts
 histogram of the predicted radii of every frequency photon gathered so far and
 takes the lower edge of the bin holding the QUANTILE-th fraction, so that a
 few outliers (false occlusions pinning r near 0) no longer set the radius.
+With amortised frequency photons (frequency_decay > 0, fewer of them in
+later passes) a pixel keeps its last prediction through the passes that
+bring it none (:func:`kept_prediction`; docs/method.md "Amortised frequency
+photons").
 
 Progressive update: :func:`ppm_radius_update` (PPM radius reduction, slowed
 to the hold rate hold_alpha where the predicted radius says the light is
@@ -195,6 +199,12 @@ class Radii:
         self.hist = RadiusHistogram(D)
         self.quantile = frequency and settings.frequency_estimator == "QUANTILE"
         self.sector_cells = SECTOR_CELLS if needs_sectors(settings, frequency) else 0
+        # Amortised frequency photons (frequency_decay > 0): a pass without a
+        # frequency photon at a pixel keeps the pixel's last prediction.
+        self.keep_predictions = frequency and settings.frequency_decay > 0
+        # kept_prediction's rule: False keeps the last prediction, True the
+        # running minimum of every prediction (bench_hold_alpha compares them).
+        self.keep_minimum = False
         self._edge_cap = None
         # The PPM rule's update in _ppm_update_range (False: the numpy
         # reference, the same state).
@@ -252,6 +262,8 @@ class Radii:
         material), sectors (P, SECTOR_CELLS) this pass's sector counts (None
         unless :func:`needs_sectors`)."""
         rule = self.settings.radius_rule
+        if self.keep_predictions:
+            r_pred = kept_prediction(r_pred, state.r_pred_last, self.keep_minimum)
         if rule == "PPM" and self.compiled and (state.sectors is None) == (sectors is None):
             self._update_compiled(state, M, Phi, r_pred, sectors)
             return
@@ -313,6 +325,21 @@ class Radii:
             _ppm_update_range(0, P, *args)
         state.r_pred_last = a.r_pred_last
         state.M_last = M
+
+
+def kept_prediction(r_pred: np.ndarray, r_last: np.ndarray, minimum: bool = False) -> np.ndarray:
+    """(P,) the prediction a pass's update uses with amortised frequency
+    photons (docs/method.md "Amortised frequency photons"): this pass's
+    r_pred (P,) [m] where a frequency photon reached the pixel, else the
+    pixel's last prediction r_last (P,) (PixelState.r_pred_last: a radius,
+    NaN = none, inf = none yet).  The spectrum is a property of the light
+    field at the pixel, not of the pass; whatever it is, the update only
+    chooses f between f_alpha and f_hold_alpha, so convergence is unchanged.
+    minimum=True: the running minimum of every prediction instead (NaN and
+    inf count as none)."""
+    if minimum:
+        return np.fmin(r_pred, r_last)
+    return np.where(np.isinf(r_pred), r_last, r_pred)
 
 
 class UpdateArrays(NamedTuple):

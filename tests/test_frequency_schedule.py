@@ -1,0 +1,93 @@
+"""Amortised frequency photons (docs/method.md "Amortised frequency photons").
+
+Pass k traces photons_per_pass x frequency_fraction x k^-frequency_decay
+frequency photons (the first ones of the pass), and with frequency_decay > 0
+a pixel that no frequency photon reaches in a pass keeps its last prediction
+(update.kept_prediction); frequency_decay = 0 is the previous rule (the same
+fraction in every pass, each pass's own prediction).  The convergence of the
+held radii under any prediction is tests/test_holds.py's.
+"""
+import numpy as np
+import pytest
+
+from core.render import Renderer
+from core.settings import RenderSettings, SettingsError
+from core.sppm.state import PixelState
+from core.sppm.update import Radii, kept_prediction
+
+from analytic_scenes import point_light_plane
+
+
+@pytest.mark.parametrize("decay, expected", [
+    (0.5, {1: 75_000, 4: 37_500, 9: 25_000, 100: 7_500}),
+    (0.0, {1: 75_000, 4: 75_000, 9: 75_000, 100: 75_000}),
+    (1.0, {1: 75_000, 4: 18_750, 9: 8_333, 100: 750}),
+])
+def test_frequency_photons_per_pass(decay, expected):
+    """The chunks of pass k carry round(300,000 x 0.25 x k^-decay) frequency
+    photons, the first ones of the pass (chunks of 131,072)."""
+    scene, _ = point_light_plane(res=8)
+    st = RenderSettings(integrator="PHOTON", photons_per_pass=300_000, frequency_decay=decay)
+    r = Renderer(scene, st, log=lambda s: None)
+    for k, n_freq in expected.items():
+        r.pass_index = k - 1                    # the renderer is about to trace pass k
+        chunks = r.photon_pass.chunks()
+        assert [n for n, _ in chunks] == [131_072, 131_072, 37_856]
+        assert sum(f for _, f in chunks) == n_freq
+        # The frequency photons come first: a chunk has some only if the one before is full.
+        assert all(f0 == n0 for (n0, f0), (_, f1) in zip(chunks, chunks[1:]) if f1)
+
+
+def test_decay_is_validated():
+    with pytest.raises(SettingsError, match="frequency_decay"):
+        RenderSettings(frequency_decay=-0.1).validate()
+    with pytest.raises(SettingsError, match="frequency_decay"):
+        RenderSettings(frequency_decay=float("nan")).validate()
+
+
+def _two_passes(decay, compiled):
+    """Three pixels of radius 1 m, 100 photons each per pass with uniform
+    sector counts (the verified holds' test accepts): pass 1 predicts
+    (10, 10, none) m, pass 2 (none, 0.01, none).  Returns (held after pass 1,
+    held after pass 2, r_pred_last after pass 2, R2 after pass 2)."""
+    st = RenderSettings(frequency_decay=decay)
+    radii = Radii(st, None, 1.0, True, None, 1, 3)
+    radii.compiled = compiled
+    state = PixelState.zeros(3, sector_cells=radii.sector_cells)
+    state.R2[:] = 1.0
+    M, Phi = np.full(3, 100.0), np.ones((3, 3))
+    S = np.full((3, radii.sector_cells), 100.0 / radii.sector_cells)
+    radii.update(state, M, Phi, np.array([10.0, 10.0, np.inf]), S)
+    held1 = state.held.copy()
+    radii.update(state, M, Phi, np.array([np.inf, 0.01, np.inf]), S)
+    return held1, state.held.copy(), state.r_pred_last.copy(), state.R2.copy()
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_pixel_keeps_its_prediction_without_frequency_photons(compiled):
+    """Pixel 0 gets no frequency photon in pass 2: with decay > 0 it keeps
+    pass 1's 10 m and stays held (R^2 shrinks at the hold rate: f =
+    (N + 0.9 M)/(N + M) with N = 90, M = 100); pixel 1's new small
+    prediction replaces the old one (plain PPM step); pixel 2 never had one.
+    With decay 0 (the previous rule) pixel 0 is released."""
+    held1, held2, last, R2 = _two_passes(0.5, compiled)
+    assert held1.tolist() == [True, True, False]
+    assert held2.tolist() == [True, False, False]
+    assert last[0] == 10.0 and last[1] == 0.01 and np.isnan(last[2])
+    f1 = 0.9                                            # pass 1: N = 0, held
+    assert R2[0] == pytest.approx(f1 * (90.0 + 90.0) / 190.0, rel=1e-12)
+    assert R2[1] == pytest.approx(f1 * (90.0 + 70.0) / 190.0, rel=1e-12)
+    held1, held2, last, R2 = _two_passes(0.0, compiled)
+    assert held2.tolist() == [False, False, False]
+    assert np.isnan(last[0])
+    assert R2[0] == pytest.approx(R2[1], rel=1e-12)
+
+
+def test_kept_prediction():
+    r = kept_prediction(np.array([0.2, np.inf, np.inf, np.inf, np.nan]),
+                        np.array([0.5, 0.3, np.nan, np.inf, 0.3]))
+    assert r[0] == 0.2 and r[1] == 0.3 and np.isnan(r[2]) and np.isinf(r[3]) and np.isnan(r[4])
+    # The running minimum: the smaller of the two; NaN and inf are no prediction.
+    m = kept_prediction(np.array([0.2, 0.6, np.inf, np.nan, np.inf]),
+                        np.array([0.5, 0.3, 0.3, 0.3, np.nan]), minimum=True)
+    assert m[:4].tolist() == [0.2, 0.3, 0.3, 0.3] and not np.isfinite(m[4])
