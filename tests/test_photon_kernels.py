@@ -339,3 +339,19 @@ def test_pool_never_overwrites_held_deposits():
     for k in kept:
         np.testing.assert_array_equal(d3[k], kept[k])
         np.testing.assert_array_equal(d4[k], kept[k])
+
+
+def test_pool_evicts_a_full_kind_by_identity():
+    """A full kind of photons.ArrayPool makes room by dropping its smallest
+    idle set; sets of equal rows must not be compared by value (numpy's ==
+    on the arrays raised when frequency photons made batch sizes vary)."""
+    from core.sppm.photons import ArrayPool
+    pool = ArrayPool(max_sets=2)
+    make = lambda n: [np.zeros(n), np.zeros((n, 3))]  # noqa: E731
+    for rows in (10, 10, 12):                         # the third evicts one of the two 10s
+        a = pool.take("k", rows, make)
+        del a
+    sizes = sorted(s[0] for s in pool._sets["k"])
+    assert sizes == [10, 12]
+    b = pool.take("k", 11, make)
+    assert len(b[0]) == 12                            # the smallest free set that fits

@@ -117,7 +117,9 @@ class ArrayPool:
             if len(sets) >= self.max_sets:
                 idle = [s for s in sets if max(_refcounts(s[1])) <= _ALONE]
                 if idle:
-                    sets.remove(min(idle, key=lambda s: s[0]))
+                    # by identity: list.remove's == would compare the arrays
+                    smallest = min(idle, key=lambda s: s[0])
+                    sets[:] = [s for s in sets if s is not smallest]
             if len(sets) < self.max_sets:
                 sets.append([rows, arrays])
             return wrap(arrays)
