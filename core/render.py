@@ -326,6 +326,11 @@ class Renderer:
         if ahead is not None:
             ahead(rng_photons)
         tc = time.perf_counter()
+        if st.cap_radius_at_edges and k == 1:
+            # The edge cap's own camera pass (once a render, for the first
+            # radii) before this pass's: its arrays are freed before the
+            # pass's are made, not held beside them (the first pass's peak).
+            self.radii.edge_cap(self._check_stop)
         memory.release_free_heap(state.R2.size)   # the last pass's freed temporaries
         if st.fixed_visible_points and self._fixed is not None:
             vp, L_emit = self._fixed
