@@ -621,6 +621,7 @@ class RssSampler:
         self._rss = memory.resident_bytes
         self.period, self.stage = period, "rest"
         self.peak: dict = {}
+        self.entry: dict = {}          # VmRSS at each entry into a stage
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._run, daemon=True)
         self._t.start()
@@ -677,6 +678,7 @@ class StageClock:
             outer = self.sampler.stage if (main and self.sampler) else None
             if outer is not None:
                 self.sampler.stage = key
+                self.sampler.entry.setdefault(key, []).append(self.sampler._rss())
             t0 = _thread_cpu() if main else {}
             u0 = resource.getrusage(resource.RUSAGE_SELF)
             w0, c0 = time.perf_counter(), time.process_time()
@@ -732,7 +734,7 @@ def pass_one(a):
     clock = StageClock(r, sampler)
     r.step()                                      # warm-up (kernels, the edge cap's pass)
     clock.reset()                                 # not the warm-up's times
-    warm_peak, sampler.peak = sampler.peak, {}
+    warm_peak, sampler.peak, sampler.entry = sampler.peak, {}, {}
     ru0 = resource.getrusage(resource.RUSAGE_SELF)
     raw = RawRays(r.accel, min(4 * a.photons, 2_000_000))
     tot = np.zeros(4)                             # pass wall, pass CPU, raw wall, raw CPU
@@ -784,6 +786,8 @@ def pass_one(a):
     print("    largest VmRSS seen per stage (10 ms samples): " + ", ".join(
         f"{k} {v / 2**30:.2f} GiB" for k, v in sorted(sampler.peak.items(),
                                                        key=lambda kv: -kv[1])))
+    print("    VmRSS at the entry of each stage (the last pass's): " + ", ".join(
+        f"{k} {v[-1] / 2**30:.2f} GiB" for k, v in sampler.entry.items()))
     print("    the warm-up pass's (kernels loaded, the edge cap's camera pass): " + ", ".join(
         f"{k} {v / 2**30:.2f} GiB" for k, v in sorted(warm_peak.items(), key=lambda kv: -kv[1])[:3]))
     print(f"    peak resident (VmHWM) {hwm / 2**30:.2f} GiB, growth from before the Renderer "

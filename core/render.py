@@ -342,7 +342,12 @@ class Renderer:
         clock["camera"] += td - tc
         L_pass = L_emit
         if not st.photons_for_direct:
-            L_pass = L_pass + self._interruptible(self.direct_light, vp, self._rng(k, 1))
+            direct = self._interruptible(self.direct_light, vp, self._rng(k, 1))
+            if st.fixed_visible_points:
+                L_pass = L_pass + direct          # L_emit is kept for the next passes
+            else:
+                L_pass += direct                  # this pass's own: no (P, 3) sum beside it
+            del direct
         clock["direct"] += time.perf_counter() - td
         self._check_stop()
         self._photons(vp, rng_photons)

@@ -199,6 +199,7 @@ class CameraPass:
             u[:, :2] = 0.5      # FilterSampler.sample(0.5) = 0: the pixel centre
             u[:, 2:] = 0.0      # lens radius sqrt(0) = 0
         rays, dz = self.camera.generate(self.px, self.py, u[:, :2], u[:, 2:], self.fsamp)
+        del u                   # (P, 4) float64: not held through the trace (the stage's peak)
         # The edge cap's pass (once a render) gets arrays of its own: through
         # the kept ones, they would stay resident beside the next pass's
         # through the first pass's photons (0.5 GiB at 1080p).
