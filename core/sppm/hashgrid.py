@@ -121,7 +121,8 @@ _DEDUP_SCAN = 64
 # GatherBuffers.fold visits every VP in order, not the touched lists, when at
 # least 1/FOLD_SWEEP_FRACTION of them were touched (the lists' random access
 # cost ~250 ns a VP, a sequential sweep ~65 ns for every VP: 256², loaded
-# machine).  Serial: a parallel region's hand-off cost more than the sweep.
+# machine).  Serial below PARALLEL_MIN_VPS VPs (a parallel region's hand-off
+# cost more than a 256² sweep); above, by VP ranges in threads.
 FOLD_SWEEP_FRACTION = 8
 # Sector counts (gather(..., sectors=True)): the kernel disc split into the 4
 # quadrants of the visible point's tangent frame times 2 rings of equal area
@@ -1163,10 +1164,17 @@ class GatherBuffers:
         empty2 = np.zeros((0, 0))
         # The touched lists while few VPs were touched, else every VP in order.
         sweep = bool(self.n_touched.sum() * FOLD_SWEEP_FRACTION >= self.K)
+        rest = (M, Phi, scale, scale.dtype.type(phi_div), rmin,
+                np.zeros(0, np.bool_) if rmin_mask is None else rmin_mask,
+                empty2 if S is None else S)
+        T = numba.get_num_threads()
+        if sweep and T > 1 and self.K >= PARALLEL_MIN_VPS:
+            # a pixel-sized sweep (1080p: 2M VPs): by VP ranges in threads
+            _fold_sweep_parallel(T, self.M, self.Phi, self.rmin, self.S, self.n_touched,
+                                 self.n_used, *rest)
+            return
         _fold(self.M, self.Phi, self.rmin, self.S, self.touched, self.n_touched,
-              self.n_used, M, Phi, scale, scale.dtype.type(phi_div), rmin,
-              np.zeros(0, np.bool_) if rmin_mask is None else rmin_mask,
-              empty2 if S is None else S, sweep)
+              self.n_used, *rest, sweep)
 
 
 @njit(cache=True, inline="always")
@@ -1208,13 +1216,8 @@ def _fold(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div, r
     sweep True: every VP with a count, in order (sequential memory).  One
     kernel for both, so that the warm-up compiles the one the renders use."""
     if sweep:
-        for v in range(bM.shape[1]):
-            counted = False
-            for t in range(n_used):
-                counted |= bM[t, v] != 0
-            if counted:
-                _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
-                          rmin_mask, S)
+        _fold_sweep(0, bM.shape[1], bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
+                    rmin_mask, S)
         n_touched[:] = 0
         return
     for c in range(n_used):
@@ -1224,6 +1227,30 @@ def _fold(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div, r
                 _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
                           rmin_mask, S)
         n_touched[c] = 0
+
+
+@njit(cache=True)
+def _fold_sweep(v0, v1, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S):
+    """_fold's sweep over the visible points v0..v1-1 (each one's sums and
+    rows are its own: VP ranges fold in any order, in any thread)."""
+    for v in range(v0, v1):
+        counted = False
+        for t in range(n_used):
+            counted |= bM[t, v] != 0
+        if counted:
+            _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S)
+
+
+@njit(cache=True, parallel=True)
+def _fold_sweep_parallel(n_chunks, bM, bPhi, brmin, bS, n_touched, n_used, M, Phi, scale, div,
+                         rmin, rmin_mask, S):
+    """_fold's sweep by n_chunks threads, one VP range each (the same sums:
+    a VP's fold does not depend on the others')."""
+    K = bM.shape[1]
+    for c in prange(n_chunks):
+        _fold_sweep(c * K // n_chunks, (c + 1) * K // n_chunks, bM, bPhi, brmin, bS, n_used,
+                    M, Phi, scale, div, rmin, rmin_mask, S)
+    n_touched[:] = 0
 
 
 def _check_radii(grid: Grid, vp_R2) -> None:
