@@ -504,13 +504,21 @@ def _scatter(s0, s1, ps, cursor, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
             q = cursor[s]
             cursor[s] = q + 1
             order[q] = p
-            slot[q] = s
-            for k in range(3):
-                pos[q, k] = ph_pos[p, k]
-                ng[q, k] = ph_ng[p, k]
-                wi[q, k] = ph_wi[p, k]
-                power[q, k] = ph_power[p, k]
-            rpred[q] = ph_rpred[p]
+            _copy_photon(q, p, s, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                         slot, pos, ng, wi, power, rpred)
+
+
+@njit(cache=True, inline="always")
+def _copy_photon(q, p, s, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                 slot, pos, ng, wi, power, rpred):
+    """Row q of the sorted arrays = photon p's, in slot s."""
+    slot[q] = s
+    for k in range(3):
+        pos[q, k] = ph_pos[p, k]
+        ng[q, k] = ph_ng[p, k]
+        wi[q, k] = ph_wi[p, k]
+        power[q, k] = ph_power[p, k]
+    rpred[q] = ph_rpred[p]
 
 
 @njit(cache=True)
@@ -519,13 +527,8 @@ def _copy_sorted(q0, q1, order, ps, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     """Row q of the sorted arrays = photon order[q]'s, for q0..q1-1."""
     for q in range(q0, q1):
         p = order[q]
-        slot[q] = ps[p]
-        for k in range(3):
-            pos[q, k] = ph_pos[p, k]
-            ng[q, k] = ph_ng[p, k]
-            wi[q, k] = ph_wi[p, k]
-            power[q, k] = ph_power[p, k]
-        rpred[q] = ph_rpred[p]
+        _copy_photon(q, p, ps[p], ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                     slot, pos, ng, wi, power, rpred)
 
 
 @njit(cache=True, parallel=True)
