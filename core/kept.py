@@ -61,41 +61,6 @@ class KeptArrays:
         return list(arrays)
 
 
-class KeptBuffer:
-    """One flat array kept from one call to the next, as large as the largest
-    call so far (plus 1/GROW_HEADROOM): for arrays whose size changes from
-    pass to pass (the visible points' hash grid: its table and its entries).
-
-        buf = KeptBuffer()
-        a = buf.get(n, np.int32)      # its first n elements, contents undefined
-
-    The same array is returned again only when nothing else references it
-    or a view of it (the last call's result was dropped); else, or when it is
-    too small or of another dtype, a new one (np.empty: large ones are
-    mapped with huge pages where numpy advises them, cheaper to fault in).
-    """
-
-    #: A grown buffer is this fraction larger than asked (a pass with a few
-    #: more entries than the last does not reallocate).
-    GROW_HEADROOM = 16
-
-    def __init__(self):
-        self._a: np.ndarray | None = None
-        self.reused = 0
-        self.allocations = 0
-
-    def get(self, n: int, dtype) -> np.ndarray:
-        dtype = np.dtype(dtype)
-        if (self._a is not None and self._a.dtype == dtype and self._a.size >= n
-                and _refcounts([self._a])[0] <= _ALONE + 1):     # + this attribute
-            self.reused += 1
-            return self._a[:n]
-        self._a = None                  # dropped before its successor is mapped
-        self._a = np.empty(n + n // self.GROW_HEADROOM, dtype)
-        self.allocations += 1
-        return self._a[:n]
-
-
 def _clear(arrays: list, fills: list) -> None:
     """arrays[i][...] = fills[i]; the large ones as two halves in two threads
     (numpy releases the GIL while it fills)."""

@@ -8,10 +8,11 @@ Each pass (pbrt-v4 SPPM, Hachisuka & Jensen 2009):
 
 The grid stores *visible points* (VPs): every active VP is inserted in every
 cell its sphere of radius R overlaps, so a photon looks up exactly one cell.
-This is the hot loop of the renderer.  The gather first counting-sorts the
-photons by cell, copying their data into contiguous sorted arrays, so that
-consecutive photons test the same VPs (the VP records stay in cache) and read
-photon data sequentially; the gather then runs ~2x faster than in photon order.
+This is the hot loop of the renderer.  The gather first sorts the photons
+by cell (a counting sort over a small table, else a merge sort), copying
+their data into contiguous sorted arrays, so that consecutive photons test
+the same VPs (the VP records stay in cache) and read photon data
+sequentially; the gather then runs ~2x faster than in photon order.
 
 Counting rule.  Photon p counts for visible point v when
   (1) |x_p - x_v|^2 < R_v^2                      (disc/sphere kernel of PPM),
@@ -76,8 +77,9 @@ more than 64 entries redo the exact tests).  No over-allocation, no growth.
 Parallelism: with ``parallel=True`` the sorted photons are split into one
 contiguous chunk per numba thread, each chunk accumulating into its own (K,)
 arrays (race-free, no atomics), summed afterwards (or, with GatherBuffers,
-rows reused by every chunk and folded at the touched VPs); the sort scatters by
-disjoint slot ranges, one per thread.  The build splits the VPs into one
+rows reused by every chunk and folded at the touched VPs); the sort copies the
+photons by disjoint slot (counting sort) or row (merge sort) ranges, one per
+thread.  The build splits the VPs into one
 range per thread for their slots; the counting sort splits the entries
 into SORT_GROUPS VP ranges (about the same number of entries each; with
 more threads, each range is split further by slot ranges): each range
@@ -99,7 +101,6 @@ import numpy as np
 from numba import njit, prange
 
 from .. import memory
-from ..kept import KeptBuffer
 from .._numba_cache import serial_twin
 
 COS_NG_DEFAULT = 0.5          # cos(60 deg): photon / VP surface orientation test (3)
@@ -372,56 +373,42 @@ def _entry_fill(v0, v1, s0, s1, off, ent_slot, cur, sh, vp_ids):
 
 
 @njit(cache=True, parallel=True)
-def _count_entries(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
-                   off, cap):
-    """off (K + 1,) int64 = the VPs' entry offsets (off[v + 1] - off[v]: the
-    slots VP v is stored in), counted by n_chunks threads (VP ranges);
-    returns the entry count E = off[K].  cap: the largest bounding-box cell
-    count of a VP."""
+def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
+                     n_slots, slot_proto, cur_proto, cap):
+    """The CSR arrays (cell_start (n_slots + 1,) of cur_proto's dtype, vp_ids
+    (n_entries,) int32, the VPs of a slot ascending), computed by n_chunks
+    threads: each VP's slots (VP ranges in parallel), then a counting sort of
+    the entries by slot, each thread counting and placing the entries of its
+    VP range (one of SORT_GROUPS with about E / SORT_GROUPS entries each),
+    split by slot ranges when there are more threads than groups.  No
+    (n_slots,) mark array: a VP's hash collisions are removed from its own
+    list.  slot_proto: an empty array of the entries' slot dtype; cur_proto:
+    of the cursors' and cell starts' (start_dtype); cap: the largest
+    bounding-box cell count of a VP.  Temporary memory: (SORT_GROUPS - 1,
+    n_slots) cursors, the (E,) slots of the entries."""
     K = pos.shape[0]
+    off = np.empty(K + 1, np.int64)
     off[0] = 0
     for c in prange(n_chunks):
         _count_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
                      h, inv_h, dense, nx, ny, nz, shift, off[1:], cap)
     for v in range(K):
         off[v + 1] += off[v]
-    return off[K]
-
-
-@njit(cache=True, parallel=True)
-def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
-                     off, ent_slot, cell_start, cur, vp_ids, cap):
-    """The CSR arrays: cell_start (n_slots + 1,) (int32 or int64: start_dtype)
-    and vp_ids (E,) int32, the VPs of a slot ascending, written in place by
-    n_chunks threads: each VP's slots (VP ranges in parallel) into ent_slot
-    (E,), then a counting sort of the entries by slot, each thread counting
-    and placing the entries of its VP range (one of G = cur.shape[0] + 1 <=
-    SORT_GROUPS with about E / G entries each), split by slot ranges when
-    there are more threads than groups.  No (n_slots,) mark array: a VP's
-    hash collisions are removed from its own list.  off: _count_entries's
-    offsets; cur (G - 1, n_slots), cell_start's dtype: the cursors of the
-    groups but the last (any contents: both are zeroed here, by the
-    threads); cap: the largest bounding-box cell count of a VP.  The caller
-    allocates every array (the grid's two kept from pass to pass,
-    build_grid)."""
-    K = pos.shape[0]
-    n_slots = cell_start.shape[0] - 1
+    E = off[K]
+    ent_slot = np.empty(E, slot_proto.dtype)
     for c in prange(n_chunks):
         _fill_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
                     h, inv_h, dense, nx, ny, nz, shift, off, ent_slot, cap)
-        s0, s1 = c * (n_slots + 1) // n_chunks, (c + 1) * (n_slots + 1) // n_chunks
-        cell_start[s0:s1] = 0
-        for g in range(cur.shape[0]):
-            cur[g, c * n_slots // n_chunks:(c + 1) * n_slots // n_chunks] = 0
-    E = off[K]
     # G VP ranges ("groups") with about E / G entries each, each split in S
     # slot ranges: task (g, j) counts and places group g's entries of slot
     # range j.  Group g < last counts per slot in cur[g], the last group in
     # cell_start[s + 1] (so that its cursors end as the starts).
-    G = cur.shape[0] + 1
+    G = min(n_chunks, SORT_GROUPS)
     S = n_chunks // G
     vb = np.searchsorted(off, np.arange(G + 1) * E // G)
     vb[0], vb[G] = 0, K
+    cell_start = np.zeros(n_slots + 1, cur_proto.dtype)
+    cur = np.zeros((G - 1, n_slots), cur_proto.dtype)
     last = G - 1
     for t in prange(G * S):
         g, j = t // S, t % S
@@ -441,6 +428,7 @@ def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, 
     for c in prange(n_chunks):
         _slot_range_cursors(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks, base[c],
                             cur, cell_start)
+    vp_ids = np.empty(E, np.int32)
     for t in prange(G * S):
         g, j = t // S, t % S
         s0, s1 = j * n_slots // S, (j + 1) * n_slots // S
@@ -448,12 +436,12 @@ def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, 
             _entry_fill(vb[g], vb[g + 1], s0, s1, off, ent_slot, cur[g], 0, vp_ids)
         else:
             _entry_fill(vb[g], vb[g + 1], s0, s1, off, ent_slot, cell_start, 1, vp_ids)
+    return cell_start, vp_ids
 
 
 #: The same build compiled without ``parallel`` (small grids: a parallel
 #: region's thread hand-off costs more than their build).
 _insert_serial = serial_twin(_insert_parallel)
-_count_entries_serial = serial_twin(_count_entries)
 
 
 @njit(cache=True)
@@ -580,17 +568,17 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
             _scatter(bounds[c], bounds[c + 1], ps, start, ph_pos, ph_ng, ph_wi, ph_power,
                      ph_rpred, order, slot, pos, ng, wi, power, rpred)
         return order, slot, pos, ng, wi, power, rpred
-    kept = np.empty(n, np.int32)          # the photons in a slot, in index order
+    inside = np.empty(n, np.int32)        # the photons in a slot, in index order
     key = np.empty(n, np.int64)
     j = 0
     for p in range(P):
         if ps[p] >= 0:
-            kept[j] = p
+            inside[j] = p
             key[j] = ps[p]
             j += 1
     by_slot = np.argsort(key, kind="mergesort")          # stable
     for q in range(n):
-        order[q] = kept[by_slot[q]]
+        order[q] = inside[by_slot[q]]
     for c in prange(n_chunks):
         _copy_sorted(c * n // n_chunks, (c + 1) * n // n_chunks, order, ps, ph_pos, ph_ng,
                      ph_wi, ph_power, ph_rpred, slot, pos, ng, wi, power, rpred)
@@ -943,19 +931,9 @@ def start_dtype(entry_bound: int):
     return np.int32 if entry_bound < 2**31 else np.int64
 
 
-class KeptGrid:
-    """The grid's two largest arrays, kept from one build to the next
-    (``build_grid(..., kept=)``, one per renderer): the table of cell starts
-    and the entries, reused when the last grid was dropped (core.kept)."""
-
-    def __init__(self):
-        self.cell_start, self.vp_ids = KeptBuffer(), KeptBuffer()
-
-
 def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
                cell_factor: float = CELL_FACTOR, layout: str = "auto",
-               log2_table: Optional[int] = None, parallel: bool = True,
-               kept: Optional[KeptGrid] = None) -> Grid:
+               log2_table: Optional[int] = None, parallel: bool = True) -> Grid:
     """Bucket the active visible points into a grid (see the module docstring).
 
     vp_pos: (K, 3) float64 world positions.  vp_R: (K,) float64 radii [m].
@@ -964,9 +942,7 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     (before the entry-budget clamp).  layout: 'auto', 'dense' or 'hash';
     log2_table forces a hash table of 2**log2_table slots (tests use tiny
     tables to exercise collisions).  parallel: numba threads from
-    PARALLEL_MIN_VPS VPs (False: one thread; the same grid).  kept: the
-    cell starts and entries of the last grid built with it are reused when
-    that grid is no longer referenced (else new arrays; the same grid).
+    PARALLEL_MIN_VPS VPs (False: one thread; the same grid).
     tests/oracle_grid.py is the reference it is checked against (the numpy
     extent and the serial two-pass insertion it replaced).
     """
@@ -1015,22 +991,13 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
         n_slots, shift = 1 << log2_table, 64 - log2_table
 
     args = (vp_pos, R_ins, act, origin, h, inv_h, dense,
-            int(dims[0]), int(dims[1]), int(dims[2]), shift)
-    if not (n_active >= PARALLEL_MIN_VPS and T > 1):
-        T = 1
-    # The grid's arrays (kept: alive through the gather anyway) and the
-    # build's own (ent_slot, the cursors: numpy's, freed before the gather);
-    # none allocated inside the kernels, whose arrays are faulted in 4 KiB
-    # pages every pass (docs/architecture.md, "Grid arrays kept").
-    off = np.empty(K + 1, np.int64)
-    E = int((_count_entries if T > 1 else _count_entries_serial)(T, *args, off, int(cap)))
-    ent_slot = np.empty(E, np.int32 if n_slots < 2**31 else np.int64)
-    sdt = start_dtype(est)
-    cell_start = np.empty(n_slots + 1, sdt) if kept is None else kept.cell_start.get(n_slots + 1, sdt)
-    cur = np.empty((min(T, SORT_GROUPS) - 1, n_slots), sdt)
-    vp_ids = np.empty(E, np.int32) if kept is None else kept.vp_ids.get(E, np.int32)
-    (_insert_parallel if T > 1 else _insert_serial)(T, *args, off, ent_slot, cell_start, cur,
-                                                    vp_ids, int(cap))
+            int(dims[0]), int(dims[1]), int(dims[2]), shift, n_slots)
+    proto = np.empty(0, np.int32 if n_slots < 2**31 else np.int64)
+    cur_proto = np.empty(0, start_dtype(est))
+    if n_active >= PARALLEL_MIN_VPS and T > 1:
+        cell_start, vp_ids = _insert_parallel(T, *args, proto, cur_proto, int(cap))
+    else:
+        cell_start, vp_ids = _insert_serial(1, *args, proto, cur_proto, int(cap))
     return Grid(K, n_active, origin, h, inv_h, lo, hi, bool(dense), dims,
                 0 if dense else log2_table, cell_start, vp_ids, R_ins)
 

@@ -216,7 +216,6 @@ class PhotonPass:
         # reused by every chunk of every pass (hashgrid.GatherBuffers).
         self.gather_buffers: Optional[hashgrid.GatherBuffers] = None
         self._kept = KeptArrays()
-        self._kept_grid = hashgrid.KeptGrid()       # the grid's table and entries, every pass
         # trace_ahead's (rng, futures of the queued chunks' deposits, chunks
         # not queued yet), or None.
         self._ahead = None
@@ -319,8 +318,7 @@ class PhotonPass:
         if not np.any(active):
             return None
         want_pairs = self.frequency and (self.radius_histogram is not None or spectrum_aov)
-        return PassGrid(vp, R2, hashgrid.build_grid(vp.p, np.sqrt(R2), active,
-                                                    kept=self._kept_grid), want_pairs,
+        return PassGrid(vp, R2, hashgrid.build_grid(vp.p, np.sqrt(R2), active), want_pairs,
                         spectrum_aov)
 
     def chunk_sums(self, pg: "PassGrid", n: int, n_freq: int,
