@@ -24,7 +24,7 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
   buffers where every pixel continues (+272 B).  1100 B until the visible
   points' hash grid kept its cell starts in int32 (64 B less a pixel with
   the Cornell box's 16 slots a pixel).  Kept at 1040 B although a 1080p
-  Cornell box pass now grows by 850-943 B a pixel with its sector counts
+  Cornell box pass now grows by 859-916 B a pixel with its sector counts
   (docs/architecture.md, "Memory and page faults of a 1080p pass"): the
   numpy light sampler and the delta chains are not measured lower
 - per AOV channel per pixel: the film's float32 layer, its float64 source and
