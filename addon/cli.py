@@ -2,6 +2,7 @@
 
     fppm render SCENE.blend -o OUT.exr [--frame N] [--time-limit S] [--passes N]
                 [--photons N] [--mode combined|fppm|ppm|path|light] [--seed N] [--resolution PCT]
+                [--merge-weights partition|mis]
                 [--checkpoint DIR [--checkpoint-every S] [--resume]] [--overwrite]
 
 This module is shipped in the extension and runs alone
@@ -78,6 +79,9 @@ def add_render_parser(sub) -> None:
                         "path: path tracing (integrator PATH); "
                         "light: light tracing alone (photon paths connected to the camera)")
     r.add_argument("--seed", type=int, metavar="N", help="random seed")
+    r.add_argument("--merge-weights", choices=("partition", "mis"),
+                   help="combined: photon merging by path classes (partition) or as an MIS "
+                        "strategy (mis); default: the file's")
     r.add_argument("--resolution", type=int, metavar="PCT",
                    help="resolution percentage (1-1000), overriding the file's")
     r.add_argument("--no-preview", action="store_true", help="do not write the PNG preview")
@@ -373,6 +377,8 @@ def overrides_from_args(a) -> dict:
         kw["photons_per_pass"] = a.photons
     if a.seed is not None:
         kw["seed"] = a.seed
+    if getattr(a, "merge_weights", None) is not None:
+        kw["merge_weights"] = a.merge_weights.upper()
     if a.mode == "light":
         kw["integrator"] = "LIGHT"
     elif a.mode == "path":
@@ -720,7 +726,8 @@ FRAME_RANGE = (-1048574, 1048574)
 MIN_TIME_LIMIT = 1e-3
 # The flag each overridden setting comes from (for the messages).
 _FLAG_OF = {"time_limit": "--time-limit", "max_passes": "--passes",
-            "photons_per_pass": "--photons", "seed": "--seed", "use_frequency": "--mode"}
+            "photons_per_pass": "--photons", "seed": "--seed", "use_frequency": "--mode",
+            "merge_weights": "--merge-weights"}
 
 
 def check_numbers(a) -> None:

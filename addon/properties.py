@@ -22,6 +22,14 @@ RADIUS_MODES = (
     ('WORLD', "World Units",
      "Initial radius in metres, the same at every visible point", 1),
 )
+MERGE_WEIGHTS = (
+    ('PARTITION', "Partition",
+     "Merging takes whole path classes (caustics seen through mirrors and glass), "
+     "weight 0 or 1", 0),
+    ('MIS', "MIS",
+     "Merging is a fourth MIS strategy at the visible point: its weight grows with the "
+     "gathering radius", 1),
+)
 INTEGRATORS = (
     ('PHOTON', "Photon Mapping",
      "Stochastic progressive photon mapping with the frequency-adapted kernel (FPPM)", 0),
@@ -93,6 +101,9 @@ class FPPMRenderSettings(PropertyGroup):
         description="Combined: light paths in every pass per camera path of the pass "
                     "(Camera Samples x pixels), the same balance at any resolution; "
                     "0 = Photons per Pass")
+    merge_weights: EnumProperty(
+        name="Merging Weights", items=MERGE_WEIGHTS, default=_D.merge_weights,
+        description="Combined: how photon merging shares paths with the other strategies")
 
     # --- Kernel
     radius_mode: EnumProperty(

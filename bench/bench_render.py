@@ -47,6 +47,12 @@ photon tracer's threads (core.sppm.photons.THREADS), the photon pass
 used (CPU / wall), and the peak resident size (``VmHWM``) and its growth
 from before the Renderer was built.  The first pass (numba loading, the
 boundary cap's camera pass) is not measured; the next ``--passes`` are summed.
+With trace-ahead (the default) the photon trace runs while the camera and
+direct stages and the gather run, and the process CPU clocks of those
+stages count it too: "photon pass alone" reruns ``--passes`` passes with
+trace-ahead off, where the photon pass's clocks hold its own CPU alone, and
+splits the trace's CPU (its threads' clocks) into Embree, the bounce kernel
+and the rest.
 
 ``--gather``: the photon pass's gather with the per-thread buffers allocated
 once per render (hashgrid.GatherBuffers, folded at the touched points) against
@@ -365,6 +371,10 @@ def main(argv=None):
         gather_report(a)
         return 0
     scene = cornell(a.res)
+    # The trace's and the gather's process-CPU clocks must not hold the
+    # camera stage's CPU: no trace-ahead here (photon_pass_alone).
+    from core.sppm import photon_pass as PPm
+    PPm.TRACE_AHEAD = False
     tm = Timers()
     r = make_renderer(scene, a, a.frequency, tm)
     r0 = make_renderer(scene, a, False, tm) if a.frequency else None
@@ -759,6 +769,7 @@ def pass_one(a):
     n = a.passes
     # The photon rays' own raw time (same threads), for the photon-pass target.
     prw, prc = raw_threads(raw, int(ph[2] / n), Ph.THREADS)
+    alone = photon_pass_alone(r, clock, raw, n)
     wall, cpu = clock.wall, clock.cpu
     rest_w = pw - sum(wall.values())
     rest_c = pc - sum(cpu.values())
@@ -768,6 +779,7 @@ def pass_one(a):
           f"{pc / rc:.2f}x CPU; cores used {pc / pw:.2f} (raw Embree {rc / rw:.2f})")
     print(f"    photon pass (grid + trace + gather) / raw Embree of its photon rays: "
           f"{ph[0] / n / prw:.2f}x wall, {ph[1] / n / prc:.2f}x CPU")
+    print(alone)
     print(f"    {pass_rays / n:,.0f} rays a pass; raw Embree rate {pass_rays / rw / 1e6:.2f} M rays/s "
           f"on {Ph.THREADS} threads: the 4 s target is {4.0 / (rw / n):.1f}x the raw time "
           f"of the pass's rays (measured {pw / rw:.1f}x)")
@@ -792,6 +804,72 @@ def pass_one(a):
         f"{k} {v / 2**30:.2f} GiB" for k, v in sorted(warm_peak.items(), key=lambda kv: -kv[1])[:3]))
     print(f"    peak resident (VmHWM) {hwm / 2**30:.2f} GiB, growth from before the Renderer "
           f"{(hwm - rss0) / 2**20:.0f} MiB ({(hwm - rss0) / (w * h):.0f} B a pixel)")
+
+
+class ThreadClock:
+    """CPU seconds of the calling thread inside wrapped functions, summed
+    over the threads that call them (``time.thread_time``: the photon
+    tracer's halves and Embree calls run in one thread each, so no other
+    stage's CPU falls inside these clocks)."""
+
+    def __init__(self):
+        self.t = {}
+
+    def wrap(self, obj, name, key):
+        f = getattr(obj, name)
+        t = self.t
+        lock = threading.Lock()
+
+        def g(*args, **kw):
+            c0 = time.thread_time()
+            try:
+                return f(*args, **kw)
+            finally:
+                c = time.thread_time() - c0
+                with lock:
+                    t[key] = t.get(key, 0.0) + c
+        setattr(obj, name, g)
+        return f
+
+
+def photon_pass_alone(r, clock, raw, n: int) -> str:
+    """n more passes of r with trace-ahead off (PhotonPass.trace_ahead): the
+    photon pass (grid + trace + gather) then runs alone, so the process CPU
+    inside its clocks is its own -- with trace-ahead on, the trace's thread
+    runs during the camera and direct stages and the gather, and the
+    process clocks of those stages count it as well.  The trace's own CPU
+    (its threads' clocks) split into Embree, the bounce kernel and the rest
+    (emission, uniforms, numpy glue).  Returns the report line."""
+    from core.sppm import photon_pass as PPm
+    keys = ("grid_build", "photon_trace", "gather")
+    tc = ThreadClock()
+    undo = [(Ph, "intersect_f32", tc.wrap(Ph, "intersect_f32", "embree")),
+            (PK, "bounce_kernel", tc.wrap(PK, "bounce_kernel", "bounce")),
+            (r.tracer, "_trace_part", tc.wrap(r.tracer, "_trace_part", "trace"))]
+    ahead, PPm.TRACE_AHEAD = PPm.TRACE_AHEAD, False
+    acc = np.zeros(3)                             # wall, CPU, photon rays
+    try:
+        for _ in range(n):
+            sw0, sc0 = clock.snapshot()
+            prays0 = r.photon_rays
+            r.step()
+            sw, sc = clock.snapshot()
+            acc += [sum(sw[k] - sw0[k] for k in keys), sum(sc[k] - sc0[k] for k in keys),
+                    r.photon_rays - prays0]
+    finally:
+        PPm.TRACE_AHEAD = ahead
+        for obj, name, f in undo:
+            if obj is r.tracer:
+                del obj._trace_part               # back to the class's method
+            else:
+                setattr(obj, name, f)
+    prw, prc = raw_threads(raw, int(acc[2] / n), Ph.THREADS)
+    t = {k: v / n / prc for k, v in tc.t.items()}
+    return (f"    photon pass alone (trace-ahead off) / raw Embree of its photon rays: "
+            f"{acc[0] / n / prw:.2f}x wall, {acc[1] / n / prc:.2f}x CPU; its trace's threads, "
+            f"CPU: {t.get('trace', 0):.2f}x = Embree {t.get('embree', 0):.2f}x + bounce kernel "
+            f"{t.get('bounce', 0):.2f}x + rest "
+            f"{t.get('trace', 0) - t.get('embree', 0) - t.get('bounce', 0):.2f}x")
 
 
 def tm_trace_cpu(pp):

@@ -6,7 +6,9 @@
 RUNS: comma-separated fppm, ppm, path<K>, light, combined<K> (K = camera
 samples, default 4), cycles; a suffix :p<N> sets photons_per_pass (light
 paths per pass for light and combined), :r<X> sets light_paths_per_camera_path
-(combined: X light paths per camera path), :n<N> renders N passes whatever
+(combined: X light paths per camera path), :mmis (last) merging as an MIS
+strategy (merge_weights 'MIS'; :mppm the same without frequency photons,
+PPM radii), :n<N> renders N passes whatever
 the time (equal light paths).  The reference is Cycles at 8192 spp (cached
 under ~/.cache/fppm/references/ as ``fppm converge`` does), or with
 ``--ref light:S`` a light-tracing render of S CPU seconds (for scenes Cycles
@@ -45,6 +47,10 @@ from fppm.tools.converge.references import (cycles_reference_setup, cycles_rende
 
 
 def settings_of(run: str) -> dict:
+    if run.endswith(":mmis"):                # e.g. combined4:mmis -- merging as an MIS strategy
+        return dict(settings_of(run[:-5]), merge_weights="MIS")
+    if run.endswith(":mppm"):                # the same with PPM radii (no frequency photons)
+        return dict(settings_of(run[:-5]), merge_weights="MIS", use_frequency=False)
     if ":n" in run:                          # e.g. light:n40 -- 40 passes, no time budget
         run, n = run.split(":n")
         return dict(settings_of(run), max_passes=int(n))

@@ -56,7 +56,7 @@ import numpy as np
 from . import memory
 from .accel import Accel
 from .integrators import PathTracer
-from .errors import CheckpointMismatch, RenderCancelled, SceneError
+from .errors import CheckpointMismatch, FPPMError, RenderCancelled, SceneError
 from .lights import build_light_table
 from .lights import shadow
 from .lights.nee import NextEventEstimation
@@ -146,6 +146,7 @@ class Renderer:
         # integrator 'COMBINED': camera paths + light tracing, MIS-weighted
         # (core.integrators.combined); the splats go to their own buffer.
         self.combined_lt = None
+        self.merge_mis = False
         # Photon merging in 'COMBINED' (core.integrators.merge): SPPM on the
         # visible points seen through a delta vertex, caustic photons only.
         self.merging = st.integrator == "COMBINED" and MERGING in self.plan.strategies
@@ -155,6 +156,23 @@ class Renderer:
                                             st.photons_per_pass, st.camera_samples)
             self.path_tracer.vc.merging = self.merging
             self.tracer.after_delta_only = self.merging
+            # Merging as an MIS strategy (merge_weights 'MIS', needs light
+            # tracing's paths: core.integrators.merge_kernels) instead of the partition.
+            self.merge_mis = (self.merging and st.merge_weights == "MIS"
+                              and "light tracing" in self.plan.strategies)
+            if self.merge_mis:
+                self.path_tracer.vc.merging = self.tracer.after_delta_only = False
+                # The frequency kernel's radii (predicted radius, holds): a
+                # pass of frequency photons alone (frequency_fraction of the
+                # light paths), whose flux is not used.
+                self.merge_freq_pass = None
+                if self.plan.frequency_photons and st.frequency_fraction > 0:
+                    from dataclasses import replace
+                    n_f = max(1, int(round(st.photons_per_pass * st.frequency_fraction)))
+                    self.merge_freq_pass = PhotonPass(
+                        self.tracer, self.mtab,
+                        replace(st, photons_per_pass=n_f, frequency_fraction=1.0), True,
+                        self.radii.hist if self.radii.quantile else None, self.stage_seconds)
             if "light tracing" in self.plan.strategies:
                 self.combined_lt = CombinedLightTracer(
                     self.scene, self.accel, self.mtab, self.light_table, self.camera, st,
@@ -387,6 +405,8 @@ class Renderer:
         computed as photon mapping computes them (core.sppm.film PASSES)."""
         t0 = time.perf_counter()
         k = self.pass_index + 1
+        if self.merge_mis:
+            return self._step_merge_mis(k, t0)
         L_pass = self._interruptible(self.path_tracer, self._rng(k, 3), self._check_stop)
         tl = time.perf_counter()
         self.stage_seconds["camera"] += tl - t0
@@ -409,6 +429,69 @@ class Renderer:
         self.state.L_sum += L_pass
         if vp is not None:
             self.film.accumulate(vp)
+        self.pass_index = k
+        self.elapsed += time.perf_counter() - t0
+        self.last_result = self._film()
+        return self.last_result
+
+    def _step_merge_mis(self, k: int, t0: float) -> PassResult:
+        """:meth:`_step_path` with merging as an MIS strategy: the camera
+        pass first (its visible points' radii initialised), so that the
+        camera paths, light tracing's splats and the weighted gather of light
+        tracing's own deposits (core.integrators.merge_kernels) read the same
+        radii.  The radius reduction counts the gathered photons unweighted,
+        its predicted radii and holds from a pass of frequency photons alone
+        (``merge_freq_pass``; plain PPM without one); the merged radiance
+        joins the splats (both / light paths traced)."""
+        from .integrators.merge_kernels import merge_gather
+        if not hasattr(self.combined_lt, "merge_deposits"):
+            raise FPPMError("Merging as an MIS strategy needs light tracing's paths in this "
+                            "process (not with tools/distributed.py): use merge weights "
+                            "'PARTITION'.")
+        st, state = self.settings, self.state
+        vp, _ = self._interruptible(self.camera_pass, self._rng(k, 0), self._check_stop)
+        self.radii.initialise(state, vp, self._check_stop)
+        R2 = state.R2.copy()
+        region = (*self.offset, self.width, self.height)
+        self.path_tracer.vc.mis_merge = (R2, float(st.photons_per_pass), region)
+        self.combined_lt.merge_R2 = R2
+        tl = time.perf_counter()
+        self.stage_seconds["camera"] += tl - t0
+        L_pass = self._interruptible(self.path_tracer, self._rng(k, 3), self._check_stop)
+        tp = time.perf_counter()
+        self.stage_seconds["camera"] += tp - tl
+        sums = self._interruptible(self.combined_lt.trace_pass, st.photons_per_pass,
+                                   self._rng(k, 2), self._check_stop)
+        dep = self.combined_lt.merge_deposits()
+        self.combined_lt.kept = None
+        tg = time.perf_counter()
+        self.stage_seconds["photon_trace"] += tg - tp
+        P = R2.shape[0]
+        M, r_pred, sectors = np.zeros(P), np.full(P, np.inf), None
+        if dep is not None:
+            Lm, M = merge_gather(vp, R2, R2, dep, self.mtab, self.camera, region)
+            sums = sums + Lm
+        self.stage_seconds["gather"] += time.perf_counter() - tg
+        if self.merge_freq_pass is not None:
+            self.tracer.set_radius_cut(R2)
+            est = self.merge_freq_pass(vp, R2, state.spectrum, self._rng(k, 4),
+                                       self._check_stop)
+            if est.r_hist is not None:
+                state.r_hist += est.r_hist
+            if est.spectrum is not None:
+                state.spectrum[...] = est.spectrum
+            r_pred = (self.radii.predicted(est.r_pred_min, state.r_hist) if est.gathered
+                      else est.r_pred_min)
+            sectors = est.sectors
+        tu = time.perf_counter()
+        if state.sectors is not None and sectors is None:
+            sectors = np.zeros_like(state.sectors)
+        self.radii.update(state, np.asarray(M, np.float64), np.zeros((P, 3)), r_pred, sectors)
+        self.stage_seconds["update"] += time.perf_counter() - tu
+        self.light_splat += sums
+        self.photons_emitted += self.photons_per_step
+        self.state.L_sum += L_pass
+        self.film.accumulate(vp)
         self.pass_index = k
         self.elapsed += time.perf_counter() - t0
         self.last_result = self._film()

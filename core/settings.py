@@ -28,6 +28,7 @@ class RenderSettings:
     integrator: str = "COMBINED"     # 'COMBINED' (path + light tracing, merging), 'PHOTON', 'PATH', 'LIGHT'
     camera_samples: int = 4          # PATH, COMBINED: camera paths per pixel and pass
     light_paths_per_camera_path: float = 0.0  # COMBINED: light paths per pass / camera paths (0 = photons_per_pass)
+    merge_weights: str = "PARTITION"  # COMBINED: photon merging by path classes ('PARTITION') or as an MIS strategy ('MIS')
     # --- Kernel
     radius_mode: str = "AUTO"        # 'AUTO' (pixel footprint) or 'WORLD'
     initial_radius_px: float = 2.0   # AUTO: radius = this many pixel footprints
@@ -81,6 +82,8 @@ class RenderSettings:
         if not (math.isfinite(self.light_paths_per_camera_path)
                 and 0 <= self.light_paths_per_camera_path <= 10_000):
             bad("light_paths_per_camera_path", "must be in [0, 10000] (0 = photons_per_pass)")
+        if self.merge_weights not in ("PARTITION", "MIS"):
+            bad("merge_weights", "must be 'PARTITION' or 'MIS'")
         if self.radius_mode not in ("AUTO", "WORLD"):
             bad("radius_mode", "must be 'AUTO' or 'WORLD'")
         if not 0 < self.initial_radius_px <= 1000:

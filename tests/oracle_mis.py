@@ -19,6 +19,13 @@ p_bsdf(y_{i+1}: y_{i+2} -> y_i) |cos_i| / d^2; a mirror's densities are 1
 Photon merging (core.integrators.merge) owns a path when its first
 non-mirror vertex y_v has v > 1 and y_{v+1} is a mirror (``merge_owned``):
 then the weight is 1 for merging and 0 for every strategy above.
+
+Merging as an MIS strategy (``vcm_densities``): a fourth density
+
+    q_M = 1 c_1 ... c_v  N_M l_v ... l_k  pi r^2   (0 unless k >= v + 2)
+
+with y_v the first non-mirror vertex (one SPPM camera sample per pixel and
+pass, N_M merging photons, r the radius of the pixel containing y_1).
 """
 from __future__ import annotations
 
@@ -60,6 +67,23 @@ def densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir, nee_area, hittable)
     """(q_PT, q_NEE, q_LT) of path.  axis: unit view direction of the camera;
     emit_pos: l_k; emit_dir(w): the emitter's solid-angle density along w
     (leaving y_k); nee_area: n_k; hittable: a BSDF ray can hit the emitter."""
+    return _densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir, nee_area, hittable)[:3]
+
+
+def vcm_densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir, nee_area, hittable, N_M, r2):
+    """(q_PT, q_NEE, q_LT, q_M) of path (arguments as :func:`densities`; N_M
+    merging photons per pass, r2 the squared radius of y_1's pixel)."""
+    q_pt, q_nee, q_lt, c, l = _densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir,
+                                         nee_area, hittable)
+    k = len(path) - 1
+    v = next((i for i in range(1, k) if path[i]["kind"] != "mirror"), None)
+    q_m = 0.0
+    if v is not None and k >= v + 2:
+        q_m = np.prod(c[1:v + 1]) * N_M * np.prod(l[v:]) * np.pi * r2
+    return q_pt, q_nee, q_lt, q_m
+
+
+def _densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir, nee_area, hittable):
     k = len(path) - 1
     y = [np.asarray(v["p"], float) for v in path]
     c = [None] * (k + 1)
@@ -78,7 +102,7 @@ def densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir, nee_area, hittable)
     q_pt = K * np.prod(c[1:]) if hittable else 0.0
     q_nee = K * np.prod(c[1:k]) * nee_area if k >= 2 and path[k - 1]["kind"] != "mirror" else 0.0
     q_lt = N_L * np.prod(l[1:]) if path[1]["kind"] != "mirror" else 0.0
-    return q_pt, q_nee, q_lt
+    return q_pt, q_nee, q_lt, c, l
 
 
 def power_weights(q):

@@ -17,6 +17,8 @@ import pytest
 from core import materials as Bm
 from core.integrators.combined import (emission_splat_weight, first_hit_ratios,
                                        scatter_factors, splat_weight)
+from core.integrators import path_kernels as PKp
+from core.integrators.merge import CameraMerge
 from core.integrators.path_tracer import PathVertices
 from core.lights.pdf import _selection_probability
 from core.lights import pdf_direct
@@ -79,20 +81,27 @@ def _unit(v):
     return v / np.linalg.norm(v)
 
 
-def camera_side(r, path):
-    """(w_PT, w_NEE) from the PathTracer's CameraMIS along path[1:] (y_0 = LENS)."""
+def camera_side(r, path, merge=False):
+    """(w_PT, w_NEE) from the PathTracer's CameraMIS along path[1:] (y_0 =
+    LENS).  merge: with merging as an MIS strategy (CameraMIS.mis_merge set),
+    its CameraMerge steps as the PathTracer takes them; the compiled twins
+    (nee_compiled, continued_compiled) then give the same numbers (1e-12)."""
     pt, cam = r.path_tracer, r.path_tracer.vc
     k = len(path) - 1
     y = [np.asarray(v["p"], float) for v in path]
     row = np.array([path[k]["row"]])
     d = _unit(y[1] - y[0])[None]
     t = np.array([np.linalg.norm(y[1] - y[0])])
-    Qs = cam.camera_state(d)
+    Qs, i0 = cam.camera_state(d), np.zeros(1, np.int64)
+    mg = CameraMerge(1) if merge else None
     if k == 1:
-        return cam.emission(np.ones(1), np.zeros(1, np.int64), row, d, t, None, 0, Qs, None,
-                            np.zeros(1), None)[0], 0.0
+        return cam.emission(np.ones(1), i0, row, d, t, None, 0, Qs, None, np.zeros(1), None,
+                            *((np.zeros(1),) if merge else ()))[0], 0.0
     v = _pv(r, path[1], -d[0])
-    v.Q, v.c = cam.at_hit(Qs, None, np.zeros(1, np.int64), d, v.ng, t, 0)
+    v.Q, v.c = cam.at_hit(Qs, None, i0, d, v.ng, t, 0)
+    if merge:
+        mg.scale = cam.merge_scale(v.p, np.full((1, 2), 0.5))
+        v.QM = mg.at_vertex(t)
     w_nee = 0.0
     for j in range(1, k):
         depth = j - 1
@@ -102,21 +111,35 @@ def camera_side(r, path):
             dist = np.array([np.linalg.norm(y[k] - y[j])])
             w2 = pt.mis_light(v, wi, dist, row)
             w_nee = cam.nee(w2, v, wi, dist, row, depth)[0]
+            if merge:
+                pl = pt.pdf_light(v.p, wi, row, dist, v.ns_wo())
+                sel = _selection_probability(r.light_table, v.p, row)
+                np.testing.assert_allclose(cam.nee_compiled(w2, v, wi, dist, row, pl, sel,
+                                                            depth), w_nee, rtol=1e-12, atol=1e-15)
         wi = _unit(y[j + 1] - y[j])[None]
         t = np.array([np.linalg.norm(y[j + 1] - y[j])])
         pdf = np.ones(1) if delta else Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, v.wo,
                                                      wi, subset="all")
-        Qs, pf = cam.continued(v, np.zeros(1, np.int64), wi, pdf, np.array([delta]), depth)
+        if merge:
+            QMn = cam.continued(v, i0, wi, pdf, np.array([delta]), depth, Q=v.QM)[0]
+            nx = PKp.NextRays(i0, v.p, wi, np.ones((1, 3)), pdf, np.array([delta]), v.ns,
+                              np.ones(1))
+            np.testing.assert_allclose(cam.continued_compiled(v, nx, depth, Q=v.QM)[0], QMn,
+                                       rtol=1e-12, atol=1e-300)
+            mg.sampled(QMn, np.abs(np.sum(v.ng * wi, axis=1)), np.array([delta]))
+        Qs, pf = cam.continued(v, i0, wi, pdf, np.array([delta]), depth)
         pdf_prev = np.zeros(1) if delta else pdf
         if j + 1 == k:
             if not pt.hittable[row[0]]:
                 return 0.0, w_nee        # no ray finds a radius-0 light
             w2 = pt._mis_bsdf(pdf_prev, v.p, v.ns_wo(), wi, row, t)
-            w_pt = cam.emission(w2, np.zeros(1, np.int64), row, wi, t, None, j, Qs, pf,
-                                pdf_prev, v)[0]
+            w_pt = cam.emission(w2, i0, row, wi, t, None, j, Qs, pf, pdf_prev, v,
+                                *((np.where(mg.em, mg.Qs, 0.0),) if merge else ()))[0]
             return w_pt, w_nee
         v = _pv(r, path[j + 1], -wi[0])
-        v.Q, v.c = cam.at_hit(Qs, pf, np.zeros(1, np.int64), wi, v.ng, t, j)
+        v.Q, v.c = cam.at_hit(Qs, pf, i0, wi, v.ng, t, j)
+        if merge:
+            v.QM = mg.at_vertex(t)
 
 
 def light_side(r, path):
@@ -148,17 +171,23 @@ def light_side(r, path):
             pf = Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, wc, v.wo, subset="all")
             c1 = pr.weight * np.abs(np.sum(v.ng * wc, axis=1))
             return splat_weight(B0, B1, pf, c1, m == 1, soft)[0]
-        delta = path[i]["kind"] == "mirror"
-        wn = _unit(y[i - 1] - y[i])[None]
-        pdf = np.ones(1) if delta else Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, v.wo,
-                                                     wn, subset="all")
-        prv = np.ones(1) if delta else Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, wn,
-                                                     v.wo, subset="all")
-        pend, pend1 = scatter_factors(prv, v.ng, wn, pdf, np.array([delta]), m == 1)
-        if m == 1 and delta:
-            B1 = np.zeros(1)
-        cos_in = abs(np.dot(path[i - 1]["n"], wn[0]))
-        B0, B1 = pend * B0 / cos_in, pend1 * B1 / cos_in
+        B0, B1 = light_scatter(r, path, y, i, m, v, B0, B1)
+
+
+def light_scatter(r, path, y, i, m, v, B0, B1):
+    """(B0, B1) of a light path leaving z_m = y_i (vertex v) towards y_{i-1}
+    (CombinedLightTracer's scatter_factors, then the |cos| on arrival)."""
+    delta = path[i]["kind"] == "mirror"
+    wn = _unit(y[i - 1] - y[i])[None]
+    pdf = np.ones(1) if delta else Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, v.wo,
+                                                 wn, subset="all")
+    prv = np.ones(1) if delta else Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, wn,
+                                                 v.wo, subset="all")
+    pend, pend1 = scatter_factors(prv, v.ng, wn, pdf, np.array([delta]), m == 1)
+    if m == 1 and delta:
+        B1 = np.zeros(1)
+    cos_in = abs(np.dot(path[i - 1]["n"], wn[0]))
+    return pend * B0 / cos_in, pend1 * B1 / cos_in
 
 
 def oracle(r, path):
@@ -313,15 +342,18 @@ def test_point_light_plane_closed_form():
     assert z2 < 1.5
 
 
-def test_mirror_caustic_that_path_tracing_misses():
+@pytest.mark.parametrize("merge_weights", ["PARTITION", "MIS"])
+def test_mirror_caustic_that_path_tracing_misses(merge_weights):
     """Point light under a mirror (max_bounces 1): the floor's caustic is
-    reached by light tracing only (w_LT = 1 through the mirror); the combined
-    image matches the closed form inside the footprint, where PATH is 13% dark."""
+    reached by light tracing only (w_LT = 1 through the mirror) -- and, with
+    merging as an MIS strategy, by merging at y_1 as well (light tracing and
+    merging share it by q_M / q_L = pi r^2 c_1); the combined image matches
+    the closed form inside the footprint, where PATH is 13% dark."""
     scene, Lfun, half = mirror_caustic(res=16)
     X, Y = pixel_centres_ortho(scene)
     pix = scene.camera.ortho_scale / scene.camera.resolution[0]
     exp = filtered(Lfun, X, Y, pix, n=32)
-    m, s = _two_seeds(scene, max_bounces=1)
+    m, s = _two_seeds(scene, max_bounces=1, merge_weights=merge_weights)
     inside = (np.abs(X) < half - 2 * pix) & (np.abs(Y) < half - 2 * pix)
     s_in = s / math.sqrt(inside.sum())
     ratio = m[inside].mean() / exp[inside].mean()

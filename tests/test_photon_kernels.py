@@ -314,3 +314,28 @@ def test_threads_do_not_change_deposits(monkeypatch):
         out.append(tr.trace(20_000, 5_000, np.random.default_rng(9)))
     for k in out[0]:
         assert np.array_equal(out[0][k], out[1][k], equal_nan=True), k
+
+
+def test_pool_never_overwrites_held_deposits():
+    """photons.ArrayPool: deposits a caller still holds are not handed out
+    again (a second trace leaves the first result's rows as they were); once
+    dropped, the next trace of the same size reuses their arrays and gives
+    the same bits as fresh arrays."""
+    from core.sppm.photons import ArrayPool
+    tr = _tracer(cornell())
+    d1 = tr.trace(4000, 0, np.random.default_rng(1))
+    kept = {k: v.copy() for k, v in d1.items()}
+    d2 = tr.trace(4000, 0, np.random.default_rng(2))
+    for k in kept:
+        np.testing.assert_array_equal(d1[k], kept[k])
+    assert not np.shares_memory(d1["p"], d2["p"])
+    # ids, not the arrays: a reference held here would keep them in use
+    held = {id(d1["p"].base), id(d2["p"].base)}
+    del d1, d2
+    d3 = tr.trace(4000, 0, np.random.default_rng(1))
+    assert id(d3["p"].base) in held
+    tr.pool = ArrayPool(max_sets=0)                  # every set new, none kept
+    d4 = tr.trace(4000, 0, np.random.default_rng(1))
+    for k in kept:
+        np.testing.assert_array_equal(d3[k], kept[k])
+        np.testing.assert_array_equal(d4[k], kept[k])

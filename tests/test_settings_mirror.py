@@ -88,7 +88,7 @@ def test_to_settings_round_trips_every_field():
                        occlusion_grid_res=32, aov_radius=True, aov_predicted_radius=True,
                        aov_spectrum=True, aov_photon_count=True, aov_held=True,
                        integrator="LIGHT", camera_samples=8, hold_alpha=0.8,
-                       light_paths_per_camera_path=2.5,
+                       light_paths_per_camera_path=2.5, merge_weights="MIS",
                        radius_rule="CPPM", verify_holds=False)
     # Every field differs from its default, so a missed field would show.
     d = RenderSettings()

@@ -26,7 +26,6 @@ from ..mathutil import dot as _dot
 from . import light_kernels as LK
 from . import mis as M
 from ..sppm import photon_kernels as PK
-from ..sppm.photons import _Deposits
 from .light_tracer import LightTracer
 
 
@@ -52,6 +51,21 @@ def _shrink(w, r):
     return _finite(w / (1.0 + w * r * r))
 
 
+def _ratio2(f):
+    """r^2 from a factor f = 1 / (1 + r^2) (a weight computed with w = 1)."""
+    with np.errstate(divide="ignore"):
+        return 1.0 / f - 1.0
+
+
+def _with_merge(w, rl2, rm2, soft):
+    """(K,) a camera strategy's weight w (against its camera rival) with the
+    light-tracing and merging ratios squared rl2, rm2 added (power
+    heuristic: 1 / (1/w + rl2 + rm2)); soft lights: w / (1 + rl2 + rm2)
+    (light tracing and merging against the camera strategies as one)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return _finite(np.where(soft, w / (1.0 + rl2 + rm2), w / (1.0 + w * (rl2 + rm2))))
+
+
 class CameraMIS:
     """The light-tracing terms of the camera strategies' weights (module
     :mod:`.mis`): PathTracer calls these with its vertex arrays."""
@@ -63,6 +77,12 @@ class CameraMIS:
         self.ortho = camera.cam.kind == "ORTHO"
         # Photon merging owns some paths (core.integrators.merge): set by the renderer.
         self.merging = False
+        # Merging as an MIS strategy (merge_weights 'MIS', core.integrators.merge):
+        # (R2 (P,) the pass' squared radii by pixel, N_M merging photons per
+        # pass, the region (x0, y0, W, H)), set by the renderer before each
+        # pass; None = no such term.
+        self.mis_merge = None
+        self.K = int(K)
 
     # ---------------------------------------------------------- densities
     def c1(self, d, cos_surf, t):
@@ -73,6 +93,15 @@ class CameraMIS:
             return cos_surf / A
         cc = -(d @ self.camera.R[:, 2])
         return cos_surf / (A * cc ** 3 * t * t)
+
+    def merge_scale(self, p1, u_lens):
+        """(K,) merging's N_M pi r^2 / K for camera paths whose y_1 is p1 (K, 3)
+        (lens uniforms u_lens (K, 2)): r^2 of the pixel containing y_1
+        (``mis_merge``; core.integrators.merge_kernels.pixel_rows)."""
+        from .merge_kernels import y1_terms
+        R2, n_m, region = self.mis_merge
+        rows = y1_terms(self.camera, p1, u_lens, region)[0]
+        return n_m * np.pi * R2[rows] / self.K
 
     def camera_state(self, d):
         """Q carried by the camera rays (K,): N_L / K."""
@@ -92,12 +121,13 @@ class CameraMIS:
             Q, c = np.where(first, Qs, Q), np.where(first, self.c1(d, cos, t), c)
         return Q, c
 
-    def continued(self, v, c, wi, pdf, is_delta, depth):
+    def continued(self, v, c, wi, pdf, is_delta, depth, Q=None):
         """(Qs, pf) of the rays leaving the vertices v[c] along wi: Q times
         the light-side density pr at the vertex (from the second vertex on;
         1 after a delta) times |cos| / c; Q = 0 after a delta at the first
         vertex (light tracing cannot connect there).  depth: as :func:`_y1`
-        (per vertex of v)."""
+        (per vertex of v).  Q: the vertices' ratio to carry instead of
+        v.Q (merging's QM, never at a first vertex: depth False)."""
         pr = np.ones(c.size)
         fc = np.broadcast_to(_y1(depth), (v.p.shape[0],))[c]
         nd = np.nonzero(~is_delta & ~fc)[0]
@@ -106,32 +136,41 @@ class CameraMIS:
             pr[nd] = B.pdf_bsdf(self.mtab, v.mat[i], v.colors[i], v.ns[i], v.ng[i],
                                 wi[nd], v.wo[i], subset="all")
         with np.errstate(divide="ignore", invalid="ignore"):
-            Q = _finite(v.Q[c] * pr * np.abs(_dot(v.ng[c], wi)) / v.c[c])
+            Q = _finite((v.Q if Q is None else Q)[c] * pr * np.abs(_dot(v.ng[c], wi)) / v.c[c])
         Q = np.where(is_delta & fc, 0.0, Q)
         return Q, np.where(is_delta, 1.0, pdf)
 
     def nee_compiled(self, w, v, wi, dist, light, pl, sel, depth):
         """:meth:`nee` for vertices in the scope of the path kernels
         (``path_kernels.camera_nee_kernel``; pl, sel the samples'
-        light-sampling density and selection probability)."""
+        light-sampling density and selection probability).  With merging's
+        QM (v.QM) the kernel gives each ratio as a factor 1 / (1 + r^2) of a
+        unit weight, combined by :func:`_with_merge`."""
         from . import path_kernels as PK
         if getattr(self, "_mis_lights", None) is None:
             self._mis_lights = PK.build_mis_lights(self.t, self.cls)
-        w = np.array(w, np.float64)
         c = np.ascontiguousarray
-        PK.camera_nee_kernel(self._mis_lights, depth == 0, c(v.Q), c(v.c), c(v.p),
-                             c(v.ng), c(v.ns), c(v.wo), c(wi), c(dist), c(light, np.int64),
-                             c(pl), c(sel), w)
+        geo = (c(v.c), c(v.p), c(v.ng), c(v.ns), c(v.wo), c(wi), c(dist), c(light, np.int64),
+               c(pl), c(sel))
+        if getattr(v, "QM", None) is not None:
+            fl, fm = np.ones(light.size), np.ones(light.size)
+            PK.camera_nee_kernel(self._mis_lights, depth == 0, c(v.Q), *geo, fl)
+            PK.camera_nee_kernel(self._mis_lights, False, c(v.QM), *geo, fm)
+            return _with_merge(np.asarray(w, np.float64), _ratio2(fl), _ratio2(fm),
+                               self.cls[light] == M.SOFT)
+        w = np.array(w, np.float64)
+        PK.camera_nee_kernel(self._mis_lights, depth == 0, c(v.Q), *geo, w)
         return w
 
-    def continued_compiled(self, v, nx, depth):
-        """:meth:`continued` for the NextRays nx of ``path_kernels.continue_kernel``."""
+    def continued_compiled(self, v, nx, depth, Q=None):
+        """:meth:`continued` for the NextRays nx of ``path_kernels.continue_kernel``
+        (Q: as :meth:`continued`)."""
         from . import path_kernels as PK
-        Q = np.empty(nx.src.size)
+        out = np.empty(nx.src.size)
         c = np.ascontiguousarray
-        PK.camera_continued_kernel(depth == 0, nx.src, nx.delta, nx.d, c(v.ng), c(v.ns),
-                                   c(v.wo), c(v.Q), c(v.c), Q)
-        return Q, nx.pdf
+        PK.camera_continued_kernel(depth == 0 and Q is None, nx.src, nx.delta, nx.d, c(v.ng),
+                                   c(v.ns), c(v.wo), c(v.Q if Q is None else Q), c(v.c), out)
+        return out, nx.pdf
 
     def _reverse(self, v, wo_light, depth):
         """(K,) pr at vertices v for light arriving along wo_light (1 at the
@@ -143,24 +182,27 @@ class CameraMIS:
                                v.wo[i], subset="all")
         return pr
 
-    def soft_ratio(self, v, light, depth):
+    def soft_ratio(self, v, light, depth, Q=None):
         """(K,) q_L / q_C of a soft light's centre seen from vertices v
-        (depth as :func:`_y1`)."""
+        (depth as :func:`_y1`; Q: merging's QM for q_M / q_C)."""
         wc = self.t.co[light] - v.p
         dc = np.linalg.norm(wc, axis=1)
         wc = wc / np.maximum(dc, 1e-300)[:, None]
         with np.errstate(divide="ignore", invalid="ignore"):
-            return _finite(v.Q * self._reverse(v, wc, depth) * np.abs(_dot(v.ng, wc))
+            return _finite((v.Q if Q is None else Q) * self._reverse(v, wc, depth)
+                           * np.abs(_dot(v.ng, wc))
                            * M.point_emit_over_nee(self.t, v.p, light, -wc, dc) / v.c)
 
     # ------------------------------------------------------------ weights
-    def emission(self, w, idx, row, d, t, ng, depth, Qs, pf, pdf_prev, vprev):
+    def emission(self, w, idx, row, d, t, ng, depth, Qs, pf, pdf_prev, vprev, QMs=None):
         """(k,) weights of emission found by rays idx (emitter rows row, -1 =
         none) at distance t from the vertex they left (past transparent
         crossings) given their PT-vs-NEE weights w; depth: the index of the
         vertex hit (int) or (K,) bool per ray, the camera ray (only
         transparent crossings since the lens: :func:`_y1`), the vertices
-        vprev the rays left then carrying ``first`` (y_1)."""
+        vprev the rays left then carrying ``first`` (y_1).  QMs: merging's
+        QM of the rays (all rays, 0 where merging cannot take the path) or
+        None; the vertices vprev then carry theirs (``QM``)."""
         first = _rows(_y1(depth), idx)
         w = w.copy()
         ok = row >= 0
@@ -173,28 +215,54 @@ class CameraMIS:
             fr = _rows(first, f)
             with np.errstate(divide="ignore", invalid="ignore"):
                 r = Qs[idx[f]] * pA / self.c1(dd, cos_l, t[f])
+                rm = np.zeros(f.size)
                 if not np.all(fr):
-                    r = np.where(fr, r, Qs[idx[f]] * M.emit_pdf_dir(self.t, j, -dd) * pA
-                                 / (pf[idx[f]] * cos_l))
-            w[f] = _shrink(w[f], _finite(r))
+                    pW = M.emit_pdf_dir(self.t, j, -dd)
+                    r = np.where(fr, r, Qs[idx[f]] * pW * pA / (pf[idx[f]] * cos_l))
+                    if QMs is not None:
+                        # q_M / q_0: the same far end with QM (0 on camera rays).
+                        rm = np.where(fr, 0.0, QMs[idx[f]] * pW * pA / (pf[idx[f]] * cos_l))
+            if QMs is None:
+                w[f] = _shrink(w[f], _finite(r))
+            else:
+                r, rm = _finite(r), _finite(rm)
+                w[f] = _with_merge(w[f], r * r, rm * rm, False)
         s = np.nonzero((cls == M.SOFT) & ~first)[0]
         if s.size:
             i = idx[s]
             delta = pdf_prev[i] <= 0
             vp = vprev.take(i)
-            r = self.soft_ratio(vp, row[s], depth - 1 if np.ndim(depth) == 0 else vp.first)
+            dp = depth - 1 if np.ndim(depth) == 0 else vp.first
+            r = self.soft_ratio(vp, row[s], dp)
             # After a delta at y_{k-1} next-event estimation cannot take the
             # path: light tracing takes it all if it can (the ray's Q > 0: y_1
             # did not scatter by a delta), else path tracing alone (a light
-            # seen in a mirror).
-            wl = np.where(delta, np.where(Qs[i] > 0, 1.0, 0.0), r * r / (1.0 + r * r))
-            w[s] *= 1.0 - wl
+            # seen in a mirror).  Merging as an MIS strategy: light tracing
+            # and merging (QM > 0) share it, path tracing gets it if neither can.
+            if QMs is None:
+                wl = np.where(delta, np.where(Qs[i] > 0, 1.0, 0.0), r * r / (1.0 + r * r))
+                w[s] *= 1.0 - wl
+            else:
+                can = (Qs[i] > 0) | (QMs[i] > 0)
+                rm = self.soft_ratio(vp, row[s], dp, Q=vp.QM)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    w[s] *= _finite(np.where(delta, np.where(can, 0.0, 1.0),
+                                             1.0 / (1.0 + r * r + rm * rm)))
         return w
 
     def nee(self, w, v, wi, dist, light, depth):
         """(K,) weights of the light samples (wi, dist, light) at vertices v
-        given their NEE-vs-PT weights w; depth as :func:`_y1`."""
+        given their NEE-vs-PT weights w; depth as :func:`_y1`.  With
+        merging's QM at the vertices (v.QM) its ratio is added as well."""
         first = np.broadcast_to(_y1(depth), light.shape)
+        if getattr(v, "QM", None) is not None:
+            from dataclasses import replace
+            one = np.ones(light.size)
+            fl = self.nee(one, replace(v, QM=None), wi, dist, light, depth)
+            # QM is 0 at y_1 (merging starts after y_v): no first vertex here.
+            fm = self.nee(one, replace(v, Q=v.QM, QM=None), wi, dist, light,
+                          np.zeros(light.size, bool))
+            return _with_merge(w, _ratio2(fl), _ratio2(fm), self.cls[light] == M.SOFT)
         w = w.copy()
         cls = self.cls[light]
         f = np.nonzero(cls == M.FULL)[0]
@@ -260,13 +328,17 @@ def scatter_factors(pr, ng, wn, pdf, is_delta, first):
     return pend, np.where(first, pend1, pend)
 
 
-def splat_weight(B0, B1, pf, c1, first, soft):
+def splat_weight(B0, B1, pf, c1, first, soft, bm=None):
     """(K,) w_LT of light vertices connected to the camera: 1 / (1 + (B0 pf
     c_1)^2 + (B1 pf c_1)^2), c_1 the camera density of the vertex, pf the
     camera path's BSDF density there towards the light side (not in B1 at
-    the first vertex, see scatter_factors); soft lights: no PT term."""
+    the first vertex, see scatter_factors); soft lights: no PT term.
+    bm: merging's q_M / q_L = (N_M / N_L) pi r^2 c_1 (0 at first hits), or
+    None (core.integrators.merge)."""
     b0 = np.where(soft, 0.0, B0 * pf * c1)
     b1 = B1 * c1 * np.where(first, 1.0, pf)
+    if bm is not None:
+        return _finite(1.0 / (1.0 + b0 * b0 + b1 * b1 + bm * bm))
     return _finite(1.0 / (1.0 + b0 * b0 + b1 * b1))
 
 
@@ -298,8 +370,20 @@ class CombinedLightTracer(LightTracer):
         self.first_lights = LK.first_hit_lights(t, M.emit_select(t, np.arange(t.n)))
 
     def begin_pass(self, n: int) -> None:
-        """A pass of n light paths (all its chunks): the weights' K / N_L."""
+        """A pass of n light paths (all its chunks): the weights' K / N_L;
+        with merging as an MIS strategy (``merge_R2``, set by the renderer:
+        the pass' squared radii (P,)) the deposits are kept for the gather."""
         self.kn = self.K / float(n)
+        self.kept = [] if getattr(self, "merge_R2", None) is not None else None
+
+    def merge_deposits(self):
+        """The pass' deposits kept for merging (dict: p, ng, wi, power, B0, B1,
+        first), or None; chunk by chunk in an order that does not depend on
+        the threads (the chunks' deposit counts and first positions)."""
+        if not self.kept:
+            return None
+        kept = [c for _, c in sorted(self.kept, key=lambda kc: kc[0])]
+        return {k: np.concatenate([c[k] for c in kept]) for k in kept[0]}
 
     def _chunk(self, n: int, rng, film: np.ndarray) -> None:
         t = self.light_table
@@ -328,7 +412,15 @@ class CombinedLightTracer(LightTracer):
         dep, B0d, B1d, first = self._trace(ph, z0, rng)
         if dep is None:
             return
-        self.connect(dep, rng, film, mis=(B0d, B1d, first, soft[dep["src_photon"]]))
+        mis = (B0d, B1d, first, soft[dep["src_photon"]])
+        if getattr(self, "kept", None) is not None:
+            # Merging as an MIS strategy: q_M / q_L = pi r^2 c_1 (N_M = N_L).
+            mis = mis + (np.pi * self.merge_R2,)
+            p = dep["p"]
+            self.kept.append(((p.shape[0], *(float(x) for x in p[0])),
+                              dict(p=p, ng=dep["ng"], wi=dep["wi"], power=dep["power"],
+                                   B0=B0d, B1=B1d, first=first)))
+        self.connect(dep, rng, film, mis=mis)
 
     def _trace(self, ph, z0, rng):
         """Trace the photons ph with the compiled photon kernels
@@ -354,7 +446,7 @@ class CombinedLightTracer(LightTracer):
         rec = PK.HitRecord(t=np.empty(1), ng=np.empty((1, 3)), nswi=np.empty(1),
                            hit=np.empty(1, bool), nxt_src=np.empty(n, np.int64),
                            nxt_delta=np.empty(n, bool))
-        dep = _Deposits(2.0 * n + 64)
+        dep = tr.deposit_buffers(n)
         mis = PK.mis_state(n, dep.buf.r.shape[0])
         mis.row[:K] = src[:K]
         # Transparent shadows: a transparent crossing is no vertex (the
@@ -398,6 +490,7 @@ class CombinedLightTracer(LightTracer):
                     self._generic_factors(n_fast, n_next, hits, rec, live, d_old, row, mis,
                                           fst, clear)
             K = n_next
+        tr.note_deposits(n, dep.n)
         res = dep.result()
         if res is None:
             return None, None, None, None

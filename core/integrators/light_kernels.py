@@ -29,6 +29,7 @@ from ..lights.direct_kernels import _spherical_rect
 from ..lights.table import AREA, POINT
 from ..scene.camera import BH_A0, BH_A1, BH_A2, BH_A3
 from ..sppm.photon_kernels import _offset_scale, lambert_pdf, shading_normal
+from .merge_kernels import pixel_row
 
 _INV_PI = 1.0 / np.pi
 _INV_4PI = 1.0 / (4.0 * np.pi)
@@ -38,16 +39,32 @@ SHADING_CAP = 4.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _filter_1d(d, w, norm, box):
-    """The normalised 1D pixel filter at offset d [px] (core.scene.camera.
-    filter_weight, compiled): Blackman-Harris over +-w, or a one-pixel box."""
+def _taps(x, a, b, w, norm, box, out, o):
+    """out[o + k] = the normalised 1D pixel filter at offset x - (a + k + 0.5)
+    [px] for the pixels a..b (core.scene.camera.filter_weight, compiled):
+    Blackman-Harris over +-w, or a one-pixel box.  cos 2v and cos 3v by the
+    Chebyshev recurrence from cos v, and cos v of the next pixel by the
+    rotation by the pixel step pi / w: one cos and one sin per splat axis
+    instead of three cosines per tap (the splat's main cost); equal to
+    filter_weight up to float rounding (~5e-16 of the filter's peak)."""
     if box:
-        return 1.0 if abs(d) < 0.5 else 0.0
-    if abs(d) >= w:
-        return 0.0
-    v = 2.0 * np.pi * (d / (2.0 * w) + 0.5)
-    return max(BH_A0 - BH_A1 * np.cos(v) + BH_A2 * np.cos(2 * v) - BH_A3 * np.cos(3 * v),
-               0.0) * norm
+        for k in range(b - a + 1):
+            out[o + k] = 1.0 if abs(x - (a + k + 0.5)) < 0.5 else 0.0
+        return
+    v = 2.0 * np.pi * ((x - (a + 0.5)) / (2.0 * w) + 0.5)
+    c = np.cos(v)
+    s = np.sin(v)
+    cd = np.cos(np.pi / w)
+    sd = np.sin(np.pi / w)
+    for k in range(b - a + 1):
+        if abs(x - (a + k + 0.5)) >= w:
+            out[o + k] = 0.0
+        else:
+            c2 = 2.0 * c * c - 1.0
+            c3 = (2.0 * c2 - 1.0) * c
+            out[o + k] = max(BH_A0 - BH_A1 * c + BH_A2 * c2 - BH_A3 * c3, 0.0) * norm
+        # the next pixel's phase: v - pi / w
+        c, s = c * cd + s * sd, s * cd - c * sd
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -56,8 +73,8 @@ def _splat_one(x, y, c0, c1, c2, x0, y0, W, H, width, film, fx):
     film (H*W, 3) (row 0 at the TOP of the region x0..x0+W-1, y0..y0+H-1),
     weighted by the normalised separable pixel filter: Cycles'
     Blackman-Harris over +-width px (core.scene.camera.filter_weight); a box
-    of one pixel when width <= 0.  fx: scratch (>= 2 width + 2,) for the
-    column weights (each evaluated once)."""
+    of one pixel when width <= 0.  fx: scratch (2 (2 width + 3),) for
+    the column and row weights (each evaluated once, :func:`_taps`)."""
     box = width <= 0.0
     w = 0.5 if box else width
     norm = 1.0 / (2.0 * w * BH_A0)
@@ -69,10 +86,13 @@ def _splat_one(x, y, c0, c1, c2, x0, y0, W, H, width, film, fx):
         return
     i0 = max(ia, x0)
     i1 = min(ib, x0 + W - 1)
-    for i in range(i0, i1 + 1):
-        fx[i - i0] = _filter_1d(x - (i + 0.5), w, norm, box)
-    for j in range(max(ja, y0), min(jb, y0 + H - 1) + 1):
-        fy = _filter_1d(y - (j + 0.5), w, norm, box)
+    j0 = max(ja, y0)
+    j1 = min(jb, y0 + H - 1)
+    oy = fx.shape[0] // 2
+    _taps(x, i0, i1, w, norm, box, fx, 0)
+    _taps(y, j0, j1, w, norm, box, fx, oy)
+    for j in range(j0, j1 + 1):
+        fy = fx[oy + j - j0]
         if fy == 0.0:
             continue
         row = (H - 1 - (j - y0)) * W
@@ -90,7 +110,7 @@ def _splat_one(x, y, c0, c1, c2, x0, y0, W, H, width, film, fx):
 def splat_kernel(raster, contrib, x0, y0, W, H, width, film):
     """Add contrib (K, 3) at film positions raster (K, 2) to film (H*W, 3)
     (:func:`_splat_one`)."""
-    fx = np.empty(int(2.0 * max(width, 0.5)) + 3)
+    fx = np.empty(2 * (int(2.0 * max(width, 0.5)) + 3))     # _splat_one's scratch
     for k in range(raster.shape[0]):
         _splat_one(raster[k, 0], raster[k, 1], contrib[k, 0], contrib[k, 1], contrib[k, 2],
                    x0, y0, W, H, width, film, fx)
@@ -252,6 +272,10 @@ class SplatInputs(NamedTuple):
     B1: np.ndarray
     first: np.ndarray
     soft: np.ndarray
+    # Merging as an MIS strategy (core.integrators.merge): (P,) (N_M / N_L)
+    # pi r^2 by pixel of the region, the factor of q_M / q_L = that x c_1 at
+    # the splatted vertex (not a first hit); size 0 = no merging term.
+    mR2: np.ndarray = np.zeros(0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -269,7 +293,7 @@ def splat_fast(con, n, tr, vin, tri_n, tri_ng, tri_mat, fast, col, mis, cam, wid
     The indices of the other unoccluded connections go to slow; returns
     their number."""
     ns_ = 0
-    fx = np.empty(int(2.0 * max(width, 0.5)) + 3)
+    fx = np.empty(2 * (int(2.0 * max(width, 0.5)) + 3))     # _splat_one's scratch
     for c in range(n):
         if tr[c, 0] == 0.0 and tr[c, 1] == 0.0 and tr[c, 2] == 0.0:
             continue
@@ -299,7 +323,12 @@ def splat_fast(con, n, tr, vin, tri_n, tri_ng, tri_mat, fast, col, mis, cam, wid
             pf = lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz, ix, iy, iz)
             b0 = 0.0 if vin.soft[k] else vin.B0[k] * pf * c1
             b1 = vin.B1[k] * c1 * (1.0 if vin.first[k] else pf)
-            wl = 1.0 / (1.0 + b0 * b0 + b1 * b1)
+            den = 1.0 + b0 * b0 + b1 * b1
+            if vin.mR2.shape[0] > 0 and not vin.first[k]:
+                bm = vin.mR2[pixel_row(con.raster[c, 0], con.raster[c, 1], cam.x0, cam.y0,
+                                       cam.W, cam.H)] * c1
+                den += bm * bm
+            wl = 1.0 / den
             if not np.isfinite(wl):
                 wl = 0.0
             g *= wl
@@ -322,7 +351,7 @@ def splat_emitters(con, n, tr, nrm, power, mis, kn, pA, full, cam, width, film):
     f_s = 1 / pi on the emitting side, beta |n.wc| weight / pi, times the
     weight against path tracing when mis (combined.emission_splat_weight:
     1 / (1 + (kn c_1 / pA)^2), c_1 = |n.wc| weight; 0 unless full (K,))."""
-    fx = np.empty(int(2.0 * max(width, 0.5)) + 3)
+    fx = np.empty(2 * (int(2.0 * max(width, 0.5)) + 3))     # _splat_one's scratch
     for c in range(n):
         if tr[c, 0] == 0.0 and tr[c, 1] == 0.0 and tr[c, 2] == 0.0:
             continue

@@ -72,7 +72,7 @@ import numpy as np
 from .. import lights as Lt
 from .. import materials as B
 from ..accel import REL_OFFSET, surface_point
-from ..lights.shadow import transmittance
+from ..lights.shadow import attached as shadow_materials, transmittance
 from ..sppm import photon_kernels as PK
 from ..sppm.photon_pass import chunk_rng
 from ..sppm.photons import PhotonTracer, _children, _pool, _threads
@@ -229,7 +229,8 @@ class LightTracer:
         (:meth:`_transmittance`), the splat compiled on LAMBERT materials
         (light_kernels.splat_fast) and in numpy on the others (:meth:`_slow`).
         mis: None, or (B0, B1, first, soft) (K,) of integrator 'COMBINED'
-        (combined.splat_weight)."""
+        (combined.splat_weight), optionally followed by mR2 (P,) (merging as
+        an MIS strategy: SplatInputs.mR2)."""
         p = dep["p"]
         K = p.shape[0]
         if K == 0:
@@ -238,8 +239,9 @@ class LightTracer:
         if nc == 0:
             return
         one = np.zeros(1)
-        B0, B1, first, soft = mis if mis is not None else (one, one, one > 0, one > 0)
-        vin = LK.SplatInputs(dep["bary"], dep["wi"], dep["power"], B0, B1, first, soft)
+        B0, B1, first, soft = mis[:4] if mis is not None else (one, one, one > 0, one > 0)
+        vin = LK.SplatInputs(dep["bary"], dep["wi"], dep["power"], B0, B1, first, soft,
+                             *(mis[4:] if mis is not None else ()))
         tris = self.tracer.tris
         slow = np.empty(nc, np.int64)
         ns = LK.splat_fast(con, nc, tr, vin, tris.n, tris.ng, tris.mat, self.fast_mat,
@@ -270,8 +272,14 @@ class LightTracer:
         contrib = f * vin.power[rows] * tr[c] * (c1 * corr)[:, None]
         if mis:
             pf = B.pdf_bsdf(self.mtab, m, colors, ns, ng, wc, wi, subset="all")
+            bm = None
+            if vin.mR2.shape[0] > 0:
+                from .merge_kernels import pixel_rows
+                cp = self.cam_params
+                bm = np.where(vin.first[rows], 0.0,
+                              vin.mR2[pixel_rows(con.raster[c], (cp.x0, cp.y0, cp.W, cp.H))] * c1)
             contrib *= splat_weight(vin.B0[rows], vin.B1[rows], pf, c1, vin.first[rows],
-                                    vin.soft[rows])[:, None]
+                                    vin.soft[rows], bm)[:, None]
         self._splat(con.raster[c], contrib, film)
 
     def _emission_vertices(self, ph, rng, film, mis=None) -> None:
@@ -289,6 +297,8 @@ class LightTracer:
         idx = np.nonzero(sel)[0]
         if idx.size == 0:
             return
+        if idx.size == sel.size:
+            idx = slice(None)        # every photon (one emitter, seen): views, no copies
         o = ph["o"][idx]
         n = t.dir[light[idx]]
         # MESH photons leave from the side their direction points to.
@@ -309,21 +319,26 @@ class LightTracer:
         the region (rows 0..n-1; light_kernels.project_kernel), n, their
         (n, 3) transmittance to the lens: :meth:`_transmittance`)."""
         K = p.shape[0]
-        u_lens = rng.random((K, 2))
-        con = LK.connections(K)
+        # Reused arrays (PhotonTracer.pool: no page faults per batch); the
+        # same lens samples as rng.random((K, 2)).
+        u_lens = self.tracer.uniforms(K, 2, rng)
+        con = self.tracer.pool.take("connections", K, lambda r: list(LK.connections(r)),
+                                    lambda a: LK.Connections(*a))
         n = LK.project_kernel(self.cam_params, p, ng, u_lens, REL_OFFSET,
                               self.accel.abs_floor / REL_OFFSET, con)
         if n == 0:
             return con, 0, np.zeros((0, 3))
-        return con, n, self._transmittance(con.o[:n], con.wc[:n], con.t_max[:n],
-                                           ng[con.row[:n]])
+        # The leaving surfaces' normals matter to transparent shadows alone
+        # (their self-hit test); opaque scenes skip the (n, 3) gather.
+        n0 = ng[con.row[:n]] if shadow_materials(self.accel) is not None else None
+        return con, n, self._transmittance(con.o[:n], con.wc[:n], con.t_max[:n], n0)
 
     def _transmittance(self, o, d, t_max, n0) -> np.ndarray:
         """(K, 3): the light the shadow rays from o (K, 3) along unit d let
         through to the lens before t_max (K,), leaving surfaces of unit
-        normals n0 (K, 3) (core.lights.shadow: a single batched Embree call
-        without transparent materials; 0 = blocked).  Every connection of
-        the light tracers is tested here."""
+        normals n0 (K, 3) or None (core.lights.shadow: a single batched
+        Embree call without transparent materials, which do not read n0;
+        0 = blocked).  Every connection of the light tracers is tested here."""
         return transmittance(self.accel, o, d, t_max, n0=n0)
 
     def _splat(self, raster, contrib, film) -> None:

@@ -35,6 +35,12 @@ the next-event density of the light's centre as a point light, then PT and
 NEE split (1 - w_LT) by their usual two-way power heuristic; both sides use
 the centre, so the weights depend only on y_1 .. y_{k-1} and sum to one.
 Sun and world light is left to the camera strategies (LT does not splat it).
+
+Photon merging as a fourth strategy (``merge_weights = 'MIS'``):
+q_M = 1 c_1 ... c_v N_M l_v ... l_k pi r^2 at the first non-delta camera
+vertex y_v, k >= v + 2; its camera-side ratio QM follows Q's recursion from
+y_v on (core.integrators.merge.CameraMerge), its light-side weight comes
+from B0, B1 (merge.merge_weight).
 """
 from __future__ import annotations
 

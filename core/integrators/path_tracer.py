@@ -55,7 +55,7 @@ from ..lights import shadow as Sh
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..mathutil import dot as _dot
 from . import path_kernels as PK
-from .merge import CameraPartition
+from .merge import CameraMerge, CameraPartition
 
 #: Paths traced together at most: ~1 kB each in flight (64 MiB), and past the
 #: ~30k paths per batch where the per-vertex numpy overhead is amortised
@@ -143,6 +143,9 @@ class PathVertices:
     # 'COMBINED' with transparent crossings: (K,) bool, the vertex is y_1
     # (only transparent crossings since the lens).
     first: np.ndarray | None = None
+    # Merging as an MIS strategy (core.integrators.merge.CameraMerge): (K,)
+    # merging's ratio QM at the vertex (0 up to y_v); None without it.
+    QM: np.ndarray | None = None
 
     def take(self, i: np.ndarray) -> "PathVertices":
         """The rows i (compaction)."""
@@ -271,6 +274,9 @@ class PathTracer:
         if vc is not None:
             Qs, pf, vprev = vc.camera_state(d), np.ones(K), None
         part = CameraPartition(K) if getattr(vc, "merging", False) else None
+        mg = CameraMerge(K) if getattr(vc, "mis_merge", None) is not None else None
+        if mg is not None:
+            part = None
         for depth in range(self.max_bounces + 2):
             if path.size == 0:
                 break
@@ -287,7 +293,8 @@ class PathTracer:
                 t = t + t_acc[sel]
                 w = self._mis_bsdf(pdf_prev[sel], p_prev[sel], n_prev[sel], d[sel], row, t)
                 if vc is not None:
-                    w = vc.emission(w, sel, row, d, t, None, first, Qs, pf, pdf_prev, vprev)
+                    w = vc.emission(w, sel, row, d, t, None, first, Qs, pf, pdf_prev, vprev,
+                                    None if mg is None else np.where(mg.em, mg.Qs, 0.0))
                 if part is not None:
                     w = w * part.weight(sel)
                 out[path[sel]] += beta[sel] * Le * w[:, None]
@@ -322,7 +329,8 @@ class PathTracer:
                                    self.tri_light[prim[em]], h.t[e] + t_acc[e])
                 if vc is not None:
                     w = vc.emission(w, e, self.tri_light[prim[em]], d, h.t[e] + t_acc[e],
-                                    ng[em], first, Qs, pf, pdf_prev, vprev)
+                                    ng[em], first, Qs, pf, pdf_prev, vprev,
+                                    None if mg is None else np.where(mg.em, mg.Qs, 0.0))
                 if part is not None:
                     w = w * part.weight(e)
                 out[path[e]] += beta[e] * Le * w[:, None]
@@ -340,6 +348,13 @@ class PathTracer:
             if part is not None:
                 part.keep(ih)
                 v.m = part.weight()
+            if mg is not None:
+                mg.keep(ih)
+                f1 = np.nonzero(first[ih])[0]
+                if f1.size:
+                    # y_1: merging's scale N_M pi r^2 / K of the pixel containing it.
+                    mg.scale[f1] = vc.merge_scale(p[f1], u[v.path[f1], 2:4])
+                v.QM = mg.at_vertex(h.t[ih] + t_acc[ih])
             nd = np.nonzero(mtab.has_nondelta[mat])[0]
             if nd.size:
                 ud = u[v.path[nd], 4:7] if depth == 0 else rng.random((nd.size, 3))
@@ -354,6 +369,10 @@ class PathTracer:
                     # part.sampled is per row: on the survivors only, as numpy's keep(c) after.
                     part.keep(c)
                     part.sampled(nx.delta)
+                if mg is not None:
+                    mg.keep(c)
+                    mg.sampled(vc.continued_compiled(v, nx, depth, Q=v.QM)[0],
+                               np.abs(_dot(v.ng[c], nx.d)), nx.delta)
                 if vc is not None:
                     Qs, pf = vc.continued_compiled(v, nx, depth)
                     vprev = v.take(c)
@@ -385,6 +404,13 @@ class PathTracer:
                 part.keep(c)
                 for k in _PART:
                     getattr(part, k)[x] = before[k]
+            if mg is not None:
+                mbefore = {k: getattr(mg, k)[c[x]] for k in ("scale", "chain", "Qs", "em")}
+                QMn = vc.continued(v, c, wi[c], pdf[c], is_delta[c], v.first, Q=v.QM)[0]
+                mg.keep(c)
+                mg.sampled(QMn, np.abs(_dot(v.ng[c], wi[c])), is_delta[c])
+                for k, a in mbefore.items():
+                    getattr(mg, k)[x] = a
             if vc is not None:
                 state = (Qs[ih[c[x]]], pf[ih[c[x]]], None if vprev is None else
                          vprev.take(ih[c[x]]))

@@ -27,6 +27,7 @@ the chains by the ``core.frequency.spectrum`` operators, is a test oracle
 from __future__ import annotations
 
 import os
+import threading
 
 import numpy as np
 
@@ -38,6 +39,7 @@ from ..frequency.occlusion_march import march_grid, no_march_grid
 from ..materials.fast import build_fast_materials
 from . import photon_kernels as PK
 from ..accel import _COUNT_LOCK, REL_OFFSET, intersect_f32
+from ..kept import _ALONE, _refcounts
 from ..scene.model import Scene
 
 from ..mathutil import LUMINANCE as LUM, dot as _dot  # noqa: E402
@@ -83,19 +85,75 @@ def _children(rng):
         return [np.random.default_rng(int(s)) for s in rng.integers(0, 2**63, 2)]
 
 
+class ArrayPool:
+    """Sets of arrays reused from one batch, chunk and pass to the next, so
+    that the tracer does not page-fault its deposit rows, live photons and
+    uniforms in afresh each time (docs/architecture.md "Photon trace against
+    raw Embree": the faults were inside the bounce kernel's time, and
+    serialised the two tracing threads).  A set is handed out only
+    while nothing but the pool references any of its arrays (the rule of
+    core.kept: a caller that keeps deposits, a view of them or a result
+    dict, keeps them untouched); uninitialised like np.empty.  Thread-safe:
+    the halves of a batch and the chunks traced ahead draw from one pool."""
+
+    def __init__(self, max_sets: int = 8):
+        self.max_sets = int(max_sets)      # per kind
+        self._sets: dict = {}              # kind -> [[rows, [arrays]], ...]
+        self._lock = threading.Lock()
+
+    def take(self, kind: str, rows: int, make, wrap=list):
+        """wrap(arrays) of a free set of this kind with at least rows rows
+        (the smallest), else of make(rows)'s new arrays, kept for later
+        calls (at most max_sets of a kind: the smallest idle one makes
+        room).  wrap runs under the pool's lock: what it builds holds the
+        arrays before another thread looks at them."""
+        rows = int(rows)
+        with self._lock:
+            sets = self._sets.setdefault(kind, [])
+            free = [s for s in sets if s[0] >= rows and max(_refcounts(s[1])) <= _ALONE]
+            if free:
+                return wrap(min(free, key=lambda s: s[0])[1])
+            arrays = list(make(rows))
+            if len(sets) >= self.max_sets:
+                idle = [s for s in sets if max(_refcounts(s[1])) <= _ALONE]
+                if idle:
+                    sets.remove(min(idle, key=lambda s: s[0]))
+            if len(sets) < self.max_sets:
+                sets.append([rows, arrays])
+            return wrap(arrays)
+
+
+def _deposit_arrays(cap: int) -> list:
+    """New arrays of the DepositBuffers fields, cap rows."""
+    return [np.empty((cap, 3)), np.empty((cap, 3)), np.empty((cap, 3)), np.empty((cap, 3)),
+            np.empty(cap), np.empty(cap, np.int32), np.empty(cap, np.int64),
+            np.empty((cap, 3)),           # spec (a, b, c); rows of classic photons unused
+            np.empty((cap, 3))]           # bary (prim, u, v): light tracing's BSDF
+
+
+def _live_arrays(n: int) -> list:
+    """New arrays of the LiveState fields, n rows."""
+    return [np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty((n, 3)),
+            np.empty((n, 3)), np.empty(n)]
+
+
 class _Deposits:
     """Growable deposit buffers (``photon_kernels.DepositBuffers``, rows
-    0..n-1 used), float64; r = the radius fold key."""
+    0..n-1 used), float64; r = the radius fold key.  pool: an ArrayPool to
+    draw the buffers from (None: new arrays)."""
 
-    def __init__(self, cap):
-        cap = max(int(cap), 16)
-        self.buf = PK.DepositBuffers(
-            p=np.empty((cap, 3)), ng=np.empty((cap, 3)), wi=np.empty((cap, 3)),
-            power=np.empty((cap, 3)), r=np.empty(cap), bounce=np.empty(cap, np.int32),
-            src=np.empty(cap, np.int64),
-            spec=np.empty((cap, 3)),          # (a, b, c); rows of classic photons unused
-            bary=np.empty((cap, 3)))          # (prim, u, v): light tracing's BSDF
+    def __init__(self, cap, pool: "ArrayPool" = None):
+        self.pool = pool
+        self.buf = self._arrays(max(int(cap), 16))
         self.n = 0
+        # Rows of frequency photons were written (else no spec row is read).
+        self.spec_rows = False
+
+    def _arrays(self, cap: int) -> "PK.DepositBuffers":
+        wrap = lambda a: PK.DepositBuffers(*a)          # noqa: E731
+        if self.pool is None:
+            return wrap(_deposit_arrays(cap))
+        return self.pool.take("deposits", cap, _deposit_arrays, wrap)
 
     def reserve(self, k: int):
         """Make room for k more rows (doubling: amortised O(1) per deposit)."""
@@ -103,21 +161,20 @@ class _Deposits:
         cap = self.buf.r.shape[0]
         if need <= cap:
             return
-        cap = max(2 * cap, need)
-        grown = {}
-        for name, a in self.buf._asdict().items():
-            b = np.empty((cap,) + a.shape[1:], a.dtype)
+        grown = self._arrays(max(2 * cap, need))
+        for a, b in zip(self.buf, grown):
             b[:self.n] = a[:self.n]
-            grown[name] = b
-        self.buf = PK.DepositBuffers(**grown)
+        self.buf = grown
 
     def extend(self, other: "_Deposits"):
         """Append the rows of another buffer (one copy of its rows)."""
         k = other.n
         self.reserve(k)
         a, b = self.n, self.n + k
-        for name in ("p", "ng", "wi", "power", "r", "bounce", "spec", "bary"):
+        for name in ("p", "ng", "wi", "power", "r", "bounce", "bary") + (
+                ("spec",) if other.spec_rows else ()):
             getattr(self.buf, name)[a:b] = getattr(other.buf, name)[:k]
+        self.spec_rows |= other.spec_rows
         self.n = b
 
     def result(self):
@@ -126,7 +183,8 @@ class _Deposits:
         n, d = self.n, self.buf
         return {"p": d.p[:n], "ng": d.ng[:n], "wi": d.wi[:n],
                 "power": d.power[:n], "rpred": d.r[:n], "bounce": d.bounce[:n],
-                "spec": np.where(np.isnan(d.r[:n])[:, None], 0.0, d.spec[:n]),
+                "spec": (np.where(np.isnan(d.r[:n])[:, None], 0.0, d.spec[:n])
+                         if self.spec_rows else np.zeros((n, 3))),
                 "bary": d.bary[:n]}
 
 
@@ -156,6 +214,8 @@ class PhotonTracer:
         self._light_arrays = PK.light_arrays(light_table) if self.fast_emission else None
         # Deposits per photon (max seen, x1.25 margin on use): buffer sizing.
         self._dpp = 2.0
+        # Deposit rows, live photons and uniforms reused across batches (ArrayPool).
+        self.pool = ArrayPool()
         self._lobes = None           # FK.SurfaceLobes, on first use
         # The march's arguments (builds its blocks: 0.14 s at 64^3, here
         # rather than in the first pass).
@@ -187,7 +247,7 @@ class PhotonTracer:
         bary (K, 3) (prim, u, v) of the hit.
         """
         if n < SPLIT_MIN:
-            return self._trace_part(n, n_freq, rng, _Deposits(self._dpp * n + 64)).result()
+            return self._trace_part(n, n_freq, rng, self.deposit_buffers(n)).result()
         # Two halves on independent child streams, always (the image does not
         # depend on the number of cores), traced concurrently when there are
         # two threads: Embree and the kernels release the GIL.  The deposits
@@ -196,9 +256,9 @@ class PhotonTracer:
         h, hf = n // 2, n_freq // 2
         # The first buffer is sized for both halves (deposits per photon seen
         # so far, +25%): the second is appended without reallocating.
-        d0 = _Deposits(self._dpp * n + 64)
+        d0 = self.deposit_buffers(n)
         if _threads() > 1:
-            d1 = _Deposits(self._dpp * (n - h) + 64)
+            d1 = self.deposit_buffers(n - h)
             f0 = _pool().submit(self._trace_part, h, hf, r0, d0)
             self._trace_part(n - h, n_freq - hf, r1, d1)
             f0.result()
@@ -215,16 +275,34 @@ class PhotonTracer:
         (core.integrators.light_tracer), which the fused emission kernel
         does not return."""
         n = ph["o"].shape[0]
-        dep = _Deposits(self._dpp * n + 64)
+        dep = self.deposit_buffers(n)
         self._trace_batch(None, ph, 0, n, rng, dep, False)
+        self.note_deposits(n, dep.n)
         return dep.result()
+
+    def deposit_buffers(self, n: int) -> "_Deposits":
+        """Empty deposit buffers for n photons (deposits per photon seen so
+        far, +25%: :meth:`note_deposits`), from the tracer's pool."""
+        return _Deposits(self._dpp * n + 64, self.pool)
+
+    def note_deposits(self, n: int, k: int) -> None:
+        """n photons left k deposits: sizes the next deposit_buffers."""
+        self._dpp = max(self._dpp, 1.25 * k / max(n, 1))
+
+    def uniforms(self, K: int, m: int, rng) -> np.ndarray:
+        """rng.random((K, m)) (the same numbers: drawn in the same order) into
+        an array of the pool (one still referenced is never handed out)."""
+        u = self.pool.take("uniforms", K * m, lambda r: [np.empty(r)],
+                            lambda a: a[0][:K * m].reshape(K, m))
+        rng.random(out=u)
+        return u
 
     def _trace_part(self, n: int, n_freq: int, rng, dep: "_Deposits") -> "_Deposits":
         """Emit and trace n photons (the first n_freq with a spectrum); their
         deposits are appended to dep."""
         n_before = dep.n
         if self.fast_emission:
-            u = rng.random((n, 6))
+            u = self.uniforms(n, 6, rng)
             ph = None
         else:
             u = None
@@ -233,7 +311,7 @@ class PhotonTracer:
             self._trace_batch(u, ph, 0, n_freq, rng, dep, True)
         if n > n_freq:
             self._trace_batch(u, ph, n_freq, n, rng, dep, False)
-        self._dpp = max(self._dpp, 1.25 * (dep.n - n_before) / max(n, 1))
+        self.note_deposits(n, dep.n - n_before)
         return dep
 
     def _trace_batch(self, u_emit, ph, a: int, b: int, rng, dep: _Deposits, freq: bool):
@@ -242,8 +320,7 @@ class PhotonTracer:
         freq: these photons carry a spectrum."""
         st = self.settings
         n = b - a
-        live = PK.LiveState(o32=np.empty((n, 3), np.float32), d32=np.empty((n, 3), np.float32),
-                            d64=np.empty((n, 3)), power=np.empty((n, 3)), falloff=np.empty(n))
+        live = self.pool.take("live", n, _live_arrays, lambda a: PK.LiveState(*a))
         rel = REL_OFFSET
         floor = self.accel.abs_floor / REL_OFFSET
         spec = None
@@ -262,6 +339,7 @@ class PhotonTracer:
                                fal, rel, floor, live, src)
             if freq:
                 spec = np.asarray(ph["freq_init"], np.float64)[a:b][src[:K]]
+        dep.spec_rows |= freq
         caustic = self.after_delta_only
         # Hit records: frequency photons' chains, and the delta flag of the
         # scattering each survivor sampled (caustic photons).
@@ -285,7 +363,7 @@ class PhotonTracer:
                                  sample=bounce < st.max_bounces,
                                  roulette=bounce + 1 >= st.rr_start, bounce=bounce,
                                  dep0=dep.n, record=record, rel=rel, floor=floor)
-            u = rng.random((K, 4))
+            u = self.uniforms(K, 4, rng)
             dep.reserve(K)
             if freq:
                 # the segments just travelled: the kernel overwrites the live state
