@@ -769,8 +769,10 @@ def pass_one(a):
     n = a.passes
     # The photon rays' own raw time (same threads), for the photon-pass target.
     prw, prc = raw_threads(raw, int(ph[2] / n), Ph.THREADS)
+    # the stage clocks of these passes, before photon_pass_alone adds its own
+    st = {k: dict(getattr(clock, k)) for k in ("wall", "cpu", "sys", "faults", "busiest")}
     alone = photon_pass_alone(r, clock, raw, n)
-    wall, cpu = clock.wall, clock.cpu
+    wall, cpu = st["wall"], st["cpu"]
     rest_w = pw - sum(wall.values())
     rest_c = pc - sum(cpu.values())
     hwm = memory.peak_bytes_so_far()
@@ -790,11 +792,11 @@ def pass_one(a):
     print("    cores used per stage: " + ", ".join(
         f"{k} {cpu[k] / wall[k]:.2f}" for k in PASS_STAGES if wall[k] > 0))
     print("    system time a pass per stage (page faults): " + ", ".join(
-        f"{k} {clock.sys[k] / n:.2f} s ({clock.faults[k] / n / 1e3:.0f}k faults)"
+        f"{k} {st['sys'][k] / n:.2f} s ({st['faults'][k] / n / 1e3:.0f}k faults)"
         for k in PASS_STAGES if wall[k] > 0)
         + f"; whole run {(ru1.ru_stime - ru0.ru_stime) / n:.2f} s a pass (raw rays included)")
     print("    busiest thread's CPU a pass per stage (wall on an idle machine >= it): " + ", ".join(
-        f"{k} {clock.busiest[k] / n:.2f} s" for k in PASS_STAGES if wall[k] > 0))
+        f"{k} {st['busiest'][k] / n:.2f} s" for k in PASS_STAGES if wall[k] > 0))
     print("    largest VmRSS seen per stage (10 ms samples): " + ", ".join(
         f"{k} {v / 2**30:.2f} GiB" for k, v in sorted(sampler.peak.items(),
                                                        key=lambda kv: -kv[1])))
