@@ -68,6 +68,7 @@ from __future__ import annotations
 import argparse
 import functools
 import os
+import resource
 import sys
 import threading
 import time
@@ -600,13 +601,63 @@ def pass_report(a):
         subprocess.run(cmd, check=True)
 
 
+def _thread_cpu() -> dict:
+    """CPU seconds (user + system) of each thread of this process, by thread
+    id (/proc/self/task/*/stat; empty off Linux)."""
+    out = {}
+    tick = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    try:
+        tids = os.listdir("/proc/self/task")
+    except OSError:
+        return out
+    for t in tids:
+        try:
+            with open(f"/proc/self/task/{t}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            out[t] = (int(fields[11]) + int(fields[12])) / tick
+        except (OSError, IndexError, ValueError):
+            pass
+    return out
+
+
+class RssSampler:
+    """VmRSS every `period` seconds in a thread of its own, each sample
+    labelled with the main thread's stage at that time (``stage``): the
+    largest resident size seen during each stage.  tracemalloc does not see
+    numba's allocations; the OS does."""
+
+    def __init__(self, period: float = 0.01):
+        from core import memory
+        self._rss = memory.resident_bytes
+        self.period, self.stage = period, "rest"
+        self.peak: dict = {}
+        self.entry: dict = {}          # VmRSS at each entry into a stage
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._run, daemon=True)
+        self._t.start()
+
+    def _run(self):
+        while not self._stop.wait(self.period):
+            v, k = self._rss(), self.stage
+            if v > self.peak.get(k, 0):
+                self.peak[k] = v
+
+    def stop(self):
+        self._stop.set()
+        self._t.join()
+
+
 class StageClock:
     """Wall and process-CPU seconds per stage of Renderer.step (PASS_STAGES),
-    by wrapping the objects and functions a pass calls (bench only)."""
+    by wrapping the objects and functions a pass calls (bench only); also the
+    process's system time and minor page faults (getrusage: every thread's,
+    photons traced ahead included), the busiest thread's CPU seconds
+    (/proc/self/task: a lower bound of the stage's wall time on an idle
+    machine) and, through ``sampler``, the largest VmRSS seen in each stage."""
 
-    def __init__(self, r):
-        self.wall = dict.fromkeys(PASS_STAGES, 0.0)
-        self.cpu = dict.fromkeys(PASS_STAGES, 0.0)
+    def __init__(self, r, sampler=None):
+        self.reset()
+        self.sampler = sampler
         self.nest = 0
         pp = r.photon_pass
         r.camera_pass = self._timed(r.camera_pass, "camera")
@@ -622,15 +673,39 @@ class StageClock:
         pp._trace_gather = self._timed(pp._trace_gather, "gather")
         Hg.build_grid = self._timed(Hg.build_grid, "grid_build")
 
+    def reset(self):
+        """Zero the sums (the wrapped functions stay wrapped)."""
+        self.wall = dict.fromkeys(PASS_STAGES, 0.0)
+        self.cpu = dict.fromkeys(PASS_STAGES, 0.0)
+        self.sys = dict.fromkeys(PASS_STAGES, 0.0)
+        self.faults = dict.fromkeys(PASS_STAGES, 0)
+        self.busiest = dict.fromkeys(PASS_STAGES, 0.0)
+
     def _timed(self, f, key):
         def g(*args, **kw):
+            # not the photons traced ahead (their own thread, PhotonPass.trace_ahead)
+            main = not threading.current_thread().name.startswith("fppm-ahead")
+            outer = self.sampler.stage if (main and self.sampler) else None
+            if outer is not None:
+                self.sampler.stage = key
+                self.sampler.entry.setdefault(key, []).append(self.sampler._rss())
+            t0 = _thread_cpu() if main else {}
+            u0 = resource.getrusage(resource.RUSAGE_SELF)
             w0, c0 = time.perf_counter(), time.process_time()
             try:
                 return f(*args, **kw)
             finally:
                 w, c = time.perf_counter() - w0, time.process_time() - c0
+                u1 = resource.getrusage(resource.RUSAGE_SELF)
                 self.wall[key] += w
                 self.cpu[key] += c
+                self.sys[key] += u1.ru_stime - u0.ru_stime
+                self.faults[key] += u1.ru_minflt - u0.ru_minflt
+                if main:
+                    t1 = _thread_cpu()
+                    self.busiest[key] += max([t1[t] - t0.get(t, 0.0) for t in t1] or [0.0])
+                if outer is not None:
+                    self.sampler.stage = outer
                 if key == "photon_trace" and threading.current_thread() is threading.main_thread():
                     # inside a gather call: not the gather's (photons traced
                     # ahead run in their own thread, PhotonPass.trace_ahead)
@@ -665,8 +740,12 @@ def pass_one(a):
                                                       photons_per_pass=a.photons,
                                                       use_frequency=not a.plain),
                  log=lambda s: None)
+    sampler = RssSampler()
+    clock = StageClock(r, sampler)
     r.step()                                      # warm-up (kernels, the edge cap's pass)
-    clock = StageClock(r)
+    clock.reset()                                 # not the warm-up's times
+    warm_peak, sampler.peak, sampler.entry = sampler.peak, {}, {}
+    ru0 = resource.getrusage(resource.RUSAGE_SELF)
     raw = RawRays(r.accel, min(4 * a.photons, 2_000_000))
     tot = np.zeros(4)                             # pass wall, pass CPU, raw wall, raw CPU
     ph = np.zeros(3)                              # photon pass wall, CPU, photon rays
@@ -684,12 +763,16 @@ def pass_one(a):
         ph += [sum(sw[k] - sw0[k] for k in ("grid_build", "photon_trace", "gather")),
                sum(sc[k] - sc0[k] for k in ("grid_build", "photon_trace", "gather")),
                r.photon_rays - prays0]
+    ru1 = resource.getrusage(resource.RUSAGE_SELF)
+    sampler.stop()
     pw, pc, rw, rc = tot
     n = a.passes
     # The photon rays' own raw time (same threads), for the photon-pass target.
     prw, prc = raw_threads(raw, int(ph[2] / n), Ph.THREADS)
+    # the stage clocks of these passes, before photon_pass_alone adds its own
+    st = {k: dict(getattr(clock, k)) for k in ("wall", "cpu", "sys", "faults", "busiest")}
     alone = photon_pass_alone(r, clock, raw, n)
-    wall, cpu = clock.wall, clock.cpu
+    wall, cpu = st["wall"], st["cpu"]
     rest_w = pw - sum(wall.values())
     rest_c = pc - sum(cpu.values())
     hwm = memory.peak_bytes_so_far()
@@ -708,6 +791,19 @@ def pass_one(a):
         f"{k} {cpu[k] / pc:.0%}" for k in PASS_STAGES) + f", rest {rest_c / pc:.0%}")
     print("    cores used per stage: " + ", ".join(
         f"{k} {cpu[k] / wall[k]:.2f}" for k in PASS_STAGES if wall[k] > 0))
+    print("    system time a pass per stage (page faults): " + ", ".join(
+        f"{k} {st['sys'][k] / n:.2f} s ({st['faults'][k] / n / 1e3:.0f}k faults)"
+        for k in PASS_STAGES if wall[k] > 0)
+        + f"; whole run {(ru1.ru_stime - ru0.ru_stime) / n:.2f} s a pass (raw rays included)")
+    print("    busiest thread's CPU a pass per stage (wall on an idle machine >= it): " + ", ".join(
+        f"{k} {st['busiest'][k] / n:.2f} s" for k in PASS_STAGES if wall[k] > 0))
+    print("    largest VmRSS seen per stage (10 ms samples): " + ", ".join(
+        f"{k} {v / 2**30:.2f} GiB" for k, v in sorted(sampler.peak.items(),
+                                                       key=lambda kv: -kv[1])))
+    print("    VmRSS at the entry of each stage (the last pass's): " + ", ".join(
+        f"{k} {v[-1] / 2**30:.2f} GiB" for k, v in sampler.entry.items()))
+    print("    the warm-up pass's (kernels loaded, the edge cap's camera pass): " + ", ".join(
+        f"{k} {v / 2**30:.2f} GiB" for k, v in sorted(warm_peak.items(), key=lambda kv: -kv[1])[:3]))
     print(f"    peak resident (VmHWM) {hwm / 2**30:.2f} GiB, growth from before the Renderer "
           f"{(hwm - rss0) / 2**20:.0f} MiB ({(hwm - rss0) / (w * h):.0f} B a pixel)")
 

@@ -23,7 +23,10 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
   (environment maps, textured emitters: <= 890 B) and the delta chains'
   buffers where every pixel continues (+272 B).  1100 B until the visible
   points' hash grid kept its cell starts in int32 (64 B less a pixel with
-  the Cornell box's 16 slots a pixel)
+  the Cornell box's 16 slots a pixel).  Kept at 1040 B although a 1080p
+  Cornell box pass now grows by 859-916 B a pixel with its sector counts
+  (docs/architecture.md, "Memory and page faults of a 1080p pass"): the
+  numpy light sampler and the delta chains are not measured lower
 - per AOV channel per pixel: the film's float32 layer, its float64 source and
   the EXR's copy -> BYTES_PER_AOV_CHANNEL
 - per radius-histogram bin per pixel (Quantile estimator): the uint32 state,

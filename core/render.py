@@ -345,6 +345,11 @@ class Renderer:
         if ahead is not None:
             ahead(rng_photons)
         tc = time.perf_counter()
+        if st.cap_radius_at_edges and k == 1:
+            # The edge cap's own camera pass (once a render, for the first
+            # radii) before this pass's: its arrays are freed before the
+            # pass's are made, not held beside them (the first pass's peak).
+            self.radii.edge_cap(self._check_stop)
         memory.release_free_heap(state.R2.size)   # the last pass's freed temporaries
         if st.fixed_visible_points and self._fixed is not None:
             vp, L_emit = self._fixed
@@ -356,7 +361,12 @@ class Renderer:
         clock["camera"] += td - tc
         L_pass = L_emit
         if not st.photons_for_direct:
-            L_pass = L_pass + self._interruptible(self.direct_light, vp, self._rng(k, 1))
+            direct = self._interruptible(self.direct_light, vp, self._rng(k, 1))
+            if st.fixed_visible_points:
+                L_pass = L_pass + direct          # L_emit is kept for the next passes
+            else:
+                L_pass += direct                  # this pass's own: no (P, 3) sum beside it
+            del direct
         clock["direct"] += time.perf_counter() - td
         self._check_stop()
         self._photons(vp, rng_photons)

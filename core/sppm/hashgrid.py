@@ -8,10 +8,11 @@ Each pass (pbrt-v4 SPPM, Hachisuka & Jensen 2009):
 
 The grid stores *visible points* (VPs): every active VP is inserted in every
 cell its sphere of radius R overlaps, so a photon looks up exactly one cell.
-This is the hot loop of the renderer.  The gather first counting-sorts the
-photons by cell, copying their data into contiguous sorted arrays, so that
-consecutive photons test the same VPs (the VP records stay in cache) and read
-photon data sequentially; the gather then runs ~2x faster than in photon order.
+This is the hot loop of the renderer.  The gather first sorts the photons
+by cell (a counting sort over a small table, else a merge sort), copying
+their data into contiguous sorted arrays, so that consecutive photons test
+the same VPs (the VP records stay in cache) and read photon data
+sequentially; the gather then runs ~2x faster than in photon order.
 
 Counting rule.  Photon p counts for visible point v when
   (1) |x_p - x_v|^2 < R_v^2                      (disc/sphere kernel of PPM),
@@ -76,8 +77,9 @@ more than 64 entries redo the exact tests).  No over-allocation, no growth.
 Parallelism: with ``parallel=True`` the sorted photons are split into one
 contiguous chunk per numba thread, each chunk accumulating into its own (K,)
 arrays (race-free, no atomics), summed afterwards (or, with GatherBuffers,
-rows reused by every chunk and folded at the touched VPs); the sort scatters by
-disjoint slot ranges, one per thread.  The build splits the VPs into one
+rows reused by every chunk and folded at the touched VPs); the sort copies the
+photons by disjoint slot (counting sort) or row (merge sort) ranges, one per
+thread.  The build splits the VPs into one
 range per thread for their slots; the counting sort splits the entries
 into SORT_GROUPS VP ranges (about the same number of entries each; with
 more threads, each range is split further by slot ranges): each range
@@ -106,6 +108,9 @@ CELL_FACTOR = 1.5             # h = CELL_FACTOR * median active radius
 ENTRY_BUDGET_PER_VP = 64      # clamp: mean cell entries per active VP
 PARALLEL_MIN_PHOTONS = 50_000  # below this, thread start-up outweighs the split
 PARALLEL_MIN_VPS = 1 << 18      # build_grid: below this many VPs, one thread
+# gather's photon sort: a counting sort over the table's slots up to this
+# many slots a photon, a merge sort of the photons' slots above (_sort_photons).
+COUNT_SORT_SLOTS_PER_PHOTON = 8
 # The build's counting sort splits the entries into at most this many VP
 # ranges, each with its own (n_slots,) row of cursors (128 MiB at 1080p):
 # more threads split each range's slots, and scan its entries (the memory
@@ -117,7 +122,8 @@ _DEDUP_SCAN = 64
 # GatherBuffers.fold visits every VP in order, not the touched lists, when at
 # least 1/FOLD_SWEEP_FRACTION of them were touched (the lists' random access
 # cost ~250 ns a VP, a sequential sweep ~65 ns for every VP: 256², loaded
-# machine).  Serial: a parallel region's hand-off cost more than the sweep.
+# machine).  Serial below PARALLEL_MIN_VPS VPs (a parallel region's hand-off
+# cost more than a 256² sweep); above, by VP ranges in threads.
 FOLD_SWEEP_FRACTION = 8
 # Sector counts (gather(..., sectors=True)): the kernel disc split into the 4
 # quadrants of the visible point's tangent frame times 2 rings of equal area
@@ -486,24 +492,48 @@ def _scatter(s0, s1, ps, cursor, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
             q = cursor[s]
             cursor[s] = q + 1
             order[q] = p
-            slot[q] = s
-            for k in range(3):
-                pos[q, k] = ph_pos[p, k]
-                ng[q, k] = ph_ng[p, k]
-                wi[q, k] = ph_wi[p, k]
-                power[q, k] = ph_power[p, k]
-            rpred[q] = ph_rpred[p]
+            _copy_photon(q, p, s, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                         slot, pos, ng, wi, power, rpred)
+
+
+@njit(cache=True, inline="always")
+def _copy_photon(q, p, s, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                 slot, pos, ng, wi, power, rpred):
+    """Row q of the sorted arrays = photon p's, in slot s."""
+    slot[q] = s
+    for k in range(3):
+        pos[q, k] = ph_pos[p, k]
+        ng[q, k] = ph_ng[p, k]
+        wi[q, k] = ph_wi[p, k]
+        power[q, k] = ph_power[p, k]
+    rpred[q] = ph_rpred[p]
+
+
+@njit(cache=True)
+def _copy_sorted(q0, q1, order, ps, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                 slot, pos, ng, wi, power, rpred):
+    """Row q of the sorted arrays = photon order[q]'s, for q0..q1-1."""
+    for q in range(q0, q1):
+        p = order[q]
+        _copy_photon(q, p, ps[p], ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                     slot, pos, ng, wi, power, rpred)
 
 
 @njit(cache=True, parallel=True)
 def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                   origin, inv_h, lo, hi, dense, nx, ny, nz, shift, cell_start, n_chunks):
-    """Counting sort of the photons by slot, copying their data into sorted,
+    """Stable sort of the photons by slot, copying their data into sorted,
     contiguous arrays.  Consecutive photons then share their candidate VPs and
     read memory sequentially: measured 2.5x faster than photon order (VP
     records missing the cache) or sorted indices (photon data missing it).
     Photons outside the grid or in an empty slot are dropped.  n_chunks
     threads (1 = serial); the result does not depend on n_chunks.
+    A counting sort when the table has at most COUNT_SORT_SLOTS_PER_PHOTON
+    slots a photon, else a merge sort of the photons' slots: a counting
+    sort's (n_slots + 1,) int64 starts were 256 MiB for the 2^25 slots of a
+    1080p pass, allocated, zeroed and scanned on one thread for every chunk
+    of 131,072 photons.  Both order a slot's photons by index: the same
+    result.
     Returns order (n,) int32 original photon index, slot (n,) int64, and the
     sorted pos, ng, wi (n, 3) (input dtype), power (n, 3), rpred (n,)."""
     P = ph_pos.shape[0]
@@ -512,13 +542,15 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     for c in prange(n_chunks):
         _photon_slots(c * P // n_chunks, (c + 1) * P // n_chunks, ph_pos, origin, inv_h,
                       lo, hi, dense, nx, ny, nz, shift, cell_start, ps)
-    start = _slot_starts(ps, n_slots)
-    n = start[n_slots]
-    # Slot ranges holding ~n / n_chunks photons each.
-    bounds = np.empty(n_chunks + 1, np.int64)
-    for c in range(n_chunks + 1):
-        bounds[c] = np.searchsorted(start, c * n // n_chunks)
-    bounds[n_chunks] = n_slots
+    counting = n_slots <= COUNT_SORT_SLOTS_PER_PHOTON * P
+    if counting:
+        start = _slot_starts(ps, n_slots)
+        n = start[n_slots]
+    else:
+        start = np.empty(0, np.int64)
+        n = 0
+        for p in range(P):
+            n += ps[p] >= 0
     order = np.empty(n, np.int32)
     slot = np.empty(n, np.int64)
     pos = np.empty((n, 3), ph_pos.dtype)
@@ -526,9 +558,30 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     wi = np.empty((n, 3), ph_wi.dtype)
     power = np.empty((n, 3), np.float64)
     rpred = np.empty(n, np.float64)
+    if counting:
+        # Slot ranges holding ~n / n_chunks photons each.
+        bounds = np.empty(n_chunks + 1, np.int64)
+        for c in range(n_chunks + 1):
+            bounds[c] = np.searchsorted(start, c * n // n_chunks)
+        bounds[n_chunks] = n_slots
+        for c in prange(n_chunks):
+            _scatter(bounds[c], bounds[c + 1], ps, start, ph_pos, ph_ng, ph_wi, ph_power,
+                     ph_rpred, order, slot, pos, ng, wi, power, rpred)
+        return order, slot, pos, ng, wi, power, rpred
+    inside = np.empty(n, np.int32)        # the photons in a slot, in index order
+    key = np.empty(n, np.int64)
+    j = 0
+    for p in range(P):
+        if ps[p] >= 0:
+            inside[j] = p
+            key[j] = ps[p]
+            j += 1
+    by_slot = np.argsort(key, kind="mergesort")          # stable
+    for q in range(n):
+        order[q] = inside[by_slot[q]]
     for c in prange(n_chunks):
-        _scatter(bounds[c], bounds[c + 1], ps, start, ph_pos, ph_ng, ph_wi, ph_power,
-                 ph_rpred, order, slot, pos, ng, wi, power, rpred)
+        _copy_sorted(c * n // n_chunks, (c + 1) * n // n_chunks, order, ps, ph_pos, ph_ng,
+                     ph_wi, ph_power, ph_rpred, slot, pos, ng, wi, power, rpred)
     return order, slot, pos, ng, wi, power, rpred
 
 
@@ -1081,10 +1134,17 @@ class GatherBuffers:
         empty2 = np.zeros((0, 0))
         # The touched lists while few VPs were touched, else every VP in order.
         sweep = bool(self.n_touched.sum() * FOLD_SWEEP_FRACTION >= self.K)
+        rest = (M, Phi, scale, scale.dtype.type(phi_div), rmin,
+                np.zeros(0, np.bool_) if rmin_mask is None else rmin_mask,
+                empty2 if S is None else S)
+        T = numba.get_num_threads()
+        if sweep and T > 1 and self.K >= PARALLEL_MIN_VPS:
+            # a pixel-sized sweep (1080p: 2M VPs): by VP ranges in threads
+            _fold_sweep_parallel(T, self.M, self.Phi, self.rmin, self.S, self.n_touched,
+                                 self.n_used, *rest)
+            return
         _fold(self.M, self.Phi, self.rmin, self.S, self.touched, self.n_touched,
-              self.n_used, M, Phi, scale, scale.dtype.type(phi_div), rmin,
-              np.zeros(0, np.bool_) if rmin_mask is None else rmin_mask,
-              empty2 if S is None else S, sweep)
+              self.n_used, *rest, sweep)
 
 
 @njit(cache=True, inline="always")
@@ -1126,13 +1186,8 @@ def _fold(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div, r
     sweep True: every VP with a count, in order (sequential memory).  One
     kernel for both, so that the warm-up compiles the one the renders use."""
     if sweep:
-        for v in range(bM.shape[1]):
-            counted = False
-            for t in range(n_used):
-                counted |= bM[t, v] != 0
-            if counted:
-                _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
-                          rmin_mask, S)
+        _fold_sweep(0, bM.shape[1], bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
+                    rmin_mask, S)
         n_touched[:] = 0
         return
     for c in range(n_used):
@@ -1142,6 +1197,30 @@ def _fold(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div, r
                 _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
                           rmin_mask, S)
         n_touched[c] = 0
+
+
+@njit(cache=True)
+def _fold_sweep(v0, v1, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S):
+    """_fold's sweep over the visible points v0..v1-1 (each one's sums and
+    rows are its own: VP ranges fold in any order, in any thread)."""
+    for v in range(v0, v1):
+        counted = False
+        for t in range(n_used):
+            counted |= bM[t, v] != 0
+        if counted:
+            _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S)
+
+
+@njit(cache=True, parallel=True)
+def _fold_sweep_parallel(n_chunks, bM, bPhi, brmin, bS, n_touched, n_used, M, Phi, scale, div,
+                         rmin, rmin_mask, S):
+    """_fold's sweep by n_chunks threads, one VP range each (the same sums:
+    a VP's fold does not depend on the others')."""
+    K = bM.shape[1]
+    for c in prange(n_chunks):
+        _fold_sweep(c * K // n_chunks, (c + 1) * K // n_chunks, bM, bPhi, brmin, bS, n_used,
+                    M, Phi, scale, div, rmin, rmin_mask, S)
+    n_touched[:] = 0
 
 
 def _check_radii(grid: Grid, vp_R2) -> None:

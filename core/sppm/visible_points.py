@@ -199,7 +199,11 @@ class CameraPass:
             u[:, :2] = 0.5      # FilterSampler.sample(0.5) = 0: the pixel centre
             u[:, 2:] = 0.0      # lens radius sqrt(0) = 0
         rays, dz = self.camera.generate(self.px, self.py, u[:, :2], u[:, 2:], self.fsamp)
-        vp, L = self._outputs(P)
+        del u                   # (P, 4) float64: not held through the trace (the stage's peak)
+        # The edge cap's pass (once a render) gets arrays of its own: through
+        # the kept ones, they would stay resident beside the next pass's
+        # through the first pass's photons (0.5 GiB at 1080p).
+        vp, L = self._outputs(P, keep=not centre)
         trace = self._trace_compiled if self.compiled else self._trace_numpy
         trace(rng, rays, dz, vp, L, check_stop)
         # A delta chain never returns to its first hit: the point is the
@@ -208,10 +212,11 @@ class CameraPass:
         _crossings_only(accel, rays, vp)
         return vp, L
 
-    def _outputs(self, P: int) -> tuple[VisiblePoints, np.ndarray]:
+    def _outputs(self, P: int, keep: bool = True) -> tuple[VisiblePoints, np.ndarray]:
         """Cleared visible points (with their FirstHit) and L (P, 3) for one
         pass: the last pass's arrays when the caller has dropped them
-        (core.kept: no page faults of fresh pixel-sized arrays every pass)."""
+        (core.kept: no page faults of fresh pixel-sized arrays every pass);
+        keep=False: new arrays, not kept."""
         mtab = self.mtab
 
         def make():
@@ -221,7 +226,7 @@ class CameraPass:
                              escape=np.zeros(P))
             return ([getattr(vp, f) for f in _VP_ARRAYS] + [getattr(first, f) for f in _FIRST]
                     + [np.zeros((P, 3))])
-        a = self._kept.get(make, P)
+        a = self._kept.get(make, P) if keep else make()
         n = len(_VP_ARRAYS)
         vp = VisiblePoints(**dict(zip(_VP_ARRAYS, a[:n])))
         vp.first = FirstHit(**dict(zip(_FIRST, a[n:n + len(_FIRST)])))
