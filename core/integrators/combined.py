@@ -451,7 +451,8 @@ class CombinedLightTracer(LightTracer):
                            np.ascontiguousarray(ph["power"], np.float64),
                            np.ascontiguousarray(ph["falloff_r2"], np.float64), rel, floor, live,
                            src)
-        cg = n if tr.fmat.any_generic else 1
+        generic = tr.fmat.any_generic
+        cg = n if generic else 1
         gen = PK.GenericHits(np.empty(cg, np.int64), *(np.empty((cg, 3)) for _ in range(6)))
         rec = PK.HitRecord(t=np.empty(1), ng=np.empty((1, 3)), nswi=np.empty(1),
                            hit=np.empty(1, bool), nxt_src=np.empty(n, np.int64),
@@ -483,9 +484,9 @@ class CombinedLightTracer(LightTracer):
                 self._first_hit(hits, K, live.d64[:K], mis.row[:K], ph, z0, fb0, fb1, fst)
             # Generic survivors need their rays' photon rows, directions and
             # first flags from before the kernel compacts them.
-            fst = fst.copy() if tr.fmat.any_generic else None
-            row = mis.row[:K].copy() if tr.fmat.any_generic else None
-            d_old = live.d64[:K].copy() if tr.fmat.any_generic else None
+            fst = fst.copy() if generic else None
+            row = mis.row[:K].copy() if generic else None
+            d_old = live.d64[:K].copy() if generic else None
             dep0 = dep.n
             n_next, n_dep, n_gen = PK.bounce_kernel(step, hits, live, tr.tris, tr.fmat, u,
                                                     dep.buf, gen, rec, mis)
