@@ -18,6 +18,7 @@ import numpy as np
 from .. import lights as Lt
 from .. import materials as B
 from ..accel import REL_OFFSET, intersect_f32, surface_point
+from ..lights import direct_kernels as DK
 from ..lights import shadow
 from ..lights.pdf import _selection_probability
 from ..lights.shadow import transparent_materials
@@ -25,6 +26,7 @@ from ..lights.table import AREA, MESH
 from ..mathutil import dot as _dot
 from . import light_kernels as LK
 from . import mis as M
+from . import path_kernels as PathK
 from ..sppm import photon_kernels as PK
 from .light_tracer import LightTracer
 
@@ -368,6 +370,14 @@ class CombinedLightTracer(LightTracer):
         t = self.light_table
         self.all_traced = not np.any((t.p_select > 0) & (self.cls == M.NO_LT))
         self.first_lights = LK.first_hit_lights(t, M.emit_select(t, np.arange(t.n)))
+        # The compiled next-event selection probability of _first_hit
+        # (path_kernels.selection_kernel reads LightPdf's entry and group_frac
+        # only, not its hittable), None where the compiled lights do not
+        # cover the table: then lights.pdf._selection_probability.
+        self._sel_lights = None
+        if DK.compiled_lights_ok(t):
+            L = DK.build_direct_lights(t)
+            self._sel_lights = (L, PathK.build_light_pdf(t, np.zeros(t.n, bool), L))
 
     def begin_pass(self, n: int) -> None:
         """A pass of n light paths (all its chunks): the weights' K / N_L;
@@ -441,7 +451,8 @@ class CombinedLightTracer(LightTracer):
                            np.ascontiguousarray(ph["power"], np.float64),
                            np.ascontiguousarray(ph["falloff_r2"], np.float64), rel, floor, live,
                            src)
-        cg = n if tr.fmat.any_generic else 1
+        generic = tr.fmat.any_generic
+        cg = n if generic else 1
         gen = PK.GenericHits(np.empty(cg, np.int64), *(np.empty((cg, 3)) for _ in range(6)))
         rec = PK.HitRecord(t=np.empty(1), ng=np.empty((1, 3)), nswi=np.empty(1),
                            hit=np.empty(1, bool), nxt_src=np.empty(n, np.int64),
@@ -468,12 +479,14 @@ class CombinedLightTracer(LightTracer):
             if mis.d0.shape[0] < dep.buf.r.shape[0]:
                 mis = _grow_deposit_rows(mis, dep.buf.r.shape[0], dep.n)
             # The rays hitting z_1 now (all at the first bounce).
-            fst = mis.first[:K].copy()
-            self._first_hit(hits, K, live.d64[:K], mis.row[:K], ph, z0, fb0, fb1, fst)
-            # Generic survivors need their rays' photon rows and directions
-            # from before the kernel compacts them.
-            row = mis.row[:K].copy() if tr.fmat.any_generic else None
-            d_old = live.d64[:K].copy() if tr.fmat.any_generic else None
+            fst = mis.first[:K]
+            if bounce == 0 or fst.any():
+                self._first_hit(hits, K, live.d64[:K], mis.row[:K], ph, z0, fb0, fb1, fst)
+            # Generic survivors need their rays' photon rows, directions and
+            # first flags from before the kernel compacts them.
+            fst = fst.copy() if generic else None
+            row = mis.row[:K].copy() if generic else None
+            d_old = live.d64[:K].copy() if generic else None
             dep0 = dep.n
             n_next, n_dep, n_gen = PK.bounce_kernel(step, hits, live, tr.tris, tr.fmat, u,
                                                     dep.buf, gen, rec, mis)
@@ -504,23 +517,26 @@ class CombinedLightTracer(LightTracer):
         0..K-1 where sel (K,) bool (default all; z_1: their first hit, or
         the first past transparent crossings) (positions from the barycentrics, the
         triangles' geometric normals):
-        compiled for point lights and rectangles (light_kernels.first_hits,
-        the selection probabilities in numpy), first_hit_ratios for the others."""
+        compiled for point lights and rectangles (light_kernels.first_hits;
+        the points by path_kernels.hit_kernel, the selection probabilities by
+        path_kernels.selection_kernel), first_hit_ratios for the others."""
         t, tris = self.light_table, self.tracer.tris
         hit = np.nonzero((hits.prim[:K] >= 0) & sel)[0]
         if hit.size == 0:
             return
-        prim = hits.prim[hit]
-        u = hits.bu[hit].astype(np.float64)[:, None]
-        v = hits.bv[hit].astype(np.float64)[:, None]
-        P = tris.p[prim]
-        p = (1.0 - u - v) * P[:, 0] + u * P[:, 1] + v * P[:, 2]
-        ng = tris.ng[prim]
+        h = hit.size
+        p, ng, ns = np.empty((h, 3)), np.empty((h, 3)), np.empty((h, 3))
+        PathK.hit_kernel(tris, hits.prim[hit], hits.bu[hit].astype(np.float64),
+                         hits.bv[hit].astype(np.float64), p, ng, ns)
         r = row[hit]
         light, zr, dh = ph["light"][r], z0[r], d[hit]
-        b0, b1 = np.empty(hit.size), np.empty(hit.size)
-        LK.first_hits(self.first_lights, self.kn, p, ng, dh, zr, light,
-                      _selection_probability(t, p, light), b0, b1)
+        if self._sel_lights is not None:
+            p_sel = np.empty(h)
+            PathK.selection_kernel(*self._sel_lights, p, light, p_sel)
+        else:
+            p_sel = _selection_probability(t, p, light)
+        b0, b1 = np.empty(h), np.empty(h)
+        LK.first_hits(self.first_lights, self.kn, p, ng, dh, zr, light, p_sel, b0, b1)
         s = np.nonzero(np.isnan(b0))[0]
         if s.size:
             b0[s], b1[s] = first_hit_ratios(t, self.kn, light[s], zr[s], dh[s], p[s], ng[s])

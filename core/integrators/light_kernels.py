@@ -25,7 +25,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..lights.direct_kernels import _spherical_rect
+from ..lights.direct_kernels import _spherical_rect_solid_angle
 from ..lights.table import AREA, POINT
 from ..scene.camera import BH_A0, BH_A1, BH_A2, BH_A3
 from ..sppm.photon_kernels import _offset_scale, lambert_pdf, shading_normal
@@ -410,7 +410,7 @@ def first_hits(fl, kn, p, ng, d, z0, light, sel, b0, b1):
     soft: the centre) and AREA rectangles; b0, b1 (n,) out.  Rows of other
     emitters are left NaN for the caller.  The rectangle's next-event
     density is pdf_direct's: 1 / S of the spherical rectangle
-    (direct_kernels._spherical_rect) where S > 1e-6, else by area, 0 behind
+    (direct_kernels._spherical_rect_solid_angle) where S > 1e-6, else by area, 0 behind
     the light."""
     kind, co, ldir, au, av = fl.kind, fl.co, fl.dir, fl.axis_u, fl.axis_v
     len_u, len_v, area, rect, p_emit = fl.len_u, fl.len_v, fl.area, fl.rect, fl.p_emit
@@ -441,11 +441,10 @@ def first_hits(fl, kn, p, ng, d, z0, light, sel, b0, b1):
             front = ((px - co[j, 0]) * nx + (py - co[j, 1]) * ny + (pz - co[j, 2]) * nz) > 0
             res = dz * dz / max(area[j] * max(cw, 0.0), 1e-300) if cw > 0 else 0.0
             hu, hv = 0.5 * len_u[j], 0.5 * len_v[j]
-            S = _spherical_rect(px, py, pz, co[j, 0] - hu * au[j, 0] - hv * av[j, 0],
-                                co[j, 1] - hu * au[j, 1] - hv * av[j, 1],
-                                co[j, 2] - hu * au[j, 2] - hv * av[j, 2],
-                                au[j, 0], au[j, 1], au[j, 2], len_u[j],
-                                av[j, 0], av[j, 1], av[j, 2], len_v[j], 0.5, 0.5)[3]
+            S = _spherical_rect_solid_angle(
+                px, py, pz, co[j, 0] - hu * au[j, 0] - hv * av[j, 0],
+                co[j, 1] - hu * au[j, 1] - hv * av[j, 1], co[j, 2] - hu * au[j, 2] - hv * av[j, 2],
+                au[j, 0], au[j, 1], au[j, 2], len_u[j], av[j, 0], av[j, 1], av[j, 2], len_v[j])
             if S > 1e-6:
                 res = 1.0 / max(S, 1e-300)
             nee = (res if front else 0.0) * sel[i]

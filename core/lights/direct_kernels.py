@@ -295,6 +295,29 @@ def _spherical_rect(px, py, pz, sx, sy, sz, exx, exy, exz, lx, eyx, eyy, eyz, ly
 
 
 @njit(cache=True, error_model="numpy")
+def _spherical_rect_solid_angle(px, py, pz, sx, sy, sz, exx, exy, exz, lx, eyx, eyy, eyz, ly):
+    """The solid angle S of _spherical_rect (same arguments but u1, u2) alone,
+    as two triangles' (Van Oosterom & Strackee 1983: tan(W/2) = |a.(b x c)|
+    / (1 + a.b + b.c + c.a) for unit corners a, b, c): for densities, which
+    need no sample (no arccos, cos, sin); equal to _spherical_rect's S
+    within float rounding."""
+    cx, cy, cz = sx - px, sy - py, sz - pz
+    ax, ay, az = _nrm3(cx, cy, cz)
+    bx, by, bz = _nrm3(cx + lx * exx, cy + lx * exy, cz + lx * exz)
+    dx, dy, dz = _nrm3(cx + lx * exx + ly * eyx, cy + lx * exy + ly * eyy,
+                       cz + lx * exz + ly * eyz)
+    ex, ey, ez = _nrm3(cx + ly * eyx, cy + ly * eyy, cz + ly * eyz)
+    ad = ax * dx + ay * dy + az * dz
+    kx, ky, kz = _cross(bx, by, bz, dx, dy, dz)
+    w = 2.0 * np.arctan2(abs(ax * kx + ay * ky + az * kz),
+                         1.0 + ax * bx + ay * by + az * bz + bx * dx + by * dy + bz * dz + ad)
+    kx, ky, kz = _cross(dx, dy, dz, ex, ey, ez)
+    return w + 2.0 * np.arctan2(abs(ax * kx + ay * ky + az * kz),
+                                1.0 + ad + dx * ex + dy * ey + dz * ez + ex * ax + ey * ay
+                                + ez * az)
+
+
+@njit(cache=True, error_model="numpy")
 def _spherical_tri(px, py, pz, Ax, Ay, Az, Bx, By, Bz, Cx, Cy, Cz, u1, u2):
     """sampling._sample_spherical_tri for one receiver: (w x, y, z, omega)."""
     ax, ay, az = _nrm3(Ax - px, Ay - py, Az - pz)
