@@ -47,8 +47,8 @@ SCENES = {
     "coffee_cup": ("caustic-small", 16384),
     "glass_sphere": ("caustic-small", 16384),
     # Cycles cannot render this caustic: the reference is Mitsuba 3's light
-    # tracer (bench/point_caustic_reference.py), 16384 spp, in the cache folder.
-    "point_caustic": ("caustic-point", "point_caustic_mitsuba_ptracer_16384.exr"),
+    # tracer (bench/point_caustic_reference.py), 65536 spp, in the cache folder.
+    "point_caustic": ("caustic-point", "point_caustic_mitsuba_ptracer_65536.exr"),
     # A 1 m square area light: caustics from a large light, where Cycles can
     # sample the light well (the targets are parity with Cycles).
     "ring_lambert": ("caustic-large", 8192),
@@ -58,39 +58,27 @@ SCENES = {
 
 
 NOTES = [
-    "The machine is shared (2 cores, other jobs running): wall times vary by up to ~1.6x between "
-    "seeds of the same method (cornell: PPM did 137 and 220 passes in the same 60 s), so equal-time "
-    "ratios carry roughly +-30% of load noise.  Cycles and FPPM's gather both use both cores.",
-    "Targets: 'diffuse'/'indirect' scenes: FPPM <= 0.7x PPM and <= 3x Cycles; 'caustic-small' "
-    "(point or very small lights): FPPM <= 1x PPM and <= 0.1x Cycles.  coffee_cup and glass_sphere "
-    "are lit by 5 cm spot lights: small, but within Cycles' reach (their Cycles references converge "
-    "at 16384 spp), so they are judged as 'caustic-small'.",
-    "point_caustic's reference is Mitsuba 3's light tracer (ptracer, 16384 spp, "
-    "bench/point_caustic_reference.py), checked against a 20 s PPM render: 32x32-pixel block means "
-    "agree within 0.7%, while Cycles misses 8.6% of the light on plain walls and floor (light "
-    "through the ball lens) and the caustic itself (8x brighter than Cycles' image there).",
-    "coffee_cup and glass_sphere: their 16384-spp Cycles references are still full of fireflies "
-    "(caustic paths that must hit a 5 cm light), and the floor estimated from the two halves "
-    "underestimates such heavy-tailed error: FPPM and PPM stall at a relMSE of 0.28 / 0.027 "
-    "while their noise is 0.0009 / 0.004, and Cycles' own 'bias2' against the reference "
-    "(0.265 / 0.017) is as large as theirs.  Their numbers measure the reference as much as "
-    "the methods, so their targets are not judged reliably; a light-tracer reference cannot be "
-    "made for them (the camera sees the mirror ring / the glass sphere).",
-    "'bias2' in the per-scene bias/noise tables is measured against the reference and so "
-    "includes its noise floor (given in each report's header): Cycles' own bias2 equals the "
-    "floor (it is unbiased, as it should be); what FPPM's and PPM's bias2 exceed it by is their "
-    "real bias.",
-    "Before this run, FPPM used 8 bounces while the example scenes' Cycles Light Paths use 16: "
-    "the indirectly lit room came out 2.8% darker than Cycles, a bias shared by FPPM and PPM that "
-    "held both at the same error (FPPM/PPM 0.99).  The default is now 16, and each pixel's "
-    "initial radius is capped at surface edges (core/sppm/edges.py).",
-    "The Cycles ladder renders in a process of its own (tools/converge/cycles_worker.py), and each "
-    "report checks its samples/s against a standalone Cycles render.  A user measured Cycles inside "
-    "the `fppm converge` process at 84 samples/s (2620 spp in 31.1 s) against 118 (2675 spp in "
-    "22.7 s) alone, a 1.4x relMSE advantage for FPPM in every ratio against Cycles.  "
-    "`--cycles-speed ring_lambert --samples 256 --repeats 2` on this machine under a load average "
-    "of ~10 (7 jobs on 2 cores): standalone 15.4, 15.0; own process 15.0, 14.7 (0.98x); in-process "
-    "after 20 s of FPPM 15.5, 18.6 samples/s: the load's noise hides the in-process slowdown here.",
+    "Clock: CPU seconds (`fppm converge --clock cpu`, `time.process_time` of the process that "
+    "renders: the `fppm converge` process for the FPPM-family methods, less the metrics computed "
+    "between passes; the Cycles worker process for Cycles).  The machine was shared all along "
+    "(2 cores, a load average of 8 to 14 from four other engineers' jobs, and two scenes of this "
+    "table rendering at once, one at nice 5): the CPU clock keeps each method's budget "
+    "independent of that load, but not the cache and memory-bandwidth contention, which slows "
+    "every method per CPU second.",
+    "Cores (CPU / wall) are the share of the 2 cores a method got on the loaded machine, not "
+    "what it would use alone (FPPM's whole pass uses 1.40 of 2 cores at 1080p on an idle "
+    "machine, README): the wall-equivalent ratios against Cycles use them as measured, so they "
+    "carry the load's noise.",
+    "Measured on the code of main at 47f7a5f (the branch point of this table); other changes to "
+    "the performance code made in the same round are not in these numbers.",
+    "Cycles: the ladder renders 1, 2, 4, ... spp in a process of its own, each point timed by "
+    "that process's CPU; the standalone samples/s check is skipped (--no-cycles-check): it "
+    "guarded against the machine's load, which the CPU clock takes out.",
+    "References: Cycles at 8192 spp (16384 for glass_sphere and coffee_cup) with caustics on, "
+    "two halves whose difference gives the noise floor; point_caustic: Mitsuba 3's light tracer "
+    "(ptracer), 65536 spp (bench/point_caustic_reference.py), since Cycles cannot render a point "
+    "light's caustic.  A target whose excess errors are below 3x the reference floor is marked "
+    "'near floor'.",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
 ]
