@@ -184,10 +184,7 @@ def collect(budget=120.0, seeds=4, clock="cpu"):
              "## Error per method", "",
              "| scene | method | relMSE (seeds) | excess | ref floor | FLIP (seeds) | cores |",
              "|---|---|---|---|---|---|---|"]
-    for name in ORDER:
-        s = summaries.get(name)
-        if s is None:
-            continue
+    for name, s in summaries.items():          # in ORDER
         for m, d in s["methods"].items():
             rs, fs = d.get("relmse_spread", [None, None]), d.get("flip_spread", [None, None])
             lines.append(f"| [{name}]({name}/report.md) | {m.upper()} | "
@@ -201,10 +198,7 @@ def collect(budget=120.0, seeds=4, clock="cpu"):
               "floor, so the ratio measures the reference's noise as much as the methods.", "",
               "| scene | target | ratio (seeds) | basis | FLIP ratio | result |",
               "|---|---|---|---|---|---|"]
-    for name in ORDER:
-        s = summaries.get(name)
-        if s is None:
-            continue
+    for name, s in summaries.items():          # in ORDER
         for t in s.get("targets", []):
             sp = t.get("spread", [None, None])
             lines.append(f"| {name} | {t['target']} | {fmt(t['ratio'])} ({spread(*sp)}) | "
