@@ -58,6 +58,16 @@ SCENES = {
 
 
 NOTES = [
+    "This table was run with `--budget 30 --seeds 2` (30 CPU s = 15 s of both cores), not the "
+    "default 120: on the shared machine (load average 8 to 16) each rendering process got 0.2 to "
+    "0.6 cores, so 120 CPU s per method took up to 25 minutes of wall time, and the session had "
+    "about 80 minutes for the whole table.  Scenes ran in priority order (cornell, "
+    "point_caustic, indirect_room, ...), up to three at once; runs still going at the session's "
+    "cut-off were stopped with Ctrl-C (their reports say 'Interrupted'), which keeps every "
+    "finished run (seed 0 of every method first, then seed 1).",
+    "CPU time is not a perfect measure of work on a loaded machine: at the same 30 CPU s, PPM "
+    "did 400 and 267 passes on point_caustic's two seeds, FPPM 50 and 36 on indirect_room's "
+    "(the other vCPU busy, caches shared).  The seed spreads in the tables include that.",
     "Clock: CPU seconds (`fppm converge --clock cpu`, `time.process_time` of the process that "
     "renders: the `fppm converge` process for the FPPM-family methods, less the metrics computed "
     "between passes; the Cycles worker process for Cycles).  The machine was shared all along "
@@ -76,7 +86,9 @@ NOTES = [
     "guarded against the machine's load, which the CPU clock takes out.",
     "References: Cycles at 8192 spp (16384 for glass_sphere and coffee_cup) with caustics on, "
     "two halves whose difference gives the noise floor; point_caustic: Mitsuba 3's light tracer "
-    "(ptracer), 65536 spp (bench/point_caustic_reference.py), since Cycles cannot render a point "
+    "(ptracer, bench/point_caustic_reference.py), 65536 spp: the script's 16384-spp halves "
+    "averaged with 49152-spp halves rendered by the same function with other seeds (floor "
+    "1.4e-4, 4x below the 16384-spp reference's 5.5e-4), since Cycles cannot render a point "
     "light's caustic.  A target whose excess errors are below 3x the reference floor is marked "
     "'near floor'.",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
