@@ -62,19 +62,23 @@ NOTES = [
     "default 120: on the shared machine (load average 8 to 16) each rendering process got 0.2 to "
     "0.6 cores, so 120 CPU s per method took up to 25 minutes of wall time, and the session had "
     "about 80 minutes for the whole table.  Scenes ran in priority order (cornell, "
-    "point_caustic, indirect_room, ...), up to three at once; runs still going at the session's "
-    "cut-off were stopped with Ctrl-C (their reports say 'Interrupted'), which keeps every "
-    "finished run (seed 0 of every method first, then seed 1).",
+    "point_caustic, indirect_room, ...), up to three at once, all at nice 0.  cornell, "
+    "point_caustic and indirect_room completed every method and both seeds; "
+    "principled_interior was stopped while its Cycles reference rendered (none of the five "
+    "remaining scenes had a cached reference: each costs 20-40 minutes on the loaded machine).",
     "CPU time is not a perfect measure of work on a loaded machine: at the same 30 CPU s, PPM "
     "did 400 and 267 passes on point_caustic's two seeds, FPPM 50 and 36 on indirect_room's "
     "(the other vCPU busy, caches shared).  The seed spreads in the tables include that.",
     "Clock: CPU seconds (`fppm converge --clock cpu`, `time.process_time` of the process that "
     "renders: the `fppm converge` process for the FPPM-family methods, less the metrics computed "
-    "between passes; the Cycles worker process for Cycles).  The machine was shared all along "
-    "(2 cores, a load average of 8 to 14 from four other engineers' jobs, and two scenes of this "
-    "table rendering at once, one at nice 5): the CPU clock keeps each method's budget "
-    "independent of that load, but not the cache and memory-bandwidth contention, which slows "
-    "every method per CPU second.",
+    "between passes; the Cycles worker process for Cycles).  The CPU clock keeps each method's "
+    "budget independent of the machine's load, but not of the cache and memory-bandwidth "
+    "contention, which slows every method per CPU second.",
+    "indirect_room's 8192-spp reference has a noise floor (1.1e-3) above 1/3 of the photon "
+    "mappers' excess errors at 30 s (1.35e-3 to 2.8e-3): its FPPM / PPM / APPM / CPPM ratios are "
+    "flagged 'near floor' and the APPM / CPPM verdicts are within the seeds' spread; a 4x longer "
+    "budget or reference is needed to judge them.  cornell's (5.0e-5) and point_caustic's "
+    "(1.4e-4) floors are below 1/3 of every excess compared.",
     "Cores (CPU / wall) are the share of the 2 cores a method got on the loaded machine, not "
     "what it would use alone (FPPM's whole pass uses 1.40 of 2 cores at 1080p on an idle "
     "machine, README): the wall-equivalent ratios against Cycles use them as measured, so they "
