@@ -63,9 +63,11 @@ NOTES = [
     "0.6 cores, so 120 CPU s per method took up to 25 minutes of wall time, and the session had "
     "about 80 minutes for the whole table.  Scenes ran in priority order (cornell, "
     "point_caustic, indirect_room, ...), up to three at once, all at nice 0.  cornell, "
-    "point_caustic and indirect_room completed every method and both seeds; "
-    "principled_interior was stopped while its Cycles reference rendered (none of the five "
-    "remaining scenes had a cached reference: each costs 20-40 minutes on the loaded machine).",
+    "point_caustic and indirect_room ran on the loaded machine (0.2-0.6 cores per method); "
+    "principled_interior ran last, alone on a nearly idle machine (1.1-2.0 cores), so its "
+    "cores and wall-equivalent ratios are the most representative.  glass_sphere, coffee_cup "
+    "and the two ring scenes were not run: none had a cached Cycles reference (each costs 5 "
+    "minutes on an idle machine, 20-40 on the loaded one) and the session ended.",
     "CPU time is not a perfect measure of work on a loaded machine: at the same 30 CPU s, PPM "
     "did 400 and 267 passes on point_caustic's two seeds, FPPM 50 and 36 on indirect_room's "
     "(the other vCPU busy, caches shared).  The seed spreads in the tables include that.",
@@ -77,8 +79,8 @@ NOTES = [
     "indirect_room's 8192-spp reference has a noise floor (1.1e-3) above 1/3 of the photon "
     "mappers' excess errors at 30 s (1.35e-3 to 2.8e-3): its FPPM / PPM / APPM / CPPM ratios are "
     "flagged 'near floor' and the APPM / CPPM verdicts are within the seeds' spread; a 4x longer "
-    "budget or reference is needed to judge them.  cornell's (5.0e-5) and point_caustic's "
-    "(1.4e-4) floors are below 1/3 of every excess compared.",
+    "budget or reference is needed to judge them.  cornell's (5.0e-5), point_caustic's "
+    "(1.4e-4) and principled_interior's (2.0e-4) floors are below 1/3 of every excess compared.",
     "Cores (CPU / wall) are the share of the 2 cores a method got on the loaded machine, not "
     "what it would use alone (FPPM's whole pass uses 1.40 of 2 cores at 1080p on an idle "
     "machine, README): the wall-equivalent ratios against Cycles use them as measured, so they "
