@@ -1,10 +1,13 @@
 """Run ``fppm converge`` on the example scenes and collect the results in docs/convergence/.
 
-    .venv/bin/python bench/converge_examples.py [scene ...] [--budget 60] [--seeds 4] [--methods M,...] [--collect-only | --rereport]
+    .venv/bin/python bench/converge_examples.py [scene ...] [--budget 120] [--clock cpu] [--seeds 4] [--methods M,...] [--collect-only | --rereport]
     .venv/bin/python bench/converge_examples.py --cycles-speed [scene] [--samples 128] [--repeats 2]
 
 One scene at a time (the machine has 2 cores), each in its own process (a
-fresh Blender state).  Writes docs/convergence/<scene>/ (convergence.csv,
+fresh Blender state).  The clock is CPU (``fppm converge --clock cpu``): a
+budget of 120 s is 60 s of both cores, whatever else loads the machine; each
+report gives the cores every method used and, against Cycles, the
+wall-equivalent ratios.  Each scene runs its own methods (:data:`SCENE_METHODS`).  Writes docs/convergence/<scene>/ (convergence.csv,
 convergence.png, report.md, summary.json, PNG images; the EXRs are deleted to
 keep the folder commit-sized) and docs/convergence/report.md, a table of all
 scenes built from their summary.json.
@@ -44,51 +47,56 @@ SCENES = {
     "coffee_cup": ("caustic-small", 16384),
     "glass_sphere": ("caustic-small", 16384),
     # Cycles cannot render this caustic: the reference is Mitsuba 3's light
-    # tracer (bench/point_caustic_reference.py), 16384 spp, in the cache folder.
-    "point_caustic": ("caustic-point", "point_caustic_mitsuba_ptracer_16384.exr"),
+    # tracer (bench/point_caustic_reference.py), 65536 spp, in the cache folder.
+    "point_caustic": ("caustic-point", "point_caustic_mitsuba_ptracer_65536.exr"),
     # A 1 m square area light: caustics from a large light, where Cycles can
     # sample the light well (the targets are parity with Cycles).
     "ring_lambert": ("caustic-large", 8192),
     "ring_principled": ("caustic-large", 8192),
     "principled_interior": ("indirect", 8192),
 }
-SKIPPED = {}
 
 
 NOTES = [
-    "The machine is shared (2 cores, other jobs running): wall times vary by up to ~1.6x between "
-    "seeds of the same method (cornell: PPM did 137 and 220 passes in the same 60 s), so equal-time "
-    "ratios carry roughly +-30% of load noise.  Cycles and FPPM's gather both use both cores.",
-    "Targets: 'diffuse'/'indirect' scenes: FPPM <= 0.7x PPM and <= 3x Cycles; 'caustic-small' "
-    "(point or very small lights): FPPM <= 1x PPM and <= 0.1x Cycles.  coffee_cup and glass_sphere "
-    "are lit by 5 cm spot lights: small, but within Cycles' reach (their Cycles references converge "
-    "at 16384 spp), so they are judged as 'caustic-small'.",
-    "point_caustic's reference is Mitsuba 3's light tracer (ptracer, 16384 spp, "
-    "bench/point_caustic_reference.py), checked against a 20 s PPM render: 32x32-pixel block means "
-    "agree within 0.7%, while Cycles misses 8.6% of the light on plain walls and floor (light "
-    "through the ball lens) and the caustic itself (8x brighter than Cycles' image there).",
-    "coffee_cup and glass_sphere: their 16384-spp Cycles references are still full of fireflies "
-    "(caustic paths that must hit a 5 cm light), and the floor estimated from the two halves "
-    "underestimates such heavy-tailed error: FPPM and PPM stall at a relMSE of 0.28 / 0.027 "
-    "while their noise is 0.0009 / 0.004, and Cycles' own 'bias2' against the reference "
-    "(0.265 / 0.017) is as large as theirs.  Their numbers measure the reference as much as "
-    "the methods, so their targets are not judged reliably; a light-tracer reference cannot be "
-    "made for them (the camera sees the mirror ring / the glass sphere).",
-    "'bias2' in the per-scene bias/noise tables is measured against the reference and so "
-    "includes its noise floor (given in each report's header): Cycles' own bias2 equals the "
-    "floor (it is unbiased, as it should be); what FPPM's and PPM's bias2 exceed it by is their "
-    "real bias.",
-    "Before this run, FPPM used 8 bounces while the example scenes' Cycles Light Paths use 16: "
-    "the indirectly lit room came out 2.8% darker than Cycles, a bias shared by FPPM and PPM that "
-    "held both at the same error (FPPM/PPM 0.99).  The default is now 16, and each pixel's "
-    "initial radius is capped at surface edges (core/sppm/edges.py).",
-    "The Cycles ladder renders in a process of its own (tools/converge/cycles_worker.py), and each "
-    "report checks its samples/s against a standalone Cycles render.  A user measured Cycles inside "
-    "the `fppm converge` process at 84 samples/s (2620 spp in 31.1 s) against 118 (2675 spp in "
-    "22.7 s) alone, a 1.4x relMSE advantage for FPPM in every ratio against Cycles.  "
-    "`--cycles-speed ring_lambert --samples 256 --repeats 2` on this machine under a load average "
-    "of ~10 (7 jobs on 2 cores): standalone 15.4, 15.0; own process 15.0, 14.7 (0.98x); in-process "
-    "after 20 s of FPPM 15.5, 18.6 samples/s: the load's noise hides the in-process slowdown here.",
+    "This table was run with `--budget 30 --seeds 2` (30 CPU s = 15 s of both cores), not the "
+    "default 120: on the shared machine (load average 8 to 16) each rendering process got 0.2 to "
+    "0.6 cores, so 120 CPU s per method took up to 25 minutes of wall time, and the session had "
+    "about 80 minutes for the whole table.  Scenes ran in priority order (cornell, "
+    "point_caustic, indirect_room, ...), up to three at once, all at nice 0.  cornell, "
+    "point_caustic and indirect_room ran on the loaded machine (0.2-0.6 cores per method); "
+    "principled_interior ran last, alone on a nearly idle machine (1.1-2.0 cores), so its "
+    "cores and wall-equivalent ratios are the most representative.  glass_sphere, coffee_cup "
+    "and the two ring scenes were not run: none had a cached Cycles reference (each costs 5 "
+    "minutes on an idle machine, 20-40 on the loaded one) and the session ended.",
+    "CPU time is not a perfect measure of work on a loaded machine: at the same 30 CPU s, PPM "
+    "did 400 and 267 passes on point_caustic's two seeds, FPPM 50 and 36 on indirect_room's "
+    "(the other vCPU busy, caches shared).  The seed spreads in the tables include that.",
+    "Clock: CPU seconds (`fppm converge --clock cpu`, `time.process_time` of the process that "
+    "renders: the `fppm converge` process for the FPPM-family methods, less the metrics computed "
+    "between passes; the Cycles worker process for Cycles).  The CPU clock keeps each method's "
+    "budget independent of the machine's load, but not of the cache and memory-bandwidth "
+    "contention, which slows every method per CPU second.",
+    "indirect_room's 8192-spp reference has a noise floor (1.1e-3) above 1/3 of the photon "
+    "mappers' excess errors at 30 s (1.35e-3 to 2.8e-3): its FPPM / PPM / APPM / CPPM ratios are "
+    "flagged 'near floor' and the APPM / CPPM verdicts are within the seeds' spread; a 4x longer "
+    "budget or reference is needed to judge them.  cornell's (5.0e-5), point_caustic's "
+    "(1.4e-4) and principled_interior's (2.0e-4) floors are below 1/3 of every excess compared.",
+    "Cores (CPU / wall) are the share of the 2 cores a method got on the loaded machine, not "
+    "what it would use alone (FPPM's whole pass uses 1.40 of 2 cores at 1080p on an idle "
+    "machine, README): the wall-equivalent ratios against Cycles use them as measured, so they "
+    "carry the load's noise.",
+    "Measured on the code of main at 47f7a5f (the branch point of this table); other changes to "
+    "the performance code made in the same round are not in these numbers.",
+    "Cycles: the ladder renders 1, 2, 4, ... spp in a process of its own, each point timed by "
+    "that process's CPU; the standalone samples/s check is skipped (--no-cycles-check): it "
+    "guarded against the machine's load, which the CPU clock takes out.",
+    "References: Cycles at 8192 spp (16384 for glass_sphere and coffee_cup) with caustics on, "
+    "two halves whose difference gives the noise floor; point_caustic: Mitsuba 3's light tracer "
+    "(ptracer, bench/point_caustic_reference.py), 65536 spp: the script's 16384-spp halves "
+    "averaged with 49152-spp halves rendered by the same function with other seeds (floor "
+    "1.4e-4, 4x below the 16384-spp reference's 5.5e-4), since Cycles cannot render a point "
+    "light's caustic.  A target whose excess errors are below 3x the reference floor is marked "
+    "'near floor'.",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
 ]
@@ -97,16 +105,30 @@ NOTES = [
 # Every method of `fppm converge` (tools/converge/runs.py): the photon
 # mappers (FPPM, PPM and the two published per-pixel radius rules APPM and
 # CPPM), the single strategies of the combined integrator (path and light
-# tracing), the combined integrator, and Cycles.  4 seeds x 60 s x 8 methods
-# is 32 minutes of rendering per scene on this machine.
+# tracing), the combined integrator, and Cycles (the order of the table).
 METHODS = "fppm,ppm,appm,cppm,path,light,combined,cycles"
-# The corrected frequency model against the paper's printed one, at equal
-# time, on the indirectly lit scene and the caustic scene.
-WITH_PAPER = ("indirect_room", "point_caustic")
+# The methods each scene's targets need (issues 13 and 18): the combined
+# integrator against Cycles and its single strategies, FPPM against PPM, and
+# APPM / CPPM where indirect light dominates.  Cycles cannot render
+# point_caustic's caustic (its reference is a light tracer).
+SCENE_METHODS = {
+    "cornell": "combined,path,light,fppm,ppm,cycles",
+    "point_caustic": "combined,light,fppm,ppm",
+    "indirect_room": "fppm,ppm,appm,cppm,combined,cycles",
+    "principled_interior": "fppm,ppm,appm,cppm,combined,cycles",
+    "glass_sphere": "combined,fppm,ppm,path,light",
+    "coffee_cup": "combined,fppm,ppm,path,light",
+    "ring_lambert": "fppm,ppm,combined,cycles",
+    "ring_principled": "fppm,ppm,combined,cycles",
+}
+# The order the scenes run in (the most important targets first).
+ORDER = ("cornell", "point_caustic", "indirect_room", "principled_interior", "glass_sphere",
+         "coffee_cup", "ring_lambert", "ring_principled")
 
 
-def run_scene(name, budget, seeds, from_csv=False, methods=METHODS):
+def run_scene(name, budget, seeds, from_csv=False, methods=None, clock="cpu"):
     kind, spp = SCENES[name]
+    methods = methods or SCENE_METHODS[name]
     out = os.path.join(DOCS, name)
     if isinstance(spp, str):
         base = os.environ.get("FPPM_CACHE_DIR") or os.path.join(os.path.expanduser("~"), ".cache", "fppm")
@@ -122,11 +144,13 @@ def run_scene(name, budget, seeds, from_csv=False, methods=METHODS):
     cmd = [sys.executable, "-c",
            "import sys; from fppm.tools.cli import main; sys.exit(main(sys.argv[1:]))",
            "converge", os.path.join(ROOT, "example_blends", name + ".blend"),
-           "--time-limit", str(budget), "--out", out, *ref_args,
-           "--seeds", str(seeds), "--resolution", "100", "--kind", kind]
-    if name in WITH_PAPER and "fppm" in methods.split(","):
-        methods = methods.replace("fppm", "fppm,paper", 1)
-    cmd += ["--methods", methods]
+           "--time-limit", str(budget), "--clock", clock, "--out", out, *ref_args,
+           "--seeds", str(seeds), "--resolution", "100", "--kind", kind, "--methods", methods]
+    if clock == "cpu":
+        # The standalone Cycles render re-checks the ladder's samples/s against
+        # the machine's load, which the CPU clock already takes out: skip its
+        # ~1 budget of rendering per scene.
+        cmd.append("--no-cycles-check")
     if from_csv:
         if not os.path.isfile(os.path.join(out, "convergence.csv")):
             return None
@@ -141,77 +165,90 @@ def run_scene(name, budget, seeds, from_csv=False, methods=METHODS):
 
 
 def fmt(v):
-    return "n/a" if v is None else f"{v:.3g}"
+    return "n/a" if v is None or v != v else f"{v:.3g}"
 
 
-# The equal-time ratios of the table (tools/converge/report.py computes them).
-TABLE_RATIOS = ("fppm/ppm", "fppm/appm", "fppm/cppm", "fppm/paper", "fppm/cycles", "combined/fppm",
-                "combined/path", "combined/light", "combined/cycles")
+def spread(lo, hi):
+    """'min-max' of the seeds (one value when they agree to 3 digits)."""
+    lo, hi = fmt(lo), fmt(hi)
+    return lo if lo == hi else f"{lo}-{hi}"
 
 
-def collect(budget=60.0, seeds=4):
-    """docs/convergence/report.md: one table of every scene's summary.json."""
+def _not_run(name, s):
+    """The methods of SCENE_METHODS missing from a scene's summary."""
+    want = SCENE_METHODS[name].split(",")
+    return [m for m in want if s is None or m not in s["methods"]]
+
+
+def collect(budget=120.0, seeds=4, clock="cpu"):
+    """docs/convergence/report.md: the tables of every scene's summary.json."""
     summaries = {}
-    for name in SCENES:
+    for name in ORDER:
         p = os.path.join(DOCS, name, "summary.json")
         if os.path.isfile(p):
             with open(p) as f:
                 summaries[name] = json.load(f)
-    all_methods = [m for m in METHODS.split(",")
-                   if any(m in s["methods"] for s in summaries.values())]
-    ratios = [r for r in TABLE_RATIOS if any(r in s.get("ratios", {}) for s in summaries.values())]
+    unit = "CPU seconds of the rendering process" if clock == "cpu" else "wall seconds"
     lines = ["# Convergence of the example scenes", "",
-             f"128x128, {budget:g} s per method, {seeds} seed(s) (mean; min-max of the seeds in "
-             "each scene's report), this machine (2 cores), "
-             "`.venv/bin/python bench/converge_examples.py`.  relMSE at 100% of the "
-             "budget; ratios at equal time (first / second: < 1 means the first is better), on the "
-             "excess relMSE (reference noise subtracted) when both are above the floor, else raw.  "
-             "Each scene's folder has the plot, the CSV and the full report.", "",
-             "FLIP: mean HDR-FLIP at 100% of the budget (raw: FLIP has no noise-floor "
-             "correction).  'Cycles spp/s' is the ladder's samples/s against a standalone Cycles "
-             "process (+x%: the ladder was faster).", "",
-             "| scene | kind | " + " | ".join(m.upper() for m in all_methods) + " | ref floor | "
-             + " | ".join(r.upper() for r in ratios) + " | FLIP " + " / ".join(m.upper() for m in all_methods)
-             + " | Cycles spp/s | targets |",
-             "|---|---|" + "---|" * (len(all_methods) + len(ratios) + 4)]
-    for name, (kind, _) in SCENES.items():
-        s = summaries.get(name)
-        if s is None:
-            lines.append(f"| {name} | {kind} | not run |" + " |" * (len(all_methods) + len(ratios) + 3))
-            continue
-        m = s["methods"]
-
-        def rel(k):
-            return fmt(m.get(k, {}).get("relmse", {}).get("1.0"))
-
-        def ratio(k):
-            r = s.get("ratios", {}).get(k, {})
-            v = r.get("excess")
-            return fmt(v if v is not None else r.get("raw"))
-
-        def flip(k):
-            return fmt(m.get(k, {}).get("flip", {}).get("1.0"))
-        sp = s.get("cycles_speed")
-        speed = (f"{sp['ladder_sps']:.0f} vs {sp['standalone_sps']:.0f} ({100 * (sp['ratio'] - 1):+.0f}%)"
-                 if sp else "n/a")
-        tg = "; ".join(f"{t['target'].split(' (')[0]}: {'met' if t['met'] else 'MISSED'}"
-                       + (" (near floor)" if t.get("near_floor") else "")
-                       for t in s.get("targets", []))
-        lines.append(f"| [{name}]({name}/report.md) | {kind} | "
-                     + " | ".join(rel(k) for k in all_methods) + f" | {fmt(s.get('floor'))} | "
-                     + " | ".join(ratio(r) for r in ratios) + " | "
-                     + " / ".join(flip(k) for k in all_methods) + f" | {speed} | {tg} |")
-    for name, why in SKIPPED.items():
-        lines.append(f"| {name} | caustic-point | skipped |" + " |" * (len(all_methods) + len(ratios) + 2)
-                     + f" {why} |")
-    lines += ["", "Notes", ""] + [f"- {n}" for n in NOTES]
-    lines.append("")
-    for name in SCENES:
+             f"128x128, {budget:g} {unit} per method ({budget / 2:g} s of both cores of this "
+             f"2-core machine), up to {seeds} seeds per method, `.venv/bin/python "
+             "bench/converge_examples.py` (`fppm converge --clock " + clock + "`).  "
+             "Each scene's folder has the plot, the CSV and the full report (regions, "
+             "bias/noise, every equal-time ratio at 10/50/100% of the budget).", "",
+             "relMSE and FLIP (mean HDR-FLIP) at 100% of the budget: mean over the seeds, and "
+             "the seeds' min-max.  'excess' = relMSE - the reference's noise floor (what the "
+             "method's error against the true image is).  Cores = CPU / wall seconds of the "
+             "method's runs.", "",
+             "## Error per method", "",
+             "| scene | method | relMSE (seeds) | excess | ref floor | FLIP (seeds) | cores |",
+             "|---|---|---|---|---|---|---|"]
+    for name, s in summaries.items():          # in ORDER
+        for m, d in s["methods"].items():
+            rs, fs = d.get("relmse_spread", [None, None]), d.get("flip_spread", [None, None])
+            lines.append(f"| [{name}]({name}/report.md) | {m.upper()} | "
+                         f"{fmt(d['relmse'].get('1.0'))} ({spread(*rs)}) | {fmt(d.get('excess'))} | "
+                         f"{fmt(s.get('floor'))} | {fmt(d['flip'].get('1.0'))} ({spread(*fs)}) | "
+                         f"{fmt(s.get('cores', {}).get(m))} |")
+    lines += ["", "## Targets (issues 13 and 18)", "",
+              "Ratio < 1: the first method has the lower error at equal time; on the excess "
+              "relMSE when both are above the reference floor, else raw; 'seeds' is the "
+              "seed-by-seed ratio's min-max.  'near floor': an excess below 3x the reference "
+              "floor, so the ratio measures the reference's noise as much as the methods.", "",
+              "| scene | target | ratio (seeds) | basis | FLIP ratio | result |",
+              "|---|---|---|---|---|---|"]
+    for name, s in summaries.items():          # in ORDER
+        for t in s.get("targets", []):
+            sp = t.get("spread", [None, None])
+            lines.append(f"| {name} | {t['target']} | {fmt(t['ratio'])} ({spread(*sp)}) | "
+                         f"{t['basis']}" + (f" vs {t['against']}" if t['target'].startswith(
+                             "Combined relMSE <= 1x the best") else "")
+                         + f" | {fmt(t.get('flip_ratio'))} | "
+                         f"{'met' if t['met'] else '**MISSED**'}"
+                         + (" (near floor)" if t.get("near_floor") else "") + " |")
+    cyc = [(name, k, v) for name in ORDER for k, v in summaries.get(name, {}).get("ratios", {}).items()
+           if k.endswith("/cycles")]
+    if cyc:
+        lines += ["", "## Against Cycles: equal CPU and wall-equivalent", "",
+                  "The CPU clock favours the method that uses fewer cores; at equal wall time a "
+                  "method on c cores gets c x the time in CPU, so (relMSE ~ 1 / CPU time) the "
+                  "wall-equivalent ratio is the equal-CPU ratio x cores(Cycles) / cores(method).", "",
+                  "| scene | ratio | equal CPU | wall-equivalent |", "|---|---|---|---|"]
+        for name, k, v in cyc:
+            e = v.get("excess")
+            lines.append(f"| {name} | {k.upper()} | {fmt(e if e is not None else v.get('raw'))} | "
+                         f"{fmt(v.get('wall_equivalent'))} |")
+    lines += ["", "## Not run", ""]
+    missing = [(n, _not_run(n, summaries.get(n))) for n in ORDER]
+    missing = [(n, ms) for n, ms in missing if ms]
+    lines += ([f"- {n}: {', '.join(ms) if n in summaries else 'not run'}" for n, ms in missing]
+              or ["- Every scene and method ran."])
+    lines += ["", "## Notes", ""] + [f"- {n}" for n in NOTES] + [""]
+    for name in ORDER:
         if os.path.isfile(os.path.join(DOCS, name, "convergence.png")):
             lines += [f"## {name}", "", f"![{name}]({name}/convergence.png)", ""]
     with open(os.path.join(DOCS, "report.md"), "w") as f:
         f.write("\n".join(lines))
-    print("\n".join(lines[:len(SCENES) + len(SKIPPED) + 8]))
+    print("\n".join(lines))
 
 
 def cycles_speed(name="ring_lambert", samples=128, repeats=2, fppm_seconds=20.0):
@@ -279,19 +316,23 @@ def main(argv=None):
         cycles_speed(b.scene, b.samples, b.repeats, b.fppm_seconds)
         return
     ap = argparse.ArgumentParser()
-    ap.add_argument("scenes", nargs="*", default=list(SCENES))
-    ap.add_argument("--budget", type=float, default=60.0)
+    ap.add_argument("scenes", nargs="*", default=list(ORDER))
+    ap.add_argument("--budget", type=float, default=120.0,
+                    help="seconds per method on --clock (default 120: 60 s of 2 cores)")
+    ap.add_argument("--clock", choices=("wall", "cpu"), default="cpu")
     ap.add_argument("--seeds", type=int, default=4)
-    ap.add_argument("--methods", default=METHODS,
-                    help=f"comma-separated methods of fppm converge (default {METHODS})")
+    ap.add_argument("--methods", default=None,
+                    help="comma-separated methods of fppm converge (default: the scene's, "
+                         "SCENE_METHODS)")
     ap.add_argument("--collect-only", action="store_true")
     ap.add_argument("--rereport", action="store_true",
                     help="no renders: rebuild each scene's report from its CSV (fppm converge --from-csv)")
     a = ap.parse_args(argv)
     if not a.collect_only:
         for name in a.scenes:
-            run_scene(name, a.budget, a.seeds, from_csv=a.rereport, methods=a.methods)
-    collect(a.budget, a.seeds)
+            run_scene(name, a.budget, a.seeds, from_csv=a.rereport, methods=a.methods,
+                      clock=a.clock)
+    collect(a.budget, a.seeds, a.clock)
 
 
 if __name__ == "__main__":

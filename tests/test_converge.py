@@ -32,7 +32,8 @@ from scenes import refs
 PASSES = 6
 BUDGET = 60.0
 SEEDS = (0, 1)
-COLUMNS = (["method", "seed", "point", "seconds", "render_seconds", "photons", "samples"]
+COLUMNS = (["method", "seed", "point", "seconds", "render_seconds", "photons", "samples",
+            "wall_seconds", "cpu_seconds"]
            + [f"{k}_{g}" for g in ("all", "smooth", "caustic", "indirect")
               for k in ("relmse", "rmse", "mre", "flip")])
 
@@ -92,6 +93,8 @@ def test_csv_columns_rows_and_monotone_time(tiny):
             rs = [x for x in rows if x["method"] == m and int(x["seed"]) == seed]
             assert [int(x["point"]) for x in rs] == list(range(1, PASSES + 1))
             t = np.array([float(x["seconds"]) for x in rs])
+            # The default clock is wall: the CSV's seconds are wall_seconds.
+            assert np.array_equal(t, [float(x["wall_seconds"]) for x in rs])
             ph = np.array([int(x["photons"]) for x in rs])
             assert np.all(np.diff(t) > 0) and np.all(np.diff(ph) > 0)
             assert np.all(ph == ph[0] * np.arange(1, len(rs) + 1))   # photons per pass constant
@@ -199,6 +202,42 @@ def test_report_tables_and_equal_time_ratios(tiny):
     # Bias + noise over 2 seeds reproduce the mean per-seed relMSE of the final images.
     bn = summ["bias_noise"]["fppm"]
     assert bn["bias2"] + bn["noise"] == pytest.approx(bn["relmse_per_seed"], rel=1e-9)
+
+
+CPU_BUDGET = 1.5
+
+
+def test_cpu_clock_budget_is_the_rendering_process_cpu(tmp_path):
+    """--clock cpu: FPPM's passes and Cycles' ladder stop at the first point whose
+    process CPU time reaches the budget (no pass is cut), and the report gives the
+    cores each method used and the wall-equivalent ratio against Cycles."""
+    out = tmp_path / "cpu"
+    r = _run(["converge", refs.scene_path("t_light_point"), "--time-limit", CPU_BUDGET,
+              "--clock", "cpu", "--out", out,
+              "--reference", os.path.join(refs.REFERENCES_DIR, "t_light_point.exr"),
+              "--methods", "fppm,cycles", "--no-cycles-check"], tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    _, rows = _rows(out)
+    with open(out / "summary.json") as f:
+        summ = json.load(f)
+    assert summ["clock"] == "cpu"
+    for m in ("fppm", "cycles"):
+        rs = [x for x in rows if x["method"] == m]
+        t = [float(x["seconds"]) for x in rs]
+        assert t == [float(x["cpu_seconds"]) for x in rs]
+        # Budget reached by the last point only: >= budget, < budget + one pass
+        # (or ladder point).
+        assert len(t) >= 2 and t[-2] < CPU_BUDGET <= t[-1], (m, t)
+        cores = float(rs[-1]["cpu_seconds"]) / float(rs[-1]["wall_seconds"])
+        assert summ["cores"][m] == pytest.approx(cores, rel=1e-3)
+        # At most every CPU thread busy (5% for the clocks' granularity).
+        assert 0 < cores <= 1.05 * os.cpu_count()
+    ratio = summ["ratios"]["fppm/cycles"]
+    v = ratio["excess"] if ratio["excess"] is not None else ratio["raw"]
+    assert ratio["wall_equivalent"] == pytest.approx(
+        v * summ["cores"]["cycles"] / summ["cores"]["fppm"], rel=1e-9)
+    text = (out / "report.md").read_text()
+    assert "Clock: **cpu**" in text and "wall-equivalent |" in text
 
 
 def test_cycles_reference_is_made_then_cached(tmp_path):

@@ -1,6 +1,6 @@
 """``fppm converge``: error against run time for FPPM, PPM and Cycles.
 
-    fppm converge SCENE.blend --time-limit S --out DIR
+    fppm converge SCENE.blend --time-limit S --out DIR [--clock wall|cpu]
                   [--reference REF.exr | --cycles-samples N] [--methods fppm,ppm,cycles]
                   [--seeds K] [--resolution PCT] [--photons N] [--mask MASK.png|exr]
                   [--kind diffuse|indirect|caustic-small|caustic-large]
@@ -35,6 +35,13 @@
 6. Throughput: FPPM photon-pass time (trace + gather) / raw Embree time for as
    many random rays, in the same process.
 7. Ctrl-C: the runs done so far (and the passes of the current one) are written.
+
+--clock cpu: S and every time are CPU seconds (``time.process_time``) of the
+process that renders (this one for the photon-mapping methods, less the
+metrics computed between passes; the Cycles worker for Cycles), so that a
+loaded machine does not change a method's budget.  Every row keeps both
+clocks; report.md gives the cores each method used (CPU / wall) and, against
+Cycles, the wall-equivalent ratio (x cores(Cycles) / cores(method)).
 
 Equal-time comparisons interpolate each method's error linearly in log-log
 between its recorded points (``tools.metrics.loglog_interp``).

@@ -12,9 +12,12 @@ So this module imports only the standard library and ``bpy``; the parent
 
 CONFIG.json: ``{"blend", "resolution" (percentage or null), "seed", "dir",
 "mode": "ladder" | "fixed", "budget", "max_samples" (ladder), "samples"
-(fixed: a list of sample counts)}``.  Every render is written to
-``<dir>/cycles_<samples>.exr`` and announced on stdout as one line
-``FPPM-CYCLES {"samples", "seconds", "path"}``; the last line is
+(fixed: a list of sample counts), "clock": "wall" | "cpu" (default wall)}``.
+Every render is written to ``<dir>/cycles_<samples>.exr`` and announced on
+stdout as one line ``FPPM-CYCLES {"samples", "seconds", "wall_seconds",
+"cpu_seconds", "path"}`` (``seconds`` on the chosen clock, which the ladder's
+budget is; ``cpu_seconds`` is this process's ``time.process_time`` over
+``render.render``: every Cycles thread); the last line is
 ``FPPM-CYCLES {"done": true, "numba": bool, "embreex": bool, "threads": int}``
 (whether those modules were ever imported here; the OS threads of the
 process at the end).  Blender's own output goes to stderr.
@@ -62,10 +65,12 @@ def cycles_reference_setup(scene) -> None:
     c.use_animated_seed = False
 
 
-def render_to_file(bpy, scene, samples: int, seed: int, path: str, passes: bool = False) -> float:
+def render_to_file(bpy, scene, samples: int, seed: int, path: str, passes: bool = False,
+                   cpu: list | None = None) -> float:
     """Render with Cycles into the EXR ``path``; returns the wall seconds of render.render.
 
     passes: also the Diffuse Direct / Indirect passes (a multi-layer EXR).
+    cpu: when given, the process CPU seconds of render.render are appended to it.
     """
     scene.cycles.samples = int(samples)
     scene.cycles.seed = int(seed)
@@ -87,9 +92,11 @@ def render_to_file(bpy, scene, samples: int, seed: int, path: str, passes: bool 
         t0 = time.perf_counter()
         bpy.ops.render.render(write_still=True)
         return time.perf_counter() - t0
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     bpy.ops.render.render()
     dt = time.perf_counter() - t0
+    if cpu is not None:
+        cpu.append(time.process_time() - c0)
     bpy.data.images["Render Result"].save_render(filepath=path, scene=scene)
     return dt
 
@@ -135,12 +142,16 @@ def main(argv) -> int:
         scene.render.resolution_percentage = int(cfg["resolution"])
     cycles_reference_setup(scene)
     seed = int(cfg["seed"])
+    on_cpu = cfg.get("clock", "wall") == "cpu"
 
     def render(n):
         path = os.path.join(cfg["dir"], f"cycles_{n}.exr")
-        dt = render_to_file(bpy, scene, n, seed, path)
-        _say({"samples": n, "seconds": dt, "path": path})
-        return dt
+        cpu = []
+        dt = render_to_file(bpy, scene, n, seed, path, cpu=cpu)
+        secs = cpu[0] if on_cpu else dt
+        _say({"samples": n, "seconds": secs, "wall_seconds": dt, "cpu_seconds": cpu[0],
+              "path": path})
+        return secs
 
     if cfg["mode"] == "fixed":
         for n in cfg["samples"]:

@@ -11,7 +11,9 @@ import numpy as np
 from .. import metrics as M
 from .runs import methods_run
 
-COLORS = {"fppm": "tab:red", "paper": "tab:orange", "ppm": "tab:blue", "cycles": "tab:green"}
+COLORS = {"fppm": "tab:red", "paper": "tab:orange", "ppm": "tab:blue", "cycles": "tab:green",
+          "appm": "tab:cyan", "cppm": "tab:olive", "path": "tab:brown", "light": "tab:pink",
+          "combined": "tab:purple"}
 
 
 def _pyplot():

@@ -17,6 +17,14 @@ ladder point, with the error metrics of that image against the reference
   is then rendered once more by a fresh standalone Cycles process
   (:func:`cycles_speed_check`): the two samples/s must agree (within
   :data:`SPEED_TOLERANCE`) for the equal-time ratios against Cycles to be fair.
+
+Clocks (:data:`CLOCKS`, ``fppm converge --clock``): ``wall`` (the default)
+times everything by ``time.perf_counter``; ``cpu`` by ``time.process_time``
+of the process that renders (this one for the photon-mapping methods, minus
+the metrics computed between passes; the Cycles worker for Cycles), so that a
+method's budget is the CPU it used whatever else loads the machine.  Every
+row records both (``wall_seconds``, ``cpu_seconds``); ``seconds`` is the
+chosen clock's, and CPU / wall of a run's last row is the cores it used.
 """
 from __future__ import annotations
 
@@ -68,6 +76,11 @@ SPEED_TOLERANCE = 0.05
 FLIP_TIME_STEP = 1.25
 # Photons per pass of the untimed warm-up render (at most).
 WARMUP_PHOTONS = 2000
+# "wall": time.perf_counter; "cpu": time.process_time of the rendering process.
+CLOCKS = ("wall", "cpu")
+# --clock cpu: the Renderer's own (wall) time limit is only a safety net,
+# this many times the CPU budget (settings need a limit when max_passes is 0).
+CPU_CLOCK_WALL_CAP = 100.0
 
 
 def methods_run(runs) -> list[str]:
@@ -91,14 +104,18 @@ class Run:
         self._next_flip = 0.0
         self._last = None          # (masks, ref) of the last record
 
-    def record(self, masks, ref, point, seconds, render_seconds, photons, samples, img) -> dict:
+    def record(self, masks, ref, point, seconds, render_seconds, photons, samples, img,
+               wall=None, cpu=None) -> dict:
         """Append the row of one image (H, W, 3) float64 and keep it as the last image.
 
+        seconds: on the run's clock; wall, cpu: both clocks (None: not measured).
         FLIP is computed when ``seconds`` has grown by FLIP_TIME_STEP since the
         last FLIP (else NaN until :meth:`finish`)."""
         row = {"method": self.method, "seed": self.seed, "point": point,
                "seconds": round(seconds, 4), "render_seconds": round(render_seconds, 4),
-               "photons": photons, "samples": samples}
+               "photons": photons, "samples": samples,
+               "wall_seconds": "" if wall is None else round(wall, 4),
+               "cpu_seconds": "" if cpu is None else round(cpu, 4)}
         row.update(M.error_metrics(img, ref, masks, with_flip=False))
         if seconds >= self._next_flip:
             row.update(self._flip(img, ref, masks))
@@ -110,6 +127,13 @@ class Run:
         self.image = img
         self._last = (masks, ref)
         return row
+
+    def cores(self) -> float:
+        """CPU / wall seconds of the last row (NaN when either is unknown)."""
+        if not self.rows:
+            return float("nan")
+        w, c = self.rows[-1].get("wall_seconds", ""), self.rows[-1].get("cpu_seconds", "")
+        return float(c) / float(w) if w != "" and c != "" and float(w) > 0 else float("nan")
 
     @staticmethod
     def _flip(img, ref, masks) -> dict:
@@ -156,10 +180,13 @@ def raw_ray_seconds(accel, scene, n_rays: int, cap: int = 2_000_000, seed: int =
     return (time.perf_counter() - t0) * n_rays / n
 
 
-def method_overrides(method: str, seed: int, budget: float, photons, max_passes: int = 0) -> dict:
+def method_overrides(method: str, seed: int, budget: float, photons, max_passes: int = 0,
+                     clock: str = "wall") -> dict:
     """The RenderSettings overrides of a photon-mapping method: passes until ``budget`` s
-    (or ``max_passes`` passes when > 0, whichever comes first)."""
-    kw = dict(METHOD_SETTINGS[method][0], time_limit=float(budget), max_passes=int(max_passes),
+    (or ``max_passes`` passes when > 0, whichever comes first).  With the cpu clock
+    the caller stops the passes; the wall limit is a safety net (CPU_CLOCK_WALL_CAP)."""
+    limit = float(budget) * (CPU_CLOCK_WALL_CAP if clock == "cpu" else 1.0)
+    kw = dict(METHOD_SETTINGS[method][0], time_limit=limit, max_passes=int(max_passes),
               seed=seed)
     if photons is not None:
         kw["photons_per_pass"] = photons
@@ -167,17 +194,20 @@ def method_overrides(method: str, seed: int, budget: float, photons, max_passes:
 
 
 def run_photon_mapping(run, blend, resolution, budget, photons, ref, masks, log, progress, stop,
-                       warmed: set, max_passes: int = 0):
+                       warmed: set, max_passes: int = 0, clock: str = "wall"):
     """FPPM, paper or PPM (run.method) for ``budget`` seconds (at most ``max_passes``
     passes when > 0); records every pass into ``run``.
 
     stop: ``{"flag": bool}``, set by Ctrl-C; polled during the passes.
     warmed: the methods already warmed up in this process (updated).
+    clock: "cpu": ``budget`` is this process's CPU seconds (set-up and passes,
+      not the metrics recorded between passes); the first pass that ends at or
+      past it is the last (polled between passes, so no pass is cut).
     """
     from ...addon.engine import RenderSession
 
     m, seed = run.method, run.seed
-    overrides = method_overrides(m, seed, budget, photons, max_passes)
+    overrides = method_overrides(m, seed, budget, photons, max_passes, clock)
     should_stop = lambda: stop["flag"]  # noqa: E731
     if m not in warmed:
         # Warm-up (not timed): loads numba's compiled kernels from the disk
@@ -189,20 +219,32 @@ def run_photon_mapping(run, blend, resolution, budget, photons, ref, masks, log,
                      RenderSession(log=lambda s: None, should_stop=should_stop))
         warmed.add(m)
 
+    setup = {"wall": 0.0, "cpu": 0.0}
+    metrics_cpu = [0.0]           # CPU of run.record (not the method's): excluded
+    cpu_done = [False]
+
     def on_renderer(renderer):
-        run.setup_seconds = time.perf_counter() - t0
+        setup["wall"], setup["cpu"] = time.perf_counter() - t0, time.process_time() - c0
+        run.setup_seconds = setup[clock]
 
     def on_pass(pr, settings):
+        c_in = time.process_time()
+        cpu = c_in - c0 - metrics_cpu[0]
+        wall = setup["wall"] + pr.elapsed
+        secs = cpu if clock == "cpu" else wall
         img = pr.image[..., :3].astype(np.float64) * sess.gain
-        row = run.record(masks, ref, pr.pass_index, run.setup_seconds + pr.elapsed,
-                         pr.elapsed, pr.photons_emitted, "", img)
-        progress(f"[{m} seed {seed}] {pr.elapsed:5.1f}/{budget:g} s  pass {pr.pass_index}  "
+        row = run.record(masks, ref, pr.pass_index, secs, secs - setup[clock],
+                         pr.photons_emitted, "", img, wall=wall, cpu=cpu)
+        progress(f"[{m} seed {seed}] {secs:5.1f}/{budget:g} s ({clock})  pass {pr.pass_index}  "
                  f"relMSE {row['relmse_all']:.3e}")
+        cpu_done[0] = clock == "cpu" and cpu >= budget
+        metrics_cpu[0] += time.process_time() - c_in
 
-    sess = RenderSession(on_pass=on_pass, log=lambda s: None, should_stop=should_stop,
+    sess = RenderSession(on_pass=on_pass, log=lambda s: None,
+                         should_stop=lambda: stop["flag"] or cpu_done[0],
                          on_renderer=on_renderer)
     scene = open_blend(blend, resolution=resolution)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     render_scene(scene, overrides, sess)
     run.complete = True
     renderer = sess.renderer
@@ -215,7 +257,7 @@ def run_photon_mapping(run, blend, resolution, budget, photons, ref, masks, log,
     run.throughput = {"photon_seconds": t_photon, "photon_rays": rays, "raw_seconds": t_raw,
                       "ratio": t_photon / t_raw if t_raw and t_raw > 0 else float("nan")}
     log(f"{m} seed {seed}: {renderer.pass_index} passes, {renderer.photons_emitted / 1e6:.1f} M "
-        f"photons, setup {run.setup_seconds:.2f} s; photon pass {t_photon:.2f} s for "
+        f"photons, setup {run.setup_seconds:.2f} s ({clock}), {run.cores():.2f} cores; photon pass {t_photon:.2f} s for "
         f"{rays / 1e6:.2f} M rays = {run.throughput['ratio']:.2f}x raw Embree "
         f"({t_raw:.2f} s).")
     return run
@@ -271,16 +313,18 @@ def cycles_image(path: str, shape) -> np.ndarray:
 
 
 def run_cycles_ladder(run, blend, resolution, budget, max_samples, ref, masks, log,
-                      progress, stop):
-    """Cycles at 1, 2, 4, ... spp (run.seed) until a render takes longer than ``budget``,
-    in a process of its own (:func:`cycles_process`)."""
+                      progress, stop, clock: str = "wall"):
+    """Cycles at 1, 2, 4, ... spp (run.seed) until a render takes longer than ``budget``
+    (on ``clock``: the worker's own process CPU for "cpu"), in a process of its own
+    (:func:`cycles_process`)."""
     seed = run.seed
 
     def on_point(d):
         n, dt = int(d["samples"]), float(d["seconds"])
         img = cycles_image(d["path"], ref.shape[:2])
         os.remove(d["path"])
-        row = run.record(masks, ref, n, dt, dt, "", n, img)
+        row = run.record(masks, ref, n, dt, dt, "", n, img, wall=d.get("wall_seconds"),
+                         cpu=d.get("cpu_seconds"))
         run.ladder_images[n] = img
         progress(f"[cycles seed {seed}] {n} spp in {dt:.2f} s  relMSE {row['relmse_all']:.3e}",
                  force=True)
@@ -288,7 +332,7 @@ def run_cycles_ladder(run, blend, resolution, budget, max_samples, ref, masks, l
     with tempfile.TemporaryDirectory(prefix="fppm-cycles-") as tmp:
         cfg = {"blend": os.path.abspath(blend), "resolution": resolution, "seed": seed,
                "dir": tmp, "mode": "ladder", "budget": float(budget),
-               "max_samples": int(max_samples)}
+               "max_samples": int(max_samples), "clock": clock}
         run.cycles_process = cycles_process(cfg, stop, on_point)
     run.complete = True
     last = run.rows[-1] if run.rows else None
@@ -299,7 +343,7 @@ def run_cycles_ladder(run, blend, resolution, budget, max_samples, ref, masks, l
     return run
 
 
-def cycles_speed_check(run, blend, resolution, stop, log) -> dict | None:
+def cycles_speed_check(run, blend, resolution, stop, log, clock: str = "wall") -> dict | None:
     """Render the ladder's last point again in a fresh standalone Cycles process;
     sets and returns ``run.cycles_speed``: {"samples", "ladder_seconds",
     "standalone_seconds", "ladder_sps", "standalone_sps", "ratio" (ladder /
@@ -311,7 +355,7 @@ def cycles_speed_check(run, blend, resolution, stop, log) -> dict | None:
     got = {}
     with tempfile.TemporaryDirectory(prefix="fppm-cycles-") as tmp:
         cfg = {"blend": os.path.abspath(blend), "resolution": resolution, "seed": run.seed,
-               "dir": tmp, "mode": "fixed", "samples": [n]}
+               "dir": tmp, "mode": "fixed", "samples": [n], "clock": clock}
         cycles_process(cfg, stop, lambda d: got.update(d))
     if "seconds" not in got or dt <= 0 or got["seconds"] <= 0:
         return None
