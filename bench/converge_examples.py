@@ -58,16 +58,15 @@ SCENES = {
 
 
 NOTES = [
-    "This table was run with `--budget 30 --seeds 2` (30 CPU s = 15 s of both cores), not the "
-    "default 120: on the shared machine (load average 8 to 16) each rendering process got 0.2 to "
-    "0.6 cores, so 120 CPU s per method took up to 25 minutes of wall time, and the session had "
-    "about 80 minutes for the whole table.  Scenes ran in priority order (cornell, "
-    "point_caustic, indirect_room, ...), up to three at once, all at nice 0.  cornell, "
-    "point_caustic and indirect_room ran on the loaded machine (0.2-0.6 cores per method); "
-    "principled_interior ran last, alone on a nearly idle machine (1.1-2.0 cores), so its "
-    "cores and wall-equivalent ratios are the most representative.  glass_sphere, coffee_cup "
-    "and the two ring scenes were not run: none had a cached Cycles reference (each costs 5 "
-    "minutes on an idle machine, 20-40 on the loaded one) and the session ended.",
+    "Two runs make this table.  cornell, indirect_room and principled_interior: `--budget 60 "
+    "--seeds 2` (60 CPU s = 30 s of both cores) on the code that merged this round's speed-ups "
+    "(tracer array pool, compiled first hits, amortised frequency photons), alone on an idle "
+    "machine (load average below 2; cores per method as the table gives).  point_caustic: "
+    "`--budget 30 --seeds 2` on the code before them, on a machine loaded by other jobs "
+    "(load average 8 to 16, 0.2 to 0.6 cores per method), so its ratios are the older code's.  "
+    "The default 120 CPU s and 4 seeds did not fit the session (about 4 hours of an idle machine "
+    "for every scene and method).  glass_sphere, coffee_cup and the two ring scenes were not run: "
+    "none had a cached Cycles reference (5 minutes each on an idle machine) and the session ended.",
     "CPU time is not a perfect measure of work on a loaded machine: at the same 30 CPU s, PPM "
     "did 400 and 267 passes on point_caustic's two seeds, FPPM 50 and 36 on indirect_room's "
     "(the other vCPU busy, caches shared).  The seed spreads in the tables include that.",
@@ -77,10 +76,10 @@ NOTES = [
     "budget independent of the machine's load, but not of the cache and memory-bandwidth "
     "contention, which slows every method per CPU second.",
     "indirect_room's 8192-spp reference has a noise floor (1.1e-3) above 1/3 of the photon "
-    "mappers' excess errors at 30 s (1.35e-3 to 2.8e-3): its FPPM / PPM / APPM / CPPM ratios are "
-    "flagged 'near floor' and the APPM / CPPM verdicts are within the seeds' spread; a 4x longer "
-    "budget or reference is needed to judge them.  cornell's (5.0e-5), point_caustic's "
-    "(1.4e-4) and principled_interior's (2.0e-4) floors are below 1/3 of every excess compared.",
+    "mappers' excess errors at 60 CPU s (6.8e-4 to 1.6e-3): its FPPM / PPM / APPM / CPPM ratios "
+    "are flagged 'near floor' and the APPM / CPPM verdicts are within the seeds' spread; a 4x "
+    "longer reference is needed to judge them.  cornell's (5.0e-5), point_caustic's (1.4e-4) and "
+    "principled_interior's (2.0e-4) floors are below 1/3 of every excess compared.",
     "Cores (CPU / wall) are the share of the 2 cores a method got on the loaded machine, not "
     "what it would use alone (FPPM's whole pass uses 1.40 of 2 cores at 1080p on an idle "
     "machine, README): the wall-equivalent ratios against Cycles use them as measured, so they "
