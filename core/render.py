@@ -151,6 +151,9 @@ class Renderer:
         # Photon merging in 'COMBINED' (core.integrators.merge): SPPM on the
         # visible points seen through a delta vertex, caustic photons only.
         self.merging = st.integrator == "COMBINED" and MERGING in self.plan.strategies
+        # The first hits' positions, normals, triangles and emission: only
+        # the film's data passes and photon merging read them (not alpha).
+        self.camera_pass.first_data = bool(self.film.data_passes) or self.merging
         if st.integrator == "COMBINED":
             from .integrators.combined import CameraMIS, CombinedLightTracer
             self.path_tracer.vc = CameraMIS(self.light_table, self.mtab, self.camera,

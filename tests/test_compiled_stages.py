@@ -99,19 +99,46 @@ def _run(stage, compiled, *args):
 @pytest.mark.parametrize("res", [40, 72])
 def test_compiled_camera_pass_equals_numpy(name, res):
     cam, _ = _stages(name, res)
+    cam.first_data = True            # the Renderer's PHOTON passes skip the first hits' data
     vp_n, L_n = _run(cam, False, np.random.default_rng(11))
     vp_c, L_c = _run(cam, True, np.random.default_rng(11))
     assert vp_n.valid.sum() > 0.5 * vp_n.valid.size
     for f in ("valid", "front", "p", "ng", "ns", "wo", "mat", "colors", "depth", "const",
-              "albedo"):
+              "albedo", "through_delta"):
         a, b = getattr(vp_n, f), getattr(vp_c, f)
         assert a.dtype == b.dtype and np.array_equal(a, b), f
+    # through_delta as it was derived from the first hits (a delta chain
+    # never returns to its first hit), before the kernel wrote it.
+    assert np.array_equal(vp_c.through_delta,
+                          vp_c.valid & np.any(vp_c.p != vp_c.first.p, axis=1))
     np.testing.assert_allclose(vp_c.beta, vp_n.beta, rtol=1e-15, atol=0)
     for f in ("hit", "p", "n", "prim", "emit", "escape"):
         assert np.array_equal(getattr(vp_n.first, f), getattr(vp_c.first, f)), f
     assert np.array_equal(L_n, L_c)
     if name == "room":       # delta chains through the mirror and the glass cube
         assert np.any(vp_n.beta.max(axis=1) < 0.99)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_camera_pass_without_first_data(compiled):
+    """first_data=False (PHOTON passes without data passes or merging) keeps
+    the first hits' alpha (escape) and changes nothing else, bit for bit;
+    the other first-hit arrays have no rows."""
+    cam, _ = _stages("room", 40)
+    out = {}
+    for fd in (True, False):
+        cam.first_data = fd
+        vp, L = _run(cam, compiled, np.random.default_rng(11))
+        out[fd] = vp, L.copy()
+    (vp_t, L_t), (vp_f, L_f) = out[True], out[False]
+    assert np.any(vp_t.through_delta)
+    for f in ("valid", "front", "p", "ng", "ns", "wo", "mat", "colors", "beta", "depth",
+              "const", "albedo", "through_delta"):
+        assert np.array_equal(getattr(vp_t, f), getattr(vp_f, f)), f
+    assert np.array_equal(vp_t.first.escape, vp_f.first.escape)
+    assert np.array_equal(L_t, L_f)
+    for f in ("hit", "p", "n", "prim", "emit"):
+        assert getattr(vp_f.first, f).shape[0] == 0, f
 
 
 @pytest.mark.parametrize("name", ["room", "mixed_untextured_emission"])

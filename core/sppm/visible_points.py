@@ -151,11 +151,18 @@ class CameraPass:
     ray is the full-frame render's (None: the region is the frame).
     transparent: Film > Transparent (camera rays that escape add no world).
     compiled: the per-hit work in ``core.sppm.camera_kernels`` (False: the
-    numpy reference, the same results)."""
+    numpy reference, the same results).
+
+    first_data: record the first hits' position, normal, triangle, hit flag
+    and emission (``FirstHit``: the film's data passes, photon merging).
+    False (the Renderer's choice when neither needs them): those arrays are
+    empty (0 rows) and only ``escape`` (the film's alpha) is kept per pixel,
+    152 of the 265 bytes a pixel the camera pass keeps from pass to pass
+    (1080p: 0.3 GB less resident through the photon pass)."""
 
     def __init__(self, scene, accel, mtab, light_table, camera, fsamp, px, py, max_depth: int,
                  frame: Optional[tuple] = None, transparent: bool = False,
-                 compiled: bool = True):
+                 compiled: bool = True, first_data: bool = True):
         self.scene, self.accel, self.mtab, self.light_table = scene, accel, mtab, light_table
         # The compiled kernel interpolates tri_n itself: scenes whose shading
         # normals are perturbed (Normal Map / Bump, core.scene.normals) take
@@ -166,6 +173,7 @@ class CameraPass:
         self.px, self.py = px, py
         self.max_depth = int(max_depth)
         self.transparent = bool(transparent)
+        self.first_data = bool(first_data)
         self.pixel_id = None
         self._kept = KeptArrays()
         if frame is not None:
@@ -206,9 +214,8 @@ class CameraPass:
         vp, L = self._outputs(P, keep=not centre)
         trace = self._trace_compiled if self.compiled else self._trace_numpy
         trace(rng, rays, dz, vp, L, check_stop)
-        # A delta chain never returns to its first hit: the point is the
-        # first hit's exactly when no delta vertex came before it.
-        vp.through_delta = vp.valid & np.any(vp.p != vp.first.p, axis=1)
+        # vp.through_delta: written with the visible point (False at the
+        # first hit, True after a delta vertex; False where no point).
         _crossings_only(accel, rays, vp)
         return vp, L
 
@@ -216,20 +223,23 @@ class CameraPass:
         """Cleared visible points (with their FirstHit) and L (P, 3) for one
         pass: the last pass's arrays when the caller has dropped them
         (core.kept: no page faults of fresh pixel-sized arrays every pass);
-        keep=False: new arrays, not kept."""
+        keep=False: new arrays, not kept.  Without ``first_data`` the
+        FirstHit arrays but ``escape`` have 0 rows."""
         mtab = self.mtab
+        Pf = P if self.first_data else 0
 
         def make():
             vp = VisiblePoints.empty(P, mtab.kind.shape[1], mtab.kind.shape[0])
-            first = FirstHit(hit=np.zeros(P, bool), p=np.zeros((P, 3)), n=np.zeros((P, 3)),
-                             prim=np.full(P, -1, np.int32), emit=np.zeros((P, 3)),
+            first = FirstHit(hit=np.zeros(Pf, bool), p=np.zeros((Pf, 3)), n=np.zeros((Pf, 3)),
+                             prim=np.full(Pf, -1, np.int32), emit=np.zeros((Pf, 3)),
                              escape=np.zeros(P))
             return ([getattr(vp, f) for f in _VP_ARRAYS] + [getattr(first, f) for f in _FIRST]
-                    + [np.zeros((P, 3))])
-        a = self._kept.get(make, P) if keep else make()
+                    + [np.zeros(P, bool), np.zeros((P, 3))])
+        a = self._kept.get(make, (P, Pf)) if keep else make()
         n = len(_VP_ARRAYS)
         vp = VisiblePoints(**dict(zip(_VP_ARRAYS, a[:n])))
         vp.first = FirstHit(**dict(zip(_FIRST, a[n:n + len(_FIRST)])))
+        vp.through_delta = a[-2]
         return vp, a[-1]
 
     def _seen_along(self, depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
@@ -251,7 +261,7 @@ class CameraPass:
                 Le = Lt.emitted_along_rays(self.light_table, o[sel], d[sel],
                                            np.minimum(t[sel], tmax[sel]), name)
                 L[idx[sel]] += beta[sel] * Le
-                if depth == 0:
+                if depth == 0 and first.emit.shape[0]:
                     first.emit[idx[sel]] += Le
         miss = ~hit
         esc = miss & see_through
@@ -280,7 +290,8 @@ class CameraPass:
                 Le = Lt.emitted_along_rays(self.light_table, o[a:b], d[a:b],
                                            np.minimum(t[a:b], tmax[a:b]), "camera")
                 L[a:b] += beta[a:b] * Le
-                emit[a:b] += Le
+                if emit.shape[0]:
+                    emit[a:b] += Le
         in_two_halves(blocks, o.shape[0], SEEN_SPLIT_MIN, align=SEEN_BLOCK)
 
     def _any_seen(self, visibility: str) -> bool:
@@ -324,7 +335,7 @@ class CameraPass:
                 if mtab.emission_tex is not None and np.any(mtab.emission_tex[mat] >= 0):
                     em = em * _emission_texture(mtab, s, mat, uv)
                 L[idx[ih]] += beta[ih] * em
-            if depth == 0:
+            if depth == 0 and first.p.shape[0]:
                 sgn0 = np.where(_dot(ng, wo) >= 0, 1.0, -1.0)[:, None]
                 q = idx[ih]
                 first.hit[q], first.p[q], first.n[q] = True, p, ns * sgn0
@@ -345,6 +356,7 @@ class CameraPass:
                 q = idx[ih[mk]]
                 sgn = np.where(_dot(ng[mk], wo[mk]) >= 0, 1.0, -1.0)[:, None]
                 vp.valid[q] = True
+                vp.through_delta[q] = depth > 0
                 vp.front[q] = sgn[:, 0] > 0
                 vp.p[q] = p[mk]
                 vp.ng[q] = ng[mk] * sgn
