@@ -364,12 +364,11 @@ class Renderer:
         clock["camera"] += td - tc
         L_pass = L_emit
         if not st.photons_for_direct:
-            direct = self._interruptible(self.direct_light, vp, self._rng(k, 1))
-            if st.fixed_visible_points:
-                L_pass = L_pass + direct          # L_emit is kept for the next passes
+            if st.fixed_visible_points:               # L_emit is kept for the next passes
+                L_pass = L_pass + self._interruptible(self.direct_light, vp, self._rng(k, 1))
             else:
-                L_pass += direct                  # this pass's own: no (P, 3) sum beside it
-            del direct
+                # Into this pass's own emission array: no (P, 3) array beside it.
+                self._interruptible(self.direct_light, vp, self._rng(k, 1), add_to=L_pass)
         clock["direct"] += time.perf_counter() - td
         self._check_stop()
         self._photons(vp, rng_photons)

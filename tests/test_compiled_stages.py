@@ -210,3 +210,25 @@ def test_nee_back_face_rough_glass_matches_path():
 def test_textured_emitters_use_the_numpy_sampler():
     _, nee = _stages("mixed", 8)
     assert nee._compiled_lights() is None
+
+
+@pytest.mark.parametrize("name", ["room", "mixed_untextured_emission"])
+def test_blocked_direct_light_and_add_to(name, monkeypatch):
+    """The compiled direct light in blocks of visible points (1080p: 65536,
+    here 500: four blocks) is bit for bit the one-block result, and
+    add_to=E (the renderer's emission array) gives bit for bit E + L (one
+    addition per pixel); the stream ends where the one-block draw leaves it."""
+    from core.lights import nee as NEE
+    cam, nee = _stages(name, 40)
+    vp, _ = cam(np.random.default_rng(11))
+    assert vp.valid.sum() > 1200          # more than two blocks of 500
+    rng = np.random.default_rng(12)
+    L1 = nee(vp, rng)
+    r1 = rng.random(3)
+    monkeypatch.setattr(NEE, "DIRECT_BLOCK", 500)
+    rng = np.random.default_rng(12)
+    E = np.random.default_rng(5).uniform(0, 2, L1.shape)
+    want = E + L1
+    out = nee(vp, rng, add_to=E)
+    assert out is E and np.array_equal(E, want) and np.array_equal(rng.random(3), r1)
+    assert np.count_nonzero(L1.max(axis=1) > 0) > 0.3 * L1.shape[0]
