@@ -515,7 +515,7 @@ class Renderer:
         pass, the progressive update of the state."""
         state = self.state
         self.radii.initialise(state, vp, self._check_stop)
-        state.depth = np.where(vp.valid, vp.depth, state.depth)
+        np.copyto(state.depth, vp.depth, where=vp.valid)   # in place: no (P,) array a pass
         self.tracer.set_radius_cut(state.R2)
         est = self.photon_pass(vp, state.R2, state.spectrum, rng, self._check_stop)
         tu = time.perf_counter()

@@ -206,8 +206,8 @@ class CameraPass:
         if (self.compiled and self.pixel_id is None and P > CAMERA_BLOCK
                 and isinstance(rng.bit_generator, np.random.PCG64)
                 and shadow_attached(accel) is None):
-            vp, L, dz = self._outputs(P, keep=not centre)
-            self._trace_blocked(rng, vp, L, dz, check_stop, centre)
+            vp, L = self._outputs(P, keep=not centre)
+            self._trace_blocked(rng, vp, L, check_stop, centre)
             return vp, L
         if self.pixel_id is None:
             u = rng.random((P, 4))
@@ -223,7 +223,7 @@ class CameraPass:
         # The edge cap's pass (once a render) gets arrays of its own: through
         # the kept ones, they would stay resident beside the next pass's
         # through the first pass's photons (0.5 GiB at 1080p).
-        vp, L, _ = self._outputs(P, keep=not centre)
+        vp, L = self._outputs(P, keep=not centre)
         trace = self._trace_compiled if self.compiled else self._trace_numpy
         trace(rng, rays, dz, vp, L, check_stop)
         # vp.through_delta: written with the visible point (False at the
@@ -231,9 +231,9 @@ class CameraPass:
         _crossings_only(accel, rays, vp)
         return vp, L
 
-    def _outputs(self, P: int, keep: bool = True) -> tuple:
-        """Cleared visible points (with their FirstHit), L (P, 3) and the
-        camera's depth factors dz (P,) float64 for one pass: the last pass's arrays when the caller has dropped them
+    def _outputs(self, P: int, keep: bool = True) -> tuple[VisiblePoints, np.ndarray]:
+        """Cleared visible points (with their FirstHit and through_delta) and
+        L (P, 3) for one pass: the last pass's arrays when the caller has dropped them
         (core.kept: no page faults of fresh pixel-sized arrays every pass);
         keep=False: new arrays, not kept.  Without ``first_data`` the
         FirstHit arrays but ``escape`` have 0 rows."""
@@ -246,13 +246,13 @@ class CameraPass:
                              prim=np.full(Pf, -1, np.int32), emit=np.zeros((Pf, 3)),
                              escape=np.zeros(P))
             return ([getattr(vp, f) for f in _VP_ARRAYS] + [getattr(first, f) for f in _FIRST]
-                    + [np.zeros(P), np.zeros(P, bool), np.zeros((P, 3))])
+                    + [np.zeros(P, bool), np.zeros((P, 3))])
         a = self._kept.get(make, (P, Pf)) if keep else make()
         n = len(_VP_ARRAYS)
         vp = VisiblePoints(**dict(zip(_VP_ARRAYS, a[:n])))
         vp.first = FirstHit(**dict(zip(_FIRST, a[n:n + len(_FIRST)])))
         vp.through_delta = a[-2]
-        return vp, a[-1], a[-3]
+        return vp, a[-1]
 
     def _seen_along(self, depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
                     fast=False):
@@ -426,7 +426,7 @@ class CameraPass:
         dz = np.ascontiguousarray(dz, np.float64)   # one kernel signature (C layout)
         self._chains_from(0, live, rng, dz, self._kernel_context(vp, L), check_stop)
 
-    def _trace_blocked(self, rng, vp, L, dz, check_stop, centre):
+    def _trace_blocked(self, rng, vp, L, check_stop, centre):
         """:meth:`__call__`'s camera rays and :meth:`_trace_compiled`'s first
         vertex in blocks of CAMERA_BLOCK pixels, the delta chains' later
         vertices after them: the same random numbers and results (the
@@ -434,10 +434,13 @@ class CameraPass:
         delta choices of the first hits the next ones, in pixel order: two
         copies of the stream advanced to each), without pixel-sized
         temporaries (rays, uniforms, Embree's hits: 0.4 GB at 1080p, page-
-        faulted in every pass).  dz (P,) float64 receives the camera's depth
-        factors."""
+        faulted in every pass).  The camera's depth factors dz (P,) float64
+        are the one pixel-sized temporary (the delta chains' later vertices
+        read them by pixel), freed with the pass, not kept through the photon
+        pass."""
         P = self.px.shape[0]
         ctx = self._kernel_context(vp, L)
+        dz = np.empty(P)
         ru, rr = _stream_copy(rng), _stream_copy(rng)
         rr.bit_generator.advance(4 * P)
         nxt = []
