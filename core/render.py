@@ -217,7 +217,10 @@ class Renderer:
                                                        if p.name in passes or pass_enabled(p, st0)),
                                       hist_bins=HIST_BINS if st0.frequency_estimator == "QUANTILE" else 0,
                                       texture_bytes=sum(np.asarray(t).nbytes for t in scene.textures),
-                                      sector_cells=SECTOR_CELLS if needs_sectors(st0, st0.use_frequency) else 0)
+                                      sector_cells=SECTOR_CELLS if needs_sectors(st0, st0.use_frequency) else 0,
+                                      # CameraPass.first_data (set below): data passes, merging
+                                      first_hits=st0.integrator == "COMBINED" or any(
+                                          p.source != "state" and p.name in passes for p in PASSES))
         memory.check_fits(self.memory)
         self.light_table = build_light_table(scene)
         for w in getattr(self.light_table, "warnings", []):
