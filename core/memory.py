@@ -20,7 +20,7 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
   the camera and direct-light temporaries -> BYTES_PER_PIXEL, plus
   BYTES_PER_FIRST_HIT where the camera pass keeps its first hits' data
   (``first_hits``: the film's data passes, photon merging; float64
-  position, normal and emission, the triangle and the hit flag: 152 B of
+  position, normal and emission, the triangle and the hit flag: 77 B of
   ``FirstHit`` that ``CameraPass(first_data=False)`` does not make).  The
   two were 1040 B together, measured: peak growth 646 B per pixel with the
   compiled stages (64^2 .. 640^2, a point light; 997 B before them), the
@@ -28,10 +28,11 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
   the delta chains' buffers where every pixel continues (+272 B).  The
   camera pass's first vertex and the compiled direct light now run in
   blocks of 65536 pixels (no pixel-sized rays, uniforms or Embree hits): a
-  1080p Cornell box pass without first-hit data grows by 799-828 B a pixel
-  with its 8 sector cells (docs/architecture.md, "The 1080p pass in
-  blocks"), 1080 B a pixel here.  The numpy light sampler and delta chains
-  at every pixel are not measured lower, so the sum stays 1040 B
+  1080p Cornell box pass without first-hit data grows by 812-828 B a pixel
+  with its 8 sector cells (docs/architecture.md, "The 1080p pass: camera
+  and direct light in blocks"), bounded by 1152 B a pixel.  The numpy light
+  sampler and the delta chains at every pixel are not measured lower, so
+  the sum stays 1040 B
 - per AOV channel per pixel: the film's float32 layer, its float64 source and
   the EXR's copy -> BYTES_PER_AOV_CHANNEL
 - per radius-histogram bin per pixel (Quantile estimator): the uint32 state,
@@ -57,8 +58,8 @@ import os
 
 from .errors import MemoryBudgetError
 
-BYTES_PER_PIXEL = 888
-BYTES_PER_FIRST_HIT = 152
+BYTES_PER_PIXEL = 960
+BYTES_PER_FIRST_HIT = 80
 BYTES_PER_AOV_CHANNEL = 48
 BYTES_PER_HIST_BIN = 12
 BYTES_PER_SECTOR_CELL = 24

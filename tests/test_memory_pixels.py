@@ -41,9 +41,9 @@ def test_first_hits_add_their_bytes_per_pixel():
 def test_estimate_bounds_a_photon_render_without_first_hits():
     # 512^2 PHOTON passes (20k photons), peak growth after the kernels are
     # loaded against the estimate of what the passes allocate.  Measured
-    # (shared machine, load 15): growth 126-132 MB, estimate 257 MB: 1.95x
-    # (the bound covers the numpy light sampler and delta chains at every
-    # pixel, which this scene does not have).
+    # (shared machine, load 15-25): growth 127-132 MiB, estimate / growth
+    # 2.07 (the bound covers the numpy light sampler and delta chains at
+    # every pixel, which this scene does not have).
     r = subprocess.run([sys.executable, "-c", MEASURE], cwd=ROOT, capture_output=True,
                        text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
