@@ -17,16 +17,22 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
 - per pixel: progressive state (R^2, N, tau, L_sum, r_pred, held, M, depth),
   one pass's visible points (core.sppm.visible_points: float64 positions and
   geometric normals, float32 directions, colours and throughputs: 153 B) and
-  the camera and direct-light temporaries -> BYTES_PER_PIXEL.  Measured peak
-  growth 646 B per pixel with the compiled stages (64^2 .. 640^2, a point
-  light; 997 B before them); the bound also covers the numpy light sampler
-  (environment maps, textured emitters: <= 890 B) and the delta chains'
-  buffers where every pixel continues (+272 B).  1100 B until the visible
-  points' hash grid kept its cell starts in int32 (64 B less a pixel with
-  the Cornell box's 16 slots a pixel).  Kept at 1040 B although a 1080p
-  Cornell box pass now grows by 859-916 B a pixel with its sector counts
-  (docs/architecture.md, "Memory and page faults of a 1080p pass"): the
-  numpy light sampler and the delta chains are not measured lower
+  the camera and direct-light temporaries -> BYTES_PER_PIXEL, plus
+  BYTES_PER_FIRST_HIT where the camera pass keeps its first hits' data
+  (``first_hits``: the film's data passes, photon merging; float64
+  position, normal and emission, the triangle and the hit flag: 77 B of
+  ``FirstHit`` that ``CameraPass(first_data=False)`` does not make).  The
+  two were 1040 B together, measured: peak growth 646 B per pixel with the
+  compiled stages (64^2 .. 640^2, a point light; 997 B before them), the
+  numpy light sampler (environment maps, textured emitters: <= 890 B) and
+  the delta chains' buffers where every pixel continues (+272 B).  The
+  camera pass's first vertex and the compiled direct light now run in
+  blocks of 65536 pixels (no pixel-sized rays, uniforms or Embree hits): a
+  1080p Cornell box pass without first-hit data grows by 812-828 B a pixel
+  with its 8 sector cells (docs/architecture.md, "The 1080p pass: camera
+  and direct light in blocks"), bounded by 1152 B a pixel.  The numpy light
+  sampler and the delta chains at every pixel are not measured lower, so
+  the sum stays 1040 B
 - per AOV channel per pixel: the film's float32 layer, its float64 source and
   the EXR's copy -> BYTES_PER_AOV_CHANNEL
 - per radius-histogram bin per pixel (Quantile estimator): the uint32 state,
@@ -52,7 +58,8 @@ import os
 
 from .errors import MemoryBudgetError
 
-BYTES_PER_PIXEL = 1040
+BYTES_PER_PIXEL = 960
+BYTES_PER_FIRST_HIT = 80
 BYTES_PER_AOV_CHANNEL = 48
 BYTES_PER_HIST_BIN = 12
 BYTES_PER_SECTOR_CELL = 24
@@ -89,18 +96,21 @@ def peak_bytes_so_far() -> int:
 def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
              use_grid: bool, aov_channels: int = 0, hist_bins: int = 0,
              texture_bytes: int = 0, resident: int | None = None,
-             sector_cells: int = 0) -> dict:
+             sector_cells: int = 0, first_hits: bool = True) -> dict:
     """Bytes per component and 'total' (ints): an upper bound on the peak.
 
     aov_channels: channels of the enabled AOVs (all layers together);
     hist_bins: radius-histogram bins per pixel (0 without the Quantile estimator);
     sector_cells: sector counts per pixel (0 unless the gather counts them);
     texture_bytes: bytes of the scene's texture images;
+    first_hits: the camera pass keeps its first hits' data (False: only
+    without data passes and photon merging, core.sppm.visible_points);
     resident: bytes already held (None: :func:`resident_bytes`).  'runtime' is
     that resident size; 'total' is at least the peak so far.
     """
     parts = {
-        "pixels": n_pixels * (BYTES_PER_PIXEL + BYTES_PER_AOV_CHANNEL * aov_channels
+        "pixels": n_pixels * (BYTES_PER_PIXEL + BYTES_PER_FIRST_HIT * bool(first_hits)
+                              + BYTES_PER_AOV_CHANNEL * aov_channels
                               + BYTES_PER_HIST_BIN * hist_bins
                               + BYTES_PER_SECTOR_CELL * sector_cells),
         "photons": photon_chunk * BYTES_PER_PHOTON,

@@ -151,6 +151,9 @@ class Renderer:
         # Photon merging in 'COMBINED' (core.integrators.merge): SPPM on the
         # visible points seen through a delta vertex, caustic photons only.
         self.merging = st.integrator == "COMBINED" and MERGING in self.plan.strategies
+        # The first hits' positions, normals, triangles and emission: only
+        # the film's data passes and photon merging read them (not alpha).
+        self.camera_pass.first_data = bool(self.film.data_passes) or self.merging
         if st.integrator == "COMBINED":
             from .integrators.combined import CameraMIS, CombinedLightTracer
             self.path_tracer.vc = CameraMIS(self.light_table, self.mtab, self.camera,
@@ -214,7 +217,10 @@ class Renderer:
                                                        if p.name in passes or pass_enabled(p, st0)),
                                       hist_bins=HIST_BINS if st0.frequency_estimator == "QUANTILE" else 0,
                                       texture_bytes=sum(np.asarray(t).nbytes for t in scene.textures),
-                                      sector_cells=SECTOR_CELLS if needs_sectors(st0, st0.use_frequency) else 0)
+                                      sector_cells=SECTOR_CELLS if needs_sectors(st0, st0.use_frequency) else 0,
+                                      # CameraPass.first_data (set below): data passes, merging
+                                      first_hits=st0.integrator == "COMBINED" or any(
+                                          p.source != "state" and p.name in passes for p in PASSES))
         memory.check_fits(self.memory)
         self.light_table = build_light_table(scene)
         for w in getattr(self.light_table, "warnings", []):
@@ -361,12 +367,11 @@ class Renderer:
         clock["camera"] += td - tc
         L_pass = L_emit
         if not st.photons_for_direct:
-            direct = self._interruptible(self.direct_light, vp, self._rng(k, 1))
-            if st.fixed_visible_points:
-                L_pass = L_pass + direct          # L_emit is kept for the next passes
+            if st.fixed_visible_points:               # L_emit is kept for the next passes
+                L_pass = L_pass + self._interruptible(self.direct_light, vp, self._rng(k, 1))
             else:
-                L_pass += direct                  # this pass's own: no (P, 3) sum beside it
-            del direct
+                # Into this pass's own emission array: no (P, 3) array beside it.
+                self._interruptible(self.direct_light, vp, self._rng(k, 1), add_to=L_pass)
         clock["direct"] += time.perf_counter() - td
         self._check_stop()
         self._photons(vp, rng_photons)
@@ -513,7 +518,7 @@ class Renderer:
         pass, the progressive update of the state."""
         state = self.state
         self.radii.initialise(state, vp, self._check_stop)
-        state.depth = np.where(vp.valid, vp.depth, state.depth)
+        np.copyto(state.depth, vp.depth, where=vp.valid)   # in place: no (P,) array a pass
         self.tracer.set_radius_cut(state.R2)
         est = self.photon_pass(vp, state.R2, state.spectrum, rng, self._check_stop)
         tu = time.perf_counter()

@@ -99,19 +99,78 @@ def _run(stage, compiled, *args):
 @pytest.mark.parametrize("res", [40, 72])
 def test_compiled_camera_pass_equals_numpy(name, res):
     cam, _ = _stages(name, res)
+    cam.first_data = True            # the Renderer's PHOTON passes skip the first hits' data
     vp_n, L_n = _run(cam, False, np.random.default_rng(11))
     vp_c, L_c = _run(cam, True, np.random.default_rng(11))
     assert vp_n.valid.sum() > 0.5 * vp_n.valid.size
     for f in ("valid", "front", "p", "ng", "ns", "wo", "mat", "colors", "depth", "const",
-              "albedo"):
+              "albedo", "through_delta"):
         a, b = getattr(vp_n, f), getattr(vp_c, f)
         assert a.dtype == b.dtype and np.array_equal(a, b), f
+    # through_delta as it was derived from the first hits (a delta chain
+    # never returns to its first hit), before the kernel wrote it.
+    assert np.array_equal(vp_c.through_delta,
+                          vp_c.valid & np.any(vp_c.p != vp_c.first.p, axis=1))
     np.testing.assert_allclose(vp_c.beta, vp_n.beta, rtol=1e-15, atol=0)
     for f in ("hit", "p", "n", "prim", "emit", "escape"):
         assert np.array_equal(getattr(vp_n.first, f), getattr(vp_c.first, f)), f
     assert np.array_equal(L_n, L_c)
     if name == "room":       # delta chains through the mirror and the glass cube
         assert np.any(vp_n.beta.max(axis=1) < 0.99)
+
+
+@pytest.mark.parametrize("name", ["room", "mixed"])
+@pytest.mark.parametrize("centre", [False, True])
+def test_blocked_camera_pass_equals_numpy(name, centre, monkeypatch):
+    """The compiled pass in blocks of pixels (CameraPass._trace_blocked; 1080p
+    takes it with 65536-pixel blocks, here 700 so that a 40x40 image has
+    three, the last one partial) gives the numpy reference's results bit for
+    bit (beta within the 1e-15 above) and leaves the random stream where
+    the reference leaves it."""
+    from core.sppm import visible_points as VP
+    monkeypatch.setattr(VP, "CAMERA_BLOCK", 700)
+    cam, _ = _stages(name, 40)
+    cam.first_data = True
+    out = []
+    for compiled in (False, True):
+        rng = np.random.default_rng(11)
+        cam.compiled = compiled
+        vp, L = cam(rng, centre=centre)
+        out.append((vp, L.copy(), rng.random(4)))
+    cam.compiled = True
+    (vp_n, L_n, r_n), (vp_c, L_c, r_c) = out
+    assert vp_n.valid.sum() > 0.5 * vp_n.valid.size
+    for f in ("valid", "front", "p", "ng", "ns", "wo", "mat", "colors", "depth", "const",
+              "albedo", "through_delta"):
+        assert np.array_equal(getattr(vp_n, f), getattr(vp_c, f)), f
+    np.testing.assert_allclose(vp_c.beta, vp_n.beta, rtol=1e-15, atol=0)
+    for f in ("hit", "p", "n", "prim", "emit", "escape"):
+        assert np.array_equal(getattr(vp_n.first, f), getattr(vp_c.first, f)), f
+    assert np.array_equal(L_n, L_c) and np.array_equal(r_n, r_c)
+    if name == "room":
+        assert np.any(vp_c.through_delta)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_camera_pass_without_first_data(compiled):
+    """first_data=False (PHOTON passes without data passes or merging) keeps
+    the first hits' alpha (escape) and changes nothing else, bit for bit;
+    the other first-hit arrays have no rows."""
+    cam, _ = _stages("room", 40)
+    out = {}
+    for fd in (True, False):
+        cam.first_data = fd
+        vp, L = _run(cam, compiled, np.random.default_rng(11))
+        out[fd] = vp, L.copy()
+    (vp_t, L_t), (vp_f, L_f) = out[True], out[False]
+    assert np.any(vp_t.through_delta)
+    for f in ("valid", "front", "p", "ng", "ns", "wo", "mat", "colors", "beta", "depth",
+              "const", "albedo", "through_delta"):
+        assert np.array_equal(getattr(vp_t, f), getattr(vp_f, f)), f
+    assert np.array_equal(vp_t.first.escape, vp_f.first.escape)
+    assert np.array_equal(L_t, L_f)
+    for f in ("hit", "p", "n", "prim", "emit"):
+        assert getattr(vp_f.first, f).shape[0] == 0, f
 
 
 @pytest.mark.parametrize("name", ["room", "mixed_untextured_emission"])
@@ -151,3 +210,25 @@ def test_nee_back_face_rough_glass_matches_path():
 def test_textured_emitters_use_the_numpy_sampler():
     _, nee = _stages("mixed", 8)
     assert nee._compiled_lights() is None
+
+
+@pytest.mark.parametrize("name", ["room", "mixed_untextured_emission"])
+def test_blocked_direct_light_and_add_to(name, monkeypatch):
+    """The compiled direct light in blocks of visible points (1080p: 65536,
+    here 500: four blocks) is bit for bit the one-block result, and
+    add_to=E (the renderer's emission array) gives bit for bit E + L (one
+    addition per pixel); the stream ends where the one-block draw leaves it."""
+    from core.lights import nee as NEE
+    cam, nee = _stages(name, 40)
+    vp, _ = cam(np.random.default_rng(11))
+    assert vp.valid.sum() > 1200          # more than two blocks of 500
+    rng = np.random.default_rng(12)
+    L1 = nee(vp, rng)
+    r1 = rng.random(3)
+    monkeypatch.setattr(NEE, "DIRECT_BLOCK", 500)
+    rng = np.random.default_rng(12)
+    E = np.random.default_rng(5).uniform(0, 2, L1.shape)
+    want = E + L1
+    out = nee(vp, rng, add_to=E)
+    assert out is E and np.array_equal(E, want) and np.array_equal(rng.random(3), r1)
+    assert np.count_nonzero(L1.max(axis=1) > 0) > 0.3 * L1.shape[0]

@@ -779,7 +779,7 @@ def test_4k_memory_estimated_before_allocating(monkeypatch):
     assert "GiB" in msg and "resolution" in msg and "pixels" in msg
     assert peak < 20e6 and time.perf_counter() - t0 < 2.0
     est = memory.estimate(3840 * 2160, 131_072, 2, 64, True)
-    assert est["pixels"] == 3840 * 2160 * memory.BYTES_PER_PIXEL
+    assert est["pixels"] == 3840 * 2160 * (memory.BYTES_PER_PIXEL + memory.BYTES_PER_FIRST_HIT)
     monkeypatch.setattr(memory, "available_bytes", lambda: 64 * 2 ** 30)
     memory.check_fits(est)                                 # fits in 64 GiB: no error
 

@@ -33,6 +33,10 @@ if TYPE_CHECKING:
     from ..sppm.visible_points import VisiblePoints
 
 
+#: Visible points per block of the compiled direct light (``__call__``).
+DIRECT_BLOCK = 1 << 16
+
+
 class NextEventEstimation:
     """Direct light at visible points.  tri_p (T, 3, 3): the triangles of
     ``accel`` (their planes decide which hits are the emitter or a self-hit)."""
@@ -42,16 +46,37 @@ class NextEventEstimation:
         self.compiled = bool(compiled)
         self._lights = None
 
-    def __call__(self, vp: "VisiblePoints", rng: np.random.Generator) -> np.ndarray:
-        """(P, 3) float64 reflected direct radiance times vp.beta (0 at invalid points)."""
+    def __call__(self, vp: "VisiblePoints", rng: np.random.Generator,
+                 add_to: np.ndarray | None = None) -> np.ndarray:
+        """(P, 3) float64 reflected direct radiance times vp.beta (0 at invalid
+        points).  add_to (P, 3) float64: the radiance is added into it and it
+        is returned, the same sums as ``add_to += nee(vp, rng)`` (each pixel
+        gets one addition) without a pixel-sized array of its own."""
+        q = np.nonzero(vp.valid)[0]
+        if self.compiled and q.size and self._compiled_lights() is not None:
+            # In blocks of DIRECT_BLOCK points, their uniforms drawn in turn
+            # (the same stream as one (K, 3) draw): every temporary is
+            # block-sized (no pixel-sized arrays page-faulted in every pass);
+            # each point's light is its own, so the sums are the same bits.
+            L = np.zeros((vp.valid.shape[0], 3)) if add_to is None else add_to
+            for a in range(0, q.size, DIRECT_BLOCK):
+                qb = q[a:a + DIRECT_BLOCK]
+                self._direct_compiled(vp, qb, rng.random((qb.size, 3)), L)
+            return L
+        L = self._direct_numpy(vp, q, rng)
+        if add_to is None:
+            return L
+        add_to += L
+        return add_to
+
+    def _direct_numpy(self, vp, q, rng) -> np.ndarray:
+        """:meth:`__call__` with the numpy sampler (the compiled path's
+        reference; environment maps, textured emitters): (P, 3)."""
         P = vp.valid.shape[0]
         L = np.zeros((P, 3))
-        q = np.nonzero(vp.valid)[0]
         if q.size == 0:
             return L
         u = rng.random((q.size, 3))
-        if self.compiled and self._compiled_lights() is not None:
-            return self._direct_compiled(vp, q, u, L)
         smp = sample_direct(self.light_table, vp.p[q], u, n=vp.ns[q])
         env = self.light_table.environment
         if env is not None and env.total > 0:

@@ -223,7 +223,7 @@ def hit_kernel(i0, i1, u0, out0, first_vertex, last_vertex, wf, mats, vp, fb, ch
         fb.L[q, 2] += b2 * e2
         # Cycles flips both normals to wo's side of the geometric one.
         sgn = 1.0 if gx * wox + gy * woy + gz * woz >= 0.0 else -1.0
-        if first_vertex:
+        if first_vertex and fb.p.shape[0] > 0:    # 0 rows: CameraPass.first_data off
             fb.hit[q] = True
             fb.p[q, 0], fb.p[q, 1], fb.p[q, 2] = px, py, pz
             fb.n[q, 0], fb.n[q, 1], fb.n[q, 2] = sx * sgn, sy * sgn, sz * sgn
@@ -250,6 +250,7 @@ def hit_kernel(i0, i1, u0, out0, first_vertex, last_vertex, wf, mats, vp, fb, ch
             # The visible point: the chain's first non-delta vertex (pbrt-v4
             # SPPM), throughput over the probability of not choosing a delta lobe.
             vp.valid[q] = True
+            vp.through_delta[q] = not first_vertex
             vp.front[q] = sgn > 0.0
             vp.p[q, 0], vp.p[q, 1], vp.p[q, 2] = px, py, pz
             vp.ng[q, 0], vp.ng[q, 1], vp.ng[q, 2] = gx * sgn, gy * sgn, gz * sgn

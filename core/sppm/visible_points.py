@@ -19,6 +19,7 @@ from typing import Optional
 import numpy as np
 
 from ..accel import surface_point
+from ..lights.shadow import attached as shadow_attached
 from ..kept import KeptArrays
 from ..scene import normals as shading_normals
 from .. import lights as Lt
@@ -33,6 +34,11 @@ INTERSECT_BLOCK = 1 << 14
 #: SEEN_BLOCK rays shared by two threads (``CameraPass._seen_by_camera``).
 SEEN_SPLIT_MIN = 1 << 16
 SEEN_BLOCK = 1 << 14
+#: Pixels per block of the compiled camera pass's first vertex
+#: (``CameraPass._trace_blocked``): its temporaries (~270 B a pixel) stay in
+#: malloc's heap, reused block after block, instead of being page-faulted in
+#: at every pass; still large enough for the two-thread splits above.
+CAMERA_BLOCK = 1 << 16
 
 
 @dataclass
@@ -151,11 +157,18 @@ class CameraPass:
     ray is the full-frame render's (None: the region is the frame).
     transparent: Film > Transparent (camera rays that escape add no world).
     compiled: the per-hit work in ``core.sppm.camera_kernels`` (False: the
-    numpy reference, the same results)."""
+    numpy reference, the same results).
+
+    first_data: record the first hits' position, normal, triangle, hit flag
+    and emission (``FirstHit``: the film's data passes, photon merging).
+    False (the Renderer's choice when neither needs them): those arrays are
+    empty (0 rows) and only ``escape`` (the film's alpha) is kept per pixel,
+    77 of the 262 bytes a pixel the camera pass keeps from pass to pass
+    (1080p: 0.16 GB less resident through the photon pass)."""
 
     def __init__(self, scene, accel, mtab, light_table, camera, fsamp, px, py, max_depth: int,
                  frame: Optional[tuple] = None, transparent: bool = False,
-                 compiled: bool = True):
+                 compiled: bool = True, first_data: bool = True):
         self.scene, self.accel, self.mtab, self.light_table = scene, accel, mtab, light_table
         # The compiled kernel interpolates tri_n itself: scenes whose shading
         # normals are perturbed (Normal Map / Bump, core.scene.normals) take
@@ -166,6 +179,7 @@ class CameraPass:
         self.px, self.py = px, py
         self.max_depth = int(max_depth)
         self.transparent = bool(transparent)
+        self.first_data = bool(first_data)
         self.pixel_id = None
         self._kept = KeptArrays()
         if frame is not None:
@@ -189,6 +203,12 @@ class CameraPass:
         before every vertex (it raises to cancel)."""
         P = self.px.shape[0]
         mtab, accel = self.mtab, self.accel
+        if (self.compiled and self.pixel_id is None and P > CAMERA_BLOCK
+                and isinstance(rng.bit_generator, np.random.PCG64)
+                and shadow_attached(accel) is None):
+            vp, L = self._outputs(P, keep=not centre)
+            self._trace_blocked(rng, vp, L, check_stop, centre)
+            return vp, L
         if self.pixel_id is None:
             u = rng.random((P, 4))
         else:
@@ -206,30 +226,32 @@ class CameraPass:
         vp, L = self._outputs(P, keep=not centre)
         trace = self._trace_compiled if self.compiled else self._trace_numpy
         trace(rng, rays, dz, vp, L, check_stop)
-        # A delta chain never returns to its first hit: the point is the
-        # first hit's exactly when no delta vertex came before it.
-        vp.through_delta = vp.valid & np.any(vp.p != vp.first.p, axis=1)
+        # vp.through_delta: written with the visible point (False at the
+        # first hit, True after a delta vertex; False where no point).
         _crossings_only(accel, rays, vp)
         return vp, L
 
     def _outputs(self, P: int, keep: bool = True) -> tuple[VisiblePoints, np.ndarray]:
-        """Cleared visible points (with their FirstHit) and L (P, 3) for one
-        pass: the last pass's arrays when the caller has dropped them
+        """Cleared visible points (with their FirstHit and through_delta) and
+        L (P, 3) for one pass: the last pass's arrays when the caller has dropped them
         (core.kept: no page faults of fresh pixel-sized arrays every pass);
-        keep=False: new arrays, not kept."""
+        keep=False: new arrays, not kept.  Without ``first_data`` the
+        FirstHit arrays but ``escape`` have 0 rows."""
         mtab = self.mtab
+        Pf = P if self.first_data else 0
 
         def make():
             vp = VisiblePoints.empty(P, mtab.kind.shape[1], mtab.kind.shape[0])
-            first = FirstHit(hit=np.zeros(P, bool), p=np.zeros((P, 3)), n=np.zeros((P, 3)),
-                             prim=np.full(P, -1, np.int32), emit=np.zeros((P, 3)),
+            first = FirstHit(hit=np.zeros(Pf, bool), p=np.zeros((Pf, 3)), n=np.zeros((Pf, 3)),
+                             prim=np.full(Pf, -1, np.int32), emit=np.zeros((Pf, 3)),
                              escape=np.zeros(P))
             return ([getattr(vp, f) for f in _VP_ARRAYS] + [getattr(first, f) for f in _FIRST]
-                    + [np.zeros((P, 3))])
-        a = self._kept.get(make, P) if keep else make()
+                    + [np.zeros(P, bool), np.zeros((P, 3))])
+        a = self._kept.get(make, (P, Pf)) if keep else make()
         n = len(_VP_ARRAYS)
         vp = VisiblePoints(**dict(zip(_VP_ARRAYS, a[:n])))
         vp.first = FirstHit(**dict(zip(_FIRST, a[n:n + len(_FIRST)])))
+        vp.through_delta = a[-2]
         return vp, a[-1]
 
     def _seen_along(self, depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
@@ -238,20 +260,23 @@ class CameraPass:
         float64 (inf on a miss): analytic emitters, and on a miss the world
         (or, for camera rays seen through, alpha under Film > Transparent).
         fast: skip the masks and scatters that change nothing (the camera
-        rays of depth 0 are every pixel in order; a black constant world
-        adds 0); the same sums."""
-        whole = fast and depth == 0             # idx = arange(P), last = 0 (camera)
+        rays of depth 0 are consecutive pixels in order; a black constant
+        world adds 0); the same sums."""
+        whole = fast and depth == 0             # idx consecutive pixels, last = 0 (camera)
         for code, name in ((0, "camera"), (1, "glossy"), (2, "transmission")):
             if whole:
                 if code == 0 and self._any_seen("camera"):
-                    self._seen_by_camera(L, first.emit, o, d, tmax, t, beta)
+                    # idx: the pixels a0.. in order (a block of them, _trace_blocked)
+                    a0 = int(idx[0]) if idx.size else 0
+                    emit = first.emit[a0:a0 + idx.size] if first.emit.shape[0] else first.emit
+                    self._seen_by_camera(L[a0:a0 + idx.size], emit, o, d, tmax, t, beta)
                 continue
             sel = last == code
             if np.any(sel) and (not fast or self._any_seen(name)):
                 Le = Lt.emitted_along_rays(self.light_table, o[sel], d[sel],
                                            np.minimum(t[sel], tmax[sel]), name)
                 L[idx[sel]] += beta[sel] * Le
-                if depth == 0:
+                if depth == 0 and first.emit.shape[0]:
                     first.emit[idx[sel]] += Le
         miss = ~hit
         esc = miss & see_through
@@ -280,7 +305,8 @@ class CameraPass:
                 Le = Lt.emitted_along_rays(self.light_table, o[a:b], d[a:b],
                                            np.minimum(t[a:b], tmax[a:b]), "camera")
                 L[a:b] += beta[a:b] * Le
-                emit[a:b] += Le
+                if emit.shape[0]:
+                    emit[a:b] += Le
         in_two_halves(blocks, o.shape[0], SEEN_SPLIT_MIN, align=SEEN_BLOCK)
 
     def _any_seen(self, visibility: str) -> bool:
@@ -324,7 +350,7 @@ class CameraPass:
                 if mtab.emission_tex is not None and np.any(mtab.emission_tex[mat] >= 0):
                     em = em * _emission_texture(mtab, s, mat, uv)
                 L[idx[ih]] += beta[ih] * em
-            if depth == 0:
+            if depth == 0 and first.p.shape[0]:
                 sgn0 = np.where(_dot(ng, wo) >= 0, 1.0, -1.0)[:, None]
                 q = idx[ih]
                 first.hit[q], first.p[q], first.n[q] = True, p, ns * sgn0
@@ -345,6 +371,7 @@ class CameraPass:
                 q = idx[ih[mk]]
                 sgn = np.where(_dot(ng[mk], wo[mk]) >= 0, 1.0, -1.0)[:, None]
                 vp.valid[q] = True
+                vp.through_delta[q] = depth > 0
                 vp.front[q] = sgn[:, 0] > 0
                 vp.p[q] = p[mk]
                 vp.ng[q] = ng[mk] * sgn
@@ -393,83 +420,142 @@ class CameraPass:
     def _trace_compiled(self, rng, rays, dz, vp, L, check_stop):
         """The camera pass with the per-hit work in ``camera_kernels.hit_kernel``
         (same random numbers, same results as :meth:`_trace_numpy`)."""
-        from . import camera_kernels as CK
-        from .photons import _pool, _threads
         P = self.px.shape[0]
-        mtab, accel, first, s = self.mtab, self.accel, vp.first, self.scene
+        live = (rays.o, rays.d, rays.t_max, np.arange(P), np.ones((P, 3)), np.zeros(P),
+                np.zeros(P, np.int8), np.ones(P, bool))
+        dz = np.ascontiguousarray(dz, np.float64)   # one kernel signature (C layout)
+        self._chains_from(0, live, rng, dz, self._kernel_context(vp, L), check_stop)
+
+    def _trace_blocked(self, rng, vp, L, check_stop, centre):
+        """:meth:`__call__`'s camera rays and :meth:`_trace_compiled`'s first
+        vertex in blocks of CAMERA_BLOCK pixels, the delta chains' later
+        vertices after them: the same random numbers and results (the
+        filter and lens uniforms are the stream's first 4 P draws, the
+        delta choices of the first hits the next ones, in pixel order: two
+        copies of the stream advanced to each), without pixel-sized
+        temporaries (rays, uniforms, Embree's hits: 0.4 GB at 1080p, page-
+        faulted in every pass).  The camera's depth factors dz (P,) float64
+        are the one pixel-sized temporary (the delta chains' later vertices
+        read them by pixel), freed with the pass, not kept through the photon
+        pass."""
+        P = self.px.shape[0]
+        ctx = self._kernel_context(vp, L)
+        dz = np.empty(P)
+        ru, rr = _stream_copy(rng), _stream_copy(rng)
+        rr.bit_generator.advance(4 * P)
+        nxt = []
+        for a in range(0, P, CAMERA_BLOCK):
+            b = min(a + CAMERA_BLOCK, P)
+            check_stop()
+            u = ru.random((b - a, 4))
+            if centre:
+                u[:, :2], u[:, 2:] = 0.5, 0.0     # as __call__
+            rays, dz[a:b] = self.camera.generate(self.px[a:b], self.py[a:b], u[:, :2], u[:, 2:],
+                                                 self.fsamp)
+            n = b - a
+            live = (rays.o, rays.d, rays.t_max, np.arange(a, b), np.ones((n, 3)), np.zeros(n),
+                    np.zeros(n, np.int8), np.ones(n, bool))
+            x = self._wavefront(0, live, rr, dz, ctx)
+            if x is not None:
+                nxt.append(x)
+        rng.bit_generator.state = rr.bit_generator.state
+        if nxt:
+            live = tuple(np.concatenate(c) for c in zip(*nxt))
+            self._chains_from(1, live, rng, dz, ctx, check_stop)
+
+    def _kernel_context(self, vp, L):
+        """What every wavefront's kernel call shares: (camera materials,
+        textured (M,) bool, VPBuffers, FirstBuffers, the FirstHit, L)."""
+        from . import camera_kernels as CK
+        mtab, s = self.mtab, self.scene
         if self._cmats is None:
             self._cmats = CK.build_camera_materials(mtab, s)
             tex = np.any(mtab.tex >= 0, axis=1)
             if mtab.emission_tex is not None:
                 tex |= mtab.emission_tex >= 0
             self._textured = tex
-        mats, textured = self._cmats, self._textured
-        dz = np.ascontiguousarray(dz, np.float64)   # one kernel signature (C layout)
-        Lb = mtab.kind.shape[1]
-        vb = CK.vp_buffers(vp)
-        fb = CK.FirstBuffers(first.hit, first.p, first.n, first.prim, first.emit, L)
-        see_through = np.ones(P, bool)
-        idx = np.arange(P)
-        o, d, tmax = rays.o, rays.d, rays.t_max
-        beta = np.ones((P, 3))
-        path_len = np.zeros(P)
-        last = np.zeros(P, np.int8)
-        no_pre = (np.zeros((0, Lb, 3)), np.zeros((0, 3)))
-        for depth in range(self.max_depth):
-            K = idx.size
-            if K == 0:
+        first = vp.first
+        return (self._cmats, self._textured, CK.vp_buffers(vp),
+                CK.FirstBuffers(first.hit, first.p, first.n, first.prim, first.emit, L), first, L)
+
+    def _chains_from(self, depth0, live, rng, dz, ctx, check_stop):
+        """Wavefronts depth0, depth0 + 1, ... of the live chains until none is left."""
+        for depth in range(depth0, self.max_depth):
+            if live[3].size == 0:
                 break
             check_stop()
-            prim, bu, bv, tfar = _intersect(accel, o, d, tmax)
-            hit = prim >= 0
-            t = np.where(hit, tfar, np.inf).astype(np.float64)
-            self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
-                             fast=True)
-            nh = int(np.count_nonzero(hit))
-            if nh == 0:
+            live = self._wavefront(depth, live, rng, dz, ctx)
+            if live is None:
                 break
-            pre = np.full(K, -1, np.int64)
-            colors_pre, em_pre = no_pre
-            mat_h = s.tri_mat[prim[hit]]
-            if textured.any() and textured[mat_h].any():
-                # Textured materials: their colours and emission in numpy (rows only).
-                it = np.nonzero(hit)[0][textured[mat_h]]
-                pr = prim[it]
-                _, _, _, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, pr,
-                                            bu[it].astype(np.float64), bv[it].astype(np.float64))
-                mt = s.tri_mat[pr]
-                colors_pre = B.lobe_colors(mtab, mt, uv)
-                em_pre = mtab.emission[mt]
-                if mtab.emission_tex is not None and np.any(mtab.emission_tex[mt] >= 0):
-                    em_pre = em_pre * _emission_texture(mtab, s, mt, uv)
-                pre[it] = np.arange(it.size)
-            ur = rng.random((nh, 4))
-            wf = CK.Wavefront(prim, bu, bv, tfar, idx, np.ascontiguousarray(d, np.float64), beta,
-                              path_len, dz, ur, pre, colors_pre, em_pre)
-            ch = CK.alloc_chains(K, Lb)
-            lastv = depth == self.max_depth - 1
-            if K >= CK.SPLIT_MIN and _threads() > 1:
-                h = K // 2
-                u1 = int(np.count_nonzero(hit[:h]))
-                f1 = _pool().submit(CK.hit_kernel, h, K, u1, h, depth == 0, lastv, wf, mats,
-                                    vb, fb, ch)
-                n0 = CK.hit_kernel(0, h, 0, 0, depth == 0, lastv, wf, mats, vb, fb, ch)
-                n1 = f1.result()
-                rows = np.r_[0:n0, h:h + n1]
-            else:
-                rows = np.arange(CK.hit_kernel(0, K, 0, 0, depth == 0, lastv, wf, mats, vb, fb,
-                                               ch))
-            if rows.size == 0:
-                break
-            k = ch.k[rows]
-            nxt = self._continue(ch.p[rows], ch.ng[rows], ch.ns[rows], ch.wo[rows], ch.mat[rows],
-                                 ch.colors[rows], ch.beta[rows], ch.plen[rows],
-                                 ch.p_delta[rows], ch.u[rows], see_through[k], d[k])
-            if nxt is None:
-                break
-            keep, o, d, beta, path_len, last, see_through = nxt
-            tmax = np.full(keep.size, np.inf)
-            idx = idx[k[keep]]
+
+    def _wavefront(self, depth, live, rng, dz, ctx):
+        """One vertex of the live chains (o, d, tmax, idx (K,) pixel, beta,
+        path_len, last, see_through): Embree, the emission seen along the rays,
+        ``hit_kernel``, the delta lobes' samples (uniforms from rng).  The next
+        vertex's live chains, or None when none continues."""
+        from . import camera_kernels as CK
+        from .photons import _pool, _threads
+        o, d, tmax, idx, beta, path_len, last, see_through = live
+        mats, textured, vb, fb, first, L = ctx
+        mtab, accel, s = self.mtab, self.accel, self.scene
+        K = idx.size
+        prim, bu, bv, tfar = _intersect(accel, o, d, tmax)
+        hit = prim >= 0
+        t = np.where(hit, tfar, np.inf).astype(np.float64)
+        self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
+                         fast=True)
+        nh = int(np.count_nonzero(hit))
+        if nh == 0:
+            return None
+        pre = np.full(K, -1, np.int64)
+        Lb = mtab.kind.shape[1]
+        colors_pre, em_pre = np.zeros((0, Lb, 3)), np.zeros((0, 3))
+        mat_h = s.tri_mat[prim[hit]]
+        if textured.any() and textured[mat_h].any():
+            # Textured materials: their colours and emission in numpy (rows only).
+            it = np.nonzero(hit)[0][textured[mat_h]]
+            pr = prim[it]
+            _, _, _, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, pr,
+                                        bu[it].astype(np.float64), bv[it].astype(np.float64))
+            mt = s.tri_mat[pr]
+            colors_pre = B.lobe_colors(mtab, mt, uv)
+            em_pre = mtab.emission[mt]
+            if mtab.emission_tex is not None and np.any(mtab.emission_tex[mt] >= 0):
+                em_pre = em_pre * _emission_texture(mtab, s, mt, uv)
+            pre[it] = np.arange(it.size)
+        ur = rng.random((nh, 4))
+        wf = CK.Wavefront(prim, bu, bv, tfar, idx, np.ascontiguousarray(d, np.float64), beta,
+                          path_len, dz, ur, pre, colors_pre, em_pre)
+        ch = CK.alloc_chains(K, Lb)
+        lastv = depth == self.max_depth - 1
+        if K >= CK.SPLIT_MIN and _threads() > 1:
+            h = K // 2
+            u1 = int(np.count_nonzero(hit[:h]))
+            f1 = _pool().submit(CK.hit_kernel, h, K, u1, h, depth == 0, lastv, wf, mats,
+                                vb, fb, ch)
+            n0 = CK.hit_kernel(0, h, 0, 0, depth == 0, lastv, wf, mats, vb, fb, ch)
+            n1 = f1.result()
+            rows = np.r_[0:n0, h:h + n1]
+        else:
+            rows = np.arange(CK.hit_kernel(0, K, 0, 0, depth == 0, lastv, wf, mats, vb, fb, ch))
+        if rows.size == 0:
+            return None
+        k = ch.k[rows]
+        nxt = self._continue(ch.p[rows], ch.ng[rows], ch.ns[rows], ch.wo[rows], ch.mat[rows],
+                             ch.colors[rows], ch.beta[rows], ch.plen[rows],
+                             ch.p_delta[rows], ch.u[rows], see_through[k], d[k])
+        if nxt is None:
+            return None
+        keep, o, d, beta, path_len, last, see_through = nxt
+        return (o, d, np.full(keep.size, np.inf), idx[k[keep]], beta, path_len, last,
+                see_through)
+
+
+def _stream_copy(rng: np.random.Generator) -> np.random.Generator:
+    """A generator at rng's position in rng's stream (rng is not moved)."""
+    bg = type(rng.bit_generator)()
+    bg.state = rng.bit_generator.state
+    return np.random.Generator(bg)
 
 
 def _intersect(accel, o, d, tmax):
