@@ -78,8 +78,6 @@ CHI2_CRITICAL_LINEAR = 15.086
 #: The test needs an expected count of at least 5 per cell (Cochran 1952's
 #: rule for Pearson's statistic); with fewer photons it cannot reject.
 CHI2_MIN_EXPECTED = 5.0
-#: Weight of a pass's prediction in :func:`mixture_prediction`'s running mean.
-MIXTURE_WEIGHT = 0.1
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
 
@@ -207,9 +205,6 @@ class Radii:
         # kept_prediction's rule: False keeps the last prediction, True the
         # running minimum of every prediction (bench_hold_alpha compares them).
         self.keep_minimum = False
-        # True: the kept prediction is the running precision mean of the
-        # passes' predictions (:func:`mixture_prediction`), not the last one.
-        self.keep_mixture = False
         self._edge_cap = None
         # The PPM rule's update in _ppm_update_range (False: the numpy
         # reference, the same state).
@@ -267,9 +262,7 @@ class Radii:
         material), sectors (P, SECTOR_CELLS) this pass's sector counts (None
         unless :func:`needs_sectors`)."""
         rule = self.settings.radius_rule
-        if self.keep_predictions and self.keep_mixture:
-            r_pred = mixture_prediction(r_pred, state.r_pred_last, state.R2)
-        elif self.keep_predictions:
+        if self.keep_predictions:
             r_pred = kept_prediction(r_pred, state.r_pred_last, self.keep_minimum)
         if rule == "PPM" and self.compiled and (state.sectors is None) == (sectors is None):
             self._update_compiled(state, M, Phi, r_pred, sectors)
@@ -347,33 +340,6 @@ def kept_prediction(r_pred: np.ndarray, r_last: np.ndarray, minimum: bool = Fals
     if minimum:
         return np.fmin(r_pred, r_last)
     return np.where(np.isinf(r_pred), r_last, r_pred)
-
-
-def mixture_prediction(r_pred: np.ndarray, r_last: np.ndarray, R2: np.ndarray,
-                       weight: float = None) -> np.ndarray:
-    """(P,) the kept prediction as the precision mean of the passes'
-    predictions (docs/frequency.md "Mixture of predictions").
-
-    r_pred (P,) [m] this pass's prediction (inf = no frequency photon, NaN or
-    0 = a spectrum that allows no radius); r_last (P,) the kept prediction of
-    the last pass (inf or NaN = none yet); R2 (P,) the current squared radii.
-    The pixel's light is the mixture of its photons' light, so the radius of
-    the mixture is spectrum.layered_radius's rule over them, 1/r^2 = sum_i
-    w_i / r_i^2 (each pass's minimum standing for its photons, equal shares
-    per pass), with each term capped at 1 / (beta R^2): a sharp component
-    of share w lowers the pixel's profile at R by at most w (its whole
-    share), so a zero radius of share below beta no longer forbids a hold,
-    and above it does.  Running mean with weight MIXTURE_WEIGHT per pass."""
-    lam = MIXTURE_WEIGHT if weight is None else weight
-    cap = 1.0 / (F.BETA * np.where(R2 > 0, R2, np.inf))
-    r = np.where(np.isnan(r_pred), 0.0, np.abs(r_pred))
-    with np.errstate(divide="ignore"):
-        p_new = np.minimum(1.0 / (r * r), cap)
-        old = np.isfinite(r_last) & (r_last > 0)
-        p_old = np.where(old, 1.0 / np.where(old, r_last * r_last, 1.0), 0.0)
-        new = np.isfinite(r_pred)
-        p = np.where(new, np.where(old, (1.0 - lam) * p_old + lam * p_new, p_new), p_old)
-        return np.where(new | old, 1.0 / np.sqrt(p), r_last)
 
 
 class UpdateArrays(NamedTuple):
