@@ -299,8 +299,10 @@ def main():
         ref, floor = reference(a.scene, scene, base, a.ref_passes, a.ref_photons, say)
         say(f"# reference: {a.ref_passes} passes x {a.ref_photons} photons, seed 100; "
             f"floor (half vs full) {floor:.3e}; load {os.getloadavg()[0]:.1f}")
+        methods = a.methods.split(",")
+        methods += [] if "ppm" in methods else ["ppm"]     # the ratios' denominator
         for seed in [int(x) for x in a.seeds.split(",")]:
-            equal_passes(scene, base, a.methods.split(","), seed, a.equal_passes,
+            equal_passes(scene, base, methods, seed, a.equal_passes,
                          [int(x) for x in a.report.split(",")], ref, say)
         say(f"# load at the end {os.getloadavg()[0]:.1f}")
         return
