@@ -12,6 +12,10 @@
         --methods fppm,fppm:frequency_decay=0,ppm,appm,cppm
         (relMSE at equal CPU time, docs/method.md "Amortised frequency photons";
         'fppm:keep=min' / 'fppm:keep=none': the other prediction-keeping rules)
+    .venv/bin/python bench/bench_hold_alpha.py principled_interior --equal-passes 32 --ref-passes 200 \
+        --report 8,16,32 --seeds 0,1 --methods fppm,ppm,appm,cppm
+        (relMSE at equal passes, same seed: quality apart from cost, docs/method.md
+        "Principled interior: quality or cost"; 'fppm:keep=noocc': no occlusion operator)
 
 The protocol of docs/method.md ("Consistent holds", "Radius rules"): the
 .blend at 50 % resolution (64x64) with the file's settings, photon mapping
@@ -182,6 +186,48 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
     return out
 
 
+def equal_passes(scene, base, methods, seed, passes, report, ref, say):
+    """relMSE of every method after the same passes (same seed), stepped
+    alternately in one process: per report pass the whole image and the
+    regions of tools.metrics.region_masks (from the reference), the held
+    fraction and the geometric mean of R / R_ppm; then CPU and photons
+    gathered per pass (passes 3..) relative to PPM."""
+    from fppm.tools.metrics import region_masks
+    masks = region_masks(ref)
+    rs = {m: Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=passes),
+                      log=lambda s: None) for m in methods}
+    for m in methods:
+        if ":keep=noocc" in m:          # the frequency chain without its occlusion operator
+            from fppm.core.frequency.occlusion_march import no_march_grid
+            rs[m].tracer.occlusion, rs[m].tracer.march = 0, no_march_grid()
+    cpu = {m: [] for m in methods}
+    gathered = {m: [] for m in methods}
+    out = {}
+    for p in range(1, passes + 1):
+        for m in methods:
+            c0 = time.process_time()
+            res = rs[m].step()
+            cpu[m].append(time.process_time() - c0)
+            gathered[m].append(rs[m].state.M_last.sum())
+            if p in report:
+                img = np.asarray(res.image[..., :3], np.float64)
+                out[m, p] = (relmse(img, ref), {k: relmse(img, ref, v) for k, v in masks.items()},
+                             float(np.mean(rs[m].state.held)), np.sqrt(rs[m].state.R2))
+    for p in report:
+        e_ppm, _, _, R_ppm = out["ppm", p]
+        for m in methods:
+            e, reg, held, R = out[m, p]
+            ok = (R_ppm > 0) & (R > 0)
+            say(f"seed {seed} pass {p} {m:>18}: relmse {e:.4e} / ppm {e / e_ppm:.3f}; "
+                + ", ".join(f"{k} {v:.3e}" for k, v in reg.items())
+                + f"; held {held:.3f}; R/R_ppm {np.exp(np.mean(np.log(R[ok] / R_ppm[ok]))):.3f}")
+    c_ppm, g_ppm = np.mean(cpu["ppm"][2:]), np.mean(gathered["ppm"][2:])
+    for m in methods:
+        c, g = np.mean(cpu[m][2:]), np.mean(gathered[m][2:])
+        say(f"seed {seed} {m:>18}: CPU per pass {1e3 * c:.0f} ms ({c / c_ppm:.3f} x PPM), "
+            f"photons gathered per pass {g:.3g} ({g / g_ppm:.3f} x PPM)")
+
+
 def breakdown(scene, base, passes, say):
     """CPU per pass of FPPM variants stepped alternately (the first 2 passes
     left out): what the frequency photons, the verified holds and the
@@ -234,8 +280,10 @@ def main():
                     help="CPU per pass of PPM and FPPM variants, stepped alternately K passes")
     ap.add_argument("--equal-cpu", type=float, default=0.0, metavar="SECONDS",
                     help="relMSE of --methods at equal CPU time, SECONDS each per seed")
+    ap.add_argument("--equal-passes", type=int, default=0, metavar="K",
+                    help="relMSE of --methods after the passes of --report (up to K), same seed")
     ap.add_argument("--methods", default=",".join(EQUAL_CPU_METHODS),
-                    help="equal-CPU methods; 'fppm:frequency_decay=0' sets a field")
+                    help="equal-CPU / equal-pass methods; 'fppm:frequency_decay=0' sets a field")
     a = ap.parse_args()
     scene, base = export(a.scene)
     base = base.replace(photons_per_pass=a.photons)
@@ -247,6 +295,17 @@ def main():
         return cost(scene, base.replace(hold_alpha=float(a.hold.split(",")[0])), a.cost_only, say)
     if a.breakdown:
         return breakdown(scene, base, a.breakdown, say)
+    if a.equal_passes:
+        ref, floor = reference(a.scene, scene, base, a.ref_passes, a.ref_photons, say)
+        say(f"# reference: {a.ref_passes} passes x {a.ref_photons} photons, seed 100; "
+            f"floor (half vs full) {floor:.3e}; load {os.getloadavg()[0]:.1f}")
+        methods = a.methods.split(",")
+        methods += [] if "ppm" in methods else ["ppm"]     # the ratios' denominator
+        for seed in [int(x) for x in a.seeds.split(",")]:
+            equal_passes(scene, base, methods, seed, a.equal_passes,
+                         [int(x) for x in a.report.split(",")], ref, say)
+        say(f"# load at the end {os.getloadavg()[0]:.1f}")
+        return
     if a.equal_cpu:
         ref, floor = reference(a.scene, scene, base, a.ref_passes, a.ref_photons, say)
         say(f"# reference: {a.ref_passes} passes x {a.ref_photons} photons, seed 100; "
