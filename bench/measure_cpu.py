@@ -1,6 +1,6 @@
 """Equal-CPU-time relMSE of FPPM's integrators against a reference (docs/integrators.md).
 
-    .venv/bin/python bench/measure_cpu.py BLEND PCT BUDGET RUNS [--ref light:SECONDS]
+    .venv/bin/python bench/measure_cpu.py BLEND PCT BUDGET RUNS [--ref light:SECONDS] [--seeds 7,8]
     .venv/bin/python bench/measure_cpu.py BLEND PCT ROUNDS RUNS --cost
 
 RUNS: comma-separated fppm, ppm, path<K>, light, combined<K> (K = camera
@@ -8,12 +8,14 @@ samples, default 4), cycles; a suffix :p<N> sets photons_per_pass (light
 paths per pass for light and combined), :r<X> sets light_paths_per_camera_path
 (combined: X light paths per camera path), :mmis (last) merging as an MIS
 strategy (merge_weights 'MIS'; :mppm the same without frequency photons,
-PPM radii), :n<N> renders N passes whatever
+PPM radii), :i<X> sets initial_radius_px, :n<N> renders N passes whatever
 the time (equal light paths).  The reference is Cycles at 8192 spp (cached
 under ~/.cache/fppm/references/ as ``fppm converge`` does), or with
 ``--ref light:S`` a light-tracing render of S CPU seconds (for scenes Cycles
 cannot render, such as a radius-0 point light's caustic; cached in
-~/.cache/fppm/references/ by blend, resolution and seconds).
+~/.cache/fppm/references/ by blend, resolution and seconds).  ``--seeds``:
+the runs' seeds (default 7), every run once per seed, interleaved (seed by
+seed, the runs in turn) so that a shared machine's load falls on all alike.
 
 "camera share": the camera paths' part of the camera + light-tracing
 wall seconds of the passes (``stage_seconds``; the effort split of COMBINED).
@@ -57,6 +59,9 @@ def settings_of(run: str) -> dict:
     if ":r" in run:                          # e.g. combined4:r12.2 -- light paths per camera path
         run, r = run.split(":r")
         return dict(settings_of(run), light_paths_per_camera_path=float(r))
+    if ":i" in run:                          # e.g. combined4:i1:mmis -- initial radius, pixels
+        run, x = run.split(":i")
+        return dict(settings_of(run), initial_radius_px=float(x))
     if ":p" in run:                          # e.g. combined4:p50000
         run, n = run.split(":p")
         return dict(settings_of(run), photons_per_pass=int(n))
@@ -144,7 +149,8 @@ def main(argv):
 
     def relmse(x):
         return float(np.mean((x - ref) ** 2 / (ref ** 2 + 0.01)))
-    for run in runs:
+    seeds = [int(x) for x in argv[argv.index("--seeds") + 1].split(",")] if "--seeds" in argv else [7]
+    for seed, run in ((seed, run) for seed in seeds for run in runs):
         if run == "cycles":
             scene = open_blend(blend, resolution=pct)
             cycles_reference_setup(scene)
@@ -164,8 +170,8 @@ def main(argv):
                          / (math.log(t1) - math.log(t0)) * (math.log(e1) - math.log(e0)))
             print(f"RESULT cycles relMSE@{budget:g}s cpu {e:.3e}", flush=True)
             continue
-        last = render_cpu(blend, pct, budget, run)
-        print(f"RESULT {run} relMSE@{last['cpu']:.1f}s cpu (wall {last['wall']:.1f}) "
+        last = render_cpu(blend, pct, budget, run, seed=seed)
+        print(f"RESULT {run} seed {seed} relMSE@{last['cpu']:.1f}s cpu (wall {last['wall']:.1f}) "
               f"{relmse(last['img']):.3e} passes {last['n']} mean ratio "
               f"{last['img'].mean() / ref.mean():.4f} camera share {last['camera_share']:.2f}",
               flush=True)

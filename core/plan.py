@@ -35,7 +35,7 @@ class RenderPlan:
                              ("occlusion grid", self.occlusion_grid),
                              ("world emission", self.world_emission)) if v]
         bare = "plain photon mapping"
-        if "photon mapping" not in self.strategies and MERGING not in self.strategies:
+        if "photon mapping" not in self.strategies and not merges(self):
             on, bare = [], "no photon stages"
         if self.transparent_shadows:
             on.append("transparent shadows")
@@ -85,6 +85,26 @@ def _can_occlude(tri_p: np.ndarray, light_points=None, distant_light=False) -> b
 
 #: The strategy name of photon merging in integrator 'COMBINED'.
 MERGING = "photon merging (caustics seen through mirrors and glass)"
+#: The same with merge_weights 'MIS' (core.integrators.merge): merging is
+#: weighted against the other strategies on every path it can sample.
+MERGING_MIS = "photon merging (MIS: light reaching diffuse or glossy surfaces indirectly)"
+
+
+def merges(plan: "RenderPlan") -> bool:
+    """Whether the plan merges photons (either kind of weights)."""
+    return MERGING in plan.strategies or MERGING_MIS in plan.strategies
+
+
+def _one_plane(tri_p: np.ndarray) -> bool:
+    """True when every vertex lies in the first triangle's plane: no surface
+    can light another (no indirect light without a delta vertex)."""
+    P = np.asarray(tri_p, np.float64).reshape(-1, 3)
+    if P.shape[0] < 3:
+        return True
+    n = np.cross(P[1] - P[0], P[2] - P[0])
+    n /= max(float(np.linalg.norm(n)), 1e-300)
+    eps = 1e-6 * (float(np.ptp(P, axis=0).max()) or 1.0)
+    return bool(np.all(np.abs((P - P[0]) @ n) <= eps))
 
 STAGES = ("specular chains", "frequency photons", "occlusion grid")
 
@@ -117,16 +137,31 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
             plan.left_out.append(("light tracing", "no diffuse or glossy surface for the "
                                                    "camera to see"))
         plan.strategies += ("power-heuristic MIS",)
-        # Merging owns the paths whose camera end is a delta chain to a
-        # non-delta point lit through a delta vertex (core.integrators.merge):
-        # none without both kinds of material.
-        merging = has_delta and has_nondelta
-        if merging:
-            plan.strategies += (MERGING,)
+        if settings.merge_weights == "MIS" and seen:
+            # Merging as an MIS strategy samples every path whose light
+            # reaches the visible point (a non-delta vertex) after at least
+            # one bounce (core.integrators.merge): through a mirror or glass,
+            # or off another diffuse or glossy surface -- any scene but one
+            # plane.  It needs light tracing's paths (its deposits).
+            merging = has_nondelta and (has_delta or not _one_plane(scene.tri_p))
+            if merging:
+                plan.strategies += (MERGING_MIS,)
+            else:
+                plan.left_out.append(("photon merging", "no diffuse or glossy surface to "
+                                                        "gather on" if not has_nondelta else
+                                      "no light reaches a surface indirectly (one plane, "
+                                      "no mirror or glass)"))
         else:
-            plan.left_out.append(("photon merging", "no mirror or glass to see a caustic "
-                                                    "through" if has_nondelta else
-                                  "no diffuse or glossy surface to gather on"))
+            # Merging owns the paths whose camera end is a delta chain to a
+            # non-delta point lit through a delta vertex (core.integrators.merge):
+            # none without both kinds of material.
+            merging = has_delta and has_nondelta
+            if merging:
+                plan.strategies += (MERGING,)
+            else:
+                plan.left_out.append(("photon merging", "no mirror or glass to see a caustic "
+                                                        "through" if has_nondelta else
+                                      "no diffuse or glossy surface to gather on"))
     plan.specular_chains = has_delta or "specular chains" in force
     if not plan.specular_chains:
         plan.left_out.append(("specular chains", "no mirror, glass or transparent material"))

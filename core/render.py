@@ -61,13 +61,13 @@ from .lights import build_light_table
 from .lights import shadow
 from .lights.nee import NextEventEstimation
 from .materials import build_material_table
-from .plan import MERGING, RenderPlan, make_plan
+from .plan import RenderPlan, make_plan, merges
 from .sanity import check_resolution, check_scene, recentre
 from .scene.camera import CameraModel, FilterSampler
 from .scene.model import Scene, drop_invalid_triangles, scene_digest
 from .settings import RenderSettings
 from .sppm.film import PASSES, Film, PassResult, pass_enabled
-from .sppm.photon_pass import PHOTON_CHUNK, PhotonPass
+from .sppm.photon_pass import PHOTON_CHUNK, PhotonPass, frequency_photons
 from .frequency.curvature import scene_curvature
 from .sppm.photons import PhotonTracer
 from .sppm.state import PixelState
@@ -150,7 +150,7 @@ class Renderer:
         self.merge_mis = False
         # Photon merging in 'COMBINED' (core.integrators.merge): SPPM on the
         # visible points seen through a delta vertex, caustic photons only.
-        self.merging = st.integrator == "COMBINED" and MERGING in self.plan.strategies
+        self.merging = st.integrator == "COMBINED" and merges(self.plan)
         # The first hits' positions, normals, triangles and emission: only
         # the film's data passes and photon merging read them (not alpha).
         self.camera_pass.first_data = bool(self.film.data_passes) or self.merging
@@ -168,14 +168,16 @@ class Renderer:
                 self.path_tracer.vc.merging = self.tracer.after_delta_only = False
                 # The frequency kernel's radii (predicted radius, holds): a
                 # pass of frequency photons alone (frequency_fraction of the
-                # light paths), whose flux is not used.
+                # light paths, amortised over the passes as PHOTON's:
+                # _step_merge_mis), whose flux is not used.
                 self.merge_freq_pass = None
                 if self.plan.frequency_photons and st.frequency_fraction > 0:
                     from dataclasses import replace
                     n_f = max(1, int(round(st.photons_per_pass * st.frequency_fraction)))
                     self.merge_freq_pass = PhotonPass(
                         self.tracer, self.mtab,
-                        replace(st, photons_per_pass=n_f, frequency_fraction=1.0), True,
+                        replace(st, photons_per_pass=n_f, frequency_fraction=1.0,
+                                frequency_decay=0.0), True,
                         self.radii.hist if self.radii.quantile else None, self.stage_seconds)
             if "light tracing" in self.plan.strategies:
                 self.combined_lt = CombinedLightTracer(
@@ -479,6 +481,11 @@ class Renderer:
             sums = sums + Lm
         self.stage_seconds["gather"] += time.perf_counter() - tg
         if self.merge_freq_pass is not None:
+            # Pass k's frequency photons (frequency_photons: fewer in later
+            # passes, docs/method.md "Amortised frequency photons"), all of them.
+            from dataclasses import replace
+            fp = self.merge_freq_pass
+            fp.settings = replace(fp.settings, photons_per_pass=max(1, frequency_photons(st, k)))
             self.tracer.set_radius_cut(R2)
             est = self.merge_freq_pass(vp, R2, state.spectrum, self._rng(k, 4),
                                        self._check_stop)

@@ -433,3 +433,22 @@ def test_soft_light_merging_weights_sum_to_one(mis_rig, name):
     print(name, "camera", camera, "LT", w_lt, "M", w_m)
     assert w_m > 0.0
     assert abs(camera + w_lt + w_m - 1.0) < 1e-9
+
+
+def test_mis_frequency_photons_are_amortised():
+    """Merging as an MIS strategy traces pass k's frequency photons as
+    PHOTON does (photons_per_pass x frequency_fraction x k^-frequency_decay,
+    core.sppm.photon_pass.frequency_photons), every one with a spectrum."""
+    st = RenderSettings(integrator="COMBINED", max_passes=3, camera_samples=1,
+                        photons_per_pass=8_000, seed=3, max_bounces=4, merge_weights="MIS")
+    r = Renderer(_scene(), st, log=lambda s: None)
+    traced = []
+    fp = r.merge_freq_pass
+    call = type(fp).__call__
+
+    def spy(self, *a, **k):
+        traced.append(self.chunks())
+        return call(self, *a, **k)
+    fp.__class__ = type("Spy", (type(fp),), {"__call__": spy})
+    r.run()
+    assert traced == [[(2000, 2000)], [(1414, 1414)], [(1155, 1155)]]

@@ -104,11 +104,11 @@ def test_chunk_sums_do_not_depend_on_the_order_chunks_are_traced(glossy):
     assert compared == [PHOTONS // CHUNK] * 2
 
 
-def _render_on_2_workers(exported, chunk, out):
-    """`fppm render --workers 2 --chunk chunk` of the saved file: (its log, the
-    EXR's layers)."""
+def _render_on_2_workers(exported, chunk, out, *flags):
+    """`fppm render --workers 2 --chunk chunk [flags]` of the saved file: (its
+    log, the EXR's layers)."""
     two = H.run_fppm("render", exported[0], "-o", out, "--workers", 2, "--chunk", chunk,
-                     "-q", "--no-preview")
+                     "-q", "--no-preview", *flags)
     assert two.returncode == 0, two.stderr[-2000:]
     return two.stdout + two.stderr, read_exr(str(out))
 
@@ -198,7 +198,8 @@ C_PATHS, C_CHUNK = 20_000, 5_000          # 4 chunks of light paths (and of phot
 @pytest.fixture(scope="module")
 def caustic(tmp_path_factory):
     """(saved .blend, exported core Scene, settings) of the glass caustic, COMBINED."""
-    return _export(CAUSTIC, tmp_path_factory, C_PATHS, integrator="COMBINED", camera_samples=1)
+    return _export(CAUSTIC, tmp_path_factory, C_PATHS, integrator="COMBINED", camera_samples=1,
+                   merge_weights="PARTITION")
 
 
 @pytest.fixture(scope="module")
@@ -237,7 +238,12 @@ def test_light_chunk_sums_do_not_depend_on_the_order_chunks_are_traced(caustic):
 
 @needs_dask
 def test_combined_workers_2_same_image_as_one_process(caustic, combined_reference, tmp_path):
-    log, got = _render_on_2_workers(caustic, C_CHUNK, tmp_path / "two.exr")
+    # --merge-weights mis: the workers return no deposits to merge, so the
+    # render falls back to the partition, says so, and is the one-process
+    # partition render bit for bit.
+    log, got = _render_on_2_workers(caustic, C_CHUNK, tmp_path / "two.exr",
+                                    "--merge-weights", "mis")
+    assert D.PARTITION_FALLBACK in log
     assert ("Light paths in chunks of 5000 and merging photons in chunks of 5000, one random "
             "stream each, on 2 Dask workers") in log
     assert np.abs(got["Combined"] - combined_reference.image).max() == 0.0

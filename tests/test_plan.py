@@ -139,3 +139,37 @@ def test_convex_set_keeps_the_grid_when_a_light_is_outside_it():
         box.lights = lights
         r, _ = _run(box, max_passes=1, photons_per_pass=1_000)
         assert r.plan.occlusion_grid == needs, lights[0].name
+
+
+@pytest.mark.parametrize("merge_weights", ["PARTITION", "MIS"])
+def test_merging_kept_where_its_weights_can_use_it(merge_weights):
+    """COMBINED.  Merging as an MIS strategy samples every path whose light
+    reaches a diffuse or glossy visible point after a bounce: the plan keeps
+    it (and its frequency photons) in a closed diffuse box without any mirror
+    and says why; it leaves it out on one plane lit by a point light (no
+    surface lights another).  The partition owns only caustics seen through
+    a mirror or glass: out in both.  With a mirror, both keep it."""
+    from core.plan import MERGING, MERGING_MIS
+    mis = merge_weights == "MIS"
+
+    def plan(scene):
+        return Renderer(scene, RenderSettings(integrator="COMBINED", max_passes=1,
+                                              merge_weights=merge_weights),
+                        log=lambda s: None)
+    box = plan(furnace_box(res=8)[0])
+    assert box.merging == box.merge_mis == mis
+    assert box.plan.frequency_photons == mis
+    if mis:
+        assert f"light tracing, power-heuristic MIS, {MERGING_MIS};" in box.plan_lines()[1]
+        assert "photon merging" not in dict(box.plan.left_out)
+    else:
+        assert dict(box.plan.left_out)["photon merging"] == ("no mirror or glass to see a "
+                                                             "caustic through")
+    flat = plan(point_light_plane(res=8)[0])
+    assert not flat.merging
+    assert dict(flat.plan.left_out)["photon merging"] == (
+        "no light reaches a surface indirectly (one plane, no mirror or glass)" if mis else
+        "no mirror or glass to see a caustic through")
+    mirror = plan(mirror_caustic(res=8)[0])
+    assert mirror.merging and mirror.merge_mis == mis
+    assert (MERGING_MIS if mis else MERGING) in mirror.plan.strategies

@@ -123,6 +123,25 @@ def connect(workers: Optional[int] = None, address: Optional[str] = None):
     return client
 
 
+#: What --workers / --cluster tell a COMBINED render whose merging weights
+#: they replace (``partition_fallback``).
+PARTITION_FALLBACK = ("FPPM: merging weights 'PARTITION' on Dask workers: merging as an MIS "
+                      "strategy gathers light tracing's deposits, which the workers' light "
+                      "paths do not return (docs/integrators.md).")
+
+
+def partition_fallback(a) -> bool:
+    """Set ``--merge-weights partition`` on the CLI arguments a of a
+    distributed render (merging as an MIS strategy needs every light path's
+    deposits in the driver, core.render ``_step_merge_mis``; the workers
+    return splat sums alone).  True when a's weights (given or the file's)
+    were not already 'partition': the caller logs PARTITION_FALLBACK for a
+    COMBINED render."""
+    given = getattr(a, "merge_weights", None)
+    a.merge_weights = "partition"
+    return given != "partition"
+
+
 def _worker_ignores_sigint():
     """A WorkerPlugin: a local worker ignores SIGINT.  Ctrl-C in a terminal
     reaches the whole process group; the driver cancels the render and closes
