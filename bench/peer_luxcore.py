@@ -331,6 +331,7 @@ def translate(scene) -> LuxScene:
     used = np.unique(scene.tri_mat)
     for m in used:
         lux.props.update(material_props(f"mat{m}", scene.materials[m]))
+        lux.props[f"scene.materials.mat{m}.id"] = [int(m)]
         sel = scene.tri_mat == m
         P = scene.tri_p[sel].reshape(-1, 3).astype(np.float32)
         N = scene.tri_n[sel].reshape(-1, 3).astype(np.float32)
@@ -383,7 +384,7 @@ def build_scene(pyluxcore, lux: LuxScene):
     sc = pyluxcore.Scene()
     for name, img in lux.images.items():
         h, w, c = img.shape
-        sc.DefineImageMap(name, np.ascontiguousarray(img, np.float32).ravel().tolist(), 1.0, c, w, h)
+        sc.DefineImageMap(name, np.ascontiguousarray(img, np.float32).ravel(), 1.0, c, w, h)
     for name, (P, F, N) in lux.meshes.items():
         sc.DefineMesh(name, [tuple(v) for v in P.tolist()], [tuple(f) for f in F.tolist()],
                       None if N is None else [tuple(n) for n in N.tolist()], None, None, None)
@@ -415,7 +416,8 @@ def render_here(lux: LuxScene, engine: str, seed: int, cpu_budget: float,
         cfg.Set(pyluxcore.Property(k, v))
     for j, name in enumerate(outputs[1:], start=1):
         cfg.Set(pyluxcore.Property(f"film.outputs.{j}.type", name))
-        cfg.Set(pyluxcore.Property(f"film.outputs.{j}.filename", f"{name}.exr"))
+        ext = "png" if name.endswith("_ID") else "exr"    # LuxCore's rule for ID outputs
+        cfg.Set(pyluxcore.Property(f"film.outputs.{j}.filename", f"{name}.{ext}"))
     session = pyluxcore.RenderSession(pyluxcore.RenderConfig(cfg, build_scene(pyluxcore, lux)))
     session.Start()
     while cpu_self() < cpu_budget and not session.HasDone():
@@ -428,10 +430,11 @@ def render_here(lux: LuxScene, engine: str, seed: int, cpu_budget: float,
     out = {"spp": spp, "cpu": cpu_self(), "wall": time.perf_counter() - w0}
     for name in outputs:
         kind = getattr(pyluxcore.FilmOutputType, name)
-        buf = np.zeros((H, W, film.GetOutputSize(kind) // (W * H)), np.float32)
-        film.GetOutputFloat(kind, buf)
+        ids = name in ("MATERIAL_ID", "OBJECT_ID")
+        buf = np.zeros((H, W, film.GetOutputSize(kind) // (W * H)), np.uint32 if ids else np.float32)
+        (film.GetOutputUInt if ids else film.GetOutputFloat)(kind, buf)
         # LuxCore's film rows run from the bottom (raster y up); FPPM's from the top.
-        out["img" if name == "RGB" else name] = buf[::-1].astype(np.float64)
+        out["img" if name == "RGB" else name] = buf[::-1] if ids else buf[::-1].astype(np.float64)
     return out
 
 
