@@ -261,6 +261,9 @@ def light_props(i: int, lt, lux: LuxScene) -> None:
     S = np.asarray(lt.strength, np.float64)
     if not lt.cast_shadow:
         raise Unsupported(f"light '{lt.name}': shadows off")
+    if lt.kind in ("POINT", "SPOT") and lt.radius > 0 and lt.visible_camera:
+        raise Unsupported(f"light '{lt.name}': a {lt.kind.lower()} with a radius seen by the "
+                          f"camera (LuxCore's sphere lights are not)")
     pos = list(map(float, np.asarray(lt.matrix_world)[:3, 3]))
     if lt.kind == "POINT":
         if lt.radius > 0:
@@ -312,9 +315,6 @@ def light_props(i: int, lt, lux: LuxScene) -> None:
                           f"{op}.camerainvisible": [not lt.visible_camera]})
     else:
         raise Unsupported(f"light '{lt.name}' of kind {lt.kind}")
-    if lt.kind != "AREA" and lt.visible_camera and lt.radius > 0:
-        lux.props.setdefault("_notes", []).append(
-            f"light '{lt.name}': seen directly by the camera in Cycles, not in LuxCore")
 
 
 def translate(scene) -> LuxScene:
@@ -390,8 +390,7 @@ def build_scene(pyluxcore, lux: LuxScene):
                       None if N is None else [tuple(n) for n in N.tolist()], None, None, None)
     props = pyluxcore.Properties()
     for k, v in lux.props.items():
-        if not k.startswith("_"):
-            props.Set(pyluxcore.Property(k, v))
+        props.Set(pyluxcore.Property(k, v))
     sc.Parse(props)
     return sc
 
