@@ -56,6 +56,7 @@ import resource
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -418,7 +419,18 @@ def render_here(lux: LuxScene, engine: str, seed: int, cpu_budget: float,
         ext = "png" if name.endswith("_ID") else "exr"    # LuxCore's rule for ID outputs
         cfg.Set(pyluxcore.Property(f"film.outputs.{j}.filename", f"{name}.{ext}"))
     session = pyluxcore.RenderSession(pyluxcore.RenderConfig(cfg, build_scene(pyluxcore, lux)))
+    started = threading.Event()
+
+    def watchdog():
+        # Start() builds the photon caches before it returns: with no caustic
+        # path in the scene the caustic cache traces photons for ever.
+        while not started.wait(0.1):
+            if cpu_self() > 2 * cpu_budget + 10:
+                print(f"LuxCore did not start within {cpu_self():.0f} CPU s", file=sys.stderr)
+                os._exit(3)
+    threading.Thread(target=watchdog, daemon=True).start()
     session.Start()
+    started.set()
     while cpu_self() < cpu_budget and not session.HasDone():
         time.sleep(0.02)
         session.UpdateStats()
@@ -532,6 +544,9 @@ def cmd_compare(argv) -> None:
     lux_runs = _arg(argv, "--lux", "lux_pathlt,lux_bidirvm,lux_caustic").split(",")
     fppm_runs = _arg(argv, "--fppm", ",".join(FPPM_RUNS)).split(",")
     lux = translate(load_scene(blend, pct))
+    if "lux_caustic" in lux_runs and not any(v in (["mirror"], ["glass"]) for v in lux.props.values()):
+        lux_runs.remove("lux_caustic")
+        print("SKIP lux_caustic: no mirror or glass, so no caustic for the cache", flush=True)
     ref = reference(blend, pct)
     sys.path.insert(0, os.path.join(ROOT, "bench"))
     from measure_cpu import render_cpu
