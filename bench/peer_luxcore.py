@@ -71,12 +71,16 @@ if __name__ == "__main__" and sys.argv[1:2] != ["--child"]:
 INSTALL_HINT = ("pyluxcore is not installed: run `make bench-deps` (or "
                 "`.venv/bin/python -m pip install pyluxcore`); it is a benchmark-only dependency.")
 
-#: LuxCore engines compared, by the name used on the command line.
+#: LuxCore engines by the name used on the command line: the three of
+#: ``compare`` (path + light tracing, VCM, caustic cache), then plain path
+#: tracing, light tracing and BDPT for ``units`` (docs/peers.md "Units").
 ENGINES = {
     "lux_pathlt": {"renderengine.type": "PATHCPU", "path.hybridbackforward.enable": True},
     "lux_bidirvm": {"renderengine.type": "BIDIRVMCPU"},
     "lux_caustic": {"renderengine.type": "PATHCPU", "path.photongi.caustic.enabled": True},
     "lux_path": {"renderengine.type": "PATHCPU"},
+    "lux_light": {"renderengine.type": "LIGHTCPU"},
+    "lux_bidir": {"renderengine.type": "BIDIRCPU"},
 }
 #: Blender's max_bounces of the example scenes (16) as LuxCore depths: LuxCore
 #: counts the camera ray's vertex as depth 1, so 16 bounces = depth 17.
