@@ -446,7 +446,8 @@ def render_here(lux: LuxScene, engine: str, seed: int, cpu_budget: float,
     for name in outputs:
         kind = getattr(pyluxcore.FilmOutputType, name)
         ids = name in ("MATERIAL_ID", "OBJECT_ID")
-        buf = np.zeros((H, W, film.GetOutputSize(kind) // (W * H)), np.uint32 if ids else np.float32)
+        buf = np.zeros((H, W, film.GetOutputSize(kind) // (W * H)),
+                       np.uint32 if ids else np.float32)
         (film.GetOutputUInt if ids else film.GetOutputFloat)(kind, buf)
         # LuxCore's film rows run from the bottom (raster y up); FPPM's from the top.
         out["img" if name == "RGB" else name] = buf[::-1] if ids else buf[::-1].astype(np.float64)
@@ -544,11 +545,13 @@ def cmd_compare(argv) -> None:
     """relMSE of LuxCore's engines and FPPM's integrators at equal CPU time."""
     from fppm.tools.metrics import relmse
     blend = argv[0]
-    pct, budget, seeds = _arg(argv, "--pct", 50), _arg(argv, "--budget", 30.0), _arg(argv, "--seeds", 2)
+    pct, budget = _arg(argv, "--pct", 50), _arg(argv, "--budget", 30.0)
+    seeds = _arg(argv, "--seeds", 2)
     lux_runs = _arg(argv, "--lux", "lux_pathlt,lux_bidirvm,lux_caustic").split(",")
     fppm_runs = _arg(argv, "--fppm", ",".join(FPPM_RUNS)).split(",")
     lux = translate(load_scene(blend, pct))
-    if "lux_caustic" in lux_runs and not any(v in (["mirror"], ["glass"]) for v in lux.props.values()):
+    specular = any(v in (["mirror"], ["glass"]) for v in lux.props.values())
+    if "lux_caustic" in lux_runs and not specular:
         lux_runs.remove("lux_caustic")
         print("SKIP lux_caustic: no mirror or glass, so no caustic for the cache", flush=True)
     ref = reference(blend, pct)

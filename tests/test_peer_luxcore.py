@@ -11,13 +11,18 @@ import sys
 import numpy as np
 import pytest
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "bench"))
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "bench"))
 import peer_luxcore as P  # noqa: E402
 from fppm.core.lights.table import _spot_solid_angle  # noqa: E402
 from fppm.core.scene.camera import CameraModel, FilterSampler  # noqa: E402
-from fppm.core.scene.model import Camera, Light, Material, make_scene  # noqa: E402
+from fppm.core.scene.model import DIFFUSE, Camera, Light, Lobe, Material, make_scene  # noqa: E402
 
 needs_lux = pytest.mark.skipif(not P.have_pyluxcore(), reason=P.INSTALL_HINT)
+
+
+def lambert(rho):
+    return Lobe(DIFFUSE, color=(rho, rho, rho))
 
 
 def _look_down(pos, resolution, **kw):
@@ -65,7 +70,8 @@ def _floor_cells(n=8, half=2.0):
     for j in range(n):
         for i in range(n):
             x0, x1, y0, y1 = edges[i], edges[i + 1], edges[j], edges[j + 1]
-            tris += [[(x0, y0, 0), (x1, y0, 0), (x1, y1, 0)], [(x0, y0, 0), (x1, y1, 0), (x0, y1, 0)]]
+            tris += [[(x0, y0, 0), (x1, y0, 0), (x1, y1, 0)],
+                     [(x0, y0, 0), (x1, y1, 0), (x0, y1, 0)]]
             mats += [j * n + i] * 2
     return tris, mats, edges
 
@@ -93,7 +99,7 @@ def test_camera_and_point_light_match():
                      shift_x=0.08, shift_y=-0.05)
     L = np.eye(4)
     L[:3, 3] = (0.3, 0.2, 1.0)
-    materials = [Material(f"c{i}", lobes=(P_lobe(rho),)) for i in range(n * n)]
+    materials = [Material(f"c{i}", lobes=(lambert(rho),)) for i in range(n * n)]
     sc = make_scene(tris, materials, [Light("p", "POINT", (power,) * 3, L)], cam, tri_mat=mats)
     out = P.render_luxcore(P.translate(sc), "lux_path", 0, 60.0, outputs=("RGB", "MATERIAL_ID"),
                            extra={"batch.haltspp": 16, "film.filter.type": "NONE"})
@@ -120,11 +126,6 @@ def test_camera_and_point_light_match():
     assert np.all(np.abs(ratio - 1) < 2.5e-2)
 
 
-def P_lobe(rho):
-    from fppm.core.scene.model import DIFFUSE, Lobe
-    return Lobe(DIFFUSE, color=(rho, rho, rho))
-
-
 @needs_lux
 def test_spot_light_matches_cycles_cone():
     """A spot (LuxCore mappoint with the smoothstep map) aimed down at the
@@ -138,7 +139,7 @@ def test_spot_light_matches_cycles_cone():
     L[1:3, 1:3] = [[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]
     L[:3, 3] = (0.1, -0.3, 1.5)
     tri = [[(-5, -5, 0), (5, -5, 0), (5, 5, 0)], [(-5, -5, 0), (5, 5, 0), (-5, 5, 0)]]
-    sc = make_scene(tri, [Material("f", lobes=(P_lobe(rho),))],
+    sc = make_scene(tri, [Material("f", lobes=(lambert(rho),))],
                     [Light("s", "SPOT", (power,) * 3, L, spot_size=size, spot_blend=blend)], cam)
     out = P.render_luxcore(P.translate(sc), "lux_path", 0, 60.0,
                            extra={"batch.haltspp": 64, "film.filter.type": "NONE"})
