@@ -6,6 +6,7 @@
 #   make test       run the test suite (pytest -q tests/)
 #   make extension  download the wheels and build + validate the Blender extension zips in dist/
 #   make bench      run the benchmark scripts in bench/
+#   make bench-deps install the benchmark-only peers (pyluxcore: bench/peer_luxcore.py)
 #   make clean      remove build outputs (not .venv)
 
 SHELL := /bin/bash
@@ -42,7 +43,7 @@ DEMO_OUT    := out/cornell.exr
 DEMO_FLAGS  ?= --time-limit 60
 EXAMPLES_GENERATOR := $(firstword $(wildcard example_blends/make_*.py example_blends/generate*.py))
 
-.PHONY: help venv demo test extension wheels bench clean
+.PHONY: help venv demo test extension wheels bench bench-deps clean
 
 help:
 	@sed -n 's/^#   //p' Makefile
@@ -106,6 +107,12 @@ extension: wheels
 # --- benchmarks -------------------------------------------------------------
 bench: $(STAMP)
 	@for b in bench/bench_*.py; do echo "== $$b"; $(PY) "$$b"; done
+
+# LuxCoreRender's Python module, a peer compared at benchmark time only
+# (bench/peer_luxcore.py, docs/peers.md): never in the extension or `make test`.
+PYLUXCORE_VERSION := 2.11.2
+bench-deps: $(STAMP)
+	$(PY) -m pip install --quiet pyluxcore==$(PYLUXCORE_VERSION)
 
 clean:
 	rm -rf dist out build fppm.egg-info .pytest_cache
