@@ -254,6 +254,11 @@ class PhotonPass:
             else:
                 self._trace_gather(pg, n, n_freq, rng, acc)
         self._drop_ahead()
+        if self.frequency and not self.chunk_streams:
+            # the next pass marches only the deposits these visible points
+            # can gather (the same map with or without trace-ahead; not
+            # with chunk_streams, whose chunks other processes trace)
+            self.tracer.set_reach(vp.p, vp.valid, R2)
         return self.finish(vp, acc)
 
     def trace_ahead(self, rng: np.random.Generator) -> None:
