@@ -327,6 +327,54 @@ def blend_report(a):
           f"{budget / best[True]:.0f} passes to PPM's {budget / best[False]:.0f}")
 
 
+def blend_tracer_report(a):
+    """``--blend`` with ``--frequency``: the tracer of the .blend's scene (at
+    ``--blend-res``, exported as ``fppm render`` does), after two passes of
+    a renderer (so that the reach map of PhotonTracer.set_reach exists):
+    CPU seconds of tracing PHOTON_CHUNK frequency photons against as many
+    classic ones, with the reach map, without it, and without the march;
+    best of ``--repeat``, interleaved."""
+    import fppm_alias  # noqa: F401  (fppm.* importable)
+    import bpy
+    import bpy_helpers
+    bpy_helpers.ensure_registered()
+    from fppm.addon.export import export_scene
+    from fppm.addon.properties import settings_from_scene
+    from fppm.core.render import Renderer as FR
+    bpy.ops.wm.open_mainfile(filepath=os.path.abspath(a.blend), load_ui=False,
+                             use_scripts=False)
+    sc = bpy.context.scene
+    sc.render.resolution_x = sc.render.resolution_y = a.blend_res
+    sc.render.resolution_percentage = 100
+    scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
+    st = settings_from_scene(sc).replace(integrator="PHOTON", time_limit=0.0, max_passes=100,
+                                         frequency_decay=0.0)
+    r = FR(scene, st, log=lambda s: None)
+    r.step()
+    r.step()
+    tr = r.tracer
+    reach, occlusion = tr.reach, tr.occlusion
+    n = Ph_chunk()
+
+    def cpu(n_freq, seed):
+        c0 = time.process_time()
+        tr.trace(n, n_freq, np.random.default_rng(seed))
+        return time.process_time() - c0
+    best = {"gated": np.inf, "every deposit marched": np.inf, "no march": np.inf}
+    for k in range(a.repeat):
+        c = cpu(0, 100 + k)
+        for key in best:
+            tr.reach = reach if key == "gated" else None
+            tr.occlusion = 0 if key == "no march" else occlusion
+            best[key] = min(best[key], cpu(n, 100 + k) / c)
+        tr.reach, tr.occlusion = reach, occlusion
+    share = float(np.mean(reach)) if reach is not None else float("nan")
+    print(f"{os.path.basename(a.blend)} at {a.blend_res}^2, tracer, {n} photons, best of "
+          f"{a.repeat}: frequency / classic photon " + ", ".join(
+              f"{k} {v:.2f}x" for k, v in best.items())
+          + f" (reach map: {share:.0%} of the voxels)")
+
+
 def raw_cpu(raw, rays):
     """(wall, CPU) seconds of the bare Embree call on `rays` rays."""
     c0 = time.process_time()
@@ -372,6 +420,8 @@ def main(argv=None):
     a = ap.parse_args(argv)
     if a.blend:
         blend_report(a)
+        if a.frequency:
+            blend_tracer_report(a)
         return 0
     if a.paths:
         paths_report(a)
