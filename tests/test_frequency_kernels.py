@@ -378,7 +378,7 @@ def test_reach_map_covers_every_gather_sphere():
 def test_unreached_deposits_predict_zero_and_first_deposits_match():
     """``PhotonTracer.set_reach`` / ``kernels.gate_unreached``: with a reach
     map covering half the Cornell box, deposits in unmarked voxels are not
-    marched and predict radius 0 (<= the full march's radius: the
+    marched and predict the radius floor (<= the full march's radius: the
     conservative side), while the first deposit of every photon in a marked
     voxel (no gated segment before it) keeps the ungated radius bit for bit
     (same stream, same paths)."""
@@ -396,5 +396,38 @@ def test_unreached_deposits_predict_zero_and_first_deposits_match():
     inside = reach[idx[:, 0], idx[:, 1], idx[:, 2]] == 1
     first = a["bounce"] == a["bounce"].min()
     assert (~inside).sum() > 500 and (inside & first).sum() > 500
-    assert np.all(rb[~inside] == 0.0) and np.all(rb[~inside] <= ra[~inside])
+    floor = trs[1].chain_params().r_gated
+    assert 0.0 < floor < 1e-6
+    assert np.all(rb[~inside] == floor)
+    assert np.all(rb[~inside] <= np.maximum(ra[~inside], floor))
     np.testing.assert_array_equal(rb[inside & first], ra[inside & first])
+
+
+def test_reach_map_gates_hidden_surfaces_and_resumes_bit_for_bit(monkeypatch, tmp_path):
+    """The reach map of a render (PhotonPass.keep_reach_source ->
+    trace_ahead -> PhotonTracer.set_reach): with a narrow camera that sees
+    the middle of the back wall only, most of the box's deposits fall in
+    unmarked voxels; a render resumed from a checkpoint after pass 2
+    (Renderer.load_state rebuilds the last pass's visible points) gives the
+    uninterrupted render's image bit for bit."""
+    from core.io import checkpoint
+    from core.scene.model import Camera
+    M = np.array([[1, 0, 0, 0], [0, 0, -1, -1.9], [0, 1, 0, 0.5], [0, 0, 0, 1]], float)
+    monkeypatch.setattr(TPK, "_camera", lambda: Camera(
+        kind="PERSP", matrix_world=M, lens=200.0, sensor_width=36.0, resolution=(16, 16),
+        clip_start=0.01, clip_end=100.0))
+    sc = TPK.cornell()
+    st = RenderSettings(integrator="PHOTON", max_passes=4, photons_per_pass=4000, seed=3,
+                        use_frequency=True, frequency_decay=0.0)
+    full = Renderer(sc, st, log=lambda s: None).run()
+    a = Renderer(sc, st.replace(max_passes=2), log=lambda s: None)
+    a.run()
+    reach, m = a.tracer.reach, a.tracer.march
+    assert reach is not None
+    dep = a.tracer.trace(3000, 3000, np.random.default_rng(1))
+    idx = np.clip(np.floor((dep["p"] - m.lo) / m.cell).astype(int), 0, m.res - 1)
+    assert np.mean(reach[idx[:, 0], idx[:, 1], idx[:, 2]] == 0) > 0.5
+    checkpoint.save(str(tmp_path), a.state_dict())
+    b = Renderer(sc, st, log=lambda s: None)
+    b.load_state(checkpoint.load(str(tmp_path), Renderer.STATE_KEYS))
+    assert np.array_equal(b.run().image, full.image)

@@ -331,8 +331,8 @@ def gate_unreached(rows, rec, dep, seg, m, reach, used, unreached):
     the voxels within a visible point's radius, plus a voxel), and used is
     cleared for them unless the ray continues through a delta lobe (whose
     spectrum reaches the next deposit unblurred).  Such a segment is not
-    marched; its deposit's radius is set to 0 by the caller (the
-    conservative value should a visible point gather it after all)."""
+    marched; the caller sets its deposit's radius to ChainParams.r_gated
+    (the conservative value should a visible point gather it after all)."""
     K = rows.K
     delta = np.zeros(K, np.bool_)
     for j in range(rows.n_next):
@@ -411,7 +411,9 @@ class ChainParams(NamedTuple):
     tell from infinity (the largest pixel radius), inf = none: the march
     ignores the occluders that cannot bring a deposit's radius below it
     (:func:`radius_cut`; CORRECTED only); gate: the reach map passed to
-    :func:`spectrum_at_hits` applies (:func:`gate_unreached`)."""
+    :func:`spectrum_at_hits` applies (:func:`gate_unreached`); r_gated [m]:
+    the radius an unmarched deposit of a gated pass predicts (a positive
+    radius below any pixel's: the radius floor)."""
     paper: bool
     D: float
     A_MAX: float
@@ -419,6 +421,7 @@ class ChainParams(NamedTuple):
     march_all: bool = False
     r_cut: float = np.inf
     gate: bool = False
+    r_gated: float = 0.0
 
 
 class Segments(NamedTuple):
@@ -496,7 +499,7 @@ def _kernels(token):
         Deposits dep0..dep1-1: dep.spec[k] = out[dep.src[k]] and dep.r[k] =
         its predicted radius for a diffuse receiver.  reach (R, R, R) uint8
         on the march grid, read when chain.gate (and chain.occlusion == 1):
-        deposits in its 0 voxels are not marched and get r = 0
+        deposits in its 0 voxels are not marched and get r = chain.r_gated
         (:func:`gate_unreached`).
         Returns (out (K, 3) float64, rows of other rays unset; the number
         of segments marched).
@@ -558,7 +561,7 @@ def _kernels(token):
             dep.spec[k, 2] = c
             dep.r[k] = predicted_radius(a, b, c, np.inf, np.inf, paper)
             if gated and unreached[i] and not used[i]:
-                dep.r[k] = 0.0
+                dep.r[k] = chain.r_gated
         return out, n_march
 
 

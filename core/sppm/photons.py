@@ -41,6 +41,7 @@ from . import photon_kernels as PK
 from ..accel import _COUNT_LOCK, REL_OFFSET, intersect_f32
 from ..kept import _ALONE, _refcounts
 from ..scene.model import Scene
+from .update import R_FLOOR_REL
 
 from ..mathutil import LUMINANCE as LUM, dot as _dot  # noqa: E402
 #: Batches of at least this many photons are traced as two halves (see trace).
@@ -459,23 +460,27 @@ class PhotonTracer:
         """The frequency model of this render, for the compiled chains."""
         return FK.ChainParams(paper=self.settings.frequency_model == "PAPER", D=float(self.D),
                               A_MAX=float(self.D * self.D), occlusion=self.occlusion,
-                              r_cut=float(self.radius_cut), gate=self.reach is not None)
+                              r_cut=float(self.radius_cut), gate=self.reach is not None,
+                              r_gated=R_FLOOR_REL * float(self.D))
 
     _NO_REACH = np.ones((1, 1, 1), np.uint8)
 
     def set_reach(self, p, valid, R2):
-        """After a pass: the reach map of its visible points p (P, 3) [m],
-        valid (P,) bool, squared radii R2 (P,) for the next pass's
-        frequency photons (docs/frequency.md "Cost", "Deposits no pixel
+        """Before a pass (PhotonPass.trace_ahead): the reach map of the last
+        pass's visible points p (P, 3) [m], valid (P,) bool, squared radii
+        R2 (P,) (after its update) for this pass's frequency photons (docs/frequency.md "Cost", "Deposits no pixel
         reads"): a deposit in a voxel no visible point's sphere (plus a
-        voxel) touches is not marched, and predicts r = 0.  None (every
-        deposit marched) under the exact conditions of set_radius_cut, and
-        without a marched grid."""
+        voxel) touches is not marched, and predicts the radius floor
+        (R_FLOOR_REL D: no hold).  None (every deposit marched) under the
+        exact conditions of set_radius_cut, without a marched grid, for
+        the PAPER model and for photon merging (after_delta_only)."""
         st = self.settings
         R2 = np.asarray(R2)
         ok = np.asarray(valid, bool) & (R2 > 0)
         if (self.occlusion != 1 or st.aov_predicted_radius or st.aov_spectrum
-                or st.radius_rule != "PPM" or not np.isfinite(R2[ok]).all()):
+                or st.radius_rule != "PPM" or self.after_delta_only
+                or st.frequency_model == "PAPER"
+                or not np.isfinite(R2[ok]).all()):
             self.reach = None
             return
         m = self.march
