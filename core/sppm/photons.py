@@ -468,9 +468,10 @@ class PhotonTracer:
     def set_reach(self, p, valid, R2):
         """Before a pass (PhotonPass.trace_ahead): the reach map of the last
         pass's visible points p (P, 3) [m], valid (P,) bool, squared radii
-        R2 (P,) (after its update) for this pass's frequency photons (docs/frequency.md "Cost", "Deposits no pixel
-        reads"): a deposit in a voxel no visible point's sphere (plus a
-        voxel) touches is not marched, and predicts the radius floor
+        R2 (P,) (after its update) for this pass's frequency photons
+        (docs/frequency.md "Cost", "Deposits no pixel reads"): a deposit
+        in a voxel no visible point's sphere (plus a voxel) touches is not
+        marched, and predicts the radius floor
         (R_FLOOR_REL D: no hold).  None (every deposit marched) under the
         exact conditions of set_radius_cut, without a marched grid, for
         the PAPER model and for photon merging (after_delta_only)."""
