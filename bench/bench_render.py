@@ -204,7 +204,7 @@ def make_renderer(scene, a, use_frequency, tm, before=False):
     """before: frequency photons as before core.frequency.kernels (numpy
     chains, dense march)."""
     st = RenderSettings(integrator="PHOTON", max_passes=1000, photons_per_pass=a.photons,
-                        use_frequency=use_frequency,
+                        use_frequency=use_frequency, frequency_decay=a.decay,
                         max_bounces=a.bounces or RenderSettings().max_bounces)
     r = Renderer(scene, st, log=lambda s: None)
     if a.numpy:
@@ -247,6 +247,8 @@ def frequency_report(r, rb, r0, tm, a):
     for _ in range(a.repeat):
         d0, _ = photon_pass(r0, tm)
         for key, rr in (("after", r), ("before", rb)):
+            if rr is None:
+                continue
             d, _ = photon_pass(rr, tm)
             pp[key].append((d["trace_cpu"] + d["gather_cpu"])
                            / (d0["trace_cpu"] + d0["gather_cpu"]) - 1)
@@ -258,6 +260,8 @@ def frequency_report(r, rb, r0, tm, a):
     for k in range(a.repeat):
         tc, _ = trace_seconds(r0, tm, n, 0, 100 + k)
         for key, rr in (("after", r), ("before", rb), ("no march", r)):
+            if rr is None:
+                continue
             # "no march": the compiled chains without the occlusion step (the
             # march's share of "after" is the difference)
             tr.occlusion = 0 if key == "no march" else occlusion
@@ -266,10 +270,17 @@ def frequency_report(r, rb, r0, tm, a):
             if key == "before":
                 march_b.append(m / tc)
         tr.occlusion = occlusion
-    print(f"frequency ({r.settings.frequency_fraction:.0%} frequency photons, CPU time of all "
+    print(f"frequency ({r.settings.frequency_fraction:.0%} frequency photons x pass^-"
+          f"{r.settings.frequency_decay:g}, CPU time of all "
           f"threads, best of {a.repeat}; "
           f"all values: {[f'{x:+.0%}' for x in pp['after']]} after, "
           f"{[f'{x:+.0%}' for x in pp['before']]} before)")
+    if rb is None:
+        print(f"  whole photon pass vs none: {min(pp['after']):+.0%}")
+        print(f"  per-photon tracing cost, frequency / classic photon: "
+              f"{min(cost['after']):.2f}x (without the march {min(cost['no march']):.2f}x); "
+              f"all: {[round(x, 2) for x in cost['after']]}")
+        return
     print(f"  whole photon pass vs none: after {min(pp['after']):+.0%}, "
           f"before {min(pp['before']):+.0%}")
     print(f"  per-photon tracing cost, frequency / classic photon: after "
@@ -316,6 +327,54 @@ def blend_report(a):
           f"{budget / best[True]:.0f} passes to PPM's {budget / best[False]:.0f}")
 
 
+def blend_tracer_report(a):
+    """``--blend`` with ``--frequency``: the tracer of the .blend's scene (at
+    ``--blend-res``, exported as ``fppm render`` does), after two passes of
+    a renderer (so that the reach map of PhotonTracer.set_reach exists):
+    CPU seconds of tracing PHOTON_CHUNK frequency photons against as many
+    classic ones, with the reach map, without it, and without the march;
+    best of ``--repeat``, interleaved."""
+    import fppm_alias  # noqa: F401  (fppm.* importable)
+    import bpy
+    import bpy_helpers
+    bpy_helpers.ensure_registered()
+    from fppm.addon.export import export_scene
+    from fppm.addon.properties import settings_from_scene
+    from fppm.core.render import Renderer as FR
+    bpy.ops.wm.open_mainfile(filepath=os.path.abspath(a.blend), load_ui=False,
+                             use_scripts=False)
+    sc = bpy.context.scene
+    sc.render.resolution_x = sc.render.resolution_y = a.blend_res
+    sc.render.resolution_percentage = 100
+    scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
+    st = settings_from_scene(sc).replace(integrator="PHOTON", time_limit=0.0, max_passes=100,
+                                         frequency_decay=0.0)
+    r = FR(scene, st, log=lambda s: None)
+    r.step()
+    r.step()
+    tr = r.tracer
+    reach, occlusion = tr.reach, tr.occlusion
+    n = Ph_chunk()
+
+    def cpu(n_freq, seed):
+        c0 = time.process_time()
+        tr.trace(n, n_freq, np.random.default_rng(seed))
+        return time.process_time() - c0
+    best = {"gated": np.inf, "every deposit marched": np.inf, "no march": np.inf}
+    for k in range(a.repeat):
+        c = cpu(0, 100 + k)
+        for key in best:
+            tr.reach = reach if key == "gated" else None
+            tr.occlusion = 0 if key == "no march" else occlusion
+            best[key] = min(best[key], cpu(n, 100 + k) / c)
+        tr.reach, tr.occlusion = reach, occlusion
+    share = float(np.mean(reach)) if reach is not None else float("nan")
+    print(f"{os.path.basename(a.blend)} at {a.blend_res}^2, tracer, {n} photons, best of "
+          f"{a.repeat}: frequency / classic photon " + ", ".join(
+              f"{k} {v:.2f}x" for k, v in best.items())
+          + f" (reach map: {share:.0%} of the voxels)")
+
+
 def raw_cpu(raw, rays):
     """(wall, CPU) seconds of the bare Embree call on `rays` rays."""
     c0 = time.process_time()
@@ -332,6 +391,13 @@ def main(argv=None):
     ap.add_argument("--bounces", type=int, default=0,
                     help="max_bounces (default: RenderSettings' default, 16)")
     ap.add_argument("--numpy", action="store_true", help="the numpy reference tracer")
+    ap.add_argument("--decay", type=float, default=0.0,
+                    help="frequency_decay of the renderers (default 0: every pass traces 25%% "
+                         "frequency photons, the target's measure; the render default 0.5 "
+                         "traces 25%% x k^-0.5 in pass k)")
+    ap.add_argument("--no-numpy", action="store_true",
+                    help="with --frequency: leave out the numpy-chain 'before' renderer "
+                         "(compare two source trees by running this script in each)")
     ap.add_argument("--repeat", type=int, default=3,
                     help="interleaved repeats of the frequency measurements (best of)")
     ap.add_argument("--stages", action="store_true",
@@ -354,6 +420,8 @@ def main(argv=None):
     a = ap.parse_args(argv)
     if a.blend:
         blend_report(a)
+        if a.frequency:
+            blend_tracer_report(a)
         return 0
     if a.paths:
         paths_report(a)
@@ -378,7 +446,8 @@ def main(argv=None):
     tm = Timers()
     r = make_renderer(scene, a, a.frequency, tm)
     r0 = make_renderer(scene, a, False, tm) if a.frequency else None
-    rb = make_renderer(scene, a, True, tm, before=True) if a.frequency else None
+    rb = (make_renderer(scene, a, True, tm, before=True)
+          if a.frequency and not a.no_numpy else None)
     raw = RawRays(r.accel, 4 * a.photons)
     PK.sample_photons_fast(r.light_table, 1000, np.random.default_rng(0))   # compile
     per_pass = []       # (pass wall / raw wall, pass CPU / raw CPU)

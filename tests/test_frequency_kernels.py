@@ -354,3 +354,80 @@ def test_tracer_with_radius_cut_matches_numpy_chains():
     b = oracle_photons.use_numpy_chains(trs[1]).trace(3000, 3000, np.random.default_rng(5))
     for key in a:
         _same(np.asarray(a[key], np.float64), np.asarray(b[key], np.float64))
+
+
+# ------------------------------------------------------------ 5. deposits no pixel reads
+def test_reach_map_covers_every_gather_sphere():
+    """``kernels.mark_reach``: every point within a visible point's radius
+    lies in a marked voxel (random points, radii and offsets), and the map
+    leaves most of the grid unmarked (it is not trivially full)."""
+    rng = np.random.default_rng(4)
+    R, lo, cell = 32, np.array([-1.0, -0.5, 0.0]), np.array([0.05, 0.04, 0.06])
+    p = lo + rng.random((200, 3)) * R * cell
+    r = rng.uniform(0.0, 0.08, 200)
+    out = np.zeros((R, R, R), np.uint8)
+    FK.mark_reach(p, r, lo, cell, R, out)
+    u = rng.normal(size=(200, 50, 3))
+    u *= (r[:, None] * rng.random((200, 50)) ** (1 / 3) / np.linalg.norm(u, axis=2))[..., None]
+    q = (p[:, None, :] + u).reshape(-1, 3)
+    idx = np.clip(np.floor((q - lo) / cell).astype(int), 0, R - 1)
+    assert out[idx[:, 0], idx[:, 1], idx[:, 2]].all()
+    assert out.mean() < 0.5
+
+
+def test_unreached_deposits_predict_zero_and_first_deposits_match():
+    """``PhotonTracer.set_reach`` / ``kernels.gate_unreached``: with a reach
+    map covering half the Cornell box, deposits in unmarked voxels are not
+    marched and predict the radius floor (<= the full march's radius: the
+    conservative side), while the first deposit of every photon in a marked
+    voxel (no gated segment before it) keeps the ungated radius bit for bit
+    (same stream, same paths)."""
+    trs = [_tracer(TPK.cornell(), "CORRECTED") for _ in range(2)]
+    m = trs[1].march
+    reach = np.zeros((m.res, m.res, m.res), np.uint8)
+    reach[: m.res // 2] = 1
+    trs[1].reach = reach
+    a = trs[0].trace(3000, 3000, np.random.default_rng(6))
+    b = trs[1].trace(3000, 3000, np.random.default_rng(6))
+    np.testing.assert_array_equal(a["p"], b["p"])
+    ra = F.radius_from_fold_key(a["rpred"], "CORRECTED")
+    rb = F.radius_from_fold_key(b["rpred"], "CORRECTED")
+    idx = np.clip(np.floor((a["p"] - m.lo) / m.cell).astype(int), 0, m.res - 1)
+    inside = reach[idx[:, 0], idx[:, 1], idx[:, 2]] == 1
+    first = a["bounce"] == a["bounce"].min()
+    assert (~inside).sum() > 500 and (inside & first).sum() > 500
+    floor = trs[1].chain_params().r_gated
+    assert 0.0 < floor < 1e-6
+    assert np.all(rb[~inside] == floor)
+    assert np.all(rb[~inside] <= np.maximum(ra[~inside], floor))
+    np.testing.assert_array_equal(rb[inside & first], ra[inside & first])
+
+
+def test_reach_map_gates_hidden_surfaces_and_resumes_bit_for_bit(monkeypatch, tmp_path):
+    """The reach map of a render (PhotonPass.keep_reach_source ->
+    trace_ahead -> PhotonTracer.set_reach): with a narrow camera that sees
+    the middle of the back wall only, most of the box's deposits fall in
+    unmarked voxels; a render resumed from a checkpoint after pass 2
+    (Renderer.load_state rebuilds the last pass's visible points) gives the
+    uninterrupted render's image bit for bit."""
+    from core.io import checkpoint
+    from core.scene.model import Camera
+    M = np.array([[1, 0, 0, 0], [0, 0, -1, -1.9], [0, 1, 0, 0.5], [0, 0, 0, 1]], float)
+    monkeypatch.setattr(TPK, "_camera", lambda: Camera(
+        kind="PERSP", matrix_world=M, lens=200.0, sensor_width=36.0, resolution=(16, 16),
+        clip_start=0.01, clip_end=100.0))
+    sc = TPK.cornell()
+    st = RenderSettings(integrator="PHOTON", max_passes=4, photons_per_pass=4000, seed=3,
+                        use_frequency=True, frequency_decay=0.0)
+    full = Renderer(sc, st, log=lambda s: None).run()
+    a = Renderer(sc, st.replace(max_passes=2), log=lambda s: None)
+    a.run()
+    reach, m = a.tracer.reach, a.tracer.march
+    assert reach is not None
+    dep = a.tracer.trace(3000, 3000, np.random.default_rng(1))
+    idx = np.clip(np.floor((dep["p"] - m.lo) / m.cell).astype(int), 0, m.res - 1)
+    assert np.mean(reach[idx[:, 0], idx[:, 1], idx[:, 2]] == 0) > 0.5
+    checkpoint.save(str(tmp_path), a.state_dict())
+    b = Renderer(sc, st, log=lambda s: None)
+    b.load_state(checkpoint.load(str(tmp_path), Renderer.STATE_KEYS))
+    assert np.array_equal(b.run().image, full.image)

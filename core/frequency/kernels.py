@@ -323,6 +323,59 @@ def marked_segments(rows, rec, dep, march_all, need, used):
 
 
 @njit(cache=True)
+def gate_unreached(rows, rec, dep, seg, m, reach, used, unreached):
+    """Deposits no visible point can gather (docs/frequency.md "Cost",
+    "Deposits no pixel reads"): unreached (K,) bool is set for the rays
+    0..K-1 that deposit at a hit point whose voxel of the march grid m
+    (lo, icell, res) is 0 in reach (R, R, R) uint8 (``PhotonTracer.set_reach``:
+    the voxels within a visible point's radius, plus a voxel), and used is
+    cleared for them unless the ray continues through a delta lobe (whose
+    spectrum reaches the next deposit unblurred).  Such a segment is not
+    marched; the caller sets its deposit's radius to ChainParams.r_gated
+    (the conservative value should a visible point gather it after all)."""
+    K = rows.K
+    delta = np.zeros(K, np.bool_)
+    for j in range(rows.n_next):
+        if rec.nxt_delta[j]:
+            delta[rec.nxt_src[j]] = True
+    R = m.res
+    for k in range(rows.dep0, rows.dep1):
+        i = dep.src[k]
+        t = rec.t[i]
+        ix = min(max(int(math.floor((seg.o[i, 0] + t * seg.d[i, 0] - m.lo[0]) * m.icell[0])), 0),
+                 R - 1)
+        iy = min(max(int(math.floor((seg.o[i, 1] + t * seg.d[i, 1] - m.lo[1]) * m.icell[1])), 0),
+                 R - 1)
+        iz = min(max(int(math.floor((seg.o[i, 2] + t * seg.d[i, 2] - m.lo[2]) * m.icell[2])), 0),
+                 R - 1)
+        if reach[ix, iy, iz] == 0:
+            unreached[i] = True
+            if not delta[i]:
+                used[i] = False
+
+
+@njit(cache=True)
+def mark_reach(p, r, lo, cell, res, out):
+    """out (res, res, res) uint8 (zeroed by the caller) = 1 on every voxel
+    of the grid (lo, cell (3,) float64) that the box [p - r - cell, p + r +
+    cell] of a visible point p (P, 3) with radius r (P,) [m] touches: a
+    superset of the voxels its gather sphere reaches, one voxel wider
+    (the next pass's visible points jitter within their pixels).
+    Indices clipped to the grid, as :func:`gate_unreached` looks them up."""
+    for n in range(p.shape[0]):
+        lo_i = np.empty(3, np.int64)
+        hi_i = np.empty(3, np.int64)
+        for a in range(3):
+            e = r[n] + cell[a]
+            lo_i[a] = min(max(int(math.floor((p[n, a] - e - lo[a]) / cell[a])), 0), res - 1)
+            hi_i[a] = min(max(int(math.floor((p[n, a] + e - lo[a]) / cell[a])), 0), res - 1)
+        for x in range(lo_i[0], hi_i[0] + 1):
+            for y in range(lo_i[1], hi_i[1] + 1):
+                for z in range(lo_i[2], hi_i[2] + 1):
+                    out[x, y, z] = 1
+
+
+@njit(cache=True)
 def radius_cut(a, b, c, t, r_cut, A_MAX, D):
     """(q0, q1, q2): the march of a segment of length t leaving with the
     spectrum (a, b, c) may ignore an occluder at distance l at t_o when l^2
@@ -357,13 +410,18 @@ class ChainParams(NamedTuple):
     kept for the benchmarks); r_cut [m]: a radius no pixel's decision can
     tell from infinity (the largest pixel radius), inf = none: the march
     ignores the occluders that cannot bring a deposit's radius below it
-    (:func:`radius_cut`; CORRECTED only)."""
+    (:func:`radius_cut`; CORRECTED only); gate: the reach map passed to
+    :func:`spectrum_at_hits` applies (:func:`gate_unreached`); r_gated [m]:
+    the radius an unmarched deposit of a gated pass predicts (a positive
+    radius below any pixel's: the radius floor)."""
     paper: bool
     D: float
     A_MAX: float
     occlusion: int
     march_all: bool = False
     r_cut: float = np.inf
+    gate: bool = False
+    r_gated: float = 0.0
 
 
 class Segments(NamedTuple):
@@ -426,7 +484,7 @@ def _kernels(token):
 
     # ------------------------------------------------------------ batch kernels
     @njit(cache=True, nogil=True, error_model="numpy")
-    def spectrum_at_hits(chain, rows, spec, seg, rec, march, dep):
+    def spectrum_at_hits(chain, rows, spec, seg, rec, march, dep, reach):
         """Frequency photons arriving at their hits (rays 0..K-1).
 
         chain: ChainParams; rows: Rows; spec (K, 3): spectra leaving the
@@ -439,7 +497,10 @@ def _kernels(token):
         is never read.  For those, out[i] = :func:`arrive` with (a_occ,
         t_occ) = ``march_segments`` of the segment [o, o + t d].
         Deposits dep0..dep1-1: dep.spec[k] = out[dep.src[k]] and dep.r[k] =
-        its predicted radius for a diffuse receiver.
+        its predicted radius for a diffuse receiver.  reach (R, R, R) uint8
+        on the march grid, read when chain.gate (and chain.occlusion == 1):
+        deposits in its 0 voxels are not marched and get r = chain.r_gated
+        (:func:`gate_unreached`).
         Returns (out (K, 3) float64, rows of other rays unset; the number
         of segments marched).
         """
@@ -452,6 +513,10 @@ def _kernels(token):
         paper, A_MAX, D = chain.paper, chain.A_MAX, chain.D
         marched = chain.occlusion == 1
         has_grid = chain.occlusion != 0
+        gated = marched and chain.gate
+        unreached = np.zeros(K if gated else 1, np.bool_)
+        if gated:
+            gate_unreached(rows, rec, dep, seg, march, reach, used, unreached)
         out = np.empty((K, 3))
         # The segments to march, in one call (march_segments unpacks the
         # grid's arrays once per call, not per segment)
@@ -495,6 +560,8 @@ def _kernels(token):
             dep.spec[k, 1] = b
             dep.spec[k, 2] = c
             dep.r[k] = predicted_radius(a, b, c, np.inf, np.inf, paper)
+            if gated and unreached[i] and not used[i]:
+                dep.r[k] = chain.r_gated
         return out, n_march
 
 

@@ -20,6 +20,13 @@ import numpy as np
 from .occlusion_grid import (BLOCK_REL, BLOCK_SHIFT, MARCH_BLOCK, SIN_TOL, OcclusionGrid,
                              check_locality, cut_locality, march_blocks)
 
+# Numba caches the kernels below by this file's hash, and BLOCK_SHIFT is
+# frozen into them: a cached march of another block size would read the
+# MarchBlocks wrongly.  Keep this line equal to occlusion_grid.BLOCK_SHIFT.
+_COMPILED_FOR_BLOCK_SHIFT = 2
+if _COMPILED_FOR_BLOCK_SHIFT != BLOCK_SHIFT:
+    raise ImportError("occlusion_march: _COMPILED_FOR_BLOCK_SHIFT != occlusion_grid.BLOCK_SHIFT")
+
 
 class MarchGrid(NamedTuple):
     """What :func:`march_segment` reads: an OcclusionGrid's dist (R, R, R)

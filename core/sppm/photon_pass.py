@@ -254,7 +254,19 @@ class PhotonPass:
             else:
                 self._trace_gather(pg, n, n_freq, rng, acc)
         self._drop_ahead()
+        self.keep_reach_source(vp, R2)
         return self.finish(vp, acc)
+
+    def keep_reach_source(self, vp, R2: np.ndarray) -> None:
+        """Keep this pass's visible points vp and the state's radii R2 (the
+        array itself, updated in place after the pass): the next pass's
+        :meth:`trace_ahead` builds the tracer's reach map from them
+        (``PhotonTracer.set_reach``).  A resumed render calls this with the
+        last pass's visible points, rebuilt from its camera stream, and the
+        checkpointed radii: the same map.  Not with chunk_streams (other
+        processes trace those chunks)."""
+        if self.frequency and not self.chunk_streams:
+            self._reach_source = (np.array(vp.p, np.float64), np.array(vp.valid, bool), R2)
 
     def trace_ahead(self, rng: np.random.Generator) -> None:
         """Start tracing the chunks of the pass whose stream is rng now, one
@@ -266,6 +278,13 @@ class PhotonPass:
         stream, drawn in the same order).  Not with ``chunk_streams`` (each
         chunk is traced where it is gathered)."""
         self._drop_ahead()
+        src = getattr(self, "_reach_source", None)
+        if src is not None:
+            # the last pass's visible points with the radii of its update
+            # (R2 not yet initialised for this pass's new pixels): the same
+            # map with or without trace-ahead, and after a resume
+            self._reach_source = None
+            self.tracer.set_reach(src[0], src[1], np.array(src[2]))
         if self.chunk_streams or not TRACE_AHEAD:
             return
         self._ahead = (rng, deque(), deque(self.chunks()))

@@ -41,6 +41,7 @@ from . import photon_kernels as PK
 from ..accel import _COUNT_LOCK, REL_OFFSET, intersect_f32
 from ..kept import _ALONE, _refcounts
 from ..scene.model import Scene
+from .update import R_FLOOR_REL
 
 from ..mathutil import LUMINANCE as LUM, dot as _dot  # noqa: E402
 #: Batches of at least this many photons are traced as two halves (see trace).
@@ -236,6 +237,9 @@ class PhotonTracer:
         # The march ignores occluders that cannot bring a deposit's radius
         # below this [m] (set_radius_cut; kernels.ChainParams.r_cut).
         self.radius_cut = np.inf
+        # (R, R, R) uint8 on the march grid: voxels a visible point of the
+        # last pass can gather from (set_reach); None: every deposit counts.
+        self.reach = None
 
     def trace(self, n: int, n_freq: int, rng):
         """Trace n photons (the first n_freq carry a spectrum); return deposits.
@@ -456,7 +460,35 @@ class PhotonTracer:
         """The frequency model of this render, for the compiled chains."""
         return FK.ChainParams(paper=self.settings.frequency_model == "PAPER", D=float(self.D),
                               A_MAX=float(self.D * self.D), occlusion=self.occlusion,
-                              r_cut=float(self.radius_cut))
+                              r_cut=float(self.radius_cut), gate=self.reach is not None,
+                              r_gated=R_FLOOR_REL * float(self.D))
+
+    _NO_REACH = np.ones((1, 1, 1), np.uint8)
+
+    def set_reach(self, p, valid, R2):
+        """Before a pass (PhotonPass.trace_ahead): the reach map of the last
+        pass's visible points p (P, 3) [m], valid (P,) bool, squared radii
+        R2 (P,) (after its update) for this pass's frequency photons
+        (docs/frequency.md "Cost", "Deposits no pixel reads"): a deposit
+        in a voxel no visible point's sphere (plus a voxel) touches is not
+        marched, and predicts the radius floor
+        (R_FLOOR_REL D: no hold).  None (every deposit marched) under the
+        exact conditions of set_radius_cut, without a marched grid, for
+        the PAPER model and for photon merging (after_delta_only)."""
+        st = self.settings
+        R2 = np.asarray(R2)
+        ok = np.asarray(valid, bool) & (R2 > 0)
+        if (self.occlusion != 1 or st.aov_predicted_radius or st.aov_spectrum
+                or st.radius_rule != "PPM" or self.after_delta_only
+                or st.frequency_model == "PAPER"
+                or not np.isfinite(R2[ok]).all()):
+            self.reach = None
+            return
+        m = self.march
+        out = np.zeros((m.res, m.res, m.res), np.uint8)
+        FK.mark_reach(np.ascontiguousarray(np.asarray(p, np.float64)[ok]),
+                      np.sqrt(R2[ok]).astype(np.float64), m.lo, m.cell, m.res, out)
+        self.reach = out
 
     def set_radius_cut(self, R2):
         """Before a pass: radius_cut = the largest pixel radius sqrt(R2 (P,)),
@@ -474,8 +506,10 @@ class PhotonTracer:
         surface (rays 0..K-1 that deposit or continue); the predicted radius
         of the deposits dep0..dep1-1, as fold keys.  Returns the (K, 3)
         on-surface spectra (rows of other rays unused)."""
-        out, _ = FK.spectrum_at_hits(self.chain_params(), rows, spec, seg, rec, self.march,
-                                     dep.buf)
+        reach = self.reach                   # once: the flag and the map agree
+        chain = self.chain_params()._replace(gate=reach is not None)
+        out, _ = FK.spectrum_at_hits(chain, rows, spec, seg, rec, self.march,
+                                     dep.buf, self._NO_REACH if reach is None else reach)
         r = dep.buf.r[rows.dep0:rows.dep1]
         r[:] = F.radius_fold_key(r, self.settings.frequency_model)
         return out
