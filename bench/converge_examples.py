@@ -58,15 +58,23 @@ SCENES = {
 
 
 NOTES = [
-    "Two runs make this table.  cornell, indirect_room and principled_interior: `--budget 60 "
-    "--seeds 2` (60 CPU s = 30 s of both cores) on the code that merged this round's speed-ups "
-    "(tracer array pool, compiled first hits, amortised frequency photons), alone on an idle "
-    "machine (load average below 2; cores per method as the table gives).  point_caustic: "
-    "`--budget 30 --seeds 2` on the code before them, on a machine loaded by other jobs "
-    "(load average 8 to 16, 0.2 to 0.6 cores per method), so its ratios are the older code's.  "
-    "The default 120 CPU s and 4 seeds did not fit the session (about 4 hours of an idle machine "
-    "for every scene and method).  glass_sphere, coffee_cup and the two ring scenes were not run: "
-    "none had a cached Cycles reference (5 minutes each on an idle machine) and the session ended.",
+    "Three runs make this table.  cornell, indirect_room and principled_interior: `--budget 60 "
+    "--seeds 2` (60 CPU s = 30 s of both cores) on the code that merged the tracer array pool, "
+    "the compiled first hits and the amortised frequency photons (commit 9dd4839), alone on an "
+    "idle machine (load average below 2; cores per method as the table gives).  point_caustic: "
+    "`--budget 30 --seeds 2` on the code before them (47f7a5f), on a machine loaded by other "
+    "jobs (load average 8 to 16, 0.2 to 0.6 cores per method).  glass_sphere, coffee_cup, "
+    "ring_lambert and ring_principled: `--budget 30 --seeds 2` on a434914 (the first of these "
+    "plus the docs), on a machine loaded by other jobs (load average 3 to 26, 0.3 to 1.3 cores "
+    "per method), after their Cycles references were made (16384 spp for the glass scenes, "
+    "8192 for the rings).  None of them includes the reach map of the frequency photons or the "
+    "camera and direct stages in blocks, merged after them.  The default 120 CPU s and 4 seeds "
+    "did not fit a session (about 4 hours of an idle machine for every scene and method).",
+    "glass_sphere and coffee_cup: their Cycles references' own noise floors (1.3e-2 and "
+    "7.8e-2: Cycles cannot sample a small light's caustic seen through glass) are as large as "
+    "the photon mappers' excess errors at 30 CPU s, so every ratio there is flagged 'near "
+    "floor' and measures the reference as much as the methods.  docs/peers.md compares the "
+    "glass sphere at 64x64 against LuxCoreRender with the same caveat.",
     "CPU time is not a perfect measure of work on a loaded machine: at the same 30 CPU s, PPM "
     "did 400 and 267 passes on point_caustic's two seeds, FPPM 50 and 36 on indirect_room's "
     "(the other vCPU busy, caches shared).  The seed spreads in the tables include that.",
@@ -189,8 +197,10 @@ def collect(budget=120.0, seeds=4, clock="cpu"):
                 summaries[name] = json.load(f)
     unit = "CPU seconds of the rendering process" if clock == "cpu" else "wall seconds"
     lines = ["# Convergence of the example scenes", "",
-             f"128x128, {budget:g} {unit} per method ({budget / 2:g} s of both cores of this "
-             f"2-core machine), up to {seeds} seeds per method, `.venv/bin/python "
+             f"128x128, up to {seeds} seeds per method, a budget per method in {unit} "
+             "(half of it in seconds of both cores of this 2-core machine): "
+             + ", ".join(f"{n} {s.get('budget', budget):g}" for n, s in summaries.items())
+             + ", `.venv/bin/python "
              "bench/converge_examples.py` (`fppm converge --clock " + clock + "`).  "
              "Each scene's folder has the plot, the CSV and the full report (regions, "
              "bias/noise, every equal-time ratio at 10/50/100% of the budget).", "",
