@@ -490,7 +490,11 @@ def direct_kernel(k0, k1, L, R, out):
                 l0, l1, l2 = L.radiance[j, 0] * g, L.radiance[j, 1] * g, L.radiance[j, 2] * g
                 t = max(tt, 0.0)
             if kind == SPOT:
-                att = _spot_atten(EL.row, j, -wx, -wy, -wz)
+                # Soft falloff: the centre's direction (sampling.sample_direct).
+                if r > 0 and not sphere:
+                    att = _spot_atten(EL.row, j, nx, ny, nz)
+                else:
+                    att = _spot_atten(EL.row, j, -wx, -wy, -wz)
                 if sphere and r != 0 and d <= r:
                     att = 1.0
                 l0, l1, l2 = l0 * att, l1 * att, l2 * att

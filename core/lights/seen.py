@@ -96,7 +96,11 @@ def emitted_along_rays(table: LightTable, o: np.ndarray, d: np.ndarray, t_max: n
             L = np.broadcast_to(table.radiance[j], (K, 3))
             if k == SPOT:
                 hit &= _dot(d, oc) < 0                # Cycles: one-sided spot disc
-                att = _spot_atten(table, np.full(K, j), -d)
+                # Soft falloff: the cone along the centre's direction to the
+                # ray's origin, as next-event estimation evaluates it
+                # (sampling.sample_direct).
+                aim = -d if table.is_sphere[j] else _normalize(oc)
+                att = _spot_atten(table, np.full(K, j), aim)
                 L = L * att[:, None]
         elif k == SUN:
             if table.half_angle[j] <= 0:
