@@ -117,13 +117,13 @@ def test_compiled_splat_equals_numpy(integrator):
 def test_first_hits_equal_first_hit_ratios(rig):  # noqa: F811  (the fixture)
     """CombinedLightTracer._first_hit (compiled for point lights and
     rectangles) equals combined.first_hit_ratios at the first hits of
-    photons from the rig's area, point and soft point lights."""
+    photons from the rig's area, point, soft point and soft spot lights."""
     lt = rig.combined_lt
     lt.kn = 4 / 5000.0
     t = lt.light_table
     ph = Lt.sample_photons(t, 6000, np.random.default_rng(8))
     ph["light"] = ph["light"].astype(np.int64)
-    assert set(np.unique(t.kind[ph["light"]])) == {Lt.POINT, Lt.AREA}
+    assert set(np.unique(t.kind[ph["light"]])) == {Lt.POINT, Lt.SPOT, Lt.AREA}
     o32 = (ph["o"] + 1e-4 * ph["d"]).astype(np.float32)
     hits = PK.EmbreeHits(*intersect_f32(lt.accel, o32, ph["d"].astype(np.float32)))
     K = o32.shape[0]
