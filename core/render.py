@@ -591,16 +591,13 @@ class Renderer:
         if self.settings.fixed_visible_points and self.pass_index > 0:
             # Fixed visible points come from pass 1's camera stream: rebuild them.
             self._fixed = self.camera_pass(self._rng(1, 0), self._check_stop)
-        pp = self.photon_pass
-        keep = getattr(pp, "keep_reach_source", None)
-        if (keep is not None and getattr(pp, "frequency", False) and self.pass_index > 0
-                and not getattr(pp, "chunk_streams", False) and self.path_tracer is None
-                and self.light_tracer is None):
+        if (self.photon_pass.keeps_reach and self.pass_index > 0
+                and self.path_tracer is None and self.light_tracer is None):
             # The frequency photons' reach map comes from the last pass's
             # visible points (PhotonPass.keep_reach_source): rebuild them.
             vp = self._fixed[0] if self._fixed is not None else self.camera_pass(
                 self._rng(self.pass_index, 0), self._check_stop)[0]
-            keep(vp, self.state.R2)
+            self.photon_pass.keep_reach_source(vp, self.state.R2)
         self.last_result = self._film()
 
     # ------------------------------------------------------------ helpers

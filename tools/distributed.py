@@ -429,6 +429,9 @@ class DistributedPhotonPass:
     ``stats``: a PassStats per distributed pass.  warm, load_kernels: as
     :class:`Session` (session: one shared with other stages, else its own)."""
 
+    #: No reach map: the workers trace the chunks (PhotonPass.keeps_reach).
+    keeps_reach = False
+
     def __init__(self, client, renderer: Renderer, warm: bool = True,
                  load_kernels: bool = False, retries: int = 3,
                  session: Optional[Session] = None):

@@ -265,8 +265,14 @@ class PhotonPass:
         last pass's visible points, rebuilt from its camera stream, and the
         checkpointed radii: the same map.  Not with chunk_streams (other
         processes trace those chunks)."""
-        if self.frequency and not self.chunk_streams:
+        if self.keeps_reach:
             self._reach_source = (np.array(vp.p, np.float64), np.array(vp.valid, bool), R2)
+
+    @property
+    def keeps_reach(self) -> bool:
+        """Whether :meth:`keep_reach_source` keeps anything: frequency
+        photons traced here (not in other processes' chunk streams)."""
+        return self.frequency and not self.chunk_streams
 
     def trace_ahead(self, rng: np.random.Generator) -> None:
         """Start tracing the chunks of the pass whose stream is rng now, one
