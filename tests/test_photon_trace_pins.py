@@ -1,0 +1,112 @@
+"""The photon tracer's deposits, bit for bit, against digests pinned before
+its bounce kernel compacted the survivors without branches
+(``photon_kernels.bounce_kernel``, docs/architecture.md "Photon trace against
+raw Embree"): a rewrite of the tracer's inner loop that keeps the numbers
+passes, any change of a deposit's bits fails.
+
+Covered: the Lambert fast path with Russian roulette and the two halves of a
+batch (Cornell box); mirror, smooth glass and the generic fallback of the
+GGX and Oren-Nayar walls, a disc and a soft point light (``glass_mirror``);
+frequency photons (the hit record the spectra read); caustic photons only
+(``after_delta_only``: the delta flags of the survivors); and the MIS state
+of integrator 'COMBINED' (one kernel call on the first hits).
+
+Like tests/test_same_image.py the digests are exact on this CPU and
+numba/llvmlite build only (libm's sincos, LLVM's code): on another machine
+regenerate them with ``.venv/bin/python tests/test_photon_trace_pins.py``
+on the code before the change under test, and paste its output below.
+"""
+import hashlib
+import os
+import sys
+
+TESTS = os.path.dirname(os.path.abspath(__file__))
+if TESTS not in sys.path:
+    sys.path.insert(0, TESTS)
+
+import fppm_alias  # noqa: E402,F401  (core.x is fppm.core.x: one numba cache)
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from core.accel import REL_OFFSET, intersect_f32
+from core.sppm import photon_kernels as PK  # noqa: E402
+from test_photon_kernels import _tracer, cornell, glass_mirror  # noqa: E402
+
+PINS = {
+    "cornell_plain": "c7efebd03e91870bed83859ccfc29d59",
+    "cornell_freq": "bfff7d82b52782c260a19115ccd05156",
+    "glass_mirror_plain": "fa12cec5ca2f437f08b3aea52698675e",
+    "glass_mirror_freq": "acc98c3ae1dc2a6d38178dd246752d96",
+    "glass_mirror_caustic": "42b0ea714c7e9b9d0677efcf35db84a9",
+    "cornell_mis": "ced75dd4a0241ecd32934edaec0072f8",
+}
+
+
+def _digest(arrays) -> str:
+    h = hashlib.sha256()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(str((a.dtype.str, a.shape)).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:32]
+
+
+def _trace_digest(make, freq, caustic=False):
+    tr = _tracer(make(), use_frequency=freq)
+    tr.after_delta_only = caustic
+    dep = tr.trace(20_000, 5_000 if freq else 0, np.random.default_rng(17))
+    return _digest(dep[k] for k in sorted(dep))
+
+
+def _mis_digest():
+    """One bounce_kernel call with the MisState followed (BounceStep.mis) on
+    the first hits of 20k photons, from random factors."""
+    tr = _tracer(cornell(), use_frequency=False)
+    rng = np.random.default_rng(23)
+    n = 20_000
+    u_emit = rng.random((n, 6))
+    live = PK.LiveState(*(np.empty((n, 3), np.float32), np.empty((n, 3), np.float32),
+                          np.empty((n, 3)), np.empty((n, 3)), np.empty(n)))
+    floor = tr.accel.abs_floor / REL_OFFSET
+    K = PK.emit_lights_state(u_emit, *tr._light_arrays, REL_OFFSET, floor, live, False,
+                             np.empty((1, 3)))
+    hits = PK.EmbreeHits(*intersect_f32(tr.accel, live.o32[:K], live.d32[:K]))
+    dep = tr.deposit_buffers(K)
+    mis = PK.mis_state(K, dep.buf.r.shape[0])
+    mis.f0[:K], mis.f1[:K] = rng.random(K), rng.random(K)
+    mis.row[:K] = np.arange(K)
+    mis.first[:K] = rng.random(K) < 0.5
+    gen = PK.GenericHits(np.empty(1, np.int64), *(np.empty((1, 3)) for _ in range(6)))
+    rec = PK.HitRecord(t=np.empty(1), ng=np.empty((1, 3)), nswi=np.empty(1),
+                       hit=np.empty(1, bool), nxt_src=np.empty(1, np.int64),
+                       nxt_delta=np.empty(1, bool))
+    step = PK.BounceStep(K=K, first=False, store=True, sample=True, roulette=True, bounce=1,
+                         dep0=0, record=False, rel=REL_OFFSET, floor=floor, mis=True)
+    n_next, n_dep, n_gen = PK.bounce_kernel(step, hits, live, tr.tris, tr.fmat,
+                                            rng.random((K, 4)), dep.buf, gen, rec, mis)
+    return _digest([np.array([n_next, n_dep, n_gen]), live.o32[:n_next], live.d64[:n_next],
+                    live.power[:n_next], mis.f0[:n_next], mis.f1[:n_next], mis.row[:n_next],
+                    mis.first[:n_next], mis.h0[:K], mis.h1[:K], mis.d0[:n_dep], mis.d1[:n_dep],
+                    mis.drow[:n_dep], mis.dfirst[:n_dep]]
+                   + [a[:n_dep] for a in dep.buf if a is not dep.buf.src and a is not dep.buf.spec])
+
+
+CASES = {
+    "cornell_plain": lambda: _trace_digest(cornell, False),
+    "cornell_freq": lambda: _trace_digest(cornell, True),
+    "glass_mirror_plain": lambda: _trace_digest(glass_mirror, False),
+    "glass_mirror_freq": lambda: _trace_digest(glass_mirror, True),
+    "glass_mirror_caustic": lambda: _trace_digest(glass_mirror, False, caustic=True),
+    "cornell_mis": _mis_digest,
+}
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_deposits_equal_pinned(name):
+    assert CASES[name]() == PINS[name], (
+        f"{name}: the photon tracer's deposits changed bits (see this file's docstring)")
+
+
+if __name__ == "__main__":
+    for name in sorted(CASES):
+        print(f'    "{name}": "{CASES[name]()}",')
