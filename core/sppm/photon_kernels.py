@@ -279,7 +279,9 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
 
     step: BounceStep; hits: EmbreeHits; live: LiveState, whose survivors of
     the fast path are compacted in place to rows 0..n_next-1 (row j <= i is
-    only written after row i has been read); tris: TriangleData; mats:
+    only written after row i has been read; row n_next of live, of the
+    survivor columns of rec and of the live columns of mis may hold a sample
+    that did not go on); tris: TriangleData; mats:
     ``materials.fast.FastMaterials``; u (K, 4) uniforms: direction (0, 1),
     lobe / Fresnel (2), roulette (3).
     Deposits go to rows dep0.. of the DepositBuffers dep (r = NaN, bounce =
@@ -385,17 +387,18 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
             continue
         r = sample_fast(c, m_col[m, 0], m_col[m, 1], m_col[m, 2], m_ior[m],
                         sx, sy, sz, gx, gy, gz, wx, wy, wz, u[i, 0], u[i, 1], u[i, 2])
-        if not r[7]:
-            continue
+        # Whether the ray goes on: a valid sample with a finite positive
+        # weight that survives roulette.  Bitwise & and no branch: the
+        # survivor is written to row n_next either way and counted only if it
+        # goes on (row n_next <= i is free), so an unpredictable roulette
+        # outcome costs no pipeline flush (docs/architecture.md "Photon trace
+        # against raw Embree").
         w0_, w1_, w2_ = r[3], r[4], r[5]
-        if not (np.isfinite(w0_) and np.isfinite(w1_) and np.isfinite(w2_)):
-            continue
-        if not max(w0_, w1_, w2_) > 0.0:
-            continue
+        goes_on = (r[7] & np.isfinite(w0_) & np.isfinite(w1_) & np.isfinite(w2_)
+                   & (max(w0_, w1_, w2_) > 0.0))
         if roulette:
             q = min(max(w0_ * _LUM0 + w1_ * _LUM1 + w2_ * _LUM2, 0.0), 1.0)
-            if not u[i, 3] < q:
-                continue
+            goes_on = goes_on & (u[i, 3] < q)
             qq = max(q, 1e-12)
             w0_ /= qq
             w1_ /= qq
@@ -433,7 +436,7 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
                 mf1[j] = a1 * pr * pend1
             mrow[j] = prow
             mfirst[j] = False
-        n_next += 1
+        n_next += 1 if goes_on else 0
     return n_next, n_dep, n_gen
 
 
