@@ -38,7 +38,7 @@ PINS = {
     "glass_mirror_plain": "fa12cec5ca2f437f08b3aea52698675e",
     "glass_mirror_freq": "acc98c3ae1dc2a6d38178dd246752d96",
     "glass_mirror_caustic": "42b0ea714c7e9b9d0677efcf35db84a9",
-    "cornell_mis": "ced75dd4a0241ecd32934edaec0072f8",
+    "cornell_mis": "11931a943bb718ba1c32bfe295a69aff",
 }
 
 
@@ -84,9 +84,10 @@ def _mis_digest():
                          dep0=0, record=False, rel=REL_OFFSET, floor=floor, mis=True)
     n_next, n_dep, n_gen = PK.bounce_kernel(step, hits, live, tr.tris, tr.fmat,
                                             rng.random((K, 4)), dep.buf, gen, rec, mis)
+    hit = hits.prim[:K] >= 0               # h0, h1 are written at hits only
     return _digest([np.array([n_next, n_dep, n_gen]), live.o32[:n_next], live.d64[:n_next],
                     live.power[:n_next], mis.f0[:n_next], mis.f1[:n_next], mis.row[:n_next],
-                    mis.first[:n_next], mis.h0[:K], mis.h1[:K], mis.d0[:n_dep], mis.d1[:n_dep],
+                    mis.first[:n_next], mis.h0[:K][hit], mis.h1[:K][hit], mis.d0[:n_dep], mis.d1[:n_dep],
                     mis.drow[:n_dep], mis.dfirst[:n_dep]]
                    + [a[:n_dep] for a in dep.buf if a is not dep.buf.src and a is not dep.buf.spec])
 
