@@ -295,13 +295,20 @@ class PhotonTracer:
         """n photons left k deposits: sizes the next deposit_buffers."""
         self._dpp = max(self._dpp, 1.25 * k / max(n, 1))
 
-    def uniforms(self, K: int, m: int, rng) -> np.ndarray:
+    def uniforms(self, K: int, m: int, rng, buf: np.ndarray = None) -> np.ndarray:
         """rng.random((K, m)) (the same numbers: drawn in the same order) into
+        buf (flat float64, at least K m; :meth:`uniform_buffer`), else into
         an array of the pool (one still referenced is never handed out)."""
-        u = self.pool.take("uniforms", K * m, lambda r: [np.empty(r)],
-                            lambda a: a[0][:K * m].reshape(K, m))
+        if buf is None:
+            buf = self.uniform_buffer(K * m)
+        u = buf[:K * m].reshape(K, m)
         rng.random(out=u)
         return u
+
+    def uniform_buffer(self, size: int) -> np.ndarray:
+        """A flat float64 array of at least size from the pool, for the
+        uniforms of every bounce of a batch (one pool look-up a batch)."""
+        return self.pool.take("uniforms", size, lambda r: [np.empty(r)], lambda a: a[0])
 
     def _trace_part(self, n: int, n_freq: int, rng, dep: "_Deposits") -> "_Deposits":
         """Emit and trace n photons (the first n_freq with a spectrum); their
@@ -354,6 +361,7 @@ class PhotonTracer:
         straight = np.ones(K, bool) if self.skip_straight else None
         cg = n if self.fmat.any_generic else 1
         gen = PK.GenericHits(np.empty(cg, np.int64), *(np.empty((cg, 3)) for _ in range(6)))
+        ubuf = self.uniform_buffer(4 * K)       # K never grows: one survivor a ray at most
         cr = n if record else 1
         rec = PK.HitRecord(t=np.empty(cr), ng=np.empty((cr, 3)), nswi=np.empty(cr),
                            hit=np.empty(cr, bool), nxt_src=np.empty(cr, np.int64),
@@ -369,7 +377,7 @@ class PhotonTracer:
                                  sample=bounce < st.max_bounces,
                                  roulette=bounce + 1 >= st.rr_start, bounce=bounce,
                                  dep0=dep.n, record=record, rel=rel, floor=floor)
-            u = self.uniforms(K, 4, rng)
+            u = self.uniforms(K, 4, rng, ubuf)
             dep.reserve(K)
             if freq:
                 # the segments just travelled: the kernel overwrites the live state
