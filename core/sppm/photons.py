@@ -140,6 +140,13 @@ def _live_arrays(n: int) -> list:
             np.empty((n, 3)), np.empty(n)]
 
 
+#: The spectrum of classic photons, read only at frequency photons' rows: a
+#: batch without them returns this broadcast to (n, 3) (read-only, nothing
+#: allocated; np.zeros((n, 3)) cost ~3 ms a 131k-photon chunk in calloc's
+#: memset and page faults, docs/architecture.md "Photon trace against raw Embree").
+_NO_SPECTRUM = np.zeros(3)
+
+
 class _Deposits:
     """Growable deposit buffers (``photon_kernels.DepositBuffers``, rows
     0..n-1 used), float64; r = the radius fold key.  pool: an ArrayPool to
@@ -187,7 +194,7 @@ class _Deposits:
         return {"p": d.p[:n], "ng": d.ng[:n], "wi": d.wi[:n],
                 "power": d.power[:n], "rpred": d.r[:n], "bounce": d.bounce[:n],
                 "spec": (np.where(np.isnan(d.r[:n])[:, None], 0.0, d.spec[:n])
-                         if self.spec_rows else np.zeros((n, 3))),
+                         if self.spec_rows else np.broadcast_to(_NO_SPECTRUM, (n, 3))),
                 "bary": d.bary[:n]}
 
 
