@@ -413,7 +413,10 @@ class ChainParams(NamedTuple):
     (:func:`radius_cut`; CORRECTED only); gate: the reach map passed to
     :func:`spectrum_at_hits` applies (:func:`gate_unreached`); r_gated [m]:
     the radius an unmarched deposit of a gated pass predicts (a positive
-    radius below any pixel's: the radius floor)."""
+    radius below any pixel's: the radius floor); own_planes: the march
+    does not take the surfaces a segment leaves and lands on for its
+    occluders (False: the rule before docs/method.md "Principled interior:
+    quality or cost", kept for the benchmarks)."""
     paper: bool
     D: float
     A_MAX: float
@@ -422,6 +425,7 @@ class ChainParams(NamedTuple):
     r_cut: float = np.inf
     gate: bool = False
     r_gated: float = 0.0
+    own_planes: bool = True
 
 
 class Segments(NamedTuple):
@@ -540,12 +544,13 @@ def _kernels(token):
         for k in range(n_march):
             i = rows_m[k]
             # the surfaces the segment connects are not its occluders
-            planes[i, 0] = np.inf
-            if has_ng0:
-                planes[i, 0] = plane_cosine(seg.ng0[i, 0], seg.ng0[i, 1], seg.ng0[i, 2],
+            planes[i, 0] = planes[i, 1] = np.inf
+            if chain.own_planes:
+                if has_ng0:
+                    planes[i, 0] = plane_cosine(seg.ng0[i, 0], seg.ng0[i, 1], seg.ng0[i, 2],
+                                                seg.d[i, 0], seg.d[i, 1], seg.d[i, 2])
+                planes[i, 1] = plane_cosine(rec.ng[i, 0], rec.ng[i, 1], rec.ng[i, 2],
                                             seg.d[i, 0], seg.d[i, 1], seg.d[i, 2])
-            planes[i, 1] = plane_cosine(rec.ng[i, 0], rec.ng[i, 1], rec.ng[i, 2],
-                                        seg.d[i, 0], seg.d[i, 1], seg.d[i, 2])
             if paper or not (chain.r_cut < np.inf):
                 cut[i, 0] = cut[i, 1] = cut[i, 2] = np.inf
             else:
