@@ -134,6 +134,54 @@ def classify(scene, rec, a_occ, t_occ):
     return cls, l_true
 
 
+def disc_error(L, r_px):
+    """(H, W) relative error |disc mean - L| / L of a disc of radius r_px
+    pixels in image space (a proxy of PPM's kernel bias at that radius on
+    the reference luminance L (H, W); geometry edges included)."""
+    k = int(np.ceil(r_px))
+    yy, xx = np.mgrid[-k:k + 1, -k:k + 1]
+    w = (xx * xx + yy * yy <= r_px * r_px).astype(np.float64)
+    H, W = L.shape
+    P = np.pad(L, k, mode="edge")
+    m = np.zeros_like(L)
+    for dy in range(-k, k + 1):
+        for dx in range(-k, k + 1):
+            if w[dy + k, dx + k]:
+                m += P[k + dy:k + dy + H, k + dx:k + dx + W]
+    m /= w.sum()
+    return np.abs(m - L) / np.maximum(L, 1e-12)
+
+
+def smoothness(scene, st, name, passes, seed):
+    """Pixels whose kept prediction is below their radius after ``passes``
+    FPPM passes, with the planes rule and without it: how smooth is the
+    reference there (disc_error at 2 px, the initial radius), against the
+    pixels that hold?"""
+    import tempfile
+    from fppm.tools.metrics import luminance
+    ref = np.load(os.path.join(tempfile.gettempdir(), "fppm_bench_refs",
+                               f"{name}_200x300000.npz"))["ref"]
+    L = luminance(ref)
+    e = disc_error(L, st.initial_radius_px).reshape(-1)
+    for planes in (False, True):
+        r = Renderer(scene, st.replace(seed=seed, max_passes=passes), log=lambda s: None)
+        if not planes:
+            cp = r.tracer.chain_params
+            r.tracer.chain_params = lambda cp=cp: cp()._replace(own_planes=False)
+        for _ in range(passes):
+            r.step()
+        s = r.state
+        R = np.sqrt(s.R2)
+        seen = (s.R2 > 0) & (L.reshape(-1) > 0)
+        below = seen & np.isfinite(s.r_pred_last) & (s.r_pred_last < R)
+        rest = seen & ~below
+        print(f"{name} seed {seed} pass {passes}, planes {planes}: held {np.mean(s.held[seen]):.1%}, "
+              f"prediction below R at {below.sum() / seen.sum():.1%} of the pixels; reference disc "
+              f"error at {st.initial_radius_px:g} px, median below / rest {np.median(e[below]):.4f} / "
+              f"{np.median(e[rest]):.4f}; share above 2.5 %: {np.mean(e[below] > 0.025):.1%} / "
+              f"{np.mean(e[rest] > 0.025):.1%}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("scene")
@@ -141,8 +189,13 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-planes", action="store_true",
                     help="march as before: the segment's own surfaces may be occluders")
+    ap.add_argument("--smoothness", type=int, default=0, metavar="K",
+                    help="after K passes: the reference's smoothness where the prediction "
+                         "is below the radius, with and without the planes rule")
     a = ap.parse_args(argv)
     scene, st = export(a.scene)
+    if a.smoothness:
+        return smoothness(scene, st, a.scene, a.smoothness, a.seed)
     r = Renderer(scene, st.replace(seed=a.seed, max_passes=a.passes), log=lambda s: None)
     rec = record(r, a.passes)
     tr = r.tracer
