@@ -496,6 +496,13 @@ def _march_cut(m, o, d, t_end, out, out_t, cut, planes):
     march_segments(m, o, d, t_end, np.arange(o.shape[0]), o.shape[0], out, out_t, cut, planes)
 
 
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _march(m, o, d, t_end, out, out_t):
+    """Every candidate, no plane (bench/bench_march.py times this)."""
+    _march_cut(m, o, d, t_end, out, out_t, np.full((o.shape[0], 3), np.inf),
+               np.full((o.shape[0], 2), np.inf))
+
+
 def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
                     skip_voxels: float = 1.0, return_t: bool = False, cut=None,
                     n_start=None, n_end=None):
