@@ -15,7 +15,8 @@ triangle really nearest the blocker point the march reported (brute force):
 - ``source``: it lies in the plane the segment leaves (it cannot cut light
   leaving that surface);
 - ``behind``: its nearest point lies behind the receiving plane, seen from
-  the arriving photon;
+  the arriving photon, or behind the plane it leaves, seen from the leaving
+  one;
 - ``other``: a real candidate.
 
 Prints the shares of each class among the occluded deposits and among those
@@ -126,6 +127,10 @@ def classify(scene, rec, a_occ, t_occ):
     cls = np.full(len(p), 3)
     side = np.sign(np.sum(ng * -rec["d"], 1))          # the photon's side of the receiver
     behind = np.sum(ng * (q - hit), 1) * side < -tol
+    # or behind the plane the segment leaves, seen from the leaving photon
+    n0 = rec["ng0"]
+    side0 = np.sign(np.sum(n0 * rec["d"], 1))
+    behind |= np.sum(n0 * (q - rec["o"]), 1) * side0 < -tol
     cls[behind] = 2
     # the leaving plane: the triangle's plane contains o
     src = np.abs(np.sum(nb_ * (tri[idx, 0] - rec["o"]), 1)) < tol
