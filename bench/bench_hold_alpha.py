@@ -162,6 +162,7 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
             rs[m].radii.keep_minimum = True
         if ":keep=none" in m:
             rs[m].radii.keep_predictions = False
+        planes_or(rs[m], m)
     cpu = {m: [0.0] for m in methods}
     err = {m: [np.nan] for m in methods}
     while True:
@@ -184,6 +185,17 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
         say(f"seed {seed} {m:>24} / ppm: "
             + " ".join(f"{a / b:.3f}" for a, b in zip(out[m], out["ppm"])))
     return out
+
+
+def planes_or(r, m):
+    """The variants of method name m on renderer r: 'fppm:keep=noplanes' the
+    march as before (a segment's own surfaces may occlude), 'fppm:keep=or'
+    :func:`hold_or_uniform`."""
+    if ":keep=noplanes" in m:
+        cp = r.tracer.chain_params
+        r.tracer.chain_params = lambda cp=cp: cp()._replace(own_planes=False)
+    if ":keep=or" in m:
+        hold_or_uniform(r.radii)
 
 
 def hold_or_uniform(radii):
@@ -221,11 +233,7 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
         if ":keep=noocc" in m:          # the frequency chain without its occlusion operator
             from fppm.core.frequency.occlusion_march import no_march_grid
             rs[m].tracer.occlusion, rs[m].tracer.march = 0, no_march_grid()
-        if ":keep=noplanes" in m:       # the march as before: a segment's own surfaces occlude
-            cp = rs[m].tracer.chain_params
-            rs[m].tracer.chain_params = lambda cp=cp: cp()._replace(own_planes=False)
-        if ":keep=or" in m:             # hold where the spectrum OR CPPM's uniformity test says so
-            hold_or_uniform(rs[m].radii)
+        planes_or(rs[m], m)
     cpu = {m: [] for m in methods}
     gathered = {m: [] for m in methods}
     out = {}
