@@ -101,6 +101,11 @@ class FPPMRenderSettings(PropertyGroup):
         description="Combined: light paths in every pass per camera path of the pass "
                     "(Camera Samples x pixels), the same balance at any resolution; "
                     "0 = Photons per Pass")
+    camera_depth: IntProperty(
+        name="Camera Depth", default=_D.camera_depth, min=-1, max=1,
+        description="Combined: camera paths whose first vertex is diffuse stop after this "
+                    "many vertices and light tracing alone takes the longer paths there "
+                    "(-1 = camera paths at full length)")
     merge_weights: EnumProperty(
         name="Merging Weights", items=MERGE_WEIGHTS, default=_D.merge_weights,
         description="Combined: how photon merging shares paths with the other strategies")

@@ -13,6 +13,8 @@ docs/integrators.md ("Combined").
 """
 from __future__ import annotations
 
+from typing import NamedTuple, Optional
+
 import numpy as np
 
 from .. import lights as Lt
@@ -68,6 +70,66 @@ def _with_merge(w, rl2, rm2, soft):
         return _finite(np.where(soft, w / (1.0 + rl2 + rm2), w / (1.0 + w * (rl2 + rm2))))
 
 
+class CameraStop(NamedTuple):
+    """Where the camera paths of 'COMBINED' stop because light tracing takes
+    the rest (``RenderSettings.camera_depth``; docs/integrators.md "Camera
+    depth"): a camera path whose first vertex y_1 is on a ``covered``
+    material keeps the camera strategies whose last camera vertex is y_j,
+    j <= depth (next-event estimation at y_j, emission found from y_j; j = 0
+    is the camera ray), and is not traced further.  Light tracing is then the
+    only strategy of the longer paths through a covered y_1 and takes them
+    with weight 1: its splat at z_m (= y_1, m light vertices) drops the camera
+    terms when m > depth.  The weights of the shorter paths are unchanged
+    (the same three strategies sample them), so they still sum to one on
+    every path.  depth 0 or 1; covered (M,) bool by material; alone: depth 0
+    and every material of the scene covered, so that no splat of a light
+    vertex has a camera strategy beside it (light tracing then needs no MIS
+    ratios: LIGHT's trace)."""
+    depth: int
+    covered: np.ndarray
+    alone: bool = False
+
+    def ends(self, depth: int, mat_hit, mat_y1) -> np.ndarray:
+        """(K,) bool: the camera rays of loop step ``depth`` (0: the camera
+        rays, hitting y_1) that stop at their hit (materials mat_hit) after
+        its emission was counted: at y_1 when depth 0, at y_2 when depth 1
+        (mat_y1: the material of the vertex y_1 the ray left)."""
+        if depth != self.depth:
+            return np.zeros(np.shape(mat_hit)[0], bool)
+        return self.covered[mat_y1 if depth else mat_hit]
+
+    def light_only(self, mat, first) -> np.ndarray:
+        """(K,) bool: the light vertices (materials mat, ``first`` = z_1)
+        whose splat has no camera strategy beside it (weight 1)."""
+        cov = self.covered[mat]
+        return cov if self.depth == 0 else cov & ~np.asarray(first, bool)
+
+
+def camera_stop(depth: int, lt, plan, path_tracer, merge_mis: bool) -> Optional[CameraStop]:
+    """The CameraStop of a 'COMBINED' render, or None (camera paths at full
+    length) when ``depth`` < 0 or light tracing cannot take every path the
+    camera would stop: no light tracer (``lt`` None), merging as an MIS
+    strategy, transparent crossings (no vertex of the weights), an emitter
+    light tracing does not trace (sun, world, hidden lights: ``all_traced``),
+    the world's light, or emissive triangles that are no light row.  The
+    covered materials are those light tracing splats in closed form
+    (``LightTracer.fast_mat``: LAMBERT without Normal Map / Bump), where
+    a light vertex is joined to the lens as well as a diffuse camera vertex
+    is sampled."""
+    if depth < 0 or lt is None or merge_mis or plan.transparent_shadows or not lt.all_traced:
+        return None
+    pt = path_tracer
+    if np.any(pt.world > 0):
+        return None
+    tri_em = pt.mtab.emission[np.asarray(pt.scene.tri_mat, np.int64)].max(axis=1) > 0
+    if np.any(tri_em & (pt.tri_light < 0)):
+        return None
+    covered = np.asarray(lt.fast_mat, bool).copy()
+    used = np.unique(np.asarray(pt.scene.tri_mat, np.int64))
+    alone = depth == 0 and bool(covered[used].all()) and not lt.tracer.after_delta_only
+    return CameraStop(int(depth), covered, alone)
+
+
 class CameraMIS:
     """The light-tracing terms of the camera strategies' weights (module
     :mod:`.mis`): PathTracer calls these with its vertex arrays."""
@@ -85,6 +147,8 @@ class CameraMIS:
         # pass; None = no such term.
         self.mis_merge = None
         self.K = int(K)
+        # Where the camera paths stop (CameraStop), set by the renderer; None = never.
+        self.stop = None
 
     # ---------------------------------------------------------- densities
     def c1(self, d, cos_surf, t):
@@ -415,6 +479,12 @@ class CombinedLightTracer(LightTracer):
         if self.emitters_seen:
             self._emission_vertices(ph, rng, film, mis=(self.kn, M.emit_pdf_pos(t, light),
                                                         self.cls[light] == M.FULL))
+        if getattr(self, "stop", None) is not None and self.stop.alone:
+            # No camera strategy beside any light vertex (CameraStop): LIGHT's trace.
+            dep = self.tracer.trace_emitted(ph, rng)
+            if dep is not None:
+                self.connect(dep, rng, film)
+            return
         kind = t.kind[light]
         ar = (kind == AREA) | (kind == MESH)
         z0 = np.where(ar[:, None], ph["o"], t.co[light])     # the light end of the weights
@@ -422,6 +492,13 @@ class CombinedLightTracer(LightTracer):
         dep, B0d, B1d, first = self._trace(ph, z0, rng)
         if dep is None:
             return
+        stop = getattr(self, "stop", None)
+        if stop is not None:
+            # Paths the camera does not trace (CameraStop): light tracing's alone.
+            mat = self.tracer.tris.mat[dep["bary"][:, 0].astype(np.int64)]
+            alone = stop.light_only(mat, first)
+            B0d[alone] = 0.0
+            B1d[alone] = 0.0
         mis = (B0d, B1d, first, soft[dep["src_photon"]])
         if getattr(self, "kept", None) is not None:
             # Merging as an MIS strategy: q_M / q_L = pi r^2 c_1 (N_M = N_L).
