@@ -84,10 +84,15 @@ class CameraStop(NamedTuple):
     every path.  depth 0 or 1; covered (M,) bool by material; alone: depth 0
     and every material of the scene covered, so that no splat of a light
     vertex has a camera strategy beside it (light tracing then needs no MIS
-    ratios: LIGHT's trace)."""
+    ratios: LIGHT's trace); camera_free: alone, and light tracing splats every
+    emitter the camera can see (no soft point or spot light, whose disc only
+    camera rays find), so that the camera paths would only find emitters seen
+    directly: none are traced and light tracing's splat of those emitters
+    takes weight 1 as well."""
     depth: int
     covered: np.ndarray
     alone: bool = False
+    camera_free: bool = False
 
     def ends(self, depth: int, mat_hit, mat_y1) -> np.ndarray:
         """(K,) bool: the camera rays of loop step ``depth`` (0: the camera
@@ -112,10 +117,7 @@ def camera_stop(depth: int, lt, plan, path_tracer, merge_mis: bool) -> Optional[
     strategy, transparent crossings (no vertex of the weights), an emitter
     light tracing does not trace (sun, world, hidden lights: ``all_traced``),
     the world's light, or emissive triangles that are no light row.  The
-    covered materials are those light tracing splats in closed form
-    (``LightTracer.fast_mat``: LAMBERT without Normal Map / Bump), where
-    a light vertex is joined to the lens as well as a diffuse camera vertex
-    is sampled."""
+    covered materials: :func:`covered_materials`."""
     if depth < 0 or lt is None or merge_mis or plan.transparent_shadows or not lt.all_traced:
         return None
     pt = path_tracer
@@ -124,10 +126,30 @@ def camera_stop(depth: int, lt, plan, path_tracer, merge_mis: bool) -> Optional[
     tri_em = pt.mtab.emission[np.asarray(pt.scene.tri_mat, np.int64)].max(axis=1) > 0
     if np.any(tri_em & (pt.tri_light < 0)):
         return None
-    covered = np.asarray(lt.fast_mat, bool).copy()
+    covered = covered_materials(pt.mtab, lt.fast_mat)
     used = np.unique(np.asarray(pt.scene.tri_mat, np.int64))
     alone = depth == 0 and bool(covered[used].all()) and not lt.tracer.after_delta_only
-    return CameraStop(int(depth), covered, alone)
+    soft = np.any((lt.cls == M.SOFT) & (lt.light_table.p_select > 0))
+    return CameraStop(int(depth), covered, alone, alone and not soft)
+
+
+#: Glossy lobes at least this rough (Cycles roughness; GGX alpha = its square)
+#: leave a material's camera vertices to light tracing (covered_materials).
+COVER_ROUGHNESS = 0.25
+
+
+def covered_materials(mtab, fast_mat) -> np.ndarray:
+    """(M,) bool: the materials of CameraStop -- no delta lobe (a camera
+    path that scattered by one at y_1 is no light-tracing path) and every
+    lobe diffuse (Lambert, Oren-Nayar) or glossy with roughness >=
+    COVER_ROUGHNESS, where a light vertex joined to the lens sees a BSDF
+    about as flat as a camera path's first bounce does; LightTracer.fast_mat
+    (LAMBERT without Normal Map / Bump) always."""
+    from ..scene.model import DIFFUSE, GLOSSY
+    k = mtab.kind
+    flat = (k < 0) | (k == DIFFUSE) | ((k == GLOSSY) & (mtab.roughness >= COVER_ROUGHNESS))
+    return (np.asarray(fast_mat, bool)
+            | (mtab.has_nondelta & ~mtab.has_delta & np.all(flat, axis=1)))
 
 
 class CameraMIS:
@@ -476,10 +498,13 @@ class CombinedLightTracer(LightTracer):
                 ph = {k: v[live] for k, v in ph.items()}
                 light = light[live]
         ph["light"] = light
+        stop = getattr(self, "stop", None)
         if self.emitters_seen:
-            self._emission_vertices(ph, rng, film, mis=(self.kn, M.emit_pdf_pos(t, light),
-                                                        self.cls[light] == M.FULL))
-        if getattr(self, "stop", None) is not None and self.stop.alone:
+            # No camera paths (CameraStop.camera_free): the splat's weight is 1.
+            self._emission_vertices(ph, rng, film, mis=None if stop is not None and stop.camera_free
+                                    else (self.kn, M.emit_pdf_pos(t, light),
+                                          self.cls[light] == M.FULL))
+        if stop is not None and stop.alone:
             # No camera strategy beside any light vertex (CameraStop): LIGHT's trace.
             dep = self.tracer.trace_emitted(ph, rng)
             if dep is not None:
@@ -492,7 +517,6 @@ class CombinedLightTracer(LightTracer):
         dep, B0d, B1d, first = self._trace(ph, z0, rng)
         if dep is None:
             return
-        stop = getattr(self, "stop", None)
         if stop is not None:
             # Paths the camera does not trace (CameraStop): light tracing's alone.
             mat = self.tracer.tris.mat[dep["bary"][:, 0].astype(np.int64)]

@@ -222,6 +222,8 @@ class PathTracer:
         the radiance each carries (filter-importance-sampled, so a plain mean)."""
         P, n = self.px.shape[0], self.samples
         L = np.zeros((P, 3))
+        if getattr(getattr(self.vc, "stop", None), "camera_free", False):
+            return L        # COMBINED: light tracing takes every path (combined.CameraStop)
         block = max(1, PATH_CHUNK // n)
         for a in range(0, P, block):
             pix_b = np.arange(a, min(a + block, P))
