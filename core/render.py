@@ -184,11 +184,8 @@ class Renderer:
                     self.scene, self.accel, self.mtab, self.light_table, self.camera, st,
                     self.plan, self.D, self.offset, (self.width, self.height),
                     self.scene.filter_width, camera_samples=st.camera_samples)
-            from .integrators.combined import camera_stop
-            self.path_tracer.vc.stop = camera_stop(st.camera_depth, self.combined_lt, self.plan,
-                                                   self.path_tracer, self.merge_mis)
-            if self.combined_lt is not None:
-                self.combined_lt.stop = self.path_tracer.vc.stop
+            # Camera paths that light tracing takes over (combined.CameraStop).
+            self.path_tracer.vc.stop = getattr(self.combined_lt, "stop", None)
             self.light_splat = np.zeros((P, 3))
 
     def _setup_scene(self, scene: Scene, force_stages: tuple, passes: tuple = ()) -> None:

@@ -110,27 +110,31 @@ class CameraStop(NamedTuple):
         return cov if self.depth == 0 else cov & ~np.asarray(first, bool)
 
 
-def camera_stop(depth: int, lt, plan, path_tracer, merge_mis: bool) -> Optional[CameraStop]:
-    """The CameraStop of a 'COMBINED' render, or None (camera paths at full
-    length) when ``depth`` < 0 or light tracing cannot take every path the
-    camera would stop: no light tracer (``lt`` None), merging as an MIS
-    strategy, transparent crossings (no vertex of the weights), an emitter
-    light tracing does not trace (sun, world, hidden lights: ``all_traced``),
-    the world's light, or emissive triangles that are no light row.  The
-    covered materials: :func:`covered_materials`."""
-    if depth < 0 or lt is None or merge_mis or plan.transparent_shadows or not lt.all_traced:
+def camera_stop(lt) -> Optional[CameraStop]:
+    """The CameraStop of the 'COMBINED' light tracer lt (its settings'
+    ``camera_depth``), or None (camera paths at full length) when that is
+    < 0 or light tracing cannot take every path the camera would stop:
+    merging as an MIS strategy, transparent crossings (no vertex of the
+    weights), an emitter light tracing does not trace (sun, world, hidden
+    lights: ``all_traced``), the world's light, or emissive triangles that
+    are no light row.  Built by the light tracer itself, so that
+    tools/distributed.py's workers apply the same rule; the renderer hands
+    it to the camera side (CameraMIS.stop).  The covered materials:
+    :func:`covered_materials`."""
+    st, t = lt.tracer.settings, lt.light_table
+    depth = int(st.camera_depth)
+    if (depth < 0 or st.merge_weights == "MIS" or lt.tracer.plan.transparent_shadows
+            or not lt.all_traced or np.any(t.world > 0)
+            or (t.environment is not None and t.environment.total > 0)):
         return None
-    pt = path_tracer
-    if np.any(pt.world > 0):
+    tri_mat = np.asarray(lt.scene.tri_mat, np.int64)
+    emissive = np.nonzero(lt.mtab.emission[tri_mat].max(axis=1) > 0)[0]
+    if not np.isin(emissive, t.source[t.kind == MESH]).all():
         return None
-    tri_em = pt.mtab.emission[np.asarray(pt.scene.tri_mat, np.int64)].max(axis=1) > 0
-    if np.any(tri_em & (pt.tri_light < 0)):
-        return None
-    covered = covered_materials(pt.mtab, lt.fast_mat)
-    used = np.unique(np.asarray(pt.scene.tri_mat, np.int64))
-    alone = depth == 0 and bool(covered[used].all()) and not lt.tracer.after_delta_only
-    soft = np.any((lt.cls == M.SOFT) & (lt.light_table.p_select > 0))
-    return CameraStop(int(depth), covered, alone, alone and not soft)
+    covered = covered_materials(lt.mtab, lt.fast_mat)
+    alone = depth == 0 and bool(covered[np.unique(tri_mat)].all())
+    soft = np.any((lt.cls == M.SOFT) & (t.p_select > 0))
+    return CameraStop(depth, covered, alone, alone and not soft)
 
 
 #: Glossy lobes at least this rough (Cycles roughness; GGX alpha = its square)
@@ -456,6 +460,8 @@ class CombinedLightTracer(LightTracer):
         t = self.light_table
         self.all_traced = not np.any((t.p_select > 0) & (self.cls == M.NO_LT))
         self.first_lights = LK.first_hit_lights(t, M.emit_select(t, np.arange(t.n)))
+        # Where the camera paths stop (CameraStop; None = never).
+        self.stop = camera_stop(self)
         # The compiled next-event selection probability of _first_hit
         # (path_kernels.selection_kernel reads LightPdf's entry and group_frac
         # only, not its hittable), None where the compiled lights do not
@@ -498,7 +504,7 @@ class CombinedLightTracer(LightTracer):
                 ph = {k: v[live] for k, v in ph.items()}
                 light = light[live]
         ph["light"] = light
-        stop = getattr(self, "stop", None)
+        stop = self.stop
         if self.emitters_seen:
             # No camera paths (CameraStop.camera_free): the splat's weight is 1.
             self._emission_vertices(ph, rng, film, mis=None if stop is not None and stop.camera_free
