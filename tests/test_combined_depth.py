@@ -29,6 +29,7 @@ from analytic_scenes import furnace_box, lambert, point_light_plane
 from test_combined import PATHS, build, camera_side, light_side, oracle, rig  # noqa: F401
 
 FLOOR, WALL, MIRROR = 0, 1, 2
+NAME = {0: "EMITTERS", 1: "DIRECT"}
 
 
 def _stop(r, depth):
@@ -39,32 +40,36 @@ def test_rule_applies_to_diffuse_first_vertices_only(rig):
     st = rig.settings
     # The rig (Lambert floor and wall, a mirror): covered = the Lambert materials.
     for depth in (0, 1):
-        r = Renderer(rig.scene, st.replace(camera_depth=depth), log=lambda s: None)
+        r = Renderer(rig.scene, st.replace(camera_depth=NAME[depth]), log=lambda s: None)
         stop = r.path_tracer.vc.stop
         assert stop is r.combined_lt.stop
         assert stop.depth == depth and list(stop.covered) == [True, True, False]
         assert not stop.alone and not stop.camera_free   # the mirror keeps its MIS
-    assert Renderer(rig.scene, st, log=lambda s: None).path_tracer.vc.stop is None   # -1
-    assert Renderer(rig.scene, st.replace(camera_depth=0, merge_weights="MIS"),
+    for name in ("FULL", "AUTO"):                     # AUTO: the mirror is not covered
+        assert Renderer(rig.scene, st.replace(camera_depth=name),
+                        log=lambda s: None).path_tracer.vc.stop is None
+    assert Renderer(rig.scene, st.replace(camera_depth="EMITTERS", merge_weights="MIS"),
                     log=lambda s: None).path_tracer.vc.stop is None
     # Depth 0 on a scene of diffuse materials only: light tracing needs no ratios.
     scene, _ = point_light_plane(res=8)
-    r = Renderer(scene, RenderSettings(integrator="COMBINED", max_passes=1, camera_depth=0),
+    r = Renderer(scene, RenderSettings(integrator="COMBINED", max_passes=1, camera_depth="EMITTERS"),
                  log=lambda s: None)
     assert r.path_tracer.vc.stop.alone and r.path_tracer.vc.stop.camera_free
-    r = Renderer(scene, RenderSettings(integrator="COMBINED", max_passes=1, camera_depth=1),
+    r = Renderer(scene, RenderSettings(integrator="COMBINED", max_passes=1), log=lambda s: None)
+    assert r.path_tracer.vc.stop.camera_free                 # AUTO, the default
+    r = Renderer(scene, RenderSettings(integrator="COMBINED", max_passes=1, camera_depth="DIRECT"),
                  log=lambda s: None)
     assert not r.path_tracer.vc.stop.alone
     # A soft point light: its disc is found by camera rays only.
     soft = Light("soft", "POINT", (20.0,) * 3, np.eye(4), radius=0.1)
     r = Renderer(dataclasses.replace(scene, lights=tuple(scene.lights) + (soft,)),
-                 RenderSettings(integrator="COMBINED", max_passes=1, camera_depth=0),
+                 RenderSettings(integrator="COMBINED", max_passes=1, camera_depth="EMITTERS"),
                  log=lambda s: None)
     assert r.path_tracer.vc.stop.alone and not r.path_tracer.vc.stop.camera_free
     # A sun, which light tracing does not trace: camera paths at full length.
     sun = Light("sun", "SUN", (3.0,) * 3, np.eye(4))
     scene2 = dataclasses.replace(scene, lights=tuple(scene.lights) + (sun,))
-    r = Renderer(scene2, RenderSettings(integrator="COMBINED", max_passes=1, camera_depth=0),
+    r = Renderer(scene2, RenderSettings(integrator="COMBINED", max_passes=1, camera_depth="EMITTERS"),
                  log=lambda s: None)
     assert r.path_tracer.vc.stop is None
     # Which materials: diffuse, rough glossy; not smooth glossy, mirror, glass.
@@ -144,9 +149,9 @@ def test_rig_images_agree_with_full_camera_paths(rig):
     (depth 0); the largest per-pixel z there are pixels differing by 1e-4
     of their value in every seed."""
     kw = dict(max_passes=2, photons_per_pass=10_000)
-    full = _images(rig.scene, **kw)
+    full = _images(rig.scene, camera_depth="FULL", **kw)
     for depth in (0, 1):
-        d = _images(rig.scene, camera_depth=depth, **kw) - full
+        d = _images(rig.scene, camera_depth=NAME[depth], **kw) - full
         m = d.mean(axis=0)
         s2 = np.mean((d[0] - d[1]) ** 2) / 4.0                 # per pixel, of m
         s_mean = math.sqrt(s2 / m.size)
@@ -162,7 +167,7 @@ def test_furnace_with_camera_depth_one():
     Le / (1 - rho) within 4 sigma."""
     scene, L = furnace_box(res=8)
     m, s = _two_seeds(scene, max_bounces=64, rr_start=2, photons_per_pass=40_000,
-                      camera_depth=1)
+                      camera_depth="DIRECT")
     s_mean = s / math.sqrt(m.size)
     print("furnace ratio", m.mean() / L, "rel sigma", s_mean / L)
     assert s_mean < 0.01 * L

@@ -112,8 +112,9 @@ class CameraStop(NamedTuple):
 
 def camera_stop(lt) -> Optional[CameraStop]:
     """The CameraStop of the 'COMBINED' light tracer lt (its settings'
-    ``camera_depth``), or None (camera paths at full length) when that is
-    < 0 or light tracing cannot take every path the camera would stop:
+    ``camera_depth``: 'EMITTERS' depth 0, 'DIRECT' depth 1, 'AUTO' depth 0
+    where every material of the scene is covered, else none), or None
+    (camera paths at full length) when it is 'FULL' or light tracing cannot take every path the camera would stop:
     merging as an MIS strategy, transparent crossings (no vertex of the
     weights), an emitter light tracing does not trace (sun, world, hidden
     lights: ``all_traced``), the world's light, or emissive triangles that
@@ -122,7 +123,7 @@ def camera_stop(lt) -> Optional[CameraStop]:
     it to the camera side (CameraMIS.stop).  The covered materials:
     :func:`covered_materials`."""
     st, t = lt.tracer.settings, lt.light_table
-    depth = int(st.camera_depth)
+    depth = {"FULL": -1, "EMITTERS": 0, "DIRECT": 1}.get(st.camera_depth, 0)
     if (depth < 0 or st.merge_weights == "MIS" or lt.tracer.plan.transparent_shadows
             or not lt.all_traced or np.any(t.world > 0)
             or (t.environment is not None and t.environment.total > 0)):
@@ -133,6 +134,8 @@ def camera_stop(lt) -> Optional[CameraStop]:
         return None
     covered = covered_materials(lt.mtab, lt.fast_mat)
     alone = depth == 0 and bool(covered[np.unique(tri_mat)].all())
+    if st.camera_depth == "AUTO" and not alone:
+        return None
     soft = np.any((lt.cls == M.SOFT) & (t.p_select > 0))
     return CameraStop(depth, covered, alone, alone and not soft)
 
