@@ -18,7 +18,8 @@ import math
 import numpy as np
 import pytest
 
-from core.integrators.combined import CameraStop, covered_materials, splat_weight
+from core.integrators.combined import (VISIBLE_SPLATS, CameraStop, covered_materials,
+                                       splat_weight, visible_splats)
 from core.render import Renderer
 from core.materials import build_material_table
 from core.scene.model import DIFFUSE, GLASS, GLOSSY, Light, Lobe, Material
@@ -57,6 +58,17 @@ def test_rule_applies_to_diffuse_first_vertices_only(rig):
     assert r.path_tracer.vc.stop.alone and r.path_tracer.vc.stop.camera_free
     r = Renderer(scene, RenderSettings(integrator="COMBINED", max_passes=1), log=lambda s: None)
     assert r.path_tracer.vc.stop.camera_free                 # AUTO, the default
+    # AUTO in the furnace box (tests/test_combined.py): its camera sees a
+    # small part of a closed box, light paths rarely reach it (pilot: 0.008
+    # visible splats a light path): camera paths at full length.
+    fb, _ = furnace_box(res=8)
+    r = Renderer(fb, RenderSettings(integrator="COMBINED", max_passes=1, max_bounces=64,
+                                    rr_start=2), log=lambda s: None)
+    assert visible_splats(r.combined_lt, 0) < 0.1 * VISIBLE_SPLATS
+    assert r.path_tracer.vc.stop is None
+    assert Renderer(fb, RenderSettings(integrator="COMBINED", max_passes=1,
+                                       camera_depth="EMITTERS"),
+                    log=lambda s: None).path_tracer.vc.stop.camera_free
     r = Renderer(scene, RenderSettings(integrator="COMBINED", max_passes=1, camera_depth="DIRECT"),
                  log=lambda s: None)
     assert not r.path_tracer.vc.stop.alone
