@@ -160,17 +160,43 @@ def test_rig_images_agree_with_full_camera_paths(rig):
     passes: mean difference +0.03% +- 0.05% (depth 1), +0.03% +- 0.06%
     (depth 0); the largest per-pixel z there are pixels differing by 1e-4
     of their value in every seed."""
-    kw = dict(max_passes=2, photons_per_pass=10_000)
-    full = _images(rig.scene, camera_depth="FULL", **kw)
     for depth in (0, 1):
-        d = _images(rig.scene, camera_depth=NAME[depth], **kw) - full
-        m = d.mean(axis=0)
-        s2 = np.mean((d[0] - d[1]) ** 2) / 4.0                 # per pixel, of m
-        s_mean = math.sqrt(s2 / m.size)
-        print("depth", depth, "mean difference / image mean", m.mean() / full.mean(),
-              "rel sigma", s_mean / full.mean(), "mean z^2", np.mean(m * m) / s2)
-        assert abs(m.mean()) < 4 * s_mean
-        assert np.mean(m * m) / s2 < 5.0
+        _agree(rig.scene, NAME[depth], max_passes=2, photons_per_pass=10_000)
+
+
+def _agree(scene, name, **kw):
+    """camera_depth ``name`` against 'FULL', as in the test above."""
+    full = _images(scene, camera_depth="FULL", **kw)
+    d = _images(scene, camera_depth=name, **kw) - full
+    m = d.mean(axis=0)
+    s2 = np.mean((d[0] - d[1]) ** 2) / 4.0                 # per pixel, of m
+    s_mean = math.sqrt(s2 / m.size)
+    print(name, "mean difference / image mean", m.mean() / full.mean(),
+          "rel sigma", s_mean / full.mean(), "mean z^2", np.mean(m * m) / s2)
+    assert abs(m.mean()) < 4 * s_mean
+    assert np.mean(m * m) / s2 < 5.0
+
+
+def test_soft_light_seen_by_one_camera_ray_a_pixel():
+    """Every material diffuse and a soft point light (radius 0.3) the camera
+    sees: 'EMITTERS' traces one camera ray a pixel (CameraStop.alone: the
+    rays only find the light's disc) and light tracing takes everything
+    else; the image agrees with 'FULL'."""
+    scene, _ = point_light_plane(res=16)
+    soft = Light("soft", "POINT", (50.0,) * 3, np.diag([1.0, 1.0, 1.0, 1.0]) @ _at(0.3, 0.2, 0.6),
+                 radius=0.3)
+    scene = dataclasses.replace(scene, lights=tuple(scene.lights) + (soft,))
+    r = Renderer(scene, RenderSettings(integrator="COMBINED", max_passes=1,
+                                       camera_depth="EMITTERS"), log=lambda s: None)
+    assert r.path_tracer.vc.stop.alone and not r.path_tracer.vc.stop.camera_free
+    assert r.path_tracer.samples == 1 and r.combined_lt.K == 1 and r.path_tracer.vc.K == 1
+    _agree(scene, "EMITTERS", max_passes=2, photons_per_pass=10_000)
+
+
+def _at(x, y, z):
+    m = np.eye(4)
+    m[:3, 3] = (x, y, z)
+    return m
 
 
 def test_furnace_with_camera_depth_one():

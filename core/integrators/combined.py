@@ -219,6 +219,11 @@ class CameraMIS:
         cc = -(d @ self.camera.R[:, 2])
         return cos_surf / (A * cc ** 3 * t * t)
 
+    def set_samples(self, K: int) -> None:
+        """K camera paths per pixel and pass instead (CameraStop.alone)."""
+        self.ratio *= self.K / float(K)
+        self.K = int(K)
+
     def merge_scale(self, p1, u_lens):
         """(K,) merging's N_M pi r^2 / K for camera paths whose y_1 is p1 (K, 3)
         (lens uniforms u_lens (K, 2)): r^2 of the pixel containing y_1
@@ -495,6 +500,10 @@ class CombinedLightTracer(LightTracer):
         self.first_lights = LK.first_hit_lights(t, M.emit_select(t, np.arange(t.n)))
         # Where the camera paths stop (CameraStop; None = never).
         self.stop = camera_stop(self)
+        if self.stop is not None and self.stop.alone:
+            # The camera rays only find emitters seen directly: one a pixel
+            # and pass (the weights' K; the renderer sets the PathTracer's).
+            self.K = 1
         # The compiled next-event selection probability of _first_hit
         # (path_kernels.selection_kernel reads LightPdf's entry and group_frac
         # only, not its hittable), None where the compiled lights do not
