@@ -115,9 +115,9 @@ def camera_stop(lt) -> Optional[CameraStop]:
     ``camera_depth``: 'EMITTERS' depth 0, 'DIRECT' depth 1, 'AUTO' depth 0
     where every material of the scene is covered and light paths reach the
     camera often enough (:func:`visible_splats` >= VISIBLE_SPLATS), else
-    none), or None
-    (camera paths at full length) when it is 'FULL' or light tracing cannot take every path the camera would stop:
-    merging as an MIS strategy, transparent crossings (no vertex of the
+    none), or None (camera paths at full length) when it is 'FULL' or light
+    tracing cannot take every path the camera would stop: merging as an MIS
+    strategy, transparent crossings (no vertex of the
     weights), an emitter light tracing does not trace (sun, world, hidden
     lights: ``all_traced``), the world's light, or emissive triangles that
     are no light row.  Built by the light tracer itself, so that
