@@ -22,6 +22,18 @@ RADIUS_MODES = (
     ('WORLD', "World Units",
      "Initial radius in metres, the same at every visible point", 1),
 )
+CAMERA_DEPTHS = (
+    ('AUTO', "Auto",
+     "Emitters where every material is diffuse or rough (light tracing takes the rest), "
+     "else Full", 0),
+    ('FULL', "Full", "Camera paths at full length, every strategy weighted by MIS", 1),
+    ('EMITTERS', "Emitters",
+     "Camera rays on diffuse first vertices only find emitters seen directly", 2),
+    ('DIRECT', "Direct",
+     "Camera paths on diffuse first vertices keep next-event estimation and emission "
+     "there, then stop", 3),
+)
+
 MERGE_WEIGHTS = (
     ('PARTITION', "Partition",
      "Merging takes whole path classes (caustics seen through mirrors and glass), "
@@ -101,6 +113,10 @@ class FPPMRenderSettings(PropertyGroup):
         description="Combined: light paths in every pass per camera path of the pass "
                     "(Camera Samples x pixels), the same balance at any resolution; "
                     "0 = Photons per Pass")
+    camera_depth: EnumProperty(
+        name="Camera Depth", items=CAMERA_DEPTHS, default=_D.camera_depth,
+        description="Combined: where camera paths whose first vertex is diffuse stop; "
+                    "light tracing alone takes the longer paths there")
     merge_weights: EnumProperty(
         name="Merging Weights", items=MERGE_WEIGHTS, default=_D.merge_weights,
         description="Combined: how photon merging shares paths with the other strategies")

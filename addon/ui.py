@@ -43,6 +43,7 @@ class FPPM_RENDER_PT_sampling(FPPMPanel, Panel):
             col.prop(s, "camera_samples")
             if s.integrator == 'COMBINED':
                 col.prop(s, "light_paths_per_camera_path")
+                col.prop(s, "camera_depth")
                 col.prop(s, "merge_weights")
         else:
             col.prop(s, "photons_per_pass")

@@ -6,7 +6,8 @@
 RUNS: comma-separated fppm, ppm, path<K>, light, combined<K> (K = camera
 samples, default 4), cycles; a suffix :p<N> sets photons_per_pass (light
 paths per pass for light and combined), :r<X> sets light_paths_per_camera_path
-(combined: X light paths per camera path), :mmis (last) merging as an MIS
+(combined: X light paths per camera path), :d0, :d1, :df, :da set camera_depth
+(combined: 'EMITTERS', 'DIRECT', 'FULL', 'AUTO'), :mmis (last) merging as an MIS
 strategy (merge_weights 'MIS'; :mppm the same without frequency photons,
 PPM radii), :i<X> sets initial_radius_px, :n<N> renders N passes whatever
 the time (equal light paths).  The reference is Cycles at 8192 spp (cached
@@ -62,6 +63,10 @@ def settings_of(run: str) -> dict:
     if ":i" in run:                          # e.g. combined4:i1:mmis -- initial radius, pixels
         run, x = run.split(":i")
         return dict(settings_of(run), initial_radius_px=float(x))
+    if ":d" in run:                          # e.g. combined4:d0 -- camera_depth (CameraStop)
+        run, x = run.split(":d")
+        return dict(settings_of(run), camera_depth={"0": "EMITTERS", "1": "DIRECT", "f": "FULL",
+                                                    "a": "AUTO"}[x])
     if ":p" in run:                          # e.g. combined4:p50000
         run, n = run.split(":p")
         return dict(settings_of(run), photons_per_pass=int(n))

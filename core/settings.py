@@ -28,6 +28,7 @@ class RenderSettings:
     integrator: str = "COMBINED"     # 'COMBINED' (path + light tracing, merging), 'PHOTON', 'PATH', 'LIGHT'
     camera_samples: int = 4          # PATH, COMBINED: camera paths per pixel and pass
     light_paths_per_camera_path: float = 0.0  # COMBINED: light paths per pass / camera paths (0 = photons_per_pass)
+    camera_depth: str = "AUTO"       # COMBINED: where camera paths from a diffuse first vertex stop ('AUTO', 'FULL', 'EMITTERS', 'DIRECT'; docs/integrators.md "Camera depth")
     merge_weights: str = "PARTITION"  # COMBINED: photon merging by path classes ('PARTITION') or as an MIS strategy ('MIS')
     # --- Kernel
     radius_mode: str = "AUTO"        # 'AUTO' (pixel footprint) or 'WORLD'
@@ -80,6 +81,8 @@ class RenderSettings:
             bad("seed", "must be in [0, 2^31)")
         if not 1 <= self.camera_samples <= 4096:
             bad("camera_samples", "must be in [1, 4096]")
+        if self.camera_depth not in ("AUTO", "FULL", "EMITTERS", "DIRECT"):
+            bad("camera_depth", "must be 'AUTO', 'FULL', 'EMITTERS' or 'DIRECT'")
         if not (math.isfinite(self.light_paths_per_camera_path)
                 and 0 <= self.light_paths_per_camera_path <= 10_000):
             bad("light_paths_per_camera_path", "must be in [0, 10000] (0 = photons_per_pass)")

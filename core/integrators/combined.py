@@ -13,6 +13,8 @@ docs/integrators.md ("Combined").
 """
 from __future__ import annotations
 
+from typing import NamedTuple, Optional
+
 import numpy as np
 
 from .. import lights as Lt
@@ -68,6 +70,125 @@ def _with_merge(w, rl2, rm2, soft):
         return _finite(np.where(soft, w / (1.0 + rl2 + rm2), w / (1.0 + w * (rl2 + rm2))))
 
 
+class CameraStop(NamedTuple):
+    """Where the camera paths of 'COMBINED' stop because light tracing takes
+    the rest (``RenderSettings.camera_depth``; docs/integrators.md "Camera
+    depth"): a camera path whose first vertex y_1 is on a ``covered``
+    material keeps the camera strategies whose last camera vertex is y_j,
+    j <= depth (next-event estimation at y_j, emission found from y_j; j = 0
+    is the camera ray), and is not traced further.  Light tracing is then the
+    only strategy of the longer paths through a covered y_1 and takes them
+    with weight 1: its splat at z_m (= y_1, m light vertices) drops the camera
+    terms when m > depth.  The weights of the shorter paths are unchanged
+    (the same three strategies sample them), so they still sum to one on
+    every path.  depth 0 or 1; covered (M,) bool by material; alone: depth 0
+    and every material of the scene covered, so that no splat of a light
+    vertex has a camera strategy beside it (light tracing then needs no MIS
+    ratios: LIGHT's trace); camera_free: alone, and light tracing splats every
+    emitter the camera can see (no soft point or spot light, whose disc only
+    camera rays find), so that the camera paths would only find emitters seen
+    directly: none are traced and light tracing's splat of those emitters
+    takes weight 1 as well."""
+    depth: int
+    covered: np.ndarray
+    alone: bool = False
+    camera_free: bool = False
+
+    def ends(self, depth: int, mat_hit, mat_y1) -> np.ndarray:
+        """(K,) bool: the camera rays of loop step ``depth`` (0: the camera
+        rays, hitting y_1) that stop at their hit (materials mat_hit) after
+        its emission was counted: at y_1 when depth 0, at y_2 when depth 1
+        (mat_y1: the material of the vertex y_1 the ray left)."""
+        if depth != self.depth:
+            return np.zeros(np.shape(mat_hit)[0], bool)
+        return self.covered[mat_y1 if depth else mat_hit]
+
+    def light_only(self, mat, first) -> np.ndarray:
+        """(K,) bool: the light vertices (materials mat, ``first`` = z_1)
+        whose splat has no camera strategy beside it (weight 1)."""
+        cov = self.covered[mat]
+        return cov if self.depth == 0 else cov & ~np.asarray(first, bool)
+
+
+def camera_stop(lt) -> Optional[CameraStop]:
+    """The CameraStop of the 'COMBINED' light tracer lt (its settings'
+    ``camera_depth``: 'EMITTERS' depth 0, 'DIRECT' depth 1, 'AUTO' depth 0
+    where every material of the scene is covered and light paths reach the
+    camera often enough (:func:`visible_splats` >= VISIBLE_SPLATS), else
+    none), or None (camera paths at full length) when it is 'FULL' or light
+    tracing cannot take every path the camera would stop: merging as an MIS
+    strategy, transparent crossings (no vertex of the
+    weights), an emitter light tracing does not trace (sun, world, hidden
+    lights: ``all_traced``), the world's light, or emissive triangles that
+    are no light row.  Built by the light tracer itself, so that
+    tools/distributed.py's workers apply the same rule; the renderer hands
+    it to the camera side (CameraMIS.stop).  The covered materials:
+    :func:`covered_materials`."""
+    st, t = lt.tracer.settings, lt.light_table
+    depth = {"FULL": -1, "EMITTERS": 0, "DIRECT": 1}.get(st.camera_depth, 0)
+    if (depth < 0 or st.merge_weights == "MIS" or lt.tracer.plan.transparent_shadows
+            or not lt.all_traced or np.any(t.world > 0)
+            or (t.environment is not None and t.environment.total > 0)):
+        return None
+    tri_mat = np.asarray(lt.scene.tri_mat, np.int64)
+    emissive = np.nonzero(lt.mtab.emission[tri_mat].max(axis=1) > 0)[0]
+    if not np.isin(emissive, t.source[t.kind == MESH]).all():
+        return None
+    covered = covered_materials(lt.mtab, lt.fast_mat)
+    alone = depth == 0 and bool(covered[np.unique(tri_mat)].all())
+    if st.camera_depth == "AUTO" and not (alone and visible_splats(lt, st.seed) >= VISIBLE_SPLATS):
+        return None
+    soft = np.any((lt.cls == M.SOFT) & (t.p_select > 0))
+    return CameraStop(depth, covered, alone, alone and not soft)
+
+
+#: 'AUTO' leaves the camera paths out only where light paths reach the
+#: camera this often (unoccluded splats in the image per light path, the
+#: pilot of visible_splats): measured 0.5 to 2.0 on the diffuse rooms of
+#: example_blends (64x64), 0.008 in the furnace box of tests/test_combined.py
+#: whose camera sees a small part of a closed box (light tracing alone there:
+#: 6x the noise of the combined camera paths).
+VISIBLE_SPLATS = 0.1
+
+#: Light paths of that pilot.
+PILOT_PATHS = 8192
+
+
+def visible_splats(lt, seed: int) -> float:
+    """Unoccluded splats in the image per light path of the light tracer lt:
+    PILOT_PATHS light paths of a stream of their own (seed: the render's, so
+    that the decision is the same in every process of a seeded render), each
+    vertex joined to the lens as light tracing does (LightTracer._connections)."""
+    rng = np.random.default_rng([int(seed), 0x5EED])
+    t = lt.light_table
+    ph = (PK.sample_photons_fast(t, PILOT_PATHS, rng) if lt.fast_emission
+          else Lt.sample_photons(t, PILOT_PATHS, rng))
+    dep = lt.tracer.trace_emitted(ph, rng)
+    if dep is None or dep["p"].shape[0] == 0:
+        return 0.0
+    _, n, tr = lt._connections(dep["p"], dep["ng"], rng)
+    return float(np.count_nonzero(tr.max(axis=1) > 0)) / PILOT_PATHS if n else 0.0
+
+
+#: Glossy lobes at least this rough (Cycles roughness; GGX alpha = its square)
+#: leave a material's camera vertices to light tracing (covered_materials).
+COVER_ROUGHNESS = 0.25
+
+
+def covered_materials(mtab, fast_mat) -> np.ndarray:
+    """(M,) bool: the materials of CameraStop -- no delta lobe (a camera
+    path that scattered by one at y_1 is no light-tracing path) and every
+    lobe diffuse (Lambert, Oren-Nayar) or glossy with roughness >=
+    COVER_ROUGHNESS, where a light vertex joined to the lens sees a BSDF
+    about as flat as a camera path's first bounce does; LightTracer.fast_mat
+    (LAMBERT without Normal Map / Bump) always."""
+    from ..scene.model import DIFFUSE, GLOSSY
+    k = mtab.kind
+    flat = (k < 0) | (k == DIFFUSE) | ((k == GLOSSY) & (mtab.roughness >= COVER_ROUGHNESS))
+    return (np.asarray(fast_mat, bool)
+            | (mtab.has_nondelta & ~mtab.has_delta & np.all(flat, axis=1)))
+
+
 class CameraMIS:
     """The light-tracing terms of the camera strategies' weights (module
     :mod:`.mis`): PathTracer calls these with its vertex arrays."""
@@ -85,6 +206,8 @@ class CameraMIS:
         # pass; None = no such term.
         self.mis_merge = None
         self.K = int(K)
+        # Where the camera paths stop (CameraStop), set by the renderer; None = never.
+        self.stop = None
 
     # ---------------------------------------------------------- densities
     def c1(self, d, cos_surf, t):
@@ -95,6 +218,11 @@ class CameraMIS:
             return cos_surf / A
         cc = -(d @ self.camera.R[:, 2])
         return cos_surf / (A * cc ** 3 * t * t)
+
+    def set_samples(self, K: int) -> None:
+        """K camera paths per pixel and pass instead (CameraStop.alone)."""
+        self.ratio *= self.K / float(K)
+        self.K = int(K)
 
     def merge_scale(self, p1, u_lens):
         """(K,) merging's N_M pi r^2 / K for camera paths whose y_1 is p1 (K, 3)
@@ -370,6 +498,12 @@ class CombinedLightTracer(LightTracer):
         t = self.light_table
         self.all_traced = not np.any((t.p_select > 0) & (self.cls == M.NO_LT))
         self.first_lights = LK.first_hit_lights(t, M.emit_select(t, np.arange(t.n)))
+        # Where the camera paths stop (CameraStop; None = never).
+        self.stop = camera_stop(self)
+        if self.stop is not None and self.stop.alone:
+            # The camera rays only find emitters seen directly: one a pixel
+            # and pass (the weights' K; the renderer sets the PathTracer's).
+            self.K = 1
         # The compiled next-event selection probability of _first_hit
         # (path_kernels.selection_kernel reads LightPdf's entry and group_frac
         # only, not its hittable), None where the compiled lights do not
@@ -412,9 +546,18 @@ class CombinedLightTracer(LightTracer):
                 ph = {k: v[live] for k, v in ph.items()}
                 light = light[live]
         ph["light"] = light
+        stop = self.stop
         if self.emitters_seen:
-            self._emission_vertices(ph, rng, film, mis=(self.kn, M.emit_pdf_pos(t, light),
-                                                        self.cls[light] == M.FULL))
+            # No camera paths (CameraStop.camera_free): the splat's weight is 1.
+            self._emission_vertices(ph, rng, film, mis=None if stop is not None and stop.camera_free
+                                    else (self.kn, M.emit_pdf_pos(t, light),
+                                          self.cls[light] == M.FULL))
+        if stop is not None and stop.alone:
+            # No camera strategy beside any light vertex (CameraStop): LIGHT's trace.
+            dep = self.tracer.trace_emitted(ph, rng)
+            if dep is not None:
+                self.connect(dep, rng, film)
+            return
         kind = t.kind[light]
         ar = (kind == AREA) | (kind == MESH)
         z0 = np.where(ar[:, None], ph["o"], t.co[light])     # the light end of the weights
@@ -422,6 +565,12 @@ class CombinedLightTracer(LightTracer):
         dep, B0d, B1d, first = self._trace(ph, z0, rng)
         if dep is None:
             return
+        if stop is not None:
+            # Paths the camera does not trace (CameraStop): light tracing's alone.
+            mat = self.tracer.tris.mat[dep["bary"][:, 0].astype(np.int64)]
+            alone = stop.light_only(mat, first)
+            B0d[alone] = 0.0
+            B1d[alone] = 0.0
         mis = (B0d, B1d, first, soft[dep["src_photon"]])
         if getattr(self, "kept", None) is not None:
             # Merging as an MIS strategy: q_M / q_L = pi r^2 c_1 (N_M = N_L).

@@ -222,6 +222,8 @@ class PathTracer:
         the radiance each carries (filter-importance-sampled, so a plain mean)."""
         P, n = self.px.shape[0], self.samples
         L = np.zeros((P, 3))
+        if getattr(getattr(self.vc, "stop", None), "camera_free", False):
+            return L        # COMBINED: light tracing takes every path (combined.CameraStop)
         block = max(1, PATH_CHUNK // n)
         for a in range(0, P, block):
             pix_b = np.arange(a, min(a + block, P))
@@ -334,6 +336,18 @@ class PathTracer:
                 if part is not None:
                     w = w * part.weight(e)
                 out[path[e]] += beta[e] * Le * w[:, None]
+            stop = getattr(vc, "stop", None)
+            if stop is not None and depth <= stop.depth:
+                # COMBINED: light tracing alone takes the longer paths
+                # (combined.CameraStop; no transparent crossings then, so
+                # step ``depth`` hits y_{depth+1}).
+                keep = np.nonzero(~stop.ends(depth, mat, None if depth == 0
+                                             else vprev.mat[ih]))[0]
+                if keep.size < ih.size:
+                    ih, prim, p, ng, ns, uv, mat = (a[keep] for a in (ih, prim, p, ng, ns, uv,
+                                                                     mat))
+                    if ih.size == 0:
+                        break
             if depth > self.max_bounces:
                 break       # the last BSDF ray only collects emission
             # Untextured in the kernels' scope: the colours are the material's
