@@ -109,6 +109,25 @@ def _one_plane(tri_p: np.ndarray) -> bool:
 STAGES = ("specular chains", "frequency photons", "occlusion grid")
 
 
+def with_camera_stop(strategies: tuple, stop, samples: int) -> tuple:
+    """strategies with the camera-path entry restated once 'COMBINED' knows
+    where light tracing takes its camera paths over (stop: the light
+    tracer's ``combined.CameraStop``, decided after the plan because
+    'AUTO' reads a pilot of light paths; docs/integrators.md "Camera
+    depth"); samples: camera rays per pixel and pass."""
+    if stop.camera_free:
+        text = ("camera paths: none (every material diffuse or rough: light tracing "
+                "takes every path, emitters seen directly included)")
+    elif stop.alone:
+        text = (f"camera paths: rays to the emitters seen directly only, {samples} per "
+                f"pixel and pass (light tracing takes every longer path)")
+    else:
+        text = (f"camera paths (path tracing and next-event estimation, {samples} per "
+                f"pixel and pass) stop at vertex {stop.depth} on diffuse or rough "
+                f"materials (light tracing takes the longer paths)")
+    return tuple(text if s.startswith("camera paths") else s for s in strategies)
+
+
 def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> RenderPlan:
     """Decide the stages from the scene.  ``force``: stage names kept even when
     the scene does not need them (to check that leaving them out changes

@@ -61,7 +61,7 @@ from .lights import build_light_table
 from .lights import shadow
 from .lights.nee import NextEventEstimation
 from .materials import build_material_table
-from .plan import RenderPlan, make_plan, merges
+from .plan import RenderPlan, make_plan, merges, with_camera_stop
 from .sanity import check_resolution, check_scene, recentre
 from .scene.camera import CameraModel, FilterSampler
 from .scene.model import Scene, drop_invalid_triangles, scene_digest
@@ -189,6 +189,9 @@ class Renderer:
             if self.path_tracer.vc.stop is not None and self.path_tracer.vc.stop.alone:
                 self.path_tracer.samples = self.combined_lt.K
                 self.path_tracer.vc.set_samples(self.combined_lt.K)
+            if self.path_tracer.vc.stop is not None:
+                self.plan.strategies = with_camera_stop(
+                    self.plan.strategies, self.path_tracer.vc.stop, self.path_tracer.samples)
             self.light_splat = np.zeros((P, 3))
 
     def _setup_scene(self, scene: Scene, force_stages: tuple, passes: tuple = ()) -> None:

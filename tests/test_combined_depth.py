@@ -58,6 +58,8 @@ def test_rule_applies_to_diffuse_first_vertices_only(rig):
     assert r.path_tracer.vc.stop.alone and r.path_tracer.vc.stop.camera_free
     r = Renderer(scene, RenderSettings(integrator="COMBINED", max_passes=1), log=lambda s: None)
     assert r.path_tracer.vc.stop.camera_free                 # AUTO, the default
+    # The plan says what is traced, not the settings' camera_samples.
+    assert "camera paths: none" in r.plan.lines()[0]
     # AUTO in the furnace box (tests/test_combined.py): its camera sees a
     # small part of a closed box, light paths rarely reach it (pilot: 0.008
     # visible splats a light path): camera paths at full length.
@@ -72,12 +74,15 @@ def test_rule_applies_to_diffuse_first_vertices_only(rig):
     r = Renderer(scene, RenderSettings(integrator="COMBINED", max_passes=1, camera_depth="DIRECT"),
                  log=lambda s: None)
     assert not r.path_tracer.vc.stop.alone
+    assert "stop at vertex 1 on diffuse or rough materials" in r.plan.lines()[0]
     # A soft point light: its disc is found by camera rays only.
     soft = Light("soft", "POINT", (20.0,) * 3, np.eye(4), radius=0.1)
     r = Renderer(dataclasses.replace(scene, lights=tuple(scene.lights) + (soft,)),
                  RenderSettings(integrator="COMBINED", max_passes=1, camera_depth="EMITTERS"),
                  log=lambda s: None)
     assert r.path_tracer.vc.stop.alone and not r.path_tracer.vc.stop.camera_free
+    assert (f"rays to the emitters seen directly only, {r.path_tracer.samples} per pixel"
+            in r.plan.lines()[0])
     # A sun, which light tracing does not trace: camera paths at full length.
     sun = Light("sun", "SUN", (3.0,) * 3, np.eye(4))
     scene2 = dataclasses.replace(scene, lights=tuple(scene.lights) + (sun,))
