@@ -155,3 +155,19 @@ def test_render_equals_the_per_chunk_path(frequency):
     for k in new.aovs:
         np.testing.assert_array_equal(new.aovs[k], ref.aovs[k], err_msg=k)
     assert np.asarray(new.image).max() > 0
+
+
+@pytest.mark.parametrize("K", [1500, 3 * 1024])
+def test_vp_records_equal_the_columns(K, monkeypatch):
+    # The compiled records (hashgrid._vp_records: numba's allocator, VP
+    # ranges in threads from PARALLEL_MIN_VPS) are numpy's column copies.
+    monkeypatch.setattr(hg, "PARALLEL_MIN_VPS", 2048)
+    rng = np.random.default_rng(K)
+    pos, ng = rng.normal(size=(K, 3)), rng.normal(size=(K, 3))
+    R2, const = rng.uniform(0, 1e-3, K), rng.random(K) < 0.7
+    pos[3, 1], R2[5] = np.nan, np.inf
+    ref = np.empty((K, 8))
+    ref[:, 0:3], ref[:, 3], ref[:, 4:7], ref[:, 7] = pos, R2, ng, const
+    rec = hg._vp_records(pos, ng, R2, const)
+    assert rec.dtype == np.float64 and rec.shape == (K, 8) and rec.flags.c_contiguous
+    assert np.array_equal(rec, ref, equal_nan=True)

@@ -1040,13 +1040,49 @@ def _empty_result(K, want_freq_pairs, sectors=False):
 
 def _vp_records(vp_pos, vp_ng, vp_R2, vp_const):
     """(K, 8) float64: one 64-byte record per VP (x, y, z, R^2, ng, const), so a
-    candidate reads one cache line instead of four arrays."""
-    vp_rec = np.empty((vp_pos.shape[0], 8))
-    vp_rec[:, 0:3] = vp_pos
-    vp_rec[:, 3] = vp_R2
-    vp_rec[:, 4:7] = vp_ng
-    vp_rec[:, 7] = vp_const
-    return vp_rec
+    candidate reads one cache line instead of four arrays; vp_pos, vp_ng (K,
+    3), vp_R2 (K,) float64 and vp_const (K,) bool, contiguous (``_prepare``).
+
+    Copied by a compiled kernel into an array of numba's allocator, by VP
+    ranges in the numba threads from PARALLEL_MIN_VPS VPs.  numpy advises
+    huge pages for arrays of 4 MiB and more (``NUMPY_MADVISE_HUGEPAGE``):
+    faulting in the fresh 128 MiB of a 1080p pass's records took 0.5-0.8 s
+    of system time a pass on the virtual machine FPPM is measured on,
+    numba's 4 KiB pages ~0.05 s (docs/architecture.md, "Cores used: the
+    gather's records and the radius initialisation").  A copy: the same
+    values as numpy's column assignments (tests/test_gather_buffers.py)."""
+    T = numba.get_num_threads()
+    if vp_pos.shape[0] >= PARALLEL_MIN_VPS and T > 1:
+        return _vp_records_parallel(T, vp_pos, vp_ng, vp_R2, vp_const)
+    return _vp_records_serial(1, vp_pos, vp_ng, vp_R2, vp_const)
+
+
+@njit(cache=True)
+def _vp_records_range(v0, v1, vp_pos, vp_ng, vp_R2, vp_const, rec):
+    """Records v0..v1-1 of :func:`_vp_records` into rec (K, 8)."""
+    for v in range(v0, v1):
+        rec[v, 0] = vp_pos[v, 0]
+        rec[v, 1] = vp_pos[v, 1]
+        rec[v, 2] = vp_pos[v, 2]
+        rec[v, 3] = vp_R2[v]
+        rec[v, 4] = vp_ng[v, 0]
+        rec[v, 5] = vp_ng[v, 1]
+        rec[v, 6] = vp_ng[v, 2]
+        rec[v, 7] = 1.0 if vp_const[v] else 0.0
+
+
+@njit(cache=True, parallel=True)
+def _vp_records_parallel(n_chunks, vp_pos, vp_ng, vp_R2, vp_const):
+    """:func:`_vp_records` by n_chunks VP ranges (each record is its own)."""
+    K = vp_pos.shape[0]
+    rec = np.empty((K, 8))
+    for c in prange(n_chunks):
+        _vp_records_range(c * K // n_chunks, (c + 1) * K // n_chunks, vp_pos, vp_ng, vp_R2,
+                          vp_const, rec)
+    return rec
+
+
+_vp_records_serial = serial_twin(_vp_records_parallel)
 
 
 class GatherBuffers:
