@@ -35,8 +35,8 @@ What is asserted, and where each tolerance comes from:
   AUTO and WORLD radii, with and without the edge cap (infinite caps, caps
   below the rule and below the floor, depths whose rule is below the floor),
   invalid pixels and pixels that already have a radius; one thread and split
-  (update.PARALLEL_MIN); and a render's first pass (the warm-up room), whose
-  edge cap is its own camera pass.
+  (hashgrid.PARALLEL_MIN_VPS, lowered for the test); and a render's first
+  pass (the warm-up room), whose edge cap is its own camera pass.
 """
 from __future__ import annotations
 
@@ -50,6 +50,7 @@ from core.scene.camera import CameraModel
 from core.scene.model import DIFFUSE, GLASS, GLOSSY, Camera, Light, Lobe, Material, make_scene
 from core.settings import RenderSettings
 from core.sppm import camera_kernels as CK
+from core.sppm import hashgrid as Hg
 from core.sppm import update as U
 from core.sppm.state import PixelState
 from core.warmup import warmup_scene
@@ -271,8 +272,8 @@ def _init_case(P, seed, kind):
 @pytest.mark.parametrize("kind", ["PERSP", "ORTHO"])
 @pytest.mark.parametrize("mode,capped", [("AUTO", True), ("AUTO", False), ("WORLD", True),
                                          ("WORLD", False)])
-def test_compiled_radius_initialisation_equals_numpy(P, kind, mode, capped):
-    assert (P >= U.PARALLEL_MIN) == (P > 3000)
+def test_compiled_radius_initialisation_equals_numpy(P, kind, mode, capped, monkeypatch):
+    monkeypatch.setattr(Hg, "PARALLEL_MIN_VPS", 250 * 280)   # the split path at 250 x 280
     cam, vp, st, cap = _init_case(P, P, kind)
     settings = RenderSettings(integrator="PHOTON", radius_mode=mode, initial_radius=0.004,
                               cap_radius_at_edges=capped)

@@ -58,6 +58,7 @@ from ..scene.camera_kernels import fma
 
 from ..frequency import spectrum as F
 from . import edges
+from . import hashgrid
 from .hashgrid import SECTOR_CELLS, SECTOR_QUADRANTS
 
 #: Smallest radius relative to the scene diameter D (docs/frequency.md stiff
@@ -224,8 +225,12 @@ class Radii:
             args = (vp.valid, vp.depth, state.R2, cap, st.radius_mode == "WORLD",
                     float(st.initial_radius), float(st.initial_radius_px), float(self.camera.pix),
                     self.camera.cam.kind == "ORTHO", float(self.floor))
+            # Mostly a scan for new pixels (none after the first pass in a
+            # closed scene): threads from the grid build's threshold, not the
+            # update's (a parallel region's hand-off cost ~10 ms of wall a
+            # 256² pass on the loaded machine, the scan 0.2 ms).
             T = numba.get_num_threads()
-            if P >= PARALLEL_MIN and T > 1:
+            if P >= hashgrid.PARALLEL_MIN_VPS and T > 1:
                 _initialise_parallel(T, *args)
             else:
                 _initialise_range(0, P, *args)
