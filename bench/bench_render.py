@@ -866,6 +866,16 @@ def pass_one(a):
         + f"; whole run {(ru1.ru_stime - ru0.ru_stime) / n:.2f} s a pass (raw rays included)")
     print("    busiest thread's CPU a pass per stage (wall on an idle machine >= it): " + ", ".join(
         f"{k} {st['busiest'][k] / n:.2f} s" for k in PASS_STAGES if wall[k] > 0))
+    # The pass's wall time on an idle machine, estimated from this run's
+    # CPU clocks (load-robust): a stage takes at least its busiest thread's
+    # CPU and its CPU over the threads.  The photons traced ahead are in the
+    # CPU of the stages they overlap (not counted again); what is not in a
+    # stage ("rest") is left out, so the cores read high (main, 14:25-14:34
+    # UTC at load 15: 1.71-1.74 where an idle run measured 1.47).
+    est = sum(max(st["busiest"][k], cpu[k] / Ph.THREADS)
+              for k in PASS_STAGES if k != "photon_trace") / n
+    print(f"    idle estimate from the stages: pass wall {est:.2f} s (sum over stages of "
+          f"max(busiest thread, CPU / {Ph.THREADS})), cores used {pc / n / est:.2f}")
     print("    largest VmRSS seen per stage (10 ms samples): " + ", ".join(
         f"{k} {v / 2**30:.2f} GiB" for k, v in sorted(sampler.peak.items(),
                                                        key=lambda kv: -kv[1])))

@@ -28,16 +28,31 @@ What is asserted, and where each tolerance comes from:
   camera rays: the image means agree to 4% (measured -0.3% to -1.4% over
   three seeds); with the relative IOR of a front-face hit (eta instead of
   1/eta, the bug this guards) they differ by +28% to +32%.
+- The compiled radius initialisation (core.sppm.update ``_initialise_range``)
+  sets the numpy reference's R2 (``Radii.compiled = False``) bit for bit: the
+  same operations in numpy's dtypes (the footprint rule in float32, the cap
+  and WORLD radii in float64).  Perspective and orthographic footprints,
+  AUTO and WORLD radii, with and without the edge cap (infinite caps, caps
+  below the rule and below the floor, depths whose rule is below the floor),
+  invalid pixels and pixels that already have a radius; one thread and split
+  (hashgrid.PARALLEL_MIN_VPS, lowered for the test); and a render's first
+  pass (the warm-up room), whose edge cap is its own camera pass.
 """
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from core.render import Renderer
-from core.scene.model import DIFFUSE, GLASS, GLOSSY, Light, Lobe, Material, make_scene
+from core.scene.camera import CameraModel
+from core.scene.model import DIFFUSE, GLASS, GLOSSY, Camera, Light, Lobe, Material, make_scene
 from core.settings import RenderSettings
 from core.sppm import camera_kernels as CK
+from core.sppm import hashgrid as Hg
+from core.sppm import update as U
+from core.sppm.state import PixelState
 from core.warmup import warmup_scene
 
 from analytic_scenes import look_down_ortho, quad, translate
@@ -232,3 +247,71 @@ def test_blocked_direct_light_and_add_to(name, monkeypatch):
     out = nee(vp, rng, add_to=E)
     assert out is E and np.array_equal(E, want) and np.array_equal(rng.random(3), r1)
     assert np.count_nonzero(L1.max(axis=1) > 0) > 0.3 * L1.shape[0]
+
+
+def _init_case(P, seed, kind):
+    """A pass's visible points (valid, float32 depth), a state with some radii
+    set, a camera of this kind and an edge cap (P,) relative to the rule's radius."""
+    rng = np.random.default_rng(seed)
+    W = 250
+    cam = CameraModel(Camera(kind=kind, matrix_world=np.eye(4), lens=35.0, sensor_width=36.0,
+                             resolution=(W, P // W), clip_start=0.01, clip_end=100.0,
+                             ortho_scale=2.5))
+    depth = rng.uniform(0.5, 8.0, P).astype(np.float32)
+    depth[rng.random(P) < 0.02] = np.float32(1e-9)     # the rule below the floor
+    vp = SimpleNamespace(valid=rng.random(P) > 0.1, depth=depth)
+    st = PixelState.zeros(P)
+    st.R2[:] = rng.uniform(1e-6, 1e-4, P) * (rng.random(P) < 0.3)
+    cap = rng.uniform(0.2, 1.5, P)                     # times the rule's radius
+    cap[rng.random(P) < 0.3] = np.inf
+    cap[rng.random(P) < 0.02] = 1e-12                  # below the floor
+    return cam, vp, st, cap
+
+
+@pytest.mark.parametrize("P", [3000, 250 * 280])
+@pytest.mark.parametrize("kind", ["PERSP", "ORTHO"])
+@pytest.mark.parametrize("mode,capped", [("AUTO", True), ("AUTO", False), ("WORLD", True),
+                                         ("WORLD", False)])
+def test_compiled_radius_initialisation_equals_numpy(P, kind, mode, capped, monkeypatch):
+    monkeypatch.setattr(Hg, "PARALLEL_MIN_VPS", 250 * 280)   # the split path at 250 x 280
+    cam, vp, st, cap = _init_case(P, P, kind)
+    settings = RenderSettings(integrator="PHOTON", radius_mode=mode, initial_radius=0.004,
+                              cap_radius_at_edges=capped)
+    rule = (np.full(P, 0.004) if mode == "WORLD"
+            else settings.initial_radius_px * cam.footprint(vp.depth))
+    cap = cap * rule
+    R2 = {}
+    for compiled in (False, True):
+        radii = U.Radii(settings, cam, 3.7, False, None, P // 250, 250)
+        radii._edge_cap = cap                          # not its camera pass
+        radii.compiled = compiled
+        s = st.R2.copy()
+        st_c = type(st)(**{**st.state_dict(), "R2": s})
+        radii.initialise(st_c, vp)
+        R2[compiled] = s
+    new = vp.valid & (st.R2 == 0)
+    assert new.mean() > 0.5 and np.all(R2[False][new] > 0)
+    assert np.array_equal(R2[False][~new], st.R2[~new])
+    assert R2[True].dtype == np.float64 and np.array_equal(R2[True], R2[False])
+    if capped:                                         # the cap and the floor both bind somewhere
+        r = np.sqrt(R2[False][new])
+        assert np.mean(r < 0.99 * rule[new]) > 0.2
+        assert np.any(r == radii.floor)
+
+
+def test_compiled_radius_initialisation_in_a_render():
+    R2 = {}
+    for compiled in (False, True):
+        r = Renderer(warmup_scene(40), RenderSettings(integrator="PHOTON", max_passes=1,
+                                                      photons_per_pass=2000, seed=2),
+                     log=lambda _m: None)
+        r.radii.compiled = compiled
+        init = r.radii.initialise
+
+        def keep(state, vp, check_stop, init=init, compiled=compiled):
+            init(state, vp, check_stop)
+            R2[compiled] = state.R2.copy()
+        r.radii.initialise = keep
+        r.step()
+    assert np.mean(R2[False] > 0) > 0.9
+    assert np.array_equal(R2[True], R2[False])

@@ -155,3 +155,39 @@ def test_render_equals_the_per_chunk_path(frequency):
     for k in new.aovs:
         np.testing.assert_array_equal(new.aovs[k], ref.aovs[k], err_msg=k)
     assert np.asarray(new.image).max() > 0
+
+
+@pytest.mark.parametrize("K", [1500, 3 * 1024])
+def test_vp_records_equal_the_columns(K, monkeypatch):
+    # The compiled records (hashgrid._vp_records: numba's allocator, VP
+    # ranges in threads from PARALLEL_MIN_VPS) are numpy's column copies.
+    monkeypatch.setattr(hg, "PARALLEL_MIN_VPS", 2048)
+    rng = np.random.default_rng(K)
+    pos, ng = rng.normal(size=(K, 3)), rng.normal(size=(K, 3))
+    R2, const = rng.uniform(0, 1e-3, K), rng.random(K) < 0.7
+    pos[3, 1], R2[5] = np.nan, np.inf
+    ref = np.empty((K, 8))
+    ref[:, 0:3], ref[:, 3], ref[:, 4:7], ref[:, 7] = pos, R2, ng, const
+    rec = hg._vp_records(pos, ng, R2, const)
+    assert rec.dtype == np.float64 and rec.shape == (K, 8) and rec.flags.c_contiguous
+    assert np.array_equal(rec, ref, equal_nan=True)
+
+
+@pytest.mark.parametrize("n_chunks", [3, 5])
+def test_merge_sort_in_runs_is_the_stable_sort(n_chunks):
+    # The gather's merge sort of a large table's slots (runs sorted in the
+    # threads, merged pairwise: hashgrid._merge_sorted_runs) gives the
+    # one-run order, slots and rows bit for bit with any number of runs
+    # (tests/test_photon_sort.py: 1 and 2 runs against numpy's stable sort).
+    from test_photon_sort import _case, _sorted
+    grid, ph = _case(20, 4000)
+    assert grid.n_slots > hg.COUNT_SORT_SLOTS_PER_PHOTON * 4000
+    one = _sorted(grid, ph, 1)
+    for got, exp in zip(_sorted(grid, ph, n_chunks), one):
+        assert got.dtype == exp.dtype and np.array_equal(got, exp, equal_nan=True)
+    key = np.random.default_rng(n_chunks).integers(0, 40, 500)      # many ties
+    runs = np.empty(500, np.int64)
+    for c in range(n_chunks):
+        hg._argsort_run(key, c * 500 // n_chunks, (c + 1) * 500 // n_chunks, runs)
+    assert np.array_equal(hg._merge_sorted_runs(key, runs, n_chunks),
+                          np.argsort(key, kind="stable"))

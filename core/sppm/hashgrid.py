@@ -519,6 +519,44 @@ def _copy_sorted(q0, q1, order, ps, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                      slot, pos, ng, wi, power, rpred)
 
 
+@njit(cache=True)
+def _merge_runs(key, src, a0, a1, b1, dst):
+    """dst[a0:b1] = the runs src[a0:a1] and src[a1:b1] (indices into key, each
+    sorted by key) merged stably: on equal keys the first run's index first."""
+    i, j = a0, a1
+    for k in range(a0, b1):
+        if j >= b1 or (i < a1 and key[src[i]] <= key[src[j]]):
+            dst[k] = src[i]
+            i += 1
+        else:
+            dst[k] = src[j]
+            j += 1
+
+
+@njit(cache=True)
+def _argsort_run(key, q0, q1, out):
+    """out[q0:q1] = the indices q0..q1-1 stably sorted by key (one run)."""
+    out[q0:q1] = np.argsort(key[q0:q1], kind="mergesort") + q0
+
+
+@njit(cache=True)
+def _merge_sorted_runs(key, a, T):
+    """np.argsort(key, kind="mergesort") from a (n,): T consecutive runs
+    (run c = indices c n / T .. (c + 1) n / T - 1) each sorted by
+    :func:`_argsort_run`, merged pairwise (a stable merge of the stable runs
+    of consecutive ranges is the stable sort).  a may be overwritten."""
+    n = key.shape[0]
+    b = np.empty(n, np.int64) if T > 1 else a
+    width = 1                           # runs of width chunks are sorted
+    while width < T:
+        for c0 in range(0, T, 2 * width):
+            c1, c2 = min(c0 + width, T), min(c0 + 2 * width, T)
+            _merge_runs(key, a, c0 * n // T, c1 * n // T, c2 * n // T, b)
+        a, b = b, a
+        width *= 2
+    return a
+
+
 @njit(cache=True, parallel=True)
 def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                   origin, inv_h, lo, hi, dense, nx, ny, nz, shift, cell_start, n_chunks):
@@ -576,7 +614,13 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
             inside[j] = p
             key[j] = ps[p]
             j += 1
-    by_slot = np.argsort(key, kind="mergesort")          # stable
+    # Stable by slot: runs sorted in the threads (the serial merge sort was
+    # ~20 ms of one thread a 131,072-photon chunk), then merged.
+    T = max(1, min(n_chunks, n))
+    by_slot = np.empty(n, np.int64)
+    for c in prange(T):
+        _argsort_run(key, c * n // T, (c + 1) * n // T, by_slot)
+    by_slot = _merge_sorted_runs(key, by_slot, T)
     for q in range(n):
         order[q] = inside[by_slot[q]]
     for c in prange(n_chunks):
@@ -1040,13 +1084,49 @@ def _empty_result(K, want_freq_pairs, sectors=False):
 
 def _vp_records(vp_pos, vp_ng, vp_R2, vp_const):
     """(K, 8) float64: one 64-byte record per VP (x, y, z, R^2, ng, const), so a
-    candidate reads one cache line instead of four arrays."""
-    vp_rec = np.empty((vp_pos.shape[0], 8))
-    vp_rec[:, 0:3] = vp_pos
-    vp_rec[:, 3] = vp_R2
-    vp_rec[:, 4:7] = vp_ng
-    vp_rec[:, 7] = vp_const
-    return vp_rec
+    candidate reads one cache line instead of four arrays; vp_pos, vp_ng (K,
+    3), vp_R2 (K,) float64 and vp_const (K,) bool, contiguous (``_prepare``).
+
+    Copied by a compiled kernel into an array of numba's allocator, by VP
+    ranges in the numba threads from PARALLEL_MIN_VPS VPs.  numpy advises
+    huge pages for arrays of 4 MiB and more (``NUMPY_MADVISE_HUGEPAGE``):
+    faulting in the fresh 128 MiB of a 1080p pass's records took 0.5-0.8 s
+    of system time a pass on the virtual machine FPPM is measured on,
+    numba's 4 KiB pages ~0.05 s (docs/architecture.md, "Cores used: the
+    gather's records and the radius initialisation").  A copy: the same
+    values as numpy's column assignments (tests/test_gather_buffers.py)."""
+    T = numba.get_num_threads()
+    if vp_pos.shape[0] >= PARALLEL_MIN_VPS and T > 1:
+        return _vp_records_parallel(T, vp_pos, vp_ng, vp_R2, vp_const)
+    return _vp_records_serial(1, vp_pos, vp_ng, vp_R2, vp_const)
+
+
+@njit(cache=True)
+def _vp_records_range(v0, v1, vp_pos, vp_ng, vp_R2, vp_const, rec):
+    """Records v0..v1-1 of :func:`_vp_records` into rec (K, 8)."""
+    for v in range(v0, v1):
+        rec[v, 0] = vp_pos[v, 0]
+        rec[v, 1] = vp_pos[v, 1]
+        rec[v, 2] = vp_pos[v, 2]
+        rec[v, 3] = vp_R2[v]
+        rec[v, 4] = vp_ng[v, 0]
+        rec[v, 5] = vp_ng[v, 1]
+        rec[v, 6] = vp_ng[v, 2]
+        rec[v, 7] = 1.0 if vp_const[v] else 0.0
+
+
+@njit(cache=True, parallel=True)
+def _vp_records_parallel(n_chunks, vp_pos, vp_ng, vp_R2, vp_const):
+    """:func:`_vp_records` by n_chunks VP ranges (each record is its own)."""
+    K = vp_pos.shape[0]
+    rec = np.empty((K, 8))
+    for c in prange(n_chunks):
+        _vp_records_range(c * K // n_chunks, (c + 1) * K // n_chunks, vp_pos, vp_ng, vp_R2,
+                          vp_const, rec)
+    return rec
+
+
+_vp_records_serial = serial_twin(_vp_records_parallel)
 
 
 class GatherBuffers:

@@ -58,6 +58,7 @@ from ..scene.camera_kernels import fma
 
 from ..frequency import spectrum as F
 from . import edges
+from . import hashgrid
 from .hashgrid import SECTOR_CELLS, SECTOR_QUADRANTS
 
 #: Smallest radius relative to the scene diameter D (docs/frequency.md stiff
@@ -194,7 +195,7 @@ class Radii:
     def __init__(self, settings, camera, D: float, frequency: bool, camera_pass, H: int, W: int):
         self.settings, self.camera, self.frequency = settings, camera, frequency
         self.camera_pass, self.H, self.W = camera_pass, H, W
-        self.floor = R_FLOOR_REL * D
+        self.floor = R_FLOOR_REL * float(D)     # a Python float: numpy keeps float32 radii
         self.floor_sq = radius_floor_sq(D)
         self.hist = RadiusHistogram(D)
         self.quantile = frequency and settings.frequency_estimator == "QUANTILE"
@@ -206,16 +207,37 @@ class Radii:
         # running minimum of every prediction (bench_hold_alpha compares them).
         self.keep_minimum = False
         self._edge_cap = None
-        # The PPM rule's update in _ppm_update_range (False: the numpy
-        # reference, the same state).
+        # The PPM rule's update in _ppm_update_range and the initial radii
+        # in _initialise_range (False: the numpy references, the same state).
         self.compiled = True
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
-        """Set state.R2 of the pixels whose first visible point this is (R2 == 0)."""
+        """Set state.R2 of the pixels whose first visible point this is (R2 == 0)
+        (``compiled``: in :func:`_initialise_range`, the same bits)."""
+        st = self.settings
+        if self.compiled:
+            cap = np.zeros(0)
+            if st.cap_radius_at_edges:
+                if self._edge_cap is None and not np.any(vp.valid & (state.R2 == 0)):
+                    return              # no new pixel: the cap's camera pass can wait
+                cap = self.edge_cap(check_stop)
+            P = state.R2.shape[0]
+            args = (vp.valid, vp.depth, state.R2, cap, st.radius_mode == "WORLD",
+                    float(st.initial_radius), float(st.initial_radius_px), float(self.camera.pix),
+                    self.camera.cam.kind == "ORTHO", float(self.floor))
+            # Mostly a scan for new pixels (none after the first pass in a
+            # closed scene): threads from the grid build's threshold, not the
+            # update's (a parallel region's hand-off cost ~10 ms of wall a
+            # 256² pass on the loaded machine, the scan 0.2 ms).
+            T = numba.get_num_threads()
+            if P >= hashgrid.PARALLEL_MIN_VPS and T > 1:
+                _initialise_parallel(T, *args)
+            else:
+                _initialise_range(0, P, *args)
+            return
         new = vp.valid & (state.R2 == 0)
         if not np.any(new):
             return
-        st = self.settings
         if st.radius_mode == "WORLD":
             r = np.full(int(new.sum()), st.initial_radius)
         else:
@@ -466,6 +488,45 @@ def _ppm_update_parallel(n_chunks, a, prm, frequency, grad, gnorm2):
     for c in prange(n_chunks):
         _ppm_update_range(c * P // n_chunks, (c + 1) * P // n_chunks, a, prm, frequency, grad,
                           gnorm2)
+
+
+@njit(cache=True)
+def _initialise_range(i0, i1, valid, depth, R2, cap, world, r_world, r_px, pix, ortho, floor):
+    """Radii.initialise for pixels i0..i1-1: R2 (P,) float64 of the valid
+    (P,) bool pixels with R2 == 0, from depth (P,) float32, the edge cap (P,)
+    float64 ((0,): none), the floor [m].  numpy's dtypes, hence its bits: the
+    footprint rule is float32 (camera.footprint of the float32 depth, times
+    the Python float initial_radius_px, NEP 50) up to the cap's float64
+    minimum, and stays float32 through the floor and the square without a
+    cap; WORLD radii are float64."""
+    with_cap = cap.shape[0] > 0
+    pix32, r_px32, floor32 = np.float32(pix), np.float32(r_px), np.float32(floor)
+    for i in range(i0, i1):
+        if not valid[i] or R2[i] != 0.0:
+            continue
+        if world:
+            r = r_world
+        else:
+            fp = pix32 if ortho else depth[i] * pix32       # CameraModel.footprint
+            r32 = r_px32 * fp
+            if not with_cap:
+                r32 = _np_max(r32, floor32)
+                R2[i] = r32 * r32
+                continue
+            r = np.float64(r32)
+        if with_cap:
+            r = _np_min(r, cap[i])
+        r = _np_max(r, floor)
+        R2[i] = r * r
+
+
+@njit(cache=True, parallel=True)
+def _initialise_parallel(n_chunks, valid, depth, R2, cap, world, r_world, r_px, pix, ortho,
+                         floor):
+    P = R2.shape[0]
+    for c in prange(n_chunks):
+        _initialise_range(c * P // n_chunks, (c + 1) * P // n_chunks, valid, depth, R2, cap,
+                          world, r_world, r_px, pix, ortho, floor)
 
 
 def radius_floor_sq(D):
