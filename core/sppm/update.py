@@ -209,6 +209,10 @@ class Radii:
         # The PPM rule's update in _ppm_update_range (False: the numpy
         # reference, the same state).
         self.compiled = True
+        # Verified holds need counts the test could reject with (an expected
+        # CHI2_MIN_EXPECTED per cell); False: a hold the test cannot yet judge
+        # stands (bench_hold_alpha 'fppm:power=0').
+        self.hold_needs_power = True
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
         """Set state.R2 of the pixels whose first visible point this is (R2 == 0)."""
@@ -288,6 +292,9 @@ class Radii:
             # more than a linear gradient (the prediction itself is kept for
             # the Predicted Radius pass).
             r_hold = np.where(chi2_rejects(S, linear=True), np.nan, r_pred)
+            if self.hold_needs_power:
+                # Too few photons for the test to reject: no agreement yet.
+                r_hold = np.where(S.sum(axis=1) / SECTOR_CELLS < CHI2_MIN_EXPECTED, np.nan, r_hold)
         m = M > 0
         R2_old = state.R2[m]
         N2, R2n, tau2, held = ppm_radius_update(state.N[m], state.R2[m], state.tau[m], M[m],
@@ -316,7 +323,7 @@ class Radii:
                          np.ascontiguousarray(r_pred, np.float64),
                          none if sectors is None else np.ascontiguousarray(sectors, np.float64),
                          np.empty(P))
-        prm = np.array([st.alpha, self.floor_sq, st.hold_alpha])
+        prm = np.array([st.alpha, self.floor_sq, st.hold_alpha, float(self.hold_needs_power)])
         args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2)
         T = numba.get_num_threads()
         if P >= PARALLEL_MIN and T > 1:
@@ -404,7 +411,8 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2):
     """Radii.update with the PPM rule for pixels i0..i1-1: the verified
     holds' chi-square test, then :func:`ppm_radius_update` (its operations
     and order), the sector counts scaled with N; prm = (alpha, R2_floor,
-    hold_alpha)."""
+    hold_alpha, hold_needs_power: 1 refuses a hold whose counts are too few
+    for the test to reject)."""
     alpha, floor_sq, hold_alpha = prm[0], prm[1], prm[2]
     with_S = a.S.shape[1] == SECTOR_CELLS
     Si = np.empty(SECTOR_CELLS)
@@ -418,6 +426,8 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2):
             for k in range(SECTOR_CELLS):
                 Si[k] = a.S[i, k] + a.sectors[i, k]
             if _chi2_linear_rejects(Si, grad, gnorm2, tmp):
+                r = np.nan
+            elif prm[3] != 0.0 and _sum8(Si) / SECTOR_CELLS < CHI2_MIN_EXPECTED:
                 r = np.nan
         held = False
         M = a.M[i]
