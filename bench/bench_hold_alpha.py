@@ -146,7 +146,7 @@ def method_settings(base, method):
     if ":" in method:                       # "fppm:decay=0" etc.
         for kv in method.split(":")[1:]:
             k, v = kv.split("=")
-            if k in ("keep", "power"):      # Radii attributes, set by radii_variant
+            if k in ("keep", "power", "release"):    # Radii attributes, set by radii_variant
                 continue
             over[k] = type(getattr(base, k))(float(v) if isinstance(getattr(base, k), float) else v)
     return base.replace(**over)
@@ -160,8 +160,10 @@ def radii_variant(renderer, method):
         renderer.radii.keep_minimum = True
     if ":keep=none" in method:
         renderer.radii.keep_predictions = False
-    if ":power=0" in method:
-        renderer.radii.hold_needs_power = False
+    if ":power=" in method:
+        renderer.radii.hold_min_expected = float(method.split(":power=")[1].split(":")[0])
+    if ":release=" in method:
+        renderer.radii.release_alpha = float(method.split(":release=")[1].split(":")[0])
 
 
 def cycles_reference(name, say):
@@ -186,6 +188,13 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
     machine's load drifts over all alike, until each has ``budget`` CPU
     seconds; each method's error is read at the ``report`` fractions of the
     budget by log-log interpolation over its passes."""
+    for m in methods:
+        # Warm-up (not timed): the first pass of a process compiles or loads
+        # the numba kernels, which would be charged to whichever method ran first.
+        w = Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=1, photons_per_pass=2000),
+                     log=lambda s: None)
+        radii_variant(w, m)
+        w.step()
     rs = {m: Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=0,
                                                                 time_limit=1e9), log=lambda s: None)
           for m in methods}

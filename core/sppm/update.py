@@ -78,6 +78,16 @@ CHI2_CRITICAL_LINEAR = 15.086
 #: The test needs an expected count of at least 5 per cell (Cochran 1952's
 #: rule for Pearson's statistic); with fewer photons it cannot reject.
 CHI2_MIN_EXPECTED = 5.0
+#: A verified hold needs this expected count per sector cell (one photon per
+#: cell: 8 in the disc); fewer cannot show a disc that photons reach on one
+#: side only (docs/method.md "Rings under a 1 m light": 5, the test's own
+#: minimum, also refuses the early holds the indirect room gains by).
+HOLD_MIN_EXPECTED = 1.0
+#: PPM parameter of a pixel whose prediction the photons reject (its earlier
+#: holds were wrong): it shrinks faster than PPM until the test accepts;
+#: above 1/2, which keeps the variance condition (docs/method.md
+#: "Consistent holds").
+RELEASE_ALPHA = 0.55
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
 
@@ -209,10 +219,12 @@ class Radii:
         # The PPM rule's update in _ppm_update_range (False: the numpy
         # reference, the same state).
         self.compiled = True
-        # Verified holds need counts the test could reject with (an expected
-        # CHI2_MIN_EXPECTED per cell); False: a hold the test cannot yet judge
-        # stands (bench_hold_alpha 'fppm:power=0').
-        self.hold_needs_power = True
+        # Verified holds need this expected count per sector cell, and a
+        # rejected prediction shrinks with this PPM parameter (never slower
+        # than alpha); bench_hold_alpha 'fppm:power=0:release=0.7' is the
+        # rule before (docs/method.md "Rings under a 1 m light").
+        self.hold_min_expected = HOLD_MIN_EXPECTED
+        self.release_alpha = min(settings.alpha, RELEASE_ALPHA)
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
         """Set state.R2 of the pixels whose first visible point this is (R2 == 0)."""
@@ -291,14 +303,17 @@ class Radii:
             # Verified holds: the photons veto the prediction where they show
             # more than a linear gradient (the prediction itself is kept for
             # the Predicted Radius pass).
-            r_hold = np.where(chi2_rejects(S, linear=True), np.nan, r_pred)
-            if self.hold_needs_power:
-                # Too few photons for the test to reject: no agreement yet.
-                r_hold = np.where(S.sum(axis=1) / SECTOR_CELLS < CHI2_MIN_EXPECTED, np.nan, r_hold)
+            rejected = chi2_rejects(S, linear=True)
+            r_hold = np.where(rejected, np.nan, r_pred)
+            # Too few photons for the test to reject: no agreement yet.
+            r_hold = np.where(S.sum(axis=1) / SECTOR_CELLS < self.hold_min_expected, np.nan, r_hold)
         m = M > 0
         R2_old = state.R2[m]
+        alpha = self.settings.alpha
+        if S is not None and rule == "PPM":
+            alpha = np.where(rejected & np.isfinite(r_pred), self.release_alpha, alpha)[m]
         N2, R2n, tau2, held = ppm_radius_update(state.N[m], state.R2[m], state.tau[m], M[m],
-                                                  Phi[m], self.settings.alpha, r_hold[m],
+                                                  Phi[m], alpha, r_hold[m],
                                                   self.floor_sq, self.settings.hold_alpha)
         state.N[m], state.R2[m], state.tau[m] = N2, R2n, tau2
         if S is not None:
@@ -323,7 +338,8 @@ class Radii:
                          np.ascontiguousarray(r_pred, np.float64),
                          none if sectors is None else np.ascontiguousarray(sectors, np.float64),
                          np.empty(P))
-        prm = np.array([st.alpha, self.floor_sq, st.hold_alpha, float(self.hold_needs_power)])
+        prm = np.array([st.alpha, self.floor_sq, st.hold_alpha, self.hold_min_expected,
+                        self.release_alpha])
         args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2)
         T = numba.get_num_threads()
         if P >= PARALLEL_MIN and T > 1:
@@ -411,13 +427,15 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2):
     """Radii.update with the PPM rule for pixels i0..i1-1: the verified
     holds' chi-square test, then :func:`ppm_radius_update` (its operations
     and order), the sector counts scaled with N; prm = (alpha, R2_floor,
-    hold_alpha, hold_needs_power: 1 refuses a hold whose counts are too few
-    for the test to reject)."""
+    hold_alpha, hold_min_expected: no hold below this expected count per
+    sector cell, release_alpha: the PPM parameter of a pixel whose
+    prediction the test rejects)."""
     alpha, floor_sq, hold_alpha = prm[0], prm[1], prm[2]
     with_S = a.S.shape[1] == SECTOR_CELLS
     Si = np.empty(SECTOR_CELLS)
     tmp = np.empty(SECTOR_CELLS)
     for i in range(i0, i1):
+        alpha = prm[0]
         r = a.r_pred[i]
         if not frequency or math.isinf(r):
             r = np.nan
@@ -426,8 +444,10 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2):
             for k in range(SECTOR_CELLS):
                 Si[k] = a.S[i, k] + a.sectors[i, k]
             if _chi2_linear_rejects(Si, grad, gnorm2, tmp):
+                if np.isfinite(r):
+                    alpha = prm[4]
                 r = np.nan
-            elif prm[3] != 0.0 and _sum8(Si) / SECTOR_CELLS < CHI2_MIN_EXPECTED:
+            elif _sum8(Si) / SECTOR_CELLS < prm[3]:
                 r = np.nan
         held = False
         M = a.M[i]
