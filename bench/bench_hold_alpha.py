@@ -146,7 +146,7 @@ def method_settings(base, method):
     if ":" in method:                       # "fppm:decay=0" etc.
         for kv in method.split(":")[1:]:
             k, v = kv.split("=")
-            if k in ("keep", "power", "release"):    # Radii attributes, set by radii_variant
+            if k in ("keep", "power", "release", "top2"):   # Radii attributes: radii_variant
                 continue
             over[k] = type(getattr(base, k))(float(v) if isinstance(getattr(base, k), float) else v)
     return base.replace(**over)
@@ -164,6 +164,8 @@ def radii_variant(renderer, method):
         renderer.radii.hold_min_expected = float(method.split(":power=")[1].split(":")[0])
     if ":release=" in method:
         renderer.radii.release_alpha = float(method.split(":release=")[1].split(":")[0])
+    if ":top2=" in method:
+        renderer.radii.hold_max_top2 = float(method.split(":top2=")[1].split(":")[0])
 
 
 def cycles_reference(name, say):

@@ -88,6 +88,11 @@ HOLD_MIN_EXPECTED = 1.0
 #: above 1/2, which keeps the variance condition (docs/method.md
 #: "Consistent holds").
 RELEASE_ALPHA = 0.55
+#: Below CHI2_MIN_EXPECTED per cell (the test cannot judge), a hold is also
+#: refused where the two fullest of the 8 cells hold this share of the
+#: counts or more (uniform: 1/4): a disc that photons reach on one side only
+#: (docs/method.md "Rings under a 1 m light"; above 1: off).
+HOLD_MAX_TOP2 = 0.6
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
 
@@ -225,6 +230,7 @@ class Radii:
         # rule before (docs/method.md "Rings under a 1 m light").
         self.hold_min_expected = HOLD_MIN_EXPECTED
         self.release_alpha = min(settings.alpha, RELEASE_ALPHA)
+        self.hold_max_top2 = HOLD_MAX_TOP2
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
         """Set state.R2 of the pixels whose first visible point this is (R2 == 0)."""
@@ -306,7 +312,12 @@ class Radii:
             rejected = chi2_rejects(S, linear=True)
             r_hold = np.where(rejected, np.nan, r_pred)
             # Too few photons for the test to reject: no agreement yet.
-            r_hold = np.where(S.sum(axis=1) / SECTOR_CELLS < self.hold_min_expected, np.nan, r_hold)
+            E = S.sum(axis=1) / SECTOR_CELLS
+            r_hold = np.where(E < self.hold_min_expected, np.nan, r_hold)
+            top2 = np.sort(S, axis=1)[:, -2:]
+            one_sided = (E < CHI2_MIN_EXPECTED) & (top2[:, 0] + top2[:, 1]
+                                                   >= self.hold_max_top2 * S.sum(axis=1))
+            r_hold = np.where(one_sided, np.nan, r_hold)
         m = M > 0
         R2_old = state.R2[m]
         alpha = self.settings.alpha
@@ -339,7 +350,7 @@ class Radii:
                          none if sectors is None else np.ascontiguousarray(sectors, np.float64),
                          np.empty(P))
         prm = np.array([st.alpha, self.floor_sq, st.hold_alpha, self.hold_min_expected,
-                        self.release_alpha])
+                        self.release_alpha, self.hold_max_top2])
         args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2)
         T = numba.get_num_threads()
         if P >= PARALLEL_MIN and T > 1:
@@ -447,8 +458,19 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2):
                 if np.isfinite(r):
                     alpha = prm[4]
                 r = np.nan
-            elif _sum8(Si) / SECTOR_CELLS < prm[3]:
-                r = np.nan
+            else:
+                tot = _sum8(Si)
+                if tot / SECTOR_CELLS < prm[3]:
+                    r = np.nan
+                elif tot / SECTOR_CELLS < CHI2_MIN_EXPECTED:
+                    m1, m2 = -1.0, -1.0
+                    for k in range(SECTOR_CELLS):
+                        if Si[k] > m1:
+                            m1, m2 = Si[k], m1
+                        elif Si[k] > m2:
+                            m2 = Si[k]
+                    if m2 + m1 >= prm[5] * tot:
+                        r = np.nan
         held = False
         M = a.M[i]
         if M > 0:
