@@ -246,6 +246,21 @@ RING = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                     "example_blends", "ring_lambert.blend")
 
 
+def _ring_32():
+    """(scene, settings) of ring_lambert at 32x32, 16 passes of 50k photons."""
+    bpy_helpers = pytest.importorskip("bpy_helpers")
+    bpy = bpy_helpers.bpy()
+    bpy_helpers.ensure_registered()
+    from fppm.addon.export import export_scene
+    from fppm.addon.properties import settings_from_scene
+    bpy.ops.wm.open_mainfile(filepath=RING, load_ui=False, use_scripts=False)
+    sc = bpy.context.scene
+    sc.render.resolution_percentage = 25
+    scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
+    base = settings_from_scene(sc).replace(integrator="PHOTON", max_passes=16, photons_per_pass=50_000)
+    return scene, base
+
+
 def test_caustic_line_holds_are_released():
     """The ring's caustic under a 1 m light (ring_lambert): on the 2%
     brightest pixels (the caustic lines) the spectrum alone holds many radii:
@@ -257,16 +272,7 @@ def test_caustic_line_holds_are_released():
     (oblique incidence: the ring's curvature is sagittal, docs/frequency.md
     "Refraction and oblique incidence") the spectrum alone holds 10% there
     (2 pixels) and verification keeps those two."""
-    bpy_helpers = pytest.importorskip("bpy_helpers")
-    bpy = bpy_helpers.bpy()
-    bpy_helpers.ensure_registered()
-    from fppm.addon.export import export_scene
-    from fppm.addon.properties import settings_from_scene
-    bpy.ops.wm.open_mainfile(filepath=RING, load_ui=False, use_scripts=False)
-    sc = bpy.context.scene
-    sc.render.resolution_percentage = 25
-    scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
-    base = settings_from_scene(sc).replace(integrator="PHOTON", max_passes=16, photons_per_pass=50_000)
+    scene, base = _ring_32()
     held = {}
     for verify in (False, True):
         r = Renderer(scene, base.replace(verify_holds=verify), log=lambda s: None)
@@ -290,16 +296,7 @@ def test_released_holds_leave_ring_radii_at_ppm():
     R > 1.1 R_ppm: 6 with the rules (HOLD_MIN_EXPECTED, HOLD_MAX_TOP2,
     RELEASE_ALPHA; max ratio 1.29), 84 without them (1.52); ever held
     7.5 % / 18.9 % of the pixels."""
-    bpy_helpers = pytest.importorskip("bpy_helpers")
-    bpy = bpy_helpers.bpy()
-    bpy_helpers.ensure_registered()
-    from fppm.addon.export import export_scene
-    from fppm.addon.properties import settings_from_scene
-    bpy.ops.wm.open_mainfile(filepath=RING, load_ui=False, use_scripts=False)
-    sc = bpy.context.scene
-    sc.render.resolution_percentage = 25
-    scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
-    base = settings_from_scene(sc).replace(integrator="PHOTON", max_passes=16, photons_per_pass=50_000)
+    scene, base = _ring_32()
     R, held = {}, {}
     for k, st, power in (("ppm", base.replace(use_frequency=False), True), ("fppm", base, True),
                          ("before", base, False)):
