@@ -16,6 +16,11 @@
         --report 8,16,32 --seeds 0,1 --methods fppm,ppm,appm,cppm
         (relMSE at equal passes, same seed: quality apart from cost, docs/method.md
         "Principled interior: quality or cost"; 'fppm:keep=noocc': no occlusion operator)
+    .venv/bin/python bench/bench_hold_alpha.py ring_lambert --cycles-ref --equal-passes 128 \
+        --report 16,64,128 --seeds 0,1 --methods fppm,fppm:power=0,ppm,appm,cppm
+        (the file's resolution and photons against the Cycles reference of ``fppm converge``,
+        from its cache; 'fppm:power=0': holds the verified-holds test cannot yet judge
+        stand, the rule before docs/method.md "Rings under a 1 m light")
 
 The protocol of docs/method.md ("Consistent holds", "Radius rules"): the
 .blend at 50 % resolution (64x64) with the file's settings, photon mapping
@@ -52,7 +57,7 @@ from fppm.core.render import Renderer  # noqa: E402
 from fppm.tools.metrics import relmse  # noqa: E402
 
 
-def export(name):
+def export(name, percent=50):
     bpy = bpy_helpers.bpy()
     bpy_helpers.ensure_registered()
     from fppm.addon.export import export_scene
@@ -60,7 +65,7 @@ def export(name):
     bpy.ops.wm.open_mainfile(filepath=os.path.join(ROOT, "example_blends", name + ".blend"),
                              load_ui=False, use_scripts=False)
     sc = bpy.context.scene
-    sc.render.resolution_percentage = 50
+    sc.render.resolution_percentage = percent
     scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
     return scene, settings_from_scene(sc).replace(integrator="PHOTON", time_limit=0.0)
 
@@ -141,10 +146,42 @@ def method_settings(base, method):
     if ":" in method:                       # "fppm:decay=0" etc.
         for kv in method.split(":")[1:]:
             k, v = kv.split("=")
-            if k == "keep":                 # a Radii attribute, set in equal_cpu
+            if k in ("keep", "power", "release", "top2"):   # Radii attributes: radii_variant
                 continue
             over[k] = type(getattr(base, k))(float(v) if isinstance(getattr(base, k), float) else v)
     return base.replace(**over)
+
+
+def radii_variant(renderer, method):
+    """Set the Radii attributes a method name asks for: 'keep=min' (the running
+    minimum of the predictions), 'keep=none' (none kept), 'power=0' (a hold
+    the verified-holds test has too few photons to judge stands)."""
+    if ":keep=min" in method:
+        renderer.radii.keep_minimum = True
+    if ":keep=none" in method:
+        renderer.radii.keep_predictions = False
+    if ":power=" in method:
+        renderer.radii.hold_min_expected = float(method.split(":power=")[1].split(":")[0])
+    if ":release=" in method:
+        renderer.radii.release_alpha = float(method.split(":release=")[1].split(":")[0])
+    if ":top2=" in method:
+        renderer.radii.hold_max_top2 = float(method.split(":top2=")[1].split(":")[0])
+
+
+def cycles_reference(name, say):
+    """(reference image (H, W, 3) float64, its floor) of ``fppm converge``:
+    the Cycles render of bench/converge_examples.py's sample count at the
+    file's resolution, from the converge cache (rendered there if missing);
+    the floor is tools.metrics.reference_floor of its per-pixel variance."""
+    from converge_examples import SCENES
+    from fppm.tools.converge.references import make_reference
+    from fppm.tools.metrics import reference_floor
+    bpy = bpy_helpers.bpy()
+    bpy_helpers.ensure_registered()
+    path = os.path.join(ROOT, "example_blends", name + ".blend")
+    bpy.ops.wm.open_mainfile(filepath=path, load_ui=False, use_scripts=False)
+    ref = make_reference(bpy, bpy.context.scene, path, SCENES[name][1], say, say)
+    return ref["image"], float(reference_floor(ref["image"], ref["var"]))
 
 
 def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
@@ -153,15 +190,18 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
     machine's load drifts over all alike, until each has ``budget`` CPU
     seconds; each method's error is read at the ``report`` fractions of the
     budget by log-log interpolation over its passes."""
+    for m in methods:
+        # Warm-up (not timed): the first pass of a process compiles or loads
+        # the numba kernels, which would be charged to whichever method ran first.
+        w = Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=1, photons_per_pass=2000),
+                     log=lambda s: None)
+        radii_variant(w, m)
+        w.step()
     rs = {m: Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=0,
                                                                 time_limit=1e9), log=lambda s: None)
           for m in methods}
     for m in methods:
-        # "fppm:keep=min": the running minimum of the predictions; "keep=none": none kept.
-        if ":keep=min" in m:
-            rs[m].radii.keep_minimum = True
-        if ":keep=none" in m:
-            rs[m].radii.keep_predictions = False
+        radii_variant(rs[m], m)
         planes_or(rs[m], m)
     cpu = {m: [0.0] for m in methods}
     err = {m: [np.nan] for m in methods}
@@ -230,6 +270,7 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
     rs = {m: Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=passes),
                       log=lambda s: None) for m in methods}
     for m in methods:
+        radii_variant(rs[m], m)
         if ":keep=noocc" in m:          # the frequency chain without its occlusion operator
             from fppm.core.frequency.occlusion_march import no_march_grid
             rs[m].tracer.occlusion, rs[m].tracer.march = 0, no_march_grid()
@@ -318,9 +359,15 @@ def main():
                     help="relMSE of --methods after the passes of --report (up to K), same seed")
     ap.add_argument("--methods", default=",".join(EQUAL_CPU_METHODS),
                     help="equal-CPU / equal-pass methods; 'fppm:frequency_decay=0' sets a field")
+    ap.add_argument("--cycles-ref", action="store_true",
+                    help="the file's resolution, against fppm converge's Cycles reference "
+                         "(--equal-passes / --equal-cpu; --photons 0 keeps the file's)")
     a = ap.parse_args()
-    scene, base = export(a.scene)
-    base = base.replace(photons_per_pass=a.photons)
+    if a.cycles_ref:
+        ref_floor = cycles_reference(a.scene, lambda s: print(s, flush=True))
+    scene, base = export(a.scene, 100 if a.cycles_ref else 50)
+    if a.photons:
+        base = base.replace(photons_per_pass=a.photons)
     say = lambda s: print(s, flush=True)  # noqa: E731
     say(f"# {a.scene}: {base.photons_per_pass} photons/pass, alpha {base.alpha}, "
         f"verify_holds {base.verify_holds}, file hold_alpha {base.hold_alpha}")
@@ -330,9 +377,11 @@ def main():
     if a.breakdown:
         return breakdown(scene, base, a.breakdown, say)
     if a.equal_passes:
-        ref, floor = reference(a.scene, scene, base, a.ref_passes, a.ref_photons, say)
-        say(f"# reference: {a.ref_passes} passes x {a.ref_photons} photons, seed 100; "
-            f"floor (half vs full) {floor:.3e}; load {os.getloadavg()[0]:.1f}")
+        ref, floor = ref_floor if a.cycles_ref else reference(
+            a.scene, scene, base, a.ref_passes, a.ref_photons, say)
+        say(("# reference: fppm converge's Cycles render; floor (its variance) "
+             if a.cycles_ref else f"# reference: {a.ref_passes} passes x {a.ref_photons} photons, "
+             "seed 100; floor (half vs full) ") + f"{floor:.3e}; load {os.getloadavg()[0]:.1f}")
         methods = a.methods.split(",")
         methods += [] if "ppm" in methods else ["ppm"]     # the ratios' denominator
         for seed in [int(x) for x in a.seeds.split(",")]:
@@ -341,9 +390,11 @@ def main():
         say(f"# load at the end {os.getloadavg()[0]:.1f}")
         return
     if a.equal_cpu:
-        ref, floor = reference(a.scene, scene, base, a.ref_passes, a.ref_photons, say)
-        say(f"# reference: {a.ref_passes} passes x {a.ref_photons} photons, seed 100; "
-            f"floor (half vs full) {floor:.3e}; load {os.getloadavg()[0]:.1f}")
+        ref, floor = ref_floor if a.cycles_ref else reference(
+            a.scene, scene, base, a.ref_passes, a.ref_photons, say)
+        say(("# reference: fppm converge's Cycles render; floor (its variance) "
+             if a.cycles_ref else f"# reference: {a.ref_passes} passes x {a.ref_photons} photons, "
+             "seed 100; floor (half vs full) ") + f"{floor:.3e}; load {os.getloadavg()[0]:.1f}")
         if not a.methods:                   # --methods "": the reference only
             return
         methods = a.methods.split(",")

@@ -79,6 +79,21 @@ CHI2_CRITICAL_LINEAR = 15.086
 #: The test needs an expected count of at least 5 per cell (Cochran 1952's
 #: rule for Pearson's statistic); with fewer photons it cannot reject.
 CHI2_MIN_EXPECTED = 5.0
+#: A verified hold needs this expected count per sector cell (one photon per
+#: cell: 8 in the disc); fewer cannot show a disc that photons reach on one
+#: side only (docs/method.md "Rings under a 1 m light": 5, the test's own
+#: minimum, also refuses the early holds the indirect room gains by).
+HOLD_MIN_EXPECTED = 1.0
+#: PPM parameter of a pixel whose prediction the photons reject (its earlier
+#: holds were wrong): it shrinks faster than PPM until the test accepts;
+#: above 1/2, which keeps the variance condition (docs/method.md
+#: "Consistent holds").
+RELEASE_ALPHA = 0.55
+#: Below CHI2_MIN_EXPECTED per cell (the test cannot judge), a hold is also
+#: refused where the two fullest of the 8 cells hold this share of the
+#: counts or more (uniform: 1/4): a disc that photons reach on one side only
+#: (docs/method.md "Rings under a 1 m light"; above 1: off).
+HOLD_MAX_TOP2 = 0.6
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
 
@@ -210,6 +225,13 @@ class Radii:
         # The PPM rule's update in _ppm_update_range and the initial radii
         # in _initialise_range (False: the numpy references, the same state).
         self.compiled = True
+        # Verified holds need this expected count per sector cell, and a
+        # rejected prediction shrinks with this PPM parameter (never slower
+        # than alpha); bench_hold_alpha 'fppm:power=0:release=0.7' is the
+        # rule before (docs/method.md "Rings under a 1 m light").
+        self.hold_min_expected = HOLD_MIN_EXPECTED
+        self.release_alpha = min(settings.alpha, RELEASE_ALPHA)
+        self.hold_max_top2 = HOLD_MAX_TOP2
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
         """Set state.R2 of the pixels whose first visible point this is (R2 == 0)
@@ -309,11 +331,22 @@ class Radii:
             # Verified holds: the photons veto the prediction where they show
             # more than a linear gradient (the prediction itself is kept for
             # the Predicted Radius pass).
-            r_hold = np.where(chi2_rejects(S, linear=True), np.nan, r_pred)
+            rejected = chi2_rejects(S, linear=True)
+            r_hold = np.where(rejected, np.nan, r_pred)
+            # Too few photons for the test to reject: no agreement yet.
+            E = S.sum(axis=1) / SECTOR_CELLS
+            r_hold = np.where(E < self.hold_min_expected, np.nan, r_hold)
+            top2 = np.sort(S, axis=1)[:, -2:]
+            one_sided = (E < CHI2_MIN_EXPECTED) & (top2[:, 0] + top2[:, 1]
+                                                   >= self.hold_max_top2 * S.sum(axis=1))
+            r_hold = np.where(one_sided, np.nan, r_hold)
         m = M > 0
         R2_old = state.R2[m]
+        alpha = self.settings.alpha
+        if S is not None and rule == "PPM":
+            alpha = np.where(rejected & np.isfinite(r_pred), self.release_alpha, alpha)[m]
         N2, R2n, tau2, held = ppm_radius_update(state.N[m], state.R2[m], state.tau[m], M[m],
-                                                  Phi[m], self.settings.alpha, r_hold[m],
+                                                  Phi[m], alpha, r_hold[m],
                                                   self.floor_sq, self.settings.hold_alpha)
         state.N[m], state.R2[m], state.tau[m] = N2, R2n, tau2
         if S is not None:
@@ -338,7 +371,8 @@ class Radii:
                          np.ascontiguousarray(r_pred, np.float64),
                          none if sectors is None else np.ascontiguousarray(sectors, np.float64),
                          np.empty(P))
-        prm = np.array([st.alpha, self.floor_sq, st.hold_alpha])
+        prm = np.array([st.alpha, self.floor_sq, st.hold_alpha, self.hold_min_expected,
+                        self.release_alpha, self.hold_max_top2])
         args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2)
         T = numba.get_num_threads()
         if P >= PARALLEL_MIN and T > 1:
@@ -426,12 +460,15 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2):
     """Radii.update with the PPM rule for pixels i0..i1-1: the verified
     holds' chi-square test, then :func:`ppm_radius_update` (its operations
     and order), the sector counts scaled with N; prm = (alpha, R2_floor,
-    hold_alpha)."""
+    hold_alpha, hold_min_expected: no hold below this expected count per
+    sector cell, release_alpha: the PPM parameter of a pixel whose
+    prediction the test rejects)."""
     alpha, floor_sq, hold_alpha = prm[0], prm[1], prm[2]
     with_S = a.S.shape[1] == SECTOR_CELLS
     Si = np.empty(SECTOR_CELLS)
     tmp = np.empty(SECTOR_CELLS)
     for i in range(i0, i1):
+        alpha = prm[0]
         r = a.r_pred[i]
         if not frequency or math.isinf(r):
             r = np.nan
@@ -440,7 +477,22 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2):
             for k in range(SECTOR_CELLS):
                 Si[k] = a.S[i, k] + a.sectors[i, k]
             if _chi2_linear_rejects(Si, grad, gnorm2, tmp):
+                if np.isfinite(r):
+                    alpha = prm[4]
                 r = np.nan
+            else:
+                tot = _sum8(Si)
+                if tot / SECTOR_CELLS < prm[3]:
+                    r = np.nan
+                elif tot / SECTOR_CELLS < CHI2_MIN_EXPECTED:
+                    m1, m2 = -1.0, -1.0
+                    for k in range(SECTOR_CELLS):
+                        if Si[k] > m1:
+                            m1, m2 = Si[k], m1
+                        elif Si[k] > m2:
+                            m2 = Si[k]
+                    if m2 + m1 >= prm[5] * tot:
+                        r = np.nan
         held = False
         M = a.M[i]
         if M > 0:
