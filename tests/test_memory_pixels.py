@@ -38,6 +38,35 @@ def test_first_hits_add_their_bytes_per_pixel():
     assert memory.BYTES_PER_PIXEL + memory.BYTES_PER_FIRST_HIT == 1040
 
 
+def test_one_first_hit_rule_for_the_camera_pass_and_the_estimate(monkeypatch):
+    # memory.keeps_first_hits decides CameraPass.first_data (with the plan's
+    # merging) and the estimate's first_hits (before the plan: COMBINED may
+    # merge), so the estimate counts the first hits whenever the pass keeps them.
+    from core.render import Renderer
+    from core.settings import RenderSettings
+    from analytic_scenes import area_light_plane
+    K = memory.keeps_first_hits
+    for dp in (False, True):
+        for integ in ("PHOTON", "PATH", "LIGHT", "COMBINED"):
+            for merging in (False, True) if integ == "COMBINED" else (False,):
+                assert K(dp, integ, merging) <= K(dp, integ)
+    assert not K(False, "PHOTON") and K(False, "COMBINED") and not K(False, "COMBINED", False)
+    estimated = []
+    orig = memory.estimate
+    monkeypatch.setattr(memory, "estimate",
+                        lambda *a, **kw: estimated.append(kw["first_hits"]) or orig(*a, **kw))
+    scene = area_light_plane(res=8)[0]
+    got = {}
+    for integ, passes in (("PHOTON", ()), ("PHOTON", ("Depth",)), ("COMBINED", ())):
+        r = Renderer(scene, RenderSettings(integrator=integ, use_frequency=False, max_passes=1),
+                     log=lambda m: None, passes=passes)
+        got[integ, passes] = (r.camera_pass.first_data, estimated.pop())
+    # (kept by the camera pass, counted by the estimate); the plane has no
+    # delta vertex, so COMBINED does not merge, yet its bound counts them.
+    assert got == {("PHOTON", ()): (False, False), ("PHOTON", ("Depth",)): (True, True),
+                   ("COMBINED", ()): (False, True)}
+
+
 def test_estimate_bounds_a_photon_render_without_first_hits():
     # 512^2 PHOTON passes (20k photons), peak growth after the kernels are
     # loaded against the estimate of what the passes allocate.  Measured
