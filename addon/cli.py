@@ -829,6 +829,8 @@ def _render_locked(a, stop, overrides) -> int:
     scene = open_blend(a.blend, a.frame, a.resolution, should_stop=lambda: bool(stop))
     if stop or scene is None:
         return _cancelled_early(stop)
+    from .properties import settings_from_scene
+    a.file_settings = settings_from_scene(scene)   # before the overrides (read by a.on_renderer)
     t0 = time.monotonic()
     try:
         render_scene(scene, overrides, sess)

@@ -93,6 +93,17 @@ def peak_bytes_so_far() -> int:
     return _proc_status("VmHWM") or 0
 
 
+def keeps_first_hits(data_passes: bool, integrator: str, merging: bool | None = None) -> bool:
+    """Whether the camera pass keeps its first hits' data
+    (``CameraPass.first_data``, core.sppm.visible_points): the film's data
+    passes read them (core.sppm.film.data_passes), and so does photon
+    merging (core.plan.merges; only COMBINED merges).  merging None: not
+    known yet (the estimate comes before the plan): COMBINED may merge."""
+    if data_passes:
+        return True
+    return integrator == "COMBINED" and (merging is None or bool(merging))
+
+
 def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
              use_grid: bool, aov_channels: int = 0, hist_bins: int = 0,
              texture_bytes: int = 0, resident: int | None = None,
@@ -103,8 +114,8 @@ def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
     hist_bins: radius-histogram bins per pixel (0 without the Quantile estimator);
     sector_cells: sector counts per pixel (0 unless the gather counts them);
     texture_bytes: bytes of the scene's texture images;
-    first_hits: the camera pass keeps its first hits' data (False: only
-    without data passes and photon merging, core.sppm.visible_points);
+    first_hits: the camera pass keeps its first hits' data
+    (:func:`keeps_first_hits`);
     resident: bytes already held (None: :func:`resident_bytes`).  'runtime' is
     that resident size; 'total' is at least the peak so far.
     """

@@ -66,7 +66,7 @@ from .sanity import check_resolution, check_scene, recentre
 from .scene.camera import CameraModel, FilterSampler
 from .scene.model import Scene, drop_invalid_triangles, scene_digest
 from .settings import RenderSettings
-from .sppm.film import PASSES, Film, PassResult, pass_enabled
+from .sppm.film import PASSES, Film, PassResult, data_passes, pass_enabled
 from .sppm.photon_pass import PHOTON_CHUNK, PhotonPass, frequency_photons
 from .frequency.curvature import scene_curvature
 from .sppm.photons import PhotonTracer
@@ -153,7 +153,8 @@ class Renderer:
         self.merging = st.integrator == "COMBINED" and merges(self.plan)
         # The first hits' positions, normals, triangles and emission: only
         # the film's data passes and photon merging read them (not alpha).
-        self.camera_pass.first_data = bool(self.film.data_passes) or self.merging
+        self.camera_pass.first_data = memory.keeps_first_hits(bool(self.film.data_passes),
+                                                              st.integrator, self.merging)
         if st.integrator == "COMBINED":
             from .integrators.combined import CameraMIS, CombinedLightTracer
             self.path_tracer.vc = CameraMIS(self.light_table, self.mtab, self.camera,
@@ -228,9 +229,9 @@ class Renderer:
                                       hist_bins=HIST_BINS if st0.frequency_estimator == "QUANTILE" else 0,
                                       texture_bytes=sum(np.asarray(t).nbytes for t in scene.textures),
                                       sector_cells=SECTOR_CELLS if needs_sectors(st0, st0.use_frequency) else 0,
-                                      # CameraPass.first_data (set below): data passes, merging
-                                      first_hits=st0.integrator == "COMBINED" or any(
-                                          p.source != "state" and p.name in passes for p in PASSES))
+                                      # CameraPass.first_data (set in __init__), before the plan
+                                      first_hits=memory.keeps_first_hits(bool(data_passes(passes)),
+                                                                         st0.integrator))
         memory.check_fits(self.memory)
         self.light_table = build_light_table(scene)
         for w in getattr(self.light_table, "warnings", []):

@@ -8,12 +8,14 @@ Makefile's pins.  ``make extension`` builds the real zips with the wheels.
 """
 import ast
 import glob
+import json
 import os
 import re
 import shutil
 import subprocess
 import sys
 import tomllib
+import zipfile
 
 import numpy as np
 import pytest
@@ -23,6 +25,7 @@ import bpy_helpers as H
 bpy = pytest.importorskip("bpy")
 
 from fppm.core.io.exr import read_exr  # noqa: E402
+from test_warmup import SMALL_JOBS, USE_JOBS  # noqa: E402
 
 ROOT = H.ROOT
 # bpy.__file__ is <site-packages>/bpy/<version>/scripts/modules/bpy/__init__.py.
@@ -140,21 +143,41 @@ def test_no_shipped_module_imports_tools(test_zip):
     assert not bad, bad
 
 
+# The installed copy compiles its kernels again, under its own module names
+# (bl_ext.user_default.fppm.core.*: core/_numba_cache.py), ~95 s cold on CI
+# for every kernel of the default render and of the warm-up's variants.  It
+# renders with integrator PATH (camera paths: the export, the film and the
+# engine's streaming are the same for every integrator), and its warm-up
+# child (compiling under the dotted bl_ext name) runs the small PATH job of
+# tests/test_warmup.py instead of all of warmup_jobs(); every module of the
+# installed package is imported, so each integrator's code is still loaded
+# under the extension's names.
+INTEGRATOR = "PATH"
+
 INSTALL_AND_RENDER = r"""
-import sys, bpy
-zip_path, blend, out, pct, passes, photons, seed = sys.argv[1:]
+import importlib, json, os, sys, bpy
+zip_path, blend, out, pct, passes, photons, seed, integrator, SMALL = sys.argv[1:]
 bpy.ops.extensions.package_install_files(filepath=zip_path, repo='user_default',
                                          enable_on_install=True)
 assert "bl_ext.user_default.fppm" in bpy.context.preferences.addons, \
     list(bpy.context.preferences.addons.keys())
 mod = sys.modules["bl_ext.user_default.fppm"]
 print("INSTALLED_AT", mod.__file__)
+W = importlib.import_module("bl_ext.user_default.fppm.core.warmup")
+S = importlib.import_module("bl_ext.user_default.fppm.core.settings")
+""" + USE_JOBS + r"""
+import pkgutil
+names = [m.name for m in pkgutil.walk_packages(mod.__path__, mod.__name__ + ".")]
+for name in names:
+    importlib.import_module(name)
+print("IMPORTED", len(names))
 bpy.ops.wm.open_mainfile(filepath=blend, load_ui=False, use_scripts=False)
 sc = bpy.context.scene
 sc.render.engine = 'FPPM'
 sc.render.resolution_percentage = int(pct)
 s = sc.fppm
 s.max_passes, s.photons_per_pass, s.seed = int(passes), int(photons), int(seed)
+s.integrator = integrator
 bpy.ops.render.render()
 im = sc.render.image_settings
 if hasattr(im, "media_type"):
@@ -162,6 +185,10 @@ if hasattr(im, "media_type"):
 im.file_format, im.color_depth, im.color_mode, im.exr_codec = 'OPEN_EXR', '32', 'RGBA', 'ZIP'
 bpy.data.images["Render Result"].save_render(filepath=out, scene=sc)
 print("RENDERED", out)
+kernels = os.path.join(W._numba_cache.cache_dir(), "numba")
+print("WARMUP", json.dumps({"done": W.warmup.done, "error": W.warmup.error,
+                            "cached": sorted(n for n in os.listdir(kernels)
+                                             if n.startswith("bl_ext.user_default.fppm.core."))}))
 """
 
 
@@ -187,15 +214,23 @@ def test_install_and_render_through_blender_equals_cli(test_zip, tmp_path):
     script.write_text(INSTALL_AND_RENDER)
     blender_exr = tmp_path / "blender.exr"
     r = subprocess.run([sys.executable, str(script), str(test_zip), blend, str(blender_exr),
-                        str(pct), str(passes), str(photons), str(seed)],
+                        str(pct), str(passes), str(photons), str(seed), INTEGRATOR, SMALL_JOBS],
                        capture_output=True, text=True, env=env, cwd=str(tmp_path), timeout=600)
     assert r.returncode == 0 and "RENDERED" in r.stdout, r.stdout[-3000:] + r.stderr[-3000:]
     # The engine that rendered is the installed copy under the scratch user folder.
     installed = r.stdout.split("INSTALLED_AT", 1)[1].split()[0]
     assert installed.startswith(str(user)), installed
+    # Its warm-up ran (in a child under the dotted bl_ext name) and cached the
+    # kernels under the installed module names.
+    warm = json.loads(r.stdout.split("WARMUP", 1)[1].strip().splitlines()[0])
+    assert warm["done"] and warm["error"] is None, warm
+    assert "bl_ext.user_default.fppm.core.integrators.path_kernels" in warm["cached"], warm
+    shipped = [n for n in zipfile.ZipFile(test_zip).namelist() if n.endswith(".py")]
+    assert int(r.stdout.split("IMPORTED", 1)[1].split()[0]) == len(shipped) - 1   # less __init__.py
     cli_exr = tmp_path / "cli.exr"
     c = H.run_fppm("render", blend, "-o", cli_exr, "--resolution", pct, "--passes", passes,
-                   "--photons", photons, "--seed", seed, "-q", "--no-preview")
+                   "--photons", photons, "--seed", seed, "--mode", INTEGRATOR.lower(), "-q",
+                   "--no-preview")
     assert c.returncode == 0, c.stderr[-3000:]
     a = read_exr(str(blender_exr))["Combined"]
     b = read_exr(str(cli_exr))["Combined"]

@@ -236,6 +236,17 @@ def test_light_chunk_sums_do_not_depend_on_the_order_chunks_are_traced(caustic):
     assert np.array_equal(again, film + few)
 
 
+def test_partition_fallback_is_said_only_when_it_replaces_mis():
+    # The workers force PARTITION; the log says so only when the weights in
+    # effect (--merge-weights, else the file's) were MIS.
+    from argparse import Namespace
+    for given, in_file, said in ((None, "PARTITION", False), (None, "MIS", True),
+                                 ("partition", "MIS", False), ("mis", "PARTITION", True)):
+        a = Namespace(merge_weights=given)
+        replaced = D.partition_fallback(a)
+        assert a.merge_weights == "partition" and replaced(in_file) is said, (given, in_file)
+
+
 @needs_dask
 def test_combined_workers_2_same_image_as_one_process(caustic, combined_reference, tmp_path):
     # --merge-weights mis: the workers return no deposits to merge, so the

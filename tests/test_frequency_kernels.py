@@ -375,6 +375,27 @@ def test_reach_map_covers_every_gather_sphere():
     assert out.mean() < 0.5
 
 
+def test_reach_map_is_rebuilt_in_place():
+    """``PhotonTracer.set_reach`` rewrites the last pass's map (no new grid a
+    pass): the second map is the first array, holding exactly what
+    ``mark_reach`` marks from zeros for the new points, none of the old."""
+    tr = _tracer(TPK.cornell(), "CORRECTED")
+    m = tr.march
+    assert tr.uses_reach()
+    rng = np.random.default_rng(2)
+    p = m.lo + rng.random((50, 3)) * m.res * m.cell
+    R2 = np.full(50, (2.0 * m.cell.max()) ** 2)
+    tr.set_reach(p, np.ones(50, bool), R2)
+    first = tr.reach
+    n_first = int(first.sum())
+    tr.set_reach(p[:10], np.ones(10, bool), R2[:10])
+    fresh = np.zeros_like(first)
+    FK.mark_reach(p[:10].copy(), np.sqrt(R2[:10]), m.lo, m.cell, m.res, fresh)
+    assert tr.reach is first
+    np.testing.assert_array_equal(tr.reach, fresh)
+    assert n_first > int(fresh.sum()) > 0
+
+
 def test_unreached_deposits_predict_zero_and_first_deposits_match():
     """``PhotonTracer.set_reach`` / ``kernels.gate_unreached``: with a reach
     map covering half the Cornell box, deposits in unmarked voxels are not

@@ -12,7 +12,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 MEASURE = """
 import sys, json
-sys.path[:0] = ["tests", "."]
+sys.path[:0] = ["tests"]
+import fppm_alias  # noqa: core.x is fppm.core.x, the suite's kernel cache (no compile of its own)
 from core import memory
 from core.render import Renderer
 from core.settings import RenderSettings
@@ -36,6 +37,35 @@ def test_first_hits_add_their_bytes_per_pixel():
     b = memory.estimate(1000, 1, 1, 8, False, resident=0, first_hits=False)
     assert a["pixels"] - b["pixels"] == 1000 * memory.BYTES_PER_FIRST_HIT
     assert memory.BYTES_PER_PIXEL + memory.BYTES_PER_FIRST_HIT == 1040
+
+
+def test_one_first_hit_rule_for_the_camera_pass_and_the_estimate(monkeypatch):
+    # memory.keeps_first_hits decides CameraPass.first_data (with the plan's
+    # merging) and the estimate's first_hits (before the plan: COMBINED may
+    # merge), so the estimate counts the first hits whenever the pass keeps them.
+    from core.render import Renderer
+    from core.settings import RenderSettings
+    from analytic_scenes import area_light_plane
+    K = memory.keeps_first_hits
+    for dp in (False, True):
+        for integ in ("PHOTON", "PATH", "LIGHT", "COMBINED"):
+            for merging in (False, True) if integ == "COMBINED" else (False,):
+                assert K(dp, integ, merging) <= K(dp, integ)
+    assert not K(False, "PHOTON") and K(False, "COMBINED") and not K(False, "COMBINED", False)
+    estimated = []
+    orig = memory.estimate
+    monkeypatch.setattr(memory, "estimate",
+                        lambda *a, **kw: estimated.append(kw["first_hits"]) or orig(*a, **kw))
+    scene = area_light_plane(res=8)[0]
+    got = {}
+    for integ, passes in (("PHOTON", ()), ("PHOTON", ("Depth",)), ("COMBINED", ())):
+        r = Renderer(scene, RenderSettings(integrator=integ, use_frequency=False, max_passes=1),
+                     log=lambda m: None, passes=passes)
+        got[integ, passes] = (r.camera_pass.first_data, estimated.pop())
+    # (kept by the camera pass, counted by the estimate); the plane has no
+    # delta vertex, so COMBINED does not merge, yet its bound counts them.
+    assert got == {("PHOTON", ()): (False, False), ("PHOTON", ("Depth",)): (True, True),
+                   ("COMBINED", ()): (False, True)}
 
 
 def test_estimate_bounds_a_photon_render_without_first_hits():

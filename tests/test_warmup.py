@@ -218,6 +218,18 @@ def test_failed_compile_is_kept_as_a_message():
 SMALL_JOBS = ("lambda: [(W.warmup_scene(res=8, glossy=False), S.RenderSettings("
               "integrator='PATH', max_passes=1, camera_samples=1, seed=1))]")
 
+# Script lines: W (a core.warmup module) and the child it starts warm up with
+# the jobs of the expression SMALL (W and S, its core.settings, in scope)
+# instead of warmup_jobs() (also tests/test_addon_install.py).
+USE_JOBS = r"""
+W.warmup_jobs = eval(SMALL)
+CALL = 'importlib.import_module(name + ".core.warmup").compile_kernels()'
+assert CALL in W._CHILD
+W._CHILD = W._CHILD.replace(CALL, "W = importlib.import_module(name + '.core.warmup'); "
+                            "S = importlib.import_module(name + '.core.settings'); "
+                            "W.warmup_jobs = " + SMALL + "; W.compile_kernels()")
+"""
+
 FIRST_USE = r"""
 import json, sys, time
 sys.path.insert(0, sys.argv[1])
@@ -226,12 +238,7 @@ import fppm.core.settings as S
 import fppm.core.warmup as W
 from fppm.core.warmup import warmup
 SMALL = sys.argv[2]
-W.warmup_jobs = eval(SMALL)
-CALL = 'importlib.import_module(name + ".core.warmup").compile_kernels()'
-assert CALL in W._CHILD
-W._CHILD = W._CHILD.replace(CALL, "W = importlib.import_module(name + '.core.warmup'); "
-                            "S = importlib.import_module(name + '.core.settings'); "
-                            "W.warmup_jobs = " + SMALL + "; W.compile_kernels()")
+""" + USE_JOBS + r"""
 t0 = time.perf_counter()
 warmup.start()
 last, gaps = time.perf_counter(), []

@@ -94,10 +94,11 @@ def render(a) -> int:
             what = (f"--cluster {a.cluster}: cannot reach the Dask scheduler" if a.cluster
                     else f"--workers {a.workers}: the local Dask cluster did not start")
             raise cli.CLIError(cli.EXIT_USAGE, f"{what} ({ex}).")
-    fallback = client is not None and distributed.partition_fallback(a)
+    replaced = distributed.partition_fallback(a) if client is not None else None
 
     def on_renderer(renderer):
-        if fallback and renderer.settings.integrator == "COMBINED":
+        if (replaced is not None and renderer.settings.integrator == "COMBINED"
+                and replaced(a.file_settings.merge_weights)):
             renderer.log(distributed.PARTITION_FALLBACK)
         what = distributed.chunked_stages(distributed.local_chunk_streams(renderer, a.chunk))
         if not what:

@@ -130,16 +130,17 @@ PARTITION_FALLBACK = ("FPPM: merging weights 'PARTITION' on Dask workers: mergin
                       "paths do not return (docs/integrators.md).")
 
 
-def partition_fallback(a) -> bool:
+def partition_fallback(a):
     """Set ``--merge-weights partition`` on the CLI arguments a of a
     distributed render (merging as an MIS strategy needs every light path's
     deposits in the driver, core.render ``_step_merge_mis``; the workers
-    return splat sums alone).  True when a's weights (given or the file's)
-    were not already 'partition': the caller logs PARTITION_FALLBACK for a
-    COMBINED render."""
+    return splat sums alone).  Returns ``replaced(file_weights) -> bool``:
+    whether that replaced 'MIS' weights, a's own when given, else the file's
+    (``a.file_settings``, read once the file is open): the caller logs
+    PARTITION_FALLBACK for a COMBINED render then, and only then."""
     given = getattr(a, "merge_weights", None)
     a.merge_weights = "partition"
-    return given != "partition"
+    return lambda file_weights: (given or file_weights).upper() == "MIS"
 
 
 def _worker_ignores_sigint():

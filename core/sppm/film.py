@@ -187,6 +187,13 @@ PASSES = (
 AOVS = tuple(p for p in PASSES if p.source == "state")
 
 
+def data_passes(passes) -> tuple:
+    """The PASSES named in ``passes`` that are made from the camera pass's
+    first hits ('mean' and 'first' sources, not the state's AOVs)."""
+    names = set(passes)
+    return tuple(p for p in PASSES if p.source != "state" and p.name in names)
+
+
 def pass_enabled(p: FilmPass, settings, view_layer=None) -> bool:
     """Whether p is on: its RenderSettings field, or its view-layer property
     (False without a view layer or when the property does not exist)."""
@@ -210,7 +217,7 @@ class Film:
         self.compiled = compiled
         self.scene = scene
         self.transparent = bool(getattr(scene, "film_transparent", False))
-        self.data_passes = tuple(p for p in PASSES if p.source != "state" and p.name in set(passes))
+        self.data_passes = data_passes(passes)
         P = H * W
         self.coverage = np.zeros(P)                   # sum over passes of "camera ray hit"
         self.samples = 0                              # passes accumulated

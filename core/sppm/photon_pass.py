@@ -265,8 +265,14 @@ class PhotonPass:
         last pass's visible points, rebuilt from its camera stream, and the
         checkpointed radii: the same map.  Not with chunk_streams (other
         processes trace those chunks)."""
-        if self.keeps_reach:
-            self._reach_source = (np.array(vp.p, np.float64), np.array(vp.valid, bool), R2)
+        if self.keeps_reach and self.tracer.uses_reach():
+            # copies (vp's arrays may be reused), into the last pass's buffers
+            kept = getattr(self, "_reach_kept", None)
+            if kept is None or kept[0].shape != vp.p.shape:
+                kept = self._reach_kept = (np.empty(vp.p.shape), np.empty(vp.valid.shape, bool))
+            np.copyto(kept[0], vp.p)
+            np.copyto(kept[1], vp.valid)
+            self._reach_source = (kept[0], kept[1], R2)
 
     @property
     def keeps_reach(self) -> bool:

@@ -494,20 +494,32 @@ class PhotonTracer:
         (R_FLOOR_REL D: no hold).  None (every deposit marched) under the
         exact conditions of set_radius_cut, without a marched grid, for
         the PAPER model and for photon merging (after_delta_only)."""
-        st = self.settings
         R2 = np.asarray(R2)
-        ok = np.asarray(valid, bool) & (R2 > 0)
-        if (self.occlusion != 1 or st.aov_predicted_radius or st.aov_spectrum
-                or st.radius_rule != "PPM" or self.after_delta_only
-                or st.frequency_model == "PAPER"
-                or not np.isfinite(R2[ok]).all()):
+        ok = np.asarray(valid, bool) & (R2 > 0) if self.uses_reach() else None
+        if ok is None or not np.isfinite(R2[ok]).all():
             self.reach = None
             return
         m = self.march
-        out = np.zeros((m.res, m.res, m.res), np.uint8)
+        # The last pass's map is rewritten (its voxels zeroed): no fresh
+        # pages each pass; the chunks that read it have finished
+        # (PhotonPass.trace_ahead drops them first).
+        out = self.reach
+        if out is None or out.shape != (m.res, m.res, m.res):
+            out = np.zeros((m.res, m.res, m.res), np.uint8)
+        else:
+            out.fill(0)
         FK.mark_reach(np.ascontiguousarray(np.asarray(p, np.float64)[ok]),
                       np.sqrt(R2[ok]).astype(np.float64), m.lo, m.cell, m.res, out)
         self.reach = out
+
+    def uses_reach(self) -> bool:
+        """The conditions of :meth:`set_reach` that do not depend on the
+        pass: a marched grid, the CORRECTED model, PPM's radius rule, no
+        predicted-radius or spectrum AOV, no photon merging."""
+        st = self.settings
+        return not (self.occlusion != 1 or st.aov_predicted_radius or st.aov_spectrum
+                    or st.radius_rule != "PPM" or self.after_delta_only
+                    or st.frequency_model == "PAPER")
 
     def set_radius_cut(self, R2):
         """Before a pass: radius_cut = the largest pixel radius sqrt(R2 (P,)),
