@@ -467,7 +467,8 @@ class DistributedPhotonPass:
                                  retries=self.retries, pure=False, priority=1)
                    for c, (n, n_freq) in enumerate(local.chunks())]
         self.pending = futures
-        acc = PassSums.zeros(vp.valid.shape[0], local.radius_histogram is not None, spectrum)
+        acc = PassSums.zeros(vp.valid.shape[0], local.radius_histogram is not None, spectrum,
+                             local.sectors)
 
         def add(part):
             acc.add(part)
