@@ -202,6 +202,7 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
           for m in methods}
     for m in methods:
         radii_variant(rs[m], m)
+        planes_or(rs[m], m)
     cpu = {m: [0.0] for m in methods}
     err = {m: [np.nan] for m in methods}
     while True:
@@ -226,6 +227,38 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
     return out
 
 
+def planes_or(r, m):
+    """The variants of method name m on renderer r: 'fppm:keep=noplanes' the
+    march as before (a segment's own surfaces may occlude), 'fppm:keep=or'
+    :func:`hold_or_uniform`."""
+    if ":keep=noplanes" in m:
+        cp = r.tracer.chain_params
+        r.tracer.chain_params = lambda cp=cp: cp()._replace(own_planes=False)
+    if ":keep=or" in m:
+        hold_or_uniform(r.radii)
+
+
+def hold_or_uniform(radii):
+    """Make ``radii`` (core.sppm.update.Radii, PPM rule) also hold where
+    CPPM's uniformity test of the sector counts accepts (or cannot test
+    yet), whatever the spectrum predicts: a pixel's kept prediction is
+    raised to its radius there; the verified holds' linear test still
+    vetoes; the Predicted Radius state keeps the spectrum's own prediction
+    (a bench variant: docs/method.md "Principled interior: quality or
+    cost")."""
+    from fppm.core.sppm.update import chi2_rejects, kept_prediction
+    update = radii.update
+
+    def hold_or(state, M, Phi, r_pred, sectors=None):
+        r = kept_prediction(r_pred, state.r_pred_last, radii.keep_minimum)
+        S = state.sectors + sectors
+        uniform = ~chi2_rejects(S) & (state.R2 > 0)
+        r_or = np.where(uniform, np.fmax(np.where(np.isinf(r), 0.0, r), np.sqrt(state.R2)), r)
+        update(state, M, Phi, r_or, sectors)
+        state.r_pred_last = np.where(np.isinf(r), np.nan, r)
+    radii.update = hold_or
+
+
 def equal_passes(scene, base, methods, seed, passes, report, ref, say):
     """relMSE of every method after the same passes (same seed), stepped
     alternately in one process: per report pass the whole image and the
@@ -241,6 +274,7 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
         if ":keep=noocc" in m:          # the frequency chain without its occlusion operator
             from fppm.core.frequency.occlusion_march import no_march_grid
             rs[m].tracer.occlusion, rs[m].tracer.march = 0, no_march_grid()
+        planes_or(rs[m], m)
     cpu = {m: [] for m in methods}
     gathered = {m: [] for m in methods}
     out = {}

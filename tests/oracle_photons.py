@@ -52,12 +52,14 @@ def radius_cut_numpy(spec, t, r_cut, D):
     return q
 
 
-def arrive_numpy(tracer, spec, o, d, t, ng, used=None):
+def arrive_numpy(tracer, spec, o, d, t, ng, used=None, ng0=None):
     """The arriving chain (``kernels.arrive``) of spectra spec (N, 3) along
     segments o, d (N, 3), t (N,) onto surfaces of geometric normal ng (N, 3),
     with the tracer's model, occlusion grid and D.  used (N,) bool: the
     segments whose occluder is marched (``kernels.marked_segments``; the
-    others get a_occ = inf), None = all.  Returns (N, 3)."""
+    others get a_occ = inf), None = all.  ng0 (N, 3): the normals of the
+    surfaces the segments leave (``kernels.Segments.ng0``), None = none.
+    Returns (N, 3)."""
     model = tracer.settings.frequency_model
     A_MAX = tracer.D * tracer.D
     if tracer.occ_grid is not None:
@@ -69,7 +71,9 @@ def arrive_numpy(tracer, spec, o, d, t, ng, used=None):
             cut = radius_cut_numpy(spec[u], t[u], r_cut, tracer.D)
         if u.any():
             a_occ[u], t_occ[u] = march_occlusion(tracer.occ_grid, o[u], d[u], t[u],
-                                                 tracer.occ_locality, return_t=True, cut=cut)
+                                                 tracer.occ_locality, return_t=True, cut=cut,
+                                                 n_start=None if ng0 is None else ng0[u],
+                                                 n_end=ng[u])
         s = travel_occlude_travel(spec, t, a_occ, t_occ, tracer.D, model, A_MAX)
     else:
         s = F.travel(spec, np.minimum(t, tracer.D), model, A_MAX)
@@ -111,8 +115,9 @@ def spectrum_at_hits_numpy(self, spec, seg, rec, dep, rows):
     nxt = rec.nxt_src[:rows.n_next]
     used[nxt[rec.nxt_delta[:rows.n_next] | self.chain_params().march_all]] = True
     out = np.zeros((K, 3))
+    ng0 = seg.ng0[hi] if seg.ng0.shape[0] == K else None
     out[hi] = arrive_numpy(self, spec[hi], seg.o[hi], seg.d[hi], rec.t[hi], rec.ng[hi],
-                           used[hi])
+                           used[hi], ng0)
     a, b = rows.dep0, rows.dep1
     if b > a:
         buf = dep.buf
@@ -162,6 +167,7 @@ def trace_numpy(self, n: int, n_freq: int, rng):
         spec = np.asarray(ph["freq_init"], np.float64).copy()
     idx = np.nonzero(alive)[0]
     o, d, power, spec, is_freq = o[idx], d[idx], power[idx], spec[idx], is_freq[idx]
+    ng0 = np.zeros((idx.size, 3))          # the surface each segment leaves (emitter: none)
     falloff_r2 = falloff_r2[idx]
     model = st.frequency_model
     out_p, out_ng, out_wi, out_pow, out_r, out_b, out_s = [], [], [], [], [], [], []
@@ -171,6 +177,7 @@ def trace_numpy(self, n: int, n_freq: int, rng):
         h = self.accel.intersect(o, d)
         keep = h.hit
         o, d, power, spec, is_freq = o[keep], d[keep], power[keep], spec[keep], is_freq[keep]
+        ng0 = ng0[keep]
         if o.shape[0] == 0:
             break
         ii = np.nonzero(keep)[0]
@@ -189,8 +196,9 @@ def trace_numpy(self, n: int, n_freq: int, rng):
             fq = np.nonzero(is_freq)[0]
             spec_plain = spec.copy()
             spec_plain[fq] = arrive_numpy(self, spec[fq], o[fq], d[fq], hits.t[fq], ng[fq],
-                                          np.zeros(fq.size, bool))
-            spec[fq] = arrive_numpy(self, spec[fq], o[fq], d[fq], hits.t[fq], ng[fq])
+                                          np.zeros(fq.size, bool), ng0[fq])
+            spec[fq] = arrive_numpy(self, spec[fq], o[fq], d[fq], hits.t[fq], ng[fq],
+                                    None, ng0[fq])
         deposit = self.mtab.has_nondelta[mat]
         if not (st.photons_for_direct or bounce > 0):
             deposit = np.zeros_like(deposit)
@@ -237,6 +245,7 @@ def trace_numpy(self, n: int, n_freq: int, rng):
         power = power[k] * wgt[k]
         spec = spec[k]
         is_freq = is_freq[k]
+        ng0 = ng[k]
     if not out_p:
         return None
     return {"p": np.concatenate(out_p), "ng": np.concatenate(out_ng),

@@ -211,6 +211,65 @@ def test_ray_beside_thin_wall_reports_its_distance(floor_and_wall):
     assert np.all(np.isfinite(b[deltas < 0.025])) and np.all(np.isinf(b[deltas > 0.04]))
 
 
+def test_segment_ending_next_to_an_occupied_voxel_is_not_narrowed(floor_and_wall):
+    """A photon landing on the open floor within half a voxel of the wall's
+    foot, arriving towards the wall from the open side, is not occluded: the
+    voxels at the foot hold floor and wall, so their cone meets every plane
+    (45 degrees about the bisector), and without the receiving plane the
+    march credited them with the floor's own distance (docs/frequency.md
+    "Occlusion": the surfaces a segment connects are not its occluders)."""
+    g = floor_and_wall
+    loc = default_locality(g)
+    rng = np.random.default_rng(3)
+    n = 2000
+    gap = rng.uniform(0.05, 0.5, n) * H
+    p = np.stack([0.498 - gap, rng.uniform(0.2, 0.8, n), np.zeros(n)], 1)
+    w = rng.normal(size=(n, 3))
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    w[:, 0], w[:, 2] = np.abs(w[:, 0]), -np.abs(w[:, 2])
+    # towards the wall (no segment crosses it), not grazing the floor
+    ok = (w[:, 0] > 0.3) & (w[:, 2] < -0.2)
+    d, p = w[ok], p[ok]
+    m = len(d)
+    t = np.full(m, 0.4)
+    o = p - t[:, None] * d
+    up = np.tile([0.0, 0.0, 1.0], (m, 1))
+    before = march_occlusion(g, o, d, t, loc)
+    after, t_occ = march_occlusion(g, o, d, t, loc, n_end=up, return_t=True)
+    # measured: 14.9 % of these segments occluded before, 0.46 % after
+    assert np.isfinite(before).mean() > 0.10
+    assert np.isfinite(after).mean() < 0.01
+    # What is left is the wall (nearer than the floor by more than half a
+    # voxel), at its own distance (interpolation: within h/2).
+    f = np.isfinite(after)
+    q = o[f] + t_occ[f, None] * d[f]
+    np.testing.assert_allclose(np.sqrt(after[f]), 0.498 - q[:, 0], atol=0.5 * H)
+    assert np.all(np.sqrt(after[f]) < q[:, 2] - 0.5 * H)
+    # The same segments leaving the floor (the plane they leave): likewise.
+    before = march_occlusion(g, p, -d, t, loc)
+    after = march_occlusion(g, p, -d, t, loc, n_start=up)
+    assert np.isfinite(before).mean() > 0.10 and np.isfinite(after).mean() < 0.01
+
+
+def test_end_planes_keep_a_real_occluder(floor_and_wall):
+    """A segment leaving the floor beside the wall, rising along it (the
+    wall edge-on at 0.038 m), still finds the wall with the planes given:
+    only distances the segment's own surfaces explain are dropped."""
+    g = floor_and_wall
+    o = np.array([[0.46, 0.05, 0.0]])
+    d = np.array([[0.0, 2 ** -0.5, 2 ** -0.5]])
+    t = np.array([0.6])
+    a0, t0 = march_occlusion(g, o, d, t, 0.15, return_t=True)
+    a1 = march_occlusion(g, o, d, t, 0.15, n_start=[[0.0, 0.0, 1.0]], n_end=[[0.0, 1.0, 0.0]])
+    # the wall face at x = 0.498: exact up to float32 between centres on its
+    # side, at most h/2 over where it lies between them
+    assert 0.038 - 1e-6 <= np.sqrt(a1[0]) <= 0.038 + 0.5 * H
+    # Without the planes the floor's own distance just past the skipped
+    # start (the voxels at the wall's foot meet every plane) came first.
+    assert np.sqrt(a0[0]) < 0.038 - 1e-3
+    assert abs(np.sqrt(a0[0]) - t0[0] * d[0, 2]) < 0.5 * H
+
+
 def test_ray_far_from_geometry_reports_inf(floor_and_wall):
     g = floor_and_wall
     o = np.array([[0.9, 0.05, 0.6], [0.1, 0.9, 0.95]])

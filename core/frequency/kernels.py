@@ -46,7 +46,7 @@ from . import spectrum as F
 from . import curvature as _curv
 from . import occlusion_grid as _occlusion_grid
 from . import occlusion_march as _occlusion_march
-from .occlusion_march import march_segments
+from .occlusion_march import march_segments, plane_cosine
 
 BETA = F.BETA
 B_CAP = F.B_CAP
@@ -413,7 +413,10 @@ class ChainParams(NamedTuple):
     (:func:`radius_cut`; CORRECTED only); gate: the reach map passed to
     :func:`spectrum_at_hits` applies (:func:`gate_unreached`); r_gated [m]:
     the radius an unmarched deposit of a gated pass predicts (a positive
-    radius below any pixel's: the radius floor)."""
+    radius below any pixel's: the radius floor); own_planes: the march
+    does not take the surfaces a segment leaves and lands on for its
+    occluders (False: the rule before docs/method.md "Principled interior:
+    quality or cost", kept for the benchmarks)."""
     paper: bool
     D: float
     A_MAX: float
@@ -422,14 +425,19 @@ class ChainParams(NamedTuple):
     r_cut: float = np.inf
     gate: bool = False
     r_gated: float = 0.0
+    own_planes: bool = True
 
 
 class Segments(NamedTuple):
     """The segments the photons just travelled: o, d (K, 3) float64 origin
     and unit direction (copied before the bounce kernel overwrites the live
-    state)."""
+    state); ng0 (K, 3) float64 the geometric normal of the surface each
+    leaves (zeros: an emitter, or unknown), or (1, 3) zeros for none: the
+    march does not take that surface for an occluder
+    (``occlusion_march.march_segments``' planes)."""
     o: np.ndarray
     d: np.ndarray
+    ng0: np.ndarray = np.zeros((1, 3))
 
 
 class Rows(NamedTuple):
@@ -531,14 +539,24 @@ def _kernels(token):
         a_occ = np.empty(K)
         t_occ = np.empty(K)
         cut = np.empty((K, 3))
+        planes = np.empty((K, 2))
+        has_ng0 = seg.ng0.shape[0] == K
         for k in range(n_march):
             i = rows_m[k]
+            # the surfaces the segment connects are not its occluders
+            planes[i, 0] = planes[i, 1] = np.inf
+            if chain.own_planes:
+                if has_ng0:
+                    planes[i, 0] = plane_cosine(seg.ng0[i, 0], seg.ng0[i, 1], seg.ng0[i, 2],
+                                                seg.d[i, 0], seg.d[i, 1], seg.d[i, 2])
+                planes[i, 1] = plane_cosine(rec.ng[i, 0], rec.ng[i, 1], rec.ng[i, 2],
+                                            seg.d[i, 0], seg.d[i, 1], seg.d[i, 2])
             if paper or not (chain.r_cut < np.inf):
                 cut[i, 0] = cut[i, 1] = cut[i, 2] = np.inf
             else:
                 cut[i, 0], cut[i, 1], cut[i, 2] = radius_cut(
                     spec[i, 0], spec[i, 1], spec[i, 2], rec.t[i], chain.r_cut, A_MAX, D)
-        march_segments(march, seg.o, seg.d, rec.t, rows_m, n_march, a_occ, t_occ, cut)
+        march_segments(march, seg.o, seg.d, rec.t, rows_m, n_march, a_occ, t_occ, cut, planes)
         for i in range(K):
             if not (need[i] and rec.hit[i]):
                 continue

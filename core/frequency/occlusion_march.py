@@ -208,10 +208,25 @@ def _cut_over(q0, q1, q2, t0, t1):
 
 
 NO_CUT = np.full((1, 3), np.inf)
+NO_PLANES = np.full((1, 2), np.inf)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _end_plane_explains(l, ts, t_end, ps, pe, tol):
+    """Is a candidate at distance l at ts no nearer than the plane the segment
+    leaves (cosine ps = |n_s . d|, at distance ts ps) or the plane it lands on
+    (cosine pe, at (t_end - ts) pe), less tol?  inf = no such plane.  Such a
+    distance is that surface's own: a surface does not cut the light leaving
+    or arriving at it, and a candidate of another surface at the same or a
+    larger distance is left to the samples farther from the end, where the
+    plane's distance has grown (docs/frequency.md "Occlusion")."""
+    if ps < np.inf and l >= ts * ps - tol:
+        return True
+    return pe < np.inf and l >= (t_end - ts) * pe - tol
 
 
 @nb.njit(cache=True, nogil=True)
-def march_segments(m, o, d, t_end, rows, n, out, out_t, cut):
+def march_segments(m, o, d, t_end, rows, n, out, out_t, cut, planes):
     """(a_occ, t_occ) of segments: for i = rows[k], k < n, out[i], out_t[i] =
     those of the segment [o[i] + t_skip d[i], o[i] + (t_end[i] - t_skip)
     d[i]] (see :func:`march_occlusion`): m a :class:`MarchGrid`; o, d (N, 3)
@@ -222,7 +237,11 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t, cut):
     (``kernels.radius_cut``: farther ones cannot bring the deposit's radius
     below the pixels'), inf = every candidate; the skips take that
     threshold's largest value over the block, voxel piece or jump (a convex
-    quadratic: at an end).  The frequency chains
+    quadratic: at an end).  planes (N, 2) float64: the cosines |n . d| of
+    the plane the segment leaves and of the plane it lands on (geometric
+    normals), inf = none: a candidate no nearer than either plane at its
+    sample (:func:`_end_plane_explains`) is that surface, not an occluder.
+    The frequency chains
     (core.frequency.kernels) march the rows of one bounce in one call: the
     arrays of m are unpacked once per call, not per segment: numba counts
     the references of each array it takes out of m, and those counts cost
@@ -270,6 +289,12 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t, cut):
     ic0, ic1, ic2 = m.icell[0], m.icell[1], m.icell[2]
     vjump = m.vjump
     cones = m.cones
+    # The interpolated distance of a point whose nearest surface is one of
+    # the planes errs below the plane's distance by up to half a voxel
+    # (neighbouring centres nearer other geometry: measured up to 0.25 of a
+    # voxel on principled_interior's furniture), so a candidate within half
+    # a voxel of a plane's distance is not told from the plane.
+    ptol = 0.5 * max(c0, max(c1, c2))
     NB = bmin.shape[0]
     for k in range(n):
         i = rows[k]
@@ -285,6 +310,8 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t, cut):
         # quadratic, so its largest value over [t0, t1] is at an end
         q0, q1, q2 = cut[i, 0], cut[i, 1], cut[i, 2]
         has_cut = q0 < np.inf
+        ps, pe = planes[i, 0], planes[i, 1]
+        te = t_end[i]
         # clip to the grid box (slabs); outside it there is no geometry
         ta, tb = _clip_slab(lo0, c0, R, ox, dx, ta, tb)
         ta, tb = _clip_slab(lo1, c1, R, oy, dy, ta, tb)
@@ -413,7 +440,7 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t, cut):
                         loc = min(locality, _cut_over(q0, q1, q2, ts, ts))
                     nb_ = sample_voxel(dist, cone, lo, cell, R, ix, iy, iz, ox, oy, oz,
                                         dx, dy, dz, ts, loc, best)
-                    if nb_ < best:
+                    if nb_ < best and not _end_plane_explains(nb_, ts, te, ps, pe, ptol):
                         best = nb_
                         t_best = ts
                 t = t_exit + eps
@@ -459,22 +486,26 @@ def march_segment(m, ox, oy, oz, dx, dy, dz, t_end):
     m a :class:`MarchGrid`, o and d (unit) scalars."""
     out, out_t = np.empty(1), np.empty(1)
     march_segments(m, np.array([[ox, oy, oz]], np.float64), np.array([[dx, dy, dz]], np.float64),
-                   np.array([t_end], np.float64), np.zeros(1, np.int64), 1, out, out_t, NO_CUT)
+                   np.array([t_end], np.float64), np.zeros(1, np.int64), 1, out, out_t, NO_CUT,
+                   NO_PLANES)
     return out[0], out_t[0]
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
-def _march_cut(m, o, d, t_end, out, out_t, cut):
-    march_segments(m, o, d, t_end, np.arange(o.shape[0]), o.shape[0], out, out_t, cut)
+def _march_cut(m, o, d, t_end, out, out_t, cut, planes):
+    march_segments(m, o, d, t_end, np.arange(o.shape[0]), o.shape[0], out, out_t, cut, planes)
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
 def _march(m, o, d, t_end, out, out_t):
-    _march_cut(m, o, d, t_end, out, out_t, np.full((o.shape[0], 3), np.inf))
+    """Every candidate, no plane (bench/bench_march.py times this)."""
+    _march_cut(m, o, d, t_end, out, out_t, np.full((o.shape[0], 3), np.inf),
+               np.full((o.shape[0], 2), np.inf))
 
 
 def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
-                    skip_voxels: float = 1.0, return_t: bool = False, cut=None):
+                    skip_voxels: float = 1.0, return_t: bool = False, cut=None,
+                    n_start=None, n_end=None):
     """a_occ [m^2] for each photon segment [o, o + t_end d].
 
     o: (N, 3), d: (N, 3) unit directions, t_end: (N,) segment lengths (inf for
@@ -495,6 +526,9 @@ def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
     travels on for t_end - t (docs/frequency.md: occlusion is a
     multiplication of the field at the blocker).
     cut: None, or (N, 3) the per-segment threshold of :func:`march_segments`.
+    n_start, n_end: None, or (N, 3) the geometric normals of the surface each
+    segment leaves and lands on (rows of zeros: none): a candidate no nearer
+    than those planes is not an occluder (:func:`march_segments`' planes).
     The traversal (:func:`march_segment`) skips whole blocks of voxels that
     provably hold no candidate below the current minimum (``MarchBlocks``);
     tests/oracle_occlusion.py holds the voxel-by-voxel reference.
@@ -508,9 +542,30 @@ def march_occlusion(grid: OcclusionGrid, o, d, t_end, locality: float,
     if len(o) == 0 or not np.isfinite(grid.dist).any():
         out[:] = np.inf
         return (out, out_t) if return_t else out
-    if cut is None:
-        _march(march_grid(grid, locality, skip_voxels), o, d, t_end, out, out_t)
-    else:
-        _march_cut(march_grid(grid, locality, skip_voxels), o, d, t_end, out, out_t,
-                   np.ascontiguousarray(np.asarray(cut, np.float64).reshape(-1, 3)))
+    cut = (np.full((len(o), 3), np.inf) if cut is None
+           else np.ascontiguousarray(np.asarray(cut, np.float64).reshape(-1, 3)))
+    planes = np.full((len(o), 2), np.inf)
+    for k, nrm in enumerate((n_start, n_end)):
+        if nrm is not None:
+            planes[:, k] = plane_cosines(
+                np.ascontiguousarray(np.asarray(nrm, np.float64).reshape(-1, 3)), d)
+    _march_cut(march_grid(grid, locality, skip_voxels), o, d, t_end, out, out_t, cut, planes)
     return (out, out_t) if return_t else out
+
+
+@nb.njit(cache=True, nogil=True)
+def plane_cosine(nx, ny, nz, dx, dy, dz):
+    """|n . d| of a geometric normal n and a unit direction d, inf for a zero
+    n (no plane): one entry of :func:`march_segments`' planes."""
+    if nx * nx + ny * ny + nz * nz > 0.25:
+        return abs(nx * dx + ny * dy + nz * dz)
+    return np.inf
+
+
+@nb.njit(cache=True, nogil=True)
+def plane_cosines(n, d):
+    """(N,) :func:`plane_cosine` of normals n (N, 3) and directions d (N, 3)."""
+    out = np.empty(n.shape[0])
+    for i in range(n.shape[0]):
+        out[i] = plane_cosine(n[i, 0], n[i, 1], n[i, 2], d[i, 0], d[i, 1], d[i, 2])
+    return out

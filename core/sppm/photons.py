@@ -360,6 +360,9 @@ class PhotonTracer:
             if freq:
                 spec = np.asarray(ph["freq_init"], np.float64)[a:b][src[:K]]
         dep.spec_rows |= freq
+        # the geometric normal of the surface each frequency photon leaves
+        # (zeros: the emitter): the march does not take it for an occluder
+        ng0 = np.zeros((K, 3)) if freq else None
         caustic = self.after_delta_only
         # Hit records: frequency photons' chains, and the delta flag of the
         # scattering each survivor sampled (caustic photons).
@@ -388,7 +391,7 @@ class PhotonTracer:
             dep.reserve(K)
             if freq:
                 # the segments just travelled: the kernel overwrites the live state
-                seg = FK.Segments(live.o32[:K].astype(np.float64), live.d64[:K].copy())
+                seg = FK.Segments(live.o32[:K].astype(np.float64), live.d64[:K].copy(), ng0)
             through = straight is not None or (caustic and self.clear_through)
             if through:
                 d_in, prim_in = live.d64[:K].copy(), hits.prim[:K].astype(np.int64)
@@ -407,6 +410,7 @@ class PhotonTracer:
                 if n_next:
                     spec = self._spectrum_leaving(spec_hit, n_next, hits.prim, rec, live.d64,
                                                   seg.d)
+                    ng0 = rec.ng[rec.nxt_src[:n_next]]
             if through:
                 th = self._through(d_in, prim_in, rec, live, n_next)
             if caustic:
