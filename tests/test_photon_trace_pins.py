@@ -34,9 +34,9 @@ from test_photon_kernels import _tracer, cornell, glass_mirror  # noqa: E402
 
 PINS = {
     "cornell_plain": "c7efebd03e91870bed83859ccfc29d59",
-    "cornell_freq": "bfff7d82b52782c260a19115ccd05156",
+    "cornell_freq": "2a8c75fef944182a72a0580655e059cf",
     "glass_mirror_plain": "fa12cec5ca2f437f08b3aea52698675e",
-    "glass_mirror_freq": "acc98c3ae1dc2a6d38178dd246752d96",
+    "glass_mirror_freq": "b5e69c5b84ceafd863fd8dc9d1b4ceb0",
     "glass_mirror_caustic": "42b0ea714c7e9b9d0677efcf35db84a9",
     "cornell_mis": "11931a943bb718ba1c32bfe295a69aff",
 }
