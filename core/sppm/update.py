@@ -230,7 +230,11 @@ class Radii:
         # than alpha); bench_hold_alpha 'fppm:power=0:release=0.7' is the
         # rule before (docs/method.md "Rings under a 1 m light").
         self.hold_min_expected = HOLD_MIN_EXPECTED
-        self.release_alpha = min(settings.alpha, RELEASE_ALPHA)
+        # alpha = 1 is a fixed radius (no pixel shrinks): a release must not
+        # shrink it either (tests/test_stiff_scenes: a point focus with a
+        # fixed radius integrates to its flux).
+        self.release_alpha = (settings.alpha if settings.alpha >= 1.0
+                              else min(settings.alpha, RELEASE_ALPHA))
         self.hold_max_top2 = HOLD_MAX_TOP2
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
