@@ -219,7 +219,7 @@ def collect(budget=120.0, seeds=4, clock="cpu"):
                          f"{fmt(d['relmse'].get('1.0'))} ({spread(*rs)}) | {fmt(d.get('excess'))} | "
                          f"{fmt(s.get('floor'))} | {fmt(d['flip'].get('1.0'))} ({spread(*fs)}) | "
                          f"{fmt(s.get('cores', {}).get(m))} |")
-    lines += ["", "## Targets (issues 13 and 18)", "",
+    lines += ["", "## Targets", "",
               "Ratio < 1: the first method has the lower error at equal time; on the excess "
               "relMSE when both are above the reference floor, else raw; 'seeds' is the "
               "seed-by-seed ratio's min-max.  'near floor': an excess below 3x the reference "
