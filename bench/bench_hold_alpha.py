@@ -376,12 +376,17 @@ def main():
         return cost(scene, base.replace(hold_alpha=float(a.hold.split(",")[0])), a.cost_only, say)
     if a.breakdown:
         return breakdown(scene, base, a.breakdown, say)
-    if a.equal_passes:
+    def the_reference():
+        """(reference image, its floor) of --equal-passes / --equal-cpu, said once."""
         ref, floor = ref_floor if a.cycles_ref else reference(
             a.scene, scene, base, a.ref_passes, a.ref_photons, say)
         say(("# reference: fppm converge's Cycles render; floor (its variance) "
              if a.cycles_ref else f"# reference: {a.ref_passes} passes x {a.ref_photons} photons, "
              "seed 100; floor (half vs full) ") + f"{floor:.3e}; load {os.getloadavg()[0]:.1f}")
+        return ref, floor
+
+    if a.equal_passes:
+        ref, floor = the_reference()
         methods = a.methods.split(",")
         methods += [] if "ppm" in methods else ["ppm"]     # the ratios' denominator
         for seed in [int(x) for x in a.seeds.split(",")]:
@@ -390,11 +395,7 @@ def main():
         say(f"# load at the end {os.getloadavg()[0]:.1f}")
         return
     if a.equal_cpu:
-        ref, floor = ref_floor if a.cycles_ref else reference(
-            a.scene, scene, base, a.ref_passes, a.ref_photons, say)
-        say(("# reference: fppm converge's Cycles render; floor (its variance) "
-             if a.cycles_ref else f"# reference: {a.ref_passes} passes x {a.ref_photons} photons, "
-             "seed 100; floor (half vs full) ") + f"{floor:.3e}; load {os.getloadavg()[0]:.1f}")
+        ref, floor = the_reference()
         if not a.methods:                   # --methods "": the reference only
             return
         methods = a.methods.split(",")
