@@ -24,8 +24,8 @@ RADIUS_MODES = (
 )
 CAMERA_DEPTHS = (
     ('AUTO', "Auto",
-     "Emitters where every material is diffuse or rough (light tracing takes the rest), "
-     "else Full", 0),
+     "Emitters where every material is diffuse or rough and light paths often reach the "
+     "camera (a pilot of light paths decides; light tracing takes the rest), else Full", 0),
     ('FULL', "Full", "Camera paths at full length, every strategy weighted by MIS", 1),
     ('EMITTERS', "Emitters",
      "Camera rays on diffuse first vertices only find emitters seen directly", 2),

@@ -186,13 +186,13 @@ class Renderer:
                     self.plan, self.D, self.offset, (self.width, self.height),
                     self.scene.filter_width, camera_samples=st.camera_samples)
             # Camera paths that light tracing takes over (combined.CameraStop).
-            self.path_tracer.vc.stop = getattr(self.combined_lt, "stop", None)
-            if self.path_tracer.vc.stop is not None and self.path_tracer.vc.stop.alone:
-                self.path_tracer.samples = self.combined_lt.K
-                self.path_tracer.vc.set_samples(self.combined_lt.K)
-            if self.path_tracer.vc.stop is not None:
-                self.plan.strategies = with_camera_stop(
-                    self.plan.strategies, self.path_tracer.vc.stop, self.path_tracer.samples)
+            stop = self.path_tracer.vc.stop = getattr(self.combined_lt, "stop", None)
+            if stop is not None:
+                if stop.alone:
+                    self.path_tracer.samples = self.combined_lt.K
+                    self.path_tracer.vc.set_samples(self.combined_lt.K)
+                self.plan.strategies = with_camera_stop(self.plan.strategies, stop,
+                                                        self.path_tracer.samples)
             self.light_splat = np.zeros((P, 3))
 
     def _setup_scene(self, scene: Scene, force_stages: tuple, passes: tuple = ()) -> None:

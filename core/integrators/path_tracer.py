@@ -217,12 +217,19 @@ class PathTracer:
                 self._kernels = False
         return self._kernels or None
 
+    @property
+    def camera_stop(self):
+        """COMBINED's ``combined.CameraStop`` (where its camera paths stop),
+        or None: full length (also integrator PATH, which has no vc)."""
+        return None if self.vc is None else self.vc.stop
+
     def __call__(self, rng: np.random.Generator, check_stop=lambda: None) -> np.ndarray:
         """(P, 3) float64: the mean over ``camera_samples`` paths per pixel of
         the radiance each carries (filter-importance-sampled, so a plain mean)."""
         P, n = self.px.shape[0], self.samples
         L = np.zeros((P, 3))
-        if getattr(getattr(self.vc, "stop", None), "camera_free", False):
+        stop = self.camera_stop
+        if stop is not None and stop.camera_free:
             return L        # COMBINED: light tracing takes every path (combined.CameraStop)
         block = max(1, PATH_CHUNK // n)
         for a in range(0, P, block):
@@ -336,7 +343,7 @@ class PathTracer:
                 if part is not None:
                     w = w * part.weight(e)
                 out[path[e]] += beta[e] * Le * w[:, None]
-            stop = getattr(vc, "stop", None)
+            stop = self.camera_stop
             if stop is not None and depth <= stop.depth:
                 # COMBINED: light tracing alone takes the longer paths
                 # (combined.CameraStop; no transparent crossings then, so
