@@ -115,7 +115,7 @@ NOTES = [
 # CPPM), the single strategies of the combined integrator (path and light
 # tracing), the combined integrator, and Cycles (the order of the table).
 METHODS = "fppm,ppm,appm,cppm,path,light,combined,cycles"
-# The methods each scene's targets need (issues 13 and 18): the combined
+# The methods each scene's targets need: the combined
 # integrator against Cycles and its single strategies, FPPM against PPM, and
 # APPM / CPPM where indirect light dominates.  Cycles cannot render
 # point_caustic's caustic (its reference is a light tracer).

@@ -1,5 +1,5 @@
 """Test oracle of the visible-point grid build: core.sppm.hashgrid.build_grid
-as it was before its compiled, parallel build (issue 17).
+as it was before its compiled, parallel build.
 
 The active VPs and their extent in numpy, and the serial two-pass insertion
 (a counting pass and a fill pass over every VP's cells, hash collisions

@@ -1,4 +1,4 @@
-"""Caustic lines (issue 18): the frequency prediction is small along the
+"""Caustic lines: the frequency prediction is small along the
 caustic of a curved mirror under a 1 m light (docs/frequency.md "Curvature of
 a mesh").
 

@@ -1,4 +1,4 @@
-"""The compiled per-pixel stages of a pass (issue 17) against their references.
+"""The compiled per-pixel stages of a pass against their references.
 
 What is asserted, and why the tolerances are zero:
 - Camera rays (core.scene.camera_kernels ``_pinhole_range``) equal

@@ -1,4 +1,4 @@
-"""Issue 6, scene level: stiff and extreme scenes rendered end to end.
+"""Scene level: stiff and extreme scenes rendered end to end.
 
 Every case builds a plain-Python scene (``core.scene.model.make_scene``), renders it
 with every AOV switched on, and checks that the film and all AOVs are finite

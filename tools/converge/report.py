@@ -18,7 +18,7 @@ from .runs import Run, methods_run
 
 FRACTIONS = (0.1, 0.5, 1.0)
 KINDS = ("diffuse", "indirect", "caustic-small", "caustic-point", "caustic-large")
-# The targets of issues 13 (the combined integrator) and 18 (FPPM against
+# The targets of the combined integrator and of FPPM (against
 # PPM and the published per-pixel radius rules), by scene class.
 # Every kind: the combined integrator against the strategies it combines
 # (docs/integrators.md), when they ran.  A denominator that is a tuple means
