@@ -441,8 +441,7 @@ class CameraPass:
         P = self.px.shape[0]
         ctx = self._kernel_context(vp, L)
         dz = np.empty(P)
-        ru, rr = _stream_copy(rng), _stream_copy(rng)
-        rr.bit_generator.advance(4 * P)
+        ru, rr = stream_at(rng), stream_at(rng, 4 * P)
         nxt = []
         for a in range(0, P, CAMERA_BLOCK):
             b = min(a + CAMERA_BLOCK, P)
@@ -551,10 +550,15 @@ class CameraPass:
                 see_through)
 
 
-def _stream_copy(rng: np.random.Generator) -> np.random.Generator:
-    """A generator at rng's position in rng's stream (rng is not moved)."""
+def stream_at(rng: np.random.Generator, n: int = 0) -> np.random.Generator:
+    """A generator n draws ahead of rng's position in rng's stream (rng is
+    not moved): its ``random()`` gives the float64 draws n, n + 1, ... of rng
+    (PCG64: one uint64 a draw, ``advance``), so that two threads can draw
+    two parts of one stream."""
     bg = type(rng.bit_generator)()
     bg.state = rng.bit_generator.state
+    if n:
+        bg.advance(n)
     return np.random.Generator(bg)
 
 
