@@ -18,6 +18,7 @@ stage.
 """
 from __future__ import annotations
 
+import threading
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -33,7 +34,7 @@ if TYPE_CHECKING:
     from ..sppm.visible_points import VisiblePoints
 
 
-#: Visible points per block of the compiled direct light (``__call__``).
+#: Visible points per block of the compiled direct light (``_direct_blocks``).
 DIRECT_BLOCK = 1 << 16
 
 
@@ -55,7 +56,7 @@ class NextEventEstimation:
         q = np.nonzero(vp.valid)[0]
         if self.compiled and q.size and self._compiled_lights() is not None:
             L = np.zeros((vp.valid.shape[0], 3)) if add_to is None else add_to
-            self._direct_halves(vp, q, rng, L)
+            self._direct_blocks(vp, q, rng, L)
             return L
         L = self._direct_numpy(vp, q, rng)
         if add_to is None:
@@ -102,34 +103,42 @@ class NextEventEstimation:
         _add_lit(L, q, contrib, self.transmittance(vp.p[q], vp.ng[q], wi, dist, mesh, casts))
         return L
 
-    def _direct_halves(self, vp, q, rng, L) -> None:
+    def _direct_blocks(self, vp, q, rng, L) -> None:
         """The compiled direct light of the visible points q (K,) added to L
-        (P, 3): the rows [0, K/2) in this thread and [K/2, K) in core.sppm.photons'
-        pool (from camera_kernels.SPLIT_MIN rows), each half end to end --
-        uniforms, light samples, shadow rays, sums -- in blocks of
-        DIRECT_BLOCK rows, so no stage of it waits on one thread's numpy glue.
-        Row k takes the uniforms 3k .. 3k+2 of rng's stream (each half draws
-        from a copy of the stream advanced to its first row: the same numbers
-        as one (K, 3) draw), and rng is left after the 3K of them.  Each
-        point's light is its own and the halves' pixels are distinct, so the
-        sums are the same bits however the rows are split."""
+        (P, 3), in blocks of DIRECT_BLOCK rows (four blocks from K < 4
+        DIRECT_BLOCK; one thread below camera_kernels.SPLIT_MIN rows) that two
+        threads (this one and core.sppm.photons' pool) take in turn, each block end to end --
+        uniforms, light samples, shadow rays, sums -- so no step waits on one
+        thread's numpy glue, and a thread whose blocks cost less (unshadowed
+        points) takes more of them.  Row k takes the uniforms 3k .. 3k+2 of
+        rng's stream (a block draws from a copy of the stream advanced to its
+        first row: the same numbers as one (K, 3) draw), and rng is left
+        after the 3K of them.  Each point's light is its own and the blocks'
+        pixels are distinct, so the sums are the same bits however the blocks
+        are shared."""
         from ..sppm.camera_kernels import SPLIT_MIN
-        from ..sppm.photons import in_two_halves
-        from ..sppm.visible_points import stream_at
+        from ..sppm.visible_points import in_two_threads, stream_at
         K = q.size
-        if not isinstance(rng.bit_generator, np.random.PCG64):    # no advance by draws
-            streams, split_min = {0: rng}, K + 1
-        else:
-            streams, split_min = {0: stream_at(rng), K // 2: stream_at(rng, 3 * (K // 2))}, SPLIT_MIN
+        if K < SPLIT_MIN or not isinstance(rng.bit_generator, np.random.PCG64):
+            # one thread (PCG64 alone advances by draws), in blocks
+            for a in range(0, K, DIRECT_BLOCK):
+                qb = q[a:a + DIRECT_BLOCK]
+                self._direct_compiled(vp, qb, rng.random((qb.size, 3)), L)
+            return
+        # at least four blocks to share (256^2: a quarter of the points each)
+        blk = min(DIRECT_BLOCK, -(-K // 4))
+        todo, take = iter(range(0, K, blk)), threading.Lock()
 
-        def half(a0, a1):
-            g = streams[a0]
-            for a in range(a0, a1, DIRECT_BLOCK):
-                qb = q[a:min(a + DIRECT_BLOCK, a1)]
-                self._direct_compiled(vp, qb, g.random((qb.size, 3)), L)
-        in_two_halves(half, K, split_min)
-        if streams[0] is not rng:
-            rng.bit_generator.advance(3 * K)
+        def worker():
+            while True:
+                with take:
+                    a = next(todo, None)
+                if a is None:
+                    return
+                qb = q[a:a + blk]
+                self._direct_compiled(vp, qb, stream_at(rng, 3 * a).random((qb.size, 3)), L)
+        in_two_threads(worker)
+        rng.bit_generator.advance(3 * K)
 
     def _direct_compiled(self, vp, q, u, L) -> np.ndarray:
         """The numpy path above with the light sample, the Lambert BSDF, the
@@ -324,7 +333,7 @@ def _add_lit(L: np.ndarray, q: np.ndarray, contrib: np.ndarray, T: np.ndarray) -
 def _occluded_f32(accel, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray) -> np.ndarray:
     """``Accel.occluded`` of rays already in Embree's float32 (C-contiguous
     (K, 3), (K, 3), (K,)): (K,) bool, no conversions, in the calling thread
-    (``_direct_halves`` runs two of them at a time; Embree releases the GIL)."""
+    (``_direct_blocks`` runs two of them at a time; Embree releases the GIL)."""
     K = o32.shape[0]
     accel.count_rays(K)
     if accel._scene is None or K == 0:
