@@ -10,7 +10,8 @@ pixel alone, and the uniforms are the same draws of the same stream):
   it) equals the numpy reference, the glass cube's delta chains included,
   and leaves the stream where the reference does; a cancel raised in either
   thread reaches the caller (no block waits forever) and the next pass is
-  unchanged.
+  unchanged; with the pool's workers busy the stage's thread does every
+  block and returns without waiting for them.
 - The direct light in blocks taken by two threads equals the same blocks
   in one thread and leaves the stream at 3K draws.
 - ``core.sppm.pass_kernels``: the active mask and radii, Phi x beta and the
@@ -96,6 +97,31 @@ def test_camera_blocks_cancel_reaches_the_caller(stages, monkeypatch, when):
     with pytest.raises(_Stop):
         cam(np.random.default_rng(11), stop)
     got = _camera(cam, np.random.default_rng(11))
+    for f in VP_FIELDS:
+        assert np.array_equal(got[0][f], want[0][f]), f
+    assert np.array_equal(got[1], want[1])
+
+
+def test_camera_blocks_with_the_pool_busy(stages, monkeypatch):
+    """With both of the pool's workers busy (photons traced ahead), the stage's
+    own thread does every block and returns without waiting for a worker:
+    the pool's call, not started, is dropped (in_two_threads)."""
+    import threading
+    cam, _ = stages
+    monkeypatch.setattr(VP, "CAMERA_BLOCK", 150)
+    want = _camera(cam, np.random.default_rng(11))
+    release = threading.Event()
+    safety = threading.Timer(60.0, release.set)        # never hang the suite
+    safety.start()
+    busy = [Ph._pool().submit(release.wait) for _ in range(2)]
+    try:
+        got = _camera(cam, np.random.default_rng(11))
+        assert not release.is_set()                     # returned while the pool was busy
+    finally:
+        release.set()
+        safety.cancel()
+        for f in busy:
+            f.result()
     for f in VP_FIELDS:
         assert np.array_equal(got[0][f], want[0][f]), f
     assert np.array_equal(got[1], want[1])

@@ -621,8 +621,11 @@ class CameraPass:
 
 def in_two_threads(work) -> None:
     """work() in this thread and, at the same time, in core.sppm.photons'
-    pool (one call with one thread, ``FPPM_PHOTON_THREADS``); returns once
-    both calls have, raising the first exception (this thread's first)."""
+    pool (one call with one thread, ``FPPM_PHOTON_THREADS``), for work that
+    takes its shares of one job until none is left: the pool's call is
+    dropped when it has not started by the time this thread's returns (the
+    pool's workers busy with photons traced ahead).  Returns once both calls
+    have, raising the first exception (this thread's first)."""
     from .photons import _pool, _threads
     if _threads() < 2:
         work()
@@ -631,8 +634,10 @@ def in_two_threads(work) -> None:
     try:
         work()
     finally:
-        f.exception()           # waits for it: no block is written after a raise
-    f.result()
+        if not f.cancel():
+            f.exception()       # waits for it: no block is written after a raise
+    if not f.cancelled():
+        f.result()
 
 
 def stream_at(rng: np.random.Generator, n: int = 0) -> np.random.Generator:
