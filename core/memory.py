@@ -32,7 +32,11 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
   with its 8 sector cells (docs/architecture.md, "The 1080p pass: camera
   and direct light in blocks"), bounded by 1152 B a pixel.  The numpy light
   sampler and the delta chains at every pixel are not measured lower, so
-  the sum stays 1040 B
+  the sum stays 1040 B.  Two threads now work on two of those blocks at
+  once (~270 B a pixel of a camera block, ~170 B of a direct-light one):
+  one more block's temporaries, at most ~140 B a pixel of the image (at
+  2 x 65536 pixels, less above), alive in those stages only and freed
+  before the grid build, the pass's peak
 - per AOV channel per pixel: the film's float32 layer, its float64 source and
   the EXR's copy -> BYTES_PER_AOV_CHANNEL
 - per radius-histogram bin per pixel (Quantile estimator): the uint32 state,

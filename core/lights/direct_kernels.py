@@ -611,6 +611,28 @@ def direct_kernel(k0, k1, L, R, out):
             out.contrib[k, 2] = R.beta[i, 2] * f2 * c * w2
 
 
+@njit(cache=True, nogil=True)
+def _positive(c0, c1, c2):
+    """numpy's ``max(c) > 0`` of one row (NaN anywhere: False)."""
+    if np.isnan(c0) or np.isnan(c1) or np.isnan(c2):
+        return False
+    return c0 > 0 or c1 > 0 or c2 > 0
+
+
+@njit(cache=True, nogil=True)
+def bsdf_rows(q, const, weight):
+    """(n,) int64 the receiver rows k whose f is ``eval_bsdf``'s (not
+    Lambert-only, const[q[k]] False) and that have light (weight[k] > 0
+    somewhere): ``np.nonzero(~const[q] & (weight.max(axis=1) > 0))[0]``."""
+    out = np.empty(q.shape[0], np.int64)
+    n = 0
+    for k in range(q.shape[0]):
+        if not const[q[k]] and _positive(weight[k, 0], weight[k, 1], weight[k, 2]):
+            out[n] = k
+            n += 1
+    return out[:n]
+
+
 class ShadowRays(NamedTuple):
     """The shadow rays of :func:`shadow_kernel`, compacted: o32, d32 (K, 3)
     float32 Embree's origins (``accel.spawn``) and directions, t32 (K,)
@@ -643,8 +665,7 @@ def shadow_kernel(q, p, ng, S, rel, floor, sh, L):
     nm = 0
     for k in range(q.shape[0]):
         c0, c1, c2 = S.contrib[k, 0], S.contrib[k, 1], S.contrib[k, 2]
-        # numpy: contrib.max(axis=1) > 0 (NaN: False)
-        if np.isnan(c0) or np.isnan(c1) or np.isnan(c2) or not (c0 > 0 or c1 > 0 or c2 > 0):
+        if not _positive(c0, c1, c2):
             continue
         i = q[k]
         if not S.shadow[k]:

@@ -18,6 +18,7 @@ stage.
 """
 from __future__ import annotations
 
+import threading
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -33,7 +34,7 @@ if TYPE_CHECKING:
     from ..sppm.visible_points import VisiblePoints
 
 
-#: Visible points per block of the compiled direct light (``__call__``).
+#: Visible points per block of the compiled direct light (``_direct_blocks``).
 DIRECT_BLOCK = 1 << 16
 
 
@@ -54,14 +55,8 @@ class NextEventEstimation:
         gets one addition) without a pixel-sized array of its own."""
         q = np.nonzero(vp.valid)[0]
         if self.compiled and q.size and self._compiled_lights() is not None:
-            # In blocks of DIRECT_BLOCK points, their uniforms drawn in turn
-            # (the same stream as one (K, 3) draw): every temporary is
-            # block-sized (no pixel-sized arrays page-faulted in every pass);
-            # each point's light is its own, so the sums are the same bits.
             L = np.zeros((vp.valid.shape[0], 3)) if add_to is None else add_to
-            for a in range(0, q.size, DIRECT_BLOCK):
-                qb = q[a:a + DIRECT_BLOCK]
-                self._direct_compiled(vp, qb, rng.random((qb.size, 3)), L)
+            self._direct_blocks(vp, q, rng, L)
             return L
         L = self._direct_numpy(vp, q, rng)
         if add_to is None:
@@ -108,14 +103,51 @@ class NextEventEstimation:
         _add_lit(L, q, contrib, self.transmittance(vp.p[q], vp.ng[q], wi, dist, mesh, casts))
         return L
 
+    def _direct_blocks(self, vp, q, rng, L) -> None:
+        """The compiled direct light of the visible points q (K,) added to L
+        (P, 3), in blocks of DIRECT_BLOCK rows (four blocks from K < 4
+        DIRECT_BLOCK; one thread below camera_kernels.SPLIT_MIN rows) that two
+        threads (this one and core.sppm.photons' pool) take in turn, each block end to end --
+        uniforms, light samples, shadow rays, sums -- so no step waits on one
+        thread's numpy glue, and a thread whose blocks cost less (unshadowed
+        points) takes more of them.  Row k takes the uniforms 3k .. 3k+2 of
+        rng's stream (a block draws from a copy of the stream advanced to its
+        first row: the same numbers as one (K, 3) draw), and rng is left
+        after the 3K of them.  Each point's light is its own and the blocks'
+        pixels are distinct, so the sums are the same bits however the blocks
+        are shared."""
+        from ..sppm.camera_kernels import SPLIT_MIN
+        from ..sppm.visible_points import in_two_threads, stream_at
+        K = q.size
+        if K < SPLIT_MIN or not isinstance(rng.bit_generator, np.random.PCG64):
+            # one thread (PCG64 alone advances by draws), in blocks
+            for a in range(0, K, DIRECT_BLOCK):
+                qb = q[a:a + DIRECT_BLOCK]
+                self._direct_compiled(vp, qb, rng.random((qb.size, 3)), L)
+            return
+        # at least four blocks to share (256^2: a quarter of the points each)
+        blk = min(DIRECT_BLOCK, -(-K // 4))
+        todo, take = iter(range(0, K, blk)), threading.Lock()
+
+        def worker():
+            while True:
+                with take:
+                    a = next(todo, None)
+                if a is None:
+                    return
+                qb = q[a:a + blk]
+                self._direct_compiled(vp, qb, stream_at(rng, 3 * a).random((qb.size, 3)), L)
+        in_two_threads(worker)
+        rng.bit_generator.advance(3 * K)
+
     def _direct_compiled(self, vp, q, u, L) -> np.ndarray:
         """The numpy path above with the light sample, the Lambert BSDF, the
         shadow rays and the sums in ``direct_kernels`` (no environment map:
-        see ``_compiled_lights``).  Adds to and returns L (P, 3)."""
+        see ``_compiled_lights``), in the calling thread.  Adds to and returns L (P, 3)."""
         from . import direct_kernels as DK
         S = self._sample_compiled(vp, q, u)
         # f of the points that are not Lambert-only: eval_bsdf on their rows.
-        r = np.nonzero(~vp.const[q] & (S.weight.max(axis=1) > 0))[0]
+        r = DK.bsdf_rows(q, vp.const, S.weight)
         if r.size:
             qr = q[r]
             ns_m, ng_m = vp.mesh_normals(qr)
@@ -167,17 +199,14 @@ class NextEventEstimation:
         return self._lights or None
 
     def _sample_compiled(self, vp, q, u):
-        """sample_direct plus the Lambert-only BSDF in ``direct_kernels``, two
-        halves in two threads: the ``DirectSamples`` of the rows q (contrib 0
-        where the material is not Lambert-only)."""
+        """sample_direct plus the Lambert-only BSDF in ``direct_kernels``: the
+        ``DirectSamples`` of the rows q (contrib 0 where the material is not
+        Lambert-only)."""
         from . import direct_kernels as DK
-        from ..sppm.camera_kernels import SPLIT_MIN
-        from ..sppm.photons import in_two_halves
         K = q.size
         R = DK.Receivers(q, vp.p, vp.ns, vp.beta, vp.albedo, vp.const, u)
         out = DK.alloc_samples(K)
-        lights = self._compiled_lights()
-        in_two_halves(lambda a, b: DK.direct_kernel(a, b, lights, R, out), K, SPLIT_MIN)
+        DK.direct_kernel(0, K, self._compiled_lights(), R, out)
         return out
 
     def _environment_bsdf(self, vp: "VisiblePoints", rng: np.random.Generator) -> np.ndarray:
@@ -303,16 +332,10 @@ def _add_lit(L: np.ndarray, q: np.ndarray, contrib: np.ndarray, T: np.ndarray) -
 
 def _occluded_f32(accel, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray) -> np.ndarray:
     """``Accel.occluded`` of rays already in Embree's float32 (C-contiguous
-    (K, 3), (K, 3), (K,)): (K,) bool, no conversions."""
+    (K, 3), (K, 3), (K,)): (K,) bool, no conversions, in the calling thread
+    (``_direct_blocks`` runs two of them at a time; Embree releases the GIL)."""
     K = o32.shape[0]
     accel.count_rays(K)
     if accel._scene is None or K == 0:
         return np.zeros(K, bool)
-    from ..sppm.camera_kernels import SPLIT_MIN
-    from ..sppm.photons import in_two_halves
-    run, out = accel._scene.run, np.empty(K, bool)
-
-    def block(a, b):       # Embree releases the GIL; a ray's answer is its own
-        out[a:b] = np.asarray(run(o32[a:b], d32[a:b], dists=t32[a:b], query="OCCLUDED")) >= 0
-    in_two_halves(block, K, SPLIT_MIN)
-    return out
+    return np.asarray(accel._scene.run(o32, d32, dists=t32, query="OCCLUDED")) >= 0

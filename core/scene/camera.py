@@ -252,17 +252,19 @@ class CameraModel:
 
     def generate(self, px: np.ndarray, py: np.ndarray, u_filter: np.ndarray,
                  u_lens: np.ndarray, fsamp: FilterSampler,
-                 compiled: bool = True) -> tuple[CameraRays, np.ndarray]:
+                 compiled: bool = True, threads: bool = True) -> tuple[CameraRays, np.ndarray]:
         """Rays through pixels (px, py) (K,) int or float64, py counted from the BOTTOM.
 
         u_filter, u_lens: (K,2) uniforms.  Returns the rays and the camera-space
         z-component of the unit direction (K,) (negative), used to turn ray
         distance into depth.  compiled=False: the numpy reference (the
         same bits, see the module docstring); the thin lens always takes it.
+        threads=False: in the calling thread only, never a numba parallel
+        region (for callers that generate in two threads at once).
         """
         cam = self.cam
         if compiled and not (cam.aperture_radius > 0 and cam.kind != "ORTHO"):
-            return self._generate_compiled(px, py, u_filter, fsamp)
+            return self._generate_compiled(px, py, u_filter, fsamp, threads)
         ox = fsamp.sample(u_filter[:, 0])
         oy = fsamp.sample(u_filter[:, 1])
         xs = self.xmin + (px + 0.5 + ox) * self.pix
@@ -294,7 +296,7 @@ class CameraModel:
         o_w = o_w + d_w * t0[:, None]
         return CameraRays(o_w, d_w, t1 - t0), dz
 
-    def _generate_compiled(self, px, py, u_filter, fsamp):
+    def _generate_compiled(self, px, py, u_filter, fsamp, threads=True):
         """:meth:`generate` of a pinhole or orthographic camera in ``_pinhole_range``."""
         px = np.asarray(px, np.float64)
         py = np.asarray(py, np.float64)
@@ -311,7 +313,7 @@ class CameraModel:
         # this module and must not load numba (tests/test_addon_register.py).
         import numba
         from .camera_kernels import _pinhole_parallel, _pinhole_range
-        if K >= PARALLEL_MIN and numba.get_num_threads() > 1:
+        if threads and K >= PARALLEL_MIN and numba.get_num_threads() > 1:
             _pinhole_parallel(numba.get_num_threads(), *args)
         else:
             _pinhole_range(0, K, *args)

@@ -334,7 +334,8 @@ class PhotonPass:
             z = PassSums.zeros(P, hist, None, self.sectors)
             return [getattr(z, n) for n in names]
         a = self._kept.get(make, (P, hist, self.sectors))
-        return PassSums(M=np.zeros(P), **dict(zip(names, a)),
+        from . import pass_kernels
+        return PassSums(M=pass_kernels.zeros(P), **dict(zip(names, a)),
                         spec=None if spectrum is None else spectrum.copy())
 
     def active(self, vp, R2: np.ndarray) -> np.ndarray:
@@ -355,15 +356,17 @@ class PhotonPass:
         return out
 
     def begin(self, vp, R2: np.ndarray, spectrum_aov: bool) -> Optional["PassGrid"]:
-        """The grid of this pass's active visible points (None: none is active)."""
-        active = self.active(vp, R2)
+        """The grid of this pass's active visible points (None: none is active).
+        The mask (:meth:`active`) and the radii sqrt(R2) in one compiled loop
+        over the pixels (core.sppm.pass_kernels)."""
+        from . import pass_kernels
+        active, R, n_active = pass_kernels.active_radii(vp.valid, R2)
         if self.gather_buffers is not None:
             self.gather_buffers.clear()
-        if not np.any(active):
+        if n_active == 0:
             return None
         want_pairs = self.frequency and (self.radius_histogram is not None or spectrum_aov)
-        return PassGrid(vp, R2, hashgrid.build_grid(vp.p, np.sqrt(R2), active), want_pairs,
-                        spectrum_aov)
+        return PassGrid(vp, R2, hashgrid.build_grid(vp.p, R, active), want_pairs, spectrum_aov)
 
     def chunk_sums(self, pg: "PassGrid", n: int, n_freq: int,
                    rng: np.random.Generator) -> "ChunkSums":
@@ -381,8 +384,9 @@ class PhotonPass:
 
     def finish(self, vp, acc: "PassSums") -> PhotonEstimate:
         """The pass's estimate from its summed chunks (Phi times the visible
-        points' throughput, once)."""
-        acc.Phi *= vp.beta
+        points' throughput, once; core.sppm.pass_kernels: numba threads)."""
+        from . import pass_kernels
+        pass_kernels.scale_by_beta(acc.Phi, vp.beta)
         if self.gather_buffers is not None:
             self.gather_buffers.unbind()
         return PhotonEstimate(True, acc.M, acc.Phi, acc.r_pred, acc.hist, acc.spec, acc.sectors)

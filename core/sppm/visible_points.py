@@ -13,6 +13,7 @@ world on a miss) is returned separately as ``L_emit``.
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, fields
 from typing import Optional
 
@@ -255,13 +256,13 @@ class CameraPass:
         return vp, a[-1]
 
     def _seen_along(self, depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
-                    fast=False):
+                    fast=False, split=True):
         """The emission rays (K,) of one vertex see before their hit t (K,)
         float64 (inf on a miss): analytic emitters, and on a miss the world
         (or, for camera rays seen through, alpha under Film > Transparent).
         fast: skip the masks and scatters that change nothing (the camera
         rays of depth 0 are consecutive pixels in order; a black constant
-        world adds 0); the same sums."""
+        world adds 0); the same sums.  split=False: in the calling thread."""
         whole = fast and depth == 0             # idx consecutive pixels, last = 0 (camera)
         for code, name in ((0, "camera"), (1, "glossy"), (2, "transmission")):
             if whole:
@@ -269,7 +270,8 @@ class CameraPass:
                     # idx: the pixels a0.. in order (a block of them, _trace_blocked)
                     a0 = int(idx[0]) if idx.size else 0
                     emit = first.emit[a0:a0 + idx.size] if first.emit.shape[0] else first.emit
-                    self._seen_by_camera(L[a0:a0 + idx.size], emit, o, d, tmax, t, beta)
+                    self._seen_by_camera(L[a0:a0 + idx.size], emit, o, d, tmax, t, beta,
+                                         SEEN_SPLIT_MIN if split else np.inf)
                 continue
             sel = last == code
             if np.any(sel) and (not fast or self._any_seen(name)):
@@ -290,13 +292,14 @@ class CameraPass:
         if np.any(miss):
             L[idx[miss]] += beta[miss] * Lt.world_radiance(self.light_table, d[miss])
 
-    def _seen_by_camera(self, L, emit, o, d, tmax, t, beta) -> None:
+    def _seen_by_camera(self, L, emit, o, d, tmax, t, beta, split_min=SEEN_SPLIT_MIN) -> None:
         """L += beta * Le and emit += Le, Le the analytic emitters the camera
         rays (every pixel, in order) see before t (K,) (``_seen_along``).
         Above SEEN_SPLIT_MIN rays: in blocks of SEEN_BLOCK rays (so that
         ``emitted_along_rays``' temporaries stay small and are not page-faulted
         in afresh), the blocks shared by two threads (numpy releases the GIL);
-        each ray's Le depends on that ray alone, so the sums are the same bits."""
+        each ray's Le depends on that ray alone, so the sums are the same bits.
+        split_min: rays from which the blocks are shared (np.inf: never)."""
         from .photons import in_two_halves
 
         def blocks(a0, a1):
@@ -307,7 +310,7 @@ class CameraPass:
                 L[a:b] += beta[a:b] * Le
                 if emit.shape[0]:
                     emit[a:b] += Le
-        in_two_halves(blocks, o.shape[0], SEEN_SPLIT_MIN, align=SEEN_BLOCK)
+        in_two_halves(blocks, o.shape[0], split_min, align=SEEN_BLOCK)
 
     def _any_seen(self, visibility: str) -> bool:
         """Whether any analytic emitter can be seen by rays of this kind
@@ -429,39 +432,84 @@ class CameraPass:
     def _trace_blocked(self, rng, vp, L, check_stop, centre):
         """:meth:`__call__`'s camera rays and :meth:`_trace_compiled`'s first
         vertex in blocks of CAMERA_BLOCK pixels, the delta chains' later
-        vertices after them: the same random numbers and results (the
-        filter and lens uniforms are the stream's first 4 P draws, the
-        delta choices of the first hits the next ones, in pixel order: two
-        copies of the stream advanced to each), without pixel-sized
-        temporaries (rays, uniforms, Embree's hits: 0.4 GB at 1080p, page-
-        faulted in every pass).  The camera's depth factors dz (P,) float64
-        are the one pixel-sized temporary (the delta chains' later vertices
-        read them by pixel), freed with the pass, not kept through the photon
-        pass."""
+        vertices after them: the same random numbers and results, without
+        pixel-sized temporaries (rays, uniforms, Embree's hits: 0.4 GB at
+        1080p, page-faulted in every pass).  The camera's depth factors dz
+        (P,) float64 are the one pixel-sized temporary (the delta chains'
+        later vertices read them by pixel), freed with the pass, not kept
+        through the photon pass.
+
+        Two threads (this one and core.sppm.photons' pool) take the blocks in
+        turn and do each one end to end (``_first_block``): no step of it
+        waits on numpy glue in one thread.  The filter and lens uniforms of
+        pixel i are the draws 4i .. 4i+3 of rng's stream, the delta choices
+        of the first hits the next ones, 4 a hit in pixel order: a block
+        draws from copies of the stream advanced to its own (``stream_at``),
+        the second at 4 P + 4 x (the hits of the blocks before it), which it
+        waits for (the blocks before it have cast their rays by then, in
+        either thread).  Each pixel's results are its own, so they are the
+        same bits however the blocks are shared."""
         P = self.px.shape[0]
         ctx = self._kernel_context(vp, L)
         dz = np.empty(P)
-        ru, rr = _stream_copy(rng), _stream_copy(rng)
-        rr.bit_generator.advance(4 * P)
-        nxt = []
-        for a in range(0, P, CAMERA_BLOCK):
-            b = min(a + CAMERA_BLOCK, P)
-            check_stop()
-            u = ru.random((b - a, 4))
-            if centre:
-                u[:, :2], u[:, 2:] = 0.5, 0.0     # as __call__
-            rays, dz[a:b] = self.camera.generate(self.px[a:b], self.py[a:b], u[:, :2], u[:, 2:],
-                                                 self.fsamp)
-            n = b - a
-            live = (rays.o, rays.d, rays.t_max, np.arange(a, b), np.ones((n, 3)), np.zeros(n),
-                    np.zeros(n, np.int8), np.ones(n, bool))
-            x = self._wavefront(0, live, rr, dz, ctx)
-            if x is not None:
-                nxt.append(x)
-        rng.bit_generator.state = rr.bit_generator.state
+        starts = list(range(0, P, CAMERA_BLOCK))
+        n = len(starts)
+        # hits[i]: the first hits of blocks 0 .. i-1, set once ready[i] is
+        hits, ready = [0] * (n + 1), [threading.Event() for _ in range(n + 1)]
+        ready[0].set()
+        nxt, todo, failed = [None] * n, iter(range(n)), []
+        take = threading.Lock()
+
+        def worker():
+            try:
+                while not failed:
+                    with take:
+                        i = next(todo, None)
+                    if i is None:
+                        return
+                    check_stop()
+                    a = starts[i]
+                    nxt[i] = self._first_block(a, min(a + CAMERA_BLOCK, P), rng, dz, ctx, centre,
+                                               hits, ready, i, failed)
+            except BaseException:
+                failed.append(True)
+                for e in ready:             # no block waits for one that will not come
+                    e.set()
+                raise
+        in_two_threads(worker)
+        rng.bit_generator.advance(4 * P + 4 * hits[n])
+        nxt = [x for x in nxt if x is not None]
         if nxt:
             live = tuple(np.concatenate(c) for c in zip(*nxt))
             self._chains_from(1, live, rng, dz, ctx, check_stop)
+
+    def _first_block(self, a, b, rng, dz, ctx, centre, hits, ready, i, failed):
+        """Block i, pixels a .. b-1, of :meth:`_trace_blocked` in the calling
+        thread: its camera rays (uniforms from rng's stream at 4a), their
+        first hits, the emission they see, then -- once the hits before the
+        block are counted (ready[i]) -- its delta choices and visible points.
+        Sets hits[i + 1] and ready[i + 1].  The next vertex's live chains, or None."""
+        n = b - a
+        u = stream_at(rng, 4 * a).random((n, 4))
+        if centre:
+            u[:, :2], u[:, 2:] = 0.5, 0.0     # as __call__
+        # threads=False: two threads may generate at once (one numba parallel
+        # region at a time)
+        rays, dz[a:b] = self.camera.generate(self.px[a:b], self.py[a:b], u[:, :2], u[:, 2:],
+                                             self.fsamp, threads=False)
+        del u
+        live = (rays.o, rays.d, rays.t_max, np.arange(a, b), np.ones((n, 3)), np.zeros(n),
+                np.zeros(n, np.int8), np.ones(n, bool))
+        hit = self._wavefront_rays(0, live, ctx, split=False)
+        ready[i].wait()
+        if failed:
+            return None
+        h0 = hits[i]
+        hits[i + 1] = h0 + int(np.count_nonzero(hit[0] >= 0))
+        ready[i + 1].set()
+        P = self.px.shape[0]
+        return self._wavefront_hits(0, live, hit, stream_at(rng, 4 * P + 4 * h0), dz, ctx,
+                                    split=False)
 
     def _kernel_context(self, vp, L):
         """What every wavefront's kernel call shares: (camera materials,
@@ -490,20 +538,40 @@ class CameraPass:
 
     def _wavefront(self, depth, live, rng, dz, ctx):
         """One vertex of the live chains (o, d, tmax, idx (K,) pixel, beta,
-        path_len, last, see_through): Embree, the emission seen along the rays,
-        ``hit_kernel``, the delta lobes' samples (uniforms from rng).  The next
-        vertex's live chains, or None when none continues."""
+        path_len, last, see_through): Embree, the emission seen along the rays
+        (``_wavefront_rays``), ``hit_kernel``, the delta lobes' samples
+        (uniforms from rng; ``_wavefront_hits``).  The next vertex's live
+        chains, or None when none continues."""
+        hit = self._wavefront_rays(depth, live, ctx)
+        return self._wavefront_hits(depth, live, hit, rng, dz, ctx)
+
+    def _wavefront_rays(self, depth, live, ctx, split=True):
+        """Embree's hits of the live chains' rays (prim, u, v, tfar (K,),
+        ``_intersect``) and the emission the rays see before them
+        (``_seen_along``).  split=False: in the calling thread."""
+        o, d, tmax, idx, beta, path_len, last, see_through = live
+        mats, textured, vb, fb, first, L = ctx
+        hit4 = _intersect(self.accel, o, d, tmax, INTERSECT_SPLIT_MIN if split else np.inf)
+        prim, tfar = hit4[0], hit4[3]
+        hit = prim >= 0
+        t = np.where(hit, tfar, np.inf).astype(np.float64)
+        self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
+                         fast=True, split=split)
+        return hit4
+
+    def _wavefront_hits(self, depth, live, hit4, rng, dz, ctx, split=True):
+        """``hit_kernel`` on the hits hit4 of :meth:`_wavefront_rays` (their
+        uniforms from rng, one row of 4 a hit in ray order) and the delta
+        lobes' samples of the chains that continue: the next vertex's live
+        chains, or None.  split=False: in the calling thread."""
         from . import camera_kernels as CK
         from .photons import _pool, _threads
         o, d, tmax, idx, beta, path_len, last, see_through = live
         mats, textured, vb, fb, first, L = ctx
-        mtab, accel, s = self.mtab, self.accel, self.scene
+        mtab, s = self.mtab, self.scene
         K = idx.size
-        prim, bu, bv, tfar = _intersect(accel, o, d, tmax)
+        prim, bu, bv, tfar = hit4
         hit = prim >= 0
-        t = np.where(hit, tfar, np.inf).astype(np.float64)
-        self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
-                         fast=True)
         nh = int(np.count_nonzero(hit))
         if nh == 0:
             return None
@@ -528,7 +596,7 @@ class CameraPass:
                           path_len, dz, ur, pre, colors_pre, em_pre)
         ch = CK.alloc_chains(K, Lb)
         lastv = depth == self.max_depth - 1
-        if K >= CK.SPLIT_MIN and _threads() > 1:
+        if split and K >= CK.SPLIT_MIN and _threads() > 1:
             h = K // 2
             u1 = int(np.count_nonzero(hit[:h]))
             f1 = _pool().submit(CK.hit_kernel, h, K, u1, h, depth == 0, lastv, wf, mats,
@@ -551,23 +619,49 @@ class CameraPass:
                 see_through)
 
 
-def _stream_copy(rng: np.random.Generator) -> np.random.Generator:
-    """A generator at rng's position in rng's stream (rng is not moved)."""
+def in_two_threads(work) -> None:
+    """work() in this thread and, at the same time, in core.sppm.photons'
+    pool (one call with one thread, ``FPPM_PHOTON_THREADS``), for work that
+    takes its shares of one job until none is left: the pool's call is
+    dropped when it has not started by the time this thread's returns (the
+    pool's workers busy with photons traced ahead).  Returns once both calls
+    have, raising the first exception (this thread's first)."""
+    from .photons import _pool, _threads
+    if _threads() < 2:
+        work()
+        return
+    f = _pool().submit(work)
+    try:
+        work()
+    finally:
+        if not f.cancel():
+            f.exception()       # waits for it: no block is written after a raise
+    if not f.cancelled():
+        f.result()
+
+
+def stream_at(rng: np.random.Generator, n: int = 0) -> np.random.Generator:
+    """A generator n draws ahead of rng's position in rng's stream (rng is
+    not moved): its ``random()`` gives the float64 draws n, n + 1, ... of rng
+    (PCG64: one uint64 a draw, ``advance``), so that two threads can draw
+    two parts of one stream."""
     bg = type(rng.bit_generator)()
     bg.state = rng.bit_generator.state
+    if n:
+        bg.advance(n)
     return np.random.Generator(bg)
 
 
-def _intersect(accel, o, d, tmax):
+def _intersect(accel, o, d, tmax, split_min=INTERSECT_SPLIT_MIN):
     """Embree's closest hits of rays o + t d, t < tmax (K,): (prim (K,) int32,
     u, v, tfar (K,) float32), as ``Accel.intersect`` casts them (float32 in).
 
     In blocks of INTERSECT_BLOCK rays, converted to float32 block by block:
     at 1080p the whole wavefront's float32 copies and Embree's own outputs
     were ~110 MB of fresh arrays per call, page-faulted in every pass.  From
-    INTERSECT_SPLIT_MIN rays the blocks are shared by two threads
-    (EmbreeScene.run releases the GIL).  Each ray's hit does not depend on
-    the blocks."""
+    split_min rays the blocks are shared by two threads
+    (EmbreeScene.run releases the GIL; np.inf: never).  Each ray's hit does
+    not depend on the blocks."""
     K = o.shape[0]
     accel.count_rays(K)
     if accel._scene is None or K == 0:
@@ -583,7 +677,7 @@ def _intersect(accel, o, d, tmax):
             r = run(f32(o[a:b]), f32(d[a:b]), dists=f32(np.minimum(tmax[a:b], 3e37)), output=1)
             prim[a:b], bu[a:b], bv[a:b], tfar[a:b] = r["primID"], r["u"], r["v"], r["tfar"]
     from .photons import in_two_halves
-    in_two_halves(blocks, K, INTERSECT_SPLIT_MIN)
+    in_two_halves(blocks, K, split_min)
     return prim, bu, bv, tfar
 
 
