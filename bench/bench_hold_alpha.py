@@ -146,7 +146,7 @@ def method_settings(base, method):
     if ":" in method:                       # "fppm:decay=0" etc.
         for kv in method.split(":")[1:]:
             k, v = kv.split("=")
-            if k in ("keep", "power", "release", "top2"):   # Radii attributes: radii_variant
+            if k in ("keep", "power", "release", "top2", "grow", "or", "growE", "crit", "orE"):   # Radii attributes: radii_variant
                 continue
             over[k] = type(getattr(base, k))(float(v) if isinstance(getattr(base, k), float) else v)
     return base.replace(**over)
@@ -155,7 +155,8 @@ def method_settings(base, method):
 def radii_variant(renderer, method):
     """Set the Radii attributes a method name asks for: 'keep=min' (the running
     minimum of the predictions), 'keep=none' (none kept), 'power=0' (a hold
-    the verified-holds test has too few photons to judge stands)."""
+    the verified-holds test has too few photons to judge stands), 'or=0/1'
+    and 'grow=G' (docs/method.md "Spectrum and counts")."""
     if ":keep=min" in method:
         renderer.radii.keep_minimum = True
     if ":keep=none" in method:
@@ -166,6 +167,21 @@ def radii_variant(renderer, method):
         renderer.radii.release_alpha = float(method.split(":release=")[1].split(":")[0])
     if ":top2=" in method:
         renderer.radii.hold_max_top2 = float(method.split(":top2=")[1].split(":")[0])
+    # docs/method.md "Spectrum and counts": 'or=0' holds by the spectrum alone
+    # (the counts only veto), 'grow=1' no first-pass growth; 'or=0:grow=1' is
+    # the rule before; 'keep=or' is or=1.
+    if ":or=" in method:
+        renderer.radii.hold_uniform = bool(float(method.split(":or=")[1].split(":")[0]))
+    if ":keep=or" in method:
+        renderer.radii.hold_uniform = True
+    if ":grow=" in method:
+        renderer.radii.grow = float(method.split(":grow=")[1].split(":")[0])
+    if ":growE=" in method:
+        renderer.radii.grow_min_expected = float(method.split(":growE=")[1].split(":")[0])
+    if ":crit=" in method:
+        renderer.radii.uniform_critical = float(method.split(":crit=")[1].split(":")[0])
+    if ":orE=" in method:
+        renderer.radii.uniform_min_expected = float(method.split(":orE=")[1].split(":")[0])
 
 
 def cycles_reference(name, say):
@@ -228,35 +244,11 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
 
 
 def planes_or(r, m):
-    """The variants of method name m on renderer r: 'fppm:keep=noplanes' the
-    march as before (a segment's own surfaces may occlude), 'fppm:keep=or'
-    :func:`hold_or_uniform`."""
+    """The variant of method name m on renderer r: 'fppm:keep=noplanes' the
+    march as before (a segment's own surfaces may occlude)."""
     if ":keep=noplanes" in m:
         cp = r.tracer.chain_params
         r.tracer.chain_params = lambda cp=cp: cp()._replace(own_planes=False)
-    if ":keep=or" in m:
-        hold_or_uniform(r.radii)
-
-
-def hold_or_uniform(radii):
-    """Make ``radii`` (core.sppm.update.Radii, PPM rule) also hold where
-    CPPM's uniformity test of the sector counts accepts (or cannot test
-    yet), whatever the spectrum predicts: a pixel's kept prediction is
-    raised to its radius there; the verified holds' linear test still
-    vetoes; the Predicted Radius state keeps the spectrum's own prediction
-    (a bench variant: docs/method.md "Principled interior: quality or
-    cost")."""
-    from fppm.core.sppm.update import chi2_rejects, kept_prediction
-    update = radii.update
-
-    def hold_or(state, M, Phi, r_pred, sectors=None):
-        r = kept_prediction(r_pred, state.r_pred_last, radii.keep_minimum)
-        S = state.sectors + sectors
-        uniform = ~chi2_rejects(S) & (state.R2 > 0)
-        r_or = np.where(uniform, np.fmax(np.where(np.isinf(r), 0.0, r), np.sqrt(state.R2)), r)
-        update(state, M, Phi, r_or, sectors)
-        state.r_pred_last = np.where(np.isinf(r), np.nan, r)
-    radii.update = hold_or
 
 
 def equal_passes(scene, base, methods, seed, passes, report, ref, say):
