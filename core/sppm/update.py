@@ -31,9 +31,14 @@ prediction (PPM with frequency photons), from the MSE-optimal radius of the
 sector counts (APPM, :func:`appm_radius`) or from the chi-square uniformity
 test of the sector counts (CPPM, :func:`chi2_rejects`); with verify_holds a
 test of the same counts (for a linear density) also releases frequency holds
-the photons contradict.  Every rule only
+the photons contradict, the uniformity test adds holds where the spectrum
+does not call the light smooth (HOLD_OR_UNIFORM), and a verified hold in a
+pixel's first pass with photons grows the radius towards the spectrum's
+prediction (GROW_MAX, :func:`grow_targets`; docs/method.md "Spectrum and
+counts").  Every rule but that one-off growth only
 chooses the per-pass factor between the PPM rate alpha and the hold rate
-hold_alpha, so every rule converges by the same argument.
+hold_alpha, so every rule converges by the same argument (the growth, once
+and bounded, scales both bounds by a constant).
 
 The PPM rule's update (the default: frequency holds, verified by the
 sector counts) runs as one compiled kernel per pixel range
@@ -94,10 +99,13 @@ RELEASE_ALPHA = 0.55
 #: counts or more (uniform: 1/4): a disc that photons reach on one side only
 #: (docs/method.md "Rings under a 1 m light"; above 1: off).
 HOLD_MAX_TOP2 = 0.6
-#: Holds also where CPPM's uniformity test of the sector counts accepts (or
-#: cannot judge yet), whatever the spectrum predicts; the linear test and the
-#: low-count refusals still veto (docs/method.md "Spectrum and counts").
+#: Holds also where CPPM's uniformity test of the sector counts accepts,
+#: whatever the spectrum predicts, once the counts can be tested
+#: (UNIFORM_MIN_EXPECTED per sector cell; below it the spectrum alone
+#: decides); the linear test still vetoes (docs/method.md "Spectrum and
+#: counts").
 HOLD_OR_UNIFORM = True
+UNIFORM_MIN_EXPECTED = CHI2_MIN_EXPECTED
 #: In a pixel's first pass with photons, a verified hold grows the radius to
 #: the spectrum's prediction, at most GROW_MAX times the initial radius and
 #: never past the surface-boundary cap (docs/method.md "Spectrum and counts":
@@ -255,7 +263,7 @@ class Radii:
         self.grow = GROW_MAX
         self.grow_min_expected = GROW_MIN_EXPECTED
         self.uniform_critical = CHI2_CRITICAL
-        self.uniform_min_expected = 0.0
+        self.uniform_min_expected = UNIFORM_MIN_EXPECTED
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
         """Set state.R2 of the pixels whose first visible point this is (R2 == 0)
