@@ -146,42 +146,34 @@ def method_settings(base, method):
     if ":" in method:                       # "fppm:decay=0" etc.
         for kv in method.split(":")[1:]:
             k, v = kv.split("=")
-            if k in ("keep", "power", "release", "top2", "grow", "or", "growE", "crit", "orE"):   # Radii attributes: radii_variant
+            if k == "keep" or k in RADII_KEYS:     # Radii attributes: radii_variant
                 continue
             over[k] = type(getattr(base, k))(float(v) if isinstance(getattr(base, k), float) else v)
     return base.replace(**over)
 
 
+#: Method-name keys of :func:`radii_variant` and the Radii attribute each sets.
+RADII_KEYS = {"power": "hold_min_expected", "release": "release_alpha", "top2": "hold_max_top2",
+              "or": "hold_uniform", "orE": "uniform_min_expected", "crit": "uniform_critical",
+              "grow": "grow", "growE": "grow_min_expected"}
+
+
 def radii_variant(renderer, method):
     """Set the Radii attributes a method name asks for: 'keep=min' (the running
     minimum of the predictions), 'keep=none' (none kept), 'power=0' (a hold
-    the verified-holds test has too few photons to judge stands), 'or=0/1'
-    and 'grow=G' (docs/method.md "Spectrum and counts")."""
+    the verified-holds test has too few photons to judge stands), and every
+    key=value of RADII_KEYS ('or=0:grow=1': the rule before docs/method.md
+    "Spectrum and counts"; 'keep=or' is 'or=1')."""
     if ":keep=min" in method:
         renderer.radii.keep_minimum = True
     if ":keep=none" in method:
         renderer.radii.keep_predictions = False
-    if ":power=" in method:
-        renderer.radii.hold_min_expected = float(method.split(":power=")[1].split(":")[0])
-    if ":release=" in method:
-        renderer.radii.release_alpha = float(method.split(":release=")[1].split(":")[0])
-    if ":top2=" in method:
-        renderer.radii.hold_max_top2 = float(method.split(":top2=")[1].split(":")[0])
-    # docs/method.md "Spectrum and counts": 'or=0' holds by the spectrum alone
-    # (the counts only veto), 'grow=1' no first-pass growth; 'or=0:grow=1' is
-    # the rule before; 'keep=or' is or=1.
-    if ":or=" in method:
-        renderer.radii.hold_uniform = bool(float(method.split(":or=")[1].split(":")[0]))
     if ":keep=or" in method:
         renderer.radii.hold_uniform = True
-    if ":grow=" in method:
-        renderer.radii.grow = float(method.split(":grow=")[1].split(":")[0])
-    if ":growE=" in method:
-        renderer.radii.grow_min_expected = float(method.split(":growE=")[1].split(":")[0])
-    if ":crit=" in method:
-        renderer.radii.uniform_critical = float(method.split(":crit=")[1].split(":")[0])
-    if ":orE=" in method:
-        renderer.radii.uniform_min_expected = float(method.split(":orE=")[1].split(":")[0])
+    for kv in method.split(":")[1:]:
+        k, v = kv.split("=")
+        if k in RADII_KEYS:
+            setattr(renderer.radii, RADII_KEYS[k], float(v))
 
 
 def cycles_reference(name, say):
