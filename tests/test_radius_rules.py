@@ -189,7 +189,6 @@ def test_wrong_prediction_is_released_by_the_photons():
                         initial_radius_px=4.0, cap_radius_at_edges=False, verify_holds=True)
     r = Renderer(scene, st, log=lambda s: None)
     r.radii.predicted = lambda rmin, rh: np.where(np.isfinite(rmin), 10.0, rmin)
-    r.radii.grow = 1.0      # the release's rates alone (with growth: tests/test_spectrum_counts.py)
     err, R = {}, {}
     for k in range(1, 65):
         img = r.step().image[..., :3].mean(axis=2)

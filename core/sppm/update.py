@@ -31,11 +31,11 @@ prediction (PPM with frequency photons), from the MSE-optimal radius of the
 sector counts (APPM, :func:`appm_radius`) or from the chi-square uniformity
 test of the sector counts (CPPM, :func:`chi2_rejects`); with verify_holds a
 test of the same counts (for a linear density) also releases frequency holds
-the photons contradict, the uniformity test adds holds where the spectrum
-does not call the light smooth (HOLD_OR_UNIFORM), and a verified hold in a
-pixel's first pass with photons grows the radius towards the spectrum's
-prediction (GROW_MAX, :func:`grow_targets`; docs/method.md "Spectrum and
-counts").  Every rule but that one-off growth only
+the photons contradict; optionally (both off by default) the uniformity
+test adds holds where the spectrum does not call the light smooth
+(HOLD_OR_UNIFORM), and a verified hold in a pixel's first pass with photons
+grows the radius towards the spectrum's prediction (GROW_MAX,
+:func:`grow_targets`; docs/method.md "Spectrum and counts").  Every rule but that one-off growth only
 chooses the per-pass factor between the PPM rate alpha and the hold rate
 hold_alpha, so every rule converges by the same argument (the growth, once
 and bounded, scales both bounds by a constant).
@@ -99,19 +99,21 @@ RELEASE_ALPHA = 0.55
 #: counts or more (uniform: 1/4): a disc that photons reach on one side only
 #: (docs/method.md "Rings under a 1 m light"; above 1: off).
 HOLD_MAX_TOP2 = 0.6
-#: Holds also where CPPM's uniformity test of the sector counts accepts,
+#: Hold also where CPPM's uniformity test of the sector counts accepts,
 #: whatever the spectrum predicts, once the counts can be tested
 #: (UNIFORM_MIN_EXPECTED per sector cell; below it the spectrum alone
-#: decides); the linear test still vetoes (docs/method.md "Spectrum and
-#: counts").
-HOLD_OR_UNIFORM = True
+#: decides); the linear test still vetoes.  Off: at equal CPU it helped the
+#: indirect room and cost the principled interior (docs/method.md "Spectrum
+#: and counts"; bench_hold_alpha 'fppm:or=1').
+HOLD_OR_UNIFORM = False
 UNIFORM_MIN_EXPECTED = CHI2_MIN_EXPECTED
 #: In a pixel's first pass with photons, a verified hold grows the radius to
 #: the spectrum's prediction, at most GROW_MAX times the initial radius and
 #: never past the surface-boundary cap (docs/method.md "Spectrum and counts":
-#: the counts of a disc cannot say that the light is smooth beyond it; 1: off);
-#: only where the counts can be tested (GROW_MIN_EXPECTED per sector cell).
-GROW_MAX = 2.0
+#: the counts of a disc cannot say that the light is smooth beyond it); only
+#: where the counts can be tested (GROW_MIN_EXPECTED per sector cell).  1:
+#: off, the default for the same reason as HOLD_OR_UNIFORM ('fppm:grow=2').
+GROW_MAX = 1.0
 GROW_MIN_EXPECTED = CHI2_MIN_EXPECTED
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
