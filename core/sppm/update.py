@@ -35,10 +35,10 @@ the photons contradict; optionally (both off by default) the uniformity
 test adds holds where the spectrum does not call the light smooth
 (HOLD_OR_UNIFORM), and a verified hold in a pixel's first pass with photons
 grows the radius towards the spectrum's prediction (GROW_MAX,
-:func:`grow_targets`; docs/method.md "Spectrum and counts").  Every rule but that one-off growth only
-chooses the per-pass factor between the PPM rate alpha and the hold rate
-hold_alpha, so every rule converges by the same argument (the growth, once
-and bounded, scales both bounds by a constant).
+:func:`grow_targets`; docs/method.md "Spectrum and counts").  Every rule
+but that one-off growth only chooses the per-pass factor between the PPM
+rate alpha and the hold rate hold_alpha, so every rule converges by the
+same argument (the growth, once and bounded, scales a bound by a constant).
 
 The PPM rule's update (the default: frequency holds, verified by the
 sector counts) runs as one compiled kernel per pixel range
@@ -363,15 +363,15 @@ class Radii:
         r_hold = r_pred
         R2_grow = None
         if S is not None and rule == "PPM":
+            E = S.sum(axis=1) / SECTOR_CELLS
             if self.hold_uniform:
                 # Smooth by the spectrum or by the counts (CPPM's test).
                 uniform = ~chi2_rejects(S, critical=self.uniform_critical) & (state.R2 > 0) \
-                    & (S.sum(axis=1) / SECTOR_CELLS >= self.uniform_min_expected)
+                    & (E >= self.uniform_min_expected)
                 r_hold = np.where(uniform, np.fmax(r_pred, keep), r_pred)
             if self.grow > 1.0:
-                R2_grow = grow_targets(state.N, state.R2, r_pred, self.grow, self._edge_cap)
-                R2_grow = np.where(S.sum(axis=1) / SECTOR_CELLS >= self.grow_min_expected,
-                                   R2_grow, 0.0)
+                R2_grow = np.where(E >= self.grow_min_expected, grow_targets(
+                    state.N, state.R2, r_pred, self.grow, self._edge_cap), 0.0)
             # Verified holds: the photons veto the prediction where they show
             # more than a linear gradient (the prediction itself is kept for
             # the Predicted Radius pass).
@@ -379,7 +379,6 @@ class Radii:
             r_or = r_hold
             r_hold = np.where(rejected, np.nan, r_hold)
             # Too few photons for the test to reject: no agreement yet.
-            E = S.sum(axis=1) / SECTOR_CELLS
             r_hold = np.where(E < self.hold_min_expected, np.nan, r_hold)
             top2 = np.sort(S, axis=1)[:, -2:]
             one_sided = (E < CHI2_MIN_EXPECTED) & (top2[:, 0] + top2[:, 1]
@@ -543,8 +542,8 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
     also where the uniformity test accepts), grow^2 (0: no growth;
     :func:`grow_targets`), grow_min_expected: no growth below this expected
     count per sector cell, the uniformity test's critical value, its
-    minimum expected count per cell (below: no uniform hold)); cap (P,) the surface-boundary cap [m] ((0,):
-    none)."""
+    minimum expected count per cell (below: no uniform hold)); cap (P,) the
+    surface-boundary cap [m] ((0,): none)."""
     alpha, floor_sq, hold_alpha = prm[0], prm[1], prm[2]
     with_S = a.S.shape[1] == SECTOR_CELLS
     E_cell = 0.0
