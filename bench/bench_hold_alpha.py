@@ -146,26 +146,34 @@ def method_settings(base, method):
     if ":" in method:                       # "fppm:decay=0" etc.
         for kv in method.split(":")[1:]:
             k, v = kv.split("=")
-            if k in ("keep", "power", "release", "top2"):   # Radii attributes: radii_variant
+            if k == "keep" or k in RADII_KEYS:     # Radii attributes: radii_variant
                 continue
             over[k] = type(getattr(base, k))(float(v) if isinstance(getattr(base, k), float) else v)
     return base.replace(**over)
 
 
+#: Method-name keys of :func:`radii_variant` and the Radii attribute each sets.
+RADII_KEYS = {"power": "hold_min_expected", "release": "release_alpha", "top2": "hold_max_top2",
+              "or": "hold_uniform", "orE": "uniform_min_expected", "crit": "uniform_critical",
+              "grow": "grow", "growE": "grow_min_expected"}
+
+
 def radii_variant(renderer, method):
     """Set the Radii attributes a method name asks for: 'keep=min' (the running
     minimum of the predictions), 'keep=none' (none kept), 'power=0' (a hold
-    the verified-holds test has too few photons to judge stands)."""
+    the verified-holds test has too few photons to judge stands), and every
+    key=value of RADII_KEYS ('or=0:grow=1': the rule before docs/method.md
+    "Spectrum and counts"; 'keep=or' is 'or=1')."""
     if ":keep=min" in method:
         renderer.radii.keep_minimum = True
     if ":keep=none" in method:
         renderer.radii.keep_predictions = False
-    if ":power=" in method:
-        renderer.radii.hold_min_expected = float(method.split(":power=")[1].split(":")[0])
-    if ":release=" in method:
-        renderer.radii.release_alpha = float(method.split(":release=")[1].split(":")[0])
-    if ":top2=" in method:
-        renderer.radii.hold_max_top2 = float(method.split(":top2=")[1].split(":")[0])
+    if ":keep=or" in method:
+        renderer.radii.hold_uniform = True
+    for kv in method.split(":")[1:]:
+        k, v = kv.split("=")
+        if k in RADII_KEYS:
+            setattr(renderer.radii, RADII_KEYS[k], float(v))
 
 
 def cycles_reference(name, say):
@@ -228,35 +236,11 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
 
 
 def planes_or(r, m):
-    """The variants of method name m on renderer r: 'fppm:keep=noplanes' the
-    march as before (a segment's own surfaces may occlude), 'fppm:keep=or'
-    :func:`hold_or_uniform`."""
+    """The variant of method name m on renderer r: 'fppm:keep=noplanes' the
+    march as before (a segment's own surfaces may occlude)."""
     if ":keep=noplanes" in m:
         cp = r.tracer.chain_params
         r.tracer.chain_params = lambda cp=cp: cp()._replace(own_planes=False)
-    if ":keep=or" in m:
-        hold_or_uniform(r.radii)
-
-
-def hold_or_uniform(radii):
-    """Make ``radii`` (core.sppm.update.Radii, PPM rule) also hold where
-    CPPM's uniformity test of the sector counts accepts (or cannot test
-    yet), whatever the spectrum predicts: a pixel's kept prediction is
-    raised to its radius there; the verified holds' linear test still
-    vetoes; the Predicted Radius state keeps the spectrum's own prediction
-    (a bench variant: docs/method.md "Principled interior: quality or
-    cost")."""
-    from fppm.core.sppm.update import chi2_rejects, kept_prediction
-    update = radii.update
-
-    def hold_or(state, M, Phi, r_pred, sectors=None):
-        r = kept_prediction(r_pred, state.r_pred_last, radii.keep_minimum)
-        S = state.sectors + sectors
-        uniform = ~chi2_rejects(S) & (state.R2 > 0)
-        r_or = np.where(uniform, np.fmax(np.where(np.isinf(r), 0.0, r), np.sqrt(state.R2)), r)
-        update(state, M, Phi, r_or, sectors)
-        state.r_pred_last = np.where(np.isinf(r), np.nan, r)
-    radii.update = hold_or
 
 
 def equal_passes(scene, base, methods, seed, passes, report, ref, say):

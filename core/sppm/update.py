@@ -31,9 +31,14 @@ prediction (PPM with frequency photons), from the MSE-optimal radius of the
 sector counts (APPM, :func:`appm_radius`) or from the chi-square uniformity
 test of the sector counts (CPPM, :func:`chi2_rejects`); with verify_holds a
 test of the same counts (for a linear density) also releases frequency holds
-the photons contradict.  Every rule only
-chooses the per-pass factor between the PPM rate alpha and the hold rate
-hold_alpha, so every rule converges by the same argument.
+the photons contradict; optionally (both off by default) the uniformity
+test adds holds where the spectrum does not call the light smooth
+(HOLD_OR_UNIFORM), and a verified hold in a pixel's first pass with photons
+grows the radius towards the spectrum's prediction (GROW_MAX,
+:func:`grow_targets`; docs/method.md "Spectrum and counts").  Every rule
+but that one-off growth only chooses the per-pass factor between the PPM
+rate alpha and the hold rate hold_alpha, so every rule converges by the
+same argument (the growth, once and bounded, scales a bound by a constant).
 
 The PPM rule's update (the default: frequency holds, verified by the
 sector counts) runs as one compiled kernel per pixel range
@@ -94,6 +99,22 @@ RELEASE_ALPHA = 0.55
 #: counts or more (uniform: 1/4): a disc that photons reach on one side only
 #: (docs/method.md "Rings under a 1 m light"; above 1: off).
 HOLD_MAX_TOP2 = 0.6
+#: Hold also where CPPM's uniformity test of the sector counts accepts,
+#: whatever the spectrum predicts, once the counts can be tested
+#: (UNIFORM_MIN_EXPECTED per sector cell; below it the spectrum alone
+#: decides); the linear test still vetoes.  Off: at equal CPU it helped the
+#: indirect room and cost the principled interior (docs/method.md "Spectrum
+#: and counts"; bench_hold_alpha 'fppm:or=1').
+HOLD_OR_UNIFORM = False
+UNIFORM_MIN_EXPECTED = CHI2_MIN_EXPECTED
+#: In a pixel's first pass with photons, a verified hold grows the radius to
+#: the spectrum's prediction, at most GROW_MAX times the initial radius and
+#: never past the surface-boundary cap (docs/method.md "Spectrum and counts":
+#: the counts of a disc cannot say that the light is smooth beyond it); only
+#: where the counts can be tested (GROW_MIN_EXPECTED per sector cell).  1:
+#: off, the default for the same reason as HOLD_OR_UNIFORM ('fppm:grow=2').
+GROW_MAX = 1.0
+GROW_MIN_EXPECTED = CHI2_MIN_EXPECTED
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
 
@@ -122,13 +143,14 @@ def needs_sectors(settings, frequency: bool) -> bool:
     return settings.radius_rule != "PPM" or (frequency and settings.verify_holds)
 
 
-def chi2_rejects(S: np.ndarray, linear: bool = False) -> np.ndarray:
+def chi2_rejects(S: np.ndarray, linear: bool = False, critical=None) -> np.ndarray:
     """(P,) bool: Pearson's chi-square test rejects, at level CHI2_ALPHA, that
     the photons counted in the SECTOR_CELLS equal-area cells S (P,
     SECTOR_CELLS) are uniform over the disc (CPPM's hypothesis), or with
     linear=True that their density is linear (uniform plus a gradient, which
     leaves the symmetric disc estimate unbiased: the verified holds' test).
-    False where the expected count per cell is below CHI2_MIN_EXPECTED.
+    False where the expected count per cell is below CHI2_MIN_EXPECTED;
+    critical: another critical value (None: the level CHI2_ALPHA's).
         E = sum(S) / C,  X^2 = |S - E|^2 / E                  vs chi2(C - 1)
         linear: X^2 - sum_g (g.S)^2 / (|g|^2 E), g = the two gradient
         patterns (orthogonal to each other and to a constant)  vs chi2(C - 3)"""
@@ -140,6 +162,8 @@ def chi2_rejects(S: np.ndarray, linear: bool = False) -> np.ndarray:
         proj = S @ _GRADIENT.T                                   # (P, 2)
         r2 = r2 - (np.square(proj) / np.square(_GRADIENT).sum(axis=1)).sum(axis=1)
         crit = CHI2_CRITICAL_LINEAR
+    if critical is not None:
+        crit = critical
     with np.errstate(divide="ignore", invalid="ignore"):
         X2 = r2 / E
     return (E >= CHI2_MIN_EXPECTED) & (X2 > crit)
@@ -236,6 +260,12 @@ class Radii:
         self.release_alpha = (settings.alpha if settings.alpha >= 1.0
                               else min(settings.alpha, RELEASE_ALPHA))
         self.hold_max_top2 = HOLD_MAX_TOP2
+        # docs/method.md "Spectrum and counts" (bench_hold_alpha varies them).
+        self.hold_uniform = HOLD_OR_UNIFORM
+        self.grow = GROW_MAX
+        self.grow_min_expected = GROW_MIN_EXPECTED
+        self.uniform_critical = CHI2_CRITICAL
+        self.uniform_min_expected = UNIFORM_MIN_EXPECTED
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
         """Set state.R2 of the pixels whose first visible point this is (R2 == 0)
@@ -331,14 +361,24 @@ class Radii:
         else:
             r_pred = np.where(np.isinf(r_pred), np.nan, r_pred)
         r_hold = r_pred
+        R2_grow = None
         if S is not None and rule == "PPM":
+            E = S.sum(axis=1) / SECTOR_CELLS
+            if self.hold_uniform:
+                # Smooth by the spectrum or by the counts (CPPM's test).
+                uniform = ~chi2_rejects(S, critical=self.uniform_critical) & (state.R2 > 0) \
+                    & (E >= self.uniform_min_expected)
+                r_hold = np.where(uniform, np.fmax(r_pred, keep), r_pred)
+            if self.grow > 1.0:
+                R2_grow = np.where(E >= self.grow_min_expected, grow_targets(
+                    state.N, state.R2, r_pred, self.grow, self._edge_cap), 0.0)
             # Verified holds: the photons veto the prediction where they show
             # more than a linear gradient (the prediction itself is kept for
             # the Predicted Radius pass).
             rejected = chi2_rejects(S, linear=True)
-            r_hold = np.where(rejected, np.nan, r_pred)
+            r_or = r_hold
+            r_hold = np.where(rejected, np.nan, r_hold)
             # Too few photons for the test to reject: no agreement yet.
-            E = S.sum(axis=1) / SECTOR_CELLS
             r_hold = np.where(E < self.hold_min_expected, np.nan, r_hold)
             top2 = np.sort(S, axis=1)[:, -2:]
             one_sided = (E < CHI2_MIN_EXPECTED) & (top2[:, 0] + top2[:, 1]
@@ -348,10 +388,11 @@ class Radii:
         R2_old = state.R2[m]
         alpha = self.settings.alpha
         if S is not None and rule == "PPM":
-            alpha = np.where(rejected & np.isfinite(r_pred), self.release_alpha, alpha)[m]
+            alpha = np.where(rejected & np.isfinite(r_or), self.release_alpha, alpha)[m]
         N2, R2n, tau2, held = ppm_radius_update(state.N[m], state.R2[m], state.tau[m], M[m],
                                                   Phi[m], alpha, r_hold[m],
-                                                  self.floor_sq, self.settings.hold_alpha)
+                                                  self.floor_sq, self.settings.hold_alpha,
+                                                  None if R2_grow is None else R2_grow[m])
         state.N[m], state.R2[m], state.tau[m] = N2, R2n, tau2
         if S is not None:
             # The counts shrink with the disc, as N does (N' = (N + M) f).
@@ -376,8 +417,12 @@ class Radii:
                          none if sectors is None else np.ascontiguousarray(sectors, np.float64),
                          np.empty(P))
         prm = np.array([st.alpha, self.floor_sq, st.hold_alpha, self.hold_min_expected,
-                        self.release_alpha, self.hold_max_top2])
-        args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2)
+                        self.release_alpha, self.hold_max_top2, float(self.hold_uniform),
+                        self.grow * self.grow if self.grow > 1.0 else 0.0,
+                        self.grow_min_expected, self.uniform_critical,
+                        self.uniform_min_expected])
+        cap = self._edge_cap if self._edge_cap is not None else np.zeros(0)
+        args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2, cap)
         T = numba.get_num_threads()
         if P >= PARALLEL_MIN and T > 1:
             _ppm_update_parallel(T, *args)
@@ -385,6 +430,19 @@ class Radii:
             _ppm_update_range(0, P, *args)
         state.r_pred_last = a.r_pred_last
         state.M_last = M
+
+
+def grow_targets(N, R2, r_pred, grow, cap=None):
+    """(P,) squared radius [m^2] a verified hold grows to (0: none) in the
+    pixel's first pass with photons (N == 0): the spectrum's prediction
+    r_pred (P,) [m] (NaN: none), at most grow times the radius R2 (P,) and
+    the surface-boundary cap (P,) [m] (None: no cap) (docs/method.md
+    "Spectrum and counts")."""
+    rr = np.maximum(np.where(np.isfinite(r_pred), r_pred, 0.0), 0.0)
+    lim = grow * grow * R2
+    if cap is not None:
+        lim = np.minimum(lim, np.square(cap))
+    return np.where((N == 0.0) & np.isfinite(r_pred), np.minimum(np.square(rr), lim), 0.0)
 
 
 def kept_prediction(r_pred: np.ndarray, r_last: np.ndarray, minimum: bool = False) -> np.ndarray:
@@ -439,6 +497,20 @@ def _sum8(x):
 
 
 @njit(cache=True)
+def _chi2_uniform_rejects(Si, tmp, crit):
+    """chi2_rejects(S, critical=crit) of one pixel's counts Si
+    (SECTOR_CELLS,); tmp: (SECTOR_CELLS,) scratch."""
+    E = _sum8(Si) / SECTOR_CELLS
+    for k in range(SECTOR_CELLS):
+        d = Si[k] - E
+        tmp[k] = d * d
+    r2 = _sum8(tmp)
+    if E == 0.0:
+        return False
+    return E >= CHI2_MIN_EXPECTED and r2 / E > crit
+
+
+@njit(cache=True)
 def _chi2_linear_rejects(Si, grad, gnorm2, tmp):
     """chi2_rejects(S, linear=True) of one pixel's counts Si (SECTOR_CELLS,);
     tmp: (SECTOR_CELLS,) scratch."""
@@ -460,15 +532,21 @@ def _chi2_linear_rejects(Si, grad, gnorm2, tmp):
 
 
 @njit(cache=True)
-def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2):
+def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
     """Radii.update with the PPM rule for pixels i0..i1-1: the verified
     holds' chi-square test, then :func:`ppm_radius_update` (its operations
     and order), the sector counts scaled with N; prm = (alpha, R2_floor,
     hold_alpha, hold_min_expected: no hold below this expected count per
     sector cell, release_alpha: the PPM parameter of a pixel whose
-    prediction the test rejects)."""
+    prediction the test rejects, hold_max_top2, hold_uniform (1.0: hold
+    also where the uniformity test accepts), grow^2 (0: no growth;
+    :func:`grow_targets`), grow_min_expected: no growth below this expected
+    count per sector cell, the uniformity test's critical value, its
+    minimum expected count per cell (below: no uniform hold)); cap (P,) the
+    surface-boundary cap [m] ((0,): none)."""
     alpha, floor_sq, hold_alpha = prm[0], prm[1], prm[2]
     with_S = a.S.shape[1] == SECTOR_CELLS
+    E_cell = 0.0
     Si = np.empty(SECTOR_CELLS)
     tmp = np.empty(SECTOR_CELLS)
     for i in range(i0, i1):
@@ -477,9 +555,16 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2):
         if not frequency or math.isinf(r):
             r = np.nan
         a.r_pred_last[i] = r
+        r_spec = r
         if with_S:
             for k in range(SECTOR_CELLS):
                 Si[k] = a.S[i, k] + a.sectors[i, k]
+            E_cell = _sum8(Si) / SECTOR_CELLS
+            if (prm[6] != 0.0 and a.R2[i] > 0 and not _chi2_uniform_rejects(Si, tmp, prm[9])
+                    and E_cell >= prm[10]):
+                Ri = math.sqrt(a.R2[i])
+                if r != r or r < Ri:
+                    r = Ri                                  # np.fmax(r, R)
             if _chi2_linear_rejects(Si, grad, gnorm2, tmp):
                 if np.isfinite(r):
                     alpha = prm[4]
@@ -516,6 +601,15 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2):
                     f_lim = _np_min(f_lim, (N + hold_alpha * M) / (N + M))
                 held = freq and f_lim > f_ppm
                 f = _np_max(f, f_lim)
+                if (held and with_S and prm[7] > 0.0 and N == 0.0 and np.isfinite(r_spec)
+                        and E_cell >= prm[8]):
+                    rs = _np_max(r_spec, 0.0)
+                    lim = prm[7] * R2
+                    if cap.shape[0] > 0:
+                        lim = _np_min(lim, cap[i] * cap[i])
+                    g = _np_min(rs * rs, lim) / R2
+                    if g > f:
+                        f = g
                 f = _np_max(f, _np_min(floor_sq / R2, 1.0))
                 if f == f_ppm:
                     a.N[i] = N + alpha * M
@@ -539,11 +633,11 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2):
 
 
 @njit(cache=True, parallel=True)
-def _ppm_update_parallel(n_chunks, a, prm, frequency, grad, gnorm2):
+def _ppm_update_parallel(n_chunks, a, prm, frequency, grad, gnorm2, cap):
     P = a.M.shape[0]
     for c in prange(n_chunks):
         _ppm_update_range(c * P // n_chunks, (c + 1) * P // n_chunks, a, prm, frequency, grad,
-                          gnorm2)
+                          gnorm2, cap)
 
 
 @njit(cache=True)
@@ -590,7 +684,8 @@ def radius_floor_sq(D):
     return (R_FLOOR_REL * float(D)) ** 2
 
 
-def ppm_radius_update(N, R2, tau, M, Phi, alpha, r_pred=None, R2_floor=0.0, hold_alpha=1.0):
+def ppm_radius_update(N, R2, tau, M, Phi, alpha, r_pred=None, R2_floor=0.0, hold_alpha=1.0,
+                      R2_grow=None):
     """Progressive radius update with a frequency-held radius.
 
     N: (K,) accumulated photon count; R2: (K,) squared radius [m^2];
@@ -599,7 +694,9 @@ def ppm_radius_update(N, R2, tau, M, Phi, alpha, r_pred=None, R2_floor=0.0, hold
     predicted radius [m] or None (inf = no frequency photon, NaN = no hold);
     R2_floor: smallest R^2 (see :func:`radius_floor_sq`); hold_alpha: the
     PPM parameter of a held radius, in (0, 1]: 1 holds it forever (the
-    inconsistent rule of Belcour & Soler 2011), <= alpha never holds.
+    inconsistent rule of Belcour & Soler 2011), <= alpha never holds;
+    R2_grow: (K,) squared radius [m^2] a held row grows to where it is
+    larger than R^2 f (f > 1; :func:`grow_targets`), or None.
     Returns (N', R2', tau', held): (K,), (K,), (K, 3) float64 and (K,) bool.
 
     docs/frequency.md "PPM update" and docs/method.md "Consistent holds":
@@ -636,6 +733,9 @@ def ppm_radius_update(N, R2, tau, M, Phi, alpha, r_pred=None, R2_floor=0.0, hold
                 f_lim = np.minimum(f_lim, np.where(active, (N + hold_alpha * Ma) / (N + Ma), 1.0))
             held = freq & (f_lim > f_ppm)
             f = np.maximum(f, f_lim)
+            if R2_grow is not None:
+                g = np.asarray(R2_grow, np.float64) / np.where(active, R2, 1.0)
+                f = np.where(held & (g > f), g, f)
         f_floor = np.minimum(np.asarray(R2_floor, np.float64) / np.where(active, R2, 1.0), 1.0)
         f = np.where(active, np.maximum(f, f_floor), 1.0)
     plain = active & (f == f_ppm)
