@@ -34,8 +34,10 @@ numba's, Embree's): the machine is shared, wall time is not a clock.
 relMSE = mean (x - r)^2 / (r^2 + 0.01) (tools.metrics.relmse).
 
 ``--cost``: CPU seconds of one pass of each run, the runs' passes stepped in
-turn (round robin, ROUNDS passes each after a first untimed one) so that
-the load of a shared machine falls on all of them alike; no reference.
+turn (round robin, ROUNDS passes each after a first untimed one, the order
+reversed every other round) so that the load of a shared machine falls on
+all of them alike, and each run's CPU over the first run's, round by round
+(mean +- standard error); no reference.
 With a run's passes n and relMSE e from an equal-CPU run, e * n is its
 error after one pass (seeded, so free of the load) and e * n * (CPU of a
 pass) / T its error at T CPU seconds.
@@ -121,7 +123,9 @@ def camera_share(renderer) -> float:
 
 
 def pass_costs(blend, pct, rounds, runs):
-    """{run: (CPU s of a pass, camera share)}, passes stepped round robin."""
+    """{run: (CPU s of a pass, camera share, its CPU / the first run's per
+    round: mean and standard error)}, passes stepped round robin, the order
+    reversed every other round (no run always after the same one)."""
     rend = {}
     for run in runs:
         kw = dict(settings_of(run), time_limit=0.0, max_passes=1, seed=7)
@@ -129,13 +133,18 @@ def pass_costs(blend, pct, rounds, runs):
         render_scene(open_blend(blend, resolution=pct), kw, sess)
         rend[run] = sess.renderer
         rend[run]._should_stop = lambda: False     # the Blender engine is gone
-    cpu = dict.fromkeys(runs, 0.0)
-    for _ in range(rounds):
-        for run, r in rend.items():
+    cpu = {run: [] for run in runs}
+    for i in range(rounds):
+        for run in (runs if i % 2 == 0 else runs[::-1]):
             c0 = time.process_time()
-            r.step()
-            cpu[run] += time.process_time() - c0
-    return {run: (cpu[run] / rounds, camera_share(r)) for run, r in rend.items()}
+            rend[run].step()
+            cpu[run].append(time.process_time() - c0)
+    out = {}
+    for run, r in rend.items():
+        ratio = np.asarray(cpu[run]) / np.asarray(cpu[runs[0]])
+        se = float(ratio.std(ddof=1) / math.sqrt(rounds)) if rounds > 1 else float("nan")
+        out[run] = (float(np.mean(cpu[run])), camera_share(r), float(ratio.mean()), se)
+    return out
 
 
 #: The render of a ``--tree`` run, run by that checkout's python with one
@@ -215,8 +224,9 @@ def light_reference(blend, pct, seconds):
 def main(argv):
     blend, pct, budget, runs = argv[0], int(argv[1]), float(argv[2]), argv[3].split(",")
     if "--cost" in argv:
-        for run, (c, share) in pass_costs(blend, pct, int(budget), runs).items():
-            print(f"COST {run} cpu per pass {c:.4f} s camera share {share:.2f}", flush=True)
+        for run, (c, share, q, se) in pass_costs(blend, pct, int(budget), runs).items():
+            print(f"COST {run} cpu per pass {c:.4f} s camera share {share:.2f} "
+                  f"/ {runs[0]} {q:.4f} +- {se:.4f}", flush=True)
         return
     spec = argv[argv.index("--ref") + 1] if "--ref" in argv else ""
     if spec.startswith("exr:"):
