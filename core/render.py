@@ -44,6 +44,8 @@ With ``integrator = 'PATH'`` a pass is instead camera paths alone
 ``'COMBINED'`` (the default) adds light tracing and photon merging.  Both
 take the film's alpha and data passes from stage 1's camera pass, run when
 merging or the film needs it (docs/integrators.md, "Passes and film alpha").
+A 'COMBINED' pass with no camera path and no such need is a 'LIGHT' pass
+(``Renderer.light_pass``).
 """
 from __future__ import annotations
 
