@@ -44,6 +44,8 @@ With ``integrator = 'PATH'`` a pass is instead camera paths alone
 ``'COMBINED'`` (the default) adds light tracing and photon merging.  Both
 take the film's alpha and data passes from stage 1's camera pass, run when
 merging or the film needs it (docs/integrators.md, "Passes and film alpha").
+A 'COMBINED' pass with no camera path and no such need is a 'LIGHT' pass
+(``Renderer.light_pass``).
 """
 from __future__ import annotations
 
@@ -66,7 +68,7 @@ from .sanity import check_resolution, check_scene, recentre
 from .scene.camera import CameraModel, FilterSampler
 from .scene.model import Scene, drop_invalid_triangles, scene_digest
 from .settings import RenderSettings
-from .sppm.film import PASSES, Film, PassResult, data_passes, pass_enabled
+from .sppm.film import AOVS, PASSES, Film, PassResult, data_passes, pass_enabled
 from .sppm.photon_pass import PHOTON_CHUNK, PhotonPass, frequency_photons
 from .frequency.curvature import scene_curvature
 from .sppm.photons import PhotonTracer
@@ -148,6 +150,7 @@ class Renderer:
         # (core.integrators.combined); the splats go to their own buffer.
         self.combined_lt = None
         self.merge_mis = False
+        self.light_pass = False
         # Photon merging in 'COMBINED' (core.integrators.merge): SPPM on the
         # visible points seen through a delta vertex, caustic photons only.
         self.merging = st.integrator == "COMBINED" and merges(self.plan)
@@ -194,6 +197,14 @@ class Renderer:
                 self.plan.strategies = with_camera_stop(self.plan.strategies, stop,
                                                         self.path_tracer.samples)
             self.light_splat = np.zeros((P, 3))
+            # No camera path (CameraStop.camera_free), no merging and nothing
+            # the film reads from a camera pass or the photon state (alpha,
+            # data passes, FPPM's AOVs): a pass is LIGHT's pass and its image
+            # LIGHT's image (_step_light, _film), without the camera side's
+            # per-pass calls (docs/integrators.md "Camera depth").
+            self.light_pass = (stop is not None and stop.camera_free and not self.merging
+                               and not self.film.needs_camera
+                               and not any(getattr(st, a.flag) for a in AOVS))
 
     def _setup_scene(self, scene: Scene, force_stages: tuple, passes: tuple = ()) -> None:
         """Region, lights, materials, BVH, plan, occlusion grid and photon tracer."""
@@ -348,7 +359,7 @@ class Renderer:
     def step(self) -> PassResult:
         """One pass; the state changes only once the pass is complete (a cancel
         keeps the last one), except the footprint depths of its visible points."""
-        if self.light_tracer is not None:
+        if self.light_tracer is not None or self.light_pass:
             return self._step_light()
         if self.path_tracer is not None:
             return self._step_path()
@@ -397,14 +408,15 @@ class Renderer:
         return self.last_result
 
     def _step_light(self) -> PassResult:
-        """One pass of light tracing (integrator 'LIGHT'): photons_per_pass
-        light paths splatted to the camera (core.integrators.light_tracer);
-        the image is the splat sums over the light paths traced."""
+        """One pass of light tracing (integrator 'LIGHT', or 'COMBINED' with
+        ``light_pass``): photons_per_pass light paths splatted to the camera
+        (core.integrators.light_tracer); the image is the splat sums over
+        the light paths traced."""
         t0 = time.perf_counter()
         k = self.pass_index + 1
         st = self.settings
-        sums = self.light_tracer.trace_pass(st.photons_per_pass, self._rng(k, 2),
-                                            self._check_stop)
+        lt = self.light_tracer or self.combined_lt
+        sums = lt.trace_pass(st.photons_per_pass, self._rng(k, 2), self._check_stop)
         self.light_splat += sums
         self.pass_index = k
         self.photons_emitted += st.photons_per_pass
@@ -547,7 +559,7 @@ class Renderer:
         self.stage_seconds["update"] += time.perf_counter() - tu
 
     def _film(self) -> PassResult:
-        if self.light_tracer is not None:
+        if self.light_tracer is not None or self.light_pass:
             L = self.light_splat / max(self.photons_emitted, 1)
             img = np.ones((self.height, self.width, 4), np.float32)
             img[..., :3] = L.reshape(self.height, self.width, 3)
