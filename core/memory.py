@@ -54,6 +54,13 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
 - the compiled kernels numba loads at the first pass and Embree's per-thread
   buffers -> KERNEL_BYTES (measured: 110 MiB between the estimate and the
   peak of a 64^2 render of 2000 photons, with every other part ~60 MiB)
+
+The costs count the pages an array touches: the Renderer builds and runs
+its passes without numpy's huge-page advice (:func:`small_pages`), under
+which a partly touched array or reused heap range is resident in 2 MiB
+units, by an amount that depends on the kernel's free huge pages and on
+timing, not on the render (the 1080p pass held 0.87 GiB in huge pages
+at its peak with the advice, 0.04 GiB without).
 """
 from __future__ import annotations
 
