@@ -60,7 +60,7 @@ its passes without numpy's huge-page advice (:func:`small_pages`), under
 which a partly touched array or reused heap range is resident in 2 MiB
 units, by an amount that depends on the kernel's free huge pages and on
 timing, not on the render (the 1080p pass held 0.87 GiB in huge pages
-at its peak with the advice, 0.04 GiB without).
+at its peak with the advice, 0.02-0.04 GiB without).
 """
 from __future__ import annotations
 
