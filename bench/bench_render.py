@@ -695,11 +695,14 @@ class RssSampler:
     largest resident size seen during each stage.  tracemalloc does not see
     numba's allocations; the OS does."""
 
-    def __init__(self, period: float = 0.01):
+    def __init__(self, period: float = 0.01, probe=None):
         from core import memory
         self._rss = memory.resident_bytes
         self.period, self.stage = period, "rest"
         self.peak: dict = {}
+        # probe(): a dict of sizes read at each new largest sample (what is
+        # alive at the peak); at_peak: (VmRSS, stage, probe()) of the largest.
+        self.probe, self.at_peak = probe, (0, "", {})
         self.entry: dict = {}          # VmRSS at each entry into a stage
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._run, daemon=True)
@@ -710,6 +713,8 @@ class RssSampler:
             v, k = self._rss(), self.stage
             if v > self.peak.get(k, 0):
                 self.peak[k] = v
+            if v > self.at_peak[0]:
+                self.at_peak = (v, k, self.probe() if self.probe else {})
 
     def stop(self):
         self._stop.set()
@@ -800,6 +805,49 @@ def raw_threads(raw, rays: int, threads: int):
     return time.perf_counter() - w0, time.process_time() - c0
 
 
+def _mallinfo() -> dict:
+    """glibc's heap sizes (mallinfo2, every arena): 'heap' obtained with brk
+    or arena mmaps, 'heap_free' of it free but kept, 'mmapped' large blocks;
+    empty without glibc >= 2.33."""
+    import ctypes
+    try:
+        f = ctypes.CDLL("libc.so.6").mallinfo2
+    except (OSError, AttributeError):
+        return {}
+
+    class MI(ctypes.Structure):
+        _fields_ = [(n, ctypes.c_size_t) for n in (
+            "arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks",
+            "uordblks", "fordblks", "keepcost")]
+    f.restype = MI
+    m = f()
+    return {"heap": m.arena, "heap_free": m.fordblks, "mmapped": m.hblkhd}
+
+
+def _alive_probe(r):
+    """What is alive (bytes, by kind) in the photon tracer's ArrayPool (every
+    set it keeps, used or not), the gather buffers, plus _mallinfo()."""
+    def probe():
+        out = _mallinfo()
+        try:
+            with open("/proc/self/smaps_rollup") as f:
+                for line in f:
+                    if line.startswith("AnonHugePages:"):
+                        out["huge pages"] = int(line.split()[1]) * 1024
+        except OSError:
+            pass
+        pool = r.photon_pass.tracer.pool
+        for kind, sets in list(pool._sets.items()):
+            out[f"pool {kind} ({len(sets)} sets)"] = sum(
+                sum(x.nbytes for x in arrs) for _, arrs in list(sets))
+        gb = r.photon_pass.gather_buffers
+        if gb is not None:
+            out["gather buffers"] = sum(getattr(gb, k).nbytes
+                                        for k in ("M", "Phi", "rmin", "S", "touched"))
+        return out
+    return probe
+
+
 def pass_one(a):
     """One resolution of --pass, in this process."""
     from core import memory
@@ -809,7 +857,7 @@ def pass_one(a):
                                                       photons_per_pass=a.photons,
                                                       use_frequency=not a.plain),
                  log=lambda s: None)
-    sampler = RssSampler()
+    sampler = RssSampler(probe=_alive_probe(r))
     clock = StageClock(r, sampler)
     r.step()                                      # warm-up (kernels, the edge cap's pass)
     clock.reset()                                 # not the warm-up's times
@@ -883,6 +931,9 @@ def pass_one(a):
         f"{k} {v[-1] / 2**30:.2f} GiB" for k, v in sampler.entry.items()))
     print("    the warm-up pass's (kernels loaded, the edge cap's camera pass): " + ", ".join(
         f"{k} {v / 2**30:.2f} GiB" for k, v in sorted(warm_peak.items(), key=lambda kv: -kv[1])[:3]))
+    v, k, alive = sampler.at_peak
+    print(f"    at the largest sample ({v / 2**30:.2f} GiB, {k}), alive: " + ", ".join(
+        f"{n} {b / 2**20:.0f} MiB" for n, b in alive.items()))
     print(f"    peak resident (VmHWM) {hwm / 2**30:.2f} GiB, growth from before the Renderer "
           f"{(hwm - rss0) / 2**20:.0f} MiB ({(hwm - rss0) / (w * h):.0f} B a pixel)")
 

@@ -54,11 +54,20 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
 - the compiled kernels numba loads at the first pass and Embree's per-thread
   buffers -> KERNEL_BYTES (measured: 110 MiB between the estimate and the
   peak of a 64^2 render of 2000 photons, with every other part ~60 MiB)
+
+The costs count the pages an array touches: the Renderer builds and runs
+its passes without numpy's huge-page advice (:func:`small_pages`), under
+which a partly touched array or reused heap range is resident in 2 MiB
+units, by an amount that depends on the kernel's free huge pages and on
+timing, not on the render (the 1080p pass held 0.87 GiB in huge pages
+at its peak with the advice, 0.02-0.04 GiB without).
 """
 from __future__ import annotations
 
 import ctypes
+import functools
 import os
+import threading
 
 from .errors import MemoryBudgetError
 
@@ -169,6 +178,59 @@ def release_free_heap(items: int = RELEASE_MIN_ITEMS) -> bool:
         return False
     _LIBC[0](0)
     return True
+
+
+_SMALL = {"depth": 0, "saved": None}
+_SMALL_LOCK = threading.Lock()
+
+
+def _madvise_switch():
+    """numpy's (get, set) of its huge-page advice, or None (numpy without it)."""
+    try:
+        from numpy._core import multiarray as m
+    except ImportError:                                   # numpy < 2
+        from numpy.core import multiarray as m
+    get = getattr(m, "_get_madvise_hugepage", None)
+    put = getattr(m, "_set_madvise_hugepage", None)
+    return None if get is None or put is None else (get, put)
+
+
+def small_pages(f):
+    """Decorator: f runs with numpy's huge-page advice off (4 KiB pages for
+    every array it allocates, its threads' included), restored after the
+    last of the calls that overlap.
+
+    numpy advises transparent huge pages (``madvise(MADV_HUGEPAGE)``) for
+    every array of 4 MiB and more, heap-backed ones included.  Where the
+    kernel honours it (THP ``madvise`` mode), a touched 4 KiB page of such a
+    range faults in, or is later collapsed by ``khugepaged`` into, a whole
+    2 MiB page: arrays touched in part (pooled deposit rows, heap ranges
+    reused after ``release_free_heap``) become resident in 2 MiB units,
+    by an amount that depends on the system's free huge pages and on when
+    ``khugepaged`` scanned, i.e. on timing and on the machine's state:
+    the 1080p pass read 1.73-2.16 GiB from run to run with the advice,
+    docs/architecture.md "The 1080p peak without huge pages".  The process
+    switch is numpy's own (``NUMPY_MADVISE_HUGEPAGE=0`` at import): Blender's
+    numpy keeps it outside the passes."""
+    sw = _madvise_switch()
+    if sw is None:
+        return f
+
+    @functools.wraps(f)
+    def g(*args, **kw):
+        with _SMALL_LOCK:
+            if _SMALL["depth"] == 0:
+                _SMALL["saved"] = sw[0]()
+                sw[1](False)
+            _SMALL["depth"] += 1
+        try:
+            return f(*args, **kw)
+        finally:
+            with _SMALL_LOCK:
+                _SMALL["depth"] -= 1
+                if _SMALL["depth"] == 0:
+                    sw[1](_SMALL["saved"])
+    return g
 
 
 def available_bytes() -> int | None:

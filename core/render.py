@@ -99,6 +99,7 @@ class Renderer:
     #: the settings that need them); derived from the state's fields.
     STATE_KEYS = PixelState.required_keys()
 
+    @memory.small_pages
     def __init__(self, scene: Scene, settings: RenderSettings,
                  log: Callable[[str], None] = print, should_stop=None,
                  force_stages: tuple = (), passes: tuple = ()):
@@ -356,6 +357,7 @@ class Renderer:
                      "closed object).")
         return self.last_result
 
+    @memory.small_pages
     def step(self) -> PassResult:
         """One pass; the state changes only once the pass is complete (a cancel
         keeps the last one), except the footprint depths of its visible points."""
