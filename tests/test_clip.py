@@ -150,3 +150,14 @@ def test_gather_with_a_clip_equals_the_oracle(parallel):
     assert np.array_equal(g.M, o.M) and o.M.sum() < 0.8 * n.M.sum()
     assert set(zip(g.pair_vp, g.pair_ph)) == set(zip(o.pair_vp, o.pair_ph))
     assert set(zip(g.freq_pair_vp, g.freq_pair_ph)) == set(zip(o.freq_pair_vp, o.freq_pair_ph))
+
+
+def test_memory_estimate_counts_the_clip():
+    # One uint64 a pixel through the gather (the rays are cast in blocks).
+    from core import memory
+    a = memory.estimate(1000, 1, 1, 8, False, resident=0, clip_kernel=True)
+    b = memory.estimate(1000, 1, 1, 8, False, resident=0)
+    assert a["pixels"] - b["pixels"] == 1000 * 8 == 1000 * memory.BYTES_PER_CLIP
+    code = C.clip_codes(_wall_accel(), np.zeros((1000, 3)), np.tile([0.0, 0, 1], (1000, 1)),
+                        np.ones(1000), np.ones(1000, bool))
+    assert code.nbytes == 1000 * memory.BYTES_PER_CLIP

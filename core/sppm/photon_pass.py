@@ -370,7 +370,7 @@ class PhotonPass:
             return None
         want_pairs = self.frequency and (self.radius_histogram is not None or spectrum_aov)
         clip = None
-        if getattr(self.settings, "clip_kernel", False):
+        if self.settings.clip_kernel:
             t0, c0 = time.perf_counter(), time.process_time()
             clip = kernel_clip.clip_codes(self.tracer.accel, vp.p, vp.ng, R2, active)
             self.clip_seconds += time.process_time() - c0
