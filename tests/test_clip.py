@@ -7,6 +7,7 @@ divided by the visible fraction of the disc (without the clip it reads low
 by the missing area).
 """
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ import pytest
 from core.accel import Accel
 from core.sppm import clip as C
 from core.sppm import hashgrid as hg
+from core.sppm.photon_kernels import build_triangle_data
 from oracle_gather import gather_bruteforce
 
 WALL = 0.5
@@ -30,6 +32,13 @@ def _wall_accel():
     return Accel(np.array(tri, np.float32), 40.0)
 
 
+def _codes(acc, p, ng, R2, active):
+    """clip_codes with the triangles' normals as the photon tracer has them."""
+    scene = SimpleNamespace(tri_p=acc.tri_p, tri_n=np.zeros_like(acc.tri_p),
+                            tri_mat=np.zeros(acc.tri_p.shape[0], np.int32))
+    return C.clip_codes(acc, build_triangle_data(scene).ng, p, ng, R2, active)
+
+
 def _bytes(code):
     return [(int(code) >> (8 * k)) & 0xFF for k in range(8)]
 
@@ -43,7 +52,7 @@ def test_clip_codes_of_a_wall_in_closed_form():
     p = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [-0.9, 0.0, 0.0]])
     ng = np.array([[0.0, 0.0, 1.0]] * 4)
     R2 = np.array([1.0, 0.04, 1.0, 1.0])
-    code = C.clip_codes(acc, p, ng, R2, np.array([True, True, False, True]))
+    code = _codes(acc, p, ng, R2, np.array([True, True, False, True]))
     c = math.cos(math.pi / 8)
     near, diag = int(255 * c * 0.5), int(255 * c * 0.5 * math.sqrt(2))
     assert _bytes(code[0]) == [near, diag, 255, 255, 255, 255, diag, near]
@@ -96,7 +105,7 @@ def _gathered(ph, pos, ng, R2, const, clip):
 def test_photons_behind_a_thin_wall_are_not_gathered():
     ph, _ = _floor_photons(40_000, WALL, 3.0, 1)       # lit floor behind the wall only
     pos, ng, R2, const = _vps()
-    clip = C.clip_codes(_wall_accel(), pos, ng, R2, const)
+    clip = _codes(_wall_accel(), pos, ng, R2, const)
     M0, _, _, _ = _gathered(ph, pos, ng, R2, const, None)
     M1, _, _, _ = _gathered(ph, pos, ng, R2, const, clip)
     assert (M0[-6:] > 300).all()                      # the leak without the clip
@@ -111,7 +120,7 @@ def test_uniform_floor_reads_its_density_next_to_the_wall():
     # by the missing area (at least 10 sigma).
     ph, rho = _floor_photons(120_000, -3.0, WALL, 2)
     pos, ng, R2, const = _vps()
-    clip = C.clip_codes(_wall_accel(), pos, ng, R2, const)
+    clip = _codes(_wall_accel(), pos, ng, R2, const)
     Mc, Phic, S, _ = _gathered(ph, pos, ng, R2, const, clip)
     M0, _, _, _ = _gathered(ph, pos, ng, R2, const, None)
     raw = Mc.copy()
@@ -158,6 +167,6 @@ def test_memory_estimate_counts_the_clip():
     a = memory.estimate(1000, 1, 1, 8, False, resident=0, clip_kernel=True)
     b = memory.estimate(1000, 1, 1, 8, False, resident=0)
     assert a["pixels"] - b["pixels"] == 1000 * 8 == 1000 * memory.BYTES_PER_CLIP
-    code = C.clip_codes(_wall_accel(), np.zeros((1000, 3)), np.tile([0.0, 0, 1], (1000, 1)),
+    code = _codes(_wall_accel(), np.zeros((1000, 3)), np.tile([0.0, 0, 1], (1000, 1)),
                         np.ones(1000), np.ones(1000, bool))
     assert code.nbytes == 1000 * memory.BYTES_PER_CLIP

@@ -93,9 +93,10 @@ def _edge_rays(p, ng, idx, lift, ec, es):
 
 
 @njit(cache=True)
-def _codes(t, prim, tri_p, ng, idx, R, out):
+def _codes(t, prim, tri_ng, ng, idx, R, out):
     """out[idx[i]] = the packed clip of visible point idx[i] from its edge
-    rays' hit distances t (n * W,) (inf on a miss) and triangles prim."""
+    rays' hit distances t (n * W,) (inf on a miss) and triangles prim
+    (tri_ng (T, 3) their unit geometric normals)."""
     W = CLIP_WEDGES
     edge = np.empty(W)
     for i in range(idx.shape[0]):
@@ -106,18 +107,9 @@ def _codes(t, prim, tri_p, ng, idx, R, out):
             e = r
             if prim[k] >= 0 and t[k] < r:
                 q = prim[k]
-                ax = tri_p[q, 1, 0] - tri_p[q, 0, 0]
-                ay = tri_p[q, 1, 1] - tri_p[q, 0, 1]
-                az = tri_p[q, 1, 2] - tri_p[q, 0, 2]
-                bx = tri_p[q, 2, 0] - tri_p[q, 0, 0]
-                by = tri_p[q, 2, 1] - tri_p[q, 0, 1]
-                bz = tri_p[q, 2, 2] - tri_p[q, 0, 2]
-                cx = ay * bz - az * by
-                cy = az * bx - ax * bz
-                cz = ax * by - ay * bx
-                cl = math.sqrt(cx * cx + cy * cy + cz * cz)
-                dn = abs(cx * ng[v, 0] + cy * ng[v, 1] + cz * ng[v, 2])
-                if cl > 0.0 and dn <= CLIP_COS * cl:
+                dn = abs(tri_ng[q, 0] * ng[v, 0] + tri_ng[q, 1] * ng[v, 1]
+                         + tri_ng[q, 2] * ng[v, 2])
+                if dn <= CLIP_COS:
                     e = t[k]
             edge[j] = e
         code = np.uint64(0)
@@ -131,14 +123,16 @@ def _codes(t, prim, tri_p, ng, idx, R, out):
         out[v] = code
 
 
-def clip_codes(accel, p: np.ndarray, ng: np.ndarray, R2: np.ndarray,
+def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.ndarray,
                active: np.ndarray) -> np.ndarray:
     """(P,) uint64 packed clips (module docstring) of the visible points at p
     (P, 3) float64 with unit normals ng (P, 3) float64 and squared radii R2
     (P,), for the active (P,) bool ones (CLIP_CLEAR elsewhere); casts
     CLIP_WEDGES rays of length R per active point through accel
     (core.accel.Accel, float32 at Embree): an occlusion query for all
-    (cheaper), the closest hit for the occluded ones alone."""
+    (cheaper), the closest hit for the occluded ones alone.  tri_ng (T, 3)
+    float64: the unit geometric normals of accel's triangles
+    (core.sppm.photon_kernels.build_triangle_data)."""
     P = active.shape[0]
     out = np.full(P, CLIP_CLEAR, np.uint64)
     idx = np.nonzero(active)[0]
@@ -159,7 +153,7 @@ def clip_codes(accel, p: np.ndarray, ng: np.ndarray, R2: np.ndarray,
         if j.size:
             hits = accel.intersect(o[j], d[j], t_max=t_max[j])
             t[j], prim[j] = hits.t, hits.prim
-        _codes(t, prim, accel.tri_p, ng, ib, R, out)
+        _codes(t, prim, tri_ng, ng, ib, R, out)
     return out
 
 

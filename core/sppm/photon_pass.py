@@ -372,7 +372,8 @@ class PhotonPass:
         clip = None
         if self.settings.clip_kernel:
             t0, c0 = time.perf_counter(), time.process_time()
-            clip = kernel_clip.clip_codes(self.tracer.accel, vp.p, vp.ng, R2, active)
+            clip = kernel_clip.clip_codes(self.tracer.accel, self.tracer.tris.ng, vp.p, vp.ng,
+                                          R2, active)
             self.clip_seconds += time.process_time() - c0
             self.stage_seconds["gather"] += time.perf_counter() - t0
         return PassGrid(vp, R2, hashgrid.build_grid(vp.p, np.sqrt(R2), active), want_pairs,
