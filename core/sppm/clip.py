@@ -93,10 +93,11 @@ def _edge_rays(p, ng, idx, lift, ec, es):
 
 
 @njit(cache=True)
-def _codes(t, prim, tri_ng, ng, idx, R, out):
+def _codes(t, prim, tri_ng, ng, idx, R, margin, out):
     """out[idx[i]] = the packed clip of visible point idx[i] from its edge
     rays' hit distances t (n * W,) (inf on a miss) and triangles prim
-    (tri_ng (T, 3) their unit geometric normals)."""
+    (tri_ng (T, 3) their unit geometric normals); margin: the factor
+    cos(pi / W) of the module docstring."""
     W = CLIP_WEDGES
     edge = np.empty(W)
     for i in range(idx.shape[0]):
@@ -117,7 +118,7 @@ def _codes(t, prim, tri_ng, ng, idx, R, out):
             m = min(edge[k], edge[(k + 1) % W])
             b = CLIP_OPEN
             if m < r:
-                b = min(int(math.floor(255.0 * _COS_HALF * m / r)), CLIP_OPEN - 1)
+                b = min(int(math.floor(255.0 * margin * m / r)), CLIP_OPEN - 1)
                 b = max(b, 0)
             code |= np.uint64(b) << np.uint64(8 * k)
         out[v] = code
@@ -153,7 +154,7 @@ def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.
         if j.size:
             hits = accel.intersect(o[j], d[j], t_max=t_max[j])
             t[j], prim[j] = hits.t, hits.prim
-        _codes(t, prim, tri_ng, ng, ib, R, out)
+        _codes(t, prim, tri_ng, ng, ib, R, _COS_HALF, out)
     return out
 
 
