@@ -125,7 +125,7 @@ def _codes(t, prim, tri_ng, ng, idx, R, margin, out):
 
 
 def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.ndarray,
-               active: np.ndarray) -> np.ndarray:
+               active: np.ndarray, check_stop=lambda: None) -> np.ndarray:
     """(P,) uint64 packed clips (module docstring) of the visible points at p
     (P, 3) float64 with unit normals ng (P, 3) float64 and squared radii R2
     (P,), for the active (P,) bool ones (CLIP_CLEAR elsewhere); casts
@@ -133,7 +133,8 @@ def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.
     (core.accel.Accel, float32 at Embree): an occlusion query for all
     (cheaper), the closest hit for the occluded ones alone.  tri_ng (T, 3)
     float64: the unit geometric normals of accel's triangles
-    (core.sppm.photon_kernels.build_triangle_data)."""
+    (core.sppm.photon_kernels.build_triangle_data).  check_stop() is called
+    before every block (a cancel is seen within one block's rays)."""
     P = active.shape[0]
     out = np.full(P, CLIP_CLEAR, np.uint64)
     idx = np.nonzero(active)[0]
@@ -143,6 +144,7 @@ def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.
     ng = np.ascontiguousarray(ng, np.float64)
     R2 = np.asarray(R2, np.float64)
     for b0 in range(0, idx.size, CLIP_BLOCK):
+        check_stop()
         ib = idx[b0:b0 + CLIP_BLOCK]
         R = np.sqrt(R2[ib])
         lift = np.maximum(accel.offset_scale(p[ib]), CLIP_LIFT_REL * R)

@@ -250,7 +250,7 @@ class PhotonPass:
         what another process computes for that chunk."""
         P = vp.valid.shape[0]
         acc = self._zero_sums(P, spectrum)
-        pg = self.begin(vp, R2, spectrum is not None)
+        pg = self.begin(vp, R2, spectrum is not None, check_stop)
         if pg is None:
             self._drop_ahead()
             return PhotonEstimate(False, acc.M, acc.Phi, acc.r_pred)
@@ -361,8 +361,10 @@ class PhotonPass:
             out.append((n, int(np.clip(n_freq_total - a, 0, n))))
         return out
 
-    def begin(self, vp, R2: np.ndarray, spectrum_aov: bool) -> Optional["PassGrid"]:
-        """The grid of this pass's active visible points (None: none is active)."""
+    def begin(self, vp, R2: np.ndarray, spectrum_aov: bool,
+              check_stop=lambda: None) -> Optional["PassGrid"]:
+        """The grid of this pass's active visible points (None: none is active);
+        check_stop() is called between the kernel clip's blocks of rays."""
         active = self.active(vp, R2)
         if self.gather_buffers is not None:
             self.gather_buffers.clear()
@@ -373,7 +375,7 @@ class PhotonPass:
         if self.settings.clip_kernel:
             t0, c0 = time.perf_counter(), time.process_time()
             clip = kernel_clip.clip_codes(self.tracer.accel, self.tracer.tris.ng, vp.p, vp.ng,
-                                          R2, active)
+                                          R2, active, check_stop)
             self.clip_seconds += time.process_time() - c0
             self.stage_seconds["gather"] += time.perf_counter() - t0
         return PassGrid(vp, R2, hashgrid.build_grid(vp.p, np.sqrt(R2), active), want_pairs,
