@@ -143,6 +143,11 @@ class FPPMRenderSettings(PropertyGroup):
         description="Keep each pixel's initial radius within half the distance to the nearest "
                     "surface edge seen around it, so that kernels do not darken or blend "
                     "across the edges of tables, walls and objects")
+    clip_kernel: BoolProperty(
+        name="Clip Kernel at Walls", default=_D.clip_kernel,
+        description="Cast a few short rays around each pixel's gathering disc and leave out "
+                    "the photons behind a wall standing in it (no light leaks through thin "
+                    "walls); the count is rescaled to the visible part of the disc")
     radius_rule: EnumProperty(
         name="Radius Rule", items=RADIUS_RULES, default=_D.radius_rule,
         description="How each pixel's gathering radius shrinks over passes")

@@ -75,6 +75,7 @@ class FPPM_RENDER_PT_kernel(FPPMPanel, Panel):
         else:
             col.prop(s, "initial_radius")
         col.prop(s, "cap_radius_at_edges")
+        col.prop(s, "clip_kernel")
         col.prop(s, "alpha")
         row = col.row()
         row.active = not s.use_frequency  # APPM / CPPM are the baselines without it

@@ -45,6 +45,8 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
   the photons' sector counts, core.sppm.update.needs_sectors: on by
   default): the float64 state, the pass's float64 sums and two threads'
   int32 gather rows -> BYTES_PER_SECTOR_CELL
+- the kernel clip (settings.clip_kernel, core.sppm.clip): one uint64 a
+  pixel through the gather -> BYTES_PER_CLIP (its rays are cast in blocks)
 - per photon of a chunk: emission, bounce and deposit arrays and the
   gather's sorted copies -> BYTES_PER_PHOTON
 - per triangle: scene arrays, Embree BVH, the plan's copies -> BYTES_PER_TRIANGLE
@@ -76,6 +78,7 @@ BYTES_PER_FIRST_HIT = 80
 BYTES_PER_AOV_CHANNEL = 48
 BYTES_PER_HIST_BIN = 12
 BYTES_PER_SECTOR_CELL = 24
+BYTES_PER_CLIP = 8
 BYTES_PER_PHOTON = 1229
 BYTES_PER_TRIANGLE = 400
 BYTES_PER_VOXEL = 192
@@ -120,7 +123,8 @@ def keeps_first_hits(data_passes: bool, integrator: str, merging: bool | None = 
 def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
              use_grid: bool, aov_channels: int = 0, hist_bins: int = 0,
              texture_bytes: int = 0, resident: int | None = None,
-             sector_cells: int = 0, first_hits: bool = True) -> dict:
+             sector_cells: int = 0, first_hits: bool = True,
+             clip_kernel: bool = False) -> dict:
     """Bytes per component and 'total' (ints): an upper bound on the peak.
 
     aov_channels: channels of the enabled AOVs (all layers together);
@@ -128,7 +132,7 @@ def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
     sector_cells: sector counts per pixel (0 unless the gather counts them);
     texture_bytes: bytes of the scene's texture images;
     first_hits: the camera pass keeps its first hits' data
-    (:func:`keeps_first_hits`);
+    (:func:`keeps_first_hits`); clip_kernel: the gather's discs are clipped;
     resident: bytes already held (None: :func:`resident_bytes`).  'runtime' is
     that resident size; 'total' is at least the peak so far.
     """
@@ -136,7 +140,8 @@ def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
         "pixels": n_pixels * (BYTES_PER_PIXEL + BYTES_PER_FIRST_HIT * bool(first_hits)
                               + BYTES_PER_AOV_CHANNEL * aov_channels
                               + BYTES_PER_HIST_BIN * hist_bins
-                              + BYTES_PER_SECTOR_CELL * sector_cells),
+                              + BYTES_PER_SECTOR_CELL * sector_cells
+                              + BYTES_PER_CLIP * bool(clip_kernel)),
         "photons": photon_chunk * BYTES_PER_PHOTON,
         "geometry": n_triangles * BYTES_PER_TRIANGLE,
         "occlusion_grid": (grid_res ** 3) * BYTES_PER_VOXEL if use_grid else 0,

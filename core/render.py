@@ -241,6 +241,7 @@ class Renderer:
                                       hist_bins=HIST_BINS if st0.frequency_estimator == "QUANTILE" else 0,
                                       texture_bytes=sum(np.asarray(t).nbytes for t in scene.textures),
                                       sector_cells=SECTOR_CELLS if needs_sectors(st0, st0.use_frequency) else 0,
+                                      clip_kernel=st0.clip_kernel,
                                       # CameraPass.first_data (set in __init__), before the plan
                                       first_hits=memory.keeps_first_hits(bool(data_passes(passes)),
                                                                          st0.integrator))

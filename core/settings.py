@@ -36,6 +36,7 @@ class RenderSettings:
     initial_radius: float = 0.05     # WORLD: radius in metres
     alpha: float = 0.7               # PPM radius reduction (Hachisuka 2008)
     cap_radius_at_edges: bool = True  # initial radius <= half the distance to a surface boundary (core.edges)
+    clip_kernel: bool = True         # kernel discs clipped at walls by short tangent rays (core.sppm.clip)
     radius_rule: str = "PPM"         # 'PPM' (global alpha), 'APPM' or 'CPPM' (per pixel; docs/method.md "Radius rules")
     # --- Light paths
     max_bounces: int = 16            # as the example scenes' Cycles Light Paths

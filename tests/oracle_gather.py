@@ -11,11 +11,12 @@ from core.sppm import hashgrid as hg
 def gather_bruteforce(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_pos, vp_ng, vp_R2,
                       vp_const, active=None, cos_ng: float = hg.COS_NG_DEFAULT,
                       want_freq_pairs: bool = False,
-                      block_elems: int = 1 << 22) -> hg.GatherResult:
+                      block_elems: int = 1 << 22, clip=None) -> hg.GatherResult:
     """Reference gather in numpy: tests every (photon, VP) pair, O(P*K).
 
     Same arguments as core.sppm.hashgrid.gather plus active (K,) bool (the
-    mask given to build_grid; None = all).  Same float64 arithmetic in the
+    mask given to build_grid; None = all); clip (K,) uint64 packed clips
+    (rule (5)) or None.  Same float64 arithmetic in the
     same order, so M, the pair sets and rpred_min are bit-identical to the
     grid gather.  Pairs are sorted by (photon, VP).
     """
@@ -53,6 +54,8 @@ def gather_bruteforce(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_pos, vp_ng, v
         ok &= ~((cg <= hg.COS_NG_DEFAULT)
                 & ((dx * vp_ng[None, :, 0] + dy * vp_ng[None, :, 1] + dz * vp_ng[None, :, 2]) < 0.0))
         ok &= act[None, :]
+        if clip is not None:
+            ok &= ~_clipped(np.asarray(clip, np.uint64), vp_ng, vp_R2, dx, dy, dz)
         # photons outside the finite range are never counted (as in the grid)
         ok &= np.isfinite(x[sl]).all(axis=1)[:, None]
         ip, iv = np.nonzero(ok)
@@ -73,3 +76,22 @@ def gather_bruteforce(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_pos, vp_ng, v
     return hg.GatherResult(M, Phi, pair_vp, pair_ph, rmin,
                         np.concatenate(fv).astype(np.int32) if want_freq_pairs else None,
                         np.concatenate(fp).astype(np.int32) if want_freq_pairs else None)
+
+
+def _clipped(clip, vp_ng, vp_R2, dx, dy, dz):
+    """(B, K) bool: rule (5) rejects the photon offsets (dx, dy, dz) (B, K)
+    of their visible points: wedge k of the offset in the tangent frame
+    (Duff et al. 2017) at floor(255 d_k / R) or farther."""
+    n0, n1, n2 = vp_ng[:, 0], vp_ng[:, 1], vp_ng[:, 2]
+    sign = np.where(n2 >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + n2)
+    b = n0 * n1 * a
+    t = (1.0 + sign * n0 * n0 * a, sign * b, -sign * n0, b, sign + n1 * n1 * a, -n1)
+    u = dx * t[0][None] + dy * t[1][None] + dz * t[2][None]
+    w = dx * t[3][None] + dy * t[4][None] + dz * t[5][None]
+    q = np.where(u < 0.0, np.where(w >= 0.0, 1, 2), np.where(w < 0.0, 3, 0))
+    sub = np.where(q % 2 == 0, np.abs(w) >= np.abs(u), np.abs(u) >= np.abs(w))
+    k = (2 * q + sub).astype(np.uint64)
+    byte = ((clip[None, :] >> (np.uint64(8) * k)) & np.uint64(0xFF)).astype(np.int64)
+    return (byte < hg.CLIP_OPEN) & (65025.0 * (u * u + w * w)
+                                    >= (byte * byte).astype(np.float64) * vp_R2[None, :])

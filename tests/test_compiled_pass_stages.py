@@ -261,8 +261,8 @@ def test_sparse_reflected_sums_equal_dense(monkeypatch):
         monkeypatch.setattr(PP, "REFLECTED_DENSE_FRACTION", fraction)
         r = Renderer(_floor_scene(), st, log=lambda _m: None)
         f = r.photon_pass._reflected
-        r.photon_pass._reflected = lambda vp, dep, pv, pp, Phi: (calls.append(pv.size),
-                                                                f(vp, dep, pv, pp, Phi))
+        r.photon_pass._reflected = lambda vp, dep, pv, pp, Phi, *a: (
+            calls.append(pv.size), f(vp, dep, pv, pp, Phi, *a))
         images.append(r.run().image)
     assert min(calls) > 100                      # glossy pairs in every chunk
     assert images[0].max() > 0 and np.array_equal(images[0], images[1])

@@ -106,7 +106,8 @@ def _edge_errors(hold_alpha, checkpoints=(8, 64)):
     st = RenderSettings(integrator="PHOTON", max_passes=max(checkpoints), photons_per_pass=50_000,
                         photons_for_direct=True, initial_radius_px=4.0,
                         cap_radius_at_edges=False, hold_alpha=hold_alpha,
-                        verify_holds=False)  # the hold schedule alone (no photon check)
+                        verify_holds=False,  # the hold schedule alone (no photon check)
+                        clip_kernel=False)   # the measured numbers: discs reach across the wall
     r = Renderer(scene, st, log=lambda s: None)
     # The deliberately wrong prediction: 10 m wherever a frequency photon arrived.
     r.radii.predicted = lambda rmin, rh: np.where(np.isfinite(rmin), 10.0, rmin)

@@ -186,7 +186,10 @@ def test_wrong_prediction_is_released_by_the_photons():
     X, Y = pixel_centres_ortho(scene)
     L = Lfun(X, Y)
     st = RenderSettings(integrator="PHOTON", max_passes=64, photons_per_pass=50_000, photons_for_direct=True,
-                        initial_radius_px=4.0, cap_radius_at_edges=False, verify_holds=True)
+                        initial_radius_px=4.0, cap_radius_at_edges=False, verify_holds=True,
+                        # the measured numbers: discs reach across the wall (with the
+                        # clip the error is 0.083 -> 0.059, the wall's leak gone)
+                        clip_kernel=False)
     r = Renderer(scene, st, log=lambda s: None)
     r.radii.predicted = lambda rmin, rh: np.where(np.isfinite(rmin), 10.0, rmin)
     err, R = {}, {}

@@ -90,7 +90,8 @@ def test_to_settings_round_trips_every_field():
                        aov_spectrum=True, aov_photon_count=True, aov_held=True,
                        integrator="LIGHT", camera_samples=8, hold_alpha=0.8,
                        light_paths_per_camera_path=2.5, merge_weights="MIS",
-                       camera_depth="DIRECT", radius_rule="CPPM", verify_holds=False)
+                       camera_depth="DIRECT", radius_rule="CPPM", verify_holds=False,
+                       clip_kernel=not RenderSettings().clip_kernel)
     # Every field differs from its default, so a missed field would show.
     d = RenderSettings()
     assert all(getattr(s, n) != getattr(d, n) for n in field_names())

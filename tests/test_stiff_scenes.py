@@ -504,21 +504,26 @@ def test_hidden_emitter_is_black_with_message():
     assert sum(BLACK_MSG in s for s in lines) == 1, lines
 
 
-def test_light_behind_wall_on_floor():
+@pytest.mark.parametrize("clip", [False, True])
+def test_light_behind_wall_on_floor(clip):
     """A point light behind a 10 m wall standing on a floor; the camera sees
     the far side.  Rays: next-event estimation is exactly 0 there.  Photons:
     the floor continues under the zero-thickness wall, so photons on the lit
     side lie in the same plane as the dark side's visible points: a kernel of
     radius R reaches across (the density estimate's known leak, pbrt's SPPM
-    has it too).  Guard: the leak is confined to visible points within R of
-    the wall's foot (every pixel farther than R + 2 px is exactly 0) and it
-    shrinks with R as the passes go."""
+    has it too).  Without the kernel clip (clip_kernel off) the guard: the
+    leak is confined to visible points within R of the wall's foot (every
+    pixel farther than R + 2 px is exactly 0).  With it (core.sppm.clip) the
+    wall clips every disc that reaches it: the image is exactly 0."""
     tris = quad((0, 0, 0), (3, 0, 0), (0, 3, 0)) + quad((0, 0, 5), (0, 0, 5), (0, 3, 0))
     light = Light("behind", "POINT", (300.0,) * 3, translate(-1.0, 0.0, 1.0))
     cam, pts = ortho_down((1.0, 0, 0), 1.0, 1.8, 16)
     scene = make_scene(tris, [lambert("floor", 0.7)], [light], cam)
-    img, r, lines = render(scene, max_passes=3, photons_per_pass=20_000)
+    img, r, lines = render(scene, max_passes=3, photons_per_pass=20_000, clip_kernel=clip)
     assert np.all(r.L_sum == 0.0)                                # no direct light leaks
+    if clip:
+        assert np.all(img == 0.0)
+        return
     R = np.sqrt(r.R2).reshape(img.shape[:2])
     x = pts[..., 0]
     far = x > R.max() + 2 * 1.8 / 16

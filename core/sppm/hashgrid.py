@@ -29,6 +29,10 @@ Counting rule.  Photon p counts for visible point v when
       photons inside a closed object at its convex edges, which otherwise
       leak through zero-thickness walls (a light sealed in a box lit
       the box's outer edges; tests/test_stiff_scenes.py).
+  (5) with a clip (gather(..., clip=), core.sppm.clip): a photon whose
+      offset in the VP's tangent plane lies in wedge k at d_k or farther
+      (a wall stands in between) does not count; the fold then divides
+      the VP's count and flux by the visible fraction of its disc.
 All tests are evaluated in float64 in a fixed operation order, so the
 numba kernel and the numpy oracle of tests/oracle_gather.py agree exactly; each is
 written as "count only if the comparison is True", so a NaN anywhere (radius,
@@ -137,6 +141,21 @@ SECTOR_CELLS = 2 * SECTOR_QUADRANTS
 # and of R^2 (vp_R2 may be computed as R*R by the caller).  Only adds candidates.
 _REL_PAD = 1e-9
 _ABS_PAD = 1e-12
+# Rule (5), the kernel clipped at walls (core.sppm.clip casts it): a visible
+# point's packed clip is one uint64, byte k the clip distance of wedge k of
+# CLIP_WEDGES (angles [k, k + 1) * 2 pi / CLIP_WEDGES in the tangent frame)
+# as floor(255 d_k / R), CLIP_OPEN = not clipped; CLIP_CLEAR = no wedge is.
+CLIP_WEDGES = 8
+CLIP_OPEN = 255
+CLIP_CLEAR = np.uint64(0xFFFF_FFFF_FFFF_FFFF)
+#: The count and flux of a clipped disc are scaled by at most 1 /
+#: CLIP_MIN_FRACTION: a visible point walled in on most sides (a crack)
+#: keeps a bounded weight.
+CLIP_MIN_FRACTION = 1.0 / CLIP_WEDGES
+#: A sector cell of a clipped disc keeps its own count (scaled to a full
+#: cell's) when at least this fraction of it is visible, else it reads the
+#: mean of those that are (clip_weights).
+CLIP_CELL_MIN = 0.5
 
 # 64-bit odd multipliers for the spatial hash (splitmix / xxhash constants).
 _H1 = np.uint64(0x9E3779B97F4A7C15)
@@ -636,9 +655,10 @@ _sort_photons_serial = serial_twin(_sort_photons)
 
 
 @njit(cache=True, inline="always")
-def _accepts(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
-    """Gather rules (1)-(4) of the module docstring for photon (x, w, g) and
-    visible point v: the one place they are written (count and pair passes)."""
+def _accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
+    """Gather rules (1)-(5) of the module docstring for photon (x, w, g) and
+    visible point v: the one place they are written (count and pair passes).
+    vp_clip (K,) uint64 packed clips, or (0,): no rule (5)."""
     dx = x - vp_rec[v, 0]
     dy = y - vp_rec[v, 1]
     dz = z - vp_rec[v, 2]
@@ -654,7 +674,83 @@ def _accepts(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
         return False
     if cg <= COS_NG_DEFAULT and dx * nvx + dy * nvy + dz * nvz < 0.0:       # (4)
         return False
+    if vp_clip.shape[0] > 0 and vp_clip[v] != CLIP_CLEAR:                   # (5)
+        t0, t1, t2, t3, t4, t5 = _tangent_frame(nvx, nvy, nvz)
+        u = dx * t0 + dy * t1 + dz * t2
+        w = dx * t3 + dy * t4 + dz * t5
+        b = np.int64((vp_clip[v] >> np.uint64(8 * wedge_of(u, w))) & np.uint64(0xFF))
+        if b < CLIP_OPEN and 65025.0 * (u * u + w * w) >= np.float64(b * b) * vp_rec[v, 3]:
+            return False
     return True
+
+
+@njit(cache=True, inline="always")
+def wedge_of(u, w):
+    """Wedge (0 .. CLIP_WEDGES-1) of a tangent-plane offset (u, w): angle
+    atan2(w, u) in [k, k + 1) * 45 degrees; wedges 2q and 2q + 1 make up
+    quadrant q of _sector_cell."""
+    q = 0
+    if u < 0.0:
+        q = 1 if w >= 0.0 else 2
+    elif w < 0.0:
+        q = 3
+    if q % 2 == 0:
+        return 2 * q + (1 if abs(w) >= abs(u) else 0)
+    return 2 * q + (1 if abs(u) >= abs(w) else 0)
+
+
+@njit(cache=True, inline="always")
+def wedge_rho2(code, k):
+    """(d_k / R)^2 of wedge k of a packed clip (1 when open)."""
+    b = np.int64((code >> np.uint64(8 * k)) & np.uint64(0xFF))
+    if b >= CLIP_OPEN:
+        return 1.0
+    x = b / 255.0
+    return x * x
+
+
+@njit(cache=True)
+def clip_weights(code, W_cells):
+    """The fold's weights of a clipped visible point (code != CLIP_CLEAR):
+    returns 1 / max(f, CLIP_MIN_FRACTION) (f: the visible fraction of the
+    disc, module docstring) and fills W_cells (SECTOR_CELLS, SECTOR_CELLS):
+    the pass's sector counts S become W_cells @ S, a full disc's.
+
+    Cell c (quadrant q = c % 4 holds wedges 2q, 2q + 1; inner ring
+    |d| < R / sqrt 2 for c < 4) has the visible fraction a_c of its area;
+    with a_c >= CLIP_CELL_MIN its count is divided by a_c (a full cell's
+    expected count where the light is uniform), else it reads the mean of
+    the scaled cells (too little of it is visible to test), or M / f / 8
+    when no cell is: so a wall does not look like a non-uniform disc to the
+    chi-square tests of core.sppm.update (the visible part still does)."""
+    f = 0.0
+    a = np.zeros(SECTOR_CELLS)
+    for k in range(CLIP_WEDGES):
+        r2 = wedge_rho2(code, k)
+        f += r2
+        q = k // 2
+        # each wedge is half of its quadrant's two cells (areas 1/2 of R^2
+        # in the ring's units: inner r^2 < 1/2, outer 1/2 <= r^2 < 1)
+        a[q] += min(r2, 0.5)                      # / 0.5 area, * 1/2 wedge
+        a[q + SECTOR_QUADRANTS] += max(r2 - 0.5, 0.0)
+    f /= CLIP_WEDGES
+    inv_f = 1.0 / max(f, CLIP_MIN_FRACTION)
+    W_cells[:, :] = 0.0
+    n_good = 0
+    for c in range(SECTOR_CELLS):
+        if a[c] >= CLIP_CELL_MIN:
+            n_good += 1
+    for c in range(SECTOR_CELLS):
+        if a[c] >= CLIP_CELL_MIN:
+            W_cells[c, c] = 1.0 / a[c]
+        elif n_good > 0:
+            for j in range(SECTOR_CELLS):
+                if a[j] >= CLIP_CELL_MIN:
+                    W_cells[c, j] = 1.0 / (a[j] * n_good)
+        else:
+            for j in range(SECTOR_CELLS):
+                W_cells[c, j] = inv_f / SECTOR_CELLS
+    return inv_f
 
 
 @njit(cache=True, inline="always")
@@ -697,7 +793,7 @@ def _sector_cell(vp_rec, v, x, y, z):
 
 @njit(cache=True)
 def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
-                 vp_rec, cos_ng, cell_start, vp_ids,
+                 vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
                  M, Phi, rmin, hitmask, n_pair, n_freq, S, touched, n_touched):
     """Sorted photons q0..q1-1 (ph_* already in sorted order): accumulate M,
     Phi (const VPs), rmin into this chunk's arrays, and (S with SECTOR_CELLS
@@ -730,7 +826,7 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         mask = np.uint64(0)
         for e in range(e0, e1):
             v = vp_ids[e]
-            if not _accepts(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
+            if not _accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
                 continue
             M[v] += 1
             if track and M[v] == 1:
@@ -773,7 +869,7 @@ def _record_pair(v, p, is_freq, vp_rec, k, kf, pair_vp, pair_ph, fpair_vp, fpair
 
 @njit(cache=True)
 def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
-                 vp_rec, cos_ng, cell_start, vp_ids, hitmask,
+                 vp_rec, vp_clip, cos_ng, cell_start, vp_ids, hitmask,
                  n_pair, pair_off, pair_vp, pair_ph,
                  n_freq, freq_off, fpair_vp, fpair_ph, want_freq):
     """Second pass over photons with pairs: the counted entries come from
@@ -809,52 +905,52 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
         gz = np.float64(ph_ng[q, 2])
         for e in range(e0, e1):
             v = vp_ids[e]
-            if not _accepts(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
+            if not _accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
                 continue
             k, kf = _record_pair(v, p, is_freq, vp_rec, k, kf, pair_vp, pair_ph, fpair_vp, fpair_ph)
 
 
 @njit(cache=True)
-def _count_serial(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, cos_ng,
+def _count_serial(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip, cos_ng,
                   cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq, S,
                   touched, n_touched):
     _count_range(0, slot.shape[0], slot, ph_pos, ph_ng, ph_wi, ph_power,
-                 ph_rpred, vp_rec, cos_ng, cell_start, vp_ids, M[0], Phi[0], rmin[0],
+                 ph_rpred, vp_rec, vp_clip, cos_ng, cell_start, vp_ids, M[0], Phi[0], rmin[0],
                  hitmask, n_pair, n_freq, S[0], touched[0], n_touched[0:1])
 
 
 @njit(cache=True, parallel=True)
 def _count_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec,
-                    cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq,
+                    vp_clip, cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq,
                     S, touched, n_touched, n_chunks):
     # One contiguous range of sorted photons per accumulator row: chunks never
     # share a row, and the per-photon outputs are indexed by q: no race.
     n = slot.shape[0]
     for c in prange(n_chunks):
         _count_range(c * n // n_chunks, (c + 1) * n // n_chunks, slot, ph_pos,
-                     ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, cos_ng, cell_start,
+                     ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip, cos_ng, cell_start,
                      vp_ids, M[c], Phi[c], rmin[c], hitmask, n_pair, n_freq, S[c],
                      touched[c], n_touched[c:c + 1])
 
 
 @njit(cache=True)
-def _pairs_serial(order, slot, ph_pos, ph_ng, ph_wi, ph_rpred, vp_rec, cos_ng,
+def _pairs_serial(order, slot, ph_pos, ph_ng, ph_wi, ph_rpred, vp_rec, vp_clip, cos_ng,
                   cell_start, vp_ids, hitmask, n_pair, pair_off, pair_vp, pair_ph,
                   n_freq, freq_off, fpair_vp, fpair_ph, want_freq):
     _pairs_range(0, order.shape[0], order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
-                 vp_rec, cos_ng, cell_start, vp_ids, hitmask, n_pair, pair_off,
+                 vp_rec, vp_clip, cos_ng, cell_start, vp_ids, hitmask, n_pair, pair_off,
                  pair_vp, pair_ph, n_freq, freq_off, fpair_vp, fpair_ph, want_freq)
 
 
 @njit(cache=True, parallel=True)
-def _pairs_parallel(order, slot, ph_pos, ph_ng, ph_wi, ph_rpred, vp_rec, cos_ng,
+def _pairs_parallel(order, slot, ph_pos, ph_ng, ph_wi, ph_rpred, vp_rec, vp_clip, cos_ng,
                     cell_start, vp_ids, hitmask, n_pair, pair_off, pair_vp, pair_ph,
                     n_freq, freq_off, fpair_vp, fpair_ph, want_freq, n_chunks):
     # Each photon writes only its own [offset, offset + count) ranges: race-free.
     n = order.shape[0]
     for c in prange(n_chunks):
         _pairs_range(c * n // n_chunks, (c + 1) * n // n_chunks, order, slot, ph_pos,
-                     ph_ng, ph_wi, ph_rpred, vp_rec, cos_ng, cell_start, vp_ids,
+                     ph_ng, ph_wi, ph_rpred, vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
                      hitmask, n_pair, pair_off, pair_vp, pair_ph, n_freq, freq_off,
                      fpair_vp, fpair_ph, want_freq)
 
@@ -1196,7 +1292,8 @@ class GatherBuffers:
         self.vp_rec = _vp_records(*vp)
         self.grid = grid
 
-    def fold(self, M, Phi, phi_scale, phi_div: float, rmin, rmin_mask=None, S=None) -> None:
+    def fold(self, M, Phi, phi_scale, phi_div: float, rmin, rmin_mask=None, S=None,
+             clip=None) -> None:
         """Add the rows' sums at the touched VPs into a pass's sums and zero
         the rows: M (K,) += sum M rows; Phi (K, 3) += (sum Phi rows) *
         (phi_scale (K, 3) / phi_div); rmin (K,) = min(rmin, min rmin rows)
@@ -1205,7 +1302,10 @@ class GatherBuffers:
         phi_div in its own dtype.  The rows are summed in thread order, as
         ``gather`` without buffers does, then scaled and added with the same
         float64 operations as ``acc += g.Phi_sum * (scale / div)`` in numpy:
-        the same bits as adding that chunk's GatherResult."""
+        the same bits as adding that chunk's GatherResult.  clip (K,)
+        uint64, the packed clips the gather used (None: none): a clipped
+        VP's M and Phi are added times 1 / its visible fraction and its S
+        through its cell weights (clip_weights)."""
         # The division in phi_scale's dtype, as numpy does (NEP 50: a float32
         # albedo / pi is a float32), then the product in float64.
         scale = np.ascontiguousarray(phi_scale)
@@ -1216,7 +1316,8 @@ class GatherBuffers:
         sweep = bool(self.n_touched.sum() * FOLD_SWEEP_FRACTION >= self.K)
         rest = (M, Phi, scale, scale.dtype.type(phi_div), rmin,
                 np.zeros(0, np.bool_) if rmin_mask is None else rmin_mask,
-                empty2 if S is None else S)
+                empty2 if S is None else S,
+                np.zeros(0, np.uint64) if clip is None else clip)
         T = numba.get_num_threads()
         if sweep and T > 1 and self.K >= PARALLEL_MIN_VPS:
             # a pixel-sized sweep (1080p: 2M VPs): by VP ranges in threads
@@ -1228,8 +1329,9 @@ class GatherBuffers:
 
 
 @njit(cache=True, inline="always")
-def _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S):
-    """Fold visible point v's rows (thread order) into the sums and zero them."""
+def _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S, clip):
+    """Fold visible point v's rows (thread order) into the sums and zero them
+    (clip (K,) uint64 or (0,): GatherBuffers.fold)."""
     m = bM[0, v]
     r = brmin[0, v]
     p0, p1, p2 = bPhi[0, v, 0], bPhi[0, v, 1], bPhi[0, v, 2]
@@ -1239,16 +1341,20 @@ def _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mas
         p0 += bPhi[t, v, 0]
         p1 += bPhi[t, v, 1]
         p2 += bPhi[t, v, 2]
-    M[v] += m
-    Phi[v, 0] += p0 * (scale[v, 0] / div)
-    Phi[v, 1] += p1 * (scale[v, 1] / div)
-    Phi[v, 2] += p2 * (scale[v, 2] / div)
+    if clip.shape[0] > 0 and clip[v] != CLIP_CLEAR:
+        _fold_clipped(v, m, p0, p1, p2, bS, n_used, M, Phi, scale, div, S, clip[v])
+    else:
+        M[v] += m
+        Phi[v, 0] += p0 * (scale[v, 0] / div)
+        Phi[v, 1] += p1 * (scale[v, 1] / div)
+        Phi[v, 2] += p2 * (scale[v, 2] / div)
+        for t in range(n_used):
+            if S.shape[0] > 0:
+                for j in range(S.shape[1]):
+                    S[v, j] += bS[t, v, j]
     if rmin_mask.shape[0] == 0 or rmin_mask[v]:
         rmin[v] = min(rmin[v], r)
     for t in range(n_used):
-        if S.shape[0] > 0:
-            for j in range(S.shape[1]):
-                S[v, j] += bS[t, v, j]
         bM[t, v] = 0
         brmin[t, v] = np.inf
         bPhi[t, v, 0] = 0.0
@@ -1259,15 +1365,35 @@ def _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mas
 
 
 @njit(cache=True)
+def _fold_clipped(v, m, p0, p1, p2, bS, n_used, M, Phi, scale, div, S, code):
+    """_fold_one's sums for a clipped visible point: count m and flux (p0,
+    p1, p2) times 1 / its visible fraction, sector counts through the cell
+    weights of clip_weights (a full disc's, where the light is uniform)."""
+    Wc = np.empty((SECTOR_CELLS, SECTOR_CELLS))
+    w = clip_weights(code, Wc)
+    M[v] += m * w
+    Phi[v, 0] += p0 * (scale[v, 0] / div) * w
+    Phi[v, 1] += p1 * (scale[v, 1] / div) * w
+    Phi[v, 2] += p2 * (scale[v, 2] / div) * w
+    if S.shape[0] > 0:
+        for c in range(SECTOR_CELLS):
+            acc = 0.0
+            for j in range(SECTOR_CELLS):
+                for t in range(n_used):
+                    acc += Wc[c, j] * bS[t, v, j]
+            S[v, c] += acc
+
+
+@njit(cache=True)
 def _fold(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div, rmin,
-          rmin_mask, S, sweep):
+          rmin_mask, S, clip, sweep):
     """GatherBuffers.fold.  sweep False: every VP listed by a row, once (its M
     rows are zero afterwards, which marks it done for the other rows' lists);
     sweep True: every VP with a count, in order (sequential memory).  One
     kernel for both, so that the warm-up compiles the one the renders use."""
     if sweep:
         _fold_sweep(0, bM.shape[1], bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
-                    rmin_mask, S)
+                    rmin_mask, S, clip)
         n_touched[:] = 0
         return
     for c in range(n_used):
@@ -1275,12 +1401,13 @@ def _fold(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div, r
             v = touched[c, i]
             if bM[c, v] != 0:         # else folded from an earlier row's list
                 _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
-                          rmin_mask, S)
+                          rmin_mask, S, clip)
         n_touched[c] = 0
 
 
 @njit(cache=True)
-def _fold_sweep(v0, v1, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S):
+def _fold_sweep(v0, v1, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S,
+                clip):
     """_fold's sweep over the visible points v0..v1-1 (each one's sums and
     rows are its own: VP ranges fold in any order, in any thread)."""
     for v in range(v0, v1):
@@ -1288,18 +1415,19 @@ def _fold_sweep(v0, v1, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, r
         for t in range(n_used):
             counted |= bM[t, v] != 0
         if counted:
-            _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S)
+            _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S,
+                      clip)
 
 
 @njit(cache=True, parallel=True)
 def _fold_sweep_parallel(n_chunks, bM, bPhi, brmin, bS, n_touched, n_used, M, Phi, scale, div,
-                         rmin, rmin_mask, S):
+                         rmin, rmin_mask, S, clip):
     """_fold's sweep by n_chunks threads, one VP range each (the same sums:
     a VP's fold does not depend on the others')."""
     K = bM.shape[1]
     for c in prange(n_chunks):
         _fold_sweep(c * K // n_chunks, (c + 1) * K // n_chunks, bM, bPhi, brmin, bS, n_used,
-                    M, Phi, scale, div, rmin, rmin_mask, S)
+                    M, Phi, scale, div, rmin, rmin_mask, S, clip)
     n_touched[:] = 0
 
 
@@ -1312,7 +1440,8 @@ def _check_radii(grid: Grid, vp_R2) -> None:
 def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
            vp_pos, vp_ng, vp_R2, vp_const, cos_ng: float = COS_NG_DEFAULT,
            want_freq_pairs: bool = False, parallel: Optional[bool] = None,
-           sectors: bool = False, buffers: Optional[GatherBuffers] = None) -> GatherResult:
+           sectors: bool = False, buffers: Optional[GatherBuffers] = None,
+           clip: Optional[np.ndarray] = None) -> GatherResult:
     """Count photons into visible points (rules (1)-(4) of the module docstring).
 
     ph_pos (P, 3) float32/64 photon hit positions; ph_ng (P, 3) geometric normal
@@ -1332,6 +1461,9 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     buffers.with_sectors; the ``sectors`` argument is then ignored) in these
     reused per-thread rows instead; the result's M, Phi_sum, rpred_min and
     sectors are then None until ``buffers.fold``.  Pairs are returned as usual.
+    clip: (K,) uint64 packed clips (core.sppm.clip.clip_codes) for rule (5),
+    None: none.  The counts returned are the photons counted (not scaled:
+    GatherBuffers.fold(..., clip=) scales them).
     """
     K = np.asarray(vp_pos).size // 3
     if K != grid.K:
@@ -1378,7 +1510,9 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     n_pair = np.empty(n, np.int32)
     n_freq = np.empty(n, np.int32)
     g = (grid.cell_start, grid.vp_ids)
-    cargs = (slot, ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_, vp_rec,
+    vp_clip = (np.zeros(0, np.uint64) if clip is None
+               else np.ascontiguousarray(clip, np.uint64).reshape(K))
+    cargs = (slot, ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_, vp_rec, vp_clip,
              float(cos_ng), *g, M, Phi, rmin, hitmask, n_pair, n_freq, S,
              touched, n_touched)
     if parallel:
@@ -1407,7 +1541,7 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     fpair_vp = np.empty(n_fp, np.int32)
     fpair_ph = np.empty(n_fp, np.int32)
     if n_pairs or n_fp:
-        pargs = (order, slot, ph_pos_, ph_ng_, ph_wi_, ph_rpred_, vp_rec, float(cos_ng),
+        pargs = (order, slot, ph_pos_, ph_ng_, ph_wi_, ph_rpred_, vp_rec, vp_clip, float(cos_ng),
                  *g, hitmask, n_pair, pair_off, pair_vp, pair_ph, n_freq, freq_off,
                  fpair_vp, fpair_ph, bool(want_freq_pairs))
         if parallel:

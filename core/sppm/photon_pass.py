@@ -34,6 +34,7 @@ import numpy as np
 from .. import materials as B
 from ..kept import KeptArrays
 from ..frequency.kernels import Receivers
+from . import clip as kernel_clip
 from . import hashgrid
 from .update import HIST_BINS, needs_sectors
 
@@ -102,12 +103,15 @@ def chunk_rng(rng: np.random.Generator, c: int) -> np.random.Generator:
 class PassGrid(NamedTuple):
     """What every chunk of a pass gathers into (``PhotonPass.begin``): the
     visible points vp, their squared radii R2 (P,), the grid of the active
-    ones, whether the frequency pairs are needed, whether the spectrum AOV is on."""
+    ones, whether the frequency pairs are needed, whether the spectrum AOV is
+    on, and the packed clips of the kernel discs (P,) uint64
+    (core.sppm.clip; None: settings.clip_kernel off)."""
     vp: object
     R2: np.ndarray
     grid: object
     want_pairs: bool
     spectrum_aov: bool
+    clip: Optional[np.ndarray] = None
 
 
 class ChunkSums(NamedTuple):
@@ -232,6 +236,9 @@ class PhotonPass:
         # The 1-based index of the pass being traced (its share of frequency
         # photons, frequency_photons); the renderer sets it to its own count.
         self.next_pass = lambda: 1
+        # CPU seconds of the kernel clip's rays and codes (core.sppm.clip),
+        # also counted in stage_seconds["gather"].
+        self.clip_seconds = 0.0
 
     def __call__(self, vp, R2: np.ndarray, spectrum: Optional[np.ndarray],
                  rng: np.random.Generator, check_stop=lambda: None) -> PhotonEstimate:
@@ -243,7 +250,7 @@ class PhotonPass:
         what another process computes for that chunk."""
         P = vp.valid.shape[0]
         acc = self._zero_sums(P, spectrum)
-        pg = self.begin(vp, R2, spectrum is not None)
+        pg = self.begin(vp, R2, spectrum is not None, check_stop)
         if pg is None:
             self._drop_ahead()
             return PhotonEstimate(False, acc.M, acc.Phi, acc.r_pred)
@@ -355,10 +362,12 @@ class PhotonPass:
             out.append((n, int(np.clip(n_freq_total - a, 0, n))))
         return out
 
-    def begin(self, vp, R2: np.ndarray, spectrum_aov: bool) -> Optional["PassGrid"]:
+    def begin(self, vp, R2: np.ndarray, spectrum_aov: bool,
+              check_stop=lambda: None) -> Optional["PassGrid"]:
         """The grid of this pass's active visible points (None: none is active).
         The mask (:meth:`active`) and the radii sqrt(R2) in one compiled loop
-        over the pixels (core.sppm.pass_kernels)."""
+        over the pixels (core.sppm.pass_kernels); check_stop() is called
+        between the kernel clip's blocks of rays."""
         from . import pass_kernels
         active, R, n_active = pass_kernels.active_radii(vp.valid, R2)
         if self.gather_buffers is not None:
@@ -366,7 +375,15 @@ class PhotonPass:
         if n_active == 0:
             return None
         want_pairs = self.frequency and (self.radius_histogram is not None or spectrum_aov)
-        return PassGrid(vp, R2, hashgrid.build_grid(vp.p, R, active), want_pairs, spectrum_aov)
+        clip = None
+        if self.settings.clip_kernel:
+            t0, c0 = time.perf_counter(), time.process_time()
+            clip = kernel_clip.clip_codes(self.tracer.accel, self.tracer.tris.ng, vp.p, vp.ng,
+                                          R2, active, check_stop)
+            self.clip_seconds += time.process_time() - c0
+            self.stage_seconds["gather"] += time.perf_counter() - t0
+        return PassGrid(vp, R2, hashgrid.build_grid(vp.p, R, active), want_pairs,
+                        spectrum_aov, clip)
 
     def chunk_sums(self, pg: "PassGrid", n: int, n_freq: int,
                    rng: np.random.Generator) -> "ChunkSums":
@@ -403,22 +420,25 @@ class PhotonPass:
         g = hashgrid.gather(pg.grid, dep["p"], dep["ng"], dep["wi"], dep["power"], dep["rpred"],
                             vp.p, vp.ng, pg.R2, vp.const, cos_ng=-1.0,
                             want_freq_pairs=pg.want_pairs and n_freq > 0,
-                            buffers=buf)
+                            buffers=buf, clip=pg.clip)
         # M, sectors, Phi of the Lambert points (times albedo / pi) and, for
         # them alone when the receivers own the others, the smallest predicted
         # radius: added at the touched points only, the same bits as adding
         # the chunk's dense GatherResult (GatherBuffers.fold).
         buf.fold(acc.M, acc.Phi, vp.albedo, np.pi, acc.r_pred,
-                 None if self.receivers is None else vp.const, acc.sectors)
-        self._add_pairs(vp, dep, g, acc)
+                 None if self.receivers is None else vp.const, acc.sectors, pg.clip)
+        self._add_pairs(vp, dep, g, acc, pg.clip)
         self.stage_seconds["gather"] += time.perf_counter() - t1
 
-    def _add_pairs(self, vp, dep, g: "hashgrid.GatherResult", acc: "PassSums") -> None:
+    def _add_pairs(self, vp, dep, g: "hashgrid.GatherResult", acc: "PassSums",
+                   clip: Optional[np.ndarray] = None) -> None:
         """Add the (visible point, photon) pairs of the gather g to acc: the
         non-Lambert points' reflected flux and predicted radii (their own
-        receiver lobes), the frequency photons' histograms and spectrum."""
+        receiver lobes), the frequency photons' histograms and spectrum.
+        clip: the packed clips of the gather (the flux of a clipped disc is
+        divided by its visible fraction, as the fold does), or None."""
         if g.pair_vp.size:
-            self._reflected(vp, dep, g.pair_vp, g.pair_ph, acc.Phi)
+            self._reflected(vp, dep, g.pair_vp, g.pair_ph, acc.Phi, clip)
         if self.receivers is not None:
             fr = ~np.isnan(dep["rpred"][g.pair_ph])
             pv, pp = g.pair_vp[fr], g.pair_ph[fr]
@@ -456,7 +476,7 @@ class PhotonPass:
             b = self.gather_buffers = hashgrid.GatherBuffers(P, self.sectors)
         return b
 
-    def _reflected(self, vp, dep, pv, pp, Phi: np.ndarray) -> None:
+    def _reflected(self, vp, dep, pv, pp, Phi: np.ndarray, clip=None) -> None:
         """Add to Phi (P, 3) the BSDF-weighted power of the (visible point pv,
         photon pp) pairs (K,) of the non-Lambert visible points, summed per
         point (in pair order, then added: the same bits either way below)."""
@@ -470,6 +490,8 @@ class PhotonPass:
         # grazing geometric normal cannot spike.
         corr = np.minimum(B.shading_correction(vp.ns[pv], vp.ng[pv], dep["wi"][pp]), 4.0)
         contrib = f * (dep["power"][pp] * corr[:, None])
+        if clip is not None:
+            contrib *= kernel_clip.inverse_fractions(clip, pv)[:, None]
         P = Phi.shape[0]
         if pv.size * REFLECTED_DENSE_FRACTION < P:
             # Few pairs: sums at the touched points only, no (P, 3) array per
