@@ -70,6 +70,7 @@ from typing import NamedTuple, Optional
 
 import numpy as np
 
+from ..core import memory
 from ..core.integrators.light_tracer import SplatSums
 from ..core.plan import MERGING
 from ..core.render import Renderer
@@ -321,6 +322,7 @@ def _scene_side(job: SceneJob) -> _SceneSide:
     return side
 
 
+@memory.small_pages
 def setup_task(job: SceneJob, kernels: bool = False) -> int:
     """Build the scene side on this worker ahead of the first pass (and with
     ``kernels`` load every compiled kernel now, core.warmup, rather than
@@ -333,6 +335,7 @@ def setup_task(job: SceneJob, kernels: bool = False) -> int:
     return os.getpid()
 
 
+@memory.small_pages
 def chunk_task(job: SceneJob, pj: PassJob, n: int, n_freq: int, rng):
     """Chunk sums (core.sppm.photon_pass.ChunkSums) of n photons (n_freq with
     a spectrum) traced with rng and gathered at the pass's visible points."""
@@ -345,6 +348,7 @@ def chunk_task(job: SceneJob, pj: PassJob, n: int, n_freq: int, rng):
     return part._replace(idx=pj.idx[part.idx], spec_idx=pj.idx[part.spec_idx])
 
 
+@memory.small_pages
 def light_chunk_task(job: SceneJob, n_pass: int, n: int, rng) -> SplatSums:
     """Splat sums of n light paths (one chunk of a pass of n_pass) traced
     with rng (core.integrators.light_tracer.LightTracer.chunk_sums)."""
