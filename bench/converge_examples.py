@@ -58,7 +58,15 @@ SCENES = {
 
 
 NOTES = [
-    "Three runs make this table.  cornell, indirect_room and principled_interior: `--budget 60 "
+    "cornell: `cornell --budget 120 --seeds 4 --methods combined,path,light,fppm,cycles` (120 CPU s "
+    "= 60 s of both cores, the issue's equal time) on a439d97, on a machine loaded by other jobs "
+    "(load average 4 to 18; 0.6 to 1.1 cores per method).  That commit's COMBINED already renders "
+    "the Cornell box as light tracing (camera depth Auto), so COMBINED / LIGHT reads 1.00-1.01; "
+    "since, a COMBINED pass without camera paths is LIGHT's pass bit for bit "
+    "(docs/integrators.md).  LIGHT's, COMBINED's and Cycles' excess errors at 120 CPU s "
+    "(1.2e-4 to 1.4e-4) are below 3x the 8192-spp reference's floor (5.0e-5): a 32768-spp "
+    "reference is needed to rank them, so those ratios are flagged 'near floor'.",
+    "Three earlier runs make the other rows.  indirect_room and principled_interior: `--budget 60 "
     "--seeds 2` (60 CPU s = 30 s of both cores) on the code that merged the tracer array pool, "
     "the compiled first hits and the amortised frequency photons (commit 9dd4839), alone on an "
     "idle machine (load average below 2; cores per method as the table gives).  point_caustic: "
@@ -68,7 +76,7 @@ NOTES = [
     "plus the docs), on a machine loaded by other jobs (load average 3 to 26, 0.3 to 1.3 cores "
     "per method), after their Cycles references were made (16384 spp for the glass scenes, "
     "8192 for the rings).  None of them includes the reach map of the frequency photons or the "
-    "camera and direct stages in blocks, merged after them.  The default 120 CPU s and 4 seeds "
+    "camera and direct stages in blocks, merged after them, nor the kernel clipped at walls (on by default since; it changes every photon mapper's row, the rings' most: README).  The default 120 CPU s and 4 seeds "
     "did not fit a session (about 4 hours of an idle machine for every scene and method).",
     "glass_sphere and coffee_cup: their Cycles references' own noise floors (1.3e-2 and "
     "7.8e-2: Cycles cannot sample a small light's caustic seen through glass) are as large as "
@@ -86,7 +94,7 @@ NOTES = [
     "indirect_room's 8192-spp reference has a noise floor (1.1e-3) above 1/3 of the photon "
     "mappers' excess errors at 60 CPU s (6.8e-4 to 1.6e-3): its FPPM / PPM / APPM / CPPM ratios "
     "are flagged 'near floor' and the APPM / CPPM verdicts are within the seeds' spread; a 4x "
-    "longer reference is needed to judge them.  cornell's (5.0e-5), point_caustic's (1.4e-4) and "
+    "longer reference is needed to judge them.  point_caustic's (1.4e-4) and "
     "principled_interior's (2.0e-4) floors are below 1/3 of every excess compared.",
     "Cores (CPU / wall) are the share of the 2 cores a method got on the loaded machine, not "
     "what it would use alone (FPPM's whole pass uses 1.40 of 2 cores at 1080p on an idle "
