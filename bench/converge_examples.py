@@ -66,13 +66,16 @@ NOTES = [
     "(docs/integrators.md).  LIGHT's, COMBINED's and Cycles' excess errors at 120 CPU s "
     "(1.2e-4 to 1.4e-4) are below 3x the 8192-spp reference's floor (5.0e-5): a 32768-spp "
     "reference is needed to rank them, so those ratios are flagged 'near floor'.",
+    "ring_lambert: `ring_lambert --budget 120 --seeds 4 --methods fppm,ppm,combined` on 310a884 "
+    "(the kernel clipped at walls on by default), load average 2 to 5; Cycles not run (its "
+    "8192-spp reference is cached).",
     "Three earlier runs make the other rows.  indirect_room and principled_interior: `--budget 60 "
     "--seeds 2` (60 CPU s = 30 s of both cores) on the code that merged the tracer array pool, "
     "the compiled first hits and the amortised frequency photons (commit 9dd4839), alone on an "
     "idle machine (load average below 2; cores per method as the table gives).  point_caustic: "
     "`--budget 30 --seeds 2` on the code before them (47f7a5f), on a machine loaded by other "
-    "jobs (load average 8 to 16, 0.2 to 0.6 cores per method).  glass_sphere, coffee_cup, "
-    "ring_lambert and ring_principled: `--budget 30 --seeds 2` on a434914 (the first of these "
+    "jobs (load average 8 to 16, 0.2 to 0.6 cores per method).  glass_sphere, coffee_cup "
+    "and ring_principled: `--budget 30 --seeds 2` on a434914 (the first of these "
     "plus the docs), on a machine loaded by other jobs (load average 3 to 26, 0.3 to 1.3 cores "
     "per method), after their Cycles references were made (16384 spp for the glass scenes, "
     "8192 for the rings).  None of them includes the reach map of the frequency photons or the "
