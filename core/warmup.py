@@ -39,9 +39,11 @@ user whether this is a first use and about how long it will take.
 """
 from __future__ import annotations
 
+import base64
 import hashlib
 import json
 import os
+import pickle
 import subprocess
 import sys
 import tempfile
@@ -59,6 +61,7 @@ from .settings import RenderSettings
 # Assumed length of a first compile when this machine never finished one
 # (used only for the message and the progress bar).
 DEFAULT_COMPILE_SECONDS = 60.0
+DEFAULT_JOB_SECONDS = 60.0
 _CORE = os.path.dirname(os.path.abspath(__file__))
 
 
@@ -164,22 +167,32 @@ def warmup_jobs() -> list:
              base.replace(integrator="COMBINED", photons_per_pass=2000, camera_samples=1))]
 
 
-def compile_kernels(should_stop: Optional[Callable[[], bool]] = None) -> float:
-    """Render every job of :func:`warmup_jobs` for one pass; returns the seconds it took.
+def run_jobs(jobs, should_stop: Optional[Callable[[], bool]] = None,
+             split_first: bool = False) -> float:
+    """Render each job (``(scene, settings)`` or ``(scene, settings, passes)``)
+    through ``Renderer`` for its settings' passes; returns the seconds it took.
 
-    Raises RenderCancelled when ``should_stop()`` turns True (polled by the
-    Renderer during its set-up and passes).
+    split_first: the first job takes the per-pixel stages' threaded paths at
+    any size (:class:`_split_paths`).  Raises RenderCancelled when
+    ``should_stop()`` turns True (polled by the Renderer during its set-up
+    and passes).
     """
     from .errors import RenderCancelled
     from .render import Renderer
     t0 = time.perf_counter()
-    for k, (scene, st) in enumerate(warmup_jobs()):
-        with _split_paths(k == 0):
-            r = Renderer(scene, st, log=lambda _m: None, should_stop=should_stop)
+    for k, job in enumerate(jobs):
+        scene, st, passes = (tuple(job) + ((),))[:3]
+        with _split_paths(split_first and k == 0):
+            r = Renderer(scene, st, log=lambda _m: None, should_stop=should_stop, passes=passes)
             r.run(should_stop=should_stop)
         if should_stop is not None and should_stop():
             raise RenderCancelled("cancelled")
     return time.perf_counter() - t0
+
+
+def compile_kernels(should_stop: Optional[Callable[[], bool]] = None) -> float:
+    """Render every job of :func:`warmup_jobs` for one pass; returns the seconds it took."""
+    return run_jobs(warmup_jobs(), should_stop, split_first=True)
 
 
 class _split_paths:
@@ -208,9 +221,120 @@ class _split_paths:
                 setattr(m, a, v)
 
 
-# Run by compile_in_subprocess: load the package under the parent's module name
-# (stub parents for a dotted name such as bl_ext.user_default.fppm), then
-# compile.  It ends with its parent (a quit Blender, an interrupted CLI).
+# --- the warm-up of one render ----------------------------------------------
+
+def render_job(scene, settings: RenderSettings, passes: tuple = ()) -> tuple:
+    """The warm-up job of one render: ``(scene, settings, passes)`` for one
+    pass (max_passes 1, no time limit) of the render's own exported scene,
+    settings and AOV passes, at its own resolution and photon count, so that
+    the size-dependent paths (threads from ``PARALLEL_MIN`` pixels, the
+    gather's parallel path from ``hashgrid.PARALLEL_MIN_PHOTONS`` photons)
+    are the render's: the kernels compiled are those its passes call, and
+    only those (the Cornell box's default render, light tracing alone,
+    compiles no photon, frequency or camera-path kernel)."""
+    return (scene, settings.replace(max_passes=1, time_limit=0.0), tuple(passes))
+
+
+def _scene_kinds(scene) -> tuple:
+    """What of a scene selects kernels: the kinds of its materials, lights,
+    camera and world and its resolution, not their values (two scenes alike
+    in these call the same kernels; a wrong guess only leaves a compile to
+    the first pass, as before the warm-up)."""
+    lobes = sorted({(lb.kind, lb.roughness == 0.0, lb.color_texture >= 0, bool(lb.multiscatter),
+                     lb.fresnel, lb.layer_ior > 0.0, getattr(lb, "alpha_texture", -1) >= 0)
+                    for m in scene.materials for lb in m.lobes})
+    mats = sorted({(len(m.lobes), any(e > 0 for e in m.emission), m.emission_texture >= 0,
+                    getattr(m, "normal", None) is not None) for m in scene.materials})
+    lights = sorted({(lt.kind, lt.shape, lt.radius > 0.0, bool(lt.use_soft_falloff))
+                     for lt in scene.lights})
+    cam = scene.camera
+    return (lobes, mats, lights, cam.kind, tuple(cam.resolution), cam.border is not None,
+            bool(np.any(np.asarray(scene.world_color) > 0)), scene.world_map is not None,
+            bool(scene.film_transparent), scene.tri_tangent is not None,
+            sorted({np.asarray(t).shape[-1] for t in scene.textures}))
+
+
+def job_key(job) -> str:
+    """Key of a render job's kernels (:func:`render_job`): its settings but
+    the seed and budget, its AOV passes and :func:`_scene_kinds`."""
+    scene, st, passes = (tuple(job) + ((),))[:3]
+    feats = (st.replace(seed=0).image_digest(), tuple(passes), _scene_kinds(scene))
+    return hashlib.sha256(repr(feats).encode()).hexdigest()[:16]
+
+
+# --- which kernels a warm-up compiled, and loading them here ---------------
+
+def _dispatchers():
+    """(``module:name``, dispatcher) of every kernel of this package's loaded modules."""
+    from numba.core.registry import CPUDispatcher
+    prefix, seen = __package__, set()
+    for name, mod in list(sys.modules.items()):
+        if mod is None or not (name == prefix or name.startswith(prefix + ".")):
+            continue
+        for attr, d in list(vars(mod).items()):
+            if isinstance(d, CPUDispatcher) and id(d) not in seen:
+                seen.add(id(d))
+                yield f"{name}:{attr}", d
+
+
+def used_kernels() -> dict:
+    """{``module:name``: [argument types, ...]} of every kernel compiled or
+    loaded in this process (what :func:`load_kernels` takes)."""
+    return {k: list(d.signatures) for k, d in _dispatchers() if d.signatures}
+
+
+def compiled_count() -> int:
+    """How many kernel signatures this process compiled (not loaded from disk)."""
+    return sum(sum(d.stats.cache_misses.values()) for _k, d in _dispatchers())
+
+
+def load_kernels(kernels: dict, should_stop: Optional[Callable[[], bool]] = None) -> int:
+    """Load the kernels of :func:`used_kernels` (recorded by another process
+    under the same module names) from the disk cache into this process, so
+    that the render calling them does not; returns how many.  A kernel that
+    is not on disk compiles here (as its first call would)."""
+    import importlib
+
+    from .errors import RenderCancelled
+    n = 0
+    for key, sigs in kernels.items():
+        mod, attr = key.split(":")
+        try:
+            d = getattr(importlib.import_module(mod), attr)
+        except (ImportError, AttributeError):
+            continue
+        for sig in sigs:
+            if should_stop is not None and should_stop():
+                raise RenderCancelled("cancelled")
+            if tuple(sig) not in d.overloads:
+                d.compile(tuple(sig))
+                n += 1
+    return n
+
+
+def _pack(kernels: dict) -> str:
+    """:func:`used_kernels` as text for a marker (numba types pickle)."""
+    ok = {}
+    for k, sigs in kernels.items():
+        try:
+            pickle.dumps(sigs)
+            ok[k] = sigs
+        except Exception:       # noqa: BLE001 - such a kernel just loads at its first call
+            continue
+    return base64.b64encode(pickle.dumps(ok, protocol=4)).decode()
+
+
+def _unpack(text: str) -> dict:
+    try:
+        return pickle.loads(base64.b64decode(text))
+    except Exception:           # noqa: BLE001 - a damaged marker: load nothing
+        return {}
+
+
+# Run by Warmup._compile_in_child: load the package under the parent's module
+# name (stub parents for a dotted name such as bl_ext.user_default.fppm), then
+# compile the groups of the spec file (child_main).  It ends with its parent
+# (a quit Blender, an interrupted CLI).
 _CHILD = r"""
 import importlib, importlib.util, os, sys, threading, time, types
 name, root = sys.argv[1], sys.argv[2]
@@ -235,8 +359,44 @@ spec = importlib.util.spec_from_file_location(name, os.path.join(root, "__init__
 pkg = importlib.util.module_from_spec(spec)
 sys.modules[name] = pkg
 spec.loader.exec_module(pkg)
-importlib.import_module(name + ".core.warmup").compile_kernels()
+W = importlib.import_module(name + ".core.warmup")
+W.child_main(sys.argv[3], sys.argv[4])
 """
+
+
+def _dump(path: str, obj) -> None:
+    """Pickle ``obj`` to ``path`` atomically (a reader never sees half a file)."""
+    tmp = f"{path}.{os.getpid()}.tmp"
+    with open(tmp, "wb") as f:
+        pickle.dump(obj, f, protocol=pickle.HIGHEST_PROTOCOL)
+    os.replace(tmp, path)
+
+
+def child_main(spec_path: str, out_dir: str) -> None:
+    """The compiling process: for each group of the spec (``{"jobs": [...]
+    or None for warmup_jobs(), "nice": bool}``) render its jobs, then write
+    ``<out_dir>/<i>.pkl``: seconds, CPU seconds, kernels compiled (not
+    loaded) and :func:`used_kernels`, for the parent to load them while this
+    process goes on with the next group."""
+    with open(spec_path, "rb") as f:
+        groups = pickle.load(f)
+    before = compiled_count()
+    for i, g in enumerate(groups):
+        if g["nice"] and hasattr(os, "nice"):
+            try:
+                os.nice(10)     # the rest: behind the render that now runs
+            except OSError:
+                pass
+        t0, c0 = time.perf_counter(), time.process_time()
+        if g["jobs"] is None:
+            compile_kernels()
+        else:
+            run_jobs(g["jobs"])
+        n = compiled_count()
+        _dump(os.path.join(out_dir, f"{i}.pkl"),
+              {"seconds": time.perf_counter() - t0, "cpu": time.process_time() - c0,
+               "compiled": n - before, "kernels": used_kernels()})
+        before = n
 
 
 def package_name() -> str:
@@ -244,12 +404,8 @@ def package_name() -> str:
     return __name__.rsplit(".core.warmup", 1)[0]
 
 
-def compile_in_subprocess(should_stop: Optional[Callable[[], bool]] = None,
-                          poll: float = 0.05) -> float:
-    """:func:`compile_kernels` in a child Python filling this process's kernel
-    cache; returns its seconds.  Raises RenderCancelled (the child is killed)
-    when ``should_stop()``, RuntimeError when the child fails."""
-    from .errors import RenderCancelled
+def _child_command() -> tuple:
+    """(cache root, environment) of a compiling child; RuntimeError when none can run."""
     root = _numba_cache.cache_dir()
     if root is None:
         raise RuntimeError("no writable kernel cache folder")
@@ -259,47 +415,7 @@ def compile_in_subprocess(should_stop: Optional[Callable[[], bool]] = None,
         raise RuntimeError(f"{sys.executable!r} is not a Python interpreter")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p),
                **{_numba_cache.ENV_VAR: root})
-    t0 = time.perf_counter()
-    # Its own process group: Ctrl-C in the CLI's terminal stops the render
-    # (which polls), not the compile that the next render needs.
-    group = ({"creationflags": subprocess.CREATE_NEW_PROCESS_GROUP} if sys.platform == "win32"
-             else {"start_new_session": True})
-    with tempfile.TemporaryFile() as log:     # a file: a full pipe would block the child
-        proc = subprocess.Popen([sys.executable, "-c", _CHILD, package_name(),
-                                 os.path.dirname(_CORE)], stdin=subprocess.DEVNULL,
-                                stdout=subprocess.DEVNULL, stderr=log, env=env, cwd=root, **group)
-        try:
-            while proc.poll() is None:
-                if should_stop is not None and should_stop():
-                    raise RenderCancelled("cancelled")
-                time.sleep(poll)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
-        log.seek(0)
-        err = log.read().decode(errors="replace")
-    if proc.returncode != 0:
-        raise RuntimeError(f"the compiling process ended with code {proc.returncode}: "
-                           f"{err.strip().splitlines()[-1] if err.strip() else 'no message'}")
-    return time.perf_counter() - t0
-
-
-def compile_then_load(should_stop: Optional[Callable[[], bool]] = None) -> float:
-    """The warm-up of :class:`Warmup`: on a first use a subprocess compiles,
-    then this process loads the kernels (see the module docstring); seconds."""
-    from .errors import RenderCancelled
-    t0 = time.perf_counter()
-    if not is_compiled():
-        try:
-            compile_in_subprocess(should_stop)
-        except RenderCancelled:
-            raise
-        except (OSError, RuntimeError) as ex:
-            print(f"FPPM: compiling the kernels in a separate process failed ({ex}); "
-                  f"compiling them in this one.")
-    compile_kernels(should_stop)
-    return time.perf_counter() - t0
+    return root, env
 
 
 def source_key() -> str:
@@ -321,137 +437,354 @@ def source_key() -> str:
     return h.hexdigest()[:16]
 
 
-def _marker_path() -> Optional[str]:
-    root = _numba_cache.cache_dir()
-    return None if root is None else os.path.join(root, "numba", f"warmup-{source_key()}.json")
+ALL = "all"
+"""The key of the warm-up of every variant (:func:`warmup_jobs`)."""
 
 
-def last_compile_seconds() -> Optional[float]:
-    """Seconds of the last complete first-use compile on this machine (any
-    version), or None when there was none."""
+def _marker_path(key: str = ALL) -> Optional[str]:
     root = _numba_cache.cache_dir()
     if root is None:
         return None
+    tail = "" if key == ALL else f"-{key}"
+    return os.path.join(root, "numba", f"warmup-{source_key()}{tail}.json")
+
+
+def _read_marker(key: str = ALL) -> Optional[dict]:
+    p = _marker_path(key)
+    try:
+        with open(p) as f:
+            return json.load(f)
+    except (OSError, TypeError, ValueError):
+        return None
+
+
+def _markers() -> list:
+    """Contents of every warm-up marker of this cache (any source version)."""
+    root = _numba_cache.cache_dir()
+    if root is None:
+        return []
     folder = os.path.join(root, "numba")
-    best = None
     try:
         names = [n for n in os.listdir(folder) if n.startswith("warmup-") and n.endswith(".json")]
     except OSError:
-        return None
+        return []
+    out = []
     for n in names:
         try:
             with open(os.path.join(folder, n)) as f:
                 d = json.load(f)
-            if d.get("cold"):
-                best = max(best or 0.0, float(d["seconds"]))
-        except (OSError, ValueError, KeyError, TypeError):
+            out.append((d.get("job", ALL), bool(d.get("cold")), float(d["seconds"])))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
             continue
-    return best
+    return out
 
 
-def is_compiled() -> bool:
-    """True when this source version finished a warm-up on this machine (the
-    kernels are on disk: loading them takes seconds, not a compile)."""
-    p = _marker_path()
-    return p is not None and os.path.exists(p)
+def last_compile_seconds(job=None) -> Optional[float]:
+    """Seconds of the last complete first-use compile on this machine (any
+    version) of ``job`` (:func:`render_job`; None: every variant), or None
+    when there was none.  For a job never compiled here: the longest compile
+    of any render's job."""
+    key = ALL if job is None else job_key(job)
+    cold = [(k, s) for k, c, s in _markers() if c]
+    best = [s for k, s in cold if k == key] or [s for k, s in cold if key != ALL and k != ALL]
+    return max(best) if best else None
 
 
-def expected_seconds() -> float:
-    """About how long a first-use compile will take here (for the message)."""
-    return last_compile_seconds() or DEFAULT_COMPILE_SECONDS
+def is_compiled(job=None) -> bool:
+    """True when this source version finished a warm-up of ``job`` (None:
+    of every variant) on this machine: its kernels are on disk, loading them
+    takes seconds, not a compile."""
+    for key in ((ALL,) if job is None else (job_key(job), ALL)):
+        p = _marker_path(key)
+        if p is not None and os.path.exists(p):
+            return True
+    return False
 
 
-def _write_marker(seconds: float, cold: bool) -> None:
-    p = _marker_path()
+def expected_seconds(job=None) -> float:
+    """About how long a first-use compile of ``job`` (None: every variant)
+    will take here (for the message)."""
+    return last_compile_seconds(job) or (DEFAULT_COMPILE_SECONDS if job is None
+                                         else DEFAULT_JOB_SECONDS)
+
+
+def _write_marker(key: str, seconds: float, cold: bool, kernels: Optional[dict] = None) -> None:
+    p = _marker_path(key)
     if p is None:
         return
+    d = {"seconds": seconds, "cold": cold, "job": key}
+    if kernels:
+        d["kernels"] = _pack(kernels)
     try:
         os.makedirs(os.path.dirname(p), exist_ok=True)
         tmp = p + f".{os.getpid()}.tmp"
         with open(tmp, "w") as f:
-            json.dump({"seconds": seconds, "cold": cold}, f)
+            json.dump(d, f)
         os.replace(tmp, p)
     except OSError:
         pass      # an unwritable cache only costs the message's estimate
 
 
-class Warmup:
-    """The once-per-process background compile.
+class _Group:
+    """One unit of the warm-up: a render's job (key :func:`job_key`) or
+    every variant (key :data:`ALL`, jobs None: :func:`warmup_jobs`)."""
 
-    ``start()`` launches it (idempotent); ``wait(should_stop)`` blocks until it
-    ends or ``should_stop()``; afterwards ``done``, ``error`` (the exception
-    text, or None), ``seconds`` and ``was_cold`` (a compile, not a load).
-    ``stop()`` asks it to end at the next poll (unregister, tests).
-    ``compile(should_stop) -> seconds`` is :func:`compile_then_load` (tests
-    pass a stand-in).
-    """
-
-    def __init__(self, compile: Callable = None):
-        self._compile = compile or compile_then_load
-        self._lock = threading.Lock()
-        self._thread: Optional[threading.Thread] = None
-        self._done = threading.Event()
-        self._stop = threading.Event()
+    def __init__(self, key: str, jobs):
+        self.key, self.jobs = key, jobs
+        self.event = threading.Event()
         self.error: Optional[str] = None
         self.seconds: Optional[float] = None
         self.was_cold: Optional[bool] = None
+
+
+class Warmup:
+    """The once-per-process background compile, in one thread.
+
+    ``start()`` asks for every variant (:func:`warmup_jobs`; idempotent);
+    ``wait(should_stop)`` blocks until that ends or ``should_stop()``;
+    afterwards ``done``, ``error`` (the exception text, or None), ``seconds``
+    and ``was_cold`` (a compile, not a load).  ``wait_for(job, ...)`` asks
+    for one render's job (:func:`render_job`) before anything else and
+    blocks until its kernels are loaded here (``rest``: every variant
+    follows it, in the same compiling process at a lower priority).
+    ``stop()`` asks the thread to end at the next poll (unregister, tests).
+    ``compile(should_stop) -> seconds`` stands in for the whole warm-up
+    (tests): any request then runs it and finishes everything.
+    """
+
+    def __init__(self, compile: Callable = None):
+        self._compile = compile
+        self._lock = threading.Lock()
+        self._thread: Optional[threading.Thread] = None
+        self._exiting = False
+        self._all = _Group(ALL, None)
+        self._want_all = False
+        self._jobs: dict = {}             # job key -> _Group, in request order
+        self._stop = threading.Event()
+        self._kick = threading.Event()    # a new job: restart the child with it first
         self.started_at: Optional[float] = None
 
-    @property
-    def done(self) -> bool:
-        return self._done.is_set()
+    done = property(lambda self: self._all.event.is_set())
+    error = property(lambda self: self._all.error)
+    seconds = property(lambda self: self._all.seconds)
+    was_cold = property(lambda self: self._all.was_cold)
 
     @property
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
+    def _ensure_thread(self) -> None:
+        """Start the thread unless it runs (call with the lock held)."""
+        if self.running and not self._exiting:
+            return
+        if self._thread is not None:
+            self._thread.join()       # it is ending: it holds no lock and takes none
+        self._stop.clear()
+        self._exiting = False
+        self.started_at = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name="fppm-warmup", daemon=True)
+        self._thread.start()
+
     def start(self) -> None:
         with self._lock:
-            if self._done.is_set() or self.running:
-                return
-            self._stop.clear()
-            self.started_at = time.monotonic()
-            self._thread = threading.Thread(target=self._run, name="fppm-warmup", daemon=True)
-            self._thread.start()
+            self._want_all = True
+            if not self.done:
+                self._ensure_thread()
 
     def stop(self) -> None:
         self._stop.set()
 
+    def ready(self, job) -> bool:
+        """True when ``job``'s kernels (or every variant's) are loaded here."""
+        if self.done:
+            return True
+        g = self._jobs.get(job_key(job))
+        return g is not None and g.event.is_set()
+
+    def job_error(self, job) -> Optional[str]:
+        """Why ``job``'s warm-up failed (its text), or None."""
+        g = self._jobs.get(job_key(job))
+        return g.error if g is not None and g.event.is_set() else self.error
+
+    def jobs_status(self) -> list:
+        """{"key", "done", "error", "seconds", "was_cold"} of each render job
+        asked for in this process, in request order."""
+        return [{"key": g.key, "done": g.event.is_set(), "error": g.error, "seconds": g.seconds,
+                 "was_cold": g.was_cold} for g in list(self._jobs.values())]
+
     def _run(self) -> None:
         from .errors import FPPMError, RenderCancelled
-        try:
-            cold = not is_compiled()
-            secs = self._compile(should_stop=self._stop.is_set)
-            if self._stop.is_set():
-                return                 # stopped: a later start() begins again
-            self.seconds, self.was_cold = secs, cold
-            _write_marker(secs, cold)
-            self._done.set()
-        except RenderCancelled:
-            pass                       # stopped: a later start() begins again
-        except FPPMError as ex:        # a user-facing condition (e.g. memory): the
-            self.error = str(ex)       # render that follows says it again, clearly
-            self._done.set()
-        except Exception as ex:        # noqa: BLE001 - reported by the caller
-            self.error = f"{type(ex).__name__}: {ex}"
-            traceback.print_exc()
-            self._done.set()
+        while True:
+            with self._lock:
+                groups = [g for g in self._jobs.values() if not g.event.is_set()]
+                if self._want_all and not self._all.event.is_set():
+                    groups.append(self._all)
+                if self._stop.is_set() or not groups:
+                    self._exiting = True
+                    return
+                self._kick.clear()
+            try:
+                self._work(groups)
+            except RenderCancelled:
+                continue                   # stopped (the loop ends) or a new job first
+            except FPPMError as ex:        # a user-facing condition (e.g. memory): the
+                self._fail(groups, str(ex))    # render that follows says it again, clearly
+            except Exception as ex:        # noqa: BLE001 - reported by the caller
+                traceback.print_exc()
+                self._fail(groups, f"{type(ex).__name__}: {ex}")
 
-    def wait(self, should_stop: Optional[Callable[[], bool]] = None,
-             on_wait: Optional[Callable[[float], None]] = None, poll: float = 0.05) -> bool:
-        """Start if needed and block until done; True when done, False when
-        ``should_stop()`` returned True first.  ``on_wait(seconds waited)``
-        is called at every poll (progress display)."""
-        self.start()
+    @staticmethod
+    def _fail(groups, msg: str) -> None:
+        for g in groups:
+            if not g.event.is_set():
+                g.error = msg
+                g.event.set()
+
+    def _finish(self, g: _Group, seconds: float, cold: bool, kernels: Optional[dict]) -> None:
+        g.seconds, g.was_cold = seconds, cold
+        _write_marker(g.key, seconds, cold, kernels)
+        g.event.set()
+
+    def _interrupted(self) -> bool:
+        return self._stop.is_set() or self._kick.is_set()
+
+    def _work(self, groups: list) -> None:
+        from .errors import RenderCancelled
+        if self._compile is not None:          # a stand-in for the whole warm-up
+            cold = not is_compiled()
+            secs = self._compile(should_stop=self._interrupted)
+            if self._interrupted():
+                raise RenderCancelled("interrupted")
+            for g in set(groups) | {self._all}:
+                self._finish(g, secs, cold, None)
+            return
+        pending = []
+        for g in groups:
+            m = _read_marker(g.key)
+            kernels = _unpack(m["kernels"]) if m and m.get("kernels") else None
+            if not kernels:
+                pending.append(g)
+                continue
+            t0 = time.perf_counter()           # compiled before: load what it lists
+            load_kernels(kernels, self._stop.is_set)
+            g.seconds, g.was_cold = time.perf_counter() - t0, False
+            g.event.set()
+        if not pending:
+            return
+        try:
+            self._compile_in_child(pending)
+        except RenderCancelled:
+            raise
+        except (OSError, RuntimeError) as ex:
+            print(f"FPPM: compiling the kernels in a separate process failed ({ex}); "
+                  f"compiling them in this one.")
+            for g in pending:
+                if g.event.is_set():
+                    continue
+                t0, n0 = time.perf_counter(), compiled_count()
+                if g.jobs is None:
+                    compile_kernels(self._interrupted)
+                else:
+                    run_jobs(g.jobs, self._interrupted)
+                self._finish(g, time.perf_counter() - t0, compiled_count() > n0, used_kernels())
+
+    def _compile_in_child(self, groups: list, poll: float = 0.05) -> None:
+        """The groups' jobs in a child Python filling this process's kernel
+        cache (:func:`child_main`); as each group ends this thread loads its
+        kernels, while the child goes on with the next.  Raises
+        RenderCancelled (the child is killed) when stopped or a new job comes
+        first, RuntimeError when the child fails."""
+        from .errors import RenderCancelled
+        root, env = _child_command()
+        # Its own process group: Ctrl-C in the CLI's terminal stops the render
+        # (which polls), not the compile that the next render needs.
+        group = ({"creationflags": subprocess.CREATE_NEW_PROCESS_GROUP} if sys.platform == "win32"
+                 else {"start_new_session": True})
+        after_job = False
+        spec = []
+        for g in groups:
+            spec.append({"jobs": g.jobs, "nice": g.jobs is None and after_job})
+            after_job = after_job or g.jobs is not None
+        with tempfile.TemporaryDirectory(dir=root) as tmp, \
+                tempfile.TemporaryFile() as log:   # a file: a full pipe would block the child
+            spec_path = os.path.join(tmp, "spec.pkl")
+            _dump(spec_path, spec)
+            proc = subprocess.Popen([sys.executable, "-c", _CHILD, package_name(),
+                                     os.path.dirname(_CORE), spec_path, tmp],
+                                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                    stderr=log, env=env, cwd=root, **group)
+            done = 0
+            try:
+                while done < len(groups):
+                    ended = proc.poll() is not None
+                    out = os.path.join(tmp, f"{done}.pkl")
+                    if os.path.exists(out):
+                        with open(out, "rb") as f:
+                            rec = pickle.load(f)
+                        load_kernels(rec["kernels"], self._stop.is_set)
+                        self._finish(groups[done], rec["seconds"], rec["compiled"] > 0,
+                                     rec["kernels"])
+                        done += 1
+                        continue
+                    if ended:
+                        break
+                    if self._interrupted():
+                        raise RenderCancelled("cancelled")
+                    time.sleep(poll)
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+                proc.wait()
+            if done < len(groups):
+                log.seek(0)
+                err = log.read().decode(errors="replace").strip()
+                raise RuntimeError(f"the compiling process ended with code {proc.returncode}: "
+                                   f"{err.splitlines()[-1] if err else 'no message'}")
+
+    def _wait_group(self, g: _Group, should_stop, on_wait, poll: float, restart) -> bool:
         t0 = time.monotonic()
-        while not self._done.wait(poll):
+        while not g.event.wait(poll):
+            if g is not self._all and self.done:
+                return True
             if should_stop is not None and should_stop():
                 return False
-            if not self.running and not self._done.is_set():
-                self.start()           # stopped by stop(): begin again
+            if not self.running or self._exiting:
+                restart()              # stopped by stop(): begin again
             if on_wait is not None:
                 on_wait(time.monotonic() - t0)
         return True
+
+    def wait(self, should_stop: Optional[Callable[[], bool]] = None,
+             on_wait: Optional[Callable[[float], None]] = None, poll: float = 0.05) -> bool:
+        """Start if needed and block until every variant is done; True when
+        done, False when ``should_stop()`` returned True first.
+        ``on_wait(seconds waited)`` is called at every poll (progress display)."""
+        self.start()
+        return self._wait_group(self._all, should_stop, on_wait, poll, self.start)
+
+    def wait_for(self, job, should_stop: Optional[Callable[[], bool]] = None,
+                 on_wait: Optional[Callable[[float], None]] = None, rest: bool = True,
+                 poll: float = 0.05) -> bool:
+        """Compile (or load) ``job``'s kernels (:func:`render_job`) before any
+        other and block until they are loaded here; True when done (also
+        when every variant already is), False when ``should_stop()`` returned
+        True first (the compile goes on).  rest: every variant follows
+        (Blender: the next render with other settings is warm too); False in
+        a one-shot render (the CLI), which does not wait for them."""
+        if self.done:
+            return True
+        key = job_key(job)
+
+        def request():
+            with self._lock:
+                if key not in self._jobs:
+                    self._jobs[key] = _Group(key, [job])
+                    self._kick.set()
+                if rest:
+                    self._want_all = True
+                self._ensure_thread()
+        request()
+        return self._wait_group(self._jobs[key], should_stop, on_wait, poll, request)
 
 
 warmup = Warmup()

@@ -186,7 +186,8 @@ im.file_format, im.color_depth, im.color_mode, im.exr_codec = 'OPEN_EXR', '32', 
 bpy.data.images["Render Result"].save_render(filepath=out, scene=sc)
 print("RENDERED", out)
 kernels = os.path.join(W._numba_cache.cache_dir(), "numba")
-print("WARMUP", json.dumps({"done": W.warmup.done, "error": W.warmup.error,
+job = W.warmup.jobs_status()[-1]       # the render's own kernels (core/warmup.py)
+print("WARMUP", json.dumps({"done": job["done"], "error": job["error"],
                             "cached": sorted(n for n in os.listdir(kernels)
                                              if n.startswith("bl_ext.user_default.fppm.core."))}))
 """

@@ -223,15 +223,14 @@ SMALL_JOBS = ("lambda: [(W.warmup_scene(res=8, glossy=False), S.RenderSettings("
 # instead of warmup_jobs() (also tests/test_addon_install.py).
 USE_JOBS = r"""
 W.warmup_jobs = eval(SMALL)
-CALL = 'importlib.import_module(name + ".core.warmup").compile_kernels()'
+CALL = 'W.child_main('
 assert CALL in W._CHILD
-W._CHILD = W._CHILD.replace(CALL, "W = importlib.import_module(name + '.core.warmup'); "
-                            "S = importlib.import_module(name + '.core.settings'); "
-                            "W.warmup_jobs = " + SMALL + "; W.compile_kernels()")
+W._CHILD = W._CHILD.replace(CALL, "S = importlib.import_module(name + '.core.settings'); "
+                            "W.warmup_jobs = " + SMALL + "; W.child_main(")
 """
 
 FIRST_USE = r"""
-import json, sys, time
+import json, sys, threading, time
 sys.path.insert(0, sys.argv[1])
 import fppm_alias  # noqa
 import fppm.core.settings as S
@@ -239,10 +238,14 @@ import fppm.core.warmup as W
 from fppm.core.warmup import warmup
 SMALL = sys.argv[2]
 """ + USE_JOBS + r"""
-t0 = time.perf_counter()
-warmup.start()
+# A render's own job, here the very scene and settings of SMALL (so that
+# every variant, which follows in the same child, only loads them).
+scene, st = eval(SMALL)()[0]
+job = W.render_job(scene, st)
+ok = []
+threading.Thread(target=lambda: ok.append(warmup.wait_for(job, rest=True))).start()
 last, gaps = time.perf_counter(), []
-while not warmup.done:
+while not ok:
     time.sleep(0.001)
     now = time.perf_counter()
     gaps.append(now - last)
@@ -251,35 +254,49 @@ from numba.core.registry import CPUDispatcher
 compiled_here = sorted(f"{n}.{k}" for n, m in list(sys.modules.items()) if n.startswith("fppm.core")
                        for k, v in vars(m).items()
                        if isinstance(v, CPUDispatcher) and v.stats.cache_misses)
-print(json.dumps({"error": warmup.error, "cold": warmup.was_cold, "max_gap": max(gaps),
-                  "compiled_here": compiled_here}))
+# The render itself, three passes: every kernel it calls is already loaded.
+from fppm.core.render import Renderer
+n0 = W.compiled_count()
+Renderer(scene, st.replace(max_passes=3), log=lambda m: None).run()
+in_render = W.compiled_count() - n0
+all_done = warmup.wait()
+print(json.dumps({"ok": ok, "job": warmup.jobs_status()[0], "max_gap": max(gaps),
+                  "compiled_here": compiled_here, "compiled_in_render": in_render,
+                  "all": [all_done, warmup.error], "job_compiled": W.is_compiled(job)}))
 """
 
 
 def test_first_use_compiles_in_a_subprocess_and_keeps_this_process_responsive(tmp_path):
-    # Empty cache: the kernels compile in a child process (under this
-    # process's module names, into the same cache), this process only loads
-    # them: nothing compiles here, and a 1 ms sleep loop on the main thread
-    # never waits long (no GIL or garbage-collector pauses from the compiler).
+    # Empty cache: a render's own kernels compile in a child process (under
+    # this process's module names, into the same cache), this process only
+    # loads them: nothing compiles here, neither during the warm-up nor in
+    # the render's passes after it (the job covers the render), and a 1 ms
+    # sleep loop on the main thread never waits long (no GIL or
+    # garbage-collector pauses from the compiler).  Every variant follows in
+    # the same child.
     env = dict(os.environ, FPPM_CACHE_DIR=str(tmp_path / "cache"))
     p = subprocess.run([PY, "-c", FIRST_USE, os.path.join(ROOT, "tests"), SMALL_JOBS],
                        capture_output=True,
                        text=True, timeout=1200, cwd=str(tmp_path), env=env)
     assert p.returncode == 0, p.stderr[-3000:]
     out = __import__("json").loads(p.stdout.strip().splitlines()[-1])
-    assert out["error"] is None and out["cold"] is True
+    assert out["ok"] == [True] and out["job_compiled"], out
+    assert out["job"]["done"] and out["job"]["error"] is None and out["job"]["was_cold"], out
     assert out["compiled_here"] == []
+    assert out["compiled_in_render"] == 0
+    assert out["all"] == [True, None]
     assert out["max_gap"] < 0.25, out["max_gap"]
 
 
-def test_without_a_python_executable_the_thread_compiles(monkeypatch, capsys):
+def test_without_a_python_executable_the_thread_compiles(monkeypatch, capsys, tmp_path):
     # Never start something that is not Python (an old Blender's
     # sys.executable was Blender itself): compile in this process instead.
     from fppm.core import warmup as W
     calls = []
+    monkeypatch.setenv("FPPM_CACHE_DIR", str(tmp_path))
     monkeypatch.setattr(sys, "executable", "/opt/blender/blender")
-    monkeypatch.setattr(W, "is_compiled", lambda: False)
     monkeypatch.setattr(W, "compile_kernels", lambda should_stop=None: calls.append(1))
-    W.compile_then_load()
+    w = W.Warmup()
+    assert w.wait() is True and w.error is None
     assert calls == [1]
     assert "is not a Python interpreter" in capsys.readouterr().out
