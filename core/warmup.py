@@ -44,6 +44,7 @@ import hashlib
 import json
 import os
 import pickle
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -237,9 +238,10 @@ def render_job(scene, settings: RenderSettings, passes: tuple = ()) -> tuple:
 
 def _scene_kinds(scene) -> tuple:
     """What of a scene selects kernels: the kinds of its materials, lights,
-    camera and world and its resolution, not their values (two scenes alike
-    in these call the same kernels; a wrong guess only leaves a compile to
-    the first pass, as before the warm-up)."""
+    camera and world, not their values, and its pixel count's power of two
+    (the stages' thread thresholds are powers of two: ``PARALLEL_MIN``...);
+    two scenes alike in these call the same kernels.  A wrong guess only
+    leaves a compile to the first pass, as before the warm-up."""
     lobes = sorted({(lb.kind, lb.roughness == 0.0, lb.color_texture >= 0, bool(lb.multiscatter),
                      lb.fresnel, lb.layer_ior > 0.0, getattr(lb, "alpha_texture", -1) >= 0)
                     for m in scene.materials for lb in m.lobes})
@@ -248,7 +250,8 @@ def _scene_kinds(scene) -> tuple:
     lights = sorted({(lt.kind, lt.shape, lt.radius > 0.0, bool(lt.use_soft_falloff))
                      for lt in scene.lights})
     cam = scene.camera
-    return (lobes, mats, lights, cam.kind, tuple(cam.resolution), cam.border is not None,
+    pixels = int(cam.resolution[0]) * int(cam.resolution[1])
+    return (lobes, mats, lights, cam.kind, pixels.bit_length(), cam.border is not None,
             bool(np.any(np.asarray(scene.world_color) > 0)), scene.world_map is not None,
             bool(scene.film_transparent), scene.tri_tangent is not None,
             sorted({np.asarray(t).shape[-1] for t in scene.textures}))
@@ -331,10 +334,10 @@ def _unpack(text: str) -> dict:
         return {}
 
 
-# Run by Warmup._compile_in_child: load the package under the parent's module
-# name (stub parents for a dotted name such as bl_ext.user_default.fppm), then
-# compile the groups of the spec file (child_main).  It ends with its parent
-# (a quit Blender, an interrupted CLI).
+# Run by _Child: load the package under the parent's module name (stub parents
+# for a dotted name such as bl_ext.user_default.fppm), then compile the groups
+# the parent hands it (child_main).  It ends with its parent (a quit Blender,
+# an interrupted CLI) or after CHILD_IDLE_SECONDS without work.
 _CHILD = r"""
 import importlib, importlib.util, os, sys, threading, time, types
 name, root = sys.argv[1], sys.argv[2]
@@ -360,8 +363,11 @@ pkg = importlib.util.module_from_spec(spec)
 sys.modules[name] = pkg
 spec.loader.exec_module(pkg)
 W = importlib.import_module(name + ".core.warmup")
-W.child_main(sys.argv[3], sys.argv[4])
+W.child_main(sys.argv[3])
 """
+CHILD_IDLE_SECONDS = 20.0
+"""A compiling child waits this long for the next group (the next render's
+job: a test suite's renders follow each other) before it ends."""
 
 
 def _dump(path: str, obj) -> None:
@@ -372,19 +378,26 @@ def _dump(path: str, obj) -> None:
     os.replace(tmp, path)
 
 
-def child_main(spec_path: str, out_dir: str) -> None:
-    """The compiling process: for each group of the spec (``{"jobs": [...]
-    or None for warmup_jobs(), "nice": bool}``) render its jobs, then write
-    ``<out_dir>/<i>.pkl``: seconds, CPU seconds, kernels compiled (not
-    loaded) and :func:`used_kernels`, for the parent to load them while this
-    process goes on with the next group."""
-    with open(spec_path, "rb") as f:
-        groups = pickle.load(f)
-    before = compiled_count()
-    for i, g in enumerate(groups):
+def child_main(folder: str, idle: float = CHILD_IDLE_SECONDS) -> None:
+    """The compiling process: for each group the parent writes
+    (``<folder>/spec-<i>.pkl``: ``{"jobs": [...] or None for warmup_jobs(),
+    "nice": bool}``) render its jobs, then write ``<folder>/<i>.pkl``:
+    seconds, CPU seconds, kernels compiled (not loaded) and
+    :func:`used_kernels`, for the parent to load.  Importing numba and the
+    renderer (seconds) is paid once for all the groups of a process."""
+    import gc
+    before, i = compiled_count(), 0
+    while True:
+        path, t = os.path.join(folder, f"spec-{i}.pkl"), time.monotonic()
+        while not os.path.exists(path):
+            if time.monotonic() - t > idle:
+                return
+            time.sleep(0.02)
+        with open(path, "rb") as f:
+            g = pickle.load(f)
         if g["nice"] and hasattr(os, "nice"):
             try:
-                os.nice(10)     # the rest: behind the render that now runs
+                os.nice(10)     # every variant: behind the render that now runs
             except OSError:
                 pass
         t0, c0 = time.perf_counter(), time.process_time()
@@ -392,11 +405,13 @@ def child_main(spec_path: str, out_dir: str) -> None:
             compile_kernels()
         else:
             run_jobs(g["jobs"])
+        del g
+        gc.collect()            # the job's scene and state: not kept while idle
         n = compiled_count()
-        _dump(os.path.join(out_dir, f"{i}.pkl"),
+        _dump(os.path.join(folder, f"{i}.pkl"),
               {"seconds": time.perf_counter() - t0, "cpu": time.process_time() - c0,
                "compiled": n - before, "kernels": used_kernels()})
-        before = n
+        before, i = n, i + 1
 
 
 def package_name() -> str:
@@ -416,6 +431,53 @@ def _child_command() -> tuple:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p),
                **{_numba_cache.ENV_VAR: root})
     return root, env
+
+
+class _Child:
+    """A compiling process (:func:`child_main`) taking one group after another."""
+
+    def __init__(self):
+        root, env = _child_command()
+        self.folder = tempfile.mkdtemp(prefix="warmup-", dir=root)
+        self.log = tempfile.TemporaryFile()   # a file: a full pipe would block the child
+        self.n = 0
+        # Its own process group: Ctrl-C in the CLI's terminal stops the render
+        # (which polls), not the compile that the next render needs.
+        group = ({"creationflags": subprocess.CREATE_NEW_PROCESS_GROUP}
+                 if sys.platform == "win32" else {"start_new_session": True})
+        self.proc = subprocess.Popen([sys.executable, "-c", _CHILD, package_name(),
+                                      os.path.dirname(_CORE), self.folder],
+                                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                     stderr=self.log, env=env, cwd=root, **group)
+
+    def submit(self, spec: dict) -> int:
+        _dump(os.path.join(self.folder, f"spec-{self.n}.pkl"), spec)
+        self.n += 1
+        return self.n - 1
+
+    def result(self, i: int):
+        """Group i's record, None while it runs; ``"idle"`` when the child
+        ended idle before it saw the group, RuntimeError when it failed."""
+        path = os.path.join(self.folder, f"{i}.pkl")
+        for _ in range(2):              # the record may come with the exit
+            if os.path.exists(path):
+                with open(path, "rb") as f:
+                    return pickle.load(f)
+            if self.proc.poll() is None:
+                return None
+        if self.proc.returncode == 0:
+            return "idle"
+        self.log.seek(0)
+        err = self.log.read().decode(errors="replace").strip()
+        raise RuntimeError(f"the compiling process ended with code {self.proc.returncode}: "
+                           f"{err.splitlines()[-1] if err else 'no message'}")
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        self.log.close()
+        shutil.rmtree(self.folder, ignore_errors=True)
 
 
 def source_key() -> str:
@@ -561,7 +623,8 @@ class Warmup:
         self._want_all = False
         self._jobs: dict = {}             # job key -> _Group, in request order
         self._stop = threading.Event()
-        self._kick = threading.Event()    # a new job: restart the child with it first
+        self._kick = threading.Event()    # a new job: it goes first
+        self._child: Optional[_Child] = None
         self.started_at: Optional[float] = None
 
     done = property(lambda self: self._all.event.is_set())
@@ -621,6 +684,8 @@ class Warmup:
                     groups.append(self._all)
                 if self._stop.is_set() or not groups:
                     self._exiting = True
+                    if self._stop.is_set():
+                        self._close_child()
                     return
                 self._kick.clear()
             try:
@@ -649,6 +714,8 @@ class Warmup:
         return self._stop.is_set() or self._kick.is_set()
 
     def _work(self, groups: list) -> None:
+        """The first of ``groups`` (the loop then orders the rest again: a
+        render's job asked for meanwhile goes first)."""
         from .errors import RenderCancelled
         if self._compile is not None:          # a stand-in for the whole warm-up
             cold = not is_compiled()
@@ -658,88 +725,63 @@ class Warmup:
             for g in set(groups) | {self._all}:
                 self._finish(g, secs, cold, None)
             return
-        pending = []
-        for g in groups:
-            m = _read_marker(g.key)
-            kernels = _unpack(m["kernels"]) if m and m.get("kernels") else None
-            if not kernels:
-                pending.append(g)
-                continue
+        g = groups[0]
+        m = _read_marker(g.key)
+        kernels = _unpack(m["kernels"]) if m and m.get("kernels") else None
+        if kernels:
             t0 = time.perf_counter()           # compiled before: load what it lists
             load_kernels(kernels, self._stop.is_set)
             g.seconds, g.was_cold = time.perf_counter() - t0, False
             g.event.set()
-        if not pending:
             return
         try:
-            self._compile_in_child(pending)
+            rec = self._compile_in_child(g)
         except RenderCancelled:
             raise
         except (OSError, RuntimeError) as ex:
             print(f"FPPM: compiling the kernels in a separate process failed ({ex}); "
                   f"compiling them in this one.")
-            for g in pending:
-                if g.event.is_set():
-                    continue
-                t0, n0 = time.perf_counter(), compiled_count()
-                if g.jobs is None:
-                    compile_kernels(self._interrupted)
-                else:
-                    run_jobs(g.jobs, self._interrupted)
-                self._finish(g, time.perf_counter() - t0, compiled_count() > n0, used_kernels())
+            t0, n0 = time.perf_counter(), compiled_count()
+            if g.jobs is None:
+                compile_kernels(self._interrupted)
+            else:
+                run_jobs(g.jobs, self._interrupted)
+            self._finish(g, time.perf_counter() - t0, compiled_count() > n0, used_kernels())
+            return
+        load_kernels(rec["kernels"], self._stop.is_set)
+        self._finish(g, rec["seconds"], rec["compiled"] > 0, rec["kernels"])
 
-    def _compile_in_child(self, groups: list, poll: float = 0.05) -> None:
-        """The groups' jobs in a child Python filling this process's kernel
-        cache (:func:`child_main`); as each group ends this thread loads its
-        kernels, while the child goes on with the next.  Raises
-        RenderCancelled (the child is killed) when stopped or a new job comes
-        first, RuntimeError when the child fails."""
+    def _compile_in_child(self, g: _Group, poll: float = 0.05) -> dict:
+        """Group g's jobs in the compiling child (:class:`_Child`, started
+        when none runs), which fills this process's kernel cache; returns its
+        record (:func:`child_main`).  Raises RenderCancelled when stopped, or
+        when a render's job comes while every variant compiles (the child is
+        killed: the job goes first, what was compiled stays on disk);
+        RuntimeError when the child fails."""
         from .errors import RenderCancelled
-        root, env = _child_command()
-        # Its own process group: Ctrl-C in the CLI's terminal stops the render
-        # (which polls), not the compile that the next render needs.
-        group = ({"creationflags": subprocess.CREATE_NEW_PROCESS_GROUP} if sys.platform == "win32"
-                 else {"start_new_session": True})
-        after_job = False
-        spec = []
-        for g in groups:
-            spec.append({"jobs": g.jobs, "nice": g.jobs is None and after_job})
-            after_job = after_job or g.jobs is not None
-        with tempfile.TemporaryDirectory(dir=root) as tmp, \
-                tempfile.TemporaryFile() as log:   # a file: a full pipe would block the child
-            spec_path = os.path.join(tmp, "spec.pkl")
-            _dump(spec_path, spec)
-            proc = subprocess.Popen([sys.executable, "-c", _CHILD, package_name(),
-                                     os.path.dirname(_CORE), spec_path, tmp],
-                                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                    stderr=log, env=env, cwd=root, **group)
-            done = 0
-            try:
-                while done < len(groups):
-                    ended = proc.poll() is not None
-                    out = os.path.join(tmp, f"{done}.pkl")
-                    if os.path.exists(out):
-                        with open(out, "rb") as f:
-                            rec = pickle.load(f)
-                        load_kernels(rec["kernels"], self._stop.is_set)
-                        self._finish(groups[done], rec["seconds"], rec["compiled"] > 0,
-                                     rec["kernels"])
-                        done += 1
-                        continue
-                    if ended:
-                        break
-                    if self._interrupted():
-                        raise RenderCancelled("cancelled")
-                    time.sleep(poll)
-            finally:
-                if proc.poll() is None:
-                    proc.kill()
-                proc.wait()
-            if done < len(groups):
-                log.seek(0)
-                err = log.read().decode(errors="replace").strip()
-                raise RuntimeError(f"the compiling process ended with code {proc.returncode}: "
-                                   f"{err.splitlines()[-1] if err else 'no message'}")
+        spec = {"jobs": g.jobs, "nice": g.jobs is None and bool(self._jobs)}
+        for attempt in range(2):
+            if self._child is None or self._child.proc.poll() is not None:
+                if self._child is not None:
+                    self._child.close()
+                self._child = _Child()
+            i = self._child.submit(spec)
+            while True:
+                rec = self._child.result(i)
+                if rec is not None:
+                    break
+                if self._stop.is_set() or (g.jobs is None and self._kick.is_set()):
+                    self._close_child()
+                    raise RenderCancelled("cancelled")
+                time.sleep(poll)
+            if rec != "idle":           # else it ended just before the spec came: again
+                return rec
+        raise RuntimeError("the compiling process ended before its work")
+
+    def _close_child(self) -> None:
+        if self._child is not None:
+            self._child.close()
+            self._child = None
 
     def _wait_group(self, g: _Group, should_stop, on_wait, poll: float, restart) -> bool:
         t0 = time.monotonic()
@@ -762,29 +804,35 @@ class Warmup:
         self.start()
         return self._wait_group(self._all, should_stop, on_wait, poll, self.start)
 
+    def request(self, job, rest: bool = True) -> None:
+        """Ask for ``job``'s kernels (:func:`render_job`) before anything not
+        asked for yet, without waiting (see :meth:`wait_for`)."""
+        if self.done:
+            return
+        key = job_key(job)
+        with self._lock:
+            if key not in self._jobs:
+                self._jobs[key] = _Group(key, [job])
+                self._kick.set()
+            if rest:
+                self._want_all = True
+            self._ensure_thread()
+
     def wait_for(self, job, should_stop: Optional[Callable[[], bool]] = None,
                  on_wait: Optional[Callable[[float], None]] = None, rest: bool = True,
                  poll: float = 0.05) -> bool:
-        """Compile (or load) ``job``'s kernels (:func:`render_job`) before any
-        other and block until they are loaded here; True when done (also
-        when every variant already is), False when ``should_stop()`` returned
-        True first (the compile goes on).  rest: every variant follows
-        (Blender: the next render with other settings is warm too); False in
-        a one-shot render (the CLI), which does not wait for them."""
+        """Compile (or load) ``job``'s kernels (:func:`render_job`) before
+        those of anything asked for later and block until they are loaded
+        here; True when done (also when every variant already is), False
+        when ``should_stop()`` returned True first (the compile goes on).
+        rest: every variant follows (Blender: the next render with other
+        settings is warm too); False in a one-shot render (the CLI), which
+        does not wait for them."""
         if self.done:
             return True
-        key = job_key(job)
-
-        def request():
-            with self._lock:
-                if key not in self._jobs:
-                    self._jobs[key] = _Group(key, [job])
-                    self._kick.set()
-                if rest:
-                    self._want_all = True
-                self._ensure_thread()
-        request()
-        return self._wait_group(self._jobs[key], should_stop, on_wait, poll, request)
+        self.request(job, rest)
+        return self._wait_group(self._jobs[job_key(job)], should_stop, on_wait, poll,
+                                lambda: self.request(job, rest))
 
 
 warmup = Warmup()
