@@ -1,20 +1,25 @@
-"""Compile every render kernel before the first render needs it.
+"""Compile a render's kernels before its first pass needs them: its own first.
 
 Numba compiles a kernel at its first call; on a machine with an empty cache
-that is most of a minute before the first pass (docs/interactive.md), inside
-pass 1, where it would count against the time limit and where Esc cannot
-interrupt it.  :func:`compile_kernels` instead renders tiny synthetic scenes
-through ``Renderer`` for one pass per settings variant (:func:`warmup_jobs`):
-a closed room with diffuse, rough glossy, mirror, glass and emissive
-surfaces and every light kind, so that the camera (``core.sppm.camera_kernels``),
-direct-light (``core.lights.direct_kernels``: every analytic light kind and
-emissive triangles), photon (Lambert, mirror, glass and generic closures),
-emission, frequency, occlusion, edge and gather kernels all compile.  With a warm on-disk cache the same call
-only loads them.
+that would happen inside pass 1, where it counts against the time limit and
+where Esc cannot interrupt it.  Instead, before the Renderer exists:
 
-:class:`Warmup` runs that once per process in a background thread, and on
-a first use (nothing compiled yet for these sources) has a subprocess do the
-compiling (:func:`compile_then_load`):
+- **the render's own job first** (:func:`render_job`): the exported scene and
+  settings of the render itself, for one pass, at its own resolution and
+  photon count, so the kernels compiled are exactly those its passes call,
+  and only those (docs/interactive.md: the demo's Cornell box, light tracing
+  alone, compiles 8 kernels in ~16 s instead of every variant's in ~130 s);
+- **then every variant** (:func:`warmup_jobs`: tiny synthetic scenes, a
+  closed room with diffuse, rough glossy, mirror, glass and emissive surfaces
+  and every light kind, one pass per settings variant, so that the camera,
+  direct-light, photon, emission, frequency, occlusion, edge and gather
+  kernels all compile), only when asked for (:meth:`Warmup.start`: Blender's
+  UI, so the next render with other settings is warm too), at a lower
+  priority, and never waited for by a one-shot render (the CLI, ``blender
+  -b``).  With a warm on-disk cache the same calls only load the kernels.
+
+:class:`Warmup` runs this in a background thread of the process, and has a
+subprocess do the compiling (:class:`_Child`, :func:`child_main`):
 
 - the compile runs in a separate process: numba's compiler is Python, and a
   compiling thread inside Blender holds the GIL and, worse, makes the cyclic
@@ -23,19 +28,25 @@ compiling (:func:`compile_then_load`):
   of every other Python thread, i.e. Blender's UI (docs/interactive.md).  A
   subprocess shares neither, and uses another core.  It imports ``core``
   under this process's very module name (``bl_ext.<repo>.fppm.core`` inside
-  Blender; the cache is keyed by it, ``core/_numba_cache.py``) and writes the
-  kernels to the same cache folder;
-- then this process's thread renders the same synthetic scenes, which now
-  only loads the kernels from disk (a few seconds), so that they are in
-  memory when the first render starts.  If the subprocess cannot run (no
-  usable Python executable), the thread compiles them itself.
-- :meth:`Warmup.wait` polls ``should_stop`` every 50 ms, so a render waiting
-  for the compile can be cancelled at once; the compile itself goes on in the
-  background (it is needed by the next render anyway).
+  Blender; the cache is keyed by it, ``core/_numba_cache.py``), writes the
+  kernels to the same cache folder, and takes one job after another (numba
+  and the renderer are imported once), ending 20 s after its last;
+- for each job the child records the kernels it holds and their argument
+  types (:func:`used_kernels`); this process's thread then loads exactly
+  those from disk (:func:`load_kernels`, ``Dispatcher.compile`` of a cached
+  signature: a load, well under a second for one render's kernels), so that
+  they are in memory when the first pass starts, and nothing compiles twice.
+  If the subprocess cannot run (no usable Python executable), the thread
+  compiles them itself;
+- :meth:`Warmup.wait_for` and :meth:`Warmup.wait` poll ``should_stop`` every
+  50 ms, so a render waiting for the compile can be cancelled at once; the
+  compile itself goes on in the background (the next render needs it).
 
-A marker file per source version (``warmup-<key>.json`` in the cache folder)
-records that a compile finished and how long it took, so callers can tell the
-user whether this is a first use and about how long it will take.
+A marker file per source version and job (``warmup-<source>[-<job>].json``
+in the cache folder) records that a compile finished, how long it took and
+the kernels it loaded, so that a later process loads them without a child,
+and callers can tell the user whether this is a first use and about how long
+it will take (the last measured compile of that job, :func:`expected_seconds`).
 """
 from __future__ import annotations
 
@@ -60,9 +71,10 @@ from .scene.model import DIFFUSE, GLASS, GLOSSY, Camera, Light, Lobe, Material, 
 from .settings import RenderSettings
 
 # Assumed length of a first compile when this machine never finished one
-# (used only for the message and the progress bar).
+# (used only for the message and the progress bar): every variant, and one
+# render's own job (docs/interactive.md: 16-60 s for the example scenes).
 DEFAULT_COMPILE_SECONDS = 60.0
-DEFAULT_JOB_SECONDS = 60.0
+DEFAULT_JOB_SECONDS = 30.0
 _CORE = os.path.dirname(os.path.abspath(__file__))
 
 
@@ -544,12 +556,15 @@ def _markers() -> list:
 def last_compile_seconds(job=None) -> Optional[float]:
     """Seconds of the last complete first-use compile on this machine (any
     version) of ``job`` (:func:`render_job`; None: every variant), or None
-    when there was none.  For a job never compiled here: the longest compile
-    of any render's job."""
+    when there was none.  For a job never compiled here: the median of the
+    other renders' jobs (they range from seconds to minutes: docs/interactive.md)."""
     key = ALL if job is None else job_key(job)
     cold = [(k, s) for k, c, s in _markers() if c]
-    best = [s for k, s in cold if k == key] or [s for k, s in cold if key != ALL and k != ALL]
-    return max(best) if best else None
+    same = [s for k, s in cold if k == key]
+    if same:
+        return max(same)
+    other = sorted(s for k, s in cold if key != ALL and k != ALL)
+    return other[len(other) // 2] if other else None
 
 
 def is_compiled(job=None) -> bool:
@@ -570,11 +585,12 @@ def expected_seconds(job=None) -> float:
                                          else DEFAULT_JOB_SECONDS)
 
 
-def _write_marker(key: str, seconds: float, cold: bool, kernels: Optional[dict] = None) -> None:
+def _write_marker(key: str, seconds: float, cold: bool, kernels: Optional[dict] = None,
+                  cpu: Optional[float] = None) -> None:
     p = _marker_path(key)
     if p is None:
         return
-    d = {"seconds": seconds, "cold": cold, "job": key}
+    d = {"seconds": seconds, "cold": cold, "job": key, "cpu": cpu}
     if kernels:
         d["kernels"] = _pack(kernels)
     try:
@@ -705,9 +721,10 @@ class Warmup:
                 g.error = msg
                 g.event.set()
 
-    def _finish(self, g: _Group, seconds: float, cold: bool, kernels: Optional[dict]) -> None:
+    def _finish(self, g: _Group, seconds: float, cold: bool, kernels: Optional[dict],
+                cpu: Optional[float] = None) -> None:
         g.seconds, g.was_cold = seconds, cold
-        _write_marker(g.key, seconds, cold, kernels)
+        _write_marker(g.key, seconds, cold, kernels, cpu)
         g.event.set()
 
     def _interrupted(self) -> bool:
@@ -749,7 +766,7 @@ class Warmup:
             self._finish(g, time.perf_counter() - t0, compiled_count() > n0, used_kernels())
             return
         load_kernels(rec["kernels"], self._stop.is_set)
-        self._finish(g, rec["seconds"], rec["compiled"] > 0, rec["kernels"])
+        self._finish(g, rec["seconds"], rec["compiled"] > 0, rec["kernels"], rec["cpu"])
 
     def _compile_in_child(self, g: _Group, poll: float = 0.05) -> dict:
         """Group g's jobs in the compiling child (:class:`_Child`, started
