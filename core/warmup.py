@@ -835,6 +835,31 @@ class Warmup:
                 self._want_all = True
             self._ensure_thread()
 
+    def _load_here(self, job, should_stop) -> bool:
+        """Load ``job``'s kernels in this thread when a marker lists them (a
+        compile of every variant under way is not interrupted for a load);
+        False when there is none or ``should_stop()`` came first."""
+        from .errors import RenderCancelled
+        key = job_key(job)
+        g = self._jobs.get(key)
+        if g is not None and g.event.is_set():
+            return True
+        m = _read_marker(key)
+        kernels = _unpack(m["kernels"]) if m and m.get("kernels") else None
+        if not kernels:
+            return False
+        t0 = time.perf_counter()
+        try:
+            load_kernels(kernels, should_stop)
+        except RenderCancelled:
+            return False
+        with self._lock:
+            g = self._jobs.setdefault(key, _Group(key, [job]))
+            if not g.event.is_set():
+                g.seconds, g.was_cold = time.perf_counter() - t0, False
+                g.event.set()
+        return True
+
     def wait_for(self, job, should_stop: Optional[Callable[[], bool]] = None,
                  on_wait: Optional[Callable[[float], None]] = None, rest: bool = True,
                  poll: float = 0.05) -> bool:
@@ -846,6 +871,10 @@ class Warmup:
         settings is warm too); False in a one-shot render (the CLI), which
         does not wait for them."""
         if self.done:
+            return True
+        if self._compile is None and self._load_here(job, should_stop):
+            if rest:
+                self.start()
             return True
         self.request(job, rest)
         return self._wait_group(self._jobs[job_key(job)], should_stop, on_wait, poll,

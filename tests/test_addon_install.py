@@ -148,8 +148,9 @@ def test_no_shipped_module_imports_tools(test_zip):
 # for every kernel of the default render and of the warm-up's variants.  It
 # renders with integrator PATH (camera paths: the export, the film and the
 # engine's streaming are the same for every integrator), and its warm-up
-# child (compiling under the dotted bl_ext name) runs the small PATH job of
-# tests/test_warmup.py instead of all of warmup_jobs(); every module of the
+# child (compiling under the dotted bl_ext name) runs the render's own job
+# (core.warmup.render_job), or the small PATH job of tests/test_warmup.py
+# instead of all of warmup_jobs() if asked for them; every module of the
 # installed package is imported, so each integrator's code is still loaded
 # under the extension's names.
 INTEGRATOR = "PATH"
