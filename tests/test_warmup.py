@@ -300,3 +300,36 @@ def test_without_a_python_executable_the_thread_compiles(monkeypatch, capsys, tm
     assert w.wait() is True and w.error is None
     assert calls == [1]
     assert "is not a Python interpreter" in capsys.readouterr().out
+
+
+def test_job_key_follows_the_kinds_not_the_values():
+    # A render's job (core.warmup.render_job) is one pass of its own scene
+    # and settings; its key (which kernels it needs) ignores what changes no
+    # kernel -- the seed, the budget, a colour, an object moved -- and
+    # follows what does: the integrator, a lobe kind, the pixel count's
+    # power of two.
+    import dataclasses
+
+    import numpy as np
+
+    from fppm.core import warmup as W
+    from fppm.core.scene.model import DIFFUSE, GLASS, Lobe, Material
+    from fppm.core.settings import RenderSettings
+    scene = W.warmup_scene(res=8, glossy=False)
+    st = RenderSettings(seed=3, max_passes=64, time_limit=30.0)
+    job = W.render_job(scene, st)
+    assert job[1].max_passes == 1 and job[1].time_limit == 0.0 and job[1].seed == 3
+    key = W.job_key(job)
+    moved = dataclasses.replace(scene, tri_p=scene.tri_p + np.float32(0.25))
+    recoloured = dataclasses.replace(scene, materials=[Material("diffuse", (Lobe(DIFFUSE, (0.1, 0.9, 0.2)),))]
+                                     + list(scene.materials[1:]))
+    assert W.job_key(W.render_job(moved, st.replace(seed=9, time_limit=5.0))) == key
+    assert W.job_key(W.render_job(recoloured, st)) == key
+    bigger = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, resolution=(11, 11)))
+    assert W.job_key(W.render_job(bigger, st)) == key          # 64 and 121 px: both in [2^6, 2^7)
+    huge = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, resolution=(256, 256)))
+    glass_only = dataclasses.replace(scene, materials=[Material("g", (Lobe(GLASS, ior=1.5),))] * 5)
+    others = [W.render_job(scene, st.replace(integrator="PHOTON")), W.render_job(huge, st),
+              W.render_job(glass_only, st), W.render_job(scene, st, ("Depth",))]
+    keys = {W.job_key(j) for j in others}
+    assert key not in keys and len(keys) == len(others)
