@@ -321,13 +321,16 @@ def test_job_key_follows_the_kinds_not_the_values():
     assert job[1].max_passes == 1 and job[1].time_limit == 0.0 and job[1].seed == 3
     key = W.job_key(job)
     moved = dataclasses.replace(scene, tri_p=scene.tri_p + np.float32(0.25))
-    recoloured = dataclasses.replace(scene, materials=[Material("diffuse", (Lobe(DIFFUSE, (0.1, 0.9, 0.2)),))]
-                                     + list(scene.materials[1:]))
+    green = Material("diffuse", (Lobe(DIFFUSE, (0.1, 0.9, 0.2)),))
+    recoloured = dataclasses.replace(scene, materials=[green] + list(scene.materials[1:]))
     assert W.job_key(W.render_job(moved, st.replace(seed=9, time_limit=5.0))) == key
     assert W.job_key(W.render_job(recoloured, st)) == key
-    bigger = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, resolution=(11, 11)))
-    assert W.job_key(W.render_job(bigger, st)) == key          # 64 and 121 px: both in [2^6, 2^7)
-    huge = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, resolution=(256, 256)))
+
+    def sized(n):
+        cam = dataclasses.replace(scene.camera, resolution=(n, n))
+        return dataclasses.replace(scene, camera=cam)
+    assert W.job_key(W.render_job(sized(11), st)) == key      # 64 and 121 px: both in [2^6, 2^7)
+    huge = sized(256)
     glass_only = dataclasses.replace(scene, materials=[Material("g", (Lobe(GLASS, ior=1.5),))] * 5)
     others = [W.render_job(scene, st.replace(integrator="PHOTON")), W.render_job(huge, st),
               W.render_job(glass_only, st), W.render_job(scene, st, ("Depth",))]
