@@ -336,3 +336,42 @@ def test_job_key_follows_the_kinds_not_the_values():
               W.render_job(glass_only, st), W.render_job(scene, st, ("Depth",))]
     keys = {W.job_key(j) for j in others}
     assert key not in keys and len(keys) == len(others)
+
+
+def test_a_renders_job_goes_first_and_one_shot_renders_skip_the_variants(tmp_path, monkeypatch):
+    # The order of the compiling child's work (core.warmup.Warmup), with a
+    # stand-in child: a render's job before every variant, which a job asked
+    # for meanwhile interrupts (the real child is killed there) and which
+    # then starts again; a one-shot render (rest=False) asks for no variant.
+    from fppm.core import warmup as W
+    from fppm.core.errors import RenderCancelled
+    from fppm.core.settings import RenderSettings
+    monkeypatch.setenv("FPPM_CACHE_DIR", str(tmp_path))
+    calls = []
+
+    class Child(W.Warmup):
+        def _compile_in_child(self, g, poll=0.01):
+            name = "all" if g.jobs is None else g.jobs[0][1].integrator
+            calls.append(name)
+            while name == "all" and len(calls) == 1:   # the first compile of the variants
+                if self._kick.is_set():
+                    calls[-1] = "all (interrupted)"
+                    raise RenderCancelled("a job first")
+                time.sleep(poll)
+            return {"seconds": 1.0, "compiled": 1, "kernels": {}, "cpu": 1.0}
+
+    scene = W.warmup_scene(res=8, glossy=False)
+    light = W.render_job(scene, RenderSettings(integrator="LIGHT"))
+    path = W.render_job(scene, RenderSettings(integrator="PATH"))
+    one_shot = Child()
+    assert one_shot.wait_for(light, rest=False) and not one_shot.done
+    one_shot._thread.join(5.0)
+    assert calls == ["LIGHT"] and not one_shot.running
+    assert W.is_compiled(light) and W.expected_seconds(light) == 1.0
+    calls.clear()
+    ui = Child()
+    ui.start()
+    while not calls:
+        time.sleep(0.01)
+    assert ui.wait_for(path, rest=True) and ui.wait() and ui.error is None
+    assert calls == ["all (interrupted)", "PATH", "all"]
