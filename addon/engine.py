@@ -22,7 +22,7 @@ import numpy as np
 from ..core.errors import FPPMError, RenderCancelled
 from ..core.settings import SettingsError
 from ..core.sppm.film import PASSES, pass_enabled
-from ..core.warmup import expected_seconds, is_compiled, warmup
+from ..core.warmup import expected_seconds, is_compiled, render_job, warmup
 from .export import export_scene
 from .properties import settings_from_scene
 
@@ -250,14 +250,17 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
                 if a is not None and p is not None:
                     p.rect.foreach_set(blender_rows(a, ch))
 
-    def _wait_for_kernels(self) -> bool:
-        """Wait for the kernel warm-up (``core.warmup``) before the Renderer
-        exists, so that compiling never counts against the time limit; False
-        when Esc was pressed meanwhile.  A failed warm-up is reported and the
-        render goes on (the kernels then compile inside the first pass)."""
-        if not warmup.done:
-            first = not is_compiled()
-            expected = expected_seconds() if first else 0.0
+    def _wait_for_kernels(self, job) -> bool:
+        """Wait until the kernels of this render's own job (``core.warmup.
+        render_job``) are compiled and loaded, before the Renderer exists, so
+        that compiling never counts against the time limit; False when Esc was
+        pressed meanwhile.  In Blender's UI the warm-up then goes on with
+        every other variant in the background; a one-shot render (the CLI,
+        ``blender -b``) does not wait for them.  A failed warm-up is reported
+        and the render goes on (the kernels then compile inside the first pass)."""
+        if not warmup.ready(job):
+            first = not is_compiled(job)
+            expected = expected_seconds(job) if first else 0.0
             msg = (f"FPPM: compiling render kernels (first use, about {expected:.0f} s)"
                    if first else "FPPM: loading render kernels")
             self.update_stats("", msg)
@@ -267,12 +270,14 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
             def on_wait(waited):
                 if expected > 0:
                     self.update_progress(min(waited / expected, 0.99))
-            if not warmup.wait(should_stop=self.break_requested, on_wait=on_wait):
+            if not warmup.wait_for(job, should_stop=self.break_requested, on_wait=on_wait,
+                                   rest=not bpy.app.background):
                 return False
             self.update_progress(0.0)
-        if warmup.error is not None:
+        error = warmup.job_error(job)
+        if error is not None:
             self._log(f"Warning: compiling the kernels ahead of the render failed "
-                      f"({warmup.error}); rendering anyway")
+                      f"({error}); rendering anyway")
         return True
 
     # -- the render callback -------------------------------------------------
@@ -305,7 +310,8 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
         gain = film_gain(scene)
         if sess is not None:
             sess.settings, sess.gain = settings, gain
-        warmup.start()      # compiles (or loads) the kernels while the scene exports
+        if not bpy.app.background:
+            warmup.start()  # every variant, in the background (after this render's own kernels)
         self.update_stats("", "FPPM: exporting scene")
         cam = self.camera_override
         if cam is not None:
@@ -316,13 +322,14 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
             # render (the CLI prints them in the exporter's "Approximated:" line).
             for msg in getattr(fscene, "approximations", ()):
                 report_warning(self, msg)
-        if self.break_requested() or not self._wait_for_kernels():
+        aovs = enabled_aovs(settings, depsgraph.view_layer)
+        job = render_job(fscene, settings, tuple(a[0] for a in aovs))
+        if self.break_requested() or not self._wait_for_kernels(job):
             if sess is not None:
                 sess.cancelled = True
             return
         # should_stop is also polled while the renderer is set up (BVH,
         # occlusion grid): RenderCancelled from there is caught in render().
-        aovs = enabled_aovs(settings, depsgraph.view_layer)
         # Imported here, not at the top: core.render loads numba and Embree,
         # which enabling the add-on must not pay for (docs/interactive.md).
         from ..core.render import Renderer

@@ -251,23 +251,26 @@ class ViewportSession:
     def _work(self, job: _Job) -> None:
         from ..core.errors import FPPMError, RenderCancelled
         from ..core.settings import SettingsError
-        from ..core.warmup import expected_seconds, is_compiled, warmup
+        from ..core.warmup import expected_seconds, is_compiled, render_job, warmup
 
         def stop():
             if not job.stop.is_set() and time.monotonic() - self._seen > IDLE_STOP_SECONDS:
                 job.stop.set()
             return job.stop.is_set()
-        try:
-            if not warmup.done:
+
+        def kernels(wjob) -> bool:
+            # This session's own kernels (core.warmup.render_job), compiled first.
+            if not warmup.ready(wjob):
                 self._set_status(job, "FPPM: compiling render kernels (first use, about "
-                                      f"{expected_seconds():.0f} s)" if not is_compiled()
+                                      f"{expected_seconds(wjob):.0f} s)" if not is_compiled(wjob)
                                  else "FPPM: loading render kernels")
-                if not warmup.wait(should_stop=stop):
-                    return
-            from ..core.render import Renderer
+                return warmup.wait_for(wjob, should_stop=stop)
+            return True
+        try:
             scene, st = job.scene, job.settings
             W, H = (int(v) for v in scene.camera.resolution)
             d = job.viewport.viewport_resolution_divider
+            full = render_job(scene, st)
             if d > 1 and W * H > 1:
                 small = dataclasses.replace(scene, camera=dataclasses.replace(
                     scene.camera, resolution=(max(1, -(-W // d)), max(1, -(-H // d)))))
@@ -276,12 +279,21 @@ class ViewportSession:
                 # grid, ~0.3-0.5 s whatever the resolution) would delay it.
                 pst = st.replace(max_passes=1, use_frequency=False,
                                  photons_per_pass=max(1000, st.photons_per_pass // (d * d)))
+                quick = render_job(small, pst)
+                warmup.request(quick)
+                warmup.request(full)            # compiled right after, in the same child
+                if not kernels(quick):
+                    return
+                from ..core.render import Renderer
                 r = Renderer(small, pst, log=lambda _m: None, should_stop=stop)
                 res = r.run(should_stop=stop)
                 if stop():
                     return
                 self._publish(job, enlarge(res.image, d, (W, H)), 0,
                               f"FPPM: first pass at 1/{d} resolution")
+            if not kernels(full):
+                return
+            from ..core.render import Renderer
             r = Renderer(scene, st, log=lambda _m: None, should_stop=stop)
 
             def on_pass(pr):

@@ -1,20 +1,25 @@
-"""Compile every render kernel before the first render needs it.
+"""Compile a render's kernels before its first pass needs them: its own first.
 
 Numba compiles a kernel at its first call; on a machine with an empty cache
-that is most of a minute before the first pass (docs/interactive.md), inside
-pass 1, where it would count against the time limit and where Esc cannot
-interrupt it.  :func:`compile_kernels` instead renders tiny synthetic scenes
-through ``Renderer`` for one pass per settings variant (:func:`warmup_jobs`):
-a closed room with diffuse, rough glossy, mirror, glass and emissive
-surfaces and every light kind, so that the camera (``core.sppm.camera_kernels``),
-direct-light (``core.lights.direct_kernels``: every analytic light kind and
-emissive triangles), photon (Lambert, mirror, glass and generic closures),
-emission, frequency, occlusion, edge and gather kernels all compile.  With a warm on-disk cache the same call
-only loads them.
+that would happen inside pass 1, where it counts against the time limit and
+where Esc cannot interrupt it.  Instead, before the Renderer exists:
 
-:class:`Warmup` runs that once per process in a background thread, and on
-a first use (nothing compiled yet for these sources) has a subprocess do the
-compiling (:func:`compile_then_load`):
+- **the render's own job first** (:func:`render_job`): the exported scene and
+  settings of the render itself, for one pass, at its own resolution and
+  photon count, so the kernels compiled are exactly those its passes call,
+  and only those (docs/interactive.md: the demo's Cornell box, light tracing
+  alone, compiles 8 kernels in ~16 s instead of every variant's in ~130 s);
+- **then every variant** (:func:`warmup_jobs`: tiny synthetic scenes, a
+  closed room with diffuse, rough glossy, mirror, glass and emissive surfaces
+  and every light kind, one pass per settings variant, so that the camera,
+  direct-light, photon, emission, frequency, occlusion, edge and gather
+  kernels all compile), only when asked for (:meth:`Warmup.start`: Blender's
+  UI, so the next render with other settings is warm too), at a lower
+  priority, and never waited for by a one-shot render (the CLI, ``blender
+  -b``).  With a warm on-disk cache the same calls only load the kernels.
+
+:class:`Warmup` runs this in a background thread of the process, and has a
+subprocess do the compiling (:class:`_Child`, :func:`child_main`):
 
 - the compile runs in a separate process: numba's compiler is Python, and a
   compiling thread inside Blender holds the GIL and, worse, makes the cyclic
@@ -23,25 +28,34 @@ compiling (:func:`compile_then_load`):
   of every other Python thread, i.e. Blender's UI (docs/interactive.md).  A
   subprocess shares neither, and uses another core.  It imports ``core``
   under this process's very module name (``bl_ext.<repo>.fppm.core`` inside
-  Blender; the cache is keyed by it, ``core/_numba_cache.py``) and writes the
-  kernels to the same cache folder;
-- then this process's thread renders the same synthetic scenes, which now
-  only loads the kernels from disk (a few seconds), so that they are in
-  memory when the first render starts.  If the subprocess cannot run (no
-  usable Python executable), the thread compiles them itself.
-- :meth:`Warmup.wait` polls ``should_stop`` every 50 ms, so a render waiting
-  for the compile can be cancelled at once; the compile itself goes on in the
-  background (it is needed by the next render anyway).
+  Blender; the cache is keyed by it, ``core/_numba_cache.py``), writes the
+  kernels to the same cache folder, and takes one job after another (numba
+  and the renderer are imported once), ending 20 s after its last;
+- for each job the child records the kernels it holds and their argument
+  types (:func:`used_kernels`); this process's thread then loads exactly
+  those from disk (:func:`load_kernels`, ``Dispatcher.compile`` of a cached
+  signature: a load, well under a second for one render's kernels), so that
+  they are in memory when the first pass starts, and nothing compiles twice.
+  If the subprocess cannot run (no usable Python executable), the thread
+  compiles them itself;
+- :meth:`Warmup.wait_for` and :meth:`Warmup.wait` poll ``should_stop`` every
+  50 ms, so a render waiting for the compile can be cancelled at once; the
+  compile itself goes on in the background (the next render needs it).
 
-A marker file per source version (``warmup-<key>.json`` in the cache folder)
-records that a compile finished and how long it took, so callers can tell the
-user whether this is a first use and about how long it will take.
+A marker file per source version and job (``warmup-<source>[-<job>].json``
+in the cache folder) records that a compile finished, how long it took and
+the kernels it loaded, so that a later process loads them without a child,
+and callers can tell the user whether this is a first use and about how long
+it will take (the last measured compile of that job, :func:`expected_seconds`).
 """
 from __future__ import annotations
 
+import base64
 import hashlib
 import json
 import os
+import pickle
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -57,8 +71,10 @@ from .scene.model import DIFFUSE, GLASS, GLOSSY, Camera, Light, Lobe, Material, 
 from .settings import RenderSettings
 
 # Assumed length of a first compile when this machine never finished one
-# (used only for the message and the progress bar).
+# (used only for the message and the progress bar): every variant, and one
+# render's own job (docs/interactive.md: 16-60 s for the example scenes).
 DEFAULT_COMPILE_SECONDS = 60.0
+DEFAULT_JOB_SECONDS = 30.0
 _CORE = os.path.dirname(os.path.abspath(__file__))
 
 
@@ -164,22 +180,32 @@ def warmup_jobs() -> list:
              base.replace(integrator="COMBINED", photons_per_pass=2000, camera_samples=1))]
 
 
-def compile_kernels(should_stop: Optional[Callable[[], bool]] = None) -> float:
-    """Render every job of :func:`warmup_jobs` for one pass; returns the seconds it took.
+def run_jobs(jobs, should_stop: Optional[Callable[[], bool]] = None,
+             split_first: bool = False) -> float:
+    """Render each job (``(scene, settings)`` or ``(scene, settings, passes)``)
+    through ``Renderer`` for its settings' passes; returns the seconds it took.
 
-    Raises RenderCancelled when ``should_stop()`` turns True (polled by the
-    Renderer during its set-up and passes).
+    split_first: the first job takes the per-pixel stages' threaded paths at
+    any size (:class:`_split_paths`).  Raises RenderCancelled when
+    ``should_stop()`` turns True (polled by the Renderer during its set-up
+    and passes).
     """
     from .errors import RenderCancelled
     from .render import Renderer
     t0 = time.perf_counter()
-    for k, (scene, st) in enumerate(warmup_jobs()):
-        with _split_paths(k == 0):
-            r = Renderer(scene, st, log=lambda _m: None, should_stop=should_stop)
+    for k, job in enumerate(jobs):
+        scene, st, passes = (tuple(job) + ((),))[:3]
+        with _split_paths(split_first and k == 0):
+            r = Renderer(scene, st, log=lambda _m: None, should_stop=should_stop, passes=passes)
             r.run(should_stop=should_stop)
         if should_stop is not None and should_stop():
             raise RenderCancelled("cancelled")
     return time.perf_counter() - t0
+
+
+def compile_kernels(should_stop: Optional[Callable[[], bool]] = None) -> float:
+    """Render every job of :func:`warmup_jobs` for one pass; returns the seconds it took."""
+    return run_jobs(warmup_jobs(), should_stop, split_first=True)
 
 
 class _split_paths:
@@ -208,9 +234,122 @@ class _split_paths:
                 setattr(m, a, v)
 
 
-# Run by compile_in_subprocess: load the package under the parent's module name
-# (stub parents for a dotted name such as bl_ext.user_default.fppm), then
-# compile.  It ends with its parent (a quit Blender, an interrupted CLI).
+# --- the warm-up of one render ----------------------------------------------
+
+def render_job(scene, settings: RenderSettings, passes: tuple = ()) -> tuple:
+    """The warm-up job of one render: ``(scene, settings, passes)`` for one
+    pass (max_passes 1, no time limit) of the render's own exported scene,
+    settings and AOV passes, at its own resolution and photon count, so that
+    the size-dependent paths (threads from ``PARALLEL_MIN`` pixels, the
+    gather's parallel path from ``hashgrid.PARALLEL_MIN_PHOTONS`` photons)
+    are the render's: the kernels compiled are those its passes call, and
+    only those (the Cornell box's default render, light tracing alone,
+    compiles no photon, frequency or camera-path kernel)."""
+    return (scene, settings.replace(max_passes=1, time_limit=0.0), tuple(passes))
+
+
+def _scene_kinds(scene) -> tuple:
+    """What of a scene selects kernels: the kinds of its materials, lights,
+    camera and world, not their values, and its pixel count's power of two
+    (the stages' thread thresholds are powers of two: ``PARALLEL_MIN``...);
+    two scenes alike in these call the same kernels.  A wrong guess only
+    leaves a compile to the first pass, as before the warm-up."""
+    lobes = sorted({(lb.kind, lb.roughness == 0.0, lb.color_texture >= 0, bool(lb.multiscatter),
+                     lb.fresnel, lb.layer_ior > 0.0, getattr(lb, "alpha_texture", -1) >= 0)
+                    for m in scene.materials for lb in m.lobes})
+    mats = sorted({(len(m.lobes), any(e > 0 for e in m.emission), m.emission_texture >= 0,
+                    getattr(m, "normal", None) is not None) for m in scene.materials})
+    lights = sorted({(lt.kind, lt.shape, lt.radius > 0.0, bool(lt.use_soft_falloff))
+                     for lt in scene.lights})
+    cam = scene.camera
+    pixels = int(cam.resolution[0]) * int(cam.resolution[1])
+    return (lobes, mats, lights, cam.kind, pixels.bit_length(), cam.border is not None,
+            bool(np.any(np.asarray(scene.world_color) > 0)), scene.world_map is not None,
+            bool(scene.film_transparent), scene.tri_tangent is not None,
+            sorted({np.asarray(t).shape[-1] for t in scene.textures}))
+
+
+def job_key(job) -> str:
+    """Key of a render job's kernels (:func:`render_job`): its settings but
+    the seed and budget, its AOV passes and :func:`_scene_kinds`."""
+    scene, st, passes = (tuple(job) + ((),))[:3]
+    feats = (st.replace(seed=0).image_digest(), tuple(passes), _scene_kinds(scene))
+    return hashlib.sha256(repr(feats).encode()).hexdigest()[:16]
+
+
+# --- which kernels a warm-up compiled, and loading them here ---------------
+
+def _dispatchers():
+    """(``module:name``, dispatcher) of every kernel of this package's loaded modules."""
+    from numba.core.registry import CPUDispatcher
+    prefix, seen = __package__, set()
+    for name, mod in list(sys.modules.items()):
+        if mod is None or not (name == prefix or name.startswith(prefix + ".")):
+            continue
+        for attr, d in list(vars(mod).items()):
+            if isinstance(d, CPUDispatcher) and id(d) not in seen:
+                seen.add(id(d))
+                yield f"{name}:{attr}", d
+
+
+def used_kernels() -> dict:
+    """{``module:name``: [argument types, ...]} of every kernel compiled or
+    loaded in this process (what :func:`load_kernels` takes)."""
+    return {k: list(d.signatures) for k, d in _dispatchers() if d.signatures}
+
+
+def compiled_count() -> int:
+    """How many kernel signatures this process compiled (not loaded from disk)."""
+    return sum(sum(d.stats.cache_misses.values()) for _k, d in _dispatchers())
+
+
+def load_kernels(kernels: dict, should_stop: Optional[Callable[[], bool]] = None) -> int:
+    """Load the kernels of :func:`used_kernels` (recorded by another process
+    under the same module names) from the disk cache into this process, so
+    that the render calling them does not; returns how many.  A kernel that
+    is not on disk compiles here (as its first call would)."""
+    import importlib
+
+    from .errors import RenderCancelled
+    n = 0
+    for key, sigs in kernels.items():
+        mod, attr = key.split(":")
+        try:
+            d = getattr(importlib.import_module(mod), attr)
+        except (ImportError, AttributeError):
+            continue
+        for sig in sigs:
+            if should_stop is not None and should_stop():
+                raise RenderCancelled("cancelled")
+            if tuple(sig) not in d.overloads:
+                d.compile(tuple(sig))
+                n += 1
+    return n
+
+
+def _pack(kernels: dict) -> str:
+    """:func:`used_kernels` as text for a marker (numba types pickle)."""
+    ok = {}
+    for k, sigs in kernels.items():
+        try:
+            pickle.dumps(sigs)
+            ok[k] = sigs
+        except Exception:       # noqa: BLE001 - such a kernel just loads at its first call
+            continue
+    return base64.b64encode(pickle.dumps(ok, protocol=4)).decode()
+
+
+def _unpack(text: str) -> dict:
+    try:
+        return pickle.loads(base64.b64decode(text))
+    except Exception:           # noqa: BLE001 - a damaged marker: load nothing
+        return {}
+
+
+# Run by _Child: load the package under the parent's module name (stub parents
+# for a dotted name such as bl_ext.user_default.fppm), then compile the groups
+# the parent hands it (child_main).  It ends with its parent (a quit Blender,
+# an interrupted CLI) or after CHILD_IDLE_SECONDS without work.
 _CHILD = r"""
 import importlib, importlib.util, os, sys, threading, time, types
 name, root = sys.argv[1], sys.argv[2]
@@ -235,8 +374,56 @@ spec = importlib.util.spec_from_file_location(name, os.path.join(root, "__init__
 pkg = importlib.util.module_from_spec(spec)
 sys.modules[name] = pkg
 spec.loader.exec_module(pkg)
-importlib.import_module(name + ".core.warmup").compile_kernels()
+W = importlib.import_module(name + ".core.warmup")
+W.child_main(sys.argv[3])
 """
+CHILD_IDLE_SECONDS = 20.0
+"""A compiling child waits this long for the next group (the next render's
+job: a test suite's renders follow each other) before it ends."""
+
+
+def _dump(path: str, obj) -> None:
+    """Pickle ``obj`` to ``path`` atomically (a reader never sees half a file)."""
+    tmp = f"{path}.{os.getpid()}.tmp"
+    with open(tmp, "wb") as f:
+        pickle.dump(obj, f, protocol=pickle.HIGHEST_PROTOCOL)
+    os.replace(tmp, path)
+
+
+def child_main(folder: str, idle: float = CHILD_IDLE_SECONDS) -> None:
+    """The compiling process: for each group the parent writes
+    (``<folder>/spec-<i>.pkl``: ``{"jobs": [...] or None for warmup_jobs(),
+    "nice": bool}``) render its jobs, then write ``<folder>/<i>.pkl``:
+    seconds, CPU seconds, kernels compiled (not loaded) and
+    :func:`used_kernels`, for the parent to load.  Importing numba and the
+    renderer (seconds) is paid once for all the groups of a process."""
+    import gc
+    before, i = compiled_count(), 0
+    while True:
+        path, t = os.path.join(folder, f"spec-{i}.pkl"), time.monotonic()
+        while not os.path.exists(path):
+            if time.monotonic() - t > idle:
+                return
+            time.sleep(0.02)
+        with open(path, "rb") as f:
+            g = pickle.load(f)
+        if g["nice"] and hasattr(os, "nice"):
+            try:
+                os.nice(10)     # every variant: behind the render that now runs
+            except OSError:
+                pass
+        t0, c0 = time.perf_counter(), time.process_time()
+        if g["jobs"] is None:
+            compile_kernels()
+        else:
+            run_jobs(g["jobs"])
+        del g
+        gc.collect()            # the job's scene and state: not kept while idle
+        n = compiled_count()
+        _dump(os.path.join(folder, f"{i}.pkl"),
+              {"seconds": time.perf_counter() - t0, "cpu": time.process_time() - c0,
+               "compiled": n - before, "kernels": used_kernels()})
+        before, i = n, i + 1
 
 
 def package_name() -> str:
@@ -244,12 +431,8 @@ def package_name() -> str:
     return __name__.rsplit(".core.warmup", 1)[0]
 
 
-def compile_in_subprocess(should_stop: Optional[Callable[[], bool]] = None,
-                          poll: float = 0.05) -> float:
-    """:func:`compile_kernels` in a child Python filling this process's kernel
-    cache; returns its seconds.  Raises RenderCancelled (the child is killed)
-    when ``should_stop()``, RuntimeError when the child fails."""
-    from .errors import RenderCancelled
+def _child_command() -> tuple:
+    """(cache root, environment) of a compiling child; RuntimeError when none can run."""
     root = _numba_cache.cache_dir()
     if root is None:
         raise RuntimeError("no writable kernel cache folder")
@@ -259,47 +442,54 @@ def compile_in_subprocess(should_stop: Optional[Callable[[], bool]] = None,
         raise RuntimeError(f"{sys.executable!r} is not a Python interpreter")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p),
                **{_numba_cache.ENV_VAR: root})
-    t0 = time.perf_counter()
-    # Its own process group: Ctrl-C in the CLI's terminal stops the render
-    # (which polls), not the compile that the next render needs.
-    group = ({"creationflags": subprocess.CREATE_NEW_PROCESS_GROUP} if sys.platform == "win32"
-             else {"start_new_session": True})
-    with tempfile.TemporaryFile() as log:     # a file: a full pipe would block the child
-        proc = subprocess.Popen([sys.executable, "-c", _CHILD, package_name(),
-                                 os.path.dirname(_CORE)], stdin=subprocess.DEVNULL,
-                                stdout=subprocess.DEVNULL, stderr=log, env=env, cwd=root, **group)
-        try:
-            while proc.poll() is None:
-                if should_stop is not None and should_stop():
-                    raise RenderCancelled("cancelled")
-                time.sleep(poll)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
-        log.seek(0)
-        err = log.read().decode(errors="replace")
-    if proc.returncode != 0:
-        raise RuntimeError(f"the compiling process ended with code {proc.returncode}: "
-                           f"{err.strip().splitlines()[-1] if err.strip() else 'no message'}")
-    return time.perf_counter() - t0
+    return root, env
 
 
-def compile_then_load(should_stop: Optional[Callable[[], bool]] = None) -> float:
-    """The warm-up of :class:`Warmup`: on a first use a subprocess compiles,
-    then this process loads the kernels (see the module docstring); seconds."""
-    from .errors import RenderCancelled
-    t0 = time.perf_counter()
-    if not is_compiled():
-        try:
-            compile_in_subprocess(should_stop)
-        except RenderCancelled:
-            raise
-        except (OSError, RuntimeError) as ex:
-            print(f"FPPM: compiling the kernels in a separate process failed ({ex}); "
-                  f"compiling them in this one.")
-    compile_kernels(should_stop)
-    return time.perf_counter() - t0
+class _Child:
+    """A compiling process (:func:`child_main`) taking one group after another."""
+
+    def __init__(self):
+        root, env = _child_command()
+        self.folder = tempfile.mkdtemp(prefix="warmup-", dir=root)
+        self.log = tempfile.TemporaryFile()   # a file: a full pipe would block the child
+        self.n = 0
+        # Its own process group: Ctrl-C in the CLI's terminal stops the render
+        # (which polls), not the compile that the next render needs.
+        group = ({"creationflags": subprocess.CREATE_NEW_PROCESS_GROUP}
+                 if sys.platform == "win32" else {"start_new_session": True})
+        self.proc = subprocess.Popen([sys.executable, "-c", _CHILD, package_name(),
+                                      os.path.dirname(_CORE), self.folder],
+                                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                     stderr=self.log, env=env, cwd=root, **group)
+
+    def submit(self, spec: dict) -> int:
+        _dump(os.path.join(self.folder, f"spec-{self.n}.pkl"), spec)
+        self.n += 1
+        return self.n - 1
+
+    def result(self, i: int):
+        """Group i's record, None while it runs; ``"idle"`` when the child
+        ended idle before it saw the group, RuntimeError when it failed."""
+        path = os.path.join(self.folder, f"{i}.pkl")
+        for _ in range(2):              # the record may come with the exit
+            if os.path.exists(path):
+                with open(path, "rb") as f:
+                    return pickle.load(f)
+            if self.proc.poll() is None:
+                return None
+        if self.proc.returncode == 0:
+            return "idle"
+        self.log.seek(0)
+        err = self.log.read().decode(errors="replace").strip()
+        raise RuntimeError(f"the compiling process ended with code {self.proc.returncode}: "
+                           f"{err.splitlines()[-1] if err else 'no message'}")
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        self.log.close()
+        shutil.rmtree(self.folder, ignore_errors=True)
 
 
 def source_key() -> str:
@@ -321,137 +511,374 @@ def source_key() -> str:
     return h.hexdigest()[:16]
 
 
-def _marker_path() -> Optional[str]:
-    root = _numba_cache.cache_dir()
-    return None if root is None else os.path.join(root, "numba", f"warmup-{source_key()}.json")
+ALL = "all"
+"""The key of the warm-up of every variant (:func:`warmup_jobs`)."""
 
 
-def last_compile_seconds() -> Optional[float]:
-    """Seconds of the last complete first-use compile on this machine (any
-    version), or None when there was none."""
+def _marker_path(key: str = ALL) -> Optional[str]:
     root = _numba_cache.cache_dir()
     if root is None:
         return None
+    tail = "" if key == ALL else f"-{key}"
+    return os.path.join(root, "numba", f"warmup-{source_key()}{tail}.json")
+
+
+def _read_marker(key: str = ALL) -> Optional[dict]:
+    p = _marker_path(key)
+    try:
+        with open(p) as f:
+            return json.load(f)
+    except (OSError, TypeError, ValueError):
+        return None
+
+
+def _markers() -> list:
+    """Contents of every warm-up marker of this cache (any source version)."""
+    root = _numba_cache.cache_dir()
+    if root is None:
+        return []
     folder = os.path.join(root, "numba")
-    best = None
     try:
         names = [n for n in os.listdir(folder) if n.startswith("warmup-") and n.endswith(".json")]
     except OSError:
-        return None
+        return []
+    out = []
     for n in names:
         try:
             with open(os.path.join(folder, n)) as f:
                 d = json.load(f)
-            if d.get("cold"):
-                best = max(best or 0.0, float(d["seconds"]))
-        except (OSError, ValueError, KeyError, TypeError):
+            out.append((d.get("job", ALL), bool(d.get("cold")), float(d["seconds"])))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
             continue
-    return best
+    return out
 
 
-def is_compiled() -> bool:
-    """True when this source version finished a warm-up on this machine (the
-    kernels are on disk: loading them takes seconds, not a compile)."""
-    p = _marker_path()
-    return p is not None and os.path.exists(p)
+def last_compile_seconds(job=None) -> Optional[float]:
+    """Seconds of the last complete first-use compile on this machine (any
+    version) of ``job`` (:func:`render_job`; None: every variant), or None
+    when there was none.  For a job never compiled here: the median of the
+    other renders' jobs (they range from seconds to minutes: docs/interactive.md)."""
+    key = ALL if job is None else job_key(job)
+    cold = [(k, s) for k, c, s in _markers() if c]
+    same = [s for k, s in cold if k == key]
+    if same:
+        return max(same)
+    other = sorted(s for k, s in cold if key != ALL and k != ALL)
+    return other[len(other) // 2] if other else None
 
 
-def expected_seconds() -> float:
-    """About how long a first-use compile will take here (for the message)."""
-    return last_compile_seconds() or DEFAULT_COMPILE_SECONDS
+def is_compiled(job=None) -> bool:
+    """True when this source version finished a warm-up of ``job`` (None:
+    of every variant) on this machine: its kernels are on disk, loading them
+    takes seconds, not a compile."""
+    for key in ((ALL,) if job is None else (job_key(job), ALL)):
+        p = _marker_path(key)
+        if p is not None and os.path.exists(p):
+            return True
+    return False
 
 
-def _write_marker(seconds: float, cold: bool) -> None:
-    p = _marker_path()
+def expected_seconds(job=None) -> float:
+    """About how long a first-use compile of ``job`` (None: every variant)
+    will take here (for the message)."""
+    return last_compile_seconds(job) or (DEFAULT_COMPILE_SECONDS if job is None
+                                         else DEFAULT_JOB_SECONDS)
+
+
+def _write_marker(key: str, seconds: float, cold: bool, kernels: Optional[dict] = None,
+                  cpu: Optional[float] = None) -> None:
+    p = _marker_path(key)
     if p is None:
         return
+    d = {"seconds": seconds, "cold": cold, "job": key, "cpu": cpu}
+    if kernels:
+        d["kernels"] = _pack(kernels)
     try:
         os.makedirs(os.path.dirname(p), exist_ok=True)
         tmp = p + f".{os.getpid()}.tmp"
         with open(tmp, "w") as f:
-            json.dump({"seconds": seconds, "cold": cold}, f)
+            json.dump(d, f)
         os.replace(tmp, p)
     except OSError:
         pass      # an unwritable cache only costs the message's estimate
 
 
-class Warmup:
-    """The once-per-process background compile.
+class _Group:
+    """One unit of the warm-up: a render's job (key :func:`job_key`) or
+    every variant (key :data:`ALL`, jobs None: :func:`warmup_jobs`)."""
 
-    ``start()`` launches it (idempotent); ``wait(should_stop)`` blocks until it
-    ends or ``should_stop()``; afterwards ``done``, ``error`` (the exception
-    text, or None), ``seconds`` and ``was_cold`` (a compile, not a load).
-    ``stop()`` asks it to end at the next poll (unregister, tests).
-    ``compile(should_stop) -> seconds`` is :func:`compile_then_load` (tests
-    pass a stand-in).
-    """
-
-    def __init__(self, compile: Callable = None):
-        self._compile = compile or compile_then_load
-        self._lock = threading.Lock()
-        self._thread: Optional[threading.Thread] = None
-        self._done = threading.Event()
-        self._stop = threading.Event()
+    def __init__(self, key: str, jobs):
+        self.key, self.jobs = key, jobs
+        self.event = threading.Event()
         self.error: Optional[str] = None
         self.seconds: Optional[float] = None
         self.was_cold: Optional[bool] = None
+
+
+class Warmup:
+    """The once-per-process background compile, in one thread.
+
+    ``start()`` asks for every variant (:func:`warmup_jobs`; idempotent);
+    ``wait(should_stop)`` blocks until that ends or ``should_stop()``;
+    afterwards ``done``, ``error`` (the exception text, or None), ``seconds``
+    and ``was_cold`` (a compile, not a load).  ``wait_for(job, ...)`` asks
+    for one render's job (:func:`render_job`) before anything else and
+    blocks until its kernels are loaded here (``rest``: every variant
+    follows it, in the same compiling process at a lower priority).
+    ``stop()`` asks the thread to end at the next poll (unregister, tests).
+    ``compile(should_stop) -> seconds`` stands in for the whole warm-up
+    (tests): any request then runs it and finishes everything.
+    """
+
+    def __init__(self, compile: Callable = None):
+        self._compile = compile
+        self._lock = threading.Lock()
+        self._thread: Optional[threading.Thread] = None
+        self._exiting = False
+        self._all = _Group(ALL, None)
+        self._want_all = False
+        self._jobs: dict = {}             # job key -> _Group, in request order
+        self._stop = threading.Event()
+        self._kick = threading.Event()    # a new job: it goes first
+        self._child: Optional[_Child] = None
         self.started_at: Optional[float] = None
 
-    @property
-    def done(self) -> bool:
-        return self._done.is_set()
+    done = property(lambda self: self._all.event.is_set())
+    error = property(lambda self: self._all.error)
+    seconds = property(lambda self: self._all.seconds)
+    was_cold = property(lambda self: self._all.was_cold)
 
     @property
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
+    def _ensure_thread(self) -> None:
+        """Start the thread unless it runs (call with the lock held)."""
+        if self.running and not self._exiting:
+            return
+        if self._thread is not None:
+            self._thread.join()       # it is ending: it holds no lock and takes none
+        self._stop.clear()
+        self._exiting = False
+        self.started_at = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name="fppm-warmup", daemon=True)
+        self._thread.start()
+
     def start(self) -> None:
         with self._lock:
-            if self._done.is_set() or self.running:
-                return
-            self._stop.clear()
-            self.started_at = time.monotonic()
-            self._thread = threading.Thread(target=self._run, name="fppm-warmup", daemon=True)
-            self._thread.start()
+            self._want_all = True
+            if not self.done:
+                self._ensure_thread()
 
     def stop(self) -> None:
         self._stop.set()
 
+    def ready(self, job) -> bool:
+        """True when ``job``'s kernels (or every variant's) are loaded here."""
+        if self.done:
+            return True
+        g = self._jobs.get(job_key(job))
+        return g is not None and g.event.is_set()
+
+    def job_error(self, job) -> Optional[str]:
+        """Why ``job``'s warm-up failed (its text), or None."""
+        g = self._jobs.get(job_key(job))
+        return g.error if g is not None and g.event.is_set() else self.error
+
+    def jobs_status(self) -> list:
+        """{"key", "done", "error", "seconds", "was_cold"} of each render job
+        asked for in this process, in request order."""
+        return [{"key": g.key, "done": g.event.is_set(), "error": g.error, "seconds": g.seconds,
+                 "was_cold": g.was_cold} for g in list(self._jobs.values())]
+
     def _run(self) -> None:
         from .errors import FPPMError, RenderCancelled
-        try:
-            cold = not is_compiled()
-            secs = self._compile(should_stop=self._stop.is_set)
-            if self._stop.is_set():
-                return                 # stopped: a later start() begins again
-            self.seconds, self.was_cold = secs, cold
-            _write_marker(secs, cold)
-            self._done.set()
-        except RenderCancelled:
-            pass                       # stopped: a later start() begins again
-        except FPPMError as ex:        # a user-facing condition (e.g. memory): the
-            self.error = str(ex)       # render that follows says it again, clearly
-            self._done.set()
-        except Exception as ex:        # noqa: BLE001 - reported by the caller
-            self.error = f"{type(ex).__name__}: {ex}"
-            traceback.print_exc()
-            self._done.set()
+        while True:
+            with self._lock:
+                groups = [g for g in self._jobs.values() if not g.event.is_set()]
+                if self._want_all and not self._all.event.is_set():
+                    groups.append(self._all)
+                if self._stop.is_set() or not groups:
+                    self._exiting = True
+                    if self._stop.is_set():
+                        self._close_child()
+                    return
+                self._kick.clear()
+            try:
+                self._work(groups)
+            except RenderCancelled:
+                continue                   # stopped (the loop ends) or a new job first
+            except FPPMError as ex:        # a user-facing condition (e.g. memory): the
+                self._fail(groups, str(ex))    # render that follows says it again, clearly
+            except Exception as ex:        # noqa: BLE001 - reported by the caller
+                traceback.print_exc()
+                self._fail(groups, f"{type(ex).__name__}: {ex}")
 
-    def wait(self, should_stop: Optional[Callable[[], bool]] = None,
-             on_wait: Optional[Callable[[float], None]] = None, poll: float = 0.05) -> bool:
-        """Start if needed and block until done; True when done, False when
-        ``should_stop()`` returned True first.  ``on_wait(seconds waited)``
-        is called at every poll (progress display)."""
-        self.start()
+    @staticmethod
+    def _fail(groups, msg: str) -> None:
+        for g in groups:
+            if not g.event.is_set():
+                g.error = msg
+                g.event.set()
+
+    def _finish(self, g: _Group, seconds: float, cold: bool, kernels: Optional[dict],
+                cpu: Optional[float] = None) -> None:
+        g.seconds, g.was_cold = seconds, cold
+        _write_marker(g.key, seconds, cold, kernels, cpu)
+        g.event.set()
+
+    def _interrupted(self) -> bool:
+        return self._stop.is_set() or self._kick.is_set()
+
+    def _work(self, groups: list) -> None:
+        """The first of ``groups`` (the loop then orders the rest again: a
+        render's job asked for meanwhile goes first)."""
+        from .errors import RenderCancelled
+        if self._compile is not None:          # a stand-in for the whole warm-up
+            cold = not is_compiled()
+            secs = self._compile(should_stop=self._interrupted)
+            if self._interrupted():
+                raise RenderCancelled("interrupted")
+            for g in set(groups) | {self._all}:
+                self._finish(g, secs, cold, None)
+            return
+        g = groups[0]
+        m = _read_marker(g.key)
+        kernels = _unpack(m["kernels"]) if m and m.get("kernels") else None
+        if kernels:
+            t0 = time.perf_counter()           # compiled before: load what it lists
+            load_kernels(kernels, self._stop.is_set)
+            g.seconds, g.was_cold = time.perf_counter() - t0, False
+            g.event.set()
+            return
+        try:
+            rec = self._compile_in_child(g)
+        except RenderCancelled:
+            raise
+        except (OSError, RuntimeError) as ex:
+            print(f"FPPM: compiling the kernels in a separate process failed ({ex}); "
+                  f"compiling them in this one.")
+            t0, n0 = time.perf_counter(), compiled_count()
+            if g.jobs is None:
+                compile_kernels(self._interrupted)
+            else:
+                run_jobs(g.jobs, self._interrupted)
+            self._finish(g, time.perf_counter() - t0, compiled_count() > n0, used_kernels())
+            return
+        load_kernels(rec["kernels"], self._stop.is_set)
+        self._finish(g, rec["seconds"], rec["compiled"] > 0, rec["kernels"], rec["cpu"])
+
+    def _compile_in_child(self, g: _Group, poll: float = 0.05) -> dict:
+        """Group g's jobs in the compiling child (:class:`_Child`, started
+        when none runs), which fills this process's kernel cache; returns its
+        record (:func:`child_main`).  Raises RenderCancelled when stopped, or
+        when a render's job comes while every variant compiles (the child is
+        killed: the job goes first, what was compiled stays on disk);
+        RuntimeError when the child fails."""
+        from .errors import RenderCancelled
+        spec = {"jobs": g.jobs, "nice": g.jobs is None and bool(self._jobs)}
+        for attempt in range(2):
+            if self._child is None or self._child.proc.poll() is not None:
+                if self._child is not None:
+                    self._child.close()
+                self._child = _Child()
+            i = self._child.submit(spec)
+            while True:
+                rec = self._child.result(i)
+                if rec is not None:
+                    break
+                if self._stop.is_set() or (g.jobs is None and self._kick.is_set()):
+                    self._close_child()
+                    raise RenderCancelled("cancelled")
+                time.sleep(poll)
+            if rec != "idle":           # else it ended just before the spec came: again
+                return rec
+        raise RuntimeError("the compiling process ended before its work")
+
+    def _close_child(self) -> None:
+        if self._child is not None:
+            self._child.close()
+            self._child = None
+
+    def _wait_group(self, g: _Group, should_stop, on_wait, poll: float, restart) -> bool:
         t0 = time.monotonic()
-        while not self._done.wait(poll):
+        while not g.event.wait(poll):
+            if g is not self._all and self.done:
+                return True
             if should_stop is not None and should_stop():
                 return False
-            if not self.running and not self._done.is_set():
-                self.start()           # stopped by stop(): begin again
+            if not self.running or self._exiting:
+                restart()              # stopped by stop(): begin again
             if on_wait is not None:
                 on_wait(time.monotonic() - t0)
         return True
+
+    def wait(self, should_stop: Optional[Callable[[], bool]] = None,
+             on_wait: Optional[Callable[[float], None]] = None, poll: float = 0.05) -> bool:
+        """Start if needed and block until every variant is done; True when
+        done, False when ``should_stop()`` returned True first.
+        ``on_wait(seconds waited)`` is called at every poll (progress display)."""
+        self.start()
+        return self._wait_group(self._all, should_stop, on_wait, poll, self.start)
+
+    def request(self, job, rest: bool = True) -> None:
+        """Ask for ``job``'s kernels (:func:`render_job`) before anything not
+        asked for yet, without waiting (see :meth:`wait_for`)."""
+        if self.done:
+            return
+        key = job_key(job)
+        with self._lock:
+            if key not in self._jobs:
+                self._jobs[key] = _Group(key, [job])
+                self._kick.set()
+            if rest:
+                self._want_all = True
+            self._ensure_thread()
+
+    def _load_here(self, job, should_stop) -> bool:
+        """Load ``job``'s kernels in this thread when a marker lists them (a
+        compile of every variant under way is not interrupted for a load);
+        False when there is none or ``should_stop()`` came first."""
+        from .errors import RenderCancelled
+        key = job_key(job)
+        g = self._jobs.get(key)
+        if g is not None and g.event.is_set():
+            return True
+        m = _read_marker(key)
+        kernels = _unpack(m["kernels"]) if m and m.get("kernels") else None
+        if not kernels:
+            return False
+        t0 = time.perf_counter()
+        try:
+            load_kernels(kernels, should_stop)
+        except RenderCancelled:
+            return False
+        with self._lock:
+            g = self._jobs.setdefault(key, _Group(key, [job]))
+            if not g.event.is_set():
+                g.seconds, g.was_cold = time.perf_counter() - t0, False
+                g.event.set()
+        return True
+
+    def wait_for(self, job, should_stop: Optional[Callable[[], bool]] = None,
+                 on_wait: Optional[Callable[[float], None]] = None, rest: bool = True,
+                 poll: float = 0.05) -> bool:
+        """Compile (or load) ``job``'s kernels (:func:`render_job`) before
+        those of anything asked for later and block until they are loaded
+        here; True when done (also when every variant already is), False
+        when ``should_stop()`` returned True first (the compile goes on).
+        rest: every variant follows (Blender: the next render with other
+        settings is warm too); False in a one-shot render (the CLI), which
+        does not wait for them."""
+        if self.done:
+            return True
+        if self._compile is None and self._load_here(job, should_stop):
+            if rest:
+                self.start()
+            return True
+        self.request(job, rest)
+        return self._wait_group(self._jobs[job_key(job)], should_stop, on_wait, poll,
+                                lambda: self.request(job, rest))
 
 
 warmup = Warmup()

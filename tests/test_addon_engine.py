@@ -200,8 +200,8 @@ def _fake_warmup(monkeypatch, compile, first=True):
     from fppm.core.warmup import Warmup
     w = Warmup(compile=compile)
     monkeypatch.setattr(E, "warmup", w)
-    monkeypatch.setattr(E, "is_compiled", lambda: not first)
-    monkeypatch.setattr(E, "expected_seconds", lambda: 42.0)
+    monkeypatch.setattr(E, "is_compiled", lambda job=None: not first)
+    monkeypatch.setattr(E, "expected_seconds", lambda job=None: 42.0)
     return w
 
 

@@ -148,8 +148,9 @@ def test_no_shipped_module_imports_tools(test_zip):
 # for every kernel of the default render and of the warm-up's variants.  It
 # renders with integrator PATH (camera paths: the export, the film and the
 # engine's streaming are the same for every integrator), and its warm-up
-# child (compiling under the dotted bl_ext name) runs the small PATH job of
-# tests/test_warmup.py instead of all of warmup_jobs(); every module of the
+# child (compiling under the dotted bl_ext name) runs the render's own job
+# (core.warmup.render_job), or the small PATH job of tests/test_warmup.py
+# instead of all of warmup_jobs() if asked for them; every module of the
 # installed package is imported, so each integrator's code is still loaded
 # under the extension's names.
 INTEGRATOR = "PATH"
@@ -186,7 +187,8 @@ im.file_format, im.color_depth, im.color_mode, im.exr_codec = 'OPEN_EXR', '32', 
 bpy.data.images["Render Result"].save_render(filepath=out, scene=sc)
 print("RENDERED", out)
 kernels = os.path.join(W._numba_cache.cache_dir(), "numba")
-print("WARMUP", json.dumps({"done": W.warmup.done, "error": W.warmup.error,
+job = W.warmup.jobs_status()[-1]       # the render's own kernels (core/warmup.py)
+print("WARMUP", json.dumps({"done": job["done"], "error": job["error"],
                             "cached": sorted(n for n in os.listdir(kernels)
                                              if n.startswith("bl_ext.user_default.fppm.core."))}))
 """

@@ -177,7 +177,8 @@ def _assert_cancels_within_promise(prepare, export, what):
 def _children():
     """Process ids of this process's children (Linux), once the killed ones
     are reaped, less the kernel warm-up's compiling child (core.warmup: an
-    F12 starts it when no earlier render of the session did).  Tests compare
+    F12 starts it when no earlier render of the session did; it waits 20 s
+    for the next render's job).  Tests compare
     them with the children alive before they ran: other tests of the session
     may leave their own."""
     from fppm.addon import export_read as R
@@ -186,7 +187,7 @@ def _children():
     for task in glob.glob(f"/proc/{os.getpid()}/task/*/children"):
         with open(task) as fh:
             out += [int(x) for x in fh.read().split()]
-    return [p for p in out if b"compile_kernels()" not in _cmdline(p)]
+    return [p for p in out if b"child_main(" not in _cmdline(p)]
 
 
 def _cmdline(pid: int) -> bytes:

@@ -223,15 +223,14 @@ SMALL_JOBS = ("lambda: [(W.warmup_scene(res=8, glossy=False), S.RenderSettings("
 # instead of warmup_jobs() (also tests/test_addon_install.py).
 USE_JOBS = r"""
 W.warmup_jobs = eval(SMALL)
-CALL = 'importlib.import_module(name + ".core.warmup").compile_kernels()'
+CALL = 'W.child_main('
 assert CALL in W._CHILD
-W._CHILD = W._CHILD.replace(CALL, "W = importlib.import_module(name + '.core.warmup'); "
-                            "S = importlib.import_module(name + '.core.settings'); "
-                            "W.warmup_jobs = " + SMALL + "; W.compile_kernels()")
+W._CHILD = W._CHILD.replace(CALL, "S = importlib.import_module(name + '.core.settings'); "
+                            "W.warmup_jobs = " + SMALL + "; W.child_main(")
 """
 
 FIRST_USE = r"""
-import json, sys, time
+import json, sys, threading, time
 sys.path.insert(0, sys.argv[1])
 import fppm_alias  # noqa
 import fppm.core.settings as S
@@ -239,10 +238,13 @@ import fppm.core.warmup as W
 from fppm.core.warmup import warmup
 SMALL = sys.argv[2]
 """ + USE_JOBS + r"""
-t0 = time.perf_counter()
-warmup.start()
+# A render's own job, here the very scene and settings of SMALL.
+scene, st = eval(SMALL)()[0]
+job = W.render_job(scene, st)
+ok = []
+threading.Thread(target=lambda: ok.append(warmup.wait_for(job, rest=False))).start()
 last, gaps = time.perf_counter(), []
-while not warmup.done:
+while not ok:
     time.sleep(0.001)
     now = time.perf_counter()
     gaps.append(now - last)
@@ -251,35 +253,121 @@ from numba.core.registry import CPUDispatcher
 compiled_here = sorted(f"{n}.{k}" for n, m in list(sys.modules.items()) if n.startswith("fppm.core")
                        for k, v in vars(m).items()
                        if isinstance(v, CPUDispatcher) and v.stats.cache_misses)
-print(json.dumps({"error": warmup.error, "cold": warmup.was_cold, "max_gap": max(gaps),
-                  "compiled_here": compiled_here}))
+# The render itself, three passes: every kernel it calls is already loaded.
+from fppm.core.render import Renderer
+n0 = W.compiled_count()
+Renderer(scene, st.replace(max_passes=3), log=lambda m: None).run()
+in_render = W.compiled_count() - n0
+print(json.dumps({"ok": ok, "job": warmup.jobs_status()[0], "max_gap": max(gaps),
+                  "compiled_here": compiled_here, "compiled_in_render": in_render,
+                  "job_compiled": W.is_compiled(job)}))
 """
 
 
 def test_first_use_compiles_in_a_subprocess_and_keeps_this_process_responsive(tmp_path):
-    # Empty cache: the kernels compile in a child process (under this
-    # process's module names, into the same cache), this process only loads
-    # them: nothing compiles here, and a 1 ms sleep loop on the main thread
-    # never waits long (no GIL or garbage-collector pauses from the compiler).
+    # Empty cache: a render's own kernels compile in a child process (under
+    # this process's module names, into the same cache), this process only
+    # loads them: nothing compiles here, neither during the warm-up nor in
+    # the render's passes after it (the job covers the render), and a 1 ms
+    # sleep loop on the main thread never waits long (no GIL or
+    # garbage-collector pauses from the compiler).
     env = dict(os.environ, FPPM_CACHE_DIR=str(tmp_path / "cache"))
     p = subprocess.run([PY, "-c", FIRST_USE, os.path.join(ROOT, "tests"), SMALL_JOBS],
                        capture_output=True,
                        text=True, timeout=1200, cwd=str(tmp_path), env=env)
     assert p.returncode == 0, p.stderr[-3000:]
     out = __import__("json").loads(p.stdout.strip().splitlines()[-1])
-    assert out["error"] is None and out["cold"] is True
+    assert out["ok"] == [True] and out["job_compiled"], out
+    assert out["job"]["done"] and out["job"]["error"] is None and out["job"]["was_cold"], out
     assert out["compiled_here"] == []
+    assert out["compiled_in_render"] == 0
     assert out["max_gap"] < 0.25, out["max_gap"]
 
 
-def test_without_a_python_executable_the_thread_compiles(monkeypatch, capsys):
+def test_without_a_python_executable_the_thread_compiles(monkeypatch, capsys, tmp_path):
     # Never start something that is not Python (an old Blender's
     # sys.executable was Blender itself): compile in this process instead.
     from fppm.core import warmup as W
     calls = []
+    monkeypatch.setenv("FPPM_CACHE_DIR", str(tmp_path))
     monkeypatch.setattr(sys, "executable", "/opt/blender/blender")
-    monkeypatch.setattr(W, "is_compiled", lambda: False)
     monkeypatch.setattr(W, "compile_kernels", lambda should_stop=None: calls.append(1))
-    W.compile_then_load()
+    w = W.Warmup()
+    assert w.wait() is True and w.error is None
     assert calls == [1]
     assert "is not a Python interpreter" in capsys.readouterr().out
+
+
+def test_job_key_follows_the_kinds_not_the_values():
+    # A render's job (core.warmup.render_job) is one pass of its own scene
+    # and settings; its key (which kernels it needs) ignores what changes no
+    # kernel -- the seed, the budget, a colour, an object moved -- and
+    # follows what does: the integrator, a lobe kind, the pixel count's
+    # power of two.
+    import dataclasses
+
+    import numpy as np
+
+    from fppm.core import warmup as W
+    from fppm.core.scene.model import DIFFUSE, GLASS, Lobe, Material
+    from fppm.core.settings import RenderSettings
+    scene = W.warmup_scene(res=8, glossy=False)
+    st = RenderSettings(seed=3, max_passes=64, time_limit=30.0)
+    job = W.render_job(scene, st)
+    assert job[1].max_passes == 1 and job[1].time_limit == 0.0 and job[1].seed == 3
+    key = W.job_key(job)
+    moved = dataclasses.replace(scene, tri_p=scene.tri_p + np.float32(0.25))
+    green = Material("diffuse", (Lobe(DIFFUSE, (0.1, 0.9, 0.2)),))
+    recoloured = dataclasses.replace(scene, materials=[green] + list(scene.materials[1:]))
+    assert W.job_key(W.render_job(moved, st.replace(seed=9, time_limit=5.0))) == key
+    assert W.job_key(W.render_job(recoloured, st)) == key
+
+    def sized(n):
+        cam = dataclasses.replace(scene.camera, resolution=(n, n))
+        return dataclasses.replace(scene, camera=cam)
+    assert W.job_key(W.render_job(sized(11), st)) == key      # 64 and 121 px: both in [2^6, 2^7)
+    huge = sized(256)
+    glass_only = dataclasses.replace(scene, materials=[Material("g", (Lobe(GLASS, ior=1.5),))] * 5)
+    others = [W.render_job(scene, st.replace(integrator="PHOTON")), W.render_job(huge, st),
+              W.render_job(glass_only, st), W.render_job(scene, st, ("Depth",))]
+    keys = {W.job_key(j) for j in others}
+    assert key not in keys and len(keys) == len(others)
+
+
+def test_a_renders_job_goes_first_and_one_shot_renders_skip_the_variants(tmp_path, monkeypatch):
+    # The order of the compiling child's work (core.warmup.Warmup), with a
+    # stand-in child: a render's job before every variant, which a job asked
+    # for meanwhile interrupts (the real child is killed there) and which
+    # then starts again; a one-shot render (rest=False) asks for no variant.
+    from fppm.core import warmup as W
+    from fppm.core.errors import RenderCancelled
+    from fppm.core.settings import RenderSettings
+    monkeypatch.setenv("FPPM_CACHE_DIR", str(tmp_path))
+    calls = []
+
+    class Child(W.Warmup):
+        def _compile_in_child(self, g, poll=0.01):
+            name = "all" if g.jobs is None else g.jobs[0][1].integrator
+            calls.append(name)
+            while name == "all" and len(calls) == 1:   # the first compile of the variants
+                if self._kick.is_set():
+                    calls[-1] = "all (interrupted)"
+                    raise RenderCancelled("a job first")
+                time.sleep(poll)
+            return {"seconds": 1.0, "compiled": 1, "kernels": {}, "cpu": 1.0}
+
+    scene = W.warmup_scene(res=8, glossy=False)
+    light = W.render_job(scene, RenderSettings(integrator="LIGHT"))
+    path = W.render_job(scene, RenderSettings(integrator="PATH"))
+    one_shot = Child()
+    assert one_shot.wait_for(light, rest=False) and not one_shot.done
+    one_shot._thread.join(5.0)
+    assert calls == ["LIGHT"] and not one_shot.running
+    assert W.is_compiled(light) and W.expected_seconds(light) == 1.0
+    calls.clear()
+    ui = Child()
+    ui.start()
+    while not calls:
+        time.sleep(0.01)
+    assert ui.wait_for(path, rest=True) and ui.wait() and ui.error is None
+    assert calls == ["all (interrupted)", "PATH", "all"]

@@ -556,7 +556,10 @@ def _kernels(token):
             else:
                 cut[i, 0], cut[i, 1], cut[i, 2] = radius_cut(
                     spec[i, 0], spec[i, 1], spec[i, 2], rec.t[i], chain.r_cut, A_MAX, D)
-        march_segments(march, seg.o, seg.d, rec.t, rows_m, n_march, a_occ, t_occ, cut, planes)
+        # np.int64: n_march may be typed Literal[int](0), a second compile of
+        # the march (~15 s) beside march_occlusion's (core/warmup.py)
+        march_segments(march, seg.o, seg.d, rec.t, rows_m, np.int64(n_march), a_occ, t_occ,
+                       cut, planes)
         for i in range(K):
             if not (need[i] and rec.hit[i]):
                 continue

@@ -867,8 +867,9 @@ def _build_blocks(dist, cone, R, B, NB, bmin, bcone, L, quant):
                     else:
                         ib[nb_] = k
                         nb_ += 1
-                _union_cone(ax_, ay_, az_, sk_, ia, na, out, 0)
-                _union_cone(ax_, ay_, az_, sk_, ib, nb_, out, 4)
+                # np.int64: one compile, not one per literal (core/warmup.py)
+                _union_cone(ax_, ay_, az_, sk_, ia, np.int64(na), out, np.int64(0))
+                _union_cone(ax_, ay_, az_, sk_, ib, np.int64(nb_), out, np.int64(4))
                 _store_cones(out, bcone, bx, by, bz, quant)
 
 

@@ -1342,7 +1342,9 @@ def _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mas
         p1 += bPhi[t, v, 1]
         p2 += bPhi[t, v, 2]
     if clip.shape[0] > 0 and clip[v] != CLIP_CLEAR:
-        _fold_clipped(v, m, p0, p1, p2, bS, n_used, M, Phi, scale, div, S, clip[v])
+        # np.int64: one compile for int32 and int64 callers (core/warmup.py)
+        _fold_clipped(np.int64(v), np.int64(m), p0, p1, p2, bS, n_used, M, Phi, scale, div, S,
+                      clip[v])
     else:
         M[v] += m
         Phi[v, 0] += p0 * (scale[v, 0] / div)
