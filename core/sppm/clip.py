@@ -42,6 +42,7 @@ clip is cast every pass with its radii.
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 from numba import njit
@@ -134,7 +135,15 @@ def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.
     (cheaper), the closest hit for the occluded ones alone.  tri_ng (T, 3)
     float64: the unit geometric normals of accel's triangles
     (core.sppm.photon_kernels.build_triangle_data).  check_stop() is called
-    before every block (a cancel is seen within one block's rays)."""
+    before every block (a cancel is seen within one block's rays).
+
+    The blocks (CLIP_BLOCK points; at least four from SPLIT_MIN points) are
+    taken in turn by two threads, this one and core.sppm.photons' pool
+    (``visible_points.in_two_threads``; Embree and the kernels release the
+    GIL): a point's code depends on its own rays alone, so the codes are the
+    same bits however the blocks are shared."""
+    from .camera_kernels import SPLIT_MIN
+    from .visible_points import in_two_threads
     P = active.shape[0]
     out = np.full(P, CLIP_CLEAR, np.uint64)
     idx = np.nonzero(active)[0]
@@ -143,9 +152,8 @@ def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.
     p = np.ascontiguousarray(p, np.float64)
     ng = np.ascontiguousarray(ng, np.float64)
     R2 = np.asarray(R2, np.float64)
-    for b0 in range(0, idx.size, CLIP_BLOCK):
-        check_stop()
-        ib = idx[b0:b0 + CLIP_BLOCK]
+
+    def block(ib):
         R = np.sqrt(R2[ib])
         lift = np.maximum(accel.offset_scale(p[ib]), CLIP_LIFT_REL * R)
         o, d = _edge_rays(p, ng, ib, lift, _EDGE_COS, _EDGE_SIN)
@@ -157,6 +165,23 @@ def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.
             hits = accel.intersect(o[j], d[j], t_max=t_max[j])
             t[j], prim[j] = hits.t, hits.prim
         _codes(t, prim, tri_ng, ng, ib, R, _COS_HALF, out)
+
+    if idx.size < SPLIT_MIN:
+        check_stop()
+        block(idx)
+        return out
+    blk = min(CLIP_BLOCK, -(-idx.size // 4))
+    todo, take = iter(range(0, idx.size, blk)), threading.Lock()
+
+    def worker():
+        while True:
+            with take:
+                b0 = next(todo, None)
+            if b0 is None:
+                return
+            check_stop()
+            block(idx[b0:b0 + blk])
+    in_two_threads(worker)
     return out
 
 
