@@ -2,8 +2,9 @@
 (docs/architecture.md "Cores used: the kernel clip and the grid build").
 
 The kernel clip's blocks taken in turn by two threads against one thread
-(and a cancel inside a block), and the grid build's median of the active
-radii by the compiled selection against np.median.  The grid build itself
+(and a cancel inside a block), its edge rays' fused lift, radii and lengths
+against the numpy steps they replaced, and the grid build's median of the
+active radii by the compiled selection against np.median.  The grid build itself
 (counts zeroed by the tasks that count) is checked against
 tests/oracle_grid.py by tests/test_compiled_pass_stages.py.
 """
@@ -80,3 +81,28 @@ def test_compiled_median_is_numpys(threads):
     for x in _median_cases():
         a, b = f(threads, x), np.median(x)
         assert np.float64(a).tobytes() == np.float64(b).tobytes(), (x[:8], a, b)
+
+
+def test_edge_rays_lift_and_lengths_are_the_numpy_ones():
+    """clip._edge_rays's fused lift, radii and ray lengths against the numpy
+    steps they replaced (accel.offset_scale, np.sqrt, np.repeat and Accel's
+    float32 t_max), bit for bit; scene-scale coordinates so that both the
+    offset and CLIP_LIFT_REL R win somewhere."""
+    from core.accel import REL_OFFSET
+    acc = _wall_accel()
+    p, ng, R2, _ = _floor_points(2000, 4)
+    p[::3] *= 1e4                            # the offset above CLIP_LIFT_REL R there
+    ng = ng + np.random.default_rng(5).normal(0, 0.1, ng.shape)
+    ng /= np.linalg.norm(ng, axis=1, keepdims=True)
+    idx = np.arange(1, 2000, 2)
+    o, d, R, t_max = C._edge_rays(p, ng, idx, R2, REL_OFFSET, acc.abs_floor / REL_OFFSET,
+                                  C._EDGE_COS, C._EDGE_SIN)
+    R_np = np.sqrt(R2[idx])
+    lift = np.maximum(acc.offset_scale(p[idx]), C.CLIP_LIFT_REL * R_np)
+    assert (lift > C.CLIP_LIFT_REL * R_np).any() and (lift == C.CLIP_LIFT_REL * R_np).any()
+    W = C.CLIP_WEDGES
+    assert np.array_equal(R, R_np)
+    assert np.array_equal(t_max, np.minimum(np.repeat(R_np, W), 3e37).astype(np.float32))
+    o_np = np.repeat((p[idx] + lift[:, None] * ng[idx]), W, axis=0).astype(np.float32)
+    assert np.array_equal(o, o_np)
+    assert np.allclose(np.einsum("ij,ij->i", d, np.repeat(ng[idx], W, axis=0)), 0, atol=1e-6)
