@@ -85,6 +85,7 @@ import oracle_occlusion  # noqa: E402
 import oracle_photons  # noqa: E402
 from core.sppm import photon_kernels as PK  # noqa: E402
 from core.sppm import hashgrid as Hg  # noqa: E402
+from core.sppm import clip as Clip  # noqa: E402
 from core.sppm import photons as Ph  # noqa: E402
 from core.render import Renderer  # noqa: E402
 from core.scene.model import DIFFUSE, Camera, Light, Lobe, Material, make_scene  # noqa: E402
@@ -650,8 +651,8 @@ def gather_report(a):
               f"cores used {bc / bw:.2f} -> {ac / aw:.2f}")
 
 
-PASS_STAGES = ("camera", "direct", "radius_init", "grid_build", "photon_trace", "gather",
-               "update", "film")
+PASS_STAGES = ("camera", "direct", "radius_init", "clip", "grid_build", "photon_trace",
+               "gather", "update", "film")
 
 
 def pass_report(a):
@@ -746,6 +747,8 @@ class StageClock:
         self._gather_inner = pp._trace_gather
         pp._trace_gather = self._timed(pp._trace_gather, "gather")
         Hg.build_grid = self._timed(Hg.build_grid, "grid_build")
+        # the kernel clip's rays (PhotonPass.begin, before the grid build)
+        Clip.clip_codes = self._timed(Clip.clip_codes, "clip")
 
     def reset(self):
         """Zero the sums (the wrapped functions stay wrapped)."""

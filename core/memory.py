@@ -46,7 +46,9 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
   default): the float64 state, the pass's float64 sums and two threads'
   int32 gather rows -> BYTES_PER_SECTOR_CELL
 - the kernel clip (settings.clip_kernel, core.sppm.clip): one uint64 a
-  pixel through the gather -> BYTES_PER_CLIP (its rays are cast in blocks)
+  pixel through the gather -> BYTES_PER_CLIP (its rays are cast in blocks,
+  two at a time by two threads: ~30 MB, freed before the grid build, the
+  pass's peak)
 - per photon of a chunk: emission, bounce and deposit arrays and the
   gather's sorted copies -> BYTES_PER_PHOTON
 - per triangle: scene arrays, Embree BVH, the plan's copies -> BYTES_PER_TRIANGLE

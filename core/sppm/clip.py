@@ -42,12 +42,15 @@ clip is cast every pass with its radii.
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 from numba import njit
 
+from ..accel import REL_OFFSET
 from .hashgrid import (CLIP_CLEAR, CLIP_OPEN, CLIP_WEDGES, SECTOR_CELLS, _tangent_frame,
                        clip_weights)
+from .photon_kernels import _offset_scale
 
 #: Ray lift above the visible point's surface, relative to R.
 CLIP_LIFT_REL = 0.01
@@ -66,30 +69,41 @@ _EDGE_SIN = np.sin(2.0 * np.pi * np.arange(CLIP_WEDGES) / CLIP_WEDGES)
 
 
 @njit(cache=True)
-def _edge_rays(p, ng, idx, lift, ec, es):
+def _edge_rays(p, ng, idx, R2, rel, floor, ec, es):
     """Rays along the CLIP_WEDGES wedge edges of visible points idx (n,):
     origins o (n * W, 3) float32 = p + lift n, directions d (n * W, 3)
     float32 = cos(2 pi j / W) t1 + sin(2 pi j / W) t2 (j = edge), with
-    (t1, t2) = _tangent_frame(ng); lift (n,) float64; ec, es (W,) the
-    edges' cos and sin."""
+    (t1, t2) = _tangent_frame(ng) and lift = max(accel.offset_scale(p),
+    CLIP_LIFT_REL R) (rel, floor: the offset's, photon_kernels._offset_scale);
+    R (n,) float64 = sqrt(R2[idx]); the rays' lengths t_max (n * W,)
+    float32, R rounded as Accel's t_max is (min(R, 3e37) to float32).  ec,
+    es (W,) the edges' cos and sin.  One loop: the lift, the radii and the
+    lengths were numpy temporaries of every block (~15 % of the clip's CPU)."""
     n = idx.shape[0]
     W = CLIP_WEDGES
     o = np.empty((n * W, 3), np.float32)
     d = np.empty((n * W, 3), np.float32)
+    R = np.empty(n)
+    t_max = np.empty(n * W, np.float32)
     for i in range(n):
         v = idx[i]
+        r = math.sqrt(R2[v])
+        R[i] = r
+        lift = max(_offset_scale(p[v, 0], p[v, 1], p[v, 2], rel, floor), CLIP_LIFT_REL * r)
+        t = np.float32(min(r, 3e37))
         n0, n1, n2 = ng[v, 0], ng[v, 1], ng[v, 2]
         t0, t1, t2, t3, t4, t5 = _tangent_frame(n0, n1, n2)
         for j in range(W):
             c, s = ec[j], es[j]
-            r = i * W + j
-            o[r, 0] = p[v, 0] + lift[i] * n0
-            o[r, 1] = p[v, 1] + lift[i] * n1
-            o[r, 2] = p[v, 2] + lift[i] * n2
-            d[r, 0] = c * t0 + s * t3
-            d[r, 1] = c * t1 + s * t4
-            d[r, 2] = c * t2 + s * t5
-    return o, d
+            k = i * W + j
+            o[k, 0] = p[v, 0] + lift * n0
+            o[k, 1] = p[v, 1] + lift * n1
+            o[k, 2] = p[v, 2] + lift * n2
+            d[k, 0] = c * t0 + s * t3
+            d[k, 1] = c * t1 + s * t4
+            d[k, 2] = c * t2 + s * t5
+            t_max[k] = t
+    return o, d, R, t_max
 
 
 @njit(cache=True)
@@ -134,7 +148,15 @@ def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.
     (cheaper), the closest hit for the occluded ones alone.  tri_ng (T, 3)
     float64: the unit geometric normals of accel's triangles
     (core.sppm.photon_kernels.build_triangle_data).  check_stop() is called
-    before every block (a cancel is seen within one block's rays)."""
+    before every block (a cancel is seen within one block's rays).
+
+    The blocks (CLIP_BLOCK points; at least four from SPLIT_MIN points) are
+    taken in turn by two threads, this one and core.sppm.photons' pool
+    (``visible_points.in_two_threads``; Embree and the kernels release the
+    GIL): a point's code depends on its own rays alone, so the codes are the
+    same bits however the blocks are shared."""
+    from .camera_kernels import SPLIT_MIN
+    from .visible_points import in_two_threads
     P = active.shape[0]
     out = np.full(P, CLIP_CLEAR, np.uint64)
     idx = np.nonzero(active)[0]
@@ -142,14 +164,11 @@ def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.
         return out
     p = np.ascontiguousarray(p, np.float64)
     ng = np.ascontiguousarray(ng, np.float64)
-    R2 = np.asarray(R2, np.float64)
-    for b0 in range(0, idx.size, CLIP_BLOCK):
-        check_stop()
-        ib = idx[b0:b0 + CLIP_BLOCK]
-        R = np.sqrt(R2[ib])
-        lift = np.maximum(accel.offset_scale(p[ib]), CLIP_LIFT_REL * R)
-        o, d = _edge_rays(p, ng, ib, lift, _EDGE_COS, _EDGE_SIN)
-        t_max = np.repeat(R, CLIP_WEDGES)
+    R2 = np.ascontiguousarray(R2, np.float64)
+
+    def block(ib):
+        o, d, R, t_max = _edge_rays(p, ng, ib, R2, REL_OFFSET, accel.abs_floor / REL_OFFSET,
+                                    _EDGE_COS, _EDGE_SIN)
         j = np.nonzero(accel.occluded(o, d, t_max))[0]
         t = np.full(t_max.shape[0], np.inf)
         prim = np.full(t_max.shape[0], -1, np.int32)
@@ -157,6 +176,23 @@ def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.
             hits = accel.intersect(o[j], d[j], t_max=t_max[j])
             t[j], prim[j] = hits.t, hits.prim
         _codes(t, prim, tri_ng, ng, ib, R, _COS_HALF, out)
+
+    if idx.size < SPLIT_MIN:
+        check_stop()
+        block(idx)
+        return out
+    blk = min(CLIP_BLOCK, -(-idx.size // 4))
+    todo, take = iter(range(0, idx.size, blk)), threading.Lock()
+
+    def worker():
+        while True:
+            with take:
+                b0 = next(todo, None)
+            if b0 is None:
+                return
+            check_stop()
+            block(idx[b0:b0 + blk])
+    in_two_threads(worker)
     return out
 
 

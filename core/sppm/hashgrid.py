@@ -426,15 +426,21 @@ def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, 
     S = n_chunks // G
     vb = np.searchsorted(off, np.arange(G + 1) * E // G)
     vb[0], vb[G] = 0, K
-    cell_start = np.zeros(n_slots + 1, cur_proto.dtype)
-    cur = np.zeros((G - 1, n_slots), cur_proto.dtype)
+    # The counts are zeroed by the task that counts into them (not by one
+    # thread before: at 1080p they are 2 x 128 MiB of fresh pages, whose
+    # memset and faults were the build's serial part).
+    cell_start = np.empty(n_slots + 1, cur_proto.dtype)
+    cell_start[0] = 0
+    cur = np.empty((G - 1, n_slots), cur_proto.dtype)
     last = G - 1
     for t in prange(G * S):
         g, j = t // S, t % S
         s0, s1 = j * n_slots // S, (j + 1) * n_slots // S
         if g < last:
+            cur[g, s0:s1] = 0
             _entry_counts(off[vb[g]], off[vb[g + 1]], s0, s1, ent_slot, cur[g], 0)
         else:
+            cell_start[s0 + 1:s1 + 1] = 0
             _entry_counts(off[vb[g]], off[vb[g + 1]], s0, s1, ent_slot, cell_start, 1)
     # Cursors: a prefix sum over slots x threads, by slot ranges (their
     # totals, a prefix over the ranges, then each range in place).
@@ -978,9 +984,11 @@ def _active_range(k0, k1, pos, R, active, act):
 
 @njit(cache=True)
 def _extent_range(k0, k1, j, pos, R, act, scale, R_ins, R_act, lo, hi):
-    """R_ins, R_act[j..] (in VP order) of the active VPs k0..k1-1, and the
-    bounds lo, hi (3,) of their spheres (updated in place)."""
+    """R_ins (0 for the inactive), R_act[j..] (in VP order) of the active
+    VPs k0..k1-1, and the bounds lo, hi (3,) of their spheres (updated in
+    place)."""
     for v in range(k0, k1):
+        R_ins[v] = 0.0
         if act[v]:
             r = R[v] * (1.0 + _REL_PAD) + _ABS_PAD * scale
             R_ins[v] = r
@@ -1009,7 +1017,7 @@ def _active_extent(n_chunks, pos, R, active):
     for c in range(n_chunks):
         start[c + 1] = start[c] + cnt[c]
     n_active = start[n_chunks]
-    R_ins = np.zeros(K)
+    R_ins = np.empty(K)            # written by the threads (its pages too)
     R_act = np.empty(n_active)
     lo = np.full((n_chunks, 3), np.inf)
     hi = np.full((n_chunks, 3), -np.inf)
@@ -1018,6 +1026,8 @@ def _active_extent(n_chunks, pos, R, active):
         for c in prange(n_chunks):
             _extent_range(c * K // n_chunks, (c + 1) * K // n_chunks, start[c], pos, R, act,
                           scale, R_ins, R_act, lo[c], hi[c])
+    else:
+        R_ins[:] = 0.0
     lo_all = np.full(3, np.inf)
     hi_all = np.full(3, -np.inf)
     for c in range(n_chunks):
@@ -1059,9 +1069,97 @@ def _bbox_cells(n_chunks, pos, R_ins, act, origin, inv_h):
     return tot.sum(), mx.max()
 
 
-#: Serial builds of the two (small grids: no thread hand-off).
+@njit(cache=True)
+def _digit_range(k0, k1, bits, shift, prefix, full, cnt):
+    """cnt[digit] += 1, digit = (bits[v] >> shift) & 0xFFFF, for v in k0..k1-1
+    whose bits above the digit equal prefix (every v when full)."""
+    for v in range(k0, k1):
+        b = bits[v]
+        if full or (b >> np.uint64(shift + 16)) == prefix:
+            cnt[np.int64((b >> np.uint64(shift)) & np.uint64(0xFFFF))] += 1
+
+
+@njit(cache=True)
+def _below_range(k0, k1, x, y):
+    """(how many of x[k0:k1] are < y, the largest of them or -inf)."""
+    n, m = 0, -np.inf
+    for v in range(k0, k1):
+        if x[v] < y:
+            n += 1
+            m = max(m, x[v])
+    return n, m
+
+
+@njit(cache=True)
+def _digit_rows(k0, k1, bits, d, out, o):
+    """out[o:] = the bits[v] (v in k0..k1-1) whose top 16 bits are d, in order."""
+    for v in range(k0, k1):
+        if (bits[v] >> np.uint64(48)) == d:
+            out[o] = bits[v]
+            o += 1
+
+
+@njit(cache=True)
+def _digit_of_rank(cnt, k):
+    """(digit, rank within it) of the value of rank k, from per-thread digit
+    counts cnt (T, 65536)."""
+    tot = cnt.sum(axis=0)
+    d = 0
+    while k >= tot[d]:
+        k -= tot[d]
+        d += 1
+    return d, k
+
+
+@njit(cache=True, parallel=True)
+def _median_parallel(n_chunks, x):
+    """np.median of x (n,) float64, n >= 1, every value finite and >= 0 (the
+    active radii), by n_chunks threads, exactly: a positive float64's bits,
+    read as an unsigned integer, order as its value, so the value of rank
+    n // 2 is found 16 bits at a time -- the top 16 bits by counts split
+    over the threads, the values with those bits gathered (by the threads,
+    in their counts' order) and the lower 48 bits found among them alone;
+    no copy of x, no sort.  For even n the value below it is the largest
+    smaller one (or the same value, when repeated), and the two are
+    averaged as numpy's mean of two does, (a + b) / 2."""
+    n = x.shape[0]
+    bits = x.view(np.uint64)
+    cnt = np.zeros((n_chunks, 1 << 16), np.int64)
+    for c in prange(n_chunks):
+        _digit_range(c * n // n_chunks, (c + 1) * n // n_chunks, bits, 48, np.uint64(0), True,
+                     cnt[c])
+    d, k = _digit_of_rank(cnt, n // 2)
+    # the values of digit d, each thread's after the threads' before it
+    o = np.zeros(n_chunks + 1, np.int64)
+    for c in range(n_chunks):
+        o[c + 1] = o[c] + cnt[c, d]
+    cand = np.empty(o[n_chunks], np.uint64)
+    for c in prange(n_chunks):
+        _digit_rows(c * n // n_chunks, (c + 1) * n // n_chunks, bits, np.uint64(d), cand, o[c])
+    prefix = np.uint64(d)
+    one = cnt[:1]
+    for level in range(1, 4):
+        shift = 48 - 16 * level
+        one[:] = 0
+        _digit_range(0, cand.shape[0], cand, shift, prefix, False, one[0])
+        d, k = _digit_of_rank(one, k)
+        prefix = (prefix << np.uint64(16)) | np.uint64(d)
+    hi = np.array([prefix]).view(np.float64)[0]
+    if n % 2 == 1:
+        return hi
+    below = np.zeros(n_chunks, np.int64)
+    below_max = np.full(n_chunks, -np.inf)
+    for c in prange(n_chunks):
+        below[c], below_max[c] = _below_range(c * n // n_chunks, (c + 1) * n // n_chunks,
+                                              x, hi)
+    lo = below_max.max() if below.sum() >= n // 2 else hi
+    return (lo + hi) / 2.0
+
+
+#: Serial builds of the three (small grids: no thread hand-off).
 _active_extent_serial = serial_twin(_active_extent)
 _bbox_cells_serial = serial_twin(_bbox_cells)
+_median_serial = serial_twin(_median_parallel)
 
 
 def start_dtype(entry_bound: int):
@@ -1108,7 +1206,8 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
                     np.zeros(0, np.int32), R_ins)
     origin = lo.copy()
 
-    h = cell_factor * float(np.median(R_act))
+    # np.median's value, in the numba threads (it was the build's serial part)
+    h = cell_factor * float((_median_parallel if T > 1 else _median_serial)(T, R_act))
     budget = ENTRY_BUDGET_PER_VP * n_active
     while True:
         inv_h = 1.0 / h
