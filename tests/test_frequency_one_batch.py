@@ -92,3 +92,18 @@ def test_frequency_survivors_lead_the_live_rows(counts):
     for arr in live:
         np.testing.assert_array_equal(arr[:n_next].reshape(n_next, -1)[:, 0], src * 7 + 1)
     assert sorted(zip(src, rec.nxt_delta[:n_next], live.d64[:n_next, 0])) == before
+
+
+#: tests/test_photon_trace_pins.py's digests of the frequency cases before
+#: one batch: ``one_batch = False`` is that tracer, bit for bit.
+A_BATCH_EACH = {"cornell": "2a8c75fef944182a72a0580655e059cf",
+                "glass_mirror": "b5e69c5b84ceafd863fd8dc9d1b4ceb0"}
+
+
+@pytest.mark.parametrize("make", [glass_mirror, cornell])
+def test_a_batch_each_is_the_tracer_before(make):
+    from test_photon_trace_pins import _digest
+    tr = _tracer(make(), use_frequency=True)
+    tr.one_batch = False
+    dep = tr.trace(20_000, 5_000, np.random.default_rng(17))
+    assert _digest(dep[k] for k in sorted(dep)) == A_BATCH_EACH[make.__name__]
