@@ -369,14 +369,25 @@ def mark_reach(p, r, lo, cell, res, out):
     cell] of a visible point p (P, 3) with radius r (P,) [m] touches: a
     superset of the voxels its gather sphere reaches, one voxel wider
     (the next pass's visible points jitter within their pixels).
-    Indices clipped to the grid, as :func:`gate_unreached` looks them up."""
+    Indices clipped to the grid, as :func:`gate_unreached` looks them up.
+    A box inside the last one marked is skipped (the same map: neighbouring
+    pixels' points, in pixel order, mostly mark the same voxels)."""
+    lo_i = np.empty(3, np.int64)
+    hi_i = np.empty(3, np.int64)
+    lo_m = np.full(3, res, np.int64)          # the last box marked (none yet)
+    hi_m = np.full(3, -1, np.int64)
     for n in range(p.shape[0]):
-        lo_i = np.empty(3, np.int64)
-        hi_i = np.empty(3, np.int64)
+        inside = True
         for a in range(3):
             e = r[n] + cell[a]
             lo_i[a] = min(max(int(math.floor((p[n, a] - e - lo[a]) / cell[a])), 0), res - 1)
             hi_i[a] = min(max(int(math.floor((p[n, a] + e - lo[a]) / cell[a])), 0), res - 1)
+            inside = inside and lo_m[a] <= lo_i[a] and hi_i[a] <= hi_m[a]
+        if inside:
+            continue
+        for a in range(3):
+            lo_m[a] = lo_i[a]
+            hi_m[a] = hi_i[a]
         for x in range(lo_i[0], hi_i[0] + 1):
             for y in range(lo_i[1], hi_i[1] + 1):
                 for z in range(lo_i[2], hi_i[2] + 1):
