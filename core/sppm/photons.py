@@ -14,7 +14,7 @@ interpolates the hits, stores the deposits, samples the closures of
 roulette and compacts the live photons in place.  Photons on any other
 material (textures, GGX, Oren-Nayar, multi-lobe, translucent...) go through
 ``bsdf.sample_bsdf`` in numpy, and are appended back.  Frequency photons are
-traced as a separate batch through the same kernels; their spectra follow
+traced in the same batch, in its first live rows; their spectra follow
 the two compiled chains of ``core.frequency.kernels`` on the hits and
 survivors the kernel records (arriving: travel -> occlusion march ->
 occlude -> onto_surface -> predicted radius; leaving: off_surface -> lobe
