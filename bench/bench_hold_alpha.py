@@ -241,6 +241,8 @@ def planes_or(r, m):
     if ":keep=noplanes" in m:
         cp = r.tracer.chain_params
         r.tracer.chain_params = lambda cp=cp: cp()._replace(own_planes=False)
+    if ":keep=batches" in m:            # a batch for each kind of photon (the tracer before)
+        r.tracer.one_batch = False
 
 
 def equal_passes(scene, base, methods, seed, passes, report, ref, say):

@@ -244,15 +244,19 @@ def frequency_report(r, rb, r0, tm, a):
     """Pass overhead and per-photon cost of frequency photons, after (r) and
     before (rb) core.frequency.kernels, against r0 (no frequency photons):
     best of a.repeat interleaved measurements."""
-    pp = {"after": [], "before": []}
+    pp = {"after": [], "before": [], "a batch each": []}
     for _ in range(a.repeat):
         d0, _ = photon_pass(r0, tm)
-        for key, rr in (("after", r), ("before", rb)):
+        for key, rr in (("after", r), ("a batch each", r), ("before", rb)):
             if rr is None:
                 continue
+            # 'a batch each': frequency and classic photons traced in batches
+            # of their own (PhotonTracer.one_batch False, the rule before)
+            r.tracer.one_batch = key != "a batch each"
             d, _ = photon_pass(rr, tm)
             pp[key].append((d["trace_cpu"] + d["gather_cpu"])
                            / (d0["trace_cpu"] + d0["gather_cpu"]) - 1)
+        r.tracer.one_batch = True
     n = min(a.photons, Ph_chunk())
     cost = {"after": [], "before": [], "no march": []}
     march_b = []
@@ -271,11 +275,16 @@ def frequency_report(r, rb, r0, tm, a):
             if key == "before":
                 march_b.append(m / tc)
         tr.occlusion = occlusion
+    marginal = mixed_batch_cost(tr, n, a.repeat, lambda nf, seed: trace_seconds(r, tm, n, nf,
+                                                                                seed)[0])
     print(f"frequency ({r.settings.frequency_fraction:.0%} frequency photons x pass^-"
           f"{r.settings.frequency_decay:g}, CPU time of all "
           f"threads, best of {a.repeat}; "
           f"all values: {[f'{x:+.0%}' for x in pp['after']]} after, "
           f"{[f'{x:+.0%}' for x in pp['before']]} before)")
+    print(f"  whole photon pass vs none, a batch for each kind of photon (the rule before): "
+          f"{min(pp['a batch each']):+.0%}; all: {[f'{x:+.0%}' for x in pp['a batch each']]}")
+    print(f"  {marginal}")
     if rb is None:
         print(f"  whole photon pass vs none: {min(pp['after']):+.0%}")
         print(f"  per-photon tracing cost, frequency / classic photon: "
@@ -290,6 +299,26 @@ def frequency_report(r, rb, r0, tm, a):
           f"(its march {march_b[int(np.argmin(cost['before']))]:.2f}x"
           f" wall / classic CPU); all: after {[round(x, 2) for x in cost['after']]}, "
           f"before {[round(x, 2) for x in cost['before']]}")
+
+
+def mixed_batch_cost(tr, n: int, repeat: int, cpu) -> str:
+    """The marginal cost of a frequency photon among classic ones, as in a
+    pass (a quarter of n photons carry a spectrum): (CPU(n, n/4) - CPU(n,
+    0)) / (n/4) over a classic photon's CPU(n, 0) / n, with one batch for
+    both kinds (PhotonTracer.one_batch) and with a batch each (the rule
+    before); cpu(n_freq, seed) is the CPU seconds of tracing n photons.
+    Best of repeat, interleaved.  Returns the line to print."""
+    nf = n // 4
+    best = {True: np.inf, False: np.inf}
+    for k in range(repeat):
+        for ob in (True, False):
+            tr.one_batch = True
+            c = cpu(0, 200 + k)
+            tr.one_batch = ob
+            best[ob] = min(best[ob], (cpu(nf, 200 + k) - c) / nf / (c / n))
+        tr.one_batch = True
+    return (f"a frequency photon among classic ones ({nf} of {n}) / a classic photon, "
+            f"marginal: one batch {best[True]:.2f}x, a batch each {best[False]:.2f}x")
 
 
 def blend_report(a):
@@ -369,11 +398,12 @@ def blend_tracer_report(a):
             tr.occlusion = 0 if key == "no march" else occlusion
             best[key] = min(best[key], cpu(n, 100 + k) / c)
         tr.reach, tr.occlusion = reach, occlusion
+    marginal = mixed_batch_cost(tr, n, a.repeat, cpu)
     share = float(np.mean(reach)) if reach is not None else float("nan")
     print(f"{os.path.basename(a.blend)} at {a.blend_res}^2, tracer, {n} photons, best of "
           f"{a.repeat}: frequency / classic photon " + ", ".join(
               f"{k} {v:.2f}x" for k, v in best.items())
-          + f" (reach map: {share:.0%} of the voxels)")
+          + f" (reach map: {share:.0%} of the voxels); {marginal}")
 
 
 def raw_cpu(raw, rays):

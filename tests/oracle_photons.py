@@ -111,19 +111,20 @@ def spectrum_at_hits_numpy(self, spec, seg, rec, dep, rows):
     K = rows.K
     hi = np.nonzero(rec.hit[:K])[0]
     used = np.zeros(K, bool)
-    used[dep.buf.src[rows.dep0:rows.dep1]] = True
+    src = dep.buf.src[rows.dep0:rows.dep1]
+    used[src[src < K]] = True            # rays >= K: classic photons of the batch
     nxt = rec.nxt_src[:rows.n_next]
-    used[nxt[rec.nxt_delta[:rows.n_next] | self.chain_params().march_all]] = True
+    used[nxt[(rec.nxt_delta[:rows.n_next] | self.chain_params().march_all) & (nxt < K)]] = True
     out = np.zeros((K, 3))
     ng0 = seg.ng0[hi] if seg.ng0.shape[0] == K else None
     out[hi] = arrive_numpy(self, spec[hi], seg.o[hi], seg.d[hi], rec.t[hi], rec.ng[hi],
                            used[hi], ng0)
-    a, b = rows.dep0, rows.dep1
-    if b > a:
-        buf = dep.buf
-        buf.spec[a:b] = out[buf.src[a:b]]
-        buf.r[a:b] = F.radius_fold_key(F.predicted_radius(buf.spec[a:b], np.inf, np.inf, model),
-                                       model)
+    buf = dep.buf
+    k = rows.dep0 + np.flatnonzero(buf.src[rows.dep0:rows.dep1] < K)
+    if k.size:
+        buf.spec[k] = out[buf.src[k]]
+        buf.r[k] = F.radius_fold_key(F.predicted_radius(buf.spec[k], np.inf, np.inf, model),
+                                     model)
     return out
 
 

@@ -34,9 +34,9 @@ from test_photon_kernels import _tracer, cornell, glass_mirror  # noqa: E402
 
 PINS = {
     "cornell_plain": "c7efebd03e91870bed83859ccfc29d59",
-    "cornell_freq": "2a8c75fef944182a72a0580655e059cf",
+    "cornell_freq": "ab6301c4898d6d5e87ad60c7c1443055",      # one batch (docs/frequency.md)
     "glass_mirror_plain": "fa12cec5ca2f437f08b3aea52698675e",
-    "glass_mirror_freq": "b5e69c5b84ceafd863fd8dc9d1b4ceb0",
+    "glass_mirror_freq": "fb6b7f1320fbab4242da6b02b1f1062e",  # one batch
     "glass_mirror_caustic": "42b0ea714c7e9b9d0677efcf35db84a9",
     "cornell_mis": "11931a943bb718ba1c32bfe295a69aff",
 }

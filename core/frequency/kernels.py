@@ -311,12 +311,18 @@ def marked_segments(rows, rec, dep, march_all, need, used):
     lobe's blur.  A ray that only continues through a non-delta lobe (the
     first hit without ``photons_for_direct``) travels without its occluder
     (docs/frequency.md "Cost": what that changes, measured).  march_all:
-    used = need."""
+    used = need.  Deposits and survivors of rays >= K (classic photons
+    traced in the same batch, rows K.. of its live state) are skipped."""
+    K = rows.K
     for k in range(rows.dep0, rows.dep1):
-        need[dep.src[k]] = True
-        used[dep.src[k]] = True
+        i = dep.src[k]
+        if i < K:
+            need[i] = True
+            used[i] = True
     for j in range(rows.n_next):
         i = rec.nxt_src[j]
+        if i >= K:
+            continue
         need[i] = True
         if march_all or rec.nxt_delta[j]:
             used[i] = True
@@ -336,11 +342,13 @@ def gate_unreached(rows, rec, dep, seg, m, reach, used, unreached):
     K = rows.K
     delta = np.zeros(K, np.bool_)
     for j in range(rows.n_next):
-        if rec.nxt_delta[j]:
+        if rec.nxt_delta[j] and rec.nxt_src[j] < K:
             delta[rec.nxt_src[j]] = True
     R = m.res
     for k in range(rows.dep0, rows.dep1):
         i = dep.src[k]
+        if i >= K:                        # a classic photon's deposit
+            continue
         t = rec.t[i]
         ix = min(max(int(math.floor((seg.o[i, 0] + t * seg.d[i, 0] - m.lo[0]) * m.icell[0])), 0),
                  R - 1)
@@ -361,14 +369,25 @@ def mark_reach(p, r, lo, cell, res, out):
     cell] of a visible point p (P, 3) with radius r (P,) [m] touches: a
     superset of the voxels its gather sphere reaches, one voxel wider
     (the next pass's visible points jitter within their pixels).
-    Indices clipped to the grid, as :func:`gate_unreached` looks them up."""
+    Indices clipped to the grid, as :func:`gate_unreached` looks them up.
+    A box inside the last one marked is skipped (the same map: neighbouring
+    pixels' points, in pixel order, mostly mark the same voxels)."""
+    lo_i = np.empty(3, np.int64)
+    hi_i = np.empty(3, np.int64)
+    lo_m = np.full(3, res, np.int64)          # the last box marked (none yet)
+    hi_m = np.full(3, -1, np.int64)
     for n in range(p.shape[0]):
-        lo_i = np.empty(3, np.int64)
-        hi_i = np.empty(3, np.int64)
+        inside = True
         for a in range(3):
             e = r[n] + cell[a]
             lo_i[a] = min(max(int(math.floor((p[n, a] - e - lo[a]) / cell[a])), 0), res - 1)
             hi_i[a] = min(max(int(math.floor((p[n, a] + e - lo[a]) / cell[a])), 0), res - 1)
+            inside = inside and lo_m[a] <= lo_i[a] and hi_i[a] <= hi_m[a]
+        if inside:
+            continue
+        for a in range(3):
+            lo_m[a] = lo_i[a]
+            hi_m[a] = hi_i[a]
         for x in range(lo_i[0], hi_i[0] + 1):
             for y in range(lo_i[1], hi_i[1] + 1):
                 for z in range(lo_i[2], hi_i[2] + 1):
@@ -441,8 +460,9 @@ class Segments(NamedTuple):
 
 
 class Rows(NamedTuple):
-    """Which rows of a bounce's record the chains read: rays 0..K-1,
-    deposits dep0..dep1-1, survivors 0..n_next-1."""
+    """Which rows of a bounce's record the chains read: rays 0..K-1 (the
+    frequency photons), deposits dep0..dep1-1 and survivors 0..n_next-1 of
+    those rays (the others' are skipped: classic photons of the batch)."""
     K: int
     dep0: int
     dep1: int
@@ -502,7 +522,9 @@ def _kernels(token):
         the deposit buffers (``photon_kernels.DepositBuffers``: src, spec, r).
         Only rays that deposit (dep.src[dep0:dep1]) or continue
         (rec.nxt_src[:n_next]) are evaluated: the spectrum of any other hit
-        is never read.  For those, out[i] = :func:`arrive` with (a_occ,
+        is never read.  Rays K.. of the bounce are classic photons of the
+        same batch (``PhotonTracer._trace_batch`` keeps the frequency
+        photons in the first rows): their deposits and survivors are skipped.  For those, out[i] = :func:`arrive` with (a_occ,
         t_occ) = ``march_segments`` of the segment [o, o + t d].
         Deposits dep0..dep1-1: dep.spec[k] = out[dep.src[k]] and dep.r[k] =
         its predicted radius for a diffuse receiver.  reach (R, R, R) uint8
@@ -576,6 +598,8 @@ def _kernels(token):
             out[i, 2] = c
         for k in range(rows.dep0, rows.dep1):
             i = dep.src[k]
+            if i >= K:                    # a classic photon's deposit: r stays NaN
+                continue
             a, b, c = out[i, 0], out[i, 1], out[i, 2]
             dep.spec[k, 0] = a
             dep.spec[k, 1] = b

@@ -14,7 +14,7 @@ interpolates the hits, stores the deposits, samples the closures of
 roulette and compacts the live photons in place.  Photons on any other
 material (textures, GGX, Oren-Nayar, multi-lobe, translucent...) go through
 ``bsdf.sample_bsdf`` in numpy, and are appended back.  Frequency photons are
-traced as a separate batch through the same kernels; their spectra follow
+traced in the same batch, in its first live rows; their spectra follow
 the two compiled chains of ``core.frequency.kernels`` on the hits and
 survivors the kernel records (arriving: travel -> occlusion march ->
 occlude -> onto_surface -> predicted radius; leaving: off_surface -> lobe
@@ -134,6 +134,12 @@ def _deposit_arrays(cap: int) -> list:
             np.empty((cap, 3))]           # bary (prim, u, v): light tracing's BSDF
 
 
+def _record_arrays(n: int) -> list:
+    """New arrays of the HitRecord fields, n rows."""
+    return [np.empty(n), np.empty((n, 3)), np.empty(n), np.empty(n, bool),
+            np.empty(n, np.int64), np.empty(n, bool)]
+
+
 def _live_arrays(n: int) -> list:
     """New arrays of the LiveState fields, n rows."""
     return [np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty((n, 3)),
@@ -247,6 +253,9 @@ class PhotonTracer:
         # (R, R, R) uint8 on the march grid: voxels a visible point of the
         # last pass can gather from (set_reach); None: every deposit counts.
         self.reach = None
+        # Frequency and classic photons traced in one batch (_trace_batch);
+        # False: a batch each, the rule before (benchmarks).
+        self.one_batch = True
 
     def trace(self, n: int, n_freq: int, rng):
         """Trace n photons (the first n_freq carry a spectrum); return deposits.
@@ -289,7 +298,7 @@ class PhotonTracer:
         does not return."""
         n = ph["o"].shape[0]
         dep = self.deposit_buffers(n)
-        self._trace_batch(None, ph, 0, n, rng, dep, False)
+        self._trace_batch(None, ph, 0, n, rng, dep)
         self.note_deposits(n, dep.n)
         return dep.result()
 
@@ -327,28 +336,43 @@ class PhotonTracer:
         else:
             u = None
             ph = Lt.sample_photons(self.light_table, n, rng)
-        if n_freq:
-            self._trace_batch(u, ph, 0, n_freq, rng, dep, True)
-        if n > n_freq:
-            self._trace_batch(u, ph, n_freq, n, rng, dep, False)
+        if self.one_batch or not 0 < n_freq < n:
+            self._trace_batch(u, ph, 0, n, rng, dep, n_freq)
+        else:                          # the rule before (benchmarks): a batch each
+            self._trace_batch(u, ph, 0, n_freq, rng, dep, n_freq)
+            self._trace_batch(u, ph, n_freq, n, rng, dep)
         self.note_deposits(n, dep.n - n_before)
         return dep
 
-    def _trace_batch(self, u_emit, ph, a: int, b: int, rng, dep: _Deposits, freq: bool):
+    def _trace_batch(self, u_emit, ph, a: int, b: int, rng, dep: _Deposits, n_freq: int = 0):
         """Trace photons a..b-1: from the uniforms u_emit (n, 6) of the fused
         emission kernel, or from the emission ``ph`` of lights.sample_photons.
-        freq: these photons carry a spectrum."""
+        The first n_freq of them carry a spectrum.
+
+        Frequency and classic photons share the batch: every bounce's Embree
+        call, bounce kernel and numpy bounce of the generic materials, whose
+        fixed costs a batch of their own paid again for a few thousand
+        frequency photons (docs/frequency.md "One batch for both kinds of
+        photon").  The frequency photons are kept in the first Kf rows of
+        the live state (:meth:`_frequency_first`), so the chains read rows
+        0..Kf-1 of each bounce."""
         st = self.settings
         n = b - a
+        nf = min(max(int(n_freq), 0), n)
         live = self.pool.take("live", n, _live_arrays, lambda a: PK.LiveState(*a))
         rel = REL_OFFSET
         floor = self.accel.abs_floor / REL_OFFSET
         spec = None
+        Kf = 0                                   # live rows 0..Kf-1: frequency photons
         if u_emit is not None:
-            spec = np.empty((n if freq else 1, 3))
-            K = PK.emit_lights_state(u_emit[a:b], *self._light_arrays, rel, floor, live, freq,
-                                     spec)
-            spec = spec[:K] if freq else None
+            spec = np.empty((max(nf, 1), 3))
+            if nf:
+                Kf = PK.emit_lights_state(u_emit[a:a + nf], *self._light_arrays, rel, floor,
+                                          live, True, spec)
+            rest = PK.LiveState(*(x[Kf:] for x in live)) if Kf else live
+            K = Kf + PK.emit_lights_state(u_emit[a + nf:b], *self._light_arrays, rel, floor,
+                                          rest, False, spec)
+            spec = spec[:Kf]
         else:
             fal = ph.get("falloff_r2")
             fal = np.zeros(n) if fal is None else np.ascontiguousarray(fal[a:b], np.float64)
@@ -357,25 +381,24 @@ class PhotonTracer:
                                np.ascontiguousarray(ph["d"][a:b], np.float64),
                                np.ascontiguousarray(ph["power"][a:b], np.float64),
                                fal, rel, floor, live, src)
-            if freq:
-                spec = np.asarray(ph["freq_init"], np.float64)[a:b][src[:K]]
-        dep.spec_rows |= freq
+            if nf:
+                Kf = int(np.searchsorted(src[:K], nf))      # kept in order
+                spec = np.asarray(ph["freq_init"], np.float64)[a:b][src[:Kf]]
+        dep.spec_rows |= nf > 0
         # the geometric normal of the surface each frequency photon leaves
         # (zeros: the emitter): the march does not take it for an occluder
-        ng0 = np.zeros((K, 3)) if freq else None
+        ng0 = np.zeros((Kf, 3))
         caustic = self.after_delta_only
         # Hit records: frequency photons' chains, and the delta flag of the
         # scattering each survivor sampled (caustic photons).
-        record = freq or caustic or self.skip_straight
+        record = caustic or self.skip_straight
         prev_delta = np.zeros(K, bool) if caustic else None
         straight = np.ones(K, bool) if self.skip_straight else None
         cg = n if self.fmat.any_generic else 1
         gen = PK.GenericHits(np.empty(cg, np.int64), *(np.empty((cg, 3)) for _ in range(6)))
         ubuf = self.uniform_buffer(4 * K)       # K never grows: one survivor a ray at most
-        cr = n if record else 1
-        rec = PK.HitRecord(t=np.empty(cr), ng=np.empty((cr, 3)), nswi=np.empty(cr),
-                           hit=np.empty(cr, bool), nxt_src=np.empty(cr, np.int64),
-                           nxt_delta=np.empty(cr, bool))
+        cr = n if record or Kf else 1
+        rec = self.pool.take("record", cr, _record_arrays, lambda a: PK.HitRecord(*a))
         for bounce in range(st.max_bounces + 1):
             if K == 0:
                 break
@@ -386,31 +409,34 @@ class PhotonTracer:
                                  store=bool(st.photons_for_direct or bounce > 0),
                                  sample=bounce < st.max_bounces,
                                  roulette=bounce + 1 >= st.rr_start, bounce=bounce,
-                                 dep0=dep.n, record=record, rel=rel, floor=floor)
+                                 dep0=dep.n, record=bool(record or Kf), rel=rel, floor=floor)
             u = self.uniforms(K, 4, rng, ubuf)
             dep.reserve(K)
-            if freq:
+            if Kf:
                 # the segments just travelled: the kernel overwrites the live state
-                seg = FK.Segments(live.o32[:K].astype(np.float64), live.d64[:K].copy(), ng0)
+                seg = FK.Segments(live.o32[:Kf].astype(np.float64), live.d64[:Kf].copy(), ng0)
             through = straight is not None or (caustic and self.clear_through)
             if through:
                 d_in, prim_in = live.d64[:K].copy(), hits.prim[:K].astype(np.int64)
             n_next, n_dep, n_gen = PK.bounce_kernel(step, hits, live, self.tris, self.fmat, u,
                                                     dep.buf, gen, rec, PK.NO_MIS)
             dep.n = n_dep
+            n_fast = n_next
             if n_gen:
                 n_next = self._generic_bounce(n_gen, n_next, gen, u, step.roulette, live,
-                                              rec if record else None)
-            if freq:
+                                              rec if step.record else None)
+            if Kf:
+                kf_next = self._frequency_first(Kf, n_fast, n_next, live, rec)
                 # After the generic bounce: only hits that deposit or continue
                 # need a spectrum (the bounce reads seg and rec, not the live
                 # state it appended to).
                 spec_hit = self._spectrum_at_hits(spec, seg, rec, dep,
-                                                  FK.Rows(K, step.dep0, dep.n, n_next))
-                if n_next:
-                    spec = self._spectrum_leaving(spec_hit, n_next, hits.prim, rec, live.d64,
+                                                  FK.Rows(Kf, step.dep0, dep.n, n_next))
+                if kf_next:
+                    spec = self._spectrum_leaving(spec_hit, kf_next, hits.prim, rec, live.d64,
                                                   seg.d)
-                    ng0 = rec.ng[rec.nxt_src[:n_next]]
+                    ng0 = rec.ng[rec.nxt_src[:kf_next]]
+                Kf = kf_next
             if through:
                 th = self._through(d_in, prim_in, rec, live, n_next)
             if caustic:
@@ -424,6 +450,27 @@ class PhotonTracer:
             if straight is not None:
                 straight = self._straight_filter(dep, step.dep0, straight, th, rec, n_next)
             K = n_next
+
+    @staticmethod
+    def _frequency_first(Kf: int, n_fast: int, n_next: int, live, rec) -> int:
+        """After a bounce of rays whose first Kf are frequency photons: the
+        live rows 0..n_fast-1 hold the bounce kernel's survivors and
+        n_fast..n_next-1 the generic bounce's, each in ray order, so those
+        of rays < Kf lead each block.  Swaps the generic block's frequency
+        survivors with as many classic ones of the first block (whose order
+        matters to nothing), live rows and rec.nxt_src / nxt_delta alike, so
+        that the frequency survivors are rows 0..Kf'-1.  Returns Kf'."""
+        src = rec.nxt_src
+        f1 = int(np.searchsorted(src[:n_fast], Kf))
+        gf = int(np.searchsorted(src[n_fast:n_next], Kf))
+        m = min(n_fast - f1, gf)
+        if m:
+            i, j = slice(f1, f1 + m), slice(n_fast + gf - m, n_fast + gf)
+            for arr in (*live, src, rec.nxt_delta):
+                t = arr[i].copy()
+                arr[i] = arr[j]
+                arr[j] = t
+        return f1 + gf
 
     def _straight_filter(self, dep, dep0, straight, th, rec, n_next):
         """Drops the deposits dep0.. of photons that so far crossed only

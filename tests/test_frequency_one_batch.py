@@ -1,0 +1,109 @@
+"""Frequency and classic photons traced in one batch (``PhotonTracer._trace_batch``,
+docs/frequency.md "One batch for both kinds of photon").
+
+The frequency photons stay in the first live rows (``_frequency_first``);
+one batch and a batch each (``PhotonTracer.one_batch = False``, the rule
+before) draw the first bounce's uniforms for the frequency photons alike,
+so every frequency photon's first deposit after a scattering (path vertex
+1) is the same in both, bit for bit: what the row bookkeeping must keep,
+through the generic numpy bounce (GGX and Oren-Nayar walls) that appends
+its survivors after the compiled ones.
+"""
+import os
+import sys
+
+TESTS = os.path.dirname(os.path.abspath(__file__))
+if TESTS not in sys.path:
+    sys.path.insert(0, TESTS)
+
+import fppm_alias  # noqa: E402,F401  (core.x is fppm.core.x: one numba cache)
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from core.sppm import photon_kernels as PK  # noqa: E402
+from core.sppm.photons import PhotonTracer  # noqa: E402
+from test_photon_kernels import _tracer, cornell, glass_mirror  # noqa: E402
+
+
+def _vertex1_frequency_rows(dep):
+    """The frequency photons' deposits at path vertex 1, rows sorted by position."""
+    k = (dep["bounce"] == 1) & ~np.isnan(dep["rpred"])
+    rows = np.concatenate([dep["p"][k], dep["power"][k], dep["spec"][k],
+                           dep["rpred"][k][:, None]], axis=1)
+    return rows[np.lexsort(rows[:, ::-1].T)]
+
+
+@pytest.mark.parametrize("make", [glass_mirror, cornell])
+def test_first_deposits_equal_a_batch_each(make):
+    tr = _tracer(make(), use_frequency=True)
+    n, nf = 20_000, 5_000              # two halves of 10,000, 2,500 frequency photons each
+    out = {}
+    for one in (True, False):
+        tr.one_batch = one
+        dep = tr.trace(n, nf, np.random.default_rng(17))
+        out[one] = dep
+    a, b = _vertex1_frequency_rows(out[True]), _vertex1_frequency_rows(out[False])
+    assert a.shape[0] > 500                    # ~0.4 such deposits a frequency photon
+    np.testing.assert_array_equal(a, b)
+    # every pass's photons still deposit alike: frequency deposits per
+    # frequency photon within their binomial noise (a batch each draws the
+    # later bounces' numbers in another order)
+    f = {k: np.count_nonzero(~np.isnan(d["rpred"])) for k, d in out.items()}
+    c = {k: np.count_nonzero(np.isnan(d["rpred"])) for k, d in out.items()}
+    assert abs(f[True] - f[False]) < 5 * np.sqrt(f[False])
+    assert abs(c[True] - c[False]) < 5 * np.sqrt(c[False])
+
+
+def _layout(n_ff, n_cf, n_fg, n_cg, Kf):
+    """Live state and record after a bounce of rays 0.. whose first Kf are
+    frequency photons: fast survivors (n_ff frequency, n_cf classic, in ray
+    order) then generic ones (n_fg, n_cg): as bounce_kernel and
+    _generic_bounce leave them."""
+    rng = np.random.default_rng(n_ff * 1000 + n_cf * 100 + n_fg * 10 + n_cg)
+    ray_f = np.sort(rng.choice(Kf, n_ff + n_fg, replace=False))
+    ray_c = np.sort(Kf + rng.choice(400, n_cf + n_cg, replace=False))
+    fast = np.sort(np.concatenate([rng.permutation(ray_f)[:n_ff], ray_c[:n_cf]]))
+    gen = np.sort(np.concatenate([np.setdiff1d(ray_f, fast), ray_c[n_cf:]]))
+    src = np.concatenate([fast, gen])
+    n = src.size + 1
+    live = PK.LiveState(*(np.empty((n, 3), np.float32), np.empty((n, 3), np.float32),
+                          np.empty((n, 3)), np.empty((n, 3)), np.empty(n)))
+    for arr in live:
+        arr[:src.size] = (src * 7 + 1).reshape((-1,) + (1,) * (arr.ndim - 1))
+    rec = PK.HitRecord(np.empty(n), np.empty((n, 3)), np.empty(n), np.empty(n, bool),
+                       np.zeros(n, np.int64), np.zeros(n, bool))
+    rec.nxt_src[:src.size] = src
+    rec.nxt_delta[:src.size] = src % 3 == 0
+    return live, rec, fast.size, src.size
+
+
+@pytest.mark.parametrize("counts", [(5, 9, 3, 4), (5, 2, 6, 4), (0, 3, 4, 2), (4, 0, 3, 5),
+                                    (4, 6, 0, 2), (3, 4, 5, 0), (0, 0, 0, 3), (6, 0, 0, 0)])
+def test_frequency_survivors_lead_the_live_rows(counts):
+    Kf = 50
+    live, rec, n_fast, n_next = _layout(*counts, Kf)
+    before = sorted(zip(rec.nxt_src[:n_next], rec.nxt_delta[:n_next], live.d64[:n_next, 0]))
+    kf = PhotonTracer._frequency_first(Kf, n_fast, n_next, live, rec)
+    assert kf == counts[0] + counts[2]
+    src = rec.nxt_src[:n_next]
+    assert np.all(src[:kf] < Kf) and np.all(src[kf:] >= Kf)
+    # each row moved whole: live rows, source ray and delta flag together
+    for arr in live:
+        np.testing.assert_array_equal(arr[:n_next].reshape(n_next, -1)[:, 0], src * 7 + 1)
+    assert sorted(zip(src, rec.nxt_delta[:n_next], live.d64[:n_next, 0])) == before
+
+
+#: tests/test_photon_trace_pins.py's digests of the frequency cases before
+#: one batch: ``one_batch = False`` is that tracer, bit for bit.
+A_BATCH_EACH = {"cornell": "2a8c75fef944182a72a0580655e059cf",
+                "glass_mirror": "b5e69c5b84ceafd863fd8dc9d1b4ceb0"}
+
+
+@pytest.mark.parametrize("make", [glass_mirror, cornell])
+def test_a_batch_each_is_the_tracer_before(make):
+    from test_photon_trace_pins import _digest
+    tr = _tracer(make(), use_frequency=True)
+    tr.one_batch = False
+    dep = tr.trace(20_000, 5_000, np.random.default_rng(17))
+    assert _digest(dep[k] for k in sorted(dep)) == A_BATCH_EACH[make.__name__]
