@@ -143,10 +143,12 @@ def _principled_floor(res=20):
 @pytest.mark.parametrize("frequency", [True, False])
 def test_render_compiled_equals_numpy(monkeypatch, frequency):
     """The renderer's image and AOVs with the compiled pair loops equal the
-    numpy path's to rounding (photon_pass.COMPILED_BSDF, Receivers.compiled):
+    numpy path's to rounding (photon_pass.COMPILED_BSDF, Receivers.compiled,
+    the direct light's non-Lambert receivers nee.COMPILED_BSDF):
     same sums per point in the same order, the BSDF within 1 ulp."""
     from core.render import Renderer
     from core.settings import RenderSettings
+    from core.lights import nee
     from core.sppm import photon_pass as PP
     st = RenderSettings(integrator="PHOTON", max_passes=2, time_limit=0.0,
                         photons_per_pass=8000, seed=5, use_frequency=frequency,
@@ -156,6 +158,7 @@ def test_render_compiled_equals_numpy(monkeypatch, frequency):
     for on in (False, True):
         monkeypatch.setattr(PP, "COMPILED_BSDF", on)
         monkeypatch.setattr(Receivers, "compiled", on)
+        monkeypatch.setattr(nee, "COMPILED_BSDF", on)
         out.append(Renderer(_principled_floor(), st, log=lambda s: None).run())
     a, b = out
     assert a.image[..., :3].max() > 0
