@@ -39,43 +39,38 @@ _F82_F5 = _F82_F ** 5
 _N_GGX, _N_GLASS, _N_S = 32, 16, 16
 
 
-class CompiledMaterials(NamedTuple):
-    """A :class:`MaterialTable` as the compiled evaluation reads it.  M
-    materials, L lobe slots; absent optional fields are filled with what the
-    numpy code assumes for them.
+# Columns of CompiledMaterials.lobes (per material and slot, float64).
+F_KIND, F_ND, F_W, F_ROUGH, F_A2, F_IOR, F_MS, F_FRES, F_FIOR = range(9)
+F_TINT = 9                     # 9, 10, 11: f82_tint RGB
+F_LIOR, F_LF0, F_LROUGH, F_LMS, F_BUMP = 12, 13, 14, 15, 16
+N_FIELDS = 17
+# Offsets of the albedo tables in CompiledMaterials.tables (flat, C order).
+T_GGX_E = 0                                    # (32, 32) [rough, mu]
+T_GGX_EAVG = T_GGX_E + _N_GGX * _N_GGX         # (32,) [rough]
+T_GLASS_E = T_GGX_EAVG + _N_GGX                # (2, 16, 16, 16) [1/ior?, ior node, rough, mu]
+T_GLASS_EAVG = T_GLASS_E + 2 * _N_GLASS ** 3   # (2, 16, 16) [1/ior?, ior node, rough]
+T_S = T_GLASS_EAVG + 2 * _N_GLASS ** 2         # (16, 16, 16) [ior node, rough, mu]
+N_TABLES = T_S + _N_S ** 3
 
-    kind (M, L) int32, -1 unused; nd (M, L) bool: used and not delta;
-    weight, rough, ior (M, L) float64; alpha2 (M, L) GGX alpha^2 =
-    rough^4, computed by numpy (its pow differs from libm's in the last
-    bit for ~5 % of values, and numpy's is what the oracle uses); ms (M, L) bool Multiscatter GGX;
-    fresnel (M, L) int32 FRESNEL_*; fresnel_ior (M, L); f82_tint (M, L, 3);
-    layer_ior, layer_f0, layer_rough (M, L) float64, layer_ms (M, L) bool;
-    bump (M,) bool Normal Map / Bump (normal tilt, diffuse bump shadowing).
-    ggx_E (32, 32), ggx_Eavg (32,): single-scattering GGX albedo;
-    glass_E (2, 16, 16, 16), glass_Eavg (2, 16, 16): glass albedo [1/ior?,
-    ior node, rough, mu]; schlick_s (16, 16, 16): the Principled layer's s
-    table [ior node, rough, mu].  Only the nodes some lobe reads are filled
-    (the rest are zero)."""
-    kind: np.ndarray
-    nd: np.ndarray
-    weight: np.ndarray
-    rough: np.ndarray
-    alpha2: np.ndarray
-    ior: np.ndarray
-    ms: np.ndarray
-    fresnel: np.ndarray
-    fresnel_ior: np.ndarray
-    f82_tint: np.ndarray
-    layer_ior: np.ndarray
-    layer_f0: np.ndarray
-    layer_rough: np.ndarray
-    layer_ms: np.ndarray
-    bump: np.ndarray
-    ggx_E: np.ndarray
-    ggx_Eavg: np.ndarray
-    glass_E: np.ndarray
-    glass_Eavg: np.ndarray
-    schlick_s: np.ndarray
+
+class CompiledMaterials(NamedTuple):
+    """A :class:`MaterialTable` as the compiled evaluation reads it: two
+    arrays, so that a kernel takes them once (numba reference-counts every
+    array it reads from a struct, ~27 atomic operations a pair with one
+    array per field).
+
+    lobes (M, L, N_FIELDS) float64, M materials, L lobe slots, columns F_*:
+    kind (-1 unused), nd (1: used and not delta), mix weight, roughness,
+    GGX alpha^2 = roughness^4 (computed by numpy: its pow differs from
+    libm's in the last bit for ~5 % of values, and numpy's is the oracle's),
+    ior, Multiscatter GGX (0 / 1), FRESNEL_*, fresnel_ior, f82_tint RGB,
+    layer_ior, layer_f0, layer_roughness, layer_ms, and the material's
+    Normal Map / Bump flag (normal tilt, diffuse bump shadowing) in every
+    slot.  Absent optional table fields take what the numpy code assumes.
+    tables (N_TABLES,) float64: the albedo tables at the T_* offsets; only
+    the ior nodes some lobe reads are filled (the rest are zero)."""
+    lobes: np.ndarray
+    tables: np.ndarray
 
 
 def _z_nodes(ior):
@@ -92,43 +87,43 @@ def compile_materials(table) -> CompiledMaterials:
     if cm is not None:
         return cm
     M, L = table.kind.shape
-    kind = np.ascontiguousarray(table.kind, np.int32)
+    kind = np.asarray(table.kind)
     nd = (kind >= 0) & ~np.asarray(table.lobe_delta, bool)
 
-    def opt(name, fill, dtype=np.float64, shape=(M, L)):
+    def opt(name, fill, shape=(M, L)):
         a = getattr(table, name, None)
-        return np.ascontiguousarray(np.full(shape, fill, dtype) if a is None else a, dtype)
-    ms = opt("multiscatter", False, np.bool_)
-    fres = opt("fresnel", 0, np.int32)
-    lior = opt("layer_ior", 0.0)
-    lms = opt("layer_ms", False, np.bool_)
-    ggx_E, ggx_Eavg = _ms_tables()
-    glass_E = np.zeros((2, _N_GLASS, _N_GLASS, _N_GLASS))
-    glass_Eavg = np.zeros((2, _N_GLASS, _N_GLASS))
-    schlick = np.zeros((_N_S, _N_S, _N_S))
-    ior = np.ascontiguousarray(table.ior, np.float64)
+        return np.full(shape, fill, np.float64) if a is None else np.asarray(a, np.float64)
+    lo = np.zeros((M, L, N_FIELDS))
+    rough = np.asarray(table.roughness, np.float64)
+    ior = np.asarray(table.ior, np.float64)
+    for col, a in ((F_KIND, kind), (F_ND, nd), (F_W, table.weight), (F_ROUGH, rough),
+                   (F_A2, rough ** 4), (F_IOR, ior), (F_MS, opt("multiscatter", 0.0)),
+                   (F_FRES, opt("fresnel", 0.0)), (F_FIOR, opt("fresnel_ior", 1.0)),
+                   (F_LIOR, opt("layer_ior", 0.0)), (F_LF0, opt("layer_f0", 0.0)),
+                   (F_LROUGH, opt("layer_roughness", 0.0)), (F_LMS, opt("layer_ms", 0.0)),
+                   (F_BUMP, opt("bump_correction", 0.0, (M,))[:, None])):
+        lo[:, :, col] = a
+    lo[:, :, F_TINT:F_TINT + 3] = opt("f82_tint", 1.0, (M, L, 3))
+    tabs = np.zeros(N_TABLES)
+    E, Eavg = _ms_tables()
+    tabs[T_GGX_E:T_GGX_EAVG] = E.ravel()
+    tabs[T_GGX_EAVG:T_GLASS_E] = Eavg
+    gE = tabs[T_GLASS_E:T_GLASS_EAVG].reshape(2, _N_GLASS, _N_GLASS, _N_GLASS)
+    gA = tabs[T_GLASS_EAVG:T_S].reshape(2, _N_GLASS, _N_GLASS)
+    sT = tabs[T_S:].reshape(_N_S, _N_S, _N_S)
     # Glass: multiscatter_factor reads (1/ior?, node) for eta = ior entering
     # and 1/ior leaving; it folds eta < 1 to 1/eta, as here.
-    g = ms & nd & (kind == GLASS)
+    g = (lo[:, :, F_MS] > 0) & nd & (kind == GLASS)
     for eta in (ior[g], 1.0 / ior[g]):
         inv = eta < 1.0
         ior_n = np.where(inv, 1.0 / eta, eta)
         for s_ in (0, 1):
             for kk in _z_nodes(ior_n[inv == bool(s_)]):
-                glass_E[s_, kk], glass_Eavg[s_, kk] = _ms_glass_slice(s_, kk)
-    lay = nd & (kind == DIFFUSE) & (lior > 0.0)
-    for kk in _z_nodes(lior[lay]):
-        schlick[kk] = _schlick_s_slice(kk)
-    cm = CompiledMaterials(
-        kind=kind, nd=np.ascontiguousarray(nd), weight=np.ascontiguousarray(table.weight, np.float64),
-        rough=np.ascontiguousarray(table.roughness, np.float64),
-        alpha2=np.ascontiguousarray(np.asarray(table.roughness, np.float64) ** 4), ior=ior, ms=ms, fresnel=fres,
-        fresnel_ior=opt("fresnel_ior", 1.0), f82_tint=opt("f82_tint", 1.0, shape=(M, L, 3)),
-        layer_ior=lior, layer_f0=opt("layer_f0", 0.0), layer_rough=opt("layer_roughness", 0.0),
-        layer_ms=lms, bump=opt("bump_correction", False, np.bool_, (M,)),
-        ggx_E=np.ascontiguousarray(ggx_E, np.float64),
-        ggx_Eavg=np.ascontiguousarray(ggx_Eavg, np.float64),
-        glass_E=glass_E, glass_Eavg=glass_Eavg, schlick_s=schlick)
+                gE[s_, kk], gA[s_, kk] = _ms_glass_slice(s_, kk)
+    lior = lo[:, :, F_LIOR]
+    for kk in _z_nodes(lior[nd & (kind == DIFFUSE) & (lior > 0.0)]):
+        sT[kk] = _schlick_s_slice(kk)
+    cm = CompiledMaterials(lobes=lo, tables=tabs)
     try:
         table._compiled = cm
     except AttributeError:
@@ -139,12 +134,12 @@ def compile_materials(table) -> CompiledMaterials:
 # --------------------------------------------------------------------------
 # Building blocks (scalar twins of microfacet.py / multiscatter.py)
 # --------------------------------------------------------------------------
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _clip01(x):
     return min(max(x, 0.0), 1.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _lerp(x, n):
     """multiscatter._lerp_index for one x: (node, fraction)."""
     t = _clip01(x) * (n - 1)
@@ -152,13 +147,15 @@ def _lerp(x, n):
     return i, t - i
 
 
-@njit(cache=True, inline="always")
-def _bilerp(T, i, ti, j, tj):
-    return ((1 - ti) * ((1 - tj) * T[i, j] + tj * T[i, j + 1])
-            + ti * ((1 - tj) * T[i + 1, j] + tj * T[i + 1, j + 1]))
+@njit(cache=True, inline="always", error_model="numpy")
+def _bilerp(T, o, n, i, ti, j, tj):
+    """multiscatter._bilerp of the (n, n) table at offset o of the flat T."""
+    a = o + i * n + j
+    return ((1 - ti) * ((1 - tj) * T[a] + tj * T[a + 1])
+            + ti * ((1 - tj) * T[a + n] + tj * T[a + n + 1]))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _fresnel(cos_i, eta):
     """microfacet._fresnel_tir's F (1 under total internal reflection)."""
     c = abs(cos_i)
@@ -171,7 +168,7 @@ def _fresnel(cos_i, eta):
     return 0.5 * A * A * (1.0 + B * B)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _fss(eta):
     """microfacet._fss_dielectric."""
     if eta < 1.0:
@@ -179,20 +176,20 @@ def _fss(eta):
     return (eta - 1.0) / (4.08567 + 1.00071 * eta)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _f0(ior):
     q = (ior - 1.0) / (ior + 1.0)
     return q * q
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _lambda(a2, c):
     """microfacet.ggx_lambda."""
     c2 = max(c * c, 1e-300)
     return 0.5 * (math.sqrt(1.0 + a2 * max(1.0 / c2 - 1.0, 0.0)) - 1.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _D(a2, ch):
     """microfacet.ggx_D."""
     c2 = min(ch * ch, 1.0)
@@ -200,7 +197,7 @@ def _D(a2, ch):
     return a2 / (np.pi * (q * q))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _dot3(ax, ay, az, bx, by, bz):
     """mathutil.dot of one row, bit for bit: numpy's einsum("ij,ij->i") of
     3-vectors adds (x z) first, then y (measured; the pairing of its
@@ -208,7 +205,7 @@ def _dot3(ax, ay, az, bx, by, bz):
     return (ax * bx + az * bz) + ay * by
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _unit(x, y, z):
     n = math.sqrt(_dot3(x, y, z, x, y, z))
     if not n > 0:
@@ -216,7 +213,7 @@ def _unit(x, y, z):
     return x / n, y / n, z / n
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _microfacet(kind, a2, eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz):
     """microfacet._microfacet_f for one pair (scalar, no colour)."""
     cI = _dot3(Nx, Ny, Nz, vx, vy, vz)
@@ -255,7 +252,7 @@ def _microfacet(kind, a2, eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz):
     return 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _on_G(c):
     """microfacet._oren_nayar_G."""
     if c < 1e-6:
@@ -266,40 +263,41 @@ def _on_G(c):
     return s * (th - 2.0 / 3.0 - s * cs) + 2.0 / 3.0 * (s / cs) * (1.0 - s * s * s)
 
 
-@njit(cache=True, inline="always")
-def _ggx_albedo(S, rough, mu):
+@njit(cache=True, inline="always", error_model="numpy")
+def _ggx_albedo(T, rough, mu):
     """multiscatter._ggx_albedo: (E, E_avg)."""
     i, ti = _lerp(rough, _N_GGX)
     j, tj = _lerp(mu, _N_GGX)
-    return _bilerp(S.ggx_E, i, ti, j, tj), (1 - ti) * S.ggx_Eavg[i] + ti * S.ggx_Eavg[i + 1]
+    return (_bilerp(T, T_GGX_E, _N_GGX, i, ti, j, tj),
+            (1 - ti) * T[T_GGX_EAVG + i] + ti * T[T_GGX_EAVG + i + 1])
 
 
-@njit(cache=True)
-def _layer_transmission(S, f0, rough, ior, mu, ms):
+@njit(cache=True, error_model="numpy")
+def _layer_transmission(T, f0, rough, ior, mu, ms):
     """multiscatter.layer_transmission for one point."""
     z = math.sqrt(abs((ior - 1.0) / (ior + 1.0)))
     k, tk = _lerp(z, _N_S)
     i, ti = _lerp(rough, _N_S)
     j, tj = _lerp(mu, _N_S)
     s = 0.0
-    s += (1 - tk) * _bilerp(S.schlick_s[k], i, ti, j, tj)
-    s += tk * _bilerp(S.schlick_s[k + 1], i, ti, j, tj)
+    s += (1 - tk) * _bilerp(T, T_S + k * _N_S * _N_S, _N_S, i, ti, j, tj)
+    s += tk * _bilerp(T, T_S + (k + 1) * _N_S * _N_S, _N_S, i, ti, j, tj)
     A = f0 + (1.0 - f0) * s
     if ms:
         F0 = _f0(ior)
         s_ss = _clip01((_fss(ior) - F0) / max(1.0 - F0, 1e-12))
         fss = f0 + (1.0 - f0) * s_ss
-        E, Eavg = _ggx_albedo(S, rough, mu)
+        E, Eavg = _ggx_albedo(T, rough, mu)
         fms = fss * Eavg / max(1.0 - fss * (1.0 - Eavg), 1e-12)
         A *= E + fms * (1.0 - E)
     return _clip01(1.0 - A)
 
 
-@njit(cache=True)
-def _ms_albedo(S, kind, rough, eta, mu):
+@njit(cache=True, error_model="numpy")
+def _ms_albedo(T, kind, rough, eta, mu):
     """The (E, E_avg) of multiscatter.multiscatter_factor."""
     if kind != GLASS:
-        return _ggx_albedo(S, rough, mu)
+        return _ggx_albedo(T, rough, mu)
     inv = 1 if eta < 1.0 else 0
     ior = 1.0 / eta if inv == 1 else eta
     z = math.sqrt(abs((ior - 1.0) / (ior + 1.0)))
@@ -310,13 +308,14 @@ def _ms_albedo(S, kind, rough, eta, mu):
     Eavg = 0.0
     for dk in range(2):
         wk = tk if dk else 1 - tk
-        E += wk * _bilerp(S.glass_E[inv, k + dk], i, ti, j, tj)
-        Ea = S.glass_Eavg[inv, k + dk]
-        Eavg += wk * ((1 - ti) * Ea[i] + ti * Ea[i + 1])
+        node = inv * _N_GLASS + k + dk
+        E += wk * _bilerp(T, T_GLASS_E + node * _N_GLASS * _N_GLASS, _N_GLASS, i, ti, j, tj)
+        a = T_GLASS_EAVG + node * _N_GLASS + i
+        Eavg += wk * ((1 - ti) * T[a] + ti * T[a + 1])
     return E, Eavg
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _ms_channel(C, E, Eavg):
     """One channel of multiscatter_factor: 1 + F_ms (1 - E)/E (E already >= 1e-6)."""
     C = max(C, 0.0)
@@ -324,14 +323,14 @@ def _ms_channel(C, E, Eavg):
     return 1.0 + Fms * (1.0 - E) / E
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _schlick_channel(C, F0, s, s_ss):
     """FRESNEL_DIELECTRIC of microfacet._principled_fresnel, one channel: (F, F_ss)."""
     f0 = _clip01(F0 * C)
     return f0 + (1.0 - f0) * s, f0 + (1.0 - f0) * s_ss
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _f82_channel(C, tint, c):
     """FRESNEL_F82 of microfacet._principled_fresnel, one channel: (F, F_ss)."""
     F0 = _clip01(C)
@@ -341,7 +340,7 @@ def _f82_channel(C, tint, c):
     return F, F0 + (1.0 - F0) / 21.0 - B / 126.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _bump_shadowing(Sx, Sy, Sz, Nx, Ny, Nz, lx, ly, lz):
     """closures._bump_shadowing (Conty Estevez et al. 2019) for one pair."""
     cos_si = _dot3(Sx, Sy, Sz, lx, ly, lz)
@@ -361,7 +360,7 @@ def _bump_shadowing(Sx, Sy, Sz, Nx, Ny, Nz, lx, ly, lz):
     return 2.0 / (1.0 + math.sqrt(1.0 + a2 * tan2_i))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _valid_specular_normal(gx, gy, gz, ix, iy, iz, nx, ny, nz):
     """core.scene.normals.valid_specular_normal for one point (ng, n on i's side)."""
     ni = _dot3(nx, ny, nz, ix, iy, iz)
@@ -397,11 +396,13 @@ def _valid_specular_normal(gx, gy, gz, ix, iy, iz, nx, ny, nz):
 # --------------------------------------------------------------------------
 # A material's non-delta BSDF at one pair
 # --------------------------------------------------------------------------
-@njit(cache=True)
-def eval_pair(S, m, col, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz, want_smooth):
+@njit(cache=True, error_model="numpy")
+def eval_pair(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz,
+              want_smooth):
     """Cycles' f(view=v, light=l) of material m's non-delta lobes, radiance
-    mode (closures.eval_bsdf): (f_r, f_g, f_b, s_r, s_g, s_b).  col (L, 3)
-    the point's lobe colours (``lobe_colors``, any float dtype); ns, ng unit
+    mode (closures.eval_bsdf): (f_r, f_g, f_b, s_r, s_g, s_b).  lobes, T:
+    a CompiledMaterials' arrays (passed alone: no reference counting of a
+    struct's members in the loop).  colors[row] (L, 3) the point's lobe colours (``lobe_colors``, any float dtype); ns, ng unit
     mesh normals in any orientation; v, l unit; all float64 scalars.
     s: with want_smooth, the same sum as ``Receivers.smooth`` evaluates it
     (DIFFUSE / TRANSLUCENT lobes in full; other lobes with the mix weight
@@ -409,7 +410,7 @@ def eval_pair(S, m, col, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz, w
     colour x microfacet f, their colours carrying the weight), else 0."""
     front = _dot3(ngx, ngy, ngz, vx, vy, vz) >= 0.0
     sg = 1.0 if front else -1.0
-    bump = S.bump[m]
+    bump = lobes[m, 0, F_BUMP] > 0.0
     if bump:
         ax, ay, az = _valid_specular_normal(ngx * sg, ngy * sg, ngz * sg, vx, vy, vz,
                                             nsx * sg, nsy * sg, nsz * sg)
@@ -420,17 +421,17 @@ def eval_pair(S, m, col, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz, w
     nv = _dot3(Nx, Ny, Nz, vx, vy, vz)
     f0_ = f1_ = f2_ = 0.0
     s0 = s1 = s2 = 0.0
-    for j in range(S.kind.shape[1]):
-        if not S.nd[m, j]:
+    for j in range(lobes.shape[1]):
+        if not lobes[m, j, F_ND] > 0.0:
             continue
-        k = S.kind[m, j]
-        c0, c1, c2 = float(col[j, 0]), float(col[j, 1]), float(col[j, 2])
-        w = S.weight[m, j]
+        k = int(lobes[m, j, F_KIND])
+        c0, c1, c2 = float(colors[row, j, 0]), float(colors[row, j, 1]), float(colors[row, j, 2])
+        w = lobes[m, j, F_W]
         if w != 0.0:
             u0, u1, u2 = c0 / w, c1 / w, c2 / w
         else:
             u0 = u1 = u2 = 0.0
-        rough = S.rough[m, j]
+        rough = lobes[m, j, F_ROUGH]
         if k == DIFFUSE or k == TRANSLUCENT:
             if k == TRANSLUCENT:
                 q = INV_PI * (1.0 if nl < 0.0 else 0.0)
@@ -461,9 +462,9 @@ def eval_pair(S, m, col, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz, w
                 A = _clip01(u2)
                 g2 = c2 * (single + INV_PI * A * A * (Eavg / (1.0 - Eavg))
                            / (1.0 - A * (1.0 - Eavg)) * EE) * above
-            if k == DIFFUSE and S.layer_ior[m, j] > 0.0:
-                q = _layer_transmission(S, S.layer_f0[m, j], S.layer_rough[m, j],
-                                        S.layer_ior[m, j], nv, S.layer_ms[m, j])
+            if k == DIFFUSE and lobes[m, j, F_LIOR] > 0.0:
+                q = _layer_transmission(T, lobes[m, j, F_LF0], lobes[m, j, F_LROUGH], lobes[m, j, F_LIOR], nv,
+                                        lobes[m, j, F_LMS] > 0.0)
                 g0, g1, g2 = g0 * q, g1 * q, g2 * q
             if bump:
                 q = _bump_shadowing(Gx, Gy, Gz, Nx, Ny, Nz, lx, ly, lz)
@@ -473,12 +474,12 @@ def eval_pair(S, m, col, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz, w
                 s1 += g1
                 s2 += g2
         elif k == GLOSSY or k == GLASS or k == REFRACTION:
-            ior = S.ior[m, j]
+            ior = lobes[m, j, F_IOR]
             eta = ior if front else 1.0 / ior
-            fs = _microfacet(k, S.alpha2[m, j], eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz)
+            fs = _microfacet(k, lobes[m, j, F_A2], eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz)
             g0, g1, g2 = c0 * fs, c1 * fs, c2 * fs
             fss0, fss1, fss2 = u0, u1, u2
-            fm = S.fresnel[m, j] if k == GLOSSY else 0
+            fm = int(lobes[m, j, F_FRES]) if k == GLOSSY else 0
             if want_smooth and fm == 0:
                 s0 += g0
                 s1 += g1
@@ -487,7 +488,7 @@ def eval_pair(S, m, col, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz, w
                 hx, hy, hz = _unit(vx + lx, vy + ly, vz + lz)
                 c = _dot3(hx, hy, hz, vx, vy, vz)
                 if fm == FRESNEL_DIELECTRIC:
-                    fi = S.fresnel_ior[m, j]
+                    fi = lobes[m, j, F_FIOR]
                     F0 = _f0(fi)
                     s = _clip01((_fresnel(c, fi) - F0) / max(1.0 - F0, 1e-12))
                     s_ss = _clip01((_fss(fi) - F0) / max(1.0 - F0, 1e-12))
@@ -495,12 +496,12 @@ def eval_pair(S, m, col, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz, w
                     F_1, fss1 = _schlick_channel(u1, F0, s, s_ss)
                     F_2, fss2 = _schlick_channel(u2, F0, s, s_ss)
                 else:
-                    F_0, fss0 = _f82_channel(u0, S.f82_tint[m, j, 0], c)
-                    F_1, fss1 = _f82_channel(u1, S.f82_tint[m, j, 1], c)
-                    F_2, fss2 = _f82_channel(u2, S.f82_tint[m, j, 2], c)
+                    F_0, fss0 = _f82_channel(u0, lobes[m, j, F_TINT], c)
+                    F_1, fss1 = _f82_channel(u1, lobes[m, j, F_TINT + 1], c)
+                    F_2, fss2 = _f82_channel(u2, lobes[m, j, F_TINT + 2], c)
                 g0, g1, g2 = w * F_0 * fs, w * F_1 * fs, w * F_2 * fs
-            if S.ms[m, j] and k != REFRACTION:
-                E, Eavg = _ms_albedo(S, k, rough, eta, nv)
+            if lobes[m, j, F_MS] > 0.0 and k != REFRACTION:
+                E, Eavg = _ms_albedo(T, k, rough, eta, nv)
                 E = max(E, 1e-6)
                 g0 *= _ms_channel(fss0, E, Eavg)
                 g1 *= _ms_channel(fss1, E, Eavg)
@@ -513,7 +514,7 @@ def eval_pair(S, m, col, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz, w
     return f0_, f1_, f2_, s0, s1, s2
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def eval_indexed(S, mat, colors, ns, ng, front, wo, pv, wi, pp, out, smooth):
     """f (and the receivers' smooth sum) of the pairs (point pv[i], direction
     pp[i]) (K,) into out, smooth (K, 3) float64 (smooth may be (0, 3): not
@@ -521,6 +522,7 @@ def eval_indexed(S, mat, colors, ns, ng, front, wo, pv, wi, pp, out, smooth):
     front (P,) bool: ns and ng are flipped where front is False to give the
     mesh's normals (``VisiblePoints.mesh_normals``), or (0,): taken as they
     are.  wi (N, 3): directions indexed by pp."""
+    lobes, T = S.lobes, S.tables
     flip = front.shape[0] > 0
     want = smooth.shape[0] > 0
     for i in range(pv.shape[0]):
@@ -529,7 +531,7 @@ def eval_indexed(S, mat, colors, ns, ng, front, wo, pv, wi, pp, out, smooth):
         sg = 1.0
         if flip and not front[q]:
             sg = -1.0
-        r = eval_pair(S, mat[q], colors[q],
+        r = eval_pair(lobes, T, mat[q], colors, q,
                       ns[q, 0] * sg, ns[q, 1] * sg, ns[q, 2] * sg,
                       ng[q, 0] * sg, ng[q, 1] * sg, ng[q, 2] * sg,
                       float(wo[q, 0]), float(wo[q, 1]), float(wo[q, 2]),

@@ -19,7 +19,7 @@ from ..materials.compiled import _dot3, eval_pair
 SHADING_CORRECTION_MAX = 4.0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def reflected_flux(S, mat, colors, ns, ng, front, wo, pv, pp, wi, power, icf, Phi, scratch):
     """Phi[pv] += f(wo, wi) |wi.ns|/|wi.ng| power (x icf) over the pairs (K,).
 
@@ -28,6 +28,7 @@ def reflected_flux(S, mat, colors, ns, ng, front, wo, pv, pp, wi, power, icf, Ph
     wi, power (N, 3) photon arrays; icf (K,) the clip's inverse visible
     fractions or (0,): none; Phi (P, 3) float64 added to; scratch (P, 3)
     float64 all zero, left all zero."""
+    lobes, T = S.lobes, S.tables
     clip = icf.shape[0] > 0
     for i in range(pv.shape[0]):
         q = pv[i]
@@ -36,7 +37,7 @@ def reflected_flux(S, mat, colors, ns, ng, front, wo, pv, pp, wi, power, icf, Ph
         wx, wy, wz = float(wi[e, 0]), float(wi[e, 1]), float(wi[e, 2])
         nsx, nsy, nsz = float(ns[q, 0]), float(ns[q, 1]), float(ns[q, 2])
         ngx, ngy, ngz = float(ng[q, 0]), float(ng[q, 1]), float(ng[q, 2])
-        r = eval_pair(S, mat[q], colors[q], nsx * sg, nsy * sg, nsz * sg,
+        r = eval_pair(lobes, T, mat[q], colors, q, nsx * sg, nsy * sg, nsz * sg,
                       ngx * sg, ngy * sg, ngz * sg,
                       float(wo[q, 0]), float(wo[q, 1]), float(wo[q, 2]), wx, wy, wz, False)
         # materials.shading_correction (Veach 1997, 5.3), capped
