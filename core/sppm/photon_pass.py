@@ -45,7 +45,7 @@ PHOTON_CHUNK = 131_072
 REFLECTED_DENSE_FRACTION = 8
 #: _reflected and the receivers' radii evaluate the BSDF of the pairs in
 #: compiled loops (core.sppm.reflected_kernels, core.materials.compiled)
-#: rather than with numpy (~2 us a pair; the same values to rounding).
+#: rather than with numpy (1-2 us a pair; the same values to rounding).
 COMPILED_BSDF = True
 
 
