@@ -506,7 +506,9 @@ class PhotonPass:
         # Photons estimate flux per geometric area; radiance wants the
         # shading cosine: |wi.ns| / |wi.ng| (Veach 1997, 5.3), capped so a
         # grazing geometric normal cannot spike.
-        corr = np.minimum(B.shading_correction(vp.ns[pv], vp.ng[pv], dep["wi"][pp]), 4.0)
+        from .reflected_kernels import SHADING_CORRECTION_MAX
+        corr = np.minimum(B.shading_correction(vp.ns[pv], vp.ng[pv], dep["wi"][pp]),
+                          SHADING_CORRECTION_MAX)
         contrib = f * (dep["power"][pp] * corr[:, None])
         if clip is not None:
             contrib *= kernel_clip.inverse_fractions(clip, pv)[:, None]
