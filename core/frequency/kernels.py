@@ -776,6 +776,23 @@ class Receivers:
         smooth = np.isin(mtab.kind, (_sc.DIFFUSE, _sc.TRANSLUCENT))
         self.smooth = dataclasses.replace(mtab, weight=np.where(smooth, mtab.weight, 0.0))
 
+    #: Evaluate f and f_smooth with core.materials.compiled (one loop over
+    #: the pairs, no per-pair copies) rather than twice with numpy.
+    compiled = True
+
+    def _luminances(self, vp, dep, pv, pp):
+        """Luminances (K,) of f and of the smooth part's f at the pairs."""
+        if not self.compiled:
+            args = (vp.mat[pv], vp.colors[pv], vp.ns[pv], vp.ng[pv], vp.wo[pv], dep["wi"][pp])
+            return (B.eval_bsdf(self.mtab, *args) @ self.LUMA,
+                    B.eval_bsdf(self.smooth, *args) @ self.LUMA)
+        from ..materials import compiled as MC
+        K = pv.shape[0]
+        f, fs = np.empty((K, 3)), np.empty((K, 3))
+        MC.eval_indexed(MC.compile_materials(self.mtab), vp.mat, vp.colors, vp.ns, vp.ng,
+                        np.zeros(0, bool), vp.wo, pv, dep["wi"], pp, f, fs)
+        return f @ self.LUMA, fs @ self.LUMA
+
     def radius_keys(self, vp, dep, pv, pp, model="CORRECTED"):
         """Fold keys (``spectrum.radius_fold_key``) of the predicted radii of
         the pairs (visible point pv, frequency photon pp) (K,): vp the camera
@@ -787,9 +804,7 @@ class Receivers:
         if pv.size == 0:
             return np.zeros(0)
         mat = vp.mat[pv]
-        args = (mat, vp.colors[pv], vp.ns[pv], vp.ng[pv], vp.wo[pv], dep["wi"][pp])
-        Y = B.eval_bsdf(self.mtab, *args) @ self.LUMA
-        Ys = B.eval_bsdf(self.smooth, *args) @ self.LUMA
+        Y, Ys = self._luminances(vp, dep, pv, pp)
         with np.errstate(divide="ignore", invalid="ignore"):
             w = np.where(Y > 0, 1.0 - Ys / Y, 0.0)
         s = dep["spec"][pp]

@@ -36,6 +36,10 @@ if TYPE_CHECKING:
 
 #: Visible points per block of the compiled direct light (``_direct_blocks``).
 DIRECT_BLOCK = 1 << 16
+#: The compiled direct light evaluates the BSDF of its non-Lambert receivers
+#: with core.materials.compiled (False: numpy's eval_bsdf; the same values
+#: to rounding, tests/test_compiled_bsdf.py).
+COMPILED_BSDF = True
 
 
 class NextEventEstimation:
@@ -150,8 +154,15 @@ class NextEventEstimation:
         r = DK.bsdf_rows(q, vp.const, S.weight)
         if r.size:
             qr = q[r]
-            ns_m, ng_m = vp.mesh_normals(qr)
-            f = B.eval_bsdf(self.mtab, vp.mat[qr], vp.colors[qr], ns_m, ng_m, vp.wo[qr], S.wi[r])
+            if COMPILED_BSDF:
+                from ..materials import compiled as MC
+                f = np.empty((r.size, 3))
+                MC.eval_indexed(MC.compile_materials(self.mtab), vp.mat, vp.colors, vp.ns, vp.ng,
+                                vp.front, vp.wo, qr, S.wi, r, f, np.empty((0, 3)))
+            else:
+                ns_m, ng_m = vp.mesh_normals(qr)
+                f = B.eval_bsdf(self.mtab, vp.mat[qr], vp.colors[qr], ns_m, ng_m, vp.wo[qr],
+                                S.wi[r])
             S.contrib[r] = vp.beta[qr] * f * S.cos[r, None] * S.weight[r]
         accel = self.accel
         sh = DK.alloc_shadow(q.size)

@@ -1,0 +1,560 @@
+"""Compiled evaluation of a material's non-delta BSDF, one (point, direction) pair at a time.
+
+The numba twin of :func:`core.materials.eval_bsdf` in radiance mode
+(``closures._eval_nd`` with ``_bump_corrected`` and ``_orient``): every lobe
+kind and option of the :class:`MaterialTable` -- Lambert and Fujii's
+Oren-Nayar diffuse, translucent, GGX glossy / glass / refraction, the
+Principled BSDF's generalised-Schlick and F82-tint Fresnel, the diffuse
+under a specular layer, Multiscatter GGX, and for Normal Map / Bump
+materials Cycles' normal tilt and diffuse bump shadowing.  The formulas are
+those of :mod:`.closures`, :mod:`.microfacet` and :mod:`.multiscatter`
+(listed in the package doc), written per pair in float64 in the same
+operation order, so the two agree to rounding (tests/test_compiled_bsdf.py,
+numpy is the oracle).  The albedo tables are read from arrays filled once
+per material table (:func:`compile_materials`) with the slices the numpy
+code would compute.
+
+Used where the photon gather hands back (visible point, photon) pairs of
+non-Lambert points (``core.sppm.photon_pass``: the reflected flux, and the
+receivers' glossy share for the frequency kernel's per-pair radius), where
+the numpy evaluation cost ~2 us a pair.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from ..scene.model import DIFFUSE, GLASS, GLOSSY, REFRACTION, TRANSLUCENT
+from .microfacet import FRESNEL_DIELECTRIC, FRESNEL_F82, INV_PI
+from .multiscatter import _lerp_index, _ms_glass_slice, _ms_tables, _schlick_s_slice
+from .table import DIFFUSE_ROUGHNESS_EPS
+
+# microfacet._principled_fresnel's f = 6/7 and f^5 (Python's pow, as there).
+_F82_F = 6.0 / 7.0
+_F82_F5 = _F82_F ** 5
+# Sizes of Cycles' albedo tables (multiscatter.py).
+_N_GGX, _N_GLASS, _N_S = 32, 16, 16
+
+
+# Columns of CompiledMaterials.lobes (per material and slot, float64).
+F_KIND, F_ND, F_W, F_ROUGH, F_A2, F_IOR, F_MS, F_FRES, F_FIOR = range(9)
+F_TINT = 9                     # 9, 10, 11: f82_tint RGB
+F_LIOR, F_LF0, F_LROUGH, F_LMS, F_BUMP = 12, 13, 14, 15, 16
+N_FIELDS = 17
+# Offsets of the albedo tables in CompiledMaterials.tables (flat, C order).
+T_GGX_E = 0                                    # (32, 32) [rough, mu]
+T_GGX_EAVG = T_GGX_E + _N_GGX * _N_GGX         # (32,) [rough]
+T_GLASS_E = T_GGX_EAVG + _N_GGX                # (2, 16, 16, 16) [1/ior?, ior node, rough, mu]
+T_GLASS_EAVG = T_GLASS_E + 2 * _N_GLASS ** 3   # (2, 16, 16) [1/ior?, ior node, rough]
+T_S = T_GLASS_EAVG + 2 * _N_GLASS ** 2         # (16, 16, 16) [ior node, rough, mu]
+N_TABLES = T_S + _N_S ** 3
+
+
+class CompiledMaterials(NamedTuple):
+    """A :class:`MaterialTable` as the compiled evaluation reads it: two
+    arrays, so that a kernel takes them once (numba reference-counts every
+    array it reads from a struct, ~27 atomic operations a pair with one
+    array per field).
+
+    lobes (M, L, N_FIELDS) float64, M materials, L lobe slots, columns F_*:
+    kind (-1 unused), nd (1: used and not delta), mix weight, roughness,
+    GGX alpha^2 = roughness^4 (computed by numpy: its pow differs from
+    libm's in the last bit for ~5 % of values, and numpy's is the oracle's),
+    ior, Multiscatter GGX (0 / 1), FRESNEL_*, fresnel_ior, f82_tint RGB,
+    layer_ior, layer_f0, layer_roughness, layer_ms, and the material's
+    Normal Map / Bump flag (normal tilt, diffuse bump shadowing) in every
+    slot.  Absent optional table fields take what the numpy code assumes.
+    tables (N_TABLES,) float64: the albedo tables at the T_* offsets; only
+    the ior nodes some lobe reads are filled (the rest are zero)."""
+    lobes: np.ndarray
+    tables: np.ndarray
+
+
+def _z_nodes(ior):
+    """The ior-axis nodes (k and k + 1) :func:`multiscatter._lerp_index` reads for iors (n,)."""
+    z = np.sqrt(np.abs((ior - 1.0) / (ior + 1.0)))
+    k, _ = _lerp_index(z, _N_GLASS)
+    return sorted(set(k.tolist()) | set((k + 1).tolist()))
+
+
+def compile_materials(table) -> CompiledMaterials:
+    """The :class:`CompiledMaterials` of a ``MaterialTable`` (cached on the table:
+    tables are not modified once built)."""
+    cm = getattr(table, "_compiled", None)
+    if cm is not None:
+        return cm
+    M, L = table.kind.shape
+    kind = np.asarray(table.kind)
+    nd = (kind >= 0) & ~np.asarray(table.lobe_delta, bool)
+
+    def opt(name, fill, shape=(M, L)):
+        a = getattr(table, name, None)
+        return np.full(shape, fill, np.float64) if a is None else np.asarray(a, np.float64)
+    lo = np.zeros((M, L, N_FIELDS))
+    rough = np.asarray(table.roughness, np.float64)
+    ior = np.asarray(table.ior, np.float64)
+    for col, a in ((F_KIND, kind), (F_ND, nd), (F_W, table.weight), (F_ROUGH, rough),
+                   (F_A2, rough ** 4), (F_IOR, ior), (F_MS, opt("multiscatter", 0.0)),
+                   (F_FRES, opt("fresnel", 0.0)), (F_FIOR, opt("fresnel_ior", 1.0)),
+                   (F_LIOR, opt("layer_ior", 0.0)), (F_LF0, opt("layer_f0", 0.0)),
+                   (F_LROUGH, opt("layer_roughness", 0.0)), (F_LMS, opt("layer_ms", 0.0)),
+                   (F_BUMP, opt("bump_correction", 0.0, (M,))[:, None])):
+        lo[:, :, col] = a
+    lo[:, :, F_TINT:F_TINT + 3] = opt("f82_tint", 1.0, (M, L, 3))
+    tabs = np.zeros(N_TABLES)
+    E, Eavg = _ms_tables()
+    tabs[T_GGX_E:T_GGX_EAVG] = E.ravel()
+    tabs[T_GGX_EAVG:T_GLASS_E] = Eavg
+    gE = tabs[T_GLASS_E:T_GLASS_EAVG].reshape(2, _N_GLASS, _N_GLASS, _N_GLASS)
+    gA = tabs[T_GLASS_EAVG:T_S].reshape(2, _N_GLASS, _N_GLASS)
+    sT = tabs[T_S:].reshape(_N_S, _N_S, _N_S)
+    # Glass: multiscatter_factor reads (1/ior?, node) for eta = ior entering
+    # and 1/ior leaving; it folds eta < 1 to 1/eta, as here.
+    g = (lo[:, :, F_MS] > 0) & nd & (kind == GLASS)
+    for eta in (ior[g], 1.0 / ior[g]):
+        inv = eta < 1.0
+        ior_n = np.where(inv, 1.0 / eta, eta)
+        for s_ in (0, 1):
+            for kk in _z_nodes(ior_n[inv == bool(s_)]):
+                gE[s_, kk], gA[s_, kk] = _ms_glass_slice(s_, kk)
+    lior = lo[:, :, F_LIOR]
+    for kk in _z_nodes(lior[nd & (kind == DIFFUSE) & (lior > 0.0)]):
+        sT[kk] = _schlick_s_slice(kk)
+    cm = CompiledMaterials(lobes=lo, tables=tabs)
+    try:
+        table._compiled = cm
+    except AttributeError:
+        pass
+    return cm
+
+
+# --------------------------------------------------------------------------
+# Building blocks (scalar twins of microfacet.py / multiscatter.py)
+# --------------------------------------------------------------------------
+@njit(cache=True, inline="always", error_model="numpy")
+def _clip01(x):
+    return min(max(x, 0.0), 1.0)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _lerp(x, n):
+    """multiscatter._lerp_index for one x: (node, fraction)."""
+    t = _clip01(x) * (n - 1)
+    i = min(int(math.floor(t)), n - 2)
+    return i, t - i
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _bilerp(T, o, n, i, ti, j, tj):
+    """multiscatter._bilerp of the (n, n) table at offset o of the flat T."""
+    a = o + i * n + j
+    return ((1 - ti) * ((1 - tj) * T[a] + tj * T[a + 1])
+            + ti * ((1 - tj) * T[a + n] + tj * T[a + n + 1]))
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _fresnel(cos_i, eta):
+    """microfacet._fresnel_tir's F (1 under total internal reflection)."""
+    c = abs(cos_i)
+    g2 = eta * eta - 1.0 + c * c
+    if g2 <= 0.0:
+        return 1.0
+    g = math.sqrt(g2)
+    A = (g - c) / (g + c)
+    B = (c * (g + c) - 1.0) / (c * (g - c) + 1.0)
+    return 0.5 * A * A * (1.0 + B * B)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _fss(eta):
+    """microfacet._fss_dielectric."""
+    if eta < 1.0:
+        return 0.997118 + eta * (0.1014 - eta * (0.965241 + eta * 0.130607))
+    return (eta - 1.0) / (4.08567 + 1.00071 * eta)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _f0(ior):
+    q = (ior - 1.0) / (ior + 1.0)
+    return q * q
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _lambda(a2, c):
+    """microfacet.ggx_lambda."""
+    c2 = max(c * c, 1e-300)
+    return 0.5 * (math.sqrt(1.0 + a2 * max(1.0 / c2 - 1.0, 0.0)) - 1.0)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _D(a2, ch):
+    """microfacet.ggx_D."""
+    c2 = min(ch * ch, 1.0)
+    q = 1.0 - c2 + a2 * c2
+    return a2 / (np.pi * (q * q))
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _dot3(ax, ay, az, bx, by, bz):
+    """mathutil.dot of one row, bit for bit: numpy's einsum("ij,ij->i") of
+    3-vectors adds (x z) first, then y (measured; the pairing of its
+    unrolled loop)."""
+    return (ax * bx + az * bz) + ay * by
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _unit(x, y, z):
+    n = math.sqrt(_dot3(x, y, z, x, y, z))
+    if not n > 0:
+        n = 1.0
+    return x / n, y / n, z / n
+
+
+@njit(cache=True, error_model="numpy")
+def _microfacet(kind, a2, eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz):
+    """microfacet._microfacet_f for one pair (scalar, no colour)."""
+    cI = _dot3(Nx, Ny, Nz, vx, vy, vz)
+    cO = _dot3(Nx, Ny, Nz, lx, ly, lz)
+    if not cI > 0.0:
+        return 0.0
+    if kind == GLOSSY and not cO > 0.0:
+        return 0.0
+    G2 = 1.0 / (1.0 + _lambda(a2, cI) + _lambda(a2, cO))
+    if cO > 0.0:
+        if kind == REFRACTION:
+            return 0.0
+        hx, hy, hz = _unit(vx + lx, vy + ly, vz + lz)
+        val = _D(a2, _dot3(Nx, Ny, Nz, hx, hy, hz)) * G2 / (4.0 * cI * cO)
+        if kind == GLASS:
+            val *= _fresnel(_dot3(hx, hy, hz, vx, vy, vz), eta)
+        return val
+    if cO < 0.0 and kind != GLOSSY:
+        # Generalised half vector (Walter 2007 eq. 16), microfacet._refraction_half.
+        ux, uy, uz = -(eta * lx + vx), -(eta * ly + vy), -(eta * lz + vz)
+        hx, hy, hz = _unit(ux, uy, uz)
+        if _dot3(Nx, Ny, Nz, hx, hy, hz) < 0.0:
+            hx, hy, hz = hx * -1.0, hy * -1.0, hz * -1.0
+        hv = _dot3(hx, hy, hz, vx, vy, vz)
+        hl = _dot3(hx, hy, hz, lx, ly, lz)
+        F = _fresnel(hv, eta)
+        if kind == GLASS:
+            T = 1.0 - F
+        else:
+            T = 1.0 if F < 1.0 else 0.0
+        if not (hv > 0.0 and hl < 0.0):
+            return 0.0
+        D = _D(a2, _dot3(Nx, Ny, Nz, hx, hy, hz))
+        return (T * D * G2 * (eta * eta) * abs(hv * hl)
+                / (cI * abs(cO) * _dot3(ux, uy, uz, ux, uy, uz)))
+    return 0.0
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _on_G(c):
+    """microfacet._oren_nayar_G."""
+    if c < 1e-6:
+        return (np.pi / 2 - 2.0 / 3.0) - c
+    cs = max(c, 1e-6)
+    s = math.sqrt(max(0.0, 1.0 - cs * cs))
+    th = math.acos(min(max(cs, -1.0), 1.0))
+    return s * (th - 2.0 / 3.0 - s * cs) + 2.0 / 3.0 * (s / cs) * (1.0 - s * s * s)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _ggx_albedo(T, rough, mu):
+    """multiscatter._ggx_albedo: (E, E_avg)."""
+    i, ti = _lerp(rough, _N_GGX)
+    j, tj = _lerp(mu, _N_GGX)
+    return (_bilerp(T, T_GGX_E, _N_GGX, i, ti, j, tj),
+            (1 - ti) * T[T_GGX_EAVG + i] + ti * T[T_GGX_EAVG + i + 1])
+
+
+@njit(cache=True, error_model="numpy")
+def _layer_transmission(T, f0, rough, ior, mu, ms):
+    """multiscatter.layer_transmission for one point."""
+    z = math.sqrt(abs((ior - 1.0) / (ior + 1.0)))
+    k, tk = _lerp(z, _N_S)
+    i, ti = _lerp(rough, _N_S)
+    j, tj = _lerp(mu, _N_S)
+    s = 0.0
+    s += (1 - tk) * _bilerp(T, T_S + k * _N_S * _N_S, _N_S, i, ti, j, tj)
+    s += tk * _bilerp(T, T_S + (k + 1) * _N_S * _N_S, _N_S, i, ti, j, tj)
+    A = f0 + (1.0 - f0) * s
+    if ms:
+        F0 = _f0(ior)
+        s_ss = _clip01((_fss(ior) - F0) / max(1.0 - F0, 1e-12))
+        fss = f0 + (1.0 - f0) * s_ss
+        E, Eavg = _ggx_albedo(T, rough, mu)
+        fms = fss * Eavg / max(1.0 - fss * (1.0 - Eavg), 1e-12)
+        A *= E + fms * (1.0 - E)
+    return _clip01(1.0 - A)
+
+
+@njit(cache=True, error_model="numpy")
+def _ms_albedo(T, kind, rough, eta, mu):
+    """The (E, E_avg) of multiscatter.multiscatter_factor."""
+    if kind != GLASS:
+        return _ggx_albedo(T, rough, mu)
+    inv = 1 if eta < 1.0 else 0
+    ior = 1.0 / eta if inv == 1 else eta
+    z = math.sqrt(abs((ior - 1.0) / (ior + 1.0)))
+    k, tk = _lerp(z, _N_GLASS)
+    i, ti = _lerp(rough, _N_GLASS)
+    j, tj = _lerp(mu, _N_GLASS)
+    E = 0.0
+    Eavg = 0.0
+    for dk in range(2):
+        wk = tk if dk else 1 - tk
+        node = inv * _N_GLASS + k + dk
+        E += wk * _bilerp(T, T_GLASS_E + node * _N_GLASS * _N_GLASS, _N_GLASS, i, ti, j, tj)
+        a = T_GLASS_EAVG + node * _N_GLASS + i
+        Eavg += wk * ((1 - ti) * T[a] + ti * T[a + 1])
+    return E, Eavg
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _ms_channel(C, E, Eavg):
+    """One channel of multiscatter_factor: 1 + F_ms (1 - E)/E (E already >= 1e-6)."""
+    C = max(C, 0.0)
+    Fms = C * Eavg / max(1.0 - C * (1.0 - Eavg), 1e-12)
+    return 1.0 + Fms * (1.0 - E) / E
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _schlick_channel(C, F0, s, s_ss):
+    """FRESNEL_DIELECTRIC of microfacet._principled_fresnel, one channel: (F, F_ss)."""
+    f0 = _clip01(F0 * C)
+    return f0 + (1.0 - f0) * s, f0 + (1.0 - f0) * s_ss
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _f82_channel(C, tint, c):
+    """FRESNEL_F82 of microfacet._principled_fresnel, one channel: (F, F_ss)."""
+    F0 = _clip01(C)
+    B = (F0 + (1.0 - F0) * _F82_F5) * (7.0 / (_F82_F5 * _F82_F)) * (1.0 - tint)
+    sm = _clip01(1.0 - c)
+    F = _clip01(F0 + (1.0 - F0) * sm ** 5.0 - B * c * sm ** 6.0)
+    return F, F0 + (1.0 - F0) / 21.0 - B / 126.0
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _bump_shadowing(Sx, Sy, Sz, Nx, Ny, Nz, lx, ly, lz):
+    """closures._bump_shadowing (Conty Estevez et al. 2019) for one pair."""
+    cos_si = _dot3(Sx, Sy, Sz, lx, ly, lz)
+    cos_sn = _dot3(Sx, Sy, Sz, Nx, Ny, Nz)
+    cos_ni = _dot3(Nx, Ny, Nz, lx, ly, lz)
+    if cos_si * cos_sn * cos_ni < 0.0:
+        return 0.0
+    cos_i = abs(cos_si)
+    cos_d = abs(cos_sn)
+    if cos_d >= 1.0 or cos_i >= 1.0:
+        return 1.0
+    if cos_i < 1e-6:
+        return 0.0
+    m = max(cos_d, 1e-12)
+    a2 = _clip01(0.125 * (1.0 / (m * m) - 1.0))
+    tan2_i = (1.0 - cos_i * cos_i) / max(cos_i * cos_i, 1e-300)
+    return 2.0 / (1.0 + math.sqrt(1.0 + a2 * tan2_i))
+
+
+@njit(cache=True, error_model="numpy")
+def _valid_specular_normal(gx, gy, gz, ix, iy, iz, nx, ny, nz):
+    """core.scene.normals.valid_specular_normal for one point (ng, n on i's side)."""
+    ni = _dot3(nx, ny, nz, ix, iy, iz)
+    Rx, Ry, Rz = 2.0 * ni * nx - ix, 2.0 * ni * ny - iy, 2.0 * ni * nz - iz
+    iz_ = _dot3(ix, iy, iz, gx, gy, gz)
+    t = min(0.9 * iz_, 0.01)
+    if not _dot3(gx, gy, gz, Rx, Ry, Rz) < t:
+        return nx, ny, nz
+    ng_ = _dot3(nx, ny, nz, gx, gy, gz)
+    Xx, Xy, Xz = nx - ng_ * gx, ny - ng_ * gy, nz - ng_ * gz
+    ln = math.sqrt(Xx * Xx + Xy * Xy + Xz * Xz)
+    if ln > 1e-12:
+        d = max(ln, 1e-300)
+        Xx, Xy, Xz = Xx / d, Xy / d, Xz / d
+    else:
+        Xx, Xy, Xz = nx, ny, nz
+    ix_ = _dot3(ix, iy, iz, Xx, Xy, Xz)
+    a = ix_ * ix_ + iz_ * iz_
+    if not a > 0:
+        return nx, ny, nz
+    b = 2.0 * (a + iz_ * t)
+    c = (t + iz_) * (t + iz_)
+    root = math.sqrt(max(b * b - 4.0 * a * c, 0.0))
+    if ix_ < 0:
+        nz2 = 0.25 * (b + root) / a
+    else:
+        nz2 = 0.25 * (b - root) / a
+    ex = math.sqrt(max(1.0 - nz2, 0.0))
+    ez = math.sqrt(max(nz2, 0.0))
+    return ex * Xx + ez * gx, ex * Xy + ez * gy, ex * Xz + ez * gz
+
+
+# --------------------------------------------------------------------------
+# A material's non-delta BSDF at one pair
+# --------------------------------------------------------------------------
+@njit(cache=True, error_model="numpy")
+def eval_pair(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz,
+              want_smooth):
+    """Cycles' f(view=v, light=l) of material m's non-delta lobes, radiance
+    mode (closures.eval_bsdf): (f_r, f_g, f_b, s_r, s_g, s_b).  lobes, T:
+    a CompiledMaterials' arrays (passed alone: no reference counting of a
+    struct's members in the loop).  colors[row] (L, 3) the point's lobe colours (``lobe_colors``, any float dtype); ns, ng unit
+    mesh normals in any orientation; v, l unit; all float64 scalars.
+    s: with want_smooth, the same sum as ``Receivers.smooth`` evaluates it
+    (DIFFUSE / TRANSLUCENT lobes in full; other lobes with the mix weight
+    zeroed: Principled Fresnel lobes vanish, plain microfacet lobes keep
+    colour x microfacet f, their colours carrying the weight), else 0."""
+    front = _dot3(ngx, ngy, ngz, vx, vy, vz) >= 0.0
+    sg = 1.0 if front else -1.0
+    bump = lobes[m, 0, F_BUMP] > 0.0
+    if bump:
+        ax, ay, az = _valid_specular_normal(ngx * sg, ngy * sg, ngz * sg, vx, vy, vz,
+                                            nsx * sg, nsy * sg, nsz * sg)
+        nsx, nsy, nsz = sg * ax, sg * ay, sg * az
+    Nx, Ny, Nz = nsx * sg, nsy * sg, nsz * sg
+    Gx, Gy, Gz = ngx * sg, ngy * sg, ngz * sg
+    nl = _dot3(Nx, Ny, Nz, lx, ly, lz)
+    nv = _dot3(Nx, Ny, Nz, vx, vy, vz)
+    f0_ = f1_ = f2_ = 0.0
+    s0 = s1 = s2 = 0.0
+    for j in range(lobes.shape[1]):
+        if not lobes[m, j, F_ND] > 0.0:
+            continue
+        k = int(lobes[m, j, F_KIND])
+        c0, c1, c2 = float(colors[row, j, 0]), float(colors[row, j, 1]), float(colors[row, j, 2])
+        w = lobes[m, j, F_W]
+        if w != 0.0:
+            u0, u1, u2 = c0 / w, c1 / w, c2 / w
+        else:
+            u0 = u1 = u2 = 0.0
+        rough = lobes[m, j, F_ROUGH]
+        if k == DIFFUSE or k == TRANSLUCENT:
+            if k == TRANSLUCENT:
+                q = INV_PI * (1.0 if nl < 0.0 else 0.0)
+                g0, g1, g2 = c0 * q, c1 * q, c2 * q
+            elif rough < DIFFUSE_ROUGHNESS_EPS:
+                q = INV_PI * (1.0 if nl > 0.0 else 0.0)
+                g0, g1, g2 = c0 * q, c1 * q, c2 * q
+            else:
+                # microfacet.oren_nayar_f (Fujii, energy-preserving).
+                sigma = _clip01(rough)
+                a = 1.0 / (np.pi + sigma * (np.pi / 2 - 2.0 / 3.0))
+                b = sigma * a
+                nlp = max(nl, 0.0)
+                nvp = max(nv, 0.0)
+                t = _dot3(lx, ly, lz, vx, vy, vz) - nlp * nvp
+                if t > 0.0:
+                    t = t / (max(nlp, nvp) + 1e-38)
+                single = a + b * t
+                Eavg = a * np.pi + (2.0 * np.pi - 5.6) / 3.0 * b
+                EE = (1.0 - (a * np.pi + b * _on_G(nvp))) * (1.0 - (a * np.pi + b * _on_G(nlp)))
+                above = 1.0 if nl > 0.0 else 0.0
+                A = _clip01(u0)
+                g0 = c0 * (single + INV_PI * A * A * (Eavg / (1.0 - Eavg))
+                           / (1.0 - A * (1.0 - Eavg)) * EE) * above
+                A = _clip01(u1)
+                g1 = c1 * (single + INV_PI * A * A * (Eavg / (1.0 - Eavg))
+                           / (1.0 - A * (1.0 - Eavg)) * EE) * above
+                A = _clip01(u2)
+                g2 = c2 * (single + INV_PI * A * A * (Eavg / (1.0 - Eavg))
+                           / (1.0 - A * (1.0 - Eavg)) * EE) * above
+            if k == DIFFUSE and lobes[m, j, F_LIOR] > 0.0:
+                q = _layer_transmission(T, lobes[m, j, F_LF0], lobes[m, j, F_LROUGH], lobes[m, j, F_LIOR], nv,
+                                        lobes[m, j, F_LMS] > 0.0)
+                g0, g1, g2 = g0 * q, g1 * q, g2 * q
+            if bump:
+                q = _bump_shadowing(Gx, Gy, Gz, Nx, Ny, Nz, lx, ly, lz)
+                g0, g1, g2 = g0 * q, g1 * q, g2 * q
+            if want_smooth:
+                s0 += g0
+                s1 += g1
+                s2 += g2
+        elif k == GLOSSY or k == GLASS or k == REFRACTION:
+            ior = lobes[m, j, F_IOR]
+            eta = ior if front else 1.0 / ior
+            fs = _microfacet(k, lobes[m, j, F_A2], eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz)
+            g0, g1, g2 = c0 * fs, c1 * fs, c2 * fs
+            fss0, fss1, fss2 = u0, u1, u2
+            fm = int(lobes[m, j, F_FRES]) if k == GLOSSY else 0
+            if want_smooth and fm == 0:
+                s0 += g0
+                s1 += g1
+                s2 += g2
+            if fm == FRESNEL_DIELECTRIC or fm == FRESNEL_F82:
+                hx, hy, hz = _unit(vx + lx, vy + ly, vz + lz)
+                c = _dot3(hx, hy, hz, vx, vy, vz)
+                if fm == FRESNEL_DIELECTRIC:
+                    fi = lobes[m, j, F_FIOR]
+                    F0 = _f0(fi)
+                    s = _clip01((_fresnel(c, fi) - F0) / max(1.0 - F0, 1e-12))
+                    s_ss = _clip01((_fss(fi) - F0) / max(1.0 - F0, 1e-12))
+                    F_0, fss0 = _schlick_channel(u0, F0, s, s_ss)
+                    F_1, fss1 = _schlick_channel(u1, F0, s, s_ss)
+                    F_2, fss2 = _schlick_channel(u2, F0, s, s_ss)
+                else:
+                    F_0, fss0 = _f82_channel(u0, lobes[m, j, F_TINT], c)
+                    F_1, fss1 = _f82_channel(u1, lobes[m, j, F_TINT + 1], c)
+                    F_2, fss2 = _f82_channel(u2, lobes[m, j, F_TINT + 2], c)
+                g0, g1, g2 = w * F_0 * fs, w * F_1 * fs, w * F_2 * fs
+            if lobes[m, j, F_MS] > 0.0 and k != REFRACTION:
+                E, Eavg = _ms_albedo(T, k, rough, eta, nv)
+                E = max(E, 1e-6)
+                g0 *= _ms_channel(fss0, E, Eavg)
+                g1 *= _ms_channel(fss1, E, Eavg)
+                g2 *= _ms_channel(fss2, E, Eavg)
+        else:
+            continue
+        f0_ += g0
+        f1_ += g1
+        f2_ += g2
+    return f0_, f1_, f2_, s0, s1, s2
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def eval_indexed(S, mat, colors, ns, ng, front, wo, pv, wi, pp, out, smooth):
+    """f (and the receivers' smooth sum) of the pairs (point pv[i], direction
+    pp[i]) (K,) into out, smooth (K, 3) float64 (smooth may be (0, 3): not
+    computed).  Point arrays: mat (P,), colors (P, L, 3), ns, ng, wo (P, 3),
+    front (P,) bool: ns and ng are flipped where front is False to give the
+    mesh's normals (``VisiblePoints.mesh_normals``), or (0,): taken as they
+    are.  wi (N, 3): directions indexed by pp."""
+    lobes, T = S.lobes, S.tables
+    flip = front.shape[0] > 0
+    want = smooth.shape[0] > 0
+    for i in range(pv.shape[0]):
+        q = pv[i]
+        e = pp[i]
+        sg = 1.0
+        if flip and not front[q]:
+            sg = -1.0
+        r = eval_pair(lobes, T, mat[q], colors, q,
+                      ns[q, 0] * sg, ns[q, 1] * sg, ns[q, 2] * sg,
+                      ng[q, 0] * sg, ng[q, 1] * sg, ng[q, 2] * sg,
+                      float(wo[q, 0]), float(wo[q, 1]), float(wo[q, 2]),
+                      float(wi[e, 0]), float(wi[e, 1]), float(wi[e, 2]), want)
+        out[i, 0], out[i, 1], out[i, 2] = r[0], r[1], r[2]
+        if want:
+            smooth[i, 0], smooth[i, 1], smooth[i, 2] = r[3], r[4], r[5]
+
+
+def _f64(a, n):
+    return np.ascontiguousarray(np.asarray(a, np.float64).reshape(-1, n))
+
+
+def eval_bsdf(table, mat, colors, n_s, n_g, wo, wi, with_smooth=False):
+    """Compiled :func:`core.materials.eval_bsdf` (radiance mode) of K pairs:
+    the same arguments, (K, 3) float64; with_smooth: also the sum
+    ``Receivers.smooth`` evaluates (:func:`eval_pair`), returned second."""
+    mat = np.ascontiguousarray(mat, np.int64)
+    K = mat.shape[0]
+    idx = np.arange(K)
+    colors = np.ascontiguousarray(np.asarray(colors, np.float64).reshape(K, -1, 3))
+    out = np.empty((K, 3))
+    smooth = np.empty((K if with_smooth else 0, 3))
+    eval_indexed(compile_materials(table), mat, colors, _f64(n_s, 3), _f64(n_g, 3),
+                 np.zeros(0, bool), _f64(wo, 3), idx, _f64(wi, 3), idx, out, smooth)
+    return (out, smooth) if with_smooth else out
