@@ -121,12 +121,22 @@ def test_compiled_equals_numpy_every_lobe_kind(bump):
 
 
 def test_compiled_smooth_sum_is_the_receivers_smooth_table():
-    """with_smooth: the sum Receivers.smooth (weights of non-diffuse lobes zeroed) evaluates."""
+    """with_smooth: the sum Receivers.smooth (the diffuse and translucent
+    lobes alone) evaluates; a material without such lobes has none, and one
+    made of them alone is all smooth."""
     t = _table(False)
     mat, colors, ns, ng, wo, wi = _pairs(t, 4000, 3)
     f, s = C.eval_bsdf(t, mat, colors, ns, ng, wo, wi, with_smooth=True)
     _assert_close(f, B.eval_bsdf(t, mat, colors, ns, ng, wo, wi))
     _assert_close(s, B.eval_bsdf(Receivers(t).smooth, mat, colors, ns, ng, wo, wi))
+    kinds = t.kind[mat]
+    diffuse = np.isin(kinds, (DIFFUSE, TRANSLUCENT))
+    glossy_only = ~diffuse.any(axis=1)      # e.g. a plain Glossy BSDF: its w is 1
+    assert glossy_only.sum() > 100 and np.any(f[glossy_only] > 0)
+    assert np.all(s[glossy_only] == 0.0)
+    smooth_only = ~(np.isin(kinds, (GLOSSY, GLASS, REFRACTION)) & ~t.lobe_delta[mat]).any(axis=1)
+    assert smooth_only.sum() > 100
+    np.testing.assert_array_equal(s[smooth_only], f[smooth_only])
 
 
 def _principled_floor(res=20):

@@ -756,7 +756,7 @@ class Receivers:
     knows its receiver: b_receiver (M,) = ``spectrum.receiver_variance`` of
     each material, and the split of its BSDF into a diffuse part (Lambert,
     Oren-Nayar, translucent lobes: ``smooth``, a copy of the material table
-    with the other lobes' weights zeroed) and a glossy part (the rest).  For
+    with the other lobes marked unused) and a glossy part (the rest).  For
     a (visible point, frequency photon) pair the glossy share is
     w = 1 - Y(f_smooth) / Y(f) (Y: luminance of the BSDF values), and the
     radius is ``spectrum.layered_radius`` of the diffuse radius (b_r = inf)
@@ -773,8 +773,11 @@ class Receivers:
         nondelta = used & ~np.asarray(mtab.lobe_delta, bool)
         self.mtab = mtab
         self.b_receiver = F.receiver_variance(mtab.kind, mtab.roughness, nondelta)
+        # The other lobes are marked unused (kind -1), not given a zero
+        # weight: lobe_colors already carry the mix weight, so a zeroed
+        # weight would leave a plain Glossy lobe in the "diffuse" part.
         smooth = np.isin(mtab.kind, (_sc.DIFFUSE, _sc.TRANSLUCENT))
-        self.smooth = dataclasses.replace(mtab, weight=np.where(smooth, mtab.weight, 0.0))
+        self.smooth = dataclasses.replace(mtab, kind=np.where(smooth, mtab.kind, -1))
 
     #: Evaluate f and f_smooth with core.materials.compiled (one loop over
     #: the pairs, no per-pair copies) rather than twice with numpy.

@@ -405,9 +405,8 @@ def eval_pair(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz
     struct's members in the loop).  colors[row] (L, 3) the point's lobe colours (``lobe_colors``, any float dtype); ns, ng unit
     mesh normals in any orientation; v, l unit; all float64 scalars.
     s: with want_smooth, the same sum as ``Receivers.smooth`` evaluates it
-    (DIFFUSE / TRANSLUCENT lobes in full; other lobes with the mix weight
-    zeroed: Principled Fresnel lobes vanish, plain microfacet lobes keep
-    colour x microfacet f, their colours carrying the weight), else 0."""
+    (the DIFFUSE / TRANSLUCENT lobes alone, the microfacet lobes left out),
+    else 0."""
     front = _dot3(ngx, ngy, ngz, vx, vy, vz) >= 0.0
     sg = 1.0 if front else -1.0
     bump = lobes[m, 0, F_BUMP] > 0.0
@@ -480,10 +479,6 @@ def eval_pair(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz
             g0, g1, g2 = c0 * fs, c1 * fs, c2 * fs
             fss0, fss1, fss2 = u0, u1, u2
             fm = int(lobes[m, j, F_FRES]) if k == GLOSSY else 0
-            if want_smooth and fm == 0:
-                s0 += g0
-                s1 += g1
-                s2 += g2
             if fm == FRESNEL_DIELECTRIC or fm == FRESNEL_F82:
                 hx, hy, hz = _unit(vx + lx, vy + ly, vz + lz)
                 c = _dot3(hx, hy, hz, vx, vy, vz)
