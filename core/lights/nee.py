@@ -18,7 +18,6 @@ stage.
 """
 from __future__ import annotations
 
-import threading
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -121,7 +120,7 @@ class NextEventEstimation:
         pixels are distinct, so the sums are the same bits however the blocks
         are shared."""
         from ..sppm.camera_kernels import SPLIT_MIN
-        from ..sppm.visible_points import in_two_threads, stream_at
+        from ..sppm.visible_points import blocks_in_two_threads, stream_at
         K = q.size
         if K < SPLIT_MIN or not isinstance(rng.bit_generator, np.random.PCG64):
             # one thread (PCG64 alone advances by draws), in blocks
@@ -131,17 +130,11 @@ class NextEventEstimation:
             return
         # at least four blocks to share (256^2: a quarter of the points each)
         blk = min(DIRECT_BLOCK, -(-K // 4))
-        todo, take = iter(range(0, K, blk)), threading.Lock()
 
-        def worker():
-            while True:
-                with take:
-                    a = next(todo, None)
-                if a is None:
-                    return
-                qb = q[a:a + blk]
-                self._direct_compiled(vp, qb, stream_at(rng, 3 * a).random((qb.size, 3)), L)
-        in_two_threads(worker)
+        def block(a):
+            qb = q[a:a + blk]
+            self._direct_compiled(vp, qb, stream_at(rng, 3 * a).random((qb.size, 3)), L)
+        blocks_in_two_threads(K, blk, block)
         rng.bit_generator.advance(3 * K)
 
     def _direct_compiled(self, vp, q, u, L) -> np.ndarray:

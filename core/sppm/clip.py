@@ -42,7 +42,6 @@ clip is cast every pass with its radii.
 from __future__ import annotations
 
 import math
-import threading
 
 import numpy as np
 from numba import njit
@@ -152,11 +151,11 @@ def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.
 
     The blocks (CLIP_BLOCK points; at least four from SPLIT_MIN points) are
     taken in turn by two threads, this one and core.sppm.photons' pool
-    (``visible_points.in_two_threads``; Embree and the kernels release the
+    (``visible_points.blocks_in_two_threads``; Embree and the kernels release the
     GIL): a point's code depends on its own rays alone, so the codes are the
     same bits however the blocks are shared."""
     from .camera_kernels import SPLIT_MIN
-    from .visible_points import in_two_threads
+    from .visible_points import blocks_in_two_threads
     P = active.shape[0]
     out = np.full(P, CLIP_CLEAR, np.uint64)
     idx = np.nonzero(active)[0]
@@ -182,17 +181,11 @@ def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.
         block(idx)
         return out
     blk = min(CLIP_BLOCK, -(-idx.size // 4))
-    todo, take = iter(range(0, idx.size, blk)), threading.Lock()
 
-    def worker():
-        while True:
-            with take:
-                b0 = next(todo, None)
-            if b0 is None:
-                return
-            check_stop()
-            block(idx[b0:b0 + blk])
-    in_two_threads(worker)
+    def block_at(b0):
+        check_stop()
+        block(idx[b0:b0 + blk])
+    blocks_in_two_threads(idx.size, blk, block_at)
     return out
 
 

@@ -640,6 +640,22 @@ def in_two_threads(work) -> None:
         f.result()
 
 
+def blocks_in_two_threads(n: int, blk: int, block) -> None:
+    """block(a) for the block starts a = 0, blk, 2 blk, ... < n, taken in
+    turn by two threads (:func:`in_two_threads`) until none is left; each
+    start is taken exactly once, in no fixed thread."""
+    todo, take = iter(range(0, n, blk)), threading.Lock()
+
+    def worker():
+        while True:
+            with take:
+                a = next(todo, None)
+            if a is None:
+                return
+            block(a)
+    in_two_threads(worker)
+
+
 def stream_at(rng: np.random.Generator, n: int = 0) -> np.random.Generator:
     """A generator n draws ahead of rng's position in rng's stream (rng is
     not moved): its ``random()`` gives the float64 draws n, n + 1, ... of rng
