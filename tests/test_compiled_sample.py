@@ -29,7 +29,7 @@ from core.materials import compiled as C  # noqa: E402
 from core.materials import fast as FM  # noqa: E402
 from core.scene.model import GLASS, GLOSSY, REFRACTION, TRANSPARENT, Lobe, Material  # noqa: E402
 from core.scene.nodes import principled_to_lobes  # noqa: E402
-from test_compiled_bsdf import _materials  # noqa: E402
+from test_compiled_bsdf import _materials, _pairs  # noqa: E402
 
 RTOL, ATOL = 1e-12, 1e-14
 
@@ -47,21 +47,11 @@ def _table():
                                    for i, lb in enumerate(_materials() + extra)], [])
 
 
-def _unit(a):
-    return a / np.linalg.norm(a, axis=1, keepdims=True)
-
-
 def _rays(t, K, seed):
-    rng = np.random.default_rng(seed)
-    mat = rng.integers(0, t.n_materials, K)
-    ng = _unit(rng.normal(size=(K, 3)))
-    ns = _unit(ng + 0.35 * rng.normal(size=(K, 3)))
-    wo = _unit(rng.normal(size=(K, 3)))
-    g = rng.random(K) < 0.25
-    eps = 10.0 ** rng.uniform(-7, -3, g.sum()) * rng.choice([-1, 1], g.sum())
-    wo[g] = _unit(wo[g] - np.einsum("ij,ij->i", wo[g], ng[g])[:, None] * ng[g]
-                  + eps[:, None] * ng[g])
-    return mat, ns, ng, wo, rng.random((K, 3))
+    """test_compiled_bsdf's random points (a quarter grazing), float64, and uniforms."""
+    mat, _, ns, ng, wo, _ = _pairs(t, K, seed)
+    f64 = lambda a: np.ascontiguousarray(a, np.float64)  # noqa: E731
+    return mat, f64(ns), f64(ng), f64(wo), np.random.default_rng(seed).random((K, 3))
 
 
 def test_compiled_sample_equals_sample_bsdf():

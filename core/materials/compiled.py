@@ -213,6 +213,24 @@ def _unit(x, y, z):
     return x / n, y / n, z / n
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _refraction_half(kind, eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz):
+    """microfacet._refraction_half for one pair (Walter 2007 eq. 16): Hu,
+    the unit H on N's side, h.v, h.l and the transmitted share."""
+    ux, uy, uz = -(eta * lx + vx), -(eta * ly + vy), -(eta * lz + vz)
+    hx, hy, hz = _unit(ux, uy, uz)
+    if _dot3(Nx, Ny, Nz, hx, hy, hz) < 0.0:
+        hx, hy, hz = hx * -1.0, hy * -1.0, hz * -1.0
+    hv = _dot3(hx, hy, hz, vx, vy, vz)
+    hl = _dot3(hx, hy, hz, lx, ly, lz)
+    F = _fresnel(hv, eta)
+    if kind == GLASS:
+        T = 1.0 - F
+    else:
+        T = 1.0 if F < 1.0 else 0.0
+    return ux, uy, uz, hx, hy, hz, hv, hl, T
+
+
 @njit(cache=True, error_model="numpy")
 def _microfacet(kind, a2, eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz):
     """microfacet._microfacet_f for one pair (scalar, no colour)."""
@@ -232,18 +250,8 @@ def _microfacet(kind, a2, eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz):
             val *= _fresnel(_dot3(hx, hy, hz, vx, vy, vz), eta)
         return val
     if cO < 0.0 and kind != GLOSSY:
-        # Generalised half vector (Walter 2007 eq. 16), microfacet._refraction_half.
-        ux, uy, uz = -(eta * lx + vx), -(eta * ly + vy), -(eta * lz + vz)
-        hx, hy, hz = _unit(ux, uy, uz)
-        if _dot3(Nx, Ny, Nz, hx, hy, hz) < 0.0:
-            hx, hy, hz = hx * -1.0, hy * -1.0, hz * -1.0
-        hv = _dot3(hx, hy, hz, vx, vy, vz)
-        hl = _dot3(hx, hy, hz, lx, ly, lz)
-        F = _fresnel(hv, eta)
-        if kind == GLASS:
-            T = 1.0 - F
-        else:
-            T = 1.0 if F < 1.0 else 0.0
+        ux, uy, uz, hx, hy, hz, hv, hl, T = _refraction_half(kind, eta, Nx, Ny, Nz,
+                                                             vx, vy, vz, lx, ly, lz)
         if not (hv > 0.0 and hl < 0.0):
             return 0.0
         D = _D(a2, _dot3(Nx, Ny, Nz, hx, hy, hz))
@@ -652,17 +660,8 @@ def _microfacet_pdf(kind, a2, eta, Nx, Ny, Nz, Gx, Gy, Gz, ox, oy, oz, ix, iy, i
             val *= _fresnel(_dot3(hx, hy, hz, ox, oy, oz), eta)
         return val
     if cO < 0.0 and gO < 0.0 and kind != GLOSSY:
-        ux, uy, uz = -(eta * ix + ox), -(eta * iy + oy), -(eta * iz + oz)
-        hx, hy, hz = _unit(ux, uy, uz)
-        if _dot3(Nx, Ny, Nz, hx, hy, hz) < 0.0:
-            hx, hy, hz = hx * -1.0, hy * -1.0, hz * -1.0
-        ho = _dot3(hx, hy, hz, ox, oy, oz)
-        hi = _dot3(hx, hy, hz, ix, iy, iz)
-        F = _fresnel(ho, eta)
-        if kind == GLASS:
-            sel = 1.0 - F
-        else:
-            sel = 1.0 if F < 1.0 else 0.0
+        ux, uy, uz, hx, hy, hz, ho, hi, sel = _refraction_half(kind, eta, Nx, Ny, Nz,
+                                                               ox, oy, oz, ix, iy, iz)
         if not (ho > 0.0 and hi < 0.0):
             return 0.0
         return (sel * _D(a2, _dot3(Nx, Ny, Nz, hx, hy, hz)) * G1 / cI * (eta * eta)

@@ -34,7 +34,7 @@ from numba import njit
 
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 from ..scene.model import GLASS, GLOSSY
-from .compiled import (N_FIELDS, N_TABLES, CompiledMaterials, SelectionTable,
+from .compiled import (N_FIELDS, N_TABLES, CompiledMaterials, SelectionTable, _disk,
                        compile_materials, selection_table)
 
 # Fast-path classes of a material.
@@ -156,19 +156,7 @@ def sample_fast(cls, cr, cg, cb, ior, nsx, nsy, nsz, ngx, ngy, ngz, wox, woy, wo
     lum = cr * _LUM0 + cg * _LUM1 + cb * _LUM2
     if cls == LAMBERT:
         # Shirley-Chiu concentric disk, lifted (bsdf._cos_hemisphere).
-        a = 2.0 * u0 - 1.0
-        b = 2.0 * u1 - 1.0
-        if abs(a) > abs(b):
-            r = a
-            phi = (np.pi / 4) * (b / a)
-        else:
-            r = b
-            if a == 0.0 and b == 0.0:
-                phi = 0.0
-            else:
-                phi = np.pi / 2 - (np.pi / 4) * (a / b)
-        lx = r * np.cos(phi)
-        ly = r * np.sin(phi)
+        lx, ly = _disk(u0, u1)
         lz = np.sqrt(max(0.0, 1.0 - lx * lx - ly * ly))
         # Tangent frame of N (Duff et al. 2017, bsdf._frame).
         sg = 1.0 if Nz >= 0.0 else -1.0
