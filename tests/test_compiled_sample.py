@@ -23,6 +23,7 @@ if TESTS not in sys.path:
 
 import fppm_alias  # noqa: E402,F401  (core.x is fppm.core.x: one numba cache)
 import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 from core import materials as B  # noqa: E402
 from core.materials import compiled as C  # noqa: E402
@@ -90,17 +91,25 @@ def test_compiled_sample_equals_sample_bsdf():
         assert np.count_nonzero(ok & glass & side & through) > 100
 
 
-def test_tracer_same_deposits_with_and_without_compiled_sampling(monkeypatch):
+@pytest.mark.parametrize("textured", [False, True])
+def test_tracer_same_deposits_with_and_without_compiled_sampling(monkeypatch, textured):
     """The photon tracer with the compiled generic path (default) and with
     COMPILED_SAMPLING off (numpy sample_bsdf): the same photon paths (order,
     positions, bounces bit for bit) and powers to rounding (measured: 118 of
-    34222 deposits 1-2 ulps off, from Oren-Nayar's acos)."""
+    34222 deposits 1-2 ulps off, from Oren-Nayar's acos).  textured: the
+    GGX wall textured (numpy-sampled rows among the kernel's in one block)."""
     from test_photon_kernels import _tracer, glass_mirror
     out = []
     for flag in (False, True):
         monkeypatch.setattr(FM, "COMPILED_SAMPLING", flag)
-        tr = _tracer(glass_mirror())
+        sc = glass_mirror()
+        if textured:
+            sc.textures = [np.full((2, 2, 3), 0.9, np.float32)]
+            sc.materials[3] = Material("ggx_tex", (Lobe(GLOSSY, (0.7, 0.7, 0.7), roughness=0.4,
+                                                        color_texture=0),))
+        tr = _tracer(sc)
         assert tr.fmat.any_compiled == flag
+        assert list(np.nonzero(tr.fmat.compiled)[0]) == ([4] if textured else [3, 4]) * flag
         out.append(tr.trace(20_000, 0, np.random.default_rng(17)))
     a, b = out
     assert a["p"].shape[0] > 20_000
