@@ -27,7 +27,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..scene.model import DIFFUSE, GLASS, GLOSSY, REFRACTION, TRANSLUCENT
+from ..scene.model import DIFFUSE, GLASS, GLOSSY, REFRACTION, TRANSLUCENT, TRANSPARENT
 from .microfacet import FRESNEL_DIELECTRIC, FRESNEL_F82, INV_PI
 from .multiscatter import _lerp_index, _ms_glass_slice, _ms_tables, _schlick_s_slice
 from .table import DIFFUSE_ROUGHNESS_EPS
@@ -213,6 +213,24 @@ def _unit(x, y, z):
     return x / n, y / n, z / n
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _refraction_half(kind, eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz):
+    """microfacet._refraction_half for one pair (Walter 2007 eq. 16): Hu,
+    the unit H on N's side, h.v, h.l and the transmitted share."""
+    ux, uy, uz = -(eta * lx + vx), -(eta * ly + vy), -(eta * lz + vz)
+    hx, hy, hz = _unit(ux, uy, uz)
+    if _dot3(Nx, Ny, Nz, hx, hy, hz) < 0.0:
+        hx, hy, hz = hx * -1.0, hy * -1.0, hz * -1.0
+    hv = _dot3(hx, hy, hz, vx, vy, vz)
+    hl = _dot3(hx, hy, hz, lx, ly, lz)
+    F = _fresnel(hv, eta)
+    if kind == GLASS:
+        T = 1.0 - F
+    else:
+        T = 1.0 if F < 1.0 else 0.0
+    return ux, uy, uz, hx, hy, hz, hv, hl, T
+
+
 @njit(cache=True, error_model="numpy")
 def _microfacet(kind, a2, eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz):
     """microfacet._microfacet_f for one pair (scalar, no colour)."""
@@ -232,18 +250,8 @@ def _microfacet(kind, a2, eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz):
             val *= _fresnel(_dot3(hx, hy, hz, vx, vy, vz), eta)
         return val
     if cO < 0.0 and kind != GLOSSY:
-        # Generalised half vector (Walter 2007 eq. 16), microfacet._refraction_half.
-        ux, uy, uz = -(eta * lx + vx), -(eta * ly + vy), -(eta * lz + vz)
-        hx, hy, hz = _unit(ux, uy, uz)
-        if _dot3(Nx, Ny, Nz, hx, hy, hz) < 0.0:
-            hx, hy, hz = hx * -1.0, hy * -1.0, hz * -1.0
-        hv = _dot3(hx, hy, hz, vx, vy, vz)
-        hl = _dot3(hx, hy, hz, lx, ly, lz)
-        F = _fresnel(hv, eta)
-        if kind == GLASS:
-            T = 1.0 - F
-        else:
-            T = 1.0 if F < 1.0 else 0.0
+        ux, uy, uz, hx, hy, hz, hv, hl, T = _refraction_half(kind, eta, Nx, Ny, Nz,
+                                                             vx, vy, vz, lx, ly, lz)
         if not (hv > 0.0 and hl < 0.0):
             return 0.0
         D = _D(a2, _dot3(Nx, Ny, Nz, hx, hy, hz))
@@ -553,3 +561,276 @@ def eval_bsdf(table, mat, colors, n_s, n_g, wo, wi, with_smooth=False):
     eval_indexed(compile_materials(table), mat, colors, _f64(n_s, 3), _f64(n_g, 3),
                  np.zeros(0, bool), _f64(wo, 3), idx, _f64(wi, 3), idx, out, smooth)
     return (out, smooth) if with_smooth else out
+
+
+# --------------------------------------------------------------------------
+# Importance sampling of a whole material, one ray at a time
+# --------------------------------------------------------------------------
+# The numba twin of closures.sample_bsdf(subset='all', mode='importance') for
+# untextured materials without Normal Map / Bump (the photon tracer's generic
+# hits, core.sppm.photon_kernels.bounce_kernel): the same lobe choice, lobe
+# sampler, combined one-sample MIS density (closures._pdf_nd), f from
+# eval_pair and adjoint shading-normal factor, in the same operation order
+# (tests/test_compiled_sample.py: sample for sample against numpy).
+
+
+class SelectionTable(NamedTuple):
+    """Lobe choice of untextured materials (their colours are constants):
+    colors (M, L, 3) ``table.lobe_colors``; p (M, L) the luminance selection
+    probabilities (``table._selection_probs``, subset 'all'); cdf (M, L)
+    their cumulative sum; last (M,) int64 the last slot with p > 0 (L - 1
+    when none).  Computed by numpy (the oracle's bits)."""
+    colors: np.ndarray
+    p: np.ndarray
+    cdf: np.ndarray
+    last: np.ndarray
+
+
+def selection_table(table) -> SelectionTable:
+    """The :class:`SelectionTable` of every material of a ``MaterialTable``,
+    evaluated as untextured (rows of textured materials are not meaningful)."""
+    from .table import _selection_probs, lobe_colors
+    M, L = table.kind.shape
+    mat = np.arange(M)
+    colors = lobe_colors(table, mat, np.zeros((M, 2)))
+    p = _selection_probs(table, mat, colors, "all")
+    last = (L - 1 - np.argmax(p[:, ::-1] > 0, axis=1)).astype(np.int64)
+    return SelectionTable(np.ascontiguousarray(colors), np.ascontiguousarray(p),
+                          np.ascontiguousarray(np.cumsum(p, axis=1)), last)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _disk(u1, u2):
+    """microfacet._disk (Shirley-Chiu concentric map)."""
+    a = 2.0 * u1 - 1.0
+    b = 2.0 * u2 - 1.0
+    if abs(a) > abs(b):
+        r = a
+        phi = (np.pi / 4) * (b / a)
+    else:
+        r = b
+        phi = np.pi / 2 - (np.pi / 4) * (a / b)
+    if a == 0.0 and b == 0.0:
+        phi = 0.0
+    return r * math.cos(phi), r * math.sin(phi)
+
+
+@njit(cache=True, error_model="numpy")
+def _vndf(wx, wy, wz, alpha, u1, u2):
+    """microfacet.ggx_sample_vndf (Heitz 2018) for one local direction (z > 0)."""
+    vx, vy, vz = _unit(alpha * wx, alpha * wy, wz)
+    lensq = vx * vx + vy * vy
+    if lensq > 1e-7:
+        inv = 1.0 / math.sqrt(lensq)
+        t1x, t1y, t1z = -vy * inv, vx * inv, 0.0
+    else:
+        t1x, t1y, t1z = 1.0, 0.0, 0.0
+    # np.cross(v, T1), its operation order.
+    t2x = vy * t1z - vz * t1y
+    t2y = vz * t1x - vx * t1z
+    t2z = vx * t1y - vy * t1x
+    tx, ty = _disk(u1, u2)
+    s = 0.5 * (1.0 + vz)
+    ty = (1.0 - s) * math.sqrt(max(0.0, 1.0 - tx * tx)) + s * ty
+    tz = math.sqrt(max(0.0, 1.0 - tx * tx - ty * ty))
+    hx = tx * t1x + ty * t2x + tz * vx
+    hy = tx * t1y + ty * t2y + tz * vy
+    hz = tx * t1z + ty * t2z + tz * vz
+    return _unit(alpha * hx, alpha * hy, max(0.0, hz))
+
+
+@njit(cache=True, error_model="numpy")
+def _microfacet_pdf(kind, a2, eta, Nx, Ny, Nz, Gx, Gy, Gz, ox, oy, oz, ix, iy, iz):
+    """microfacet._microfacet_pdf for one pair (N, Ng oriented to wo = o)."""
+    cI = _dot3(Nx, Ny, Nz, ox, oy, oz)
+    cO = _dot3(Nx, Ny, Nz, ix, iy, iz)
+    gO = _dot3(Gx, Gy, Gz, ix, iy, iz)
+    if not cI > 0.0:
+        return 0.0
+    G1 = 1.0 / (1.0 + _lambda(a2, cI))
+    if cO > 0.0 and gO > 0.0 and kind != REFRACTION:
+        hx, hy, hz = _unit(ox + ix, oy + iy, oz + iz)
+        val = _D(a2, _dot3(Nx, Ny, Nz, hx, hy, hz)) * G1 / (4.0 * cI)
+        if kind == GLASS:
+            val *= _fresnel(_dot3(hx, hy, hz, ox, oy, oz), eta)
+        return val
+    if cO < 0.0 and gO < 0.0 and kind != GLOSSY:
+        ux, uy, uz, hx, hy, hz, ho, hi, sel = _refraction_half(kind, eta, Nx, Ny, Nz,
+                                                               ox, oy, oz, ix, iy, iz)
+        if not (ho > 0.0 and hi < 0.0):
+            return 0.0
+        return (sel * _D(a2, _dot3(Nx, Ny, Nz, hx, hy, hz)) * G1 / cI * (eta * eta)
+                * abs(ho * hi) / _dot3(ux, uy, uz, ux, uy, uz))
+    return 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def sample_pair(lobes, T, colors, p, cdf, last, m, nsx, nsy, nsz, ngx, ngy, ngz,
+                ox, oy, oz, u0, u1, u2):
+    """closures.sample_bsdf(subset='all', mode='importance') of material m
+    (untextured, no Normal Map / Bump) for one ray: lobes, T a
+    CompiledMaterials' arrays; colors, p, cdf, last a SelectionTable's; ns,
+    ng unit mesh normals in any orientation; o = wo unit (back towards where
+    the photon came from); u0, u1 direction, u2 lobe choice (rescaled for
+    glass' reflect / refract choice).  Returns (wi xyz, weight rgb,
+    is_delta, ok); weight 0 when not ok."""
+    front = _dot3(ngx, ngy, ngz, ox, oy, oz) >= 0.0
+    sg = 1.0 if front else -1.0
+    Nx, Ny, Nz = nsx * sg, nsy * sg, nsz * sg
+    Gx, Gy, Gz = ngx * sg, ngy * sg, ngz * sg
+    L = lobes.shape[1]
+    if not cdf[m, L - 1] > 0.0:          # no lobe: invalid
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, False
+    # Lobe choice: first slot with u < cdf, at most the last usable one.
+    j = 0
+    for jj in range(L):
+        if u2 >= cdf[m, jj]:
+            j += 1
+    j = min(j, last[m])
+    p_sel = p[m, j]
+    c_lo = cdf[m, j - 1] if j > 0 else 0.0
+    u_re = min(max((u2 - c_lo) / (p_sel if p_sel > 0 else 1.0), 0.0), 1.0 - 1e-16)
+    # Tangent frame of N (mathutil.frame, Duff et al. 2017).
+    s = 1.0 if Nz >= 0.0 else -1.0
+    a = -1.0 / (s + Nz)
+    b = Nx * Ny * a
+    tx, ty, tz = 1.0 + s * (Nx * Nx) * a, s * b, -s * Nx
+    bx, by, bz = b, s + (Ny * Ny) * a, -Ny
+    k = int(lobes[m, j, F_KIND])
+    delta = not lobes[m, j, F_ND] > 0.0
+    c0, c1, c2 = colors[m, j, 0], colors[m, j, 1], colors[m, j, 2]
+    ior = lobes[m, j, F_IOR]
+    eta = ior if front else 1.0 / ior
+    d0 = d1 = d2 = 0.0                   # delta throughput before selection
+    if k == DIFFUSE or k == TRANSLUCENT:
+        lx, ly = _disk(u0, u1)
+        lz = math.sqrt(max(0.0, 1.0 - lx * lx - ly * ly))
+        if k == TRANSLUCENT:
+            lz = -lz
+        wx = lx * tx + ly * bx + lz * Nx
+        wy = lx * ty + ly * by + lz * Ny
+        wz = lx * tz + ly * bz + lz * Nz
+        gs = _dot3(Gx, Gy, Gz, wx, wy, wz)
+        ok = gs > 0.0 if k == DIFFUSE else gs < 0.0
+        delta = False
+    elif k == TRANSPARENT:
+        wx, wy, wz = -ox, -oy, -oz
+        ok = True
+        delta = True
+        d0, d1, d2 = c0, c1, c2
+    else:                                # GGX family
+        cI = _dot3(ox, oy, oz, Nx, Ny, Nz)
+        if delta:
+            hx, hy, hz = Nx, Ny, Nz
+        else:
+            alpha = lobes[m, j, F_ROUGH] * lobes[m, j, F_ROUGH]
+            if cI > 0:
+                l0, l1, l2 = (_dot3(ox, oy, oz, tx, ty, tz), _dot3(ox, oy, oz, bx, by, bz), cI)
+            else:
+                l0, l1, l2 = 0.0, 0.0, 1.0
+            qx, qy, qz = _vndf(l0, l1, l2, alpha, u0, u1)
+            hx = qx * tx + qy * bx + qz * Nx
+            hy = qx * ty + qy * by + qz * Ny
+            hz = qx * tz + qy * bz + qz * Nz
+        hwo = _dot3(hx, hy, hz, ox, oy, oz)
+        refr = False
+        F = 1.0
+        cos_t = 0.0
+        if k != GLOSSY:
+            c = abs(hwo)
+            g2 = eta * eta - 1.0 + c * c
+            F = _fresnel(hwo, eta)
+            if g2 > 0.0:
+                cos_t = math.sqrt(max(0.0, 1.0 - (1.0 - c * c) / (eta * eta)))
+            refr = u_re >= F if k == GLASS else True
+        if refr:
+            inv = 1.0 / eta
+            q = inv * hwo - cos_t
+            wx, wy, wz = q * hx - inv * ox, q * hy - inv * oy, q * hz - inv * oz
+        else:
+            q = 2.0 * hwo
+            wx, wy, wz = q * hx - ox, q * hy - oy, q * hz - oz
+        wx, wy, wz = _unit(wx, wy, wz)
+        cN = _dot3(Nx, Ny, Nz, wx, wy, wz)
+        cG = _dot3(Gx, Gy, Gz, wx, wy, wz)
+        if refr:
+            ok = cI > 0.0 and cN < 0.0 and cG < 0.0
+        else:
+            ok = cI > 0.0 and cN > 0.0 and cG > 0.0
+        if k == REFRACTION:
+            ok = ok and F < 1.0
+        if delta:
+            d0, d1, d2 = c0, c1, c2
+            fm = int(lobes[m, j, F_FRES]) if k == GLOSSY else 0
+            if fm == FRESNEL_DIELECTRIC or fm == FRESNEL_F82:
+                # Principled layer at roughness 0: colour is tint / F0, the
+                # Fresnel at h = n scales the mix weight (closures._sample_general).
+                w = lobes[m, j, F_W]
+                dv = w if w != 0 else 1.0
+                if fm == FRESNEL_DIELECTRIC:
+                    fi = lobes[m, j, F_FIOR]
+                    F0 = _f0(fi)
+                    sf = _clip01((_fresnel(hwo, fi) - F0) / max(1.0 - F0, 1e-12))
+                    s_ss = _clip01((_fss(fi) - F0) / max(1.0 - F0, 1e-12))
+                    d0 = w * _schlick_channel(d0 / dv, F0, sf, s_ss)[0]
+                    d1 = w * _schlick_channel(d1 / dv, F0, sf, s_ss)[0]
+                    d2 = w * _schlick_channel(d2 / dv, F0, sf, s_ss)[0]
+                else:
+                    d0 = w * _f82_channel(d0 / dv, lobes[m, j, F_TINT], hwo)[0]
+                    d1 = w * _f82_channel(d1 / dv, lobes[m, j, F_TINT + 1], hwo)[0]
+                    d2 = w * _f82_channel(d2 / dv, lobes[m, j, F_TINT + 2], hwo)[0]
+            if refr:
+                # Adjoint of Cycles' unscaled BTDF: (n_wo / n_wi)^2 = 1/eta^2.
+                e2 = eta * eta
+                d0, d1, d2 = d0 / e2, d1 / e2, d2 / e2
+    if not ok:
+        return wx, wy, wz, 0.0, 0.0, 0.0, False, False
+    if delta:
+        w0, w1, w2 = d0 / p_sel, d1 / p_sel, d2 / p_sel
+    else:
+        # Combined density of all non-delta lobes (closures._pdf_nd), slot order.
+        pdf = 0.0
+        for jj in range(L):
+            pj = p[m, jj]
+            if not (lobes[m, jj, F_ND] > 0.0 and pj > 0.0):
+                continue
+            kj = int(lobes[m, jj, F_KIND])
+            if kj == DIFFUSE:
+                v = (max(_dot3(Nx, Ny, Nz, wx, wy, wz), 0.0) * INV_PI
+                     * (1.0 if _dot3(Gx, Gy, Gz, wx, wy, wz) > 0.0 else 0.0))
+            elif kj == TRANSLUCENT:
+                v = (max(-_dot3(Nx, Ny, Nz, wx, wy, wz), 0.0) * INV_PI
+                     * (1.0 if _dot3(Gx, Gy, Gz, wx, wy, wz) < 0.0 else 0.0))
+            elif kj == GLOSSY or kj == GLASS or kj == REFRACTION:
+                ij = lobes[m, jj, F_IOR]
+                v = _microfacet_pdf(kj, lobes[m, jj, F_A2], ij if front else 1.0 / ij,
+                                    Nx, Ny, Nz, Gx, Gy, Gz, ox, oy, oz, wx, wy, wz)
+            else:
+                v = 0.0
+            pdf += pj * v
+        if not pdf > 0.0:
+            return wx, wy, wz, 0.0, 0.0, 0.0, False, False
+        # Importance mode: the adjoint f_C(view=wi, light=wo).
+        f = eval_pair(lobes, T, m, colors, m, nsx, nsy, nsz, ngx, ngy, ngz,
+                      wx, wy, wz, ox, oy, oz, False)
+        cs = abs(_dot3(nsx, nsy, nsz, wx, wy, wz)) / pdf
+        w0, w1, w2 = f[0] * cs, f[1] * cs, f[2] * cs
+    # closures._adjoint_correction |wo.ns||wi.ng| / (|wo.ng||wi.ns|).
+    num = abs(_dot3(ox, oy, oz, nsx, nsy, nsz)) * abs(_dot3(wx, wy, wz, ngx, ngy, ngz))
+    den = abs(_dot3(ox, oy, oz, ngx, ngy, ngz)) * abs(_dot3(wx, wy, wz, nsx, nsy, nsz))
+    adj = num / den if den > 0 else 0.0
+    return wx, wy, wz, w0 * adj, w1 * adj, w2 * adj, delta, True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def sample_batch(lobes, T, sel, mat, ns, ng, wo, u, wi, weight, flags):
+    """:func:`sample_pair` of K rays (tests): mat (K,) int64, ns, ng, wo (K, 3),
+    u (K, 3); writes wi, weight (K, 3) and flags (K,) int8: bit 0 ok, bit 1
+    is_delta."""
+    for i in range(mat.shape[0]):
+        r = sample_pair(lobes, T, sel.colors, sel.p, sel.cdf, sel.last, mat[i],
+                        ns[i, 0], ns[i, 1], ns[i, 2], ng[i, 0], ng[i, 1], ng[i, 2],
+                        wo[i, 0], wo[i, 1], wo[i, 2], u[i, 0], u[i, 1], u[i, 2])
+        wi[i, 0], wi[i, 1], wi[i, 2] = r[0], r[1], r[2]
+        weight[i, 0], weight[i, 1], weight[i, 2] = r[3], r[4], r[5]
+        flags[i] = (1 if r[7] else 0) + (2 if r[6] else 0)

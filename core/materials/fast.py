@@ -13,6 +13,13 @@ and handed back to ``core.materials.sample_bsdf`` by the caller):
   no texture.  Reflect with probability F (exact dielectric Fresnel), weight
   C (/eta^2 on refraction, the importance-mode adjoint), x shading factor.
 
+A GENERIC material without textures and without Normal Map / Bump (e.g.
+Blender's default Principled BSDF) is flagged ``compiled``: the bounce
+kernel samples it with ``core.materials.compiled.sample_pair`` (every lobe
+kind, equal to ``sample_bsdf`` sample for sample) and hands the result back
+in the generic block (the numpy code only applies roulette), unless
+COMPILED_SAMPLING is off or the kernel follows MIS factors.
+
 The formulas are those of ``core.materials.closures`` (``_cos_hemisphere``,
 ``_frame``, ``fresnel_dielectric``, ``_refract``, ``_adjoint_correction``)
 written per ray in float64; tests/test_photon_kernels.py checks
@@ -27,6 +34,8 @@ from numba import njit
 
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 from ..scene.model import GLASS, GLOSSY
+from .compiled import (N_FIELDS, N_TABLES, CompiledMaterials, SelectionTable, _disk,
+                       compile_materials, selection_table)
 
 # Fast-path classes of a material.
 GENERIC = 0
@@ -34,6 +43,10 @@ LAMBERT = 1
 MIRROR = 2
 SMOOTH_GLASS = 3
 ABSORBER = 4          # no lobe with a non-zero weight (e.g. emission only)
+
+#: Sample the ``compiled`` GENERIC materials in the bounce kernel (off: all
+#: GENERIC materials go to numpy ``sample_bsdf``; read by build_fast_materials).
+COMPILED_SAMPLING = True
 
 
 class FastMaterials(NamedTuple):
@@ -44,15 +57,25 @@ class FastMaterials(NamedTuple):
       the lobe's colour x weight.
     ior: (M,) float64 GLASS index of refraction.
     deposit: (M,) bool material has a non-delta lobe (photons are stored).
+    compiled: (M,) bool GENERIC material sampled by compiled.sample_pair.
+    cm, sel: its CompiledMaterials and SelectionTable (1-material
+      placeholders when no material is compiled).
     """
     cls: np.ndarray
     col: np.ndarray
     ior: np.ndarray
     deposit: np.ndarray
+    compiled: np.ndarray = None
+    cm: CompiledMaterials = None
+    sel: SelectionTable = None
 
     @property
     def any_generic(self) -> bool:
         return bool(np.any(self.cls == GENERIC))
+
+    @property
+    def any_compiled(self) -> bool:
+        return self.compiled is not None and bool(np.any(self.compiled))
 
 
 def build_fast_materials(mtab) -> FastMaterials:
@@ -88,8 +111,21 @@ def build_fast_materials(mtab) -> FastMaterials:
             else:
                 continue
             col[m] = mtab.color[m, j] * mtab.weight[m, j]
+    bump = getattr(mtab, "bump_correction", None)
+    comp = (cls == GENERIC) & ~np.any((mtab.tex >= 0) & (mtab.kind >= 0), axis=1)
+    if bump is not None:
+        comp &= ~np.asarray(bump, bool)
+    comp &= COMPILED_SAMPLING
+    if comp.any():
+        cm, sel = compile_materials(mtab), selection_table(mtab)
+    else:
+        L = mtab.kind.shape[1]
+        cm = CompiledMaterials(np.zeros((1, L, N_FIELDS)), np.zeros(N_TABLES))
+        sel = SelectionTable(np.zeros((1, L, 3)), np.zeros((1, L)), np.zeros((1, L)),
+                             np.zeros(1, np.int64))
     return FastMaterials(cls=cls, col=col, ior=ior,
-                         deposit=np.asarray(mtab.has_nondelta, bool).copy())
+                         deposit=np.asarray(mtab.has_nondelta, bool).copy(),
+                         compiled=comp, cm=cm, sel=sel)
 
 
 @njit(cache=True, inline="always")
@@ -120,19 +156,7 @@ def sample_fast(cls, cr, cg, cb, ior, nsx, nsy, nsz, ngx, ngy, ngz, wox, woy, wo
     lum = cr * _LUM0 + cg * _LUM1 + cb * _LUM2
     if cls == LAMBERT:
         # Shirley-Chiu concentric disk, lifted (bsdf._cos_hemisphere).
-        a = 2.0 * u0 - 1.0
-        b = 2.0 * u1 - 1.0
-        if abs(a) > abs(b):
-            r = a
-            phi = (np.pi / 4) * (b / a)
-        else:
-            r = b
-            if a == 0.0 and b == 0.0:
-                phi = 0.0
-            else:
-                phi = np.pi / 2 - (np.pi / 4) * (a / b)
-        lx = r * np.cos(phi)
-        ly = r * np.sin(phi)
+        lx, ly = _disk(u0, u1)
         lz = np.sqrt(max(0.0, 1.0 - lx * lx - ly * ly))
         # Tangent frame of N (Duff et al. 2017, bsdf._frame).
         sg = 1.0 if Nz >= 0.0 else -1.0

@@ -43,6 +43,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ..materials.compiled import sample_pair
 from ..materials.fast import ABSORBER, GENERIC, sample_fast
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 
@@ -101,10 +102,17 @@ class DepositBuffers(NamedTuple):
     bary: np.ndarray
 
 
+_NO_ROWS3 = np.empty((1, 3))
+_NO_STATE = np.zeros(1, np.int8)
+
+
 class GenericHits(NamedTuple):
     """Hits on GENERIC materials, for ``bsdf.sample_bsdf`` (rows 0..n_gen-1):
     i (cap,) int64 ray index; p, ng, ns, wi, power (cap, 3) float64; bary
-    (cap, 3) float64 (prim, u, v)."""
+    (cap, 3) float64 (prim, u, v).  With BounceStep.compiled (cap rows,
+    else 1-row placeholders): the kernel's samples of the ``compiled``
+    materials (``materials.fast``): out (cap, 3) the sampled direction, wgt
+    (cap, 3) the weight, state (cap,) int8 SAMPLE_* of each row."""
     i: np.ndarray
     p: np.ndarray
     ng: np.ndarray
@@ -112,6 +120,14 @@ class GenericHits(NamedTuple):
     wi: np.ndarray
     power: np.ndarray
     bary: np.ndarray
+    out: np.ndarray = _NO_ROWS3
+    wgt: np.ndarray = _NO_ROWS3
+    state: np.ndarray = _NO_STATE
+
+
+# GenericHits.state: left to numpy; sampled in the kernel, invalid / valid
+# non-delta / valid delta.
+SAMPLE_NUMPY, SAMPLE_INVALID, SAMPLE_OK, SAMPLE_DELTA = 0, 1, 2, 3
 
 
 class HitRecord(NamedTuple):
@@ -135,7 +151,10 @@ class BounceStep(NamedTuple):
     path vertex index; dep0: first free deposit row; record: write the
     HitRecord; rel, floor: the spawn offset (``accel.offset_scale``: max(|p|,
     floor) * rel); mis: follow the light side's MIS factors (:class:`MisState`,
-    integrator 'COMBINED'; off for the photon pass, which passes a placeholder)."""
+    integrator 'COMBINED'; off for the photon pass, which passes a placeholder);
+    compiled: sample the ``compiled`` GENERIC materials here into the
+    GenericHits' out / wgt / state (never with mis: the caller's numpy MIS
+    factors need the generic hits unsampled)."""
     K: int
     first: bool
     store: bool
@@ -147,6 +166,7 @@ class BounceStep(NamedTuple):
     rel: float
     floor: float
     mis: bool = False
+    compiled: bool = False
 
 
 class MisState(NamedTuple):
@@ -286,7 +306,8 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
     lobe / Fresnel (2), roulette (3).
     Deposits go to rows dep0.. of the DepositBuffers dep (r = NaN, bounce =
     step.bounce).  Hits on GENERIC materials are copied to the GenericHits
-    gen for ``bsdf.sample_bsdf``.  step.record: also write the HitRecord rec
+    gen for ``bsdf.sample_bsdf`` (step.compiled: those on ``compiled``
+    materials sampled here, GenericHits.state).  step.record: also write the HitRecord rec
     and the source ray of each deposit (dep.src) -- the frequency photons'
     spectrum updates need them.  step.mis: follow the MisState mis (its
     class doc) and write its rows of the deposits.
@@ -301,7 +322,13 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
     dep_p, dep_ng, dep_wi, dep_pow, dep_r, dep_b = dep.p, dep.ng, dep.wi, dep.power, dep.r, \
         dep.bounce
     dep_src = dep.src
-    gen_i, gen_p, gen_ng, gen_ns, gen_wi, gen_pow, gen_bary = gen
+    gen_i, gen_p, gen_ng, gen_ns, gen_wi, gen_pow, gen_bary = (gen.i, gen.p, gen.ng, gen.ns,
+                                                               gen.wi, gen.power, gen.bary)
+    gen_out, gen_wgt, gen_state = gen.out, gen.wgt, gen.state
+    use_comp = step.compiled and not step.mis
+    m_comp = mats.compiled
+    c_lobes, c_T = mats.cm.lobes, mats.cm.tables
+    s_col, s_p, s_cdf, s_last = mats.sel.colors, mats.sel.p, mats.sel.cdf, mats.sel.last
     rec_t, rec_ng, rec_nswi, rec_hit, nxt_src, nxt_delta = rec
     use_mis = step.mis
     mf0, mf1, mrow, mh0, mh1, md0, md1, mdrow, mfirst, mdfirst = mis
@@ -383,6 +410,15 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
             gen_wi[n_gen, 0], gen_wi[n_gen, 1], gen_wi[n_gen, 2] = wx, wy, wz
             gen_pow[n_gen, 0], gen_pow[n_gen, 1], gen_pow[n_gen, 2] = p0, p1, p2
             gen_bary[n_gen, 0], gen_bary[n_gen, 1], gen_bary[n_gen, 2] = t, uu, vv
+            if use_comp:
+                st = SAMPLE_NUMPY
+                if m_comp[m]:
+                    r = sample_pair(c_lobes, c_T, s_col, s_p, s_cdf, s_last, m,
+                                    sx, sy, sz, gx, gy, gz, wx, wy, wz, u[i, 0], u[i, 1], u[i, 2])
+                    gen_out[n_gen, 0], gen_out[n_gen, 1], gen_out[n_gen, 2] = r[0], r[1], r[2]
+                    gen_wgt[n_gen, 0], gen_wgt[n_gen, 1], gen_wgt[n_gen, 2] = r[3], r[4], r[5]
+                    st = (SAMPLE_DELTA if r[6] else SAMPLE_OK) if r[7] else SAMPLE_INVALID
+                gen_state[n_gen] = st
             n_gen += 1
             continue
         r = sample_fast(c, m_col[m, 0], m_col[m, 1], m_col[m, 2], m_ior[m],

@@ -395,7 +395,10 @@ class PhotonTracer:
         prev_delta = np.zeros(K, bool) if caustic else None
         straight = np.ones(K, bool) if self.skip_straight else None
         cg = n if self.fmat.any_generic else 1
-        gen = PK.GenericHits(np.empty(cg, np.int64), *(np.empty((cg, 3)) for _ in range(6)))
+        comp = self.fmat.any_compiled
+        gen = PK.GenericHits(np.empty(cg, np.int64), *(np.empty((cg, 3)) for _ in range(6)),
+                             **({"out": np.empty((cg, 3)), "wgt": np.empty((cg, 3)),
+                                 "state": np.empty(cg, np.int8)} if comp else {}))
         ubuf = self.uniform_buffer(4 * K)       # K never grows: one survivor a ray at most
         cr = n if record or Kf else 1
         rec = self.pool.take("record", cr, _record_arrays, lambda a: PK.HitRecord(*a))
@@ -409,7 +412,8 @@ class PhotonTracer:
                                  store=bool(st.photons_for_direct or bounce > 0),
                                  sample=bounce < st.max_bounces,
                                  roulette=bounce + 1 >= st.rr_start, bounce=bounce,
-                                 dep0=dep.n, record=bool(record or Kf), rel=rel, floor=floor)
+                                 dep0=dep.n, record=bool(record or Kf), rel=rel, floor=floor,
+                                 compiled=comp)
             u = self.uniforms(K, 4, rng, ubuf)
             dep.reserve(K)
             if Kf:
@@ -424,7 +428,7 @@ class PhotonTracer:
             n_fast = n_next
             if n_gen:
                 n_next = self._generic_bounce(n_gen, n_next, gen, u, step.roulette, live,
-                                              rec if step.record else None)
+                                              rec if step.record else None, comp)
             if Kf:
                 kf_next = self._frequency_first(Kf, n_fast, n_next, live, rec)
                 # After the generic bounce: only hits that deposit or continue
@@ -490,23 +494,24 @@ class PhotonTracer:
         same = np.einsum("ij,ij->i", live.d64[:n_next], d_in[src]) > 1.0 - 1e-9
         return same & self._clear[self.tris.mat[prim_in[src]]]
 
-    def _generic_bounce(self, g, n_next, gen, u, roulette, live, rec):
-        """bsdf.sample_bsdf for the g hits on materials without a fast path;
-        survivors are appended at row n_next of the live state (and their
-        source ray to rec, when recording).  Returns the new number of live
-        photons."""
-        gi, gp, gng, gns, gwi, gpow, gbary = (x[:g] for x in gen)
-        prim = gbary[:, 0].astype(np.int64)
-        mat = self.tris.mat[prim]
-        uv = np.zeros((g, 2))
-        if self.mtab.textures and np.any(self.mtab.tex[mat] >= 0):
-            if self._tri_uv is None:
-                self._tri_uv = np.ascontiguousarray(self.scene.tri_uv, np.float64)
-            PK.gen_attributes(gbary, g, self._tri_uv, uv)
-        colors = B.lobe_colors(self.mtab, mat, uv)
+    def _generic_bounce(self, g, n_next, gen, u, roulette, live, rec, compiled=False):
+        """bsdf.sample_bsdf for the g hits on materials without a fast path
+        (compiled: the bounce kernel sampled the rows of GenericHits.state
+        != SAMPLE_NUMPY already); survivors are appended at row n_next of
+        the live state (and their source ray to rec, when recording).
+        Returns the new number of live photons."""
+        gi, gp, gng, gns, gwi, gpow, gbary = (x[:g] for x in gen[:7])
         ug = u[gi]
-        wo, wgt, pdf, is_delta, valid = B.sample_bsdf(
-            self.mtab, mat, colors, gns, gng, gwi, ug[:, :3], subset="all", mode="importance")
+        if compiled:
+            st = gen.state[:g]
+            wo, wgt = gen.out[:g], gen.wgt[:g]
+            valid, is_delta = st >= PK.SAMPLE_OK, st == PK.SAMPLE_DELTA
+            rows = np.nonzero(st == PK.SAMPLE_NUMPY)[0]
+            if rows.size:
+                wo[rows], wgt[rows], valid[rows], is_delta[rows] = self._sample_numpy(
+                    rows.size, gns[rows], gng[rows], gwi[rows], gbary[rows], ug[rows])
+        else:
+            wo, wgt, valid, is_delta = self._sample_numpy(g, gns, gng, gwi, gbary, ug)
         ok = valid & np.all(np.isfinite(wgt), axis=1) & (wgt.max(axis=1) > 0)
         if roulette:
             q = np.clip(wgt @ LUM, 0.0, 1.0)
@@ -521,6 +526,20 @@ class PhotonTracer:
             rec.nxt_src[n_next:n_next + sel.size] = gi[sel]
             rec.nxt_delta[n_next:n_next + sel.size] = is_delta[sel]
         return n_next + sel.size
+
+    def _sample_numpy(self, g, gns, gng, gwi, gbary, ug):
+        """bsdf.sample_bsdf (importance) of g generic hits: (wo, weight, valid, is_delta)."""
+        prim = gbary[:, 0].astype(np.int64)
+        mat = self.tris.mat[prim]
+        uv = np.zeros((g, 2))
+        if self.mtab.textures and np.any(self.mtab.tex[mat] >= 0):
+            if self._tri_uv is None:
+                self._tri_uv = np.ascontiguousarray(self.scene.tri_uv, np.float64)
+            PK.gen_attributes(np.ascontiguousarray(gbary), g, self._tri_uv, uv)
+        colors = B.lobe_colors(self.mtab, mat, uv)
+        wo, wgt, _, is_delta, valid = B.sample_bsdf(
+            self.mtab, mat, colors, gns, gng, gwi, ug[:, :3], subset="all", mode="importance")
+        return wo, wgt, valid, is_delta
 
     def chain_params(self) -> FK.ChainParams:
         """The frequency model of this render, for the compiled chains."""
