@@ -69,7 +69,14 @@ NOTES = [
     "ring_lambert: `ring_lambert --budget 120 --seeds 4 --methods fppm,ppm,combined` on 310a884 "
     "(the kernel clipped at walls on by default), load average 2 to 5; Cycles not run (its "
     "8192-spp reference is cached).",
-    "Three earlier runs make the other rows.  indirect_room and principled_interior: `--budget 60 "
+    "indirect_room: `indirect_room --budget 60 --seeds 4 --methods "
+    "fppm,ppm,appm,cppm,combined,light,cycles` (60 CPU s, the budget of its earlier row) on "
+    "8b51df8 (the kernel clip on, COMBINED's camera depth Auto: light tracing plus one emitter "
+    "ray a pixel), on a machine loaded by other jobs (load average 3 to 13, 0.55 to 0.98 cores "
+    "per method).  Every excess error there (5.1e-4 to 1.4e-3) lies below 3x the 8192-spp "
+    "reference's floor (1.1e-3): the ratios are flagged 'near floor'; the raw relMSE ratios are "
+    "given beside them in the README.",
+    "Three earlier runs make the other rows.  principled_interior: `--budget 60 "
     "--seeds 2` (60 CPU s = 30 s of both cores) on the code that merged the tracer array pool, "
     "the compiled first hits and the amortised frequency photons (commit 9dd4839), alone on an "
     "idle machine (load average below 2; cores per method as the table gives).  point_caustic: "
@@ -95,9 +102,9 @@ NOTES = [
     "budget independent of the machine's load, but not of the cache and memory-bandwidth "
     "contention, which slows every method per CPU second.",
     "indirect_room's 8192-spp reference has a noise floor (1.1e-3) above 1/3 of the photon "
-    "mappers' excess errors at 60 CPU s (6.8e-4 to 1.6e-3): its FPPM / PPM / APPM / CPPM ratios "
-    "are flagged 'near floor' and the APPM / CPPM verdicts are within the seeds' spread; a 4x "
-    "longer reference is needed to judge them.  point_caustic's (1.4e-4) and "
+    "mappers' excess errors at 60 CPU s (5.1e-4 to 1.4e-3): its FPPM / PPM / APPM / CPPM ratios "
+    "are flagged 'near floor' and the APPM / CPPM verdicts are within the seeds' spread; a "
+    "reference about 7x longer is needed to judge them.  point_caustic's (1.4e-4) and "
     "principled_interior's (2.0e-4) floors are below 1/3 of every excess compared.",
     "Cores (CPU / wall) are the share of the 2 cores a method got on the loaded machine, not "
     "what it would use alone (FPPM's whole pass uses 1.40 of 2 cores at 1080p on an idle "
