@@ -76,10 +76,12 @@ NOTES = [
     "per method).  Every excess error there (5.1e-4 to 1.4e-3) lies below 3x the 8192-spp "
     "reference's floor (1.1e-3): the ratios are flagged 'near floor'; the raw relMSE ratios are "
     "given beside them in the README.",
-    "Three earlier runs make the other rows.  principled_interior: `--budget 60 "
-    "--seeds 2` (60 CPU s = 30 s of both cores) on the code that merged the tracer array pool, "
-    "the compiled first hits and the amortised frequency photons (commit 9dd4839), alone on an "
-    "idle machine (load average below 2; cores per method as the table gives).  point_caustic: "
+    "principled_interior: `principled_interior --budget 60 --seeds 2 --methods "
+    "fppm,ppm,appm,cppm,combined,light,cycles` on 499a081 (Blender's default Principled "
+    "sampled in the photon bounce kernel and evaluated per gather pair in compiled code; before "
+    "the frequency photons' undecided-pixel schedule), load average 4 to 9 (1.0 to 1.3 cores "
+    "per method).  4 seeds did not fit after that merge.",
+    "Three earlier runs make the other rows.  point_caustic: "
     "`--budget 30 --seeds 2` on the code before them (47f7a5f), on a machine loaded by other "
     "jobs (load average 8 to 16, 0.2 to 0.6 cores per method).  glass_sphere, coffee_cup "
     "and ring_principled: `--budget 30 --seeds 2` on a434914 (the first of these "
