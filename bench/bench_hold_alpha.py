@@ -243,8 +243,6 @@ def planes_or(r, m):
         r.tracer.chain_params = lambda cp=cp: cp()._replace(own_planes=False)
     if ":keep=batches" in m:            # a batch for each kind of photon (the tracer before)
         r.tracer.one_batch = False
-    if ":keep=needall" in m:            # every pass's frequency photons, decided pixels or not
-        r.photon_pass.frequency_need = lambda: 1.0
 
 
 def equal_passes(scene, base, methods, seed, passes, report, ref, say):

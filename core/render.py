@@ -69,7 +69,7 @@ from .scene.camera import CameraModel, FilterSampler
 from .scene.model import Scene, drop_invalid_triangles, scene_digest
 from .settings import RenderSettings
 from .sppm.film import AOVS, PASSES, Film, PassResult, data_passes, pass_enabled
-from .sppm.photon_pass import PHOTON_CHUNK, PhotonPass, frequency_need, frequency_photons
+from .sppm.photon_pass import PHOTON_CHUNK, PhotonPass, frequency_photons
 from .frequency.curvature import scene_curvature
 from .sppm.photons import PhotonTracer
 from .sppm.state import PixelState
@@ -126,9 +126,6 @@ class Renderer:
                                       self.radii.hist if self.radii.quantile else None,
                                       self.stage_seconds)
         self.photon_pass.next_pass = lambda: self.pass_index + 1
-        # Fewer frequency photons once the pixels have decided (the state
-        # after the last update: the same before the trace ahead and the gather).
-        self.photon_pass.frequency_need = lambda: frequency_need(self.state)
         self.film = Film(st, self.camera, self.height, self.width, self.scene, passes)
         # integrator 'PATH': camera paths alone (core.integrators) into the same film.
         self.path_tracer = (PathTracer(self.scene, self.accel, self.mtab, self.light_table,
@@ -512,8 +509,7 @@ class Renderer:
             # passes, docs/method.md "Amortised frequency photons"), all of them.
             from dataclasses import replace
             fp = self.merge_freq_pass
-            fp.settings = replace(fp.settings, photons_per_pass=max(1, frequency_photons(
-                st, k, frequency_need(state))))
+            fp.settings = replace(fp.settings, photons_per_pass=max(1, frequency_photons(st, k)))
             self.tracer.set_radius_cut(R2)
             est = self.merge_freq_pass(vp, R2, state.spectrum, self._rng(k, 4),
                                        self._check_stop)

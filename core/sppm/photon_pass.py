@@ -198,42 +198,13 @@ class PassSums:
             self.sectors[i] += part.sectors
 
 
-#: Smallest share of pass k's frequency photons traced when every pixel has
-#: decided (:func:`frequency_need`): a prediction that changes late (a
-#: hold's light turns out to vary) is still seen (docs/method.md "Frequency
-#: photons for the undecided pixels").
-FREQUENCY_NEED_FLOOR = 0.05
-
-
-def frequency_need(state) -> float:
-    """Share of the pixels that still use a new spectrum, in
-    [FREQUENCY_NEED_FLOOR, 1], from the state PixelState after the last
-    pass's update: of the pixels that counted photons in it (M_last > 0),
-    those not held.  A held pixel's kept prediction is at or above its
-    radius after one pass of holding (f = (r/R)^2 sets R = r), so the update
-    applies the hold rate whatever a new spectrum says unless it falls
-    below R sqrt(f_hold_alpha); a pixel not held still waits for its first
-    prediction, for photons enough for the counts' test, or for its radius
-    to shrink to the prediction (docs/method.md "Frequency photons for the
-    undecided pixels").  1 before any pixel counted a photon.  Deterministic
-    (the state's bits), so a resumed render and tools/distributed.py's
-    driver choose the same n_freq."""
-    active = state.M_last > 0
-    n = int(np.count_nonzero(active))
-    if n == 0:
-        return 1.0
-    undecided = n - int(np.count_nonzero(state.held & active))
-    return max(undecided / n, FREQUENCY_NEED_FLOOR)
-
-
-def frequency_photons(settings, k: int, need: float = 1.0) -> int:
+def frequency_photons(settings, k: int) -> int:
     """Photons of pass k (1-based) that carry a spectrum: photons_per_pass x
-    frequency_fraction x k^-frequency_decay x need (docs/method.md "Amortised
+    frequency_fraction x k^-frequency_decay (docs/method.md "Amortised
     frequency photons": the spectrum belongs to the light field at the pixel,
     not to the pass, so a pixel keeps its prediction and later passes need
-    fewer frequency photons; decay 0: the same fraction in every pass; need:
-    :func:`frequency_need`, the share of pixels still undecided)."""
-    f = settings.frequency_fraction * float(max(k, 1)) ** -settings.frequency_decay * need
+    fewer frequency photons; decay 0: the same fraction in every pass)."""
+    f = settings.frequency_fraction * float(max(k, 1)) ** -settings.frequency_decay
     return int(round(settings.photons_per_pass * f))
 
 
@@ -269,9 +240,6 @@ class PhotonPass:
         # The 1-based index of the pass being traced (its share of frequency
         # photons, frequency_photons); the renderer sets it to its own count.
         self.next_pass = lambda: 1
-        # The share of pixels still undecided (frequency_need) scaling the
-        # pass's frequency photons; the renderer reads it from its state.
-        self.frequency_need = lambda: 1.0
         # CPU seconds of the kernel clip's rays and codes (core.sppm.clip),
         # also counted in stage_seconds["gather"].
         self.clip_seconds = 0.0
@@ -390,12 +358,10 @@ class PhotonPass:
     def chunks(self) -> list[tuple[int, int]]:
         """(n, n_freq) of every chunk of a pass: ``chunk`` photons each (the
         last one fewer); the first :func:`frequency_photons` of the pass
-        (``next_pass()``, the pass being traced, scaled by
-        ``frequency_need()``) carry a spectrum."""
+        (``next_pass()``, the pass being traced) carry a spectrum."""
         st = self.settings
         n_total = st.photons_per_pass
-        n_freq_total = (frequency_photons(st, self.next_pass(), self.frequency_need())
-                        if self.frequency else 0)
+        n_freq_total = frequency_photons(st, self.next_pass()) if self.frequency else 0
         out = []
         for a in range(0, n_total, self.chunk):
             n = min(self.chunk, n_total - a)
