@@ -445,14 +445,17 @@ class PhotonPass:
         divided by its visible fraction, as the fold does), or None."""
         if g.pair_vp.size:
             self._reflected(vp, dep, g.pair_vp, g.pair_ph, acc.Phi, clip)
-        if self.receivers is not None:
+        if g.freq_pair_vp is not None:
+            # Every frequency photon's pairs: its pairs at the non-Lambert
+            # points are among them, so their radii are computed once there.
+            if g.freq_pair_vp.size:
+                self._frequency_pairs(g.freq_pair_vp, g.freq_pair_ph, dep, acc.hist, acc.spec,
+                                      vp, acc.spec_set, acc.r_pred)
+        elif self.receivers is not None:
             fr = ~np.isnan(dep["rpred"][g.pair_ph])
             pv, pp = g.pair_vp[fr], g.pair_ph[fr]
             np.minimum.at(acc.r_pred, pv, self.receivers.radius_keys(
                 vp, dep, pv, pp, self.settings.frequency_model))
-        if g.freq_pair_vp is not None and g.freq_pair_vp.size:
-            self._frequency_pairs(g.freq_pair_vp, g.freq_pair_ph, dep, acc.hist, acc.spec, vp,
-                                  acc.spec_set)
 
     def _trace(self, n: int, n_freq: int, rng) -> Optional[dict]:
         """The deposits of n photons (the first n_freq with a spectrum), or
@@ -523,16 +526,21 @@ class PhotonPass:
         for ch in range(3):
             Phi[:, ch] += np.bincount(pv, weights=contrib[:, ch], minlength=P)
 
-    def _frequency_pairs(self, pv, pp, dep, hist, spec, vp, spec_set=None) -> None:
+    def _frequency_pairs(self, pv, pp, dep, hist, spec, vp, spec_set=None,
+                         r_pred=None) -> None:
         """(visible point pv, frequency photon pp) pairs (K,): add the
         predicted radii to hist (P, HIST_BINS) and keep in spec (P, 3) the
         spectrum of each point's photon that predicted the smallest radius
-        (marked in spec_set (P,) bool when given)."""
+        (marked in spec_set (P,) bool when given); r_pred (P,): the smallest
+        predicted radius of the non-Lambert points (their receiver lobes), or
+        None."""
         rr = dep["rpred"][pp].copy()
         nc = ~vp.const[pv]
         if np.any(nc):
             rr[nc] = self.receivers.radius_keys(vp, dep, pv[nc], pp[nc],
                                                 self.settings.frequency_model)
+            if r_pred is not None:
+                np.minimum.at(r_pred, pv[nc], rr[nc])
         if hist is not None:
             np.add.at(hist, (pv, self.radius_histogram.bin(rr)), 1)
         if spec is not None and "spec" in dep:
