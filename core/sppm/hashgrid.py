@@ -84,13 +84,13 @@ arrays (race-free, no atomics), summed afterwards (or, with GatherBuffers,
 rows reused by every chunk and folded at the touched VPs); the sort copies the
 photons by disjoint slot (counting sort) or row (merge sort) ranges, one per
 thread.  The build splits the VPs into one
-range per thread for their slots; the counting sort splits the entries
-into SORT_GROUPS VP ranges (about the same number of entries each; with
-more threads, each range is split further by slot ranges): each range
-counts its entries per slot in its own cursor row, a prefix sum over slots
-x ranges (by slot ranges) turns the rows into write cursors, and each
-thread places its own entries (ranges in VP order, so a slot's VPs stay
-ascending).
+range per thread for their slots, each VP's slots going to one of
+SORT_GROUPS = 2 parts (the slots below a split that halves the VPs'
+centres, and the others); each part is counting-sorted by slot on its own
+thread, in place in cell_start (with more threads, each part is split
+further by slot ranges), its entries read in VP order, so a slot's VPs
+stay ascending.  The grid's arrays and the build's temporaries can come
+from kept buffers (build_grid(..., buffers=)), reused from pass to pass.
 Results do not depend on the thread count except for the summation order of
 Phi_sum; the grid does not depend on it at all.
 """
@@ -116,10 +116,10 @@ PARALLEL_MIN_VPS = 1 << 18      # build_grid: below this many VPs, one thread
 # gather's photon sort: a counting sort over the table's slots up to this
 # many slots a photon, a merge sort of the photons' slots above (_sort_photons).
 COUNT_SORT_SLOTS_PER_PHOTON = 8
-# The build's counting sort splits the entries into at most this many VP
-# ranges, each with its own (n_slots,) row of cursors (128 MiB at 1080p):
-# more threads split each range's slots, and scan its entries (the memory
-# of a row per thread would grow with the cores).
+# The build's counting sort splits the slots in two parts (below a split
+# and the others; _insert_parallel is written for two), each VP's slots
+# written to its part's list: more threads split each part's slots, and
+# scan its entries.
 SORT_GROUPS = 2
 # A VP's slots are deduplicated by a scan of the ones it already has up to
 # this many, then by a sort (a VP far larger than the cells).
@@ -467,32 +467,33 @@ _insert_serial = serial_twin(_insert_parallel)
 
 
 @njit(cache=True)
-def _centre_hist(k0, k1, pos, act, origin, inv_h, nx, ny, nz, n_slots, hist):
-    """hist[b] += 1 for the active VPs k0..k1-1 whose centre's dense slot s
-    is in bin b = s * hist.size // n_slots."""
+def _centre_hist(k0, k1, pos, act, origin, inv_h, dense, nx, ny, nz, shift, n_slots, hist):
+    """hist[b] += 1 for the active VPs k0..k1-1 whose centre's slot s is in
+    bin b = s * hist.size // n_slots."""
     nb = hist.shape[0]
     for v in range(k0, k1):
         if act[v]:
             s = _slot(np.int64(math.floor((pos[v, 0] - origin[0]) * inv_h)),
                       np.int64(math.floor((pos[v, 1] - origin[1]) * inv_h)),
                       np.int64(math.floor((pos[v, 2] - origin[2]) * inv_h)),
-                      True, nx, ny, nz, 0)
+                      dense, nx, ny, nz, shift)
             if s >= 0:
                 hist[s * nb // n_slots] += 1
 
 
 @njit(cache=True, parallel=True)
-def _dense_split(n_chunks, pos, act, origin, inv_h, nx, ny, nz, n_slots):
-    """The slot of a dense grid below which about half of the active VPs'
-    centres lie (a bin boundary of a 4096-bin histogram): the build's two
-    parts then hold about half of the entries each (a hash spreads them
-    evenly, n_slots / 2 there)."""
+def _part_split(n_chunks, pos, act, origin, inv_h, dense, nx, ny, nz, shift, n_slots):
+    """The slot below which about half of the active VPs' centres lie (a bin
+    boundary of a 4096-bin histogram of their slots), so that the build's
+    two parts hold about half of the entries each: a hash spreads them
+    evenly, but a dense grid's slots follow z (a floor and a lamp far above
+    it would leave one part nearly empty)."""
     K = pos.shape[0]
     nb = min(4096, n_slots)
     hist = np.zeros((n_chunks, nb), np.int64)
     for c in prange(n_chunks):
         _centre_hist(c * K // n_chunks, (c + 1) * K // n_chunks, pos, act, origin, inv_h,
-                     nx, ny, nz, n_slots, hist[c])
+                     dense, nx, ny, nz, shift, n_slots, hist[c])
     tot = hist.sum(axis=0)
     half = tot.sum() // 2
     run = 0
@@ -1275,12 +1276,8 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     # est bounds the entries (a VP's cells are among its bounding box's):
     # room for est of them, the pages past the E written are never touched.
     parallel_insert = n_active >= PARALLEL_MIN_VPS and T > 1
-    if not parallel_insert:
-        split = n_slots
-    elif dense:
-        split = int(_dense_split(T, vp_pos, act, origin, inv_h, nx, ny, nz, n_slots))
-    else:
-        split = n_slots // 2
+    split = (int(_part_split(T, vp_pos, act, origin, inv_h, dense, nx, ny, nz, shift, n_slots))
+             if parallel_insert else n_slots)
     cell_start, vp_ids = kb.take("grid", [((n_slots + 1,), start_dtype(est)),
                                           ((est,), np.int32)])
     off, low, ent_slot = kb.take("grid_tmp", [
