@@ -89,4 +89,5 @@ def test_gather_records_in_the_build_buffer():
         assert np.shares_memory(buf.vp_rec, kb._bufs["grid_tmp"])
         buf.unbind()
         del grid, g
-    assert kb.allocations == 4
+    # the build's four buffers and the photon sort's ("gather_sort"), once
+    assert kb.allocations == 5 and kb.reused >= 5

@@ -619,7 +619,8 @@ def _merge_sorted_runs(key, a, T):
 
 @njit(cache=True, parallel=True)
 def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
-                  origin, inv_h, lo, hi, dense, nx, ny, nz, shift, cell_start, n_chunks):
+                  origin, inv_h, lo, hi, dense, nx, ny, nz, shift, cell_start, n_chunks,
+                  ps, order, slot, pos, ng, wi, power, rpred):
     """Stable sort of the photons by slot, copying their data into sorted,
     contiguous arrays.  Consecutive photons then share their candidate VPs and
     read memory sequentially: measured 2.5x faster than photon order (VP
@@ -632,11 +633,12 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     1080p pass, allocated, zeroed and scanned on one thread for every chunk
     of 131,072 photons.  Both order a slot's photons by index: the same
     result.
-    Returns order (n,) int32 original photon index, slot (n,) int64, and the
-    sorted pos, ng, wi (n, 3) (input dtype), power (n, 3), rpred (n,)."""
+    Writes order (n,) int32 original photon index, slot (n,) int64, and the
+    sorted pos, ng, wi (n, 3) (input dtype), power (n, 3), rpred (n,) into
+    the first n rows of the caller's arrays of P rows (ps (P,) int64: the
+    photons' slots), and returns n (:func:`_sorted_photons`)."""
     P = ph_pos.shape[0]
     n_slots = cell_start.shape[0] - 1
-    ps = np.empty(P, np.int64)
     for c in prange(n_chunks):
         _photon_slots(c * P // n_chunks, (c + 1) * P // n_chunks, ph_pos, origin, inv_h,
                       lo, hi, dense, nx, ny, nz, shift, cell_start, ps)
@@ -649,13 +651,6 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         n = 0
         for p in range(P):
             n += ps[p] >= 0
-    order = np.empty(n, np.int32)
-    slot = np.empty(n, np.int64)
-    pos = np.empty((n, 3), ph_pos.dtype)
-    ng = np.empty((n, 3), ph_ng.dtype)
-    wi = np.empty((n, 3), ph_wi.dtype)
-    power = np.empty((n, 3), np.float64)
-    rpred = np.empty(n, np.float64)
     if counting:
         # Slot ranges holding ~n / n_chunks photons each.
         bounds = np.empty(n_chunks + 1, np.int64)
@@ -665,7 +660,7 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         for c in prange(n_chunks):
             _scatter(bounds[c], bounds[c + 1], ps, start, ph_pos, ph_ng, ph_wi, ph_power,
                      ph_rpred, order, slot, pos, ng, wi, power, rpred)
-        return order, slot, pos, ng, wi, power, rpred
+        return n
     inside = np.empty(n, np.int32)        # the photons in a slot, in index order
     key = np.empty(n, np.int64)
     j = 0
@@ -686,7 +681,28 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     for c in prange(n_chunks):
         _copy_sorted(c * n // n_chunks, (c + 1) * n // n_chunks, order, ps, ph_pos, ph_ng,
                      ph_wi, ph_power, ph_rpred, slot, pos, ng, wi, power, rpred)
-    return order, slot, pos, ng, wi, power, rpred
+    return n
+
+
+def _sorted_photons(sort, ph, grid: Grid, n_chunks: int, kept: Optional[KeptBuffers] = None):
+    """The photons ph = (pos, ng, wi, power, rpred) sorted by slot of grid
+    (sort: _sort_photons or its serial twin): (order, slot, pos, ng, wi,
+    power, rpred) of the n photons kept (see _sort_photons), and hitmask
+    (n,) uint64, n_pair, n_freq (n,) int32 uninitialised for the count
+    pass.  kept: carve them from its buffer "gather_sort" (reused from
+    chunk to chunk: no page faults), else new arrays."""
+    P = ph[0].shape[0]
+    dt = ph[0].dtype
+    specs = [((P,), np.int64), ((P,), np.int32), ((P,), np.int64), ((P, 3), dt),
+             ((P, 3), ph[1].dtype), ((P, 3), ph[2].dtype), ((P, 3), np.float64),
+             ((P,), np.float64), ((P,), np.uint64), ((P,), np.int32), ((P,), np.int32)]
+    bufs = (kept.take("gather_sort", specs) if kept is not None
+            else [np.empty(shape, d) for shape, d in specs])
+    n = int(sort(*ph, grid.origin, grid.inv_h, grid.lo, grid.hi, grid.dense,
+                 int(grid.dims[0]), int(grid.dims[1]), int(grid.dims[2]),
+                 0 if grid.dense else 64 - grid.log2_table, grid.cell_start, n_chunks,
+                 *bufs[:8]))
+    return tuple(b[:n] for b in bufs[1:])
 
 
 #: The same sort compiled without ``parallel``: a numba parallel region costs a
@@ -1656,12 +1672,10 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     if P == 0 or grid.n_active == 0:
         return _no_photons(K, want_freq_pairs, sectors, buffers)
 
-    ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_ = ph
     sort = _sort_photons if parallel else _sort_photons_serial
-    order, slot, ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_ = sort(
-        ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_, grid.origin, grid.inv_h,
-        grid.lo, grid.hi, grid.dense, int(grid.dims[0]), int(grid.dims[1]), int(grid.dims[2]),
-        0 if grid.dense else 64 - grid.log2_table, grid.cell_start, n_chunks)
+    (order, slot, ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_, hitmask, n_pair,
+     n_freq) = _sorted_photons(sort, ph, grid, n_chunks,
+                               None if buffers is None else buffers.kept)
     n = order.shape[0]
     if n == 0:
         return _no_photons(K, want_freq_pairs, sectors, buffers)
@@ -1678,9 +1692,6 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         vp_rec, M, Phi, rmin, S = b.vp_rec, b.M, b.Phi, b.rmin, b.S
         touched, n_touched = b.touched, b.n_touched
         b.n_used = max(b.n_used, n_chunks) if n_touched.any() else n_chunks
-    hitmask = np.empty(n, np.uint64)
-    n_pair = np.empty(n, np.int32)
-    n_freq = np.empty(n, np.int32)
     g = (grid.cell_start, grid.vp_ids)
     vp_clip = (np.zeros(0, np.uint64) if clip is None
                else np.ascontiguousarray(clip, np.uint64).reshape(K))
