@@ -49,37 +49,12 @@ def _rule(cls, before: bool, rule: str = "used"):
     cls.chain_params = ((lambda self: orig(self)._replace(**RULES[rule])) if before else orig)
 
 
-def _blend_renderer(a):
-    """A PHOTON renderer of a.blend at a.blend_res (exported as ``fppm
-    render`` does, frequency_decay 0) after two passes: its tracer has a
-    reach map and a radius cut."""
-    import fppm_alias  # noqa: F401  (fppm.* importable)
-    import bpy
-    import bpy_helpers
-    bpy_helpers.ensure_registered()
-    from fppm.addon.export import export_scene
-    from fppm.addon.properties import settings_from_scene
-    from fppm.core.render import Renderer as FR
-    bpy.ops.wm.open_mainfile(filepath=os.path.abspath(a.blend), load_ui=False,
-                             use_scripts=False)
-    sc = bpy.context.scene
-    sc.render.resolution_x = sc.render.resolution_y = a.blend_res
-    sc.render.resolution_percentage = 100
-    scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
-    st = settings_from_scene(sc).replace(integrator="PHOTON", time_limit=0.0, max_passes=100,
-                                         frequency_decay=0.0)
-    r = FR(scene, st, log=lambda s: None)
-    r.step()
-    r.step()
-    return r
-
-
 def cost(a):
     import bench_render as BR
     from core.sppm.photons import PhotonTracer
     if a.blend:
         _rule(PhotonTracer, False)
-        r = _blend_renderer(a)
+        r = BR.blend_renderer(a.blend, a.blend_res)
         from fppm.core.sppm.photons import PhotonTracer    # the class bpy's add-on uses
         tm = r0 = None
     else:

@@ -300,6 +300,15 @@ def _assert_matches_dense(g, o, d, t, loc, min_same, min_finite):
     assert np.all(np.abs(np.sqrt(a[both]) - np.sqrt(b[both])) <= g.voxel_diagonal)
 
 
+def _random_segments(g, rng, M, t_lo, t_hi):
+    """M segments (o, d, t) in grid g's box: uniform origins and
+    directions, lengths U(t_lo, t_hi)."""
+    o = g.lo + rng.random((M, 3)) * (g.hi - g.lo)
+    d = rng.normal(size=(M, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return o, d, rng.uniform(t_lo, t_hi, M)
+
+
 def test_end_plane_rule_reads_the_segment_end_after_a_jump(grids):
     """``march_segments``' end-plane test compares a candidate with the
     plane the segment lands on at (t_end - ts) |n . d|.  A landing plane
@@ -311,12 +320,7 @@ def test_end_plane_rule_reads_the_segment_end_after_a_jump(grids):
     segment's end with its landing parameter, and every candidate after a
     jump was taken for the plane (22 of these 5,387 occluders lost)."""
     g = grids[1]
-    rng = np.random.default_rng(12)
-    M = 20000
-    o = g.lo + rng.random((M, 3)) * (g.hi - g.lo)
-    d = rng.normal(size=(M, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    t = rng.uniform(0.3, 1.5, M)
+    o, d, t = _random_segments(g, np.random.default_rng(12), 20000, 0.3, 1.5)
     loc = OG.default_locality(g)
     a0, t0 = Occ.march_occlusion(g, o, d, t, loc, return_t=True)
     a1, t1 = Occ.march_occlusion(g, o, d, t, loc, return_t=True, n_end=d)
@@ -342,10 +346,7 @@ def test_radius_cut_keeps_every_radius_below_it(grids):
     g = grids[1]
     rng = np.random.default_rng(9)
     M, D = 20000, 2.0
-    o = g.lo + rng.random((M, 3)) * (g.hi - g.lo)
-    d = rng.normal(size=(M, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    t = rng.uniform(0.05, 1.0, M)
+    o, d, t = _random_segments(g, rng, M, 0.05, 1.0)
     a = np.where(rng.random(M) < 0.2, 0.0, 10.0 ** rng.uniform(-4, 0, M))
     b = np.full(M, F.B_DIFFUSE)
     c = rng.uniform(-1, 1, M) * np.sqrt(a * b)
