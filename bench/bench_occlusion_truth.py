@@ -80,6 +80,7 @@ def record(r, passes):
 
     def hook(spec, seg, rec, dep, rw):
         src = dep.buf.src[rw.dep0:rw.dep1].copy()
+        src = src[src < rw.K]            # rays K..: classic photons of the batch
         ok = rec.hit[src]
         src = src[ok]
         ng0 = seg.ng0[src] if seg.ng0.shape[0] == rw.K else np.zeros((src.size, 3))

@@ -357,13 +357,10 @@ def blend_report(a):
           f"{budget / best[True]:.0f} passes to PPM's {budget / best[False]:.0f}")
 
 
-def blend_tracer_report(a):
-    """``--blend`` with ``--frequency``: the tracer of the .blend's scene (at
-    ``--blend-res``, exported as ``fppm render`` does), after two passes of
-    a renderer (so that the reach map of PhotonTracer.set_reach exists):
-    CPU seconds of tracing PHOTON_CHUNK frequency photons against as many
-    classic ones, with the reach map, without it, and without the march;
-    best of ``--repeat``, interleaved."""
+def blend_renderer(blend: str, res: int):
+    """A PHOTON renderer of the .blend at res^2 (exported as ``fppm render``
+    does, frequency_decay 0) after two passes: its tracer has the reach map
+    of PhotonTracer.set_reach and a radius cut."""
     import fppm_alias  # noqa: F401  (fppm.* importable)
     import bpy
     import bpy_helpers
@@ -371,10 +368,9 @@ def blend_tracer_report(a):
     from fppm.addon.export import export_scene
     from fppm.addon.properties import settings_from_scene
     from fppm.core.render import Renderer as FR
-    bpy.ops.wm.open_mainfile(filepath=os.path.abspath(a.blend), load_ui=False,
-                             use_scripts=False)
+    bpy.ops.wm.open_mainfile(filepath=os.path.abspath(blend), load_ui=False, use_scripts=False)
     sc = bpy.context.scene
-    sc.render.resolution_x = sc.render.resolution_y = a.blend_res
+    sc.render.resolution_x = sc.render.resolution_y = res
     sc.render.resolution_percentage = 100
     scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
     st = settings_from_scene(sc).replace(integrator="PHOTON", time_limit=0.0, max_passes=100,
@@ -382,6 +378,17 @@ def blend_tracer_report(a):
     r = FR(scene, st, log=lambda s: None)
     r.step()
     r.step()
+    return r
+
+
+def blend_tracer_report(a):
+    """``--blend`` with ``--frequency``: the tracer of the .blend's scene (at
+    ``--blend-res``, exported as ``fppm render`` does), after two passes of
+    a renderer (so that the reach map of PhotonTracer.set_reach exists):
+    CPU seconds of tracing PHOTON_CHUNK frequency photons against as many
+    classic ones, with the reach map, without it, and without the march;
+    best of ``--repeat``, interleaved."""
+    r = blend_renderer(a.blend, a.blend_res)
     tr = r.tracer
     reach, occlusion = tr.reach, tr.occlusion
     n = Ph_chunk()

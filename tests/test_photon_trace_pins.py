@@ -34,12 +34,14 @@ from test_photon_kernels import _tracer, cornell, glass_mirror  # noqa: E402
 
 PINS = {
     "cornell_plain": "c7efebd03e91870bed83859ccfc29d59",
-    "cornell_freq": "ab6301c4898d6d5e87ad60c7c1443055",      # one batch (docs/frequency.md)
+    # freq: one batch (docs/frequency.md); the march's end-plane test after
+    # a Lipschitz jump reads the segment's end (occlusion_march)
+    "cornell_freq": "e3fe3f01c9290a44e359bdc48abacb6d",
     # glass_mirror: its GGX and Oren-Nayar walls sampled by the compiled
     # generic path (compiled.sample_pair): same paths, 118 of 34222 deposit
     # powers 1-2 ulps off (libm's acos in eval_pair against numpy's)
     "glass_mirror_plain": "4af5479be317065c932c231f388fef2c",
-    "glass_mirror_freq": "4962b7a7740fe36297769e45ed3e7883",  # one batch
+    "glass_mirror_freq": "facd46c90520ae681b0202def147c87a",
     "glass_mirror_caustic": "a8fb79be88a8c214ccf6b77370af5d11",
     "cornell_mis": "11931a943bb718ba1c32bfe295a69aff",
 }

@@ -376,14 +376,16 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t, cut, planes):
                     jy = min(max(int(math.floor((oy + tl * dy - lo1) * ic1)), 0), R - 1)
                     jz = min(max(int(math.floor((oz + tl * dz - lo2) * ic2)), 0), R - 1)
                     # entry = the previous voxel's exit on each axis (same formula)
-                    te = t_exit
+                    # (tj, not te: te is the segment's end, read by the
+                    # end-plane test of every later sample)
+                    tj = t_exit
                     if dx != 0.0:
-                        te = max(te, _axis_exit(lo0, c0, jx - 1 if dx > 0.0 else jx + 1, ox, dx))
+                        tj = max(tj, _axis_exit(lo0, c0, jx - 1 if dx > 0.0 else jx + 1, ox, dx))
                     if dy != 0.0:
-                        te = max(te, _axis_exit(lo1, c1, jy - 1 if dy > 0.0 else jy + 1, oy, dy))
+                        tj = max(tj, _axis_exit(lo1, c1, jy - 1 if dy > 0.0 else jy + 1, oy, dy))
                     if dz != 0.0:
-                        te = max(te, _axis_exit(lo2, c2, jz - 1 if dz > 0.0 else jz + 1, oz, dz))
-                    t = te + eps
+                        tj = max(tj, _axis_exit(lo2, c2, jz - 1 if dz > 0.0 else jz + 1, oz, dz))
+                    t = tj + eps
                     init = True
                     continue
                 t = t_exit + eps
