@@ -976,6 +976,10 @@ def pass_one(a):
         f"{n} {b / 2**20:.0f} MiB" for n, b in alive.items()))
     print(f"    peak resident (VmHWM) {hwm / 2**30:.2f} GiB, growth from before the Renderer "
           f"{(hwm - rss0) / 2**20:.0f} MiB ({(hwm - rss0) / (w * h):.0f} B a pixel)")
+    kb = r.photon_pass._grid_kept
+    print(f"    grid build's kept buffers (hashgrid.build_grid(buffers=)): {kb.allocations} "
+          f"allocated, {kb.reused} takes reused, {kb.nbytes() / 2**20:.0f} MiB reserved "
+          f"(touched pages only are resident)")
 
 
 class ThreadClock:

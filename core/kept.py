@@ -83,3 +83,75 @@ def _clear(arrays: list, fills: list) -> None:
     else:
         for flat, f in big:
             flat[...] = f
+
+
+#: A KeptBuffers buffer is allocated this many times the bytes asked for.
+GROW = 1.25
+
+#: Arrays carved from a KeptBuffers buffer start at multiples of this many
+#: bytes (a cache line: numba's and numpy's own alignment is 16 or 32).
+ALIGN = 64
+
+
+class KeptBuffers:
+    """Named grow-only byte buffers kept from pass to pass, from which a
+    stage carves its arrays (``take``): the grid build's and the gather's
+    arrays, whose sizes change a little from pass to pass (the number of
+    cell entries and of hash slots), so that they are not page-faulted in
+    afresh every pass (docs/architecture.md, "The grid build's arrays kept").
+
+        views = kept.take("name", [(shape, dtype), ...])
+
+    The arrays are uninitialised views of one buffer, consecutive.  A buffer
+    is handed out again only when nothing else references it (no view of its
+    last ``take`` is alive: a grid a caller keeps is never overwritten);
+    otherwise, or when it is too small, a new one is allocated (and kept).
+    ``allocations`` counts the buffers allocated, ``reused`` the takes that
+    reused one."""
+
+    def __init__(self):
+        self._bufs: dict = {}
+        self.allocations = 0
+        self.reused = 0
+
+    def take(self, name: str, specs) -> list:
+        offs, n = [], 0
+        for shape, dtype in specs:
+            offs.append(n)
+            size = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+            n += -(-size // ALIGN) * ALIGN
+        buf = self._bufs.get(name)
+        if buf is not None and buf.nbytes >= n and sys.getrefcount(buf) <= _ALONE_BUF:
+            self.reused += 1
+        else:
+            # drop the old one first: its pages go back before the new one's
+            # are touched (unless a caller still holds it)
+            self._bufs.pop(name, None)
+            buf = None
+            # ALIGN extra bytes: the first array starts at an aligned address;
+            # GROW: room for the next passes' slightly larger takes (pages
+            # never touched are not resident)
+            buf = self._bufs[name] = np.empty(int(n * GROW) + ALIGN, np.uint8)
+            self.allocations += 1
+        base = (-buf.ctypes.data) % ALIGN
+        out = []
+        for (shape, dtype), o in zip(specs, offs):
+            dt = np.dtype(dtype)
+            cnt = int(np.prod(shape, dtype=np.int64))
+            a = buf[base + o:base + o + cnt * dt.itemsize].view(dt).reshape(shape)
+            out.append(a)
+        return out
+
+    def nbytes(self) -> int:
+        """Bytes of the buffers kept (resident once touched)."""
+        return sum(b.nbytes for b in self._bufs.values())
+
+
+def _buf_refs() -> int:
+    d = {"x": np.empty(1, np.uint8)}
+    return sys.getrefcount(d["x"])
+
+
+#: References to a buffer that the dict alone holds, counted as ``take``
+#: counts them (the dict, the local, the call's argument).
+_ALONE_BUF = _buf_refs() + 1

@@ -8,6 +8,7 @@ same order, slots and copied rows, bit for bit, for 1 and 2 threads.
 import numpy as np
 import pytest
 
+from core.kept import KeptBuffers
 from core.sppm import hashgrid as hg
 
 
@@ -26,11 +27,9 @@ def _case(log2_table, P, seed=3):
     return grid, (ph_pos, ph_ng, ph_wi, power, rpred)
 
 
-def _sorted(grid, ph, n_chunks):
+def _sorted(grid, ph, n_chunks, kept=None):
     f = hg._sort_photons if n_chunks > 1 else hg._sort_photons_serial
-    return f(*ph, grid.origin, grid.inv_h, grid.lo, grid.hi, grid.dense,
-             int(grid.dims[0]), int(grid.dims[1]), int(grid.dims[2]),
-             64 - grid.log2_table, grid.cell_start, n_chunks)
+    return hg._sorted_photons(f, ph, grid, n_chunks, kept)[:7]
 
 
 @pytest.mark.parametrize("log2_table, P", [(12, 4000),      # counting sort: 1 slot a photon
@@ -45,8 +44,9 @@ def test_photon_sort_is_the_stable_sort_by_slot(log2_table, P):
     inside = np.flatnonzero(ps >= 0)
     exp = inside[np.argsort(ps[inside], kind="stable")]
     assert 0 < exp.size < P and np.unique(ps[inside]).size < exp.size   # shared slots
-    for n_chunks in (1, 2):
-        order, slot, pos, ng, wi, power, rpred = _sorted(grid, ph, n_chunks)
+    kept = KeptBuffers()           # the gather's kept buffer, reused: the same rows
+    for n_chunks, kb in ((1, None), (2, None), (2, kept), (1, kept)):
+        order, slot, pos, ng, wi, power, rpred = _sorted(grid, ph, n_chunks, kb)
         assert np.array_equal(order, exp) and order.dtype == np.int32
         assert np.array_equal(slot, ps[exp])
         for got, src in zip((pos, ng, wi, power, rpred), ph):

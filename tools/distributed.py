@@ -342,6 +342,9 @@ def chunk_task(job: SceneJob, pj: PassJob, n: int, n_freq: int, rng):
     with _WORKER_LOCK:
         pp = _scene_side(job).photon_pass
         if _WORKER.get("pass") != pj.key:
+            # the last pass's grid dropped first: its kept buffers are then
+            # reused (hashgrid.build_grid(..., buffers=)), not allocated again
+            _WORKER.pop("grid", None)
             _WORKER.update(grid=pp.begin(*pj.unpack(), pj.spectrum_aov), **{"pass": pj.key})
         part = pp.chunk_sums(_WORKER["grid"], n, n_freq, rng)
     # From the active points' numbering back to the pixels'.

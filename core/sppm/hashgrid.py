@@ -84,13 +84,13 @@ arrays (race-free, no atomics), summed afterwards (or, with GatherBuffers,
 rows reused by every chunk and folded at the touched VPs); the sort copies the
 photons by disjoint slot (counting sort) or row (merge sort) ranges, one per
 thread.  The build splits the VPs into one
-range per thread for their slots; the counting sort splits the entries
-into SORT_GROUPS VP ranges (about the same number of entries each; with
-more threads, each range is split further by slot ranges): each range
-counts its entries per slot in its own cursor row, a prefix sum over slots
-x ranges (by slot ranges) turns the rows into write cursors, and each
-thread places its own entries (ranges in VP order, so a slot's VPs stay
-ascending).
+range per thread for their slots, each VP's slots going to one of
+SORT_GROUPS = 2 parts (the slots below a split that halves the VPs'
+centres, and the others); each part is counting-sorted by slot on its own
+thread, in place in cell_start (with more threads, each part is split
+further by slot ranges), its entries read in VP order, so a slot's VPs
+stay ascending.  The grid's arrays and the build's temporaries can come
+from kept buffers (build_grid(..., buffers=)), reused from pass to pass.
 Results do not depend on the thread count except for the summation order of
 Phi_sum; the grid does not depend on it at all.
 """
@@ -105,6 +105,7 @@ import numpy as np
 from numba import njit, prange
 
 from .. import memory
+from ..kept import KeptBuffers
 from .._numba_cache import serial_twin
 
 COS_NG_DEFAULT = 0.5          # cos(60 deg): photon / VP surface orientation test (3)
@@ -115,10 +116,10 @@ PARALLEL_MIN_VPS = 1 << 18      # build_grid: below this many VPs, one thread
 # gather's photon sort: a counting sort over the table's slots up to this
 # many slots a photon, a merge sort of the photons' slots above (_sort_photons).
 COUNT_SORT_SLOTS_PER_PHOTON = 8
-# The build's counting sort splits the entries into at most this many VP
-# ranges, each with its own (n_slots,) row of cursors (128 MiB at 1080p):
-# more threads split each range's slots, and scan its entries (the memory
-# of a row per thread would grow with the cores).
+# The build's counting sort splits the slots in two parts (below a split
+# and the others; _insert_parallel is written for two), each VP's slots
+# written to its part's list: more threads split each part's slots, and
+# scan its entries.
 SORT_GROUPS = 2
 # A VP's slots are deduplicated by a scan of the ones it already has up to
 # this many, then by a sort (a VP far larger than the cells).
@@ -315,158 +316,192 @@ def _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf):
 
 
 @njit(cache=True)
-def _count_cells(k0, k1, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift, n_ent,
-                 cap):
-    """n_ent[v] = number of slots VP v is stored in, for VPs k0..k1-1; cap:
-    the largest bounding-box cell count of a VP."""
+def _count_cells(k0, k1, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift, split,
+                 n_ent, n_low, cap):
+    """n_ent[v] = number of slots VP v is stored in, n_low[v] = how many of
+    them are below split, for VPs k0..k1-1; cap: the largest bounding-box
+    cell count of a VP."""
     buf = np.empty(cap, np.int64)
     for v in range(k0, k1):
         n = 0
+        lo = 0
         if active[v]:
             n = _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf)
+            for i in range(n):
+                lo += buf[i] < split
         n_ent[v] = n
+        n_low[v] = lo
 
 
 @njit(cache=True)
-def _fill_cells(k0, k1, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift, off,
-                ent_slot, cap):
-    """ent_slot[off[v]:off[v + 1]] = the slots of VP v, for VPs k0..k1-1."""
+def _fill_cells(k0, k1, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift, split,
+                off, low, E0, ent_slot, cap):
+    """The slots of VP v, for VPs k0..k1-1, in the two halves of ent_slot:
+    those below split at ent_slot[low[v]:low[v + 1]], the others at
+    ent_slot[E0 + off[v] - low[v]:E0 + off[v + 1] - low[v + 1]]."""
     buf = np.empty(cap, np.int64)
     for v in range(k0, k1):
         if active[v]:
             n = _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf)
-            o = off[v]
+            a = low[v]
+            b = E0 + off[v] - low[v]
             for i in range(n):
-                ent_slot[o + i] = buf[i]
+                s = buf[i]
+                if s < split:
+                    ent_slot[a] = s
+                    a += 1
+                else:
+                    ent_slot[b] = s
+                    b += 1
+
+
+@njit(cache=True, inline="always")
+def _part_range(g, v, off, low, E0):
+    """The entries of VP v in part g (0: slots below the split, 1: the others)."""
+    if g == 0:
+        return low[v], low[v + 1]
+    return E0 + off[v] - low[v], E0 + off[v + 1] - low[v + 1]
 
 
 @njit(cache=True)
-def _entry_counts(e0, e1, s0, s1, ent_slot, cnt, sh):
-    """cnt[ent_slot[e] + sh] += 1 for the entries e0..e1-1 whose slot is in
-    s0..s1-1 (one thread's)."""
+def _part_counts(g, s0, s1, K, off, low, E0, ent_slot, cell_start):
+    """cell_start[s + 1] = the number of part g's entries in slot s, for the
+    slots s0..s1-1 (zeroed here: by the thread that counts, page faults
+    included); returns their total."""
+    cell_start[s0 + 1:s1 + 1] = 0
+    e0, e1 = (0, low[K]) if g == 0 else (E0, off[K])
+    t = 0
     for e in range(e0, e1):
         s = ent_slot[e]
         if s >= s0 and s < s1:
-            cnt[s + sh] += 1
-
-
-@njit(cache=True)
-def _slot_range_total(s0, s1, cur, cell_start):
-    """The entries of slots s0..s1-1, every thread's: cur[c, s] (threads
-    before the last) and cell_start[s + 1] (the last thread's counts)."""
-    t = 0
-    for s in range(s0, s1):
-        t += cell_start[s + 1]
-        for c in range(cur.shape[0]):
-            t += cur[c, s]
+            cell_start[s + 1] += 1
+            t += 1
     return t
 
 
 @njit(cache=True)
-def _slot_range_cursors(s0, s1, run, cur, cell_start):
+def _slot_cursors(s0, s1, run, cell_start):
     """Counts to write cursors for slots s0..s1-1, run = the entries of the
-    slots before s0: thread c's entries of slot s start after those of the
-    threads before it (cur[c, s]); the last thread's cursor is kept in
-    cell_start[s + 1], which its fill leaves at the start of slot s + 1."""
+    slots before s0: cell_start[s + 1] = the start of slot s, which the fill
+    advances to the start of slot s + 1."""
     for s in range(s0, s1):
-        for c in range(cur.shape[0]):
-            n = cur[c, s]
-            cur[c, s] = run
-            run += n
         n = cell_start[s + 1]
         cell_start[s + 1] = run
         run += n
 
 
 @njit(cache=True)
-def _entry_fill(v0, v1, s0, s1, off, ent_slot, cur, sh, vp_ids):
-    """vp_ids[cur[s + sh]++] = v for the entries (v, s) of VPs v0..v1-1 with
-    s in s0..s1-1, in VP order (so the VPs of a slot are ascending)."""
-    for v in range(v0, v1):
-        for e in range(off[v], off[v + 1]):
+def _part_fill(g, s0, s1, K, off, low, E0, ent_slot, cell_start, vp_ids):
+    """vp_ids[cell_start[s + 1]++] = v for part g's entries (v, s) with s in
+    s0..s1-1, in VP order (so the VPs of a slot are ascending)."""
+    for v in range(K):
+        a, b = _part_range(g, v, off, low, E0)
+        for e in range(a, b):
             s = ent_slot[e]
             if s >= s0 and s < s1:
-                q = cur[s + sh]
+                q = cell_start[s + 1]
                 vp_ids[q] = v
-                cur[s + sh] = q + 1
+                cell_start[s + 1] = q + 1
 
 
 @njit(cache=True, parallel=True)
 def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift,
-                     n_slots, slot_proto, cur_proto, cap):
-    """The CSR arrays (cell_start (n_slots + 1,) of cur_proto's dtype, vp_ids
-    (n_entries,) int32, the VPs of a slot ascending), computed by n_chunks
-    threads: each VP's slots (VP ranges in parallel), then a counting sort of
-    the entries by slot, each thread counting and placing the entries of its
-    VP range (one of SORT_GROUPS with about E / SORT_GROUPS entries each),
-    split by slot ranges when there are more threads than groups.  No
-    (n_slots,) mark array: a VP's hash collisions are removed from its own
-    list.  slot_proto: an empty array of the entries' slot dtype; cur_proto:
-    of the cursors' and cell starts' (start_dtype); cap: the largest
-    bounding-box cell count of a VP.  Temporary memory: (SORT_GROUPS - 1,
-    n_slots) cursors, the (E,) slots of the entries."""
+                     n_slots, split, cap, off, low, ent_slot, cell_start, vp_ids):
+    """The CSR arrays of the grid, by n_chunks threads, into the caller's
+    arrays: cell_start (n_slots + 1,) and vp_ids (room for the entries,
+    int32, the VPs of a slot ascending); returns the number of entries E.
+    off, low (K + 1,) int64 and ent_slot (room for E) are the build's
+    temporaries.  Each VP's slots (VP ranges in parallel) go to one of two
+    parts, the slots below split and the others (SORT_GROUPS = 2 parts
+    with about E / 2 entries each); each part is counting-sorted by slot on
+    its own, in place in cell_start (its slot range is its own), split by
+    slot ranges when there are more threads than parts.  No (n_slots,) row
+    of cursors, no mark array: a VP's hash collisions are removed from its
+    own list."""
     K = pos.shape[0]
-    off = np.empty(K + 1, np.int64)
     off[0] = 0
+    low[0] = 0
     for c in prange(n_chunks):
         _count_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
-                     h, inv_h, dense, nx, ny, nz, shift, off[1:], cap)
+                     h, inv_h, dense, nx, ny, nz, shift, split, off[1:], low[1:], cap)
     for v in range(K):
         off[v + 1] += off[v]
+        low[v + 1] += low[v]
     E = off[K]
-    ent_slot = np.empty(E, slot_proto.dtype)
+    E0 = low[K]
     for c in prange(n_chunks):
         _fill_cells(c * K // n_chunks, (c + 1) * K // n_chunks, pos, R_ins, active, origin,
-                    h, inv_h, dense, nx, ny, nz, shift, off, ent_slot, cap)
-    # G VP ranges ("groups") with about E / G entries each, each split in S
-    # slot ranges: task (g, j) counts and places group g's entries of slot
-    # range j.  Group g < last counts per slot in cur[g], the last group in
-    # cell_start[s + 1] (so that its cursors end as the starts).
+                    h, inv_h, dense, nx, ny, nz, shift, split, off, low, E0, ent_slot, cap)
+    # Task t = (g, j): part g's slots [split_g, split_g+1), slot range j of S.
     G = min(n_chunks, SORT_GROUPS)
     S = n_chunks // G
-    vb = np.searchsorted(off, np.arange(G + 1) * E // G)
-    vb[0], vb[G] = 0, K
-    # The counts are zeroed by the task that counts into them (not by one
-    # thread before: at 1080p they are 2 x 128 MiB of fresh pages, whose
-    # memset and faults were the build's serial part).
-    cell_start = np.empty(n_slots + 1, cur_proto.dtype)
+    bounds = np.empty(G + 1, np.int64)
+    bounds[0] = 0
+    bounds[G] = n_slots
+    if G > 1:
+        bounds[1] = split
     cell_start[0] = 0
-    cur = np.empty((G - 1, n_slots), cur_proto.dtype)
-    last = G - 1
+    tot = np.zeros(G * S + 1, np.int64)
     for t in prange(G * S):
         g, j = t // S, t % S
-        s0, s1 = j * n_slots // S, (j + 1) * n_slots // S
-        if g < last:
-            cur[g, s0:s1] = 0
-            _entry_counts(off[vb[g]], off[vb[g + 1]], s0, s1, ent_slot, cur[g], 0)
-        else:
-            cell_start[s0 + 1:s1 + 1] = 0
-            _entry_counts(off[vb[g]], off[vb[g + 1]], s0, s1, ent_slot, cell_start, 1)
-    # Cursors: a prefix sum over slots x threads, by slot ranges (their
-    # totals, a prefix over the ranges, then each range in place).
-    base = np.zeros(n_chunks + 1, np.int64)
-    for c in prange(n_chunks):
-        base[c + 1] = _slot_range_total(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks,
-                                        cur, cell_start)
-    for c in range(n_chunks):
-        base[c + 1] += base[c]
-    for c in prange(n_chunks):
-        _slot_range_cursors(c * n_slots // n_chunks, (c + 1) * n_slots // n_chunks, base[c],
-                            cur, cell_start)
-    vp_ids = np.empty(E, np.int32)
+        a, b = bounds[g], bounds[g + 1]
+        tot[t + 1] = _part_counts(g, a + j * (b - a) // S, a + (j + 1) * (b - a) // S, K, off,
+                                  low, E0, ent_slot, cell_start)
+    for t in range(G * S):
+        tot[t + 1] += tot[t]
     for t in prange(G * S):
         g, j = t // S, t % S
-        s0, s1 = j * n_slots // S, (j + 1) * n_slots // S
-        if g < last:
-            _entry_fill(vb[g], vb[g + 1], s0, s1, off, ent_slot, cur[g], 0, vp_ids)
-        else:
-            _entry_fill(vb[g], vb[g + 1], s0, s1, off, ent_slot, cell_start, 1, vp_ids)
-    return cell_start, vp_ids
+        a, b = bounds[g], bounds[g + 1]
+        _slot_cursors(a + j * (b - a) // S, a + (j + 1) * (b - a) // S, tot[t], cell_start)
+    for t in prange(G * S):
+        g, j = t // S, t % S
+        a, b = bounds[g], bounds[g + 1]
+        _part_fill(g, a + j * (b - a) // S, a + (j + 1) * (b - a) // S, K, off, low, E0,
+                   ent_slot, cell_start, vp_ids)
+    return E
 
 
 #: The same build compiled without ``parallel`` (small grids: a parallel
 #: region's thread hand-off costs more than their build).
 _insert_serial = serial_twin(_insert_parallel)
+
+
+@njit(cache=True)
+def _centre_hist(k0, k1, pos, act, origin, inv_h, dense, nx, ny, nz, shift, n_slots, hist):
+    """hist[b] += 1 for the active VPs k0..k1-1 whose centre's slot s is in
+    bin b = s * hist.size // n_slots."""
+    nb = hist.shape[0]
+    for v in range(k0, k1):
+        if act[v]:
+            s = _slot(np.int64(math.floor((pos[v, 0] - origin[0]) * inv_h)),
+                      np.int64(math.floor((pos[v, 1] - origin[1]) * inv_h)),
+                      np.int64(math.floor((pos[v, 2] - origin[2]) * inv_h)),
+                      dense, nx, ny, nz, shift)
+            if s >= 0:
+                hist[s * nb // n_slots] += 1
+
+
+@njit(cache=True, parallel=True)
+def _part_split(n_chunks, pos, act, origin, inv_h, dense, nx, ny, nz, shift, n_slots):
+    """The slot below which about half of the active VPs' centres lie (a bin
+    boundary of a 4096-bin histogram of their slots), so that the build's
+    two parts hold about half of the entries each: a hash spreads them
+    evenly, but a dense grid's slots follow z (a floor and a lamp far above
+    it would leave one part nearly empty)."""
+    K = pos.shape[0]
+    nb = min(4096, n_slots)
+    hist = np.zeros((n_chunks, nb), np.int64)
+    for c in prange(n_chunks):
+        _centre_hist(c * K // n_chunks, (c + 1) * K // n_chunks, pos, act, origin, inv_h,
+                     dense, nx, ny, nz, shift, n_slots, hist[c])
+    tot = hist.sum(axis=0)
+    half = tot.sum() // 2
+    run = 0
+    for b in range(nb):
+        run += tot[b]
+        if run >= half:
+            return -(-(b + 1) * n_slots // nb)
+    return n_slots
 
 
 @njit(cache=True)
@@ -584,7 +619,8 @@ def _merge_sorted_runs(key, a, T):
 
 @njit(cache=True, parallel=True)
 def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
-                  origin, inv_h, lo, hi, dense, nx, ny, nz, shift, cell_start, n_chunks):
+                  origin, inv_h, lo, hi, dense, nx, ny, nz, shift, cell_start, n_chunks,
+                  ps, order, slot, pos, ng, wi, power, rpred):
     """Stable sort of the photons by slot, copying their data into sorted,
     contiguous arrays.  Consecutive photons then share their candidate VPs and
     read memory sequentially: measured 2.5x faster than photon order (VP
@@ -597,11 +633,12 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     1080p pass, allocated, zeroed and scanned on one thread for every chunk
     of 131,072 photons.  Both order a slot's photons by index: the same
     result.
-    Returns order (n,) int32 original photon index, slot (n,) int64, and the
-    sorted pos, ng, wi (n, 3) (input dtype), power (n, 3), rpred (n,)."""
+    Writes order (n,) int32 original photon index, slot (n,) int64, and the
+    sorted pos, ng, wi (n, 3) (input dtype), power (n, 3), rpred (n,) into
+    the first n rows of the caller's arrays of P rows (ps (P,) int64: the
+    photons' slots), and returns n (:func:`_sorted_photons`)."""
     P = ph_pos.shape[0]
     n_slots = cell_start.shape[0] - 1
-    ps = np.empty(P, np.int64)
     for c in prange(n_chunks):
         _photon_slots(c * P // n_chunks, (c + 1) * P // n_chunks, ph_pos, origin, inv_h,
                       lo, hi, dense, nx, ny, nz, shift, cell_start, ps)
@@ -614,13 +651,6 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         n = 0
         for p in range(P):
             n += ps[p] >= 0
-    order = np.empty(n, np.int32)
-    slot = np.empty(n, np.int64)
-    pos = np.empty((n, 3), ph_pos.dtype)
-    ng = np.empty((n, 3), ph_ng.dtype)
-    wi = np.empty((n, 3), ph_wi.dtype)
-    power = np.empty((n, 3), np.float64)
-    rpred = np.empty(n, np.float64)
     if counting:
         # Slot ranges holding ~n / n_chunks photons each.
         bounds = np.empty(n_chunks + 1, np.int64)
@@ -630,7 +660,7 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         for c in prange(n_chunks):
             _scatter(bounds[c], bounds[c + 1], ps, start, ph_pos, ph_ng, ph_wi, ph_power,
                      ph_rpred, order, slot, pos, ng, wi, power, rpred)
-        return order, slot, pos, ng, wi, power, rpred
+        return n
     inside = np.empty(n, np.int32)        # the photons in a slot, in index order
     key = np.empty(n, np.int64)
     j = 0
@@ -651,7 +681,28 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     for c in prange(n_chunks):
         _copy_sorted(c * n // n_chunks, (c + 1) * n // n_chunks, order, ps, ph_pos, ph_ng,
                      ph_wi, ph_power, ph_rpred, slot, pos, ng, wi, power, rpred)
-    return order, slot, pos, ng, wi, power, rpred
+    return n
+
+
+def _sorted_photons(sort, ph, grid: Grid, n_chunks: int, kept: Optional[KeptBuffers] = None):
+    """The photons ph = (pos, ng, wi, power, rpred) sorted by slot of grid
+    (sort: _sort_photons or its serial twin): (order, slot, pos, ng, wi,
+    power, rpred) of the n photons kept (see _sort_photons), and hitmask
+    (n,) uint64, n_pair, n_freq (n,) int32 uninitialised for the count
+    pass.  kept: carve them from its buffer "gather_sort" (reused from
+    chunk to chunk: no page faults), else new arrays."""
+    P = ph[0].shape[0]
+    dt = ph[0].dtype
+    specs = [((P,), np.int64), ((P,), np.int32), ((P,), np.int64), ((P, 3), dt),
+             ((P, 3), ph[1].dtype), ((P, 3), ph[2].dtype), ((P, 3), np.float64),
+             ((P,), np.float64), ((P,), np.uint64), ((P,), np.int32), ((P,), np.int32)]
+    bufs = (kept.take("gather_sort", specs) if kept is not None
+            else [np.empty(shape, d) for shape, d in specs])
+    n = int(sort(*ph, grid.origin, grid.inv_h, grid.lo, grid.hi, grid.dense,
+                 int(grid.dims[0]), int(grid.dims[1]), int(grid.dims[2]),
+                 0 if grid.dense else 64 - grid.log2_table, grid.cell_start, n_chunks,
+                 *bufs[:8]))
+    return tuple(b[:n] for b in bufs[1:])
 
 
 #: The same sort compiled without ``parallel``: a numba parallel region costs a
@@ -1000,13 +1051,13 @@ def _extent_range(k0, k1, j, pos, R, act, scale, R_ins, R_act, lo, hi):
 
 
 @njit(cache=True, parallel=True)
-def _active_extent(n_chunks, pos, R, active):
+def _active_extent(n_chunks, pos, R, active, act, R_ins, R_act):
     """build_grid's active VPs and their extent, by n_chunks threads (exact:
-    minima, maxima and per-VP arithmetic, whatever n_chunks).  Returns act
-    (K,) bool (active, finite, R > 0), R_ins (K,) (0 where inactive), R_act
-    (n_active,) the active insertion radii in VP order, lo, hi (3,)."""
+    minima, maxima and per-VP arithmetic, whatever n_chunks), into the
+    caller's (K,) arrays: act (active, finite, R > 0), R_ins (0 where
+    inactive) and R_act[:n_active] the active insertion radii in VP order.
+    Returns n_active, lo, hi (3,)."""
     K = pos.shape[0]
-    act = np.empty(K, np.bool_)
     cnt = np.zeros(n_chunks, np.int64)
     pmax = np.zeros(n_chunks)
     rmax = np.full(n_chunks, -np.inf)
@@ -1017,8 +1068,6 @@ def _active_extent(n_chunks, pos, R, active):
     for c in range(n_chunks):
         start[c + 1] = start[c] + cnt[c]
     n_active = start[n_chunks]
-    R_ins = np.empty(K)            # written by the threads (its pages too)
-    R_act = np.empty(n_active)
     lo = np.full((n_chunks, 3), np.inf)
     hi = np.full((n_chunks, 3), -np.inf)
     if n_active > 0:
@@ -1034,7 +1083,7 @@ def _active_extent(n_chunks, pos, R, active):
         for k in range(3):
             lo_all[k] = min(lo_all[k], lo[c, k])
             hi_all[k] = max(hi_all[k], hi[c, k])
-    return act, R_ins, R_act, lo_all, hi_all
+    return n_active, lo_all, hi_all
 
 
 @njit(cache=True)
@@ -1171,7 +1220,8 @@ def start_dtype(entry_bound: int):
 
 def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
                cell_factor: float = CELL_FACTOR, layout: str = "auto",
-               log2_table: Optional[int] = None, parallel: bool = True) -> Grid:
+               log2_table: Optional[int] = None, parallel: bool = True,
+               buffers: Optional[KeptBuffers] = None) -> Grid:
     """Bucket the active visible points into a grid (see the module docstring).
 
     vp_pos: (K, 3) float64 world positions.  vp_R: (K,) float64 radii [m].
@@ -1180,7 +1230,11 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     (before the entry-budget clamp).  layout: 'auto', 'dense' or 'hash';
     log2_table forces a hash table of 2**log2_table slots (tests use tiny
     tables to exercise collisions).  parallel: numba threads from
-    PARALLEL_MIN_VPS VPs (False: one thread; the same grid).
+    PARALLEL_MIN_VPS VPs (False: one thread; the same grid).  buffers: the
+    grid's arrays and the build's temporaries are carved from these kept
+    buffers (core.kept.KeptBuffers: "grid_R", "grid_act", "grid",
+    "grid_tmp"), reused from the last build when nothing holds its grid
+    (None: new ones).
     tests/oracle_grid.py is the reference it is checked against (the numpy
     extent and the serial two-pass insertion it replaced).
     """
@@ -1192,13 +1246,17 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     vp_R = np.ascontiguousarray(vp_R, dtype=np.float64).reshape(K)
     active = np.asarray(active, dtype=bool).reshape(K)
     T = numba.get_num_threads() if (parallel and K >= PARALLEL_MIN_VPS) else 1
+    kb = KeptBuffers() if buffers is None else buffers
     # The camera and direct-light stages' freed pixel-sized temporaries stay
     # resident in glibc's heap: hand them back before the build's own arrays
     # and the gather's (the pass's peak, docs/architecture.md "Performance").
     memory.release_free_heap(K)
-    act, R_ins, R_act, lo, hi = (_active_extent if T > 1 else _active_extent_serial)(
-        T, vp_pos, vp_R, active)
-    n_active = R_act.shape[0]
+    R_ins, = kb.take("grid_R", [((K,), np.float64)])
+    act, R_act = kb.take("grid_act", [((K,), np.bool_), ((K,), np.float64)])
+    n_active, lo, hi = (_active_extent if T > 1 else _active_extent_serial)(
+        T, vp_pos, vp_R, active, act, R_ins, R_act)
+    n_active = int(n_active)
+    R_act = R_act[:n_active]
     if n_active == 0:
         z3 = np.zeros(3)
         return Grid(K, 0, z3, 1.0, 1.0, np.full(3, np.inf), np.full(3, -np.inf),
@@ -1208,6 +1266,7 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
 
     # np.median's value, in the numba threads (it was the build's serial part)
     h = cell_factor * float((_median_parallel if T > 1 else _median_serial)(T, R_act))
+    del R_act
     budget = ENTRY_BUDGET_PER_VP * n_active
     while True:
         inv_h = 1.0 / h
@@ -1228,17 +1287,23 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
         n_slots, shift = n_dense, 0
     else:
         n_slots, shift = 1 << log2_table, 64 - log2_table
+    nx, ny, nz = int(dims[0]), int(dims[1]), int(dims[2])
 
-    args = (vp_pos, R_ins, act, origin, h, inv_h, dense,
-            int(dims[0]), int(dims[1]), int(dims[2]), shift, n_slots)
-    proto = np.empty(0, np.int32 if n_slots < 2**31 else np.int64)
-    cur_proto = np.empty(0, start_dtype(est))
-    if n_active >= PARALLEL_MIN_VPS and T > 1:
-        cell_start, vp_ids = _insert_parallel(T, *args, proto, cur_proto, int(cap))
-    else:
-        cell_start, vp_ids = _insert_serial(1, *args, proto, cur_proto, int(cap))
+    # est bounds the entries (a VP's cells are among its bounding box's):
+    # room for est of them, the pages past the E written are never touched.
+    parallel_insert = n_active >= PARALLEL_MIN_VPS and T > 1
+    split = (int(_part_split(T, vp_pos, act, origin, inv_h, dense, nx, ny, nz, shift, n_slots))
+             if parallel_insert else n_slots)
+    cell_start, vp_ids = kb.take("grid", [((n_slots + 1,), start_dtype(est)),
+                                          ((est,), np.int32)])
+    off, low, ent_slot = kb.take("grid_tmp", [
+        ((K + 1,), np.int64), ((K + 1,), np.int64),
+        ((est,), np.int32 if n_slots < 2**31 else np.int64)])
+    args = (vp_pos, R_ins, act, origin, h, inv_h, dense, nx, ny, nz, shift, n_slots, split,
+            int(cap), off, low, ent_slot, cell_start, vp_ids)
+    E = (_insert_parallel(T, *args) if parallel_insert else _insert_serial(1, *args))
     return Grid(K, n_active, origin, h, inv_h, lo, hi, bool(dense), dims,
-                0 if dense else log2_table, cell_start, vp_ids, R_ins)
+                0 if dense else log2_table, cell_start, vp_ids[:int(E)], R_ins)
 
 
 # ----------------------------------------------------------------------------
@@ -1277,13 +1342,16 @@ def _empty_result(K, want_freq_pairs, sectors=False):
                         np.zeros((K, SECTOR_CELLS), np.int64) if sectors else None)
 
 
-def _vp_records(vp_pos, vp_ng, vp_R2, vp_const):
+def _vp_records(vp_pos, vp_ng, vp_R2, vp_const, out=None):
     """(K, 8) float64: one 64-byte record per VP (x, y, z, R^2, ng, const), so a
     candidate reads one cache line instead of four arrays; vp_pos, vp_ng (K,
     3), vp_R2 (K,) float64 and vp_const (K,) bool, contiguous (``_prepare``).
+    out: a (K, 8) float64 array to write them into (GatherBuffers: a kept
+    buffer), else a new one.
 
-    Copied by a compiled kernel into an array of numba's allocator, by VP
-    ranges in the numba threads from PARALLEL_MIN_VPS VPs.  numpy advises
+    Copied by a compiled kernel (into a new array of numba's allocator
+    when out is None), by VP ranges in the numba threads from
+    PARALLEL_MIN_VPS VPs.  numpy advises
     huge pages for arrays of 4 MiB and more (``NUMPY_MADVISE_HUGEPAGE``):
     faulting in the fresh 128 MiB of a 1080p pass's records took 0.5-0.8 s
     of system time a pass on the virtual machine FPPM is measured on,
@@ -1291,9 +1359,19 @@ def _vp_records(vp_pos, vp_ng, vp_R2, vp_const):
     gather's records and the radius initialisation").  A copy: the same
     values as numpy's column assignments (tests/test_gather_buffers.py)."""
     T = numba.get_num_threads()
-    if vp_pos.shape[0] >= PARALLEL_MIN_VPS and T > 1:
-        return _vp_records_parallel(T, vp_pos, vp_ng, vp_R2, vp_const)
-    return _vp_records_serial(1, vp_pos, vp_ng, vp_R2, vp_const)
+    K = vp_pos.shape[0]
+    rec = _new_records(K) if out is None else out
+    if K >= PARALLEL_MIN_VPS and T > 1:
+        _vp_records_parallel(T, vp_pos, vp_ng, vp_R2, vp_const, rec)
+    else:
+        _vp_records_serial(1, vp_pos, vp_ng, vp_R2, vp_const, rec)
+    return rec
+
+
+@njit(cache=True)
+def _new_records(K):
+    """An uninitialised (K, 8) float64 array from numba's allocator."""
+    return np.empty((K, 8))
 
 
 @njit(cache=True)
@@ -1311,14 +1389,13 @@ def _vp_records_range(v0, v1, vp_pos, vp_ng, vp_R2, vp_const, rec):
 
 
 @njit(cache=True, parallel=True)
-def _vp_records_parallel(n_chunks, vp_pos, vp_ng, vp_R2, vp_const):
-    """:func:`_vp_records` by n_chunks VP ranges (each record is its own)."""
+def _vp_records_parallel(n_chunks, vp_pos, vp_ng, vp_R2, vp_const, rec):
+    """:func:`_vp_records` into rec (K, 8) by n_chunks VP ranges (each record
+    is its own)."""
     K = vp_pos.shape[0]
-    rec = np.empty((K, 8))
     for c in prange(n_chunks):
         _vp_records_range(c * K // n_chunks, (c + 1) * K // n_chunks, vp_pos, vp_ng, vp_R2,
                           vp_const, rec)
-    return rec
 
 
 _vp_records_serial = serial_twin(_vp_records_parallel)
@@ -1343,14 +1420,18 @@ class GatherBuffers:
     entries each: 144 B a VP with two threads and sectors, 80 B without.
     Between chunks every row is zero (rmin inf).  vp_rec (K, 8) is built
     once per grid (``bind``; the visible points must not
-    change while the grid does not) and dropped by ``unbind`` (end of a pass:
-    they are not held through the other stages).  ``allocations`` counts the
+    change while the grid does not), in the buffer ``kept`` (the grid
+    build's temporaries', when set) and dropped by ``unbind`` (end of a pass,
+    so that the next build can reuse that buffer).  ``allocations`` counts the
     (re)allocations of the rows.
     """
 
     def __init__(self, K: int, sectors: bool = False, threads: Optional[int] = None):
         self.K, self.with_sectors, self.allocations = int(K), bool(sectors), 0
         self.grid = None
+        # core.kept.KeptBuffers the records are carved from (build_grid's
+        # "grid_tmp"), or None: new records every bind
+        self.kept: Optional[KeptBuffers] = None
         self._allocate(max(1, int(threads or numba.get_num_threads())))
 
     def _allocate(self, T: int) -> None:
@@ -1388,7 +1469,13 @@ class GatherBuffers:
         if self.grid is grid:
             return
         _check_radii(grid, vp[2])
-        self.vp_rec = _vp_records(*vp)
+        self.vp_rec = None
+        out = None
+        if self.kept is not None:
+            # the grid build's temporaries' buffer: free once the grid is
+            # built, and already resident (no page faults a pass)
+            out, = self.kept.take("grid_tmp", [((self.K, 8), np.float64)])
+        self.vp_rec = _vp_records(*vp, out=out)
         self.grid = grid
 
     def fold(self, M, Phi, phi_scale, phi_div: float, rmin, rmin_mask=None, S=None,
@@ -1585,12 +1672,10 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     if P == 0 or grid.n_active == 0:
         return _no_photons(K, want_freq_pairs, sectors, buffers)
 
-    ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_ = ph
     sort = _sort_photons if parallel else _sort_photons_serial
-    order, slot, ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_ = sort(
-        ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_, grid.origin, grid.inv_h,
-        grid.lo, grid.hi, grid.dense, int(grid.dims[0]), int(grid.dims[1]), int(grid.dims[2]),
-        0 if grid.dense else 64 - grid.log2_table, grid.cell_start, n_chunks)
+    (order, slot, ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_, hitmask, n_pair,
+     n_freq) = _sorted_photons(sort, ph, grid, n_chunks,
+                               None if buffers is None else buffers.kept)
     n = order.shape[0]
     if n == 0:
         return _no_photons(K, want_freq_pairs, sectors, buffers)
@@ -1607,9 +1692,6 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         vp_rec, M, Phi, rmin, S = b.vp_rec, b.M, b.Phi, b.rmin, b.S
         touched, n_touched = b.touched, b.n_touched
         b.n_used = max(b.n_used, n_chunks) if n_touched.any() else n_chunks
-    hitmask = np.empty(n, np.uint64)
-    n_pair = np.empty(n, np.int32)
-    n_freq = np.empty(n, np.int32)
     g = (grid.cell_start, grid.vp_ids)
     vp_clip = (np.zeros(0, np.uint64) if clip is None
                else np.ascontiguousarray(clip, np.uint64).reshape(K))

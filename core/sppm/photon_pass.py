@@ -32,7 +32,7 @@ from typing import NamedTuple, Optional
 import numpy as np
 
 from .. import materials as B
-from ..kept import KeptArrays
+from ..kept import KeptArrays, KeptBuffers
 from ..frequency.kernels import Receivers
 from . import clip as kernel_clip
 from . import hashgrid
@@ -234,6 +234,10 @@ class PhotonPass:
         # reused by every chunk of every pass (hashgrid.GatherBuffers).
         self.gather_buffers: Optional[hashgrid.GatherBuffers] = None
         self._kept = KeptArrays()
+        # The grid's arrays, the build's temporaries and the gather's
+        # visible-point records, kept from pass to pass (hashgrid.build_grid,
+        # GatherBuffers.kept).
+        self._grid_kept = KeptBuffers()
         # trace_ahead's (rng, futures of the queued chunks' deposits, chunks
         # not queued yet), or None.
         self._ahead = None
@@ -377,7 +381,10 @@ class PhotonPass:
         from . import pass_kernels
         active, R, n_active = pass_kernels.active_radii(vp.valid, R2)
         if self.gather_buffers is not None:
+            # unbind: a pass stopped in its gather left its records in the
+            # buffer the build reuses
             self.gather_buffers.clear()
+            self.gather_buffers.unbind()
         if n_active == 0:
             return None
         want_pairs = self.frequency and (self.radius_histogram is not None or spectrum_aov)
@@ -388,8 +395,8 @@ class PhotonPass:
                                           R2, active, check_stop)
             self.clip_seconds += time.process_time() - c0
             self.stage_seconds["gather"] += time.perf_counter() - t0
-        return PassGrid(vp, R2, hashgrid.build_grid(vp.p, R, active), want_pairs,
-                        spectrum_aov, clip)
+        grid = hashgrid.build_grid(vp.p, R, active, buffers=self._grid_kept)
+        return PassGrid(vp, R2, grid, want_pairs, spectrum_aov, clip)
 
     def chunk_sums(self, pg: "PassGrid", n: int, n_freq: int,
                    rng: np.random.Generator) -> "ChunkSums":
@@ -483,6 +490,7 @@ class PhotonPass:
         b = self.gather_buffers
         if b is None or b.K != P or b.with_sectors != self.sectors:
             b = self.gather_buffers = hashgrid.GatherBuffers(P, self.sectors)
+            b.kept = self._grid_kept
         return b
 
     def _reflected(self, vp, dep, pv, pp, Phi: np.ndarray, clip=None) -> None:
