@@ -39,7 +39,10 @@ PINS = {
     # generic path (compiled.sample_pair): same paths, 118 of 34222 deposit
     # powers 1-2 ulps off (libm's acos in eval_pair against numpy's)
     "glass_mirror_plain": "4af5479be317065c932c231f388fef2c",
-    "glass_mirror_freq": "4962b7a7740fe36297769e45ed3e7883",  # one batch
+    # glass_mirror_freq: the same photons as glass_mirror_plain (each live row
+    # draws its row's uniforms of the batch without spectra, docs/frequency.md
+    # "The same photons"; one batch before: 4962b7a7740fe36297769e45ed3e7883)
+    "glass_mirror_freq": "151f72b3d1394d9855374a0b69387217",
     "glass_mirror_caustic": "a8fb79be88a8c214ccf6b77370af5d11",
     "cornell_mis": "11931a943bb718ba1c32bfe295a69aff",
 }
