@@ -243,6 +243,8 @@ def planes_or(r, m):
         r.tracer.chain_params = lambda cp=cp: cp()._replace(own_planes=False)
     if ":keep=batches" in m:            # a batch for each kind of photon (the tracer before)
         r.tracer.one_batch = False
+    if ":keep=otherphotons" in m:       # frequency photons on other uniforms (the tracer before)
+        r.tracer.same_photons = False
 
 
 def equal_passes(scene, base, methods, seed, passes, report, ref, say):

@@ -256,6 +256,10 @@ class PhotonTracer:
         # Frequency and classic photons traced in one batch (_trace_batch);
         # False: a batch each, the rule before (benchmarks).
         self.one_batch = True
+        # Frequency photons trace the photons of a batch without spectra
+        # (docs/frequency.md "The same photons"); False: the rows they move
+        # to draw other uniforms, the rule before (benchmarks).
+        self.same_photons = True
 
     def trace(self, n: int, n_freq: int, rng):
         """Trace n photons (the first n_freq carry a spectrum); return deposits.
@@ -407,7 +411,8 @@ class PhotonTracer:
         # row's row in that batch, whose uniforms it draws; None while the
         # rows are in that batch's order (no swap by _frequency_first yet).
         order = None
-        if Kf:
+        track = Kf and self.same_photons
+        if track:
             order_bufs = self.pool.take("order", K, lambda r: [np.empty(r, np.int64)
                                                                for _ in range(3)])
             ubuf2 = self.uniform_buffer(4 * K)
@@ -445,7 +450,8 @@ class PhotonTracer:
                 PK.classic_rows(order, rec.nxt_src, n_fast, n_next, K, nxt, order_bufs[2])
                 order = nxt
             if Kf:
-                if order is None and self._frequency_split(Kf, n_fast, n_next, rec.nxt_src)[2]:
+                if (track and order is None
+                        and self._frequency_split(Kf, n_fast, n_next, rec.nxt_src)[2]):
                     order = order_bufs[0]
                     order[:n_next] = np.arange(n_next)   # the rows so far are that batch's
                 kf_next = self._frequency_first(Kf, n_fast, n_next, live, rec, order)
