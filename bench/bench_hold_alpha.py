@@ -352,7 +352,7 @@ def main():
                          "(--equal-passes / --equal-cpu; --photons 0 keeps the file's)")
     a = ap.parse_args()
     if a.cycles_ref:
-        ref_floor = cycles_reference(a.scene, lambda s: print(s, flush=True))
+        ref_floor = cycles_reference(a.scene, lambda s, **_: print(s, flush=True))
     scene, base = export(a.scene, 100 if a.cycles_ref else 50)
     if a.photons:
         base = base.replace(photons_per_pass=a.photons)
