@@ -114,13 +114,15 @@ def cost(scene, st, passes, say):
         f"median {np.median(c['fppm']) / np.median(c['ppm']):.3f}")
 
 
-def reference(name, scene, base, passes, photons, say):
+def reference(name, scene, base, passes, photons, say, percent=50):
     """(reference image (H, W, 3) float64, its floor): a PPM render of seed
     100 with ``photons`` x ``passes``, cached under $TMPDIR (the same scene,
     passes and photons give the same image); the floor is the relMSE
     between its half- and full-pass images."""
     import tempfile
-    path = os.path.join(tempfile.gettempdir(), "fppm_bench_refs", f"{name}_{passes}x{photons}.npz")
+    tag = "" if percent == 50 else f"_{percent}pct"
+    path = os.path.join(tempfile.gettempdir(), "fppm_bench_refs",
+                        f"{name}{tag}_{passes}x{photons}.npz")
     if os.path.exists(path):
         d = np.load(path)
         return d["ref"], float(d["floor"])
@@ -243,6 +245,8 @@ def planes_or(r, m):
         r.tracer.chain_params = lambda cp=cp: cp()._replace(own_planes=False)
     if ":keep=batches" in m:            # a batch for each kind of photon (the tracer before)
         r.tracer.one_batch = False
+    if ":keep=otherphotons" in m:       # frequency photons on other uniforms (the tracer before)
+        r.tracer.same_photons = False
 
 
 def equal_passes(scene, base, methods, seed, passes, report, ref, say):
@@ -332,6 +336,9 @@ def main():
     ap.add_argument("--report", default="16,32,64")
     ap.add_argument("--seeds", default="0,1")
     ap.add_argument("--photons", type=int, default=100_000)
+    ap.add_argument("--percent", type=int, default=50,
+                    help="resolution percentage of the .blend's (50: the 64x64 protocol; "
+                         "--cycles-ref uses 100)")
     ap.add_argument("--ref-passes", type=int, default=100)
     ap.add_argument("--ref-photons", type=int, default=300_000)
     ap.add_argument("--cost-only", type=int, default=0, metavar="K",
@@ -350,8 +357,8 @@ def main():
                          "(--equal-passes / --equal-cpu; --photons 0 keeps the file's)")
     a = ap.parse_args()
     if a.cycles_ref:
-        ref_floor = cycles_reference(a.scene, lambda s: print(s, flush=True))
-    scene, base = export(a.scene, 100 if a.cycles_ref else 50)
+        ref_floor = cycles_reference(a.scene, lambda s, **_: print(s, flush=True))
+    scene, base = export(a.scene, 100 if a.cycles_ref else a.percent)
     if a.photons:
         base = base.replace(photons_per_pass=a.photons)
     say = lambda s: print(s, flush=True)  # noqa: E731
@@ -365,7 +372,7 @@ def main():
     def the_reference():
         """(reference image, its floor) of --equal-passes / --equal-cpu, said once."""
         ref, floor = ref_floor if a.cycles_ref else reference(
-            a.scene, scene, base, a.ref_passes, a.ref_photons, say)
+            a.scene, scene, base, a.ref_passes, a.ref_photons, say, a.percent)
         say(("# reference: fppm converge's Cycles render; floor (its variance) "
              if a.cycles_ref else f"# reference: {a.ref_passes} passes x {a.ref_photons} photons, "
              "seed 100; floor (half vs full) ") + f"{floor:.3e}; load {os.getloadavg()[0]:.1f}")

@@ -41,7 +41,11 @@ PINS = {
     # generic path (compiled.sample_pair): same paths, 118 of 34222 deposit
     # powers 1-2 ulps off (libm's acos in eval_pair against numpy's)
     "glass_mirror_plain": "4af5479be317065c932c231f388fef2c",
-    "glass_mirror_freq": "facd46c90520ae681b0202def147c87a",
+    # glass_mirror_freq: the same photons as glass_mirror_plain (each live row
+    # draws its row's uniforms of the batch without spectra, docs/frequency.md
+    # "The same photons"; one batch before: 4962b7a7740fe36297769e45ed3e7883;
+    # regenerated with the occlusion march's end-plane fix merged beside it)
+    "glass_mirror_freq": "6fc924fdaf394b70b68e1cf1e60a1d7c",
     "glass_mirror_caustic": "a8fb79be88a8c214ccf6b77370af5d11",
     "cornell_mis": "11931a943bb718ba1c32bfe295a69aff",
 }

@@ -488,6 +488,31 @@ def gen_attributes(gen_bary, n, tri_uv, uv):
             uv[k, c] = w0 * tri_uv[t, 0, c] + uu * tri_uv[t, 1, c] + vv * tri_uv[t, 2, c]
 
 
+@njit(cache=True, nogil=True)
+def classic_rows(q, src, n_fast, n_next, K, out, mark):
+    """The row each survivor of a bounce has in the batch traced without
+    frequency photons (docs/frequency.md "The same photons").  q (K,) int64:
+    that row of each of the bounce's K rays; src (n_next,) the ray of each
+    survivor (HitRecord.nxt_src): rows 0..n_fast-1 the bounce kernel's, in
+    ray order, n_fast..n_next-1 the generic bounce's.  Without frequency
+    photons each block is in the order of its rays' rows q, so a survivor's
+    row is its rank by q[src] within its block (plus n_fast for the second).
+    out (n_next,) int64 receives them; mark (K,) int64 scratch."""
+    for b in range(2):
+        lo = 0 if b == 0 else n_fast
+        hi = n_fast if b == 0 else n_next
+        for k in range(K):
+            mark[k] = -1
+        for j in range(lo, hi):
+            mark[q[src[j]]] = j
+        r = lo
+        for k in range(K):
+            j = mark[k]
+            if j >= 0:
+                out[j] = r
+                r += 1
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def append_survivors(j0, sel, gen_p, gen_ng, wo, wgt, gen_pow, rel, floor, live):
     """Append generic-path survivors sel (s,) at rows j0.. of the LiveState

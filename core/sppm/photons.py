@@ -256,6 +256,10 @@ class PhotonTracer:
         # Frequency and classic photons traced in one batch (_trace_batch);
         # False: a batch each, the rule before (benchmarks).
         self.one_batch = True
+        # Frequency photons trace the photons of a batch without spectra
+        # (docs/frequency.md "The same photons"); False: the rows they move
+        # to draw other uniforms, the rule before (benchmarks).
+        self.same_photons = True
 
     def trace(self, n: int, n_freq: int, rng):
         """Trace n photons (the first n_freq carry a spectrum); return deposits.
@@ -402,6 +406,16 @@ class PhotonTracer:
         ubuf = self.uniform_buffer(4 * K)       # K never grows: one survivor a ray at most
         cr = n if record or Kf else 1
         rec = self.pool.take("record", cr, _record_arrays, lambda a: PK.HitRecord(*a))
+        # The same photons as a batch without frequency photons
+        # (docs/frequency.md "The same photons"): order (K,) is each live
+        # row's row in that batch, whose uniforms it draws; None while the
+        # rows are in that batch's order (no swap by _frequency_first yet).
+        order = None
+        track = Kf and self.same_photons
+        if track:
+            order_bufs = self.pool.take("order", K, lambda r: [np.empty(r, np.int64)
+                                                               for _ in range(3)])
+            ubuf2 = self.uniform_buffer(4 * K)
         for bounce in range(st.max_bounces + 1):
             if K == 0:
                 break
@@ -412,9 +426,11 @@ class PhotonTracer:
                                  store=bool(st.photons_for_direct or bounce > 0),
                                  sample=bounce < st.max_bounces,
                                  roulette=bounce + 1 >= st.rr_start, bounce=bounce,
-                                 dep0=dep.n, record=bool(record or Kf), rel=rel, floor=floor,
-                                 compiled=comp)
+                                 dep0=dep.n, record=bool(record or Kf or order is not None),
+                                 rel=rel, floor=floor, compiled=comp)
             u = self.uniforms(K, 4, rng, ubuf)
+            if order is not None:
+                u = np.take(u, order[:K], axis=0, out=ubuf2[:4 * K].reshape(K, 4), mode="clip")
             dep.reserve(K)
             if Kf:
                 # the segments just travelled: the kernel overwrites the live state
@@ -429,8 +445,16 @@ class PhotonTracer:
             if n_gen:
                 n_next = self._generic_bounce(n_gen, n_next, gen, u, step.roulette, live,
                                               rec if step.record else None, comp)
+            if order is not None:
+                nxt = order_bufs[1] if order is order_bufs[0] else order_bufs[0]
+                PK.classic_rows(order, rec.nxt_src, n_fast, n_next, K, nxt, order_bufs[2])
+                order = nxt
             if Kf:
-                kf_next = self._frequency_first(Kf, n_fast, n_next, live, rec)
+                if (track and order is None
+                        and self._frequency_split(Kf, n_fast, n_next, rec.nxt_src)[2]):
+                    order = order_bufs[0]
+                    order[:n_next] = np.arange(n_next)   # the rows so far are that batch's
+                kf_next = self._frequency_first(Kf, n_fast, n_next, live, rec, order)
                 # After the generic bounce: only hits that deposit or continue
                 # need a spectrum (the bounce reads seg and rec, not the live
                 # state it appended to).
@@ -456,21 +480,29 @@ class PhotonTracer:
             K = n_next
 
     @staticmethod
-    def _frequency_first(Kf: int, n_fast: int, n_next: int, live, rec) -> int:
+    def _frequency_split(Kf: int, n_fast: int, n_next: int, src) -> tuple:
+        """(f1, gf, m) of :meth:`_frequency_first`: the frequency survivors
+        of the bounce kernel's block (f1) and of the generic block (gf), and
+        the rows m it swaps (0: the rows stay where they are)."""
+        f1 = int(np.searchsorted(src[:n_fast], Kf))
+        gf = int(np.searchsorted(src[n_fast:n_next], Kf))
+        return f1, gf, min(n_fast - f1, gf)
+
+    @staticmethod
+    def _frequency_first(Kf: int, n_fast: int, n_next: int, live, rec, order=None) -> int:
         """After a bounce of rays whose first Kf are frequency photons: the
         live rows 0..n_fast-1 hold the bounce kernel's survivors and
         n_fast..n_next-1 the generic bounce's, each in ray order, so those
         of rays < Kf lead each block.  Swaps the generic block's frequency
-        survivors with as many classic ones of the first block (whose order
-        matters to nothing), live rows and rec.nxt_src / nxt_delta alike, so
-        that the frequency survivors are rows 0..Kf'-1.  Returns Kf'."""
+        survivors with as many classic ones of the first block, live rows,
+        rec.nxt_src / nxt_delta and order (n_next,) (the rows of the batch
+        without frequency photons, None: not kept) alike, so that the
+        frequency survivors are rows 0..Kf'-1.  Returns Kf'."""
         src = rec.nxt_src
-        f1 = int(np.searchsorted(src[:n_fast], Kf))
-        gf = int(np.searchsorted(src[n_fast:n_next], Kf))
-        m = min(n_fast - f1, gf)
+        f1, gf, m = PhotonTracer._frequency_split(Kf, n_fast, n_next, src)
         if m:
             i, j = slice(f1, f1 + m), slice(n_fast + gf - m, n_fast + gf)
-            for arr in (*live, src, rec.nxt_delta):
+            for arr in (*live, src, rec.nxt_delta) + (() if order is None else (order,)):
                 t = arr[i].copy()
                 arr[i] = arr[j]
                 arr[j] = t
