@@ -237,12 +237,15 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
 
 def planes_or(r, m):
     """The variant of method name m on renderer r: 'fppm:keep=noplanes' the
-    march as before (a segment's own surfaces may occlude)."""
+    march as before (a segment's own surfaces may occlude); 'fppm:keep=every'
+    frequency photons in every pass, not only in passes 1, 2, 4, 8, ..."""
     if ":keep=noplanes" in m:
         cp = r.tracer.chain_params
         r.tracer.chain_params = lambda cp=cp: cp()._replace(own_planes=False)
     if ":keep=batches" in m:            # a batch for each kind of photon (the tracer before)
         r.tracer.one_batch = False
+    if ":keep=every" in m:              # frequency photons in every pass (the schedule before)
+        r.photon_pass.doubling = False
 
 
 def equal_passes(scene, base, methods, seed, passes, report, ref, say):
