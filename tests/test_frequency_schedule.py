@@ -19,23 +19,37 @@ from analytic_scenes import point_light_plane
 
 
 @pytest.mark.parametrize("decay, expected", [
-    (0.5, {1: 75_000, 4: 37_500, 9: 25_000, 100: 7_500}),
+    (0.5, {1: 75_000, 4: 37_500, 9: 0, 16: 18_750, 100: 0, 128: 6_629}),
     (0.0, {1: 75_000, 4: 75_000, 9: 75_000, 100: 75_000}),
-    (1.0, {1: 75_000, 4: 18_750, 9: 8_333, 100: 750}),
+    (1.0, {1: 75_000, 4: 18_750, 9: 0, 16: 4_688, 100: 0}),
 ])
-def test_frequency_photons_per_pass(decay, expected):
+@pytest.mark.parametrize("doubling", [True, False])
+def test_frequency_photons_per_pass(decay, expected, doubling):
     """The chunks of pass k carry round(300,000 x 0.25 x k^-decay) frequency
-    photons, the first ones of the pass (chunks of 131,072)."""
+    photons, the first ones of the pass (chunks of 131,072); with decay > 0
+    only in the passes k = 2^j (PhotonPass.doubling, the default; off: in
+    every pass, the schedule before)."""
     scene, _ = point_light_plane(res=8)
     st = RenderSettings(integrator="PHOTON", photons_per_pass=300_000, frequency_decay=decay)
     r = Renderer(scene, st, log=lambda s: None)
+    assert r.photon_pass.doubling
+    r.photon_pass.doubling = doubling
     for k, n_freq in expected.items():
+        if not doubling:
+            n_freq = int(round(75_000 * float(k) ** -decay))
         r.pass_index = k - 1                    # the renderer is about to trace pass k
         chunks = r.photon_pass.chunks()
         assert [n for n, _ in chunks] == [131_072, 131_072, 37_856]
         assert sum(f for _, f in chunks) == n_freq
         # The frequency photons come first: a chunk has some only if the one before is full.
         assert all(f0 == n0 for (n0, f0), (_, f1) in zip(chunks, chunks[1:]) if f1)
+
+
+def test_frequency_passes_double():
+    """The passes with frequency photons under the doubling schedule: 1, 2,
+    4, ..., 2^j: 9 of the first 256 passes (the schedule before: 256)."""
+    from core.sppm.photon_pass import frequency_pass
+    assert [k for k in range(1, 257) if frequency_pass(k)] == [2 ** j for j in range(9)]
 
 
 def test_decay_is_validated():
