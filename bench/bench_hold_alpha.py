@@ -21,6 +21,11 @@
         (the file's resolution and photons against the Cycles reference of ``fppm converge``,
         from its cache; 'fppm:power=0': holds the verified-holds test cannot yet judge
         stand, the rule before docs/method.md "Rings under a 1 m light")
+    .venv/bin/python bench/bench_hold_alpha.py ring_lambert --full --photons 0 --equal-cpu 30 \
+        --ref-passes 200 --methods fppm,fppm:keep=every,ppm
+        (the file's resolution and photons against a PPM reference of that resolution;
+        'fppm:keep=every': frequency photons in every pass, not only in passes 1, 2, 4, ...,
+        docs/method.md "Frequency photons in doubling passes")
 
 The protocol of docs/method.md ("Consistent holds", "Radius rules"): the
 .blend at 50 % resolution (64x64) with the file's settings, photon mapping
@@ -114,13 +119,15 @@ def cost(scene, st, passes, say):
         f"median {np.median(c['fppm']) / np.median(c['ppm']):.3f}")
 
 
-def reference(name, scene, base, passes, photons, say):
+def reference(name, scene, base, passes, photons, say, percent=50):
     """(reference image (H, W, 3) float64, its floor): a PPM render of seed
     100 with ``photons`` x ``passes``, cached under $TMPDIR (the same scene,
     passes and photons give the same image); the floor is the relMSE
     between its half- and full-pass images."""
     import tempfile
-    path = os.path.join(tempfile.gettempdir(), "fppm_bench_refs", f"{name}_{passes}x{photons}.npz")
+    tag = "" if percent == 50 else f"_{percent}pc"
+    path = os.path.join(tempfile.gettempdir(), "fppm_bench_refs",
+                        f"{name}{tag}_{passes}x{photons}.npz")
     if os.path.exists(path):
         d = np.load(path)
         return d["ref"], float(d["floor"])
@@ -348,13 +355,17 @@ def main():
                     help="relMSE of --methods after the passes of --report (up to K), same seed")
     ap.add_argument("--methods", default=",".join(EQUAL_CPU_METHODS),
                     help="equal-CPU / equal-pass methods; 'fppm:frequency_decay=0' sets a field")
+    ap.add_argument("--full", action="store_true",
+                    help="the file's resolution against the PPM reference of --ref-passes "
+                         "(--photons 0 keeps the file's photons)")
     ap.add_argument("--cycles-ref", action="store_true",
                     help="the file's resolution, against fppm converge's Cycles reference "
                          "(--equal-passes / --equal-cpu; --photons 0 keeps the file's)")
     a = ap.parse_args()
     if a.cycles_ref:
         ref_floor = cycles_reference(a.scene, lambda s: print(s, flush=True))
-    scene, base = export(a.scene, 100 if a.cycles_ref else 50)
+    percent = 100 if a.cycles_ref or a.full else 50
+    scene, base = export(a.scene, percent)
     if a.photons:
         base = base.replace(photons_per_pass=a.photons)
     say = lambda s: print(s, flush=True)  # noqa: E731
@@ -368,7 +379,7 @@ def main():
     def the_reference():
         """(reference image, its floor) of --equal-passes / --equal-cpu, said once."""
         ref, floor = ref_floor if a.cycles_ref else reference(
-            a.scene, scene, base, a.ref_passes, a.ref_photons, say)
+            a.scene, scene, base, a.ref_passes, a.ref_photons, say, percent)
         say(("# reference: fppm converge's Cycles render; floor (its variance) "
              if a.cycles_ref else f"# reference: {a.ref_passes} passes x {a.ref_photons} photons, "
              "seed 100; floor (half vs full) ") + f"{floor:.3e}; load {os.getloadavg()[0]:.1f}")
