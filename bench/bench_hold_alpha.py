@@ -26,6 +26,10 @@
         (the file's resolution and photons against a PPM reference of that resolution;
         'fppm:keep=every': frequency photons in every pass, not only in passes 1, 2, 4, ...,
         docs/method.md "Frequency photons in doubling passes")
+    .venv/bin/python bench/bench_hold_alpha.py ring_lambert --signed 128 --ref-passes 200 \
+        --methods fppm,fppm:keep=every,fppm:hold_alpha=0.7:release=0.7,ppm
+        (where the errors differ: held pixels, caustic lines, the rest; 'hold_alpha=0.7:
+        release=0.7': frequency photons traced, no pixel held)
 
 The protocol of docs/method.md ("Consistent holds", "Radius rules"): the
 .blend at 50 % resolution (64x64) with the file's settings, photon mapping
@@ -299,6 +303,39 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
             f"photons gathered per pass {g:.3g} ({g / g_ppm:.3f} x PPM)")
 
 
+def signed(scene, base, methods, seed, passes, ref, say):
+    """Where the methods' errors differ after the same passes (same seed):
+    relMSE, and over three sets of pixels the share of the squared
+    relative error (relMSE's per-pixel term) and the mean signed relative
+    error (image - ref) / ref of the grey images: the pixels held at the
+    end by the first method, the caustic lines (the 2 % brightest
+    reference pixels among those with a prediction of the first method)
+    and the rest (docs/method.md "Frequency photons in doubling passes")."""
+    from fppm.tools.metrics import RELMSE_EPS
+    rs = {m: Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=passes),
+                      log=lambda s: None) for m in methods}
+    for m in methods:
+        radii_variant(rs[m], m)
+        planes_or(rs[m], m)
+    img = {}
+    for _ in range(passes):
+        for m in methods:
+            img[m] = np.asarray(rs[m].step().image[..., :3], np.float64)
+    g = ref.mean(axis=2)
+    first = rs[methods[0]].state
+    held = first.held.reshape(g.shape)
+    has = np.isfinite(first.r_pred_last.reshape(g.shape))
+    lines = has & (g >= np.quantile(g[has], 0.98)) if has.any() else has
+    rest = ~held & ~lines
+    for m in methods:
+        rel = (img[m].mean(axis=2) - g) / np.maximum(g, 1e-6)
+        sq = ((img[m] - ref) ** 2 / (ref ** 2 + RELMSE_EPS)).mean(axis=2)
+        say(f"seed {seed} pass {passes} {m:>34}: relmse {relmse(img[m], ref):.4e}; share of the "
+            f"squared error held {sq[held].sum() / sq.sum():.3f} lines {sq[lines].sum() / sq.sum():.3f}; "
+            f"mean signed error held {rel[held].mean():+.4f} (n {held.sum()}), lines "
+            f"{rel[lines].mean():+.4f} (n {lines.sum()}), rest {rel[rest].mean():+.4f}")
+
+
 def breakdown(scene, base, passes, say):
     """CPU per pass of FPPM variants stepped alternately (the first 2 passes
     left out): what the frequency photons, the verified holds and the
@@ -353,6 +390,9 @@ def main():
                     help="relMSE of --methods at equal CPU time, SECONDS each per seed")
     ap.add_argument("--equal-passes", type=int, default=0, metavar="K",
                     help="relMSE of --methods after the passes of --report (up to K), same seed")
+    ap.add_argument("--signed", type=int, default=0, metavar="K",
+                    help="after K passes of --methods (same seed): share of the squared error "
+                         "and mean signed error on the held pixels, the caustic lines, the rest")
     ap.add_argument("--methods", default=",".join(EQUAL_CPU_METHODS),
                     help="equal-CPU / equal-pass methods; 'fppm:frequency_decay=0' sets a field")
     ap.add_argument("--full", action="store_true",
@@ -385,6 +425,11 @@ def main():
              "seed 100; floor (half vs full) ") + f"{floor:.3e}; load {os.getloadavg()[0]:.1f}")
         return ref, floor
 
+    if a.signed:
+        ref, floor = the_reference()
+        for seed in [int(x) for x in a.seeds.split(",")]:
+            signed(scene, base, a.methods.split(","), seed, a.signed, ref, say)
+        return
     if a.equal_passes:
         ref, floor = the_reference()
         methods = a.methods.split(",")
