@@ -181,9 +181,10 @@ class FPPMRenderSettings(PropertyGroup):
         description="Fraction of each pass's photons that carry a frequency spectrum")
     frequency_decay: FloatProperty(
         name="Frequency Decay", default=_D.frequency_decay, min=0.0, max=2.0,
-        description="Pass k traces Frequency Photons / k^decay frequency photons, and each "
-                    "pixel keeps its last prediction through passes that bring it none "
-                    "(0 = the same fraction every pass, each pass's own prediction)")
+        description="Passes 1, 2, 4, 8, ... trace Frequency Photons / k^decay frequency "
+                    "photons (pass k), the others none, and each pixel keeps its last "
+                    "prediction through passes that bring it none (0 = the same fraction "
+                    "every pass, each pass's own prediction)")
     frequency_model: EnumProperty(
         name="Model", items=FREQUENCY_MODELS, default=_D.frequency_model,
         description="Which equations propagate the light-field spectrum")

@@ -21,6 +21,15 @@
         (the file's resolution and photons against the Cycles reference of ``fppm converge``,
         from its cache; 'fppm:power=0': holds the verified-holds test cannot yet judge
         stand, the rule before docs/method.md "Rings under a 1 m light")
+    .venv/bin/python bench/bench_hold_alpha.py ring_lambert --full --photons 0 --equal-cpu 30 \
+        --ref-passes 200 --methods fppm,fppm:keep=every,ppm
+        (the file's resolution and photons against a PPM reference of that resolution;
+        'fppm:keep=every': frequency photons in every pass, not only in passes 1, 2, 4, ...,
+        docs/method.md "Frequency photons in doubling passes")
+    .venv/bin/python bench/bench_hold_alpha.py ring_lambert --signed 128 --ref-passes 200 \
+        --methods fppm,fppm:keep=every,fppm:hold_alpha=0.7:release=0.7,ppm
+        (where the errors differ: held pixels, caustic lines, the rest; 'hold_alpha=0.7:
+        release=0.7': frequency photons traced, no pixel held)
 
 The protocol of docs/method.md ("Consistent holds", "Radius rules"): the
 .blend at 50 % resolution (64x64) with the file's settings, photon mapping
@@ -239,7 +248,8 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
 
 def planes_or(r, m):
     """The variant of method name m on renderer r: 'fppm:keep=noplanes' the
-    march as before (a segment's own surfaces may occlude)."""
+    march as before (a segment's own surfaces may occlude); 'fppm:keep=every'
+    frequency photons in every pass, not only in passes 1, 2, 4, 8, ..."""
     if ":keep=noplanes" in m:
         cp = r.tracer.chain_params
         r.tracer.chain_params = lambda cp=cp: cp()._replace(own_planes=False)
@@ -247,6 +257,8 @@ def planes_or(r, m):
         r.tracer.one_batch = False
     if ":keep=otherphotons" in m:       # frequency photons on other uniforms (the tracer before)
         r.tracer.same_photons = False
+    if ":keep=every" in m:              # frequency photons in every pass (the schedule before)
+        r.photon_pass.doubling = False
 
 
 def equal_passes(scene, base, methods, seed, passes, report, ref, say):
@@ -291,6 +303,39 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
         c, g = np.mean(cpu[m][2:]), np.mean(gathered[m][2:])
         say(f"seed {seed} {m:>18}: CPU per pass {1e3 * c:.0f} ms ({c / c_ppm:.3f} x PPM), "
             f"photons gathered per pass {g:.3g} ({g / g_ppm:.3f} x PPM)")
+
+
+def signed(scene, base, methods, seed, passes, ref, say):
+    """Where the methods' errors differ after the same passes (same seed):
+    relMSE, and over three sets of pixels the share of the squared
+    relative error (relMSE's per-pixel term) and the mean signed relative
+    error (image - ref) / ref of the grey images: the pixels held at the
+    end by the first method, the caustic lines (the 2 % brightest
+    reference pixels among those with a prediction of the first method)
+    and the rest (docs/method.md "Frequency photons in doubling passes")."""
+    from fppm.tools.metrics import RELMSE_EPS
+    rs = {m: Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=passes),
+                      log=lambda s: None) for m in methods}
+    for m in methods:
+        radii_variant(rs[m], m)
+        planes_or(rs[m], m)
+    img = {}
+    for _ in range(passes):
+        for m in methods:
+            img[m] = np.asarray(rs[m].step().image[..., :3], np.float64)
+    g = ref.mean(axis=2)
+    first = rs[methods[0]].state
+    held = first.held.reshape(g.shape)
+    has = np.isfinite(first.r_pred_last.reshape(g.shape))
+    lines = has & (g >= np.quantile(g[has], 0.98)) if has.any() else has
+    rest = ~held & ~lines
+    for m in methods:
+        rel = (img[m].mean(axis=2) - g) / np.maximum(g, 1e-6)
+        sq = ((img[m] - ref) ** 2 / (ref ** 2 + RELMSE_EPS)).mean(axis=2)
+        say(f"seed {seed} pass {passes} {m:>34}: relmse {relmse(img[m], ref):.4e}; share of the "
+            f"squared error held {sq[held].sum() / sq.sum():.3f} lines {sq[lines].sum() / sq.sum():.3f}; "
+            f"mean signed error held {rel[held].mean():+.4f} (n {held.sum()}), lines "
+            f"{rel[lines].mean():+.4f} (n {lines.sum()}), rest {rel[rest].mean():+.4f}")
 
 
 def breakdown(scene, base, passes, say):
@@ -350,15 +395,22 @@ def main():
                     help="relMSE of --methods at equal CPU time, SECONDS each per seed")
     ap.add_argument("--equal-passes", type=int, default=0, metavar="K",
                     help="relMSE of --methods after the passes of --report (up to K), same seed")
+    ap.add_argument("--signed", type=int, default=0, metavar="K",
+                    help="after K passes of --methods (same seed): share of the squared error "
+                         "and mean signed error on the held pixels, the caustic lines, the rest")
     ap.add_argument("--methods", default=",".join(EQUAL_CPU_METHODS),
                     help="equal-CPU / equal-pass methods; 'fppm:frequency_decay=0' sets a field")
+    ap.add_argument("--full", action="store_true",
+                    help="the file's resolution against the PPM reference of --ref-passes "
+                         "(--photons 0 keeps the file's photons)")
     ap.add_argument("--cycles-ref", action="store_true",
                     help="the file's resolution, against fppm converge's Cycles reference "
                          "(--equal-passes / --equal-cpu; --photons 0 keeps the file's)")
     a = ap.parse_args()
     if a.cycles_ref:
         ref_floor = cycles_reference(a.scene, lambda s, **_: print(s, flush=True))
-    scene, base = export(a.scene, 100 if a.cycles_ref else a.percent)
+    percent = 100 if a.cycles_ref or a.full else a.percent
+    scene, base = export(a.scene, percent)
     if a.photons:
         base = base.replace(photons_per_pass=a.photons)
     say = lambda s: print(s, flush=True)  # noqa: E731
@@ -372,12 +424,17 @@ def main():
     def the_reference():
         """(reference image, its floor) of --equal-passes / --equal-cpu, said once."""
         ref, floor = ref_floor if a.cycles_ref else reference(
-            a.scene, scene, base, a.ref_passes, a.ref_photons, say, a.percent)
+            a.scene, scene, base, a.ref_passes, a.ref_photons, say, percent)
         say(("# reference: fppm converge's Cycles render; floor (its variance) "
              if a.cycles_ref else f"# reference: {a.ref_passes} passes x {a.ref_photons} photons, "
              "seed 100; floor (half vs full) ") + f"{floor:.3e}; load {os.getloadavg()[0]:.1f}")
         return ref, floor
 
+    if a.signed:
+        ref, floor = the_reference()
+        for seed in [int(x) for x in a.seeds.split(",")]:
+            signed(scene, base, a.methods.split(","), seed, a.signed, ref, say)
+        return
     if a.equal_passes:
         ref, floor = the_reference()
         methods = a.methods.split(",")

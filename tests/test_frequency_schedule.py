@@ -19,23 +19,37 @@ from analytic_scenes import point_light_plane
 
 
 @pytest.mark.parametrize("decay, expected", [
-    (0.5, {1: 75_000, 4: 37_500, 9: 25_000, 100: 7_500}),
+    (0.5, {1: 75_000, 4: 37_500, 9: 0, 16: 18_750, 100: 0, 128: 6_629}),
     (0.0, {1: 75_000, 4: 75_000, 9: 75_000, 100: 75_000}),
-    (1.0, {1: 75_000, 4: 18_750, 9: 8_333, 100: 750}),
+    (1.0, {1: 75_000, 4: 18_750, 9: 0, 16: 4_688, 100: 0}),
 ])
-def test_frequency_photons_per_pass(decay, expected):
+@pytest.mark.parametrize("doubling", [True, False])
+def test_frequency_photons_per_pass(decay, expected, doubling):
     """The chunks of pass k carry round(300,000 x 0.25 x k^-decay) frequency
-    photons, the first ones of the pass (chunks of 131,072)."""
+    photons, the first ones of the pass (chunks of 131,072); with decay > 0
+    only in the passes k = 2^j (PhotonPass.doubling, the default; off: in
+    every pass, the schedule before)."""
     scene, _ = point_light_plane(res=8)
     st = RenderSettings(integrator="PHOTON", photons_per_pass=300_000, frequency_decay=decay)
     r = Renderer(scene, st, log=lambda s: None)
+    assert r.photon_pass.doubling
+    r.photon_pass.doubling = doubling
     for k, n_freq in expected.items():
+        if not doubling:
+            n_freq = int(round(75_000 * float(k) ** -decay))
         r.pass_index = k - 1                    # the renderer is about to trace pass k
         chunks = r.photon_pass.chunks()
         assert [n for n, _ in chunks] == [131_072, 131_072, 37_856]
         assert sum(f for _, f in chunks) == n_freq
         # The frequency photons come first: a chunk has some only if the one before is full.
         assert all(f0 == n0 for (n0, f0), (_, f1) in zip(chunks, chunks[1:]) if f1)
+
+
+def test_frequency_passes_double():
+    """The passes with frequency photons under the doubling schedule: 1, 2,
+    4, ..., 2^j: 9 of the first 256 passes (the schedule before: 256)."""
+    from core.sppm.photon_pass import frequency_pass
+    assert [k for k in range(1, 257) if frequency_pass(k)] == [2 ** j for j in range(9)]
 
 
 def test_decay_is_validated():
@@ -91,3 +105,45 @@ def test_kept_prediction():
     m = kept_prediction(np.array([0.2, 0.6, np.inf, np.nan, np.inf]),
                         np.array([0.5, 0.3, 0.3, 0.3, np.nan]), minimum=True)
     assert m[:4].tolist() == [0.2, 0.3, 0.3, 0.3] and not np.isfinite(m[4])
+
+
+@pytest.mark.parametrize("doubling", [True, False])
+def test_passes_without_frequency_photons_keep_every_prediction(doubling):
+    """A mirror's caustic on a floor (occlusion grid and reach map on), 8
+    passes of 20,000 photons.  Doubling schedule: frequency photons and a
+    reach map only in passes 1, 2, 4, 8 (the map from the last pass's
+    visible points: passes 2, 4, 8); a pass without them leaves every
+    pixel's prediction as it was, bit for bit, and holds at the same pixels
+    where the photons' counts still agree.  Every pass: 8 and 7."""
+    from analytic_scenes import lambert, look_down_ortho, quad, translate
+    from core.scene.model import GLOSSY, Light, Lobe, Material, make_scene
+    # analytic_scenes.mirror_caustic with a tilted card beside the light: something
+    # can occlude (a marched grid, hence the reach map)
+    tris = (quad((0, 0, 0), (10, 0, 0), (0, 10, 0)) + quad((0, 0, 2), (0, 0.5, 0), (0.5, 0, 0))
+            + quad((0.6, 0, 0.5), (0, 0.3, 0), (0.2, 0, 0.2)))
+    mats = [lambert("floor", 0.8), Material("mirror", (Lobe(GLOSSY, (0.9,) * 3, roughness=0.0),))]
+    scene = make_scene(tris, mats, [Light("point", "POINT", (100.0,) * 3, translate(0, 0, 1))],
+                       look_down_ortho(1.5, 2.0, 16), tri_mat=[0, 0, 1, 1, 0, 0])
+    st = RenderSettings(integrator="PHOTON", photons_per_pass=20_000, max_passes=8, seed=3)
+    r = Renderer(scene, st, log=lambda s: None)
+    r.photon_pass.doubling = doubling
+    assert r.tracer.uses_reach()
+    traced, reach = [], []
+    trace, set_reach = r.tracer.trace, r.tracer.set_reach
+    r.tracer.trace = lambda n, n_freq, rng: (traced.append((r.pass_index + 1, n_freq)),
+                                             trace(n, n_freq, rng))[1]
+    r.tracer.set_reach = lambda *a: (reach.append(r.pass_index + 1), set_reach(*a))[1]
+    last = []
+    for _ in range(8):
+        r.step()
+        last.append(r.state.r_pred_last.copy())
+    with_freq = sorted({k for k, f in traced if f > 0})
+    if doubling:
+        assert with_freq == [1, 2, 4, 8] and reach == [2, 4, 8]
+        for k in (3, 5, 6, 7):                  # 1-based passes without frequency photons
+            assert np.array_equal(last[k - 1], last[k - 2], equal_nan=True)
+        assert np.isfinite(last[0]).sum() > 50
+    else:
+        assert with_freq == list(range(1, 9)) and reach == list(range(2, 9))
+    # pass 4 brings new spectra: some predictions change
+    assert not np.array_equal(last[3], last[2], equal_nan=True)

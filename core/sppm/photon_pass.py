@@ -198,12 +198,32 @@ class PassSums:
             self.sectors[i] += part.sectors
 
 
-def frequency_photons(settings, k: int) -> int:
+#: With amortised frequency photons (frequency_decay > 0) only the passes
+#: k = 1, 2, 4, 8, ... trace any (:func:`frequency_passes`); the other passes
+#: keep every pixel's last prediction (docs/method.md "Rings under a 1 m
+#: light", "Frequency photons in doubling passes").
+DOUBLING_PASSES = True
+
+
+def frequency_pass(k: int) -> bool:
+    """Whether pass k (1-based) traces frequency photons under the doubling
+    schedule: k a power of two.  A pass with frequency photons pays for their
+    spectra, the reach map and the frequency pairs whatever their number
+    (docs/method.md "Frequency photons in doubling passes"); a pass of the
+    same k^-decay count keeps the spectra's statistics where it is traced."""
+    k = max(int(k), 1)
+    return k & (k - 1) == 0
+
+
+def frequency_photons(settings, k: int, doubling: bool = False) -> int:
     """Photons of pass k (1-based) that carry a spectrum: photons_per_pass x
     frequency_fraction x k^-frequency_decay (docs/method.md "Amortised
     frequency photons": the spectrum belongs to the light field at the pixel,
     not to the pass, so a pixel keeps its prediction and later passes need
-    fewer frequency photons; decay 0: the same fraction in every pass)."""
+    fewer frequency photons; decay 0: the same fraction in every pass);
+    doubling (with decay > 0): none unless :func:`frequency_pass`."""
+    if doubling and settings.frequency_decay > 0 and not frequency_pass(k):
+        return 0
     f = settings.frequency_fraction * float(max(k, 1)) ** -settings.frequency_decay
     return int(round(settings.photons_per_pass * f))
 
@@ -244,6 +264,8 @@ class PhotonPass:
         # The 1-based index of the pass being traced (its share of frequency
         # photons, frequency_photons); the renderer sets it to its own count.
         self.next_pass = lambda: 1
+        # Frequency photons only in the passes 1, 2, 4, 8, ... (frequency_pass).
+        self.doubling = DOUBLING_PASSES
         # CPU seconds of the kernel clip's rays and codes (core.sppm.clip),
         # also counted in stage_seconds["gather"].
         self.clip_seconds = 0.0
@@ -311,9 +333,11 @@ class PhotonPass:
         if src is not None:
             # the last pass's visible points with the radii of its update
             # (R2 not yet initialised for this pass's new pixels): the same
-            # map with or without trace-ahead, and after a resume
+            # map with or without trace-ahead, and after a resume; none for
+            # a pass without frequency photons (nothing reads it)
             self._reach_source = None
-            self.tracer.set_reach(src[0], src[1], np.array(src[2]))
+            if any(f for _, f in self.chunks()):
+                self.tracer.set_reach(src[0], src[1], np.array(src[2]))
         if self.chunk_streams or not TRACE_AHEAD:
             return
         self._ahead = (rng, deque(), deque(self.chunks()))
@@ -365,7 +389,8 @@ class PhotonPass:
         (``next_pass()``, the pass being traced) carry a spectrum."""
         st = self.settings
         n_total = st.photons_per_pass
-        n_freq_total = frequency_photons(st, self.next_pass()) if self.frequency else 0
+        n_freq_total = (frequency_photons(st, self.next_pass(), self.doubling)
+                        if self.frequency else 0)
         out = []
         for a in range(0, n_total, self.chunk):
             n = min(self.chunk, n_total - a)
