@@ -128,6 +128,7 @@ def test_weights_of_the_sampling_strategies_sum_to_one(rig, name, depth):
     w_pt, w_nee = camera_side(rig, path)
     w_lt = light_side(rig, path)
     if not _camera_reaches(stop, path):
+        q = list(oracle(rig, path, nee_owns=False))   # no light sample at y_1 to own it
         q[0] = q[1] = 0.0
         w_pt = w_nee = 0.0
     if k >= 2 and path[1]["kind"] != "mirror" and stop.light_only(

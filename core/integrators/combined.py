@@ -208,6 +208,9 @@ class CameraMIS:
         self.K = int(K)
         # Where the camera paths stop (CameraStop), set by the renderer; None = never.
         self.stop = None
+        # Direct light of radius-0 point/spot lights at y_1: NEE's alone
+        # (mis.NEE_OWNS_DELTA_DIRECT; the light side's _chunk agrees).
+        self.owns = bool(M.NEE_OWNS_DELTA_DIRECT)
 
     # ---------------------------------------------------------- densities
     def c1(self, d, cos_surf, t):
@@ -284,12 +287,12 @@ class CameraMIS:
                c(pl), c(sel))
         if getattr(v, "QM", None) is not None:
             fl, fm = np.ones(light.size), np.ones(light.size)
-            PK.camera_nee_kernel(self._mis_lights, depth == 0, c(v.Q), *geo, fl)
-            PK.camera_nee_kernel(self._mis_lights, False, c(v.QM), *geo, fm)
+            PK.camera_nee_kernel(self._mis_lights, depth == 0, self.owns, c(v.Q), *geo, fl)
+            PK.camera_nee_kernel(self._mis_lights, False, self.owns, c(v.QM), *geo, fm)
             return _with_merge(np.asarray(w, np.float64), _ratio2(fl), _ratio2(fm),
                                self.cls[light] == M.SOFT)
         w = np.array(w, np.float64)
-        PK.camera_nee_kernel(self._mis_lights, depth == 0, c(v.Q), *geo, w)
+        PK.camera_nee_kernel(self._mis_lights, depth == 0, self.owns, c(v.Q), *geo, w)
         return w
 
     def continued_compiled(self, v, nx, depth, Q=None):
@@ -411,12 +414,24 @@ class CameraMIS:
             with np.errstate(divide="ignore", invalid="ignore"):
                 r = _finite(vf.Q * self._reverse(vf, wf, first[f]) * np.abs(_dot(vf.ng, wf)) * T
                             / vf.c)
+            if self.owns:
+                # A delta light's direct light at y_1: NEE's alone (mis.NEE_OWNS_DELTA_DIRECT).
+                r = np.where(first[f] & ~ar, 0.0, r)
             w[f] = _shrink(w[f], r)
         s = np.nonzero(cls == M.SOFT)[0]
         if s.size:
             r = self.soft_ratio(v.take(s), light[s], first[s])
             w[s] *= 1.0 / (1.0 + r * r)
         return w
+
+
+def nee_owned_rows(t, cls) -> np.ndarray:
+    """(Nl,) bool: the emitter rows of table t (classes cls) whose direct
+    light at a non-delta y_1 is next-event estimation's alone
+    (mis.NEE_OWNS_DELTA_DIRECT: radius-0 point and spot lights); all False
+    when that rule is off.  Their first hits' splats take B1 = inf (w_LT = 0)."""
+    owned = (cls == M.FULL) & (t.kind != AREA) & (t.kind != MESH)
+    return owned & bool(M.NEE_OWNS_DELTA_DIRECT)
 
 
 def first_hit_ratios(t, kn, light, z0, d, p, ng):
@@ -498,6 +513,11 @@ class CombinedLightTracer(LightTracer):
         t = self.light_table
         self.all_traced = not np.any((t.p_select > 0) & (self.cls == M.NO_LT))
         self.first_lights = LK.first_hit_lights(t, M.emit_select(t, np.arange(t.n)))
+        # Rows whose direct light at a first hit is next-event estimation's
+        # alone (radius-0 point and spot lights: mis.NEE_OWNS_DELTA_DIRECT;
+        # CameraMIS.nee agrees), None = none.
+        owned = nee_owned_rows(t, self.cls)
+        self.nee_owned = owned if owned.any() else None
         # Where the camera paths stop (CameraStop; None = never).
         self.stop = camera_stop(self)
         if self.stop is not None and self.stop.alone:
@@ -565,12 +585,23 @@ class CombinedLightTracer(LightTracer):
         dep, B0d, B1d, first = self._trace(ph, z0, rng)
         if dep is None:
             return
+        if self.nee_owned is not None:
+            # A delta light's direct light: next-event estimation's alone
+            # (q_1 / q_L infinite: w_LT = 0), unless the camera stops before
+            # its light sample (below).
+            B1d[first & self.nee_owned[light[dep["src_photon"]]]] = np.inf
         if stop is not None:
             # Paths the camera does not trace (CameraStop): light tracing's alone.
             mat = self.tracer.tris.mat[dep["bary"][:, 0].astype(np.int64)]
             alone = stop.light_only(mat, first)
             B0d[alone] = 0.0
             B1d[alone] = 0.0
+        if self.nee_owned is not None and getattr(self, "kept", None) is None:
+            # Their splats weigh 0: not joined to the lens (no shadow ray).
+            keep = ~(first & np.isinf(B1d))
+            if not keep.all():
+                dep = {k: dep[k][keep] for k in ("p", "ng", "wi", "power", "bary", "src_photon")}
+                B0d, B1d, first = B0d[keep], B1d[keep], first[keep]
         mis = (B0d, B1d, first, soft[dep["src_photon"]])
         if getattr(self, "kept", None) is not None:
             # Merging as an MIS strategy: q_M / q_L = pi r^2 c_1 (N_M = N_L).
