@@ -88,11 +88,17 @@ class CameraStop(NamedTuple):
     emitter the camera can see (no soft point or spot light, whose disc only
     camera rays find), so that the camera paths would only find emitters seen
     directly: none are traced and light tracing's splat of those emitters
-    takes weight 1 as well."""
+    takes weight 1 as well.  one: one camera path a pixel and pass (K = 1
+    in both sides' weights), set where the camera paths only find emitters
+    (alone) or, at depth 1, where the camera sees covered materials only
+    (:func:`camera_stop`'s 'AUTO'), so that every camera path a pixel adds
+    is one more light sample at y_1 (docs/integrators.md "Camera depth
+    'AUTO' with glass out of view")."""
     depth: int
     covered: np.ndarray
     alone: bool = False
     camera_free: bool = False
+    one: bool = False
 
     def ends(self, depth: int, mat_hit, mat_y1) -> np.ndarray:
         """(K,) bool: the camera rays of loop step ``depth`` (0: the camera
@@ -136,10 +142,18 @@ def camera_stop(lt) -> Optional[CameraStop]:
         return None
     covered = covered_materials(lt.mtab, lt.fast_mat)
     alone = depth == 0 and bool(covered[np.unique(tri_mat)].all())
-    if st.camera_depth == "AUTO" and not (alone and visible_splats(lt, st.seed) >= VISIBLE_SPLATS):
-        return None
     soft = np.any((lt.cls == M.SOFT) & (t.p_select > 0))
-    return CameraStop(depth, covered, alone, alone and not soft)
+    if st.camera_depth == "AUTO":
+        if visible_splats(lt, st.seed) < VISIBLE_SPLATS:
+            return None
+        if not alone:
+            # A mirror or glass somewhere: 'DIRECT' with one camera path a
+            # pixel where the camera sees none (camera_sees_covered_only),
+            # else FULL.
+            if not camera_sees_covered_only(lt, covered):
+                return None
+            return CameraStop(1, covered, one=True)
+    return CameraStop(depth, covered, alone, alone and not soft, one=alone)
 
 
 #: 'AUTO' leaves the camera paths out only where light paths reach the
@@ -152,6 +166,24 @@ VISIBLE_SPLATS = 0.1
 
 #: Light paths of that pilot.
 PILOT_PATHS = 8192
+
+
+def camera_sees_covered_only(lt, covered) -> bool:
+    """Whether the camera rays through the pixel centres of the light
+    tracer lt's region (and the lens centre) hit covered materials only
+    (misses count as covered: camera_stop has no world light).  A pilot for
+    'AUTO''s choice only: a mirror or glass it misses still has its camera
+    paths at full length (CameraStop stops camera paths at covered y_1
+    only), so the image stays unbiased whatever it finds."""
+    from ..scene.camera import FilterSampler
+    ys, xs = np.mgrid[0:lt.H, 0:lt.W]
+    px = (xs.ravel() + lt.x0).astype(np.float64)
+    py = ((lt.H - 1 - ys).ravel() + lt.y0).astype(np.float64)
+    u = np.full((px.size, 2), 0.5)       # FilterSampler.sample(0.5) = 0: the centre
+    rays, _ = lt.camera.generate(px, py, u, u, FilterSampler(lt.filter_width))
+    prim = lt.accel.intersect(rays.o, rays.d, rays.t_max).prim
+    mat = np.asarray(lt.scene.tri_mat, np.int64)[prim[prim >= 0]]
+    return bool(covered[mat].all())
 
 
 def visible_splats(lt, seed: int) -> float:
@@ -223,7 +255,7 @@ class CameraMIS:
         return cos_surf / (A * cc ** 3 * t * t)
 
     def set_samples(self, K: int) -> None:
-        """K camera paths per pixel and pass instead (CameraStop.alone)."""
+        """K camera paths per pixel and pass instead (CameraStop.one)."""
         self.ratio *= self.K / float(K)
         self.K = int(K)
 
@@ -520,10 +552,19 @@ class CombinedLightTracer(LightTracer):
         self.nee_owned = owned if owned.any() else None
         # Where the camera paths stop (CameraStop; None = never).
         self.stop = camera_stop(self)
-        if self.stop is not None and self.stop.alone:
-            # The camera rays only find emitters seen directly: one a pixel
-            # and pass (the weights' K; the renderer sets the PathTracer's).
+        if self.stop is not None and self.stop.one:
+            # One camera path a pixel and pass (the weights' K; the renderer
+            # sets the PathTracer's).
             self.K = 1
+        # No light vertex needs its MIS ratios either (LIGHT's trace, less the
+        # first hits) when the camera stops after its light sample at y_1
+        # (depth 1), every traced emitter's direct light is that sample's
+        # (nee_owned) and every material a light vertex is splatted on is
+        # covered: first hits weigh 0, later vertices 1 (CameraStop.light_only).
+        st_ = self.stop
+        self.plain = bool(st_ is not None and st_.depth == 1 and self.nee_owned is not None
+                          and self.nee_owned[t.p_select > 0].all()
+                          and st_.covered[self.mtab.has_nondelta].all())
         # The compiled next-event selection probability of _first_hit
         # (path_kernels.selection_kernel reads LightPdf's entry and group_frac
         # only, not its hittable), None where the compiled lights do not
@@ -572,9 +613,13 @@ class CombinedLightTracer(LightTracer):
             self._emission_vertices(ph, rng, film, mis=None if stop is not None and stop.camera_free
                                     else (self.kn, M.emit_pdf_pos(t, light),
                                           self.cls[light] == M.FULL))
-        if stop is not None and stop.alone:
-            # No camera strategy beside any light vertex (CameraStop): LIGHT's trace.
+        if stop is not None and (stop.alone or self.plain):
+            # No camera strategy beside any light vertex (CameraStop): LIGHT's
+            # trace; plain: without the first hits (next-event estimation's).
             dep = self.tracer.trace_emitted(ph, rng)
+            if dep is not None and self.plain:
+                keep = dep["bounce"] > 0
+                dep = {k: dep[k][keep] for k in ("p", "ng", "wi", "power", "bary")}
             if dep is not None:
                 self.connect(dep, rng, film)
             return
