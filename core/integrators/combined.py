@@ -148,9 +148,11 @@ def camera_stop(lt) -> Optional[CameraStop]:
             return None
         if not alone:
             # A mirror or glass somewhere: 'DIRECT' with one camera path a
-            # pixel where the camera sees none (camera_sees_covered_only),
-            # else FULL.
-            if not camera_sees_covered_only(lt, covered):
+            # pixel where the camera sees none (camera_sees_covered_only)
+            # and every traced emitter is a delta light (measured on those
+            # only: docs/integrators.md "The point caustic"), else FULL.
+            if not (delta_light_rows(t, lt.cls)[t.p_select > 0].all()
+                    and camera_sees_covered_only(lt, covered)):
                 return None
             return CameraStop(1, covered, one=True)
     return CameraStop(depth, covered, alone, alone and not soft, one=alone)
@@ -457,13 +459,18 @@ class CameraMIS:
         return w
 
 
+def delta_light_rows(t, cls) -> np.ndarray:
+    """(Nl,) bool: the radius-0 point and spot lights of table t (classes
+    cls) in the three-way weights."""
+    return (cls == M.FULL) & (t.kind != AREA) & (t.kind != MESH)
+
+
 def nee_owned_rows(t, cls) -> np.ndarray:
     """(Nl,) bool: the emitter rows of table t (classes cls) whose direct
     light at a non-delta y_1 is next-event estimation's alone
     (mis.NEE_OWNS_DELTA_DIRECT: radius-0 point and spot lights); all False
     when that rule is off.  Their first hits' splats take B1 = inf (w_LT = 0)."""
-    owned = (cls == M.FULL) & (t.kind != AREA) & (t.kind != MESH)
-    return owned & bool(M.NEE_OWNS_DELTA_DIRECT)
+    return delta_light_rows(t, cls) & bool(M.NEE_OWNS_DELTA_DIRECT)
 
 
 def first_hit_ratios(t, kn, light, z0, d, p, ng):
