@@ -320,3 +320,13 @@ def test_auto_direct_with_glass_out_of_view(monkeypatch):
     assert abs(m.mean() - exp.mean()) < 4 * s_mean + 1e-4 * exp.mean()
     assert z2 < 1.5
     assert s < 0.5 * s_off
+
+
+def test_auto_keeps_full_camera_paths_with_an_area_light_and_hidden_glass():
+    """The rule of the test above is for delta lights only (the case
+    measured): under an area light the hidden glass keeps 'FULL'."""
+    scene, _ = _plane_with_hidden_glass()
+    area, _ = area_light_plane(res=16)
+    scene = dataclasses.replace(scene, lights=list(area.lights))
+    r = Renderer(scene, RenderSettings(integrator="COMBINED", max_passes=1), log=lambda s: None)
+    assert r.path_tracer.vc.stop is None and r.path_tracer.samples == 4
