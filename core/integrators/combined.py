@@ -92,8 +92,8 @@ class CameraStop(NamedTuple):
     in both sides' weights), set where the camera paths only find emitters
     (alone) or, at depth 1, where the camera sees covered materials only
     (:func:`camera_stop`'s 'AUTO'), so that every camera path a pixel adds
-    is one more light sample at y_1 (docs/integrators.md "Camera depth
-    'AUTO' with glass out of view")."""
+    is one more light sample at y_1 (docs/integrators.md "The point
+    caustic: `COMBINED` below FPPM and `LIGHT`")."""
     depth: int
     covered: np.ndarray
     alone: bool = False
@@ -150,7 +150,7 @@ def camera_stop(lt) -> Optional[CameraStop]:
             # A mirror or glass somewhere: 'DIRECT' with one camera path a
             # pixel where the camera sees none (camera_sees_covered_only)
             # and every traced emitter is a delta light (measured on those
-            # only: docs/integrators.md "The point caustic"), else FULL.
+            # only: docs/integrators.md, the point caustic), else FULL.
             if not (delta_light_rows(t, lt.cls)[t.p_select > 0].all()
                     and camera_sees_covered_only(lt, covered)):
                 return None

@@ -59,12 +59,13 @@ NO_LT, FULL, SOFT = 0, 1, 2
 #: heuristic between the two; every other path keeps the power heuristic.
 #: The light sample of a delta light has no variance but y_1's within the
 #: pixel, while the splats of light tracing land in a pixel a Poisson number
-#: of times; the power heuristic, which compares only the densities (about
-#: K camera samples against the light paths landing in the pixel's
-#: footprint), gave light tracing 15 % (K 4) to 75 % (K 1) of that light
-#: (docs/integrators.md "Direct light of point lights").  Weights 0 / 1 by
-#: path class sum to one, so the image stays unbiased.  Read by
-#: combined.CameraMIS and combined.CombinedLightTracer at construction.
+#: of times; the power heuristic, which compares only the densities (K
+#: camera samples against the light paths expected in the pixel's
+#: footprint), gave light tracing a share that grows as K falls
+#: (docs/integrators.md "The point caustic: `COMBINED` below FPPM and
+#: `LIGHT`").  Weights 0 / 1 by path class sum to one, so the image stays
+#: unbiased.  Read by combined.CameraMIS and combined.CombinedLightTracer
+#: at construction.
 NEE_OWNS_DELTA_DIRECT = True
 
 
