@@ -25,7 +25,9 @@ RADIUS_MODES = (
 CAMERA_DEPTHS = (
     ('AUTO', "Auto",
      "Emitters where every material is diffuse or rough and light paths often reach the "
-     "camera (a pilot of light paths decides; light tracing takes the rest), else Full", 0),
+     "camera (a pilot of light paths decides; light tracing takes the rest); Direct with "
+     "one camera path a pixel where the scene has mirrors or glass but the camera sees "
+     "none of them and every light is a point or spot light of radius 0; else Full", 0),
     ('FULL', "Full", "Camera paths at full length, every strategy weighted by MIS", 1),
     ('EMITTERS', "Emitters",
      "Camera rays on diffuse first vertices only find emitters seen directly", 2),

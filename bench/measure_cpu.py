@@ -11,7 +11,8 @@ paths per pass for light and combined), :r<X> sets light_paths_per_camera_path
 (combined: 'EMITTERS', 'DIRECT', 'FULL', 'AUTO'), :mmis (last) merging as an MIS
 strategy (merge_weights 'MIS'; :mppm the same without frequency photons,
 PPM radii), :i<X> sets initial_radius_px, :n<N> renders N passes whatever
-the time (equal light paths).  The reference is Cycles at 8192 spp (cached
+the time (equal light paths), :own0 (last) turns the rule
+core.integrators.mis.NEE_OWNS_DELTA_DIRECT off for that run.  The reference is Cycles at 8192 spp (cached
 under ~/.cache/fppm/references/ as ``fppm converge`` does), or with
 ``--ref light:S`` a light-tracing render of S CPU seconds (for scenes Cycles
 cannot render, such as a radius-0 point light's caustic; cached in
@@ -64,6 +65,8 @@ from fppm.tools.metrics import reference_floor, relmse as relmse_of  # noqa: E40
 
 
 def settings_of(run: str) -> dict:
+    if run.endswith(":own0"):                # the rule mis.NEE_OWNS_DELTA_DIRECT off (no setting)
+        return dict(settings_of(run[:-5]), _nee_owns=False)
     if run.endswith(":mmis"):                # e.g. combined4:mmis -- merging as an MIS strategy
         return dict(settings_of(run[:-5]), merge_weights="MIS")
     if run.endswith(":mppm"):                # the same with PPM radii (no frequency photons)
@@ -93,9 +96,17 @@ def settings_of(run: str) -> dict:
     return dict(integrator="PHOTON", use_frequency=(run == "fppm"))
 
 
+def _rule(kw: dict):
+    """kw without the bench-only key ``_nee_owns``, after setting
+    mis.NEE_OWNS_DELTA_DIRECT from it (default on; read when a renderer is built)."""
+    from fppm.core.integrators import mis
+    mis.NEE_OWNS_DELTA_DIRECT = kw.pop("_nee_owns", True)
+    return kw
+
+
 def render_cpu(blend, pct, budget, run, seed=7, log=True):
     """(image, cpu seconds, passes) of ``run`` stopped after ``budget`` CPU seconds."""
-    kw = dict(dict(max_passes=100000), **settings_of(run), time_limit=0.0, seed=seed)
+    kw = _rule(dict(dict(max_passes=100000), **settings_of(run), time_limit=0.0, seed=seed))
     if kw["max_passes"] < 100000:
         budget = float("inf")                # equal passes, not equal time
     # Untimed warm-up: numba kernels from the disk cache.
@@ -111,6 +122,7 @@ def render_cpu(blend, pct, budget, run, seed=7, log=True):
     scene = open_blend(blend, resolution=pct)
     c0, w0 = time.process_time(), time.perf_counter()
     render_scene(scene, kw, sess)
+    _rule({})
     last["camera_share"] = camera_share(sess.renderer)
     return last
 
@@ -128,11 +140,12 @@ def pass_costs(blend, pct, rounds, runs):
     reversed every other round (no run always after the same one)."""
     rend = {}
     for run in runs:
-        kw = dict(settings_of(run), time_limit=0.0, max_passes=1, seed=7)
+        kw = _rule(dict(settings_of(run), time_limit=0.0, max_passes=1, seed=7))
         sess = RenderSession(log=lambda s: None)
         render_scene(open_blend(blend, resolution=pct), kw, sess)
         rend[run] = sess.renderer
         rend[run]._should_stop = lambda: False     # the Blender engine is gone
+    _rule({})
     cpu = {run: [] for run in runs}
     for i in range(rounds):
         for run in (runs if i % 2 == 0 else runs[::-1]):
@@ -198,7 +211,8 @@ def render_tree(tree, blend, pct, budget, run, seed=7):
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "img.npy")
         arg = dict(tree=tree, blend=own if os.path.isfile(own) else os.path.abspath(blend),
-                   pct=pct, budget=budget, settings=settings_of(run), seed=seed, out=out)
+                   pct=pct, budget=budget, settings=_rule(settings_of(run)), seed=seed, out=out)
+        _rule({})
         res = subprocess.run([os.path.join(tree, ".venv", "bin", "python"), "-c", TREE_RENDER,
                               json.dumps(arg)], capture_output=True, text=True, cwd=tree)
         line = [x for x in res.stdout.splitlines() if x.startswith("TREE ")]

@@ -192,7 +192,7 @@ class Renderer:
             # Camera paths that light tracing takes over (combined.CameraStop).
             stop = self.path_tracer.vc.stop = getattr(self.combined_lt, "stop", None)
             if stop is not None:
-                if stop.alone:
+                if stop.one:
                     self.path_tracer.samples = self.combined_lt.K
                     self.path_tracer.vc.set_samples(self.combined_lt.K)
                 self.plan.strategies = with_camera_stop(self.plan.strategies, stop,

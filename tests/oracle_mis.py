@@ -8,7 +8,14 @@ running ratios of core.integrators.mis:
 
     q_PT  = K   c_1 ... c_k              (0 for a delta-position light)
     q_NEE = K   c_1 ... c_{k-1} n_k      (0 if y_{k-1} is a mirror or k = 1)
-    q_LT  = N_L l_1 ... l_k              (0 if y_1 is a mirror)
+    q_LT  = N_L l_1 ... l_k              (0 if y_1 is a mirror, and for the
+                                          direct light of a delta-position
+                                          light: k = 2, y_1 not a mirror)
+
+The last exception is a rule of the integrator, not a density: the direct
+light of radius-0 point and spot lights belongs to next-event estimation
+alone (core.integrators.mis.NEE_OWNS_DELTA_DIRECT), so its power weights
+are (0, 1, 0).
 
 c_1 = |cos_1| / (A_pix cos_cam^3 d_01^2) (one-pixel pinhole density),
 c_i = p_bsdf(y_{i-1}: y_{i-2} -> y_i) |cos_i| / d^2, l_k = emission position
@@ -63,11 +70,16 @@ def _pdf(path, i, frm, to):
     return lambert_pdf(v["n"], wo, wi)
 
 
-def densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir, nee_area, hittable):
+def densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir, nee_area, hittable,
+              nee_owns=True):
     """(q_PT, q_NEE, q_LT) of path.  axis: unit view direction of the camera;
     emit_pos: l_k; emit_dir(w): the emitter's solid-angle density along w
-    (leaving y_k); nee_area: n_k; hittable: a BSDF ray can hit the emitter."""
-    return _densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir, nee_area, hittable)[:3]
+    (leaving y_k); nee_area: n_k; hittable: a BSDF ray can hit the emitter
+    (False: a delta-position light); nee_owns: the rule that a delta light's
+    direct light is NEE's alone applies (False where the camera paths stop
+    before their light sample at y_1, core.integrators.combined.CameraStop)."""
+    return _densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir, nee_area, hittable,
+                      nee_owns)[:3]
 
 
 def vcm_densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir, nee_area, hittable, N_M, r2):
@@ -83,7 +95,8 @@ def vcm_densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir, nee_area, hitta
     return q_pt, q_nee, q_lt, q_m
 
 
-def _densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir, nee_area, hittable):
+def _densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir, nee_area, hittable,
+               nee_owns=True):
     k = len(path) - 1
     y = [np.asarray(v["p"], float) for v in path]
     c = [None] * (k + 1)
@@ -102,6 +115,8 @@ def _densities(path, A_pix, axis, K, N_L, emit_pos, emit_dir, nee_area, hittable
     q_pt = K * np.prod(c[1:]) if hittable else 0.0
     q_nee = K * np.prod(c[1:k]) * nee_area if k >= 2 and path[k - 1]["kind"] != "mirror" else 0.0
     q_lt = N_L * np.prod(l[1:]) if path[1]["kind"] != "mirror" else 0.0
+    if nee_owns and k == 2 and not hittable and path[1]["kind"] != "mirror":
+        q_lt = 0.0        # a delta light's direct light: NEE's alone (module doc)
     return q_pt, q_nee, q_lt, c, l
 
 

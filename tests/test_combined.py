@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from core import materials as Bm
-from core.integrators.combined import (emission_splat_weight, first_hit_ratios,
+from core.integrators.combined import (emission_splat_weight, first_hit_ratios, nee_owned_rows,
                                        scatter_factors, splat_weight)
 from core.integrators import path_kernels as PKp
+from core.integrators.mis import light_classes
 from core.integrators.merge import CameraMerge
 from core.integrators.path_tracer import PathVertices
 from core.lights.pdf import _selection_probability
@@ -167,6 +168,7 @@ def light_side(r, path):
     vz = path[k - 1]
     B0, B1 = first_hit_ratios(t, kn, row, z0[None], d, vz["p"][None], vz["n"][None])
     soft = np.array([t.radius[row[0]] > 0])
+    owned = nee_owned_rows(t, light_classes(t))[row]     # CombinedLightTracer._chunk
     for m in range(1, k):
         i = k - m                                   # z_m = y_i
         v = _pv(r, path[i], _unit(y[i + 1] - y[i]))
@@ -176,6 +178,8 @@ def light_side(r, path):
             wc = pr.wi
             pf = Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, wc, v.wo, subset="all")
             c1 = pr.weight * np.abs(np.sum(v.ng * wc, axis=1))
+            if m == 1:
+                B1 = np.where(owned, np.inf, B1)
             return splat_weight(B0, B1, pf, c1, m == 1, soft)[0]
         B0, B1 = light_scatter(r, path, y, i, m, v, B0, B1)
 
@@ -196,7 +200,7 @@ def light_scatter(r, path, y, i, m, v, B0, B1):
     return pend * B0 / cos_in, pend1 * B1 / cos_in
 
 
-def oracle(r, path):
+def oracle(r, path, nee_owns=True):
     t = r.light_table
     k = len(path) - 1
     row = path[k]["row"]
@@ -219,7 +223,7 @@ def oracle(r, path):
         hittable = False
     axis = -r.camera.R[:, 2]
     return O.densities(path, r.camera.pixel_area, axis, K_CAM, N_L, emit_pos, emit_dir, nee,
-                       hittable)
+                       hittable, nee_owns)
 
 
 F1, F2 = (0.2, 0.1, 0.0), (-0.3, 0.4, 0.0)

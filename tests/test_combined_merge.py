@@ -240,7 +240,8 @@ def test_checkpoint_resumes_merging_bit_for_bit(merge_weights):
 
 # ------------------------------------------------- merging as an MIS strategy
 from core import materials as Bm  # noqa: E402
-from core.integrators.combined import first_hit_ratios, splat_weight  # noqa: E402
+from core.integrators.combined import first_hit_ratios, nee_owned_rows, splat_weight  # noqa: E402
+from core.integrators.mis import light_classes  # noqa: E402
 from core.integrators.merge import merge_weight  # noqa: E402
 from core.integrators.merge_kernels import y1_terms  # noqa: E402
 from test_combined import K_CAM, N_L, W1, _pv, _unit, light_scatter, light_vtx  # noqa: E402
@@ -312,6 +313,8 @@ def light_side_mis(r, path, R2, region):
                 wc = pr.wi
                 pf = Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, wc, v.wo, subset="all")
                 bm = np.array([0.0 if m == 1 else np.pi * r2 * c1_y1[0]])
+                if m == 1 and nee_owned_rows(t, light_classes(t))[row[0]]:
+                    B1 = np.full(1, np.inf)          # CombinedLightTracer._chunk
                 w_lt = splat_weight(B0, B1, pf, c1_y1, m == 1, soft, bm)[0]
             return w_lt, w_m
         B0, B1 = light_scatter(r, path, y, i, m, v, B0, B1)
@@ -351,7 +354,7 @@ def _vcm_oracle(r, path, r2):
         TC.oracle(r, path)
     finally:
         O.densities = real
-    return np.array(O.vcm_densities(*captured["a"], N_L, r2))
+    return np.array(O.vcm_densities(*captured["a"][:9], N_L, r2))
 
 
 @pytest.mark.parametrize("use_frequency", [True, False])

@@ -88,11 +88,17 @@ class CameraStop(NamedTuple):
     emitter the camera can see (no soft point or spot light, whose disc only
     camera rays find), so that the camera paths would only find emitters seen
     directly: none are traced and light tracing's splat of those emitters
-    takes weight 1 as well."""
+    takes weight 1 as well.  one: one camera path a pixel and pass (K = 1
+    in both sides' weights), set where the camera paths only find emitters
+    (alone) or, at depth 1, where the camera sees covered materials only
+    (:func:`camera_stop`'s 'AUTO'), so that every camera path a pixel adds
+    is one more light sample at y_1 (docs/integrators.md "The point
+    caustic: `COMBINED` below FPPM and `LIGHT`")."""
     depth: int
     covered: np.ndarray
     alone: bool = False
     camera_free: bool = False
+    one: bool = False
 
     def ends(self, depth: int, mat_hit, mat_y1) -> np.ndarray:
         """(K,) bool: the camera rays of loop step ``depth`` (0: the camera
@@ -136,10 +142,20 @@ def camera_stop(lt) -> Optional[CameraStop]:
         return None
     covered = covered_materials(lt.mtab, lt.fast_mat)
     alone = depth == 0 and bool(covered[np.unique(tri_mat)].all())
-    if st.camera_depth == "AUTO" and not (alone and visible_splats(lt, st.seed) >= VISIBLE_SPLATS):
-        return None
     soft = np.any((lt.cls == M.SOFT) & (t.p_select > 0))
-    return CameraStop(depth, covered, alone, alone and not soft)
+    if st.camera_depth == "AUTO":
+        if visible_splats(lt, st.seed) < VISIBLE_SPLATS:
+            return None
+        if not alone:
+            # A mirror or glass somewhere: 'DIRECT' with one camera path a
+            # pixel where the camera sees none (camera_sees_covered_only)
+            # and every traced emitter is a delta light (measured on those
+            # only: docs/integrators.md, the point caustic), else FULL.
+            if not (delta_light_rows(t, lt.cls)[t.p_select > 0].all()
+                    and camera_sees_covered_only(lt, covered)):
+                return None
+            return CameraStop(1, covered, one=True)
+    return CameraStop(depth, covered, alone, alone and not soft, one=alone)
 
 
 #: 'AUTO' leaves the camera paths out only where light paths reach the
@@ -152,6 +168,24 @@ VISIBLE_SPLATS = 0.1
 
 #: Light paths of that pilot.
 PILOT_PATHS = 8192
+
+
+def camera_sees_covered_only(lt, covered) -> bool:
+    """Whether the camera rays through the pixel centres of the light
+    tracer lt's region (and the lens centre) hit covered materials only
+    (misses count as covered: camera_stop has no world light).  A pilot for
+    'AUTO''s choice only: a mirror or glass it misses still has its camera
+    paths at full length (CameraStop stops camera paths at covered y_1
+    only), so the image stays unbiased whatever it finds."""
+    from ..scene.camera import FilterSampler
+    ys, xs = np.mgrid[0:lt.H, 0:lt.W]
+    px = (xs.ravel() + lt.x0).astype(np.float64)
+    py = ((lt.H - 1 - ys).ravel() + lt.y0).astype(np.float64)
+    u = np.full((px.size, 2), 0.5)       # FilterSampler.sample(0.5) = 0: the centre
+    rays, _ = lt.camera.generate(px, py, u, u, FilterSampler(lt.filter_width))
+    prim = lt.accel.intersect(rays.o, rays.d, rays.t_max).prim
+    mat = np.asarray(lt.scene.tri_mat, np.int64)[prim[prim >= 0]]
+    return bool(covered[mat].all())
 
 
 def visible_splats(lt, seed: int) -> float:
@@ -208,6 +242,9 @@ class CameraMIS:
         self.K = int(K)
         # Where the camera paths stop (CameraStop), set by the renderer; None = never.
         self.stop = None
+        # Direct light of radius-0 point/spot lights at y_1: NEE's alone
+        # (mis.NEE_OWNS_DELTA_DIRECT; the light side's _chunk agrees).
+        self.owns = bool(M.NEE_OWNS_DELTA_DIRECT)
 
     # ---------------------------------------------------------- densities
     def c1(self, d, cos_surf, t):
@@ -220,7 +257,7 @@ class CameraMIS:
         return cos_surf / (A * cc ** 3 * t * t)
 
     def set_samples(self, K: int) -> None:
-        """K camera paths per pixel and pass instead (CameraStop.alone)."""
+        """K camera paths per pixel and pass instead (CameraStop.one)."""
         self.ratio *= self.K / float(K)
         self.K = int(K)
 
@@ -284,12 +321,12 @@ class CameraMIS:
                c(pl), c(sel))
         if getattr(v, "QM", None) is not None:
             fl, fm = np.ones(light.size), np.ones(light.size)
-            PK.camera_nee_kernel(self._mis_lights, depth == 0, c(v.Q), *geo, fl)
-            PK.camera_nee_kernel(self._mis_lights, False, c(v.QM), *geo, fm)
+            PK.camera_nee_kernel(self._mis_lights, depth == 0, self.owns, c(v.Q), *geo, fl)
+            PK.camera_nee_kernel(self._mis_lights, False, self.owns, c(v.QM), *geo, fm)
             return _with_merge(np.asarray(w, np.float64), _ratio2(fl), _ratio2(fm),
                                self.cls[light] == M.SOFT)
         w = np.array(w, np.float64)
-        PK.camera_nee_kernel(self._mis_lights, depth == 0, c(v.Q), *geo, w)
+        PK.camera_nee_kernel(self._mis_lights, depth == 0, self.owns, c(v.Q), *geo, w)
         return w
 
     def continued_compiled(self, v, nx, depth, Q=None):
@@ -411,12 +448,29 @@ class CameraMIS:
             with np.errstate(divide="ignore", invalid="ignore"):
                 r = _finite(vf.Q * self._reverse(vf, wf, first[f]) * np.abs(_dot(vf.ng, wf)) * T
                             / vf.c)
+            if self.owns:
+                # A delta light's direct light at y_1: NEE's alone (mis.NEE_OWNS_DELTA_DIRECT).
+                r = np.where(first[f] & ~ar, 0.0, r)
             w[f] = _shrink(w[f], r)
         s = np.nonzero(cls == M.SOFT)[0]
         if s.size:
             r = self.soft_ratio(v.take(s), light[s], first[s])
             w[s] *= 1.0 / (1.0 + r * r)
         return w
+
+
+def delta_light_rows(t, cls) -> np.ndarray:
+    """(Nl,) bool: the radius-0 point and spot lights of table t (classes
+    cls) in the three-way weights."""
+    return (cls == M.FULL) & (t.kind != AREA) & (t.kind != MESH)
+
+
+def nee_owned_rows(t, cls) -> np.ndarray:
+    """(Nl,) bool: the emitter rows of table t (classes cls) whose direct
+    light at a non-delta y_1 is next-event estimation's alone
+    (mis.NEE_OWNS_DELTA_DIRECT: radius-0 point and spot lights); all False
+    when that rule is off.  Their first hits' splats take B1 = inf (w_LT = 0)."""
+    return delta_light_rows(t, cls) & bool(M.NEE_OWNS_DELTA_DIRECT)
 
 
 def first_hit_ratios(t, kn, light, z0, d, p, ng):
@@ -498,12 +552,26 @@ class CombinedLightTracer(LightTracer):
         t = self.light_table
         self.all_traced = not np.any((t.p_select > 0) & (self.cls == M.NO_LT))
         self.first_lights = LK.first_hit_lights(t, M.emit_select(t, np.arange(t.n)))
+        # Rows whose direct light at a first hit is next-event estimation's
+        # alone (radius-0 point and spot lights: mis.NEE_OWNS_DELTA_DIRECT;
+        # CameraMIS.nee agrees), None = none.
+        owned = nee_owned_rows(t, self.cls)
+        self.nee_owned = owned if owned.any() else None
         # Where the camera paths stop (CameraStop; None = never).
         self.stop = camera_stop(self)
-        if self.stop is not None and self.stop.alone:
-            # The camera rays only find emitters seen directly: one a pixel
-            # and pass (the weights' K; the renderer sets the PathTracer's).
+        if self.stop is not None and self.stop.one:
+            # One camera path a pixel and pass (the weights' K; the renderer
+            # sets the PathTracer's).
             self.K = 1
+        # No light vertex needs its MIS ratios either (LIGHT's trace, less the
+        # first hits) when the camera stops after its light sample at y_1
+        # (depth 1), every traced emitter's direct light is that sample's
+        # (nee_owned) and every material a light vertex is splatted on is
+        # covered: first hits weigh 0, later vertices 1 (CameraStop.light_only).
+        st_ = self.stop
+        self.plain = bool(st_ is not None and st_.depth == 1 and self.nee_owned is not None
+                          and self.nee_owned[t.p_select > 0].all()
+                          and st_.covered[self.mtab.has_nondelta].all())
         # The compiled next-event selection probability of _first_hit
         # (path_kernels.selection_kernel reads LightPdf's entry and group_frac
         # only, not its hittable), None where the compiled lights do not
@@ -552,9 +620,13 @@ class CombinedLightTracer(LightTracer):
             self._emission_vertices(ph, rng, film, mis=None if stop is not None and stop.camera_free
                                     else (self.kn, M.emit_pdf_pos(t, light),
                                           self.cls[light] == M.FULL))
-        if stop is not None and stop.alone:
-            # No camera strategy beside any light vertex (CameraStop): LIGHT's trace.
+        if stop is not None and (stop.alone or self.plain):
+            # No camera strategy beside any light vertex (CameraStop): LIGHT's
+            # trace; plain: without the first hits (next-event estimation's).
             dep = self.tracer.trace_emitted(ph, rng)
+            if dep is not None and self.plain:
+                keep = dep["bounce"] > 0
+                dep = {k: dep[k][keep] for k in ("p", "ng", "wi", "power", "bary")}
             if dep is not None:
                 self.connect(dep, rng, film)
             return
@@ -565,12 +637,23 @@ class CombinedLightTracer(LightTracer):
         dep, B0d, B1d, first = self._trace(ph, z0, rng)
         if dep is None:
             return
+        if self.nee_owned is not None:
+            # A delta light's direct light: next-event estimation's alone
+            # (q_1 / q_L infinite: w_LT = 0), unless the camera stops before
+            # its light sample (below).
+            B1d[first & self.nee_owned[light[dep["src_photon"]]]] = np.inf
         if stop is not None:
             # Paths the camera does not trace (CameraStop): light tracing's alone.
             mat = self.tracer.tris.mat[dep["bary"][:, 0].astype(np.int64)]
             alone = stop.light_only(mat, first)
             B0d[alone] = 0.0
             B1d[alone] = 0.0
+        if self.nee_owned is not None and getattr(self, "kept", None) is None:
+            # Their splats weigh 0: not joined to the lens (no shadow ray).
+            keep = ~(first & np.isinf(B1d))
+            if not keep.all():
+                dep = {k: dep[k][keep] for k in ("p", "ng", "wi", "power", "bary", "src_photon")}
+                B0d, B1d, first = B0d[keep], B1d[keep], first[keep]
         mis = (B0d, B1d, first, soft[dep["src_photon"]])
         if getattr(self, "kept", None) is not None:
             # Merging as an MIS strategy: q_M / q_L = pi r^2 c_1 (N_M = N_L).

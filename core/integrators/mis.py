@@ -53,6 +53,21 @@ from ..mathutil import dot as _dot
 #: Strategy classes of an emitter row (``light_classes``).
 NO_LT, FULL, SOFT = 0, 1, 2
 
+#: The direct light of radius-0 point and spot lights at a non-delta first
+#: camera vertex y_1 (paths y_0 y_1 y_2, y_2 the light) belongs to
+#: next-event estimation alone (w_NEE = 1, w_LT = 0) instead of the power
+#: heuristic between the two; every other path keeps the power heuristic.
+#: The light sample of a delta light has no variance but y_1's within the
+#: pixel, while the splats of light tracing land in a pixel a Poisson number
+#: of times; the power heuristic, which compares only the densities (K
+#: camera samples against the light paths expected in the pixel's
+#: footprint), gave light tracing a share that grows as K falls
+#: (docs/integrators.md "The point caustic: `COMBINED` below FPPM and
+#: `LIGHT`").  Weights 0 / 1 by path class sum to one, so the image stays
+#: unbiased.  Read by combined.CameraMIS and combined.CombinedLightTracer
+#: at construction.
+NEE_OWNS_DELTA_DIRECT = True
+
 
 def light_classes(table) -> np.ndarray:
     """(Nl,) int8: FULL (area, mesh, radius-0 point/spot: three-way weights),

@@ -469,18 +469,22 @@ def _point_emit_over_nee(X, j, nee, wx, wy, wz, dist):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def camera_nee_kernel(X, first, Qv, cv, p, ng, ns, wo, wi, dist, light, pl, sel, w):
+def camera_nee_kernel(X, first, own, Qv, cv, p, ng, ns, wo, wi, dist, light, pl, sel, w):
     """combined.CameraMIS.nee at Lambert vertices (K rows: Qv, cv (K,) the
     vertex's Q and c; p, ng, ns, wo, wi (K, 3); dist, light, pl, sel (K,),
     pl and sel the light sample's density and selection probability from
     :func:`nee_mis_kernel`): w (K,),
     the NEE-vs-PT weights, shrunk in place by the light-tracing ratio (FULL
     emitters) or scaled by 1 / (1 + r^2) (SOFT).  first: vertex 0 (reverse
-    density 1)."""
+    density 1); own: a radius-0 point or spot light's direct light at
+    vertex 0 is next-event estimation's alone (mis.NEE_OWNS_DELTA_DIRECT:
+    w unchanged)."""
     for k in range(p.shape[0]):
         j = light[k]
         cl = X.cls[j]
         if cl != FULL and cl != SOFT:
+            continue
+        if own and first and cl == FULL and X.kind[j] != AREA and X.kind[j] != MESH:
             continue
         px, py, pz = p[k, 0], p[k, 1], p[k, 2]
         sx, sy, sz = ns[k, 0], ns[k, 1], ns[k, 2]
