@@ -26,6 +26,8 @@ before anything of FPPM ran in this process); the three are interleaved
 point_caustic.blend: Cycles cannot render point-light caustics, so its
 reference is Mitsuba 3's light tracer, made by bench/point_caustic_reference.py
 and read from the cache folder (the scene is skipped when it is missing).
+glass_sphere and coffee_cup: LuxCoreRender's VCM, made by
+bench/luxcore_reference.py, read the same way (:data:`REFERENCE_SCRIPTS`).
 """
 from __future__ import annotations
 
@@ -44,8 +46,12 @@ DOCS = os.path.join(ROOT, "docs", "convergence")
 SCENES = {
     "cornell": ("diffuse", 8192),
     "indirect_room": ("indirect", 8192),
-    "coffee_cup": ("caustic-small", 16384),
-    "glass_sphere": ("caustic-small", 16384),
+    # Cycles' 16384-spp references of these two are as noisy as the methods
+    # (a camera path must hit the 5 cm spot through glass or in the mirror):
+    # the reference is LuxCoreRender's VCM (bench/luxcore_reference.py), in the
+    # cache folder.
+    "coffee_cup": ("caustic-small", "coffee_cup_luxcore_bidirvm.exr"),
+    "glass_sphere": ("caustic-small", "glass_sphere_luxcore_bidirvm.exr"),
     # Cycles cannot render this caustic: the reference is Mitsuba 3's light
     # tracer (bench/point_caustic_reference.py), 65536 spp, in the cache folder.
     "point_caustic": ("caustic-point", "point_caustic_mitsuba_ptracer_65536.exr"),
@@ -135,6 +141,12 @@ NOTES = [
 # CPPM), the single strategies of the combined integrator (path and light
 # tracing), the combined integrator, and Cycles (the order of the table).
 METHODS = "fppm,ppm,appm,cppm,path,light,combined,cycles"
+# The script that makes each reference file of SCENES.
+REFERENCE_SCRIPTS = {
+    "point_caustic": "bench/point_caustic_reference.py",
+    "glass_sphere": "bench/luxcore_reference.py render glass_sphere",
+    "coffee_cup": "bench/luxcore_reference.py render coffee_cup",
+}
 # The methods each scene's targets need: the combined
 # integrator against Cycles and its single strategies, FPPM against PPM, and
 # APPM / CPPM where indirect light dominates.  Cycles cannot render
@@ -163,7 +175,7 @@ def run_scene(name, budget, seeds, from_csv=False, methods=None, clock="cpu"):
         path = os.path.join(base, "references", spp)
         if not os.path.isfile(path):
             print(f"== {name}: skipped, no reference {path} (make it with "
-                  "bench/point_caustic_reference.py)", flush=True)
+                  f"{REFERENCE_SCRIPTS[name]})", flush=True)
             return None
         ref_args = ["--reference", path]
     else:
