@@ -145,7 +145,9 @@ def check(scene: str, cycles: int, fppm_runs: list[tuple[str, float]], engine: s
     ref = load_reference(reference_path(scene, engine))
     runs = np.stack([r["img"] for r in load_runs(scene, engine)])
     s = P.load_scene(blend_of(scene), PCT)
-    ids = P.render_luxcore(P.translate(s), engine, 99, 3.0,
+    # The material seen first: PATHCPU's camera rays fill every pixel of the
+    # MATERIAL_ID output (VCM's leave most of them unset in a short render).
+    ids = P.render_luxcore(P.translate(s), "lux_path", 99, 3.0,
                            outputs=("RGB", "MATERIAL_ID"))["MATERIAL_ID"][..., 0]
     masks = {"all": np.ones(ids.shape, bool)}
     masks.update({k: v for k, v in region_masks(ref["image"]).items() if v.any()})
