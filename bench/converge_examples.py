@@ -97,11 +97,16 @@ NOTES = [
     "8192 for the rings).  None of them includes the reach map of the frequency photons or the "
     "camera and direct stages in blocks, merged after them, nor the kernel clipped at walls (on by default since; it changes every photon mapper's row, the rings' most: README).  The default 120 CPU s and 4 seeds "
     "did not fit a session (about 4 hours of an idle machine for every scene and method).",
-    "glass_sphere and coffee_cup: their Cycles references' own noise floors (1.3e-2 and "
-    "7.8e-2: Cycles cannot sample a small light's caustic seen through glass) are as large as "
-    "the photon mappers' excess errors at 30 CPU s, so every ratio there is flagged 'near "
-    "floor' and measures the reference as much as the methods.  docs/peers.md compares the "
-    "glass sphere at 64x64 against LuxCoreRender with the same caveat.",
+    "glass_sphere: its Cycles reference's own noise floor (1.3e-2: Cycles cannot sample a "
+    "small light's caustic seen through glass) is as large as the photon mappers' excess "
+    "errors at 30 CPU s, so every ratio there is flagged 'near floor' and measures the "
+    "reference as much as the methods.  A LuxCore VCM reference (floor 1.2e-3) was made and "
+    "not kept: it is 14-17 % brighter than both Cycles and FPPM's Combined in the dim region "
+    "(docs/peers.md 'References for the glass scenes').",
+    "coffee_cup: since COFFEE_RUN, against LuxCoreRender's VCM (bench/luxcore_reference.py, "
+    "two runs of 200 and 150 CPU s, 3501 spp, floor 4.15e-3, 19x below the 16384-spp Cycles "
+    "reference's 7.8e-2; region means within 2 % of FPPM's Combined and within Cycles' error "
+    "of a 4096-spp Cycles render: docs/peers.md 'References for the glass scenes').",
     "CPU time is not a perfect measure of work on a loaded machine: at the same 30 CPU s, PPM "
     "did 400 and 267 passes on point_caustic's two seeds, FPPM 50 and 36 on indirect_room's "
     "(the other vCPU busy, caches shared).  The seed spreads in the tables include that.",
@@ -124,12 +129,13 @@ NOTES = [
     "Cycles: the ladder renders 1, 2, 4, ... spp in a process of its own, each point timed by "
     "that process's CPU; the standalone samples/s check is skipped (--no-cycles-check): it "
     "guarded against the machine's load, which the CPU clock takes out.",
-    "References: Cycles at 8192 spp (16384 for glass_sphere and coffee_cup) with caustics on, "
+    "References: Cycles at 8192 spp (16384 for glass_sphere) with caustics on, "
     "two halves whose difference gives the noise floor; point_caustic: Mitsuba 3's light tracer "
     "(ptracer, bench/point_caustic_reference.py), 65536 spp: the script's 16384-spp halves "
     "averaged with 49152-spp halves rendered by the same function with other seeds (floor "
     "1.4e-4, 4x below the 16384-spp reference's 5.5e-4), since Cycles cannot render a point "
-    "light's caustic.  A target whose excess errors are below 3x the reference floor is marked "
+    "light's caustic; coffee_cup: LuxCoreRender's VCM (above).  A target whose excess errors "
+    "are below 3x the reference floor is marked "
     "'near floor'.",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",

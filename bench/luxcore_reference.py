@@ -1,4 +1,8 @@
-"""References for glass_sphere and coffee_cup from LuxCoreRender's VCM (BIDIRVMCPU).
+"""References from LuxCoreRender's VCM (BIDIRVMCPU) for the small-light caustic scenes.
+
+bench/converge_examples.py uses coffee_cup's; glass_sphere's was made and
+not kept (its dim regions disagree with Cycles and FPPM: docs/peers.md
+"References for the glass scenes").
 
     .venv/bin/python bench/luxcore_reference.py render SCENE [--runs K] [--cpu S] [--engine E]
     .venv/bin/python bench/luxcore_reference.py finish SCENE [--engine E]
