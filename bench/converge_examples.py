@@ -90,10 +90,10 @@ NOTES = [
     "per method).  4 seeds did not fit after that merge.",
     "Three earlier runs make the other rows.  point_caustic: "
     "`--budget 30 --seeds 2` on the code before them (47f7a5f), on a machine loaded by other "
-    "jobs (load average 8 to 16, 0.2 to 0.6 cores per method).  glass_sphere, coffee_cup "
+    "jobs (load average 8 to 16, 0.2 to 0.6 cores per method).  glass_sphere "
     "and ring_principled: `--budget 30 --seeds 2` on a434914 (the first of these "
     "plus the docs), on a machine loaded by other jobs (load average 3 to 26, 0.3 to 1.3 cores "
-    "per method), after their Cycles references were made (16384 spp for the glass scenes, "
+    "per method), after their Cycles references were made (16384 spp for the glass sphere, "
     "8192 for the rings).  None of them includes the reach map of the frequency photons or the "
     "camera and direct stages in blocks, merged after them, nor the kernel clipped at walls (on by default since; it changes every photon mapper's row, the rings' most: README).  The default 120 CPU s and 4 seeds "
     "did not fit a session (about 4 hours of an idle machine for every scene and method).",
@@ -103,10 +103,17 @@ NOTES = [
     "reference as much as the methods.  A LuxCore VCM reference (floor 1.2e-3) was made and "
     "not kept: it is 14-17 % brighter than both Cycles and FPPM's Combined in the dim region "
     "(docs/peers.md 'References for the glass scenes').",
-    "coffee_cup: since COFFEE_RUN, against LuxCoreRender's VCM (bench/luxcore_reference.py, "
+    "coffee_cup: `coffee_cup --budget 30 --seeds 2 --methods fppm,ppm,light,combined` on "
+    "e64549a (load average 5 to 6, 0.68 to 1.0 cores per method; PATH not run: 6.6 relMSE "
+    "before), against LuxCoreRender's VCM (bench/luxcore_reference.py, "
     "two runs of 200 and 150 CPU s, 3501 spp, floor 4.15e-3, 19x below the 16384-spp Cycles "
     "reference's 7.8e-2; region means within 2 % of FPPM's Combined and within Cycles' error "
-    "of a 4096-spp Cycles render: docs/peers.md 'References for the glass scenes').",
+    "of a 4096-spp Cycles render: docs/peers.md 'References for the glass scenes').  Against "
+    "it the excess errors fall from 0.15-0.2 (against Cycles) to 6.1e-3-6.5e-3 (LIGHT 6.4e-2): "
+    "the Cycles reference's fireflies had inflated them beyond its measured floor.  The floor "
+    "is now above 1/3 of those excesses, so the rows are still 'near floor': about 2x the "
+    "reference's CPU (`bench/luxcore_reference.py render coffee_cup --runs 4 --cpu 200` adds "
+    "two runs) is needed to rank FPPM against PPM there.",
     "CPU time is not a perfect measure of work on a loaded machine: at the same 30 CPU s, PPM "
     "did 400 and 267 passes on point_caustic's two seeds, FPPM 50 and 36 on indirect_room's "
     "(the other vCPU busy, caches shared).  The seed spreads in the tables include that.",
