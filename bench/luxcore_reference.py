@@ -1,0 +1,199 @@
+"""References from LuxCoreRender's VCM (BIDIRVMCPU) for the small-light caustic scenes.
+
+bench/converge_examples.py uses coffee_cup's; glass_sphere's was made and
+not kept (its dim regions disagree with Cycles and FPPM: docs/peers.md
+"References for the glass scenes").
+
+    .venv/bin/python bench/luxcore_reference.py render SCENE [--runs K] [--cpu S] [--engine E]
+    .venv/bin/python bench/luxcore_reference.py finish SCENE [--engine E]
+    .venv/bin/python bench/luxcore_reference.py check  SCENE [--cycles N] [--fppm RUN:S,...]
+
+SCENE: glass_sphere or coffee_cup (any scene bench/peer_luxcore.py translates),
+rendered at 100 % (128x128, what bench/converge_examples.py compares at).
+Cycles cannot sample the caustic of a 5 cm spot seen through glass or in a
+mirror (a camera path must hit the light through the specular surface): its
+16384-spp references of these scenes are as noisy as the methods compared
+against them.  VCM (vertex connection and merging) renders those paths by
+merging, and the rest by light tracing and connections.
+
+``render`` renders K independent LuxCore renders (seeds 0..K-1, each S CPU
+seconds of a child process, bench/peer_luxcore.py's ``render_luxcore``) and
+keeps each in the cache folder (``<cache>/references/<scene>_luxcore/``);
+runs already there are not rendered again, so a second call with a larger
+K adds runs.  ``finish`` (run by ``render`` too) writes
+``<cache>/references/<scene>_luxcore_<engine>.exr``: Combined = the mean of
+the runs, Variance = (A - B)^2 / 4 with A, B the means of the even and odd
+runs (the two independent halves ``fppm converge --reference`` reads, the
+same floor as its Cycles references: ``tools.metrics.reference_floor``).
+
+``check`` compares the reference per region (the regions of
+``tools.metrics.region_masks`` and the material each pixel sees first,
+LuxCore's MATERIAL_ID) with a Cycles render of N spp (``fppm converge``'s
+cached reference) and with FPPM's renders (bench/measure_cpu.py run names,
+S CPU seconds each): the ratio of region means and its standard error
+(docs/peers.md "References for the glass scenes").
+
+LuxCore's merging radius is its default (0.003 x the scene's bounding
+sphere, shrinking with alpha 0.95): the merged paths (caustics seen through
+glass or in the mirror) are blurred by about that radius, a bias the floor
+of the two halves does not measure.
+"""
+from __future__ import annotations
+
+import glob
+import json
+import os
+import sys
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "bench"))
+sys.path.insert(0, os.path.join(ROOT, "tests"))
+import fppm_alias  # noqa: E402,F401  (fppm.* importable, one numba cache)
+import peer_luxcore as P  # noqa: E402
+
+ENGINE = "lux_bidirvm"
+PCT = 100
+
+
+def _arg(argv, flag, default):
+    return type(default)(argv[argv.index(flag) + 1]) if flag in argv else default
+
+
+def _cache():
+    from fppm.tools.converge.references import cache_dir
+    return cache_dir()
+
+
+def runs_dir(scene: str) -> str:
+    return os.path.join(_cache(), f"{scene}_luxcore")
+
+
+def reference_path(scene: str, engine: str = ENGINE) -> str:
+    """The reference file bench/converge_examples.py reads (SCENES)."""
+    return os.path.join(_cache(), f"{scene}_luxcore_{engine.removeprefix('lux_')}.exr")
+
+
+def blend_of(scene: str) -> str:
+    return os.path.join(ROOT, "example_blends", scene + ".blend")
+
+
+def render(scene: str, runs: int, cpu: float, engine: str = ENGINE) -> None:
+    lux = P.translate(P.load_scene(blend_of(scene), PCT))
+    d = runs_dir(scene)
+    os.makedirs(d, exist_ok=True)
+    for seed in range(runs):
+        path = os.path.join(d, f"{engine}_seed{seed}.npz")
+        if os.path.isfile(path):
+            continue
+        out = P.render_luxcore(lux, engine, seed, cpu)
+        np.savez(path, img=out["img"], spp=out["spp"], cpu=out["cpu"])
+        print(f"run seed {seed}: {out['spp']} spp, {out['cpu']:.1f} CPU s, "
+              f"mean {out['img'].mean():.5f}, load {os.getloadavg()[0]:.1f}", flush=True)
+    finish(scene, engine)
+
+
+def load_runs(scene: str, engine: str = ENGINE) -> list[dict]:
+    """The kept runs, by seed (an even number: the last odd one is left out)."""
+    paths = glob.glob(os.path.join(runs_dir(scene), f"{engine}_seed*.npz"))
+    seeds = sorted(int(os.path.basename(p).split("seed")[1].split(".")[0]) for p in paths)
+    runs = [dict(np.load(os.path.join(runs_dir(scene), f"{engine}_seed{s}.npz"))) for s in seeds]
+    return runs[: len(runs) // 2 * 2]
+
+
+def finish(scene: str, engine: str = ENGINE) -> None:
+    from fppm.core.io.exr import write_exr
+    from fppm.tools.metrics import reference_floor
+    runs = load_runs(scene, engine)
+    if len(runs) < 2:
+        raise SystemExit(f"{scene}: fewer than 2 runs of {engine} in {runs_dir(scene)}")
+    a = np.mean([r["img"] for r in runs[0::2]], axis=0)
+    b = np.mean([r["img"] for r in runs[1::2]], axis=0)
+    ref, var = 0.5 * (a + b), 0.25 * (a - b) ** 2
+    spp = int(sum(int(r["spp"]) for r in runs))
+    cpu = float(sum(float(r["cpu"]) for r in runs))
+    meta = {"source": f"LuxCoreRender {engine} (bench/luxcore_reference.py)", "runs": len(runs),
+            "samples": spp, "cpu_seconds": round(cpu, 1)}
+    path = reference_path(scene, engine)
+    write_exr(path, {"Combined": ref.astype(np.float32), "Variance": var.astype(np.float32)},
+              {"fppm:reference": json.dumps(meta)})
+    print(f"wrote {path}: {len(runs)} runs, {spp} spp, {cpu:.0f} CPU s, "
+          f"relMSE floor {reference_floor(ref, var):.3g}", flush=True)
+
+
+def _region_ratio(x_runs, y, y_var, m):
+    """Ratio of region means mean(x) / mean(y) and its standard error.
+
+    x_runs: (K, H, W, 3) independent images (their spread gives x's error);
+    y: (H, W, 3) with per-pixel variance y_var of its mean (pixels taken as
+    independent), or y_var None and y of shape (K', H, W, 3)."""
+    xm = np.array([r[m].mean() for r in x_runs])
+    x, sx = xm.mean(), xm.std(ddof=1) / np.sqrt(len(xm))
+    if y_var is None:
+        ym = np.array([r[m].mean() for r in y])
+        yy, sy = ym.mean(), ym.std(ddof=1) / np.sqrt(len(ym))
+    else:
+        yy, sy = y[m].mean(), np.sqrt(y_var[m].sum()) / y[m].size
+    q = x / yy
+    return q, q * np.hypot(sx / x, sy / yy)
+
+
+def check(scene: str, cycles: int, fppm_runs: list[tuple[str, float]], engine: str = ENGINE):
+    import bpy  # noqa: F401
+
+    from fppm.addon.cli import open_blend
+    from fppm.tools.converge.references import load_reference, make_reference
+    from fppm.tools.metrics import region_masks
+    from measure_cpu import render_cpu
+    ref = load_reference(reference_path(scene, engine))
+    runs = np.stack([r["img"] for r in load_runs(scene, engine)])
+    s = P.load_scene(blend_of(scene), PCT)
+    # The material seen first: PATHCPU's camera rays fill every pixel of the
+    # MATERIAL_ID output (VCM's leave most of them unset in a short render).
+    ids = P.render_luxcore(P.translate(s), "lux_path", 99, 3.0,
+                           outputs=("RGB", "MATERIAL_ID"))["MATERIAL_ID"][..., 0]
+    masks = {"all": np.ones(ids.shape, bool)}
+    masks.update({k: v for k, v in region_masks(ref["image"]).items() if v.any()})
+    for i, mat in enumerate(s.materials):
+        if (ids == i).any():
+            masks["sees " + mat.name] = ids == i
+    others = {}
+    if cycles:
+        c = make_reference(bpy, open_blend(blend_of(scene), resolution=PCT), blend_of(scene),
+                           cycles, print, lambda t, force=False: print(t, flush=True))
+        others[f"Cycles {cycles} spp"] = (c["image"], c["var"])
+    for run, sec in fppm_runs:
+        imgs = np.stack([render_cpu(blend_of(scene), PCT, sec, run, seed=7 + k)["img"]
+                         for k in range(2)])
+        others[f"FPPM {run} 2x{sec:g} CPU s"] = (imgs, None)
+    print(f"{scene}: LuxCore {engine} reference ({len(runs)} runs) / other, per region "
+          f"(ratio of means +- standard error; pixels):")
+    for name, (y, yv) in others.items():
+        cells = []
+        for k, m in masks.items():
+            q, e = _region_ratio(runs, y, yv, m)
+            cells.append(f"{k} {q:.4f}+-{e:.4f} ({int(m.sum())})")
+        print(f"  / {name}: " + "; ".join(cells), flush=True)
+    print(f"load average {os.getloadavg()[0]:.1f}")
+
+
+def main(argv) -> int:
+    if len(argv) < 2 or argv[0] not in ("render", "finish", "check"):
+        print(__doc__)
+        return 2
+    cmd, scene = argv[0], argv[1]
+    engine = _arg(argv, "--engine", ENGINE)
+    if cmd == "render":
+        render(scene, _arg(argv, "--runs", 4), _arg(argv, "--cpu", 200.0), engine)
+    elif cmd == "finish":
+        finish(scene, engine)
+    else:
+        fr = [(r.split(":")[0], float(r.split(":")[1]))
+              for r in _arg(argv, "--fppm", "light:60,combined:60").split(",") if r]
+        check(scene, _arg(argv, "--cycles", 4096), fr, engine)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
