@@ -73,9 +73,10 @@ NOTES = [
     "(docs/integrators.md).  LIGHT's, COMBINED's and Cycles' excess errors at 120 CPU s "
     "(1.2e-4 to 1.4e-4) are below 3x the 8192-spp reference's floor (5.0e-5): a 32768-spp "
     "reference is needed to rank them, so those ratios are flagged 'near floor'.",
-    "ring_lambert: `ring_lambert --budget 120 --seeds 4 --methods fppm,ppm,combined` on 310a884 "
-    "(the kernel clipped at walls on by default), load average 2 to 5; Cycles not run (its "
-    "8192-spp reference is cached).",
+    "ring_lambert: `ring_lambert --budget 60 --seeds 4 --methods fppm,ppm` on 5f2b882 (frequency "
+    "photons only in passes 1, 2, 4, 8, ...; FPPM tracing PPM's own photons; the occlusion march's "
+    "end-plane fix), load average 4 to 6.  COMBINED was not re-run: its earlier row (120 CPU s, 4 "
+    "seeds, 310a884) read 0.75x PPM; combined.png is that run's image.",
     "indirect_room: `indirect_room --budget 60 --seeds 4 --methods "
     "fppm,ppm,appm,cppm,combined,light,cycles` (60 CPU s, the budget of its earlier row) on "
     "8b51df8 (the kernel clip on, COMBINED's camera depth Auto: light tracing plus one emitter "
@@ -88,9 +89,11 @@ NOTES = [
     "sampled in the photon bounce kernel and evaluated per gather pair in compiled code; before "
     "the frequency photons' undecided-pixel schedule), load average 4 to 9 (1.0 to 1.3 cores "
     "per method).  4 seeds did not fit after that merge.",
-    "Three earlier runs make the other rows.  point_caustic: "
-    "`--budget 30 --seeds 2` on the code before them (47f7a5f), on a machine loaded by other "
-    "jobs (load average 8 to 16, 0.2 to 0.6 cores per method).  glass_sphere "
+    "point_caustic: `point_caustic --budget 30 --seeds 4 --methods fppm,ppm,light,combined` on "
+    "ca52af9 (COMBINED's Camera Depth Auto Direct where the camera sees no glass under point "
+    "lights; docs/integrators.md \"The point caustic\"), load average 3 to 6, against the "
+    "Mitsuba 3 light tracer's 65536-spp reference (floor 1.4e-4).  "
+    "Earlier runs make the other rows.  glass_sphere "
     "and ring_principled: `--budget 30 --seeds 2` on a434914 (the first of these "
     "plus the docs), on a machine loaded by other jobs (load average 3 to 26, 0.3 to 1.3 cores "
     "per method), after their Cycles references were made (16384 spp for the glass sphere, "
