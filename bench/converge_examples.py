@@ -84,17 +84,20 @@ NOTES = [
     "per method).  Every excess error there (5.1e-4 to 1.4e-3) lies below 3x the 8192-spp "
     "reference's floor (1.1e-3): the ratios are flagged 'near floor'; the raw relMSE ratios are "
     "given beside them in the README.",
-    "principled_interior: `principled_interior --budget 60 --seeds 2 --methods "
-    "fppm,ppm,appm,cppm,combined,light,cycles` on 499a081 (Blender's default Principled "
-    "sampled in the photon bounce kernel and evaluated per gather pair in compiled code; before "
-    "the frequency photons' undecided-pixel schedule), load average 4 to 9 (1.0 to 1.3 cores "
-    "per method).  4 seeds did not fit after that merge.",
+    "principled_interior: `principled_interior --budget 60 --seeds 2 --methods fppm,ppm,cppm` on "
+    "8b808e2 (FPPM tracing PPM's own photons, frequency photons in doubling passes, the "
+    "occlusion march's end-plane fix), load average 3 to 6.  APPM, COMBINED, LIGHT and Cycles "
+    "were not re-run: their images (appm.png, combined.png, light.png, cycles.png) are from the "
+    "earlier run on 499a081 (2 seeds, 60 CPU s: APPM 2.73e-3, COMBINED 1.90e-3, LIGHT 1.87e-3, "
+    "Cycles 3.08e-3 excess).",
+    "ring_principled: `ring_principled --budget 30 --seeds 4 --methods fppm,ppm` on 8b808e2, "
+    "load average 3 to 6; COMBINED and Cycles from the earlier 2-seed run on a434914 (their "
+    "images here are that run's).",
     "point_caustic: `point_caustic --budget 30 --seeds 4 --methods fppm,ppm,light,combined` on "
     "ca52af9 (COMBINED's Camera Depth Auto Direct where the camera sees no glass under point "
     "lights; docs/integrators.md \"The point caustic\"), load average 3 to 6, against the "
     "Mitsuba 3 light tracer's 65536-spp reference (floor 1.4e-4).  "
-    "Earlier runs make the other rows.  glass_sphere "
-    "and ring_principled: `--budget 30 --seeds 2` on a434914 (the first of these "
+    "Earlier runs make the other rows.  glass_sphere: `--budget 30 --seeds 2` on a434914 (the first of these "
     "plus the docs), on a machine loaded by other jobs (load average 3 to 26, 0.3 to 1.3 cores "
     "per method), after their Cycles references were made (16384 spp for the glass sphere, "
     "8192 for the rings).  None of them includes the reach map of the frequency photons or the "
