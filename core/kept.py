@@ -121,7 +121,10 @@ class KeptBuffers:
             size = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
             n += -(-size // ALIGN) * ALIGN
         buf = self._bufs.get(name)
-        if buf is not None and buf.nbytes >= n and sys.getrefcount(buf) <= _ALONE_BUF:
+        # the arrays start at the buffer's first aligned byte, so a reused
+        # buffer must hold n bytes past its own alignment offset
+        if (buf is not None and buf.nbytes - (-buf.ctypes.data) % ALIGN >= n
+                and sys.getrefcount(buf) <= _ALONE_BUF):
             self.reused += 1
         else:
             # drop the old one first: its pages go back before the new one's

@@ -35,6 +35,24 @@ def test_kept_buffers_reuse_rule():
     assert kb.allocations == 3 and e.shape == (10 ** 4,)
 
 
+def test_reused_buffer_counts_its_alignment_offset():
+    """A kept buffer whose first aligned byte lies ``base`` bytes in holds
+    ``nbytes - base`` bytes of arrays: a take of more than that gets a new
+    buffer, not a short view (a border render's grid, one pass to the next,
+    failed with "cannot reshape array of size 2380 into shape (2383,)")."""
+    raw = np.empty(4096 + 2 * ALIGN, np.uint8)
+    for k in range(ALIGN):
+        kb = KeptBuffers()
+        kb._bufs["x"] = raw[k:k + 4096 + ALIGN // 2]   # held by the dict alone
+        nbytes = 4096 + ALIGN // 2
+        base = (-(raw.ctypes.data + k)) % ALIGN
+        a, = kb.take("x", [((4096 // 4,), np.int32)])   # 4096 bytes
+        assert a.shape == (1024,) and a.ctypes.data % ALIGN == 0
+        # reused exactly when the bytes past the offset suffice
+        assert kb.reused == int(nbytes - base >= 4096), (k, base)
+        assert kb.allocations == 1 - kb.reused
+
+
 @pytest.mark.parametrize("layout,split", [("hash", False), ("dense", False), ("auto", True)])
 def test_grid_from_kept_buffers_is_the_same_grid(layout, split, monkeypatch):
     if split:                                  # 9000 VPs: the threaded build
