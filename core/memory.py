@@ -46,9 +46,11 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
   default): the float64 state, the pass's float64 sums and two threads'
   int32 gather rows -> BYTES_PER_SECTOR_CELL
 - the kernel clip (settings.clip_kernel, core.sppm.clip): one uint64 a
-  pixel through the gather -> BYTES_PER_CLIP (its rays are cast in blocks,
-  two at a time by two threads: ~30 MB, freed before the grid build, the
-  pass's peak)
+  pixel, kept from pass to pass -> BYTES_PER_CLIP (its rays are cast in
+  blocks, two at a time by two threads: ~30 MB at most, freed before the
+  grid build, the pass's peak), and its grid of the triangles near a point
+  (``clip.NearGrid``, once a render) -> BYTES_PER_CLIP_TRIANGLE a triangle
+  plus CLIP_GRID_BYTES
 - per photon of a chunk: emission, bounce and deposit arrays and the
   gather's sorted copies -> BYTES_PER_PHOTON
 - per triangle: scene arrays, Embree BVH, the plan's copies -> BYTES_PER_TRIANGLE
@@ -81,6 +83,8 @@ BYTES_PER_AOV_CHANNEL = 48
 BYTES_PER_HIST_BIN = 12
 BYTES_PER_SECTOR_CELL = 24
 BYTES_PER_CLIP = 8
+BYTES_PER_CLIP_TRIANGLE = 48
+CLIP_GRID_BYTES = 64 * 2**10
 BYTES_PER_PHOTON = 1229
 BYTES_PER_TRIANGLE = 400
 BYTES_PER_VOXEL = 192
@@ -145,7 +149,8 @@ def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
                               + BYTES_PER_SECTOR_CELL * sector_cells
                               + BYTES_PER_CLIP * bool(clip_kernel)),
         "photons": photon_chunk * BYTES_PER_PHOTON,
-        "geometry": n_triangles * BYTES_PER_TRIANGLE,
+        "geometry": n_triangles * BYTES_PER_TRIANGLE + bool(clip_kernel) * (
+            n_triangles * BYTES_PER_CLIP_TRIANGLE + CLIP_GRID_BYTES),
         "occlusion_grid": (grid_res ** 3) * BYTES_PER_VOXEL if use_grid else 0,
         "textures": int(texture_bytes),
         "kernels": KERNEL_BYTES,

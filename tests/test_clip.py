@@ -32,11 +32,12 @@ def _wall_accel():
     return Accel(np.array(tri, np.float32), 40.0)
 
 
-def _codes(acc, p, ng, R2, active):
-    """clip_codes with the triangles' normals as the photon tracer has them."""
+def _codes(acc, p, ng, R2, active, **kw):
+    """clip_codes with the triangles' normals as the photon tracer has them
+    (a copy: clip_codes may reuse its array)."""
     scene = SimpleNamespace(tri_p=acc.tri_p, tri_n=np.zeros_like(acc.tri_p),
                             tri_mat=np.zeros(acc.tri_p.shape[0], np.int32))
-    return C.clip_codes(acc, build_triangle_data(scene).ng, p, ng, R2, active)
+    return C.clip_codes(acc, build_triangle_data(scene).ng, p, ng, R2, active, **kw).copy()
 
 
 def _bytes(code):
@@ -170,3 +171,5 @@ def test_memory_estimate_counts_the_clip():
     code = _codes(_wall_accel(), np.zeros((1000, 3)), np.tile([0.0, 0, 1], (1000, 1)),
                         np.ones(1000), np.ones(1000, bool))
     assert code.nbytes == 1000 * memory.BYTES_PER_CLIP
+    # the clip's grid of the triangles near a point, once a render
+    assert a["geometry"] - b["geometry"] == memory.BYTES_PER_CLIP_TRIANGLE + memory.CLIP_GRID_BYTES

@@ -31,14 +31,17 @@ def _floor_points(n, seed):
 
 
 def test_clip_blocks_in_two_threads_equal_one_thread(monkeypatch):
-    """9000 points (four blocks of 2250 in two threads, SPLIT_MIN 4096)
-    against one thread: the same codes, and clipped ones among them."""
+    """9000 points (four blocks of 2250 in two threads, SPLIT_MIN 4096; every
+    active point's rays: near=False) against one thread: the same codes, and
+    clipped ones among them; the rays of the points near the wall alone
+    (the default) give them too."""
     acc = _wall_accel()
     p, ng, R2, active = _floor_points(9000, 1)
-    two = _codes(acc, p, ng, R2, active)
+    two = _codes(acc, p, ng, R2, active, near=False)
     monkeypatch.setattr(Ph, "THREADS", 1)
-    one = _codes(acc, p, ng, R2, active)
+    one = _codes(acc, p, ng, R2, active, near=False)
     assert np.array_equal(one, two)
+    assert np.array_equal(_codes(acc, p, ng, R2, active), two)
     assert (two[~active] == hg.CLIP_CLEAR).all()
     clipped = np.count_nonzero(two[active] != hg.CLIP_CLEAR)
     assert 0.15 * active.sum() < clipped < 0.5 * active.sum()   # 27 %
@@ -58,7 +61,8 @@ def test_clip_cancel_inside_the_blocks_reaches_the_caller():
     scene = SimpleNamespace(tri_p=acc.tri_p, tri_n=np.zeros_like(acc.tri_p),
                             tri_mat=np.zeros(acc.tri_p.shape[0], np.int32))
     with pytest.raises(KeyboardInterrupt):
-        C.clip_codes(acc, build_triangle_data(scene).ng, p, ng, R2, active, check_stop)
+        C.clip_codes(acc, build_triangle_data(scene).ng, p, ng, R2, active, check_stop,
+                     near=False)
     assert len(calls) <= 4                  # no block started after the raise but the other's
 
 
