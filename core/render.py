@@ -348,6 +348,7 @@ class Renderer:
                 break
             if on_pass is not None:
                 on_pass(res)
+            del res     # not held through the next pass: its film may reuse the image
         if self.last_result is None:
             self.last_result = self._film()
         if self.pass_index and not np.any(self.last_result.image[..., :3] > 0):
@@ -562,6 +563,9 @@ class Renderer:
         self.stage_seconds["update"] += time.perf_counter() - tu
 
     def _film(self) -> PassResult:
+        # Dropped first (its caller assigns the new one): the film reuses the
+        # last image in place when nothing else holds it (Film._image, core.kept).
+        self.last_result = None
         if self.light_tracer is not None or self.light_pass:
             L = self.light_splat / max(self.photons_emitted, 1)
             img = np.ones((self.height, self.width, 4), np.float32)

@@ -95,7 +95,7 @@ class Wavefront(NamedTuple):
     """One vertex of the live chains, K rays: prim (K,) int32 (-1 miss), bu, bv,
     tfar (K,) float32 Embree's hits; idx (K,) int64 pixel; d (K, 3) float64 unit
     direction; beta (K, 3) throughput; plen (K,) path length before this hit;
-    dz (P,) float64 the camera's depth factor per pixel; ur (H, 4) uniforms,
+    dz (K,) float64 the camera's depth factor of each ray's pixel; ur (H, 4) uniforms,
     one row per hit in ray order (the delta choice is ur[:, 0]); pre (K,) int64 row of colors_pre /
     em_pre for hits on textured materials (-1: untextured);
     colors_pre (n, L, 3), em_pre (n, 3)."""
@@ -259,7 +259,7 @@ def hit_kernel(i0, i1, u0, out0, first_vertex, last_vertex, wf, mats, vp, fb, ch
             vp.mat[q] = m
             inv = max(1.0 - p_delta, 1e-12)
             vp.beta[q, 0], vp.beta[q, 1], vp.beta[q, 2] = b0 / inv, b1 / inv, b2 / inv
-            vp.depth[q] = plen * abs(wf.dz[q])
+            vp.depth[q] = plen * abs(wf.dz[i])
             vp.const[q] = mats.lambert_only[m]
             a0 = 0.0
             a1 = 0.0

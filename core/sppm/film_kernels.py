@@ -50,3 +50,15 @@ def _film_parallel(n_chunks, a, prm, alpha, ortho):
     P = a.R2.shape[0]
     for c in prange(n_chunks):
         _film_range(c * P // n_chunks, (c + 1) * P // n_chunks, a, prm, alpha, ortho)
+
+
+@njit(cache=True)
+def compact_positive(R2, x):
+    """x[:n] = x[R2 > 0] in place, in order (a read never follows its own
+    slot's write: n <= i); returns n."""
+    n = 0
+    for i in range(R2.shape[0]):
+        if R2[i] > 0:
+            x[n] = x[i]
+            n += 1
+    return n

@@ -424,10 +424,10 @@ class CameraPass:
         """The camera pass with the per-hit work in ``camera_kernels.hit_kernel``
         (same random numbers, same results as :meth:`_trace_numpy`)."""
         P = self.px.shape[0]
-        live = (rays.o, rays.d, rays.t_max, np.arange(P), np.ones((P, 3)), np.zeros(P),
-                np.zeros(P, np.int8), np.ones(P, bool))
         dz = np.ascontiguousarray(dz, np.float64)   # one kernel signature (C layout)
-        self._chains_from(0, live, rng, dz, self._kernel_context(vp, L), check_stop)
+        live = (rays.o, rays.d, rays.t_max, np.arange(P), np.ones((P, 3)), np.zeros(P),
+                np.zeros(P, np.int8), np.ones(P, bool), dz)
+        self._chains_from(0, live, rng, self._kernel_context(vp, L), check_stop)
 
     def _trace_blocked(self, rng, vp, L, check_stop, centre):
         """:meth:`__call__`'s camera rays and :meth:`_trace_compiled`'s first
@@ -435,9 +435,8 @@ class CameraPass:
         vertices after them: the same random numbers and results, without
         pixel-sized temporaries (rays, uniforms, Embree's hits: 0.4 GB at
         1080p, page-faulted in every pass).  The camera's depth factors dz
-        (P,) float64 are the one pixel-sized temporary (the delta chains'
-        later vertices read them by pixel), freed with the pass, not kept
-        through the photon pass.
+        travel with the live chains (one a ray, the live tuple's last
+        array), not in a (P,) array: 16 MB at 1080p, 4k page faults a pass.
 
         Two threads (this one and core.sppm.photons' pool) take the blocks in
         turn and do each one end to end (``_first_block``): no step of it
@@ -451,7 +450,6 @@ class CameraPass:
         same bits however the blocks are shared."""
         P = self.px.shape[0]
         ctx = self._kernel_context(vp, L)
-        dz = np.empty(P)
         starts = list(range(0, P, CAMERA_BLOCK))
         n = len(starts)
         # hits[i]: the first hits of blocks 0 .. i-1, set once ready[i] is
@@ -469,7 +467,7 @@ class CameraPass:
                         return
                     check_stop()
                     a = starts[i]
-                    nxt[i] = self._first_block(a, min(a + CAMERA_BLOCK, P), rng, dz, ctx, centre,
+                    nxt[i] = self._first_block(a, min(a + CAMERA_BLOCK, P), rng, ctx, centre,
                                                hits, ready, i, failed)
             except BaseException:
                 failed.append(True)
@@ -481,9 +479,9 @@ class CameraPass:
         nxt = [x for x in nxt if x is not None]
         if nxt:
             live = tuple(np.concatenate(c) for c in zip(*nxt))
-            self._chains_from(1, live, rng, dz, ctx, check_stop)
+            self._chains_from(1, live, rng, ctx, check_stop)
 
-    def _first_block(self, a, b, rng, dz, ctx, centre, hits, ready, i, failed):
+    def _first_block(self, a, b, rng, ctx, centre, hits, ready, i, failed):
         """Block i, pixels a .. b-1, of :meth:`_trace_blocked` in the calling
         thread: its camera rays (uniforms from rng's stream at 4a), their
         first hits, the emission they see, then -- once the hits before the
@@ -495,11 +493,11 @@ class CameraPass:
             u[:, :2], u[:, 2:] = 0.5, 0.0     # as __call__
         # threads=False: two threads may generate at once (one numba parallel
         # region at a time)
-        rays, dz[a:b] = self.camera.generate(self.px[a:b], self.py[a:b], u[:, :2], u[:, 2:],
-                                             self.fsamp, threads=False)
+        rays, dz = self.camera.generate(self.px[a:b], self.py[a:b], u[:, :2], u[:, 2:],
+                                        self.fsamp, threads=False)
         del u
         live = (rays.o, rays.d, rays.t_max, np.arange(a, b), np.ones((n, 3)), np.zeros(n),
-                np.zeros(n, np.int8), np.ones(n, bool))
+                np.zeros(n, np.int8), np.ones(n, bool), np.ascontiguousarray(dz, np.float64))
         hit = self._wavefront_rays(0, live, ctx, split=False)
         ready[i].wait()
         if failed:
@@ -508,7 +506,7 @@ class CameraPass:
         hits[i + 1] = h0 + int(np.count_nonzero(hit[0] >= 0))
         ready[i + 1].set()
         P = self.px.shape[0]
-        return self._wavefront_hits(0, live, hit, stream_at(rng, 4 * P + 4 * h0), dz, ctx,
+        return self._wavefront_hits(0, live, hit, stream_at(rng, 4 * P + 4 * h0), ctx,
                                     split=False)
 
     def _kernel_context(self, vp, L):
@@ -526,30 +524,31 @@ class CameraPass:
         return (self._cmats, self._textured, CK.vp_buffers(vp),
                 CK.FirstBuffers(first.hit, first.p, first.n, first.prim, first.emit, L), first, L)
 
-    def _chains_from(self, depth0, live, rng, dz, ctx, check_stop):
+    def _chains_from(self, depth0, live, rng, ctx, check_stop):
         """Wavefronts depth0, depth0 + 1, ... of the live chains until none is left."""
         for depth in range(depth0, self.max_depth):
             if live[3].size == 0:
                 break
             check_stop()
-            live = self._wavefront(depth, live, rng, dz, ctx)
+            live = self._wavefront(depth, live, rng, ctx)
             if live is None:
                 break
 
-    def _wavefront(self, depth, live, rng, dz, ctx):
+    def _wavefront(self, depth, live, rng, ctx):
         """One vertex of the live chains (o, d, tmax, idx (K,) pixel, beta,
-        path_len, last, see_through): Embree, the emission seen along the rays
+        path_len, last, see_through, dz (K,) the camera's depth factor of the
+        pixel): Embree, the emission seen along the rays
         (``_wavefront_rays``), ``hit_kernel``, the delta lobes' samples
         (uniforms from rng; ``_wavefront_hits``).  The next vertex's live
         chains, or None when none continues."""
         hit = self._wavefront_rays(depth, live, ctx)
-        return self._wavefront_hits(depth, live, hit, rng, dz, ctx)
+        return self._wavefront_hits(depth, live, hit, rng, ctx)
 
     def _wavefront_rays(self, depth, live, ctx, split=True):
         """Embree's hits of the live chains' rays (prim, u, v, tfar (K,),
         ``_intersect``) and the emission the rays see before them
         (``_seen_along``).  split=False: in the calling thread."""
-        o, d, tmax, idx, beta, path_len, last, see_through = live
+        o, d, tmax, idx, beta, path_len, last, see_through, dz = live
         mats, textured, vb, fb, first, L = ctx
         hit4 = _intersect(self.accel, o, d, tmax, INTERSECT_SPLIT_MIN if split else np.inf)
         prim, tfar = hit4[0], hit4[3]
@@ -559,14 +558,14 @@ class CameraPass:
                          fast=True, split=split)
         return hit4
 
-    def _wavefront_hits(self, depth, live, hit4, rng, dz, ctx, split=True):
+    def _wavefront_hits(self, depth, live, hit4, rng, ctx, split=True):
         """``hit_kernel`` on the hits hit4 of :meth:`_wavefront_rays` (their
         uniforms from rng, one row of 4 a hit in ray order) and the delta
         lobes' samples of the chains that continue: the next vertex's live
         chains, or None.  split=False: in the calling thread."""
         from . import camera_kernels as CK
         from .photons import _pool, _threads
-        o, d, tmax, idx, beta, path_len, last, see_through = live
+        o, d, tmax, idx, beta, path_len, last, see_through, dz = live
         mats, textured, vb, fb, first, L = ctx
         mtab, s = self.mtab, self.scene
         K = idx.size
@@ -616,7 +615,7 @@ class CameraPass:
             return None
         keep, o, d, beta, path_len, last, see_through = nxt
         return (o, d, np.full(keep.size, np.inf), idx[k[keep]], beta, path_len, last,
-                see_through)
+                see_through, dz[k[keep]])
 
 
 def in_two_threads(work) -> None:
