@@ -48,9 +48,9 @@ of the accel's triangles (``_NearGrid``, built once per Accel): a triangle is
 listed in each cell its bounding box and plane meet, and a point tests the
 triangles of the cells its ball's box spans (orientation, bounding box,
 plane distance: each test conservative, so a skipped point's code is
-CLIP_CLEAR exactly as its rays would have made it).  In a 1080p Cornell box
-pass 0.37 % of the active points are near a wall (docs/architecture.md
-"The kernel clip's rays only near walls").
+CLIP_CLEAR exactly as its rays would have made it).  Walls are near a small
+share of the points, so most cast no ray (docs/architecture.md "The 1080p
+clip, camera and film without per-pass allocations" has the measurements).
 """
 from __future__ import annotations
 
@@ -382,8 +382,8 @@ def _near_points(g: NearGrid, tri_ng, p, ng, R2, active, rel, floor, out) -> np.
     cand = np.empty(P, np.int64)
     counts = np.zeros(T, np.int64)
     # the parallel kernel also for one range: numba's parallel pipeline
-    # compiles _near's loop ~3x faster than njit's (0.07 against 0.25 s of
-    # CPU for a 1080p pass's 2 M points on one thread)
+    # compiles _near's loop several times faster than njit's (measured in
+    # docs/architecture.md, "The 1080p clip, camera and film ...")
     _near_parallel(T, counts, g, tri_ng, p, ng, R2, active, rel, floor, out, cand)
     return np.concatenate([cand[c * P // T:c * P // T + counts[c]] for c in range(T)])
 
