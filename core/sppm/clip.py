@@ -437,7 +437,8 @@ def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.
     from .visible_points import blocks_in_two_threads
     P = active.shape[0]
     st = _accel_clip(accel)
-    out, = st.kept.take("codes", [((P,), np.uint64)])
+    with _BY_ACCEL_LOCK:                # two callers never get one buffer
+        out, = st.kept.take("codes", [((P,), np.uint64)])
     p = np.ascontiguousarray(p, np.float64)
     ng = np.ascontiguousarray(ng, np.float64)
     R2 = np.ascontiguousarray(R2, np.float64)
