@@ -422,7 +422,8 @@ def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.
     (cheaper), the closest hit for the occluded ones alone.  tri_ng (T, 3)
     float64: the unit geometric normals of accel's triangles
     (core.sppm.photon_kernels.build_triangle_data).  check_stop() is called
-    before every block (a cancel is seen within one block's rays).
+    after the proximity test and before every block (a cancel is seen within
+    one block's rays).
 
     The result is the last call's array (for this accel) when nothing else
     references it any more (core.kept: no page faults of a fresh (P,) array
@@ -449,6 +450,8 @@ def clip_codes(accel, tri_ng: np.ndarray, p: np.ndarray, ng: np.ndarray, R2: np.
     else:
         out[...] = CLIP_CLEAR
         idx = np.nonzero(active)[0] if accel.tri_p.shape[0] else np.zeros(0, np.int64)
+    # a cancel during the proximity test is seen here, not after the grid build
+    check_stop()
     if idx.size == 0:
         return out
 
