@@ -46,7 +46,8 @@ Refinements over the paper, each documented where it happens:
 Memory: ``BYTES_PER_VOXEL`` = 41 bytes (dist 4, axis 12, aperture 4,
 occupied 1, near 4, and the march's resolved cone 16): 10.7 MB at 64^3,
 86 MB at 128^3; the march derives 20 more bytes a voxel on first use
-(``MarchBlocks``: 5.5 MB at 64^3, none above VOXEL_LEVEL_MAX).  The build
+(``MarchBlocks``: 5.5 MB at 64^3, none above VOXEL_LEVEL_MAX; its build
+holds 33 bytes a voxel of temporaries, ``_cone_members``).  The build
 also holds about 150 bytes per voxel of float64 temporaries (normal sums,
 two candidate axes, closest points), 12 bytes per (triangle, voxel) overlap
 and about 100 bytes per triangle (normals, BVH, sorted copy);
@@ -703,6 +704,9 @@ class MarchBlocks:
     min >= the current threshold min(locality, best) or (locality <=
     cut_locality) neither union cone meets the plane orthogonal to d
     (:func:`union_meets`); ``occlusion_march.march_segment`` then skips it.
+    So the cones of a block (voxel) whose min (1 - BLOCK_REL) >=
+    cut_locality are never read: they are not built and hold "meets none"
+    (sin = -2 in both).
 
     Tightness, on the Cornell grid of tests/test_frequency_kernels.py and
     500 directions: the members meet the plane for 0.486 of (block, d)
@@ -746,13 +750,17 @@ def _in_cut(dist, x, y, z, inner, L):
 
 
 @nb.njit(cache=True, nogil=True)
-def _union_cone(ax_, ay_, az_, sk_, idx, n, out, o):
+def _union_cone(ax_, ay_, az_, as_, idx, n, out, o, seen):
     """out[o:o+4] = a bi-cone (unit axis, sin of half-angle) containing the
-    members idx[:n] (unit axes ax_, ay_, az_; sk_ = sin of the half-angle
-    within which a member's axis meets a plane): axis = the sign-aligned
-    mean, half-angle = max over members of asin(sk) + angle to the axis,
-    + _UNION_SLACK.  sin = 2: wider than pi/2 - _UNION_WIDE or the axes
-    cancel (meets every plane); -2: no member (meets none)."""
+    members idx[:n] (unit axes ax_, ay_, az_; as_ = asin of the sin of the
+    half-angle within which a member's axis meets a plane): axis = the
+    sign-aligned mean, half-angle = max over members of asin(sk) + angle to
+    the axis, + _UNION_SLACK.  sin = 2: wider than pi/2 - _UNION_WIDE or the
+    axes cancel (meets every plane); -2: no member (meets none).  seen
+    (>= 4 * _SEEN,) scratch: the half-angle's maximum skips a member equal
+    to one already taken (a flat wall's voxels and the empty voxels that
+    take its cone are one member 27 times over): the same maximum, the
+    same bits."""
     if n == 0:
         out[o + 3] = -2.0
         return
@@ -772,9 +780,24 @@ def _union_cone(ax_, ay_, az_, sk_, idx, n, out, o):
         return
     ux, uy, uz = sx / nrm, sy / nrm, sz / nrm
     psi = 0.0
+    ns = 0
     for k in range(n):
         m = idx[k]
-        ax, ay, az = ax_[m], ay_[m], az_[m]
+        ax, ay, az, am = ax_[m], ay_[m], az_[m], as_[m]
+        dup = False
+        for j in range(ns):
+            if (seen[4 * j] == ax and seen[4 * j + 1] == ay and seen[4 * j + 2] == az
+                    and seen[4 * j + 3] == am):
+                dup = True
+                break
+        if dup:
+            continue
+        if ns < _SEEN:
+            seen[4 * ns] = ax
+            seen[4 * ns + 1] = ay
+            seen[4 * ns + 2] = az
+            seen[4 * ns + 3] = am
+            ns += 1
         # the member meets the plane iff its unit axis is within asin(sk)
         # of it; the union axis then within that plus the angle between
         # the axes (sign-free)
@@ -782,7 +805,7 @@ def _union_cone(ax_, ay_, az_, sk_, idx, n, out, o):
         cy = uz * ax - ux * az
         cz = ux * ay - uy * ax
         th = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), abs(ux * ax + uy * ay + uz * az))
-        psi = max(psi, math.asin(sk_[m]) + th)
+        psi = max(psi, am + th)
     psi += _UNION_SLACK
     out[o] = ux
     out[o + 1] = uy
@@ -790,18 +813,54 @@ def _union_cone(ax_, ay_, az_, sk_, idx, n, out, o):
     out[o + 3] = 2.0 if psi >= 0.5 * math.pi - _UNION_WIDE else math.sin(psi)
 
 
+#: Distinct members a union cone's half-angle remembers (_union_cone).
+_SEEN = 8
+
+
 @nb.njit(cache=True, nogil=True)
-def _build_blocks(dist, cone, R, B, NB, bmin, bcone, L, quant):
+def _cone_members(cone, R, kind, un, asn):
+    """Per voxel, what a union cone reads of its cone (_build_blocks), once
+    instead of once per block or voxel that reads it (27 times at the voxel
+    level): kind 0 = meets no plane, 1 = unknown (meets every plane), 2 = a
+    member with unit axis un (R, R, R, 3) float64 and asn = asin of the sin
+    of the half-angle within which its axis meets a plane."""
+    for x in range(R):
+        for y in range(R):
+            for z in range(R):
+                s = np.float64(cone[x, y, z, 3])
+                if s < -1.0:
+                    kind[x, y, z] = 0
+                    continue
+                ax = np.float64(cone[x, y, z, 0])
+                ay = np.float64(cone[x, y, z, 1])
+                az = np.float64(cone[x, y, z, 2])
+                nrm = math.sqrt(ax * ax + ay * ay + az * az)
+                if s + SIN_TOL >= 1.0 or nrm == 0.0:
+                    kind[x, y, z] = 1
+                    continue
+                # the member meets the plane iff |a.d| <= s + tol, i.e. its
+                # unit axis is within asin((s + tol)/|a|)
+                kind[x, y, z] = 2
+                un[x, y, z, 0] = ax / nrm
+                un[x, y, z, 1] = ay / nrm
+                un[x, y, z, 2] = az / nrm
+                asn[x, y, z] = math.asin(min((s + SIN_TOL) / nrm, 1.0))
+
+
+@nb.njit(cache=True, nogil=True)
+def _build_blocks(dist, kind, un, asn, R, B, NB, bmin, bcone, L, quant):
     """bmin (NB, NB, NB) and bcone (NB, NB, NB, 8) of MarchBlocks for blocks
-    of B^3 voxels: float64, or int16 (quant: the voxel level's vcone)."""
+    of B^3 voxels: float64, or int16 (quant: the voxel level's vcone);
+    kind, un, asn of :func:`_cone_members`."""
     cap = (B + 2) ** 3
     ax_ = np.empty(cap)
     ay_ = np.empty(cap)
     az_ = np.empty(cap)
-    sk_ = np.empty(cap)
+    as_ = np.empty(cap)
     ia = np.empty(cap, np.int64)
     ib = np.empty(cap, np.int64)
     out = np.empty(8)
+    seen = np.empty(4 * _SEEN)
     for bx in range(NB):
         for by in range(NB):
             for bz in range(NB):
@@ -812,31 +871,39 @@ def _build_blocks(dist, cone, R, B, NB, bmin, bcone, L, quant):
                 iy0, iy1 = by * B, min((by + 1) * B, R)
                 iz0, iz1 = bz * B, min((bz + 1) * B, R)
                 m = np.inf
+                for x in range(x0, x1):
+                    for y in range(y0, y1):
+                        for z in range(z0, z1):
+                            m = min(m, np.float64(dist[x, y, z]))
+                bmin[bx, by, bz] = m
+                if m * (1.0 - BLOCK_REL) >= L:
+                    # Never read: the march tests the cones only where
+                    # bmin (1 - BLOCK_REL) < its threshold <= locality <=
+                    # L (MarchGrid.cones), so they are left as "meets none"
+                    # and not built (most voxels of an open room).
+                    for k in range(8):
+                        out[k] = 0.0
+                    out[3] = -2.0
+                    out[7] = -2.0
+                    _store_cones(out, bcone, bx, by, bz, quant)
+                    continue
                 wide = False
                 n = 0
                 for x in range(x0, x1):
                     for y in range(y0, y1):
                         for z in range(z0, z1):
-                            m = min(m, np.float64(dist[x, y, z]))
-                            s = np.float64(cone[x, y, z, 3])
+                            kd = kind[x, y, z]
                             inner = (ix0 <= x < ix1 and iy0 <= y < iy1 and iz0 <= z < iz1)
-                            if s < -1.0 or not _in_cut(dist, x, y, z, inner, L):
+                            if kd == 0 or not _in_cut(dist, x, y, z, inner, L):
                                 continue            # meets no plane / never read
-                            ax = np.float64(cone[x, y, z, 0])
-                            ay = np.float64(cone[x, y, z, 1])
-                            az = np.float64(cone[x, y, z, 2])
-                            nrm = math.sqrt(ax * ax + ay * ay + az * az)
-                            if s + SIN_TOL >= 1.0 or nrm == 0.0:
+                            if kd == 1:
                                 wide = True         # unknown: meets every plane
                                 continue
-                            # the member meets the plane iff |a.d| <= s + tol,
-                            # i.e. its unit axis is within asin((s + tol)/|a|)
-                            ax_[n] = ax / nrm
-                            ay_[n] = ay / nrm
-                            az_[n] = az / nrm
-                            sk_[n] = min((s + SIN_TOL) / nrm, 1.0)
+                            ax_[n] = un[x, y, z, 0]
+                            ay_[n] = un[x, y, z, 1]
+                            az_[n] = un[x, y, z, 2]
+                            as_[n] = asn[x, y, z]
                             n += 1
-                bmin[bx, by, bz] = m
                 for k in range(8):
                     out[k] = 0.0
                 out[7] = -2.0
@@ -868,8 +935,8 @@ def _build_blocks(dist, cone, R, B, NB, bmin, bcone, L, quant):
                         ib[nb_] = k
                         nb_ += 1
                 # np.int64: one compile, not one per literal (core/warmup.py)
-                _union_cone(ax_, ay_, az_, sk_, ia, np.int64(na), out, np.int64(0))
-                _union_cone(ax_, ay_, az_, sk_, ib, np.int64(nb_), out, np.int64(4))
+                _union_cone(ax_, ay_, az_, as_, ia, np.int64(na), out, np.int64(0), seen)
+                _union_cone(ax_, ay_, az_, as_, ib, np.int64(nb_), out, np.int64(4), seen)
                 _store_cones(out, bcone, bx, by, bz, quant)
 
 
@@ -936,11 +1003,15 @@ def march_blocks(grid: OcclusionGrid, B: int = MARCH_BLOCK) -> MarchBlocks:
         bmin = np.empty((NB, NB, NB))
         bcone = np.zeros((NB, NB, NB, 8))
         L = cut_locality(float(grid.cell[0]), float(grid.cell[1]), float(grid.cell[2]))
-        _build_blocks(grid.dist, grid.cone, R, B, NB, bmin, bcone, L, False)
+        kind = np.empty((R, R, R), np.int8)
+        un = np.empty((R, R, R, 3))
+        asn = np.empty((R, R, R))
+        _cone_members(grid.cone, R, kind, un, asn)
+        _build_blocks(grid.dist, kind, un, asn, R, B, NB, bmin, bcone, L, False)
         if R ** 3 * 20 <= VOXEL_LEVEL_MAX:
             vm = np.empty((R, R, R))
             vcone = np.zeros((R, R, R, 8), np.int16)
-            _build_blocks(grid.dist, grid.cone, R, 1, R, vm, vcone, L, True)
+            _build_blocks(grid.dist, kind, un, asn, R, 1, R, vm, vcone, L, True)
             # dist is float32, so its minimum is exact in float32
             vmin = vm.astype(np.float32)
             del vm
@@ -949,6 +1020,7 @@ def march_blocks(grid: OcclusionGrid, B: int = MARCH_BLOCK) -> MarchBlocks:
             vmin = np.zeros((1, 1, 1), np.float32)
             vcone = np.zeros((1, 1, 1, 8), np.int16)
             has_v = False
+        del kind, un, asn
         mb = MarchBlocks(B=B, bmin=bmin, bcone=bcone, vmin=vmin, vcone=vcone,
                          has_voxel_level=has_v, cut_locality=L)
         object.__setattr__(grid, "_march_blocks", mb)    # frozen dataclass: a derived cache
