@@ -903,6 +903,9 @@ def _build_blocks(dist, kind, un, asn, R, B, NB, bmin, bcone, L, quant):
     ib = np.empty(cap, np.int64)
     out = np.empty(8)
     seen = np.empty(4 * _SEEN)
+    memo = np.empty(4)
+    memo_out = np.empty(8)
+    memo_n = -1
     for bx in range(NB):
         for by in range(NB):
             for bz in range(NB):
@@ -930,6 +933,7 @@ def _build_blocks(dist, kind, un, asn, R, B, NB, bmin, bcone, L, quant):
                     _store_cones(out, bcone, bx, by, bz, quant)
                     continue
                 wide = False
+                same = True
                 n = 0
                 for x in range(x0, x1):
                     for y in range(y0, y1):
@@ -945,6 +949,9 @@ def _build_blocks(dist, kind, un, asn, R, B, NB, bmin, bcone, L, quant):
                             ay_[n] = un[x, y, z, 1]
                             az_[n] = un[x, y, z, 2]
                             as_[n] = asn[x, y, z]
+                            if n > 0 and (ax_[n] != ax_[0] or ay_[n] != ay_[0]
+                                          or az_[n] != az_[0] or as_[n] != as_[0]):
+                                same = False
                             n += 1
                 for k in range(8):
                     out[k] = 0.0
@@ -953,6 +960,15 @@ def _build_blocks(dist, kind, un, asn, R, B, NB, bmin, bcone, L, quant):
                     out[3] = 2.0 if wide else -2.0
                     _store_cones(out, bcone, bx, by, bz, quant)
                     continue
+                # n copies of one member (a wall's voxels, the empty voxels
+                # that take its cone): the cones below are a function of
+                # that member and n alone, so the last such result is reused
+                # when both are the same (the same bits).
+                if same:
+                    if (n == memo_n and ax_[0] == memo[0] and ay_[0] == memo[1]
+                            and az_[0] == memo[2] and as_[0] == memo[3]):
+                        _store_cones(memo_out, bcone, bx, by, bz, quant)
+                        continue
                 # Two clusters: seeded by the first member and the member most
                 # orthogonal to it, each member to the nearer seed (sign-free).
                 # Where two walls meet, the members are the two walls' normals:
@@ -980,6 +996,11 @@ def _build_blocks(dist, kind, un, asn, R, B, NB, bmin, bcone, L, quant):
                 _union_cone(ax_, ay_, az_, as_, ia, np.int64(na), out, np.int64(0), seen)
                 _union_cone(ax_, ay_, az_, as_, ib, np.int64(nb_), out, np.int64(4), seen)
                 _store_cones(out, bcone, bx, by, bz, quant)
+                if same:
+                    memo_n = n
+                    memo[0], memo[1], memo[2], memo[3] = ax_[0], ay_[0], az_[0], as_[0]
+                    for k in range(8):
+                        memo_out[k] = out[k]
 
 
 @nb.njit(cache=True, nogil=True)
