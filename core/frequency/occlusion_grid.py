@@ -48,8 +48,9 @@ occupied 1, near 4, and the march's resolved cone 16): 10.7 MB at 64^3,
 86 MB at 128^3; the march derives 20 more bytes a voxel on first use
 (``MarchBlocks``: 5.5 MB at 64^3, none above VOXEL_LEVEL_MAX; its build
 holds 33 bytes a voxel of temporaries, ``_cone_members``).  The build
-also holds about 150 bytes per voxel of float64 temporaries (normal sums,
-two candidate axes, closest points), 12 bytes per (triangle, voxel) overlap
+also holds about 50 bytes per voxel of temporaries (float64 distances and
+closest points, the occupied voxels' index) and about 150 bytes per
+occupied voxel (normal sums, two candidate axes), 12 bytes per (triangle, voxel) overlap
 and about 100 bytes per triangle (normals, BVH, sorted copy);
 bench/bench_occlusion.py measures the peaks.
 
@@ -596,10 +597,6 @@ def build_occlusion_grid(tri_p: np.ndarray, lo, hi, res: int = 64,
     # Candidate 1: the area-weighted mean of the normals oriented into that
     # eigenvector's hemisphere (the bisector there: 45 degrees).  Keep the
     # candidate with the narrower bi-cone.
-    S = np.zeros((nvox, 6))
-    W = np.zeros(nvox)
-    axes = np.zeros((nvox, 2, 3))
-    mincos = np.ones((nvox, 2))
     pair_t, pair_v, pair_w = _overlaps(tri, nrm, area, valid, lo, cell, R)
     stage("clip triangles to voxels")
     # The cones of the occupied voxels alone (every pair has a clipped area
