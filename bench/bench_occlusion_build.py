@@ -32,11 +32,12 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 sys.path.insert(0, os.path.join(ROOT, "bench"))
 
+import fppm_alias  # noqa: E402,F401  (core.x and fppm.core.x: one module, one numba cache)
+
 GRID_FIELDS = ("lo", "hi", "cell", "dist", "axis", "aperture", "occupied", "near", "cone")
 
 
 def _blend_scene(name: str, res: int = 128):
-    import fppm_alias  # noqa: F401  (fppm.* importable)
     import bpy
     import bpy_helpers
     bpy_helpers.ensure_registered()
