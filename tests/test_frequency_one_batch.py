@@ -138,3 +138,27 @@ def test_a_batch_each_is_the_tracer_before(make):
     tr.one_batch = False
     dep = tr.trace(20_000, 5_000, np.random.default_rng(17))
     assert _digest(dep[k] for k in sorted(dep)) == A_BATCH_EACH[make.__name__]
+
+
+@pytest.mark.parametrize("make", [glass_mirror, cornell])
+@pytest.mark.parametrize("n, nf", [(20_000, 5_000), (20_000, 3), (5_000, 5_000)])
+def test_traced_again_are_the_batch_photons_with_their_spectra(make, n, nf):
+    """docs/frequency.md "Frequency photons traced again": the batch is traced
+    as without frequency photons (the same deposits in the same order, bit for
+    bit) and the frequency photons traced again on the uniforms they drew
+    there give those deposits the predicted radii and spectra the one batch
+    (retrace = False, the rule before) gives them, bit for bit."""
+    tr = _tracer(make(), use_frequency=True)
+    a = tr.trace(n, nf, np.random.default_rng(17))
+    b = tr.trace(n, 0, np.random.default_rng(17))
+    for k in ("p", "ng", "wi", "power", "bounce", "bary"):
+        np.testing.assert_array_equal(a[k], b[k])        # the order too
+    tr.retrace = False
+    c = tr.trace(n, nf, np.random.default_rng(17))
+    freq = ~np.isnan(a["rpred"])
+    assert np.count_nonzero(freq) == np.count_nonzero(~np.isnan(c["rpred"])) > nf // 4
+    rows = lambda d: np.concatenate([d["p"], d["power"], d["bounce"][:, None], d["spec"],  # noqa: E731
+                                     d["rpred"][:, None]], axis=1)
+    ra, rc = rows(a), rows(c)
+    np.testing.assert_array_equal(ra[np.lexsort(ra[:, ::-1].T)], rc[np.lexsort(rc[:, ::-1].T)])
+    assert np.all(a["spec"][~freq] == 0) and np.all(np.any(a["spec"][freq] != 0, axis=1))
