@@ -147,13 +147,15 @@ def test_traced_again_are_the_batch_photons_with_their_spectra(make, n, nf):
     as without frequency photons (the same deposits in the same order, bit for
     bit) and the frequency photons traced again on the uniforms they drew
     there give those deposits the predicted radii and spectra the one batch
-    (retrace = False, the rule before) gives them, bit for bit."""
+    (retrace = 0, the rule before) gives them, bit for bit.  retrace = 1:
+    traced again at any share (the default only up to RETRACE_MAX_SHARE)."""
     tr = _tracer(make(), use_frequency=True)
+    tr.retrace = 1.0
     a = tr.trace(n, nf, np.random.default_rng(17))
     b = tr.trace(n, 0, np.random.default_rng(17))
     for k in ("p", "ng", "wi", "power", "bounce", "bary"):
         np.testing.assert_array_equal(a[k], b[k])        # the order too
-    tr.retrace = False
+    tr.retrace = 0.0
     c = tr.trace(n, nf, np.random.default_rng(17))
     freq = ~np.isnan(a["rpred"])
     assert np.count_nonzero(freq) == np.count_nonzero(~np.isnan(c["rpred"])) > nf // 4

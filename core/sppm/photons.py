@@ -46,6 +46,12 @@ from .update import R_FLOOR_REL
 from ..mathutil import LUMINANCE as LUM, dot as _dot  # noqa: E402
 #: Batches of at least this many photons are traced as two halves (see trace).
 SPLIT_MIN = 8192
+#: A batch whose frequency photons are at most this share of its photons
+#: traces them again in a batch of their own (PhotonTracer._trace_batch):
+#: below it the second trace of their paths costs less than what spectra
+#: cost every ray of the batch (crossover 3-6 %, docs/frequency.md "Cost",
+#: "Frequency photons traced again").
+RETRACE_MAX_SHARE = 0.04
 #: Threads tracing the halves: FPPM_PHOTON_THREADS, else min(2, cores).
 THREADS = int(os.environ.get("FPPM_PHOTON_THREADS", "0")) or min(2, os.cpu_count() or 1)
 _POOL = None
@@ -162,9 +168,8 @@ class _Deposits:
         self.pool = pool
         self.buf = self._arrays(max(int(cap), 16))
         self.n = 0
-        # Rows of frequency photons were written (else no spec row is read).
-        self.spec_rows = False
-        # Or only these rows (int64 arrays) hold spectra (PhotonTracer._retrace).
+        # The rows (int64 arrays) of frequency photons' deposits: the only
+        # spec rows written (and read).
         self.freq_rows = []
 
     def _arrays(self, cap: int) -> "PK.DepositBuffers":
@@ -189,23 +194,20 @@ class _Deposits:
         k = other.n
         self.reserve(k)
         a, b = self.n, self.n + k
-        for name in ("p", "ng", "wi", "power", "r", "bounce", "bary") + (
-                ("spec",) if other.spec_rows else ()):
+        for name in ("p", "ng", "wi", "power", "r", "bounce", "bary"):
             getattr(self.buf, name)[a:b] = getattr(other.buf, name)[:k]
         for rows in other.freq_rows:
             self.buf.spec[a + rows] = other.buf.spec[rows]
             self.freq_rows.append(a + rows)
-        self.spec_rows |= other.spec_rows
         self.n = b
 
     def result(self):
         if self.n == 0:
             return None
         n, d = self.n, self.buf
-        if self.spec_rows:
-            spec = np.where(np.isnan(d.r[:n])[:, None], 0.0, d.spec[:n])
-        elif self.freq_rows:
+        if self.freq_rows:
             # zeros: calloc's pages, faulted in only where written or read
+            # (np.where over every row cost ~2 ms a 100,000-photon trace)
             spec = np.zeros((n, 3))
             rows = np.concatenate(self.freq_rows)
             spec[rows] = d.spec[rows]
@@ -307,10 +309,10 @@ class PhotonTracer:
         # (docs/frequency.md "The same photons"); False: the rows they move
         # to draw other uniforms, the rule before (benchmarks).
         self.same_photons = True
-        # The frequency photons traced again in a batch of their own after
-        # the batch traced as without them (_trace_batch); False: their
-        # spectra follow them through the batch, the rule before (benchmarks).
-        self.retrace = True
+        # Batches whose frequency photons are at most this share of their
+        # photons trace those again in a batch of their own (_trace_batch);
+        # 0: never, the rule before (benchmarks).
+        self.retrace = RETRACE_MAX_SHARE
 
     def trace(self, n: int, n_freq: int, rng):
         """Trace n photons (the first n_freq carry a spectrum); return deposits.
@@ -404,15 +406,15 @@ class PhotonTracer:
         emission kernel, or from the emission ``ph`` of lights.sample_photons.
         The first n_freq of them carry a spectrum.
 
-        With ``retrace`` (the default) the batch is traced as without
-        frequency photons, following the first n_freq (their rows, the
+        With at most a share ``retrace`` of frequency photons the batch is
+        traced as without them, following the first n_freq (their rows, the
         uniforms they draw, their deposit rows: :class:`_Follow`), and those
         are traced again in a batch of their own from the same numbers for
         their spectra (:meth:`_retrace`): the same paths, bit for bit, and
         no per-ray cost of the spectra in the large batch (docs/frequency.md
         "Cost", "Frequency photons traced again")."""
         nf = min(max(int(n_freq), 0), b - a)
-        if nf and self.retrace and self.one_batch and self.same_photons:
+        if 0 < nf <= self.retrace * (b - a) and self.one_batch and self.same_photons:
             follow = _Follow()
             self._trace_rows(u_emit, ph, a, b, rng, dep, nf, follow=follow)
             self._retrace(u_emit, ph, a, nf, follow, dep)
@@ -482,7 +484,6 @@ class PhotonTracer:
         if follow is not None:
             follow.start(Kf, n)              # followed, traced without spectra
             Kf, spec = 0, None
-        dep.spec_rows |= nf > 0 and follow is None
         # the geometric normal of the surface each frequency photon leaves
         # (zeros: the emitter): the march does not take it for an occluder
         ng0 = np.zeros((Kf, 3))
@@ -552,6 +553,7 @@ class PhotonTracer:
                 nxt = order_bufs[1] if order is order_bufs[0] else order_bufs[0]
                 PK.classic_rows(order, rec.nxt_src, n_fast, n_next, K, nxt, order_bufs[2])
                 order = nxt
+            kf_rays = Kf
             if Kf:
                 if (track and order is None
                         and self._frequency_split(Kf, n_fast, n_next, rec.nxt_src)[2]):
@@ -582,6 +584,11 @@ class PhotonTracer:
                 straight = self._straight_filter(dep, step.dep0, straight, th, rec, n_next)
             if step.rows:
                 follow.step(rec.nxt_src, n_fast, n_next, dep.buf.src, step.dep0, dep.n)
+            if kf_rays:
+                # the deposits of rays 0..kf_rays-1 lead the bounce's (ray order)
+                nfd = int(np.searchsorted(dep.buf.src[step.dep0:dep.n], kf_rays))
+                if nfd:
+                    dep.freq_rows.append(np.arange(step.dep0, step.dep0 + nfd))
             K = n_next
 
     @staticmethod
@@ -744,7 +751,9 @@ class PhotonTracer:
         chain = self.chain_params()._replace(gate=reach is not None)
         out, _ = FK.spectrum_at_hits(chain, rows, spec, seg, rec, self.march,
                                      dep.buf, self._NO_REACH if reach is None else reach)
-        r = dep.buf.r[rows.dep0:rows.dep1]
+        # rays 0..K-1's deposits lead the bounce's (ray order); the others' keep NaN
+        d0 = rows.dep0
+        r = dep.buf.r[d0:d0 + int(np.searchsorted(dep.buf.src[d0:rows.dep1], rows.K))]
         r[:] = F.radius_fold_key(r, self.settings.frequency_model)
         return out
 
