@@ -18,7 +18,9 @@ traced in the same batch, in its first live rows; their spectra follow
 the two compiled chains of ``core.frequency.kernels`` on the hits and
 survivors the kernel records (arriving: travel -> occlusion march ->
 occlude -> onto_surface -> predicted radius; leaving: off_surface -> lobe
--> curvature), only for hits that deposit or continue.
+-> curvature), only for hits that deposit or continue.  A batch with few
+of them (``RETRACE_MAX_SHARE``) is traced as without, and they are traced
+again in a small batch of their own on the same numbers for the spectra.
 
 The numpy reference tracer, every closure through ``bsdf.sample_bsdf`` and
 the chains by the ``core.frequency.spectrum`` operators, is a test oracle
