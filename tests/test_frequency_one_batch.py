@@ -164,3 +164,28 @@ def test_traced_again_are_the_batch_photons_with_their_spectra(make, n, nf):
     ra, rc = rows(a), rows(c)
     np.testing.assert_array_equal(ra[np.lexsort(ra[:, ::-1].T)], rc[np.lexsort(rc[:, ::-1].T)])
     assert np.all(a["spec"][~freq] == 0) and np.all(np.any(a["spec"][freq] != 0, axis=1))
+    assert tr.retrace_mismatches == 0
+
+
+def test_paths_that_differ_keep_no_spectrum():
+    """Should a photon traced again leave its path (here: its uniforms of the
+    second bounce perturbed), the batch's deposits stay PPM's, without
+    spectra, and the tracer counts it."""
+    from core.sppm import photons as Ph
+    tr = _tracer(cornell(), use_frequency=True)
+    tr.retrace = 1.0
+    b = tr.trace(5_000, 0, np.random.default_rng(17))
+    orig = Ph._Follow.draw
+
+    def draw(self, u):
+        orig(self, u)
+        if len(self.u) == 2:
+            self.u[-1] = self.u[-1] * 0.5
+    Ph._Follow.draw = draw
+    try:
+        a = tr.trace(5_000, 200, np.random.default_rng(17))
+    finally:
+        Ph._Follow.draw = orig
+    assert tr.retrace_mismatches == 1
+    assert np.all(np.isnan(a["rpred"])) and np.all(a["spec"] == 0)
+    np.testing.assert_array_equal(a["p"], b["p"])

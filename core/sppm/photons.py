@@ -228,6 +228,10 @@ def _keep_rows(dep: "_Deposits", a: int, keep: np.ndarray) -> None:
     dep.n = a + rows.size
 
 
+class _PathsDiffer(Exception):
+    """Photons traced again left the paths they had in their batch."""
+
+
 class _Follow:
     """A batch's first photons, followed through it while it is traced as
     without spectra (PhotonTracer._trace_batch): at each bounce their rays
@@ -315,6 +319,9 @@ class PhotonTracer:
         # photons trace those again in a batch of their own (_trace_batch);
         # 0: never, the rule before (benchmarks).
         self.retrace = RETRACE_MAX_SHARE
+        # Batches whose frequency photons, traced again, left other deposits
+        # than in the batch (_retrace: then no spectra; 0 on every test scene).
+        self.retrace_mismatches = 0
 
     def trace(self, n: int, n_freq: int, rng):
         """Trace n photons (the first n_freq carry a spectrum); return deposits.
@@ -430,14 +437,21 @@ class PhotonTracer:
         Within a bounce both batches keep the photons' relative order (each
         compacts its survivors in ray order, the bounce kernel's block first,
         and a photon lands in the same block in both), so the k-th survivor
-        here is the k-th followed row, and the deposits pair up in order."""
+        here is the k-th followed row, and the deposits pair up in order.
+        Should the paths differ all the same (a numpy reduction rounding
+        otherwise on fewer rows: not seen), the batch's deposits keep no
+        spectrum, PPM's rule for them, and ``retrace_mismatches`` counts it."""
         small = _Deposits(self._dpp * nf + 64, self.pool)
-        self._trace_rows(u_emit, ph, a, a + nf, None, small, nf, given=follow.u)
+        try:
+            self._trace_rows(u_emit, ph, a, a + nf, None, small, nf, given=follow.u)
+        except _PathsDiffer:
+            self.retrace_mismatches += 1
+            return
         rows = follow.deposit_rows()
         m = small.n
         if rows.size != m or not np.array_equal(small.buf.p[:m], dep.buf.p[rows]):
-            raise RuntimeError(f"frequency photons traced again left {m} deposits, the batch "
-                               f"{rows.size} (or at other points): the paths differ")
+            self.retrace_mismatches += 1
+            return
         dep.buf.r[rows] = small.buf.r[:m]
         dep.buf.spec[rows] = small.buf.spec[:m]
         dep.freq_rows.append(rows)
@@ -529,10 +543,9 @@ class PhotonTracer:
             if given is None:
                 u = self.uniforms(K, 4, rng, ubuf)
             else:
+                if bounce >= len(given) or given[bounce].shape[0] != K:
+                    raise _PathsDiffer()
                 u = given[bounce]
-                if u.shape[0] != K:
-                    raise RuntimeError(f"frequency photons traced again: {K} at bounce "
-                                       f"{bounce}, the batch followed {u.shape[0]}")
             if step.rows:
                 follow.draw(u)
             if order is not None:
