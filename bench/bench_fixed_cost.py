@@ -1,6 +1,6 @@
 """The fixed cost of frequency photons in a photon trace: what tracing n
 photons of which n_freq carry a spectrum costs beyond tracing the same n
-photons without (docs/frequency.md "Cost", "The fixed part").
+photons without (docs/frequency.md "Cost", "Frequency photons traced again").
 
     .venv/bin/python bench/bench_fixed_cost.py indirect_room [--photons 100000]
         [--freq 0,1,2,24,100] [--repeat 10] [--res 64] [--parts]
