@@ -14,6 +14,10 @@ sums by
            per-thread rows (photon index ranges per thread), then the same
            fold.
 
+--count: the count pass alone on each chunk's sorted photons, one thread,
+hashgrid's (its candidate test without branches) against a copy of its code
+before (a branch on each rule), interleaved; the same outputs bit for bit.
+
 Printed: CPU (process clock) of each, min / median of --repeat rounds,
 and the largest differences of the sums (M, sector counts and the
 smallest radius exactly; Phi within float64 rounding: the summation order
@@ -71,13 +75,18 @@ def main(argv=None):
     ap.add_argument("--photons", type=int, default=200_000)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--threads", type=int, nargs="+", default=[numba.get_num_threads()])
+    ap.add_argument("--count", action="store_true",
+                    help="the count pass alone, hashgrid's against a branch-free test")
     a = ap.parse_args(argv)
     THREADS[:] = a.threads
     print(f"load average {os.getloadavg()[0]:.1f}, numba threads {numba.get_num_threads()}")
     for wh in a.res:
         w, h = (int(x) for x in wh.split("x"))
         r, calls = capture(w, h, a.photons)
-        run_res(wh, calls, a.repeat)
+        if a.count:
+            count_report(calls, a.repeat)
+        else:
+            run_res(wh, calls, a.repeat)
         del r, calls
 
 
@@ -283,6 +292,205 @@ def gather_direct(grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_pos, vp_ng,
     n_pairs = int(n_pair.sum())
     e = np.zeros(n_pairs, np.int32)
     return Hg.GatherResult(None, None, e, e, None)
+
+
+# ---------------------------------------------------------------------------
+# --count: the count pass before its candidate test lost its branches
+# ---------------------------------------------------------------------------
+
+@njit(cache=True, inline="always")
+def _accepts_branches(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
+    """hashgrid._accepts as it was (a return at each rule)."""
+    dx = x - vp_rec[v, 0]
+    dy = y - vp_rec[v, 1]
+    dz = z - vp_rec[v, 2]
+    if not (dx * dx + dy * dy + dz * dz < vp_rec[v, 3]):
+        return False
+    nvx = vp_rec[v, 4]
+    nvy = vp_rec[v, 5]
+    nvz = vp_rec[v, 6]
+    if not (wx * nvx + wy * nvy + wz * nvz > 0.0):
+        return False
+    cg = gx * nvx + gy * nvy + gz * nvz
+    if not (cg > cos_ng):
+        return False
+    if cg <= Hg.COS_NG_DEFAULT and dx * nvx + dy * nvy + dz * nvz < 0.0:
+        return False
+    if vp_clip.shape[0] > 0 and vp_clip[v] != Hg.CLIP_CLEAR:
+        return Hg._accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng)
+    return True
+
+
+@njit(cache=True)
+def _count_branches(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                    vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
+                    M, Phi, rmin, hitmask, n_pair, n_freq, touched, n_touched):
+    """hashgrid._count_range (no sectors) as it was: a branch on each rule,
+    the sums added behind the acceptance branch."""
+    one = np.uint64(1)
+    track = touched.shape[0] > 0
+    for q in range(q0, q1):
+        s = slot[q]
+        e0 = cell_start[s]
+        e1 = cell_start[s + 1]
+        x = np.float64(ph_pos[q, 0])
+        y = np.float64(ph_pos[q, 1])
+        z = np.float64(ph_pos[q, 2])
+        wx = np.float64(ph_wi[q, 0])
+        wy = np.float64(ph_wi[q, 1])
+        wz = np.float64(ph_wi[q, 2])
+        gx = np.float64(ph_ng[q, 0])
+        gy = np.float64(ph_ng[q, 1])
+        gz = np.float64(ph_ng[q, 2])
+        r = ph_rpred[q]
+        is_freq = not math.isnan(r)
+        npair = 0
+        nfreq = 0
+        mask = np.uint64(0)
+        for e in range(e0, e1):
+            v = vp_ids[e]
+            if not _accepts_branches(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz,
+                                     cos_ng):
+                continue
+            M[v] += 1
+            if track and M[v] == 1:
+                touched[n_touched[0]] = v
+                n_touched[0] += 1
+            if vp_rec[v, 7] != 0.0:
+                Phi[v, 0] += ph_power[q, 0]
+                Phi[v, 1] += ph_power[q, 1]
+                Phi[v, 2] += ph_power[q, 2]
+            else:
+                npair += 1
+            if is_freq:
+                nfreq += 1
+                if r < rmin[v]:
+                    rmin[v] = r
+            if e - e0 < 64:
+                mask |= one << np.uint64(e - e0)
+        hitmask[q] = mask
+        n_pair[q] = npair
+        n_freq[q] = nfreq
+
+
+@njit(cache=True)
+def _count_flags(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                 vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
+                 M, Phi, rmin, hitmask, n_pair, n_freq, touched, n_touched):
+    """The first branch-free prototype: rules (1)-(4) written in the loop."""
+    track = touched.shape[0] > 0
+    has_clip = vp_clip.shape[0] > 0
+    for q in range(q0, q1):
+        s = slot[q]
+        e0 = cell_start[s]
+        e1 = cell_start[s + 1]
+        x = np.float64(ph_pos[q, 0])
+        y = np.float64(ph_pos[q, 1])
+        z = np.float64(ph_pos[q, 2])
+        wx = np.float64(ph_wi[q, 0])
+        wy = np.float64(ph_wi[q, 1])
+        wz = np.float64(ph_wi[q, 2])
+        gx = np.float64(ph_ng[q, 0])
+        gy = np.float64(ph_ng[q, 1])
+        gz = np.float64(ph_ng[q, 2])
+        p0 = ph_power[q, 0]
+        p1 = ph_power[q, 1]
+        p2 = ph_power[q, 2]
+        r = ph_rpred[q]
+        is_freq = not math.isnan(r)
+        npair = 0
+        nfreq = 0
+        mask = np.uint64(0)
+        for e in range(e0, e1):
+            v = vp_ids[e]
+            dx = x - vp_rec[v, 0]
+            dy = y - vp_rec[v, 1]
+            dz = z - vp_rec[v, 2]
+            nvx = vp_rec[v, 4]
+            nvy = vp_rec[v, 5]
+            nvz = vp_rec[v, 6]
+            cg = gx * nvx + gy * nvy + gz * nvz
+            ok = ((dx * dx + dy * dy + dz * dz < vp_rec[v, 3])
+                  & (wx * nvx + wy * nvy + wz * nvz > 0.0) & (cg > cos_ng)
+                  & ~((cg <= Hg.COS_NG_DEFAULT) & (dx * nvx + dy * nvy + dz * nvz < 0.0)))
+            if ok and has_clip and vp_clip[v] != Hg.CLIP_CLEAR:
+                ok = _accepts_branches(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz,
+                                       cos_ng)
+            a = np.int32(ok)
+            m = M[v] + a
+            M[v] = m
+            if track and ok and m == 1:
+                touched[n_touched[0]] = v
+                n_touched[0] += 1
+            c = vp_rec[v, 7] != 0.0
+            f = np.float64(ok & c)
+            Phi[v, 0] += p0 * f
+            Phi[v, 1] += p1 * f
+            Phi[v, 2] += p2 * f
+            npair += ok & (not c)
+            if is_freq and ok:
+                nfreq += 1
+                if r < rmin[v]:
+                    rmin[v] = r
+            if e - e0 < 64:
+                mask |= np.uint64(a) << np.uint64(e - e0)
+        hitmask[q] = mask
+        n_pair[q] = npair
+        n_freq[q] = nfreq
+
+
+def count_report(calls, repeat):
+    """--count: the sorted photons of each chunk counted by hashgrid's count
+    pass and by _count_branches (its code before), one thread, interleaved."""
+    grid = calls[0][0]
+    K = grid.K
+    bufs = [Hg.GatherBuffers(K), Hg.GatherBuffers(K), Hg.GatherBuffers(K)]
+    prepared = []
+    for grid_, args, kw in calls:
+        P, K, ph, vp = Hg._prepare(*args[:9])
+        srt = Hg._sorted_photons(Hg._sort_photons_serial, ph, grid_, 1)
+        srt = tuple(np.array(x, copy=True) for x in srt)
+        clip = kw.get("clip")
+        prepared.append((grid_, srt, vp, np.zeros(0, np.uint64) if clip is None
+                         else np.ascontiguousarray(clip, np.uint64), float(kw["cos_ng"])))
+    for b in bufs:
+        b.bind(prepared[0][0], prepared[0][2], 1)
+    cpu = ([], [], [])
+    outs = [None, None, None]
+    for rep in range(repeat + 1):
+        for i, b in enumerate(bufs):
+            res = []
+            c0 = time.process_time()
+            for grid_, (order, slot, pos, ng, wi, power, rpred, hm, npr, nfr), vp, clip, cos_ng in prepared:
+                b.n_used = 1
+                if i == 0:
+                    Hg._count_serial(slot, pos, ng, wi, power, rpred, b.vp_rec, clip, cos_ng,
+                                     grid_.cell_start, grid_.vp_ids, b.M, b.Phi, b.rmin, hm, npr,
+                                     nfr, b.S, b.touched, b.n_touched)
+                else:
+                    (_count_branches if i == 1 else _count_flags)(0, slot.shape[0], slot, pos, ng, wi, power, rpred,
+                                      b.vp_rec, clip, cos_ng, grid_.cell_start, grid_.vp_ids,
+                                      b.M[0], b.Phi[0], b.rmin[0], hm, npr, nfr, b.touched[0],
+                                      b.n_touched[0:1])
+                res.append((hm.copy(), npr.copy(), nfr.copy()))
+            c = time.process_time() - c0
+            outs[i] = (b.M[0].copy(), b.Phi[0].copy(), b.rmin[0].copy(), res,
+                       np.sort(b.touched[0, :b.n_touched[0]]))
+            b.clear()
+            if rep:
+                cpu[i].append(c)
+    a, z, z2 = outs
+    print(f"    (the first prototype, rules in the loop: {min(cpu[2]) * 1e3:.1f} / "
+          f"{np.median(cpu[2]) * 1e3:.1f} ms)")
+    same = (np.array_equal(a[0], z[0]) and np.array_equal(a[1], z[1])
+            and np.array_equal(a[2], z[2]) and np.array_equal(a[4], z[4])
+            and all(np.array_equal(u, w) for x_, y_ in zip(a[3], z[3]) for u, w in zip(x_, y_)))
+    print(f"    count pass, one thread, a pass: hashgrid (branch-free) {min(cpu[0]) * 1e3:.1f} / "
+          f"{np.median(cpu[0]) * 1e3:.1f} ms, with branches (before) {min(cpu[1]) * 1e3:.1f} / "
+          f"{np.median(cpu[1]) * 1e3:.1f} ms (min / median); branch-free / before "
+          f"{min(cpu[0]) / min(cpu[1]):.3f}, {np.median(cpu[0]) / np.median(cpu[1]):.3f}; "
+          f"the same bits {same}; "
+          f"load average {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":
