@@ -192,64 +192,26 @@ THREADS = [2]
 def _direct_range(p0, p1, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, origin, inv_h, lo, hi,
                   dense, nx, ny, nz, shift, vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
                   M, Phi, rmin, ps, hitmask, n_pair, n_freq, S, touched, n_touched):
-    one = np.uint64(1)
-    with_sectors = S.shape[1] > 0
-    track = touched.shape[0] > 0
-    lx, ly, lz, hx, hy, hz = lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]
-    ox, oy, oz = origin[0], origin[1], origin[2]
-    for p in range(p0, p1):
-        x = np.float64(ph_pos[p, 0])
-        y = np.float64(ph_pos[p, 1])
-        z = np.float64(ph_pos[p, 2])
-        inside = (x >= lx) & (x <= hx) & (y >= ly) & (y <= hy) & (z >= lz) & (z <= hz)
-        s = -1
-        e0 = 0
-        e1 = 0
-        if inside:
-            s = Hg._slot(np.int64(math.floor((x - ox) * inv_h)),
-                         np.int64(math.floor((y - oy) * inv_h)),
-                         np.int64(math.floor((z - oz) * inv_h)), dense, nx, ny, nz, shift)
-            if s >= 0:
-                e0 = cell_start[s]
-                e1 = cell_start[s + 1]
-        ps[p] = s
-        npair = 0
-        nfreq = 0
-        mask = np.uint64(0)
-        if e1 > e0:
-            wx = np.float64(ph_wi[p, 0])
-            wy = np.float64(ph_wi[p, 1])
-            wz = np.float64(ph_wi[p, 2])
-            gx = np.float64(ph_ng[p, 0])
-            gy = np.float64(ph_ng[p, 1])
-            gz = np.float64(ph_ng[p, 2])
-            r = ph_rpred[p]
-            is_freq = not math.isnan(r)
-            for e in range(e0, e1):
-                v = vp_ids[e]
-                if not Hg._accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
-                    continue
-                M[v] += 1
-                if track and M[v] == 1:
-                    touched[n_touched[0]] = v
-                    n_touched[0] += 1
-                if with_sectors:
-                    S[v, Hg._sector_cell(vp_rec, v, x, y, z)] += 1
-                if vp_rec[v, 7] != 0.0:
-                    Phi[v, 0] += ph_power[p, 0]
-                    Phi[v, 1] += ph_power[p, 1]
-                    Phi[v, 2] += ph_power[p, 2]
-                else:
-                    npair += 1
-                if is_freq:
-                    nfreq += 1
-                    if r < rmin[v]:
-                        rmin[v] = r
-                if e - e0 < 64:
-                    mask |= one << np.uint64(e - e0)
-        hitmask[p] = mask
-        n_pair[p] = npair
-        n_freq[p] = nfreq
+    """Deposits p0..p1-1 in trace order: their slots (hashgrid._photon_slots),
+    then hashgrid's count pass on each run of deposits that have a slot (its
+    body, in trace order)."""
+    Hg._photon_slots(p0, p1, ph_pos, origin, inv_h, lo, hi, dense, nx, ny, nz, shift,
+                     cell_start, ps)
+    p = p0
+    while p < p1:
+        if ps[p] < 0:
+            hitmask[p] = 0
+            n_pair[p] = 0
+            n_freq[p] = 0
+            p += 1
+            continue
+        q = p
+        while q < p1 and ps[q] >= 0:
+            q += 1
+        Hg._count_range(p, q, ps, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip,
+                        cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq, S,
+                        touched, n_touched)
+        p = q
 
 
 @njit(cache=True, parallel=True)
@@ -373,78 +335,12 @@ def _count_branches(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         n_freq[q] = nfreq
 
 
-@njit(cache=True)
-def _count_flags(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
-                 vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
-                 M, Phi, rmin, hitmask, n_pair, n_freq, touched, n_touched):
-    """The first branch-free prototype: rules (1)-(4) written in the loop."""
-    track = touched.shape[0] > 0
-    has_clip = vp_clip.shape[0] > 0
-    for q in range(q0, q1):
-        s = slot[q]
-        e0 = cell_start[s]
-        e1 = cell_start[s + 1]
-        x = np.float64(ph_pos[q, 0])
-        y = np.float64(ph_pos[q, 1])
-        z = np.float64(ph_pos[q, 2])
-        wx = np.float64(ph_wi[q, 0])
-        wy = np.float64(ph_wi[q, 1])
-        wz = np.float64(ph_wi[q, 2])
-        gx = np.float64(ph_ng[q, 0])
-        gy = np.float64(ph_ng[q, 1])
-        gz = np.float64(ph_ng[q, 2])
-        p0 = ph_power[q, 0]
-        p1 = ph_power[q, 1]
-        p2 = ph_power[q, 2]
-        r = ph_rpred[q]
-        is_freq = not math.isnan(r)
-        npair = 0
-        nfreq = 0
-        mask = np.uint64(0)
-        for e in range(e0, e1):
-            v = vp_ids[e]
-            dx = x - vp_rec[v, 0]
-            dy = y - vp_rec[v, 1]
-            dz = z - vp_rec[v, 2]
-            nvx = vp_rec[v, 4]
-            nvy = vp_rec[v, 5]
-            nvz = vp_rec[v, 6]
-            cg = gx * nvx + gy * nvy + gz * nvz
-            ok = ((dx * dx + dy * dy + dz * dz < vp_rec[v, 3])
-                  & (wx * nvx + wy * nvy + wz * nvz > 0.0) & (cg > cos_ng)
-                  & ~((cg <= Hg.COS_NG_DEFAULT) & (dx * nvx + dy * nvy + dz * nvz < 0.0)))
-            if ok and has_clip and vp_clip[v] != Hg.CLIP_CLEAR:
-                ok = _accepts_branches(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz,
-                                       cos_ng)
-            a = np.int32(ok)
-            m = M[v] + a
-            M[v] = m
-            if track and ok and m == 1:
-                touched[n_touched[0]] = v
-                n_touched[0] += 1
-            c = vp_rec[v, 7] != 0.0
-            f = np.float64(ok & c)
-            Phi[v, 0] += p0 * f
-            Phi[v, 1] += p1 * f
-            Phi[v, 2] += p2 * f
-            npair += ok & (not c)
-            if is_freq and ok:
-                nfreq += 1
-                if r < rmin[v]:
-                    rmin[v] = r
-            if e - e0 < 64:
-                mask |= np.uint64(a) << np.uint64(e - e0)
-        hitmask[q] = mask
-        n_pair[q] = npair
-        n_freq[q] = nfreq
-
-
 def count_report(calls, repeat):
     """--count: the sorted photons of each chunk counted by hashgrid's count
     pass and by _count_branches (its code before), one thread, interleaved."""
     grid = calls[0][0]
     K = grid.K
-    bufs = [Hg.GatherBuffers(K), Hg.GatherBuffers(K), Hg.GatherBuffers(K)]
+    bufs = [Hg.GatherBuffers(K), Hg.GatherBuffers(K)]
     prepared = []
     for grid_, args, kw in calls:
         P, K, ph, vp = Hg._prepare(*args[:9])
@@ -455,8 +351,8 @@ def count_report(calls, repeat):
                          else np.ascontiguousarray(clip, np.uint64), float(kw["cos_ng"])))
     for b in bufs:
         b.bind(prepared[0][0], prepared[0][2], 1)
-    cpu = ([], [], [])
-    outs = [None, None, None]
+    cpu = ([], [])
+    outs = [None, None]
     for rep in range(repeat + 1):
         for i, b in enumerate(bufs):
             res = []
@@ -468,7 +364,7 @@ def count_report(calls, repeat):
                                      grid_.cell_start, grid_.vp_ids, b.M, b.Phi, b.rmin, hm, npr,
                                      nfr, b.S, b.touched, b.n_touched)
                 else:
-                    (_count_branches if i == 1 else _count_flags)(0, slot.shape[0], slot, pos, ng, wi, power, rpred,
+                    _count_branches(0, slot.shape[0], slot, pos, ng, wi, power, rpred,
                                       b.vp_rec, clip, cos_ng, grid_.cell_start, grid_.vp_ids,
                                       b.M[0], b.Phi[0], b.rmin[0], hm, npr, nfr, b.touched[0],
                                       b.n_touched[0:1])
@@ -479,9 +375,7 @@ def count_report(calls, repeat):
             b.clear()
             if rep:
                 cpu[i].append(c)
-    a, z, z2 = outs
-    print(f"    (the first prototype, rules in the loop: {min(cpu[2]) * 1e3:.1f} / "
-          f"{np.median(cpu[2]) * 1e3:.1f} ms)")
+    a, z = outs
     same = (np.array_equal(a[0], z[0]) and np.array_equal(a[1], z[1])
             and np.array_equal(a[2], z[2]) and np.array_equal(a[4], z[4])
             and all(np.array_equal(u, w) for x_, y_ in zip(a[3], z[3]) for u, w in zip(x_, y_)))

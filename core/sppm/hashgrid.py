@@ -749,12 +749,7 @@ def _rule_5(vp_rec, vp_clip, v, x, y, z):
     False when the photon's tangent-plane offset lies at or beyond its
     wedge's clip distance.  Out of the count loop's inlined body (a clipped
     point is rare: 0.7 % of a 256² Cornell box's)."""
-    dx = x - vp_rec[v, 0]
-    dy = y - vp_rec[v, 1]
-    dz = z - vp_rec[v, 2]
-    t0, t1, t2, t3, t4, t5 = _tangent_frame(vp_rec[v, 4], vp_rec[v, 5], vp_rec[v, 6])
-    u = dx * t0 + dy * t1 + dz * t2
-    w = dx * t3 + dy * t4 + dz * t5
+    u, w, _ = _tangent_offset(vp_rec, v, x, y, z)
     b = np.int64((vp_clip[v] >> np.uint64(8 * wedge_of(u, w))) & np.uint64(0xFF))
     return not (b < CLIP_OPEN and 65025.0 * (u * u + w * w) >= np.float64(b * b) * vp_rec[v, 3])
 
@@ -850,20 +845,28 @@ def _sector_cell(vp_rec, v, x, y, z):
     (t1, t2) of its normal (_tangent_frame), plus SECTOR_QUADRANTS for the
     outer ring (|d|^2 >= R^2 / 2).  The SECTOR_CELLS cells have equal areas
     on the disc."""
-    dx = x - vp_rec[v, 0]
-    dy = y - vp_rec[v, 1]
-    dz = z - vp_rec[v, 2]
-    t0, t1, t2, t3, t4, t5 = _tangent_frame(vp_rec[v, 4], vp_rec[v, 5], vp_rec[v, 6])
-    u = dx * t0 + dy * t1 + dz * t2
-    w = dx * t3 + dy * t4 + dz * t5
+    u, w, d2 = _tangent_offset(vp_rec, v, x, y, z)
     c = 0
     if u < 0.0:
         c = 1 if w >= 0.0 else 2
     elif w < 0.0:
         c = 3
-    if 2.0 * (dx * dx + dy * dy + dz * dz) >= vp_rec[v, 3]:
+    if 2.0 * d2 >= vp_rec[v, 3]:
         c += SECTOR_QUADRANTS
     return c
+
+
+@njit(cache=True, inline="always")
+def _tangent_offset(vp_rec, v, x, y, z):
+    """(u, w, |d|^2): the offset d = (x, y, z) - visible point v's position
+    in the tangent frame (t1, t2) of its normal (_tangent_frame), and its
+    squared length (rule (5) and the sector cells)."""
+    dx = x - vp_rec[v, 0]
+    dy = y - vp_rec[v, 1]
+    dz = z - vp_rec[v, 2]
+    t0, t1, t2, t3, t4, t5 = _tangent_frame(vp_rec[v, 4], vp_rec[v, 5], vp_rec[v, 6])
+    return (dx * t0 + dy * t1 + dz * t2, dx * t3 + dy * t4 + dz * t5,
+            dx * dx + dy * dy + dz * dz)
 
 
 @njit(cache=True)
