@@ -14,7 +14,7 @@ sums by
            per-thread rows (photon index ranges per thread), then the same
            fold.
 
---count: the count pass alone on each chunk's sorted photons, one thread,
+--count: the count pass alone on each chunk's sorted photons, on --threads,
 hashgrid's (its candidate test without branches) against a copy of its code
 before (a branch on each rule), interleaved; the same outputs bit for bit.
 
@@ -335,12 +335,26 @@ def _count_branches(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         n_freq[q] = nfreq
 
 
+@njit(cache=True, parallel=True)
+def _count_branches_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip,
+                             cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq,
+                             touched, n_touched, n_chunks):
+    """hashgrid._count_parallel's split over _count_branches."""
+    n = slot.shape[0]
+    for c in prange(n_chunks):
+        _count_branches(c * n // n_chunks, (c + 1) * n // n_chunks, slot, ph_pos, ph_ng, ph_wi,
+                        ph_power, ph_rpred, vp_rec, vp_clip, cos_ng, cell_start, vp_ids, M[c],
+                        Phi[c], rmin[c], hitmask, n_pair, n_freq, touched[c],
+                        n_touched[c:c + 1])
+
+
 def count_report(calls, repeat):
     """--count: the sorted photons of each chunk counted by hashgrid's count
     pass and by _count_branches (its code before), one thread, interleaved."""
     grid = calls[0][0]
     K = grid.K
-    bufs = [Hg.GatherBuffers(K), Hg.GatherBuffers(K)]
+    T = max(THREADS)
+    bufs = [Hg.GatherBuffers(K, threads=T), Hg.GatherBuffers(K, threads=T)]
     prepared = []
     for grid_, args, kw in calls:
         P, K, ph, vp = Hg._prepare(*args[:9])
@@ -350,36 +364,47 @@ def count_report(calls, repeat):
         prepared.append((grid_, srt, vp, np.zeros(0, np.uint64) if clip is None
                          else np.ascontiguousarray(clip, np.uint64), float(kw["cos_ng"])))
     for b in bufs:
-        b.bind(prepared[0][0], prepared[0][2], 1)
-    cpu = ([], [])
-    outs = [None, None]
-    for rep in range(repeat + 1):
-        for i, b in enumerate(bufs):
-            res = []
-            c0 = time.process_time()
-            for grid_, (order, slot, pos, ng, wi, power, rpred, hm, npr, nfr), vp, clip, cos_ng in prepared:
-                b.n_used = 1
-                if i == 0:
-                    Hg._count_serial(slot, pos, ng, wi, power, rpred, b.vp_rec, clip, cos_ng,
-                                     grid_.cell_start, grid_.vp_ids, b.M, b.Phi, b.rmin, hm, npr,
-                                     nfr, b.S, b.touched, b.n_touched)
-                else:
-                    _count_branches(0, slot.shape[0], slot, pos, ng, wi, power, rpred,
-                                      b.vp_rec, clip, cos_ng, grid_.cell_start, grid_.vp_ids,
-                                      b.M[0], b.Phi[0], b.rmin[0], hm, npr, nfr, b.touched[0],
-                                      b.n_touched[0:1])
-                res.append((hm.copy(), npr.copy(), nfr.copy()))
-            c = time.process_time() - c0
-            outs[i] = (b.M[0].copy(), b.Phi[0].copy(), b.rmin[0].copy(), res,
-                       np.sort(b.touched[0, :b.n_touched[0]]))
-            b.clear()
-            if rep:
-                cpu[i].append(c)
+        b.bind(prepared[0][0], prepared[0][2], T)
+    for nt in THREADS:
+        cpu = ([], [])
+        outs = [None, None]
+        for rep in range(repeat + 1):
+            for i, b in enumerate(bufs):
+                res = []
+                c0 = time.process_time()
+                for grid_, (order, slot, pos, ng, wi, power, rpred, hm, npr, nfr), vp, clip, \
+                        cos_ng in prepared:
+                    b.n_used = nt
+                    args_ = (slot, pos, ng, wi, power, rpred, b.vp_rec, clip, cos_ng,
+                             grid_.cell_start, grid_.vp_ids, b.M, b.Phi, b.rmin, hm, npr, nfr)
+                    if i == 0 and nt == 1:
+                        Hg._count_serial(*args_, b.S, b.touched, b.n_touched)
+                    elif i == 0:
+                        Hg._count_parallel(*args_, b.S, b.touched, b.n_touched, nt)
+                    elif nt == 1:
+                        _count_branches(0, slot.shape[0], slot, pos, ng, wi, power, rpred,
+                                        b.vp_rec, clip, cos_ng, grid_.cell_start, grid_.vp_ids,
+                                        b.M[0], b.Phi[0], b.rmin[0], hm, npr, nfr, b.touched[0],
+                                        b.n_touched[0:1])
+                    else:
+                        _count_branches_parallel(*args_, b.touched, b.n_touched, nt)
+                    res.append((hm.copy(), npr.copy(), nfr.copy()))
+                c = time.process_time() - c0
+                outs[i] = (b.M[:nt].copy(), b.Phi[:nt].copy(), b.rmin[:nt].copy(), res,
+                           [np.sort(b.touched[t, :b.n_touched[t]]) for t in range(nt)])
+                b.clear()
+                if rep:
+                    cpu[i].append(c)
+        _count_line(nt, cpu, outs)
+
+
+def _count_line(nt, cpu, outs):
     a, z = outs
     same = (np.array_equal(a[0], z[0]) and np.array_equal(a[1], z[1])
-            and np.array_equal(a[2], z[2]) and np.array_equal(a[4], z[4])
+            and np.array_equal(a[2], z[2])
+            and all(np.array_equal(u, w) for u, w in zip(a[4], z[4]))
             and all(np.array_equal(u, w) for x_, y_ in zip(a[3], z[3]) for u, w in zip(x_, y_)))
-    print(f"    count pass, one thread, a pass: hashgrid (branch-free) {min(cpu[0]) * 1e3:.1f} / "
+    print(f"    count pass, {nt} thread(s), a pass: hashgrid (branch-free) {min(cpu[0]) * 1e3:.1f} / "
           f"{np.median(cpu[0]) * 1e3:.1f} ms, with branches (before) {min(cpu[1]) * 1e3:.1f} / "
           f"{np.median(cpu[1]) * 1e3:.1f} ms (min / median); branch-free / before "
           f"{min(cpu[0]) / min(cpu[1]):.3f}, {np.median(cpu[0]) / np.median(cpu[1]):.3f}; "
