@@ -15,8 +15,9 @@ sums by
            fold.
 
 --count: the count pass alone on each chunk's sorted photons, on --threads,
-hashgrid's (its candidate test without branches) against a copy of its code
-before (a branch on each rule), interleaved; the same outputs bit for bit.
+hashgrid's (a branch on each rule) against a branch-free candidate test
+(tried, not kept: docs/architecture.md), interleaved; the same outputs bit
+for bit.
 
 Printed: CPU (process clock) of each, min / median of --repeat rounds,
 and the largest differences of the sums (M, sector counts and the
@@ -257,40 +258,20 @@ def gather_direct(grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_pos, vp_ng,
 
 
 # ---------------------------------------------------------------------------
-# --count: the count pass before its candidate test lost its branches
+# --count: the count pass with a branch-free candidate test (tried, not kept)
 # ---------------------------------------------------------------------------
 
-@njit(cache=True, inline="always")
-def _accepts_branches(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
-    """hashgrid._accepts as it was (a return at each rule)."""
-    dx = x - vp_rec[v, 0]
-    dy = y - vp_rec[v, 1]
-    dz = z - vp_rec[v, 2]
-    if not (dx * dx + dy * dy + dz * dz < vp_rec[v, 3]):
-        return False
-    nvx = vp_rec[v, 4]
-    nvy = vp_rec[v, 5]
-    nvz = vp_rec[v, 6]
-    if not (wx * nvx + wy * nvy + wz * nvz > 0.0):
-        return False
-    cg = gx * nvx + gy * nvy + gz * nvz
-    if not (cg > cos_ng):
-        return False
-    if cg <= Hg.COS_NG_DEFAULT and dx * nvx + dy * nvy + dz * nvz < 0.0:
-        return False
-    if vp_clip.shape[0] > 0 and vp_clip[v] != Hg.CLIP_CLEAR:
-        return Hg._accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng)
-    return True
-
-
 @njit(cache=True)
-def _count_branches(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
-                    vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
-                    M, Phi, rmin, hitmask, n_pair, n_freq, touched, n_touched):
-    """hashgrid._count_range (no sectors) as it was: a branch on each rule,
-    the sums added behind the acceptance branch."""
-    one = np.uint64(1)
+def _count_branch_free(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                       vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
+                       M, Phi, rmin, hitmask, n_pair, n_freq, touched, n_touched):
+    """hashgrid._count_range (no sectors) with rules (1)-(4) of
+    hashgrid._accepts as one flag of bitwise ands, and the flag added to M
+    and the flux times it to Phi at every candidate (x + 0.0 == x, p * 1.0
+    == p: the same bits); rule (5) (hashgrid._accepts) for a clipped point
+    alone."""
     track = touched.shape[0] > 0
+    has_clip = vp_clip.shape[0] > 0
     for q in range(q0, q1):
         s = slot[q]
         e0 = cell_start[s]
@@ -304,6 +285,9 @@ def _count_branches(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         gx = np.float64(ph_ng[q, 0])
         gy = np.float64(ph_ng[q, 1])
         gz = np.float64(ph_ng[q, 2])
+        p0 = ph_power[q, 0]
+        p1 = ph_power[q, 1]
+        p2 = ph_power[q, 2]
         r = ph_rpred[q]
         is_freq = not math.isnan(r)
         npair = 0
@@ -311,38 +295,49 @@ def _count_branches(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         mask = np.uint64(0)
         for e in range(e0, e1):
             v = vp_ids[e]
-            if not _accepts_branches(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz,
-                                     cos_ng):
-                continue
-            M[v] += 1
-            if track and M[v] == 1:
+            dx = x - vp_rec[v, 0]
+            dy = y - vp_rec[v, 1]
+            dz = z - vp_rec[v, 2]
+            nvx = vp_rec[v, 4]
+            nvy = vp_rec[v, 5]
+            nvz = vp_rec[v, 6]
+            cg = gx * nvx + gy * nvy + gz * nvz
+            ok = ((dx * dx + dy * dy + dz * dz < vp_rec[v, 3])
+                  & (wx * nvx + wy * nvy + wz * nvz > 0.0) & (cg > cos_ng)
+                  & ~((cg <= Hg.COS_NG_DEFAULT) & (dx * nvx + dy * nvy + dz * nvz < 0.0)))
+            if ok and has_clip and vp_clip[v] != Hg.CLIP_CLEAR:
+                ok = Hg._accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng)
+            a = np.int32(ok)
+            m = M[v] + a
+            M[v] = m
+            if track and ok and m == 1:
                 touched[n_touched[0]] = v
                 n_touched[0] += 1
-            if vp_rec[v, 7] != 0.0:
-                Phi[v, 0] += ph_power[q, 0]
-                Phi[v, 1] += ph_power[q, 1]
-                Phi[v, 2] += ph_power[q, 2]
-            else:
-                npair += 1
-            if is_freq:
+            c = vp_rec[v, 7] != 0.0
+            f = np.float64(ok & c)
+            Phi[v, 0] += p0 * f
+            Phi[v, 1] += p1 * f
+            Phi[v, 2] += p2 * f
+            npair += ok & (not c)
+            if is_freq and ok:
                 nfreq += 1
                 if r < rmin[v]:
                     rmin[v] = r
             if e - e0 < 64:
-                mask |= one << np.uint64(e - e0)
+                mask |= np.uint64(a) << np.uint64(e - e0)
         hitmask[q] = mask
         n_pair[q] = npair
         n_freq[q] = nfreq
 
 
 @njit(cache=True, parallel=True)
-def _count_branches_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip,
+def _count_branch_free_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip,
                              cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq,
                              touched, n_touched, n_chunks):
-    """hashgrid._count_parallel's split over _count_branches."""
+    """hashgrid._count_parallel's split over _count_branch_free."""
     n = slot.shape[0]
     for c in prange(n_chunks):
-        _count_branches(c * n // n_chunks, (c + 1) * n // n_chunks, slot, ph_pos, ph_ng, ph_wi,
+        _count_branch_free(c * n // n_chunks, (c + 1) * n // n_chunks, slot, ph_pos, ph_ng, ph_wi,
                         ph_power, ph_rpred, vp_rec, vp_clip, cos_ng, cell_start, vp_ids, M[c],
                         Phi[c], rmin[c], hitmask, n_pair, n_freq, touched[c],
                         n_touched[c:c + 1])
@@ -350,7 +345,7 @@ def _count_branches_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_
 
 def count_report(calls, repeat):
     """--count: the sorted photons of each chunk counted by hashgrid's count
-    pass and by _count_branches (its code before), one thread, interleaved."""
+    pass and by _count_branch_free, on --threads, interleaved."""
     grid = calls[0][0]
     K = grid.K
     T = max(THREADS)
@@ -382,12 +377,12 @@ def count_report(calls, repeat):
                     elif i == 0:
                         Hg._count_parallel(*args_, b.S, b.touched, b.n_touched, nt)
                     elif nt == 1:
-                        _count_branches(0, slot.shape[0], slot, pos, ng, wi, power, rpred,
+                        _count_branch_free(0, slot.shape[0], slot, pos, ng, wi, power, rpred,
                                         b.vp_rec, clip, cos_ng, grid_.cell_start, grid_.vp_ids,
                                         b.M[0], b.Phi[0], b.rmin[0], hm, npr, nfr, b.touched[0],
                                         b.n_touched[0:1])
                     else:
-                        _count_branches_parallel(*args_, b.touched, b.n_touched, nt)
+                        _count_branch_free_parallel(*args_, b.touched, b.n_touched, nt)
                     res.append((hm.copy(), npr.copy(), nfr.copy()))
                 c = time.process_time() - c0
                 outs[i] = (b.M[:nt].copy(), b.Phi[:nt].copy(), b.rmin[:nt].copy(), res,
@@ -404,10 +399,10 @@ def _count_line(nt, cpu, outs):
             and np.array_equal(a[2], z[2])
             and all(np.array_equal(u, w) for u, w in zip(a[4], z[4]))
             and all(np.array_equal(u, w) for x_, y_ in zip(a[3], z[3]) for u, w in zip(x_, y_)))
-    print(f"    count pass, {nt} thread(s), a pass: hashgrid (branch-free) {min(cpu[0]) * 1e3:.1f} / "
-          f"{np.median(cpu[0]) * 1e3:.1f} ms, with branches (before) {min(cpu[1]) * 1e3:.1f} / "
-          f"{np.median(cpu[1]) * 1e3:.1f} ms (min / median); branch-free / before "
-          f"{min(cpu[0]) / min(cpu[1]):.3f}, {np.median(cpu[0]) / np.median(cpu[1]):.3f}; "
+    print(f"    count pass, {nt} thread(s), a pass: hashgrid {min(cpu[0]) * 1e3:.1f} / "
+          f"{np.median(cpu[0]) * 1e3:.1f} ms, branch-free {min(cpu[1]) * 1e3:.1f} / "
+          f"{np.median(cpu[1]) * 1e3:.1f} ms (min / median); branch-free / hashgrid "
+          f"{min(cpu[1]) / min(cpu[0]):.3f}, {np.median(cpu[1]) / np.median(cpu[0]):.3f}; "
           f"the same bits {same}; "
           f"load average {os.getloadavg()[0]:.1f}")
 

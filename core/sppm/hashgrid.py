@@ -714,44 +714,31 @@ _sort_photons_serial = serial_twin(_sort_photons)
 @njit(cache=True, inline="always")
 def _accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
     """Gather rules (1)-(5) of the module docstring for photon (x, w, g) and
-    visible point v: the one place they are written (count and pair passes:
-    :func:`_rules_1_to_4`, then :func:`_rule_5` for a clipped visible point).
+    visible point v: the one place they are written (count and pair passes).
     vp_clip (K,) uint64 packed clips, or (0,): no rule (5)."""
-    ok = _rules_1_to_4(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng)
-    if ok and vp_clip.shape[0] > 0 and vp_clip[v] != CLIP_CLEAR:
-        ok = _rule_5(vp_rec, vp_clip, v, x, y, z)
-    return ok
-
-
-@njit(cache=True, inline="always")
-def _rules_1_to_4(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
-    """Rules (1)-(4) as one flag of bitwise ands, without a branch: a
-    candidate is accepted about one time in three, at random, and the
-    mispredicted branches of a test rule by rule were about half of the
-    count pass (docs/architecture.md, "The count pass without branches").
-    A comparison with a NaN is False, so a NaN still never counts."""
     dx = x - vp_rec[v, 0]
     dy = y - vp_rec[v, 1]
     dz = z - vp_rec[v, 2]
+    if not (dx * dx + dy * dy + dz * dz < vp_rec[v, 3]):                    # (1)
+        return False
     nvx = vp_rec[v, 4]
     nvy = vp_rec[v, 5]
     nvz = vp_rec[v, 6]
+    if not (wx * nvx + wy * nvy + wz * nvz > 0.0):                          # (2)
+        return False
     cg = gx * nvx + gy * nvy + gz * nvz
-    return ((dx * dx + dy * dy + dz * dz < vp_rec[v, 3])                    # (1)
-            & (wx * nvx + wy * nvy + wz * nvz > 0.0)                        # (2)
-            & (cg > cos_ng)                                                 # (3)
-            & ~((cg <= COS_NG_DEFAULT) & (dx * nvx + dy * nvy + dz * nvz < 0.0)))  # (4)
-
-
-@njit(cache=True)
-def _rule_5(vp_rec, vp_clip, v, x, y, z):
-    """Rule (5) for a visible point v with a clip (vp_clip[v] != CLIP_CLEAR):
-    False when the photon's tangent-plane offset lies at or beyond its
-    wedge's clip distance.  Out of the count loop's inlined body (a clipped
-    point is rare: 0.7 % of a 256² Cornell box's)."""
-    u, w, _ = _tangent_offset(vp_rec, v, x, y, z)
-    b = np.int64((vp_clip[v] >> np.uint64(8 * wedge_of(u, w))) & np.uint64(0xFF))
-    return not (b < CLIP_OPEN and 65025.0 * (u * u + w * w) >= np.float64(b * b) * vp_rec[v, 3])
+    if not (cg > cos_ng):                                                   # (3)
+        return False
+    if cg <= COS_NG_DEFAULT and dx * nvx + dy * nvy + dz * nvz < 0.0:       # (4)
+        return False
+    if vp_clip.shape[0] > 0 and vp_clip[v] != CLIP_CLEAR:                   # (5)
+        t0, t1, t2, t3, t4, t5 = _tangent_frame(nvx, nvy, nvz)
+        u = dx * t0 + dy * t1 + dz * t2
+        w = dx * t3 + dy * t4 + dz * t5
+        b = np.int64((vp_clip[v] >> np.uint64(8 * wedge_of(u, w))) & np.uint64(0xFF))
+        if b < CLIP_OPEN and 65025.0 * (u * u + w * w) >= np.float64(b * b) * vp_rec[v, 3]:
+            return False
+    return True
 
 
 @njit(cache=True, inline="always")
@@ -845,28 +832,20 @@ def _sector_cell(vp_rec, v, x, y, z):
     (t1, t2) of its normal (_tangent_frame), plus SECTOR_QUADRANTS for the
     outer ring (|d|^2 >= R^2 / 2).  The SECTOR_CELLS cells have equal areas
     on the disc."""
-    u, w, d2 = _tangent_offset(vp_rec, v, x, y, z)
+    dx = x - vp_rec[v, 0]
+    dy = y - vp_rec[v, 1]
+    dz = z - vp_rec[v, 2]
+    t0, t1, t2, t3, t4, t5 = _tangent_frame(vp_rec[v, 4], vp_rec[v, 5], vp_rec[v, 6])
+    u = dx * t0 + dy * t1 + dz * t2
+    w = dx * t3 + dy * t4 + dz * t5
     c = 0
     if u < 0.0:
         c = 1 if w >= 0.0 else 2
     elif w < 0.0:
         c = 3
-    if 2.0 * d2 >= vp_rec[v, 3]:
+    if 2.0 * (dx * dx + dy * dy + dz * dz) >= vp_rec[v, 3]:
         c += SECTOR_QUADRANTS
     return c
-
-
-@njit(cache=True, inline="always")
-def _tangent_offset(vp_rec, v, x, y, z):
-    """(u, w, |d|^2): the offset d = (x, y, z) - visible point v's position
-    in the tangent frame (t1, t2) of its normal (_tangent_frame), and its
-    squared length (rule (5) and the sector cells)."""
-    dx = x - vp_rec[v, 0]
-    dy = y - vp_rec[v, 1]
-    dz = z - vp_rec[v, 2]
-    t0, t1, t2, t3, t4, t5 = _tangent_frame(vp_rec[v, 4], vp_rec[v, 5], vp_rec[v, 6])
-    return (dx * t0 + dy * t1 + dz * t2, dx * t3 + dy * t4 + dz * t5,
-            dx * dx + dy * dy + dz * dz)
 
 
 @njit(cache=True)
@@ -880,8 +859,8 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     entry cell_start[s] + j counted (cells of <= 64 entries), so the pair pass
     need not redo the tests.  touched (K,) int32 (size 0: not recorded): each
     VP whose M goes from 0 to 1 is appended at n_touched[0] (GatherBuffers)."""
+    one = np.uint64(1)
     with_sectors = S.shape[1] > 0
-    has_clip = vp_clip.shape[0] > 0
     track = touched.shape[0] > 0
     for p in range(q0, q1):
         q = p
@@ -902,39 +881,28 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         npair = 0
         nfreq = 0
         mask = np.uint64(0)
-        p0 = ph_power[p, 0]
-        p1 = ph_power[p, 1]
-        p2 = ph_power[p, 2]
         for e in range(e0, e1):
-            # Every candidate adds its flag (0 or 1) and its flux times it
-            # (x + 0.0 == x and p * 1.0 == p: the same bits as adding the
-            # accepted ones alone, the powers being finite); the branches
-            # left are rarely taken or follow a per-photon flag.
             v = vp_ids[e]
-            # _accepts, its rule (5) test hoisted
-            ok = _rules_1_to_4(vp_rec, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng)
-            if ok and has_clip and vp_clip[v] != CLIP_CLEAR:
-                ok = _rule_5(vp_rec, vp_clip, v, x, y, z)
-            a = np.int32(ok)
-            m = M[v] + a
-            M[v] = m
-            if track and ok and m == 1:
+            if not _accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
+                continue
+            M[v] += 1
+            if track and M[v] == 1:
                 touched[n_touched[0]] = v
                 n_touched[0] += 1
-            if with_sectors and ok:
+            if with_sectors:
                 S[v, _sector_cell(vp_rec, v, x, y, z)] += 1
-            const = vp_rec[v, 7] != 0.0
-            f = np.float64(ok & const)
-            Phi[v, 0] += p0 * f
-            Phi[v, 1] += p1 * f
-            Phi[v, 2] += p2 * f
-            npair += ok & (not const)
-            if is_freq and ok:
+            if vp_rec[v, 7] != 0.0:
+                Phi[v, 0] += ph_power[p, 0]
+                Phi[v, 1] += ph_power[p, 1]
+                Phi[v, 2] += ph_power[p, 2]
+            else:
+                npair += 1
+            if is_freq:
                 nfreq += 1
                 if r < rmin[v]:
                     rmin[v] = r
             if e - e0 < 64:
-                mask |= np.uint64(a) << np.uint64(e - e0)
+                mask |= one << np.uint64(e - e0)
         hitmask[q] = mask
         n_pair[q] = npair
         n_freq[q] = nfreq
