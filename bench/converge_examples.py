@@ -49,10 +49,13 @@ SCENES = {
     # Cycles' 16384-spp reference of the cup is as noisy as the methods (a
     # camera path must hit the 5 cm spot in the mirror): the reference is
     # LuxCoreRender's VCM (bench/luxcore_reference.py), in the cache folder.
-    # The glass sphere's VCM render is 14 % too bright in the dim regions
-    # (docs/peers.md "References for the glass scenes"): Cycles is kept there.
+    # The glass sphere's: LuxCore's light tracer (the spot) and path tracer
+    # (the world) where the camera sees a diffuse surface first, Cycles where
+    # it may see the glass first (bench/luxcore_reference.py compose; its VCM
+    # render is biased with the spot, docs/peers.md "References for the glass
+    # scenes").
     "coffee_cup": ("caustic-small", "coffee_cup_luxcore_bidirvm.exr"),
-    "glass_sphere": ("caustic-small", 16384),
+    "glass_sphere": ("caustic-small", "glass_sphere_luxcore_light_cycles4096.exr"),
     # Cycles cannot render this caustic: the reference is Mitsuba 3's light
     # tracer (bench/point_caustic_reference.py), 65536 spp, in the cache folder.
     "point_caustic": ("caustic-point", "point_caustic_mitsuba_ptracer_65536.exr"),
@@ -165,6 +168,8 @@ METHODS = "fppm,ppm,appm,cppm,path,light,combined,cycles"
 REFERENCE_SCRIPTS = {
     "point_caustic": "bench/point_caustic_reference.py",
     "coffee_cup": "bench/luxcore_reference.py render coffee_cup",
+    "glass_sphere": "bench/luxcore_reference.py render glass_sphere --engine lux_light:noworld "
+                    "(and --engine lux_path:world), then compose glass_sphere",
 }
 # The methods each scene's targets need: the combined
 # integrator against Cycles and its single strategies, FPPM against PPM, and
