@@ -11,6 +11,7 @@ engines are biased with the translation's spot light (docs/peers.md
     .venv/bin/python bench/luxcore_reference.py finish  SCENE [--engine E]
     .venv/bin/python bench/luxcore_reference.py compose SCENE [--cycles N] [--engine lux_light]
     .venv/bin/python bench/luxcore_reference.py check   SCENE [--cycles N] [--fppm RUN:S,...] [--engine E]
+    .venv/bin/python bench/luxcore_reference.py bisect  SCENE [--pct 50] [--cpu 12] [--variants V,...] [--engines E,...]
 
 SCENE: glass_sphere or coffee_cup (any scene bench/peer_luxcore.py translates),
 rendered at 100 % (128x128, what bench/converge_examples.py compares at).
@@ -33,6 +34,10 @@ same floor as its Cycles references: ``tools.metrics.reference_floor``).
 ``compose`` writes ``<scene>_luxcore_light_cycles<N>.exr`` from the
 ``lux_light`` runs and ``fppm converge``'s cached Cycles reference of N spp
 (rendered when missing).
+
+``bisect`` renders variants of the scene (:func:`variant`: the glass made
+diffuse, the world or the spot's radius taken out, ...) with LuxCore's
+engines and prints their region means over PATHCPU's.
 
 ``check`` compares the reference per region (the regions of
 ``tools.metrics.region_masks`` and the material each pixel sees first,
@@ -249,6 +254,81 @@ def compose(scene: str, cycles: int, parts=COMPOSE_PARTS) -> None:
           f"own floor {reference_floor(c['image'], c['var']):.3g}", flush=True)
 
 
+def variant(lux, name: str):
+    """A copy of ``lux`` changed by ``name`` ("+"-joined parts) for bisecting a
+    bias of LuxCore's engines (docs/peers.md "References for the glass scenes"):
+    "asis"; "matte" (glass and mirror -> Lambert 0.8); "noworld" / "world"
+    (:func:`select_lights`); "point" (mapsphere -> mappoint: the spot without
+    its radius); "plainsphere" / "plainpoint" (the spot -> an isotropic sphere
+    light of its radius / a point light, 40 W)."""
+    import copy
+    lux = copy.deepcopy(lux)
+    for part in name.split("+"):
+        spots = [k[:-5] for k, v in lux.props.items() if k.startswith("scene.lights.")
+                 and k.endswith(".type") and v in (["mapsphere"], ["mappoint"])]
+        if part == "asis":
+            pass
+        elif part == "matte":
+            for k in [k for k, v in lux.props.items() if k.endswith(".type")
+                      and v in (["glass"], ["mirror"])]:
+                pre = k[:-5]
+                mid = lux.props[pre + ".id"]
+                for kk in [x for x in lux.props if x.startswith(pre + ".")]:
+                    del lux.props[kk]
+                lux.props.update({k: ["matte"], pre + ".kd": [0.8] * 3, pre + ".id": mid})
+        elif part in ("world", "noworld"):
+            lux = select_lights(lux, part)
+        elif part == "point":
+            for pre in spots:
+                lux.props[pre + ".type"] = ["mappoint"]
+                lux.props.pop(pre + ".radius", None)
+        elif part in ("plainsphere", "plainpoint"):
+            for pre in spots:
+                pos, r = lux.props[pre + ".transformation"][12:15], lux.props.get(pre + ".radius")
+                for kk in [x for x in lux.props if x.startswith(pre + ".")]:
+                    del lux.props[kk]
+                lux.props.update({pre + ".position": pos, pre + ".color": [40.0] * 3})
+                if part == "plainsphere" and r:
+                    lux.props.update({pre + ".type": ["sphere"], pre + ".radius": r})
+                else:
+                    lux.props[pre + ".type"] = ["point"]
+        else:
+            raise SystemExit(f"unknown variant part '{part}'")
+    return lux
+
+
+def bisect(scene: str, pct: int, cpu: float, variants: list[str], engines: list[str]) -> None:
+    """Region means of ``engines`` / PATHCPU's on each variant (one seed, ``cpu``
+    CPU s a render).  Regions: the pixels that see the wall, the sphere, the
+    floor brighter / darker than half the floor's median on PATHCPU's render of
+    the first variant, and the dark floor's interior (3 pixels from the lit)."""
+    base = P.translate(P.load_scene(blend_of(scene), pct))
+    regions = None
+    print(f"{scene} at {pct} %, {cpu:g} CPU s a render; region mean of the engine / PATHCPU's")
+    for v in variants:
+        lux = variant(base, v)
+        path = P.render_luxcore(lux, "lux_path", 0, cpu, outputs=("RGB", "MATERIAL_ID"))
+        if regions is None:
+            ids, L = path["MATERIAL_ID"][..., 0], path["img"].mean(-1)
+            floor = ids == 0
+            lit = floor & (L > 0.5 * np.median(L[floor]))
+            near = lit.copy()
+            for _ in range(3):
+                near[1:] |= near[:-1].copy(); near[:-1] |= near[1:].copy()
+                near[:, 1:] |= near[:, :-1].copy(); near[:, :-1] |= near[:, 1:].copy()
+            regions = {"all": np.ones_like(floor), "wall": ids == 1, "sphere": ids == 2,
+                       "floor lit": lit, "floor dark": floor & ~lit,
+                       "floor dark interior": floor & ~near}
+            print("regions (pixels): " + ", ".join(f"{k} {int(m.sum())}" for k, m in regions.items()))
+        for e in engines:
+            eng, *kv = e.split("@")
+            extra = {k: float(x) for k, x in (p.split("=") for p in kv)}
+            out = P.render_luxcore(lux, eng, 0, cpu, extra=extra)
+            print(f"{v} {e} ({out['spp']} spp): " + ", ".join(
+                f"{k} {out['img'][m].mean() / path['img'][m].mean():.3f}"
+                for k, m in regions.items()) + f"; load {os.getloadavg()[0]:.1f}", flush=True)
+
+
 def _region_ratio(x_runs, y, y_var, m):
     """Ratio of region means mean(x) / mean(y) and its standard error.
 
@@ -316,7 +396,7 @@ def check(scene: str, cycles: int, fppm_runs: list[tuple[str, float]], engine: s
 
 
 def main(argv) -> int:
-    if len(argv) < 2 or argv[0] not in ("render", "finish", "check", "compose"):
+    if len(argv) < 2 or argv[0] not in ("render", "finish", "check", "compose", "bisect"):
         print(__doc__)
         return 2
     cmd, scene = argv[0], argv[1]
@@ -325,6 +405,11 @@ def main(argv) -> int:
         render(scene, _arg(argv, "--runs", 4), _arg(argv, "--cpu", 200.0), engine)
     elif cmd == "finish":
         finish(scene, engine)
+    elif cmd == "bisect":
+        bisect(scene, _arg(argv, "--pct", 50), _arg(argv, "--cpu", 12.0),
+               _arg(argv, "--variants", "matte,matte+noworld,matte+point,matte+plainsphere,"
+                                        "matte+plainpoint").split(","),
+               _arg(argv, "--engines", "lux_light,lux_bidir,lux_bidirvm").split(","))
     elif cmd == "compose":
         compose(scene, _arg(argv, "--cycles", 4096),
                 tuple(_arg(argv, "--parts", ",".join(COMPOSE_PARTS)).split(",")))
