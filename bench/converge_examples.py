@@ -116,7 +116,7 @@ NOTES = [
     "Cycles', docs/peers.md 'The glass sphere's composed reference').  LuxCore's VCM "
     "reference (floor 1.2e-3) was not kept: its bidirectional engines are biased with the "
     "translation's spot (+17 % in the dim region; docs/peers.md 'Why LuxCore's VCM is bright "
-    "on the glass sphere').  Every excess (1.9e-2 to 3.6e-2) is now 10-20x the floor.  Seed 3 is an outlier of every photon mapper (FPPM 6.8e-2, PPM 6.7e-2, COMBINED 4.9e-2 relMSE against 1.0e-2 to 1.3e-2 on seeds 0-2; FPPM and PPM share their photons), 90 % of it in the 220 caustic pixels: the means and COMBINED's 0.81x FPPM follow it.  On seeds 0-2 FPPM / PPM is 1.03, 1.02, 1.15 and COMBINED / FPPM 1.02, 1.31, 0.88 (raw relMSE at 30 CPU s).",
+    "on the glass sphere').  Every excess (1.9e-2 to 3.6e-2) is now 10-20x the floor.  Seed 3 is an outlier of every photon mapper (FPPM 6.8e-2, PPM 6.7e-2, COMBINED 4.9e-2 relMSE against 1.0e-2 to 1.3e-2 on seeds 0-2; FPPM and PPM share their photons), 14 % of it in the 220 caustic pixels and 84 % outside the three regions (edges, the sphere): the means and COMBINED's 0.81x FPPM follow it.  On seeds 0-2 FPPM / PPM is 1.03, 1.02, 1.15 and COMBINED / FPPM 1.02, 1.31, 0.88 (raw relMSE at 30 CPU s).",
     "coffee_cup: `coffee_cup --budget 30 --seeds 2 --methods fppm,ppm,light,combined` on "
     "e64549a (load average 5 to 6, 0.68 to 1.0 cores per method; PATH not run: 6.6 relMSE "
     "before), against LuxCoreRender's VCM (bench/luxcore_reference.py, "
