@@ -196,14 +196,17 @@ class FPPMRenderSettings(PropertyGroup):
     hold_alpha: FloatProperty(
         name="Hold Alpha", default=_D.hold_alpha, min=0.01, max=1.0, soft_min=0.7, soft_max=1.0,
         subtype='FACTOR',
-        description="Radius reduction where the light is predicted smooth: a held radius "
-                    "shrinks like PPM with this alpha (at least Alpha), so its bias still "
-                    "vanishes; 1 holds it forever (the paper's rule, inconsistent)")
+        description="Radius reduction where the light is smooth (predicted by the spectrum or, "
+                    "with Verify Holds, uniform photon counts): a held radius shrinks like "
+                    "PPM with this alpha (at least Alpha), so its bias still vanishes; 1 "
+                    "holds it forever (the paper's rule, inconsistent)")
     verify_holds: BoolProperty(
         name="Verify Holds", default=_D.verify_holds,
-        description="Slow a radius down only where the photons in its kernel also look "
-                    "uniform (chi-squared test of their sector counts), not on the "
-                    "frequency prediction alone")
+        description="Check holds against the photons in the kernel (chi-squared tests of "
+                    "their sector counts): release a hold where they show more than a linear "
+                    "gradient, hold where they look uniform (or are too few to test) even "
+                    "without a smooth prediction, and let a pixel's first hold grow its "
+                    "radius towards the prediction (at most 2x)")
     occlusion_grid_res: IntProperty(
         name="Occlusion Grid", default=_D.occlusion_grid_res, min=4, max=512,
         soft_min=16, soft_max=256,

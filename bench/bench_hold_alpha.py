@@ -257,6 +257,8 @@ def planes_or(r, m):
         r.tracer.one_batch = False
     if ":keep=otherphotons" in m:       # frequency photons on other uniforms (the tracer before)
         r.tracer.same_photons = False
+    if ":keep=oneb" in m:               # frequency photons never traced again (the tracer before)
+        r.tracer.retrace = 0.0
     if ":keep=every" in m:              # frequency photons in every pass (the schedule before)
         r.photon_pass.doubling = False
 
@@ -303,6 +305,16 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
         c, g = np.mean(cpu[m][2:]), np.mean(gathered[m][2:])
         say(f"seed {seed} {m:>18}: CPU per pass {1e3 * c:.0f} ms ({c / c_ppm:.3f} x PPM), "
             f"photons gathered per pass {g:.3g} ({g / g_ppm:.3f} x PPM)")
+    # the passes 4, 8, 16, ... alone: those that trace frequency photons under
+    # the doubling schedule (photon_pass.frequency_pass); FPPM over PPM there
+    from fppm.core.sppm.photon_pass import frequency_pass
+    fp = [p - 1 for p in range(3, passes + 1) if frequency_pass(p)]
+    f_ppm = np.array([cpu["ppm"][i] for i in fp])
+    for m in methods:
+        f = np.array([cpu[m][i] for i in fp])
+        say(f"seed {seed} {m:>18}: CPU of the frequency passes {[p + 1 for p in fp]}: "
+            f"{1e3 * f.mean():.0f} ms, x PPM's same passes: sum {f.sum() / f_ppm.sum():.3f}, "
+            f"each " + " ".join(f"{x:.3f}" for x in f / f_ppm))
 
 
 def signed(scene, base, methods, seed, passes, ref, say):

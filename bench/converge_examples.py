@@ -27,7 +27,9 @@ point_caustic.blend: Cycles cannot render point-light caustics, so its
 reference is Mitsuba 3's light tracer, made by bench/point_caustic_reference.py
 and read from the cache folder (the scene is skipped when it is missing).
 coffee_cup: LuxCoreRender's VCM, made by bench/luxcore_reference.py, read
-the same way (:data:`REFERENCE_SCRIPTS`).
+the same way (:data:`REFERENCE_SCRIPTS`); glass_sphere: LuxCore's light and
+path tracers composed with Cycles on the pixels that see the glass first
+(bench/luxcore_reference.py compose).
 """
 from __future__ import annotations
 
@@ -49,10 +51,13 @@ SCENES = {
     # Cycles' 16384-spp reference of the cup is as noisy as the methods (a
     # camera path must hit the 5 cm spot in the mirror): the reference is
     # LuxCoreRender's VCM (bench/luxcore_reference.py), in the cache folder.
-    # The glass sphere's VCM render is 14 % too bright in the dim regions
-    # (docs/peers.md "References for the glass scenes"): Cycles is kept there.
+    # The glass sphere's: LuxCore's light tracer (the spot) and path tracer
+    # (the world) where the camera sees a diffuse surface first, Cycles where
+    # it may see the glass first (bench/luxcore_reference.py compose; its VCM
+    # render is biased with the spot, docs/peers.md "References for the glass
+    # scenes").
     "coffee_cup": ("caustic-small", "coffee_cup_luxcore_bidirvm.exr"),
-    "glass_sphere": ("caustic-small", 16384),
+    "glass_sphere": ("caustic-small", "glass_sphere_luxcore_light_cycles4096.exr"),
     # Cycles cannot render this caustic: the reference is Mitsuba 3's light
     # tracer (bench/point_caustic_reference.py), 65536 spp, in the cache folder.
     "point_caustic": ("caustic-point", "point_caustic_mitsuba_ptracer_65536.exr"),
@@ -97,18 +102,21 @@ NOTES = [
     "ca52af9 (COMBINED's Camera Depth Auto Direct where the camera sees no glass under point "
     "lights; docs/integrators.md \"The point caustic\"), load average 3 to 6, against the "
     "Mitsuba 3 light tracer's 65536-spp reference (floor 1.4e-4).  "
-    "Earlier runs make the other rows.  glass_sphere: `--budget 30 --seeds 2` on a434914 (the first of these "
+    "Earlier runs make the other rows.  The rings: `--budget 30 --seeds 2` on a434914 (the first of these "
     "plus the docs), on a machine loaded by other jobs (load average 3 to 26, 0.3 to 1.3 cores "
-    "per method), after their Cycles references were made (16384 spp for the glass sphere, "
-    "8192 for the rings).  None of them includes the reach map of the frequency photons or the "
+    "per method), after their Cycles references were made (8192 spp).  None of them includes the reach map of the frequency photons or the "
     "camera and direct stages in blocks, merged after them, nor the kernel clipped at walls (on by default since; it changes every photon mapper's row, the rings' most: README).  The default 120 CPU s and 4 seeds "
     "did not fit a session (about 4 hours of an idle machine for every scene and method).",
-    "glass_sphere: its Cycles reference's own noise floor (1.3e-2: Cycles cannot sample a "
-    "small light's caustic seen through glass) is as large as the photon mappers' excess "
-    "errors at 30 CPU s, so every ratio there is flagged 'near floor' and measures the "
-    "reference as much as the methods.  A LuxCore VCM reference (floor 1.2e-3) was made and "
-    "not kept: it is 14-17 % brighter than both Cycles and FPPM's Combined in the dim region "
-    "(docs/peers.md 'References for the glass scenes').",
+    "glass_sphere: `glass_sphere --budget 30 --seeds 4 --methods fppm,ppm,combined,light` on "
+    "c330335 (load average 4 to 11, 0.55 to 0.65 cores per method; PATH not run: 1.57 relMSE at 30 CPU s before), against "
+    "a reference composed of LuxCore's light tracer (the spot) and path tracer (the world) "
+    "where the camera sees a diffuse surface first and Cycles' 4096-spp render where it may "
+    "see the glass first (bench/luxcore_reference.py compose; floor 1.8e-3, 7x below the "
+    "16384-spp Cycles reference's 1.3e-2 of the row before; region means within 1-2 % of "
+    "Cycles', docs/peers.md 'The glass sphere's composed reference').  LuxCore's VCM "
+    "reference (floor 1.2e-3) was not kept: its bidirectional engines are biased with the "
+    "translation's spot (+17 % in the dim region; docs/peers.md 'Why LuxCore's VCM is bright "
+    "on the glass sphere').  Every excess (1.9e-2 to 3.6e-2) is now 10-20x the floor.  Seed 3 is an outlier of every photon mapper (FPPM 6.8e-2, PPM 6.7e-2, COMBINED 4.9e-2 relMSE against 1.0e-2 to 1.3e-2 on seeds 0-2; FPPM and PPM share their photons), 14 % of it in the 220 caustic pixels and 84 % outside the three regions (edges, the sphere): the means and COMBINED's 0.81x FPPM follow it.  On seeds 0-2 FPPM / PPM is 1.03, 1.02, 1.15 and COMBINED / FPPM 1.02, 1.31, 0.88 (raw relMSE at 30 CPU s).",
     "coffee_cup: `coffee_cup --budget 30 --seeds 2 --methods fppm,ppm,light,combined` on "
     "e64549a (load average 5 to 6, 0.68 to 1.0 cores per method; PATH not run: 6.6 relMSE "
     "before), against LuxCoreRender's VCM (bench/luxcore_reference.py, "
@@ -142,12 +150,12 @@ NOTES = [
     "Cycles: the ladder renders 1, 2, 4, ... spp in a process of its own, each point timed by "
     "that process's CPU; the standalone samples/s check is skipped (--no-cycles-check): it "
     "guarded against the machine's load, which the CPU clock takes out.",
-    "References: Cycles at 8192 spp (16384 for glass_sphere) with caustics on, "
+    "References: Cycles at 8192 spp with caustics on, "
     "two halves whose difference gives the noise floor; point_caustic: Mitsuba 3's light tracer "
     "(ptracer, bench/point_caustic_reference.py), 65536 spp: the script's 16384-spp halves "
     "averaged with 49152-spp halves rendered by the same function with other seeds (floor "
     "1.4e-4, 4x below the 16384-spp reference's 5.5e-4), since Cycles cannot render a point "
-    "light's caustic; coffee_cup: LuxCoreRender's VCM (above).  A target whose excess errors "
+    "light's caustic; coffee_cup: LuxCoreRender's VCM (above); glass_sphere: composed (above).  A target whose excess errors "
     "are below 3x the reference floor is marked "
     "'near floor'.",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
@@ -165,6 +173,8 @@ METHODS = "fppm,ppm,appm,cppm,path,light,combined,cycles"
 REFERENCE_SCRIPTS = {
     "point_caustic": "bench/point_caustic_reference.py",
     "coffee_cup": "bench/luxcore_reference.py render coffee_cup",
+    "glass_sphere": "bench/luxcore_reference.py render glass_sphere --engine lux_light:noworld "
+                    "(and --engine lux_path:world), then compose glass_sphere",
 }
 # The methods each scene's targets need: the combined
 # integrator against Cycles and its single strategies, FPPM against PPM, and

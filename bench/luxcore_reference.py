@@ -1,12 +1,17 @@
-"""References from LuxCoreRender's VCM (BIDIRVMCPU) for the small-light caustic scenes.
+"""References from LuxCoreRender for the small-light caustic scenes.
 
-bench/converge_examples.py uses coffee_cup's; glass_sphere's was made and
-not kept (its dim regions disagree with Cycles and FPPM: docs/peers.md
+bench/converge_examples.py uses coffee_cup's VCM (BIDIRVMCPU) reference and
+glass_sphere's composed one (:func:`compose`: LuxCore's light tracer where
+the camera sees a diffuse surface first, Cycles where it may see the glass
+first).  glass_sphere's VCM reference was not kept: LuxCore's bidirectional
+engines are biased with the translation's spot light (docs/peers.md
 "References for the glass scenes").
 
-    .venv/bin/python bench/luxcore_reference.py render SCENE [--runs K] [--cpu S] [--engine E]
-    .venv/bin/python bench/luxcore_reference.py finish SCENE [--engine E]
-    .venv/bin/python bench/luxcore_reference.py check  SCENE [--cycles N] [--fppm RUN:S,...]
+    .venv/bin/python bench/luxcore_reference.py render  SCENE [--runs K] [--cpu S] [--engine E]
+    .venv/bin/python bench/luxcore_reference.py finish  SCENE [--engine E]
+    .venv/bin/python bench/luxcore_reference.py compose SCENE [--cycles N] [--engine lux_light]
+    .venv/bin/python bench/luxcore_reference.py check   SCENE [--cycles N] [--fppm RUN:S,...] [--engine E]
+    .venv/bin/python bench/luxcore_reference.py bisect  SCENE [--pct 50] [--cpu 12] [--variants V,...] [--engines E,...]
 
 SCENE: glass_sphere or coffee_cup (any scene bench/peer_luxcore.py translates),
 rendered at 100 % (128x128, what bench/converge_examples.py compares at).
@@ -14,7 +19,8 @@ Cycles cannot sample the caustic of a 5 cm spot seen through glass or in a
 mirror (a camera path must hit the light through the specular surface): its
 16384-spp references of these scenes are as noisy as the methods compared
 against them.  VCM (vertex connection and merging) renders those paths by
-merging, and the rest by light tracing and connections.
+merging, and the rest by light tracing and connections; light tracing
+(LIGHTCPU) renders every path whose first camera vertex is diffuse.
 
 ``render`` renders K independent LuxCore renders (seeds 0..K-1, each S CPU
 seconds of a child process, bench/peer_luxcore.py's ``render_luxcore``) and
@@ -25,13 +31,22 @@ K adds runs.  ``finish`` (run by ``render`` too) writes
 the runs, Variance = (A - B)^2 / 4 with A, B the means of the even and odd
 runs (the two independent halves ``fppm converge --reference`` reads, the
 same floor as its Cycles references: ``tools.metrics.reference_floor``).
+``compose`` writes ``<scene>_luxcore_light_cycles<N>.exr`` from the
+``lux_light`` runs and ``fppm converge``'s cached Cycles reference of N spp
+(rendered when missing).
+
+``bisect`` renders variants of the scene (:func:`variant`: the glass made
+diffuse, the world or the spot's radius taken out, ...) with LuxCore's
+engines and prints their region means over PATHCPU's.
 
 ``check`` compares the reference per region (the regions of
 ``tools.metrics.region_masks`` and the material each pixel sees first,
 LuxCore's MATERIAL_ID) with a Cycles render of N spp (``fppm converge``'s
 cached reference) and with FPPM's renders (bench/measure_cpu.py run names,
 S CPU seconds each): the ratio of region means and its standard error
-(docs/peers.md "References for the glass scenes").
+(docs/peers.md "References for the glass scenes").  With ``--engine
+lux_light`` or ``--engine composed`` (the sum of the parts of ``compose``)
+every region is restricted to the pixels ``compose`` takes from LuxCore.
 
 LuxCore's merging radius is its default (0.003 x the scene's bounding
 sphere, shrinking with alpha 0.95): the merged paths (caustics seen through
@@ -70,24 +85,50 @@ def runs_dir(scene: str) -> str:
     return os.path.join(_cache(), f"{scene}_luxcore")
 
 
+def _tag(engine: str) -> str:
+    """A run name (``ENGINE`` or ``ENGINE:LIGHTS``) as a file-name part."""
+    return engine.replace(":", "_")
+
+
 def reference_path(scene: str, engine: str = ENGINE) -> str:
     """The reference file bench/converge_examples.py reads (SCENES)."""
-    return os.path.join(_cache(), f"{scene}_luxcore_{engine.removeprefix('lux_')}.exr")
+    return os.path.join(_cache(), f"{scene}_luxcore_{_tag(engine).removeprefix('lux_')}.exr")
 
 
 def blend_of(scene: str) -> str:
     return os.path.join(ROOT, "example_blends", scene + ".blend")
 
 
+def select_lights(lux, lights: str):
+    """``lux`` with some of its lights: "all", "world" (the world light only) or
+    "noworld" (every light but the world).  Light transport is linear in the
+    emitters, so the renders of "world" and "noworld" add up to "all"."""
+    if lights == "all":
+        return lux
+    if lights not in ("world", "noworld"):
+        raise SystemExit(f"unknown light selection '{lights}' (all, world, noworld)")
+    world = lights == "world"
+    out = P.LuxScene(**{k: v for k, v in vars(lux).items() if k != "props"})
+    out.props = {k: v for k, v in lux.props.items()
+                 if not (k.startswith("scene.lights.") and
+                         (k.startswith("scene.lights.world.") != world))}
+    if world and any(k.endswith(".emission") for k in out.props):
+        raise SystemExit("'world' with emissive meshes: not supported")
+    return out
+
+
 def render(scene: str, runs: int, cpu: float, engine: str = ENGINE) -> None:
-    lux = P.translate(P.load_scene(blend_of(scene), PCT))
+    """``engine``: a key of peer_luxcore.ENGINES, or ``ENGINE:LIGHTS`` to render
+    only some lights (:func:`select_lights`)."""
+    eng, _, lights = engine.partition(":")
+    lux = select_lights(P.translate(P.load_scene(blend_of(scene), PCT)), lights or "all")
     d = runs_dir(scene)
     os.makedirs(d, exist_ok=True)
     for seed in range(runs):
-        path = os.path.join(d, f"{engine}_seed{seed}.npz")
+        path = os.path.join(d, f"{_tag(engine)}_seed{seed}.npz")
         if os.path.isfile(path):
             continue
-        out = P.render_luxcore(lux, engine, seed, cpu)
+        out = P.render_luxcore(lux, eng, seed, cpu)
         np.savez(path, img=out["img"], spp=out["spp"], cpu=out["cpu"])
         print(f"run seed {seed}: {out['spp']} spp, {out['cpu']:.1f} CPU s, "
               f"mean {out['img'].mean():.5f}, load {os.getloadavg()[0]:.1f}", flush=True)
@@ -96,30 +137,196 @@ def render(scene: str, runs: int, cpu: float, engine: str = ENGINE) -> None:
 
 def load_runs(scene: str, engine: str = ENGINE) -> list[dict]:
     """The kept runs, by seed (an even number: the last odd one is left out)."""
-    paths = glob.glob(os.path.join(runs_dir(scene), f"{engine}_seed*.npz"))
+    paths = glob.glob(os.path.join(runs_dir(scene), f"{_tag(engine)}_seed*.npz"))
     seeds = sorted(int(os.path.basename(p).split("seed")[1].split(".")[0]) for p in paths)
-    runs = [dict(np.load(os.path.join(runs_dir(scene), f"{engine}_seed{s}.npz"))) for s in seeds]
+    runs = [dict(np.load(os.path.join(runs_dir(scene), f"{_tag(engine)}_seed{s}.npz")))
+            for s in seeds]
     return runs[: len(runs) // 2 * 2]
 
 
-def finish(scene: str, engine: str = ENGINE) -> None:
-    from fppm.core.io.exr import write_exr
-    from fppm.tools.metrics import reference_floor
+def runs_mean(scene: str, engine: str = ENGINE):
+    """(mean, per-pixel variance of the mean, spp, CPU s, runs) of the kept runs:
+    Variance = (A - B)^2 / 4 with A, B the means of the even and odd runs."""
     runs = load_runs(scene, engine)
     if len(runs) < 2:
         raise SystemExit(f"{scene}: fewer than 2 runs of {engine} in {runs_dir(scene)}")
     a = np.mean([r["img"] for r in runs[0::2]], axis=0)
     b = np.mean([r["img"] for r in runs[1::2]], axis=0)
-    ref, var = 0.5 * (a + b), 0.25 * (a - b) ** 2
     spp = int(sum(int(r["spp"]) for r in runs))
     cpu = float(sum(float(r["cpu"]) for r in runs))
-    meta = {"source": f"LuxCoreRender {engine} (bench/luxcore_reference.py)", "runs": len(runs),
+    return 0.5 * (a + b), 0.25 * (a - b) ** 2, spp, cpu, len(runs)
+
+
+def finish(scene: str, engine: str = ENGINE) -> None:
+    from fppm.core.io.exr import write_exr
+    from fppm.tools.metrics import reference_floor
+    ref, var, spp, cpu, n = runs_mean(scene, engine)
+    meta = {"source": f"LuxCoreRender {engine} (bench/luxcore_reference.py)", "runs": n,
             "samples": spp, "cpu_seconds": round(cpu, 1)}
     path = reference_path(scene, engine)
     write_exr(path, {"Combined": ref.astype(np.float32), "Variance": var.astype(np.float32)},
               {"fppm:reference": json.dumps(meta)})
-    print(f"wrote {path}: {len(runs)} runs, {spp} spp, {cpu:.0f} CPU s, "
+    print(f"wrote {path}: {n} runs, {spp} spp, {cpu:.0f} CPU s, "
           f"relMSE floor {reference_floor(ref, var):.3g}", flush=True)
+
+
+#: The parts of the composed reference (:func:`compose`): LuxCore's light
+#: tracer with every light but the world, its path tracer with the world only.
+COMPOSE_PARTS = ("lux_light:noworld", "lux_path:world")
+
+
+def composed_path(scene: str, cycles: int) -> str:
+    """The composed reference file (:func:`compose`) bench/converge_examples.py reads."""
+    return os.path.join(_cache(), f"{scene}_luxcore_light_cycles{cycles}.exr")
+
+
+def first_hit_ids(lux) -> np.ndarray:
+    """(H, W) material index each pixel sees first: PATHCPU's camera rays fill
+    every pixel of LuxCore's MATERIAL_ID output (VCM's and LIGHTCPU's do not)."""
+    return P.render_luxcore(lux, "lux_path", 99, 3.0,
+                            outputs=("RGB", "MATERIAL_ID"))["MATERIAL_ID"][..., 0]
+
+
+def specular_first(lux, ids: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels whose filter footprint may see a mirror or glass first.
+
+    A pixel's samples reach +-filter_width pixels from its centre, so a pixel
+    within ceil(filter_width + 1/2) pixels (Chebyshev) of a pixel whose centre
+    sees the specular material is counted: light tracing misses part of it."""
+    spec = [int(k.split(".")[2].removeprefix("mat")) for k, v in lux.props.items()
+            if k.startswith("scene.materials.mat") and k.endswith(".type")
+            and v in (["glass"], ["mirror"])]
+    m = np.isin(ids, spec)
+    r = int(np.ceil(lux.filter_width + 0.5))
+    out = m.copy()
+    H, W = m.shape
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            out[max(dy, 0):H + min(dy, 0), max(dx, 0):W + min(dx, 0)] |= \
+                m[max(-dy, 0):H + min(-dy, 0), max(-dx, 0):W + min(-dx, 0)]
+    return out
+
+
+def compose(scene: str, cycles: int, parts=COMPOSE_PARTS) -> None:
+    """The sum of LuxCore renders ``parts`` where the camera sees a diffuse
+    surface first, a Cycles render of ``cycles`` spp where it may see glass or
+    a mirror first (docs/peers.md "References for the glass scenes").
+
+    LuxCore's bidirectional engines (BIDIRCPU, BIDIRVMCPU) are biased with the
+    translation's spot (mapsphere / mappoint) and sphere lights, LIGHTCPU
+    renders the world light (constantinfinite) a few per cent too dark, and
+    PATHCPU misses the small spot's light through the glass.  So the spot and
+    the other lights come from the light tracer, which renders every path
+    whose first camera vertex is diffuse (the caustic seen directly
+    included), and the world from the path tracer; the pixels that see the
+    specular surface first (the light tracer cannot connect through it) come
+    from Cycles."""
+    import bpy  # noqa: F401
+
+    from fppm.addon.cli import open_blend
+    from fppm.core.io.exr import write_exr
+    from fppm.tools.converge.references import make_reference
+    from fppm.tools.metrics import reference_floor
+    got = [runs_mean(scene, e) for e in parts]
+    ref = sum(g[0] for g in got)
+    var = sum(g[1] for g in got)
+    lux = P.translate(P.load_scene(blend_of(scene), PCT))
+    mask = specular_first(lux, first_hit_ids(lux))
+    c = make_reference(bpy, open_blend(blend_of(scene), resolution=PCT), blend_of(scene),
+                       cycles, print, lambda t, force=False: print(t, flush=True))
+    img = np.where(mask[..., None], c["image"], ref)
+    v = np.where(mask[..., None], c["var"], var)
+    desc = " + ".join(f"{e} ({g[4]} runs, {g[2]} spp, {g[3]:.0f} CPU s)"
+                      for e, g in zip(parts, got))
+    meta = {"source": f"LuxCoreRender {desc} (bench/luxcore_reference.py compose); Cycles "
+                      f"{cycles} spp on the {int(mask.sum())} pixels that may see a specular "
+                      f"surface first",
+            "runs": min(g[4] for g in got), "samples": sum(g[2] for g in got),
+            "cpu_seconds": round(sum(g[3] for g in got), 1), "cycles_samples": cycles,
+            "cycles_pixels": int(mask.sum())}
+    path = composed_path(scene, cycles)
+    write_exr(path, {"Combined": img.astype(np.float32), "Variance": v.astype(np.float32)},
+              {"fppm:reference": json.dumps(meta)})
+    k = mask.sum() / mask.size
+    print(f"wrote {path}: {desc}; relMSE floor {reference_floor(img, v):.3g} = LuxCore "
+          f"{reference_floor(img, v, ~mask) * (1 - k):.3g} ({int((~mask).sum())} px) + Cycles "
+          f"{reference_floor(img, v, mask) * k:.3g} ({int(mask.sum())} px); the Cycles render's "
+          f"own floor {reference_floor(c['image'], c['var']):.3g}", flush=True)
+
+
+def variant(lux, name: str):
+    """A copy of ``lux`` changed by ``name`` ("+"-joined parts) for bisecting a
+    bias of LuxCore's engines (docs/peers.md "References for the glass scenes"):
+    "asis"; "matte" (glass and mirror -> Lambert 0.8); "noworld" / "world"
+    (:func:`select_lights`); "point" (mapsphere -> mappoint: the spot without
+    its radius); "plainsphere" / "plainpoint" (the spot -> an isotropic sphere
+    light of its radius / a point light, 40 W)."""
+    import copy
+    lux = copy.deepcopy(lux)
+    for part in name.split("+"):
+        spots = [k[:-5] for k, v in lux.props.items() if k.startswith("scene.lights.")
+                 and k.endswith(".type") and v in (["mapsphere"], ["mappoint"])]
+        if part == "asis":
+            pass
+        elif part == "matte":
+            for k in [k for k, v in lux.props.items() if k.endswith(".type")
+                      and v in (["glass"], ["mirror"])]:
+                pre = k[:-5]
+                mid = lux.props[pre + ".id"]
+                for kk in [x for x in lux.props if x.startswith(pre + ".")]:
+                    del lux.props[kk]
+                lux.props.update({k: ["matte"], pre + ".kd": [0.8] * 3, pre + ".id": mid})
+        elif part in ("world", "noworld"):
+            lux = select_lights(lux, part)
+        elif part == "point":
+            for pre in spots:
+                lux.props[pre + ".type"] = ["mappoint"]
+                lux.props.pop(pre + ".radius", None)
+        elif part in ("plainsphere", "plainpoint"):
+            for pre in spots:
+                pos, r = lux.props[pre + ".transformation"][12:15], lux.props.get(pre + ".radius")
+                for kk in [x for x in lux.props if x.startswith(pre + ".")]:
+                    del lux.props[kk]
+                lux.props.update({pre + ".position": pos, pre + ".color": [40.0] * 3})
+                if part == "plainsphere" and r:
+                    lux.props.update({pre + ".type": ["sphere"], pre + ".radius": r})
+                else:
+                    lux.props[pre + ".type"] = ["point"]
+        else:
+            raise SystemExit(f"unknown variant part '{part}'")
+    return lux
+
+
+def bisect(scene: str, pct: int, cpu: float, variants: list[str], engines: list[str]) -> None:
+    """Region means of ``engines`` / PATHCPU's on each variant (one seed, ``cpu``
+    CPU s a render).  Regions: the pixels that see the wall, the sphere, the
+    floor brighter / darker than half the floor's median on PATHCPU's render of
+    the first variant, and the dark floor's interior (3 pixels from the lit)."""
+    base = P.translate(P.load_scene(blend_of(scene), pct))
+    regions = None
+    print(f"{scene} at {pct} %, {cpu:g} CPU s a render; region mean of the engine / PATHCPU's")
+    for v in variants:
+        lux = variant(base, v)
+        path = P.render_luxcore(lux, "lux_path", 0, cpu, outputs=("RGB", "MATERIAL_ID"))
+        if regions is None:
+            ids, L = path["MATERIAL_ID"][..., 0], path["img"].mean(-1)
+            floor = ids == 0
+            lit = floor & (L > 0.5 * np.median(L[floor]))
+            near = lit.copy()
+            for _ in range(3):
+                near[1:] |= near[:-1].copy(); near[:-1] |= near[1:].copy()
+                near[:, 1:] |= near[:, :-1].copy(); near[:, :-1] |= near[:, 1:].copy()
+            regions = {"all": np.ones_like(floor), "wall": ids == 1, "sphere": ids == 2,
+                       "floor lit": lit, "floor dark": floor & ~lit,
+                       "floor dark interior": floor & ~near}
+            print("regions (pixels): " + ", ".join(f"{k} {int(m.sum())}" for k, m in regions.items()))
+        for e in engines:
+            eng, *kv = e.split("@")
+            extra = {k: float(x) for k, x in (p.split("=") for p in kv)}
+            out = P.render_luxcore(lux, eng, 0, cpu, extra=extra)
+            print(f"{v} {e} ({out['spp']} spp): " + ", ".join(
+                f"{k} {out['img'][m].mean() / path['img'][m].mean():.3f}"
+                for k, m in regions.items()) + f"; load {os.getloadavg()[0]:.1f}", flush=True)
 
 
 def _region_ratio(x_runs, y, y_var, m):
@@ -146,18 +353,28 @@ def check(scene: str, cycles: int, fppm_runs: list[tuple[str, float]], engine: s
     from fppm.tools.converge.references import load_reference, make_reference
     from fppm.tools.metrics import region_masks
     from measure_cpu import render_cpu
-    ref = load_reference(reference_path(scene, engine))
-    runs = np.stack([r["img"] for r in load_runs(scene, engine)])
+    if engine == "composed":
+        # Run k of the composed reference: the sum of every part's run k
+        # (independent of the other k); the regions from the composed file.
+        ref = load_reference(composed_path(scene, cycles))
+        parts = [load_runs(scene, e) for e in COMPOSE_PARTS]
+        runs = np.stack([sum(p[k]["img"] for p in parts) for k in range(min(map(len, parts)))])
+    else:
+        ref = load_reference(reference_path(scene, engine))
+        runs = np.stack([r["img"] for r in load_runs(scene, engine)])
     s = P.load_scene(blend_of(scene), PCT)
-    # The material seen first: PATHCPU's camera rays fill every pixel of the
-    # MATERIAL_ID output (VCM's leave most of them unset in a short render).
-    ids = P.render_luxcore(P.translate(s), "lux_path", 99, 3.0,
-                           outputs=("RGB", "MATERIAL_ID"))["MATERIAL_ID"][..., 0]
+    lux = P.translate(s)
+    ids = first_hit_ids(lux)
     masks = {"all": np.ones(ids.shape, bool)}
     masks.update({k: v for k, v in region_masks(ref["image"]).items() if v.any()})
     for i, mat in enumerate(s.materials):
         if (ids == i).any():
             masks["sees " + mat.name] = ids == i
+    if engine.startswith("lux_light") or engine == "composed":
+        # The light tracer renders only what the camera sees through no
+        # specular surface: compare there (what compose() keeps of it).
+        keep = ~specular_first(lux, ids)
+        masks = {k + " (diffuse first)": m & keep for k, m in masks.items() if (m & keep).any()}
     others = {}
     if cycles:
         c = make_reference(bpy, open_blend(blend_of(scene), resolution=PCT), blend_of(scene),
@@ -179,7 +396,7 @@ def check(scene: str, cycles: int, fppm_runs: list[tuple[str, float]], engine: s
 
 
 def main(argv) -> int:
-    if len(argv) < 2 or argv[0] not in ("render", "finish", "check"):
+    if len(argv) < 2 or argv[0] not in ("render", "finish", "check", "compose", "bisect"):
         print(__doc__)
         return 2
     cmd, scene = argv[0], argv[1]
@@ -188,6 +405,14 @@ def main(argv) -> int:
         render(scene, _arg(argv, "--runs", 4), _arg(argv, "--cpu", 200.0), engine)
     elif cmd == "finish":
         finish(scene, engine)
+    elif cmd == "bisect":
+        bisect(scene, _arg(argv, "--pct", 50), _arg(argv, "--cpu", 12.0),
+               _arg(argv, "--variants", "matte,matte+noworld,matte+point,matte+plainsphere,"
+                                        "matte+plainpoint").split(","),
+               _arg(argv, "--engines", "lux_light,lux_bidir,lux_bidirvm").split(","))
+    elif cmd == "compose":
+        compose(scene, _arg(argv, "--cycles", 4096),
+                tuple(_arg(argv, "--parts", ",".join(COMPOSE_PARTS)).split(",")))
     else:
         fr = [(r.split(":")[0], float(r.split(":")[1]))
               for r in _arg(argv, "--fppm", "light:60,combined:60").split(",") if r]

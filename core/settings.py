@@ -50,7 +50,7 @@ class RenderSettings:
     frequency_model: str = "CORRECTED"  # 'CORRECTED' or 'PAPER'
     frequency_estimator: str = "MIN"    # 'MIN' or 'QUANTILE'
     hold_alpha: float = 0.9             # PPM alpha of a held radius (1 = held forever; docs/method.md)
-    verify_holds: bool = True           # hold only where the photons' chi-square sector test agrees
+    verify_holds: bool = True           # the photons' sector tests veto, add and grow holds (docs/method.md "X as the default")
     occlusion_grid_res: int = 64
     # --- Output (AOV passes)
     aov_radius: bool = False            # FPPM Radius (world and pixels)

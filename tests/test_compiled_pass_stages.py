@@ -198,8 +198,8 @@ def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha):
             assert y is None
             continue
         assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=True), f
-    if frequency:
-        assert 0.05 < ref.held.mean() < 0.6
+    if frequency:              # both branches taken (X's uniform counts add holds: 0.62)
+        assert 0.05 < ref.held.mean() < 0.8
     if sectors:                # the linear test vetoes some holds and not others
         vetoed = U.chi2_rejects(ref.sectors, linear=True)
         assert 0.05 < vetoed.mean() < 0.6

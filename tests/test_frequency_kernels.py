@@ -192,10 +192,13 @@ def test_block_bounds_are_conservative(grids):
     those of the dilation closer than cut_locality (the only neighbours
     _sample_voxel reads when locality <= cut_locality); and bmin is <= every
     dist of the dilated block; and the unions pass few pairs no member
-    meets."""
+    meets.  A block (voxel) with bmin (1 - BLOCK_REL) >= cut_locality is
+    never tested by its cones (the march reads them only below its
+    threshold <= locality <= cut_locality) and holds "meets none"."""
     rng = np.random.default_rng(4)
     d = rng.normal(size=(500, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
+    n_far = 0
     for g in grids:
         R = g.res
         cone = g.cone.astype(np.float64)
@@ -222,6 +225,10 @@ def test_block_bounds_are_conservative(grids):
                                    for i, s in zip((bx, by, bz), sl))] = True
                         assert bmin[bx, by, bz] <= g.dist[sl].min()
                         union = unions[bx, by, bz]
+                        if np.float64(bmin[bx, by, bz]) * (1.0 - OG.BLOCK_REL) >= mb.cut_locality:
+                            assert not union.any()            # never read, not built
+                            n_far += 1
+                            continue
                         m = meets[sl] & read[..., None]
                         anym = m.reshape(-1, len(d)).any(axis=0)
                         assert not np.any(anym & ~union), (B, bx, by, bz)
@@ -234,6 +241,7 @@ def test_block_bounds_are_conservative(grids):
         # of (block, d) and 0.338 of (voxel, d), two pass 0.570 and 0.244,
         # the members 0.486 and 0.216).
         assert n_false < 0.2 * n_pass
+    assert n_far > 0                   # blocks and voxels whose cones are never read
 
 
 def test_blocked_march_matches_dense(grids):

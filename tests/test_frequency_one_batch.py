@@ -138,3 +138,54 @@ def test_a_batch_each_is_the_tracer_before(make):
     tr.one_batch = False
     dep = tr.trace(20_000, 5_000, np.random.default_rng(17))
     assert _digest(dep[k] for k in sorted(dep)) == A_BATCH_EACH[make.__name__]
+
+
+@pytest.mark.parametrize("make", [glass_mirror, cornell])
+@pytest.mark.parametrize("n, nf", [(20_000, 5_000), (20_000, 3), (5_000, 5_000)])
+def test_traced_again_are_the_batch_photons_with_their_spectra(make, n, nf):
+    """docs/frequency.md "Frequency photons traced again": the batch is traced
+    as without frequency photons (the same deposits in the same order, bit for
+    bit) and the frequency photons traced again on the uniforms they drew
+    there give those deposits the predicted radii and spectra the one batch
+    (retrace = 0, the rule before) gives them, bit for bit.  retrace = 1:
+    traced again at any share (the default only up to RETRACE_MAX_SHARE)."""
+    tr = _tracer(make(), use_frequency=True)
+    tr.retrace = 1.0
+    a = tr.trace(n, nf, np.random.default_rng(17))
+    b = tr.trace(n, 0, np.random.default_rng(17))
+    for k in ("p", "ng", "wi", "power", "bounce", "bary"):
+        np.testing.assert_array_equal(a[k], b[k])        # the order too
+    tr.retrace = 0.0
+    c = tr.trace(n, nf, np.random.default_rng(17))
+    freq = ~np.isnan(a["rpred"])
+    assert np.count_nonzero(freq) == np.count_nonzero(~np.isnan(c["rpred"])) > nf // 4
+    rows = lambda d: np.concatenate([d["p"], d["power"], d["bounce"][:, None], d["spec"],  # noqa: E731
+                                     d["rpred"][:, None]], axis=1)
+    ra, rc = rows(a), rows(c)
+    np.testing.assert_array_equal(ra[np.lexsort(ra[:, ::-1].T)], rc[np.lexsort(rc[:, ::-1].T)])
+    assert np.all(a["spec"][~freq] == 0) and np.all(np.any(a["spec"][freq] != 0, axis=1))
+    assert tr.retrace_mismatches == 0
+
+
+def test_paths_that_differ_keep_no_spectrum():
+    """Should a photon traced again leave its path (here: its uniforms of the
+    second bounce perturbed), the batch's deposits stay PPM's, without
+    spectra, and the tracer counts it."""
+    from core.sppm import photons as Ph
+    tr = _tracer(cornell(), use_frequency=True)
+    tr.retrace = 1.0
+    b = tr.trace(5_000, 0, np.random.default_rng(17))
+    orig = Ph._Follow.draw
+
+    def draw(self, u):
+        orig(self, u)
+        if len(self.u) == 2:
+            self.u[-1] = self.u[-1] * 0.5
+    Ph._Follow.draw = draw
+    try:
+        a = tr.trace(5_000, 200, np.random.default_rng(17))
+    finally:
+        Ph._Follow.draw = orig
+    assert tr.retrace_mismatches == 1
+    assert np.all(np.isnan(a["rpred"])) and np.all(a["spec"] == 0)
+    np.testing.assert_array_equal(a["p"], b["p"])

@@ -59,14 +59,18 @@ def test_decay_is_validated():
         RenderSettings(frequency_decay=float("nan")).validate()
 
 
-def _two_passes(decay, compiled):
+def _two_passes(decay, compiled, spectrum_alone=True):
     """Three pixels of radius 1 m, 100 photons each per pass with uniform
     sector counts (the verified holds' test accepts): pass 1 predicts
-    (10, 10, none) m, pass 2 (none, 0.01, none).  Returns (held after pass 1,
+    (10, 10, none) m, pass 2 (none, 0.01, none).  spectrum_alone: the
+    uniformity holds and the growth off (the spectrum's prediction alone
+    decides a hold: what these passes keep).  Returns (held after pass 1,
     held after pass 2, r_pred_last after pass 2, R2 after pass 2)."""
     st = RenderSettings(frequency_decay=decay)
     radii = Radii(st, None, 1.0, True, None, 1, 3)
     radii.compiled = compiled
+    if spectrum_alone:
+        radii.hold_uniform, radii.grow = False, 1.0
     state = PixelState.zeros(3, sector_cells=radii.sector_cells)
     state.R2[:] = 1.0
     M, Phi = np.full(3, 100.0), np.ones((3, 3))
@@ -83,7 +87,11 @@ def test_pixel_keeps_its_prediction_without_frequency_photons(compiled):
     pass 1's 10 m and stays held (R^2 shrinks at the hold rate: f =
     (N + 0.9 M)/(N + M) with N = 90, M = 100); pixel 1's new small
     prediction replaces the old one (plain PPM step); pixel 2 never had one.
-    With decay 0 (the previous rule) pixel 0 is released."""
+    With decay 0 (the previous rule) pixel 0 is released.  The default rules
+    (docs/method.md "X as the default") hold all three by their uniform
+    counts whatever the prediction (pixels 0 and 1 grown in pass 1 to
+    GROW_MAX R by the 10 m prediction), so the spectrum's part is tested
+    with the counts' holds and the growth off."""
     held1, held2, last, R2 = _two_passes(0.5, compiled)
     assert held1.tolist() == [True, True, False]
     assert held2.tolist() == [True, False, False]
@@ -95,6 +103,10 @@ def test_pixel_keeps_its_prediction_without_frequency_photons(compiled):
     assert held2.tolist() == [False, False, False]
     assert np.isnan(last[0])
     assert R2[0] == pytest.approx(R2[1], rel=1e-12)
+    held1, held2, last, R2 = _two_passes(0.5, compiled, spectrum_alone=False)
+    assert held1.all() and held2.all()
+    assert last[0] == 10.0 and last[1] == 0.01
+    assert R2[0] == pytest.approx(R2[1], rel=1e-12) and R2[0] > 2.0
 
 
 def test_kept_prediction():

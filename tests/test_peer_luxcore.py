@@ -156,3 +156,31 @@ def test_spot_light_matches_cycles_cone():
     assert np.median(img[inside] / exact[inside]) == pytest.approx(1.0, abs=3e-3)
     assert np.all(img[outside] == 0)
     assert img.sum() / exact.sum() == pytest.approx(1.0, abs=1e-2)
+
+
+def test_composed_reference_parts():
+    # bench/luxcore_reference.py compose: the world / no-world selections
+    # split the lights and keep everything else; the specular-first mask grows
+    # a glass pixel by ceil(filter width + 1/2) pixels (Chebyshev).
+    import luxcore_reference as R
+    lux = P.LuxScene(props={"scene.lights.world.type": ["constantinfinite"],
+                            "scene.lights.world.color": [0.1] * 3,
+                            "scene.lights.light0.type": ["mappoint"],
+                            "scene.lights.light0.color": [1.0] * 3,
+                            "scene.materials.mat0.type": ["matte"],
+                            "scene.materials.mat1.type": ["glass"],
+                            "scene.camera.type": ["perspective"]},
+                     size=(9, 9), filter_width=1.5)
+    w, nw = R.select_lights(lux, "world"), R.select_lights(lux, "noworld")
+    lights = {k for k in lux.props if k.startswith("scene.lights.")}
+    assert {k for k in w.props if k.startswith("scene.lights.")} == \
+        {k for k in lights if ".world." in k}
+    assert {k for k in nw.props if k.startswith("scene.lights.")} == \
+        {k for k in lights if ".world." not in k}
+    others = {k: v for k, v in lux.props.items() if k not in lights}
+    assert {k: v for k, v in w.props.items() if k not in lights} == others
+    assert {k: v for k, v in nw.props.items() if k not in lights} == others
+    ids = np.zeros((9, 9), np.uint32)
+    ids[4, 4] = 1                                   # one pixel sees the glass
+    m = R.specular_first(lux, ids)
+    assert m.sum() == 25 and m[2:7, 2:7].all()       # ceil(1.5 + 0.5) = 2 pixels around it

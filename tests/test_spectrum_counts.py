@@ -5,8 +5,9 @@ per cell; the linear test still vetoes), and in a
 pixel's first pass with photons a verified hold grows the radius to the
 spectrum's prediction, at most GROW_MAX times, never past the surface-boundary
 cap, only where the counts can be tested (GROW_MIN_EXPECTED per cell).  Both
-are off by default (HOLD_OR_UNIFORM False, GROW_MAX 1: the measurements in
-docs/method.md); these tests turn them on, with G = 2.
+are on by default (rule set X: HOLD_OR_UNIFORM True from UNIFORM_MIN_EXPECTED
+0, i.e. CPPM's retention while its test cannot reject, GROW_MAX 2;
+docs/method.md "X as the default"); these tests set them, with G = 2.
 
 Asserted exactly (no noise: hand-made counts and predictions): which pixels
 hold and grow, the grown radius, that the growth rescales N, tau and the
@@ -26,7 +27,7 @@ from core.sppm.state import PixelState
 from test_compiled_pass_stages import _update_case
 
 C = hg.SECTOR_CELLS
-#: The growth limit of the bench variant 'fppm:or=1:grow=2' (off by default).
+#: The growth limit (GROW_MAX, the default since "X as the default").
 G = 2.0
 #: Counts per cell: uniform; a ring imbalance (curvature: the linear test
 #: rejects, X^2_lin = 28.8 > 15.1); a linear gradient (the uniformity test
@@ -44,7 +45,8 @@ def _radii(P, compiled):
     return radii
 
 
-def _one_pass(counts, r_pred, N0=0.0, cap=None, compiled=True, hold_uniform=True):
+def _one_pass(counts, r_pred, N0=0.0, cap=None, compiled=True, hold_uniform=True,
+              uniform_min_expected=None):
     """Pass of M = sum(counts) photons of flux 0.5 each on pixels of radius
     0.01 m with the given counts (P, C) (this pass's, the state's are 0 in
     the first pass, N0 = 0) and predicted radii r_pred (P,); returns the
@@ -55,6 +57,8 @@ def _one_pass(counts, r_pred, N0=0.0, cap=None, compiled=True, hold_uniform=True
     M = counts.sum(axis=1)
     radii = _radii(P, compiled)
     radii.hold_uniform = hold_uniform
+    if uniform_min_expected is not None:
+        radii.uniform_min_expected = uniform_min_expected
     radii._edge_cap = cap
     radii.update(st, M, np.repeat(0.5 * M[:, None], 3, 1), np.asarray(r_pred, float), counts)
     return st
@@ -100,15 +104,21 @@ def test_growth_needs_counts_the_test_can_judge():
 def test_uniform_counts_hold_without_a_prediction():
     """With HOLD_OR_UNIFORM a pixel with no prediction (NaN) or a sharp one
     (0.5 R) holds where the uniformity test accepts (uniform counts, 10 per
-    cell), not where it rejects a ramp that the linear test accepts, nor
-    below UNIFORM_MIN_EXPECTED (uniform counts of 4 per cell: the test cannot
-    judge); without the rule (the spectrum alone, the counts veto) none
-    holds.  No growth: the counts say nothing beyond their disc."""
+    cell), not where it rejects a ramp that the linear test accepts.  Uniform
+    counts of 4 per cell (the test cannot judge): held by default
+    (UNIFORM_MIN_EXPECTED 0, CPPM's retention: rule set X), not with the
+    previous minimum of 5 per cell (the spectrum alone decides below it).
+    Without the rule (the spectrum alone, the counts veto) none holds.  No
+    growth: the counts say nothing beyond their disc."""
+    assert U.HOLD_OR_UNIFORM and U.UNIFORM_MIN_EXPECTED == 0.0 and U.GROW_MAX == G
     counts = np.array([UNIFORM, UNIFORM, RAMP, np.full(C, 4.0)])
     assert U.chi2_rejects(RAMP[None], linear=False)[0] and not U.chi2_rejects(RAMP[None], True)[0]
     r = np.array([np.nan, 0.005, np.nan, np.nan])
     for compiled in (True, False):
         st = _one_pass(counts, r, compiled=compiled)
+        assert st.held.tolist() == [True, True, False, True]
+        assert st.R2 / 1e-4 == pytest.approx([0.9, 0.9, 0.7, 0.9], rel=1e-12)
+        st = _one_pass(counts, r, compiled=compiled, uniform_min_expected=U.CHI2_MIN_EXPECTED)
         assert st.held.tolist() == [True, True, False, False]
         assert st.R2 / 1e-4 == pytest.approx([0.9, 0.9, 0.7, 0.7], rel=1e-12)
         st = _one_pass(counts, r, compiled=compiled, hold_uniform=False)

@@ -46,9 +46,11 @@ Refinements over the paper, each documented where it happens:
 Memory: ``BYTES_PER_VOXEL`` = 41 bytes (dist 4, axis 12, aperture 4,
 occupied 1, near 4, and the march's resolved cone 16): 10.7 MB at 64^3,
 86 MB at 128^3; the march derives 20 more bytes a voxel on first use
-(``MarchBlocks``: 5.5 MB at 64^3, none above VOXEL_LEVEL_MAX).  The build
-also holds about 150 bytes per voxel of float64 temporaries (normal sums,
-two candidate axes, closest points), 12 bytes per (triangle, voxel) overlap
+(``MarchBlocks``: 5.5 MB at 64^3, none above VOXEL_LEVEL_MAX; its build
+holds 33 bytes a voxel of temporaries, ``_cone_members``).  The build
+also holds about 50 bytes per voxel of temporaries (float64 distances and
+closest points, the occupied voxels' index) and about 150 bytes per
+occupied voxel (normal sums, two candidate axes), 12 bytes per (triangle, voxel) overlap
 and about 100 bytes per triangle (normals, BVH, sorted copy);
 bench/bench_occlusion.py measures the peaks.
 
@@ -505,6 +507,40 @@ def grid_bounds(lo, hi) -> tuple[np.ndarray, np.ndarray]:
     return mid - half, mid + half
 
 
+@nb.njit(cache=True)
+def _near_voxels(q, lo, cell, R, near):
+    """near[v] = the flat index of the voxel holding closest point q[v] (nan
+    = none within max_distance: stays -1), clipped into the grid."""
+    for v in range(q.shape[0]):
+        if q[v, 0] != q[v, 0]:
+            continue
+        i0 = min(max(np.int64(math.floor((q[v, 0] - lo[0]) / cell[0])), 0), R - 1)
+        i1 = min(max(np.int64(math.floor((q[v, 1] - lo[1]) / cell[1])), 0), R - 1)
+        i2 = min(max(np.int64(math.floor((q[v, 2] - lo[2]) / cell[2])), 0), R - 1)
+        near[v] = (i0 * R + i1) * R + i2
+
+
+@nb.njit(cache=True)
+def _resolve_cones(cidx, near, dist, axis_o, sin_o, cone):
+    """cone (nvox, 4) float32 of OcclusionGrid: (axis, sin aperture) of the
+    voxel if occupied (cidx >= 0: its row of axis_o, sin_o), else of
+    ``near`` if that is occupied, else (0, 0, 0, 1) = unknown; (0, 0, 0,
+    -2) for an unoccupied voxel with no closest point and a finite dist
+    (beyond max_distance: never an occluder)."""
+    for v in range(cidx.shape[0]):
+        src = v if cidx[v] >= 0 else near[v]
+        k = cidx[src] if src >= 0 else -1
+        if k >= 0:
+            cone[v, 0] = axis_o[k, 0]
+            cone[v, 1] = axis_o[k, 1]
+            cone[v, 2] = axis_o[k, 2]
+            cone[v, 3] = sin_o[k]
+        elif cidx[v] < 0 and near[v] < 0 and np.isfinite(dist[v]):
+            cone[v, 3] = -2.0
+        else:
+            cone[v, 3] = 1.0
+
+
 def build_occlusion_grid(tri_p: np.ndarray, lo, hi, res: int = 64,
                          max_distance: float = np.inf,
                          stats: dict | None = None) -> OcclusionGrid:
@@ -561,42 +597,46 @@ def build_occlusion_grid(tri_p: np.ndarray, lo, hi, res: int = 64,
     # Candidate 1: the area-weighted mean of the normals oriented into that
     # eigenvector's hemisphere (the bisector there: 45 degrees).  Keep the
     # candidate with the narrower bi-cone.
-    S = np.zeros((nvox, 6))
-    W = np.zeros(nvox)
-    axes = np.zeros((nvox, 2, 3))
-    mincos = np.ones((nvox, 2))
     pair_t, pair_v, pair_w = _overlaps(tri, nrm, area, valid, lo, cell, R)
     stage("clip triangles to voxels")
-    _accumulate(pair_t, pair_v, pair_w, nrm, 0, S, W, axes, mincos)
-    occ = W > 0.0
-    M = np.empty((int(occ.sum()), 3, 3))
-    So = S[occ]
-    M[:, 0, 0], M[:, 1, 1], M[:, 2, 2] = So[:, 0], So[:, 1], So[:, 2]
-    M[:, 0, 1] = M[:, 1, 0] = So[:, 3]
-    M[:, 0, 2] = M[:, 2, 0] = So[:, 4]
-    M[:, 1, 2] = M[:, 2, 1] = So[:, 5]
-    del So
-    if len(M):
-        axes[occ, 0] = np.linalg.eigh(M)[1][:, :, -1]     # largest eigenvalue
+    # The cones of the occupied voxels alone (every pair has a clipped area
+    # > 0, so they are the voxels of the pairs; a few % of the grid), in
+    # voxel order: the same sums in the same order, the same eigh batch.
+    uv, inv = np.unique(pair_v, return_inverse=True)
+    pair_o = inv.astype(np.int32)
+    del inv
+    no = len(uv)
+    S = np.zeros((no, 6))
+    W = np.zeros(no)
+    axes = np.zeros((no, 2, 3))
+    mincos = np.ones((no, 2))
+    _accumulate(pair_t, pair_o, pair_w, nrm, 0, S, W, axes, mincos)
+    M = np.empty((no, 3, 3))
+    M[:, 0, 0], M[:, 1, 1], M[:, 2, 2] = S[:, 0], S[:, 1], S[:, 2]
+    M[:, 0, 1] = M[:, 1, 0] = S[:, 3]
+    M[:, 0, 2] = M[:, 2, 0] = S[:, 4]
+    M[:, 1, 2] = M[:, 2, 1] = S[:, 5]
+    if no:
+        axes[:, 0] = np.linalg.eigh(M)[1][:, :, -1]     # largest eigenvalue
     del M
     stage("accumulate, eigh")
     S[:] = 0.0
-    _accumulate(pair_t, pair_v, pair_w, nrm, 2, S, W, axes, mincos)
+    _accumulate(pair_t, pair_o, pair_w, nrm, 2, S, W, axes, mincos)
     m = S[:, :3]
     mn = np.linalg.norm(m, axis=1)
     axes[:, 1] = np.where((mn > 0)[:, None], m / np.where(mn > 0, mn, 1.0)[:, None], axes[:, 0])
     del S, m, mn
-    _accumulate(pair_t, pair_v, pair_w, nrm, 1, np.zeros((1, 6)), W, axes, mincos)
+    _accumulate(pair_t, pair_o, pair_w, nrm, 1, np.zeros((1, 6)), W, axes, mincos)
     pick = np.argmax(mincos, axis=1)                      # narrower cone
-    axis = axes[np.arange(nvox), pick]
-    mc = mincos[np.arange(nvox), pick]
+    axis_o = axes[np.arange(no), pick]
+    mc = mincos[np.arange(no), pick]
     # canonical sign (largest |component| positive): determinism only
-    big = np.argmax(np.abs(axis), axis=1)
-    axis *= np.where(axis[np.arange(nvox), big] < 0, -1.0, 1.0)[:, None]
-    aperture = np.where(occ, np.arccos(np.clip(mc, 0.0, 1.0)), np.pi / 2)
+    big = np.argmax(np.abs(axis_o), axis=1)
+    axis_o *= np.where(axis_o[np.arange(no), big] < 0, -1.0, 1.0)[:, None]
+    ap_o = np.arccos(np.clip(mc, 0.0, 1.0))
     if stats is not None:
         stats["overlap pairs"] = len(pair_t)
-    del axes, mincos, pair_t, pair_v, pair_w, nrm, area
+    del axes, mincos, pair_t, pair_v, pair_w, pair_o, nrm, area
     stage("oriented mean, apertures")
 
     # --- exact distances and the voxel of each closest point
@@ -610,27 +650,27 @@ def build_occlusion_grid(tri_p: np.ndarray, lo, hi, res: int = 64,
         _nearest_all(tris, node_lo, node_hi, n_leaves, lo, cell, R, float(max_distance),
                      dist, q)
         stage("nearest-triangle queries")
-        found = np.isfinite(q[:, 0])
-        iq = np.clip(np.floor((np.where(found[:, None], q, 0.0) - lo) / cell).astype(np.int64),
-                     0, R - 1)
-        near = np.where(found, (iq[:, 0] * R + iq[:, 1]) * R + iq[:, 2], -1).astype(np.int32)
+        _near_voxels(q, lo, cell, R, near)
+        del q
 
-    # the cone each voxel is tested with (own, else its closest point's)
-    src = np.where(occ, np.arange(nvox), near)
-    known = (src >= 0) & occ[np.maximum(src, 0)]
-    src = np.maximum(src, 0)
+    # the cone each voxel is tested with (own, else its closest point's),
+    # the unoccupied voxels' axis 0 and aperture pi/2
+    cidx = np.full(nvox, -1, np.int64)
+    cidx[uv] = np.arange(no)
     cone = np.zeros((nvox, 4), np.float32)
-    cone[:, 3] = 1.0
-    cone[known, :3] = axis[src[known]]
-    cone[known, 3] = np.sin(aperture[src[known]])
-    # beyond max_distance: nothing known and nothing near -> never an occluder
-    cone[~occ & (near < 0) & np.isfinite(dist), 3] = -2.0
+    _resolve_cones(cidx, near, dist, axis_o, np.sin(ap_o), cone)
+    axis = np.zeros((nvox, 3), np.float32)
+    axis[uv] = axis_o
+    aperture = np.full(nvox, np.pi / 2, np.float32)
+    aperture[uv] = ap_o
+    occ = cidx >= 0
+    stage("cones")
 
     shp = (R, R, R)
     return OcclusionGrid(lo=lo, hi=hi, cell=cell, res=R, max_distance=float(max_distance),
                          dist=dist.astype(np.float32).reshape(shp),
-                         axis=axis.astype(np.float32).reshape(shp + (3,)),
-                         aperture=aperture.astype(np.float32).reshape(shp),
+                         axis=axis.reshape(shp + (3,)),
+                         aperture=aperture.reshape(shp),
                          occupied=occ.reshape(shp), near=near.reshape(shp),
                          cone=cone.reshape(shp + (4,)))
 
@@ -703,6 +743,9 @@ class MarchBlocks:
     min >= the current threshold min(locality, best) or (locality <=
     cut_locality) neither union cone meets the plane orthogonal to d
     (:func:`union_meets`); ``occlusion_march.march_segment`` then skips it.
+    So the cones of a block (voxel) whose min (1 - BLOCK_REL) >=
+    cut_locality are never read: they are not built and hold "meets none"
+    (sin = -2 in both).
 
     Tightness, on the Cornell grid of tests/test_frequency_kernels.py and
     500 directions: the members meet the plane for 0.486 of (block, d)
@@ -746,13 +789,17 @@ def _in_cut(dist, x, y, z, inner, L):
 
 
 @nb.njit(cache=True, nogil=True)
-def _union_cone(ax_, ay_, az_, sk_, idx, n, out, o):
+def _union_cone(ax_, ay_, az_, as_, idx, n, out, o, seen):
     """out[o:o+4] = a bi-cone (unit axis, sin of half-angle) containing the
-    members idx[:n] (unit axes ax_, ay_, az_; sk_ = sin of the half-angle
-    within which a member's axis meets a plane): axis = the sign-aligned
-    mean, half-angle = max over members of asin(sk) + angle to the axis,
-    + _UNION_SLACK.  sin = 2: wider than pi/2 - _UNION_WIDE or the axes
-    cancel (meets every plane); -2: no member (meets none)."""
+    members idx[:n] (unit axes ax_, ay_, az_; as_ = asin of the sin of the
+    half-angle within which a member's axis meets a plane): axis = the
+    sign-aligned mean, half-angle = max over members of asin(sk) + angle to
+    the axis, + _UNION_SLACK.  sin = 2: wider than pi/2 - _UNION_WIDE or the
+    axes cancel (meets every plane); -2: no member (meets none).  seen
+    (>= 4 * _SEEN,) scratch: the half-angle's maximum skips a member equal
+    to one already taken (a flat wall's voxels and the empty voxels that
+    take its cone are one member 27 times over): the same maximum, the
+    same bits."""
     if n == 0:
         out[o + 3] = -2.0
         return
@@ -772,9 +819,24 @@ def _union_cone(ax_, ay_, az_, sk_, idx, n, out, o):
         return
     ux, uy, uz = sx / nrm, sy / nrm, sz / nrm
     psi = 0.0
+    ns = 0
     for k in range(n):
         m = idx[k]
-        ax, ay, az = ax_[m], ay_[m], az_[m]
+        ax, ay, az, am = ax_[m], ay_[m], az_[m], as_[m]
+        dup = False
+        for j in range(ns):
+            if (seen[4 * j] == ax and seen[4 * j + 1] == ay and seen[4 * j + 2] == az
+                    and seen[4 * j + 3] == am):
+                dup = True
+                break
+        if dup:
+            continue
+        if ns < _SEEN:
+            seen[4 * ns] = ax
+            seen[4 * ns + 1] = ay
+            seen[4 * ns + 2] = az
+            seen[4 * ns + 3] = am
+            ns += 1
         # the member meets the plane iff its unit axis is within asin(sk)
         # of it; the union axis then within that plus the angle between
         # the axes (sign-free)
@@ -782,7 +844,7 @@ def _union_cone(ax_, ay_, az_, sk_, idx, n, out, o):
         cy = uz * ax - ux * az
         cz = ux * ay - uy * ax
         th = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), abs(ux * ax + uy * ay + uz * az))
-        psi = max(psi, math.asin(sk_[m]) + th)
+        psi = max(psi, am + th)
     psi += _UNION_SLACK
     out[o] = ux
     out[o + 1] = uy
@@ -790,18 +852,57 @@ def _union_cone(ax_, ay_, az_, sk_, idx, n, out, o):
     out[o + 3] = 2.0 if psi >= 0.5 * math.pi - _UNION_WIDE else math.sin(psi)
 
 
+#: Distinct members a union cone's half-angle remembers (_union_cone).
+_SEEN = 8
+
+
 @nb.njit(cache=True, nogil=True)
-def _build_blocks(dist, cone, R, B, NB, bmin, bcone, L, quant):
+def _cone_members(cone, R, kind, un, asn):
+    """Per voxel, what a union cone reads of its cone (_build_blocks), once
+    instead of once per block or voxel that reads it (27 times at the voxel
+    level): kind 0 = meets no plane, 1 = unknown (meets every plane), 2 = a
+    member with unit axis un (R, R, R, 3) float64 and asn = asin of the sin
+    of the half-angle within which its axis meets a plane."""
+    for x in range(R):
+        for y in range(R):
+            for z in range(R):
+                s = np.float64(cone[x, y, z, 3])
+                if s < -1.0:
+                    kind[x, y, z] = 0
+                    continue
+                ax = np.float64(cone[x, y, z, 0])
+                ay = np.float64(cone[x, y, z, 1])
+                az = np.float64(cone[x, y, z, 2])
+                nrm = math.sqrt(ax * ax + ay * ay + az * az)
+                if s + SIN_TOL >= 1.0 or nrm == 0.0:
+                    kind[x, y, z] = 1
+                    continue
+                # the member meets the plane iff |a.d| <= s + tol, i.e. its
+                # unit axis is within asin((s + tol)/|a|)
+                kind[x, y, z] = 2
+                un[x, y, z, 0] = ax / nrm
+                un[x, y, z, 1] = ay / nrm
+                un[x, y, z, 2] = az / nrm
+                asn[x, y, z] = math.asin(min((s + SIN_TOL) / nrm, 1.0))
+
+
+@nb.njit(cache=True, nogil=True)
+def _build_blocks(dist, kind, un, asn, R, B, NB, bmin, bcone, L, quant):
     """bmin (NB, NB, NB) and bcone (NB, NB, NB, 8) of MarchBlocks for blocks
-    of B^3 voxels: float64, or int16 (quant: the voxel level's vcone)."""
+    of B^3 voxels: float64, or int16 (quant: the voxel level's vcone);
+    kind, un, asn of :func:`_cone_members`."""
     cap = (B + 2) ** 3
     ax_ = np.empty(cap)
     ay_ = np.empty(cap)
     az_ = np.empty(cap)
-    sk_ = np.empty(cap)
+    as_ = np.empty(cap)
     ia = np.empty(cap, np.int64)
     ib = np.empty(cap, np.int64)
     out = np.empty(8)
+    seen = np.empty(4 * _SEEN)
+    memo = np.empty(4)
+    memo_out = np.empty(8)
+    memo_n = -1
     for bx in range(NB):
         for by in range(NB):
             for bz in range(NB):
@@ -812,31 +913,43 @@ def _build_blocks(dist, cone, R, B, NB, bmin, bcone, L, quant):
                 iy0, iy1 = by * B, min((by + 1) * B, R)
                 iz0, iz1 = bz * B, min((bz + 1) * B, R)
                 m = np.inf
-                wide = False
-                n = 0
                 for x in range(x0, x1):
                     for y in range(y0, y1):
                         for z in range(z0, z1):
                             m = min(m, np.float64(dist[x, y, z]))
-                            s = np.float64(cone[x, y, z, 3])
+                bmin[bx, by, bz] = m
+                if m * (1.0 - BLOCK_REL) >= L:
+                    # Never read: the march tests the cones only where
+                    # bmin (1 - BLOCK_REL) < its threshold <= locality <=
+                    # L (MarchGrid.cones), so they are left as "meets none"
+                    # and not built (most voxels of an open room).
+                    for k in range(8):
+                        out[k] = 0.0
+                    out[3] = -2.0
+                    out[7] = -2.0
+                    _store_cones(out, bcone, bx, by, bz, quant)
+                    continue
+                wide = False
+                same = True
+                n = 0
+                for x in range(x0, x1):
+                    for y in range(y0, y1):
+                        for z in range(z0, z1):
+                            kd = kind[x, y, z]
                             inner = (ix0 <= x < ix1 and iy0 <= y < iy1 and iz0 <= z < iz1)
-                            if s < -1.0 or not _in_cut(dist, x, y, z, inner, L):
+                            if kd == 0 or not _in_cut(dist, x, y, z, inner, L):
                                 continue            # meets no plane / never read
-                            ax = np.float64(cone[x, y, z, 0])
-                            ay = np.float64(cone[x, y, z, 1])
-                            az = np.float64(cone[x, y, z, 2])
-                            nrm = math.sqrt(ax * ax + ay * ay + az * az)
-                            if s + SIN_TOL >= 1.0 or nrm == 0.0:
+                            if kd == 1:
                                 wide = True         # unknown: meets every plane
                                 continue
-                            # the member meets the plane iff |a.d| <= s + tol,
-                            # i.e. its unit axis is within asin((s + tol)/|a|)
-                            ax_[n] = ax / nrm
-                            ay_[n] = ay / nrm
-                            az_[n] = az / nrm
-                            sk_[n] = min((s + SIN_TOL) / nrm, 1.0)
+                            ax_[n] = un[x, y, z, 0]
+                            ay_[n] = un[x, y, z, 1]
+                            az_[n] = un[x, y, z, 2]
+                            as_[n] = asn[x, y, z]
+                            if n > 0 and (ax_[n] != ax_[0] or ay_[n] != ay_[0]
+                                          or az_[n] != az_[0] or as_[n] != as_[0]):
+                                same = False
                             n += 1
-                bmin[bx, by, bz] = m
                 for k in range(8):
                     out[k] = 0.0
                 out[7] = -2.0
@@ -844,6 +957,15 @@ def _build_blocks(dist, cone, R, B, NB, bmin, bcone, L, quant):
                     out[3] = 2.0 if wide else -2.0
                     _store_cones(out, bcone, bx, by, bz, quant)
                     continue
+                # n copies of one member (a wall's voxels, the empty voxels
+                # that take its cone): the cones below are a function of
+                # that member and n alone, so the last such result is reused
+                # when both are the same (the same bits).
+                if same:
+                    if (n == memo_n and ax_[0] == memo[0] and ay_[0] == memo[1]
+                            and az_[0] == memo[2] and as_[0] == memo[3]):
+                        _store_cones(memo_out, bcone, bx, by, bz, quant)
+                        continue
                 # Two clusters: seeded by the first member and the member most
                 # orthogonal to it, each member to the nearer seed (sign-free).
                 # Where two walls meet, the members are the two walls' normals:
@@ -868,9 +990,14 @@ def _build_blocks(dist, cone, R, B, NB, bmin, bcone, L, quant):
                         ib[nb_] = k
                         nb_ += 1
                 # np.int64: one compile, not one per literal (core/warmup.py)
-                _union_cone(ax_, ay_, az_, sk_, ia, np.int64(na), out, np.int64(0))
-                _union_cone(ax_, ay_, az_, sk_, ib, np.int64(nb_), out, np.int64(4))
+                _union_cone(ax_, ay_, az_, as_, ia, np.int64(na), out, np.int64(0), seen)
+                _union_cone(ax_, ay_, az_, as_, ib, np.int64(nb_), out, np.int64(4), seen)
                 _store_cones(out, bcone, bx, by, bz, quant)
+                if same:
+                    memo_n = n
+                    memo[0], memo[1], memo[2], memo[3] = ax_[0], ay_[0], az_[0], as_[0]
+                    for k in range(8):
+                        memo_out[k] = out[k]
 
 
 @nb.njit(cache=True, nogil=True)
@@ -936,11 +1063,15 @@ def march_blocks(grid: OcclusionGrid, B: int = MARCH_BLOCK) -> MarchBlocks:
         bmin = np.empty((NB, NB, NB))
         bcone = np.zeros((NB, NB, NB, 8))
         L = cut_locality(float(grid.cell[0]), float(grid.cell[1]), float(grid.cell[2]))
-        _build_blocks(grid.dist, grid.cone, R, B, NB, bmin, bcone, L, False)
+        kind = np.empty((R, R, R), np.int8)
+        un = np.empty((R, R, R, 3))
+        asn = np.empty((R, R, R))
+        _cone_members(grid.cone, R, kind, un, asn)
+        _build_blocks(grid.dist, kind, un, asn, R, B, NB, bmin, bcone, L, False)
         if R ** 3 * 20 <= VOXEL_LEVEL_MAX:
             vm = np.empty((R, R, R))
             vcone = np.zeros((R, R, R, 8), np.int16)
-            _build_blocks(grid.dist, grid.cone, R, 1, R, vm, vcone, L, True)
+            _build_blocks(grid.dist, kind, un, asn, R, 1, R, vm, vcone, L, True)
             # dist is float32, so its minimum is exact in float32
             vmin = vm.astype(np.float32)
             del vm
@@ -949,6 +1080,7 @@ def march_blocks(grid: OcclusionGrid, B: int = MARCH_BLOCK) -> MarchBlocks:
             vmin = np.zeros((1, 1, 1), np.float32)
             vcone = np.zeros((1, 1, 1, 8), np.int16)
             has_v = False
+        del kind, un, asn
         mb = MarchBlocks(B=B, bmin=bmin, bcone=bcone, vmin=vmin, vcone=vcone,
                          has_voxel_level=has_v, cut_locality=L)
         object.__setattr__(grid, "_march_blocks", mb)    # frozen dataclass: a derived cache

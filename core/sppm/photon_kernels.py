@@ -154,7 +154,10 @@ class BounceStep(NamedTuple):
     integrator 'COMBINED'; off for the photon pass, which passes a placeholder);
     compiled: sample the ``compiled`` GENERIC materials here into the
     GenericHits' out / wgt / state (never with mis: the caller's numpy MIS
-    factors need the generic hits unsampled)."""
+    factors need the generic hits unsampled); rows: write only the source
+    ray of each survivor and of each deposit (HitRecord.nxt_src /
+    nxt_delta, DepositBuffers.src; implied by record), what following a
+    few photons through a batch needs (:func:`follow_rows`)."""
     K: int
     first: bool
     store: bool
@@ -167,6 +170,7 @@ class BounceStep(NamedTuple):
     floor: float
     mis: bool = False
     compiled: bool = False
+    rows: bool = False
 
 
 class MisState(NamedTuple):
@@ -315,6 +319,7 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
     """
     K, first, store, sample, roulette = step.K, step.first, step.store, step.sample, step.roulette
     bounce, n_dep0, record, rel, floor = step.bounce, step.dep0, step.record, step.rel, step.floor
+    src_rows = record or step.rows
     prim, bu, bv, tfar = hits.prim, hits.bu, hits.bv, hits.tfar
     o32, d32, d64, pw, fo = live.o32, live.d32, live.d64, live.power, live.falloff
     tri_p, tri_n, tri_ng, tri_mat = tris.p, tris.n, tris.ng, tris.mat
@@ -389,7 +394,7 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
             dep_r[n_dep] = np.nan
             dep_b[n_dep] = bounce
             dep.bary[n_dep, 0], dep.bary[n_dep, 1], dep.bary[n_dep, 2] = t, uu, vv
-            if record:
+            if src_rows:
                 dep_src[n_dep] = i
             if use_mis:
                 md0[n_dep] = a0
@@ -452,7 +457,7 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
         pw[j, 0] = p0 * w0_
         pw[j, 1] = p1 * w1_
         pw[j, 2] = p2 * w2_
-        if record:
+        if src_rows:
             nxt_src[j] = i
             nxt_delta[j] = r[6]
         if use_mis:
@@ -511,6 +516,36 @@ def classic_rows(q, src, n_fast, n_next, K, out, mark):
             if j >= 0:
                 out[j] = r
                 r += 1
+
+
+@njit(cache=True, nogil=True)
+def follow_rows(rows, k, src, n_fast, n_next, dsrc, dep0, dep1, out_rows, out_dep):
+    """Follow k photons through one bounce of a batch (docs/frequency.md
+    "Cost", "Frequency photons traced again").  rows (k,) int64 ascending:
+    their rays at this bounce; src (n_next,) the ray of each survivor
+    (HitRecord.nxt_src: rows 0..n_fast-1 the bounce kernel's, then the
+    generic bounce's, each block in ray order); dsrc the ray of each
+    deposit row (DepositBuffers.src; rows dep0..dep1-1 this bounce's, in
+    ray order).  out_dep receives the deposit rows of the k rays in ray
+    order, out_rows their survivors' rows: the bounce kernel's block, then
+    the generic one's, each in ray order, so ascending again.  Returns
+    (the survivors, the deposits)."""
+    nd = 0
+    for q in range(k):
+        d = dep0 + np.searchsorted(dsrc[dep0:dep1], rows[q])
+        if d < dep1 and dsrc[d] == rows[q]:
+            out_dep[nd] = d
+            nd += 1
+    m = 0
+    for b in range(2):
+        lo = 0 if b == 0 else n_fast
+        hi = n_fast if b == 0 else n_next
+        for q in range(k):
+            j = lo + np.searchsorted(src[lo:hi], rows[q])
+            if j < hi and src[j] == rows[q]:
+                out_rows[m] = j
+                m += 1
+    return m, nd
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

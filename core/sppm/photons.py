@@ -18,7 +18,9 @@ traced in the same batch, in its first live rows; their spectra follow
 the two compiled chains of ``core.frequency.kernels`` on the hits and
 survivors the kernel records (arriving: travel -> occlusion march ->
 occlude -> onto_surface -> predicted radius; leaving: off_surface -> lobe
--> curvature), only for hits that deposit or continue.
+-> curvature), only for hits that deposit or continue.  A batch with few
+of them (``RETRACE_MAX_SHARE``) is traced as without, and they are traced
+again in a small batch of their own on the same numbers for the spectra.
 
 The numpy reference tracer, every closure through ``bsdf.sample_bsdf`` and
 the chains by the ``core.frequency.spectrum`` operators, is a test oracle
@@ -46,6 +48,12 @@ from .update import R_FLOOR_REL
 from ..mathutil import LUMINANCE as LUM, dot as _dot  # noqa: E402
 #: Batches of at least this many photons are traced as two halves (see trace).
 SPLIT_MIN = 8192
+#: A batch whose frequency photons are at most this share of its photons
+#: traces them again in a batch of their own (PhotonTracer._trace_batch):
+#: below it the second trace of their paths costs less than what spectra
+#: cost every ray of the batch (crossover 3-6 %, docs/frequency.md "Cost",
+#: "Frequency photons traced again").
+RETRACE_MAX_SHARE = 0.04
 #: Threads tracing the halves: FPPM_PHOTON_THREADS, else min(2, cores).
 THREADS = int(os.environ.get("FPPM_PHOTON_THREADS", "0")) or min(2, os.cpu_count() or 1)
 _POOL = None
@@ -162,8 +170,9 @@ class _Deposits:
         self.pool = pool
         self.buf = self._arrays(max(int(cap), 16))
         self.n = 0
-        # Rows of frequency photons were written (else no spec row is read).
-        self.spec_rows = False
+        # The rows (int64 arrays) of frequency photons' deposits: the only
+        # spec rows written (and read).
+        self.freq_rows = []
 
     def _arrays(self, cap: int) -> "PK.DepositBuffers":
         wrap = lambda a: PK.DepositBuffers(*a)          # noqa: E731
@@ -187,21 +196,28 @@ class _Deposits:
         k = other.n
         self.reserve(k)
         a, b = self.n, self.n + k
-        for name in ("p", "ng", "wi", "power", "r", "bounce", "bary") + (
-                ("spec",) if other.spec_rows else ()):
+        for name in ("p", "ng", "wi", "power", "r", "bounce", "bary"):
             getattr(self.buf, name)[a:b] = getattr(other.buf, name)[:k]
-        self.spec_rows |= other.spec_rows
+        for rows in other.freq_rows:
+            self.buf.spec[a + rows] = other.buf.spec[rows]
+            self.freq_rows.append(a + rows)
         self.n = b
 
     def result(self):
         if self.n == 0:
             return None
         n, d = self.n, self.buf
+        if self.freq_rows:
+            # zeros: calloc's pages, faulted in only where written or read
+            # (np.where over every row cost ~2 ms a 100,000-photon trace)
+            spec = np.zeros((n, 3))
+            rows = np.concatenate(self.freq_rows)
+            spec[rows] = d.spec[rows]
+        else:
+            spec = np.broadcast_to(_NO_SPECTRUM, (n, 3))
         return {"p": d.p[:n], "ng": d.ng[:n], "wi": d.wi[:n],
                 "power": d.power[:n], "rpred": d.r[:n], "bounce": d.bounce[:n],
-                "spec": (np.where(np.isnan(d.r[:n])[:, None], 0.0, d.spec[:n])
-                         if self.spec_rows else np.broadcast_to(_NO_SPECTRUM, (n, 3))),
-                "bary": d.bary[:n]}
+                "spec": spec, "bary": d.bary[:n]}
 
 
 def _keep_rows(dep: "_Deposits", a: int, keep: np.ndarray) -> None:
@@ -210,6 +226,45 @@ def _keep_rows(dep: "_Deposits", a: int, keep: np.ndarray) -> None:
     for arr in dep.buf:
         arr[a:a + rows.size] = arr[rows]
     dep.n = a + rows.size
+
+
+class _PathsDiffer(Exception):
+    """Photons traced again left the paths they had in their batch."""
+
+
+class _Follow:
+    """A batch's first photons, followed through it while it is traced as
+    without spectra (PhotonTracer._trace_batch): at each bounce their rays
+    (ascending), the uniforms those drew, and their deposit rows."""
+
+    def __init__(self):
+        self.k = 0
+        self.u = []              # per bounce: (k, 4) the followed rays' uniforms
+        self._dep = []           # per bounce: their deposit rows, in ray order
+
+    def start(self, k: int, n: int):
+        """k photons, rays 0..k-1 of a batch of n rays."""
+        self.k = int(k)
+        self.rows = np.arange(self.k, dtype=np.int64)
+        self._next = np.empty(self.k, np.int64)
+        self._deps = np.empty(self.k, np.int64)
+
+    def draw(self, u: np.ndarray):
+        """The bounce's uniforms (K, 4): keep the followed rays'."""
+        self.u.append(u[self.rows[:self.k]])
+
+    def step(self, src, n_fast: int, n_next: int, dsrc, dep0: int, dep1: int):
+        """After the bounce (PK.follow_rows): the followed rays' deposit rows
+        and their survivors' rays."""
+        m, nd = PK.follow_rows(self.rows, self.k, src, n_fast, n_next, dsrc, dep0, dep1,
+                               self._next, self._deps)
+        self._dep.append(self._deps[:nd].copy())
+        self.rows, self._next = self._next, self.rows
+        self.k = m
+
+    def deposit_rows(self) -> np.ndarray:
+        """Every followed deposit row, bounce by bounce."""
+        return np.concatenate(self._dep) if self._dep else np.zeros(0, np.int64)
 
 
 class PhotonTracer:
@@ -260,6 +315,13 @@ class PhotonTracer:
         # (docs/frequency.md "The same photons"); False: the rows they move
         # to draw other uniforms, the rule before (benchmarks).
         self.same_photons = True
+        # Batches whose frequency photons are at most this share of their
+        # photons trace those again in a batch of their own (_trace_batch);
+        # 0: never, the rule before (benchmarks).
+        self.retrace = RETRACE_MAX_SHARE
+        # Batches whose frequency photons, traced again, left other deposits
+        # than in the batch (_retrace: then no spectra; 0 on every test scene).
+        self.retrace_mismatches = 0
 
     def trace(self, n: int, n_freq: int, rng):
         """Trace n photons (the first n_freq carry a spectrum); return deposits.
@@ -353,6 +415,54 @@ class PhotonTracer:
         emission kernel, or from the emission ``ph`` of lights.sample_photons.
         The first n_freq of them carry a spectrum.
 
+        With at most a share ``retrace`` of frequency photons the batch is
+        traced as without them, following the first n_freq (their rows, the
+        uniforms they draw, their deposit rows: :class:`_Follow`), and those
+        are traced again in a batch of their own from the same numbers for
+        their spectra (:meth:`_retrace`): the same paths, bit for bit, and
+        no per-ray cost of the spectra in the large batch (docs/frequency.md
+        "Cost", "Frequency photons traced again")."""
+        nf = min(max(int(n_freq), 0), b - a)
+        if 0 < nf <= self.retrace * (b - a) and self.one_batch and self.same_photons:
+            follow = _Follow()
+            self._trace_rows(u_emit, ph, a, b, rng, dep, nf, follow=follow)
+            self._retrace(u_emit, ph, a, nf, follow, dep)
+        else:
+            self._trace_rows(u_emit, ph, a, b, rng, dep, nf)
+
+    def _retrace(self, u_emit, ph, a: int, nf: int, follow: "_Follow", dep: _Deposits):
+        """Trace photons a..a+nf-1 again, with their spectra, on the uniforms
+        follow recorded in the batch they belong to, and give its deposit
+        rows (follow.deposit_rows()) their predicted radii and spectra.
+        Within a bounce both batches keep the photons' relative order (each
+        compacts its survivors in ray order, the bounce kernel's block first,
+        and a photon lands in the same block in both), so the k-th survivor
+        here is the k-th followed row, and the deposits pair up in order.
+        Should the paths differ all the same (a numpy reduction rounding
+        otherwise on fewer rows: not seen), the batch's deposits keep no
+        spectrum, PPM's rule for them, and ``retrace_mismatches`` counts it."""
+        small = _Deposits(self._dpp * nf + 64, self.pool)
+        try:
+            self._trace_rows(u_emit, ph, a, a + nf, None, small, nf, given=follow.u)
+        except _PathsDiffer:
+            self.retrace_mismatches += 1
+            return
+        rows = follow.deposit_rows()
+        m = small.n
+        if rows.size != m or not np.array_equal(small.buf.p[:m], dep.buf.p[rows]):
+            self.retrace_mismatches += 1
+            return
+        dep.buf.r[rows] = small.buf.r[:m]
+        dep.buf.spec[rows] = small.buf.spec[:m]
+        dep.freq_rows.append(rows)
+
+    def _trace_rows(self, u_emit, ph, a: int, b: int, rng, dep: _Deposits, nf: int = 0,
+                    follow: "_Follow" = None, given: list = None):
+        """:meth:`_trace_batch`'s work: photons a..b-1, the first nf with a
+        spectrum, or, with follow, followed (:class:`_Follow`) and traced
+        without one; given: the uniforms (K, 4) of each bounce (the rows of
+        a batch follow recorded), else drawn from rng.
+
         Frequency and classic photons share the batch: every bounce's Embree
         call, bounce kernel and numpy bounce of the generic materials, whose
         fixed costs a batch of their own paid again for a few thousand
@@ -362,7 +472,6 @@ class PhotonTracer:
         0..Kf-1 of each bounce."""
         st = self.settings
         n = b - a
-        nf = min(max(int(n_freq), 0), n)
         live = self.pool.take("live", n, _live_arrays, lambda a: PK.LiveState(*a))
         rel = REL_OFFSET
         floor = self.accel.abs_floor / REL_OFFSET
@@ -388,7 +497,9 @@ class PhotonTracer:
             if nf:
                 Kf = int(np.searchsorted(src[:K], nf))      # kept in order
                 spec = np.asarray(ph["freq_init"], np.float64)[a:b][src[:Kf]]
-        dep.spec_rows |= nf > 0
+        if follow is not None:
+            follow.start(Kf, n)              # followed, traced without spectra
+            Kf, spec = 0, None
         # the geometric normal of the surface each frequency photon leaves
         # (zeros: the emitter): the march does not take it for an occluder
         ng0 = np.zeros((Kf, 3))
@@ -404,7 +515,7 @@ class PhotonTracer:
                              **({"out": np.empty((cg, 3)), "wgt": np.empty((cg, 3)),
                                  "state": np.empty(cg, np.int8)} if comp else {}))
         ubuf = self.uniform_buffer(4 * K)       # K never grows: one survivor a ray at most
-        cr = n if record or Kf else 1
+        cr = n if record or Kf or follow is not None else 1
         rec = self.pool.take("record", cr, _record_arrays, lambda a: PK.HitRecord(*a))
         # The same photons as a batch without frequency photons
         # (docs/frequency.md "The same photons"): order (K,) is each live
@@ -427,8 +538,16 @@ class PhotonTracer:
                                  sample=bounce < st.max_bounces,
                                  roulette=bounce + 1 >= st.rr_start, bounce=bounce,
                                  dep0=dep.n, record=bool(record or Kf or order is not None),
-                                 rel=rel, floor=floor, compiled=comp)
-            u = self.uniforms(K, 4, rng, ubuf)
+                                 rel=rel, floor=floor, compiled=comp,
+                                 rows=follow is not None and follow.k > 0)
+            if given is None:
+                u = self.uniforms(K, 4, rng, ubuf)
+            else:
+                if bounce >= len(given) or given[bounce].shape[0] != K:
+                    raise _PathsDiffer()
+                u = given[bounce]
+            if step.rows:
+                follow.draw(u)
             if order is not None:
                 u = np.take(u, order[:K], axis=0, out=ubuf2[:4 * K].reshape(K, 4), mode="clip")
             dep.reserve(K)
@@ -444,11 +563,12 @@ class PhotonTracer:
             n_fast = n_next
             if n_gen:
                 n_next = self._generic_bounce(n_gen, n_next, gen, u, step.roulette, live,
-                                              rec if step.record else None, comp)
+                                              rec if step.record or step.rows else None, comp)
             if order is not None:
                 nxt = order_bufs[1] if order is order_bufs[0] else order_bufs[0]
                 PK.classic_rows(order, rec.nxt_src, n_fast, n_next, K, nxt, order_bufs[2])
                 order = nxt
+            kf_rays = Kf
             if Kf:
                 if (track and order is None
                         and self._frequency_split(Kf, n_fast, n_next, rec.nxt_src)[2]):
@@ -477,6 +597,13 @@ class PhotonTracer:
                 prev_delta = nxt
             if straight is not None:
                 straight = self._straight_filter(dep, step.dep0, straight, th, rec, n_next)
+            if step.rows:
+                follow.step(rec.nxt_src, n_fast, n_next, dep.buf.src, step.dep0, dep.n)
+            if kf_rays:
+                # the deposits of rays 0..kf_rays-1 lead the bounce's (ray order)
+                nfd = int(np.searchsorted(dep.buf.src[step.dep0:dep.n], kf_rays))
+                if nfd:
+                    dep.freq_rows.append(np.arange(step.dep0, step.dep0 + nfd))
             K = n_next
 
     @staticmethod
@@ -639,7 +766,9 @@ class PhotonTracer:
         chain = self.chain_params()._replace(gate=reach is not None)
         out, _ = FK.spectrum_at_hits(chain, rows, spec, seg, rec, self.march,
                                      dep.buf, self._NO_REACH if reach is None else reach)
-        r = dep.buf.r[rows.dep0:rows.dep1]
+        # rays 0..K-1's deposits lead the bounce's (ray order); the others' keep NaN
+        d0 = rows.dep0
+        r = dep.buf.r[d0:d0 + int(np.searchsorted(dep.buf.src[d0:rows.dep1], rows.K))]
         r[:] = F.radius_fold_key(r, self.settings.frequency_model)
         return out
 

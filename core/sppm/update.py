@@ -31,11 +31,11 @@ prediction (PPM with frequency photons), from the MSE-optimal radius of the
 sector counts (APPM, :func:`appm_radius`) or from the chi-square uniformity
 test of the sector counts (CPPM, :func:`chi2_rejects`); with verify_holds a
 test of the same counts (for a linear density) also releases frequency holds
-the photons contradict; optionally (both off by default) the uniformity
-test adds holds where the spectrum does not call the light smooth
-(HOLD_OR_UNIFORM), and a verified hold in a pixel's first pass with photons
-grows the radius towards the spectrum's prediction (GROW_MAX,
-:func:`grow_targets`; docs/method.md "Spectrum and counts").  Every rule
+the photons contradict; the uniformity test adds holds where the spectrum
+does not call the light smooth (HOLD_OR_UNIFORM), and a verified hold in a
+pixel's first pass with photons grows the radius towards the spectrum's
+prediction (GROW_MAX, :func:`grow_targets`; docs/method.md "Spectrum and
+counts"; both on by default: "X as the default").  Every rule
 but that one-off growth only chooses the per-pass factor between the PPM
 rate alpha and the hold rate hold_alpha, so every rule converges by the
 same argument (the growth, once and bounded, scales a bound by a constant).
@@ -84,36 +84,39 @@ CHI2_CRITICAL_LINEAR = 15.086
 #: The test needs an expected count of at least 5 per cell (Cochran 1952's
 #: rule for Pearson's statistic); with fewer photons it cannot reject.
 CHI2_MIN_EXPECTED = 5.0
-#: A verified hold needs this expected count per sector cell (one photon per
-#: cell: 8 in the disc); fewer cannot show a disc that photons reach on one
-#: side only (docs/method.md "Rings under a 1 m light": 5, the test's own
-#: minimum, also refuses the early holds the indirect room gains by).
-HOLD_MIN_EXPECTED = 1.0
+#: A verified hold needs this expected count per sector cell.  0 (the
+#: default, rule set X of docs/method.md "X as the default"): a hold the
+#: test cannot yet judge stands; 1 (a photon per cell, the rule of "Rings
+#: under a 1 m light") refused the early holds of the principled interior's
+#: dim pixels, which then shrank at PPM's rate and never came back
+#: ("The frequency kernel on the indirect scenes").
+HOLD_MIN_EXPECTED = 0.0
 #: PPM parameter of a pixel whose prediction the photons reject (its earlier
 #: holds were wrong): it shrinks faster than PPM until the test accepts;
 #: above 1/2, which keeps the variance condition (docs/method.md
 #: "Consistent holds").
 RELEASE_ALPHA = 0.55
-#: Below CHI2_MIN_EXPECTED per cell (the test cannot judge), a hold is also
-#: refused where the two fullest of the 8 cells hold this share of the
-#: counts or more (uniform: 1/4): a disc that photons reach on one side only
-#: (docs/method.md "Rings under a 1 m light"; above 1: off).
-HOLD_MAX_TOP2 = 0.6
+#: Below CHI2_MIN_EXPECTED per cell (the test cannot judge), a hold is
+#: refused where the two fullest of the 8 cells hold this share of the counts
+#: or more (uniform: 1/4; above 1: off, the default, rule set X).  0.6 was
+#: made for the ring's leak through its wall (docs/method.md "Rings under a
+#: 1 m light"), which the kernel clip at walls now removes.
+HOLD_MAX_TOP2 = 2.0
 #: Hold also where CPPM's uniformity test of the sector counts accepts,
-#: whatever the spectrum predicts, once the counts can be tested
-#: (UNIFORM_MIN_EXPECTED per sector cell; below it the spectrum alone
-#: decides); the linear test still vetoes.  Off: at equal CPU it helped the
-#: indirect room and cost the principled interior (docs/method.md "Spectrum
-#: and counts"; bench_hold_alpha 'fppm:or=1').
-HOLD_OR_UNIFORM = False
-UNIFORM_MIN_EXPECTED = CHI2_MIN_EXPECTED
+#: whatever the spectrum predicts (on by default, rule set X); from
+#: UNIFORM_MIN_EXPECTED per sector cell, and 0 (the default) counts a disc
+#: the test cannot yet judge as uniform, CPPM's retention while photons
+#: accumulate.  The linear test still vetoes (docs/method.md "Spectrum and
+#: counts", "X as the default").
+HOLD_OR_UNIFORM = True
+UNIFORM_MIN_EXPECTED = 0.0
 #: In a pixel's first pass with photons, a verified hold grows the radius to
 #: the spectrum's prediction, at most GROW_MAX times the initial radius and
 #: never past the surface-boundary cap (docs/method.md "Spectrum and counts":
 #: the counts of a disc cannot say that the light is smooth beyond it); only
 #: where the counts can be tested (GROW_MIN_EXPECTED per sector cell).  1:
-#: off, the default for the same reason as HOLD_OR_UNIFORM ('fppm:grow=2').
-GROW_MAX = 1.0
+#: off; 2 (the default, rule set X).
+GROW_MAX = 2.0
 GROW_MIN_EXPECTED = CHI2_MIN_EXPECTED
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16

@@ -1,0 +1,411 @@
+"""The gather with the photons sorted by cell against a lookup in trace order.
+
+    .venv/bin/python bench/bench_gather_order.py [--res 256x256 1920x1080] [--repeat 5]
+
+The deposits of one pass of the Cornell box (plain, 200k photons: its
+chunks), the grid and the visible points, captured from a render; then,
+interleaved in this process, each chunk gathered and folded into a pass's
+sums by
+
+  sorted:  hashgrid.gather(..., buffers=) and GatherBuffers.fold, as a pass
+           does (the photons sorted by slot, copied, then the count pass);
+  direct:  each photon, in trace order, looks its cell up and walks its
+           visible points (pbrt-v4's SPPM way), accumulating into the same
+           per-thread rows (photon index ranges per thread), then the same
+           fold.
+
+--count: the count pass alone on each chunk's sorted photons, on --threads,
+hashgrid's (a branch on each rule) against a branch-free candidate test
+(tried, not kept: docs/architecture.md), interleaved; the same outputs bit
+for bit.
+
+Printed: CPU (process clock) of each, min / median of --repeat rounds,
+and the largest differences of the sums (M, sector counts and the
+smallest radius exactly; Phi within float64 rounding: the summation order
+differs).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "bench"))
+sys.path.insert(0, os.path.join(ROOT, "tests"))
+
+from core.sppm import hashgrid as Hg  # noqa: E402
+from core.render import Renderer  # noqa: E402
+from core.settings import RenderSettings  # noqa: E402
+from core.kept import KeptBuffers  # noqa: E402
+
+
+def capture(w, h, photons, plain=True):
+    """(renderer, [gather call args/kwargs]) of one pass after a warm-up one."""
+    from bench_render import cornell
+    r = Renderer(cornell(w, height=h), RenderSettings(integrator="PHOTON", max_passes=1000,
+                                                      photons_per_pass=photons,
+                                                      use_frequency=not plain),
+                 log=lambda s: None)
+    r.step()
+    calls = []
+    f = Hg.gather
+
+    def g(grid, *a, **k):
+        calls.append((grid, [np.array(x, copy=True) if isinstance(x, np.ndarray) else x
+                             for x in a], dict(k)))
+        return f(grid, *a, **k)
+    Hg.gather = g
+    try:
+        r.step()
+    finally:
+        Hg.gather = f
+    return r, calls
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--res", nargs="+", default=["256x256", "1920x1080"])
+    ap.add_argument("--photons", type=int, default=200_000)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--threads", type=int, nargs="+", default=[numba.get_num_threads()])
+    ap.add_argument("--count", action="store_true",
+                    help="the count pass alone, hashgrid's against a branch-free test")
+    a = ap.parse_args(argv)
+    THREADS[:] = a.threads
+    print(f"load average {os.getloadavg()[0]:.1f}, numba threads {numba.get_num_threads()}")
+    for wh in a.res:
+        w, h = (int(x) for x in wh.split("x"))
+        r, calls = capture(w, h, a.photons)
+        if a.count:
+            count_report(calls, a.repeat)
+        else:
+            run_res(wh, calls, a.repeat)
+        del r, calls
+
+
+def _part_clock(T):
+    """Wrap the kernels whose process CPU is reported on their own."""
+    undo = []
+    for mod, name in ((Hg, "_sorted_photons"), (Hg, "_count_parallel"), (Hg, "_count_serial"),
+                      (sys.modules[__name__], "_direct_parallel")):
+        f = getattr(mod, name)
+
+        def g(*a, _f=f, _n=name, **k):
+            c0 = time.process_time()
+            try:
+                return _f(*a, **k)
+            finally:
+                T[_n] = T.get(_n, 0.0) + time.process_time() - c0
+        setattr(mod, name, g)
+        undo.append((mod, name, f))
+    return undo
+
+
+def run_res(wh, calls, repeat):
+    grid = calls[0][0]
+    K = grid.K
+    sectors = calls[0][2]["buffers"].with_sectors
+    clip = calls[0][2].get("clip")
+    variants = [(m, t) for t in THREADS for m in ("sorted", "direct")]
+    bufs = {f"{m}/{t}": Hg.GatherBuffers(K, sectors) for m, t in variants}
+    for b in bufs.values():
+        b.kept = KeptBuffers()          # as PhotonPass: the sort's arrays reused
+    n_ph = sum(c[1][0].shape[0] for c in calls)
+    print(f"  {wh}: {len(calls)} chunks, {n_ph:,} deposits, {grid.summary()}, "
+          f"sectors {sectors}, clip {clip is not None}")
+    cpu = {k: [] for k in bufs}
+    parts = []
+    sums = {}
+    ALBEDO[0] = np.full((K, 3), 0.8, np.float32)
+    T = {}
+    undo = _part_clock(T)
+    try:
+        for rep in range(repeat + 1):
+            T.clear()
+            for name, buf in bufs.items():
+                numba.set_num_threads(int(name.split("/")[1]))
+                M = np.zeros(K, np.int64)
+                Phi = np.zeros((K, 3))
+                rmin = np.full(K, np.inf)
+                S = np.zeros((K, Hg.SECTOR_CELLS), np.int64) if sectors else None
+                c0 = time.process_time()
+                for grid_, args, kw in calls:
+                    kw = dict(kw, buffers=buf)
+                    if name.startswith("sorted"):
+                        g = Hg.gather(grid_, *args, **kw)
+                    else:
+                        g = gather_direct(grid_, *args, **kw)
+                    f0 = time.process_time()
+                    buf.fold(M, Phi, ALBEDO[0], np.pi, rmin, None, S, kw.get("clip"))
+                    T["fold " + name] = T.get("fold " + name, 0.0) + time.process_time() - f0
+                    for k_ in ("_sorted_photons", "_count_parallel", "_count_serial", "_direct_parallel"):
+                        if k_ in T:
+                            T[f"{k_} {name}"] = T.get(f"{k_} {name}", 0.0) + T.pop(k_)
+                    _ = g.pair_vp.size
+                c = time.process_time() - c0
+                if rep:
+                    cpu[name].append(c)
+                sums[name] = (M, Phi, rmin, S)
+            if rep:
+                parts.append(dict(T))
+    finally:
+        for mod, name, f in undo:
+            setattr(mod, name, f)
+        numba.set_num_threads(THREADS[0])
+    a, b = sums[f"sorted/{THREADS[0]}"], sums[f"direct/{THREADS[0]}"]
+    dM = int(np.abs(a[0] - b[0]).max())
+    fin = np.isfinite(a[2])
+    dr = bool(np.array_equal(a[2], b[2]))
+    dS = 0 if a[3] is None else int(np.abs(a[3] - b[3]).max())
+    rel = np.abs(a[1] - b[1]).max() / max(np.abs(a[1]).max(), 1e-300)
+    for k, v in cpu.items():
+        print(f"    {k}: gather + fold CPU min {min(v) * 1e3:.1f} ms, median "
+              f"{np.median(v) * 1e3:.1f} ms (a pass)")
+    print("    parts, min / median a pass: " + ", ".join(
+        f"{k} {min(p[k] for p in parts) * 1e3:.1f} / "
+        f"{np.median([p[k] for p in parts]) * 1e3:.1f} ms" for k in parts[0]))
+    for t in THREADS:
+        d_, s_ = cpu[f"direct/{t}"], cpu[f"sorted/{t}"]
+        print(f"    {t} threads: direct / sorted: min {min(d_) / min(s_):.3f}, median "
+              f"{np.median(d_) / np.median(s_):.3f}, rounds "
+              + " ".join(f"{x / y:.2f}" for x, y in zip(d_, s_)))
+    print(f"    {THREADS[0]} threads: max |dM| {dM}, max |dS| {dS}, rmin equal {dr} ({fin.sum()} finite), "
+          f"max |dPhi| / max |Phi| {rel:.2e}; load average {os.getloadavg()[0]:.1f}")
+
+
+ALBEDO = [None]
+THREADS = [2]
+
+
+# ---------------------------------------------------------------------------
+# The trace-order gather
+# ---------------------------------------------------------------------------
+
+@njit(cache=True)
+def _direct_range(p0, p1, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, origin, inv_h, lo, hi,
+                  dense, nx, ny, nz, shift, vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
+                  M, Phi, rmin, ps, hitmask, n_pair, n_freq, S, touched, n_touched):
+    """Deposits p0..p1-1 in trace order: their slots (hashgrid._photon_slots),
+    then hashgrid's count pass on each run of deposits that have a slot (its
+    body, in trace order)."""
+    Hg._photon_slots(p0, p1, ph_pos, origin, inv_h, lo, hi, dense, nx, ny, nz, shift,
+                     cell_start, ps)
+    p = p0
+    while p < p1:
+        if ps[p] < 0:
+            hitmask[p] = 0
+            n_pair[p] = 0
+            n_freq[p] = 0
+            p += 1
+            continue
+        q = p
+        while q < p1 and ps[q] >= 0:
+            q += 1
+        Hg._count_range(p, q, ps, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip,
+                        cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq, S,
+                        touched, n_touched)
+        p = q
+
+
+@njit(cache=True, parallel=True)
+def _direct_parallel(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, origin, inv_h, lo, hi,
+                     dense, nx, ny, nz, shift, vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
+                     M, Phi, rmin, ps, hitmask, n_pair, n_freq, S, touched, n_touched, n_chunks):
+    n = ph_pos.shape[0]
+    for c in prange(n_chunks):
+        _direct_range(c * n // n_chunks, (c + 1) * n // n_chunks, ph_pos, ph_ng, ph_wi,
+                      ph_power, ph_rpred, origin, inv_h, lo, hi, dense, nx, ny, nz, shift,
+                      vp_rec, vp_clip, cos_ng, cell_start, vp_ids, M[c], Phi[c], rmin[c], ps,
+                      hitmask, n_pair, n_freq, S[c], touched[c], n_touched[c:c + 1])
+
+
+_KEEP = {}
+
+
+def gather_direct(grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_pos, vp_ng, vp_R2,
+                  vp_const, cos_ng=Hg.COS_NG_DEFAULT, want_freq_pairs=False, buffers=None,
+                  clip=None):
+    """hashgrid.gather(..., buffers=) in trace order (pairs not written: the
+    Cornell box has none; their counts are)."""
+    P, K, ph, vp = Hg._prepare(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_pos, vp_ng,
+                               vp_R2, vp_const)
+    T = numba.get_num_threads()
+    b = buffers
+    b.bind(grid, vp, T)
+    if P > _KEEP.get("P", 0):
+        _KEEP.update(P=P, ps=np.empty(P, np.int64), hitmask=np.empty(P, np.uint64),
+                     n_pair=np.empty(P, np.int32), n_freq=np.empty(P, np.int32))
+    ps, hitmask, n_pair, n_freq = (_KEEP[k][:P] for k in ("ps", "hitmask", "n_pair", "n_freq"))
+    b.n_used = max(b.n_used, T) if b.n_touched.any() else T
+    vp_clip = (np.zeros(0, np.uint64) if clip is None
+               else np.ascontiguousarray(clip, np.uint64).reshape(K))
+    _direct_parallel(*ph, grid.origin, grid.inv_h, grid.lo, grid.hi, grid.dense,
+                     int(grid.dims[0]), int(grid.dims[1]), int(grid.dims[2]),
+                     0 if grid.dense else 64 - grid.log2_table, b.vp_rec, vp_clip,
+                     float(cos_ng), grid.cell_start, grid.vp_ids, b.M, b.Phi, b.rmin, ps,
+                     hitmask, n_pair, n_freq, b.S, b.touched, b.n_touched, T)
+    n_pairs = int(n_pair.sum())
+    e = np.zeros(n_pairs, np.int32)
+    return Hg.GatherResult(None, None, e, e, None)
+
+
+# ---------------------------------------------------------------------------
+# --count: the count pass with a branch-free candidate test (tried, not kept)
+# ---------------------------------------------------------------------------
+
+@njit(cache=True)
+def _count_branch_free(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                       vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
+                       M, Phi, rmin, hitmask, n_pair, n_freq, touched, n_touched):
+    """hashgrid._count_range (no sectors) with rules (1)-(4) of
+    hashgrid._accepts as one flag of bitwise ands, and the flag added to M
+    and the flux times it to Phi at every candidate (x + 0.0 == x, p * 1.0
+    == p: the same bits); rule (5) (hashgrid._accepts) for a clipped point
+    alone."""
+    track = touched.shape[0] > 0
+    has_clip = vp_clip.shape[0] > 0
+    for q in range(q0, q1):
+        s = slot[q]
+        e0 = cell_start[s]
+        e1 = cell_start[s + 1]
+        x = np.float64(ph_pos[q, 0])
+        y = np.float64(ph_pos[q, 1])
+        z = np.float64(ph_pos[q, 2])
+        wx = np.float64(ph_wi[q, 0])
+        wy = np.float64(ph_wi[q, 1])
+        wz = np.float64(ph_wi[q, 2])
+        gx = np.float64(ph_ng[q, 0])
+        gy = np.float64(ph_ng[q, 1])
+        gz = np.float64(ph_ng[q, 2])
+        p0 = ph_power[q, 0]
+        p1 = ph_power[q, 1]
+        p2 = ph_power[q, 2]
+        r = ph_rpred[q]
+        is_freq = not math.isnan(r)
+        npair = 0
+        nfreq = 0
+        mask = np.uint64(0)
+        for e in range(e0, e1):
+            v = vp_ids[e]
+            dx = x - vp_rec[v, 0]
+            dy = y - vp_rec[v, 1]
+            dz = z - vp_rec[v, 2]
+            nvx = vp_rec[v, 4]
+            nvy = vp_rec[v, 5]
+            nvz = vp_rec[v, 6]
+            cg = gx * nvx + gy * nvy + gz * nvz
+            ok = ((dx * dx + dy * dy + dz * dz < vp_rec[v, 3])
+                  & (wx * nvx + wy * nvy + wz * nvz > 0.0) & (cg > cos_ng)
+                  & ~((cg <= Hg.COS_NG_DEFAULT) & (dx * nvx + dy * nvy + dz * nvz < 0.0)))
+            if ok and has_clip and vp_clip[v] != Hg.CLIP_CLEAR:
+                ok = Hg._accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng)
+            a = np.int32(ok)
+            m = M[v] + a
+            M[v] = m
+            if track and ok and m == 1:
+                touched[n_touched[0]] = v
+                n_touched[0] += 1
+            c = vp_rec[v, 7] != 0.0
+            f = np.float64(ok & c)
+            Phi[v, 0] += p0 * f
+            Phi[v, 1] += p1 * f
+            Phi[v, 2] += p2 * f
+            npair += ok & (not c)
+            if is_freq and ok:
+                nfreq += 1
+                if r < rmin[v]:
+                    rmin[v] = r
+            if e - e0 < 64:
+                mask |= np.uint64(a) << np.uint64(e - e0)
+        hitmask[q] = mask
+        n_pair[q] = npair
+        n_freq[q] = nfreq
+
+
+@njit(cache=True, parallel=True)
+def _count_branch_free_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip,
+                             cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq,
+                             touched, n_touched, n_chunks):
+    """hashgrid._count_parallel's split over _count_branch_free."""
+    n = slot.shape[0]
+    for c in prange(n_chunks):
+        _count_branch_free(c * n // n_chunks, (c + 1) * n // n_chunks, slot, ph_pos, ph_ng, ph_wi,
+                        ph_power, ph_rpred, vp_rec, vp_clip, cos_ng, cell_start, vp_ids, M[c],
+                        Phi[c], rmin[c], hitmask, n_pair, n_freq, touched[c],
+                        n_touched[c:c + 1])
+
+
+def count_report(calls, repeat):
+    """--count: the sorted photons of each chunk counted by hashgrid's count
+    pass and by _count_branch_free, on --threads, interleaved."""
+    grid = calls[0][0]
+    K = grid.K
+    T = max(THREADS)
+    bufs = [Hg.GatherBuffers(K, threads=T), Hg.GatherBuffers(K, threads=T)]
+    prepared = []
+    for grid_, args, kw in calls:
+        P, K, ph, vp = Hg._prepare(*args[:9])
+        srt = Hg._sorted_photons(Hg._sort_photons_serial, ph, grid_, 1)
+        srt = tuple(np.array(x, copy=True) for x in srt)
+        clip = kw.get("clip")
+        prepared.append((grid_, srt, vp, np.zeros(0, np.uint64) if clip is None
+                         else np.ascontiguousarray(clip, np.uint64), float(kw["cos_ng"])))
+    for b in bufs:
+        b.bind(prepared[0][0], prepared[0][2], T)
+    for nt in THREADS:
+        cpu = ([], [])
+        outs = [None, None]
+        for rep in range(repeat + 1):
+            for i, b in enumerate(bufs):
+                res = []
+                c0 = time.process_time()
+                for grid_, (order, slot, pos, ng, wi, power, rpred, hm, npr, nfr), vp, clip, \
+                        cos_ng in prepared:
+                    b.n_used = nt
+                    args_ = (slot, pos, ng, wi, power, rpred, b.vp_rec, clip, cos_ng,
+                             grid_.cell_start, grid_.vp_ids, b.M, b.Phi, b.rmin, hm, npr, nfr)
+                    if i == 0 and nt == 1:
+                        Hg._count_serial(*args_, b.S, b.touched, b.n_touched)
+                    elif i == 0:
+                        Hg._count_parallel(*args_, b.S, b.touched, b.n_touched, nt)
+                    elif nt == 1:
+                        _count_branch_free(0, slot.shape[0], slot, pos, ng, wi, power, rpred,
+                                        b.vp_rec, clip, cos_ng, grid_.cell_start, grid_.vp_ids,
+                                        b.M[0], b.Phi[0], b.rmin[0], hm, npr, nfr, b.touched[0],
+                                        b.n_touched[0:1])
+                    else:
+                        _count_branch_free_parallel(*args_, b.touched, b.n_touched, nt)
+                    res.append((hm.copy(), npr.copy(), nfr.copy()))
+                c = time.process_time() - c0
+                outs[i] = (b.M[:nt].copy(), b.Phi[:nt].copy(), b.rmin[:nt].copy(), res,
+                           [np.sort(b.touched[t, :b.n_touched[t]]) for t in range(nt)])
+                b.clear()
+                if rep:
+                    cpu[i].append(c)
+        _count_line(nt, cpu, outs)
+
+
+def _count_line(nt, cpu, outs):
+    a, z = outs
+    same = (np.array_equal(a[0], z[0]) and np.array_equal(a[1], z[1])
+            and np.array_equal(a[2], z[2])
+            and all(np.array_equal(u, w) for u, w in zip(a[4], z[4]))
+            and all(np.array_equal(u, w) for x_, y_ in zip(a[3], z[3]) for u, w in zip(x_, y_)))
+    print(f"    count pass, {nt} thread(s), a pass: hashgrid {min(cpu[0]) * 1e3:.1f} / "
+          f"{np.median(cpu[0]) * 1e3:.1f} ms, branch-free {min(cpu[1]) * 1e3:.1f} / "
+          f"{np.median(cpu[1]) * 1e3:.1f} ms (min / median); branch-free / hashgrid "
+          f"{min(cpu[1]) / min(cpu[0]):.3f}, {np.median(cpu[1]) / np.median(cpu[0]):.3f}; "
+          f"the same bits {same}; "
+          f"load average {os.getloadavg()[0]:.1f}")
+
+
+if __name__ == "__main__":
+    main()
