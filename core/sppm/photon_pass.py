@@ -402,7 +402,7 @@ class PhotonPass:
         """The grid of this pass's active visible points (None: none is active).
         The mask (:meth:`active`) and the radii sqrt(R2) in one compiled loop
         over the pixels (core.sppm.pass_kernels); check_stop() is called
-        between the kernel clip's blocks of rays."""
+        between the kernel clip's blocks of rays and the grid build's phases."""
         from . import pass_kernels
         active, R, n_active = pass_kernels.active_radii(vp.valid, R2)
         if self.gather_buffers is not None:
@@ -420,7 +420,8 @@ class PhotonPass:
                                           R2, active, check_stop)
             self.clip_seconds += time.process_time() - c0
             self.stage_seconds["gather"] += time.perf_counter() - t0
-        grid = hashgrid.build_grid(vp.p, R, active, buffers=self._grid_kept)
+        grid = hashgrid.build_grid(vp.p, R, active, buffers=self._grid_kept,
+                                   check_stop=check_stop)
         return PassGrid(vp, R2, grid, want_pairs, spectrum_aov, clip)
 
     def chunk_sums(self, pg: "PassGrid", n: int, n_freq: int,
