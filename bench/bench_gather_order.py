@@ -14,10 +14,10 @@ sums by
            per-thread rows (photon index ranges per thread), then the same
            fold.
 
---count: the count pass alone on each chunk's sorted photons, on --threads,
-hashgrid's (a branch on each rule) against a branch-free candidate test
-(tried, not kept: docs/architecture.md), interleaved; the same outputs bit
-for bit.
+The branch-free count pass of docs/architecture.md ("Tried, not kept: the
+count pass without branches") was timed by this file's --count as of commit
+4441bd1 (`git show 4441bd1:bench/bench_gather_order.py`); it is not kept
+here, where it repeated hashgrid's count pass.
 
 Printed: CPU (process clock) of each, min / median of --repeat rounds,
 and the largest differences of the sums (M, sector counts and the
@@ -76,18 +76,13 @@ def main(argv=None):
     ap.add_argument("--photons", type=int, default=200_000)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--threads", type=int, nargs="+", default=[numba.get_num_threads()])
-    ap.add_argument("--count", action="store_true",
-                    help="the count pass alone, hashgrid's against a branch-free test")
     a = ap.parse_args(argv)
     THREADS[:] = a.threads
     print(f"load average {os.getloadavg()[0]:.1f}, numba threads {numba.get_num_threads()}")
     for wh in a.res:
         w, h = (int(x) for x in wh.split("x"))
         r, calls = capture(w, h, a.photons)
-        if a.count:
-            count_report(calls, a.repeat)
-        else:
-            run_res(wh, calls, a.repeat)
+        run_res(wh, calls, a.repeat)
         del r, calls
 
 
@@ -255,156 +250,6 @@ def gather_direct(grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_pos, vp_ng,
     n_pairs = int(n_pair.sum())
     e = np.zeros(n_pairs, np.int32)
     return Hg.GatherResult(None, None, e, e, None)
-
-
-# ---------------------------------------------------------------------------
-# --count: the count pass with a branch-free candidate test (tried, not kept)
-# ---------------------------------------------------------------------------
-
-@njit(cache=True)
-def _count_branch_free(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
-                       vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
-                       M, Phi, rmin, hitmask, n_pair, n_freq, touched, n_touched):
-    """hashgrid._count_range (no sectors) with rules (1)-(4) of
-    hashgrid._accepts as one flag of bitwise ands, and the flag added to M
-    and the flux times it to Phi at every candidate (x + 0.0 == x, p * 1.0
-    == p: the same bits); rule (5) (hashgrid._accepts) for a clipped point
-    alone."""
-    track = touched.shape[0] > 0
-    has_clip = vp_clip.shape[0] > 0
-    for q in range(q0, q1):
-        s = slot[q]
-        e0 = cell_start[s]
-        e1 = cell_start[s + 1]
-        x = np.float64(ph_pos[q, 0])
-        y = np.float64(ph_pos[q, 1])
-        z = np.float64(ph_pos[q, 2])
-        wx = np.float64(ph_wi[q, 0])
-        wy = np.float64(ph_wi[q, 1])
-        wz = np.float64(ph_wi[q, 2])
-        gx = np.float64(ph_ng[q, 0])
-        gy = np.float64(ph_ng[q, 1])
-        gz = np.float64(ph_ng[q, 2])
-        p0 = ph_power[q, 0]
-        p1 = ph_power[q, 1]
-        p2 = ph_power[q, 2]
-        r = ph_rpred[q]
-        is_freq = not math.isnan(r)
-        npair = 0
-        nfreq = 0
-        mask = np.uint64(0)
-        for e in range(e0, e1):
-            v = vp_ids[e]
-            dx = x - vp_rec[v, 0]
-            dy = y - vp_rec[v, 1]
-            dz = z - vp_rec[v, 2]
-            nvx = vp_rec[v, 4]
-            nvy = vp_rec[v, 5]
-            nvz = vp_rec[v, 6]
-            cg = gx * nvx + gy * nvy + gz * nvz
-            ok = ((dx * dx + dy * dy + dz * dz < vp_rec[v, 3])
-                  & (wx * nvx + wy * nvy + wz * nvz > 0.0) & (cg > cos_ng)
-                  & ~((cg <= Hg.COS_NG_DEFAULT) & (dx * nvx + dy * nvy + dz * nvz < 0.0)))
-            if ok and has_clip and vp_clip[v] != Hg.CLIP_CLEAR:
-                ok = Hg._accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng)
-            a = np.int32(ok)
-            m = M[v] + a
-            M[v] = m
-            if track and ok and m == 1:
-                touched[n_touched[0]] = v
-                n_touched[0] += 1
-            c = vp_rec[v, 7] != 0.0
-            f = np.float64(ok & c)
-            Phi[v, 0] += p0 * f
-            Phi[v, 1] += p1 * f
-            Phi[v, 2] += p2 * f
-            npair += ok & (not c)
-            if is_freq and ok:
-                nfreq += 1
-                if r < rmin[v]:
-                    rmin[v] = r
-            if e - e0 < 64:
-                mask |= np.uint64(a) << np.uint64(e - e0)
-        hitmask[q] = mask
-        n_pair[q] = npair
-        n_freq[q] = nfreq
-
-
-@njit(cache=True, parallel=True)
-def _count_branch_free_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip,
-                             cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq,
-                             touched, n_touched, n_chunks):
-    """hashgrid._count_parallel's split over _count_branch_free."""
-    n = slot.shape[0]
-    for c in prange(n_chunks):
-        _count_branch_free(c * n // n_chunks, (c + 1) * n // n_chunks, slot, ph_pos, ph_ng, ph_wi,
-                        ph_power, ph_rpred, vp_rec, vp_clip, cos_ng, cell_start, vp_ids, M[c],
-                        Phi[c], rmin[c], hitmask, n_pair, n_freq, touched[c],
-                        n_touched[c:c + 1])
-
-
-def count_report(calls, repeat):
-    """--count: the sorted photons of each chunk counted by hashgrid's count
-    pass and by _count_branch_free, on --threads, interleaved."""
-    grid = calls[0][0]
-    K = grid.K
-    T = max(THREADS)
-    bufs = [Hg.GatherBuffers(K, threads=T), Hg.GatherBuffers(K, threads=T)]
-    prepared = []
-    for grid_, args, kw in calls:
-        P, K, ph, vp = Hg._prepare(*args[:9])
-        srt = Hg._sorted_photons(Hg._sort_photons_serial, ph, grid_, 1)
-        srt = tuple(np.array(x, copy=True) for x in srt)
-        clip = kw.get("clip")
-        prepared.append((grid_, srt, vp, np.zeros(0, np.uint64) if clip is None
-                         else np.ascontiguousarray(clip, np.uint64), float(kw["cos_ng"])))
-    for b in bufs:
-        b.bind(prepared[0][0], prepared[0][2], T)
-    for nt in THREADS:
-        cpu = ([], [])
-        outs = [None, None]
-        for rep in range(repeat + 1):
-            for i, b in enumerate(bufs):
-                res = []
-                c0 = time.process_time()
-                for grid_, (order, slot, pos, ng, wi, power, rpred, hm, npr, nfr), vp, clip, \
-                        cos_ng in prepared:
-                    b.n_used = nt
-                    args_ = (slot, pos, ng, wi, power, rpred, b.vp_rec, clip, cos_ng,
-                             grid_.cell_start, grid_.vp_ids, b.M, b.Phi, b.rmin, hm, npr, nfr)
-                    if i == 0 and nt == 1:
-                        Hg._count_serial(*args_, b.S, b.touched, b.n_touched)
-                    elif i == 0:
-                        Hg._count_parallel(*args_, b.S, b.touched, b.n_touched, nt)
-                    elif nt == 1:
-                        _count_branch_free(0, slot.shape[0], slot, pos, ng, wi, power, rpred,
-                                        b.vp_rec, clip, cos_ng, grid_.cell_start, grid_.vp_ids,
-                                        b.M[0], b.Phi[0], b.rmin[0], hm, npr, nfr, b.touched[0],
-                                        b.n_touched[0:1])
-                    else:
-                        _count_branch_free_parallel(*args_, b.touched, b.n_touched, nt)
-                    res.append((hm.copy(), npr.copy(), nfr.copy()))
-                c = time.process_time() - c0
-                outs[i] = (b.M[:nt].copy(), b.Phi[:nt].copy(), b.rmin[:nt].copy(), res,
-                           [np.sort(b.touched[t, :b.n_touched[t]]) for t in range(nt)])
-                b.clear()
-                if rep:
-                    cpu[i].append(c)
-        _count_line(nt, cpu, outs)
-
-
-def _count_line(nt, cpu, outs):
-    a, z = outs
-    same = (np.array_equal(a[0], z[0]) and np.array_equal(a[1], z[1])
-            and np.array_equal(a[2], z[2])
-            and all(np.array_equal(u, w) for u, w in zip(a[4], z[4]))
-            and all(np.array_equal(u, w) for x_, y_ in zip(a[3], z[3]) for u, w in zip(x_, y_)))
-    print(f"    count pass, {nt} thread(s), a pass: hashgrid {min(cpu[0]) * 1e3:.1f} / "
-          f"{np.median(cpu[0]) * 1e3:.1f} ms, branch-free {min(cpu[1]) * 1e3:.1f} / "
-          f"{np.median(cpu[1]) * 1e3:.1f} ms (min / median); branch-free / hashgrid "
-          f"{min(cpu[1]) / min(cpu[0]):.3f}, {np.median(cpu[1]) / np.median(cpu[0]):.3f}; "
-          f"the same bits {same}; "
-          f"load average {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":
