@@ -82,22 +82,22 @@ NOTES = [
     "photons only in passes 1, 2, 4, 8, ...; FPPM tracing PPM's own photons; the occlusion march's "
     "end-plane fix), load average 4 to 6.  COMBINED was not re-run: its earlier row (120 CPU s, 4 "
     "seeds, 310a884) read 0.75x PPM; combined.png is that run's image.",
-    "indirect_room: `indirect_room --budget 60 --seeds 4 --methods "
-    "fppm,ppm,appm,cppm,combined,light,cycles` (60 CPU s, the budget of its earlier row) on "
-    "8b51df8 (the kernel clip on, COMBINED's camera depth Auto: light tracing plus one emitter "
-    "ray a pixel), on a machine loaded by other jobs (load average 3 to 13, 0.55 to 0.98 cores "
-    "per method).  Every excess error there (5.1e-4 to 1.4e-3) lies below 3x the 8192-spp "
-    "reference's floor (1.1e-3): the ratios are flagged 'near floor'; the raw relMSE ratios are "
+    "indirect_room: `indirect_room --budget 60 --seeds 2 --methods fppm,ppm,appm,cppm` and then "
+    "`--methods combined,light,cycles` (the two CSVs joined, the report rebuilt with --rereport: "
+    "the bias/noise table holds the second run's methods) on 1bc5e45 (rule set X as FPPM's "
+    "default, docs/method.md 'X as the default'; a new 8192-spp Cycles reference, this "
+    "machine's cache having lost the old one, floor 1.1e-3 again), load average 1 to 10, 0.88 to "
+    "1.0 cores per method.  Every photon mapper's excess error (5.7e-4 to 1.4e-3) lies below 3x "
+    "the reference's floor: the ratios are flagged 'near floor'; the raw relMSE ratios are "
     "given beside them in the README.",
-    "principled_interior: `principled_interior --budget 60 --seeds 2 --methods fppm,ppm,cppm` on "
-    "8b808e2 (FPPM tracing PPM's own photons, frequency photons in doubling passes, the "
-    "occlusion march's end-plane fix), load average 3 to 6.  APPM, COMBINED, LIGHT and Cycles "
-    "were not re-run: their images (appm.png, combined.png, light.png, cycles.png) are from the "
-    "earlier run on 499a081 (2 seeds, 60 CPU s: APPM 2.73e-3, COMBINED 1.90e-3, LIGHT 1.87e-3, "
-    "Cycles 3.08e-3 excess).",
-    "ring_principled: `ring_principled --budget 30 --seeds 4 --methods fppm,ppm` on 8b808e2, "
-    "load average 3 to 6; COMBINED and Cycles from the earlier 2-seed run on a434914 (their "
-    "images here are that run's).",
+    "principled_interior: `principled_interior --budget 60 --seeds 2 --methods fppm,ppm,appm,cppm` "
+    "and then `--methods combined,light,cycles` (the two CSVs joined, the report rebuilt with "
+    "--rereport: the bias/noise table holds the second run's methods) on 1bc5e45 (rule set X as "
+    "FPPM's default), load average 1 to 10.  Before X (8b808e2) FPPM read 0.86x PPM and 1.89x "
+    "CPPM.",
+    "ring_principled: `ring_principled --budget 30 --seeds 4 --methods fppm,ppm` on 1bc5e45 (rule "
+    "set X; FPPM's set-up 0.14 s, 0.30 s before), load average 1 to 6; COMBINED and Cycles from "
+    "the earlier 2-seed run on a434914 (their images here are that run's).",
     "point_caustic: `point_caustic --budget 30 --seeds 4 --methods fppm,ppm,light,combined` on "
     "ca52af9 (COMBINED's Camera Depth Auto Direct where the camera sees no glass under point "
     "lights; docs/integrators.md \"The point caustic\"), load average 3 to 6, against the "
