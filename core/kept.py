@@ -115,15 +115,15 @@ class KeptBuffers:
         self.reused = 0
 
     def take(self, name: str, specs) -> list:
-        offs, n = [], 0
+        offs, counts, n = [], [], 0
         for shape, dtype in specs:
             offs.append(n)
-            size = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
-            n += -(-size // ALIGN) * ALIGN
+            counts.append(int(np.prod(shape, dtype=np.int64)))
+            n += -(-counts[-1] * np.dtype(dtype).itemsize // ALIGN) * ALIGN
         buf = self._bufs.get(name)
         # the arrays start at the buffer's first aligned byte, so a reused
         # buffer must hold n bytes past its own alignment offset
-        if (buf is not None and buf.nbytes - (-buf.ctypes.data) % ALIGN >= n
+        if (buf is not None and buf.nbytes - _aligned_offset(buf) >= n
                 and sys.getrefcount(buf) <= _ALONE_BUF):
             self.reused += 1
         else:
@@ -136,18 +136,21 @@ class KeptBuffers:
             # never touched are not resident)
             buf = self._bufs[name] = np.empty(int(n * GROW) + ALIGN, np.uint8)
             self.allocations += 1
-        base = (-buf.ctypes.data) % ALIGN
+        base = _aligned_offset(buf)
         out = []
-        for (shape, dtype), o in zip(specs, offs):
+        for (shape, dtype), o, cnt in zip(specs, offs, counts):
             dt = np.dtype(dtype)
-            cnt = int(np.prod(shape, dtype=np.int64))
-            a = buf[base + o:base + o + cnt * dt.itemsize].view(dt).reshape(shape)
-            out.append(a)
+            out.append(buf[base + o:base + o + cnt * dt.itemsize].view(dt).reshape(shape))
         return out
 
     def nbytes(self) -> int:
         """Bytes of the buffers kept (resident once touched)."""
         return sum(b.nbytes for b in self._bufs.values())
+
+
+def _aligned_offset(buf: np.ndarray) -> int:
+    """Bytes from the start of buf to its first ALIGN-aligned byte."""
+    return (-buf.ctypes.data) % ALIGN
 
 
 def _buf_refs() -> int:

@@ -570,11 +570,11 @@ class PhotonTracer:
                 order = nxt
             kf_rays = Kf
             if Kf:
-                if (track and order is None
-                        and self._frequency_split(Kf, n_fast, n_next, rec.nxt_src)[2]):
+                split = self._frequency_split(Kf, n_fast, n_next, rec.nxt_src)
+                if track and order is None and split[2]:
                     order = order_bufs[0]
                     order[:n_next] = np.arange(n_next)   # the rows so far are that batch's
-                kf_next = self._frequency_first(Kf, n_fast, n_next, live, rec, order)
+                kf_next = self._frequency_first(Kf, n_fast, n_next, live, rec, order, split)
                 # After the generic bounce: only hits that deposit or continue
                 # need a spectrum (the bounce reads seg and rec, not the live
                 # state it appended to).
@@ -616,8 +616,10 @@ class PhotonTracer:
         return f1, gf, min(n_fast - f1, gf)
 
     @staticmethod
-    def _frequency_first(Kf: int, n_fast: int, n_next: int, live, rec, order=None) -> int:
-        """After a bounce of rays whose first Kf are frequency photons: the
+    def _frequency_first(Kf: int, n_fast: int, n_next: int, live, rec, order=None,
+                         split=None) -> int:
+        """After a bounce of rays whose first Kf are frequency photons (split:
+        their :meth:`_frequency_split` when the caller has it): the
         live rows 0..n_fast-1 hold the bounce kernel's survivors and
         n_fast..n_next-1 the generic bounce's, each in ray order, so those
         of rays < Kf lead each block.  Swaps the generic block's frequency
@@ -626,7 +628,7 @@ class PhotonTracer:
         without frequency photons, None: not kept) alike, so that the
         frequency survivors are rows 0..Kf'-1.  Returns Kf'."""
         src = rec.nxt_src
-        f1, gf, m = PhotonTracer._frequency_split(Kf, n_fast, n_next, src)
+        f1, gf, m = split or PhotonTracer._frequency_split(Kf, n_fast, n_next, src)
         if m:
             i, j = slice(f1, f1 + m), slice(n_fast + gf - m, n_fast + gf)
             for arr in (*live, src, rec.nxt_delta) + (() if order is None else (order,)):
