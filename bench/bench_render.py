@@ -277,6 +277,9 @@ def frequency_report(r, rb, r0, tm, a):
         tr.occlusion = occlusion
     marginal = mixed_batch_cost(tr, n, a.repeat, lambda nf, seed: trace_seconds(r, tm, n, nf,
                                                                                 seed)[0])
+    deposits = [int(x) for x in str(a.deposits).split(",") if x != ""]
+    equal = equal_radii_pass(r, tm, deposits, a.repeat)
+    per_k = deposits_costs(r, r0, tm, n, deposits, a.repeat) if deposits != [0] else None
     print(f"frequency ({r.settings.frequency_fraction:.0%} frequency photons x pass^-"
           f"{r.settings.frequency_decay:g}, CPU time of all "
           f"threads, best of {a.repeat}; "
@@ -285,6 +288,18 @@ def frequency_report(r, rb, r0, tm, a):
     print(f"  whole photon pass vs none, a batch for each kind of photon (the rule before): "
           f"{min(pp['a batch each']):+.0%}; all: {[f'{x:+.0%}' for x in pp['a batch each']]}")
     print(f"  {marginal}")
+    print(f"  whole photon pass vs none, equal radii (one FPPM renderer's visible points, "
+          f"radii, reach map and radius cut, its pass run with and without frequency "
+          f"photons; process CPU, min / median of {a.repeat}):")
+    for line in equal:
+        print(f"    {line}")
+    if per_k:
+        print("  per freq_deposits (PhotonTracer.freq_deposits; 0 = every deposit), "
+              f"min / median of {a.repeat}, interleaved:")
+        for line in per_k:
+            print(f"    {line}")
+    print(f"  (the lines above 'equal radii' keep the old measures: the whole-pass "
+          f"line compares the FPPM renderer with its grown radii against a PPM renderer)")
     if rb is None:
         print(f"  whole photon pass vs none: {min(pp['after']):+.0%}")
         print(f"  per-photon tracing cost, frequency / classic photon: "
@@ -299,6 +314,90 @@ def frequency_report(r, rb, r0, tm, a):
           f"(its march {march_b[int(np.argmin(cost['before']))]:.2f}x"
           f" wall / classic CPU); all: after {[round(x, 2) for x in cost['after']]}, "
           f"before {[round(x, 2) for x in cost['before']]}")
+
+
+class _EqualRadiiPass:
+    """Around a renderer's PhotonPass: each call first runs the same pass
+    (the renderer's visible points, radii, radius cut and reach map) once
+    per variant on a fresh stream of one seed, timed in process CPU and
+    with the trace's and the gather's CPU clocks (Timers), results thrown
+    away; then the renderer's own call.  variants: (name, n_freq on: bool,
+    freq_deposits)."""
+
+    def __init__(self, pp, tm, variants, seed):
+        self.__dict__.update(_pp=pp, _tm=tm, _variants=variants, _seed=seed, times={})
+
+    def __getattr__(self, name):
+        return getattr(self._pp, name)
+
+    def __call__(self, vp, R2, spectrum, rng, check_stop=lambda: None):
+        pp, tr = self._pp, self._pp.tracer
+        chunks, k0 = pp.chunks, tr.freq_deposits
+        order = list(self._variants)
+        shift = len(self.times.get(order[0][0], [])) % len(order)
+        for name, freq, k in order[shift:] + order[:shift]:      # rotated: no fixed order
+            pp.chunks = chunks if freq else (lambda: [(n, 0) for n, _ in chunks()])
+            tr.freq_deposits = k
+            s0, c0 = self._tm.snapshot(), time.process_time()
+            pp(vp, R2, None if spectrum is None else spectrum.copy(),
+               np.random.default_rng(self._seed), check_stop)
+            c, s1 = time.process_time() - c0, self._tm.snapshot()
+            self.times.setdefault(name, []).append(
+                (c, s1["trace_cpu"] - s0["trace_cpu"], s1["gather_cpu"] - s0["gather_cpu"]))
+            del pp.chunks
+        tr.freq_deposits = k0
+        return pp(vp, R2, spectrum, rng, check_stop)
+
+
+def equal_radii_pass(r, tm, deposits, repeat: int) -> list:
+    """The whole photon pass with the renderer's share of frequency photons
+    against the same pass without them, at equal radii: r (an FPPM renderer)
+    is stepped repeat times, and in each step its pass is first run per
+    variant on the same visible points and radii (_EqualRadiiPass).  So the
+    ratio is the frequency photons' cost alone, not that of the radii
+    FPPM's rule grows (the PPM renderer's pass, the old line).  Returns the
+    lines to print."""
+    variants = [("none", False, 0)] + [(f"k={k}", True, k) for k in deposits]
+    pp = r.photon_pass
+    w = _EqualRadiiPass(pp, tm, variants, 300)
+    r.photon_pass = w
+    try:
+        for _ in range(repeat):
+            r.step()
+    finally:
+        r.photon_pass = pp
+    t = {k: np.array(v) for k, v in w.times.items()}
+    out = []
+    for name, _, k in variants[1:]:
+        q = t[name] / t["none"]         # paired by step
+        out.append(f"freq_deposits {k}: whole pass {np.min(q[:, 0]) - 1:+.0%} / "
+                   f"{np.median(q[:, 0]) - 1:+.0%} (trace {np.median(q[:, 1]) - 1:+.0%}, "
+                   f"gather {np.median(q[:, 2]) - 1:+.0%}, medians)")
+    return out
+
+
+def deposits_costs(r, r0, tm, n: int, deposits, repeat: int) -> list:
+    """Per freq_deposits variant, interleaved: a frequency photon among
+    classic ones (marginal, a quarter of n, one batch) and a batch of
+    frequency photons alone, each over a classic photon (r0's trace of n
+    classic photons in the same repetition), and the segments marched a
+    frequency photon.  Returns the lines to print."""
+    tr = r.tracer
+    k0 = tr.freq_deposits
+    nf = n // 4
+    res = {k: ([], []) for k in deposits}
+    for rep in range(repeat):
+        c = trace_seconds(r0, tm, n, 0, 400 + rep)[0]
+        for k in deposits[rep % len(deposits):] + deposits[:rep % len(deposits)]:
+            tr.freq_deposits = k
+            m = trace_seconds(r, tm, n, nf, 400 + rep)[0]
+            b = trace_seconds(r, tm, n, n, 400 + rep)[0]
+            res[k][0].append((m - c) / nf / (c / n))
+            res[k][1].append(b / c)
+    tr.freq_deposits = k0
+    return [f"freq_deposits {k}: a frequency photon among classic ones, marginal "
+            f"{np.min(v[0]):.2f}x / {np.median(v[0]):.2f}x; a batch of them alone "
+            f"{np.min(v[1]):.2f}x / {np.median(v[1]):.2f}x" for k, v in res.items()]
 
 
 def mixed_batch_cost(tr, n: int, repeat: int, cpu) -> str:
@@ -438,6 +537,10 @@ def main(argv=None):
                          "(compare two source trees by running this script in each)")
     ap.add_argument("--repeat", type=int, default=3,
                     help="interleaved repeats of the frequency measurements (best of)")
+    ap.add_argument("--deposits", default="0",
+                    help="with --frequency: comma-separated PhotonTracer.freq_deposits "
+                         "variants (0 = every deposit predicts), each measured interleaved "
+                         "in the per-photon costs and the equal-radii whole pass")
     ap.add_argument("--stages", action="store_true",
                     help="camera + direct light: numpy vs compiled (ratios), and whole passes")
     ap.add_argument("--stage-res", type=int, nargs="+", default=[256, 1024])

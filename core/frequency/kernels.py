@@ -435,7 +435,12 @@ class ChainParams(NamedTuple):
     radius below any pixel's: the radius floor); own_planes: the march
     does not take the surfaces a segment leaves and lands on for its
     occluders (False: the rule before docs/method.md "Principled interior:
-    quality or cost", kept for the benchmarks)."""
+    quality or cost", kept for the benchmarks); deposits: a frequency
+    photon predicts a radius at its first ``deposits`` counted deposits
+    only (counted: a deposit that is not gated as unreached), and is
+    neither marched nor given a spectrum after them: its later deposits
+    carry r = NaN, a classic photon's (docs/frequency.md "Cost", "Fewer
+    marched deposits"); 0 = every deposit."""
     paper: bool
     D: float
     A_MAX: float
@@ -445,6 +450,7 @@ class ChainParams(NamedTuple):
     gate: bool = False
     r_gated: float = 0.0
     own_planes: bool = True
+    deposits: int = 0
 
 
 class Segments(NamedTuple):
@@ -512,7 +518,7 @@ def _kernels(token):
 
     # ------------------------------------------------------------ batch kernels
     @njit(cache=True, nogil=True, error_model="numpy")
-    def spectrum_at_hits(chain, rows, spec, seg, rec, march, dep, reach):
+    def spectrum_at_hits(chain, rows, spec, seg, rec, march, dep, reach, left):
         """Frequency photons arriving at their hits (rays 0..K-1).
 
         chain: ChainParams; rows: Rows; spec (K, 3): spectra leaving the
@@ -531,6 +537,10 @@ def _kernels(token):
         on the march grid, read when chain.gate (and chain.occlusion == 1):
         deposits in its 0 voxels are not marched and get r = chain.r_gated
         (:func:`gate_unreached`).
+        left (K,) int32, read when chain.deposits > 0: the counted deposits
+        each ray may still make with a prediction; a ray at 0 is skipped
+        (out[i] = spec[i], its deposit r = NaN, spec 0), and a counted
+        deposit of a ray above 0 takes one off (in place).
         Returns (out (K, 3) float64, rows of other rays unset; the number
         of segments marched).
         """
@@ -547,6 +557,14 @@ def _kernels(token):
         unreached = np.zeros(K if gated else 1, np.bool_)
         if gated:
             gate_unreached(rows, rec, dep, seg, march, reach, used, unreached)
+        budget = chain.deposits > 0
+        if budget:
+            # a photon past its first `deposits` counted deposits is a
+            # classic one from here on: no march, no spectrum
+            for i in range(K):
+                if left[i] <= 0:
+                    need[i] = False
+                    used[i] = False
         out = np.empty((K, 3))
         # The segments to march, in one call (march_segments unpacks the
         # grid's arrays once per call, not per segment)
@@ -584,6 +602,10 @@ def _kernels(token):
                        cut, planes)
         for i in range(K):
             if not (need[i] and rec.hit[i]):
+                if budget:
+                    out[i, 0] = spec[i, 0]
+                    out[i, 1] = spec[i, 1]
+                    out[i, 2] = spec[i, 2]
                 continue
             t = rec.t[i]
             ao, to = np.inf, np.inf
@@ -600,6 +622,13 @@ def _kernels(token):
             i = dep.src[k]
             if i >= K:                    # a classic photon's deposit: r stays NaN
                 continue
+            if budget:
+                if left[i] <= 0:          # past its budget: a classic deposit
+                    dep.spec[k, 0] = dep.spec[k, 1] = dep.spec[k, 2] = 0.0
+                    dep.r[k] = np.nan
+                    continue
+                if not (gated and unreached[i]):
+                    left[i] -= 1
             a, b, c = out[i, 0], out[i, 1], out[i, 2]
             dep.spec[k, 0] = a
             dep.spec[k, 1] = b

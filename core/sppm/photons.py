@@ -54,6 +54,10 @@ SPLIT_MIN = 8192
 #: cost every ray of the batch (crossover 3-6 %, docs/frequency.md "Cost",
 #: "Frequency photons traced again").
 RETRACE_MAX_SHARE = 0.04
+#: PhotonTracer.freq_deposits: the counted deposits (not gated as unreached)
+#: at which a frequency photon predicts a radius; after them it is traced as
+#: a classic photon (docs/frequency.md "Fewer marched deposits"); 0 = all.
+FREQ_DEPOSITS = 0
 #: Threads tracing the halves: FPPM_PHOTON_THREADS, else min(2, cores).
 THREADS = int(os.environ.get("FPPM_PHOTON_THREADS", "0")) or min(2, os.cpu_count() or 1)
 _POOL = None
@@ -322,6 +326,11 @@ class PhotonTracer:
         # Batches whose frequency photons, traced again, left other deposits
         # than in the batch (_retrace: then no spectra; 0 on every test scene).
         self.retrace_mismatches = 0
+        # A frequency photon predicts radii at its first this many counted
+        # deposits only, and is traced as a classic photon after them
+        # (kernels.ChainParams.deposits; docs/frequency.md "Fewer marched
+        # deposits"); 0: every deposit.
+        self.freq_deposits = FREQ_DEPOSITS
 
     def trace(self, n: int, n_freq: int, rng):
         """Trace n photons (the first n_freq carry a spectrum); return deposits.
@@ -503,6 +512,8 @@ class PhotonTracer:
         # the geometric normal of the surface each frequency photon leaves
         # (zeros: the emitter): the march does not take it for an occluder
         ng0 = np.zeros((Kf, 3))
+        # counted deposits each frequency row may still predict at (freq_deposits)
+        left = np.full(Kf, max(int(self.freq_deposits), 1), np.int32)
         caustic = self.after_delta_only
         # Hit records: frequency photons' chains, and the delta flag of the
         # scattering each survivor sampled (caustic photons).
@@ -579,7 +590,13 @@ class PhotonTracer:
                 # need a spectrum (the bounce reads seg and rec, not the live
                 # state it appended to).
                 spec_hit = self._spectrum_at_hits(spec, seg, rec, dep,
-                                                  FK.Rows(Kf, step.dep0, dep.n, n_next))
+                                                  FK.Rows(Kf, step.dep0, dep.n, n_next), left)
+                if kf_next and self.freq_deposits > 0:
+                    # rows past their budget at the end of the prefix are
+                    # classic photons from here on (rows >= Kf)
+                    left = left[rec.nxt_src[:kf_next]]
+                    kf_next = int(np.flatnonzero(left > 0)[-1]) + 1 if left.any() else 0
+                    left = left[:kf_next]
                 if kf_next:
                     spec = self._spectrum_leaving(spec_hit, kf_next, hits.prim, rec, live.d64,
                                                   seg.d)
@@ -707,7 +724,8 @@ class PhotonTracer:
         return FK.ChainParams(paper=self.settings.frequency_model == "PAPER", D=float(self.D),
                               A_MAX=float(self.D * self.D), occlusion=self.occlusion,
                               r_cut=float(self.radius_cut), gate=self.reach is not None,
-                              r_gated=R_FLOOR_REL * float(self.D))
+                              r_gated=R_FLOOR_REL * float(self.D),
+                              deposits=int(self.freq_deposits))
 
     _NO_REACH = np.ones((1, 1, 1), np.uint8)
 
@@ -759,15 +777,21 @@ class PhotonTracer:
                  or not R2.size or not np.isfinite(R2).all())
         self.radius_cut = np.inf if exact else float(np.sqrt(R2.max()))
 
-    def _spectrum_at_hits(self, spec, seg, rec, dep, rows):
+    def _spectrum_at_hits(self, spec, seg, rec, dep, rows, left=None):
         """Frequency photons: travel, occlusion and projection onto the hit
         surface (rays 0..K-1 that deposit or continue); the predicted radius
-        of the deposits dep0..dep1-1, as fold keys.  Returns the (K, 3)
-        on-surface spectra (rows of other rays unused)."""
+        of the deposits dep0..dep1-1, as fold keys.  left (K,) int32: the
+        counted deposits each ray may still predict at (freq_deposits;
+        updated in place).  Returns the (K, 3) on-surface spectra (rows of
+        other rays unused)."""
         reach = self.reach                   # once: the flag and the map agree
         chain = self.chain_params()._replace(gate=reach is not None)
+        if left is None:
+            left = np.ones(rows.K, np.int32)
+            chain = chain._replace(deposits=0)
         out, _ = FK.spectrum_at_hits(chain, rows, spec, seg, rec, self.march,
-                                     dep.buf, self._NO_REACH if reach is None else reach)
+                                     dep.buf, self._NO_REACH if reach is None else reach,
+                                     left)
         # rays 0..K-1's deposits lead the bounce's (ray order); the others' keep NaN
         d0 = rows.dep0
         r = dep.buf.r[d0:d0 + int(np.searchsorted(dep.buf.src[d0:rows.dep1], rows.K))]
