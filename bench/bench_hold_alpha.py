@@ -157,7 +157,7 @@ def method_settings(base, method):
     if ":" in method:                       # "fppm:decay=0" etc.
         for kv in method.split(":")[1:]:
             k, v = kv.split("=")
-            if k == "keep" or k in RADII_KEYS:     # Radii attributes: radii_variant
+            if k == "keep" or k in RADII_KEYS or k in TRACER_KEYS:   # planes_or, radii_variant
                 continue
             over[k] = type(getattr(base, k))(float(v) if isinstance(getattr(base, k), float) else v)
     return base.replace(**over)
@@ -167,6 +167,12 @@ def method_settings(base, method):
 RADII_KEYS = {"power": "hold_min_expected", "release": "release_alpha", "top2": "hold_max_top2",
               "or": "hold_uniform", "orE": "uniform_min_expected", "crit": "uniform_critical",
               "grow": "grow", "growE": "grow_min_expected"}
+
+
+#: Method-name keys of :func:`planes_or` and the PhotonTracer attribute each
+#: sets ('fdep=1': a frequency photon predicts at its first counted deposit
+#: only, docs/frequency.md "Fewer marched deposits").
+TRACER_KEYS = {"fdep": "freq_deposits"}
 
 
 def radii_variant(renderer, method):
@@ -261,6 +267,10 @@ def planes_or(r, m):
         r.tracer.retrace = 0.0
     if ":keep=every" in m:              # frequency photons in every pass (the schedule before)
         r.photon_pass.doubling = False
+    for kv in m.split(":")[1:]:
+        k, v = kv.split("=")
+        if k in TRACER_KEYS:
+            setattr(r.tracer, TRACER_KEYS[k], int(v))
 
 
 def equal_passes(scene, base, methods, seed, passes, report, ref, say):
