@@ -463,6 +463,9 @@ class PhotonTracer:
             return
         dep.buf.r[rows] = small.buf.r[:m]
         dep.buf.spec[rows] = small.buf.spec[:m]
+        if self.freq_deposits > 0:
+            # past their budget the photons are classic ones: no spectrum
+            dep.buf.spec[rows[np.isnan(small.buf.r[:m])]] = 0.0
         dep.freq_rows.append(rows)
 
     def _trace_rows(self, u_emit, ph, a: int, b: int, rng, dep: _Deposits, nf: int = 0,
