@@ -56,7 +56,7 @@ class _Compare:
             for k in [0] + self._ks:
                 tr.freq_deposits = k
                 est = pp(vp, R2, None, np.random.default_rng(1000 + k_pass), check_stop)
-                res[k] = np.array(est.r_pred, np.float64)
+                res[k] = np.array(est.r_pred_min, np.float64)
             tr.freq_deposits = k0
             self.out[k_pass] = (res, np.sqrt(np.asarray(R2, np.float64)),
                                 vp.valid & (np.asarray(R2) > 0))
@@ -93,8 +93,8 @@ def main():
             larger = rk[has0] > r0[has0]
             both = has0 & np.isfinite(rk)
             q = rk[both] / r0[both]
-            print(f"  k={k}: none {np.mean(none):.3f}, larger {np.mean(larger):.3f} "
-                  f"(ratio median {np.median(q[q > 1]) if (q > 1).any() else 1:.2f}), "
+            print(f"  k={k}: none {np.mean(none):.3f}, larger or none {np.mean(larger):.3f} "
+                  f"(median ratio where larger {np.median(q[q > 1]) if (q > 1).any() else 1:.2f}), "
                   f"below the pixel radius {np.mean(rk[has0] < R[has0]):.3f}")
 
 
