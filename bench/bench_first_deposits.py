@@ -20,32 +20,24 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 
-os.environ.setdefault("NUMBA_NUM_THREADS", "1")
-os.environ.setdefault("FPPM_PHOTON_THREADS", "1")
+# bench_hold_alpha first: one numba and one tracing thread, tests/ on the path
+# (this script's directory, bench/, is sys.path[0])
+from bench_hold_alpha import export  # noqa: E402
+from bench_render import PassProxy  # noqa: E402
 
 import numpy as np  # noqa: E402
-
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, os.path.join(ROOT, "tests"))
-sys.path.insert(0, os.path.join(ROOT, "bench"))
-
-import fppm_alias  # noqa: E402,F401  (core.x is fppm.core.x: one numba cache)
 
 from fppm.core.render import Renderer  # noqa: E402
 
 
-class _Compare:
+class _Compare(PassProxy):
     """Around a PhotonPass: at the chosen passes, the pass run again per k
     on the same visible points and radii and a fresh stream of one seed;
     the per-pixel smallest radii kept."""
 
     def __init__(self, pp, ks, at, renderer):
-        self.__dict__.update(_pp=pp, _ks=ks, _at=at, _r=renderer, out={})
-
-    def __getattr__(self, name):
-        return getattr(self._pp, name)
+        super().__init__(pp, _ks=ks, _at=at, _r=renderer, out={})
 
     def __call__(self, vp, R2, spectrum, rng, check_stop=lambda: None):
         pp, tr = self._pp, self._pp.tracer
@@ -70,7 +62,6 @@ def main():
     ap.add_argument("--k", default="1,2")
     ap.add_argument("--photons", type=int, default=100_000)
     a = ap.parse_args()
-    from bench_hold_alpha import export
     scene, base = export(a.scene)
     st = base.replace(photons_per_pass=a.photons, frequency_decay=0.0, max_passes=max(a.passes))
     r = Renderer(scene, st, log=lambda s: None)

@@ -1,7 +1,7 @@
 """Photon-pass cost against raw Embree ray casting, measured in one process.
 
     .venv/bin/python bench/bench_render.py [--res 256] [--photons 200000] [--passes 3]
-                                           [--frequency] [--numpy]
+                                           [--frequency] [--numpy] [--deposits 0,1,2]
     .venv/bin/python bench/bench_render.py --stages [--stage-res 256 1024] [--repeat 3]
     .venv/bin/python bench/bench_render.py --gather [--gather-res 256x256 1920x1080] [--repeat 2]
     .venv/bin/python bench/bench_render.py --frequency --blend example_blends/cornell.blend
@@ -26,7 +26,13 @@ numpy chains of tests/oracle_photons.py with the voxel-by-voxel march of
 tests/oracle_occlusion.py), so the before/after overheads are measured in the
 same process; each ratio is the best of ``--repeat`` interleaved measurements
 of the process's CPU time (all threads: the machine is shared, its wall time
-is no clock).  ``--numpy`` times the numpy reference tracer
+is no clock).  The whole photon pass is also measured at equal radii (the
+FPPM renderer's own pass run again with and without its frequency photons
+on the same visible points and radii: the frequency photons' cost alone,
+where the line comparing the two renderers also holds the gather of the
+radii FPPM's rule grows), per ``--deposits`` variant
+(``PhotonTracer.freq_deposits``, docs/frequency.md "Fewer marched
+deposits").  ``--numpy`` times the numpy reference tracer
 (tests/oracle_photons.py) instead of the compiled one.
 
 ``--stages``: the camera pass and the direct light (next-event estimation)
@@ -316,7 +322,18 @@ def frequency_report(r, rb, r0, tm, a):
           f"before {[round(x, 2) for x in cost['before']]}")
 
 
-class _EqualRadiiPass:
+class PassProxy:
+    """A renderer's PhotonPass with another __call__: every other attribute
+    is the pass's (read through); kw: the proxy's own attributes."""
+
+    def __init__(self, pp, **kw):
+        self.__dict__.update(_pp=pp, **kw)
+
+    def __getattr__(self, name):
+        return getattr(self._pp, name)
+
+
+class _EqualRadiiPass(PassProxy):
     """Around a renderer's PhotonPass: each call first runs the same pass
     (the renderer's visible points, radii, radius cut and reach map) once
     per variant on a fresh stream of one seed, timed in process CPU and
@@ -325,10 +342,7 @@ class _EqualRadiiPass:
     freq_deposits)."""
 
     def __init__(self, pp, tm, variants, seed):
-        self.__dict__.update(_pp=pp, _tm=tm, _variants=variants, _seed=seed, times={})
-
-    def __getattr__(self, name):
-        return getattr(self._pp, name)
+        super().__init__(pp, _tm=tm, _variants=variants, _seed=seed, times={})
 
     def __call__(self, vp, R2, spectrum, rng, check_stop=lambda: None):
         pp, tr = self._pp, self._pp.tracer
