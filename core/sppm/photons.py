@@ -592,8 +592,12 @@ class PhotonTracer:
                 # After the generic bounce: only hits that deposit or continue
                 # need a spectrum (the bounce reads seg and rec, not the live
                 # state it appended to).
-                spec_hit = self._spectrum_at_hits(spec, seg, rec, dep,
-                                                  FK.Rows(Kf, step.dep0, dep.n, n_next), left)
+                rows = FK.Rows(Kf, step.dep0, dep.n, n_next)
+                # left only with a budget: the numpy chains of the tests and
+                # the benches' hooks take the five arguments
+                spec_hit = (self._spectrum_at_hits(spec, seg, rec, dep, rows, left)
+                            if self.freq_deposits > 0 else
+                            self._spectrum_at_hits(spec, seg, rec, dep, rows))
                 if kf_next and self.freq_deposits > 0:
                     # rows past their budget at the end of the prefix are
                     # classic photons from here on (rows >= Kf)
