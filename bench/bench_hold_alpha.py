@@ -15,7 +15,9 @@
     .venv/bin/python bench/bench_hold_alpha.py principled_interior --equal-passes 32 --ref-passes 200 \
         --report 8,16,32 --seeds 0,1 --methods fppm,ppm,appm,cppm
         (relMSE at equal passes, same seed: quality apart from cost, docs/method.md
-        "Principled interior: quality or cost"; 'fppm:keep=noocc': no occlusion operator)
+        "Principled interior: quality or cost"; 'fppm:keep=noocc': no occlusion operator;
+        'fppm:fdep=1': a frequency photon predicts at its first counted deposit only,
+        docs/frequency.md "Fewer marched deposits")
     .venv/bin/python bench/bench_hold_alpha.py ring_lambert --cycles-ref --equal-passes 128 \
         --report 16,64,128 --seeds 0,1 --methods fppm,fppm:power=0,ppm,appm,cppm
         (the file's resolution and photons against the Cycles reference of ``fppm converge``,
