@@ -167,7 +167,7 @@ def method_settings(base, method):
 RADII_KEYS = {"power": "hold_min_expected", "release": "release_alpha", "top2": "hold_max_top2",
               "or": "hold_uniform", "orE": "uniform_min_expected", "crit": "uniform_critical",
               "grow": "grow", "growE": "grow_min_expected", "growN": "grow_n_max",
-              "hmax": "hold_alpha_spectrum", "kz": "count_scale"}
+              "hmax": "hold_alpha_spectrum"}
 
 
 def radii_variant(renderer, method):

@@ -131,11 +131,6 @@ GROW_N_MAX = 0.0
 #: below hold_alpha (the default): hold_alpha for every hold.  Below 1, so that
 #: R_k -> 0 still (docs/method.md "What the spectrum adds").
 HOLD_ALPHA_SPECTRUM = 0.0
-#: The spectrum's radius scaled by the pixel's count (Knaus & Zwicker 2011's
-#: trade-off with the spectrum's bias constant): r_pred^2 (COUNT_SCALE / sqrt(N + M)),
-#: at most GROW_MAX^2 r_pred^2; 0 (the default): r_pred as predicted
-#: (docs/method.md "What the spectrum adds").
-COUNT_SCALE = 0.0
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
 
@@ -289,7 +284,6 @@ class Radii:
         self.uniform_min_expected = UNIFORM_MIN_EXPECTED
         self.grow_n_max = GROW_N_MAX
         self.hold_alpha_spectrum = HOLD_ALPHA_SPECTRUM
-        self.count_scale = COUNT_SCALE
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
         """Set state.R2 of the pixels whose first visible point this is (R2 == 0)
@@ -384,15 +378,10 @@ class Radii:
             r_pred = np.full_like(r_pred, np.nan)
         else:
             r_pred = np.where(np.isinf(r_pred), np.nan, r_pred)
-        r_last = r_pred
         r_hold = r_pred
         R2_grow = None
         if S is not None and rule == "PPM":
             E = S.sum(axis=1) / SECTOR_CELLS
-            if self.count_scale > 0.0:
-                r_pred = count_scaled(r_pred, state.N + M, self.count_scale,
-                                      self.grow * self.grow if self.grow > 1.0 else 1.0)
-                r_hold = r_pred
             if self.hold_uniform:
                 # Smooth by the spectrum or by the counts (CPPM's test).
                 uniform = ~chi2_rejects(S, critical=self.uniform_critical) & (state.R2 > 0) \
@@ -434,7 +423,7 @@ class Radii:
             state.sectors[...] = S
         state.held[:] = False
         state.held[np.nonzero(m)[0]] = held
-        state.r_pred_last = r_last
+        state.r_pred_last = r_pred
         state.M_last = M
 
     def _update_compiled(self, state, M, Phi, r_pred, sectors) -> None:
@@ -453,8 +442,7 @@ class Radii:
                         self.release_alpha, self.hold_max_top2, float(self.hold_uniform),
                         self.grow * self.grow if self.grow > 1.0 else 0.0,
                         self.grow_min_expected, self.uniform_critical,
-                        self.uniform_min_expected, self.hold_alpha_spectrum, self.grow_n_max,
-                        self.count_scale])
+                        self.uniform_min_expected, self.hold_alpha_spectrum, self.grow_n_max])
         cap = self._edge_cap if self._edge_cap is not None else np.zeros(0)
         args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2, cap)
         T = numba.get_num_threads()
@@ -478,15 +466,6 @@ def grow_targets(N, R2, r_pred, grow, cap=None, n_max=0.0):
         lim = np.minimum(lim, np.square(cap))
     first = (N == 0.0) | (N < n_max)
     return np.where(first & np.isfinite(r_pred), np.minimum(np.square(rr), lim), 0.0)
-
-
-def count_scaled(r_pred, n, K, s2_max):
-    """(P,) the spectrum's radius r_pred (P,) [m] (NaN: none) scaled to the
-    count n = N + M (P,): r_pred sqrt(min(K / sqrt(n), s2_max)) where n > 0
-    (COUNT_SCALE)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s2 = np.minimum(K / np.sqrt(n), s2_max)
-    return np.where((n > 0) & np.isfinite(r_pred), r_pred * np.sqrt(s2), r_pred)
 
 
 def spectrum_hold_alpha(R2, r_spec, r_hold, hold_alpha, alpha_max):
@@ -609,11 +588,6 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
         if not frequency or math.isinf(r):
             r = np.nan
         a.r_pred_last[i] = r
-        if with_S and prm[13] > 0.0 and r == r:
-            n = a.N[i] + a.M[i]                             # count_scaled
-            if n > 0.0:
-                s2 = _np_min(prm[13] / math.sqrt(n), prm[7] if prm[7] > 0.0 else 1.0)
-                r = r * math.sqrt(s2)
         r_spec = r
         if with_S:
             for k in range(SECTOR_CELLS):
