@@ -184,7 +184,7 @@ def _update_case(P, seed, sectors):
     (True, True, 0.9, None), (True, False, 0.9, None), (True, True, 1.0, None),
     (False, False, 0.9, None),
     # the spectrum's hold rate and growth in later passes (docs/method.md "What the spectrum adds")
-    (True, True, 0.9, dict(hold_alpha_spectrum=0.97, grow_n_max=16.0, grow_min_expected=0.0))])
+    (True, True, 0.9, dict(hold_alpha_spectrum=0.97, grow_min_expected=0.0))])
 def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha, knobs):
     settings = RenderSettings(integrator="PHOTON", hold_alpha=hold_alpha, verify_holds=sectors)
     radii = U.Radii(settings, None, 10.0, frequency, None, 1, P)

@@ -118,12 +118,6 @@ UNIFORM_MIN_EXPECTED = 0.0
 #: off; 2 (the default, rule set X).
 GROW_MAX = 2.0
 GROW_MIN_EXPECTED = CHI2_MIN_EXPECTED
-#: Growth also in later passes, while the pixel's count N is below GROW_N_MAX
-#: (0: the first pass with photons only, the default).  Each growth multiplies
-#: N by its factor (N' = (N + M) f, M >= 1 photon), so the growths of a pixel
-#: multiply R^2 by at most GROW_N_MAX in all (docs/method.md "What the spectrum
-#: adds").
-GROW_N_MAX = 0.0
 #: Per-pixel hold rate from the spectrum (Knaus & Zwicker 2011: the bias of a
 #: disc goes as (R / R_pred)^2 where the light is flat within R_pred): a verified
 #: hold whose spectrum predicts r_pred > R shrinks with
@@ -282,7 +276,6 @@ class Radii:
         self.grow_min_expected = GROW_MIN_EXPECTED
         self.uniform_critical = CHI2_CRITICAL
         self.uniform_min_expected = UNIFORM_MIN_EXPECTED
-        self.grow_n_max = GROW_N_MAX
         self.hold_alpha_spectrum = HOLD_ALPHA_SPECTRUM
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
@@ -389,7 +382,7 @@ class Radii:
                 r_hold = np.where(uniform, np.fmax(r_pred, keep), r_pred)
             if self.grow > 1.0:
                 R2_grow = np.where(E >= self.grow_min_expected, grow_targets(
-                    state.N, state.R2, r_pred, self.grow, self._edge_cap, self.grow_n_max), 0.0)
+                    state.N, state.R2, r_pred, self.grow, self._edge_cap), 0.0)
             # Verified holds: the photons veto the prediction where they show
             # more than a linear gradient (the prediction itself is kept for
             # the Predicted Radius pass).
@@ -442,7 +435,7 @@ class Radii:
                         self.release_alpha, self.hold_max_top2, float(self.hold_uniform),
                         self.grow * self.grow if self.grow > 1.0 else 0.0,
                         self.grow_min_expected, self.uniform_critical,
-                        self.uniform_min_expected, self.hold_alpha_spectrum, self.grow_n_max])
+                        self.uniform_min_expected, self.hold_alpha_spectrum])
         cap = self._edge_cap if self._edge_cap is not None else np.zeros(0)
         args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2, cap)
         T = numba.get_num_threads()
@@ -454,18 +447,17 @@ class Radii:
         state.M_last = M
 
 
-def grow_targets(N, R2, r_pred, grow, cap=None, n_max=0.0):
+def grow_targets(N, R2, r_pred, grow, cap=None):
     """(P,) squared radius [m^2] a verified hold grows to (0: none) in the
-    pixel's first pass with photons (N == 0) or while its count N is below
-    n_max (GROW_N_MAX): the spectrum's prediction r_pred (P,) [m] (NaN:
-    none), at most grow times the radius R2 (P,) and the surface-boundary cap
-    (P,) [m] (None: no cap) (docs/method.md "Spectrum and counts")."""
+    pixel's first pass with photons (N == 0): the spectrum's prediction
+    r_pred (P,) [m] (NaN: none), at most grow times the radius R2 (P,) and
+    the surface-boundary cap (P,) [m] (None: no cap) (docs/method.md
+    "Spectrum and counts")."""
     rr = np.maximum(np.where(np.isfinite(r_pred), r_pred, 0.0), 0.0)
     lim = grow * grow * R2
     if cap is not None:
         lim = np.minimum(lim, np.square(cap))
-    first = (N == 0.0) | (N < n_max)
-    return np.where(first & np.isfinite(r_pred), np.minimum(np.square(rr), lim), 0.0)
+    return np.where((N == 0.0) & np.isfinite(r_pred), np.minimum(np.square(rr), lim), 0.0)
 
 
 def spectrum_hold_alpha(R2, r_spec, r_hold, hold_alpha, alpha_max):
@@ -639,8 +631,8 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
                     f_lim = _np_min(f_lim, (N + ha * M) / (N + M))
                 held = freq and f_lim > f_ppm
                 f = _np_max(f, f_lim)
-                if (held and with_S and prm[7] > 0.0 and (N == 0.0 or N < prm[12])
-                        and np.isfinite(r_spec) and E_cell >= prm[8]):
+                if (held and with_S and prm[7] > 0.0 and N == 0.0 and np.isfinite(r_spec)
+                        and E_cell >= prm[8]):
                     rs = _np_max(r_spec, 0.0)
                     lim = prm[7] * R2
                     if cap.shape[0] > 0:
@@ -731,8 +723,9 @@ def ppm_radius_update(N, R2, tau, M, Phi, alpha, r_pred=None, R2_floor=0.0, hold
     Phi: (K, 3) their flux; alpha: PPM parameter in (0, 1]; r_pred: (K,)
     predicted radius [m] or None (inf = no frequency photon, NaN = no hold);
     R2_floor: smallest R^2 (see :func:`radius_floor_sq`); hold_alpha: the
-    PPM parameter of a held radius, in (0, 1]: 1 holds it forever (the
-    inconsistent rule of Belcour & Soler 2011), <= alpha never holds;
+    PPM parameter of a held radius, in (0, 1] (or (K,) of them per row,
+    :func:`spectrum_hold_alpha`): 1 holds it forever (the inconsistent rule
+    of Belcour & Soler 2011), <= alpha never holds;
     R2_grow: (K,) squared radius [m^2] a held row grows to where it is
     larger than R^2 f (f > 1; :func:`grow_targets`), or None.
     Returns (N', R2', tau', held): (K,), (K,), (K, 3) float64 and (K,) bool.
