@@ -183,7 +183,8 @@ def _update_case(P, seed, sectors):
 @pytest.mark.parametrize("frequency,sectors,hold_alpha,knobs", [
     (True, True, 0.9, None), (True, False, 0.9, None), (True, True, 1.0, None),
     (False, False, 0.9, None),
-    # the spectrum's hold rate and growth in later passes (docs/method.md "What the spectrum adds")
+    # the spectrum's hold rate, growth at low counts (docs/method.md "What the spectrum adds
+    # over the counts")
     (True, True, 0.9, dict(hold_alpha_spectrum=0.97, grow_min_expected=0.0))])
 def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha, knobs):
     settings = RenderSettings(integrator="PHOTON", hold_alpha=hold_alpha, verify_holds=sectors)

@@ -391,7 +391,7 @@ def test_ring_radii_stay_between_the_rates_and_the_error_falls():
             "cppm": (base.replace(use_frequency=False, radius_rule="CPPM"), None),
             "before": (base, dict(hold_uniform=False, grow=1.0, uniform_min_expected=5.0,
                                   hold_min_expected=1.0, hold_max_top2=0.6)),
-            # the spectrum's hold rate (docs/method.md "What the spectrum adds")
+            # the spectrum's hold rate (docs/method.md "What the spectrum adds over the counts")
             "spectrum": (base, dict(hold_alpha_spectrum=0.95))}
     R, held, err = {}, {}, {}
     for k, (st, radii) in runs.items():

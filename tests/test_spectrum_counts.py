@@ -191,8 +191,8 @@ def test_growth_on_a_wrong_prediction_still_converges():
 
 
 def test_spectrum_sets_a_slower_hold_rate_within_its_bound():
-    """HOLD_ALPHA_SPECTRUM (off by default; docs/method.md "What the spectrum
-    adds"): a verified hold whose spectrum predicts r_pred > R shrinks with
+    """HOLD_ALPHA_SPECTRUM (off by default; docs/method.md "What the spectrum adds over the
+    counts"): a verified hold whose spectrum predicts r_pred > R shrinks with
     alpha_h = min(0.95, 1 - (1 - hold_alpha) (R / r_pred)^2), never above the
     bound, so R_k -> 0 still.  Uniform counts, N = 100 before a pass of 80
     photons, f_a = (100 + 80 a) / 180: r_pred 10 R and 1.5 R -> 0.95 (the

@@ -123,7 +123,8 @@ GROW_MIN_EXPECTED = CHI2_MIN_EXPECTED
 #: hold whose spectrum predicts r_pred > R shrinks with
 #: alpha_h = min(HOLD_ALPHA_SPECTRUM, 1 - (1 - hold_alpha) (R / r_pred)^2); at or
 #: below hold_alpha (the default): hold_alpha for every hold.  Below 1, so that
-#: R_k -> 0 still (docs/method.md "What the spectrum adds").
+#: R_k -> 0 still (docs/method.md "What the spectrum adds over the counts":
+#: measured, not the default).
 HOLD_ALPHA_SPECTRUM = 0.0
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
