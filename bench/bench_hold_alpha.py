@@ -15,7 +15,8 @@
     .venv/bin/python bench/bench_hold_alpha.py principled_interior --equal-passes 32 --ref-passes 200 \
         --report 8,16,32 --seeds 0,1 --methods fppm,ppm,appm,cppm
         (relMSE at equal passes, same seed: quality apart from cost, docs/method.md
-        "Principled interior: quality or cost"; 'fppm:keep=noocc': no occlusion operator)
+        "Principled interior: quality or cost"; 'fppm:keep=noocc': no occlusion operator;
+        'fppm:hmax=0.95': the spectrum's hold rate, "What the spectrum adds over the counts")
     .venv/bin/python bench/bench_hold_alpha.py ring_lambert --cycles-ref --equal-passes 128 \
         --report 16,64,128 --seeds 0,1 --methods fppm,fppm:power=0,ppm,appm,cppm
         (the file's resolution and photons against the Cycles reference of ``fppm converge``,
