@@ -17,7 +17,8 @@
         (relMSE at equal passes, same seed: quality apart from cost, docs/method.md
         "Principled interior: quality or cost"; 'fppm:keep=noocc': no occlusion operator;
         'fppm:fdep=1': a frequency photon predicts at its first counted deposit only,
-        docs/frequency.md "Fewer marched deposits")
+        docs/frequency.md "Fewer marched deposits"; 'fppm:hmax=0.95': the spectrum's hold
+        rate, "What the spectrum adds over the counts")
     .venv/bin/python bench/bench_hold_alpha.py ring_lambert --cycles-ref --equal-passes 128 \
         --report 16,64,128 --seeds 0,1 --methods fppm,fppm:power=0,ppm,appm,cppm
         (the file's resolution and photons against the Cycles reference of ``fppm converge``,
@@ -168,7 +169,8 @@ def method_settings(base, method):
 #: Method-name keys of :func:`radii_variant` and the Radii attribute each sets.
 RADII_KEYS = {"power": "hold_min_expected", "release": "release_alpha", "top2": "hold_max_top2",
               "or": "hold_uniform", "orE": "uniform_min_expected", "crit": "uniform_critical",
-              "grow": "grow", "growE": "grow_min_expected"}
+              "grow": "grow", "growE": "grow_min_expected",
+              "hmax": "hold_alpha_spectrum"}
 
 
 #: Method-name keys of :func:`planes_or` and the PhotonTracer attribute each

@@ -180,11 +180,17 @@ def _update_case(P, seed, sectors):
 
 
 @pytest.mark.parametrize("P", [3000, U.PARALLEL_MIN + 3])
-@pytest.mark.parametrize("frequency,sectors,hold_alpha", [
-    (True, True, 0.9), (True, False, 0.9), (True, True, 1.0), (False, False, 0.9)])
-def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha):
+@pytest.mark.parametrize("frequency,sectors,hold_alpha,knobs", [
+    (True, True, 0.9, None), (True, False, 0.9, None), (True, True, 1.0, None),
+    (False, False, 0.9, None),
+    # the spectrum's hold rate, growth at low counts (docs/method.md "What the spectrum adds
+    # over the counts")
+    (True, True, 0.9, dict(hold_alpha_spectrum=0.97, grow_min_expected=0.0))])
+def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha, knobs):
     settings = RenderSettings(integrator="PHOTON", hold_alpha=hold_alpha, verify_holds=sectors)
     radii = U.Radii(settings, None, 10.0, frequency, None, 1, P)
+    for k, v in (knobs or {}).items():
+        setattr(radii, k, v)
     radii.floor_sq = 1e-9                                # reached by the tiny predictions
     ref, M, Phi, r_pred, S_pass = _update_case(P, P, sectors)
     new = PixelState(**{k: v.copy() for k, v in ref.state_dict().items()})

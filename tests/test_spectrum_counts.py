@@ -188,3 +188,31 @@ def test_growth_on_a_wrong_prediction_still_converges():
     assert err[32] < err[8] - 0.03
     assert err[32] < 0.16
     assert R[32] < 0.6 * R[1]
+
+
+def test_spectrum_sets_a_slower_hold_rate_within_its_bound():
+    """HOLD_ALPHA_SPECTRUM (off by default; docs/method.md "What the spectrum adds over the
+    counts"): a verified hold whose spectrum predicts r_pred > R shrinks with
+    alpha_h = min(0.95, 1 - (1 - hold_alpha) (R / r_pred)^2), never above the
+    bound, so R_k -> 0 still.  Uniform counts, N = 100 before a pass of 80
+    photons, f_a = (100 + 80 a) / 180: r_pred 10 R and 1.5 R -> 0.95 (the
+    bound), 1.1 R -> 1 - 0.1 / 1.21, 0.8 R (held by the counts) -> hold_alpha
+    0.9; curved counts -> RELEASE_ALPHA; knob off -> 0.9 for every hold.
+    Compiled and numpy reference alike (exact: no noise)."""
+    R0, N0 = 0.01, 100.0
+    counts = np.array([UNIFORM, UNIFORM, UNIFORM, UNIFORM, CURVED])
+    r = np.array([10, 1.5, 1.1, 0.8, 10]) * R0
+    f = lambda a: (N0 + 80.0 * a) / (N0 + 80.0)     # noqa: E731
+    want = {0.95: [f(0.95), f(0.95), f(1 - 0.1 / 1.21), f(0.9), f(U.RELEASE_ALPHA)],
+            0.0: [f(0.9)] * 4 + [f(U.RELEASE_ALPHA)]}
+    for knob, expect in want.items():
+        for compiled in (True, False):
+            P = len(r)
+            st = PixelState.zeros(P, sector_cells=C)
+            st.R2[:], st.N[:] = R0 ** 2, N0
+            radii = _radii(P, compiled)
+            radii.hold_alpha_spectrum = knob
+            M = counts.sum(axis=1)
+            radii.update(st, M, np.repeat(0.5 * M[:, None], 3, 1), r, counts)
+            assert st.R2 / R0 ** 2 == pytest.approx(expect, rel=1e-12), (knob, compiled)
+            assert np.all(st.R2 / R0 ** 2 <= f(0.95) * (1 + 1e-12))

@@ -118,6 +118,14 @@ UNIFORM_MIN_EXPECTED = 0.0
 #: off; 2 (the default, rule set X).
 GROW_MAX = 2.0
 GROW_MIN_EXPECTED = CHI2_MIN_EXPECTED
+#: Per-pixel hold rate from the spectrum (Knaus & Zwicker 2011: the bias of a
+#: disc goes as (R / R_pred)^2 where the light is flat within R_pred): a verified
+#: hold whose spectrum predicts r_pred > R shrinks with
+#: alpha_h = min(HOLD_ALPHA_SPECTRUM, 1 - (1 - hold_alpha) (R / r_pred)^2); at or
+#: below hold_alpha (the default): hold_alpha for every hold.  Below 1, so that
+#: R_k -> 0 still (docs/method.md "What the spectrum adds over the counts":
+#: measured, not the default).
+HOLD_ALPHA_SPECTRUM = 0.0
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
 
@@ -269,6 +277,7 @@ class Radii:
         self.grow_min_expected = GROW_MIN_EXPECTED
         self.uniform_critical = CHI2_CRITICAL
         self.uniform_min_expected = UNIFORM_MIN_EXPECTED
+        self.hold_alpha_spectrum = HOLD_ALPHA_SPECTRUM
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
         """Set state.R2 of the pixels whose first visible point this is (R2 == 0)
@@ -390,11 +399,15 @@ class Radii:
         m = M > 0
         R2_old = state.R2[m]
         alpha = self.settings.alpha
+        hold_alpha = self.settings.hold_alpha
         if S is not None and rule == "PPM":
             alpha = np.where(rejected & np.isfinite(r_or), self.release_alpha, alpha)[m]
+            if self.hold_alpha_spectrum > hold_alpha:
+                hold_alpha = spectrum_hold_alpha(state.R2[m], r_pred[m], r_hold[m], hold_alpha,
+                                                 self.hold_alpha_spectrum)
         N2, R2n, tau2, held = ppm_radius_update(state.N[m], state.R2[m], state.tau[m], M[m],
                                                   Phi[m], alpha, r_hold[m],
-                                                  self.floor_sq, self.settings.hold_alpha,
+                                                  self.floor_sq, hold_alpha,
                                                   None if R2_grow is None else R2_grow[m])
         state.N[m], state.R2[m], state.tau[m] = N2, R2n, tau2
         if S is not None:
@@ -423,7 +436,7 @@ class Radii:
                         self.release_alpha, self.hold_max_top2, float(self.hold_uniform),
                         self.grow * self.grow if self.grow > 1.0 else 0.0,
                         self.grow_min_expected, self.uniform_critical,
-                        self.uniform_min_expected])
+                        self.uniform_min_expected, self.hold_alpha_spectrum])
         cap = self._edge_cap if self._edge_cap is not None else np.zeros(0)
         args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2, cap)
         T = numba.get_num_threads()
@@ -446,6 +459,16 @@ def grow_targets(N, R2, r_pred, grow, cap=None):
     if cap is not None:
         lim = np.minimum(lim, np.square(cap))
     return np.where((N == 0.0) & np.isfinite(r_pred), np.minimum(np.square(rr), lim), 0.0)
+
+
+def spectrum_hold_alpha(R2, r_spec, r_hold, hold_alpha, alpha_max):
+    """(K,) hold rate of each row (HOLD_ALPHA_SPECTRUM): where the hold stands
+    (r_hold finite) and the spectrum predicts r_spec > R, min(alpha_max,
+    1 - (1 - hold_alpha) R^2 / r_spec^2); hold_alpha elsewhere."""
+    r = np.maximum(np.where(np.isfinite(r_spec), r_spec, 0.0), 0.0)
+    slow = np.isfinite(r_hold) & (R2 > 0) & (r * r > R2)
+    q = R2 / np.where(slow, r * r, 1.0)
+    return np.where(slow, np.minimum(alpha_max, 1.0 - (1.0 - hold_alpha) * q), hold_alpha)
 
 
 def kept_prediction(r_pred: np.ndarray, r_last: np.ndarray, minimum: bool = False) -> np.ndarray:
@@ -600,8 +623,13 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
                 if freq:
                     rr = _np_max(r, 0.0)
                     f_lim = _np_min(rr * rr / R2, 1.0)
+                ha = hold_alpha
+                if with_S and prm[11] > hold_alpha and freq and np.isfinite(r_spec):
+                    rs = _np_max(r_spec, 0.0)               # spectrum_hold_alpha
+                    if rs * rs > R2:
+                        ha = _np_min(prm[11], 1.0 - (1.0 - hold_alpha) * (R2 / (rs * rs)))
                 if hold_alpha < 1.0:
-                    f_lim = _np_min(f_lim, (N + hold_alpha * M) / (N + M))
+                    f_lim = _np_min(f_lim, (N + ha * M) / (N + M))
                 held = freq and f_lim > f_ppm
                 f = _np_max(f, f_lim)
                 if (held and with_S and prm[7] > 0.0 and N == 0.0 and np.isfinite(r_spec)
@@ -696,8 +724,9 @@ def ppm_radius_update(N, R2, tau, M, Phi, alpha, r_pred=None, R2_floor=0.0, hold
     Phi: (K, 3) their flux; alpha: PPM parameter in (0, 1]; r_pred: (K,)
     predicted radius [m] or None (inf = no frequency photon, NaN = no hold);
     R2_floor: smallest R^2 (see :func:`radius_floor_sq`); hold_alpha: the
-    PPM parameter of a held radius, in (0, 1]: 1 holds it forever (the
-    inconsistent rule of Belcour & Soler 2011), <= alpha never holds;
+    PPM parameter of a held radius, in (0, 1] (or (K,) of them per row,
+    :func:`spectrum_hold_alpha`): 1 holds it forever (the inconsistent rule
+    of Belcour & Soler 2011), <= alpha never holds;
     R2_grow: (K,) squared radius [m^2] a held row grows to where it is
     larger than R^2 f (f > 1; :func:`grow_targets`), or None.
     Returns (N', R2', tau', held): (K,), (K,), (K, 3) float64 and (K,) bool.
@@ -732,8 +761,9 @@ def ppm_radius_update(N, R2, tau, M, Phi, alpha, r_pred=None, R2_floor=0.0, hold
             freq = np.isfinite(r) & active
             r2 = np.square(np.maximum(np.where(freq, r, 0.0), 0.0))
             f_lim = np.where(freq, np.minimum(r2 / np.where(active, R2, 1.0), 1.0), 0.0)
-            if hold_alpha < 1.0:
-                f_lim = np.minimum(f_lim, np.where(active, (N + hold_alpha * Ma) / (N + Ma), 1.0))
+            ha = np.asarray(hold_alpha, np.float64)
+            if np.any(ha < 1.0):
+                f_lim = np.minimum(f_lim, np.where(active, (N + ha * Ma) / (N + Ma), 1.0))
             held = freq & (f_lim > f_ppm)
             f = np.maximum(f, f_lim)
             if R2_grow is not None:
