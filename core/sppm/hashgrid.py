@@ -712,18 +712,31 @@ _sort_photons_serial = serial_twin(_sort_photons)
 
 
 @njit(cache=True, inline="always")
-def _accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
+def _vp_record(vp_rec, v):
+    """Visible point v's record as scalars (x, y, z, R^2, nx, ny, nz, const).
+    Candidates are tested on scalars (_accepts, _sector_cell) rather than on
+    the arrays: an inlined helper that takes an array and returns from
+    several branches kept numba's reference-count increment and decrement
+    of the array at every call (two atomic operations a candidate, on a
+    counter both gather threads share); LLVM's pruning removes the pair
+    only when it sits in one straight block, as here (no branch: the
+    caller reads the packed clip itself; docs/architecture.md "The count
+    pass without reference counts")."""
+    return (vp_rec[v, 0], vp_rec[v, 1], vp_rec[v, 2], vp_rec[v, 3], vp_rec[v, 4],
+            vp_rec[v, 5], vp_rec[v, 6], vp_rec[v, 7])
+
+
+@njit(cache=True, inline="always")
+def _accepts(rx, ry, rz, r2, nvx, nvy, nvz, code, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
     """Gather rules (1)-(5) of the module docstring for photon (x, w, g) and
-    visible point v: the one place they are written (count and pair passes).
-    vp_clip (K,) uint64 packed clips, or (0,): no rule (5)."""
-    dx = x - vp_rec[v, 0]
-    dy = y - vp_rec[v, 1]
-    dz = z - vp_rec[v, 2]
-    if not (dx * dx + dy * dy + dz * dz < vp_rec[v, 3]):                    # (1)
+    the visible point (r, r2, nv) of _vp_record: the one place they are
+    written (count and pair passes).  code: its packed clip, CLIP_CLEAR for
+    no rule (5)."""
+    dx = x - rx
+    dy = y - ry
+    dz = z - rz
+    if not (dx * dx + dy * dy + dz * dz < r2):                              # (1)
         return False
-    nvx = vp_rec[v, 4]
-    nvy = vp_rec[v, 5]
-    nvz = vp_rec[v, 6]
     if not (wx * nvx + wy * nvy + wz * nvz > 0.0):                          # (2)
         return False
     cg = gx * nvx + gy * nvy + gz * nvz
@@ -731,12 +744,12 @@ def _accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
         return False
     if cg <= COS_NG_DEFAULT and dx * nvx + dy * nvy + dz * nvz < 0.0:       # (4)
         return False
-    if vp_clip.shape[0] > 0 and vp_clip[v] != CLIP_CLEAR:                   # (5)
+    if code != CLIP_CLEAR:                                                  # (5)
         t0, t1, t2, t3, t4, t5 = _tangent_frame(nvx, nvy, nvz)
         u = dx * t0 + dy * t1 + dz * t2
         w = dx * t3 + dy * t4 + dz * t5
-        b = np.int64((vp_clip[v] >> np.uint64(8 * wedge_of(u, w))) & np.uint64(0xFF))
-        if b < CLIP_OPEN and 65025.0 * (u * u + w * w) >= np.float64(b * b) * vp_rec[v, 3]:
+        b = np.int64((code >> np.uint64(8 * wedge_of(u, w))) & np.uint64(0xFF))
+        if b < CLIP_OPEN and 65025.0 * (u * u + w * w) >= np.float64(b * b) * r2:
             return False
     return True
 
@@ -826,16 +839,16 @@ def _tangent_frame(n0, n1, n2):
 
 
 @njit(cache=True, inline="always")
-def _sector_cell(vp_rec, v, x, y, z):
+def _sector_cell(rx, ry, rz, r2, nvx, nvy, nvz, x, y, z):
     """Sector cell (0 .. SECTOR_CELLS-1) of a counted photon at (x, y, z) in
-    visible point v's kernel: quadrant of its offset in the tangent frame
-    (t1, t2) of its normal (_tangent_frame), plus SECTOR_QUADRANTS for the
-    outer ring (|d|^2 >= R^2 / 2).  The SECTOR_CELLS cells have equal areas
-    on the disc."""
-    dx = x - vp_rec[v, 0]
-    dy = y - vp_rec[v, 1]
-    dz = z - vp_rec[v, 2]
-    t0, t1, t2, t3, t4, t5 = _tangent_frame(vp_rec[v, 4], vp_rec[v, 5], vp_rec[v, 6])
+    the kernel of the visible point (r, r2, nv) of _vp_record: quadrant of
+    its offset in the tangent frame (t1, t2) of its normal (_tangent_frame),
+    plus SECTOR_QUADRANTS for the outer ring (|d|^2 >= R^2 / 2).  The
+    SECTOR_CELLS cells have equal areas on the disc."""
+    dx = x - rx
+    dy = y - ry
+    dz = z - rz
+    t0, t1, t2, t3, t4, t5 = _tangent_frame(nvx, nvy, nvz)
     u = dx * t0 + dy * t1 + dz * t2
     w = dx * t3 + dy * t4 + dz * t5
     c = 0
@@ -843,7 +856,7 @@ def _sector_cell(vp_rec, v, x, y, z):
         c = 1 if w >= 0.0 else 2
     elif w < 0.0:
         c = 3
-    if 2.0 * (dx * dx + dy * dy + dz * dz) >= vp_rec[v, 3]:
+    if 2.0 * (dx * dx + dy * dy + dz * dz) >= r2:
         c += SECTOR_QUADRANTS
     return c
 
@@ -862,6 +875,7 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     one = np.uint64(1)
     with_sectors = S.shape[1] > 0
     track = touched.shape[0] > 0
+    clipped = vp_clip.shape[0] > 0
     for p in range(q0, q1):
         q = p
         s = slot[q]
@@ -883,15 +897,18 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         mask = np.uint64(0)
         for e in range(e0, e1):
             v = vp_ids[e]
-            if not _accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
+            rx, ry, rz, r2, nvx, nvy, nvz, const = _vp_record(vp_rec, v)
+            code = vp_clip[v] if clipped else CLIP_CLEAR
+            if not _accepts(rx, ry, rz, r2, nvx, nvy, nvz, code, x, y, z, wx, wy, wz, gx, gy,
+                            gz, cos_ng):
                 continue
             M[v] += 1
             if track and M[v] == 1:
                 touched[n_touched[0]] = v
                 n_touched[0] += 1
             if with_sectors:
-                S[v, _sector_cell(vp_rec, v, x, y, z)] += 1
-            if vp_rec[v, 7] != 0.0:
+                S[v, _sector_cell(rx, ry, rz, r2, nvx, nvy, nvz, x, y, z)] += 1
+            if const != 0.0:
                 Phi[v, 0] += ph_power[p, 0]
                 Phi[v, 1] += ph_power[p, 1]
                 Phi[v, 2] += ph_power[p, 2]
@@ -933,6 +950,7 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
     hitmask, or (cells of > 64 entries) from the same tests as _count_range in
     the same arithmetic; pairs are written at the photon's prefix-sum offset."""
     one = np.uint64(1)
+    clipped = vp_clip.shape[0] > 0
     for q in range(q0, q1):
         if n_pair[q] == 0 and not (want_freq and n_freq[q] > 0):
             continue
@@ -962,7 +980,10 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
         gz = np.float64(ph_ng[q, 2])
         for e in range(e0, e1):
             v = vp_ids[e]
-            if not _accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
+            rx, ry, rz, r2, nvx, nvy, nvz, const = _vp_record(vp_rec, v)
+            code = vp_clip[v] if clipped else CLIP_CLEAR
+            if not _accepts(rx, ry, rz, r2, nvx, nvy, nvz, code, x, y, z, wx, wy, wz, gx, gy,
+                            gz, cos_ng):
                 continue
             k, kf = _record_pair(v, p, is_freq, vp_rec, k, kf, pair_vp, pair_ph, fpair_vp, fpair_ph)
 
