@@ -1533,54 +1533,75 @@ class GatherBuffers:
         T = numba.get_num_threads()
         if sweep and T > 1 and self.K >= PARALLEL_MIN_VPS:
             # a pixel-sized sweep (1080p: 2M VPs): by VP ranges in threads
-            _fold_sweep_parallel(T, self.M, self.Phi, self.rmin, self.S, self.n_touched,
+            _fold_sweep_parallel(T, self.M, self.Phi, self.rmin, self.S, self.touched,
+                                 self.n_touched,
                                  self.n_used, *rest)
             return
         _fold(self.M, self.Phi, self.rmin, self.S, self.touched, self.n_touched,
               self.n_used, *rest, sweep)
 
 
-@njit(cache=True, inline="always")
-def _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S, clip):
-    """Fold visible point v's rows (thread order) into the sums and zero them
-    (clip (K,) uint64 or (0,): GatherBuffers.fold)."""
-    m = bM[0, v]
-    r = brmin[0, v]
-    p0, p1, p2 = bPhi[0, v, 0], bPhi[0, v, 1], bPhi[0, v, 2]
-    for t in range(1, n_used):
-        m += bM[t, v]
-        r = min(r, brmin[t, v])
-        p0 += bPhi[t, v, 0]
-        p1 += bPhi[t, v, 1]
-        p2 += bPhi[t, v, 2]
-    if clip.shape[0] > 0 and clip[v] != CLIP_CLEAR:
-        # np.int64: one compile for int32 and int64 callers (core/warmup.py)
-        _fold_clipped(np.int64(v), np.int64(m), p0, p1, p2, bS, n_used, M, Phi, scale, div, S,
-                      clip[v])
-    else:
-        M[v] += m
-        Phi[v, 0] += p0 * (scale[v, 0] / div)
-        Phi[v, 1] += p1 * (scale[v, 1] / div)
-        Phi[v, 2] += p2 * (scale[v, 2] / div)
+@njit(cache=True)
+def _fold_run(c, i0, i1, touched, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
+              rmin_mask, S, clip):
+    """Fold visible points into the sums and zero their rows (thread
+    order; clip (K,) uint64 or (0,): GatherBuffers.fold): c >= 0, those
+    listed at touched[c, i0:i1] whose row c still counts (else folded from
+    an earlier row's list); c < 0, the visible points i0..i1-1 that a row
+    counts (a sweep).  The per-point body is written here, in the loop, not
+    in an inlined helper taking the arrays: such a helper, with its
+    branches, kept numba's reference-count increment and decrement of each
+    of its 14 arrays at every point (atomic operations; docs/architecture.md
+    "The count pass without reference counts")."""
+    for i in range(i0, i1):
+        if c >= 0:
+            v = np.int64(touched[c, i])
+            if bM[c, v] == 0:
+                continue
+        else:
+            v = np.int64(i)
+            counted = False
+            for t in range(n_used):
+                counted |= bM[t, v] != 0
+            if not counted:
+                continue
+        m = bM[0, v]
+        r = brmin[0, v]
+        p0, p1, p2 = bPhi[0, v, 0], bPhi[0, v, 1], bPhi[0, v, 2]
+        for t in range(1, n_used):
+            m += bM[t, v]
+            r = min(r, brmin[t, v])
+            p0 += bPhi[t, v, 0]
+            p1 += bPhi[t, v, 1]
+            p2 += bPhi[t, v, 2]
+        if clip.shape[0] > 0 and clip[v] != CLIP_CLEAR:
+            # np.int64: one compile for int32 and int64 callers (core/warmup.py)
+            _fold_clipped(v, np.int64(m), p0, p1, p2, bS, n_used, M, Phi, scale, div, S,
+                          clip[v])
+        else:
+            M[v] += m
+            Phi[v, 0] += p0 * (scale[v, 0] / div)
+            Phi[v, 1] += p1 * (scale[v, 1] / div)
+            Phi[v, 2] += p2 * (scale[v, 2] / div)
+            for t in range(n_used):
+                if S.shape[0] > 0:
+                    for j in range(S.shape[1]):
+                        S[v, j] += bS[t, v, j]
+        if rmin_mask.shape[0] == 0 or rmin_mask[v]:
+            rmin[v] = min(rmin[v], r)
         for t in range(n_used):
-            if S.shape[0] > 0:
-                for j in range(S.shape[1]):
-                    S[v, j] += bS[t, v, j]
-    if rmin_mask.shape[0] == 0 or rmin_mask[v]:
-        rmin[v] = min(rmin[v], r)
-    for t in range(n_used):
-        bM[t, v] = 0
-        brmin[t, v] = np.inf
-        bPhi[t, v, 0] = 0.0
-        bPhi[t, v, 1] = 0.0
-        bPhi[t, v, 2] = 0.0
-        for j in range(bS.shape[2]):
-            bS[t, v, j] = 0
+            bM[t, v] = 0
+            brmin[t, v] = np.inf
+            bPhi[t, v, 0] = 0.0
+            bPhi[t, v, 1] = 0.0
+            bPhi[t, v, 2] = 0.0
+            for j in range(bS.shape[2]):
+                bS[t, v, j] = 0
 
 
 @njit(cache=True)
 def _fold_clipped(v, m, p0, p1, p2, bS, n_used, M, Phi, scale, div, S, code):
-    """_fold_one's sums for a clipped visible point: count m and flux (p0,
+    """_fold_run's sums for a clipped visible point: count m and flux (p0,
     p1, p2) times 1 / its visible fraction, sector counts through the cell
     weights of clip_weights (a full disc's, where the light is uniform)."""
     Wc = np.empty((SECTOR_CELLS, SECTOR_CELLS))
@@ -1606,42 +1627,25 @@ def _fold(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div, r
     sweep True: every VP with a count, in order (sequential memory).  One
     kernel for both, so that the warm-up compiles the one the renders use."""
     if sweep:
-        _fold_sweep(0, bM.shape[1], bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
-                    rmin_mask, S, clip)
+        _fold_run(-1, 0, bM.shape[1], touched, bM, bPhi, brmin, bS, n_used, M, Phi, scale,
+                  div, rmin, rmin_mask, S, clip)
         n_touched[:] = 0
         return
     for c in range(n_used):
-        for i in range(n_touched[c]):
-            v = touched[c, i]
-            if bM[c, v] != 0:         # else folded from an earlier row's list
-                _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
-                          rmin_mask, S, clip)
+        _fold_run(c, 0, n_touched[c], touched, bM, bPhi, brmin, bS, n_used, M, Phi, scale,
+                  div, rmin, rmin_mask, S, clip)
         n_touched[c] = 0
 
 
-@njit(cache=True)
-def _fold_sweep(v0, v1, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S,
-                clip):
-    """_fold's sweep over the visible points v0..v1-1 (each one's sums and
-    rows are its own: VP ranges fold in any order, in any thread)."""
-    for v in range(v0, v1):
-        counted = False
-        for t in range(n_used):
-            counted |= bM[t, v] != 0
-        if counted:
-            _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S,
-                      clip)
-
-
 @njit(cache=True, parallel=True)
-def _fold_sweep_parallel(n_chunks, bM, bPhi, brmin, bS, n_touched, n_used, M, Phi, scale, div,
-                         rmin, rmin_mask, S, clip):
+def _fold_sweep_parallel(n_chunks, bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi,
+                         scale, div, rmin, rmin_mask, S, clip):
     """_fold's sweep by n_chunks threads, one VP range each (the same sums:
     a VP's fold does not depend on the others')."""
     K = bM.shape[1]
     for c in prange(n_chunks):
-        _fold_sweep(c * K // n_chunks, (c + 1) * K // n_chunks, bM, bPhi, brmin, bS, n_used,
-                    M, Phi, scale, div, rmin, rmin_mask, S, clip)
+        _fold_run(-1, c * K // n_chunks, (c + 1) * K // n_chunks, touched, bM, bPhi, brmin,
+                  bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S, clip)
     n_touched[:] = 0
 
 
