@@ -1,6 +1,7 @@
 """The gather with the photons sorted by cell against a lookup in trace order.
 
     .venv/bin/python bench/bench_gather_order.py [--res 256x256 1920x1080] [--repeat 5]
+    .venv/bin/python bench/bench_gather_order.py --res 256x256 --cell-factors 1.5 1 2
 
 The deposits of one pass of the Cornell box (plain, 200k photons: its
 chunks), the grid and the visible points, captured from a render; then,
@@ -18,6 +19,12 @@ The branch-free count pass of docs/architecture.md ("Tried, not kept: the
 count pass without branches") was timed by this file's --count as of commit
 4441bd1 (`git show 4441bd1:bench/bench_gather_order.py`); it is not kept
 here, where it repeated hashgrid's count pass.
+
+--cell-factors F ...: instead, the pass's grid built with each h = F x the
+median radius (hashgrid.build_grid(cell_factor=)) and its chunks gathered
+(sorted) and folded with it, the factors interleaved: the build's and the
+gather's CPU and, a deposit, the candidates tested and the hits
+(docs/architecture.md "The count pass without reference counts").
 
 Printed: CPU (process clock) of each, min / median of --repeat rounds,
 and the largest differences of the sums (M, sector counts and the
