@@ -1,6 +1,7 @@
 """The gather with the photons sorted by cell against a lookup in trace order.
 
     .venv/bin/python bench/bench_gather_order.py [--res 256x256 1920x1080] [--repeat 5]
+    .venv/bin/python bench/bench_gather_order.py --res 256x256 --cell-factors 1.5 1 2
 
 The deposits of one pass of the Cornell box (plain, 200k photons: its
 chunks), the grid and the visible points, captured from a render; then,
@@ -18,6 +19,12 @@ The branch-free count pass of docs/architecture.md ("Tried, not kept: the
 count pass without branches") was timed by this file's --count as of commit
 4441bd1 (`git show 4441bd1:bench/bench_gather_order.py`); it is not kept
 here, where it repeated hashgrid's count pass.
+
+--cell-factors F ...: instead, the pass's grid built with each h = F x the
+median radius (hashgrid.build_grid(cell_factor=)) and its chunks gathered
+(sorted) and folded with it, the factors interleaved: the build's and the
+gather's CPU and, a deposit, the candidates tested and the hits
+(docs/architecture.md "The count pass without reference counts").
 
 Printed: CPU (process clock) of each, min / median of --repeat rounds,
 and the largest differences of the sums (M, sector counts and the
@@ -47,8 +54,9 @@ from core.settings import RenderSettings  # noqa: E402
 from core.kept import KeptBuffers  # noqa: E402
 
 
-def capture(w, h, photons, plain=True):
-    """(renderer, [gather call args/kwargs]) of one pass after a warm-up one."""
+def capture(w, h, photons, plain=True, builds=None):
+    """(renderer, [gather call args/kwargs]) of one pass after a warm-up one;
+    builds (a list): the pass's build_grid calls (args, kwargs) appended."""
     from bench_render import cornell
     r = Renderer(cornell(w, height=h), RenderSettings(integrator="PHOTON", max_passes=1000,
                                                       photons_per_pass=photons,
@@ -62,11 +70,21 @@ def capture(w, h, photons, plain=True):
         calls.append((grid, [np.array(x, copy=True) if isinstance(x, np.ndarray) else x
                              for x in a], dict(k)))
         return f(grid, *a, **k)
+    b = Hg.build_grid
+
+    def bg(*a, **k):
+        if builds is not None:
+            builds.append(([np.array(x, copy=True) if isinstance(x, np.ndarray) else x
+                            for x in a], {k_: v for k_, v in k.items()
+                                          if k_ not in ("buffers", "check_stop")}))
+        return b(*a, **k)
     Hg.gather = g
+    Hg.build_grid = bg
     try:
         r.step()
     finally:
         Hg.gather = f
+        Hg.build_grid = b
     return r, calls
 
 
@@ -76,13 +94,20 @@ def main(argv=None):
     ap.add_argument("--photons", type=int, default=200_000)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--threads", type=int, nargs="+", default=[numba.get_num_threads()])
+    ap.add_argument("--cell-factors", type=float, nargs="+", default=None,
+                    help="instead: the grid built with each h / median R and the pass "
+                         "gathered with it (sorted), interleaved")
     a = ap.parse_args(argv)
     THREADS[:] = a.threads
     print(f"load average {os.getloadavg()[0]:.1f}, numba threads {numba.get_num_threads()}")
     for wh in a.res:
         w, h = (int(x) for x in wh.split("x"))
-        r, calls = capture(w, h, a.photons)
-        run_res(wh, calls, a.repeat)
+        builds = []
+        r, calls = capture(w, h, a.photons, builds=builds)
+        if a.cell_factors:
+            run_cells(wh, builds[-1], calls, a.cell_factors, a.repeat)
+        else:
+            run_res(wh, calls, a.repeat)
         del r, calls
 
 
@@ -178,6 +203,73 @@ def run_res(wh, calls, repeat):
 
 ALBEDO = [None]
 THREADS = [2]
+
+
+def run_cells(wh, build, calls, factors, repeat):
+    """The pass's grid built with each cell factor and its chunks gathered
+    (hashgrid.gather, sorted) and folded with it, the factors interleaved:
+    CPU (process clock) of the build and of the gather + fold, and per
+    deposit the candidates tested (entries of its slot) and the hits."""
+    (bargs, bkw) = build
+    K = calls[0][0].K
+    sectors = calls[0][2]["buffers"].with_sectors
+    ALBEDO[0] = np.full((K, 3), 0.8, np.float32)
+    kb = {f: KeptBuffers() for f in factors}
+    gb = {f: Hg.GatherBuffers(K, sectors) for f in factors}
+    for b in gb.values():
+        b.kept = KeptBuffers()
+    t_build = {f: [] for f in factors}
+    t_gather = {f: [] for f in factors}
+    stats, sums = {}, {}
+    for rep in range(repeat + 1):
+        for f in factors:
+            c0 = time.process_time()
+            grid = Hg.build_grid(*bargs, **dict(bkw, cell_factor=f), buffers=kb[f])
+            c1 = time.process_time()
+            M = np.zeros(K, np.int64)
+            Phi = np.zeros((K, 3))
+            rmin = np.full(K, np.inf)
+            S = np.zeros((K, Hg.SECTOR_CELLS), np.int64) if sectors else None
+            for _, args, kw in calls:
+                kw = dict(kw, buffers=gb[f])
+                Hg.gather(grid, *args, **kw)
+                gb[f].fold(M, Phi, ALBEDO[0], np.pi, rmin, None, S, kw.get("clip"))
+            c2 = time.process_time()
+            if rep:
+                t_build[f].append(c1 - c0)
+                t_gather[f].append(c2 - c1)
+            if f not in stats:
+                cand = dep = 0
+                for _, args, kw in calls:
+                    ps = np.empty(args[0].shape[0], np.int64)
+                    Hg._photon_slots(0, ps.shape[0], np.ascontiguousarray(args[0]), grid.origin,
+                                     grid.inv_h, grid.lo, grid.hi, grid.dense,
+                                     int(grid.dims[0]), int(grid.dims[1]), int(grid.dims[2]),
+                                     0 if grid.dense else 64 - grid.log2_table,
+                                     grid.cell_start, ps)
+                    cs = grid.cell_start.astype(np.int64)
+                    s = ps[ps >= 0]
+                    cand += int((cs[s + 1] - cs[s]).sum())
+                    dep += ps.shape[0]
+                stats[f] = (grid, cand / dep, int(M.sum()) / dep, dep)
+            sums[f] = (M, Phi, rmin, S)
+    print(f"  {wh}: {len(calls)} chunks, {stats[factors[0]][3]:,} deposits, "
+          f"{K:,} visible points")
+    f0 = factors[0]
+    for f in factors:
+        grid, cand, hits, _ = stats[f]
+        a, b = sums[f0], sums[f]
+        same = (np.array_equal(a[0], b[0]) and np.array_equal(a[2], b[2])
+                and (a[3] is None or np.array_equal(a[3], b[3])))
+        rel = np.abs(a[1] - b[1]).max() / max(np.abs(a[1]).max(), 1e-300)
+        print(f"    h = {f:g} R: {grid.summary()}; a deposit: {cand:.1f} candidates, "
+              f"{hits:.2f} hits; build CPU min / median {min(t_build[f]) * 1e3:.1f} / "
+              f"{np.median(t_build[f]) * 1e3:.1f} ms, gather + fold "
+              f"{min(t_gather[f]) * 1e3:.1f} / {np.median(t_gather[f]) * 1e3:.1f} ms, "
+              f"sum {min(np.add(t_build[f], t_gather[f])) * 1e3:.1f} / "
+              f"{np.median(np.add(t_build[f], t_gather[f])) * 1e3:.1f} ms; "
+              f"M, S, rmin as h = {f0:g} R: {same}, max |dPhi| / max |Phi| {rel:.1e}")
+    print(f"    load average {os.getloadavg()[0]:.1f}")
 
 
 # ---------------------------------------------------------------------------

@@ -1141,6 +1141,7 @@ def photon_pass_alone(r, clock, raw, n: int) -> str:
             (r.tracer, "_trace_part", tc.wrap(r.tracer, "_trace_part", "trace"))]
     ahead, PPm.TRACE_AHEAD = PPm.TRACE_AHEAD, False
     acc = np.zeros(3)                             # wall, CPU, photon rays
+    part = dict.fromkeys(keys, 0.0)               # each stage's process CPU
     try:
         for _ in range(n):
             sw0, sc0 = clock.snapshot()
@@ -1149,6 +1150,8 @@ def photon_pass_alone(r, clock, raw, n: int) -> str:
             sw, sc = clock.snapshot()
             acc += [sum(sw[k] - sw0[k] for k in keys), sum(sc[k] - sc0[k] for k in keys),
                     r.photon_rays - prays0]
+            for k in keys:
+                part[k] += sc[k] - sc0[k]
     finally:
         PPm.TRACE_AHEAD = ahead
         for obj, name, f in undo:
@@ -1162,7 +1165,9 @@ def photon_pass_alone(r, clock, raw, n: int) -> str:
             f"{acc[0] / n / prw:.2f}x wall, {acc[1] / n / prc:.2f}x CPU; its trace's threads, "
             f"CPU: {t.get('trace', 0):.2f}x = Embree {t.get('embree', 0):.2f}x + bounce kernel "
             f"{t.get('bounce', 0):.2f}x + rest "
-            f"{t.get('trace', 0) - t.get('embree', 0) - t.get('bounce', 0):.2f}x")
+            f"{t.get('trace', 0) - t.get('embree', 0) - t.get('bounce', 0):.2f}x; "
+            f"grid build {part['grid_build'] / n / prc:.2f}x, gather "
+            f"{part['gather'] / n / prc:.2f}x CPU (their stage clocks)")
 
 
 def tm_trace_cpu(pp):

@@ -712,18 +712,31 @@ _sort_photons_serial = serial_twin(_sort_photons)
 
 
 @njit(cache=True, inline="always")
-def _accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
+def _vp_record(vp_rec, v):
+    """Visible point v's record as scalars (x, y, z, R^2, nx, ny, nz, const).
+    Candidates are tested on scalars (_accepts, _sector_cell) rather than on
+    the arrays: an inlined helper that takes an array and returns from
+    several branches kept numba's reference-count increment and decrement
+    of the array at every call (two atomic operations a candidate, on a
+    counter both gather threads share); LLVM's pruning removes the pair
+    only when it sits in one straight block, as here (no branch: the
+    caller reads the packed clip itself; docs/architecture.md "The count
+    pass without reference counts")."""
+    return (vp_rec[v, 0], vp_rec[v, 1], vp_rec[v, 2], vp_rec[v, 3], vp_rec[v, 4],
+            vp_rec[v, 5], vp_rec[v, 6], vp_rec[v, 7])
+
+
+@njit(cache=True, inline="always")
+def _accepts(rx, ry, rz, r2, nvx, nvy, nvz, code, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
     """Gather rules (1)-(5) of the module docstring for photon (x, w, g) and
-    visible point v: the one place they are written (count and pair passes).
-    vp_clip (K,) uint64 packed clips, or (0,): no rule (5)."""
-    dx = x - vp_rec[v, 0]
-    dy = y - vp_rec[v, 1]
-    dz = z - vp_rec[v, 2]
-    if not (dx * dx + dy * dy + dz * dz < vp_rec[v, 3]):                    # (1)
+    the visible point (r, r2, nv) of _vp_record: the one place they are
+    written (count and pair passes).  code: its packed clip, CLIP_CLEAR for
+    no rule (5)."""
+    dx = x - rx
+    dy = y - ry
+    dz = z - rz
+    if not (dx * dx + dy * dy + dz * dz < r2):                              # (1)
         return False
-    nvx = vp_rec[v, 4]
-    nvy = vp_rec[v, 5]
-    nvz = vp_rec[v, 6]
     if not (wx * nvx + wy * nvy + wz * nvz > 0.0):                          # (2)
         return False
     cg = gx * nvx + gy * nvy + gz * nvz
@@ -731,12 +744,12 @@ def _accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
         return False
     if cg <= COS_NG_DEFAULT and dx * nvx + dy * nvy + dz * nvz < 0.0:       # (4)
         return False
-    if vp_clip.shape[0] > 0 and vp_clip[v] != CLIP_CLEAR:                   # (5)
+    if code != CLIP_CLEAR:                                                  # (5)
         t0, t1, t2, t3, t4, t5 = _tangent_frame(nvx, nvy, nvz)
         u = dx * t0 + dy * t1 + dz * t2
         w = dx * t3 + dy * t4 + dz * t5
-        b = np.int64((vp_clip[v] >> np.uint64(8 * wedge_of(u, w))) & np.uint64(0xFF))
-        if b < CLIP_OPEN and 65025.0 * (u * u + w * w) >= np.float64(b * b) * vp_rec[v, 3]:
+        b = np.int64((code >> np.uint64(8 * wedge_of(u, w))) & np.uint64(0xFF))
+        if b < CLIP_OPEN and 65025.0 * (u * u + w * w) >= np.float64(b * b) * r2:
             return False
     return True
 
@@ -826,16 +839,16 @@ def _tangent_frame(n0, n1, n2):
 
 
 @njit(cache=True, inline="always")
-def _sector_cell(vp_rec, v, x, y, z):
+def _sector_cell(rx, ry, rz, r2, nvx, nvy, nvz, x, y, z):
     """Sector cell (0 .. SECTOR_CELLS-1) of a counted photon at (x, y, z) in
-    visible point v's kernel: quadrant of its offset in the tangent frame
-    (t1, t2) of its normal (_tangent_frame), plus SECTOR_QUADRANTS for the
-    outer ring (|d|^2 >= R^2 / 2).  The SECTOR_CELLS cells have equal areas
-    on the disc."""
-    dx = x - vp_rec[v, 0]
-    dy = y - vp_rec[v, 1]
-    dz = z - vp_rec[v, 2]
-    t0, t1, t2, t3, t4, t5 = _tangent_frame(vp_rec[v, 4], vp_rec[v, 5], vp_rec[v, 6])
+    the kernel of the visible point (r, r2, nv) of _vp_record: quadrant of
+    its offset in the tangent frame (t1, t2) of its normal (_tangent_frame),
+    plus SECTOR_QUADRANTS for the outer ring (|d|^2 >= R^2 / 2).  The
+    SECTOR_CELLS cells have equal areas on the disc."""
+    dx = x - rx
+    dy = y - ry
+    dz = z - rz
+    t0, t1, t2, t3, t4, t5 = _tangent_frame(nvx, nvy, nvz)
     u = dx * t0 + dy * t1 + dz * t2
     w = dx * t3 + dy * t4 + dz * t5
     c = 0
@@ -843,7 +856,7 @@ def _sector_cell(vp_rec, v, x, y, z):
         c = 1 if w >= 0.0 else 2
     elif w < 0.0:
         c = 3
-    if 2.0 * (dx * dx + dy * dy + dz * dz) >= vp_rec[v, 3]:
+    if 2.0 * (dx * dx + dy * dy + dz * dz) >= r2:
         c += SECTOR_QUADRANTS
     return c
 
@@ -862,6 +875,7 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     one = np.uint64(1)
     with_sectors = S.shape[1] > 0
     track = touched.shape[0] > 0
+    clipped = vp_clip.shape[0] > 0
     for p in range(q0, q1):
         q = p
         s = slot[q]
@@ -883,15 +897,18 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         mask = np.uint64(0)
         for e in range(e0, e1):
             v = vp_ids[e]
-            if not _accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
+            rx, ry, rz, r2, nvx, nvy, nvz, const = _vp_record(vp_rec, v)
+            code = vp_clip[v] if clipped else CLIP_CLEAR
+            if not _accepts(rx, ry, rz, r2, nvx, nvy, nvz, code, x, y, z, wx, wy, wz, gx, gy,
+                            gz, cos_ng):
                 continue
             M[v] += 1
             if track and M[v] == 1:
                 touched[n_touched[0]] = v
                 n_touched[0] += 1
             if with_sectors:
-                S[v, _sector_cell(vp_rec, v, x, y, z)] += 1
-            if vp_rec[v, 7] != 0.0:
+                S[v, _sector_cell(rx, ry, rz, r2, nvx, nvy, nvz, x, y, z)] += 1
+            if const != 0.0:
                 Phi[v, 0] += ph_power[p, 0]
                 Phi[v, 1] += ph_power[p, 1]
                 Phi[v, 2] += ph_power[p, 2]
@@ -933,6 +950,7 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
     hitmask, or (cells of > 64 entries) from the same tests as _count_range in
     the same arithmetic; pairs are written at the photon's prefix-sum offset."""
     one = np.uint64(1)
+    clipped = vp_clip.shape[0] > 0
     for q in range(q0, q1):
         if n_pair[q] == 0 and not (want_freq and n_freq[q] > 0):
             continue
@@ -962,7 +980,10 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
         gz = np.float64(ph_ng[q, 2])
         for e in range(e0, e1):
             v = vp_ids[e]
-            if not _accepts(vp_rec, vp_clip, v, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
+            rx, ry, rz, r2, nvx, nvy, nvz, const = _vp_record(vp_rec, v)
+            code = vp_clip[v] if clipped else CLIP_CLEAR
+            if not _accepts(rx, ry, rz, r2, nvx, nvy, nvz, code, x, y, z, wx, wy, wz, gx, gy,
+                            gz, cos_ng):
                 continue
             k, kf = _record_pair(v, p, is_freq, vp_rec, k, kf, pair_vp, pair_ph, fpair_vp, fpair_ph)
 
@@ -1512,54 +1533,75 @@ class GatherBuffers:
         T = numba.get_num_threads()
         if sweep and T > 1 and self.K >= PARALLEL_MIN_VPS:
             # a pixel-sized sweep (1080p: 2M VPs): by VP ranges in threads
-            _fold_sweep_parallel(T, self.M, self.Phi, self.rmin, self.S, self.n_touched,
+            _fold_sweep_parallel(T, self.M, self.Phi, self.rmin, self.S, self.touched,
+                                 self.n_touched,
                                  self.n_used, *rest)
             return
         _fold(self.M, self.Phi, self.rmin, self.S, self.touched, self.n_touched,
               self.n_used, *rest, sweep)
 
 
-@njit(cache=True, inline="always")
-def _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S, clip):
-    """Fold visible point v's rows (thread order) into the sums and zero them
-    (clip (K,) uint64 or (0,): GatherBuffers.fold)."""
-    m = bM[0, v]
-    r = brmin[0, v]
-    p0, p1, p2 = bPhi[0, v, 0], bPhi[0, v, 1], bPhi[0, v, 2]
-    for t in range(1, n_used):
-        m += bM[t, v]
-        r = min(r, brmin[t, v])
-        p0 += bPhi[t, v, 0]
-        p1 += bPhi[t, v, 1]
-        p2 += bPhi[t, v, 2]
-    if clip.shape[0] > 0 and clip[v] != CLIP_CLEAR:
-        # np.int64: one compile for int32 and int64 callers (core/warmup.py)
-        _fold_clipped(np.int64(v), np.int64(m), p0, p1, p2, bS, n_used, M, Phi, scale, div, S,
-                      clip[v])
-    else:
-        M[v] += m
-        Phi[v, 0] += p0 * (scale[v, 0] / div)
-        Phi[v, 1] += p1 * (scale[v, 1] / div)
-        Phi[v, 2] += p2 * (scale[v, 2] / div)
+@njit(cache=True)
+def _fold_run(c, i0, i1, touched, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
+              rmin_mask, S, clip):
+    """Fold visible points into the sums and zero their rows (thread
+    order; clip (K,) uint64 or (0,): GatherBuffers.fold): c >= 0, those
+    listed at touched[c, i0:i1] whose row c still counts (else folded from
+    an earlier row's list); c < 0, the visible points i0..i1-1 that a row
+    counts (a sweep).  The per-point body is written here, in the loop, not
+    in an inlined helper taking the arrays: such a helper, with its
+    branches, kept numba's reference-count increment and decrement of each
+    of its 14 arrays at every point (atomic operations; docs/architecture.md
+    "The count pass without reference counts")."""
+    for i in range(i0, i1):
+        if c >= 0:
+            v = np.int64(touched[c, i])
+            if bM[c, v] == 0:
+                continue
+        else:
+            v = np.int64(i)
+            counted = False
+            for t in range(n_used):
+                counted |= bM[t, v] != 0
+            if not counted:
+                continue
+        m = bM[0, v]
+        r = brmin[0, v]
+        p0, p1, p2 = bPhi[0, v, 0], bPhi[0, v, 1], bPhi[0, v, 2]
+        for t in range(1, n_used):
+            m += bM[t, v]
+            r = min(r, brmin[t, v])
+            p0 += bPhi[t, v, 0]
+            p1 += bPhi[t, v, 1]
+            p2 += bPhi[t, v, 2]
+        if clip.shape[0] > 0 and clip[v] != CLIP_CLEAR:
+            # np.int64: one compile for int32 and int64 callers (core/warmup.py)
+            _fold_clipped(v, np.int64(m), p0, p1, p2, bS, n_used, M, Phi, scale, div, S,
+                          clip[v])
+        else:
+            M[v] += m
+            Phi[v, 0] += p0 * (scale[v, 0] / div)
+            Phi[v, 1] += p1 * (scale[v, 1] / div)
+            Phi[v, 2] += p2 * (scale[v, 2] / div)
+            for t in range(n_used):
+                if S.shape[0] > 0:
+                    for j in range(S.shape[1]):
+                        S[v, j] += bS[t, v, j]
+        if rmin_mask.shape[0] == 0 or rmin_mask[v]:
+            rmin[v] = min(rmin[v], r)
         for t in range(n_used):
-            if S.shape[0] > 0:
-                for j in range(S.shape[1]):
-                    S[v, j] += bS[t, v, j]
-    if rmin_mask.shape[0] == 0 or rmin_mask[v]:
-        rmin[v] = min(rmin[v], r)
-    for t in range(n_used):
-        bM[t, v] = 0
-        brmin[t, v] = np.inf
-        bPhi[t, v, 0] = 0.0
-        bPhi[t, v, 1] = 0.0
-        bPhi[t, v, 2] = 0.0
-        for j in range(bS.shape[2]):
-            bS[t, v, j] = 0
+            bM[t, v] = 0
+            brmin[t, v] = np.inf
+            bPhi[t, v, 0] = 0.0
+            bPhi[t, v, 1] = 0.0
+            bPhi[t, v, 2] = 0.0
+            for j in range(bS.shape[2]):
+                bS[t, v, j] = 0
 
 
 @njit(cache=True)
 def _fold_clipped(v, m, p0, p1, p2, bS, n_used, M, Phi, scale, div, S, code):
-    """_fold_one's sums for a clipped visible point: count m and flux (p0,
+    """_fold_run's sums for a clipped visible point: count m and flux (p0,
     p1, p2) times 1 / its visible fraction, sector counts through the cell
     weights of clip_weights (a full disc's, where the light is uniform)."""
     Wc = np.empty((SECTOR_CELLS, SECTOR_CELLS))
@@ -1585,42 +1627,25 @@ def _fold(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div, r
     sweep True: every VP with a count, in order (sequential memory).  One
     kernel for both, so that the warm-up compiles the one the renders use."""
     if sweep:
-        _fold_sweep(0, bM.shape[1], bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
-                    rmin_mask, S, clip)
+        _fold_run(-1, 0, bM.shape[1], touched, bM, bPhi, brmin, bS, n_used, M, Phi, scale,
+                  div, rmin, rmin_mask, S, clip)
         n_touched[:] = 0
         return
     for c in range(n_used):
-        for i in range(n_touched[c]):
-            v = touched[c, i]
-            if bM[c, v] != 0:         # else folded from an earlier row's list
-                _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin,
-                          rmin_mask, S, clip)
+        _fold_run(c, 0, n_touched[c], touched, bM, bPhi, brmin, bS, n_used, M, Phi, scale,
+                  div, rmin, rmin_mask, S, clip)
         n_touched[c] = 0
 
 
-@njit(cache=True)
-def _fold_sweep(v0, v1, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S,
-                clip):
-    """_fold's sweep over the visible points v0..v1-1 (each one's sums and
-    rows are its own: VP ranges fold in any order, in any thread)."""
-    for v in range(v0, v1):
-        counted = False
-        for t in range(n_used):
-            counted |= bM[t, v] != 0
-        if counted:
-            _fold_one(v, bM, bPhi, brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S,
-                      clip)
-
-
 @njit(cache=True, parallel=True)
-def _fold_sweep_parallel(n_chunks, bM, bPhi, brmin, bS, n_touched, n_used, M, Phi, scale, div,
-                         rmin, rmin_mask, S, clip):
+def _fold_sweep_parallel(n_chunks, bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi,
+                         scale, div, rmin, rmin_mask, S, clip):
     """_fold's sweep by n_chunks threads, one VP range each (the same sums:
     a VP's fold does not depend on the others')."""
     K = bM.shape[1]
     for c in prange(n_chunks):
-        _fold_sweep(c * K // n_chunks, (c + 1) * K // n_chunks, bM, bPhi, brmin, bS, n_used,
-                    M, Phi, scale, div, rmin, rmin_mask, S, clip)
+        _fold_run(-1, c * K // n_chunks, (c + 1) * K // n_chunks, touched, bM, bPhi, brmin,
+                  bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S, clip)
     n_touched[:] = 0
 
 
