@@ -69,7 +69,7 @@ from .scene.camera import CameraModel, FilterSampler
 from .scene.model import Scene, drop_invalid_triangles, scene_digest
 from .settings import RenderSettings
 from .sppm.film import AOVS, PASSES, Film, PassResult, data_passes, pass_enabled
-from .sppm.photon_pass import PHOTON_CHUNK, PhotonPass, frequency_photons
+from .sppm.photon_pass import AHEAD_CHUNKS, PHOTON_CHUNK, PhotonPass, frequency_photons
 from .frequency.curvature import scene_curvature
 from .sppm.photons import PhotonTracer
 from .sppm.state import PixelState
@@ -250,6 +250,7 @@ class Renderer:
                                       texture_bytes=sum(np.asarray(t).nbytes for t in scene.textures),
                                       sector_cells=SECTOR_CELLS if needs_sectors(st0, st0.use_frequency) else 0,
                                       clip_kernel=st0.clip_kernel,
+                                      chunks_ahead=AHEAD_CHUNKS,
                                       # CameraPass.first_data (set in __init__), before the plan
                                       first_hits=memory.keeps_first_hits(bool(data_passes(passes)),
                                                                          st0.integrator))

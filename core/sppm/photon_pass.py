@@ -60,7 +60,7 @@ TRACE_AHEAD = True
 #: overlaps the camera and direct light, that of chunk c + 1 the gather of
 #: chunk c; a cancelled pass or dropped renderer leaves at most this many
 #: chunks tracing in the background (and the next trace_ahead waits for them).
-AHEAD_CHUNKS = 1
+AHEAD_CHUNKS = 2
 #: With trace-ahead, the next pass's chunks are queued behind this pass's
 #: last one (``trace_ahead(..., then=)``), AHEAD_CHUNKS ahead of the gather
 #: as before: traced under this pass's grid build, gathers, update and film,
