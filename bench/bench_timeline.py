@@ -118,31 +118,21 @@ def main():
     tl = Timeline()
     pp = r.photon_pass
     # the calls of Renderer.step and PhotonPass.__call__, in their order
-    tl.wrap(r, "step", "step")
-    tl.wrap(pp, "trace_ahead", "trace_ahead")
-    tl.wrap(memory, "release_free_heap", "release_free_heap")
-    tl.wrap(r, "camera_pass", "camera")
-    tl.wrap(r, "direct_light", "direct")
-    tl.wrap(r.radii, "initialise", "radius_init")
-    tl.wrap(r.tracer, "set_radius_cut", "set_radius_cut")
-    tl.wrap(pp, "_zero_sums", "zero_sums")
-    tl.wrap(PKs, "active_radii", "active_radii")
-    tl.wrap(Clip, "clip_codes", "clip")
-    tl.wrap(Hg, "build_grid", "grid_build")
-    tl.wrap(pp, "_trace", "trace_wait")
-    tl.wrap(Hg, "gather", "gather")
-    tl.wrap(pp, "_add_pairs", "add_pairs")
-    tl.wrap(pp, "_drop_ahead", "drop_ahead")
-    tl.wrap(pp, "finish", "finish")
-    tl.wrap(r.radii, "predicted", "predicted")
-    tl.wrap(r.radii, "update", "update")
-    tl.wrap(r.film, "accumulate", "film_accumulate")
-    tl.wrap(r, "_film", "film")
-    buf0 = None
+    for obj, name, label in (
+            (r, "step", "step"), (pp, "trace_ahead", "trace_ahead"),
+            (memory, "release_free_heap", "release_free_heap"), (r, "camera_pass", "camera"),
+            (r, "direct_light", "direct"), (r.radii, "initialise", "radius_init"),
+            (r.tracer, "set_radius_cut", "set_radius_cut"), (pp, "_zero_sums", "zero_sums"),
+            (PKs, "active_radii", "active_radii"), (Clip, "clip_codes", "clip"),
+            (Hg, "build_grid", "grid_build"), (pp, "_trace", "trace_wait"),
+            (Hg, "gather", "gather"), (pp, "_add_pairs", "add_pairs"),
+            (pp, "_drop_ahead", "drop_ahead"), (pp, "finish", "finish"),
+            (r.radii, "predicted", "predicted"), (r.radii, "update", "update"),
+            (r.film, "accumulate", "film_accumulate"), (r, "_film", "film")):
+        tl.wrap(obj, name, label)
     r.step()                                        # warm-up
-    b = pp.gather_buffers
-    if b is not None and buf0 is None:
-        tl.wrap(b, "fold", "fold")
+    if pp.gather_buffers is not None:               # made by the first pass
+        tl.wrap(pp.gather_buffers, "fold", "fold")
     tl.on = True
     c0, w0 = time.process_time(), time.perf_counter()
     steps = []
