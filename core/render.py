@@ -661,9 +661,10 @@ class Renderer:
         return rng
 
     def _drop_early(self) -> None:
-        """The render is over (or its state replaced): drop the next pass's
-        chunk traced ahead (PhotonPass.drop_next: not started, cancelled;
-        running, it finishes in its thread)."""
+        """The render is over (or its state replaced): drop the photon
+        chunks queued ahead, the next pass's and a cancelled pass's
+        (PhotonPass.drop_next: not started, cancelled; running, it finishes
+        in its thread)."""
         self._early_photon_rng = None
         drop = getattr(self.photon_pass, "drop_next", None)
         if drop is not None:

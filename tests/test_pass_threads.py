@@ -27,7 +27,8 @@ What is asserted, and why the tolerances are zero:
   frequency photons (those are never started early: their reach map and
   radius cut come from the pass before), through a pass cancelled in its
   gather and run again (a new stream: what was queued is dropped), and
-  nothing is queued after the last pass of max_passes.
+  nothing is queued after the last pass of max_passes nor after run()
+  returns.
 """
 from __future__ import annotations
 
@@ -148,12 +149,12 @@ def test_photons_traced_ahead_give_the_same_image(monkeypatch):
     assert np.array_equal(r.step().image, here[0])
 
 
-def _passes(n, cancel_in=None):
+def _passes(n, cancel_in=None, max_passes=None):
     """n passes of 4 chunks (the last one short) at 24x24, default
     frequency photons (passes 1, 2 and 4 trace them); cancel_in: (pass,
     chunk) whose gather raises RenderCancelled once (the pass is run again)."""
     r = Renderer(warmup_scene(24, ("POINT", "AREA")),
-                 RenderSettings(integrator="PHOTON", max_passes=n, seed=1,
+                 RenderSettings(integrator="PHOTON", max_passes=max_passes or n, seed=1,
                                 photons_per_pass=20_000), log=lambda _m: None)
     r.photon_pass.chunk = 6_000
     if cancel_in is not None:
@@ -191,6 +192,12 @@ def test_next_pass_traced_early_gives_the_same_image(monkeypatch):
         for k, (a, b) in enumerate(zip(here, early)):
             assert np.array_equal(a, b), (ahead, k)
     monkeypatch.setattr(PP, "AHEAD_CHUNKS", 2)
+    # a render stopped after pass 2 (pass 3's chunks queued under it): run()
+    # drops the queue; the image is pass 2's
+    r = _passes(0, max_passes=5)[1]
+    r.run(should_stop=lambda: r.pass_index >= 2)
+    assert r.pass_index == 2 and r.photon_pass._next is r.photon_pass._ahead is None
+    assert np.array_equal(r.last_result.image, here[1])
     # a cancel in pass 3 (started early under pass 2) and in pass 4 (pass
     # 5's chunks queued under it): the pass is run again with a new stream
     for cancel_in in ((3, 3), (4, 4)):

@@ -433,12 +433,14 @@ class PhotonPass:
             self._drop(futures)
 
     def drop_next(self, wait: bool = True) -> None:
-        """Drop the next pass's chunk started early (the render is over, or
-        its state was replaced); wait=False: one running finishes in its
-        thread, unwaited (its deposits are then dropped)."""
-        nxt, self._next = self._next, None
-        if nxt is not None:
-            self._drop(nxt[1], wait)
+        """Drop every chunk queued ahead: the next pass's, and those of a
+        pass that was cancelled (the render is over, or its state was
+        replaced); wait=False: the one running finishes in its thread,
+        unwaited (its deposits are then dropped), as after a cancel."""
+        for queue in (self._ahead, self._next):
+            if queue is not None:
+                self._drop(queue[1], wait)
+        self._ahead = self._next = None
 
     def _zero_sums(self, P: int, spectrum: Optional[np.ndarray]) -> "PassSums":
         """``PassSums.zeros`` of a pass, on the last pass's arrays when the
