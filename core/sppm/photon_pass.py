@@ -352,6 +352,9 @@ class PhotonPass:
         the gather.  A call with that rng carries on with what was started;
         a call with another drops it."""
         self._drop_ahead()
+        orphans, self._orphans = getattr(self, "_orphans", []), []
+        for f in orphans:                   # a dropped render's chunk, still running
+            f.exception()
         nxt, self._next = self._next, None
         if nxt is not None:
             if nxt[0] is rng and nxt[3] == self.chunks() and not self.chunk_streams:
@@ -414,15 +417,19 @@ class PhotonPass:
         self._next = (rng, deque(), deque(chunks), chunks)
         return True
 
-    @staticmethod
-    def _drop(futures, wait: bool = True) -> None:
-        """Cancel the queued traces of futures, wait for the one running."""
+    def _drop(self, futures, wait: bool = True) -> None:
+        """Cancel the queued traces of futures, wait for the one running
+        (wait=False: the next trace_ahead waits for it, as for a cancelled
+        pass's, before its own chunks queue behind it)."""
         futures = list(futures)
         for f in futures:
             f.cancel()
-        for f in futures if wait else ():
-            if not f.cancelled():
-                f.exception()
+        running = [f for f in futures if not f.cancelled()]
+        if not wait:
+            self._orphans = getattr(self, "_orphans", []) + running
+            return
+        for f in running:
+            f.exception()
 
     def _drop_ahead(self) -> None:
         """Cancel the chunks traced ahead and not started, wait for the one
