@@ -52,7 +52,11 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
   (``clip.NearGrid``, once a render) -> BYTES_PER_CLIP_TRIANGLE a triangle
   plus CLIP_GRID_BYTES
 - per photon of a chunk: emission, bounce and deposit arrays and the
-  gather's sorted copies -> BYTES_PER_PHOTON
+  gather's sorted copies -> BYTES_PER_PHOTON; and for every chunk queued
+  beyond one ahead of the gather (core.sppm.photon_pass.AHEAD_CHUNKS), one
+  more deposit set of the tracer's pool -> BYTES_PER_QUEUED_PHOTON (the
+  pool's deposits at a 1080p Cornell pass's peak: 4 sets, 185 MiB, with one
+  chunk ahead; 5 sets, 239 MiB, with two)
 - per triangle: scene arrays, Embree BVH, the plan's copies -> BYTES_PER_TRIANGLE
 - per occlusion voxel: kept + during the build -> BYTES_PER_VOXEL
 - textures: one more copy of their pixels (float64 gathers of the texels a
@@ -86,6 +90,7 @@ BYTES_PER_CLIP = 8
 BYTES_PER_CLIP_TRIANGLE = 48
 CLIP_GRID_BYTES = 64 * 2**10
 BYTES_PER_PHOTON = 1229
+BYTES_PER_QUEUED_PHOTON = 432
 BYTES_PER_TRIANGLE = 400
 BYTES_PER_VOXEL = 192
 KERNEL_BYTES = 96 * 2**20
@@ -130,7 +135,7 @@ def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
              use_grid: bool, aov_channels: int = 0, hist_bins: int = 0,
              texture_bytes: int = 0, resident: int | None = None,
              sector_cells: int = 0, first_hits: bool = True,
-             clip_kernel: bool = False) -> dict:
+             clip_kernel: bool = False, chunks_ahead: int = 1) -> dict:
     """Bytes per component and 'total' (ints): an upper bound on the peak.
 
     aov_channels: channels of the enabled AOVs (all layers together);
@@ -139,6 +144,7 @@ def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
     texture_bytes: bytes of the scene's texture images;
     first_hits: the camera pass keeps its first hits' data
     (:func:`keeps_first_hits`); clip_kernel: the gather's discs are clipped;
+    chunks_ahead: photon chunks traced ahead of the gather (AHEAD_CHUNKS);
     resident: bytes already held (None: :func:`resident_bytes`).  'runtime' is
     that resident size; 'total' is at least the peak so far.
     """
@@ -148,7 +154,8 @@ def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
                               + BYTES_PER_HIST_BIN * hist_bins
                               + BYTES_PER_SECTOR_CELL * sector_cells
                               + BYTES_PER_CLIP * bool(clip_kernel)),
-        "photons": photon_chunk * BYTES_PER_PHOTON,
+        "photons": photon_chunk * (BYTES_PER_PHOTON
+                                   + max(chunks_ahead - 1, 0) * BYTES_PER_QUEUED_PHOTON),
         "geometry": n_triangles * BYTES_PER_TRIANGLE + bool(clip_kernel) * (
             n_triangles * BYTES_PER_CLIP_TRIANGLE + CLIP_GRID_BYTES),
         "occlusion_grid": (grid_res ** 3) * BYTES_PER_VOXEL if use_grid else 0,

@@ -69,7 +69,7 @@ from .scene.camera import CameraModel, FilterSampler
 from .scene.model import Scene, drop_invalid_triangles, scene_digest
 from .settings import RenderSettings
 from .sppm.film import AOVS, PASSES, Film, PassResult, data_passes, pass_enabled
-from .sppm.photon_pass import PHOTON_CHUNK, PhotonPass, frequency_photons
+from .sppm.photon_pass import AHEAD_CHUNKS, PHOTON_CHUNK, PhotonPass, frequency_photons
 from .frequency.curvature import scene_curvature
 from .sppm.photons import PhotonTracer
 from .sppm.state import PixelState
@@ -79,6 +79,10 @@ from .sppm.visible_points import CameraPass, VisiblePoints
 __all__ = ["Renderer", "PassResult", "VisiblePoints", "PHOTON_CHUNK"]
 
 _STATE_FIELDS = frozenset(f.name for f in fields(PixelState))
+
+
+#: malloc_trim before each pass's camera stage (memory.release_free_heap).
+TRIM_BEFORE_CAMERA = True
 
 
 def border_rect(border, W: int, H: int) -> tuple[int, int, int, int]:
@@ -140,6 +144,10 @@ class Renderer:
         self.elapsed = 0.0
         self._fixed: Optional[tuple[VisiblePoints, np.ndarray]] = None
         self.last_result: Optional[PassResult] = None
+        # (k, the photon stream of pass k) handed to the photon pass before
+        # pass k began (PhotonPass.trace_ahead's then=); its next trace_ahead
+        # carries on with it.
+        self._early_photon_rng: Optional[tuple[int, np.random.Generator]] = None
         self.light_tracer = None
         if st.integrator == "LIGHT":
             from .integrators.light_tracer import LightTracer
@@ -242,6 +250,7 @@ class Renderer:
                                       texture_bytes=sum(np.asarray(t).nbytes for t in scene.textures),
                                       sector_cells=SECTOR_CELLS if needs_sectors(st0, st0.use_frequency) else 0,
                                       clip_kernel=st0.clip_kernel,
+                                      chunks_ahead=AHEAD_CHUNKS,
                                       # CameraPass.first_data (set in __init__), before the plan
                                       first_hits=memory.keeps_first_hits(bool(data_passes(passes)),
                                                                          st0.integrator))
@@ -349,6 +358,7 @@ class Renderer:
             if on_pass is not None:
                 on_pass(res)
             del res     # not held through the next pass: its film may reuse the image
+        self._drop_early()
         if self.last_result is None:
             self.last_result = self._film()
         if self.pass_index and not np.any(self.last_result.image[..., :3] > 0):
@@ -370,19 +380,22 @@ class Renderer:
         t0 = time.perf_counter()
         k = self.pass_index + 1
         st, state, clock = self.settings, self.state, self.stage_seconds
-        rng_photons = self._rng(k, 2)
-        # The photons are traced while the camera and direct light run; a
-        # stand-in photon pass (tools/distributed.py: the workers trace) may not.
+        rng_photons = self._photon_stream(k)
+        # The photons are traced while the camera and direct light run, and
+        # the next pass's first chunk from when this pass's last chunk is
+        # traced (then=); a stand-in photon pass (tools/distributed.py: the
+        # workers trace) may not.
         ahead = getattr(self.photon_pass, "trace_ahead", None)
         if ahead is not None:
-            ahead(rng_photons)
+            ahead(rng_photons, then=lambda: self._next_photon_stream(k + 1))
         tc = time.perf_counter()
         if st.cap_radius_at_edges and k == 1:
             # The edge cap's own camera pass (once a render, for the first
             # radii) before this pass's: its arrays are freed before the
             # pass's are made, not held beside them (the first pass's peak).
             self.radii.edge_cap(self._check_stop)
-        memory.release_free_heap(state.R2.size)   # the last pass's freed temporaries
+        if TRIM_BEFORE_CAMERA:
+            memory.release_free_heap(state.R2.size)   # the last pass's freed temporaries
         if st.fixed_visible_points and self._fixed is not None:
             vp, L_emit = self._fixed
         else:
@@ -607,6 +620,7 @@ class Renderer:
                    f"{self.photons_per_step}")
         if why is not None:
             raise CheckpointMismatch(f"The checkpoint is damaged ({why}): delete it to start over.")
+        self._drop_early()
         self.state.load_state(d)
         self.film.load_state(d)
         if self.light_tracer is not None or self.combined_lt is not None:
@@ -629,6 +643,33 @@ class Renderer:
         self.last_result = self._film()
 
     # ------------------------------------------------------------ helpers
+    def _photon_stream(self, k: int) -> np.random.Generator:
+        """Pass k's photon stream: the one handed out before it began
+        (:meth:`_next_photon_stream`, traced from already), else a new one.
+        Either is used once: a pass that is run again draws a new stream."""
+        early, self._early_photon_rng = self._early_photon_rng, None
+        return early[1] if early is not None and early[0] == k else self._rng(k, 2)
+
+    def _next_photon_stream(self, k: int) -> Optional[np.random.Generator]:
+        """Pass k's photon stream for PhotonPass.trace_ahead's then= (pass k
+        - 1 is under way), kept for pass k's :meth:`_photon_stream`; None
+        after the last pass of max_passes."""
+        if self.settings.max_passes and k > self.settings.max_passes:
+            return None
+        rng = self._rng(k, 2)
+        self._early_photon_rng = (k, rng)
+        return rng
+
+    def _drop_early(self) -> None:
+        """The render is over (or its state replaced): drop the photon
+        chunks queued ahead, the next pass's and a cancelled pass's
+        (PhotonPass.drop_next: not started, cancelled; running, it finishes
+        in its thread)."""
+        self._early_photon_rng = None
+        drop = getattr(self.photon_pass, "drop_next", None)
+        if drop is not None:
+            drop(wait=False)
+
     def _rng(self, k: int, stage: int) -> np.random.Generator:
         # One independent stream per (seed, pass, stage): deterministic, and a
         # resumed render continues the same sequence.

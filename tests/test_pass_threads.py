@@ -21,11 +21,20 @@ What is asserted, and why the tolerances are zero:
   (the same stream drawn in the same order), with the same photon ray count;
   a pass whose traced-ahead photons are not gathered (another stream) traces
   its own and gives the same image too.
+- The next pass's chunks queued behind this pass's last one
+  (TRACE_NEXT_PASS, PhotonPass.trace_ahead's then=) give every pass's image
+  bit for bit, with 1 to 3 chunks ahead, over passes with and without
+  frequency photons (those are never started early: their reach map and
+  radius cut come from the pass before), through a pass cancelled in its
+  gather and run again (a new stream: what was queued is dropped), and
+  nothing is queued after the last pass of max_passes nor after run()
+  returns.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from core.errors import RenderCancelled
 from core.kept import KeptArrays
 from core.sppm import photon_pass as PP
 from core.render import Renderer
@@ -138,3 +147,61 @@ def test_photons_traced_ahead_give_the_same_image(monkeypatch):
     r.photon_pass.trace_ahead(np.random.default_rng(99))   # never gathered: dropped
     assert r.photon_pass._ahead is not None
     assert np.array_equal(r.step().image, here[0])
+
+
+def _passes(n, cancel_in=None, max_passes=None):
+    """n passes of 4 chunks (the last one short) at 24x24, default
+    frequency photons (passes 1, 2 and 4 trace them); cancel_in: (pass,
+    chunk) whose gather raises RenderCancelled once (the pass is run again)."""
+    r = Renderer(warmup_scene(24, ("POINT", "AREA")),
+                 RenderSettings(integrator="PHOTON", max_passes=max_passes or n, seed=1,
+                                photons_per_pass=20_000), log=lambda _m: None)
+    r.photon_pass.chunk = 6_000
+    if cancel_in is not None:
+        inner, calls = r.photon_pass._trace_gather, []
+
+        def gather(*a, **kw):
+            calls.append(r.pass_index + 1)
+            if (r.pass_index + 1, calls.count(r.pass_index + 1)) == cancel_in and len(calls) < 99:
+                calls.extend([0] * 99)
+                r.cancelled = True
+                raise RenderCancelled("cancelled")
+            return inner(*a, **kw)
+        r.photon_pass._trace_gather = gather
+    imgs = []
+    while len(imgs) < n:
+        try:
+            imgs.append(r.step().image.copy())
+        except RenderCancelled:
+            pass
+    return imgs, r
+
+
+def test_next_pass_traced_early_gives_the_same_image(monkeypatch):
+    monkeypatch.setattr(PP, "TRACE_NEXT_PASS", False)
+    here, r = _passes(5)
+    assert r.photon_pass.next_adopted == 0
+    monkeypatch.setattr(PP, "TRACE_NEXT_PASS", True)
+    for ahead in (1, 3):
+        monkeypatch.setattr(PP, "AHEAD_CHUNKS", ahead)
+        early, r = _passes(5)
+        # passes 3 and 5 (no frequency photons) carried on with the chunks
+        # queued under passes 2 and 4; none after the last pass
+        assert r.photon_pass.next_adopted == 2
+        assert r.photon_pass._next is None
+        for k, (a, b) in enumerate(zip(here, early)):
+            assert np.array_equal(a, b), (ahead, k)
+    monkeypatch.setattr(PP, "AHEAD_CHUNKS", 2)
+    # a render stopped after pass 2 (pass 3's chunks queued under it): run()
+    # drops the queue; the image is pass 2's
+    r = _passes(0, max_passes=5)[1]
+    r.run(should_stop=lambda: r.pass_index >= 2)
+    assert r.pass_index == 2 and r.photon_pass._next is r.photon_pass._ahead is None
+    assert np.array_equal(r.last_result.image, here[1])
+    # a cancel in pass 3 (started early under pass 2) and in pass 4 (pass
+    # 5's chunks queued under it): the pass is run again with a new stream
+    for cancel_in in ((3, 3), (4, 4)):
+        again, r = _passes(5, cancel_in)
+        assert r.cancelled
+        for k, (a, b) in enumerate(zip(here, again)):
+            assert np.array_equal(a, b), (cancel_in, k)

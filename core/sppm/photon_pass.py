@@ -15,7 +15,10 @@ leaves no trace.
 
 The trace does not depend on the visible points: ``trace_ahead`` starts a
 pass's chunks in a thread of their own before the camera pass, and the
-gather takes them in order (the same photons).
+gather takes them in order (the same photons).  When the next pass's photons
+need nothing from this one (no frequency photons: no reach map, no radius
+cut), its first chunk starts as soon as this pass's last chunk is traced
+(``trace_ahead(..., then=)``): under this pass's gathers, update and film.
 
 A chunk is also the unit of work another process can do
 (tools/distributed.py): with ``chunk_streams`` each chunk draws its own
@@ -57,7 +60,14 @@ TRACE_AHEAD = True
 #: overlaps the camera and direct light, that of chunk c + 1 the gather of
 #: chunk c; a cancelled pass or dropped renderer leaves at most this many
 #: chunks tracing in the background (and the next trace_ahead waits for them).
-AHEAD_CHUNKS = 1
+AHEAD_CHUNKS = 2
+#: With trace-ahead, the next pass's chunks are queued behind this pass's
+#: last one (``trace_ahead(..., then=)``), AHEAD_CHUNKS ahead of the gather
+#: as before: traced under this pass's grid build, gathers, update and film,
+#: which run on one core in part.  Only for a next pass without frequency
+#: photons (theirs read this pass's radii).  False: each pass starts its
+#: trace in its own ``trace_ahead``.
+TRACE_NEXT_PASS = True
 _AHEAD = None
 
 
@@ -259,8 +269,13 @@ class PhotonPass:
         # GatherBuffers.kept).
         self._grid_kept = KeptBuffers()
         # trace_ahead's (rng, futures of the queued chunks' deposits, chunks
-        # not queued yet), or None.
+        # not queued yet, then), or None.
         self._ahead = None
+        # The next pass's chunks queued early (_start_next): (rng, futures,
+        # chunks not queued yet, its chunks), or None; how many passes
+        # carried on with them (trace_ahead).
+        self._next = None
+        self.next_adopted = 0
         # The 1-based index of the pass being traced (its share of frequency
         # photons, frequency_photons); the renderer sets it to its own count.
         self.next_pass = lambda: 1
@@ -319,7 +334,7 @@ class PhotonPass:
         photons traced here (not in other processes' chunk streams)."""
         return self.frequency and not self.chunk_streams
 
-    def trace_ahead(self, rng: np.random.Generator) -> None:
+    def trace_ahead(self, rng: np.random.Generator, then=None) -> None:
         """Start tracing the chunks of the pass whose stream is rng now, one
         after the other in a thread of their own, AHEAD_CHUNKS ahead of the
         gather: the trace does not depend on the visible points (only the
@@ -327,8 +342,30 @@ class PhotonPass:
         then the gather.  The next call with this very rng gathers them in
         chunk order: the same photons as tracing them there (the same
         stream, drawn in the same order).  Not with ``chunk_streams`` (each
-        chunk is traced where it is gathered)."""
+        chunk is traced where it is gathered).
+
+        then: None, or a callable returning the next pass's photon stream (a
+        new Generator, the one the next pass will call this with, or None):
+        once every chunk of this pass is queued, the next pass's chunks
+        follow with it in the same queue (TRACE_NEXT_PASS; only when the next
+        pass has no frequency photons), still at most AHEAD_CHUNKS ahead of
+        the gather.  A call with that rng carries on with what was started;
+        a call with another drops it."""
         self._drop_ahead()
+        orphans, self._orphans = getattr(self, "_orphans", []), []
+        for f in orphans:                   # a dropped render's chunk, still running
+            f.exception()
+        nxt, self._next = self._next, None
+        if nxt is not None:
+            if nxt[0] is rng and nxt[3] == self.chunks() and not self.chunk_streams:
+                # started under the last pass (_start_next): a pass without
+                # frequency photons, so no reach map to set
+                self._reach_source = None
+                self._ahead = nxt[:3] + (then,)
+                self.next_adopted += 1
+                self._fill_ahead()
+                return
+            self._drop(nxt[1])
         src = getattr(self, "_reach_source", None)
         if src is not None:
             # the last pass's visible points with the radii of its update
@@ -340,28 +377,77 @@ class PhotonPass:
                 self.tracer.set_reach(src[0], src[1], np.array(src[2]))
         if self.chunk_streams or not TRACE_AHEAD:
             return
-        self._ahead = (rng, deque(), deque(self.chunks()))
-        for _ in range(AHEAD_CHUNKS):
-            self._submit_ahead()
+        self._ahead = (rng, deque(), deque(self.chunks()), then)
+        self._fill_ahead()
 
-    def _submit_ahead(self) -> None:
-        """Queue the trace of the next chunk not yet queued (in chunk order:
-        one thread, one stream)."""
-        rng, futures, todo = self._ahead
-        if todo:
-            n, n_freq = todo.popleft()
-            futures.append(_ahead_executor().submit(self._trace_now, n, n_freq, rng))
+    def _fill_ahead(self) -> None:
+        """Queue chunks (in chunk order: one thread, one stream) until
+        AHEAD_CHUNKS are queued and not yet taken by the gather: this pass's,
+        then the next pass's (_start_next)."""
+        rng, futures, todo, then = self._ahead
+        while True:
+            queued = len(futures) + (len(self._next[1]) if self._next is not None else 0)
+            if queued >= AHEAD_CHUNKS:
+                return
+            if todo:
+                n, n_freq = todo.popleft()
+                futures.append(_ahead_executor().submit(self._trace_now, n, n_freq, rng))
+                continue
+            if self._next is None:
+                if then is None or not self._start_next(then):
+                    return
+            nrng, nfut, ntodo, _ = self._next
+            if not ntodo:
+                return
+            n, n_freq = ntodo.popleft()
+            nfut.append(_ahead_executor().submit(self._trace_now, n, n_freq, nrng))
+
+    def _start_next(self, then) -> bool:
+        """Open the next pass's queue with the stream then(), when its photons
+        need nothing from this pass: no frequency photons (their reach map
+        and radius cut come from this pass's radii).  False: not opened."""
+        if not TRACE_NEXT_PASS:
+            return False
+        chunks = self.chunks(self.next_pass() + 1)
+        if not chunks or any(f for _, f in chunks):
+            return False
+        rng = then()
+        if rng is None:
+            return False
+        self._next = (rng, deque(), deque(chunks), chunks)
+        return True
+
+    def _drop(self, futures, wait: bool = True) -> None:
+        """Cancel the queued traces of futures, wait for the one running
+        (wait=False: the next trace_ahead waits for it, as for a cancelled
+        pass's, before its own chunks queue behind it)."""
+        futures = list(futures)
+        for f in futures:
+            f.cancel()
+        running = [f for f in futures if not f.cancelled()]
+        if not wait:
+            self._orphans = getattr(self, "_orphans", []) + running
+            return
+        for f in running:
+            f.exception()
 
     def _drop_ahead(self) -> None:
         """Cancel the chunks traced ahead and not started, wait for the one
-        running (a pass that was cancelled or found no visible point)."""
+        running (a pass that was cancelled or found no visible point).  The
+        next pass's chunk started early stays (trace_ahead adopts or drops it)."""
         if self._ahead is not None:
-            futures, self._ahead = list(self._ahead[1]), None
-            for f in futures:
-                f.cancel()
-            for f in futures:
-                if not f.cancelled():
-                    f.exception()
+            futures, self._ahead = self._ahead[1], None
+            self._drop(futures)
+
+    def drop_next(self, wait: bool = True) -> None:
+        """Drop every chunk queued ahead: the next pass's, and those of a
+        pass that was cancelled (the render is over, or its state was
+        replaced); wait=False: the one running finishes in its thread,
+        unwaited (its deposits are then dropped), as after a cancel."""
+        for queue in (self._ahead, self._next):
+            if queue is not None:
+                self._drop(queue[1], wait)
+        self._ahead = self._next = None
 
     def _zero_sums(self, P: int, spectrum: Optional[np.ndarray]) -> "PassSums":
         """``PassSums.zeros`` of a pass, on the last pass's arrays when the
@@ -383,13 +469,14 @@ class PhotonPass:
         """(P,) bool: the visible points that gather this pass (valid, with a radius)."""
         return vp.valid & (R2 > 0)
 
-    def chunks(self) -> list[tuple[int, int]]:
-        """(n, n_freq) of every chunk of a pass: ``chunk`` photons each (the
-        last one fewer); the first :func:`frequency_photons` of the pass
-        (``next_pass()``, the pass being traced) carry a spectrum."""
+    def chunks(self, k: Optional[int] = None) -> list[tuple[int, int]]:
+        """(n, n_freq) of every chunk of pass k (default ``next_pass()``, the
+        pass being traced): ``chunk`` photons each (the last one fewer); the
+        first :func:`frequency_photons` of the pass carry a spectrum."""
         st = self.settings
         n_total = st.photons_per_pass
-        n_freq_total = (frequency_photons(st, self.next_pass(), self.doubling)
+        n_freq_total = (frequency_photons(st, self.next_pass() if k is None else k,
+                                          self.doubling)
                         if self.frequency else 0)
         out = []
         for a in range(0, n_total, self.chunk):
@@ -496,7 +583,7 @@ class PhotonPass:
         traced now."""
         if self._ahead is not None and self._ahead[0] is rng and self._ahead[1]:
             f = self._ahead[1].popleft()
-            self._submit_ahead()            # traced while this chunk is gathered
+            self._fill_ahead()              # traced while this chunk is gathered
             return f.result()
         self._drop_ahead()
         return self._trace_now(n, n_freq, rng)
