@@ -199,8 +199,14 @@ def cycles_reference(name, say):
     bpy_helpers.ensure_registered()
     path = os.path.join(ROOT, "example_blends", name + ".blend")
     bpy.ops.wm.open_mainfile(filepath=path, load_ui=False, use_scripts=False)
-    ref = make_reference(bpy, bpy.context.scene, path, SCENES[name][1], say, say)
-    return ref["image"], float(reference_floor(ref["image"], ref["var"]))
+    spp = SCENES[name][1]
+    if isinstance(spp, str):            # a file reference (Mitsuba, LuxCore) in the cache folder
+        from fppm.tools.converge.references import cache_dir, load_reference
+        ref = load_reference(os.path.join(cache_dir(), spp))
+    else:
+        ref = make_reference(bpy, bpy.context.scene, path, spp, say, say)
+    floor = reference_floor(ref["image"], ref["var"]) if ref["var"] is not None else float("nan")
+    return ref["image"], float(floor)
 
 
 def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
