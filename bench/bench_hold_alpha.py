@@ -411,6 +411,8 @@ def main():
                     help="CPU per pass of PPM and FPPM variants, stepped alternately K passes")
     ap.add_argument("--equal-cpu", type=float, default=0.0, metavar="SECONDS",
                     help="relMSE of --methods at equal CPU time, SECONDS each per seed")
+    ap.add_argument("--fractions", default="0.25,0.5,1",
+                    help="--equal-cpu: the fractions of SECONDS the errors are read at")
     ap.add_argument("--equal-passes", type=int, default=0, metavar="K",
                     help="relMSE of --methods after the passes of --report (up to K), same seed")
     ap.add_argument("--signed", type=int, default=0, metavar="K",
@@ -468,7 +470,8 @@ def main():
             return
         methods = a.methods.split(",")
         for seed in [int(x) for x in a.seeds.split(",")]:
-            equal_cpu(scene, base, methods, seed, a.equal_cpu, [0.25, 0.5, 1.0], ref, say)
+            equal_cpu(scene, base, methods, seed, a.equal_cpu,
+                      [float(x) for x in a.fractions.split(",")], ref, say)
         say(f"# load at the end {os.getloadavg()[0]:.1f}")
         return
     t0 = time.process_time()
