@@ -209,8 +209,14 @@ def cycles_reference(name, say):
     bpy_helpers.ensure_registered()
     path = os.path.join(ROOT, "example_blends", name + ".blend")
     bpy.ops.wm.open_mainfile(filepath=path, load_ui=False, use_scripts=False)
-    ref = make_reference(bpy, bpy.context.scene, path, SCENES[name][1], say, say)
-    return ref["image"], float(reference_floor(ref["image"], ref["var"]))
+    spp = SCENES[name][1]
+    if isinstance(spp, str):            # a file reference (Mitsuba, LuxCore) in the cache folder
+        from fppm.tools.converge.references import cache_dir, load_reference
+        ref = load_reference(os.path.join(cache_dir(), spp))
+    else:
+        ref = make_reference(bpy, bpy.context.scene, path, spp, say, say)
+    floor = reference_floor(ref["image"], ref["var"]) if ref["var"] is not None else float("nan")
+    return ref["image"], float(floor)
 
 
 def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
@@ -419,6 +425,8 @@ def main():
                     help="CPU per pass of PPM and FPPM variants, stepped alternately K passes")
     ap.add_argument("--equal-cpu", type=float, default=0.0, metavar="SECONDS",
                     help="relMSE of --methods at equal CPU time, SECONDS each per seed")
+    ap.add_argument("--fractions", default="0.25,0.5,1",
+                    help="--equal-cpu: the fractions of SECONDS the errors are read at")
     ap.add_argument("--equal-passes", type=int, default=0, metavar="K",
                     help="relMSE of --methods after the passes of --report (up to K), same seed")
     ap.add_argument("--signed", type=int, default=0, metavar="K",
@@ -476,7 +484,8 @@ def main():
             return
         methods = a.methods.split(",")
         for seed in [int(x) for x in a.seeds.split(",")]:
-            equal_cpu(scene, base, methods, seed, a.equal_cpu, [0.25, 0.5, 1.0], ref, say)
+            equal_cpu(scene, base, methods, seed, a.equal_cpu,
+                      [float(x) for x in a.fractions.split(",")], ref, say)
         say(f"# load at the end {os.getloadavg()[0]:.1f}")
         return
     t0 = time.process_time()

@@ -46,7 +46,7 @@ class RenderSettings:
     # --- Frequency
     use_frequency: bool = True
     frequency_fraction: float = 0.25
-    frequency_decay: float = 0.5        # pass k: frequency_fraction * k^-decay (docs/method.md "Amortised ...")
+    frequency_decay: float = 2.0        # pass k: frequency_fraction * k^-decay (docs/method.md "Amortised ...", "The frequency schedule ...")
     frequency_model: str = "CORRECTED"  # 'CORRECTED' or 'PAPER'
     frequency_estimator: str = "MIN"    # 'MIN' or 'QUANTILE'
     hold_alpha: float = 0.9             # PPM alpha of a held radius (1 = held forever; docs/method.md)

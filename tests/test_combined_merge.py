@@ -454,4 +454,5 @@ def test_mis_frequency_photons_are_amortised():
         return call(self, *a, **k)
     fp.__class__ = type("Spy", (type(fp),), {"__call__": spy})
     r.run()
-    assert traced == [[(2000, 2000)], [(1414, 1414)], [(1155, 1155)]]
+    # the default frequency_decay 2: round(2,000 x k^-2), in every pass (no doubling schedule)
+    assert traced == [[(2000, 2000)], [(500, 500)], [(222, 222)]]

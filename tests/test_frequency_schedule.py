@@ -22,6 +22,7 @@ from analytic_scenes import point_light_plane
     (0.5, {1: 75_000, 4: 37_500, 9: 0, 16: 18_750, 100: 0, 128: 6_629}),
     (0.0, {1: 75_000, 4: 75_000, 9: 75_000, 100: 75_000}),
     (1.0, {1: 75_000, 4: 18_750, 9: 0, 16: 4_688, 100: 0}),
+    (2.0, {1: 75_000, 2: 18_750, 4: 4_688, 9: 0, 16: 293, 100: 0, 128: 5}),
 ])
 @pytest.mark.parametrize("doubling", [True, False])
 def test_frequency_photons_per_pass(decay, expected, doubling):
@@ -43,6 +44,29 @@ def test_frequency_photons_per_pass(decay, expected, doubling):
         assert sum(f for _, f in chunks) == n_freq
         # The frequency photons come first: a chunk has some only if the one before is full.
         assert all(f0 == n0 for (n0, f0), (_, f1) in zip(chunks, chunks[1:]) if f1)
+
+
+def test_default_schedule():
+    """The default schedule (docs/method.md "The frequency schedule and the
+    first 10 %"): frequency_decay 2 under the doubling schedule, so pass
+    2^j traces 25 % x 4^-j of its photons; with 100,000 photons per pass the
+    passes 1, 2, 4, ..., 128 trace 25,000, 6,250, 1,562, 391, 98, 24, 6 and 2,
+    none from pass 256 on (round(0.38) = 0), 33,333 in all: 1.33 times pass
+    1's, against 81,583 (3.26 times) in the first 256 passes with decay 0.5,
+    whose pass 2^j traces 25 % x 2^(-j/2), still 1,562 in pass 256."""
+    from core.sppm.photon_pass import frequency_photons
+    st = RenderSettings(integrator="PHOTON", photons_per_pass=100_000)
+    assert st.frequency_decay == 2.0 and st.frequency_fraction == 0.25
+    n = {k: frequency_photons(st, k, doubling=True) for k in range(1, 1025)}
+    assert {k: v for k, v in n.items() if v} == {1: 25_000, 2: 6_250, 4: 1_562, 8: 391,
+                                                 16: 98, 32: 24, 64: 6, 128: 2}
+    assert sum(n.values()) == 33_333
+    old = st.replace(frequency_decay=0.5)
+    n_old = [frequency_photons(old, k, doubling=True) for k in range(1, 1025)]
+    assert sum(n_old[:256]) == 81_583 and n_old[255] == 1_562
+    # Combined's merging as an MIS strategy (core/render.py) uses the same
+    # count in every pass, without the doubling schedule.
+    assert [frequency_photons(st, k) for k in (1, 2, 3, 10)] == [25_000, 6_250, 2_778, 250]
 
 
 def test_frequency_passes_double():

@@ -7,7 +7,7 @@ path), and on a render whose prediction is deliberately wrong: a predicted
 radius forced to 10 m across a sharp shadow edge.  The held radius keeps
 shrinking and the error against the closed form keeps falling; with
 hold_alpha = 1 (the paper's rule) the same error stays put.  The render runs
-with the default amortised frequency photons (frequency_decay 0.5: fewer
+with the default amortised frequency photons (frequency_decay 2: fewer
 frequency photons after pass 1, each pixel keeping its last prediction),
 so the forced prediction also persists through passes without one.
 """
