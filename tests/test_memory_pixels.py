@@ -71,11 +71,16 @@ def test_one_first_hit_rule_for_the_camera_pass_and_the_estimate(monkeypatch):
 def test_estimate_bounds_a_photon_render_without_first_hits():
     # 512^2 PHOTON passes (20k photons), peak growth after the kernels are
     # loaded against the estimate of what the passes allocate.  Measured
-    # (shared machine, load 15-25): growth 127-132 MiB, estimate / growth
-    # 2.07 (the bound covers the numpy light sampler and delta chains at
+    # (shared machine, load 2-9, the next pass's photons traced early):
+    # growth 145-160 MiB, estimate / growth 1.7-1.9 (the bound covers the numpy light sampler and delta chains at
     # every pixel, which this scene does not have).
-    r = subprocess.run([sys.executable, "-c", MEASURE], cwd=ROOT, capture_output=True,
-                       text=True, timeout=300)
+    # Twice, the first run discarded: kernels that only a 512^2 pass takes
+    # (the parallel variants of the grid build and the update) are compiled
+    # there if the cache lacks them, and LLVM's memory would count in the
+    # peak (a cold cache read 244-266 MiB of growth instead of 123-160).
+    for _ in range(2):
+        r = subprocess.run([sys.executable, "-c", MEASURE], cwd=ROOT, capture_output=True,
+                           text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     rec = json.loads(r.stdout.strip().splitlines()[-1])
     assert rec["first"] is False
