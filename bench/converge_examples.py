@@ -82,19 +82,21 @@ NOTES = [
     "photons only in passes 1, 2, 4, 8, ...; FPPM tracing PPM's own photons; the occlusion march's "
     "end-plane fix), load average 4 to 6.  COMBINED was not re-run: its earlier row (120 CPU s, 4 "
     "seeds, 310a884) read 0.75x PPM; combined.png is that run's image.",
-    "indirect_room: `indirect_room --budget 60 --seeds 2 --methods fppm,ppm,appm,cppm` and then "
-    "`--methods combined,light,cycles` (the two CSVs joined, the report rebuilt with --rereport: "
-    "the bias/noise table holds the second run's methods) on 1bc5e45 (rule set X as FPPM's "
-    "default, docs/method.md 'X as the default'; a new 8192-spp Cycles reference, this "
-    "machine's cache having lost the old one, floor 1.1e-3 again), load average 1 to 10, 0.88 to "
-    "1.0 cores per method.  Every photon mapper's excess error (5.7e-4 to 1.4e-3) lies below 3x "
-    "the reference's floor: the ratios are flagged 'near floor'; the raw relMSE ratios are "
-    "given beside them in the README.",
-    "principled_interior: `principled_interior --budget 60 --seeds 2 --methods fppm,ppm,appm,cppm` "
-    "and then `--methods combined,light,cycles` (the two CSVs joined, the report rebuilt with "
-    "--rereport: the bias/noise table holds the second run's methods) on 1bc5e45 (rule set X as "
-    "FPPM's default), load average 1 to 10.  Before X (8b808e2) FPPM read 0.86x PPM and 1.89x "
-    "CPPM.",
+    "indirect_room: 4 seeds, `indirect_room --budget 60 --seeds 4 --methods fppm` on 7f7d265 "
+    "(frequency_decay 2, the next pass's photons traced early, the gather without reference "
+    "counts; load average 1.5 to 4) and `--methods ppm,appm,cppm` on the same code "
+    "(load average 2 to 3), joined with COMBINED, LIGHT and Cycles from the 2-seed run on "
+    "1bc5e45 (the CSVs joined, the report rebuilt with --rereport: the bias/noise table holds the "
+    "ppm/appm/cppm run's methods).  The 8192-spp Cycles reference's floor is 1.1e-3, and every "
+    "photon mapper's excess error (4.6e-4 to 1.4e-3) lies below 3x it: the ratios are flagged "
+    "'near floor'; the raw relMSE ratios are given beside them in the README.  A run of "
+    "ppm,appm,cppm on 3b5efc2 at load average 9 to 15 was not used: its PPM did 196-207 passes "
+    "in 60 CPU s against 154-186 at load 2-3 here, and 329-375 against 390-417 in the "
+    "principled interior (a pass's CPU moves with the load, in either direction).",
+    "principled_interior: 4 seeds, the same runs and joins as indirect_room (FPPM on 7f7d265 at "
+    "load average 1.5 to 4, PPM/APPM/CPPM at load 2 to 3, COMBINED, LIGHT and Cycles the 2-seed "
+    "run on 1bc5e45, before frequency_decay 2).  Before X (8b808e2) FPPM read 0.86x PPM and 1.89x "
+    "CPPM; on 1bc5e45 (X, 2 seeds) 0.48x and 1.18x.",
     "ring_principled: `ring_principled --budget 30 --seeds 4 --methods fppm,ppm` on 1bc5e45 (rule "
     "set X; FPPM's set-up 0.14 s, 0.30 s before), load average 1 to 6; COMBINED and Cycles from "
     "the earlier 2-seed run on a434914 (their images here are that run's).",
