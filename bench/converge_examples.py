@@ -97,9 +97,11 @@ NOTES = [
     "load average 1.5 to 4, PPM/APPM/CPPM at load 2 to 3, COMBINED, LIGHT and Cycles the 2-seed "
     "run on 1bc5e45, before frequency_decay 2).  Before X (8b808e2) FPPM read 0.86x PPM and 1.89x "
     "CPPM; on 1bc5e45 (X, 2 seeds) 0.48x and 1.18x.",
-    "ring_principled: `ring_principled --budget 30 --seeds 4 --methods fppm,ppm` on 1bc5e45 (rule "
-    "set X; FPPM's set-up 0.14 s, 0.30 s before), load average 1 to 6; COMBINED and Cycles from "
-    "the earlier 2-seed run on a434914 (their images here are that run's).",
+    "ring_principled: `ring_principled --budget 60 --seeds 4 --methods fppm,ppm` on 935d233 (rule "
+    "set X, frequency_decay 2), load average 1.5 to 2.5; COMBINED and Cycles images from "
+    "the earlier 2-seed run on a434914.  The 30 CPU s run on 1bc5e45 read FPPM / PPM 1.15 at 10 % "
+    "and 1.05 at 100 %.  The passes a method made in 60 CPU s spread by 25 % between processes "
+    "(FPPM 377-494, PPM 464-488): seed 0's FPPM made 377, the worst fraction's 1.32.",
     "point_caustic: `point_caustic --budget 30 --seeds 4 --methods fppm,ppm,light,combined` on "
     "ca52af9 (COMBINED's Camera Depth Auto Direct where the camera sees no glass under point "
     "lights; docs/integrators.md \"The point caustic\"), load average 3 to 6, against the "
@@ -109,8 +111,9 @@ NOTES = [
     "per method), after their Cycles references were made (8192 spp).  None of them includes the reach map of the frequency photons or the "
     "camera and direct stages in blocks, merged after them, nor the kernel clipped at walls (on by default since; it changes every photon mapper's row, the rings' most: README).  The default 120 CPU s and 4 seeds "
     "did not fit a session (about 4 hours of an idle machine for every scene and method).",
-    "glass_sphere: `glass_sphere --budget 30 --seeds 4 --methods fppm,ppm,combined,light` on "
-    "c330335 (load average 4 to 11, 0.55 to 0.65 cores per method; PATH not run: 1.57 relMSE at 30 CPU s before), against "
+    "glass_sphere: `glass_sphere --budget 30 --seeds 4 --methods fppm,ppm,combined` on 935d233 "
+    "(frequency_decay 2; load average 1.5 to 2.5), joined with LIGHT from the run on c330335 "
+    "(`--methods fppm,ppm,combined,light`, load average 4 to 11, 0.55 to 0.65 cores per method; PATH not run: 1.57 relMSE at 30 CPU s before); both against "
     "a reference composed of LuxCore's light tracer (the spot) and path tracer (the world) "
     "where the camera sees a diffuse surface first and Cycles' 4096-spp render where it may "
     "see the glass first (bench/luxcore_reference.py compose; floor 1.8e-3, 7x below the "
@@ -118,7 +121,7 @@ NOTES = [
     "Cycles', docs/peers.md 'The glass sphere's composed reference').  LuxCore's VCM "
     "reference (floor 1.2e-3) was not kept: its bidirectional engines are biased with the "
     "translation's spot (+17 % in the dim region; docs/peers.md 'Why LuxCore's VCM is bright "
-    "on the glass sphere').  Every excess (1.9e-2 to 3.6e-2) is now 10-20x the floor.  Seed 3 is an outlier of every photon mapper (FPPM 6.8e-2, PPM 6.7e-2, COMBINED 4.9e-2 relMSE against 1.0e-2 to 1.3e-2 on seeds 0-2; FPPM and PPM share their photons), 14 % of it in the 220 caustic pixels and 84 % outside the three regions (edges, the sphere): the means and COMBINED's 0.81x FPPM follow it.  On seeds 0-2 FPPM / PPM is 1.03, 1.02, 1.15 and COMBINED / FPPM 1.02, 1.31, 0.88 (raw relMSE at 30 CPU s).",
+    "on the glass sphere').  Every excess (1.9e-2 to 3.6e-2) is now 10-20x the floor.  Seed 3 is an outlier of every photon mapper (FPPM 6.8e-2, PPM 6.7e-2, COMBINED 4.9e-2 relMSE against 1.0e-2 to 1.3e-2 on seeds 0-2; FPPM and PPM share their photons), 14 % of it in the 220 caustic pixels and 84 % outside the three regions (edges, the sphere): the means and COMBINED's 0.81x FPPM follow it.  On seeds 0-2 FPPM / PPM is 1.03, 1.02, 1.15 and COMBINED / FPPM 1.02, 1.31, 0.88 (raw relMSE at 30 CPU s).  That seed-3 paragraph is the c330335 run's.",
     "coffee_cup: `coffee_cup --budget 30 --seeds 2 --methods fppm,ppm,light,combined` on "
     "e64549a (load average 5 to 6, 0.68 to 1.0 cores per method; PATH not run: 6.6 relMSE "
     "before), against LuxCoreRender's VCM (bench/luxcore_reference.py, "
