@@ -163,6 +163,9 @@ def _live_arrays(n: int) -> list:
 #: allocated; np.zeros((n, 3)) cost ~3 ms a 131k-photon chunk in calloc's
 #: memset and page faults, docs/architecture.md "Photon trace against raw Embree").
 _NO_SPECTRUM = np.zeros(3)
+#: spectrum_at_hits' ``left`` without a deposit budget (not read): no (K,)
+#: array a bounce on the default path (freq_deposits = 0).
+_NO_BUDGET = np.ones(1, np.int32)
 
 
 class _Deposits:
@@ -515,8 +518,10 @@ class PhotonTracer:
         # the geometric normal of the surface each frequency photon leaves
         # (zeros: the emitter): the march does not take it for an occluder
         ng0 = np.zeros((Kf, 3))
-        # counted deposits each frequency row may still predict at (freq_deposits)
-        left = np.full(Kf, max(int(self.freq_deposits), 1), np.int32)
+        # counted deposits each frequency row may still predict at (only
+        # with a budget, freq_deposits > 0)
+        left = (np.full(Kf, int(self.freq_deposits), np.int32) if self.freq_deposits > 0
+                else None)
         caustic = self.after_delta_only
         # Hit records: frequency photons' chains, and the delta flag of the
         # scattering each survivor sampled (caustic photons).
@@ -794,7 +799,8 @@ class PhotonTracer:
         reach = self.reach                   # once: the flag and the map agree
         chain = self.chain_params()._replace(gate=reach is not None)
         if left is None:
-            left = np.ones(rows.K, np.int32)
+            # no budget: the kernel reads left only when chain.deposits > 0
+            left = _NO_BUDGET
             chain = chain._replace(deposits=0)
         out, _ = FK.spectrum_at_hits(chain, rows, spec, seg, rec, self.march,
                                      dep.buf, self._NO_REACH if reach is None else reach,
