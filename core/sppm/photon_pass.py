@@ -276,6 +276,9 @@ class PhotonPass:
         # carried on with them (trace_ahead).
         self._next = None
         self.next_adopted = 0
+        # Futures of dropped chunks still running (_drop(wait=False)): the
+        # next trace_ahead waits for them before its own chunks queue.
+        self._orphans = []
         # The 1-based index of the pass being traced (its share of frequency
         # photons, frequency_photons); the renderer sets it to its own count.
         self.next_pass = lambda: 1
@@ -352,7 +355,7 @@ class PhotonPass:
         the gather.  A call with that rng carries on with what was started;
         a call with another drops it."""
         self._drop_ahead()
-        orphans, self._orphans = getattr(self, "_orphans", []), []
+        orphans, self._orphans = self._orphans, []
         for f in orphans:                   # a dropped render's chunk, still running
             f.exception()
         nxt, self._next = self._next, None
@@ -426,7 +429,7 @@ class PhotonPass:
             f.cancel()
         running = [f for f in futures if not f.cancelled()]
         if not wait:
-            self._orphans = getattr(self, "_orphans", []) + running
+            self._orphans = self._orphans + running
             return
         for f in running:
             f.exception()
