@@ -104,7 +104,19 @@ def main():
                     help="photon_pass.AHEAD_CHUNKS (default: the module's)")
     ap.add_argument("--no-next", action="store_true",
                     help="photon_pass.TRACE_NEXT_PASS = False (each pass starts its own trace)")
+    ap.add_argument("--min-vps", type=int, default=None,
+                    help="hashgrid.PARALLEL_MIN_VPS (default: the module's)")
+    ap.add_argument("--build-min-vps", type=int, default=None,
+                    help="hashgrid.BUILD_PARALLEL_MIN_VPS (default: the module's)")
+    ap.add_argument("--switch-ms", type=float, default=None,
+                    help="sys.setswitchinterval in ms (default: Python's)")
     a = ap.parse_args()
+    if a.min_vps is not None:
+        Hg.PARALLEL_MIN_VPS = a.min_vps
+    if a.build_min_vps is not None:
+        Hg.BUILD_PARALLEL_MIN_VPS = a.build_min_vps
+    if a.switch_ms is not None:
+        sys.setswitchinterval(a.switch_ms * 1e-3)
     from core.sppm import photon_pass as PP
     if a.ahead is not None:
         PP.AHEAD_CHUNKS = a.ahead
@@ -120,6 +132,7 @@ def main():
     # the calls of Renderer.step and PhotonPass.__call__, in their order
     for obj, name, label in (
             (r, "step", "step"), (pp, "trace_ahead", "trace_ahead"),
+            (r, "_interruptible", "thread"),
             (memory, "release_free_heap", "release_free_heap"), (r, "camera_pass", "camera"),
             (r, "direct_light", "direct"), (r.radii, "initialise", "radius_init"),
             (r.tracer, "set_radius_cut", "set_radius_cut"), (pp, "_zero_sums", "zero_sums"),
