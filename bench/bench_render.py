@@ -1007,7 +1007,7 @@ def _alive_probe(r):
 
 def pass_one(a):
     """One resolution of --pass, in this process."""
-    from core import memory
+    from core import memory, warmup
     w, h = (int(x) for x in a.pass_one.split("x"))
     rss0 = memory.resident_bytes()
     r = Renderer(cornell(w, height=h), RenderSettings(integrator="PHOTON", max_passes=1000,
@@ -1098,6 +1098,13 @@ def pass_one(a):
         f"{n} {b / 2**20:.0f} MiB" for n, b in alive.items()))
     print(f"    peak resident (VmHWM) {hwm / 2**30:.2f} GiB, growth from before the Renderer "
           f"{(hwm - rss0) / 2**20:.0f} MiB ({(hwm - rss0) / (w * h):.0f} B a pixel)")
+    # A kernel compiled here (its cache entry missing or overwritten by
+    # another version of its module: the cache is shared by module name,
+    # core/_numba_cache.py) leaves numba's compiler in the peak
+    # (docs/architecture.md "The 1080p peak: kernels compiled in the pass").
+    n_comp = warmup.compiled_count()
+    print(f"    kernels compiled in this process (numba cache misses): {n_comp}"
+          + (" -- the peak includes numba's compiler, not the render's alone" if n_comp else ""))
     kb = r.photon_pass._grid_kept
     print(f"    grid build's kept buffers (hashgrid.build_grid(buffers=)): {kb.allocations} "
           f"allocated, {kb.reused} takes reused, {kb.nbytes() / 2**20:.0f} MiB reserved "
