@@ -105,18 +105,11 @@ def main():
     ap.add_argument("--no-next", action="store_true",
                     help="photon_pass.TRACE_NEXT_PASS = False (each pass starts its own trace)")
     ap.add_argument("--min-vps", type=int, default=None,
-                    help="hashgrid.PARALLEL_MIN_VPS (default: the module's)")
-    ap.add_argument("--build-min-vps", type=int, default=None,
-                    help="hashgrid.BUILD_PARALLEL_MIN_VPS (default: the module's)")
-    ap.add_argument("--switch-ms", type=float, default=None,
-                    help="sys.setswitchinterval in ms (default: Python's)")
+                    help="hashgrid.PARALLEL_MIN_VPS: the grid build's (and its insertion's, "
+                         "by active VPs), records' and fold's threads (default: the module's)")
     a = ap.parse_args()
     if a.min_vps is not None:
         Hg.PARALLEL_MIN_VPS = a.min_vps
-    if a.build_min_vps is not None:
-        Hg.BUILD_PARALLEL_MIN_VPS = a.build_min_vps
-    if a.switch_ms is not None:
-        sys.setswitchinterval(a.switch_ms * 1e-3)
     from core.sppm import photon_pass as PP
     if a.ahead is not None:
         PP.AHEAD_CHUNKS = a.ahead

@@ -218,7 +218,6 @@ class _split_paths:
     update, film)."""
     _LIMITS = (("scene.camera", "PARALLEL_MIN"), ("sppm.update", "PARALLEL_MIN"),
                ("sppm.film", "PARALLEL_MIN"), ("sppm.hashgrid", "PARALLEL_MIN_VPS"),
-               ("sppm.hashgrid", "BUILD_PARALLEL_MIN_VPS"),
                ("sppm.visible_points", "INTERSECT_SPLIT_MIN"))
 
     def __init__(self, on: bool):

@@ -113,7 +113,7 @@ def _vps(K, seed):
     (3000, "auto", None), (3000, "dense", None), (3000, "hash", None),
     (3000, "hash", 6), (9000, "auto", None), (9000, "hash", 9)])
 def test_parallel_grid_build_equals_serial(K, layout, log2_table, monkeypatch):
-    monkeypatch.setattr(Hg, "BUILD_PARALLEL_MIN_VPS", 4096)    # 9000 VPs: split
+    monkeypatch.setattr(Hg, "PARALLEL_MIN_VPS", 4096)    # 9000 VPs: split
     p, R, active = _vps(K, K)
     if log2_table == 9:
         R[10] = 40.0 / np.sqrt(K)         # > _DEDUP_SCAN of its cells share 512 slots
@@ -137,7 +137,7 @@ def test_grid_build_with_more_threads_than_sort_groups(threads, monkeypatch):
     range is split by slots too; the grid is still the oracle's, bit for bit
     (the thread count is the build's chunk count: any number runs on the
     machine's threads)."""
-    monkeypatch.setattr(Hg, "BUILD_PARALLEL_MIN_VPS", 4096)
+    monkeypatch.setattr(Hg, "PARALLEL_MIN_VPS", 4096)
     monkeypatch.setattr(Hg.numba, "get_num_threads", lambda: threads)
     p, R, active = _vps(9000, threads)
     R[10] = 40.0 / np.sqrt(9000)

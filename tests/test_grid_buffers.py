@@ -56,7 +56,7 @@ def test_reused_buffer_counts_its_alignment_offset():
 @pytest.mark.parametrize("layout,split", [("hash", False), ("dense", False), ("auto", True)])
 def test_grid_from_kept_buffers_is_the_same_grid(layout, split, monkeypatch):
     if split:                                  # 9000 VPs: the threaded build
-        monkeypatch.setattr(Hg, "BUILD_PARALLEL_MIN_VPS", 4096)
+        monkeypatch.setattr(Hg, "PARALLEL_MIN_VPS", 4096)
     kb = KeptBuffers()
     for seed in (3, 4, 5):
         c = random_case(seed, K=9000 if split else 1500, P=10)

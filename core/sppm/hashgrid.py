@@ -112,12 +112,7 @@ COS_NG_DEFAULT = 0.5          # cos(60 deg): photon / VP surface orientation tes
 CELL_FACTOR = 1.5             # h = CELL_FACTOR * median active radius
 ENTRY_BUDGET_PER_VP = 64      # clamp: mean cell entries per active VP
 PARALLEL_MIN_PHOTONS = 50_000  # below this, thread start-up outweighs the split
-PARALLEL_MIN_VPS = 1 << 18      # records, fold: below this many VPs, one thread
-# build_grid: below this many VPs, one thread.  Lower than the records' and
-# the fold's: the build is on the pass's critical path (nothing but the
-# photons traced ahead beside it), so its split pays from 256²
-# (docs/architecture.md "Cores used at 256²: the grid build in threads").
-BUILD_PARALLEL_MIN_VPS = 1 << 16
+PARALLEL_MIN_VPS = 1 << 18      # build_grid: below this many VPs, one thread
 # gather's photon sort: a counting sort over the table's slots up to this
 # many slots a photon, a merge sort of the photons' slots above (_sort_photons).
 COUNT_SORT_SLOTS_PER_PHOTON = 8
@@ -1237,12 +1232,6 @@ _bbox_cells_serial = serial_twin(_bbox_cells)
 _median_serial = serial_twin(_median_parallel)
 
 
-def build_threads(K: int, parallel: bool = True) -> int:
-    """The numba threads build_grid uses for K visible points (1: its serial
-    twins, below BUILD_PARALLEL_MIN_VPS)."""
-    return numba.get_num_threads() if (parallel and K >= BUILD_PARALLEL_MIN_VPS) else 1
-
-
 def start_dtype(entry_bound: int):
     """The dtype of Grid.cell_start (and of the build's cursors) for at most
     entry_bound entries: int32 while it fits (the table of about one slot
@@ -1263,7 +1252,7 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     (before the entry-budget clamp).  layout: 'auto', 'dense' or 'hash';
     log2_table forces a hash table of 2**log2_table slots (tests use tiny
     tables to exercise collisions).  parallel: numba threads from
-    BUILD_PARALLEL_MIN_VPS VPs (False: one thread; the same grid).  buffers: the
+    PARALLEL_MIN_VPS VPs (False: one thread; the same grid).  buffers: the
     grid's arrays and the build's temporaries are carved from these kept
     buffers (core.kept.KeptBuffers: "grid_R", "grid_act", "grid",
     "grid_tmp"), reused from the last build when nothing holds its grid
@@ -1280,7 +1269,7 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
     K = vp_pos.shape[0]
     vp_R = np.ascontiguousarray(vp_R, dtype=np.float64).reshape(K)
     active = np.asarray(active, dtype=bool).reshape(K)
-    T = build_threads(K, parallel)
+    T = numba.get_num_threads() if (parallel and K >= PARALLEL_MIN_VPS) else 1
     kb = KeptBuffers() if buffers is None else buffers
     # The camera and direct-light stages' freed pixel-sized temporaries stay
     # resident in glibc's heap: hand them back before the build's own arrays
@@ -1328,7 +1317,7 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
 
     # est bounds the entries (a VP's cells are among its bounding box's):
     # room for est of them, the pages past the E written are never touched.
-    parallel_insert = n_active >= BUILD_PARALLEL_MIN_VPS and T > 1
+    parallel_insert = n_active >= PARALLEL_MIN_VPS and T > 1
     split = (int(_part_split(T, vp_pos, act, origin, inv_h, dense, nx, ny, nz, shift, n_slots))
              if parallel_insert else n_slots)
     cell_start, vp_ids = kb.take("grid", [((n_slots + 1,), start_dtype(est)),
