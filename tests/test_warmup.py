@@ -90,8 +90,8 @@ def test_every_cached_kernel_has_an_index_file_of_its_own():
     assert len(owners) > 50
     assert not shared, shared
     from fppm.core.sppm import hashgrid as Hg
-    assert Hg._insert_parallel.targetoptions.get("parallel") is True
-    assert not Hg._insert_serial.targetoptions.get("parallel")
+    assert Hg._active_extent.targetoptions.get("parallel") is True
+    assert not Hg._active_extent_serial.targetoptions.get("parallel")
 
 
 def test_cache_dir_order(tmp_path, monkeypatch):

@@ -461,9 +461,40 @@ def _insert_parallel(n_chunks, pos, R_ins, active, origin, h, inv_h, dense, nx, 
     return E
 
 
-#: The same build compiled without ``parallel`` (small grids: a parallel
-#: region's thread hand-off costs more than their build).
-_insert_serial = serial_twin(_insert_parallel)
+@njit(cache=True)
+def _insert_one_pass(pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, shift, n_slots,
+                     cap, off, ent_slot, cell_start, vp_ids):
+    """_insert_parallel's grid on one thread (build_grid below
+    PARALLEL_MIN_VPS VPs), each VP's cells found once:
+    with one part nothing needs a VP's entry count before its entries are
+    written (ent_slot has room for the bounding-box bound), so the slots
+    are appended in VP order and counted as they are written, then
+    counting-sorted by slot as there.  The same cell_start and vp_ids (the
+    VPs of a slot ascending); returns E.  off (K + 1,) int64: each VP's
+    first entry.  _insert_parallel on one chunk finds every VP's cells
+    twice (count, then fill), twice the time."""
+    K = pos.shape[0]
+    buf = np.empty(cap, np.int64)
+    cell_start[:] = 0
+    e = 0
+    off[0] = 0
+    for v in range(K):
+        if active[v]:
+            n = _vp_cells(v, pos, R_ins, origin, h, inv_h, dense, nx, ny, nz, shift, buf)
+            for i in range(n):
+                s = buf[i]
+                ent_slot[e] = s
+                cell_start[s + 1] += 1
+                e += 1
+        off[v + 1] = e
+    _slot_cursors(0, n_slots, 0, cell_start)
+    for v in range(K):
+        for j in range(off[v], off[v + 1]):
+            s = ent_slot[j]
+            q = cell_start[s + 1]
+            vp_ids[q] = v
+            cell_start[s + 1] = q + 1
+    return e
 
 
 @njit(cache=True)
@@ -1327,7 +1358,11 @@ def build_grid(vp_pos: np.ndarray, vp_R: np.ndarray, active: np.ndarray,
         ((est,), np.int32 if n_slots < 2**31 else np.int64)])
     args = (vp_pos, R_ins, act, origin, h, inv_h, dense, nx, ny, nz, shift, n_slots, split,
             int(cap), off, low, ent_slot, cell_start, vp_ids)
-    E = (_insert_parallel(T, *args) if parallel_insert else _insert_serial(1, *args))
+    if parallel_insert:
+        E = _insert_parallel(T, *args)
+    else:
+        E = _insert_one_pass(vp_pos, R_ins, act, origin, h, inv_h, dense, nx, ny, nz, shift,
+                             n_slots, int(cap), off, ent_slot, cell_start, vp_ids)
     return Grid(K, n_active, origin, h, inv_h, lo, hi, bool(dense), dims,
                 0 if dense else log2_table, cell_start, vp_ids[:int(E)], R_ins)
 
