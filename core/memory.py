@@ -65,6 +65,14 @@ Per-item costs are upper bounds measured with peak RSS (docs/reliability.md,
   buffers -> KERNEL_BYTES (measured: 110 MiB between the estimate and the
   peak of a 64^2 render of 2000 photons, with every other part ~60 MiB)
 
+Kernels compiled in the process after the estimate are not counted: a
+render loads its kernels before the Renderer exists (core.warmup: a
+subprocess compiles them), so ``resident`` holds them; a process without
+that warm-up (the benches, the tests) compiles at its first pass when the
+shared kernel cache misses, and numba's compiler then stays in its heap
+(docs/architecture.md "The 1080p peak: kernels compiled in the measuring
+process").
+
 The costs count the pages an array touches: the Renderer builds and runs
 its passes without numpy's huge-page advice (:func:`small_pages`), under
 which a partly touched array or reused heap range is resident in 2 MiB
