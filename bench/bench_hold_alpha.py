@@ -162,7 +162,11 @@ def method_settings(base, method):
             k, v = kv.split("=")
             if k == "keep" or k in RADII_KEYS or k in TRACER_KEYS:   # planes_or, radii_variant
                 continue
-            over[k] = type(getattr(base, k))(float(v) if isinstance(getattr(base, k), float) else v)
+            cur = getattr(base, k)
+            if isinstance(cur, bool):       # 'verify_holds=0': bool("0") would be True
+                over[k] = v.lower() in ("1", "true", "yes")
+            else:
+                over[k] = type(cur)(float(v) if isinstance(cur, float) else v)
     return base.replace(**over)
 
 
@@ -170,7 +174,7 @@ def method_settings(base, method):
 RADII_KEYS = {"power": "hold_min_expected", "release": "release_alpha", "top2": "hold_max_top2",
               "or": "hold_uniform", "orE": "uniform_min_expected", "crit": "uniform_critical",
               "grow": "grow", "growE": "grow_min_expected",
-              "hmax": "hold_alpha_spectrum"}
+              "hmax": "hold_alpha_spectrum", "share": "hold_share_min"}
 
 
 #: Method-name keys of :func:`planes_or` and the PhotonTracer attribute each
@@ -291,6 +295,16 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
     gathered per pass (passes 3..) relative to PPM."""
     from fppm.tools.metrics import region_masks
     masks = region_masks(ref)
+    for m in methods:
+        # Warm-up (not timed), as in equal_cpu: the first pass of a method
+        # loads its numba kernels, which would be charged to its pass 1 or 2
+        # and to the first frequency pass.
+        w = Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=4,
+                                                             photons_per_pass=2000),
+                     log=lambda s: None)
+        radii_variant(w, m)
+        for _ in range(4):
+            w.step()
     rs = {m: Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=passes),
                       log=lambda s: None) for m in methods}
     for m in methods:
@@ -301,13 +315,16 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
         planes_or(rs[m], m)
     cpu = {m: [] for m in methods}
     gathered = {m: [] for m in methods}
+    stages = {m: [] for m in methods}       # per pass: the renderer's stage clocks (wall)
     out = {}
     for p in range(1, passes + 1):
         for m in methods:
+            s0 = dict(rs[m].stage_seconds)
             c0 = time.process_time()
             res = rs[m].step()
             cpu[m].append(time.process_time() - c0)
             gathered[m].append(rs[m].state.M_last.sum())
+            stages[m].append({c: t - s0[c] for c, t in rs[m].stage_seconds.items()})
             if p in report:
                 img = np.asarray(res.image[..., :3], np.float64)
                 out[m, p] = (relmse(img, ref), {k: relmse(img, ref, v) for k, v in masks.items()},
@@ -325,6 +342,19 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
         c, g = np.mean(cpu[m][2:]), np.mean(gathered[m][2:])
         say(f"seed {seed} {m:>18}: CPU per pass {1e3 * c:.0f} ms ({c / c_ppm:.3f} x PPM), "
             f"photons gathered per pass {g:.3g} ({g / g_ppm:.3f} x PPM)")
+    # where a pass's time goes (wall clocks of the stages, interleaved, so
+    # the load drifts over every method alike): passes 3..16 and 17..
+    for lo, hi in ((2, min(16, passes)), (16, passes)):
+        if hi <= lo:
+            continue
+        for m in methods:
+            c = np.mean(cpu[m][lo:hi])
+            st = {k: np.mean([s[k] for s in stages[m][lo:hi]]) for k in stages[m][0]}
+            ref_st = {k: np.mean([s[k] for s in stages["ppm"][lo:hi]]) for k in stages["ppm"][0]}
+            say(f"seed {seed} passes {lo + 1}-{hi} {m:>18}: CPU {1e3 * c:.1f} ms "
+                f"({c / np.mean(cpu['ppm'][lo:hi]):.3f} x PPM); stage wall ms (- PPM's): "
+                + ", ".join(f"{k} {1e3 * v:.1f} ({1e3 * (v - ref_st[k]):+.1f})" for k, v in st.items())
+                + f"; gathered {np.mean(gathered[m][lo:hi]) / np.mean(gathered['ppm'][lo:hi]):.3f} x PPM")
     # the passes 4, 8, 16, ... alone: those that trace frequency photons under
     # the doubling schedule (photon_pass.frequency_pass); FPPM over PPM there
     from fppm.core.sppm.photon_pass import frequency_pass

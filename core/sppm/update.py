@@ -126,6 +126,15 @@ GROW_MIN_EXPECTED = CHI2_MIN_EXPECTED
 #: R_k -> 0 still (docs/method.md "What the spectrum adds over the counts":
 #: measured, not the default).
 HOLD_ALPHA_SPECTRUM = 0.0
+#: The holds left out where they hold almost nothing (docs/method.md "Where
+#: FPPM's extras do not pay"): after the update of pass HOLD_SHARE_PASS (the
+#: frequency passes 1, 2 and 4 done), a photon-mapping render in which fewer
+#: than HOLD_SHARE_MIN of the pixels with a radius hold renders on as plain
+#: PPM -- no frequency photons, no sector counts, every radius at the alpha
+#: rate from the one it has.  Measured at 64x64: the rings hold 10-12 % of
+#: their pixels, every other example scene 47-99 %.  0: never.
+HOLD_SHARE_PASS = 4
+HOLD_SHARE_MIN = 0.25
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
 
@@ -278,6 +287,14 @@ class Radii:
         self.uniform_critical = CHI2_CRITICAL
         self.uniform_min_expected = UNIFORM_MIN_EXPECTED
         self.hold_alpha_spectrum = HOLD_ALPHA_SPECTRUM
+        # leave_out_holds: the share of held pixels below which the holds are
+        # left out after pass HOLD_SHARE_PASS (photon mapping with verified
+        # frequency holds only: COMBINED's merging keeps its own rule), and
+        # why they were (None: they were not).
+        self.hold_share_min = (HOLD_SHARE_MIN if frequency and settings.integrator == "PHOTON"
+                               and settings.verify_holds and settings.radius_rule == "PPM"
+                               else 0.0)
+        self.holds_left_out = None
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
         """Set state.R2 of the pixels whose first visible point this is (R2 == 0)
@@ -314,6 +331,27 @@ class Radii:
             r = np.minimum(r, self.edge_cap(check_stop)[new])
         r = np.maximum(r, self.floor)
         state.R2[new] = r * r
+
+    def leave_out_holds(self, state, k: int) -> "str | None":
+        """After the update of pass k: leave the holds out when k is
+        HOLD_SHARE_PASS and fewer than ``hold_share_min`` of the pixels with
+        a radius held in it (:meth:`drop_holds`); the reason, once, else None."""
+        if self.holds_left_out is not None or self.hold_share_min <= 0 or k != HOLD_SHARE_PASS:
+            return None
+        has = state.R2 > 0
+        share = float(np.count_nonzero(state.held & has)) / max(int(np.count_nonzero(has)), 1)
+        if share >= self.hold_share_min:
+            return None
+        self.drop_holds(f"{100 * share:.0f} % of the pixels held after pass {k}, below "
+                        f"{100 * self.hold_share_min:.0f} %: plain PPM from pass {k + 1}")
+        return self.holds_left_out
+
+    def drop_holds(self, why: str) -> None:
+        """From the next update on, the PPM rule alone: no prediction kept, no
+        sector counts read (the state keeps its array, unread, for checkpoints)."""
+        self.holds_left_out = why
+        self.frequency = False
+        self.keep_predictions = False
 
     def edge_cap(self, check_stop=lambda: None) -> np.ndarray:
         """(P,) float64 cap on each pixel's initial radius [m] (inf = none):
@@ -354,11 +392,12 @@ class Radii:
         rule = self.settings.radius_rule
         if self.keep_predictions:
             r_pred = kept_prediction(r_pred, state.r_pred_last, self.keep_minimum)
-        if rule == "PPM" and self.compiled and (state.sectors is None) == (sectors is None):
-            self._update_compiled(state, M, Phi, r_pred, sectors)
+        left_out = self.holds_left_out is not None
+        if rule == "PPM" and self.compiled and (left_out or (state.sectors is None) == (sectors is None)):
+            self._update_compiled(state, M, Phi, r_pred, None if left_out else sectors)
             return
         S = None
-        if state.sectors is not None and sectors is not None:
+        if state.sectors is not None and sectors is not None and not left_out:
             S = state.sectors + sectors
         # APPM / CPPM keep a radius (r_pred = R: the hold rate) where the MSE
         # optimum is not smaller (no curvature seen) / the test accepts.
@@ -426,7 +465,7 @@ class Radii:
         st = self.settings
         none = np.zeros((P, 0))
         a = UpdateArrays(state.N, state.R2, state.tau, state.held,
-                         none if state.sectors is None else state.sectors,
+                         none if state.sectors is None or sectors is None else state.sectors,
                          np.ascontiguousarray(M, np.float64),
                          np.ascontiguousarray(Phi, np.float64),
                          np.ascontiguousarray(r_pred, np.float64),
