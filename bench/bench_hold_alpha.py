@@ -95,6 +95,28 @@ def run(scene, st, passes):
     return np.stack(imgs), np.array(cpu), held
 
 
+def settle(r):
+    """Wait for the chunks r's photon pass has started tracing for its next
+    pass (PhotonPass.trace_ahead's then=: a pass whose successor traces no
+    frequency photon queues the successor's chunks as its own last chunk is
+    traced).  They run in a thread on after step() returns, and
+    time.process_time is the whole process's: unwaited, their CPU is billed
+    to whichever renderer steps next (docs/method.md "Where FPPM's extras do
+    not pay").  Waiting leaves them queued for the next pass: the same bits."""
+    nxt = getattr(getattr(r, "photon_pass", None), "_next", None)
+    if nxt is not None:
+        for f in list(nxt[1]):
+            f.exception()
+
+
+def step_cpu(r):
+    """(r.step()'s result, its CPU seconds with its trace-ahead settled)."""
+    c0 = time.process_time()
+    res = r.step()
+    settle(r)
+    return res, time.process_time() - c0
+
+
 def ppm_at_cpu(err, cpu, t):
     """PPM's relMSE at CPU time t: log-log interpolation over its passes, or,
     beyond its last pass, the power law of its last octave of passes
@@ -116,9 +138,7 @@ def cost(scene, st, passes, say):
     cpu = {k: [] for k in rs}
     for _ in range(passes):
         for k, r in rs.items():
-            c0 = time.process_time()
-            r.step()
-            cpu[k].append(time.process_time() - c0)
+            cpu[k].append(step_cpu(r)[1])
     c = {k: np.array(v[2:]) for k, v in cpu.items()}
     for k, v in c.items():
         say(f"cost {k}: {1e3 * v.mean():.1f} ms CPU per pass (median {1e3 * np.median(v):.1f}, n {v.size})")
@@ -248,9 +268,8 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
         m = min(methods, key=lambda k: cpu[k][-1])
         if cpu[m][-1] >= budget:
             break
-        c0 = time.process_time()
-        res = rs[m].step()
-        cpu[m].append(cpu[m][-1] + time.process_time() - c0)
+        res, dt = step_cpu(rs[m])
+        cpu[m].append(cpu[m][-1] + dt)
         err[m].append(relmse(np.asarray(res.image[..., :3], np.float64), ref))
     out = {}
     for m in methods:
@@ -320,9 +339,8 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
     for p in range(1, passes + 1):
         for m in methods:
             s0 = dict(rs[m].stage_seconds)
-            c0 = time.process_time()
-            res = rs[m].step()
-            cpu[m].append(time.process_time() - c0)
+            res, dt = step_cpu(rs[m])
+            cpu[m].append(dt)
             gathered[m].append(rs[m].state.M_last.sum())
             stages[m].append({c: t - s0[c] for c, t in rs[m].stage_seconds.items()})
             if p in report:
@@ -419,9 +437,7 @@ def breakdown(scene, base, passes, say):
             if i == 2:
                 for c in r.stage_seconds:
                     r.stage_seconds[c] = 0.0
-            c0 = time.process_time()
-            r.step()
-            cpu[k].append(time.process_time() - c0)
+            cpu[k].append(step_cpu(r)[1])
             pairs[k].append(r.state.M_last.sum())
     ppm = np.mean(cpu["ppm"][2:])
     for k, v in cpu.items():
