@@ -194,7 +194,8 @@ def method_settings(base, method):
 RADII_KEYS = {"power": "hold_min_expected", "release": "release_alpha", "top2": "hold_max_top2",
               "or": "hold_uniform", "orE": "uniform_min_expected", "crit": "uniform_critical",
               "grow": "grow", "growE": "grow_min_expected",
-              "hmax": "hold_alpha_spectrum", "share": "hold_share_min"}
+              "hmax": "hold_alpha_spectrum", "share": "hold_share_min",
+              "sharepass": "hold_share_pass"}
 
 
 #: Method-name keys of :func:`planes_or` and the PhotonTracer attribute each
@@ -218,7 +219,7 @@ def radii_variant(renderer, method):
     for kv in method.split(":")[1:]:
         k, v = kv.split("=")
         if k in RADII_KEYS:
-            setattr(renderer.radii, RADII_KEYS[k], float(v))
+            setattr(renderer.radii, RADII_KEYS[k], int(v) if k == "sharepass" else float(v))
 
 
 def cycles_reference(name, say):

@@ -294,6 +294,7 @@ class Radii:
         self.hold_share_min = (HOLD_SHARE_MIN if frequency and settings.integrator == "PHOTON"
                                and settings.verify_holds and settings.radius_rule == "PPM"
                                else 0.0)
+        self.hold_share_pass = HOLD_SHARE_PASS
         self.holds_left_out = None
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
@@ -334,9 +335,9 @@ class Radii:
 
     def leave_out_holds(self, state, k: int) -> "str | None":
         """After the update of pass k: leave the holds out when k is
-        HOLD_SHARE_PASS and fewer than ``hold_share_min`` of the pixels with
+        ``hold_share_pass`` (HOLD_SHARE_PASS) and fewer than ``hold_share_min`` of the pixels with
         a radius held in it (:meth:`drop_holds`); the reason, once, else None."""
-        if self.holds_left_out is not None or self.hold_share_min <= 0 or k != HOLD_SHARE_PASS:
+        if self.holds_left_out is not None or self.hold_share_min <= 0 or k != self.hold_share_pass:
             return None
         has = state.R2 > 0
         share = float(np.count_nonzero(state.held & has)) / max(int(np.count_nonzero(has)), 1)
