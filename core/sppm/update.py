@@ -127,13 +127,14 @@ GROW_MIN_EXPECTED = CHI2_MIN_EXPECTED
 #: measured, not the default).
 HOLD_ALPHA_SPECTRUM = 0.0
 #: The holds left out where they hold almost nothing (docs/method.md "Where
-#: FPPM's extras do not pay"): after the update of pass HOLD_SHARE_PASS (the
-#: frequency passes 1, 2 and 4 done), a photon-mapping render in which fewer
-#: than HOLD_SHARE_MIN of the pixels with a radius hold renders on as plain
-#: PPM -- no frequency photons, no sector counts, every radius at the alpha
-#: rate from the one it has.  Measured at 64x64: the rings hold 10-12 % of
-#: their pixels, every other example scene 47-99 %.  0: never.
-HOLD_SHARE_PASS = 4
+#: FPPM's extras do not pay"): after the update of pass HOLD_SHARE_PASS, a
+#: photon-mapping render in which fewer than HOLD_SHARE_MIN of the pixels
+#: with a radius hold renders on as plain PPM -- no frequency photons, no
+#: sector counts, every radius at the alpha rate; after pass 1 from PPM's own
+#: state (Radii.leave_out_holds).  Measured at 64x64 in pass 1: the rings
+#: hold 10 % of their pixels, every other example scene 52-99 %.
+#: HOLD_SHARE_MIN 0: never.
+HOLD_SHARE_PASS = 1
 HOLD_SHARE_MIN = 0.25
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
@@ -296,6 +297,10 @@ class Radii:
                                else 0.0)
         self.hold_share_pass = HOLD_SHARE_PASS
         self.holds_left_out = None
+        # The radii before the first update (leave_out_holds undoes pass 1's
+        # holds: the state becomes PPM's), and the updates so far.
+        self._R2_first = None
+        self._updates = 0
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
         """Set state.R2 of the pixels whose first visible point this is (R2 == 0)
@@ -343,8 +348,25 @@ class Radii:
         share = float(np.count_nonzero(state.held & has)) / max(int(np.count_nonzero(has)), 1)
         if share >= self.hold_share_min:
             return None
+        if k == 1 and self._R2_first is not None:
+            # Pass 1 gathered every pixel with its initial radius, as PPM's
+            # does, and N was 0: scaling R^2, N and tau by alpha / f (f =
+            # R'^2 / R^2, the factor the rules chose) gives PPM's state after
+            # its pass 1 (N = alpha M, tau = alpha Phi, R^2 = alpha R0^2;
+            # "Consistent holds": any f keeps the estimate an average of the
+            # passes' estimates), so the render goes on as PPM's, held or
+            # grown radii and all.
+            R0 = self._R2_first
+            m = (state.M_last > 0) & (R0 > 0) & (state.R2 > 0)
+            g = self.settings.alpha * R0[m] / state.R2[m]
+            state.R2[m] *= g
+            state.N[m] *= g
+            state.tau[m] *= g[:, None]
+            state.held[:] = False
+        self._R2_first = None
         self.drop_holds(f"{100 * share:.0f} % of the pixels held after pass {k}, below "
-                        f"{100 * self.hold_share_min:.0f} %: plain PPM from pass {k + 1}")
+                        f"{100 * self.hold_share_min:.0f} %: plain PPM"
+                        + (" from its first pass on" if k == 1 else f" from pass {k + 1}"))
         return self.holds_left_out
 
     def drop_holds(self, why: str) -> None:
@@ -391,6 +413,9 @@ class Radii:
         material), sectors (P, SECTOR_CELLS) this pass's sector counts (None
         unless :func:`needs_sectors`)."""
         rule = self.settings.radius_rule
+        self._updates += 1
+        if self._updates == 1 and self.hold_share_min > 0 and self.hold_share_pass == 1:
+            self._R2_first = state.R2.copy()
         if self.keep_predictions:
             r_pred = kept_prediction(r_pred, state.r_pred_last, self.keep_minimum)
         left_out = self.holds_left_out is not None
