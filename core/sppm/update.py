@@ -39,6 +39,9 @@ counts"; both on by default: "X as the default").  Every rule
 but that one-off growth only chooses the per-pass factor between the PPM
 rate alpha and the hold rate hold_alpha, so every rule converges by the
 same argument (the growth, once and bounded, scales a bound by a constant).
+Where pass 1 holds fewer than HOLD_SHARE_MIN of the pixels, the holds are
+left out and pass 1's factors undone (:meth:`Radii.leave_out_holds`): the
+render goes on as PPM's (docs/method.md "Where FPPM's extras do not pay").
 
 The PPM rule's update (the default: frequency holds, verified by the
 sector counts) runs as one compiled kernel per pixel range
