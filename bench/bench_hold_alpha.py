@@ -34,6 +34,11 @@
         (where the errors differ: held pixels, caustic lines, the rest; 'hold_alpha=0.7:
         release=0.7': frequency photons traced, no pixel held)
 
+    .venv/bin/python bench/bench_hold_alpha.py ring_principled --equal-cpu 12 --ref-passes 200 \
+        --seeds 0,1,2,3 --methods fppm,fppm:share=0,ppm,cppm
+        ('share=0': the holds kept where few hold, 'sharepass=K': decided after pass K;
+        'verify_holds=0' sets a bool field; docs/method.md "Where FPPM's extras do not pay")
+
 The protocol of docs/method.md ("Consistent holds", "Radius rules"): the
 .blend at 50 % resolution (64x64) with the file's settings, photon mapping
 only, one numba thread; relMSE against a PPM render of seed 100 with more
