@@ -34,6 +34,11 @@
         (where the errors differ: held pixels, caustic lines, the rest; 'hold_alpha=0.7:
         release=0.7': frequency photons traced, no pixel held)
 
+    .venv/bin/python bench/bench_hold_alpha.py ring_principled --equal-cpu 12 --ref-passes 200 \
+        --seeds 0,1,2,3 --methods fppm,fppm:share=0,ppm,cppm
+        ('share=0': the holds kept where few hold, 'sharepass=K': decided after pass K;
+        'verify_holds=0' sets a bool field; docs/method.md "Where FPPM's extras do not pay")
+
 The protocol of docs/method.md ("Consistent holds", "Radius rules"): the
 .blend at 50 % resolution (64x64) with the file's settings, photon mapping
 only, one numba thread; relMSE against a PPM render of seed 100 with more
@@ -95,6 +100,28 @@ def run(scene, st, passes):
     return np.stack(imgs), np.array(cpu), held
 
 
+def settle(r):
+    """Wait for the chunks r's photon pass has started tracing for its next
+    pass (PhotonPass.trace_ahead's then=: a pass whose successor traces no
+    frequency photon queues the successor's chunks as its own last chunk is
+    traced).  They run in a thread on after step() returns, and
+    time.process_time is the whole process's: unwaited, their CPU is billed
+    to whichever renderer steps next (docs/method.md "Where FPPM's extras do
+    not pay").  Waiting leaves them queued for the next pass: the same bits."""
+    nxt = getattr(getattr(r, "photon_pass", None), "_next", None)
+    if nxt is not None:
+        for f in list(nxt[1]):
+            f.exception()
+
+
+def step_cpu(r):
+    """(r.step()'s result, its CPU seconds with its trace-ahead settled)."""
+    c0 = time.process_time()
+    res = r.step()
+    settle(r)
+    return res, time.process_time() - c0
+
+
 def ppm_at_cpu(err, cpu, t):
     """PPM's relMSE at CPU time t: log-log interpolation over its passes, or,
     beyond its last pass, the power law of its last octave of passes
@@ -116,9 +143,7 @@ def cost(scene, st, passes, say):
     cpu = {k: [] for k in rs}
     for _ in range(passes):
         for k, r in rs.items():
-            c0 = time.process_time()
-            r.step()
-            cpu[k].append(time.process_time() - c0)
+            cpu[k].append(step_cpu(r)[1])
     c = {k: np.array(v[2:]) for k, v in cpu.items()}
     for k, v in c.items():
         say(f"cost {k}: {1e3 * v.mean():.1f} ms CPU per pass (median {1e3 * np.median(v):.1f}, n {v.size})")
@@ -162,7 +187,11 @@ def method_settings(base, method):
             k, v = kv.split("=")
             if k == "keep" or k in RADII_KEYS or k in TRACER_KEYS:   # planes_or, radii_variant
                 continue
-            over[k] = type(getattr(base, k))(float(v) if isinstance(getattr(base, k), float) else v)
+            cur = getattr(base, k)
+            if isinstance(cur, bool):       # 'verify_holds=0': bool("0") would be True
+                over[k] = v.lower() in ("1", "true", "yes")
+            else:
+                over[k] = type(cur)(float(v) if isinstance(cur, float) else v)
     return base.replace(**over)
 
 
@@ -170,7 +199,8 @@ def method_settings(base, method):
 RADII_KEYS = {"power": "hold_min_expected", "release": "release_alpha", "top2": "hold_max_top2",
               "or": "hold_uniform", "orE": "uniform_min_expected", "crit": "uniform_critical",
               "grow": "grow", "growE": "grow_min_expected",
-              "hmax": "hold_alpha_spectrum"}
+              "hmax": "hold_alpha_spectrum", "share": "hold_share_min",
+              "sharepass": "hold_share_pass"}
 
 
 #: Method-name keys of :func:`planes_or` and the PhotonTracer attribute each
@@ -194,7 +224,7 @@ def radii_variant(renderer, method):
     for kv in method.split(":")[1:]:
         k, v = kv.split("=")
         if k in RADII_KEYS:
-            setattr(renderer.radii, RADII_KEYS[k], float(v))
+            setattr(renderer.radii, RADII_KEYS[k], int(v) if k == "sharepass" else float(v))
 
 
 def cycles_reference(name, say):
@@ -244,9 +274,8 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
         m = min(methods, key=lambda k: cpu[k][-1])
         if cpu[m][-1] >= budget:
             break
-        c0 = time.process_time()
-        res = rs[m].step()
-        cpu[m].append(cpu[m][-1] + time.process_time() - c0)
+        res, dt = step_cpu(rs[m])
+        cpu[m].append(cpu[m][-1] + dt)
         err[m].append(relmse(np.asarray(res.image[..., :3], np.float64), ref))
     out = {}
     for m in methods:
@@ -291,6 +320,16 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
     gathered per pass (passes 3..) relative to PPM."""
     from fppm.tools.metrics import region_masks
     masks = region_masks(ref)
+    for m in methods:
+        # Warm-up (not timed), as in equal_cpu: the first pass of a method
+        # loads its numba kernels, which would be charged to its pass 1 or 2
+        # and to the first frequency pass.
+        w = Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=4,
+                                                             photons_per_pass=2000),
+                     log=lambda s: None)
+        radii_variant(w, m)
+        for _ in range(4):
+            w.step()
     rs = {m: Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=passes),
                       log=lambda s: None) for m in methods}
     for m in methods:
@@ -301,13 +340,15 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
         planes_or(rs[m], m)
     cpu = {m: [] for m in methods}
     gathered = {m: [] for m in methods}
+    stages = {m: [] for m in methods}       # per pass: the renderer's stage clocks (wall)
     out = {}
     for p in range(1, passes + 1):
         for m in methods:
-            c0 = time.process_time()
-            res = rs[m].step()
-            cpu[m].append(time.process_time() - c0)
+            s0 = dict(rs[m].stage_seconds)
+            res, dt = step_cpu(rs[m])
+            cpu[m].append(dt)
             gathered[m].append(rs[m].state.M_last.sum())
+            stages[m].append({c: t - s0[c] for c, t in rs[m].stage_seconds.items()})
             if p in report:
                 img = np.asarray(res.image[..., :3], np.float64)
                 out[m, p] = (relmse(img, ref), {k: relmse(img, ref, v) for k, v in masks.items()},
@@ -325,6 +366,19 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
         c, g = np.mean(cpu[m][2:]), np.mean(gathered[m][2:])
         say(f"seed {seed} {m:>18}: CPU per pass {1e3 * c:.0f} ms ({c / c_ppm:.3f} x PPM), "
             f"photons gathered per pass {g:.3g} ({g / g_ppm:.3f} x PPM)")
+    # where a pass's time goes (wall clocks of the stages, interleaved, so
+    # the load drifts over every method alike): passes 3..16 and 17..
+    for lo, hi in ((2, min(16, passes)), (16, passes)):
+        if hi <= lo:
+            continue
+        for m in methods:
+            c = np.mean(cpu[m][lo:hi])
+            st = {k: np.mean([s[k] for s in stages[m][lo:hi]]) for k in stages[m][0]}
+            ref_st = {k: np.mean([s[k] for s in stages["ppm"][lo:hi]]) for k in stages["ppm"][0]}
+            say(f"seed {seed} passes {lo + 1}-{hi} {m:>18}: CPU {1e3 * c:.1f} ms "
+                f"({c / np.mean(cpu['ppm'][lo:hi]):.3f} x PPM); stage wall ms (- PPM's): "
+                + ", ".join(f"{k} {1e3 * v:.1f} ({1e3 * (v - ref_st[k]):+.1f})" for k, v in st.items())
+                + f"; gathered {np.mean(gathered[m][lo:hi]) / np.mean(gathered['ppm'][lo:hi]):.3f} x PPM")
     # the passes 4, 8, 16, ... alone: those that trace frequency photons under
     # the doubling schedule (photon_pass.frequency_pass); FPPM over PPM there
     from fppm.core.sppm.photon_pass import frequency_pass
@@ -389,9 +443,7 @@ def breakdown(scene, base, passes, say):
             if i == 2:
                 for c in r.stage_seconds:
                     r.stage_seconds[c] = 0.0
-            c0 = time.process_time()
-            r.step()
-            cpu[k].append(time.process_time() - c0)
+            cpu[k].append(step_cpu(r)[1])
             pairs[k].append(r.state.M_last.sum())
     ppm = np.mean(cpu["ppm"][2:])
     for k, v in cpu.items():

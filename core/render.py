@@ -573,7 +573,18 @@ class Renderer:
             state.spectrum[...] = est.spectrum
         r_pred = self.radii.predicted(est.r_pred_min, state.r_hist) if est.gathered else est.r_pred_min
         self.radii.update(state, est.M, est.Phi, r_pred, est.sectors)
+        why = self.radii.leave_out_holds(state, self.pass_index + 1)
+        if why is not None:
+            self._drop_holds(why)
         self.stage_seconds["update"] += time.perf_counter() - tu
+
+    def _drop_holds(self, why: str) -> None:
+        """The holds left out (core.sppm.update.Radii.leave_out_holds): the
+        photon pass as PPM's from the next pass on, and the plan says why."""
+        if self.radii.holds_left_out is None:
+            self.radii.drop_holds(why)
+        self.photon_pass.drop_frequency()
+        self.plan.left_out.append(("frequency holds", why))
 
     def _film(self) -> PassResult:
         # Dropped first (its caller assigns the new one): the film reuses the
@@ -600,6 +611,8 @@ class Renderer:
                  elapsed=self.elapsed, settings_digest=self.settings.image_digest(),
                  scene_digest=scene_digest(self.scene), size=(self.width, self.height))
         d.update(self.film.state_dict())
+        if self.radii.holds_left_out is not None:
+            d["holds_left_out"] = self.radii.holds_left_out
         if self.light_tracer is not None or self.combined_lt is not None:
             d["light_splat"] = self.light_splat.copy()
         return d
@@ -627,6 +640,8 @@ class Renderer:
             if "light_splat" not in d:
                 raise CheckpointMismatch("The checkpoint has no light tracing film.")
             self.light_splat[...] = d["light_splat"]
+        if d.get("holds_left_out") is not None and self.radii.holds_left_out is None:
+            self._drop_holds(str(d["holds_left_out"]))
         self.pass_index = int(d["pass_index"])
         self.photons_emitted = int(d["photons_emitted"])
         self.elapsed = float(d["elapsed"])

@@ -174,6 +174,7 @@ def test_growth_on_a_wrong_prediction_still_converges():
     r = Renderer(scene, st, log=lambda s: None)
     r.radii.predicted = lambda rmin, rh: np.where(np.isfinite(rmin), 10.0, rmin)
     r.radii.hold_uniform, r.radii.grow = True, G
+    r.radii.hold_share_min = 0.0    # the growth is tested: holds kept although few hold
     err, R = {}, {}
     for k in range(1, 33):
         img = r.step().image[..., :3].mean(axis=2)

@@ -314,6 +314,14 @@ class PhotonPass:
         self.keep_reach_source(vp, R2)
         return self.finish(vp, acc)
 
+    def drop_frequency(self) -> None:
+        """From the next pass on, PPM's photon pass: no frequency photons, no
+        sector counts, no receiver radii (core.sppm.update.Radii.leave_out_holds)."""
+        self.frequency = False
+        self.sectors = False
+        self.receivers = None
+        self._reach_source = None
+
     def keep_reach_source(self, vp, R2: np.ndarray) -> None:
         """Keep this pass's visible points vp and the state's radii R2 (the
         array itself, updated in place after the pass): the next pass's

@@ -39,6 +39,9 @@ counts"; both on by default: "X as the default").  Every rule
 but that one-off growth only chooses the per-pass factor between the PPM
 rate alpha and the hold rate hold_alpha, so every rule converges by the
 same argument (the growth, once and bounded, scales a bound by a constant).
+Where pass 1 holds fewer than HOLD_SHARE_MIN of the pixels, the holds are
+left out and pass 1's factors undone (:meth:`Radii.leave_out_holds`): the
+render goes on as PPM's (docs/method.md "Where FPPM's extras do not pay").
 
 The PPM rule's update (the default: frequency holds, verified by the
 sector counts) runs as one compiled kernel per pixel range
@@ -126,6 +129,16 @@ GROW_MIN_EXPECTED = CHI2_MIN_EXPECTED
 #: R_k -> 0 still (docs/method.md "What the spectrum adds over the counts":
 #: measured, not the default).
 HOLD_ALPHA_SPECTRUM = 0.0
+#: The holds left out where they hold almost nothing (docs/method.md "Where
+#: FPPM's extras do not pay"): after the update of pass HOLD_SHARE_PASS, a
+#: photon-mapping render in which fewer than HOLD_SHARE_MIN of the pixels
+#: with a radius hold renders on as plain PPM -- no frequency photons, no
+#: sector counts, every radius at the alpha rate; after pass 1 from PPM's own
+#: state (Radii.leave_out_holds).  Measured at 64x64 in pass 1: the rings
+#: hold 10 % of their pixels, every other example scene 52-99 %.
+#: HOLD_SHARE_MIN 0: never.
+HOLD_SHARE_PASS = 1
+HOLD_SHARE_MIN = 0.25
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
 
@@ -278,6 +291,19 @@ class Radii:
         self.uniform_critical = CHI2_CRITICAL
         self.uniform_min_expected = UNIFORM_MIN_EXPECTED
         self.hold_alpha_spectrum = HOLD_ALPHA_SPECTRUM
+        # leave_out_holds: the share of held pixels below which the holds are
+        # left out after pass HOLD_SHARE_PASS (photon mapping with verified
+        # frequency holds only: COMBINED's merging keeps its own rule), and
+        # why they were (None: they were not).
+        self.hold_share_min = (HOLD_SHARE_MIN if frequency and settings.integrator == "PHOTON"
+                               and settings.verify_holds and settings.radius_rule == "PPM"
+                               else 0.0)
+        self.hold_share_pass = HOLD_SHARE_PASS
+        self.holds_left_out = None
+        # The radii before the first update (leave_out_holds undoes pass 1's
+        # holds: the state becomes PPM's), and the updates so far.
+        self._R2_first = None
+        self._updates = 0
 
     def initialise(self, state, vp, check_stop=lambda: None) -> None:
         """Set state.R2 of the pixels whose first visible point this is (R2 == 0)
@@ -314,6 +340,44 @@ class Radii:
             r = np.minimum(r, self.edge_cap(check_stop)[new])
         r = np.maximum(r, self.floor)
         state.R2[new] = r * r
+
+    def leave_out_holds(self, state, k: int) -> "str | None":
+        """After the update of pass k: leave the holds out when k is
+        ``hold_share_pass`` (HOLD_SHARE_PASS) and fewer than ``hold_share_min`` of the pixels with
+        a radius held in it (:meth:`drop_holds`); the reason, once, else None."""
+        if self.holds_left_out is not None or self.hold_share_min <= 0 or k != self.hold_share_pass:
+            return None
+        has = state.R2 > 0
+        share = float(np.count_nonzero(state.held & has)) / max(int(np.count_nonzero(has)), 1)
+        if share >= self.hold_share_min:
+            return None
+        if k == 1 and self._R2_first is not None:
+            # Pass 1 gathered every pixel with its initial radius, as PPM's
+            # does, and N was 0: scaling R^2, N and tau by alpha / f (f =
+            # R'^2 / R^2, the factor the rules chose) gives PPM's state after
+            # its pass 1 (N = alpha M, tau = alpha Phi, R^2 = alpha R0^2;
+            # "Consistent holds": any f keeps the estimate an average of the
+            # passes' estimates), so the render goes on as PPM's, held or
+            # grown radii and all.
+            R0 = self._R2_first
+            m = (state.M_last > 0) & (R0 > 0) & (state.R2 > 0)
+            g = self.settings.alpha * R0[m] / state.R2[m]
+            state.R2[m] *= g
+            state.N[m] *= g
+            state.tau[m] *= g[:, None]
+            state.held[:] = False
+        self._R2_first = None
+        self.drop_holds(f"{100 * share:.0f} % of the pixels held after pass {k}, below "
+                        f"{100 * self.hold_share_min:.0f} %: plain PPM"
+                        + (" from its first pass on" if k == 1 else f" from pass {k + 1}"))
+        return self.holds_left_out
+
+    def drop_holds(self, why: str) -> None:
+        """From the next update on, the PPM rule alone: no prediction kept, no
+        sector counts read (the state keeps its array, unread, for checkpoints)."""
+        self.holds_left_out = why
+        self.frequency = False
+        self.keep_predictions = False
 
     def edge_cap(self, check_stop=lambda: None) -> np.ndarray:
         """(P,) float64 cap on each pixel's initial radius [m] (inf = none):
@@ -352,13 +416,17 @@ class Radii:
         material), sectors (P, SECTOR_CELLS) this pass's sector counts (None
         unless :func:`needs_sectors`)."""
         rule = self.settings.radius_rule
+        self._updates += 1
+        if self._updates == 1 and self.hold_share_min > 0 and self.hold_share_pass == 1:
+            self._R2_first = state.R2.copy()
         if self.keep_predictions:
             r_pred = kept_prediction(r_pred, state.r_pred_last, self.keep_minimum)
-        if rule == "PPM" and self.compiled and (state.sectors is None) == (sectors is None):
-            self._update_compiled(state, M, Phi, r_pred, sectors)
+        left_out = self.holds_left_out is not None
+        if rule == "PPM" and self.compiled and (left_out or (state.sectors is None) == (sectors is None)):
+            self._update_compiled(state, M, Phi, r_pred, None if left_out else sectors)
             return
         S = None
-        if state.sectors is not None and sectors is not None:
+        if state.sectors is not None and sectors is not None and not left_out:
             S = state.sectors + sectors
         # APPM / CPPM keep a radius (r_pred = R: the hold rate) where the MSE
         # optimum is not smaller (no curvature seen) / the test accepts.
@@ -426,7 +494,7 @@ class Radii:
         st = self.settings
         none = np.zeros((P, 0))
         a = UpdateArrays(state.N, state.R2, state.tau, state.held,
-                         none if state.sectors is None else state.sectors,
+                         none if state.sectors is None or sectors is None else state.sectors,
                          np.ascontiguousarray(M, np.float64),
                          np.ascontiguousarray(Phi, np.float64),
                          np.ascontiguousarray(r_pred, np.float64),
