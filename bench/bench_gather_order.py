@@ -501,9 +501,10 @@ def run_splat(wh, r, calls, repeat, seed=12345):
     a, b = sums[names[0]], sums[names[1]]
     rel = np.abs(a[1] - b[1]).max() / max(np.abs(a[1]).max(), 1e-300)
     dS = 0 if a[3] is None else int(np.abs(a[3] - b[3]).max())
-    print(f"    {n_dep:,} deposits a pass; sort buffers kept by the gather "
-          f"{bufA.kept.nbytes() / 2**20:.0f} MiB (not needed by the splat), the splat's "
-          f"per-thread scratch {sp.nbytes() / 2**20:.0f} MiB")
+    srt = bufA.kept._bufs.get("gather_sort")
+    print(f"    {n_dep:,} deposits a pass; the gather's sort buffer "
+          f"{0 if srt is None else srt.nbytes / 2**20:.0f} MiB (kept; not needed by the "
+          f"splat), the splat's per-thread scratch {sp.nbytes() / 2**20:.0f} MiB")
     for k in names:
         print(f"    {k}: CPU a pass min {min(cpu[k]) * 1e3:.1f} / median "
               f"{np.median(cpu[k]) * 1e3:.1f} ms; of it in the trace call "
