@@ -100,13 +100,8 @@ def main(argv=None):
     ap.add_argument("--splat", action="store_true",
                     help="instead: the pass's photons traced again, deposit-then-gather "
                          "against splatting each bounce's deposits in the trace, interleaved")
-    ap.add_argument("--methods", nargs="+", default=["sorted", "direct"],
-                    help="sorted (hashgrid.gather), direct (trace order), indirect (the "
-                         "sort's indices only, hashgrid.SORT_COPY False); the last is "
-                         "compared with sorted")
     a = ap.parse_args(argv)
     THREADS[:] = a.threads
-    METHODS[:] = a.methods
     print(f"load average {os.getloadavg()[0]:.1f}, numba threads {numba.get_num_threads()}")
     for wh in a.res:
         w, h = (int(x) for x in wh.split("x"))
@@ -144,7 +139,7 @@ def run_res(wh, calls, repeat):
     K = grid.K
     sectors = calls[0][2]["buffers"].with_sectors
     clip = calls[0][2].get("clip")
-    variants = [(m, t) for t in THREADS for m in METHODS]
+    variants = [(m, t) for t in THREADS for m in ("sorted", "direct")]
     bufs = {f"{m}/{t}": Hg.GatherBuffers(K, sectors) for m, t in variants}
     for b in bufs.values():
         b.kept = KeptBuffers()          # as PhotonPass: the sort's arrays reused
@@ -171,12 +166,6 @@ def run_res(wh, calls, repeat):
                     kw = dict(kw, buffers=buf)
                     if name.startswith("sorted"):
                         g = Hg.gather(grid_, *args, **kw)
-                    elif name.startswith("indirect"):
-                        Hg.SORT_COPY = False
-                        try:
-                            g = Hg.gather(grid_, *args, **kw)
-                        finally:
-                            Hg.SORT_COPY = True
                     else:
                         g = gather_direct(grid_, *args, **kw)
                     f0 = time.process_time()
@@ -196,7 +185,7 @@ def run_res(wh, calls, repeat):
         for mod, name, f in undo:
             setattr(mod, name, f)
         numba.set_num_threads(THREADS[0])
-    a, b = sums[f"sorted/{THREADS[0]}"], sums[f"{METHODS[-1]}/{THREADS[0]}"]
+    a, b = sums[f"sorted/{THREADS[0]}"], sums[f"direct/{THREADS[0]}"]
     dM = int(np.abs(a[0] - b[0]).max())
     fin = np.isfinite(a[2])
     dr = bool(np.array_equal(a[2], b[2]))
@@ -209,17 +198,16 @@ def run_res(wh, calls, repeat):
         f"{k} {min(p[k] for p in parts) * 1e3:.1f} / "
         f"{np.median([p[k] for p in parts]) * 1e3:.1f} ms" for k in parts[0]))
     for t in THREADS:
-        d_, s_ = cpu[f"{METHODS[-1]}/{t}"], cpu[f"sorted/{t}"]
-        print(f"    {t} threads: {METHODS[-1]} / sorted: min {min(d_) / min(s_):.3f}, median "
+        d_, s_ = cpu[f"direct/{t}"], cpu[f"sorted/{t}"]
+        print(f"    {t} threads: direct / sorted: min {min(d_) / min(s_):.3f}, median "
               f"{np.median(d_) / np.median(s_):.3f}, rounds "
               + " ".join(f"{x / y:.2f}" for x, y in zip(d_, s_)))
-    print(f"    {THREADS[0]} threads, {METHODS[-1]} against sorted: max |dM| {dM}, max |dS| {dS}, rmin equal {dr} ({fin.sum()} finite), "
+    print(f"    {THREADS[0]} threads: max |dM| {dM}, max |dS| {dS}, rmin equal {dr} ({fin.sum()} finite), "
           f"max |dPhi| / max |Phi| {rel:.2e}; load average {os.getloadavg()[0]:.1f}")
 
 
 ALBEDO = [None]
 THREADS = [2]
-METHODS = ["sorted", "direct"]
 
 
 def run_cells(wh, build, calls, factors, repeat):
@@ -315,7 +303,7 @@ def _direct_range(p0, p1, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, origin, inv_
             q += 1
         Hg._count_range(p, q, ps, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip,
                         cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq, S,
-                        touched, n_touched, Hg._NO_ORDER)
+                        touched, n_touched)
         p = q
 
 

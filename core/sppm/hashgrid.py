@@ -542,7 +542,7 @@ def _slot_starts(ps, n_slots):
 
 @njit(cache=True)
 def _scatter(s0, s1, ps, cursor, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
-             order, slot, pos, ng, wi, power, rpred, copy):
+             order, slot, pos, ng, wi, power, rpred):
     """Copy the photons of slots s0..s1-1 to their sorted places (stable: by
     photon index within a slot).  Threads own disjoint slot ranges, hence
     disjoint cursor entries and output rows."""
@@ -552,11 +552,8 @@ def _scatter(s0, s1, ps, cursor, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
             q = cursor[s]
             cursor[s] = q + 1
             order[q] = p
-            if copy:
-                _copy_photon(q, p, s, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
-                             slot, pos, ng, wi, power, rpred)
-            else:
-                slot[q] = s
+            _copy_photon(q, p, s, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                         slot, pos, ng, wi, power, rpred)
 
 
 @njit(cache=True, inline="always")
@@ -574,16 +571,12 @@ def _copy_photon(q, p, s, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
 
 @njit(cache=True)
 def _copy_sorted(q0, q1, order, ps, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
-                 slot, pos, ng, wi, power, rpred, copy):
-    """Row q of the sorted arrays = photon order[q]'s, for q0..q1-1 (copy
-    False: its slot only)."""
+                 slot, pos, ng, wi, power, rpred):
+    """Row q of the sorted arrays = photon order[q]'s, for q0..q1-1."""
     for q in range(q0, q1):
         p = order[q]
-        if copy:
-            _copy_photon(q, p, ps[p], ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
-                         slot, pos, ng, wi, power, rpred)
-        else:
-            slot[q] = ps[p]
+        _copy_photon(q, p, ps[p], ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
+                     slot, pos, ng, wi, power, rpred)
 
 
 @njit(cache=True)
@@ -627,7 +620,7 @@ def _merge_sorted_runs(key, a, T):
 @njit(cache=True, parallel=True)
 def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                   origin, inv_h, lo, hi, dense, nx, ny, nz, shift, cell_start, n_chunks,
-                  ps, order, slot, pos, ng, wi, power, rpred, copy=True):
+                  ps, order, slot, pos, ng, wi, power, rpred):
     """Stable sort of the photons by slot, copying their data into sorted,
     contiguous arrays.  Consecutive photons then share their candidate VPs and
     read memory sequentially: measured 2.5x faster than photon order (VP
@@ -666,7 +659,7 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         bounds[n_chunks] = n_slots
         for c in prange(n_chunks):
             _scatter(bounds[c], bounds[c + 1], ps, start, ph_pos, ph_ng, ph_wi, ph_power,
-                     ph_rpred, order, slot, pos, ng, wi, power, rpred, copy)
+                     ph_rpred, order, slot, pos, ng, wi, power, rpred)
         return n
     inside = np.empty(n, np.int32)        # the photons in a slot, in index order
     key = np.empty(n, np.int64)
@@ -687,12 +680,11 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
         order[q] = inside[by_slot[q]]
     for c in prange(n_chunks):
         _copy_sorted(c * n // n_chunks, (c + 1) * n // n_chunks, order, ps, ph_pos, ph_ng,
-                     ph_wi, ph_power, ph_rpred, slot, pos, ng, wi, power, rpred, copy)
+                     ph_wi, ph_power, ph_rpred, slot, pos, ng, wi, power, rpred)
     return n
 
 
-def _sorted_photons(sort, ph, grid: Grid, n_chunks: int, kept: Optional[KeptBuffers] = None,
-                    copy: bool = True):
+def _sorted_photons(sort, ph, grid: Grid, n_chunks: int, kept: Optional[KeptBuffers] = None):
     """The photons ph = (pos, ng, wi, power, rpred) sorted by slot of grid
     (sort: _sort_photons or its serial twin): (order, slot, pos, ng, wi,
     power, rpred) of the n photons kept (see _sort_photons), and hitmask
@@ -709,10 +701,7 @@ def _sorted_photons(sort, ph, grid: Grid, n_chunks: int, kept: Optional[KeptBuff
     n = int(sort(*ph, grid.origin, grid.inv_h, grid.lo, grid.hi, grid.dense,
                  int(grid.dims[0]), int(grid.dims[1]), int(grid.dims[2]),
                  0 if grid.dense else 64 - grid.log2_table, grid.cell_start, n_chunks,
-                 *bufs[:8], copy))
-    if not copy:
-        # order and slot sorted; the photons' rows stay where they are
-        return (bufs[1][:n], bufs[2][:n], *ph, *(b[:n] for b in bufs[8:]))
+                 *bufs[:8]))
     return tuple(b[:n] for b in bufs[1:])
 
 
@@ -875,7 +864,7 @@ def _sector_cell(rx, ry, rz, r2, nvx, nvy, nvz, x, y, z):
 @njit(cache=True)
 def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                  vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
-                 M, Phi, rmin, hitmask, n_pair, n_freq, S, touched, n_touched, order):
+                 M, Phi, rmin, hitmask, n_pair, n_freq, S, touched, n_touched):
     """Sorted photons q0..q1-1 (ph_* already in sorted order): accumulate M,
     Phi (const VPs), rmin into this chunk's arrays, and (S with SECTOR_CELLS
     columns, else 0 columns) each counted photon's sector cell into S.  n_pair[q] / n_freq[q] =
@@ -887,9 +876,8 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     with_sectors = S.shape[1] > 0
     track = touched.shape[0] > 0
     clipped = vp_clip.shape[0] > 0
-    indirect = order.shape[0] > 0
-    for q in range(q0, q1):
-        p = order[q] if indirect else q
+    for p in range(q0, q1):
+        q = p
         s = slot[q]
         e0 = cell_start[s]
         e1 = cell_start[s + 1]
@@ -957,13 +945,12 @@ def _record_pair(v, p, is_freq, vp_rec, k, kf, pair_vp, pair_ph, fpair_vp, fpair
 def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
                  vp_rec, vp_clip, cos_ng, cell_start, vp_ids, hitmask,
                  n_pair, pair_off, pair_vp, pair_ph,
-                 n_freq, freq_off, fpair_vp, fpair_ph, want_freq, sorted_order):
+                 n_freq, freq_off, fpair_vp, fpair_ph, want_freq):
     """Second pass over photons with pairs: the counted entries come from
     hitmask, or (cells of > 64 entries) from the same tests as _count_range in
     the same arithmetic; pairs are written at the photon's prefix-sum offset."""
     one = np.uint64(1)
     clipped = vp_clip.shape[0] > 0
-    indirect = sorted_order.shape[0] > 0
     for q in range(q0, q1):
         if n_pair[q] == 0 and not (want_freq and n_freq[q] > 0):
             continue
@@ -971,8 +958,7 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
         s = slot[q]
         e0 = cell_start[s]
         e1 = cell_start[s + 1]
-        i = p if indirect else q       # the photon's row in ph_*
-        r = ph_rpred[i]
+        r = ph_rpred[q]
         is_freq = want_freq and not math.isnan(r)
         k = pair_off[q]
         kf = freq_off[q]
@@ -983,15 +969,15 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
                     k, kf = _record_pair(vp_ids[e0 + j], p, is_freq, vp_rec, k, kf,
                                          pair_vp, pair_ph, fpair_vp, fpair_ph)
             continue
-        x = np.float64(ph_pos[i, 0])
-        y = np.float64(ph_pos[i, 1])
-        z = np.float64(ph_pos[i, 2])
-        wx = np.float64(ph_wi[i, 0])
-        wy = np.float64(ph_wi[i, 1])
-        wz = np.float64(ph_wi[i, 2])
-        gx = np.float64(ph_ng[i, 0])
-        gy = np.float64(ph_ng[i, 1])
-        gz = np.float64(ph_ng[i, 2])
+        x = np.float64(ph_pos[q, 0])
+        y = np.float64(ph_pos[q, 1])
+        z = np.float64(ph_pos[q, 2])
+        wx = np.float64(ph_wi[q, 0])
+        wy = np.float64(ph_wi[q, 1])
+        wz = np.float64(ph_wi[q, 2])
+        gx = np.float64(ph_ng[q, 0])
+        gy = np.float64(ph_ng[q, 1])
+        gz = np.float64(ph_ng[q, 2])
         for e in range(e0, e1):
             v = vp_ids[e]
             rx, ry, rz, r2, nvx, nvy, nvz, const = _vp_record(vp_rec, v)
@@ -1005,16 +991,16 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
 @njit(cache=True)
 def _count_serial(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip, cos_ng,
                   cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq, S,
-                  touched, n_touched, order):
+                  touched, n_touched):
     _count_range(0, slot.shape[0], slot, ph_pos, ph_ng, ph_wi, ph_power,
                  ph_rpred, vp_rec, vp_clip, cos_ng, cell_start, vp_ids, M[0], Phi[0], rmin[0],
-                 hitmask, n_pair, n_freq, S[0], touched[0], n_touched[0:1], order)
+                 hitmask, n_pair, n_freq, S[0], touched[0], n_touched[0:1])
 
 
 @njit(cache=True, parallel=True)
 def _count_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec,
                     vp_clip, cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq,
-                    S, touched, n_touched, order, n_chunks):
+                    S, touched, n_touched, n_chunks):
     # One contiguous range of sorted photons per accumulator row: chunks never
     # share a row, and the per-photon outputs are indexed by q: no race.
     n = slot.shape[0]
@@ -1022,30 +1008,29 @@ def _count_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec,
         _count_range(c * n // n_chunks, (c + 1) * n // n_chunks, slot, ph_pos,
                      ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip, cos_ng, cell_start,
                      vp_ids, M[c], Phi[c], rmin[c], hitmask, n_pair, n_freq, S[c],
-                     touched[c], n_touched[c:c + 1], order)
+                     touched[c], n_touched[c:c + 1])
 
 
 @njit(cache=True)
 def _pairs_serial(order, slot, ph_pos, ph_ng, ph_wi, ph_rpred, vp_rec, vp_clip, cos_ng,
                   cell_start, vp_ids, hitmask, n_pair, pair_off, pair_vp, pair_ph,
-                  n_freq, freq_off, fpair_vp, fpair_ph, want_freq, sorted_order):
+                  n_freq, freq_off, fpair_vp, fpair_ph, want_freq):
     _pairs_range(0, order.shape[0], order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
                  vp_rec, vp_clip, cos_ng, cell_start, vp_ids, hitmask, n_pair, pair_off,
-                 pair_vp, pair_ph, n_freq, freq_off, fpair_vp, fpair_ph, want_freq,
-                 sorted_order)
+                 pair_vp, pair_ph, n_freq, freq_off, fpair_vp, fpair_ph, want_freq)
 
 
 @njit(cache=True, parallel=True)
 def _pairs_parallel(order, slot, ph_pos, ph_ng, ph_wi, ph_rpred, vp_rec, vp_clip, cos_ng,
                     cell_start, vp_ids, hitmask, n_pair, pair_off, pair_vp, pair_ph,
-                    n_freq, freq_off, fpair_vp, fpair_ph, want_freq, sorted_order, n_chunks):
+                    n_freq, freq_off, fpair_vp, fpair_ph, want_freq, n_chunks):
     # Each photon writes only its own [offset, offset + count) ranges: race-free.
     n = order.shape[0]
     for c in prange(n_chunks):
         _pairs_range(c * n // n_chunks, (c + 1) * n // n_chunks, order, slot, ph_pos,
                      ph_ng, ph_wi, ph_rpred, vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
                      hitmask, n_pair, pair_off, pair_vp, pair_ph, n_freq, freq_off,
-                     fpair_vp, fpair_ph, want_freq, sorted_order)
+                     fpair_vp, fpair_ph, want_freq)
 
 
 # ----------------------------------------------------------------------------
@@ -1670,12 +1655,6 @@ def _check_radii(grid: Grid, vp_R2) -> None:
                          "rebuild the grid after the radii grow")
 
 
-#: The gather's sort copies the photons into slot order (True), or sorts
-#: their indices only and the count pass reads them through the order.
-SORT_COPY = True
-_NO_ORDER = np.zeros(0, np.int32)
-
-
 def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
            vp_pos, vp_ng, vp_R2, vp_const, cos_ng: float = COS_NG_DEFAULT,
            want_freq_pairs: bool = False, parallel: Optional[bool] = None,
@@ -1726,10 +1705,7 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     sort = _sort_photons if parallel else _sort_photons_serial
     (order, slot, ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_, hitmask, n_pair,
      n_freq) = _sorted_photons(sort, ph, grid, n_chunks,
-                               None if buffers is None else buffers.kept, SORT_COPY)
-    # the count and pair passes read photon q of the sort at row order[q]
-    # of ph_* when the sort did not copy them (an empty array: row q)
-    indirect = order if not SORT_COPY else _NO_ORDER
+                               None if buffers is None else buffers.kept)
     n = order.shape[0]
     if n == 0:
         return _no_photons(K, want_freq_pairs, sectors, buffers)
@@ -1751,7 +1727,7 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                else np.ascontiguousarray(clip, np.uint64).reshape(K))
     cargs = (slot, ph_pos_, ph_ng_, ph_wi_, ph_power_, ph_rpred_, vp_rec, vp_clip,
              float(cos_ng), *g, M, Phi, rmin, hitmask, n_pair, n_freq, S,
-             touched, n_touched, indirect)
+             touched, n_touched)
     if parallel:
         _count_parallel(*cargs, n_chunks)
     else:
@@ -1780,7 +1756,7 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     if n_pairs or n_fp:
         pargs = (order, slot, ph_pos_, ph_ng_, ph_wi_, ph_rpred_, vp_rec, vp_clip, float(cos_ng),
                  *g, hitmask, n_pair, pair_off, pair_vp, pair_ph, n_freq, freq_off,
-                 fpair_vp, fpair_ph, bool(want_freq_pairs), indirect)
+                 fpair_vp, fpair_ph, bool(want_freq_pairs))
         if parallel:
             _pairs_parallel(*pargs, n_chunks)
         else:
