@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/bench_gather_order.py [--res 256x256 1920x1080] [--repeat 5]
     .venv/bin/python bench/bench_gather_order.py --res 256x256 --cell-factors 1.5 1 2
+    .venv/bin/python bench/bench_gather_order.py --res 256x256 --splat --repeat 10
 
 The deposits of one pass of the Cornell box (plain, 200k photons: its
 chunks), the grid and the visible points, captured from a render; then,
@@ -25,6 +26,13 @@ median radius (hashgrid.build_grid(cell_factor=)) and its chunks gathered
 (sorted) and folded with it, the factors interleaved: the build's and the
 gather's CPU and, a deposit, the candidates tested and the hits
 (docs/architecture.md "The count pass without reference counts").
+
+--splat: instead, the pass's photons traced again (the same chunks and
+seeds), alternating: deposit, then gather sorted (hashgrid.gather) and fold,
+against each bounce's deposits gathered in trace order inside the tracing
+thread right after the bounce kernel wrote them, into that thread's row of
+a GatherBuffers (pbrt-v4's SPPM splats at deposit time), then the same fold
+(docs/architecture.md "The photon pass's own work against raw Embree").
 
 Printed: CPU (process clock) of each, min / median of --repeat rounds,
 and the largest differences of the sums (M, sector counts and the
