@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/bench_gather_order.py [--res 256x256 1920x1080] [--repeat 5]
     .venv/bin/python bench/bench_gather_order.py --res 256x256 --cell-factors 1.5 1 2
+    .venv/bin/python bench/bench_gather_order.py --res 256x256 --splat --repeat 10
 
 The deposits of one pass of the Cornell box (plain, 200k photons: its
 chunks), the grid and the visible points, captured from a render; then,
@@ -25,6 +26,13 @@ median radius (hashgrid.build_grid(cell_factor=)) and its chunks gathered
 (sorted) and folded with it, the factors interleaved: the build's and the
 gather's CPU and, a deposit, the candidates tested and the hits
 (docs/architecture.md "The count pass without reference counts").
+
+--splat: instead, the pass's photons traced again (the same chunks and
+seeds), alternating: deposit, then gather sorted (hashgrid.gather) and fold,
+against each bounce's deposits gathered in trace order inside the tracing
+thread right after the bounce kernel wrote them, into that thread's row of
+a GatherBuffers (pbrt-v4's SPPM splats at deposit time), then the same fold
+(docs/architecture.md "The photon pass's own work against raw Embree").
 
 Printed: CPU (process clock) of each, min / median of --repeat rounds,
 and the largest differences of the sums (M, sector counts and the
@@ -97,6 +105,9 @@ def main(argv=None):
     ap.add_argument("--cell-factors", type=float, nargs="+", default=None,
                     help="instead: the grid built with each h / median R and the pass "
                          "gathered with it (sorted), interleaved")
+    ap.add_argument("--splat", action="store_true",
+                    help="instead: the pass's photons traced again, deposit-then-gather "
+                         "against splatting each bounce's deposits in the trace, interleaved")
     a = ap.parse_args(argv)
     THREADS[:] = a.threads
     print(f"load average {os.getloadavg()[0]:.1f}, numba threads {numba.get_num_threads()}")
@@ -104,7 +115,9 @@ def main(argv=None):
         w, h = (int(x) for x in wh.split("x"))
         builds = []
         r, calls = capture(w, h, a.photons, builds=builds)
-        if a.cell_factors:
+        if a.splat:
+            run_splat(wh, r, calls, a.repeat)
+        elif a.cell_factors:
             run_cells(wh, builds[-1], calls, a.cell_factors, a.repeat)
         else:
             run_res(wh, calls, a.repeat)
@@ -342,6 +355,175 @@ def gather_direct(grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_pos, vp_ng,
     n_pairs = int(n_pair.sum())
     e = np.zeros(n_pairs, np.int32)
     return Hg.GatherResult(None, None, e, e, None)
+
+
+# ---------------------------------------------------------------------------
+# Splatting at deposit time, inside the trace (pbrt-v4's SPPM)
+
+@njit(cache=True, nogil=True)
+def _splat_rows(d0, d1, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, origin, inv_h, lo, hi,
+                dense, nx, ny, nz, shift, vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
+                M, Phi, rmin, ps, hitmask, n_pair, n_freq, S, touched, n_touched):
+    """One bounce's deposit rows d0..d1-1, gathered in the tracing thread that
+    just wrote them (GIL released), into that thread's accumulator row."""
+    _direct_range(d0, d1, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, origin, inv_h, lo, hi,
+                  dense, nx, ny, nz, shift, vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
+                  M, Phi, rmin, ps, hitmask, n_pair, n_freq, S, touched, n_touched)
+
+
+class Splat:
+    """Wraps the photon tracer so that each bounce's deposits are gathered
+    right after the bounce kernel wrote them (``_splat_rows``), in the tracing
+    thread, into its own row of a GatherBuffers (a row per half being traced,
+    taken in ``_trace_part``): no sort, no second pass over the chunk's
+    deposits.  The deposits are still written (frequency photons, pairs and
+    light tracing read them): not storing them was measured at ~1 ns of a
+    ray's 69 ns in the bounce kernel (docs/architecture.md "Photon trace
+    against raw Embree")."""
+
+    def __init__(self, tracer, grid, vp, buf, clip, cos_ng):
+        import threading
+        from core.sppm import photon_kernels as PK
+        self.PK, self.tracer, self.grid, self.buf = PK, tracer, grid, buf
+        K = grid.K
+        self.vp_clip = (np.zeros(0, np.uint64) if clip is None
+                        else np.ascontiguousarray(clip, np.uint64).reshape(K))
+        self.cos_ng = float(cos_ng)
+        self.local = threading.local()
+        self.lock = threading.Lock()
+        self.free = [0, 1]
+        self.scratch = [None, None]
+        buf.bind(grid, vp, 2)
+        self.bounce = PK.bounce_kernel
+        self.trace_part = tracer._trace_part
+
+    def __enter__(self):
+        sp = self
+
+        def trace_part(*a, **k):
+            with sp.lock:
+                row = sp.free.pop(0)
+            sp.local.row = row
+            try:
+                return sp.trace_part(*a, **k)
+            finally:
+                with sp.lock:
+                    sp.free.append(row)
+                    sp.free.sort()
+
+        def bounce(step, hits, live, tris, fmat, u, dep, *rest):
+            out = sp.bounce(step, hits, live, tris, fmat, u, dep, *rest)
+            sp.splat(dep, step.dep0, out[1])
+            return out
+        self.tracer._trace_part = trace_part
+        self.PK.bounce_kernel = bounce
+        self.buf.n_used = 2
+        return self
+
+    def __exit__(self, *exc):
+        del self.tracer._trace_part
+        self.PK.bounce_kernel = self.bounce
+
+    def splat(self, dep, d0, d1):
+        if d1 <= d0:
+            return
+        c = self.local.row
+        cap = dep.r.shape[0]
+        sc = self.scratch[c]
+        if sc is None or sc[0].shape[0] < cap:
+            sc = self.scratch[c] = (np.empty(cap, np.int64), np.empty(cap, np.uint64),
+                                    np.empty(cap, np.int32), np.empty(cap, np.int32))
+        g, b = self.grid, self.buf
+        _splat_rows(d0, d1, dep.p, dep.ng, dep.wi, dep.power, dep.r, g.origin, g.inv_h, g.lo,
+                    g.hi, g.dense, int(g.dims[0]), int(g.dims[1]), int(g.dims[2]),
+                    0 if g.dense else 64 - g.log2_table, b.vp_rec, self.vp_clip, self.cos_ng,
+                    g.cell_start, g.vp_ids, b.M[c], b.Phi[c], b.rmin[c], *sc[:1], *sc[1:],
+                    b.S[c], b.touched[c], b.n_touched[c:c + 1])
+
+    def nbytes(self):
+        return sum(a.nbytes for sc in self.scratch if sc is not None for a in sc)
+
+
+def run_splat(wh, r, calls, repeat, seed=12345):
+    """The pass's photons traced again (the same chunks and seeds in both),
+    interleaved: trace then hashgrid.gather (sorted) and fold, as a pass
+    does, against the trace with each bounce's deposits splatted into the
+    grid in the tracing threads (Splat) and the same fold.  Photon threads:
+    photons.THREADS; the gather's: numba's."""
+    from core.sppm import photons as Ph
+    grid, args0, kw0 = calls[0]
+    K = grid.K
+    sectors = kw0["buffers"].with_sectors
+    clip = kw0.get("clip")
+    cos_ng = kw0.get("cos_ng", Hg.COS_NG_DEFAULT)
+    vp_args = args0[5:9]
+    _, _, _, vp = Hg._prepare(np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)),
+                              np.zeros((1, 3)), np.zeros(1), *vp_args)
+    pp = r.photon_pass
+    tracer = pp.tracer
+    chunks = [(n, 0) for n, _ in pp.chunks()]
+    ALBEDO[0] = np.full((K, 3), 0.8, np.float32)
+    bufA = Hg.GatherBuffers(K, sectors)
+    bufA.kept = KeptBuffers()
+    bufB = Hg.GatherBuffers(K, sectors, threads=2)
+    names = ("deposit, sort, gather", "splat in the trace")
+    cpu = {k: [] for k in names}
+    trace_cpu = {k: [] for k in names}
+    sums = {}
+    n_dep = 0
+    print(f"  {wh}: {len(chunks)} chunks {[c[0] for c in chunks]}, {K:,} visible points, "
+          f"{grid.summary()}, photon threads {Ph.THREADS}, numba threads "
+          f"{numba.get_num_threads()}")
+    sp = None
+    for rep in range(repeat + 1):
+        for name in (names if rep % 2 == 0 else names[::-1]):
+            M = np.zeros(K, np.int64)
+            Phi = np.zeros((K, 3))
+            rmin = np.full(K, np.inf)
+            S = np.zeros((K, Hg.SECTOR_CELLS), np.int64) if sectors else None
+            tc = 0.0
+            c0 = time.process_time()
+            for c, (n, _) in enumerate(chunks):
+                rng = np.random.default_rng([seed, c])
+                if name == names[0]:
+                    t0 = time.process_time()
+                    dep = tracer.trace(n, 0, rng)
+                    tc += time.process_time() - t0
+                    n_dep += dep["p"].shape[0] if rep == 0 else 0
+                    Hg.gather(grid, dep["p"], dep["ng"], dep["wi"], dep["power"], dep["rpred"],
+                              *vp_args, cos_ng=cos_ng, buffers=bufA, clip=clip)
+                    bufA.fold(M, Phi, ALBEDO[0], np.pi, rmin, None, S, clip)
+                else:
+                    sp = Splat(tracer, grid, vp, bufB, clip, cos_ng)
+                    t0 = time.process_time()
+                    with sp:
+                        dep = tracer.trace(n, 0, rng)
+                    tc += time.process_time() - t0
+                    bufB.fold(M, Phi, ALBEDO[0], np.pi, rmin, None, S, clip)
+                del dep
+            cc = time.process_time() - c0
+            if rep:
+                cpu[name].append(cc)
+                trace_cpu[name].append(tc)
+            sums[name] = (M, Phi, rmin, S)
+    a, b = sums[names[0]], sums[names[1]]
+    rel = np.abs(a[1] - b[1]).max() / max(np.abs(a[1]).max(), 1e-300)
+    dS = 0 if a[3] is None else int(np.abs(a[3] - b[3]).max())
+    srt = bufA.kept._bufs.get("gather_sort")
+    print(f"    {n_dep:,} deposits a pass; the gather's sort buffer "
+          f"{0 if srt is None else srt.nbytes / 2**20:.0f} MiB (kept; not needed by the "
+          f"splat), the splat's per-thread scratch {sp.nbytes() / 2**20:.0f} MiB")
+    for k in names:
+        print(f"    {k}: CPU a pass min {min(cpu[k]) * 1e3:.1f} / median "
+              f"{np.median(cpu[k]) * 1e3:.1f} ms; of it in the trace call "
+              f"{min(trace_cpu[k]) * 1e3:.1f} / {np.median(trace_cpu[k]) * 1e3:.1f} ms")
+    x, y = cpu[names[1]], cpu[names[0]]
+    print(f"    splat / deposit-then-gather: min {min(x) / min(y):.3f}, median "
+          f"{np.median(x) / np.median(y):.3f}, rounds " + " ".join(
+              f"{p / q:.2f}" for p, q in zip(x, y)))
+    print(f"    max |dM| {int(np.abs(a[0] - b[0]).max())}, max |dS| {dS}, rmin equal "
+          f"{bool(np.array_equal(a[2], b[2]))}, max |dPhi| / max |Phi| {rel:.2e}; "
+          f"load average {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

@@ -78,8 +78,12 @@ def test_compiled_sample_equals_sample_bsdf():
     assert np.array_equal(dl, dl_r)
     np.testing.assert_allclose(wi[ok], wi_r[ok], rtol=RTOL, atol=ATOL)
     np.testing.assert_allclose(w, w_r, rtol=RTOL, atol=ATOL)
-    # bit for bit but for the few ulps of eval_pair's libm calls
-    assert np.mean(np.all(w == w_r, axis=1)) > 0.99
+    # bit for bit but for the few ulps of eval_pair's libm calls, where the
+    # direction is (the compiled disk's sine and cosine, compiled.sincos_quarter,
+    # are within 1 ulp of numpy's: a share of the directions differ in the last bits)
+    same = np.all(wi == wi_r, axis=1)
+    assert np.mean(same[ok]) > 0.75
+    assert np.mean(np.all(w == w_r, axis=1)[same]) > 0.99
     # coverage: every material samples valid rays, delta and not, both sides
     for m in np.nonzero(fm.compiled)[0]:
         assert np.count_nonzero(ok[mat == m]) > 50, m
@@ -95,8 +99,10 @@ def test_compiled_sample_equals_sample_bsdf():
 def test_tracer_same_deposits_with_and_without_compiled_sampling(monkeypatch, textured):
     """The photon tracer with the compiled generic path (default) and with
     COMPILED_SAMPLING off (numpy sample_bsdf): the same photon paths (order,
-    positions, bounces bit for bit) and powers to rounding (measured: 118 of
-    34222 deposits 1-2 ulps off, from Oren-Nayar's acos).  textured: the
+    positions, bounces bit for bit) and directions and powers to rounding
+    (measured: 118 of 34222 deposits' powers 1-2 ulps off, from Oren-Nayar's
+    acos; since the compiled disk's sine and cosine, compiled.sincos_quarter,
+    directions 6.4e-15 and powers 1.7e-13 relative at most).  textured: the
     GGX wall textured (numpy-sampled rows among the kernel's in one block)."""
     from test_photon_kernels import _tracer, glass_mirror
     out = []
@@ -113,6 +119,11 @@ def test_tracer_same_deposits_with_and_without_compiled_sampling(monkeypatch, te
         out.append(tr.trace(20_000, 0, np.random.default_rng(17)))
     a, b = out
     assert a["p"].shape[0] > 20_000
-    for k in ("p", "ng", "wi", "bounce", "bary"):
+    for k in ("p", "ng", "bounce", "bary"):
         assert np.array_equal(a[k], b[k]), k
-    np.testing.assert_allclose(b["power"], a["power"], rtol=1e-14, atol=0)
+    # the directions to rounding (measured 6.4e-15 after a few bounces): the
+    # compiled GGX sample's disk point (compiled.sincos_quarter) is within
+    # 1 ulp of numpy's
+    np.testing.assert_allclose(b["wi"], a["wi"], rtol=0, atol=1e-13)
+    # powers: 1.7e-13 relative at most, measured (the GGX weights of those directions)
+    np.testing.assert_allclose(b["power"], a["power"], rtol=1e-12, atol=0)

@@ -32,22 +32,27 @@ from core.accel import REL_OFFSET, intersect_f32
 from core.sppm import photon_kernels as PK  # noqa: E402
 from test_photon_kernels import _tracer, cornell, glass_mirror  # noqa: E402
 
+# Regenerated with compiled.sincos_quarter / sincos_turn (the disk warp's and
+# the emission's sine and cosine within 1 ulp of libm's: every direction's
+# last bits; docs/architecture.md "The photon pass's own work against raw
+# Embree"); the digests before: c7efebd0, e3fe3f01, 4af5479b, 6fc924fd,
+# a8fb79be, 11931a94 in this order.
 PINS = {
-    "cornell_plain": "c7efebd03e91870bed83859ccfc29d59",
+    "cornell_plain": "46aee8b30d5aeab45036c16dab973ec2",
     # freq: one batch (docs/frequency.md); the march's end-plane test after
     # a Lipschitz jump reads the segment's end (occlusion_march)
-    "cornell_freq": "e3fe3f01c9290a44e359bdc48abacb6d",
+    "cornell_freq": "462609e4dc01b57ba71df1b07fa83cd6",
     # glass_mirror: its GGX and Oren-Nayar walls sampled by the compiled
     # generic path (compiled.sample_pair): same paths, 118 of 34222 deposit
     # powers 1-2 ulps off (libm's acos in eval_pair against numpy's)
-    "glass_mirror_plain": "4af5479be317065c932c231f388fef2c",
+    "glass_mirror_plain": "d857f9efeb79fe102323b4d020946de1",
     # glass_mirror_freq: the same photons as glass_mirror_plain (each live row
     # draws its row's uniforms of the batch without spectra, docs/frequency.md
     # "The same photons"; one batch before: 4962b7a7740fe36297769e45ed3e7883;
     # regenerated with the occlusion march's end-plane fix merged beside it)
-    "glass_mirror_freq": "6fc924fdaf394b70b68e1cf1e60a1d7c",
-    "glass_mirror_caustic": "a8fb79be88a8c214ccf6b77370af5d11",
-    "cornell_mis": "11931a943bb718ba1c32bfe295a69aff",
+    "glass_mirror_freq": "85d808c29dec8b4e576f458aba89d65b",
+    "glass_mirror_caustic": "7de02ac30cc9cf38b31ba616105ec17e",
+    "cornell_mis": "8e405a645e6122aa985523687f138ffd",
 }
 
 

@@ -49,6 +49,11 @@ from numba import njit
 from ..lights.direct_kernels import (SPH_TRI_MIN, _entry_weight, _spherical_rect,
                                      _spherical_tri)
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
+# sample_fast (and compiled._disk in it) is compiled into this module's
+# kernels: numba's on-disk cache is stamped by each kernel's own file, so a
+# change of the samplers (core.materials.compiled, .fast) must come with an
+# edit here and in core.sppm.photon_kernels, or a cache filled before it keeps
+# the old code (this note came with compiled.sincos_quarter).
 from ..materials.fast import ABSORBER, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
 from ..sppm.photon_kernels import shading_normal
 from .mis import FULL, SOFT

@@ -599,20 +599,59 @@ def selection_table(table) -> SelectionTable:
                           np.ascontiguousarray(np.cumsum(p, axis=1)), last)
 
 
+# Taylor coefficients of sin t = t + t^3 S(t^2) and cos t = 1 - t^2 C(t^2) to
+# t^17 / t^18: on |t| <= pi/4 the first term left out is below 2^-60 of the
+# result, so the polynomial evaluated in float64 is within 1 ulp of sin, cos.
+_S = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(8, 0, -1))
+_C = tuple((-1.0) ** (k + 1) / math.factorial(2 * k) for k in range(9, 0, -1))
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def sincos_quarter(t):
+    """(sin t, cos t) for |t| <= pi/4, within 1 ulp (Horner on t^2); a third
+    of libm's sincos, whose range reduction the sampling warps never need
+    (docs/architecture.md "The photon pass's own work against raw Embree")."""
+    t2 = t * t
+    s = _S[0]
+    for k in range(1, 8):
+        s = s * t2 + _S[k]
+    c = _C[0]
+    for k in range(1, 9):
+        c = c * t2 + _C[k]
+    return t + t * t2 * s, 1.0 - t2 * c
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def sincos_turn(u):
+    """(sin, cos) of 2 pi u for u in [0, 1]: u minus the nearest quarter turn
+    q / 4 (exact: Sterbenz), sincos_quarter of its angle, rotated by q
+    quarter turns."""
+    q = math.floor(4.0 * u + 0.5)
+    s, c = sincos_quarter((2.0 * np.pi) * (u - 0.25 * q))
+    k = int(q) & 3
+    if k == 0:
+        return s, c
+    if k == 1:
+        return c, -s
+    if k == 2:
+        return -s, -c
+    return -c, s
+
+
 @njit(cache=True, inline="always", error_model="numpy")
 def _disk(u1, u2):
-    """microfacet._disk (Shirley-Chiu concentric map)."""
+    """microfacet._disk (Shirley-Chiu concentric map); its angle's sine and
+    cosine by sincos_quarter (phi = pi/2 - t on the second branch: cos phi =
+    sin t, sin phi = cos t)."""
     a = 2.0 * u1 - 1.0
     b = 2.0 * u2 - 1.0
     if abs(a) > abs(b):
-        r = a
-        phi = (np.pi / 4) * (b / a)
-    else:
-        r = b
-        phi = np.pi / 2 - (np.pi / 4) * (a / b)
-    if a == 0.0 and b == 0.0:
-        phi = 0.0
-    return r * math.cos(phi), r * math.sin(phi)
+        s, c = sincos_quarter((np.pi / 4) * (b / a))
+        return a * c, a * s
+    if b == 0.0:
+        return 0.0, 0.0
+    s, c = sincos_quarter((np.pi / 4) * (a / b))
+    return b * s, b * c
 
 
 @njit(cache=True, error_model="numpy")

@@ -146,7 +146,8 @@ def sample_fast(cls, cr, cg, cb, ior, nsx, nsy, nsz, ngx, ngy, ngz, wox, woy, wo
     ns, ng: unit shading / geometric normals (any orientation); wo: unit, the
     direction back towards where the photon came from; u0, u1 direction,
     u2 Fresnel choice.  Returns (wx, wy, wz, weight r, g, b, is_delta, ok);
-    weight = 0 when not ok.
+    weight = 0 when not ok.  The Lambert direction's disk point is
+    compiled._disk's (its angle's sine and cosine by compiled.sincos_quarter).
     """
     # Orient both normals to wo's side of the geometric normal (Cycles' back faces).
     front = ngx * wox + ngy * woy + ngz * woz >= 0.0

@@ -43,7 +43,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..materials.compiled import sample_pair
+from ..materials.compiled import sample_pair, sincos_turn
 from ..materials.fast import ABSORBER, GENERIC, sample_fast
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 
@@ -619,14 +619,14 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
     if kd == 0:          # POINT: sphere model or soft falloff (disc) from the centre
         z = 1.0 - 2.0 * u3
         sz = np.sqrt(max(1.0 - z * z, 0.0))
-        ph = 2.0 * np.pi * u4
-        wx, wy, wz = sz * np.cos(ph), sz * np.sin(ph), z
+        sn, cs = sincos_turn(u4)
+        wx, wy, wz = sz * cs, sz * sn, z
         sph = L[j, _SPH] != 0.0
         r = L[j, _RAD] if sph else 0.0
         fall = 0.0 if sph else L[j, _RAD] * L[j, _RAD]
         rr = np.sqrt(u1)
-        ph2 = 2.0 * np.pi * u2
-        dx, dy = rr * np.cos(ph2), rr * np.sin(ph2)
+        sn, cs = sincos_turn(u2)
+        dx, dy = rr * cs, rr * sn
         lift = np.sqrt(max(1.0 - dx * dx - dy * dy, 0.0))
         ox, oy, oz = _basis_world(dx, dy, lift, wx, wy, wz)
         return (L[j, _CO] + ox * r, L[j, _CO + 1] + oy * r, L[j, _CO + 2] + oz * r,
@@ -637,9 +637,9 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
         sv = u2 - 0.5
         if L[j, _ELL] != 0.0:
             rr = np.sqrt(u1)
-            ph2 = 2.0 * np.pi * u2
-            su = 0.5 * (rr * np.cos(ph2))
-            sv = 0.5 * (rr * np.sin(ph2))
+            sn, cs = sincos_turn(u2)
+            su = 0.5 * (rr * cs)
+            sv = 0.5 * (rr * sn)
         a_ = su * L[j, _LU]
         b_ = sv * L[j, _LV]
         ox = L[j, _CO] + a_ * L[j, _AU] + b_ * L[j, _AV]
@@ -662,8 +662,8 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
         p2 = g * L[j, _STR + 2] * inv_p
     # Cosine-weighted direction about n (lights._cosine_local, _to_world).
     rr = np.sqrt(u3)
-    ph = 2.0 * np.pi * u4
-    lx, ly = rr * np.cos(ph), rr * np.sin(ph)
+    sn, cs = sincos_turn(u4)
+    lx, ly = rr * cs, rr * sn
     lz = np.sqrt(max(1.0 - lx * lx - ly * ly, 0.0))
     wx, wy, wz = _basis_world(lx, ly, lz, nx, ny, nz)
     return (ox, oy, oz, wx, wy, wz, p0, p1, p2, 0.0, L[j, _AREA] / 12.0, b_diffuse, 0.0, j)
