@@ -47,7 +47,9 @@ DOCS = os.path.join(ROOT, "docs", "convergence")
 # scene: (kind for the targets, Cycles reference samples)
 SCENES = {
     "cornell": ("diffuse", 8192),
-    "indirect_room": ("indirect", 8192),
+    # 65536 spp: the 8192-spp reference's floor (1.1e-3) was above 1/3 of
+    # the photon mappers' excess errors at 60 CPU s (4.6e-4 to 1.4e-3).
+    "indirect_room": ("indirect", 65536),
     # Cycles' 16384-spp reference of the cup is as noisy as the methods (a
     # camera path must hit the 5 cm spot in the mirror): the reference is
     # LuxCoreRender's VCM (bench/luxcore_reference.py), in the cache folder.
@@ -378,9 +380,43 @@ def cycles_speed(name="ring_lambert", samples=128, repeats=2, fppm_seconds=20.0)
         print(f"  {k} / standalone: {mean[k] / mean['standalone']:.3f}")
 
 
+def make_reference(name, samples=None, piece=None):
+    """Render (or extend) scene ``name``'s Cycles reference of SCENES' samples
+    in this process, before anything of FPPM runs in it; resumable piece by
+    piece (tools/converge/references.py)."""
+    import bpy
+
+    from fppm.addon.cli import open_blend
+    from fppm.tools.converge import references as R
+
+    kind, spp = SCENES[name]
+    if isinstance(spp, str):
+        sys.exit(f"{name}'s reference is {spp}, made by {REFERENCE_SCRIPTS[name]}")
+    blend = os.path.join(ROOT, "example_blends", name + ".blend")
+    c0, t0 = time.process_time(), time.time()
+    ref = R.make_reference(bpy, open_blend(blend, resolution=100), blend, samples or spp, print,
+                           lambda s, force=False: print(s, flush=True),
+                           piece_samples=piece or R.PIECE_SAMPLES)
+    from fppm.tools import metrics as M
+
+    print(f"{name}: {ref['meta'].get('samples')} spp, {ref['meta'].get('pieces', 2)} pieces, "
+          f"floor {M.reference_floor(ref['image'], ref['var']):.3e}, {ref['path']}; this run "
+          f"{time.process_time() - c0:.0f} CPU s, {time.time() - t0:.0f} s wall", flush=True)
+
+
 def main(argv=None):
     if argv is None:
         argv = sys.argv[1:]
+    if "--make-reference" in argv:
+        sp = argparse.ArgumentParser()
+        sp.add_argument("--make-reference", action="store_true")
+        sp.add_argument("scene")
+        sp.add_argument("--samples", type=int, default=None, help="default: SCENES' count")
+        sp.add_argument("--piece", type=int, default=None,
+                        help="largest piece in spp (default references.PIECE_SAMPLES)")
+        b = sp.parse_args(argv)
+        make_reference(b.scene, b.samples, b.piece)
+        return
     if "--cycles-speed" in argv:
         sp = argparse.ArgumentParser()
         sp.add_argument("--cycles-speed", action="store_true")
