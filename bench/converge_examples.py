@@ -380,7 +380,7 @@ def cycles_speed(name="ring_lambert", samples=128, repeats=2, fppm_seconds=20.0)
         print(f"  {k} / standalone: {mean[k] / mean['standalone']:.3f}")
 
 
-def make_reference(name, samples=None, piece=None):
+def make_reference(name, samples=None, piece=None, threads=0):
     """Render (or extend) scene ``name``'s Cycles reference of SCENES' samples
     in this process, before anything of FPPM runs in it; resumable piece by
     piece (tools/converge/references.py)."""
@@ -396,7 +396,7 @@ def make_reference(name, samples=None, piece=None):
     c0, t0 = time.process_time(), time.time()
     ref = R.make_reference(bpy, open_blend(blend, resolution=100), blend, samples or spp, print,
                            lambda s, force=False: print(s, flush=True),
-                           piece_samples=piece or R.PIECE_SAMPLES)
+                           piece_samples=piece or R.PIECE_SAMPLES, threads=threads)
     from fppm.tools import metrics as M
 
     print(f"{name}: {ref['meta'].get('samples')} spp, {ref['meta'].get('pieces', 2)} pieces, "
@@ -414,8 +414,10 @@ def main(argv=None):
         sp.add_argument("--samples", type=int, default=None, help="default: SCENES' count")
         sp.add_argument("--piece", type=int, default=None,
                         help="largest piece in spp (default references.PIECE_SAMPLES)")
+        sp.add_argument("--threads", type=int, default=0,
+                        help="Cycles' threads (default: one a CPU)")
         b = sp.parse_args(argv)
-        make_reference(b.scene, b.samples, b.piece)
+        make_reference(b.scene, b.samples, b.piece, b.threads)
         return
     if "--cycles-speed" in argv:
         sp = argparse.ArgumentParser()

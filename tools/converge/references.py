@@ -34,6 +34,7 @@ import hashlib
 import json
 import os
 import tempfile
+import time
 
 import numpy as np
 
@@ -177,15 +178,17 @@ def _read_cached(path: str):
 
 
 def make_reference(bpy, scene, blend_path: str, samples: int, log, progress,
-                   piece_samples: int = PIECE_SAMPLES) -> dict:
+                   piece_samples: int = PIECE_SAMPLES, threads: int = 0) -> dict:
     """Cycles reference of at least ``samples`` spp of the open ``scene``, from the cache when there.
 
     In order: the two-halves file of exactly ``samples``; the growing file when
     it holds ``samples`` or more; else pieces of at most ``piece_samples`` are
     rendered and added to the growing file (started from the largest
     two-halves file, or two halves when there is none) until it holds
-    ``samples`` (module docstring).  Changes the scene's Cycles and pass
-    settings: reopen the file afterwards.
+    ``samples`` (module docstring).  threads > 0: Cycles' render threads (its
+    images do not depend on them; more threads than cores take a larger share
+    of a loaded machine).  Changes the scene's Cycles and pass settings:
+    reopen the file afterwards.
     """
     W, H = render_size(scene)
     base = {"resolution": [W, H], "frame": scene.frame_current, "blender": bpy.app.version_string}
@@ -225,6 +228,8 @@ def make_reference(bpy, scene, blend_path: str, samples: int, log, progress,
                             render_seconds=old.get("render_seconds", 0.0), first=os.path.basename(hp))
             n *= 2
     cycles_reference_setup(scene)
+    if threads > 0:
+        scene.render.threads_mode, scene.render.threads = "FIXED", int(threads)
     while group is None or group["samples"] < samples:
         k, have = (0, 0) if group is None else (group["pieces"], group["samples"])
         n = min(int(piece_samples), samples - have)
@@ -233,16 +238,20 @@ def make_reference(bpy, scene, blend_path: str, samples: int, log, progress,
         seed = piece_seed(k)
         progress(f"[reference] piece {k + 1}: {n} spp with Cycles (seed {seed}; "
                  f"{have} of {samples} spp done) ...", force=True)
+        c0 = time.process_time()           # Cycles' threads are this process's
         lay, dt = cycles_render(bpy, scene, n, seed, passes=True)
+        cpu = time.process_time() - c0
         group = merge_pieces(group, _piece(lay, n))
         meta.update(samples=group["samples"], pieces=group["pieces"],
                     seeds=meta["seeds"] + [seed], piece_samples=meta["piece_samples"] + [n],
-                    render_seconds=meta["render_seconds"] + dt)
+                    render_seconds=meta["render_seconds"] + dt,
+                    cpu_seconds=meta.get("cpu_seconds", 0.0) + cpu)
         if group["pieces"] >= 2:
             os.makedirs(os.path.dirname(path), exist_ok=True)
             write_exr(path, _file_layers(group), {"fppm:reference": json.dumps(meta)})
             log(f"Reference: {group['samples']} spp in {group['pieces']} pieces "
-                f"({meta['render_seconds']:.0f} s), cached as {path}.")
+                f"({meta['render_seconds']:.0f} s wall; this piece {dt:.0f} s wall, {cpu:.0f} "
+                f"CPU s, load {os.getloadavg()[0]:.1f}), cached as {path}.")
     layers = _file_layers(group)
     return _as_reference(layers, layer(layers, "Variance"), meta, path)
 
