@@ -380,7 +380,7 @@ def cycles_speed(name="ring_lambert", samples=128, repeats=2, fppm_seconds=20.0)
         print(f"  {k} / standalone: {mean[k] / mean['standalone']:.3f}")
 
 
-def make_reference(name, samples=None, piece=None, threads=0):
+def make_reference(name, samples=None, piece=None, threads=0, first_piece=0):
     """Render (or extend) scene ``name``'s Cycles reference of SCENES' samples
     in this process, before anything of FPPM runs in it; resumable piece by
     piece (tools/converge/references.py)."""
@@ -396,7 +396,8 @@ def make_reference(name, samples=None, piece=None, threads=0):
     c0, t0 = time.process_time(), time.time()
     ref = R.make_reference(bpy, open_blend(blend, resolution=100), blend, samples or spp, print,
                            lambda s, force=False: print(s, flush=True),
-                           piece_samples=piece or R.PIECE_SAMPLES, threads=threads)
+                           piece_samples=piece or R.PIECE_SAMPLES, threads=threads,
+                           first_piece=first_piece)
     from fppm.tools import metrics as M
 
     print(f"{name}: {ref['meta'].get('samples')} spp, {ref['meta'].get('pieces', 2)} pieces, "
@@ -416,8 +417,11 @@ def main(argv=None):
                         help="largest piece in spp (default references.PIECE_SAMPLES)")
         sp.add_argument("--threads", type=int, default=0,
                         help="Cycles' threads (default: one a CPU)")
+        sp.add_argument("--first-piece", type=int, default=0,
+                        help="> 0: a separate growing file whose seeds start at that piece's "
+                             "(another process; join it with references.join_growing)")
         b = sp.parse_args(argv)
-        make_reference(b.scene, b.samples, b.piece, b.threads)
+        make_reference(b.scene, b.samples, b.piece, b.threads, b.first_piece)
         return
     if "--cycles-speed" in argv:
         sp = argparse.ArgumentParser()

@@ -166,3 +166,35 @@ def test_fresh_reference_is_two_halves(tmp_path, monkeypatch):
     a, b = (_fake_cycles([])(None, None, 3, s)[0]["Combined"].astype(np.float64)[..., :3]
             for s in R.REF_SEEDS)
     np.testing.assert_allclose(ref["var"], 0.25 * (a - b) ** 2, rtol=2e-5, atol=1e-9)
+
+
+def test_two_processes_joined_are_one_reference(tmp_path, monkeypatch):
+    """Pieces rendered in another process (first_piece: other seeds, another
+    file) joined to the growing file: the direct K-piece estimate of all."""
+    monkeypatch.setenv("FPPM_CACHE_DIR", str(tmp_path))
+    calls = []
+    monkeypatch.setattr(R, "cycles_render", _fake_cycles(calls))
+    monkeypatch.setattr(R, "cycles_reference_setup", lambda scene: None)
+    monkeypatch.setattr(R, "render_size", lambda scene: (8, 8))
+    bpy = types.SimpleNamespace(app=types.SimpleNamespace(version_string="test"))
+    scene = types.SimpleNamespace(frame_current=1)
+    blend = tmp_path / "s.blend"
+    blend.write_bytes(b"scene")
+    quiet = (lambda s: None, lambda *x, **k: None)
+    a = R.make_reference(bpy, scene, str(blend), 6, *quiet, piece_samples=2)
+    b = R.make_reference(bpy, scene, str(blend), 8, *quiet, piece_samples=4, first_piece=100)
+    assert a["path"] != b["path"]
+    assert [s for _, s in calls] == [R.piece_seed(i) for i in (0, 1, 2, 100, 101)]
+    meta = R.join_growing(a["path"], b["path"])
+    assert meta["samples"] == 14 and meta["pieces"] == 5
+    xs = [_fake_cycles([])(None, None, n, s)[0]["Combined"].astype(np.float64)[..., :3]
+          for n, s in calls]
+    w = np.array([n for n, _ in calls], float)[:, None, None, None]
+    mean = (w * np.stack(xs)).sum(0) / 14
+    var = (w * (np.stack(xs) - mean) ** 2).sum(0) / (4 * 14)
+    ref = R.make_reference(bpy, scene, str(blend), 14, *quiet)
+    assert len(calls) == 5                       # read, not rendered
+    np.testing.assert_allclose(ref["image"], mean, rtol=2e-6)
+    np.testing.assert_allclose(ref["var"], var, rtol=2e-5, atol=1e-9)
+    with pytest.raises(ValueError):
+        R.join_growing(a["path"], a["path"])

@@ -178,7 +178,8 @@ def _read_cached(path: str):
 
 
 def make_reference(bpy, scene, blend_path: str, samples: int, log, progress,
-                   piece_samples: int = PIECE_SAMPLES, threads: int = 0) -> dict:
+                   piece_samples: int = PIECE_SAMPLES, threads: int = 0,
+                   first_piece: int = 0) -> dict:
     """Cycles reference of at least ``samples`` spp of the open ``scene``, from the cache when there.
 
     In order: the two-halves file of exactly ``samples``; the growing file when
@@ -187,7 +188,10 @@ def make_reference(bpy, scene, blend_path: str, samples: int, log, progress,
     two-halves file, or two halves when there is none) until it holds
     ``samples`` (module docstring).  threads > 0: Cycles' render threads (its
     images do not depend on them; more threads than cores take a larger share
-    of a loaded machine).  Changes the scene's Cycles and pass settings:
+    of a loaded machine).  first_piece > 0: a separate growing file (its key
+    has first_piece) whose piece k has the seed of piece first_piece + k, to
+    render pieces in another process at the same time and join the two with
+    :func:`join_growing`.  Changes the scene's Cycles and pass settings:
     reopen the file afterwards.
     """
     W, H = render_size(scene)
@@ -209,6 +213,8 @@ def make_reference(bpy, scene, blend_path: str, samples: int, log, progress,
     if os.path.isfile(path):
         return done(*_read_cached(path), path, "cached")
     grow_settings = dict(base, version=PIECES_VERSION)
+    if first_piece:
+        grow_settings["first_piece"] = int(first_piece)
     path = os.path.join(cache_dir(), reference_key(blend, grow_settings) + ".exr")
     group, meta = None, dict(grow_settings, seeds=[], piece_samples=[], render_seconds=0.0,
                              source=os.path.basename(blend_path))
@@ -217,7 +223,7 @@ def make_reference(bpy, scene, blend_path: str, samples: int, log, progress,
         if int(old["samples"]) >= samples:
             return done(layers, old, path, "cached")
         group, meta = _group_of_file(layers, old), old
-    else:
+    elif not first_piece:
         n = 2
         while n < samples:      # the largest two-halves file below ``samples``
             if os.path.isfile(halves_path(n)):
@@ -235,7 +241,7 @@ def make_reference(bpy, scene, blend_path: str, samples: int, log, progress,
         n = min(int(piece_samples), samples - have)
         if k == 0:
             n = min(n, max(1, samples // 2))       # at least two pieces: a variance
-        seed = piece_seed(k)
+        seed = piece_seed(first_piece + k)
         progress(f"[reference] piece {k + 1}: {n} spp with Cycles (seed {seed}; "
                  f"{have} of {samples} spp done) ...", force=True)
         c0 = time.process_time()           # Cycles' threads are this process's
@@ -254,6 +260,26 @@ def make_reference(bpy, scene, blend_path: str, samples: int, log, progress,
                 f"CPU s, load {os.getloadavg()[0]:.1f}), cached as {path}.")
     layers = _file_layers(group)
     return _as_reference(layers, layer(layers, "Variance"), meta, path)
+
+
+def join_growing(into: str, other: str) -> dict:
+    """Add the growing file ``other`` (pieces of other seeds, make_reference's
+    first_piece) to the growing file ``into``, rewritten; returns its metadata.
+    Raises ValueError when the two share a seed or differ in their settings."""
+    la, ma = _read_cached(into)
+    lb, mb = _read_cached(other)
+    if set(ma["seeds"]) & set(mb["seeds"]):
+        raise ValueError(f"{into} and {other} share seeds")
+    for k in ("resolution", "frame", "blender", "version"):
+        if ma.get(k) != mb.get(k):
+            raise ValueError(f"{into} and {other} differ in {k}")
+    g = merge_pieces(_group_of_file(la, ma), _group_of_file(lb, mb))
+    meta = dict(ma, samples=g["samples"], pieces=g["pieces"], seeds=ma["seeds"] + mb["seeds"],
+                piece_samples=ma["piece_samples"] + mb["piece_samples"],
+                render_seconds=ma.get("render_seconds", 0.0) + mb.get("render_seconds", 0.0),
+                cpu_seconds=ma.get("cpu_seconds", 0.0) + mb.get("cpu_seconds", 0.0))
+    write_exr(into, _file_layers(g), {"fppm:reference": json.dumps(meta)})
+    return meta
 
 
 def load_reference(path: str) -> dict:
