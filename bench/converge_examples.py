@@ -2,6 +2,8 @@
 
     .venv/bin/python bench/converge_examples.py [scene ...] [--budget 120] [--clock cpu] [--seeds 4] [--methods M,...] [--collect-only | --rereport]
     .venv/bin/python bench/converge_examples.py --cycles-speed [scene] [--samples 128] [--repeats 2]
+    .venv/bin/python bench/converge_examples.py --make-reference SCENE [--samples N] [--piece N] [--threads N] [--first-piece K]
+    .venv/bin/python bench/converge_examples.py --rescore REF.exr DIR ... [--methods fppm,ppm,appm,cppm]
 
 One scene at a time (the machine has 2 cores), each in its own process (a
 fresh Blender state).  The clock is CPU (``fppm converge --clock cpu``): a
@@ -12,10 +14,16 @@ convergence.png, report.md, summary.json, PNG images; the EXRs are deleted to
 keep the folder commit-sized) and docs/convergence/report.md, a table of all
 scenes built from their summary.json.
 
-Reference sample counts are chosen so that each Cycles reference takes about
-3 minutes on this machine (2 cores, 128x128), about 3x what Cycles renders in
-the 60 s budget (the reference's own noise is measured and subtracted); references are cached under
-~/.cache/fppm/references (or $FPPM_CACHE_DIR), so a second run skips them.
+Reference sample counts (SCENES) were chosen so that each Cycles reference
+takes about 3 minutes on this machine (2 cores, 128x128), about 3x what Cycles
+renders in the 60 s budget (the reference's own noise is measured and
+subtracted), except where its floor must be lower: a reference's floor must
+be at most 1/3 of the smallest excess error compared (indirect_room: 65536
+spp).  References are cached under ~/.cache/fppm/references (or
+$FPPM_CACHE_DIR), so a second run skips them; --make-reference renders or
+extends one in pieces, resumable (tools/converge/references.py, docs/peers.md
+"Cycles references in pieces").  --rescore scores the final images of
+``fppm converge`` runs (one seed a folder) against another reference.
 --cycles-speed: Cycles' samples/s on one example (default ring_lambert)
 rendered three ways: in the process that has just rendered FPPM (numba and
 Embree threads alive: how the ladder of ``fppm converge`` used to run), in a
@@ -405,9 +413,51 @@ def make_reference(name, samples=None, piece=None, threads=0, first_piece=0):
           f"{time.process_time() - c0:.0f} CPU s, {time.time() - t0:.0f} s wall", flush=True)
 
 
+def rescore(ref_path, dirs, methods, against="fppm"):
+    """The final images ``<dir>/<method>.exr`` of ``fppm converge`` runs (one
+    seed a dir) scored against the reference ``ref_path``: relMSE, excess
+    (relMSE - the reference's floor) and the excess and raw ratios of
+    ``against`` to every other method, as report.py's (the ratio of the means
+    over seeds; the seeds' min-max of the seed-by-seed ratio)."""
+    import numpy as np
+
+    from fppm.core.io.exr import read_exr, read_exr_metadata
+    from fppm.tools import metrics as M
+    from fppm.tools.converge.references import layer, load_reference
+
+    ref = load_reference(ref_path)
+    floor = M.reference_floor(ref["image"], ref["var"])
+    meta = json.loads(read_exr_metadata(ref_path).get("fppm:reference", "{}"))
+    e = {m: [M.relmse(layer(read_exr(os.path.join(d, m + ".exr")), "Combined"), ref["image"])
+             for d in dirs] for m in methods}
+    print(f"reference {ref_path}: {meta.get('samples', '?')} spp, floor {floor:.3e}; "
+          f"{len(dirs)} seeds")
+    for m in methods:
+        print(f"  {m.upper():5s} relMSE {np.mean(e[m]):.3e} (seeds {min(e[m]):.3e}-{max(e[m]):.3e})"
+              f"  excess {np.mean(e[m]) - floor:.3e}  excess / floor {(np.mean(e[m]) - floor) / floor:.2f}")
+    a = np.array(e[against])
+    for m in methods:
+        if m == against:
+            continue
+        b = np.array(e[m])
+        sx = (a - floor) / (b - floor)
+        print(f"  {against.upper()} / {m.upper()}: excess {(a.mean() - floor) / (b.mean() - floor):.3f} "
+              f"(seeds {sx.min():.3f}-{sx.max():.3f}), raw {a.mean() / b.mean():.3f} "
+              f"(seeds {(a / b).min():.3f}-{(a / b).max():.3f})")
+    return floor, e
+
+
 def main(argv=None):
     if argv is None:
         argv = sys.argv[1:]
+    if "--rescore" in argv:
+        sp = argparse.ArgumentParser()
+        sp.add_argument("--rescore", metavar="REF.exr", required=True)
+        sp.add_argument("dirs", nargs="+", help="fppm converge --out folders, one seed each")
+        sp.add_argument("--methods", default="fppm,ppm,appm,cppm")
+        b = sp.parse_args(argv)
+        rescore(b.rescore, b.dirs, b.methods.split(","))
+        return
     if "--make-reference" in argv:
         sp = argparse.ArgumentParser()
         sp.add_argument("--make-reference", action="store_true")
