@@ -100,16 +100,22 @@ def _fake_cycles(calls):
     return render
 
 
-def test_growing_file_resumes_from_halves_and_from_itself(tmp_path, monkeypatch):
+def _fake_setup(tmp_path, monkeypatch):
+    """references.py with the fake renderer and a cache in tmp_path: (the list of
+    (samples, seed) rendered, bpy, scene, the .blend's path)."""
     monkeypatch.setenv("FPPM_CACHE_DIR", str(tmp_path))
     calls = []
     monkeypatch.setattr(R, "cycles_render", _fake_cycles(calls))
     monkeypatch.setattr(R, "cycles_reference_setup", lambda scene: None)
     monkeypatch.setattr(R, "render_size", lambda scene: (8, 8))
-    bpy = types.SimpleNamespace(app=types.SimpleNamespace(version_string="test"))
-    scene = types.SimpleNamespace(frame_current=1)
     blend = tmp_path / "s.blend"
     blend.write_bytes(b"scene")
+    return (calls, types.SimpleNamespace(app=types.SimpleNamespace(version_string="test")),
+            types.SimpleNamespace(frame_current=1), blend)
+
+
+def test_growing_file_resumes_from_halves_and_from_itself(tmp_path, monkeypatch):
+    calls, bpy, scene, blend = _fake_setup(tmp_path, monkeypatch)
     log = []
     # A two-halves file of 4 spp made the old way (REF_VERSION 2).
     render = _fake_cycles([])
@@ -152,15 +158,8 @@ def test_growing_file_resumes_from_halves_and_from_itself(tmp_path, monkeypatch)
 
 
 def test_fresh_reference_is_two_halves(tmp_path, monkeypatch):
-    monkeypatch.setenv("FPPM_CACHE_DIR", str(tmp_path))
-    calls = []
-    monkeypatch.setattr(R, "cycles_render", _fake_cycles(calls))
-    monkeypatch.setattr(R, "cycles_reference_setup", lambda scene: None)
-    monkeypatch.setattr(R, "render_size", lambda scene: (8, 8))
-    bpy = types.SimpleNamespace(app=types.SimpleNamespace(version_string="test"))
-    blend = tmp_path / "s.blend"
-    blend.write_bytes(b"scene")
-    ref = R.make_reference(bpy, types.SimpleNamespace(frame_current=1), str(blend), 6,
+    calls, bpy, scene, blend = _fake_setup(tmp_path, monkeypatch)
+    ref = R.make_reference(bpy, scene, str(blend), 6,
                            lambda s: None, lambda *x, **k: None)
     assert calls == [(3, R.REF_SEEDS[0]), (3, R.REF_SEEDS[1])]
     a, b = (_fake_cycles([])(None, None, 3, s)[0]["Combined"].astype(np.float64)[..., :3]
@@ -171,15 +170,7 @@ def test_fresh_reference_is_two_halves(tmp_path, monkeypatch):
 def test_two_processes_joined_are_one_reference(tmp_path, monkeypatch):
     """Pieces rendered in another process (first_piece: other seeds, another
     file) joined to the growing file: the direct K-piece estimate of all."""
-    monkeypatch.setenv("FPPM_CACHE_DIR", str(tmp_path))
-    calls = []
-    monkeypatch.setattr(R, "cycles_render", _fake_cycles(calls))
-    monkeypatch.setattr(R, "cycles_reference_setup", lambda scene: None)
-    monkeypatch.setattr(R, "render_size", lambda scene: (8, 8))
-    bpy = types.SimpleNamespace(app=types.SimpleNamespace(version_string="test"))
-    scene = types.SimpleNamespace(frame_current=1)
-    blend = tmp_path / "s.blend"
-    blend.write_bytes(b"scene")
+    calls, bpy, scene, blend = _fake_setup(tmp_path, monkeypatch)
     quiet = (lambda s: None, lambda *x, **k: None)
     a = R.make_reference(bpy, scene, str(blend), 6, *quiet, piece_samples=2)
     b = R.make_reference(bpy, scene, str(blend), 8, *quiet, piece_samples=4, first_piece=100)
