@@ -94,17 +94,16 @@ NOTES = [
     "photons only in passes 1, 2, 4, 8, ...; FPPM tracing PPM's own photons; the occlusion march's "
     "end-plane fix), load average 4 to 6.  COMBINED was not re-run: its earlier row (120 CPU s, 4 "
     "seeds, 310a884) read 0.75x PPM; combined.png is that run's image.",
-    "indirect_room: 4 seeds, `indirect_room --budget 60 --seeds 4 --methods fppm` on 7f7d265 "
-    "(frequency_decay 2, the next pass's photons traced early, the gather without reference "
-    "counts; load average 1.5 to 4) and `--methods ppm,appm,cppm` on the same code "
-    "(load average 2 to 3), joined with COMBINED, LIGHT and Cycles from the 2-seed run on "
-    "1bc5e45 (the CSVs joined, the report rebuilt with --rereport: the bias/noise table holds the "
-    "ppm/appm/cppm run's methods).  The 8192-spp Cycles reference's floor is 1.1e-3, and every "
-    "photon mapper's excess error (4.6e-4 to 1.4e-3) lies below 3x it: the ratios are flagged "
-    "'near floor'; the raw relMSE ratios are given beside them in the README.  A run of "
-    "ppm,appm,cppm on 3b5efc2 at load average 9 to 15 was not used: its PPM did 196-207 passes "
-    "in 60 CPU s against 154-186 at load 2-3 here, and 329-375 against 390-417 in the "
-    "principled interior (a pass's CPU moves with the load, in either direction).",
+    "indirect_room: `indirect_room --budget 60 --seeds 4 --methods fppm,ppm,appm,cppm` on "
+    "b80097a against the 65536-spp Cycles reference (15 pieces, floor 1.43e-4, 1/8 of the "
+    "8192-spp reference's 1.14e-3; docs/peers.md 'Cycles references in pieces'), load average "
+    "4.5 to 6 (0.96 to 1.23 cores a method).  Every excess is above 3x the floor (FPPM 4.48e-4 = 3.14x, CPPM 3.17x, APPM 3.80x, PPM 8.17x): no ratio is 'near floor'.  FPPM / PPM 0.384 excess (seeds 0.29-0.48; raw 0.45, 0.14 at 10 %, 0.45 at 50 %), FPPM / APPM 0.83 (seeds 0.79-0.86; raw 0.86), FPPM / CPPM 0.99 (seeds 0.96-1.06; raw 0.99, 0.41 at 10 %, 0.985 at 50 %): a tie with CPPM at 60 CPU s.  COMBINED, LIGHT and Cycles were not re-run against it: on "
+    "1bc5e45 (2 seeds, against the 8192-spp reference, every excess below 3x its floor) COMBINED "
+    "read 1.03x LIGHT and 0.085x Cycles.  The same four methods' final images at 60 CPU s "
+    "from an earlier run on b80097a (3 seeds, load average 15 to 30), rescored "
+    "(`--rescore`): FPPM / PPM excess 0.354 against the 8192-spp reference, 0.355 against "
+    "the 65536-spp one (raw 0.656 and 0.419), FPPM / CPPM 0.983 and 0.980 (raw 0.995, 0.985): "
+    "the excess ratios hold, the raw ones close in on them.",
     "principled_interior: 4 seeds, the same runs and joins as indirect_room (FPPM on 7f7d265 at "
     "load average 1.5 to 4, PPM/APPM/CPPM at load 2 to 3, COMBINED, LIGHT and Cycles the 2-seed "
     "run on 1bc5e45, before frequency_decay 2).  Before X (8b808e2) FPPM read 0.86x PPM and 1.89x "
@@ -144,7 +143,10 @@ NOTES = [
     "the Cycles reference's fireflies had inflated them beyond its measured floor.  The floor "
     "is now above 1/3 of those excesses, so the rows are still 'near floor': about 2x the "
     "reference's CPU (`bench/luxcore_reference.py render coffee_cup --runs 4 --cpu 200` adds "
-    "two runs) is needed to rank FPPM against PPM there.",
+    "two runs) is needed to rank FPPM against PPM there.  Done since: four runs (7806 spp, "
+    "751 CPU s, floor 1.84e-3, 1/3.3 of the smallest of those excesses), the file "
+    "coffee_cup_luxcore_bidirvm_4runs.exr that SCENES now names; these rows are not re-run "
+    "against it yet.",
     "CPU time is not a perfect measure of work on a loaded machine: at the same 30 CPU s, PPM "
     "did 400 and 267 passes on point_caustic's two seeds, FPPM 50 and 36 on indirect_room's "
     "(the other vCPU busy, caches shared).  The seed spreads in the tables include that.",
@@ -153,11 +155,10 @@ NOTES = [
     "between passes; the Cycles worker process for Cycles).  The CPU clock keeps each method's "
     "budget independent of the machine's load, but not of the cache and memory-bandwidth "
     "contention, which slows every method per CPU second.",
-    "indirect_room's 8192-spp reference has a noise floor (1.1e-3) above 1/3 of the photon "
-    "mappers' excess errors at 60 CPU s (5.1e-4 to 1.4e-3): its FPPM / PPM / APPM / CPPM ratios "
-    "are flagged 'near floor' and the APPM / CPPM verdicts are within the seeds' spread; a "
-    "reference about 7x longer is needed to judge them.  point_caustic's (1.4e-4) and "
-    "principled_interior's (2.0e-4) floors are below 1/3 of every excess compared.",
+    "indirect_room's reference is now 65536 spp (floor 1.43e-4, 1/3.1 of the smallest "
+    "excess compared; the 8192-spp one's 1.1e-3 lay above 1/3 of every photon mapper's excess).  "
+    "point_caustic's (1.4e-4) and principled_interior's (2.0e-4) floors are below 1/3 of every "
+    "excess compared.",
     "Cores (CPU / wall) are the share of the 2 cores a method got on the loaded machine, not "
     "what it would use alone (FPPM's whole pass uses 1.40 of 2 cores at 1080p on an idle "
     "machine, README): the wall-equivalent ratios against Cycles use them as measured, so they "
@@ -167,8 +168,9 @@ NOTES = [
     "Cycles: the ladder renders 1, 2, 4, ... spp in a process of its own, each point timed by "
     "that process's CPU; the standalone samples/s check is skipped (--no-cycles-check): it "
     "guarded against the machine's load, which the CPU clock takes out.",
-    "References: Cycles at 8192 spp with caustics on, "
-    "two halves whose difference gives the noise floor; point_caustic: Mitsuba 3's light tracer "
+    "References: Cycles at 8192 spp (indirect_room 65536) with caustics on, "
+    "pieces of independent seeds whose spread gives the noise floor "
+    "(tools/converge/references.py); point_caustic: Mitsuba 3's light tracer "
     "(ptracer, bench/point_caustic_reference.py), 65536 spp: the script's 16384-spp halves "
     "averaged with 49152-spp halves rendered by the same function with other seeds (floor "
     "1.4e-4, 4x below the 16384-spp reference's 5.5e-4), since Cycles cannot render a point "
