@@ -90,9 +90,12 @@ def _tag(engine: str) -> str:
     return engine.replace(":", "_")
 
 
-def reference_path(scene: str, engine: str = ENGINE) -> str:
-    """The reference file bench/converge_examples.py reads (SCENES)."""
-    return os.path.join(_cache(), f"{scene}_luxcore_{_tag(engine).removeprefix('lux_')}.exr")
+def reference_path(scene: str, engine: str = ENGINE, runs: int = 2) -> str:
+    """The reference file of ``runs`` runs bench/converge_examples.py reads (SCENES):
+    ``<scene>_luxcore_<engine>.exr`` for 2 runs, ``..._<runs>runs.exr`` for more
+    (a new file: the cache is shared, a reference in use is never rewritten)."""
+    tag = "" if runs == 2 else f"_{runs}runs"
+    return os.path.join(_cache(), f"{scene}_luxcore_{_tag(engine).removeprefix('lux_')}{tag}.exr")
 
 
 def blend_of(scene: str) -> str:
@@ -163,7 +166,7 @@ def finish(scene: str, engine: str = ENGINE) -> None:
     ref, var, spp, cpu, n = runs_mean(scene, engine)
     meta = {"source": f"LuxCoreRender {engine} (bench/luxcore_reference.py)", "runs": n,
             "samples": spp, "cpu_seconds": round(cpu, 1)}
-    path = reference_path(scene, engine)
+    path = reference_path(scene, engine, n)
     write_exr(path, {"Combined": ref.astype(np.float32), "Variance": var.astype(np.float32)},
               {"fppm:reference": json.dumps(meta)})
     print(f"wrote {path}: {n} runs, {spp} spp, {cpu:.0f} CPU s, "
@@ -360,8 +363,8 @@ def check(scene: str, cycles: int, fppm_runs: list[tuple[str, float]], engine: s
         parts = [load_runs(scene, e) for e in COMPOSE_PARTS]
         runs = np.stack([sum(p[k]["img"] for p in parts) for k in range(min(map(len, parts)))])
     else:
-        ref = load_reference(reference_path(scene, engine))
         runs = np.stack([r["img"] for r in load_runs(scene, engine)])
+        ref = load_reference(reference_path(scene, engine, len(runs)))
     s = P.load_scene(blend_of(scene), PCT)
     lux = P.translate(s)
     ids = first_hit_ids(lux)
