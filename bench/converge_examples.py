@@ -147,7 +147,14 @@ NOTES = [
     "Cycles', docs/peers.md 'The glass sphere's composed reference').  LuxCore's VCM "
     "reference (floor 1.2e-3) was not kept: its bidirectional engines are biased with the "
     "translation's spot (+17 % in the dim region; docs/peers.md 'Why LuxCore's VCM is bright "
-    "on the glass sphere').  Every excess (1.9e-2 to 3.6e-2) is now 10-20x the floor.  Seed 3 is an outlier of every photon mapper (FPPM 6.8e-2, PPM 6.7e-2, COMBINED 4.9e-2 relMSE against 1.0e-2 to 1.3e-2 on seeds 0-2; FPPM and PPM share their photons), 14 % of it in the 220 caustic pixels and 84 % outside the three regions (edges, the sphere): the means and COMBINED's 0.81x FPPM follow it.  On seeds 0-2 FPPM / PPM is 1.03, 1.02, 1.15 and COMBINED / FPPM 1.02, 1.31, 0.88 (raw relMSE at 30 CPU s).  That seed-3 paragraph is the c330335 run's.",
+    "on the glass sphere').  Every excess (1.9e-2 to 3.6e-2) is now 10-20x the floor.  Seed 3 is an outlier of every photon mapper (FPPM 6.8e-2, PPM 6.7e-2, COMBINED 4.9e-2 relMSE against 1.0e-2 to 1.3e-2 on seeds 0-2; FPPM and PPM share their photons), 14 % of it in the 220 caustic pixels and 84 % outside the three regions (edges, the sphere): the means and COMBINED's 0.81x FPPM follow it.  On seeds 0-2 FPPM / PPM is 1.03, 1.02, 1.15 and COMBINED / FPPM 1.02, 1.31, 0.88 (raw relMSE at 30 CPU s).  That seed-3 paragraph is the c330335 run's.  "
+    "FPPM against PPM at 60 CPU s since (`glass_sphere --budget 60 --seeds 4 --methods fppm,ppm` on "
+    "a0b31b1, load average 1.8 to 2, 1.6 cores a method; report and CSV in glass_sphere/fppm_ppm_60s/, "
+    "kept apart from the 30 s table): 0.88 / 0.94 / 0.99 at 10 / 50 / 100 % on the seeds' mean "
+    "errors, which seed 3 carries (seed by seed at 10 / 50 / 100 %: 1.10 / 1.06 / 1.00, 1.11 / "
+    "1.06 / 1.02, 1.17 / 1.27 / 1.11, 0.87 / 0.86 / 0.94); FPPM made 301-385 passes, PPM "
+    "347-386.  The first verified hold's growth is what loses here at equal passes "
+    "(docs/method.md 'Where FPPM's extras do not pay').",
     "coffee_cup: `coffee_cup --budget 60 --seeds 4 --methods fppm,ppm` on a0b31b1 (load average "
     "2 to 3, 1.6 cores a method) against LuxCoreRender's VCM of four runs (bench/luxcore_reference.py "
     "render coffee_cup --runs 4 --cpu 200: 7806 spp, 751 CPU s, floor 1.84e-3; "
