@@ -176,7 +176,8 @@ class FPPMRenderSettings(PropertyGroup):
     use_frequency: BoolProperty(
         name="Frequency Kernel", default=_D.use_frequency,
         description="Adapt the gathering radius per pixel from the local frequency "
-                    "content of the light (Belcour & Soler 2011)")
+                    "content of the light (Belcour & Soler 2011). Where fewer than 25% of "
+                    "the pixels hold after the first pass, the render goes on as plain PPM")
     frequency_fraction: FloatProperty(
         name="Frequency Photons", default=_D.frequency_fraction, min=0.0, max=1.0,
         subtype='FACTOR',
