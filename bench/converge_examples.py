@@ -118,7 +118,12 @@ NOTES = [
     "principled_interior: 4 seeds, the same runs and joins as indirect_room (FPPM on 7f7d265 at "
     "load average 1.5 to 4, PPM/APPM/CPPM at load 2 to 3, COMBINED, LIGHT and Cycles the 2-seed "
     "run on 1bc5e45, before frequency_decay 2).  Before X (8b808e2) FPPM read 0.86x PPM and 1.89x "
-    "CPPM; on 1bc5e45 (X, 2 seeds) 0.48x and 1.18x.",
+    "CPPM; on 1bc5e45 (X, 2 seeds) 0.48x and 1.18x.  Re-run with the three interleaved seed by "
+    "seed (`principled_interior --budget 60 --seeds 4 --methods fppm,ppm,cppm` on a0b31b1, load "
+    "average about 2, 1.7 cores a method; report and CSV in principled_interior/fppm_ppm_cppm_60s/): "
+    "FPPM / PPM 0.535 (seeds 0.51-0.57; 0.77 at 10 %), FPPM / CPPM 1.06 (seeds 1.01-1.12; 1.12 at "
+    "10 %): FPPM made 298-348 passes, CPPM 343-372, at the same error a pass (docs/method.md "
+    "'Where FPPM's extras do not pay').",
     "ring_principled: `ring_principled --budget 60 --seeds 4 --methods fppm,ppm` on c706b47 "
     "(holds left out after pass 1, as ring_lambert), load average 4 to 5.5 (1.0 core a method); "
     "COMBINED and Cycles images from the earlier 2-seed run on a434914.  FPPM / PPM 1.04 / 1.04 "
