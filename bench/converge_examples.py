@@ -18,8 +18,8 @@ Reference sample counts (SCENES) were chosen so that each Cycles reference
 takes about 3 minutes on this machine (2 cores, 128x128), about 3x what Cycles
 renders in the 60 s budget (the reference's own noise is measured and
 subtracted), except where its floor must be lower: a reference's floor must
-be at most 1/3 of the smallest excess error compared (indirect_room: 65536
-spp).  References are cached under ~/.cache/fppm/references (or
+be at most 1/3 of the smallest excess error compared (cornell: 32768 spp,
+indirect_room: 65536 spp).  References are cached under ~/.cache/fppm/references (or
 $FPPM_CACHE_DIR), so a second run skips them; --make-reference renders or
 extends one in pieces, resumable (tools/converge/references.py, docs/peers.md
 "Cycles references in pieces").  --rescore scores the final images of
@@ -54,7 +54,9 @@ DOCS = os.path.join(ROOT, "docs", "convergence")
 
 # scene: (kind for the targets, Cycles reference samples)
 SCENES = {
-    "cornell": ("diffuse", 8192),
+    # 32768 spp: the 8192-spp reference's floor (5.0e-5) was above 1/3 of
+    # light tracing's, Combined's and Cycles' excess errors (1.2e-4 to 1.4e-4).
+    "cornell": ("diffuse", 32768),
     # 65536 spp: the 8192-spp reference's floor (1.1e-3) was above 1/3 of
     # the photon mappers' excess errors at 60 CPU s (4.6e-4 to 1.4e-3).
     "indirect_room": ("indirect", 65536),
@@ -107,10 +109,18 @@ NOTES = [
     "indirect_room: `indirect_room --budget 60 --seeds 4 --methods fppm,ppm,appm,cppm` on "
     "b80097a against the 65536-spp Cycles reference (15 pieces, floor 1.43e-4, 1/8 of the "
     "8192-spp reference's 1.14e-3; docs/peers.md 'Cycles references in pieces'), load average "
-    "4.5 to 6 (0.96 to 1.23 cores a method).  Every excess is above 3x the floor (FPPM 4.48e-4 = 3.14x, CPPM 3.17x, APPM 3.80x, PPM 8.17x): no ratio is 'near floor'.  FPPM / PPM 0.384 excess (seeds 0.29-0.48; raw 0.45, 0.14 at 10 %, 0.45 at 50 %), FPPM / APPM 0.83 (seeds 0.79-0.86; raw 0.86), FPPM / CPPM 0.99 (seeds 0.96-1.06; raw 0.99, 0.41 at 10 %, 0.985 at 50 %): a tie with CPPM at 60 CPU s.  COMBINED, LIGHT and Cycles were not re-run against it: on "
-    "1bc5e45 (2 seeds, against the 8192-spp reference, every excess below 3x its floor) COMBINED "
-    "read 1.03x LIGHT and 0.085x Cycles (combined.png, light.png and cycles.png in the folder "
-    "are that run's images).  The same four methods' final images at 60 CPU s "
+    "4.5 to 6 (0.96 to 1.23 cores a method).  Every excess is above 3x the floor (FPPM 4.48e-4 = 3.14x, CPPM 3.17x, APPM 3.80x, PPM 8.17x): no ratio is 'near floor'.  FPPM / PPM 0.384 excess (seeds 0.29-0.48; raw 0.45, 0.14 at 10 %, 0.45 at 50 %), FPPM / APPM 0.83 (seeds 0.79-0.86; raw 0.86), FPPM / CPPM 0.99 (seeds 0.96-1.06; raw 0.99, 0.41 at 10 %, 0.985 at 50 %): a tie with CPPM at 60 CPU s.  COMBINED, LIGHT and Cycles re-run against it "
+    "since (`indirect_room --budget 60 --seeds 4 --methods combined,light,cycles` on 48f77af, load "
+    "average 4 to 9.5, 0.40 to 0.65 cores a method; report and CSV in "
+    "indirect_room/combined_light_cycles_60s/, kept apart): COMBINED / LIGHT 1.04 excess (seeds "
+    "0.97-1.11; raw 1.03; FLIP 1.01), COMBINED / Cycles 0.084 (seeds 0.077-0.096), LIGHT / Cycles "
+    "0.080; against this table's FPPM (seed by seed across the two runs) FPPM / Cycles 0.099 "
+    "(seeds 0.076-0.12), COMBINED / FPPM 0.85 (seeds 0.77-1.07), LIGHT / FPPM 0.81 (seeds "
+    "0.72-1.01).  LIGHT's and COMBINED's excesses (3.6e-4, 3.8e-4) are 2.55x and 2.65x the floor: "
+    "COMBINED against LIGHT is still 'near floor' (a floor at 1/3 of LIGHT's excess needs about "
+    "77 000 spp).  On 1bc5e45 (2 seeds, against the 8192-spp reference) COMBINED read 1.03x LIGHT "
+    "and 0.085x Cycles; combined.png, light.png and cycles.png in the folder are that run's "
+    "images.  The same four methods' final images at 60 CPU s "
     "from an earlier run on b80097a (3 seeds, load average 15 to 30), rescored "
     "(`--rescore`): FPPM / PPM excess 0.354 against the 8192-spp reference, 0.355 against "
     "the 65536-spp one (raw 0.656 and 0.419), FPPM / CPPM 0.983 and 0.980 (raw 0.995, 0.985): "
@@ -192,7 +202,7 @@ NOTES = [
     "Cycles: the ladder renders 1, 2, 4, ... spp in a process of its own, each point timed by "
     "that process's CPU; the standalone samples/s check is skipped (--no-cycles-check): it "
     "guarded against the machine's load, which the CPU clock takes out.",
-    "References: Cycles at 8192 spp (indirect_room 65536) with caustics on, "
+    "References: Cycles at 8192 spp (cornell 32768, indirect_room 65536) with caustics on, "
     "pieces of independent seeds whose spread gives the noise floor "
     "(tools/converge/references.py); point_caustic: Mitsuba 3's light tracer "
     "(ptracer, bench/point_caustic_reference.py), 65536 spp: the script's 16384-spp halves "
