@@ -2,14 +2,15 @@
 its frequency photons against the same stage without them, on one state.
 
     .venv/bin/python bench/bench_frequency_pass.py principled_interior [--pass 32]
-        [--repeat 20] [--photons 100000] [--percent 50] [--parts]
+        [--repeat 20] [--photons 100000] [--percent 50] [--parts] [--against 3]
 
 The .blend at --percent of its resolution (bench/bench_hold_alpha.py's
 export), FPPM with the file's settings stepped K - 1 passes, then the SPPM
 stages 3-5 of pass K (``Renderer._photons``: radii, reach map, photon trace
 and gather, update) on one camera pass's visible points, from the same saved
 state each time, as pass K (its ``frequency_photons``, e.g. 24 of 100,000 in
-pass 32 with the default schedule) and as pass K + 1 (none), interleaved,
+pass 32 with the default schedule) and as pass K + 1 (none; --against J:
+as pass J, e.g. pass 1 against pass 3), interleaved,
 the same photon stream for both in a repetition; the trace-ahead off so
 that every stage runs in this thread; one numba and one tracing thread;
 process CPU, min and paired median of --repeat.  --parts: CPU inside the
@@ -42,7 +43,10 @@ def main(argv=None):
     ap.add_argument("--percent", type=int, default=50)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--parts", action="store_true")
+    ap.add_argument("--against", type=int, default=0,
+                    help="the pass without frequency photons (default K + 1)")
     a = ap.parse_args(argv)
+    j = a.against or a.k + 1
     import fppm_alias  # noqa: F401
     from bench_fixed_cost import Parts
     from bench_hold_alpha import export
@@ -62,7 +66,7 @@ def main(argv=None):
         # the radius rules' own arrays copied, the rest (tables, the tracer) shared
         return {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in d.items()}
     saved = copy.deepcopy(r.state), arrays(r.radii.__dict__)
-    reach_src = pp._reach_source
+    reach_src = getattr(pp, "_reach_source", None)
     parts = Parts()
     if a.parts:
         parts.wrap(r.tracer, "set_reach")
@@ -73,7 +77,7 @@ def main(argv=None):
         parts.wrap(r.radii, "predicted")
         import fppm.core.sppm.hashgrid as H
         parts.wrap(H, "gather")
-    ks = (a.k, a.k + 1)
+    ks = (a.k, j)
     nf = {k: frequency_photons(st, k, pp.doubling) for k in ks}
 
     def once(k, rng):
@@ -99,13 +103,13 @@ def main(argv=None):
             cpu[k].append(c)
             prt[k].append(p)
     print(f"{a.scene} at {a.percent} %, {a.photons} photons, stages 3-5 of pass {a.k} "
-          f"({nf[a.k]} frequency photons) against pass {a.k + 1} ({nf[a.k + 1]}), CPU ms, "
+          f"({nf[a.k]} frequency photons) against pass {j} ({nf[j]}), CPU ms, "
           f"min / median of {a.repeat}, interleaved; load {os.getloadavg()[0]:.1f}")
-    base = np.array(cpu[a.k + 1])
+    base = np.array(cpu[j])
     for k in ks:
         c = np.array(cpu[k])
         print(f"  pass {k} ({nf[k]:>5} frequency photons): {1e3 * c.min():7.2f} / "
-              f"{1e3 * np.median(c):7.2f}; over pass {a.k + 1}: min "
+              f"{1e3 * np.median(c):7.2f}; over pass {j}: min "
               f"{1e3 * (c.min() - base.min()):+6.2f}, paired median {1e3 * np.median(c - base):+6.2f}")
         if a.parts:
             print("      parts (min): " + ", ".join(
