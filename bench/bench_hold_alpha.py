@@ -45,7 +45,8 @@ only, one numba thread; relMSE against a PPM render of seed 100 with more
 photons and passes (its floor: the relMSE between its half- and full-pass
 images).  Every method renders with ``Renderer.step`` from the same export.
 CPU time (``time.process_time``, one thread: less sensitive than wall time to
-the shared machine's load) is recorded per pass, so PPM's relMSE is also read at FPPM's
+the shared machine's load; each pass billed its own photons' trace, ``OwnTrace``)
+is recorded per pass, so PPM's relMSE is also read at FPPM's
 CPU time (PPM renders ``--ppm-extra`` more passes for that and its error is
 interpolated in log-log).  Per-run CPU times scatter under a shared
 machine's load; ``--cost-only`` gives the FPPM/PPM cost ratio robustly, and
