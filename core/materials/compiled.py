@@ -648,14 +648,15 @@ def _disk(u1, u2):
     # Which branch is a coin flip: selects of the operands, one division,
     # no branch to mispredict (the same operations on each branch's values,
     # so the same bits; docs/architecture.md "Cores at 256² and the bounce
-    # kernel, round 13").  a = b = 0: (0, 0), not 0 / 0.
+    # kernel, round 13").  a = b = 0: (0, 0), and no 0 / 0 (a caller with
+    # numba's python error model would raise).
     big = abs(a) > abs(b)
     num = b if big else a
     r = a if big else b
-    s, c = sincos_quarter((np.pi / 4) * (num / r))
+    zero = r == 0.0
+    s, c = sincos_quarter((np.pi / 4) * (num / (1.0 if zero else r)))
     x = r * c if big else r * s
     y = r * s if big else r * c
-    zero = r == 0.0
     return (0.0 if zero else x), (0.0 if zero else y)
 
 
