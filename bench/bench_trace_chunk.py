@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import threading
 import time
 
 import numpy as np
@@ -30,7 +29,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "bench"))
 
-from bench_render import cornell  # noqa: E402
+from bench_render import ThreadClock, cornell  # noqa: E402
 from core.render import Renderer  # noqa: E402
 from core.settings import RenderSettings  # noqa: E402
 from core.sppm import photon_kernels as PK  # noqa: E402
@@ -44,24 +43,13 @@ def wrap_parts(tracer) -> dict:
     """Sum each part's thread CPU into the returned dict (module functions
     as the tracer calls them: photons.intersect_f32, PK.bounce_kernel,
     PK.emit_lights_state; the tracer's uniforms)."""
-    acc = dict.fromkeys(PARTS, 0.0)
-    lock = threading.Lock()
-
-    def timed(f, key):
-        def g(*args, **kw):
-            c0 = time.thread_time()
-            try:
-                return f(*args, **kw)
-            finally:
-                c = time.thread_time() - c0
-                with lock:
-                    acc[key] += c
-        return g
-    Ph.intersect_f32 = timed(Ph.intersect_f32, "embree")
-    PK.bounce_kernel = timed(PK.bounce_kernel, "bounce")
-    PK.emit_lights_state = timed(PK.emit_lights_state, "emission")
-    tracer.uniforms = timed(tracer.uniforms, "uniforms")
-    return acc
+    tc = ThreadClock()
+    tc.t.update(dict.fromkeys(PARTS, 0.0))
+    tc.wrap(Ph, "intersect_f32", "embree")
+    tc.wrap(PK, "bounce_kernel", "bounce")
+    tc.wrap(PK, "emit_lights_state", "emission")
+    tc.wrap(tracer, "uniforms", "uniforms")
+    return tc.t
 
 
 def main(argv=None):
