@@ -45,7 +45,8 @@ only, one numba thread; relMSE against a PPM render of seed 100 with more
 photons and passes (its floor: the relMSE between its half- and full-pass
 images).  Every method renders with ``Renderer.step`` from the same export.
 CPU time (``time.process_time``, one thread: less sensitive than wall time to
-the shared machine's load) is recorded per pass, so PPM's relMSE is also read at FPPM's
+the shared machine's load; each pass billed its own photons' trace, ``OwnTrace``)
+is recorded per pass, so PPM's relMSE is also read at FPPM's
 CPU time (PPM renders ``--ppm-extra`` more passes for that and its error is
 interpolated in log-log).  Per-run CPU times scatter under a shared
 machine's load; ``--cost-only`` gives the FPPM/PPM cost ratio robustly, and
@@ -114,12 +115,73 @@ def settle(r):
             f.exception()
 
 
+class OwnTrace:
+    """Each pass billed its own photons' trace, wherever it ran.
+
+    The trace-ahead moves a pass's trace into the step before it
+    (``trace_ahead``'s then=), except before a frequency pass (its photons
+    read the last pass's radii) and after the last pass of max_passes: a
+    settled step's CPU is then its own work plus the next pass's trace or
+    not.  Settled, FPPM's pass 2^j - 1 reads about 0.5x PPM's same pass,
+    pass 2^j 2x, and the last pass of a run of 2^j passes 4-6x (PPM's last
+    pass traces nothing; docs/method.md "The frequency passes' fixed cost").
+    Here the thread CPU of every chunk's trace (``PhotonPass._trace_now``) is
+    recorded with the pass whose stream it draws (``Renderer._photon_stream``,
+    ``_next_photon_stream``), and a step's own CPU is its settled CPU minus
+    the traces that ran in it plus its own pass's.  Exact with one tracing
+    thread (FPPM_PHOTON_THREADS=1, this bench's default: a trace's halves
+    then run in the thread that traces the chunk)."""
+
+    def __init__(self, r):
+        from fppm.core.sppm import photons
+        self.exact = photons._threads() == 1
+        self.done = []                      # (pass, thread CPU seconds) per chunk traced
+        self.k_of = {}                      # id(stream) -> (pass, stream): kept alive, ids unique
+        pp = r.photon_pass
+        trace = pp._trace_now
+
+        def traced(n, n_freq, rng):
+            c0 = time.thread_time()
+            try:
+                return trace(n, n_freq, rng)
+            finally:
+                self.done.append((self.k_of.get(id(rng), (None,))[0], time.thread_time() - c0))
+        pp._trace_now = traced
+        for name in ("_photon_stream", "_next_photon_stream"):
+            stream = getattr(r, name)
+
+            def streams(k, stream=stream):
+                rng = stream(k)
+                if rng is not None:
+                    self.k_of[id(rng)] = (k, rng)
+                return rng
+            setattr(r, name, streams)
+
+    def own(self, k, n0, billed):
+        """Pass k's own CPU: billed (its settled step, during which the
+        chunks done[n0:] were traced) less those traces plus pass k's."""
+        if not self.exact:
+            return billed
+        self.k_of = {i: v for i, v in self.k_of.items() if v[0] >= k}
+        ran = sum(t for _, t in self.done[n0:])
+        mine = sum(t for q, t in self.done if q == k)
+        self.done = [d for d in self.done if d[0] is not None and d[0] > k]
+        return billed - ran + mine
+
+
 def step_cpu(r):
-    """(r.step()'s result, its CPU seconds with its trace-ahead settled)."""
+    """(r.step()'s result, its CPU seconds with its trace-ahead settled,
+    billed its own photons' trace: OwnTrace; the settled CPU of the step as
+    it ran is left in ``r._own_trace.billed``)."""
+    own = getattr(r, "_own_trace", None)
+    if own is None:
+        own = r._own_trace = OwnTrace(r)
+    n0 = len(own.done)
     c0 = time.process_time()
     res = r.step()
     settle(r)
-    return res, time.process_time() - c0
+    own.billed = time.process_time() - c0
+    return res, own.own(r.pass_index, n0, own.billed)
 
 
 def ppm_at_cpu(err, cpu, t):
@@ -338,7 +400,8 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
             from fppm.core.frequency.occlusion_march import no_march_grid
             rs[m].tracer.occlusion, rs[m].tracer.march = 0, no_march_grid()
         planes_or(rs[m], m)
-    cpu = {m: [] for m in methods}
+    cpu = {m: [] for m in methods}          # own CPU per pass (step_cpu)
+    billed = {m: [] for m in methods}       # the settled step's CPU as it ran
     gathered = {m: [] for m in methods}
     stages = {m: [] for m in methods}       # per pass: the renderer's stage clocks (wall)
     out = {}
@@ -347,6 +410,7 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
             s0 = dict(rs[m].stage_seconds)
             res, dt = step_cpu(rs[m])
             cpu[m].append(dt)
+            billed[m].append(rs[m]._own_trace.billed)
             gathered[m].append(rs[m].state.M_last.sum())
             stages[m].append({c: t - s0[c] for c, t in rs[m].stage_seconds.items()})
             if p in report:
@@ -381,6 +445,9 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
                 + f"; gathered {np.mean(gathered[m][lo:hi]) / np.mean(gathered['ppm'][lo:hi]):.3f} x PPM")
     # the passes 4, 8, 16, ... alone: those that trace frequency photons under
     # the doubling schedule (photon_pass.frequency_pass); FPPM over PPM there
+    # (own CPU: each pass billed its own photons' trace, OwnTrace; billed: the
+    # settled steps as they ran, the pass before a frequency pass tracing
+    # nothing ahead, docs/method.md "The frequency passes' fixed cost")
     from fppm.core.sppm.photon_pass import frequency_pass
     fp = [p - 1 for p in range(3, passes + 1) if frequency_pass(p)]
     f_ppm = np.array([cpu["ppm"][i] for i in fp])
@@ -389,6 +456,11 @@ def equal_passes(scene, base, methods, seed, passes, report, ref, say):
         say(f"seed {seed} {m:>18}: CPU of the frequency passes {[p + 1 for p in fp]}: "
             f"{1e3 * f.mean():.0f} ms, x PPM's same passes: sum {f.sum() / f_ppm.sum():.3f}, "
             f"each " + " ".join(f"{x:.3f}" for x in f / f_ppm))
+    for m in methods:
+        say(f"seed {seed} {m:>18}: per pass p / p - 1, ms, own (billed): " + "; ".join(
+            f"{p + 1}: {1e3 * cpu[m][p]:.0f} ({1e3 * billed[m][p]:.0f}) / "
+            f"{1e3 * cpu[m][p - 1]:.0f} ({1e3 * billed[m][p - 1]:.0f})"
+            for p in [1] + fp))
 
 
 def signed(scene, base, methods, seed, passes, ref, say):

@@ -62,3 +62,34 @@ def test_disk_matches_the_numpy_warp():
     assert np.abs(got[:, 0] - x).max() <= 1e-15
     assert np.abs(got[:, 1] - y).max() <= 1e-15
     assert got[0].tolist() == [0.0, 0.0]
+
+
+@njit(cache=False)
+def _disks_branched(u, out):
+    """compiled._disk as written before round 13: a branch on |a| > |b| and
+    a division on each side (the reference its selects must equal)."""
+    for i in range(u.shape[0]):
+        a = 2.0 * u[i, 0] - 1.0
+        b = 2.0 * u[i, 1] - 1.0
+        if abs(a) > abs(b):
+            s, c = C.sincos_quarter((np.pi / 4) * (b / a))
+            out[i, 0], out[i, 1] = a * c, a * s
+        elif b == 0.0:
+            out[i, 0], out[i, 1] = 0.0, 0.0
+        else:
+            s, c = C.sincos_quarter((np.pi / 4) * (a / b))
+            out[i, 0], out[i, 1] = b * s, b * c
+
+
+def test_disk_selects_equal_the_branches_bit_for_bit():
+    """The branch-free disk (one division of selected operands) is the
+    branched map's arithmetic: the same bits, the centre and the diagonals
+    (|a| = |b|) included."""
+    u = np.random.default_rng(11).random((200_000, 2))
+    edge = np.array([[0.5, 0.5], [0.5, 0.0], [0.0, 0.5], [0.5, 1.0], [1.0, 0.5], [0.0, 0.0],
+                     [1.0, 1.0], [0.0, 1.0], [0.25, 0.75], [0.75, 0.75], [0.3, 0.5]])
+    u = np.concatenate([edge, u])
+    got, ref = np.empty((u.shape[0], 2)), np.empty((u.shape[0], 2))
+    _disks(u, got)
+    _disks_branched(u, ref)
+    assert np.array_equal(got.view(np.int64), ref.view(np.int64))

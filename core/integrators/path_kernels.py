@@ -53,7 +53,8 @@ from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 # kernels: numba's on-disk cache is stamped by each kernel's own file, so a
 # change of the samplers (core.materials.compiled, .fast) must come with an
 # edit here and in core.sppm.photon_kernels, or a cache filled before it keeps
-# the old code (this note came with compiled.sincos_quarter).
+# the old code (this note came with compiled.sincos_quarter; edited again
+# with the disk warp's one division and sample_fast inlined).
 from ..materials.fast import ABSORBER, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
 from ..sppm.photon_kernels import shading_normal
 from .mis import FULL, SOFT

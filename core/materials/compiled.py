@@ -645,13 +645,19 @@ def _disk(u1, u2):
     sin t, sin phi = cos t)."""
     a = 2.0 * u1 - 1.0
     b = 2.0 * u2 - 1.0
-    if abs(a) > abs(b):
-        s, c = sincos_quarter((np.pi / 4) * (b / a))
-        return a * c, a * s
-    if b == 0.0:
-        return 0.0, 0.0
-    s, c = sincos_quarter((np.pi / 4) * (a / b))
-    return b * s, b * c
+    # Which branch is a coin flip: selects of the operands, one division,
+    # no branch to mispredict (the same operations on each branch's values,
+    # so the same bits; docs/architecture.md "Cores at 256² and the bounce
+    # kernel, round 13").  a = b = 0: (0, 0), and no 0 / 0 (a caller with
+    # numba's python error model would raise).
+    big = abs(a) > abs(b)
+    num = b if big else a
+    r = a if big else b
+    zero = r == 0.0
+    s, c = sincos_quarter((np.pi / 4) * (num / (1.0 if zero else r)))
+    x = r * c if big else r * s
+    y = r * s if big else r * c
+    return (0.0 if zero else x), (0.0 if zero else y)
 
 
 @njit(cache=True, error_model="numpy")

@@ -138,7 +138,9 @@ def _adjoint(nsx, nsy, nsz, ngx, ngy, ngz, wox, woy, woz, wix, wiy, wiz):
     return 0.0
 
 
-@njit(cache=True, error_model="numpy")
+# inline: a call's 17 arguments and 8 results cost ~5 % of the bounce kernel
+# (docs/architecture.md "Cores at 256² and the bounce kernel, round 13").
+@njit(cache=True, error_model="numpy", inline="always")
 def sample_fast(cls, cr, cg, cb, ior, nsx, nsy, nsz, ngx, ngy, ngz, wox, woy, woz,
                 u0, u1, u2):
     """Importance-mode sample of one fast-path closure (``bsdf.sample_bsdf``).

@@ -53,12 +53,16 @@ class TriangleData(NamedTuple):
 
     p: (T, 3, 3) corners; n: (T, 3, 3) corner shading normals; ng: (T, 3) unit
     geometric normal (winding order, as ``accel.surface_point``); mat: (T,)
-    int32 material index.
+    int32 material index; flat: (T,) bool the three corner normals are equal
+    (and not zero); ns: (T, 3) that normal, unit (flat triangles' rows only:
+    the bounce kernel's shading normal there, ``flat_normals``).
     """
     p: np.ndarray
     n: np.ndarray
     ng: np.ndarray
     mat: np.ndarray
+    flat: np.ndarray
+    ns: np.ndarray
 
 
 class LiveState(NamedTuple):
@@ -223,9 +227,26 @@ def build_triangle_data(scene) -> TriangleData:
     P = np.ascontiguousarray(scene.tri_p, np.float64).reshape(-1, 3, 3)
     ng = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
     ng /= np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
-    return TriangleData(p=P, n=np.ascontiguousarray(scene.tri_n, np.float64).reshape(-1, 3, 3),
-                        ng=np.ascontiguousarray(ng),
-                        mat=np.ascontiguousarray(scene.tri_mat, np.int32))
+    N = np.ascontiguousarray(scene.tri_n, np.float64).reshape(-1, 3, 3)
+    flat, ns = flat_normals(N)
+    return TriangleData(p=P, n=N, ng=np.ascontiguousarray(ng),
+                        mat=np.ascontiguousarray(scene.tri_mat, np.int32), flat=flat, ns=ns)
+
+
+def flat_normals(N: np.ndarray) -> tuple:
+    """(flat (T,) bool, ns (T, 3)) of corner normals N (T, 3, 3): the
+    triangles whose three corner normals are equal and longer than
+    shading_normal's 1e-12, and that normal made unit as shading_normal does
+    (each component divided by the length).  The bounce kernel reads it
+    there instead of interpolating: the interpolation (w0 + u + v) n
+    rounds, so on a tilted flat triangle the two differ by an ulp or two
+    (docs/architecture.md "Cores at 256² and the bounce kernel, round 13")."""
+    flat = np.all(N[:, 0] == N[:, 1], axis=1) & np.all(N[:, 0] == N[:, 2], axis=1)
+    n0 = N[:, 0]
+    nl = np.sqrt(n0[:, 0] * n0[:, 0] + n0[:, 1] * n0[:, 1] + n0[:, 2] * n0[:, 2])
+    flat &= nl > 1e-12
+    ns = np.where(flat[:, None], n0 / np.where(flat, nl, 1.0)[:, None], 0.0)
+    return flat, np.ascontiguousarray(ns)
 
 
 # ----------------------------------------------------------------------------
@@ -323,6 +344,7 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
     prim, bu, bv, tfar = hits.prim, hits.bu, hits.bv, hits.tfar
     o32, d32, d64, pw, fo = live.o32, live.d32, live.d64, live.power, live.falloff
     tri_p, tri_n, tri_ng, tri_mat = tris.p, tris.n, tris.ng, tris.mat
+    tri_flat, tri_ns = tris.flat, tris.ns
     m_cls, m_col, m_ior, m_dep = mats.cls, mats.col, mats.ior, mats.deposit
     dep_p, dep_ng, dep_wi, dep_pow, dep_r, dep_b = dep.p, dep.ng, dep.wi, dep.power, dep.r, \
         dep.bounce
@@ -354,7 +376,12 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
         py = w0 * tri_p[t, 0, 1] + uu * tri_p[t, 1, 1] + vv * tri_p[t, 2, 1]
         pz = w0 * tri_p[t, 0, 2] + uu * tri_p[t, 1, 2] + vv * tri_p[t, 2, 2]
         gx, gy, gz = tri_ng[t, 0], tri_ng[t, 1], tri_ng[t, 2]
-        sx, sy, sz = shading_normal(tri_n, t, w0, uu, vv, gx, gy, gz)
+        # A flat triangle's unit normal is kept (flat_normals): no
+        # interpolation, square root and divisions on the path to the sample.
+        if tri_flat[t]:
+            sx, sy, sz = tri_ns[t, 0], tri_ns[t, 1], tri_ns[t, 2]
+        else:
+            sx, sy, sz = shading_normal(tri_n, t, w0, uu, vv, gx, gy, gz)
         wx, wy, wz = -d64[i, 0], -d64[i, 1], -d64[i, 2]
         p0, p1, p2 = pw[i, 0], pw[i, 1], pw[i, 2]
         if first and fo[i] > 0.0:
