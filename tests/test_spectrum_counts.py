@@ -153,6 +153,25 @@ def test_compiled_update_with_growth_equals_numpy(P):
     assert np.all(ref.R2[grown] <= np.square(cap[grown]) * (1 + 1e-12))
 
 
+def _shadow_edge_wrong_prediction():
+    """(renderer, settings, exact image) of tests/test_holds.py's shadow edge,
+    32 passes, with the prediction forced to 10 m, the counts' holds and
+    growth G on and the holds kept although few hold (the growth is tested)."""
+    from core.render import Renderer
+    from analytic_scenes import pixel_centres_ortho
+    from test_holds import _shadow_edge_scene
+    scene, Lfun = _shadow_edge_scene()
+    X, Y = pixel_centres_ortho(scene)
+    st = RenderSettings(integrator="PHOTON", max_passes=32, photons_per_pass=50_000,
+                        photons_for_direct=True, initial_radius_px=4.0,
+                        cap_radius_at_edges=False, verify_holds=True)
+    r = Renderer(scene, st, log=lambda s: None)
+    r.radii.predicted = lambda rmin, rh: np.where(np.isfinite(rmin), 10.0, rmin)
+    r.radii.hold_uniform, r.radii.grow = True, G
+    r.radii.hold_share_min = 0.0
+    return r, st, Lfun(X, Y)
+
+
 def test_growth_on_a_wrong_prediction_still_converges():
     """tests/test_holds.py's shadow edge with the prediction forced to 10 m
     (deliberately wrong), verified holds and growth on: the first pass grows
@@ -162,20 +181,8 @@ def test_growth_on_a_wrong_prediction_still_converges():
     falling.  Measured (seed 0, deterministic): relative L1 error 0.185 at
     pass 8 -> 0.139 at 32 (without growth 0.139 -> 0.109); noise of the
     error +-0.002 (test_holds), margins >= 10 sigma."""
-    from core.render import Renderer
-    from analytic_scenes import pixel_centres_ortho
-    from test_holds import _shadow_edge_scene
-    scene, Lfun = _shadow_edge_scene()
-    X, Y = pixel_centres_ortho(scene)
-    L = Lfun(X, Y)
-    st = RenderSettings(integrator="PHOTON", max_passes=32, photons_per_pass=50_000,
-                        photons_for_direct=True, initial_radius_px=4.0,
-                        cap_radius_at_edges=False, verify_holds=True)
-    r = Renderer(scene, st, log=lambda s: None)
-    r.radii.predicted = lambda rmin, rh: np.where(np.isfinite(rmin), 10.0, rmin)
-    r.radii.hold_uniform, r.radii.grow = True, G
-    r.radii.hold_share_min = 0.0    # the growth is tested: holds kept although few hold
-    r.radii.grow_curvature_z = 0.0  # every verified hold grows (the rule before the veto)
+    r, st, L = _shadow_edge_wrong_prediction()
+    r.radii.grow_curvature_z = 0.0  # every verified hold grows (the rule before its test)
     err, R = {}, {}
     for k in range(1, 33):
         img = r.step().image[..., :3].mean(axis=2)
@@ -284,19 +291,7 @@ def test_the_growth_test_stops_a_wrong_growth_at_edges():
     throughout: measured (seed 0) relative L1 0.103 at pass 8 and 0.077 at
     32, against 0.133 and 0.098 without the test (and 0.084 / 0.064 with the
     scene's own predictions); noise +-0.002 (test_holds)."""
-    from core.render import Renderer
-    from analytic_scenes import pixel_centres_ortho
-    from test_holds import _shadow_edge_scene
-    scene, Lfun = _shadow_edge_scene()
-    X, Y = pixel_centres_ortho(scene)
-    L = Lfun(X, Y)
-    st = RenderSettings(integrator="PHOTON", max_passes=32, photons_per_pass=50_000,
-                        photons_for_direct=True, initial_radius_px=4.0,
-                        cap_radius_at_edges=False, verify_holds=True)
-    r = Renderer(scene, st, log=lambda s: None)
-    r.radii.predicted = lambda rmin, rh: np.where(np.isfinite(rmin), 10.0, rmin)
-    r.radii.hold_uniform, r.radii.grow = True, G
-    r.radii.hold_share_min = 0.0
+    r, st, L = _shadow_edge_wrong_prediction()
     assert r.radii.grow_curvature_z == U.GROW_CURVATURE_Z
     err = {}
     for k in range(1, 33):
