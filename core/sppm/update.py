@@ -35,7 +35,10 @@ the photons contradict; the uniformity test adds holds where the spectrum
 does not call the light smooth (HOLD_OR_UNIFORM), and a verified hold in a
 pixel's first pass with photons grows the radius towards the spectrum's
 prediction (GROW_MAX, :func:`grow_targets`; docs/method.md "Spectrum and
-counts"; both on by default: "X as the default").  Every rule
+counts"; both on by default: "X as the default") unless the neighbouring
+pixels' densities of the same pass curve at the grown scale
+(GROW_CURVATURE_Z, :func:`grow_curvature_rejects`; "When the first hold
+grows").  Every rule
 but that one-off growth only chooses the per-pass factor between the PPM
 rate alpha and the hold rate hold_alpha, so every rule converges by the
 same argument (the growth, once and bounded, scales a bound by a constant).
