@@ -260,7 +260,7 @@ def method_settings(base, method):
 #: Method-name keys of :func:`radii_variant` and the Radii attribute each sets.
 RADII_KEYS = {"power": "hold_min_expected", "release": "release_alpha", "top2": "hold_max_top2",
               "or": "hold_uniform", "orE": "uniform_min_expected", "crit": "uniform_critical",
-              "grow": "grow", "growE": "grow_min_expected",
+              "grow": "grow", "growE": "grow_min_expected", "growZ": "grow_curvature_z",
               "hmax": "hold_alpha_spectrum", "share": "hold_share_min",
               "sharepass": "hold_share_pass"}
 

@@ -35,7 +35,10 @@ the photons contradict; the uniformity test adds holds where the spectrum
 does not call the light smooth (HOLD_OR_UNIFORM), and a verified hold in a
 pixel's first pass with photons grows the radius towards the spectrum's
 prediction (GROW_MAX, :func:`grow_targets`; docs/method.md "Spectrum and
-counts"; both on by default: "X as the default").  Every rule
+counts"; both on by default: "X as the default") unless the neighbouring
+pixels' densities of the same pass curve at the grown scale
+(GROW_CURVATURE_Z, :func:`grow_curvature_rejects`; "When the first hold
+grows").  Every rule
 but that one-off growth only chooses the per-pass factor between the PPM
 rate alpha and the hold rate hold_alpha, so every rule converges by the
 same argument (the growth, once and bounded, scales a bound by a constant).
@@ -121,6 +124,16 @@ UNIFORM_MIN_EXPECTED = 0.0
 #: off; 2 (the default, rule set X).
 GROW_MAX = 2.0
 GROW_MIN_EXPECTED = CHI2_MIN_EXPECTED
+#: The growth's test at the grown scale (docs/method.md "When the first hold
+#: grows"): the counts of one disc cannot see beyond it, but the pixels
+#: initial_radius_px away gathered their own discs in the same pass, at the
+#: distance the grown disc reaches.  Their photon densities M / R^2 along the
+#: image rows and columns give a second difference (zero for a linear
+#: density, the verified holds' model); where it differs from zero by more
+#: than GROW_CURVATURE_Z Poisson standard deviations on either axis the hold
+#: stands but does not grow.  2.576: the two-sided normal quantile of the
+#: chi-square tests' level CHI2_ALPHA; 0: off (every verified hold grows).
+GROW_CURVATURE_Z = 2.576
 #: Per-pixel hold rate from the spectrum (Knaus & Zwicker 2011: the bias of a
 #: disc goes as (R / R_pred)^2 where the light is flat within R_pred): a verified
 #: hold whose spectrum predicts r_pred > R shrinks with
@@ -288,6 +301,7 @@ class Radii:
         self.hold_uniform = HOLD_OR_UNIFORM
         self.grow = GROW_MAX
         self.grow_min_expected = GROW_MIN_EXPECTED
+        self.grow_curvature_z = GROW_CURVATURE_Z
         self.uniform_critical = CHI2_CRITICAL
         self.uniform_min_expected = UNIFORM_MIN_EXPECTED
         self.hold_alpha_spectrum = HOLD_ALPHA_SPECTRUM
@@ -422,8 +436,12 @@ class Radii:
         if self.keep_predictions:
             r_pred = kept_prediction(r_pred, state.r_pred_last, self.keep_minimum)
         left_out = self.holds_left_out is not None
+        grow_cap = self._edge_cap
+        if (rule == "PPM" and self.grow > 1.0 and self.grow_curvature_z > 0 and not left_out
+                and sectors is not None and state.sectors is not None):
+            grow_cap = self.grow_cap(state, M)
         if rule == "PPM" and self.compiled and (left_out or (state.sectors is None) == (sectors is None)):
-            self._update_compiled(state, M, Phi, r_pred, None if left_out else sectors)
+            self._update_compiled(state, M, Phi, r_pred, None if left_out else sectors, grow_cap)
             return
         S = None
         if state.sectors is not None and sectors is not None and not left_out:
@@ -451,7 +469,7 @@ class Radii:
                 r_hold = np.where(uniform, np.fmax(r_pred, keep), r_pred)
             if self.grow > 1.0:
                 R2_grow = np.where(E >= self.grow_min_expected, grow_targets(
-                    state.N, state.R2, r_pred, self.grow, self._edge_cap), 0.0)
+                    state.N, state.R2, r_pred, self.grow, grow_cap), 0.0)
             # Verified holds: the photons veto the prediction where they show
             # more than a linear gradient (the prediction itself is kept for
             # the Predicted Radius pass).
@@ -488,7 +506,24 @@ class Radii:
         state.r_pred_last = r_pred
         state.M_last = M
 
-    def _update_compiled(self, state, M, Phi, r_pred, sectors) -> None:
+    def grow_cap(self, state, M: np.ndarray):
+        """The growth's cap [m] of this pass ((P,) or None: none): the
+        surface-boundary cap, and 0 (no growth) where
+        :func:`grow_curvature_rejects` sees curvature at the grown scale
+        around a pixel in its first pass with photons; the edge cap itself
+        where no pixel is (nothing to decide)."""
+        first = (state.N == 0.0) & (M > 0) & (state.R2 > 0)
+        if not np.any(first) or state.R2.shape[0] != self.H * self.W:
+            return self._edge_cap
+        step = max(1, int(round(self.settings.initial_radius_px)))
+        veto = first & grow_curvature_rejects(M, state.R2, self.H, self.W, step,
+                                              self.grow_curvature_z)
+        cap = (np.full(state.R2.shape[0], np.inf) if self._edge_cap is None
+               else np.array(self._edge_cap, np.float64))
+        cap[veto] = 0.0
+        return cap
+
+    def _update_compiled(self, state, M, Phi, r_pred, sectors, grow_cap=None) -> None:
         """:meth:`update` of the PPM rule in ``_ppm_update_range`` (the same bits)."""
         P = M.shape[0]
         st = self.settings
@@ -505,7 +540,7 @@ class Radii:
                         self.grow * self.grow if self.grow > 1.0 else 0.0,
                         self.grow_min_expected, self.uniform_critical,
                         self.uniform_min_expected, self.hold_alpha_spectrum])
-        cap = self._edge_cap if self._edge_cap is not None else np.zeros(0)
+        cap = grow_cap if grow_cap is not None else np.zeros(0)
         args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2, cap)
         T = numba.get_num_threads()
         if P >= PARALLEL_MIN and T > 1:
@@ -527,6 +562,35 @@ def grow_targets(N, R2, r_pred, grow, cap=None):
     if cap is not None:
         lim = np.minimum(lim, np.square(cap))
     return np.where((N == 0.0) & np.isfinite(r_pred), np.minimum(np.square(rr), lim), 0.0)
+
+
+def grow_curvature_rejects(M, R2, H, W, step, z):
+    """(P,) bool: the photon density of this pass curves at the grown scale
+    around each pixel of an H x W image (P = H W, row-major): the densities
+    rho = M / R^2 (M (P,) photons gathered in squared radii R2 (P,) [m^2]) of
+    the pixels ``step`` rows or columns away give, along either axis,
+        d = rho_- + rho_+ - 2 rho,  Var d = M_- / R_-^4 + M_+ / R_+^4 + 4 M / R^4
+    (Poisson counts, a count of at least 1 for the variance), and the test
+    rejects a linear density where |d| > z sqrt(Var d) on either axis.  An
+    axis with a neighbour off the image or without a radius is not tested."""
+    rho = np.where(R2 > 0, M / np.where(R2 > 0, R2, 1.0), np.nan).reshape(H, W)
+    var = np.where(R2 > 0, np.maximum(M, 1.0) / np.where(R2 > 0, R2 * R2, 1.0),
+                   np.nan).reshape(H, W)
+    out = np.zeros((H, W), bool)
+    for axis in (0, 1):
+        n = rho.shape[axis]
+        if n <= 2 * step:
+            continue
+        c = [slice(None)] * 2
+        lo, mid, hi = list(c), list(c), list(c)
+        lo[axis], mid[axis], hi[axis] = slice(0, n - 2 * step), slice(step, n - step), \
+            slice(2 * step, n)
+        lo, mid, hi = tuple(lo), tuple(mid), tuple(hi)
+        d = rho[lo] + rho[hi] - 2.0 * rho[mid]
+        v = var[lo] + var[hi] + 4.0 * var[mid]
+        with np.errstate(invalid="ignore"):
+            out[mid] |= np.abs(d) > z * np.sqrt(v)      # NaN (no radius): False
+    return out.ravel()
 
 
 def spectrum_hold_alpha(R2, r_spec, r_hold, hold_alpha, alpha_max):
