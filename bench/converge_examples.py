@@ -221,6 +221,19 @@ NOTES = [
     "light's caustic; coffee_cup: LuxCoreRender's VCM (above); glass_sphere: composed (above).  A target whose excess errors "
     "are below 3x the reference floor is marked "
     "'near floor'.",
+    "Round 13 re-runs on 070c4bb (a verified hold's first-pass growth stops where the "
+    "neighbouring pixels' densities curve at the grown scale, docs/method.md 'When the first hold "
+    "grows'), `SCENE --budget 60 --seeds 4 --methods M`, the methods interleaved seed by seed, "
+    "load average 1 to 3, each in SCENE/<methods>_60s/, kept apart from the joined table: "
+    "cornell (fppm,ppm; 32768-spp reference) FPPM / PPM 1.17 / 0.79 / 0.745 at 10 / 50 / 100 % "
+    "(excess 0.74; worst fraction seeds 1.10-1.32; FPPM 273-322 passes, PPM 306-396); "
+    "indirect_room (fppm,ppm,cppm) FPPM / PPM 0.36 excess (raw 0.67 / 0.38 / 0.43), FPPM / CPPM "
+    "0.96 excess (seeds 0.87-1.04; raw 1.02 / 0.89 / 0.97); principled_interior (fppm,ppm,cppm) "
+    "FPPM / PPM 0.53 excess (raw 0.76 / 0.55 / 0.56), FPPM / CPPM 1.05 excess (seeds 0.84-1.23; "
+    "raw 1.06 / 1.06 / 1.04; FPPM 240-346 passes, CPPM 274-351); glass_sphere (fppm,ppm) FPPM / "
+    "PPM 1.26 / 1.09 / 1.07 (excess 1.08; seeds 1.02-1.28; 389-452 passes against 406-451, so "
+    "the loss is at equal passes, 0.14 against 0.128 in the caustic region); coffee_cup "
+    "(fppm,ppm) 1.001 / 0.99 / 0.99 (excess 0.99; seeds 0.93-1.08); point_caustic (fppm,ppm) 0.53 / 0.52 / 0.54 (excess 0.51; seeds 0.52-0.53).",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
