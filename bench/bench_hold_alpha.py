@@ -60,8 +60,13 @@ import os
 import sys
 import time
 
-os.environ.setdefault("NUMBA_NUM_THREADS", "1")
-os.environ.setdefault("FPPM_PHOTON_THREADS", "1")
+# One thread for the protocol, when this file is the program.  Imported into a
+# process that already has numba (pytest), leave the variables alone: numba
+# re-reads NUMBA_NUM_THREADS whenever it compiles, and a 1 against the threads
+# already launched makes every later compile in that process raise.
+if "numba" not in sys.modules:
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+    os.environ.setdefault("FPPM_PHOTON_THREADS", "1")
 
 import numpy as np  # noqa: E402
 

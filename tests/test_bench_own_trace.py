@@ -28,20 +28,9 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(os.path.dirname(HERE), "bench"))
 from test_photon_kernels import cornell  # noqa: E402
 
-# The bench sets NUMBA_NUM_THREADS and FPPM_PHOTON_THREADS to 1 for its own
-# one-thread protocol when imported; numba re-reads its config when it
-# compiles, so left set in this pytest process it would launch the thread pool
-# with one thread and every later test that asks for two would fail.
-_THREAD_ENV = ("NUMBA_NUM_THREADS", "FPPM_PHOTON_THREADS")
-_saved = {k: os.environ.get(k) for k in _THREAD_ENV}
-try:
-    bench = pytest.importorskip("bench_hold_alpha")
-finally:
-    for _k, _v in _saved.items():
-        if _v is None:
-            os.environ.pop(_k, None)
-        else:
-            os.environ[_k] = _v
+# Imported after core (numba loaded), the bench leaves NUMBA_NUM_THREADS and
+# FPPM_PHOTON_THREADS alone (see its header).
+bench = pytest.importorskip("bench_hold_alpha")
 
 
 def _run(frequency, passes=8):
