@@ -314,3 +314,32 @@ def test_oblique_plane_of_incidence_on_a_cylinder_mirror(d0):
     ours = -q[0, 2] / q[0, 1]
     near = foci[foci > 0].min()
     assert ours == pytest.approx(near, rel=0.01)
+
+
+def test_ball_lens_of_glass_sphere_foci_and_the_axis_the_chain_keeps():
+    """glass_sphere.blend's geometry in the meridional plane
+    (bench/diag_ball_lens.py; docs/frequency.md "A ball lens: the glass
+    sphere's focus"): spot 2.809 m from a ball R = 0.35 m, n = 1.5, the
+    renderer's spot init (0, 0.467, 0).  For every zone the spectrum's focus
+    -c/b after both refractions is the traced one: tangential where
+    neighbouring heights meet, sagittal where the ray crosses the axis
+    (measured: equal to 1e-4 m).  On the floor (0.480 m past the centre
+    on the axis) the fold (zone 0.5 R, 32.4 mm off the axis) is a
+    tangential focus: r_x 2.0 mm on the kept axis; the axial core (zone
+    0.79 R) is a sagittal one: r_x 51 mm on the tangential axis the
+    renderer keeps, 0.2 mm on the sagittal one."""
+    import os
+    import sys
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "bench"))
+    import diag_ball_lens as D
+    rows = {round(r[0], 2): r for r in D.flatland()}
+    f = D.IOR * D.RADIUS / (2 * (D.IOR - 1))
+    paraxial = 1 / (1 / f - 1 / D.L) - D.RADIUS                   # closed form, from the exit
+    assert rows[0.05][3] == pytest.approx(paraxial, abs=3e-3)       # zone 0.05 R is near paraxial
+    for hr, y, t_axis, t_tan, f_t, f_s, t_floor, r_t, r_s in rows.values():
+        assert f_t == pytest.approx(t_tan, abs=1e-4)
+        assert f_s == pytest.approx(t_axis, abs=1e-4)
+    fold, core = rows[0.5], rows[0.79]
+    assert fold[1] == pytest.approx(0.0324, abs=5e-4) and fold[7] < 3e-3
+    assert abs(core[1]) < 1e-3
+    assert core[7] == pytest.approx(0.0506, rel=0.05) and core[8] < 1e-3
