@@ -1,7 +1,7 @@
 """Occlusion march micro-benchmark: the photon segments of bench_render's Cornell box.
 
     .venv/bin/python bench/bench_march.py [--photons 40000] [--repeat 15]
-                                          [--ref OLD_OCCLUSION.py]
+                                          [--ref OLD_OCCLUSION.py ...] [--no-dense]
 
 Captures the segments the frequency photons march (the numpy chains of
 tests/oracle_photons.py call ``march_occlusion``; the compiled path marches the
@@ -12,7 +12,9 @@ core/frequency/occlusion_march.py (e.g. ``git show
 HEAD~1:core/frequency/occlusion_march.py > /tmp/old.py``; a core/occlusion.py
 of before the split works too), on the same segments and 200k random ones,
 and checks that a_occ (and t_occ against --ref) are bit-identical.  Ratios
-only, each the best of ``--repeat`` interleaved runs (the machine is shared); the us/segment figure is for scale.
+only, each the best of ``--repeat`` interleaved runs and the median of the
+paired ratios (process CPU time; the machine is shared); the us/segment
+figure is for scale.  ``--no-dense`` leaves out the dense march.
 """
 from __future__ import annotations
 
@@ -59,10 +61,11 @@ def capture(photons: int, seed: int = 1):
     return r.occ_grid, float(r.occ_locality), o, d, t
 
 
-def _ref_march(path, g, loc):
+def _ref_march(path, g, loc, k=0):
     """The array march of another occlusion_march.py (or a core/occlusion.py
     of before the split): f(o, d, t, out, out_t)."""
-    spec = importlib.util.spec_from_file_location("core.frequency._occlusion_ref", path)
+    spec = importlib.util.spec_from_file_location(
+        "core.frequency._occlusion_ref" + (str(k) if k else ""), path)
     ref = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = ref                  # dataclasses look it up
     spec.loader.exec_module(ref)
@@ -81,8 +84,11 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--photons", type=int, default=40_000)
     ap.add_argument("--repeat", type=int, default=15)
-    ap.add_argument("--ref", default=None,
-                    help="another core/frequency/occlusion_march.py to compare with")
+    ap.add_argument("--ref", action="append", default=[],
+                    help="another core/frequency/occlusion_march.py to compare with "
+                         "(repeatable: each is timed interleaved with the others)")
+    ap.add_argument("--no-dense", action="store_true",
+                    help="leave out the dense reference march (slow)")
     a = ap.parse_args(argv)
     g, loc, o, d, t = capture(a.photons)
     t_skip = g.voxel_diagonal
@@ -95,10 +101,11 @@ def main(argv=None):
 
     m = Occ.march_grid(g, loc)
     fns = {"block march": lambda o_, d_, t_, out, ot: Occ._march(m, o_, d_, t_, out, ot)}
-    if a.ref:
-        fns["--ref march"] = _ref_march(a.ref, g, loc)
-    fns["dense march"] = lambda o_, d_, t_, out, ot: oracle_occlusion.march_dense(
-        g.dist, g.cone, g.lo, g.cell, g.res, o_, d_, t_, loc, t_skip, out)
+    for k, path in enumerate(a.ref):
+        fns[f"--ref {os.path.basename(path)}"] = _ref_march(path, g, loc, k)
+    if not a.no_dense:
+        fns["dense march"] = lambda o_, d_, t_, out, ot: oracle_occlusion.march_dense(
+            g.dist, g.cone, g.lo, g.cell, g.res, o_, d_, t_, loc, t_skip, out)
 
     for name, (oo, dd, tt) in (("Cornell photon segments", (o, d, t)),
                                ("random segments (length U(0, 2) m)", (o2, d2, t2))):
@@ -107,10 +114,10 @@ def main(argv=None):
         for rep in range(a.repeat + 1):           # first round: compilation
             for k, f in fns.items():
                 out, ot = np.empty(N), np.full(N, np.inf)
-                t0 = time.perf_counter()
+                t0 = time.process_time()
                 f(oo, dd, tt, out, ot)
                 if rep:
-                    ts[k].append(time.perf_counter() - t0)
+                    ts[k].append(time.process_time() - t0)
                 res[k] = (out, ot)
         base = min(ts["block march"])
         print(f"{name}: {N} segments, {np.isfinite(res['block march'][0]).mean():.0%} occluded; "
@@ -120,7 +127,8 @@ def main(argv=None):
                 continue
             same_a = np.array_equal(res[k][0], res["block march"][0])
             same_t = np.array_equal(res[k][1], res["block march"][1]) if k != "dense march" else None
-            print(f"  {k} / block march: {min(ts[k]) / base:.3f}x; identical a_occ: {same_a}"
+            med = np.median(np.array(ts[k]) / np.array(ts["block march"]))
+            print(f"  {k} / block march: {min(ts[k]) / base:.3f}x (paired median {med:.3f}x); identical a_occ: {same_a}"
                   + ("" if same_t is None else f", t_occ: {same_t}"))
     return 0
 
