@@ -4,7 +4,7 @@ light is smooth (HOLD_OR_UNIFORM, the test from UNIFORM_MIN_EXPECTED photons
 per cell; the linear test still vetoes), and in a
 pixel's first pass with photons a verified hold grows the radius to the
 spectrum's prediction, at most GROW_MAX times, never past the surface-boundary
-cap, only where the counts can be tested (GROW_MIN_EXPECTED per cell).  Both
+cap, only where the counts are full (GROW_MIN_EXPECTED, 10 per cell).  Both
 are on by default (rule set X: HOLD_OR_UNIFORM True from UNIFORM_MIN_EXPECTED
 0, i.e. CPPM's retention while its test cannot reject, GROW_MAX 2;
 docs/method.md "X as the default"); these tests set them, with G = 2.
@@ -92,13 +92,17 @@ def test_first_pass_grows_to_the_prediction_within_limits():
 
 
 def test_growth_needs_counts_the_test_can_judge():
-    """Below GROW_MIN_EXPECTED (5) photons per cell the first pass holds
-    (uniform counts, 10 R predicted) but does not grow: 4 per cell holds at
-    the 0.9 rate, 5 per cell grows to 2 R."""
-    counts = np.array([np.full(C, 4.0), np.full(C, 5.0)])
-    st = _one_pass(counts, np.full(2, 0.1))
-    assert st.held.all()
-    assert st.R2 / 1e-4 == pytest.approx([0.9, G ** 2], rel=1e-12)
+    """Below GROW_MIN_EXPECTED (10, twice the tests' minimum of 5: docs/method.md
+    "Grow only where the counts are full") photons per cell the first pass
+    holds (uniform counts, 10 R predicted) but does not grow: 4 and 9.5 per
+    cell hold at the 0.9 rate, 10 per cell grows to 2 R, in the compiled
+    update and its numpy reference."""
+    assert U.GROW_MIN_EXPECTED == 2.0 * U.CHI2_MIN_EXPECTED == 10.0
+    counts = np.array([np.full(C, 4.0), np.full(C, 9.5), np.full(C, 10.0)])
+    for compiled in (True, False):
+        st = _one_pass(counts, np.full(3, 0.1), compiled=compiled)
+        assert st.held.all()
+        assert st.R2 / 1e-4 == pytest.approx([0.9, 0.9, G ** 2], rel=1e-12)
 
 
 def test_uniform_counts_hold_without_a_prediction():

@@ -120,10 +120,14 @@ UNIFORM_MIN_EXPECTED = 0.0
 #: the spectrum's prediction, at most GROW_MAX times the initial radius and
 #: never past the surface-boundary cap (docs/method.md "Spectrum and counts":
 #: the counts of a disc cannot say that the light is smooth beyond it); only
-#: where the counts can be tested (GROW_MIN_EXPECTED per sector cell).  1:
-#: off; 2 (the default, rule set X).
+#: where the counts can be tested and a grown disc pays for its gather
+#: (GROW_MIN_EXPECTED per sector cell).  1: off; 2 (the default, rule set X).
 GROW_MAX = 2.0
-GROW_MIN_EXPECTED = CHI2_MIN_EXPECTED
+#: 10, twice the chi-square tests' CHI2_MIN_EXPECTED: the pixels of 5-10
+#: photons per cell gained ~1-2 % of their own error from growing and paid a
+#: larger gather in every pass after (docs/method.md "When the first hold
+#: grows", "Grow only where the counts are full").
+GROW_MIN_EXPECTED = 2.0 * CHI2_MIN_EXPECTED
 #: The growth's test at the grown scale (docs/method.md "When the first hold
 #: grows"): the counts of one disc cannot see beyond it, but the pixels
 #: initial_radius_px away gathered their own discs in the same pass, at the
