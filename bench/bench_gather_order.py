@@ -3,6 +3,7 @@
     .venv/bin/python bench/bench_gather_order.py [--res 256x256 1920x1080] [--repeat 5]
     .venv/bin/python bench/bench_gather_order.py --res 256x256 --cell-factors 1.5 1 2
     .venv/bin/python bench/bench_gather_order.py --res 256x256 --splat --repeat 10
+    .venv/bin/python bench/bench_gather_order.py --res 256x256 --count-runs --repeat 12
 
 The deposits of one pass of the Cornell box (plain, 200k photons: its
 chunks), the grid and the visible points, captured from a render; then,
@@ -34,6 +35,14 @@ thread right after the bounce kernel wrote them, into that thread's row of
 a GatherBuffers (pbrt-v4's SPPM splats at deposit time), then the same fold
 (docs/architecture.md "The photon pass's own work against raw Embree").
 
+--count-runs: instead, the pass's chunks gathered (sorted) and folded with
+hashgrid's count pass (by runs of a slot, rule (1) as a bit mask) and with
+the photon-by-photon count pass it replaced
+(tests/test_count_runs.py ``count_photon_by_photon``, in the same prange
+split), alternating, the count pass's CPU on its own; the sums and pairs
+compared bit for bit (docs/architecture.md "The count pass by runs of a
+slot, round 14").
+
 Printed: CPU (process clock) of each, min / median of --repeat rounds,
 and the largest differences of the sums (M, sector counts and the
 smallest radius exactly; Phi within float64 rounding: the summation order
@@ -60,6 +69,7 @@ from core.sppm import hashgrid as Hg  # noqa: E402
 from core.render import Renderer  # noqa: E402
 from core.settings import RenderSettings  # noqa: E402
 from core.kept import KeptBuffers  # noqa: E402
+from test_count_runs import count_photon_by_photon  # noqa: E402
 
 
 def capture(w, h, photons, plain=True, builds=None):
@@ -108,6 +118,9 @@ def main(argv=None):
     ap.add_argument("--splat", action="store_true",
                     help="instead: the pass's photons traced again, deposit-then-gather "
                          "against splatting each bounce's deposits in the trace, interleaved")
+    ap.add_argument("--count-runs", action="store_true",
+                    help="instead: the count pass by runs against photon by photon, "
+                         "alternating")
     a = ap.parse_args(argv)
     THREADS[:] = a.threads
     print(f"load average {os.getloadavg()[0]:.1f}, numba threads {numba.get_num_threads()}")
@@ -117,6 +130,8 @@ def main(argv=None):
         r, calls = capture(w, h, a.photons, builds=builds)
         if a.splat:
             run_splat(wh, r, calls, a.repeat)
+        elif a.count_runs:
+            run_count_runs(wh, calls, a.repeat)
         elif a.cell_factors:
             run_cells(wh, builds[-1], calls, a.cell_factors, a.repeat)
         else:
@@ -286,6 +301,93 @@ def run_cells(wh, build, calls, factors, repeat):
 
 
 # ---------------------------------------------------------------------------
+# The count pass by runs against photon by photon
+# ---------------------------------------------------------------------------
+
+@njit(cache=True, parallel=True)
+def _count_by_photon_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec,
+                              vp_clip, cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask,
+                              n_pair, n_freq, S, touched, n_touched, n_chunks):
+    """hashgrid._count_parallel with the photon-by-photon count pass."""
+    n = slot.shape[0]
+    for c in prange(n_chunks):
+        count_photon_by_photon(c * n // n_chunks, (c + 1) * n // n_chunks, slot, ph_pos,
+                               ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip, cos_ng,
+                               cell_start, vp_ids, M[c], Phi[c], rmin[c], hitmask, n_pair,
+                               n_freq, S[c], touched[c], n_touched[c:c + 1])
+
+
+def run_count_runs(wh, calls, repeat):
+    """--count-runs: gather + fold of the pass's chunks with hashgrid's count
+    pass ("runs") and the photon-by-photon one ("photon"), alternating (the
+    order swapped each round); CPU of the whole and of the count pass."""
+    grid = calls[0][0]
+    K = grid.K
+    sectors = calls[0][2]["buffers"].with_sectors
+    clip = calls[0][2].get("clip")
+    n_ph = sum(c[1][0].shape[0] for c in calls)
+    print(f"  {wh}: {len(calls)} chunks, {n_ph:,} deposits, {grid.summary()}, "
+          f"sectors {sectors}, clip {clip is not None}")
+    kernels = {"photon": _count_by_photon_parallel, "runs": Hg._count_parallel}
+    bufs = {k: Hg.GatherBuffers(K, sectors) for k in kernels}
+    for b in bufs.values():
+        b.kept = KeptBuffers()
+    alb = np.full((K, 3), 0.8, np.float32)
+    cpu = {k: [] for k in kernels}
+    cnt = {k: [] for k in kernels}
+    out = {}
+    T = [0.0]
+    kept = Hg._count_parallel
+    try:
+        for rep in range(repeat + 1):
+            for name in (("photon", "runs") if rep % 2 == 0 else ("runs", "photon")):
+                f = kernels[name]
+
+                def timed(*a, _f=f):
+                    c0 = time.process_time()
+                    try:
+                        return _f(*a)
+                    finally:
+                        T[0] += time.process_time() - c0
+                Hg._count_parallel = timed
+                b = bufs[name]
+                M = np.zeros(K, np.int64)
+                Phi = np.zeros((K, 3))
+                rmin = np.full(K, np.inf)
+                S = np.zeros((K, Hg.SECTOR_CELLS), np.int64) if sectors else None
+                pairs = []
+                T[0] = 0.0
+                c0 = time.process_time()
+                for grid_, args, kw in calls:
+                    g = Hg.gather(grid_, *args, **dict(kw, buffers=b))
+                    b.fold(M, Phi, alb, np.pi, rmin, None, S, kw.get("clip"))
+                    pairs.append((g.pair_vp.copy(), g.pair_ph.copy()))
+                c = time.process_time() - c0
+                if rep:
+                    cpu[name].append(c)
+                    cnt[name].append(T[0])
+                out[name] = (M, Phi, rmin, S, pairs)
+    finally:
+        Hg._count_parallel = kept
+    a, b = out["photon"], out["runs"]
+    same = (all(np.array_equal(x, y) for x, y in zip(a[:3], b[:3]))
+            and (a[3] is None or np.array_equal(a[3], b[3]))
+            and all(np.array_equal(x[0], y[0]) and np.array_equal(x[1], y[1])
+                    for x, y in zip(a[4], b[4])))
+    for k in kernels:
+        print(f"    {k}: gather + fold CPU min {min(cpu[k]) * 1e3:.1f} / median "
+              f"{np.median(cpu[k]) * 1e3:.1f} ms, of it the count pass min "
+              f"{min(cnt[k]) * 1e3:.1f} / median {np.median(cnt[k]) * 1e3:.1f} ms (a pass)")
+    r_all = [x / y for x, y in zip(cpu["runs"], cpu["photon"])]
+    r_cnt = [x / y for x, y in zip(cnt["runs"], cnt["photon"])]
+    print(f"    runs / photon, medians of the rounds' ratios: gather + fold {np.median(r_all):.3f}, "
+          f"count pass {np.median(r_cnt):.3f}; rounds (count) "
+          + " ".join(f"{x:.2f}" for x in r_cnt))
+    print(f"    M, Phi, rmin, sectors, pairs the same bits: {same}; "
+          f"load average {os.getloadavg()[0]:.1f}")
+
+
+# ---------------------------------------------------------------------------
 # The trace-order gather
 # ---------------------------------------------------------------------------
 
@@ -295,7 +397,7 @@ def _direct_range(p0, p1, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, origin, inv_
                   M, Phi, rmin, ps, hitmask, n_pair, n_freq, S, touched, n_touched):
     """Deposits p0..p1-1 in trace order: their slots (hashgrid._photon_slots),
     then hashgrid's count pass on each run of deposits that have a slot (its
-    body, in trace order)."""
+    body, in trace order, photon by photon: run_min 65)."""
     Hg._photon_slots(p0, p1, ph_pos, origin, inv_h, lo, hi, dense, nx, ny, nz, shift,
                      cell_start, ps)
     p = p0
@@ -311,7 +413,7 @@ def _direct_range(p0, p1, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, origin, inv_
             q += 1
         Hg._count_range(p, q, ps, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip,
                         cos_ng, cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq, S,
-                        touched, n_touched)
+                        touched, n_touched, 65)
         p = q
 
 

@@ -54,7 +54,7 @@ def _small_gather(clip: bool):
     return (0, P, slot, ph, up, up, up, np.full(P, np.nan), rec, vp_clip, 0.5,
             grid.cell_start, grid.vp_ids, np.zeros(K, np.int32), np.zeros((K, 3)),
             np.full(K, np.inf), *out1, np.zeros((K, hg.SECTOR_CELLS), np.int32),
-            np.zeros(K, np.int32), np.zeros(1, np.int64))
+            np.zeros(K, np.int32), np.zeros(1, np.int64), 1)
 
 
 def test_count_and_pair_passes_have_no_reference_counts_per_candidate():

@@ -102,7 +102,10 @@ from typing import Callable, Optional
 
 import numba
 import numpy as np
+from llvmlite import ir
 from numba import njit, prange
+from numba.core import types
+from numba.extending import intrinsic
 
 from .. import memory
 from ..kept import KeptBuffers
@@ -116,6 +119,13 @@ PARALLEL_MIN_VPS = 1 << 18      # build_grid: below this many VPs, one thread
 # gather's photon sort: a counting sort over the table's slots up to this
 # many slots a photon, a merge sort of the photons' slots above (_sort_photons).
 COUNT_SORT_SLOTS_PER_PHOTON = 8
+# The count pass tests runs of at least this many photons of one slot
+# candidate by candidate, rule (1) as a bit mask over the run, shorter runs
+# photon by photon; and only in a chunk whose slots hold this many photons
+# on average (256 x 256: ~13; 1080p: ~1, where the candidates' records miss
+# the caches and the masks measured 1.1-1.4x slower): _run_min,
+# docs/architecture.md "The count pass by runs of a slot, round 14".
+COUNT_RUN_MIN = 4
 # The build's counting sort splits the slots in two parts (below a split
 # and the others; _insert_parallel is written for two), each VP's slots
 # written to its part's list: more threads split each part's slots, and
@@ -761,13 +771,20 @@ def _vp_record(vp_rec, v):
 def _accepts(rx, ry, rz, r2, nvx, nvy, nvz, code, x, y, z, wx, wy, wz, gx, gy, gz, cos_ng):
     """Gather rules (1)-(5) of the module docstring for photon (x, w, g) and
     the visible point (r, r2, nv) of _vp_record: the one place they are
-    written (count and pair passes).  code: its packed clip, CLIP_CLEAR for
-    no rule (5)."""
+    written (count and pair passes; rules (2)-(5) in _accepts_near).  code:
+    its packed clip, CLIP_CLEAR for no rule (5)."""
     dx = x - rx
     dy = y - ry
     dz = z - rz
     if not (dx * dx + dy * dy + dz * dz < r2):                              # (1)
         return False
+    return _accepts_near(dx, dy, dz, r2, nvx, nvy, nvz, code, wx, wy, wz, gx, gy, gz, cos_ng)
+
+
+@njit(cache=True, inline="always")
+def _accepts_near(dx, dy, dz, r2, nvx, nvy, nvz, code, wx, wy, wz, gx, gy, gz, cos_ng):
+    """Rules (2)-(5) of _accepts for a photon at offset (dx, dy, dz) from
+    the visible point, rule (1) (dx^2 + dy^2 + dz^2 < r2) already passed."""
     if not (wx * nvx + wy * nvy + wz * nvz > 0.0):                          # (2)
         return False
     cg = gx * nvx + gy * nvy + gz * nvz
@@ -783,6 +800,17 @@ def _accepts(rx, ry, rz, r2, nvx, nvy, nvz, code, x, y, z, wx, wy, wz, gx, gy, g
         if b < CLIP_OPEN and 65025.0 * (u * u + w * w) >= np.float64(b * b) * r2:
             return False
     return True
+
+
+@intrinsic
+def _trailing_zeros(typingctx, x):
+    """The index of the lowest set bit of the uint64 x (x != 0): LLVM's
+    llvm.cttz (one tzcnt / bsf instruction on x86-64)."""
+    sig = types.int64(types.uint64)
+
+    def codegen(context, builder, signature, args):
+        return builder.cttz(args[0], ir.Constant(ir.IntType(1), 1))
+    return sig, codegen
 
 
 @njit(cache=True, inline="always")
@@ -895,65 +923,156 @@ def _sector_cell(rx, ry, rz, r2, nvx, nvy, nvz, x, y, z):
 @njit(cache=True)
 def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                  vp_rec, vp_clip, cos_ng, cell_start, vp_ids,
-                 M, Phi, rmin, hitmask, n_pair, n_freq, S, touched, n_touched):
+                 M, Phi, rmin, hitmask, n_pair, n_freq, S, touched, n_touched, run_min):
     """Sorted photons q0..q1-1 (ph_* already in sorted order): accumulate M,
     Phi (const VPs), rmin into this chunk's arrays, and (S with SECTOR_CELLS
     columns, else 0 columns) each counted photon's sector cell into S.  n_pair[q] / n_freq[q] =
     number of non-const / frequency pairs of the photon; hitmask[q] bit j =
     entry cell_start[s] + j counted (cells of <= 64 entries), so the pair pass
     need not redo the tests.  touched (K,) int32 (size 0: not recorded): each
-    VP whose M goes from 0 to 1 is appended at n_touched[0] (GatherBuffers)."""
+    VP whose M goes from 0 to 1 is appended at n_touched[0] (GatherBuffers).
+
+    By runs of run_min to 64 photons in one slot (_run_min), candidate by
+    candidate (shorter runs photon by photon, in the same arithmetic): rule
+    (1), the distance, is evaluated for the whole run without a branch into
+    a bit mask (bit j: photon a + j within the radius), and only its set
+    bits go on to rules (2)-(5) and the sums (the run's positions are
+    copied to float64 columns xs, ys, zs first, so that the distance loop
+    runs in SIMD lanes).  Photon by photon, rule (1) was a branch taken about
+    one time in three at random, mispredicted at most candidates
+    (docs/architecture.md "The count pass by runs of a slot, round 14").
+    A candidate's sums stay in registers over the run:
+    Phi[v] still receives the photons' powers one by one in photon order
+    (the local sum starts from Phi[v]), rmin is a minimum, M and S are
+    counts, so the outputs are the same bits as testing photon by photon
+    (tests/test_count_runs.py); only the touched list's order differs (the
+    fold does not depend on it)."""
     one = np.uint64(1)
     with_sectors = S.shape[1] > 0
     track = touched.shape[0] > 0
     clipped = vp_clip.shape[0] > 0
-    for p in range(q0, q1):
-        q = p
-        s = slot[q]
+    xs = np.empty(64)
+    ys = np.empty(64)
+    zs = np.empty(64)
+    a = q0
+    while a < q1:
+        s = slot[a]
+        b = a + 1
+        while b < q1 and b - a < 64 and slot[b] == s:
+            b += 1
+        L = b - a
+        if L < run_min:
+            # a short run (1080p: ~0.3 deposits a slot): photon by photon,
+            # the mask's set-up would cost more than its branches save
+            for p in range(a, b):
+                x = np.float64(ph_pos[p, 0])
+                y = np.float64(ph_pos[p, 1])
+                z = np.float64(ph_pos[p, 2])
+                r = ph_rpred[p]
+                is_freq = not math.isnan(r)
+                npair = 0
+                nfreq = 0
+                mask = np.uint64(0)
+                for e in range(cell_start[s], cell_start[s + 1]):
+                    v = vp_ids[e]
+                    rx, ry, rz, r2, nvx, nvy, nvz, const = _vp_record(vp_rec, v)
+                    code = vp_clip[v] if clipped else CLIP_CLEAR
+                    if not _accepts(rx, ry, rz, r2, nvx, nvy, nvz, code, x, y, z,
+                                    np.float64(ph_wi[p, 0]), np.float64(ph_wi[p, 1]),
+                                    np.float64(ph_wi[p, 2]), np.float64(ph_ng[p, 0]),
+                                    np.float64(ph_ng[p, 1]), np.float64(ph_ng[p, 2]), cos_ng):
+                        continue
+                    M[v] += 1
+                    if track and M[v] == 1:
+                        touched[n_touched[0]] = v
+                        n_touched[0] += 1
+                    if with_sectors:
+                        S[v, _sector_cell(rx, ry, rz, r2, nvx, nvy, nvz, x, y, z)] += 1
+                    if const != 0.0:
+                        Phi[v, 0] += ph_power[p, 0]
+                        Phi[v, 1] += ph_power[p, 1]
+                        Phi[v, 2] += ph_power[p, 2]
+                    else:
+                        npair += 1
+                    if is_freq:
+                        nfreq += 1
+                        if r < rmin[v]:
+                            rmin[v] = r
+                    if e - cell_start[s] < 64:
+                        mask |= one << np.uint64(e - cell_start[s])
+                hitmask[p] = mask
+                n_pair[p] = npair
+                n_freq[p] = nfreq
+            a = b
+            continue
+        for q in range(a, b):
+            xs[q - a] = np.float64(ph_pos[q, 0])
+            ys[q - a] = np.float64(ph_pos[q, 1])
+            zs[q - a] = np.float64(ph_pos[q, 2])
+            hitmask[q] = np.uint64(0)
+            n_pair[q] = 0
+            n_freq[q] = 0
         e0 = cell_start[s]
         e1 = cell_start[s + 1]
-        x = np.float64(ph_pos[p, 0])
-        y = np.float64(ph_pos[p, 1])
-        z = np.float64(ph_pos[p, 2])
-        wx = np.float64(ph_wi[p, 0])
-        wy = np.float64(ph_wi[p, 1])
-        wz = np.float64(ph_wi[p, 2])
-        gx = np.float64(ph_ng[p, 0])
-        gy = np.float64(ph_ng[p, 1])
-        gz = np.float64(ph_ng[p, 2])
-        r = ph_rpred[p]
-        is_freq = not math.isnan(r)
-        npair = 0
-        nfreq = 0
-        mask = np.uint64(0)
         for e in range(e0, e1):
             v = vp_ids[e]
             rx, ry, rz, r2, nvx, nvy, nvz, const = _vp_record(vp_rec, v)
-            code = vp_clip[v] if clipped else CLIP_CLEAR
-            if not _accepts(rx, ry, rz, r2, nvx, nvy, nvz, code, x, y, z, wx, wy, wz, gx, gy,
-                            gz, cos_ng):
+            near = np.uint64(0)
+            for j in range(L):                                             # (1)
+                dx = xs[j] - rx
+                dy = ys[j] - ry
+                dz = zs[j] - rz
+                near |= np.uint64(dx * dx + dy * dy + dz * dz < r2) << np.uint64(j)
+            if near == 0:
                 continue
-            M[v] += 1
-            if track and M[v] == 1:
+            code = vp_clip[v] if clipped else CLIP_CLEAR
+            bit = one << np.uint64(e - e0) if e - e0 < 64 else np.uint64(0)
+            m = 0
+            p0 = 0.0
+            p1 = 0.0
+            p2 = 0.0
+            rl = np.inf
+            while near != 0:
+                q = a + _trailing_zeros(near)
+                near &= near - one
+                x = np.float64(ph_pos[q, 0])
+                y = np.float64(ph_pos[q, 1])
+                z = np.float64(ph_pos[q, 2])
+                if not _accepts_near(x - rx, y - ry, z - rz, r2, nvx, nvy, nvz, code,
+                                     np.float64(ph_wi[q, 0]), np.float64(ph_wi[q, 1]),
+                                     np.float64(ph_wi[q, 2]), np.float64(ph_ng[q, 0]),
+                                     np.float64(ph_ng[q, 1]), np.float64(ph_ng[q, 2]), cos_ng):
+                    continue
+                if m == 0:
+                    # the first photon of the run counted here: the sums so far
+                    p0, p1, p2 = Phi[v, 0], Phi[v, 1], Phi[v, 2]
+                m += 1
+                if with_sectors:
+                    S[v, _sector_cell(rx, ry, rz, r2, nvx, nvy, nvz, x, y, z)] += 1
+                if const != 0.0:
+                    p0 += ph_power[q, 0]
+                    p1 += ph_power[q, 1]
+                    p2 += ph_power[q, 2]
+                else:
+                    n_pair[q] += 1
+                r = ph_rpred[q]
+                if not math.isnan(r):
+                    n_freq[q] += 1
+                    rl = min(rl, r)
+                hitmask[q] |= bit
+            if m == 0:
+                continue
+            if track and M[v] == 0:
                 touched[n_touched[0]] = v
                 n_touched[0] += 1
-            if with_sectors:
-                S[v, _sector_cell(rx, ry, rz, r2, nvx, nvy, nvz, x, y, z)] += 1
+            M[v] += m
             if const != 0.0:
-                Phi[v, 0] += ph_power[p, 0]
-                Phi[v, 1] += ph_power[p, 1]
-                Phi[v, 2] += ph_power[p, 2]
-            else:
-                npair += 1
-            if is_freq:
-                nfreq += 1
-                if r < rmin[v]:
-                    rmin[v] = r
-            if e - e0 < 64:
-                mask |= one << np.uint64(e - e0)
-        hitmask[q] = mask
-        n_pair[q] = npair
-        n_freq[q] = nfreq
+                Phi[v, 0] = p0
+                Phi[v, 1] = p1
+                Phi[v, 2] = p2
+            if rl < rmin[v]:
+                rmin[v] = rl
+        a = b
 
 
 @njit(cache=True)
@@ -1020,12 +1139,24 @@ def _pairs_range(q0, q1, order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
 
 
 @njit(cache=True)
+def _run_min(slot):
+    """_count_range's run_min for the sorted photons' slots slot (n,):
+    COUNT_RUN_MIN when a slot holds at least that many photons on average,
+    else 65 (every run photon by photon: runs are cut at 64)."""
+    n = slot.shape[0]
+    runs = 1
+    for q in range(1, n):
+        runs += slot[q] != slot[q - 1]
+    return COUNT_RUN_MIN if n >= COUNT_RUN_MIN * runs else 65
+
+
+@njit(cache=True)
 def _count_serial(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip, cos_ng,
                   cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq, S,
                   touched, n_touched):
     _count_range(0, slot.shape[0], slot, ph_pos, ph_ng, ph_wi, ph_power,
                  ph_rpred, vp_rec, vp_clip, cos_ng, cell_start, vp_ids, M[0], Phi[0], rmin[0],
-                 hitmask, n_pair, n_freq, S[0], touched[0], n_touched[0:1])
+                 hitmask, n_pair, n_freq, S[0], touched[0], n_touched[0:1], _run_min(slot))
 
 
 @njit(cache=True, parallel=True)
@@ -1035,11 +1166,12 @@ def _count_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec,
     # One contiguous range of sorted photons per accumulator row: chunks never
     # share a row, and the per-photon outputs are indexed by q: no race.
     n = slot.shape[0]
+    run_min = _run_min(slot)
     for c in prange(n_chunks):
         _count_range(c * n // n_chunks, (c + 1) * n // n_chunks, slot, ph_pos,
                      ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip, cos_ng, cell_start,
                      vp_ids, M[c], Phi[c], rmin[c], hitmask, n_pair, n_freq, S[c],
-                     touched[c], n_touched[c:c + 1])
+                     touched[c], n_touched[c:c + 1], run_min)
 
 
 @njit(cache=True)
