@@ -207,8 +207,9 @@ class FPPMRenderSettings(PropertyGroup):
                     "their sector counts): release a hold where they show more than a linear "
                     "gradient, hold where they look uniform (or are too few to test) even "
                     "without a smooth prediction, and let a pixel's first hold grow its "
-                    "radius towards the prediction (at most 2x) unless the neighbouring "
-                    "pixels' photon densities curve at the grown scale")
+                    "radius towards the prediction (at most 2x) where its sector cells hold "
+                    "10 photons or more and the neighbouring pixels' photon densities do not "
+                    "curve at the grown scale")
     occlusion_grid_res: IntProperty(
         name="Occlusion Grid", default=_D.occlusion_grid_res, min=4, max=512,
         soft_min=16, soft_max=256,
