@@ -13,7 +13,7 @@ The pins are exact only on the CPU and numba/llvmlite build they were made
 on (the kernels are compiled for the host: LLVM's choice of vector width and
 FMA contraction changes the last bits, and a last bit can move one photon's
 path).  ``tests/references/pinned/made_on.json`` records that build
-(:func:`build_key`).  On the same build the test compares bytes; on another
+(``tests/builds.py`` ``build_key``).  On the same build the test compares bytes; on another
 one it compares with :data:`ACROSS_BUILDS_REL_MSE` instead (:func:`check`).
 After an intended change of behaviour rewrite them with
 
@@ -44,6 +44,7 @@ import fppm_alias  # noqa: E402,F401  (core.x is fppm.core.x)
 import numpy as np  # noqa: E402
 
 import bpy_helpers as H  # noqa: E402
+from builds import build_key  # noqa: E402
 
 PIN_DIR = os.path.join(TESTS, "references", "pinned")
 MADE_ON = os.path.join(PIN_DIR, "made_on.json")
@@ -138,16 +139,6 @@ def render_variants(names):
                 arrays["aov_" + k] = np.asarray(v)
             out[f"{scene_name}_{variant}"] = arrays
     return out
-
-
-def build_key():
-    """The build the kernels are compiled for: {"cpu": numba's target CPU
-    (``NUMBA_CPU_NAME`` or the host's, e.g. "znver3"), "numba", "llvmlite"}."""
-    import llvmlite
-    import llvmlite.binding as ll
-    import numba
-    return {"cpu": numba.config.CPU_NAME or ll.get_host_cpu_name(),
-            "numba": numba.__version__, "llvmlite": llvmlite.__version__}
 
 
 def pinned_build():

@@ -56,3 +56,10 @@ def test_missing_arrays_and_nans_are_reported():
 def test_build_key_names_the_cpu_and_the_compiler():
     k = P.build_key()
     assert set(k) == {"cpu", "numba", "llvmlite"} and all(isinstance(v, str) and v for v in k.values())
+
+
+def test_digests_are_read_for_this_cpu_or_the_earlier_machine():
+    import builds
+    here = builds.build_key()["cpu"]
+    assert builds.for_this_cpu({builds.EARLIER_CPU: "old", here: "mine"}) == "mine"
+    assert builds.for_this_cpu({builds.EARLIER_CPU: "old", "another-cpu": "x"}) == "old"
