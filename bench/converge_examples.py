@@ -221,6 +221,16 @@ NOTES = [
     "light's caustic; coffee_cup: LuxCoreRender's VCM (above); glass_sphere: composed (above).  A target whose excess errors "
     "are below 3x the reference floor is marked "
     "'near floor'.",
+    "Round 14 re-runs on 83502bf (a first hold grows only where its sector cells hold 10 photons or "
+    "more, docs/method.md 'Grow only where the counts are full'), on a new machine whose CPU a pass "
+    "is about 1.7x the old one's, `SCENE --budget 60 --seeds 4 --methods M`, interleaved seed by "
+    "seed, load average 4 to 10 (the test suite ran beside them), each in SCENE/<methods>_60s/: "
+    "cornell (fppm,ppm; the 32768-spp reference rendered again, floor 1.25e-5) FPPM / PPM 1.21 / "
+    "0.77 / 0.698 at 10 / 50 / 100 % (excess 0.695; worst fraction seeds 1.00-1.36; FPPM 164-175 "
+    "passes, PPM 159-184); principled_interior (fppm,ppm,cppm; a new 8192-spp reference, floor "
+    "1.96e-4) FPPM / PPM 0.43 excess (raw 0.93 / 0.66 / 0.45), FPPM / CPPM 1.04 excess (seeds "
+    "0.99-1.09; raw 1.15 / 1.05 / 1.04; FPPM 142-163 passes, CPPM 149-169).  The other scenes' "
+    "references were lost with the old machine and not rendered again this round.",
     "Round 13 re-runs on 070c4bb (a verified hold's first-pass growth stops where the "
     "neighbouring pixels' densities curve at the grown scale, docs/method.md 'When the first hold "
     "grows'), `SCENE --budget 60 --seeds 4 --methods M`, the methods interleaved seed by seed, "
