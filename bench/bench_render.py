@@ -890,7 +890,13 @@ class StageClock:
         self.nest = 0
         pp = r.photon_pass
         r.camera_pass = self._timed(r.camera_pass, "camera")
-        r.direct_light = self._timed(r.direct_light, "direct")
+        nee = r.direct_light
+        r.direct_light = self._timed(nee, "direct")
+        # at 256² the direct light is shared out beside the photon pass's set-up
+        # (render.DIRECT_BESIDE_SETUP): "direct" times the blocks' hand-out and
+        # the blocks' CPU is in the stages they overlap (radius init, clip, grid
+        # build), as the photons traced ahead are in the stages they overlap
+        r.direct_light.shared = self._timed(nee.shared, "direct")
         r.radii.initialise = self._timed(r.radii.initialise, "radius_init")
         r.radii.predicted = self._timed(r.radii.predicted, "update")
         r.radii.update = self._timed(r.radii.update, "update")

@@ -107,7 +107,13 @@ def main():
     ap.add_argument("--min-vps", type=int, default=None,
                     help="hashgrid.PARALLEL_MIN_VPS: the grid build's (and its insertion's, "
                          "by active VPs), records' and fold's threads (default: the module's)")
+    ap.add_argument("--direct-first", action="store_true",
+                    help="render.DIRECT_BESIDE_SETUP = False (the direct light on two threads "
+                         "before the photon pass's set-up, not beside it)")
     a = ap.parse_args()
+    if a.direct_first:
+        import core.render as Rd
+        Rd.DIRECT_BESIDE_SETUP = False
     if a.min_vps is not None:
         Hg.PARALLEL_MIN_VPS = a.min_vps
     from core.sppm import photon_pass as PP
@@ -122,6 +128,7 @@ def main():
                  log=lambda s: None)
     tl = Timeline()
     pp = r.photon_pass
+    nee = r.direct_light
     # the calls of Renderer.step and PhotonPass.__call__, in their order
     for obj, name, label in (
             (r, "step", "step"), (pp, "trace_ahead", "trace_ahead"),
@@ -136,6 +143,12 @@ def main():
             (r.radii, "predicted", "predicted"), (r.radii, "update", "update"),
             (r.film, "accumulate", "film_accumulate"), (r, "_film", "film")):
         tl.wrap(obj, name, label)
+    # the direct light shared out beside the photon pass's set-up
+    # (render.DIRECT_BESIDE_SETUP): its blocks' CPU is in the segments they
+    # overlap, like the photons traced ahead; "direct" is then the blocks'
+    # hand-out alone
+    r.direct_light.shared = nee.shared
+    tl.wrap(r.direct_light, "shared", "direct")
     r.step()                                        # warm-up
     if pp.gather_buffers is not None:               # made by the first pass
         tl.wrap(pp.gather_buffers, "fold", "fold")

@@ -68,6 +68,7 @@ from .sanity import check_resolution, check_scene, recentre
 from .scene.camera import CameraModel, FilterSampler
 from .scene.model import Scene, drop_invalid_triangles, scene_digest
 from .settings import RenderSettings
+from .sppm import hashgrid
 from .sppm.film import AOVS, PASSES, Film, PassResult, data_passes, pass_enabled
 from .sppm.photon_pass import AHEAD_CHUNKS, PHOTON_CHUNK, PhotonPass, frequency_photons
 from .frequency.curvature import scene_curvature
@@ -83,6 +84,34 @@ _STATE_FIELDS = frozenset(f.name for f in fields(PixelState))
 
 #: malloc_trim before each pass's camera stage (memory.release_free_heap).
 TRIM_BEFORE_CAMERA = True
+#: Below hashgrid.PARALLEL_MIN_VPS pixels (the photon pass's grid build on
+#: one thread: 256²), a pass's direct light is shared out in blocks
+#: (``NextEventEstimation.shared``): a thread of its own (``_side_executor``)
+#: takes them from the end of the camera stage, beside the radius
+#: initialisation, the kernel clip and the grid build, and this thread takes
+#: those left once its grid is built (``PhotonPass.beside``).  Before, the
+#: direct light ran first on two threads and the build then left a core
+#: idle.  Each visible point's light is its own: the same sums either way
+#: (docs/architecture.md "Cores at 256², round 15").  False: as before.
+DIRECT_BESIDE_SETUP = True
+_SIDE = None
+
+
+def _side_executor():
+    """The one thread that takes a pass's direct-light blocks beside its
+    photon pass's set-up (DIRECT_BESIDE_SETUP)."""
+    global _SIDE
+    if _SIDE is None:
+        from concurrent.futures import ThreadPoolExecutor
+        _SIDE = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fppm-side")
+    return _SIDE
+
+
+def _timed(fn) -> float:
+    """fn(); its wall seconds."""
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
 
 
 def border_rect(border, W: int, H: int) -> tuple[int, int, int, int]:
@@ -405,15 +434,37 @@ class Renderer:
         td = time.perf_counter()
         clock["camera"] += td - tc
         L_pass = L_emit
+        job = None
         if not st.photons_for_direct:
             if st.fixed_visible_points:               # L_emit is kept for the next passes
                 L_pass = L_pass + self._interruptible(self.direct_light, vp, self._rng(k, 1))
             else:
                 # Into this pass's own emission array: no (P, 3) array beside it.
-                self._interruptible(self.direct_light, vp, self._rng(k, 1), add_to=L_pass)
+                shared = getattr(self.direct_light, "shared", None)   # None: a stand-in
+                if (DIRECT_BESIDE_SETUP and shared is not None
+                        and vp.valid.shape[0] < hashgrid.PARALLEL_MIN_VPS):
+                    job = shared(vp, self._rng(k, 1), L_pass)
+                if job is None:
+                    self._interruptible(self.direct_light, vp, self._rng(k, 1), add_to=L_pass)
         clock["direct"] += time.perf_counter() - td
-        self._check_stop()
-        self._photons(vp, rng_photons)
+        side = None
+        try:
+            if job is not None:
+                # vp and L_pass are only read by the photon pass
+                side = _side_executor().submit(_timed, job.take)
+                self.photon_pass.beside = job.take
+            self._check_stop()
+            self._photons(vp, rng_photons)
+            if job is not None:
+                job.take()              # those left (the photon pass found no active point)
+        finally:
+            if job is not None:
+                self.photon_pass.beside = None
+                job.stop()              # a cancel: no block starts now
+                if side is not None:
+                    side.exception()    # waits: nothing writes L_pass after the pass
+        if side is not None:
+            clock["direct"] += side.result()
         tu = time.perf_counter()
         state.L_sum += L_pass
         self.film.accumulate(vp)

@@ -205,3 +205,30 @@ def test_next_pass_traced_early_gives_the_same_image(monkeypatch):
         assert r.cancelled
         for k, (a, b) in enumerate(zip(here, again)):
             assert np.array_equal(a, b), (cancel_in, k)
+
+
+def test_direct_beside_setup_gives_the_same_image(monkeypatch):
+    """The direct light shared out beside the photon pass's set-up
+    (render.DIRECT_BESIDE_SETUP; taken by the side thread and by the pass's
+    thread after its grid build) gives every pass's image bit for bit as
+    the direct light before the set-up, also around a cancel in a gather."""
+    from core import render as Rd
+    from core.lights import nee as NEE
+    from core.sppm import camera_kernels as CK
+    monkeypatch.setattr(CK, "SPLIT_MIN", 64)          # 24x24: the blocks shared
+    monkeypatch.setattr(Rd, "DIRECT_BESIDE_SETUP", False)
+    here, _ = _passes(4)
+    monkeypatch.setattr(Rd, "DIRECT_BESIDE_SETUP", True)
+    inner, jobs = NEE.NextEventEstimation.shared, []
+
+    def shared(self, *a, **kw):
+        jobs.append(inner(self, *a, **kw))
+        return jobs[-1]
+    monkeypatch.setattr(NEE.NextEventEstimation, "shared", shared)
+    for cancel_in in (None, (2, 1), (3, 4)):
+        jobs.clear()
+        beside, r = _passes(4, cancel_in)
+        assert len(jobs) == 4 + (cancel_in is not None) and all(j is not None for j in jobs)
+        assert r.photon_pass.beside is None
+        for k, (a, b) in enumerate(zip(here, beside)):
+            assert np.array_equal(a, b), (cancel_in, k)

@@ -13,7 +13,9 @@ pixel alone, and the uniforms are the same draws of the same stream):
   unchanged; with the pool's workers busy the stage's thread does every
   block and returns without waiting for them.
 - The direct light in blocks taken by two threads equals the same blocks
-  in one thread and leaves the stream at 3K draws.
+  in one thread and leaves the stream at 3K draws; handed out as shared
+  blocks (``NextEventEstimation.shared``, taken by one thread or by three
+  at once) it adds the same sums and moves the stream as far.
 - ``core.sppm.pass_kernels``: the active mask and radii, Phi x beta and the
   zeroed M equal numpy's, serial and split over the numba threads.
 """
@@ -146,6 +148,58 @@ def test_direct_blocks_in_two_threads_equal_one_thread(stages, monkeypatch):
     ref.random((K, 3))
     assert np.array_equal(r2, ref.random(3))                # 3K draws
     assert np.count_nonzero(L2.max(axis=1) > 0) > 0.3 * K
+
+
+@pytest.mark.parametrize("takers", [1, 3])
+def test_direct_shared_blocks_equal_the_call(stages, monkeypatch, takers):
+    import threading
+    cam, nee = stages
+    vp, L0 = cam(np.random.default_rng(11))
+    K = int(vp.valid.sum())
+    monkeypatch.setattr(CK, "SPLIT_MIN", 1000)
+    assert K > 1200
+    rng = np.random.default_rng(12)
+    want = nee(vp, rng, add_to=L0.copy())
+    after = rng.random(3)
+    rng = np.random.default_rng(12)
+    got = L0.copy()
+    job = nee.shared(vp, rng, got, parts=8)
+    assert job is not None
+    assert np.array_equal(rng.random(3), after)             # moved past the 3K draws at once
+    threads = [threading.Thread(target=job.take) for _ in range(takers - 1)]
+    for t in threads:
+        t.start()
+    job.take()
+    for t in threads:
+        t.join()
+    assert np.array_equal(got, want)
+    assert np.count_nonzero(got.max(axis=1) > L0.max(axis=1)) > 0.3 * K
+    # not shared: another bit generator, or fewer points than SPLIT_MIN
+    assert nee.shared(vp, np.random.Generator(np.random.MT19937(1)), L0.copy()) is None
+    monkeypatch.setattr(CK, "SPLIT_MIN", K + 1)
+    assert nee.shared(vp, np.random.default_rng(12), L0.copy()) is None
+
+
+def test_shared_blocks_each_taken_once_and_stopped():
+    import threading
+    seen, lock = [], threading.Lock()
+
+    def block(a):
+        with lock:
+            seen.append(a)
+    job = VP.SharedBlocks(1000, 7, block)
+    threads = [threading.Thread(target=job.take) for _ in range(3)]
+    for t in threads:
+        t.start()
+    job.take()
+    for t in threads:
+        t.join()
+    assert sorted(seen) == list(range(0, 1000, 7))
+    job = VP.SharedBlocks(1000, 7, lambda a: seen.append(a) or job.stop())
+    seen.clear()
+    job.take()
+    job.take()
+    assert seen == [0]                                      # none starts after stop()
 
 
 @pytest.mark.parametrize("min_vps", [10**9, 1])

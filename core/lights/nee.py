@@ -18,7 +18,7 @@ stage.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 
@@ -30,7 +30,7 @@ from .sampling import environment_pdf, sample_direct
 from .table import MESH, WORLD
 
 if TYPE_CHECKING:
-    from ..sppm.visible_points import VisiblePoints
+    from ..sppm.visible_points import SharedBlocks, VisiblePoints
 
 
 #: Visible points per block of the compiled direct light (``_direct_blocks``).
@@ -120,7 +120,7 @@ class NextEventEstimation:
         pixels are distinct, so the sums are the same bits however the blocks
         are shared."""
         from ..sppm.camera_kernels import SPLIT_MIN
-        from ..sppm.visible_points import blocks_in_two_threads, stream_at
+        from ..sppm.visible_points import in_two_threads
         K = q.size
         if K < SPLIT_MIN or not isinstance(rng.bit_generator, np.random.PCG64):
             # one thread (PCG64 alone advances by draws), in blocks
@@ -129,13 +129,39 @@ class NextEventEstimation:
                 self._direct_compiled(vp, qb, rng.random((qb.size, 3)), L)
             return
         # at least four blocks to share (256^2: a quarter of the points each)
-        blk = min(DIRECT_BLOCK, -(-K // 4))
+        in_two_threads(self._shared_blocks(vp, q, rng, L, 4).take)
+
+    def _shared_blocks(self, vp, q, rng, L, parts: int) -> "SharedBlocks":
+        """:meth:`_direct_blocks`' blocks of the rows q (K,) (at least
+        ``parts`` of them) as a ``SharedBlocks`` for any threads to take;
+        they draw from a copy of rng's stream, and rng is moved past their
+        3K uniforms at once."""
+        from ..sppm.visible_points import SharedBlocks, stream_at
+        K = q.size
+        blk = min(DIRECT_BLOCK, -(-K // parts))
+        base = stream_at(rng)
+        rng.bit_generator.advance(3 * K)
 
         def block(a):
             qb = q[a:a + blk]
-            self._direct_compiled(vp, qb, stream_at(rng, 3 * a).random((qb.size, 3)), L)
-        blocks_in_two_threads(K, blk, block)
-        rng.bit_generator.advance(3 * K)
+            self._direct_compiled(vp, qb, stream_at(base, 3 * a).random((qb.size, 3)), L)
+        return SharedBlocks(K, blk, block)
+
+    def shared(self, vp: "VisiblePoints", rng: np.random.Generator, add_to: np.ndarray,
+               parts: int = 8) -> Optional["SharedBlocks"]:
+        """:meth:`__call__` (into add_to) as blocks that any threads take
+        (``SharedBlocks.take``; at least ``parts`` blocks), when the compiled
+        blocks of :meth:`_direct_blocks` apply: the same sums, however the
+        blocks are shared.  None: they do not (call this object instead);
+        nothing was drawn or added."""
+        from ..sppm.camera_kernels import SPLIT_MIN
+        if not (self.compiled and isinstance(rng.bit_generator, np.random.PCG64)
+                and self._compiled_lights() is not None):
+            return None
+        q = np.nonzero(vp.valid)[0]
+        if q.size < SPLIT_MIN:
+            return None
+        return self._shared_blocks(vp, q, rng, add_to, parts)
 
     def _direct_compiled(self, vp, q, u, L) -> np.ndarray:
         """The numpy path above with the light sample, the Lambert BSDF, the

@@ -287,6 +287,10 @@ class PhotonPass:
         # CPU seconds of the kernel clip's rays and codes (core.sppm.clip),
         # also counted in stage_seconds["gather"].
         self.clip_seconds = 0.0
+        # None, or a callable run right after the set-up (grid build) of the
+        # next call: the pass's direct-light blocks left over by the thread
+        # that took them beside the set-up (core.render.DIRECT_BESIDE_SETUP).
+        self.beside = None
         # _reflected's per-point sums (P, 3), all zero between calls.
         self._reflected_scratch = None
 
@@ -301,6 +305,11 @@ class PhotonPass:
         P = vp.valid.shape[0]
         acc = self._zero_sums(P, spectrum)
         pg = self.begin(vp, R2, spectrum is not None, check_stop)
+        if self.beside is not None:
+            # other work of the pass, shared with a thread that ran it beside
+            # the set-up (core.render.DIRECT_BESIDE_SETUP): what is left of it
+            # before the gathers
+            self.beside()
         if pg is None:
             self._drop_ahead()
             return PhotonEstimate(False, acc.M, acc.Phi, acc.r_pred)

@@ -639,20 +639,37 @@ def in_two_threads(work) -> None:
         f.result()
 
 
+class SharedBlocks:
+    """block(a) for the block starts a = 0, blk, 2 blk, ... < n, each taken
+    exactly once by whichever thread calls :meth:`take` next: any number of
+    threads, at any time, until none is left."""
+
+    def __init__(self, n: int, blk: int, block):
+        self._todo, self._lock, self._block = iter(range(0, n, blk)), threading.Lock(), block
+        self._stopped = False
+
+    def take(self) -> None:
+        """Run the blocks not yet taken, one at a time, until none is left
+        (or :meth:`stop`); the blocks another thread runs meanwhile are not
+        waited for."""
+        while True:
+            with self._lock:
+                a = None if self._stopped else next(self._todo, None)
+            if a is None:
+                return
+            self._block(a)
+
+    def stop(self) -> None:
+        """No block starts after this (those running finish)."""
+        with self._lock:
+            self._stopped = True
+
+
 def blocks_in_two_threads(n: int, blk: int, block) -> None:
     """block(a) for the block starts a = 0, blk, 2 blk, ... < n, taken in
     turn by two threads (:func:`in_two_threads`) until none is left; each
     start is taken exactly once, in no fixed thread."""
-    todo, take = iter(range(0, n, blk)), threading.Lock()
-
-    def worker():
-        while True:
-            with take:
-                a = next(todo, None)
-            if a is None:
-                return
-            block(a)
-    in_two_threads(worker)
+    in_two_threads(SharedBlocks(n, blk, block).take)
 
 
 def stream_at(rng: np.random.Generator, n: int = 0) -> np.random.Generator:
