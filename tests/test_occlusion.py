@@ -101,6 +101,40 @@ def test_voxel_distances_match_brute_force():
     assert ref.min() < 0.5 * g.cell.min() and ref.max() > 2 * g.cell.max()  # range exercised
 
 
+def test_nearest_query_skips_no_triangle_that_could_win():
+    """_nearest_all skips a leaf's triangle whose own box is farther than the
+    best so far plus a margin (docs/frequency.md "The set-up: the occlusion
+    grid and its march blocks"): the distances and closest points are those
+    of the same query testing every triangle it reaches (slack = inf), bit
+    for bit, on an axis-aligned box with a post and a sphere (exact ties
+    between a wall's two triangles) and on random triangles, with voxels
+    nearer than the cap and beyond it.  (What it saves: 168 -> 72 ms CPU on
+    cornell.blend's 64^3 grid, measured in that section.)"""
+    from core.frequency import occlusion_grid as OG
+    rng = np.random.default_rng(3)
+    scenes = [np.concatenate([np.array(box((0, 0, 0), (2, 1.5, 1))),
+                              np.array(box((0.3, 0.2, 0.0), (0.5, 0.25, 0.6))),
+                              icosphere((1.2, 0.7, 0.35), 0.3, 1)]).astype(np.float32),
+              rng.random((60, 3, 3)).astype(np.float32)]
+    for tri in scenes:
+        p = tri.reshape(-1, 3)
+        lo, hi = OG.grid_bounds(p.min(0), p.max(0))
+        R = 24
+        cell = (hi - lo) / R
+        tris, node_lo, node_hi, n_leaves = OG._build_bvh(tri)
+        t_lo, t_hi = tris.min(axis=1).astype(np.float64), tris.max(axis=1).astype(np.float64)
+        cap = 2.0 * float(np.linalg.norm(cell))
+        slack = OG.NEAREST_SLACK * float(np.sum(np.square(hi - lo)))
+        out = []
+        for s in (slack, np.inf):
+            d, q = np.empty(R ** 3), np.empty((R ** 3, 3))
+            OG._nearest_all(tris, t_lo, t_hi, node_lo, node_hi, n_leaves, lo, cell, R, cap, s, d, q)
+            out.append((d, q))
+        assert np.array_equal(out[0][0], out[1][0])
+        assert np.array_equal(out[0][1], out[1][1], equal_nan=True)
+        assert np.isnan(out[0][1][:, 0]).any() and (out[0][0] < cap).any()   # both kinds of voxel
+
+
 def test_bicone_of_floor_wall_and_corner():
     tri = np.array(quad((0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0))
                    + quad((0, 0, 0), (0, 0, 1), (0, 1, 1), (0, 1, 0)), np.float32)

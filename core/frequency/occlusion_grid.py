@@ -79,6 +79,11 @@ _AREA_FRAC = 1e-7
 _DEGENERATE = 1e-12
 # BVH leaf size for the nearest-triangle query.
 _LEAF = 4
+#: _nearest_all's margins for skipping a triangle by its own box: relative to
+#: the best squared distance so far, and absolute as a share of the grid's
+#: squared diagonal (both far above float64 rounding, ~1e-16).
+NEAREST_REL = 1e-9
+NEAREST_SLACK = 1e-12
 
 BYTES_PER_VOXEL = 4 + 12 + 4 + 1 + 4 + 16
 
@@ -361,15 +366,25 @@ def _box_d2(node_lo, node_hi, k, px, py, pz):
 
 
 @nb.njit(cache=True, nogil=True)
-def _nearest_all(tris, node_lo, node_hi, n_leaves, lo, cell, R, cap, out_d, out_q):
+def _nearest_all(tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, lo, cell, R, cap, slack,
+                 out_d, out_q):
     """Exact distance from every voxel centre to the closest triangle.
 
-    tris: (T, 3, 3) float32 in BVH (Morton) order; node boxes in heap order
+    tris: (T, 3, 3) float32 in BVH (Morton) order; tri_lo, tri_hi (T, 3)
+    float64 their own bounding boxes; node boxes in heap order
     (root 1, children 2k and 2k+1, leaf j = node n_leaves + j holding triangles
     [j*_LEAF, (j+1)*_LEAF)).  Voxels are visited in grid order and the previous
     voxel's triangle seeds the bound (its exact distance is an upper bound), so
     most BVH nodes are pruned at once.  out_q: closest points (R^3, 3).
     cap: voxels with no triangle closer than cap get out_d = cap, out_q = nan.
+    slack [m^2]: in a leaf, a triangle whose own box is farther than
+    best (1 + NEAREST_REL) + slack is not tested: the box's distance is a
+    lower bound of the triangle's, and the margin is far above the rounding
+    of either, so every triangle that could still replace the best (d2 <
+    best, ties in visiting order) is tested as before: the same distances
+    and closest points, bit for bit (a leaf's box spans the walls of a room,
+    a wall triangle's box is a slab: Cornell's queries 0.16 -> 0.07 s CPU,
+    docs/method.md "The Cornell box's first 10 %, round 15").
     """
     cap2 = cap * cap
     T = tris.shape[0]
@@ -406,6 +421,8 @@ def _nearest_all(tris, node_lo, node_hi, n_leaves, lo, cell, R, cap, out_d, out_
                         first = (node - n_leaves) * _LEAF
                         last = min(first + _LEAF, T)
                         for t in range(first, last):
+                            if _box_d2(tri_lo, tri_hi, t, px, py, pz) > best * (1.0 + NEAREST_REL) + slack:
+                                continue
                             qx, qy, qz = _closest_point(
                                 px, py, pz,
                                 tris[t, 0, 0], tris[t, 0, 1], tris[t, 0, 2],
@@ -645,10 +662,15 @@ def build_occlusion_grid(tri_p: np.ndarray, lo, hi, res: int = 64,
     tv = tri if valid.all() else tri[valid]
     if len(tv):
         tris, node_lo, node_hi, n_leaves = _build_bvh(tv)
+        tri_lo = tris.min(axis=1).astype(np.float64)
+        tri_hi = tris.max(axis=1).astype(np.float64)
+        # NEAREST_SLACK of the grid's squared diagonal: far above the
+        # rounding of a distance across the grid (~1e-16 of it)
+        slack = NEAREST_SLACK * float(np.sum(np.square(hi - lo)))
         stage("bvh build")
         q = np.empty((nvox, 3))
-        _nearest_all(tris, node_lo, node_hi, n_leaves, lo, cell, R, float(max_distance),
-                     dist, q)
+        _nearest_all(tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, lo, cell, R,
+                     float(max_distance), slack, dist, q)
         stage("nearest-triangle queries")
         _near_voxels(q, lo, cell, R, near)
         del q
