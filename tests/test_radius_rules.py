@@ -383,10 +383,11 @@ def test_ring_radii_stay_between_the_rates_and_the_error_falls():
     stays PPM's within its noise: X / PPM at pass 16 is 1.020, 0.995, 1.021
     for seeds 0, 1, 2 (CPPM 1.021, 0.996, 1.022), so 1.06 is 3 sigma of
     that spread above the largest (the spectrum's hold rate 0.95, gated at 5
-    photons per sector cell: 8.4442e-3, 1.020x PPM at pass 16, against X's 8.4439e-3
-    seed 0; ungated, HOLD_SPECTRUM_MIN_EXPECTED = 0: 8.4478e-3); (3) its large released radii are no more
-    than CPPM's retention leaves (394 against 421); (4) with the rule before
-    set the released radii stay at PPM's (at most 15 pixels, 5 measured).
+    photons per sector cell: 8.4442e-3, 1.020x PPM at pass 16, against X's
+    8.4439e-3 seed 0; ungated, HOLD_SPECTRUM_MIN_EXPECTED = 0: 8.4478e-3);
+    (3) its large released radii are no more than CPPM's retention leaves (394
+    against 421); (4) with the rule before set the released radii stay at
+    PPM's (at most 15 pixels, 5 measured).
     The caustic lines themselves: tests/test_caustic_lines.py (predicted
     radius 0.03x PPM's)."""
     from fppm.tools.metrics import relmse
