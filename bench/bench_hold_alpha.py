@@ -18,7 +18,9 @@
         "Principled interior: quality or cost"; 'fppm:keep=noocc': no occlusion operator;
         'fppm:fdep=1': a frequency photon predicts at its first counted deposit only,
         docs/frequency.md "Fewer marched deposits"; 'fppm:hmax=0.95': the spectrum's hold
-        rate, "What the spectrum adds over the counts")
+        rate, "What the spectrum adds over the counts", where the counts can test the hold
+        (5 per sector cell; 'hmaxE=0': everywhere, 'hmaxE=10': from 10), "A slower hold
+        where the counts can test it, round 15")
     .venv/bin/python bench/bench_hold_alpha.py ring_lambert --cycles-ref --equal-passes 128 \
         --report 16,64,128 --seeds 0,1 --methods fppm,fppm:power=0,ppm,appm,cppm
         (the file's resolution and photons against the Cycles reference of ``fppm converge``,
@@ -266,7 +268,8 @@ def method_settings(base, method):
 RADII_KEYS = {"power": "hold_min_expected", "release": "release_alpha", "top2": "hold_max_top2",
               "or": "hold_uniform", "orE": "uniform_min_expected", "crit": "uniform_critical",
               "grow": "grow", "growE": "grow_min_expected", "growZ": "grow_curvature_z",
-              "hmax": "hold_alpha_spectrum", "share": "hold_share_min",
+              "hmax": "hold_alpha_spectrum", "hmaxE": "hold_spectrum_min_expected",
+              "share": "hold_share_min",
               "sharepass": "hold_share_pass"}
 
 

@@ -185,7 +185,10 @@ def _update_case(P, seed, sectors):
     (False, False, 0.9, None),
     # the spectrum's hold rate, growth at low counts (docs/method.md "What the spectrum adds
     # over the counts")
-    (True, True, 0.9, dict(hold_alpha_spectrum=0.97, grow_min_expected=0.0))])
+    (True, True, 0.9, dict(hold_alpha_spectrum=0.97, grow_min_expected=0.0)),
+    # the spectrum's rate gated by the counts (docs/method.md "A slower hold where the counts
+    # can test it, round 15"): a gate inside the case's 11-35 per cell takes both branches
+    (True, True, 0.9, dict(hold_alpha_spectrum=0.97, hold_spectrum_min_expected=20.0))])
 def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha, knobs):
     settings = RenderSettings(integrator="PHOTON", hold_alpha=hold_alpha, verify_holds=sectors)
     radii = U.Radii(settings, None, 10.0, frequency, None, 1, P)

@@ -231,6 +231,38 @@ def test_spectrum_sets_a_slower_hold_rate_within_its_bound():
             assert np.all(st.R2 / R0 ** 2 <= f(0.95) * (1 + 1e-12))
 
 
+def test_the_spectrum_rate_needs_counts_the_test_can_judge():
+    """HOLD_SPECTRUM_MIN_EXPECTED (docs/method.md "A slower hold where the counts can test
+    it, round 15"): the spectrum's slower rate only where the expected count per sector
+    cell (the state's counts and this pass's) reaches 5, CHI2_MIN_EXPECTED, below which the
+    linear test cannot reject a wrong prediction; below it a hold keeps hold_alpha.  Uniform
+    counts, N = 100, r_pred = 10 R, HOLD_ALPHA_SPECTRUM = 0.95: 4.9 per cell from this pass
+    -> f_0.9; 5 per cell -> f_0.95; 3 in the state + 2 this pass -> f_0.95 (the accumulated
+    counts decide); 4.9 with the gate off (0) -> f_0.95.  Compiled and numpy alike (exact)."""
+    assert U.HOLD_SPECTRUM_MIN_EXPECTED == U.CHI2_MIN_EXPECTED == 5.0
+    R0, N0 = 0.01, 100.0
+    state_S = np.array([0.0, 0.0, 3.0])[:, None] * np.ones(C)
+    counts = np.array([4.9, 5.0, 2.0])[:, None] * np.ones(C)
+    r = np.full(3, 10 * R0)
+    M = counts.sum(axis=1)
+    f = lambda a, m: (N0 + m * a) / (N0 + m)     # noqa: E731
+    want = {5.0: [f(0.9, M[0]), f(0.95, M[1]), f(0.95, M[2])],
+            0.0: [f(0.95, M[0]), f(0.95, M[1]), f(0.95, M[2])]}
+    for gate, expect in want.items():
+        got = {}
+        for compiled in (True, False):
+            st = PixelState.zeros(3, sector_cells=C)
+            st.R2[:], st.N[:], st.sectors[:] = R0 ** 2, N0, state_S
+            radii = _radii(3, compiled)
+            radii.hold_alpha_spectrum = 0.95
+            radii.hold_spectrum_min_expected = gate
+            radii.update(st, M, np.repeat(0.5 * M[:, None], 3, 1), r, counts)
+            assert np.all(st.held)
+            assert st.R2 / R0 ** 2 == pytest.approx(expect, rel=1e-12), (gate, compiled)
+            got[compiled] = st.R2.copy()
+        assert np.array_equal(got[True], got[False])
+
+
 def test_the_growth_test_sees_curvature_at_the_grown_scale():
     """grow_curvature_rejects on 64 x 64 pixels of equal radii, Poisson
     counts (5 draws, seed 3): uniform (80 per pixel) and a linear ramp (40 to

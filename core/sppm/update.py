@@ -146,6 +146,13 @@ GROW_CURVATURE_Z = 2.576
 #: R_k -> 0 still (docs/method.md "What the spectrum adds over the counts":
 #: measured, not the default).
 HOLD_ALPHA_SPECTRUM = 0.0
+#: The spectrum's rate applies only where the counts can test the hold: an
+#: expected count of at least this per sector cell (the state's counts and
+#: this pass's, as the verified holds' test reads them); below it the linear
+#: test cannot reject (CHI2_MIN_EXPECTED), so a wrongly predicted hold (the
+#: ring's low-count caustic pixels) keeps hold_alpha (docs/method.md "A slower
+#: hold where the counts can test it, round 15").  0: no gate.
+HOLD_SPECTRUM_MIN_EXPECTED = CHI2_MIN_EXPECTED
 #: The holds left out where they hold almost nothing (docs/method.md "Where
 #: FPPM's extras do not pay"): after the update of pass HOLD_SHARE_PASS, a
 #: photon-mapping render in which fewer than HOLD_SHARE_MIN of the pixels
@@ -309,6 +316,7 @@ class Radii:
         self.uniform_critical = CHI2_CRITICAL
         self.uniform_min_expected = UNIFORM_MIN_EXPECTED
         self.hold_alpha_spectrum = HOLD_ALPHA_SPECTRUM
+        self.hold_spectrum_min_expected = HOLD_SPECTRUM_MIN_EXPECTED
         # leave_out_holds: the share of held pixels below which the holds are
         # left out after pass HOLD_SHARE_PASS (photon mapping with verified
         # frequency holds only: COMBINED's merging keeps its own rule), and
@@ -494,7 +502,8 @@ class Radii:
             alpha = np.where(rejected & np.isfinite(r_or), self.release_alpha, alpha)[m]
             if self.hold_alpha_spectrum > hold_alpha:
                 hold_alpha = spectrum_hold_alpha(state.R2[m], r_pred[m], r_hold[m], hold_alpha,
-                                                 self.hold_alpha_spectrum)
+                                                 self.hold_alpha_spectrum,
+                                                 E[m] >= self.hold_spectrum_min_expected)
         N2, R2n, tau2, held = ppm_radius_update(state.N[m], state.R2[m], state.tau[m], M[m],
                                                   Phi[m], alpha, r_hold[m],
                                                   self.floor_sq, hold_alpha,
@@ -543,7 +552,8 @@ class Radii:
                         self.release_alpha, self.hold_max_top2, float(self.hold_uniform),
                         self.grow * self.grow if self.grow > 1.0 else 0.0,
                         self.grow_min_expected, self.uniform_critical,
-                        self.uniform_min_expected, self.hold_alpha_spectrum])
+                        self.uniform_min_expected, self.hold_alpha_spectrum,
+                        self.hold_spectrum_min_expected])
         cap = grow_cap if grow_cap is not None else np.zeros(0)
         args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2, cap)
         T = numba.get_num_threads()
@@ -597,12 +607,13 @@ def grow_curvature_rejects(M, R2, H, W, step, z):
     return out.ravel()
 
 
-def spectrum_hold_alpha(R2, r_spec, r_hold, hold_alpha, alpha_max):
+def spectrum_hold_alpha(R2, r_spec, r_hold, hold_alpha, alpha_max, testable=True):
     """(K,) hold rate of each row (HOLD_ALPHA_SPECTRUM): where the hold stands
-    (r_hold finite) and the spectrum predicts r_spec > R, min(alpha_max,
-    1 - (1 - hold_alpha) R^2 / r_spec^2); hold_alpha elsewhere."""
+    (r_hold finite), the counts can test it (testable (K,) bool, or True:
+    HOLD_SPECTRUM_MIN_EXPECTED) and the spectrum predicts r_spec > R,
+    min(alpha_max, 1 - (1 - hold_alpha) R^2 / r_spec^2); hold_alpha elsewhere."""
     r = np.maximum(np.where(np.isfinite(r_spec), r_spec, 0.0), 0.0)
-    slow = np.isfinite(r_hold) & (R2 > 0) & (r * r > R2)
+    slow = np.isfinite(r_hold) & (R2 > 0) & (r * r > R2) & testable
     q = R2 / np.where(slow, r * r, 1.0)
     return np.where(slow, np.minimum(alpha_max, 1.0 - (1.0 - hold_alpha) * q), hold_alpha)
 
@@ -704,7 +715,9 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
     also where the uniformity test accepts), grow^2 (0: no growth;
     :func:`grow_targets`), grow_min_expected: no growth below this expected
     count per sector cell, the uniformity test's critical value, its
-    minimum expected count per cell (below: no uniform hold)); cap (P,) the
+    minimum expected count per cell (below: no uniform hold), the spectrum's
+    hold rate (HOLD_ALPHA_SPECTRUM; at or below hold_alpha: off) and its
+    minimum expected count per cell (HOLD_SPECTRUM_MIN_EXPECTED)); cap (P,) the
     surface-boundary cap [m] ((0,): none)."""
     alpha, floor_sq, hold_alpha = prm[0], prm[1], prm[2]
     with_S = a.S.shape[1] == SECTOR_CELLS
@@ -760,7 +773,8 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
                     rr = _np_max(r, 0.0)
                     f_lim = _np_min(rr * rr / R2, 1.0)
                 ha = hold_alpha
-                if with_S and prm[11] > hold_alpha and freq and np.isfinite(r_spec):
+                if (with_S and prm[11] > hold_alpha and freq and np.isfinite(r_spec)
+                        and E_cell >= prm[12]):
                     rs = _np_max(r_spec, 0.0)               # spectrum_hold_alpha
                     if rs * rs > R2:
                         ha = _np_min(prm[11], 1.0 - (1.0 - hold_alpha) * (R2 / (rs * rs)))
