@@ -454,7 +454,7 @@ class Renderer:
                 side = _side_executor().submit(_timed, job.take)
                 self.photon_pass.beside = job.take
             self._check_stop()
-            self._photons(vp, rng_photons)
+            self._photons(vp, rng_photons, cut_set=ahead is not None)
             if job is not None:
                 job.take()              # those left (the photon pass found no active point)
         finally:
@@ -609,13 +609,17 @@ class Renderer:
         from dataclasses import replace
         self._photons(replace(vp, valid=vp.through_delta), self._rng(k, 4))
 
-    def _photons(self, vp, rng) -> None:
+    def _photons(self, vp, rng, cut_set: bool = False) -> None:
         """SPPM stages 3-5 on the visible points vp: initial radii, the photon
-        pass, the progressive update of the state."""
+        pass, the progressive update of the state.  cut_set: the photon pass's
+        trace_ahead has set this pass's radius cut (before its first chunk);
+        else it is set here, from the initialised radii, before the pass
+        traces anything."""
         state = self.state
         self.radii.initialise(state, vp, self._check_stop)
         np.copyto(state.depth, vp.depth, where=vp.valid)   # in place: no (P,) array a pass
-        self.tracer.set_radius_cut(state.R2)
+        if not cut_set:
+            self.tracer.set_radius_cut(state.R2)
         est = self.photon_pass(vp, state.R2, state.spectrum, rng, self._check_stop)
         tu = time.perf_counter()
         if est.r_hist is not None:

@@ -232,3 +232,44 @@ def test_direct_beside_setup_gives_the_same_image(monkeypatch):
         assert r.photon_pass.beside is None
         for k, (a, b) in enumerate(zip(here, beside)):
             assert np.array_equal(a, b), (cancel_in, k)
+
+
+def test_radius_cut_is_set_before_the_pass_traces(monkeypatch):
+    """A frequency pass's radius cut (PhotonTracer.radius_cut) is set once,
+    before its first chunk is traced (PhotonPass.trace_ahead), so the image
+    does not depend on how far the trace-ahead got while the camera pass ran:
+    every pass bit for bit with a camera pass slowed by 0.3 s (the chunks
+    traced ahead all finished before the pass's radii are initialised) and
+    with no trace-ahead at all.  The cut is in effect from pass 2 (finite),
+    and pass 1, with no radii yet, marches every occluder (inf)."""
+    from core.sppm import photons as PH
+    cuts = []
+    inner = PH.PhotonTracer.set_radius_cut
+
+    def record(self, R2):
+        inner(self, R2)
+        cuts.append(self.radius_cut)
+    monkeypatch.setattr(PH.PhotonTracer, "set_radius_cut", record)
+
+    def render(delay):
+        cuts.clear()
+        r = _renderer(24, photons_per_pass=20_000, frequency_decay=0.0)
+        r.photon_pass.chunk = 6_000
+        if delay:
+            cam = r.camera_pass
+
+            def slow(*a, **kw):
+                import time
+                time.sleep(delay)
+                return cam(*a, **kw)
+            r.camera_pass = slow
+        return [r.step().image.copy() for _ in range(3)], list(cuts)
+
+    fast, cuts_fast = render(0.0)
+    slow, cuts_slow = render(0.3)
+    monkeypatch.setattr(PP, "TRACE_AHEAD", False)
+    here, cuts_here = render(0.0)
+    assert cuts_fast == cuts_slow == cuts_here
+    assert cuts_fast[0] == np.inf and all(np.isfinite(c) and c > 0 for c in cuts_fast[1:])
+    for a, b, c in zip(fast, slow, here):
+        assert np.array_equal(a, b) and np.array_equal(a, c)

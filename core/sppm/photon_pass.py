@@ -387,14 +387,22 @@ class PhotonPass:
                 return
             self._drop(nxt[1])
         src = getattr(self, "_reach_source", None)
-        if src is not None:
-            # the last pass's visible points with the radii of its update
-            # (R2 not yet initialised for this pass's new pixels): the same
-            # map with or without trace-ahead, and after a resume; none for
-            # a pass without frequency photons (nothing reads it)
-            self._reach_source = None
-            if any(f for _, f in self.chunks()):
+        self._reach_source = None
+        if any(f for _, f in self.chunks()):
+            # The reach map and the radius cut of a pass with frequency
+            # photons, set once here, before any of its chunks is traced:
+            # from the last pass's visible points and the radii of its
+            # update (R2 not yet initialised for this pass's new pixels), the
+            # same with or without trace-ahead and after a resume; the first
+            # pass, with no radii yet, marches every occluder (cut inf).
+            # Setting the cut later, once this pass's radii are initialised,
+            # raced with the chunks already tracing (docs/frequency.md
+            # "One radius cut a pass").
+            if src is not None:
                 self.tracer.set_reach(src[0], src[1], np.array(src[2]))
+                self.tracer.set_radius_cut(src[2])
+            else:
+                self.tracer.set_radius_cut(np.zeros(0))
         if self.chunk_streams or not TRACE_AHEAD:
             return
         self._ahead = (rng, deque(), deque(self.chunks()), then)
