@@ -221,6 +221,14 @@ NOTES = [
     "light's caustic; coffee_cup: LuxCoreRender's VCM (above); glass_sphere: composed (above).  A target whose excess errors "
     "are below 3x the reference floor is marked "
     "'near floor'.",
+    "Round 15 re-run on f61a987 (images as round 14's default, growth only from 10 photons a "
+    "cell; the indirect room's 65536-spp reference rendered again on this machine: 8 pieces, "
+    "3485 CPU s, floor 1.42e-4), `indirect_room --budget 60 --seeds 4 --methods fppm,ppm,cppm`, "
+    "interleaved seed by seed, load average 2 to 4 (the fresh-clone test suite ran beside it "
+    "from seed 3), in indirect_room/fppm_ppm_cppm_60s/: FPPM / PPM 0.45 excess (raw 0.86 / "
+    "0.48 / 0.49 at 10 / 50 / 100 %; worst fraction seeds 0.77-0.91), FPPM / CPPM 1.08 excess "
+    "(seeds 0.97-1.12; raw 1.09 / 1.08 / 1.07; FPPM 92-108 passes, CPPM 100-123): round 13's "
+    "0.96 on 070c4bb (seeds 0.87-1.04) is now a loss, FPPM making 4-13 % fewer passes.",
     "Round 14 re-runs on 83502bf (a first hold grows only where its sector cells hold 10 photons or "
     "more, docs/method.md 'Grow only where the counts are full'), on a new machine whose CPU a pass "
     "is about 1.7x the old one's, `SCENE --budget 60 --seeds 4 --methods M`, interleaved seed by "
