@@ -382,9 +382,9 @@ def _nearest_all(tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, lo, cell, R, 
     lower bound of the triangle's, and the margin is far above the rounding
     of either, so every triangle that could still replace the best (d2 <
     best, ties in visiting order) is tested as before: the same distances
-    and closest points, bit for bit (a leaf's box spans the walls of a room,
-    a wall triangle's box is a slab: Cornell's queries 0.16 -> 0.07 s CPU,
-    docs/method.md "The Cornell box's first 10 %, round 15").
+    and closest points, bit for bit.  It pays because a leaf's box spans the
+    walls of a room while a wall triangle's own box is a thin slab (measured:
+    docs/frequency.md "The set-up: the occlusion grid and its march blocks").
     """
     cap2 = cap * cap
     T = tris.shape[0]
