@@ -10,6 +10,12 @@ hold_alpha = 1 (the paper's rule) the same error stays put.  The render runs
 with the default amortised frequency photons (frequency_decay 2: fewer
 frequency photons after pass 1, each pixel keeping its last prediction),
 so the forced prediction also persists through passes without one.
+verify_holds is off here (the hold schedule alone): without sector counts
+the spectrum's hold rate (core.sppm.update.HOLD_ALPHA_SPECTRUM, which needs
+counts the test can judge) does not act and every hold shrinks at
+hold_alpha; the default rules on the same forced prediction, the slower
+rate included: tests/test_radius_rules.py
+test_wrong_prediction_is_released_by_the_photons.
 """
 import numpy as np
 import pytest

@@ -69,7 +69,10 @@ def test_first_pass_grows_to_the_prediction_within_limits():
     G R (2x), 1.5 R to 1.5 R, 0.8 R only holds (0.9 rate: R^2 x 0.9);
     a cap of 1.2 R stops at 1.2 R; curved counts do not grow (the linear test
     releases at RELEASE_ALPHA); the same counts with N > 0 (a later pass) hold
-    at the 0.9 rate.  The estimate tau / (R^2 N_e) is the pass's Phi / R0^2."""
+    at the spectrum's rate 0.95 where it predicts r_pred > R (10 per cell: the
+    counts can test the hold; test_spectrum_sets_a_slower_hold_rate_within_its_bound),
+    at 0.9 where it predicts 0.8 R.  The estimate tau / (R^2 N_e) is the pass's
+    Phi / R0^2."""
     R0 = 0.01
     counts = np.array([UNIFORM, UNIFORM, UNIFORM, UNIFORM, CURVED])
     r = np.array([10, 1.5, 0.8, 10, 10]) * R0
@@ -88,21 +91,23 @@ def test_first_pass_grows_to_the_prediction_within_limits():
         assert np.allclose(st.sectors.sum(axis=1), M * ratio, rtol=1e-12)
         assert np.allclose(st.tau[:, 0] / st.R2, 0.5 * M / R0 ** 2, rtol=1e-12)
     later = _one_pass(counts, r, N0=400.0)
-    assert np.allclose(later.R2[:4] / R0 ** 2, (400 + 0.9 * 80) / 480, rtol=1e-12)
+    a = np.array([0.95, 0.95, 0.9, 0.95])
+    assert np.allclose(later.R2[:4] / R0 ** 2, (400 + a * 80) / 480, rtol=1e-12)
 
 
 def test_growth_needs_counts_the_test_can_judge():
     """Below GROW_MIN_EXPECTED (10, twice the tests' minimum of 5: docs/method.md
     "Grow only where the counts are full") photons per cell the first pass
-    holds (uniform counts, 10 R predicted) but does not grow: 4 and 9.5 per
-    cell hold at the 0.9 rate, 10 per cell grows to 2 R, in the compiled
-    update and its numpy reference."""
+    holds (uniform counts, 10 R predicted) but does not grow: 4 per cell holds
+    at the 0.9 rate (below the spectrum rate's gate, 5), 9.5 per cell at the
+    spectrum's 0.95 (HOLD_ALPHA_SPECTRUM), 10 per cell grows to 2 R, in the
+    compiled update and its numpy reference."""
     assert U.GROW_MIN_EXPECTED == 2.0 * U.CHI2_MIN_EXPECTED == 10.0
     counts = np.array([np.full(C, 4.0), np.full(C, 9.5), np.full(C, 10.0)])
     for compiled in (True, False):
         st = _one_pass(counts, np.full(3, 0.1), compiled=compiled)
         assert st.held.all()
-        assert st.R2 / 1e-4 == pytest.approx([0.9, 0.9, G ** 2], rel=1e-12)
+        assert st.R2 / 1e-4 == pytest.approx([0.9, 0.95, G ** 2], rel=1e-12)
 
 
 def test_uniform_counts_hold_without_a_prediction():
@@ -204,14 +209,16 @@ def test_growth_on_a_wrong_prediction_still_converges():
 
 
 def test_spectrum_sets_a_slower_hold_rate_within_its_bound():
-    """HOLD_ALPHA_SPECTRUM (off by default; docs/method.md "What the spectrum adds over the
-    counts"): a verified hold whose spectrum predicts r_pred > R shrinks with
+    """HOLD_ALPHA_SPECTRUM (0.95 by default since round 16; docs/method.md "What the spectrum
+    adds over the counts", "The gated spectrum rate as the default, round 16"): a verified
+    hold whose spectrum predicts r_pred > R shrinks with
     alpha_h = min(0.95, 1 - (1 - hold_alpha) (R / r_pred)^2), never above the
     bound, so R_k -> 0 still.  Uniform counts, N = 100 before a pass of 80
     photons, f_a = (100 + 80 a) / 180: r_pred 10 R and 1.5 R -> 0.95 (the
     bound), 1.1 R -> 1 - 0.1 / 1.21, 0.8 R (held by the counts) -> hold_alpha
-    0.9; curved counts -> RELEASE_ALPHA; knob off -> 0.9 for every hold.
-    Compiled and numpy reference alike (exact: no noise)."""
+    0.9; curved counts -> RELEASE_ALPHA; knob off (0, the rule before) -> 0.9 for every
+    hold.  Compiled and numpy reference alike (exact: no noise)."""
+    assert U.HOLD_ALPHA_SPECTRUM == 0.95            # the default the first case asserts
     R0, N0 = 0.01, 100.0
     counts = np.array([UNIFORM, UNIFORM, UNIFORM, UNIFORM, CURVED])
     r = np.array([10, 1.5, 1.1, 0.8, 10]) * R0
@@ -224,7 +231,8 @@ def test_spectrum_sets_a_slower_hold_rate_within_its_bound():
             st = PixelState.zeros(P, sector_cells=C)
             st.R2[:], st.N[:] = R0 ** 2, N0
             radii = _radii(P, compiled)
-            radii.hold_alpha_spectrum = knob
+            if knob != U.HOLD_ALPHA_SPECTRUM:       # 0.95: the default, as Radii sets it
+                radii.hold_alpha_spectrum = knob
             M = counts.sum(axis=1)
             radii.update(st, M, np.repeat(0.5 * M[:, None], 3, 1), r, counts)
             assert st.R2 / R0 ** 2 == pytest.approx(expect, rel=1e-12), (knob, compiled)
@@ -293,8 +301,9 @@ def test_curved_neighbours_stop_the_growth():
     10 per cell and a prediction of 10 R: every pixel grows to G R, except
     where a pixel 2 away (initial_radius_px) gathered 10x the density: the
     pixel between it and the row's start, (2, 2), and the dense pixel (2, 4)
-    itself (its column neighbours) hold at the 0.9 rate without growing;
-    compiled and numpy the same bits."""
+    itself (its column neighbours) hold without growing, at the spectrum's
+    rate 0.95 (HOLD_ALPHA_SPECTRUM: 10 per cell, 10 R predicted; 0.9, the
+    hold_alpha rate, with it off); compiled and numpy the same bits."""
     H = W = 5
     P = H * W
     counts = np.repeat(UNIFORM[None], P, axis=0)
@@ -313,7 +322,8 @@ def test_curved_neighbours_stop_the_growth():
         stopped[[2 * W + 2, 2 * W + 4]] = True
         assert st.held.all()
         assert np.allclose(st.R2[~stopped] / 1e-4, G ** 2, rtol=1e-12)
-        assert np.allclose(st.R2[stopped] / 1e-4, 0.9, rtol=1e-12)
+        assert np.allclose(st.R2[stopped] / 1e-4, U.HOLD_ALPHA_SPECTRUM, rtol=1e-12)
+        assert U.HOLD_ALPHA_SPECTRUM == 0.95
     for f in ("N", "R2", "tau", "held", "sectors"):
         assert np.array_equal(getattr(states[0], f), getattr(states[1], f)), f
 

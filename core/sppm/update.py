@@ -141,11 +141,13 @@ GROW_CURVATURE_Z = 2.576
 #: Per-pixel hold rate from the spectrum (Knaus & Zwicker 2011: the bias of a
 #: disc goes as (R / R_pred)^2 where the light is flat within R_pred): a verified
 #: hold whose spectrum predicts r_pred > R shrinks with
-#: alpha_h = min(HOLD_ALPHA_SPECTRUM, 1 - (1 - hold_alpha) (R / r_pred)^2); at or
-#: below hold_alpha (the default): hold_alpha for every hold.  Below 1, so that
-#: R_k -> 0 still (docs/method.md "What the spectrum adds over the counts":
-#: measured, not the default).
-HOLD_ALPHA_SPECTRUM = 0.0
+#: alpha_h = min(HOLD_ALPHA_SPECTRUM, 1 - (1 - hold_alpha) (R / r_pred)^2), where
+#: the counts can test the hold (HOLD_SPECTRUM_MIN_EXPECTED); at or below
+#: hold_alpha (0: the rule before, bench 'fppm:hmax=0'): hold_alpha for every
+#: hold.  Below 1, so that R_k -> 0 still, with R_k^2 <= C k^-(1 - 0.95)
+#: (docs/method.md "Consistent holds", "The gated spectrum rate as the
+#: default, round 16").
+HOLD_ALPHA_SPECTRUM = 0.95
 #: The spectrum's rate applies only where the counts can test the hold: an
 #: expected count of at least this per sector cell (the state's counts and
 #: this pass's, as the verified holds' test reads them); below it the linear
