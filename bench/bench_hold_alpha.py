@@ -17,10 +17,11 @@
         (relMSE at equal passes, same seed: quality apart from cost, docs/method.md
         "Principled interior: quality or cost"; 'fppm:keep=noocc': no occlusion operator;
         'fppm:fdep=1': a frequency photon predicts at its first counted deposit only,
-        docs/frequency.md "Fewer marched deposits"; 'fppm:hmax=0.95': the spectrum's hold
-        rate, "What the spectrum adds over the counts", where the counts can test the hold
+        docs/frequency.md "Fewer marched deposits"; 'fppm:hmax=A': the spectrum's hold
+        rate A, "What the spectrum adds over the counts", where the counts can test the hold
         (5 per sector cell; 'hmaxE=0': everywhere, 'hmaxE=10': from 10), "A slower hold
-        where the counts can test it, round 15")
+        where the counts can test it, round 15"; 0.95 is the default since round 16 and
+        'fppm:hmax=0' the rule before, "The gated spectrum rate as the default, round 16")
     .venv/bin/python bench/bench_hold_alpha.py ring_lambert --cycles-ref --equal-passes 128 \
         --report 16,64,128 --seeds 0,1 --methods fppm,fppm:power=0,ppm,appm,cppm
         (the file's resolution and photons against the Cycles reference of ``fppm converge``,

@@ -109,7 +109,9 @@ def _two_passes(decay, compiled, spectrum_alone=True):
 def test_pixel_keeps_its_prediction_without_frequency_photons(compiled):
     """Pixel 0 gets no frequency photon in pass 2: with decay > 0 it keeps
     pass 1's 10 m and stays held (R^2 shrinks at the hold rate: f =
-    (N + 0.9 M)/(N + M) with N = 90, M = 100); pixel 1's new small
+    (N + 0.95 M)/(N + M) with N = 95, M = 100: the spectrum's rate
+    HOLD_ALPHA_SPECTRUM, 100 photons over the sector cells are enough for the
+    test, and 10 m > R); pixel 1's new small
     prediction replaces the old one (plain PPM step); pixel 2 never had one.
     With decay 0 (the previous rule) pixel 0 is released.  The default rules
     (docs/method.md "X as the default") hold all three by their uniform
@@ -120,9 +122,9 @@ def test_pixel_keeps_its_prediction_without_frequency_photons(compiled):
     assert held1.tolist() == [True, True, False]
     assert held2.tolist() == [True, False, False]
     assert last[0] == 10.0 and last[1] == 0.01 and np.isnan(last[2])
-    f1 = 0.9                                            # pass 1: N = 0, held
-    assert R2[0] == pytest.approx(f1 * (90.0 + 90.0) / 190.0, rel=1e-12)
-    assert R2[1] == pytest.approx(f1 * (90.0 + 70.0) / 190.0, rel=1e-12)
+    f1 = 0.95                       # pass 1: N = 0, held at the spectrum's rate
+    assert R2[0] == pytest.approx(f1 * (95.0 + 95.0) / 195.0, rel=1e-12)
+    assert R2[1] == pytest.approx(f1 * (95.0 + 70.0) / 195.0, rel=1e-12)
     held1, held2, last, R2 = _two_passes(0.0, compiled)
     assert held2.tolist() == [False, False, False]
     assert np.isnan(last[0])
@@ -130,7 +132,11 @@ def test_pixel_keeps_its_prediction_without_frequency_photons(compiled):
     held1, held2, last, R2 = _two_passes(0.5, compiled, spectrum_alone=False)
     assert held1.all() and held2.all()
     assert last[0] == 10.0 and last[1] == 0.01
-    assert R2[0] == pytest.approx(R2[1], rel=1e-12) and R2[0] > 2.0
+    # both grown to GROW_MAX^2 R^2 = 4 in pass 1 (N = 100 x 4), both held in pass 2:
+    # pixel 0 by its kept 10 m at the spectrum's rate 0.95 (10 m > R = 2 m),
+    # pixel 1 by its uniform counts at hold_alpha 0.9 (its 0.01 m is below R)
+    assert R2[0] == pytest.approx(4.0 * (400.0 + 95.0) / 500.0, rel=1e-12)
+    assert R2[1] == pytest.approx(4.0 * (400.0 + 90.0) / 500.0, rel=1e-12)
 
 
 def test_kept_prediction():
