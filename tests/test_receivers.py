@@ -156,3 +156,46 @@ def test_oren_nayar_floor_predicts_exactly_the_lambert_radius():
     rl = res_l.aovs["Predicted Radius"]
     assert np.isfinite(rl).all() and np.median(rl) > 0.2
     assert np.array_equal(rl, res_on.aovs["Predicted Radius"])
+
+
+def test_receiver_radii_only_in_chunks_with_frequency_photons():
+    """The receivers' radii are looked for only in chunks with frequency
+    photons (PhotonPass._add_pairs, docs/method.md "FPPM's pass against
+    CPPM's, round 16"): a Principled plane (every visible point non-Lambert),
+    16x16, 6 passes of 20,000 photons (one chunk each), no Predicted Radius
+    AOV (the receivers' own branch).  Frequency photons are traced in passes
+    1, 2 and 4 only, so the receivers see 3 chunks, all with pairs, where
+    the rule before called them in all 6 (3 with no pair to look at); the
+    radii, counts, flux, holds, kept predictions and image are the same bits."""
+    def render(skip):
+        scene, _ = point_light_plane(res=16)
+        scene.materials = [_principled()]
+        st = RenderSettings(integrator="PHOTON", max_passes=6, photons_per_pass=20_000,
+                            photons_for_direct=True)
+        r = Renderer(scene, st, log=lambda s: None)
+        pp = r.photon_pass
+        calls = []
+        keys = pp.receivers.radius_keys
+
+        def counted(vp, dep, pv, pp_, model="CORRECTED"):
+            calls.append((r.pass_index + 1, pv.size))
+            return keys(vp, dep, pv, pp_, model)
+        pp.receivers.radius_keys = counted
+        if not skip:                             # the rule before: every chunk
+            add = pp._add_pairs
+            pp._add_pairs = lambda vp, dep, g, acc, clip=None, n_freq=None: add(vp, dep, g, acc, clip)
+        res = r.run()
+        return r, res, calls
+
+    r_new, res_new, calls_new = render(True)
+    r_old, res_old, calls_old = render(False)
+    assert [k for k, _ in calls_new] == [1, 2, 4]
+    assert all(n > 0 for _, n in calls_new)
+    assert [k for k, _ in calls_old] == [1, 2, 3, 4, 5, 6]
+    assert [n for k, n in calls_old if k in (3, 5, 6)] == [0, 0, 0]
+    for name in ("R2", "N", "tau", "held", "r_pred_last", "M_last"):
+        np.testing.assert_array_equal(getattr(r_new.state, name), getattr(r_old.state, name))
+    np.testing.assert_array_equal(res_new.image, res_old.image)
+    # the receivers' predictions are what hold these pixels
+    assert np.isfinite(r_new.state.r_pred_last).mean() > 0.9
+    assert r_new.state.held.mean() > 0.5

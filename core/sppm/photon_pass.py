@@ -581,16 +581,19 @@ class PhotonPass:
         # the chunk's dense GatherResult (GatherBuffers.fold).
         buf.fold(acc.M, acc.Phi, vp.albedo, np.pi, acc.r_pred,
                  None if self.receivers is None else vp.const, acc.sectors, pg.clip)
-        self._add_pairs(vp, dep, g, acc, pg.clip)
+        self._add_pairs(vp, dep, g, acc, pg.clip, n_freq)
         self.stage_seconds["gather"] += time.perf_counter() - t1
 
     def _add_pairs(self, vp, dep, g: "hashgrid.GatherResult", acc: "PassSums",
-                   clip: Optional[np.ndarray] = None) -> None:
+                   clip: Optional[np.ndarray] = None, n_freq: Optional[int] = None) -> None:
         """Add the (visible point, photon) pairs of the gather g to acc: the
         non-Lambert points' reflected flux and predicted radii (their own
         receiver lobes), the frequency photons' histograms and spectrum.
         clip: the packed clips of the gather (the flux of a clipped disc is
-        divided by its visible fraction, as the fold does), or None."""
+        divided by its visible fraction, as the fold does), or None.
+        n_freq: the chunk's frequency photons (0: its deposits are all
+        classic, rpred NaN, so no receiver radius is looked for), None:
+        unknown (looked for)."""
         if g.pair_vp.size:
             self._reflected(vp, dep, g.pair_vp, g.pair_ph, acc.Phi, clip)
         if g.freq_pair_vp is not None:
@@ -599,7 +602,11 @@ class PhotonPass:
             if g.freq_pair_vp.size:
                 self._frequency_pairs(g.freq_pair_vp, g.freq_pair_ph, dep, acc.hist, acc.spec,
                                       vp, acc.spec_set, acc.r_pred)
-        elif self.receivers is not None:
+        elif self.receivers is not None and n_freq != 0:
+            # A chunk without frequency photons (every pass but 1, 2, 4, 8,
+            # ...: frequency_pass) has no receiver radius to find: its NaN
+            # test over every non-Lambert pair is skipped (the same bits;
+            # docs/method.md "FPPM's pass against CPPM's, round 16").
             fr = ~np.isnan(dep["rpred"][g.pair_ph])
             pv, pp = g.pair_vp[fr], g.pair_ph[fr]
             np.minimum.at(acc.r_pred, pv, self.receivers.radius_keys(
