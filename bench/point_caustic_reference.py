@@ -6,15 +6,24 @@ only diffuse surfaces, which is what a light tracer needs).  Three steps, two
 Python environments (Mitsuba is not a project dependency):
 
     .venv/bin/python bench/point_caustic_reference.py export  SCENE.npz      # bpy -> arrays
-    MITSUBA_PY bench/point_caustic_reference.py render  SCENE.npz HALVES.npz --spp N
-    .venv/bin/python bench/point_caustic_reference.py finish  HALVES.npz REF.exr
+    MITSUBA_PY bench/point_caustic_reference.py render  SCENE.npz HALVES.npz --spp N [--seeds 11,12]
+    .venv/bin/python bench/point_caustic_reference.py finish  HALVES.npz [HALVES2.npz ...] REF.exr
 
 ``export`` writes the scene FPPM renders (core.scene.model.Scene from
 addon.export.export_scene: corner positions and normals per triangle,
 diffuse/glass materials, lights, camera).  ``render`` (in an environment with
 ``pip install mitsuba``, variant scalar_rgb) renders two halves of N/2
-samples with different seeds.  ``finish`` writes REF.exr: Combined = their
-mean, Variance = (A - B)^2 / 4 (what ``fppm converge --reference`` reads).
+samples with different seeds (default 11 and 12).  ``finish`` writes REF.exr:
+Combined = their mean, Variance = (A - B)^2 / 4 (what ``fppm converge
+--reference`` reads).  Given several HALVES files (renders of other seeds),
+``finish`` first joins them: half A is the sample-weighted mean of every
+file's first half, B of the second halves.  The 65536-spp reference of
+bench/converge_examples.py is ``--spp 16384`` (seeds 11, 12) joined with
+``--spp 49152 --seeds 13,14`` (docs/peers.md "References rebuilt, round 16").
+
+Mitsuba is installed in a virtual environment of its own, never in .venv:
+``python3.13 -m venv /tmp/mitsuba-venv && /tmp/mitsuba-venv/bin/pip install
+mitsuba numpy`` (MITSUBA_PY = /tmp/mitsuba-venv/bin/python).
 
 Unit match (core/lights/lights.py, module docstring): a Cycles point light
 of power P has intensity I = P / (4 pi) W/sr in Cycles' radiance units, which
@@ -24,6 +33,7 @@ deviation (0.3 px for w = 1.5), a small difference at edges only.
 """
 from __future__ import annotations
 
+import json
 import math
 import os
 import sys
@@ -82,7 +92,7 @@ def export(out_npz: str) -> None:
           f"{W}x{H}, fov {fov:.3f} deg -> {out_npz}")
 
 
-def render(in_npz: str, out_npz: str, spp: int) -> None:
+def render(in_npz: str, out_npz: str, spp: int, seeds=(11, 12)) -> None:
     import time
     import mitsuba as mi
     mi.set_variant("scalar_rgb")
@@ -121,14 +131,16 @@ def render(in_npz: str, out_npz: str, spp: int) -> None:
         scene[f"light{j}"] = {"type": "point", "position": p.tolist(),
                               "intensity": {"type": "rgb", "value": I.tolist()}}
     sc = mi.load_dict(scene)
-    halves = []
-    for seed in (11, 12):
-        t0 = time.time()
+    halves, cpu = [], 0.0
+    for seed in seeds:
+        t0, c0 = time.time(), time.process_time()
         img = np.array(mi.render(sc, spp=spp // 2, seed=seed), dtype=np.float64)
-        print(f"half seed {seed}: {spp // 2} spp in {time.time() - t0:.1f} s, mean {img.mean(axis=(0, 1))}",
-              flush=True)
+        dc = time.process_time() - c0
+        cpu += dc
+        print(f"half seed {seed}: {spp // 2} spp in {time.time() - t0:.1f} s ({dc:.1f} CPU s), "
+              f"mean {img.mean(axis=(0, 1))}, load {os.getloadavg()[0]:.1f}", flush=True)
         halves.append(img[..., :3])
-    np.savez(out_npz, a=halves[0], b=halves[1], spp=spp)
+    np.savez(out_npz, a=halves[0], b=halves[1], spp=spp, seeds=np.array(seeds), cpu=cpu)
 
 
 def _write_ply(P, N, path):
@@ -150,18 +162,35 @@ def _write_ply(P, N, path):
     return path
 
 
-def finish(in_npz: str, out_exr: str) -> None:
+def join_halves(in_npzs: list[str]):
+    """(A, B, spp, seeds, CPU s) of several ``render`` outputs: each half the
+    sample-weighted mean of the files' halves (their seeds must differ)."""
+    ds = [np.load(p) for p in in_npzs]
+    seeds = [int(s) for d in ds for s in (d["seeds"] if "seeds" in d else (11, 12))]
+    if len(set(seeds)) != len(seeds):
+        raise SystemExit(f"shared seeds in {in_npzs}: {seeds}")
+    w = np.array([float(d["spp"]) for d in ds])
+    a = sum(wi * d["a"] for wi, d in zip(w, ds)) / w.sum()
+    b = sum(wi * d["b"] for wi, d in zip(w, ds)) / w.sum()
+    cpu = sum(float(d["cpu"]) for d in ds if "cpu" in d)
+    return a, b, int(w.sum()), seeds, cpu
+
+
+def finish(in_npzs: list[str], out_exr: str) -> None:
     sys.path.insert(0, os.path.join(ROOT, "tests"))
     import fppm_alias  # noqa: F401
     from fppm.core.io.exr import write_exr
-    d = np.load(in_npz)
-    a, b = d["a"], d["b"]
+    from fppm.tools.metrics import reference_floor
+    a, b, spp, seeds, cpu = join_halves(in_npzs)
     ref = 0.5 * (a + b)
     var = 0.25 * (a - b) ** 2
-    floor = float(np.mean(var / (ref ** 2 + 1e-2)))
+    floor = reference_floor(ref, var)
+    meta = {"source": "mitsuba3 ptracer", "samples": spp, "seeds": seeds,
+            "cpu_seconds": round(cpu, 1)}
     write_exr(out_exr, {"Combined": ref.astype(np.float32), "Variance": var.astype(np.float32)},
-              {"fppm:reference": f'{{"source": "mitsuba3 ptracer", "samples": {int(d["spp"])}}}'})
-    print(f"wrote {out_exr}: mean {ref.mean(axis=(0, 1))}, relMSE floor {floor:.3g}")
+              {"fppm:reference": json.dumps(meta)})
+    print(f"wrote {out_exr}: {spp} spp, seeds {seeds}, {cpu:.0f} CPU s, "
+          f"mean {ref.mean(axis=(0, 1))}, relMSE floor {floor:.3g}")
 
 
 if __name__ == "__main__":
@@ -170,8 +199,12 @@ if __name__ == "__main__":
         export(sys.argv[2])
     elif cmd == "render":
         spp = int(sys.argv[sys.argv.index("--spp") + 1]) if "--spp" in sys.argv else 1024
-        render(sys.argv[2], sys.argv[3], spp)
+        seeds = (tuple(int(x) for x in sys.argv[sys.argv.index("--seeds") + 1].split(","))
+                 if "--seeds" in sys.argv else (11, 12))
+        if len(seeds) != 2:
+            raise SystemExit("--seeds takes two seeds (one a half)")
+        render(sys.argv[2], sys.argv[3], spp, seeds)
     elif cmd == "finish":
-        finish(sys.argv[2], sys.argv[3])
+        finish(sys.argv[2:-1], sys.argv[-1])
     else:
         raise SystemExit(__doc__)
