@@ -739,11 +739,13 @@ def test_10000_passes_radius_floor_and_exact_counters():
             hist["sum_M"] += r.M_last
         prev["N"] = r.N.copy()
 
-    t0 = time.perf_counter()
+    # CPU seconds of this process (all its threads), not wall: a loaded machine
+    # stretches wall time, not the work the 10,000 passes do.
+    t0 = time.process_time()
     res = r.run(on_pass=on_pass)
-    dt = time.perf_counter() - t0
+    dt = time.process_time() - t0
     assert_finite(res)
-    print(f"10k passes: {dt:.1f} s, floor {r.radius_floor:.3e} m reached at pass "
+    print(f"10k passes: {dt:.1f} CPU s, floor {r.radius_floor:.3e} m reached at pass "
           f"{hist['first_floor']}, N = {r.N.min():.0f}..{r.N.max():.0f}")
     assert res.pass_index == 10_000
     assert r.photons_emitted == 2_000_000 and isinstance(r.photons_emitted, int)
@@ -758,7 +760,8 @@ def test_10000_passes_radius_floor_and_exact_counters():
     np.testing.assert_allclose(r.N - hist["N_floor"], hist["sum_M"], rtol=0, atol=1e-6)
     assert r.N.dtype == np.float64 and r.tau.dtype == np.float64 and r.R2.dtype == np.float64
     assert np.all(res.image[..., :3] > 0)
-    # < 20 s on an idle 2-core machine; the bound leaves room for a loaded one.
+    # About half the bound on the 2-core CI machine (the per-pass Python overhead
+    # of a 4x4 image); the bound catches a per-pass cost grown 2x, not load.
     assert dt < 60
 
 
