@@ -173,6 +173,24 @@ def test_rules_need_frequency_off():
     RenderSettings(integrator="PHOTON", radius_rule="APPM", use_frequency=False).validate()
 
 
+def _step_within_rates(r, hold):
+    """One pass of ``r``; returns (image (H, W, 3), f, n, M, outside): f =
+    R'^2/R^2 of the pixels that gathered with a radius, n their N before the
+    pass, M their photons, and ``outside`` how many f lie outside
+    [f_RELEASE_ALPHA, f_hold] (outside (0, GROW_MAX^2] in a pixel's first pass
+    with photons, n = 0), f_a = (n + a M) / (n + M)."""
+    from core.sppm.update import GROW_MAX, RELEASE_ALPHA
+    N0, R20 = r.state.N.copy(), r.R2.copy()
+    img = r.step().image[..., :3]
+    M = r.state.M_last
+    m = (M > 0) & (R20 > 0)
+    f, n, Mm = r.R2[m] / R20[m], N0[m], M[m]
+    lo = (n + RELEASE_ALPHA * Mm) / (n + Mm)
+    hi = np.where(n > 0, (n + hold * Mm) / (n + Mm), GROW_MAX ** 2)
+    outside = int(np.sum((f < lo * (1 - 1e-12)) | (f > hi * (1 + 1e-12))))
+    return img, f, n, Mm, outside
+
+
 def _edge_errors_and_radii(grow, hold_alpha_spectrum=None):
     """The forced 10 m prediction of tests/test_holds.py on the shadow edge,
     verified holds, 64 passes of 50k photons, seed 0, the default rules with
@@ -182,7 +200,6 @@ def _edge_errors_and_radii(grow, hold_alpha_spectrum=None):
     f = R'^2/R^2 outside [f_RELEASE_ALPHA, f_max(hold_alpha, spectrum rate)]
     (outside (0, GROW_MAX^2] in a pixel's first pass with photons), and the
     number above f_hold_alpha: holds that took the spectrum's slower rate)."""
-    from core.sppm.update import GROW_MAX, RELEASE_ALPHA
     scene, Lfun = _shadow_edge_scene()
     X, Y = pixel_centres_ortho(scene)
     L = Lfun(X, Y)
@@ -202,14 +219,9 @@ def _edge_errors_and_radii(grow, hold_alpha_spectrum=None):
     r.radii.hold_share_min = 0.0
     err, R, outside, slow = {}, {}, 0, 0
     for k in range(1, 65):
-        N0, R20 = r.state.N.copy(), r.R2.copy()
-        img = r.step().image[..., :3].mean(axis=2)
-        M = r.state.M_last
-        m = (M > 0) & (R20 > 0)
-        f, n, Mm = r.R2[m] / R20[m], N0[m], M[m]
-        lo = (n + RELEASE_ALPHA * Mm) / (n + Mm)
-        hi = np.where(n > 0, (n + hold * Mm) / (n + Mm), GROW_MAX ** 2)
-        outside += int(np.sum((f < lo * (1 - 1e-12)) | (f > hi * (1 + 1e-12))))
+        img, f, n, Mm, out = _step_within_rates(r, hold)
+        img = img.mean(axis=2)
+        outside += out
         f_hold = (n + st.hold_alpha * Mm) / (n + Mm)
         slow += int(np.sum((n > 0) & (f > f_hold * (1 + 1e-12))))
         if k in (8, 64):
@@ -362,7 +374,7 @@ def _ring_run(scene, st, radii=None, seed=0):
     passes 4 / 8 / 16, the number of per-pass factors f = R'^2/R^2 outside
     [f_RELEASE_ALPHA, f_hold_alpha] (f_HOLD_ALPHA_SPECTRUM where that is
     larger; outside (0, GROW_MAX^2] in a pixel's first pass with photons))."""
-    from core.sppm.update import GROW_MAX, HOLD_ALPHA_SPECTRUM, RELEASE_ALPHA
+    from core.sppm.update import HOLD_ALPHA_SPECTRUM
     # the slowest hold rate: hold_alpha, or the spectrum's bound (the default's,
     # or the run's own: 0 is off)
     hold = max(st.hold_alpha, (radii or {}).get("hold_alpha_spectrum", HOLD_ALPHA_SPECTRUM))
@@ -374,14 +386,8 @@ def _ring_run(scene, st, radii=None, seed=0):
         setattr(r.radii, k, v)
     imgs, outside = {}, 0
     for k in range(1, 17):
-        N0, R20 = r.state.N.copy(), r.R2.copy()
-        img = r.step().image[..., :3]
-        M = r.state.M_last
-        m = (M > 0) & (R20 > 0)
-        f, n, Mm = r.R2[m] / R20[m], N0[m], M[m]
-        lo = (n + RELEASE_ALPHA * Mm) / (n + Mm)
-        hi = np.where(n > 0, (n + hold * Mm) / (n + Mm), GROW_MAX ** 2)
-        outside += int(np.sum((f < lo * (1 - 1e-12)) | (f > hi * (1 + 1e-12))))
+        img, _, _, _, out = _step_within_rates(r, hold)
+        outside += out
         if k in (4, 8, 16):
             imgs[k] = np.asarray(img, np.float64)
     return np.sqrt(r.R2), r.state.held.copy(), imgs, outside
