@@ -40,7 +40,9 @@
     .venv/bin/python bench/bench_hold_alpha.py ring_principled --equal-cpu 12 --ref-passes 200 \
         --seeds 0,1,2,3 --methods fppm,fppm:share=0,ppm,cppm
         ('share=0': the holds kept where few hold, 'sharepass=K': decided after pass K;
-        'verify_holds=0' sets a bool field; docs/method.md "Where FPPM's extras do not pay")
+        'verify_holds=0' sets a bool field; docs/method.md "Where FPPM's extras do not pay";
+        'through=1': visible points reached through glass or a mirror hold, the rule before
+        docs/method.md "The glass sphere at equal passes, round 17", 'through=0' the default)
 
 The protocol of docs/method.md ("Consistent holds", "Radius rules"): the
 .blend at 50 % resolution (64x64) with the file's settings, photon mapping
@@ -255,7 +257,7 @@ def method_settings(base, method):
     if ":" in method:                       # "fppm:decay=0" etc.
         for kv in method.split(":")[1:]:
             k, v = kv.split("=")
-            if k == "keep" or k in RADII_KEYS or k in TRACER_KEYS:   # planes_or, radii_variant
+            if k in ("keep", "kappa") or k in RADII_KEYS or k in TRACER_KEYS:   # planes_or, radii_variant
                 continue
             cur = getattr(base, k)
             if isinstance(cur, bool):       # 'verify_holds=0': bool("0") would be True
@@ -271,7 +273,7 @@ RADII_KEYS = {"power": "hold_min_expected", "release": "release_alpha", "top2": 
               "grow": "grow", "growE": "grow_min_expected", "growZ": "grow_curvature_z",
               "hmax": "hold_alpha_spectrum", "hmaxE": "hold_spectrum_min_expected",
               "share": "hold_share_min",
-              "sharepass": "hold_share_pass"}
+              "sharepass": "hold_share_pass", "through": "hold_through_delta"}
 
 
 #: Method-name keys of :func:`planes_or` and the PhotonTracer attribute each
@@ -294,8 +296,12 @@ def radii_variant(renderer, method):
         renderer.radii.hold_uniform = True
     for kv in method.split(":")[1:]:
         k, v = kv.split("=")
+        if k == "kappa":                    # EXPERIMENT: holds read r_pred / kappa
+            pred, kap = renderer.radii.predicted, float(v)
+            renderer.radii.predicted = lambda *x, pred=pred, kap=kap: pred(*x) / kap
         if k in RADII_KEYS:
-            setattr(renderer.radii, RADII_KEYS[k], int(v) if k == "sharepass" else float(v))
+            setattr(renderer.radii, RADII_KEYS[k], int(v) if k == "sharepass"
+                    else v not in ("0", "false") if k == "through" else float(v))
 
 
 def cycles_reference(name, say):

@@ -188,12 +188,18 @@ def _update_case(P, seed, sectors):
     (True, True, 0.9, dict(hold_alpha_spectrum=0.97, grow_min_expected=0.0)),
     # the spectrum's rate gated by the counts (docs/method.md "A slower hold where the counts
     # can test it, round 15"): a gate inside the case's 11-35 per cell takes both branches
-    (True, True, 0.9, dict(hold_alpha_spectrum=0.97, hold_spectrum_min_expected=20.0))])
+    (True, True, 0.9, dict(hold_alpha_spectrum=0.97, hold_spectrum_min_expected=20.0)),
+    # no hold where the visible point was reached through a delta vertex (docs/method.md
+    # "The glass sphere at equal passes, round 17"): the compiled veto is a negative cap
+    (True, True, 0.9, dict(hold_through_delta=False, through=0.3))])
 def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha, knobs):
     settings = RenderSettings(integrator="PHOTON", hold_alpha=hold_alpha, verify_holds=sectors)
     radii = U.Radii(settings, None, 10.0, frequency, None, 1, P)
     for k, v in (knobs or {}).items():
-        setattr(radii, k, v)
+        if k == "through":          # that share of the pixels seen through glass
+            radii._through = np.random.default_rng(P + 1).random(P) < v
+        else:
+            setattr(radii, k, v)
     radii.floor_sq = 1e-9                                # reached by the tiny predictions
     ref, M, Phi, r_pred, S_pass = _update_case(P, P, sectors)
     new = PixelState(**{k: v.copy() for k, v in ref.state_dict().items()})
@@ -209,6 +215,8 @@ def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha, kno
         assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=True), f
     if frequency:              # both branches taken (X's uniform counts add holds: 0.62)
         assert 0.05 < ref.held.mean() < 0.8
+    if radii._through is not None:
+        assert not ref.held[radii._through].any() and ref.held[~radii._through].mean() > 0.3
     if sectors:                # the linear test vetoes some holds and not others
         vetoed = U.chi2_rejects(ref.sectors, linear=True)
         assert 0.05 < vetoed.mean() < 0.6

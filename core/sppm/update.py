@@ -165,6 +165,15 @@ HOLD_SPECTRUM_MIN_EXPECTED = CHI2_MIN_EXPECTED
 #: HOLD_SHARE_MIN 0: never.
 HOLD_SHARE_PASS = 1
 HOLD_SHARE_MIN = 0.25
+#: A visible point reached through a delta vertex (the floor seen through the
+#: glass sphere, a surface seen in a mirror) holds: False (the default for
+#: photon mapping) refuses its holds, so it shrinks at PPM's rate.  On the
+#: glass sphere at 128x128 the holds of the pixels that see the caustic's
+#: focus through the sphere carried most of FPPM's excess over PPM at equal
+#: passes, with the counts' holds (CPPM's) as with the spectrum's
+#: (docs/method.md "The glass sphere at equal passes, round 17").
+#: COMBINED's merging, which gathers at those points only, keeps its holds.
+HOLD_THROUGH_DELTA = False
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
 
@@ -328,6 +337,11 @@ class Radii:
                                else 0.0)
         self.hold_share_pass = HOLD_SHARE_PASS
         self.holds_left_out = None
+        # HOLD_THROUGH_DELTA (photon mapping; bench 'fppm:through=1' holds
+        # there as before round 17), and this pass's visible points reached
+        # through a delta vertex (P,) bool (set by initialise; None: not asked).
+        self.hold_through_delta = HOLD_THROUGH_DELTA or settings.integrator != "PHOTON"
+        self._through = None
         # The radii before the first update (leave_out_holds undoes pass 1's
         # holds: the state becomes PPM's), and the updates so far.
         self._R2_first = None
@@ -337,6 +351,8 @@ class Radii:
         """Set state.R2 of the pixels whose first visible point this is (R2 == 0)
         (``compiled``: in :func:`_initialise_range`, the same bits)."""
         st = self.settings
+        if not self.hold_through_delta and vp.through_delta is not None:
+            self._through = np.asarray(vp.through_delta) & np.asarray(vp.valid)
         if self.compiled:
             cap = np.zeros(0)
             if st.cap_radius_at_edges:
@@ -454,7 +470,16 @@ class Radii:
         if (rule == "PPM" and self.grow > 1.0 and self.grow_curvature_z > 0 and not left_out
                 and sectors is not None and state.sectors is not None):
             grow_cap = self.grow_cap(state, M)
+        veto = (self._through if rule == "PPM" and not left_out and not self.hold_through_delta
+                else None)
+        if veto is not None and not veto.any():
+            veto = None
         if rule == "PPM" and self.compiled and (left_out or (state.sectors is None) == (sectors is None)):
+            if veto is not None:
+                # A negative cap: no hold (the compiled update's per-pixel veto).
+                grow_cap = (np.full(M.shape[0], np.inf) if grow_cap is None
+                            else np.array(grow_cap, np.float64))
+                grow_cap[veto] = -1.0
             self._update_compiled(state, M, Phi, r_pred, None if left_out else sectors, grow_cap)
             return
         S = None
@@ -496,6 +521,8 @@ class Radii:
             one_sided = (E < CHI2_MIN_EXPECTED) & (top2[:, 0] + top2[:, 1]
                                                    >= self.hold_max_top2 * S.sum(axis=1))
             r_hold = np.where(one_sided, np.nan, r_hold)
+        if veto is not None:
+            r_hold = np.where(veto, np.nan, r_hold)
         m = M > 0
         R2_old = state.R2[m]
         alpha = self.settings.alpha
@@ -720,7 +747,7 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
     minimum expected count per cell (below: no uniform hold), the spectrum's
     hold rate (HOLD_ALPHA_SPECTRUM; at or below hold_alpha: off) and its
     minimum expected count per cell (HOLD_SPECTRUM_MIN_EXPECTED)); cap (P,) the
-    surface-boundary cap [m] ((0,): none)."""
+    surface-boundary cap [m] ((0,): none; negative: the pixel does not hold)."""
     alpha, floor_sq, hold_alpha = prm[0], prm[1], prm[2]
     with_S = a.S.shape[1] == SECTOR_CELLS
     E_cell = 0.0
@@ -759,6 +786,8 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
                             m2 = Si[k]
                     if m2 + m1 >= prm[5] * tot:
                         r = np.nan
+        if cap.shape[0] > 0 and cap[i] < 0.0:
+            r = np.nan                                      # Radii.hold_through_delta
         held = False
         M = a.M[i]
         if M > 0:
