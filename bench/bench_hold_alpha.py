@@ -42,7 +42,8 @@
         ('share=0': the holds kept where few hold, 'sharepass=K': decided after pass K;
         'verify_holds=0' sets a bool field; docs/method.md "Where FPPM's extras do not pay";
         'through=1': visible points reached through glass or a mirror hold, the rule before
-        docs/method.md "The glass sphere at equal passes, round 17", 'through=0' the default)
+        docs/method.md "The glass sphere at equal passes, round 17", 'through=0' the default;
+        'kappa=2': every hold reads the spectrum's prediction / 2, tried there, not kept)
 
 The protocol of docs/method.md ("Consistent holds", "Radius rules"): the
 .blend at 50 % resolution (64x64) with the file's settings, photon mapping
@@ -296,7 +297,7 @@ def radii_variant(renderer, method):
         renderer.radii.hold_uniform = True
     for kv in method.split(":")[1:]:
         k, v = kv.split("=")
-        if k == "kappa":                    # EXPERIMENT: holds read r_pred / kappa
+        if k == "kappa":                    # the holds read r_pred / kappa (a margin)
             pred, kap = renderer.radii.predicted, float(v)
             renderer.radii.predicted = lambda *x, pred=pred, kap=kap: pred(*x) / kap
         if k in RADII_KEYS:

@@ -103,3 +103,29 @@ def test_left_out_holds_survive_a_checkpoint():
         a = np.asarray(r.step().image, np.float64)
         b = np.asarray(again.step().image, np.float64)
         assert np.array_equal(a, b)
+
+
+def test_no_hold_through_glass():
+    """glass_sphere at 32x32 (docs/method.md "The glass sphere at equal passes,
+    round 17"): a pixel whose visible point is seen through the sphere never
+    holds (HOLD_THROUGH_DELTA), while the rule before held most of them;
+    the pixels seen directly hold as before.  COMBINED keeps its holds."""
+    scene, st = _scene("glass_sphere", photons=20_000, passes=4)
+    out, masks = {}, []
+    for rule in (False, True):                  # the same seed: the same visible points
+        r = Renderer(scene, st, log=lambda s: None)
+        r.radii.hold_through_delta = rule
+        held_through, held_direct = [], []
+        for k in range(4):
+            r.step()
+            if not rule:
+                masks.append(r.radii._through.copy())
+                assert 20 < masks[k].sum() < 0.2 * masks[k].size
+            through = masks[k]
+            has = r.state.R2 > 0
+            held_through.append(r.state.held[through & has].mean())
+            held_direct.append(r.state.held[~through & has].mean())
+        out[rule] = held_through, held_direct
+    assert max(out[False][0]) == 0.0 and min(out[True][0]) > 0.3
+    assert min(out[False][1]) > 0.5 and min(out[True][1]) > 0.5
+    assert U.Radii(st.replace(integrator="COMBINED"), None, 10.0, True, None, 1, 1).hold_through_delta
