@@ -9,9 +9,10 @@ thread, Renderer.step), against ``fppm converge``'s reference of bench/converge_
 SCENES (bench_hold_alpha.cycles_reference).  The same seed gives FPPM and PPM the same photons
 and camera samples, so the per-pixel difference of their squared relative errors is paired.
 Writes ``OUT/METHOD_sSEED.npz`` per method and seed: the images at the report passes
-(``img_P``, (H, W, 3) float64), relMSE per pass (``relmse``), and the radius state: ``R2_1``
-(R^2 after pass 1, (P,)), ``R2`` / ``held`` / ``rp`` (r_pred_last) / ``E`` (photons per sector
-cell) at the last report pass (the file is rewritten at each), ``held_n`` (passes each pixel held), ``held_first`` (held after pass 1).
+(``img_P``, (H, W, 3) float64), R^2 and the held flags there (``R2_P``, ``held_P``, (P,)),
+relMSE and CPU seconds per pass (``relmse``, ``cpu``), ``R2_1`` / ``held_first`` (after pass
+1), ``held_n`` (passes each pixel held so far) and ``R2`` / ``held`` / ``rp`` (r_pred_last) /
+``E`` (photons per sector cell) at the last report pass (the file is rewritten at each).
 The reference and its region masks go to ``OUT/ref.npz``.  Method names as
 bench_hold_alpha.py's ('fppm:hmax=0', 'fppm:through=1', 'fppm:hold_alpha=0.7:release=0.7').
 """
