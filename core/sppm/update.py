@@ -340,7 +340,8 @@ class Radii:
         # HOLD_THROUGH_DELTA (photon mapping; bench 'fppm:through=1' holds
         # there as before round 17), and this pass's visible points reached
         # through a delta vertex (P,) bool (set by initialise; None: not asked).
-        self.hold_through_delta = HOLD_THROUGH_DELTA or settings.integrator != "PHOTON"
+        self.hold_through_delta = (HOLD_THROUGH_DELTA or settings.integrator != "PHOTON"
+                                   or not frequency)     # PPM, CPPM: no hold to refuse
         self._through = None
         # The radii before the first update (leave_out_holds undoes pass 1's
         # holds: the state becomes PPM's), and the updates so far.
