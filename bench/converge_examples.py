@@ -261,6 +261,15 @@ NOTES = [
     "0.83 / 0.61 / 0.52), FPPM / CPPM 0.977 excess (seeds 0.82-1.14; raw 1.17 / 0.99 / 0.98; "
     "FPPM 200-218 passes, CPPM 169-233); cornell FPPM / PPM 1.01 / 0.756 / 0.679 (excess 0.675; "
     "10 % seeds 0.94-1.12), FPPM / CPPM 1.02 excess (seeds 1.00-1.06; raw 1.18 / 1.06 / 1.02).",
+    "Round 17 re-runs on 6657bbc (the same code as the round 16 re-runs above) against the "
+    "references rendered again in round 16 (docs/peers.md 'References rebuilt, round 16'), "
+    "`SCENE --budget 60 --seeds 4 --methods fppm,ppm`, load average 1 to 14, each in "
+    "SCENE/fppm_ppm_60s/: glass_sphere FPPM / PPM 0.95 / 1.05 / 1.07 at 10 / 50 / 100 % (excess "
+    "1.08, seeds 0.95-1.13; at equal passes 1.00-1.13 at pass 100, the caustic region 1.00-1.02; "
+    "FPPM 180-226 passes, PPM 212-240); coffee_cup (6-run reference, floor 1.48e-3) 0.97 / 1.02 / "
+    "1.01 (excess 1.01, seeds 1.007-1.023; at equal passes 0.97-0.98; FPPM 213-231 passes, PPM "
+    "259-292); point_caustic (65536 spp, floor 1.39e-4) 0.53 / 0.49 / 0.52 (excess 0.49, seeds "
+    "0.48-0.53).",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
