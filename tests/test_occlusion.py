@@ -135,6 +135,71 @@ def test_nearest_query_skips_no_triangle_that_could_win():
         assert np.isnan(out[0][1][:, 0]).any() and (out[0][0] < cap).any()   # both kinds of voxel
 
 
+def test_blocked_nearest_queries_equal_the_query_per_voxel():
+    """_nearest_blocked (the build's nearest-triangle queries since round 17:
+    each block of NEAREST_BLOCK^3 voxels tests only the triangles within its
+    bound, docs/frequency.md "The nearest-triangle queries by block, round
+    17") gives _nearest_all's distances and closest points bit for bit, the
+    closest points' coordinates of capped voxels included: an axis-aligned
+    box with a post and a sphere (exact ties between a wall's two
+    triangles), the same with the sphere finer (blocks with more candidates
+    than NEAREST_CANDIDATES query the BVH), random triangles, and a far
+    small box (blocks capped whole); caps of 2 and 10 voxel diagonals and
+    none; grids of 24, 32 and 33 voxels (a last block cut short).  Every
+    branch is taken: blocks capped whole, listed and querying the BVH, and
+    voxels whose candidates tie running the query."""
+    from core.frequency import occlusion_grid as OG
+    rng = np.random.default_rng(3)
+    walls = np.array(box((0, 0, 0), (2, 1.5, 1)))
+    post = np.array(box((0.3, 0.2, 0.0), (0.5, 0.25, 0.6)))
+    scenes = [np.concatenate([walls, post, icosphere((1.2, 0.7, 0.35), 0.3, 1)]),
+              np.concatenate([walls[:10], post, icosphere((1.2, 0.7, 0.35), 0.3, 3),
+                              np.array(box((3.8, 2.8, 1.9), (4.0, 3.0, 2.0)))]),
+              rng.random((60, 3, 3))]
+    seen = np.zeros(5, np.int64)
+    for tri in scenes:
+        tri = tri.astype(np.float32)
+        p = tri.reshape(-1, 3)
+        tris, node_lo, node_hi, n_leaves = OG._build_bvh(tri)
+        t_lo, t_hi = tris.min(axis=1).astype(np.float64), tris.max(axis=1).astype(np.float64)
+        for R in (24, 32, 33):
+            lo, hi = OG.grid_bounds(p.min(0), p.max(0))
+            cell = (hi - lo) / R
+            slack = OG.NEAREST_SLACK * float(np.sum(np.square(hi - lo)))
+            diag = float(np.linalg.norm(cell))
+            for cap in (2.0 * diag, 10.0 * diag, np.inf):
+                d0, q0 = np.empty(R ** 3), np.empty((R ** 3, 3))
+                d1, q1 = np.empty(R ** 3), np.empty((R ** 3, 3))
+                OG._nearest_all(tris, t_lo, t_hi, node_lo, node_hi, n_leaves, lo, cell, R, cap,
+                                slack, d0, q0)
+                seen += OG._nearest_blocked(tris, t_lo, t_hi, node_lo, node_hi, n_leaves, lo,
+                                            cell, R, cap, slack, d1, q1)
+                assert np.array_equal(d0, d1)
+                assert np.array_equal(q0, q1, equal_nan=True)
+    # capped whole, listed, querying the BVH, candidates, tie queries
+    assert seen[0] > 0 and seen[1] > 0 and seen[2] > 0 and seen[4] > 0, seen
+
+
+def test_dilated_min_equals_the_neighbourhood_loop():
+    """_dilated_min (the voxel level's minima in three one-axis passes, round
+    17) equals the minimum over each voxel's 3^3 neighbourhood clipped to the
+    grid, bit for bit, on random float32 distances with infinities."""
+    from core.frequency import occlusion_grid as OG
+    rng = np.random.default_rng(5)
+    R = 9
+    dist = rng.random((R, R, R)).astype(np.float32)
+    dist[rng.random((R, R, R)) < 0.1] = np.inf
+    out = np.empty((R, R, R))
+    OG._dilated_min(dist, R, out, np.empty((R, R, R)))
+    pad = np.pad(dist.astype(np.float64), 1, constant_values=np.inf)
+    ref = np.full((R, R, R), np.inf)
+    for a in range(3):
+        for b in range(3):
+            for c in range(3):
+                ref = np.minimum(ref, pad[a:a + R, b:b + R, c:c + R])
+    assert np.array_equal(out, ref)
+
+
 def test_bicone_of_floor_wall_and_corner():
     tri = np.array(quad((0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0))
                    + quad((0, 0, 0), (0, 0, 1), (0, 1, 1), (0, 1, 0)), np.float32)
