@@ -180,6 +180,22 @@ def test_blocked_nearest_queries_equal_the_query_per_voxel():
     assert seen[0] > 0 and seen[1] > 0 and seen[2] > 0 and seen[4] > 0, seen
 
 
+def test_distinct_rows_index_every_row_by_its_bits():
+    """_distinct_rows (the build's eigh batch on the distinct sums only, round
+    17): the first rows of each distinct row in order of first occurrence,
+    and each row's index among them, as np.unique finds them; the grid it
+    feeds is checked bit for bit by test_grid_and_march_blocks_equal_the_build_before."""
+    from core.frequency import occlusion_grid as OG
+    rng = np.random.default_rng(7)
+    base = rng.random((40, 6))
+    rows = base[rng.integers(0, 40, 5000)]
+    inv = np.empty(len(rows), np.int64)
+    first = OG._distinct_rows(rows.view(np.int64), inv)
+    assert np.array_equal(rows[first][inv], rows)
+    assert len(first) == len(np.unique(rows, axis=0)) == 40
+    assert np.all(np.diff(first) > 0) and np.array_equal(inv[first], np.arange(40))
+
+
 def test_dilated_min_equals_the_neighbourhood_loop():
     """_dilated_min (the voxel level's minima in three one-axis passes, round
     17) equals the minimum over each voxel's 3^3 neighbourhood clipped to the
