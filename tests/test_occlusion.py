@@ -180,6 +180,48 @@ def test_blocked_nearest_queries_equal_the_query_per_voxel():
     assert seen[0] > 0 and seen[1] > 0 and seen[2] > 0 and seen[4] > 0, seen
 
 
+def test_voxel_level_memo_equals_the_block_loop():
+    """_voxel_level (the march blocks' voxel level with its cones computed once
+    per distinct sequence of members, round 17) gives the vcone of
+    _build_blocks with B = 1 bit for bit, every voxel (also those the march
+    never reads), on the digest scene below (an open box, a sphere of many
+    distinct cones, a post and a far box) at 32 and 33 voxels; and
+    march_blocks gives the same MarchBlocks with VOXEL_LEVEL_MEMO off."""
+    from core.frequency import occlusion_grid as OG
+    tri = np.concatenate([np.array(box((0, 0, 0), (2, 1.5, 1)))[:10],
+                          icosphere((1.2, 0.7, 0.35), 0.3, 2),
+                          np.array(box((0.3, 0.2, 0.0), (0.5, 0.25, 0.6))),
+                          np.array(box((3.8, 2.8, 1.9), (4.0, 3.0, 2.0)))]).astype(np.float32)
+    p = tri.reshape(-1, 3)
+    for R in (32, 33):
+        g = build_occlusion_grid(tri, p.min(0), p.max(0), R,
+                                 max_distance=10 * np.linalg.norm(np.array([4, 3, 2]) / R))
+        L = OG.cut_locality(float(g.cell[0]), float(g.cell[1]), float(g.cell[2]))
+        kind, un, asn = np.empty((R, R, R), np.int8), np.empty((R, R, R, 3)), np.empty((R, R, R))
+        OG._cone_members(g.cone, R, kind, un, asn)
+        vm = np.empty((R, R, R))
+        OG._dilated_min(g.dist, R, vm, np.empty((R, R, R)))
+        a, b = np.zeros((R, R, R, 8), np.int16), np.zeros((R, R, R, 8), np.int16)
+        OG._build_blocks(g.dist, kind, un, asn, R, 1, R, vm.copy(), a, L, True, vm.copy())
+        mid, mu = np.empty((R, R, R), np.int64), np.empty(R ** 3, np.int64)
+        members = OG._member_ids(kind, un.view(np.int64), asn.view(np.int64), R, mid, mu)
+        sequences = OG._voxel_level(g.dist, kind, un, asn, mid, mu, R, vm, b, L)
+        assert np.array_equal(a, b)
+        assert 1 < members < sequences < np.count_nonzero(vm * (1 - OG.BLOCK_REL) < L)
+    old = OG.VOXEL_LEVEL_MEMO
+    try:
+        mbs = []
+        for memo in (True, False):
+            OG.VOXEL_LEVEL_MEMO = memo
+            g2 = build_occlusion_grid(tri, p.min(0), p.max(0), 32,
+                                      max_distance=10 * np.linalg.norm(np.array([4, 3, 2]) / 32))
+            mbs.append(OG.march_blocks(g2))
+    finally:
+        OG.VOXEL_LEVEL_MEMO = old
+    for f in ("bmin", "bcone", "vmin", "vcone"):
+        assert np.array_equal(getattr(mbs[0], f), getattr(mbs[1], f)), f
+
+
 def test_distinct_rows_index_every_row_by_its_bits():
     """_distinct_rows (the build's eigh batch on the distinct sums only, round
     17): the first rows of each distinct row in order of first occurrence,

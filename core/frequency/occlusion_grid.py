@@ -1183,6 +1183,189 @@ def _dilated_min(dist, R, out, tmp):
                 out[x, y, z] = m
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _two_cones(ax_, ay_, az_, as_, n, ia, ib, out, seen):
+    """out[0:8] = the two union cones of the members 0..n-1 (n >= 1; out's
+    other entries as _build_blocks set them).  Two clusters: seeded by the
+    first member and the member most orthogonal to it, each member to the
+    nearer seed (sign-free).  Where two walls meet, the members are the two
+    walls' normals: one union of both is a ~90-degree cone that meets nearly
+    every plane, two unions meet only the planes grazing a wall."""
+    q = 0
+    cmin = 2.0
+    for k in range(n):
+        c = abs(ax_[k] * ax_[0] + ay_[k] * ay_[0] + az_[k] * az_[0])
+        if c < cmin:
+            cmin = c
+            q = k
+    na = 0
+    nb_ = 0
+    for k in range(n):
+        ca = abs(ax_[k] * ax_[0] + ay_[k] * ay_[0] + az_[k] * az_[0])
+        cb = abs(ax_[k] * ax_[q] + ay_[k] * ay_[q] + az_[k] * az_[q])
+        if ca >= cb:
+            ia[na] = k
+            na += 1
+        else:
+            ib[nb_] = k
+            nb_ += 1
+    # np.int64: one compile, not one per literal (core/warmup.py)
+    _union_cone(ax_, ay_, az_, as_, ia, np.int64(na), out, np.int64(0), seen)
+    _union_cone(ax_, ay_, az_, as_, ib, np.int64(nb_), out, np.int64(4), seen)
+
+
+@nb.njit(cache=True, nogil=True)
+def _member_ids(kind, ubits, abits, R, mid, mu):
+    """mid (R, R, R) int64: an index per distinct member (kind 2; its unit
+    axis and asin bits ubits (R, R, R, 3), abits (R, R, R) int64, the views
+    of _cone_members' un and asn), -1 for the others; mu (R^3,) int64: the
+    flat voxel of each index's first member.  Equal indices, equal bits.
+    Returns the number of indices."""
+    size = 2
+    while size < 2 * R * R * R:
+        size *= 2
+    table = np.full(size, -1, np.int64)
+    d = 0
+    for x in range(R):
+        for y in range(R):
+            for z in range(R):
+                if kind[x, y, z] != 2:
+                    mid[x, y, z] = -1
+                    continue
+                k0, k1, k2, k3 = ubits[x, y, z, 0], ubits[x, y, z, 1], ubits[x, y, z, 2], abits[x, y, z]
+                h = np.uint64(1469598103934665603)
+                for k in (k0, k1, k2, k3):
+                    h = (h ^ np.uint64(k)) * np.uint64(1099511628211)
+                h ^= h >> np.uint64(29)
+                j = np.int64(h & np.uint64(size - 1))
+                while True:
+                    t = table[j]
+                    if t < 0:
+                        table[j] = d
+                        mu[d] = (x * R + y) * R + z
+                        mid[x, y, z] = d
+                        d += 1
+                        break
+                    f = mu[t]
+                    fx, fy, fz = f // (R * R), (f // R) % R, f % R
+                    if (ubits[fx, fy, fz, 0] == k0 and ubits[fx, fy, fz, 1] == k1
+                            and ubits[fx, fy, fz, 2] == k2 and abits[fx, fy, fz] == k3):
+                        mid[x, y, z] = t
+                        break
+                    j = (j + 1) & (size - 1)
+    return d
+
+
+#: _voxel_level's memo: at most this many distinct member sequences kept.
+VOXEL_MEMO = 1 << 15
+#: march_blocks builds the voxel level with _voxel_level (False:
+#: _build_blocks with B = 1, the same bits; tests compare the two).
+VOXEL_LEVEL_MEMO = True
+
+
+@nb.njit(cache=True, nogil=True)
+def _voxel_level(dist, kind, un, asn, mid, mu, R, vmin, vcone, L):
+    """The voxel level of MarchBlocks (vcone, int16), the cones of
+    :func:`_build_blocks` with B = 1 bit for bit: vmin (R, R, R) float64 the
+    dilated minima (:func:`_dilated_min`).  A voxel's two cones are a
+    function of its members in order (their bits), so they are computed once
+    per distinct sequence of member indices (mid, mu of :func:`_member_ids`)
+    and looked up for the voxels with the same sequence (a wall's voxels, an
+    edge's along it): the same bits as computing them again."""
+    R3 = R * R * R
+    ax_ = np.empty(27)
+    ay_ = np.empty(27)
+    az_ = np.empty(27)
+    as_ = np.empty(27)
+    ia = np.empty(27, np.int64)
+    ib = np.empty(27, np.int64)
+    ids = np.empty(27, np.int64)
+    out = np.empty(8)
+    seen = np.empty(4 * _SEEN)
+    size = 2 * VOXEL_MEMO
+    table = np.full(size, -1, np.int64)
+    seq_at = np.empty(VOXEL_MEMO, np.int64)
+    seq_n = np.empty(VOXEL_MEMO, np.int64)
+    pool = np.empty(VOXEL_MEMO * 8, np.int64)
+    outs = np.empty((VOXEL_MEMO, 8))
+    ne = 0
+    npool = 0
+    for x in range(R):
+        for y in range(R):
+            for z in range(R):
+                m = vmin[x, y, z]
+                for k in range(8):
+                    out[k] = 0.0
+                if m * (1.0 - BLOCK_REL) >= L:
+                    out[3] = -2.0
+                    out[7] = -2.0
+                    _store_cones(out, vcone, x, y, z, True)
+                    continue
+                wide = False
+                n = 0
+                h = np.uint64(1469598103934665603)
+                for xx in range(max(x - 1, 0), min(x + 2, R)):
+                    for yy in range(max(y - 1, 0), min(y + 2, R)):
+                        for zz in range(max(z - 1, 0), min(z + 2, R)):
+                            kd = kind[xx, yy, zz]
+                            inner = xx == x and yy == y and zz == z
+                            if kd == 0 or not _in_cut(dist, xx, yy, zz, inner, L):
+                                continue
+                            if kd == 1:
+                                wide = True
+                                continue
+                            i = mid[xx, yy, zz]
+                            ids[n] = i
+                            h = (h ^ np.uint64(i)) * np.uint64(1099511628211)
+                            n += 1
+                out[7] = -2.0
+                if wide or n == 0:
+                    out[3] = 2.0 if wide else -2.0
+                    _store_cones(out, vcone, x, y, z, True)
+                    continue
+                h ^= h >> np.uint64(29)
+                j = np.int64(h & np.uint64(size - 1))
+                hit = -1
+                while True:
+                    t = table[j]
+                    if t < 0:
+                        break
+                    if seq_n[t] == n:
+                        a = seq_at[t]
+                        same = True
+                        for k in range(n):
+                            if pool[a + k] != ids[k]:
+                                same = False
+                                break
+                        if same:
+                            hit = t
+                            break
+                    j = (j + 1) & (size - 1)
+                if hit >= 0:
+                    _store_cones(outs[hit], vcone, x, y, z, True)
+                    continue
+                for k in range(n):
+                    f = mu[ids[k]]
+                    fx, fy, fz = f // (R * R), (f // R) % R, f % R
+                    ax_[k] = un[fx, fy, fz, 0]
+                    ay_[k] = un[fx, fy, fz, 1]
+                    az_[k] = un[fx, fy, fz, 2]
+                    as_[k] = asn[fx, fy, fz]
+                _two_cones(ax_, ay_, az_, as_, n, ia, ib, out, seen)
+                _store_cones(out, vcone, x, y, z, True)
+                if ne < VOXEL_MEMO and npool + n <= pool.shape[0]:
+                    table[j] = ne
+                    seq_at[ne] = npool
+                    seq_n[ne] = n
+                    for k in range(n):
+                        pool[npool + k] = ids[k]
+                    npool += n
+                    for k in range(8):
+                        outs[ne, k] = out[k]
+                    ne += 1
+    return ne
+
+
 @nb.njit(cache=True, nogil=True)
 def _build_blocks(dist, kind, un, asn, R, B, NB, bmin, bcone, L, quant, pre):
     """bmin (NB, NB, NB) and bcone (NB, NB, NB, 8) of MarchBlocks for blocks
@@ -1268,32 +1451,7 @@ def _build_blocks(dist, kind, un, asn, R, B, NB, bmin, bcone, L, quant, pre):
                             and az_[0] == memo[2] and as_[0] == memo[3]):
                         _store_cones(memo_out, bcone, bx, by, bz, quant)
                         continue
-                # Two clusters: seeded by the first member and the member most
-                # orthogonal to it, each member to the nearer seed (sign-free).
-                # Where two walls meet, the members are the two walls' normals:
-                # one union of both is a ~90-degree cone that meets nearly
-                # every plane, two unions meet only the planes grazing a wall.
-                q = 0
-                cmin = 2.0
-                for k in range(n):
-                    c = abs(ax_[k] * ax_[0] + ay_[k] * ay_[0] + az_[k] * az_[0])
-                    if c < cmin:
-                        cmin = c
-                        q = k
-                na = 0
-                nb_ = 0
-                for k in range(n):
-                    ca = abs(ax_[k] * ax_[0] + ay_[k] * ay_[0] + az_[k] * az_[0])
-                    cb = abs(ax_[k] * ax_[q] + ay_[k] * ay_[q] + az_[k] * az_[q])
-                    if ca >= cb:
-                        ia[na] = k
-                        na += 1
-                    else:
-                        ib[nb_] = k
-                        nb_ += 1
-                # np.int64: one compile, not one per literal (core/warmup.py)
-                _union_cone(ax_, ay_, az_, as_, ia, np.int64(na), out, np.int64(0), seen)
-                _union_cone(ax_, ay_, az_, as_, ib, np.int64(nb_), out, np.int64(4), seen)
+                _two_cones(ax_, ay_, az_, as_, n, ia, ib, out, seen)
                 _store_cones(out, bcone, bx, by, bz, quant)
                 if same:
                     memo_n = n
@@ -1377,7 +1535,14 @@ def march_blocks(grid: OcclusionGrid, B: int = MARCH_BLOCK) -> MarchBlocks:
             # 27-voxel loop's); _build_blocks writes each back in place
             _dilated_min(grid.dist, R, vm, np.empty((R, R, R)))
             vcone = np.zeros((R, R, R, 8), np.int16)
-            _build_blocks(grid.dist, kind, un, asn, R, 1, R, vm, vcone, L, True, vm)
+            if VOXEL_LEVEL_MEMO:
+                mid = np.empty((R, R, R), np.int64)
+                mu = np.empty(R ** 3, np.int64)
+                _member_ids(kind, un.view(np.int64), asn.view(np.int64), R, mid, mu)
+                _voxel_level(grid.dist, kind, un, asn, mid, mu, R, vm, vcone, L)
+                del mid, mu
+            else:
+                _build_blocks(grid.dist, kind, un, asn, R, 1, R, vm, vcone, L, True, vm)
             # dist is float32, so its minimum is exact in float32
             vmin = vm.astype(np.float32)
             del vm
