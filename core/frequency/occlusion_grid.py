@@ -9,7 +9,8 @@ photon is too expensive, so the paper pre-computes a voxel grid over the scene
 bounds.  Each voxel stores
 
 - ``dist``: the distance from its centre to the closest triangle (exact
-  point-triangle distance, nearest-triangle query in a BVH);
+  point-triangle distance, nearest-triangle query in a BVH, restricted to
+  each 4^3 block's candidate triangles: ``_nearest_blocked``);
 - a bi-cone of the normals of the geometry overlapping it: ``axis`` (the
   sign-free mean normal = principal eigenvector of the area-weighted
   ``sum n n^T``) and ``aperture`` (half-angle containing every normal;
