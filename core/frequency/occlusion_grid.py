@@ -373,9 +373,9 @@ def _distinct_rows(keys, inv):
     first = np.empty(n, np.int64)
     d = 0
     for i in range(n):
-        h = np.uint64(1469598103934665603)
+        h = np.uint64(_FNV0)
         for k in range(m):
-            h = (h ^ np.uint64(keys[i, k])) * np.uint64(1099511628211)
+            h = _fnv(h, keys[i, k])
         h ^= h >> np.uint64(29)
         j = np.int64(h & np.uint64(size - 1))
         while True:
@@ -408,6 +408,27 @@ def _box_d2(node_lo, node_hi, k, px, py, pz):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _tri_d2(tris, t, px, py, pz):
+    """(d2, qx, qy, qz): triangle t's closest point q to p and |q - p|^2."""
+    qx, qy, qz = _closest_point(
+        px, py, pz, tris[t, 0, 0], tris[t, 0, 1], tris[t, 0, 2],
+        tris[t, 1, 0], tris[t, 1, 1], tris[t, 1, 2],
+        tris[t, 2, 0], tris[t, 2, 1], tris[t, 2, 2])
+    return (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2, qx, qy, qz
+
+
+@nb.njit(cache=True, inline="always")
+def _fnv(h, k):
+    """One step of the FNV-1a hash of int64 words (the tables of
+    _distinct_rows, _member_ids and _voxel_level)."""
+    return (h ^ np.uint64(k)) * np.uint64(1099511628211)
+
+
+#: FNV-1a's offset basis (_fnv).
+_FNV0 = 1469598103934665603
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _nearest_one(tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, px, py, pz, prev, cap2,
                  slack, stack, stack_d):
     """One query of :func:`_nearest_all` from point p seeded with triangle
@@ -415,11 +436,7 @@ def _nearest_one(tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, px, py, pz, p
     bqx = nan when no triangle is closer than the cap; bt then stays prev)."""
     T = tris.shape[0]
     t = prev
-    qx, qy, qz = _closest_point(
-        px, py, pz, tris[t, 0, 0], tris[t, 0, 1], tris[t, 0, 2],
-        tris[t, 1, 0], tris[t, 1, 1], tris[t, 1, 2],
-        tris[t, 2, 0], tris[t, 2, 1], tris[t, 2, 2])
-    best = (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2
+    best, qx, qy, qz = _tri_d2(tris, t, px, py, pz)
     bt = t
     bqx, bqy, bqz = qx, qy, qz
     if best >= cap2:
@@ -439,12 +456,7 @@ def _nearest_one(tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, px, py, pz, p
             for t in range(first, last):
                 if _box_d2(tri_lo, tri_hi, t, px, py, pz) > best * (1.0 + NEAREST_REL) + slack:
                     continue
-                qx, qy, qz = _closest_point(
-                    px, py, pz,
-                    tris[t, 0, 0], tris[t, 0, 1], tris[t, 0, 2],
-                    tris[t, 1, 0], tris[t, 1, 1], tris[t, 1, 2],
-                    tris[t, 2, 0], tris[t, 2, 1], tris[t, 2, 2])
-                d2 = (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2
+                d2, qx, qy, qz = _tri_d2(tris, t, px, py, pz)
                 if d2 < best:
                     best = d2
                     bt = t
@@ -637,11 +649,7 @@ def _nearest_blocked(tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, lo, cell,
                     # _nearest_all: the seed is beyond the cap and nothing
                     # replaces it (prev stays); out_q keeps the seed's
                     # closest point but its x (nan)
-                    t = prev
-                    qx, qy, qz = _closest_point(
-                        px, py, pz, tris[t, 0, 0], tris[t, 0, 1], tris[t, 0, 2],
-                        tris[t, 1, 0], tris[t, 1, 1], tris[t, 1, 2],
-                        tris[t, 2, 0], tris[t, 2, 1], tris[t, 2, 2])
+                    _d2, qx, qy, qz = _tri_d2(tris, prev, px, py, pz)
                     out_d[v] = cap
                     out_q[v, 0] = np.nan
                     out_q[v, 1] = qy
@@ -649,13 +657,8 @@ def _nearest_blocked(tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, lo, cell,
                     continue
                 tie = False
                 if s >= 0:
-                    t = prev
-                    qx, qy, qz = _closest_point(
-                        px, py, pz, tris[t, 0, 0], tris[t, 0, 1], tris[t, 0, 2],
-                        tris[t, 1, 0], tris[t, 1, 1], tris[t, 1, 2],
-                        tris[t, 2, 0], tris[t, 2, 1], tris[t, 2, 2])
-                    best = (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2
-                    bt = t
+                    best, qx, qy, qz = _tri_d2(tris, prev, px, py, pz)
+                    bt = prev
                     bqx, bqy, bqz = qx, qy, qz
                     if best >= cap2:
                         best = cap2
@@ -666,12 +669,7 @@ def _nearest_blocked(tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, lo, cell,
                             continue
                         if _box_d2(tri_lo, tri_hi, t, px, py, pz) > best * (1.0 + NEAREST_REL) + slack:
                             continue
-                        qx, qy, qz = _closest_point(
-                            px, py, pz,
-                            tris[t, 0, 0], tris[t, 0, 1], tris[t, 0, 2],
-                            tris[t, 1, 0], tris[t, 1, 1], tris[t, 1, 2],
-                            tris[t, 2, 0], tris[t, 2, 1], tris[t, 2, 2])
-                        d2 = (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2
+                        d2, qx, qy, qz = _tri_d2(tris, t, px, py, pz)
                         if d2 < best:
                             best = d2
                             bt = t
@@ -1234,9 +1232,9 @@ def _member_ids(kind, ubits, abits, R, mid, mu):
                     mid[x, y, z] = -1
                     continue
                 k0, k1, k2, k3 = ubits[x, y, z, 0], ubits[x, y, z, 1], ubits[x, y, z, 2], abits[x, y, z]
-                h = np.uint64(1469598103934665603)
+                h = np.uint64(_FNV0)
                 for k in (k0, k1, k2, k3):
-                    h = (h ^ np.uint64(k)) * np.uint64(1099511628211)
+                    h = _fnv(h, k)
                 h ^= h >> np.uint64(29)
                 j = np.int64(h & np.uint64(size - 1))
                 while True:
@@ -1304,7 +1302,7 @@ def _voxel_level(dist, kind, un, asn, mid, mu, R, vmin, vcone, L):
                     continue
                 wide = False
                 n = 0
-                h = np.uint64(1469598103934665603)
+                h = np.uint64(_FNV0)
                 for xx in range(max(x - 1, 0), min(x + 2, R)):
                     for yy in range(max(y - 1, 0), min(y + 2, R)):
                         for zz in range(max(z - 1, 0), min(z + 2, R)):
@@ -1317,7 +1315,7 @@ def _voxel_level(dist, kind, un, asn, mid, mu, R, vmin, vcone, L):
                                 continue
                             i = mid[xx, yy, zz]
                             ids[n] = i
-                            h = (h ^ np.uint64(i)) * np.uint64(1099511628211)
+                            h = _fnv(h, i)
                             n += 1
                 out[7] = -2.0
                 if wide or n == 0:
