@@ -6,6 +6,12 @@
         --methods fppm,fppm:pairs=every,cppm
         (':pairs=every': the receivers' radii looked for in every chunk, the rule
         before round 16)
+    .venv/bin/python bench/bench_pass_stages.py cornell --passes 25 --setup-repeat 3 \
+        --ref-grid OLD_OCCLUSION_GRID.py --methods fppm,fppm:refgrid,cppm
+        (':refgrid': the renderer built with another core/frequency/occlusion_grid.py's
+        grid and march blocks, e.g. ``git show 93c5b51:core/frequency/occlusion_grid.py``;
+        the same grid, another set-up cost: docs/method.md "FPPM's first passes on
+        the Cornell box, round 17")
 
 The methods of bench/bench_hold_alpha.py (tools/converge/runs.py METHOD_SETTINGS)
 render the same export (the file's resolution and photons by default: 128x128
@@ -107,7 +113,30 @@ class _Film:
 def _own(m):
     """(the method name without this bench's own keys, whether ':pairs=every':
     the receivers' radii looked for in every chunk, the rule before round 16)."""
-    return m.replace(":pairs=every", ""), ":pairs=every" in m
+    return m.replace(":pairs=every", "").replace(":refgrid", ""), ":pairs=every" in m
+
+
+def ref_grid(path):
+    """A context manager factory: within it, Renderer builds its occlusion
+    grid and march blocks with the core/frequency/occlusion_grid.py at path
+    (bench/bench_occlusion_build.py's swap)."""
+    import contextlib
+    import importlib.util
+    from fppm.core.frequency import occlusion_grid as G, occlusion_march as Occ
+    spec = importlib.util.spec_from_file_location("_occlusion_grid_ref", path)
+    OG = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = OG                  # dataclasses look it up
+    spec.loader.exec_module(OG)
+
+    @contextlib.contextmanager
+    def swapped():
+        new = G.build_occlusion_grid, Occ.march_blocks
+        G.build_occlusion_grid, Occ.march_blocks = OG.build_occlusion_grid, OG.march_blocks
+        try:
+            yield
+        finally:
+            G.build_occlusion_grid, Occ.march_blocks = new
+    return swapped
 
 
 def pairs_every(r):
@@ -132,7 +161,15 @@ def main():
                          "set-up, the threads of NUMBA_NUM_THREADS / FPPM_PHOTON_THREADS): each "
                          "step's settled process CPU only, no stages (set the two variables "
                          "to 2 for the convergence rows' threads)")
+    ap.add_argument("--setup-repeat", type=int, default=1,
+                    help="build every method's renderer this many times, interleaved (the "
+                         "set-up's min / median; the last one is stepped)")
+    ap.add_argument("--ref-grid", default="",
+                    help="another core/frequency/occlusion_grid.py for the methods "
+                         "with ':refgrid'")
     a = ap.parse_args()
+    import contextlib
+    swapped = ref_grid(a.ref_grid) if a.ref_grid else None
     if not a.as_rendered:
         photon_pass.TRACE_AHEAD = False
         R.DIRECT_BESIDE_SETUP = False
@@ -146,17 +183,23 @@ def main():
         hashgrid.gather = clock.wrap("gather", gather)
         hashgrid.GatherBuffers.fold = clock.wrap("fold", fold)
     for m in methods:                       # warm-up: the kernels load or compile
-        w = Renderer(scene, method_settings(base, _own(m)[0]).replace(
-            seed=a.seed, max_passes=4, photons_per_pass=2000), log=lambda s: None)
+        with (swapped() if ":refgrid" in m else contextlib.nullcontext()):
+            w = Renderer(scene, method_settings(base, _own(m)[0]).replace(
+                seed=a.seed, max_passes=4, photons_per_pass=2000), log=lambda s: None)
         radii_variant(w, _own(m)[0])
         for _ in range(4):
             w.step()
-    rs, setup = {}, {}
+    rs, setup, setups = {}, {}, {m: [] for m in methods}
+    for rep in range(a.setup_repeat):
+        for m in methods:
+            rs[m] = None
+            with (swapped() if ":refgrid" in m else contextlib.nullcontext()):
+                c0 = time.process_time()
+                rs[m] = Renderer(scene, method_settings(base, _own(m)[0]).replace(
+                    seed=a.seed, max_passes=a.passes), log=lambda s: None)
+                setups[m].append(time.process_time() - c0)
     for m in methods:
-        c0 = time.process_time()
-        rs[m] = Renderer(scene, method_settings(base, _own(m)[0]).replace(
-            seed=a.seed, max_passes=a.passes), log=lambda s: None)
-        setup[m] = time.process_time() - c0
+        setup[m] = setups[m][-1]
         radii_variant(rs[m], _own(m)[0])
         if _own(m)[1]:
             pairs_every(rs[m])
@@ -209,9 +252,21 @@ def main():
         f"{m} {sum(d['total'] for d in rows[m]):.2f} (set-up {setup[m]:.2f})" for m in methods)
           + f"; threads: numba {os.environ.get('NUMBA_NUM_THREADS')}, photons "
           f"{os.environ.get('FPPM_PHOTON_THREADS')}, as rendered {a.as_rendered}")
+    print("# set-up s, min / median of " + str(a.setup_repeat) + ": " + "; ".join(
+        f"{m} {min(setups[m]):.3f} / {np.median(setups[m]):.3f}" for m in methods))
+    last = methods[-1]
+    for hi in sorted({2, a.passes}):
+        tot = {m: float(np.median(setups[m])) + sum(d["total"] for d in rows[m][:hi])
+               for m in methods}
+        print(f"# set-up (median) + passes 1-{hi}, s: " + "; ".join(
+            f"{m} {tot[m]:.3f} ({tot[m] / tot[last]:.3f}x {last})" for m in methods))
     print("# per pass totals ms: " + "; ".join(
         f"{m}: " + " ".join(f"{1e3 * d['total']:.0f}" for d in rows[m]) for m in methods))
     print("# per pass freq ms " + m0 + ": " + " ".join(f"{1e3 * d['freq']:.0f}" for d in rows[m0]))
+    if not a.as_rendered:
+        for c in ("trace", "gather"):
+            print(f"# per pass {c} ms: " + "; ".join(
+                f"{m}: " + " ".join(f"{1e3 * d[c]:.0f}" for d in rows[m]) for m in methods))
 
 
 if __name__ == "__main__":

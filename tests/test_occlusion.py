@@ -135,6 +135,129 @@ def test_nearest_query_skips_no_triangle_that_could_win():
         assert np.isnan(out[0][1][:, 0]).any() and (out[0][0] < cap).any()   # both kinds of voxel
 
 
+def test_blocked_nearest_queries_equal_the_query_per_voxel():
+    """_nearest_blocked (the build's nearest-triangle queries since round 17:
+    each block of NEAREST_BLOCK^3 voxels tests only the triangles within its
+    bound, docs/frequency.md "The nearest-triangle queries by block, round
+    17") gives _nearest_all's distances and closest points bit for bit, the
+    closest points' coordinates of capped voxels included: an axis-aligned
+    box with a post and a sphere (exact ties between a wall's two
+    triangles), the same with the sphere finer (blocks with more candidates
+    than NEAREST_CANDIDATES query the BVH), random triangles, and a far
+    small box (blocks capped whole); caps of 2 and 10 voxel diagonals and
+    none; grids of 24, 32 and 33 voxels (a last block cut short).  Every
+    branch is taken: blocks capped whole, listed and querying the BVH, and
+    voxels whose candidates tie running the query."""
+    from core.frequency import occlusion_grid as OG
+    rng = np.random.default_rng(3)
+    walls = np.array(box((0, 0, 0), (2, 1.5, 1)))
+    post = np.array(box((0.3, 0.2, 0.0), (0.5, 0.25, 0.6)))
+    scenes = [np.concatenate([walls, post, icosphere((1.2, 0.7, 0.35), 0.3, 1)]),
+              np.concatenate([walls[:10], post, icosphere((1.2, 0.7, 0.35), 0.3, 3),
+                              np.array(box((3.8, 2.8, 1.9), (4.0, 3.0, 2.0)))]),
+              rng.random((60, 3, 3))]
+    seen = np.zeros(5, np.int64)
+    for tri in scenes:
+        tri = tri.astype(np.float32)
+        p = tri.reshape(-1, 3)
+        tris, node_lo, node_hi, n_leaves = OG._build_bvh(tri)
+        t_lo, t_hi = tris.min(axis=1).astype(np.float64), tris.max(axis=1).astype(np.float64)
+        for R in (24, 32, 33):
+            lo, hi = OG.grid_bounds(p.min(0), p.max(0))
+            cell = (hi - lo) / R
+            slack = OG.NEAREST_SLACK * float(np.sum(np.square(hi - lo)))
+            diag = float(np.linalg.norm(cell))
+            for cap in (2.0 * diag, 10.0 * diag, np.inf):
+                d0, q0 = np.empty(R ** 3), np.empty((R ** 3, 3))
+                d1, q1 = np.empty(R ** 3), np.empty((R ** 3, 3))
+                OG._nearest_all(tris, t_lo, t_hi, node_lo, node_hi, n_leaves, lo, cell, R, cap,
+                                slack, d0, q0)
+                seen += OG._nearest_blocked(tris, t_lo, t_hi, node_lo, node_hi, n_leaves, lo,
+                                            cell, R, cap, slack, d1, q1)
+                assert np.array_equal(d0, d1)
+                assert np.array_equal(q0, q1, equal_nan=True)
+    # capped whole, listed, querying the BVH, candidates, tie queries
+    assert seen[0] > 0 and seen[1] > 0 and seen[2] > 0 and seen[4] > 0, seen
+
+
+def test_voxel_level_memo_equals_the_block_loop():
+    """_voxel_level (the march blocks' voxel level with its cones computed once
+    per distinct sequence of members, round 17) gives the vcone of
+    _build_blocks with B = 1 bit for bit, every voxel (also those the march
+    never reads), on the digest scene below (an open box, a sphere of many
+    distinct cones, a post and a far box) at 32 and 33 voxels; and
+    march_blocks gives the same MarchBlocks with VOXEL_LEVEL_MEMO off."""
+    from core.frequency import occlusion_grid as OG
+    tri = np.concatenate([np.array(box((0, 0, 0), (2, 1.5, 1)))[:10],
+                          icosphere((1.2, 0.7, 0.35), 0.3, 2),
+                          np.array(box((0.3, 0.2, 0.0), (0.5, 0.25, 0.6))),
+                          np.array(box((3.8, 2.8, 1.9), (4.0, 3.0, 2.0)))]).astype(np.float32)
+    p = tri.reshape(-1, 3)
+    for R in (32, 33):
+        g = build_occlusion_grid(tri, p.min(0), p.max(0), R,
+                                 max_distance=10 * np.linalg.norm(np.array([4, 3, 2]) / R))
+        L = OG.cut_locality(float(g.cell[0]), float(g.cell[1]), float(g.cell[2]))
+        kind, un, asn = np.empty((R, R, R), np.int8), np.empty((R, R, R, 3)), np.empty((R, R, R))
+        OG._cone_members(g.cone, R, kind, un, asn)
+        vm = np.empty((R, R, R))
+        OG._dilated_min(g.dist, R, vm, np.empty((R, R, R)))
+        a, b = np.zeros((R, R, R, 8), np.int16), np.zeros((R, R, R, 8), np.int16)
+        OG._build_blocks(g.dist, kind, un, asn, R, 1, R, vm.copy(), a, L, True, vm.copy())
+        mid, mu = np.empty((R, R, R), np.int64), np.empty(R ** 3, np.int64)
+        members = OG._member_ids(kind, un.view(np.int64), asn.view(np.int64), R, mid, mu)
+        sequences = OG._voxel_level(g.dist, kind, un, asn, mid, mu, R, vm, b, L)
+        assert np.array_equal(a, b)
+        assert 1 < members < sequences < np.count_nonzero(vm * (1 - OG.BLOCK_REL) < L)
+    old = OG.VOXEL_LEVEL_MEMO
+    try:
+        mbs = []
+        for memo in (True, False):
+            OG.VOXEL_LEVEL_MEMO = memo
+            g2 = build_occlusion_grid(tri, p.min(0), p.max(0), 32,
+                                      max_distance=10 * np.linalg.norm(np.array([4, 3, 2]) / 32))
+            mbs.append(OG.march_blocks(g2))
+    finally:
+        OG.VOXEL_LEVEL_MEMO = old
+    for f in ("bmin", "bcone", "vmin", "vcone"):
+        assert np.array_equal(getattr(mbs[0], f), getattr(mbs[1], f)), f
+
+
+def test_distinct_rows_index_every_row_by_its_bits():
+    """_distinct_rows (the build's eigh batch on the distinct sums only, round
+    17): the first rows of each distinct row in order of first occurrence,
+    and each row's index among them, as np.unique finds them; the grid it
+    feeds is checked bit for bit by test_grid_and_march_blocks_equal_the_build_before."""
+    from core.frequency import occlusion_grid as OG
+    rng = np.random.default_rng(7)
+    base = rng.random((40, 6))
+    rows = base[rng.integers(0, 40, 5000)]
+    inv = np.empty(len(rows), np.int64)
+    first = OG._distinct_rows(rows.view(np.int64), inv)
+    assert np.array_equal(rows[first][inv], rows)
+    assert len(first) == len(np.unique(rows, axis=0)) == 40
+    assert np.all(np.diff(first) > 0) and np.array_equal(inv[first], np.arange(40))
+
+
+def test_dilated_min_equals_the_neighbourhood_loop():
+    """_dilated_min (the voxel level's minima in three one-axis passes, round
+    17) equals the minimum over each voxel's 3^3 neighbourhood clipped to the
+    grid, bit for bit, on random float32 distances with infinities."""
+    from core.frequency import occlusion_grid as OG
+    rng = np.random.default_rng(5)
+    R = 9
+    dist = rng.random((R, R, R)).astype(np.float32)
+    dist[rng.random((R, R, R)) < 0.1] = np.inf
+    out = np.empty((R, R, R))
+    OG._dilated_min(dist, R, out, np.empty((R, R, R)))
+    pad = np.pad(dist.astype(np.float64), 1, constant_values=np.inf)
+    ref = np.full((R, R, R), np.inf)
+    for a in range(3):
+        for b in range(3):
+            for c in range(3):
+                ref = np.minimum(ref, pad[a:a + R, b:b + R, c:c + R])
+    assert np.array_equal(out, ref)
+
+
 def test_bicone_of_floor_wall_and_corner():
     tri = np.array(quad((0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0))
                    + quad((0, 0, 0), (0, 0, 1), (0, 1, 1), (0, 1, 0)), np.float32)
