@@ -11,7 +11,9 @@
     .venv/bin/python bench/bench_hold_alpha.py indirect_room --equal-cpu 15 --ref-passes 200 \
         --methods fppm,fppm:frequency_decay=0,ppm,appm,cppm
         (relMSE at equal CPU time, docs/method.md "Amortised frequency photons";
-        'fppm:keep=min' / 'fppm:keep=none': the other prediction-keeping rules)
+        'fppm:keep=min' / 'fppm:keep=none': the other prediction-keeping rules;
+        without 'ppm' in --methods the ratios are ÷ the first method, docs/method.md
+        "The spectrum rate's cap, round 17")
     .venv/bin/python bench/bench_hold_alpha.py principled_interior --equal-passes 32 --ref-passes 200 \
         --report 8,16,32 --seeds 0,1 --methods fppm,ppm,appm,cppm
         (relMSE at equal passes, same seed: quality apart from cost, docs/method.md
@@ -363,9 +365,10 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
         say(f"seed {seed} {m:>24}: passes {len(c)}, cpu {c[-1]:.1f} s, relmse at "
             + ", ".join(f"{budget * q:.0f} s {v:.3e}" for q, v in zip(report, out[m]))
             + (f", held {np.mean(held):.3f}" if held is not None else ""))
+    den = "ppm" if "ppm" in methods else methods[0]     # without PPM: ÷ the first method
     for m in methods:
-        say(f"seed {seed} {m:>24} / ppm: "
-            + " ".join(f"{a / b:.3f}" for a, b in zip(out[m], out["ppm"])))
+        say(f"seed {seed} {m:>24} / {den}: "
+            + " ".join(f"{a / b:.3f}" for a, b in zip(out[m], out[den])))
     return out
 
 
