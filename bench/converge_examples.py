@@ -270,6 +270,12 @@ NOTES = [
     "1.01 (excess 1.01, seeds 1.007-1.023; at equal passes 0.97-0.98; FPPM 213-231 passes, PPM "
     "259-292); point_caustic (65536 spp, floor 1.39e-4) 0.53 / 0.49 / 0.52 (excess 0.49, seeds "
     "0.48-0.53).",
+    "Round 17, after the rule that pixels seen through glass or mirrors do not hold "
+    "(docs/method.md 'The glass sphere at equal passes, round 17'), on eef1e44, `SCENE --budget 60 "
+    "--seeds 4 --methods fppm,ppm`, load average 2 to 4: glass_sphere FPPM / PPM 0.99 / 0.82 / 0.84 "
+    "(excess 0.82; seeds at 100 % 1.04, 1.09, 1.09, 0.74; at equal passes 1.00-1.02 at pass 100); "
+    "coffee_cup 1.06 / 0.985 / 0.97 (excess 0.96, seeds 0.94-0.98; 10 % seeds 0.94-1.25; at equal "
+    "passes 0.97-0.98; FPPM 211-280 passes, PPM 218-250).",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
