@@ -199,8 +199,10 @@ class FPPMRenderSettings(PropertyGroup):
         subtype='FACTOR',
         description="Radius reduction where the light is smooth (predicted by the spectrum or, "
                     "with Verify Holds, uniform photon counts): a held radius shrinks like "
-                    "PPM with this alpha (at least Alpha), so its bias still vanishes; 1 "
-                    "holds it forever (the paper's rule, inconsistent)")
+                    "PPM with this alpha (at least Alpha), so its bias still vanishes; where "
+                    "the counts can test a hold and the spectrum predicts light smooth well "
+                    "beyond the radius, up to 0.95; 1 holds it forever (the paper's rule, "
+                    "inconsistent). Pixels seen through glass or a mirror never hold")
     verify_holds: BoolProperty(
         name="Verify Holds", default=_D.verify_holds,
         description="Check holds against the photons in the kernel (chi-squared tests of "
