@@ -408,6 +408,15 @@ def _box_d2(node_lo, node_hi, k, px, py, pz):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _box_too_far(tri_lo, tri_hi, t, px, py, pz, best, slack):
+    """True when triangle t's own box is farther from p than the best squared
+    distance so far allows (best (1 + NEAREST_REL) + slack): the skip both
+    nearest queries share (docs/frequency.md "The set-up: the occlusion grid
+    and its march blocks")."""
+    return _box_d2(tri_lo, tri_hi, t, px, py, pz) > best * (1.0 + NEAREST_REL) + slack
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _tri_d2(tris, t, px, py, pz):
     """(d2, qx, qy, qz): triangle t's closest point q to p and |q - p|^2."""
     qx, qy, qz = _closest_point(
@@ -454,7 +463,7 @@ def _nearest_one(tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, px, py, pz, p
             first = (node - n_leaves) * _LEAF
             last = min(first + _LEAF, T)
             for t in range(first, last):
-                if _box_d2(tri_lo, tri_hi, t, px, py, pz) > best * (1.0 + NEAREST_REL) + slack:
+                if _box_too_far(tri_lo, tri_hi, t, px, py, pz, best, slack):
                     continue
                 d2, qx, qy, qz = _tri_d2(tris, t, px, py, pz)
                 if d2 < best:
@@ -667,7 +676,7 @@ def _nearest_blocked(tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, lo, cell,
                         t = cand[j]
                         if t == prev:
                             continue
-                        if _box_d2(tri_lo, tri_hi, t, px, py, pz) > best * (1.0 + NEAREST_REL) + slack:
+                        if _box_too_far(tri_lo, tri_hi, t, px, py, pz, best, slack):
                             continue
                         d2, qx, qy, qz = _tri_d2(tris, t, px, py, pz)
                         if d2 < best:
