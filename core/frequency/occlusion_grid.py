@@ -438,19 +438,34 @@ _FNV0 = 1469598103934665603
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _seeded(tris, prev, px, py, pz, cap2):
+    """A nearest query's start from its seed triangle prev: (best, bt, bqx,
+    bqy, bqz), best = min(|q - p|^2, cap2), bqx = nan when the seed is not
+    closer than the cap (its y, z kept)."""
+    best, bqx, bqy, bqz = _tri_d2(tris, prev, px, py, pz)
+    if best >= cap2:
+        best = cap2
+        bqx = np.nan
+    return best, prev, bqx, bqy, bqz
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _store_nearest(out_d, out_q, v, cap, best, bqx, bqy, bqz):
+    """Voxel v's distance (cap where nothing is closer: bqx nan) and closest point."""
+    out_d[v] = cap if bqx != bqx else math.sqrt(best)
+    out_q[v, 0] = bqx
+    out_q[v, 1] = bqy
+    out_q[v, 2] = bqz
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _nearest_one(tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, px, py, pz, prev, cap2,
                  slack, stack, stack_d):
     """One query of :func:`_nearest_all` from point p seeded with triangle
     prev: (best, bt, bqx, bqy, bqz), best the squared distance (cap2 and
     bqx = nan when no triangle is closer than the cap; bt then stays prev)."""
     T = tris.shape[0]
-    t = prev
-    best, qx, qy, qz = _tri_d2(tris, t, px, py, pz)
-    bt = t
-    bqx, bqy, bqz = qx, qy, qz
-    if best >= cap2:
-        best = cap2
-        bqx = np.nan
+    best, bt, bqx, bqy, bqz = _seeded(tris, prev, px, py, pz, cap2)
     stack[0] = 1
     stack_d[0] = 0.0
     sp = 1
@@ -535,11 +550,7 @@ def _nearest_all(tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, lo, cell, R, 
                     tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, px, py, pz, prev, cap2,
                     slack, stack, stack_d)
                 prev = bt
-                v = (ix * R + iy) * R + iz
-                out_d[v] = cap if bqx != bqx else math.sqrt(best)
-                out_q[v, 0] = bqx
-                out_q[v, 1] = bqy
-                out_q[v, 2] = bqz
+                _store_nearest(out_d, out_q, (ix * R + iy) * R + iz, cap, best, bqx, bqy, bqz)
 
 
 #: _nearest_blocked: blocks of NEAREST_BLOCK^3 voxels share a candidate list
@@ -666,12 +677,7 @@ def _nearest_blocked(tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, lo, cell,
                     continue
                 tie = False
                 if s >= 0:
-                    best, qx, qy, qz = _tri_d2(tris, prev, px, py, pz)
-                    bt = prev
-                    bqx, bqy, bqz = qx, qy, qz
-                    if best >= cap2:
-                        best = cap2
-                        bqx = np.nan
+                    best, bt, bqx, bqy, bqz = _seeded(tris, prev, px, py, pz, cap2)
                     for j in range(s, s + count[b]):
                         t = cand[j]
                         if t == prev:
@@ -693,10 +699,7 @@ def _nearest_blocked(tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, lo, cell,
                         tris, tri_lo, tri_hi, node_lo, node_hi, n_leaves, px, py, pz, prev,
                         cap2, slack, stack, stack_d)
                 prev = bt
-                out_d[v] = cap if bqx != bqx else math.sqrt(best)
-                out_q[v, 0] = bqx
-                out_q[v, 1] = bqy
-                out_q[v, 2] = bqz
+                _store_nearest(out_d, out_q, v, cap, best, bqx, bqy, bqz)
     return counts
 
 
