@@ -190,19 +190,30 @@ def _update_case(P, seed, sectors):
     # can test it, round 15"): a gate inside the case's 11-35 per cell takes both branches
     (True, True, 0.9, dict(hold_alpha_spectrum=0.97, hold_spectrum_min_expected=20.0)),
     # no hold where the visible point was reached through a delta vertex (docs/method.md
-    # "The glass sphere at equal passes, round 17"): the compiled veto is a negative cap
-    (True, True, 0.9, dict(hold_through_delta=False, through=0.3))])
+    # "The glass sphere at equal passes, round 17"): the compiled update's veto array
+    (True, True, 0.9, dict(hold_through_delta=False, through=0.3)),
+    # the veto beside the growth's cap: pixels in their first pass with photons (they grow),
+    # half of them with a finite surface-boundary cap; vetoed pixels with and without a cap
+    (True, True, 0.9, dict(hold_through_delta=False, through=0.3, first=0.5, edge_cap=0.5))])
 def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha, knobs):
     settings = RenderSettings(integrator="PHOTON", hold_alpha=hold_alpha, verify_holds=sectors)
     radii = U.Radii(settings, None, 10.0, frequency, None, 1, P)
-    for k, v in (knobs or {}).items():
-        if k == "through":          # that share of the pixels seen through glass
-            radii._through = np.random.default_rng(P + 1).random(P) < v
-        else:
-            setattr(radii, k, v)
     radii.floor_sq = 1e-9                                # reached by the tiny predictions
     ref, M, Phi, r_pred, S_pass = _update_case(P, P, sectors)
+    rng = np.random.default_rng(P + 1)
+    cap = None
+    for k, v in (knobs or {}).items():
+        if k == "through":          # that share of the pixels seen through glass
+            radii._through = rng.random(P) < v
+        elif k == "first":          # that share of the pixels in their first pass with photons
+            ref.N[rng.random(P) < v] = 0.0
+        elif k == "edge_cap":       # that share with a cap [m] of 0.9-1.4 R (inf: none)
+            cap = np.where(rng.random(P) < v, np.sqrt(ref.R2) * rng.uniform(0.9, 1.4, P), np.inf)
+            radii._edge_cap = cap
+        else:
+            setattr(radii, k, v)
     new = PixelState(**{k: v.copy() for k, v in ref.state_dict().items()})
+    N_before, R2_before = ref.N.copy(), ref.R2.copy()
     radii.compiled = False
     radii.update(ref, M, Phi, r_pred, S_pass)
     radii.compiled = True
@@ -217,6 +228,13 @@ def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha, kno
         assert 0.05 < ref.held.mean() < 0.8
     if radii._through is not None:
         assert not ref.held[radii._through].any() and ref.held[~radii._through].mean() > 0.3
+    if cap is not None:         # the cap binds a growth; vetoed pixels with and without a cap
+        first = (M > 0) & (R2_before > 0) & (N_before == 0.0)
+        grown = first & ref.held & (ref.R2 > R2_before)
+        assert np.sum(grown & np.isinf(cap)) > 10
+        assert np.sum(grown & np.isclose(ref.R2, np.square(cap), rtol=1e-12)) > 10
+        for capped in (np.isfinite(cap), np.isinf(cap)):
+            assert np.sum(first & radii._through & capped) > 10
     if sectors:                # the linear test vetoes some holds and not others
         vetoed = U.chi2_rejects(ref.sectors, linear=True)
         assert 0.05 < vetoed.mean() < 0.6
