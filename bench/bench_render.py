@@ -107,19 +107,14 @@ def cornell(res: int, subdiv: int = 1, height: int = 0):
     white, red, green = 0, 1, 2
     n = max(int(subdiv), 1)
     def add(q, m):
-        if n == 1:
-            tris.extend(q)
-            mats.extend([m] * len(q))
-            return
         # q = quad(c, ex, ey): its corners p00, p10, p11 (first triangle)
         p00, p10, p11 = (np.asarray(v, float) for v in q[0])
         ex, ey = (p10 - p00) / (2 * n), (p11 - p10) / (2 * n)
-        for i in range(n):
-            for j in range(n):
-                c = p00 + (2 * i + 1) * ex + (2 * j + 1) * ey
-                sub = quad(c, ex, ey)
-                tris.extend(sub)
-                mats.extend([m] * len(sub))
+        subs = [q] if n == 1 else [quad(p00 + (2 * i + 1) * ex + (2 * j + 1) * ey, ex, ey)
+                                   for i in range(n) for j in range(n)]
+        for sub in subs:
+            tris.extend(sub)
+            mats.extend([m] * len(sub))
     add(quad((0, 0, 0), (0.5, 0, 0), (0, 0.5, 0)), white)        # floor
     add(quad((0, 0, 1), (0, 0.5, 0), (0.5, 0, 0)), white)        # ceiling
     add(quad((0, 0.5, 0.5), (0.5, 0, 0), (0, 0, 0.5)), white)    # back
