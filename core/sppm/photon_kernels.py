@@ -41,7 +41,10 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from llvmlite import ir
 from numba import njit
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
 from ..materials.compiled import sample_pair, sincos_turn
 from ..materials.fast import ABSORBER, GENERIC, sample_fast
@@ -249,6 +252,35 @@ def flat_normals(N: np.ndarray) -> tuple:
     return flat, np.ascontiguousarray(ns)
 
 
+#: The bounce kernel prefetches the per-triangle data of the hit this many
+#: rays ahead (0: none; prefetch, docs/architecture.md "The bounce kernel's
+#: triangle reads, round 19").
+TRI_PREFETCH = 6
+
+
+@intrinsic
+def prefetch(typingctx, a, t, off):
+    """A hint that byte off of row t of the array a (any dimension, its
+    first axis indexed) will be read: LLVM's llvm.prefetch (read, keep in
+    all cache levels, data), no load, no fault, nothing waits for it."""
+    sig = types.void(a, t, off)
+
+    def codegen(context, builder, signature, args):
+        aty = signature.args[0]
+        ary = context.make_array(aty)(context, builder, args[0])
+        row = context.cast(builder, args[1], signature.args[1], types.intp)
+        k = context.cast(builder, args[2], signature.args[2], types.intp)
+        stride0 = cgutils.unpack_tuple(builder, ary.strides)[0]
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        p8 = builder.gep(builder.bitcast(ary.data, i8p), [builder.add(builder.mul(row, stride0), k)])
+        fn = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), "llvm.prefetch.p0")
+        builder.call(fn, [p8, ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+    return sig, codegen
+
+
 # ----------------------------------------------------------------------------
 # Per-ray helpers (inlined).
 
@@ -364,6 +396,20 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
     n_gen = 0
     for i in range(K):
         t = prim[i]
+        if TRI_PREFETCH > 0 and i + TRI_PREFETCH < K:
+            # On a large mesh each array below is a cache miss at a hit, and
+            # one ray's work is too long for the core to reach the next
+            # ray's loads: ask for them TRI_PREFETCH rays early.  A p row
+            # (72 bytes) may span three lines: bytes 0, 40 and 71.
+            ta = prim[i + TRI_PREFETCH]
+            if ta >= 0:
+                prefetch(tri_p, ta, 0)
+                prefetch(tri_p, ta, 40)
+                prefetch(tri_p, ta, 71)
+                prefetch(tri_ng, ta, 0)
+                prefetch(tri_flat, ta, 0)
+                prefetch(tri_ns, ta, 0)
+                prefetch(tri_mat, ta, 0)
         if record:
             rec_hit[i] = t >= 0
         if t < 0:
