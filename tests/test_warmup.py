@@ -94,6 +94,16 @@ def test_every_cached_kernel_has_an_index_file_of_its_own():
     assert not Hg._active_extent_serial.targetoptions.get("parallel")
 
 
+def test_precompile_runs_every_unit_once():
+    # tests/precompile.py: each unit in exactly one of the two processes, and
+    # all of them in one process, w0 (the threaded paths) first there.
+    import precompile as PC
+    two = PC.split(2)
+    assert len(two) == 2 and sorted(n for g in two for n in g) == sorted(PC.UNITS)
+    one = PC.split(1)
+    assert len(one) == 1 and sorted(one[0]) == sorted(PC.UNITS) and one[0][0] == "w0"
+
+
 def test_cache_dir_order(tmp_path, monkeypatch):
     from fppm.core import _numba_cache as C
     monkeypatch.delenv(C.ENV_VAR, raising=False)
