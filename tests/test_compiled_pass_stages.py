@@ -191,22 +191,30 @@ def _update_case(P, seed, sectors):
     (True, True, 0.9, dict(hold_alpha_spectrum=0.97, hold_spectrum_min_expected=20.0)),
     # no hold where the visible point was reached through a delta vertex (docs/method.md
     # "The glass sphere at equal passes, round 17"): the compiled veto is a negative cap
-    (True, True, 0.9, dict(hold_through_delta=False, through=0.3))])
+    (True, True, 0.9, dict(hold_through_delta=False, through=0.3)),
+    # frequency_start 4's pass 4: verified holds grow whatever N (Radii.grows_at,
+    # docs/method.md "A late start for the frequency photons, round 18")
+    (True, True, 0.9, dict(late=4))])
 def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha, knobs):
     settings = RenderSettings(integrator="PHOTON", hold_alpha=hold_alpha, verify_holds=sectors)
     radii = U.Radii(settings, None, 10.0, frequency, None, 1, P)
+    k_pass = None
     for k, v in (knobs or {}).items():
         if k == "through":          # that share of the pixels seen through glass
             radii._through = np.random.default_rng(P + 1).random(P) < v
+        elif k == "late":           # pass v = frequency_start v, growth at the start
+            radii.settings = settings.replace(frequency_start=v)
+            radii.grow_at_start, k_pass = True, v
         else:
             setattr(radii, k, v)
     radii.floor_sq = 1e-9                                # reached by the tiny predictions
     ref, M, Phi, r_pred, S_pass = _update_case(P, P, sectors)
     new = PixelState(**{k: v.copy() for k, v in ref.state_dict().items()})
+    R2_before = ref.R2.copy()
     radii.compiled = False
-    radii.update(ref, M, Phi, r_pred, S_pass)
+    radii.update(ref, M, Phi, r_pred, S_pass, k=k_pass)
     radii.compiled = True
-    radii.update(new, M, Phi, r_pred, S_pass)
+    radii.update(new, M, Phi, r_pred, S_pass, k=k_pass)
     for f in ("N", "R2", "tau", "held", "r_pred_last", "M_last", "sectors"):
         x, y = getattr(ref, f), getattr(new, f)
         if x is None:
@@ -217,6 +225,9 @@ def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha, kno
         assert 0.05 < ref.held.mean() < 0.8
     if radii._through is not None:
         assert not ref.held[radii._through].any() and ref.held[~radii._through].mean() > 0.3
+    if k_pass is not None:     # grown radii, every pixel having had photons (N > 0)
+        assert radii.grows_at(k_pass) and not radii.grows_at(k_pass + 1)
+        assert (ref.R2 > 1.2 * R2_before).mean() > 0.03
     if sectors:                # the linear test vetoes some holds and not others
         vetoed = U.chi2_rejects(ref.sectors, linear=True)
         assert 0.05 < vetoed.mean() < 0.6
