@@ -47,9 +47,9 @@
         docs/method.md "The glass sphere at equal passes, round 17", 'through=0' the default;
         'kappa=2': every hold reads the spectrum's prediction / 2, tried there, not kept)
     .venv/bin/python bench/bench_hold_alpha.py cornell --cycles-ref --photons 0 --equal-cpu 6 \
-        --bill-setup --seeds 0,1,2,3 --methods fppm,fppm:fstart=4,fppm:fstart=8:growS=1,cppm,ppm
-        ('fstart=S': no frequency photons before pass S, frequency_start; 'growS=1': the
-        verified holds grow in pass S; 'eager=1': the occlusion grid built in the set-up,
+        --bill-setup --seeds 0,1,2,3 --methods fppm,fppm:fstart=4,fppm:fstart=8:growS=0,cppm,ppm
+        ('fstart=S': no frequency photons before pass S, frequency_start; 'growS=0': the
+        verified holds do not grow in pass S (GROW_AT_START); 'eager=1': the occlusion grid built in the set-up,
         not before pass S - 1; --bill-setup: each method's CPU starts with its renderer's
         construction; docs/method.md "A late start for the frequency photons, round 18")
 
@@ -280,8 +280,8 @@ def method_settings(base, method):
 #: Short method-name keys of settings fields ('fppm:fstart=4': no frequency
 #: photons before pass 4, docs/method.md "A late start for the frequency
 #: photons, round 18"; with ':eager=1' the occlusion grid is built in the
-#: set-up, not lazily before pass 3: equal_cpu; ':growS=1': the verified holds
-#: grow in pass 4, RADII_KEYS).
+#: set-up, not lazily before pass 3: equal_cpu; ':growS=0': the verified holds
+#: do not grow in pass 4, RADII_KEYS).
 SETTING_KEYS = {"fstart": "frequency_start"}
 
 

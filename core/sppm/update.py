@@ -176,10 +176,12 @@ HOLD_SHARE_MIN = 0.25
 HOLD_THROUGH_DELTA = False
 #: With frequency_start S > 1 the pixels have photons (N > 0) before the
 #: first prediction, so the growth of a pixel's first pass with photons
-#: (GROW_MAX) would never run; True: a verified hold grows in pass S as it
-#: would in pass 1, from the radius it has then (docs/method.md "A late
-#: start for the frequency photons, round 18").
-GROW_AT_START = False
+#: (GROW_MAX) would never run; True (the default; S = 1 never reads it): a
+#: verified hold grows in pass S as it would in pass 1, from the radius it
+#: has then (docs/method.md "A late start for the frequency photons, round
+#: 18": 0.91x the error of S = 1 in the room at equal CPU with S = 2, and
+#: bench_hold_alpha 'growS=0' the rule without).
+GROW_AT_START = True
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
 
@@ -478,6 +480,11 @@ class Radii:
         for :meth:`grows_at`."""
         rule = self.settings.radius_rule
         any_n = self.grows_at(k)
+        if (any_n and self._edge_cap is None and self.camera_pass is not None
+                and self.settings.cap_radius_at_edges):
+            # A render resumed after pass 1 has not made the growth's cap
+            # yet (its own camera stream: the same cap as without the resume).
+            self.edge_cap()
         self._updates += 1
         if self._updates == 1 and self.hold_share_min > 0 and self.hold_share_pass == 1:
             self._R2_first = state.R2.copy()
