@@ -98,14 +98,23 @@ from core.scene.model import DIFFUSE, Camera, Light, Lobe, Material, make_scene 
 from core.settings import RenderSettings  # noqa: E402
 
 
-def cornell(res: int, subdiv: int = 0, height: int = 0):
+def cornell(res: int, subdiv: int = 1, height: int = 0):
     """Cornell box (1 m cube, open front) with a ceiling area light and two
-    blocks, res x (height or res) pixels."""
+    blocks, res x (height or res) pixels; each of its 15 quads split into
+    subdiv x subdiv quads (30 subdiv^2 triangles: the same surfaces, only
+    Embree's work per ray grows)."""
     tris, mats = [], []
     white, red, green = 0, 1, 2
+    n = max(int(subdiv), 1)
     def add(q, m):
-        tris.extend(q)
-        mats.extend([m] * len(q))
+        # q = quad(c, ex, ey): its corners p00, p10, p11 (first triangle)
+        p00, p10, p11 = (np.asarray(v, float) for v in q[0])
+        ex, ey = (p10 - p00) / (2 * n), (p11 - p10) / (2 * n)
+        subs = [q] if n == 1 else [quad(p00 + (2 * i + 1) * ex + (2 * j + 1) * ey, ex, ey)
+                                   for i in range(n) for j in range(n)]
+        for sub in subs:
+            tris.extend(sub)
+            mats.extend([m] * len(sub))
     add(quad((0, 0, 0), (0.5, 0, 0), (0, 0.5, 0)), white)        # floor
     add(quad((0, 0, 1), (0, 0.5, 0), (0.5, 0, 0)), white)        # ceiling
     add(quad((0, 0.5, 0.5), (0.5, 0, 0), (0, 0, 0.5)), white)    # back
@@ -571,6 +580,9 @@ def main(argv=None):
                     help="stage shares, pass vs raw Embree, cores used, peak memory")
     ap.add_argument("--pass-res", nargs="+", default=["256x256", "1920x1080"])
     ap.add_argument("--plain", action="store_true", help="--pass without frequency photons")
+    ap.add_argument("--subdiv", type=int, default=1,
+                    help="--pass: split each of the box's 15 quads into N x N (30 N^2 triangles; "
+                         "N = 183: about 1M), the same surfaces with more work per Embree ray")
     ap.add_argument("--pass-one", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.blend:
@@ -812,7 +824,7 @@ PASS_STAGES = ("camera", "direct", "radius_init", "clip", "grid_build", "photon_
 def pass_report(a):
     """The --pass measurement: one process per resolution (see the module docstring)."""
     import subprocess
-    print(f"whole passes (Cornell box, {a.photons:,} photons/pass, "
+    print(f"whole passes (Cornell box, {30 * a.subdiv ** 2:,} triangles, {a.photons:,} photons/pass, "
           f"{'no frequency photons' if a.plain else 'defaults: 25% frequency photons'}, "
           f"{a.passes} passes after a warm-up one; numba threads "
           f"{Hg.numba.get_num_threads()}, photon threads {Ph.THREADS}, "
@@ -820,7 +832,8 @@ def pass_report(a):
           f"load average {os.getloadavg()[0]:.1f})")
     for wh in a.pass_res:
         cmd = [sys.executable, os.path.abspath(__file__), "--pass-one", wh,
-               "--photons", str(a.photons), "--passes", str(a.passes)] + (
+               "--photons", str(a.photons), "--passes", str(a.passes),
+               "--subdiv", str(a.subdiv)] + (
                    ["--plain"] if a.plain else [])
         subprocess.run(cmd, check=True)
 
@@ -1016,7 +1029,7 @@ def pass_one(a):
     from core import memory, warmup
     w, h = (int(x) for x in a.pass_one.split("x"))
     rss0 = memory.resident_bytes()
-    r = Renderer(cornell(w, height=h), RenderSettings(integrator="PHOTON", max_passes=1000,
+    r = Renderer(cornell(w, subdiv=a.subdiv, height=h), RenderSettings(integrator="PHOTON", max_passes=1000,
                                                       photons_per_pass=a.photons,
                                                       use_frequency=not a.plain),
                  log=lambda s: None)

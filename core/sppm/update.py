@@ -500,13 +500,8 @@ class Radii:
         if veto is not None and not veto.any():
             veto = None
         if rule == "PPM" and self.compiled and (left_out or (state.sectors is None) == (sectors is None)):
-            if veto is not None:
-                # A negative cap: no hold (the compiled update's per-pixel veto).
-                grow_cap = (np.full(M.shape[0], np.inf) if grow_cap is None
-                            else np.array(grow_cap, np.float64))
-                grow_cap[veto] = -1.0
             self._update_compiled(state, M, Phi, r_pred, None if left_out else sectors, grow_cap,
-                                  any_n)
+                                  veto, any_n)
             return
         S = None
         if state.sectors is not None and sectors is not None and not left_out:
@@ -548,7 +543,7 @@ class Radii:
                                                    >= self.hold_max_top2 * S.sum(axis=1))
             r_hold = np.where(one_sided, np.nan, r_hold)
         if veto is not None:
-            r_hold = np.where(veto, np.nan, r_hold)
+            r_hold = np.where(veto, np.nan, r_hold)                 # Radii.hold_through_delta
         m = M > 0
         R2_old = state.R2[m]
         alpha = self.settings.alpha
@@ -592,9 +587,11 @@ class Radii:
         cap[veto] = 0.0
         return cap
 
-    def _update_compiled(self, state, M, Phi, r_pred, sectors, grow_cap=None,
+    def _update_compiled(self, state, M, Phi, r_pred, sectors, grow_cap=None, veto=None,
                          any_n: bool = False) -> None:
-        """:meth:`update` of the PPM rule in ``_ppm_update_range`` (the same bits)."""
+        """:meth:`update` of the PPM rule in ``_ppm_update_range`` (the same bits);
+        veto (P,) bool: the pixels that do not hold (None: none); any_n: the
+        growth whatever N (:meth:`grows_at`)."""
         P = M.shape[0]
         st = self.settings
         none = np.zeros((P, 0))
@@ -604,6 +601,8 @@ class Radii:
                          np.ascontiguousarray(Phi, np.float64),
                          np.ascontiguousarray(r_pred, np.float64),
                          none if sectors is None else np.ascontiguousarray(sectors, np.float64),
+                         np.zeros(0, np.bool_) if veto is None
+                         else np.ascontiguousarray(veto, np.bool_),
                          np.empty(P))
         prm = np.array([st.alpha, self.floor_sq, st.hold_alpha, self.hold_min_expected,
                         self.release_alpha, self.hold_max_top2, float(self.hold_uniform),
@@ -696,7 +695,8 @@ class UpdateArrays(NamedTuple):
     tau (P, 3), held (P,) bool, S (P, SECTOR_CELLS) the state's sector
     counts ((P, 0): none).  In: M (P,), Phi (P, 3), r_pred (P,) the
     predicted radius, sectors (P, SECTOR_CELLS) this pass's counts ((P, 0):
-    none).  Out: r_pred_last (P,).  All float64 but held."""
+    none), veto (P,) bool the pixels that do not hold (Radii.hold_through_delta;
+    (0,): none).  Out: r_pred_last (P,).  All float64 but held and veto."""
     N: np.ndarray
     R2: np.ndarray
     tau: np.ndarray
@@ -706,6 +706,7 @@ class UpdateArrays(NamedTuple):
     Phi: np.ndarray
     r_pred: np.ndarray
     sectors: np.ndarray
+    veto: np.ndarray
     r_pred_last: np.ndarray
 
 
@@ -777,7 +778,8 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
     hold rate (HOLD_ALPHA_SPECTRUM; at or below hold_alpha: off) and its
     minimum expected count per cell (HOLD_SPECTRUM_MIN_EXPECTED), 1.0: the
     growth whatever N (Radii.grows_at)); cap (P,) the
-    surface-boundary cap [m] ((0,): none; negative: the pixel does not hold)."""
+    growth's cap [m] (Radii.grow_cap: the surface boundary, 0 where the
+    growth curves; (0,): none)."""
     alpha, floor_sq, hold_alpha = prm[0], prm[1], prm[2]
     with_S = a.S.shape[1] == SECTOR_CELLS
     E_cell = 0.0
@@ -816,7 +818,7 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
                             m2 = Si[k]
                     if m2 + m1 >= prm[5] * tot:
                         r = np.nan
-        if cap.shape[0] > 0 and cap[i] < 0.0:
+        if a.veto.shape[0] > 0 and a.veto[i]:
             r = np.nan                                      # Radii.hold_through_delta
         held = False
         M = a.M[i]
