@@ -47,7 +47,7 @@ class RenderSettings:
     use_frequency: bool = True
     frequency_fraction: float = 0.25
     frequency_decay: float = 2.0        # pass k: frequency_fraction * k^-decay (docs/method.md "Amortised ...", "The frequency schedule ...")
-    frequency_start: int = 1            # first pass with frequency photons; the schedule runs from it (docs/method.md "A late start for the frequency photons, round 18")
+    frequency_start: int = 2            # first pass with frequency photons; the schedule runs from it (docs/method.md "A late start for the frequency photons, round 18"; 2 the default: "Round 19: the rings and the decision")
     frequency_model: str = "CORRECTED"  # 'CORRECTED' or 'PAPER'
     frequency_estimator: str = "MIN"    # 'MIN' or 'QUANTILE'
     hold_alpha: float = 0.9             # PPM alpha of a held radius (1 = held forever; docs/method.md)

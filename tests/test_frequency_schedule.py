@@ -29,9 +29,11 @@ def test_frequency_photons_per_pass(decay, expected, doubling):
     """The chunks of pass k carry round(300,000 x 0.25 x k^-decay) frequency
     photons, the first ones of the pass (chunks of 131,072); with decay > 0
     only in the passes k = 2^j (PhotonPass.doubling, the default; off: in
-    every pass, the schedule before)."""
+    every pass, the schedule before); frequency_start 1 (from pass 1;
+    later starts: test_frequency_start_schedule)."""
     scene, _ = point_light_plane(res=8)
-    st = RenderSettings(integrator="PHOTON", photons_per_pass=300_000, frequency_decay=decay)
+    st = RenderSettings(integrator="PHOTON", photons_per_pass=300_000, frequency_decay=decay,
+                        frequency_start=1)
     r = Renderer(scene, st, log=lambda s: None)
     assert r.photon_pass.doubling
     r.photon_pass.doubling = doubling
@@ -53,10 +55,18 @@ def test_default_schedule():
     passes 1, 2, 4, ..., 128 trace 25,000, 6,250, 1,562, 391, 98, 24, 6 and 2,
     none from pass 256 on (round(0.38) = 0), 33,333 in all: 1.33 times pass
     1's, against 81,583 (3.26 times) in the first 256 passes with decay 0.5,
-    whose pass 2^j traces 25 % x 2^(-j/2), still 1,562 in pass 256."""
+    whose pass 2^j traces 25 % x 2^(-j/2), still 1,562 in pass 256.  Those
+    are the passes from frequency_start 1; the default start 2 (docs/method.md
+    "Round 19: the rings and the decision") traces the same counts in passes
+    2, 4, ..., 256."""
     from core.sppm.photon_pass import frequency_photons
-    st = RenderSettings(integrator="PHOTON", photons_per_pass=100_000)
-    assert st.frequency_decay == 2.0 and st.frequency_fraction == 0.25
+    default = RenderSettings(integrator="PHOTON", photons_per_pass=100_000)
+    assert default.frequency_decay == 2.0 and default.frequency_fraction == 0.25
+    assert default.frequency_start == 2
+    st = default.replace(frequency_start=1)
+    n2 = {k: frequency_photons(default, k, doubling=True) for k in range(1, 1025)}
+    assert {k: v for k, v in n2.items() if v} == {2: 25_000, 4: 6_250, 8: 1_562, 16: 391,
+                                                  32: 98, 64: 24, 128: 6, 256: 2}
     n = {k: frequency_photons(st, k, doubling=True) for k in range(1, 1025)}
     assert {k: v for k, v in n.items() if v} == {1: 25_000, 2: 6_250, 4: 1_562, 8: 391,
                                                  16: 98, 32: 24, 64: 6, 128: 2}
@@ -166,7 +176,8 @@ def test_passes_without_frequency_photons_keep_every_prediction(doubling):
     mats = [lambert("floor", 0.8), Material("mirror", (Lobe(GLOSSY, (0.9,) * 3, roughness=0.0),))]
     scene = make_scene(tris, mats, [Light("point", "POINT", (100.0,) * 3, translate(0, 0, 1))],
                        look_down_ortho(1.5, 2.0, 16), tri_mat=[0, 0, 1, 1, 0, 0])
-    st = RenderSettings(integrator="PHOTON", photons_per_pass=20_000, max_passes=8, seed=3)
+    st = RenderSettings(integrator="PHOTON", photons_per_pass=20_000, max_passes=8, seed=3,
+                        frequency_start=1)
     r = Renderer(scene, st, log=lambda s: None)
     r.photon_pass.doubling = doubling
     assert r.tracer.uses_reach()
@@ -195,10 +206,11 @@ def test_frequency_start_schedule():
     """frequency_start S (docs/method.md "A late start for the frequency
     photons, round 18"): no frequency photon before pass S, then the
     schedule of S = 1 at k / S: passes S, 2S, 4S, ... under doubling, the
-    same counts and total; S = 1 is the schedule without the setting."""
+    same counts and total; S = 1 is the schedule of pass k itself (the
+    default since round 19: S = 2)."""
     from core.sppm.photon_pass import frequency_photons
-    st = RenderSettings(integrator="PHOTON", photons_per_pass=100_000)
-    assert st.frequency_start == 1
+    assert RenderSettings().frequency_start == 2
+    st = RenderSettings(integrator="PHOTON", photons_per_pass=100_000, frequency_start=1)
     one = {k: frequency_photons(st, k, doubling=True) for k in range(1, 4097)}
     four = {k: frequency_photons(st.replace(frequency_start=4), k, doubling=True)
             for k in range(1, 4097)}

@@ -344,8 +344,13 @@ class Radii:
         self.hold_share_min = (HOLD_SHARE_MIN if frequency and settings.integrator == "PHOTON"
                                and settings.verify_holds and settings.radius_rule == "PPM"
                                else 0.0)
-        # Decided on the first pass with frequency photons (frequency_start).
-        self.hold_share_pass = max(HOLD_SHARE_PASS, int(settings.frequency_start))
+        # Pass 1 whatever frequency_start S: with S > 1 its holds are the
+        # counts' (the uniformity test, CPPM's) and hold the same share as
+        # the spectrum's (the rings 11 %, the other examples 40-99 %), and
+        # only after pass 1 can leave_out_holds make the state PPM's; decided
+        # after pass S the rings kept pass 1's holds and pass S's growth
+        # (docs/method.md "Round 19: the rings and the decision").
+        self.hold_share_pass = HOLD_SHARE_PASS
         self.holds_left_out = None
         # HOLD_THROUGH_DELTA (photon mapping; bench 'fppm:through=1' holds
         # there as before round 17), and this pass's visible points reached
