@@ -48,7 +48,9 @@
         'kappa=2': every hold reads the spectrum's prediction / 2, tried there, not kept)
     .venv/bin/python bench/bench_hold_alpha.py cornell --cycles-ref --photons 0 --equal-cpu 6 \
         --bill-setup --seeds 0,1,2,3 --methods fppm,fppm:fstart=4,fppm:fstart=8:growS=0,cppm,ppm
-        ('fstart=S': no frequency photons before pass S, frequency_start; 'growS=0': the
+        ('fstart=S': no frequency photons before pass S, frequency_start (default 2 since
+        docs/method.md "Round 19: the rings and the decision": 'fppm' is S = 2, 'fppm:fstart=1'
+        frequency photons from pass 1); 'growS=0': the
         verified holds do not grow in pass S (GROW_AT_START); 'eager=1': the occlusion grid built in the set-up,
         not before pass S - 1; --bill-setup: each method's CPU starts with its renderer's
         construction; docs/method.md "A late start for the frequency photons, round 18")
