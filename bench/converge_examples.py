@@ -260,7 +260,7 @@ NOTES = [
     "Round 16 re-runs on 7a8de8c's code (the spectrum's gated hold rate as the default, "
     "docs/method.md 'The gated spectrum rate as the default, round 16'), `SCENE --budget 60 "
     "--seeds 4 --methods fppm,ppm,cppm`, the methods interleaved seed by seed, load average 1 to "
-    "15, each in SCENE/fppm_ppm_cppm_60s/: indirect_room FPPM / PPM 0.44 excess (raw 0.83 / 0.46 "
+    "15, each in SCENE/fppm_ppm_cppm_60s/ until round 19 replaced them: indirect_room FPPM / PPM 0.44 excess (raw 0.83 / 0.46 "
     "/ 0.49 at 10 / 50 / 100 %), FPPM / CPPM 0.984 excess (seeds 0.90-1.08; raw 1.07 / 1.00 / "
     "0.987; FPPM 112-133 passes, CPPM 118-130); principled_interior FPPM / PPM 0.50 excess (raw "
     "0.83 / 0.61 / 0.52), FPPM / CPPM 0.977 excess (seeds 0.82-1.14; raw 1.17 / 0.99 / 0.98; "
@@ -281,6 +281,16 @@ NOTES = [
     "(excess 0.82; seeds at 100 % 1.04, 1.09, 1.09, 0.74; at equal passes 1.00-1.02 at pass 100); "
     "coffee_cup 1.06 / 0.985 / 0.97 (excess 0.96, seeds 0.94-0.98; 10 % seeds 0.94-1.25; at equal "
     "passes 0.97-0.98; FPPM 211-280 passes, PPM 218-250).",
+    "Round 19 re-runs on a5fbc25 (round 18's code: its changes since the round 16 re-runs are the "
+    "round 17 rules and set-up and round 18's bit-for-bit ones), `SCENE --budget 60 --seeds 4 "
+    "--methods fppm,ppm,cppm`, each in SCENE/fppm_ppm_cppm_60s/ (replacing the round 16 runs): "
+    "cornell (load 1 to 2, 1.7-1.8 cores a method) FPPM / PPM 1.03 / 0.737 / 0.686 at 10 / 50 / "
+    "100 % (excess 0.681; 10 % seeds 0.95-1.19), FPPM / CPPM 1.13 / 1.02 / 1.01 (seeds at 100 % "
+    "0.90-1.13; FPPM 232-255 passes, PPM 244-270, CPPM 224-267); indirect_room (load 5 to 14) FPPM "
+    "/ PPM 0.817 / 0.462 / 0.509 (excess 0.457, seeds 0.38-0.51), FPPM / CPPM 1.05 / 0.996 / 1.01 "
+    "(excess 1.01, seeds 0.87-1.19; FPPM 120-135 passes, CPPM 128-139); principled_interior "
+    "(load 6 to 14, 0.5 cores a method) FPPM / PPM 0.782 / 0.596 / 0.482 (excess 0.458, seeds "
+    "0.38-0.52), FPPM / CPPM 0.991 / 1.01 / 0.972 (excess 0.969, seeds 0.87-1.06).",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
