@@ -188,6 +188,13 @@ class FPPMRenderSettings(PropertyGroup):
                     "photons (pass k), the others none, and each pixel keeps its last "
                     "prediction through passes that bring it none (0 = the same fraction "
                     "every pass, each pass's own prediction)")
+    frequency_start: IntProperty(
+        name="Frequency Start", default=_D.frequency_start, min=1, max=1_000_000,
+        soft_max=64,
+        description="First pass that traces frequency photons; the passes before keep a "
+                    "radius only where the photon counts look uniform (as CPPM), pass S "
+                    "grows the verified holds, and the schedule runs from it: passes S, 2S, "
+                    "4S, ... trace Frequency Photons / (k/S)^decay (1 = from the first pass)")
     frequency_model: EnumProperty(
         name="Model", items=FREQUENCY_MODELS, default=_D.frequency_model,
         description="Which equations propagate the light-field spectrum")

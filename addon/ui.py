@@ -109,6 +109,7 @@ class FPPM_RENDER_PT_frequency(FPPMPanel, Panel):
         col.active = s.use_frequency
         col.prop(s, "frequency_fraction", slider=True)
         col.prop(s, "frequency_decay")
+        col.prop(s, "frequency_start")
         col.prop(s, "frequency_model")
         col.prop(s, "frequency_estimator")
         col.prop(s, "hold_alpha", slider=True)

@@ -46,6 +46,14 @@
         'through=1': visible points reached through glass or a mirror hold, the rule before
         docs/method.md "The glass sphere at equal passes, round 17", 'through=0' the default;
         'kappa=2': every hold reads the spectrum's prediction / 2, tried there, not kept)
+    .venv/bin/python bench/bench_hold_alpha.py cornell --cycles-ref --photons 0 --equal-cpu 6 \
+        --bill-setup --seeds 0,1,2,3 --methods fppm,fppm:fstart=4,fppm:fstart=8:growS=0,cppm,ppm
+        ('fstart=S': no frequency photons before pass S, frequency_start (default 2 since
+        docs/method.md "Round 19: the rings and the decision": 'fppm' is S = 2, 'fppm:fstart=1'
+        frequency photons from pass 1); 'growS=0': the
+        verified holds do not grow in pass S (GROW_AT_START); 'eager=1': the occlusion grid built in the set-up,
+        not before pass S - 1; --bill-setup: each method's CPU starts with its renderer's
+        construction; docs/method.md "A late start for the frequency photons, round 18")
 
 The protocol of docs/method.md ("Consistent holds", "Radius rules"): the
 .blend at 50 % resolution (64x64) with the file's settings, photon mapping
@@ -260,8 +268,9 @@ def method_settings(base, method):
     if ":" in method:                       # "fppm:decay=0" etc.
         for kv in method.split(":")[1:]:
             k, v = kv.split("=")
-            if k in ("keep", "kappa") or k in RADII_KEYS or k in TRACER_KEYS:   # planes_or, radii_variant
+            if k in ("keep", "kappa", "eager") or k in RADII_KEYS or k in TRACER_KEYS:   # planes_or, radii_variant
                 continue
+            k = SETTING_KEYS.get(k, k)
             cur = getattr(base, k)
             if isinstance(cur, bool):       # 'verify_holds=0': bool("0") would be True
                 over[k] = v.lower() in ("1", "true", "yes")
@@ -270,12 +279,20 @@ def method_settings(base, method):
     return base.replace(**over)
 
 
+#: Short method-name keys of settings fields ('fppm:fstart=4': no frequency
+#: photons before pass 4, docs/method.md "A late start for the frequency
+#: photons, round 18"; with ':eager=1' the occlusion grid is built in the
+#: set-up, not lazily before pass 3: equal_cpu; ':growS=0': the verified holds
+#: do not grow in pass 4, RADII_KEYS).
+SETTING_KEYS = {"fstart": "frequency_start"}
+
+
 #: Method-name keys of :func:`radii_variant` and the Radii attribute each sets.
 RADII_KEYS = {"power": "hold_min_expected", "release": "release_alpha", "top2": "hold_max_top2",
               "or": "hold_uniform", "orE": "uniform_min_expected", "crit": "uniform_critical",
               "grow": "grow", "growE": "grow_min_expected", "growZ": "grow_curvature_z",
               "hmax": "hold_alpha_spectrum", "hmaxE": "hold_spectrum_min_expected",
-              "share": "hold_share_min",
+              "share": "hold_share_min", "growS": "grow_at_start",
               "sharepass": "hold_share_pass", "through": "hold_through_delta"}
 
 
@@ -329,12 +346,15 @@ def cycles_reference(name, say):
     return ref["image"], float(floor)
 
 
-def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
+def equal_cpu(scene, base, methods, seed, budget, report, ref, say, bill_setup=False):
     """relMSE of every method at equal CPU time: the renderers are stepped
     in one process, always the one with the least CPU so far, so that the
     machine's load drifts over all alike, until each has ``budget`` CPU
     seconds; each method's error is read at the ``report`` fractions of the
-    budget by log-log interpolation over its passes."""
+    budget by log-log interpolation over its passes.  bill_setup: each
+    method's clock starts at its renderer's construction CPU (process CPU
+    around the constructor: no other renderer has started a pass, so no
+    thread of theirs runs), as ``fppm converge`` bills it."""
     for m in methods:
         # Warm-up (not timed): the first pass of a process compiles or loads
         # the numba kernels, which would be charged to whichever method ran first.
@@ -342,13 +362,20 @@ def equal_cpu(scene, base, methods, seed, budget, report, ref, say):
                      log=lambda s: None)
         radii_variant(w, m)
         w.step()
-    rs = {m: Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=0,
-                                                                time_limit=1e9), log=lambda s: None)
-          for m in methods}
+    rs, setup = {}, {}
+    for m in methods:
+        c0 = time.process_time()
+        rs[m] = Renderer(scene, method_settings(base, m).replace(seed=seed, max_passes=0,
+                                                                   time_limit=1e9), log=lambda s: None)
+        if ":eager=1" in m:     # 'fppm:fstart=8:eager=1': the occlusion grid built in the set-up
+            rs[m]._occlusion_before(10 ** 9)
+        setup[m] = time.process_time() - c0
     for m in methods:
         radii_variant(rs[m], m)
         planes_or(rs[m], m)
-    cpu = {m: [0.0] for m in methods}
+    say(f"seed {seed} set-up CPU, s ({'billed' if bill_setup else 'not billed'}): "
+        + ", ".join(f"{m} {setup[m]:.3f}" for m in methods))
+    cpu = {m: [setup[m] if bill_setup else 0.0] for m in methods}
     err = {m: [np.nan] for m in methods}
     while True:
         m = min(methods, key=lambda k: cpu[k][-1])
@@ -568,6 +595,8 @@ def main():
                     help="CPU per pass of PPM and FPPM variants, stepped alternately K passes")
     ap.add_argument("--equal-cpu", type=float, default=0.0, metavar="SECONDS",
                     help="relMSE of --methods at equal CPU time, SECONDS each per seed")
+    ap.add_argument("--bill-setup", action="store_true",
+                    help="--equal-cpu: each method's CPU starts at its renderer's construction")
     ap.add_argument("--fractions", default="0.25,0.5,1",
                     help="--equal-cpu: the fractions of SECONDS the errors are read at")
     ap.add_argument("--equal-passes", type=int, default=0, metavar="K",
@@ -628,7 +657,7 @@ def main():
         methods = a.methods.split(",")
         for seed in [int(x) for x in a.seeds.split(",")]:
             equal_cpu(scene, base, methods, seed, a.equal_cpu,
-                      [float(x) for x in a.fractions.split(",")], ref, say)
+                      [float(x) for x in a.fractions.split(",")], ref, say, a.bill_setup)
         say(f"# load at the end {os.getloadavg()[0]:.1f}")
         return
     t0 = time.process_time()

@@ -219,7 +219,7 @@ class Renderer:
                     self.merge_freq_pass = PhotonPass(
                         self.tracer, self.mtab,
                         replace(st, photons_per_pass=n_f, frequency_fraction=1.0,
-                                frequency_decay=0.0), True,
+                                frequency_decay=0.0, frequency_start=1), True,
                         self.radii.hist if self.radii.quantile else None, self.stage_seconds)
             if "light tracing" in self.plan.strategies:
                 self.combined_lt = CombinedLightTracer(
@@ -310,21 +310,15 @@ class Renderer:
         self._check_stop()
         self.occ_grid = None
         self.occ_locality = 0.0
-        if self.plan.occlusion_grid:
-            from .frequency.occlusion_grid import (build_occlusion_grid, default_locality,
-                                                   geometry_bounds)
-            t0 = time.perf_counter()
-            lo, hi = geometry_bounds(scene)
-            pad = 1e-3 * self.D
-            res = self.settings.occlusion_grid_res
-            # Locality = 2 voxel diagonals (the grid's default); distances
-            # beyond 4x that are never used, so the build may stop there.
-            diag = float(np.linalg.norm((hi - lo + 2 * pad) / res))
-            locality = 2.0 * diag
-            self.occ_grid = self._interruptible(build_occlusion_grid, scene.tri_p, lo - pad, hi + pad, res,
-                                                 max_distance=4.0 * locality + 2 * diag)
-            self.occ_locality = default_locality(self.occ_grid)
-            self.occ_build_seconds = time.perf_counter() - t0
+        # frequency_start S > 1 (photon mapping): no frequency photon before
+        # pass S, so the occlusion grid is built lazily, in the step of pass
+        # S - 1 (_occlusion_before), whose photon pass then keeps the reach
+        # source of pass S (docs/method.md "A late start for the frequency
+        # photons, round 18").
+        self._occ_pending = (self.plan.occlusion_grid and st0.frequency_start > 1
+                             and st0.integrator == "PHOTON")
+        if self.plan.occlusion_grid and not self._occ_pending:
+            self.occ_grid, self.occ_locality = self._build_occlusion(scene)
         self.tracer = PhotonTracer(self.scene, self.accel, self.mtab, self.light_table,
                                    self.settings, self.plan, self.kappa, self.occ_grid,
                                    self.occ_locality, self.D)
@@ -332,6 +326,39 @@ class Renderer:
         ys, xs = np.mgrid[0:self.height, 0:self.width]
         self.px = (xs.ravel() + x0).astype(np.float64)
         self.py = ((self.height - 1 - ys).ravel() + y0).astype(np.float64)
+
+    def _build_occlusion(self, scene: Scene):
+        """(occlusion grid, its locality [m]) of scene (core.frequency.occlusion_grid);
+        its wall seconds in ``occ_build_seconds``."""
+        from .frequency.occlusion_grid import (build_occlusion_grid, default_locality,
+                                               geometry_bounds)
+        t0 = time.perf_counter()
+        lo, hi = geometry_bounds(scene)
+        pad = 1e-3 * self.D
+        res = self.settings.occlusion_grid_res
+        # Locality = 2 voxel diagonals (the grid's default); distances
+        # beyond 4x that are never used, so the build may stop there.
+        diag = float(np.linalg.norm((hi - lo + 2 * pad) / res))
+        locality = 2.0 * diag
+        grid = self._interruptible(build_occlusion_grid, scene.tri_p, lo - pad, hi + pad, res,
+                                   max_distance=4.0 * locality + 2 * diag)
+        self.occ_build_seconds = time.perf_counter() - t0
+        return grid, default_locality(grid)
+
+    def _occlusion_before(self, k: int) -> None:
+        """Build the occlusion grid left for later (``_occ_pending``) before
+        pass k when pass k + 1 may be the first frequency pass (k >= S - 1):
+        pass k's photon pass keeps its reach source (the tracer then uses
+        one) for pass k + 1's reach map and radius cut.  The chunks traced
+        ahead meanwhile carry no spectrum: they read neither the grid nor
+        the march."""
+        if not self._occ_pending or k < self.settings.frequency_start - 1:
+            return
+        self.occ_grid, self.occ_locality = self._build_occlusion(self.scene)
+        tr = self.tracer
+        tr.occ_grid, tr.occ_locality = self.occ_grid, self.occ_locality
+        tr.occlusion, tr.march = tr._occlusion_march()
+        self._occ_pending = False
 
     def __getattr__(self, name):
         # renderer.R2, renderer.N, ...: the fields of the per-pixel state.
@@ -409,6 +436,7 @@ class Renderer:
         t0 = time.perf_counter()
         k = self.pass_index + 1
         st, state, clock = self.settings, self.state, self.stage_seconds
+        self._occlusion_before(k)
         rng_photons = self._photon_stream(k)
         # The photons are traced while the camera and direct light run, and
         # the next pass's first chunk from when this pass's last chunk is
@@ -569,7 +597,7 @@ class Renderer:
             Lm, M = merge_gather(vp, R2, R2, dep, self.mtab, self.camera, region)
             sums = sums + Lm
         self.stage_seconds["gather"] += time.perf_counter() - tg
-        if self.merge_freq_pass is not None:
+        if self.merge_freq_pass is not None and k >= st.frequency_start:
             # Pass k's frequency photons (frequency_photons: fewer in later
             # passes, docs/method.md "Amortised frequency photons"), all of them.
             from dataclasses import replace
@@ -627,7 +655,7 @@ class Renderer:
         if est.spectrum is not None:
             state.spectrum[...] = est.spectrum
         r_pred = self.radii.predicted(est.r_pred_min, state.r_hist) if est.gathered else est.r_pred_min
-        self.radii.update(state, est.M, est.Phi, r_pred, est.sectors)
+        self.radii.update(state, est.M, est.Phi, r_pred, est.sectors, k=self.pass_index + 1)
         why = self.radii.leave_out_holds(state, self.pass_index + 1)
         if why is not None:
             self._drop_holds(why)
@@ -703,6 +731,8 @@ class Renderer:
         if self.settings.fixed_visible_points and self.pass_index > 0:
             # Fixed visible points come from pass 1's camera stream: rebuild them.
             self._fixed = self.camera_pass(self._rng(1, 0), self._check_stop)
+        if self.pass_index > 0:
+            self._occlusion_before(self.pass_index)
         if (self.photon_pass.keeps_reach and self.pass_index > 0
                 and self.path_tracer is None and self.light_tracer is None):
             # The frequency photons' reach map comes from the last pass's

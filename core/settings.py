@@ -47,6 +47,7 @@ class RenderSettings:
     use_frequency: bool = True
     frequency_fraction: float = 0.25
     frequency_decay: float = 2.0        # pass k: frequency_fraction * k^-decay (docs/method.md "Amortised ...", "The frequency schedule ...")
+    frequency_start: int = 2            # first pass with frequency photons; the schedule runs from it (docs/method.md "A late start for the frequency photons, round 18"; 2 the default: "Round 19: the rings and the decision")
     frequency_model: str = "CORRECTED"  # 'CORRECTED' or 'PAPER'
     frequency_estimator: str = "MIN"    # 'MIN' or 'QUANTILE'
     hold_alpha: float = 0.9             # PPM alpha of a held radius (1 = held forever; docs/method.md)
@@ -114,6 +115,8 @@ class RenderSettings:
             bad("frequency_fraction", "must be in [0, 1]")
         if not 0 <= self.frequency_decay <= 2:
             bad("frequency_decay", "must be in [0, 2] (0 = every pass traces frequency_fraction)")
+        if not isinstance(self.frequency_start, int) or not 1 <= self.frequency_start <= 1_000_000:
+            bad("frequency_start", "must be an integer in [1, 1000000] (1 = from the first pass)")
         if self.frequency_model not in ("CORRECTED", "PAPER"):
             bad("frequency_model", "must be 'CORRECTED' or 'PAPER'")
         if self.frequency_estimator not in ("MIN", "QUANTILE"):

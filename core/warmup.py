@@ -164,7 +164,10 @@ def warmup_jobs() -> list:
     the QUANTILE estimator's pair search takes it too; the third covers the
     classic-PPM options and the numpy-sampled light kinds.
     """
-    base = RenderSettings(integrator="PHOTON", max_passes=1, photons_per_pass=3000, seed=1)
+    # frequency_start 1: the one pass traces frequency photons (with the default
+    # start, 2, pass 1 traces none and their kernels would compile in the render)
+    base = RenderSettings(integrator="PHOTON", max_passes=1, photons_per_pass=3000, seed=1,
+                          frequency_start=1)
     room = warmup_scene()
     return [(room, base),
             (room, base.replace(photons_per_pass=40_000, frequency_fraction=1.0,
@@ -247,8 +250,11 @@ def render_job(scene, settings: RenderSettings, passes: tuple = ()) -> tuple:
     gather's parallel path from ``hashgrid.PARALLEL_MIN_PHOTONS`` photons)
     are the render's: the kernels compiled are those its passes call, and
     only those (the Cornell box's default render, light tracing alone,
-    compiles no photon, frequency or camera-path kernel)."""
-    return (scene, settings.replace(max_passes=1, time_limit=0.0), tuple(passes))
+    compiles no photon, frequency or camera-path kernel).  frequency_start 1:
+    its one pass traces what the render's pass S traces (the schedule runs
+    from S), so the frequency kernels compile here and not in pass S."""
+    return (scene, settings.replace(max_passes=1, time_limit=0.0, frequency_start=1),
+            tuple(passes))
 
 
 def _scene_kinds(scene) -> tuple:

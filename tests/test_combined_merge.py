@@ -441,9 +441,12 @@ def test_soft_light_merging_weights_sum_to_one(mis_rig, name):
 def test_mis_frequency_photons_are_amortised():
     """Merging as an MIS strategy traces pass k's frequency photons as
     PHOTON does (photons_per_pass x frequency_fraction x k^-frequency_decay,
-    core.sppm.photon_pass.frequency_photons), every one with a spectrum."""
+    core.sppm.photon_pass.frequency_photons), every one with a spectrum;
+    frequency_start 1 (from pass 1; with S the schedule runs from pass S,
+    tests/test_frequency_schedule.py::test_frequency_start_schedule)."""
     st = RenderSettings(integrator="COMBINED", max_passes=3, camera_samples=1,
-                        photons_per_pass=8_000, seed=3, max_bounces=4, merge_weights="MIS")
+                        photons_per_pass=8_000, seed=3, max_bounces=4, merge_weights="MIS",
+                        frequency_start=1)
     r = Renderer(_scene(), st, log=lambda s: None)
     traced = []
     fp = r.merge_freq_pass

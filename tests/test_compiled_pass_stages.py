@@ -194,17 +194,25 @@ def _update_case(P, seed, sectors):
     (True, True, 0.9, dict(hold_through_delta=False, through=0.3)),
     # the veto beside the growth's cap: pixels in their first pass with photons (they grow),
     # half of them with a finite surface-boundary cap; vetoed pixels with and without a cap
-    (True, True, 0.9, dict(hold_through_delta=False, through=0.3, first=0.5, edge_cap=0.5))])
+    (True, True, 0.9, dict(hold_through_delta=False, through=0.3, first=0.5, edge_cap=0.5)),
+    # frequency_start 4's pass 4: verified holds grow whatever N (Radii.grows_at,
+    # docs/method.md "A late start for the frequency photons, round 18")
+    (True, True, 0.9, dict(late=4)),
+    # the late start's growth beside the glass veto
+    (True, True, 0.9, dict(late=4, hold_through_delta=False, through=0.3))])
 def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha, knobs):
     settings = RenderSettings(integrator="PHOTON", hold_alpha=hold_alpha, verify_holds=sectors)
     radii = U.Radii(settings, None, 10.0, frequency, None, 1, P)
     radii.floor_sq = 1e-9                                # reached by the tiny predictions
     ref, M, Phi, r_pred, S_pass = _update_case(P, P, sectors)
     rng = np.random.default_rng(P + 1)
-    cap = None
+    cap, k_pass = None, None
     for k, v in (knobs or {}).items():
         if k == "through":          # that share of the pixels seen through glass
             radii._through = rng.random(P) < v
+        elif k == "late":           # pass v = frequency_start v, growth at the start
+            radii.settings = settings.replace(frequency_start=v)
+            radii.grow_at_start, k_pass = True, v
         elif k == "first":          # that share of the pixels in their first pass with photons
             ref.N[rng.random(P) < v] = 0.0
         elif k == "edge_cap":       # that share with a cap [m] of 0.9-1.4 R (inf: none)
@@ -215,9 +223,9 @@ def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha, kno
     new = PixelState(**{k: v.copy() for k, v in ref.state_dict().items()})
     N_before, R2_before = ref.N.copy(), ref.R2.copy()
     radii.compiled = False
-    radii.update(ref, M, Phi, r_pred, S_pass)
+    radii.update(ref, M, Phi, r_pred, S_pass, k=k_pass)
     radii.compiled = True
-    radii.update(new, M, Phi, r_pred, S_pass)
+    radii.update(new, M, Phi, r_pred, S_pass, k=k_pass)
     for f in ("N", "R2", "tau", "held", "r_pred_last", "M_last", "sectors"):
         x, y = getattr(ref, f), getattr(new, f)
         if x is None:
@@ -228,6 +236,9 @@ def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha, kno
         assert 0.05 < ref.held.mean() < 0.8
     if radii._through is not None:
         assert not ref.held[radii._through].any() and ref.held[~radii._through].mean() > 0.3
+    if k_pass is not None:     # grown radii, every pixel having had photons (N > 0)
+        assert radii.grows_at(k_pass) and not radii.grows_at(k_pass + 1)
+        assert (ref.R2 > 1.2 * R2_before).mean() > 0.03
     if cap is not None:         # the cap binds a growth; vetoed pixels with and without a cap
         first = (M > 0) & (R2_before > 0) & (N_before == 0.0)
         grown = first & ref.held & (ref.R2 > R2_before)

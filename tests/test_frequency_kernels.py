@@ -141,8 +141,9 @@ def test_random_chains_match_numpy(model):
 
 # ------------------------------------------------------------ 2. in the tracer
 def _tracer(scene, model):
+    # frequency_start 1: the occlusion grid built in the set-up
     st = RenderSettings(integrator="PHOTON", max_passes=1, photons_per_pass=4000, use_frequency=True,
-                        frequency_model=model)
+                        frequency_model=model, frequency_start=1)
     return Renderer(scene, st, log=lambda s: None).tracer
 
 

@@ -29,9 +29,11 @@ def test_frequency_photons_per_pass(decay, expected, doubling):
     """The chunks of pass k carry round(300,000 x 0.25 x k^-decay) frequency
     photons, the first ones of the pass (chunks of 131,072); with decay > 0
     only in the passes k = 2^j (PhotonPass.doubling, the default; off: in
-    every pass, the schedule before)."""
+    every pass, the schedule before); frequency_start 1 (from pass 1;
+    later starts: test_frequency_start_schedule)."""
     scene, _ = point_light_plane(res=8)
-    st = RenderSettings(integrator="PHOTON", photons_per_pass=300_000, frequency_decay=decay)
+    st = RenderSettings(integrator="PHOTON", photons_per_pass=300_000, frequency_decay=decay,
+                        frequency_start=1)
     r = Renderer(scene, st, log=lambda s: None)
     assert r.photon_pass.doubling
     r.photon_pass.doubling = doubling
@@ -53,10 +55,18 @@ def test_default_schedule():
     passes 1, 2, 4, ..., 128 trace 25,000, 6,250, 1,562, 391, 98, 24, 6 and 2,
     none from pass 256 on (round(0.38) = 0), 33,333 in all: 1.33 times pass
     1's, against 81,583 (3.26 times) in the first 256 passes with decay 0.5,
-    whose pass 2^j traces 25 % x 2^(-j/2), still 1,562 in pass 256."""
+    whose pass 2^j traces 25 % x 2^(-j/2), still 1,562 in pass 256.  Those
+    are the passes from frequency_start 1; the default start 2 (docs/method.md
+    "Round 19: the rings and the decision") traces the same counts in passes
+    2, 4, ..., 256."""
     from core.sppm.photon_pass import frequency_photons
-    st = RenderSettings(integrator="PHOTON", photons_per_pass=100_000)
-    assert st.frequency_decay == 2.0 and st.frequency_fraction == 0.25
+    default = RenderSettings(integrator="PHOTON", photons_per_pass=100_000)
+    assert default.frequency_decay == 2.0 and default.frequency_fraction == 0.25
+    assert default.frequency_start == 2
+    st = default.replace(frequency_start=1)
+    n2 = {k: frequency_photons(default, k, doubling=True) for k in range(1, 1025)}
+    assert {k: v for k, v in n2.items() if v} == {2: 25_000, 4: 6_250, 8: 1_562, 16: 391,
+                                                  32: 98, 64: 24, 128: 6, 256: 2}
     n = {k: frequency_photons(st, k, doubling=True) for k in range(1, 1025)}
     assert {k: v for k, v in n.items() if v} == {1: 25_000, 2: 6_250, 4: 1_562, 8: 391,
                                                  16: 98, 32: 24, 64: 6, 128: 2}
@@ -166,7 +176,8 @@ def test_passes_without_frequency_photons_keep_every_prediction(doubling):
     mats = [lambert("floor", 0.8), Material("mirror", (Lobe(GLOSSY, (0.9,) * 3, roughness=0.0),))]
     scene = make_scene(tris, mats, [Light("point", "POINT", (100.0,) * 3, translate(0, 0, 1))],
                        look_down_ortho(1.5, 2.0, 16), tri_mat=[0, 0, 1, 1, 0, 0])
-    st = RenderSettings(integrator="PHOTON", photons_per_pass=20_000, max_passes=8, seed=3)
+    st = RenderSettings(integrator="PHOTON", photons_per_pass=20_000, max_passes=8, seed=3,
+                        frequency_start=1)
     r = Renderer(scene, st, log=lambda s: None)
     r.photon_pass.doubling = doubling
     assert r.tracer.uses_reach()
@@ -189,3 +200,107 @@ def test_passes_without_frequency_photons_keep_every_prediction(doubling):
         assert with_freq == list(range(1, 9)) and reach == list(range(2, 9))
     # pass 4 brings new spectra: some predictions change
     assert not np.array_equal(last[3], last[2], equal_nan=True)
+
+
+def test_frequency_start_schedule():
+    """frequency_start S (docs/method.md "A late start for the frequency
+    photons, round 18"): no frequency photon before pass S, then the
+    schedule of S = 1 at k / S: passes S, 2S, 4S, ... under doubling, the
+    same counts and total; S = 1 is the schedule of pass k itself (the
+    default since round 19: S = 2)."""
+    from core.sppm.photon_pass import frequency_photons
+    assert RenderSettings().frequency_start == 2
+    st = RenderSettings(integrator="PHOTON", photons_per_pass=100_000, frequency_start=1)
+    one = {k: frequency_photons(st, k, doubling=True) for k in range(1, 4097)}
+    four = {k: frequency_photons(st.replace(frequency_start=4), k, doubling=True)
+            for k in range(1, 4097)}
+    assert all(four[k] == 0 for k in (1, 2, 3))
+    assert {k: v for k, v in four.items() if v} == {4 * k: v for k, v in one.items() if v}
+    assert sum(four.values()) == sum(one.values()) == 33_333
+    # decay 0 (no doubling, no decay): every pass from S on, the same fraction
+    flat = st.replace(frequency_decay=0.0, frequency_start=3)
+    assert [frequency_photons(flat, k, doubling=True) for k in (1, 2, 3, 4, 9)] == \
+        [0, 0, 25_000, 25_000, 25_000]
+    # without doubling (COMBINED's MIS merging): (k / S)^-decay from pass S
+    assert [frequency_photons(st.replace(frequency_start=2), k) for k in (1, 2, 4, 6)] == \
+        [0, 25_000, 6_250, 2_778]
+    for decay in (0.0, 0.5, 2.0):
+        s1 = st.replace(frequency_decay=decay)
+        for k in range(1, 300):
+            f = 0.25 * float(k) ** -decay
+            expected = (0 if decay > 0 and k & (k - 1) else int(round(100_000 * f)))
+            assert frequency_photons(s1, k, doubling=True) == expected
+    with pytest.raises(SettingsError, match="frequency_start"):
+        RenderSettings(frequency_start=0).validate()
+
+
+def _caustic_scene():
+    """analytic_scenes.mirror_caustic with a tilted card beside the light:
+    something can occlude (a marched grid, hence the reach map)."""
+    from analytic_scenes import lambert, look_down_ortho, quad, translate
+    from core.scene.model import GLOSSY, Light, Lobe, Material, make_scene
+    tris = (quad((0, 0, 0), (10, 0, 0), (0, 10, 0)) + quad((0, 0, 2), (0, 0.5, 0), (0.5, 0, 0))
+            + quad((0.6, 0, 0.5), (0, 0.3, 0), (0.2, 0, 0.2)))
+    mats = [lambert("floor", 0.8), Material("mirror", (Lobe(GLOSSY, (0.9,) * 3, roughness=0.0),))]
+    return make_scene(tris, mats, [Light("point", "POINT", (100.0,) * 3, translate(0, 0, 1))],
+                      look_down_ortho(1.5, 2.0, 16), tri_mat=[0, 0, 1, 1, 0, 0])
+
+
+def _late_render(scene, S, passes=8):
+    st = RenderSettings(integrator="PHOTON", photons_per_pass=20_000, max_passes=passes, seed=3,
+                        frequency_start=S)
+    r = Renderer(scene, st, log=lambda s: None)
+    traced, reach = [], []
+    trace, set_reach = r.tracer.trace, r.tracer.set_reach
+    r.tracer.trace = lambda n, n_freq, rng: (traced.append((r.pass_index + 1, n_freq)),
+                                             trace(n, n_freq, rng))[1]
+    r.tracer.set_reach = lambda *a: (reach.append(r.pass_index + 1), set_reach(*a))[1]
+    return r, traced, reach
+
+
+def test_late_start_traces_no_frequency_photon_before_pass_s():
+    """frequency_start 4 on test_passes_without_frequency_photons_keep_every_
+    prediction's caustic: passes 1-3 trace no frequency photon and keep no
+    prediction; the occlusion grid is built in pass 3's step (not in the
+    set-up), whose photon pass keeps the reach source of pass 4; passes 4
+    and 8 trace what passes 1 and 2 trace with S = 1 (5,000 and 1,250), with
+    a reach map each.  The passes before S are the same bits whatever S
+    (the grid consumes no random number)."""
+    scene = _caustic_scene()
+    r, traced, reach = _late_render(scene, 4)
+    assert r.plan.occlusion_grid and r.occ_grid is None and r.tracer.occlusion == 0
+    imgs, last, grid = [], [], []
+    for _ in range(8):
+        imgs.append(r.step().image.copy())
+        last.append(r.state.r_pred_last.copy())
+        grid.append(r.occ_grid is not None)
+    assert grid == [False, False, True, True, True, True, True, True]
+    assert r.tracer.occlusion == 1 and r.tracer.uses_reach()
+    per_pass = {}
+    for k, f in traced:
+        per_pass[k] = per_pass.get(k, 0) + f
+    assert {k: f for k, f in per_pass.items() if f} == {4: 5_000, 8: 1_250}
+    assert reach == [4, 8]
+    assert all(np.isnan(last[k]).all() for k in range(3))
+    assert np.isfinite(last[3]).sum() > 50
+    r8, _, _ = _late_render(scene, 8, passes=3)
+    for k in range(3):
+        assert np.array_equal(r8.step().image, imgs[k])
+    assert r8.occ_grid is None
+
+
+def test_late_start_resumes_the_same_bits():
+    """A checkpoint of pass 3 (the grid built, pass 4 the first frequency
+    pass) resumed by a new renderer: the grid is built on load, the reach
+    source rebuilt, the growth of pass 4 capped as without the resume, and
+    passes 4-6 are the same bits as the render that went on."""
+    scene = _caustic_scene()
+    r, _, _ = _late_render(scene, 4, passes=6)
+    for _ in range(3):
+        r.step()
+    d = r.state_dict()
+    r2, _, _ = _late_render(scene, 4, passes=6)
+    r2.load_state(d)
+    assert r2.occ_grid is not None
+    for _ in range(3):
+        assert np.array_equal(r.step().image, r2.step().image)

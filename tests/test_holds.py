@@ -113,7 +113,8 @@ def _edge_errors(hold_alpha, checkpoints=(8, 64)):
                         photons_for_direct=True, initial_radius_px=4.0,
                         cap_radius_at_edges=False, hold_alpha=hold_alpha,
                         verify_holds=False,  # the hold schedule alone (no photon check)
-                        clip_kernel=False)   # the measured numbers: discs reach across the wall
+                        clip_kernel=False,   # the measured numbers: discs reach across the wall
+                        frequency_start=1)   # predictions from pass 1, as measured
     r = Renderer(scene, st, log=lambda s: None)
     # The deliberately wrong prediction: 10 m wherever a frequency photon arrived.
     r.radii.predicted = lambda rmin, rh: np.where(np.isfinite(rmin), 10.0, rmin)

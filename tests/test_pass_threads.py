@@ -241,7 +241,8 @@ def test_radius_cut_is_set_before_the_pass_traces(monkeypatch):
     every pass bit for bit with a camera pass slowed by 0.3 s (the chunks
     traced ahead all finished before the pass's radii are initialised) and
     with no trace-ahead at all.  The cut is in effect from pass 2 (finite),
-    and pass 1, with no radii yet, marches every occluder (inf)."""
+    and pass 1, with no radii yet, marches every occluder (inf)
+    (frequency_start 1: frequency photons from pass 1)."""
     from core.sppm import photons as PH
     cuts = []
     inner = PH.PhotonTracer.set_radius_cut
@@ -253,7 +254,7 @@ def test_radius_cut_is_set_before_the_pass_traces(monkeypatch):
 
     def render(delay):
         cuts.clear()
-        r = _renderer(24, photons_per_pass=20_000, frequency_decay=0.0)
+        r = _renderer(24, photons_per_pass=20_000, frequency_decay=0.0, frequency_start=1)
         r.photon_pass.chunk = 6_000
         if delay:
             cam = r.camera_pass

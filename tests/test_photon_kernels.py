@@ -188,6 +188,8 @@ N_BATCH, BATCH = 16, 12_500          # 200k photons per path
 
 
 def _tracer(scene, **kw):
+    # frequency_start 1: the occlusion grid built in the set-up, as the pins were made
+    kw.setdefault("frequency_start", 1)
     st = RenderSettings(integrator="PHOTON", max_passes=1, photons_per_pass=BATCH, **kw)
     return Renderer(scene, st, log=lambda s: None).tracer
 

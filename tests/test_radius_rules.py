@@ -206,7 +206,10 @@ def _edge_errors_and_radii(grow, hold_alpha_spectrum=None):
     st = RenderSettings(integrator="PHOTON", max_passes=64, photons_per_pass=50_000, photons_for_direct=True,
                         initial_radius_px=4.0, cap_radius_at_edges=False, verify_holds=True,
                         # discs reach across the wall (with the clip the wall's leak is gone)
-                        clip_kernel=False)
+                        clip_kernel=False,
+                        # frequency photons from pass 1: the growth of a pixel's first
+                        # pass with photons, as these numbers were measured
+                        frequency_start=1)
     r = Renderer(scene, st, log=lambda s: None)
     r.radii.predicted = lambda rmin, rh: np.where(np.isfinite(rmin), 10.0, rmin)
     r.radii.grow = grow

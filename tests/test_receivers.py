@@ -171,7 +171,7 @@ def test_receiver_radii_only_in_chunks_with_frequency_photons():
         scene, _ = point_light_plane(res=16)
         scene.materials = [_principled()]
         st = RenderSettings(integrator="PHOTON", max_passes=6, photons_per_pass=20_000,
-                            photons_for_direct=True)
+                            photons_for_direct=True, frequency_start=1)   # passes 1, 2, 4
         r = Renderer(scene, st, log=lambda s: None)
         pp = r.photon_pass
         calls = []

@@ -409,7 +409,10 @@ def test_cancel_latency_per_core_stage(monkeypatch):
     # (on an idle 2-core machine the grid and the photons take ~1.5-2 s, the
     # compiled camera pass 0.6-1 s).
     sc = core_scene(n=300, res=1400)
-    st = RenderSettings(integrator="PHOTON", max_passes=3, photons_per_pass=5_000_000, occlusion_grid_res=96)
+    # frequency_start 1: the occlusion grid built in the set-up (with S > 1 it is built in
+    # pass S - 1's step, through the same Renderer._interruptible)
+    st = RenderSettings(integrator="PHOTON", max_passes=3, photons_per_pass=5_000_000, occlusion_grid_res=96,
+                        frequency_start=1)
     lat = {}
     # 1. occlusion grid build (numba, in a worker thread polled every 20 ms)
     import core.frequency.occlusion_grid as O

@@ -84,7 +84,7 @@ def test_to_settings_round_trips_every_field():
                        alpha=0.6, cap_radius_at_edges=False, max_bounces=5, rr_start=2,
                        photons_for_direct=True,
                        fixed_visible_points=True, use_frequency=False, frequency_fraction=0.3,
-                       frequency_decay=0.25,
+                       frequency_decay=0.25, frequency_start=4,
                        frequency_model="PAPER", frequency_estimator="QUANTILE",
                        occlusion_grid_res=32, aov_radius=True, aov_predicted_radius=True,
                        aov_spectrum=True, aov_photon_count=True, aov_held=True,

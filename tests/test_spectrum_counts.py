@@ -165,7 +165,9 @@ def test_compiled_update_with_growth_equals_numpy(P):
 def _shadow_edge_wrong_prediction():
     """(renderer, settings, exact image) of tests/test_holds.py's shadow edge,
     32 passes, with the prediction forced to 10 m, the counts' holds and
-    growth G on and the holds kept although few hold (the growth is tested)."""
+    growth G on and the holds kept although few hold (the growth is tested);
+    frequency photons from pass 1 (frequency_start 1: the growth of a
+    pixel's first pass with photons, as these tests measured it)."""
     from core.render import Renderer
     from analytic_scenes import pixel_centres_ortho
     from test_holds import _shadow_edge_scene
@@ -173,7 +175,7 @@ def _shadow_edge_wrong_prediction():
     X, Y = pixel_centres_ortho(scene)
     st = RenderSettings(integrator="PHOTON", max_passes=32, photons_per_pass=50_000,
                         photons_for_direct=True, initial_radius_px=4.0,
-                        cap_radius_at_edges=False, verify_holds=True)
+                        cap_radius_at_edges=False, verify_holds=True, frequency_start=1)
     r = Renderer(scene, st, log=lambda s: None)
     r.radii.predicted = lambda rmin, rh: np.where(np.isfinite(rmin), 10.0, rmin)
     r.radii.hold_uniform, r.radii.grow = True, G

@@ -231,7 +231,22 @@ def frequency_photons(settings, k: int, doubling: bool = False) -> int:
     frequency photons": the spectrum belongs to the light field at the pixel,
     not to the pass, so a pixel keeps its prediction and later passes need
     fewer frequency photons; decay 0: the same fraction in every pass);
-    doubling (with decay > 0): none unless :func:`frequency_pass`."""
+    doubling (with decay > 0): none unless :func:`frequency_pass`.
+    With frequency_start S > 1 the schedule runs from pass S: none before
+    it, and pass k >= S traces what pass k / S does from 1 (so passes S, 2S,
+    4S, ... under doubling, and the schedule's total is S = 1's; docs/method.md
+    "A late start for the frequency photons, round 18")."""
+    S = int(getattr(settings, "frequency_start", 1))
+    if S > 1:
+        k = max(int(k), 1)
+        if k < S or (doubling and settings.frequency_decay > 0 and k % S):
+            return 0
+        if doubling and settings.frequency_decay > 0:
+            k //= S
+        else:
+            # no doubling: every pass from S, at the rate of k / S
+            f = settings.frequency_fraction * (k / S) ** -settings.frequency_decay
+            return int(round(settings.photons_per_pass * f))
     if doubling and settings.frequency_decay > 0 and not frequency_pass(k):
         return 0
     f = settings.frequency_fraction * float(max(k, 1)) ** -settings.frequency_decay

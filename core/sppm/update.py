@@ -174,6 +174,14 @@ HOLD_SHARE_MIN = 0.25
 #: (docs/method.md "The glass sphere at equal passes, round 17").
 #: COMBINED's merging, which gathers at those points only, keeps its holds.
 HOLD_THROUGH_DELTA = False
+#: With frequency_start S > 1 the pixels have photons (N > 0) before the
+#: first prediction, so the growth of a pixel's first pass with photons
+#: (GROW_MAX) would never run; True (the default; S = 1 never reads it): a
+#: verified hold grows in pass S as it would in pass 1, from the radius it
+#: has then (docs/method.md "A late start for the frequency photons, round
+#: 18": 0.91x the error of S = 1 in the room at equal CPU with S = 2, and
+#: bench_hold_alpha 'growS=0' the rule without).
+GROW_AT_START = True
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
 
@@ -324,6 +332,7 @@ class Radii:
         self.grow = GROW_MAX
         self.grow_min_expected = GROW_MIN_EXPECTED
         self.grow_curvature_z = GROW_CURVATURE_Z
+        self.grow_at_start = GROW_AT_START
         self.uniform_critical = CHI2_CRITICAL
         self.uniform_min_expected = UNIFORM_MIN_EXPECTED
         self.hold_alpha_spectrum = HOLD_ALPHA_SPECTRUM
@@ -335,6 +344,12 @@ class Radii:
         self.hold_share_min = (HOLD_SHARE_MIN if frequency and settings.integrator == "PHOTON"
                                and settings.verify_holds and settings.radius_rule == "PPM"
                                else 0.0)
+        # Pass 1 whatever frequency_start S: with S > 1 its holds are the
+        # counts' (the uniformity test, CPPM's) and hold the same share as
+        # the spectrum's (the rings 11 %, the other examples 40-99 %), and
+        # only after pass 1 can leave_out_holds make the state PPM's; decided
+        # after pass S the rings kept pass 1's holds and pass S's growth
+        # (docs/method.md "Round 19: the rings and the decision").
         self.hold_share_pass = HOLD_SHARE_PASS
         self.holds_left_out = None
         # HOLD_THROUGH_DELTA (photon mapping; bench 'fppm:through=1' holds
@@ -453,14 +468,28 @@ class Radii:
             r_pred = self.hist.quantile(r_hist, r_pred)
         return r_pred
 
+    def grows_at(self, k) -> bool:
+        """Whether pass k (1-based; None: unknown) grows the verified holds
+        of pixels that already have photons: the first pass with frequency
+        photons when it is not pass 1 (``grow_at_start``, GROW_AT_START)."""
+        S = int(self.settings.frequency_start)
+        return bool(self.grow_at_start) and S > 1 and k is not None and int(k) == S
+
     def update(self, state, M: np.ndarray, Phi: np.ndarray, r_pred: np.ndarray,
-               sectors=None) -> None:
+               sectors=None, k=None) -> None:
         """Progressive update of state (N, R2, tau, held, r_pred_last, M_last,
         sectors) with this pass's photons: M (P,) count, Phi (P, 3) flux,
         r_pred (P,) [m] predicted for each visible point's receiver lobes (any
         material), sectors (P, SECTOR_CELLS) this pass's sector counts (None
-        unless :func:`needs_sectors`)."""
+        unless :func:`needs_sectors`); k: the pass (1-based; None: unknown),
+        for :meth:`grows_at`."""
         rule = self.settings.radius_rule
+        any_n = self.grows_at(k)
+        if (any_n and self._edge_cap is None and self.camera_pass is not None
+                and self.settings.cap_radius_at_edges):
+            # A render resumed after pass 1 has not made the growth's cap
+            # yet (its own camera stream: the same cap as without the resume).
+            self.edge_cap()
         self._updates += 1
         if self._updates == 1 and self.hold_share_min > 0 and self.hold_share_pass == 1:
             self._R2_first = state.R2.copy()
@@ -470,14 +499,14 @@ class Radii:
         grow_cap = self._edge_cap
         if (rule == "PPM" and self.grow > 1.0 and self.grow_curvature_z > 0 and not left_out
                 and sectors is not None and state.sectors is not None):
-            grow_cap = self.grow_cap(state, M)
+            grow_cap = self.grow_cap(state, M, any_n)
         veto = (self._through if rule == "PPM" and not left_out and not self.hold_through_delta
                 else None)
         if veto is not None and not veto.any():
             veto = None
         if rule == "PPM" and self.compiled and (left_out or (state.sectors is None) == (sectors is None)):
             self._update_compiled(state, M, Phi, r_pred, None if left_out else sectors, grow_cap,
-                                  veto)
+                                  veto, any_n)
             return
         S = None
         if state.sectors is not None and sectors is not None and not left_out:
@@ -505,7 +534,7 @@ class Radii:
                 r_hold = np.where(uniform, np.fmax(r_pred, keep), r_pred)
             if self.grow > 1.0:
                 R2_grow = np.where(E >= self.grow_min_expected, grow_targets(
-                    state.N, state.R2, r_pred, self.grow, grow_cap), 0.0)
+                    state.N, state.R2, r_pred, self.grow, grow_cap, any_n), 0.0)
             # Verified holds: the photons veto the prediction where they show
             # more than a linear gradient (the prediction itself is kept for
             # the Predicted Radius pass).
@@ -545,13 +574,14 @@ class Radii:
         state.r_pred_last = r_pred
         state.M_last = M
 
-    def grow_cap(self, state, M: np.ndarray):
+    def grow_cap(self, state, M: np.ndarray, any_n: bool = False):
         """The growth's cap [m] of this pass ((P,) or None: none): the
         surface-boundary cap, and 0 (no growth) where
         :func:`grow_curvature_rejects` sees curvature at the grown scale
-        around a pixel in its first pass with photons; the edge cap itself
-        where no pixel is (nothing to decide)."""
-        first = (state.N == 0.0) & (M > 0) & (state.R2 > 0)
+        around a pixel in its first pass with photons (any_n: around every
+        pixel with photons, :meth:`grows_at`); the edge cap itself where no
+        pixel is (nothing to decide)."""
+        first = ((state.N == 0.0) | any_n) & (M > 0) & (state.R2 > 0)
         if not np.any(first) or state.R2.shape[0] != self.H * self.W:
             return self._edge_cap
         step = max(1, int(round(self.settings.initial_radius_px)))
@@ -562,9 +592,11 @@ class Radii:
         cap[veto] = 0.0
         return cap
 
-    def _update_compiled(self, state, M, Phi, r_pred, sectors, grow_cap=None, veto=None) -> None:
+    def _update_compiled(self, state, M, Phi, r_pred, sectors, grow_cap=None, veto=None,
+                         any_n: bool = False) -> None:
         """:meth:`update` of the PPM rule in ``_ppm_update_range`` (the same bits);
-        veto (P,) bool: the pixels that do not hold (None: none)."""
+        veto (P,) bool: the pixels that do not hold (None: none); any_n: the
+        growth whatever N (:meth:`grows_at`)."""
         P = M.shape[0]
         st = self.settings
         none = np.zeros((P, 0))
@@ -582,7 +614,7 @@ class Radii:
                         self.grow * self.grow if self.grow > 1.0 else 0.0,
                         self.grow_min_expected, self.uniform_critical,
                         self.uniform_min_expected, self.hold_alpha_spectrum,
-                        self.hold_spectrum_min_expected])
+                        self.hold_spectrum_min_expected, float(any_n)])
         cap = grow_cap if grow_cap is not None else np.zeros(0)
         args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2, cap)
         T = numba.get_num_threads()
@@ -594,9 +626,10 @@ class Radii:
         state.M_last = M
 
 
-def grow_targets(N, R2, r_pred, grow, cap=None):
+def grow_targets(N, R2, r_pred, grow, cap=None, any_n=False):
     """(P,) squared radius [m^2] a verified hold grows to (0: none) in the
-    pixel's first pass with photons (N == 0): the spectrum's prediction
+    pixel's first pass with photons (N == 0; any_n: whatever N,
+    Radii.grows_at): the spectrum's prediction
     r_pred (P,) [m] (NaN: none), at most grow times the radius R2 (P,) and
     the surface-boundary cap (P,) [m] (None: no cap) (docs/method.md
     "Spectrum and counts")."""
@@ -604,7 +637,7 @@ def grow_targets(N, R2, r_pred, grow, cap=None):
     lim = grow * grow * R2
     if cap is not None:
         lim = np.minimum(lim, np.square(cap))
-    return np.where((N == 0.0) & np.isfinite(r_pred), np.minimum(np.square(rr), lim), 0.0)
+    return np.where(((N == 0.0) | any_n) & np.isfinite(r_pred), np.minimum(np.square(rr), lim), 0.0)
 
 
 def grow_curvature_rejects(M, R2, H, W, step, z):
@@ -748,7 +781,8 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
     count per sector cell, the uniformity test's critical value, its
     minimum expected count per cell (below: no uniform hold), the spectrum's
     hold rate (HOLD_ALPHA_SPECTRUM; at or below hold_alpha: off) and its
-    minimum expected count per cell (HOLD_SPECTRUM_MIN_EXPECTED)); cap (P,) the
+    minimum expected count per cell (HOLD_SPECTRUM_MIN_EXPECTED), 1.0: the
+    growth whatever N (Radii.grows_at)); cap (P,) the
     growth's cap [m] (Radii.grow_cap: the surface boundary, 0 where the
     growth curves; (0,): none)."""
     alpha, floor_sq, hold_alpha = prm[0], prm[1], prm[2]
@@ -816,7 +850,8 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
                     f_lim = _np_min(f_lim, (N + ha * M) / (N + M))
                 held = freq and f_lim > f_ppm
                 f = _np_max(f, f_lim)
-                if (held and with_S and prm[7] > 0.0 and N == 0.0 and np.isfinite(r_spec)
+                if (held and with_S and prm[7] > 0.0 and (N == 0.0 or prm[13] != 0.0)
+                        and np.isfinite(r_spec)
                         and E_cell >= prm[8]):
                     rs = _np_max(r_spec, 0.0)
                     lim = prm[7] * R2
