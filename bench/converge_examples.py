@@ -283,7 +283,7 @@ NOTES = [
     "passes 0.97-0.98; FPPM 211-280 passes, PPM 218-250).",
     "Round 19 re-runs on a5fbc25 (round 18's code: its changes since the round 16 re-runs are the "
     "round 17 rules and set-up and round 18's bit-for-bit ones), `SCENE --budget 60 --seeds 4 "
-    "--methods fppm,ppm,cppm`, each in SCENE/fppm_ppm_cppm_60s/ (replacing the round 16 runs): "
+    "--methods fppm,ppm,cppm`, each in SCENE/fppm_ppm_cppm_60s/ (replacing the round 16 runs; cornell's and indirect_room's since moved to SCENE/fppm_ppm_cppm_60s_start1/): "
     "cornell (load 1 to 2, 1.7-1.8 cores a method) FPPM / PPM 1.03 / 0.737 / 0.686 at 10 / 50 / "
     "100 % (excess 0.681; 10 % seeds 0.95-1.19), FPPM / CPPM 1.13 / 1.02 / 1.01 (seeds at 100 % "
     "0.90-1.13; FPPM 232-255 passes, PPM 244-270, CPPM 224-267); indirect_room (load 5 to 14) FPPM "
@@ -291,6 +291,17 @@ NOTES = [
     "(excess 1.01, seeds 0.87-1.19; FPPM 120-135 passes, CPPM 128-139); principled_interior "
     "(load 6 to 14, 0.5 cores a method) FPPM / PPM 0.782 / 0.596 / 0.482 (excess 0.458, seeds "
     "0.38-0.52), FPPM / CPPM 0.991 / 1.01 / 0.972 (excess 0.969, seeds 0.87-1.06).",
+    "Round 19, after Frequency Start 2 became the default (docs/method.md 'Round 19: the rings and "
+    "the decision'), on efc9056, `SCENE --budget 60 --seeds 4 --methods fppm,ppm,cppm`, load about "
+    "2 (the runs alone, 1.8 cores a method, on a machine then slower per CPU second: fewer passes "
+    "for every method), each in SCENE/fppm_ppm_cppm_60s/ (the a5fbc25 runs above, Frequency "
+    "Start 1, moved to SCENE/fppm_ppm_cppm_60s_start1/): cornell FPPM / PPM 1.24 / 0.787 / 0.714 "
+    "(excess 0.71; 10 % seeds 0.93-1.57), FPPM / CPPM 1.29 / 1.03 / 1.06 (seeds at 100 % "
+    "0.91-1.19; FPPM 178-222 passes, PPM 200-240, CPPM 194-223); indirect_room FPPM / PPM 0.736 / "
+    "0.409 / 0.416 (excess 0.37, seeds 0.32-0.49), FPPM / CPPM 0.937 / 0.964 / 0.939 (excess "
+    "0.927, seeds 0.74-1.04; FPPM 99-125 passes, CPPM 101-116).  principled_interior was not "
+    "re-run (Frequency Start 2: 1.004-1.013x Start 1's error at 6 s, 1.007x at 30 s in "
+    "bench/bench_hold_alpha.py).",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
