@@ -237,19 +237,15 @@ def frequency_photons(settings, k: int, doubling: bool = False) -> int:
     4S, ... under doubling, and the schedule's total is S = 1's; docs/method.md
     "A late start for the frequency photons, round 18")."""
     S = int(getattr(settings, "frequency_start", 1))
-    if S > 1:
-        k = max(int(k), 1)
-        if k < S or (doubling and settings.frequency_decay > 0 and k % S):
-            return 0
-        if doubling and settings.frequency_decay > 0:
-            k //= S
-        else:
-            # no doubling: every pass from S, at the rate of k / S
-            f = settings.frequency_fraction * (k / S) ** -settings.frequency_decay
-            return int(round(settings.photons_per_pass * f))
-    if doubling and settings.frequency_decay > 0 and not frequency_pass(k):
+    doubles = doubling and settings.frequency_decay > 0
+    k = max(int(k), 1)
+    if k < S or (doubles and k % S):
         return 0
-    f = settings.frequency_fraction * float(max(k, 1)) ** -settings.frequency_decay
+    # Pass k traces at the rate of pass k / S from 1 (a whole number under doubling).
+    x = k // S if doubles else k / S
+    if doubles and not frequency_pass(x):
+        return 0
+    f = settings.frequency_fraction * float(x) ** -settings.frequency_decay
     return int(round(settings.photons_per_pass * f))
 
 
