@@ -5,7 +5,7 @@ that would happen inside pass 1, where it counts against the time limit and
 where Esc cannot interrupt it.  Instead, before the Renderer exists:
 
 - **the render's own job first** (:func:`render_job`): the exported scene and
-  settings of the render itself, for one pass, at its own resolution and
+  settings of the render itself, for two passes, at its own resolution and
   photon count, so the kernels compiled are exactly those its passes call,
   and only those (docs/interactive.md: the demo's Cornell box, light tracing
   alone, compiles 8 kernels in ~16 s instead of every variant's in ~130 s);
@@ -242,19 +242,38 @@ class _split_paths:
 
 # --- the warm-up of one render ----------------------------------------------
 
+#: Passes of a render's own warm-up job (render_job): the second calls the
+#: frequency kernels a render first calls after its pass S.
+JOB_PASSES = 2
+
 def render_job(scene, settings: RenderSettings, passes: tuple = ()) -> tuple:
-    """The warm-up job of one render: ``(scene, settings, passes)`` for one
-    pass (max_passes 1, no time limit) of the render's own exported scene,
-    settings and AOV passes, at its own resolution and photon count, so that
-    the size-dependent paths (threads from ``PARALLEL_MIN`` pixels, the
-    gather's parallel path from ``hashgrid.PARALLEL_MIN_PHOTONS`` photons)
-    are the render's: the kernels compiled are those its passes call, and
-    only those (the Cornell box's default render, light tracing alone,
-    compiles no photon, frequency or camera-path kernel).  frequency_start 1:
-    its one pass traces what the render's pass S traces (the schedule runs
-    from S), so the frequency kernels compile here and not in pass S."""
-    return (scene, settings.replace(max_passes=1, time_limit=0.0, frequency_start=1),
-            tuple(passes))
+    """The warm-up job of one render: ``(scene, settings, passes)`` for
+    :data:`JOB_PASSES` passes (no time limit) of the render's own exported
+    scene, settings and AOV passes, at its own resolution and photon count,
+    so that the size-dependent paths (threads from ``PARALLEL_MIN`` pixels,
+    the gather's parallel path from ``hashgrid.PARALLEL_MIN_PHOTONS``
+    photons) are the render's: the kernels compiled are those its passes
+    call, and only those (the Cornell box's default render, light tracing
+    alone, compiles no photon, frequency or camera-path kernel).
+
+    The frequency photons' schedule is moved so that two passes call every
+    frequency kernel a render's later passes do: frequency_start 1, so pass
+    1 traces what the render's pass S traces (the one batch with spectra);
+    pass 2 reads the reach map of pass 1's radii (``kernels.mark_reach``,
+    which the render first calls in pass S, from pass S - 1's radii); and, where the render's
+    schedule decays, pass 2 traces so few frequency photons that they are
+    traced again in a batch of their own (``photon_kernels.follow_rows``,
+    a late pass's path: ``photons.RETRACE_MAX_SHARE``).  The fraction is
+    the one that gives pass 1's first chunk 1.5x that share of frequency
+    photons (above it) and pass 2, at decay 2, a quarter of it (below)."""
+    st = settings.replace(max_passes=JOB_PASSES, time_limit=0.0, frequency_start=1)
+    if st.frequency_decay > 0 and st.photons_per_pass > 0:
+        from .sppm.photon_pass import PHOTON_CHUNK
+        from .sppm.photons import RETRACE_MAX_SHARE
+        first_chunk = min(st.photons_per_pass, PHOTON_CHUNK)
+        st = st.replace(frequency_decay=2.0, frequency_fraction=min(
+            1.0, 1.5 * RETRACE_MAX_SHARE * first_chunk / st.photons_per_pass))
+    return (scene, st, tuple(passes))
 
 
 def _scene_kinds(scene) -> tuple:

@@ -182,6 +182,45 @@ def test_warmup_compiles_what_the_example_scenes_use():
     assert p.stdout.strip().splitlines()[-1] == "{}"
 
 
+LATE_PASSES = r"""
+import json, sys
+sys.path.insert(0, sys.argv[1])
+import fppm_alias  # noqa
+import fppm.core.warmup as W
+from fppm.core.render import Renderer
+from fppm.core.settings import RenderSettings
+scene = W.warmup_scene(res=16)
+# The defaults' schedule (frequency_start 2, decay 2): frequency photons in
+# passes 2, 4, 8; pass 8's 1.6 % are traced again in a batch of their own.
+st = RenderSettings(integrator="PHOTON", photons_per_pass=20000, seed=2, time_limit=0.0)
+W.run_jobs([W.render_job(scene, st)])
+def signatures():
+    return {k: len(d.signatures) for k, d in W._dispatchers()}
+job = signatures()
+r = Renderer(scene, st.replace(max_passes=9), log=lambda m: None)
+r.run()
+after = signatures()
+print(json.dumps({"new": {k: after[k] - job.get(k, 0) for k in after if after[k] != job.get(k, 0)},
+                  "job": sorted(k for k, n in job.items() if n),
+                  "frequency": bool(r.plan.frequency_photons)}))
+"""
+
+
+def test_a_renders_job_covers_its_later_frequency_passes():
+    # A photon render's own warm-up job (two passes, core.warmup.render_job)
+    # calls every kernel its passes 1-9 call: the reach map of pass S + 1
+    # and the few frequency photons traced again of pass 8 included (before,
+    # a cold cache compiled them inside passes 3 and 8: ~0.5 s each).
+    p = subprocess.run([PY, "-c", LATE_PASSES, os.path.join(ROOT, "tests")],
+                       capture_output=True, text=True, timeout=900, cwd=ROOT)
+    assert p.returncode == 0, p.stderr[-3000:]
+    out = __import__("json").loads(p.stdout.strip().splitlines()[-1])
+    assert out["frequency"], out
+    assert "fppm.core.frequency.kernels:mark_reach" in out["job"], out["job"]
+    assert "fppm.core.sppm.photon_kernels:follow_rows" in out["job"], out["job"]
+    assert out["new"] == {}, out["new"]
+
+
 def test_wait_returns_within_a_poll_of_should_stop():
     from fppm.core.warmup import Warmup
 
@@ -309,7 +348,7 @@ def test_without_a_python_executable_the_thread_compiles(monkeypatch, capsys, tm
 
 
 def test_job_key_follows_the_kinds_not_the_values():
-    # A render's job (core.warmup.render_job) is one pass of its own scene
+    # A render's job (core.warmup.render_job) is two passes of its own scene
     # and settings; its key (which kernels it needs) ignores what changes no
     # kernel -- the seed, the budget, a colour, an object moved -- and
     # follows what does: the integrator, a lobe kind, the pixel count's
@@ -324,7 +363,7 @@ def test_job_key_follows_the_kinds_not_the_values():
     scene = W.warmup_scene(res=8, glossy=False)
     st = RenderSettings(seed=3, max_passes=64, time_limit=30.0)
     job = W.render_job(scene, st)
-    assert job[1].max_passes == 1 and job[1].time_limit == 0.0 and job[1].seed == 3
+    assert job[1].max_passes == W.JOB_PASSES and job[1].time_limit == 0.0 and job[1].seed == 3
     key = W.job_key(job)
     moved = dataclasses.replace(scene, tri_p=scene.tri_p + np.float32(0.25))
     green = Material("diffuse", (Lobe(DIFFUSE, (0.1, 0.9, 0.2)),))
