@@ -302,6 +302,12 @@ NOTES = [
     "0.927, seeds 0.74-1.04; FPPM 99-125 passes, CPPM 101-116).  principled_interior was not "
     "re-run (Frequency Start 2: 1.004-1.013x Start 1's error at 6 s, 1.007x at 30 s in "
     "bench/bench_hold_alpha.py).",
+    "Round 20, the Cornell box at 6 CPU s with 16 seeds on deada67 (Frequency Start 2), `cornell "
+    "--budget 6 --seeds 16 --methods fppm,ppm,cppm`, load 2 to 4, in cornell/fppm_ppm_cppm_6s_16seeds/ "
+    "(the round 19 run on 62347fc, Frequency Start 1, moved to cornell/fppm_ppm_cppm_6s_16seeds_start1/): "
+    "FPPM / PPM 0.98 at 6 s (seeds 0.86-1.16, 12 of 16 below 1; 1.02 with Start 1), 1.20 at 3 s; "
+    "FPPM / CPPM 1.12 (seeds 0.98-1.33; 1.11 with Start 1); FPPM 23-29 passes, PPM 27-35, CPPM "
+    "26-32 (docs/method.md 'Round 20: the Cornell box's first passes on an idle machine').",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
