@@ -44,7 +44,8 @@ def capture(photons: int, seed: int = 1):
     from core.settings import RenderSettings
     r = Renderer(BR.cornell(64), RenderSettings(integrator="PHOTON", max_passes=10,
                                                 photons_per_pass=photons,
-                                                use_frequency=True), log=lambda s: None)
+                                                use_frequency=True, frequency_start=1),
+                 log=lambda s: None)
     tr = oracle_photons.use_numpy_chains(r.tracer)
     segs = []
     f = oracle_photons.march_occlusion
