@@ -47,7 +47,8 @@ Refinements over the paper, each documented where it happens:
 Memory: ``BYTES_PER_VOXEL`` = 41 bytes (dist 4, axis 12, aperture 4,
 occupied 1, near 4, and the march's resolved cone 16): 10.7 MB at 64^3,
 86 MB at 128^3; the march derives 20 more bytes a voxel on first use
-(``MarchBlocks``: 5.5 MB at 64^3, none above VOXEL_LEVEL_MAX; its build
+(``MarchBlocks``: 5.5 MB at 64^3, none above VOXEL_LEVEL_MAX; and 80 bytes
+a block of 4^3 voxels: bmin, bcone and runs; its build
 holds 33 bytes a voxel of temporaries, ``_cone_members``).  The build
 also holds about 50 bytes per voxel of temporaries (float64 distances and
 closest points, the occupied voxels' index) and about 150 bytes per
