@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/bench_march.py [--photons 40000] [--repeat 15]
                                           [--ref OLD_OCCLUSION.py ...] [--no-dense]
+                                          [--planes] [--blend NAME]
 
 Captures the segments the frequency photons march (the numpy chains of
 tests/oracle_photons.py call ``march_occlusion``; the compiled path marches the
@@ -15,6 +16,13 @@ and checks that a_occ (and t_occ against --ref) are bit-identical.  Ratios
 only, each the best of ``--repeat`` interleaved runs and the median of the
 paired ratios (process CPU time; the machine is shared); the us/segment
 figure is for scale.  ``--no-dense`` leaves out the dense march.
+``--planes``: the photon segments are marched as the tracer marches them,
+with the end planes of the surfaces they connect and their radius cuts
+(``occlusion_march.march_segments``' planes and cut; the cuts are inf here:
+the capture sets no pixel radii), against --ref's ``_march_cut``.
+``--blend NAME``: the segments of example_blends/NAME.blend's scene (its
+frequency photons, exported as bench/bench_hold_alpha.py does) instead of
+bench_render's Cornell box.
 """
 from __future__ import annotations
 
@@ -36,34 +44,51 @@ import oracle_occlusion  # noqa: E402
 import oracle_photons  # noqa: E402
 
 
-def capture(photons: int, seed: int = 1):
-    """(grid, locality, o, d, t_end) of the marched segments of `photons`
-    frequency photons in bench_render's Cornell box."""
-    import bench_render as BR
+def capture(photons: int, seed: int = 1, blend: str = ""):
+    """(grid, locality, o, d, t_end, planes, cut) of the marched segments of
+    `photons` frequency photons in bench_render's Cornell box (or the scene
+    of example_blends/`blend`.blend); planes (N, 2) and cut (N, 3) as
+    ``march_segments`` takes them."""
     from core.render import Renderer
     from core.settings import RenderSettings
-    r = Renderer(BR.cornell(64), RenderSettings(integrator="PHOTON", max_passes=10,
-                                                photons_per_pass=photons,
-                                                use_frequency=True), log=lambda s: None)
+    if blend:
+        import fppm_alias  # noqa: F401  (core.x is fppm.core.x)
+        from bench_hold_alpha import export
+        scene, st = export(blend)
+    else:
+        import bench_render as BR
+        scene, st = BR.cornell(64), RenderSettings(integrator="PHOTON")
+    r = Renderer(scene, st.replace(max_passes=10, photons_per_pass=photons,
+                                   use_frequency=True, frequency_start=1), log=lambda s: None)
     tr = oracle_photons.use_numpy_chains(r.tracer)
     segs = []
     f = oracle_photons.march_occlusion
 
     def rec(grid, o, d, t, loc, **k):
-        segs.append((np.array(o), np.array(d), np.array(t)))
+        o, d = np.asarray(o, np.float64), np.asarray(d, np.float64)
+        planes = np.full((len(o), 2), np.inf)
+        for j, key in enumerate(("n_start", "n_end")):
+            if k.get(key) is not None:
+                planes[:, j] = Occ.plane_cosines(
+                    np.ascontiguousarray(np.asarray(k[key], np.float64).reshape(-1, 3)), d)
+        cut = (np.full((len(o), 3), np.inf) if k.get("cut") is None
+               else np.asarray(k["cut"], np.float64))
+        segs.append((o.copy(), d.copy(), np.array(t, np.float64), planes, cut.copy()))
         return f(grid, o, d, t, loc, **k)
     oracle_photons.march_occlusion = rec
     try:
         tr.trace(photons, photons, np.random.default_rng(seed))
     finally:
         oracle_photons.march_occlusion = f
-    o, d, t = (np.concatenate([s[k] for s in segs]) for k in range(3))
-    return r.occ_grid, float(r.occ_locality), o, d, t
+    o, d, t, planes, cut = (np.ascontiguousarray(np.concatenate([s[k] for s in segs]))
+                            for k in range(5))
+    return r.occ_grid, float(r.occ_locality), o, d, t, planes, cut
 
 
-def _ref_march(path, g, loc, k=0):
+def _ref_march(path, g, loc, k=0, planes=None):
     """The array march of another occlusion_march.py (or a core/occlusion.py
-    of before the split): f(o, d, t, out, out_t)."""
+    of before the split): f(o, d, t, out, out_t); planes: None, or (cut,
+    planes) of the segments for ``_march_cut``."""
     spec = importlib.util.spec_from_file_location(
         "core.frequency._occlusion_ref" + (str(k) if k else ""), path)
     ref = importlib.util.module_from_spec(spec)
@@ -71,6 +96,8 @@ def _ref_march(path, g, loc, k=0):
     spec.loader.exec_module(ref)
     if hasattr(ref, "march_grid"):
         m = ref.march_grid(g, loc)
+        if planes is not None:
+            return lambda o_, d_, t_, out, ot: ref._march_cut(m, o_, d_, t_, out, ot, *planes)
         return lambda o_, d_, t_, out, ot: ref._march(m, o_, d_, t_, out, ot)
     gr = ref.OcclusionGrid(**{k: getattr(g, k) for k in g.__dataclass_fields__})
     mb = ref.march_blocks(gr)
@@ -89,8 +116,12 @@ def main(argv=None):
                          "(repeatable: each is timed interleaved with the others)")
     ap.add_argument("--no-dense", action="store_true",
                     help="leave out the dense reference march (slow)")
+    ap.add_argument("--planes", action="store_true",
+                    help="march the photon segments with their end planes and cuts (the tracer's)")
+    ap.add_argument("--blend", default="",
+                    help="an example_blends/ scene's segments instead of the Cornell box")
     a = ap.parse_args(argv)
-    g, loc, o, d, t = capture(a.photons)
+    g, loc, o, d, t, planes, cut = capture(a.photons, blend=a.blend)
     t_skip = g.voxel_diagonal
     rng = np.random.default_rng(3)
     M = 200_000
@@ -106,13 +137,22 @@ def main(argv=None):
     if not a.no_dense:
         fns["dense march"] = lambda o_, d_, t_, out, ot: oracle_occlusion.march_dense(
             g.dist, g.cone, g.lo, g.cell, g.res, o_, d_, t_, loc, t_skip, out)
+    what = f"{a.blend} photon segments" if a.blend else "Cornell photon segments"
+    sets = [(what, (o, d, t), fns), ("random segments (length U(0, 2) m)", (o2, d2, t2), fns)]
+    if a.planes:
+        # the tracer's march: the same segments with their end planes and cuts
+        fp = {"block march": lambda o_, d_, t_, out, ot: Occ._march_cut(m, o_, d_, t_, out, ot,
+                                                                        cut, planes)}
+        for k, path in enumerate(a.ref):
+            fp[f"--ref {os.path.basename(path)}"] = _ref_march(path, g, loc, k + len(a.ref),
+                                                               (cut, planes))
+        sets.insert(1, (what + ", with their end planes and cuts", (o, d, t), fp))
 
-    for name, (oo, dd, tt) in (("Cornell photon segments", (o, d, t)),
-                               ("random segments (length U(0, 2) m)", (o2, d2, t2))):
+    for name, (oo, dd, tt), fs in sets:
         N = len(oo)
-        res, ts = {}, {k: [] for k in fns}
+        res, ts = {}, {k: [] for k in fs}
         for rep in range(a.repeat + 1):           # first round: compilation
-            for k, f in fns.items():
+            for k, f in fs.items():
                 out, ot = np.empty(N), np.full(N, np.inf)
                 t0 = time.process_time()
                 f(oo, dd, tt, out, ot)
@@ -122,7 +162,7 @@ def main(argv=None):
         base = min(ts["block march"])
         print(f"{name}: {N} segments, {np.isfinite(res['block march'][0]).mean():.0%} occluded; "
               f"block march {base / N * 1e6:.2f} us/segment (scale only)")
-        for k in fns:
+        for k in fs:
             if k == "block march":
                 continue
             same_a = np.array_equal(res[k][0], res["block march"][0])

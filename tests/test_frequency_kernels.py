@@ -295,6 +295,63 @@ def test_blocked_march_on_voxel_corners_and_faces(grids):
         _assert_matches_dense(g, o, d, t, loc, min_same=0.99, min_finite=0.2)
 
 
+def _runs_brute(bmin, bcone, L):
+    """MarchBlocks.runs by growing each cube shell by shell (the definition
+    of occlusion_grid._block_runs, without its dynamic programme)."""
+    NB = bmin.shape[0]
+    wild = (bmin * (1.0 - OG.BLOCK_REL) >= L) | ((bcone[..., 3] < -1.5) & (bcone[..., 7] < -1.5))
+    runs = np.zeros((NB, NB, NB, 8), np.uint8)
+    for b in np.ndindex(NB, NB, NB):
+        for oc in range(8):
+            s = np.array([-1 if oc & (1 << a) else 1 for a in range(3)])
+            k = 0
+            while True:
+                far = np.array(b) + s * (k + 1)
+                if np.any(far < 0) or np.any(far >= NB):
+                    break
+                lo, hi = np.minimum(b, far), np.maximum(b, far) + 1
+                cube = tuple(slice(lo[a], hi[a]) for a in range(3))
+                ok = wild[cube] | (not wild[b] and
+                                   np.all(bcone[cube] == bcone[b], axis=-1))
+                if not ok.all():
+                    break
+                k += 1
+            runs[b + (oc,)] = k
+    return runs
+
+
+def test_block_runs_are_exact(grids):
+    """MarchBlocks.runs (the cube the march crosses in one step): its
+    dynamic programme equals the cubes grown shell by shell, every block of
+    a cube is left whenever its corner block is left by its cones, and the
+    march with the runs gives the same a_occ and t_occ, bit for bit, as the
+    march without them (runs all 0: the march of before, block by block),
+    on random segments with and without end planes and radius cuts."""
+    g30 = OG.build_occlusion_grid(TPK.cornell().tri_p, (-0.5, -0.5, 0), (0.5, 0.5, 1), 30,
+                                  max_distance=0.3)
+    rng = np.random.default_rng(14)
+    for g in grids + (g30,):
+        mb = OG.march_blocks(g)
+        np.testing.assert_array_equal(mb.runs, _runs_brute(mb.bmin, mb.bcone, mb.cut_locality))
+        assert mb.runs.any() or g is grids[0]     # random triangles fill every block
+        loc = OG.default_locality(g)
+        m = Occ.march_grid(g, loc)
+        m0 = m._replace(runs=np.zeros_like(m.runs))
+        M = 20000
+        o, d, t = _random_segments(g, rng, M, 0.0, 1.5)
+        cut = np.full((M, 3), np.inf)
+        cut[::2] = np.abs(rng.normal(size=(M // 2, 3))) * loc ** 2 * [1.0, 0.0, 4.0]
+        planes = np.full((M, 2), np.inf)
+        planes[::3] = rng.random((len(planes[::3]), 2))
+        for c, p in ((np.full((M, 3), np.inf), np.full((M, 2), np.inf)), (cut, planes)):
+            (a1, t1), (a0, t0) = [(np.empty(M), np.empty(M)) for _ in range(2)]
+            Occ._march_cut(m, o, d, t, a1, t1, c, p)
+            Occ._march_cut(m0, o, d, t, a0, t0, c, p)
+            assert np.isfinite(a1).mean() > 0.05
+            np.testing.assert_array_equal(a1, a0)
+            np.testing.assert_array_equal(t1, t0)
+
+
 def _assert_matches_dense(g, o, d, t, loc, min_same, min_finite):
     """The block march against the dense reference on segments (o, d, t):
     equal on at least ``min_same`` of them, occluders found on more than

@@ -47,7 +47,8 @@ Refinements over the paper, each documented where it happens:
 Memory: ``BYTES_PER_VOXEL`` = 41 bytes (dist 4, axis 12, aperture 4,
 occupied 1, near 4, and the march's resolved cone 16): 10.7 MB at 64^3,
 86 MB at 128^3; the march derives 20 more bytes a voxel on first use
-(``MarchBlocks``: 5.5 MB at 64^3, none above VOXEL_LEVEL_MAX; its build
+(``MarchBlocks``: 5.5 MB at 64^3, none above VOXEL_LEVEL_MAX; and 80 bytes
+a block of 4^3 voxels: bmin, bcone and runs; its build
 holds 33 bytes a voxel of temporaries, ``_cone_members``).  The build
 also holds about 50 bytes per voxel of temporaries (float64 distances and
 closest points, the occupied voxels' index) and about 150 bytes per
@@ -1005,6 +1006,11 @@ class MarchBlocks:
       meets no plane (no member).
     cut_locality: [m] that cut, default_locality(grid) (+1e-9 relative); a
       march with a larger locality skips by bmin / vmin only.
+    runs: (NB, NB, NB, 8) uint8, per block and direction octant (index
+      ``direction_octant``) the side k of a cube of (k + 1)^3 blocks that
+      has the block at its corner and extends along the octant, every block
+      of which a segment leaves at once whenever it leaves this one by its
+      cones (``_block_runs``): the march crosses the cube in one step.
     The same for each voxel and its 26 neighbours (B = 1) when R^3 * 20
     bytes <= VOXEL_LEVEL_MAX: vmin (R, R, R) float32 (exact: a minimum of
     float32 values), vcone (R, R, R, 8) int16 (axis and sin times _CONE_Q,
@@ -1033,6 +1039,7 @@ class MarchBlocks:
     vcone: np.ndarray
     has_voxel_level: bool
     cut_locality: float
+    runs: np.ndarray
 
 
 #: Largest per-voxel level of MarchBlocks [bytes] (20 B/voxel: 5 MB at 64^3,
@@ -1516,6 +1523,102 @@ def union_meets(c: np.ndarray, d: np.ndarray) -> np.ndarray:
             | (np.abs(np.einsum("...k,nk->...n", c[..., 4:7], d)) <= c[..., 7:8]))
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def direction_octant(dx, dy, dz):
+    """The index (0..7) of the octant of direction d in MarchBlocks.runs:
+    bit 0, 1, 2 set where dx, dy, dz <= 0 (the march steps towards -1 on
+    that axis)."""
+    return (0 if dx > 0.0 else 1) + (0 if dy > 0.0 else 2) + (0 if dz > 0.0 else 4)
+
+
+@nb.njit(cache=True, nogil=True)
+def _runs_octant(lab, NB, sx, sy, sz, runs, oc, w, g, gl):
+    """runs[..., oc] of :func:`_block_runs` for the octant (sx, sy, sz) (+-1
+    each): a dynamic programme over the blocks, from the far corner of the
+    octant back.  A cube of side n + 1 at b is b and the 7 cubes of side n
+    at its forward neighbours; so with f(b, X) the largest side whose
+    labels are all -1 or X, f(b, X) = 0 if lab(b) is neither, else 1 + the
+    smallest f of the 7 neighbours (0 outside the grid).  f(c, X) is read
+    off two numbers a block keeps: w(c), the largest all -1 side, and g(c),
+    the largest side with at most one label besides -1, that label gl(c)
+    (-1 if none): f(c, X) = g(c) if gl(c) is -1 or X, else w(c) (a larger
+    cube than w(c) holds gl(c), and one larger than g(c) holds two labels).
+    w, g, gl: (NB, NB, NB) scratch."""
+    for i0 in range(NB):
+        x = NB - 1 - i0 if sx > 0 else i0
+        for i1 in range(NB):
+            y = NB - 1 - i1 if sy > 0 else i1
+            for i2 in range(NB):
+                z = NB - 1 - i2 if sz > 0 else i2
+                lb = lab[x, y, z]
+                inside = (0 <= x + sx < NB and 0 <= y + sy < NB and 0 <= z + sz < NB)
+                # w: every neighbour all -1 too
+                wb = 0
+                if lb < 0:
+                    wb = 1
+                    if inside:
+                        mw = NB
+                        for e in range(1, 8):
+                            mw = min(mw, w[x + sx * (e & 1), y + sy * ((e >> 1) & 1),
+                                           z + sz * ((e >> 2) & 1)])
+                        wb = 1 + mw
+                # g: the best label X over b's own and its neighbours' (one
+                # of them is the cube's label if it has one)
+                gb, glb = wb, -1
+                for e in range(8):
+                    if e == 0:
+                        X = lb
+                    elif inside:
+                        X = gl[x + sx * (e & 1), y + sy * ((e >> 1) & 1), z + sz * ((e >> 2) & 1)]
+                    else:
+                        break
+                    if X < 0 or (lb >= 0 and X != lb):
+                        continue
+                    f = 1
+                    if inside:
+                        mf = NB
+                        for q in range(1, 8):
+                            cx, cy, cz = x + sx * (q & 1), y + sy * ((q >> 1) & 1), z + sz * ((q >> 2) & 1)
+                            gc = gl[cx, cy, cz]
+                            mf = min(mf, g[cx, cy, cz] if (gc < 0 or gc == X) else w[cx, cy, cz])
+                        f = 1 + mf
+                    if f > gb:
+                        gb, glb = f, X
+                w[x, y, z] = wb
+                g[x, y, z] = gb
+                gl[x, y, z] = glb
+                # the run: a block with a label, the cube of its label and -1;
+                # a block left for every direction (-1), the cube of -1 only
+                runs[x, y, z, oc] = min((gb if lb >= 0 else wb) - 1, 255)
+
+
+def _block_runs(bmin: np.ndarray, bcone: np.ndarray, L: float) -> np.ndarray:
+    """MarchBlocks.runs.  A block is labelled -1 when a march with the union
+    cones (locality <= L) leaves it for every direction: bmin (1 -
+    BLOCK_REL) >= L (>= its threshold) or both cones meet no plane; else by
+    its two union cones (equal labels: the same 8 floats, bit for bit, so
+    the same test result for every direction).  A cube holding only the
+    block's own label and -1 is left at once by a segment that leaves the
+    block by its cones; a block labelled -1 gets the cube of -1 only."""
+    NB = bmin.shape[0]
+    flat = np.ascontiguousarray(bcone.reshape(-1, 8))
+    wild = ((bmin.reshape(-1) * (1.0 - BLOCK_REL) >= L)
+            | ((flat[:, 3] < -1.5) & (flat[:, 7] < -1.5)))
+    lab = np.full(NB ** 3, -1, np.int64)
+    if (~wild).any():
+        _, inv = np.unique(flat[~wild].view(np.dtype((np.void, 64))), return_inverse=True)
+        lab[~wild] = inv.reshape(-1)
+    lab = lab.reshape(NB, NB, NB)
+    runs = np.zeros((NB, NB, NB, 8), np.uint8)
+    w = np.empty((NB, NB, NB), np.int64)
+    g = np.empty((NB, NB, NB), np.int64)
+    gl = np.empty((NB, NB, NB), np.int64)
+    for oc in range(8):
+        _runs_octant(lab, NB, -1 if oc & 1 else 1, -1 if oc & 2 else 1, -1 if oc & 4 else 1,
+                     runs, oc, w, g, gl)
+    return runs
+
+
 _BLOCKS_LOCK = threading.Lock()
 
 
@@ -1564,6 +1667,7 @@ def march_blocks(grid: OcclusionGrid, B: int = MARCH_BLOCK) -> MarchBlocks:
             has_v = False
         del kind, un, asn
         mb = MarchBlocks(B=B, bmin=bmin, bcone=bcone, vmin=vmin, vcone=vcone,
-                         has_voxel_level=has_v, cut_locality=L)
+                         has_voxel_level=has_v, cut_locality=L,
+                         runs=_block_runs(bmin, bcone, L))
         object.__setattr__(grid, "_march_blocks", mb)    # frozen dataclass: a derived cache
         return mb

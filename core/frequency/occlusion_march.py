@@ -18,7 +18,7 @@ import numba as nb
 import numpy as np
 
 from .occlusion_grid import (BLOCK_REL, BLOCK_SHIFT, MARCH_BLOCK, SIN_TOL, OcclusionGrid,
-                             check_locality, cut_locality, march_blocks)
+                             check_locality, cut_locality, direction_octant, march_blocks)
 
 # Numba caches the kernels below by this file's hash, and BLOCK_SHIFT is
 # frozen into them: a cached march of another block size would read the
@@ -32,7 +32,8 @@ class MarchGrid(NamedTuple):
     """What :func:`march_segment` reads: an OcclusionGrid's dist (R, R, R)
     float32 and cone (R, R, R, 4) float32, its MarchBlocks (bmin (NB, NB, NB)
     float64, bcone (NB, NB, NB, 8) float64, vmin (R, R, R) float32, vcone
-    (R, R, R, 8) int16, has_voxel_level, B), lo and cell (3,) float64, res R;
+    (R, R, R, 8) int16, has_voxel_level, B, runs (NB, NB, NB, 8) uint8 and
+    cut_locality as bcut [m]), lo and cell (3,) float64, res R;
     locality [m] and t_skip [m] (the segment ends ignored) of the march;
     and what every segment's set-up would compute again (``march_grid``, by
     the same expressions: the same bits): icell (3,) float64 1 / cell, eps
@@ -56,6 +57,8 @@ class MarchGrid(NamedTuple):
     eps: float
     vjump: float
     cones: bool
+    runs: np.ndarray
+    bcut: float
 
 
 def _constants(cell, locality):
@@ -79,7 +82,7 @@ def march_grid(grid: OcclusionGrid, locality: float, skip_voxels: float = 1.0) -
     return MarchGrid(grid.dist, grid.cone, mb.bmin, mb.bcone, mb.vmin, mb.vcone,
                      bool(mb.has_voxel_level), int(mb.B), grid.lo, grid.cell, int(grid.res),
                      float(locality), float(skip_voxels) * grid.voxel_diagonal,
-                     *_constants(grid.cell, float(locality)))
+                     *_constants(grid.cell, float(locality)), mb.runs, float(mb.cut_locality))
 
 
 def no_march_grid() -> MarchGrid:
@@ -88,7 +91,8 @@ def no_march_grid() -> MarchGrid:
     z1 = np.zeros((1, 1, 1), np.float32)
     return MarchGrid(z1, np.zeros((1, 1, 1, 4), np.float32), np.zeros((1, 1, 1)),
                      np.zeros((1, 1, 1, 8)), z1, np.zeros((1, 1, 1, 8), np.int16), False, 1,
-                     np.zeros(3), np.ones(3), 1, 0.0, 0.0, *_constants(np.ones(3), 0.0))
+                     np.zeros(3), np.ones(3), 1, 0.0, 0.0, *_constants(np.ones(3), 0.0),
+                     np.zeros((1, 1, 1, 8), np.uint8), 0.0)
 
 
 # cone_meets and sample_voxel are inlined into the march (numba IR): a little
@@ -266,7 +270,13 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t, cut, planes):
     Lipschitz jump (sphere tracing), which lands on the entry of the voxel
     it reaches, as the voxel walk would; the dense march's jump could land
     inside a voxel and sample it on part of its piece only, so the result no
-    longer depends on where a jump landed.  Every exit parameter is the
+    longer depends on where a jump landed.  A block left by its union cones
+    (or by a distance >= cut_locality) may also be left with the whole cube
+    of blocks ahead of it in ``MarchBlocks.runs`` (each of them left for
+    every direction, or by the same union cones, so left too): the segment
+    goes on at the cube's exit, the exit formula at its far voxels, and is
+    located there by floor as after a jump (docs/frequency.md "Runs of
+    blocks, round 20").  Every exit parameter is the
     dense march's expression (a quotient, never a product with 1/d), so the
     sample points carry the same bits.
 
@@ -292,6 +302,7 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t, cut, planes):
     ic0, ic1, ic2 = m.icell[0], m.icell[1], m.icell[2]
     vjump = m.vjump
     cones = m.cones
+    runs, bcut = m.runs, m.bcut
     # The interpolated distance of a point whose nearest surface is one of
     # the planes errs below the plane's distance by up to half a voxel
     # (neighbouring centres nearer other geometry: measured up to 0.25 of a
@@ -322,6 +333,7 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t, cut, planes):
         sx = 1 if dx > 0.0 else -1
         sy = 1 if dy > 0.0 else -1
         sz = 1 if dz > 0.0 else -1
+        oc = direction_octant(dx, dy, dz)
         best = np.inf
         t_best = np.inf
         t = ta
@@ -355,8 +367,8 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t, cut, planes):
             if has_cut:
                 thr = min(thr, _cut_over(q0, q1, q2, t, t_exit))
             bm = bmin[bx, by, bz]
-            if (bm * (1.0 - BLOCK_REL) >= thr
-                    or (cones and not _union_meets(bcone, bx, by, bz, dx, dy, dz))):
+            far = bm * (1.0 - BLOCK_REL) >= thr
+            if far or (cones and not _union_meets(bcone, bx, by, bz, dx, dy, dz)):
                 # leave the block
                 # Far from everything, go further (sphere tracing, exact): o + t d
                 # is within diag/2 of a centre of this block (dist >= bm), so every
@@ -371,6 +383,27 @@ def march_segments(m, o, d, t_end, rows, n, out, out_t, cut, planes):
                     thr = min(min(locality, best),
                               _cut_over(q0, q1, q2, t, max(t_exit, t + jump)))
                     jump = bm * (1.0 - 1e-6) - vjump - thr
+                if cones:
+                    # Cross the run of blocks ahead in one step (MarchBlocks.runs,
+                    # exact): each of its blocks is left by its distance for
+                    # every direction, or by the same union cones as this one.
+                    # Valid when this block was left by its cones: not by its
+                    # distance, or by a distance >= bcut (>= locality >=
+                    # thr), or its cones do not meet the plane either.
+                    kr = np.int64(runs[bx, by, bz, oc])
+                    if kr > 0 and (not far or bm * (1.0 - BLOCK_REL) >= bcut
+                                   or not _union_meets(bcone, bx, by, bz, dx, dy, dz)):
+                        # its far faces: the exit formula at its last voxels
+                        tc = min(min(
+                            _axis_exit(lo0, c0, _far_face(bx + sx * kr, B, R, dx), ox, dx),
+                            _axis_exit(lo1, c1, _far_face(by + sy * kr, B, R, dy), oy, dy)),
+                            _axis_exit(lo2, c2, _far_face(bz + sz * kr, B, R, dz), oz, dz))
+                        if not t + jump > tc:          # unless the jump goes further
+                            t = tc + eps
+                            if not t < tb:
+                                break
+                            init = True
+                            continue
                 if t + jump > t_exit:
                     tl = t + jump
                     if not tl < tb:
