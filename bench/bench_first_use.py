@@ -82,8 +82,8 @@ def main():
     print(json.dumps({"tree": ROOT, "integrator": st.integrator, "ok": ok,
                       "gather_child": hasattr(W, "compile_gather"), "wall": round(wall, 1),
                       "cpu": round(cpu, 1), "job": recs, "errors": errors,
-                      "gather_done": os.path.exists(W._gather_marker()) if hasattr(
-                          W, "_gather_marker") else None, "load": [round(load0, 2),
+                      "gather_done": any(n.startswith("gather-") for n in os.listdir(
+                          os.path.join(cache, "numba"))), "load": [round(load0, 2),
                                                                   round(os.getloadavg()[0], 2)]}))
     shutil.rmtree(cache, ignore_errors=True)
 

@@ -247,23 +247,27 @@ class _split_paths:
 
 # --- the photon gather's kernels, beside a render's job ----------------------
 
-def gather_variant(settings: RenderSettings) -> tuple:
-    """(threaded, sectors, clip, pairs): the variant of the photon gather a
-    pass with ``settings`` most likely calls (core/sppm/photon_pass.py: the
-    gather of a chunk of photons is split over threads from
-    ``hashgrid.PARALLEL_MIN_PHOTONS``, counts sectors for
-    ``update.needs_sectors``, takes clip codes with ``clip_kernel`` and
-    frequency pairs with the frequency photons).  Only an order for
-    :func:`compile_gather`: a wrong guess costs time, never a kernel."""
-    from .sppm.hashgrid import PARALLEL_MIN_PHOTONS
+def gather_variant(job) -> tuple:
+    """(threaded, sectors, clip, pairs, threaded build): the variant of the
+    photon gather a pass of the render job ``(scene, settings, ...)`` most
+    likely calls (core/sppm/photon_pass.py: the gather of a chunk of photons
+    is split over threads from ``hashgrid.PARALLEL_MIN_PHOTONS``, counts
+    sectors for ``update.needs_sectors``, takes clip codes with
+    ``clip_kernel`` and frequency pairs with the frequency photons; the grid
+    build is split from ``hashgrid.PARALLEL_MIN_VPS`` visible points, one
+    per pixel).  For :func:`compile_gather`: a wrong guess leaves that
+    variant to the job's process, as before."""
+    from .sppm.hashgrid import PARALLEL_MIN_PHOTONS, PARALLEL_MIN_VPS
     from .sppm.photon_pass import PHOTON_CHUNK
     from .sppm.update import needs_sectors
-    return (min(settings.photons_per_pass, PHOTON_CHUNK) >= PARALLEL_MIN_PHOTONS,
-            bool(needs_sectors(settings, settings.use_frequency)),
-            bool(settings.clip_kernel), bool(settings.use_frequency))
+    scene, st = tuple(job)[:2]
+    pixels = int(scene.camera.resolution[0]) * int(scene.camera.resolution[1])
+    return (min(st.photons_per_pass, PHOTON_CHUNK) >= PARALLEL_MIN_PHOTONS,
+            bool(needs_sectors(st, st.use_frequency)), bool(st.clip_kernel),
+            bool(st.use_frequency), pixels >= PARALLEL_MIN_VPS)
 
 
-def compile_gather(first: Optional[tuple] = None,
+def compile_gather(first: Optional[tuple] = None, only: bool = False,
                    should_stop: Optional[Callable[[], bool]] = None) -> None:
     """Compile the photon gather's kernels as a pass calls them
     (core/sppm/photon_pass.py: kept grid buffers, GatherBuffers with and
@@ -273,10 +277,13 @@ def compile_gather(first: Optional[tuple] = None,
     split, on 64 visible points and 400 photons: about 40 % of a photon
     render's first-use compile, run by a second process while the first
     renders the job (:meth:`Warmup._compile_in_child`; tests/precompile.py
-    too).  first: the (threaded, sectors, clip, pairs) variant to compile
-    before the others (:func:`gather_variant`; None: in that order, one
-    thread first), the others by how far they are from it.  Stops between
-    variants when ``should_stop()`` (RenderCancelled)."""
+    too).  Each variant is (threaded, sectors, clip, pairs), the grid build
+    threaded with the gather.  first: the variant to compile before the
+    others (:func:`gather_variant`, whose fifth item, the threaded build,
+    is then taken apart; None: in the order of the loops, one thread first),
+    the others by how far they are from it; only: that variant alone (and
+    no merge gather).  Stops between variants when ``should_stop()``
+    (RenderCancelled)."""
     from .errors import RenderCancelled
     from .kept import KeptBuffers
     from .sppm import hashgrid as hg
@@ -295,13 +302,18 @@ def compile_gather(first: Optional[tuple] = None,
                 for c in (False, True) for q in (False, True)]
     if first is not None:       # stable: ties keep the order above
         variants.sort(key=lambda v: (v[0] != first[0],
-                                     sum(a != b for a, b in zip(v[1:], first[1:]))))
+                                     sum(a != b for a, b in zip(v[1:], first[1:4]))))
+        variants[0] = tuple(first)
+    if only:
+        variants = variants[:1]
     saved = hg.PARALLEL_MIN_PHOTONS, hg.PARALLEL_MIN_VPS
     try:
-        for threaded, sectors, clip_on, pairs in variants:
+        for v in variants:
+            threaded, sectors, clip_on, pairs = v[:4]
             if should_stop is not None and should_stop():
                 raise RenderCancelled("cancelled")
-            hg.PARALLEL_MIN_PHOTONS, hg.PARALLEL_MIN_VPS = (1, 1) if threaded else saved
+            hg.PARALLEL_MIN_PHOTONS = 1 if threaded else saved[0]
+            hg.PARALLEL_MIN_VPS = 1 if (v[4] if len(v) > 4 else threaded) else saved[1]
             clip = codes if clip_on else None
             kept = KeptBuffers()
             grid = hg.build_grid(vp_pos, R, active, buffers=kept)
@@ -317,7 +329,7 @@ def compile_gather(first: Optional[tuple] = None,
                     hg.gather(grid, *ph, vp_pos, vp_ng, R * R, const, cos_ng=-1.0,
                               want_freq_pairs=pairs, buffers=buf, clip=clip)
             buf.clear()
-            if not sectors and not clip_on:     # the merge's gather: no buffers
+            if not sectors and not clip_on and not only:    # the merge's gather: no buffers
                 grid = hg.build_grid(vp_pos, R, active)
                 hg.gather(grid, *ph, vp_pos, vp_ng, R * R, const, cos_ng=-1.0,
                           want_freq_pairs=pairs)
@@ -549,7 +561,7 @@ def child_main(folder: str, idle: float = CHILD_IDLE_SECONDS) -> None:
                 pass
         t0, c0 = time.perf_counter(), time.process_time()
         if g.get("gather") is not None:
-            compile_gather(tuple(g["gather"]))
+            compile_gather(tuple(g["gather"]), only=g.get("only", False))
         elif g["jobs"] is None:
             compile_kernels()
         else:
@@ -660,12 +672,15 @@ def _marker_path(key: str = ALL) -> Optional[str]:
     return os.path.join(root, "numba", f"warmup-{source_key()}{tail}.json")
 
 
-def _gather_marker() -> Optional[str]:
+def _gather_marker(variant: Optional[tuple] = None) -> Optional[str]:
     """The record that :func:`compile_gather` finished in this cache for this
-    source version (a second process beside a render's job, :class:`Warmup`)."""
+    source version (a second process beside a render's job, :class:`Warmup`):
+    every variant, or ``variant`` alone (:func:`gather_variant`)."""
     root = _numba_cache.cache_dir()
-    return None if root is None else os.path.join(root, "numba",
-                                                   f"gather-{source_key()}.json")
+    if root is None:
+        return None
+    tail = "" if variant is None else "-" + "".join("1" if x else "0" for x in variant)
+    return os.path.join(root, "numba", f"gather-{source_key()}{tail}.json")
 
 
 def _read_marker(key: str = ALL) -> Optional[dict]:
@@ -788,6 +803,7 @@ class Warmup:
         self._child: Optional[_Child] = None
         self._gather: Optional[_Child] = None    # compile_gather beside a job (_start_gather)
         self._gather_i = 0
+        self._gather_marks: Optional[str] = None   # its marker (_gather_marker), when it ends
         self.started_at: Optional[float] = None
 
     done = property(lambda self: self._all.event.is_set())
@@ -962,18 +978,24 @@ class Warmup:
         self._close_gather()
         if not any(traces_photons(j) for j in jobs):
             return
+        variant = gather_variant(jobs[0])
         marker = _gather_marker()
-        if marker is None or os.path.exists(marker) or is_compiled():
+        if (marker is None or os.path.exists(marker) or os.path.exists(_gather_marker(variant))
+                or is_compiled()):
             return
         try:
             self._gather = _Child()
         except (OSError, RuntimeError):
             return
+        # A photon-mapping job gathers in its passes' one variant; COMBINED's
+        # merging also gathers without buffers: every variant, its own first.
+        only = all(j[1].integrator == "PHOTON" for j in jobs)
+        self._gather_marks = _gather_marker(variant if only else None)
         self._gather_i = self._gather.submit({"jobs": None, "nice": False,
-                                              "gather": gather_variant(jobs[0][1])})
+                                              "gather": variant, "only": only})
 
     def _poll_gather(self) -> None:
-        """Write the gather's marker once its process finished the whole unit."""
+        """Write the gather's marker once its process finished its variants."""
         if self._gather is None:
             return
         try:
@@ -983,7 +1005,7 @@ class Warmup:
         if rec is None:
             return
         if isinstance(rec, dict):
-            p = _gather_marker()
+            p = self._gather_marks
             try:
                 os.makedirs(os.path.dirname(p), exist_ok=True)
                 tmp = f"{p}.{os.getpid()}.tmp"

@@ -19,8 +19,9 @@ stages' threaded paths, as ``compile_kernels()`` does); ``gather``: the
 photon gather as a pass and the merge call it (build, gather, fold:
 ``core.warmup.compile_gather``, which a render's first use also runs in a
 second process beside its job), the largest block of ``w0``'s compile, so
-that the second process takes it while the first renders ``w0``; and the test-only signatures that round 15 found
-among the largest compiles the warm-up does not reach, each calling its
+that the second process takes it while the first renders ``w0``; and the
+test-only signatures that round 15 found among the largest compiles the
+warm-up does not reach, each calling its
 test's own helpers on tiny inputs: ``grid`` (the grid build split over
 threads, tests/test_compiled_pass_stages.py), ``clip`` (the gather with clip
 codes, tests/test_clip.py) and ``principled`` (the Principled BSDF's compiled

@@ -467,12 +467,12 @@ def test_a_photon_job_compiles_the_gather_in_a_second_process(tmp_path, monkeypa
     assert len(children) == 2, [c.specs for c in children]
     job, gather = children
     assert job.specs[0]["jobs"] == [photon] and "gather" not in job.specs[0]
-    assert gather.specs == [{"jobs": None, "nice": False,
-                             "gather": W.gather_variant(photon[1])}]
+    assert gather.specs == [{"jobs": None, "nice": False, "only": True,
+                             "gather": W.gather_variant(photon)}]
     assert gather.closed and not job.closed     # the job's child stays for the next job
     # a chunk of 3000 photons gathers on one thread, of 200 000 split
-    assert W.gather_variant(photon[1])[0] is False and W.gather_variant(
-        RenderSettings(integrator="PHOTON"))[0] is True
+    assert W.gather_variant(photon)[0] is False and W.gather_variant(
+        (scene, RenderSettings(integrator="PHOTON")))[0] is True
 
     # Light tracing alone (the demo's COMBINED on a scene without mirror or
     # glass, LIGHT, PATH) gathers no photon: no second child.
@@ -488,11 +488,19 @@ def test_a_photon_job_compiles_the_gather_in_a_second_process(tmp_path, monkeypa
     # COMBINED with a mirror and glass merges photons: a second child.
     assert W.traces_photons(W.render_job(scene, RenderSettings()))
 
-    # A cache that holds the gather (its marker) starts none either.
-    with open(W._gather_marker(), "w") as f:
-        f.write("{}")
-    children.clear()
+    # A cache that holds the job's variant (its marker: the gather's process
+    # finished it) or every variant starts none either; another variant does.
+    os.makedirs(os.path.dirname(W._gather_marker()), exist_ok=True)
     other = W.render_job(scene, RenderSettings(integrator="PHOTON", photons_per_pass=5000,
                                                use_frequency=False))
-    assert W.Warmup().wait_for(other, rest=False)
-    assert len(children) == 1
+    for k, (marker, started) in enumerate(((W._gather_marker(W.gather_variant(photon)), 2),
+                                           (W._gather_marker(W.gather_variant(other)), 1),
+                                           (W._gather_marker(), 1))):
+        with open(marker, "w") as f:
+            f.write("{}")
+        children.clear()
+        job = W.render_job(scene, other[1].replace(photons_per_pass=5000 + k))   # a new key
+        assert W.gather_variant(job) == W.gather_variant(other)
+        assert W.Warmup().wait_for(job, rest=False)
+        assert len(children) == started, marker
+        os.remove(marker)
