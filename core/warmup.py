@@ -267,7 +267,7 @@ def gather_variant(job) -> tuple:
             bool(st.use_frequency), pixels >= PARALLEL_MIN_VPS)
 
 
-def compile_gather(first: Optional[tuple] = None, only: bool = False,
+def compile_gather(first: Optional[tuple] = None, only: bool = False, merge: bool = True,
                    should_stop: Optional[Callable[[], bool]] = None) -> None:
     """Compile the photon gather's kernels as a pass calls them
     (core/sppm/photon_pass.py: kept grid buffers, GatherBuffers with and
@@ -281,9 +281,9 @@ def compile_gather(first: Optional[tuple] = None, only: bool = False,
     threaded with the gather.  first: the variant to compile before the
     others (:func:`gather_variant`, whose fifth item, the threaded build,
     is then taken apart; None: in the order of the loops, one thread first),
-    the others by how far they are from it; only: that variant alone (and
-    no merge gather).  Stops between variants when ``should_stop()``
-    (RenderCancelled)."""
+    the others by how far they are from it; only: that variant alone, and
+    with merge the merge's gather in its threading.  Stops between variants
+    when ``should_stop()`` (RenderCancelled)."""
     from .errors import RenderCancelled
     from .kept import KeptBuffers
     from .sppm import hashgrid as hg
@@ -329,7 +329,7 @@ def compile_gather(first: Optional[tuple] = None, only: bool = False,
                     hg.gather(grid, *ph, vp_pos, vp_ng, R * R, const, cos_ng=-1.0,
                               want_freq_pairs=pairs, buffers=buf, clip=clip)
             buf.clear()
-            if not sectors and not clip_on and not only:    # the merge's gather: no buffers
+            if merge and (only or not (sectors or clip_on)):    # the merge's: no buffers
                 grid = hg.build_grid(vp_pos, R, active)
                 hg.gather(grid, *ph, vp_pos, vp_ng, R * R, const, cos_ng=-1.0,
                           want_freq_pairs=pairs)
@@ -539,7 +539,8 @@ def _dump(path: str, obj) -> None:
 def child_main(folder: str, idle: float = CHILD_IDLE_SECONDS) -> None:
     """The compiling process: for each group the parent writes
     (``<folder>/spec-<i>.pkl``: ``{"jobs": [...] or None for warmup_jobs(),
-    "nice": bool}``, or ``{"gather": variant}`` for :func:`compile_gather`)
+    "nice": bool}``, or ``{"gather": variant, "only": bool, "merge": bool}``
+    for :func:`compile_gather`)
     render its jobs, then write ``<folder>/<i>.pkl``:
     seconds, CPU seconds, kernels compiled (not loaded) and
     :func:`used_kernels`, for the parent to load.  Importing numba and the
@@ -561,7 +562,8 @@ def child_main(folder: str, idle: float = CHILD_IDLE_SECONDS) -> None:
                 pass
         t0, c0 = time.perf_counter(), time.process_time()
         if g.get("gather") is not None:
-            compile_gather(tuple(g["gather"]), only=g.get("only", False))
+            compile_gather(tuple(g["gather"]), only=g.get("only", False),
+                           merge=g.get("merge", True))
         elif g["jobs"] is None:
             compile_kernels()
         else:
@@ -978,21 +980,21 @@ class Warmup:
         self._close_gather()
         if not any(traces_photons(j) for j in jobs):
             return
+        # The job's passes gather in one variant; COMBINED's merging also
+        # gathers without buffers (core/integrators/merge_kernels.py).
         variant = gather_variant(jobs[0])
+        merge = any(j[1].integrator != "PHOTON" for j in jobs)
         marker = _gather_marker()
-        if (marker is None or os.path.exists(marker) or os.path.exists(_gather_marker(variant))
-                or is_compiled()):
+        if (marker is None or os.path.exists(marker)
+                or os.path.exists(_gather_marker(variant + (merge,))) or is_compiled()):
             return
         try:
             self._gather = _Child()
         except (OSError, RuntimeError):
             return
-        # A photon-mapping job gathers in its passes' one variant; COMBINED's
-        # merging also gathers without buffers: every variant, its own first.
-        only = all(j[1].integrator == "PHOTON" for j in jobs)
-        self._gather_marks = _gather_marker(variant if only else None)
-        self._gather_i = self._gather.submit({"jobs": None, "nice": False,
-                                              "gather": variant, "only": only})
+        self._gather_marks = _gather_marker(variant + (merge,))
+        self._gather_i = self._gather.submit({"jobs": None, "nice": False, "gather": variant,
+                                              "only": True, "merge": merge})
 
     def _poll_gather(self) -> None:
         """Write the gather's marker once its process finished its variants."""

@@ -467,7 +467,7 @@ def test_a_photon_job_compiles_the_gather_in_a_second_process(tmp_path, monkeypa
     assert len(children) == 2, [c.specs for c in children]
     job, gather = children
     assert job.specs[0]["jobs"] == [photon] and "gather" not in job.specs[0]
-    assert gather.specs == [{"jobs": None, "nice": False, "only": True,
+    assert gather.specs == [{"jobs": None, "nice": False, "only": True, "merge": False,
                              "gather": W.gather_variant(photon)}]
     assert gather.closed and not job.closed     # the job's child stays for the next job
     # a chunk of 3000 photons gathers on one thread, of 200 000 split
@@ -493,8 +493,10 @@ def test_a_photon_job_compiles_the_gather_in_a_second_process(tmp_path, monkeypa
     os.makedirs(os.path.dirname(W._gather_marker()), exist_ok=True)
     other = W.render_job(scene, RenderSettings(integrator="PHOTON", photons_per_pass=5000,
                                                use_frequency=False))
-    for k, (marker, started) in enumerate(((W._gather_marker(W.gather_variant(photon)), 2),
-                                           (W._gather_marker(W.gather_variant(other)), 1),
+    for k, (marker, started) in enumerate(((W._gather_marker(W.gather_variant(photon)
+                                                             + (False,)), 2),
+                                           (W._gather_marker(W.gather_variant(other)
+                                                             + (False,)), 1),
                                            (W._gather_marker(), 1))):
         with open(marker, "w") as f:
             f.write("{}")
