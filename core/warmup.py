@@ -339,13 +339,14 @@ def compile_gather(first: Optional[tuple] = None, only: bool = False, merge: boo
 
 def traces_photons(job) -> bool:
     """Whether a render's job (:func:`render_job`) traces and gathers photons:
-    integrator PHOTON, or COMBINED where its plan may merge photons
-    (core.plan.make_plan: a diffuse or glossy surface, and a mirror or glass
-    or, with MIS weights, more than one plane).  Read from the scene's
-    lobes without the Renderer's tables; a wrong guess only starts a
-    compiling process for nothing, or leaves the gather to the job."""
+    integrator PHOTON, or COMBINED where its plan merges photons
+    (core.plan.merges_photons, make_plan's rule).  Read from the scene's
+    lobes without the Renderer's tables (every material's, not only those
+    of triangles: a wrong guess only starts a compiling process for
+    nothing); light tracing sees a surface whenever one is diffuse or
+    glossy, and without one no rule merges, so ``seen`` is that."""
     from .materials.table import _is_delta_lobe
-    from .plan import _one_plane
+    from .plan import merges_photons
     scene, st = tuple(job)[:2]
     if st.photons_per_pass <= 0 or st.integrator not in ("PHOTON", "COMBINED"):
         return False
@@ -353,9 +354,8 @@ def traces_photons(job) -> bool:
         return True
     delta = [_is_delta_lobe(lb.kind, lb.roughness, lb.ior)
              for m in scene.materials for lb in m.lobes]
-    if not any(not d for d in delta):
-        return False
-    return any(delta) or (st.merge_weights == "MIS" and not _one_plane(scene.tri_p))
+    has_nondelta = not all(delta)
+    return merges_photons(st, any(delta), has_nondelta, scene.tri_p, seen=has_nondelta)
 
 
 # --- the warm-up of one render ----------------------------------------------
