@@ -128,6 +128,26 @@ def with_camera_stop(strategies: tuple, stop, samples: int) -> tuple:
     return tuple(text if s.startswith("camera paths") else s for s in strategies)
 
 
+def merges_photons(settings: RenderSettings, has_delta: bool, has_nondelta: bool, tri_p,
+                   seen: bool) -> bool:
+    """Whether COMBINED merges photons (make_plan; core/warmup.py asks it
+    before a render's tables exist).  has_delta / has_nondelta: some
+    material has a mirror or glass lobe / a diffuse or glossy one; tri_p
+    the triangles' vertices; seen: light tracing has a surface or emitter
+    the camera sees (it is whenever has_nondelta)."""
+    if settings.merge_weights == "MIS" and seen:
+        # Merging as an MIS strategy samples every path whose light reaches
+        # the visible point (a non-delta vertex) after at least one bounce
+        # (core.integrators.merge): through a mirror or glass, or off
+        # another diffuse or glossy surface -- any scene but one plane.  It
+        # needs light tracing's paths (its deposits).
+        return has_nondelta and (has_delta or not _one_plane(tri_p))
+    # Merging owns the paths whose camera end is a delta chain to a
+    # non-delta point lit through a delta vertex (core.integrators.merge):
+    # none without both kinds of material.
+    return has_delta and has_nondelta
+
+
 def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> RenderPlan:
     """Decide the stages from the scene.  ``force``: stage names kept even when
     the scene does not need them (to check that leaving them out changes
@@ -156,13 +176,8 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
             plan.left_out.append(("light tracing", "no diffuse or glossy surface for the "
                                                    "camera to see"))
         plan.strategies += ("power-heuristic MIS",)
+        merging = merges_photons(settings, has_delta, has_nondelta, scene.tri_p, seen)
         if settings.merge_weights == "MIS" and seen:
-            # Merging as an MIS strategy samples every path whose light
-            # reaches the visible point (a non-delta vertex) after at least
-            # one bounce (core.integrators.merge): through a mirror or glass,
-            # or off another diffuse or glossy surface -- any scene but one
-            # plane.  It needs light tracing's paths (its deposits).
-            merging = has_nondelta and (has_delta or not _one_plane(scene.tri_p))
             if merging:
                 plan.strategies += (MERGING_MIS,)
             else:
@@ -171,10 +186,6 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
                                       "no light reaches a surface indirectly (one plane, "
                                       "no mirror or glass)"))
         else:
-            # Merging owns the paths whose camera end is a delta chain to a
-            # non-delta point lit through a delta vertex (core.integrators.merge):
-            # none without both kinds of material.
-            merging = has_delta and has_nondelta
             if merging:
                 plan.strategies += (MERGING,)
             else:

@@ -38,6 +38,11 @@ subprocess do the compiling (:class:`_Child`, :func:`child_main`):
   they are in memory when the first pass starts, and nothing compiles twice.
   If the subprocess cannot run (no usable Python executable), the thread
   compiles them itself;
+- beside a render's job that traces photons, on a cold cache, a second
+  subprocess compiles the photon gather's kernels (:func:`compile_gather`,
+  about 40 % of such a job's compile) into the same cache on the other
+  core, while the job's process renders the other stages and then finds
+  them there; it ends when the job does (:meth:`Warmup._start_gather`);
 - :meth:`Warmup.wait_for` and :meth:`Warmup.wait` poll ``should_stop`` every
   50 ms, so a render waiting for the compile can be cancelled at once; the
   compile itself goes on in the background (the next render needs it).
@@ -240,6 +245,119 @@ class _split_paths:
                 setattr(m, a, v)
 
 
+# --- the photon gather's kernels, beside a render's job ----------------------
+
+def gather_variant(job) -> tuple:
+    """(threaded, sectors, clip, pairs, threaded build): the variant of the
+    photon gather a pass of the render job ``(scene, settings, ...)`` most
+    likely calls (core/sppm/photon_pass.py: the gather of a chunk of photons
+    is split over threads from ``hashgrid.PARALLEL_MIN_PHOTONS``, counts
+    sectors for ``update.needs_sectors``, takes clip codes with
+    ``clip_kernel`` and frequency pairs with the frequency photons; the grid
+    build is split from ``hashgrid.PARALLEL_MIN_VPS`` visible points, one
+    per pixel).  For :func:`compile_gather`: a wrong guess leaves that
+    variant to the job's process, as before."""
+    from .sppm.hashgrid import PARALLEL_MIN_PHOTONS, PARALLEL_MIN_VPS
+    from .sppm.photon_pass import PHOTON_CHUNK
+    from .sppm.update import needs_sectors
+    scene, st = tuple(job)[:2]
+    pixels = int(scene.camera.resolution[0]) * int(scene.camera.resolution[1])
+    return (min(st.photons_per_pass, PHOTON_CHUNK) >= PARALLEL_MIN_PHOTONS,
+            bool(needs_sectors(st, st.use_frequency)), bool(st.clip_kernel),
+            bool(st.use_frequency), pixels >= PARALLEL_MIN_VPS)
+
+
+def compile_gather(first: Optional[tuple] = None, only: bool = False, merge: bool = True,
+                   should_stop: Optional[Callable[[], bool]] = None) -> None:
+    """Compile the photon gather's kernels as a pass calls them
+    (core/sppm/photon_pass.py: kept grid buffers, GatherBuffers with and
+    without sectors, clip codes or none, frequency pairs or not, then
+    ``fold`` with the float32 and float64 albedo; the merge's gather
+    without buffers: core/integrators/merge_kernels.py), on one thread and
+    split, on 64 visible points and 400 photons: about 40 % of a photon
+    render's first-use compile, run by a second process while the first
+    renders the job (:meth:`Warmup._compile_in_child`; tests/precompile.py
+    too).  Each variant is (threaded, sectors, clip, pairs), the grid build
+    threaded with the gather.  first: the variant to compile before the
+    others (:func:`gather_variant`, whose fifth item, the threaded build,
+    is then taken apart; None: in the order of the loops, one thread first),
+    the others by how far they are from it; only: that variant alone, and
+    with merge the merge's gather in its threading.  Stops between variants
+    when ``should_stop()`` (RenderCancelled)."""
+    from .errors import RenderCancelled
+    from .kept import KeptBuffers
+    from .sppm import hashgrid as hg
+    rng = np.random.default_rng(1)
+    K, P = 64, 400
+    vp_pos = rng.uniform(-1, 1, (K, 3))
+    vp_ng = np.tile([0.0, 0.0, 1.0], (K, 1))
+    R = rng.uniform(0.2, 0.4, K)
+    active, const = np.ones(K, bool), rng.random(K) < 0.5
+    codes = rng.integers(0, 256, (K, 8)).astype(np.uint8).view(np.uint64).reshape(K)
+    codes[:10] = hg.CLIP_CLEAR
+    ph = (rng.uniform(-1, 1, (P, 3)), np.tile([0.0, 0.0, 1.0], (P, 1)),
+          np.tile([0.0, 0.0, 1.0], (P, 1)), rng.uniform(0, 1, (P, 3)),
+          np.where(rng.random(P) < 0.3, 0.1, np.nan))
+    variants = [(t, s, c, q) for t in (False, True) for s in (False, True)
+                for c in (False, True) for q in (False, True)]
+    if first is not None:       # stable: ties keep the order above
+        variants.sort(key=lambda v: (v[0] != first[0],
+                                     sum(a != b for a, b in zip(v[1:], first[1:4]))))
+        variants[0] = tuple(first)
+    if only:
+        variants = variants[:1]
+    saved = hg.PARALLEL_MIN_PHOTONS, hg.PARALLEL_MIN_VPS
+    try:
+        for v in variants:
+            threaded, sectors, clip_on, pairs = v[:4]
+            if should_stop is not None and should_stop():
+                raise RenderCancelled("cancelled")
+            hg.PARALLEL_MIN_PHOTONS = 1 if threaded else saved[0]
+            hg.PARALLEL_MIN_VPS = 1 if (v[4] if len(v) > 4 else threaded) else saved[1]
+            clip = codes if clip_on else None
+            kept = KeptBuffers()
+            grid = hg.build_grid(vp_pos, R, active, buffers=kept)
+            buf = hg.GatherBuffers(K, sectors)
+            buf.kept = kept
+            hg.gather(grid, *ph, vp_pos, vp_ng, R * R, const, cos_ng=-1.0,
+                      want_freq_pairs=pairs, buffers=buf, clip=clip)
+            for albedo in (np.full((K, 3), 0.5, np.float32), np.full((K, 3), 0.5)):
+                for mask in (None, const):
+                    buf.fold(np.zeros(K), np.zeros((K, 3)), albedo, np.pi,
+                             np.full(K, np.inf), mask,
+                             np.zeros((K, hg.SECTOR_CELLS)) if sectors else None, clip)
+                    hg.gather(grid, *ph, vp_pos, vp_ng, R * R, const, cos_ng=-1.0,
+                              want_freq_pairs=pairs, buffers=buf, clip=clip)
+            buf.clear()
+            if merge and (only or not (sectors or clip_on)):    # the merge's: no buffers
+                grid = hg.build_grid(vp_pos, R, active)
+                hg.gather(grid, *ph, vp_pos, vp_ng, R * R, const, cos_ng=-1.0,
+                          want_freq_pairs=pairs)
+    finally:
+        hg.PARALLEL_MIN_PHOTONS, hg.PARALLEL_MIN_VPS = saved
+
+
+def traces_photons(job) -> bool:
+    """Whether a render's job (:func:`render_job`) traces and gathers photons:
+    integrator PHOTON, or COMBINED where its plan merges photons
+    (core.plan.merges_photons, make_plan's rule).  Read from the scene's
+    lobes without the Renderer's tables (every material's, not only those
+    of triangles: a wrong guess only starts a compiling process for
+    nothing); light tracing sees a surface whenever one is diffuse or
+    glossy, and without one no rule merges, so ``seen`` is that."""
+    from .materials.table import _is_delta_lobe
+    from .plan import merges_photons
+    scene, st = tuple(job)[:2]
+    if st.photons_per_pass <= 0 or st.integrator not in ("PHOTON", "COMBINED"):
+        return False
+    if st.integrator == "PHOTON":
+        return True
+    delta = [_is_delta_lobe(lb.kind, lb.roughness, lb.ior)
+             for m in scene.materials for lb in m.lobes]
+    has_nondelta = not all(delta)
+    return merges_photons(st, any(delta), has_nondelta, scene.tri_p, seen=has_nondelta)
+
+
 # --- the warm-up of one render ----------------------------------------------
 
 #: Passes of a render's own warm-up job (render_job): the second calls the
@@ -421,7 +539,9 @@ def _dump(path: str, obj) -> None:
 def child_main(folder: str, idle: float = CHILD_IDLE_SECONDS) -> None:
     """The compiling process: for each group the parent writes
     (``<folder>/spec-<i>.pkl``: ``{"jobs": [...] or None for warmup_jobs(),
-    "nice": bool}``) render its jobs, then write ``<folder>/<i>.pkl``:
+    "nice": bool}``, or ``{"gather": variant, "only": bool, "merge": bool}``
+    for :func:`compile_gather`)
+    render its jobs, then write ``<folder>/<i>.pkl``:
     seconds, CPU seconds, kernels compiled (not loaded) and
     :func:`used_kernels`, for the parent to load.  Importing numba and the
     renderer (seconds) is paid once for all the groups of a process."""
@@ -441,7 +561,10 @@ def child_main(folder: str, idle: float = CHILD_IDLE_SECONDS) -> None:
             except OSError:
                 pass
         t0, c0 = time.perf_counter(), time.process_time()
-        if g["jobs"] is None:
+        if g.get("gather") is not None:
+            compile_gather(tuple(g["gather"]), only=g.get("only", False),
+                           merge=g.get("merge", True))
+        elif g["jobs"] is None:
             compile_kernels()
         else:
             run_jobs(g["jobs"])
@@ -549,6 +672,17 @@ def _marker_path(key: str = ALL) -> Optional[str]:
         return None
     tail = "" if key == ALL else f"-{key}"
     return os.path.join(root, "numba", f"warmup-{source_key()}{tail}.json")
+
+
+def _gather_marker(variant: Optional[tuple] = None) -> Optional[str]:
+    """The record that :func:`compile_gather` finished in this cache for this
+    source version (a second process beside a render's job, :class:`Warmup`):
+    every variant, or ``variant`` alone (:func:`gather_variant`)."""
+    root = _numba_cache.cache_dir()
+    if root is None:
+        return None
+    tail = "" if variant is None else "-" + "".join("1" if x else "0" for x in variant)
+    return os.path.join(root, "numba", f"gather-{source_key()}{tail}.json")
 
 
 def _read_marker(key: str = ALL) -> Optional[dict]:
@@ -669,6 +803,9 @@ class Warmup:
         self._stop = threading.Event()
         self._kick = threading.Event()    # a new job: it goes first
         self._child: Optional[_Child] = None
+        self._gather: Optional[_Child] = None    # compile_gather beside a job (_start_gather)
+        self._gather_i = 0
+        self._gather_marks: Optional[str] = None   # its marker (_gather_marker), when it ends
         self.started_at: Optional[float] = None
 
     done = property(lambda self: self._all.event.is_set())
@@ -805,23 +942,87 @@ class Warmup:
         RuntimeError when the child fails."""
         from .errors import RenderCancelled
         spec = {"jobs": g.jobs, "nice": g.jobs is None and bool(self._jobs)}
-        for attempt in range(2):
-            if self._child is None or self._child.proc.poll() is not None:
-                if self._child is not None:
-                    self._child.close()
-                self._child = _Child()
-            i = self._child.submit(spec)
-            while True:
-                rec = self._child.result(i)
-                if rec is not None:
-                    break
-                if self._stop.is_set() or (g.jobs is None and self._kick.is_set()):
-                    self._close_child()
-                    raise RenderCancelled("cancelled")
-                time.sleep(poll)
-            if rec != "idle":           # else it ended just before the spec came: again
-                return rec
-        raise RuntimeError("the compiling process ended before its work")
+        try:
+            for attempt in range(2):
+                if self._child is None or self._child.proc.poll() is not None:
+                    if self._child is not None:
+                        self._child.close()
+                    self._child = _Child()
+                i = self._child.submit(spec)
+                if attempt == 0 and g.jobs is not None:
+                    self._start_gather(g.jobs)
+                while True:
+                    rec = self._child.result(i)
+                    if rec is not None:
+                        break
+                    if self._stop.is_set() or (g.jobs is None and self._kick.is_set()):
+                        self._close_child()
+                        raise RenderCancelled("cancelled")
+                    self._poll_gather()
+                    time.sleep(poll)
+                if rec != "idle":           # else it ended just before the spec came: again
+                    return rec
+            raise RuntimeError("the compiling process ended before its work")
+        finally:
+            self._close_gather()
+
+    def _start_gather(self, jobs: list) -> None:
+        """Beside a render's job that traces photons (:func:`traces_photons`),
+        on a cold cache (no marker of every variant nor of the gather), start
+        a second compiling process on :func:`compile_gather`: the machine's
+        other core compiles the gather's kernels, ~40 % of a photon render's
+        compile, into the same cache while the job's process renders the
+        scene's other stages, and finds them there (docs/interactive.md
+        "Two compiling processes, round 20").  It runs at the job's priority
+        only while the job runs (:meth:`_close_gather` when the job's record
+        comes; what it compiled stays on disk).  Skipped when no child can
+        run (the job's child then fails too, and this process compiles)."""
+        self._close_gather()
+        if not any(traces_photons(j) for j in jobs):
+            return
+        # The job's passes gather in one variant; COMBINED's merging also
+        # gathers without buffers (core/integrators/merge_kernels.py).
+        variant = gather_variant(jobs[0])
+        merge = any(j[1].integrator != "PHOTON" for j in jobs)
+        marker = _gather_marker()
+        if (marker is None or os.path.exists(marker)
+                or os.path.exists(_gather_marker(variant + (merge,))) or is_compiled()):
+            return
+        try:
+            self._gather = _Child()
+        except (OSError, RuntimeError):
+            return
+        self._gather_marks = _gather_marker(variant + (merge,))
+        self._gather_i = self._gather.submit({"jobs": None, "nice": False, "gather": variant,
+                                              "only": True, "merge": merge})
+
+    def _poll_gather(self) -> None:
+        """Write the gather's marker once its process finished its variants."""
+        if self._gather is None:
+            return
+        try:
+            rec = self._gather.result(self._gather_i)
+        except RuntimeError:
+            rec = "failed"
+        if rec is None:
+            return
+        if isinstance(rec, dict):
+            p = self._gather_marks
+            try:
+                os.makedirs(os.path.dirname(p), exist_ok=True)
+                tmp = f"{p}.{os.getpid()}.tmp"
+                with open(tmp, "w") as f:
+                    json.dump({"seconds": rec["seconds"], "cpu": rec["cpu"],
+                               "compiled": rec["compiled"]}, f)
+                os.replace(tmp, p)
+            except (OSError, TypeError):
+                pass
+        self._close_gather()
+
+    def _close_gather(self) -> None:
+        if self._gather is not None:
+            self._gather.close()
+            self._gather = None
 
     def _close_child(self) -> None:
         if self._child is not None:

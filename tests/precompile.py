@@ -16,10 +16,12 @@ is lost: one more compile at that kernel's first call, never an error.
 Units: each job of ``core.warmup.warmup_jobs()`` (``w0`` ... ``w4``: the
 production kernels of every settings variant; ``w0`` takes the per-pixel
 stages' threaded paths, as ``compile_kernels()`` does); ``gather``: the
-photon gather as a pass and the merge call it (build, gather, fold), the
-largest block of ``w0``'s compile, so that the second process takes it while
-the first renders ``w0``; and the test-only signatures that round 15 found
-among the largest compiles the warm-up does not reach, each calling its
+photon gather as a pass and the merge call it (build, gather, fold:
+``core.warmup.compile_gather``, which a render's first use also runs in a
+second process beside its job), the largest block of ``w0``'s compile, so
+that the second process takes it while the first renders ``w0``; and the
+test-only signatures that round 15 found among the largest compiles the
+warm-up does not reach, each calling its
 test's own helpers on tiny inputs: ``grid`` (the grid build split over
 threads, tests/test_compiled_pass_stages.py), ``clip`` (the gather with clip
 codes, tests/test_clip.py) and ``principled`` (the Principled BSDF's compiled
@@ -83,56 +85,11 @@ def _unit_grid() -> None:
 
 
 def _unit_gather() -> None:
-    """The gather's kernels as a pass calls them (core/sppm/photon_pass.py:
-    kept grid buffers, GatherBuffers with and without sectors, clip codes or
-    none, frequency pairs or not, then ``fold`` with the float32 albedo; the
-    merge's gather without buffers: core/integrators/merge_kernels.py), one
-    thread and split, on 64 visible points and 400 photons."""
-    import numpy as np
-
-    from fppm.core.kept import KeptBuffers
-    from fppm.core.sppm import hashgrid as hg
-    rng = np.random.default_rng(1)
-    K, P = 64, 400
-    vp_pos = rng.uniform(-1, 1, (K, 3))
-    vp_ng = np.tile([0.0, 0.0, 1.0], (K, 1))
-    R = rng.uniform(0.2, 0.4, K)
-    active, const = np.ones(K, bool), rng.random(K) < 0.5
-    codes = rng.integers(0, 256, (K, 8)).astype(np.uint8).view(np.uint64).reshape(K)
-    codes[:10] = hg.CLIP_CLEAR
-    ph = (rng.uniform(-1, 1, (P, 3)), np.tile([0.0, 0.0, 1.0], (P, 1)),
-          np.tile([0.0, 0.0, 1.0], (P, 1)), rng.uniform(0, 1, (P, 3)),
-          np.where(rng.random(P) < 0.3, 0.1, np.nan))
-    saved = hg.PARALLEL_MIN_PHOTONS, hg.PARALLEL_MIN_VPS
-    try:
-        for threaded in (False, True):
-            if threaded:
-                hg.PARALLEL_MIN_PHOTONS = hg.PARALLEL_MIN_VPS = 1
-            for sectors in (False, True):
-                for clip in (None, codes):
-                    for pairs in (False, True):
-                        kept = KeptBuffers()
-                        grid = hg.build_grid(vp_pos, R, active, buffers=kept)
-                        buf = hg.GatherBuffers(K, sectors)
-                        buf.kept = kept
-                        hg.gather(grid, *ph, vp_pos, vp_ng, R * R, const, cos_ng=-1.0,
-                                  want_freq_pairs=pairs, buffers=buf, clip=clip)
-                        for albedo in (np.full((K, 3), 0.5, np.float32), np.full((K, 3), 0.5)):
-                            for mask in (None, const):
-                                buf.fold(np.zeros(K), np.zeros((K, 3)), albedo, np.pi,
-                                         np.full(K, np.inf), mask,
-                                         np.zeros((K, hg.SECTOR_CELLS)) if sectors else None,
-                                         clip)
-                                hg.gather(grid, *ph, vp_pos, vp_ng, R * R, const,
-                                          cos_ng=-1.0, want_freq_pairs=pairs, buffers=buf,
-                                          clip=clip)
-                        buf.clear()
-            grid = hg.build_grid(vp_pos, R, active)
-            for pairs in (False, True):
-                hg.gather(grid, *ph, vp_pos, vp_ng, R * R, const, cos_ng=-1.0,
-                          want_freq_pairs=pairs)
-    finally:
-        hg.PARALLEL_MIN_PHOTONS, hg.PARALLEL_MIN_VPS = saved
+    """The gather's kernels as a pass and the merge call them
+    (``core.warmup.compile_gather``: a render's first use runs it in a
+    second process beside its job too)."""
+    from fppm.core import warmup as W
+    W.compile_gather()
 
 
 def _unit_clip() -> None:

@@ -420,3 +420,89 @@ def test_a_renders_job_goes_first_and_one_shot_renders_skip_the_variants(tmp_pat
         time.sleep(0.01)
     assert ui.wait_for(path, rest=True) and ui.wait() and ui.error is None
     assert calls == ["all (interrupted)", "PATH", "all"]
+
+
+def test_a_photon_job_compiles_the_gather_in_a_second_process(tmp_path, monkeypatch):
+    # core.warmup.Warmup._start_gather, with stand-in children (no compile):
+    # beside a photon-mapping job on a cold cache a second child takes
+    # compile_gather (the job's guessed variant first) and is closed when
+    # the job's record comes; not beside a light-only job, nor when the
+    # gather's marker or every variant's says the cache holds it.
+    import dataclasses
+
+    from fppm.core import warmup as W
+    from fppm.core.scene.model import DIFFUSE, Lobe, Material
+    from fppm.core.settings import RenderSettings
+    monkeypatch.setenv("FPPM_CACHE_DIR", str(tmp_path))
+    children = []
+
+    class Proc:
+        def poll(self):
+            return None
+
+    class Child:
+        def __init__(self):
+            self.specs, self.closed, self.asked, self.proc = [], False, 0, Proc()
+            children.append(self)
+
+        def submit(self, spec):
+            self.specs.append(spec)
+            return len(self.specs) - 1
+
+        def result(self, i):
+            if self.specs[i].get("gather") is not None:
+                return None                     # the gather outlasts the job
+            self.asked += 1
+            return None if self.asked < 3 else {"seconds": 1.0, "compiled": 1,
+                                                 "kernels": {}, "cpu": 1.0}
+
+        def close(self):
+            self.closed = True
+
+    monkeypatch.setattr(W, "_Child", Child)
+    scene = W.warmup_scene(res=8, glossy=False)
+    photon = W.render_job(scene, RenderSettings(integrator="PHOTON", photons_per_pass=3000))
+    assert W.traces_photons(photon)
+    assert W.Warmup().wait_for(photon, rest=False)
+    assert len(children) == 2, [c.specs for c in children]
+    job, gather = children
+    assert job.specs[0]["jobs"] == [photon] and "gather" not in job.specs[0]
+    assert gather.specs == [{"jobs": None, "nice": False, "only": True, "merge": False,
+                             "gather": W.gather_variant(photon)}]
+    assert gather.closed and not job.closed     # the job's child stays for the next job
+    # a chunk of 3000 photons gathers on one thread, of 200 000 split
+    assert W.gather_variant(photon)[0] is False and W.gather_variant(
+        (scene, RenderSettings(integrator="PHOTON")))[0] is True
+
+    # Light tracing alone (the demo's COMBINED on a scene without mirror or
+    # glass, LIGHT, PATH) gathers no photon: no second child.
+    diffuse = Material("d", (Lobe(DIFFUSE, (0.5, 0.5, 0.5)),))
+    matte = dataclasses.replace(scene, materials=[diffuse] * len(scene.materials))
+    for job in (W.render_job(matte, RenderSettings()),
+                W.render_job(scene, RenderSettings(integrator="LIGHT")),
+                W.render_job(scene, RenderSettings(integrator="PATH"))):
+        assert not W.traces_photons(job)
+        children.clear()
+        assert W.Warmup().wait_for(job, rest=False)
+        assert len(children) == 1, job[1].integrator
+    # COMBINED with a mirror and glass merges photons: a second child.
+    assert W.traces_photons(W.render_job(scene, RenderSettings()))
+
+    # A cache that holds the job's variant (its marker: the gather's process
+    # finished it) or every variant starts none either; another variant does.
+    os.makedirs(os.path.dirname(W._gather_marker()), exist_ok=True)
+    other = W.render_job(scene, RenderSettings(integrator="PHOTON", photons_per_pass=5000,
+                                               use_frequency=False))
+    for k, (marker, started) in enumerate(((W._gather_marker(W.gather_variant(photon)
+                                                             + (False,)), 2),
+                                           (W._gather_marker(W.gather_variant(other)
+                                                             + (False,)), 1),
+                                           (W._gather_marker(), 1))):
+        with open(marker, "w") as f:
+            f.write("{}")
+        children.clear()
+        job = W.render_job(scene, other[1].replace(photons_per_pass=5000 + k))   # a new key
+        assert W.gather_variant(job) == W.gather_variant(other)
+        assert W.Warmup().wait_for(job, rest=False)
+        assert len(children) == started, marker
+        os.remove(marker)
