@@ -295,7 +295,7 @@ NOTES = [
     "the decision'), on efc9056, `SCENE --budget 60 --seeds 4 --methods fppm,ppm,cppm`, load about "
     "2 (the runs alone, 1.8 cores a method, on a machine then slower per CPU second: fewer passes "
     "for every method), each in SCENE/fppm_ppm_cppm_60s/ (the a5fbc25 runs above, Frequency "
-    "Start 1, moved to SCENE/fppm_ppm_cppm_60s_start1/): cornell FPPM / PPM 1.24 / 0.787 / 0.714 "
+    "Start 1, moved to SCENE/fppm_ppm_cppm_60s_start1/; cornell's since moved to cornell/fppm_ppm_cppm_60s_round19/): cornell FPPM / PPM 1.24 / 0.787 / 0.714 "
     "(excess 0.71; 10 % seeds 0.93-1.57), FPPM / CPPM 1.29 / 1.03 / 1.06 (seeds at 100 % "
     "0.91-1.19; FPPM 178-222 passes, PPM 200-240, CPPM 194-223); indirect_room FPPM / PPM 0.736 / "
     "0.409 / 0.416 (excess 0.37, seeds 0.32-0.49), FPPM / CPPM 0.937 / 0.964 / 0.939 (excess "
@@ -308,6 +308,12 @@ NOTES = [
     "FPPM / PPM 0.98 at 6 s (seeds 0.86-1.16, 12 of 16 below 1; 1.02 with Start 1), 1.20 at 3 s; "
     "FPPM / CPPM 1.12 (seeds 0.98-1.33; 1.11 with Start 1); FPPM 23-29 passes, PPM 27-35, CPPM "
     "26-32 (docs/method.md 'Round 20: the Cornell box's first passes on an idle machine').",
+    "Round 20, the Cornell box on 8076bc8 (the march's runs of blocks: the same images, a cheaper "
+    "march), `cornell --budget 60 --seeds 4 --methods fppm,ppm,cppm`, idle (load 1.1 to 1.2, 1.8 "
+    "cores a method), in cornell/fppm_ppm_cppm_60s/ (the efc9056 run above moved to "
+    "cornell/fppm_ppm_cppm_60s_round19/): FPPM / PPM 1.06 / 0.762 / 0.694 (excess 0.688; 10 % seeds "
+    "0.99-1.15), FPPM / CPPM 1.11 / 0.945 / 0.986 (excess 0.986, seeds at 100 % 0.92-1.03); FPPM "
+    "260-295 passes, PPM 297-316, CPPM 269-309.",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
