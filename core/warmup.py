@@ -666,23 +666,39 @@ ALL = "all"
 """The key of the warm-up of every variant (:func:`warmup_jobs`)."""
 
 
-def _marker_path(key: str = ALL) -> Optional[str]:
+def _cache_marker(kind: str, tail: str = "") -> Optional[str]:
+    """``<cache>/numba/<kind>-<source version><tail>.json``: a record kept
+    beside the kernels of this source version (None: no writable cache)."""
     root = _numba_cache.cache_dir()
     if root is None:
         return None
-    tail = "" if key == ALL else f"-{key}"
-    return os.path.join(root, "numba", f"warmup-{source_key()}{tail}.json")
+    return os.path.join(root, "numba", f"{kind}-{source_key()}{tail}.json")
+
+
+def _write_json(path: Optional[str], record: dict) -> None:
+    """Write a marker whole (core.io.atomic.replace_atomically: a reader
+    never sees half a file); an unwritable cache only loses the record."""
+    if path is None:
+        return
+    from .io.atomic import default_file_mode, replace_atomically
+    try:
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        with replace_atomically(path, mode=default_file_mode()) as tmp, open(tmp, "w") as f:
+            json.dump(record, f)
+    except OSError:
+        pass
+
+
+def _marker_path(key: str = ALL) -> Optional[str]:
+    return _cache_marker("warmup", "" if key == ALL else f"-{key}")
 
 
 def _gather_marker(variant: Optional[tuple] = None) -> Optional[str]:
     """The record that :func:`compile_gather` finished in this cache for this
     source version (a second process beside a render's job, :class:`Warmup`):
     every variant, or ``variant`` alone (:func:`gather_variant`)."""
-    root = _numba_cache.cache_dir()
-    if root is None:
-        return None
-    tail = "" if variant is None else "-" + "".join("1" if x else "0" for x in variant)
-    return os.path.join(root, "numba", f"gather-{source_key()}{tail}.json")
+    return _cache_marker("gather", "" if variant is None
+                         else "-" + "".join("1" if x else "0" for x in variant))
 
 
 def _read_marker(key: str = ALL) -> Optional[dict]:
@@ -749,20 +765,10 @@ def expected_seconds(job=None) -> float:
 
 def _write_marker(key: str, seconds: float, cold: bool, kernels: Optional[dict] = None,
                   cpu: Optional[float] = None) -> None:
-    p = _marker_path(key)
-    if p is None:
-        return
     d = {"seconds": seconds, "cold": cold, "job": key, "cpu": cpu}
     if kernels:
         d["kernels"] = _pack(kernels)
-    try:
-        os.makedirs(os.path.dirname(p), exist_ok=True)
-        tmp = p + f".{os.getpid()}.tmp"
-        with open(tmp, "w") as f:
-            json.dump(d, f)
-        os.replace(tmp, p)
-    except OSError:
-        pass      # an unwritable cache only costs the message's estimate
+    _write_json(_marker_path(key), d)   # unwritable: only the message's estimate is lost
 
 
 class _Group:
@@ -1007,16 +1013,8 @@ class Warmup:
         if rec is None:
             return
         if isinstance(rec, dict):
-            p = self._gather_marks
-            try:
-                os.makedirs(os.path.dirname(p), exist_ok=True)
-                tmp = f"{p}.{os.getpid()}.tmp"
-                with open(tmp, "w") as f:
-                    json.dump({"seconds": rec["seconds"], "cpu": rec["cpu"],
-                               "compiled": rec["compiled"]}, f)
-                os.replace(tmp, p)
-            except (OSError, TypeError):
-                pass
+            _write_json(self._gather_marks, {"seconds": rec["seconds"], "cpu": rec["cpu"],
+                                             "compiled": rec["compiled"]})
         self._close_gather()
 
     def _close_gather(self) -> None:
