@@ -67,6 +67,7 @@ import tempfile
 import threading
 import time
 import traceback
+import weakref
 from typing import Callable, Optional
 
 import numpy as np
@@ -501,9 +502,11 @@ import importlib, importlib.util, os, sys, threading, time, types
 name, root = sys.argv[1], sys.argv[2]
 
 
-def exit_with_parent(ppid=os.getppid()):
+def exit_with_parent(ppid=int(sys.argv[4])):    # the parent's pid: it may be gone already
     while os.getppid() == ppid:
         time.sleep(0.5)
+    import shutil
+    shutil.rmtree(sys.argv[3], ignore_errors=True)   # no parent left to read it
     os._exit(1)
 
 
@@ -596,11 +599,48 @@ def _child_command() -> tuple:
     return root, env
 
 
+CHILD_FOLDER_STALE_SECONDS = 86400.0
+"""A compiling child's folder untouched this long belongs to no live
+process (a child writes into it while it works, and ends 20 s after its
+last group; :func:`_sweep_child_folders`)."""
+
+
+def _sweep_child_folders(root: str, now: Optional[float] = None) -> None:
+    """Remove the ``warmup-*`` folders of compiling children that were
+    killed together with their parent (SIGKILL, a crash, power loss): the
+    other ways out remove their folder themselves (:class:`_Child`)."""
+    now = time.time() if now is None else now
+    try:
+        names = os.listdir(root)
+    except OSError:
+        return
+    for n in names:
+        path = os.path.join(root, n)
+        try:
+            if n.startswith("warmup-") and os.path.isdir(path) and \
+                    now - os.stat(path).st_mtime > CHILD_FOLDER_STALE_SECONDS:
+                shutil.rmtree(path, ignore_errors=True)
+        except OSError:
+            pass
+
+
+def _end_child(proc: subprocess.Popen, log, folder: str) -> None:
+    """Stop a compiling child and remove its folder: :meth:`_Child.close`,
+    or this process's exit or the object's collection without one
+    (``weakref.finalize``), so that no ``warmup-*`` folder outlives both."""
+    if proc.poll() is None:
+        proc.kill()
+    proc.wait()
+    log.close()
+    shutil.rmtree(folder, ignore_errors=True)
+
+
 class _Child:
     """A compiling process (:func:`child_main`) taking one group after another."""
 
     def __init__(self):
         root, env = _child_command()
+        _sweep_child_folders(root)
         self.folder = tempfile.mkdtemp(prefix="warmup-", dir=root)
         self.log = tempfile.TemporaryFile()   # a file: a full pipe would block the child
         self.n = 0
@@ -609,9 +649,10 @@ class _Child:
         group = ({"creationflags": subprocess.CREATE_NEW_PROCESS_GROUP}
                  if sys.platform == "win32" else {"start_new_session": True})
         self.proc = subprocess.Popen([sys.executable, "-c", _CHILD, package_name(),
-                                      os.path.dirname(_CORE), self.folder],
+                                      os.path.dirname(_CORE), self.folder, str(os.getpid())],
                                      stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                      stderr=self.log, env=env, cwd=root, **group)
+        self._end = weakref.finalize(self, _end_child, self.proc, self.log, self.folder)
 
     def submit(self, spec: dict) -> int:
         _dump(os.path.join(self.folder, f"spec-{self.n}.pkl"), spec)
@@ -636,11 +677,7 @@ class _Child:
                            f"{err.splitlines()[-1] if err else 'no message'}")
 
     def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-        self.proc.wait()
-        self.log.close()
-        shutil.rmtree(self.folder, ignore_errors=True)
+        self._end()
 
 
 def source_key() -> str:

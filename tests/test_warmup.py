@@ -331,6 +331,47 @@ def test_first_use_compiles_in_a_subprocess_and_keeps_this_process_responsive(tm
     assert out["compiled_here"] == []
     assert out["compiled_in_render"] == 0
     assert out["max_gap"] < 0.25, out["max_gap"]
+    # the compiling children's folders went with them (the process ended
+    # without closing them: weakref.finalize at exit)
+    assert [n for n in os.listdir(tmp_path / "cache") if n.startswith("warmup-")] == []
+
+
+KILLED = (
+    "import os, signal, sys\n"
+    "from fppm.core import warmup as W\n"
+    "c = W._Child()\n"
+    "print(c.folder, flush=True)\n"
+    "os.kill(os.getpid(), signal.SIGKILL)\n")
+
+
+def test_a_compiling_childs_folder_goes_when_its_parent_is_killed(tmp_path):
+    # No finalizer runs in a killed process: the child, which notices its
+    # parent's end within half a second, removes its own folder.
+    env = dict(os.environ, FPPM_CACHE_DIR=str(tmp_path / "cache"))
+    p = subprocess.run([PY, "-c", KILLED], capture_output=True, text=True, timeout=120,
+                       cwd=str(tmp_path), env=env)
+    folder = p.stdout.strip().splitlines()[-1]
+    assert os.path.basename(folder).startswith("warmup-"), p.stdout + p.stderr[-2000:]
+    t0 = time.monotonic()
+    while os.path.exists(folder) and time.monotonic() - t0 < 30:
+        time.sleep(0.1)
+    assert not os.path.exists(folder)
+
+
+def test_stale_child_folders_are_swept_and_live_ones_kept(tmp_path):
+    from fppm.core import warmup as W
+    old, live = tmp_path / "warmup-old", tmp_path / "warmup-live"
+    marker = tmp_path / "warmup-x.json"            # not a folder: never touched
+    for d in (old, live):
+        d.mkdir()
+        (d / "spec-0.pkl").write_bytes(b"")
+    marker.write_text("{}")
+    now = time.time()
+    past = now - W.CHILD_FOLDER_STALE_SECONDS - 1
+    os.utime(old, (past, past))
+    os.utime(marker, (past, past))
+    W._sweep_child_folders(str(tmp_path), now)
+    assert sorted(os.listdir(tmp_path)) == ["warmup-live", "warmup-x.json"]
 
 
 def test_without_a_python_executable_the_thread_compiles(monkeypatch, capsys, tmp_path):
