@@ -877,6 +877,23 @@ def check_image(sess, stop) -> None:
                                    f"written.")
 
 
+def exit_now(code: int) -> None:
+    """End the process with ``code`` at once (``os._exit``: no interpreter
+    teardown, see ``tools/cli.py`` ``main``), removing Blender's session
+    folder first (``bpy.app.tempdir``, ``<temp>/blender_XXXXXX/``): bpy
+    removes it itself only at a normal interpreter exit, so every ``fppm``
+    command left one behind in the temporary folder."""
+    bpy = sys.modules.get("bpy")
+    try:
+        folder = os.path.normpath(bpy.app.tempdir) if bpy is not None else ""
+        if os.path.basename(folder).startswith("blender_"):
+            import shutil
+            shutil.rmtree(folder, ignore_errors=True)
+    except Exception:       # noqa: BLE001 - bpy half imported (an early signal): leave it
+        pass
+    os._exit(code)
+
+
 class StopFlag:
     """SIGINT (Ctrl-C) and SIGTERM as a flag, never as an exception.
 
@@ -905,7 +922,7 @@ class StopFlag:
         self.received.append(signum)
         if len(self.received) >= 2:
             os.write(2, b"fppm: interrupted twice: quitting now, nothing written.\n")
-            os._exit(EXIT_CANCELLED)
+            exit_now(EXIT_CANCELLED)
 
     def install(self) -> "StopFlag":
         import threading

@@ -183,13 +183,14 @@ def fppm_command() -> list:
     return [PYTHON, "-m", "fppm.tools.cli"]
 
 
-def run_fppm(*args, timeout=300, cwd=None):
+def run_fppm(*args, timeout=300, cwd=None, env_extra=None):
     """Run ``fppm ARGS`` in a subprocess from a neutral folder; returns CompletedProcess.
 
     PYTHONPATH is removed so the command sees exactly what a user's shell
-    gives it (the repository root is NOT on sys.path).
+    gives it (the repository root is NOT on sys.path); ``env_extra``: more
+    variables.
     """
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"} | (env_extra or {})
     return subprocess.run(fppm_command() + [str(a) for a in args], capture_output=True,
                           text=True, timeout=timeout, env=env,
                           cwd=cwd or tempfile.gettempdir())

@@ -131,7 +131,8 @@ COMMANDS = {**cli.COMMANDS, "render": (add_render_parser, render),
 def main(argv=None, exit_process: bool = True) -> int:
     """Run ``fppm ARGV``.  exit_process (the console script): end the process
     with the exit code as soon as the command returns, with ``os._exit`` after
-    flushing stdout and stderr: Blender's and numba's teardown at interpreter
+    flushing stdout and stderr (``addon.cli.exit_now``, which also removes
+    Blender's session folder): Blender's and numba's teardown at interpreter
     exit reset the signal handlers (a Ctrl-C then killed the process with -2)
     and could crash (-11) while a cancelled stage's daemon thread still ran.
     Every file is complete and renamed into place before the command returns.
@@ -144,7 +145,7 @@ def main(argv=None, exit_process: bool = True) -> int:
             stream.flush()
         except (OSError, ValueError):
             pass
-    _os._exit(rc)
+    cli.exit_now(rc)
 
 
 if __name__ == "__main__":
