@@ -5,8 +5,6 @@ Blender computes the border region as ``disprect.xmin = border.xmin * winx``
 another size makes ``rect.foreach_set`` fail ("expected sequence size ...").
 """
 import dataclasses
-import pathlib
-import tempfile
 
 import numpy as np
 import pytest
@@ -55,8 +53,8 @@ def _save(sc, path):
 
 
 @pytest.mark.parametrize("crop", [True, False])
-def test_random_borders_render_at_blenders_size(crop):
-    tmp = pathlib.Path(tempfile.mkdtemp())
+def test_random_borders_render_at_blenders_size(crop, tmp_path):
+    tmp = tmp_path
     sc = H.simple_scene(res=RES, passes=1, photons=2000)
     r = sc.render
     r.use_border, r.use_crop_to_border = True, crop

@@ -524,6 +524,7 @@ CYCLES_SCRIPT = r'''
 import json, math, os, sys, tempfile
 import bpy, mathutils, numpy as np, OpenEXR
 cases = json.loads(sys.argv[1])
+scratch = tempfile.TemporaryDirectory()   # removed at exit
 bpy.ops.wm.read_factory_settings(use_empty=True)
 sc = bpy.context.scene
 sc.render.engine = 'CYCLES'; sc.cycles.device = 'CPU'; sc.cycles.samples = 16
@@ -553,7 +554,7 @@ for c in cases:
     ld = bpy.data.lights.new('s', 'SUN'); ld.energy = 1.0; ld.angle = 0.0
     lo = bpy.data.objects.new('s', ld); sc.collection.objects.link(lo)
     lo.rotation_euler = mathutils.Vector(c['l']).to_track_quat('Z', 'Y').to_euler()
-    fn = os.path.join(tempfile.mkdtemp(), 'r.exr'); sc.render.filepath = fn
+    fn = os.path.join(scratch.name, 'r.exr'); sc.render.filepath = fn
     bpy.ops.render.render(write_still=True)
     with OpenEXR.File(fn) as f:
         ch = f.channels()

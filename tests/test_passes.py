@@ -19,8 +19,6 @@ renderer, so 3 px of the local gradient, bounded by 3 x the largest
 difference to the 8 neighbours).  Depth and the indices are Cycles' first
 sample only (film.py), so inside a surface the same bound holds.
 """
-import pathlib
-import tempfile
 
 import numpy as np
 import pytest
@@ -91,13 +89,13 @@ def _cycles(sc, path, samples=N_CYCLES):
 
 
 @pytest.fixture(scope="module")
-def cycles():
-    return _cycles(_scene(), pathlib.Path(tempfile.mkdtemp()) / "cycles.exr")
+def cycles(tmp_path_factory):
+    return _cycles(_scene(), tmp_path_factory.mktemp("cycles") / "cycles.exr")
 
 
 @pytest.fixture(scope="module", params=INTEGRATORS)
-def both(request, cycles):
-    tmp = pathlib.Path(tempfile.mkdtemp())
+def both(request, cycles, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("both")
     sess, f = _fppm(_scene(integrator=request.param), tmp / "fppm.exr")
     return sess, f, cycles
 
@@ -226,8 +224,8 @@ def test_denoising_albedo_inside_surfaces(both):
 
 
 @pytest.mark.parametrize("integrator", INTEGRATORS)
-def test_opaque_film_alpha_one_and_no_passes(integrator):
-    tmp = pathlib.Path(tempfile.mkdtemp())
+def test_opaque_film_alpha_one_and_no_passes(integrator, tmp_path):
+    tmp = tmp_path
     sc = _scene(transparent=False, passes=False)
     H.small_settings(sc, passes=2, photons=2000, seed=1, integrator=integrator)
     sess, f = _fppm(sc, tmp / "o.exr")
@@ -250,7 +248,7 @@ def test_compositor_sees_the_passes():
             "Denoising Normal", "Denoising Albedo"} <= names, names
 
 
-def test_compositor_denoise_node_uses_the_passes():
+def test_compositor_denoise_node_uses_the_passes(tmp_path):
     """Blender's own denoiser (the compositor's Denoise node, OpenImageDenoise)
     fed by FPPM's Denoising Albedo / Normal: a 2-pass render against Cycles at
     512 samples.  Measured: RMS error 0.225 noisy, 0.059 denoised (x0.26);
@@ -271,7 +269,7 @@ def test_compositor_denoise_node_uses_the_passes():
     tree.links.new(rl.outputs["Denoising Albedo"], dn.inputs["Albedo"])
     tree.links.new(dn.outputs[0], out.inputs[0])
     sc.render.use_compositing = True
-    tmp = pathlib.Path(tempfile.mkdtemp())
+    tmp = tmp_path
     sess, _ = _fppm(sc, tmp / "f.exr")
     noisy = sess.result.image[..., :3]
     im = sc.render.image_settings
@@ -324,16 +322,16 @@ def _card_scene(integrator="PHOTON"):
 
 
 @pytest.fixture(scope="module")
-def card_cycles():
-    return _cycles(_card_scene(), pathlib.Path(tempfile.mkdtemp()) / "c.exr")
+def card_cycles(tmp_path_factory):
+    return _cycles(_card_scene(), tmp_path_factory.mktemp("card") / "c.exr")
 
 
 @pytest.mark.parametrize("integrator", INTEGRATORS)
-def test_alpha_through_transparent_bsdf_as_cycles(card_cycles, integrator):
+def test_alpha_through_transparent_bsdf_as_cycles(card_cycles, integrator, tmp_path):
     """The card: alpha = 1 - the throughput escaping straight through (Cycles).
     Per pass FPPM's alpha is 0 or 1 (the lobe choice), so the per-pixel noise
     is the Bernoulli one of test_alpha_is_coverage_as_cycles."""
-    _, f = _fppm(_card_scene(integrator), pathlib.Path(tempfile.mkdtemp()) / "f.exr")
+    _, f = _fppm(_card_scene(integrator), tmp_path / "f.exr")
     c = card_cycles
     a, b = f["Combined"][..., 3], c["Combined"][..., 3]
     part = (b > 0.2) & (b < 0.8)
@@ -347,13 +345,13 @@ def test_alpha_through_transparent_bsdf_as_cycles(card_cycles, integrator):
 
 
 @pytest.mark.parametrize("falloff", ["LINEAR", "INVERSE_QUADRATIC"])
-def test_mist_falloff_as_cycles(falloff):
+def test_mist_falloff_as_cycles(falloff, tmp_path):
     sc = _scene(passes=False)
     sc.view_layers[0].use_pass_mist = True
     sc.view_layers[0].use_pass_object_index = True
     sc.world.mist_settings.falloff = falloff
     H.small_settings(sc, passes=4, photons=2000, seed=1)
-    tmp = pathlib.Path(tempfile.mkdtemp())
+    tmp = tmp_path
     _, f = _fppm(sc, tmp / "f.exr")
     sc.render.engine = 'CYCLES'
     sc.cycles.samples, sc.cycles.use_denoising, sc.cycles.device = 64, False, 'CPU'
@@ -393,13 +391,13 @@ def test_checkpoint_resume_keeps_alpha_and_passes(integrator):
         assert np.array_equal(resumed.aovs[n], straight.aovs[n]), n
 
 
-def test_film_exposure_scales_emission_not_data():
+def test_film_exposure_scales_emission_not_data(tmp_path):
     # Cycles' Film > Exposure scales the light passes (Emission), not the
     # data passes (Normal, Denoising Albedo).
     sc = _scene()
     H.small_settings(sc, passes=1, photons=2000, seed=1)
     sc.cycles.film_exposure = 2.0
-    tmp = pathlib.Path(tempfile.mkdtemp())
+    tmp = tmp_path
     sess, f = _fppm(sc, tmp / "f.exr")
     pr = sess.result
     assert np.array_equal(f["Emission"], pr.aovs["Emission"] * np.float32(2.0))
