@@ -1143,7 +1143,7 @@ def _cone_members(cone, R, kind, un, asn):
     of the half-angle within which its axis meets a plane.  A voxel whose
     cone has the bits of the voxel before it (z - 1: the empty voxels that
     take a wall's cone, a wall's own) gets that voxel's results, the same
-    bits, without the square root and the arcsine again."""
+    bits, without the square root and the arcsine again.  cone: C order."""
     cb = cone.view(np.int32)
     p0 = p1 = p2 = p3 = 0
     pk = -1
@@ -1722,7 +1722,8 @@ def march_blocks(grid: OcclusionGrid, B: int = MARCH_BLOCK) -> MarchBlocks:
         kind = np.empty((R, R, R), np.int8)
         un = np.empty((R, R, R, 3))
         asn = np.empty((R, R, R))
-        _cone_members(grid.cone, R, kind, un, asn)
+        # C order: _cone_members reads the cones' bits through a view
+        _cone_members(np.ascontiguousarray(grid.cone), R, kind, un, asn)
         _build_blocks(grid.dist, kind, un, asn, R, B, NB, bmin, bcone, L, False,
                       np.empty((0, 0, 0)))
         if R ** 3 * 20 <= VOXEL_LEVEL_MAX:
