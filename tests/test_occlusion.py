@@ -205,9 +205,10 @@ def test_voxel_level_memo_equals_the_block_loop():
         OG._dilated_min(g.dist, R, vm, np.empty((R, R, R)))
         a, b = np.zeros((R, R, R, 8), np.int16), np.zeros((R, R, R, 8), np.int16)
         OG._build_blocks(g.dist, kind, un, asn, R, 1, R, vm.copy(), a, L, True, vm.copy())
-        mid, mu = np.empty((R, R, R), np.int64), np.empty(R ** 3, np.int64)
-        members = OG._member_ids(kind, un.view(np.int64), asn.view(np.int64), R, mid, mu)
-        sequences = OG._voxel_level(g.dist, kind, un, asn, mid, mu, R, vm, b, L)
+        code, mu = np.empty((R, R, R), np.int32), np.empty(R ** 3, np.int64)
+        members = OG._member_codes(kind, un.view(np.int64), asn.view(np.int64), g.dist, vm, R, L,
+                                   code, mu)
+        sequences = OG._voxel_level(code, mu, un, asn, R, vm, b, L)
         assert np.array_equal(a, b)
         assert 1 < members < sequences < np.count_nonzero(vm * (1 - OG.BLOCK_REL) < L)
     old = OG.VOXEL_LEVEL_MEMO

@@ -430,7 +430,7 @@ def _tri_d2(tris, t, px, py, pz):
 @nb.njit(cache=True, inline="always")
 def _fnv(h, k):
     """One step of the FNV-1a hash of int64 words (the tables of
-    _distinct_rows, _member_ids and _voxel_level)."""
+    _distinct_rows, _member_codes and _voxel_level)."""
     return (h ^ np.uint64(k)) * np.uint64(1099511628211)
 
 
@@ -1140,13 +1140,32 @@ def _cone_members(cone, R, kind, un, asn):
     instead of once per block or voxel that reads it (27 times at the voxel
     level): kind 0 = meets no plane, 1 = unknown (meets every plane), 2 = a
     member with unit axis un (R, R, R, 3) float64 and asn = asin of the sin
-    of the half-angle within which its axis meets a plane."""
+    of the half-angle within which its axis meets a plane.  A voxel whose
+    cone has the bits of the voxel before it (z - 1: the empty voxels that
+    take a wall's cone, a wall's own) gets that voxel's results, the same
+    bits, without the square root and the arcsine again.  cone: C order."""
+    cb = cone.view(np.int32)
+    p0 = p1 = p2 = p3 = 0
+    pk = -1
+    u0 = u1 = u2 = pa = 0.0
     for x in range(R):
         for y in range(R):
+            pk = -1                  # no voxel before this one on z
             for z in range(R):
+                b0, b1, b2, b3 = cb[x, y, z, 0], cb[x, y, z, 1], cb[x, y, z, 2], cb[x, y, z, 3]
+                if pk >= 0 and b0 == p0 and b1 == p1 and b2 == p2 and b3 == p3:
+                    kind[x, y, z] = pk
+                    if pk == 2:
+                        un[x, y, z, 0] = u0
+                        un[x, y, z, 1] = u1
+                        un[x, y, z, 2] = u2
+                        asn[x, y, z] = pa
+                    continue
+                p0, p1, p2, p3 = b0, b1, b2, b3
                 s = np.float64(cone[x, y, z, 3])
                 if s < -1.0:
                     kind[x, y, z] = 0
+                    pk = 0
                     continue
                 ax = np.float64(cone[x, y, z, 0])
                 ay = np.float64(cone[x, y, z, 1])
@@ -1154,14 +1173,18 @@ def _cone_members(cone, R, kind, un, asn):
                 nrm = math.sqrt(ax * ax + ay * ay + az * az)
                 if s + SIN_TOL >= 1.0 or nrm == 0.0:
                     kind[x, y, z] = 1
+                    pk = 1
                     continue
                 # the member meets the plane iff |a.d| <= s + tol, i.e. its
                 # unit axis is within asin((s + tol)/|a|)
                 kind[x, y, z] = 2
-                un[x, y, z, 0] = ax / nrm
-                un[x, y, z, 1] = ay / nrm
-                un[x, y, z, 2] = az / nrm
-                asn[x, y, z] = math.asin(min((s + SIN_TOL) / nrm, 1.0))
+                pk = 2
+                u0, u1, u2 = ax / nrm, ay / nrm, az / nrm
+                pa = math.asin(min((s + SIN_TOL) / nrm, 1.0))
+                un[x, y, z, 0] = u0
+                un[x, y, z, 1] = u1
+                un[x, y, z, 2] = u2
+                asn[x, y, z] = pa
 
 
 @nb.njit(cache=True, nogil=True)
@@ -1233,12 +1256,19 @@ def _two_cones(ax_, ay_, az_, as_, n, ia, ib, out, seen):
 
 
 @nb.njit(cache=True, nogil=True)
-def _member_ids(kind, ubits, abits, R, mid, mu):
-    """mid (R, R, R) int64: an index per distinct member (kind 2; its unit
-    axis and asin bits ubits (R, R, R, 3), abits (R, R, R) int64, the views
-    of _cone_members' un and asn), -1 for the others; mu (R^3,) int64: the
-    flat voxel of each index's first member.  Equal indices, equal bits.
-    Returns the number of indices."""
+def _member_codes(kind, ubits, abits, dist, vmin, R, L, code, mu):
+    """code (R, R, R) int32: what each voxel gives the voxel level's union
+    cones (_voxel_level), as a neighbour of a voxel and as that voxel
+    itself (a neighbour counts only within the cut, dist < L; a voxel's own
+    cone always: _in_cut): -1 nothing either way (kind 0, or a voxel that no
+    voxel of the level reads: outside the cut and vmin (1 - BLOCK_REL) >=
+    L, its own cones "meets none"); kind 1 (unknown, meets every plane) -2
+    within the cut, -3 outside it (itself only); kind 2 an index per
+    distinct member (its unit axis and asin bits ubits (R, R, R, 3), abits
+    (R, R, R) int64, the views of _cone_members' un and asn), i within the
+    cut, -4 - i outside it.  mu (R^3,) int64: the flat voxel of each
+    index's first member; equal indices, equal bits.  Returns the number of
+    indices."""
     size = 2
     while size < 2 * R * R * R:
         size *= 2
@@ -1247,8 +1277,13 @@ def _member_ids(kind, ubits, abits, R, mid, mu):
     for x in range(R):
         for y in range(R):
             for z in range(R):
-                if kind[x, y, z] != 2:
-                    mid[x, y, z] = -1
+                kd = kind[x, y, z]
+                cut = _in_cut(dist, x, y, z, False, L)
+                if kd == 0 or (not cut and vmin[x, y, z] * (1.0 - BLOCK_REL) >= L):
+                    code[x, y, z] = -1
+                    continue
+                if kd == 1:
+                    code[x, y, z] = -2 if cut else -3
                     continue
                 k0, k1, k2, k3 = ubits[x, y, z, 0], ubits[x, y, z, 1], ubits[x, y, z, 2], abits[x, y, z]
                 h = np.uint64(_FNV0)
@@ -1261,17 +1296,18 @@ def _member_ids(kind, ubits, abits, R, mid, mu):
                     if t < 0:
                         table[j] = d
                         mu[d] = (x * R + y) * R + z
-                        mid[x, y, z] = d
+                        t = d
                         d += 1
                         break
                     f = mu[t]
                     fx, fy, fz = f // (R * R), (f // R) % R, f % R
                     if (ubits[fx, fy, fz, 0] == k0 and ubits[fx, fy, fz, 1] == k1
                             and ubits[fx, fy, fz, 2] == k2 and abits[fx, fy, fz] == k3):
-                        mid[x, y, z] = t
                         break
                     j = (j + 1) & (size - 1)
+                code[x, y, z] = t if cut else -4 - t
     return d
+
 
 
 #: _voxel_level's memo: at most this many distinct member sequences kept.
@@ -1281,16 +1317,30 @@ VOXEL_MEMO = 1 << 15
 VOXEL_LEVEL_MEMO = True
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _slices_equal(code, x0, x1, y0, y1, z):
+    """Are the codes of columns [x0, x1) x [y0, y1) equal at z and z + 1?"""
+    for xx in range(x0, x1):
+        for yy in range(y0, y1):
+            if code[xx, yy, z] != code[xx, yy, z + 1]:
+                return False
+    return True
+
+
 @nb.njit(cache=True, nogil=True)
-def _voxel_level(dist, kind, un, asn, mid, mu, R, vmin, vcone, L):
+def _voxel_level(code, mu, un, asn, R, vmin, vcone, L):
     """The voxel level of MarchBlocks (vcone, int16), the cones of
     :func:`_build_blocks` with B = 1 bit for bit: vmin (R, R, R) float64 the
-    dilated minima (:func:`_dilated_min`).  A voxel's two cones are a
-    function of its members in order (their bits), so they are computed once
-    per distinct sequence of member indices (mid, mu of :func:`_member_ids`)
-    and looked up for the voxels with the same sequence (a wall's voxels, an
-    edge's along it): the same bits as computing them again."""
-    R3 = R * R * R
+    dilated minima (:func:`_dilated_min`); code, mu of
+    :func:`_member_codes`.  A voxel's two cones are a function of its
+    members in order (their bits), so they are computed once per distinct
+    sequence of member indices and looked up for the voxels with the same
+    sequence (a wall's voxels, an edge's along it): the same bits as
+    computing them again.  And a voxel whose 27 codes are those of the
+    voxel before it on z (both inside the grid on z: the four slices z - 2
+    .. z + 1 of its 3 x 3 columns equal) has that voxel's sequence, so its
+    cones: copied (a wall parallel to z).  Returns the number of sequences
+    kept."""
     ax_ = np.empty(27)
     ay_ = np.empty(27)
     az_ = np.empty(27)
@@ -1305,39 +1355,65 @@ def _voxel_level(dist, kind, un, asn, mid, mu, R, vmin, vcone, L):
     seq_at = np.empty(VOXEL_MEMO, np.int64)
     seq_n = np.empty(VOXEL_MEMO, np.int64)
     pool = np.empty(VOXEL_MEMO * 8, np.int64)
-    outs = np.empty((VOXEL_MEMO, 8))
+    outs = np.empty((VOXEL_MEMO, 8), np.int16)
+    # per column: are the slices z and z + 1 equal (1), not (0), unknown (-1)
+    eq = np.empty(R, np.int8)
     ne = 0
     npool = 0
     for x in range(R):
+        x0, x1 = max(x - 1, 0), min(x + 2, R)
         for y in range(R):
+            y0, y1 = max(y - 1, 0), min(y + 2, R)
             for z in range(R):
-                m = vmin[x, y, z]
-                for k in range(8):
-                    out[k] = 0.0
-                if m * (1.0 - BLOCK_REL) >= L:
-                    out[3] = -2.0
-                    out[7] = -2.0
-                    _store_cones(out, vcone, x, y, z, True)
+                eq[z] = -1
+            prev = False                 # voxel z - 1 has its sequence's cones
+            for z in range(R):
+                if vmin[x, y, z] * (1.0 - BLOCK_REL) >= L:
+                    # never read: "meets none" (as _build_blocks)
+                    for k in range(8):
+                        vcone[x, y, z, k] = 0
+                    vcone[x, y, z, 3] = -32768
+                    vcone[x, y, z, 7] = -32768
+                    prev = False
                     continue
+                if prev and 2 <= z <= R - 2:
+                    same = True
+                    for k in range(z - 2, z + 1):
+                        if eq[k] < 0:
+                            eq[k] = 1 if _slices_equal(code, x0, x1, y0, y1, k) else 0
+                        if eq[k] == 0:
+                            same = False
+                            break
+                    if same:
+                        for k in range(8):
+                            vcone[x, y, z, k] = vcone[x, y, z - 1, k]
+                        continue
+                prev = True
                 wide = False
                 n = 0
                 h = np.uint64(_FNV0)
-                for xx in range(max(x - 1, 0), min(x + 2, R)):
-                    for yy in range(max(y - 1, 0), min(y + 2, R)):
+                for xx in range(x0, x1):
+                    for yy in range(y0, y1):
                         for zz in range(max(z - 1, 0), min(z + 2, R)):
-                            kd = kind[xx, yy, zz]
-                            inner = xx == x and yy == y and zz == z
-                            if kd == 0 or not _in_cut(dist, xx, yy, zz, inner, L):
+                            c = code[xx, yy, zz]
+                            if xx == x and yy == y and zz == z:
+                                # its own cone: outside the cut too
+                                if c == -3:
+                                    c = -2
+                                elif c <= -4:
+                                    c = -4 - c
+                            if c == -2:
+                                wide = True         # unknown: meets every plane
                                 continue
-                            if kd == 1:
-                                wide = True
-                                continue
-                            i = mid[xx, yy, zz]
-                            ids[n] = i
-                            h = _fnv(h, i)
+                            if c < 0:
+                                continue            # meets no plane / never read
+                            ids[n] = c
+                            h = _fnv(h, c)
                             n += 1
-                out[7] = -2.0
                 if wide or n == 0:
+                    for k in range(8):
+                        out[k] = 0.0
+                    out[7] = -2.0
                     out[3] = 2.0 if wide else -2.0
                     _store_cones(out, vcone, x, y, z, True)
                     continue
@@ -1360,7 +1436,8 @@ def _voxel_level(dist, kind, un, asn, mid, mu, R, vmin, vcone, L):
                             break
                     j = (j + 1) & (size - 1)
                 if hit >= 0:
-                    _store_cones(outs[hit], vcone, x, y, z, True)
+                    for k in range(8):
+                        vcone[x, y, z, k] = outs[hit, k]
                     continue
                 for k in range(n):
                     f = mu[ids[k]]
@@ -1369,6 +1446,9 @@ def _voxel_level(dist, kind, un, asn, mid, mu, R, vmin, vcone, L):
                     ay_[k] = un[fx, fy, fz, 1]
                     az_[k] = un[fx, fy, fz, 2]
                     as_[k] = asn[fx, fy, fz]
+                for k in range(8):
+                    out[k] = 0.0
+                out[7] = -2.0
                 _two_cones(ax_, ay_, az_, as_, n, ia, ib, out, seen)
                 _store_cones(out, vcone, x, y, z, True)
                 if ne < VOXEL_MEMO and npool + n <= pool.shape[0]:
@@ -1378,10 +1458,12 @@ def _voxel_level(dist, kind, un, asn, mid, mu, R, vmin, vcone, L):
                     for k in range(n):
                         pool[npool + k] = ids[k]
                     npool += n
+                    # the quantized cones: a copy per later voxel
                     for k in range(8):
-                        outs[ne, k] = out[k]
+                        outs[ne, k] = vcone[x, y, z, k]
                     ne += 1
     return ne
+
 
 
 @nb.njit(cache=True, nogil=True)
@@ -1640,7 +1722,8 @@ def march_blocks(grid: OcclusionGrid, B: int = MARCH_BLOCK) -> MarchBlocks:
         kind = np.empty((R, R, R), np.int8)
         un = np.empty((R, R, R, 3))
         asn = np.empty((R, R, R))
-        _cone_members(grid.cone, R, kind, un, asn)
+        # C order: _cone_members reads the cones' bits through a view
+        _cone_members(np.ascontiguousarray(grid.cone), R, kind, un, asn)
         _build_blocks(grid.dist, kind, un, asn, R, B, NB, bmin, bcone, L, False,
                       np.empty((0, 0, 0)))
         if R ** 3 * 20 <= VOXEL_LEVEL_MAX:
@@ -1650,11 +1733,12 @@ def march_blocks(grid: OcclusionGrid, B: int = MARCH_BLOCK) -> MarchBlocks:
             _dilated_min(grid.dist, R, vm, np.empty((R, R, R)))
             vcone = np.zeros((R, R, R, 8), np.int16)
             if VOXEL_LEVEL_MEMO:
-                mid = np.empty((R, R, R), np.int64)
+                code = np.empty((R, R, R), np.int32)
                 mu = np.empty(R ** 3, np.int64)
-                _member_ids(kind, un.view(np.int64), asn.view(np.int64), R, mid, mu)
-                _voxel_level(grid.dist, kind, un, asn, mid, mu, R, vm, vcone, L)
-                del mid, mu
+                _member_codes(kind, un.view(np.int64), asn.view(np.int64), grid.dist, vm, R, L,
+                              code, mu)
+                _voxel_level(code, mu, un, asn, R, vm, vcone, L)
+                del code, mu
             else:
                 _build_blocks(grid.dist, kind, un, asn, R, 1, R, vm, vcone, L, True, vm)
             # dist is float32, so its minimum is exact in float32
