@@ -910,14 +910,22 @@ def _sector_cell(rx, ry, rz, r2, nvx, nvy, nvz, x, y, z):
     t0, t1, t2, t3, t4, t5 = _tangent_frame(nvx, nvy, nvz)
     u = dx * t0 + dy * t1 + dz * t2
     w = dx * t3 + dy * t4 + dz * t5
-    c = 0
-    if u < 0.0:
-        c = 1 if w >= 0.0 else 2
-    elif w < 0.0:
-        c = 3
-    if 2.0 * (dx * dx + dy * dy + dz * dz) >= r2:
-        c += SECTOR_QUADRANTS
-    return c
+    return _sector_of(u, w, dx * dx + dy * dy + dz * dz, r2)
+
+
+@njit(cache=True, inline="always")
+def _sector_of(u, w, d2, r2):
+    """_sector_cell's cell of the tangent-plane offset (u, w) at squared
+    distance d2 from the centre of a disc of radius^2 r2: quadrant 0 (u >=
+    0, w >= 0), 1 (u < 0, w >= 0), 2 (u < 0, w < 0) or 3 (u >= 0, w < 0),
+    plus SECTOR_QUADRANTS when 2 d2 >= r2.  In arithmetic, not branches:
+    a counted photon's signs are random, and the branches on them were
+    mispredicted about every other photon (docs/architecture.md "The
+    gather's sector cells, round 21").  A NaN w reads as the branches read
+    it: quadrant 2 when u < 0, else 0 (tests/test_hashgrid.py)."""
+    left = np.int64(u < 0.0)
+    c = left * (1 + np.int64(not (w >= 0.0))) + (1 - left) * 3 * np.int64(w < 0.0)
+    return c + SECTOR_QUADRANTS * np.int64(2.0 * d2 >= r2)
 
 
 @njit(cache=True)
