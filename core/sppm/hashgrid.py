@@ -949,7 +949,8 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     runs in SIMD lanes).  Photon by photon, rule (1) was a branch taken about
     one time in three at random, mispredicted at most candidates
     (docs/architecture.md "The count pass by runs of a slot, round 14").
-    A candidate's sums stay in registers over the run:
+    A candidate's sums stay in registers over the run (its sector counts
+    as 8 byte-wide counters of one uint64):
     Phi[v] still receives the photons' powers one by one in photon order
     (the local sum starts from Phi[v]), rmin is a minimum, M and S are
     counts, so the outputs are the same bits as testing photon by photon
@@ -1040,6 +1041,11 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
             p1 = 0.0
             p2 = 0.0
             rl = np.inf
+            # The run's sector counts, one byte a cell (a run has at most 64
+            # photons), added to the candidate's row of S once, as M is: S
+            # is not read and written at every counted photon
+            # (docs/architecture.md "The gather's sector cells, round 21").
+            cells = np.uint64(0)
             while near != 0:
                 q = a + _trailing_zeros(near)
                 near &= near - one
@@ -1056,7 +1062,8 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                     p0, p1, p2 = Phi[v, 0], Phi[v, 1], Phi[v, 2]
                 m += 1
                 if with_sectors:
-                    S[v, _sector_cell(rx, ry, rz, r2, nvx, nvy, nvz, x, y, z)] += 1
+                    cells += one << np.uint64(8 * _sector_cell(rx, ry, rz, r2, nvx, nvy, nvz,
+                                                               x, y, z))
                 if const != 0.0:
                     p0 += ph_power[q, 0]
                     p1 += ph_power[q, 1]
@@ -1074,6 +1081,9 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                 touched[n_touched[0]] = v
                 n_touched[0] += 1
             M[v] += m
+            if with_sectors:
+                for k in range(SECTOR_CELLS):
+                    S[v, k] += np.int64((cells >> np.uint64(8 * k)) & np.uint64(0xFF))
             if const != 0.0:
                 Phi[v, 0] = p0
                 Phi[v, 1] = p1
