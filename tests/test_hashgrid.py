@@ -270,3 +270,33 @@ def test_inline_tangent_frame_equals_numpy_frames():
     for a, b in ((t1, ng), (t2, ng), (t1, t2)):
         assert np.abs((a * b).sum(axis=1)).max() < 1e-12
     assert np.abs(np.linalg.norm(t1, axis=1) - 1).max() < 1e-12
+
+
+def _sector_cells_branches(u, w, d2, r2):
+    """The sector cells as the gather computed them with branches before
+    round 21 (quadrant of (u, w), outer ring from 2 d2 >= r2), in numpy."""
+    q = np.where(u < 0.0, np.where(w >= 0.0, 1, 2), np.where(w < 0.0, 3, 0))
+    return q + np.where(2.0 * d2 >= r2, hg.SECTOR_QUADRANTS, 0)
+
+
+def test_sector_cell_arithmetic_equals_branches():
+    """hashgrid._sector_of (the quadrant in arithmetic, no branch) is the
+    branching rule it replaced, on random offsets, the axes (+-0), the ring's
+    boundary 2 d2 = r2 and NaN / inf (NaN w with u < 0: quadrant 2)."""
+    rng = np.random.default_rng(21)
+    n = 20000
+    u = rng.normal(size=n)
+    w = rng.normal(size=n)
+    d2 = u * u + w * w + rng.random(n) * 0.1
+    r2 = d2 * rng.uniform(1.0, 3.0, n)
+    special = np.array([0.0, -0.0, 1.0, -1.0, np.nan, np.inf, -np.inf])
+    su, sw = np.meshgrid(special, special)
+    u = np.r_[u, su.ravel()]
+    w = np.r_[w, sw.ravel()]
+    m = su.size
+    d2 = np.r_[d2, np.full(m, 0.5)]
+    r2 = np.r_[r2, np.where(np.arange(m) % 2 == 0, 1.0, np.nan)]   # 2 d2 == r2, and NaN
+    ref = _sector_cells_branches(u, w, d2, r2)
+    got = np.array([hg._sector_of(*a) for a in zip(u, w, d2, r2)])
+    np.testing.assert_array_equal(got, ref)
+    assert set(np.unique(ref)) == set(range(hg.SECTOR_CELLS))

@@ -10,7 +10,7 @@ The grid stores *visible points* (VPs): every active VP is inserted in every
 cell its sphere of radius R overlaps, so a photon looks up exactly one cell.
 This is the hot loop of the renderer.  The gather first sorts the photons
 by cell (a counting sort over a small table, else a merge sort), copying
-their data into contiguous sorted arrays, so that consecutive photons test
+their data into sorted rows of one record array, so that consecutive photons test
 the same VPs (the VP records stay in cache) and read photon data
 sequentially; the gather then runs ~2x faster than in photon order.
 
@@ -126,6 +126,9 @@ COUNT_SORT_SLOTS_PER_PHOTON = 8
 # the caches and the masks measured 1.1-1.4x slower): _run_min,
 # docs/architecture.md "The count pass by runs of a slot, round 14".
 COUNT_RUN_MIN = 4
+# The gather's sorted photons, a row each (_sorted_photons): position, normal,
+# direction, power (3 float64 each) and predicted radius.
+PHOTON_RECORD = 13
 # The build's counting sort splits the slots in two parts (below a split
 # and the others; _insert_parallel is written for two), each VP's slots
 # written to its part's list: more threads split each part's slots, and
@@ -675,9 +678,10 @@ def _sort_photons(ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     of 131,072 photons.  Both order a slot's photons by index: the same
     result.
     Writes order (n,) int32 original photon index, slot (n,) int64, and the
-    sorted pos, ng, wi (n, 3) (input dtype), power (n, 3), rpred (n,) into
-    the first n rows of the caller's arrays of P rows (ps (P,) int64: the
-    photons' slots), and returns n (:func:`_sorted_photons`)."""
+    sorted pos, ng, wi, power (n, 3), rpred (n,) into the first n rows of
+    the caller's arrays of P rows (column views of one record array there,
+    or arrays of their own; ps (P,) int64: the photons' slots), and returns
+    n (:func:`_sorted_photons`)."""
     P = ph_pos.shape[0]
     n_slots = cell_start.shape[0] - 1
     for c in prange(n_chunks):
@@ -730,20 +734,26 @@ def _sorted_photons(sort, ph, grid: Grid, n_chunks: int, kept: Optional[KeptBuff
     (sort: _sort_photons or its serial twin): (order, slot, pos, ng, wi,
     power, rpred) of the n photons kept (see _sort_photons), and hitmask
     (n,) uint64, n_pair, n_freq (n,) int32 uninitialised for the count
-    pass.  kept: carve them from its buffer "gather_sort" (reused from
-    chunk to chunk: no page faults), else new arrays."""
+    pass.  pos, ng, wi (n, 3), power (n, 3) and rpred (n,) are float64
+    column views of one (P, PHOTON_RECORD) array, a row a photon: the sort
+    writes each photon it places to one row instead of five arrays
+    (docs/architecture.md "The gather's sector cells, round 21"); float32
+    geometry is widened exactly, as the count pass reads it.  kept: carve
+    them from its buffer "gather_sort" (reused from chunk to chunk: no page
+    faults), else new arrays."""
     P = ph[0].shape[0]
-    dt = ph[0].dtype
-    specs = [((P,), np.int64), ((P,), np.int32), ((P,), np.int64), ((P, 3), dt),
-             ((P, 3), ph[1].dtype), ((P, 3), ph[2].dtype), ((P, 3), np.float64),
-             ((P,), np.float64), ((P,), np.uint64), ((P,), np.int32), ((P,), np.int32)]
+    specs = [((P,), np.int64), ((P,), np.int32), ((P,), np.int64),
+             ((P, PHOTON_RECORD), np.float64),
+             ((P,), np.uint64), ((P,), np.int32), ((P,), np.int32)]
     bufs = (kept.take("gather_sort", specs) if kept is not None
             else [np.empty(shape, d) for shape, d in specs])
+    ps, order, slot, rec = bufs[:4]
+    cols = (rec[:, 0:3], rec[:, 3:6], rec[:, 6:9], rec[:, 9:12], rec[:, 12])
     n = int(sort(*ph, grid.origin, grid.inv_h, grid.lo, grid.hi, grid.dense,
                  int(grid.dims[0]), int(grid.dims[1]), int(grid.dims[2]),
                  0 if grid.dense else 64 - grid.log2_table, grid.cell_start, n_chunks,
-                 *bufs[:8]))
-    return tuple(b[:n] for b in bufs[1:])
+                 ps, order, slot, *cols))
+    return tuple(b[:n] for b in (order, slot, *cols, *bufs[4:]))
 
 
 #: The same sort compiled without ``parallel``: a numba parallel region costs a
@@ -910,14 +920,22 @@ def _sector_cell(rx, ry, rz, r2, nvx, nvy, nvz, x, y, z):
     t0, t1, t2, t3, t4, t5 = _tangent_frame(nvx, nvy, nvz)
     u = dx * t0 + dy * t1 + dz * t2
     w = dx * t3 + dy * t4 + dz * t5
-    c = 0
-    if u < 0.0:
-        c = 1 if w >= 0.0 else 2
-    elif w < 0.0:
-        c = 3
-    if 2.0 * (dx * dx + dy * dy + dz * dz) >= r2:
-        c += SECTOR_QUADRANTS
-    return c
+    return _sector_of(u, w, dx * dx + dy * dy + dz * dz, r2)
+
+
+@njit(cache=True, inline="always")
+def _sector_of(u, w, d2, r2):
+    """_sector_cell's cell of the tangent-plane offset (u, w) at squared
+    distance d2 from the centre of a disc of radius^2 r2: quadrant 0 (u >=
+    0, w >= 0), 1 (u < 0, w >= 0), 2 (u < 0, w < 0) or 3 (u >= 0, w < 0),
+    plus SECTOR_QUADRANTS when 2 d2 >= r2.  In arithmetic, not branches:
+    a counted photon's signs are random, and the branches on them were
+    mispredicted about every other photon (docs/architecture.md "The
+    gather's sector cells, round 21").  A NaN w reads as the branches read
+    it: quadrant 2 when u < 0, else 0 (tests/test_hashgrid.py)."""
+    left = np.int64(u < 0.0)
+    c = left * (1 + np.int64(not (w >= 0.0))) + (1 - left) * 3 * np.int64(w < 0.0)
+    return c + SECTOR_QUADRANTS * np.int64(2.0 * d2 >= r2)
 
 
 @njit(cache=True)
@@ -941,7 +959,8 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     runs in SIMD lanes).  Photon by photon, rule (1) was a branch taken about
     one time in three at random, mispredicted at most candidates
     (docs/architecture.md "The count pass by runs of a slot, round 14").
-    A candidate's sums stay in registers over the run:
+    A candidate's sums stay in registers over the run (its sector counts
+    as 8 byte-wide counters of one uint64):
     Phi[v] still receives the photons' powers one by one in photon order
     (the local sum starts from Phi[v]), rmin is a minimum, M and S are
     counts, so the outputs are the same bits as testing photon by photon
@@ -1032,6 +1051,11 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
             p1 = 0.0
             p2 = 0.0
             rl = np.inf
+            # The run's sector counts, one byte a cell (a run has at most 64
+            # photons), added to the candidate's row of S once, as M is: S
+            # is not read and written at every counted photon
+            # (docs/architecture.md "The gather's sector cells, round 21").
+            cells = np.uint64(0)
             while near != 0:
                 q = a + _trailing_zeros(near)
                 near &= near - one
@@ -1048,7 +1072,8 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                     p0, p1, p2 = Phi[v, 0], Phi[v, 1], Phi[v, 2]
                 m += 1
                 if with_sectors:
-                    S[v, _sector_cell(rx, ry, rz, r2, nvx, nvy, nvz, x, y, z)] += 1
+                    cells += one << np.uint64(8 * _sector_cell(rx, ry, rz, r2, nvx, nvy, nvz,
+                                                               x, y, z))
                 if const != 0.0:
                     p0 += ph_power[q, 0]
                     p1 += ph_power[q, 1]
@@ -1066,6 +1091,9 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                 touched[n_touched[0]] = v
                 n_touched[0] += 1
             M[v] += m
+            if with_sectors:
+                for k in range(SECTOR_CELLS):
+                    S[v, k] += np.int64((cells >> np.uint64(8 * k)) & np.uint64(0xFF))
             if const != 0.0:
                 Phi[v, 0] = p0
                 Phi[v, 1] = p1
