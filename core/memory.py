@@ -97,7 +97,10 @@ BYTES_PER_SECTOR_CELL = 24
 BYTES_PER_CLIP = 8
 BYTES_PER_CLIP_TRIANGLE = 48
 CLIP_GRID_BYTES = 64 * 2**10
-BYTES_PER_PHOTON = 1229
+# + 127 in round 21: the gather's sorted copy became one float64 record a
+# deposit (hashgrid.PHOTON_RECORD), 36 B more than its float32 geometry
+# columns, at the ~3.5 deposits a photon of a 1080p Cornell chunk
+BYTES_PER_PHOTON = 1356
 BYTES_PER_QUEUED_PHOTON = 432
 BYTES_PER_TRIANGLE = 400
 BYTES_PER_VOXEL = 192
