@@ -313,7 +313,14 @@ NOTES = [
     "cores a method), in cornell/fppm_ppm_cppm_60s/ (the efc9056 run above moved to "
     "cornell/fppm_ppm_cppm_60s_round19/): FPPM / PPM 1.06 / 0.762 / 0.694 (excess 0.688; 10 % seeds "
     "0.99-1.15), FPPM / CPPM 1.11 / 0.945 / 0.986 (excess 0.986, seeds at 100 % 0.92-1.03); FPPM "
-    "260-295 passes, PPM 297-316, CPPM 269-309.",
+    "260-295 passes, PPM 297-316, CPPM 269-309.  Moved to cornell/fppm_ppm_cppm_60s_round20/ in round 21.",
+    "Round 21, the Cornell box on 82071aa (the gather's sector cells in arithmetic and a run's sector "
+    "counts in one word, the march blocks built with less work: the same images, FPPM's gather "
+    "0.75x), `cornell --budget 60 --seeds 4 --methods fppm,ppm,cppm`, load about 2 with a helper's "
+    "coffee-cup run beside it (1.0-1.1 cores a method), in cornell/fppm_ppm_cppm_60s/: FPPM / PPM "
+    "0.865 / 0.67 / 0.658 (excess 0.652; 10 % seeds 0.82-0.92, all four below 1; FLIP 0.903 / "
+    "0.854 / 0.86), FPPM / CPPM 1.05 / 0.976 / 1.02 (excess 1.02); FPPM 309-331 passes, PPM "
+    "287-348, CPPM 330-338.",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
