@@ -321,6 +321,23 @@ NOTES = [
     "0.865 / 0.67 / 0.658 (excess 0.652; 10 % seeds 0.82-0.92, all four below 1; FLIP 0.903 / "
     "0.854 / 0.86), FPPM / CPPM 1.05 / 0.976 / 1.02 (excess 1.02); FPPM 309-331 passes, PPM "
     "287-348, CPPM 330-338.",
+    "Round 21, the coffee cup on 4b45fc3 (Frequency Start 2, round 21's cheaper march and set-up) "
+    "against its VCM reference rendered again (`bench/luxcore_reference.py render coffee_cup "
+    "--runs 6 --cpu 200`, 12467 spp, 1202 CPU s, floor 1.12e-3 where round 16's file had 9449 "
+    "spp and 1.48e-3; docs/peers.md 'The cup's reference rebuilt, round 21'), all at nice 19 "
+    "beside another helper's benchmarks.  `coffee_cup --budget 60 --seeds 4 --methods "
+    "fppm,ppm,cppm`, load 2.6 to 6.5 (1.1 cores a method), in coffee_cup/fppm_ppm_cppm_60s/: "
+    "FPPM / PPM 1.03 / 0.982 / 0.984 at 10 / 50 / 100 % (excess 0.981, seeds 0.974-0.985; 10 % "
+    "seeds 0.95-1.14, one of four below 1; FLIP 1.03 / 1.00 / 0.995), FPPM / CPPM 1.01 / 0.999 / "
+    "1.001 (excess 1.002, seeds 0.987-1.014); FPPM 392-429 passes, PPM 414-456, CPPM 376-450; "
+    "every excess 5.2-5.3x the floor.  At equal passes FPPM is CPPM's error within 0.5 % and "
+    "0.97-0.98x PPM's from pass 10.  `coffee_cup --budget 6 --seeds 16 --methods fppm,ppm,cppm`, "
+    "load 1.8 to 6.4 (1.4 cores a method), in coffee_cup/fppm_ppm_cppm_6s_16seeds/ (the round-18 "
+    "run on 62347fc, Frequency Start 1, scored against round 16's file, moved to "
+    "coffee_cup/fppm_ppm_cppm_6s_16seeds_start1/): FPPM / PPM 1.01 at 6 s (excess 1.009, seeds "
+    "0.96-1.09, 7 of 16 below 1; 1.02 with Start 1), 1.04 at 3 s, 1.39 at 0.6 s; FPPM / CPPM 1.03 "
+    "(seeds 0.97-1.11; 1.03 with Start 1); FPPM 33-44 passes (mean 38.1), PPM 33-47 (40.8), CPPM "
+    "34-45 (40.2); every excess 10.6-11x the floor.",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
