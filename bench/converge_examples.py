@@ -307,7 +307,13 @@ NOTES = [
     "(the round 19 run on 62347fc, Frequency Start 1, moved to cornell/fppm_ppm_cppm_6s_16seeds_start1/): "
     "FPPM / PPM 0.98 at 6 s (seeds 0.86-1.16, 12 of 16 below 1; 1.02 with Start 1), 1.20 at 3 s; "
     "FPPM / CPPM 1.12 (seeds 0.98-1.33; 1.11 with Start 1); FPPM 23-29 passes, PPM 27-35, CPPM "
-    "26-32 (docs/method.md 'Round 20: the Cornell box's first passes on an idle machine').",
+    "26-32 (docs/method.md 'Round 20: the Cornell box's first passes on an idle machine').  Moved to "
+    "cornell/fppm_ppm_cppm_6s_16seeds_round20/ in round 21.",
+    "Round 21, the Cornell box at 6 CPU s with 16 seeds on 17f0c6c (round 21's gather and set-up), "
+    "`cornell --budget 6 --seeds 16 --methods fppm,ppm,cppm`, load about 2 with a helper's benchmark "
+    "beside it (1.7 cores a method), in cornell/fppm_ppm_cppm_6s_16seeds/: FPPM / PPM 0.933 at 6 s "
+    "(seeds 0.76-1.11, 12 of 16 below 1; FLIP 0.94), 1.06 at 3 s (round 20: 0.98 and 1.20); FPPM / "
+    "CPPM 1.08 at 6 s; FPPM 24-31 passes, PPM 28-35, CPPM 27-35.",
     "Round 20, the Cornell box on 8076bc8 (the march's runs of blocks: the same images, a cheaper "
     "march), `cornell --budget 60 --seeds 4 --methods fppm,ppm,cppm`, idle (load 1.1 to 1.2, 1.8 "
     "cores a method), in cornell/fppm_ppm_cppm_60s/ (the efc9056 run above moved to "
