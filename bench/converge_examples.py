@@ -323,10 +323,16 @@ NOTES = [
     "Round 21, the Cornell box on 82071aa (the gather's sector cells in arithmetic and a run's sector "
     "counts in one word, the march blocks built with less work: the same images, FPPM's gather "
     "0.75x), `cornell --budget 60 --seeds 4 --methods fppm,ppm,cppm`, load about 2 with a helper's "
-    "coffee-cup run beside it (1.0-1.1 cores a method), in cornell/fppm_ppm_cppm_60s/: FPPM / PPM "
+    "coffee-cup run beside it (1.0-1.1 cores a method), in cornell/fppm_ppm_cppm_60s_1core/: FPPM / PPM "
     "0.865 / 0.67 / 0.658 (excess 0.652; 10 % seeds 0.82-0.92, all four below 1; FLIP 0.903 / "
     "0.854 / 0.86), FPPM / CPPM 1.05 / 0.976 / 1.02 (excess 1.02); FPPM 309-331 passes, PPM "
     "287-348, CPPM 330-338.",
+    "Round 21, the same row again on cef93cf (the same code), idle (the run alone, load 2 to 3, 1.8 "
+    "cores a method), in cornell/fppm_ppm_cppm_60s/: FPPM / PPM 1.07 / 0.711 / 0.636 (excess 0.63; "
+    "10 % seeds 0.85, 1.13, 1.32, 1.00; FLIP 0.952 / 0.866 / 0.856), FPPM / CPPM 1.04 / 0.987 / "
+    "0.974 (excess 0.973, seeds at 100 % 0.90-1.04); FPPM 274-309 passes, PPM 267-306, CPPM 278-303.  "
+    "The four seeds' 10 % point moves with the seeds and the cores (0.865 and 1.07 for the same code); "
+    "16 seeds at 6 s read 0.933 (below).",
     "Round 21, the coffee cup on 4b45fc3 (Frequency Start 2, round 21's cheaper march and set-up) "
     "against its VCM reference rendered again (`bench/luxcore_reference.py render coffee_cup "
     "--runs 6 --cpu 200`, 12467 spp, 1202 CPU s, floor 1.12e-3 where round 16's file had 9449 "
