@@ -608,7 +608,11 @@ last group; :func:`_sweep_child_folders`)."""
 def _sweep_child_folders(root: str, now: Optional[float] = None) -> None:
     """Remove the ``warmup-*`` folders of compiling children that were
     killed together with their parent (SIGKILL, a crash, power loss): the
-    other ways out remove their folder themselves (:class:`_Child`)."""
+    other ways out remove their folder themselves (:class:`_Child`).  Only
+    folders holding nothing but a child's own files (``FPPM_CACHE_DIR`` may
+    name any folder of the user's)."""
+    import re
+    ours = re.compile(r"(spec-)?\d+\.pkl(\.\d+\.tmp)?")   # what _Child and child_main write
     now = time.time() if now is None else now
     try:
         names = os.listdir(root)
@@ -618,7 +622,8 @@ def _sweep_child_folders(root: str, now: Optional[float] = None) -> None:
         path = os.path.join(root, n)
         try:
             if n.startswith("warmup-") and os.path.isdir(path) and \
-                    now - os.stat(path).st_mtime > CHILD_FOLDER_STALE_SECONDS:
+                    now - os.stat(path).st_mtime > CHILD_FOLDER_STALE_SECONDS and \
+                    all(ours.fullmatch(f) for f in os.listdir(path)):
                 shutil.rmtree(path, ignore_errors=True)
         except OSError:
             pass

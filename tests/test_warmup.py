@@ -361,17 +361,20 @@ def test_a_compiling_childs_folder_goes_when_its_parent_is_killed(tmp_path):
 def test_stale_child_folders_are_swept_and_live_ones_kept(tmp_path):
     from fppm.core import warmup as W
     old, live = tmp_path / "warmup-old", tmp_path / "warmup-live"
+    users = tmp_path / "warmup-notes"               # a user's own folder: never touched
     marker = tmp_path / "warmup-x.json"            # not a folder: never touched
-    for d in (old, live):
+    for d in (old, live, users):
         d.mkdir()
         (d / "spec-0.pkl").write_bytes(b"")
+    (old / "0.pkl.123.tmp").write_bytes(b"")
+    (users / "notes.txt").write_text("mine")
     marker.write_text("{}")
     now = time.time()
     past = now - W.CHILD_FOLDER_STALE_SECONDS - 1
-    os.utime(old, (past, past))
-    os.utime(marker, (past, past))
+    for p in (old, users, marker):
+        os.utime(p, (past, past))
     W._sweep_child_folders(str(tmp_path), now)
-    assert sorted(os.listdir(tmp_path)) == ["warmup-live", "warmup-x.json"]
+    assert sorted(os.listdir(tmp_path)) == ["warmup-live", "warmup-notes", "warmup-x.json"]
 
 
 def test_without_a_python_executable_the_thread_compiles(monkeypatch, capsys, tmp_path):
