@@ -879,10 +879,19 @@ def check_image(sess, stop) -> None:
 
 def exit_now(code: int) -> None:
     """End the process with ``code`` at once (``os._exit``: no interpreter
-    teardown, see ``tools/cli.py`` ``main``), removing Blender's session
+    teardown, see ``tools/cli.py`` ``main``), ending the kernel compiler's
+    children (``core.warmup.end_children``) and removing Blender's session
     folder first (``bpy.app.tempdir``, ``<temp>/blender_XXXXXX/``): bpy
     removes it itself only at a normal interpreter exit, so every ``fppm``
     command left one behind in the temporary folder."""
+    # the kernel compiler's children and their folders (no finalizer runs
+    # after os._exit); core.warmup only if this process imported it
+    warmup = sys.modules.get(__package__.rsplit(".", 1)[0] + ".core.warmup")
+    if warmup is not None:
+        try:
+            warmup.end_children()
+        except Exception:   # noqa: BLE001 - quitting: what is left is swept later
+            pass
     bpy = sys.modules.get("bpy")
     try:
         folder = os.path.normpath(bpy.app.tempdir) if bpy is not None else ""

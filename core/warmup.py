@@ -631,13 +631,28 @@ def _sweep_child_folders(root: str, now: Optional[float] = None) -> None:
 
 def _end_child(proc: subprocess.Popen, log, folder: str) -> None:
     """Stop a compiling child and remove its folder: :meth:`_Child.close`,
-    or this process's exit or the object's collection without one
-    (``weakref.finalize``), so that no ``warmup-*`` folder outlives both."""
+    :func:`end_children`, or this process's exit or the object's collection
+    without either (``weakref.finalize``), so that no ``warmup-*`` folder
+    outlives both."""
+    _LIVE_CHILDREN.difference_update([f for f in _LIVE_CHILDREN if not f.alive])
     if proc.poll() is None:
         proc.kill()
     proc.wait()
     log.close()
     shutil.rmtree(folder, ignore_errors=True)
+
+
+_LIVE_CHILDREN: set = set()
+"""The finalizers of the :class:`_Child` objects not closed yet."""
+
+
+def end_children() -> None:
+    """Stop every compiling child of this process and remove its folder:
+    for a process that ends with ``os._exit`` (the ``fppm`` command,
+    ``addon/cli.py`` ``exit_now``), which runs no finalizer, and whose
+    child may have ended idle before it (then nobody else removes it)."""
+    for end in list(_LIVE_CHILDREN):
+        end()
 
 
 class _Child:
@@ -658,6 +673,7 @@ class _Child:
                                      stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                      stderr=self.log, env=env, cwd=root, **group)
         self._end = weakref.finalize(self, _end_child, self.proc, self.log, self.folder)
+        _LIVE_CHILDREN.add(self._end)
 
     def submit(self, spec: dict) -> int:
         _dump(os.path.join(self.folder, f"spec-{self.n}.pkl"), spec)

@@ -358,6 +358,29 @@ def test_a_compiling_childs_folder_goes_when_its_parent_is_killed(tmp_path):
     assert not os.path.exists(folder)
 
 
+EXIT_NOW = (
+    "from fppm.core import warmup as W\n"
+    "from fppm.addon import cli\n"
+    "c = W._Child()\n"
+    "print(c.folder, flush=True)\n"
+    "c.proc.kill()\n"
+    "c.proc.wait()          # the child ended (idle) before the command did\n"
+    "cli.exit_now(0)\n")
+
+
+def test_the_fppm_commands_exit_ends_the_compiling_childs_folder(tmp_path):
+    # The console script ends with os._exit (addon/cli.py exit_now), which
+    # runs no finalizer; a child that ended idle before it no longer removes
+    # its folder: exit_now does.
+    env = dict(os.environ, FPPM_CACHE_DIR=str(tmp_path / "cache"))
+    p = subprocess.run([PY, "-c", EXIT_NOW], capture_output=True, text=True, timeout=120,
+                       cwd=str(tmp_path), env=env)
+    assert p.returncode == 0, p.stderr[-2000:]
+    folder = p.stdout.strip().splitlines()[-1]
+    assert os.path.basename(folder).startswith("warmup-")
+    assert not os.path.exists(folder)
+
+
 def test_stale_child_folders_are_swept_and_live_ones_kept(tmp_path):
     from fppm.core import warmup as W
     old, live = tmp_path / "warmup-old", tmp_path / "warmup-live"
