@@ -336,48 +336,39 @@ def test_first_use_compiles_in_a_subprocess_and_keeps_this_process_responsive(tm
     assert [n for n in os.listdir(tmp_path / "cache") if n.startswith("warmup-")] == []
 
 
-KILLED = (
-    "import os, signal, sys\n"
-    "from fppm.core import warmup as W\n"
-    "c = W._Child()\n"
-    "print(c.folder, flush=True)\n"
-    "os.kill(os.getpid(), signal.SIGKILL)\n")
+def _child_folder_of(script, tmp_path):
+    """Run ``script`` (it starts a compiling child and prints its folder) with
+    its own kernel cache; returns (returncode, the child's folder)."""
+    env = dict(os.environ, FPPM_CACHE_DIR=str(tmp_path / "cache"))
+    p = subprocess.run([PY, "-c", "from fppm.core import warmup as W\n"
+                        "c = W._Child()\n"
+                        "print(c.folder, flush=True)\n" + script],
+                       capture_output=True, text=True, timeout=120, cwd=str(tmp_path), env=env)
+    folder = p.stdout.strip().splitlines()[-1] if p.stdout.strip() else ""
+    assert os.path.basename(folder).startswith("warmup-"), p.stdout + p.stderr[-2000:]
+    return p.returncode, folder
 
 
 def test_a_compiling_childs_folder_goes_when_its_parent_is_killed(tmp_path):
     # No finalizer runs in a killed process: the child, which notices its
     # parent's end within half a second, removes its own folder.
-    env = dict(os.environ, FPPM_CACHE_DIR=str(tmp_path / "cache"))
-    p = subprocess.run([PY, "-c", KILLED], capture_output=True, text=True, timeout=120,
-                       cwd=str(tmp_path), env=env)
-    folder = p.stdout.strip().splitlines()[-1]
-    assert os.path.basename(folder).startswith("warmup-"), p.stdout + p.stderr[-2000:]
+    _, folder = _child_folder_of("import os, signal\nos.kill(os.getpid(), signal.SIGKILL)\n",
+                                 tmp_path)
     t0 = time.monotonic()
     while os.path.exists(folder) and time.monotonic() - t0 < 30:
         time.sleep(0.1)
     assert not os.path.exists(folder)
 
 
-EXIT_NOW = (
-    "from fppm.core import warmup as W\n"
-    "from fppm.addon import cli\n"
-    "c = W._Child()\n"
-    "print(c.folder, flush=True)\n"
-    "c.proc.kill()\n"
-    "c.proc.wait()          # the child ended (idle) before the command did\n"
-    "cli.exit_now(0)\n")
-
-
 def test_the_fppm_commands_exit_ends_the_compiling_childs_folder(tmp_path):
     # The console script ends with os._exit (addon/cli.py exit_now), which
     # runs no finalizer; a child that ended idle before it no longer removes
     # its folder: exit_now does.
-    env = dict(os.environ, FPPM_CACHE_DIR=str(tmp_path / "cache"))
-    p = subprocess.run([PY, "-c", EXIT_NOW], capture_output=True, text=True, timeout=120,
-                       cwd=str(tmp_path), env=env)
-    assert p.returncode == 0, p.stderr[-2000:]
-    folder = p.stdout.strip().splitlines()[-1]
-    assert os.path.basename(folder).startswith("warmup-")
+    rc, folder = _child_folder_of("from fppm.addon import cli\n"
+                                  "c.proc.kill()\n"
+                                  "c.proc.wait()   # the child ended (idle) before the command did\n"
+                                  "cli.exit_now(0)\n", tmp_path)
+    assert rc == 0
     assert not os.path.exists(folder)
 
 
