@@ -349,7 +349,12 @@ NOTES = [
     "coffee_cup/fppm_ppm_cppm_6s_16seeds_start1/): FPPM / PPM 1.01 at 6 s (excess 1.009, seeds "
     "0.96-1.09, 7 of 16 below 1; 1.02 with Start 1), 1.04 at 3 s, 1.39 at 0.6 s; FPPM / CPPM 1.03 "
     "(seeds 0.97-1.11; 1.03 with Start 1); FPPM 33-44 passes (mean 38.1), PPM 33-47 (40.8), CPPM "
-    "34-45 (40.2); every excess 10.6-11x the floor.",
+    "34-45 (40.2); every excess 10.6-11x the floor.  That 6-s run moved to "
+    "coffee_cup/fppm_ppm_cppm_6s_16seeds_4b45fc3/ in round 21.",
+    "Round 21, the coffee cup at 6 CPU s with 16 seeds again on 58a8bb2 (round 21's gather merged: "
+    "the same images), idle (the run alone, 1.65 cores a method), in "
+    "coffee_cup/fppm_ppm_cppm_6s_16seeds/: FPPM / PPM 1.002 at 6 s (seeds 0.95-1.05, 8 of 16 below "
+    "1; FLIP 1.02), 1.05 at 3 s; FPPM / CPPM 1.03; FPPM 29-43 passes, PPM 33-44, CPPM 34-44.",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
