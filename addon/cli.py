@@ -881,7 +881,7 @@ def exit_now(code: int) -> None:
     """End the process with ``code`` at once (``os._exit``: no interpreter
     teardown, see ``tools/cli.py`` ``main``), ending the kernel compiler's
     children (``core.warmup.end_children``) and removing Blender's session
-    folder first (``bpy.app.tempdir``, ``<temp>/blender_XXXXXX/``): bpy
+    folder first (``bpy.app.tempdir``, ``<temp>/blender_<random>/``): bpy
     removes it itself only at a normal interpreter exit, so every ``fppm``
     command left one behind in the temporary folder."""
     # the kernel compiler's children and their folders (no finalizer runs

@@ -634,7 +634,6 @@ def _end_child(proc: subprocess.Popen, log, folder: str) -> None:
     :func:`end_children`, or this process's exit or the object's collection
     without either (``weakref.finalize``), so that no ``warmup-*`` folder
     outlives both."""
-    _LIVE_CHILDREN.difference_update([f for f in _LIVE_CHILDREN if not f.alive])
     if proc.poll() is None:
         proc.kill()
     proc.wait()
@@ -642,8 +641,8 @@ def _end_child(proc: subprocess.Popen, log, folder: str) -> None:
     shutil.rmtree(folder, ignore_errors=True)
 
 
-_LIVE_CHILDREN: set = set()
-"""The finalizers of the :class:`_Child` objects not closed yet."""
+_CHILDREN: "weakref.WeakSet" = weakref.WeakSet()
+"""This process's :class:`_Child` objects (closing one twice does nothing)."""
 
 
 def end_children() -> None:
@@ -651,8 +650,8 @@ def end_children() -> None:
     for a process that ends with ``os._exit`` (the ``fppm`` command,
     ``addon/cli.py`` ``exit_now``), which runs no finalizer, and whose
     child may have ended idle before it (then nobody else removes it)."""
-    for end in list(_LIVE_CHILDREN):
-        end()
+    for child in list(_CHILDREN):
+        child.close()
 
 
 class _Child:
@@ -673,7 +672,7 @@ class _Child:
                                      stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                      stderr=self.log, env=env, cwd=root, **group)
         self._end = weakref.finalize(self, _end_child, self.proc, self.log, self.folder)
-        _LIVE_CHILDREN.add(self._end)
+        _CHILDREN.add(self)
 
     def submit(self, spec: dict) -> int:
         _dump(os.path.join(self.folder, f"spec-{self.n}.pkl"), spec)

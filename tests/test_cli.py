@@ -81,7 +81,7 @@ def test_render_writes_exr_png_and_summary(blends, tmp_path):
     r = H.run_fppm("render", blends["simple"], "-o", out, "--passes", "2", "--photons", "2000",
                    "--seed", "3", env_extra={"TMPDIR": str(tmp)})
     assert r.returncode == 0, r.stderr[-3000:]
-    # Blender's session folder (<TMPDIR>/blender_XXXXXX) went with the process
+    # Blender's session folder (<TMPDIR>/blender_<random>) went with the process
     assert [n for n in os.listdir(tmp) if n.startswith("blender_")] == []
     layers = read_exr(str(out))
     assert set(layers) == {"Combined"}

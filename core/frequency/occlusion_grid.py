@@ -1309,7 +1309,6 @@ def _member_codes(kind, ubits, abits, dist, vmin, R, L, code, mu):
     return d
 
 
-
 #: _voxel_level's memo: at most this many distinct member sequences kept.
 VOXEL_MEMO = 1 << 15
 #: march_blocks builds the voxel level with _voxel_level (False:
@@ -1463,7 +1462,6 @@ def _voxel_level(code, mu, un, asn, R, vmin, vcone, L):
                         outs[ne, k] = vcone[x, y, z, k]
                     ne += 1
     return ne
-
 
 
 @nb.njit(cache=True, nogil=True)
