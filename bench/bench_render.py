@@ -581,8 +581,9 @@ def main(argv=None):
     ap.add_argument("--pass-res", nargs="+", default=["256x256", "1920x1080"])
     ap.add_argument("--plain", action="store_true", help="--pass without frequency photons")
     ap.add_argument("--subdiv", type=int, default=1,
-                    help="--pass: split each of the box's 15 quads into N x N (30 N^2 triangles; "
-                         "N = 183: about 1M), the same surfaces with more work per Embree ray")
+                    help="--pass and --frequency: split each of the box's 15 quads into N x N (30 N^2 "
+                         "triangles; N = 183: about 1M), the same surfaces with more work per "
+                         "Embree ray")
     ap.add_argument("--pass-one", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.blend:
@@ -605,7 +606,7 @@ def main(argv=None):
     if a.gather:
         gather_report(a)
         return 0
-    scene = cornell(a.res)
+    scene = cornell(a.res, subdiv=a.subdiv)
     # The trace's and the gather's process-CPU clocks must not hold the
     # camera stage's CPU: no trace-ahead here (photon_pass_alone).
     from core.sppm import photon_pass as PPm

@@ -1080,10 +1080,14 @@ def _count_range(q0, q1, slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
                     p2 += ph_power[q, 2]
                 else:
                     n_pair[q] += 1
+                # Without a branch: frequency and classic deposits are mixed
+                # at random in a slot, so "is r a number" was mispredicted
+                # at a large share of the counted pairs in a frequency pass.
+                # NaN == NaN is False and NaN < rl is False: a classic
+                # deposit adds 0 and leaves rl (the same values as the branch).
                 r = ph_rpred[q]
-                if not math.isnan(r):
-                    n_freq[q] += 1
-                    rl = min(rl, r)
+                n_freq[q] += np.int32(r == r)
+                rl = r if r < rl else rl
                 hitmask[q] |= bit
             if m == 0:
                 continue
