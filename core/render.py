@@ -396,6 +396,15 @@ class Renderer:
             lines += self.plan.lines()
         return lines
 
+    def settle(self) -> None:
+        """Wait for the work this renderer runs between passes (the next
+        pass's photons, traced ahead: ``PhotonPass.settle``) to finish.  The
+        next pass is unchanged; a caller timing passes by CPU calls it before
+        work of its own that it leaves out of the passes' time."""
+        settle = getattr(self.photon_pass, "settle", None)    # None: a stand-in
+        if settle is not None:
+            settle()
+
     def run(self, should_stop=None, on_pass=None) -> PassResult:
         st = self.settings
         if should_stop is not None:

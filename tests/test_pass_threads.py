@@ -274,3 +274,43 @@ def test_radius_cut_is_set_before_the_pass_traces(monkeypatch):
     assert cuts_fast[0] == np.inf and all(np.isfinite(c) and c > 0 for c in cuts_fast[1:])
     for a, b, c in zip(fast, slow, here):
         assert np.array_equal(a, b) and np.array_equal(a, c)
+
+
+def _ahead_thread_cpu() -> float:
+    """CPU seconds of the threads that trace photons (the trace-ahead thread
+    and the tracer's pool: thread names "fppm-ahead", "fppm-photons")."""
+    import threading
+    import time
+    t = 0.0
+    for th in threading.enumerate():
+        if th.name.startswith(("fppm-ahead", "fppm-photons")) and th.ident:
+            t += time.clock_gettime(time.pthread_getcpuclockid(th.ident))
+    return t
+
+
+def test_settle_traces_the_next_pass_before_work_between_passes():
+    """Renderer.settle (what ``fppm converge`` calls before its metrics,
+    which it leaves out of a method's CPU time): once it returns, no thread
+    of the renderer traces photons, so the next pass's chunks traced ahead
+    are not done in the metrics' time; and the next passes gather them as
+    they would have, the same images bit for bit.  Without it the
+    trace-ahead thread works on while the caller measures its own work."""
+    import time
+    here, _ = _passes(5)
+    r = _passes(0, max_passes=5)[1]
+    got, during = [], []
+    for k in range(5):
+        got.append(r.step().image.copy())
+        if r.photon_pass._next is not None or r.photon_pass._ahead is not None:
+            r.settle()
+            queued = [f for q in (r.photon_pass._ahead, r.photon_pass._next)
+                      if q is not None for f in q[1]]
+            assert all(f.done() for f in queued)
+        c0 = _ahead_thread_cpu()
+        time.sleep(0.05)                       # the caller's own work
+        during.append(_ahead_thread_cpu() - c0)
+    # passes 3 and 5 have no frequency photons: queued under passes 2 and 4
+    assert r.photon_pass.next_adopted == 2
+    assert max(during) < 0.002, during
+    for k, (a, b) in enumerate(zip(here, got)):
+        assert np.array_equal(a, b), k

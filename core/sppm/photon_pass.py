@@ -470,6 +470,20 @@ class PhotonPass:
         for f in running:
             f.exception()
 
+    def settle(self) -> None:
+        """Wait until every chunk queued ahead (this pass's, and the next
+        pass's queued behind its last one) is traced; nothing is taken or
+        dropped, so the next pass gathers them as it would have.  Between
+        passes the trace-ahead thread goes on tracing the next pass's
+        chunks: a caller that times the passes by the process's CPU and
+        leaves out its own work between them (``fppm converge``'s metrics)
+        calls this first, so that the trace's CPU is the pass's, not the
+        metrics' (docs/method.md "The convergence runs' CPU clock, round 22")."""
+        for queue in (self._ahead, self._next):
+            if queue is not None:
+                for f in list(queue[1]):
+                    f.exception()             # waits; a failure is raised where it is taken
+
     def _drop_ahead(self) -> None:
         """Cancel the chunks traced ahead and not started, wait for the one
         running (a pass that was cancelled or found no visible point).  The
