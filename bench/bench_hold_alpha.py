@@ -129,11 +129,9 @@ def settle(r):
     traced).  They run in a thread on after step() returns, and
     time.process_time is the whole process's: unwaited, their CPU is billed
     to whichever renderer steps next (docs/method.md "Where FPPM's extras do
-    not pay").  Waiting leaves them queued for the next pass: the same bits."""
-    nxt = getattr(getattr(r, "photon_pass", None), "_next", None)
-    if nxt is not None:
-        for f in list(nxt[1]):
-            f.exception()
+    not pay").  Waiting leaves them queued for the next pass: the same bits
+    (``Renderer.settle``, which ``fppm converge`` calls before its metrics)."""
+    r.settle()
 
 
 class OwnTrace:

@@ -332,7 +332,15 @@ NOTES = [
     "10 % seeds 0.85, 1.13, 1.32, 1.00; FLIP 0.952 / 0.866 / 0.856), FPPM / CPPM 1.04 / 0.987 / "
     "0.974 (excess 0.973, seeds at 100 % 0.90-1.04); FPPM 274-309 passes, PPM 267-306, CPPM 278-303.  "
     "The four seeds' 10 % point moves with the seeds and the cores (0.865 and 1.07 for the same code); "
-    "16 seeds at 6 s read 0.933 (below).",
+    "16 seeds at 6 s read 0.933 (below).  That run moved to cornell/fppm_ppm_cppm_60s_round21/ in "
+    "round 22.",
+    "Round 22, the same row on e606929 (the frequency deposits' gather without a branch, the same "
+    "images; the next pass's traced-ahead photons billed to the method, not left out with the "
+    "metrics: docs/method.md 'The convergence runs' CPU clock, round 22'), idle (the run alone, "
+    "1.75 cores a method), in cornell/fppm_ppm_cppm_60s/: FPPM / PPM 0.921 / 0.738 / 0.675 (excess "
+    "0.669; 10 % seeds 0.937, 0.775, 1.014, 0.941; FLIP 0.925 / 0.871 / 0.872), FPPM / CPPM 1.06 / "
+    "1.01 / 0.995 (excess 0.994, seeds at 100 % 0.96-1.02); FPPM 308-318 passes, PPM 324-331, "
+    "CPPM 304-335.",
     "Round 21, the coffee cup on 4b45fc3 (Frequency Start 2, round 21's cheaper march and set-up) "
     "against its VCM reference rendered again (`bench/luxcore_reference.py render coffee_cup "
     "--runs 6 --cpu 200`, 12467 spp, 1202 CPU s, floor 1.12e-3 where round 16's file had 9449 "
@@ -355,6 +363,15 @@ NOTES = [
     "the same images), idle (the run alone, 1.65 cores a method), in "
     "coffee_cup/fppm_ppm_cppm_6s_16seeds/: FPPM / PPM 1.002 at 6 s (seeds 0.95-1.05, 8 of 16 below "
     "1; FLIP 1.02), 1.05 at 3 s; FPPM / CPPM 1.03; FPPM 29-43 passes, PPM 33-44, CPPM 34-44.",
+    "Round 22, the coffee cup's 60-s row twice, idle (the run alone, 1.6-1.7 cores a method): on "
+    "82dfd59 (the frequency deposits' gather without a branch; the next pass's traced-ahead "
+    "photons still left out with the metrics), in coffee_cup/fppm_ppm_cppm_60s_82dfd59/: FPPM / PPM "
+    "0.972 / 0.978 / 0.984 (excess 0.981; 10 % seeds 1.031, 0.882, 0.980, 1.004; FLIP 0.996), "
+    "FPPM / CPPM 1.04 / 1.01 / 1.01; FPPM 362-428 passes, PPM 386-433, CPPM 397-438.  On e606929 "
+    "(those photons billed to the method), in coffee_cup/fppm_ppm_cppm_60s/ (the 4b45fc3 run moved "
+    "to coffee_cup/fppm_ppm_cppm_60s_4b45fc3/): FPPM / PPM 1.005 / 0.984 / 0.985 (excess 0.982; "
+    "10 % seeds 1.039, 0.993, 0.981, 1.006; FLIP 1.01 / 1.00 / 0.999), FPPM / CPPM 1.04 / 1.01 / "
+    "1.01; FPPM 355-385 passes, PPM 374-397, CPPM 340-410.  Every excess 5.2-5.3x the floor.",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
