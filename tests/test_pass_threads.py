@@ -299,7 +299,7 @@ def test_settle_traces_the_next_pass_before_work_between_passes():
     here, _ = _passes(5)
     r = _passes(0, max_passes=5)[1]
     got, during = [], []
-    for k in range(5):
+    for _ in range(5):
         got.append(r.step().image.copy())
         if r.photon_pass._next is not None or r.photon_pass._ahead is not None:
             r.settle()
