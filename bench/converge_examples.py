@@ -381,6 +381,12 @@ NOTES = [
     "again (8192 spp, floor 1.76e-5), in ring_principled/fppm_ppm_60s/: FPPM / PPM 0.972 / 0.970 / "
     "0.995 (excess 0.995; seeds at 100 % 1.034, 0.964, 0.973, 1.007; 10 % seeds 0.880-1.017; FLIP "
     "0.988 / 0.992 / 0.995); FPPM 382-433 passes, PPM 398-429.",
+    "The CPU clock before round 22 (every run before e606929): a photon mapper's next pass, traced "
+    "ahead in its own thread while the metrics were computed, was left out of the method's CPU "
+    "with them, about 5 % of the budget free on the Cornell box (8.4 ms a pass); Cycles' ladder "
+    "had nothing free.  Those rows favour the photon mappers against Cycles and the other ways in "
+    "by about that; between photon mappers the ratios moved by about 1 % (docs/method.md 'The "
+    "convergence runs' CPU clock, round 22').",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
