@@ -125,10 +125,20 @@ def test_workers_2_same_image_as_one_process(glossy, reference, tmp_path):
 
 
 @pytest.fixture(scope="module")
-def client():
+def client(tmp_path_factory):
     """A local cluster of 2 workers, shared by the killed-worker tests (the
-    nanny replaces a killed worker)."""
-    c = D.connect(workers=2)
+    nanny replaces a killed worker).  The workers import the fppm package,
+    hence bpy, whose session folder (<TMPDIR>/blender_<random>) a killed
+    worker cannot remove: their TMPDIR is a folder of this test's."""
+    before = os.environ.get("TMPDIR")
+    os.environ["TMPDIR"] = str(tmp_path_factory.mktemp("workers_tmp"))
+    try:
+        c = D.connect(workers=2)
+    finally:
+        if before is None:
+            del os.environ["TMPDIR"]
+        else:
+            os.environ["TMPDIR"] = before
     yield c
     D.close(c)
 

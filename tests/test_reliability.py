@@ -178,6 +178,9 @@ def test_sigkill_then_resume_matches_uninterrupted(blends, reference, tmp_path):
     ck = tmp_path / "ck"
     out = tmp_path / "k.exr"
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    # A killed process cannot remove Blender's session folder
+    # (<TMPDIR>/blender_<random>): it goes into this test's folder, not /tmp.
+    env["TMPDIR"] = str(tmp_path)
     p = subprocess.Popen(H.fppm_command() + ["render", blends["simple"], "-o", str(out),
                                              *RENDER_FLAGS, "--checkpoint", str(ck),
                                              "--checkpoint-every", "0"],
