@@ -313,7 +313,12 @@ NOTES = [
     "`cornell --budget 6 --seeds 16 --methods fppm,ppm,cppm`, load about 2 with a helper's benchmark "
     "beside it (1.7 cores a method), in cornell/fppm_ppm_cppm_6s_16seeds/: FPPM / PPM 0.933 at 6 s "
     "(seeds 0.76-1.11, 12 of 16 below 1; FLIP 0.94), 1.06 at 3 s (round 20: 0.98 and 1.20); FPPM / "
-    "CPPM 1.08 at 6 s; FPPM 24-31 passes, PPM 28-35, CPPM 27-35.",
+    "CPPM 1.08 at 6 s; FPPM 24-31 passes, PPM 28-35, CPPM 27-35.  That run moved to "
+    "cornell/fppm_ppm_cppm_6s_16seeds_round21/ in round 22.",
+    "Round 22, the Cornell box at 6 CPU s with 16 seeds on 987d983 (e606929's code: the clock's "
+    "fix), idle (the run alone), in cornell/fppm_ppm_cppm_6s_16seeds/: FPPM / PPM 0.894 at 6 s "
+    "(seeds 0.68-1.02, 14 of 16 below 1; FLIP 0.928), 1.00 at 3 s, 1.32 at 0.6 s; FPPM / CPPM "
+    "1.06 at 6 s (seeds 0.97-1.23); FPPM 27-32 passes, PPM 29-34, CPPM 29-34.",
     "Round 20, the Cornell box on 8076bc8 (the march's runs of blocks: the same images, a cheaper "
     "march), `cornell --budget 60 --seeds 4 --methods fppm,ppm,cppm`, idle (load 1.1 to 1.2, 1.8 "
     "cores a method), in cornell/fppm_ppm_cppm_60s/ (the efc9056 run above moved to "
@@ -362,7 +367,12 @@ NOTES = [
     "Round 21, the coffee cup at 6 CPU s with 16 seeds again on 58a8bb2 (round 21's gather merged: "
     "the same images), idle (the run alone, 1.65 cores a method), in "
     "coffee_cup/fppm_ppm_cppm_6s_16seeds/: FPPM / PPM 1.002 at 6 s (seeds 0.95-1.05, 8 of 16 below "
-    "1; FLIP 1.02), 1.05 at 3 s; FPPM / CPPM 1.03; FPPM 29-43 passes, PPM 33-44, CPPM 34-44.",
+    "1; FLIP 1.02), 1.05 at 3 s; FPPM / CPPM 1.03; FPPM 29-43 passes, PPM 33-44, CPPM 34-44.  "
+    "That run moved to coffee_cup/fppm_ppm_cppm_6s_16seeds_58a8bb2/ in round 22.",
+    "Round 22, the coffee cup at 6 CPU s with 16 seeds on 987d983 (e606929's code: the clock's "
+    "fix), idle (the run alone), in coffee_cup/fppm_ppm_cppm_6s_16seeds/: FPPM / PPM 1.000 at 6 s "
+    "(seeds 0.96-1.04, 10 of 16 below 1; FLIP 1.01), 1.04 at 3 s, 1.27 at 0.6 s; FPPM / CPPM 1.02 "
+    "(seeds 0.95-1.06); FPPM 33-39 passes, PPM 35-40, CPPM 33-41.",
     "Round 22, the coffee cup's 60-s row twice, idle (the run alone, 1.6-1.7 cores a method): on "
     "82dfd59 (the frequency deposits' gather without a branch; the next pass's traced-ahead "
     "photons still left out with the metrics), in coffee_cup/fppm_ppm_cppm_60s_82dfd59/: FPPM / PPM "
