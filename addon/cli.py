@@ -301,19 +301,24 @@ def probe_blend(path: str, reason: str, should_stop=None) -> bool:
     """Open a suspect ``path`` in a child process first; CLIError(EXIT_INPUT) if
     Blender fails or crashes there.  Returns False when should_stop() turned
     true while waiting (the child is killed), True when the child read it."""
-    proc = subprocess.Popen(probe_command(path), stdin=subprocess.DEVNULL,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            start_new_session=True)   # Ctrl-C goes to the parent only
-    err = b""
-    while True:
-        try:
-            _, err = proc.communicate(timeout=0.05)
-            break
-        except subprocess.TimeoutExpired:
-            if should_stop is not None and should_stop():
-                proc.kill()
-                proc.communicate()
-                return False
+    # The child's Blender session folder (<temp>/blender_<random>) goes in a
+    # folder of this process's, removed once the child has ended: a child
+    # that crashes on the file, or is killed, cannot remove it itself.
+    with tempfile.TemporaryDirectory(prefix="fppm-probe-", ignore_cleanup_errors=True) as tmp:
+        env = dict(os.environ, TMPDIR=tmp, TEMP=tmp, TMP=tmp)
+        proc = subprocess.Popen(probe_command(path), stdin=subprocess.DEVNULL,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
+                                start_new_session=True)   # Ctrl-C goes to the parent only
+        err = b""
+        while True:
+            try:
+                _, err = proc.communicate(timeout=0.05)
+                break
+            except subprocess.TimeoutExpired:
+                if should_stop is not None and should_stop():
+                    proc.kill()
+                    proc.communicate()
+                    return False
     rc = proc.returncode
     if rc == 0:
         return True

@@ -278,6 +278,27 @@ def test_bit_flip_that_crashed_the_reader_is_exit_3(tmp_path, capsys):
     assert "crashed" in err and "SIGSEGV" in err and "Traceback" not in err, err
 
 
+def test_a_crashed_readers_temporary_folder_is_removed(monkeypatch, tmp_path, capsys):
+    # The reader child's temporary folder (where bpy makes its session
+    # folder, blender_<random>) is one of the parent's, removed when the
+    # child has crashed: a crashed child cannot remove its own.
+    from fppm.addon import cli
+    name, bad = _damaged_copies(tmp_path)[0]
+    seen = tmp_path / "child_tmp.txt"
+    crash = ("import os, ctypes, sys\n"
+             "t = os.environ['TMPDIR']\n"
+             "open(sys.argv[1], 'w').write(t)\n"
+             "os.makedirs(os.path.join(t, 'blender_probe'))\n"
+             "ctypes.string_at(0)\n")
+    monkeypatch.setattr(cli, "probe_command",
+                        lambda path: [sys.executable, "-c", crash, str(seen)])
+    rc = cli.main(["render", bad, "-o", str(tmp_path / "x.exr"), "--passes", "1"])
+    assert rc == 3, capsys.readouterr().err
+    child_tmp = seen.read_text()
+    assert os.path.basename(child_tmp).startswith("fppm-probe-")
+    assert not os.path.exists(child_tmp)
+
+
 def test_a_crash_of_the_reader_is_exit_3(monkeypatch, tmp_path, capsys):
     # The mapping alone, whatever crashes: the child is made to segfault.
     from fppm.addon import cli
