@@ -130,15 +130,9 @@ def client(tmp_path_factory):
     nanny replaces a killed worker).  The workers import the fppm package,
     hence bpy, whose session folder (<TMPDIR>/blender_<random>) a killed
     worker cannot remove: their TMPDIR is a folder of this test's."""
-    before = os.environ.get("TMPDIR")
-    os.environ["TMPDIR"] = str(tmp_path_factory.mktemp("workers_tmp"))
-    try:
+    with pytest.MonkeyPatch.context() as mp:       # the workers inherit it at start
+        mp.setenv("TMPDIR", str(tmp_path_factory.mktemp("workers_tmp")))
         c = D.connect(workers=2)
-    finally:
-        if before is None:
-            del os.environ["TMPDIR"]
-        else:
-            os.environ["TMPDIR"] = before
     yield c
     D.close(c)
 
