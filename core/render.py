@@ -49,6 +49,7 @@ A 'COMBINED' pass with no camera path and no such need is a 'LIGHT' pass
 """
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import fields
 from typing import Callable, Optional
@@ -303,6 +304,11 @@ class Renderer:
         plan_st = st0.replace(use_frequency=False) if st0.integrator == "LIGHT" else st0
         self.plan: RenderPlan = make_plan(scene, plan_st, self.mtab, self.light_table,
                                           force=tuple(force_stages))
+        # The plan as the scene and settings make it, before the renderer
+        # restates COMBINED's camera paths (with_camera_stop) or leaves out
+        # the holds after pass 1: what a Dask worker's own make_plan must
+        # equal (tools/distributed.py).
+        self.scene_plan: RenderPlan = copy.deepcopy(self.plan)
         if self.plan.transparent_shadows:
             shadow.attach(self.accel, scene, self.mtab)     # core.lights.shadow
         self._check_stop()

@@ -125,16 +125,19 @@ def test_workers_2_same_image_as_one_process(glossy, reference, tmp_path):
 
 
 @pytest.fixture(scope="module")
-def client(tmp_path_factory):
+def client():
     """A local cluster of 2 workers, shared by the killed-worker tests (the
-    nanny replaces a killed worker).  The workers import the fppm package,
-    hence bpy, whose session folder (<TMPDIR>/blender_<random>) a killed
-    worker cannot remove: their TMPDIR is a folder of this test's."""
-    with pytest.MonkeyPatch.context() as mp:       # the workers inherit it at start
-        mp.setenv("TMPDIR", str(tmp_path_factory.mktemp("workers_tmp")))
-        c = D.connect(workers=2)
+    nanny replaces a killed worker)."""
+    c = D.connect(workers=2)
     yield c
     D.close(c)
+
+
+def _workers_without_bpy(client) -> bool:
+    """No worker has imported bpy (the fppm package imports it only to
+    register the add-on), so a killed worker leaves no Blender session
+    folder (<TMPDIR>/blender_<random>) behind."""
+    return not any(client.run(lambda: "bpy" in __import__("sys").modules).values())
 
 
 def _kill_holder(client, pids, futures, killed, kept=False):
@@ -169,6 +172,7 @@ def test_killed_worker_gives_the_same_image(glossy, reference, client):
     replaced = client.run(os.getpid)
     assert killed, "no chunk of pass 2 was seen on a worker"
     assert pids[killed[0]] not in replaced.values() and len(replaced) == 2
+    assert _workers_without_bpy(client)
     assert r.pass_index == PASSES
     assert np.abs(res.image - reference.image).max() == 0.0
     assert np.abs(res.aovs["Spectrum"] - reference.aovs["Spectrum"]).max() == 0.0
@@ -262,6 +266,26 @@ def test_combined_workers_2_same_image_as_one_process(caustic, combined_referenc
     assert ("Light paths in chunks of 5000 and merging photons in chunks of 5000, one random "
             "stream each, on 2 Dask workers") in log
     assert np.abs(got["Combined"] - combined_reference.image).max() == 0.0
+
+
+CORNELL = os.path.join(H.ROOT, "tests", "scenes", "t_cornell.blend")
+
+
+@needs_dask
+def test_combined_workers_2_when_the_camera_paths_are_restated(tmp_path_factory, tmp_path):
+    # A diffuse box: COMBINED's light tracer takes every camera path over
+    # (camera depth Auto) and the renderer restates the plan's camera-path
+    # line after make_plan.  The workers check the plan as made, not the
+    # restated one: `--workers 2` rendered nothing on such scenes before
+    # ("the render plan differs"), and now gives the one-process image.
+    box = _export(CORNELL, tmp_path_factory, C_PATHS, integrator="COMBINED")
+    r = _renderer(box, C_CHUNK)
+    assert r.plan.strategies != r.scene_plan.strategies
+    assert r.plan.strategies[0].startswith("camera paths: none")
+    one = r.run()
+    log, got = _render_on_2_workers(box, C_CHUNK, tmp_path / "two.exr")
+    assert "on 2 Dask workers" in log
+    assert one.image.max() > 0 and np.abs(got["Combined"] - one.image).max() == 0.0
 
 
 @needs_dask

@@ -206,8 +206,9 @@ def local_chunk_streams(renderer: Renderer, chunk: Optional[int] = None) -> Rend
 class SceneJob:
     """(A dataclass, not a tuple: Dask would scatter a tuple's items one by one.)
     Sent once per render: the renderer's scene (after its clean-up and
-    recentring, which are then no-ops), its settings, its plan (the workers
-    check they made the same) and a token naming the render."""
+    recentring, which are then no-ops), its settings, its plan as made
+    (``Renderer.scene_plan``: the workers check they made the same) and a
+    token naming the render."""
     token: str
     scene: object
     settings: object
@@ -374,7 +375,7 @@ class Session:
                  load_kernels: bool = False):
         self.client = client
         self.token = uuid.uuid4().hex
-        job = SceneJob(self.token, renderer.scene, renderer.settings, renderer.plan)
+        job = SceneJob(self.token, renderer.scene, renderer.settings, renderer.scene_plan)
         self.scene_future = client.scatter(job, broadcast=True, hash=False)
         if warm:
             workers = list(client.scheduler_info()["workers"])
