@@ -223,6 +223,11 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
         return bool(sess is not None and sess.should_stop is not None and sess.should_stop())
 
     def _log(self, msg: str) -> None:
+        if msg.startswith(("Plan:", "Left out:")):
+            # Blender's info log shows what this scene's render leaves out:
+            # the plan's lines at the start, the holds after pass 1
+            # (core.render Renderer._drop_holds).
+            self.report({'INFO'}, msg)
         sess = _session
         if sess is not None and sess.log is not None:
             sess.log(msg)          # the CLI prints it: no second copy via report
@@ -341,9 +346,6 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
                 sess.on_renderer(renderer)
         for line in renderer.plan_lines():
             self._log(line)
-            if line.startswith(("Plan:", "Left out:")):
-                # Blender's info log shows what this scene's render leaves out.
-                self.report({'INFO'}, line)
         self.update_stats("", renderer.plan.lines()[0])
 
         # The AOV passes come from update_render_passes (register_pass), which

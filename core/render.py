@@ -683,6 +683,7 @@ class Renderer:
             self.radii.drop_holds(why)
         self.photon_pass.drop_frequency()
         self.plan.left_out.append(("frequency holds", why))
+        self.log(self.plan.lines()[-1])
 
     def _film(self) -> PassResult:
         # Dropped first (its caller assigns the new one): the film reuses the

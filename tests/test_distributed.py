@@ -268,6 +268,25 @@ def test_combined_workers_2_same_image_as_one_process(caustic, combined_referenc
     assert np.abs(got["Combined"] - combined_reference.image).max() == 0.0
 
 
+RING = os.path.join(H.ROOT, "example_blends", "ring_lambert.blend")
+
+
+@needs_dask
+def test_workers_2_when_the_holds_are_left_out(tmp_path_factory, tmp_path):
+    # The ring holds few of its pixels after pass 1, so FPPM renders on as
+    # plain PPM (Renderer._drop_holds): the driver's photon pass and then
+    # every worker's drop the frequency photons and sector counts.  Before,
+    # `--workers` stopped there ('DistributedPhotonPass' has no
+    # drop_frequency).  The same image as one process, bit for bit.
+    ring = _export(RING, tmp_path_factory, PHOTONS, frequency_estimator="QUANTILE")
+    r = _renderer(ring)
+    one = r.run()
+    assert r.radii.holds_left_out is not None and not r.photon_pass.frequency
+    log, got = _render_on_2_workers(ring, CHUNK, tmp_path / "two.exr")
+    assert "on 2 Dask workers" in log
+    assert one.image.max() > 0 and np.abs(got["Combined"] - one.image).max() == 0.0
+
+
 CORNELL = os.path.join(H.ROOT, "tests", "scenes", "t_cornell.blend")
 
 

@@ -36,8 +36,8 @@ def _scene(name, percent=25, photons=50_000, passes=16):
     return scene, st
 
 
-def _render(scene, st, passes, share=None):
-    r = Renderer(scene, st, log=lambda s: None)
+def _render(scene, st, passes, share=None, log=None):
+    r = Renderer(scene, st, log=(lambda s: None) if log is None else log.append)
     if share is not None:
         r.radii.hold_share_min = share
     imgs, held = [], []
@@ -62,13 +62,16 @@ def test_ring_renders_as_ppm():
     tau / R^2 does not change)."""
     assert U.HOLD_SHARE_PASS == 1
     scene, st = _scene("ring_lambert")
-    r, imgs, held = _render(scene, st, 6)
+    log = []
+    r, imgs, held = _render(scene, st, 6, log=log)
     off, imgs_off, held_off = _render(scene, st, 1, share=0.0)
     ppm, imgs_ppm, _ = _render(scene, st.replace(use_frequency=False), 6)
     assert held_off[0] < U.HOLD_SHARE_MIN and held_off[0] > 0.0
     assert r.radii.holds_left_out is not None and off.radii.holds_left_out is None
     assert any(s == "frequency holds" for s, _ in r.plan.left_out)
     assert any("Left out: frequency holds" in s for s in r.plan_lines())
+    # said when decided (Blender's info log: addon/engine.py _log), once
+    assert [s for s in log if s.startswith("Left out: frequency holds")] == r.plan_lines()[-1:]
     assert np.allclose(imgs[0], imgs_off[0], rtol=1e-12, atol=0)
     assert max(held) == 0.0
     assert frequency_photons(st, 2, True) > 0

@@ -221,8 +221,11 @@ class PassJob:
     (valid, with a radius), at their pixels idx (K,) int64: p, ng, albedo
     (K, 3), R2 (K,), const (K,); for the non-Lambert ones alone (their
     positions nc (J,) among the K) the BSDF inputs mat, colors, ns, wo and
-    the depth of the receiver radius.  The throughput beta and the film's
-    first-hit data stay on the driver.  A Lambert point costs 89 bytes."""
+    the depth of the receiver radius; frequency: False once the driver's
+    photon pass has left out the holds (``PhotonPass.drop_frequency``, from
+    the pass after pass 1 on), which the worker then does too.  The
+    throughput beta and the film's first-hit data stay on the driver.  A
+    Lambert point costs 89 bytes."""
     key: str
     idx: np.ndarray
     p: np.ndarray
@@ -237,16 +240,17 @@ class PassJob:
     wo: np.ndarray
     depth: np.ndarray
     spectrum_aov: bool
+    frequency: bool
 
     @classmethod
     def pack(cls, key: str, vp, R2: np.ndarray, active: np.ndarray,
-             spectrum_aov: bool) -> "PassJob":
+             spectrum_aov: bool, frequency: bool) -> "PassJob":
         idx = np.flatnonzero(active)
         nc = np.flatnonzero(~vp.const[idx])
         sub = idx[nc]
         return cls(key, idx, vp.p[idx], vp.ng[idx], vp.albedo[idx], R2[idx], vp.const[idx], nc,
                    vp.mat[sub], vp.colors[sub], vp.ns[sub], vp.wo[sub], vp.depth[sub],
-                   spectrum_aov)
+                   spectrum_aov, frequency)
 
     def unpack(self):
         """(VisiblePoints (K,), R2 (K,)): the active points alone, every one
@@ -342,6 +346,8 @@ def chunk_task(job: SceneJob, pj: PassJob, n: int, n_freq: int, rng):
     a spectrum) traced with rng and gathered at the pass's visible points."""
     with _WORKER_LOCK:
         pp = _scene_side(job).photon_pass
+        if pp.frequency and not pj.frequency:
+            pp.drop_frequency()             # as the driver's did (Renderer._drop_holds)
         if _WORKER.get("pass") != pj.key:
             # the last pass's grid dropped first: its kept buffers are then
             # reused (hashgrid.build_grid(..., buffers=)), not allocated again
@@ -466,7 +472,7 @@ class DistributedPhotonPass:
         client = self.client
         self._passes += 1
         tag = f"{self.token}-{self._passes}"
-        pj = PassJob.pack(tag, vp, R2, active, spectrum is not None)
+        pj = PassJob.pack(tag, vp, R2, active, spectrum is not None, local.frequency)
         pass_future = client.scatter(pj, broadcast=True, hash=False)
         # Ahead of light chunks submitted for the next pass (COMBINED's
         # merging waits for these now; DistributedLightTracer.prefetch).
@@ -492,6 +498,12 @@ class DistributedPhotonPass:
         self.stats.append(PassStats(pj.nbytes, returned, add_seconds,
                                     time.perf_counter() - t_pass, len(futures)))
         return est
+
+    def drop_frequency(self) -> None:
+        """The holds left out (``Renderer._drop_holds``): the local pass
+        drops its frequency photons and sector counts, and the next PassJob
+        tells the workers to do the same."""
+        self.local.drop_frequency()
 
     def close(self) -> None:
         """Release the scene on the workers (the client stays open)."""
