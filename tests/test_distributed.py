@@ -140,6 +140,25 @@ def _workers_without_bpy(client) -> bool:
     return not any(client.run(lambda: "bpy" in __import__("sys").modules).values())
 
 
+@needs_dask
+def test_local_workers_do_not_print_the_shutdown_heartbeat(client):
+    # Dask's shutdown race: a worker's heartbeat meets the closed scheduler
+    # and it logs an ERROR with a traceback after the render has ended.  The
+    # local workers drop that one message, and only it.
+    import logging
+
+    def probe():
+        log = logging.getLogger("distributed.worker")
+        lost = log.makeRecord(log.name, logging.ERROR, "worker.py", 0,
+                              D.HEARTBEAT_LOST + ".", (), None)
+        other = log.makeRecord(log.name, logging.ERROR, "worker.py", 0, "Compute Failed", (), None)
+        return bool(log.filter(lost)), bool(log.filter(other))
+
+    client.wait_for_workers(2, timeout=60)
+    seen = client.run(probe)
+    assert len(seen) == 2 and set(seen.values()) == {(False, True)}
+
+
 def _kill_holder(client, pids, futures, killed, kept=False):
     """SIGKILL, once, a worker processing one of futures (with kept: or
     keeping its result); its address goes into killed."""

@@ -121,6 +121,7 @@ def connect(workers: Optional[int] = None, address: Optional[str] = None):
     # and the log counts them (a loaded machine starts them late).
     client.wait_for_workers(int(workers), timeout=60)
     client.register_plugin(_worker_ignores_sigint(), name="fppm-ignore-sigint")
+    client.register_plugin(_worker_quiet_heartbeat(), name="fppm-quiet-heartbeat")
     return client
 
 
@@ -158,6 +159,32 @@ def _worker_ignores_sigint():
             if threading.current_thread() is threading.main_thread():
                 signal.signal(signal.SIGINT, signal.SIG_IGN)
     return IgnoreSigint()
+
+
+#: The message a local worker logs (ERROR, with a traceback) when its
+#: heartbeat meets the scheduler already closed: Dask's own shutdown race,
+#: after a render has ended and close() runs (docs/scale_out.md "Errors").
+HEARTBEAT_LOST = "Failed to communicate with scheduler during heartbeat"
+
+
+def _drop_heartbeat_lost(record: logging.LogRecord) -> bool:
+    """A logging filter: False (drop) for HEARTBEAT_LOST records."""
+    return not str(record.msg).startswith(HEARTBEAT_LOST)
+
+
+def _worker_quiet_heartbeat():
+    """A WorkerPlugin: a local worker does not print HEARTBEAT_LOST.  The
+    driver owns the local cluster: a scheduler that really went away fails
+    the render's futures there, which say so; the message alone, printed
+    after "Done", only alarms.  (Workers of --cluster keep their logging.)"""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class QuietHeartbeat(WorkerPlugin):
+        def setup(self, worker):
+            log = logging.getLogger("distributed.worker")
+            if _drop_heartbeat_lost not in log.filters:
+                log.addFilter(_drop_heartbeat_lost)
+    return QuietHeartbeat()
 
 
 def close(client) -> None:
