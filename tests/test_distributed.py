@@ -310,6 +310,24 @@ CORNELL = os.path.join(H.ROOT, "tests", "scenes", "t_cornell.blend")
 
 
 @needs_dask
+def test_workers_2_march_the_occlusion_grid_built_late(tmp_path_factory, tmp_path):
+    # FPPM's defaults on a box that occludes: the first frequency photons in
+    # pass 2 (frequency_start), the occlusion grid built in pass 1's step
+    # (Renderer._occlusion_before).  Each worker builds it when it builds
+    # the scene: before, the workers' frequency photons marched no grid
+    # (a_occ = 0 past every occluder) and the image differed from pass 3 on.
+    box = _export(CORNELL, tmp_path_factory, PHOTONS)
+    assert box[2].frequency_start == 2 and box[2].integrator == "PHOTON"
+    r = _renderer(box)
+    assert r.occ_grid is None and r.scene_plan.occlusion_grid     # left for later
+    one = r.run()
+    assert r.occ_grid is not None and r.tracer.occlusion == 1
+    log, got = _render_on_2_workers(box, CHUNK, tmp_path / "two.exr")
+    assert "on 2 Dask workers" in log
+    assert one.image.max() > 0 and np.abs(got["Combined"] - one.image).max() == 0.0
+
+
+@needs_dask
 def test_combined_workers_2_when_the_camera_paths_are_restated(tmp_path_factory, tmp_path):
     # A diffuse box: COMBINED's light tracer takes every camera path over
     # (camera depth Auto) and the renderer restates the plan's camera-path

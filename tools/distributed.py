@@ -312,6 +312,11 @@ class _SceneSide(Renderer):
         if self.plan != job.plan:
             raise RuntimeError("FPPM worker: the render plan differs from the driver's "
                                "(another FPPM version on this worker?)")
+        # The driver builds an occlusion grid left for later (frequency_start
+        # S > 1) in its step of pass S - 1 (Renderer._occlusion_before); a
+        # worker runs no steps, and its chunks carry spectra from pass S on:
+        # it builds the grid now.
+        self._occlusion_before(self.settings.frequency_start - 1)
         freq = self.plan.frequency_photons
         radii = Radii(job.settings, None, self.D, freq, None, self.height, self.width)
         self.photon_pass = PhotonPass(self.tracer, self.mtab, job.settings, freq,
