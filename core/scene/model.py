@@ -220,6 +220,14 @@ class Scene:
     def __post_init__(self):
         self.attach_shading_normals()
 
+    def __setstate__(self, state: dict) -> None:
+        # Unpickling (a Dask worker's copy of the scene, tools/distributed.py)
+        # and copy.copy do not run __post_init__: attach the shading normals
+        # to the new tri_n array here, or its Normal Map / Bump inputs would
+        # be lost (the attachment is keyed by the array, not pickled with it).
+        self.__dict__.update(state)
+        self.attach_shading_normals()
+
     def attach_shading_normals(self) -> None:
         """Let ``core.accel.surface_point`` perturb this scene's shading normals
         by its materials' Normal Map / Bump inputs (``core.scene.normals``).
