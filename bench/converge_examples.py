@@ -397,6 +397,17 @@ NOTES = [
     "had nothing free.  Those rows favour the photon mappers against Cycles and the other ways in "
     "by about that; between photon mappers the ratios moved by about 1 % (docs/method.md 'The "
     "convergence runs' CPU clock, round 22').",
+    "Round 23, on 80aee96 with the fair clock, idle, each scene alone, against references "
+    "rendered again on this machine (principled_interior 8192 spp in 2 pieces, floor 1.96e-4, "
+    "534 s wall; indirect_room 65536 spp in 8 pieces, floor 1.42e-4, 1984 s wall): `SCENE "
+    "--budget 60 --clock cpu --seeds 4 --methods fppm,ppm,appm,cppm`, in "
+    "SCENE/fppm_ppm_appm_cppm_60s/.  indirect_room FPPM / PPM 0.627 / 0.452 / 0.397 at 10 / 50 / "
+    "100 % (excess 0.335), / APPM 0.713 / 0.732 / 0.794, / CPPM 0.782 / 0.889 / 0.919 (every seed "
+    "<= 1.00; FPPM 166-177 passes, CPPM 160-180); principled_interior FPPM / PPM 0.718 / 0.444 / "
+    "0.551 (excess 0.519), / APPM 0.944 / 0.663 / 0.838, / CPPM 1.05 / 0.844 / 1.00 (10 %: all "
+    "four seeds 1.01-1.10; at 6 s FPPM made 28 passes, CPPM 29-30; over 60 s 306-310 against "
+    "309-322).  The top-level files of both folders are the earlier runs with Combined and "
+    "Cycles, on the old clock.",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
