@@ -69,6 +69,7 @@ def render(scene, st, chunk, client=None):
             finally:
                 photon_wall[0] += time.perf_counter() - t0
         timed.rays = 0
+        timed.trace_ahead = local.trace_ahead     # the radius cut set as in `fppm render`
         r.photon_pass = timed
     c0 = time.process_time()
     w0 = client.run(time.process_time) if client is not None else {}

@@ -250,7 +250,10 @@ class PassJob:
     positions nc (J,) among the K) the BSDF inputs mat, colors, ns, wo and
     the depth of the receiver radius; frequency: False once the driver's
     photon pass has left out the holds (``PhotonPass.drop_frequency``, from
-    the pass after pass 1 on), which the worker then does too.  The
+    the pass after pass 1 on), which the worker then does too; radius_cut:
+    the driver's ``PhotonTracer.radius_cut`` for the pass (which occluders
+    a frequency photon marches; inf with chunk streams, as in one process:
+    ``DistributedPhotonPass.trace_ahead``).  The
     throughput beta and the film's first-hit data stay on the driver.  A
     Lambert point costs 89 bytes."""
     key: str
@@ -268,16 +271,17 @@ class PassJob:
     depth: np.ndarray
     spectrum_aov: bool
     frequency: bool
+    radius_cut: float
 
     @classmethod
     def pack(cls, key: str, vp, R2: np.ndarray, active: np.ndarray,
-             spectrum_aov: bool, frequency: bool) -> "PassJob":
+             spectrum_aov: bool, frequency: bool, radius_cut: float) -> "PassJob":
         idx = np.flatnonzero(active)
         nc = np.flatnonzero(~vp.const[idx])
         sub = idx[nc]
         return cls(key, idx, vp.p[idx], vp.ng[idx], vp.albedo[idx], R2[idx], vp.const[idx], nc,
                    vp.mat[sub], vp.colors[sub], vp.ns[sub], vp.wo[sub], vp.depth[sub],
-                   spectrum_aov, frequency)
+                   spectrum_aov, frequency, float(radius_cut))
 
     def unpack(self):
         """(VisiblePoints (K,), R2 (K,)): the active points alone, every one
@@ -380,6 +384,7 @@ def chunk_task(job: SceneJob, pj: PassJob, n: int, n_freq: int, rng):
         pp = _scene_side(job).photon_pass
         if pp.frequency and not pj.frequency:
             pp.drop_frequency()             # as the driver's did (Renderer._drop_holds)
+        pp.tracer.radius_cut = pj.radius_cut
         if _WORKER.get("pass") != pj.key:
             # the last pass's grid dropped first: its kept buffers are then
             # reused (hashgrid.build_grid(..., buffers=)), not allocated again
@@ -504,7 +509,8 @@ class DistributedPhotonPass:
         client = self.client
         self._passes += 1
         tag = f"{self.token}-{self._passes}"
-        pj = PassJob.pack(tag, vp, R2, active, spectrum is not None, local.frequency)
+        pj = PassJob.pack(tag, vp, R2, active, spectrum is not None, local.frequency,
+                          local.tracer.radius_cut)
         pass_future = client.scatter(pj, broadcast=True, hash=False)
         # Ahead of light chunks submitted for the next pass (COMBINED's
         # merging waits for these now; DistributedLightTracer.prefetch).
@@ -530,6 +536,14 @@ class DistributedPhotonPass:
         self.stats.append(PassStats(pj.nbytes, returned, add_seconds,
                                     time.perf_counter() - t_pass, len(futures)))
         return est
+
+    def trace_ahead(self, rng: np.random.Generator, then=None) -> None:
+        """Before the camera stage (Renderer.step): the local pass's
+        ``PhotonPass.trace_ahead``, which with chunk streams traces nothing
+        ahead and sets the pass's radius cut (inf: no reach map), as a
+        one-process render with the same chunks does; the workers receive
+        that cut in the PassJob."""
+        self.local.trace_ahead(rng, then)
 
     def drop_frequency(self) -> None:
         """The holds left out (``Renderer._drop_holds``): the local pass
