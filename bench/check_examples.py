@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -95,7 +96,7 @@ def main(argv=None) -> int:
                           f"largest difference {d}{'' if ok else ': ' + last}", flush=True)
                     if not ok:
                         failed.append((name, mode, "resume"))
-                    subprocess.run(["rm", "-rf", ck])
+                    shutil.rmtree(ck, ignore_errors=True)
                 if "same" not in skip and mode in ("combined", "fppm", "light"):
                     chunked = base + ("--resolution", 25, "--chunk", 65536, "--passes", 4)
                     r0 = render(blend, os.path.join(tmp, "one.exr"), *chunked)[0]
