@@ -455,8 +455,9 @@ class Renderer:
         rng_photons = self._photon_stream(k)
         # The photons are traced while the camera and direct light run, and
         # the next pass's first chunk from when this pass's last chunk is
-        # traced (then=); a stand-in photon pass (tools/distributed.py: the
-        # workers trace) may not.
+        # traced (then=).  A stand-in photon pass may have no trace_ahead
+        # (a benchmark's wrapper; tools/distributed.py's delegates it to its
+        # local pass, for the pass's radius cut): _photons then sets the cut.
         ahead = getattr(self.photon_pass, "trace_ahead", None)
         if ahead is not None:
             ahead(rng_photons, then=lambda: self._next_photon_stream(k + 1))
