@@ -66,7 +66,15 @@ def add_render_parser(sub) -> None:
     r.add_argument("blend", metavar="SCENE.blend", help="the .blend file (scripts are not run)")
     r.add_argument("-o", "--output", required=True, metavar="OUT.exr",
                    help="multilayer EXR to write; the PNG preview goes beside it (OUT.png)")
-    r.add_argument("--frame", type=int, metavar="N", help="frame to render (default: the file's)")
+    fr = r.add_mutually_exclusive_group()
+    fr.add_argument("--frame", type=int, metavar="N", help="frame to render (default: the file's)")
+    fr.add_argument("--frames", metavar="LIST",
+                    help="render these frames, one image each, in one process: Blender's -f "
+                         "list, e.g. 1,3,5..10; -o's last run of # becomes the frame number "
+                         "(out_####.exr: out_0005.exr), else four digits go before .exr")
+    fr.add_argument("-a", "--animation", action="store_true",
+                    help="render the file's frame range (Frame Start to End by Step), one "
+                         "image per frame, as blender -a")
     r.add_argument("--time-limit", type=float, metavar="S",
                    help="stop after S seconds of passes (0 = no limit)")
     r.add_argument("--passes", type=int, metavar="N", help="maximum passes (0 = no limit)")
@@ -96,6 +104,9 @@ def add_render_parser(sub) -> None:
                    help="seconds between checkpoints (default 30; 0 = after every pass)")
     r.add_argument("--resume", action="store_true",
                    help="continue from the checkpoint in --checkpoint DIR (same scene and settings)")
+    r.add_argument("--skip-existing", action="store_true",
+                   help="--frames / --animation: leave out the frames whose EXR exists already "
+                        "(run the same command again to finish an interrupted animation)")
 
 
 def build_parser(commands: dict) -> argparse.ArgumentParser:
@@ -753,6 +764,52 @@ def check_numbers(a) -> None:
                                        f"{MIN_TIME_LIMIT} s.")
 
 
+def parse_frames(spec: str) -> list[int]:
+    """The frames of ``--frames``: Blender's ``-f`` list, numbers and inclusive
+    ranges ``A..B`` joined by commas (``1,3,5..10``), in the order given,
+    each once.  Blender's relative forms (``+N``, ``-N`` from the range's
+    ends) are not read: a leading minus is a negative frame."""
+    import re
+    frames: list[int] = []
+    seen = set()
+    for part in spec.split(","):
+        m = re.fullmatch(r"\s*(-?\d+)\s*(?:\.\.\s*(-?\d+)\s*)?", part)
+        if m is None:
+            raise CLIError(EXIT_USAGE, f"--frames {spec!r}: '{part}' is not a frame or a range "
+                                       f"A..B (e.g. 1,3,5..10).")
+        a = int(m.group(1))
+        b = int(m.group(2)) if m.group(2) is not None else a
+        if b < a:
+            raise CLIError(EXIT_USAGE, f"--frames {spec!r}: the range {a}..{b} runs backwards.")
+        for f in (a, b):
+            if not FRAME_RANGE[0] <= f <= FRAME_RANGE[1]:
+                raise CLIError(EXIT_USAGE, f"--frames {spec!r}: frame {f} is outside "
+                                           f"[{FRAME_RANGE[0]}, {FRAME_RANGE[1]}] (Blender's "
+                                           f"frame range).")
+        for f in range(a, b + 1):
+            if f not in seen:
+                seen.add(f)
+                frames.append(f)
+    return frames
+
+
+def frame_path(path: str, frame: int, always: bool) -> str:
+    """The output of ``frame``: the last run of ``#`` in the file name becomes
+    the frame number, zero-padded to the run's length (Blender's rule);
+    without one, four digits go before the extension when ``always`` (an
+    animation), else the path is kept."""
+    import re
+    d, name = os.path.split(path)
+    runs = list(re.finditer(r"#+", name))
+    if runs:
+        m = runs[-1]
+        name = name[:m.start()] + f"{frame:0{m.end() - m.start()}d}" + name[m.end():]
+    elif always:
+        root, ext = os.path.splitext(name)
+        name = f"{root}{frame:04d}{ext}"
+    return os.path.join(d, name)
+
+
 def check_stored(props, overrides: dict) -> None:
     """Refuse an override that ``scene.fppm`` cannot hold as given (Blender would
     clamp it to the property's range, or overflow): exit code 2 naming the range."""
@@ -774,9 +831,17 @@ def render(a) -> int:
     if stop is None:               # called without main (a test): no signal handling
         stop = StopFlag()
     check_input(a.blend)
-    check_output(a.output, a.blend, a.overwrite, not a.no_preview)
+    # (a '#' in -o stands for the frame: checked again for each frame's name)
+    check_output(frame_path(a.output, 0, False), a.blend, a.overwrite, not a.no_preview)
     check_numbers(a)
     check_checkpoint_args(a)
+    a.frame_list = parse_frames(a.frames) if getattr(a, "frames", None) else None
+    animation = a.frame_list is not None or getattr(a, "animation", False)
+    if animation and a.checkpoint:
+        raise CLIError(EXIT_USAGE, "--checkpoint keeps one frame's render: use it with --frame "
+                                   "(an animation continues with --skip-existing).")
+    if getattr(a, "skip_existing", False) and not animation:
+        raise CLIError(EXIT_USAGE, "--skip-existing needs --frames or --animation.")
     overrides = overrides_from_args(a)
     lock = None
     if a.checkpoint:
@@ -805,6 +870,63 @@ def _render_locked(a, stop, overrides) -> int:
     if stop:
         return _cancelled_early(stop)
 
+    scene = open_blend(a.blend, a.frame, a.resolution, should_stop=lambda: bool(stop))
+    if stop or scene is None:
+        return _cancelled_early(stop)
+    from .properties import settings_from_scene
+    a.file_settings = settings_from_scene(scene)   # before the overrides (read by a.on_renderer)
+    if a.frame_list is None and not getattr(a, "animation", False):
+        out = frame_path(a.output, scene.frame_current, False)
+        if out != a.output:
+            check_output(out, a.blend, a.overwrite, not a.no_preview)
+        return _render_frame(a, stop, overrides, scene, out)
+    return _render_frames(a, stop, overrides, scene)
+
+
+def _render_frames(a, stop, overrides, scene) -> int:
+    """``--frames`` / ``--animation``: each frame in turn in this process (the
+    file opened once, the kernels loaded once), into its own EXR.  Stops at
+    the first frame that fails or is cancelled, with that frame's exit code;
+    the frames written before it stay."""
+    # (Blender keeps Frame Start <= End and Step >= 1: never empty)
+    frames = a.frame_list if a.frame_list is not None else list(
+        range(scene.frame_start, scene.frame_end + 1, scene.frame_step))
+    outs = [frame_path(a.output, f, True) for f in frames]   # distinct, as the frames
+    written, left_out = 0, 0
+    for i, (f, out) in enumerate(zip(frames, outs)):
+        if stop:
+            break
+        if a.skip_existing and os.path.exists(out):
+            _say(f"Frame {f}: '{out}' exists: left out (--skip-existing).")
+            left_out += 1
+            continue
+        check_output(out, a.blend, a.overwrite, not a.no_preview)
+        scene.frame_set(f)
+        _say(f"Frame {f} ({i + 1} of {len(frames)}):")
+        try:
+            code = _render_frame(a, stop, overrides, scene, out)
+        except CLIError as ex:
+            raise CLIError(ex.code, f"frame {f}: {ex}" + _frames_kept(written))
+        if code != EXIT_OK:
+            if code == EXIT_CANCELLED:
+                _say(f"Cancelled at frame {f}." + _frames_kept(written))
+            return code
+        written += 1
+    if stop:
+        _say("Cancelled between frames." + _frames_kept(written))
+        return EXIT_CANCELLED
+    _say(f"Animation: {written} frame{'s' * (written != 1)} written"
+         + (f", {left_out} left out (already written)" if left_out else "") + ".")
+    return EXIT_OK
+
+
+def _frames_kept(n: int) -> str:
+    return (f" The {n} frame{'s' * (n != 1)} written before it {'are' if n != 1 else 'is'} kept."
+            if n else "")
+
+
+def _render_frame(a, stop, overrides, scene, out) -> int:
+    """Render the open scene's current frame into ``out`` (EXR and preview)."""
     import bpy
 
     from . import engine
@@ -829,13 +951,6 @@ def _render_locked(a, stop, overrides) -> int:
 
     sess = engine.RenderSession(on_pass=on_pass, log=_say, should_stop=lambda: bool(stop),
                                 on_renderer=on_renderer)
-    if stop:
-        return _cancelled_early(stop)
-    scene = open_blend(a.blend, a.frame, a.resolution, should_stop=lambda: bool(stop))
-    if stop or scene is None:
-        return _cancelled_early(stop)
-    from .properties import settings_from_scene
-    a.file_settings = settings_from_scene(scene)   # before the overrides (read by a.on_renderer)
     t0 = time.monotonic()
     try:
         render_scene(scene, overrides, sess)
@@ -850,7 +965,7 @@ def _render_locked(a, stop, overrides) -> int:
         ckpt.save(sess.renderer)   # the last complete pass, also on Ctrl-C
     check_image(sess, stop)
     try:
-        written = _write_outputs(a, bpy, scene, sess, a.output, wall)
+        written = _write_outputs(a, bpy, scene, sess, out, wall)
     except CLIError as ex:
         if ex.code != EXIT_OUTPUT:
             raise

@@ -311,7 +311,8 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
             self.report({'ERROR'}, f"FPPM internal error: {type(ex).__name__}: {ex}")
 
     def _render(self, depsgraph, scene, sess) -> None:
-        settings = settings_from_scene(scene).validate()
+        # for_frame: Animated Seed mixes the frame into the seed here, once.
+        settings = settings_from_scene(scene).for_frame(scene.frame_current).validate()
         gain = film_gain(scene)
         if sess is not None:
             sess.settings, sess.gain = settings, gain

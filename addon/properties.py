@@ -100,6 +100,10 @@ class FPPMRenderSettings(PropertyGroup):
     seed: IntProperty(
         name="Seed", default=_D.seed, min=0, max=2**31 - 1,
         description="Random seed: the same seed renders the same image bit for bit")
+    use_animated_seed: BoolProperty(
+        name="Animated Seed", default=_D.use_animated_seed,
+        description="Mix the frame number into the seed, so that each frame of an animation "
+                    "has its own noise (off: every frame uses Seed, as Cycles' default)")
 
     # --- Integrator
     integrator: EnumProperty(

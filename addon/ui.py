@@ -47,7 +47,9 @@ class FPPM_RENDER_PT_sampling(FPPMPanel, Panel):
                 col.prop(s, "merge_weights")
         else:
             col.prop(s, "photons_per_pass")
-        col.prop(s, "seed")
+        row = col.row(align=True)
+        row.prop(s, "seed")
+        row.prop(s, "use_animated_seed", text="", icon='TIME')
 
 
 class FPPM_RENDER_PT_viewport(FPPMPanel, Panel):

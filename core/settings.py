@@ -24,6 +24,7 @@ class RenderSettings:
     max_passes: int = 64             # 0 = no limit (then time_limit must be > 0)
     photons_per_pass: int = 200_000
     seed: int = 0
+    use_animated_seed: bool = False  # each frame's seed mixes in the frame number (frame_seed; Cycles' Animated Seed)
     # --- Integrator (docs/integrators.md)
     integrator: str = "COMBINED"     # 'COMBINED' (path + light tracing, merging), 'PHOTON', 'PATH', 'LIGHT'
     camera_samples: int = 4          # PATH, COMBINED: camera paths per pixel and pass
@@ -138,6 +139,14 @@ class RenderSettings:
         n = int(round(r * self.camera_samples * int(n_pixels)))
         return self.replace(photons_per_pass=min(max(n, 1), 100_000_000))
 
+    def for_frame(self, frame: int) -> "RenderSettings":
+        """The settings that render frame ``frame``: with use_animated_seed its
+        own seed, :func:`frame_seed` (the engine calls this once per render,
+        so the stored Seed is never mixed twice); otherwise self."""
+        if not self.use_animated_seed:
+            return self
+        return self.replace(seed=frame_seed(self.seed, frame))
+
     def replace(self, **kw) -> "RenderSettings":
         return dataclasses.replace(self, **kw)
 
@@ -157,6 +166,26 @@ class RenderSettings:
         """Stable hash of every field (checkpoints, caches)."""
         blob = json.dumps(self.to_dict(), sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def frame_seed(seed: int, frame: int) -> int:
+    """The seed of frame ``frame`` under Animated Seed, in [0, 2^31).
+
+    Cycles' ``use_animated_seed`` hashes the frame number into the seed so
+    that the noise changes from frame to frame instead of standing still on
+    the image; this does the same with its own hash (a frame sequence
+    renders differently from Cycles' anyway).  The pair (seed, frame) goes
+    through the 64-bit finaliser of SplitMix64 (Steele et al. 2014), a
+    bijection whose every output bit depends on every input bit, so
+    neighbouring frames and seeds get unrelated streams.  Frames are
+    Blender's (negative allowed), taken modulo 2^32.
+    """
+    z = ((int(seed) & 0xFFFFFFFF) << 32 | (int(frame) & 0xFFFFFFFF)) + 0x9E3779B97F4A7C15
+    z &= 0xFFFFFFFFFFFFFFFF
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
+    z ^= z >> 31
+    return int(z >> 33)          # the top 31 bits
 
 
 def field_names() -> list[str]:

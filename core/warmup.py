@@ -418,9 +418,10 @@ def _scene_kinds(scene) -> tuple:
 
 def job_key(job) -> str:
     """Key of a render job's kernels (:func:`render_job`): its settings but
-    the seed and budget, its AOV passes and :func:`_scene_kinds`."""
+    the seed (Animated Seed too) and budget, its AOV passes and :func:`_scene_kinds`."""
     scene, st, passes = (tuple(job) + ((),))[:3]
-    feats = (st.replace(seed=0).image_digest(), tuple(passes), _scene_kinds(scene))
+    feats = (st.replace(seed=0, use_animated_seed=False).image_digest(), tuple(passes),
+             _scene_kinds(scene))
     return hashlib.sha256(repr(feats).encode()).hexdigest()[:16]
 
 

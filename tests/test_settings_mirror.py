@@ -80,6 +80,7 @@ def test_limits_stay_inside_what_validate_accepts(rna):
 def test_to_settings_round_trips_every_field():
     sc = H.empty_scene()
     s = RenderSettings(time_limit=12.5, max_passes=7, photons_per_pass=12345, seed=99,
+                       use_animated_seed=True,
                        radius_mode="WORLD", initial_radius_px=3.5, initial_radius=0.02,
                        alpha=0.6, cap_radius_at_edges=False, max_bounces=5, rr_start=2,
                        photons_for_direct=True,

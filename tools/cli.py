@@ -107,6 +107,10 @@ def render(a) -> int:
             return
         where = "this process"
         if client is not None:
+            # --frames / --animation build a renderer a frame: release the
+            # last frame's stages (its scene on the workers) first.
+            while stages:
+                stages.pop().close()
             stages.extend(distributed.distribute(client, renderer))
             n = len(client.scheduler_info()["workers"])
             where = f"{n} Dask worker{'s' * (n != 1)}" + (f" of {a.cluster}" if a.cluster else "")
