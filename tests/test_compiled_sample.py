@@ -72,7 +72,7 @@ def test_compiled_sample_equals_sample_bsdf():
                                              subset="all", mode="importance")
     wi, w, flags = np.empty((K, 3)), np.empty((K, 3)), np.empty(K, np.int8)
     C.sample_batch(fm.cm.lobes, fm.cm.tables, C.selection_table(t), mat, ns, ng, wo, u,
-                   wi, w, flags)
+                   False, wi, w, np.empty(K), flags)
     ok, dl = (flags & 1) > 0, (flags & 2) > 0
     assert np.array_equal(ok, ok_r)
     assert np.array_equal(dl, dl_r)
@@ -93,6 +93,44 @@ def test_compiled_sample_equals_sample_bsdf():
     through = np.einsum("ij,ij->i", ng, wi) * np.einsum("ij,ij->i", ng, wo) < 0
     for side in (back, ~back):
         assert np.count_nonzero(ok & glass & side & through) > 100
+
+
+def test_compiled_radiance_sample_and_pdf_equal_numpy():
+    """The camera paths' radiance-mode calls (compiled.sample_radiance,
+    eval_radiance, pdf_radiance) against closures.sample_bsdf / eval_bsdf /
+    pdf_bsdf in radiance mode on the same rays: flags exactly, directions,
+    weights and densities to RTOL; the rows the kernels do not cover (Lambert,
+    mirror, glass, absorber) are numpy's own, bit for bit."""
+    t = _table()
+    fm = FM.build_fast_materials(t)
+    rows = C.radiance_rows(t, fm)
+    assert np.array_equal(rows, fm.compiled)
+    K = 12000
+    mat, ns, ng, wo, u = _rays(t, K, 7)
+    colors = B.lobe_colors(t, mat, np.zeros((K, 2)))
+    ref = B.sample_bsdf(t, mat, colors, ns, ng, wo, u, subset="all", mode="radiance")
+    got = C.sample_radiance(t, fm, rows, mat, colors, ns, ng, wo, u)
+    wi_r, w_r, pdf_r, dl_r, ok_r = ref
+    wi, w, pdf, dl, ok = got
+    assert np.array_equal(ok, ok_r) and np.array_equal(dl, dl_r)
+    np.testing.assert_allclose(wi[ok], wi_r[ok], rtol=RTOL, atol=ATOL)
+    np.testing.assert_allclose(w, w_r, rtol=RTOL, atol=ATOL)
+    np.testing.assert_allclose(pdf, pdf_r, rtol=RTOL, atol=ATOL)
+    numpy_rows = ~rows[mat]
+    for a, b in zip(got, ref):
+        assert np.array_equal(a[numpy_rows], b[numpy_rows])
+    # radiance differs from importance where it should: refraction and shading normals
+    imp = B.sample_bsdf(t, mat, colors, ns, ng, wo, u, subset="all", mode="importance")
+    assert np.count_nonzero(np.any(imp[1] != w_r, axis=1) & rows[mat]) > 1000
+    # the light sample's f and density at the sampled directions
+    sel = np.nonzero(ok)[0]
+    generic = fm.cls == FM.GENERIC
+    f_r = B.eval_bsdf(t, mat[sel], colors[sel], ns[sel], ng[sel], wo[sel], wi[sel])
+    f = C.eval_radiance(t, generic, mat[sel], colors[sel], ns[sel], ng[sel], wo[sel], wi[sel])
+    np.testing.assert_allclose(f, f_r, rtol=RTOL, atol=ATOL)
+    p_r = B.pdf_bsdf(t, mat[sel], colors[sel], ns[sel], ng[sel], wo[sel], wi[sel], subset="all")
+    p = C.pdf_radiance(t, mat[sel], colors[sel], ns[sel], ng[sel], wo[sel], wi[sel])
+    np.testing.assert_allclose(p, p_r, rtol=RTOL, atol=ATOL)
 
 
 @pytest.mark.parametrize("textured", [False, True])

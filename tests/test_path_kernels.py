@@ -111,6 +111,26 @@ def test_compiled_light_pdf_equals_pdf_direct():
     np.testing.assert_allclose(got, ref, rtol=1e-9, atol=0)
 
 
+@pytest.mark.parametrize("integrator", ["PATH", "COMBINED"])
+def test_compiled_bsdf_of_glossy_vertices_equals_numpy(integrator):
+    """Outside the kernels' scope (a wall of a Lambert and a rough GGX lobe:
+    the GENERIC class), the numpy vertices' radiance-mode sample_bsdf,
+    eval_bsdf and pdf_bsdf of the GENERIC rows run compiled
+    (core.materials.compiled "Radiance mode over arrays"): the same image
+    as numpy's to the same tolerance (the same formulas and operation order,
+    eval_pair's libm pow / acos against numpy's, tests/test_compiled_sample.py)."""
+    pt = _tracer(integrator, glossy=True)
+    assert pt.kernels() is None
+    pt.compiled = False
+    L_n = pt(np.random.default_rng(5))
+    pt.compiled = True
+    L_c = pt(np.random.default_rng(5))
+    assert (L_n.max(axis=1) > 0).mean() > 0.9
+    from core.materials.compiled import radiance_rows
+    assert radiance_rows(pt.mtab, build_fast_materials(pt.mtab)).sum() == 1     # the wall
+    np.testing.assert_allclose(L_c, L_n, rtol=1e-9, atol=1e-9 * float(L_n.max()))
+
+
 def test_scenes_outside_the_kernels_use_numpy():
     assert _tracer("PATH", glossy=True).kernels() is None
     # A Transparent lobe: its crossings are no MIS vertex, which only the

@@ -54,7 +54,8 @@ from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 # change of the samplers (core.materials.compiled, .fast) must come with an
 # edit here and in core.sppm.photon_kernels, or a cache filled before it keeps
 # the old code (this note came with compiled.sincos_quarter; edited again
-# with the disk warp's one division and sample_fast inlined).
+# with the disk warp's one division and sample_fast inlined, and with
+# compiled.sample_pair's radiance mode).
 from ..materials.fast import ABSORBER, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
 from ..sppm.photon_kernels import shading_normal
 from .mis import FULL, SOFT
@@ -388,6 +389,51 @@ def continue_kernel(M, mat, p, ng, ns, wo, beta, u, roulette, rel, floor, nx):
         nx.vis[n] = 1 if gw * go > 0 else 2
         n += 1
     return n
+
+
+@njit(cache=True, inline="always")
+def _column_order(keys, b, perm):
+    """perm[s] = the row of the s-th smallest keys[:, b] (np.argsort of the
+    column: the same order for distinct keys): insertion sort for the few
+    samples of a pixel, numpy's sort beyond."""
+    n = keys.shape[0]
+    if n > 32:
+        perm[:] = np.argsort(keys[:, b])
+        return
+    for a in range(n):
+        x = a
+        kx = keys[x, b]
+        c = a - 1
+        while c >= 0 and keys[perm[c], b] > kx:
+            perm[c + 1] = perm[c]
+            c -= 1
+        perm[c + 1] = x
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def stratify_pair(keys, j, keys2, m, out, i):
+    """Dimension pair i of ``path_tracer.stratified``: keys (n, B) the
+    uniforms whose order per pixel (column) is its permutation of the n
+    cells, j (n, B, 2) the jitter; m > 0: the sqrt(n) x sqrt(n) grid,
+    out[s, b, 2i] = (perm % m + j0) / m and out[s, b, 2i+1] = (perm // m +
+    j1) / m; m = 0: N-rooks, (perm + j0) / n and (perm2 + j1) / n with
+    perm2 the order of keys2.  The same operations as the numpy expressions
+    (bit for bit)."""
+    n, B = keys.shape
+    perm = np.empty(n, np.int64)
+    perm2 = np.empty(n, np.int64)
+    for b in range(B):
+        _column_order(keys, b, perm)
+        if m > 0:
+            for s in range(n):
+                q = perm[s]
+                out[s, b, 2 * i] = ((q % m) + j[s, b, 0]) / m
+                out[s, b, 2 * i + 1] = ((q // m) + j[s, b, 1]) / m
+        else:
+            _column_order(keys2, b, perm2)
+            for s in range(n):
+                out[s, b, 2 * i] = (perm[s] + j[s, b, 0]) / n
+                out[s, b, 2 * i + 1] = (perm2[s] + j[s, b, 1]) / n
 
 
 def alloc_next(K: int) -> NextRays:

@@ -80,19 +80,19 @@ def stratified(rng: np.random.Generator, n: int, B: int, pairs: int) -> np.ndarr
     grid when n is a square, else N-rooks (each 1-D projection in n strata);
     cells shuffled independently per pixel and pair (Shirley 1991; Cycles'
     multi-jittered sequences serve the same end).  Every sample is uniform on
-    its own, so estimates stay unbiased; within a pixel the samples spread."""
+    its own, so estimates stay unbiased; within a pixel the samples spread.
+    A pixel's random permutation of the n cells is the order of n uniforms
+    (numpy's argsort over axis 0); ``path_kernels.stratify_pair`` sorts and
+    places them, the draws stay numpy's (keys, jitter, then the N-rooks'
+    second keys, per pair)."""
     out = np.empty((n, B, 2 * pairs))
     m = int(round(np.sqrt(n)))
+    square = m * m == n
     for i in range(pairs):
-        # A random permutation of the n cells per pixel.
-        perm = np.argsort(rng.random((n, B)), axis=0)
+        keys = rng.random((n, B))
         j = rng.random((n, B, 2))
-        if m * m == n:
-            out[..., 2 * i] = (perm % m + j[..., 0]) / m
-            out[..., 2 * i + 1] = (perm // m + j[..., 1]) / m
-        else:
-            out[..., 2 * i] = (perm + j[..., 0]) / n
-            out[..., 2 * i + 1] = (np.argsort(rng.random((n, B)), axis=0) + j[..., 1]) / n
+        keys2 = keys if square else rng.random((n, B))
+        PK.stratify_pair(keys, j, keys2, m if square else 0, out, i)
     return out
 
 
@@ -195,6 +195,36 @@ class PathTracer:
         self.compiled = compiled
         # (DirectLights, LightPdf, PathMaterials, colors, TriangleData) or False
         self._kernels = None
+        # The radiance-mode BSDF calls of the numpy vertices: compiled on
+        # GENERIC materials (core.materials.compiled "Radiance mode over
+        # arrays"), numpy where ``compiled`` is off (the reference).
+        self._bsdf = {}
+
+    def bsdf(self):
+        """(sample, eval, pdf): the radiance-mode sample_bsdf (subset 'all'),
+        eval_bsdf and pdf_bsdf (subset 'all') of the numpy vertices, with the
+        signature ``(mat, colors, ns, ng, wo, u_or_wi)``."""
+        if self.compiled not in self._bsdf:
+            mtab = self.mtab
+            if self.compiled:
+                from ..materials import compiled as C
+                from ..materials.fast import GENERIC, build_fast_materials
+                fm = build_fast_materials(mtab)
+                rows, generic = C.radiance_rows(mtab, fm), fm.cls == GENERIC
+                self._bsdf[True] = (
+                    lambda m, c, ns, ng, wo, u: C.sample_radiance(mtab, fm, rows, m, c, ns, ng,
+                                                                  wo, u),
+                    lambda m, c, ns, ng, wo, wi: C.eval_radiance(mtab, generic, m, c, ns, ng,
+                                                                 wo, wi),
+                    lambda m, c, ns, ng, wo, wi: C.pdf_radiance(mtab, m, c, ns, ng, wo, wi))
+            else:
+                self._bsdf[False] = (
+                    lambda m, c, ns, ng, wo, u: B.sample_bsdf(mtab, m, c, ns, ng, wo, u,
+                                                              subset="all", mode="radiance"),
+                    lambda m, c, ns, ng, wo, wi: B.eval_bsdf(mtab, m, c, ns, ng, wo, wi),
+                    lambda m, c, ns, ng, wo, wi: B.pdf_bsdf(mtab, m, c, ns, ng, wo, wi,
+                                                            subset="all"))
+        return self._bsdf[self.compiled]
 
     def kernels(self):
         """The kernels' view of the scene, None where they do not cover it
@@ -405,8 +435,8 @@ class PathTracer:
                 first = np.zeros(c.size, bool)
                 path = v.path[c]
                 continue
-            wi, wgt, pdf, is_delta, valid = B.sample_bsdf(mtab, v.mat, v.colors, v.ns, v.ng, v.wo,
-                                                          ur[:, :3], subset="all", mode="radiance")
+            wi, wgt, pdf, is_delta, valid = self.bsdf()[0](v.mat, v.colors, v.ns, v.ng, v.wo,
+                                                           ur[:, :3])
             bt = v.beta * wgt
             ok = valid & np.all(np.isfinite(bt), axis=1) & (bt.max(axis=1) > 0)
             if depth >= self.rr_start:
@@ -491,7 +521,7 @@ class PathTracer:
     def _direct(self, v: PathVertices, u, out, depth: int = 0) -> None:
         """Adds to out[v.path] the light sample of each vertex (all have a
         non-delta lobe), MIS-weighted against BSDF sampling; u (K, 3) uniforms."""
-        mtab, lt = self.mtab, self.lights
+        lt = self.lights
         n_l = v.ns_wo()
         smp = Lt.sample_direct(lt, v.p, u, n=n_l)
         wi, dist, wgt, light = smp["wi"], smp["dist"], smp["weight"], smp["light"]
@@ -500,7 +530,7 @@ class PathTracer:
             return
         v, wi, dist, wgt, light = v.take(live), wi[live], dist[live], wgt[live], light[live]
         shadow = smp["cast_shadow"][live]
-        f = B.eval_bsdf(mtab, v.mat, v.colors, v.ns, v.ng, v.wo, wi)
+        f = self.bsdf()[1](v.mat, v.colors, v.ns, v.ng, v.wo, wi)
         cos = np.abs(_dot(v.ns, wi))
         contrib = v.beta * f * (cos[:, None] * wgt)
         nz = np.nonzero(contrib.max(axis=1) > 0)[0]
@@ -578,7 +608,7 @@ class PathTracer:
         taken at vertices v (receiver normals n_l, default v.ns_wo()): against
         the BSDF density of wi where a BSDF ray along wi would find the emitter
         (not a delta light, visible to that ray type), else 1."""
-        mtab, lt = self.mtab, self.lights
+        lt = self.lights
         refl = (_dot(wi, v.ng) * _dot(v.wo, v.ng)) > 0
         seen = self.hittable[light] & np.where(
             lt.kind[light] == MESH, True,
@@ -589,7 +619,6 @@ class PathTracer:
         if m.size:
             n_l = v.ns_wo() if n_l is None else n_l
             pl = self.pdf_light(v.p[m], wi[m], light[m], dist[m], n_l[m])
-            pb = B.pdf_bsdf(mtab, v.mat[m], v.colors[m], v.ns[m], v.ng[m], v.wo[m], wi[m],
-                            subset="all")
+            pb = self.bsdf()[2](v.mat[m], v.colors[m], v.ns[m], v.ng[m], v.wo[m], wi[m])
             w[m] = power_heuristic(pl, pb)
         return w

@@ -709,23 +709,54 @@ def _microfacet_pdf(kind, a2, eta, Nx, Ny, Nz, Gx, Gy, Gz, ox, oy, oz, ix, iy, i
     return 0.0
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _pdf_nd_one(lobes, p, r, m, front, Nx, Ny, Nz, Gx, Gy, Gz, ox, oy, oz, wx, wy, wz):
+    """closures._pdf_nd of one direction: the combined density of material m's
+    non-delta lobes at wi = w, each lobe weighted by its selection
+    probability p[r] (slot order, as numpy sums); N, G the normals oriented
+    to wo's side (front: wo on the mesh normal's side)."""
+    pdf = 0.0
+    for jj in range(lobes.shape[1]):
+        pj = p[r, jj]
+        if not (lobes[m, jj, F_ND] > 0.0 and pj > 0.0):
+            continue
+        kj = int(lobes[m, jj, F_KIND])
+        if kj == DIFFUSE:
+            v = (max(_dot3(Nx, Ny, Nz, wx, wy, wz), 0.0) * INV_PI
+                 * (1.0 if _dot3(Gx, Gy, Gz, wx, wy, wz) > 0.0 else 0.0))
+        elif kj == TRANSLUCENT:
+            v = (max(-_dot3(Nx, Ny, Nz, wx, wy, wz), 0.0) * INV_PI
+                 * (1.0 if _dot3(Gx, Gy, Gz, wx, wy, wz) < 0.0 else 0.0))
+        elif kj == GLOSSY or kj == GLASS or kj == REFRACTION:
+            ij = lobes[m, jj, F_IOR]
+            v = _microfacet_pdf(kj, lobes[m, jj, F_A2], ij if front else 1.0 / ij,
+                                Nx, Ny, Nz, Gx, Gy, Gz, ox, oy, oz, wx, wy, wz)
+        else:
+            v = 0.0
+        pdf += pj * v
+    return pdf
+
+
 @njit(cache=True, error_model="numpy")
 def sample_pair(lobes, T, colors, p, cdf, last, m, nsx, nsy, nsz, ngx, ngy, ngz,
-                ox, oy, oz, u0, u1, u2):
-    """closures.sample_bsdf(subset='all', mode='importance') of material m
-    (untextured, no Normal Map / Bump) for one ray: lobes, T a
-    CompiledMaterials' arrays; colors, p, cdf, last a SelectionTable's; ns,
-    ng unit mesh normals in any orientation; o = wo unit (back towards where
-    the photon came from); u0, u1 direction, u2 lobe choice (rescaled for
+                ox, oy, oz, u0, u1, u2, radiance):
+    """closures.sample_bsdf(subset='all', mode='importance', or 'radiance'
+    with ``radiance``) of material m (untextured, no Normal Map / Bump) for
+    one ray: lobes, T a CompiledMaterials' arrays; colors, p, cdf, last a
+    SelectionTable's; ns, ng unit mesh normals in any orientation; o = wo
+    unit (importance: back towards where the photon came from; radiance:
+    towards the camera side); u0, u1 direction, u2 lobe choice (rescaled for
     glass' reflect / refract choice).  Returns (wi xyz, weight rgb,
-    is_delta, ok); weight 0 when not ok."""
+    is_delta, ok, pdf); weight and pdf 0 when not ok; pdf the combined
+    density of the non-delta lobes, or the lobe's selection probability for
+    a delta sample (sample_bsdf's pdf)."""
     front = _dot3(ngx, ngy, ngz, ox, oy, oz) >= 0.0
     sg = 1.0 if front else -1.0
     Nx, Ny, Nz = nsx * sg, nsy * sg, nsz * sg
     Gx, Gy, Gz = ngx * sg, ngy * sg, ngz * sg
     L = lobes.shape[1]
     if not cdf[m, L - 1] > 0.0:          # no lobe: invalid
-        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, False
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, False, 0.0
     # Lobe choice: first slot with u < cdf, at most the last usable one.
     j = 0
     for jj in range(L):
@@ -824,58 +855,153 @@ def sample_pair(lobes, T, colors, p, cdf, last, m, nsx, nsy, nsz, ngx, ngy, ngz,
                     d0 = w * _f82_channel(d0 / dv, lobes[m, j, F_TINT], hwo)[0]
                     d1 = w * _f82_channel(d1 / dv, lobes[m, j, F_TINT + 1], hwo)[0]
                     d2 = w * _f82_channel(d2 / dv, lobes[m, j, F_TINT + 2], hwo)[0]
-            if refr:
+            if refr and not radiance:
                 # Adjoint of Cycles' unscaled BTDF: (n_wo / n_wi)^2 = 1/eta^2.
                 e2 = eta * eta
                 d0, d1, d2 = d0 / e2, d1 / e2, d2 / e2
     if not ok:
-        return wx, wy, wz, 0.0, 0.0, 0.0, False, False
+        return wx, wy, wz, 0.0, 0.0, 0.0, False, False, 0.0
     if delta:
         w0, w1, w2 = d0 / p_sel, d1 / p_sel, d2 / p_sel
+        pdf = p_sel
     else:
-        # Combined density of all non-delta lobes (closures._pdf_nd), slot order.
-        pdf = 0.0
-        for jj in range(L):
-            pj = p[m, jj]
-            if not (lobes[m, jj, F_ND] > 0.0 and pj > 0.0):
-                continue
-            kj = int(lobes[m, jj, F_KIND])
-            if kj == DIFFUSE:
-                v = (max(_dot3(Nx, Ny, Nz, wx, wy, wz), 0.0) * INV_PI
-                     * (1.0 if _dot3(Gx, Gy, Gz, wx, wy, wz) > 0.0 else 0.0))
-            elif kj == TRANSLUCENT:
-                v = (max(-_dot3(Nx, Ny, Nz, wx, wy, wz), 0.0) * INV_PI
-                     * (1.0 if _dot3(Gx, Gy, Gz, wx, wy, wz) < 0.0 else 0.0))
-            elif kj == GLOSSY or kj == GLASS or kj == REFRACTION:
-                ij = lobes[m, jj, F_IOR]
-                v = _microfacet_pdf(kj, lobes[m, jj, F_A2], ij if front else 1.0 / ij,
-                                    Nx, Ny, Nz, Gx, Gy, Gz, ox, oy, oz, wx, wy, wz)
-            else:
-                v = 0.0
-            pdf += pj * v
+        pdf = _pdf_nd_one(lobes, p, m, m, front, Nx, Ny, Nz, Gx, Gy, Gz, ox, oy, oz,
+                          wx, wy, wz)
         if not pdf > 0.0:
-            return wx, wy, wz, 0.0, 0.0, 0.0, False, False
-        # Importance mode: the adjoint f_C(view=wi, light=wo).
-        f = eval_pair(lobes, T, m, colors, m, nsx, nsy, nsz, ngx, ngy, ngz,
-                      wx, wy, wz, ox, oy, oz, False)
+            return wx, wy, wz, 0.0, 0.0, 0.0, False, False, 0.0
+        if radiance:
+            # closures._sample_general, mode 'radiance': Cycles' f(view=wo, light=wi).
+            f = eval_pair(lobes, T, m, colors, m, nsx, nsy, nsz, ngx, ngy, ngz,
+                          ox, oy, oz, wx, wy, wz, False)
+        else:
+            # Importance mode: the adjoint f_C(view=wi, light=wo).
+            f = eval_pair(lobes, T, m, colors, m, nsx, nsy, nsz, ngx, ngy, ngz,
+                          wx, wy, wz, ox, oy, oz, False)
         cs = abs(_dot3(nsx, nsy, nsz, wx, wy, wz)) / pdf
         w0, w1, w2 = f[0] * cs, f[1] * cs, f[2] * cs
+    if radiance:
+        return wx, wy, wz, w0, w1, w2, delta, True, pdf
     # closures._adjoint_correction |wo.ns||wi.ng| / (|wo.ng||wi.ns|).
     num = abs(_dot3(ox, oy, oz, nsx, nsy, nsz)) * abs(_dot3(wx, wy, wz, ngx, ngy, ngz))
     den = abs(_dot3(ox, oy, oz, ngx, ngy, ngz)) * abs(_dot3(wx, wy, wz, nsx, nsy, nsz))
     adj = num / den if den > 0 else 0.0
-    return wx, wy, wz, w0 * adj, w1 * adj, w2 * adj, delta, True
+    return wx, wy, wz, w0 * adj, w1 * adj, w2 * adj, delta, True, pdf
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def sample_batch(lobes, T, sel, mat, ns, ng, wo, u, wi, weight, flags):
-    """:func:`sample_pair` of K rays (tests): mat (K,) int64, ns, ng, wo (K, 3),
-    u (K, 3); writes wi, weight (K, 3) and flags (K,) int8: bit 0 ok, bit 1
-    is_delta."""
+def sample_batch(lobes, T, sel, mat, ns, ng, wo, u, radiance, wi, weight, pdf, flags):
+    """:func:`sample_pair` of K rays: mat (K,) int64, ns, ng, wo (K, 3),
+    u (K, 3); writes wi, weight (K, 3), pdf (K,) and flags (K,) int8: bit 0
+    ok, bit 1 is_delta."""
     for i in range(mat.shape[0]):
         r = sample_pair(lobes, T, sel.colors, sel.p, sel.cdf, sel.last, mat[i],
                         ns[i, 0], ns[i, 1], ns[i, 2], ng[i, 0], ng[i, 1], ng[i, 2],
-                        wo[i, 0], wo[i, 1], wo[i, 2], u[i, 0], u[i, 1], u[i, 2])
+                        wo[i, 0], wo[i, 1], wo[i, 2], u[i, 0], u[i, 1], u[i, 2], radiance)
         wi[i, 0], wi[i, 1], wi[i, 2] = r[0], r[1], r[2]
         weight[i, 0], weight[i, 1], weight[i, 2] = r[3], r[4], r[5]
+        pdf[i] = r[8]
         flags[i] = (1 if r[7] else 0) + (2 if r[6] else 0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def pdf_batch(lobes, mat, p, N, Ng, front, wo, wi, out):
+    """closures._pdf_nd of K rows (out (K,)): mat (K,) int64, p (K, L) the
+    selection probabilities, N, Ng (K, 3) the normals oriented to wo's side,
+    front (K,) bool, wo, wi (K, 3)."""
+    for i in range(mat.shape[0]):
+        out[i] = _pdf_nd_one(lobes, p, i, mat[i], front[i], N[i, 0], N[i, 1], N[i, 2],
+                             Ng[i, 0], Ng[i, 1], Ng[i, 2], wo[i, 0], wo[i, 1], wo[i, 2],
+                             wi[i, 0], wi[i, 1], wi[i, 2])
+
+
+# --------------------------------------------------------------------------
+# Radiance mode over arrays: the camera paths' BSDF calls
+# --------------------------------------------------------------------------
+# The camera paths (core.integrators.path_tracer, combined) call sample_bsdf,
+# eval_bsdf and pdf_bsdf in radiance mode on every vertex; on GENERIC
+# materials (Blender's default Principled BSDF, glossy, glass with a rough
+# lobe) numpy spent ~2 us a row there.  These take the same arguments and
+# return the same arrays, the rows they cover by the kernels above (same
+# formulas in the same order: equal to rounding, tests/test_compiled_sample.py)
+# and the others by numpy.
+
+
+def radiance_rows(table, fm) -> np.ndarray:
+    """(M,) bool: the materials :func:`sample_radiance` samples compiled, the
+    photon tracer's ``fm.compiled`` (GENERIC, untextured, no Normal Map /
+    Bump) without an alpha texture (whose lobe colours vary per hit)."""
+    rows = np.asarray(fm.compiled, bool).copy()
+    alpha = getattr(table, "alpha_tex", None)
+    if alpha is not None:
+        a = np.asarray(alpha).reshape(rows.shape[0], -1)
+        rows &= ~np.any(a >= 0, axis=1)
+    return rows
+
+
+def sample_radiance(table, fm, rows, mat, colors, n_s, n_g, wo, u):
+    """closures.sample_bsdf(table, mat, colors, n_s, n_g, wo, u, subset='all',
+    mode='radiance'): the same (wi, weight, pdf, is_delta, ok); rows (M,)
+    bool from :func:`radiance_rows` (their colours are the material's)."""
+    from .closures import sample_bsdf
+    mat = np.asarray(mat, np.int64)
+    c = rows[mat]
+    if not c.any():
+        return sample_bsdf(table, mat, colors, n_s, n_g, wo, u, subset="all", mode="radiance")
+    K = mat.shape[0]
+    ci = np.nonzero(c)[0]
+    n = ci.size
+    wi, weight, pdf = np.zeros((K, 3)), np.zeros((K, 3)), np.zeros(K)
+    is_delta, ok = np.zeros(K, bool), np.zeros(K, bool)
+    w_c, g_c, p_c, fl = np.empty((n, 3)), np.empty((n, 3)), np.empty(n), np.empty(n, np.int8)
+    sample_batch(fm.cm.lobes, fm.cm.tables, fm.sel, mat[ci], _f64(np.asarray(n_s)[ci], 3),
+                 _f64(np.asarray(n_g)[ci], 3), _f64(np.asarray(wo)[ci], 3),
+                 _f64(np.asarray(u)[ci], 3), True, w_c, g_c, p_c, fl)
+    wi[ci], weight[ci], pdf[ci] = w_c, g_c, p_c
+    ok[ci] = (fl & 1) > 0
+    is_delta[ci] = (fl & 3) == 3
+    ni = np.nonzero(~c)[0]
+    if ni.size:
+        r = sample_bsdf(table, mat[ni], np.asarray(colors)[ni], np.asarray(n_s)[ni],
+                        np.asarray(n_g)[ni], np.asarray(wo)[ni], np.asarray(u)[ni],
+                        subset="all", mode="radiance")
+        wi[ni], weight[ni], pdf[ni], is_delta[ni], ok[ni] = r
+    return wi, weight, pdf, is_delta, ok
+
+
+def eval_radiance(table, generic, mat, colors, n_s, n_g, wo, wi):
+    """closures.eval_bsdf(table, mat, colors, n_s, n_g, wo, wi) (radiance):
+    the rows of materials ``generic`` (M,) bool by :func:`eval_indexed`
+    (every lobe kind and option, textured colours and Normal Map / Bump
+    included), the others (Lambert walls: numpy is as fast) by numpy."""
+    from .closures import eval_bsdf as eval_numpy
+    mat = np.asarray(mat, np.int64)
+    c = generic[mat]
+    if not c.any():
+        return eval_numpy(table, mat, colors, n_s, n_g, wo, wi)
+    out = np.empty((mat.shape[0], 3))
+    ci = np.nonzero(c)[0]
+    out[ci] = eval_bsdf(table, mat[ci], np.asarray(colors)[ci], np.asarray(n_s)[ci],
+                        np.asarray(n_g)[ci], np.asarray(wo)[ci], np.asarray(wi)[ci])
+    ni = np.nonzero(~c)[0]
+    if ni.size:
+        out[ni] = eval_numpy(table, mat[ni], np.asarray(colors)[ni], np.asarray(n_s)[ni],
+                             np.asarray(n_g)[ni], np.asarray(wo)[ni], np.asarray(wi)[ni])
+    return out
+
+
+def pdf_radiance(table, mat, colors, n_s, n_g, wo, wi):
+    """closures.pdf_bsdf(table, mat, colors, n_s, n_g, wo, wi, subset='all'):
+    numpy's set-up (Normal Map / Bump correction, orientation, the lobes'
+    selection probabilities), then closures._pdf_nd's per-lobe sum compiled
+    (:func:`pdf_batch`)."""
+    from .closures import _bump_corrected, _orient, _prep
+    from .table import _selection_probs
+    mat = np.asarray(mat, np.int64)
+    n_s, n_g, wo, wi = _prep(n_s, n_g, wo, wi)
+    n_s = _bump_corrected(table, mat, n_s, n_g, wo)
+    N, Ng, front = _orient(n_s, n_g, wo)
+    p = np.ascontiguousarray(_selection_probs(table, mat, colors, "all"), np.float64)
+    out = np.empty(mat.shape[0])
+    pdf_batch(compile_materials(table).lobes, mat, p, _f64(N, 3), _f64(Ng, 3),
+              np.ascontiguousarray(front), _f64(wo, 3), _f64(wi, 3), out)
+    return out

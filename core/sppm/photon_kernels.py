@@ -492,7 +492,8 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
                 st = SAMPLE_NUMPY
                 if m_comp[m]:
                     r = sample_pair(c_lobes, c_T, s_col, s_p, s_cdf, s_last, m,
-                                    sx, sy, sz, gx, gy, gz, wx, wy, wz, u[i, 0], u[i, 1], u[i, 2])
+                                    sx, sy, sz, gx, gy, gz, wx, wy, wz, u[i, 0], u[i, 1], u[i, 2],
+                                    False)
                     gen_out[n_gen, 0], gen_out[n_gen, 1], gen_out[n_gen, 2] = r[0], r[1], r[2]
                     gen_wgt[n_gen, 0], gen_wgt[n_gen, 1], gen_wgt[n_gen, 2] = r[3], r[4], r[5]
                     st = (SAMPLE_DELTA if r[6] else SAMPLE_OK) if r[7] else SAMPLE_INVALID

@@ -1,0 +1,143 @@
+"""The camera paths' BSDF calls at glossy vertices, compiled against numpy.
+
+    .venv/bin/python bench/bench_path_bsdf.py [default_cube principled_interior real_scene]
+        [--percent 25] [--repeat 5] [--modes PATH,COMBINED]
+
+For each scene (``default_cube``: Blender's factory start-up file, the cube
+with the default Principled BSDF; else an ``example_blends/`` file) at
+--percent of its resolution, exported as F12 does, a renderer of each
+integrator, then one pass of its camera paths (``PathTracer.__call__``,
+camera_samples per pixel) with ``PathTracer.compiled`` off (the numpy
+reference: radiance-mode sample_bsdf, eval_bsdf, pdf_bsdf in numpy) and on
+(core.materials.compiled "Radiance mode over arrays" for the GENERIC rows),
+interleaved, the same random stream in a pair, one numba thread; process
+CPU, min and paired median of --repeat; and the largest difference of the
+two images relative to the image's largest pixel.  Scenes inside the
+Lambert / mirror / glass kernels' scope (core.integrators.path_kernels) run
+those kernels with compiled on: their ratio measures those kernels, not
+this.  --cycles: also Cycles on the same file at the same size and paths a
+pixel (non-adaptive, no denoising, CPU), rendered in a process of its own
+(no numba or Embree threads there, as ``fppm converge``'s Cycles ladder),
+its process CPU a path beside FPPM's.  Ratios measured in one run
+(docs/integrators.md "Compiled BSDF calls at glossy camera vertices, round 24").
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "tests"))
+
+import fppm_alias  # noqa: E402,F401  (core.x is fppm.core.x: one numba cache)
+import bpy_helpers  # noqa: E402
+
+
+def export(name: str, percent: int):
+    """(core Scene, RenderSettings) of a scene as F12 exports it."""
+    bpy = bpy_helpers.bpy()
+    if name == "default_cube":
+        bpy.ops.wm.read_factory_settings()
+    else:
+        bpy.ops.wm.open_mainfile(filepath=os.path.join(ROOT, "example_blends", name + ".blend"),
+                                 load_ui=False, use_scripts=False)
+    bpy_helpers.ensure_registered()
+    from fppm.addon.export import export_scene
+    from fppm.addon.properties import settings_from_scene
+    sc = bpy.context.scene
+    sc.render.resolution_percentage = percent
+    scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
+    return scene, settings_from_scene(sc).replace(time_limit=0.0, max_passes=1)
+
+
+CYCLES = r"""
+import os, sys, time
+import bpy
+name, pct, spp = sys.argv[-3], int(sys.argv[-2]), int(sys.argv[-1])
+if name == "default_cube":
+    bpy.ops.wm.read_factory_settings()
+else:
+    bpy.ops.wm.open_mainfile(filepath=name, load_ui=False, use_scripts=False)
+sc = bpy.context.scene
+sc.render.engine = "CYCLES"
+sc.render.resolution_percentage = pct
+c = sc.cycles
+c.device, c.samples, c.use_adaptive_sampling, c.use_denoising = "CPU", spp, False, False
+c.time_limit = 0.0
+bpy.ops.render.render()                      # warm (kernels, BVH)
+t = time.process_time()
+bpy.ops.render.render()
+print("CPU", time.process_time() - t)
+"""
+
+
+def cycles_cpu(name: str, percent: int, spp: int) -> float:
+    """Process CPU of one Cycles render of ``spp`` samples a pixel (its own process)."""
+    import subprocess
+    path = name if name == "default_cube" else os.path.join(ROOT, "example_blends",
+                                                           name + ".blend")
+    r = subprocess.run([sys.executable, "-c", CYCLES, path, str(percent), str(spp)],
+                       capture_output=True, text=True, check=True)
+    return float([x for x in r.stdout.splitlines() if x.startswith("CPU ")][-1].split()[1])
+
+
+def one(pt, compiled: bool, seed: int):
+    """(image (P, 3), process CPU seconds) of one call of the camera paths."""
+    pt.compiled = compiled
+    c0 = time.process_time()
+    L = pt(np.random.default_rng(seed))
+    return L, time.process_time() - c0
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("scenes", nargs="*", default=["default_cube", "principled_interior",
+                                                  "real_scene"])
+    ap.add_argument("--percent", type=int, default=25)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--modes", default="PATH,COMBINED")
+    ap.add_argument("--cycles", action="store_true",
+                    help="also time Cycles (its own process) at the same paths a pixel")
+    a = ap.parse_args(argv)
+    from fppm.core.render import Renderer
+    print("scene, integrator: numpy / compiled CPU (min; paired median), max |diff| / max pixel")
+    for name in a.scenes:
+        scene, st = export(name, a.percent)
+        for mode in a.modes.split(","):
+            r = Renderer(scene, st.replace(integrator=mode), log=lambda s: None)
+            pt = r.path_tracer
+            if pt is None or (pt.camera_stop is not None and pt.camera_stop.camera_free):
+                print(f"{name}, {mode}: no camera paths (light tracing takes them)")
+                continue
+            one(pt, True, 0), one(pt, False, 0)         # warm: kernels, tables
+            tn, tc, diff = [], [], 0.0
+            for k in range(a.repeat):
+                order = (False, True) if k % 2 == 0 else (True, False)
+                got = {c: one(pt, c, 100 + k) for c in order}
+                tn.append(got[False][1])
+                tc.append(got[True][1])
+                Ln, Lc = got[False][0], got[True][0]
+                diff = max(diff, float(np.abs(Lc - Ln).max() / max(Ln.max(), 1e-300)))
+            tn, tc = np.array(tn), np.array(tc)
+            print(f"{name}, {mode}: {tn.min():.3f} / {tc.min():.3f} s = {tn.min() / tc.min():.2f}x "
+                  f"(paired median {np.median(tn / tc):.2f}x), {scene.camera.resolution[0]}x"
+                  f"{scene.camera.resolution[1]} px, {st.camera_samples} paths a pixel; "
+                  f"max diff {diff:.1e}", flush=True)
+            if a.cycles and mode == "PATH":
+                w, h = scene.camera.resolution
+                paths = w * h * st.camera_samples
+                cy = cycles_cpu(name, a.percent, 4 * st.camera_samples)
+                print(f"  CPU a path: FPPM PATH numpy {1e6 * tn.min() / paths:.3f} us, compiled "
+                      f"{1e6 * tc.min() / paths:.3f} us; Cycles {1e6 * cy / (4 * paths):.3f} us "
+                      f"({4 * st.camera_samples} spp in its own process): compiled / Cycles "
+                      f"{tc.min() / (cy / 4):.2f}x", flush=True)
+
+
+if __name__ == "__main__":
+    main()
