@@ -371,6 +371,20 @@ def test_combined_workers_2_when_the_camera_paths_are_restated(tmp_path_factory,
 
 
 @needs_dask
+def test_workers_2_render_an_animation_frame_by_frame(glossy, reference, tmp_path):
+    # `--frames` builds a renderer a frame; each hands its photon pass to the
+    # same cluster after the last frame's stages let go of their scene
+    # (tools/cli.py): every frame is the one-process image (a still scene).
+    r = H.run_fppm("render", glossy[0], "-o", tmp_path / "f_#.exr", "--frames", "1..2",
+                   "--workers", 2, "--chunk", CHUNK, "-q", "--no-preview")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.count("on 2 Dask workers") == 2 and "Animation: 2 frames written." in r.stdout
+    for f in (1, 2):
+        got = read_exr(str(tmp_path / f"f_{f}.exr"))
+        assert np.abs(got["Combined"] - reference.image).max() == 0.0
+
+
+@needs_dask
 def test_combined_killed_worker_gives_the_same_image(caustic, combined_reference, client):
     # A worker holding (tracing or keeping) a light chunk of pass 2 is
     # killed: Dask traces that chunk again elsewhere, with the same stream.
