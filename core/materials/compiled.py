@@ -17,7 +17,9 @@ code would compute.
 Used where the photon gather hands back (visible point, photon) pairs of
 non-Lambert points (``core.sppm.photon_pass``: the reflected flux, and the
 receivers' glossy share for the frequency kernel's per-pair radius), where
-the numpy evaluation cost ~2 us a pair.
+the numpy evaluation cost ~2 us a pair; by the photon tracer's generic hits
+(:func:`sample_pair`, importance mode); and by the camera paths' glossy
+vertices (radiance mode: "Radiance mode over arrays" at the end).
 """
 from __future__ import annotations
 
@@ -566,12 +568,14 @@ def eval_bsdf(table, mat, colors, n_s, n_g, wo, wi, with_smooth=False):
 # --------------------------------------------------------------------------
 # Importance sampling of a whole material, one ray at a time
 # --------------------------------------------------------------------------
-# The numba twin of closures.sample_bsdf(subset='all', mode='importance') for
-# untextured materials without Normal Map / Bump (the photon tracer's generic
-# hits, core.sppm.photon_kernels.bounce_kernel): the same lobe choice, lobe
+# The numba twin of closures.sample_bsdf(subset='all') for untextured
+# materials without Normal Map / Bump, in importance mode (the photon
+# tracer's generic hits, core.sppm.photon_kernels.bounce_kernel) and radiance
+# mode (the camera paths, sample_radiance): the same lobe choice, lobe
 # sampler, combined one-sample MIS density (closures._pdf_nd), f from
-# eval_pair and adjoint shading-normal factor, in the same operation order
-# (tests/test_compiled_sample.py: sample for sample against numpy).
+# eval_pair and, in importance mode, the adjoint factors, in the same
+# operation order (tests/test_compiled_sample.py: sample for sample against
+# numpy).
 
 
 class SelectionTable(NamedTuple):
