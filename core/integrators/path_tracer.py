@@ -40,7 +40,10 @@ compacted per vertex (Mitsuba 3 style wavefront); throughput is float64.
 With ``compiled`` (default) and a scene the kernels cover, the light sample
 and its MIS weight, the light-sampling densities and the continuation (BSDF
 sample, throughput, roulette, spawn, compaction) are the numba kernels of
-:mod:`.path_kernels`; ``compiled = False`` is the numpy reference.
+:mod:`.path_kernels`; elsewhere the numpy vertices' radiance-mode
+sample_bsdf, eval_bsdf and pdf_bsdf run compiled on GENERIC materials
+(:meth:`PathTracer.bsdf`, core.materials.compiled "Radiance mode over
+arrays"); ``compiled = False`` is the numpy reference.
 """
 from __future__ import annotations
 
