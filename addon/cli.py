@@ -834,14 +834,14 @@ def render(a) -> int:
     # (a '#' in -o stands for the frame: checked again for each frame's name)
     check_output(frame_path(a.output, 0, False), a.blend, a.overwrite, not a.no_preview)
     check_numbers(a)
-    check_checkpoint_args(a)
     a.frame_list = parse_frames(a.frames) if getattr(a, "frames", None) else None
     animation = a.frame_list is not None or getattr(a, "animation", False)
-    if animation and a.checkpoint:
+    if animation and a.checkpoint:      # (before check_checkpoint_args makes the folder)
         raise CLIError(EXIT_USAGE, "--checkpoint keeps one frame's render: use it with --frame "
                                    "(an animation continues with --skip-existing).")
     if getattr(a, "skip_existing", False) and not animation:
         raise CLIError(EXIT_USAGE, "--skip-existing needs --frames or --animation.")
+    check_checkpoint_args(a)
     overrides = overrides_from_args(a)
     lock = None
     if a.checkpoint:
