@@ -48,6 +48,7 @@ arrays"); ``compiled = False`` is the numpy reference.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -160,6 +161,17 @@ class PathVertices:
         return self.ns * np.where(_dot(self.ng, self.wo) >= 0, 1.0, -1.0)[:, None]
 
 
+class RadianceBSDF(NamedTuple):
+    """A PathTracer's BSDF calls at its numpy vertices, each ``(mat, colors,
+    ns, ng, wo, x)`` with x the uniforms (K, 3) of ``sample`` or the
+    direction wi (K, 3) of ``eval`` and ``pdf``: core.materials'
+    sample_bsdf (subset 'all', radiance mode), eval_bsdf and pdf_bsdf
+    (subset 'all'), or their compiled twins."""
+    sample: Callable
+    eval: Callable
+    pdf: Callable
+
+
 class PathTracer:
     """Camera paths over the pixels (px, py) (P,) float64 of the region, py from
     the bottom; settings: RenderSettings (max_bounces, rr_start,
@@ -203,10 +215,9 @@ class PathTracer:
         # arrays"), numpy where ``compiled`` is off (the reference).
         self._bsdf = {}
 
-    def bsdf(self):
-        """(sample, eval, pdf): the radiance-mode sample_bsdf (subset 'all'),
-        eval_bsdf and pdf_bsdf (subset 'all') of the numpy vertices, with the
-        signature ``(mat, colors, ns, ng, wo, u_or_wi)``."""
+    def bsdf(self) -> "RadianceBSDF":
+        """The radiance-mode sample_bsdf (subset 'all'), eval_bsdf and
+        pdf_bsdf (subset 'all') of the numpy vertices."""
         if self.compiled not in self._bsdf:
             mtab = self.mtab
             if self.compiled:
@@ -214,14 +225,14 @@ class PathTracer:
                 from ..materials.fast import GENERIC, build_fast_materials
                 fm = build_fast_materials(mtab)
                 rows, generic = C.radiance_rows(mtab, fm), fm.cls == GENERIC
-                self._bsdf[True] = (
+                self._bsdf[True] = RadianceBSDF(
                     lambda m, c, ns, ng, wo, u: C.sample_radiance(mtab, fm, rows, m, c, ns, ng,
                                                                   wo, u),
                     lambda m, c, ns, ng, wo, wi: C.eval_radiance(mtab, generic, m, c, ns, ng,
                                                                  wo, wi),
                     lambda m, c, ns, ng, wo, wi: C.pdf_radiance(mtab, m, c, ns, ng, wo, wi))
             else:
-                self._bsdf[False] = (
+                self._bsdf[False] = RadianceBSDF(
                     lambda m, c, ns, ng, wo, u: B.sample_bsdf(mtab, m, c, ns, ng, wo, u,
                                                               subset="all", mode="radiance"),
                     lambda m, c, ns, ng, wo, wi: B.eval_bsdf(mtab, m, c, ns, ng, wo, wi),
@@ -438,7 +449,7 @@ class PathTracer:
                 first = np.zeros(c.size, bool)
                 path = v.path[c]
                 continue
-            wi, wgt, pdf, is_delta, valid = self.bsdf()[0](v.mat, v.colors, v.ns, v.ng, v.wo,
+            wi, wgt, pdf, is_delta, valid = self.bsdf().sample(v.mat, v.colors, v.ns, v.ng, v.wo,
                                                            ur[:, :3])
             bt = v.beta * wgt
             ok = valid & np.all(np.isfinite(bt), axis=1) & (bt.max(axis=1) > 0)
@@ -533,7 +544,7 @@ class PathTracer:
             return
         v, wi, dist, wgt, light = v.take(live), wi[live], dist[live], wgt[live], light[live]
         shadow = smp["cast_shadow"][live]
-        f = self.bsdf()[1](v.mat, v.colors, v.ns, v.ng, v.wo, wi)
+        f = self.bsdf().eval(v.mat, v.colors, v.ns, v.ng, v.wo, wi)
         cos = np.abs(_dot(v.ns, wi))
         contrib = v.beta * f * (cos[:, None] * wgt)
         nz = np.nonzero(contrib.max(axis=1) > 0)[0]
@@ -622,6 +633,6 @@ class PathTracer:
         if m.size:
             n_l = v.ns_wo() if n_l is None else n_l
             pl = self.pdf_light(v.p[m], wi[m], light[m], dist[m], n_l[m])
-            pb = self.bsdf()[2](v.mat[m], v.colors[m], v.ns[m], v.ng[m], v.wo[m], wi[m])
+            pb = self.bsdf().pdf(v.mat[m], v.colors[m], v.ns[m], v.ng[m], v.wo[m], wi[m])
             w[m] = power_heuristic(pl, pb)
         return w
