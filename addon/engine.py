@@ -223,14 +223,18 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
         return bool(sess is not None and sess.should_stop is not None and sess.should_stop())
 
     def _log(self, msg: str) -> None:
+        sess = _session
+        if sess is not None and sess.log is not None:
+            # The CLI prints it (fppm converge's warm-up mutes it): no second
+            # copy via report, which Blender prints too in background mode.
+            sess.log(msg)
+            return
         if msg.startswith(("Plan:", "Left out:")):
             # Blender's info log shows what this scene's render leaves out:
             # the plan's lines at the start, the holds after pass 1
-            # (core.render Renderer._drop_holds).
+            # (core.render Renderer._drop_holds); ``blender -b`` prints it
+            # once, as "Info: ...".
             self.report({'INFO'}, msg)
-        sess = _session
-        if sess is not None and sess.log is not None:
-            sess.log(msg)          # the CLI prints it: no second copy via report
             return
         print(f"FPPM: {msg}")
         if msg.lower().startswith("warning"):

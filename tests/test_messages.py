@@ -180,3 +180,31 @@ def test_blender_prints_the_report_in_background_mode(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     msg = "Warning: motion blur ignored: the scene is rendered at the current frame"
     assert (out.stdout + out.stderr).splitlines().count(msg) == 1, out.stdout[-3000:]
+
+
+def test_plan_lines_are_said_once_by_the_cli_and_by_blender(tmp_path):
+    """The plan's lines ("Plan:", "Left out:") go to Blender's Info log when
+    Blender renders (``blender -b`` prints them once, as "Info: ..."), and
+    only to the CLI's own output under ``fppm render`` (no "Info:" copy): a
+    render used to print each twice there, and ``fppm converge`` showed its
+    muted warm-up render's lines."""
+    H.simple_scene(res=(8, 8), passes=1)
+    blend = H.save_blend(tmp_path / "s.blend")
+    r = H.run_fppm("render", blend, "-o", tmp_path / "o.exr", "--no-preview", "-q")
+    assert r.returncode == 0, r.stderr[-2000:]
+    lines = (r.stdout + r.stderr).splitlines()
+    plan = [ln for ln in lines if "Plan:" in ln]
+    assert len(plan) == 1 and plan[0].startswith("Plan:"), plan
+    assert not [ln for ln in lines if ln.startswith("Info: ")]
+    script = tmp_path / "r.py"
+    script.write_text(
+        "import sys\n"
+        f"sys.path.insert(0, {H.ROOT + '/tests'!r})\n"
+        "import bpy_helpers as H, bpy\n"
+        "sc = H.simple_scene(res=(8, 8), passes=1)\n"
+        "bpy.ops.render.render()\n")
+    import subprocess
+    out = subprocess.run([H.PYTHON, str(script)], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    plan = [ln for ln in (out.stdout + out.stderr).splitlines() if "Plan:" in ln]
+    assert len(plan) == 1 and plan[0].startswith("Info: Plan:"), plan
