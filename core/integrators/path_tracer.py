@@ -42,13 +42,12 @@ and its MIS weight, the light-sampling densities and the continuation (BSDF
 sample, throughput, roulette, spawn, compaction) are the numba kernels of
 :mod:`.path_kernels`; elsewhere the numpy vertices' radiance-mode
 sample_bsdf, eval_bsdf and pdf_bsdf run compiled on GENERIC materials
-(:meth:`PathTracer.bsdf`, core.materials.compiled "Radiance mode over
-arrays"); ``compiled = False`` is the numpy reference.
+(the PathTracer methods of those names, core.materials.compiled "Radiance
+mode over arrays"); ``compiled = False`` is the numpy reference.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -161,17 +160,6 @@ class PathVertices:
         return self.ns * np.where(_dot(self.ng, self.wo) >= 0, 1.0, -1.0)[:, None]
 
 
-class RadianceBSDF(NamedTuple):
-    """A PathTracer's BSDF calls at its numpy vertices, each ``(mat, colors,
-    ns, ng, wo, x)`` with x the uniforms (K, 3) of ``sample`` or the
-    direction wi (K, 3) of ``eval`` and ``pdf``: core.materials'
-    sample_bsdf (subset 'all', radiance mode), eval_bsdf and pdf_bsdf
-    (subset 'all'), or their compiled twins."""
-    sample: Callable
-    eval: Callable
-    pdf: Callable
-
-
 class PathTracer:
     """Camera paths over the pixels (px, py) (P,) float64 of the region, py from
     the bottom; settings: RenderSettings (max_bounces, rr_start,
@@ -210,35 +198,43 @@ class PathTracer:
         self.compiled = compiled
         # (DirectLights, LightPdf, PathMaterials, colors, TriangleData) or False
         self._kernels = None
-        # The radiance-mode BSDF calls of the numpy vertices: compiled on
+        # The radiance-mode BSDF calls of the numpy vertices run compiled on
         # GENERIC materials (core.materials.compiled "Radiance mode over
-        # arrays"), numpy where ``compiled`` is off (the reference).
-        self._bsdf = {}
+        # arrays"), numpy where ``compiled`` is off (the reference): the
+        # materials' classes, built on first use.
+        self._radiance = None
 
-    def bsdf(self) -> "RadianceBSDF":
-        """The radiance-mode sample_bsdf (subset 'all'), eval_bsdf and
-        pdf_bsdf (subset 'all') of the numpy vertices."""
-        if self.compiled not in self._bsdf:
-            mtab = self.mtab
-            if self.compiled:
-                from ..materials import compiled as C
-                from ..materials.fast import GENERIC, build_fast_materials
-                fm = build_fast_materials(mtab)
-                rows, generic = C.radiance_rows(mtab, fm), fm.cls == GENERIC
-                self._bsdf[True] = RadianceBSDF(
-                    lambda m, c, ns, ng, wo, u: C.sample_radiance(mtab, fm, rows, m, c, ns, ng,
-                                                                  wo, u),
-                    lambda m, c, ns, ng, wo, wi: C.eval_radiance(mtab, generic, m, c, ns, ng,
-                                                                 wo, wi),
-                    lambda m, c, ns, ng, wo, wi: C.pdf_radiance(mtab, m, c, ns, ng, wo, wi))
-            else:
-                self._bsdf[False] = RadianceBSDF(
-                    lambda m, c, ns, ng, wo, u: B.sample_bsdf(mtab, m, c, ns, ng, wo, u,
-                                                              subset="all", mode="radiance"),
-                    lambda m, c, ns, ng, wo, wi: B.eval_bsdf(mtab, m, c, ns, ng, wo, wi),
-                    lambda m, c, ns, ng, wo, wi: B.pdf_bsdf(mtab, m, c, ns, ng, wo, wi,
-                                                            subset="all"))
-        return self._bsdf[self.compiled]
+    def _radiance_rows(self):
+        """(FastMaterials, the rows sample_radiance covers, GENERIC (M,) bool)."""
+        if self._radiance is None:
+            from ..materials import compiled as C
+            from ..materials.fast import GENERIC, build_fast_materials
+            fm = build_fast_materials(self.mtab)
+            self._radiance = (fm, C.radiance_rows(self.mtab, fm), fm.cls == GENERIC)
+        return self._radiance
+
+    def sample_bsdf(self, mat, colors, ns, ng, wo, u):
+        """materials.sample_bsdf(subset 'all', radiance mode) of the numpy vertices."""
+        if not self.compiled:
+            return B.sample_bsdf(self.mtab, mat, colors, ns, ng, wo, u, subset="all",
+                                 mode="radiance")
+        from ..materials import compiled as C
+        fm, rows, _ = self._radiance_rows()
+        return C.sample_radiance(self.mtab, fm, rows, mat, colors, ns, ng, wo, u)
+
+    def eval_bsdf(self, mat, colors, ns, ng, wo, wi):
+        """materials.eval_bsdf (radiance mode) of the numpy vertices."""
+        if not self.compiled:
+            return B.eval_bsdf(self.mtab, mat, colors, ns, ng, wo, wi)
+        from ..materials import compiled as C
+        return C.eval_radiance(self.mtab, self._radiance_rows()[2], mat, colors, ns, ng, wo, wi)
+
+    def pdf_bsdf(self, mat, colors, ns, ng, wo, wi):
+        """materials.pdf_bsdf (subset 'all') of the numpy vertices."""
+        if not self.compiled:
+            return B.pdf_bsdf(self.mtab, mat, colors, ns, ng, wo, wi, subset="all")
+        from ..materials import compiled as C
+        return C.pdf_radiance(self.mtab, mat, colors, ns, ng, wo, wi)
 
     def kernels(self):
         """The kernels' view of the scene, None where they do not cover it
@@ -449,8 +445,8 @@ class PathTracer:
                 first = np.zeros(c.size, bool)
                 path = v.path[c]
                 continue
-            wi, wgt, pdf, is_delta, valid = self.bsdf().sample(v.mat, v.colors, v.ns, v.ng, v.wo,
-                                                           ur[:, :3])
+            wi, wgt, pdf, is_delta, valid = self.sample_bsdf(v.mat, v.colors, v.ns, v.ng, v.wo,
+                                                            ur[:, :3])
             bt = v.beta * wgt
             ok = valid & np.all(np.isfinite(bt), axis=1) & (bt.max(axis=1) > 0)
             if depth >= self.rr_start:
@@ -544,7 +540,7 @@ class PathTracer:
             return
         v, wi, dist, wgt, light = v.take(live), wi[live], dist[live], wgt[live], light[live]
         shadow = smp["cast_shadow"][live]
-        f = self.bsdf().eval(v.mat, v.colors, v.ns, v.ng, v.wo, wi)
+        f = self.eval_bsdf(v.mat, v.colors, v.ns, v.ng, v.wo, wi)
         cos = np.abs(_dot(v.ns, wi))
         contrib = v.beta * f * (cos[:, None] * wgt)
         nz = np.nonzero(contrib.max(axis=1) > 0)[0]
@@ -633,6 +629,6 @@ class PathTracer:
         if m.size:
             n_l = v.ns_wo() if n_l is None else n_l
             pl = self.pdf_light(v.p[m], wi[m], light[m], dist[m], n_l[m])
-            pb = self.bsdf().pdf(v.mat[m], v.colors[m], v.ns[m], v.ng[m], v.wo[m], wi[m])
+            pb = self.pdf_bsdf(v.mat[m], v.colors[m], v.ns[m], v.ng[m], v.wo[m], wi[m])
             w[m] = power_heuristic(pl, pb)
         return w

@@ -263,11 +263,20 @@ def pdf_bsdf(table: MaterialTable, mat, colors, n_s, n_g, wo, wi, subset="all"):
     Only non-delta lobes have a density; their selection probabilities are the
     luminance weights normalised within ``subset`` ('all' or 'nondelta').
     """
+    return _pdf_nd(table, *pdf_inputs(table, mat, colors, n_s, n_g, wo, wi, subset))
+
+
+def pdf_inputs(table: MaterialTable, mat, colors, n_s, n_g, wo, wi, subset="all"):
+    """What :func:`_pdf_nd` reads for :func:`pdf_bsdf`'s arguments: (mat (K,)
+    int64, the lobes' selection probabilities (K, L), N, Ng (K, 3) the normals
+    (Normal Map / Bump corrected) oriented to wo's side, front (K,) bool, wo,
+    wi (K, 3) float64) -- also the compiled sum's (core.materials.compiled
+    pdf_radiance)."""
     mat = np.asarray(mat, np.int64)
     n_s, n_g, wo, wi = _prep(n_s, n_g, wo, wi)
     n_s = _bump_corrected(table, mat, n_s, n_g, wo)
     N, Ng, front = _orient(n_s, n_g, wo)
-    return _pdf_nd(table, mat, _selection_probs(table, mat, colors, subset), N, Ng, front, wo, wi)
+    return mat, _selection_probs(table, mat, colors, subset), N, Ng, front, wo, wi
 
 
 # --------------------------------------------------------------------------

@@ -995,17 +995,13 @@ def eval_radiance(table, generic, mat, colors, n_s, n_g, wo, wi):
 
 def pdf_radiance(table, mat, colors, n_s, n_g, wo, wi):
     """closures.pdf_bsdf(table, mat, colors, n_s, n_g, wo, wi, subset='all'):
-    numpy's set-up (Normal Map / Bump correction, orientation, the lobes'
-    selection probabilities), then closures._pdf_nd's per-lobe sum compiled
-    (:func:`pdf_batch`)."""
-    from .closures import _bump_corrected, _orient, _prep
-    from .table import _selection_probs
-    mat = np.asarray(mat, np.int64)
-    n_s, n_g, wo, wi = _prep(n_s, n_g, wo, wi)
-    n_s = _bump_corrected(table, mat, n_s, n_g, wo)
-    N, Ng, front = _orient(n_s, n_g, wo)
-    p = np.ascontiguousarray(_selection_probs(table, mat, colors, "all"), np.float64)
+    numpy's set-up (closures.pdf_inputs: Normal Map / Bump correction,
+    orientation, the lobes' selection probabilities), then
+    closures._pdf_nd's per-lobe sum compiled (:func:`pdf_batch`)."""
+    from .closures import pdf_inputs
+    mat, p, N, Ng, front, wo, wi = pdf_inputs(table, mat, colors, n_s, n_g, wo, wi, "all")
     out = np.empty(mat.shape[0])
-    pdf_batch(compile_materials(table).lobes, mat, p, _f64(N, 3), _f64(Ng, 3),
-              np.ascontiguousarray(front), _f64(wo, 3), _f64(wi, 3), out)
+    pdf_batch(compile_materials(table).lobes, mat, np.ascontiguousarray(p, np.float64),
+              _f64(N, 3), _f64(Ng, 3), np.ascontiguousarray(front), _f64(wo, 3), _f64(wi, 3),
+              out)
     return out
