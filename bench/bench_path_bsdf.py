@@ -1,25 +1,35 @@
-"""The camera paths' BSDF calls at glossy vertices, compiled against numpy.
+"""The camera paths at glossy vertices: the vertex kernels and the compiled BSDF calls against numpy.
 
     .venv/bin/python bench/bench_path_bsdf.py [default_cube principled_interior real_scene]
-        [--percent 25] [--repeat 5] [--modes PATH,COMBINED]
+        [--percent 25] [--repeat 5] [--modes PATH,COMBINED] [--cycles]
 
 For each scene (``default_cube``: Blender's factory start-up file, the cube
 with the default Principled BSDF; else an ``example_blends/`` file) at
 --percent of its resolution, exported as F12 does, a renderer of each
 integrator, then one pass of its camera paths (``PathTracer.__call__``,
-camera_samples per pixel) with ``PathTracer.compiled`` off (the numpy
-reference: radiance-mode sample_bsdf, eval_bsdf, pdf_bsdf in numpy) and on
-(core.materials.compiled "Radiance mode over arrays" for the GENERIC rows),
-interleaved, the same random stream in a pair, one numba thread; process
-CPU, min and paired median of --repeat; and the largest difference of the
-two images relative to the image's largest pixel.  Scenes inside the
-Lambert / mirror / glass kernels' scope (core.integrators.path_kernels) run
-those kernels with compiled on: their ratio measures those kernels, not
-this.  --cycles: also Cycles on the same file at the same size and paths a
-pixel (non-adaptive, no denoising, CPU), rendered in a process of its own
-(no numba or Embree threads there, as ``fppm converge``'s Cycles ladder),
-its process CPU a path beside FPPM's.  Ratios measured in one run
-(docs/integrators.md "Compiled BSDF calls at glossy camera vertices, round 24").
+camera_samples per pixel) three ways, interleaved, the same random stream
+in a round, one numba thread:
+
+- ``numpy``: ``PathTracer.compiled`` off, the reference (radiance-mode
+  sample_bsdf, eval_bsdf, pdf_bsdf in numpy);
+- ``calls``: numpy vertices whose GENERIC rows' BSDF calls run compiled
+  (core.materials.compiled "Radiance mode over arrays"; the vertex kernels
+  limited to Lambert, mirror and glass: ``path_kernels.GENERIC_SCOPE`` off,
+  round 24's path);
+- ``kernels``: the vertex kernels of core.integrators.path_kernels with
+  GENERIC materials in their scope (the default).
+
+It prints process CPU, min of --repeat, the ratios numpy ÷ kernels and
+calls ÷ kernels with their paired medians, and the largest difference of
+each image from numpy's relative to the image's largest pixel.  A scene
+that the kernels do not cover (textures, Normal Map / Bump) runs ``calls``
+in both of the last two.  --cycles: also Cycles on the same file at the
+same size and paths a pixel (non-adaptive, no denoising, CPU), rendered in
+a process of its own (no numba or Embree threads there, as ``fppm
+converge``'s Cycles ladder), its process CPU a path beside FPPM's.  Ratios
+measured in one run (docs/integrators.md "Compiled BSDF calls at glossy
+camera vertices, round 24", "GENERIC materials in the vertex kernels,
+round 25").
 """
 from __future__ import annotations
 
@@ -87,9 +97,17 @@ def cycles_cpu(name: str, percent: int, spp: int) -> float:
     return float([x for x in r.stdout.splitlines() if x.startswith("CPU ")][-1].split()[1])
 
 
-def one(pt, compiled: bool, seed: int):
-    """(image (P, 3), process CPU seconds) of one call of the camera paths."""
-    pt.compiled = compiled
+VARIANTS = ("numpy", "calls", "kernels")
+
+
+def one(pt, variant: str, seed: int):
+    """(image (P, 3), process CPU seconds) of one call of the camera paths
+    the ``variant`` way (module docstring)."""
+    from fppm.core.integrators import path_kernels as PK
+    PK.GENERIC_SCOPE = variant == "kernels"
+    pt.compiled = variant != "numpy"
+    pt._kernels = None
+    pt.kernels()                      # the scene's kernel tables, built outside the clock
     c0 = time.process_time()
     L = pt(np.random.default_rng(seed))
     return L, time.process_time() - c0
@@ -106,7 +124,8 @@ def main(argv=None) -> None:
                     help="also time Cycles (its own process) at the same paths a pixel")
     a = ap.parse_args(argv)
     from fppm.core.render import Renderer
-    print("scene, integrator: numpy / compiled CPU (min; paired median), max |diff| / max pixel")
+    print("scene, integrator: numpy / calls / kernels CPU (min), numpy and calls ÷ kernels "
+          "(paired median), max |diff| / max pixel")
     for name in a.scenes:
         scene, st = export(name, a.percent)
         for mode in a.modes.split(","):
@@ -115,28 +134,37 @@ def main(argv=None) -> None:
             if pt is None or (pt.camera_stop is not None and pt.camera_stop.camera_free):
                 print(f"{name}, {mode}: no camera paths (light tracing takes them)")
                 continue
-            one(pt, True, 0), one(pt, False, 0)         # warm: kernels, tables
-            tn, tc, diff = [], [], 0.0
+            for v in VARIANTS:
+                one(pt, v, 0)                           # warm: kernels, tables
+            t = {v: [] for v in VARIANTS}
+            diff = {v: 0.0 for v in VARIANTS[1:]}
             for k in range(a.repeat):
-                order = (False, True) if k % 2 == 0 else (True, False)
-                got = {c: one(pt, c, 100 + k) for c in order}
-                tn.append(got[False][1])
-                tc.append(got[True][1])
-                Ln, Lc = got[False][0], got[True][0]
-                diff = max(diff, float(np.abs(Lc - Ln).max() / max(Ln.max(), 1e-300)))
-            tn, tc = np.array(tn), np.array(tc)
-            print(f"{name}, {mode}: {tn.min():.3f} / {tc.min():.3f} s = {tn.min() / tc.min():.2f}x "
-                  f"(paired median {np.median(tn / tc):.2f}x), {scene.camera.resolution[0]}x"
-                  f"{scene.camera.resolution[1]} px, {st.camera_samples} paths a pixel; "
-                  f"max diff {diff:.1e}", flush=True)
+                order = VARIANTS[k % 3:] + VARIANTS[:k % 3]
+                got = {v: one(pt, v, 100 + k) for v in order}
+                Ln = got["numpy"][0]
+                for v in VARIANTS:
+                    t[v].append(got[v][1])
+                    if v != "numpy":
+                        diff[v] = max(diff[v], float(np.abs(got[v][0] - Ln).max()
+                                                     / max(Ln.max(), 1e-300)))
+            t = {v: np.array(x) for v, x in t.items()}
+            tk = t["kernels"]
+            print(f"{name}, {mode}: {t['numpy'].min():.3f} / {t['calls'].min():.3f} / "
+                  f"{tk.min():.3f} s; numpy ÷ kernels {t['numpy'].min() / tk.min():.2f}x "
+                  f"(paired {np.median(t['numpy'] / tk):.2f}x), calls ÷ kernels "
+                  f"{t['calls'].min() / tk.min():.2f}x (paired {np.median(t['calls'] / tk):.2f}x); "
+                  f"{scene.camera.resolution[0]}x{scene.camera.resolution[1]} px, "
+                  f"{st.camera_samples} paths a pixel; max diff {diff['calls']:.1e}, "
+                  f"{diff['kernels']:.1e}", flush=True)
             if a.cycles and mode == "PATH":
                 w, h = scene.camera.resolution
                 paths = w * h * st.camera_samples
                 cy = cycles_cpu(name, a.percent, 4 * st.camera_samples)
-                print(f"  CPU a path: FPPM PATH numpy {1e6 * tn.min() / paths:.3f} us, compiled "
-                      f"{1e6 * tc.min() / paths:.3f} us; Cycles {1e6 * cy / (4 * paths):.3f} us "
-                      f"({4 * st.camera_samples} spp in its own process): compiled / Cycles "
-                      f"{tc.min() / (cy / 4):.2f}x", flush=True)
+                us = {v: 1e6 * t[v].min() / paths for v in VARIANTS}
+                print(f"  CPU a path: numpy {us['numpy']:.3f} us, calls {us['calls']:.3f} us, "
+                      f"kernels {us['kernels']:.3f} us; Cycles {1e6 * cy / (4 * paths):.3f} us "
+                      f"({4 * st.camera_samples} spp in its own process): kernels ÷ Cycles "
+                      f"{tk.min() / (cy / 4):.2f}x", flush=True)
 
 
 if __name__ == "__main__":

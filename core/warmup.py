@@ -132,8 +132,8 @@ def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
     cube and an emissive ceiling quad, lit by ``analytic_lights`` (kinds of
     ``core.scene.model.Light``; POINT and AREA photons are emitted by the
     compiled sampler, SPOT and SUN by the numpy one).  glossy=False makes the
-    rough glossy wall diffuse (the camera-path kernels,
-    core.integrators.path_kernels, cover scenes without rough lobes).
+    rough glossy wall diffuse (a Lambert-only room: the small jobs of
+    tests/test_warmup.py).
     """
     mats = [Material("diffuse", (Lobe(DIFFUSE, (0.8, 0.8, 0.8)),)),
             Material("glossy", (Lobe(GLOSSY, (0.8, 0.6, 0.4), roughness=0.3),

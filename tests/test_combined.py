@@ -88,6 +88,14 @@ def _unit(v):
     return v / np.linalg.norm(v)
 
 
+def _path_materials(mtab):
+    """The path kernels' PathMaterials of a material table (the compiled twins' M)."""
+    from core.materials.fast import build_fast_materials
+    M = mtab.kind.shape[0]
+    colors = Bm.lobe_colors(mtab, np.arange(M), np.zeros((M, 2)))
+    return PKp.build_path_materials(mtab, build_fast_materials(mtab), colors)
+
+
 def camera_side(r, path, merge=False):
     """(w_PT, w_NEE) from the PathTracer's CameraMIS along path[1:] (y_0 =
     LENS).  merge: with merging as an MIS strategy (CameraMIS.mis_merge set),
@@ -121,8 +129,9 @@ def camera_side(r, path, merge=False):
             if merge:
                 pl = pt.pdf_light(v.p, wi, row, dist, v.ns_wo())
                 sel = _selection_probability(r.light_table, v.p, row)
-                np.testing.assert_allclose(cam.nee_compiled(w2, v, wi, dist, row, pl, sel,
-                                                            depth), w_nee, rtol=1e-12, atol=1e-15)
+                got = cam.nee_compiled(_path_materials(r.mtab), w2, v, wi, dist, row, pl, sel,
+                                       depth)
+                np.testing.assert_allclose(got, w_nee, rtol=1e-12, atol=1e-15)
         wi = _unit(y[j + 1] - y[j])[None]
         t = np.array([np.linalg.norm(y[j + 1] - y[j])])
         pdf = np.ones(1) if delta else Bm.pdf_bsdf(r.mtab, v.mat, v.colors, v.ns, v.ng, v.wo,
@@ -131,8 +140,8 @@ def camera_side(r, path, merge=False):
             QMn = cam.continued(v, i0, wi, pdf, np.array([delta]), depth, Q=v.QM)[0]
             nx = PKp.NextRays(i0, v.p, wi, np.ones((1, 3)), pdf, np.array([delta]), v.ns,
                               np.ones(1))
-            np.testing.assert_allclose(cam.continued_compiled(v, nx, depth, Q=v.QM)[0], QMn,
-                                       rtol=1e-12, atol=1e-300)
+            got = cam.continued_compiled(_path_materials(r.mtab), v, nx, depth, Q=v.QM)[0]
+            np.testing.assert_allclose(got, QMn, rtol=1e-12, atol=1e-300)
             mg.sampled(QMn, np.abs(np.sum(v.ng * wi, axis=1)), np.array([delta]))
         Qs, pf = cam.continued(v, i0, wi, pdf, np.array([delta]), depth)
         pdf_prev = np.zeros(1) if delta else pdf
@@ -315,8 +324,8 @@ def test_soft_light_weights_depend_on_the_prefix_only(rig, spec, row):
     np.testing.assert_allclose(w / w2, 1.0 - w_lt, rtol=1e-9)
     pl = pt.pdf_light(v.p, wc, rows, dist, v.ns_wo())
     sel = _selection_probability(t, v.p, rows)
-    np.testing.assert_allclose(cam.nee_compiled(w2, v, wc, dist, rows, pl, sel, k - 2), w,
-                               rtol=1e-12)
+    got = cam.nee_compiled(_path_materials(rig.mtab), w2, v, wc, dist, rows, pl, sel, k - 2)
+    np.testing.assert_allclose(got, w, rtol=1e-12)
 
 
 @pytest.mark.parametrize("compiled", [False, True], ids=["numpy", "compiled"])

@@ -19,8 +19,10 @@ What is asserted, and where each tolerance comes from:
 - The compiled light-sampling density (``path_kernels.selection_kernel`` and
   ``pdf_kernel`` through ``PathTracer.pdf_light``) equals ``core.lights.pdf_direct`` for samples of
   every emitter kind, rtol 1e-9 (the same libm argument).
-- A scene outside the kernels' scope (a rough glossy lobe, a Transparent
-  lobe) uses the numpy path (``kernels()`` is None).
+- A rough glossy wall (GENERIC) is in the kernels' scope and gives numpy's
+  image to the same tolerance, with the kernels and with round 24's numpy
+  vertices; a scene outside the scope (a Transparent lobe) uses the numpy
+  path (``kernels()`` is None).
 """
 from __future__ import annotations
 
@@ -111,16 +113,23 @@ def test_compiled_light_pdf_equals_pdf_direct():
     np.testing.assert_allclose(got, ref, rtol=1e-9, atol=0)
 
 
+@pytest.mark.parametrize("scope", ["kernels", "numpy vertices"])
 @pytest.mark.parametrize("integrator", ["PATH", "COMBINED"])
-def test_compiled_bsdf_of_glossy_vertices_equals_numpy(integrator):
-    """Outside the kernels' scope (a wall of a Lambert and a rough GGX lobe:
-    the GENERIC class), the numpy vertices' radiance-mode sample_bsdf,
-    eval_bsdf and pdf_bsdf of the GENERIC rows run compiled
-    (core.materials.compiled "Radiance mode over arrays"): the same image
-    as numpy's to the same tolerance (the same formulas and operation order,
-    eval_pair's libm pow / acos against numpy's, tests/test_compiled_sample.py)."""
+def test_compiled_bsdf_of_glossy_vertices_equals_numpy(integrator, scope, monkeypatch):
+    """A wall of a Lambert and a rough GGX lobe (the GENERIC class) beside
+    the Lambert, mirror and glass materials.  ``kernels``: the vertex kernels
+    sample, evaluate and weigh it with the compiled BSDF in radiance mode
+    (``compiled.sample_pair``, ``eval_pair``, ``_pdf_nd_one``; COMBINED's
+    reverse densities too).  ``numpy vertices`` (``GENERIC_SCOPE`` off,
+    round 24's path): numpy vertices whose sample_bsdf, eval_bsdf and
+    pdf_bsdf of the GENERIC rows run compiled (core.materials.compiled
+    "Radiance mode over arrays").  Both give numpy's image to the same
+    tolerance (the same formulas and operation order, eval_pair's libm pow /
+    acos against numpy's, tests/test_compiled_sample.py)."""
+    from core.integrators import path_kernels as PK
+    monkeypatch.setattr(PK, "GENERIC_SCOPE", scope == "kernels")
     pt = _tracer(integrator, glossy=True)
-    assert pt.kernels() is None
+    assert (pt.kernels() is not None) == (scope == "kernels")
     pt.compiled = False
     L_n = pt(np.random.default_rng(5))
     pt.compiled = True
@@ -132,7 +141,6 @@ def test_compiled_bsdf_of_glossy_vertices_equals_numpy(integrator):
 
 
 def test_scenes_outside_the_kernels_use_numpy():
-    assert _tracer("PATH", glossy=True).kernels() is None
     # A Transparent lobe: its crossings are no MIS vertex, which only the
     # numpy continuation tells (PathTracer._trace).
     assert _tracer("PATH", clear=True).kernels() is None

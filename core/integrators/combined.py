@@ -307,35 +307,39 @@ class CameraMIS:
         Q = np.where(is_delta & fc, 0.0, Q)
         return Q, np.where(is_delta, 1.0, pdf)
 
-    def nee_compiled(self, w, v, wi, dist, light, pl, sel, depth):
+    def nee_compiled(self, pmat, w, v, wi, dist, light, pl, sel, depth):
         """:meth:`nee` for vertices in the scope of the path kernels
-        (``path_kernels.camera_nee_kernel``; pl, sel the samples'
-        light-sampling density and selection probability).  With merging's
+        (``path_kernels.camera_nee_kernel``; pmat their PathMaterials; pl, sel
+        the samples' light-sampling density and selection probability).  With merging's
         QM (v.QM) the kernel gives each ratio as a factor 1 / (1 + r^2) of a
         unit weight, combined by :func:`_with_merge`."""
         from . import path_kernels as PK
         if getattr(self, "_mis_lights", None) is None:
             self._mis_lights = PK.build_mis_lights(self.t, self.cls)
         c = np.ascontiguousarray
+        mat = c(v.mat, np.int64)
         geo = (c(v.c), c(v.p), c(v.ng), c(v.ns), c(v.wo), c(wi), c(dist), c(light, np.int64),
                c(pl), c(sel))
         if getattr(v, "QM", None) is not None:
             fl, fm = np.ones(light.size), np.ones(light.size)
-            PK.camera_nee_kernel(self._mis_lights, depth == 0, self.owns, c(v.Q), *geo, fl)
-            PK.camera_nee_kernel(self._mis_lights, False, self.owns, c(v.QM), *geo, fm)
+            X = self._mis_lights
+            PK.camera_nee_kernel(X, pmat, mat, depth == 0, self.owns, c(v.Q), *geo, fl)
+            PK.camera_nee_kernel(X, pmat, mat, False, self.owns, c(v.QM), *geo, fm)
             return _with_merge(np.asarray(w, np.float64), _ratio2(fl), _ratio2(fm),
                                self.cls[light] == M.SOFT)
         w = np.array(w, np.float64)
-        PK.camera_nee_kernel(self._mis_lights, depth == 0, self.owns, c(v.Q), *geo, w)
+        PK.camera_nee_kernel(self._mis_lights, pmat, mat, depth == 0, self.owns, c(v.Q), *geo,
+                             w)
         return w
 
-    def continued_compiled(self, v, nx, depth, Q=None):
+    def continued_compiled(self, pmat, v, nx, depth, Q=None):
         """:meth:`continued` for the NextRays nx of ``path_kernels.continue_kernel``
-        (Q: as :meth:`continued`)."""
+        (pmat the kernels' PathMaterials; Q: as :meth:`continued`)."""
         from . import path_kernels as PK
         out = np.empty(nx.src.size)
         c = np.ascontiguousarray
-        PK.camera_continued_kernel(depth == 0 and Q is None, nx.src, nx.delta, nx.d, c(v.ng),
+        PK.camera_continued_kernel(pmat, c(v.mat, np.int64), depth == 0 and Q is None, nx.src,
+                                   nx.delta, nx.d, c(v.ng),
                                    c(v.ns), c(v.wo), c(v.Q if Q is None else Q), c(v.c), out)
         return out, nx.pdf
 

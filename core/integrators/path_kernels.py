@@ -21,17 +21,26 @@ as in the photon tracer (core.sppm.photon_kernels):
 - COMBINED: the light-tracing ratios of ``combined.CameraMIS.nee`` and
   ``.continued`` (:func:`camera_nee_kernel`, :func:`camera_continued_kernel`).
 
+GENERIC materials (Blender's default Principled BSDF, rough glossy, rough
+glass, Oren-Nayar, a diffuse base under a specular layer) are sampled,
+evaluated and weighed at those steps by the photon tracer's compiled BSDF in
+radiance mode: ``core.materials.compiled.sample_pair`` (radiance=True),
+``eval_pair`` (Cycles' f(view = wo, light = wi), in :func:`nee_mis_kernel`)
+and ``_pdf_nd_one`` (:func:`_bsdf_pdf`: the light sample's MIS weight and
+COMBINED's reverse densities).
+
 Scope (:func:`compiled_scene_ok`; otherwise the numpy path runs): materials
-Lambert-only, perfect mirror, smooth glass or emission-only (the photon fast
-path's classes; no Transparent lobe), untextured, no Normal Map / Bump (nor a shading-normal
-spec attached to the mesh normals); lights as
+Lambert-only, perfect mirror, smooth glass, emission-only (the photon fast
+path's classes) or GENERIC, with no Transparent lobe, untextured, no Normal
+Map / Bump (nor a shading-normal spec attached to the mesh normals); lights as
 ``direct_kernels.compiled_lights_ok`` (no environment map, no textured
 emissive triangles).  Photon merging's partition (core.integrators.merge)
 is applied by the caller.  The emission found along rays (analytic emitters,
 the world, emissive triangles) with its MIS and COMBINED weights, and the
 shadow test, stay numpy, on their rows.
 
-Precision: the same formulas as the numpy path in float64, but the Lambert f
+Precision: the same formulas as the numpy path in float64 (GENERIC rows:
+those of core.materials.compiled, equal to numpy's to rounding), but the Lambert f
 is (sum of colours)/pi against the per-lobe sum, products are grouped as
 ``direct_kernel`` groups them, the Lambert sample density is N.wi/pi against
 the sampler's local z/pi, and numba's libm may differ from numpy's in the
@@ -49,14 +58,16 @@ from numba import njit
 from ..lights.direct_kernels import (SPH_TRI_MIN, _entry_weight, _spherical_rect,
                                      _spherical_tri)
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
-# sample_fast (and compiled._disk in it) is compiled into this module's
-# kernels: numba's on-disk cache is stamped by each kernel's own file, so a
-# change of the samplers (core.materials.compiled, .fast) must come with an
-# edit here and in core.sppm.photon_kernels, or a cache filled before it keeps
-# the old code (this note came with compiled.sincos_quarter; edited again
-# with the disk warp's one division and sample_fast inlined, and with
-# compiled.sample_pair's radiance mode).
-from ..materials.fast import ABSORBER, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
+# sample_fast (and compiled._disk in it) and compiled.sample_pair, eval_pair
+# and _pdf_nd_one are compiled into this module's kernels: numba's on-disk
+# cache is stamped by each kernel's own file, so a change of the samplers
+# (core.materials.compiled, .fast) must come with an edit here and in
+# core.sppm.photon_kernels, or a cache filled before it keeps the old code
+# (this note came with compiled.sincos_quarter; edited again with the disk
+# warp's one division and sample_fast inlined, with compiled.sample_pair's
+# radiance mode, and with the GENERIC materials in these kernels).
+from ..materials.compiled import _pdf_nd_one, eval_pair, sample_pair
+from ..materials.fast import ABSORBER, GENERIC, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
 from ..sppm.photon_kernels import shading_normal
 from .mis import FULL, SOFT
 from .light_kernels import lambert_pdf as _lambert_pdf
@@ -80,15 +91,27 @@ class LightPdf(NamedTuple):
 
 
 class PathMaterials(NamedTuple):
-    """Per-material data of :func:`continue_kernel` (M materials): cls (M,)
-    int8 ``materials.fast`` class; ior (M,) float64; col (M, 3) float64 the
-    radiance-mode sample weight: the sum of the lobe colours (Lambert) or the
-    lobe's colour (mirror, glass); lum_col (M, 3) the photon fast path's
-    colour (its luminance gates a sample, as there)."""
+    """Per-material data of the vertex kernels (M materials, L lobe slots):
+    cls (M,) int8 ``materials.fast`` class; ior (M,) float64; col (M, 3)
+    float64 the radiance-mode sample weight: the sum of the lobe colours
+    (Lambert) or the lobe's colour (mirror, glass); lum_col (M, 3) the photon
+    fast path's colour (its luminance gates a sample, as there).
+    GENERIC materials (``materials.fast.FastMaterials.compiled``: untextured,
+    no Normal Map / Bump) are sampled, evaluated and weighed by the photon
+    tracer's compiled BSDF in radiance mode (core.materials.compiled):
+    lobes (M, L, N_FIELDS), tables (N_TABLES,) its CompiledMaterials;
+    sel_colors (M, L, 3), sel_p, sel_cdf (M, L), sel_last (M,) its
+    SelectionTable (1-material placeholders when no material is GENERIC)."""
     cls: np.ndarray
     ior: np.ndarray
     col: np.ndarray
     lum_col: np.ndarray
+    lobes: np.ndarray
+    tables: np.ndarray
+    sel_colors: np.ndarray
+    sel_p: np.ndarray
+    sel_cdf: np.ndarray
+    sel_last: np.ndarray
 
 
 class NextRays(NamedTuple):
@@ -106,6 +129,11 @@ class NextRays(NamedTuple):
     delta: np.ndarray
     n_prev: np.ndarray
     vis: np.ndarray
+
+
+#: GENERIC materials in the kernels' scope (off: such a scene runs the numpy
+#: vertices with the compiled BSDF calls, round 24's path; benchmarks).
+GENERIC_SCOPE = True
 
 
 def compiled_scene_ok(mtab, fmat, table, tri_n) -> bool:
@@ -126,6 +154,8 @@ def compiled_scene_ok(mtab, fmat, table, tri_n) -> bool:
     if mtab.bump_correction is not None and np.any(mtab.bump_correction):
         return False
     cls_ok = np.isin(fmat.cls, (LAMBERT, MIRROR, SMOOTH_GLASS, ABSORBER))
+    if GENERIC_SCOPE:
+        cls_ok |= (fmat.cls == GENERIC) & np.asarray(fmat.compiled, bool)
     # Lambert here is the radiance-mode Lambert (lambert_only), not the photons' lambert_lobes.
     lam_ok = (fmat.cls != LAMBERT) | np.asarray(mtab.lambert_only, bool)
     return bool(np.all(cls_ok & lam_ok))
@@ -159,9 +189,13 @@ def build_path_materials(mtab, fmat, colors) -> PathMaterials:
             j = [i for i in range(mtab.kind.shape[1])
                  if mtab.kind[m, i] >= 0 and mtab.weight[m, i] != 0.0][0]
             col[m] = colors[m, j]
-    return PathMaterials(cls=np.ascontiguousarray(fmat.cls, np.int8),
-                         ior=np.ascontiguousarray(fmat.ior, np.float64), col=col,
-                         lum_col=np.ascontiguousarray(fmat.col, np.float64))
+    c = np.ascontiguousarray
+    return PathMaterials(cls=c(fmat.cls, np.int8), ior=c(fmat.ior, np.float64), col=col,
+                         lum_col=c(fmat.col, np.float64), lobes=c(fmat.cm.lobes, np.float64),
+                         tables=c(fmat.cm.tables, np.float64),
+                         sel_colors=c(fmat.sel.colors, np.float64),
+                         sel_p=c(fmat.sel.p, np.float64), sel_cdf=c(fmat.sel.cdf, np.float64),
+                         sel_last=c(fmat.sel.last, np.int64))
 
 
 # ----------------------------------------------------------------------------
@@ -281,6 +315,22 @@ def _power(a, b):
     return a2 / s if s > 0 else 1.0
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _bsdf_pdf(M, lobes, p, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz):
+    """core.materials.pdf_bsdf(subset='all') of material m for wo = o, wi = w
+    (ns = s, ng = g unit, any orientation): the Lambert density, or for a
+    GENERIC material the per-lobe sum of ``compiled._pdf_nd_one`` with
+    closures.pdf_inputs' orientation (no Normal Map / Bump in this scope)
+    and the material's selection probabilities p (M, L).  lobes, p: M's
+    arrays, taken out of the struct once by the caller."""
+    if M.cls[m] != GENERIC:
+        return _lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz)
+    front = gx * ox + gy * oy + gz * oz >= 0.0
+    sg = 1.0 if front else -1.0
+    return _pdf_nd_one(lobes, p, m, m, front, sx * sg, sy * sg, sz * sg, gx * sg, gy * sg,
+                       gz * sg, ox, oy, oz, wx, wy, wz)
+
+
 # ----------------------------------------------------------------------------
 # The shading points, next-event estimation's MIS weight and the continuation.
 
@@ -301,18 +351,33 @@ def hit_kernel(T, prim, bu, bv, p, ng, ns):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def nee_mis_kernel(L, Q, p, ng, ns, n_l, wo, S, w, live, pl, sel):
+def nee_mis_kernel(L, Q, M, mat, beta, p, ng, ns, n_l, wo, S, w, live, pl, sel):
     """For the light samples S (``direct_kernels.DirectSamples``, K rows) taken
-    at Lambert-only vertices p, ng, ns, wo (K, 3) with receiver normals n_l
-    (ns flipped to wo's side): live (K,) bool the sample adds
-    something (contrib > 0, finite); w (K,) its power-heuristic weight against
-    BSDF sampling where a BSDF ray along it would find the emitter, else 1
-    (``PathTracer.mis_light``); pl, sel (K,) its light-sampling density and
-    selection probability (:func:`pdf_kernel`, :func:`selection_kernel`;
-    the COMBINED ratios read them)."""
+    at vertices of materials mat (K,) (PathMaterials M), throughput beta,
+    p, ng, ns, wo (K, 3), receiver normals n_l (ns flipped to wo's side):
+    the contribution of GENERIC rows, S.contrib = beta f |ns.wi| weight with
+    Cycles' f(view = wo, light = wi) (``compiled.eval_pair``, as
+    ``PathTracer._direct``; Lambert rows have it from ``direct_kernel``);
+    live (K,) bool the sample adds something (contrib > 0, finite); w (K,)
+    its power-heuristic weight against BSDF sampling where a BSDF ray along
+    it would find the emitter, else 1 (``PathTracer.mis_light``); pl, sel
+    (K,) its light-sampling density and selection probability
+    (:func:`pdf_kernel`, :func:`selection_kernel`; the COMBINED ratios
+    read them)."""
     selection_kernel(L, Q, p, S.light, sel)
     pdf_kernel(L, Q, p, S.wi, S.light, S.dist, n_l, sel, pl)
+    lobes, T, cols, sp = M.lobes, M.tables, M.sel_colors, M.sel_p
     for k in range(p.shape[0]):
+        m = mat[k]
+        j = S.light[k]
+        wx, wy, wz = S.wi[k, 0], S.wi[k, 1], S.wi[k, 2]
+        if M.cls[m] == GENERIC and j >= 0:
+            f = eval_pair(lobes, T, m, cols, m, ns[k, 0], ns[k, 1], ns[k, 2], ng[k, 0],
+                          ng[k, 1], ng[k, 2], wo[k, 0], wo[k, 1], wo[k, 2], wx, wy, wz, False)
+            cs = abs(ns[k, 0] * wx + ns[k, 1] * wy + ns[k, 2] * wz)
+            S.contrib[k, 0] = beta[k, 0] * f[0] * (cs * S.weight[k, 0])
+            S.contrib[k, 1] = beta[k, 1] * f[1] * (cs * S.weight[k, 1])
+            S.contrib[k, 2] = beta[k, 2] * f[2] * (cs * S.weight[k, 2])
         c0, c1, c2 = S.contrib[k, 0], S.contrib[k, 1], S.contrib[k, 2]
         ok = (np.isfinite(c0) and np.isfinite(c1) and np.isfinite(c2)
               and (c0 > 0 or c1 > 0 or c2 > 0))
@@ -320,8 +385,6 @@ def nee_mis_kernel(L, Q, p, ng, ns, n_l, wo, S, w, live, pl, sel):
         w[k] = 1.0
         if not ok:
             continue
-        j = S.light[k]
-        wx, wy, wz = S.wi[k, 0], S.wi[k, 1], S.wi[k, 2]
         gw = ng[k, 0] * wx + ng[k, 1] * wy + ng[k, 2] * wz
         go = ng[k, 0] * wo[k, 0] + ng[k, 1] * wo[k, 1] + ng[k, 2] * wo[k, 2]
         kind = L.kind[j]
@@ -330,8 +393,8 @@ def nee_mis_kernel(L, Q, p, ng, ns, n_l, wo, S, w, live, pl, sel):
         if kind != MESH and kind != WORLD:
             if not (Q.vis_glossy[j] if gw * go > 0 else Q.vis_trans[j]):
                 continue
-        pb = _lambert_pdf(ns[k, 0], ns[k, 1], ns[k, 2], ng[k, 0], ng[k, 1], ng[k, 2],
-                          wo[k, 0], wo[k, 1], wo[k, 2], wx, wy, wz)
+        pb = _bsdf_pdf(M, lobes, sp, m, ns[k, 0], ns[k, 1], ns[k, 2], ng[k, 0], ng[k, 1],
+                       ng[k, 2], wo[k, 0], wo[k, 1], wo[k, 2], wx, wy, wz)
         w[k] = _power(pl[k], pb)
 
 
@@ -340,43 +403,58 @@ def continue_kernel(M, mat, p, ng, ns, wo, beta, u, roulette, rel, floor, nx):
     """Sample the BSDF at the K vertices (mat (K,), p, ng, ns, wo, beta (K, 3),
     u (K, 4): direction (0, 1), lobe / Fresnel (2), roulette (3)) as
     ``sample_bsdf(subset='all', mode='radiance')`` does for the materials of
-    ``PathMaterials`` M, multiply the throughput, apply Russian roulette
-    (``roulette``: survival min(1, sqrt(max component))) and write the
-    survivors to the NextRays nx (origin from ``Accel.spawn``: offset
-    max(|p|_inf, floor) rel along ng to wi's side).  Returns their number."""
+    ``PathMaterials`` M (Lambert, mirror and glass by ``sample_fast``, GENERIC
+    by ``compiled.sample_pair`` in radiance mode), multiply the throughput,
+    apply Russian roulette (``roulette``: survival min(1, sqrt(max
+    component))) and write the survivors to the NextRays nx (origin from
+    ``Accel.spawn``: offset max(|p|_inf, floor) rel along ng to wi's side;
+    pdf 1 for a delta sample, as ``CameraMIS.continued``'s).  Returns their
+    number."""
+    lobes, T = M.lobes, M.tables
+    cols, sp, scdf, slast = M.sel_colors, M.sel_p, M.sel_cdf, M.sel_last
     n = 0
     for k in range(mat.shape[0]):
         m = mat[k]
         c = M.cls[m]
-        if c != LAMBERT and c != MIRROR and c != SMOOTH_GLASS:
-            continue
         sx, sy, sz = ns[k, 0], ns[k, 1], ns[k, 2]
         gx, gy, gz = ng[k, 0], ng[k, 1], ng[k, 2]
         ox, oy, oz = wo[k, 0], wo[k, 1], wo[k, 2]
-        r = sample_fast(c, M.lum_col[m, 0], M.lum_col[m, 1], M.lum_col[m, 2], M.ior[m],
-                        sx, sy, sz, gx, gy, gz, ox, oy, oz, u[k, 0], u[k, 1], u[k, 2])
-        if not r[7]:
+        if c == GENERIC:
+            r = sample_pair(lobes, T, cols, sp, scdf, slast, m, sx, sy, sz, gx, gy, gz,
+                            ox, oy, oz, u[k, 0], u[k, 1], u[k, 2], True)
+            if not r[7]:
+                continue
+            wx, wy, wz, is_delta = r[0], r[1], r[2], r[6]
+            b0, b1, b2 = beta[k, 0] * r[3], beta[k, 1] * r[4], beta[k, 2] * r[5]
+            pdf = 1.0 if is_delta else r[8]
+        elif c == LAMBERT or c == MIRROR or c == SMOOTH_GLASS:
+            q = sample_fast(c, M.lum_col[m, 0], M.lum_col[m, 1], M.lum_col[m, 2], M.ior[m],
+                            sx, sy, sz, gx, gy, gz, ox, oy, oz, u[k, 0], u[k, 1], u[k, 2])
+            if not q[7]:
+                continue
+            wx, wy, wz, is_delta = q[0], q[1], q[2], q[6]
+            b0 = beta[k, 0] * M.col[m, 0]
+            b1 = beta[k, 1] * M.col[m, 1]
+            b2 = beta[k, 2] * M.col[m, 2]
+            # Cosine sampling (Lambert): the density of the direction drawn.
+            pdf = 1.0 if is_delta else _lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz,
+                                                    wx, wy, wz)
+        else:
             continue
-        wx, wy, wz, is_delta = r[0], r[1], r[2], r[6]
-        b0 = beta[k, 0] * M.col[m, 0]
-        b1 = beta[k, 1] * M.col[m, 1]
-        b2 = beta[k, 2] * M.col[m, 2]
         if not (np.isfinite(b0) and np.isfinite(b1) and np.isfinite(b2)):
             continue
         bm = max(b0, b1, b2)
         if not bm > 0:
             continue
         if roulette:
-            q = min(np.sqrt(bm), 1.0)
-            if not u[k, 3] < q:
+            qs = min(np.sqrt(bm), 1.0)
+            if not u[k, 3] < qs:
                 continue
-            qq = max(q, 1e-300)
+            qq = max(qs, 1e-300)
             b0, b1, b2 = b0 / qq, b1 / qq, b2 / qq
         go = gx * ox + gy * oy + gz * oz
         gw = gx * wx + gy * wy + gz * wz
         sg = 1.0 if go >= 0 else -1.0
-        # Cosine sampling (Lambert): the density of the direction drawn.
-        pdf = 1.0 if is_delta else _lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz)
         px, py, pz = p[k, 0], p[k, 1], p[k, 2]
         off = (1.0 if gw >= 0 else -1.0) * (max(max(abs(px), abs(py), abs(pz)), floor) * rel)
         nx.src[n] = k
@@ -521,9 +599,12 @@ def _point_emit_over_nee(X, j, nee, wx, wy, wz, dist):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def camera_nee_kernel(X, first, own, Qv, cv, p, ng, ns, wo, wi, dist, light, pl, sel, w):
-    """combined.CameraMIS.nee at Lambert vertices (K rows: Qv, cv (K,) the
-    vertex's Q and c; p, ng, ns, wo, wi (K, 3); dist, light, pl, sel (K,),
+def camera_nee_kernel(X, M, mat, first, own, Qv, cv, p, ng, ns, wo, wi, dist, light, pl, sel,
+                      w):
+    """combined.CameraMIS.nee at the kernels' vertices (K rows of materials
+    mat (K,), PathMaterials M: the reverse density is :func:`_bsdf_pdf`'s;
+    Qv, cv (K,) the vertex's Q and c; p, ng, ns, wo, wi (K, 3); dist,
+    light, pl, sel (K,),
     pl and sel the light sample's density and selection probability from
     :func:`nee_mis_kernel`): w (K,),
     the NEE-vs-PT weights, shrunk in place by the light-tracing ratio (FULL
@@ -531,6 +612,7 @@ def camera_nee_kernel(X, first, own, Qv, cv, p, ng, ns, wo, wi, dist, light, pl,
     density 1); own: a radius-0 point or spot light's direct light at
     vertex 0 is next-event estimation's alone (mis.NEE_OWNS_DELTA_DIRECT:
     w unchanged)."""
+    lobes, sp = M.lobes, M.sel_p
     for k in range(p.shape[0]):
         j = light[k]
         cl = X.cls[j]
@@ -558,7 +640,8 @@ def camera_nee_kernel(X, first, own, Qv, cv, p, ng, ns, wo, wi, dist, light, pl,
             dm = max(dc, 1e-300)
             wx, wy, wz = wx / dm, wy / dm, wz / dm
             T = _point_emit_over_nee(X, j, sel[k], -wx, -wy, -wz, dc)
-        pr = 1.0 if first else _lambert_pdf(sx, sy, sz, gx, gy, gz, wx, wy, wz, ox, oy, oz)
+        pr = 1.0 if first else _bsdf_pdf(M, lobes, sp, mat[k], sx, sy, sz, gx, gy, gz,
+                                         wx, wy, wz, ox, oy, oz)
         r = _fin(Qv[k] * pr * abs(gx * wx + gy * wy + gz * wz) * T / cv[k])
         if cl == FULL:
             wk = w[k]
@@ -568,18 +651,20 @@ def camera_nee_kernel(X, first, own, Qv, cv, p, ng, ns, wo, wi, dist, light, pl,
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def camera_continued_kernel(first, src, delta, d, ng, ns, wo, Qv, cv, Q):
+def camera_continued_kernel(M, mat, first, src, delta, d, ng, ns, wo, Qv, cv, Q):
     """combined.CameraMIS.continued for the NextRays (src, delta, d) left by
-    Lambert or delta vertices (ng, ns, wo, Qv, cv by vertex row): Q (n,) =
-    Q_v pr |ng.wi| / c_v, pr the reverse Lambert density (1 at the first
-    vertex or after a delta), 0 after a delta at the first vertex."""
+    the kernels' vertices (mat, ng, ns, wo, Qv, cv by vertex row; PathMaterials
+    M): Q (n,) = Q_v pr |ng.wi| / c_v, pr the reverse density of
+    :func:`_bsdf_pdf` (1 at the first vertex or after a delta), 0 after a
+    delta at the first vertex."""
+    lobes, sp = M.lobes, M.sel_p
     for n in range(src.shape[0]):
         k = src[n]
         wx, wy, wz = d[n, 0], d[n, 1], d[n, 2]
         gx, gy, gz = ng[k, 0], ng[k, 1], ng[k, 2]
         pr = 1.0
         if not first and not delta[n]:
-            pr = _lambert_pdf(ns[k, 0], ns[k, 1], ns[k, 2], gx, gy, gz, wx, wy, wz,
-                              wo[k, 0], wo[k, 1], wo[k, 2])
+            pr = _bsdf_pdf(M, lobes, sp, mat[k], ns[k, 0], ns[k, 1], ns[k, 2], gx, gy, gz,
+                           wx, wy, wz, wo[k, 0], wo[k, 1], wo[k, 2])
         q = _fin(Qv[k] * pr * abs(gx * wx + gy * wy + gz * wz) / cv[k])
         Q[n] = 0.0 if (first and delta[n]) else q

@@ -37,13 +37,16 @@ Georgiev et al. 2012; docs/integrators.md).  Like Cycles' path tracer:
 
 All paths of a pass are traced together as a structure of arrays, masked and
 compacted per vertex (Mitsuba 3 style wavefront); throughput is float64.
-With ``compiled`` (default) and a scene the kernels cover, the light sample
-and its MIS weight, the light-sampling densities and the continuation (BSDF
-sample, throughput, roulette, spawn, compaction) are the numba kernels of
-:mod:`.path_kernels`; elsewhere the numpy vertices' radiance-mode
-sample_bsdf, eval_bsdf and pdf_bsdf run compiled on GENERIC materials
-(the PathTracer methods of those names, core.materials.compiled "Radiance
-mode over arrays"); ``compiled = False`` is the numpy reference.
+With ``compiled`` (default) and a scene the kernels cover (untextured
+Lambert, mirror, glass and GENERIC materials such as Blender's default
+Principled BSDF), the light sample and its MIS weight, the light-sampling
+densities and the continuation (BSDF sample, throughput, roulette, spawn,
+compaction) are the numba kernels of :mod:`.path_kernels`; elsewhere
+(textures, Normal Map / Bump, Transparent lobes, environment maps) the
+numpy vertices' radiance-mode sample_bsdf, eval_bsdf and pdf_bsdf run
+compiled on GENERIC materials (the PathTracer methods of those names,
+core.materials.compiled "Radiance mode over arrays"); ``compiled = False``
+is the numpy reference.
 """
 from __future__ import annotations
 
@@ -432,10 +435,10 @@ class PathTracer:
                     part.sampled(nx.delta)
                 if mg is not None:
                     mg.keep(c)
-                    mg.sampled(vc.continued_compiled(v, nx, depth, Q=v.QM)[0],
+                    mg.sampled(vc.continued_compiled(kern[2], v, nx, depth, Q=v.QM)[0],
                                np.abs(_dot(v.ng[c], nx.d)), nx.delta)
                 if vc is not None:
-                    Qs, pf = vc.continued_compiled(v, nx, depth)
+                    Qs, pf = vc.continued_compiled(kern[2], v, nx, depth)
                     vprev = v.take(c)
                 o, d, beta = nx.o, nx.d, nx.beta
                 tmax = np.full(c.size, np.inf)
@@ -552,20 +555,24 @@ class PathTracer:
         self._add_direct(v, wi, dist, contrib, light, shadow, w, out, depth)
 
     def _direct_compiled(self, v: PathVertices, u, out, depth: int = 0) -> None:
-        """_direct with the light sample, the Lambert f and the MIS weight in
-        the kernels (every vertex here is Lambert-only: path_kernels' scope)."""
+        """_direct with the light sample, f and the MIS weight in the kernels
+        (the Lambert f in ``direct_kernel``, a GENERIC material's in
+        ``nee_mis_kernel``: path_kernels' scope)."""
         from ..lights import direct_kernels as DK
+        from ..materials.fast import GENERIC
         L, Q, M = self.kernels()[:3]
         K = v.path.size
         n_l = v.ns_wo()
         c = np.ascontiguousarray
-        R = DK.Receivers(np.arange(K), c(v.p), n_l, c(v.beta), c(M.col[v.mat]),
-                         np.ones(K, bool), c(u, np.float64))
+        mat = c(v.mat, np.int64)
+        R = DK.Receivers(np.arange(K), c(v.p), n_l, c(v.beta), c(M.col[mat]),
+                         M.cls[mat] != GENERIC, c(u, np.float64))
         S = DK.alloc_samples(K)
         DK.direct_kernel(0, K, L, R, S)
         w, pl, sel = np.empty(K), np.empty(K), np.empty(K)
         live = np.empty(K, bool)
-        PK.nee_mis_kernel(L, Q, R.p, c(v.ng), c(v.ns), n_l, c(v.wo), S, w, live, pl, sel)
+        PK.nee_mis_kernel(L, Q, M, mat, R.beta, R.p, c(v.ng), c(v.ns), n_l, c(v.wo), S, w, live,
+                          pl, sel)
         r = np.nonzero(live)[0]
         if r.size == 0:
             return
@@ -573,7 +580,7 @@ class PathTracer:
             v = v.take(r)
         wi, dist, light, w = S.wi[r], S.dist[r], S.light[r], w[r]
         if self.vc is not None:
-            w = self.vc.nee_compiled(w, v, wi, dist, light, pl[r], sel[r], depth)
+            w = self.vc.nee_compiled(M, w, v, wi, dist, light, pl[r], sel[r], depth)
         self._add_direct(v, wi, dist, S.contrib[r], light, S.shadow[r], w, out, depth,
                          camera_mis=False)
 
