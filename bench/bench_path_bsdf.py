@@ -1,7 +1,7 @@
 """The camera paths at glossy vertices: the vertex kernels and the compiled BSDF calls against numpy.
 
     .venv/bin/python bench/bench_path_bsdf.py [default_cube principled_interior real_scene]
-        [--percent 25] [--repeat 5] [--modes PATH,COMBINED] [--cycles]
+        [--percent 25] [--repeat 5] [--modes PATH,COMBINED] [--cycles | --threads]
 
 For each scene (``default_cube``: Blender's factory start-up file, the cube
 with the default Principled BSDF; else an ``example_blends/`` file) at
@@ -26,7 +26,11 @@ that the kernels do not cover (textures, Normal Map / Bump) runs ``calls``
 in both of the last two.  --cycles: also Cycles on the same file at the
 same size and paths a pixel (non-adaptive, no denoising, CPU), rendered in
 a process of its own (no numba or Embree threads there, as ``fppm
-converge``'s Cycles ladder), its process CPU a path beside FPPM's.  Ratios
+converge``'s Cycles ladder), its process CPU a path beside FPPM's.
+--threads: instead, the kernels' pass on one thread and on two
+(``core.sppm.photons.THREADS``; the pass's pixel blocks shared,
+``PathTracer.blocks``), interleaved: wall time one ÷ two, the cores each
+used (process CPU ÷ wall), and whether the two images are the same bits.  Ratios
 measured in one run (docs/integrators.md "Compiled BSDF calls at glossy
 camera vertices, round 24", "GENERIC materials in the vertex kernels,
 round 25").
@@ -122,8 +126,12 @@ def main(argv=None) -> None:
     ap.add_argument("--modes", default="PATH,COMBINED")
     ap.add_argument("--cycles", action="store_true",
                     help="also time Cycles (its own process) at the same paths a pixel")
+    ap.add_argument("--threads", action="store_true",
+                    help="time the kernels' pass on one thread against two (wall, cores)")
     a = ap.parse_args(argv)
     from fppm.core.render import Renderer
+    if a.threads:
+        return threads(a, Renderer)
     print("scene, integrator: numpy / calls / kernels CPU (min), numpy and calls ÷ kernels "
           "(paired median), max |diff| / max pixel")
     for name in a.scenes:
@@ -165,6 +173,39 @@ def main(argv=None) -> None:
                       f"kernels {us['kernels']:.3f} us; Cycles {1e6 * cy / (4 * paths):.3f} us "
                       f"({4 * st.camera_samples} spp in its own process): kernels ÷ Cycles "
                       f"{tk.min() / (cy / 4):.2f}x", flush=True)
+
+
+def threads(a, Renderer) -> None:
+    """--threads: the kernels' pass on one and two threads (module docstring)."""
+    from fppm.core.sppm import photons
+    print("scene, integrator: wall one / two threads (min), one ÷ two (paired median), "
+          "cores used one / two (median), same bits")
+    for name in a.scenes:
+        scene, st = export(name, a.percent)
+        for mode in a.modes.split(","):
+            pt = Renderer(scene, st.replace(integrator=mode), log=lambda s: None).path_tracer
+            if pt is None or (pt.camera_stop is not None and pt.camera_stop.camera_free):
+                print(f"{name}, {mode}: no camera paths (light tracing takes them)")
+                continue
+            wall = {1: [], 2: []}
+            cores = {1: [], 2: []}
+            same = True
+            for k in range(a.repeat + 1):
+                img = {}
+                for n in ((1, 2) if k % 2 == 0 else (2, 1)):
+                    photons.THREADS = n
+                    w0, c0 = time.perf_counter(), time.process_time()
+                    img[n] = pt(np.random.default_rng(100 + k))
+                    w, c = time.perf_counter() - w0, time.process_time() - c0
+                    if k > 0:                       # the first round warms the kernels
+                        wall[n].append(w)
+                        cores[n].append(c / w)
+                same &= bool(np.array_equal(img[1], img[2]))
+            w1, w2 = np.array(wall[1]), np.array(wall[2])
+            print(f"{name}, {mode}: {w1.min():.3f} / {w2.min():.3f} s, {w1.min() / w2.min():.2f}x "
+                  f"(paired {np.median(w1 / w2):.2f}x); cores {np.median(cores[1]):.2f} / "
+                  f"{np.median(cores[2]):.2f}; {pt.blocks()} blocks; same bits: {same}",
+                  flush=True)
 
 
 if __name__ == "__main__":

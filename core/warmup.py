@@ -184,9 +184,10 @@ def warmup_jobs() -> list:
              base.replace(use_frequency=False, photons_for_direct=True,
                           fixed_visible_points=True, cap_radius_at_edges=False)),
             # The compiled camera paths and the combined integrator's kernels
-            # (COMBINED is the default integrator: tests/test_warmup.py renders it).
-            (warmup_scene(glossy=False),
-             base.replace(integrator="COMBINED", photons_per_pass=2000, camera_samples=1)),
+            # (COMBINED is the default integrator: tests/test_warmup.py renders
+            # it), with the rough glossy wall: its light paths' compiled
+            # densities (compiled.scatter_pdfs) compile here too.
+            (room, base.replace(integrator="COMBINED", photons_per_pass=2000, camera_samples=1)),
             # A late pass's few frequency photons, traced again in a batch of
             # their own (core.sppm.photons.RETRACE_MAX_SHARE)
             (room, base.replace(frequency_fraction=0.02))]

@@ -144,3 +144,42 @@ def test_scenes_outside_the_kernels_use_numpy():
     # A Transparent lobe: its crossings are no MIS vertex, which only the
     # numpy continuation tells (PathTracer._trace).
     assert _tracer("PATH", clear=True).kernels() is None
+
+
+@pytest.mark.parametrize("integrator", ["PATH", "COMBINED"])
+def test_two_threads_give_the_same_image_as_one(integrator, monkeypatch):
+    """A pass of 64x64 pixels x 4 paths is cut into two blocks
+    (``PathTracer.blocks``), each traced with its own child stream: two
+    threads taking them give one thread's image bit for bit."""
+    from core.sppm import photons
+    pt = _tracer(integrator, res=64, glossy=True)
+    assert pt.blocks() == 2
+    images = []
+    for threads in (1, 2):
+        monkeypatch.setattr(photons, "THREADS", threads)
+        images.append(pt(np.random.default_rng(6)))
+    assert (images[0].max(axis=1) > 0).mean() > 0.9
+    np.testing.assert_array_equal(images[0], images[1])
+
+
+def test_combined_light_side_samples_glossy_materials_compiled(monkeypatch):
+    """COMBINED's light paths scatter off the glossy wall (GENERIC) in the
+    bounce kernel (``compiled.sample_pair``, importance mode) and take their
+    MIS factors from ``compiled.scatter_pdfs``; with
+    ``materials.fast.COMPILED_SAMPLING`` off both are numpy's
+    (``_generic_bounce``, ``pdf_bsdf``).  The same random numbers give the
+    same splats within rtol 1e-9 of the largest pixel (the formulas of
+    tests/test_compiled_sample.py, equal to rounding)."""
+    from core.materials import fast
+    sums = {}
+    for on in (False, True):
+        monkeypatch.setattr(fast, "COMPILED_SAMPLING", on)
+        st = RenderSettings(integrator="COMBINED", max_passes=1, camera_samples=4,
+                            photons_per_pass=20_000, seed=1)
+        r = Renderer(_scene(glossy=True), st, log=lambda _m: None)
+        assert r.combined_lt.tracer.fmat.any_compiled == on
+        sums[on] = r.combined_lt.trace_pass(20_000, np.random.default_rng(7), lambda: None)
+    assert (sums[False].max(axis=1) > 0).mean() > 0.5
+    np.testing.assert_allclose(sums[True], sums[False], rtol=1e-9,
+                               atol=1e-9 * float(sums[False].max()))
+

@@ -289,11 +289,15 @@ def test_agrees_with_cycles(name):
     runs = np.stack([_render(scene, s, max_passes=8, max_bounces=16) for s in (1, 2, 3, 4)])
     mean_img = runs.mean(axis=0)
     denom = ref ** 2 + RELMSE_EPS
-    noise = np.mean(runs.var(axis=0, ddof=1) / runs.shape[0] / denom)
-    relmse = float(np.mean((mean_img - ref) ** 2 / denom))
-    # Pixels that see an emitter directly are left out of the mean, as in
-    # tests/test_cycles_agreement.py (their anti-aliased edge dominates the noise).
+    # Pixels that see an emitter directly are left out of the mean and of the
+    # relMSE, as in tests/test_cycles_agreement.py: their anti-aliased edge
+    # dominates the noise, heavy-tailed, so that four seeds' variance misjudged
+    # it (t_light_area_ellipse over 16 seeds in groups of four: relMSE / noise
+    # 0.73-1.75 over every pixel, 0.95-1.05 without those 8 %, whose relMSE is
+    # a tenth of the whole image's).
     mask = emitter_free_mask(ref)
+    noise = np.mean((runs.var(axis=0, ddof=1) / runs.shape[0] / denom)[mask])
+    relmse = float(np.mean(((mean_img - ref) ** 2 / denom)[mask]))
     m, r = mean_img[mask].mean(), ref[mask].mean()
     # Batch means over 8x8-pixel blocks (pixels are independent here).
     blocks = (runs.mean(axis=3) * mask).reshape(4, 8, 8, 8, 8).sum(axis=(2, 4))

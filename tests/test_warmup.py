@@ -151,13 +151,14 @@ from fppm.addon.properties import settings_from_scene
 from fppm.core.render import Renderer
 new = {}
 # Photon mapping's variants, then the default integrator (COMBINED: camera
-# paths, light tracing, merging through the glass sphere) as the files have it.
+# paths, light tracing, merging through the glass sphere; Principled materials
+# on the ring's floor) as the files have it.
 for name, kw in [("cornell", dict(integrator="PHOTON", aov_radius=True, aov_spectrum=True,
                                   aov_held=True)),
                  ("indirect_room", dict(integrator="PHOTON", frequency_estimator="QUANTILE")),
                  ("glass_sphere", dict(integrator="PHOTON", use_frequency=False,
                                        photons_for_direct=True, fixed_visible_points=True)),
-                 ("cornell", {}), ("glass_sphere", {})]:
+                 ("cornell", {}), ("glass_sphere", {}), ("ring_principled", {})]:
     bpy.ops.wm.open_mainfile(filepath=sys.argv[2] + "/" + name + ".blend", load_ui=False)
     sc = bpy.context.scene
     sc.render.resolution_percentage = 25

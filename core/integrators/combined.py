@@ -194,7 +194,7 @@ def visible_splats(lt, seed: int) -> float:
     that the decision is the same in every process of a seeded render), each
     vertex joined to the lens as light tracing does (LightTracer._connections)."""
     rng = np.random.default_rng([int(seed), 0x5EED])
-    t = lt.light_table
+    t = lt.emit_table
     ph = (PK.sample_photons_fast(t, PILOT_PATHS, rng) if lt.fast_emission
           else Lt.sample_photons(t, PILOT_PATHS, rng))
     dep = lt.tracer.trace_emitted(ph, rng)
@@ -550,6 +550,11 @@ class CombinedLightTracer(LightTracer):
     def __init__(self, *args, camera_samples: int, **kw):
         super().__init__(*args, **kw)
         self.cls = M.light_classes(self.light_table)
+        # Light paths start on the emitters light tracing follows only
+        # (mis.traced_table: no sun or world photons drawn to be dropped),
+        # with the compiled emission where those are all it covers.
+        self.emit_table = M.traced_table(self.light_table)
+        self.fast_emission = PK.fast_emission_ok(self.emit_table)
         self.K = int(camera_samples)
         self.max_bounces = int(self.tracer.settings.max_bounces)
         self.rr_start = int(self.tracer.settings.rr_start)
@@ -603,13 +608,13 @@ class CombinedLightTracer(LightTracer):
 
     def _chunk(self, n: int, rng, film: np.ndarray) -> None:
         t = self.light_table
-        ph = (PK.sample_photons_fast(t, n, rng) if self.fast_emission
-              else Lt.sample_photons(t, n, rng))
+        et = self.emit_table
+        ph = (PK.sample_photons_fast(et, n, rng) if self.fast_emission
+              else Lt.sample_photons(et, n, rng))
         light = np.asarray(ph["light"], np.int64)
-        if not (self.fast_emission and self.all_traced):
-            # Emitters that light tracing leaves out, or none at all (the
-            # compiled emission covers neither; its zero-power photons are
-            # dropped by the emission kernel).
+        if not self.fast_emission:
+            # No emitter at all, or photons of zero power (the compiled
+            # emission's are dropped by the emission kernel).
             live = np.nonzero((light >= 0) & (self.cls[np.maximum(light, 0)] != M.NO_LT)
                               & (ph["power"].max(axis=1) > 0))[0]
             if live.size == 0:
@@ -688,8 +693,11 @@ class CombinedLightTracer(LightTracer):
                            np.ascontiguousarray(ph["falloff_r2"], np.float64), rel, floor, live,
                            src)
         generic = tr.fmat.any_generic
+        # The GENERIC materials the bounce kernel samples itself (importance
+        # mode, core.materials.compiled.sample_pair), the rest in numpy.
+        comp = tr.fmat.any_compiled
         cg = n if generic else 1
-        gen = PK.GenericHits(np.empty(cg, np.int64), *(np.empty((cg, 3)) for _ in range(6)))
+        gen = PK.generic_hits(cg, comp)
         rec = PK.HitRecord(t=np.empty(1), ng=np.empty((1, 3)), nswi=np.empty(1),
                            hit=np.empty(1, bool), nxt_src=np.empty(n, np.int64),
                            nxt_delta=np.empty(n, bool))
@@ -709,7 +717,8 @@ class CombinedLightTracer(LightTracer):
             step = PK.BounceStep(K=K, first=bounce == 0, store=True,
                                  sample=bounce < self.max_bounces,
                                  roulette=bounce + 1 >= self.rr_start, bounce=bounce,
-                                 dep0=dep.n, record=False, rel=rel, floor=floor, mis=True)
+                                 dep0=dep.n, record=False, rel=rel, floor=floor, mis=True,
+                                 compiled=comp)
             u = rng.random((K, 4))
             dep.reserve(K)
             if mis.d0.shape[0] < dep.buf.r.shape[0]:
@@ -734,7 +743,8 @@ class CombinedLightTracer(LightTracer):
             mis.d1[dep0:n_dep] *= fb1[r]
             if n_gen:
                 n_fast = n_next
-                n_next = tr._generic_bounce(n_gen, n_next, gen, u, step.roulette, live, rec)
+                n_next = tr._generic_bounce(n_gen, n_next, gen, u, step.roulette, live, rec,
+                                            compiled=comp)
                 if n_next > n_fast:
                     self._generic_factors(n_fast, n_next, hits, rec, live, d_old, row, mis,
                                           fst, clear)
@@ -780,8 +790,10 @@ class CombinedLightTracer(LightTracer):
 
     def _generic_factors(self, a, b, hits, rec, live, d_old, row, mis, fst, clear):
         """The MIS factors of the generic-material survivors a..b-1 (appended by
-        PhotonTracer._generic_bounce): pdf_bsdf in numpy, delta samples 1;
-        fst (K,) bool the hits' MisState.first.  clear (materials,) bool the
+        PhotonTracer._generic_bounce): the forward and reverse pdf_bsdf,
+        compiled on the materials the bounce kernel samples
+        (``compiled.scatter_pdfs``), in numpy on the others (textures, Normal
+        Map / Bump), delta samples 1; fst (K,) bool the hits' MisState.first.  clear (materials,) bool the
         transparent materials when transparent shadows are on (else None):
         a Transparent lobe's sample (straight on) is no vertex -- its factors
         pass unchanged (|cos| in = |cos| out) and a ray from z_0 stays first."""
@@ -794,15 +806,25 @@ class CombinedLightTracer(LightTracer):
                                          hits.bu[i].astype(np.float64),
                                          hits.bv[i].astype(np.float64))
         mat = np.asarray(s.tri_mat, np.int64)[hits.prim[i]]
-        col = B.lobe_colors(mtab, mat, uvg)
         wo, wg = -d_old[i], live.d64[a:b]
         pl = np.ones(j.size)
         pr = np.ones(j.size)
-        nd = np.nonzero(~delta)[0]
+        fm = self.tracer.fmat
+        comp = fm.compiled[mat] if fm.any_compiled else np.zeros(j.size, bool)
+        c = np.nonzero(comp)[0]
+        if c.size:
+            from ..materials.compiled import scatter_pdfs
+            q = np.ascontiguousarray
+            pc, rc = np.empty(c.size), np.empty(c.size)
+            scatter_pdfs(fm.cm.lobes, fm.sel.p, mat[c], q(nsg[c]), q(ngg[c]), q(wo[c]),
+                         q(wg[c]), q(delta[c]), pc, rc)
+            pl[c], pr[c] = pc, rc
+        nd = np.nonzero(~delta & ~comp)[0]
         if nd.size:
-            pl[nd] = B.pdf_bsdf(mtab, mat[nd], col[nd], nsg[nd], ngg[nd], wo[nd], wg[nd],
+            col = B.lobe_colors(mtab, mat[nd], uvg[nd])
+            pl[nd] = B.pdf_bsdf(mtab, mat[nd], col, nsg[nd], ngg[nd], wo[nd], wg[nd],
                                 subset="all")
-            pr[nd] = B.pdf_bsdf(mtab, mat[nd], col[nd], nsg[nd], ngg[nd], wg[nd], wo[nd],
+            pr[nd] = B.pdf_bsdf(mtab, mat[nd], col, nsg[nd], ngg[nd], wg[nd], wo[nd],
                                 subset="all")
         first = fst[i]
         pend, pend1 = scatter_factors(pr, ngg, wg, pl, delta, first)

@@ -84,10 +84,28 @@ def light_classes(table) -> np.ndarray:
     return cls
 
 
+def traced_select(table) -> np.ndarray:
+    """(Nl,) the probability that a light path of 'COMBINED' starts on each
+    emitter: p_select over the emitters light tracing follows (not NO_LT),
+    renormalised; 0 on the others (sun, world: their photons would be
+    drawn and dropped, a sixth of the light paths with a bright world)."""
+    ps = np.where(light_classes(table) != NO_LT, np.asarray(table.p_select, np.float64), 0.0)
+    tot = ps.sum()
+    return ps / tot if tot > 0 else ps
+
+
+def traced_table(table):
+    """The light table with :func:`traced_select` as its p_select: the
+    emitters 'COMBINED''s light paths are drawn from (lights.sample_photons
+    and the compiled emission divide the power by it)."""
+    from dataclasses import replace
+    return replace(table, p_select=traced_select(table))
+
+
 def emit_select(table, light) -> np.ndarray:
-    """(K,) probability that sample_photons picks emitter row light."""
-    ps = table.p_select
-    return ps[light] / ps.sum()
+    """(K,) probability that a light path of 'COMBINED' starts on emitter
+    row light (sample_photons of :func:`traced_table`)."""
+    return traced_select(table)[light]
 
 
 def emit_pdf_pos(table, light) -> np.ndarray:

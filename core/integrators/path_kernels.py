@@ -26,7 +26,7 @@ glass, Oren-Nayar, a diffuse base under a specular layer) are sampled,
 evaluated and weighed at those steps by the photon tracer's compiled BSDF in
 radiance mode: ``core.materials.compiled.sample_pair`` (radiance=True),
 ``eval_pair`` (Cycles' f(view = wo, light = wi), in :func:`nee_mis_kernel`)
-and ``_pdf_nd_one`` (:func:`_bsdf_pdf`: the light sample's MIS weight and
+and ``pdf_oriented`` (:func:`_bsdf_pdf`: the light sample's MIS weight and
 COMBINED's reverse densities).
 
 Scope (:func:`compiled_scene_ok`; otherwise the numpy path runs): materials
@@ -59,17 +59,17 @@ from ..lights.direct_kernels import (SPH_TRI_MIN, _entry_weight, _spherical_rect
                                      _spherical_tri)
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 # sample_fast (and compiled._disk in it) and compiled.sample_pair, eval_pair
-# and _pdf_nd_one are compiled into this module's kernels: numba's on-disk
+# and pdf_oriented are compiled into this module's kernels: numba's on-disk
 # cache is stamped by each kernel's own file, so a change of the samplers
 # (core.materials.compiled, .fast) must come with an edit here and in
 # core.sppm.photon_kernels, or a cache filled before it keeps the old code
 # (this note came with compiled.sincos_quarter; edited again with the disk
 # warp's one division and sample_fast inlined, with compiled.sample_pair's
 # radiance mode, and with the GENERIC materials in these kernels).
-from ..materials.compiled import _pdf_nd_one, eval_pair, sample_pair
+from ..materials.compiled import eval_pair, pdf_oriented, sample_pair
 from ..materials.fast import ABSORBER, GENERIC, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
 from ..sppm.photon_kernels import shading_normal
-from .mis import FULL, SOFT
+from .mis import FULL, SOFT, emit_select
 from .light_kernels import lambert_pdf as _lambert_pdf
 
 _PI = np.pi
@@ -318,17 +318,13 @@ def _power(a, b):
 @njit(cache=True, error_model="numpy", inline="always")
 def _bsdf_pdf(M, lobes, p, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz):
     """core.materials.pdf_bsdf(subset='all') of material m for wo = o, wi = w
-    (ns = s, ng = g unit, any orientation): the Lambert density, or for a
-    GENERIC material the per-lobe sum of ``compiled._pdf_nd_one`` with
-    closures.pdf_inputs' orientation (no Normal Map / Bump in this scope)
-    and the material's selection probabilities p (M, L).  lobes, p: M's
-    arrays, taken out of the struct once by the caller."""
+    (ns = s, ng = g unit, any orientation): the Lambert density, or a
+    GENERIC material's by ``compiled.pdf_oriented`` with its selection
+    probabilities p (M, L).  lobes, p: M's arrays, taken out of the struct
+    once by the caller."""
     if M.cls[m] != GENERIC:
         return _lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz)
-    front = gx * ox + gy * oy + gz * oz >= 0.0
-    sg = 1.0 if front else -1.0
-    return _pdf_nd_one(lobes, p, m, m, front, sx * sg, sy * sg, sz * sg, gx * sg, gy * sg,
-                       gz * sg, ox, oy, oz, wx, wy, wz)
+    return pdf_oriented(lobes, p, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz)
 
 
 # ----------------------------------------------------------------------------
@@ -545,9 +541,9 @@ class MisLights(NamedTuple):
 
 def build_mis_lights(table, cls) -> MisLights:
     c = np.ascontiguousarray
-    ps = np.asarray(table.p_select, np.float64)
     lin = c(np.asarray(table.lin, np.float64).reshape(-1, 3, 3))
-    return MisLights(cls=c(cls, np.int8), sel=ps / ps.sum(), kind=c(table.kind, np.int8),
+    return MisLights(cls=c(cls, np.int8), sel=emit_select(table, np.arange(table.n)),
+                     kind=c(table.kind, np.int8),
                      co=c(table.co, np.float64), dir=c(table.dir, np.float64),
                      area=c(table.area, np.float64),
                      cos_half_spot=c(table.cos_half_spot, np.float64), lin=lin,

@@ -67,6 +67,11 @@ from .merge import CameraMerge, CameraPartition
 #: ~30k paths per batch where the per-vertex numpy overhead is amortised
 #: (docs/integrators.md, "Camera samples per pass").
 PATH_CHUNK = 1 << 16
+#: A pass of at least this many paths is traced as at least two blocks, so
+#: that two threads share it (docs/integrators.md "Camera paths on two
+#: cores, round 25").  The blocks depend on the image and the samples a
+#: pixel alone, not on the threads: the same image on any machine.
+PATH_SPLIT_MIN = 1 << 14
 
 # Visibility flag of the ray that left a vertex (core.lights.seen names).
 _VIS = ("camera", "glossy", "transmission")
@@ -266,24 +271,61 @@ class PathTracer:
         or None: full length (also integrator PATH, which has no vc)."""
         return None if self.vc is None else self.vc.stop
 
+    def blocks(self) -> int:
+        """The number of pixel blocks of a pass: ``PATH_CHUNK`` paths at most
+        each, and at least two from ``PATH_SPLIT_MIN`` paths on."""
+        paths = self.px.shape[0] * self.samples
+        nb = -(-paths // PATH_CHUNK)
+        return max(nb, 2) if paths >= PATH_SPLIT_MIN else max(nb, 1)
+
     def __call__(self, rng: np.random.Generator, check_stop=lambda: None) -> np.ndarray:
         """(P, 3) float64: the mean over ``camera_samples`` paths per pixel of
-        the radiance each carries (filter-importance-sampled, so a plain mean)."""
+        the radiance each carries (filter-importance-sampled, so a plain mean).
+
+        The pixels are cut into :meth:`blocks` equal runs, block i traced
+        with the i-th child stream of rng (``Generator.spawn``; one block:
+        rng itself), so a block's
+        paths do not depend on which thread takes it or when: two threads
+        take the blocks (``visible_points.in_two_threads``; one with
+        ``FPPM_PHOTON_THREADS=1``) and give the same image either way."""
         P, n = self.px.shape[0], self.samples
         L = np.zeros((P, 3))
         stop = self.camera_stop
         if stop is not None and stop.camera_free:
             return L        # COMBINED: light tracing takes every path (combined.CameraStop)
-        block = max(1, PATH_CHUNK // n)
-        for a in range(0, P, block):
+        from ..sppm.photons import _children
+        from ..sppm.visible_points import SharedBlocks, in_two_threads
+        nb = self.blocks()
+        block = -(-P // nb)
+        rngs = _children(rng, nb) if nb > 1 else [rng]
+        self._prepare()
+
+        def trace_block(a: int) -> None:
             pix_b = np.arange(a, min(a + block, P))
+            r = rngs[a // block]
             # Paths sample-major: row s * B + b is sample s of pixel pix_b[b].
             pix = np.tile(pix_b, n)
-            u = stratified(rng, n, pix_b.size, 4).reshape(n * pix_b.size, 8)
-            Lp = self._trace(pix, u, rng, check_stop)
+            u = stratified(r, n, pix_b.size, 4).reshape(n * pix_b.size, 8)
+            Lp = self._trace(pix, u, r, check_stop)
             for c in range(3):
-                L[a:a + pix_b.size, c] += np.bincount(pix - a, Lp[:, c], minlength=pix_b.size)
+                L[a:a + pix_b.size, c] = np.bincount(pix - a, Lp[:, c], minlength=pix_b.size)
+
+        work = SharedBlocks(P, block, trace_block)
+        if nb > 1:
+            in_two_threads(work.take)
+        else:
+            work.take()
         return L / n
+
+    def _prepare(self) -> None:
+        """Build what the blocks read before two threads share them: the
+        kernels' tables, the compiled calls' materials, COMBINED's emitter
+        arrays (each otherwise built on first use)."""
+        kern = self.kernels()
+        if self.compiled:
+            self._radiance_rows()
+        if kern and self.vc is not None and getattr(self.vc, "_mis_lights", None) is None:
+            self.vc._mis_lights = PK.build_mis_lights(self.vc.t, self.vc.cls)
 
     # ------------------------------------------------------------------ paths
     def _trace(self, pix, u, rng, check_stop) -> np.ndarray:

@@ -741,6 +741,39 @@ def _pdf_nd_one(lobes, p, r, m, front, Nx, Ny, Nz, Gx, Gy, Gz, ox, oy, oz, wx, w
     return pdf
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def pdf_oriented(lobes, p, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz):
+    """closures.pdf_bsdf(subset='all') of material m (untextured, no Normal
+    Map / Bump) for wo = o, wi = w: closures.pdf_inputs' orientation of the
+    unit normals s (shading) and g (geometric, any orientation) to o's side,
+    then :func:`_pdf_nd_one` with the selection probabilities p (M, L)."""
+    front = gx * ox + gy * oy + gz * oz >= 0.0
+    sg = 1.0 if front else -1.0
+    return _pdf_nd_one(lobes, p, m, m, front, sx * sg, sy * sg, sz * sg, gx * sg, gy * sg,
+                       gz * sg, ox, oy, oz, wx, wy, wz)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def scatter_pdfs(lobes, p, mat, ns, ng, wo, wi, delta, pl, pr):
+    """The densities of K scatterings (mat (K,) int64 untextured materials
+    without Normal Map / Bump; ns, ng, wo, wi (K, 3); delta (K,) bool):
+    pl (K,) = pdf(wo -> wi), the one that sampled wi, and pr (K,) =
+    pdf(wi -> wo), the reverse (:func:`pdf_oriented`); both 1 for a delta
+    sample (the light side's MIS factors, combined.scatter_factors)."""
+    for i in range(mat.shape[0]):
+        if delta[i]:
+            pl[i] = 1.0
+            pr[i] = 1.0
+            continue
+        m = mat[i]
+        sx, sy, sz = ns[i, 0], ns[i, 1], ns[i, 2]
+        gx, gy, gz = ng[i, 0], ng[i, 1], ng[i, 2]
+        ox, oy, oz = wo[i, 0], wo[i, 1], wo[i, 2]
+        wx, wy, wz = wi[i, 0], wi[i, 1], wi[i, 2]
+        pl[i] = pdf_oriented(lobes, p, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz)
+        pr[i] = pdf_oriented(lobes, p, m, sx, sy, sz, gx, gy, gz, wx, wy, wz, ox, oy, oz)
+
+
 @njit(cache=True, error_model="numpy")
 def sample_pair(lobes, T, colors, p, cdf, last, m, nsx, nsy, nsz, ngx, ngy, ngz,
                 ox, oy, oz, u0, u1, u2, radiance):

@@ -137,6 +137,14 @@ class GenericHits(NamedTuple):
 SAMPLE_NUMPY, SAMPLE_INVALID, SAMPLE_OK, SAMPLE_DELTA = 0, 1, 2, 3
 
 
+def generic_hits(cap: int, compiled: bool) -> GenericHits:
+    """GenericHits of cap rows, with the kernel's sample columns (out, wgt,
+    state) when it samples ``compiled`` materials (BounceStep.compiled)."""
+    extra = ({"out": np.empty((cap, 3)), "wgt": np.empty((cap, 3)),
+              "state": np.empty(cap, np.int8)} if compiled else {})
+    return GenericHits(np.empty(cap, np.int64), *(np.empty((cap, 3)) for _ in range(6)), **extra)
+
+
 class HitRecord(NamedTuple):
     """Per-ray hit data the frequency chains read (written when
     BounceStep.record): t (K,) float64 hit distance, ng (K, 3) geometric
@@ -160,8 +168,9 @@ class BounceStep(NamedTuple):
     floor) * rel); mis: follow the light side's MIS factors (:class:`MisState`,
     integrator 'COMBINED'; off for the photon pass, which passes a placeholder);
     compiled: sample the ``compiled`` GENERIC materials here into the
-    GenericHits' out / wgt / state (never with mis: the caller's numpy MIS
-    factors need the generic hits unsampled); rows: write only the source
+    GenericHits' out / wgt / state (with mis too: the caller's MIS factors
+    of the generic survivors, combined.CombinedLightTracer._generic_factors,
+    read their sampled directions); rows: write only the source
     ray of each survivor and of each deposit (HitRecord.nxt_src /
     nxt_delta, DepositBuffers.src; implied by record), what following a
     few photons through a batch needs (:func:`follow_rows`)."""
@@ -384,7 +393,7 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
     gen_i, gen_p, gen_ng, gen_ns, gen_wi, gen_pow, gen_bary = (gen.i, gen.p, gen.ng, gen.ns,
                                                                gen.wi, gen.power, gen.bary)
     gen_out, gen_wgt, gen_state = gen.out, gen.wgt, gen.state
-    use_comp = step.compiled and not step.mis
+    use_comp = step.compiled
     m_comp = mats.compiled
     c_lobes, c_T = mats.cm.lobes, mats.cm.tables
     s_col, s_p, s_cdf, s_last = mats.sel.colors, mats.sel.p, mats.sel.cdf, mats.sel.last

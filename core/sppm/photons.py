@@ -90,12 +90,12 @@ def in_two_halves(work, K: int, split_min: int, align: int = 1) -> None:
     f1.result()
 
 
-def _children(rng):
-    """Two independent child generators of rng (deterministic)."""
+def _children(rng, n: int = 2):
+    """n independent child generators of rng (deterministic)."""
     try:
-        return rng.spawn(2)
+        return rng.spawn(n)
     except (AttributeError, TypeError, ValueError):    # no SeedSequence behind rng
-        return [np.random.default_rng(int(s)) for s in rng.integers(0, 2**63, 2)]
+        return [np.random.default_rng(int(s)) for s in rng.integers(0, 2**63, n)]
 
 
 class ArrayPool:
@@ -530,9 +530,7 @@ class PhotonTracer:
         straight = np.ones(K, bool) if self.skip_straight else None
         cg = n if self.fmat.any_generic else 1
         comp = self.fmat.any_compiled
-        gen = PK.GenericHits(np.empty(cg, np.int64), *(np.empty((cg, 3)) for _ in range(6)),
-                             **({"out": np.empty((cg, 3)), "wgt": np.empty((cg, 3)),
-                                 "state": np.empty(cg, np.int8)} if comp else {}))
+        gen = PK.generic_hits(cg, comp)
         ubuf = self.uniform_buffer(4 * K)       # K never grows: one survivor a ray at most
         cr = n if record or Kf or follow is not None else 1
         rec = self.pool.take("record", cr, _record_arrays, lambda a: PK.HitRecord(*a))
