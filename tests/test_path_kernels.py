@@ -183,3 +183,17 @@ def test_combined_light_side_samples_glossy_materials_compiled(monkeypatch):
     np.testing.assert_allclose(sums[True], sums[False], rtol=1e-9,
                                atol=1e-9 * float(sums[False].max()))
 
+
+
+def test_compiled_sampling_without_its_sample_columns_is_refused(monkeypatch):
+    """The bounce kernel writes its GENERIC samples into GenericHits' out,
+    wgt and state: handed the 1-row placeholders instead (what Combined's
+    light side first passed), it raises rather than write past them."""
+    from core.sppm import photon_kernels as PK
+    real = PK.generic_hits
+    monkeypatch.setattr(PK, "generic_hits", lambda cap, compiled: real(cap, False))
+    st = RenderSettings(integrator="COMBINED", max_passes=1, camera_samples=4,
+                        photons_per_pass=2000, seed=1)
+    r = Renderer(_scene(glossy=True), st, log=lambda _m: None)
+    with pytest.raises(ValueError, match="sample columns"):
+        r.combined_lt.trace_pass(2000, np.random.default_rng(7), lambda: None)

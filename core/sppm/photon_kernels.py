@@ -394,6 +394,11 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
                                                                gen.wi, gen.power, gen.bary)
     gen_out, gen_wgt, gen_state = gen.out, gen.wgt, gen.state
     use_comp = step.compiled
+    if use_comp and (gen_out.shape[0] < gen_i.shape[0] or gen_state.shape[0] < gen_i.shape[0]):
+        # The sample columns are 1-row placeholders (GenericHits built
+        # without them): writing the samples there would overrun them.
+        raise ValueError("BounceStep.compiled needs GenericHits with its sample columns "
+                         "(photon_kernels.generic_hits(cap, True))")
     m_comp = mats.compiled
     c_lobes, c_T = mats.cm.lobes, mats.cm.tables
     s_col, s_p, s_cdf, s_last = mats.sel.colors, mats.sel.p, mats.sel.cdf, mats.sel.last
