@@ -1,4 +1,4 @@
-"""The camera paths at glossy vertices: the vertex kernels and the compiled BSDF calls against numpy.
+"""Camera paths at glossy vertices: the vertex kernels, the compiled BSDF calls and numpy.
 
     .venv/bin/python bench/bench_path_bsdf.py [default_cube principled_interior real_scene]
         [--percent 25] [--repeat 5] [--modes PATH,COMBINED] [--cycles | --threads]

@@ -314,23 +314,29 @@ class CameraMIS:
         QM (v.QM) the kernel gives each ratio as a factor 1 / (1 + r^2) of a
         unit weight, combined by :func:`_with_merge`."""
         from . import path_kernels as PK
-        if getattr(self, "_mis_lights", None) is None:
-            self._mis_lights = PK.build_mis_lights(self.t, self.cls)
         c = np.ascontiguousarray
         mat = c(v.mat, np.int64)
         geo = (c(v.c), c(v.p), c(v.ng), c(v.ns), c(v.wo), c(wi), c(dist), c(light, np.int64),
                c(pl), c(sel))
         if getattr(v, "QM", None) is not None:
             fl, fm = np.ones(light.size), np.ones(light.size)
-            X = self._mis_lights
+            X = self.mis_lights
             PK.camera_nee_kernel(X, pmat, mat, depth == 0, self.owns, c(v.Q), *geo, fl)
             PK.camera_nee_kernel(X, pmat, mat, False, self.owns, c(v.QM), *geo, fm)
             return _with_merge(np.asarray(w, np.float64), _ratio2(fl), _ratio2(fm),
                                self.cls[light] == M.SOFT)
         w = np.array(w, np.float64)
-        PK.camera_nee_kernel(self._mis_lights, pmat, mat, depth == 0, self.owns, c(v.Q), *geo,
-                             w)
+        PK.camera_nee_kernel(self.mis_lights, pmat, mat, depth == 0, self.owns, c(v.Q), *geo, w)
         return w
+
+    @property
+    def mis_lights(self):
+        """The emitter arrays of ``path_kernels.camera_nee_kernel``
+        (``path_kernels.MisLights``), built on first use."""
+        if getattr(self, "_mis_lights", None) is None:
+            from . import path_kernels as PK
+            self._mis_lights = PK.build_mis_lights(self.t, self.cls)
+        return self._mis_lights
 
     def continued_compiled(self, pmat, v, nx, depth, Q=None):
         """:meth:`continued` for the NextRays nx of ``path_kernels.continue_kernel``
@@ -793,7 +799,8 @@ class CombinedLightTracer(LightTracer):
         PhotonTracer._generic_bounce): the forward and reverse pdf_bsdf,
         compiled on the materials the bounce kernel samples
         (``compiled.scatter_pdfs``), in numpy on the others (textures, Normal
-        Map / Bump), delta samples 1; fst (K,) bool the hits' MisState.first.  clear (materials,) bool the
+        Map / Bump), delta samples 1; fst (K,) bool the hits'
+        MisState.first.  clear (materials,) bool the
         transparent materials when transparent shadows are on (else None):
         a Transparent lobe's sample (straight on) is no vertex -- its factors
         pass unchanged (|cos| in = |cos| out) and a ray from z_0 stays first."""

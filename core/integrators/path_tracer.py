@@ -324,8 +324,8 @@ class PathTracer:
         kern = self.kernels()
         if self.compiled:
             self._radiance_rows()
-        if kern and self.vc is not None and getattr(self.vc, "_mis_lights", None) is None:
-            self.vc._mis_lights = PK.build_mis_lights(self.vc.t, self.vc.cls)
+        if kern and self.vc is not None:
+            _ = self.vc.mis_lights      # built here, read by both threads
 
     # ------------------------------------------------------------------ paths
     def _trace(self, pix, u, rng, check_stop) -> np.ndarray:
