@@ -252,7 +252,11 @@ class LightTracer:
 
     def _slow(self, con, c, tr, vin, mis, film) -> None:
         """The connections c whose material the splat kernel does not cover:
-        eval_bsdf (and pdf_bsdf for the MIS weight) in numpy."""
+        eval_bsdf (and pdf_bsdf for the MIS weight), the GENERIC rows'
+        compiled (core.materials.compiled "Radiance mode over arrays", the
+        camera paths' calls: equal to numpy's to rounding)."""
+        from ..materials import compiled as C
+        from ..materials.fast import GENERIC
         from .combined import splat_weight
         rows = con.row[c]
         bary = vin.bary[rows]
@@ -266,12 +270,12 @@ class LightTracer:
         m = np.asarray(self.scene.tri_mat, np.int64)[prim]
         wc, wi, weight = con.wc[c], vin.wi[rows], con.weight[c]
         colors = B.lobe_colors(self.mtab, m, uv)
-        f = B.eval_bsdf(self.mtab, m, colors, ns, ng, wc, wi)
+        f = C.eval_radiance(self.mtab, self.tracer.fmat.cls == GENERIC, m, colors, ns, ng, wc, wi)
         corr = np.minimum(B.shading_correction(ns, ng, wi), SHADING_CAP)
         c1 = np.abs(np.einsum("ij,ij->i", ng, wc)) * weight
         contrib = f * vin.power[rows] * tr[c] * (c1 * corr)[:, None]
         if mis:
-            pf = B.pdf_bsdf(self.mtab, m, colors, ns, ng, wc, wi, subset="all")
+            pf = C.pdf_radiance(self.mtab, m, colors, ns, ng, wc, wi)
             bm = None
             if vin.mR2.shape[0] > 0:
                 from .merge_kernels import pixel_rows
