@@ -25,6 +25,7 @@ from ..lights import shadow
 from ..lights.pdf import _selection_probability
 from ..lights.shadow import transparent_materials
 from ..lights.table import AREA, MESH
+from ..materials.compiled import scatter_pdfs
 from ..mathutil import dot as _dot
 from . import light_kernels as LK
 from . import mis as M
@@ -620,9 +621,9 @@ class CombinedLightTracer(LightTracer):
         light = np.asarray(ph["light"], np.int64)
         if not self.fast_emission:
             # No emitter at all, or photons of zero power (the compiled
-            # emission's are dropped by the emission kernel).
-            live = np.nonzero((light >= 0) & (self.cls[np.maximum(light, 0)] != M.NO_LT)
-                              & (ph["power"].max(axis=1) > 0))[0]
+            # emission's are dropped by the emission kernel; the traced table
+            # draws no NO_LT emitter).
+            live = np.nonzero((light >= 0) & (ph["power"].max(axis=1) > 0))[0]
             if live.size == 0:
                 return
             if live.size < n:
@@ -820,7 +821,6 @@ class CombinedLightTracer(LightTracer):
         comp = fm.compiled[mat] if fm.any_compiled else np.zeros(j.size, bool)
         c = np.nonzero(comp)[0]
         if c.size:
-            from ..materials.compiled import scatter_pdfs
             q = np.ascontiguousarray
             pc, rc = np.empty(c.size), np.empty(c.size)
             scatter_pdfs(fm.cm.lobes, fm.sel.p, mat[c], q(nsg[c]), q(ngg[c]), q(wo[c]),

@@ -71,6 +71,8 @@ from typing import NamedTuple, Optional
 import numpy as np
 from .. import lights as Lt
 from .. import materials as B
+from ..materials import compiled as C
+from ..materials.fast import GENERIC
 from ..accel import REL_OFFSET, surface_point
 from ..lights.shadow import attached as shadow_materials, transmittance
 from ..sppm import photon_kernels as PK
@@ -141,6 +143,8 @@ class LightTracer:
         self.cam_params = LK.camera_params(camera, self.x0, self.y0, self.W, self.H,
                                            self.filter_width)
         self.fast_mat = LK.fast_materials(scene, mtab, self.tracer.fmat)
+        # The GENERIC materials, whose connections _slow evaluates compiled.
+        self.generic = self.tracer.fmat.cls == GENERIC
         self.rays = 0
         # Paths per chunk, and one random stream per chunk (chunk_rng) rather
         # than one per pass: chunks then split over processes
@@ -255,8 +259,6 @@ class LightTracer:
         eval_bsdf (and pdf_bsdf for the MIS weight), the GENERIC rows'
         compiled (core.materials.compiled "Radiance mode over arrays", the
         camera paths' calls: equal to numpy's to rounding)."""
-        from ..materials import compiled as C
-        from ..materials.fast import GENERIC
         from .combined import splat_weight
         rows = con.row[c]
         bary = vin.bary[rows]
@@ -270,7 +272,7 @@ class LightTracer:
         m = np.asarray(self.scene.tri_mat, np.int64)[prim]
         wc, wi, weight = con.wc[c], vin.wi[rows], con.weight[c]
         colors = B.lobe_colors(self.mtab, m, uv)
-        f = C.eval_radiance(self.mtab, self.tracer.fmat.cls == GENERIC, m, colors, ns, ng, wc, wi)
+        f = C.eval_radiance(self.mtab, self.generic, m, colors, ns, ng, wc, wi)
         corr = np.minimum(B.shading_correction(ns, ng, wi), SHADING_CAP)
         c1 = np.abs(np.einsum("ij,ij->i", ng, wc)) * weight
         contrib = f * vin.power[rows] * tr[c] * (c1 * corr)[:, None]

@@ -57,6 +57,8 @@ import numpy as np
 from ..accel import surface_point
 from .. import lights as Lt
 from .. import materials as B
+from ..materials import compiled as C
+from ..materials.fast import GENERIC, build_fast_materials
 from ..lights import shadow as Sh
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..mathutil import dot as _dot
@@ -211,13 +213,19 @@ class PathTracer:
         # arrays"), numpy where ``compiled`` is off (the reference): the
         # materials' classes, built on first use.
         self._radiance = None
+        self._fmat = None
+
+    def fast_materials(self):
+        """The materials' ``materials.fast.FastMaterials`` (the kernels' and the
+        compiled calls' classes and tables), built once on first use."""
+        if self._fmat is None:
+            self._fmat = build_fast_materials(self.mtab)
+        return self._fmat
 
     def _radiance_rows(self):
         """(FastMaterials, the rows sample_radiance covers, GENERIC (M,) bool)."""
         if self._radiance is None:
-            from ..materials import compiled as C
-            from ..materials.fast import GENERIC, build_fast_materials
-            fm = build_fast_materials(self.mtab)
+            fm = self.fast_materials()
             self._radiance = (fm, C.radiance_rows(self.mtab, fm), fm.cls == GENERIC)
         return self._radiance
 
@@ -226,7 +234,6 @@ class PathTracer:
         if not self.compiled:
             return B.sample_bsdf(self.mtab, mat, colors, ns, ng, wo, u, subset="all",
                                  mode="radiance")
-        from ..materials import compiled as C
         fm, rows, _ = self._radiance_rows()
         return C.sample_radiance(self.mtab, fm, rows, mat, colors, ns, ng, wo, u)
 
@@ -234,14 +241,12 @@ class PathTracer:
         """materials.eval_bsdf (radiance mode) of the numpy vertices."""
         if not self.compiled:
             return B.eval_bsdf(self.mtab, mat, colors, ns, ng, wo, wi)
-        from ..materials import compiled as C
         return C.eval_radiance(self.mtab, self._radiance_rows()[2], mat, colors, ns, ng, wo, wi)
 
     def pdf_bsdf(self, mat, colors, ns, ng, wo, wi):
         """materials.pdf_bsdf (subset 'all') of the numpy vertices."""
         if not self.compiled:
             return B.pdf_bsdf(self.mtab, mat, colors, ns, ng, wo, wi, subset="all")
-        from ..materials import compiled as C
         return C.pdf_radiance(self.mtab, mat, colors, ns, ng, wo, wi)
 
     def kernels(self):
@@ -251,9 +256,8 @@ class PathTracer:
             return None
         if self._kernels is None:
             from ..lights import direct_kernels as DK
-            from ..materials.fast import build_fast_materials
             from ..sppm.photon_kernels import build_triangle_data
-            fmat = build_fast_materials(self.mtab)
+            fmat = self.fast_materials()
             if PK.compiled_scene_ok(self.mtab, fmat, self.lights, self.scene.tri_n):
                 M = self.mtab.kind.shape[0]
                 colors = B.lobe_colors(self.mtab, np.arange(M), np.zeros((M, 2)))
@@ -601,7 +605,6 @@ class PathTracer:
         (the Lambert f in ``direct_kernel``, a GENERIC material's in
         ``nee_mis_kernel``: path_kernels' scope)."""
         from ..lights import direct_kernels as DK
-        from ..materials.fast import GENERIC
         L, Q, M = self.kernels()[:3]
         K = v.path.size
         n_l = v.ns_wo()
