@@ -7,10 +7,11 @@ against the numpy path it replaces.
 2. ``first_hits`` (point lights, rectangles) = ``combined.first_hit_ratios``.
 3. ``splat_emitters`` (emitters seen directly) = the numpy splat of
    ``combined.emission_splat_weight``.
-4. ``splat_fast`` (LAMBERT vertices: f, shading factor, the MIS weight of
-   'COMBINED') = the numpy splat (eval_bsdf, pdf_bsdf, combined.splat_weight)
-   that ``LightTracer._slow`` applies to every other material: the same
-   deposits and lens samples splatted both ways give the same film.
+4. ``splat_fast`` (LAMBERT vertices and untextured GENERIC ones: f,
+   shading factor, the MIS weight of 'COMBINED') = the numpy splat
+   (eval_bsdf, pdf_bsdf, combined.splat_weight) that ``LightTracer._slow``
+   applies to every other material: the same deposits and lens samples
+   splatted both ways give the same film.
 """
 import numpy as np
 import pytest
@@ -21,6 +22,7 @@ from core.integrators import light_kernels as LK
 from core.integrators import mis as M
 from core.integrators.combined import emission_splat_weight, first_hit_ratios
 from core.render import Renderer
+from core.scene import nodes as shading
 from core.scene.camera import CameraModel
 from core.scene.model import GLOSSY, Lobe, Material, make_scene
 from core.settings import RenderSettings
@@ -69,31 +71,40 @@ def test_project_kernel_equals_project(name):
 def _films(lt, dep, mis):
     """The film of dep splatted by the kernel and by the numpy path (same lens samples)."""
     out = []
-    fast = lt.fast_mat.copy()
-    for f in (fast, np.zeros_like(fast)):
-        lt.fast_mat = f
+    sm = lt.splat_mat
+    for kind in (sm.kind, np.zeros_like(sm.kind)):
+        lt.splat_mat = sm._replace(kind=kind)
         film = np.zeros((lt.H * lt.W, 3))
         lt.connect(dep, np.random.default_rng(9), film, mis=mis)
         out.append(film)
-    lt.fast_mat = fast
+    lt.splat_mat = sm
     return out
 
 
 def _scene():
-    """The point-lit checker (two Lambert materials) with a rough metal strip
-    in front (a material the kernel leaves to numpy); corner normals tilted
-    at random (interpolated shading normals, the shading factor)."""
+    """The point-lit checker (two Lambert materials) with three strips in
+    front: a rough metal and Blender's default Principled BSDF (GENERIC
+    materials the kernel evaluates compiled) and a textured rough metal (one
+    it leaves to numpy); corner normals tilted at random (interpolated
+    shading normals, the shading factor)."""
     base = checker_scene(camera("dof"))
-    strip = np.asarray(quad((0.0, -0.5, 0.3), (1.0, 0, 0), (0, 0.2, 0.2)), float)
-    tris = np.concatenate([base.tri_p, strip])
-    tri_n = np.concatenate([base.tri_n, np.repeat(
-        np.cross(strip[:, 1] - strip[:, 0], strip[:, 2] - strip[:, 0])[:, None], 3, axis=1)])
+    strips = [np.asarray(quad((x, -0.5, 0.3), (0.3, 0, 0), (0, 0.2, 0.2)), float)
+              for x in (-0.6, 0.0, 0.6)]
+    tris = np.concatenate([base.tri_p] + strips)
+    tri_n = np.concatenate([base.tri_n] + [np.repeat(
+        np.cross(s[:, 1] - s[:, 0], s[:, 2] - s[:, 0])[:, None], 3, axis=1) for s in strips])
     tri_n = tri_n + 0.3 * np.random.default_rng(2).normal(size=tri_n.shape)
     tri_n /= np.linalg.norm(tri_n, axis=2, keepdims=True)
+    principled, _, _ = shading.principled_to_lobes()       # Blender's defaults
     mats = [lambert("dark", 0.15), lambert("bright", 0.85),
-            Material("metal", (Lobe(GLOSSY, (0.8, 0.7, 0.6), roughness=0.4),))]
-    tri_mat = np.concatenate([base.tri_mat, [2, 2]])
-    return make_scene(tris, mats, base.lights, base.camera, tri_mat=tri_mat, tri_n=tri_n)
+            Material("metal", (Lobe(GLOSSY, (0.8, 0.7, 0.6), roughness=0.4),)),
+            Material("principled", tuple(principled)),
+            Material("metal_tex", (Lobe(GLOSSY, (0.8, 0.7, 0.6), roughness=0.4,
+                                        color_texture=0),))]
+    tri_mat = np.concatenate([base.tri_mat, [2, 2, 3, 3, 4, 4]])
+    sc = make_scene(tris, mats, base.lights, base.camera, tri_mat=tri_mat, tri_n=tri_n)
+    sc.textures = [np.full((2, 2, 3), 0.9, np.float32)]
+    return sc
 
 
 @pytest.mark.parametrize("integrator", ["LIGHT", "COMBINED"])
@@ -108,7 +119,13 @@ def test_compiled_splat_equals_numpy(integrator):
         g = np.random.default_rng(6)
         mis = (g.exponential(size=k), g.exponential(size=k), g.random(k) < 0.3,
                g.random(k) < 0.2)
-    assert lt.fast_mat.tolist() == [True, True, False]
+    assert lt.fast_mat.tolist() == [True, True, False, False, False]
+    assert lt.splat_mat.kind.tolist() == [LK.LAMBERT_SPLAT] * 2 + [LK.GENERIC_SPLAT] * 2 + [
+        LK.SLOW]
+    # Every kind of vertex is splatted: the strips are the last 6 triangles.
+    strip = (dep["bary"][:, 0].astype(int) - (r.scene.tri_p.shape[0] - 6)) // 2
+    assert [np.count_nonzero(strip == i) > 100 for i in range(3)] == [True] * 3, np.bincount(
+        strip[strip >= 0])
     fast, ref = _films(lt, dep, mis)
     assert ref.sum() > 0
     np.testing.assert_allclose(fast, ref, rtol=1e-10, atol=1e-12 * ref.max())

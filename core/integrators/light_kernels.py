@@ -8,15 +8,18 @@ two numba loops around one batched Embree occlusion call:
                      project, per point), the render-region test, the
                      shadow ray (accel.spawn, the near-clip t_max)
     (Embree)         LightTracer._transmittance: every shadow ray of the batch
-    splat_fast       for the unoccluded vertices on LAMBERT materials: f of
-                     the diffuse lobes towards the lens, the shading factor,
-                     the MIS weight of 'COMBINED' (combined.splat_weight with
-                     the closed-form diffuse density) and the splat
+    splat_fast       for the unoccluded vertices on LAMBERT materials and
+                     on the untextured GENERIC ones the photon tracer
+                     samples compiled (Blender's default Principled BSDF,
+                     rough glossy and glass, Oren-Nayar): f towards the
+                     lens, the shading factor, the MIS weight of 'COMBINED'
+                     (combined.splat_weight, with the closed-form diffuse
+                     density or ``compiled.pdf_oriented``) and the splat
 
-Vertices on other materials (GGX, textures, Oren-Nayar, Normal Map / Bump,
-...) are evaluated by ``materials.eval_bsdf`` / ``pdf_bsdf`` in numpy on
-their rows.  tests/test_light_kernels.py checks both loops against the numpy
-path (CameraModel.project, eval_bsdf, pdf_bsdf, combined.splat_weight).
+Vertices on other materials (textures, Normal Map / Bump, ...) are
+evaluated by ``LightTracer._slow`` on their rows.
+tests/test_light_kernels.py checks both loops against the numpy path
+(CameraModel.project, eval_bsdf, pdf_bsdf, combined.splat_weight).
 """
 from __future__ import annotations
 
@@ -26,6 +29,7 @@ import numpy as np
 from numba import njit
 
 from ..lights.direct_kernels import _spherical_rect_solid_angle
+from ..materials.compiled import eval_pair, pdf_oriented
 from ..lights.table import AREA, POINT
 from ..scene.camera import BH_A0, BH_A1, BH_A2, BH_A3
 from ..sppm.photon_kernels import _offset_scale, lambert_pdf, shading_normal
@@ -156,19 +160,62 @@ def camera_params(model, x0, y0, W, H, filter_width) -> CameraParams:
 
 
 def fast_materials(scene, mtab, fmat) -> np.ndarray:
-    """(M,) bool: materials :func:`splat_fast` evaluates -- LAMBERT
-    (materials.fast: diffuse lobes of roughness 0, no texture) whose shading
-    normal is the interpolated one (no Normal Map / Bump)."""
+    """(M,) bool: the LAMBERT materials (materials.fast: diffuse lobes of
+    roughness 0, no texture) whose shading normal is the interpolated one
+    (no Normal Map / Bump)."""
     from ..materials.fast import LAMBERT
+    return (fmat.cls == LAMBERT) & ~_bent(scene, mtab, fmat.cls.shape[0])
+
+
+def _bent(scene, mtab, M) -> np.ndarray:
+    """(M,) bool: materials whose shading normal is not the interpolated one
+    (Normal Map / Bump)."""
     from ..scene import normals
-    bent = np.zeros(fmat.cls.shape[0], bool)
+    bent = np.zeros(M, bool)
     if mtab.bump_correction is not None:
-        bent |= np.asarray(mtab.bump_correction, bool)[:bent.size]
+        bent |= np.asarray(mtab.bump_correction, bool)[:M]
     spec = normals.attached(scene.tri_n)
     if spec is not None:
-        for m, inp in enumerate(spec.inputs[:bent.size]):
+        for m, inp in enumerate(spec.inputs[:M]):
             bent[m] |= inp is not None
-    return (fmat.cls == LAMBERT) & ~bent
+    return bent
+
+
+#: SplatMaterials.kind: left to LightTracer._slow, f = col / pi, or the
+#: compiled GENERIC BSDF.
+SLOW, LAMBERT_SPLAT, GENERIC_SPLAT = 0, 1, 2
+
+
+class SplatMaterials(NamedTuple):
+    """Per-material data of :func:`splat_fast` (M materials, L lobe slots):
+    kind (M,) int8 (SLOW, LAMBERT_SPLAT, GENERIC_SPLAT); col (M, 3) the
+    Lambert colour (materials.fast.FastMaterials.col); lobes (M', L,
+    N_FIELDS), tables (N_TABLES,) the compiled BSDF, colors (M', L, 3) and
+    p (M', L) its SelectionTable's lobe colours and probabilities
+    (FastMaterials.cm, .sel: 1-material placeholders when no material is
+    GENERIC_SPLAT)."""
+    kind: np.ndarray
+    col: np.ndarray
+    lobes: np.ndarray
+    tables: np.ndarray
+    colors: np.ndarray
+    p: np.ndarray
+
+
+def splat_materials(scene, mtab, fmat) -> SplatMaterials:
+    """The SplatMaterials of a scene: LAMBERT as :func:`fast_materials`,
+    GENERIC_SPLAT the materials the photon tracer samples compiled
+    (FastMaterials.compiled: untextured, no Bump) whose shading normal is
+    the interpolated one."""
+    M = fmat.cls.shape[0]
+    bent = _bent(scene, mtab, M)
+    kind = np.where(fast_materials(scene, mtab, fmat), LAMBERT_SPLAT, SLOW)
+    if fmat.compiled is not None:
+        kind = np.where(np.asarray(fmat.compiled, bool) & ~bent, GENERIC_SPLAT, kind)
+    c = np.ascontiguousarray
+    return SplatMaterials(kind=c(kind, np.int8), col=c(fmat.col, np.float64),
+                          lobes=c(fmat.cm.lobes, np.float64), tables=c(fmat.cm.tables, np.float64),
+                          colors=c(fmat.sel.colors, np.float64), p=c(fmat.sel.p, np.float64))
 
 
 class Connections(NamedTuple):
@@ -279,28 +326,31 @@ class SplatInputs(NamedTuple):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def splat_fast(con, n, tr, vin, tri_n, tri_ng, tri_mat, fast, col, mis, cam, width,
-               film, slow):
+def splat_fast(con, n, tr, vin, tri_n, tri_ng, tri_mat, sm, mis, cam, width, film, slow):
     """Splat the unoccluded connections 0..n-1 (tr (n, 3): their
     transmittance to the lens, core.lights.shadow; 0 = blocked) of
-    vertices on materials with fast[m] (LAMBERT: f = col[m] / pi where the
-    shading normal, flipped to the lens side of ng, faces wi) into film
-    (H*W, 3): beta f |ng.wc| min(|ns.wi| / |ng.wi|, SHADING_CAP) weight,
-    times the power-heuristic weight 1 / (1 + (B0 pf c_1)^2 + (B1 pf c_1)^2)
-    when mis (combined.splat_weight: pf the diffuse density of wi seen from
-    the lens side, c_1 = |ng.wc| weight; soft: no B0 term; first: B1
-    without pf).  Non-finite contributions are dropped (LightTracer._splat).
-    The indices of the other unoccluded connections go to slow; returns
-    their number."""
+    vertices on materials the SplatMaterials sm evaluate (LAMBERT_SPLAT:
+    f = col[m] / pi where the shading normal, flipped to the lens side of
+    ng, faces wi; GENERIC_SPLAT: Cycles' f(view = wc, light = wi) by
+    ``compiled.eval_pair``) into film (H*W, 3): beta f |ng.wc|
+    min(|ns.wi| / |ng.wi|, SHADING_CAP) weight, times the power-heuristic
+    weight 1 / (1 + (B0 pf c_1)^2 + (B1 pf c_1)^2) when mis
+    (combined.splat_weight: pf the density of sampling wi from wc, the
+    diffuse one or ``compiled.pdf_oriented``, c_1 = |ng.wc| weight; soft:
+    no B0 term; first: B1 without pf).  Non-finite contributions are
+    dropped (LightTracer._splat).  The indices of the other unoccluded
+    connections go to slow; returns their number."""
     ns_ = 0
     fx = np.empty(2 * (int(2.0 * max(width, 0.5)) + 3))     # _splat_one's scratch
+    kinds, col, lobes, T, cols, sp = sm.kind, sm.col, sm.lobes, sm.tables, sm.colors, sm.p
     for c in range(n):
         if tr[c, 0] == 0.0 and tr[c, 1] == 0.0 and tr[c, 2] == 0.0:
             continue
         k = con.row[c]
         t = int(vin.bary[k, 0])
         m = tri_mat[t]
-        if not fast[m]:
+        kind = kinds[m]
+        if kind == SLOW:
             slow[ns_] = c
             ns_ += 1
             continue
@@ -310,17 +360,30 @@ def splat_fast(con, n, tr, vin, tri_n, tri_ng, tri_mat, fast, col, mis, cam, wid
         sx, sy, sz = shading_normal(tri_n, t, 1.0 - uu - vv, uu, vv, gx, gy, gz)
         ox, oy, oz = con.wc[c, 0], con.wc[c, 1], con.wc[c, 2]
         ix, iy, iz = vin.wi[k, 0], vin.wi[k, 1], vin.wi[k, 2]
-        # materials.eval_bsdf (radiance mode, view = wc): normals to wc's side of ng.
-        sg = 1.0 if gx * ox + gy * oy + gz * oz >= 0.0 else -1.0
-        if sg * (sx * ix + sy * iy + sz * iz) <= 0.0:
-            continue
+        if kind == LAMBERT_SPLAT:
+            # materials.eval_bsdf (radiance mode, view = wc): normals to wc's side of ng.
+            sg = 1.0 if gx * ox + gy * oy + gz * oz >= 0.0 else -1.0
+            if sg * (sx * ix + sy * iy + sz * iz) <= 0.0:
+                continue
+            f0, f1, f2 = col[m, 0], col[m, 1], col[m, 2]
+            scale = _INV_PI
+        else:
+            f = eval_pair(lobes, T, m, cols, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, ix, iy, iz,
+                          False)
+            f0, f1, f2 = f[0], f[1], f[2]
+            if f0 == 0.0 and f1 == 0.0 and f2 == 0.0:
+                continue
+            scale = 1.0
         cg = abs(gx * ix + gy * iy + gz * iz)
         corr = abs(sx * ix + sy * iy + sz * iz) / cg if cg > 0.0 else 0.0
         corr = min(corr, SHADING_CAP)
         c1 = abs(gx * ox + gy * oy + gz * oz) * con.weight[c]
-        g = c1 * corr * _INV_PI
+        g = c1 * corr * scale
         if mis:
-            pf = lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz, ix, iy, iz)
+            if kind == LAMBERT_SPLAT:
+                pf = lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz, ix, iy, iz)
+            else:
+                pf = pdf_oriented(lobes, sp, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, ix, iy, iz)
             b0 = 0.0 if vin.soft[k] else vin.B0[k] * pf * c1
             b1 = vin.B1[k] * c1 * (1.0 if vin.first[k] else pf)
             den = 1.0 + b0 * b0 + b1 * b1
@@ -332,15 +395,14 @@ def splat_fast(con, n, tr, vin, tri_n, tri_ng, tri_mat, fast, col, mis, cam, wid
             if not np.isfinite(wl):
                 wl = 0.0
             g *= wl
-        c0 = col[m, 0] * vin.power[k, 0] * g * tr[c, 0]
-        c1_ = col[m, 1] * vin.power[k, 1] * g * tr[c, 1]
-        c2 = col[m, 2] * vin.power[k, 2] * g * tr[c, 2]
+        c0 = f0 * vin.power[k, 0] * g * tr[c, 0]
+        c1_ = f1 * vin.power[k, 1] * g * tr[c, 1]
+        c2 = f2 * vin.power[k, 2] * g * tr[c, 2]
         if not (np.isfinite(c0) and np.isfinite(c1_) and np.isfinite(c2)):
             continue
         _splat_one(con.raster[c, 0], con.raster[c, 1], c0, c1_, c2, cam.x0, cam.y0, cam.W,
                    cam.H, width, film, fx)
     return ns_
-
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

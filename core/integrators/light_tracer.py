@@ -142,7 +142,10 @@ class LightTracer:
         self.fast_emission = PK.fast_emission_ok(t)
         self.cam_params = LK.camera_params(camera, self.x0, self.y0, self.W, self.H,
                                            self.filter_width)
+        # LAMBERT without Normal Map / Bump (combined.covered_materials), and
+        # what the splat kernel evaluates: those and the compiled GENERIC ones.
         self.fast_mat = LK.fast_materials(scene, mtab, self.tracer.fmat)
+        self.splat_mat = LK.splat_materials(scene, mtab, self.tracer.fmat)
         # The GENERIC materials, whose connections _slow evaluates compiled.
         self.generic = self.tracer.fmat.cls == GENERIC
         self.rays = 0
@@ -230,8 +233,9 @@ class LightTracer:
         (unit, back towards the light), power (K, 3), bary (K, 3) (prim, u,
         v)) into film (H*W, 3): one lens sample each, the projection and the
         shadow rays compiled (light_kernels.project_kernel), the shadow rays
-        (:meth:`_transmittance`), the splat compiled on LAMBERT materials
-        (light_kernels.splat_fast) and in numpy on the others (:meth:`_slow`).
+        (:meth:`_transmittance`), the splat compiled on LAMBERT and
+        untextured GENERIC materials (light_kernels.splat_fast, ``splat_mat``)
+        and by :meth:`_slow` on the others (textures, Normal Map / Bump).
         mis: None, or (B0, B1, first, soft) (K,) of integrator 'COMBINED'
         (combined.splat_weight), optionally followed by mR2 (P,) (merging as
         an MIS strategy: SplatInputs.mR2)."""
@@ -248,9 +252,8 @@ class LightTracer:
                              *(mis[4:] if mis is not None else ()))
         tris = self.tracer.tris
         slow = np.empty(nc, np.int64)
-        ns = LK.splat_fast(con, nc, tr, vin, tris.n, tris.ng, tris.mat, self.fast_mat,
-                           self.tracer.fmat.col, mis is not None, self.cam_params,
-                           self.filter_width, film, slow)
+        ns = LK.splat_fast(con, nc, tr, vin, tris.n, tris.ng, tris.mat, self.splat_mat,
+                           mis is not None, self.cam_params, self.filter_width, film, slow)
         if ns:
             self._slow(con, slow[:ns], tr, vin, mis is not None, film)
 
