@@ -658,6 +658,61 @@ def append_survivors(j0, sel, gen_p, gen_ng, wo, wgt, gen_pow, rel, floor, live)
             pw[j, c] = gen_pow[g, c] * wgt[g, c]
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def generic_survivors(j0, g, gen, u, roulette, lum, rel, floor, live, record, nxt_src,
+                      nxt_delta):
+    """The survivors of the g GenericHits gen sampled by the bounce kernel
+    (every row's state SAMPLE_INVALID, SAMPLE_OK or SAMPLE_DELTA): a valid
+    sample with a finite positive weight that survives roulette on the
+    weight's luminance lum (g,) (u (K, 4) the batch's uniforms, column 3 at
+    the hit's ray gen.i), appended in row order at rows j0.. of the
+    LiveState live (spawn offset as :func:`bounce_kernel`) and, when record,
+    their source ray and delta flag to nxt_src, nxt_delta.  Returns the new
+    number of live rows.  lum is numpy's ``wgt @ LUMINANCE``, as the generic
+    path computed it before this loop was compiled: its dot product's order
+    differs from the fast path's sum in the last bit of 15 % of the rows,
+    and the pinned photon digests of tests/test_photon_trace_pins.py keep
+    their bits on every CPU."""
+    o32, d32, d64, pw = live.o32, live.d32, live.d64, live.power
+    out, wgt, state = gen.out, gen.wgt, gen.state
+    j = j0
+    for k in range(g):
+        st = state[k]
+        if st < SAMPLE_OK:
+            continue
+        w0, w1, w2 = wgt[k, 0], wgt[k, 1], wgt[k, 2]
+        if not (np.isfinite(w0) and np.isfinite(w1) and np.isfinite(w2)
+                and max(w0, w1, w2) > 0.0):
+            continue
+        i = gen.i[k]
+        if roulette:
+            q = min(max(lum[k], 0.0), 1.0)
+            if not u[i, 3] < q:
+                continue
+            qq = max(q, 1e-12)
+            w0 /= qq
+            w1 /= qq
+            w2 /= qq
+        px, py, pz = gen.p[k, 0], gen.p[k, 1], gen.p[k, 2]
+        gx, gy, gz = gen.ng[k, 0], gen.ng[k, 1], gen.ng[k, 2]
+        ox, oy, oz = out[k, 0], out[k, 1], out[k, 2]
+        side = 1.0 if gx * ox + gy * oy + gz * oz >= 0.0 else -1.0
+        sc = side * _offset_scale(px, py, pz, rel, floor)
+        o32[j, 0] = px + gx * sc
+        o32[j, 1] = py + gy * sc
+        o32[j, 2] = pz + gz * sc
+        d32[j, 0], d32[j, 1], d32[j, 2] = ox, oy, oz
+        d64[j, 0], d64[j, 1], d64[j, 2] = ox, oy, oz
+        pw[j, 0] = gen.power[k, 0] * w0
+        pw[j, 1] = gen.power[k, 1] * w1
+        pw[j, 2] = gen.power[k, 2] * w2
+        if record:
+            nxt_src[j] = i
+            nxt_delta[j] = st == SAMPLE_DELTA
+        j += 1
+    return j
+
+
 # ----------------------------------------------------------------------------
 # Emission (lights.sample_photons for point, area and untextured mesh lights).
 

@@ -166,6 +166,8 @@ _NO_SPECTRUM = np.zeros(3)
 #: spectrum_at_hits' ``left`` without a deposit budget (not read): no (K,)
 #: array a bounce on the default path (freq_deposits = 0).
 _NO_BUDGET = np.ones(1, np.int32)
+# generic_survivors' record columns when nothing is recorded.
+_NO_SRC, _NO_DELTA, _NO_LUM = np.zeros(1, np.int64), np.zeros(1, bool), np.zeros(1)
 
 
 class _Deposits:
@@ -689,17 +691,26 @@ class PhotonTracer:
         the live state (and their source ray to rec, when recording).
         Returns the new number of live photons."""
         gi, gp, gng, gns, gwi, gpow, gbary = (x[:g] for x in gen[:7])
-        ug = u[gi]
         if compiled:
+            # The rows left to numpy are sampled into the kernel's columns,
+            # then one compiled loop keeps the survivors (the same tests and
+            # row order as below).
             st = gen.state[:g]
-            wo, wgt = gen.out[:g], gen.wgt[:g]
-            valid, is_delta = st >= PK.SAMPLE_OK, st == PK.SAMPLE_DELTA
             rows = np.nonzero(st == PK.SAMPLE_NUMPY)[0]
             if rows.size:
-                wo[rows], wgt[rows], valid[rows], is_delta[rows] = self._sample_numpy(
-                    rows.size, gns[rows], gng[rows], gwi[rows], gbary[rows], ug[rows])
-        else:
-            wo, wgt, valid, is_delta = self._sample_numpy(g, gns, gng, gwi, gbary, ug)
+                wo, wgt, valid, is_delta = self._sample_numpy(
+                    rows.size, gns[rows], gng[rows], gwi[rows], gbary[rows], u[gi[rows]])
+                gen.out[rows], gen.wgt[rows] = wo, wgt
+                st[rows] = np.where(valid, np.where(is_delta, PK.SAMPLE_DELTA, PK.SAMPLE_OK),
+                                    PK.SAMPLE_INVALID)
+            record = rec is not None
+            lum = gen.wgt[:g] @ LUM if roulette else _NO_LUM
+            return PK.generic_survivors(n_next, g, gen, u, roulette, lum, REL_OFFSET,
+                                        self.accel.abs_floor / REL_OFFSET, live, record,
+                                        rec.nxt_src if record else _NO_SRC,
+                                        rec.nxt_delta if record else _NO_DELTA)
+        ug = u[gi]
+        wo, wgt, valid, is_delta = self._sample_numpy(g, gns, gng, gwi, gbary, ug)
         ok = valid & np.all(np.isfinite(wgt), axis=1) & (wgt.max(axis=1) > 0)
         if roulette:
             q = np.clip(wgt @ LUM, 0.0, 1.0)
