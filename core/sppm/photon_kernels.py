@@ -636,26 +636,31 @@ def follow_rows(rows, k, src, n_fast, n_next, dsrc, dep0, dep1, out_rows, out_de
     return m, nd
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _append_row(live, j, px, py, pz, gx, gy, gz, ox, oy, oz, p0, p1, p2, rel, floor):
+    """Row j of the LiveState live: a ray from the point p spawned along the
+    normal g to the side of the unit direction o (offset as
+    :func:`bounce_kernel`), of power (p0, p1, p2)."""
+    side = 1.0 if gx * ox + gy * oy + gz * oz >= 0.0 else -1.0
+    sc = side * _offset_scale(px, py, pz, rel, floor)
+    live.o32[j, 0] = px + gx * sc
+    live.o32[j, 1] = py + gy * sc
+    live.o32[j, 2] = pz + gz * sc
+    live.d32[j, 0], live.d32[j, 1], live.d32[j, 2] = ox, oy, oz
+    live.d64[j, 0], live.d64[j, 1], live.d64[j, 2] = ox, oy, oz
+    live.power[j, 0], live.power[j, 1], live.power[j, 2] = p0, p1, p2
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def append_survivors(j0, sel, gen_p, gen_ng, wo, wgt, gen_pow, rel, floor, live):
     """Append generic-path survivors sel (s,) at rows j0.. of the LiveState
     live (spawn offset as :func:`bounce_kernel`)."""
-    o32, d32, d64, pw = live.o32, live.d32, live.d64, live.power
     for k in range(sel.shape[0]):
         g = sel[k]
-        j = j0 + k
-        px, py, pz = gen_p[g, 0], gen_p[g, 1], gen_p[g, 2]
-        gx, gy, gz = gen_ng[g, 0], gen_ng[g, 1], gen_ng[g, 2]
-        ox, oy, oz = wo[g, 0], wo[g, 1], wo[g, 2]
-        side = 1.0 if gx * ox + gy * oy + gz * oz >= 0.0 else -1.0
-        sc = side * _offset_scale(px, py, pz, rel, floor)
-        o32[j, 0] = px + gx * sc
-        o32[j, 1] = py + gy * sc
-        o32[j, 2] = pz + gz * sc
-        for c in range(3):
-            d32[j, c] = wo[g, c]
-            d64[j, c] = wo[g, c]
-            pw[j, c] = gen_pow[g, c] * wgt[g, c]
+        _append_row(live, j0 + k, gen_p[g, 0], gen_p[g, 1], gen_p[g, 2], gen_ng[g, 0],
+                    gen_ng[g, 1], gen_ng[g, 2], wo[g, 0], wo[g, 1], wo[g, 2],
+                    gen_pow[g, 0] * wgt[g, 0], gen_pow[g, 1] * wgt[g, 1],
+                    gen_pow[g, 2] * wgt[g, 2], rel, floor)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -673,8 +678,7 @@ def generic_survivors(j0, g, gen, u, roulette, lum, rel, floor, live, record, nx
     differs from the fast path's sum in the last bit of 15 % of the rows,
     and the pinned photon digests of tests/test_photon_trace_pins.py keep
     their bits on every CPU."""
-    o32, d32, d64, pw = live.o32, live.d32, live.d64, live.power
-    out, wgt, state = gen.out, gen.wgt, gen.state
+    out, wgt, state, pw = gen.out, gen.wgt, gen.state, gen.power
     j = j0
     for k in range(g):
         st = state[k]
@@ -693,19 +697,9 @@ def generic_survivors(j0, g, gen, u, roulette, lum, rel, floor, live, record, nx
             w0 /= qq
             w1 /= qq
             w2 /= qq
-        px, py, pz = gen.p[k, 0], gen.p[k, 1], gen.p[k, 2]
-        gx, gy, gz = gen.ng[k, 0], gen.ng[k, 1], gen.ng[k, 2]
-        ox, oy, oz = out[k, 0], out[k, 1], out[k, 2]
-        side = 1.0 if gx * ox + gy * oy + gz * oz >= 0.0 else -1.0
-        sc = side * _offset_scale(px, py, pz, rel, floor)
-        o32[j, 0] = px + gx * sc
-        o32[j, 1] = py + gy * sc
-        o32[j, 2] = pz + gz * sc
-        d32[j, 0], d32[j, 1], d32[j, 2] = ox, oy, oz
-        d64[j, 0], d64[j, 1], d64[j, 2] = ox, oy, oz
-        pw[j, 0] = gen.power[k, 0] * w0
-        pw[j, 1] = gen.power[k, 1] * w1
-        pw[j, 2] = gen.power[k, 2] * w2
+        _append_row(live, j, gen.p[k, 0], gen.p[k, 1], gen.p[k, 2], gen.ng[k, 0],
+                    gen.ng[k, 1], gen.ng[k, 2], out[k, 0], out[k, 1], out[k, 2],
+                    pw[k, 0] * w0, pw[k, 1] * w1, pw[k, 2] * w2, rel, floor)
         if record:
             nxt_src[j] = i
             nxt_delta[j] = st == SAMPLE_DELTA
