@@ -197,3 +197,33 @@ def test_compiled_sampling_without_its_sample_columns_is_refused(monkeypatch):
     r = Renderer(_scene(glossy=True), st, log=lambda _m: None)
     with pytest.raises(ValueError, match="sample columns"):
         r.combined_lt.trace_pass(2000, np.random.default_rng(7), lambda: None)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 7, 8, 9, 16, 40])
+@pytest.mark.parametrize("square", [True, False])
+def test_stratified_cells_are_the_stable_order_of_the_keys(n, square):
+    """path_kernels.stratify_pair (path_tracer.stratified's placement) equals
+    the numpy expressions with a stable argsort of each pixel's keys, ties
+    included (keys on a grid of thirds) up to 32 samples: the rank by
+    counting (n <= RANK_MAX) and the insertion sort give one order; numpy's
+    sort beyond (distinct keys)."""
+    from core.integrators import path_kernels as PKp
+    rng = np.random.default_rng(n)
+    B = 700
+    keys = np.floor(rng.random((n, B)) * 3) / 3
+    if n > 32:
+        keys = rng.random((n, B))        # numpy's sort there: not stable on ties
+    keys2 = rng.random((n, B)) if not square else keys
+    j = rng.random((n, B, 2))
+    m = int(round(np.sqrt(n)))
+    m = m if square and m * m == n else 0
+    out = np.full((n, B, 4), np.nan)
+    PKp.stratify_pair(keys, j, keys2, m, out, 1)
+    perm = np.argsort(keys, axis=0, kind="stable")
+    if m:
+        ref0, ref1 = (perm % m + j[..., 0]) / m, (perm // m + j[..., 1]) / m
+    else:
+        perm2 = np.argsort(keys2, axis=0, kind="stable")
+        ref0, ref1 = (perm + j[..., 0]) / n, (perm2 + j[..., 1]) / n
+    np.testing.assert_array_equal(out[..., 2], ref0)
+    np.testing.assert_array_equal(out[..., 3], ref1)

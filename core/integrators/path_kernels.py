@@ -465,6 +465,10 @@ def continue_kernel(M, mat, p, ng, ns, wo, beta, u, roulette, rel, floor, nx):
     return n
 
 
+#: Up to this many samples a pixel, _column_order ranks the keys by counting.
+RANK_MAX = 8
+
+
 @njit(cache=True, inline="always")
 def _column_order(keys, b, perm):
     """perm[s] = the row of the s-th smallest keys[:, b] (np.argsort of the
@@ -473,6 +477,20 @@ def _column_order(keys, b, perm):
     n = keys.shape[0]
     if n > 32:
         perm[:] = np.argsort(keys[:, b])
+        return
+    if n <= RANK_MAX:
+        # Each key's rank, counted without a branch (random keys make an
+        # insertion sort's comparisons unpredictable): the keys before it
+        # that are <= it and those after it that are <, so equal keys keep
+        # their order as the insertion sort below keeps it (the same perm).
+        for a in range(n):
+            ka = keys[a, b]
+            r = 0
+            for c in range(a):
+                r += keys[c, b] <= ka
+            for c in range(a + 1, n):
+                r += keys[c, b] < ka
+            perm[r] = a
         return
     for a in range(n):
         x = a
@@ -508,6 +526,22 @@ def stratify_pair(keys, j, keys2, m, out, i):
             for s in range(n):
                 out[s, b, 2 * i] = (perm[s] + j[s, b, 0]) / n
                 out[s, b, 2 * i + 1] = (perm2[s] + j[s, b, 1]) / n
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def add_emission(out, path, idx, beta, Le, w):
+    """out[path[i]] += beta[i] * Le[k] * w[k] for the rays i = idx[k] (k,)
+    that found emission Le (k, 3), or (1, 3): one radiance for all (the
+    world); the numpy expression ``out[path[idx]] += beta[idx] * Le *
+    w[:, None]`` in one pass, its operations in its order (bit for bit; a
+    path is one row of out)."""
+    one = Le.shape[0] == 1
+    for k in range(idx.shape[0]):
+        i = idx[k]
+        r = path[i]
+        q = 0 if one else k
+        for c in range(3):
+            out[r, c] += beta[i, c] * Le[q, c] * w[k]
 
 
 def alloc_next(K: int) -> NextRays:

@@ -388,25 +388,30 @@ class PathTracer:
                     continue
                 Le, row, t = Lt.emitted_along_rays(lt, o[sel], d[sel], t_end[sel], name,
                                                    return_hit=True)
-                t = t + t_acc[sel]
-                w = self._mis_bsdf(pdf_prev[sel], p_prev[sel], n_prev[sel], d[sel], row, t)
+                # Only the rays that found an emitter add light (the others
+                # added 0: the same sums), and their weights are per ray.
+                f = np.nonzero(row >= 0)[0]
+                if f.size == 0:
+                    continue
+                sel, Le, row, t = sel[f], Le[f], row[f], t[f] + t_acc[sel[f]]
+                w = self._mis_bsdf(pdf_prev, p_prev, n_prev, d, row, t, rows=sel)
                 if vc is not None:
                     w = vc.emission(w, sel, row, d, t, None, first, Qs, pf, pdf_prev, vprev,
                                     None if mg is None else np.where(mg.em, mg.Qs, 0.0))
                 if part is not None:
                     w = w * part.weight(sel)
-                out[path[sel]] += beta[sel] * Le * w[:, None]
+                PK.add_emission(out, path, sel, beta, Le, w)
             miss = np.nonzero(~h.hit)[0]
             if self.transparent:
                 # ``first``: only transparent crossings since the lens.
                 miss = miss[~first[miss]]
             if miss.size and np.any(self.world > 0):
                 row = np.full(miss.size, self.world_row, np.int64)
-                w = self._mis_bsdf(pdf_prev[miss], p_prev[miss], n_prev[miss], d[miss], row,
-                                   np.full(miss.size, np.inf))
+                w = self._mis_bsdf(pdf_prev, p_prev, n_prev, d, row,
+                                   np.full(miss.size, np.inf), rows=miss)
                 if part is not None:
                     w = w * part.weight(miss)
-                out[path[miss]] += beta[miss] * self.world[None, :] * w[:, None]
+                PK.add_emission(out, path, miss, beta, self.world[None, :], w)
             ih = np.nonzero(h.hit)[0]
             if ih.size == 0:
                 break
@@ -423,15 +428,15 @@ class PathTracer:
             if em.size:
                 Le = B.emission_radiance(mtab, mat[em], uv[em])
                 e = ih[em]
-                w = self._mis_bsdf(pdf_prev[e], p_prev[e], n_prev[e], d[e],
-                                   self.tri_light[prim[em]], h.t[e] + t_acc[e])
+                w = self._mis_bsdf(pdf_prev, p_prev, n_prev, d, self.tri_light[prim[em]],
+                                   h.t[e] + t_acc[e], rows=e)
                 if vc is not None:
                     w = vc.emission(w, e, self.tri_light[prim[em]], d, h.t[e] + t_acc[e],
                                     ng[em], first, Qs, pf, pdf_prev, vprev,
                                     None if mg is None else np.where(mg.em, mg.Qs, 0.0))
                 if part is not None:
                     w = w * part.weight(e)
-                out[path[e]] += beta[e] * Le * w[:, None]
+                PK.add_emission(out, path, e, beta, np.ascontiguousarray(Le, np.float64), w)
             stop = self.camera_stop
             if stop is not None and depth <= stop.depth:
                 # COMBINED: light tracing alone takes the longer paths
@@ -551,15 +556,20 @@ class PathTracer:
             path = v.path[c]
         return out
 
-    def _mis_bsdf(self, pdf_bsdf, p_prev, n_prev, wi, light, dist) -> np.ndarray:
+    def _mis_bsdf(self, pdf_bsdf, p_prev, n_prev, wi, light, dist, rows=None) -> np.ndarray:
         """(K,) power-heuristic weight of emission reached by BSDF sampling:
         1 after the camera or a delta sample (pdf_bsdf = 0), else against the
-        density of the light sample taken at the previous vertex."""
-        w = np.ones(pdf_bsdf.shape[0])
-        m = np.nonzero((pdf_bsdf > 0) & (light >= 0))[0]
+        density of the light sample taken at the previous vertex.  rows (K,):
+        pdf_bsdf, p_prev, n_prev, wi are every ray's and rows the K rays
+        (light, dist per ray of rows), so that only the rays with a density
+        are gathered; None: all four are the K rays'."""
+        pb = pdf_bsdf if rows is None else pdf_bsdf[rows]
+        w = np.ones(pb.shape[0])
+        m = np.nonzero((pb > 0) & (light >= 0))[0]
         if m.size:
-            pl = self.pdf_light(p_prev[m], wi[m], light[m], dist[m], n_prev[m])
-            w[m] = power_heuristic(pdf_bsdf[m], pl)
+            r = m if rows is None else rows[m]
+            pl = self.pdf_light(p_prev[r], wi[r], light[m], dist[m], n_prev[r])
+            w[m] = power_heuristic(pb[m], pl)
         return w
 
     def pdf_light(self, p, wi, light, dist, n) -> np.ndarray:
