@@ -59,7 +59,8 @@ from .. import lights as Lt
 from .. import materials as B
 from ..materials import compiled as C
 from ..materials.fast import GENERIC, build_fast_materials
-from ..lights import shadow as Sh
+from ..lights import seen as Seen, shadow as Sh
+from ..lights.seen import VISIBILITY
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..mathutil import dot as _dot
 from . import path_kernels as PK
@@ -76,7 +77,7 @@ PATH_CHUNK = 1 << 16
 PATH_SPLIT_MIN = 1 << 14
 
 # Visibility flag of the ray that left a vertex (core.lights.seen names).
-_VIS = ("camera", "glossy", "transmission")
+_VIS = VISIBILITY
 
 
 def power_heuristic(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:
@@ -214,6 +215,7 @@ class PathTracer:
         # materials' classes, built on first use.
         self._radiance = None
         self._fmat = None
+        self._flags = None          # seen.visibility_flags, built on first use
 
     def fast_materials(self):
         """The materials' ``materials.fast.FastMaterials`` (the kernels' and the
@@ -324,10 +326,13 @@ class PathTracer:
     def _prepare(self) -> None:
         """Build what the blocks read before two threads share them: the
         kernels' tables, the compiled calls' materials, COMBINED's emitter
-        arrays (each otherwise built on first use)."""
+        arrays, the emitters' visibility flags (each otherwise built on first
+        use)."""
         kern = self.kernels()
         if self.compiled:
             self._radiance_rows()
+        if kern and self._flags is None:
+            self._flags = Seen.visibility_flags(self.lights)
         if kern and self.vc is not None:
             _ = self.vc.mis_lights      # built here, read by both threads
 
@@ -382,12 +387,7 @@ class PathTracer:
             h = accel.intersect(o, d, tmax)
             t_end = np.minimum(np.where(h.hit, h.t, np.inf), tmax)
             # Analytic emitters before the hit, per ray type's visibility flag.
-            for code, name in enumerate(_VIS):
-                sel = np.nonzero(vis == code)[0]
-                if sel.size == 0:
-                    continue
-                Le, row, t = Lt.emitted_along_rays(lt, o[sel], d[sel], t_end[sel], name,
-                                                   return_hit=True)
+            for sel, Le, row, t in self._seen(kern, vis, o, d, t_end):
                 # Only the rays that found an emitter add light (the others
                 # added 0: the same sums), and their weights are per ray.
                 f = np.nonzero(row >= 0)[0]
@@ -554,6 +554,29 @@ class PathTracer:
             for a, b in zip((pdf_prev, p_prev, n_prev, vis, t_acc), prev):
                 a[x] = b[x]
             path = v.path[c]
+        return out
+
+    def _seen(self, kern, vis, o, d, t_end):
+        """The analytic emitters the rays (o, d (K, 3), visibility codes vis
+        (K,) int8: ``_VIS``) hit before t_end (K,): (rays (k,), Le (k, 3),
+        emitter row (k,) (-1 none), distance (k,)) per group of rays --
+        one group by ``seen.seen_kernel`` in the kernels' scope, else one
+        per visibility code (``lights.emitted_along_rays``)."""
+        lt = self.lights
+        if kern:
+            if self._flags is None:
+                self._flags = Seen.visibility_flags(lt)
+            K = vis.shape[0]
+            Le, row, t = np.empty((K, 3)), np.empty(K, np.int64), np.empty(K)
+            idx = np.arange(K)
+            Seen.seen_kernel(kern[0], self._flags, vis, o, d, t_end, idx, Le, row, t)
+            return [(idx, Le, row, t)]
+        out = []
+        for code, name in enumerate(_VIS):
+            sel = np.nonzero(vis == code)[0]
+            if sel.size:
+                out.append((sel, *Lt.emitted_along_rays(lt, o[sel], d[sel], t_end[sel], name,
+                                                        return_hit=True)))
         return out
 
     def _mis_bsdf(self, pdf_bsdf, p_prev, n_prev, wi, light, dist, rows=None) -> np.ndarray:
