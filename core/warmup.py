@@ -123,7 +123,7 @@ def _translate(x, y, z):
 
 
 def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
-                 glossy: bool = True):
+                 glossy: bool = True, environment: bool = False):
     """A synthetic scene of the warm-up (``core.scene.model.Scene``), res x res px.
 
     A closed 4 x 4 x 2 m room (so that nearly every photon is deposited, and a
@@ -133,7 +133,8 @@ def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
     ``core.scene.model.Light``; POINT and AREA photons are emitted by the
     compiled sampler, SPOT and SUN by the numpy one).  glossy=False makes the
     rough glossy wall diffuse (a Lambert-only room: the small jobs of
-    tests/test_warmup.py).
+    tests/test_warmup.py).  environment=True adds a small environment map
+    to the world (its photons' compiled emission, lights.environment).
     """
     mats = [Material("diffuse", (Lobe(DIFFUSE, (0.8, 0.8, 0.8)),)),
             Material("glossy", (Lobe(GLOSSY, (0.8, 0.6, 0.4), roughness=0.3),
@@ -159,7 +160,11 @@ def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
                     at[k], radius=0.05, size=0.4) for k in analytic_lights]
     cam = Camera(kind="PERSP", matrix_world=_look_at((0.0, -1.9, 1.2), (0.0, 0.3, 0.4)),
                  lens=20.0, resolution=(res, res), clip_start=0.01, clip_end=100.0)
-    return make_scene(tris, mats, lights, cam, tri_mat=tri_mat)
+    sc = make_scene(tris, mats, lights, cam, tri_mat=tri_mat)
+    if environment:
+        from .scene.textures import EnvironmentMap
+        sc.world_map = EnvironmentMap(np.full((4, 8, 4), 0.2, np.float32))
+    return sc
 
 
 def warmup_jobs() -> list:
@@ -168,7 +173,8 @@ def warmup_jobs() -> list:
     The second gathers enough photons for the gather's parallel path
     (``hashgrid.PARALLEL_MIN_PHOTONS``), every one a frequency photon so that
     the QUANTILE estimator's pair search takes it too; the third covers the
-    classic-PPM options and the numpy-sampled light kinds.
+    classic-PPM options, the numpy-sampled light kinds and an environment
+    map's photons.
     """
     # frequency_start 1: the one pass traces frequency photons (with the default
     # start, 2, pass 1 traces none and their kernels would compile in the render)
@@ -180,7 +186,7 @@ def warmup_jobs() -> list:
                                 frequency_estimator="QUANTILE", frequency_model="PAPER",
                                 aov_radius=True, aov_predicted_radius=True, aov_spectrum=True,
                                 aov_photon_count=True, aov_held=True, radius_mode="WORLD")),
-            (warmup_scene(analytic_lights=("SPOT", "SUN")),
+            (warmup_scene(analytic_lights=("SPOT", "SUN"), environment=True),
              base.replace(use_frequency=False, photons_for_direct=True,
                           fixed_visible_points=True, cap_radius_at_edges=False)),
             # The compiled camera paths and the combined integrator's kernels

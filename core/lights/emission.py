@@ -23,6 +23,7 @@ import numpy as np
 
 from ..mathutil import frame
 
+from .environment import world_photons
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _mesh_emission, _smoothstep
 from .warps import (_cone_local, _cosine_local, _to_world, _triangle_bary, _uniform_sphere,
                     _unit_disk)
@@ -31,6 +32,9 @@ from .warps import (_cone_local, _cosine_local, _to_world, _triangle_bary, _unif
 # Angular variance of a cosine-weighted diffuse lobe, pi^2/4 - 2 = 0.467 rad^2
 # (docs/frequency.md "Lobe widths"): the angular init of every non-collimated light.
 B_DIFFUSE = np.pi ** 2 / 4.0 - 2.0
+#: An environment map's photons emitted by environment.world_photons (off:
+#: the numpy reference below; tests).
+COMPILED_ENVIRONMENT = True
 
 
 def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
@@ -155,17 +159,24 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
         if env is None:
             w = _uniform_sphere(u[m, 3], u[m, 4])
             power[m] = table.flux[jj] * inv_p[m, None]
-        else:
+        elif not COMPILED_ENVIRONMENT:
             # Towards the map by its distribution: the photon travels along
             # -omega and carries pi R^2 L(omega) / pdf(omega).
             omega, pdf = env.sample(u[m, 3], u[m, 4])
             w = -omega
             Lw = env.radiance(omega) * (np.pi * R * R / np.maximum(pdf, 1e-300))[:, None]
             power[m] = np.where((pdf > 0)[:, None], Lw, 0.0) * inv_p[m, None]
-        x, y = _unit_disk(u[m, 1], u[m, 2])
-        t1, t2 = frame(w)
-        o[m] = table.center - R * w + R * (x[:, None] * t1 + y[:, None] * t2)
-        d[m] = w
+        if env is None or not COMPILED_ENVIRONMENT:
+            x, y = _unit_disk(u[m, 1], u[m, 2])
+            t1, t2 = frame(w)
+            o[m] = table.center - R * w + R * (x[:, None] * t1 + y[:, None] * t2)
+            d[m] = w
+        else:
+            # The same photons, each in one compiled step (the numpy lines
+            # above are its reference).
+            world_photons(env.kernel_data(), u, m, float(R),
+                          np.ascontiguousarray(table.center, np.float64),
+                          np.ascontiguousarray(inv_p[m]), o, d, power)
         freq[m] = (table.a_max, B_DIFFUSE, 0.0)
 
     m = np.nonzero(kind == MESH)[0]
