@@ -133,7 +133,7 @@ def test_compiled_radiance_sample_and_pdf_equal_numpy():
     np.testing.assert_allclose(p, p_r, rtol=RTOL, atol=ATOL)
 
 
-@pytest.mark.parametrize("textured", [False, True])
+@pytest.mark.parametrize("textured", [False, True, "bumped"])
 def test_tracer_same_deposits_with_and_without_compiled_sampling(monkeypatch, textured):
     """The photon tracer with the compiled generic path (default) and with
     COMPILED_SAMPLING off (numpy sample_bsdf): the same photon paths (order,
@@ -141,19 +141,37 @@ def test_tracer_same_deposits_with_and_without_compiled_sampling(monkeypatch, te
     (measured: 118 of 34222 deposits' powers 1-2 ulps off, from Oren-Nayar's
     acos; since the compiled disk's sine and cosine, compiled.sincos_quarter,
     directions 6.4e-15 and powers 1.7e-13 relative at most).  textured: the
-    GGX wall textured (numpy-sampled rows among the kernel's in one block)."""
+    GGX wall textured (numpy-sampled rows among the kernel's in one block).
+    "bumped": the GGX and Oren-Nayar walls flagged Normal Map / Bump
+    (MaterialTable.bump_correction): sampled by the kernel
+    (FastMaterials.sampled) though not ``compiled``, as numpy's importance
+    mode samples them: without the normal corrections (the valid specular
+    normal, the diffuse lobe's bump shadowing)."""
     from test_photon_kernels import _tracer, glass_mirror
     out = []
     for flag in (False, True):
         monkeypatch.setattr(FM, "COMPILED_SAMPLING", flag)
         sc = glass_mirror()
-        if textured:
+        if textured is True:
             sc.textures = [np.full((2, 2, 3), 0.9, np.float32)]
             sc.materials[3] = Material("ggx_tex", (Lobe(GLOSSY, (0.7, 0.7, 0.7), roughness=0.4,
                                                         color_texture=0),))
+        if textured == "bumped":
+            # tilted shading normals: the corrections would change the samples
+            n = sc.tri_n + 0.3 * np.random.default_rng(5).normal(size=sc.tri_n.shape)
+            sc.tri_n = n / np.linalg.norm(n, axis=2, keepdims=True)
         tr = _tracer(sc)
-        assert tr.fmat.any_compiled == flag
-        assert list(np.nonzero(tr.fmat.compiled)[0]) == ([4] if textured else [3, 4]) * flag
+        if textured == "bumped":
+            import dataclasses
+            tr.mtab = dataclasses.replace(tr.mtab, bump_correction=np.isin(
+                np.arange(tr.mtab.kind.shape[0]), (3, 4)))
+            tr.fmat = FM.build_fast_materials(tr.mtab)
+            assert not flag or np.all(tr.fmat.cm.lobes[3:5, 0, C.F_BUMP] == 1.0)
+            assert list(np.nonzero(tr.fmat.sampled)[0]) == [3, 4] * flag
+            assert not tr.fmat.any_compiled
+        else:
+            assert tr.fmat.any_compiled == flag
+            assert list(np.nonzero(tr.fmat.compiled)[0]) == ([4] if textured else [3, 4]) * flag
         out.append(tr.trace(20_000, 0, np.random.default_rng(17)))
     a, b = out
     assert a["p"].shape[0] > 20_000

@@ -702,7 +702,7 @@ class CombinedLightTracer(LightTracer):
         generic = tr.fmat.any_generic
         # The GENERIC materials the bounce kernel samples itself (importance
         # mode, core.materials.compiled.sample_pair), the rest in numpy.
-        comp = tr.fmat.any_compiled
+        comp = tr.fmat.any_sampled
         cg = n if generic else 1
         gen = PK.generic_hits(cg, comp)
         rec = PK.HitRecord(t=np.empty(1), ng=np.empty((1, 3)), nswi=np.empty(1),

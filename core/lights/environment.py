@@ -34,7 +34,7 @@ from typing import NamedTuple, Optional
 import numpy as np
 from numba import njit
 
-from ..mathutil import frame
+from ..mathutil import upper_bound
 from ..scene.textures import (EnvironmentMap, UnassociatedImage, _as_image, bilinear_rgb,
                               environment_radiance, equirectangular_direction,
                               equirectangular_uv)
@@ -240,20 +240,6 @@ def _mat3(M, x, y, z):
             M[2, 0] * x + M[2, 1] * y + M[2, 2] * z)
 
 
-@njit(cache=True, inline="always")
-def _upper_bound(a, x):
-    """np.searchsorted(a, x, side='right') of one x in the sorted a: the
-    first index whose value is > x (a.size if none)."""
-    lo, hi = 0, a.shape[0]
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if a[mid] <= x:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def world_photons(E, u, rows, R, center, inv_p, o, d, power):
     """The photons rows (k,) of a batch whose emitter is the world's map
@@ -272,7 +258,7 @@ def world_photons(E, u, rows, R, center, inv_p, o, d, power):
     for q in range(rows.shape[0]):
         r = rows[q]
         x = u[r, 3] * E.total
-        k = min(_upper_bound(cdf, x), N - 1)
+        k = min(upper_bound(cdf, x), N - 1)
         wk = wt[k]
         if wk <= 0.0:
             k = E.last

@@ -406,7 +406,7 @@ def _valid_specular_normal(gx, gy, gz, ix, iy, iz, nx, ny, nz):
 # --------------------------------------------------------------------------
 # A material's non-delta BSDF at one pair
 # --------------------------------------------------------------------------
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def eval_pair(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz,
               want_smooth):
     """Cycles' f(view=v, light=l) of material m's non-delta lobes, radiance
@@ -416,10 +416,21 @@ def eval_pair(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz
     mesh normals in any orientation; v, l unit; all float64 scalars.
     s: with want_smooth, the same sum as ``Receivers.smooth`` evaluates it
     (the DIFFUSE / TRANSLUCENT lobes alone, the microfacet lobes left out),
-    else 0."""
+    else 0.  A Normal Map / Bump material (F_BUMP) gets Cycles' two
+    corrections (docs/shading.md): :func:`eval_pair_as`."""
+    return eval_pair_as(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz,
+                        lx, ly, lz, want_smooth, lobes[m, 0, F_BUMP] > 0.0)
+
+
+@njit(cache=True, error_model="numpy")
+def eval_pair_as(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz,
+                 want_smooth, bump):
+    """:func:`eval_pair` with the Normal Map / Bump corrections (the valid
+    specular normal, the diffuse lobes' bump shadowing) applied when bump:
+    off, it is closures._eval_nd without them, as the importance mode of
+    closures.sample_bsdf evaluates every material."""
     front = _dot3(ngx, ngy, ngz, vx, vy, vz) >= 0.0
     sg = 1.0 if front else -1.0
-    bump = lobes[m, 0, F_BUMP] > 0.0
     if bump:
         ax, ay, az = _valid_specular_normal(ngx * sg, ngy * sg, ngz * sg, vx, vy, vz,
                                             nsx * sg, nsy * sg, nsz * sg)
@@ -911,9 +922,11 @@ def sample_pair(lobes, T, colors, p, cdf, last, m, nsx, nsy, nsz, ngx, ngy, ngz,
             f = eval_pair(lobes, T, m, colors, m, nsx, nsy, nsz, ngx, ngy, ngz,
                           ox, oy, oz, wx, wy, wz, False)
         else:
-            # Importance mode: the adjoint f_C(view=wi, light=wo).
-            f = eval_pair(lobes, T, m, colors, m, nsx, nsy, nsz, ngx, ngy, ngz,
-                          wx, wy, wz, ox, oy, oz, False)
+            # Importance mode: the adjoint f_C(view=wi, light=wo), without the
+            # Normal Map / Bump corrections (closures.sample_bsdf applies them
+            # in radiance mode only).
+            f = eval_pair_as(lobes, T, m, colors, m, nsx, nsy, nsz, ngx, ngy, ngz,
+                             wx, wy, wz, ox, oy, oz, False, False)
         cs = abs(_dot3(nsx, nsy, nsz, wx, wy, wz)) / pdf
         w0, w1, w2 = f[0] * cs, f[1] * cs, f[2] * cs
     if radiance:

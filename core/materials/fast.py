@@ -13,12 +13,15 @@ and handed back to ``core.materials.sample_bsdf`` by the caller):
   no texture.  Reflect with probability F (exact dielectric Fresnel), weight
   C (/eta^2 on refraction, the importance-mode adjoint), x shading factor.
 
-A GENERIC material without textures and without Normal Map / Bump (e.g.
-Blender's default Principled BSDF) is flagged ``compiled``: the bounce
-kernel samples it with ``core.materials.compiled.sample_pair`` (every lobe
-kind, equal to ``sample_bsdf`` sample for sample) and hands the result back
-in the generic block (the numpy code only applies roulette), unless
-COMPILED_SAMPLING is off or the kernel follows MIS factors.
+A GENERIC material without textures (e.g. Blender's default Principled
+BSDF) is flagged ``sampled``: the bounce kernel samples it with
+``core.materials.compiled.sample_pair`` (importance mode, every lobe kind,
+equal to ``sample_bsdf`` sample for sample) and hands the result back in
+the generic block (``photon_kernels.generic_survivors`` keeps the
+survivors), unless COMPILED_SAMPLING is off.  Those without Normal Map /
+Bump are also ``compiled``: the camera paths, light tracing and Combined's
+densities evaluate them compiled, where Cycles' normal corrections would
+apply.
 
 The formulas are those of ``core.materials.closures`` (``_cos_hemisphere``,
 ``_frame``, ``fresnel_dielectric``, ``_refract``, ``_adjoint_correction``)
@@ -57,15 +60,22 @@ class FastMaterials(NamedTuple):
       the lobe's colour x weight.
     ior: (M,) float64 GLASS index of refraction.
     deposit: (M,) bool material has a non-delta lobe (photons are stored).
-    compiled: (M,) bool GENERIC material sampled by compiled.sample_pair.
-    cm, sel: its CompiledMaterials and SelectionTable (1-material
-      placeholders when no material is compiled).
+    compiled: (M,) bool GENERIC material sampled (both modes), evaluated and
+      weighed by core.materials.compiled: untextured, no Normal Map / Bump.
+    sampled: (M,) bool GENERIC material the bounce kernel samples by
+      compiled.sample_pair (importance mode): the compiled ones and the
+      untextured ones with a Normal Map / Bump, which importance sampling
+      treats as any other (closures.sample_bsdf corrects the normal in
+      radiance mode only; photons scatter off the interpolated normal).
+    cm, sel: their CompiledMaterials and SelectionTable (1-material
+      placeholders when no material is sampled).
     """
     cls: np.ndarray
     col: np.ndarray
     ior: np.ndarray
     deposit: np.ndarray
     compiled: np.ndarray = None
+    sampled: np.ndarray = None
     cm: CompiledMaterials = None
     sel: SelectionTable = None
 
@@ -76,6 +86,10 @@ class FastMaterials(NamedTuple):
     @property
     def any_compiled(self) -> bool:
         return self.compiled is not None and bool(np.any(self.compiled))
+
+    @property
+    def any_sampled(self) -> bool:
+        return self.sampled is not None and bool(np.any(self.sampled))
 
 
 def build_fast_materials(mtab) -> FastMaterials:
@@ -112,11 +126,12 @@ def build_fast_materials(mtab) -> FastMaterials:
                 continue
             col[m] = mtab.color[m, j] * mtab.weight[m, j]
     bump = getattr(mtab, "bump_correction", None)
-    comp = (cls == GENERIC) & ~np.any((mtab.tex >= 0) & (mtab.kind >= 0), axis=1)
+    sampled = (cls == GENERIC) & ~np.any((mtab.tex >= 0) & (mtab.kind >= 0), axis=1)
+    sampled &= COMPILED_SAMPLING
+    comp = sampled.copy()
     if bump is not None:
         comp &= ~np.asarray(bump, bool)
-    comp &= COMPILED_SAMPLING
-    if comp.any():
+    if sampled.any():
         cm, sel = compile_materials(mtab), selection_table(mtab)
     else:
         L = mtab.kind.shape[1]
@@ -125,7 +140,7 @@ def build_fast_materials(mtab) -> FastMaterials:
                              np.zeros(1, np.int64))
     return FastMaterials(cls=cls, col=col, ior=ior,
                          deposit=np.asarray(mtab.has_nondelta, bool).copy(),
-                         compiled=comp, cm=cm, sel=sel)
+                         compiled=comp, sampled=sampled, cm=cm, sel=sel)
 
 
 @njit(cache=True, inline="always")

@@ -48,7 +48,7 @@ from numba.extending import intrinsic
 
 from ..materials.compiled import sample_pair, sincos_turn
 from ..materials.fast import ABSORBER, GENERIC, sample_fast
-from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
+from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0, upper_bound
 
 
 class TriangleData(NamedTuple):
@@ -117,7 +117,7 @@ class GenericHits(NamedTuple):
     """Hits on GENERIC materials, for ``bsdf.sample_bsdf`` (rows 0..n_gen-1):
     i (cap,) int64 ray index; p, ng, ns, wi, power (cap, 3) float64; bary
     (cap, 3) float64 (prim, u, v).  With BounceStep.compiled (cap rows,
-    else 1-row placeholders): the kernel's samples of the ``compiled``
+    else 1-row placeholders): the kernel's samples of the ``sampled``
     materials (``materials.fast``): out (cap, 3) the sampled direction, wgt
     (cap, 3) the weight, state (cap,) int8 SAMPLE_* of each row."""
     i: np.ndarray
@@ -139,7 +139,7 @@ SAMPLE_NUMPY, SAMPLE_INVALID, SAMPLE_OK, SAMPLE_DELTA = 0, 1, 2, 3
 
 def generic_hits(cap: int, compiled: bool) -> GenericHits:
     """GenericHits of cap rows, with the kernel's sample columns (out, wgt,
-    state) when it samples ``compiled`` materials (BounceStep.compiled)."""
+    state) when it samples ``sampled`` materials (BounceStep.compiled)."""
     extra = ({"out": np.empty((cap, 3)), "wgt": np.empty((cap, 3)),
               "state": np.empty(cap, np.int8)} if compiled else {})
     return GenericHits(np.empty(cap, np.int64), *(np.empty((cap, 3)) for _ in range(6)), **extra)
@@ -167,7 +167,7 @@ class BounceStep(NamedTuple):
     HitRecord; rel, floor: the spawn offset (``accel.offset_scale``: max(|p|,
     floor) * rel); mis: follow the light side's MIS factors (:class:`MisState`,
     integrator 'COMBINED'; off for the photon pass, which passes a placeholder);
-    compiled: sample the ``compiled`` GENERIC materials here into the
+    compiled: sample the ``sampled`` GENERIC materials here into the
     GenericHits' out / wgt / state (with mis too: the caller's MIS factors
     of the generic survivors, combined.CombinedLightTracer._generic_factors,
     read their sampled directions); rows: write only the source
@@ -372,7 +372,7 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
     lobe / Fresnel (2), roulette (3).
     Deposits go to rows dep0.. of the DepositBuffers dep (r = NaN, bounce =
     step.bounce).  Hits on GENERIC materials are copied to the GenericHits
-    gen for ``bsdf.sample_bsdf`` (step.compiled: those on ``compiled``
+    gen for ``bsdf.sample_bsdf`` (step.compiled: those on ``sampled``
     materials sampled here, GenericHits.state).  step.record: also write the HitRecord rec
     and the source ray of each deposit (dep.src) -- the frequency photons'
     spectrum updates need them.  step.mis: follow the MisState mis (its
@@ -399,7 +399,7 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
         # without them): writing the samples there would overrun them.
         raise ValueError("BounceStep.compiled needs GenericHits with its sample columns "
                          "(photon_kernels.generic_hits(cap, True))")
-    m_comp = mats.compiled
+    m_comp = mats.sampled
     c_lobes, c_T = mats.cm.lobes, mats.cm.tables
     s_col, s_p, s_cdf, s_last = mats.sel.colors, mats.sel.p, mats.sel.cdf, mats.sel.last
     rec_t, rec_ng, rec_nswi, rec_hit, nxt_src, nxt_delta = rec
@@ -739,14 +739,7 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
     nL = L.shape[0]
     # np.searchsorted(cdf, x, side="right"): first index with cdf > x.
     x = u0 * cdf[nL - 1]
-    lo, hi = 0, nL
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if cdf[mid] <= x:
-            lo = mid + 1
-        else:
-            hi = mid
-    j = lo
+    j = upper_bound(cdf[:nL], x)
     if j > nL - 1:
         j = nL - 1
     if L[j, _PSEL] <= 0.0:

@@ -531,7 +531,7 @@ class PhotonTracer:
         prev_delta = np.zeros(K, bool) if caustic else None
         straight = np.ones(K, bool) if self.skip_straight else None
         cg = n if self.fmat.any_generic else 1
-        comp = self.fmat.any_compiled
+        comp = self.fmat.any_sampled
         gen = PK.generic_hits(cg, comp)
         ubuf = self.uniform_buffer(4 * K)       # K never grows: one survivor a ray at most
         cr = n if record or Kf or follow is not None else 1
