@@ -5,7 +5,6 @@ Vectors are ``(K, 3)`` float64 arrays, one row per ray, photon or visible point.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 # Rec. 709 luminance weights, as Cycles' default scene-linear colour space.
 LUM_R, LUM_G, LUM_B = 0.2126, 0.7152, 0.0722
@@ -30,17 +29,3 @@ def frame(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     bb = np.stack([b, sign + n[:, 1] ** 2 * a, -n[:, 1]], axis=1)
     return t, bb
 
-
-@njit(cache=True, inline="always")
-def upper_bound(a, x):
-    """np.searchsorted(a, x, side='right') of one x in the sorted 1-D a: the
-    first index whose value is > x (a.size if none), by bisection (numba's
-    scalar searchsorted costs more than the search in the compiled loops)."""
-    lo, hi = 0, a.shape[0]
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if a[mid] <= x:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo

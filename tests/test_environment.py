@@ -438,7 +438,7 @@ def test_lambert_plane_under_a_map_has_the_closed_form_radiance(photons_for_dire
 
 @pytest.mark.parametrize("kind", ["rgba", "grey", "unassociated"])
 def test_compiled_world_photons_equal_numpy(monkeypatch, kind):
-    """lights.environment.world_photons (an environment map's photons in one
+    """lights.environment_kernels.world_photons (an environment map's photons in one
     compiled step) equals the numpy emission it replaces
     (emission.COMPILED_ENVIRONMENT off) on 100,000 photons of a map with a
     rotated, scaled mapping, beside an area light: the same photons to 1e-12

@@ -230,7 +230,7 @@ def test_stratified_cells_are_the_stable_order_of_the_keys(n, square):
 
 
 def test_seen_kernel_equals_emitted_along_rays():
-    """lights.seen.seen_kernel (the camera paths' analytic emitters, per ray)
+    """lights.seen_kernels.seen_kernel (the camera paths' analytic emitters, per ray)
     equals the numpy emitted_along_rays on 200,000 random rays of the three
     visibility codes, against a rectangle, a disc, a sphere, a soft point
     light's disc, a spot and a sun (two of them hidden from one kind of ray),
@@ -238,6 +238,7 @@ def test_seen_kernel_equals_emitted_along_rays():
     and distance to 1e-12.  Every emitter is found by some rays."""
     from core.lights import direct_kernels as DK
     from core.lights import seen as Seen
+    from core.lights.seen_kernels import seen_kernel
     from test_path_tracer import _many_lights_scene
     table = Lt.build_light_table(_many_lights_scene(4))
     table.visible_glossy[2] = False
@@ -251,7 +252,7 @@ def test_seen_kernel_equals_emitted_along_rays():
     vis = rng.integers(0, 3, K).astype(np.int8)
     Le, row, t = np.empty((K, 3)), np.empty(K, np.int64), np.empty(K)
     idx = np.arange(K)
-    Seen.seen_kernel(DK.build_direct_lights(table), Seen.visibility_flags(table), vis, o, d,
+    seen_kernel(DK.build_direct_lights(table), Seen.visibility_flags(table), vis, o, d,
                      t_max, idx, Le, row, t)
     for code, name in enumerate(Seen.VISIBILITY):
         s = np.nonzero(vis == code)[0]

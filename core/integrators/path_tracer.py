@@ -60,6 +60,7 @@ from .. import materials as B
 from ..materials import compiled as C
 from ..materials.fast import GENERIC, build_fast_materials
 from ..lights import seen as Seen, shadow as Sh
+from ..lights.seen_kernels import seen_kernel
 from ..lights.seen import VISIBILITY
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..mathutil import dot as _dot
@@ -560,7 +561,7 @@ class PathTracer:
         """The analytic emitters the rays (o, d (K, 3), visibility codes vis
         (K,) int8: ``_VIS``) hit before t_end (K,): (rays (k,), Le (k, 3),
         emitter row (k,) (-1 none), distance (k,)) per group of rays --
-        one group by ``seen.seen_kernel`` in the kernels' scope, else one
+        one group by ``seen_kernels.seen_kernel`` in the kernels' scope, else one
         per visibility code (``lights.emitted_along_rays``)."""
         lt = self.lights
         if kern:
@@ -569,7 +570,7 @@ class PathTracer:
             K = vis.shape[0]
             Le, row, t = np.empty((K, 3)), np.empty(K, np.int64), np.empty(K)
             idx = np.arange(K)
-            Seen.seen_kernel(kern[0], self._flags, vis, o, d, t_end, idx, Le, row, t)
+            seen_kernel(kern[0], self._flags, vis, o, d, t_end, idx, Le, row, t)
             return [(idx, Le, row, t)]
         out = []
         for code, name in enumerate(_VIS):

@@ -23,7 +23,6 @@ import numpy as np
 
 from ..mathutil import frame
 
-from .environment import world_photons
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _mesh_emission, _smoothstep
 from .warps import (_cone_local, _cosine_local, _to_world, _triangle_bary, _uniform_sphere,
                     _unit_disk)
@@ -32,7 +31,7 @@ from .warps import (_cone_local, _cosine_local, _to_world, _triangle_bary, _unif
 # Angular variance of a cosine-weighted diffuse lobe, pi^2/4 - 2 = 0.467 rad^2
 # (docs/frequency.md "Lobe widths"): the angular init of every non-collimated light.
 B_DIFFUSE = np.pi ** 2 / 4.0 - 2.0
-#: An environment map's photons emitted by environment.world_photons (off:
+#: An environment map's photons emitted by environment_kernels.world_photons (off:
 #: the numpy reference below; tests).
 COMPILED_ENVIRONMENT = True
 
@@ -173,7 +172,9 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
             d[m] = w
         else:
             # The same photons, each in one compiled step (the numpy lines
-            # above are its reference).
+            # above are its reference; imported here: register() imports
+            # this module and must not load numba).
+            from .environment_kernels import world_photons
             world_photons(env.kernel_data(), u, m, float(R),
                           np.ascontiguousarray(table.center, np.float64),
                           np.ascontiguousarray(inv_p[m]), o, d, power)

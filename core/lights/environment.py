@@ -29,13 +29,10 @@ cone in :mod:`.table`).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple, Optional
 
 import numpy as np
-from numba import njit
 
-from ..mathutil import upper_bound
-from ..scene.textures import (EnvironmentMap, UnassociatedImage, _as_image, bilinear_rgb,
+from ..scene.textures import (EnvironmentMap, UnassociatedImage, _as_image,
                               environment_radiance, equirectangular_direction,
                               equirectangular_uv)
 
@@ -138,10 +135,11 @@ class EnvironmentLight:
     def total(self) -> float:
         return float(self.cdf[-1]) if self.cdf.size else 0.0
 
-    def kernel_data(self) -> "EnvironmentKernel":
-        """This map's :class:`EnvironmentKernel` (built once)."""
+    def kernel_data(self):
+        """This map's ``environment_kernels.EnvironmentKernel`` (built once)."""
         k = self.__dict__.get("_kernel")
         if k is None:
+            from .environment_kernels import EnvironmentKernel
             img = _as_image(self.env.image)
             flat = self.weight.ravel()
             pos = np.nonzero(flat > 0)[0]
@@ -210,100 +208,3 @@ class EnvironmentLight:
         omega = (2.0 * np.pi / self.W) * (self.z_edges[i + 1] - self.z_edges[i])
         _, jac = self._jacobian(w)
         return w, wk / omega / self.total * jac
-
-
-class EnvironmentKernel(NamedTuple):
-    """An EnvironmentLight's tables for :func:`world_photons`: cdf, weight
-    (H W,) (row-major ``weight``), z_edges (H + 1,), A, A_inv, to_texture
-    (3, 3), strength (3,), image (H, W, C) the map (float32), W its width,
-    det |det A|, total cdf[-1], last the last region of positive weight,
-    unassociate: rgb / alpha on lookup (``textures.UnassociatedImage``)."""
-    cdf: np.ndarray
-    weight: np.ndarray
-    z_edges: np.ndarray
-    A: np.ndarray
-    A_inv: np.ndarray
-    to_texture: np.ndarray
-    strength: np.ndarray
-    image: np.ndarray
-    W: int
-    det: float
-    total: float
-    last: int
-    unassociate: bool
-
-
-@njit(cache=True, inline="always")
-def _mat3(M, x, y, z):
-    """M (3, 3) @ (x, y, z)."""
-    return (M[0, 0] * x + M[0, 1] * y + M[0, 2] * z, M[1, 0] * x + M[1, 1] * y + M[1, 2] * z,
-            M[2, 0] * x + M[2, 1] * y + M[2, 2] * z)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def world_photons(E, u, rows, R, center, inv_p, o, d, power):
-    """The photons rows (k,) of a batch whose emitter is the world's map
-    (``emission.sample_photons``): region by u[:, 3] (its leftover the
-    position in the region), height by u[:, 4] (:meth:`EnvironmentLight.sample`),
-    the direction d = -omega, power pi R^2 L(omega) / pdf(omega) inv_p
-    (0 where pdf = 0), origin on the disc of radius R facing d around
-    center - R d, from u[:, 1], u[:, 2] (``warps._unit_disk``, the basis
-    ``mathutil.frame``).  The numpy code's operations per photon; its
-    matrix products and norms are BLAS's and its arctan2 numpy's, so the
-    values agree to rounding (tests/test_environment.py)."""
-    cdf, wt, ze = E.cdf, E.weight, E.z_edges
-    N = cdf.shape[0]
-    W = E.W
-    two_pi = 2.0 * np.pi
-    for q in range(rows.shape[0]):
-        r = rows[q]
-        x = u[r, 3] * E.total
-        k = min(upper_bound(cdf, x), N - 1)
-        wk = wt[k]
-        if wk <= 0.0:
-            k = E.last
-            wk = wt[k]
-        a = min(max((x - (cdf[k] - wk)) / wk, 0.0), 1.0 - 1e-12)
-        i = k // W
-        j = k - i * W
-        uu = (j + a) / W
-        z = ze[i] + u[r, 4] * (ze[i + 1] - ze[i])
-        phi = np.pi - two_pi * uu
-        sz = np.sqrt(max(1.0 - z * z, 0.0))
-        wx, wy, wz = _mat3(E.A_inv, sz * np.cos(phi), sz * np.sin(phi), z)
-        n = max(np.sqrt(wx * wx + wy * wy + wz * wz), 1e-300)
-        wx, wy, wz = wx / n, wy / n, wz / n
-        omega = (two_pi / W) * (ze[i + 1] - ze[i])
-        cx, cy, cz = _mat3(E.A, wx, wy, wz)
-        nc = max(np.sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
-        pdf = wk / omega / E.total * (E.det / nc ** 3)
-        # The map's radiance along omega (textures.environment_radiance).
-        tx, ty, tz = _mat3(E.to_texture, wx, wy, wz)
-        nt = np.sqrt(tx * tx + ty * ty + tz * tz)
-        if not nt > 0:
-            nt = 1.0
-        tx, ty, tz = tx / nt, ty / nt, tz / nt
-        tu = 0.5 - np.arctan2(ty, tx) / two_pi
-        tv = 1.0 - np.arccos(min(max(tz, -1.0), 1.0)) / np.pi
-        l0, l1, l2 = bilinear_rgb(E.image, tu, tv, E.unassociate)
-        s = np.pi * R * R / max(pdf, 1e-300)
-        ip = inv_p[q]
-        if pdf > 0:
-            power[r, 0] = l0 * E.strength[0] * s * ip
-            power[r, 1] = l1 * E.strength[1] * s * ip
-            power[r, 2] = l2 * E.strength[2] * s * ip
-        else:
-            power[r, 0] = power[r, 1] = power[r, 2] = 0.0
-        dx, dy, dz = -wx, -wy, -wz
-        rr = np.sqrt(u[r, 1])
-        ph = two_pi * u[r, 2]
-        ux, uy = rr * np.cos(ph), rr * np.sin(ph)
-        sg = 1.0 if dz >= 0.0 else -1.0
-        aa = -1.0 / (sg + dz)
-        bb = dx * dy * aa
-        t1x, t1y, t1z = 1.0 + sg * dx * dx * aa, sg * bb, -sg * dx
-        t2x, t2y, t2z = bb, sg + dy * dy * aa, -dy
-        o[r, 0] = center[0] - R * dx + R * (ux * t1x + uy * t2x)
-        o[r, 1] = center[1] - R * dy + R * (ux * t1y + uy * t2y)
-        o[r, 2] = center[2] - R * dz + R * (ux * t1z + uy * t2z)
-        d[r, 0], d[r, 1], d[r, 2] = dx, dy, dz

@@ -48,7 +48,8 @@ from numba.extending import intrinsic
 
 from ..materials.compiled import sample_pair, sincos_turn
 from ..materials.fast import ABSORBER, GENERIC, sample_fast
-from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0, upper_bound
+from ..lights.environment_kernels import upper_bound
+from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 
 
 class TriangleData(NamedTuple):

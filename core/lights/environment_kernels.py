@@ -1,0 +1,125 @@
+"""An environment map's photons, compiled (core.lights.emission's numpy
+code for the world's map, per photon), and the bisection the compiled
+emissions share.  A module of its own, so that importing core.lights (the
+add-on's register() does) loads no numba.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from ..scene.texture_kernels import bilinear_rgb
+
+
+@njit(cache=True, inline="always")
+def upper_bound(a, x):
+    """np.searchsorted(a, x, side='right') of one x in the sorted 1-D a: the
+    first index whose value is > x (a.size if none), by bisection (numba's
+    scalar searchsorted costs more than the search in the compiled loops)."""
+    lo, hi = 0, a.shape[0]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if a[mid] <= x:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+class EnvironmentKernel(NamedTuple):
+    """An EnvironmentLight's tables for :func:`world_photons`: cdf, weight
+    (H W,) (row-major ``weight``), z_edges (H + 1,), A, A_inv, to_texture
+    (3, 3), strength (3,), image (H, W, C) the map (float32), W its width,
+    det |det A|, total cdf[-1], last the last region of positive weight,
+    unassociate: rgb / alpha on lookup (``textures.UnassociatedImage``)."""
+    cdf: np.ndarray
+    weight: np.ndarray
+    z_edges: np.ndarray
+    A: np.ndarray
+    A_inv: np.ndarray
+    to_texture: np.ndarray
+    strength: np.ndarray
+    image: np.ndarray
+    W: int
+    det: float
+    total: float
+    last: int
+    unassociate: bool
+
+
+@njit(cache=True, inline="always")
+def _mat3(M, x, y, z):
+    """M (3, 3) @ (x, y, z)."""
+    return (M[0, 0] * x + M[0, 1] * y + M[0, 2] * z, M[1, 0] * x + M[1, 1] * y + M[1, 2] * z,
+            M[2, 0] * x + M[2, 1] * y + M[2, 2] * z)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def world_photons(E, u, rows, R, center, inv_p, o, d, power):
+    """The photons rows (k,) of a batch whose emitter is the world's map
+    (``emission.sample_photons``): region by u[:, 3] (its leftover the
+    position in the region), height by u[:, 4] (:meth:`EnvironmentLight.sample`),
+    the direction d = -omega, power pi R^2 L(omega) / pdf(omega) inv_p
+    (0 where pdf = 0), origin on the disc of radius R facing d around
+    center - R d, from u[:, 1], u[:, 2] (``warps._unit_disk``, the basis
+    ``mathutil.frame``).  The numpy code's operations per photon; its
+    matrix products and norms are BLAS's and its arctan2 numpy's, so the
+    values agree to rounding (tests/test_environment.py)."""
+    cdf, wt, ze = E.cdf, E.weight, E.z_edges
+    N = cdf.shape[0]
+    W = E.W
+    two_pi = 2.0 * np.pi
+    for q in range(rows.shape[0]):
+        r = rows[q]
+        x = u[r, 3] * E.total
+        k = min(upper_bound(cdf, x), N - 1)
+        wk = wt[k]
+        if wk <= 0.0:
+            k = E.last
+            wk = wt[k]
+        a = min(max((x - (cdf[k] - wk)) / wk, 0.0), 1.0 - 1e-12)
+        i = k // W
+        j = k - i * W
+        uu = (j + a) / W
+        z = ze[i] + u[r, 4] * (ze[i + 1] - ze[i])
+        phi = np.pi - two_pi * uu
+        sz = np.sqrt(max(1.0 - z * z, 0.0))
+        wx, wy, wz = _mat3(E.A_inv, sz * np.cos(phi), sz * np.sin(phi), z)
+        n = max(np.sqrt(wx * wx + wy * wy + wz * wz), 1e-300)
+        wx, wy, wz = wx / n, wy / n, wz / n
+        omega = (two_pi / W) * (ze[i + 1] - ze[i])
+        cx, cy, cz = _mat3(E.A, wx, wy, wz)
+        nc = max(np.sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
+        pdf = wk / omega / E.total * (E.det / nc ** 3)
+        # The map's radiance along omega (textures.environment_radiance).
+        tx, ty, tz = _mat3(E.to_texture, wx, wy, wz)
+        nt = np.sqrt(tx * tx + ty * ty + tz * tz)
+        if not nt > 0:
+            nt = 1.0
+        tx, ty, tz = tx / nt, ty / nt, tz / nt
+        tu = 0.5 - np.arctan2(ty, tx) / two_pi
+        tv = 1.0 - np.arccos(min(max(tz, -1.0), 1.0)) / np.pi
+        l0, l1, l2 = bilinear_rgb(E.image, tu, tv, E.unassociate)
+        s = np.pi * R * R / max(pdf, 1e-300)
+        ip = inv_p[q]
+        if pdf > 0:
+            power[r, 0] = l0 * E.strength[0] * s * ip
+            power[r, 1] = l1 * E.strength[1] * s * ip
+            power[r, 2] = l2 * E.strength[2] * s * ip
+        else:
+            power[r, 0] = power[r, 1] = power[r, 2] = 0.0
+        dx, dy, dz = -wx, -wy, -wz
+        rr = np.sqrt(u[r, 1])
+        ph = two_pi * u[r, 2]
+        ux, uy = rr * np.cos(ph), rr * np.sin(ph)
+        sg = 1.0 if dz >= 0.0 else -1.0
+        aa = -1.0 / (sg + dz)
+        bb = dx * dy * aa
+        t1x, t1y, t1z = 1.0 + sg * dx * dx * aa, sg * bb, -sg * dx
+        t2x, t2y, t2z = bb, sg + dy * dy * aa, -dy
+        o[r, 0] = center[0] - R * dx + R * (ux * t1x + uy * t2x)
+        o[r, 1] = center[1] - R * dy + R * (ux * t1y + uy * t2y)
+        o[r, 2] = center[2] - R * dz + R * (ux * t1z + uy * t2z)
+        d[r, 0], d[r, 1], d[r, 2] = dx, dy, dz
