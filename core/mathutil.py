@@ -28,4 +28,3 @@ def frame(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     t = np.stack([1.0 + sign * n[:, 0] ** 2 * a, sign * b, -sign * n[:, 0]], axis=1)
     bb = np.stack([b, sign + n[:, 1] ** 2 * a, -n[:, 1]], axis=1)
     return t, bb
-

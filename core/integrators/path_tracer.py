@@ -61,7 +61,6 @@ from ..materials import compiled as C
 from ..materials.fast import GENERIC, build_fast_materials
 from ..lights import seen as Seen, shadow as Sh
 from ..lights.seen_kernels import seen_kernel
-from ..lights.seen import VISIBILITY
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..mathutil import dot as _dot
 from . import path_kernels as PK
@@ -76,9 +75,6 @@ PATH_CHUNK = 1 << 16
 #: cores, round 25").  The blocks depend on the image and the samples a
 #: pixel alone, not on the threads: the same image on any machine.
 PATH_SPLIT_MIN = 1 << 14
-
-# Visibility flag of the ray that left a vertex (core.lights.seen names).
-_VIS = VISIBILITY
 
 
 def power_heuristic(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:
@@ -559,7 +555,8 @@ class PathTracer:
 
     def _seen(self, kern, vis, o, d, t_end):
         """The analytic emitters the rays (o, d (K, 3), visibility codes vis
-        (K,) int8: ``_VIS``) hit before t_end (K,): (rays (k,), Le (k, 3),
+        (K,) int8 of the ray that left a vertex: ``seen.VISIBILITY``) hit
+        before t_end (K,): (rays (k,), Le (k, 3),
         emitter row (k,) (-1 none), distance (k,)) per group of rays --
         one group by ``seen_kernels.seen_kernel`` in the kernels' scope, else one
         per visibility code (``lights.emitted_along_rays``)."""
@@ -573,7 +570,7 @@ class PathTracer:
             seen_kernel(kern[0], self._flags, vis, o, d, t_end, idx, Le, row, t)
             return [(idx, Le, row, t)]
         out = []
-        for code, name in enumerate(_VIS):
+        for code, name in enumerate(Seen.VISIBILITY):
             sel = np.nonzero(vis == code)[0]
             if sel.size:
                 out.append((sel, *Lt.emitted_along_rays(lt, o[sel], d[sel], t_end[sel], name,

@@ -146,6 +146,6 @@ VISIBILITY = ("camera", "glossy", "transmission")
 
 def visibility_flags(table: LightTable) -> np.ndarray:
     """(3, Nl) bool: the emitters' visible_camera, visible_glossy and
-    visible_transmission (:data:`VISIBILITY`'s order), for :func:`seen_kernel`."""
+    visible_transmission (:data:`VISIBILITY`'s order), for ``seen_kernels.seen_kernel``."""
     return np.ascontiguousarray(np.stack([table.visible_camera, table.visible_glossy,
                                           table.visible_transmission]).astype(bool))

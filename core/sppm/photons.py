@@ -166,7 +166,7 @@ _NO_SPECTRUM = np.zeros(3)
 #: spectrum_at_hits' ``left`` without a deposit budget (not read): no (K,)
 #: array a bounce on the default path (freq_deposits = 0).
 _NO_BUDGET = np.ones(1, np.int32)
-# generic_survivors' record columns when nothing is recorded.
+# generic_survivors' columns when nothing is recorded (src, delta) or no roulette (lum).
 _NO_SRC, _NO_DELTA, _NO_LUM = np.zeros(1, np.int64), np.zeros(1, bool), np.zeros(1)
 
 
