@@ -1,7 +1,6 @@
 """An environment map's photons, compiled (core.lights.emission's numpy
-code for the world's map, per photon), and the bisection the compiled
-emissions share.  A module of its own, so that importing core.lights (the
-add-on's register() does) loads no numba.
+code for the world's map, per photon).  A module of its own, so that
+importing core.lights (the add-on's register() does) loads no numba.
 """
 from __future__ import annotations
 
@@ -11,21 +10,7 @@ import numpy as np
 from numba import njit
 
 from ..scene.texture_kernels import bilinear_rgb
-
-
-@njit(cache=True, inline="always")
-def upper_bound(a, x):
-    """np.searchsorted(a, x, side='right') of one x in the sorted 1-D a: the
-    first index whose value is > x (a.size if none), by bisection (numba's
-    scalar searchsorted costs more than the search in the compiled loops)."""
-    lo, hi = 0, a.shape[0]
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if a[mid] <= x:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
+from .warp_kernels import basis_world, upper_bound
 
 
 class EnvironmentKernel(NamedTuple):
@@ -114,12 +99,9 @@ def world_photons(E, u, rows, R, center, inv_p, o, d, power):
         rr = np.sqrt(u[r, 1])
         ph = two_pi * u[r, 2]
         ux, uy = rr * np.cos(ph), rr * np.sin(ph)
-        sg = 1.0 if dz >= 0.0 else -1.0
-        aa = -1.0 / (sg + dz)
-        bb = dx * dy * aa
-        t1x, t1y, t1z = 1.0 + sg * dx * dx * aa, sg * bb, -sg * dx
-        t2x, t2y, t2z = bb, sg + dy * dy * aa, -dy
-        o[r, 0] = center[0] - R * dx + R * (ux * t1x + uy * t2x)
-        o[r, 1] = center[1] - R * dy + R * (ux * t1y + uy * t2y)
-        o[r, 2] = center[2] - R * dz + R * (ux * t1z + uy * t2z)
+        # x t1 + y t2 (mathutil.frame of d); the basis' third term is 0 d.
+        qx, qy, qz = basis_world(ux, uy, 0.0, dx, dy, dz)
+        o[r, 0] = center[0] - R * dx + R * qx
+        o[r, 1] = center[1] - R * dy + R * qy
+        o[r, 2] = center[2] - R * dz + R * qz
         d[r, 0], d[r, 1], d[r, 2] = dx, dy, dz

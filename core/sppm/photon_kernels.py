@@ -48,7 +48,7 @@ from numba.extending import intrinsic
 
 from ..materials.compiled import sample_pair, sincos_turn
 from ..materials.fast import ABSORBER, GENERIC, sample_fast
-from ..lights.environment_kernels import upper_bound
+from ..lights.warp_kernels import basis_world, upper_bound
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 
 
@@ -711,18 +711,6 @@ def generic_survivors(j0, g, gen, u, roulette, lum, rel, floor, live, record, nx
 # ----------------------------------------------------------------------------
 # Emission (lights.sample_photons for point, area and untextured mesh lights).
 
-@njit(cache=True, inline="always")
-def _basis_world(lx, ly, lz, nx, ny, nz):
-    """lights._to_world: local (lx, ly, lz) about unit n (Duff et al. 2017)."""
-    s = 1.0 if nz >= 0.0 else -1.0
-    a = -1.0 / (s + nz)
-    b = nx * ny * a
-    tx, ty, tz = 1.0 + s * nx * nx * a, s * b, -s * nx
-    bx, by, bz = b, s + ny * ny * a, -ny
-    return (lx * tx + ly * bx + lz * nx, lx * ty + ly * by + lz * ny,
-            lx * tz + ly * bz + lz * nz)
-
-
 # Columns of the packed light array (one array argument: numba increments and
 # decrements the reference count of every array passed to a call, which cost
 # 100 ns per photon with the LightTable's 16 arrays).
@@ -759,7 +747,7 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
         sn, cs = sincos_turn(u2)
         dx, dy = rr * cs, rr * sn
         lift = np.sqrt(max(1.0 - dx * dx - dy * dy, 0.0))
-        ox, oy, oz = _basis_world(dx, dy, lift, wx, wy, wz)
+        ox, oy, oz = basis_world(dx, dy, lift, wx, wy, wz)
         return (L[j, _CO] + ox * r, L[j, _CO + 1] + oy * r, L[j, _CO + 2] + oz * r,
                 wx, wy, wz, L[j, _STR] * inv_p, L[j, _STR + 1] * inv_p,
                 L[j, _STR + 2] * inv_p, fall, 0.0, b_diffuse, 0.0, j)
@@ -796,7 +784,7 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
     sn, cs = sincos_turn(u4)
     lx, ly = rr * cs, rr * sn
     lz = np.sqrt(max(1.0 - lx * lx - ly * ly, 0.0))
-    wx, wy, wz = _basis_world(lx, ly, lz, nx, ny, nz)
+    wx, wy, wz = basis_world(lx, ly, lz, nx, ny, nz)
     return (ox, oy, oz, wx, wy, wz, p0, p1, p2, 0.0, L[j, _AREA] / 12.0, b_diffuse, 0.0, j)
 
 

@@ -1,0 +1,35 @@
+"""Compiled warps that the compiled emissions share (photon_kernels'
+analytic lights, environment_kernels' map): the bisection of a cdf and the
+Duff et al. 2017 basis.  A module of its own, so that importing core.lights
+(the add-on's register() does) loads no numba.
+"""
+from __future__ import annotations
+
+from numba import njit
+
+
+@njit(cache=True, inline="always")
+def upper_bound(a, x):
+    """np.searchsorted(a, x, side='right') of one x in the sorted 1-D a: the
+    first index whose value is > x (a.size if none), by bisection (numba's
+    scalar searchsorted costs more than the search in the compiled loops)."""
+    lo, hi = 0, a.shape[0]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if a[mid] <= x:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, inline="always")
+def basis_world(lx, ly, lz, nx, ny, nz):
+    """lights._to_world: local (lx, ly, lz) about unit n (Duff et al. 2017)."""
+    s = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (s + nz)
+    b = nx * ny * a
+    tx, ty, tz = 1.0 + s * nx * nx * a, s * b, -s * nx
+    bx, by, bz = b, s + ny * ny * a, -ny
+    return (lx * tx + ly * bx + lz * nx, lx * ty + ly * by + lz * ny,
+            lx * tz + ly * bz + lz * nz)
