@@ -159,14 +159,6 @@ def camera_params(model, x0, y0, W, H, filter_width) -> CameraParams:
                         int(x0), int(y0), int(W), int(H), max(float(filter_width), 0.5))
 
 
-def fast_materials(scene, mtab, fmat) -> np.ndarray:
-    """(M,) bool: the LAMBERT materials (materials.fast: diffuse lobes of
-    roughness 0, no texture) whose shading normal is the interpolated one
-    (no Normal Map / Bump)."""
-    from ..materials.fast import LAMBERT
-    return (fmat.cls == LAMBERT) & ~_bent(scene, mtab, fmat.cls.shape[0])
-
-
 def _bent(scene, mtab, M) -> np.ndarray:
     """(M,) bool: materials whose shading normal is not the interpolated one
     (Normal Map / Bump)."""
@@ -203,13 +195,14 @@ class SplatMaterials(NamedTuple):
 
 
 def splat_materials(scene, mtab, fmat) -> SplatMaterials:
-    """The SplatMaterials of a scene: LAMBERT as :func:`fast_materials`,
-    GENERIC_SPLAT the materials the photon tracer samples compiled
-    (FastMaterials.compiled: untextured, no Bump) whose shading normal is
-    the interpolated one."""
+    """The SplatMaterials of a scene: LAMBERT_SPLAT the LAMBERT materials
+    (materials.fast: diffuse lobes of roughness 0, no texture), GENERIC_SPLAT
+    the ``compiled`` GENERIC ones (untextured, no Bump), each whose shading
+    normal is the interpolated one (no Normal Map / Bump)."""
+    from ..materials.fast import LAMBERT
     M = fmat.cls.shape[0]
     bent = _bent(scene, mtab, M)
-    kind = np.where(fast_materials(scene, mtab, fmat), LAMBERT_SPLAT, SLOW)
+    kind = np.where((fmat.cls == LAMBERT) & ~bent, LAMBERT_SPLAT, SLOW)
     if fmat.compiled is not None:
         kind = np.where(np.asarray(fmat.compiled, bool) & ~bent, GENERIC_SPLAT, kind)
     c = np.ascontiguousarray

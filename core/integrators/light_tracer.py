@@ -142,10 +142,10 @@ class LightTracer:
         self.fast_emission = PK.fast_emission_ok(t)
         self.cam_params = LK.camera_params(camera, self.x0, self.y0, self.W, self.H,
                                            self.filter_width)
-        # LAMBERT without Normal Map / Bump (combined.covered_materials), and
-        # what the splat kernel evaluates: those and the compiled GENERIC ones.
-        self.fast_mat = LK.fast_materials(scene, mtab, self.tracer.fmat)
+        # What the splat kernel evaluates, and of it the LAMBERT materials
+        # without Normal Map / Bump (combined.covered_materials).
         self.splat_mat = LK.splat_materials(scene, mtab, self.tracer.fmat)
+        self.fast_mat = self.splat_mat.kind == LK.LAMBERT_SPLAT
         # The GENERIC materials, whose connections _slow evaluates compiled.
         self.generic = self.tracer.fmat.cls == GENERIC
         self.rays = 0

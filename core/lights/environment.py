@@ -148,7 +148,6 @@ class EnvironmentLight:
                 cdf=c(self.cdf, np.float64), weight=c(flat, np.float64),
                 z_edges=c(self.z_edges, np.float64), A=c(self.A, np.float64),
                 A_inv=c(self.A_inv, np.float64),
-                to_texture=c(np.asarray(self.env.to_texture, np.float64).reshape(3, 3)),
                 strength=c(np.asarray(self.env.strength, np.float64).reshape(3)),
                 image=c(img), W=int(self.W), det=float(self.det), total=self.total,
                 last=int(pos[-1]) if pos.size else 0,

@@ -15,16 +15,16 @@ from .warp_kernels import basis_world, upper_bound
 
 class EnvironmentKernel(NamedTuple):
     """An EnvironmentLight's tables for :func:`world_photons`: cdf, weight
-    (H W,) (row-major ``weight``), z_edges (H + 1,), A, A_inv, to_texture
-    (3, 3), strength (3,), image (H, W, C) the map (float32), W its width,
-    det |det A|, total cdf[-1], last the last region of positive weight,
-    unassociate: rgb / alpha on lookup (``textures.UnassociatedImage``)."""
+    (H W,) (row-major ``weight``), z_edges (H + 1,), A (the map's
+    to_texture) and A_inv (3, 3), strength (3,), image (H, W, C) the map
+    (float32), W its width, det |det A|, total cdf[-1], last the last
+    region of positive weight, unassociate: rgb / alpha on lookup
+    (``textures.UnassociatedImage``)."""
     cdf: np.ndarray
     weight: np.ndarray
     z_edges: np.ndarray
     A: np.ndarray
     A_inv: np.ndarray
-    to_texture: np.ndarray
     strength: np.ndarray
     image: np.ndarray
     W: int
@@ -75,15 +75,15 @@ def world_photons(E, u, rows, R, center, inv_p, o, d, power):
         n = max(np.sqrt(wx * wx + wy * wy + wz * wz), 1e-300)
         wx, wy, wz = wx / n, wy / n, wz / n
         omega = (two_pi / W) * (ze[i + 1] - ze[i])
+        # The texture-space vector A omega (A = the map's to_texture): its
+        # norm gives the Jacobian, its direction the map's radiance
+        # (textures.environment_radiance).
         cx, cy, cz = _mat3(E.A, wx, wy, wz)
-        nc = max(np.sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
-        pdf = wk / omega / E.total * (E.det / nc ** 3)
-        # The map's radiance along omega (textures.environment_radiance).
-        tx, ty, tz = _mat3(E.to_texture, wx, wy, wz)
-        nt = np.sqrt(tx * tx + ty * ty + tz * tz)
+        nt = np.sqrt(cx * cx + cy * cy + cz * cz)
+        pdf = wk / omega / E.total * (E.det / max(nt, 1e-300) ** 3)
         if not nt > 0:
             nt = 1.0
-        tx, ty, tz = tx / nt, ty / nt, tz / nt
+        tx, ty, tz = cx / nt, cy / nt, cz / nt
         tu = 0.5 - np.arctan2(ty, tx) / two_pi
         tv = 1.0 - np.arccos(min(max(tz, -1.0), 1.0)) / np.pi
         l0, l1, l2 = bilinear_rgb(E.image, tu, tv, E.unassociate)

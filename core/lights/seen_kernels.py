@@ -89,9 +89,8 @@ def seen_kernel(L, flags, vis, o, d, t_max, idx, Le, row, t_hit):
                         continue
                     if L.is_sphere[j]:
                         att = _spot_atten_one(er, j, -dx, -dy, -dz)
-                    else:
-                        ax, ay, az = _nrm3(px, py, pz)
-                        att = _spot_atten_one(er, j, ax, ay, az)
+                    else:           # the disc's normal, normalize(o - c)
+                        att = _spot_atten_one(er, j, nx, ny, nz)
             elif k == SUN:
                 if not (L.half_angle[j] > 0.0 and np.isinf(best)
                         and -(dx * L.dir[j, 0] + dy * L.dir[j, 1] + dz * L.dir[j, 2])
