@@ -204,6 +204,33 @@ def test_next_event_estimate_of_irradiance_matches_quadrature(normal):
     assert np.all(np.abs(m - E) <= Z * se + 3e-3 * E), (m, E, se)
 
 
+@pytest.mark.parametrize("with_normals", [False, True])
+def test_pdf_direct_is_the_density_of_the_maps_light_sample(with_normals):
+    """pdf_direct of the world's row is the density sample_direct drew the
+    map's directions with (the map alone, or the 1/2 map + 1/2 cosine
+    mixture about n): weight = L(wi) / pdf_direct on every sample, so the
+    camera paths' MIS weights of a map's light sample and of a BSDF ray that
+    escapes are those of one density (they once used the constant world's)."""
+    from core.lights.pdf import environment_pdf
+    A = rotation((0.3, 0.2, 1.0), 0.7)
+    el_map = EnvironmentMap(spiky_image(), strength=np.full(3, 1.5), to_texture=A)
+    t = L.build_light_table(floor_scene(el_map))
+    K = 20_000
+    rng = np.random.default_rng(4)
+    p = rng.normal(size=(K, 3))
+    n = rng.normal(size=(K, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    r = L.sample_direct(t, p, rng.random((K, 3)), n=n if with_normals else None)
+    ok = r["weight"].max(axis=1) > 0
+    assert ok.mean() > 0.45
+    wi, light = r["wi"][ok], r["light"][ok]
+    pdf = L.pdf_direct(t, p[ok], wi, light, r["dist"][ok], n=n[ok] if with_normals else None)
+    Le = t.environment.radiance(wi)
+    np.testing.assert_allclose(r["weight"][ok], Le / pdf[:, None], rtol=1e-12)
+    if with_normals:
+        np.testing.assert_array_equal(pdf, environment_pdf(t, p[ok], n[ok], wi))
+
+
 def test_photon_power_mean_is_the_map_flux():
     el_map = EnvironmentMap(spiky_image(), strength=np.full(3, 1.5))
     t = L.build_light_table(floor_scene(el_map))
@@ -364,10 +391,27 @@ def _cycles(sc, seed, path):
     return read_exr(str(path))[..., :3].astype(np.float64)
 
 
-@pytest.mark.parametrize("kind", ["diffuse", "glossy", "object"])
-def test_hdri_agrees_with_cycles(kind, tmp_path):
+def _render_camera_paths(scene, integrator, seed, passes):
+    """A camera-path integrator's image (4 paths a pixel a pass)."""
+    from fppm.core.render import Renderer
+    from fppm.core.settings import RenderSettings
+    st = RenderSettings(integrator=integrator, max_passes=passes, seed=seed, max_bounces=16,
+                        use_frequency=False)
+    return Renderer(scene, st, log=lambda s: None).run().image[..., :3].astype(np.float64)
+
+
+#: Passes of the camera-path integrators (4 paths a pixel each) per seed.
+HDRI_PATH_PASSES = 48
+
+
+@pytest.mark.parametrize("kind,integrator", [
+    ("diffuse", "PHOTON"), ("glossy", "PHOTON"), ("object", "PHOTON"),
+    ("glossy", "PATH"), ("glossy", "COMBINED"), ("object", "COMBINED")])
+def test_hdri_agrees_with_cycles(kind, integrator, tmp_path):
     """The bounds of tests/test_cycles_agreement.py, with the reference
-    rendered here (two seeds: its noise is measured the same way)."""
+    rendered here (two seeds: its noise is measured the same way).  The
+    camera paths (PATH, COMBINED) see the map where they escape: directly,
+    in the glossy floor, and through their MIS with the map's light sample."""
     pytest.importorskip("bpy")
     from test_cycles_agreement import BIAS_ALLOWANCE, render
 
@@ -378,9 +422,13 @@ def test_hdri_agrees_with_cycles(kind, tmp_path):
     c1 = _cycles(sc, 0, tmp_path / "c0.exr")
     c2 = _cycles(sc, 1, tmp_path / "c1.exr")
     ref = 0.5 * (c1 + c2)
-    passes, photons = HDRI_BUDGET[kind]
-    a1 = render(scene, 1, passes, photons)
-    a2 = render(scene, 2, passes, photons)
+    if integrator == "PHOTON":
+        passes, photons = HDRI_BUDGET[kind]
+        a1 = render(scene, 1, passes, photons)
+        a2 = render(scene, 2, passes, photons)
+    else:
+        a1 = _render_camera_paths(scene, integrator, 1, HDRI_PATH_PASSES)
+        a2 = _render_camera_paths(scene, integrator, 2, HDRI_PATH_PASSES)
     mean_img = 0.5 * (a1 + a2)
     denom = ref ** 2 + RELMSE_EPS
     noise_fppm = two_seed_relmse_noise(a1, a2, denom)
@@ -390,7 +438,7 @@ def test_hdri_agrees_with_cycles(kind, tmp_path):
     m, r = mean_img[mask].mean(), ref[mask].mean()
     sigma_mean = two_seed_block_sigma(a1, a2, mask)
     sigma_ref = two_seed_block_sigma(c1, c2, mask)
-    print(f"hdri {kind}: mean {m:.5f} vs Cycles {r:.5f} (ratio {m / r:.4f}, "
+    print(f"hdri {kind} {integrator}: mean {m:.5f} vs Cycles {r:.5f} (ratio {m / r:.4f}, "
           f"sigma {sigma_mean / r:.2%} + Cycles {sigma_ref / r:.2%}, {mask.mean():.0%} of pixels); relMSE {relmse:.2e}, "
           f"noise fppm {noise_fppm:.2e} + ref {noise_ref:.2e}")
     assert math.hypot(sigma_mean, sigma_ref) < 0.0067 * r

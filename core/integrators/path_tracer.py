@@ -198,6 +198,8 @@ class PathTracer:
         w = np.nonzero(light_table.kind == WORLD)[0]
         self.world_row = int(w[0]) if w.size else -1
         self.world = Lt.world_radiance(light_table)
+        env = light_table.environment
+        self.env = env if env is not None and env.total > 0 else None
         # Emitters a BSDF-sampled ray can hit (not delta): MIS applies to them.
         lt = light_table
         self.hittable = ((lt.kind == AREA) | (lt.kind == MESH) | (lt.kind == WORLD)
@@ -408,7 +410,11 @@ class PathTracer:
                                    np.full(miss.size, np.inf), rows=miss)
                 if part is not None:
                     w = w * part.weight(miss)
-                PK.add_emission(out, path, miss, beta, self.world[None, :], w)
+                # An environment map: its radiance along each escaped ray
+                # (self.world is only its mean).
+                Le = (self.world[None, :] if self.env is None
+                      else np.ascontiguousarray(Lt.world_radiance(lt, d[miss]), np.float64))
+                PK.add_emission(out, path, miss, beta, Le, w)
             ih = np.nonzero(h.hit)[0]
             if ih.size == 0:
                 break

@@ -26,7 +26,8 @@ from ..accel import REL_OFFSET
 from .. import materials as B
 from ..mathutil import dot as _dot
 from . import shadow
-from .sampling import environment_pdf, sample_direct
+from .pdf import environment_pdf
+from .sampling import sample_direct
 from .table import MESH, WORLD
 
 if TYPE_CHECKING:

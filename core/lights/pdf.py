@@ -90,7 +90,17 @@ def pdf_direct(table: LightTable, p: np.ndarray, wi: np.ndarray, light: np.ndarr
 
     m = np.nonzero(kind == WORLD)[0]
     if m.size:
-        if n is None:
+        env = table.environment
+        if env is not None and env.total > 0:
+            # sampling._sample_environment: the map's distribution, or with
+            # normals the mixture 1/2 map + 1/2 cosine about n.
+            pm = env.pdf(wi[m])
+            if n is None:
+                pdf[m] = pm
+            else:
+                nm = np.asarray(n, np.float64).reshape(-1, 3)[m]
+                pdf[m] = 0.5 * pm + 0.5 * np.maximum(_dot(nm, wi[m]), 0.0) / np.pi
+        elif n is None:
             pdf[m] = 1.0 / (4.0 * np.pi)
         else:
             nm = np.asarray(n, np.float64).reshape(-1, 3)[m]
@@ -125,3 +135,19 @@ def pdf_direct(table: LightTable, p: np.ndarray, wi: np.ndarray, light: np.ndarr
     pdf *= p_sel
     pdf[~np.isfinite(pdf)] = 0.0
     return pdf
+
+
+def environment_pdf(table: LightTable, p: np.ndarray, n: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(K,) :func:`pdf_direct` of the world's row for directions w (K, 3)
+    from points p with receiver normals n (K, 3): p_select(world | p)
+    (1/2 pdf_map(w) + 1/2 max(n.w, 0) / pi).  0 without a map.  For multiple
+    importance sampling with BSDF samples (``nee.NextEventEstimation``)."""
+    p = np.asarray(p, np.float64).reshape(-1, 3)
+    env = table.environment
+    e = np.nonzero((table.entry_emitter >= 0)
+                   & (table.kind[np.maximum(table.entry_emitter, 0)] == WORLD))[0]
+    if env is None or env.total <= 0 or e.size == 0 or p.shape[0] == 0:
+        return np.zeros(p.shape[0])
+    K = p.shape[0]
+    return pdf_direct(table, p, w, np.full(K, table.entry_emitter[e[0]], np.int64),
+                      np.full(K, np.inf), n=n)

@@ -142,25 +142,6 @@ def _sample_environment(env, u1, u2, n=None):
     return w, np.full(K, np.inf), Lw
 
 
-def environment_pdf(table: LightTable, p: np.ndarray, n: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """(K,) solid-angle density, selection included, with which
-    :func:`sample_direct` (table, p, u, n) returns direction w (K, 3) from the
-    environment map: p_select(world | p) (1/2 pdf_map(w) + 1/2 max(n.w, 0) / pi).
-    0 without a map.  For multiple importance sampling with BSDF samples."""
-    p = np.asarray(p, np.float64).reshape(-1, 3)
-    w = np.asarray(w, np.float64).reshape(-1, 3)
-    env = table.environment
-    e = np.nonzero((table.entry_emitter >= 0)
-                   & (table.kind[np.maximum(table.entry_emitter, 0)] == WORLD))[0]
-    if env is None or env.total <= 0 or e.size == 0 or p.shape[0] == 0:
-        return np.zeros(p.shape[0])
-    W = _entry_weights(table, p)
-    tot = W.sum(axis=1)
-    p_sel = np.where(tot > 0, W[:, e[0]] / np.where(tot > 0, tot, 1.0), 0.0)
-    n = np.asarray(n, np.float64).reshape(-1, 3)
-    return p_sel * (0.5 * env.pdf(w) + 0.5 * np.maximum(_dot(w, n), 0.0) / np.pi)
-
-
 # ----------------------------------------------------------------------------
 # Light selection and sampling.
 
