@@ -80,6 +80,10 @@ SCENES = {
     "ring_lambert": ("caustic-large", 8192),
     "ring_principled": ("caustic-large", 8192),
     "principled_interior": ("indirect", 8192),
+    # A user's scene: an HDRI world (its only light), Principled materials,
+    # a normal-mapped floor.  Its question is Combined (the default) against
+    # Cycles.
+    "real_scene": ("diffuse", 8192),
 }
 
 
@@ -439,10 +443,11 @@ SCENE_METHODS = {
     "coffee_cup": "combined,fppm,ppm,path,light",
     "ring_lambert": "fppm,ppm,combined,cycles",
     "ring_principled": "fppm,ppm,combined,cycles",
+    "real_scene": "combined,path,fppm,cycles",
 }
 # The order the scenes run in (the most important targets first).
 ORDER = ("cornell", "point_caustic", "indirect_room", "principled_interior", "glass_sphere",
-         "coffee_cup", "ring_lambert", "ring_principled")
+         "coffee_cup", "ring_lambert", "ring_principled", "real_scene")
 
 
 def run_scene(name, budget, seeds, from_csv=False, methods=None, clock="cpu"):
