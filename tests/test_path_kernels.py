@@ -48,7 +48,18 @@ def _box(c, s):
             + quad((x, y + s, z), (0, 0, s), (s, 0, 0)) + quad((x, y - s, z), (s, 0, 0), (0, 0, s)))
 
 
-def _scene(res=16, n_small_tris=4, glossy=False, clear=False):
+def _bumps(n=16):
+    """A tangent-space normal map (bumps of slope up to ~0.6, rgb in [0, 1])
+    and a height field, float32 (n, n, 3)."""
+    y, x = (np.mgrid[0:n, 0:n] + 0.5) / n
+    c = np.stack([0.6 * np.sin(2 * np.pi * x) * np.cos(2 * np.pi * y),
+                  0.4 * np.cos(2 * np.pi * x + 1.0), np.ones_like(x)], -1)
+    c /= np.linalg.norm(c, axis=-1, keepdims=True)
+    h = (0.5 + 0.5 * np.sin(2 * np.pi * x) * np.sin(2 * np.pi * (y + 0.1)))[..., None]
+    return ((c + 1) / 2).astype(np.float32), (h * np.ones(3)).astype(np.float32)
+
+
+def _scene(res=16, n_small_tris=4, glossy=False, clear=False, world_map=False, bumped=False):
     tris = quad((0, 0, 0), (4, 0, 0), (0, 4, 0))                     # floor
     tris += quad((0, 4, 1.5), (4, 0, 0), (0, 0, 1.5))                 # back wall
     tris += quad((2.5, 0, 2.0), (0, 0.5, 0), (0.5, 0, 0))             # emissive quad, facing down
@@ -58,9 +69,19 @@ def _scene(res=16, n_small_tris=4, glossy=False, clear=False):
     for _ in range(n_small_tris):
         c = rng.uniform([-3, -3, 1.5], [3, 3, 2.5])
         tris.append([c, c + [0.05, 0, 0], c + [0, 0.05, -0.01]])
-    top = Lobe(GLOSSY, (0.9, 0.9, 0.9), roughness=0.3) if glossy else Lobe(DIFFUSE, (0.3, 0.3, 0.2))
-    mats = [Material("floor", (Lobe(DIFFUSE, (0.8, 0.7, 0.6)),)),
-            Material("wall", (Lobe(DIFFUSE, (0.5, 0.2, 0.2), weight=0.6), top)),
+    top = (Lobe(GLOSSY, (0.9, 0.9, 0.9), roughness=0.3) if glossy or bumped
+           else Lobe(DIFFUSE, (0.3, 0.3, 0.2)))
+    floor = (Lobe(DIFFUSE, (0.8, 0.7, 0.6)),)
+    nm = bump = None
+    if bumped:
+        # GENERIC materials with a Normal Map (the floor, under a glossy
+        # layer) and a Bump (the wall).
+        from core.scene import normals as SN
+        floor += (Lobe(GLOSSY, (0.5, 0.5, 0.5), roughness=0.2, weight=0.5),)
+        nm = SN.NormalInput(SN.NORMAL_MAP, 0, strength=0.8)
+        bump = SN.NormalInput(SN.BUMP, 1, distance=0.15)
+    mats = [Material("floor", floor, normal=nm),
+            Material("wall", (Lobe(DIFFUSE, (0.5, 0.2, 0.2), weight=0.6), top), normal=bump),
             Material("emit", emission=(3.0, 2.0, 1.0)),
             Material("mirror", (Lobe(TRANSPARENT, (0.9, 0.9, 0.9)) if clear
                                 else Lobe(GLOSSY, (0.9, 0.9, 0.9), roughness=0.0),)),
@@ -69,7 +90,20 @@ def _scene(res=16, n_small_tris=4, glossy=False, clear=False):
     lights = every_light_kind(Light("tiny", "POINT", (5, 5, 5), translate(2, 2, 1.0)))
     cam = Camera(kind="PERSP", matrix_world=translate(0.3, -0.2, 7.0), lens=30.0,
                  sensor_width=36.0, resolution=(res, res), clip_start=0.01, clip_end=100.0)
-    return make_scene(tris, mats, lights, cam, tri_mat=tri_mat, world_color=(0.1, 0.2, 0.3))
+    kw = {}
+    if bumped:
+        # uv = (x, y) / 2 on the floor and (x, z) / 2 elsewhere: the maps tile.
+        P = np.asarray(tris, np.float64)
+        kw = dict(tri_uv=(0.5 * P[:, :, [0, 2]]).astype(np.float32), textures=list(_bumps()))
+        kw["tri_uv"][:2] = 0.5 * P[:2, :, :2]
+    sc = make_scene(tris, mats, lights, cam, tri_mat=tri_mat, world_color=(0.1, 0.2, 0.3), **kw)
+    if world_map:
+        # An HDRI (a gradient sky and three bright texels), turned.
+        from core.scene.textures import EnvironmentMap
+        from test_environment import rotation, spiky_image
+        sc.world_map = EnvironmentMap(spiky_image(), strength=np.full(3, 0.8),
+                                      to_texture=rotation((0.2, 0.1, 1.0), 0.9))
+    return sc
 
 
 def _tracer(integrator, **kw):
@@ -79,9 +113,19 @@ def _tracer(integrator, **kw):
 
 
 @pytest.mark.parametrize("integrator", ["PATH", "COMBINED"])
-@pytest.mark.parametrize("n_small_tris", [4, 20])
-def test_compiled_paths_equal_numpy(integrator, n_small_tris):
-    pt = _tracer(integrator, n_small_tris=n_small_tris)
+@pytest.mark.parametrize("n_small_tris,world_map,bumped", [
+    (4, False, False), (20, False, False), (4, True, False), (4, True, True)],
+    ids=["4", "20", "hdri", "hdri-bumped"])
+def test_compiled_paths_equal_numpy(integrator, n_small_tris, world_map, bumped):
+    """hdri: the world is an environment map (its light sample, the 1/2 map
+    + 1/2 cosine mixture, and its density in direct_kernel and pdf_kernel).
+    bumped: a normal-mapped glossy floor and a bump-mapped glossy wall
+    (their perturbed normals at the kernels' hits, and Cycles' valid
+    specular normal and bump shadowing in the compiled radiance-mode
+    sample, evaluation and densities)."""
+    pt = _tracer(integrator, n_small_tris=n_small_tris, world_map=world_map, bumped=bumped)
+    assert (pt.lights.environment is not None) == world_map
+    assert bool(np.any(pt.mtab.bump_correction)) == bumped
     cls = build_fast_materials(pt.mtab).cls
     assert MIRROR in cls and SMOOTH_GLASS in cls
     # COMBINED: photon merging owns the paths seen through a delta vertex (its partition).
@@ -95,8 +139,9 @@ def test_compiled_paths_equal_numpy(integrator, n_small_tris):
     np.testing.assert_allclose(L_c, L_n, rtol=1e-9, atol=1e-9 * float(L_n.max()))
 
 
-def test_compiled_light_pdf_equals_pdf_direct():
-    pt = _tracer("PATH", n_small_tris=20)
+@pytest.mark.parametrize("world_map", [False, True], ids=["world", "hdri"])
+def test_compiled_light_pdf_equals_pdf_direct(world_map):
+    pt = _tracer("PATH", n_small_tris=20, world_map=world_map)
     table = pt.lights
     rng = np.random.default_rng(2)
     K = 20_000

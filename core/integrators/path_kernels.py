@@ -31,10 +31,13 @@ COMBINED's reverse densities).
 
 Scope (:func:`compiled_scene_ok`; otherwise the numpy path runs): materials
 Lambert-only, perfect mirror, smooth glass, emission-only (the photon fast
-path's classes) or GENERIC, with no Transparent lobe, untextured, no Normal
-Map / Bump (nor a shading-normal spec attached to the mesh normals); lights as
-``direct_kernels.compiled_lights_ok`` (no environment map, no textured
-emissive triangles).  Photon merging's partition (core.integrators.merge)
+path's classes) or GENERIC, with no Transparent lobe, untextured; a Normal
+Map / Bump only on GENERIC materials (their perturbed normals come from
+``normals.perturb`` on those hits, ``PathTracer._trace``, and the compiled
+BSDF applies Cycles' valid specular normal and bump shadowing in radiance
+mode); lights as ``direct_kernels.compiled_lights_ok`` with an environment
+map (its light sample and density compiled; the map's radiance along an
+escaped ray is numpy's lookup), no textured emissive triangles.  Photon merging's partition (core.integrators.merge)
 is applied by the caller.  The emission found along rays (analytic emitters,
 the world, emissive triangles) with its MIS and COMBINED weights, and the
 shadow test, stay numpy, on their rows.
@@ -57,6 +60,7 @@ from numba import njit
 
 from ..lights.direct_kernels import (SPH_TRI_MIN, _entry_weight, _spherical_rect,
                                      _spherical_tri)
+from ..lights.environment_kernels import map_pdf, texture_vector
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 # sample_fast (and compiled._disk in it) and compiled.sample_pair, eval_pair
 # and pdf_oriented are compiled into this module's kernels: numba's on-disk
@@ -65,7 +69,8 @@ from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 # core.sppm.photon_kernels, or a cache filled before it keeps the old code
 # (this note came with compiled.sincos_quarter; edited again with the disk
 # warp's one division and sample_fast inlined, with compiled.sample_pair's
-# radiance mode, and with the GENERIC materials in these kernels).
+# radiance mode, with the GENERIC materials in these kernels, and with the
+# Normal Map / Bump corrections of the radiance-mode sample and density).
 from ..materials.compiled import eval_pair, pdf_oriented, sample_pair
 from ..materials.fast import ABSORBER, GENERIC, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
 from ..sppm.photon_kernels import shading_normal
@@ -141,7 +146,7 @@ def compiled_scene_ok(mtab, fmat, table, tri_n) -> bool:
     from ..lights.direct_kernels import compiled_lights_ok
     from ..lights.shadow import transparent_materials
     from ..scene import normals
-    if not compiled_lights_ok(table) or normals.attached(tri_n) is not None:
+    if not compiled_lights_ok(table, environment=True):
         return False
     if np.any(mtab.tex >= 0) or np.any(mtab.emission_tex >= 0):
         return False
@@ -151,11 +156,21 @@ def compiled_scene_ok(mtab, fmat, table, tri_n) -> bool:
     # vertex (PathTracer._trace), which only the numpy continuation tells.
     if transparent_materials(mtab).any():
         return False
-    if mtab.bump_correction is not None and np.any(mtab.bump_correction):
+    # Normal Map / Bump: GENERIC materials only (the compiled BSDF applies
+    # Cycles' corrections in radiance mode); the numpy Lambert, mirror and
+    # glass paths sample them as those classes without (closures.sample_bsdf).
+    bumped = np.zeros(fmat.cls.shape[0], bool)
+    if mtab.bump_correction is not None:
+        bumped |= np.asarray(mtab.bump_correction, bool)
+    spec = normals.attached(tri_n)
+    if spec is not None:
+        b = np.array([inp is not None for inp in spec.inputs], bool)[:bumped.size]
+        bumped[:b.size] |= b
+    if np.any(bumped & (fmat.cls != GENERIC)):
         return False
     cls_ok = np.isin(fmat.cls, (LAMBERT, MIRROR, SMOOTH_GLASS, ABSORBER))
     if GENERIC_SCOPE:
-        cls_ok |= (fmat.cls == GENERIC) & np.asarray(fmat.compiled, bool)
+        cls_ok |= (fmat.cls == GENERIC) & np.asarray(fmat.sampled, bool)
     # Lambert here is the radiance-mode Lambert (lambert_only), not the photons' lambert_lobes.
     lam_ok = (fmat.cls != LAMBERT) | np.asarray(mtab.lambert_only, bool)
     return bool(np.all(cls_ok & lam_ok))
@@ -274,7 +289,13 @@ def pdf_kernel(L, Q, p, wi, light, dist, n, sel, out):
             if L.half_angle[j] > 0:
                 pdf = 1.0 / (2.0 * _PI * max(1.0 - L.cos_half_angle[j], 1e-300))
         elif kind == WORLD:
-            pdf = max(n[k, 0] * wx + n[k, 1] * wy + n[k, 2] * wz, 0.0) / _PI
+            c = max(n[k, 0] * wx + n[k, 1] * wy + n[k, 2] * wz, 0.0)
+            if L.env.total > 0:
+                # An environment map: the mixture direct_kernel draws.
+                cx, cy, cz, nt = texture_vector(L.env, wx, wy, wz)
+                pdf = 0.5 * map_pdf(L.env, cx, cy, cz, nt) + 0.5 * c / _PI
+            else:
+                pdf = c / _PI
         elif kind == AREA:
             cosl = -(wx * L.dir[j, 0] + wy * L.dir[j, 1] + wz * L.dir[j, 2])
             front = ((px - L.co[j, 0]) * L.dir[j, 0] + (py - L.co[j, 1]) * L.dir[j, 1]

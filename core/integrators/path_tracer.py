@@ -215,6 +215,14 @@ class PathTracer:
         self._radiance = None
         self._fmat = None
         self._flags = None          # seen.visibility_flags, built on first use
+        # Normal Map / Bump: the spec attached to the mesh normals and the
+        # materials it perturbs (the kernels' hits, _perturb).
+        from ..scene import normals
+        self._spec = normals.attached(scene.tri_n)
+        self._bumped = (None if self._spec is None else
+                        np.array([inp is not None for inp in self._spec.inputs]
+                                 + [False] * max(0, mtab.kind.shape[0]
+                                                 - len(self._spec.inputs)), bool))
 
     def fast_materials(self):
         """The materials' ``materials.fast.FastMaterials`` (the kernels' and the
@@ -423,6 +431,8 @@ class PathTracer:
                 p, ng, ns = (np.empty((ih.size, 3)) for _ in range(3))
                 PK.hit_kernel(kern[4], prim, h.u[ih], h.v[ih], p, ng, ns)
                 uv = np.zeros((ih.size, 2))         # untextured in the kernels' scope
+                if self._spec is not None:
+                    self._perturb(prim, h.u[ih], h.v[ih], ns)
             else:
                 p, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, h.u[ih],
                                               h.v[ih])
@@ -558,6 +568,22 @@ class PathTracer:
                 a[x] = b[x]
             path = v.path[c]
         return out
+
+    def _perturb(self, prim, bu, bv, ns) -> None:
+        """The shading normals ns (K, 3) of the kernels' hits (prim, bu, bv)
+        on Normal Map / Bump materials perturbed in place as
+        ``accel.surface_point`` perturbs them (``normals.perturb`` with the
+        hits' interpolated uvs), on those rows only."""
+        from ..scene import normals
+        s = self.scene
+        r = np.nonzero(self._bumped[s.tri_mat[prim]])[0]
+        if r.size == 0:
+            return
+        t, u, v = prim[r], bu[r], bv[r]
+        UV = s.tri_uv[t].astype(np.float64)
+        w0 = (1.0 - u - v)[:, None]
+        uv = w0 * UV[:, 0] + u[:, None] * UV[:, 1] + v[:, None] * UV[:, 2]
+        ns[r] = normals.perturb(self._spec, t, u, v, ns[r], uv)
 
     def _seen(self, kern, vis, o, d, t_end):
         """The analytic emitters the rays (o, d (K, 3), visibility codes vis

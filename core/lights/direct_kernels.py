@@ -16,8 +16,10 @@ contributions; the grazing self-hit retry and the emissive triangles' own
 test stay ``NextEventEstimation._blocked``'s numpy code, on their rows.
 
 Not compiled (``compiled_lights_ok`` is False, the numpy sampler is used):
-an environment map (its importance sampling lives in
-``core.lights.environment``) and textured emissive triangles.
+textured emissive triangles, and for the visible points an environment
+map (its light sample is compiled, the 1/2 map + 1/2 cosine mixture of
+``sampling._sample_environment``, for the camera paths; the visible
+points' extra BSDF sample towards the map is not).
 
 Precision: the same formulas in the same order as the numpy code, but
 numba's libm (arccos, sin, cos, sqrt are correctly rounded or within 1 ulp)
@@ -35,6 +37,8 @@ import numpy as np
 from numba import njit
 
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
+from .environment_kernels import (EnvironmentKernel, map_direction, map_pdf, map_radiance,
+                                  no_map, texture_vector)
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, _lum
 
 _PI = np.pi
@@ -51,7 +55,8 @@ class DirectLights(NamedTuple):
     half_angle, cos_half_angle (Nl,); ellipse, is_sphere, cast_shadow (Nl,)
     bool; lin_inv (Nl, 3, 3); entry (E,) int64 entry -> emitter (-1 group);
     group_tri (G,) int64; group_cdf (G,); group (4,) centre x, y, z and ext^2;
-    sel the :class:`EntryLights` of the same emitters."""
+    sel the :class:`EntryLights` of the same emitters; env the world's
+    ``environment_kernels.EnvironmentKernel`` (``no_map()``: none)."""
     kind: np.ndarray
     lum_strength: np.ndarray
     lum_flux: np.ndarray
@@ -78,6 +83,7 @@ class DirectLights(NamedTuple):
     group_cdf: np.ndarray
     group: np.ndarray
     sel: EntryLights
+    env: EnvironmentKernel
 
 
 # Columns of EntryLights.row: kind, luminance of flux / strength, radius,
@@ -130,9 +136,13 @@ class DirectSamples(NamedTuple):
     light: np.ndarray
 
 
-def compiled_lights_ok(table) -> bool:
-    """Whether :func:`direct_kernel` covers every emitter of the table."""
-    if table.environment is not None:
+def compiled_lights_ok(table, environment: bool = False) -> bool:
+    """Whether :func:`direct_kernel` covers every emitter of the table: not
+    textured emissive triangles, nor an environment map unless
+    ``environment`` (the kernel samples a map's mixture; the visible
+    points' direct light also takes a BSDF sample towards the map,
+    ``nee.NextEventEstimation._environment_bsdf``, which stays numpy)."""
+    if table.environment is not None and not environment:
         return False
     return not bool(np.any((table.kind == MESH) & (table.tex >= 0)))
 
@@ -163,8 +173,14 @@ def build_direct_lights(table) -> DirectLights:
         entry=c(table.entry_emitter, np.int64), group_tri=c(gt, np.int64),
         group_cdf=c(gc, np.float64),
         group=np.array([gcen[0], gcen[1], gcen[2], float(table.group_ext2)], np.float64),
-        sel=None)
+        sel=None, env=_map_of(table))
     return L._replace(sel=entry_lights(L))
+
+
+def _map_of(table) -> EnvironmentKernel:
+    """The table's environment map for the kernel (``no_map`` without one)."""
+    env = table.environment
+    return env.kernel_data() if env is not None and env.total > 0 else no_map()
 
 
 def entry_lights(L) -> EntryLights:
@@ -510,6 +526,27 @@ def direct_kernel(k0, k1, L, R, out):
             else:
                 wx, wy, wz = ax, ay, az
                 l0, l1, l2 = L.strength[j, 0], L.strength[j, 1], L.strength[j, 2]
+        elif kind == WORLD and L.env.total > 0:
+            # An environment map (sampling._sample_environment with normals):
+            # one sample of 1/2 the map + 1/2 cosine about n, u2 < 1/2 picks
+            # the map, weighed by the mixture's density.
+            nx, ny, nz = R.n[i, 0], R.n[i, 1], R.n[i, 2]
+            if u2 < 0.5:
+                wx, wy, wz, _, _ = map_direction(L.env, u1, 2.0 * u2)
+            else:
+                v2 = 2.0 * u2 - 1.0
+                rr = np.sqrt(u1)
+                phi = 2.0 * _PI * v2
+                a_, b_ = rr * np.cos(phi), rr * np.sin(phi)
+                cz = np.sqrt(max(1.0 - a_ * a_ - b_ * b_, 0.0))
+                wx, wy, wz = _nrm3(*_to_world(a_, b_, cz, nx, ny, nz))
+            t = np.inf
+            cx, cy, cz, nt = texture_vector(L.env, wx, wy, wz)
+            pdf = 0.5 * map_pdf(L.env, cx, cy, cz, nt) + 0.5 * max(wx * nx + wy * ny + wz * nz,
+                                                                   0.0) / _PI
+            if pdf > 0:
+                r0, r1, r2 = map_radiance(L.env, cx, cy, cz, nt)
+                l0, l1, l2 = r0 / pdf, r1 / pdf, r2 / pdf
         elif kind == WORLD:
             nx, ny, nz = R.n[i, 0], R.n[i, 1], R.n[i, 2]
             rr = np.sqrt(u1)

@@ -34,11 +34,92 @@ class EnvironmentKernel(NamedTuple):
     unassociate: bool
 
 
+def no_map() -> EnvironmentKernel:
+    """The EnvironmentKernel of no map (total 0), of the same types as a
+    float32 map's, for kernels whose lights have none (``DirectLights.env``)."""
+    return EnvironmentKernel(cdf=np.zeros(1), weight=np.zeros(1), z_edges=np.array([-1.0, 1.0]),
+                             A=np.eye(3), A_inv=np.eye(3), strength=np.zeros(3),
+                             image=np.zeros((1, 1, 3), np.float32), W=1, det=1.0, total=0.0,
+                             last=0, unassociate=False)
+
+
 @njit(cache=True, inline="always")
 def _mat3(M, x, y, z):
     """M (3, 3) @ (x, y, z)."""
     return (M[0, 0] * x + M[0, 1] * y + M[0, 2] * z, M[1, 0] * x + M[1, 1] * y + M[1, 2] * z,
             M[2, 0] * x + M[2, 1] * y + M[2, 2] * z)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def map_direction(E, u1, u2):
+    """:meth:`EnvironmentLight.sample`'s direction for one pair of uniforms:
+    the region by u1 (its leftover the position in the region), the height
+    by u2: (wx, wy, wz) unit world direction, the region's weight wk and
+    its solid angle omega in texture space."""
+    cdf, wt, ze = E.cdf, E.weight, E.z_edges
+    N = cdf.shape[0]
+    W = E.W
+    two_pi = 2.0 * np.pi
+    x = u1 * E.total
+    k = min(upper_bound(cdf, x), N - 1)
+    wk = wt[k]
+    if wk <= 0.0:
+        k = E.last
+        wk = wt[k]
+    a = min(max((x - (cdf[k] - wk)) / wk, 0.0), 1.0 - 1e-12)
+    i = k // W
+    j = k - i * W
+    uu = (j + a) / W
+    z = ze[i] + u2 * (ze[i + 1] - ze[i])
+    phi = np.pi - two_pi * uu
+    sz = np.sqrt(max(1.0 - z * z, 0.0))
+    wx, wy, wz = _mat3(E.A_inv, sz * np.cos(phi), sz * np.sin(phi), z)
+    n = max(np.sqrt(wx * wx + wy * wy + wz * wz), 1e-300)
+    omega = (two_pi / W) * (ze[i + 1] - ze[i])
+    return wx / n, wy / n, wz / n, wk, omega
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def texture_vector(E, wx, wy, wz):
+    """A omega (A = the map's to_texture) of a unit world direction, and its
+    norm: the norm gives the Jacobian d omega_c / d omega_w = det / |A omega|^3,
+    the direction the map's texel (textures.environment_radiance)."""
+    cx, cy, cz = _mat3(E.A, wx, wy, wz)
+    return cx, cy, cz, np.sqrt(cx * cx + cy * cy + cz * cz)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def map_radiance(E, cx, cy, cz, nt):
+    """textures.environment_radiance along the texture vector (c, |c| = nt)
+    of :func:`texture_vector`: the map's bilinear lookup times its strength."""
+    if not nt > 0:
+        nt = 1.0
+    tx, ty, tz = cx / nt, cy / nt, cz / nt
+    two_pi = 2.0 * np.pi
+    tu = 0.5 - np.arctan2(ty, tx) / two_pi
+    tv = 1.0 - np.arccos(min(max(tz, -1.0), 1.0)) / np.pi
+    l0, l1, l2 = bilinear_rgb(E.image, tu, tv, E.unassociate)
+    return l0 * E.strength[0], l1 * E.strength[1], l2 * E.strength[2]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def map_pdf(E, cx, cy, cz, nt):
+    """:meth:`EnvironmentLight.pdf` of the direction whose texture vector is
+    (c, nt) (:func:`texture_vector`): the texel's region weight / its solid
+    angle / total, times the Jacobian."""
+    if not E.total > 0:
+        return 0.0
+    nn = max(nt, 1e-300)
+    tx, ty, tz = cx / nn, cy / nn, cz / nn
+    W = E.W
+    ze = E.z_edges
+    H = ze.shape[0] - 1
+    tu = 0.5 - np.arctan2(ty, tx) / (2.0 * np.pi)
+    j = int(np.floor(tu * W)) % W
+    j = min(max(j, 0), W - 1)
+    i = min(max(upper_bound(ze, tz) - 1, 0), H - 1)
+    omega = (2.0 * np.pi / W) * (ze[i + 1] - ze[i])
+    return E.weight[i * W + j] / omega / E.total * (E.det / nn ** 3)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -52,47 +133,19 @@ def world_photons(E, u, rows, R, center, inv_p, o, d, power):
     ``mathutil.frame``).  The numpy code's operations per photon; its
     matrix products and norms are BLAS's and its arctan2 numpy's, so the
     values agree to rounding (tests/test_environment.py)."""
-    cdf, wt, ze = E.cdf, E.weight, E.z_edges
-    N = cdf.shape[0]
-    W = E.W
     two_pi = 2.0 * np.pi
     for q in range(rows.shape[0]):
         r = rows[q]
-        x = u[r, 3] * E.total
-        k = min(upper_bound(cdf, x), N - 1)
-        wk = wt[k]
-        if wk <= 0.0:
-            k = E.last
-            wk = wt[k]
-        a = min(max((x - (cdf[k] - wk)) / wk, 0.0), 1.0 - 1e-12)
-        i = k // W
-        j = k - i * W
-        uu = (j + a) / W
-        z = ze[i] + u[r, 4] * (ze[i + 1] - ze[i])
-        phi = np.pi - two_pi * uu
-        sz = np.sqrt(max(1.0 - z * z, 0.0))
-        wx, wy, wz = _mat3(E.A_inv, sz * np.cos(phi), sz * np.sin(phi), z)
-        n = max(np.sqrt(wx * wx + wy * wy + wz * wz), 1e-300)
-        wx, wy, wz = wx / n, wy / n, wz / n
-        omega = (two_pi / W) * (ze[i + 1] - ze[i])
-        # The texture-space vector A omega (A = the map's to_texture): its
-        # norm gives the Jacobian, its direction the map's radiance
-        # (textures.environment_radiance).
-        cx, cy, cz = _mat3(E.A, wx, wy, wz)
-        nt = np.sqrt(cx * cx + cy * cy + cz * cz)
+        wx, wy, wz, wk, omega = map_direction(E, u[r, 3], u[r, 4])
+        cx, cy, cz, nt = texture_vector(E, wx, wy, wz)
         pdf = wk / omega / E.total * (E.det / max(nt, 1e-300) ** 3)
-        if not nt > 0:
-            nt = 1.0
-        tx, ty, tz = cx / nt, cy / nt, cz / nt
-        tu = 0.5 - np.arctan2(ty, tx) / two_pi
-        tv = 1.0 - np.arccos(min(max(tz, -1.0), 1.0)) / np.pi
-        l0, l1, l2 = bilinear_rgb(E.image, tu, tv, E.unassociate)
+        l0, l1, l2 = map_radiance(E, cx, cy, cz, nt)
         s = np.pi * R * R / max(pdf, 1e-300)
         ip = inv_p[q]
         if pdf > 0:
-            power[r, 0] = l0 * E.strength[0] * s * ip
-            power[r, 1] = l1 * E.strength[1] * s * ip
-            power[r, 2] = l2 * E.strength[2] * s * ip
+            power[r, 0] = l0 * s * ip
+            power[r, 1] = l1 * s * ip
+            power[r, 2] = l2 * s * ip
         else:
             power[r, 0] = power[r, 1] = power[r, 2] = 0.0
         dx, dy, dz = -wx, -wy, -wz

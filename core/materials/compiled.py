@@ -754,12 +754,19 @@ def _pdf_nd_one(lobes, p, r, m, front, Nx, Ny, Nz, Gx, Gy, Gz, ox, oy, oz, wx, w
 
 @njit(cache=True, error_model="numpy", inline="always")
 def pdf_oriented(lobes, p, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz):
-    """closures.pdf_bsdf(subset='all') of material m (untextured, no Normal
-    Map / Bump) for wo = o, wi = w: closures.pdf_inputs' orientation of the
-    unit normals s (shading) and g (geometric, any orientation) to o's side,
-    then :func:`_pdf_nd_one` with the selection probabilities p (M, L)."""
+    """closures.pdf_bsdf(subset='all') of material m (untextured) for wo = o,
+    wi = w: closures.pdf_inputs' orientation of the unit normals s (shading)
+    and g (geometric, any orientation) to o's side (a Normal Map / Bump
+    material's s made Cycles' valid specular normal for o first), then
+    :func:`_pdf_nd_one` with the selection probabilities p (M, L)."""
     front = gx * ox + gy * oy + gz * oz >= 0.0
     sg = 1.0 if front else -1.0
+    if lobes[m, 0, F_BUMP] > 0.0:
+        # closures.pdf_inputs: Cycles' valid specular normal for the view o.
+        ax, ay, az = _valid_specular_normal(gx * sg, gy * sg, gz * sg, ox, oy, oz,
+                                            sx * sg, sy * sg, sz * sg)
+        return _pdf_nd_one(lobes, p, m, m, front, ax, ay, az, gx * sg, gy * sg, gz * sg,
+                           ox, oy, oz, wx, wy, wz)
     return _pdf_nd_one(lobes, p, m, m, front, sx * sg, sy * sg, sz * sg, gx * sg, gy * sg,
                        gz * sg, ox, oy, oz, wx, wy, wz)
 
@@ -789,8 +796,9 @@ def scatter_pdfs(lobes, p, mat, ns, ng, wo, wi, delta, pl, pr):
 def sample_pair(lobes, T, colors, p, cdf, last, m, nsx, nsy, nsz, ngx, ngy, ngz,
                 ox, oy, oz, u0, u1, u2, radiance):
     """closures.sample_bsdf(subset='all', mode='importance', or 'radiance'
-    with ``radiance``) of material m (untextured, no Normal Map / Bump) for
-    one ray: lobes, T a CompiledMaterials' arrays; colors, p, cdf, last a
+    with ``radiance``) of material m (untextured; a Normal Map / Bump
+    material gets Cycles' valid specular normal in radiance mode only, as
+    there) for one ray: lobes, T a CompiledMaterials' arrays; colors, p, cdf, last a
     SelectionTable's; ns, ng unit mesh normals in any orientation; o = wo
     unit (importance: back towards where the photon came from; radiance:
     towards the camera side); u0, u1 direction, u2 lobe choice (rescaled for
@@ -800,6 +808,14 @@ def sample_pair(lobes, T, colors, p, cdf, last, m, nsx, nsy, nsz, ngx, ngy, ngz,
     a delta sample (sample_bsdf's pdf)."""
     front = _dot3(ngx, ngy, ngz, ox, oy, oz) >= 0.0
     sg = 1.0 if front else -1.0
+    # The mesh's shading normal: eval_pair makes it valid for the view itself.
+    msx, msy, msz = nsx, nsy, nsz
+    if radiance and lobes[m, 0, F_BUMP] > 0.0:
+        # closures.sample_bsdf, radiance mode: a Normal Map / Bump material
+        # samples about Cycles' valid specular normal for the view wo.
+        ax, ay, az = _valid_specular_normal(ngx * sg, ngy * sg, ngz * sg, ox, oy, oz,
+                                            nsx * sg, nsy * sg, nsz * sg)
+        nsx, nsy, nsz = sg * ax, sg * ay, sg * az
     Nx, Ny, Nz = nsx * sg, nsy * sg, nsz * sg
     Gx, Gy, Gz = ngx * sg, ngy * sg, ngz * sg
     L = lobes.shape[1]
@@ -919,7 +935,7 @@ def sample_pair(lobes, T, colors, p, cdf, last, m, nsx, nsy, nsz, ngx, ngy, ngz,
             return wx, wy, wz, 0.0, 0.0, 0.0, False, False, 0.0
         if radiance:
             # closures._sample_general, mode 'radiance': Cycles' f(view=wo, light=wi).
-            f = eval_pair(lobes, T, m, colors, m, nsx, nsy, nsz, ngx, ngy, ngz,
+            f = eval_pair(lobes, T, m, colors, m, msx, msy, msz, ngx, ngy, ngz,
                           ox, oy, oz, wx, wy, wz, False)
         else:
             # Importance mode: the adjoint f_C(view=wi, light=wo), without the
