@@ -60,6 +60,7 @@ from numba import njit
 
 from ..lights.direct_kernels import (SPH_TRI_MIN, _entry_weight, _spherical_rect,
                                      _spherical_tri)
+from ..lights.environment import MAP_SHARE
 from ..lights.environment_kernels import map_pdf, texture_vector
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 # sample_fast (and compiled._disk in it) and compiled.sample_pair, eval_pair
@@ -293,7 +294,7 @@ def pdf_kernel(L, Q, p, wi, light, dist, n, sel, out):
             if L.env.total > 0:
                 # An environment map: the mixture direct_kernel draws.
                 cx, cy, cz, nt = texture_vector(L.env, wx, wy, wz)
-                pdf = 0.5 * map_pdf(L.env, cx, cy, cz, nt) + 0.5 * c / _PI
+                pdf = MAP_SHARE * map_pdf(L.env, cx, cy, cz, nt) + (1.0 - MAP_SHARE) * c / _PI
             else:
                 pdf = c / _PI
         elif kind == AREA:

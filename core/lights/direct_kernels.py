@@ -17,7 +17,7 @@ test stay ``NextEventEstimation._blocked``'s numpy code, on their rows.
 
 Not compiled (``compiled_lights_ok`` is False, the numpy sampler is used):
 textured emissive triangles, and for the visible points an environment
-map (its light sample is compiled, the 1/2 map + 1/2 cosine mixture of
+map (its light sample is compiled, the map-and-cosine mixture of
 ``sampling._sample_environment``, for the camera paths; the visible
 points' extra BSDF sample towards the map is not).
 
@@ -39,6 +39,7 @@ from numba import njit
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 from .environment_kernels import (EnvironmentKernel, map_direction, map_pdf, map_radiance,
                                   no_map, texture_vector)
+from .environment import MAP_SHARE
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, _lum
 
 _PI = np.pi
@@ -528,13 +529,13 @@ def direct_kernel(k0, k1, L, R, out):
                 l0, l1, l2 = L.strength[j, 0], L.strength[j, 1], L.strength[j, 2]
         elif kind == WORLD and L.env.total > 0:
             # An environment map (sampling._sample_environment with normals):
-            # one sample of 1/2 the map + 1/2 cosine about n, u2 < 1/2 picks
-            # the map, weighed by the mixture's density.
+            # one sample of the mixture of the map (u2 < MAP_SHARE) and the
+            # cosine about n, weighed by the mixture's density.
             nx, ny, nz = R.n[i, 0], R.n[i, 1], R.n[i, 2]
-            if u2 < 0.5:
-                wx, wy, wz, _, _ = map_direction(L.env, u1, 2.0 * u2)
+            if u2 < MAP_SHARE:
+                wx, wy, wz, _, _ = map_direction(L.env, u1, u2 / MAP_SHARE)
             else:
-                v2 = 2.0 * u2 - 1.0
+                v2 = (u2 - MAP_SHARE) / (1.0 - MAP_SHARE)
                 rr = np.sqrt(u1)
                 phi = 2.0 * _PI * v2
                 a_, b_ = rr * np.cos(phi), rr * np.sin(phi)
@@ -542,8 +543,8 @@ def direct_kernel(k0, k1, L, R, out):
                 wx, wy, wz = _nrm3(*_to_world(a_, b_, cz, nx, ny, nz))
             t = np.inf
             cx, cy, cz, nt = texture_vector(L.env, wx, wy, wz)
-            pdf = 0.5 * map_pdf(L.env, cx, cy, cz, nt) + 0.5 * max(wx * nx + wy * ny + wz * nz,
-                                                                   0.0) / _PI
+            pdf = (MAP_SHARE * map_pdf(L.env, cx, cy, cz, nt)
+                   + (1.0 - MAP_SHARE) * max(wx * nx + wy * ny + wz * nz, 0.0) / _PI)
             if pdf > 0:
                 r0, r1, r2 = map_radiance(L.env, cx, cy, cz, nt)
                 l0, l1, l2 = r0 / pdf, r1 / pdf, r2 / pdf

@@ -37,6 +37,15 @@ from ..scene.textures import (EnvironmentMap, UnassociatedImage, _as_image,
                               equirectangular_uv)
 
 
+#: The share of next-event estimation's samples towards an environment map
+#: drawn from the map's distribution where the receiver normal n is known;
+#: the rest are cosine-distributed about n, and each is weighed by the
+#: mixture's density, MAP_SHARE pdf_map + (1 - MAP_SHARE) max(n.w, 0) / pi
+#: (sampling._sample_environment, pdf.pdf_direct and their compiled twins
+#: in direct_kernels and path_kernels).
+MAP_SHARE = 0.5
+
+
 def _region_max(a: np.ndarray) -> np.ndarray:
     """(H, W) maximum over each texel's region of the bilinear interpolation of
     a (H, W) (periodic in both axes, like the lookup): the largest of the texel

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..mathutil import dot as _dot, frame
+from .environment import MAP_SHARE
 from .table import (AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _lum, _mesh_emission,
                     _spot_atten)
 from .warps import (_cone_local, _cosine_local, _normalize, _to_world, _triangle_bary,
@@ -117,8 +118,8 @@ def _sample_environment(env, u1, u2, n=None):
     environment map (:mod:`.environment`).
 
     Without normals: the map's distribution.  With unit normals n (K, 3): one
-    sample of the mixture 1/2 map + 1/2 cosine about n (u2 < 1/2 picks the
-    map), weighted by the mixture's density (one-sample balance heuristic,
+    sample of the mixture MAP_SHARE map + (1 - MAP_SHARE) cosine about n
+    (u2 < MAP_SHARE picks the map, ``environment.MAP_SHARE``), weighted by the mixture's density (one-sample balance heuristic,
     Veach 1997 sec. 9.2.4): bright texels come from the map and the smooth
     rest from the cosine lobe that matches f cos.
     """
@@ -126,8 +127,9 @@ def _sample_environment(env, u1, u2, n=None):
     if n is None:
         w, pdf = env.sample(u1, u2)
     else:
-        pick_map = u2 < 0.5
-        v2 = np.where(pick_map, 2.0 * u2, 2.0 * u2 - 1.0)
+        pick_map = u2 < MAP_SHARE
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v2 = np.where(pick_map, u2 / MAP_SHARE, (u2 - MAP_SHARE) / (1.0 - MAP_SHARE))
         w = np.empty((K, 3))
         mm = np.nonzero(pick_map)[0]
         mc = np.nonzero(~pick_map)[0]
@@ -135,7 +137,7 @@ def _sample_environment(env, u1, u2, n=None):
             w[mm] = env.sample(u1[mm], v2[mm])[0]
         if mc.size:
             w[mc] = _normalize(_to_world(_cosine_local(u1[mc], v2[mc]), n[mc]))
-        pdf = 0.5 * env.pdf(w) + 0.5 * np.maximum(_dot(w, n), 0.0) / np.pi
+        pdf = MAP_SHARE * env.pdf(w) + (1.0 - MAP_SHARE) * np.maximum(_dot(w, n), 0.0) / np.pi
     with np.errstate(divide="ignore", invalid="ignore"):
         Lw = env.radiance(w) / pdf[:, None]
     Lw[~(pdf > 0)] = 0.0
