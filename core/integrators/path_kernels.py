@@ -70,8 +70,9 @@ from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 # core.sppm.photon_kernels, or a cache filled before it keeps the old code
 # (this note came with compiled.sincos_quarter; edited again with the disk
 # warp's one division and sample_fast inlined, with compiled.sample_pair's
-# radiance mode, with the GENERIC materials in these kernels, and with the
-# Normal Map / Bump corrections of the radiance-mode sample and density).
+# radiance mode, with the GENERIC materials in these kernels, with the
+# Normal Map / Bump corrections of the radiance-mode sample and density, and
+# with the microfacet lobes' geometric side test).
 from ..materials.compiled import eval_pair, pdf_oriented, sample_pair
 from ..materials.fast import ABSORBER, GENERIC, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
 from ..sppm.photon_kernels import shading_normal

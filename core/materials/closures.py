@@ -81,10 +81,12 @@ def shading_correction(n_s: np.ndarray, n_g: np.ndarray, w: np.ndarray) -> np.nd
 # --------------------------------------------------------------------------
 # Per-lobe evaluation (Cycles' closure eval, view/light roles explicit)
 # --------------------------------------------------------------------------
-def _lobe_f(kind, col, ucol, rough, eta, N, v, l, ms=None, ext=None):
+def _lobe_f(kind, col, ucol, rough, eta, N, v, l, ms=None, ext=None, Ng=None):
     """Cycles f_C(view=v, light=l) (k, 3) of one non-delta lobe kind.
 
     ms: (k,) bool, apply Multiscatter GGX energy compensation (GLOSSY, GLASS).
+    Ng: (k, 3) the geometric normal oriented like N (the microfacet lobes'
+    side test, :func:`microfacet._microfacet_f`), or None.
     ext: dict of Principled-layer arrays for these points (or None):
       'weight' (k,), 'fresnel' (k,), 'fresnel_ior' (k,), 'f82_tint' (k, 3),
       'layer_ior', 'layer_f0', 'layer_roughness' (k,)."""
@@ -104,7 +106,7 @@ def _lobe_f(kind, col, ucol, rough, eta, N, v, l, ms=None, ext=None):
         return col * (INV_PI * (_dot(N, l) < 0.0))[:, None]
     if kind in (GLOSSY, GLASS, REFRACTION):
         alpha2 = rough ** 4
-        fs = _microfacet_f(kind, alpha2, eta, N, v, l)
+        fs = _microfacet_f(kind, alpha2, eta, N, v, l, Ng)
         f = col * fs[:, None]
         fss = ucol
         if kind == GLOSSY and ext is not None and (ext["fresnel"] > 0).any():
@@ -157,7 +159,7 @@ def eval_bsdf(table: MaterialTable, mat, colors, n_s, n_g, wo, wi, mode="radianc
         raise ValueError(f"mode must be 'radiance' or 'importance', not {mode!r}")
     n_s = _bump_corrected(table, mat, n_s, n_g, v)
     N, Ng, front = _orient(n_s, n_g, v)
-    return _eval_nd(table, mat, colors, N, front, v, l,
+    return _eval_nd(table, mat, colors, N, front, v, l, Ng,
                     Ng_bump=Ng if mode == "radiance" else None)
 
 
@@ -199,10 +201,11 @@ def _bump_shadowing(Ns, N, l):
     return np.where(wrong, 0.0, g1)
 
 
-def _eval_nd(table, mat, colors, N, front_v, v, l, Ng_bump=None):
-    """Σ of the non-delta lobes' f (K, 3).  Ng_bump (K, 3): the geometric
-    normal oriented like N, to apply Cycles' bump shadowing to the diffuse
-    lobes of Normal Map / Bump materials (camera side); None: not applied."""
+def _eval_nd(table, mat, colors, N, front_v, v, l, Ng, Ng_bump=None):
+    """Σ of the non-delta lobes' f (K, 3).  Ng (K, 3): the geometric normal
+    oriented like N (the microfacet lobes' side test).  Ng_bump (K, 3): the
+    same, to apply Cycles' bump shadowing to the diffuse lobes of Normal
+    Map / Bump materials (camera side); None: not applied."""
     K = len(mat)
     flag = getattr(table, "bump_correction", None)
     if Ng_bump is not None and (flag is None or not flag[mat].any()):
@@ -234,7 +237,7 @@ def _eval_nd(table, mat, colors, N, front_v, v, l, Ng_bump=None):
             if not (ms is not None and ms.any()):
                 w = table.weight[mj, j][:, None]
                 ucol = np.where(w != 0.0, col / np.where(w != 0.0, w, 1.0), 0.0)
-        fk = _lobe_f(k, col, ucol, rough, eta, N[idx], v[idx], l[idx], ms, ext)
+        fk = _lobe_f(k, col, ucol, rough, eta, N[idx], v[idx], l[idx], ms, ext, Ng[idx])
         if Ng_bump is not None and k in (DIFFUSE, TRANSLUCENT):
             term = _bump_shadowing(Ng_bump[idx], N[idx], l[idx])
             fk = fk * np.where(flag[mj], term, 1.0)[:, None]
@@ -469,11 +472,11 @@ def _sample_general(table, mat, colors, n_s, n_g, wo, u, subset, mode):
     if len(nd):
         pdf_n = _pdf_nd(table, mat[nd], p[nd], N[nd], Ng[nd], front[nd], wo[nd], wi[nd])
         if mode == "radiance":
-            f = _eval_nd(table, mat[nd], colors[nd], N[nd], front[nd], wo[nd], wi[nd],
+            f = _eval_nd(table, mat[nd], colors[nd], N[nd], front[nd], wo[nd], wi[nd], Ng[nd],
                          Ng_bump=Ng[nd])
         else:
-            Nv, _, fv = _orient(n_s[nd], n_g[nd], wi[nd])
-            f = _eval_nd(table, mat[nd], colors[nd], Nv, fv, wi[nd], wo[nd])
+            Nv, Ngv, fv = _orient(n_s[nd], n_g[nd], wi[nd])
+            f = _eval_nd(table, mat[nd], colors[nd], Nv, fv, wi[nd], wo[nd], Ngv)
         good = pdf_n > 0
         cos = np.abs(_dot(n_s[nd], wi[nd]))
         weight[nd] = np.where(good[:, None], f * (cos / np.where(good, pdf_n, 1.0))[:, None], 0.0)

@@ -234,11 +234,14 @@ def _refraction_half(kind, eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz):
 
 
 @njit(cache=True, error_model="numpy")
-def _microfacet(kind, a2, eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz):
-    """microfacet._microfacet_f for one pair (scalar, no colour)."""
+def _microfacet(kind, a2, eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz, gl):
+    """microfacet._microfacet_f for one pair (scalar, no colour); gl = Ng.l,
+    the geometric normal oriented like N (its side test)."""
     cI = _dot3(Nx, Ny, Nz, vx, vy, vz)
     cO = _dot3(Nx, Ny, Nz, lx, ly, lz)
     if not cI > 0.0:
+        return 0.0
+    if (gl < 0.0) != (cO < 0.0):
         return 0.0
     if kind == GLOSSY and not cO > 0.0:
         return 0.0
@@ -439,6 +442,7 @@ def eval_pair_as(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy,
     Gx, Gy, Gz = ngx * sg, ngy * sg, ngz * sg
     nl = _dot3(Nx, Ny, Nz, lx, ly, lz)
     nv = _dot3(Nx, Ny, Nz, vx, vy, vz)
+    gl = _dot3(Gx, Gy, Gz, lx, ly, lz)
     f0_ = f1_ = f2_ = 0.0
     s0 = s1 = s2 = 0.0
     for j in range(lobes.shape[1]):
@@ -496,7 +500,7 @@ def eval_pair_as(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy,
         elif k == GLOSSY or k == GLASS or k == REFRACTION:
             ior = lobes[m, j, F_IOR]
             eta = ior if front else 1.0 / ior
-            fs = _microfacet(k, lobes[m, j, F_A2], eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz)
+            fs = _microfacet(k, lobes[m, j, F_A2], eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz, gl)
             g0, g1, g2 = c0 * fs, c1 * fs, c2 * fs
             fss0, fss1, fss2 = u0, u1, u2
             fm = int(lobes[m, j, F_FRES]) if k == GLOSSY else 0

@@ -148,16 +148,22 @@ def _refraction_half(kind, eta, N, v, l):
     return Hu, H, hv, hl, T
 
 
-def _microfacet_f(kind, alpha2, eta, N, v, l):
+def _microfacet_f(kind, alpha2, eta, N, v, l, Ng=None):
     """Scalar microfacet f(v, l) (k,) without colour, Cycles' bsdf_microfacet_eval / cos.
 
     kind GLOSSY, GLASS or REFRACTION; eta = far-side index / v-side index;
-    N oriented to v's geometric side."""
+    N oriented to v's geometric side.  Ng (k, 3), the geometric normal
+    oriented like N: as Cycles (4.0 on), l must be on the side of Ng that
+    N says (above it for a reflection, below for a transmission), or f = 0:
+    a shading normal that tilts l across the surface lets no light through
+    it (and the sampler, :func:`_microfacet_pdf`, never gives such an l)."""
     cI = _dot(N, v)
     cO = _dot(N, l)
     out = np.zeros(len(cI))
     trans = cO < 0.0
     ok = cI > 0.0
+    if Ng is not None:
+        ok &= (_dot(Ng, l) < 0.0) == trans
     if kind == GLOSSY:
         ok &= cO > 0.0
     lam_I = ggx_lambda(alpha2, cI)

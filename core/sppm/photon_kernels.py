@@ -46,6 +46,9 @@ from numba import njit
 from numba.core import cgutils, types
 from numba.extending import intrinsic
 
+# compiled.sample_pair (and eval_pair in it) is compiled into these kernels and
+# numba's cache is stamped by this file: edited with the microfacet lobes'
+# geometric side test of round 27.
 from ..materials.compiled import sample_pair, sincos_turn
 from ..materials.fast import ABSORBER, GENERIC, sample_fast
 from ..lights.warp_kernels import basis_world, upper_bound

@@ -13,6 +13,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+# compiled.eval_pair is compiled into this kernel and numba's cache is
+# stamped by this file: edited with the microfacet lobes' geometric side
+# test of round 27.
 from ..materials.compiled import _dot3, eval_pair
 
 #: Cap of the gathered photon's shading-normal factor (photon_pass._reflected).
