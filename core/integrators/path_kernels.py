@@ -60,7 +60,6 @@ from numba import njit
 
 from ..lights.direct_kernels import (SPH_TRI_MIN, _entry_weight, _spherical_rect,
                                      _spherical_tri)
-from ..lights.environment import MAP_SHARE
 from ..lights.environment_kernels import map_pdf, texture_vector
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 # sample_fast (and compiled._disk in it) and compiled.sample_pair, eval_pair
@@ -291,13 +290,12 @@ def pdf_kernel(L, Q, p, wi, light, dist, n, sel, out):
             if L.half_angle[j] > 0:
                 pdf = 1.0 / (2.0 * _PI * max(1.0 - L.cos_half_angle[j], 1e-300))
         elif kind == WORLD:
-            c = max(n[k, 0] * wx + n[k, 1] * wy + n[k, 2] * wz, 0.0)
             if L.env.total > 0:
-                # An environment map: the mixture direct_kernel draws.
+                # An environment map: its own distribution (direct_kernel).
                 cx, cy, cz, nt = texture_vector(L.env, wx, wy, wz)
-                pdf = MAP_SHARE * map_pdf(L.env, cx, cy, cz, nt) + (1.0 - MAP_SHARE) * c / _PI
+                pdf = map_pdf(L.env, cx, cy, cz, nt)
             else:
-                pdf = c / _PI
+                pdf = max(n[k, 0] * wx + n[k, 1] * wy + n[k, 2] * wz, 0.0) / _PI
         elif kind == AREA:
             cosl = -(wx * L.dir[j, 0] + wy * L.dir[j, 1] + wz * L.dir[j, 2])
             front = ((px - L.co[j, 0]) * L.dir[j, 0] + (py - L.co[j, 1]) * L.dir[j, 1]

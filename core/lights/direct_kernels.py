@@ -17,9 +17,9 @@ test stay ``NextEventEstimation._blocked``'s numpy code, on their rows.
 
 Not compiled (``compiled_lights_ok`` is False, the numpy sampler is used):
 textured emissive triangles, and for the visible points an environment
-map (its light sample is compiled, the map-and-cosine mixture of
-``sampling._sample_environment``, for the camera paths; the visible
-points' extra BSDF sample towards the map is not).
+map (its light sample, ``sampling._sample_environment``, is compiled for
+the camera paths; the visible points' extra BSDF sample towards the map
+is not).
 
 Precision: the same formulas in the same order as the numpy code, but
 numba's libm (arccos, sin, cos, sqrt are correctly rounded or within 1 ulp)
@@ -37,9 +37,8 @@ import numpy as np
 from numba import njit
 
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
-from .environment_kernels import (EnvironmentKernel, map_direction, map_pdf, map_radiance,
-                                  no_map, texture_vector)
-from .environment import MAP_SHARE
+from .environment_kernels import (EnvironmentKernel, map_direction, map_radiance, no_map,
+                                  texture_vector)
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, _lum
 
 _PI = np.pi
@@ -140,7 +139,7 @@ class DirectSamples(NamedTuple):
 def compiled_lights_ok(table, environment: bool = False) -> bool:
     """Whether :func:`direct_kernel` covers every emitter of the table: not
     textured emissive triangles, nor an environment map unless
-    ``environment`` (the kernel samples a map's mixture; the visible
+    ``environment`` (the kernel samples a map's distribution; the visible
     points' direct light also takes a BSDF sample towards the map,
     ``nee.NextEventEstimation._environment_bsdf``, which stays numpy)."""
     if table.environment is not None and not environment:
@@ -528,23 +527,11 @@ def direct_kernel(k0, k1, L, R, out):
                 wx, wy, wz = ax, ay, az
                 l0, l1, l2 = L.strength[j, 0], L.strength[j, 1], L.strength[j, 2]
         elif kind == WORLD and L.env.total > 0:
-            # An environment map (sampling._sample_environment with normals):
-            # one sample of the mixture of the map (u2 < MAP_SHARE) and the
-            # cosine about n, weighed by the mixture's density.
-            nx, ny, nz = R.n[i, 0], R.n[i, 1], R.n[i, 2]
-            if u2 < MAP_SHARE:
-                wx, wy, wz, _, _ = map_direction(L.env, u1, u2 / MAP_SHARE)
-            else:
-                v2 = (u2 - MAP_SHARE) / (1.0 - MAP_SHARE)
-                rr = np.sqrt(u1)
-                phi = 2.0 * _PI * v2
-                a_, b_ = rr * np.cos(phi), rr * np.sin(phi)
-                cz = np.sqrt(max(1.0 - a_ * a_ - b_ * b_, 0.0))
-                wx, wy, wz = _nrm3(*_to_world(a_, b_, cz, nx, ny, nz))
+            # An environment map: its own distribution (sampling._sample_environment).
+            wx, wy, wz, wk, omega = map_direction(L.env, u1, u2)
             t = np.inf
             cx, cy, cz, nt = texture_vector(L.env, wx, wy, wz)
-            pdf = (MAP_SHARE * map_pdf(L.env, cx, cy, cz, nt)
-                   + (1.0 - MAP_SHARE) * max(wx * nx + wy * ny + wz * nz, 0.0) / _PI)
+            pdf = wk / omega / L.env.total * (L.env.det / max(nt, 1e-300) ** 3)
             if pdf > 0:
                 r0, r1, r2 = map_radiance(L.env, cx, cy, cz, nt)
                 l0, l1, l2 = r0 / pdf, r1 / pdf, r2 / pdf

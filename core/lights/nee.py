@@ -97,7 +97,7 @@ class NextEventEstimation:
             wk = np.nonzero(smp["kind"][live] == WORLD)[0]
             if wk.size:
                 qk = q[wk]
-                pl = environment_pdf(self.light_table, vp.p[qk], vp.ns[qk], wi[wk])
+                pl = environment_pdf(self.light_table, vp.p[qk], wi[wk])
                 pb = B.pdf_bsdf(self.mtab, vp.mat[qk], vp.colors[qk], ns_m[wk], ng_m[wk],
                                 vp.wo[qk], wi[wk], subset="nondelta")
                 contrib[wk] *= (pl / np.maximum(pl + pb, 1e-300))[:, None]
@@ -260,7 +260,7 @@ class NextEventEstimation:
         if k.size == 0:
             return L
         q, wi, wgt, pdf = q[k], wi[k], wgt[k], pdf[k]
-        pl = environment_pdf(self.light_table, vp.p[q], vp.ns[q], wi)
+        pl = environment_pdf(self.light_table, vp.p[q], wi)
         contrib = (vp.beta[q] * wgt * self.light_table.environment.radiance(wi)
                    * (pdf / (pdf + pl))[:, None])
         _add_lit(L, q, contrib, self.transmittance(vp.p[q], vp.ng[q], wi,

@@ -12,7 +12,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..mathutil import dot as _dot
-from .environment import MAP_SHARE
 from .sampling import _SPH_TRI_MIN, _entry_weights, _sample_spherical_rect, _sample_spherical_tri
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable
 
@@ -93,15 +92,7 @@ def pdf_direct(table: LightTable, p: np.ndarray, wi: np.ndarray, light: np.ndarr
     if m.size:
         env = table.environment
         if env is not None and env.total > 0:
-            # sampling._sample_environment: the map's distribution, or with
-            # normals the mixture of the map and the cosine about n.
-            pm = env.pdf(wi[m])
-            if n is None:
-                pdf[m] = pm
-            else:
-                nm = np.asarray(n, np.float64).reshape(-1, 3)[m]
-                pdf[m] = (MAP_SHARE * pm
-                          + (1.0 - MAP_SHARE) * np.maximum(_dot(nm, wi[m]), 0.0) / np.pi)
+            pdf[m] = env.pdf(wi[m])     # sampling._sample_environment: the map's own
         elif n is None:
             pdf[m] = 1.0 / (4.0 * np.pi)
         else:
@@ -139,11 +130,11 @@ def pdf_direct(table: LightTable, p: np.ndarray, wi: np.ndarray, light: np.ndarr
     return pdf
 
 
-def environment_pdf(table: LightTable, p: np.ndarray, n: np.ndarray, w: np.ndarray) -> np.ndarray:
+def environment_pdf(table: LightTable, p: np.ndarray, w: np.ndarray) -> np.ndarray:
     """(K,) :func:`pdf_direct` of the world's row for directions w (K, 3)
-    from points p with receiver normals n (K, 3): p_select(world | p)
-    (s pdf_map(w) + (1 - s) max(n.w, 0) / pi), s = ``environment.MAP_SHARE``.  0 without a map.  For multiple
-    importance sampling with BSDF samples (``nee.NextEventEstimation``)."""
+    from points p (K, 3): p_select(world | p) pdf_map(w); 0 without a map.
+    For multiple importance sampling with BSDF samples
+    (``nee.NextEventEstimation``)."""
     p = np.asarray(p, np.float64).reshape(-1, 3)
     env = table.environment
     e = np.nonzero((table.entry_emitter >= 0)
@@ -152,4 +143,4 @@ def environment_pdf(table: LightTable, p: np.ndarray, n: np.ndarray, w: np.ndarr
         return np.zeros(p.shape[0])
     K = p.shape[0]
     return pdf_direct(table, p, w, np.full(K, table.entry_emitter[e[0]], np.int64),
-                      np.full(K, np.inf), n=n)
+                      np.full(K, np.inf))

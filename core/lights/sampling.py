@@ -11,7 +11,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..mathutil import dot as _dot, frame
-from .environment import MAP_SHARE
 from .table import (AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _lum, _mesh_emission,
                     _spot_atten)
 from .warps import (_cone_local, _cosine_local, _normalize, _to_world, _triangle_bary,
@@ -113,31 +112,18 @@ def _sample_spherical_tri(p, A, B, C, u1, u2):
 # ----------------------------------------------------------------------------
 # The environment map.
 
-def _sample_environment(env, u1, u2, n=None):
+def _sample_environment(env, u1, u2):
     """(directions (K, 3), inf distances (K,), L / pdf (K, 3)) towards an
-    environment map (:mod:`.environment`).
+    environment map (:mod:`.environment`), drawn from the map's distribution.
 
-    Without normals: the map's distribution.  With unit normals n (K, 3): one
-    sample of the mixture MAP_SHARE map + (1 - MAP_SHARE) cosine about n
-    (u2 < MAP_SHARE picks the map, ``environment.MAP_SHARE``), weighted by the mixture's density (one-sample balance heuristic,
-    Veach 1997 sec. 9.2.4): bright texels come from the map and the smooth
-    rest from the cosine lobe that matches f cos.
+    Its callers weigh these samples against BSDF samples (the camera paths'
+    continuation, the visible points' ``nee._environment_bsdf``), so a cosine
+    lobe about the receiver normal beside the map (a mixture, until round 27)
+    only took samples away from the map's bright texels: docs/integrators.md
+    "An HDRI's light sample, round 27".
     """
     K = u1.shape[0]
-    if n is None:
-        w, pdf = env.sample(u1, u2)
-    else:
-        pick_map = u2 < MAP_SHARE
-        with np.errstate(divide="ignore", invalid="ignore"):
-            v2 = np.where(pick_map, u2 / MAP_SHARE, (u2 - MAP_SHARE) / (1.0 - MAP_SHARE))
-        w = np.empty((K, 3))
-        mm = np.nonzero(pick_map)[0]
-        mc = np.nonzero(~pick_map)[0]
-        if mm.size:
-            w[mm] = env.sample(u1[mm], v2[mm])[0]
-        if mc.size:
-            w[mc] = _normalize(_to_world(_cosine_local(u1[mc], v2[mc]), n[mc]))
-        pdf = MAP_SHARE * env.pdf(w) + (1.0 - MAP_SHARE) * np.maximum(_dot(w, n), 0.0) / np.pi
+    w, pdf = env.sample(u1, u2)
     with np.errstate(divide="ignore", invalid="ignore"):
         Lw = env.radiance(w) / pdf[:, None]
     Lw[~(pdf > 0)] = 0.0
@@ -339,8 +325,7 @@ def sample_direct(table: LightTable, p: np.ndarray, u: np.ndarray, n=None) -> di
 
     m = np.nonzero(kind == WORLD)[0]
     if m.size and table.environment is not None:
-        nm = None if n is None else np.asarray(n, np.float64).reshape(-1, 3)[m]
-        fill(m, *_sample_environment(table.environment, u1[m], u2[m], nm))
+        fill(m, *_sample_environment(table.environment, u1[m], u2[m]))
     elif m.size:
         jj = j[m]
         if n is None:
