@@ -548,7 +548,8 @@ class Renderer:
         k = self.pass_index + 1
         if self.merge_mis:
             return self._step_merge_mis(k, t0)
-        L_pass = self._interruptible(self.path_tracer, self._rng(k, 3), self._check_stop)
+        L_pass = self._interruptible(self.path_tracer, self._rng(k, 3), self._check_stop,
+                                     pass_index=k)
         tl = time.perf_counter()
         self.stage_seconds["camera"] += tl - t0
         vp = None
@@ -598,7 +599,8 @@ class Renderer:
         self.combined_lt.merge_R2 = R2
         tl = time.perf_counter()
         self.stage_seconds["camera"] += tl - t0
-        L_pass = self._interruptible(self.path_tracer, self._rng(k, 3), self._check_stop)
+        L_pass = self._interruptible(self.path_tracer, self._rng(k, 3), self._check_stop,
+                                     pass_index=k)
         tp = time.perf_counter()
         self.stage_seconds["camera"] += tp - tl
         sums = self._interruptible(self.combined_lt.trace_pass, st.photons_per_pass,

@@ -244,34 +244,54 @@ def test_compiled_sampling_without_its_sample_columns_is_refused(monkeypatch):
         r.combined_lt.trace_pass(2000, np.random.default_rng(7), lambda: None)
 
 
-@pytest.mark.parametrize("n", [1, 2, 3, 4, 7, 8, 9, 16, 40])
-@pytest.mark.parametrize("square", [True, False])
-def test_stratified_cells_are_the_stable_order_of_the_keys(n, square):
-    """path_kernels.stratify_pair (path_tracer.stratified's placement) equals
-    the numpy expressions with a stable argsort of each pixel's keys, ties
-    included (keys on a grid of thirds) up to 32 samples: the rank by
-    counting (n <= RANK_MAX) and the insertion sort give one order; numpy's
-    sort beyond (distinct keys)."""
-    from core.integrators import path_kernels as PKp
-    rng = np.random.default_rng(n)
-    B = 700
-    keys = np.floor(rng.random((n, B)) * 3) / 3
-    if n > 32:
-        keys = rng.random((n, B))        # numpy's sort there: not stable on ties
-    keys2 = rng.random((n, B)) if not square else keys
-    j = rng.random((n, B, 2))
-    m = int(round(np.sqrt(n)))
-    m = m if square and m * m == n else 0
-    out = np.full((n, B, 4), np.nan)
-    PKp.stratify_pair(keys, j, keys2, m, out, 1)
-    perm = np.argsort(keys, axis=0, kind="stable")
-    if m:
-        ref0, ref1 = (perm % m + j[..., 0]) / m, (perm // m + j[..., 1]) / m
-    else:
-        perm2 = np.argsort(keys2, axis=0, kind="stable")
-        ref0, ref1 = (perm + j[..., 0]) / n, (perm2 + j[..., 1]) / n
-    np.testing.assert_array_equal(out[..., 2], ref0)
-    np.testing.assert_array_equal(out[..., 3], ref1)
+@pytest.mark.parametrize("first_block", [0, 1, 5])
+def test_a_pixels_samples_form_nets_across_passes(first_block):
+    """sequence_kernels.sobol_pairs: for every pixel and pair of dimensions,
+    the 2^m samples of an aligned block (samples first .. first + 2^m - 1,
+    first a multiple of 2^m: passes of 4 samples, 16, 64 ...) form a
+    (0, m, 2)-net: every elementary interval of area 2^-m (2^a x 2^(m-a)
+    cells) holds exactly one point, m = 1..7.  A pass's 4 samples alone, as
+    the stratification of one pass before round 27, make the m = 2 nets."""
+    from core.integrators.sequence_kernels import sobol_pairs
+    B, pairs = 40, 4
+    pix = np.arange(B, dtype=np.int64) * 37 + 3
+    for m in range(1, 8):
+        n = 2 ** m
+        out = np.full((n, B, 2 * pairs), np.nan)
+        sobol_pairs(11, pix, first_block * n, n, pairs, out)
+        assert np.all((out >= 0.0) & (out < 1.0))
+        for a in range(m + 1):
+            cx = np.floor(out[..., 0::2] * 2 ** a).astype(np.int64)
+            cy = np.floor(out[..., 1::2] * 2 ** (m - a)).astype(np.int64)
+            cells = np.sort(cx * 2 ** (m - a) + cy, axis=0)          # (n, B, pairs)
+            np.testing.assert_array_equal(cells, np.arange(n)[:, None, None]
+                                          * np.ones((1, B, pairs), np.int64))
+
+
+def test_sequence_points_are_uniform_and_independent():
+    """Over 200 pixels x 4096 samples each coordinate is uniform (chi-square
+    on 64 bins, p > 1e-3), pairs of dimensions and pixels are uncorrelated
+    (|r| < 4.5 / sqrt(N)), and the same (seed, pixel, sample) gives the same
+    point whichever block computes it (the passes' sequence is resumable)."""
+    from core.integrators.sequence_kernels import sobol_pairs
+    from stats_helpers import chi2_sf
+    B, n = 200, 4096
+    out = np.empty((n, B, 8))
+    sobol_pairs(3, np.arange(B, dtype=np.int64), 0, n, 4, out)
+    flat = out.reshape(-1, 8)
+    N = flat.shape[0]
+    for d in range(8):
+        h = np.bincount(np.floor(flat[:, d] * 64).astype(np.int64), minlength=64)
+        stat = float(((h - N / 64) ** 2 / (N / 64)).sum())
+        assert chi2_sf(stat, 63) > 1e-3, (d, stat)
+    lim = 4.5 / np.sqrt(N)
+    for d0, d1 in ((0, 2), (0, 4), (1, 5), (2, 6), (3, 7), (0, 1)):
+        assert abs(np.corrcoef(flat[:, d0], flat[:, d1])[0, 1]) < lim
+    r = np.corrcoef(out[:, :, 0].T)[np.triu_indices(B, 1)]
+    assert np.abs(r).max() < 4.5 * 4 / np.sqrt(n)       # 19,900 pairs of pixels
+    part = np.empty((8, 3, 8))
+    sobol_pairs(3, np.array([5, 17, 199], np.int64), 1000, 8, 4, part)
+    np.testing.assert_array_equal(part, out[1000:1008][:, [5, 17, 199]])
 
 
 def test_seen_kernel_equals_emitted_along_rays():

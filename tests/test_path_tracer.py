@@ -244,7 +244,7 @@ def _export_reference_scene(name):
 
 
 @pytest.mark.parametrize("name, passes, tol", [("t_glass_caustic", 8, 0.01),
-                                               ("t_mirror_caustic", 20, 0.02)])
+                                               ("t_mirror_caustic", 32, 0.02)])
 def test_caustic_scenes_mean_agrees_with_cycles(name, passes, tol):
     """Smooth glass and mirror seen and lighting the floor through delta chains.
 
@@ -253,8 +253,10 @@ def test_caustic_scenes_mean_agrees_with_cycles(name, passes, tol):
     mean's sigma from their spread (measured on the glass: 0.6% per seed of 8
     passes, 0.2% for the mean); 1% is then > 4 sigma and still catches the
     1.9% excess a glass sphere showed when leaving it used the entering eta.
-    The mirror's caustic is noisier (2.7% per seed of 8 passes): 20 passes
-    and FPPM's 2% bound (tests/test_cycles_agreement.py), sigma < tol / 4.
+    The mirror's caustic is noisier (2.7% per seed of 8 passes): 32 passes
+    and FPPM's 2% bound (tests/test_cycles_agreement.py), sigma < tol / 4
+    (20 passes gave sigma 0.45-0.54 % over two sets of random numbers: the
+    bound's edge).
     """
     pytest.importorskip("bpy")
     from scenes.refs import load_reference

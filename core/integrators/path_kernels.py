@@ -486,69 +486,6 @@ def continue_kernel(M, mat, p, ng, ns, wo, beta, u, roulette, rel, floor, nx):
     return n
 
 
-#: Up to this many samples a pixel, _column_order ranks the keys by counting.
-RANK_MAX = 8
-
-
-@njit(cache=True, inline="always")
-def _column_order(keys, b, perm):
-    """perm[s] = the row of the s-th smallest keys[:, b] (np.argsort of the
-    column: the same order for distinct keys): insertion sort for the few
-    samples of a pixel, numpy's sort beyond."""
-    n = keys.shape[0]
-    if n > 32:
-        perm[:] = np.argsort(keys[:, b])
-        return
-    if n <= RANK_MAX:
-        # Each key's rank, counted without a branch (random keys make an
-        # insertion sort's comparisons unpredictable): the keys before it
-        # that are <= it and those after it that are <, so equal keys keep
-        # their order as the insertion sort below keeps it (the same perm).
-        for a in range(n):
-            ka = keys[a, b]
-            r = 0
-            for c in range(a):
-                r += keys[c, b] <= ka
-            for c in range(a + 1, n):
-                r += keys[c, b] < ka
-            perm[r] = a
-        return
-    for a in range(n):
-        x = a
-        kx = keys[x, b]
-        c = a - 1
-        while c >= 0 and keys[perm[c], b] > kx:
-            perm[c + 1] = perm[c]
-            c -= 1
-        perm[c + 1] = x
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def stratify_pair(keys, j, keys2, m, out, i):
-    """Dimension pair i of ``path_tracer.stratified``: keys (n, B) the
-    uniforms whose order per pixel (column) is its permutation of the n
-    cells, j (n, B, 2) the jitter; m > 0: the sqrt(n) x sqrt(n) grid,
-    out[s, b, 2i] = (perm % m + j0) / m and out[s, b, 2i+1] = (perm // m +
-    j1) / m; m = 0: N-rooks, (perm + j0) / n and (perm2 + j1) / n with
-    perm2 the order of keys2.  The same operations as the numpy expressions
-    (bit for bit)."""
-    n, B = keys.shape
-    perm = np.empty(n, np.int64)
-    perm2 = np.empty(n, np.int64)
-    for b in range(B):
-        _column_order(keys, b, perm)
-        if m > 0:
-            for s in range(n):
-                q = perm[s]
-                out[s, b, 2 * i] = ((q % m) + j[s, b, 0]) / m
-                out[s, b, 2 * i + 1] = ((q // m) + j[s, b, 1]) / m
-        else:
-            _column_order(keys2, b, perm2)
-            for s in range(n):
-                out[s, b, 2 * i] = (perm[s] + j[s, b, 0]) / n
-                out[s, b, 2 * i + 1] = (perm2[s] + j[s, b, 1]) / n
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def add_emission(out, path, idx, beta, Le, w):
     """out[path[i]] += beta[i] * Le[k] * w[k] for the rays i = idx[k] (k,)

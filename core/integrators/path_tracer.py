@@ -32,8 +32,9 @@ Georgiev et al. 2012; docs/integrators.md).  Like Cycles' path tracer:
 - Russian roulette from vertex ``rr_start`` on, survival probability
   min(1, sqrt(largest throughput component)) as Cycles'
   ``path_state_continuation_probability``, weight divided by it;
-- the filter, lens and first light sample of a pixel's camera_samples paths
-  are stratified (:func:`stratified`).
+- the filter, lens and first light sample of a pixel's paths are points of
+  one low-discrepancy sequence per pixel that runs across the passes
+  (``sequence_kernels.sobol_pairs``: shuffled, scrambled 2-D Sobol').
 
 All paths of a pass are traced together as a structure of arrays, masked and
 compacted per vertex (Mitsuba 3 style wavefront); throughput is float64.
@@ -65,6 +66,7 @@ from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..mathutil import dot as _dot
 from . import path_kernels as PK
 from .merge import CameraMerge, CameraPartition
+from .sequence_kernels import sobol_pairs
 
 #: Paths traced together at most: ~1 kB each in flight (64 MiB), and past the
 #: ~30k paths per batch where the per-vertex numpy overhead is amortised
@@ -83,28 +85,6 @@ def power_heuristic(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:
     a2, b2 = pdf_a * pdf_a, pdf_b * pdf_b
     s = a2 + b2
     return np.where(s > 0, a2 / np.where(s > 0, s, 1.0), 1.0)
-
-
-def stratified(rng: np.random.Generator, n: int, B: int, pairs: int) -> np.ndarray:
-    """(n, B, 2 pairs) float64 uniforms: for each of B pixels, n samples whose
-    dimension pairs (2i, 2i+1) are stratified: jittered on a sqrt(n) x sqrt(n)
-    grid when n is a square, else N-rooks (each 1-D projection in n strata);
-    cells shuffled independently per pixel and pair (Shirley 1991; Cycles'
-    multi-jittered sequences serve the same end).  Every sample is uniform on
-    its own, so estimates stay unbiased; within a pixel the samples spread.
-    A pixel's random permutation of the n cells is the order of n uniforms
-    (numpy's argsort over axis 0); ``path_kernels.stratify_pair`` sorts and
-    places them, the draws stay numpy's (keys, jitter, then the N-rooks'
-    second keys, per pair)."""
-    out = np.empty((n, B, 2 * pairs))
-    m = int(round(np.sqrt(n)))
-    square = m * m == n
-    for i in range(pairs):
-        keys = rng.random((n, B))
-        j = rng.random((n, B, 2))
-        keys2 = keys if square else rng.random((n, B))
-        PK.stratify_pair(keys, j, keys2, m if square else 0, out, i)
-    return out
 
 
 #: The per-path arrays of merging's partition (core.integrators.merge.CameraPartition).
@@ -185,6 +165,7 @@ class PathTracer:
         self.max_bounces = int(settings.max_bounces)
         self.rr_start = int(settings.rr_start)
         self.samples = int(settings.camera_samples)
+        self.seed = int(settings.seed)
         self.nee = nee
         # Integrator 'COMBINED': core.integrators.combined.CameraMIS (the
         # light-tracing and merging terms of the weights); None = PATH.
@@ -291,7 +272,8 @@ class PathTracer:
         nb = -(-paths // PATH_CHUNK)
         return max(nb, 2) if paths >= PATH_SPLIT_MIN else max(nb, 1)
 
-    def __call__(self, rng: np.random.Generator, check_stop=lambda: None) -> np.ndarray:
+    def __call__(self, rng: np.random.Generator, check_stop=lambda: None,
+                 pass_index: int = 1) -> np.ndarray:
         """(P, 3) float64: the mean over ``camera_samples`` paths per pixel of
         the radiance each carries (filter-importance-sampled, so a plain mean).
 
@@ -318,7 +300,9 @@ class PathTracer:
             r = rngs[a // block]
             # Paths sample-major: row s * B + b is sample s of pixel pix_b[b].
             pix = np.tile(pix_b, n)
-            u = stratified(r, n, pix_b.size, 4).reshape(n * pix_b.size, 8)
+            u = np.empty((n, pix_b.size, 8))
+            sobol_pairs(self.seed, pix_b, (pass_index - 1) * n, n, 4, u)
+            u = u.reshape(n * pix_b.size, 8)
             Lp = self._trace(pix, u, r, check_stop)
             for c in range(3):
                 L[a:a + pix_b.size, c] = np.bincount(pix - a, Lp[:, c], minlength=pix_b.size)
@@ -346,7 +330,7 @@ class PathTracer:
     # ------------------------------------------------------------------ paths
     def _trace(self, pix, u, rng, check_stop) -> np.ndarray:
         """(K, 3) radiance of one camera path per entry of pix (K,) (pixel rows);
-        u (K, 8) the stratified numbers of the path's first dimensions: filter
+        u (K, 8) the sequence's numbers of the path's first dimensions: filter
         (0:2), lens (2:4), first light sample (4:7)."""
         mtab, accel, s, lt = self.mtab, self.accel, self.scene, self.lights
         K = pix.size
