@@ -168,13 +168,21 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
         seen = (bool(np.any(mtab.has_nondelta)) if mtab.has_nondelta.size else False) or bool(
             np.any((light_table.kind == MESH)
                    | ((light_table.kind == AREA) & light_table.visible_camera)))
+        # And it follows the emitters it draws (integrators.mis.light_classes:
+        # not the sun's, the world's or lights hidden from glossy or
+        # transmission rays, whose light the camera paths take alone).
+        from .integrators.mis import NO_LT, light_classes
+        traced = bool(np.any(light_classes(light_table) != NO_LT))
         plan.strategies = (f"camera paths (path tracing and next-event estimation, "
                            f"{settings.camera_samples} per pixel and pass)",)
-        if seen:
+        if seen and traced:
             plan.strategies += ("light tracing",)
         else:
-            plan.left_out.append(("light tracing", "no diffuse or glossy surface for the "
-                                                   "camera to see"))
+            plan.left_out.append(("light tracing", "no emitter it traces: the sun and the "
+                                                   "world are the camera paths'"
+                                  if seen else "no diffuse or glossy surface for the "
+                                               "camera to see"))
+        seen = seen and traced
         plan.strategies += ("power-heuristic MIS",)
         merging = merges_photons(settings, has_delta, has_nondelta, scene.tri_p, seen)
         if settings.merge_weights == "MIS" and seen:

@@ -235,6 +235,12 @@ class Renderer:
                     self.path_tracer.vc.set_samples(self.combined_lt.K)
                 self.plan.strategies = with_camera_stop(self.plan.strategies, stop,
                                                         self.path_tracer.samples)
+            if self.combined_lt is None and not self.merging:
+                # Neither light tracing nor merging (the plan left both out:
+                # an HDRI or a sun alone): every weight of the camera side
+                # is 1, and the camera paths render PATH's image without
+                # CameraMIS's terms.
+                self.path_tracer.vc = None
             self.light_splat = np.zeros((P, 3))
             # No camera path (CameraStop.camera_free), no merging and nothing
             # the film reads from a camera pass or the photon state (alpha,

@@ -110,6 +110,31 @@ def test_emitters_and_world_only_when_present():
     assert "WORLD" in r2.plan.emitter_kinds and r2.plan.world_emission
 
 
+def test_combined_leaves_light_tracing_out_under_a_world_alone():
+    """COMBINED's light paths start on the emitters light tracing follows
+    (integrators.mis.light_classes): not the world's or the sun's.  With a
+    world alone (an HDRI's scene) there is none: the plan leaves light
+    tracing out, says why, and the camera paths render PATH's image bit for
+    bit (no light paths, no CameraMIS terms); a point light brings it back."""
+    scene, _ = point_light_plane(res=12)
+    scene.lights = []
+    scene.world_color = np.array([0.3, 0.4, 0.5])
+    imgs = {}
+    for mode in ("PATH", "COMBINED"):
+        st = RenderSettings(integrator=mode, max_passes=2, seed=3)
+        r = Renderer(scene, st, log=lambda s: None)
+        imgs[mode] = r.run().image
+    assert "light tracing" in _left_out(r) and r.combined_lt is None
+    assert r.path_tracer.vc is None and r.photons_per_step == 0
+    assert any("no emitter it traces" in line for line in r.plan_lines())
+    assert imgs["PATH"].max() > 0.1
+    np.testing.assert_array_equal(imgs["COMBINED"], imgs["PATH"])
+    lit, _ = point_light_plane(res=12)
+    lit.world_color = np.array([0.3, 0.4, 0.5])
+    r2 = Renderer(lit, RenderSettings(integrator="COMBINED", max_passes=1), log=lambda s: None)
+    assert "light tracing" in r2.plan.strategies and r2.combined_lt is not None
+
+
 def test_plan_lines_and_metadata_name_what_was_left_out():
     scene, _ = point_light_plane(res=12)
     r, _ = _run(scene)
