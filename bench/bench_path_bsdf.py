@@ -24,9 +24,10 @@ calls ÷ kernels with their paired medians, and the largest difference of
 each image from numpy's relative to the image's largest pixel.  A scene
 that the kernels do not cover (textures, Normal Map / Bump) runs ``calls``
 in both of the last two.  --cycles: also Cycles on the same file at the
-same size and paths a pixel (non-adaptive, no denoising, CPU), rendered in
-a process of its own (no numba or Embree threads there, as ``fppm
-converge``'s Cycles ladder), its process CPU a path beside FPPM's.
+same size (non-adaptive, no denoising, CPU), rendered in a process of its
+own (no numba or Embree threads there, as ``fppm converge``'s Cycles
+ladder): its process CPU a path at the margin (4 and 64 x the paths a
+pixel, the difference) beside FPPM's.
 --threads: instead, the kernels' pass on one thread and on two
 (``core.sppm.photons.THREADS``; the pass's pixel blocks shared,
 ``PathTracer.blocks``), interleaved: wall time one ÷ two, the cores each
@@ -167,12 +168,25 @@ def main(argv=None) -> None:
             if a.cycles and mode == "PATH":
                 w, h = scene.camera.resolution
                 paths = w * h * st.camera_samples
-                cy = cycles_cpu(name, a.percent, 4 * st.camera_samples)
+                # Cycles' CPU a path at the margin: two renders of 4 and 64
+                # x camera_samples spp in one process, their difference over
+                # the 60 x camera_samples paths a pixel between them, so
+                # that its per-render set-up (scene sync, BVH, an HDRI's
+                # importance map) is left out as FPPM's is (its tables are
+                # built outside the clock).  Until round 27 one 4 x render
+                # was divided by its paths: 2-5x Cycles' marginal cost on
+                # 128 x 128 images (docs/integrators.md "Cycles' CPU a path
+                # at the margin, round 27").
+                lo, hi = 4 * st.camera_samples, 64 * st.camera_samples
+                cy_lo, cy_hi = cycles_cpu(name, a.percent, lo), cycles_cpu(name, a.percent, hi)
+                cy_path = (cy_hi - cy_lo) / ((hi - lo) * w * h)
                 us = {v: 1e6 * t[v].min() / paths for v in VARIANTS}
                 print(f"  CPU a path: numpy {us['numpy']:.3f} us, calls {us['calls']:.3f} us, "
-                      f"kernels {us['kernels']:.3f} us; Cycles {1e6 * cy / (4 * paths):.3f} us "
-                      f"({4 * st.camera_samples} spp in its own process): kernels ÷ Cycles "
-                      f"{tk.min() / (cy / 4):.2f}x", flush=True)
+                      f"kernels {us['kernels']:.3f} us; Cycles {1e6 * cy_path:.3f} us at the "
+                      f"margin ({lo} and {hi} spp in its own process; "
+                      f"{1e6 * cy_lo / (lo * w * h):.3f} us a path in the {lo}-spp render "
+                      f"alone): kernels ÷ Cycles {us['kernels'] / (1e6 * cy_path):.2f}x",
+                      flush=True)
 
 
 def threads(a, Renderer) -> None:

@@ -412,6 +412,20 @@ NOTES = [
     "four seeds 1.01-1.10; at 6 s FPPM made 28 passes, CPPM 29-30; over 60 s 306-310 against "
     "309-322).  The top-level files of both folders are the earlier runs with Combined and "
     "Cycles, on the old clock.",
+    "Round 27, real_scene (an HDRI world, its only light; Principled materials; a normal-mapped "
+    "floor) against its Cycles reference (8192 spp in 2 pieces, floor 2.76e-5, 105 s wall), "
+    "`real_scene --budget 60 --clock cpu --seeds 4` (methods combined,path,fppm,cycles), load 1 "
+    "to 3.  On 28ef7ed (the camera paths' HDRI lookup mended, nothing else), in "
+    "real_scene/combined_path_fppm_cycles_60s_28ef7ed/: Combined / Cycles 21.1 / 22.7 / 19.8 "
+    "(excess 25.5), Path Tracing / Cycles 23.5 (excess), FPPM / Cycles 61.5; 175-190 camera-path "
+    "passes.  On 8523e81 (the camera-path kernels on the scene, the microfacet side test, the "
+    "map's own light sample over 8 x 8 cells a texel, one Sobol' sequence a pixel across "
+    "passes), the top-level files: Combined / Cycles 2.04 / 2.63 / 2.48 (excess 2.93, seeds "
+    "2.61-3.18), Path Tracing / Cycles 1.86 / 2.34 / 2.23 (excess 2.60), FPPM / Cycles 32; "
+    "327-372 Path Tracing passes.  From d949fed Combined leaves light tracing out there (no "
+    "emitter it traces) and renders Path Tracing's image bit for bit at its cost, so its row "
+    "is Path Tracing's.  Cycles made 2742 spp in 60 CPU s: 1.3 us a path at the margin, 2x "
+    "FPPM's camera path (docs/integrators.md \"Cycles' CPU a path at the margin, round 27\").",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
