@@ -139,6 +139,63 @@ def test_compiled_paths_equal_numpy(integrator, n_small_tris, world_map, bumped)
     np.testing.assert_allclose(L_c, L_n, rtol=1e-9, atol=1e-9 * float(L_n.max()))
 
 
+@pytest.mark.parametrize("tangents,strength,directx", [(False, 0.8, False), (True, 1.0, True),
+                                                       (True, 1.7, False)])
+def test_compiled_normal_map_equals_perturb(tangents, strength, directx):
+    """normal_kernels.normal_map (the kernels' Normal Map hits) against
+    normals.perturb (accel.surface_point's) on 20,000 random hits of the
+    normal-mapped floor and of the other triangles: with the fallback
+    tangent along dP/du, with per-corner MikkTSpace tangents (one triangle
+    without: its fallback), strengths 0.8, 1 and 1.7, the DirectX
+    convention.  The same normals to 1e-12; the other materials' rows
+    untouched."""
+    import dataclasses
+
+    from core.scene import normals as SN
+    from core.scene.normal_kernels import normal_map
+    sc = _scene(bumped=True)
+    mats = list(sc.materials)
+    mats[0] = dataclasses.replace(mats[0], normal=SN.NormalInput(SN.NORMAL_MAP, 0,
+                                                                 strength=strength,
+                                                                 directx=directx))
+    kw = {}
+    if tangents:
+        rng = np.random.default_rng(4)
+        tt = np.zeros((sc.tri_p.shape[0], 3, 4), np.float32)
+        tt[:, :, :3] = rng.normal(size=(sc.tri_p.shape[0], 3, 3))
+        tt[:, :, 3] = np.where(rng.random((sc.tri_p.shape[0], 1)) < 0.5, -1.0, 1.0)
+        tt[1, :, 3] = 0.0                         # the floor's second triangle: no tangent
+        kw["tri_tangent"] = tt
+    sc = make_scene(sc.tri_p, mats, sc.lights, sc.camera, tri_mat=sc.tri_mat, tri_uv=sc.tri_uv,
+                    textures=sc.textures)
+    # The spec is attached to the scene's own tri_n (core.scene.normals.attach).
+    sc = dataclasses.replace(sc, tri_n=sc.tri_n.copy(), **kw)
+    spec = SN.attached(sc.tri_n)
+    rng = np.random.default_rng(7)
+    K = 20_000
+    prim = np.where(rng.random(K) < 0.7, rng.integers(0, 2, K),
+                    rng.integers(0, sc.tri_p.shape[0], K)).astype(np.int64)
+    u, v = rng.random(K), rng.random(K)
+    flip = u + v > 1.0
+    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
+    from core.accel import surface_point
+    _, _, ns_ref, _ = surface_point(sc.tri_p, sc.tri_n, sc.tri_uv, prim, u, v)
+    plain = make_scene(sc.tri_p, [dataclasses.replace(m, normal=None) for m in mats], sc.lights,
+                       sc.camera, tri_mat=sc.tri_mat, tri_uv=sc.tri_uv)
+    _, _, ns, _ = surface_point(plain.tri_p, plain.tri_n, plain.tri_uv, prim, u, v)
+    ns = np.ascontiguousarray(ns)
+    before = ns.copy()
+    rows = np.nonzero(np.asarray(sc.tri_mat)[prim] == 0)[0]
+    tt = spec.tri_tangent if spec.tri_tangent is not None else np.zeros((0, 3, 4), np.float32)
+    normal_map(spec.tri_p, spec.tri_n, spec.tri_uv, tt, prim, u, v, rows, ns,
+               np.ascontiguousarray(sc.textures[0]), False, float(strength), directx)
+    assert rows.size > 10_000
+    assert np.abs(ns[rows] - before[rows]).max() > 0.1       # the map tilts them
+    np.testing.assert_allclose(ns[rows], ns_ref[rows], rtol=0, atol=1e-12)
+    others = np.setdiff1d(np.arange(K), rows)
+    np.testing.assert_array_equal(ns[others], before[others])
+
+
 @pytest.mark.parametrize("world_map", [False, True], ids=["world", "hdri"])
 def test_compiled_light_pdf_equals_pdf_direct(world_map):
     pt = _tracer("PATH", n_small_tris=20, world_map=world_map)

@@ -556,18 +556,39 @@ class PathTracer:
     def _perturb(self, prim, bu, bv, ns) -> None:
         """The shading normals ns (K, 3) of the kernels' hits (prim, bu, bv)
         on Normal Map / Bump materials perturbed in place as
-        ``accel.surface_point`` perturbs them (``normals.perturb`` with the
-        hits' interpolated uvs), on those rows only."""
+        ``accel.surface_point`` perturbs them, on those rows only: a
+        tangent-space Normal Map by ``normal_kernels.normal_map``, a Bump by
+        ``normals.perturb`` with the hits' interpolated uvs."""
         from ..scene import normals
-        s = self.scene
-        r = np.nonzero(self._bumped[s.tri_mat[prim]])[0]
+        from ..scene.normal_kernels import normal_map
+        from ..scene.textures import UnassociatedImage, _as_image
+        s, spec = self.scene, self._spec
+        mat = s.tri_mat[prim]
+        r = np.nonzero(self._bumped[mat])[0]
+        if r.size == 0:
+            return
+        bump = np.zeros(r.size, bool)
+        for m in np.unique(mat[r]):
+            inp = spec.inputs[m]
+            rm = r[mat[r] == m]
+            if (inp.kind != normals.NORMAL_MAP or inp.texture < 0
+                    or inp.texture >= len(spec.textures)):
+                bump |= mat[r] == m
+                continue
+            img = spec.textures[inp.texture]
+            tt = (spec.tri_tangent if spec.tri_tangent is not None
+                  else np.zeros((0, 3, 4), np.float32))
+            normal_map(spec.tri_p, spec.tri_n, spec.tri_uv, tt, prim, bu, bv, rm, ns,
+                       np.ascontiguousarray(_as_image(img)), isinstance(img, UnassociatedImage),
+                       float(inp.strength), bool(inp.directx))
+        r = r[bump]
         if r.size == 0:
             return
         t, u, v = prim[r], bu[r], bv[r]
         UV = s.tri_uv[t].astype(np.float64)
         w0 = (1.0 - u - v)[:, None]
         uv = w0 * UV[:, 0] + u[:, None] * UV[:, 1] + v[:, None] * UV[:, 2]
-        ns[r] = normals.perturb(self._spec, t, u, v, ns[r], uv)
+        ns[r] = normals.perturb(spec, t, u, v, ns[r], uv)
 
     def _seen(self, kern, vis, o, d, t_end):
         """The analytic emitters the rays (o, d (K, 3), visibility codes vis
