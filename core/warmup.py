@@ -123,7 +123,7 @@ def _translate(x, y, z):
 
 
 def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
-                 glossy: bool = True, environment: bool = False):
+                 glossy: bool = True, environment: bool = False, normal_map: bool = False):
     """A synthetic scene of the warm-up (``core.scene.model.Scene``), res x res px.
 
     A closed 4 x 4 x 2 m room (so that nearly every photon is deposited, and a
@@ -135,6 +135,9 @@ def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
     rough glossy wall diffuse (a Lambert-only room: the small jobs of
     tests/test_warmup.py).  environment=True adds a small environment map
     to the world (its photons' compiled emission, lights.environment).
+    normal_map=True gives the left wall a normal-mapped rough glossy
+    material (the camera paths' compiled Normal Map,
+    scene.normal_kernels, about 4 s to compile on first use).
     """
     mats = [Material("diffuse", (Lobe(DIFFUSE, (0.8, 0.8, 0.8)),)),
             Material("glossy", (Lobe(GLOSSY, (0.8, 0.6, 0.4), roughness=0.3),
@@ -143,6 +146,16 @@ def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
             Material("mirror", (Lobe(GLOSSY, (0.9, 0.9, 0.9), roughness=0.0),)),
             Material("glass", (Lobe(GLASS, (1.0, 1.0, 1.0), ior=1.5),)),
             Material("emitter", (Lobe(DIFFUSE, (0.0, 0.0, 0.0)),), emission=(5.0, 5.0, 5.0))]
+    kw = {}
+    if normal_map:
+        from .scene.normals import NORMAL_MAP, NormalInput
+        mats.append(Material("bumped", (Lobe(GLOSSY, (0.8, 0.8, 0.8), roughness=0.5),
+                                        Lobe(DIFFUSE, (0.5, 0.5, 0.5), weight=0.5)),
+                             normal=NormalInput(NORMAL_MAP, 0)))
+        img = np.full((4, 4, 3), 0.5, np.float32)
+        img[..., 2] = 1.0
+        img[1, 2] = (0.7, 0.4, 0.9)
+        kw["textures"] = [img]
     parts = [(_quad((0, 0, 0), (2, 0, 0), (0, 2, 0)), 0),            # floor, +Z
              (_quad((0, 0, 2), (0, 2, 0), (2, 0, 0)), 0),            # ceiling, -Z
              (_quad((-2, 0, 1), (0, 2, 0), (0, 0, 1)), 0),           # left wall, +X
@@ -152,15 +165,19 @@ def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
              (_quad((-1.9, 0.5, 0.6), (0, 0.5, 0), (0, 0, 0.6)), 2),  # mirror, +X
              (_box((0.4, 0.0, 0.35), 0.35), 3),                      # glass cube
              (_quad((0, 0.5, 1.95), (0.3, 0, 0), (0, -0.3, 0)), 4)]  # ceiling lamp, -Z
+    if normal_map:
+        parts[2] = (parts[2][0], len(mats) - 1)                    # the left wall
     tris = [t for p, _ in parts for t in p]
     tri_mat = [m for p, m in parts for _ in p]
+    if normal_map:
+        kw["tri_uv"] = (0.5 * np.asarray(tris, np.float64)[:, :, 1:]).astype(np.float32)
     at = {"POINT": _translate(-0.6, -0.6, 1.5), "AREA": _translate(0.8, -0.5, 1.8),
           "SPOT": _translate(0.5, 0.5, 1.9), "SUN": _translate(0.0, 0.0, 1.9)}
     lights = [Light(k.lower(), k, (40.0, 40.0, 40.0) if k != "SUN" else (2.0, 2.0, 2.0),
                     at[k], radius=0.05, size=0.4) for k in analytic_lights]
     cam = Camera(kind="PERSP", matrix_world=_look_at((0.0, -1.9, 1.2), (0.0, 0.3, 0.4)),
                  lens=20.0, resolution=(res, res), clip_start=0.01, clip_end=100.0)
-    sc = make_scene(tris, mats, lights, cam, tri_mat=tri_mat)
+    sc = make_scene(tris, mats, lights, cam, tri_mat=tri_mat, **kw)
     if environment:
         from .scene.textures import EnvironmentMap
         sc.world_map = EnvironmentMap(np.full((4, 8, 4), 0.2, np.float32))
@@ -192,8 +209,10 @@ def warmup_jobs() -> list:
             # The compiled camera paths and the combined integrator's kernels
             # (COMBINED is the default integrator: tests/test_warmup.py renders
             # it), with the rough glossy wall: its light paths' compiled
-            # densities (compiled.scatter_pdfs) compile here too.
-            (room, base.replace(integrator="COMBINED", photons_per_pass=2000, camera_samples=1)),
+            # densities (compiled.scatter_pdfs) compile here too; and a
+            # normal-mapped wall (the camera paths' Normal Map kernel).
+            (warmup_scene(normal_map=True),
+             base.replace(integrator="COMBINED", photons_per_pass=2000, camera_samples=1)),
             # A late pass's few frequency photons, traced again in a batch of
             # their own (core.sppm.photons.RETRACE_MAX_SHARE)
             (room, base.replace(frequency_fraction=0.02))]
