@@ -426,6 +426,12 @@ NOTES = [
     "emitter it traces) and renders Path Tracing's image bit for bit at its cost, so its row "
     "is Path Tracing's.  Cycles made 2742 spp in 60 CPU s: 1.3 us a path at the margin, 2x "
     "FPPM's camera path (docs/integrators.md \"Cycles' CPU a path at the margin, round 27\").",
+    "Round 27, ring_principled on 8523e81 (the camera paths' first light sample from one "
+    "Sobol' sequence a pixel across the passes), `ring_principled --budget 60 --clock cpu "
+    "--seeds 4 --methods combined,cycles`, load 2 to 4 beside other benchmarks, in "
+    "ring_principled/combined_cycles_60s_8523e81/: Combined / Cycles 1.82 / 2.27 / 2.26 "
+    "(excess 2.67; 3.09, excess 3.7, on b349a7e in round 25); Combined 133-138 passes, Cycles "
+    "3136 spp (1.06 cores: the machine was shared).",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
