@@ -165,8 +165,7 @@ def compiled_scene_ok(mtab, fmat, table, tri_n) -> bool:
         bumped |= np.asarray(mtab.bump_correction, bool)
     spec = normals.attached(tri_n)
     if spec is not None:
-        b = np.array([inp is not None for inp in spec.inputs], bool)[:bumped.size]
-        bumped[:b.size] |= b
+        bumped |= normals.perturbed_materials(spec, bumped.size)
     if np.any(bumped & (fmat.cls != GENERIC)):
         return False
     cls_ok = np.isin(fmat.cls, (LAMBERT, MIRROR, SMOOTH_GLASS, ABSORBER))

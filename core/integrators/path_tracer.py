@@ -200,10 +200,8 @@ class PathTracer:
         # materials it perturbs (the kernels' hits, _perturb).
         from ..scene import normals
         self._spec = normals.attached(scene.tri_n)
-        self._bumped = (None if self._spec is None else
-                        np.array([inp is not None for inp in self._spec.inputs]
-                                 + [False] * max(0, mtab.kind.shape[0]
-                                                 - len(self._spec.inputs)), bool))
+        self._bumped = (None if self._spec is None
+                        else normals.perturbed_materials(self._spec, mtab.kind.shape[0]))
 
     def fast_materials(self):
         """The materials' ``materials.fast.FastMaterials`` (the kernels' and the
@@ -282,7 +280,11 @@ class PathTracer:
         rng itself), so a block's
         paths do not depend on which thread takes it or when: two threads
         take the blocks (``visible_points.in_two_threads``; one with
-        ``FPPM_PHOTON_THREADS=1``) and give the same image either way."""
+        ``FPPM_PHOTON_THREADS=1``) and give the same image either way.
+        pass_index (1, 2, ...): the pass these paths belong to, so that a
+        pixel's samples continue its sequence (``sequence_kernels``: the
+        paths' first dimensions are samples (pass_index - 1) x
+        camera_samples onwards)."""
         P, n = self.px.shape[0], self.samples
         L = np.zeros((P, 3))
         stop = self.camera_stop

@@ -119,6 +119,15 @@ def attached(tri_n) -> ShadingSpec | None:
     return e[1]
 
 
+def perturbed_materials(spec: ShadingSpec, M: int) -> np.ndarray:
+    """(M,) bool: the materials whose shading normal the spec perturbs (a
+    Normal input); materials past the spec's inputs are not."""
+    out = np.zeros(M, bool)
+    b = np.array([inp is not None for inp in spec.inputs], bool)[:M]
+    out[:b.size] = b
+    return out
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
     n = np.linalg.norm(v, axis=1, keepdims=True)
     return v / np.maximum(n, 1e-300)
