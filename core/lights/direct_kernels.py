@@ -38,7 +38,7 @@ from numba import njit
 
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 from .environment_kernels import (EnvironmentKernel, map_direction, map_radiance, no_map,
-                                  texture_vector)
+                                  region_density, texture_vector)
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, _lum
 
 _PI = np.pi
@@ -531,7 +531,7 @@ def direct_kernel(k0, k1, L, R, out):
             wx, wy, wz, wk, omega = map_direction(L.env, u1, u2)
             t = np.inf
             cx, cy, cz, nt = texture_vector(L.env, wx, wy, wz)
-            pdf = wk / omega / L.env.total * (L.env.det / max(nt, 1e-300) ** 3)
+            pdf = region_density(L.env, wk, omega, nt)
             if pdf > 0:
                 r0, r1, r2 = map_radiance(L.env, cx, cy, cz, nt)
                 l0, l1, l2 = r0 / pdf, r1 / pdf, r2 / pdf

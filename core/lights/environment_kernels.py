@@ -89,6 +89,15 @@ def texture_vector(E, wx, wy, wz):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def region_density(E, wk, omega, nt):
+    """The solid-angle density of a direction in a region of weight wk and
+    texture-space solid angle omega whose texture vector has norm nt:
+    wk / omega / total times the Jacobian det / |A omega|^3
+    (:meth:`EnvironmentLight.pdf`)."""
+    return wk / omega / E.total * (E.det / max(nt, 1e-300) ** 3)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def map_radiance(E, cx, cy, cz, nt):
     """textures.environment_radiance along the texture vector (c, |c| = nt)
     of :func:`texture_vector`: the map's bilinear lookup times its strength."""
@@ -119,7 +128,7 @@ def map_pdf(E, cx, cy, cz, nt):
     j = min(max(j, 0), W - 1)
     i = min(max(upper_bound(ze, tz) - 1, 0), H - 1)
     omega = (2.0 * np.pi / W) * (ze[i + 1] - ze[i])
-    return E.weight[i * W + j] / omega / E.total * (E.det / nn ** 3)
+    return region_density(E, E.weight[i * W + j], omega, nn)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -138,7 +147,7 @@ def world_photons(E, u, rows, R, center, inv_p, o, d, power):
         r = rows[q]
         wx, wy, wz, wk, omega = map_direction(E, u[r, 3], u[r, 4])
         cx, cy, cz, nt = texture_vector(E, wx, wy, wz)
-        pdf = wk / omega / E.total * (E.det / max(nt, 1e-300) ** 3)
+        pdf = region_density(E, wk, omega, nt)
         l0, l1, l2 = map_radiance(E, cx, cy, cz, nt)
         s = np.pi * R * R / max(pdf, 1e-300)
         ip = inv_p[q]
