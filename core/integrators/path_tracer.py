@@ -61,6 +61,7 @@ from .. import materials as B
 from ..materials import compiled as C
 from ..materials.fast import GENERIC, build_fast_materials
 from ..lights import seen as Seen, shadow as Sh
+from ..lights.environment_kernels import rays_radiance
 from ..lights.seen_kernels import seen_kernel
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..mathutil import dot as _dot
@@ -405,9 +406,14 @@ class PathTracer:
                 if part is not None:
                     w = w * part.weight(miss)
                 # An environment map: its radiance along each escaped ray
-                # (self.world is only its mean).
-                Le = (self.world[None, :] if self.env is None
-                      else np.ascontiguousarray(Lt.world_radiance(lt, d[miss]), np.float64))
+                # (self.world is only its mean), compiled in the kernels' scope.
+                if self.env is None:
+                    Le = self.world[None, :]
+                elif kern:
+                    Le = np.empty((miss.size, 3))
+                    rays_radiance(kern[0].env, np.ascontiguousarray(d, np.float64), miss, Le)
+                else:
+                    Le = np.ascontiguousarray(Lt.world_radiance(lt, d[miss]), np.float64)
                 PK.add_emission(out, path, miss, beta, Le, w)
             ih = np.nonzero(h.hit)[0]
             if ih.size == 0:

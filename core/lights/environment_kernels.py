@@ -111,6 +111,17 @@ def map_radiance(E, cx, cy, cz, nt):
     return l0 * E.strength[0], l1 * E.strength[1], l2 * E.strength[2]
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def rays_radiance(E, d, rows, out):
+    """out (k, 3) = textures.environment_radiance of the unit directions
+    d[rows] (d (K, 3), rows (k,) int64): the camera paths' rays that escape
+    to the map (PathTracer._trace, in the kernels' scope)."""
+    for q in range(rows.shape[0]):
+        r = rows[q]
+        cx, cy, cz, nt = texture_vector(E, d[r, 0], d[r, 1], d[r, 2])
+        out[q, 0], out[q, 1], out[q, 2] = map_radiance(E, cx, cy, cz, nt)
+
+
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def map_pdf(E, cx, cy, cz, nt):
     """:meth:`EnvironmentLight.pdf` of the direction whose texture vector is
