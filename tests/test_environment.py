@@ -510,6 +510,20 @@ def test_lambert_plane_under_a_map_has_the_closed_form_radiance(photons_for_dire
     assert np.all(np.abs(mean / expected - 1) < 0.02)
 
 
+def _map_of_kind(kind):
+    """spiky_image as an RGBA, grey (one channel) or unassociated-alpha map,
+    and a rotated, scaled mapping A (to_texture)."""
+    from core.scene.textures import UnassociatedImage
+    img = spiky_image()
+    if kind == "grey":
+        img = np.ascontiguousarray(img[..., :1])
+    elif kind == "unassociated":
+        img[..., 3] = np.linspace(0.2, 1.0, img.shape[1], dtype=np.float32)[None, :]
+        img[0, 0, 3] = 0.0
+        img = img.view(UnassociatedImage)
+    return img, rotation((1, 2, 3), 0.7) @ np.diag([1.0, 1.3, 0.8])
+
+
 @pytest.mark.parametrize("kind", ["rgba", "grey", "unassociated"])
 def test_compiled_map_lookup_and_density_equal_numpy(kind):
     """environment_kernels.rays_radiance (the camera paths' escaped rays)
@@ -519,15 +533,7 @@ def test_compiled_map_lookup_and_density_equal_numpy(kind):
     BLAS's products), density to 1e-12 relative; grey and unassociated-alpha
     maps read as sample_texture reads them."""
     from core.lights.environment_kernels import map_pdf, rays_radiance, texture_vector
-    from core.scene.textures import UnassociatedImage
-    img = spiky_image()
-    if kind == "grey":
-        img = np.ascontiguousarray(img[..., :1])
-    elif kind == "unassociated":
-        img[..., 3] = np.linspace(0.2, 1.0, img.shape[1], dtype=np.float32)[None, :]
-        img[0, 0, 3] = 0.0
-        img = img.view(UnassociatedImage)
-    A = rotation((1, 2, 3), 0.7) @ np.diag([1.0, 1.3, 0.8])
+    img, A = _map_of_kind(kind)
     el = EnvironmentLight.build(EnvironmentMap(img, strength=np.array([1.5, 1.0, 0.5]),
                                                to_texture=A))
     E = el.kernel_data()
@@ -555,15 +561,7 @@ def test_compiled_world_photons_equal_numpy(monkeypatch, kind):
     unassociated-alpha map read as sample_texture reads them."""
     from core.lights import emission as Em
     from core.scene.model import Light
-    from core.scene.textures import UnassociatedImage
-    img = spiky_image()
-    if kind == "grey":
-        img = np.ascontiguousarray(img[..., :1])
-    elif kind == "unassociated":
-        img[..., 3] = np.linspace(0.2, 1.0, img.shape[1], dtype=np.float32)[None, :]
-        img[0, 0, 3] = 0.0
-        img = img.view(UnassociatedImage)
-    A = rotation((1, 2, 3), 0.7) @ np.diag([1.0, 1.3, 0.8])
+    img, A = _map_of_kind(kind)
     sc = floor_scene(EnvironmentMap(img, strength=np.array([1.5, 1.0, 0.5]), to_texture=A))
     m = np.eye(4)
     m[:3, 3] = (0, 0, 2)
