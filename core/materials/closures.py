@@ -81,12 +81,12 @@ def shading_correction(n_s: np.ndarray, n_g: np.ndarray, w: np.ndarray) -> np.nd
 # --------------------------------------------------------------------------
 # Per-lobe evaluation (Cycles' closure eval, view/light roles explicit)
 # --------------------------------------------------------------------------
-def _lobe_f(kind, col, ucol, rough, eta, N, v, l, ms=None, ext=None, Ng=None):
+def _lobe_f(kind, col, ucol, rough, eta, N, v, l, Ng, ms=None, ext=None):
     """Cycles f_C(view=v, light=l) (k, 3) of one non-delta lobe kind.
 
     ms: (k,) bool, apply Multiscatter GGX energy compensation (GLOSSY, GLASS).
     Ng: (k, 3) the geometric normal oriented like N (the microfacet lobes'
-    side test, :func:`microfacet._microfacet_f`), or None.
+    side test, :func:`microfacet._microfacet_f`).
     ext: dict of Principled-layer arrays for these points (or None):
       'weight' (k,), 'fresnel' (k,), 'fresnel_ior' (k,), 'f82_tint' (k, 3),
       'layer_ior', 'layer_f0', 'layer_roughness' (k,)."""
@@ -237,7 +237,7 @@ def _eval_nd(table, mat, colors, N, front_v, v, l, Ng, Ng_bump=None):
             if not (ms is not None and ms.any()):
                 w = table.weight[mj, j][:, None]
                 ucol = np.where(w != 0.0, col / np.where(w != 0.0, w, 1.0), 0.0)
-        fk = _lobe_f(k, col, ucol, rough, eta, N[idx], v[idx], l[idx], ms, ext, Ng[idx])
+        fk = _lobe_f(k, col, ucol, rough, eta, N[idx], v[idx], l[idx], Ng[idx], ms, ext)
         if Ng_bump is not None and k in (DIFFUSE, TRANSLUCENT):
             term = _bump_shadowing(Ng_bump[idx], N[idx], l[idx])
             fk = fk * np.where(flag[mj], term, 1.0)[:, None]

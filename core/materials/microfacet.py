@@ -148,7 +148,7 @@ def _refraction_half(kind, eta, N, v, l):
     return Hu, H, hv, hl, T
 
 
-def _microfacet_f(kind, alpha2, eta, N, v, l, Ng=None):
+def _microfacet_f(kind, alpha2, eta, N, v, l, Ng):
     """Scalar microfacet f(v, l) (k,) without colour, Cycles' bsdf_microfacet_eval / cos.
 
     kind GLOSSY, GLASS or REFRACTION; eta = far-side index / v-side index;
@@ -161,9 +161,7 @@ def _microfacet_f(kind, alpha2, eta, N, v, l, Ng=None):
     cO = _dot(N, l)
     out = np.zeros(len(cI))
     trans = cO < 0.0
-    ok = cI > 0.0
-    if Ng is not None:
-        ok &= (_dot(Ng, l) < 0.0) == trans
+    ok = (cI > 0.0) & ((_dot(Ng, l) < 0.0) == trans)
     if kind == GLOSSY:
         ok &= cO > 0.0
     lam_I = ggx_lambda(alpha2, cI)
