@@ -102,9 +102,10 @@ class PathMaterials(NamedTuple):
     float64 the radiance-mode sample weight: the sum of the lobe colours
     (Lambert) or the lobe's colour (mirror, glass); lum_col (M, 3) the photon
     fast path's colour (its luminance gates a sample, as there).
-    GENERIC materials (``materials.fast.FastMaterials.compiled``: untextured,
-    no Normal Map / Bump) are sampled, evaluated and weighed by the photon
-    tracer's compiled BSDF in radiance mode (core.materials.compiled):
+    GENERIC materials (``materials.fast.FastMaterials.sampled``: untextured,
+    a Normal Map / Bump included) are sampled, evaluated and weighed by the
+    photon tracer's compiled BSDF in radiance mode (core.materials.compiled,
+    which applies Cycles' Normal Map / Bump corrections there):
     lobes (M, L, N_FIELDS), tables (N_TABLES,) its CompiledMaterials;
     sel_colors (M, L, 3), sel_p, sel_cdf (M, L), sel_last (M,) its
     SelectionTable (1-material placeholders when no material is GENERIC)."""

@@ -67,6 +67,8 @@ class FastMaterials(NamedTuple):
       untextured ones with a Normal Map / Bump, which importance sampling
       treats as any other (closures.sample_bsdf corrects the normal in
       radiance mode only; photons scatter off the interpolated normal).
+      The camera paths' kernels take these too (radiance mode, with the
+      corrections: core.integrators.path_kernels).
     cm, sel: their CompiledMaterials and SelectionTable (1-material
       placeholders when no material is sampled).
     """
