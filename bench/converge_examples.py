@@ -425,7 +425,11 @@ NOTES = [
     "327-372 Path Tracing passes.  From d949fed Combined leaves light tracing out there (no "
     "emitter it traces) and renders Path Tracing's image bit for bit at its cost, so its row "
     "is Path Tracing's.  Cycles made 2742 spp in 60 CPU s: 1.3 us a path at the margin, 2x "
-    "FPPM's camera path (docs/integrators.md \"Cycles' CPU a path at the margin, round 27\").",
+    "FPPM's camera path (docs/integrators.md \"Cycles' CPU a path at the margin, round 27\").  On "
+    "f88a1a6 (the Normal Map and the escaped rays' HDRI lookup compiled as well), `real_scene "
+    "--methods path,cycles`, load about 1, in real_scene/path_cycles_60s_f88a1a6/: Path "
+    "Tracing (= Combined) / Cycles 1.42 / 1.90 / 1.87 (excess 2.14); 438-446 passes; Cycles "
+    "2718 spp (1.99 cores, Path Tracing 1.26: 3.36 wall-equivalent).",
     "Round 27, ring_principled on 8523e81 (the camera paths' first light sample from one "
     "Sobol' sequence a pixel across the passes), `ring_principled --budget 60 --clock cpu "
     "--seeds 4 --methods combined,cycles`, load 2 to 4 beside other benchmarks, in "
