@@ -103,6 +103,14 @@ class Accel:
         return p + ng * (side * self.offset_scale(p))[:, None]
 
 
+def hit_uv(tri_uv: np.ndarray, prim: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(K, 2) float64 texture coordinates of the hits (prim, u, v) (K,) on
+    triangles with corner uvs tri_uv (T, 3, 2)."""
+    UV = tri_uv[prim].astype(np.float64)
+    w0 = (1.0 - u - v)[:, None]
+    return w0 * UV[:, 0] + u[:, None] * UV[:, 1] + v[:, None] * UV[:, 2]
+
+
 def surface_point(tri_p: np.ndarray, tri_n: np.ndarray, tri_uv: np.ndarray,
                   prim: np.ndarray, u: np.ndarray, v: np.ndarray):
     """Interpolate hit attributes in float64.
@@ -121,8 +129,7 @@ def surface_point(tri_p: np.ndarray, tri_n: np.ndarray, tri_uv: np.ndarray,
     ns = w0 * N[:, 0] + u[:, None] * N[:, 1] + v[:, None] * N[:, 2]
     nlen = np.linalg.norm(ns, axis=1, keepdims=True)
     ns = np.where(nlen > 1e-12, ns / np.maximum(nlen, 1e-300), ng)
-    UV = tri_uv[prim].astype(np.float64)
-    uv = w0 * UV[:, 0] + u[:, None] * UV[:, 1] + v[:, None] * UV[:, 2]
+    uv = hit_uv(tri_uv, prim, u, v)
     # Normal Map / Bump materials: the spec the Scene attached to its tri_n.
     spec = shading_normals.attached(tri_n)
     if spec is not None:

@@ -200,9 +200,27 @@ class PathTracer:
         # Normal Map / Bump: the spec attached to the mesh normals and the
         # materials it perturbs (the kernels' hits, _perturb).
         from ..scene import normals
-        self._spec = normals.attached(scene.tri_n)
-        self._bumped = (None if self._spec is None
-                        else normals.perturbed_materials(self._spec, mtab.kind.shape[0]))
+        from ..scene.textures import UnassociatedImage, _as_image
+        self._spec = spec = normals.attached(scene.tri_n)
+        self._bumped = (None if spec is None
+                        else normals.perturbed_materials(spec, mtab.kind.shape[0]))
+        # Per tangent-space Normal Map material, normal_kernels.normal_map's
+        # arguments after the hits (image, unassociated, strength, DirectX);
+        # the other perturbed materials (Bump) take normals.perturb.
+        self._normal_maps = {}
+        if spec is not None:
+            self._tri_args = (spec.tri_p, spec.tri_n, spec.tri_uv,
+                              spec.tri_tangent if spec.tri_tangent is not None
+                              else np.zeros((0, 3, 4), np.float32))
+            for m, inp in enumerate(spec.inputs):
+                if (inp is not None and inp.kind == normals.NORMAL_MAP
+                        and 0 <= inp.texture < len(spec.textures)):
+                    img = spec.textures[inp.texture]
+                    self._normal_maps[m] = (np.ascontiguousarray(_as_image(img)),
+                                            isinstance(img, UnassociatedImage),
+                                            float(inp.strength), bool(inp.directx))
+            self._bump_numpy = self._bumped.copy()
+            self._bump_numpy[list(self._normal_maps)] = False
 
     def fast_materials(self):
         """The materials' ``materials.fast.FastMaterials`` (the kernels' and the
@@ -567,36 +585,22 @@ class PathTracer:
         ``accel.surface_point`` perturbs them, on those rows only: a
         tangent-space Normal Map by ``normal_kernels.normal_map``, a Bump by
         ``normals.perturb`` with the hits' interpolated uvs."""
+        from ..accel import hit_uv
         from ..scene import normals
         from ..scene.normal_kernels import normal_map
-        from ..scene.textures import UnassociatedImage, _as_image
-        s, spec = self.scene, self._spec
-        mat = s.tri_mat[prim]
+        mat = self.scene.tri_mat[prim]
         r = np.nonzero(self._bumped[mat])[0]
         if r.size == 0:
             return
-        bump = np.zeros(r.size, bool)
-        for m in np.unique(mat[r]):
-            inp = spec.inputs[m]
+        for m, args in self._normal_maps.items():
             rm = r[mat[r] == m]
-            if (inp.kind != normals.NORMAL_MAP or inp.texture < 0
-                    or inp.texture >= len(spec.textures)):
-                bump |= mat[r] == m
-                continue
-            img = spec.textures[inp.texture]
-            tt = (spec.tri_tangent if spec.tri_tangent is not None
-                  else np.zeros((0, 3, 4), np.float32))
-            normal_map(spec.tri_p, spec.tri_n, spec.tri_uv, tt, prim, bu, bv, rm, ns,
-                       np.ascontiguousarray(_as_image(img)), isinstance(img, UnassociatedImage),
-                       float(inp.strength), bool(inp.directx))
-        r = r[bump]
-        if r.size == 0:
-            return
-        t, u, v = prim[r], bu[r], bv[r]
-        UV = s.tri_uv[t].astype(np.float64)
-        w0 = (1.0 - u - v)[:, None]
-        uv = w0 * UV[:, 0] + u[:, None] * UV[:, 1] + v[:, None] * UV[:, 2]
-        ns[r] = normals.perturb(spec, t, u, v, ns[r], uv)
+            if rm.size:
+                normal_map(*self._tri_args, prim, bu, bv, rm, ns, *args)
+        r = r[self._bump_numpy[mat[r]]]
+        if r.size:
+            t, u, v = prim[r], bu[r], bv[r]
+            ns[r] = normals.perturb(self._spec, t, u, v, ns[r],
+                                    hit_uv(self.scene.tri_uv, t, u, v))
 
     def _seen(self, kern, vis, o, d, t_end):
         """The analytic emitters the rays (o, d (K, 3), visibility codes vis

@@ -6,8 +6,8 @@ over all of the pixel's samples, pass after pass: sample k of pixel b (k =
 pass x camera_samples + s) is point k of a 2-D Sobol' (0, 2)-sequence for
 each pair of dimensions, so any 2^m consecutive samples starting at a
 multiple of 2^m form a (0, m, 2)-net of that pair.  Cycles samples a pixel
-the same way (its Sobol-Burley / tabulated Sobol patterns); one pass alone
-only stratified its own few samples (``path_tracer.stratified``), and
+the same way (its Sobol-Burley / tabulated Sobol patterns); until round 27
+each pass stratified only its own few samples, and
 ``example_blends/real_scene.blend``'s sunlit floor had 2.4x the error of
 one 64-sample pass after sixteen passes of 4 (docs/integrators.md "A
 pixel's samples across passes, round 27").
