@@ -30,9 +30,9 @@ tests/scenes/bpy_kit.py.
                        lit through a window by an area light outside the view
   real_scene.blend     a user's set-up: Principled materials, an HDRI world
                        (a small procedural equirectangular sky with a sun,
-                       packed) and a normal-mapped tiled floor (a generated,
-                       packed tangent-space normal map, Mapping + Texture
-                       Coordinate UV)
+                       packed) and a tiled floor with an Image Texture into
+                       its Base Color and a tangent-space normal map (both
+                       generated and packed, Mapping + Texture Coordinate UV)
 """
 from __future__ import annotations
 
@@ -295,6 +295,25 @@ def tile_normal_pixels(n=64, tiles=4, bevel=0.12):
     return out
 
 
+def tile_color_pixels(n=64, tiles=4, grout=0.04):
+    """The tiles' base colour (linear): two warm tones in a checker, each
+    tile shaded a little by its index, dark grout along the edges; on the
+    normal map's grid (:func:`tile_normal_pixels`)."""
+    import numpy as np
+    x = (np.arange(n) + 0.5) / n * tiles
+    X, Y = np.meshgrid(x, x)                     # row = y
+    ix, iy = np.floor(X), np.floor(Y)
+    odd = ((ix + iy) % 2 == 1)[..., None]
+    shade = (0.9 + 0.1 * np.sin(3.1 * ix + 1.7 * iy))[..., None]
+    col = np.where(odd, [0.62, 0.52, 0.40], [0.48, 0.36, 0.27]) * shade
+    fx, fy = X % 1.0, Y % 1.0
+    edge = ((np.minimum(fx, 1 - fx) < grout) | (np.minimum(fy, 1 - fy) < grout))[..., None]
+    col = np.where(edge, [0.12, 0.11, 0.10], col)
+    out = np.ones((n, n, 4), np.float32)
+    out[..., :3] = col
+    return out
+
+
 def _principled(name, base, roughness=0.5, metallic=0.0, coat=0.0):
     m, nt, out = K._new_material(name)
     p = nt.nodes.new('ShaderNodeBsdfPrincipled')
@@ -309,7 +328,8 @@ def _principled(name, base, roughness=0.5, metallic=0.0, coat=0.0):
 def real_scene():
     # A tiled floor under an HDRI sky with three Principled objects: what a
     # user's first scene looks like.  The floor's normal map comes through
-    # Texture Coordinate (UV) -> Mapping (scale 2) -> Image Texture -> Normal Map.
+    # Texture Coordinate (UV) -> Mapping (scale 2) -> Image Texture -> Normal
+    # Map, its colour through the same Mapping -> Image Texture -> Base Color.
     import bpy
     sc = K.reset_scene(RES, samples=1024)
     floor, nt, p = _principled("Tiles", (0.55, 0.5, 0.45), roughness=0.35)
@@ -323,6 +343,10 @@ def real_scene():
     nt.links.new(mp.outputs["Vector"], tex.inputs["Vector"])
     nt.links.new(tex.outputs["Color"], nm.inputs["Color"])
     nt.links.new(nm.outputs["Normal"], p.inputs["Normal"])
+    ctex = nt.nodes.new('ShaderNodeTexImage')
+    ctex.image = _packed_image("TileColor", tile_color_pixels(), non_color=False)
+    nt.links.new(mp.outputs["Vector"], ctex.inputs["Vector"])
+    nt.links.new(ctex.outputs["Color"], p.inputs["Base Color"])
     ob = K.plane("Floor", 8.0, floor)
     uvl = ob.data.uv_layers.new(name="UVMap")
     for loop in ob.data.loops:
@@ -346,7 +370,7 @@ def real_scene():
     sc.world = w
     K.camera((0.0, -4.2, 1.8), (0.0, 0.2, 0.35), lens=35)
     _note(sc, "Real-scene set-up: Principled materials, an HDRI world and a "
-              "normal-mapped tiled floor.")
+              "tiled floor with a colour texture and a normal map.")
     return sc
 
 

@@ -91,9 +91,7 @@ def _unit(v):
 def _path_materials(mtab):
     """The path kernels' PathMaterials of a material table (the compiled twins' M)."""
     from core.materials.fast import build_fast_materials
-    M = mtab.kind.shape[0]
-    colors = Bm.lobe_colors(mtab, np.arange(M), np.zeros((M, 2)))
-    return PKp.build_path_materials(mtab, build_fast_materials(mtab), colors)
+    return PKp.build_path_materials(mtab, build_fast_materials(mtab))
 
 
 def camera_side(r, path, merge=False):

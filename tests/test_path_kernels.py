@@ -59,7 +59,15 @@ def _bumps(n=16):
     return ((c + 1) / 2).astype(np.float32), (h * np.ones(3)).astype(np.float32)
 
 
-def _scene(res=16, n_small_tris=4, glossy=False, clear=False, world_map=False, bumped=False):
+def _checker(n=8):
+    """A colour checker (n, n, 3) float32 of two tints, for Base Color textures."""
+    y, x = np.mgrid[0:n, 0:n]
+    odd = ((x + y) % 2 == 1)[..., None]
+    return np.where(odd, [0.9, 0.8, 0.3], [0.2, 0.5, 0.9]).astype(np.float32)
+
+
+def _scene(res=16, n_small_tris=4, glossy=False, clear=False, world_map=False, bumped=False,
+           textured=False):
     tris = quad((0, 0, 0), (4, 0, 0), (0, 4, 0))                     # floor
     tris += quad((0, 4, 1.5), (4, 0, 0), (0, 0, 1.5))                 # back wall
     tris += quad((2.5, 0, 2.0), (0, 0.5, 0), (0.5, 0, 0))             # emissive quad, facing down
@@ -80,8 +88,21 @@ def _scene(res=16, n_small_tris=4, glossy=False, clear=False, world_map=False, b
         floor += (Lobe(GLOSSY, (0.5, 0.5, 0.5), roughness=0.2, weight=0.5),)
         nm = SN.NormalInput(SN.NORMAL_MAP, 0, strength=0.8)
         bump = SN.NormalInput(SN.BUMP, 1, distance=0.15)
+    wall = (Lobe(DIFFUSE, (0.5, 0.2, 0.2), weight=0.6), top)
+    if textured:
+        # Image Textures into a Base Color: the Lambert floor's (sampled as
+        # Lambert) and a Principled-like wall's diffuse base under a
+        # dielectric layer and its metallic F82 lobe (GENERIC).
+        tx = 2 if bumped else 0
+        floor = (Lobe(DIFFUSE, (0.8, 0.7, 0.6), color_texture=tx),) + floor[1:]
+        wall = (Lobe(GLOSSY, (1.0, 1.0, 1.0), weight=0.7, roughness=0.3, fresnel="DIELECTRIC",
+                     fresnel_ior=1.5),
+                Lobe(DIFFUSE, (0.7, 0.6, 0.5), weight=0.7, layer_ior=1.5, layer_f0=0.04,
+                     layer_roughness=0.3, color_texture=tx),
+                Lobe(GLOSSY, (0.9, 0.7, 0.6), weight=0.3, roughness=0.35, fresnel="F82",
+                     color_texture=tx))
     mats = [Material("floor", floor, normal=nm),
-            Material("wall", (Lobe(DIFFUSE, (0.5, 0.2, 0.2), weight=0.6), top), normal=bump),
+            Material("wall", wall, normal=bump),
             Material("emit", emission=(3.0, 2.0, 1.0)),
             Material("mirror", (Lobe(TRANSPARENT, (0.9, 0.9, 0.9)) if clear
                                 else Lobe(GLOSSY, (0.9, 0.9, 0.9), roughness=0.0),)),
@@ -91,10 +112,11 @@ def _scene(res=16, n_small_tris=4, glossy=False, clear=False, world_map=False, b
     cam = Camera(kind="PERSP", matrix_world=translate(0.3, -0.2, 7.0), lens=30.0,
                  sensor_width=36.0, resolution=(res, res), clip_start=0.01, clip_end=100.0)
     kw = {}
-    if bumped:
+    if bumped or textured:
         # uv = (x, y) / 2 on the floor and (x, z) / 2 elsewhere: the maps tile.
         P = np.asarray(tris, np.float64)
-        kw = dict(tri_uv=(0.5 * P[:, :, [0, 2]]).astype(np.float32), textures=list(_bumps()))
+        kw = dict(tri_uv=(0.5 * P[:, :, [0, 2]]).astype(np.float32),
+                  textures=(list(_bumps()) if bumped else []) + ([_checker()] if textured else []))
         kw["tri_uv"][:2] = 0.5 * P[:2, :, :2]
     sc = make_scene(tris, mats, lights, cam, tri_mat=tri_mat, world_color=(0.1, 0.2, 0.3), **kw)
     if world_map:
@@ -113,19 +135,26 @@ def _tracer(integrator, **kw):
 
 
 @pytest.mark.parametrize("integrator", ["PATH", "COMBINED"])
-@pytest.mark.parametrize("n_small_tris,world_map,bumped", [
-    (4, False, False), (20, False, False), (4, True, False), (4, True, True)],
-    ids=["4", "20", "hdri", "hdri-bumped"])
-def test_compiled_paths_equal_numpy(integrator, n_small_tris, world_map, bumped):
-    """hdri: the world is an environment map (its light sample, the 1/2 map
-    + 1/2 cosine mixture, and its density in direct_kernel and pdf_kernel).
+@pytest.mark.parametrize("n_small_tris,world_map,bumped,textured", [
+    (4, False, False, False), (20, False, False, False), (4, True, False, False),
+    (4, True, True, False), (4, False, False, True), (4, True, True, True)],
+    ids=["4", "20", "hdri", "hdri-bumped", "textured", "hdri-bumped-textured"])
+def test_compiled_paths_equal_numpy(integrator, n_small_tris, world_map, bumped, textured):
+    """hdri: the world is an environment map (its light sample and its
+    density in direct_kernel and pdf_kernel).
     bumped: a normal-mapped glossy floor and a bump-mapped glossy wall
     (their perturbed normals at the kernels' hits, and Cycles' valid
     specular normal and bump shadowing in the compiled radiance-mode
-    sample, evaluation and densities)."""
-    pt = _tracer(integrator, n_small_tris=n_small_tris, world_map=world_map, bumped=bumped)
+    sample, evaluation and densities).
+    textured: Image Textures into the floor's Lambert colour and a
+    Principled-like wall's base colour (each hit's own colour row: the
+    Lambert weight, GENERIC sampling, evaluation and lobe selection, and
+    COMBINED's reverse densities)."""
+    pt = _tracer(integrator, n_small_tris=n_small_tris, world_map=world_map, bumped=bumped,
+                 textured=textured)
     assert (pt.lights.environment is not None) == world_map
     assert bool(np.any(pt.mtab.bump_correction)) == bumped
+    assert bool(np.any(pt.mtab.tex >= 0)) == textured
     cls = build_fast_materials(pt.mtab).cls
     assert MIRROR in cls and SMOOTH_GLASS in cls
     # COMBINED: photon merging owns the paths seen through a delta vertex (its partition).

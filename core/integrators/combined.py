@@ -317,17 +317,19 @@ class CameraMIS:
         from . import path_kernels as PK
         c = np.ascontiguousarray
         mat = c(v.mat, np.int64)
+        row = mat if getattr(v, "row", None) is None else c(v.row, np.int64)
         geo = (c(v.c), c(v.p), c(v.ng), c(v.ns), c(v.wo), c(wi), c(dist), c(light, np.int64),
                c(pl), c(sel))
         if getattr(v, "QM", None) is not None:
             fl, fm = np.ones(light.size), np.ones(light.size)
             X = self.mis_lights
-            PK.camera_nee_kernel(X, pmat, mat, depth == 0, self.owns, c(v.Q), *geo, fl)
-            PK.camera_nee_kernel(X, pmat, mat, False, self.owns, c(v.QM), *geo, fm)
+            PK.camera_nee_kernel(X, pmat, mat, row, depth == 0, self.owns, c(v.Q), *geo, fl)
+            PK.camera_nee_kernel(X, pmat, mat, row, False, self.owns, c(v.QM), *geo, fm)
             return _with_merge(np.asarray(w, np.float64), _ratio2(fl), _ratio2(fm),
                                self.cls[light] == M.SOFT)
         w = np.array(w, np.float64)
-        PK.camera_nee_kernel(self.mis_lights, pmat, mat, depth == 0, self.owns, c(v.Q), *geo, w)
+        PK.camera_nee_kernel(self.mis_lights, pmat, mat, row, depth == 0, self.owns, c(v.Q),
+                             *geo, w)
         return w
 
     @property
@@ -341,11 +343,14 @@ class CameraMIS:
 
     def continued_compiled(self, pmat, v, nx, depth, Q=None):
         """:meth:`continued` for the NextRays nx of ``path_kernels.continue_kernel``
-        (pmat the kernels' PathMaterials; Q: as :meth:`continued`)."""
+        (pmat the kernels' PathMaterials, v.row its colour rows, None: the
+        materials'; Q: as :meth:`continued`)."""
         from . import path_kernels as PK
         out = np.empty(nx.src.size)
         c = np.ascontiguousarray
-        PK.camera_continued_kernel(pmat, c(v.mat, np.int64), depth == 0 and Q is None, nx.src,
+        mat = c(v.mat, np.int64)
+        row = mat if getattr(v, "row", None) is None else c(v.row, np.int64)
+        PK.camera_continued_kernel(pmat, mat, row, depth == 0 and Q is None, nx.src,
                                    nx.delta, nx.d, c(v.ng),
                                    c(v.ns), c(v.wo), c(v.Q if Q is None else Q), c(v.c), out)
         return out, nx.pdf

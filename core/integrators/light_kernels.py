@@ -31,7 +31,8 @@ from numba import njit
 from ..lights.direct_kernels import _spherical_rect_solid_angle
 # compiled.eval_pair and pdf_oriented are compiled into these kernels and
 # numba's cache is stamped by this file: edited with the microfacet lobes'
-# geometric side test and the Normal Map / Bump density of round 27.
+# geometric side test and the Normal Map / Bump density of round 27, and
+# pdf_oriented's selection row of round 28.
 from ..materials.compiled import eval_pair, pdf_oriented
 from ..lights.table import AREA, POINT
 from ..scene.camera import BH_A0, BH_A1, BH_A2, BH_A3
@@ -379,7 +380,7 @@ def splat_fast(con, n, tr, vin, tri_n, tri_ng, tri_mat, sm, mis, cam, width, fil
             if kind == LAMBERT_SPLAT:
                 pf = lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz, ix, iy, iz)
             else:
-                pf = pdf_oriented(lobes, sp, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, ix, iy, iz)
+                pf = pdf_oriented(lobes, sp, m, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, ix, iy, iz)
             b0 = 0.0 if vin.soft[k] else vin.B0[k] * pf * c1
             b1 = vin.B1[k] * c1 * (1.0 if vin.first[k] else pf)
             den = 1.0 + b0 * b0 + b1 * b1

@@ -31,16 +31,19 @@ COMBINED's reverse densities).
 
 Scope (:func:`compiled_scene_ok`; otherwise the numpy path runs): materials
 Lambert-only, perfect mirror, smooth glass, emission-only (the photon fast
-path's classes) or GENERIC, with no Transparent lobe, untextured; a Normal
-Map / Bump only on GENERIC materials (their perturbed normals come from
-``normals.perturb`` on those hits, ``PathTracer._trace``, and the compiled
-BSDF applies Cycles' valid specular normal and bump shadowing in radiance
-mode); lights as ``direct_kernels.compiled_lights_ok`` with an environment
-map (its light sample and density compiled; the map's radiance along an
-escaped ray is numpy's lookup), no textured emissive triangles.  Photon merging's partition (core.integrators.merge)
-is applied by the caller.  The emission found along rays (analytic emitters,
-the world, emissive triangles) with its MIS and COMBINED weights, and the
-shadow test, stay numpy, on their rows.
+path's classes) or GENERIC, with no Transparent lobe and no alpha texture;
+colour textures on any of them (Blender's Image Texture into a Base Color:
+a textured Lambert-only material is sampled as Lambert, any other as
+GENERIC, each hit with its own lobe colours and lobe selection,
+:class:`PathMaterials`); a Normal Map / Bump only on GENERIC materials
+(their perturbed normals come from ``PathTracer._perturb`` on those hits,
+and the compiled BSDF applies Cycles' valid specular normal and bump
+shadowing in radiance mode); lights as ``direct_kernels.compiled_lights_ok``
+with an environment map (its light sample, density and radiance compiled),
+no textured emissive triangles.  Photon merging's partition
+(core.integrators.merge) is applied by the caller.  The emission found
+along rays (analytic emitters, the world, emissive triangles) with its MIS
+and COMBINED weights, and the shadow test, stay numpy, on their rows.
 
 Precision: the same formulas as the numpy path in float64 (GENERIC rows:
 those of core.materials.compiled, equal to numpy's to rounding), but the Lambert f
@@ -70,8 +73,9 @@ from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 # (this note came with compiled.sincos_quarter; edited again with the disk
 # warp's one division and sample_fast inlined, with compiled.sample_pair's
 # radiance mode, with the GENERIC materials in these kernels, with the
-# Normal Map / Bump corrections of the radiance-mode sample and density, and
-# with the microfacet lobes' geometric side test).
+# Normal Map / Bump corrections of the radiance-mode sample and density, with
+# the microfacet lobes' geometric side test, and with the colour row of
+# sample_pair and pdf_oriented).
 from ..materials.compiled import eval_pair, pdf_oriented, sample_pair
 from ..materials.fast import ABSORBER, GENERIC, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
 from ..sppm.photon_kernels import shading_normal
@@ -97,18 +101,24 @@ class LightPdf(NamedTuple):
 
 
 class PathMaterials(NamedTuple):
-    """Per-material data of the vertex kernels (M materials, L lobe slots):
-    cls (M,) int8 ``materials.fast`` class; ior (M,) float64; col (M, 3)
-    float64 the radiance-mode sample weight: the sum of the lobe colours
-    (Lambert) or the lobe's colour (mirror, glass); lum_col (M, 3) the photon
-    fast path's colour (its luminance gates a sample, as there).
-    GENERIC materials (``materials.fast.FastMaterials.sampled``: untextured,
-    a Normal Map / Bump included) are sampled, evaluated and weighed by the
-    photon tracer's compiled BSDF in radiance mode (core.materials.compiled,
-    which applies Cycles' Normal Map / Bump corrections there):
-    lobes (M, L, N_FIELDS), tables (N_TABLES,) its CompiledMaterials;
-    sel_colors (M, L, 3), sel_p, sel_cdf (M, L), sel_last (M,) its
-    SelectionTable (1-material placeholders when no material is GENERIC)."""
+    """The materials of the vertex kernels (M materials, L lobe slots).
+
+    Per material m: cls (M,) int8 the kernels' class (``materials.fast``'s,
+    a colour-textured material's by :func:`kernel_classes`); ior (M,)
+    float64; lobes (M, L, N_FIELDS), tables (N_TABLES,) the compiled BSDF of
+    the GENERIC materials (core.materials.compiled, which applies Cycles'
+    Normal Map / Bump corrections in radiance mode; 1-material placeholders
+    when no material is GENERIC).
+
+    Per colour row r (R rows): rows 0..M-1 are the materials' untextured
+    colours; a vertex step with textured hits appends one row per such hit
+    (:func:`with_hit_colors`) and the kernels read row[k] of vertex k for
+    these: col (R, 3) float64 the radiance-mode sample weight of Lambert,
+    mirror and glass (the sum of the lobe colours, or the lobe's colour);
+    lum_col (R, 3) the photon fast path's colour (its luminance gates a
+    sample, as there); sel_colors (R, L, 3), sel_p, sel_cdf (R, L),
+    sel_last (R,) the lobe colours and the luminance selection of
+    ``compiled.SelectionTable``."""
     cls: np.ndarray
     ior: np.ndarray
     col: np.ndarray
@@ -143,6 +153,25 @@ class NextRays(NamedTuple):
 GENERIC_SCOPE = True
 
 
+def textured_materials(mtab) -> np.ndarray:
+    """(M,) bool: the materials with a colour texture on a lobe (their lobe
+    colours vary per hit: ``materials.lobe_colors`` at the hit's uv)."""
+    return np.any((np.asarray(mtab.tex) >= 0) & (np.asarray(mtab.kind) >= 0), axis=1)
+
+
+def kernel_classes(mtab, fmat) -> np.ndarray:
+    """(M,) int8: the class the kernels sample each material as, the photon
+    fast path's (``fmat.cls``) but for colour-textured materials, which it
+    leaves GENERIC: Lambert-only ones without a delta lobe are LAMBERT (numpy
+    sample_bsdf's fast path, the weight the sum of the hit's colours), the
+    others GENERIC (``compiled.sample_pair`` with the hit's colour row)."""
+    cls = np.array(fmat.cls, np.int8)
+    lam = (textured_materials(mtab) & np.asarray(mtab.lambert_only, bool)
+           & ~np.asarray(mtab.has_delta, bool) & (cls == GENERIC))
+    cls[lam] = LAMBERT
+    return cls
+
+
 def compiled_scene_ok(mtab, fmat, table, tri_n) -> bool:
     """Whether the kernels cover the scene (module docstring: scope)."""
     from ..lights.direct_kernels import compiled_lights_ok
@@ -150,7 +179,7 @@ def compiled_scene_ok(mtab, fmat, table, tri_n) -> bool:
     from ..scene import normals
     if not compiled_lights_ok(table, environment=True):
         return False
-    if np.any(mtab.tex >= 0) or np.any(mtab.emission_tex >= 0):
+    if np.any(mtab.emission_tex >= 0):
         return False
     if mtab.alpha_tex is not None and np.any(mtab.alpha_tex >= 0):
         return False
@@ -167,13 +196,14 @@ def compiled_scene_ok(mtab, fmat, table, tri_n) -> bool:
     spec = normals.attached(tri_n)
     if spec is not None:
         bumped |= normals.perturbed_materials(spec, bumped.size)
-    if np.any(bumped & (fmat.cls != GENERIC)):
+    cls = kernel_classes(mtab, fmat)
+    if np.any(bumped & (cls != GENERIC)):
         return False
-    cls_ok = np.isin(fmat.cls, (LAMBERT, MIRROR, SMOOTH_GLASS, ABSORBER))
+    cls_ok = np.isin(cls, (LAMBERT, MIRROR, SMOOTH_GLASS, ABSORBER))
     if GENERIC_SCOPE:
-        cls_ok |= (fmat.cls == GENERIC) & np.asarray(fmat.sampled, bool)
+        cls_ok |= (cls == GENERIC) & (np.asarray(fmat.sampled, bool) | textured_materials(mtab))
     # Lambert here is the radiance-mode Lambert (lambert_only), not the photons' lambert_lobes.
-    lam_ok = (fmat.cls != LAMBERT) | np.asarray(mtab.lambert_only, bool)
+    lam_ok = (cls != LAMBERT) | np.asarray(mtab.lambert_only, bool)
     return bool(np.all(cls_ok & lam_ok))
 
 
@@ -193,25 +223,63 @@ def build_light_pdf(table, hittable, L) -> LightPdf:
                     vis_trans=np.asarray(table.visible_transmission, bool).copy())
 
 
-def build_path_materials(mtab, fmat, colors) -> PathMaterials:
-    """colors (M, L, 3): ``lobe_colors`` of each (untextured) material."""
+def _sample_weights(mtab, cls, mat, colors) -> np.ndarray:
+    """(K, 3) the radiance-mode sample weight of K hits of materials mat (K,)
+    of kernel classes cls (M,), lobe colours colors (K, L, 3): the sum of the
+    colours (Lambert: sample_bsdf's colors.sum(axis=1)) or the single used
+    lobe's colour (mirror, glass: materials.fast.build_fast_materials), else 0."""
+    c = cls[mat]
+    col = np.zeros((mat.shape[0], 3))
+    lam = c == LAMBERT
+    col[lam] = colors[lam].sum(axis=1)
+    one = np.nonzero((c == MIRROR) | (c == SMOOTH_GLASS))[0]
+    if one.size:
+        used = (mtab.kind[mat[one]] >= 0) & (mtab.weight[mat[one]] != 0.0)
+        col[one] = colors[one, np.argmax(used, axis=1)]
+    return col
+
+
+def build_path_materials(mtab, fmat) -> PathMaterials:
+    """The kernels' materials: their classes (:func:`kernel_classes`), the
+    compiled BSDF (``fmat``'s, or compiled here when only textured
+    materials are GENERIC) and the M colour rows of the untextured colours
+    (``compiled.selection_table``)."""
+    from ..materials.compiled import compile_materials, selection_table
     M = fmat.cls.shape[0]
-    col = np.zeros((M, 3))
-    for m in range(M):
-        if fmat.cls[m] == LAMBERT:
-            col[m] = colors[m].sum(axis=0)           # sample_bsdf's colors.sum(axis=1)
-        elif fmat.cls[m] in (MIRROR, SMOOTH_GLASS):
-            # The single used lobe (materials.fast.build_fast_materials).
-            j = [i for i in range(mtab.kind.shape[1])
-                 if mtab.kind[m, i] >= 0 and mtab.weight[m, i] != 0.0][0]
-            col[m] = colors[m, j]
+    cls = kernel_classes(mtab, fmat)
+    sel = selection_table(mtab)
+    cm = fmat.cm
+    if np.any((cls == GENERIC) & ~np.asarray(fmat.sampled, bool)):
+        cm = compile_materials(mtab)
     c = np.ascontiguousarray
-    return PathMaterials(cls=c(fmat.cls, np.int8), ior=c(fmat.ior, np.float64), col=col,
-                         lum_col=c(fmat.col, np.float64), lobes=c(fmat.cm.lobes, np.float64),
-                         tables=c(fmat.cm.tables, np.float64),
-                         sel_colors=c(fmat.sel.colors, np.float64),
-                         sel_p=c(fmat.sel.p, np.float64), sel_cdf=c(fmat.sel.cdf, np.float64),
-                         sel_last=c(fmat.sel.last, np.int64))
+    return PathMaterials(cls=cls, ior=c(fmat.ior, np.float64),
+                         col=_sample_weights(mtab, cls, np.arange(M), sel.colors),
+                         lum_col=c(fmat.col, np.float64), lobes=c(cm.lobes, np.float64),
+                         tables=c(cm.tables, np.float64),
+                         sel_colors=c(sel.colors, np.float64),
+                         sel_p=c(sel.p, np.float64), sel_cdf=c(sel.cdf, np.float64),
+                         sel_last=c(sel.last, np.int64))
+
+
+def with_hit_colors(mtab, M: PathMaterials, mat, colors):
+    """(PathMaterials, rows (K,) int64): M with one colour row appended per
+    hit of materials mat (K,) int64 whose lobe colours colors (K, L, 3) are
+    the hit's own (textured), and the rows M + 0 .. M + K - 1 they take:
+    the sample weight (:func:`_sample_weights`; also the fast path's gating
+    colour) and the luminance selection of ``compiled.selection_table``,
+    computed by numpy from those colours."""
+    from ..materials.table import _selection_probs
+    R, L = M.sel_p.shape
+    colors = np.ascontiguousarray(colors, np.float64)
+    col = _sample_weights(mtab, M.cls, mat, colors)
+    p = _selection_probs(mtab, mat, colors, "all")
+    last = (L - 1 - np.argmax(p[:, ::-1] > 0, axis=1)).astype(np.int64)
+    cat = np.concatenate
+    return (M._replace(col=cat([M.col, col]), lum_col=cat([M.lum_col, col]),
+                       sel_colors=cat([M.sel_colors, colors]), sel_p=cat([M.sel_p, p]),
+                       sel_cdf=cat([M.sel_cdf, np.cumsum(p, axis=1)]),
+                       sel_last=cat([M.sel_last, last])),
+            np.arange(R, R + mat.shape[0], dtype=np.int64))
 
 
 # ----------------------------------------------------------------------------
@@ -337,15 +405,15 @@ def _power(a, b):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _bsdf_pdf(M, lobes, p, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz):
+def _bsdf_pdf(M, lobes, p, m, r, sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz):
     """core.materials.pdf_bsdf(subset='all') of material m for wo = o, wi = w
     (ns = s, ng = g unit, any orientation): the Lambert density, or a
-    GENERIC material's by ``compiled.pdf_oriented`` with its selection
-    probabilities p (M, L).  lobes, p: M's arrays, taken out of the struct
-    once by the caller."""
+    GENERIC material's by ``compiled.pdf_oriented`` with the selection
+    probabilities p[r] of its colour row r.  lobes, p: M's arrays, taken out
+    of the struct once by the caller."""
     if M.cls[m] != GENERIC:
         return _lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz)
-    return pdf_oriented(lobes, p, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz)
+    return pdf_oriented(lobes, p, m, r, sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz)
 
 
 # ----------------------------------------------------------------------------
@@ -368,9 +436,10 @@ def hit_kernel(T, prim, bu, bv, p, ng, ns):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def nee_mis_kernel(L, Q, M, mat, beta, p, ng, ns, n_l, wo, S, w, live, pl, sel):
+def nee_mis_kernel(L, Q, M, mat, row, beta, p, ng, ns, n_l, wo, S, w, live, pl, sel):
     """For the light samples S (``direct_kernels.DirectSamples``, K rows) taken
-    at vertices of materials mat (K,) (PathMaterials M), throughput beta,
+    at vertices of materials mat (K,) and colour rows row (K,) (PathMaterials
+    M), throughput beta,
     p, ng, ns, wo (K, 3), receiver normals n_l (ns flipped to wo's side):
     the contribution of GENERIC rows, S.contrib = beta f |ns.wi| weight with
     Cycles' f(view = wo, light = wi) (``compiled.eval_pair``, as
@@ -389,7 +458,7 @@ def nee_mis_kernel(L, Q, M, mat, beta, p, ng, ns, n_l, wo, S, w, live, pl, sel):
         j = S.light[k]
         wx, wy, wz = S.wi[k, 0], S.wi[k, 1], S.wi[k, 2]
         if M.cls[m] == GENERIC and j >= 0:
-            f = eval_pair(lobes, T, m, cols, m, ns[k, 0], ns[k, 1], ns[k, 2], ng[k, 0],
+            f = eval_pair(lobes, T, m, cols, row[k], ns[k, 0], ns[k, 1], ns[k, 2], ng[k, 0],
                           ng[k, 1], ng[k, 2], wo[k, 0], wo[k, 1], wo[k, 2], wx, wy, wz, False)
             cs = abs(ns[k, 0] * wx + ns[k, 1] * wy + ns[k, 2] * wz)
             S.contrib[k, 0] = beta[k, 0] * f[0] * (cs * S.weight[k, 0])
@@ -410,14 +479,15 @@ def nee_mis_kernel(L, Q, M, mat, beta, p, ng, ns, n_l, wo, S, w, live, pl, sel):
         if kind != MESH and kind != WORLD:
             if not (Q.vis_glossy[j] if gw * go > 0 else Q.vis_trans[j]):
                 continue
-        pb = _bsdf_pdf(M, lobes, sp, m, ns[k, 0], ns[k, 1], ns[k, 2], ng[k, 0], ng[k, 1],
-                       ng[k, 2], wo[k, 0], wo[k, 1], wo[k, 2], wx, wy, wz)
+        pb = _bsdf_pdf(M, lobes, sp, m, row[k], ns[k, 0], ns[k, 1], ns[k, 2], ng[k, 0],
+                       ng[k, 1], ng[k, 2], wo[k, 0], wo[k, 1], wo[k, 2], wx, wy, wz)
         w[k] = _power(pl[k], pb)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def continue_kernel(M, mat, p, ng, ns, wo, beta, u, roulette, rel, floor, nx):
-    """Sample the BSDF at the K vertices (mat (K,), p, ng, ns, wo, beta (K, 3),
+def continue_kernel(M, mat, row, p, ng, ns, wo, beta, u, roulette, rel, floor, nx):
+    """Sample the BSDF at the K vertices (mat (K,), colour rows row (K,), p,
+    ng, ns, wo, beta (K, 3),
     u (K, 4): direction (0, 1), lobe / Fresnel (2), roulette (3)) as
     ``sample_bsdf(subset='all', mode='radiance')`` does for the materials of
     ``PathMaterials`` M (Lambert, mirror and glass by ``sample_fast``, GENERIC
@@ -432,12 +502,13 @@ def continue_kernel(M, mat, p, ng, ns, wo, beta, u, roulette, rel, floor, nx):
     n = 0
     for k in range(mat.shape[0]):
         m = mat[k]
+        r_k = row[k]
         c = M.cls[m]
         sx, sy, sz = ns[k, 0], ns[k, 1], ns[k, 2]
         gx, gy, gz = ng[k, 0], ng[k, 1], ng[k, 2]
         ox, oy, oz = wo[k, 0], wo[k, 1], wo[k, 2]
         if c == GENERIC:
-            r = sample_pair(lobes, T, cols, sp, scdf, slast, m, sx, sy, sz, gx, gy, gz,
+            r = sample_pair(lobes, T, cols, sp, scdf, slast, m, r_k, sx, sy, sz, gx, gy, gz,
                             ox, oy, oz, u[k, 0], u[k, 1], u[k, 2], True)
             if not r[7]:
                 continue
@@ -445,14 +516,15 @@ def continue_kernel(M, mat, p, ng, ns, wo, beta, u, roulette, rel, floor, nx):
             b0, b1, b2 = beta[k, 0] * r[3], beta[k, 1] * r[4], beta[k, 2] * r[5]
             pdf = 1.0 if is_delta else r[8]
         elif c == LAMBERT or c == MIRROR or c == SMOOTH_GLASS:
-            q = sample_fast(c, M.lum_col[m, 0], M.lum_col[m, 1], M.lum_col[m, 2], M.ior[m],
-                            sx, sy, sz, gx, gy, gz, ox, oy, oz, u[k, 0], u[k, 1], u[k, 2])
+            q = sample_fast(c, M.lum_col[r_k, 0], M.lum_col[r_k, 1], M.lum_col[r_k, 2],
+                            M.ior[m], sx, sy, sz, gx, gy, gz, ox, oy, oz, u[k, 0], u[k, 1],
+                            u[k, 2])
             if not q[7]:
                 continue
             wx, wy, wz, is_delta = q[0], q[1], q[2], q[6]
-            b0 = beta[k, 0] * M.col[m, 0]
-            b1 = beta[k, 1] * M.col[m, 1]
-            b2 = beta[k, 2] * M.col[m, 2]
+            b0 = beta[k, 0] * M.col[r_k, 0]
+            b1 = beta[k, 1] * M.col[r_k, 1]
+            b2 = beta[k, 2] * M.col[r_k, 2]
             # Cosine sampling (Lambert): the density of the direction drawn.
             pdf = 1.0 if is_delta else _lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz,
                                                     wx, wy, wz)
@@ -587,10 +659,11 @@ def _point_emit_over_nee(X, j, nee, wx, wy, wz, dist):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def camera_nee_kernel(X, M, mat, first, own, Qv, cv, p, ng, ns, wo, wi, dist, light, pl, sel,
-                      w):
+def camera_nee_kernel(X, M, mat, row, first, own, Qv, cv, p, ng, ns, wo, wi, dist, light, pl,
+                      sel, w):
     """combined.CameraMIS.nee at the kernels' vertices (K rows of materials
-    mat (K,), PathMaterials M: the reverse density is :func:`_bsdf_pdf`'s;
+    mat (K,), colour rows row (K,), PathMaterials M: the reverse density is
+    :func:`_bsdf_pdf`'s;
     Qv, cv (K,) the vertex's Q and c; p, ng, ns, wo, wi (K, 3); dist,
     light, pl, sel (K,),
     pl and sel the light sample's density and selection probability from
@@ -628,7 +701,7 @@ def camera_nee_kernel(X, M, mat, first, own, Qv, cv, p, ng, ns, wo, wi, dist, li
             dm = max(dc, 1e-300)
             wx, wy, wz = wx / dm, wy / dm, wz / dm
             T = _point_emit_over_nee(X, j, sel[k], -wx, -wy, -wz, dc)
-        pr = 1.0 if first else _bsdf_pdf(M, lobes, sp, mat[k], sx, sy, sz, gx, gy, gz,
+        pr = 1.0 if first else _bsdf_pdf(M, lobes, sp, mat[k], row[k], sx, sy, sz, gx, gy, gz,
                                          wx, wy, wz, ox, oy, oz)
         r = _fin(Qv[k] * pr * abs(gx * wx + gy * wy + gz * wz) * T / cv[k])
         if cl == FULL:
@@ -639,9 +712,9 @@ def camera_nee_kernel(X, M, mat, first, own, Qv, cv, p, ng, ns, wo, wi, dist, li
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def camera_continued_kernel(M, mat, first, src, delta, d, ng, ns, wo, Qv, cv, Q):
+def camera_continued_kernel(M, mat, row, first, src, delta, d, ng, ns, wo, Qv, cv, Q):
     """combined.CameraMIS.continued for the NextRays (src, delta, d) left by
-    the kernels' vertices (mat, ng, ns, wo, Qv, cv by vertex row; PathMaterials
+    the kernels' vertices (mat, row, ng, ns, wo, Qv, cv by vertex row; PathMaterials
     M): Q (n,) = Q_v pr |ng.wi| / c_v, pr the reverse density of
     :func:`_bsdf_pdf` (1 at the first vertex or after a delta), 0 after a
     delta at the first vertex."""
@@ -652,7 +725,7 @@ def camera_continued_kernel(M, mat, first, src, delta, d, ng, ns, wo, Qv, cv, Q)
         gx, gy, gz = ng[k, 0], ng[k, 1], ng[k, 2]
         pr = 1.0
         if not first and not delta[n]:
-            pr = _bsdf_pdf(M, lobes, sp, mat[k], ns[k, 0], ns[k, 1], ns[k, 2], gx, gy, gz,
-                           wx, wy, wz, wo[k, 0], wo[k, 1], wo[k, 2])
+            pr = _bsdf_pdf(M, lobes, sp, mat[k], row[k], ns[k, 0], ns[k, 1], ns[k, 2], gx, gy,
+                           gz, wx, wy, wz, wo[k, 0], wo[k, 1], wo[k, 2])
         q = _fin(Qv[k] * pr * abs(gx * wx + gy * wy + gz * wz) / cv[k])
         Q[n] = 0.0 if (first and delta[n]) else q

@@ -38,16 +38,17 @@ Georgiev et al. 2012; docs/integrators.md).  Like Cycles' path tracer:
 
 All paths of a pass are traced together as a structure of arrays, masked and
 compacted per vertex (Mitsuba 3 style wavefront); throughput is float64.
-With ``compiled`` (default) and a scene the kernels cover (untextured
-Lambert, mirror, glass and GENERIC materials such as Blender's default
-Principled BSDF), the light sample and its MIS weight, the light-sampling
-densities and the continuation (BSDF sample, throughput, roulette, spawn,
-compaction) are the numba kernels of :mod:`.path_kernels`; elsewhere
-(textures, Normal Map / Bump, Transparent lobes, environment maps) the
-numpy vertices' radiance-mode sample_bsdf, eval_bsdf and pdf_bsdf run
-compiled on GENERIC materials (the PathTracer methods of those names,
-core.materials.compiled "Radiance mode over arrays"); ``compiled = False``
-is the numpy reference.
+With ``compiled`` (default) and a scene the kernels cover (Lambert, mirror,
+glass and GENERIC materials such as Blender's default Principled BSDF, with
+colour textures, an environment map, a Normal Map / Bump on GENERIC
+materials: ``path_kernels.compiled_scene_ok``), the light sample and its MIS
+weight, the light-sampling densities and the continuation (BSDF sample,
+throughput, roulette, spawn, compaction) are the numba kernels of
+:mod:`.path_kernels`; elsewhere (Transparent lobes, alpha textures, textured
+emission) the numpy vertices' radiance-mode sample_bsdf, eval_bsdf and
+pdf_bsdf run compiled on GENERIC materials (the PathTracer methods of those
+names, core.materials.compiled "Radiance mode over arrays");
+``compiled = False`` is the numpy reference.
 """
 from __future__ import annotations
 
@@ -138,6 +139,10 @@ class PathVertices:
     # Merging as an MIS strategy (core.integrators.merge.CameraMerge): (K,)
     # merging's ratio QM at the vertex (0 up to y_v); None without it.
     QM: np.ndarray | None = None
+    # The kernels' vertices: (K,) int64 the colour row of each (its
+    # material's, or a textured hit's own: path_kernels.PathMaterials);
+    # None: the material's (the numpy vertices).
+    row: np.ndarray | None = None
 
     def take(self, i: np.ndarray) -> "PathVertices":
         """The rows i (compaction)."""
@@ -188,8 +193,11 @@ class PathTracer:
                          | ((lt.kind == SUN) & (lt.half_angle > 0))
                          | (((lt.kind == POINT) | (lt.kind == SPOT)) & (lt.radius > 0)))
         self.compiled = compiled
-        # (DirectLights, LightPdf, PathMaterials, colors, TriangleData) or False
+        # (DirectLights, LightPdf, PathMaterials, TriangleData) or False
         self._kernels = None
+        # Materials with a colour texture: their hits' lobe colours are
+        # looked up per hit (the kernels' colour rows, _hit_colors).
+        self._textured = PK.textured_materials(mtab)
         # The radiance-mode BSDF calls of the numpy vertices run compiled on
         # GENERIC materials (core.materials.compiled "Radiance mode over
         # arrays"), numpy where ``compiled`` is off (the reference): the
@@ -266,11 +274,9 @@ class PathTracer:
             from ..sppm.photon_kernels import build_triangle_data
             fmat = self.fast_materials()
             if PK.compiled_scene_ok(self.mtab, fmat, self.lights, self.scene.tri_n):
-                M = self.mtab.kind.shape[0]
-                colors = B.lobe_colors(self.mtab, np.arange(M), np.zeros((M, 2)))
                 L = DK.build_direct_lights(self.lights)
                 self._kernels = (L, PK.build_light_pdf(self.lights, self.hittable, L),
-                                 PK.build_path_materials(self.mtab, fmat, colors), colors,
+                                 PK.build_path_materials(self.mtab, fmat),
                                  build_triangle_data(self.scene))
             else:
                 self._kernels = False
@@ -437,16 +443,20 @@ class PathTracer:
             if ih.size == 0:
                 break
             prim = h.prim[ih]
+            mat = s.tri_mat[prim]
             if kern:
                 p, ng, ns = (np.empty((ih.size, 3)) for _ in range(3))
-                PK.hit_kernel(kern[4], prim, h.u[ih], h.v[ih], p, ng, ns)
-                uv = np.zeros((ih.size, 2))         # untextured in the kernels' scope
+                PK.hit_kernel(kern[3], prim, h.u[ih], h.v[ih], p, ng, ns)
                 if self._spec is not None:
                     self._perturb(prim, h.u[ih], h.v[ih], ns)
+                # The hits' colour rows; uv only where the emission reads it
+                # (no emission texture in the kernels' scope: never).
+                Mk, row = self._hit_colors(kern[2], prim, h.u[ih], h.v[ih], mat)
+                uv = np.zeros((ih.size, 2))
             else:
                 p, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, h.u[ih],
                                               h.v[ih])
-            mat = s.tri_mat[prim]
+                row = None
             em = np.nonzero(mtab.emission[mat].max(axis=1) > 0)[0]
             if em.size:
                 Le = B.emission_radiance(mtab, mat[em], uv[em])
@@ -470,16 +480,17 @@ class PathTracer:
                 if keep.size < ih.size:
                     ih, prim, p, ng, ns, uv, mat = (a[keep] for a in (ih, prim, p, ng, ns, uv,
                                                                      mat))
+                    row = None if row is None else row[keep]
                     if ih.size == 0:
                         break
             if depth > self.max_bounces:
                 break       # the last BSDF ray only collects emission
-            # Untextured in the kernels' scope: the colours are the material's
-            # (read by the numpy CameraMIS terms only).
+            # The kernels' colours are their rows' (read by the numpy
+            # CameraMIS terms only).
             colors = (B.lobe_colors(mtab, mat, uv) if not kern
-                      else kern[3][mat] if vc is not None else None)
+                      else Mk.sel_colors[row] if vc is not None else None)
             v = PathVertices(path=path[ih], p=p, ng=ng, ns=ns, wo=-d[ih], mat=mat,
-                             colors=colors, beta=beta[ih])
+                             colors=colors, beta=beta[ih], row=row)
             if vc is not None:
                 v.Q, v.c = vc.at_hit(Qs[ih], pf, ih, d[ih], ng, h.t[ih] + t_acc[ih], first[ih])
             v.first = first[ih]
@@ -497,11 +508,14 @@ class PathTracer:
             if nd.size:
                 ud = u[v.path[nd], 4:7] if depth == 0 else rng.random((nd.size, 3))
                 vn = v if nd.size == ih.size else v.take(nd)
-                (self._direct_compiled if kern else self._direct)(vn, ud, out, depth)
+                if kern:
+                    self._direct_compiled(vn, ud, out, depth, Mk)
+                else:
+                    self._direct(vn, ud, out, depth)
             # Continue by sampling the BSDF (all lobes).
             ur = rng.random((ih.size, 4))
             if kern:
-                nx = self._continue_compiled(v, ur, depth >= self.rr_start)
+                nx = self._continue_compiled(v, ur, depth >= self.rr_start, Mk)
                 c = nx.src
                 if part is not None:
                     # part.sampled is per row: on the survivors only, as numpy's keep(c) after.
@@ -509,10 +523,10 @@ class PathTracer:
                     part.sampled(nx.delta)
                 if mg is not None:
                     mg.keep(c)
-                    mg.sampled(vc.continued_compiled(kern[2], v, nx, depth, Q=v.QM)[0],
+                    mg.sampled(vc.continued_compiled(Mk, v, nx, depth, Q=v.QM)[0],
                                np.abs(_dot(v.ng[c], nx.d)), nx.delta)
                 if vc is not None:
-                    Qs, pf = vc.continued_compiled(kern[2], v, nx, depth)
+                    Qs, pf = vc.continued_compiled(Mk, v, nx, depth)
                     vprev = v.take(c)
                 o, d, beta = nx.o, nx.d, nx.beta
                 tmax = np.full(c.size, np.inf)
@@ -578,6 +592,26 @@ class PathTracer:
                 a[x] = b[x]
             path = v.path[c]
         return out
+
+    def _hit_colors(self, M, prim, bu, bv, mat):
+        """(PathMaterials, row (K,) int64) of the kernels' hits (prim, bu, bv,
+        materials mat (K,)): M and the materials themselves where no hit is
+        on a textured material; else M with a colour row appended per
+        textured hit (``path_kernels.with_hit_colors``: its lobe colours
+        ``materials.lobe_colors`` at the hit's uv, their selection)."""
+        row = np.asarray(mat, np.int64)
+        if not self._textured.any():
+            return M, row
+        t = np.nonzero(self._textured[row])[0]
+        if t.size == 0:
+            return M, row
+        from ..accel import hit_uv
+        uv = hit_uv(self.scene.tri_uv, prim[t], bu[t], bv[t])
+        Mk, rows = PK.with_hit_colors(self.mtab, M, row[t],
+                                      B.lobe_colors(self.mtab, row[t], uv))
+        row = row.copy()
+        row[t] = rows
+        return Mk, row
 
     def _perturb(self, prim, bu, bv, ns) -> None:
         """The shading normals ns (K, 3) of the kernels' hits (prim, bu, bv)
@@ -680,24 +714,26 @@ class PathTracer:
         w = self.mis_light(v, wi, dist, light, n_l[live][nz])
         self._add_direct(v, wi, dist, contrib, light, shadow, w, out, depth)
 
-    def _direct_compiled(self, v: PathVertices, u, out, depth: int = 0) -> None:
+    def _direct_compiled(self, v: PathVertices, u, out, depth: int, M) -> None:
         """_direct with the light sample, f and the MIS weight in the kernels
         (the Lambert f in ``direct_kernel``, a GENERIC material's in
-        ``nee_mis_kernel``: path_kernels' scope)."""
+        ``nee_mis_kernel``: path_kernels' scope); M the step's PathMaterials
+        (v.row its colour rows)."""
         from ..lights import direct_kernels as DK
-        L, Q, M = self.kernels()[:3]
+        L, Q = self.kernels()[:2]
         K = v.path.size
         n_l = v.ns_wo()
         c = np.ascontiguousarray
         mat = c(v.mat, np.int64)
-        R = DK.Receivers(np.arange(K), c(v.p), n_l, c(v.beta), c(M.col[mat]),
+        row = c(v.row, np.int64)
+        R = DK.Receivers(np.arange(K), c(v.p), n_l, c(v.beta), c(M.col[row]),
                          M.cls[mat] != GENERIC, c(u, np.float64))
         S = DK.alloc_samples(K)
         DK.direct_kernel(0, K, L, R, S)
         w, pl, sel = np.empty(K), np.empty(K), np.empty(K)
         live = np.empty(K, bool)
-        PK.nee_mis_kernel(L, Q, M, mat, R.beta, R.p, c(v.ng), c(v.ns), n_l, c(v.wo), S, w, live,
-                          pl, sel)
+        PK.nee_mis_kernel(L, Q, M, mat, row, R.beta, R.p, c(v.ng), c(v.ns), n_l, c(v.wo), S, w,
+                          live, pl, sel)
         r = np.nonzero(live)[0]
         if r.size == 0:
             return
@@ -732,16 +768,16 @@ class PathTracer:
         vertex before it (``_trace``: the crossing is no MIS vertex)."""
         return self.nee.transmittance(p, ng, wi, dist, self.lights.kind[light] == MESH, shadow)
 
-    def _continue_compiled(self, v: PathVertices, ur, roulette: bool) -> "PK.NextRays":
-        """The continuation of the vertices v (path_kernels.continue_kernel):
-        the NextRays of the survivors, trimmed to their number."""
+    def _continue_compiled(self, v: PathVertices, ur, roulette: bool, M) -> "PK.NextRays":
+        """The continuation of the vertices v (path_kernels.continue_kernel;
+        M the step's PathMaterials, v.row its colour rows): the NextRays of
+        the survivors, trimmed to their number."""
         from ..accel import REL_OFFSET
-        M = self.kernels()[2]
         K = v.path.size
         nx = PK.alloc_next(K)
         c = np.ascontiguousarray
-        n = PK.continue_kernel(M, c(v.mat, np.int64), c(v.p), c(v.ng), c(v.ns), c(v.wo),
-                               c(v.beta), ur, bool(roulette), REL_OFFSET,
+        n = PK.continue_kernel(M, c(v.mat, np.int64), c(v.row, np.int64), c(v.p), c(v.ng),
+                               c(v.ns), c(v.wo), c(v.beta), ur, bool(roulette), REL_OFFSET,
                                self.accel.abs_floor / REL_OFFSET, nx)
         return PK.NextRays(*(a[:n] for a in nx))
 

@@ -757,21 +757,22 @@ def _pdf_nd_one(lobes, p, r, m, front, Nx, Ny, Nz, Gx, Gy, Gz, ox, oy, oz, wx, w
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def pdf_oriented(lobes, p, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz):
-    """closures.pdf_bsdf(subset='all') of material m (untextured) for wo = o,
-    wi = w: closures.pdf_inputs' orientation of the unit normals s (shading)
-    and g (geometric, any orientation) to o's side (a Normal Map / Bump
-    material's s made Cycles' valid specular normal for o first), then
-    :func:`_pdf_nd_one` with the selection probabilities p (M, L)."""
+def pdf_oriented(lobes, p, m, r, sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz):
+    """closures.pdf_bsdf(subset='all') of material m for wo = o, wi = w:
+    closures.pdf_inputs' orientation of the unit normals s (shading) and g
+    (geometric, any orientation) to o's side (a Normal Map / Bump material's
+    s made Cycles' valid specular normal for o first), then
+    :func:`_pdf_nd_one` with the selection probabilities p[r] (p (R, L): a
+    SelectionTable's rows, r = m, or a textured hit's own row)."""
     front = gx * ox + gy * oy + gz * oz >= 0.0
     sg = 1.0 if front else -1.0
     if lobes[m, 0, F_BUMP] > 0.0:
         # closures.pdf_inputs: Cycles' valid specular normal for the view o.
         ax, ay, az = _valid_specular_normal(gx * sg, gy * sg, gz * sg, ox, oy, oz,
                                             sx * sg, sy * sg, sz * sg)
-        return _pdf_nd_one(lobes, p, m, m, front, ax, ay, az, gx * sg, gy * sg, gz * sg,
+        return _pdf_nd_one(lobes, p, r, m, front, ax, ay, az, gx * sg, gy * sg, gz * sg,
                            ox, oy, oz, wx, wy, wz)
-    return _pdf_nd_one(lobes, p, m, m, front, sx * sg, sy * sg, sz * sg, gx * sg, gy * sg,
+    return _pdf_nd_one(lobes, p, r, m, front, sx * sg, sy * sg, sz * sg, gx * sg, gy * sg,
                        gz * sg, ox, oy, oz, wx, wy, wz)
 
 
@@ -792,18 +793,21 @@ def scatter_pdfs(lobes, p, mat, ns, ng, wo, wi, delta, pl, pr):
         gx, gy, gz = ng[i, 0], ng[i, 1], ng[i, 2]
         ox, oy, oz = wo[i, 0], wo[i, 1], wo[i, 2]
         wx, wy, wz = wi[i, 0], wi[i, 1], wi[i, 2]
-        pl[i] = pdf_oriented(lobes, p, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz)
-        pr[i] = pdf_oriented(lobes, p, m, sx, sy, sz, gx, gy, gz, wx, wy, wz, ox, oy, oz)
+        pl[i] = pdf_oriented(lobes, p, m, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz)
+        pr[i] = pdf_oriented(lobes, p, m, m, sx, sy, sz, gx, gy, gz, wx, wy, wz, ox, oy, oz)
 
 
 @njit(cache=True, error_model="numpy")
-def sample_pair(lobes, T, colors, p, cdf, last, m, nsx, nsy, nsz, ngx, ngy, ngz,
+def sample_pair(lobes, T, colors, p, cdf, last, m, r, nsx, nsy, nsz, ngx, ngy, ngz,
                 ox, oy, oz, u0, u1, u2, radiance):
     """closures.sample_bsdf(subset='all', mode='importance', or 'radiance'
-    with ``radiance``) of material m (untextured; a Normal Map / Bump
-    material gets Cycles' valid specular normal in radiance mode only, as
-    there) for one ray: lobes, T a CompiledMaterials' arrays; colors, p, cdf, last a
-    SelectionTable's; ns, ng unit mesh normals in any orientation; o = wo
+    with ``radiance``) of material m (a Normal Map / Bump material gets
+    Cycles' valid specular normal in radiance mode only, as there) for one
+    ray: lobes, T a CompiledMaterials' arrays; colors, p, cdf, last a
+    SelectionTable's, read at row r (r = m for an untextured material, or
+    a textured hit's own row of its lobe colours and their selection,
+    core.integrators.path_kernels.PathMaterials); ns, ng unit mesh normals
+    in any orientation; o = wo
     unit (importance: back towards where the photon came from; radiance:
     towards the camera side); u0, u1 direction, u2 lobe choice (rescaled for
     glass' reflect / refract choice).  Returns (wi xyz, weight rgb,
@@ -823,16 +827,16 @@ def sample_pair(lobes, T, colors, p, cdf, last, m, nsx, nsy, nsz, ngx, ngy, ngz,
     Nx, Ny, Nz = nsx * sg, nsy * sg, nsz * sg
     Gx, Gy, Gz = ngx * sg, ngy * sg, ngz * sg
     L = lobes.shape[1]
-    if not cdf[m, L - 1] > 0.0:          # no lobe: invalid
+    if not cdf[r, L - 1] > 0.0:          # no lobe: invalid
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, False, 0.0
     # Lobe choice: first slot with u < cdf, at most the last usable one.
     j = 0
     for jj in range(L):
-        if u2 >= cdf[m, jj]:
+        if u2 >= cdf[r, jj]:
             j += 1
-    j = min(j, last[m])
-    p_sel = p[m, j]
-    c_lo = cdf[m, j - 1] if j > 0 else 0.0
+    j = min(j, last[r])
+    p_sel = p[r, j]
+    c_lo = cdf[r, j - 1] if j > 0 else 0.0
     u_re = min(max((u2 - c_lo) / (p_sel if p_sel > 0 else 1.0), 0.0), 1.0 - 1e-16)
     # Tangent frame of N (mathutil.frame, Duff et al. 2017).
     s = 1.0 if Nz >= 0.0 else -1.0
@@ -842,7 +846,7 @@ def sample_pair(lobes, T, colors, p, cdf, last, m, nsx, nsy, nsz, ngx, ngy, ngz,
     bx, by, bz = b, s + (Ny * Ny) * a, -Ny
     k = int(lobes[m, j, F_KIND])
     delta = not lobes[m, j, F_ND] > 0.0
-    c0, c1, c2 = colors[m, j, 0], colors[m, j, 1], colors[m, j, 2]
+    c0, c1, c2 = colors[r, j, 0], colors[r, j, 1], colors[r, j, 2]
     ior = lobes[m, j, F_IOR]
     eta = ior if front else 1.0 / ior
     d0 = d1 = d2 = 0.0                   # delta throughput before selection
@@ -933,19 +937,19 @@ def sample_pair(lobes, T, colors, p, cdf, last, m, nsx, nsy, nsz, ngx, ngy, ngz,
         w0, w1, w2 = d0 / p_sel, d1 / p_sel, d2 / p_sel
         pdf = p_sel
     else:
-        pdf = _pdf_nd_one(lobes, p, m, m, front, Nx, Ny, Nz, Gx, Gy, Gz, ox, oy, oz,
+        pdf = _pdf_nd_one(lobes, p, r, m, front, Nx, Ny, Nz, Gx, Gy, Gz, ox, oy, oz,
                           wx, wy, wz)
         if not pdf > 0.0:
             return wx, wy, wz, 0.0, 0.0, 0.0, False, False, 0.0
         if radiance:
             # closures._sample_general, mode 'radiance': Cycles' f(view=wo, light=wi).
-            f = eval_pair(lobes, T, m, colors, m, msx, msy, msz, ngx, ngy, ngz,
+            f = eval_pair(lobes, T, m, colors, r, msx, msy, msz, ngx, ngy, ngz,
                           ox, oy, oz, wx, wy, wz, False)
         else:
             # Importance mode: the adjoint f_C(view=wi, light=wo), without the
             # Normal Map / Bump corrections (closures.sample_bsdf applies them
             # in radiance mode only).
-            f = eval_pair_as(lobes, T, m, colors, m, nsx, nsy, nsz, ngx, ngy, ngz,
+            f = eval_pair_as(lobes, T, m, colors, r, nsx, nsy, nsz, ngx, ngy, ngz,
                              wx, wy, wz, ox, oy, oz, False, False)
         cs = abs(_dot3(nsx, nsy, nsz, wx, wy, wz)) / pdf
         w0, w1, w2 = f[0] * cs, f[1] * cs, f[2] * cs
@@ -964,7 +968,7 @@ def sample_batch(lobes, T, sel, mat, ns, ng, wo, u, radiance, wi, weight, pdf, f
     u (K, 3); writes wi, weight (K, 3), pdf (K,) and flags (K,) int8: bit 0
     ok, bit 1 is_delta."""
     for i in range(mat.shape[0]):
-        r = sample_pair(lobes, T, sel.colors, sel.p, sel.cdf, sel.last, mat[i],
+        r = sample_pair(lobes, T, sel.colors, sel.p, sel.cdf, sel.last, mat[i], mat[i],
                         ns[i, 0], ns[i, 1], ns[i, 2], ng[i, 0], ng[i, 1], ng[i, 2],
                         wo[i, 0], wo[i, 1], wo[i, 2], u[i, 0], u[i, 1], u[i, 2], radiance)
         wi[i, 0], wi[i, 1], wi[i, 2] = r[0], r[1], r[2]

@@ -48,7 +48,7 @@ from numba.extending import intrinsic
 
 # compiled.sample_pair (and eval_pair in it) is compiled into these kernels and
 # numba's cache is stamped by this file: edited with the microfacet lobes'
-# geometric side test of round 27.
+# geometric side test of round 27 and sample_pair's colour row of round 28.
 from ..materials.compiled import sample_pair, sincos_turn
 from ..materials.fast import ABSORBER, GENERIC, sample_fast
 from ..lights.warp_kernels import basis_world, upper_bound
@@ -509,7 +509,7 @@ def bounce_kernel(step, hits, live, tris, mats, u, dep, gen, rec, mis):
             if use_comp:
                 st = SAMPLE_NUMPY
                 if m_comp[m]:
-                    r = sample_pair(c_lobes, c_T, s_col, s_p, s_cdf, s_last, m,
+                    r = sample_pair(c_lobes, c_T, s_col, s_p, s_cdf, s_last, m, m,
                                     sx, sy, sz, gx, gy, gz, wx, wy, wz, u[i, 0], u[i, 1], u[i, 2],
                                     False)
                     gen_out[n_gen, 0], gen_out[n_gen, 1], gen_out[n_gen, 2] = r[0], r[1], r[2]
