@@ -168,6 +168,57 @@ def test_compiled_paths_equal_numpy(integrator, n_small_tris, world_map, bumped,
     np.testing.assert_allclose(L_c, L_n, rtol=1e-9, atol=1e-9 * float(L_n.max()))
 
 
+def test_hit_colors_equal_lobe_colors():
+    """path_kernels.hit_colors_kernel (a textured hit's colour row) against
+    numpy's materials.lobe_colors at accel.hit_uv, table._selection_probs,
+    its cumsum and last used slot, and the Lambert sample weight, on 5,000
+    random hits of the textured floor (Lambert) and the Principled-like wall
+    (GENERIC; a grey and an unassociated-alpha texture on its two lobes):
+    equal to 1e-15 relative (the same products; numpy's luminance dot and
+    lobe sum may round the last bit differently)."""
+    import dataclasses
+
+    from core.accel import hit_uv
+    from core.integrators import path_kernels as PKp
+    from core.materials import lobe_colors
+    from core.materials.table import _selection_probs
+    from core.scene.textures import UnassociatedImage
+    pt = _tracer("PATH", textured=True)
+    mtab = pt.mtab
+    grey = np.linspace(0.1, 0.9, 12, dtype=np.float32).reshape(3, 4)
+    rgba = np.random.default_rng(2).random((4, 5, 4)).astype(np.float32)
+    tex = np.array(mtab.tex)
+    wall = 1
+    j = np.nonzero(tex[wall] >= 0)[0]
+    tex[wall, j[0]], tex[wall, j[-1]] = len(mtab.textures), len(mtab.textures) + 1
+    mtab = dataclasses.replace(mtab, tex=tex, textures=list(mtab.textures)
+                               + [grey, rgba.view(UnassociatedImage)])
+    fm = build_fast_materials(mtab)
+    M = PKp.build_path_materials(mtab, fm)
+    X = PKp.build_color_inputs(mtab, pt.scene.tri_uv)
+    rng = np.random.default_rng(5)
+    K = 5000
+    prim = rng.integers(0, 4, K).astype(np.int64)            # floor and wall triangles
+    u, v = rng.random(K), rng.random(K)
+    flip = u + v > 1
+    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+    mat = np.asarray(pt.scene.tri_mat, np.int64)[prim]
+    Mk, rows = PKp.with_hit_colors(M, X, prim, u, v, mat)
+    colors = lobe_colors(mtab, mat, hit_uv(pt.scene.tri_uv, prim, u, v))
+    p = _selection_probs(mtab, mat, colors, "all")
+    L = p.shape[1]
+    assert np.array_equal(rows, M.col.shape[0] + np.arange(K))
+    np.testing.assert_allclose(Mk.sel_colors[rows], colors, rtol=1e-15, atol=0)
+    np.testing.assert_allclose(Mk.sel_p[rows], p, rtol=1e-15, atol=1e-16)
+    np.testing.assert_allclose(Mk.sel_cdf[rows], np.cumsum(p, axis=1), rtol=1e-15, atol=1e-16)
+    np.testing.assert_array_equal(Mk.sel_last[rows], L - 1 - np.argmax(p[:, ::-1] > 0, axis=1))
+    lam = M.cls[mat] == PKp.LAMBERT
+    assert lam.any() and (~lam).any()
+    np.testing.assert_allclose(Mk.col[rows][lam], colors[lam].sum(axis=1), rtol=1e-15)
+    assert np.all(Mk.col[rows][~lam] == 0)
+    np.testing.assert_array_equal(Mk.sel_p[:M.col.shape[0]], M.sel_p)   # the materials' rows
+
+
 @pytest.mark.parametrize("tangents,strength,directx", [(False, 0.8, False), (True, 1.0, True),
                                                        (True, 1.7, False)])
 def test_compiled_normal_map_equals_perturb(tangents, strength, directx):

@@ -198,6 +198,7 @@ class PathTracer:
         # Materials with a colour texture: their hits' lobe colours are
         # looked up per hit (the kernels' colour rows, _hit_colors).
         self._textured = PK.textured_materials(mtab)
+        self._color_inputs = None       # path_kernels.ColorInputs, built in _prepare
         # The radiance-mode BSDF calls of the numpy vertices run compiled on
         # GENERIC materials (core.materials.compiled "Radiance mode over
         # arrays"), numpy where ``compiled`` is off (the reference): the
@@ -349,6 +350,8 @@ class PathTracer:
         kern = self.kernels()
         if self.compiled:
             self._radiance_rows()
+        if kern and self._textured.any() and self._color_inputs is None:
+            self._color_inputs = PK.build_color_inputs(self.mtab, self.scene.tri_uv)
         if kern and self._flags is None:
             self._flags = Seen.visibility_flags(self.lights)
         if kern and self.vc is not None:
@@ -597,18 +600,15 @@ class PathTracer:
         """(PathMaterials, row (K,) int64) of the kernels' hits (prim, bu, bv,
         materials mat (K,)): M and the materials themselves where no hit is
         on a textured material; else M with a colour row appended per
-        textured hit (``path_kernels.with_hit_colors``: its lobe colours
-        ``materials.lobe_colors`` at the hit's uv, their selection)."""
+        textured hit (``path_kernels.with_hit_colors``: its lobe colours at
+        the hit's uv, their selection)."""
         row = np.asarray(mat, np.int64)
         if not self._textured.any():
             return M, row
         t = np.nonzero(self._textured[row])[0]
         if t.size == 0:
             return M, row
-        from ..accel import hit_uv
-        uv = hit_uv(self.scene.tri_uv, prim[t], bu[t], bv[t])
-        Mk, rows = PK.with_hit_colors(self.mtab, M, row[t],
-                                      B.lobe_colors(self.mtab, row[t], uv))
+        Mk, rows = PK.with_hit_colors(M, self._color_inputs, prim[t], bu[t], bv[t], row[t])
         row = row.copy()
         row[t] = rows
         return Mk, row
