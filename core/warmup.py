@@ -136,8 +136,9 @@ def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
     tests/test_warmup.py).  environment=True adds a small environment map
     to the world (its photons' compiled emission, lights.environment).
     normal_map=True gives the left wall a normal-mapped rough glossy
-    material (the camera paths' compiled Normal Map,
-    scene.normal_kernels, about 4 s to compile on first use).
+    material over a textured diffuse base (the camera paths' compiled
+    Normal Map, scene.normal_kernels, about 4 s to compile on first use, and
+    a textured hit's colour row, path_kernels.hit_colors_kernel, about 1 s).
     """
     mats = [Material("diffuse", (Lobe(DIFFUSE, (0.8, 0.8, 0.8)),)),
             Material("glossy", (Lobe(GLOSSY, (0.8, 0.6, 0.4), roughness=0.3),
@@ -150,12 +151,13 @@ def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
     if normal_map:
         from .scene.normals import NORMAL_MAP, NormalInput
         mats.append(Material("bumped", (Lobe(GLOSSY, (0.8, 0.8, 0.8), roughness=0.5),
-                                        Lobe(DIFFUSE, (0.5, 0.5, 0.5), weight=0.5)),
+                                        Lobe(DIFFUSE, (0.5, 0.5, 0.5), weight=0.5,
+                                             color_texture=1)),
                              normal=NormalInput(NORMAL_MAP, 0)))
         img = np.full((4, 4, 3), 0.5, np.float32)
         img[..., 2] = 1.0
         img[1, 2] = (0.7, 0.4, 0.9)
-        kw["textures"] = [img]
+        kw["textures"] = [img, np.linspace(0.2, 0.9, 12, dtype=np.float32).reshape(2, 2, 3)]
     parts = [(_quad((0, 0, 0), (2, 0, 0), (0, 2, 0)), 0),            # floor, +Z
              (_quad((0, 0, 2), (0, 2, 0), (2, 0, 0)), 0),            # ceiling, -Z
              (_quad((-2, 0, 1), (0, 2, 0), (0, 0, 1)), 0),           # left wall, +X
@@ -210,7 +212,8 @@ def warmup_jobs() -> list:
             # (COMBINED is the default integrator: tests/test_warmup.py renders
             # it), with the rough glossy wall: its light paths' compiled
             # densities (compiled.scatter_pdfs) compile here too; and a
-            # normal-mapped wall (the camera paths' Normal Map kernel).
+            # normal-mapped wall with a colour texture (the camera paths'
+            # Normal Map kernel and textured colour rows).
             (warmup_scene(normal_map=True),
              base.replace(integrator="COMBINED", photons_per_pass=2000, camera_samples=1)),
             # A late pass's few frequency photons, traced again in a batch of
