@@ -32,8 +32,9 @@ Georgiev et al. 2012; docs/integrators.md).  Like Cycles' path tracer:
 - Russian roulette from vertex ``rr_start`` on, survival probability
   min(1, sqrt(largest throughput component)) as Cycles'
   ``path_state_continuation_probability``, weight divided by it;
-- the filter, lens and first light sample of a pixel's paths are points of
-  one low-discrepancy sequence per pixel that runs across the passes
+- the filter, the lens and the light and BSDF samples of the first
+  ``SEQUENCE_DEPTHS`` vertices of a pixel's paths are points of one
+  low-discrepancy sequence per pixel that runs across the passes
   (``sequence_kernels.sobol_pairs``: shuffled, scrambled 2-D Sobol').
 
 All paths of a pass are traced together as a structure of arrays, masked and
@@ -79,6 +80,22 @@ PATH_CHUNK = 1 << 16
 #: cores, round 25").  The blocks depend on the image and the samples a
 #: pixel alone, not on the threads: the same image on any machine.
 PATH_SPLIT_MIN = 1 << 14
+#: The vertices (depth 0, 1, ...) whose light sample and BSDF sample are
+#: dimensions of the pixel's sequence (``sequence_kernels.sobol_pairs``, as
+#: Cycles draws every dimension of a path from its pixel's sequence); the
+#: deeper vertices draw from the path's random stream (docs/integrators.md
+#: "A path's first vertices from the pixel's sequence, round 28").
+SEQUENCE_DEPTHS = 1
+
+
+def sequence_dims(depth: int) -> tuple:
+    """(light, bsdf): the columns of a path's sequence numbers (``_trace``'s
+    u) that vertex ``depth`` < SEQUENCE_DEPTHS samples with: its light
+    sample (emitter choice, then the point on it: the position is one 2-D
+    pair) and its BSDF sample (direction: one pair; lobe choice, roulette:
+    the next).  Columns 0:2 are the filter's, 2:4 the lens'."""
+    b = 4 + 8 * depth
+    return [b + 2, b, b + 1], slice(b + 4, b + 8)
 
 
 def power_heuristic(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:
@@ -328,9 +345,10 @@ class PathTracer:
             r = rngs[a // block]
             # Paths sample-major: row s * B + b is sample s of pixel pix_b[b].
             pix = np.tile(pix_b, n)
-            u = np.empty((n, pix_b.size, 8))
-            sobol_pairs(self.seed, pix_b, (pass_index - 1) * n, n, 4, u)
-            u = u.reshape(n * pix_b.size, 8)
+            D = 4 + 8 * SEQUENCE_DEPTHS
+            u = np.empty((n, pix_b.size, D))
+            sobol_pairs(self.seed, pix_b, (pass_index - 1) * n, n, D // 2, u)
+            u = u.reshape(n * pix_b.size, D)
             Lp = self._trace(pix, u, r, check_stop)
             for c in range(3):
                 L[a:a + pix_b.size, c] = np.bincount(pix - a, Lp[:, c], minlength=pix_b.size)
@@ -360,8 +378,9 @@ class PathTracer:
     # ------------------------------------------------------------------ paths
     def _trace(self, pix, u, rng, check_stop) -> np.ndarray:
         """(K, 3) radiance of one camera path per entry of pix (K,) (pixel rows);
-        u (K, 8) the sequence's numbers of the path's first dimensions: filter
-        (0:2), lens (2:4), first light sample (4:7)."""
+        u (K, 4 + 8 SEQUENCE_DEPTHS) the sequence's numbers of the path's
+        first dimensions: filter (0:2), lens (2:4), then the light and BSDF
+        samples of the first vertices (:func:`sequence_dims`)."""
         mtab, accel, s, lt = self.mtab, self.accel, self.scene, self.lights
         K = pix.size
         kern = self.kernels()
@@ -509,14 +528,16 @@ class PathTracer:
                 v.QM = mg.at_vertex(h.t[ih] + t_acc[ih])
             nd = np.nonzero(mtab.has_nondelta[mat])[0]
             if nd.size:
-                ud = u[v.path[nd], 4:7] if depth == 0 else rng.random((nd.size, 3))
+                ud = (u[v.path[nd][:, None], sequence_dims(depth)[0]]
+                      if depth < SEQUENCE_DEPTHS else rng.random((nd.size, 3)))
                 vn = v if nd.size == ih.size else v.take(nd)
                 if kern:
                     self._direct_compiled(vn, ud, out, depth, Mk)
                 else:
                     self._direct(vn, ud, out, depth)
             # Continue by sampling the BSDF (all lobes).
-            ur = rng.random((ih.size, 4))
+            ur = (u[v.path, sequence_dims(depth)[1]] if depth < SEQUENCE_DEPTHS
+                  else rng.random((ih.size, 4)))
             if kern:
                 nx = self._continue_compiled(v, ur, depth >= self.rr_start, Mk)
                 c = nx.src
