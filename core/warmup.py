@@ -138,7 +138,7 @@ def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
     normal_map=True gives the left wall a normal-mapped rough glossy
     material over a textured diffuse base (the camera paths' compiled
     Normal Map, scene.normal_kernels, about 4 s to compile on first use, and
-    a textured hit's colour row, path_kernels.hit_colors_kernel, about 1 s).
+    a textured hit's colour row, materials.hit_colors, about 1 s).
     """
     mats = [Material("diffuse", (Lobe(DIFFUSE, (0.8, 0.8, 0.8)),)),
             Material("glossy", (Lobe(GLOSSY, (0.8, 0.6, 0.4), roughness=0.3),

@@ -28,7 +28,8 @@ import pytest  # noqa: E402
 from core import materials as B  # noqa: E402
 from core.materials import compiled as C  # noqa: E402
 from core.materials import fast as FM  # noqa: E402
-from core.scene.model import GLASS, GLOSSY, REFRACTION, TRANSPARENT, Lobe, Material  # noqa: E402
+from core.scene.model import (DIFFUSE, GLASS, GLOSSY, REFRACTION, TRANSPARENT,  # noqa: E402
+                              Lobe, Material)
 from core.scene.nodes import principled_to_lobes  # noqa: E402
 from test_compiled_bsdf import _materials, _pairs  # noqa: E402
 
@@ -71,7 +72,7 @@ def test_compiled_sample_equals_sample_bsdf():
     wi_r, w_r, _, dl_r, ok_r = B.sample_bsdf(t, mat, colors, ns, ng, wo, u,
                                              subset="all", mode="importance")
     wi, w, flags = np.empty((K, 3)), np.empty((K, 3)), np.empty(K, np.int8)
-    C.sample_batch(fm.cm.lobes, fm.cm.tables, C.selection_table(t), mat, ns, ng, wo, u,
+    C.sample_batch(fm.cm.lobes, fm.cm.tables, C.selection_table(t), mat, mat, ns, ng, wo, u,
                    False, wi, w, np.empty(K), flags)
     ok, dl = (flags & 1) > 0, (flags & 2) > 0
     assert np.array_equal(ok, ok_r)
@@ -141,7 +142,11 @@ def test_tracer_same_deposits_with_and_without_compiled_sampling(monkeypatch, te
     (measured: 118 of 34222 deposits' powers 1-2 ulps off, from Oren-Nayar's
     acos; since the compiled disk's sine and cosine, compiled.sincos_quarter,
     directions 6.4e-15 and powers 1.7e-13 relative at most).  textured: the
-    GGX wall textured (numpy-sampled rows among the kernel's in one block).
+    GGX wall and the green Lambert wall textured (a checker): their hits
+    sampled compiled with colour rows of their own (PhotonTracer.
+    _sample_textured, from round 28; none left to numpy's _sample_numpy)
+    among the kernel's in one block, against numpy's lobe_colors and
+    sample_bsdf (its Lambert fast path for the green wall).
     "bumped": the GGX and Oren-Nayar walls flagged Normal Map / Bump
     (MaterialTable.bump_correction): sampled by the kernel
     (FastMaterials.sampled) though not ``compiled``, as numpy's importance
@@ -153,9 +158,15 @@ def test_tracer_same_deposits_with_and_without_compiled_sampling(monkeypatch, te
         monkeypatch.setattr(FM, "COMPILED_SAMPLING", flag)
         sc = glass_mirror()
         if textured is True:
-            sc.textures = [np.full((2, 2, 3), 0.9, np.float32)]
+            chk = np.full((2, 2, 3), 0.9, np.float32)
+            chk[0, 1] = chk[1, 0] = (0.3, 0.6, 0.2)
+            sc.textures = [chk]
             sc.materials[3] = Material("ggx_tex", (Lobe(GLOSSY, (0.7, 0.7, 0.7), roughness=0.4,
                                                         color_texture=0),))
+            sc.materials[1] = Material("green_tex", (Lobe(DIFFUSE, (0.1, 0.8, 0.1),
+                                                          color_texture=0),))
+            P = np.asarray(sc.tri_p, np.float64)
+            sc.tri_uv = (0.7 * (P[:, :, 0:2] + P[:, :, 1:3])).astype(np.float32)
         if textured == "bumped":
             # tilted shading normals: the corrections would change the samples
             n = sc.tri_n + 0.3 * np.random.default_rng(5).normal(size=sc.tri_n.shape)
@@ -172,6 +183,10 @@ def test_tracer_same_deposits_with_and_without_compiled_sampling(monkeypatch, te
         else:
             assert tr.fmat.any_compiled == flag
             assert list(np.nonzero(tr.fmat.compiled)[0]) == ([4] if textured else [3, 4]) * flag
+        if textured is True and flag:
+            def no_numpy(*a, **k):
+                raise AssertionError("a textured hit left to numpy")
+            monkeypatch.setattr(tr, "_sample_numpy", no_numpy)
         out.append(tr.trace(20_000, 0, np.random.default_rng(17)))
     a, b = out
     assert a["p"].shape[0] > 20_000

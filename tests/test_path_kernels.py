@@ -169,7 +169,8 @@ def test_compiled_paths_equal_numpy(integrator, n_small_tris, world_map, bumped,
 
 
 def test_hit_colors_equal_lobe_colors():
-    """path_kernels.hit_colors_kernel (a textured hit's colour row) against
+    """materials.hit_colors.hit_colors_kernel (a textured hit's colour row,
+    through path_kernels.with_hit_colors) against
     numpy's materials.lobe_colors at accel.hit_uv, table._selection_probs,
     its cumsum and last used slot, and the Lambert sample weight, on 5,000
     random hits of the textured floor (Lambert) and the Principled-like wall
@@ -181,6 +182,7 @@ def test_hit_colors_equal_lobe_colors():
     from core.accel import hit_uv
     from core.integrators import path_kernels as PKp
     from core.materials import lobe_colors
+    from core.materials.hit_colors import build_color_inputs
     from core.materials.table import _selection_probs
     from core.scene.textures import UnassociatedImage
     pt = _tracer("PATH", textured=True)
@@ -195,7 +197,7 @@ def test_hit_colors_equal_lobe_colors():
                                + [grey, rgba.view(UnassociatedImage)])
     fm = build_fast_materials(mtab)
     M = PKp.build_path_materials(mtab, fm)
-    X = PKp.build_color_inputs(mtab, pt.scene.tri_uv)
+    X = build_color_inputs(mtab, pt.scene.tri_uv, lambert=M.cls == PKp.LAMBERT)
     rng = np.random.default_rng(5)
     K = 5000
     prim = rng.integers(0, 4, K).astype(np.int64)            # floor and wall triangles

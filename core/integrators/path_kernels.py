@@ -65,8 +65,6 @@ from ..lights.direct_kernels import (SPH_TRI_MIN, _entry_weight, _spherical_rect
                                      _spherical_tri)
 from ..lights.environment_kernels import map_pdf, texture_vector
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
-from ..mathutil import LUM_B, LUM_G, LUM_R
-from ..scene.texture_kernels import PackedTextures, pack_textures, packed_rgb
 # sample_fast (and compiled._disk in it) and compiled.sample_pair, eval_pair
 # and pdf_oriented are compiled into this module's kernels: numba's on-disk
 # cache is stamped by each kernel's own file, so a change of the samplers
@@ -78,7 +76,8 @@ from ..scene.texture_kernels import PackedTextures, pack_textures, packed_rgb
 # Normal Map / Bump corrections of the radiance-mode sample and density, with
 # the microfacet lobes' geometric side test, and with the colour row of
 # sample_pair and pdf_oriented).
-from ..materials.compiled import eval_pair, pdf_oriented, sample_pair
+from ..materials.compiled import SelectionTable, eval_pair, pdf_oriented, sample_pair
+from ..materials.hit_colors import hit_rows, textured_materials
 from ..materials.fast import ABSORBER, GENERIC, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
 from ..sppm.photon_kernels import shading_normal
 from .mis import FULL, SOFT, emit_select
@@ -153,12 +152,6 @@ class NextRays(NamedTuple):
 #: GENERIC materials in the kernels' scope (off: such a scene runs the numpy
 #: vertices with the compiled BSDF calls, round 24's path; benchmarks).
 GENERIC_SCOPE = True
-
-
-def textured_materials(mtab) -> np.ndarray:
-    """(M,) bool: the materials with a colour texture on a lobe (their lobe
-    colours vary per hit: ``materials.lobe_colors`` at the hit's uv)."""
-    return np.any((np.asarray(mtab.tex) >= 0) & (np.asarray(mtab.kind) >= 0), axis=1)
 
 
 def kernel_classes(mtab, fmat) -> np.ndarray:
@@ -263,100 +256,17 @@ def build_path_materials(mtab, fmat) -> PathMaterials:
                          sel_last=c(sel.last, np.int64))
 
 
-class ColorInputs(NamedTuple):
-    """What a textured hit's colour row is made of (M materials, L slots):
-    color (M, L, 3) float64, weight, sel_scale (M, L) float64 (ones when the
-    table has none), kind, tex (M, L) int64 (``MaterialTable``'s); tri_uv
-    (T, 3, 2) the corner uvs; textures the scene's ``PackedTextures``."""
-    color: np.ndarray
-    weight: np.ndarray
-    sel_scale: np.ndarray
-    kind: np.ndarray
-    tex: np.ndarray
-    tri_uv: np.ndarray
-    textures: PackedTextures
-
-
-def build_color_inputs(mtab, tri_uv) -> ColorInputs:
-    c = np.ascontiguousarray
-    M, L = mtab.kind.shape
-    sel = mtab.sel_scale if mtab.sel_scale is not None else np.ones((M, L))
-    return ColorInputs(color=c(mtab.color, np.float64), weight=c(mtab.weight, np.float64),
-                       sel_scale=c(sel, np.float64), kind=c(mtab.kind, np.int64),
-                       tex=c(mtab.tex, np.int64), tri_uv=c(tri_uv),
-                       textures=pack_textures(mtab.textures))
-
-
-def with_hit_colors(M: PathMaterials, X: ColorInputs, prim, bu, bv, mat):
+def with_hit_colors(M: PathMaterials, X, prim, bu, bv, mat):
     """(PathMaterials, rows (K,) int64): M with one colour row appended per
-    hit (prim, bu, bv) (K,) on textured materials mat (K,) int64, and the
-    rows R .. R + K - 1 they take (R = M's rows): :func:`hit_colors_kernel`."""
-    R, L = M.sel_p.shape
-    K = mat.shape[0]
-    col, colors = np.empty((R + K, 3)), np.empty((R + K, L, 3))
-    p, cdf, last = np.empty((R + K, L)), np.empty((R + K, L)), np.empty(R + K, np.int64)
-    col[:R], colors[:R], p[:R], cdf[:R], last[:R] = (M.col, M.sel_colors, M.sel_p, M.sel_cdf,
-                                                     M.sel_last)
-    hit_colors_kernel(X, M.cls, prim, bu, bv, mat, R, colors, p, cdf, last, col)
-    lum = np.empty((R + K, 3))
-    lum[:R], lum[R:] = M.lum_col, col[R:]
-    return (M._replace(col=col, lum_col=lum, sel_colors=colors, sel_p=p, sel_cdf=cdf,
-                       sel_last=last),
-            np.arange(R, R + K, dtype=np.int64))
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def hit_colors_kernel(X, cls, prim, bu, bv, mat, R, colors, p, cdf, last, col):
-    """Rows R + k of colors (., L, 3), p, cdf (., L), last (.,) and col
-    (., 3) for the hits k (prim, bu, bv, mat (K,)) as numpy makes them:
-    the lobe colours ``materials.lobe_colors`` (colour x weight x the
-    bilinear texture at the hit's uv, ``accel.hit_uv``), their luminance
-    selection ``table._selection_probs`` (subset 'all'), its cumulative
-    sum and last slot with p > 0 (``compiled.selection_table``), and the
-    radiance-mode sample weight of :func:`_sample_weights` (kernel classes
-    cls (M,): textured materials are LAMBERT or GENERIC)."""
-    L = colors.shape[1]
-    for k in range(mat.shape[0]):
-        m = mat[k]
-        r = R + k
-        t = prim[k]
-        w0 = 1.0 - bu[k] - bv[k]
-        uu = (w0 * np.float64(X.tri_uv[t, 0, 0]) + bu[k] * np.float64(X.tri_uv[t, 1, 0])
-              + bv[k] * np.float64(X.tri_uv[t, 2, 0]))
-        vv = (w0 * np.float64(X.tri_uv[t, 0, 1]) + bu[k] * np.float64(X.tri_uv[t, 1, 1])
-              + bv[k] * np.float64(X.tri_uv[t, 2, 1]))
-        tot = 0.0
-        s0 = s1 = s2 = 0.0
-        for j in range(L):
-            c0 = X.color[m, j, 0] * X.weight[m, j]
-            c1 = X.color[m, j, 1] * X.weight[m, j]
-            c2 = X.color[m, j, 2] * X.weight[m, j]
-            if X.kind[m, j] < 0:
-                c0 = c1 = c2 = 0.0
-            elif X.tex[m, j] >= 0:
-                a0, a1, a2 = packed_rgb(X.textures, X.tex[m, j], uu, vv)
-                c0, c1, c2 = c0 * a0, c1 * a1, c2 * a2
-            colors[r, j, 0], colors[r, j, 1], colors[r, j, 2] = c0, c1, c2
-            s0, s1, s2 = s0 + c0, s1 + c1, s2 + c2
-            w = max(c0 * LUM_R + c1 * LUM_G + c2 * LUM_B, 0.0) * X.sel_scale[m, j]
-            if X.kind[m, j] < 0:
-                w = 0.0
-            p[r, j] = w
-            tot += w
-        acc = 0.0
-        for j in range(L):
-            p[r, j] = p[r, j] / tot if tot > 0 else 0.0
-            acc += p[r, j]
-            cdf[r, j] = acc
-        last[r] = L - 1
-        for j in range(L - 1, -1, -1):
-            if p[r, j] > 0.0:
-                last[r] = j
-                break
-        if cls[m] == LAMBERT:
-            col[r, 0], col[r, 1], col[r, 2] = s0, s1, s2
-        else:
-            col[r, 0] = col[r, 1] = col[r, 2] = 0.0
+    hit (prim, bu, bv) (K,) on textured materials mat (K,) int64
+    (``materials.hit_colors.hit_rows``, X its ColorInputs), and the rows
+    R .. R + K - 1 they take (R = M's rows); their sample weight (Lambert:
+    the sum of the colours) is also the fast path's gating colour."""
+    S, col, rows = hit_rows(X, SelectionTable(M.sel_colors, M.sel_p, M.sel_cdf, M.sel_last),
+                            prim, bu, bv, mat)
+    cat = np.concatenate
+    return (M._replace(col=cat([M.col, col]), lum_col=cat([M.lum_col, col]),
+                       sel_colors=S.colors, sel_p=S.p, sel_cdf=S.cdf, sel_last=S.last), rows)
 
 
 # ----------------------------------------------------------------------------

@@ -215,7 +215,7 @@ class PathTracer:
         # Materials with a colour texture: their hits' lobe colours are
         # looked up per hit (the kernels' colour rows, _hit_colors).
         self._textured = PK.textured_materials(mtab)
-        self._color_inputs = None       # path_kernels.ColorInputs, built in _prepare
+        self._color_inputs = None       # materials.hit_colors.ColorInputs, built in _prepare
         # The radiance-mode BSDF calls of the numpy vertices run compiled on
         # GENERIC materials (core.materials.compiled "Radiance mode over
         # arrays"), numpy where ``compiled`` is off (the reference): the
@@ -369,7 +369,10 @@ class PathTracer:
         if self.compiled:
             self._radiance_rows()
         if kern and self._textured.any() and self._color_inputs is None:
-            self._color_inputs = PK.build_color_inputs(self.mtab, self.scene.tri_uv)
+            from ..materials.fast import LAMBERT
+            from ..materials.hit_colors import build_color_inputs
+            self._color_inputs = build_color_inputs(self.mtab, self.scene.tri_uv,
+                                                    lambert=kern[2].cls == LAMBERT)
         if kern and self._flags is None:
             self._flags = Seen.visibility_flags(self.lights)
         if kern and self.vc is not None:

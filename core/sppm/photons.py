@@ -38,7 +38,8 @@ from .. import lights as Lt
 from ..frequency import spectrum as F
 from ..frequency import kernels as FK
 from ..frequency.occlusion_march import march_grid, no_march_grid
-from ..materials.fast import build_fast_materials
+from ..materials import compiled as C, hit_colors
+from ..materials.fast import GENERIC, build_fast_materials
 from . import photon_kernels as PK
 from ..accel import _COUNT_LOCK, REL_OFFSET, intersect_f32
 from ..kept import _ALONE, _refcounts
@@ -286,6 +287,14 @@ class PhotonTracer:
         self.kappa, self.occ_grid, self.occ_locality, self.D = kappa, occ_grid, occ_locality, D
         self.tris = PK.build_triangle_data(scene)
         self.fmat = build_fast_materials(mtab)
+        # Colour-textured materials without an alpha texture: their generic
+        # hits are sampled compiled, each with a colour row of its own
+        # (materials.hit_colors; _sample_textured), else by numpy.
+        self._textured = hit_colors.textured_materials(mtab)
+        if mtab.alpha_tex is not None:
+            self._textured &= ~np.any(np.asarray(mtab.alpha_tex) >= 0, axis=1)
+        self._colors = (hit_colors.build_color_inputs(mtab, scene.tri_uv)
+                        if self._textured.any() else None)
         # Photon rays cast by this tracer (accel.rays_cast also counts the
         # camera's, which may be cast meanwhile: PhotonPass.trace_ahead).
         self.rays_cast = 0
@@ -531,7 +540,7 @@ class PhotonTracer:
         prev_delta = np.zeros(K, bool) if caustic else None
         straight = np.ones(K, bool) if self.skip_straight else None
         cg = n if self.fmat.any_generic else 1
-        comp = self.fmat.any_sampled
+        comp = self.fmat.any_sampled or self._textured_rows().any()
         gen = PK.generic_hits(cg, comp)
         ubuf = self.uniform_buffer(4 * K)       # K never grows: one survivor a ray at most
         cr = n if record or Kf or follow is not None else 1
@@ -697,6 +706,8 @@ class PhotonTracer:
             # row order as below).
             st = gen.state[:g]
             rows = np.nonzero(st == PK.SAMPLE_NUMPY)[0]
+            if rows.size and self._colors is not None:
+                rows = self._sample_textured(rows, gen, u)
             if rows.size:
                 wo, wgt, valid, is_delta = self._sample_numpy(
                     rows.size, gns[rows], gng[rows], gwi[rows], gbary[rows], u[gi[rows]])
@@ -725,6 +736,43 @@ class PhotonTracer:
             rec.nxt_src[n_next:n_next + sel.size] = gi[sel]
             rec.nxt_delta[n_next:n_next + sel.size] = is_delta[sel]
         return n_next + sel.size
+
+    def _textured_rows(self) -> np.ndarray:
+        """(M,) bool: the materials whose generic hits :meth:`_sample_textured`
+        samples (textured GENERIC ones, under ``fast.COMPILED_SAMPLING``)."""
+        from ..materials import fast
+        return self._textured & (self.fmat.cls == GENERIC) & fast.COMPILED_SAMPLING
+
+    def _sample_textured(self, rows, gen, u) -> np.ndarray:
+        """The generic hits rows (of GenericHits gen) on :meth:`_textured_rows`
+        materials sampled as ``compiled.sample_batch`` (importance mode) with
+        their own colour rows (``hit_colors.hit_rows``: numpy's
+        ``lobe_colors`` at the hit's uv and its lobe selection) into the
+        kernel's columns (out, wgt, state), as numpy's :meth:`_sample_numpy`
+        samples them to rounding (a Lambert-only one by its lobes, where
+        numpy takes the fast path: the same direction and weight).  Returns
+        the rows left to numpy."""
+        prim = gen.bary[rows, 0].astype(np.int64)
+        mat = np.asarray(self.tris.mat, np.int64)[prim]
+        t = self._textured_rows()[mat]
+        if not t.any():
+            return rows
+        r, m = rows[t], mat[t]
+        L = self.mtab.kind.shape[1]
+        base = C.SelectionTable(np.zeros((0, L, 3)), np.zeros((0, L)), np.zeros((0, L)),
+                                np.zeros(0, np.int64))
+        S, _, sr = hit_colors.hit_rows(self._colors, base, prim[t], gen.bary[r, 1],
+                                       gen.bary[r, 2], m)
+        cm = C.compile_materials(self.mtab)
+        n = r.size
+        wi, w, fl = np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int8)
+        c = np.ascontiguousarray
+        C.sample_batch(cm.lobes, cm.tables, S, m, sr, c(gen.ns[r]), c(gen.ng[r]), c(gen.wi[r]),
+                       c(u[gen.i[r], :3], np.float64), False, wi, w, np.empty(n), fl)
+        gen.out[r], gen.wgt[r] = wi, w
+        gen.state[r] = np.where((fl & 1) > 0, np.where((fl & 2) > 0, PK.SAMPLE_DELTA,
+                                                       PK.SAMPLE_OK), PK.SAMPLE_INVALID)
+        return rows[~t]
 
     def _sample_numpy(self, g, gns, gng, gwi, gbary, ug):
         """bsdf.sample_bsdf (importance) of g generic hits: (wo, weight, valid, is_delta)."""

@@ -1,0 +1,128 @@
+"""A textured hit's lobe colours and lobe selection, compiled.
+
+Blender's Image Texture into a Base Color (or any lobe's colour) makes a
+material's lobe colours vary per hit: numpy computes them with
+``table.lobe_colors`` at the hit's uv and picks a lobe by
+``table._selection_probs``.  The compiled samplers (``compiled.sample_pair``,
+``pdf_oriented``, ``eval_pair``) read colours and selection from a
+``compiled.SelectionTable`` at a row ``r`` beside the material ``m``; this
+module appends one such row per textured hit (:func:`hit_rows`), as numpy
+makes it, in one loop (:func:`hit_colors_kernel`).  Its users: the camera
+paths' vertex kernels (core.integrators.path_kernels.with_hit_colors) and
+the photon tracer's generic hits (core.sppm.photons).
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from ..mathutil import LUM_B, LUM_G, LUM_R
+from ..scene.texture_kernels import PackedTextures, pack_textures, packed_rgb
+from .compiled import SelectionTable
+
+
+class ColorInputs(NamedTuple):
+    """What a textured hit's colour row is made of (M materials, L slots):
+    color (M, L, 3) float64, weight, sel_scale (M, L) float64 (ones when the
+    table has none), kind, tex (M, L) int64 (``MaterialTable``'s); lambert
+    (M,) bool the materials whose sample weight is the sum of the colours
+    (the camera paths' Lambert class); tri_uv (T, 3, 2) the corner uvs;
+    textures the scene's ``PackedTextures``."""
+    color: np.ndarray
+    weight: np.ndarray
+    sel_scale: np.ndarray
+    kind: np.ndarray
+    tex: np.ndarray
+    lambert: np.ndarray
+    tri_uv: np.ndarray
+    textures: PackedTextures
+
+
+def textured_materials(mtab) -> np.ndarray:
+    """(M,) bool: the materials with a colour texture on a lobe (their lobe
+    colours vary per hit: ``materials.lobe_colors`` at the hit's uv)."""
+    return np.any((np.asarray(mtab.tex) >= 0) & (np.asarray(mtab.kind) >= 0), axis=1)
+
+
+def build_color_inputs(mtab, tri_uv, lambert=None) -> ColorInputs:
+    """The :class:`ColorInputs` of a ``MaterialTable`` and its scene's corner
+    uvs; lambert (M,) bool (default: none)."""
+    c = np.ascontiguousarray
+    M, L = mtab.kind.shape
+    sel = mtab.sel_scale if mtab.sel_scale is not None else np.ones((M, L))
+    lam = np.zeros(M, bool) if lambert is None else np.asarray(lambert, bool)
+    return ColorInputs(color=c(mtab.color, np.float64), weight=c(mtab.weight, np.float64),
+                       sel_scale=c(sel, np.float64), kind=c(mtab.kind, np.int64),
+                       tex=c(mtab.tex, np.int64), lambert=c(lam), tri_uv=c(tri_uv),
+                       textures=pack_textures(mtab.textures))
+
+
+def hit_rows(X: ColorInputs, base: SelectionTable, prim, bu, bv, mat):
+    """(SelectionTable, col (K, 3), rows (K,) int64): base's R rows, then one
+    row per hit (prim, bu, bv) (K,) on materials mat (K,) int64, which takes
+    row R + k (:func:`hit_colors_kernel`); col the hits' sample weights."""
+    R, L = base.p.shape
+    K = mat.shape[0]
+    colors, p = np.empty((R + K, L, 3)), np.empty((R + K, L))
+    cdf, last = np.empty((R + K, L)), np.empty(R + K, np.int64)
+    colors[:R], p[:R], cdf[:R], last[:R] = base.colors, base.p, base.cdf, base.last
+    col = np.empty((K, 3))
+    hit_colors_kernel(X, np.ascontiguousarray(prim, np.int64), np.ascontiguousarray(bu),
+                      np.ascontiguousarray(bv), np.ascontiguousarray(mat, np.int64), R,
+                      colors, p, cdf, last, col)
+    return SelectionTable(colors, p, cdf, last), col, np.arange(R, R + K, dtype=np.int64)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def hit_colors_kernel(X, prim, bu, bv, mat, R, colors, p, cdf, last, col):
+    """Rows R + k of colors (., L, 3), p, cdf (., L), last (.,) and col[k]
+    (K, 3) for the hits k (prim, bu, bv, mat (K,)) as numpy makes them: the
+    lobe colours ``table.lobe_colors`` (colour x weight x the bilinear
+    texture at the hit's uv, ``accel.hit_uv``), their luminance selection
+    ``table._selection_probs`` (subset 'all'), its cumulative sum and last
+    slot with p > 0 (``compiled.selection_table``), and the sample weight:
+    the sum of the colours where X.lambert, else 0."""
+    L = colors.shape[1]
+    for k in range(mat.shape[0]):
+        m = mat[k]
+        r = R + k
+        t = prim[k]
+        w0 = 1.0 - bu[k] - bv[k]
+        uu = (w0 * np.float64(X.tri_uv[t, 0, 0]) + bu[k] * np.float64(X.tri_uv[t, 1, 0])
+              + bv[k] * np.float64(X.tri_uv[t, 2, 0]))
+        vv = (w0 * np.float64(X.tri_uv[t, 0, 1]) + bu[k] * np.float64(X.tri_uv[t, 1, 1])
+              + bv[k] * np.float64(X.tri_uv[t, 2, 1]))
+        tot = 0.0
+        s0 = s1 = s2 = 0.0
+        for j in range(L):
+            c0 = X.color[m, j, 0] * X.weight[m, j]
+            c1 = X.color[m, j, 1] * X.weight[m, j]
+            c2 = X.color[m, j, 2] * X.weight[m, j]
+            if X.kind[m, j] < 0:
+                c0 = c1 = c2 = 0.0
+            elif X.tex[m, j] >= 0:
+                a0, a1, a2 = packed_rgb(X.textures, X.tex[m, j], uu, vv)
+                c0, c1, c2 = c0 * a0, c1 * a1, c2 * a2
+            colors[r, j, 0], colors[r, j, 1], colors[r, j, 2] = c0, c1, c2
+            s0, s1, s2 = s0 + c0, s1 + c1, s2 + c2
+            w = max(c0 * LUM_R + c1 * LUM_G + c2 * LUM_B, 0.0) * X.sel_scale[m, j]
+            if X.kind[m, j] < 0:
+                w = 0.0
+            p[r, j] = w
+            tot += w
+        acc = 0.0
+        for j in range(L):
+            p[r, j] = p[r, j] / tot if tot > 0 else 0.0
+            acc += p[r, j]
+            cdf[r, j] = acc
+        last[r] = L - 1
+        for j in range(L - 1, -1, -1):
+            if p[r, j] > 0.0:
+                last[r] = j
+                break
+        if X.lambert[m]:
+            col[k, 0], col[k, 1], col[k, 2] = s0, s1, s2
+        else:
+            col[k, 0] = col[k, 1] = col[k, 2] = 0.0
