@@ -7,8 +7,8 @@ against the numpy path it replaces.
 2. ``first_hits`` (point lights, rectangles) = ``combined.first_hit_ratios``.
 3. ``splat_emitters`` (emitters seen directly) = the numpy splat of
    ``combined.emission_splat_weight``.
-4. ``splat_fast`` (LAMBERT vertices and untextured GENERIC ones: f,
-   shading factor, the MIS weight of 'COMBINED') = the numpy splat
+4. ``splat_fast`` (LAMBERT vertices and GENERIC ones, colour-textured ones
+   included: f, shading factor, the MIS weight of 'COMBINED') = the numpy splat
    (eval_bsdf, pdf_bsdf, combined.splat_weight) that ``LightTracer._slow``
    applies to every other material: the same deposits and lens samples
    splatted both ways give the same film.
@@ -24,7 +24,7 @@ from core.integrators.combined import emission_splat_weight, first_hit_ratios
 from core.render import Renderer
 from core.scene import nodes as shading
 from core.scene.camera import CameraModel
-from core.scene.model import GLOSSY, Lobe, Material, make_scene
+from core.scene.model import DIFFUSE, GLOSSY, Lobe, Material, make_scene
 from core.settings import RenderSettings
 from core.sppm import photon_kernels as PK
 
@@ -82,14 +82,15 @@ def _films(lt, dep, mis):
 
 
 def _scene():
-    """The point-lit checker (two Lambert materials) with three strips in
+    """The point-lit checker (two Lambert materials) with four strips in
     front: a rough metal and Blender's default Principled BSDF (GENERIC
-    materials the kernel evaluates compiled) and a textured rough metal (one
-    it leaves to numpy); corner normals tilted at random (interpolated
-    shading normals, the shading factor)."""
+    materials the kernel evaluates compiled), a textured rough metal and a
+    textured Lambert strip (a colour checker into their colours: each
+    connection's own colour row, LightTracer._rows); corner normals tilted
+    at random (interpolated shading normals, the shading factor)."""
     base = checker_scene(camera("dof"))
     strips = [np.asarray(quad((x, -0.5, 0.3), (0.3, 0, 0), (0, 0.2, 0.2)), float)
-              for x in (-0.6, 0.0, 0.6)]
+              for x in (-0.6, 0.0, 0.6, 1.2)]
     tris = np.concatenate([base.tri_p] + strips)
     tri_n = np.concatenate([base.tri_n] + [np.repeat(
         np.cross(s[:, 1] - s[:, 0], s[:, 2] - s[:, 0])[:, None], 3, axis=1) for s in strips])
@@ -100,10 +101,13 @@ def _scene():
             Material("metal", (Lobe(GLOSSY, (0.8, 0.7, 0.6), roughness=0.4),)),
             Material("principled", tuple(principled)),
             Material("metal_tex", (Lobe(GLOSSY, (0.8, 0.7, 0.6), roughness=0.4,
-                                        color_texture=0),))]
-    tri_mat = np.concatenate([base.tri_mat, [2, 2, 3, 3, 4, 4]])
-    sc = make_scene(tris, mats, base.lights, base.camera, tri_mat=tri_mat, tri_n=tri_n)
-    sc.textures = [np.full((2, 2, 3), 0.9, np.float32)]
+                                        color_texture=0),)),
+            Material("lambert_tex", (Lobe(DIFFUSE, (0.7, 0.7, 0.7), color_texture=0),))]
+    tri_mat = np.concatenate([base.tri_mat, [2, 2, 3, 3, 4, 4, 5, 5]])
+    chk = np.full((2, 2, 3), 0.9, np.float32)
+    chk[0, 1] = chk[1, 0] = (0.2, 0.5, 0.8)
+    sc = make_scene(tris, mats, base.lights, base.camera, tri_mat=tri_mat, tri_n=tri_n,
+                    tri_uv=(4.0 * tris[:, :, :2]).astype(np.float32), textures=[chk])
     return sc
 
 
@@ -119,12 +123,12 @@ def test_compiled_splat_equals_numpy(integrator):
         g = np.random.default_rng(6)
         mis = (g.exponential(size=k), g.exponential(size=k), g.random(k) < 0.3,
                g.random(k) < 0.2)
-    assert lt.fast_mat.tolist() == [True, True, False, False, False]
-    assert lt.splat_mat.kind.tolist() == [LK.LAMBERT_SPLAT] * 2 + [LK.GENERIC_SPLAT] * 2 + [
-        LK.SLOW]
-    # Every kind of vertex is splatted: the strips are the last 6 triangles.
-    strip = (dep["bary"][:, 0].astype(int) - (r.scene.tri_p.shape[0] - 6)) // 2
-    assert [np.count_nonzero(strip == i) > 100 for i in range(3)] == [True] * 3, np.bincount(
+    assert lt.fast_mat.tolist() == [True, True, False, False, False, True]
+    assert lt.splat_mat.kind.tolist() == [LK.LAMBERT_SPLAT] * 2 + [LK.GENERIC_SPLAT] * 3 + [
+        LK.LAMBERT_SPLAT]
+    # Every kind of vertex is splatted: the strips are the last 8 triangles.
+    strip = (dep["bary"][:, 0].astype(int) - (r.scene.tri_p.shape[0] - 8)) // 2
+    assert [np.count_nonzero(strip == i) > 100 for i in range(4)] == [True] * 4, np.bincount(
         strip[strip >= 0])
     fast, ref = _films(lt, dep, mis)
     assert ref.sum() > 0

@@ -9,14 +9,16 @@ two numba loops around one batched Embree occlusion call:
                      shadow ray (accel.spawn, the near-clip t_max)
     (Embree)         LightTracer._transmittance: every shadow ray of the batch
     splat_fast       for the unoccluded vertices on LAMBERT materials and
-                     on the untextured GENERIC ones the photon tracer
-                     samples compiled (Blender's default Principled BSDF,
-                     rough glossy and glass, Oren-Nayar): f towards the
-                     lens, the shading factor, the MIS weight of 'COMBINED'
-                     (combined.splat_weight, with the closed-form diffuse
-                     density or ``compiled.pdf_oriented``) and the splat
+                     on the GENERIC ones the photon tracer samples compiled
+                     (Blender's default Principled BSDF, rough glossy and
+                     glass, Oren-Nayar), colour-textured ones included
+                     (each connection's colour row: LightTracer.connect):
+                     f towards the lens, the shading factor, the MIS weight
+                     of 'COMBINED' (combined.splat_weight, with the
+                     closed-form diffuse density or
+                     ``compiled.pdf_oriented``) and the splat
 
-Vertices on other materials (textures, Normal Map / Bump, ...) are
+Vertices on other materials (Normal Map / Bump, alpha textures, ...) are
 evaluated by ``LightTracer._slow`` on their rows.
 tests/test_light_kernels.py checks both loops against the numpy path
 (CameraModel.project, eval_bsdf, pdf_bsdf, combined.splat_weight).
@@ -32,7 +34,7 @@ from ..lights.direct_kernels import _spherical_rect_solid_angle
 # compiled.eval_pair and pdf_oriented are compiled into these kernels and
 # numba's cache is stamped by this file: edited with the microfacet lobes'
 # geometric side test and the Normal Map / Bump density of round 27, and
-# pdf_oriented's selection row of round 28.
+# the colour row of round 28.
 from ..materials.compiled import eval_pair, pdf_oriented
 from ..lights.table import AREA, POINT
 from ..scene.camera import BH_A0, BH_A1, BH_A2, BH_A3
@@ -184,12 +186,14 @@ SLOW, LAMBERT_SPLAT, GENERIC_SPLAT = 0, 1, 2
 
 class SplatMaterials(NamedTuple):
     """Per-material data of :func:`splat_fast` (M materials, L lobe slots):
-    kind (M,) int8 (SLOW, LAMBERT_SPLAT, GENERIC_SPLAT); col (M, 3) the
-    Lambert colour (materials.fast.FastMaterials.col); lobes (M', L,
-    N_FIELDS), tables (N_TABLES,) the compiled BSDF, colors (M', L, 3) and
-    p (M', L) its SelectionTable's lobe colours and probabilities
-    (FastMaterials.cm, .sel: 1-material placeholders when no material is
-    GENERIC_SPLAT)."""
+    kind (M,) int8 (SLOW, LAMBERT_SPLAT, GENERIC_SPLAT); lobes (M', L,
+    N_FIELDS), tables (N_TABLES,) the compiled BSDF (1-material
+    placeholders when no material is GENERIC_SPLAT).  Per colour row (M
+    rows, the materials' untextured colours, then one per connection on a
+    colour-textured material: ``LightTracer.connect``, as the camera paths'
+    ``path_kernels.PathMaterials``): col (R, 3) the Lambert colour (the sum
+    of the lobe colours), colors (R, L, 3) and p (R, L) the
+    SelectionTable's lobe colours and selection probabilities."""
     kind: np.ndarray
     col: np.ndarray
     lobes: np.ndarray
@@ -198,21 +202,30 @@ class SplatMaterials(NamedTuple):
     p: np.ndarray
 
 
-def splat_materials(scene, mtab, fmat) -> SplatMaterials:
+def splat_materials(scene, mtab, fmat, textured) -> SplatMaterials:
     """The SplatMaterials of a scene: LAMBERT_SPLAT the LAMBERT materials
-    (materials.fast: diffuse lobes of roughness 0, no texture), GENERIC_SPLAT
-    the ``compiled`` GENERIC ones (untextured, no Bump), each whose shading
-    normal is the interpolated one (no Normal Map / Bump)."""
-    from ..materials.fast import LAMBERT
+    (materials.fast: diffuse lobes of roughness 0), GENERIC_SPLAT the
+    ``compiled`` GENERIC ones, each whose shading normal is the interpolated
+    one (no Normal Map / Bump); of the colour-textured ones (textured (M,)
+    bool: no alpha texture), the Lambert-only ones LAMBERT_SPLAT and the
+    others GENERIC_SPLAT (their colour rows come per connection)."""
+    from ..materials import fast
+    from ..materials.compiled import compile_materials, selection_table
     M = fmat.cls.shape[0]
     bent = _bent(scene, mtab, M)
-    kind = np.where((fmat.cls == LAMBERT) & ~bent, LAMBERT_SPLAT, SLOW)
+    kind = np.where((fmat.cls == fast.LAMBERT) & ~bent, LAMBERT_SPLAT, SLOW)
     if fmat.compiled is not None:
         kind = np.where(np.asarray(fmat.compiled, bool) & ~bent, GENERIC_SPLAT, kind)
+    tex = np.asarray(textured, bool) & ~bent & (fmat.cls == fast.GENERIC) & fast.COMPILED_SAMPLING
+    lam = mtab.lambert_lobes if mtab.lambert_lobes is not None else mtab.lambert_only
+    lam = tex & np.asarray(lam, bool) & ~np.asarray(mtab.has_delta, bool)
+    kind = np.where(lam, LAMBERT_SPLAT, np.where(tex, GENERIC_SPLAT, kind))
+    cm = compile_materials(mtab) if np.any(tex & ~lam) else fmat.cm
+    sel = selection_table(mtab) if tex.any() else fmat.sel
     c = np.ascontiguousarray
     return SplatMaterials(kind=c(kind, np.int8), col=c(fmat.col, np.float64),
-                          lobes=c(fmat.cm.lobes, np.float64), tables=c(fmat.cm.tables, np.float64),
-                          colors=c(fmat.sel.colors, np.float64), p=c(fmat.sel.p, np.float64))
+                          lobes=c(cm.lobes, np.float64), tables=c(cm.tables, np.float64),
+                          colors=c(sel.colors, np.float64), p=c(sel.p, np.float64))
 
 
 class Connections(NamedTuple):
@@ -323,11 +336,14 @@ class SplatInputs(NamedTuple):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def splat_fast(con, n, tr, vin, tri_n, tri_ng, tri_mat, sm, mis, cam, width, film, slow):
+def splat_fast(con, n, tr, vin, tri_n, tri_ng, tri_mat, sm, crow, mis, cam, width, film,
+               slow):
     """Splat the unoccluded connections 0..n-1 (tr (n, 3): their
     transmittance to the lens, core.lights.shadow; 0 = blocked) of
-    vertices on materials the SplatMaterials sm evaluate (LAMBERT_SPLAT:
-    f = col[m] / pi where the shading normal, flipped to the lens side of
+    vertices on materials the SplatMaterials sm evaluate, each with the
+    colour row r = crow[c] (n,) (or its material's when crow is empty)
+    (LAMBERT_SPLAT: f = col[r] / pi where the shading normal, flipped to
+    the lens side of
     ng, faces wi; GENERIC_SPLAT: Cycles' f(view = wc, light = wi) by
     ``compiled.eval_pair``) into film (H*W, 3): beta f |ng.wc|
     min(|ns.wi| / |ng.wi|, SHADING_CAP) weight, times the power-heuristic
@@ -351,6 +367,7 @@ def splat_fast(con, n, tr, vin, tri_n, tri_ng, tri_mat, sm, mis, cam, width, fil
             slow[ns_] = c
             ns_ += 1
             continue
+        r = crow[c] if crow.shape[0] > 0 else m
         uu = vin.bary[k, 1]
         vv = vin.bary[k, 2]
         gx, gy, gz = tri_ng[t, 0], tri_ng[t, 1], tri_ng[t, 2]
@@ -362,10 +379,10 @@ def splat_fast(con, n, tr, vin, tri_n, tri_ng, tri_mat, sm, mis, cam, width, fil
             sg = 1.0 if gx * ox + gy * oy + gz * oz >= 0.0 else -1.0
             if sg * (sx * ix + sy * iy + sz * iz) <= 0.0:
                 continue
-            f0, f1, f2 = col[m, 0], col[m, 1], col[m, 2]
+            f0, f1, f2 = col[r, 0], col[r, 1], col[r, 2]
             scale = _INV_PI
         else:
-            f = eval_pair(lobes, T, m, cols, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, ix, iy, iz,
+            f = eval_pair(lobes, T, m, cols, r, sx, sy, sz, gx, gy, gz, ox, oy, oz, ix, iy, iz,
                           False)
             f0, f1, f2 = f[0], f[1], f[2]
             if f0 == 0.0 and f1 == 0.0 and f2 == 0.0:
@@ -380,7 +397,7 @@ def splat_fast(con, n, tr, vin, tri_n, tri_ng, tri_mat, sm, mis, cam, width, fil
             if kind == LAMBERT_SPLAT:
                 pf = lambert_pdf(sx, sy, sz, gx, gy, gz, ox, oy, oz, ix, iy, iz)
             else:
-                pf = pdf_oriented(lobes, sp, m, m, sx, sy, sz, gx, gy, gz, ox, oy, oz, ix, iy, iz)
+                pf = pdf_oriented(lobes, sp, m, r, sx, sy, sz, gx, gy, gz, ox, oy, oz, ix, iy, iz)
             b0 = 0.0 if vin.soft[k] else vin.B0[k] * pf * c1
             b1 = vin.B1[k] * c1 * (1.0 if vin.first[k] else pf)
             den = 1.0 + b0 * b0 + b1 * b1

@@ -144,7 +144,17 @@ class LightTracer:
                                            self.filter_width)
         # What the splat kernel evaluates, and of it the LAMBERT materials
         # without Normal Map / Bump (combined.covered_materials).
-        self.splat_mat = LK.splat_materials(scene, mtab, self.tracer.fmat)
+        # Colour-textured materials (no alpha texture): each connection on
+        # one gets a colour row of its own (materials.hit_colors, _rows).
+        tex = self.tracer._textured
+        self.splat_mat = LK.splat_materials(scene, mtab, self.tracer.fmat, tex)
+        self._colors = None
+        if np.any(tex & (self.splat_mat.kind != LK.SLOW)):
+            from ..materials.compiled import selection_table
+            from ..materials.hit_colors import build_color_inputs
+            self._colors = build_color_inputs(
+                mtab, scene.tri_uv, lambert=tex & (self.splat_mat.kind == LK.LAMBERT_SPLAT))
+            self._sel = selection_table(mtab)
         self.fast_mat = self.splat_mat.kind == LK.LAMBERT_SPLAT
         # The GENERIC materials, whose connections _slow evaluates compiled.
         self.generic = self.tracer.fmat.cls == GENERIC
@@ -252,10 +262,34 @@ class LightTracer:
                              *(mis[4:] if mis is not None else ()))
         tris = self.tracer.tris
         slow = np.empty(nc, np.int64)
-        ns = LK.splat_fast(con, nc, tr, vin, tris.n, tris.ng, tris.mat, self.splat_mat,
+        sm, crow = self._rows(con, nc, vin)
+        ns = LK.splat_fast(con, nc, tr, vin, tris.n, tris.ng, tris.mat, sm, crow,
                            mis is not None, self.cam_params, self.filter_width, film, slow)
         if ns:
             self._slow(con, slow[:ns], tr, vin, mis is not None, film)
+
+    _NO_ROWS = np.zeros(0, np.int64)
+
+    def _rows(self, con, nc, vin):
+        """(SplatMaterials, crow): ``splat_mat`` and no rows (each connection
+        its material's) where no connection 0..nc-1 is on a colour-textured
+        material; else splat_mat with a colour row appended per such
+        connection (``hit_colors.hit_rows``: its lobe colours at its uv, their
+        selection, the Lambert colour) and crow (nc,) every connection's row."""
+        sm = self.splat_mat
+        if self._colors is None:
+            return sm, self._NO_ROWS
+        bary = vin.bary[con.row[:nc]]
+        prim = bary[:, 0].astype(np.int64)
+        crow = np.asarray(self.tracer.tris.mat, np.int64)[prim]
+        t = np.nonzero(self.tracer._textured[crow] & (sm.kind[crow] != LK.SLOW))[0]
+        if t.size == 0:
+            return sm, self._NO_ROWS
+        from ..materials.hit_colors import hit_rows
+        S, col, rows = hit_rows(self._colors, self._sel, prim[t], bary[t, 1], bary[t, 2],
+                                crow[t])
+        crow[t] = rows
+        return sm._replace(col=np.concatenate([sm.col, col]), colors=S.colors, p=S.p), crow
 
     def _slow(self, con, c, tr, vin, mis, film) -> None:
         """The connections c whose material the splat kernel does not cover:
