@@ -34,7 +34,7 @@ from ..core.scene import nodes as shading
 from ..core.errors import MemoryBudgetError, RenderCancelled, SceneError
 from ..core.lights.environment import mean_radiance
 from ..core.scene.normals import BUMP, NORMAL_MAP, NormalInput
-from ..core.scene.textures import EnvironmentMap, UnassociatedImage
+from ..core.scene.textures import EnvironmentMap, UnassociatedImage, scalar_weights
 from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
                           TRANSPARENT, Camera, Light, Lobe, Material, Scene,
                           drop_invalid_triangles)
@@ -122,6 +122,9 @@ SUPPORT = (
     ("other shader nodes", APPROXIMATED, "unsupported node(s) "),
     ("other nodes linked into an input (the input's value is used)", APPROXIMATED,
      "'{src.name}' into {node.name}.{name} ignored"),
+    ("an Image Texture into a scalar input (Roughness, Metallic, IOR, a Mix Shader's Fac, "
+     "...): the image's mean over its pixels, not per hit", APPROXIMATED,
+     "the image's mean"),
     ("photon bounces on normal-mapped or bumped surfaces", APPROXIMATED,
      "photons scatter off the interpolated normal"),
     ("Normal Map in object or world space", APPROXIMATED, "space ignored (tangent space only)"),
@@ -375,6 +378,15 @@ class _MaterialBuilder:
             return float(sock.default_value)
         if src.type == 'VALUE':
             return float(src.outputs[0].default_value)
+        if src.type == 'TEX_IMAGE' and out is not None and out.name in ('Color', 'Alpha'):
+            # A roughness or metallic map: no per-hit scalar inputs (only
+            # colours are textured per hit), so its mean over the image
+            # rather than the socket's unrelated default.
+            m = self.ex.image_mean(src, out.name, self.notes)
+            if m is not None:
+                self.notes.append(f"'{src.name}' into {node.name}.{name}: "
+                                  f"the image's mean ({m:.3g}) used")
+                return m
         self.notes.append(f"'{src.name}' into {node.name}.{name} ignored")
         return float(sock.default_value)
 
@@ -803,6 +815,26 @@ class _Exporter:
             self.tex_index[(key, mode)] = len(self.textures)
             self.textures.append(px)
         return self.tex_index[(key, mode)]
+
+    def image_mean(self, node, output, notes) -> float | None:
+        """The mean over an Image Texture node's image of the float Cycles
+        reads from its output 'Color' (Rec.709 luminance of the linear
+        colour, ``textures.scalar_weights``) or 'Alpha' (1 without an alpha
+        channel); None (and a note) when the image has no pixels."""
+        img = node.image
+        if img is None:
+            notes.append(f"{node.name}: no image")
+            return None
+        key = img.name_full
+        if key not in self.tex_pixels:
+            self.tex_pixels[key] = self.pixels(img, notes)
+        px = self.tex_pixels[key]
+        if px is None:
+            return None
+        if output == 'Alpha' and px.shape[2] < 4:
+            return 1.0
+        w = scalar_weights(px, 'ALPHA' if output == 'Alpha' else 'COLOR')
+        return float(np.mean(px.reshape(-1, px.shape[2]).astype(np.float64) @ w))
 
     def pixels(self, img, notes) -> np.ndarray | None:
         """(H, W, C >= 3) float32 scene-linear pixels of a Blender image, row 0

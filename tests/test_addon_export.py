@@ -360,6 +360,45 @@ def test_image_texture_is_linearised():
     assert lobe.color_texture == 0 and lobe.color == (1.0, 1.0, 1.0)
 
 
+def test_image_texture_into_roughness_uses_its_mean():
+    """A roughness map (Non-Color, half 0.2 and half 0.8) into the
+    Principled Roughness and an image's alpha into a Glossy's: no per-hit
+    scalars, so the image's mean (0.5; the Rec.709 luminance of a colour,
+    the alpha channel's mean), said in the Approximated line, where the
+    socket's default was used before."""
+    sc = base_scene()
+    m = H.node_material("PBR", "BSDF_PRINCIPLED")
+    nt = m.node_tree
+    img = bpy.data.images.new("rough", 4, 2, alpha=True, float_buffer=True)
+    img.colorspace_settings.name = 'Non-Color'
+    px = np.ones((2, 4, 4), np.float32)
+    px[0, :, :3], px[1, :, :3] = 0.2, 0.8
+    px[..., 3] = np.array([0.1, 0.3, 0.5, 0.7], np.float32)       # alpha mean 0.4
+    img.pixels.foreach_set(px.ravel())
+    tex = nt.nodes.new("ShaderNodeTexImage")
+    tex.image = img
+    p = next(n for n in nt.nodes if n.type == 'BSDF_PRINCIPLED')
+    p.inputs["Metallic"].default_value = 1.0
+    nt.links.new(tex.outputs["Color"], p.inputs["Roughness"])
+    g = H.node_material("Gloss", "BSDF_GLOSSY")
+    gn = next(n for n in g.node_tree.nodes if n.type == 'BSDF_GLOSSY')
+    t2 = g.node_tree.nodes.new("ShaderNodeTexImage")
+    t2.image = img
+    g.node_tree.links.new(t2.outputs["Alpha"], gn.inputs["Roughness"])
+    H.add_cube(sc, "A", material=m)
+    H.add_cube(sc, "B", location=(3, 0, 0), material=g)
+    s, lines = export()
+    M = {mm.name: mm for mm in s.materials}
+    (metal,) = M["PBR"].lobes
+    assert metal.roughness == pytest.approx(0.5, abs=1e-6)
+    (gloss,) = M["Gloss"].lobes
+    assert gloss.roughness == pytest.approx(0.4, abs=1e-6)
+    assert s.textures == [] or len(s.textures) == 0       # not a per-hit texture
+    said = " ".join(lines)
+    assert "Roughness: the image's mean (0.5) used" in said
+    assert "Roughness: the image's mean (0.4) used" in said
+
+
 # ---------------------------------------------------------------- errors
 
 def test_no_lights_message():
