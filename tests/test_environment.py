@@ -257,6 +257,31 @@ def test_supersampled_map_bounds_radiance_over_density(monkeypatch):
     assert stats[1024] < stats[0] / 3, stats
 
 
+def test_guided_region_is_the_bisection_of_the_whole_cdf():
+    """environment_kernels.guided_region (the map's guide table) finds the
+    region np.searchsorted(cdf, u1 total, side='right') finds, on the
+    supersampled spiky map (32,768 cells, a guide of 8,192 steps), a
+    2 x 4 map with one bright texel and one whose regions are mostly empty, for
+    200,000 random u1 and the edges: 0, the guide's own steps g / G and the
+    floats just below them, the largest float below 1."""
+    from core.lights.environment_kernels import guided_region
+    rng = np.random.default_rng(8)
+    sparse = np.zeros((16, 32, 4), np.float32)
+    sparse[3, 7, :3], sparse[12, 30, :3] = 50.0, 0.1
+    small = np.ones((2, 4, 4), np.float32)
+    small[1, 2, :3] = 9.0
+    for img in (spiky_image(), small, sparse):
+        el = EnvironmentLight.build(EnvironmentMap(img, strength=np.ones(3)))
+        E = el.kernel_data()
+        G = E.guide.shape[0] - 1
+        assert G & (G - 1) == 0 and G >= E.cdf.shape[0] // 8
+        steps = np.arange(G) / G
+        u = np.concatenate([rng.random(200_000), steps, np.nextafter(steps, -1.0)[1:],
+                            [0.0, np.nextafter(1.0, 0.0)]])
+        got = np.array([guided_region(E, q, q * E.total) for q in u])
+        np.testing.assert_array_equal(got, np.searchsorted(E.cdf, u * E.total, side="right"))
+
+
 def test_photon_power_mean_is_the_map_flux():
     el_map = EnvironmentMap(spiky_image(), strength=np.full(3, 1.5))
     t = L.build_light_table(floor_scene(el_map))

@@ -37,6 +37,8 @@ import numpy as np
 from numba import njit
 
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
+# map_direction is compiled into direct_kernel, and numba's cache is stamped
+# by this file: edited with its guide table of round 28.
 from .environment_kernels import (EnvironmentKernel, map_direction, map_radiance, no_map,
                                   region_density, texture_vector)
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, _lum

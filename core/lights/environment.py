@@ -190,7 +190,7 @@ class EnvironmentLight:
         """This map's ``environment_kernels.EnvironmentKernel`` (built once)."""
         k = self.__dict__.get("_kernel")
         if k is None:
-            from .environment_kernels import EnvironmentKernel
+            from .environment_kernels import EnvironmentKernel, guide_table
             img = _as_image(self.env.image)
             flat = self.weight.ravel()
             pos = np.nonzero(flat > 0)[0]
@@ -203,7 +203,8 @@ class EnvironmentLight:
                 image=c(img), W=int(self.W), det=float(self.det), total=self.total,
                 last=int(pos[-1]) if pos.size else 0,
                 unassociate=bool(isinstance(self.env.image, UnassociatedImage)
-                                 and img.shape[2] >= 4))
+                                 and img.shape[2] >= 4),
+                guide=guide_table(np.asarray(self.cdf, np.float64), self.total))
             self.__dict__["_kernel"] = k
         return k
 
