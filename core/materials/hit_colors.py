@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 from ..mathutil import LUM_B, LUM_G, LUM_R
-from ..scene.texture_kernels import PackedTextures, pack_textures, packed_rgb
+from ..scene.texture_kernels import TextureList, bilinear_rgb, texture_list
 from .compiled import SelectionTable
 
 
@@ -29,7 +29,7 @@ class ColorInputs(NamedTuple):
     table has none), kind, tex (M, L) int64 (``MaterialTable``'s); lambert
     (M,) bool the materials whose sample weight is the sum of the colours
     (the camera paths' Lambert class); tri_uv (T, 3, 2) the corner uvs;
-    textures the scene's ``PackedTextures``."""
+    textures the table's ``TextureList`` (:func:`table_textures`)."""
     color: np.ndarray
     weight: np.ndarray
     sel_scale: np.ndarray
@@ -37,13 +37,27 @@ class ColorInputs(NamedTuple):
     tex: np.ndarray
     lambert: np.ndarray
     tri_uv: np.ndarray
-    textures: PackedTextures
+    textures: TextureList
 
 
 def textured_materials(mtab) -> np.ndarray:
     """(M,) bool: the materials with a colour texture on a lobe (their lobe
     colours vary per hit: ``materials.lobe_colors`` at the hit's uv)."""
     return np.any((np.asarray(mtab.tex) >= 0) & (np.asarray(mtab.kind) >= 0), axis=1)
+
+
+def table_textures(mtab) -> TextureList:
+    """The ``TextureList`` of a MaterialTable's textures, made once and kept
+    on the table (the camera paths, the photon tracer and light tracing
+    share it; its images are the table's own arrays, not copies)."""
+    tl = getattr(mtab, "_texture_list", None)
+    if tl is None:
+        tl = texture_list(mtab.textures)
+        try:
+            mtab._texture_list = tl
+        except AttributeError:
+            pass
+    return tl
 
 
 def build_color_inputs(mtab, tri_uv, lambert=None) -> ColorInputs:
@@ -56,7 +70,7 @@ def build_color_inputs(mtab, tri_uv, lambert=None) -> ColorInputs:
     return ColorInputs(color=c(mtab.color, np.float64), weight=c(mtab.weight, np.float64),
                        sel_scale=c(sel, np.float64), kind=c(mtab.kind, np.int64),
                        tex=c(mtab.tex, np.int64), lambert=c(lam), tri_uv=c(tri_uv),
-                       textures=pack_textures(mtab.textures))
+                       textures=table_textures(mtab))
 
 
 def hit_rows(X: ColorInputs, base: SelectionTable, prim, bu, bv, mat):
@@ -85,6 +99,10 @@ def hit_colors_kernel(X, prim, bu, bv, mat, R, colors, p, cdf, last, col):
     slot with p > 0 (``compiled.selection_table``), and the sample weight:
     the sum of the colours where X.lambert, else 0."""
     L = colors.shape[1]
+    # The image of the last texture read (a typed list's item costs a
+    # reference count; a hit's lobes and its neighbours mostly share one).
+    cur = 0
+    img = X.textures.images[0]
     for k in range(mat.shape[0]):
         m = mat[k]
         r = R + k
@@ -103,7 +121,11 @@ def hit_colors_kernel(X, prim, bu, bv, mat, R, colors, p, cdf, last, col):
             if X.kind[m, j] < 0:
                 c0 = c1 = c2 = 0.0
             elif X.tex[m, j] >= 0:
-                a0, a1, a2 = packed_rgb(X.textures, X.tex[m, j], uu, vv)
+                tj = X.tex[m, j]
+                if tj != cur:
+                    img = X.textures.images[tj]
+                    cur = tj
+                a0, a1, a2 = bilinear_rgb(img, uu, vv, X.textures.unassociate[tj])
                 c0, c1, c2 = c0 * a0, c1 * a1, c2 * a2
             colors[r, j, 0], colors[r, j, 1], colors[r, j, 2] = c0, c1, c2
             s0, s1, s2 = s0 + c0, s1 + c1, s2 + c2

@@ -13,36 +13,26 @@ import numpy as np
 from numba import njit
 
 
-class PackedTextures(NamedTuple):
-    """A scene's textures in one buffer, for kernels that read any of them:
-    data (N,) the images' texels one after another (C order), float32 when
-    every image is (Blender's), else float64 (no texel rounded); meta (T, 5)
-    int64 per texture: offset into data, H, W, C (``textures._as_image``'s
-    shape) and 1 for an ``UnassociatedImage``."""
-    data: np.ndarray
-    meta: np.ndarray
+class TextureList(NamedTuple):
+    """A scene's textures for kernels that read any of them, without a copy:
+    images a ``numba.typed.List`` of the (H, W, C) images
+    (``textures._as_image``'s views; float32 as Blender's, or every one
+    float64 when any is not float32: no texel rounded), unassociate (T,)
+    bool (an ``UnassociatedImage``)."""
+    images: object
+    unassociate: np.ndarray
 
 
-def pack_textures(textures) -> PackedTextures:
-    """The :class:`PackedTextures` of a list of images (``Scene.textures``)."""
+def texture_list(textures) -> TextureList:
+    """The :class:`TextureList` of a list of images (``Scene.textures``)."""
+    from numba.typed import List
+
     from .textures import UnassociatedImage, _as_image
     imgs = [_as_image(t) for t in textures]
     dt = np.float32 if all(i.dtype == np.float32 for i in imgs) else np.float64
-    meta = np.zeros((max(len(imgs), 1), 5), np.int64)
-    o = 0
-    for i, (t, im) in enumerate(zip(textures, imgs)):
-        meta[i] = (o, im.shape[0], im.shape[1], im.shape[2], isinstance(t, UnassociatedImage))
-        o += im.size
-    data = np.concatenate([np.ascontiguousarray(im, dt).ravel() for im in imgs]) if imgs \
-        else np.zeros(1, dt)
-    return PackedTextures(data, meta)
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def packed_rgb(T, t, u, v):
-    """:func:`bilinear_rgb` of texture t of the :class:`PackedTextures` T at (u, v)."""
-    o, H, W, C = T.meta[t, 0], T.meta[t, 1], T.meta[t, 2], T.meta[t, 3]
-    return bilinear_rgb(T.data[o:o + H * W * C].reshape((H, W, C)), u, v, T.meta[t, 4] != 0)
+    imgs = [np.ascontiguousarray(i, dt) for i in imgs] or [np.zeros((1, 1, 3), dt)]
+    return TextureList(List(imgs), np.array([isinstance(t, UnassociatedImage)
+                                             for t in textures] or [False]))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
