@@ -78,17 +78,32 @@ def _owen(x, seed):
     return _reverse32(_laine_karras(_reverse32(x), seed))
 
 
+def _sobol1_table() -> np.ndarray:
+    """(4, 256) int64: entry (b, c) the XOR of the bit-reversed direction
+    numbers of Sobol' dimension 1 (x + 1: v ^= v >> 1 from 2^31, reversed:
+    r ^= r << 1 from 1) over the set bits j of c, for index bits 8 b + j."""
+    rv = [1]
+    for _ in range(31):
+        rv.append((rv[-1] ^ (rv[-1] << 1)) & _M32)
+    T = np.zeros((4, 256), np.int64)
+    for b in range(4):
+        for c in range(256):
+            for j in range(8):
+                if c >> j & 1:
+                    T[b, c] ^= rv[8 * b + j]
+    return T
+
+
+_SOBOL1_REV = _sobol1_table()
+
+
 @njit(cache=True, inline="always")
-def _sobol1(i):
-    """Sobol' dimension 1 of index i (direction numbers of x + 1: v ^= v >> 1)."""
-    v = 0x80000000
-    r = 0
-    while i:
-        if i & 1:
-            r ^= v
-        i >>= 1
-        v ^= v >> 1
-    return r
+def _sobol1_reversed(i):
+    """Sobol' dimension 1 of the 32-bit index i, its bits reversed: four
+    table reads (the bit loop took up to 32 steps, the index being
+    scrambled)."""
+    T = _SOBOL1_REV
+    return T[0, i & 255] ^ T[1, (i >> 8) & 255] ^ T[2, (i >> 16) & 255] ^ T[3, (i >> 24) & 255]
 
 
 @njit(cache=True, nogil=True)
@@ -105,7 +120,9 @@ def sobol_pairs(seed, pixels, first, n, pairs, out):
             s_idx, s_x, s_y = _combine(sd, 0), _combine(sd, 1), _combine(sd, 2)
             for s in range(n):
                 k = _owen((first + s) & _M32, s_idx)
-                x = _owen(_reverse32(k), s_x)
-                y = _owen(_sobol1(k), s_y)
+                # _owen(x, seed) = reverse(LK(reverse(x))): the reversals of
+                # x = reverse(k) and of Sobol' dimension 1 fall away.
+                x = _reverse32(_laine_karras(k, s_x))
+                y = _reverse32(_laine_karras(_sobol1_reversed(k), s_y))
                 out[s, b, 2 * i] = x * _INV32
                 out[s, b, 2 * i + 1] = y * _INV32
