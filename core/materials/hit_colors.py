@@ -20,7 +20,7 @@ from numba import njit
 
 from ..mathutil import LUM_B, LUM_G, LUM_R
 from ..scene.texture_kernels import TextureList, bilinear_rgb, texture_list
-from .compiled import SelectionTable
+from .compiled import SelectionTable, sample_pair
 
 
 class ColorInputs(NamedTuple):
@@ -89,6 +89,54 @@ def hit_rows(X: ColorInputs, base: SelectionTable, prim, bu, bv, mat):
     return SelectionTable(colors, p, cdf, last), col, np.arange(R, R + K, dtype=np.int64)
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _colour_row(X, m, t, b1, b2, r, colors, p, cdf, last, cur, img):
+    """Row r of colors, p, cdf, last for a hit at barycentrics (b1, b2) of
+    triangle t on material m (:func:`hit_colors_kernel`'s rule); returns the
+    sum of its colours and (cur, img) the texture last read and its image
+    (a typed list's item costs a reference count; a hit's lobes and the
+    next hits mostly share one)."""
+    L = colors.shape[1]
+    w0 = 1.0 - b1 - b2
+    uu = (w0 * np.float64(X.tri_uv[t, 0, 0]) + b1 * np.float64(X.tri_uv[t, 1, 0])
+          + b2 * np.float64(X.tri_uv[t, 2, 0]))
+    vv = (w0 * np.float64(X.tri_uv[t, 0, 1]) + b1 * np.float64(X.tri_uv[t, 1, 1])
+          + b2 * np.float64(X.tri_uv[t, 2, 1]))
+    tot = 0.0
+    s0 = s1 = s2 = 0.0
+    for j in range(L):
+        c0 = X.color[m, j, 0] * X.weight[m, j]
+        c1 = X.color[m, j, 1] * X.weight[m, j]
+        c2 = X.color[m, j, 2] * X.weight[m, j]
+        if X.kind[m, j] < 0:
+            c0 = c1 = c2 = 0.0
+        elif X.tex[m, j] >= 0:
+            tj = X.tex[m, j]
+            if tj != cur:
+                img = X.textures.images[tj]
+                cur = tj
+            a0, a1, a2 = bilinear_rgb(img, uu, vv, X.textures.unassociate[tj])
+            c0, c1, c2 = c0 * a0, c1 * a1, c2 * a2
+        colors[r, j, 0], colors[r, j, 1], colors[r, j, 2] = c0, c1, c2
+        s0, s1, s2 = s0 + c0, s1 + c1, s2 + c2
+        w = max(c0 * LUM_R + c1 * LUM_G + c2 * LUM_B, 0.0) * X.sel_scale[m, j]
+        if X.kind[m, j] < 0:
+            w = 0.0
+        p[r, j] = w
+        tot += w
+    acc = 0.0
+    for j in range(L):
+        p[r, j] = p[r, j] / tot if tot > 0 else 0.0
+        acc += p[r, j]
+        cdf[r, j] = acc
+    last[r] = L - 1
+    for j in range(L - 1, -1, -1):
+        if p[r, j] > 0.0:
+            last[r] = j
+            break
+    return s0, s1, s2, cur, img
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def hit_colors_kernel(X, prim, bu, bv, mat, R, colors, p, cdf, last, col):
     """Rows R + k of colors (., L, 3), p, cdf (., L), last (.,) and col[k]
@@ -98,53 +146,42 @@ def hit_colors_kernel(X, prim, bu, bv, mat, R, colors, p, cdf, last, col):
     ``table._selection_probs`` (subset 'all'), its cumulative sum and last
     slot with p > 0 (``compiled.selection_table``), and the sample weight:
     the sum of the colours where X.lambert, else 0."""
-    L = colors.shape[1]
-    # The image of the last texture read (a typed list's item costs a
-    # reference count; a hit's lobes and its neighbours mostly share one).
     cur = 0
     img = X.textures.images[0]
     for k in range(mat.shape[0]):
         m = mat[k]
-        r = R + k
-        t = prim[k]
-        w0 = 1.0 - bu[k] - bv[k]
-        uu = (w0 * np.float64(X.tri_uv[t, 0, 0]) + bu[k] * np.float64(X.tri_uv[t, 1, 0])
-              + bv[k] * np.float64(X.tri_uv[t, 2, 0]))
-        vv = (w0 * np.float64(X.tri_uv[t, 0, 1]) + bu[k] * np.float64(X.tri_uv[t, 1, 1])
-              + bv[k] * np.float64(X.tri_uv[t, 2, 1]))
-        tot = 0.0
-        s0 = s1 = s2 = 0.0
-        for j in range(L):
-            c0 = X.color[m, j, 0] * X.weight[m, j]
-            c1 = X.color[m, j, 1] * X.weight[m, j]
-            c2 = X.color[m, j, 2] * X.weight[m, j]
-            if X.kind[m, j] < 0:
-                c0 = c1 = c2 = 0.0
-            elif X.tex[m, j] >= 0:
-                tj = X.tex[m, j]
-                if tj != cur:
-                    img = X.textures.images[tj]
-                    cur = tj
-                a0, a1, a2 = bilinear_rgb(img, uu, vv, X.textures.unassociate[tj])
-                c0, c1, c2 = c0 * a0, c1 * a1, c2 * a2
-            colors[r, j, 0], colors[r, j, 1], colors[r, j, 2] = c0, c1, c2
-            s0, s1, s2 = s0 + c0, s1 + c1, s2 + c2
-            w = max(c0 * LUM_R + c1 * LUM_G + c2 * LUM_B, 0.0) * X.sel_scale[m, j]
-            if X.kind[m, j] < 0:
-                w = 0.0
-            p[r, j] = w
-            tot += w
-        acc = 0.0
-        for j in range(L):
-            p[r, j] = p[r, j] / tot if tot > 0 else 0.0
-            acc += p[r, j]
-            cdf[r, j] = acc
-        last[r] = L - 1
-        for j in range(L - 1, -1, -1):
-            if p[r, j] > 0.0:
-                last[r] = j
-                break
+        s0, s1, s2, cur, img = _colour_row(X, m, prim[k], bu[k], bv[k], R + k, colors, p, cdf,
+                                           last, cur, img)
         if X.lambert[m]:
             col[k, 0], col[k, 1], col[k, 2] = s0, s1, s2
         else:
             col[k, 0] = col[k, 1] = col[k, 2] = 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def sample_rows(X, lobes, T, tri_mat, rows, bary, ns, ng, wo, ray, u, out, wgt, flags):
+    """``compiled.sample_pair`` in importance mode of the hits rows (n,) of
+    arrays by hit (bary (., 3) (prim, b1, b2), ns, ng, wo (., 3), ray (.,)
+    the row of u (., >= 3) with the hit's uniforms), each with its own
+    colour row (:func:`_colour_row`, in a one-row scratch: no (n, L, 3)
+    array), the photon tracer's textured hits: out, wgt (., 3) at those rows
+    the direction and weight, flags (n,) int8 bit 0 ok, bit 1 delta
+    (``compiled.sample_batch``'s)."""
+    L = X.color.shape[1]
+    colors, p, cdf = np.empty((1, L, 3)), np.empty((1, L)), np.empty((1, L))
+    last = np.empty(1, np.int64)
+    cur = 0
+    img = X.textures.images[0]
+    for q in range(rows.shape[0]):
+        g = rows[q]
+        t = int(bary[g, 0])
+        m = tri_mat[t]
+        _, _, _, cur, img = _colour_row(X, m, t, bary[g, 1], bary[g, 2], 0, colors, p, cdf,
+                                        last, cur, img)
+        i = ray[g]
+        r = sample_pair(lobes, T, colors, p, cdf, last, m, 0, ns[g, 0], ns[g, 1], ns[g, 2],
+                        ng[g, 0], ng[g, 1], ng[g, 2], wo[g, 0], wo[g, 1], wo[g, 2],
+                        u[i, 0], u[i, 1], u[i, 2], False)
+        out[g, 0], out[g, 1], out[g, 2] = r[0], r[1], r[2]
+        wgt[g, 0], wgt[g, 1], wgt[g, 2] = r[3], r[4], r[5]
+        flags[q] = (1 if r[7] else 0) + (2 if r[6] else 0)

@@ -84,8 +84,12 @@ def _ms_tables():
     if "ggx" not in _MS_CACHE:
         n = 32
         grid = np.clip(np.arange(n) / (n - 1), 1e-4, 1.0)
-        R, Mu = np.meshgrid(grid, grid, indexing="ij")
-        E = np.clip(_ms_weight(R * R, Mu, np.ones_like(R), False, 64), 0.0, 1.0)
+        # One roughness row at a time: the same values as the (32, 32) grid at
+        # once (each node's mean is its own), without its ~230 MB of
+        # temporaries (a render's peak memory, docs/reliability.md).
+        E = np.empty((n, n))
+        for i, r in enumerate(grid):
+            E[i] = np.clip(_ms_weight(np.full(n, r * r), grid, np.ones(n), False, 64), 0.0, 1.0)
         # E_avg = 2 ∫ mu E(mu) dmu, trapezoid over the mu nodes.
         _MS_CACHE["ggx"] = (E, np.trapezoid(2.0 * grid * E, grid, axis=-1))
     return _MS_CACHE["ggx"]

@@ -295,6 +295,7 @@ class PhotonTracer:
             self._textured &= ~np.any(np.asarray(mtab.alpha_tex) >= 0, axis=1)
         self._colors = (hit_colors.build_color_inputs(mtab, scene.tri_uv)
                         if self._textured.any() else None)
+        self._tri_mat = np.ascontiguousarray(self.tris.mat, np.int64)
         # Photon rays cast by this tracer (accel.rays_cast also counts the
         # camera's, which may be cast meanwhile: PhotonPass.trace_ahead).
         self.rays_cast = 0
@@ -745,31 +746,22 @@ class PhotonTracer:
 
     def _sample_textured(self, rows, gen, u) -> np.ndarray:
         """The generic hits rows (of GenericHits gen) on :meth:`_textured_rows`
-        materials sampled as ``compiled.sample_batch`` (importance mode) with
-        their own colour rows (``hit_colors.hit_rows``: numpy's
-        ``lobe_colors`` at the hit's uv and its lobe selection) into the
-        kernel's columns (out, wgt, state), as numpy's :meth:`_sample_numpy`
-        samples them to rounding (a Lambert-only one by its lobes, where
-        numpy takes the fast path: the same direction and weight).  Returns
-        the rows left to numpy."""
-        prim = gen.bary[rows, 0].astype(np.int64)
-        mat = np.asarray(self.tris.mat, np.int64)[prim]
+        materials sampled by ``compiled.sample_pair`` (importance mode) with
+        their own colour rows (``hit_colors.sample_rows``: numpy's
+        ``lobe_colors`` at the hit's uv and its lobe selection, one row at a
+        time) into the kernel's columns (out, wgt, state), as numpy's
+        :meth:`_sample_numpy` samples them to rounding (a Lambert-only one by
+        its lobes, where numpy takes the fast path: the same direction and
+        weight).  Returns the rows left to numpy."""
+        mat = self._tri_mat[gen.bary[rows, 0].astype(np.int64)]
         t = self._textured_rows()[mat]
         if not t.any():
             return rows
-        r, m = rows[t], mat[t]
-        L = self.mtab.kind.shape[1]
-        base = C.SelectionTable(np.zeros((0, L, 3)), np.zeros((0, L)), np.zeros((0, L)),
-                                np.zeros(0, np.int64))
-        S, _, sr = hit_colors.hit_rows(self._colors, base, prim[t], gen.bary[r, 1],
-                                       gen.bary[r, 2], m)
+        r = rows[t]
         cm = C.compile_materials(self.mtab)
-        n = r.size
-        wi, w, fl = np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int8)
-        c = np.ascontiguousarray
-        C.sample_batch(cm.lobes, cm.tables, S, m, sr, c(gen.ns[r]), c(gen.ng[r]), c(gen.wi[r]),
-                       c(u[gen.i[r], :3], np.float64), False, wi, w, np.empty(n), fl)
-        gen.out[r], gen.wgt[r] = wi, w
+        fl = np.empty(r.size, np.int8)
+        hit_colors.sample_rows(self._colors, cm.lobes, cm.tables, self._tri_mat, r, gen.bary,
+                               gen.ns, gen.ng, gen.wi, gen.i, u, gen.out, gen.wgt, fl)
         gen.state[r] = np.where((fl & 1) > 0, np.where((fl & 2) > 0, PK.SAMPLE_DELTA,
                                                        PK.SAMPLE_OK), PK.SAMPLE_INVALID)
         return rows[~t]
