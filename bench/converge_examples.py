@@ -441,6 +441,14 @@ NOTES = [
     "1.26 / 1.65 / 1.64 (excess 1.84; seeds at 100 % 1.55-1.83), 375-418 passes, Cycles "
     "2518 spp (1.67 cores, Path Tracing 1.09: 2.83 wall-equivalent); FPPM / Cycles 30.8 "
     "(excess 40; 245-255 passes).",
+    "Round 28, point_caustic on 171d9fc (rounds 25-28's compiled light and camera paths), "
+    "`point_caustic --budget 60 --clock cpu --seeds 4 --methods fppm,ppm,combined,light`, the "
+    "Mitsuba reference rendered again (65536 spp, floor 1.39e-4), load 2 to 4 beside other runs, "
+    "in point_caustic/fppm_ppm_combined_light_60s_171d9fc/: FPPM / PPM 0.524 / 0.506 / 0.540 "
+    "(excess 0.508; seeds at 100 % 0.53-0.56), Combined / FPPM 1.71 / 1.29 / 1.15 (excess 1.17; "
+    "seeds 1.12-1.16), Combined / light tracing 0.75 / 0.80 / 0.825, light tracing / FPPM 2.28 / "
+    "1.61 / 1.39: round 24's ratios to within the seeds' spread (FPPM 739-762 passes, PPM "
+    "746-797, light tracing 868-908, Combined 571-615).",
     "Round 27, ring_principled on 8523e81 (the camera paths' first light sample from one "
     "Sobol' sequence a pixel across the passes), `ring_principled --budget 60 --clock cpu "
     "--seeds 4 --methods combined,cycles`, load 2 to 4 beside other benchmarks, in "
