@@ -243,9 +243,10 @@ class LightTracer:
         (unit, back towards the light), power (K, 3), bary (K, 3) (prim, u,
         v)) into film (H*W, 3): one lens sample each, the projection and the
         shadow rays compiled (light_kernels.project_kernel), the shadow rays
-        (:meth:`_transmittance`), the splat compiled on LAMBERT and
-        untextured GENERIC materials (light_kernels.splat_fast, ``splat_mat``)
-        and by :meth:`_slow` on the others (textures, Normal Map / Bump).
+        (:meth:`_transmittance`), the splat compiled on LAMBERT and GENERIC
+        materials, colour-textured ones with a colour row per connection
+        (light_kernels.splat_fast, ``splat_mat``, :meth:`_rows`), and by
+        :meth:`_slow` on the others (Normal Map / Bump, alpha textures).
         mis: None, or (B0, B1, first, soft) (K,) of integrator 'COMBINED'
         (combined.splat_weight), optionally followed by mR2 (P,) (merging as
         an MIS strategy: SplatInputs.mR2)."""
