@@ -84,7 +84,7 @@ PATH_SPLIT_MIN = 1 << 14
 #: dimensions of the pixel's sequence (``sequence_kernels.sobol_pairs``, as
 #: Cycles draws every dimension of a path from its pixel's sequence); the
 #: deeper vertices draw from the path's random stream (docs/integrators.md
-#: "A path's first vertices from the pixel's sequence, round 28").
+#: "A path's first vertex from the pixel's sequence, round 28").
 SEQUENCE_DEPTHS = 1
 
 
