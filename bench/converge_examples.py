@@ -449,6 +449,13 @@ NOTES = [
     "seeds 1.12-1.16), Combined / light tracing 0.75 / 0.80 / 0.825, light tracing / FPPM 2.28 / "
     "1.61 / 1.39: round 24's ratios to within the seeds' spread (FPPM 739-762 passes, PPM "
     "746-797, light tracing 868-908, Combined 571-615).",
+    "Round 28, principled_interior on 3688844 (the compiled camera and light paths of rounds "
+    "25-28), `principled_interior --budget 60 --clock cpu --seeds 4 --methods "
+    "combined,fppm,cycles`, the reference rendered again (8192 spp, 2 pieces, floor 1.96e-4), "
+    "load 2 to 4, in principled_interior/combined_fppm_cycles_60s_3688844/: Combined / Cycles "
+    "0.313 / 0.344 / 0.363 (excess 0.317; seeds 0.359-0.368; 0.630 in round 24), FPPM / Cycles "
+    "0.41 / 0.451 / 0.548 (excess 0.515), Combined / FPPM 0.763 / 0.763 / 0.664 (excess 0.616); "
+    "Combined 388-398 passes, FPPM 303-317, Cycles 636 spp (1.99 cores; Combined 1.84).",
     "Round 27, ring_principled on 8523e81 (the camera paths' first light sample from one "
     "Sobol' sequence a pixel across the passes), `ring_principled --budget 60 --clock cpu "
     "--seeds 4 --methods combined,cycles`, load 2 to 4 beside other benchmarks, in "
