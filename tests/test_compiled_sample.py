@@ -72,7 +72,7 @@ def test_compiled_sample_equals_sample_bsdf():
     wi_r, w_r, _, dl_r, ok_r = B.sample_bsdf(t, mat, colors, ns, ng, wo, u,
                                              subset="all", mode="importance")
     wi, w, flags = np.empty((K, 3)), np.empty((K, 3)), np.empty(K, np.int8)
-    C.sample_batch(fm.cm.lobes, fm.cm.tables, C.selection_table(t), mat, mat, ns, ng, wo, u,
+    C.sample_batch(fm.cm.lobes, fm.cm.tables, C.selection_table(t), mat, ns, ng, wo, u,
                    False, wi, w, np.empty(K), flags)
     ok, dl = (flags & 1) > 0, (flags & 2) > 0
     assert np.array_equal(ok, ok_r)

@@ -202,13 +202,14 @@ class SplatMaterials(NamedTuple):
     p: np.ndarray
 
 
-def splat_materials(scene, mtab, fmat, textured) -> SplatMaterials:
+def splat_materials(scene, mtab, fmat, textured, sel=None) -> SplatMaterials:
     """The SplatMaterials of a scene: LAMBERT_SPLAT the LAMBERT materials
     (materials.fast: diffuse lobes of roughness 0), GENERIC_SPLAT the
     ``compiled`` GENERIC ones, each whose shading normal is the interpolated
     one (no Normal Map / Bump); of the colour-textured ones (textured (M,)
     bool: no alpha texture), the Lambert-only ones LAMBERT_SPLAT and the
-    others GENERIC_SPLAT (their colour rows come per connection)."""
+    others GENERIC_SPLAT (their colour rows come per connection); sel the
+    table's ``compiled.selection_table`` (made here when None and needed)."""
     from ..materials import fast
     from ..materials.compiled import compile_materials, selection_table
     M = fmat.cls.shape[0]
@@ -221,7 +222,10 @@ def splat_materials(scene, mtab, fmat, textured) -> SplatMaterials:
     lam = tex & np.asarray(lam, bool) & ~np.asarray(mtab.has_delta, bool)
     kind = np.where(lam, LAMBERT_SPLAT, np.where(tex, GENERIC_SPLAT, kind))
     cm = compile_materials(mtab) if np.any(tex & ~lam) else fmat.cm
-    sel = selection_table(mtab) if tex.any() else fmat.sel
+    if tex.any():
+        sel = selection_table(mtab) if sel is None else sel
+    else:
+        sel = fmat.sel
     c = np.ascontiguousarray
     return SplatMaterials(kind=c(kind, np.int8), col=c(fmat.col, np.float64),
                           lobes=c(cm.lobes, np.float64), tables=c(cm.tables, np.float64),

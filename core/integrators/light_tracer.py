@@ -146,15 +146,15 @@ class LightTracer:
         # without Normal Map / Bump (combined.covered_materials).
         # Colour-textured materials (no alpha texture): each connection on
         # one gets a colour row of its own (materials.hit_colors, _rows).
+        from ..materials.compiled import selection_table
         tex = self.tracer._textured
-        self.splat_mat = LK.splat_materials(scene, mtab, self.tracer.fmat, tex)
+        self._sel = selection_table(mtab) if tex.any() else None
+        self.splat_mat = LK.splat_materials(scene, mtab, self.tracer.fmat, tex, self._sel)
         self._colors = None
         if np.any(tex & (self.splat_mat.kind != LK.SLOW)):
-            from ..materials.compiled import selection_table
             from ..materials.hit_colors import build_color_inputs
             self._colors = build_color_inputs(
                 mtab, scene.tri_uv, lambert=tex & (self.splat_mat.kind == LK.LAMBERT_SPLAT))
-            self._sel = selection_table(mtab)
         self.fast_mat = self.splat_mat.kind == LK.LAMBERT_SPLAT
         # The GENERIC materials, whose connections _slow evaluates compiled.
         self.generic = self.tracer.fmat.cls == GENERIC

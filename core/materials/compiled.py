@@ -963,14 +963,12 @@ def sample_pair(lobes, T, colors, p, cdf, last, m, r, nsx, nsy, nsz, ngx, ngy, n
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def sample_batch(lobes, T, sel, mat, rows, ns, ng, wo, u, radiance, wi, weight, pdf, flags):
-    """:func:`sample_pair` of K rays: mat (K,) int64 their materials, rows
-    (K,) int64 their rows of the SelectionTable sel (mat itself, or a
-    textured hit's own: ``hit_colors.hit_rows``), ns, ng, wo (K, 3), u (K,
-    3); writes wi, weight (K, 3), pdf (K,) and flags (K,) int8: bit 0 ok,
-    bit 1 is_delta."""
+def sample_batch(lobes, T, sel, mat, ns, ng, wo, u, radiance, wi, weight, pdf, flags):
+    """:func:`sample_pair` of K rays: mat (K,) int64, ns, ng, wo (K, 3),
+    u (K, 3); writes wi, weight (K, 3), pdf (K,) and flags (K,) int8: bit 0
+    ok, bit 1 is_delta."""
     for i in range(mat.shape[0]):
-        r = sample_pair(lobes, T, sel.colors, sel.p, sel.cdf, sel.last, mat[i], rows[i],
+        r = sample_pair(lobes, T, sel.colors, sel.p, sel.cdf, sel.last, mat[i], mat[i],
                         ns[i, 0], ns[i, 1], ns[i, 2], ng[i, 0], ng[i, 1], ng[i, 2],
                         wo[i, 0], wo[i, 1], wo[i, 2], u[i, 0], u[i, 1], u[i, 2], radiance)
         wi[i, 0], wi[i, 1], wi[i, 2] = r[0], r[1], r[2]
@@ -1029,9 +1027,8 @@ def sample_radiance(table, fm, rows, mat, colors, n_s, n_g, wo, u):
     wi, weight, pdf = np.zeros((K, 3)), np.zeros((K, 3)), np.zeros(K)
     is_delta, ok = np.zeros(K, bool), np.zeros(K, bool)
     w_c, g_c, p_c, fl = np.empty((n, 3)), np.empty((n, 3)), np.empty(n), np.empty(n, np.int8)
-    sample_batch(fm.cm.lobes, fm.cm.tables, fm.sel, mat[ci], mat[ci],
-                 _f64(np.asarray(n_s)[ci], 3), _f64(np.asarray(n_g)[ci], 3),
-                 _f64(np.asarray(wo)[ci], 3),
+    sample_batch(fm.cm.lobes, fm.cm.tables, fm.sel, mat[ci], _f64(np.asarray(n_s)[ci], 3),
+                 _f64(np.asarray(n_g)[ci], 3), _f64(np.asarray(wo)[ci], 3),
                  _f64(np.asarray(u)[ci], 3), True, w_c, g_c, p_c, fl)
     wi[ci], weight[ci], pdf[ci] = w_c, g_c, p_c
     ok[ci] = (fl & 1) > 0

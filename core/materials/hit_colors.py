@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 from ..mathutil import LUM_B, LUM_G, LUM_R
-from ..scene.texture_kernels import TextureList, bilinear_rgb, texture_list
+from ..scene.texture_kernels import TextureList, bilinear_rgb, corner_uv, texture_list
 from .compiled import SelectionTable, sample_pair
 
 
@@ -97,11 +97,7 @@ def _colour_row(X, m, t, b1, b2, r, colors, p, cdf, last, cur, img):
     (a typed list's item costs a reference count; a hit's lobes and the
     next hits mostly share one)."""
     L = colors.shape[1]
-    w0 = 1.0 - b1 - b2
-    uu = (w0 * np.float64(X.tri_uv[t, 0, 0]) + b1 * np.float64(X.tri_uv[t, 1, 0])
-          + b2 * np.float64(X.tri_uv[t, 2, 0]))
-    vv = (w0 * np.float64(X.tri_uv[t, 0, 1]) + b1 * np.float64(X.tri_uv[t, 1, 1])
-          + b2 * np.float64(X.tri_uv[t, 2, 1]))
+    uu, vv = corner_uv(X.tri_uv, t, 1.0 - b1 - b2, b1, b2)
     tot = 0.0
     s0 = s1 = s2 = 0.0
     for j in range(L):

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .texture_kernels import bilinear_rgb
+from .texture_kernels import bilinear_rgb, corner_uv
 
 
 @njit(cache=True, inline="always")
@@ -48,8 +48,7 @@ def normal_map(tri_p, tri_n, tri_uv, tri_tangent, prim, bu, bv, rows, ns, img, u
         Nx = w0 * np.float64(tri_n[t, 0, 0]) + u * np.float64(tri_n[t, 1, 0]) + v * np.float64(tri_n[t, 2, 0])
         Ny = w0 * np.float64(tri_n[t, 0, 1]) + u * np.float64(tri_n[t, 1, 1]) + v * np.float64(tri_n[t, 2, 1])
         Nz = w0 * np.float64(tri_n[t, 0, 2]) + u * np.float64(tri_n[t, 1, 2]) + v * np.float64(tri_n[t, 2, 2])
-        uu = w0 * np.float64(tri_uv[t, 0, 0]) + u * np.float64(tri_uv[t, 1, 0]) + v * np.float64(tri_uv[t, 2, 0])
-        vv = w0 * np.float64(tri_uv[t, 0, 1]) + u * np.float64(tri_uv[t, 1, 1]) + v * np.float64(tri_uv[t, 2, 1])
+        uu, vv = corner_uv(tri_uv, t, w0, u, v)
         # The fallback tangent (normals._fallback_tangent, triangle_uv_frame).
         p0x, p0y, p0z = np.float64(tri_p[t, 0, 0]), np.float64(tri_p[t, 0, 1]), np.float64(tri_p[t, 0, 2])
         e1x, e1y, e1z = (np.float64(tri_p[t, 1, 0]) - p0x, np.float64(tri_p[t, 1, 1]) - p0y,

@@ -36,6 +36,18 @@ def texture_list(textures) -> TextureList:
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def corner_uv(tri_uv, t, w0, u, v):
+    """``accel.hit_uv`` of one hit: the uv of triangle t (tri_uv (T, 3, 2),
+    any float dtype) at barycentrics (w0, u, v), in float64, its products
+    and sums in numpy's order."""
+    uu = w0 * np.float64(tri_uv[t, 0, 0]) + u * np.float64(tri_uv[t, 1, 0]) + v * np.float64(
+        tri_uv[t, 2, 0])
+    vv = w0 * np.float64(tri_uv[t, 0, 1]) + u * np.float64(tri_uv[t, 1, 1]) + v * np.float64(
+        tri_uv[t, 2, 1])
+    return uu, vv
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def bilinear_rgb(img, u, v, unassociate):
     """:func:`sample_texture` of one uv: (r, g, b) float64 of img (H, W, C)
     (C = 1: grey; unassociate with C >= 4: rgb / alpha where alpha > 0, else
