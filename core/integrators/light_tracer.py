@@ -147,7 +147,7 @@ class LightTracer:
         # Colour-textured materials (no alpha texture): each connection on
         # one gets a colour row of its own (materials.hit_colors, _rows).
         from ..materials.compiled import selection_table
-        tex = self.tracer._textured
+        tex = self.tracer.textured
         self._sel = selection_table(mtab) if tex.any() else None
         self.splat_mat = LK.splat_materials(scene, mtab, self.tracer.fmat, tex, self._sel)
         self._colors = None
@@ -283,7 +283,7 @@ class LightTracer:
         bary = vin.bary[con.row[:nc]]
         prim = bary[:, 0].astype(np.int64)
         crow = np.asarray(self.tracer.tris.mat, np.int64)[prim]
-        t = np.nonzero(self.tracer._textured[crow] & (sm.kind[crow] != LK.SLOW))[0]
+        t = np.nonzero(self.tracer.textured[crow] & (sm.kind[crow] != LK.SLOW))[0]
         if t.size == 0:
             return sm, self._NO_ROWS
         from ..materials.hit_colors import hit_rows

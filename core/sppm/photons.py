@@ -38,7 +38,7 @@ from .. import lights as Lt
 from ..frequency import spectrum as F
 from ..frequency import kernels as FK
 from ..frequency.occlusion_march import march_grid, no_march_grid
-from ..materials import compiled as C, hit_colors
+from ..materials import compiled as C, fast, hit_colors
 from ..materials.fast import GENERIC, build_fast_materials
 from . import photon_kernels as PK
 from ..accel import _COUNT_LOCK, REL_OFFSET, intersect_f32
@@ -287,14 +287,15 @@ class PhotonTracer:
         self.kappa, self.occ_grid, self.occ_locality, self.D = kappa, occ_grid, occ_locality, D
         self.tris = PK.build_triangle_data(scene)
         self.fmat = build_fast_materials(mtab)
-        # Colour-textured materials without an alpha texture: their generic
-        # hits are sampled compiled, each with a colour row of its own
+        # textured (M,) bool: the colour-textured materials without an alpha
+        # texture (light tracing reads it too): their generic hits are
+        # sampled compiled, each with a colour row of its own
         # (materials.hit_colors; _sample_textured), else by numpy.
-        self._textured = hit_colors.textured_materials(mtab)
+        self.textured = hit_colors.textured_materials(mtab)
         if mtab.alpha_tex is not None:
-            self._textured &= ~np.any(np.asarray(mtab.alpha_tex) >= 0, axis=1)
+            self.textured &= ~np.any(np.asarray(mtab.alpha_tex) >= 0, axis=1)
         self._colors = (hit_colors.build_color_inputs(mtab, scene.tri_uv)
-                        if self._textured.any() else None)
+                        if self.textured.any() else None)
         self._tri_mat = np.ascontiguousarray(self.tris.mat, np.int64)
         # Photon rays cast by this tracer (accel.rays_cast also counts the
         # camera's, which may be cast meanwhile: PhotonPass.trace_ahead).
@@ -741,8 +742,7 @@ class PhotonTracer:
     def _textured_rows(self) -> np.ndarray:
         """(M,) bool: the materials whose generic hits :meth:`_sample_textured`
         samples (textured GENERIC ones, under ``fast.COMPILED_SAMPLING``)."""
-        from ..materials import fast
-        return self._textured & (self.fmat.cls == GENERIC) & fast.COMPILED_SAMPLING
+        return self.textured & (self.fmat.cls == GENERIC) & fast.COMPILED_SAMPLING
 
     def _sample_textured(self, rows, gen, u) -> np.ndarray:
         """The generic hits rows (of GenericHits gen) on :meth:`_textured_rows`
