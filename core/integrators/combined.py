@@ -224,6 +224,15 @@ def covered_materials(mtab, fast_mat) -> np.ndarray:
             | (mtab.has_nondelta & ~mtab.has_delta & np.all(flat, axis=1)))
 
 
+def _mat_rows(v):
+    """(mat, row) (K,) int64 of vertices v for the path kernels: their
+    materials and colour rows (``PathVertices.row``; the materials' own
+    where it is None)."""
+    mat = np.ascontiguousarray(v.mat, np.int64)
+    row = getattr(v, "row", None)
+    return mat, (mat if row is None else np.ascontiguousarray(row, np.int64))
+
+
 class CameraMIS:
     """The light-tracing terms of the camera strategies' weights (module
     :mod:`.mis`): PathTracer calls these with its vertex arrays."""
@@ -316,8 +325,7 @@ class CameraMIS:
         unit weight, combined by :func:`_with_merge`."""
         from . import path_kernels as PK
         c = np.ascontiguousarray
-        mat = c(v.mat, np.int64)
-        row = mat if getattr(v, "row", None) is None else c(v.row, np.int64)
+        mat, row = _mat_rows(v)
         geo = (c(v.c), c(v.p), c(v.ng), c(v.ns), c(v.wo), c(wi), c(dist), c(light, np.int64),
                c(pl), c(sel))
         if getattr(v, "QM", None) is not None:
@@ -348,8 +356,7 @@ class CameraMIS:
         from . import path_kernels as PK
         out = np.empty(nx.src.size)
         c = np.ascontiguousarray
-        mat = c(v.mat, np.int64)
-        row = mat if getattr(v, "row", None) is None else c(v.row, np.int64)
+        mat, row = _mat_rows(v)
         PK.camera_continued_kernel(pmat, mat, row, depth == 0 and Q is None, nx.src,
                                    nx.delta, nx.d, c(v.ng),
                                    c(v.ns), c(v.wo), c(v.Q if Q is None else Q), c(v.c), out)

@@ -212,14 +212,14 @@ def splat_materials(scene, mtab, fmat, textured, sel=None) -> SplatMaterials:
     table's ``compiled.selection_table`` (made here when None and needed)."""
     from ..materials import fast
     from ..materials.compiled import compile_materials, selection_table
+    from ..materials.hit_colors import textured_lambert
     M = fmat.cls.shape[0]
     bent = _bent(scene, mtab, M)
     kind = np.where((fmat.cls == fast.LAMBERT) & ~bent, LAMBERT_SPLAT, SLOW)
     if fmat.compiled is not None:
         kind = np.where(np.asarray(fmat.compiled, bool) & ~bent, GENERIC_SPLAT, kind)
     tex = np.asarray(textured, bool) & ~bent & (fmat.cls == fast.GENERIC) & fast.COMPILED_SAMPLING
-    lam = mtab.lambert_lobes if mtab.lambert_lobes is not None else mtab.lambert_only
-    lam = tex & np.asarray(lam, bool) & ~np.asarray(mtab.has_delta, bool)
+    lam = tex & textured_lambert(mtab)
     kind = np.where(lam, LAMBERT_SPLAT, np.where(tex, GENERIC_SPLAT, kind))
     cm = compile_materials(mtab) if np.any(tex & ~lam) else fmat.cm
     if tex.any():

@@ -77,7 +77,7 @@ from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 # the microfacet lobes' geometric side test, and with the colour row of
 # sample_pair and pdf_oriented).
 from ..materials.compiled import SelectionTable, eval_pair, pdf_oriented, sample_pair
-from ..materials.hit_colors import hit_rows, textured_materials
+from ..materials.hit_colors import hit_rows, textured_lambert, textured_materials
 from ..materials.fast import ABSORBER, GENERIC, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
 from ..sppm.photon_kernels import shading_normal
 from .mis import FULL, SOFT, emit_select
@@ -161,9 +161,7 @@ def kernel_classes(mtab, fmat) -> np.ndarray:
     sample_bsdf's fast path, the weight the sum of the hit's colours), the
     others GENERIC (``compiled.sample_pair`` with the hit's colour row)."""
     cls = np.array(fmat.cls, np.int8)
-    lam = (textured_materials(mtab) & np.asarray(mtab.lambert_only, bool)
-           & ~np.asarray(mtab.has_delta, bool) & (cls == GENERIC))
-    cls[lam] = LAMBERT
+    cls[textured_lambert(mtab) & (cls == GENERIC)] = LAMBERT
     return cls
 
 

@@ -60,6 +60,15 @@ def table_textures(mtab) -> TextureList:
     return tl
 
 
+def textured_lambert(mtab) -> np.ndarray:
+    """(M,) bool: the colour-textured materials sampled as Lambert (numpy
+    sample_bsdf's fast path: Lambert lobes only, no delta lobe, no Normal
+    Map / Bump; the weight the sum of the hit's colours), by the camera
+    paths' kernels and light tracing's splat alike."""
+    return (textured_materials(mtab) & np.asarray(mtab.lambert_only, bool)
+            & ~np.asarray(mtab.has_delta, bool))
+
+
 def build_color_inputs(mtab, tri_uv, lambert=None) -> ColorInputs:
     """The :class:`ColorInputs` of a ``MaterialTable`` and its scene's corner
     uvs; lambert (M,) bool (default: none)."""
