@@ -189,7 +189,9 @@ def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
 def warmup_jobs() -> list:
     """(scene, settings) pairs, one per code path whose kernels differ; one pass each.
 
-    The second gathers enough photons for the gather's parallel path
+    The first has an environment map besides its lights (the visible
+    points' map by two strategies).  The second gathers enough photons for
+    the gather's parallel path
     (``hashgrid.PARALLEL_MIN_PHOTONS``), every one a frequency photon so that
     the QUANTILE estimator's pair search takes it too; the third covers the
     classic-PPM options, the numpy-sampled light kinds and an environment
@@ -200,7 +202,10 @@ def warmup_jobs() -> list:
     base = RenderSettings(integrator="PHOTON", max_passes=1, photons_per_pass=3000, seed=1,
                           frequency_start=1)
     room = warmup_scene()
-    return [(room, base),
+    # The first job's room is lit by an environment map too: the visible
+    # points' next-event estimation weighs the map's light and BSDF samples
+    # (core.lights.map_mis_kernels), on two threads (run_jobs' split_first).
+    return [(warmup_scene(environment=True), base),
             (room, base.replace(photons_per_pass=40_000, frequency_fraction=1.0,
                                 frequency_estimator="QUANTILE", frequency_model="PAPER",
                                 aov_radius=True, aov_predicted_radius=True, aov_spectrum=True,

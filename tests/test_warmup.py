@@ -158,7 +158,9 @@ for name, kw in [("cornell", dict(integrator="PHOTON", aov_radius=True, aov_spec
                  ("indirect_room", dict(integrator="PHOTON", frequency_estimator="QUANTILE")),
                  ("glass_sphere", dict(integrator="PHOTON", use_frequency=False,
                                        photons_for_direct=True, fixed_visible_points=True)),
-                 ("cornell", {}), ("glass_sphere", {}), ("ring_principled", {})]:
+                 ("cornell", {}), ("glass_sphere", {}), ("ring_principled", {}),
+                 # an HDRI, Principled, normal-mapped and textured materials
+                 ("real_scene", dict(integrator="PHOTON"))]:
     bpy.ops.wm.open_mainfile(filepath=sys.argv[2] + "/" + name + ".blend", load_ui=False)
     sc = bpy.context.scene
     sc.render.resolution_percentage = 25

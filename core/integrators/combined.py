@@ -601,7 +601,7 @@ class CombinedLightTracer(LightTracer):
                           and self.nee_owned[t.p_select > 0].all()
                           and st_.covered[self.mtab.has_nondelta].all())
         # The compiled next-event selection probability of _first_hit
-        # (path_kernels.selection_kernel reads LightPdf's entry and group_frac
+        # (lights.pdf_kernels.selection_kernel reads LightPdf's entry and group_frac
         # only, not its hittable), None where the compiled lights do not
         # cover the table: then lights.pdf._selection_probability.
         self._sel_lights = None

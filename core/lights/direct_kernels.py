@@ -16,10 +16,10 @@ contributions; the grazing self-hit retry and the emissive triangles' own
 test stay ``NextEventEstimation._blocked``'s numpy code, on their rows.
 
 Not compiled (``compiled_lights_ok`` is False, the numpy sampler is used):
-textured emissive triangles, and for the visible points an environment
-map (its light sample, ``sampling._sample_environment``, is compiled for
-the camera paths; the visible points' extra BSDF sample towards the map
-is not).
+textured emissive triangles.  An environment map's light sample
+(``sampling._sample_environment``) is compiled here; the visible points'
+weighing of it against a BSDF sample towards the map is
+``map_mis_kernels``'.
 
 Precision: the same formulas in the same order as the numpy code, but
 numba's libm (arccos, sin, cos, sqrt are correctly rounded or within 1 ulp)
@@ -141,9 +141,9 @@ class DirectSamples(NamedTuple):
 def compiled_lights_ok(table, environment: bool = False) -> bool:
     """Whether :func:`direct_kernel` covers every emitter of the table: not
     textured emissive triangles, nor an environment map unless
-    ``environment`` (the kernel samples a map's distribution; the visible
-    points' direct light also takes a BSDF sample towards the map,
-    ``nee.NextEventEstimation._environment_bsdf``, which stays numpy)."""
+    ``environment`` (the kernel samples a map's distribution; the caller
+    weighs it against its BSDF samples: the camera paths' MIS, the visible
+    points' ``map_mis_kernels``)."""
     if table.environment is not None and not environment:
         return False
     return not bool(np.any((table.kind == MESH) & (table.tex >= 0)))

@@ -14,7 +14,12 @@ surfaces (core.lights.shadow: Cycles' transparent shadows).  Photons then
 carry only indirect light (core.sppm.photons stores from the second bounce
 on, and not the light that crossed only transparent surfaces) unless
 ``photons_for_direct`` is set, in which case the renderer does not call this
-stage.
+stage.  An environment map is found by two strategies, its light sample and
+one BSDF sample of the non-delta lobes towards it, weighed by the balance
+heuristic.  The light samples, the BSDF values, the map's weights and the
+shadow rays' set-up are compiled (core.lights.direct_kernels,
+core.lights.map_mis_kernels, in blocks that two threads share); the numpy
+code (``compiled=False``) stays as their reference.
 """
 from __future__ import annotations
 
@@ -50,13 +55,16 @@ class NextEventEstimation:
         self.light_table, self.mtab, self.accel, self.tri_p = light_table, mtab, accel, tri_p
         self.compiled = bool(compiled)
         self._lights = None
+        self._map_state = None
 
     def __call__(self, vp: "VisiblePoints", rng: np.random.Generator,
                  add_to: np.ndarray | None = None) -> np.ndarray:
         """(P, 3) float64 reflected direct radiance times vp.beta (0 at invalid
         points).  add_to (P, 3) float64: the radiance is added into it and it
         is returned, the same sums as ``add_to += nee(vp, rng)`` (each pixel
-        gets one addition) without a pixel-sized array of its own."""
+        gets one addition; with an environment map two, its light sample's
+        then its BSDF sample's, so equal to rounding) without a pixel-sized
+        array of its own."""
         q = np.nonzero(vp.valid)[0]
         if self.compiled and q.size and self._compiled_lights() is not None:
             L = np.zeros((vp.valid.shape[0], 3)) if add_to is None else add_to
@@ -70,7 +78,7 @@ class NextEventEstimation:
 
     def _direct_numpy(self, vp, q, rng) -> np.ndarray:
         """:meth:`__call__` with the numpy sampler (the compiled path's
-        reference; environment maps, textured emitters): (P, 3)."""
+        reference; textured emitters): (P, 3)."""
         P = vp.valid.shape[0]
         L = np.zeros((P, 3))
         if q.size == 0:
@@ -125,6 +133,13 @@ class NextEventEstimation:
         K = q.size
         if K < SPLIT_MIN or not isinstance(rng.bit_generator, np.random.PCG64):
             # one thread (PCG64 alone advances by draws), in blocks
+            if self._map() is not None:
+                # the map's BSDF samples draw after the light samples (_direct_numpy)
+                u, ub = rng.random((K, 3)), rng.random((K, 3))
+                for a in range(0, K, DIRECT_BLOCK):
+                    b = slice(a, a + DIRECT_BLOCK)
+                    self._direct_compiled(vp, q[b], u[b], L, ub[b])
+                return
             for a in range(0, K, DIRECT_BLOCK):
                 qb = q[a:a + DIRECT_BLOCK]
                 self._direct_compiled(vp, qb, rng.random((qb.size, 3)), L)
@@ -141,11 +156,14 @@ class NextEventEstimation:
         K = q.size
         blk = min(DIRECT_BLOCK, -(-K // parts))
         base = stream_at(rng)
-        rng.bit_generator.advance(3 * K)
+        with_map = self._map() is not None
+        # With a map its BSDF samples' 3K uniforms follow the light samples'.
+        rng.bit_generator.advance((6 if with_map else 3) * K)
 
         def block(a):
             qb = q[a:a + blk]
-            self._direct_compiled(vp, qb, stream_at(base, 3 * a).random((qb.size, 3)), L)
+            ub = stream_at(base, 3 * (K + a)).random((qb.size, 3)) if with_map else None
+            self._direct_compiled(vp, qb, stream_at(base, 3 * a).random((qb.size, 3)), L, ub)
         return SharedBlocks(K, blk, block)
 
     def shared(self, vp: "VisiblePoints", rng: np.random.Generator, add_to: np.ndarray,
@@ -164,10 +182,12 @@ class NextEventEstimation:
             return None
         return self._shared_blocks(vp, q, rng, add_to, parts)
 
-    def _direct_compiled(self, vp, q, u, L) -> np.ndarray:
+    def _direct_compiled(self, vp, q, u, L, ub=None) -> np.ndarray:
         """The numpy path above with the light sample, the Lambert BSDF, the
-        shadow rays and the sums in ``direct_kernels`` (no environment map:
-        see ``_compiled_lights``), in the calling thread.  Adds to and returns L (P, 3)."""
+        shadow rays and the sums in ``direct_kernels``, in the calling
+        thread; with an environment map (ub (K, 3): the uniforms of its BSDF
+        samples) its two strategies weighed as ``_direct_numpy`` weighs
+        them, in ``map_mis_kernels``.  Adds to and returns L (P, 3)."""
         from . import direct_kernels as DK
         S = self._sample_compiled(vp, q, u)
         # f of the points that are not Lambert-only: eval_bsdf on their rows.
@@ -184,6 +204,22 @@ class NextEventEstimation:
                 f = B.eval_bsdf(self.mtab, vp.mat[qr], vp.colors[qr], ns_m, ng_m, vp.wo[qr],
                                 S.wi[r])
             S.contrib[r] = vp.beta[qr] * f * S.cos[r, None] * S.weight[r]
+        mp = self._map()
+        if mp is not None:
+            from . import map_mis_kernels as MM
+            V = self._map_receivers(vp, q, mp)
+            MM.light_mis_kernel(mp[0], mp[1], V, S)
+            self._add_unshadowed(vp, q, S, L)
+            Sb = DK.alloc_samples(q.size)
+            MM.bsdf_mis_kernel(mp[0], mp[1], V, ub, Sb)
+            return self._add_unshadowed(vp, q, Sb, L)
+        return self._add_unshadowed(vp, q, S, L)
+
+    def _add_unshadowed(self, vp, q, S, L) -> np.ndarray:
+        """Adds to L (P, 3) the contributions of the DirectSamples S (rows of
+        the visible points q) whose shadow rays are not blocked (or what
+        transparent surfaces let through); returns L."""
+        from . import direct_kernels as DK
         accel = self.accel
         sh = DK.alloc_shadow(q.size)
         n, nm = DK.shadow_kernel(q, vp.p, vp.ng, S, REL_OFFSET, accel.abs_floor / REL_OFFSET,
@@ -226,8 +262,37 @@ class NextEventEstimation:
         if self._lights is None:
             from . import direct_kernels as DK
             self._lights = (DK.build_direct_lights(self.light_table)
-                            if DK.compiled_lights_ok(self.light_table) else False)
+                            if DK.compiled_lights_ok(self.light_table, environment=True)
+                            else False)
         return self._lights or None
+
+    def _map(self):
+        """(EnvironmentKernel, MapMaterials, LightPdf, world row) of the
+        compiled path's environment map (``map_mis_kernels``), or None: no
+        map (a constant world is sampled as any light)."""
+        env = self.light_table.environment
+        if env is None or not env.total > 0:
+            return None
+        if self._map_state is None:
+            from ..materials.compiled import compile_materials
+            from . import map_mis_kernels as MM
+            from .pdf_kernels import build_light_pdf
+            t, DL = self.light_table, self._compiled_lights()
+            em = t.entry_emitter
+            world = int(em[(em >= 0) & (t.kind[np.maximum(em, 0)] == WORLD)][0])
+            self._map_state = (DL.env, MM.map_materials(self.mtab, compile_materials(self.mtab)),
+                               build_light_pdf(t, np.zeros(t.kind.shape[0], bool), DL), world)
+        return self._map_state
+
+    def _map_receivers(self, vp, q, mp):
+        """``map_mis_kernels.MapReceivers`` of the visible points q (K,), with
+        the world's selection probability at each (``pdf_kernels``)."""
+        from . import map_mis_kernels as MM
+        from .pdf_kernels import selection_kernel
+        sel = np.empty(q.size)
+        selection_kernel(self._compiled_lights(), mp[2], np.ascontiguousarray(vp.p[q]),
+                         np.full(q.size, mp[3], np.int64), sel)
+        return MM.map_receivers(self.mtab, vp, q, sel)
 
     def _sample_compiled(self, vp, q, u):
         """sample_direct plus the Lambert-only BSDF in ``direct_kernels``: the

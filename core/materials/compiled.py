@@ -608,11 +608,21 @@ class SelectionTable(NamedTuple):
 def selection_table(table) -> SelectionTable:
     """The :class:`SelectionTable` of every material of a ``MaterialTable``,
     evaluated as untextured (rows of textured materials are not meaningful)."""
-    from .table import _selection_probs, lobe_colors
-    M, L = table.kind.shape
+    from .table import lobe_colors
+    M = table.kind.shape[0]
     mat = np.arange(M)
-    colors = lobe_colors(table, mat, np.zeros((M, 2)))
-    p = _selection_probs(table, mat, colors, "all")
+    return selection_rows(table, mat, lobe_colors(table, mat, np.zeros((M, 2))), "all")
+
+
+def selection_rows(table, mat, colors, subset) -> SelectionTable:
+    """The :class:`SelectionTable` of K rows: materials mat (K,) int with
+    lobe colours colors (K, L, 3) float64, lobes chosen within ``subset``
+    ('all' or 'nondelta', ``table._selection_probs``); row k is read with
+    r = k (the visible points' BSDF samples towards an environment map,
+    core.lights.map_mis_kernels, take 'nondelta')."""
+    from .table import _selection_probs
+    L = table.kind.shape[1]
+    p = _selection_probs(table, mat, colors, subset)
     last = (L - 1 - np.argmax(p[:, ::-1] > 0, axis=1)).astype(np.int64)
     return SelectionTable(np.ascontiguousarray(colors), np.ascontiguousarray(p),
                           np.ascontiguousarray(np.cumsum(p, axis=1)), last)
