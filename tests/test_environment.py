@@ -146,12 +146,63 @@ def test_chi_square_photon_directions_follow_the_map():
     assert np.all(ph["kind"] == L.WORLD)
     # Photons travel along -omega, omega distributed as the map.
     assert _chi_square_regions(t.environment, -ph["d"]) > 0.01 / N_CHI_TESTS
-    # They start on the disc of radius R facing the scene, at distance R.
+    # They start on a plane facing the scene, at distance R from its centre.
     rel = ph["o"] - t.center
     np.testing.assert_allclose(np.einsum("ij,ij->i", rel, ph["d"]), -t.radius_scene, rtol=1e-9)
 
 
 # ---------------------------------------------------------------------------- closed forms
+
+@pytest.mark.parametrize("kind", ["constant", "map"])
+def test_world_photons_through_a_quad_carry_its_irradiance(kind):
+    """A 4 x 1 m quad at z = 0, the scene's only triangles, with the camera
+    8 m away (the bounding sphere is ten times the quad's size): the world's
+    photons that cross the quad carry A (E_top + E_bottom), E the irradiance
+    int L |w_z| dw of each side (pi L for a constant world; the map's by
+    quadrature), whether they start on the bounding disc (the rule before
+    round 29) or on the rectangle about the quad's box
+    (emission.world_footprint), within Z standard errors; the rectangle
+    wastes fewer photons."""
+    from core.lights.emission import world_footprint
+    tris = [[(-2, -0.5, 0), (2, -0.5, 0), (2, 0.5, 0)], [(-2, -0.5, 0), (2, 0.5, 0), (-2, 0.5, 0)]]
+    cam = Camera(matrix_world=np.array([[1, 0, 0, 0], [0, 1, 0, -8.0], [0, 0, 1, 0],
+                                        [0, 0, 0, 1.0]]))
+    Lw = 0.7
+    sc = make_scene(tris, [Material("f")], [], cam, world_color=(Lw, Lw, Lw))
+    if kind == "map":
+        sc.world_map = EnvironmentMap(spiky_image(), to_texture=rotation((0.3, 0.2, 1.0), 0.7))
+    t = L.build_light_table(sc)
+    if kind == "constant":
+        E2 = 2 * np.pi * Lw
+    else:
+        z = -1 + 2 * (np.arange(1000) + 0.5) / 1000
+        p = 2 * np.pi * (np.arange(2000) + 0.5) / 2000
+        Zg, Pg = np.meshgrid(z, p, indexing="ij")
+        s = np.sqrt(1 - Zg ** 2)
+        w = np.stack([s * np.cos(Pg), s * np.sin(Pg), Zg], -1).reshape(-1, 3)
+        E2 = ((t.environment.radiance(w) * np.abs(w[:, 2:3])).sum(axis=0)
+              * (2 / 1000) * (2 * np.pi / 2000))
+    want = 4.0 * E2
+    K = 400_000
+    hits = {}
+    box = t.triangle_box
+    for name in ("disc", "rectangle"):
+        t.triangle_box = box if name == "rectangle" else None
+        ph = L.sample_photons(t, K, np.random.default_rng(5))
+        o, d = ph["o"], ph["d"]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = -o[:, 2] / d[:, 2]
+        x, y = o[:, 0] + s * d[:, 0], o[:, 1] + s * d[:, 1]
+        hit = (s > 0) & (np.abs(x) <= 2) & (np.abs(y) <= 0.5)
+        v = ph["power"] * hit[:, None]
+        m, se = v.mean(axis=0), v.std(axis=0) / math.sqrt(K)
+        assert np.all(np.abs(m - want) <= Z * se + 1e-3 * want), (name, m, want, se)
+        hits[name] = hit.mean()
+    assert hits["rectangle"] > 5 * hits["disc"], hits
+    # the footprint never exceeds the disc
+    area = world_footprint(t, ph["d"], np.zeros(K), np.zeros(K))[1]
+    assert np.all(area <= np.pi * t.radius_scene ** 2)
+
 
 def test_constant_map_equals_the_constant_world_exactly():
     Lw = 0.5                                   # exact in float32
@@ -164,10 +215,15 @@ def test_constant_map_equals_the_constant_world_exactly():
     d = np.random.default_rng(2).normal(size=(1000, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     np.testing.assert_array_equal(L.world_radiance(t_map, d), L.world_radiance(t_const, d))
-    # Every photon carries exactly the constant world's power (L / pdf = 4 pi L).
-    pm = L.sample_photons(t_map, 10_000, np.random.default_rng(3))["power"]
-    pc = L.sample_photons(t_const, 10_000, np.random.default_rng(3))["power"]
-    np.testing.assert_allclose(pm, pc, rtol=1e-12)
+    # Every photon carries exactly the constant world's power over its
+    # footprint's area (L / pdf = 4 pi L; the area depends on its direction).
+    from core.lights.emission import world_footprint
+    per_area = []
+    for t in (t_map, t_const):
+        ph = L.sample_photons(t, 10_000, np.random.default_rng(3))
+        area = world_footprint(t, ph["d"], np.zeros(10_000), np.zeros(10_000))[1]
+        per_area.append(ph["power"] / area[:, None])
+    np.testing.assert_allclose(per_area[0], per_area[1], rtol=1e-12)
     # Next-event estimation of the irradiance / pi on an upward plane: L exactly in
     # expectation (rho / pi * pi L with rho = 1).
     K = 400_000
@@ -295,7 +351,11 @@ def test_photon_power_mean_is_the_map_flux():
     w = np.stack([s * np.cos(Pg), s * np.sin(Pg), Zg], -1).reshape(-1, 3)
     flux = np.pi * R * R * t.environment.radiance(w).sum(axis=0) * (2 / 1000) * (2 * np.pi / 2000)
     K = 400_000
-    pw = L.sample_photons(t, K, np.random.default_rng(12))["power"]
+    ph = L.sample_photons(t, K, np.random.default_rng(12))
+    # over its footprint's share of the disc (emission.world_footprint)
+    from core.lights.emission import world_footprint
+    area = world_footprint(t, ph["d"], np.zeros(K), np.zeros(K))[1]
+    pw = ph["power"] * (np.pi * R * R / area)[:, None]
     m, se = pw.mean(axis=0), pw.std(axis=0) / math.sqrt(K)
     assert np.all(np.abs(m - flux) <= Z * se + 3e-3 * flux), (m, flux, se)
     # The table's flux (used for light selection only) is the region-mean sum: within 1 %.

@@ -136,13 +136,21 @@ def test_flux_closed_forms_and_selection():
 
 
 def _power_mean_check(t, N, seed):
-    """Assert mean(power * [light == j]) = flux_j within Z standard errors, every j."""
+    """Assert mean(power * [light == j]) = flux_j within Z standard errors,
+    every j (a world photon's power over its footprint's share of the
+    bounding disc, which ``flux`` counts: emission.world_footprint)."""
+    from core.lights.emission import world_footprint
     ph = L.sample_photons(t, N, np.random.default_rng(seed))
     assert ph["o"].shape == (N, 3) and ph["power"].shape == (N, 3)
     np.testing.assert_allclose(np.linalg.norm(ph["d"], axis=1), 1.0, atol=1e-12)
     assert np.all(np.isfinite(ph["power"]))
+    disc = np.ones(N)
+    w = np.nonzero(ph["kind"] == L.WORLD)[0]
+    if w.size:
+        area = world_footprint(t, ph["d"][w], np.zeros(w.size), np.zeros(w.size))[1]
+        disc[w] = np.pi * t.radius_scene ** 2 / area
     for j in range(t.n):
-        x = ph["power"] * (ph["light"] == j)[:, None]
+        x = ph["power"] * ((ph["light"] == j) * disc)[:, None]
         se = x.std(axis=0) / math.sqrt(N)
         assert np.all(np.abs(x.mean(axis=0) - t.flux[j]) <= Z * se + 1e-9 * np.abs(t.flux[j])), \
             (j, x.mean(0), t.flux[j], se)

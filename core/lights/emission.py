@@ -36,6 +36,52 @@ B_DIFFUSE = np.pi ** 2 / 4.0 - 2.0
 COMPILED_ENVIRONMENT = True
 
 
+def world_footprint(table: LightTable, w: np.ndarray, u1: np.ndarray, u2: np.ndarray):
+    """Where world photons of unit directions w (K, 3) start, and over what
+    area: (origins (K, 3), areas (K,)).  Each photon starts on a plane
+    perpendicular to w behind every triangle (at distance R, the bounding
+    sphere's radius, back from its centre), uniformly over the smaller of
+
+    - the rectangle that bounds the triangles' box projected along w, in
+      ``frame(w)``'s axes: half sides h_a = sum_i |t_a,i| e_i (e the box's
+      half extents, ``LightTable.triangle_box``), centred on the box's
+      centre, from (2 u1 - 1, 2 u2 - 1);
+    - the bounding sphere's disc, radius R, from ``_unit_disk(u1, u2)``.
+
+    Either covers every triangle's projection, so a photon carrying A
+    L(w) / pdf(w) (A its area) is an unbiased sample of the world's flux
+    through the scene; the rectangle wastes fewer photons on scenes that
+    are not round (an open floor under an HDRI: most directions see it at a
+    slant).  A scene without triangles keeps the disc."""
+    R = table.radius_scene
+    t1, t2 = frame(w)
+    x, y = _unit_disk(u1, u2)
+    o = table.center - R * w + R * (x[:, None] * t1 + y[:, None] * t2)
+    area = np.full(w.shape[0], np.pi * R * R)
+    box = table.triangle_box
+    if box is not None:
+        c, e = box
+        h1, h2 = np.abs(t1) @ e, np.abs(t2) @ e
+        rect = 4.0 * h1 * h2
+        k = np.nonzero(rect < area)[0]
+        back = (c - table.center) @ w[k].T + R
+        o[k] = (c - back[:, None] * w[k] + ((2.0 * u1[k] - 1.0) * h1[k])[:, None] * t1[k]
+                + ((2.0 * u2[k] - 1.0) * h2[k])[:, None] * t2[k])
+        area[k] = rect[k]
+    return o, area
+
+
+def footprint_of(table: LightTable):
+    """The table's ``environment_kernels.Footprint`` (:func:`world_footprint`'s
+    inputs, for the compiled world photons)."""
+    from .environment_kernels import Footprint
+    box = table.triangle_box
+    c, e = (np.zeros(3), np.zeros(3)) if box is None else box
+    return Footprint(np.ascontiguousarray(table.center, np.float64), float(table.radius_scene),
+                     np.ascontiguousarray(c, np.float64), np.ascontiguousarray(e, np.float64),
+                     box is not None)
+
+
 def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
     """Emit n photons, choosing emitters with probability ``p_select``.
 
@@ -157,26 +203,25 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
         env = table.environment
         if env is None:
             w = _uniform_sphere(u[m, 3], u[m, 4])
-            power[m] = table.flux[jj] * inv_p[m, None]
+            o[m], area = world_footprint(table, w, u[m, 1], u[m, 2])
+            # flux = L 4 pi (pi R^2): the photon's share of the area it crossed
+            power[m] = table.flux[jj] * (inv_p[m] * area / (np.pi * R * R))[:, None]
+            d[m] = w
         elif not COMPILED_ENVIRONMENT:
             # Towards the map by its distribution: the photon travels along
-            # -omega and carries pi R^2 L(omega) / pdf(omega).
+            # -omega and carries A L(omega) / pdf(omega), A its footprint's area.
             omega, pdf = env.sample(u[m, 3], u[m, 4])
             w = -omega
-            Lw = env.radiance(omega) * (np.pi * R * R / np.maximum(pdf, 1e-300))[:, None]
+            o[m], area = world_footprint(table, w, u[m, 1], u[m, 2])
+            Lw = env.radiance(omega) * (area / np.maximum(pdf, 1e-300))[:, None]
             power[m] = np.where((pdf > 0)[:, None], Lw, 0.0) * inv_p[m, None]
-        if env is None or not COMPILED_ENVIRONMENT:
-            x, y = _unit_disk(u[m, 1], u[m, 2])
-            t1, t2 = frame(w)
-            o[m] = table.center - R * w + R * (x[:, None] * t1 + y[:, None] * t2)
             d[m] = w
         else:
             # The same photons, each in one compiled step (the numpy lines
             # above are its reference; imported here: register() imports
             # this module and must not load numba).
             from .environment_kernels import world_photons
-            world_photons(env.kernel_data(), u, m, float(R),
-                          np.ascontiguousarray(table.center, np.float64),
+            world_photons(env.kernel_data(), u, m, footprint_of(table),
                           np.ascontiguousarray(inv_p[m]), o, d, power)
         freq[m] = (table.a_max, B_DIFFUSE, 0.0)
 

@@ -168,25 +168,64 @@ def map_pdf(E, cx, cy, cz, nt):
     return region_density(E, E.weight[i * W + j], omega, nn)
 
 
+class Footprint(NamedTuple):
+    """Where world photons start (``emission.world_footprint``): center (3,)
+    and R the bounding sphere's; box_center, half_extent (3,) the
+    triangles' box; boxed False: no triangles (the disc only)."""
+    center: np.ndarray
+    R: float
+    box_center: np.ndarray
+    half_extent: np.ndarray
+    boxed: bool
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def footprint(F, dx, dy, dz, u1, u2):
+    """``emission.world_footprint`` of one photon of unit direction d:
+    (origin x, y, z, area), the same choice and formulas."""
+    R = F.R
+    C = F.center
+    disc = np.pi * R * R
+    if F.boxed:
+        # frame(d)'s axes (basis_world of the unit vectors)
+        t1x, t1y, t1z = basis_world(1.0, 0.0, 0.0, dx, dy, dz)
+        t2x, t2y, t2z = basis_world(0.0, 1.0, 0.0, dx, dy, dz)
+        e, c = F.half_extent, F.box_center
+        h1 = abs(t1x) * e[0] + abs(t1y) * e[1] + abs(t1z) * e[2]
+        h2 = abs(t2x) * e[0] + abs(t2y) * e[1] + abs(t2z) * e[2]
+        rect = 4.0 * h1 * h2
+        if rect < disc:
+            back = (c[0] - C[0]) * dx + (c[1] - C[1]) * dy + (c[2] - C[2]) * dz + R
+            a, b = (2.0 * u1 - 1.0) * h1, (2.0 * u2 - 1.0) * h2
+            return (c[0] - back * dx + a * t1x + b * t2x, c[1] - back * dy + a * t1y + b * t2y,
+                    c[2] - back * dz + a * t1z + b * t2z, rect)
+    rr = np.sqrt(u1)
+    ph = 2.0 * np.pi * u2
+    ux, uy = rr * np.cos(ph), rr * np.sin(ph)
+    # x t1 + y t2 (mathutil.frame of d); the basis' third term is 0 d.
+    qx, qy, qz = basis_world(ux, uy, 0.0, dx, dy, dz)
+    return C[0] - R * dx + R * qx, C[1] - R * dy + R * qy, C[2] - R * dz + R * qz, disc
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
-def world_photons(E, u, rows, R, center, inv_p, o, d, power):
+def world_photons(E, u, rows, F, inv_p, o, d, power):
     """The photons rows (k,) of a batch whose emitter is the world's map
     (``emission.sample_photons``): region by u[:, 3] (its leftover the
     position in the region), height by u[:, 4] (:meth:`EnvironmentLight.sample`),
-    the direction d = -omega, power pi R^2 L(omega) / pdf(omega) inv_p
-    (0 where pdf = 0), origin on the disc of radius R facing d around
-    center - R d, from u[:, 1], u[:, 2] (``warps._unit_disk``, the basis
-    ``mathutil.frame``).  The numpy code's operations per photon; its
+    the direction d = -omega, origin and area A by :func:`footprint` (the
+    Footprint F) from u[:, 1], u[:, 2], power A L(omega) / pdf(omega) inv_p
+    (0 where pdf = 0).  The numpy code's operations per photon; its
     matrix products and norms are BLAS's and its arctan2 numpy's, so the
     values agree to rounding (tests/test_environment.py)."""
-    two_pi = 2.0 * np.pi
     for q in range(rows.shape[0]):
         r = rows[q]
         wx, wy, wz, wk, omega = map_direction(E, u[r, 3], u[r, 4])
         cx, cy, cz, nt = texture_vector(E, wx, wy, wz)
         pdf = region_density(E, wk, omega, nt)
         l0, l1, l2 = map_radiance(E, cx, cy, cz, nt)
-        s = np.pi * R * R / max(pdf, 1e-300)
+        dx, dy, dz = -wx, -wy, -wz
+        ox, oy, oz, area = footprint(F, dx, dy, dz, u[r, 1], u[r, 2])
+        s = area / max(pdf, 1e-300)
         ip = inv_p[q]
         if pdf > 0:
             power[r, 0] = l0 * s * ip
@@ -194,13 +233,5 @@ def world_photons(E, u, rows, R, center, inv_p, o, d, power):
             power[r, 2] = l2 * s * ip
         else:
             power[r, 0] = power[r, 1] = power[r, 2] = 0.0
-        dx, dy, dz = -wx, -wy, -wz
-        rr = np.sqrt(u[r, 1])
-        ph = two_pi * u[r, 2]
-        ux, uy = rr * np.cos(ph), rr * np.sin(ph)
-        # x t1 + y t2 (mathutil.frame of d); the basis' third term is 0 d.
-        qx, qy, qz = basis_world(ux, uy, 0.0, dx, dy, dz)
-        o[r, 0] = center[0] - R * dx + R * qx
-        o[r, 1] = center[1] - R * dy + R * qy
-        o[r, 2] = center[2] - R * dz + R * qz
+        o[r, 0], o[r, 1], o[r, 2] = ox, oy, oz
         d[r, 0], d[r, 1], d[r, 2] = dx, dy, dz

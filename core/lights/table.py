@@ -108,6 +108,10 @@ class LightTable:
     group_center: np.ndarray = None
     group_ext2: float = 0.0
     environment: EnvironmentLight = None
+    # (centre (3,), half extents (3,)) float64 of the triangles' box, with the
+    # bounding sphere's margin, or None without triangles: where world
+    # photons start (emission.world_footprint).
+    triangle_box: tuple = None
 
     @property
     def n(self) -> int:
@@ -330,6 +334,10 @@ def build_light_table(scene: Scene) -> LightTable:
 
     table = _assemble(rows, tri_rows, center, R, D, world, warnings, scene.textures)
     table.environment = env
+    if scene.n_triangles:
+        P = np.asarray(scene.tri_p, np.float64).reshape(-1, 3)
+        t_lo, t_hi = P.min(axis=0), P.max(axis=0)
+        table.triangle_box = (0.5 * (t_lo + t_hi), 0.5 * (t_hi - t_lo) + 0.5e-4 * D)
     return table
 
 
