@@ -160,9 +160,9 @@ def test_world_photons_through_a_quad_carry_its_irradiance(kind):
     photons that cross the quad carry A (E_top + E_bottom), E the irradiance
     int L |w_z| dw of each side (pi L for a constant world; the map's by
     quadrature), whether they start on the bounding disc (the rule before
-    round 29) or on the rectangle about the quad's box
-    (emission.world_footprint), within Z standard errors; the rectangle
-    wastes fewer photons."""
+    round 29) or on the smallest rectangle about the quad's box seen along
+    their direction (emission.world_footprint), within Z standard errors;
+    the rectangle wastes fewer photons."""
     from core.lights.emission import world_footprint
     tris = [[(-2, -0.5, 0), (2, -0.5, 0), (2, 0.5, 0)], [(-2, -0.5, 0), (2, 0.5, 0), (-2, 0.5, 0)]]
     cam = Camera(matrix_world=np.array([[1, 0, 0, 0], [0, 1, 0, -8.0], [0, 0, 1, 0],

@@ -42,10 +42,9 @@ def world_footprint(table: LightTable, w: np.ndarray, u1: np.ndarray, u2: np.nda
     perpendicular to w behind every triangle (at distance R, the bounding
     sphere's radius, back from its centre), uniformly over the smaller of
 
-    - the rectangle that bounds the triangles' box projected along w, in
-      ``frame(w)``'s axes: half sides h_a = sum_i |t_a,i| e_i (e the box's
-      half extents, ``LightTable.triangle_box``), centred on the box's
-      centre, from (2 u1 - 1, 2 u2 - 1);
+    - the smallest rectangle bounding the triangles' box seen along w
+      (:func:`box_rectangle`; the box ``LightTable.triangle_box``), centred on
+      the box's centre, from (2 u1 - 1, 2 u2 - 1);
     - the bounding sphere's disc, radius R, from ``_unit_disk(u1, u2)``.
 
     Either covers every triangle's projection, so a photon carrying A
@@ -61,14 +60,44 @@ def world_footprint(table: LightTable, w: np.ndarray, u1: np.ndarray, u2: np.nda
     box = table.triangle_box
     if box is not None:
         c, e = box
-        h1, h2 = np.abs(t1) @ e, np.abs(t2) @ e
+        r1, r2, h1, h2 = box_rectangle(w, e)
         rect = 4.0 * h1 * h2
         k = np.nonzero(rect < area)[0]
-        back = (c - table.center) @ w[k].T + R
-        o[k] = (c - back[:, None] * w[k] + ((2.0 * u1[k] - 1.0) * h1[k])[:, None] * t1[k]
-                + ((2.0 * u2[k] - 1.0) * h2[k])[:, None] * t2[k])
+        C = table.center
+        back = (c[0] - C[0]) * w[k, 0] + (c[1] - C[1]) * w[k, 1] + (c[2] - C[2]) * w[k, 2] + R
+        o[k] = (c - back[:, None] * w[k] + ((2.0 * u1[k] - 1.0) * h1[k])[:, None] * r1[k]
+                + ((2.0 * u2[k] - 1.0) * h2[k])[:, None] * r2[k])
         area[k] = rect[k]
     return o, area
+
+
+def box_rectangle(w: np.ndarray, e: np.ndarray):
+    """The smallest rectangle bounding a box of half extents e (3,) (axis
+    aligned) seen along unit directions w (K, 3): its unit axes t1, t2
+    (K, 3) in the plane perpendicular to w and half sides h1, h2 (K,).
+    The box projects to a convex polygon whose edges lie along the box
+    axes' projections, and a convex polygon's smallest bounding rectangle
+    has a side along one of its edges (Freeman & Shapira 1975), so the
+    three rectangles with t1 along a projected axis are compared: h_a =
+    sum_i |t_a,i| e_i.  ``environment_kernels.footprint`` computes the same
+    in the same order."""
+    K = w.shape[0]
+    best = np.full(K, np.inf)
+    t1, t2, h1, h2 = np.zeros((K, 3)), np.zeros((K, 3)), np.zeros(K), np.zeros(K)
+    for i in range(3):
+        # v = a_i - (a_i . w) w, the axis' projection
+        v = -w[:, i:i + 1] * w
+        v[:, i] += 1.0
+        n = np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2])
+        ok = n > 1e-9
+        a = v / np.where(ok, n, 1.0)[:, None]
+        b = np.cross(w, a)
+        ha = np.abs(a[:, 0]) * e[0] + np.abs(a[:, 1]) * e[1] + np.abs(a[:, 2]) * e[2]
+        hb = np.abs(b[:, 0]) * e[0] + np.abs(b[:, 1]) * e[1] + np.abs(b[:, 2]) * e[2]
+        k = np.nonzero(ok & (ha * hb < best))[0]
+        best[k] = ha[k] * hb[k]
+        t1[k], t2[k], h1[k], h2[k] = a[k], b[k], ha[k], hb[k]
+    return t1, t2, h1, h2
 
 
 def footprint_of(table: LightTable):

@@ -182,17 +182,36 @@ class Footprint(NamedTuple):
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def footprint(F, dx, dy, dz, u1, u2):
     """``emission.world_footprint`` of one photon of unit direction d:
-    (origin x, y, z, area), the same choice and formulas."""
+    (origin x, y, z, area), the same choice and formulas (the rectangle of
+    ``emission.box_rectangle``)."""
     R = F.R
     C = F.center
     disc = np.pi * R * R
     if F.boxed:
-        # frame(d)'s axes (basis_world of the unit vectors)
-        t1x, t1y, t1z = basis_world(1.0, 0.0, 0.0, dx, dy, dz)
-        t2x, t2y, t2z = basis_world(0.0, 1.0, 0.0, dx, dy, dz)
         e, c = F.half_extent, F.box_center
-        h1 = abs(t1x) * e[0] + abs(t1y) * e[1] + abs(t1z) * e[2]
-        h2 = abs(t2x) * e[0] + abs(t2y) * e[1] + abs(t2z) * e[2]
+        best = np.inf
+        t1x = t1y = t1z = t2x = t2y = t2z = h1 = h2 = 0.0
+        for i in range(3):
+            # the box axis a_i's projection, a_i - (a_i . d) d
+            di = dx if i == 0 else (dy if i == 1 else dz)
+            vx, vy, vz = -di * dx, -di * dy, -di * dz
+            if i == 0:
+                vx += 1.0
+            elif i == 1:
+                vy += 1.0
+            else:
+                vz += 1.0
+            n = np.sqrt(vx * vx + vy * vy + vz * vz)
+            if not n > 1e-9:
+                continue
+            ax, ay, az = vx / n, vy / n, vz / n
+            # np.cross(d, a)
+            bx, by, bz = dy * az - dz * ay, dz * ax - dx * az, dx * ay - dy * ax
+            ha = abs(ax) * e[0] + abs(ay) * e[1] + abs(az) * e[2]
+            hb = abs(bx) * e[0] + abs(by) * e[1] + abs(bz) * e[2]
+            if ha * hb < best:
+                best = ha * hb
+                t1x, t1y, t1z, t2x, t2y, t2z, h1, h2 = ax, ay, az, bx, by, bz, ha, hb
         rect = 4.0 * h1 * h2
         if rect < disc:
             back = (c[0] - C[0]) * dx + (c[1] - C[1]) * dy + (c[2] - C[2]) * dz + R
