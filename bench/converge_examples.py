@@ -441,6 +441,14 @@ NOTES = [
     "1.26 / 1.65 / 1.64 (excess 1.84; seeds at 100 % 1.55-1.83), 375-418 passes, Cycles "
     "2518 spp (1.67 cores, Path Tracing 1.09: 2.83 wall-equivalent); FPPM / Cycles 30.8 "
     "(excess 40; 245-255 passes).",
+    "Round 29, real_scene, FPPM alone (`--methods fppm`, the round-28 reference), load 1 to 2, "
+    "in real_scene/fppm_60s_<commit>/: on 0a9436a (the visible points' HDRI light compiled) "
+    "relMSE 0.0183 / 0.00599 / 0.0032 (275-311 passes); on b2ba572 (world photons over the "
+    "rectangle bounding the triangles' box in frame(w)'s axes) 0.0174 / 0.00537 / 0.00262; on "
+    "62b3aa4 (the smallest such rectangle) 0.0157 / 0.00345 / 0.00213 (seeds at 100 % "
+    "1.90e-3 to 2.58e-3, 243-257 passes): 0.67x the disc's, 0.55x round 28's (0.00389); FPPM / "
+    "Cycles about 16.9 (excess 21.8) against round 28's Cycles run (docs/method.md 'World "
+    "photons where the triangles are, round 29').",
     "Round 28, point_caustic on 171d9fc (rounds 25-28's compiled light and camera paths), "
     "`point_caustic --budget 60 --clock cpu --seeds 4 --methods fppm,ppm,combined,light`, the "
     "Mitsuba reference rendered again (65536 spp, floor 1.39e-4), load 2 to 4 beside other runs, "
