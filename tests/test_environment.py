@@ -153,26 +153,43 @@ def test_chi_square_photon_directions_follow_the_map():
 
 # ---------------------------------------------------------------------------- closed forms
 
-@pytest.mark.parametrize("kind", ["constant", "map"])
-def test_world_photons_through_a_quad_carry_its_irradiance(kind):
+@pytest.mark.parametrize("kind", ["constant", "map", "sun"])
+def test_distant_photons_through_a_quad_carry_their_irradiance(kind):
     """A 4 x 1 m quad at z = 0, the scene's only triangles, with the camera
     8 m away (the bounding sphere is ten times the quad's size): the world's
     photons that cross the quad carry A (E_top + E_bottom), E the irradiance
     int L |w_z| dw of each side (pi L for a constant world; the map's by
-    quadrature), whether they start on the bounding disc (the rule before
+    quadrature; a 5-degree sun's on the top face), whether they start on
+    the bounding disc (the rule before
     round 29) or on the smallest rectangle about the quad's box seen along
-    their direction (emission.world_footprint), within Z standard errors;
+    their direction (emission.distant_footprint), within Z standard errors;
     the rectangle wastes fewer photons."""
-    from core.lights.emission import world_footprint
+    from core.lights.emission import distant_footprint
     tris = [[(-2, -0.5, 0), (2, -0.5, 0), (2, 0.5, 0)], [(-2, -0.5, 0), (2, 0.5, 0), (-2, 0.5, 0)]]
     cam = Camera(matrix_world=np.array([[1, 0, 0, 0], [0, 1, 0, -8.0], [0, 0, 1, 0],
                                         [0, 0, 0, 1.0]]))
     Lw = 0.7
-    sc = make_scene(tris, [Material("f")], [], cam, world_color=(Lw, Lw, Lw))
+    if kind == "sun":
+        # Blender's sun: strength S is the irradiance facing it; 40 degrees
+        # from the zenith, 5 degrees wide (directions in its cone)
+        from core.scene.model import Light
+        tilt = rotation((0.0, 1.0, 0.0), math.radians(40.0))
+        sun = np.eye(4)
+        sun[:3, :3] = tilt
+        sc = make_scene(tris, [Material("f")], [Light("sun", "SUN", (3.0, 3.0, 3.0), sun,
+                                                      angle=math.radians(5.0))], cam)
+    else:
+        sc = make_scene(tris, [Material("f")], [], cam, world_color=(Lw, Lw, Lw))
     if kind == "map":
         sc.world_map = EnvironmentMap(spiky_image(), to_texture=rotation((0.3, 0.2, 1.0), 0.7))
     t = L.build_light_table(sc)
-    if kind == "constant":
+    if kind == "sun":
+        # S on a plane facing each direction of the cone (a uniform cap of
+        # half angle h about the axis): on the top face S E[|w_z|] = S cos(40
+        # degrees) (1 + cos h) / 2
+        h = float(t.half_angle[t.kind == L.SUN][0])
+        E2 = 3.0 * math.cos(math.radians(40.0)) * (1.0 + math.cos(h)) / 2.0
+    elif kind == "constant":
         E2 = 2 * np.pi * Lw
     else:
         z = -1 + 2 * (np.arange(1000) + 0.5) / 1000
@@ -200,7 +217,7 @@ def test_world_photons_through_a_quad_carry_its_irradiance(kind):
         hits[name] = hit.mean()
     assert hits["rectangle"] > 5 * hits["disc"], hits
     # the footprint never exceeds the disc
-    area = world_footprint(t, ph["d"], np.zeros(K), np.zeros(K))[1]
+    area = distant_footprint(t, ph["d"], np.zeros(K), np.zeros(K))[1]
     assert np.all(area <= np.pi * t.radius_scene ** 2)
 
 
@@ -217,11 +234,11 @@ def test_constant_map_equals_the_constant_world_exactly():
     np.testing.assert_array_equal(L.world_radiance(t_map, d), L.world_radiance(t_const, d))
     # Every photon carries exactly the constant world's power over its
     # footprint's area (L / pdf = 4 pi L; the area depends on its direction).
-    from core.lights.emission import world_footprint
+    from core.lights.emission import distant_footprint
     per_area = []
     for t in (t_map, t_const):
         ph = L.sample_photons(t, 10_000, np.random.default_rng(3))
-        area = world_footprint(t, ph["d"], np.zeros(10_000), np.zeros(10_000))[1]
+        area = distant_footprint(t, ph["d"], np.zeros(10_000), np.zeros(10_000))[1]
         per_area.append(ph["power"] / area[:, None])
     np.testing.assert_allclose(per_area[0], per_area[1], rtol=1e-12)
     # Next-event estimation of the irradiance / pi on an upward plane: L exactly in
@@ -352,9 +369,9 @@ def test_photon_power_mean_is_the_map_flux():
     flux = np.pi * R * R * t.environment.radiance(w).sum(axis=0) * (2 / 1000) * (2 * np.pi / 2000)
     K = 400_000
     ph = L.sample_photons(t, K, np.random.default_rng(12))
-    # over its footprint's share of the disc (emission.world_footprint)
-    from core.lights.emission import world_footprint
-    area = world_footprint(t, ph["d"], np.zeros(K), np.zeros(K))[1]
+    # over its footprint's share of the disc (emission.distant_footprint)
+    from core.lights.emission import distant_footprint
+    area = distant_footprint(t, ph["d"], np.zeros(K), np.zeros(K))[1]
     pw = ph["power"] * (np.pi * R * R / area)[:, None]
     m, se = pw.mean(axis=0), pw.std(axis=0) / math.sqrt(K)
     assert np.all(np.abs(m - flux) <= Z * se + 3e-3 * flux), (m, flux, se)

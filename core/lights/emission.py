@@ -2,11 +2,14 @@
 
 Photons carry ``power = Phi_light(sample) / p_select`` so that the SPPM
 density estimate is tau / (pi R^2 N_emitted) (pbrt-v4).  Sun and world
-photons start on a disc of radius R (the scene's bounding sphere)
-perpendicular to their direction, at distance R from the scene centre, so
-their total flux is S pi R^2 (sun) and 4 pi^2 R^2 L_w (world).  With an
-environment map the direction follows the map's distribution
-(:mod:`.environment`) and the power is pi R^2 L(omega) / pdf(omega).
+photons start on a plane perpendicular to their direction, at distance R
+(the scene's bounding sphere's radius) from the scene centre, over an area
+A that covers every triangle (:func:`distant_footprint`: the smallest
+rectangle bounding the triangles' box, or the sphere's disc), and carry
+their light's flux through A: S A (sun) and 4 pi A L_w (world; the table's
+flux counts the disc, S pi R^2 and 4 pi^2 R^2 L_w).  With an environment
+map the direction follows the map's distribution (:mod:`.environment`) and
+the power is A L(omega) / pdf(omega).
 
 Point/spot lights with r > 0: Cycles' default soft falloff is a disc of
 radiance L turned towards each receiver, so the irradiance is exactly
@@ -36,9 +39,10 @@ B_DIFFUSE = np.pi ** 2 / 4.0 - 2.0
 COMPILED_ENVIRONMENT = True
 
 
-def world_footprint(table: LightTable, w: np.ndarray, u1: np.ndarray, u2: np.ndarray):
-    """Where world photons of unit directions w (K, 3) start, and over what
-    area: (origins (K, 3), areas (K,)).  Each photon starts on a plane
+def distant_footprint(table: LightTable, w: np.ndarray, u1: np.ndarray, u2: np.ndarray):
+    """Where the photons of a distant light (the world, a sun) of unit
+    directions w (K, 3) start, and over what area: (origins (K, 3), areas
+    (K,)).  Each photon starts on a plane
     perpendicular to w behind every triangle (at distance R, the bounding
     sphere's radius, back from its centre), uniformly over the smaller of
 
@@ -101,7 +105,7 @@ def box_rectangle(w: np.ndarray, e: np.ndarray):
 
 
 def footprint_of(table: LightTable):
-    """The table's ``environment_kernels.Footprint`` (:func:`world_footprint`'s
+    """The table's ``environment_kernels.Footprint`` (:func:`distant_footprint`'s
     inputs, for the compiled world photons)."""
     from .environment_kernels import Footprint
     box = table.triangle_box
@@ -218,11 +222,10 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
             mc = np.nonzero(cone)[0]
             w[mc] = _to_world(_cone_local(table.cos_half_angle[jj[mc]], u[m[mc], 3], u[m[mc], 4]),
                               axis[mc])
-        x, y = _unit_disk(u[m, 1], u[m, 2])
-        t1, t2 = frame(axis)
-        o[m] = table.center - R * axis + R * (x[:, None] * t1 + y[:, None] * t2)
+        # flux = S pi R^2: the photon's share of the area it crossed
+        o[m], area = distant_footprint(table, w, u[m, 1], u[m, 2])
         d[m] = w
-        power[m] = table.flux[jj] * inv_p[m, None]
+        power[m] = table.flux[jj] * (inv_p[m] * area / (np.pi * R * R))[:, None]
         freq[m, 0] = table.a_max
         freq[m, 1] = h * h / 3.0
 
@@ -232,7 +235,7 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
         env = table.environment
         if env is None:
             w = _uniform_sphere(u[m, 3], u[m, 4])
-            o[m], area = world_footprint(table, w, u[m, 1], u[m, 2])
+            o[m], area = distant_footprint(table, w, u[m, 1], u[m, 2])
             # flux = L 4 pi (pi R^2): the photon's share of the area it crossed
             power[m] = table.flux[jj] * (inv_p[m] * area / (np.pi * R * R))[:, None]
             d[m] = w
@@ -241,7 +244,7 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
             # -omega and carries A L(omega) / pdf(omega), A its footprint's area.
             omega, pdf = env.sample(u[m, 3], u[m, 4])
             w = -omega
-            o[m], area = world_footprint(table, w, u[m, 1], u[m, 2])
+            o[m], area = distant_footprint(table, w, u[m, 1], u[m, 2])
             Lw = env.radiance(omega) * (area / np.maximum(pdf, 1e-300))[:, None]
             power[m] = np.where((pdf > 0)[:, None], Lw, 0.0) * inv_p[m, None]
             d[m] = w

@@ -169,7 +169,7 @@ def map_pdf(E, cx, cy, cz, nt):
 
 
 class Footprint(NamedTuple):
-    """Where world photons start (``emission.world_footprint``): center (3,)
+    """Where world photons start (``emission.distant_footprint``): center (3,)
     and R the bounding sphere's; box_center, half_extent (3,) the
     triangles' box; boxed False: no triangles (the disc only)."""
     center: np.ndarray
@@ -181,7 +181,7 @@ class Footprint(NamedTuple):
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def footprint(F, dx, dy, dz, u1, u2):
-    """``emission.world_footprint`` of one photon of unit direction d:
+    """``emission.distant_footprint`` of one photon of unit direction d:
     (origin x, y, z, area), the same choice and formulas (the rectangle of
     ``emission.box_rectangle``)."""
     R = F.R

@@ -110,7 +110,7 @@ class LightTable:
     environment: EnvironmentLight = None
     # (centre (3,), half extents (3,)) float64 of the triangles' box, with the
     # bounding sphere's margin, or None without triangles: where world
-    # photons start (emission.world_footprint).
+    # photons start (emission.distant_footprint).
     triangle_box: tuple = None
 
     @property
