@@ -37,10 +37,10 @@ import numpy as np
 from numba import njit
 
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
-# map_direction is compiled into direct_kernel, and numba's cache is stamped
-# by this file: edited with its guide table of round 28.
-from .environment_kernels import (EnvironmentKernel, map_direction, map_radiance, no_map,
-                                  region_density, texture_vector)
+# map_sample is compiled into direct_kernel, and numba's cache is stamped by
+# this file: edited with its guide table of round 28 and with map_sample's
+# direction, density and radiance from the drawn texture direction (round 29).
+from .environment_kernels import EnvironmentKernel, map_sample, no_map
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, _lum
 
 _PI = np.pi
@@ -530,12 +530,9 @@ def direct_kernel(k0, k1, L, R, out):
                 l0, l1, l2 = L.strength[j, 0], L.strength[j, 1], L.strength[j, 2]
         elif kind == WORLD and L.env.total > 0:
             # An environment map: its own distribution (sampling._sample_environment).
-            wx, wy, wz, wk, omega = map_direction(L.env, u1, u2)
+            wx, wy, wz, pdf, r0, r1, r2 = map_sample(L.env, u1, u2)
             t = np.inf
-            cx, cy, cz, nt = texture_vector(L.env, wx, wy, wz)
-            pdf = region_density(L.env, wk, omega, nt)
             if pdf > 0:
-                r0, r1, r2 = map_radiance(L.env, cx, cy, cz, nt)
                 l0, l1, l2 = r0 / pdf, r1 / pdf, r2 / pdf
         elif kind == WORLD:
             nx, ny, nz = R.n[i, 0], R.n[i, 1], R.n[i, 2]

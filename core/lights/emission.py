@@ -88,20 +88,23 @@ def box_rectangle(w: np.ndarray, e: np.ndarray):
     K = w.shape[0]
     best = np.full(K, np.inf)
     t1, t2, h1, h2 = np.zeros((K, 3)), np.zeros((K, 3)), np.zeros(K), np.zeros(K)
+    n2 = np.ones(K)
     for i in range(3):
-        # v = a_i - (a_i . w) w, the axis' projection
+        # v = a_i - (a_i . w) w, the axis' projection, and w x v, both of
+        # length |v|: compared unnormalised (the area is ha hb / |v|^2)
         v = -w[:, i:i + 1] * w
         v[:, i] += 1.0
-        n = np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2])
-        ok = n > 1e-9
-        a = v / np.where(ok, n, 1.0)[:, None]
-        b = np.cross(w, a)
-        ha = np.abs(a[:, 0]) * e[0] + np.abs(a[:, 1]) * e[1] + np.abs(a[:, 2]) * e[2]
+        m2 = v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2]
+        b = np.cross(w, v)
+        ha = np.abs(v[:, 0]) * e[0] + np.abs(v[:, 1]) * e[1] + np.abs(v[:, 2]) * e[2]
         hb = np.abs(b[:, 0]) * e[0] + np.abs(b[:, 1]) * e[1] + np.abs(b[:, 2]) * e[2]
-        k = np.nonzero(ok & (ha * hb < best))[0]
-        best[k] = ha[k] * hb[k]
-        t1[k], t2[k], h1[k], h2[k] = a[k], b[k], ha[k], hb[k]
-    return t1, t2, h1, h2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            area = ha * hb / m2
+        k = np.nonzero((m2 > 1e-18) & (area < best))[0]
+        best[k] = area[k]
+        t1[k], t2[k], h1[k], h2[k], n2[k] = v[k], b[k], ha[k], hb[k], m2[k]
+    n = np.sqrt(n2)
+    return t1 / n[:, None], t2 / n[:, None], h1 / n, h2 / n
 
 
 def footprint_of(table: LightTable):

@@ -9,6 +9,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ..materials.compiled import sincos_turn
 from ..scene.texture_kernels import bilinear_rgb
 from .warp_kernels import basis_world, upper_bound
 
@@ -77,15 +78,21 @@ def _mat3(M, x, y, z):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def map_direction(E, u1, u2):
-    """:meth:`EnvironmentLight.sample`'s direction for one pair of uniforms:
-    the region by u1 (its leftover the position in the region), the height
-    by u2: (wx, wy, wz) unit world direction, the region's weight wk and
-    its solid angle omega in texture space."""
+def map_sample(E, u1, u2):
+    """:meth:`EnvironmentLight.sample` for one pair of uniforms, with the
+    density and the radiance of its direction: the region by u1 (its
+    leftover the position in the region), the height by u2.  Returns
+    (wx, wy, wz, pdf, r, g, b): the unit world direction w = A^-1 t / |A^-1 t|
+    of the texture direction t drawn, its solid-angle density
+    (:func:`region_density`) and the map's radiance (:func:`map_radiance`).
+    Both read t itself, which the sample drew: its texture u is the
+    region's (uu), its v 1 - arccos(t_z) / pi, and |A w| = 1 / |A^-1 t|,
+    so neither takes :func:`texture_vector`'s second rotation or
+    map_radiance's arctan2 (the same values to rounding).  The angle's
+    sine and cosine are ``compiled.sincos_turn``'s (within 1 ulp)."""
     cdf, wt, ze = E.cdf, E.weight, E.z_edges
     N = cdf.shape[0]
     W = E.W
-    two_pi = 2.0 * np.pi
     x = u1 * E.total
     k = min(guided_region(E, u1, x), N - 1)
     wk = wt[k]
@@ -97,12 +104,17 @@ def map_direction(E, u1, u2):
     j = k - i * W
     uu = (j + a) / W
     z = ze[i] + u2 * (ze[i + 1] - ze[i])
-    phi = np.pi - two_pi * uu
+    # phi = pi - 2 pi uu: cos phi = -cos(2 pi uu), sin phi = sin(2 pi uu)
+    s2, c2 = sincos_turn(uu)
     sz = np.sqrt(max(1.0 - z * z, 0.0))
-    wx, wy, wz = _mat3(E.A_inv, sz * np.cos(phi), sz * np.sin(phi), z)
+    wx, wy, wz = _mat3(E.A_inv, -sz * c2, sz * s2, z)
     n = max(np.sqrt(wx * wx + wy * wy + wz * wz), 1e-300)
-    omega = (two_pi / W) * (ze[i + 1] - ze[i])
-    return wx / n, wy / n, wz / n, wk, omega
+    omega = (2.0 * np.pi / W) * (ze[i + 1] - ze[i])
+    pdf = region_density(E, wk, omega, 1.0 / n)
+    tv = 1.0 - np.arccos(min(max(z, -1.0), 1.0)) / np.pi
+    l0, l1, l2 = bilinear_rgb(E.image, uu, tv, E.unassociate)
+    return (wx / n, wy / n, wz / n, pdf, l0 * E.strength[0], l1 * E.strength[1],
+            l2 * E.strength[2])
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -190,9 +202,10 @@ def footprint(F, dx, dy, dz, u1, u2):
     if F.boxed:
         e, c = F.half_extent, F.box_center
         best = np.inf
-        t1x = t1y = t1z = t2x = t2y = t2z = h1 = h2 = 0.0
+        t1x = t1y = t1z = t2x = t2y = t2z = h1 = h2 = n2 = 0.0
         for i in range(3):
-            # the box axis a_i's projection, a_i - (a_i . d) d
+            # the box axis a_i's projection v = a_i - (a_i . d) d and d x v,
+            # both of length |v| (compared unnormalised: area ha hb / |v|^2)
             di = dx if i == 0 else (dy if i == 1 else dz)
             vx, vy, vz = -di * dx, -di * dy, -di * dz
             if i == 0:
@@ -201,17 +214,19 @@ def footprint(F, dx, dy, dz, u1, u2):
                 vy += 1.0
             else:
                 vz += 1.0
-            n = np.sqrt(vx * vx + vy * vy + vz * vz)
-            if not n > 1e-9:
+            m2 = vx * vx + vy * vy + vz * vz
+            if not m2 > 1e-18:
                 continue
-            ax, ay, az = vx / n, vy / n, vz / n
-            # np.cross(d, a)
-            bx, by, bz = dy * az - dz * ay, dz * ax - dx * az, dx * ay - dy * ax
-            ha = abs(ax) * e[0] + abs(ay) * e[1] + abs(az) * e[2]
+            # np.cross(d, v)
+            bx, by, bz = dy * vz - dz * vy, dz * vx - dx * vz, dx * vy - dy * vx
+            ha = abs(vx) * e[0] + abs(vy) * e[1] + abs(vz) * e[2]
             hb = abs(bx) * e[0] + abs(by) * e[1] + abs(bz) * e[2]
-            if ha * hb < best:
-                best = ha * hb
-                t1x, t1y, t1z, t2x, t2y, t2z, h1, h2 = ax, ay, az, bx, by, bz, ha, hb
+            if ha * hb / m2 < best:
+                best = ha * hb / m2
+                t1x, t1y, t1z, t2x, t2y, t2z, h1, h2, n2 = vx, vy, vz, bx, by, bz, ha, hb, m2
+        n = np.sqrt(n2)
+        t1x, t1y, t1z, t2x, t2y, t2z = t1x / n, t1y / n, t1z / n, t2x / n, t2y / n, t2z / n
+        h1, h2 = h1 / n, h2 / n
         rect = 4.0 * h1 * h2
         if rect < disc:
             back = (c[0] - C[0]) * dx + (c[1] - C[1]) * dy + (c[2] - C[2]) * dz + R
@@ -238,10 +253,7 @@ def world_photons(E, u, rows, F, inv_p, o, d, power):
     values agree to rounding (tests/test_environment.py)."""
     for q in range(rows.shape[0]):
         r = rows[q]
-        wx, wy, wz, wk, omega = map_direction(E, u[r, 3], u[r, 4])
-        cx, cy, cz, nt = texture_vector(E, wx, wy, wz)
-        pdf = region_density(E, wk, omega, nt)
-        l0, l1, l2 = map_radiance(E, cx, cy, cz, nt)
+        wx, wy, wz, pdf, l0, l1, l2 = map_sample(E, u[r, 3], u[r, 4])
         dx, dy, dz = -wx, -wy, -wz
         ox, oy, oz, area = footprint(F, dx, dy, dz, u[r, 1], u[r, 2])
         s = area / max(pdf, 1e-300)
