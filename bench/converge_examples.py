@@ -449,6 +449,12 @@ NOTES = [
     "1.90e-3 to 2.58e-3, 243-257 passes): 0.67x the disc's, 0.55x round 28's (0.00389); FPPM / "
     "Cycles about 16.9 (excess 21.8) against round 28's Cycles run (docs/method.md 'World "
     "photons where the triangles are, round 29').",
+    "Round 29, ring_lambert on 05b0a8d (the world's photons over the smallest rectangle bounding "
+    "the triangles: the file's dim world, 17 % of the photons, now reaches the ring), its "
+    "reference rendered again (8192 spp, 2 pieces, floor 1.71e-5), `ring_lambert --budget 60 "
+    "--clock cpu --seeds 4 --methods fppm,ppm`, load 1 to 2, in "
+    "ring_lambert/fppm_ppm_60s_05b0a8d/: FPPM / PPM 1.02 / 0.982 / 0.980 (excess 0.979; seeds "
+    "at 100 % 0.94-1.01), FPPM 520-577 passes, PPM 496-544.",
     "Round 28, point_caustic on 171d9fc (rounds 25-28's compiled light and camera paths), "
     "`point_caustic --budget 60 --clock cpu --seeds 4 --methods fppm,ppm,combined,light`, the "
     "Mitsuba reference rendered again (65536 spp, floor 1.39e-4), load 2 to 4 beside other runs, "
