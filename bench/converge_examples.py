@@ -455,6 +455,12 @@ NOTES = [
     "--clock cpu --seeds 4 --methods fppm,ppm`, load 1 to 2, in "
     "ring_lambert/fppm_ppm_60s_05b0a8d/: FPPM / PPM 1.02 / 0.982 / 0.980 (excess 0.979; seeds "
     "at 100 % 0.94-1.01), FPPM 520-577 passes, PPM 496-544.",
+    "Round 29, ring_principled on 1682896 (the world's photons reach the ring, as for "
+    "ring_lambert), its reference rendered again (8192 spp, 2 pieces), `ring_principled --budget "
+    "60 --clock cpu --seeds 4 --methods fppm,ppm`, idle, in "
+    "ring_principled/fppm_ppm_60s_1682896/: FPPM / PPM 1.01 / 1.01 / 0.993 (excess 0.993; seeds "
+    "at 100 % 0.89-1.10), FPPM 377-397 passes, PPM 349-418; a first run beside the test suite "
+    "(FPPM's seeds under its load, PPM's after it) read 1.06 / 1.04 / 1.04.",
     "Round 28, point_caustic on 171d9fc (rounds 25-28's compiled light and camera paths), "
     "`point_caustic --budget 60 --clock cpu --seeds 4 --methods fppm,ppm,combined,light`, the "
     "Mitsuba reference rendered again (65536 spp, floor 1.39e-4), load 2 to 4 beside other runs, "
