@@ -23,7 +23,7 @@ code (``compiled=False``) stays as their reference.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING, NamedTuple, Optional
 
 import numpy as np
 
@@ -45,6 +45,17 @@ DIRECT_BLOCK = 1 << 16
 #: with core.materials.compiled (False: numpy's eval_bsdf; the same values
 #: to rounding, tests/test_compiled_bsdf.py).
 COMPILED_BSDF = True
+
+
+class _MapState(NamedTuple):
+    """What the compiled path weighs an environment map with
+    (``map_mis_kernels``): env its ``EnvironmentKernel``; materials the
+    ``MapMaterials``; light_pdf the ``pdf_kernels.LightPdf`` of the table;
+    world the world's emitter row."""
+    env: object
+    materials: object
+    light_pdf: object
+    world: int
 
 
 class NextEventEstimation:
@@ -208,10 +219,10 @@ class NextEventEstimation:
         if mp is not None:
             from . import map_mis_kernels as MM
             V = self._map_receivers(vp, q, mp)
-            MM.light_mis_kernel(mp[0], mp[1], V, S)
+            MM.light_mis_kernel(mp.env, mp.materials, V, S)
             self._add_unshadowed(vp, q, S, L)
             Sb = DK.alloc_samples(q.size)
-            MM.bsdf_mis_kernel(mp[0], mp[1], V, ub, Sb)
+            MM.bsdf_mis_kernel(mp.env, mp.materials, V, ub, Sb)
             return self._add_unshadowed(vp, q, Sb, L)
         return self._add_unshadowed(vp, q, S, L)
 
@@ -266,10 +277,9 @@ class NextEventEstimation:
                             else False)
         return self._lights or None
 
-    def _map(self):
-        """(EnvironmentKernel, MapMaterials, LightPdf, world row) of the
-        compiled path's environment map (``map_mis_kernels``), or None: no
-        map (a constant world is sampled as any light)."""
+    def _map(self) -> Optional[_MapState]:
+        """The compiled path's environment map (``map_mis_kernels``), or
+        None: no map (a constant world is sampled as any light)."""
         env = self.light_table.environment
         if env is None or not env.total > 0:
             return None
@@ -280,8 +290,9 @@ class NextEventEstimation:
             t, DL = self.light_table, self._compiled_lights()
             em = t.entry_emitter
             world = int(em[(em >= 0) & (t.kind[np.maximum(em, 0)] == WORLD)][0])
-            self._map_state = (DL.env, MM.map_materials(self.mtab, compile_materials(self.mtab)),
-                               build_light_pdf(t, np.zeros(t.kind.shape[0], bool), DL), world)
+            self._map_state = _MapState(
+                DL.env, MM.map_materials(self.mtab, compile_materials(self.mtab)),
+                build_light_pdf(t, np.zeros(t.kind.shape[0], bool), DL), world)
         return self._map_state
 
     def _map_receivers(self, vp, q, mp):
@@ -290,8 +301,8 @@ class NextEventEstimation:
         from . import map_mis_kernels as MM
         from .pdf_kernels import selection_kernel
         sel = np.empty(q.size)
-        selection_kernel(self._compiled_lights(), mp[2], np.ascontiguousarray(vp.p[q]),
-                         np.full(q.size, mp[3], np.int64), sel)
+        selection_kernel(self._compiled_lights(), mp.light_pdf, np.ascontiguousarray(vp.p[q]),
+                         np.full(q.size, mp.world, np.int64), sel)
         return MM.map_receivers(self.mtab, vp, q, sel)
 
     def _sample_compiled(self, vp, q, u):

@@ -335,8 +335,9 @@ def build_light_table(scene: Scene) -> LightTable:
     table = _assemble(rows, tri_rows, center, R, D, world, warnings, scene.textures)
     table.environment = env
     if scene.n_triangles:
-        P = np.asarray(scene.tri_p, np.float64).reshape(-1, 3)
-        t_lo, t_hi = P.min(axis=0), P.max(axis=0)
+        # min and max of the corners as stored (exact): no float64 copy of them
+        P = np.asarray(scene.tri_p).reshape(-1, 3)
+        t_lo, t_hi = P.min(axis=0).astype(np.float64), P.max(axis=0).astype(np.float64)
         table.triangle_box = (0.5 * (t_lo + t_hi), 0.5 * (t_hi - t_lo) + 0.5e-4 * D)
     return table
 
