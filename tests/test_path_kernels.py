@@ -16,7 +16,7 @@ What is asserted, and where each tolerance comes from:
   perfect mirror, a smooth glass block, every analytic light kind with a
   shape, a radius-0 point light (delta), emissive triangles (single, and a
   group of more than 16), a constant world, seen by a perspective camera.
-- The compiled light-sampling density (``path_kernels.selection_kernel`` and
+- The compiled light-sampling density (``lights.pdf_kernels.selection_kernel`` and
   ``pdf_kernel`` through ``PathTracer.pdf_light``) equals ``core.lights.pdf_direct`` for samples of
   every emitter kind, rtol 1e-9 (the same libm argument).
 - A rough glossy wall (GENERIC) is in the kernels' scope and gives numpy's

@@ -21,6 +21,7 @@ from .. import lights as Lt
 from .. import materials as B
 from ..accel import REL_OFFSET, intersect_f32, surface_point
 from ..lights import direct_kernels as DK
+from ..lights import pdf_kernels as PdfK
 from ..lights import shadow
 from ..lights.pdf import _selection_probability
 from ..lights.shadow import transparent_materials
@@ -607,7 +608,7 @@ class CombinedLightTracer(LightTracer):
         self._sel_lights = None
         if DK.compiled_lights_ok(t):
             L = DK.build_direct_lights(t)
-            self._sel_lights = (L, PathK.build_light_pdf(t, np.zeros(t.n, bool), L))
+            self._sel_lights = (L, PdfK.build_light_pdf(t, np.zeros(t.n, bool), L))
 
     def begin_pass(self, n: int) -> None:
         """A pass of n light paths (all its chunks): the weights' K / N_L;
@@ -784,7 +785,7 @@ class CombinedLightTracer(LightTracer):
         triangles' geometric normals):
         compiled for point lights and rectangles (light_kernels.first_hits;
         the points by path_kernels.hit_kernel, the selection probabilities by
-        path_kernels.selection_kernel), first_hit_ratios for the others."""
+        lights.pdf_kernels.selection_kernel), first_hit_ratios for the others."""
         t, tris = self.light_table, self.tracer.tris
         hit = np.nonzero((hits.prim[:K] >= 0) & sel)[0]
         if hit.size == 0:
@@ -797,7 +798,7 @@ class CombinedLightTracer(LightTracer):
         light, zr, dh = ph["light"][r], z0[r], d[hit]
         if self._sel_lights is not None:
             p_sel = np.empty(h)
-            PathK.selection_kernel(*self._sel_lights, p, light, p_sel)
+            PdfK.selection_kernel(*self._sel_lights, p, light, p_sel)
         else:
             p_sel = _selection_probability(t, p, light)
         b0, b1 = np.empty(h), np.empty(h)

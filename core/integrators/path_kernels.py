@@ -63,7 +63,7 @@ from numba import njit
 
 # The light-sampling density, compiled into nee_mis_kernel (edited with its move
 # to core.lights.pdf_kernels: numba's cache is stamped by this file).
-from ..lights.pdf_kernels import LightPdf, build_light_pdf, pdf_kernel, selection_kernel  # noqa: F401
+from ..lights.pdf_kernels import pdf_kernel, selection_kernel
 from ..lights.table import AREA, MESH, POINT, SPOT, WORLD
 # sample_fast (and compiled._disk in it) and compiled.sample_pair, eval_pair
 # and pdf_oriented are compiled into this module's kernels: numba's on-disk

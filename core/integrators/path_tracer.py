@@ -64,6 +64,7 @@ from ..materials import compiled as C
 from ..materials.fast import GENERIC, build_fast_materials
 from ..lights import seen as Seen, shadow as Sh
 from ..lights.environment_kernels import rays_radiance
+from ..lights import pdf_kernels as PdfK
 from ..lights.seen_kernels import seen_kernel
 from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from ..mathutil import dot as _dot
@@ -293,7 +294,7 @@ class PathTracer:
             fmat = self.fast_materials()
             if PK.compiled_scene_ok(self.mtab, fmat, self.lights, self.scene.tri_n):
                 L = DK.build_direct_lights(self.lights)
-                self._kernels = (L, PK.build_light_pdf(self.lights, self.hittable, L),
+                self._kernels = (L, PdfK.build_light_pdf(self.lights, self.hittable, L),
                                  PK.build_path_materials(self.mtab, fmat),
                                  build_triangle_data(self.scene))
             else:
@@ -702,7 +703,7 @@ class PathTracer:
 
     def pdf_light(self, p, wi, light, dist, n) -> np.ndarray:
         """(K,) core.lights.pdf_direct(lights, p, wi, light, dist, n=n), compiled
-        (path_kernels.pdf_kernel) where the kernels cover the scene."""
+        (lights.pdf_kernels.pdf_kernel) where the kernels cover the scene."""
         kern = self.kernels()
         if not kern:
             return Lt.pdf_direct(self.lights, p, wi, light, dist, n=n)
@@ -710,8 +711,8 @@ class PathTracer:
         c = np.ascontiguousarray
         p, light = c(p, np.float64), c(light, np.int64)
         sel, out = np.empty(K), np.empty(K)
-        PK.selection_kernel(kern[0], kern[1], p, light, sel)
-        PK.pdf_kernel(kern[0], kern[1], p, c(wi, np.float64), light, c(dist, np.float64),
+        PdfK.selection_kernel(kern[0], kern[1], p, light, sel)
+        PdfK.pdf_kernel(kern[0], kern[1], p, c(wi, np.float64), light, c(dist, np.float64),
                       c(n, np.float64), sel, out)
         return out
 

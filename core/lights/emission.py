@@ -57,11 +57,10 @@ def distant_footprint(table: LightTable, w: np.ndarray, u1: np.ndarray, u2: np.n
     are not round (an open floor under an HDRI: most directions see it at a
     slant).  A scene without triangles keeps the disc."""
     R = table.radius_scene
-    t1, t2 = frame(w)
-    x, y = _unit_disk(u1, u2)
-    o = table.center - R * w + R * (x[:, None] * t1 + y[:, None] * t2)
+    o = np.empty(w.shape)
     area = np.full(w.shape[0], np.pi * R * R)
     box = table.triangle_box
+    disc = np.ones(w.shape[0], bool)
     if box is not None:
         c, e = box
         r1, r2, h1, h2 = box_rectangle(w, e)
@@ -72,6 +71,11 @@ def distant_footprint(table: LightTable, w: np.ndarray, u1: np.ndarray, u2: np.n
         o[k] = (c - back[:, None] * w[k] + ((2.0 * u1[k] - 1.0) * h1[k])[:, None] * r1[k]
                 + ((2.0 * u2[k] - 1.0) * h2[k])[:, None] * r2[k])
         area[k] = rect[k]
+        disc[k] = False
+    d = np.nonzero(disc)[0]
+    t1, t2 = frame(w[d])
+    x, y = _unit_disk(u1[d], u2[d])
+    o[d] = table.center - R * w[d] + R * (x[:, None] * t1 + y[:, None] * t2)
     return o, area
 
 
