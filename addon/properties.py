@@ -175,6 +175,13 @@ class FPPMRenderSettings(PropertyGroup):
         name="Fixed Visible Points", default=_D.fixed_visible_points,
         description="Classic PPM: trace the visible points once instead of with fresh "
                     "jitter every pass (no anti-aliasing, no glossy or depth of field)")
+    glossy_chains: BoolProperty(
+        name="Through Glossy", default=_D.glossy_chains,
+        description="Photon Mapping: camera paths go on through metals, Glossy BSDFs and "
+                    "rough glass (materials without a diffuse part), with their direct "
+                    "light by light and BSDF samples weighed by MIS, and gather photons "
+                    "at the next diffuse surface, as pbrt-v4's SPPM: sharp reflections "
+                    "instead of photons gathered through a glossy lobe")
 
     # --- Frequency
     use_frequency: BoolProperty(

@@ -28,3 +28,11 @@ def frame(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     t = np.stack([1.0 + sign * n[:, 0] ** 2 * a, sign * b, -sign * n[:, 0]], axis=1)
     bb = np.stack([b, sign + n[:, 1] ** 2 * a, -n[:, 1]], axis=1)
     return t, bb
+
+
+def power_heuristic(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:
+    """(K,) MIS weight of strategy a: pdf_a^2 / (pdf_a^2 + pdf_b^2) (Veach 1997,
+    eq. 9.13, beta = 2); 1 where both are 0 (the strategy a is then the only one)."""
+    a2, b2 = pdf_a * pdf_a, pdf_b * pdf_b
+    s = a2 + b2
+    return np.where(s > 0, a2 / np.where(s > 0, s, 1.0), 1.0)

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .lights.shadow import transparent_materials
+from .materials import glossy_only
 from .lights.table import AREA, MESH
 from .settings import RenderSettings
 
@@ -20,6 +21,7 @@ _CONVEX_TEST_MAX = 4_000_000
 @dataclass
 class RenderPlan:
     specular_chains: bool = True       # camera paths through mirrors / glass
+    glossy_chains: bool = False        # PHOTON: camera paths through glossy-only materials
     frequency_photons: bool = True     # photons carrying a spectrum (a, b, c)
     occlusion_grid: bool = True        # voxel grid for a_occ (needs frequency)
     world_emission: bool = False
@@ -31,6 +33,7 @@ class RenderPlan:
 
     def lines(self) -> list[str]:
         on = [n for n, v in (("specular chains", self.specular_chains),
+                             ("glossy chains", self.glossy_chains),
                              ("frequency photons", self.frequency_photons),
                              ("occlusion grid", self.occlusion_grid),
                              ("world emission", self.world_emission)) if v]
@@ -200,6 +203,13 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
                 plan.left_out.append(("photon merging", "no mirror or glass to see a caustic "
                                                         "through" if has_nondelta else
                                       "no diffuse or glossy surface to gather on"))
+    # Glossy chains (core.sppm.visible_points): photon mapping's camera paths
+    # go on through materials without a diffuse lobe, with next-event
+    # estimation at each vertex; classic PPM's settings keep one vertex.
+    plan.glossy_chains = (settings.integrator == "PHOTON" and settings.glossy_chains
+                          and not settings.fixed_visible_points
+                          and not settings.photons_for_direct
+                          and bool(glossy_only(mtab).any()) if mtab.kind.size else False)
     plan.specular_chains = has_delta or "specular chains" in force
     if not plan.specular_chains:
         plan.left_out.append(("specular chains", "no mirror, glass or transparent material"))

@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import copy
 import time
-from dataclasses import fields
+from dataclasses import fields, replace
 from typing import Callable, Optional
 
 import numpy as np
@@ -147,13 +147,16 @@ class Renderer:
         P = self.width * self.height
         # Seconds per stage, for the benchmark (ratios, not bare times).
         self.stage_seconds = {k: 0.0 for k in ("camera", "direct", "photon_trace", "gather", "update")}
+        chains = self.plan.specular_chains or self.plan.glossy_chains
         self.camera_pass = CameraPass(self.scene, self.accel, self.mtab, self.light_table,
                                       self.camera, self.fsamp, self.px, self.py,
-                                      st.max_bounces if self.plan.specular_chains else 1,
+                                      st.max_bounces if chains else 1,
                                       frame=self.full_size,
-                                      transparent=self.scene.film_transparent)
+                                      transparent=self.scene.film_transparent,
+                                      glossy_chains=self.plan.glossy_chains)
         self.direct_light = NextEventEstimation(self.light_table, self.mtab, self.accel,
                                                 self.scene.tri_p)
+        self.camera_pass.nee = self.direct_light    # the glossy points' shadow rays
         freq = self.plan.frequency_photons
         self.radii = Radii(st, self.camera, self.D, freq, self.camera_pass, self.height, self.width)
         self.photon_pass = PhotonPass(self.tracer, self.mtab, st, freq,
@@ -215,7 +218,6 @@ class Renderer:
                 # _step_merge_mis), whose flux is not used.
                 self.merge_freq_pass = None
                 if self.plan.frequency_photons and st.frequency_fraction > 0:
-                    from dataclasses import replace
                     n_f = max(1, int(round(st.photons_per_pass * st.frequency_fraction)))
                     self.merge_freq_pass = PhotonPass(
                         self.tracer, self.mtab,
@@ -624,7 +626,6 @@ class Renderer:
         if self.merge_freq_pass is not None and k >= st.frequency_start:
             # Pass k's frequency photons (frequency_photons: fewer in later
             # passes, docs/method.md "Amortised frequency photons"), all of them.
-            from dataclasses import replace
             fp = self.merge_freq_pass
             fp.settings = replace(fp.settings, photons_per_pass=max(1, frequency_photons(st, k)))
             self.tracer.set_radius_cut(R2)
@@ -658,7 +659,6 @@ class Renderer:
         the caustic photons the tracer keeps (``after_delta_only``); the film
         adds tau / (pi R^2 N_emitted).  No next-event estimation or emission
         here: the camera paths have them."""
-        from dataclasses import replace
         self._photons(replace(vp, valid=vp.through_delta), self._rng(k, 4))
 
     def _photons(self, vp, rng, cut_set: bool = False) -> None:

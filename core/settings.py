@@ -44,6 +44,7 @@ class RenderSettings:
     rr_start: int = 3                # Russian roulette from this bounce on
     photons_for_direct: bool = False  # classic PPM: photons also for direct light
     fixed_visible_points: bool = False  # classic PPM: trace visible points once
+    glossy_chains: bool = True       # PHOTON: camera paths go on through materials without a diffuse lobe (pbrt-v4 SPPM; docs/method.md "Glossy chains, round 30")
     # --- Frequency
     use_frequency: bool = True
     frequency_fraction: float = 0.25

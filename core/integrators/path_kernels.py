@@ -242,7 +242,7 @@ def with_hit_colors(M: PathMaterials, X, prim, bu, bv, mat):
 
 @njit(cache=True, inline="always")
 def _power(a, b):
-    """path_tracer.power_heuristic of one pair."""
+    """mathutil.power_heuristic of one pair."""
     a2, b2 = a * a, b * b
     s = a2 + b2
     return a2 / s if s > 0 else 1.0

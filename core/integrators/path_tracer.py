@@ -66,8 +66,8 @@ from ..lights import seen as Seen, shadow as Sh
 from ..lights.environment_kernels import rays_radiance
 from ..lights import pdf_kernels as PdfK
 from ..lights.seen_kernels import seen_kernel
-from ..lights.table import AREA, MESH, POINT, SPOT, SUN, WORLD
-from ..mathutil import dot as _dot
+from ..lights.table import MESH
+from ..mathutil import dot as _dot, power_heuristic
 from . import path_kernels as PK
 from .merge import CameraMerge, CameraPartition
 from .sequence_kernels import sobol_pairs
@@ -97,14 +97,6 @@ def sequence_dims(depth: int) -> tuple:
     the next).  Columns 0:2 are the filter's, 2:4 the lens'."""
     b = 4 + 8 * depth
     return [b + 2, b, b + 1], slice(b + 4, b + 8)
-
-
-def power_heuristic(pdf_a: np.ndarray, pdf_b: np.ndarray) -> np.ndarray:
-    """(K,) MIS weight of strategy a: pdf_a^2 / (pdf_a^2 + pdf_b^2) (Veach 1997,
-    eq. 9.13, beta = 2); 1 where both are 0 (the strategy a is then the only one)."""
-    a2, b2 = pdf_a * pdf_a, pdf_b * pdf_b
-    s = a2 + b2
-    return np.where(s > 0, a2 / np.where(s > 0, s, 1.0), 1.0)
 
 
 #: The per-path arrays of merging's partition (core.integrators.merge.CameraPartition).
@@ -196,20 +188,12 @@ class PathTracer:
         self.vc = None
         # Emitter row of every emissive triangle (-1: none) and of the world:
         # what a BSDF-sampled ray hit, for the light-sampling pdf.
-        T = scene.tri_p.shape[0]
-        self.tri_light = np.full(T, -1, np.int64)
-        mesh = np.nonzero(light_table.kind == MESH)[0]
-        self.tri_light[light_table.source[mesh]] = mesh
-        w = np.nonzero(light_table.kind == WORLD)[0]
-        self.world_row = int(w[0]) if w.size else -1
+        self.tri_light, self.world_row = Lt.emitter_rows(light_table, scene.tri_p.shape[0])
         self.world = Lt.world_radiance(light_table)
         env = light_table.environment
         self.env = env if env is not None and env.total > 0 else None
         # Emitters a BSDF-sampled ray can hit (not delta): MIS applies to them.
-        lt = light_table
-        self.hittable = ((lt.kind == AREA) | (lt.kind == MESH) | (lt.kind == WORLD)
-                         | ((lt.kind == SUN) & (lt.half_angle > 0))
-                         | (((lt.kind == POINT) | (lt.kind == SPOT)) & (lt.radius > 0)))
+        self.hittable = Lt.bsdf_hittable(light_table)
         self.compiled = compiled
         # (DirectLights, LightPdf, PathMaterials, TriangleData) or False
         self._kernels = None
@@ -811,12 +795,7 @@ class PathTracer:
         taken at vertices v (receiver normals n_l, default v.ns_wo()): against
         the BSDF density of wi where a BSDF ray along wi would find the emitter
         (not a delta light, visible to that ray type), else 1."""
-        lt = self.lights
-        refl = (_dot(wi, v.ng) * _dot(v.wo, v.ng)) > 0
-        seen = self.hittable[light] & np.where(
-            lt.kind[light] == MESH, True,
-            np.where(refl, lt.visible_glossy[light], lt.visible_transmission[light])
-            | (lt.kind[light] == WORLD))
+        seen = Lt.bsdf_sees(self.lights, self.hittable, light, v.ng, v.wo, wi)
         w = np.ones(light.shape[0])
         m = np.nonzero(seen)[0]
         if m.size:

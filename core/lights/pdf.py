@@ -144,3 +144,38 @@ def environment_pdf(table: LightTable, p: np.ndarray, w: np.ndarray) -> np.ndarr
     K = p.shape[0]
     return pdf_direct(table, p, w, np.full(K, table.entry_emitter[e[0]], np.int64),
                       np.full(K, np.inf))
+
+
+def bsdf_hittable(table: LightTable) -> np.ndarray:
+    """(Nl,) bool: the emitters a BSDF-sampled ray can hit (area lights,
+    emissive triangles, the world, a sun's disc of angle > 0, a point or spot
+    light of radius > 0), to which multiple importance sampling applies; the
+    others (delta lights) are found by light samples alone."""
+    k = table.kind
+    return ((k == AREA) | (k == MESH) | (k == WORLD) | ((k == SUN) & (table.half_angle > 0))
+            | (((k == POINT) | (k == SPOT)) & (table.radius > 0)))
+
+
+def bsdf_sees(table: LightTable, hittable: np.ndarray, light: np.ndarray, ng: np.ndarray,
+              wo: np.ndarray, wi: np.ndarray) -> np.ndarray:
+    """(K,) bool: a BSDF ray leaving a vertex (mesh normal ng, wo (K, 3)) along
+    the light samples' wi (K, 3) would find their emitter rows light (K,):
+    hittable (:func:`bsdf_hittable`) and seen by that kind of ray (a light's
+    Glossy or Transmission visibility, by wi's side of ng against wo;
+    emissive triangles and the world always)."""
+    refl = (_dot(wi, ng) * _dot(wo, ng)) > 0
+    return hittable[light] & np.where(
+        table.kind[light] == MESH, True,
+        np.where(refl, table.visible_glossy[light], table.visible_transmission[light])
+        | (table.kind[light] == WORLD))
+
+
+def emitter_rows(table: LightTable, T: int) -> tuple[np.ndarray, int]:
+    """(tri_light (T,) int64 the emitter row of each of a scene's T triangles,
+    -1 where it emits nothing; the world's row or -1): the rows a BSDF-sampled
+    ray's hit or escape gives :func:`pdf_direct`."""
+    tri_light = np.full(T, -1, np.int64)
+    mesh = np.nonzero(table.kind == MESH)[0]
+    tri_light[table.source[mesh]] = mesh
+    w = np.nonzero(table.kind == WORLD)[0]
+    return tri_light, int(w[0]) if w.size else -1

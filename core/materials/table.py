@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..mathutil import LUMINANCE
-from ..scene.model import DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSPARENT
+from ..scene.model import DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT, TRANSPARENT
 from ..scene.textures import sample_alpha, sample_texture
 from .microfacet import FRESNEL_DIELECTRIC, FRESNEL_F82, _fss_dielectric, f0_from_ior
 
@@ -276,6 +276,18 @@ def delta_probability(table: MaterialTable, mat: np.ndarray, colors: np.ndarray)
     tot = w.sum(axis=1)
     wd = np.where(table.lobe_delta[np.asarray(mat, np.int64)], w, 0.0).sum(axis=1)
     return np.where(tot > 0, wd / np.where(tot > 0, tot, 1.0), 0.0)
+
+
+def glossy_only(table: MaterialTable) -> np.ndarray:
+    """(M,) bool: materials with non-delta lobes, none of them diffuse (no
+    DIFFUSE or TRANSLUCENT lobe of nonzero weight and colour): a metal, a
+    Glossy BSDF, rough glass.  pbrt-v4's SPPM makes its visible points only
+    where the BSDF has a diffuse part and follows the camera path through
+    the others (core.sppm.visible_points, "glossy chains")."""
+    used = (table.kind >= 0) & (table.weight != 0.0) & ~table.lobe_delta
+    diffuse = used & ((table.kind == DIFFUSE) | (table.kind == TRANSLUCENT))
+    diffuse &= table.color.max(axis=2) > 0.0
+    return table.has_nondelta & ~diffuse.any(axis=1)
 
 
 def lambert_albedo(table: MaterialTable, mat: np.ndarray, colors: np.ndarray) -> np.ndarray:

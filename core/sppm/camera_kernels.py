@@ -98,7 +98,10 @@ class Wavefront(NamedTuple):
     dz (K,) float64 the camera's depth factor of each ray's pixel; ur (H, 4) uniforms,
     one row per hit in ray order (the delta choice is ur[:, 0]); pre (K,) int64 row of colors_pre /
     em_pre for hits on textured materials (-1: untextured);
-    colors_pre (n, L, 3), em_pre (n, 3)."""
+    colors_pre (n, L, 3), em_pre (n, 3); ew (K,) float64 the weight of the
+    emission each ray finds at its hit: 1, or 0 on a ray leaving a glossy
+    point, whose light next-event estimation took there
+    (``visible_points.CameraPass``, glossy chains)."""
     prim: np.ndarray
     bu: np.ndarray
     bv: np.ndarray
@@ -112,6 +115,7 @@ class Wavefront(NamedTuple):
     pre: np.ndarray
     colors_pre: np.ndarray
     em_pre: np.ndarray
+    ew: np.ndarray
 
 
 class Chains(NamedTuple):
@@ -218,9 +222,10 @@ def hit_kernel(i0, i1, u0, out0, first_vertex, last_vertex, wf, mats, vp, fb, ch
             e0, e1, e2 = wf.em_pre[r, 0], wf.em_pre[r, 1], wf.em_pre[r, 2]
         else:
             e0, e1, e2 = mats.emission[m, 0], mats.emission[m, 1], mats.emission[m, 2]
-        fb.L[q, 0] += b0 * e0
-        fb.L[q, 1] += b1 * e1
-        fb.L[q, 2] += b2 * e2
+        ew = wf.ew[i]
+        fb.L[q, 0] += b0 * e0 * ew
+        fb.L[q, 1] += b1 * e1 * ew
+        fb.L[q, 2] += b2 * e2 * ew
         # Cycles flips both normals to wo's side of the geometric one.
         sgn = 1.0 if gx * wox + gy * woy + gz * woz >= 0.0 else -1.0
         if first_vertex and fb.p.shape[0] > 0:    # 0 rows: CameraPass.first_data off

@@ -10,6 +10,17 @@ visible point, where next-event estimation (core.lights.nee) and the photon
 gather (core.sppm.photon_pass) estimate the reflected radiance.  Emission seen
 along the chain (analytic emitters before each hit, emissive triangles, the
 world on a miss) is returned separately as ``L_emit``.
+
+With ``glossy_chains`` (photon mapping's default, the plan's "glossy chains")
+a non-delta vertex on a material without a diffuse lobe (a metal, a Glossy
+BSDF, rough glass: ``materials.glossy_only``) below the last vertex is a
+glossy point instead, as pbrt-v4's SPPM makes its visible points only where
+the BSDF has a diffuse part: the chain goes on by a sample of its non-delta
+lobes.  Its direct light is found by two strategies weighed by multiple
+importance sampling (core.sppm.glossy_mis): a light sample, added into
+``L_emit`` at once (no glossy point is kept), and the emission the leaving
+ray meets on its way to the next vertex (docs/method.md "Glossy chains,
+round 30").
 """
 from __future__ import annotations
 
@@ -26,6 +37,7 @@ from ..scene import normals as shading_normals
 from .. import lights as Lt
 from .. import materials as B
 from ..mathutil import dot as _dot
+from .glossy_mis import GlossyMIS, light_uniforms
 
 #: Camera rays from which a wavefront's Embree call is split in two threads.
 INTERSECT_SPLIT_MIN = 1 << 15
@@ -169,8 +181,20 @@ class CameraPass:
 
     def __init__(self, scene, accel, mtab, light_table, camera, fsamp, px, py, max_depth: int,
                  frame: Optional[tuple] = None, transparent: bool = False,
-                 compiled: bool = True, first_data: bool = True):
+                 compiled: bool = True, first_data: bool = True, glossy_chains: bool = False):
         self.scene, self.accel, self.mtab, self.light_table = scene, accel, mtab, light_table
+        # Glossy chains (pbrt-v4 SPPM): a vertex on a material without a
+        # diffuse lobe (B.glossy_only) is a glossy point, not a visible point,
+        # below max_depth; the chain goes on by a sample of its non-delta lobes.
+        self._glossy_mat = B.glossy_only(mtab) if glossy_chains else None
+        if self._glossy_mat is not None and not self._glossy_mat.any():
+            self._glossy_mat = None
+        # Their two strategies' weights; nee: the renderer's next-event
+        # estimation, whose shadow rays the light samples take.
+        self.mis = (GlossyMIS(light_table, mtab, scene.tri_p.shape[0])
+                    if self._glossy_mat is not None else None)
+        self.nee = None
+        self.glossy_count = 0           # glossy points of the last call (a count, for tests)
         # The compiled kernel interpolates tri_n itself: scenes whose shading
         # normals are perturbed (Normal Map / Bump, core.scene.normals) take
         # the numpy pass, whose surface_point applies the perturbation.
@@ -204,11 +228,13 @@ class CameraPass:
         before every vertex (it raises to cancel)."""
         P = self.px.shape[0]
         mtab, accel = self.mtab, self.accel
+        self._glossy_n = []
         if (self.compiled and self.pixel_id is None and P > CAMERA_BLOCK
                 and isinstance(rng.bit_generator, np.random.PCG64)
                 and shadow_attached(accel) is None):
             vp, L = self._outputs(P, keep=not centre)
             self._trace_blocked(rng, vp, L, check_stop, centre)
+            self.glossy_count = sum(self._glossy_n)
             return vp, L
         if self.pixel_id is None:
             u = rng.random((P, 4))
@@ -228,8 +254,9 @@ class CameraPass:
         trace = self._trace_compiled if self.compiled else self._trace_numpy
         trace(rng, rays, dz, vp, L, check_stop)
         # vp.through_delta: written with the visible point (False at the
-        # first hit, True after a delta vertex; False where no point).
+        # first hit, True after a delta or glossy vertex; False where no point).
         _crossings_only(accel, rays, vp)
+        self.glossy_count = sum(self._glossy_n)
         return vp, L
 
     def _outputs(self, P: int, keep: bool = True) -> tuple[VisiblePoints, np.ndarray]:
@@ -332,6 +359,7 @@ class CameraPass:
         beta = np.ones((P, 3))
         path_len = np.zeros(P)
         last = np.zeros(P, np.int8)      # 0 camera, 1 reflection, 2 transmission
+        mis = _no_mis(P)                 # (pdf, p, n) of the glossy point each ray leaves
         for depth in range(self.max_depth):
             if idx.size == 0:
                 break
@@ -339,7 +367,9 @@ class CameraPass:
             h = accel.intersect(o, d, tmax)
             hit = h.hit
             # Analytic emitters (area lights, light spheres) seen before the hit.
-            self._seen_along(depth, L, first, o, d, tmax, h.t, hit, idx, beta, last, see_through)
+            self._seen_along(depth, L, first, o, d, tmax, h.t, hit, idx, _emitting(beta, mis[0]),
+                             last, see_through)
+            ew = self._glossy_emission(L, idx, o, d, h.t, h.prim, beta, last, mis)
             ih = np.nonzero(hit)[0]
             if ih.size == 0:
                 break
@@ -352,7 +382,7 @@ class CameraPass:
             if np.any(em > 0):
                 if mtab.emission_tex is not None and np.any(mtab.emission_tex[mat] >= 0):
                     em = em * _emission_texture(mtab, s, mat, uv)
-                L[idx[ih]] += beta[ih] * em
+                L[idx[ih]] += beta[ih] * em * ew[ih, None]
             if depth == 0 and first.p.shape[0]:
                 sgn0 = np.where(_dot(ng, wo) >= 0, 1.0, -1.0)[:, None]
                 q = idx[ih]
@@ -388,23 +418,41 @@ class CameraPass:
                 vp.depth[q] = plen[mk] * np.abs(dz[q])
                 vp.const[q] = mtab.lambert_only[mat[mk]]
                 vp.albedo[q] = B.lambert_albedo(mtab, mat[mk], colors[mk])
+            gl = None
+            if self._glossy_mat is not None and depth < self.max_depth - 1:
+                g = np.nonzero(mk & self._glossy_mat[mat])[0]
+                if g.size:
+                    q = idx[ih[g]]
+                    gl = self._glossy_chains(vp, L, q, ur[g, 1:4], plen[g], dz[q])
             cont = go_delta & (p_delta > 0)
-            if not np.any(cont):
-                break
             c = np.nonzero(cont)[0]
-            nxt = self._continue(p[c], ng[c], ns[c], wo[c], mat[c], colors[c], bt[c], plen[c],
-                                 p_delta[c], ur[c, 1:4], see_through[ih[c]], d[ih[c]])
-            if nxt is None:
+            nxt = None
+            if c.size:
+                nxt = self._continue(p[c], ng[c], ns[c], wo[c], mat[c], colors[c], bt[c],
+                                     plen[c], p_delta[c], ur[c, 1:4], see_through[ih[c]],
+                                     d[ih[c]], tuple(a[ih[c]] for a in mis))
+            parts = []
+            if nxt is not None:
+                keep = nxt[0]
+                parts.append((c[keep], (idx[ih[c[keep]]],) + nxt[1:]))
+            if gl is not None:
+                keep = gl[0]
+                parts.append((g[keep], (idx[ih[g[keep]]],) + gl[1:7] + gl[8:]))
+            if not parts:
                 break
-            keep, o, d, beta, path_len, last, see_through = nxt
-            tmax = np.full(keep.size, np.inf)
-            idx = idx[ih[c[keep]]]
+            idx, o, d, beta, path_len, last, see_through, *mis = _in_row_order(parts)
+            tmax = np.full(idx.size, np.inf)
 
-    def _continue(self, p, ng, ns, wo, mat, colors, bt, plen, p_delta, u, see_through, d_in):
+    def _continue(self, p, ng, ns, wo, mat, colors, bt, plen, p_delta, u, see_through, d_in,
+                  mis):
         """Sample the delta lobes of the K chains that continue (mesh normals
-        ng, ns; throughput bt before the lobe; u (K, 3) uniforms).  Returns
+        ng, ns; throughput bt before the lobe; u (K, 3) uniforms; mis the
+        (pdf, p, n) of the glossy point each ray left, pdf 0: none).  Returns
         (kept rows (n,), o, d, beta (n, 3), path length (n,), last (n,) int8
-        1 reflection / 2 transmission, see_through (n,)), None when none is kept."""
+        1 reflection / 2 transmission, see_through (n,), pdf, p, n), None
+        when none is kept.  A straight crossing of a transparent surface is
+        no vertex where shadow rays pass them (core.lights.shadow): the ray
+        keeps its glossy point's state; any other delta vertex clears it."""
         mtab = self.mtab
         wi, wgt, pdf, is_delta, valid = B.sample_bsdf(mtab, mat, colors, ns, ng, wo, u,
                                                       subset="delta", mode="radiance")
@@ -414,11 +462,105 @@ class CameraPass:
         if keep.size == 0:
             return None
         wi = wi[keep]
-        refl = (_dot(wi, ng[keep]) * _dot(wo[keep], ng[keep])) > 0
-        st = see_through[keep] & (_dot(wi, d_in[keep]) > 1.0 - 1e-9)
-        o = self.accel.spawn(p[keep], ng[keep], wi)
-        return (keep, o, wi, bt[keep] * wgt[keep], plen[keep],
-                np.where(refl, 1, 2).astype(np.int8), st)
+        straight = _dot(wi, d_in[keep]) > 1.0 - 1e-9
+        st = see_through[keep] & straight
+        o, last = self._leaving(p[keep], ng[keep], wo[keep], wi)
+        out = _no_mis(keep.size)
+        if shadow_attached(self.accel) is not None and np.any(mis[0][keep] > 0):
+            out = tuple(np.where(straight.reshape((-1,) + (1,) * (a.ndim - 1)), a[keep], 0.0)
+                        for a in mis)
+        return (keep, o, wi, bt[keep] * wgt[keep], plen[keep], last, st) + out
+
+    def _glossy_emission(self, L, idx, o, d, t, prim, beta, last, mis) -> np.ndarray:
+        """The emission the rays leaving glossy points (mis = (pdf, p, n) (K,),
+        (K, 3), (K, 3) of the point each ray left, pdf > 0) meet before their
+        hit at t (K,) (inf on a miss; prim (K,) the triangle or -1), weighed
+        against the light sample taken at the point (``GlossyMIS.bsdf_weight``):
+        the analytic emitters and, where they escape, the world, added to L
+        at pixels idx with throughput beta.  Returns ew (K,) float64 the
+        weight of an emissive triangle at each ray's hit (``Wavefront.ew``):
+        1 for the rays that leave no glossy point."""
+        pdf, pp, nn = mis
+        ew = np.ones(idx.size)
+        g = np.nonzero(pdf > 0)[0]
+        if g.size == 0:
+            return ew
+        M, lt = self.mis, self.light_table
+        ew[g] = 0.0
+        row = np.where(prim[g] >= 0, M.tri_light[np.maximum(prim[g], 0)], -1)
+        e = np.nonzero(row >= 0)[0]
+        if e.size:
+            r = g[e]
+            dist = np.linalg.norm(o[r] + t[r, None] * d[r] - pp[r], axis=1)
+            ew[r] = M.bsdf_weight(pdf[r], pp[r], nn[r], d[r], row[e], dist)
+        for code, name in ((1, "glossy"), (2, "transmission")):
+            sel = g[last[g] == code]
+            if sel.size == 0:
+                continue
+            Le, rw, th = Lt.emitted_along_rays(lt, o[sel], d[sel], t[sel], name, return_hit=True)
+            m = np.nonzero(rw >= 0)[0]
+            if m.size:
+                r = sel[m]
+                # The distance from the glossy point (inf: a sun's disc).
+                dist = np.full(m.size, np.inf)
+                f = np.isfinite(th[m])
+                dist[f] = np.linalg.norm(o[r[f]] + th[m[f], None] * d[r[f]] - pp[r[f]], axis=1)
+                w = M.bsdf_weight(pdf[r], pp[r], nn[r], d[r], rw[m], dist)
+                L[idx[r]] += beta[r] * Le[m] * w[:, None]
+        esc = g[prim[g] < 0]
+        if esc.size and M.world_row >= 0:
+            w = M.bsdf_weight(pdf[esc], pp[esc], nn[esc], d[esc], np.full(esc.size, M.world_row),
+                              np.full(esc.size, np.inf))
+            L[idx[esc]] += beta[esc] * Lt.world_radiance(lt, d[esc]) * w[:, None]
+        return ew
+
+    def _leaving(self, p, ng, wo, wi):
+        """Origins (n, 3) of the rays leaving points p (n, 3) along wi, and
+        their kind (n,) int8: 1 reflection, 2 transmission (wi on wo's side
+        of the mesh normal ng or not)."""
+        refl = (_dot(wi, ng) * _dot(wo, ng)) > 0
+        return self.accel.spawn(p, ng, wi), np.where(refl, 1, 2).astype(np.int8)
+
+    def _glossy_chains(self, vp, L, q, u, plen, dz):
+        """The visible points just written at pixels q (K,) on glossy-only
+        materials become glossy points: their light samples
+        (``GlossyMIS.direct``) are added into L (P, 3), they are visible
+        points no longer, and their chains go on by a sample of the
+        non-delta lobes (u (K, 3) the hit's unused uniforms ur[:, 1:4];
+        plen, dz (K,) path length and depth factor).  vp: the VisiblePoints
+        or their VPBuffers.  Returns (kept rows (n,), o, d, beta (n, 3), path
+        length, last (n,) int8 1 reflection / 2 transmission, see_through
+        (n,) False, dz (n,), then the glossy points' (pdf (n,), p (n, 3), n
+        (n, 3)) for the MIS weight of the emission the rays meet,
+        ``_glossy_emission``), None when none is kept.
+
+        The throughput is the visible point's (over the probability of not
+        choosing a delta lobe) times f |cos| / pdf of the sample.  The light
+        samples' uniforms are a hash of u (``glossy_mis.light_uniforms``):
+        each point's own, however the wavefront was split."""
+        self._glossy_n.append(q.size)
+        front = vp.front[q]
+        sgn = np.where(front, 1.0, -1.0)[:, None]
+        ns_m = vp.ns[q].astype(np.float64) * sgn
+        ng_m = vp.ng[q] * sgn
+        wo = vp.wo[q].astype(np.float64)
+        mat = vp.mat[q].astype(np.int64)
+        colors = vp.colors[q].astype(np.float64)
+        bt = vp.beta[q].astype(np.float64)
+        L[q] += self.mis.direct(vp, q, light_uniforms(u), self.nee)
+        vp.valid[q] = False
+        vp.through_delta[q] = False
+        wi, wgt, pdf, _, ok = B.sample_bsdf(self.mtab, mat, colors, ns_m, ng_m, wo, u,
+                                            subset="nondelta", mode="radiance")
+        ok = ok & np.all(np.isfinite(wgt), axis=1) & (wgt.max(axis=1) > 0)
+        keep = np.nonzero(ok)[0]
+        if keep.size == 0:
+            return None
+        wi = wi[keep]
+        o, last = self._leaving(vp.p[q[keep]], ng_m[keep], wo[keep], wi)
+        n_l = vp.ns[q[keep]].astype(np.float64)     # flipped with ng to wo's side
+        return (keep, o, wi, bt[keep] * wgt[keep], plen[keep], last, np.zeros(keep.size, bool),
+                dz[keep], pdf[keep], vp.p[q[keep]], n_l)
 
     def _trace_compiled(self, rng, rays, dz, vp, L, check_stop):
         """The camera pass with the per-hit work in ``camera_kernels.hit_kernel``
@@ -426,7 +568,7 @@ class CameraPass:
         P = self.px.shape[0]
         dz = np.ascontiguousarray(dz, np.float64)   # one kernel signature (C layout)
         live = (rays.o, rays.d, rays.t_max, np.arange(P), np.ones((P, 3)), np.zeros(P),
-                np.zeros(P, np.int8), np.ones(P, bool), dz)
+                np.zeros(P, np.int8), np.ones(P, bool), dz) + _no_mis(P)
         self._chains_from(0, live, rng, self._kernel_context(vp, L), check_stop)
 
     def _trace_blocked(self, rng, vp, L, check_stop, centre):
@@ -497,7 +639,8 @@ class CameraPass:
                                         self.fsamp, threads=False)
         del u
         live = (rays.o, rays.d, rays.t_max, np.arange(a, b), np.ones((n, 3)), np.zeros(n),
-                np.zeros(n, np.int8), np.ones(n, bool), np.ascontiguousarray(dz, np.float64))
+                np.zeros(n, np.int8), np.ones(n, bool),
+                np.ascontiguousarray(dz, np.float64)) + _no_mis(n)
         hit = self._wavefront_rays(0, live, ctx, split=False)
         ready[i].wait()
         if failed:
@@ -537,7 +680,8 @@ class CameraPass:
     def _wavefront(self, depth, live, rng, ctx):
         """One vertex of the live chains (o, d, tmax, idx (K,) pixel, beta,
         path_len, last, see_through, dz (K,) the camera's depth factor of the
-        pixel): Embree, the emission seen along the rays
+        pixel, then the (pdf (K,), p, n (K, 3)) of the glossy point each ray
+        left, pdf 0 where none): Embree, the emission seen along the rays
         (``_wavefront_rays``), ``hit_kernel``, the delta lobes' samples
         (uniforms from rng; ``_wavefront_hits``).  The next vertex's live
         chains, or None when none continues."""
@@ -546,17 +690,18 @@ class CameraPass:
 
     def _wavefront_rays(self, depth, live, ctx, split=True):
         """Embree's hits of the live chains' rays (prim, u, v, tfar (K,),
-        ``_intersect``) and the emission the rays see before them
-        (``_seen_along``).  split=False: in the calling thread."""
-        o, d, tmax, idx, beta, path_len, last, see_through, dz = live
+        ``_intersect``) and ew (K,) the weight of the emission each finds at
+        its hit (``_glossy_emission``), and the emission the rays see before
+        them (``_seen_along``).  split=False: in the calling thread."""
+        o, d, tmax, idx, beta, path_len, last, see_through, dz, *mis = live
         mats, textured, vb, fb, first, L = ctx
         hit4 = _intersect(self.accel, o, d, tmax, INTERSECT_SPLIT_MIN if split else np.inf)
         prim, tfar = hit4[0], hit4[3]
         hit = prim >= 0
         t = np.where(hit, tfar, np.inf).astype(np.float64)
-        self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
-                         fast=True, split=split)
-        return hit4
+        self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, _emitting(beta, mis[0]), last,
+                         see_through, fast=True, split=split)
+        return hit4 + (self._glossy_emission(L, idx, o, d, t, prim, beta, last, mis),)
 
     def _wavefront_hits(self, depth, live, hit4, rng, ctx, split=True):
         """``hit_kernel`` on the hits hit4 of :meth:`_wavefront_rays` (their
@@ -565,11 +710,11 @@ class CameraPass:
         chains, or None.  split=False: in the calling thread."""
         from . import camera_kernels as CK
         from .photons import _pool, _threads
-        o, d, tmax, idx, beta, path_len, last, see_through, dz = live
+        o, d, tmax, idx, beta, path_len, last, see_through, dz, *mis = live
         mats, textured, vb, fb, first, L = ctx
         mtab, s = self.mtab, self.scene
         K = idx.size
-        prim, bu, bv, tfar = hit4
+        prim, bu, bv, tfar, ew = hit4
         hit = prim >= 0
         nh = int(np.count_nonzero(hit))
         if nh == 0:
@@ -592,7 +737,7 @@ class CameraPass:
             pre[it] = np.arange(it.size)
         ur = rng.random((nh, 4))
         wf = CK.Wavefront(prim, bu, bv, tfar, idx, np.ascontiguousarray(d, np.float64), beta,
-                          path_len, dz, ur, pre, colors_pre, em_pre)
+                          path_len, dz, ur, pre, colors_pre, em_pre, ew)
         ch = CK.alloc_chains(K, Lb)
         lastv = depth == self.max_depth - 1
         if split and K >= CK.SPLIT_MIN and _threads() > 1:
@@ -605,17 +750,66 @@ class CameraPass:
             rows = np.r_[0:n0, h:h + n1]
         else:
             rows = np.arange(CK.hit_kernel(0, K, 0, 0, depth == 0, lastv, wf, mats, vb, fb, ch))
-        if rows.size == 0:
+        gl = None
+        if self._glossy_mat is not None and not lastv:
+            r = np.nonzero(hit)[0]          # the hits, in the order of ur's rows
+            qv = idx[r]
+            g = np.nonzero(vb.valid[qv] & self._glossy_mat[vb.mat[qv]])[0]
+            if g.size:
+                rg = r[g]
+                gl = self._glossy_chains(vb, L, idx[rg], ur[g, 1:4],
+                                         path_len[rg] + tfar[rg].astype(np.float64), dz[rg])
+        parts = []
+        if rows.size:
+            k = ch.k[rows]
+            nxt = self._continue(ch.p[rows], ch.ng[rows], ch.ns[rows], ch.wo[rows], ch.mat[rows],
+                                 ch.colors[rows], ch.beta[rows], ch.plen[rows],
+                                 ch.p_delta[rows], ch.u[rows], see_through[k], d[k],
+                                 tuple(a[k] for a in mis))
+            if nxt is not None:
+                keep, o, d2, beta, path_len2, last, see_through2, *mis2 = nxt
+                kk = k[keep]
+                parts.append((kk, (o, d2, np.full(keep.size, np.inf), idx[kk], beta, path_len2,
+                                   last, see_through2, dz[kk], *mis2)))
+        if gl is not None:
+            keep, o, d2, beta, path_len2, last, see_through2, dzg, *mis2 = gl
+            kk = rg[keep]
+            parts.append((kk, (o, d2, np.full(keep.size, np.inf), idx[kk], beta, path_len2,
+                               last, see_through2, dzg, *mis2)))
+        if not parts:
             return None
-        k = ch.k[rows]
-        nxt = self._continue(ch.p[rows], ch.ng[rows], ch.ns[rows], ch.wo[rows], ch.mat[rows],
-                             ch.colors[rows], ch.beta[rows], ch.plen[rows],
-                             ch.p_delta[rows], ch.u[rows], see_through[k], d[k])
-        if nxt is None:
-            return None
-        keep, o, d, beta, path_len, last, see_through = nxt
-        return (o, d, np.full(keep.size, np.inf), idx[k[keep]], beta, path_len, last,
-                see_through, dz[k[keep]])
+        return _in_row_order(parts)
+
+
+_Z1, _Z3 = np.zeros(1), np.zeros((1, 3))
+
+
+def _no_mis(n: int) -> tuple:
+    """The (pdf, p, n) of n rays that leave no glossy point: zeros, as
+    read-only views (no memory a ray)."""
+    return np.broadcast_to(_Z1, (n,)), np.broadcast_to(_Z3, (n, 3)), np.broadcast_to(_Z3, (n, 3))
+
+
+def _emitting(beta, pdf):
+    """The throughput (K, 3) with which rays add the emission ``_seen_along``
+    finds: beta, but 0 where a ray leaves a glossy point (pdf > 0), whose
+    emission ``_glossy_emission`` weighs."""
+    if pdf.size == 0 or not np.any(pdf > 0):
+        return beta
+    return np.where((pdf > 0)[:, None], 0.0, beta)
+
+
+def _in_row_order(parts):
+    """The next vertex's live chains from parts [(rows (n,), arrays), ...]:
+    each part's arrays concatenated and put in the order of the rows they
+    come from, so that the delta and the glossy continuations of a
+    wavefront are one list in ray order (the uniforms of the next vertex
+    are drawn in that order, however the wavefront was split)."""
+    if len(parts) == 1:
+        return parts[0][1]
+    rows = np.concatenate([r for r, _ in parts])
+    order = np.argsort(rows, kind="stable")
+    return tuple(np.concatenate(a)[order] for a in zip(*(arrs for _, arrs in parts)))
 
 
 def in_two_threads(work) -> None:

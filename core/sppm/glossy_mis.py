@@ -1,0 +1,127 @@
+"""Multiple importance sampling at the glossy points of the camera pass.
+
+    mis = GlossyMIS(light_table, mtab, n_triangles)
+    L = mis.direct(vp, q, light_uniforms(u), nee)   # (K, 3) the light samples' part
+    w = mis.bsdf_weight(pdf_b, p, n, wi, light, dist)
+
+A glossy point (core.sppm.visible_points, "glossy chains": a vertex on a
+material without a diffuse lobe, where the camera chain goes on by a sample
+of its non-delta lobes) finds its direct light by two strategies, as a path
+tracer's vertex does (core.integrators.path_tracer):
+
+- one light sample (core.lights.sample_direct), tested by next-event
+  estimation's shadow rays (core.lights.nee: transparent shadows included):
+  :meth:`GlossyMIS.direct`;
+- the BSDF sample the chain goes on with, where its ray meets an emitter (an
+  area light, a light's disc or sphere, a sun's disc, an emissive triangle,
+  the world) before anything else: the camera pass weighs that emission by
+  :meth:`GlossyMIS.bsdf_weight`.
+
+Each is weighed by the power heuristic (Veach 1997, eq. 9.13) against the
+other strategy's density of the same direction: ``core.lights.pdf_direct``
+for the light sample, ``core.materials.pdf_bsdf`` of the non-delta lobes for
+the BSDF sample.  A light that no ray meets (a point or spot of radius 0, a
+sun of angle 0) or that rays of that kind do not see (Ray Visibility) is the
+light sample's alone (weight 1).  A transparent crossing is no vertex (the
+chain keeps the glossy point's densities through it, as next-event
+estimation's shadow rays pass it).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import lights as Lt
+from .. import materials as B
+from ..lights.table import MESH
+from ..mathutil import dot as _dot, power_heuristic
+
+
+class GlossyMIS:
+    """The MIS weights of the glossy points' two strategies (module doc).
+    light_table: the renderer's; mtab: its MaterialTable; T: the scene's
+    triangle count (emissive triangles by their emitter row)."""
+
+    def __init__(self, light_table, mtab, T: int):
+        self.lights, self.mtab = light_table, mtab
+        self.hittable = Lt.bsdf_hittable(light_table)
+        self.tri_light, self.world_row = Lt.emitter_rows(light_table, T)
+
+    def bsdf_weight(self, pdf_b, p, n, wi, light, dist) -> np.ndarray:
+        """(K,) weight of emission that BSDF samples of density pdf_b (K,),
+        cast from glossy points p (K, 3) (receiver normals n, as
+        :meth:`direct` gives sample_direct) along wi, met on emitter rows
+        light (K,) at distance dist (inf: the world, a sun)."""
+        w = np.ones(pdf_b.shape[0])
+        m = np.nonzero((light >= 0) & (pdf_b > 0))[0]
+        if m.size:
+            w[m] = power_heuristic(pdf_b[m], self._pdf_light(p[m], wi[m], light[m], dist[m], n[m]))
+        return w
+
+    def _pdf_light(self, p, wi, light, dist, n) -> np.ndarray:
+        """``lights.pdf_direct``, 0 where it is not finite (a degenerate light
+        sample at grazing incidence: the map_mis_kernels rule), so that both
+        strategies' weights of one direction still sum to one."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            pl = Lt.pdf_direct(self.lights, p, wi, light, dist, n=n)
+        return np.where(np.isfinite(pl), pl, 0.0)
+
+    def direct(self, vp, q, u, nee) -> np.ndarray:
+        """(K, 3) float64 the light samples of the K glossy points at rows q
+        of vp (a camera pass's VisiblePoints or VPBuffers) times their
+        throughput, each weighed against the density with which the point's
+        BSDF sample finds the same direction; u (K, 3) uniforms; shadow rays
+        by nee (``NextEventEstimation.transmittance``)."""
+        K = q.size
+        out = np.zeros((K, 3))
+        lt = self.lights
+        s = np.where(vp.front[q], 1.0, -1.0)[:, None]
+        n_l = vp.ns[q].astype(np.float64)   # flipped with ng to wo's side: nee's receiver normal
+        ns_m, ng_m = n_l * s, vp.ng[q] * s       # as the mesh has them
+        p = vp.p[q]
+        smp = Lt.sample_direct(lt, p, u, n=n_l)
+        wi, dist, wgt, light = smp["wi"], smp["dist"], smp["weight"], smp["light"].astype(np.int64)
+        r = np.nonzero((wgt.max(axis=1) > 0) & np.all(np.isfinite(wgt), axis=1))[0]
+        if r.size == 0:
+            return out
+        wi, dist, wgt, light, shadow = wi[r], dist[r], wgt[r], light[r], smp["cast_shadow"][r]
+        qr = q[r]
+        mat, colors = vp.mat[qr].astype(np.int64), vp.colors[qr].astype(np.float64)
+        wo = vp.wo[qr].astype(np.float64)
+        f = B.eval_bsdf(self.mtab, mat, colors, ns_m[r], ng_m[r], wo, wi)
+        contrib = vp.beta[qr] * f * (np.abs(_dot(n_l[r], wi))[:, None] * wgt)
+        # Weighed where the chain's BSDF ray could find the light too.
+        seen = Lt.bsdf_sees(lt, self.hittable, light, ng_m[r], wo, wi)
+        w = np.ones(r.size)
+        m = np.nonzero(seen)[0]
+        if m.size:
+            pl = self._pdf_light(p[r[m]], wi[m], light[m], dist[m], n_l[r[m]])
+            pb = B.pdf_bsdf(self.mtab, mat[m], colors[m], ns_m[r[m]], ng_m[r[m]], wo[m], wi[m],
+                            subset="nondelta")
+            w[m] = power_heuristic(pl, pb)
+        tr = nee.transmittance(p[r], ng_m[r], wi, dist, lt.kind[light] == MESH, shadow)
+        out[r] = contrib * tr * w[:, None]
+        return out
+
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
+def light_uniforms(u: np.ndarray) -> np.ndarray:
+    """(K, 3) float64 uniforms in [0, 1) for the glossy points' light
+    samples: splitmix64 (Steele et al. 2014) of the 53-bit draws u (K, 3) the
+    point's BSDF sample takes.  Each point's numbers are its own whatever
+    rows share the call, so the camera pass's blocks and threads give the
+    same image; the two samples of a point are then dependent, which leaves
+    each strategy's expectation, and so the MIS sum's, unchanged."""
+    x = (np.asarray(u, np.float64) * 2.0 ** 53).astype(np.uint64)
+    with np.errstate(over="ignore"):
+        h = (x[:, 0] ^ (x[:, 1] * np.uint64(0xBF58476D1CE4E5B9))
+             ^ (x[:, 2] * np.uint64(0x94D049BB133111EB)))
+        out = np.empty((x.shape[0], 3))
+        for i in range(3):
+            h = h + _GOLDEN
+            z = (h ^ (h >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+            z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+            z = z ^ (z >> np.uint64(31))
+            out[:, i] = (z >> np.uint64(11)).astype(np.float64) * 2.0 ** -53
+    return out
