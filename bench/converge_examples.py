@@ -441,6 +441,23 @@ NOTES = [
     "1.26 / 1.65 / 1.64 (excess 1.84; seeds at 100 % 1.55-1.83), 375-418 passes, Cycles "
     "2518 spp (1.67 cores, Path Tracing 1.09: 2.83 wall-equivalent); FPPM / Cycles 30.8 "
     "(excess 40; 245-255 passes).",
+    "Round 30, real_scene, FPPM alone (`--methods fppm`, the round-28 reference), load 1 to 2, "
+    "in real_scene/fppm_60s_71948fe/: glossy chains (Photon Mapping's camera paths through the "
+    "gold block, MIS at its glossy points) 0.0118 / 0.00228 / 0.00125 (seeds at 100 % 1.11e-3 "
+    "to 1.57e-3, 255-266 passes): 0.59x round 29's 0.00213; FPPM / Cycles 9.9 (excess 12.7) "
+    "against round 28's Cycles run.  The first version (the glossy point's light to next-event "
+    "estimation alone) read 0.0128 / 0.00244 / 0.00134 (240-256 passes).",
+    "Round 30, glass_sphere and coffee_cup on 52314ba (round 29's end: the world's photons over "
+    "the smallest rectangle bounding the triangles), their LuxCore references rendered again "
+    "(`bench/luxcore_reference.py render coffee_cup --runs 6 --cpu 200`: 14866 spp, 1201 CPU s, "
+    "floor 9.55e-4; glass_sphere `render --runs 2 --cpu 100 --engine lux_light:noworld` 17482 "
+    "spp, `--runs 2 --cpu 30 --engine lux_path:world` 1503 spp, `compose --cycles 4096`: floor "
+    "1.63e-3), `glass_sphere coffee_cup --budget 60 --clock cpu --seeds 4 --methods fppm,ppm`, "
+    "nearly idle, in SCENE/fppm_ppm_60s_52314ba/: coffee_cup FPPM / PPM 0.991 / 0.983 / 0.981 "
+    "(excess 0.978; seeds at 10 % 0.94-1.04, at 100 % 0.977-0.985), FPPM 308-339 passes, PPM "
+    "319-346; glass_sphere 27.8 / 0.982 / 0.977 (excess 0.975): seed 3's firefly (115x PPM's "
+    "error at 6 s, 0.92 at 60 s) decides the means, seeds 0-2 read 1.02-1.07 / 1.02-1.04 / "
+    "1.03-1.04; FPPM 297-330 passes, PPM 304-337.",
     "Round 29, real_scene, FPPM alone (`--methods fppm`, the round-28 reference), load 1 to 2, "
     "in real_scene/fppm_60s_<commit>/: on 0a9436a (the visible points' HDRI light compiled) "
     "relMSE 0.0183 / 0.00599 / 0.0032 (275-311 passes); on b2ba572 (world photons over the "
