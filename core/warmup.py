@@ -123,7 +123,8 @@ def _translate(x, y, z):
 
 
 def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
-                 glossy: bool = True, environment: bool = False, normal_map: bool = False):
+                 glossy: bool = True, environment: bool = False, normal_map: bool = False,
+                 metal: bool = False):
     """A synthetic scene of the warm-up (``core.scene.model.Scene``), res x res px.
 
     A closed 4 x 4 x 2 m room (so that nearly every photon is deposited, and a
@@ -139,6 +140,9 @@ def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
     material over a textured diffuse base (the camera paths' compiled
     Normal Map, scene.normal_kernels, about 4 s to compile on first use, and
     a textured hit's colour row, materials.hit_colors, about 1 s).
+    metal=True lays a rough metal plate (a Principled-like F82 lobe, no
+    diffuse) on the floor: photon mapping's glossy chains (its glossy
+    points' compiled BSDF samples and light densities, core.sppm.glossy_mis).
     """
     mats = [Material("diffuse", (Lobe(DIFFUSE, (0.8, 0.8, 0.8)),)),
             Material("glossy", (Lobe(GLOSSY, (0.8, 0.6, 0.4), roughness=0.3),
@@ -169,6 +173,10 @@ def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
              (_quad((0, 0.5, 1.95), (0.3, 0, 0), (0, -0.3, 0)), 4)]  # ceiling lamp, -Z
     if normal_map:
         parts[2] = (parts[2][0], len(mats) - 1)                    # the left wall
+    if metal:
+        mats.append(Material("metal", (Lobe(GLOSSY, (0.9, 0.7, 0.4), roughness=0.3,
+                                            fresnel="F82"),)))
+        parts.append((_quad((-0.8, 0.6, 0.01), (0.5, 0, 0), (0, 0.5, 0)), len(mats) - 1))
     tris = [t for p, _ in parts for t in p]
     tri_mat = [m for p, m in parts for _ in p]
     if normal_map:
@@ -204,8 +212,9 @@ def warmup_jobs() -> list:
     room = warmup_scene()
     # The first job's room is lit by an environment map too: the visible
     # points' next-event estimation weighs the map's light and BSDF samples
-    # (core.lights.map_mis_kernels), on two threads (run_jobs' split_first).
-    return [(warmup_scene(environment=True), base),
+    # (core.lights.map_mis_kernels), on two threads (run_jobs' split_first);
+    # and a metal plate on its floor: photon mapping's glossy chains.
+    return [(warmup_scene(environment=True, metal=True), base),
             (room, base.replace(photons_per_pass=40_000, frequency_fraction=1.0,
                                 frequency_estimator="QUANTILE", frequency_model="PAPER",
                                 aov_radius=True, aov_predicted_radius=True, aov_spectrum=True,

@@ -279,15 +279,15 @@ def delta_probability(table: MaterialTable, mat: np.ndarray, colors: np.ndarray)
 
 
 def glossy_only(table: MaterialTable) -> np.ndarray:
-    """(M,) bool: materials with non-delta lobes, none of them diffuse (no
-    DIFFUSE or TRANSLUCENT lobe of nonzero weight and colour): a metal, a
-    Glossy BSDF, rough glass.  pbrt-v4's SPPM makes its visible points only
+    """(M,) bool: materials with non-delta lobes of nonzero weight and
+    colour, none of them diffuse (DIFFUSE or TRANSLUCENT): a metal, a Glossy
+    BSDF, rough glass (not an emitter's black diffuse lobe).  pbrt-v4's SPPM makes its visible points only
     where the BSDF has a diffuse part and follows the camera path through
     the others (core.sppm.visible_points, "glossy chains")."""
-    used = (table.kind >= 0) & (table.weight != 0.0) & ~table.lobe_delta
+    used = ((table.kind >= 0) & (table.weight != 0.0) & ~table.lobe_delta
+            & (table.color.max(axis=2) > 0.0))
     diffuse = used & ((table.kind == DIFFUSE) | (table.kind == TRANSLUCENT))
-    diffuse &= table.color.max(axis=2) > 0.0
-    return table.has_nondelta & ~diffuse.any(axis=1)
+    return used.any(axis=1) & ~diffuse.any(axis=1)
 
 
 def lambert_albedo(table: MaterialTable, mat: np.ndarray, colors: np.ndarray) -> np.ndarray:

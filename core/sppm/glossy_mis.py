@@ -32,6 +32,8 @@ import numpy as np
 
 from .. import lights as Lt
 from .. import materials as B
+from ..materials import compiled as C
+from ..materials.fast import GENERIC, build_fast_materials
 from ..lights.table import MESH
 from ..mathutil import dot as _dot, power_heuristic
 
@@ -45,6 +47,35 @@ class GlossyMIS:
         self.lights, self.mtab = light_table, mtab
         self.hittable = Lt.bsdf_hittable(light_table)
         self.tri_light, self.world_row = Lt.emitter_rows(light_table, T)
+        self._compiled = None
+        self._density = None
+
+    def _radiance(self):
+        """(FastMaterials, sample_radiance's rows, GENERIC (M,) bool), once."""
+        if self._compiled is None:
+            fm = build_fast_materials(self.mtab)
+            self._compiled = (fm, C.radiance_rows(self.mtab, fm), fm.cls == GENERIC)
+        return self._compiled
+
+    def sample(self, mat, colors, ns, ng, wo, u):
+        """``materials.sample_bsdf(subset="nondelta", mode="radiance")``: (wi,
+        weight, pdf, is_delta, ok).  A material without delta lobes has
+        nothing but its non-delta ones, so subset "all" is the same
+        distribution: those rows take the compiled sampler
+        (``materials.compiled.sample_radiance``), the others numpy's."""
+        mat = np.asarray(mat, np.int64)
+        nd = ~self.mtab.has_delta[mat]
+        if not nd.all():
+            return B.sample_bsdf(self.mtab, mat, colors, ns, ng, wo, u, subset="nondelta",
+                                 mode="radiance")
+        fm, rows, _ = self._radiance()
+        return C.sample_radiance(self.mtab, fm, rows, mat, colors, ns, ng, wo, u)
+
+    def pdf(self, mat, colors, ns, ng, wo, wi):
+        """``materials.pdf_bsdf(subset="nondelta")``, compiled as :meth:`sample`."""
+        if self.mtab.has_delta[np.asarray(mat, np.int64)].any():
+            return B.pdf_bsdf(self.mtab, mat, colors, ns, ng, wo, wi, subset="nondelta")
+        return C.pdf_radiance(self.mtab, mat, colors, ns, ng, wo, wi)
 
     def bsdf_weight(self, pdf_b, p, n, wi, light, dist) -> np.ndarray:
         """(K,) weight of emission that BSDF samples of density pdf_b (K,),
@@ -58,11 +89,29 @@ class GlossyMIS:
         return w
 
     def _pdf_light(self, p, wi, light, dist, n) -> np.ndarray:
-        """``lights.pdf_direct``, 0 where it is not finite (a degenerate light
-        sample at grazing incidence: the map_mis_kernels rule), so that both
-        strategies' weights of one direction still sum to one."""
+        """``lights.pdf_direct``, compiled (``lights.pdf_kernels``, as Path
+        Tracing's ``pdf_light``) where ``direct_kernels`` covers the lights;
+        0 where it is not finite (a degenerate light sample at grazing
+        incidence: the map_mis_kernels rule), so that both strategies'
+        weights of one direction still sum to one."""
+        if self._density is None:
+            from ..lights import direct_kernels as DK, pdf_kernels as PdfK
+            lt = self.lights
+            self._density = False
+            if DK.compiled_lights_ok(lt, environment=True):
+                L = DK.build_direct_lights(lt)
+                self._density = (L, PdfK.build_light_pdf(lt, self.hittable, L), PdfK)
         with np.errstate(over="ignore", invalid="ignore"):
-            pl = Lt.pdf_direct(self.lights, p, wi, light, dist, n=n)
+            if self._density:
+                L, Q, PdfK = self._density
+                K, c = p.shape[0], np.ascontiguousarray
+                p, light = c(p, np.float64), c(light, np.int64)
+                sel, pl = np.empty(K), np.empty(K)
+                PdfK.selection_kernel(L, Q, p, light, sel)
+                PdfK.pdf_kernel(L, Q, p, c(wi, np.float64), light, c(dist, np.float64),
+                                c(n, np.float64), sel, pl)
+            else:
+                pl = Lt.pdf_direct(self.lights, p, wi, light, dist, n=n)
         return np.where(np.isfinite(pl), pl, 0.0)
 
     def direct(self, vp, q, u, nee) -> np.ndarray:
@@ -87,7 +136,7 @@ class GlossyMIS:
         qr = q[r]
         mat, colors = vp.mat[qr].astype(np.int64), vp.colors[qr].astype(np.float64)
         wo = vp.wo[qr].astype(np.float64)
-        f = B.eval_bsdf(self.mtab, mat, colors, ns_m[r], ng_m[r], wo, wi)
+        f = C.eval_radiance(self.mtab, self._radiance()[2], mat, colors, ns_m[r], ng_m[r], wo, wi)
         contrib = vp.beta[qr] * f * (np.abs(_dot(n_l[r], wi))[:, None] * wgt)
         # Weighed where the chain's BSDF ray could find the light too.
         seen = Lt.bsdf_sees(lt, self.hittable, light, ng_m[r], wo, wi)
@@ -95,8 +144,7 @@ class GlossyMIS:
         m = np.nonzero(seen)[0]
         if m.size:
             pl = self._pdf_light(p[r[m]], wi[m], light[m], dist[m], n_l[r[m]])
-            pb = B.pdf_bsdf(self.mtab, mat[m], colors[m], ns_m[r[m]], ng_m[r[m]], wo[m], wi[m],
-                            subset="nondelta")
+            pb = self.pdf(mat[m], colors[m], ns_m[r[m]], ng_m[r[m]], wo[m], wi[m])
             w[m] = power_heuristic(pl, pb)
         tr = nee.transmittance(p[r], ng_m[r], wi, dist, lt.kind[light] == MESH, shadow)
         out[r] = contrib * tr * w[:, None]

@@ -550,8 +550,7 @@ class CameraPass:
         L[q] += self.mis.direct(vp, q, light_uniforms(u), self.nee)
         vp.valid[q] = False
         vp.through_delta[q] = False
-        wi, wgt, pdf, _, ok = B.sample_bsdf(self.mtab, mat, colors, ns_m, ng_m, wo, u,
-                                            subset="nondelta", mode="radiance")
+        wi, wgt, pdf, _, ok = self.mis.sample(mat, colors, ns_m, ng_m, wo, u)
         ok = ok & np.all(np.isfinite(wgt), axis=1) & (wgt.max(axis=1) > 0)
         keep = np.nonzero(ok)[0]
         if keep.size == 0:
