@@ -49,6 +49,7 @@ class GlossyMIS:
         self.tri_light, self.world_row = Lt.emitter_rows(light_table, T)
         self._compiled = None
         self._density = None
+        self._nee_kernels = None
 
     def _radiance(self):
         """(FastMaterials, sample_radiance's rows, GENERIC (M,) bool), once."""
@@ -114,12 +115,82 @@ class GlossyMIS:
                 pl = Lt.pdf_direct(self.lights, p, wi, light, dist, n=n)
         return np.where(np.isfinite(pl), pl, 0.0)
 
+    def _kernels(self):
+        """Path Tracing's light-sample kernels for the glossy points
+        (``direct_kernels.direct_kernel``, ``path_kernels.nee_mis_kernel``):
+        (DirectLights, LightPdf, PathMaterials, (M,) bool the materials they
+        take: GENERIC, untextured, no delta lobe), or False where the lights
+        need the numpy sampler."""
+        if self._nee_kernels is None:
+            from ..integrators import path_kernels as PK
+            from ..lights import direct_kernels as DK, pdf_kernels as PdfK
+            from ..materials.hit_colors import textured_materials
+            self._nee_kernels = False
+            lt, mtab = self.lights, self.mtab
+            if DK.compiled_lights_ok(lt, environment=True):
+                fm = self._radiance()[0]
+                L = DK.build_direct_lights(lt)
+                cls = PK.kernel_classes(mtab, fm)
+                ok = ((cls == GENERIC) & ~np.asarray(mtab.has_delta, bool)
+                      & ~np.asarray(textured_materials(mtab), bool))
+                if mtab.bump_correction is not None:
+                    ok &= ~np.asarray(mtab.bump_correction, bool)
+                self._nee_kernels = (L, PdfK.build_light_pdf(lt, self.hittable, L),
+                                     PK.build_path_materials(mtab, fm), ok)
+        return self._nee_kernels
+
     def direct(self, vp, q, u, nee) -> np.ndarray:
         """(K, 3) float64 the light samples of the K glossy points at rows q
         of vp (a camera pass's VisiblePoints or VPBuffers) times their
         throughput, each weighed against the density with which the point's
         BSDF sample finds the same direction; u (K, 3) uniforms; shadow rays
-        by nee (``NextEventEstimation.transmittance``)."""
+        by nee (``NextEventEstimation.transmittance``).  The rows of the
+        materials Path Tracing's kernels take (:meth:`_kernels`) by them, the
+        others by numpy (:meth:`_direct_numpy`): the same weights, to
+        rounding."""
+        kern = self._kernels()
+        out = np.zeros((q.size, 3))
+        if kern:
+            c = kern[3][np.asarray(vp.mat[q], np.int64)]
+            ci = np.nonzero(c)[0]
+            if ci.size:
+                out[ci] = self._direct_compiled(vp, q[ci], u[ci], nee, kern)
+            ni = np.nonzero(~c)[0]
+            if ni.size:
+                out[ni] = self._direct_numpy(vp, q[ni], u[ni], nee)
+            return out
+        return self._direct_numpy(vp, q, u, nee)
+
+    def _direct_compiled(self, vp, q, u, nee, kern) -> np.ndarray:
+        """:meth:`direct` by Path Tracing's kernels (``PathTracer._direct_compiled``'s
+        calls: the light sample, the BSDF's value, the power-heuristic weight)."""
+        from ..integrators import path_kernels as PK
+        from ..lights import direct_kernels as DK
+        L, Q, M, _ = kern
+        K, c = q.size, np.ascontiguousarray
+        s = np.where(vp.front[q], 1.0, -1.0)[:, None]
+        n_l = c(vp.ns[q], np.float64)
+        ns_m, ng_m = c(n_l * s), c(vp.ng[q] * s)
+        mat = c(vp.mat[q], np.int64)
+        R = DK.Receivers(np.arange(K), c(vp.p[q], np.float64), n_l, c(vp.beta[q], np.float64),
+                         c(M.col[mat]), np.zeros(K, bool), c(u, np.float64))
+        S = DK.alloc_samples(K)
+        DK.direct_kernel(0, K, L, R, S)
+        w, pl, sel, live = np.empty(K), np.empty(K), np.empty(K), np.empty(K, bool)
+        with np.errstate(over="ignore", invalid="ignore"):
+            PK.nee_mis_kernel(L, Q, M, mat, mat, R.beta, R.p, ng_m, ns_m, n_l,
+                              c(vp.wo[q], np.float64), S, w, live, pl, sel)
+        out = np.zeros((K, 3))
+        r = np.nonzero(live & np.isfinite(w))[0]
+        if r.size:
+            tr = nee.transmittance(R.p[r], ng_m[r], S.wi[r], S.dist[r],
+                                   self.lights.kind[S.light[r]] == MESH, S.shadow[r])
+            out[r] = S.contrib[r] * tr * w[r, None]
+        return out
+
+    def _direct_numpy(self, vp, q, u, nee) -> np.ndarray:
+        """:meth:`direct` in numpy (every material, textured colours and
+        delta lobes included)."""
         K = q.size
         out = np.zeros((K, 3))
         lt = self.lights
