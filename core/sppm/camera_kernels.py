@@ -99,9 +99,9 @@ class Wavefront(NamedTuple):
     one row per hit in ray order (the delta choice is ur[:, 0]); pre (K,) int64 row of colors_pre /
     em_pre for hits on textured materials (-1: untextured);
     colors_pre (n, L, 3), em_pre (n, 3); ew (K,) float64 the weight of the
-    emission each ray finds at its hit: 1, or 0 on a ray leaving a glossy
-    point, whose light next-event estimation took there
-    (``visible_points.CameraPass``, glossy chains)."""
+    emission each ray finds at its hit: 1, or on a ray leaving a glossy
+    point the MIS weight of that emissive triangle against the point's
+    light sample (``visible_points.CameraPass._glossy_emission``)."""
     prim: np.ndarray
     bu: np.ndarray
     bv: np.ndarray

@@ -48,7 +48,7 @@ class GlossyMIS:
         self.hittable = Lt.bsdf_hittable(light_table)
         self.tri_light, self.world_row = Lt.emitter_rows(light_table, T)
         self._compiled = None
-        self._density = None
+        self._lights_k = None
         self._nee_kernels = None
 
     def _radiance(self):
@@ -95,16 +95,11 @@ class GlossyMIS:
         0 where it is not finite (a degenerate light sample at grazing
         incidence: the map_mis_kernels rule), so that both strategies'
         weights of one direction still sum to one."""
-        if self._density is None:
-            from ..lights import direct_kernels as DK, pdf_kernels as PdfK
-            lt = self.lights
-            self._density = False
-            if DK.compiled_lights_ok(lt, environment=True):
-                L = DK.build_direct_lights(lt)
-                self._density = (L, PdfK.build_light_pdf(lt, self.hittable, L), PdfK)
+        lights = self._lights()
         with np.errstate(over="ignore", invalid="ignore"):
-            if self._density:
-                L, Q, PdfK = self._density
+            if lights:
+                from ..lights import pdf_kernels as PdfK
+                L, Q = lights
                 K, c = p.shape[0], np.ascontiguousarray
                 p, light = c(p, np.float64), c(light, np.int64)
                 sel, pl = np.empty(K), np.empty(K)
@@ -115,6 +110,18 @@ class GlossyMIS:
                 pl = Lt.pdf_direct(self.lights, p, wi, light, dist, n=n)
         return np.where(np.isfinite(pl), pl, 0.0)
 
+    def _lights(self):
+        """(DirectLights, LightPdf) of the light table for the compiled light
+        samples and densities, or False where its lights need numpy's."""
+        if self._lights_k is None:
+            from ..lights import direct_kernels as DK, pdf_kernels as PdfK
+            lt = self.lights
+            self._lights_k = False
+            if DK.compiled_lights_ok(lt, environment=True):
+                L = DK.build_direct_lights(lt)
+                self._lights_k = (L, PdfK.build_light_pdf(lt, self.hittable, L))
+        return self._lights_k
+
     def _kernels(self):
         """Path Tracing's light-sample kernels for the glossy points
         (``direct_kernels.direct_kernel``, ``path_kernels.nee_mis_kernel``):
@@ -123,20 +130,17 @@ class GlossyMIS:
         need the numpy sampler."""
         if self._nee_kernels is None:
             from ..integrators import path_kernels as PK
-            from ..lights import direct_kernels as DK, pdf_kernels as PdfK
             from ..materials.hit_colors import textured_materials
             self._nee_kernels = False
-            lt, mtab = self.lights, self.mtab
-            if DK.compiled_lights_ok(lt, environment=True):
+            lights, mtab = self._lights(), self.mtab
+            if lights:
                 fm = self._radiance()[0]
-                L = DK.build_direct_lights(lt)
                 cls = PK.kernel_classes(mtab, fm)
                 ok = ((cls == GENERIC) & ~np.asarray(mtab.has_delta, bool)
                       & ~np.asarray(textured_materials(mtab), bool))
                 if mtab.bump_correction is not None:
                     ok &= ~np.asarray(mtab.bump_correction, bool)
-                self._nee_kernels = (L, PdfK.build_light_pdf(lt, self.hittable, L),
-                                     PK.build_path_materials(mtab, fm), ok)
+                self._nee_kernels = lights + (PK.build_path_materials(mtab, fm), ok)
         return self._nee_kernels
 
     def direct(self, vp, q, u, nee) -> np.ndarray:
