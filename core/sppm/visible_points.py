@@ -195,6 +195,7 @@ class CameraPass:
                     if self._glossy_mat is not None else None)
         self.nee = None
         self.glossy_count = 0           # glossy points of the last call (a count, for tests)
+        self._ones = np.ones(0)         # _glossy_emission's weights without glossy chains
         # The compiled kernel interpolates tri_n itself: scenes whose shading
         # normals are perturbed (Normal Map / Bump, core.scene.normals) take
         # the numpy pass, whose surface_point applies the perturbation.
@@ -367,8 +368,8 @@ class CameraPass:
             h = accel.intersect(o, d, tmax)
             hit = h.hit
             # Analytic emitters (area lights, light spheres) seen before the hit.
-            self._seen_along(depth, L, first, o, d, tmax, h.t, hit, idx, _emitting(beta, mis[0]),
-                             last, see_through)
+            self._seen_along(depth, L, first, o, d, tmax, h.t, hit, idx,
+                             self._emitting(beta, mis[0]), last, see_through)
             ew = self._glossy_emission(L, idx, o, d, h.t, h.prim, beta, last, mis)
             ih = np.nonzero(hit)[0]
             if ih.size == 0:
@@ -471,6 +472,14 @@ class CameraPass:
                         for a in mis)
         return (keep, o, wi, bt[keep] * wgt[keep], plen[keep], last, st) + out
 
+    def _emitting(self, beta, pdf):
+        """The throughput (K, 3) with which rays add the emission ``_seen_along``
+        finds: beta, but 0 where a ray leaves a glossy point (pdf > 0), whose
+        emission ``_glossy_emission`` weighs (no test without glossy chains)."""
+        if self.mis is None or pdf.size == 0 or not np.any(pdf > 0):
+            return beta
+        return np.where((pdf > 0)[:, None], 0.0, beta)
+
     def _glossy_emission(self, L, idx, o, d, t, prim, beta, last, mis) -> np.ndarray:
         """The emission the rays leaving glossy points (mis = (pdf, p, n) (K,),
         (K, 3), (K, 3) of the point each ray left, pdf > 0) meet before their
@@ -479,9 +488,16 @@ class CameraPass:
         the analytic emitters and, where they escape, the world, added to L
         at pixels idx with throughput beta.  Returns ew (K,) float64 the
         weight of an emissive triangle at each ray's hit (``Wavefront.ew``):
-        1 for the rays that leave no glossy point."""
+        1 for the rays that leave no glossy point (without glossy chains a
+        view of ones kept from call to call, which no one writes: no
+        per-pass array)."""
+        K = idx.size
+        if self.mis is None:
+            if self._ones.size < K:
+                self._ones = np.ones(K)     # only read (a writeable array: one kernel type)
+            return self._ones[:K]
         pdf, pp, nn = mis
-        ew = np.ones(idx.size)
+        ew = np.ones(K)
         g = np.nonzero(pdf > 0)[0]
         if g.size == 0:
             return ew
@@ -698,8 +714,8 @@ class CameraPass:
         prim, tfar = hit4[0], hit4[3]
         hit = prim >= 0
         t = np.where(hit, tfar, np.inf).astype(np.float64)
-        self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, _emitting(beta, mis[0]), last,
-                         see_through, fast=True, split=split)
+        self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, self._emitting(beta, mis[0]),
+                         last, see_through, fast=True, split=split)
         return hit4 + (self._glossy_emission(L, idx, o, d, t, prim, beta, last, mis),)
 
     def _wavefront_hits(self, depth, live, hit4, rng, ctx, split=True):
@@ -789,13 +805,7 @@ def _no_mis(n: int) -> tuple:
     return np.broadcast_to(_Z1, (n,)), np.broadcast_to(_Z3, (n, 3)), np.broadcast_to(_Z3, (n, 3))
 
 
-def _emitting(beta, pdf):
-    """The throughput (K, 3) with which rays add the emission ``_seen_along``
-    finds: beta, but 0 where a ray leaves a glossy point (pdf > 0), whose
-    emission ``_glossy_emission`` weighs."""
-    if pdf.size == 0 or not np.any(pdf > 0):
-        return beta
-    return np.where((pdf > 0)[:, None], 0.0, beta)
+
 
 
 def _in_row_order(parts):
