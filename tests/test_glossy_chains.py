@@ -40,7 +40,7 @@ import pytest
 from core.render import Renderer
 from core.scene.model import DIFFUSE, GLOSSY, TRANSPARENT, Light, Lobe, Material, make_scene
 from core.settings import RenderSettings
-from core.sppm.glossy_mis import GlossyMIS
+from core.sppm.glossy_mis import GlossyMIS, glossy_rows
 
 from analytic_scenes import look_down_ortho, quad, translate
 
@@ -132,7 +132,8 @@ def test_glossy_light_samples_compiled_equal_numpy():
     kern = mis._kernels()
     assert q.size > 500 and kern and kern[3][0]
     u = np.random.default_rng(5).random((q.size, 3))
-    a = mis._direct_compiled(vp, q, u, r.direct_light, kern)
-    b = mis._direct_numpy(vp, q, u, r.direct_light)
+    g = glossy_rows(vp, q)
+    a = mis._direct_compiled(g, u, r.direct_light, kern)
+    b = mis._direct_numpy(g, u, r.direct_light)
     assert np.count_nonzero(b.max(axis=1) > 0) > 0.5 * q.size
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-6 * np.abs(b).max())

@@ -1,7 +1,7 @@
 """Multiple importance sampling at the glossy points of the camera pass.
 
     mis = GlossyMIS(light_table, mtab, n_triangles)
-    L = mis.direct(vp, q, light_uniforms(u), nee)   # (K, 3) the light samples' part
+    L = mis.direct(glossy_rows(vp, q), light_uniforms(u), nee)   # (K, 3) the light samples' part
     w = mis.bsdf_weight(pdf_b, p, n, wi, light, dist)
 
 A glossy point (core.sppm.visible_points, "glossy chains": a vertex on a
@@ -28,6 +28,8 @@ estimation's shadow rays pass it).
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .. import lights as Lt
@@ -36,6 +38,37 @@ from ..materials import compiled as C
 from ..materials.fast import GENERIC, build_fast_materials
 from ..lights.table import MESH
 from ..mathutil import dot as _dot, power_heuristic
+
+
+class GlossyRows(NamedTuple):
+    """K glossy points, read once from the camera pass's visible-point rows
+    (:func:`glossy_rows`), float64 but mat: p (K, 3); ns, ng (K, 3) the
+    normals as the mesh has them (the materials orient them); n (K, 3) the
+    shading normal flipped with ng to wo's side (next-event estimation's
+    receiver normal); wo (K, 3); mat (K,) int64; colors (K, L, 3); beta
+    (K, 3) the throughput."""
+    p: np.ndarray
+    ns: np.ndarray
+    ng: np.ndarray
+    n: np.ndarray
+    wo: np.ndarray
+    mat: np.ndarray
+    colors: np.ndarray
+    beta: np.ndarray
+
+    def take(self, i) -> "GlossyRows":
+        """The rows i."""
+        return GlossyRows(*(a[i] for a in self))
+
+
+def glossy_rows(vp, q) -> GlossyRows:
+    """The rows q (K,) of vp (VisiblePoints or their VPBuffers) as GlossyRows."""
+    c = np.ascontiguousarray
+    n = c(vp.ns[q], np.float64)             # oriented to wo with ng (Cycles' back-face flip)
+    s = np.where(vp.front[q], 1.0, -1.0)[:, None]
+    return GlossyRows(p=c(vp.p[q], np.float64), ns=n * s, ng=c(vp.ng[q] * s), n=n,
+                      wo=c(vp.wo[q], np.float64), mat=c(vp.mat[q], np.int64),
+                      colors=c(vp.colors[q], np.float64), beta=c(vp.beta[q], np.float64))
 
 
 class GlossyMIS:
@@ -143,85 +176,73 @@ class GlossyMIS:
                 self._nee_kernels = lights + (PK.build_path_materials(mtab, fm), ok)
         return self._nee_kernels
 
-    def direct(self, vp, q, u, nee) -> np.ndarray:
-        """(K, 3) float64 the light samples of the K glossy points at rows q
-        of vp (a camera pass's VisiblePoints or VPBuffers) times their
-        throughput, each weighed against the density with which the point's
-        BSDF sample finds the same direction; u (K, 3) uniforms; shadow rays
-        by nee (``NextEventEstimation.transmittance``).  The rows of the
-        materials Path Tracing's kernels take (:meth:`_kernels`) by them, the
-        others by numpy (:meth:`_direct_numpy`): the same weights, to
-        rounding."""
+    def direct(self, g: GlossyRows, u, nee) -> np.ndarray:
+        """(K, 3) float64 the light samples of the K glossy points g times
+        their throughput, each weighed against the density with which the
+        point's BSDF sample finds the same direction; u (K, 3) uniforms;
+        shadow rays by nee (``NextEventEstimation.transmittance``).  The rows
+        of the materials Path Tracing's kernels take (:meth:`_kernels`) by
+        them, the others by numpy (:meth:`_direct_numpy`): the same weights,
+        to rounding."""
         kern = self._kernels()
-        out = np.zeros((q.size, 3))
-        if kern:
-            c = kern[3][np.asarray(vp.mat[q], np.int64)]
-            ci = np.nonzero(c)[0]
-            if ci.size:
-                out[ci] = self._direct_compiled(vp, q[ci], u[ci], nee, kern)
-            ni = np.nonzero(~c)[0]
-            if ni.size:
-                out[ni] = self._direct_numpy(vp, q[ni], u[ni], nee)
-            return out
-        return self._direct_numpy(vp, q, u, nee)
+        if not kern:
+            return self._direct_numpy(g, u, nee)
+        out = np.zeros((g.mat.size, 3))
+        c = kern[3][g.mat]
+        ci = np.nonzero(c)[0]
+        if ci.size:
+            out[ci] = self._direct_compiled(g.take(ci), u[ci], nee, kern)
+        ni = np.nonzero(~c)[0]
+        if ni.size:
+            out[ni] = self._direct_numpy(g.take(ni), u[ni], nee)
+        return out
 
-    def _direct_compiled(self, vp, q, u, nee, kern) -> np.ndarray:
+    def _direct_compiled(self, g: GlossyRows, u, nee, kern) -> np.ndarray:
         """:meth:`direct` by Path Tracing's kernels (``PathTracer._direct_compiled``'s
         calls: the light sample, the BSDF's value, the power-heuristic weight)."""
         from ..integrators import path_kernels as PK
         from ..lights import direct_kernels as DK
         L, Q, M, _ = kern
-        K, c = q.size, np.ascontiguousarray
-        s = np.where(vp.front[q], 1.0, -1.0)[:, None]
-        n_l = c(vp.ns[q], np.float64)
-        ns_m, ng_m = c(n_l * s), c(vp.ng[q] * s)
-        mat = c(vp.mat[q], np.int64)
-        R = DK.Receivers(np.arange(K), c(vp.p[q], np.float64), n_l, c(vp.beta[q], np.float64),
-                         c(M.col[mat]), np.zeros(K, bool), c(u, np.float64))
+        K = g.mat.size
+        R = DK.Receivers(np.arange(K), g.p, g.n, g.beta, np.ascontiguousarray(M.col[g.mat]),
+                         np.zeros(K, bool), np.ascontiguousarray(u, np.float64))
         S = DK.alloc_samples(K)
         DK.direct_kernel(0, K, L, R, S)
         w, pl, sel, live = np.empty(K), np.empty(K), np.empty(K), np.empty(K, bool)
         with np.errstate(over="ignore", invalid="ignore"):
-            PK.nee_mis_kernel(L, Q, M, mat, mat, R.beta, R.p, ng_m, ns_m, n_l,
-                              c(vp.wo[q], np.float64), S, w, live, pl, sel)
+            PK.nee_mis_kernel(L, Q, M, g.mat, g.mat, g.beta, g.p, g.ng, g.ns, g.n, g.wo, S, w,
+                              live, pl, sel)
         out = np.zeros((K, 3))
         r = np.nonzero(live & np.isfinite(w))[0]
         if r.size:
-            tr = nee.transmittance(R.p[r], ng_m[r], S.wi[r], S.dist[r],
+            tr = nee.transmittance(g.p[r], g.ng[r], S.wi[r], S.dist[r],
                                    self.lights.kind[S.light[r]] == MESH, S.shadow[r])
             out[r] = S.contrib[r] * tr * w[r, None]
         return out
 
-    def _direct_numpy(self, vp, q, u, nee) -> np.ndarray:
+    def _direct_numpy(self, g: GlossyRows, u, nee) -> np.ndarray:
         """:meth:`direct` in numpy (every material, textured colours and
         delta lobes included)."""
-        K = q.size
-        out = np.zeros((K, 3))
+        out = np.zeros((g.mat.size, 3))
         lt = self.lights
-        s = np.where(vp.front[q], 1.0, -1.0)[:, None]
-        n_l = vp.ns[q].astype(np.float64)   # flipped with ng to wo's side: nee's receiver normal
-        ns_m, ng_m = n_l * s, vp.ng[q] * s       # as the mesh has them
-        p = vp.p[q]
-        smp = Lt.sample_direct(lt, p, u, n=n_l)
+        smp = Lt.sample_direct(lt, g.p, u, n=g.n)
         wi, dist, wgt, light = smp["wi"], smp["dist"], smp["weight"], smp["light"].astype(np.int64)
         r = np.nonzero((wgt.max(axis=1) > 0) & np.all(np.isfinite(wgt), axis=1))[0]
         if r.size == 0:
             return out
         wi, dist, wgt, light, shadow = wi[r], dist[r], wgt[r], light[r], smp["cast_shadow"][r]
-        qr = q[r]
-        mat, colors = vp.mat[qr].astype(np.int64), vp.colors[qr].astype(np.float64)
-        wo = vp.wo[qr].astype(np.float64)
-        f = C.eval_radiance(self.mtab, self._radiance()[2], mat, colors, ns_m[r], ng_m[r], wo, wi)
-        contrib = vp.beta[qr] * f * (np.abs(_dot(n_l[r], wi))[:, None] * wgt)
+        h = g.take(r)
+        f = C.eval_radiance(self.mtab, self._radiance()[2], h.mat, h.colors, h.ns, h.ng, h.wo, wi)
+        contrib = h.beta * f * (np.abs(_dot(h.n, wi))[:, None] * wgt)
         # Weighed where the chain's BSDF ray could find the light too.
-        seen = Lt.bsdf_sees(lt, self.hittable, light, ng_m[r], wo, wi)
+        seen = Lt.bsdf_sees(lt, self.hittable, light, h.ng, h.wo, wi)
         w = np.ones(r.size)
         m = np.nonzero(seen)[0]
         if m.size:
-            pl = self._pdf_light(p[r[m]], wi[m], light[m], dist[m], n_l[r[m]])
-            pb = self.pdf(mat[m], colors[m], ns_m[r[m]], ng_m[r[m]], wo[m], wi[m])
+            pl = self._pdf_light(h.p[m], wi[m], light[m], dist[m], h.n[m])
+            pb = self.pdf(h.mat[m], h.colors[m], h.ns[m], h.ng[m], h.wo[m], wi[m])
             w[m] = power_heuristic(pl, pb)
-        tr = nee.transmittance(p[r], ng_m[r], wi, dist, lt.kind[light] == MESH, shadow)
+        tr = nee.transmittance(h.p, h.ng, wi, dist, lt.kind[light] == MESH, shadow)
         out[r] = contrib * tr * w[:, None]
         return out
 

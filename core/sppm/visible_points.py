@@ -37,7 +37,7 @@ from ..scene import normals as shading_normals
 from .. import lights as Lt
 from .. import materials as B
 from ..mathutil import dot as _dot
-from .glossy_mis import GlossyMIS, light_uniforms
+from .glossy_mis import GlossyMIS, glossy_rows, light_uniforms
 
 #: Camera rays from which a wavefront's Embree call is split in two threads.
 INTERSECT_SPLIT_MIN = 1 << 15
@@ -555,27 +555,19 @@ class CameraPass:
         samples' uniforms are a hash of u (``glossy_mis.light_uniforms``):
         each point's own, however the wavefront was split."""
         self._glossy_n.append(q.size)
-        front = vp.front[q]
-        sgn = np.where(front, 1.0, -1.0)[:, None]
-        ns_m = vp.ns[q].astype(np.float64) * sgn
-        ng_m = vp.ng[q] * sgn
-        wo = vp.wo[q].astype(np.float64)
-        mat = vp.mat[q].astype(np.int64)
-        colors = vp.colors[q].astype(np.float64)
-        bt = vp.beta[q].astype(np.float64)
-        L[q] += self.mis.direct(vp, q, light_uniforms(u), self.nee)
+        g = glossy_rows(vp, q)
+        L[q] += self.mis.direct(g, light_uniforms(u), self.nee)
         vp.valid[q] = False
         vp.through_delta[q] = False
-        wi, wgt, pdf, _, ok = self.mis.sample(mat, colors, ns_m, ng_m, wo, u)
+        wi, wgt, pdf, _, ok = self.mis.sample(g.mat, g.colors, g.ns, g.ng, g.wo, u)
         ok = ok & np.all(np.isfinite(wgt), axis=1) & (wgt.max(axis=1) > 0)
         keep = np.nonzero(ok)[0]
         if keep.size == 0:
             return None
         wi = wi[keep]
-        o, last = self._leaving(vp.p[q[keep]], ng_m[keep], wo[keep], wi)
-        n_l = vp.ns[q[keep]].astype(np.float64)     # flipped with ng to wo's side
-        return (keep, o, wi, bt[keep] * wgt[keep], plen[keep], last, np.zeros(keep.size, bool),
-                dz[keep], pdf[keep], vp.p[q[keep]], n_l)
+        o, last = self._leaving(g.p[keep], g.ng[keep], g.wo[keep], wi)
+        return (keep, o, wi, g.beta[keep] * wgt[keep], plen[keep], last,
+                np.zeros(keep.size, bool), dz[keep], pdf[keep], g.p[keep], g.n[keep])
 
     def _trace_compiled(self, rng, rays, dz, vp, L, check_stop):
         """The camera pass with the per-hit work in ``camera_kernels.hit_kernel``
