@@ -11,7 +11,8 @@ import numpy as np
 
 from .lights.shadow import transparent_materials
 from .materials import glossy_only
-from .lights.table import AREA, MESH
+from .lights.table import AREA, MESH, POINT, SPOT, SUN
+from .scene.model import TRANSPARENT
 from .settings import RenderSettings
 
 # Convexity test budget: triangles x vertices pairs checked exactly.
@@ -109,7 +110,7 @@ def _one_plane(tri_p: np.ndarray) -> bool:
     eps = 1e-6 * (float(np.ptp(P, axis=0).max()) or 1.0)
     return bool(np.all(np.abs((P - P[0]) @ n) <= eps))
 
-STAGES = ("specular chains", "frequency photons", "occlusion grid")
+STAGES = ("specular chains", "glossy chains", "frequency photons", "occlusion grid")
 
 
 def with_camera_stop(strategies: tuple, stop, samples: int) -> tuple:
@@ -149,6 +150,19 @@ def merges_photons(settings: RenderSettings, has_delta: bool, has_nondelta: bool
     # non-delta point lit through a delta vertex (core.integrators.merge):
     # none without both kinds of material.
     return has_delta and has_nondelta
+
+
+def casts_small_caustics(mtab, light_table) -> bool:
+    """Whether a point, spot or sun light (of any radius or angle: small
+    against the scene) shines in a scene with a mirror or glass lobe that
+    bends light (a delta lobe of nonzero weight and colour other than
+    Transparent's straight crossing): its caustics may fall on any surface."""
+    small = np.isin(light_table.kind, (POINT, SPOT, SUN)) & np.any(light_table.flux > 0, axis=1)
+    if not mtab.kind.size or not np.any(small):
+        return False
+    bends = (mtab.lobe_delta & (mtab.kind != TRANSPARENT) & (mtab.weight != 0.0)
+             & (mtab.color.max(axis=2) > 0.0))
+    return bool(bends.any())
 
 
 def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> RenderPlan:
@@ -210,6 +224,17 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
                           and not settings.fixed_visible_points
                           and not settings.photons_for_direct
                           and bool(glossy_only(mtab).any()) if mtab.kind.size else False)
+    if (plan.glossy_chains and "glossy chains" not in force
+            and casts_small_caustics(mtab, light_table)):
+        # A glossy point's chain reaches a point, spot or sun light through a
+        # mirror or glass only by hitting it: never at radius 0, as fireflies
+        # when small.  The visible point on the glossy surface gathers that
+        # caustic's photons instead (docs/method.md "Caustics on glossy
+        # surfaces keep their visible points, round 31").
+        plan.glossy_chains = False
+        plan.left_out.append(("glossy chains", "a point, spot or sun light and a mirror or "
+                                               "glass: their caustics on glossy surfaces are "
+                                               "gathered there"))
     plan.specular_chains = has_delta or "specular chains" in force
     if not plan.specular_chains:
         plan.left_out.append(("specular chains", "no mirror, glass or transparent material"))

@@ -251,7 +251,10 @@ def run_jobs(jobs, should_stop: Optional[Callable[[], bool]] = None,
     for k, job in enumerate(jobs):
         scene, st, passes = (tuple(job) + ((),))[:3]
         with _split_paths(split_first and k == 0):
-            r = Renderer(scene, st, log=lambda _m: None, should_stop=should_stop, passes=passes)
+            # glossy chains kept whatever the lights: the first job's metal
+            # plate compiles the glossy points' kernels beside its point light
+            r = Renderer(scene, st, log=lambda _m: None, should_stop=should_stop, passes=passes,
+                         force_stages=("glossy chains",))
             r.run(should_stop=should_stop)
         if should_stop is not None and should_stop():
             raise RenderCancelled("cancelled")
