@@ -181,7 +181,14 @@ class FPPMRenderSettings(PropertyGroup):
                     "rough glass (materials without a diffuse part), with their direct "
                     "light by light and BSDF samples weighed by MIS, and gather photons "
                     "at the next diffuse surface, as pbrt-v4's SPPM: sharp reflections "
-                    "instead of photons gathered through a glossy lobe")
+                    "instead of photons gathered through a glossy lobe. Left out where a "
+                    "point, spot or sun light and a mirror or glass are in the scene: their "
+                    "caustics on glossy surfaces are gathered there")
+    light_samples: IntProperty(
+        name="Light Samples", default=_D.light_samples, min=0, max=64, soft_max=16,
+        description="Photon Mapping: light samples averaged at each visible point in a "
+                    "pass. 0: automatic (4, or 1 where the only light is a point, spot or "
+                    "sun without size and every pass would sample it alike)")
 
     # --- Frequency
     use_frequency: BoolProperty(

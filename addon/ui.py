@@ -94,6 +94,7 @@ class FPPM_RENDER_PT_light_paths(FPPMPanel, Panel):
         col.prop(s, "max_bounces")
         col.prop(s, "rr_start")
         col.prop(s, "glossy_chains")
+        col.prop(s, "light_samples")
         col = layout.column(heading="Classic PPM")
         col.prop(s, "photons_for_direct")
         col.prop(s, "fixed_visible_points")

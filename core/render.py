@@ -128,6 +128,22 @@ def border_rect(border, W: int, H: int) -> tuple[int, int, int, int]:
     return x0, y0, min(max(x1, x0 + 1), W), min(max(y1, y0 + 1), H)
 
 
+
+class _InTurn:
+    """Several ``SharedBlocks`` jobs (the light samples of a pass) taken one
+    after the other by whichever threads call :meth:`take`."""
+
+    def __init__(self, jobs):
+        self.jobs = jobs
+
+    def take(self) -> None:
+        for j in self.jobs:
+            j.take()
+
+    def stop(self) -> None:
+        for j in self.jobs:
+            j.stop()
+
 class Renderer:
     #: Arrays every checkpoint holds (the optional r_hist / spectrum come with
     #: the settings that need them); derived from the state's fields.
@@ -487,17 +503,23 @@ class Renderer:
         clock["camera"] += td - tc
         L_pass = L_emit
         job = None
+        streams = self._direct_streams(k)
         if not st.photons_for_direct:
             if st.fixed_visible_points:               # L_emit is kept for the next passes
-                L_pass = L_pass + self._interruptible(self.direct_light, vp, self._rng(k, 1))
-            else:
-                # Into this pass's own emission array: no (P, 3) array beside it.
-                shared = getattr(self.direct_light, "shared", None)   # None: a stand-in
-                if (DIRECT_BESIDE_SETUP and shared is not None
-                        and vp.valid.shape[0] < hashgrid.PARALLEL_MIN_VPS):
-                    job = shared(vp, self._rng(k, 1), L_pass)
-                if job is None:
-                    self._interruptible(self.direct_light, vp, self._rng(k, 1), add_to=L_pass)
+                L_pass = L_pass * len(streams)
+            # Into this pass's own emission array: no (P, 3) array beside it.
+            # With K light samples it holds K L_emit plus the K estimates until
+            # the division below (by 4, the automatic K: exact in floats).
+            elif len(streams) > 1:
+                L_pass *= len(streams)
+            shared = getattr(self.direct_light, "shared", None)   # None: a stand-in
+            if (DIRECT_BESIDE_SETUP and shared is not None and not st.fixed_visible_points
+                    and vp.valid.shape[0] < hashgrid.PARALLEL_MIN_VPS):
+                jobs = [shared(vp, r, L_pass) for r in streams]
+                job = None if jobs[0] is None else _InTurn(jobs)
+            if job is None:
+                for r in streams:
+                    self._interruptible(self.direct_light, vp, r, add_to=L_pass)
         clock["direct"] += time.perf_counter() - td
         side = None
         try:
@@ -517,6 +539,8 @@ class Renderer:
                     side.exception()    # waits: nothing writes L_pass after the pass
         if side is not None:
             clock["direct"] += side.result()
+        if len(streams) > 1 and not st.photons_for_direct:
+            L_pass /= len(streams)
         tu = time.perf_counter()
         state.L_sum += L_pass
         self.film.accumulate(vp)
@@ -794,6 +818,15 @@ class Renderer:
         drop = getattr(self.photon_pass, "drop_next", None)
         if drop is not None:
             drop(wait=False)
+
+    def _direct_streams(self, k: int) -> list:
+        """The random streams of pass k's light samples at the visible
+        points, one per estimate (plan.light_samples): the first is the
+        direct stage's own stream (one sample: the same image as before the
+        setting), each other one its own."""
+        K = max(1, int(self.plan.light_samples))
+        return [self._rng(k, 1)] + [np.random.Generator(np.random.PCG64(
+            np.random.SeedSequence([self.settings.seed, k, 1, j]))) for j in range(1, K)]
 
     def _rng(self, k: int, stage: int) -> np.random.Generator:
         # One independent stream per (seed, pass, stage): deterministic, and a

@@ -45,6 +45,7 @@ class RenderSettings:
     photons_for_direct: bool = False  # classic PPM: photons also for direct light
     fixed_visible_points: bool = False  # classic PPM: trace visible points once
     glossy_chains: bool = True       # PHOTON: camera paths go on through materials without a diffuse lobe (pbrt-v4 SPPM; docs/method.md "Glossy chains, round 30")
+    light_samples: int = 0           # PHOTON: next-event estimates per visible point and pass, averaged; 0 = automatic (core.plan.auto_light_samples; docs/method.md "Light samples at the visible points, round 31")
     # --- Frequency
     use_frequency: bool = True
     frequency_fraction: float = 0.25
@@ -85,6 +86,8 @@ class RenderSettings:
             bad("seed", "must be in [0, 2^31)")
         if not 1 <= self.camera_samples <= 4096:
             bad("camera_samples", "must be in [1, 4096]")
+        if not 0 <= self.light_samples <= 64:
+            bad("light_samples", "must be in [0, 64] (0: automatic)")
         if self.camera_depth not in ("AUTO", "FULL", "EMITTERS", "DIRECT"):
             bad("camera_depth", "must be 'AUTO', 'FULL', 'EMITTERS' or 'DIRECT'")
         if not (math.isfinite(self.light_paths_per_camera_path)

@@ -84,7 +84,7 @@ def test_to_settings_round_trips_every_field():
                        radius_mode="WORLD", initial_radius_px=3.5, initial_radius=0.02,
                        alpha=0.6, cap_radius_at_edges=False, max_bounces=5, rr_start=2,
                        photons_for_direct=True,
-                       fixed_visible_points=True, glossy_chains=False,
+                       fixed_visible_points=True, glossy_chains=False, light_samples=3,
                        use_frequency=False, frequency_fraction=0.3,
                        frequency_decay=0.25, frequency_start=4,
                        frequency_model="PAPER", frequency_estimator="QUANTILE",
