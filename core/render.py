@@ -128,7 +128,6 @@ def border_rect(border, W: int, H: int) -> tuple[int, int, int, int]:
     return x0, y0, min(max(x1, x0 + 1), W), min(max(y1, y0 + 1), H)
 
 
-
 class _InTurn:
     """Several ``SharedBlocks`` jobs (the light samples of a pass) taken one
     after the other by whichever threads call :meth:`take`."""
@@ -143,6 +142,7 @@ class _InTurn:
     def stop(self) -> None:
         for j in self.jobs:
             j.stop()
+
 
 class Renderer:
     #: Arrays every checkpoint holds (the optional r_hist / spectrum come with
