@@ -187,8 +187,9 @@ class FPPMRenderSettings(PropertyGroup):
     light_samples: IntProperty(
         name="Light Samples", default=_D.light_samples, min=0, max=64, soft_max=16,
         description="Photon Mapping: light samples averaged at each visible point in a "
-                    "pass. 0: automatic (4, or 1 where the only light is a point, spot or "
-                    "sun without size and every pass would sample it alike)")
+                    "pass. 0: automatic (4 from 8 photons a pixel and pass, 2 from 2, else "
+                    "1; and 1 where the only light is a point, spot or sun without size, "
+                    "which every pass would sample alike)")
 
     # --- Frequency
     use_frequency: BoolProperty(

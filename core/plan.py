@@ -11,6 +11,7 @@ import numpy as np
 
 from .lights.shadow import transparent_materials
 from .materials import glossy_only
+from .lights.pdf import bsdf_hittable
 from .lights.table import AREA, MESH, POINT, SPOT, SUN
 from .scene.model import TRANSPARENT
 from .settings import RenderSettings
@@ -160,20 +161,29 @@ def merges_photons(settings: RenderSettings, has_delta: bool, has_nondelta: bool
 #: and a share of the photon pass, a light sample far less, so a pass
 #: spends a little more to take the light samples' noise down (docs/method.md
 #: "Light samples at the visible points, round 31": 4 was best of 1, 2, 4, 8
-#: on the Cornell box at equal CPU).
+#: on the Cornell box at 128^2 and 200,000 photons at equal CPU).
 AUTO_LIGHT_SAMPLES = 4
+#: Photons per pixel and pass from which the automatic count is
+#: AUTO_LIGHT_SAMPLES, and from which it is 2 (below: 1).  The best count
+#: goes as the square root of the ratio of the photons' noise to the light
+#: samples' (Veach's cost-variance balance), and a pixel's photon noise as
+#: one over its photons: 4 at 12 photons a pixel (128^2), so about 2 at 3
+#: (256^2) and 1 below 1 (at 1080p, 0.1, four samples cost 1.5x a pass for
+#: nothing the photons' noise lets be seen).
+AUTO_LIGHT_SAMPLES_DENSITY = (8.0, 2.0)
 
 
-def auto_light_samples(light_table) -> int:
+def auto_light_samples(light_table, photons_per_pixel: float) -> int:
     """settings.light_samples 0's count: 1 where a visible point's light
     sample is the same every pass (one emitter of nonzero power, a point or
     spot of radius 0 or a sun of angle 0, and no environment map: nothing to
-    average), else AUTO_LIGHT_SAMPLES."""
-    from .lights.pdf import bsdf_hittable
+    average); else AUTO_LIGHT_SAMPLES, 2 or 1 by the photons a pixel gets a
+    pass (AUTO_LIGHT_SAMPLES_DENSITY)."""
     lit = np.any(light_table.flux > 0, axis=1)
     if light_table.environment is None and lit.sum() == 1 and not bsdf_hittable(light_table)[lit].any():
         return 1
-    return AUTO_LIGHT_SAMPLES
+    many, two = AUTO_LIGHT_SAMPLES_DENSITY
+    return AUTO_LIGHT_SAMPLES if photons_per_pixel >= many else 2 if photons_per_pixel >= two else 1
 
 
 def casts_small_caustics(mtab, light_table) -> bool:
@@ -260,7 +270,9 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
                                                "glass: their caustics on glossy surfaces are "
                                                "gathered there"))
     if settings.integrator == "PHOTON" and not settings.photons_for_direct:
-        plan.light_samples = settings.light_samples or auto_light_samples(light_table)
+        W, H = scene.camera.resolution
+        plan.light_samples = settings.light_samples or auto_light_samples(
+            light_table, settings.photons_per_pass / max(1, int(W) * int(H)))
     plan.specular_chains = has_delta or "specular chains" in force
     if not plan.specular_chains:
         plan.left_out.append(("specular chains", "no mirror, glass or transparent material"))

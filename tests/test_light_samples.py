@@ -5,8 +5,9 @@ estimates per visible point and pass (core.render.Renderer.step).
 What is asserted, and where each tolerance comes from:
 - The automatic count: 1 where the only emitter is a point, spot or sun
   without size (its light sample is the same in every pass), else
-  AUTO_LIGHT_SAMPLES; an explicit count is kept; other integrators and
-  Photons for Direct Light have no such stage (1).
+  AUTO_LIGHT_SAMPLES from 8 photons a pixel and pass, 2 from 2, 1 below;
+  an explicit count is kept; other integrators and Photons for Direct
+  Light have no such stage (1).
 - A Lambert plane under a square area light (analytic_scenes.area_light_plane,
   no indirect light), one pass of each of 8 seeds at 1, 4 and 16 samples:
   a pixel's variance over the seeds is a + b / K (a the camera's jitter
@@ -33,8 +34,10 @@ from core.settings import RenderSettings
 from analytic_scenes import area_light_plane, pixel_centres_ortho, point_light_plane
 
 
-def _plan(scene, **kw):
-    return Renderer(scene, RenderSettings(photons_per_pass=100, **kw), log=lambda _m: None).plan
+def _plan(scene, photons=20_000, **kw):
+    # 24 x 24 pixels: 20,000 photons are 35 a pixel (AUTO_LIGHT_SAMPLES_DENSITY)
+    return Renderer(scene, RenderSettings(photons_per_pass=photons, **kw),
+                    log=lambda _m: None).plan
 
 
 def _with_lights(scene, *changes, world=None):
@@ -54,6 +57,9 @@ def test_the_automatic_count():
         p = _plan(sc, integrator="PHOTON")
         assert p.light_samples == AUTO_LIGHT_SAMPLES
         assert f"{AUTO_LIGHT_SAMPLES} light samples" in p.lines()[0]
+    # fewer photons a pixel: fewer samples (the photons' noise dominates)
+    assert _plan(area, photons=2000, integrator="PHOTON").light_samples == 2
+    assert _plan(area, photons=500, integrator="PHOTON").light_samples == 1
     assert _plan(point, integrator="PHOTON", light_samples=3).light_samples == 3
     assert _plan(area, integrator="PHOTON", light_samples=1).light_samples == 1
     assert _plan(area, integrator="COMBINED").light_samples == 1
