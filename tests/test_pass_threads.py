@@ -211,7 +211,8 @@ def test_direct_beside_setup_gives_the_same_image(monkeypatch):
     """The direct light shared out beside the photon pass's set-up
     (render.DIRECT_BESIDE_SETUP; taken by the side thread and by the pass's
     thread after its grid build) gives every pass's image bit for bit as
-    the direct light before the set-up, also around a cancel in a gather."""
+    the direct light before the set-up, also around a cancel in a gather;
+    with several light samples a pass (its K jobs taken in turn)."""
     from core import render as Rd
     from core.lights import nee as NEE
     from core.sppm import camera_kernels as CK
@@ -228,7 +229,9 @@ def test_direct_beside_setup_gives_the_same_image(monkeypatch):
     for cancel_in in (None, (2, 1), (3, 4)):
         jobs.clear()
         beside, r = _passes(4, cancel_in)
-        assert len(jobs) == 4 + (cancel_in is not None) and all(j is not None for j in jobs)
+        # one job per light sample (plan.light_samples) of each pass started
+        K = r.plan.light_samples
+        assert len(jobs) == K * (4 + (cancel_in is not None)) and all(j is not None for j in jobs)
         assert r.photon_pass.beside is None
         for k, (a, b) in enumerate(zip(here, beside)):
             assert np.array_equal(a, b), (cancel_in, k)
