@@ -167,9 +167,9 @@ AUTO_LIGHT_SAMPLES = 4
 #: AUTO_LIGHT_SAMPLES, and from which it is 2 (below: 1).  The best count
 #: goes as the square root of the ratio of the photons' noise to the light
 #: samples' (Veach's cost-variance balance), and a pixel's photon noise as
-#: one over its photons: 4 at 12 photons a pixel (128^2), so about 2 at 3
-#: (256^2) and 1 below 1 (at 1080p, 0.1, four samples cost 1.5x a pass for
-#: nothing the photons' noise lets be seen).
+#: one over its photons: 4 at 12 photons a pixel (128^2 at 200,000), so
+#: about 2 at 3 (256^2) and 1 below 1 (1080p: 0.1, where the photons' noise
+#: hides what more light samples would take away; docs/method.md).
 AUTO_LIGHT_SAMPLES_DENSITY = (8.0, 2.0)
 
 
