@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .lights.shadow import transparent_materials
-from .materials import glossy_only
+from .materials import glossy_only, used_lobes
 from .lights.pdf import bsdf_hittable
 from .lights.table import AREA, MESH, POINT, SPOT, SUN
 from .scene.model import TRANSPARENT
@@ -173,13 +173,18 @@ AUTO_LIGHT_SAMPLES = 4
 AUTO_LIGHT_SAMPLES_DENSITY = (8.0, 2.0)
 
 
+def _lit(light_table) -> np.ndarray:
+    """(Nl,) bool: the emitters of nonzero power."""
+    return np.any(light_table.flux > 0, axis=1)
+
+
 def auto_light_samples(light_table, photons_per_pixel: float) -> int:
     """settings.light_samples 0's count: 1 where a visible point's light
     sample is the same every pass (one emitter of nonzero power, a point or
     spot of radius 0 or a sun of angle 0, and no environment map: nothing to
     average); else AUTO_LIGHT_SAMPLES, 2 or 1 by the photons a pixel gets a
     pass (AUTO_LIGHT_SAMPLES_DENSITY)."""
-    lit = np.any(light_table.flux > 0, axis=1)
+    lit = _lit(light_table)
     if light_table.environment is None and lit.sum() == 1 and not bsdf_hittable(light_table)[lit].any():
         return 1
     many, two = AUTO_LIGHT_SAMPLES_DENSITY
@@ -191,12 +196,10 @@ def casts_small_caustics(mtab, light_table) -> bool:
     against the scene) shines in a scene with a mirror or glass lobe that
     bends light (a delta lobe of nonzero weight and colour other than
     Transparent's straight crossing): its caustics may fall on any surface."""
-    small = np.isin(light_table.kind, (POINT, SPOT, SUN)) & np.any(light_table.flux > 0, axis=1)
+    small = np.isin(light_table.kind, (POINT, SPOT, SUN)) & _lit(light_table)
     if not mtab.kind.size or not np.any(small):
         return False
-    bends = (mtab.lobe_delta & (mtab.kind != TRANSPARENT) & (mtab.weight != 0.0)
-             & (mtab.color.max(axis=2) > 0.0))
-    return bool(bends.any())
+    return bool((used_lobes(mtab) & mtab.lobe_delta & (mtab.kind != TRANSPARENT)).any())
 
 
 def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> RenderPlan:

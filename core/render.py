@@ -825,14 +825,13 @@ class Renderer:
         direct stage's own stream (one sample: the same image as before the
         setting), each other one its own."""
         K = max(1, int(self.plan.light_samples))
-        return [self._rng(k, 1)] + [np.random.Generator(np.random.PCG64(
-            np.random.SeedSequence([self.settings.seed, k, 1, j]))) for j in range(1, K)]
+        return [self._rng(k, 1)] + [self._rng(k, 1, j) for j in range(1, K)]
 
-    def _rng(self, k: int, stage: int) -> np.random.Generator:
-        # One independent stream per (seed, pass, stage): deterministic, and a
-        # resumed render continues the same sequence.
+    def _rng(self, k: int, stage: int, *sub: int) -> np.random.Generator:
+        # One independent stream per (seed, pass, stage[, sub-streams]):
+        # deterministic, and a resumed render continues the same sequence.
         return np.random.Generator(np.random.PCG64(
-            np.random.SeedSequence([self.settings.seed, k, stage])))
+            np.random.SeedSequence([self.settings.seed, k, stage, *sub])))
 
     def _check_stop(self):
         if self._should_stop():

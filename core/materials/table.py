@@ -278,14 +278,18 @@ def delta_probability(table: MaterialTable, mat: np.ndarray, colors: np.ndarray)
     return np.where(tot > 0, wd / np.where(tot > 0, tot, 1.0), 0.0)
 
 
+def used_lobes(table: MaterialTable) -> np.ndarray:
+    """(M, L) bool: the lobes that scatter light (weight and colour nonzero)."""
+    return (table.kind >= 0) & (table.weight != 0.0) & (table.color.max(axis=2) > 0.0)
+
+
 def glossy_only(table: MaterialTable) -> np.ndarray:
     """(M,) bool: materials with non-delta lobes of nonzero weight and
     colour, none of them diffuse (DIFFUSE or TRANSLUCENT): a metal, a Glossy
     BSDF, rough glass (not an emitter's black diffuse lobe).  pbrt-v4's SPPM makes its visible points only
     where the BSDF has a diffuse part and follows the camera path through
     the others (core.sppm.visible_points, "glossy chains")."""
-    used = ((table.kind >= 0) & (table.weight != 0.0) & ~table.lobe_delta
-            & (table.color.max(axis=2) > 0.0))
+    used = used_lobes(table) & ~table.lobe_delta
     diffuse = used & ((table.kind == DIFFUSE) | (table.kind == TRANSLUCENT))
     return used.any(axis=1) & ~diffuse.any(axis=1)
 
