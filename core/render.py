@@ -76,7 +76,7 @@ from .frequency.curvature import scene_curvature
 from .sppm.photons import PhotonTracer
 from .sppm.state import PixelState
 from .sppm.update import HIST_BINS, SECTOR_CELLS, Radii, needs_sectors
-from .sppm.visible_points import CameraPass, VisiblePoints
+from .sppm.visible_points import CameraPass, InTurn, VisiblePoints
 
 __all__ = ["Renderer", "PassResult", "VisiblePoints", "PHOTON_CHUNK"]
 
@@ -126,22 +126,6 @@ def border_rect(border, W: int, H: int) -> tuple[int, int, int, int]:
     x0, y0, x1, y1 = (int(f32(b) * f32(n)) for b, n in zip(border, (W, H, W, H)))
     x0, y0 = min(max(x0, 0), W - 1), min(max(y0, 0), H - 1)
     return x0, y0, min(max(x1, x0 + 1), W), min(max(y1, y0 + 1), H)
-
-
-class _InTurn:
-    """Several ``SharedBlocks`` jobs (the light samples of a pass) taken one
-    after the other by whichever threads call :meth:`take`."""
-
-    def __init__(self, jobs):
-        self.jobs = jobs
-
-    def take(self) -> None:
-        for j in self.jobs:
-            j.take()
-
-    def stop(self) -> None:
-        for j in self.jobs:
-            j.stop()
 
 
 class Renderer:
@@ -516,7 +500,7 @@ class Renderer:
             if (DIRECT_BESIDE_SETUP and shared is not None and not st.fixed_visible_points
                     and vp.valid.shape[0] < hashgrid.PARALLEL_MIN_VPS):
                 jobs = [shared(vp, r, L_pass) for r in streams]
-                job = None if jobs[0] is None else _InTurn(jobs)
+                job = None if jobs[0] is None else InTurn(jobs)
             if job is None:
                 for r in streams:
                     self._interruptible(self.direct_light, vp, r, add_to=L_pass)

@@ -860,6 +860,22 @@ class SharedBlocks:
             self._stopped = True
 
 
+class InTurn:
+    """Several :class:`SharedBlocks` (a pass's light samples) taken one after
+    the other by whichever threads call :meth:`take`."""
+
+    def __init__(self, jobs):
+        self.jobs = jobs
+
+    def take(self) -> None:
+        for j in self.jobs:
+            j.take()
+
+    def stop(self) -> None:
+        for j in self.jobs:
+            j.stop()
+
+
 def blocks_in_two_threads(n: int, blk: int, block) -> None:
     """block(a) for the block starts a = 0, blk, 2 blk, ... < n, taken in
     turn by two threads (:func:`in_two_threads`) until none is left; each
