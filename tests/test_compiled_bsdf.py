@@ -176,3 +176,18 @@ def test_render_compiled_equals_numpy(monkeypatch, frequency):
     assert a.aovs.keys() == b.aovs.keys()
     for k in a.aovs:
         np.testing.assert_allclose(b.aovs[k], a.aovs[k], rtol=1e-12, atol=0, err_msg=k)
+
+
+def test_per_pair_functions_take_no_reference_counts():
+    """The functions the kernels call once per pair, ray or light sample with
+    arrays take no reference counts (``core._numba_cache.NO_REFCOUNTS``), and
+    the lobe helpers stay functions of their own: both are what keeps a
+    Lambert material's f at about half its cost before round 32, with the same
+    bits (docs/architecture.md "The BSDF evaluation's fixed cost, round
+    32").  numba would accept their removal silently and only run slower."""
+    from core.lights import direct_kernels as D
+    for f in (C.eval_pair_as, C.sample_pair, C._layer_transmission, C._ms_albedo,
+              D._entry_weight, D._spot_atten):
+        assert f.targetoptions.get("_nrt") is False, f.__name__
+    for f in (C._diffuse_lobe, C._microfacet_lobe):
+        assert f.targetoptions.get("inline", "never") == "never", f.__name__

@@ -74,8 +74,9 @@ from ..lights.table import AREA, MESH, POINT, SPOT, WORLD
 # warp's one division and sample_fast inlined, with compiled.sample_pair's
 # radiance mode, with the GENERIC materials in these kernels, with the
 # Normal Map / Bump corrections of the radiance-mode sample and density, with
-# the microfacet lobes' geometric side test, and with the colour row of
-# sample_pair and pdf_oriented).
+# the microfacet lobes' geometric side test, with the colour row of
+# sample_pair and pdf_oriented, and with the BSDF evaluation's lobe helpers
+# and reference counts of round 32).
 from ..materials.compiled import SelectionTable, eval_pair, pdf_oriented, sample_pair
 from ..materials.hit_colors import hit_rows, textured_lambert, textured_materials
 from ..materials.fast import ABSORBER, GENERIC, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast

@@ -36,6 +36,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .._numba_cache import NO_REFCOUNTS
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 # map_sample is compiled into direct_kernel, and numba's cache is stamped by
 # this file: edited with its guide table of round 28 and with map_sample's
@@ -251,7 +252,7 @@ def _cross(ax, ay, az, bx, by, bz):
     return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNTS)
 def _spot_atten(r, j, wx, wy, wz):
     """table._spot_atten of one direction leaving light j (r: EntryLights.row)."""
     m = _LIN
@@ -373,7 +374,7 @@ def _spherical_tri(px, py, pz, Ax, Ay, Az, Bx, By, Bz, Cx, Cy, Cz, u1, u2):
     return wx, wy, wz, omega
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", **NO_REFCOUNTS)
 def _entry_weight(S, j, px, py, pz):
     """One column of sampling._entry_weights (entry of emitter j >= 0; S:
     EntryLights)."""

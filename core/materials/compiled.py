@@ -29,6 +29,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .._numba_cache import NO_REFCOUNTS
 from ..scene.model import DIFFUSE, GLASS, GLOSSY, REFRACTION, TRANSLUCENT, TRANSPARENT
 from .microfacet import FRESNEL_DIELECTRIC, FRESNEL_F82, INV_PI
 from .multiscatter import _lerp_index, _ms_glass_slice, _ms_tables, _schlick_s_slice
@@ -285,7 +286,7 @@ def _ggx_albedo(T, rough, mu):
             (1 - ti) * T[T_GGX_EAVG + i] + ti * T[T_GGX_EAVG + i + 1])
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", **NO_REFCOUNTS)
 def _layer_transmission(T, f0, rough, ior, mu, ms):
     """multiscatter.layer_transmission for one point."""
     z = math.sqrt(abs((ior - 1.0) / (ior + 1.0)))
@@ -306,7 +307,7 @@ def _layer_transmission(T, f0, rough, ior, mu, ms):
     return _clip01(1.0 - A)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", **NO_REFCOUNTS)
 def _ms_albedo(T, kind, rough, eta, mu):
     """The (E, E_avg) of multiscatter.multiscatter_factor."""
     if kind != GLASS:
@@ -425,7 +426,77 @@ def eval_pair(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz
                         lx, ly, lz, want_smooth, lobes[m, 0, F_BUMP] > 0.0)
 
 
+# The two lobe helpers are functions of their own, called from eval_pair_as's
+# lobe loop, not inlined into it: written inline, LLVM hoisted their parts
+# that do not depend on the lobe (F82's two powers of 1 - h.v, the half
+# vector, ...) out of the loop and computed them on every call, for every
+# material, whether it had such a lobe or not (about 40 % of the cost of a
+# Lambert material's f; docs/architecture.md "The BSDF evaluation's fixed
+# cost, round 32").  A call is not hoisted.  Same arithmetic, same bits.
 @njit(cache=True, error_model="numpy")
+def _diffuse_lobe(k, rough, c0, c1, c2, u0, u1, u2, nl, nv, lv):
+    """f of one DIFFUSE or TRANSLUCENT lobe (colour c, albedo u = c / weight):
+    Lambert (roughness below DIFFUSE_ROUGHNESS_EPS) or microfacet.oren_nayar_f
+    (Fujii, energy-preserving); nl = N.l, nv = N.v, lv = l.v.  (g0, g1, g2)."""
+    if k == TRANSLUCENT:
+        q = INV_PI * (1.0 if nl < 0.0 else 0.0)
+        return c0 * q, c1 * q, c2 * q
+    if rough < DIFFUSE_ROUGHNESS_EPS:
+        q = INV_PI * (1.0 if nl > 0.0 else 0.0)
+        return c0 * q, c1 * q, c2 * q
+    sigma = _clip01(rough)
+    a = 1.0 / (np.pi + sigma * (np.pi / 2 - 2.0 / 3.0))
+    b = sigma * a
+    nlp = max(nl, 0.0)
+    nvp = max(nv, 0.0)
+    t = lv - nlp * nvp
+    if t > 0.0:
+        t = t / (max(nlp, nvp) + 1e-38)
+    single = a + b * t
+    Eavg = a * np.pi + (2.0 * np.pi - 5.6) / 3.0 * b
+    EE = (1.0 - (a * np.pi + b * _on_G(nvp))) * (1.0 - (a * np.pi + b * _on_G(nlp)))
+    above = 1.0 if nl > 0.0 else 0.0
+    A = _clip01(u0)
+    g0 = c0 * (single + INV_PI * A * A * (Eavg / (1.0 - Eavg))
+               / (1.0 - A * (1.0 - Eavg)) * EE) * above
+    A = _clip01(u1)
+    g1 = c1 * (single + INV_PI * A * A * (Eavg / (1.0 - Eavg))
+               / (1.0 - A * (1.0 - Eavg)) * EE) * above
+    A = _clip01(u2)
+    g2 = c2 * (single + INV_PI * A * A * (Eavg / (1.0 - Eavg))
+               / (1.0 - A * (1.0 - Eavg)) * EE) * above
+    return g0, g1, g2
+
+
+@njit(cache=True, error_model="numpy")
+def _microfacet_lobe(k, a2, eta, fm, fi, t0, t1, t2, w, c0, c1, c2, u0, u1, u2,
+                     Nx, Ny, Nz, vx, vy, vz, lx, ly, lz, gl):
+    """f of one GLOSSY, GLASS or REFRACTION lobe (:func:`_microfacet` times
+    the colour, or the Principled Fresnel fm of a GLOSSY lobe: FRESNEL_DIELECTRIC
+    with Fresnel IOR fi, FRESNEL_F82 with tint t) and the single-scattering
+    Fresnel the multiple-scattering factor reads: (g0, g1, g2, fss0, fss1, fss2)."""
+    fs = _microfacet(k, a2, eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz, gl)
+    g0, g1, g2 = c0 * fs, c1 * fs, c2 * fs
+    fss0, fss1, fss2 = u0, u1, u2
+    if fm == FRESNEL_DIELECTRIC or fm == FRESNEL_F82:
+        hx, hy, hz = _unit(vx + lx, vy + ly, vz + lz)
+        c = _dot3(hx, hy, hz, vx, vy, vz)
+        if fm == FRESNEL_DIELECTRIC:
+            F0 = _f0(fi)
+            s = _clip01((_fresnel(c, fi) - F0) / max(1.0 - F0, 1e-12))
+            s_ss = _clip01((_fss(fi) - F0) / max(1.0 - F0, 1e-12))
+            F_0, fss0 = _schlick_channel(u0, F0, s, s_ss)
+            F_1, fss1 = _schlick_channel(u1, F0, s, s_ss)
+            F_2, fss2 = _schlick_channel(u2, F0, s, s_ss)
+        else:
+            F_0, fss0 = _f82_channel(u0, t0, c)
+            F_1, fss1 = _f82_channel(u1, t1, c)
+            F_2, fss2 = _f82_channel(u2, t2, c)
+        g0, g1, g2 = w * F_0 * fs, w * F_1 * fs, w * F_2 * fs
+    return g0, g1, g2, fss0, fss1, fss2
+
+
+@njit(cache=True, error_model="numpy", **NO_REFCOUNTS)
 def eval_pair_as(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz,
                  want_smooth, bump):
     """:func:`eval_pair` with the Normal Map / Bump corrections (the valid
@@ -457,35 +528,8 @@ def eval_pair_as(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy,
             u0 = u1 = u2 = 0.0
         rough = lobes[m, j, F_ROUGH]
         if k == DIFFUSE or k == TRANSLUCENT:
-            if k == TRANSLUCENT:
-                q = INV_PI * (1.0 if nl < 0.0 else 0.0)
-                g0, g1, g2 = c0 * q, c1 * q, c2 * q
-            elif rough < DIFFUSE_ROUGHNESS_EPS:
-                q = INV_PI * (1.0 if nl > 0.0 else 0.0)
-                g0, g1, g2 = c0 * q, c1 * q, c2 * q
-            else:
-                # microfacet.oren_nayar_f (Fujii, energy-preserving).
-                sigma = _clip01(rough)
-                a = 1.0 / (np.pi + sigma * (np.pi / 2 - 2.0 / 3.0))
-                b = sigma * a
-                nlp = max(nl, 0.0)
-                nvp = max(nv, 0.0)
-                t = _dot3(lx, ly, lz, vx, vy, vz) - nlp * nvp
-                if t > 0.0:
-                    t = t / (max(nlp, nvp) + 1e-38)
-                single = a + b * t
-                Eavg = a * np.pi + (2.0 * np.pi - 5.6) / 3.0 * b
-                EE = (1.0 - (a * np.pi + b * _on_G(nvp))) * (1.0 - (a * np.pi + b * _on_G(nlp)))
-                above = 1.0 if nl > 0.0 else 0.0
-                A = _clip01(u0)
-                g0 = c0 * (single + INV_PI * A * A * (Eavg / (1.0 - Eavg))
-                           / (1.0 - A * (1.0 - Eavg)) * EE) * above
-                A = _clip01(u1)
-                g1 = c1 * (single + INV_PI * A * A * (Eavg / (1.0 - Eavg))
-                           / (1.0 - A * (1.0 - Eavg)) * EE) * above
-                A = _clip01(u2)
-                g2 = c2 * (single + INV_PI * A * A * (Eavg / (1.0 - Eavg))
-                           / (1.0 - A * (1.0 - Eavg)) * EE) * above
+            g0, g1, g2 = _diffuse_lobe(k, rough, c0, c1, c2, u0, u1, u2, nl, nv,
+                                       _dot3(lx, ly, lz, vx, vy, vz))
             if k == DIFFUSE and lobes[m, j, F_LIOR] > 0.0:
                 q = _layer_transmission(T, lobes[m, j, F_LF0], lobes[m, j, F_LROUGH], lobes[m, j, F_LIOR], nv,
                                         lobes[m, j, F_LMS] > 0.0)
@@ -500,26 +544,11 @@ def eval_pair_as(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy,
         elif k == GLOSSY or k == GLASS or k == REFRACTION:
             ior = lobes[m, j, F_IOR]
             eta = ior if front else 1.0 / ior
-            fs = _microfacet(k, lobes[m, j, F_A2], eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz, gl)
-            g0, g1, g2 = c0 * fs, c1 * fs, c2 * fs
-            fss0, fss1, fss2 = u0, u1, u2
             fm = int(lobes[m, j, F_FRES]) if k == GLOSSY else 0
-            if fm == FRESNEL_DIELECTRIC or fm == FRESNEL_F82:
-                hx, hy, hz = _unit(vx + lx, vy + ly, vz + lz)
-                c = _dot3(hx, hy, hz, vx, vy, vz)
-                if fm == FRESNEL_DIELECTRIC:
-                    fi = lobes[m, j, F_FIOR]
-                    F0 = _f0(fi)
-                    s = _clip01((_fresnel(c, fi) - F0) / max(1.0 - F0, 1e-12))
-                    s_ss = _clip01((_fss(fi) - F0) / max(1.0 - F0, 1e-12))
-                    F_0, fss0 = _schlick_channel(u0, F0, s, s_ss)
-                    F_1, fss1 = _schlick_channel(u1, F0, s, s_ss)
-                    F_2, fss2 = _schlick_channel(u2, F0, s, s_ss)
-                else:
-                    F_0, fss0 = _f82_channel(u0, lobes[m, j, F_TINT], c)
-                    F_1, fss1 = _f82_channel(u1, lobes[m, j, F_TINT + 1], c)
-                    F_2, fss2 = _f82_channel(u2, lobes[m, j, F_TINT + 2], c)
-                g0, g1, g2 = w * F_0 * fs, w * F_1 * fs, w * F_2 * fs
+            g0, g1, g2, fss0, fss1, fss2 = _microfacet_lobe(
+                k, lobes[m, j, F_A2], eta, fm, lobes[m, j, F_FIOR], lobes[m, j, F_TINT],
+                lobes[m, j, F_TINT + 1], lobes[m, j, F_TINT + 2], w, c0, c1, c2, u0, u1, u2,
+                Nx, Ny, Nz, vx, vy, vz, lx, ly, lz, gl)
             if lobes[m, j, F_MS] > 0.0 and k != REFRACTION:
                 E, Eavg = _ms_albedo(T, k, rough, eta, nv)
                 E = max(E, 1e-6)
@@ -807,7 +836,7 @@ def scatter_pdfs(lobes, p, mat, ns, ng, wo, wi, delta, pl, pr):
         pr[i] = pdf_oriented(lobes, p, m, m, sx, sy, sz, gx, gy, gz, wx, wy, wz, ox, oy, oz)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", **NO_REFCOUNTS)
 def sample_pair(lobes, T, colors, p, cdf, last, m, r, nsx, nsy, nsz, ngx, ngy, ngz,
                 ox, oy, oz, u0, u1, u2, radiance):
     """closures.sample_bsdf(subset='all', mode='importance', or 'radiance'
