@@ -21,7 +21,8 @@ from numba import njit
 from ..mathutil import LUM_B, LUM_G, LUM_R
 from ..scene.texture_kernels import TextureList, bilinear_rgb, corner_uv, texture_list
 # compiled.sample_pair is compiled into this module's kernel and numba's cache
-# is stamped by this file: edited with the BSDF evaluation's lobe helpers and reference counts of round 32.
+# is stamped by this file: edited with the BSDF evaluation's lobe helpers and
+# reference counts of round 32.
 from .compiled import SelectionTable, sample_pair
 
 
