@@ -180,7 +180,7 @@ def test_render_compiled_equals_numpy(monkeypatch, frequency):
 
 def test_per_pair_functions_take_no_reference_counts():
     """The functions the kernels call once per pair, ray or light sample with
-    arrays take no reference counts (``core._numba_cache.NO_REFCOUNTS``), and
+    arrays take no reference counts (``core._numba_options.NO_REFCOUNTS``), and
     the lobe helpers stay functions of their own: both are what keeps a
     Lambert material's f at about half its cost before round 32, with the same
     bits (docs/architecture.md "The BSDF evaluation's fixed cost, round

@@ -36,7 +36,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .._numba_cache import NO_REFCOUNTS
+from .._numba_options import NO_REFCOUNTS
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 # map_sample is compiled into direct_kernel, and numba's cache is stamped by
 # this file: edited with its guide table of round 28 and with map_sample's

@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .._numba_cache import NO_REFCOUNTS
+from .._numba_options import NO_REFCOUNTS
 from ..scene.model import DIFFUSE, GLASS, GLOSSY, REFRACTION, TRANSLUCENT, TRANSPARENT
 from .microfacet import FRESNEL_DIELECTRIC, FRESNEL_F82, INV_PI
 from .multiscatter import _lerp_index, _ms_glass_slice, _ms_tables, _schlick_s_slice
