@@ -9,10 +9,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .lights.shadow import transparent_materials
-from .materials import glossy_only, used_lobes
 from .lights.pdf import bsdf_hittable
+from .lights.shadow import transparent_materials
 from .lights.table import AREA, MESH, POINT, SPOT, SUN
+from .materials import glossy_only, used_lobes
 from .scene.model import TRANSPARENT
 from .settings import RenderSettings
 

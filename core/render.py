@@ -487,15 +487,17 @@ class Renderer:
         clock["camera"] += td - tc
         L_pass = L_emit
         job = None
-        streams = self._direct_streams(k)
+        K = 1                                         # light samples a visible point
         if not st.photons_for_direct:
-            if st.fixed_visible_points:               # L_emit is kept for the next passes
-                L_pass = L_pass * len(streams)
-            # Into this pass's own emission array: no (P, 3) array beside it.
-            # With K light samples it holds K L_emit plus the K estimates until
-            # the division below (by 4, the automatic K: exact in floats).
-            elif len(streams) > 1:
-                L_pass *= len(streams)
+            streams = self._direct_streams(k)
+            K = len(streams)
+            # The estimates go into this pass's own emission array (no (P, 3)
+            # array beside it), which holds K L_emit plus the K estimates
+            # until the division below (by 2 or 4, the automatic K: exact).
+            if st.fixed_visible_points:
+                L_pass = L_pass * K                   # a copy: L_emit is kept for the next passes
+            elif K > 1:
+                L_pass *= K
             shared = getattr(self.direct_light, "shared", None)   # None: a stand-in
             if (DIRECT_BESIDE_SETUP and shared is not None and not st.fixed_visible_points
                     and vp.valid.shape[0] < hashgrid.PARALLEL_MIN_VPS):
@@ -523,8 +525,8 @@ class Renderer:
                     side.exception()    # waits: nothing writes L_pass after the pass
         if side is not None:
             clock["direct"] += side.result()
-        if len(streams) > 1 and not st.photons_for_direct:
-            L_pass /= len(streams)
+        if K > 1:
+            L_pass /= K
         tu = time.perf_counter()
         state.L_sum += L_pass
         self.film.accumulate(vp)
