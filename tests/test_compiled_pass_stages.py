@@ -251,6 +251,36 @@ def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha, kno
         assert 0.05 < vetoed.mean() < 0.6
 
 
+@pytest.mark.parametrize("P", [3000, U.PARALLEL_MIN + 3])
+@pytest.mark.parametrize("rule", ["CPPM", "APPM"])
+@pytest.mark.parametrize("frequency", [False, True])
+def test_compiled_baseline_rules_equal_numpy(P, rule, frequency):
+    """The baselines' rules run in the compiled update too (only the rule
+    differs from FPPM's, not numpy's cost): the same state bit for bit, with
+    both of each rule's branches taken."""
+    settings = RenderSettings(integrator="PHOTON", radius_rule=rule)
+    radii = U.Radii(settings, None, 10.0, frequency, None, 1, P)
+    radii.floor_sq = 1e-9
+    ref, M, Phi, r_pred, S_pass = _update_case(P, P + 7, True)
+    new = PixelState(**{k: v.copy() for k, v in ref.state_dict().items()})
+    R = np.sqrt(ref.R2)
+    radii.compiled = False
+    radii.update(ref, M, Phi, r_pred, S_pass, k=3)
+    radii.compiled = True
+    radii.update(new, M, Phi, r_pred, S_pass, k=3)
+    for f in ("N", "R2", "tau", "held", "r_pred_last", "M_last", "sectors"):
+        x, y = getattr(ref, f), getattr(new, f)
+        assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=True), f
+    assert 0.05 < ref.held.mean() < 0.95
+    r = ref.r_pred_last
+    if rule == "APPM":       # the MSE radius below R somewhere, R itself elsewhere
+        assert 0.05 < np.mean(r < R * (1 - 1e-12)) < 0.95
+        assert 0.05 < np.mean(r == R) < 0.95
+    else:                    # the test rejects somewhere and keeps R elsewhere
+        assert 0.05 < np.mean(np.isnan(r) & (R > 0)) < 0.95
+        assert 0.05 < np.mean(r == R) < 0.95
+
+
 def test_split_camera_intersect_equals_one_call(monkeypatch):
     res = 192                                            # 192^2 > INTERSECT_SPLIT_MIN
     assert res * res > V.INTERSECT_SPLIT_MIN

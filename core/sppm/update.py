@@ -46,11 +46,11 @@ Where pass 1 holds fewer than HOLD_SHARE_MIN of the pixels, the holds are
 left out and pass 1's factors undone (:meth:`Radii.leave_out_holds`): the
 render goes on as PPM's (docs/method.md "Where FPPM's extras do not pay").
 
-The PPM rule's update (the default: frequency holds, verified by the
-sector counts) runs as one compiled kernel per pixel range
-(:func:`_ppm_update_range`, split over the numba threads from
-PARALLEL_MIN pixels); the numpy functions below are its reference and do
-the APPM and CPPM rules.  It repeats their operations in their order:
+The update (the PPM rule, the default: frequency holds, verified by the
+sector counts; and the baselines' APPM and CPPM rules, RULE_CODES) runs as
+one compiled kernel per pixel range (:func:`_ppm_update_range`, split over
+the numba threads from PARALLEL_MIN pixels); the numpy functions below are
+its reference.  It repeats their operations in their order:
 numpy's sum of 8 sector counts is its pairwise tree, and the gradient
 projection S @ _GRADIENT.T is written as OpenBLAS's dgemm kernel computes
 it, a chain of fused multiply-adds; tests/test_compiled_pass_stages.py
@@ -184,6 +184,10 @@ HOLD_THROUGH_DELTA = False
 GROW_AT_START = True
 #: Pixels from which the compiled update splits over the numba threads.
 PARALLEL_MIN = 1 << 16
+#: The per-pixel radius rules the compiled update runs besides PPM's (code 0),
+#: so that a baseline differs from FPPM only in its rule, not in numpy's
+#: cost (docs/method.md "The baselines' update compiled, round 33").
+RULE_CODES = {"CPPM": 1.0, "APPM": 2.0}
 
 
 def _gradient_patterns() -> np.ndarray:
@@ -257,7 +261,11 @@ def appm_radius(S: np.ndarray, R2: np.ndarray) -> np.ndarray:
     n = n_in + n_out
     D2 = np.maximum(np.square(n_out - n_in) - n, 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        r = np.sqrt(R2) * np.power(n / (8.0 * D2), 1.0 / 6.0)
+        q = n / (8.0 * D2)
+    # libm's pow element by element, as the compiled rule (_rule_radius) calls
+    # it: numpy's array power may run SIMD routines a last bit apart.
+    root = np.array([math.pow(x, 1.0 / 6.0) if d > 0 else 0.0 for x, d in zip(q, D2)])
+    r = np.sqrt(R2) * root
     return np.where(D2 > 0, r, np.inf)
 
 
@@ -504,7 +512,10 @@ class Radii:
                 else None)
         if veto is not None and not veto.any():
             veto = None
-        if rule == "PPM" and self.compiled and (left_out or (state.sectors is None) == (sectors is None)):
+        if self.compiled and (
+                (rule == "PPM" and (left_out or (state.sectors is None) == (sectors is None)))
+                or (rule in RULE_CODES and not left_out and state.sectors is not None
+                    and sectors is not None)):
             self._update_compiled(state, M, Phi, r_pred, None if left_out else sectors, grow_cap,
                                   veto, any_n)
             return
@@ -594,7 +605,7 @@ class Radii:
 
     def _update_compiled(self, state, M, Phi, r_pred, sectors, grow_cap=None, veto=None,
                          any_n: bool = False) -> None:
-        """:meth:`update` of the PPM rule in ``_ppm_update_range`` (the same bits);
+        """:meth:`update` of the PPM, CPPM or APPM rule in ``_ppm_update_range`` (the same bits);
         veto (P,) bool: the pixels that do not hold (None: none); any_n: the
         growth whatever N (:meth:`grows_at`)."""
         P = M.shape[0]
@@ -614,7 +625,8 @@ class Radii:
                         self.grow * self.grow if self.grow > 1.0 else 0.0,
                         self.grow_min_expected, self.uniform_critical,
                         self.uniform_min_expected, self.hold_alpha_spectrum,
-                        self.hold_spectrum_min_expected, float(any_n)])
+                        self.hold_spectrum_min_expected, float(any_n),
+                        RULE_CODES.get(st.radius_rule, 0.0)])
         cap = grow_cap if grow_cap is not None else np.zeros(0)
         args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2, cap)
         T = numba.get_num_threads()
@@ -769,8 +781,33 @@ def _chi2_linear_rejects(Si, grad, gnorm2, tmp):
 
 
 @njit(cache=True)
+def _rule_radius(Si, R2, rule, tmp):
+    """The radius [m] CPPM (rule 1) or APPM (rule 2) keeps for one pixel's
+    counts Si (SECTOR_CELLS,) at squared radius R2, as :meth:`Radii.update`'s
+    numpy rules compute it (the same operations in their order): CPPM the
+    radius itself where :func:`chi2_rejects` accepts uniform counts, else NaN
+    (no hold); APPM :func:`appm_radius`, the radius itself where that is inf.
+    NaN where R2 <= 0.  tmp: (SECTOR_CELLS,) scratch."""
+    keep = math.sqrt(R2) if R2 > 0 else np.nan
+    if rule == 1.0:
+        return np.nan if _chi2_uniform_rejects(Si, tmp, CHI2_CRITICAL) else keep
+    n_in = Si[0]
+    for k in range(1, SECTOR_QUADRANTS):
+        n_in += Si[k]
+    n_out = Si[SECTOR_QUADRANTS]
+    for k in range(SECTOR_QUADRANTS + 1, SECTOR_CELLS):
+        n_out += Si[k]
+    n = n_in + n_out
+    d = n_out - n_in
+    D2 = _np_max(d * d - n, 0.0)
+    if D2 > 0:
+        return math.sqrt(R2) * (n / (8.0 * D2)) ** (1.0 / 6.0)
+    return keep
+
+
+@njit(cache=True)
 def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
-    """Radii.update with the PPM rule for pixels i0..i1-1: the verified
+    """Radii.update for pixels i0..i1-1 (the PPM rule, or CPPM's or APPM's: prm[14]): the verified
     holds' chi-square test, then :func:`ppm_radius_update` (its operations
     and order), the sector counts scaled with N; prm = (alpha, R2_floor,
     hold_alpha, hold_min_expected: no hold below this expected count per
@@ -782,10 +819,13 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
     minimum expected count per cell (below: no uniform hold), the spectrum's
     hold rate (HOLD_ALPHA_SPECTRUM; at or below hold_alpha: off) and its
     minimum expected count per cell (HOLD_SPECTRUM_MIN_EXPECTED), 1.0: the
-    growth whatever N (Radii.grows_at)); cap (P,) the
+    growth whatever N (Radii.grows_at), the radius rule (RULE_CODES: 0 PPM,
+    1 CPPM, 2 APPM; CPPM and APPM read only alpha, hold_alpha and the
+    counts: :func:`_rule_radius`)); cap (P,) the
     growth's cap [m] (Radii.grow_cap: the surface boundary, 0 where the
     growth curves; (0,): none)."""
     alpha, floor_sq, hold_alpha = prm[0], prm[1], prm[2]
+    rule = prm[14]
     with_S = a.S.shape[1] == SECTOR_CELLS
     E_cell = 0.0
     Si = np.empty(SECTOR_CELLS)
@@ -801,12 +841,20 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
             for k in range(SECTOR_CELLS):
                 Si[k] = a.S[i, k] + a.sectors[i, k]
             E_cell = _sum8(Si) / SECTOR_CELLS
-            if (prm[6] != 0.0 and a.R2[i] > 0 and not _chi2_uniform_rejects(Si, tmp, prm[9])
+            if rule != 0.0:
+                # CPPM / APPM: the rule's radius from the counts alone, no
+                # spectrum, growth or verification (Radii.update's numpy rules).
+                r = _rule_radius(Si, a.R2[i], rule, tmp)
+                r_spec = np.nan
+                a.r_pred_last[i] = r
+            elif (prm[6] != 0.0 and a.R2[i] > 0 and not _chi2_uniform_rejects(Si, tmp, prm[9])
                     and E_cell >= prm[10]):
                 Ri = math.sqrt(a.R2[i])
                 if r != r or r < Ri:
                     r = Ri                                  # np.fmax(r, R)
-            if _chi2_linear_rejects(Si, grad, gnorm2, tmp):
+            if rule != 0.0:
+                pass
+            elif _chi2_linear_rejects(Si, grad, gnorm2, tmp):
                 if np.isfinite(r):
                     alpha = prm[4]
                 r = np.nan
