@@ -291,7 +291,8 @@ RADII_KEYS = {"power": "hold_min_expected", "release": "release_alpha", "top2": 
               "grow": "grow", "growE": "grow_min_expected", "growZ": "grow_curvature_z",
               "hmax": "hold_alpha_spectrum", "hmaxE": "hold_spectrum_min_expected",
               "share": "hold_share_min", "growS": "grow_at_start",
-              "sharepass": "hold_share_pass", "through": "hold_through_delta"}
+              "sharepass": "hold_share_pass", "through": "hold_through_delta",
+              "gmax": "gradient_max"}
 
 
 #: Method-name keys of :func:`planes_or` and the PhotonTracer attribute each

@@ -199,7 +199,9 @@ def _update_case(P, seed, sectors):
     # docs/method.md "A late start for the frequency photons, round 18")
     (True, True, 0.9, dict(late=4)),
     # the late start's growth beside the glass veto
-    (True, True, 0.9, dict(late=4, hold_through_delta=False, through=0.3))])
+    (True, True, 0.9, dict(late=4, hold_through_delta=False, through=0.3)),
+    # verified holds refused where the counts' fitted gradient is steep
+    (True, True, 0.9, dict(gradient_max=0.3))])
 def test_compiled_ppm_update_equals_numpy(P, frequency, sectors, hold_alpha, knobs):
     settings = RenderSettings(integrator="PHOTON", hold_alpha=hold_alpha, verify_holds=sectors)
     radii = U.Radii(settings, None, 10.0, frequency, None, 1, P)

@@ -194,6 +194,7 @@ def test_growth_on_a_wrong_prediction_still_converges():
     error +-0.002 (test_holds), margins >= 10 sigma."""
     r, st, L = _shadow_edge_wrong_prediction()
     r.radii.grow_curvature_z = 0.0  # every verified hold grows (the rule before its test)
+    r.radii.gradient_max = np.inf   # steep counts hold too (update.GRADIENT_MAX: the rule before)
     err, R = {}, {}
     for k in range(1, 33):
         img = r.step().image[..., :3].mean(axis=2)
@@ -351,3 +352,38 @@ def test_the_growth_test_stops_a_wrong_growth_at_edges():
             err[k] = np.abs(img - L).mean() / L.mean()
     assert 1.15 < R1 < 1.45
     assert err[8] < 0.115 and err[32] < 0.085
+
+
+def test_steep_counts_refuse_a_hold():
+    """GRADIENT_MAX (docs/method.md "Steep counts refuse a hold, round 33"): a
+    verified hold whose counts fit a linear density that changes by more than
+    0.75 of its mean from the disc's centre to its edge is released like a
+    rejected one (RELEASE_ALPHA), though the linear test accepts a linear ramp
+    of any slope.  Exact linear ramps of 40 photons per cell, gamma 0.3, 0.7,
+    0.8 and 0.95 (the edge of the glass sphere's caustic: 0.83-0.93), N = 100,
+    r_pred = 10 R: f_0.95, f_0.95, f_0.55, f_0.55; the knob off (inf) holds
+    all four; 4 photons per cell at gamma 0.95 (below CHI2_MIN_EXPECTED: the
+    counts cannot judge) holds.  Compiled and numpy alike (exact)."""
+    assert U.GRADIENT_MAX == 0.75
+    g = U._GRADIENT[0]                   # the u axis's pattern, cells' centroids
+    gam = np.array([0.3, 0.7, 0.8, 0.95, 0.95])
+    E = np.array([40.0, 40.0, 40.0, 40.0, 4.0])
+    # The fitted gradient of counts E (1 + s g) is s E: s = gamma.
+    counts = E[:, None] * (1.0 + gam[:, None] * g[None, :])
+    assert np.allclose(U.relative_gradient(counts), gam, rtol=1e-12)
+    assert not U.chi2_rejects(counts, linear=True).any()        # the linear test accepts
+    R0, N0 = 0.01, 100.0
+    r = np.full(len(gam), 10 * R0)
+    M = counts.sum(axis=1)
+    f = lambda a, m: (N0 + m * a) / (N0 + m)     # noqa: E731
+    held, released = f(0.95, M), f(U.RELEASE_ALPHA, M)
+    want = {0.75: np.where([1, 1, 0, 0, 1], held, released), np.inf: held}
+    for knob, expect in want.items():
+        for compiled in (True, False):
+            st = PixelState.zeros(len(gam), sector_cells=C)
+            st.R2[:], st.N[:] = R0 ** 2, N0
+            radii = _radii(len(gam), compiled)
+            radii.gradient_max = knob
+            radii.hold_spectrum_min_expected = 0.0      # the spectrum's rate at 4 a cell too
+            radii.update(st, M, np.repeat(0.5 * M[:, None], 3, 1), r, counts)
+            assert st.R2 / R0 ** 2 == pytest.approx(expect, rel=1e-12), (knob, compiled)

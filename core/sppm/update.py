@@ -108,6 +108,17 @@ RELEASE_ALPHA = 0.55
 #: made for the ring's leak through its wall (docs/method.md "Rings under a
 #: 1 m light"), which the kernel clip at walls now removes.
 HOLD_MAX_TOP2 = 2.0
+#: A verified hold is refused (as the linear test's rejection) where the
+#: counts can be tested (CHI2_MIN_EXPECTED) and the linear density fitted to
+#: them changes by more than GRADIENT_MAX of its mean from the disc's centre
+#: to its edge (:func:`relative_gradient`).  A density that is linear over the
+#: disc and never negative has gamma <= 1; near that bound the light falls
+#: towards dark within about R / gamma, and a curvature on that scale biases
+#: the disc by about gamma^2 / 8 of its mean, which 8 cells cannot resolve
+#: (the edge of the glass sphere's caustic: gamma 0.83-0.93, the linear test
+#: accepting).  0.75 (about 7 %); inf: off (the rule before round 33;
+#: docs/method.md "Steep counts refuse a hold, round 33").
+GRADIENT_MAX = 0.75
 #: Hold also where CPPM's uniformity test of the sector counts accepts,
 #: whatever the spectrum predicts (on by default, rule set X); from
 #: UNIFORM_MIN_EXPECTED per sector cell, and 0 (the default) counts a disc
@@ -240,6 +251,20 @@ def chi2_rejects(S: np.ndarray, linear: bool = False, critical=None) -> np.ndarr
     return (E >= CHI2_MIN_EXPECTED) & (X2 > crit)
 
 
+def relative_gradient(S: np.ndarray) -> np.ndarray:
+    """(P,) the linear density fitted to the sector counts S (P,
+    SECTOR_CELLS), its gradient's size relative to the mean: the fitted
+    density at the disc's edge along the gradient is (1 +- gamma) times the
+    disc's mean (the gradient patterns' projections as chi2_rejects(linear=
+    True) computes them; 0 where S sums to 0)."""
+    S = np.asarray(S, np.float64)
+    E = S.sum(axis=1) / SECTOR_CELLS
+    b = (S @ _GRADIENT.T) / _GRADIENT_NORM2                # (P, 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g = np.sqrt(b[:, 0] * b[:, 0] + b[:, 1] * b[:, 1]) / E
+    return np.where(E > 0, g, 0.0)
+
+
 def appm_radius(S: np.ndarray, R2: np.ndarray) -> np.ndarray:
     """(P,) radius [m] minimising the estimated MSE of the disc estimate
     (Kaplanyan & Dachsbacher 2013), from the sector counts S (P,
@@ -335,6 +360,7 @@ class Radii:
         self.release_alpha = (settings.alpha if settings.alpha >= 1.0
                               else min(settings.alpha, RELEASE_ALPHA))
         self.hold_max_top2 = HOLD_MAX_TOP2
+        self.gradient_max = GRADIENT_MAX
         # docs/method.md "Spectrum and counts" (bench_hold_alpha varies them).
         self.hold_uniform = HOLD_OR_UNIFORM
         self.grow = GROW_MAX
@@ -549,7 +575,8 @@ class Radii:
             # Verified holds: the photons veto the prediction where they show
             # more than a linear gradient (the prediction itself is kept for
             # the Predicted Radius pass).
-            rejected = chi2_rejects(S, linear=True)
+            rejected = chi2_rejects(S, linear=True) | (
+                (E >= CHI2_MIN_EXPECTED) & (relative_gradient(S) > self.gradient_max))
             r_or = r_hold
             r_hold = np.where(rejected, np.nan, r_hold)
             # Too few photons for the test to reject: no agreement yet.
@@ -626,7 +653,7 @@ class Radii:
                         self.grow_min_expected, self.uniform_critical,
                         self.uniform_min_expected, self.hold_alpha_spectrum,
                         self.hold_spectrum_min_expected, float(any_n),
-                        RULE_CODES.get(st.radius_rule, 0.0)])
+                        RULE_CODES.get(st.radius_rule, 0.0), self.gradient_max])
         cap = grow_cap if grow_cap is not None else np.zeros(0)
         args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2, cap)
         T = numba.get_num_threads()
@@ -781,6 +808,20 @@ def _chi2_linear_rejects(Si, grad, gnorm2, tmp):
 
 
 @njit(cache=True)
+def _relative_gradient(Si, grad, gnorm2):
+    """relative_gradient of one pixel's counts Si (SECTOR_CELLS,)."""
+    E = _sum8(Si) / SECTOR_CELLS
+    q = 0.0
+    for j in range(2):
+        pj = Si[0] * grad[j, 0]
+        for k in range(1, SECTOR_CELLS):
+            pj = fma(Si[k], grad[j, k], pj)
+        b = pj / gnorm2[j]
+        q = q + b * b if j else b * b
+    return math.sqrt(q) / E if E > 0 else 0.0
+
+
+@njit(cache=True)
 def _rule_radius(Si, R2, rule, tmp):
     """The radius [m] CPPM (rule 1) or APPM (rule 2) keeps for one pixel's
     counts Si (SECTOR_CELLS,) at squared radius R2, as :meth:`Radii.update`'s
@@ -854,7 +895,8 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
                     r = Ri                                  # np.fmax(r, R)
             if rule != 0.0:
                 pass
-            elif _chi2_linear_rejects(Si, grad, gnorm2, tmp):
+            elif (_chi2_linear_rejects(Si, grad, gnorm2, tmp)
+                  or (E_cell >= CHI2_MIN_EXPECTED and _relative_gradient(Si, grad, gnorm2) > prm[15])):
                 if np.isfinite(r):
                     alpha = prm[4]
                 r = np.nan
