@@ -45,7 +45,9 @@
         'verify_holds=0' sets a bool field; docs/method.md "Where FPPM's extras do not pay";
         'through=1': visible points reached through glass or a mirror hold, the rule before
         docs/method.md "The glass sphere at equal passes, round 17", 'through=0' the default;
-        'kappa=2': every hold reads the spectrum's prediction / 2, tried there, not kept)
+        'kappa=2': every hold reads the spectrum's prediction / 2, tried there, not kept;
+        'gmax=G': the steepest linear fit a verified hold keeps, GRADIENT_MAX, 'gmax=inf' the
+        rule before docs/method.md "Steep counts refuse a hold, round 33")
     .venv/bin/python bench/bench_hold_alpha.py cornell --cycles-ref --photons 0 --equal-cpu 6 \
         --bill-setup --seeds 0,1,2,3 --methods fppm,fppm:fstart=4,fppm:fstart=8:growS=0,cppm,ppm
         ('fstart=S': no frequency photons before pass S, frequency_start (default 2 since
