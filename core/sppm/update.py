@@ -786,6 +786,16 @@ def _chi2_uniform_rejects(Si, tmp, crit):
     return E >= CHI2_MIN_EXPECTED and r2 / E > crit
 
 
+@njit(cache=True, inline="always")
+def _projection(Si, grad, j):
+    """Gradient pattern j's projection of one pixel's counts Si, S @ grad.T's
+    column j as OpenBLAS's dgemm computes it (a chain of fused multiply-adds)."""
+    pj = Si[0] * grad[j, 0]
+    for k in range(1, SECTOR_CELLS):
+        pj = fma(Si[k], grad[j, k], pj)
+    return pj
+
+
 @njit(cache=True)
 def _chi2_linear_rejects(Si, grad, gnorm2, tmp):
     """chi2_rejects(S, linear=True) of one pixel's counts Si (SECTOR_CELLS,);
@@ -797,9 +807,7 @@ def _chi2_linear_rejects(Si, grad, gnorm2, tmp):
     r2 = _sum8(tmp)
     q = 0.0
     for j in range(2):
-        pj = Si[0] * grad[j, 0]
-        for k in range(1, SECTOR_CELLS):
-            pj = fma(Si[k], grad[j, k], pj)
+        pj = _projection(Si, grad, j)
         q = q + pj * pj / gnorm2[j] if j else pj * pj / gnorm2[j]
     r2 = r2 - q
     if E == 0.0:
@@ -813,10 +821,7 @@ def _relative_gradient(Si, grad, gnorm2):
     E = _sum8(Si) / SECTOR_CELLS
     q = 0.0
     for j in range(2):
-        pj = Si[0] * grad[j, 0]
-        for k in range(1, SECTOR_CELLS):
-            pj = fma(Si[k], grad[j, k], pj)
-        b = pj / gnorm2[j]
+        b = _projection(Si, grad, j) / gnorm2[j]
         q = q + b * b if j else b * b
     return math.sqrt(q) / E if E > 0 else 0.0
 
@@ -888,31 +893,31 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
                 r = _rule_radius(Si, a.R2[i], rule, tmp)
                 r_spec = np.nan
                 a.r_pred_last[i] = r
-            elif (prm[6] != 0.0 and a.R2[i] > 0 and not _chi2_uniform_rejects(Si, tmp, prm[9])
-                    and E_cell >= prm[10]):
-                Ri = math.sqrt(a.R2[i])
-                if r != r or r < Ri:
-                    r = Ri                                  # np.fmax(r, R)
-            if rule != 0.0:
-                pass
-            elif (_chi2_linear_rejects(Si, grad, gnorm2, tmp)
-                  or (E_cell >= CHI2_MIN_EXPECTED and _relative_gradient(Si, grad, gnorm2) > prm[15])):
-                if np.isfinite(r):
-                    alpha = prm[4]
-                r = np.nan
             else:
-                tot = _sum8(Si)
-                if tot / SECTOR_CELLS < prm[3]:
+                if (prm[6] != 0.0 and a.R2[i] > 0 and not _chi2_uniform_rejects(Si, tmp, prm[9])
+                        and E_cell >= prm[10]):
+                    Ri = math.sqrt(a.R2[i])
+                    if r != r or r < Ri:
+                        r = Ri                              # np.fmax(r, R)
+                if (_chi2_linear_rejects(Si, grad, gnorm2, tmp)
+                        or (E_cell >= CHI2_MIN_EXPECTED
+                            and _relative_gradient(Si, grad, gnorm2) > prm[15])):
+                    if np.isfinite(r):
+                        alpha = prm[4]
                     r = np.nan
-                elif tot / SECTOR_CELLS < CHI2_MIN_EXPECTED:
-                    m1, m2 = -1.0, -1.0
-                    for k in range(SECTOR_CELLS):
-                        if Si[k] > m1:
-                            m1, m2 = Si[k], m1
-                        elif Si[k] > m2:
-                            m2 = Si[k]
-                    if m2 + m1 >= prm[5] * tot:
+                else:
+                    tot = _sum8(Si)
+                    if tot / SECTOR_CELLS < prm[3]:
                         r = np.nan
+                    elif tot / SECTOR_CELLS < CHI2_MIN_EXPECTED:
+                        m1, m2 = -1.0, -1.0
+                        for k in range(SECTOR_CELLS):
+                            if Si[k] > m1:
+                                m1, m2 = Si[k], m1
+                            elif Si[k] > m2:
+                                m2 = Si[k]
+                        if m2 + m1 >= prm[5] * tot:
+                            r = np.nan
         if a.veto.shape[0] > 0 and a.veto[i]:
             r = np.nan                                      # Radii.hold_through_delta
         held = False
