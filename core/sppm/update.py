@@ -787,43 +787,39 @@ def _chi2_uniform_rejects(Si, tmp, crit):
 
 
 @njit(cache=True, inline="always")
-def _projection(Si, grad, j):
-    """Gradient pattern j's projection of one pixel's counts Si, S @ grad.T's
-    column j as OpenBLAS's dgemm computes it (a chain of fused multiply-adds)."""
-    pj = Si[0] * grad[j, 0]
+def _projections(Si, grad):
+    """The two gradient patterns' projections (p0, p1) of one pixel's counts
+    Si, S @ grad.T as OpenBLAS's dgemm computes it (a chain of fused
+    multiply-adds); read by the linear test and the relative gradient."""
+    p0 = Si[0] * grad[0, 0]
+    p1 = Si[0] * grad[1, 0]
     for k in range(1, SECTOR_CELLS):
-        pj = fma(Si[k], grad[j, k], pj)
-    return pj
+        p0 = fma(Si[k], grad[0, k], p0)
+        p1 = fma(Si[k], grad[1, k], p1)
+    return p0, p1
 
 
 @njit(cache=True)
-def _chi2_linear_rejects(Si, grad, gnorm2, tmp):
-    """chi2_rejects(S, linear=True) of one pixel's counts Si (SECTOR_CELLS,);
-    tmp: (SECTOR_CELLS,) scratch."""
-    E = _sum8(Si) / SECTOR_CELLS
+def _chi2_linear_rejects(Si, E, p0, p1, gnorm2, tmp):
+    """chi2_rejects(S, linear=True) of one pixel's counts Si (SECTOR_CELLS,),
+    their mean E (_sum8(Si) / SECTOR_CELLS) and projections p0, p1
+    (:func:`_projections`); tmp: (SECTOR_CELLS,) scratch."""
     for k in range(SECTOR_CELLS):
         d = Si[k] - E
         tmp[k] = d * d
     r2 = _sum8(tmp)
-    q = 0.0
-    for j in range(2):
-        pj = _projection(Si, grad, j)
-        q = q + pj * pj / gnorm2[j] if j else pj * pj / gnorm2[j]
-    r2 = r2 - q
+    r2 = r2 - (p0 * p0 / gnorm2[0] + p1 * p1 / gnorm2[1])
     if E == 0.0:
         return False                # X^2 is NaN or inf but E < CHI2_MIN_EXPECTED
     return E >= CHI2_MIN_EXPECTED and r2 / E > CHI2_CRITICAL_LINEAR
 
 
-@njit(cache=True)
-def _relative_gradient(Si, grad, gnorm2):
-    """relative_gradient of one pixel's counts Si (SECTOR_CELLS,)."""
-    E = _sum8(Si) / SECTOR_CELLS
-    q = 0.0
-    for j in range(2):
-        b = _projection(Si, grad, j) / gnorm2[j]
-        q = q + b * b if j else b * b
-    return math.sqrt(q) / E if E > 0 else 0.0
+@njit(cache=True, inline="always")
+def _relative_gradient(E, p0, p1, gnorm2):
+    """relative_gradient of one pixel's counts from their mean E and
+    projections p0, p1 (:func:`_projections`)."""
+    b0, b1 = p0 / gnorm2[0], p1 / gnorm2[1]
+    return math.sqrt(b0 * b0 + b1 * b1) / E if E > 0 else 0.0
 
 
 @njit(cache=True)
@@ -899,9 +895,10 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
                     Ri = math.sqrt(a.R2[i])
                     if r != r or r < Ri:
                         r = Ri                              # np.fmax(r, R)
-                if (_chi2_linear_rejects(Si, grad, gnorm2, tmp)
+                p0, p1 = _projections(Si, grad)
+                if (_chi2_linear_rejects(Si, E_cell, p0, p1, gnorm2, tmp)
                         or (E_cell >= CHI2_MIN_EXPECTED
-                            and _relative_gradient(Si, grad, gnorm2) > prm[15])):
+                            and _relative_gradient(E_cell, p0, p1, gnorm2) > prm[15])):
                     if np.isfinite(r):
                         alpha = prm[4]
                     r = np.nan
