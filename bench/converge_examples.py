@@ -71,7 +71,7 @@ SCENES = {
     # Four runs (floor 1.84e-3; two runs' 4.15e-3 was above 1/3 of the
     # excesses compared, 6.1e-3 to 6.5e-3).
     "coffee_cup": ("caustic-small", "coffee_cup_luxcore_bidirvm_6runs.exr"),
-    "glass_sphere": ("caustic-small", "glass_sphere_luxcore_light_cycles4096.exr"),
+    "glass_sphere": ("caustic-small", "glass_sphere_luxcore_light_cycles4096_firsthit.exr"),
     # Cycles cannot render this caustic: the reference is Mitsuba 3's light
     # tracer (bench/point_caustic_reference.py), 65536 spp, in the cache folder.
     "point_caustic": ("caustic-point", "point_caustic_mitsuba_ptracer_65536.exr"),

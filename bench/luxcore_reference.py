@@ -180,7 +180,7 @@ COMPOSE_PARTS = ("lux_light:noworld", "lux_path:world")
 
 def composed_path(scene: str, cycles: int) -> str:
     """The composed reference file (:func:`compose`) bench/converge_examples.py reads."""
-    return os.path.join(_cache(), f"{scene}_luxcore_light_cycles{cycles}.exr")
+    return os.path.join(_cache(), f"{scene}_luxcore_light_cycles{cycles}_firsthit.exr")
 
 
 def first_hit_ids(lux) -> np.ndarray:
@@ -210,10 +210,77 @@ def specular_first(lux, ids: np.ndarray) -> np.ndarray:
     return out
 
 
+def specular_names(exported, lux) -> set[str]:
+    """Names of the materials the translation made glass or mirror."""
+    return {exported.materials[int(k.split(".")[2].removeprefix("mat"))].name
+            for k, v in lux.props.items()
+            if k.startswith("scene.materials.mat") and k.endswith(".type")
+            and v in (["glass"], ["mirror"])}
+
+
+def hold_out_for_camera(bpy, names, keep: bool) -> None:
+    """Make a holdout for camera rays of every material of the open file named
+    in ``names`` (keep False) or not named there (keep True): a camera ray that
+    hits it first adds nothing, every later vertex shades as before (Cycles'
+    Light Path "Is Camera Ray" mixing the surface with a Holdout)."""
+    for m in bpy.data.materials:
+        if m.node_tree is None or (m.name in names) == keep:
+            continue
+        nt = m.node_tree
+        out = next(n for n in nt.nodes if n.type == "OUTPUT_MATERIAL" and n.is_active_output)
+        if not out.inputs["Surface"].links:
+            continue
+        src = out.inputs["Surface"].links[0].from_socket
+        lp, ho = nt.nodes.new("ShaderNodeLightPath"), nt.nodes.new("ShaderNodeHoldout")
+        mix = nt.nodes.new("ShaderNodeMixShader")
+        nt.links.new(lp.outputs["Is Camera Ray"], mix.inputs["Fac"])
+        nt.links.new(src, mix.inputs[1])
+        nt.links.new(ho.outputs[0], mix.inputs[2])
+        nt.links.new(mix.outputs[0], out.inputs["Surface"])
+
+
+def cycles_by_first_hit(scene: str, cycles: int, specular: set[str]):
+    """(image, variance of the mean) (H, W, 3) float64 of Cycles' paths that
+    light tracing does not render: every path whose camera ray hits a
+    material of ``specular`` (or nothing) first, lit by every light, plus every
+    path whose camera ray hits another material first, lit by the world only.
+    Each of the two is rendered in two halves of ``cycles``/2 spp (seeds
+    REF_SEEDS; variance (A - B)^2 / 4 summed)."""
+    import bpy
+
+    from fppm.addon.cli import open_blend
+    from fppm.tools.converge.cycles_worker import cycles_reference_setup
+    from fppm.tools.converge.references import REF_SEEDS, cycles_render, layer
+    img = var = 0.0
+    for part in ("specular first", "world, diffuse first"):
+        open_blend(blend_of(scene), resolution=PCT)
+        sc = bpy.context.scene
+        cycles_reference_setup(sc)
+        if part == "specular first":
+            hold_out_for_camera(bpy, specular, keep=True)
+        else:
+            hold_out_for_camera(bpy, specular, keep=False)
+            for ob in sc.objects:
+                if ob.type == "LIGHT":
+                    ob.hide_render = True
+            if sc.world is not None:
+                sc.world.cycles_visibility.camera = False
+        halves = []
+        for seed in REF_SEEDS:
+            lay, dt = cycles_render(bpy, sc, max(1, cycles // 2), seed)
+            halves.append(layer(lay, "Combined")[..., :3].astype(np.float64))
+            print(f"  Cycles, {part}: {cycles // 2} spp (seed {seed}) in {dt:.0f} s", flush=True)
+        img = img + 0.5 * (halves[0] + halves[1])
+        var = var + 0.25 * (halves[0] - halves[1]) ** 2
+    return img, var
+
+
 def compose(scene: str, cycles: int, parts=COMPOSE_PARTS) -> None:
     """The sum of LuxCore renders ``parts`` where the camera sees a diffuse
-    surface first, a Cycles render of ``cycles`` spp where it may see glass or
-    a mirror first (docs/peers.md "References for the glass scenes").
+    surface first, and, where it may see glass or a mirror first, LuxCore's
+    light-traced parts plus Cycles' paths that light tracing does not render
+    (:func:`cycles_by_first_hit`; docs/peers.md "References for the glass
+    scenes").
 
     LuxCore's bidirectional engines (BIDIRCPU, BIDIRVMCPU) are biased with the
     translation's spot (mapsphere / mappoint) and sphere lights, LIGHTCPU
@@ -221,29 +288,32 @@ def compose(scene: str, cycles: int, parts=COMPOSE_PARTS) -> None:
     PATHCPU misses the small spot's light through the glass.  So the spot and
     the other lights come from the light tracer, which renders every path
     whose first camera vertex is diffuse (the caustic seen directly
-    included), and the world from the path tracer; the pixels that see the
-    specular surface first (the light tracer cannot connect through it) come
-    from Cycles."""
+    included), and the world from the path tracer.  A pixel whose filter
+    footprint may see the specular surface first also has paths the light
+    tracer cannot connect through it; Cycles renders those, with the diffuse
+    surfaces held out for camera rays, so that the caustic those pixels see
+    directly on the floor (which Cycles cannot sample) still comes from the
+    light tracer."""
     import bpy  # noqa: F401
 
-    from fppm.addon.cli import open_blend
     from fppm.core.io.exr import write_exr
-    from fppm.tools.converge.references import make_reference
     from fppm.tools.metrics import reference_floor
     got = [runs_mean(scene, e) for e in parts]
     ref = sum(g[0] for g in got)
     var = sum(g[1] for g in got)
-    lux = P.translate(P.load_scene(blend_of(scene), PCT))
+    light = [g for e, g in zip(parts, got) if e.split(":")[0] == "lux_light"]
+    exported = P.load_scene(blend_of(scene), PCT)
+    lux = P.translate(exported)
     mask = specular_first(lux, first_hit_ids(lux))
-    c = make_reference(bpy, open_blend(blend_of(scene), resolution=PCT), blend_of(scene),
-                       cycles, print, lambda t, force=False: print(t, flush=True))
-    img = np.where(mask[..., None], c["image"], ref)
-    v = np.where(mask[..., None], c["var"], var)
+    c_img, c_var = cycles_by_first_hit(scene, cycles, specular_names(exported, lux))
+    img = np.where(mask[..., None], c_img + sum(g[0] for g in light), ref)
+    v = np.where(mask[..., None], c_var + sum(g[1] for g in light), var)
     desc = " + ".join(f"{e} ({g[4]} runs, {g[2]} spp, {g[3]:.0f} CPU s)"
                       for e, g in zip(parts, got))
-    meta = {"source": f"LuxCoreRender {desc} (bench/luxcore_reference.py compose); Cycles "
-                      f"{cycles} spp on the {int(mask.sum())} pixels that may see a specular "
-                      f"surface first",
+    meta = {"source": f"LuxCoreRender {desc} (bench/luxcore_reference.py compose); on the "
+                      f"{int(mask.sum())} pixels that may see a specular surface first, the "
+                      f"light-traced parts plus Cycles {cycles} spp of the paths whose camera "
+                      f"ray hits the specular surface first and of the world's other paths",
             "runs": min(g[4] for g in got), "samples": sum(g[2] for g in got),
             "cpu_seconds": round(sum(g[3] for g in got), 1), "cycles_samples": cycles,
             "cycles_pixels": int(mask.sum())}
@@ -252,9 +322,8 @@ def compose(scene: str, cycles: int, parts=COMPOSE_PARTS) -> None:
               {"fppm:reference": json.dumps(meta)})
     k = mask.sum() / mask.size
     print(f"wrote {path}: {desc}; relMSE floor {reference_floor(img, v):.3g} = LuxCore "
-          f"{reference_floor(img, v, ~mask) * (1 - k):.3g} ({int((~mask).sum())} px) + Cycles "
-          f"{reference_floor(img, v, mask) * k:.3g} ({int(mask.sum())} px); the Cycles render's "
-          f"own floor {reference_floor(c['image'], c['var']):.3g}", flush=True)
+          f"{reference_floor(img, v, ~mask) * (1 - k):.3g} ({int((~mask).sum())} px) + "
+          f"composed {reference_floor(img, v, mask) * k:.3g} ({int(mask.sum())} px)", flush=True)
 
 
 def variant(lux, name: str):
