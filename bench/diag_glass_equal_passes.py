@@ -13,7 +13,8 @@ Writes ``OUT/METHOD_sSEED.npz`` per method and seed: the images at the report pa
 relMSE and CPU seconds per pass (``relmse``, ``cpu``), ``R2_1`` / ``held_first`` (after pass
 1), ``held_n`` (passes each pixel held so far) and ``R2`` / ``held`` / ``rp`` (r_pred_last) /
 ``E`` (photons per sector cell) at the last report pass (the file is rewritten at each).
-The reference and its region masks go to ``OUT/ref.npz``.  Method names as
+The reference and its region masks go to ``OUT/ref.npz`` ("all": the pixels it vouches for,
+tools.converge.references.trusted_masks; relMSE is over those).  Method names as
 bench_hold_alpha.py's ('fppm:hmax=0', 'fppm:through=1', 'fppm:hold_alpha=0.7:release=0.7').
 """
 from __future__ import annotations
@@ -34,6 +35,7 @@ import bench_hold_alpha as B  # noqa: E402
 
 from fppm.core.render import Renderer  # noqa: E402
 from fppm.core.sppm.update import SECTOR_CELLS  # noqa: E402
+from fppm.tools.converge.references import trusted_masks  # noqa: E402
 from fppm.tools.metrics import region_masks, relmse  # noqa: E402
 
 
@@ -48,13 +50,14 @@ def main():
     a = ap.parse_args()
     say = lambda s: print(s, flush=True)  # noqa: E731
     os.makedirs(a.out, exist_ok=True)
-    ref, floor = B.cycles_reference(a.scene, lambda s, **_: None)
+    ref, floor, trusted = B.cycles_reference(a.scene, lambda s, **_: None, trusted=True)
     ref = np.asarray(ref[..., :3], np.float64)
     scene, base = B.export(a.scene, 100)
-    masks = region_masks(ref)
+    masks = trusted_masks(region_masks(ref), trusted)
     np.savez_compressed(os.path.join(a.out, "ref.npz"), ref=ref, floor=floor, **masks)
     say(f"# {a.scene}: {base.photons_per_pass} photons/pass, {ref.shape[1]}x{ref.shape[0]}, "
-        f"reference floor {floor:.3e}, load {os.getloadavg()[0]:.1f}")
+        f"reference floor {floor:.3e} over its {int(trusted.sum())} trusted pixels, "
+        f"load {os.getloadavg()[0]:.1f}")
     methods, seeds = a.methods.split(","), [int(s) for s in a.seeds.split(",")]
     report = [int(p) for p in a.report.split(",")]
     rs, rec = {}, {}
@@ -73,7 +76,7 @@ def main():
             B.settle(r)
             d = rec[k]
             d["cpu"].append(time.process_time() - c0)
-            d["relmse"].append(relmse(img, ref))
+            d["relmse"].append(relmse(img, ref, trusted))
             st = r.state
             held = None if getattr(st, "held", None) is None else np.asarray(st.held).copy()
             if p == 1:

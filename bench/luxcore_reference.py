@@ -240,12 +240,13 @@ def hold_out_for_camera(bpy, names, keep: bool) -> None:
 
 
 def cycles_by_first_hit(scene: str, cycles: int, specular: set[str]):
-    """(image, variance of the mean) (H, W, 3) float64 of Cycles' paths that
-    light tracing does not render: every path whose camera ray hits a
-    material of ``specular`` (or nothing) first, lit by every light, plus every
-    path whose camera ray hits another material first, lit by the world only.
-    Each of the two is rendered in two halves of ``cycles``/2 spp (seeds
-    REF_SEEDS; variance (A - B)^2 / 4 summed)."""
+    """(image, variance of the mean, specular-first part) (H, W, 3) float64 of
+    Cycles' paths that light tracing does not render: every path whose camera
+    ray hits a material of ``specular`` (or nothing) first, lit by every
+    light (the third array), plus every path whose camera ray hits another
+    material first, lit by the world only.  Each of the two is rendered in
+    two halves of ``cycles``/2 spp (seeds REF_SEEDS; variance (A - B)^2 / 4
+    summed)."""
     import bpy
 
     from fppm.addon.cli import open_blend
@@ -270,9 +271,12 @@ def cycles_by_first_hit(scene: str, cycles: int, specular: set[str]):
             lay, dt = cycles_render(bpy, sc, max(1, cycles // 2), seed)
             halves.append(layer(lay, "Combined")[..., :3].astype(np.float64))
             print(f"  Cycles, {part}: {cycles // 2} spp (seed {seed}) in {dt:.0f} s", flush=True)
-        img = img + 0.5 * (halves[0] + halves[1])
+        part_img = 0.5 * (halves[0] + halves[1])
+        if part == "specular first":
+            first = part_img
+        img = img + part_img
         var = var + 0.25 * (halves[0] - halves[1]) ** 2
-    return img, var
+    return img, var, first
 
 
 def compose(scene: str, cycles: int, parts=COMPOSE_PARTS) -> None:
@@ -305,7 +309,7 @@ def compose(scene: str, cycles: int, parts=COMPOSE_PARTS) -> None:
     exported = P.load_scene(blend_of(scene), PCT)
     lux = P.translate(exported)
     mask = specular_first(lux, first_hit_ids(lux))
-    c_img, c_var = cycles_by_first_hit(scene, cycles, specular_names(exported, lux))
+    c_img, c_var, c_first = cycles_by_first_hit(scene, cycles, specular_names(exported, lux))
     img = np.where(mask[..., None], c_img + sum(g[0] for g in light), ref)
     v = np.where(mask[..., None], c_var + sum(g[1] for g in light), var)
     desc = " + ".join(f"{e} ({g[4]} runs, {g[2]} spp, {g[3]:.0f} CPU s)"
@@ -318,12 +322,21 @@ def compose(scene: str, cycles: int, parts=COMPOSE_PARTS) -> None:
             "cpu_seconds": round(sum(g[3] for g in got), 1), "cycles_samples": cycles,
             "cycles_pixels": int(mask.sum())}
     path = composed_path(scene, cycles)
-    write_exr(path, {"Combined": img.astype(np.float32), "Variance": v.astype(np.float32)},
+    # Trusted: no camera sample of the pixel met the glass first.  Cycles
+    # samples the light through the glass by rare hits of the small light, so
+    # where it does the two halves' spread understates the error (4096 against
+    # 16384 spp: docs/peers.md "The composed reference's margin, round 34").
+    trusted = ~(mask & (c_first.sum(axis=-1) > 0.0))
+    meta["trusted_pixels"] = int(trusted.sum())
+    write_exr(path, {"Combined": img.astype(np.float32), "Variance": v.astype(np.float32),
+                     "Trusted": trusted.astype(np.float32)[..., None]},
               {"fppm:reference": json.dumps(meta)})
     k = mask.sum() / mask.size
     print(f"wrote {path}: {desc}; relMSE floor {reference_floor(img, v):.3g} = LuxCore "
           f"{reference_floor(img, v, ~mask) * (1 - k):.3g} ({int((~mask).sum())} px) + "
-          f"composed {reference_floor(img, v, mask) * k:.3g} ({int(mask.sum())} px)", flush=True)
+          f"composed {reference_floor(img, v, mask) * k:.3g} ({int(mask.sum())} px); trusted "
+          f"{int(trusted.sum())} px, floor over them {reference_floor(img, v, trusted):.3g}",
+          flush=True)
 
 
 def variant(lux, name: str):

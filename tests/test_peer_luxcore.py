@@ -184,3 +184,31 @@ def test_composed_reference_parts():
     ids[4, 4] = 1                                   # one pixel sees the glass
     m = R.specular_first(lux, ids)
     assert m.sum() == 25 and m[2:7, 2:7].all()       # ceil(1.5 + 0.5) = 2 pixels around it
+
+
+def test_first_hit_split_adds_up_to_cycles():
+    # bench/luxcore_reference.py cycles_by_first_hit: with the same seed, the
+    # render whose diffuse materials are holdouts for camera rays and the one
+    # whose glass is add up to the plain Cycles render (the camera samples are
+    # the same; each path lands in exactly one of the two), to float32
+    # rounding; the glass-first part lives on the sphere's pixels and its
+    # filter margin, the diffuse-first part on all the others.
+    import bpy_helpers as H
+    import luxcore_reference as R
+    from fppm.addon.cli import open_blend
+    from fppm.tools.converge.cycles_worker import cycles_reference_setup
+    from fppm.tools.converge.references import cycles_render, layer
+    bpy = H.bpy()
+
+    def render(keep):
+        open_blend(R.blend_of("glass_sphere"), resolution=25)
+        sc = bpy.context.scene
+        cycles_reference_setup(sc)
+        if keep is not None:
+            R.hold_out_for_camera(bpy, {"Glass"}, keep)
+        return layer(cycles_render(bpy, sc, 64, 5)[0], "Combined")[..., :3].astype(np.float64)
+
+    full, glass_first, diffuse_first = render(None), render(True), render(False)
+    np.testing.assert_allclose(glass_first + diffuse_first, full, rtol=0, atol=1e-6)
+    g, d = glass_first.sum(-1) > 0, diffuse_first.sum(-1) > 0
+    assert 50 < g.sum() < 200 and d.sum() > 900 and (g & d).sum() < g.sum()

@@ -189,3 +189,34 @@ def test_two_processes_joined_are_one_reference(tmp_path, monkeypatch):
     np.testing.assert_allclose(ref["var"], var, rtol=2e-5, atol=1e-9)
     with pytest.raises(ValueError):
         R.join_growing(a["path"], a["path"])
+
+
+def test_trusted_layer_restricts_every_region(tmp_path):
+    # A reference's Trusted layer: load_reference reads it as an (H, W) bool,
+    # and trusted_masks makes "all" those pixels and cuts every region to
+    # them, so that error_metrics scores only the pixels the reference
+    # vouches for (bench/luxcore_reference.py's composed glass sphere).
+    from core.io.exr import write_exr
+    rng = np.random.default_rng(5)
+    H, W = 16, 24
+    ref = rng.uniform(0.1, 2.0, (H, W, 3)).astype(np.float32)
+    trusted = np.ones((H, W), bool)
+    trusted[4:9, 6:15] = False
+    path = str(tmp_path / "ref.exr")
+    write_exr(path, {"Combined": ref, "Variance": np.full((H, W, 3), 1e-4, np.float32),
+                     "Trusted": trusted.astype(np.float32)[..., None]})
+    r = R.load_reference(path)
+    assert r["trusted"].dtype == bool and (r["trusted"] == trusted).all()
+    smooth = rng.random((H, W)) < 0.5
+    masks = R.trusted_masks({"smooth": smooth}, r["trusted"])
+    assert (masks["all"] == trusted).all() and (masks["smooth"] == (smooth & trusted)).all()
+    img = ref.astype(np.float64) * rng.uniform(0.5, 1.5, (H, W, 3))
+    img[~trusted] = 1e6                             # what the untrusted pixels read is not scored
+    e = M.error_metrics(img, r["image"], masks, with_flip=False)
+    w = ((img - r["image"]) ** 2 / (r["image"] ** 2 + M.RELMSE_EPS))
+    assert e["relmse_all"] == pytest.approx(w[trusted].mean(), rel=1e-12)
+    assert e["relmse_smooth"] == pytest.approx(w[smooth & trusted].mean(), rel=1e-12)
+    assert R.trusted_masks({"smooth": smooth}, None) == {"smooth": smooth}
+    plain = str(tmp_path / "plain.exr")
+    write_exr(plain, {"Combined": ref})
+    assert R.load_reference(plain)["trusted"] is None

@@ -11,6 +11,9 @@
    settings, as two halves with independent seeds (their difference gives
    the reference's variance, the floor of every relMSE), cached under
    ``$FPPM_CACHE_DIR`` (default ``~/.cache/fppm``) ``/references/<sha256>.exr``.
+   A REF.exr with a "Trusted" layer vouches only for the pixels where it is
+   1: every error and floor is then over those pixels, "all" included
+   (``references.trusted_masks``).
 2. Methods (``runs.py``): ``fppm`` (the file's FPPM settings, corrected
    frequency model), ``paper`` (the paper's printed frequency model) and
    ``ppm`` (use_frequency off), same seed, photons per pass and resolution,

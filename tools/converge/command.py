@@ -17,7 +17,7 @@ from ...addon.cli import (EXIT_CANCELLED, EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, EX
 from ...core.io.exr import write_exr
 from .. import metrics as M
 from . import plots, report as R
-from .references import load_mask, load_reference, make_reference
+from .references import load_mask, load_reference, make_reference, trusted_masks
 from .runs import (CLOCKS, CYCLES_HELP, METHOD_SETTINGS, METHODS, Progress, Run, cycles_speed_check,
                    run_cycles_ladder, run_photon_mapping)
 
@@ -139,6 +139,11 @@ def converge(a, log=print) -> int:
         else:
             notes.append("Regions derived from the reference: caustic/smooth from luminance and "
                          "gradient, indirect from Cycles' DiffInd / (DiffDir + DiffInd) > 0.8.")
+    if ref.get("trusted") is not None:
+        masks = trusted_masks(masks, ref["trusted"])
+        notes.append(f"The reference vouches for {int(ref['trusted'].sum())} of {H * W} pixels "
+                     f"(its Trusted layer): every relMSE, FLIP and floor here, 'all' included, "
+                     f"is over those pixels.")
     floors = {}
     if ref["var"] is not None:
         floors["all"] = M.reference_floor(ref["image"], ref["var"])

@@ -26,7 +26,7 @@ multi-layer EXRs named by a sha256 of the .blend's bytes plus the settings:
 
 Image dicts returned here: ``{"image": (H, W, 3) float64, "var": (H, W, 3)
 float64 or None, "diff_direct" / "diff_indirect": (H, W, C) float32 or None,
-"meta": dict, "path": str}``.
+"trusted": (H, W) bool or None (:func:`trusted_masks`), "meta": dict, "path": str}``.
 """
 from __future__ import annotations
 
@@ -124,10 +124,28 @@ def cycles_render(bpy, scene, samples: int, seed: int, passes: bool = False):
 
 def _as_reference(layers: dict, var, meta: dict, path: str) -> dict:
     """The reference dict (module docstring) of a Combined layer and its variance."""
+    trusted = layer(layers, "Trusted")
     return {"image": layer(layers, "Combined")[..., :3].astype(np.float64),
             "var": None if var is None else var[..., :3].astype(np.float64),
             "diff_direct": layer(layers, "DiffDir"), "diff_indirect": layer(layers, "DiffInd"),
+            "trusted": None if trusted is None else np.asarray(trusted).reshape(
+                trusted.shape[:2] + (-1,))[..., 0] > 0.5,
             "meta": meta, "path": path}
+
+
+def trusted_masks(masks: dict, trusted) -> dict:
+    """``masks`` ({region: (H, W) bool}) restricted to a reference's trusted
+    pixels, with "all" = ``trusted`` ((H, W) bool; None: ``masks`` unchanged).
+
+    A file reference may carry a "Trusted" layer: the pixels whose error it
+    vouches for with its Variance layer.  bench/luxcore_reference.py's
+    composed glass-sphere reference leaves out the pixels that may see the
+    glass first, where Cycles' rare hits of the small light through the glass
+    make its two halves' spread understate its error (docs/peers.md "The
+    composed reference's margin, round 34")."""
+    if trusted is None:
+        return masks
+    return {"all": trusted, **{k: m & trusted for k, m in masks.items() if k != "all"}}
 
 
 def _piece(layers: dict, samples: int) -> dict:

@@ -440,7 +440,7 @@ def _bias_noise(runs, ref, budget, n_seeds, carry, summary) -> list[str]:
             else:
                 imgs = [r.image for r in rs]
             if len(imgs) >= 2:
-                d = M.bias_noise(imgs, ref["image"])
+                d = M.bias_noise(imgs, ref["image"], ref.get("trusted"))
                 bn[m] = d
                 lines.append(f"| {m.upper()} | {_fmt(d['bias2'])} | {_fmt(d['noise'])} | "
                              f"{_fmt(d['relmse_mean_image'])} |")
