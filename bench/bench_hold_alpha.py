@@ -47,7 +47,9 @@
         docs/method.md "The glass sphere at equal passes, round 17", 'through=0' the default;
         'kappa=2': every hold reads the spectrum's prediction / 2, tried there, not kept;
         'gmax=G': the steepest linear fit a verified hold keeps, GRADIENT_MAX, 'gmax=inf' the
-        rule before docs/method.md "Steep counts refuse a hold, round 33")
+        rule before docs/method.md "Steep counts refuse a hold, round 33"; 'relall=0': the
+        release rate only where a prediction is rejected, RELEASE_EVERYWHERE off, the rule
+        before "Counts that reject shrink faster, round 34")
     .venv/bin/python bench/bench_hold_alpha.py cornell --cycles-ref --photons 0 --equal-cpu 6 \
         --bill-setup --seeds 0,1,2,3 --methods fppm,fppm:fstart=4,fppm:fstart=8:growS=0,cppm,ppm
         ('fstart=S': no frequency photons before pass S, frequency_start (default 2 since
@@ -294,7 +296,7 @@ RADII_KEYS = {"power": "hold_min_expected", "release": "release_alpha", "top2": 
               "hmax": "hold_alpha_spectrum", "hmaxE": "hold_spectrum_min_expected",
               "share": "hold_share_min", "growS": "grow_at_start",
               "sharepass": "hold_share_pass", "through": "hold_through_delta",
-              "gmax": "gradient_max"}
+              "gmax": "gradient_max", "relall": "release_everywhere"}
 
 
 #: Method-name keys of :func:`planes_or` and the PhotonTracer attribute each
@@ -325,11 +327,14 @@ def radii_variant(renderer, method):
                     else v not in ("0", "false") if k == "through" else float(v))
 
 
-def cycles_reference(name, say):
+def cycles_reference(name, say, trusted: bool = False):
     """(reference image (H, W, 3) float64, its floor) of ``fppm converge``:
     the Cycles render of bench/converge_examples.py's sample count at the
     file's resolution, from the converge cache (rendered there if missing);
-    the floor is tools.metrics.reference_floor of its per-pixel variance."""
+    the floor is tools.metrics.reference_floor of its per-pixel variance.
+    trusted: (image, floor, mask), the mask (H, W) bool the pixels the
+    reference vouches for (its Trusted layer, all pixels when it has none:
+    tools.converge.references.trusted_masks) and the floor over them."""
     from converge_examples import SCENES
     from fppm.tools.converge.references import make_reference
     from fppm.tools.metrics import reference_floor
@@ -343,8 +348,14 @@ def cycles_reference(name, say):
         ref = load_reference(os.path.join(cache_dir(), spp))
     else:
         ref = make_reference(bpy, bpy.context.scene, path, spp, say, say)
-    floor = reference_floor(ref["image"], ref["var"]) if ref["var"] is not None else float("nan")
-    return ref["image"], float(floor)
+    if not trusted:
+        floor = reference_floor(ref["image"], ref["var"]) if ref["var"] is not None else np.nan
+        return ref["image"], float(floor)
+    mask = ref.get("trusted")
+    if mask is None:
+        mask = np.ones(ref["image"].shape[:2], bool)
+    floor = reference_floor(ref["image"], ref["var"], mask) if ref["var"] is not None else np.nan
+    return ref["image"], float(floor), mask
 
 
 def equal_cpu(scene, base, methods, seed, budget, report, ref, say, bill_setup=False):

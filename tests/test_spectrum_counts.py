@@ -387,3 +387,33 @@ def test_steep_counts_refuse_a_hold():
             radii.hold_spectrum_min_expected = 0.0      # the spectrum's rate at 4 a cell too
             radii.update(st, M, np.repeat(0.5 * M[:, None], 3, 1), r, counts)
             assert st.R2 / R0 ** 2 == pytest.approx(expect, rel=1e-12), (knob, compiled)
+
+
+def test_rejecting_counts_shrink_at_the_release_rate_without_a_prediction():
+    """RELEASE_EVERYWHERE (docs/method.md "Counts that reject shrink faster,
+    round 34"): where the sector counts reject a linear density, the pixel
+    shrinks at RELEASE_ALPHA whether or not its spectrum predicted a hold
+    (a caustic's edge the frequency photons never reached); the rule before
+    (knob 0) released only rejected predictions and left the others at
+    alpha.  Pixels: curved counts (the linear test rejects) with no
+    prediction and with r_pred = 10 R; the same counts at a quarter (2.5 a
+    cell: the test cannot judge, the counts' retention holds it at
+    hold_alpha); N = 100.  Compiled and numpy alike (exact)."""
+    assert U.RELEASE_EVERYWHERE
+    counts = np.stack([CURVED, CURVED, 0.25 * CURVED])
+    assert U.chi2_rejects(counts[:2], linear=True).all()
+    R0, N0 = 0.01, 100.0
+    r = np.array([np.inf, 10 * R0, np.inf])
+    M = counts.sum(axis=1)
+    st0 = RenderSettings(integrator="PHOTON")
+    f = lambda a, m: (N0 + m * a) / (N0 + m)     # noqa: E731
+    released, ppm, kept = f(U.RELEASE_ALPHA, M), f(st0.alpha, M), f(st0.hold_alpha, M)
+    want = {1.0: [released[0], released[1], kept[2]], 0.0: [ppm[0], released[1], kept[2]]}
+    for knob, expect in want.items():
+        for compiled in (True, False):
+            st = PixelState.zeros(len(r), sector_cells=C)
+            st.R2[:], st.N[:] = R0 ** 2, N0
+            radii = _radii(len(r), compiled)
+            radii.release_everywhere = knob
+            radii.update(st, M, np.repeat(0.5 * M[:, None], 3, 1), r, counts)
+            assert st.R2 / R0 ** 2 == pytest.approx(np.array(expect), rel=1e-12), (knob, compiled)

@@ -102,6 +102,13 @@ HOLD_MIN_EXPECTED = 0.0
 #: above 1/2, which keeps the variance condition (docs/method.md
 #: "Consistent holds").
 RELEASE_ALPHA = 0.55
+#: The release rate also where no hold was predicted: wherever the sector
+#: counts reject a linear density (or show a ramp steeper than
+#: GRADIENT_MAX), the disc straddles light it cannot average without bias
+#: (a caustic's edge, a shadow's), so it shrinks at RELEASE_ALPHA (0: only
+#: where a prediction is rejected, the rule before round 34; docs/method.md
+#: "Counts that reject shrink faster, round 34").
+RELEASE_EVERYWHERE = True
 #: Below CHI2_MIN_EXPECTED per cell (the test cannot judge), a hold is
 #: refused where the two fullest of the 8 cells hold this share of the counts
 #: or more (uniform: 1/4; above 1: off, the default, rule set X).  0.6 was
@@ -361,6 +368,7 @@ class Radii:
                               else min(settings.alpha, RELEASE_ALPHA))
         self.hold_max_top2 = HOLD_MAX_TOP2
         self.gradient_max = GRADIENT_MAX
+        self.release_everywhere = float(RELEASE_EVERYWHERE)
         # docs/method.md "Spectrum and counts" (bench_hold_alpha varies them).
         self.hold_uniform = HOLD_OR_UNIFORM
         self.grow = GROW_MAX
@@ -592,7 +600,8 @@ class Radii:
         alpha = self.settings.alpha
         hold_alpha = self.settings.hold_alpha
         if S is not None and rule == "PPM":
-            alpha = np.where(rejected & np.isfinite(r_or), self.release_alpha, alpha)[m]
+            alpha = np.where(rejected & (np.isfinite(r_or) | bool(self.release_everywhere)),
+                             self.release_alpha, alpha)[m]
             if self.hold_alpha_spectrum > hold_alpha:
                 hold_alpha = spectrum_hold_alpha(state.R2[m], r_pred[m], r_hold[m], hold_alpha,
                                                  self.hold_alpha_spectrum,
@@ -653,7 +662,8 @@ class Radii:
                         self.grow_min_expected, self.uniform_critical,
                         self.uniform_min_expected, self.hold_alpha_spectrum,
                         self.hold_spectrum_min_expected, float(any_n),
-                        RULE_CODES.get(st.radius_rule, 0.0), self.gradient_max])
+                        RULE_CODES.get(st.radius_rule, 0.0), self.gradient_max,
+                        self.release_everywhere])
         cap = grow_cap if grow_cap is not None else np.zeros(0)
         args = (a, prm, self.frequency, _GRADIENT, _GRADIENT_NORM2, cap)
         T = numba.get_num_threads()
@@ -863,7 +873,9 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
     minimum expected count per cell (HOLD_SPECTRUM_MIN_EXPECTED), 1.0: the
     growth whatever N (Radii.grows_at), the radius rule (RULE_CODES: 0 PPM,
     1 CPPM, 2 APPM; CPPM and APPM read only alpha, hold_alpha and the
-    counts: :func:`_rule_radius`)); cap (P,) the
+    counts: :func:`_rule_radius`), the steepest relative gradient a hold
+    accepts (GRADIENT_MAX), 1.0: release_alpha wherever the counts reject,
+    predicted or not (RELEASE_EVERYWHERE)); cap (P,) the
     growth's cap [m] (Radii.grow_cap: the surface boundary, 0 where the
     growth curves; (0,): none)."""
     alpha, floor_sq, hold_alpha = prm[0], prm[1], prm[2]
@@ -899,7 +911,7 @@ def _ppm_update_range(i0, i1, a, prm, frequency, grad, gnorm2, cap):
                 if (_chi2_linear_rejects(Si, E_cell, p0, p1, gnorm2, tmp)
                         or (E_cell >= CHI2_MIN_EXPECTED
                             and _relative_gradient(E_cell, p0, p1, gnorm2) > prm[15])):
-                    if np.isfinite(r):
+                    if np.isfinite(r) or prm[16] != 0.0:
                         alpha = prm[4]
                     r = np.nan
                 else:
