@@ -233,7 +233,8 @@ class FPPMRenderSettings(PropertyGroup):
         name="Verify Holds", default=_D.verify_holds,
         description="Check holds against the photons in the kernel (chi-squared tests of "
                     "their sector counts): release a hold where they show more than a linear "
-                    "gradient or a ramp too steep to stay linear across the kernel, hold "
+                    "gradient or a ramp too steep to stay linear across the kernel (there "
+                    "the radius shrinks faster than Alpha, held or not), hold "
                     "where they look uniform (or are too few to test) even "
                     "without a smooth prediction, and let a pixel's first hold grow its "
                     "radius towards the prediction (at most 2x) where its sector cells hold "
