@@ -357,6 +357,33 @@ def test_the_growth_test_stops_a_wrong_growth_at_edges():
     assert err[8] < 0.115 and err[32] < 0.085
 
 
+#: The state of :func:`_assert_factors`' pixels before their update.
+_R0, _N0 = 0.01, 100.0
+
+
+def _factor(alpha, M):
+    """R'^2 / R^2 of PPM's update with parameter alpha for M (P,) photons on N = _N0."""
+    return (_N0 + M * alpha) / (_N0 + M)
+
+
+def _assert_factors(counts, r, attr, want, **attrs):
+    """One update of pixels (R = _R0, N = _N0) with sector ``counts`` (P, C) and
+    predictions ``r`` (P,) for each value of the Radii attribute ``attr`` in
+    ``want`` ({value: expected R'^2 / R^2 (P,)}), compiled and numpy alike
+    (exact); ``attrs``: other Radii attributes to set."""
+    M = counts.sum(axis=1)
+    for knob, expect in want.items():
+        for compiled in (True, False):
+            st = PixelState.zeros(len(r), sector_cells=C)
+            st.R2[:], st.N[:] = _R0 ** 2, _N0
+            radii = _radii(len(r), compiled)
+            setattr(radii, attr, knob)
+            for k, v in attrs.items():
+                setattr(radii, k, v)
+            radii.update(st, M, np.repeat(0.5 * M[:, None], 3, 1), r, counts)
+            assert st.R2 / _R0 ** 2 == pytest.approx(np.asarray(expect), rel=1e-12), (knob, compiled)
+
+
 def test_steep_counts_refuse_a_hold():
     """GRADIENT_MAX (docs/method.md "Steep counts refuse a hold, round 33"): a
     verified hold whose counts fit a linear density that changes by more than
@@ -375,21 +402,12 @@ def test_steep_counts_refuse_a_hold():
     counts = E[:, None] * (1.0 + gam[:, None] * g[None, :])
     assert np.allclose(U.relative_gradient(counts), gam, rtol=1e-12)
     assert not U.chi2_rejects(counts, linear=True).any()        # the linear test accepts
-    R0, N0 = 0.01, 100.0
-    r = np.full(len(gam), 10 * R0)
     M = counts.sum(axis=1)
-    f = lambda a, m: (N0 + m * a) / (N0 + m)     # noqa: E731
-    held, released = f(0.95, M), f(U.RELEASE_ALPHA, M)
+    held, released = _factor(0.95, M), _factor(U.RELEASE_ALPHA, M)
     want = {0.75: np.where([1, 1, 0, 0, 1], held, released), np.inf: held}
-    for knob, expect in want.items():
-        for compiled in (True, False):
-            st = PixelState.zeros(len(gam), sector_cells=C)
-            st.R2[:], st.N[:] = R0 ** 2, N0
-            radii = _radii(len(gam), compiled)
-            radii.gradient_max = knob
-            radii.hold_spectrum_min_expected = 0.0      # the spectrum's rate at 4 a cell too
-            radii.update(st, M, np.repeat(0.5 * M[:, None], 3, 1), r, counts)
-            assert st.R2 / R0 ** 2 == pytest.approx(expect, rel=1e-12), (knob, compiled)
+    # hold_spectrum_min_expected 0: the spectrum's rate at 4 a cell too.
+    _assert_factors(counts, np.full(len(gam), 10 * _R0), "gradient_max", want,
+                    hold_spectrum_min_expected=0.0)
 
 
 def test_rejecting_counts_shrink_at_the_release_rate_without_a_prediction():
@@ -405,18 +423,9 @@ def test_rejecting_counts_shrink_at_the_release_rate_without_a_prediction():
     assert U.RELEASE_EVERYWHERE
     counts = np.stack([CURVED, CURVED, 0.25 * CURVED])
     assert U.chi2_rejects(counts[:2], linear=True).all()
-    R0, N0 = 0.01, 100.0
-    r = np.array([np.inf, 10 * R0, np.inf])
     M = counts.sum(axis=1)
     st0 = RenderSettings(integrator="PHOTON")
-    f = lambda a, m: (N0 + m * a) / (N0 + m)     # noqa: E731
-    released, ppm, kept = f(U.RELEASE_ALPHA, M), f(st0.alpha, M), f(st0.hold_alpha, M)
+    released = _factor(U.RELEASE_ALPHA, M)
+    ppm, kept = _factor(st0.alpha, M), _factor(st0.hold_alpha, M)
     want = {1.0: [released[0], released[1], kept[2]], 0.0: [ppm[0], released[1], kept[2]]}
-    for knob, expect in want.items():
-        for compiled in (True, False):
-            st = PixelState.zeros(len(r), sector_cells=C)
-            st.R2[:], st.N[:] = R0 ** 2, N0
-            radii = _radii(len(r), compiled)
-            radii.release_everywhere = knob
-            radii.update(st, M, np.repeat(0.5 * M[:, None], 3, 1), r, counts)
-            assert st.R2 / R0 ** 2 == pytest.approx(np.array(expect), rel=1e-12), (knob, compiled)
+    _assert_factors(counts, np.array([np.inf, 10 * _R0, np.inf]), "release_everywhere", want)
