@@ -348,14 +348,12 @@ def cycles_reference(name, say, trusted: bool = False):
         ref = load_reference(os.path.join(cache_dir(), spp))
     else:
         ref = make_reference(bpy, bpy.context.scene, path, spp, say, say)
-    if not trusted:
-        floor = reference_floor(ref["image"], ref["var"]) if ref["var"] is not None else np.nan
-        return ref["image"], float(floor)
-    mask = ref.get("trusted")
-    if mask is None:
-        mask = np.ones(ref["image"].shape[:2], bool)
+    mask = ref.get("trusted") if trusted else None
     floor = reference_floor(ref["image"], ref["var"], mask) if ref["var"] is not None else np.nan
-    return ref["image"], float(floor), mask
+    if not trusted:
+        return ref["image"], float(floor)
+    return ref["image"], float(floor), (np.ones(ref["image"].shape[:2], bool) if mask is None
+                                        else mask)
 
 
 def equal_cpu(scene, base, methods, seed, budget, report, ref, say, bill_setup=False):

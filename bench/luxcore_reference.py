@@ -252,7 +252,7 @@ def cycles_by_first_hit(scene: str, cycles: int, specular: set[str]):
     from fppm.addon.cli import open_blend
     from fppm.tools.converge.cycles_worker import cycles_reference_setup
     from fppm.tools.converge.references import REF_SEEDS, cycles_render, layer
-    img = var = 0.0
+    img = var = first = 0.0
     for part in ("specular first", "world, diffuse first"):
         open_blend(blend_of(scene), resolution=PCT)
         sc = bpy.context.scene
@@ -272,8 +272,7 @@ def cycles_by_first_hit(scene: str, cycles: int, specular: set[str]):
             halves.append(layer(lay, "Combined")[..., :3].astype(np.float64))
             print(f"  Cycles, {part}: {cycles // 2} spp (seed {seed}) in {dt:.0f} s", flush=True)
         part_img = 0.5 * (halves[0] + halves[1])
-        if part == "specular first":
-            first = part_img
+        first = part_img if part == "specular first" else first
         img = img + part_img
         var = var + 0.25 * (halves[0] - halves[1]) ** 2
     return img, var, first
