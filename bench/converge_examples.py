@@ -510,6 +510,11 @@ NOTES = [
     "0.967 / 0.978 (excess 0.973; seeds at 10 % 0.93-0.95, at 50 % 0.965-0.972, at 100 % "
     "0.974-0.987; FLIP 0.976 / 0.980 / 0.983); FPPM 258-275 passes, PPM 256-283.  The rows "
     "above were scored against the file before (all pixels).",
+    "Round 34, principled_interior on 99c52f3 (round 34's final code: counts that reject shrink "
+    "faster), `principled_interior --budget 60 --clock cpu --seeds 4 --methods fppm,cppm,ppm`, "
+    "nearly idle, in principled_interior/fppm_cppm_ppm_60s_99c52f3/: FPPM / PPM 0.594 / 0.388 / "
+    "0.496 (excess 0.461), FPPM / CPPM 0.982 / 1.02 / 1.01 (seeds at 10 % 0.76-1.18, at 100 % "
+    "0.92-1.12: a tie); FPPM 277-295 passes, CPPM 266-307, PPM 301-333.",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
