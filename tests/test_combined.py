@@ -326,6 +326,38 @@ def test_soft_light_weights_depend_on_the_prefix_only(rig, spec, row):
     np.testing.assert_allclose(got, w, rtol=1e-12)
 
 
+#: A soft spot over a floor: strength P, radius r, height h, spot size.
+SOFT_SPOT = (80.0, 0.3, 1.0, 1.2)
+
+
+def _soft_spot_scene():
+    """The soft spot of SOFT_SPOT aimed down at a Lambert floor (albedo 1)."""
+    P, r, h, size = SOFT_SPOT
+    return make_scene(quad((0, 0, 0), (4, 0, 0), (0, 4, 0)), [lambert("floor", 1.0)],
+                      [Light("s", "SPOT", (P,) * 3, translate(0, 0, h), radius=r,
+                             spot_size=size, spot_blend=0.1)],
+                      Camera(matrix_world=look_at(LENS, (0.0, 0.0, 0.0)), resolution=(4, 4)))
+
+
+def _nee_irradiance(t, p, N, compiled, seed):
+    """(K,) one-sample next-event estimates of the irradiance at p on the
+    floor (normal +z) from the table t (numpy or compiled)."""
+    from core import lights as Lt
+    from core.lights import direct_kernels as DK
+    u = np.random.default_rng(seed).random((N, 3))
+    if compiled:
+        R = DK.Receivers(q=np.zeros(N, np.int64), p=p[None], n=np.array([[0, 0, 1.0]]),
+                         beta=np.ones((1, 3)), albedo=np.ones((1, 3)),
+                         const=np.ones(1, bool), u=u)
+        out = DK.alloc_samples(N)
+        DK.direct_kernel(0, N, DK.build_direct_lights(t), R, out)
+        wi, weight = out.wi, out.weight
+    else:
+        s = Lt.sample_direct(t, np.tile(p, (N, 1)), u)
+        wi, weight = s["wi"], s["weight"]
+    return np.maximum(wi[:, 2], 0.0) * weight[:, 0]
+
+
 @pytest.mark.parametrize("compiled", [False, True], ids=["numpy", "compiled"])
 def test_soft_spot_camera_field_is_the_light_tracing_field(compiled):
     """The soft-light weights above sum to one over the path prefix only if
@@ -337,36 +369,23 @@ def test_soft_spot_camera_field_is_the_light_tracing_field(compiled):
     BSDF ray hitting the disc must give the same: the cone evaluated along
     the centre's direction, not along each disc sample's (which lit the ring
     just outside the cone that no photon reaches: COMBINED 0.85% brighter
-    than LIGHT on indirect_room.blend, with fireflies)."""
+    than LIGHT on indirect_room.blend, with fireflies).  COMBINED asks for
+    this rule (``LightTable.soft_cone_centre``, set by core.render); the
+    other integrators read the cone as Cycles does
+    (test_soft_spot_cone_along_the_sample_as_cycles)."""
     from core import lights as Lt
-    from core.lights import direct_kernels as DK
     from core.lights.table import _spot_atten
-    P, r, h, size = 80.0, 0.3, 1.0, 1.2
-    sc = make_scene(quad((0, 0, 0), (4, 0, 0), (0, 4, 0)), [lambert("floor", 1.0)],
-                    [Light("s", "SPOT", (P,) * 3, translate(0, 0, h), radius=r, spot_size=size,
-                           spot_blend=0.1)],
-                    Camera(matrix_world=look_at(LENS, (0.0, 0.0, 0.0)), resolution=(4, 4)))
-    t = Lt.build_light_table(sc)
+    P, r, h, size = SOFT_SPOT
+    t = Lt.build_light_table(_soft_spot_scene())
+    t.soft_cone_centre = True
     N = 20_000
-    rng = np.random.default_rng(5)
     edge = h * math.tan(size / 2)                      # 0.684: the centre's cone edge
-    for x in (0.0, 0.6, edge + 0.03, edge + 0.12):     # inside, blend ring, outside x 2
+    for i, x in enumerate((0.0, 0.6, edge + 0.03, edge + 0.12)):  # inside, blend, outside x 2
         p = np.array([x, 0.0, 0.0])
         d2 = x * x + h * h
         att = _spot_atten(t, np.zeros(1, int), _unit(p - (0, 0, h))[None])[0]
         ref = P / (4 * np.pi) * att * (h / math.sqrt(d2)) / (d2 + r * r)
-        u = rng.random((N, 3))
-        if compiled:
-            R = DK.Receivers(q=np.zeros(N, np.int64), p=p[None], n=np.array([[0, 0, 1.0]]),
-                             beta=np.ones((1, 3)), albedo=np.ones((1, 3)),
-                             const=np.ones(1, bool), u=u)
-            out = DK.alloc_samples(N)
-            DK.direct_kernel(0, N, DK.build_direct_lights(t), R, out)
-            wi, weight = out.wi, out.weight
-        else:
-            s = Lt.sample_direct(t, np.tile(p, (N, 1)), u)
-            wi, weight = s["wi"], s["weight"]
-        e = np.maximum(wi[:, 2], 0.0) * weight[:, 0]
+        e = _nee_irradiance(t, p, N, compiled, 5 + i)
         print(x, "NEE", e.mean(), "+-", e.std() / math.sqrt(N), "photon field", ref)
         assert abs(e.mean() - ref) <= 4 * e.std() / math.sqrt(N) + 1e-12 * P
         if att == 0:
@@ -381,6 +400,57 @@ def test_soft_spot_camera_field_is_the_light_tracing_field(compiled):
     Le = Lt.emitted_along_rays(t, o, d, np.full(1, np.inf))[0, 0]
     att = _spot_atten(t, np.zeros(1, int), _unit(o[0] - (0, 0, h))[None])[0]
     assert Le == pytest.approx(t.radiance[0, 0] * att, rel=1e-12)
+
+
+@pytest.mark.parametrize("compiled", [False, True], ids=["numpy", "compiled"])
+def test_soft_spot_cone_along_the_sample_as_cycles(compiled):
+    """By default (PATH, PHOTON) a soft spot's cone is read along each disc
+    sample's direction, as Cycles' spot_light_sample does: the irradiance on
+    the floor is the disc's, radiance x pi r^2 cos_l cos_p / t^2, averaged
+    over the disc facing p (uniform by area) with the cone's attenuation of
+    each sample's direction q -> p (a midpoint quadrature of 400 x 400
+    cells), so the cone's edge is blurred by the disc's angular size and a
+    ring just outside the centre's cone is lit.  Next-event estimation
+    (numpy and compiled) within 4 sigma at the centre, in the blend, just
+    outside and well outside the centre's cone (0 there: no disc sample's
+    direction is inside); a BSDF ray from just outside to the disc's side
+    inside the cone finds radiance x the attenuation of its direction."""
+    from core import lights as Lt
+    from core.lights.table import _spot_atten
+    from core.mathutil import frame
+    P, r, h, size = SOFT_SPOT
+    t = Lt.build_light_table(_soft_spot_scene())
+    assert not t.soft_cone_centre
+    c, Le = np.array([0.0, 0.0, h]), t.radiance[0, 0]
+    n = 400
+    rho = np.sqrt((np.arange(n) + 0.5) / n)[:, None]            # uniform by area
+    phi = 2 * np.pi * (np.arange(n) + 0.5)[None, :] / n
+    N = 20_000
+    edge = h * math.tan(size / 2)
+    lit_outside = []
+    for i, x in enumerate((0.0, 0.6, edge + 0.03, edge + 0.5)):
+        p = np.array([x, 0.0, 0.0])
+        ln = _unit(p - c)
+        t1, t2 = frame(ln[None])
+        q = (c + r * ((rho * np.cos(phi))[..., None] * t1[0]
+                      + (rho * np.sin(phi))[..., None] * t2[0])).reshape(-1, 3)
+        v = q - p
+        tt = np.linalg.norm(v, axis=1)
+        w = v / tt[:, None]
+        cos_l = np.maximum(-(w @ ln), 0.0)
+        att = _spot_atten(t, np.zeros(len(q), int), -w)
+        ref = float(np.mean(Le * np.pi * r * r * cos_l * np.maximum(w[:, 2], 0.0) / tt ** 2 * att))
+        e = _nee_irradiance(t, p, N, compiled, 11 + i)
+        print(x, "NEE", e.mean(), "+-", e.std() / math.sqrt(N), "Cycles' field", ref)
+        assert abs(e.mean() - ref) <= 4 * e.std() / math.sqrt(N) + 1e-12 * P
+        if x > edge:
+            lit_outside.append(ref)
+    assert lit_outside[0] > 0 and lit_outside[1] == 0     # the ring outside, then dark
+    o = np.array([[edge + 0.03, 0.0, 0.0]])
+    d = _unit(np.array([0.25, 0.0, h]) - o[0])[None]
+    got = Lt.emitted_along_rays(t, o, d, np.full(1, np.inf))[0, 0]
+    att = _spot_atten(t, np.zeros(1, int), -d)[0]
+    assert att > 0 and got == pytest.approx(Le * att, rel=1e-12)
 
 
 @pytest.mark.parametrize("spec,w_pt", [([(2, M1)], 1.0), ([(0, F1), (2, M1)], 0.0)])

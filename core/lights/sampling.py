@@ -296,12 +296,12 @@ def sample_direct(table: LightTable, p: np.ndarray, u: np.ndarray, n=None) -> di
             w_dir[ms] = wd
             t[ms] = np.maximum(tt, 0.0)
         if k == SPOT:
-            # Soft falloff: the cone along the centre's direction, as the
-            # photons from the centre carry it (emission.py), not along the
-            # disc sample's: camera and light strategies then estimate one
-            # field and their MIS weights (docs/integrators.md, "Soft
-            # lights") combine like terms.
-            att = _spot_atten(table, jj, np.where(dk[:, None], lightN, -w_dir))
+            # The cone along the sample's direction, as Cycles reads it; a
+            # soft spot's along the centre's where the table asks
+            # (soft_cone_centre: COMBINED, whose light tracing carries the
+            # centre's cone, docs/integrators.md "Soft lights").
+            centre = dk & bool(table.soft_cone_centre)
+            att = _spot_atten(table, jj, np.where(centre[:, None], lightN, -w_dir))
             if np.any(sk):
                 inside = sk & (d <= r)
                 att = np.where(inside, 1.0, att)  # Cycles: no attenuation inside

@@ -100,10 +100,12 @@ def emitted_along_rays(table: LightTable, o: np.ndarray, d: np.ndarray, t_max: n
             L = np.broadcast_to(table.radiance[j], (K, 3))
             if k == SPOT:
                 hit &= _dot(d, oc) < 0                # Cycles: one-sided spot disc
-                # Soft falloff: the cone along the centre's direction to the
-                # ray's origin, as next-event estimation evaluates it
-                # (sampling.sample_direct).
-                aim = -d if table.is_sphere[j] else _normalize(oc)
+                # The cone along the ray (Cycles), or a soft spot's along the
+                # centre's direction to the ray's origin where the table
+                # asks, as next-event estimation reads it
+                # (sampling.sample_direct, soft_cone_centre).
+                centre = bool(table.soft_cone_centre) and not table.is_sphere[j]
+                aim = _normalize(oc) if centre else -d
                 att = _spot_atten(table, np.full(K, j), aim)
                 L = L * att[:, None]
         elif k == SUN:

@@ -112,6 +112,13 @@ class LightTable:
     # bounding sphere's margin, or None without triangles: where world
     # photons start (emission.distant_footprint).
     triangle_box: tuple = None
+    # A soft spot's cone (radius > 0, soft falloff) evaluated along the
+    # centre's direction to the receiver on next-event and BSDF-hit
+    # estimates, as the photons from its centre carry it (True: what
+    # COMBINED's light tracing needs to estimate one field with its camera
+    # strategies), or along each disc sample's direction as Cycles does
+    # (False, the default; docs/integrators.md "Soft lights").
+    soft_cone_centre: bool = False
 
     @property
     def n(self) -> int:
