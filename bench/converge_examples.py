@@ -73,7 +73,7 @@ SCENES = {
     # round 34").
     # Four runs (floor 1.84e-3; two runs' 4.15e-3 was above 1/3 of the
     # excesses compared, 6.1e-3 to 6.5e-3).
-    "coffee_cup": ("caustic-small", "coffee_cup_luxcore_bidirvm_6runs.exr"),
+    "coffee_cup": ("caustic-small", "coffee_cup_luxcore_bidirvm_8runs.exr"),
     "glass_sphere": ("caustic-small", "glass_sphere_luxcore_light_cycles4096_firsthit.exr"),
     # Cycles cannot render this caustic: the reference is Mitsuba 3's light
     # tracer (bench/point_caustic_reference.py), 65536 spp, in the cache folder.
@@ -529,9 +529,10 @@ METHODS = "fppm,ppm,appm,cppm,path,light,combined,cycles"
 # The script that makes each reference file of SCENES.
 REFERENCE_SCRIPTS = {
     "point_caustic": "bench/point_caustic_reference.py",
-    "coffee_cup": "bench/luxcore_reference.py render coffee_cup --runs 6 --cpu 200",
+    "coffee_cup": "bench/luxcore_reference.py render coffee_cup --runs 8 --cpu 200",
     "glass_sphere": "bench/luxcore_reference.py render glass_sphere --engine lux_light:noworld "
-                    "(and --engine lux_path:world), then compose glass_sphere --cycles 4096",
+                    "--runs 10 --cpu 100 (and --engine lux_path:world --runs 2 --cpu 30), then "
+                    "compose glass_sphere --cycles 4096",
 }
 # The methods each scene's targets need: the combined
 # integrator against Cycles and its single strategies, FPPM against PPM, and
