@@ -71,8 +71,9 @@ SCENES = {
     # compose; its VCM render is biased with the spot, docs/peers.md
     # "References for the glass scenes", "The composed reference's margin,
     # round 34").
-    # Four runs (floor 1.84e-3; two runs' 4.15e-3 was above 1/3 of the
-    # excesses compared, 6.1e-3 to 6.5e-3).
+    # Eight runs (floor 7.41e-4): after round 34's soft spot cone the
+    # photon mappers' excesses fell to 2.8e-3-3.0e-3, and six runs' 9.55e-4
+    # was above a third of them (four runs: 1.84e-3).
     "coffee_cup": ("caustic-small", "coffee_cup_luxcore_bidirvm_8runs.exr"),
     "glass_sphere": ("caustic-small", "glass_sphere_luxcore_light_cycles4096_firsthit.exr"),
     # Cycles cannot render this caustic: the reference is Mitsuba 3's light
@@ -515,6 +516,13 @@ NOTES = [
     "nearly idle, in principled_interior/fppm_cppm_ppm_60s_99c52f3/: FPPM / PPM 0.594 / 0.388 / "
     "0.496 (excess 0.461), FPPM / CPPM 0.982 / 1.02 / 1.01 (seeds at 10 % 0.76-1.18, at 100 % "
     "0.92-1.12: a tie); FPPM 277-295 passes, CPPM 266-307, PPM 301-333.",
+    "Round 34, glass_sphere and coffee_cup on bb49216 (the soft spot's cone read as Cycles reads "
+    "it; the glass sphere's light tracing of 10 runs, composed: floor 2.26e-4 over the trusted "
+    "pixels; the cup's VCM of 8 runs, floor 7.41e-4), `glass_sphere coffee_cup --budget 60 "
+    "--clock cpu --seeds 4 --methods fppm,ppm`, nearly idle, in SCENE/fppm_ppm_60s_bb49216/: "
+    "glass_sphere FPPM / PPM 0.930 / 0.918 / 0.940 (excess 0.928; every seed below 1 at every "
+    "point), FPPM 242-265 passes, PPM 254-278; coffee_cup 0.976 / 0.954 / 0.958 (excess 0.948; "
+    "seeds at 10 % 0.87-1.15, at 100 % 0.947-0.969), FPPM 254-279 passes, PPM 229-283.",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
