@@ -57,7 +57,8 @@ class DirectLights(NamedTuple):
     dir (Nl, 3); len_u, len_v, area, radius, cos_half_spot, spot_smooth,
     half_angle, cos_half_angle (Nl,); ellipse, is_sphere, cast_shadow (Nl,)
     bool; cone_centre (Nl,) bool a soft spot whose cone is read along the
-    centre's direction (``LightTable.soft_cone_centre``); lin_inv (Nl, 3, 3); entry (E,) int64 entry -> emitter (-1 group);
+    centre's direction (``LightTable.soft_cone_centre``); lin_inv (Nl, 3,
+    3); entry (E,) int64 entry -> emitter (-1 group);
     group_tri (G,) int64; group_cdf (G,); group (4,) centre x, y, z and ext^2;
     sel the :class:`EntryLights` of the same emitters; env the world's
     ``environment_kernels.EnvironmentKernel`` (``no_map()``: none)."""
