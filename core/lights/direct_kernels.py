@@ -57,7 +57,7 @@ class DirectLights(NamedTuple):
     dir (Nl, 3); len_u, len_v, area, radius, cos_half_spot, spot_smooth,
     half_angle, cos_half_angle (Nl,); ellipse, is_sphere, cast_shadow (Nl,)
     bool; cone_centre (Nl,) bool a soft spot whose cone is read along the
-    centre's direction (``LightTable.soft_cone_centre``); lin_inv (Nl, 3,
+    centre's direction (``LightTable.cone_centre``); lin_inv (Nl, 3,
     3); entry (E,) int64 entry -> emitter (-1 group);
     group_tri (G,) int64; group_cdf (G,); group (4,) centre x, y, z and ext^2;
     sel the :class:`EntryLights` of the same emitters; env the world's
@@ -175,20 +175,13 @@ def build_direct_lights(table) -> DirectLights:
         cos_half_angle=c(table.cos_half_angle, np.float64),
         ellipse=c(table.ellipse, bool), is_sphere=c(table.is_sphere, bool),
         cast_shadow=c(table.cast_shadow, bool),
-        cone_centre=c(soft_cone_centre(table), bool),
+        cone_centre=c(table.cone_centre, bool),
         lin_inv=c(np.asarray(table.lin_inv, np.float64).reshape(n, 3, 3)),
         entry=c(table.entry_emitter, np.int64), group_tri=c(gt, np.int64),
         group_cdf=c(gc, np.float64),
         group=np.array([gcen[0], gcen[1], gcen[2], float(table.group_ext2)], np.float64),
         sel=None, env=_map_of(table))
     return L._replace(sel=entry_lights(L))
-
-
-def soft_cone_centre(table) -> np.ndarray:
-    """(Nl,) bool: the soft spots (radius > 0, soft falloff) whose cone is
-    read along the centre's direction (``LightTable.soft_cone_centre``)."""
-    return (bool(table.soft_cone_centre) & (table.kind == SPOT) & ~table.is_sphere
-            & (table.radius > 0))
 
 
 def _map_of(table) -> EnvironmentKernel:
@@ -521,7 +514,7 @@ def direct_kernel(k0, k1, L, R, out):
                 t = max(tt, 0.0)
             if kind == SPOT:
                 # sampling.sample_direct: the sample's direction (Cycles), or
-                # the centre's where the table asks (soft_cone_centre).
+                # the centre's where the table asks (LightTable.cone_centre).
                 if L.cone_centre[j]:
                     att = _spot_atten(EL.row, j, nx, ny, nz)
                 else:

@@ -298,9 +298,9 @@ def sample_direct(table: LightTable, p: np.ndarray, u: np.ndarray, n=None) -> di
         if k == SPOT:
             # The cone along the sample's direction, as Cycles reads it; a
             # soft spot's along the centre's where the table asks
-            # (soft_cone_centre: COMBINED, whose light tracing carries the
-            # centre's cone, docs/integrators.md "Soft lights").
-            centre = dk & bool(table.soft_cone_centre)
+            # (LightTable.cone_centre: COMBINED, whose light tracing carries
+            # the centre's cone, docs/integrators.md "Soft lights").
+            centre = table.cone_centre[jj]
             att = _spot_atten(table, jj, np.where(centre[:, None], lightN, -w_dir))
             if np.any(sk):
                 inside = sk & (d <= r)

@@ -103,9 +103,8 @@ def emitted_along_rays(table: LightTable, o: np.ndarray, d: np.ndarray, t_max: n
                 # The cone along the ray (Cycles), or a soft spot's along the
                 # centre's direction to the ray's origin where the table
                 # asks, as next-event estimation reads it
-                # (sampling.sample_direct, soft_cone_centre).
-                centre = bool(table.soft_cone_centre) and not table.is_sphere[j]
-                aim = _normalize(oc) if centre else -d
+                # (sampling.sample_direct, LightTable.cone_centre).
+                aim = _normalize(oc) if table.cone_centre[j] else -d
                 att = _spot_atten(table, np.full(K, j), aim)
                 L = L * att[:, None]
         elif k == SUN:

@@ -125,6 +125,15 @@ class LightTable:
         return int(self.kind.shape[0])
 
     @property
+    def cone_centre(self) -> np.ndarray:
+        """(Nl,) bool: the soft spots (radius > 0, soft falloff) whose cone
+        next-event estimation and BSDF hits read along the centre's
+        direction (``soft_cone_centre``); every other spot's cone is read
+        along the sample's or the ray's direction."""
+        return (bool(self.soft_cone_centre) & (self.kind == SPOT) & ~self.is_sphere
+                & (self.radius > 0))
+
+    @property
     def total_flux(self) -> np.ndarray:
         """(3,) sum of ``flux`` over all emitters."""
         return self.flux.sum(axis=0) if self.n else np.zeros(3)
