@@ -294,9 +294,6 @@ class Renderer:
                                                                          st0.integrator))
         memory.check_fits(self.memory)
         self.light_table = build_light_table(scene)
-        # COMBINED's light tracing carries a soft spot's cone from its centre;
-        # its camera strategies must estimate the same field (LightTable).
-        self.light_table.soft_cone_centre = st0.integrator == "COMBINED"
         for w in getattr(self.light_table, "warnings", []):
             log(f"FPPM: {w}")
         if not np.any(self.light_table.flux.sum(axis=1) > 0):

@@ -19,6 +19,7 @@ from core.frequency import spectrum as F
 from core.frequency.curvature import bounce_interface, delta_ior
 from core.frequency.occlusion_march import march_occlusion
 from core import lights as Lt
+from core.lights.emission import soft_spot_first_hit
 from core import materials as B
 from core.materials.fast import sample_fast
 from core.mathutil import LUMINANCE as LUM, dot as _dot
@@ -170,6 +171,9 @@ def trace_numpy(self, n: int, n_freq: int, rng):
     o, d, power, spec, is_freq = o[idx], d[idx], power[idx], spec[idx], is_freq[idx]
     ng0 = np.zeros((idx.size, 3))          # the surface each segment leaves (emitter: none)
     falloff_r2 = falloff_r2[idx]
+    # A soft spot's cone, read at the first hit (lights.emission.soft_spot_first_hit).
+    light = np.asarray(ph["light"], np.int64)[idx]
+    cone_disc = np.asarray(ph.get("cone_disc", np.zeros((n, 3))), np.float64)[idx]
     model = st.frequency_model
     out_p, out_ng, out_wi, out_pow, out_r, out_b, out_s = [], [], [], [], [], [], []
     for bounce in range(st.max_bounces + 1):
@@ -188,6 +192,9 @@ def trace_numpy(self, n: int, n_freq: int, rng):
             power = power * (t2 / (t2 + falloff_r2[ii]))[:, None]
         p, ng, ns, uv = surface_point(self.scene.tri_p, self.scene.tri_n, self.scene.tri_uv,
                                       hits.prim, hits.u, hits.v)
+        if bounce == 0:
+            power = power * soft_spot_first_hit(self.light_table, light[ii], cone_disc[ii], d,
+                                                hits.t, ng)[:, None]
         wi = -d
         mat = self.scene.tri_mat[hits.prim]
         if np.any(is_freq):

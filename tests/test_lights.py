@@ -138,8 +138,11 @@ def test_flux_closed_forms_and_selection():
 def _power_mean_check(t, N, seed):
     """Assert mean(power * [light == j]) = flux_j within Z standard errors,
     every j (a world or sun photon's power over its footprint's share of
-    the bounding disc, which ``flux`` counts: emission.distant_footprint)."""
+    the bounding disc, which ``flux`` counts: emission.distant_footprint;
+    a soft spot's photon times its cone along its direction, the far field
+    of the factor it takes at its first hit, emission.soft_spot_first_hit)."""
     from core.lights.emission import distant_footprint
+    from core.lights.table import _spot_atten
     ph = L.sample_photons(t, N, np.random.default_rng(seed))
     assert ph["o"].shape == (N, 3) and ph["power"].shape == (N, 3)
     np.testing.assert_allclose(np.linalg.norm(ph["d"], axis=1), 1.0, atol=1e-12)
@@ -149,6 +152,8 @@ def _power_mean_check(t, N, seed):
     if w.size:
         area = distant_footprint(t, ph["d"][w], np.zeros(w.size), np.zeros(w.size))[1]
         disc[w] = np.pi * t.radius_scene ** 2 / area
+    s = np.nonzero(t.soft_spot[ph["light"]])[0]
+    disc[s] *= _spot_atten(t, ph["light"][s], ph["d"][s])
     for j in range(t.n):
         x = ph["power"] * ((ph["light"] == j) * disc)[:, None]
         se = x.std(axis=0) / math.sqrt(N)

@@ -200,6 +200,21 @@ def _closest_point(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
 
 
 @nb.njit(cache=True)
+def nearest_distance(tri_p, px, py, pz):
+    """The distance from p to the nearest of the triangles tri_p (T, 3, 3)
+    (:func:`_closest_point`, every triangle; inf for none)."""
+    best = np.inf
+    for i in range(tri_p.shape[0]):
+        qx, qy, qz = _closest_point(px, py, pz, tri_p[i, 0, 0], tri_p[i, 0, 1], tri_p[i, 0, 2],
+                                    tri_p[i, 1, 0], tri_p[i, 1, 1], tri_p[i, 1, 2],
+                                    tri_p[i, 2, 0], tri_p[i, 2, 1], tri_p[i, 2, 2])
+        d2 = (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2
+        if d2 < best:
+            best = d2
+    return np.sqrt(best)
+
+
+@nb.njit(cache=True)
 def _clip_area(tri, blo, bhi, buf_a, buf_b):
     """Area of triangle ``tri`` (3, 3) float64 clipped to the closed box
     [blo, bhi] (Sutherland-Hodgman against the 6 slabs; <= 9 vertices)."""

@@ -734,6 +734,11 @@ class CombinedLightTracer(LightTracer):
             if K == 0:
                 break
             hits = PK.EmbreeHits(*intersect_f32(self.accel, live.o32[:K], live.d32[:K]))
+            if bounce == 0 and tr.soft_spots is not None and "cone_disc" in ph:
+                PK.soft_spot_first_hit(K, hits, live, tr.tris.ng, src,
+                                       np.ascontiguousarray(ph["light"], np.int64),
+                                       np.ascontiguousarray(ph["cone_disc"], np.float64),
+                                       tr.soft_spots)
             step = PK.BounceStep(K=K, first=bounce == 0, store=True,
                                  sample=bounce < self.max_bounces,
                                  roulette=bounce + 1 >= self.rr_start, bounce=bounce,

@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..lights.emission import spot_pdf_local, spot_wide_cos
 from ..lights.pdf import _selection_probability
 from ..lights.table import AREA, MESH, POINT, SPOT
 from ..mathutil import dot as _dot
@@ -122,7 +123,8 @@ def emit_pdf_dir(table, light, w) -> np.ndarray:
     photon along unit w (K, 3) (sample_photons): cosine about the front
     normal (AREA), cosine about either side with 1/2 per side (MESH),
     uniform on the sphere (POINT) or in the spot's local cone mapped by its
-    object matrix (SPOT: |M v|^3 / (|det M| 2 pi (1 - cos_h)))."""
+    object matrix (SPOT: |M v|^3 / |det M| x lights.emission.spot_pdf_local,
+    1 / (2 pi (1 - cos_h)) inside a hard spot's cone)."""
     K = light.shape[0]
     out = np.zeros(K)
     kind = table.kind[light]
@@ -137,10 +139,8 @@ def emit_pdf_dir(table, light, w) -> np.ndarray:
         v = np.einsum("kij,kj->ki", table.lin_inv[j], w[m])
         v /= np.linalg.norm(v, axis=1, keepdims=True)
         Mv = np.linalg.norm(np.einsum("kij,kj->ki", table.lin[j], v), axis=1)
-        cos_h = table.cos_half_spot[j]
-        inside = -v[:, 2] >= cos_h
-        pdf = Mv ** 3 / (np.abs(np.linalg.det(table.lin[j])) * 2.0 * np.pi * (1.0 - cos_h))
-        out[m] = np.where(inside, pdf, 0.0)
+        out[m] = (Mv ** 3 / np.abs(np.linalg.det(table.lin[j]))
+                  * spot_pdf_local(table.cos_half_spot[j], spot_wide_cos(table)[j], -v[:, 2]))
     return out
 
 

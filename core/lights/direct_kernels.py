@@ -56,9 +56,7 @@ class DirectLights(NamedTuple):
     strength / flux (``table._lum``); strength, radiance, co, axis_u, axis_v,
     dir (Nl, 3); len_u, len_v, area, radius, cos_half_spot, spot_smooth,
     half_angle, cos_half_angle (Nl,); ellipse, is_sphere, cast_shadow (Nl,)
-    bool; cone_centre (Nl,) bool a soft spot whose cone is read along the
-    centre's direction (``LightTable.cone_centre``); lin_inv (Nl, 3,
-    3); entry (E,) int64 entry -> emitter (-1 group);
+    bool; lin_inv (Nl, 3, 3); entry (E,) int64 entry -> emitter (-1 group);
     group_tri (G,) int64; group_cdf (G,); group (4,) centre x, y, z and ext^2;
     sel the :class:`EntryLights` of the same emitters; env the world's
     ``environment_kernels.EnvironmentKernel`` (``no_map()``: none)."""
@@ -82,7 +80,6 @@ class DirectLights(NamedTuple):
     ellipse: np.ndarray
     is_sphere: np.ndarray
     cast_shadow: np.ndarray
-    cone_centre: np.ndarray
     lin_inv: np.ndarray
     entry: np.ndarray
     group_tri: np.ndarray
@@ -175,7 +172,6 @@ def build_direct_lights(table) -> DirectLights:
         cos_half_angle=c(table.cos_half_angle, np.float64),
         ellipse=c(table.ellipse, bool), is_sphere=c(table.is_sphere, bool),
         cast_shadow=c(table.cast_shadow, bool),
-        cone_centre=c(table.cone_centre, bool),
         lin_inv=c(np.asarray(table.lin_inv, np.float64).reshape(n, 3, 3)),
         entry=c(table.entry_emitter, np.int64), group_tri=c(gt, np.int64),
         group_cdf=c(gc, np.float64),
@@ -513,12 +509,8 @@ def direct_kernel(k0, k1, L, R, out):
                 l0, l1, l2 = L.radiance[j, 0] * g, L.radiance[j, 1] * g, L.radiance[j, 2] * g
                 t = max(tt, 0.0)
             if kind == SPOT:
-                # sampling.sample_direct: the sample's direction (Cycles), or
-                # the centre's where the table asks (LightTable.cone_centre).
-                if L.cone_centre[j]:
-                    att = _spot_atten(EL.row, j, nx, ny, nz)
-                else:
-                    att = _spot_atten(EL.row, j, -wx, -wy, -wz)
+                # sampling.sample_direct: the sample's direction (Cycles).
+                att = _spot_atten(EL.row, j, -wx, -wy, -wz)
                 if sphere and r != 0 and d <= r:
                     att = 1.0
                 l0, l1, l2 = l0 * att, l1 * att, l2 * att

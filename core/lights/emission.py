@@ -19,6 +19,18 @@ leave the centre and carry ``falloff_r2 = r^2``: the photon tracer multiplies
 the power by t^2 / (t^2 + r^2) at the first hit (far field and first-hit field
 then match Cycles, and the bounced light inherits it).  Without soft
 falloff (sphere model) photons leave the sphere, Lambertian about its normal.
+
+A soft spot's cone: Cycles attenuates each disc sample y by the cone along
+its own direction y -> p (``spot_light_sample``), which blurs the cone's edge
+by the disc's angular size and lights a ring outside the centre's cone.  Its
+photons therefore leave the centre without the cone's attenuation, drawn
+from the centre's cone and, a share :data:`SOFT_SPOT_WIDE` of them, from a
+wide cone that holds every direction whose first hit a disc sample's cone
+can reach (``LightTable.spot_wide_cos``); each carries one disc sample
+(``cone_disc``), and at the first hit the tracer multiplies its power by
+:func:`soft_spot_first_hit`, whose mean over the disc turns the centre's
+field I cos / (d^2 + r^2) into Cycles' (docs/integrators.md "A soft spot's
+cone as Cycles reads it").
 """
 from __future__ import annotations
 
@@ -26,7 +38,8 @@ import numpy as np
 
 from ..mathutil import frame
 
-from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _mesh_emission, _smoothstep
+from .table import (AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _mesh_emission,
+                    _smoothstep, _spot_atten)
 from .warps import (_cone_local, _cosine_local, _to_world, _triangle_bary, _uniform_sphere,
                     _unit_disk)
 
@@ -34,6 +47,67 @@ from .warps import (_cone_local, _cosine_local, _to_world, _triangle_bary, _unif
 # Angular variance of a cosine-weighted diffuse lobe, pi^2/4 - 2 = 0.467 rad^2
 # (docs/frequency.md "Lobe widths"): the angular init of every non-collimated light.
 B_DIFFUSE = np.pi ** 2 / 4.0 - 2.0
+#: The share of a soft spot's photons drawn over its wide cone
+#: (:func:`spot_wide_cos`) instead of its cone: they light the ring outside
+#: the cone that the disc's samples reach near the light.
+SOFT_SPOT_WIDE = 0.1
+
+
+def spot_wide_cos(table: LightTable) -> np.ndarray:
+    """(Nl,) float64 ``LightTable.spot_wide_cos``: the cosine (local -Z) of
+    a soft spot's wide cone, NaN for every other light (a table built
+    without a scene: 90 degrees beyond the cone)."""
+    if table.spot_wide_cos is None:
+        from .table import _spot_wide_cos
+        return _spot_wide_cos(table, None)
+    return table.spot_wide_cos
+
+
+def spot_pdf_local(cos_h, cos_w, cz) -> np.ndarray:
+    """(K,) the density over local unit directions (solid angle in the
+    light's frame) with which a spot's photons leave: uniform in its cone
+    cos >= cos_h, and for a soft spot (cos_w finite) the mixture with
+    :data:`SOFT_SPOT_WIDE` uniform in its wide cone; cz = -v_z the local
+    direction's cosine to the axis."""
+    cone = np.where(cz >= cos_h, 1.0 / (2.0 * np.pi * (1.0 - cos_h)), 0.0)
+    soft = np.isfinite(cos_w)
+    cw = np.where(soft, cos_w, -1.0)
+    wide = np.where(cz >= cw, 1.0 / (2.0 * np.pi * (1.0 - cw)), 0.0)
+    return np.where(soft, (1.0 - SOFT_SPOT_WIDE) * cone + SOFT_SPOT_WIDE * wide, cone)
+
+
+def soft_spot_first_hit(table: LightTable, light, disc, d, t, ng) -> np.ndarray:
+    """(K,) what the power of a soft spot's photon is multiplied by at its
+    first hit, beside t^2 / (t^2 + r^2): photons of rows light (K,) left the
+    centre along unit d (K, 3) with the disc sample disc (K, 3) (the offset
+    from the centre on the disc perpendicular to d, ``cone_disc``) and hit
+    p = c + t d (t (K,)) on a surface of geometric normal ng (K, 3).  With
+    q = p - y = t d - disc, Cycles' disc sample gives p the irradiance
+    L pi r^2 att(q) cos_l cos_p(y) / |q|^2 (cos_l = d . q / |q|, cos_p(y) at
+    p towards y), whose mean over the disc without att is the centre's
+    I cos_p(d) / (t^2 + r^2); the factor is their ratio,
+    att(q) cos_l cos_p(y) (t^2 + r^2) / (|q|^2 cos_p(d)), 1 on average where
+    the cone does not cut the disc.  1 for every other light."""
+    light = np.asarray(light, np.int64)
+    out = np.ones(light.shape[0])
+    s = np.nonzero(table.soft_spot[light])[0]
+    if s.size:
+        ds, ts = d[s], t[s]
+        q = ts[:, None] * ds - disc[s]
+        qq = np.einsum("ki,ki->k", q, q)
+        qh = q / np.sqrt(np.maximum(qq, 1e-300))[:, None]
+        dn = np.einsum("ki,ki->k", ng[s], ds)
+        nf = -np.sign(dn)[:, None] * ng[s]          # faces where the photon came from
+        cos_l = np.maximum(np.einsum("ki,ki->k", qh, ds), 0.0)
+        cos_y = np.maximum(-np.einsum("ki,ki->k", nf, qh), 0.0)
+        r2 = table.radius[light[s]] ** 2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = (_spot_atten(table, light[s], qh) * cos_l * cos_y * (ts * ts + r2)
+                 / (np.maximum(qq, 1e-300) * np.abs(dn)))
+        out[s] = np.where(np.isfinite(f), f, 0.0)
+    return out
+
+
 #: An environment map's photons emitted by environment_kernels.world_photons (off:
 #: the numpy reference below; tests).
 COMPILED_ENVIRONMENT = True
@@ -137,7 +211,9 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
         At the photon's FIRST surface hit, at distance t from o, multiply its
         power by t^2 / (t^2 + r^2): this reproduces Cycles' soft-falloff near
         field I cos / (d^2 + r^2) exactly (a disc of radiance L facing the
-        receiver has projected solid angle pi r^2 / (d^2 + r^2) cos).
+        receiver has projected solid angle pi r^2 / (d^2 + r^2) cos),
+      cone_disc (n, 3) float64: a soft spot's disc sample (module doc;
+        multiply by :func:`soft_spot_first_hit` at the first hit), else 0.
     """
     n = int(n)
     o = np.zeros((n, 3))
@@ -147,8 +223,9 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
     light = np.full(n, -1, np.int32)
     kind = np.full(n, -1, np.int8)
     falloff = np.zeros(n)
+    disc = np.zeros((n, 3))
     out = dict(o=o, d=d, power=power, light=light, kind=kind, freq_init=freq,
-               falloff_r2=falloff)
+               falloff_r2=falloff, cone_disc=disc)
     if n == 0 or table.n == 0 or not np.any(table.p_select > 0):
         return out
     u = rng.random((n, 6))
@@ -174,17 +251,23 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
             weight = table.strength[jj]          # Phi = 4 pi I, pdf 1/(4 pi)
         else:
             # Uniform in the local cone, mapped by the object matrix;
-            # d omega = |det M| / |M v|^3 d v.
+            # d omega = |det M| / |M v|^3 d v.  A soft spot's photons: a
+            # share from its wide cone, the cone read at the first hit.
             cos_h = table.cos_half_spot[jj]
-            v = _cone_local(cos_h, u[m, 3], u[m, 4])
+            cos_w = spot_wide_cos(table)[jj]
+            soft = np.isfinite(cos_w)
+            wide = soft & (u[m, 5] < SOFT_SPOT_WIDE)
+            v = _cone_local(np.where(wide, cos_w, cos_h), u[m, 3], u[m, 4])
             v[:, 2] = -v[:, 2]                   # local axis is -Z
             Mv = np.einsum("kij,kj->ki", table.lin[jj], v)
             nMv = np.linalg.norm(Mv, axis=1)
             w = Mv / nMv[:, None]
             jac = np.abs(np.linalg.det(table.lin[jj])) / nMv ** 3
             att = _smoothstep((-v[:, 2] - cos_h) * table.spot_smooth[jj])
-            weight = (table.strength[jj] / (4.0 * np.pi)
-                      * (att * jac * 2.0 * np.pi * (1.0 - cos_h))[:, None])
+            with np.errstate(divide="ignore"):
+                f = np.where(soft, jac / spot_pdf_local(cos_h, cos_w, -v[:, 2]),
+                             att * jac * 2.0 * np.pi * (1.0 - cos_h))
+            weight = table.strength[jj] / (4.0 * np.pi) * f[:, None]
         # Sphere model (no soft falloff): origin on the sphere, Lambertian about
         # its normal.  For a given direction w such origins are uniform over
         # the disc perpendicular to w, lifted onto the hemisphere facing w.
@@ -198,6 +281,9 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
         off = (x[:, None] * t1 + y[:, None] * t2 + lift[:, None] * w) * r[:, None]
         o[m] = table.co[jj] + off
         d[m] = w
+        if k == SPOT and np.any(soft):
+            rs = np.where(soft, table.radius[jj], 0.0)
+            disc[m] = (x[:, None] * t1 + y[:, None] * t2) * rs[:, None]
         power[m] = weight * inv_p[m, None]
         freq[m] = (0.0, B_DIFFUSE, 0.0)
 

@@ -296,12 +296,8 @@ def sample_direct(table: LightTable, p: np.ndarray, u: np.ndarray, n=None) -> di
             w_dir[ms] = wd
             t[ms] = np.maximum(tt, 0.0)
         if k == SPOT:
-            # The cone along the sample's direction, as Cycles reads it; a
-            # soft spot's along the centre's where the table asks
-            # (LightTable.cone_centre: COMBINED, whose light tracing carries
-            # the centre's cone, docs/integrators.md "Soft lights").
-            centre = table.cone_centre[jj]
-            att = _spot_atten(table, jj, np.where(centre[:, None], lightN, -w_dir))
+            # The cone along the sample's direction, as Cycles reads it.
+            att = _spot_atten(table, jj, -w_dir)
             if np.any(sk):
                 inside = sk & (d <= r)
                 att = np.where(inside, 1.0, att)  # Cycles: no attenuation inside

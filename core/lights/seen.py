@@ -100,12 +100,8 @@ def emitted_along_rays(table: LightTable, o: np.ndarray, d: np.ndarray, t_max: n
             L = np.broadcast_to(table.radiance[j], (K, 3))
             if k == SPOT:
                 hit &= _dot(d, oc) < 0                # Cycles: one-sided spot disc
-                # The cone along the ray (Cycles), or a soft spot's along the
-                # centre's direction to the ray's origin where the table
-                # asks, as next-event estimation reads it
-                # (sampling.sample_direct, LightTable.cone_centre).
-                aim = _normalize(oc) if table.cone_centre[j] else -d
-                att = _spot_atten(table, np.full(K, j), aim)
+                # The cone along the ray, as Cycles reads it.
+                att = _spot_atten(table, np.full(K, j), -d)
                 L = L * att[:, None]
         elif k == SUN:
             if table.half_angle[j] <= 0:

@@ -87,10 +87,7 @@ def seen_kernel(L, flags, vis, o, d, t_max, idx, Le, row, t_hit):
                 if k == SPOT:
                     if not dx * px + dy * py + dz * pz < 0.0:
                         continue
-                    if L.cone_centre[j]:     # the disc's normal, normalize(o - c)
-                        att = _spot_atten_one(er, j, nx, ny, nz)
-                    else:
-                        att = _spot_atten_one(er, j, -dx, -dy, -dz)
+                    att = _spot_atten_one(er, j, -dx, -dy, -dz)
             elif k == SUN:
                 if not (L.half_angle[j] > 0.0 and np.isinf(best)
                         and -(dx * L.dir[j, 0] + dy * L.dir[j, 1] + dz * L.dir[j, 2])

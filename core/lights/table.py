@@ -112,26 +112,20 @@ class LightTable:
     # bounding sphere's margin, or None without triangles: where world
     # photons start (emission.distant_footprint).
     triangle_box: tuple = None
-    # A soft spot's cone (radius > 0, soft falloff) evaluated along the
-    # centre's direction to the receiver on next-event and BSDF-hit
-    # estimates, as the photons from its centre carry it (True: what
-    # COMBINED's light tracing needs to estimate one field with its camera
-    # strategies), or along each disc sample's direction as Cycles does
-    # (False, the default; docs/integrators.md "Soft lights").
-    soft_cone_centre: bool = False
+    # (Nl,) float64: the cosine (local -Z) of a soft spot's wide cone, NaN
+    # for every other light (:func:`_spot_wide_cos`; lights.emission).
+    spot_wide_cos: np.ndarray = None
 
     @property
     def n(self) -> int:
         return int(self.kind.shape[0])
 
     @property
-    def cone_centre(self) -> np.ndarray:
-        """(Nl,) bool: the soft spots (radius > 0, soft falloff) whose cone
-        next-event estimation and BSDF hits read along the centre's
-        direction (``soft_cone_centre``); every other spot's cone is read
-        along the sample's or the ray's direction."""
-        return (bool(self.soft_cone_centre) & (self.kind == SPOT) & ~self.is_sphere
-                & (self.radius > 0))
+    def soft_spot(self) -> np.ndarray:
+        """(Nl,) bool: the soft spots (radius > 0, soft falloff: Cycles'
+        disc facing the receiver), whose photons read the cone at their
+        first hit (lights.emission)."""
+        return (self.kind == SPOT) & ~np.asarray(self.is_sphere, bool) & (self.radius > 0)
 
     @property
     def total_flux(self) -> np.ndarray:
@@ -355,6 +349,7 @@ def build_light_table(scene: Scene) -> LightTable:
         P = np.asarray(scene.tri_p).reshape(-1, 3)
         t_lo, t_hi = P.min(axis=0).astype(np.float64), P.max(axis=0).astype(np.float64)
         table.triangle_box = (0.5 * (t_lo + t_hi), 0.5 * (t_hi - t_lo) + 0.5e-4 * D)
+    table.spot_wide_cos = _spot_wide_cos(table, scene.tri_p)
     return table
 
 
@@ -394,6 +389,38 @@ def _assemble(rows, tri_rows, center, R, D, world, warnings, textures) -> LightT
                    textures=list(textures), warnings=warnings)
     _direct_entries(t)
     return t
+
+
+def _spot_wide_cos(t: LightTable, tri_p) -> np.ndarray:
+    """(Nl,) the cosine of each soft spot's wide cone (NaN for every other
+    light): the directions whose photons a disc sample's cone can light at
+    their first hit.  A photon leaving the centre along w first hits at
+    t >= t_near (the nearest triangle's distance), where the disc of radius
+    r perpendicular to w is seen within atan(r / t_near) of w; so the cone's
+    half-angle plus that angle (at most 180 degrees) holds every such
+    direction where the object matrix keeps angles (a similarity), and the
+    whole sphere where it does not.  tri_p None: t_near unknown, taken as 0
+    (90 degrees beyond the cone)."""
+    out = np.full(t.n, np.nan)
+    for j in np.nonzero(t.soft_spot)[0]:
+        lin = np.asarray(t.lin[j], np.float64)
+        g = lin.T @ lin
+        s2 = np.trace(g) / 3.0
+        if not np.allclose(g, s2 * np.eye(3), rtol=0.0, atol=1e-9 * s2):
+            out[j] = -1.0
+            continue
+        near = (0.0 if tri_p is None
+                else _nearest_triangle(np.asarray(tri_p), *np.asarray(t.co[j], np.float64)))
+        th = np.arccos(np.clip(t.cos_half_spot[j], -1.0, 1.0))
+        out[j] = np.cos(min(np.pi, th + np.arctan2(t.radius[j], near)))
+    return out
+
+
+def _nearest_triangle(tri_p, px, py, pz) -> float:
+    """The distance from p to the nearest of the triangles tri_p (T, 3, 3)
+    (inf without any)."""
+    from ..frequency.occlusion_grid import nearest_distance
+    return float(nearest_distance(tri_p, px, py, pz)) if len(tri_p) else np.inf
 
 
 def _direct_entries(t: LightTable) -> None:

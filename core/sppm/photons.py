@@ -303,6 +303,10 @@ class PhotonTracer:
         self._tri_uv = None
         self.fast_emission = PK.fast_emission_ok(light_table)
         self._light_arrays = PK.light_arrays(light_table) if self.fast_emission else None
+        # Soft spots read their cone at the photons' first hits
+        # (lights.emission.soft_spot_first_hit), None without any.
+        self.soft_spots = (PK.soft_spots(light_table)
+                           if np.any(light_table.soft_spot & (light_table.p_select > 0)) else None)
         # Deposits per photon (max seen, x1.25 margin on use): buffer sizing.
         self._dpp = 2.0
         # Deposit rows, live photons and uniforms reused across batches (ArrayPool).
@@ -503,6 +507,7 @@ class PhotonTracer:
         live = self.pool.take("live", n, _live_arrays, lambda a: PK.LiveState(*a))
         rel = REL_OFFSET
         floor = self.accel.abs_floor / REL_OFFSET
+        cone = None                              # soft spots' first hits
         spec = None
         Kf = 0                                   # live rows 0..Kf-1: frequency photons
         if u_emit is not None:
@@ -522,6 +527,9 @@ class PhotonTracer:
                                np.ascontiguousarray(ph["d"][a:b], np.float64),
                                np.ascontiguousarray(ph["power"][a:b], np.float64),
                                fal, rel, floor, live, src)
+            if self.soft_spots is not None and "cone_disc" in ph:
+                cone = (src, np.ascontiguousarray(ph["light"][a:b], np.int64),
+                        np.ascontiguousarray(ph["cone_disc"][a:b], np.float64))
             if nf:
                 Kf = int(np.searchsorted(src[:K], nf))      # kept in order
                 spec = np.asarray(ph["freq_init"], np.float64)[a:b][src[:Kf]]
@@ -563,6 +571,8 @@ class PhotonTracer:
             hits = PK.EmbreeHits(*intersect_f32(self.accel, live.o32[:K], live.d32[:K]))
             with _COUNT_LOCK:                    # the halves run in two threads
                 self.rays_cast += K
+            if bounce == 0 and cone is not None:
+                PK.soft_spot_first_hit(K, hits, live, self.tris.ng, *cone, self.soft_spots)
             step = PK.BounceStep(K=K, first=bounce == 0,
                                  store=bool(st.photons_for_direct or bounce > 0),
                                  sample=bounce < st.max_bounces,
