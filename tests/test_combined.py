@@ -394,7 +394,8 @@ def test_soft_spot_photons_carry_cycles_field():
     at eight radii weighted by area) within 4 sigma of the photons' own
     noise: at the centre, in the blend, in the ring just outside the
     centre's cone that no photon of the centre's cone reaches (the wide
-    cone's photons light it), and 0 well outside.  The compiled factor
+    cone's photons light it: the cone's half-angle plus asin(r / h), h the
+    nearest triangle's distance), and 0 well outside.  The compiled factor
     (photon_kernels.soft_spot_first_hit) equals numpy's to 1e-12 (factors of
     order 1)."""
     from core import lights as Lt
@@ -402,6 +403,8 @@ def test_soft_spot_photons_carry_cycles_field():
     from core.sppm import photon_kernels as PK
     P, r, h, size = SOFT_SPOT
     t = Lt.build_light_table(_soft_spot_scene())
+    # The wide cone: the floor, h below the centre, is the nearest triangle.
+    assert t.spot_wide_cos[0] == pytest.approx(math.cos(size / 2 + math.asin(r / h)), rel=1e-6)
     ph = Lt.sample_photons(t, 2_000_000, np.random.default_rng(7))
     d = ph["d"]
     down = d[:, 2] < 0

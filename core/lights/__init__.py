@@ -23,10 +23,9 @@ spot          point model times Cycles' smoothstep((cos_local - cos(size/2)) /
               light sample to the receiver mapped to the light's local frame
               (object scale makes the cone elliptic).  NOT renormalised:
               flux = strength / (4 pi) * int smoothstep d omega.  Soft falloff
-              (r > 0, not a sphere): on the direction from the light's centre
-              (Cycles: from the disc sample), the field the photons from the
-              centre carry, so that all strategies estimate one field
-              (``docs/integrators.md``, "Soft lights").
+              (r > 0, not a sphere): on the direction from each disc sample,
+              as Cycles; the photons from the centre read it through one disc
+              sample at their first hit (:mod:`.emission`).
 sun           irradiance S = strength on a plane perpendicular to local -Z; with
               angle > 0 a cone of half-angle h = angle / 2 and radiance
               S / (pi sin^2 h) (its projected solid angle is pi sin^2 h cos).

@@ -56,7 +56,7 @@ SOFT_SPOT_WIDE = 0.1
 def spot_wide_cos(table: LightTable) -> np.ndarray:
     """(Nl,) float64 ``LightTable.spot_wide_cos``: the cosine (local -Z) of
     a soft spot's wide cone, NaN for every other light (a table built
-    without a scene: 90 degrees beyond the cone)."""
+    without a scene: the whole sphere)."""
     if table.spot_wide_cos is None:
         from .table import _spot_wide_cos
         return _spot_wide_cos(table, None)

@@ -394,25 +394,24 @@ def _assemble(rows, tri_rows, center, R, D, world, warnings, textures) -> LightT
 def _spot_wide_cos(t: LightTable, tri_p) -> np.ndarray:
     """(Nl,) the cosine of each soft spot's wide cone (NaN for every other
     light): the directions whose photons a disc sample's cone can light at
-    their first hit.  A photon leaving the centre along w first hits at
-    t >= t_near (the nearest triangle's distance), where the disc of radius
-    r perpendicular to w is seen within atan(r / t_near) of w; so the cone's
-    half-angle plus that angle (at most 180 degrees) holds every such
-    direction where the object matrix keeps angles (a similarity), and the
-    whole sphere where it does not.  tri_p None: t_near unknown, taken as 0
-    (90 degrees beyond the cone)."""
+    their first hit.  A photon leaving the centre along w first hits
+    p = c + t w at t >= t_near (the nearest triangle's distance); a disc
+    sample y = c + r u (|u| <= 1) sees it along t w - r u, whose local
+    direction (the inverse object matrix L applied) lies within
+    asin(k r / t_near) of L w, k = cond(L) (1 for a similarity).  So the
+    cone's half-angle plus that angle holds every direction whose photon
+    any disc sample's cone can light; the whole sphere where k r >= t_near.
+    tri_p None: t_near unknown, the whole sphere."""
     out = np.full(t.n, np.nan)
     for j in np.nonzero(t.soft_spot)[0]:
-        lin = np.asarray(t.lin[j], np.float64)
-        g = lin.T @ lin
-        s2 = np.trace(g) / 3.0
-        if not np.allclose(g, s2 * np.eye(3), rtol=0.0, atol=1e-9 * s2):
-            out[j] = -1.0
-            continue
         near = (0.0 if tri_p is None
                 else _nearest_triangle(np.asarray(tri_p), *np.asarray(t.co[j], np.float64)))
+        s = np.linalg.cond(np.asarray(t.lin[j], np.float64)) * t.radius[j]
+        if not s < near:
+            out[j] = -1.0
+            continue
         th = np.arccos(np.clip(t.cos_half_spot[j], -1.0, 1.0))
-        out[j] = np.cos(min(np.pi, th + np.arctan2(t.radius[j], near)))
+        out[j] = np.cos(min(np.pi, th + np.arcsin(s / near)))
     return out
 
 
