@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..lights.emission import spot_pdf_local, spot_wide_cos
+from ..lights.emission import spot_pdf_local, spot_tail
 from ..lights.pdf import _selection_probability
 from ..lights.table import AREA, MESH, POINT, SPOT
 from ..mathutil import dot as _dot
@@ -140,7 +140,7 @@ def emit_pdf_dir(table, light, w) -> np.ndarray:
         v /= np.linalg.norm(v, axis=1, keepdims=True)
         Mv = np.linalg.norm(np.einsum("kij,kj->ki", table.lin[j], v), axis=1)
         out[m] = (Mv ** 3 / np.abs(np.linalg.det(table.lin[j]))
-                  * spot_pdf_local(table.cos_half_spot[j], spot_wide_cos(table)[j], -v[:, 2]))
+                  * spot_pdf_local(spot_tail(table)[j], table.cos_half_spot[j], -v[:, 2]))
     return out
 
 

@@ -63,7 +63,7 @@ from numba import njit
 
 # The light-sampling density, compiled into nee_mis_kernel (edited with its move
 # to core.lights.pdf_kernels: numba's cache is stamped by this file).
-from ..lights.emission import SOFT_SPOT_WIDE, spot_wide_cos
+from ..lights.emission import spot_tail
 from ..lights.pdf_kernels import pdf_kernel, selection_kernel
 from ..lights.table import AREA, MESH, POINT, SPOT, WORLD
 # sample_fast (and compiled._disk in it) and compiled.sample_pair, eval_pair
@@ -435,11 +435,8 @@ class MisLights(NamedTuple):
     """The emitter data of the COMBINED ratios (Nl emitters; few arrays, see
     :class:`EntryLights`): cls (Nl,) int8 ``mis.light_classes``; sel (Nl,)
     float64 ``mis.emit_select``; kind (Nl,) int8; co, dir (Nl, 3); area,
-    cos_half_spot (Nl,); cos_wide, wide (Nl,) a soft spot's wide cone
-    (``lights.emission.spot_wide_cos``, NaN for other lights) and the share
-    of its photons drawn there (``SOFT_SPOT_WIDE``, 0 for other lights: an
-    array, so that numba's cache of this file never keeps an old value of
-    the constant); lin, lin_inv
+    cos_half_spot (Nl,); tail (Nl, 4) a soft spot's photons beyond its cone
+    (``LightTable.spot_tail``); lin, lin_inv
     (Nl, 3, 3) the spot's object matrix and its inverse, det (Nl,) |det lin|."""
     cls: np.ndarray
     sel: np.ndarray
@@ -448,8 +445,7 @@ class MisLights(NamedTuple):
     dir: np.ndarray
     area: np.ndarray
     cos_half_spot: np.ndarray
-    cos_wide: np.ndarray
-    wide: np.ndarray
+    tail: np.ndarray
     lin: np.ndarray
     lin_inv: np.ndarray
     det: np.ndarray
@@ -458,14 +454,12 @@ class MisLights(NamedTuple):
 def build_mis_lights(table, cls) -> MisLights:
     c = np.ascontiguousarray
     lin = c(np.asarray(table.lin, np.float64).reshape(-1, 3, 3))
-    cw = spot_wide_cos(table)
     return MisLights(cls=c(cls, np.int8), sel=emit_select(table, np.arange(table.n)),
                      kind=c(table.kind, np.int8),
                      co=c(table.co, np.float64), dir=c(table.dir, np.float64),
                      area=c(table.area, np.float64),
                      cos_half_spot=c(table.cos_half_spot, np.float64),
-                     cos_wide=c(cw, np.float64),
-                     wide=np.where(np.isfinite(cw), SOFT_SPOT_WIDE, 0.0), lin=lin,
+                     tail=c(spot_tail(table), np.float64), lin=lin,
                      lin_inv=c(np.asarray(table.lin_inv, np.float64).reshape(-1, 3, 3)),
                      det=np.abs(np.linalg.det(lin)) if lin.shape[0] else np.zeros(0))
 
@@ -498,20 +492,26 @@ def _emit_pdf_dir(X, j, wx, wy, wz):
         my = N[j, 1, 0] * vx + N[j, 1, 1] * vy + N[j, 1, 2] * vz
         mz = N[j, 2, 0] * vx + N[j, 2, 1] * vy + N[j, 2, 2] * vz
         Mv = np.sqrt(mx * mx + my * my + mz * mz)
-        return Mv ** 3 / X.det[j] * _spot_pdf_local(X.cos_half_spot[j], X.cos_wide[j],
-                                                    X.wide[j], -vz)
+        return Mv ** 3 / X.det[j] * _spot_pdf_local(X.tail, j, X.cos_half_spot[j], -vz)
     return 0.0
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _spot_pdf_local(cos_h, cos_w, share, cz):
-    """lights.emission.spot_pdf_local of one local direction (share: the
-    wide cone's, 0 for a hard spot)."""
-    cone = 1.0 / (2.0 * _PI * (1.0 - cos_h)) if cz >= cos_h else 0.0
-    if not share > 0.0:
-        return cone
-    wide = 1.0 / (2.0 * _PI * (1.0 - cos_w)) if cz >= cos_w else 0.0
-    return (1.0 - share) * cone + share * wide
+def _spot_pdf_local(tail, j, cos_h, cz):
+    """lights.emission.spot_pdf_local of one local direction of light j."""
+    P = tail[j, 0]
+    if cz >= cos_h:
+        return (1.0 - P) / (2.0 * _PI * (1.0 - cos_h))
+    if not P > 0.0:
+        return 0.0
+    x0, X, h = tail[j, 1], tail[j, 2], tail[j, 3]
+    th = np.arccos(min(max(cz, -1.0), 1.0))
+    x = th - h
+    if not x <= X:
+        return 0.0
+    A = 1.0 - 1.0 / (1.0 + X / x0)
+    t = P / (x0 * A * (1.0 + x / x0) ** 2) / (2.0 * _PI * np.sin(th))
+    return t if np.isfinite(t) else 0.0
 
 
 @njit(cache=True, error_model="numpy", inline="always")

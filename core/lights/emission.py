@@ -24,9 +24,9 @@ A soft spot's cone: Cycles attenuates each disc sample y by the cone along
 its own direction y -> p (``spot_light_sample``), which blurs the cone's edge
 by the disc's angular size and lights a ring outside the centre's cone.  Its
 photons therefore leave the centre without the cone's attenuation, drawn
-from the centre's cone and, a share :data:`SOFT_SPOT_WIDE` of them, from a
-wide cone that holds every direction whose first hit a disc sample's cone
-can reach (``LightTable.spot_wide_cos``); each carries one disc sample
+from the centre's cone and, a share of them, from a tail beyond it that
+reaches every direction whose first hit a disc sample's cone can light
+(``LightTable.spot_tail``, :func:`spot_pdf_local`); each carries one disc sample
 (``cone_disc``), and at the first hit the tracer multiplies its power by
 :func:`soft_spot_first_hit`, whose mean over the disc turns the centre's
 field I cos / (d^2 + r^2) into Cycles' (docs/integrators.md "A soft spot's
@@ -47,33 +47,46 @@ from .warps import (_cone_local, _cosine_local, _to_world, _triangle_bary, _unif
 # Angular variance of a cosine-weighted diffuse lobe, pi^2/4 - 2 = 0.467 rad^2
 # (docs/frequency.md "Lobe widths"): the angular init of every non-collimated light.
 B_DIFFUSE = np.pi ** 2 / 4.0 - 2.0
-#: The share of a soft spot's photons drawn over its wide cone
-#: (:func:`spot_wide_cos`) instead of its cone: they light the ring outside
-#: the cone that the disc's samples reach near the light.
-SOFT_SPOT_WIDE = 0.1
+def spot_tail(table: LightTable) -> np.ndarray:
+    """(Nl, 4) float64 ``LightTable.spot_tail``: a soft spot's tail beyond
+    its cone (share, x0, X, half-angle), share 0 for every other light (a
+    table built without a scene: the tail reaches the whole sphere)."""
+    if table.spot_tail is None:
+        from .table import _spot_tails
+        return _spot_tails(table, None)
+    return table.spot_tail
 
 
-def spot_wide_cos(table: LightTable) -> np.ndarray:
-    """(Nl,) float64 ``LightTable.spot_wide_cos``: the cosine (local -Z) of
-    a soft spot's wide cone, NaN for every other light (a table built
-    without a scene: the whole sphere)."""
-    if table.spot_wide_cos is None:
-        from .table import _spot_wide_cos
-        return _spot_wide_cos(table, None)
-    return table.spot_wide_cos
-
-
-def spot_pdf_local(cos_h, cos_w, cz) -> np.ndarray:
+def spot_pdf_local(tail, cos_h, cz) -> np.ndarray:
     """(K,) the density over local unit directions (solid angle in the
-    light's frame) with which a spot's photons leave: uniform in its cone
-    cos >= cos_h, and for a soft spot (cos_w finite) the mixture with
-    :data:`SOFT_SPOT_WIDE` uniform in its wide cone; cz = -v_z the local
-    direction's cosine to the axis."""
-    cone = np.where(cz >= cos_h, 1.0 / (2.0 * np.pi * (1.0 - cos_h)), 0.0)
-    soft = np.isfinite(cos_w)
-    cw = np.where(soft, cos_w, -1.0)
-    wide = np.where(cz >= cw, 1.0 / (2.0 * np.pi * (1.0 - cw)), 0.0)
-    return np.where(soft, (1.0 - SOFT_SPOT_WIDE) * cone + SOFT_SPOT_WIDE * wide, cone)
+    light's frame) with which a spot's photons leave; tail (K, 4) its
+    ``spot_tail`` rows (share P, x0, X, half-angle h), cos_h (K,) and
+    cz = -v_z (K,) the local direction's cosine to the axis: (1 - P) uniform
+    in the cone cos >= cos_h, and P over the angles x = theta - h in (0, X]
+    beyond it with density 1 / (x0 A (1 + x / x0)^2) in x, A = 1 - 1 / (1 +
+    X / x0) (``LightTable.spot_tail``), / (2 pi sin theta) in solid angle."""
+    P, x0, X, h = tail[:, 0], tail[:, 1], tail[:, 2], tail[:, 3]
+    inside = cz >= cos_h
+    cone = np.where(inside, (1.0 - P) / (2.0 * np.pi * (1.0 - cos_h)), 0.0)
+    th = np.arccos(np.clip(cz, -1.0, 1.0))
+    x = th - h
+    with np.errstate(divide="ignore", invalid="ignore"):
+        A = 1.0 - 1.0 / (1.0 + X / x0)
+        px = 1.0 / (x0 * A * (1.0 + x / x0) ** 2)
+        t = P * px / (2.0 * np.pi * np.sin(th))
+    return cone + np.where((P > 0) & ~inside & (x <= X) & np.isfinite(t), t, 0.0)
+
+
+def spot_tail_sample(tail, u1, u2) -> np.ndarray:
+    """(K, 3) local unit directions (axis +z) of the tail of :func:`spot_pdf_local`:
+    x = x0 (1 / (1 - u1 A) - 1) (its density's inverse CDF), theta = h + x,
+    phi = 2 pi u2."""
+    x0, X, h = tail[:, 1], tail[:, 2], tail[:, 3]
+    A = 1.0 - 1.0 / (1.0 + X / x0)
+    th = h + np.minimum(x0 * (1.0 / (1.0 - u1 * A) - 1.0), X)
+    s = np.sin(th)
+    phi = 2.0 * np.pi * u2
+    return np.stack([s * np.cos(phi), s * np.sin(phi), np.cos(th)], axis=1)
 
 
 def soft_spot_first_hit(table: LightTable, light, disc, d, t, ng) -> np.ndarray:
@@ -254,10 +267,12 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
             # d omega = |det M| / |M v|^3 d v.  A soft spot's photons: a
             # share from its wide cone, the cone read at the first hit.
             cos_h = table.cos_half_spot[jj]
-            cos_w = spot_wide_cos(table)[jj]
-            soft = np.isfinite(cos_w)
-            wide = soft & (u[m, 5] < SOFT_SPOT_WIDE)
-            v = _cone_local(np.where(wide, cos_w, cos_h), u[m, 3], u[m, 4])
+            tail = spot_tail(table)[jj]
+            soft = tail[:, 0] > 0
+            v = _cone_local(cos_h, u[m, 3], u[m, 4])
+            beyond = np.nonzero(soft & (u[m, 5] < tail[:, 0]))[0]
+            if beyond.size:
+                v[beyond] = spot_tail_sample(tail[beyond], u[m[beyond], 3], u[m[beyond], 4])
             v[:, 2] = -v[:, 2]                   # local axis is -Z
             Mv = np.einsum("kij,kj->ki", table.lin[jj], v)
             nMv = np.linalg.norm(Mv, axis=1)
@@ -265,7 +280,7 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
             jac = np.abs(np.linalg.det(table.lin[jj])) / nMv ** 3
             att = _smoothstep((-v[:, 2] - cos_h) * table.spot_smooth[jj])
             with np.errstate(divide="ignore"):
-                f = np.where(soft, jac / spot_pdf_local(cos_h, cos_w, -v[:, 2]),
+                f = np.where(soft, jac / spot_pdf_local(tail, cos_h, -v[:, 2]),
                              att * jac * 2.0 * np.pi * (1.0 - cos_h))
             weight = table.strength[jj] / (4.0 * np.pi) * f[:, None]
         # Sphere model (no soft falloff): origin on the sphere, Lambertian about

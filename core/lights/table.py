@@ -112,9 +112,10 @@ class LightTable:
     # bounding sphere's margin, or None without triangles: where world
     # photons start (emission.distant_footprint).
     triangle_box: tuple = None
-    # (Nl,) float64: the cosine (local -Z) of a soft spot's wide cone, NaN
-    # for every other light (:func:`_spot_wide_cos`; lights.emission).
-    spot_wide_cos: np.ndarray = None
+    # (Nl, 4) float64: a soft spot's photons beyond its cone (share, x0, X,
+    # half-angle; share 0 for every other light): :func:`_spot_tails`,
+    # lights.emission.spot_pdf_local.
+    spot_tail: np.ndarray = None
 
     @property
     def n(self) -> int:
@@ -349,7 +350,7 @@ def build_light_table(scene: Scene) -> LightTable:
         P = np.asarray(scene.tri_p).reshape(-1, 3)
         t_lo, t_hi = P.min(axis=0).astype(np.float64), P.max(axis=0).astype(np.float64)
         table.triangle_box = (0.5 * (t_lo + t_hi), 0.5 * (t_hi - t_lo) + 0.5e-4 * D)
-    table.spot_wide_cos = _spot_wide_cos(table, scene.tri_p)
+    table.spot_tail = _spot_tails(table, scene.tri_p)
     return table
 
 
@@ -391,27 +392,46 @@ def _assemble(rows, tri_rows, center, R, D, world, warnings, textures) -> LightT
     return t
 
 
-def _spot_wide_cos(t: LightTable, tri_p) -> np.ndarray:
-    """(Nl,) the cosine of each soft spot's wide cone (NaN for every other
-    light): the directions whose photons a disc sample's cone can light at
-    their first hit.  A photon leaving the centre along w first hits
-    p = c + t w at t >= t_near (the nearest triangle's distance); a disc
-    sample y = c + r u (|u| <= 1) sees it along t w - r u, whose local
-    direction (the inverse object matrix L applied) lies within
-    asin(k r / t_near) of L w, k = cond(L) (1 for a similarity).  So the
-    cone's half-angle plus that angle holds every direction whose photon
-    any disc sample's cone can light; the whole sphere where k r >= t_near.
-    tri_p None: t_near unknown, the whole sphere."""
-    out = np.full(t.n, np.nan)
+#: The least share of a soft spot's photons sent beyond its cone (a cone
+#: of half-angle 0 would otherwise send none).
+SPOT_TAIL_MIN = 0.01
+
+
+def _spot_tails(t: LightTable, tri_p) -> np.ndarray:
+    """(Nl, 4): each soft spot's photons beyond its cone, (share P, x0, X, h)
+    (lights.emission.spot_pdf_local), zeros for every other light.
+
+    Reach X: a photon leaving the centre along w first hits p = c + t w at
+    t >= t_near (the nearest triangle's distance); a disc sample y = c + r u
+    (|u| <= 1) sees it along t w - r u, whose local direction (the inverse
+    object matrix L applied) lies within asin(k r / t_near) of L w, k =
+    cond(L) (1 for rotation and uniform scale).  So no direction beyond the
+    cone's half-angle h plus X = asin(k r / t_near) is lit by any disc
+    sample's cone; X reaches the whole sphere (pi - h) where k r >= t_near
+    (or t_near is unknown: tri_p None).
+
+    Shape x0 = asin(k r / t_far), the blur of a receiver at the distance of
+    the triangles' centre (at least t_near): the field falls from half the
+    cone's over about that angle, so the density beyond the cone falls as
+    1 / (1 + x / x0)^2 from the cone's own (P chosen so that the density is
+    continuous at the cone's edge, at least SPOT_TAIL_MIN, at most 1/2):
+    a photon just outside the edge weighs what one just inside does.
+    """
+    out = np.zeros((t.n, 4))
+    centre = t.triangle_box[0] if t.triangle_box is not None else t.center
     for j in np.nonzero(t.soft_spot)[0]:
-        near = (0.0 if tri_p is None
-                else _nearest_triangle(np.asarray(tri_p), *np.asarray(t.co[j], np.float64)))
+        cos_h = float(np.clip(t.cos_half_spot[j], -1.0, 1.0))
+        h = np.arccos(cos_h)
+        co = np.asarray(t.co[j], np.float64)
+        near = 0.0 if tri_p is None else _nearest_triangle(np.asarray(tri_p), *co)
         s = np.linalg.cond(np.asarray(t.lin[j], np.float64)) * t.radius[j]
-        if not s < near:
-            out[j] = -1.0
-            continue
-        th = np.arccos(np.clip(t.cos_half_spot[j], -1.0, 1.0))
-        out[j] = np.cos(min(np.pi, th + np.arcsin(s / near)))
+        X = np.pi - h if not s < near else min(np.pi - h, np.arcsin(s / near))
+        far = max(float(np.linalg.norm(co - centre)), near, s)
+        x0 = max(min(X, np.arcsin(min(1.0, s / far))), 1e-9)
+        A = 1.0 - 1.0 / (1.0 + X / x0)
+        ratio = 2.0 * np.pi * np.sin(h) * x0 * A / (2.0 * np.pi * (1.0 - cos_h))
+        P = min(max(ratio / (1.0 + ratio), SPOT_TAIL_MIN), 0.5)
+        out[j] = (P, x0, X, h)
     return out
 
 
