@@ -100,10 +100,10 @@ def soft_spot_first_hit(table: LightTable, light, disc, d, t, ng) -> np.ndarray:
     p towards y), whose mean over the disc without att is the centre's
     I cos_p(d) / (t^2 + r^2); the factor is their ratio,
     att(q) cos_l cos_p(y) (t^2 + r^2) / (|q|^2 cos_p(d)), 1 on average where
-    the cone does not cut the disc, averaged over the antithetic pair y and
-    2 c - y (both uniform on the disc: the mean stays unbiased, and the
-    cone's slope across the disc cancels to first order).  1 for every
-    other light."""
+    the cone does not cut the disc, averaged over the four samples
+    c +- (y - c), c +- d x (y - c) (each uniform on the disc: the mean stays
+    unbiased; the cone's slope across the disc cancels, and its curvature
+    but for its isotropic part).  1 for every other light."""
     light = np.asarray(light, np.int64)
     out = np.ones(light.shape[0])
     s = np.nonzero(table.soft_spot[light])[0]
@@ -113,15 +113,16 @@ def soft_spot_first_hit(table: LightTable, light, disc, d, t, ng) -> np.ndarray:
         nf = -np.sign(dn)[:, None] * ng[s]          # faces where the photon came from
         r2 = table.radius[light[s]] ** 2
         f = np.zeros(s.size)
-        for sign in (1.0, -1.0):
-            q = ts[:, None] * ds - sign * disc[s]
+        turned = np.cross(ds, disc[s])
+        for off in (disc[s], -disc[s], turned, -turned):
+            q = ts[:, None] * ds - off
             qq = np.einsum("ki,ki->k", q, q)
             qh = q / np.sqrt(np.maximum(qq, 1e-300))[:, None]
             cos_l = np.maximum(np.einsum("ki,ki->k", qh, ds), 0.0)
             cos_y = np.maximum(-np.einsum("ki,ki->k", nf, qh), 0.0)
             with np.errstate(divide="ignore", invalid="ignore"):
-                f += 0.5 * (_spot_atten(table, light[s], qh) * cos_l * cos_y * (ts * ts + r2)
-                            / (np.maximum(qq, 1e-300) * np.abs(dn)))
+                f += 0.25 * (_spot_atten(table, light[s], qh) * cos_l * cos_y * (ts * ts + r2)
+                             / (np.maximum(qq, 1e-300) * np.abs(dn)))
         out[s] = np.where(np.isfinite(f), f, 0.0)
     return out
 

@@ -362,7 +362,7 @@ def soft_spot_first_hit(K, hits, live, tri_ng, src, light, disc, S):
     """``lights.emission.soft_spot_first_hit`` at the first hits of the live
     rows 0..K-1 (EmbreeHits hits, triangles' geometric normals tri_ng (T, 3)):
     row i is photon src[i] of emitter row light[src[i]] with disc sample
-    disc[src[i]] (n, 3) and its antithetic twin; the factor multiplies
+    disc[src[i]] (n, 3) and its three turns; the factor multiplies
     live.power (the bounce kernel applies t^2 / (t^2 + r^2) after it).  The
     distance is Embree's, as the bounce kernel's."""
     for i in range(K):
@@ -378,11 +378,16 @@ def soft_spot_first_hit(K, hits, live, tri_ng, src, light, disc, S):
         gx, gy, gz = tri_ng[t_, 0], tri_ng[t_, 1], tri_ng[t_, 2]
         dn = gx * dx + gy * dy + gz * dz
         sg = -1.0 if dn > 0.0 else (1.0 if dn < 0.0 else 0.0)
+        ux, uy, uz = disc[k, 0], disc[k, 1], disc[k, 2]
+        vx, vy, vz = dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux   # d x u
         f = 0.0
-        for sign in (1.0, -1.0):
-            qx = th * dx - sign * disc[k, 0]
-            qy = th * dy - sign * disc[k, 1]
-            qz = th * dz - sign * disc[k, 2]
+        for s_ in range(4):
+            ox, oy, oz = (ux, uy, uz) if s_ < 2 else (vx, vy, vz)
+            if s_ % 2:
+                ox, oy, oz = -ox, -oy, -oz
+            qx = th * dx - ox
+            qy = th * dy - oy
+            qz = th * dz - oz
             qq = max(qx * qx + qy * qy + qz * qz, 1e-300)
             qn = np.sqrt(qq)
             qx, qy, qz = qx / qn, qy / qn, qz / qn
@@ -394,8 +399,8 @@ def soft_spot_first_hit(K, hits, live, tri_ng, src, light, disc, S):
             lz = M[j, 2, 0] * qx + M[j, 2, 1] * qy + M[j, 2, 2] * qz
             ln = np.sqrt(lx * lx + ly * ly + lz * lz)
             x = min(max((-lz / ln - S.cos_h[j]) * S.smooth[j], 0.0), 1.0)
-            f += 0.5 * (x * x * (3.0 - 2.0 * x) * cos_l * cos_y * (th * th + S.r2[j])
-                        / (qq * abs(dn)))
+            f += 0.25 * (x * x * (3.0 - 2.0 * x) * cos_l * cos_y * (th * th + S.r2[j])
+                         / (qq * abs(dn)))
         if not np.isfinite(f):
             f = 0.0
         live.power[i, 0] *= f
