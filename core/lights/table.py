@@ -411,11 +411,16 @@ def _spot_tails(t: LightTable, tri_p) -> np.ndarray:
     (or t_near is unknown: tri_p None).
 
     Shape x0 = asin(k r / t_far), the blur of a receiver at the distance of
-    the triangles' centre (at least t_near): the field falls from half the
-    cone's over about that angle, so the density beyond the cone falls as
-    1 / (1 + x / x0)^2 from the cone's own (P chosen so that the density is
-    continuous at the cone's edge, at least SPOT_TAIL_MIN, at most 1/2):
-    a photon just outside the edge weighs what one just inside does.
+    the triangles' centre (at least t_near): just outside the cone's edge
+    the disc's inner half lights the receiver, so the field there is about
+    kappa = 1/2 x (the cone's attenuation averaged over the last x0 inside
+    the edge) / (its average over the cone) of the cone's mean, and it
+    falls to 0 over about x0; the density beyond the cone falls as
+    1 / (1 + x / x0)^2 from kappa times the cone's own, so that a photon
+    just outside the edge weighs about what an average one inside does
+    (P from that, at least SPOT_TAIL_MIN, at most 1/2).  A hard edge gives
+    kappa 1/2; a blend wider than x0 leaves little light beyond the edge
+    and sends few photons there.
     """
     out = np.zeros((t.n, 4))
     centre = t.triangle_box[0] if t.triangle_box is not None else t.center
@@ -429,7 +434,12 @@ def _spot_tails(t: LightTable, tri_p) -> np.ndarray:
         far = max(float(np.linalg.norm(co - centre)), near, s)
         x0 = max(min(X, np.arcsin(min(1.0, s / far))), 1e-9)
         A = 1.0 - 1.0 / (1.0 + X / x0)
-        ratio = 2.0 * np.pi * np.sin(h) * x0 * A / (2.0 * np.pi * (1.0 - cos_h))
+        mid = (np.arange(64) + 0.5) / 64
+        att = lambda c: _smoothstep((c - cos_h) * t.spot_smooth[j])   # noqa: E731
+        a_cone = float(np.mean(att(cos_h + (1.0 - cos_h) * mid)))    # uniform in solid angle
+        a_edge = float(np.mean(att(np.cos(h - min(x0, h) * mid))))
+        kappa = 0.5 * a_edge / a_cone if a_cone > 0 else 0.5
+        ratio = kappa * 2.0 * np.pi * np.sin(h) * x0 * A / (2.0 * np.pi * (1.0 - cos_h))
         P = min(max(ratio / (1.0 + ratio), SPOT_TAIL_MIN), 0.5)
         out[j] = (P, x0, X, h)
     return out
