@@ -168,7 +168,18 @@ def test_fast_emission_matches_lights():
               Light("soft", "POINT", (20.0, 20.0, 20.0), translate(-0.2, 0.2, 0.5), radius=0.05),
               Light("sphere", "POINT", (5.0, 5.0, 5.0), translate(0.1, 0.1, 0.5), radius=0.05,
                     use_soft_falloff=False),
-              Light("tiny", "POINT", (5.0, 5.0, 5.0), translate(0.1, -0.1, 0.5))]
+              Light("tiny", "POINT", (5.0, 5.0, 5.0), translate(0.1, -0.1, 0.5)),
+              # spots: hard, soft (its tail beyond the cone), soft and scaled
+              # (an elliptic cone: the tail over the whole sphere), sphere model
+              Light("hard", "SPOT", (40.0, 30.0, 20.0), translate(0.3, 0.1, 0.6), spot_size=0.8,
+                    spot_blend=0.2),
+              Light("softspot", "SPOT", (40.0, 40.0, 40.0), translate(-0.1, 0.3, 0.6),
+                    radius=0.04, spot_size=1.0, spot_blend=0.0),
+              Light("scaled", "SPOT", (30.0, 30.0, 30.0),
+                    translate(0.2, 0.3, 0.7) @ np.diag([1.5, 0.7, 1.0, 1.0]), radius=0.03,
+                    spot_size=0.6, spot_blend=0.3),
+              Light("spotsphere", "SPOT", (20.0, 20.0, 20.0), translate(0.0, 0.0, 0.8),
+                    radius=0.05, spot_size=0.9, spot_blend=0.1, use_soft_falloff=False)]
     tris = quad((0, 0, 0), (0.5, 0, 0), (0, 0.5, 0)) + quad((0, 0.4, 0.5), (0.1, 0, 0),
                                                             (0, 0, 0.1))
     mats = [Material("w", (Lobe(DIFFUSE),)),
@@ -176,11 +187,16 @@ def test_fast_emission_matches_lights():
     scene = make_scene(tris, mats, lights, _camera(), tri_mat=[0, 0, 1, 1])
     table = Lt.build_light_table(scene)
     assert PK.fast_emission_ok(table)
-    assert set(np.unique(table.kind[table.p_select > 0])) == {Lt.POINT, Lt.AREA, Lt.MESH}
-    ref = Lt.sample_photons(table, 50_000, np.random.default_rng(11))
-    got = PK.sample_photons_fast(table, 50_000, np.random.default_rng(11))
-    for k in ("o", "d", "power", "falloff_r2", "freq_init"):
+    assert set(np.unique(table.kind[table.p_select > 0])) == {Lt.POINT, Lt.SPOT, Lt.AREA,
+                                                                Lt.MESH}
+    assert np.count_nonzero(table.spot_tail[:, 0] > 0) == 2
+    ref = Lt.sample_photons(table, 100_000, np.random.default_rng(11))
+    got = PK.sample_photons_fast(table, 100_000, np.random.default_rng(11))
+    beyond = table.spot_tail[ref["light"], 0] > 0
+    assert np.count_nonzero(beyond & (np.abs(ref["cone_disc"]).sum(axis=1) > 0)) > 1000
+    for k in ("o", "d", "power", "falloff_r2", "freq_init", "cone_disc"):
         np.testing.assert_allclose(got[k], ref[k], rtol=1e-12, atol=1e-12, err_msg=k)
+    np.testing.assert_array_equal(got["light"], ref["light"])
 
 
 # ------------------------------------------------------- 3. tracer

@@ -105,7 +105,7 @@ def _mis_digest():
                           np.empty((n, 3)), np.empty((n, 3)), np.empty(n)))
     floor = tr.accel.abs_floor / REL_OFFSET
     K = PK.emit_lights_state(u_emit, *tr._light_arrays, REL_OFFSET, floor, live, False,
-                             np.empty((1, 3)))
+                             np.empty((1, 3)), False, np.empty(1, np.int64), np.empty((1, 3)))
     hits = PK.EmbreeHits(*intersect_f32(tr.accel, live.o32[:K], live.d32[:K]))
     dep = tr.deposit_buffers(K)
     mis = PK.mis_state(K, dep.buf.r.shape[0])

@@ -791,16 +791,62 @@ def generic_survivors(j0, g, gen, u, roulette, lum, rel, floor, live, record, nx
 # decrements the reference count of every array passed to a call, which cost
 # 100 ns per photon with the LightTable's 16 arrays).
 _KIND, _PSEL, _STR, _FLUX, _CO, _AU, _AV, _DIR = 0, 1, 2, 5, 8, 11, 14, 17
-_LU, _LV, _AREA, _ELL, _RAD, _SPH, _NCOL = 20, 21, 22, 23, 24, 25, 26
+_LU, _LV, _AREA, _ELL, _RAD, _SPH = 20, 21, 22, 23, 24, 25
+# Spots: the object matrix (row-major), |det|, cos_half_spot, spot_smooth and
+# the soft spot's tail (share, x0, X, half-angle: LightTable.spot_tail).
+_LIN, _DET, _CHS, _SSM, _TAIL, _NCOL = 26, 35, 36, 37, 38, 42
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _spot_direction(u3, u4, u5, L, j):
+    """A spot's photon direction as ``lights.sample_photons`` draws it: (w xyz
+    world unit, its weight I / (4 pi) x weight / I, soft) with weight = jac /
+    spot_pdf_local for a soft spot (its cone, or its tail with probability
+    P), att jac 2 pi (1 - cos_h) for a hard one."""
+    cos_h = L[j, _CHS]
+    P = L[j, _TAIL]
+    soft = P > 0.0
+    sn, cs = sincos_turn(u4)
+    if soft and u5 < P:
+        x0, X, h = L[j, _TAIL + 1], L[j, _TAIL + 2], L[j, _TAIL + 3]
+        A = 1.0 - 1.0 / (1.0 + X / x0)
+        th = h + min(x0 * (1.0 / (1.0 - u3 * A) - 1.0), X)
+        s = np.sin(th)
+        vx, vy, vz = s * cs, s * sn, np.cos(th)
+    else:
+        vz = 1.0 - u3 * (1.0 - cos_h)
+        s = np.sqrt(max(1.0 - vz * vz, 0.0))
+        vx, vy = s * cs, s * sn
+    vz = -vz                                  # local axis is -Z
+    mx = L[j, _LIN] * vx + L[j, _LIN + 1] * vy + L[j, _LIN + 2] * vz
+    my = L[j, _LIN + 3] * vx + L[j, _LIN + 4] * vy + L[j, _LIN + 5] * vz
+    mz = L[j, _LIN + 6] * vx + L[j, _LIN + 7] * vy + L[j, _LIN + 8] * vz
+    nM = np.sqrt(mx * mx + my * my + mz * mz)
+    jac = L[j, _DET] / (nM * nM * nM)
+    cz = -vz
+    if soft:
+        pdf = (1.0 - P) / (2.0 * np.pi * (1.0 - cos_h)) if cz >= cos_h else 0.0
+        if cz < cos_h:
+            x0, X, h = L[j, _TAIL + 1], L[j, _TAIL + 2], L[j, _TAIL + 3]
+            A = 1.0 - 1.0 / (1.0 + X / x0)
+            th = np.arccos(min(max(cz, -1.0), 1.0))
+            x = th - h
+            if x <= X:
+                pdf = P / (x0 * A * (1.0 + x / x0) ** 2) / (2.0 * np.pi * np.sin(th))
+        f = jac / pdf
+    else:
+        a = min(max((cz - cos_h) * L[j, _SSM], 0.0), 1.0)
+        f = a * a * (3.0 - 2.0 * a) * jac * 2.0 * np.pi * (1.0 - cos_h)
+    return mx / nM, my / nM, mz / nM, f / (4.0 * np.pi), soft
 
 
 @njit(cache=True, inline="always", error_model="numpy")
 def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
-    """One photon of ``lights.sample_photons`` (POINT, AREA, untextured MESH).
+    """One photon of ``lights.sample_photons`` (POINT, SPOT, AREA, untextured MESH).
 
     L: (nL, _NCOL) packed light table (:func:`light_arrays`).
     Returns (o xyz, d xyz, power rgb, falloff r^2, freq_init a b c, the
-    emitter row)."""
+    emitter row, a soft spot's disc sample xyz (``cone_disc``))."""
     nL = L.shape[0]
     # np.searchsorted(cdf, x, side="right"): first index with cdf > x.
     x = u0 * cdf[nL - 1]
@@ -811,11 +857,16 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
         j = last
     inv_p = 1.0 / L[j, _PSEL]
     kd = int(L[j, _KIND])
-    if kd == 0:          # POINT: sphere model or soft falloff (disc) from the centre
-        z = 1.0 - 2.0 * u3
-        sz = np.sqrt(max(1.0 - z * z, 0.0))
-        sn, cs = sincos_turn(u4)
-        wx, wy, wz = sz * cs, sz * sn, z
+    if kd == 0 or kd == 1:   # POINT, SPOT: sphere model or soft falloff (disc) from the centre
+        wgt = 1.0
+        soft = False
+        if kd == 0:
+            z = 1.0 - 2.0 * u3
+            sz = np.sqrt(max(1.0 - z * z, 0.0))
+            sn, cs = sincos_turn(u4)
+            wx, wy, wz = sz * cs, sz * sn, z
+        else:
+            wx, wy, wz, wgt, soft = _spot_direction(u3, u4, u5, L, j)
         sph = L[j, _SPH] != 0.0
         r = L[j, _RAD] if sph else 0.0
         fall = 0.0 if sph else L[j, _RAD] * L[j, _RAD]
@@ -824,9 +875,14 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
         dx, dy = rr * cs, rr * sn
         lift = np.sqrt(max(1.0 - dx * dx - dy * dy, 0.0))
         ox, oy, oz = basis_world(dx, dy, lift, wx, wy, wz)
+        qx, qy, qz = 0.0, 0.0, 0.0
+        if soft:
+            qx, qy, qz = basis_world(dx, dy, 0.0, wx, wy, wz)
+            qx, qy, qz = qx * L[j, _RAD], qy * L[j, _RAD], qz * L[j, _RAD]
+        w = wgt * inv_p
         return (L[j, _CO] + ox * r, L[j, _CO + 1] + oy * r, L[j, _CO + 2] + oz * r,
-                wx, wy, wz, L[j, _STR] * inv_p, L[j, _STR + 1] * inv_p,
-                L[j, _STR + 2] * inv_p, fall, 0.0, b_diffuse, 0.0, j)
+                wx, wy, wz, L[j, _STR] * w, L[j, _STR + 1] * w,
+                L[j, _STR + 2] * w, fall, 0.0, b_diffuse, 0.0, j, qx, qy, qz)
     if kd == 3:          # AREA (rectangle or ellipse), one-sided along dir
         su = u1 - 0.5
         sv = u2 - 0.5
@@ -861,17 +917,19 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
     lx, ly = rr * cs, rr * sn
     lz = np.sqrt(max(1.0 - lx * lx - ly * ly, 0.0))
     wx, wy, wz = basis_world(lx, ly, lz, nx, ny, nz)
-    return (ox, oy, oz, wx, wy, wz, p0, p1, p2, 0.0, L[j, _AREA] / 12.0, b_diffuse, 0.0, j)
+    return (ox, oy, oz, wx, wy, wz, p0, p1, p2, 0.0, L[j, _AREA] / 12.0, b_diffuse, 0.0, j,
+            0.0, 0.0, 0.0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def emit_lights(u, cdf, last, L, b_diffuse, o, d, power, falloff, freq, light):
-    """``lights.sample_photons`` for POINT, AREA and untextured MESH emitters,
-    same formulas and the same use of the uniforms u (n, 6) (so the same
-    rng state gives the same photons up to round-off).  cdf, last, L,
-    b_diffuse from :func:`light_arrays`.  Writes o, d, power, falloff (n,),
-    freq (n, 3) (light inits) and light (n,) int64 (the emitter rows).  The caller guarantees every emitter with
-    p_select > 0 is of those kinds (:func:`fast_emission_ok`).
+def emit_lights(u, cdf, last, L, b_diffuse, o, d, power, falloff, freq, light, disc):
+    """``lights.sample_photons`` for POINT, SPOT, AREA and untextured MESH
+    emitters, same formulas and the same use of the uniforms u (n, 6) (so
+    the same rng state gives the same photons up to round-off).  cdf, last,
+    L, b_diffuse from :func:`light_arrays`.  Writes o, d, power, falloff
+    (n,), freq (n, 3) (light inits), light (n,) int64 (the emitter rows)
+    and disc (n, 3) (``cone_disc``).  The caller guarantees every emitter
+    with p_select > 0 is of those kinds (:func:`fast_emission_ok`).
     """
     for i in range(u.shape[0]):
         r = _emit_one(u[i, 0], u[i, 1], u[i, 2], u[i, 3], u[i, 4], u[i, 5], cdf, last, L,
@@ -882,14 +940,18 @@ def emit_lights(u, cdf, last, L, b_diffuse, o, d, power, falloff, freq, light):
         falloff[i] = r[9]
         freq[i, 0], freq[i, 1], freq[i, 2] = r[10], r[11], r[12]
         light[i] = r[13]
+        disc[i, 0], disc[i, 1], disc[i, 2] = r[14], r[15], r[16]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def emit_lights_state(u, cdf, last, L, b_diffuse, rel, floor, live, want_freq, freq):
+def emit_lights_state(u, cdf, last, L, b_diffuse, rel, floor, live, want_freq, freq,
+                      want_disc, light, disc):
     """:func:`emit_lights` fused with :func:`emit_kernel`: photons straight
     into the LiveState live (finite positive power only, origin offset along
     d).  freq (n, 3) receives the light inits of the kept photons when
-    want_freq.  Returns the number K of photons kept."""
+    want_freq, light (n,) int64 and disc (n, 3) their emitter rows and
+    ``cone_disc`` when want_disc (:func:`soft_spot_first_hit` with src the
+    identity).  Returns the number K of photons kept."""
     o32, d32, d64, pw, fo = live.o32, live.d32, live.d64, live.power, live.falloff
     K = 0
     for i in range(u.shape[0]):
@@ -910,15 +972,19 @@ def emit_lights_state(u, cdf, last, L, b_diffuse, rel, floor, live, want_freq, f
         fo[K] = r[9]
         if want_freq:
             freq[K, 0], freq[K, 1], freq[K, 2] = r[10], r[11], r[12]
+        if want_disc:
+            light[K] = r[13]
+            disc[K, 0], disc[K, 1], disc[K, 2] = r[14], r[15], r[16]
         K += 1
     return K
 
 
 def light_arrays(table) -> tuple:
     """(cdf, last, L, b_diffuse) for :func:`emit_lights`: cumsum of p_select,
-    last emitter with p_select > 0, the LightTable packed into one (nL, 26)
+    last emitter with p_select > 0, the LightTable packed into one (nL, _NCOL)
     float64 array, and the diffuse angular variance of the light inits."""
     from ..lights import B_DIFFUSE
+    from ..lights.emission import spot_tail
     nL = table.n
     L = np.zeros((max(nL, 1), _NCOL))
     L[:nL, _KIND] = table.kind
@@ -929,26 +995,33 @@ def light_arrays(table) -> tuple:
     for col, name in ((_LU, "len_u"), (_LV, "len_v"), (_AREA, "area"), (_ELL, "ellipse"),
                       (_RAD, "radius"), (_SPH, "is_sphere")):
         L[:nL, col] = getattr(table, name)
+    if nL:
+        lin = np.asarray(table.lin, np.float64).reshape(nL, 3, 3)
+        L[:nL, _LIN:_LIN + 9] = lin.reshape(nL, 9)
+        L[:nL, _DET] = np.abs(np.linalg.det(lin))
+        L[:nL, _CHS] = table.cos_half_spot
+        L[:nL, _SSM] = table.spot_smooth
+        L[:nL, _TAIL:_TAIL + 4] = spot_tail(table)
     p = np.asarray(table.p_select, np.float64)
     last = int(np.nonzero(p > 0)[0][-1]) if np.any(p > 0) else 0
     return np.cumsum(p), last, L, float(B_DIFFUSE)
 
 
 def fast_emission_ok(table) -> bool:
-    """True when every emitter that can be chosen is a POINT, AREA or
+    """True when every emitter that can be chosen is a POINT, SPOT, AREA or
     untextured MESH light (the kinds :func:`emit_lights` covers)."""
     if table.n == 0 or not np.any(table.p_select > 0):
         return False
     on = table.p_select > 0
     k = table.kind[on]
     tex = np.asarray(table.tex)[on] if table.tex is not None else np.full(k.shape, -1)
-    return bool(np.all((k == 0) | (k == 3) | ((k == 4) & (tex < 0))))
+    return bool(np.all((k == 0) | (k == 1) | (k == 3) | ((k == 4) & (tex < 0))))
 
 
 def sample_photons_fast(table, n: int, rng) -> dict:
     """Drop-in for ``lights.sample_photons`` when :func:`fast_emission_ok`
-    (keys o, d, power, falloff_r2, freq_init float64; light int64, kind:
-    the emitter row and its kind)."""
+    (keys o, d, power, falloff_r2, freq_init, cone_disc float64; light
+    int64, kind: the emitter row and its kind)."""
     u = rng.random((n, 6))
     o = np.empty((n, 3))
     d = np.empty((n, 3))
@@ -956,6 +1029,7 @@ def sample_photons_fast(table, n: int, rng) -> dict:
     falloff = np.empty(n)
     freq = np.empty((n, 3))
     light = np.empty(n, np.int64)
-    emit_lights(u, *light_arrays(table), o, d, power, falloff, freq, light)
+    disc = np.empty((n, 3))
+    emit_lights(u, *light_arrays(table), o, d, power, falloff, freq, light, disc)
     return {"o": o, "d": d, "power": power, "falloff_r2": falloff, "freq_init": freq,
-            "light": light, "kind": np.asarray(table.kind)[light]}
+            "light": light, "kind": np.asarray(table.kind)[light], "cone_disc": disc}

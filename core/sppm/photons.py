@@ -512,13 +512,20 @@ class PhotonTracer:
         Kf = 0                                   # live rows 0..Kf-1: frequency photons
         if u_emit is not None:
             spec = np.empty((max(nf, 1), 3))
+            # Soft spots: each kept photon's emitter row and disc sample.
+            soft = self.soft_spots is not None
+            rows = np.empty(n if soft else 1, np.int64)
+            disc = np.empty((n if soft else 1, 3))
             if nf:
                 Kf = PK.emit_lights_state(u_emit[a:a + nf], *self._light_arrays, rel, floor,
-                                          live, True, spec)
+                                          live, True, spec, soft, rows, disc)
             rest = PK.LiveState(*(x[Kf:] for x in live)) if Kf else live
             K = Kf + PK.emit_lights_state(u_emit[a + nf:b], *self._light_arrays, rel, floor,
-                                          rest, False, spec)
+                                          rest, False, spec, soft, rows[Kf:] if soft else rows,
+                                          disc[Kf:] if soft else disc)
             spec = spec[:Kf]
+            if soft:
+                cone = (np.arange(K, dtype=np.int64), rows, disc)
         else:
             fal = ph.get("falloff_r2")
             fal = np.zeros(n) if fal is None else np.ascontiguousarray(fal[a:b], np.float64)
