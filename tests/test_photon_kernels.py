@@ -160,7 +160,7 @@ def test_material_classes():
 
 
 # ------------------------------------------------------- 2. emission
-def test_fast_emission_matches_lights():
+def _emission_scene(world=None):
     lights = [Light("sq", "AREA", (30.0, 20.0, 10.0), translate(0, 0, 0.9), shape="SQUARE",
                     size=0.3),
               Light("disc", "AREA", (10.0, 10.0, 10.0), translate(0.2, 0, 0.9), shape="DISK",
@@ -184,8 +184,19 @@ def test_fast_emission_matches_lights():
                                                             (0, 0, 0.1))
     mats = [Material("w", (Lobe(DIFFUSE),)),
             Material("e", (Lobe(DIFFUSE),), emission=(3.0, 2.0, 1.0))]
-    scene = make_scene(tris, mats, lights, _camera(), tri_mat=[0, 0, 1, 1])
-    table = Lt.build_light_table(scene)
+    scene = make_scene(tris, mats, lights, _camera(), tri_mat=[0, 0, 1, 1],
+                       world_color=(0.0, 0.0, 0.0) if world is None else world)
+    return Lt.build_light_table(scene)
+
+
+def test_fast_emission_matches_lights(monkeypatch):
+    """The compiled emission (photon_kernels.emit_lights) against
+    lights.sample_photons' numpy reference (emission.COMPILED_EMISSION off),
+    the same uniforms: every kind it covers, spots hard, soft (their tail
+    and disc samples), scaled and spheres."""
+    from core.lights import emission as Em
+    monkeypatch.setattr(Em, "COMPILED_EMISSION", False)
+    table = _emission_scene()
     assert PK.fast_emission_ok(table)
     assert set(np.unique(table.kind[table.p_select > 0])) == {Lt.POINT, Lt.SPOT, Lt.AREA,
                                                                 Lt.MESH}
@@ -197,6 +208,24 @@ def test_fast_emission_matches_lights():
     for k in ("o", "d", "power", "falloff_r2", "freq_init", "cone_disc"):
         np.testing.assert_allclose(got[k], ref[k], rtol=1e-12, atol=1e-12, err_msg=k)
     np.testing.assert_array_equal(got["light"], ref["light"])
+
+
+def test_mixed_emission_matches_numpy(monkeypatch):
+    """A table the compiled emission does not cover whole (a constant
+    world beside the lights): lights.sample_photons emits the covered rows
+    compiled and the world's by environment_kernels.constant_world_photons;
+    both equal the numpy reference (COMPILED_EMISSION and
+    COMPILED_ENVIRONMENT off) to round-off, the same uniforms."""
+    from core.lights import emission as Em
+    table = _emission_scene(world=(0.3, 0.2, 0.1))
+    assert not PK.fast_emission_ok(table) and np.any(table.kind[table.p_select > 0] == Lt.WORLD)
+    got = Lt.sample_photons(table, 100_000, np.random.default_rng(5))
+    monkeypatch.setattr(Em, "COMPILED_EMISSION", False)
+    monkeypatch.setattr(Em, "COMPILED_ENVIRONMENT", False)
+    ref = Lt.sample_photons(table, 100_000, np.random.default_rng(5))
+    assert np.count_nonzero(ref["kind"] == Lt.WORLD) > 1000
+    for k in ("o", "d", "power", "falloff_r2", "freq_init", "cone_disc"):
+        np.testing.assert_allclose(got[k], ref[k], rtol=1e-9, atol=1e-12, err_msg=k)
 
 
 # ------------------------------------------------------- 3. tracer

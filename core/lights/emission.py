@@ -127,9 +127,15 @@ def soft_spot_first_hit(table: LightTable, light, disc, d, t, ng) -> np.ndarray:
     return out
 
 
-#: An environment map's photons emitted by environment_kernels.world_photons (off:
-#: the numpy reference below; tests).
+#: An environment map's photons emitted by environment_kernels.world_photons, a
+#: constant world's by environment_kernels.constant_world_photons (off: the
+#: numpy reference below; tests).
 COMPILED_ENVIRONMENT = True
+#: The photons of point, spot, area and untextured mesh lights emitted by
+#: the compiled emission (sppm.photon_kernels.emit_lights, the same uniforms)
+#: where the table also has emitters it does not cover (a world, a sun);
+#: off: the numpy reference below (tests).
+COMPILED_EMISSION = True
 
 
 def distant_footprint(table: LightTable, w: np.ndarray, u1: np.ndarray, u2: np.ndarray):
@@ -259,9 +265,10 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
     kind[:] = table.kind[j]
     inv_p = 1.0 / table.p_select[j]
     R = table.radius_scene
+    done = _compiled_rows(table, u, j, out) if COMPILED_EMISSION else np.zeros(n, bool)
 
     for k in (POINT, SPOT):
-        m = np.nonzero(kind == k)[0]
+        m = np.nonzero((kind == k) & ~done)[0]
         if not m.size:
             continue
         jj = j[m]
@@ -308,7 +315,7 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
         power[m] = weight * inv_p[m, None]
         freq[m] = (0.0, B_DIFFUSE, 0.0)
 
-    m = np.nonzero(kind == AREA)[0]
+    m = np.nonzero((kind == AREA) & ~done)[0]
     if m.size:
         jj = j[m]
         ell = table.ellipse[jj]
@@ -347,7 +354,12 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
     if m.size:
         jj = j[m]
         env = table.environment
-        if env is None:
+        if env is None and COMPILED_ENVIRONMENT:
+            from .environment_kernels import constant_world_photons
+            constant_world_photons(u, m, footprint_of(table),
+                                   np.ascontiguousarray(table.flux[jj[0]], np.float64),
+                                   np.ascontiguousarray(inv_p[m]), o, d, power)
+        elif env is None:
             w = _uniform_sphere(u[m, 3], u[m, 4])
             o[m], area = distant_footprint(table, w, u[m, 1], u[m, 2])
             # flux = L 4 pi (pi R^2): the photon's share of the area it crossed
@@ -371,7 +383,7 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
                           np.ascontiguousarray(inv_p[m]), o, d, power)
         freq[m] = (table.a_max, B_DIFFUSE, 0.0)
 
-    m = np.nonzero(kind == MESH)[0]
+    m = np.nonzero((kind == MESH) & ~done)[0]
     if m.size:
         jj = j[m]
         b1, b2 = _triangle_bary(u[m, 1], u[m, 2])
@@ -384,3 +396,26 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
         freq[m, 0] = table.area[jj] / 12.0
         freq[m, 1] = B_DIFFUSE
     return out
+
+
+def _compiled_rows(table: LightTable, u, j, out) -> np.ndarray:
+    """Fill the rows of ``out`` (:func:`sample_photons`' dict) whose emitter
+    the compiled emission covers (point, spot, area, untextured mesh:
+    sppm.photon_kernels.emit_lights on those rows' uniforms, which choose
+    the same emitter j) and return them as an (n,) bool mask; the caller
+    emits the others (sun, world, textured mesh).  Imported here: register()
+    imports this module and must not load numba."""
+    k = table.kind[j]
+    tex = np.asarray(table.tex)[j] if table.tex is not None else np.full(j.shape, -1)
+    done = (k == POINT) | (k == SPOT) | (k == AREA) | ((k == MESH) & (tex < 0))
+    m = np.nonzero(done)[0]
+    if m.size:
+        from ..sppm.photon_kernels import emit_lights, light_arrays
+        K = m.size
+        o, d, pw, fr = np.empty((K, 3)), np.empty((K, 3)), np.empty((K, 3)), np.empty((K, 3))
+        fall, disc, rows = np.empty(K), np.empty((K, 3)), np.empty(K, np.int64)
+        emit_lights(np.ascontiguousarray(u[m]), *light_arrays(table), o, d, pw, fall, fr, rows,
+                    disc)
+        out["o"][m], out["d"][m], out["power"][m] = o, d, pw
+        out["falloff_r2"][m], out["freq_init"][m], out["cone_disc"][m] = fall, fr, disc
+    return done

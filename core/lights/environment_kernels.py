@@ -242,6 +242,27 @@ def footprint(F, dx, dy, dz, u1, u2):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def constant_world_photons(u, rows, F, flux, inv_p, o, d, power):
+    """The photons rows (k,) of a batch whose emitter is a constant world
+    (``emission.sample_photons``): a uniform direction on the sphere from
+    u[:, 3], u[:, 4] (``warps._uniform_sphere``), origin and area A by
+    :func:`footprint` from u[:, 1], u[:, 2], power flux inv_p A / (pi R^2)
+    (the photon's share of the area it crossed; flux (3,) counts the disc)."""
+    disc = np.pi * F.R * F.R
+    for q in range(rows.shape[0]):
+        r = rows[q]
+        z = 1.0 - 2.0 * u[r, 3]
+        s = np.sqrt(max(1.0 - z * z, 0.0))
+        ph = 2.0 * np.pi * u[r, 4]
+        dx, dy, dz = s * np.cos(ph), s * np.sin(ph), z
+        ox, oy, oz, area = footprint(F, dx, dy, dz, u[r, 1], u[r, 2])
+        k = inv_p[q] * area / disc
+        power[r, 0], power[r, 1], power[r, 2] = flux[0] * k, flux[1] * k, flux[2] * k
+        o[r, 0], o[r, 1], o[r, 2] = ox, oy, oz
+        d[r, 0], d[r, 1], d[r, 2] = dx, dy, dz
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def world_photons(E, u, rows, F, inv_p, o, d, power):
     """The photons rows (k,) of a batch whose emitter is the world's map
     (``emission.sample_photons``): region by u[:, 3] (its leftover the
