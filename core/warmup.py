@@ -124,19 +124,21 @@ def _translate(x, y, z):
 
 def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
                  glossy: bool = True, environment: bool = False, normal_map: bool = False,
-                 metal: bool = False):
+                 metal: bool = False, world_color: tuple = (0.0, 0.0, 0.0)):
     """A synthetic scene of the warm-up (``core.scene.model.Scene``), res x res px.
 
     A closed 4 x 4 x 2 m room (so that nearly every photon is deposited, and a
     pass of a few ten thousand photons reaches the gather's parallel path)
     with a diffuse floor and walls, a rough glossy wall, a mirror, a glass
     cube and an emissive ceiling quad, lit by ``analytic_lights`` (kinds of
-    ``core.scene.model.Light``; POINT and AREA photons are emitted by the
-    compiled sampler, SPOT and SUN by the numpy one).  glossy=False makes the
+    ``core.scene.model.Light``; POINT, SPOT and AREA photons are emitted by
+    the compiled sampler, SUN by the numpy one).  glossy=False makes the
     rough glossy wall diffuse (a Lambert-only room: the small jobs of
     tests/test_warmup.py).  environment=True adds a small environment map
-    to the world (its photons' compiled emission, lights.environment).
-    normal_map=True gives the left wall a normal-mapped rough glossy
+    to the world (its photons' compiled emission, lights.environment);
+    world_color a constant world beside the lights (its photons'
+    environment_kernels.constant_world_photons, the lights' rows emitted
+    apart, lights.emission._compiled_rows).  normal_map=True gives the left wall a normal-mapped rough glossy
     material over a textured diffuse base (the camera paths' compiled
     Normal Map, scene.normal_kernels, about 4 s to compile on first use, and
     a textured hit's colour row, materials.hit_colors, about 1 s).
@@ -187,7 +189,7 @@ def warmup_scene(res: int = 12, analytic_lights: tuple = ("POINT", "AREA"),
                     at[k], radius=0.05, size=0.4) for k in analytic_lights]
     cam = Camera(kind="PERSP", matrix_world=_look_at((0.0, -1.9, 1.2), (0.0, 0.3, 0.4)),
                  lens=20.0, resolution=(res, res), clip_start=0.01, clip_end=100.0)
-    sc = make_scene(tris, mats, lights, cam, tri_mat=tri_mat, **kw)
+    sc = make_scene(tris, mats, lights, cam, tri_mat=tri_mat, world_color=world_color, **kw)
     if environment:
         from .scene.textures import EnvironmentMap
         sc.world_map = EnvironmentMap(np.full((4, 8, 4), 0.2, np.float32))
@@ -202,8 +204,8 @@ def warmup_jobs() -> list:
     the gather's parallel path
     (``hashgrid.PARALLEL_MIN_PHOTONS``), every one a frequency photon so that
     the QUANTILE estimator's pair search takes it too; the third covers the
-    classic-PPM options, the numpy-sampled light kinds and an environment
-    map's photons.
+    classic-PPM options, a soft spot and the numpy-sampled sun beside an
+    environment map's photons; the last a constant world beside the lights.
     """
     # frequency_start 1: the one pass traces frequency photons (with the default
     # start, 2, pass 1 traces none and their kernels would compile in the render)
@@ -231,8 +233,11 @@ def warmup_jobs() -> list:
             (warmup_scene(normal_map=True),
              base.replace(integrator="COMBINED", photons_per_pass=2000, camera_samples=1)),
             # A late pass's few frequency photons, traced again in a batch of
-            # their own (core.sppm.photons.RETRACE_MAX_SHARE)
-            (room, base.replace(frequency_fraction=0.02))]
+            # their own (core.sppm.photons.RETRACE_MAX_SHARE), in the room
+            # with a constant world beside its lights (the glass sphere's and
+            # the coffee cup's emission)
+            (warmup_scene(world_color=(0.05, 0.05, 0.05)),
+             base.replace(frequency_fraction=0.02))]
 
 
 def run_jobs(jobs, should_stop: Optional[Callable[[], bool]] = None,
