@@ -30,7 +30,7 @@ reaches every direction whose first hit a disc sample's cone can light
 (``cone_disc``), and at the first hit the tracer multiplies its power by
 :func:`soft_spot_first_hit`, whose mean over the disc turns the centre's
 field I cos / (d^2 + r^2) into Cycles' (docs/integrators.md "A soft spot's
-cone as Cycles reads it").
+photons carry Cycles' cone, round 35").
 """
 from __future__ import annotations
 
