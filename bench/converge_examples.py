@@ -531,6 +531,11 @@ NOTES = [
     "(excess 0.922; every seed below 1 at every point), COMBINED / FPPM 1.35 / 1.48 / 1.50 (excess "
     "1.60; 68-79 passes against FPPM's 229-278, PPM 243-283); coffee_cup FPPM / PPM 0.994 / 0.952 "
     "/ 0.961 (excess 0.951; seeds at 10 % 0.97-1.03), FPPM 246-262 passes, PPM 255-276.",
+    "Round 35's final code, 0157188 (spot lights and a constant world emitted compiled), the same "
+    "commands with --methods fppm,ppm, in SCENE/fppm_ppm_60s_0157188/: glass_sphere FPPM / PPM "
+    "0.881 / 0.918 / 0.943 (excess 0.932), FPPM 349-387 passes, PPM 328-410; coffee_cup 0.937 / "
+    "0.953 / 0.963 (excess 0.954), FPPM 374-397 passes, PPM 362-406; every seed below 1 at every "
+    "point on both.",
     "Region masks come from the reference (tools/metrics.py): in scenes without caustics the "
     "'caustic' region is made of sharp bright features (light edges, corners), not caustics.",
     "ring_lambert and ring_principled (FPPM 1.40x and 1.29x PPM above): the loss is quality, not cost (an FPPM pass costs 1.05-1.08x a PPM pass there; at equal passes, 128x128, Cycles reference, FPPM was 1.33x / 1.39x PPM at pass 128 on seeds 0 / 1).  99 % of the excess sits on a thin arc of floor at the ring's outer foot, whose discs reach the bright caustic through the zero-thickness wall: a few leaked photons predicted smooth light, the pixels held before the verified holds' test had the counts to reject, and kept 1.3-1.5x PPM's radius after the release.  Since then a hold the test cannot yet judge needs one photon per sector cell and is refused where two of the 8 cells hold 60 % of the counts, and a released prediction shrinks faster (alpha 0.55): 1.08x / 1.09x at pass 128, and at equal CPU (30 s, one thread, 128x128) ring_lambert 1.11-1.12x PPM (before 1.43-1.51x), ring_principled 1.09x (before 1.29x) (docs/method.md 'Rings under a 1 m light').  These rows predate that change.",
