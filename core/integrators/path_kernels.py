@@ -65,6 +65,7 @@ from numba import njit
 # to core.lights.pdf_kernels: numba's cache is stamped by this file).
 from ..lights.emission import spot_tail
 from ..lights.pdf_kernels import pdf_kernel, selection_kernel
+from ..lights.warp_kernels import spot_pdf_local
 from ..lights.table import AREA, MESH, POINT, SPOT, WORLD
 # sample_fast (and compiled._disk in it) and compiled.sample_pair, eval_pair
 # and pdf_oriented are compiled into this module's kernels: numba's on-disk
@@ -492,26 +493,10 @@ def _emit_pdf_dir(X, j, wx, wy, wz):
         my = N[j, 1, 0] * vx + N[j, 1, 1] * vy + N[j, 1, 2] * vz
         mz = N[j, 2, 0] * vx + N[j, 2, 1] * vy + N[j, 2, 2] * vz
         Mv = np.sqrt(mx * mx + my * my + mz * mz)
-        return Mv ** 3 / X.det[j] * _spot_pdf_local(X.tail, j, X.cos_half_spot[j], -vz)
+        T = X.tail
+        return Mv ** 3 / X.det[j] * spot_pdf_local(T[j, 0], T[j, 1], T[j, 2], T[j, 3],
+                                                    X.cos_half_spot[j], -vz)
     return 0.0
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _spot_pdf_local(tail, j, cos_h, cz):
-    """lights.emission.spot_pdf_local of one local direction of light j."""
-    P = tail[j, 0]
-    if cz >= cos_h:
-        return (1.0 - P) / (2.0 * _PI * (1.0 - cos_h))
-    if not P > 0.0:
-        return 0.0
-    x0, X, h = tail[j, 1], tail[j, 2], tail[j, 3]
-    th = np.arccos(min(max(cz, -1.0), 1.0))
-    x = th - h
-    if not x <= X:
-        return 0.0
-    A = 1.0 - 1.0 / (1.0 + X / x0)
-    t = P / (x0 * A * (1.0 + x / x0) ** 2) / (2.0 * _PI * np.sin(th))
-    return t if np.isfinite(t) else 0.0
 
 
 @njit(cache=True, error_model="numpy", inline="always")

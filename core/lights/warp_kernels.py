@@ -1,11 +1,31 @@
 """Compiled warps that the compiled emissions share (photon_kernels'
-analytic lights, environment_kernels' map): the bisection of a cdf and the
-Duff et al. 2017 basis.  A module of its own, so that importing core.lights
-(the add-on's register() does) loads no numba.
+analytic lights, environment_kernels' map): the bisection of a cdf, the
+Duff et al. 2017 basis and a spot's emission density (photon_kernels'
+spots, path_kernels' MIS).  A module of its own, so that importing
+core.lights (the add-on's register() does) loads no numba.
 """
 from __future__ import annotations
 
+import numpy as np
 from numba import njit
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def spot_pdf_local(P, x0, X, h, cos_h, cz):
+    """lights.emission.spot_pdf_local of one local direction (cosine cz to
+    the axis) of a spot of cone cosine cos_h and tail (P, x0, X, h)
+    (``LightTable.spot_tail``; P 0 for a hard spot)."""
+    if cz >= cos_h:
+        return (1.0 - P) / (2.0 * np.pi * (1.0 - cos_h))
+    if not P > 0.0:
+        return 0.0
+    th = np.arccos(min(max(cz, -1.0), 1.0))
+    x = th - h
+    if not x <= X:
+        return 0.0
+    A = 1.0 - 1.0 / (1.0 + X / x0)
+    t = P / (x0 * A * (1.0 + x / x0) ** 2) / (2.0 * np.pi * np.sin(th))
+    return t if np.isfinite(t) else 0.0
 
 
 @njit(cache=True, inline="always")

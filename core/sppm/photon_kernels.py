@@ -52,7 +52,7 @@ from numba.extending import intrinsic
 # the BSDF evaluation's lobe helpers and reference counts of round 32.
 from ..materials.compiled import sample_pair, sincos_turn
 from ..materials.fast import ABSORBER, GENERIC, sample_fast
-from ..lights.warp_kernels import basis_world, upper_bound
+from ..lights.warp_kernels import basis_world, spot_pdf_local, upper_bound
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 
 
@@ -825,15 +825,7 @@ def _spot_direction(u3, u4, u5, L, j):
     jac = L[j, _DET] / (nM * nM * nM)
     cz = -vz
     if soft:
-        pdf = (1.0 - P) / (2.0 * np.pi * (1.0 - cos_h)) if cz >= cos_h else 0.0
-        if cz < cos_h:
-            x0, X, h = L[j, _TAIL + 1], L[j, _TAIL + 2], L[j, _TAIL + 3]
-            A = 1.0 - 1.0 / (1.0 + X / x0)
-            th = np.arccos(min(max(cz, -1.0), 1.0))
-            x = th - h
-            if x <= X:
-                pdf = P / (x0 * A * (1.0 + x / x0) ** 2) / (2.0 * np.pi * np.sin(th))
-        f = jac / pdf
+        f = jac / spot_pdf_local(P, L[j, _TAIL + 1], L[j, _TAIL + 2], L[j, _TAIL + 3], cos_h, cz)
     else:
         a = min(max((cz - cos_h) * L[j, _SSM], 0.0), 1.0)
         f = a * a * (3.0 - 2.0 * a) * jac * 2.0 * np.pi * (1.0 - cos_h)
