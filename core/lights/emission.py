@@ -51,9 +51,9 @@ def spot_tail(table: LightTable) -> np.ndarray:
     """(Nl, 4) float64 ``LightTable.spot_tail``: a soft spot's tail beyond
     its cone (share, x0, X, half-angle), share 0 for every other light (a
     table built without a scene: the tail reaches the whole sphere)."""
-    if table.spot_tail is None:
+    if table.spot_tail is None:                 # computed once, kept on the table
         from .table import _spot_tails
-        return _spot_tails(table, None)
+        table.spot_tail = _spot_tails(table, None)
     return table.spot_tail
 
 
