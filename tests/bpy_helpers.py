@@ -237,3 +237,18 @@ def interrupt_after(p, marker: str, settle: float, timeout: float = 120.0):
     finally:
         if p.poll() is None:
             p.kill()
+
+
+def render_mean_rgb(sc):
+    """Render ``sc`` to a temporary OpenEXR and return its (H, W) float64
+    mean of R, G and B (row 0 at the top, as the file stores it)."""
+    import numpy as np
+    import OpenEXR
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "render.exr")
+        sc.render.image_settings.file_format = "OPEN_EXR"
+        sc.render.filepath = path
+        bpy().ops.render.render(write_still=True)
+        ch = OpenEXR.File(path).channels()
+        key = next(k for k in ch if k.endswith("RGBA") or k.endswith("RGB"))
+        return np.asarray(ch[key].pixels, np.float64)[..., :3].mean(-1)

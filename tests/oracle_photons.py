@@ -19,7 +19,7 @@ from core.frequency import spectrum as F
 from core.frequency.curvature import bounce_interface, delta_ior
 from core.frequency.occlusion_march import march_occlusion
 from core import lights as Lt
-from core.lights.emission import soft_spot_first_hit
+from core.lights.emission import soft_light_first_hit
 from core import materials as B
 from core.materials.fast import sample_fast
 from core.mathutil import LUMINANCE as LUM, dot as _dot
@@ -171,9 +171,10 @@ def trace_numpy(self, n: int, n_freq: int, rng):
     o, d, power, spec, is_freq = o[idx], d[idx], power[idx], spec[idx], is_freq[idx]
     ng0 = np.zeros((idx.size, 3))          # the surface each segment leaves (emitter: none)
     falloff_r2 = falloff_r2[idx]
-    # A soft spot's cone, read at the first hit (lights.emission.soft_spot_first_hit).
+    # A soft light's disc sample, read at the first hit
+    # (lights.emission.soft_light_first_hit: power and direction).
     light = np.asarray(ph["light"], np.int64)[idx]
-    cone_disc = np.asarray(ph.get("cone_disc", np.zeros((n, 3))), np.float64)[idx]
+    soft_disc = np.asarray(ph.get("soft_disc", np.zeros((n, 4))), np.float64)[idx]
     model = st.frequency_model
     out_p, out_ng, out_wi, out_pow, out_r, out_b, out_s = [], [], [], [], [], [], []
     for bounce in range(st.max_bounces + 1):
@@ -192,10 +193,14 @@ def trace_numpy(self, n: int, n_freq: int, rng):
             power = power * (t2 / (t2 + falloff_r2[ii]))[:, None]
         p, ng, ns, uv = surface_point(self.scene.tri_p, self.scene.tri_n, self.scene.tri_uv,
                                       hits.prim, hits.u, hits.v)
+        # wi_f: the direction the frequency chain travelled (a soft light's
+        # centre at the first hit, as photons.PhotonTracer's segments).
+        wi = wi_f = -d
         if bounce == 0:
-            power = power * soft_spot_first_hit(self.light_table, light[ii], cone_disc[ii], d,
-                                                hits.t, ng)[:, None]
-        wi = -d
+            f, d_soft = soft_light_first_hit(self.light_table, light[ii], soft_disc[ii], d,
+                                             hits.t, ng)
+            power = power * f[:, None]
+            wi = -d_soft
         mat = self.scene.tri_mat[hits.prim]
         if np.any(is_freq):
             # the occluder is marched on the segments kernels.marked_segments
@@ -245,7 +250,7 @@ def trace_numpy(self, n: int, n_freq: int, rng):
             fk = k[is_freq[k]]
             if fk.size:
                 sgn = np.where(_dot(ns[fk], wi[fk]) >= 0, 1.0, -1.0)
-                iface = _iface(self, hits.prim[fk], sgn, ng[fk], -wi[fk], wo_new[fk], mat[fk])
+                iface = _iface(self, hits.prim[fk], sgn, ng[fk], -wi_f[fk], wo_new[fk], mat[fk])
                 spec[fk] = leave_numpy(self, spec[fk], ng[fk], wo_new[fk], mat[fk],
                                        is_delta[fk], iface)
         o = self.accel.spawn(p[k], ng[k], wo_new[k])

@@ -389,17 +389,17 @@ def test_soft_spot_photons_carry_cycles_field():
     photon mapping's and light tracing's images agree with Cycles.  A soft
     spot's photons (lights.sample_photons: from its centre, a share from the
     wide cone, one disc sample each) multiplied at their first hit on the
-    floor by emission.soft_spot_first_hit and t^2 / (t^2 + r^2) give, in
+    floor by emission.soft_light_first_hit and t^2 / (t^2 + r^2) give, in
     annuli 4 cm wide, the annulus' mean of Cycles' field (the quadrature,
     at eight radii weighted by area) within 4 sigma of the photons' own
     noise: at the centre, in the blend, in the ring just outside the
     centre's cone that no photon of the centre's cone reaches (the wide
     cone's photons light it: the cone's half-angle plus asin(r / h), h the
     nearest triangle's distance), and 0 well outside.  The compiled factor
-    (photon_kernels.soft_spot_first_hit) equals numpy's to 1e-12 (factors of
-    order 1)."""
+    and direction (photon_kernels.soft_light_first_hit) equal numpy's to
+    1e-12 (factors of order 1)."""
     from core import lights as Lt
-    from core.lights.emission import soft_spot_first_hit
+    from core.lights.emission import soft_light_first_hit
     from core.sppm import photon_kernels as PK
     P, r, h, size = SOFT_SPOT
     t = Lt.build_light_table(_soft_spot_scene())
@@ -412,7 +412,7 @@ def test_soft_spot_photons_carry_cycles_field():
     down = d[:, 2] < 0
     th = np.where(down, h / np.maximum(-d[:, 2], 1e-300), 0.0)
     ng = np.tile([0.0, 0.0, 1.0], (len(th), 1))
-    f = soft_spot_first_hit(t, ph["light"], ph["cone_disc"], d, th, ng)
+    f = soft_light_first_hit(t, ph["light"], ph["soft_disc"], d, th, ng)[0]
     e = np.where(down, ph["power"][:, 0] * f * th * th / (th * th + r * r), 0.0)
     p = ph["o"] + th[:, None] * d
     rho = np.hypot(p[:, 0], p[:, 1])
@@ -437,13 +437,14 @@ def test_soft_spot_photons_carry_cycles_field():
                          th[k].astype(np.float32))
     live = PK.LiveState(np.zeros((K, 3), np.float32), np.zeros((K, 3), np.float32),
                         np.ascontiguousarray(d[k]), np.ones((K, 3)), np.zeros(K))
-    PK.soft_spot_first_hit(K, hits, live, np.array([[0.0, 0.0, 1.0]]), np.arange(K),
-                           np.ascontiguousarray(ph["light"][k], np.int64),
-                           np.ascontiguousarray(ph["cone_disc"][k]), PK.soft_spots(t))
-    want = soft_spot_first_hit(t, ph["light"][k], ph["cone_disc"][k], d[k],
-                               th[k].astype(np.float32).astype(np.float64), ng[k])
+    PK.soft_light_first_hit(K, hits, live, np.array([[0.0, 0.0, 1.0]]), np.arange(K),
+                            np.ascontiguousarray(ph["light"][k], np.int64),
+                            np.ascontiguousarray(ph["soft_disc"][k]), PK.soft_lights(t))
+    want, want_d = soft_light_first_hit(t, ph["light"][k], ph["soft_disc"][k], d[k],
+                                        th[k].astype(np.float32).astype(np.float64), ng[k])
     assert np.any(want == 0) and np.any(want > 1)
     np.testing.assert_allclose(live.power[:, 0], want, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(live.d64, want_d, rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("compiled", [False, True], ids=["numpy", "compiled"])

@@ -132,12 +132,17 @@ def test_frequency_survivors_lead_the_live_rows(counts):
 #: last bits; before: cornell 5bd23aee6b3b768c2cc3c561fae5f44a, glass_mirror
 #: 5fed417aff716dd0b899121ed6d49519); glass_mirror again with the bounce
 #: kernel's kept normal of flat triangles (photon_kernels.flat_normals; before:
-#: 575b2242994140eeb3e6fd7390dfb680).
+#: 575b2242994140eeb3e6fd7390dfb680); glass_mirror again when a soft light's
+#: photons took their direction from their disc sample at the first hit
+#: (round 36; before: b140bbc72ea8f4af6d6b25295de007a5, znver3
+#: bb3970b20e344e80c0d34ca9c5d4951d).
 A_BATCH_EACH = {EARLIER_CPU: {"cornell": "8b55cff7af7e184318f024a5f7ce8a4d",
-                             "glass_mirror": "b140bbc72ea8f4af6d6b25295de007a5"},
+                             "glass_mirror": "e5acff37d92b228dc5d317476fdd2d33"},
                 # llvmlite's host CPU znver3, the same code (739843f): tests/builds.py
+                # glass_mirror: not computed again on znver3 since round 36
+                # (tests/test_photon_trace_pins.py PINS_BY_CPU): skipped there
                 "znver3": {"cornell": "453f96ddf0e9a4a7a513362766fdc913",
-                           "glass_mirror": "bb3970b20e344e80c0d34ca9c5d4951d"}}
+                           "glass_mirror": None}}
 
 
 @pytest.mark.parametrize("make", [glass_mirror, cornell])
@@ -145,8 +150,11 @@ def test_a_batch_each_is_the_tracer_before(make):
     from test_photon_trace_pins import _digest
     tr = _tracer(make(), use_frequency=True)
     tr.one_batch = False
+    want = for_this_cpu(A_BATCH_EACH)[make.__name__]
+    if want is None:
+        pytest.skip(f"{make.__name__}: no digest for this CPU since round 36 (A_BATCH_EACH)")
     dep = tr.trace(20_000, 5_000, np.random.default_rng(17))
-    assert _digest(dep[k] for k in sorted(dep)) == for_this_cpu(A_BATCH_EACH)[make.__name__]
+    assert _digest(dep[k] for k in sorted(dep)) == want
 
 
 @pytest.mark.parametrize("make", [glass_mirror, cornell])

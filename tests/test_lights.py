@@ -140,7 +140,7 @@ def _power_mean_check(t, N, seed):
     every j (a world or sun photon's power over its footprint's share of
     the bounding disc, which ``flux`` counts: emission.distant_footprint;
     a soft spot's photon times its cone along its direction, the far field
-    of the factor it takes at its first hit, emission.soft_spot_first_hit)."""
+    of the factor it takes at its first hit, emission.soft_light_first_hit)."""
     from core.lights.emission import distant_footprint
     from core.lights.table import _spot_atten
     ph = L.sample_photons(t, N, np.random.default_rng(seed))

@@ -204,8 +204,8 @@ def test_fast_emission_matches_lights(monkeypatch):
     ref = Lt.sample_photons(table, 100_000, np.random.default_rng(11))
     got = PK.sample_photons_fast(table, 100_000, np.random.default_rng(11))
     beyond = table.spot_tail[ref["light"], 0] > 0
-    assert np.count_nonzero(beyond & (np.abs(ref["cone_disc"]).sum(axis=1) > 0)) > 1000
-    for k in ("o", "d", "power", "falloff_r2", "freq_init", "cone_disc"):
+    assert np.count_nonzero(beyond & (np.abs(ref["soft_disc"]).sum(axis=1) > 0)) > 1000
+    for k in ("o", "d", "power", "falloff_r2", "freq_init", "soft_disc"):
         np.testing.assert_allclose(got[k], ref[k], rtol=1e-12, atol=1e-12, err_msg=k)
     np.testing.assert_array_equal(got["light"], ref["light"])
 
@@ -224,7 +224,7 @@ def test_mixed_emission_matches_numpy(monkeypatch):
     monkeypatch.setattr(Em, "COMPILED_ENVIRONMENT", False)
     ref = Lt.sample_photons(table, 100_000, np.random.default_rng(5))
     assert np.count_nonzero(ref["kind"] == Lt.WORLD) > 1000
-    for k in ("o", "d", "power", "falloff_r2", "freq_init", "cone_disc"):
+    for k in ("o", "d", "power", "falloff_r2", "freq_init", "soft_disc"):
         np.testing.assert_allclose(got[k], ref[k], rtol=1e-9, atol=1e-12, err_msg=k)
 
 

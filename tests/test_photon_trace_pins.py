@@ -52,13 +52,17 @@ PINS_EARLIER = {
     # glass_mirror: its GGX and Oren-Nayar walls sampled by the compiled
     # generic path (compiled.sample_pair): same paths, 118 of 34222 deposit
     # powers 1-2 ulps off (libm's acos in eval_pair against numpy's)
-    "glass_mirror_plain": "7ff590ef1b70600eb08575c246cbace7",
+    # glass_mirror_*: its soft point light's photons take their direction at
+    # the first hit from a turn of their disc sample (round 36,
+    # lights.emission.soft_light_first_hit); before: 7ff590ef, 1e958122,
+    # 192d0498 (plain, freq, caustic)
+    "glass_mirror_plain": "f5bf21b738a06ac7795009abc6139b63",
     # glass_mirror_freq: the same photons as glass_mirror_plain (each live row
     # draws its row's uniforms of the batch without spectra, docs/frequency.md
     # "The same photons"; one batch before: 4962b7a7740fe36297769e45ed3e7883;
     # regenerated with the occlusion march's end-plane fix merged beside it)
-    "glass_mirror_freq": "1e95812229ff552a340da022c8c645c0",
-    "glass_mirror_caustic": "192d0498d03576b05868fbe6c879b38e",
+    "glass_mirror_freq": "0ced36fb9663a31e4e21f1adb760b8d5",
+    "glass_mirror_caustic": "8686278ab9340b8449b4d6f043c4f939",
     "cornell_mis": "8e405a645e6122aa985523687f138ffd",
 }
 
@@ -70,9 +74,14 @@ PINS_BY_CPU = {
     "znver3": {
         "cornell_plain": "fe8857f704258fe1bc5f9126e53c7587",
         "cornell_freq": "9eb1c09735194097f7d9727e0cdc1ab7",
-        "glass_mirror_plain": "f0a33acfa7c02d4979bfaee3becd6c23",
-        "glass_mirror_freq": "2b2a54a6a30704b609b2cb558e063d92",
-        "glass_mirror_caustic": "71679c2945803d07df7cc982202b7baa",
+        # glass_mirror_*: not computed again on znver3 since round 36 (its
+        # soft light's photons changed; this machine is znver4, and numba
+        # told NUMBA_CPU_NAME=znver3 here reproduces the earlier entry's
+        # bits, not znver3's): skipped there until a znver3 machine adds
+        # them (before: f0a33acf, 2b2a54a6, 71679c29)
+        "glass_mirror_plain": None,
+        "glass_mirror_freq": None,
+        "glass_mirror_caustic": None,
         "cornell_mis": "a84298558b48b79d393863cb6d2836db",
     },
 }
@@ -140,7 +149,10 @@ CASES = {
 
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_deposits_equal_pinned(name):
-    assert CASES[name]() == for_this_cpu(PINS_BY_CPU)[name], (
+    want = for_this_cpu(PINS_BY_CPU)[name]
+    if want is None:
+        pytest.skip(f"{name}: no digest for this CPU since the change that made it (see PINS_BY_CPU)")
+    assert CASES[name]() == want, (
         f"{name}: the photon tracer's deposits changed bits (see this file's docstring)")
 
 

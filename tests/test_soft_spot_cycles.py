@@ -16,8 +16,6 @@ every ratio within 0.997-1.003.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 
 import numpy as np
 import pytest
@@ -50,15 +48,7 @@ def _cycles_floor():
     cam = H.add_camera(sc, location=(0.5, 0.0, 5.0), rotation=(0.0, 0.0, 0.0))
     cam.data.type, cam.data.ortho_scale = "ORTHO", ORTHO  # looks down -Z: x in [-0.5, 1.5]
     scene = export_scene(H.evaluated_depsgraph(), log=lambda s: None)
-    import OpenEXR
-    with tempfile.TemporaryDirectory() as tmp:
-        path = os.path.join(tmp, "floor.exr")
-        sc.render.image_settings.file_format = "OPEN_EXR"
-        sc.render.filepath = path
-        bpy.ops.render.render(write_still=True)
-        ch = OpenEXR.File(path).channels()
-        key = next(k for k in ch if k.endswith("RGBA") or k.endswith("RGB"))
-        img = np.asarray(ch[key].pixels, np.float64)[..., :3].mean(-1)
+    img = H.render_mean_rgb(sc)
     return img, scene
 
 

@@ -734,11 +734,6 @@ class CombinedLightTracer(LightTracer):
             if K == 0:
                 break
             hits = PK.EmbreeHits(*intersect_f32(self.accel, live.o32[:K], live.d32[:K]))
-            if bounce == 0 and tr.soft_spots is not None and "cone_disc" in ph:
-                PK.soft_spot_first_hit(K, hits, live, tr.tris.ng, src,
-                                       np.ascontiguousarray(ph["light"], np.int64),
-                                       np.ascontiguousarray(ph["cone_disc"], np.float64),
-                                       tr.soft_spots)
             step = PK.BounceStep(K=K, first=bounce == 0, store=True,
                                  sample=bounce < self.max_bounces,
                                  roulette=bounce + 1 >= self.rr_start, bounce=bounce,
@@ -752,6 +747,13 @@ class CombinedLightTracer(LightTracer):
             fst = mis.first[:K]
             if bounce == 0 or fst.any():
                 self._first_hit(hits, K, live.d64[:K], mis.row[:K], ph, z0, fb0, fb1, fst)
+            if bounce == 0 and tr.soft_lights is not None and "soft_disc" in ph:
+                # After the MIS ratios, which read the light's centre
+                # (core.integrators.mis: soft lights).
+                PK.soft_light_first_hit(K, hits, live, tr.tris.ng, src,
+                                        np.ascontiguousarray(ph["light"], np.int64),
+                                        np.ascontiguousarray(ph["soft_disc"], np.float64),
+                                        tr.soft_lights)
             # Generic survivors need their rays' photon rows, directions and
             # first flags from before the kernel compacts them.
             fst = fst.copy() if generic else None

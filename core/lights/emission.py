@@ -20,17 +20,25 @@ the power by t^2 / (t^2 + r^2) at the first hit (far field and first-hit field
 then match Cycles, and the bounced light inherits it).  Without soft
 falloff (sphere model) photons leave the sphere, Lambertian about its normal.
 
+Each such photon also carries one sample y of the disc (``soft_disc``): at
+its first hit p the tracer turns its direction into y -> p
+(:func:`soft_light_first_hit`), because the light that reaches p comes from
+the whole disc facing p, and a mirror or glass there sends it on in a cone
+as wide as the disc seen from p (a caustic of a light with a radius is as
+blurred in Cycles, whose rays from p hit that disc).  The photon's power is
+multiplied there by Cycles' irradiance from the disc sample over the
+centre's (1 on average).
+
 A soft spot's cone: Cycles attenuates each disc sample y by the cone along
 its own direction y -> p (``spot_light_sample``), which blurs the cone's edge
 by the disc's angular size and lights a ring outside the centre's cone.  Its
 photons therefore leave the centre without the cone's attenuation, drawn
 from the centre's cone and, a share of them, from a tail beyond it that
 reaches every direction whose first hit a disc sample's cone can light
-(``LightTable.spot_tail``, :func:`spot_pdf_local`); each carries one disc sample
-(``cone_disc``), and at the first hit the tracer multiplies its power by
-:func:`soft_spot_first_hit`, whose mean over the disc turns the centre's
-field I cos / (d^2 + r^2) into Cycles' (docs/integrators.md "A soft spot's
-photons carry Cycles' cone, round 35").
+(``LightTable.spot_tail``, :func:`spot_pdf_local`), and the factor above
+carries the cone's attenuation along y -> p, whose mean over the disc turns
+the centre's field I cos / (d^2 + r^2) into Cycles' (docs/integrators.md "A
+soft spot's photons carry Cycles' cone, round 35").
 """
 from __future__ import annotations
 
@@ -89,42 +97,63 @@ def spot_tail_sample(tail, u1, u2) -> np.ndarray:
     return np.stack([s * np.cos(phi), s * np.sin(phi), np.cos(th)], axis=1)
 
 
-def soft_spot_first_hit(table: LightTable, light, disc, d, t, ng) -> np.ndarray:
-    """(K,) what the power of a soft spot's photon is multiplied by at its
-    first hit, beside t^2 / (t^2 + r^2): photons of rows light (K,) left the
-    centre along unit d (K, 3) with the disc sample disc (K, 3) (the offset
-    from the centre on the disc perpendicular to d, ``cone_disc``) and hit
-    p = c + t d (t (K,)) on a surface of geometric normal ng (K, 3).  With
-    q = p - y = t d - disc, Cycles' disc sample gives p the irradiance
-    L pi r^2 att(q) cos_l cos_p(y) / |q|^2 (cos_l = d . q / |q|, cos_p(y) at
-    p towards y), whose mean over the disc without att is the centre's
-    I cos_p(d) / (t^2 + r^2); the factor is their ratio,
-    att(q) cos_l cos_p(y) (t^2 + r^2) / (|q|^2 cos_p(d)), 1 on average where
-    the cone does not cut the disc, averaged over the four samples
-    c +- (y - c), c +- d x (y - c) (each uniform on the disc: the mean stays
-    unbiased; the cone's slope across the disc cancels, and its curvature
-    but for its isotropic part).  1 for every other light."""
+def soft_light_first_hit(table: LightTable, light, disc, d, t, ng):
+    """(factor (K,), direction (K, 3)) of photons of the soft-falloff point
+    and spot lights (``LightTable.soft_disc``) at their first hit: photons
+    of rows light (K,) left the centre along unit d (K, 3) with the disc
+    sample disc (K, 4) (xyz: the offset from the centre on the disc
+    perpendicular to d, ``soft_disc``; column 3 a uniform that picks one of
+    its turns) and hit p = c + t d (t (K,)) on a surface of geometric normal
+    ng (K, 3).  With q = p - y = t d - y, Cycles' disc sample y gives p the
+    irradiance L pi r^2 att(q) cos_l cos_p(y) / |q|^2 (cos_l = d . q / |q|,
+    cos_p(y) at p towards y; att = 1 for a point light), whose mean over
+    the disc without att is the centre's I cos_p(d) / (t^2 + r^2).
+
+    factor multiplies the power beside t^2 / (t^2 + r^2): the ratio of the
+    two, averaged over the four turns y_s of the sample, c +- (y - c),
+    c +- d x (y - c) (each uniform on the disc: the mean stays unbiased;
+    the cone's slope across the disc cancels, and its curvature but for its
+    isotropic part).  direction is the one the photon arrives along, from
+    the turn y_s picked with probability f_s / sum f (f_s its term): the
+    light reaching p comes from the whole disc, so what a mirror or glass
+    does with it next is Cycles' (a ray from p hits the disc facing p), and
+    since the weight is the mean of the f_s the pair is unbiased for any
+    direction-dependent use (E[mean f g(y_s) picked ~ f] = E[f g]).
+    Every other light: factor 1, direction d."""
     light = np.asarray(light, np.int64)
     out = np.ones(light.shape[0])
-    s = np.nonzero(table.soft_spot[light])[0]
+    d_out = np.array(d, np.float64, copy=True)
+    s = np.nonzero(table.soft_disc[light])[0]
     if s.size:
         ds, ts = d[s], t[s]
         dn = np.einsum("ki,ki->k", ng[s], ds)
         nf = -np.sign(dn)[:, None] * ng[s]          # faces where the photon came from
         r2 = table.radius[light[s]] ** 2
-        f = np.zeros(s.size)
-        turned = np.cross(ds, disc[s])
-        for off in (disc[s], -disc[s], turned, -turned):
+        spot = table.kind[light[s]] == SPOT
+        y = disc[s, :3]
+        turned = np.cross(ds, y)
+        terms, dirs = [], []
+        for off in (y, -y, turned, -turned):
             q = ts[:, None] * ds - off
             qq = np.einsum("ki,ki->k", q, q)
             qh = q / np.sqrt(np.maximum(qq, 1e-300))[:, None]
             cos_l = np.maximum(np.einsum("ki,ki->k", qh, ds), 0.0)
             cos_y = np.maximum(-np.einsum("ki,ki->k", nf, qh), 0.0)
+            att = np.where(spot, _spot_atten(table, light[s], qh), 1.0)
             with np.errstate(divide="ignore", invalid="ignore"):
-                f += 0.25 * (_spot_atten(table, light[s], qh) * cos_l * cos_y * (ts * ts + r2)
-                             / (np.maximum(qq, 1e-300) * np.abs(dn)))
-        out[s] = np.where(np.isfinite(f), f, 0.0)
-    return out
+                f = att * cos_l * cos_y * (ts * ts + r2) / (np.maximum(qq, 1e-300) * np.abs(dn))
+            terms.append(np.where(np.isfinite(f), f, 0.0))
+            dirs.append(qh)
+        F = np.stack(terms, axis=1)                 # (k, 4)
+        tot = F.sum(axis=1)
+        out[s] = 0.25 * tot
+        # The turn whose cumulative share first exceeds the uniform.
+        c = np.cumsum(F, axis=1)
+        pick = np.minimum((c <= (disc[s, 3] * tot)[:, None]).sum(axis=1), 3)
+        D = np.stack(dirs, axis=1)                  # (k, 4, 3)
+        chosen = D[np.arange(s.size), pick]
+        d_out[s] = np.where((tot > 0)[:, None], chosen, ds)
+    return out, d_out
 
 
 #: An environment map's photons emitted by environment_kernels.world_photons, a
@@ -237,8 +266,9 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
         power by t^2 / (t^2 + r^2): this reproduces Cycles' soft-falloff near
         field I cos / (d^2 + r^2) exactly (a disc of radiance L facing the
         receiver has projected solid angle pi r^2 / (d^2 + r^2) cos),
-      cone_disc (n, 3) float64: a soft spot's disc sample (module doc;
-        multiply by :func:`soft_spot_first_hit` at the first hit), else 0.
+      soft_disc (n, 4) float64: a soft-falloff point or spot light's disc
+        sample (xyz) and the uniform that picks its turn (module doc; the
+        first hit applies :func:`soft_light_first_hit`), else 0.
     """
     n = int(n)
     o = np.zeros((n, 3))
@@ -248,9 +278,9 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
     light = np.full(n, -1, np.int32)
     kind = np.full(n, -1, np.int8)
     falloff = np.zeros(n)
-    disc = np.zeros((n, 3))
+    disc = np.zeros((n, 4))
     out = dict(o=o, d=d, power=power, light=light, kind=kind, freq_init=freq,
-               falloff_r2=falloff, cone_disc=disc)
+               falloff_r2=falloff, soft_disc=disc)
     if n == 0 or table.n == 0 or not np.any(table.p_select > 0):
         return out
     u = rng.random((n, 6))
@@ -309,9 +339,18 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
         off = (x[:, None] * t1 + y[:, None] * t2 + lift[:, None] * w) * r[:, None]
         o[m] = table.co[jj] + off
         d[m] = w
-        if k == SPOT and np.any(soft):
-            rs = np.where(soft, table.radius[jj], 0.0)
-            disc[m] = (x[:, None] * t1 + y[:, None] * t2) * rs[:, None]
+        # Soft falloff: the disc sample and, from u5 (a spot's share of it
+        # left after choosing cone or tail), the uniform that picks its turn.
+        sd = table.soft_disc[jj]
+        if np.any(sd):
+            rs = np.where(sd, table.radius[jj], 0.0)
+            disc[m, :3] = (x[:, None] * t1 + y[:, None] * t2) * rs[:, None]
+            u5 = u[m, 5]
+            if k == SPOT:
+                P = tail[:, 0]
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    u5 = np.where(u5 < P, u5 / P, (u5 - P) / (1.0 - P))
+            disc[m, 3] = np.where(sd, u5, 0.0)
         power[m] = weight * inv_p[m, None]
         freq[m] = (0.0, B_DIFFUSE, 0.0)
 
@@ -413,9 +452,9 @@ def _compiled_rows(table: LightTable, u, j, out) -> np.ndarray:
         from ..sppm.photon_kernels import emit_lights, light_arrays
         K = m.size
         o, d, pw, fr = np.empty((K, 3)), np.empty((K, 3)), np.empty((K, 3)), np.empty((K, 3))
-        fall, disc, rows = np.empty(K), np.empty((K, 3)), np.empty(K, np.int64)
+        fall, disc, rows = np.empty(K), np.empty((K, 4)), np.empty(K, np.int64)
         emit_lights(np.ascontiguousarray(u[m]), *light_arrays(table), o, d, pw, fall, fr, rows,
                     disc)
         out["o"][m], out["d"][m], out["power"][m] = o, d, pw
-        out["falloff_r2"][m], out["freq_init"][m], out["cone_disc"][m] = fall, fr, disc
+        out["falloff_r2"][m], out["freq_init"][m], out["soft_disc"][m] = fall, fr, disc
     return done

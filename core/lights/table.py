@@ -129,6 +129,14 @@ class LightTable:
         return (self.kind == SPOT) & ~np.asarray(self.is_sphere, bool) & (self.radius > 0)
 
     @property
+    def soft_disc(self) -> np.ndarray:
+        """(Nl,) bool: the soft-falloff point and spot lights (radius > 0:
+        Cycles' disc facing the receiver), whose photons carry a disc sample
+        that sets their direction at the first hit (lights.emission)."""
+        return (((self.kind == POINT) | (self.kind == SPOT))
+                & ~np.asarray(self.is_sphere, bool) & (self.radius > 0))
+
+    @property
     def total_flux(self) -> np.ndarray:
         """(3,) sum of ``flux`` over all emitters."""
         return self.flux.sum(axis=0) if self.n else np.zeros(3)

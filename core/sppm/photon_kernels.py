@@ -336,10 +336,11 @@ def emit_kernel(o, d, power, falloff, rel, floor, live, src):
     return K
 
 
-class SoftSpots(NamedTuple):
-    """The soft spots' cones for :func:`soft_spot_first_hit` (Nl rows):
-    soft (Nl,) bool ``LightTable.soft_spot``; lin_inv (Nl, 3, 3); cos_h,
-    smooth, r2 (Nl,) float64 the cone's cosine and smoothstep scale, the
+class SoftLights(NamedTuple):
+    """The soft-falloff point and spot lights for :func:`soft_light_first_hit`
+    (Nl rows): soft (Nl,) bool ``LightTable.soft_disc``; lin_inv (Nl, 3, 3);
+    cos_h, smooth, r2 (Nl,) float64 the cone's cosine and smoothstep scale
+    (-2 and 1 for a point light: attenuation 1 in every direction), the
     radius squared."""
     soft: np.ndarray
     lin_inv: np.ndarray
@@ -348,23 +349,49 @@ class SoftSpots(NamedTuple):
     r2: np.ndarray
 
 
-def soft_spots(table) -> SoftSpots:
-    """The :class:`SoftSpots` of a LightTable."""
+def soft_lights(table) -> SoftLights:
+    """The :class:`SoftLights` of a LightTable."""
+    from ..lights.table import SPOT
     c = np.ascontiguousarray
-    return SoftSpots(c(table.soft_spot, np.bool_),
-                     c(np.asarray(table.lin_inv, np.float64).reshape(-1, 3, 3)),
-                     c(table.cos_half_spot, np.float64), c(table.spot_smooth, np.float64),
-                     c(np.asarray(table.radius, np.float64) ** 2))
+    spot = np.asarray(table.kind) == SPOT
+    return SoftLights(c(table.soft_disc, np.bool_),
+                      c(np.asarray(table.lin_inv, np.float64).reshape(-1, 3, 3)),
+                      c(np.where(spot, table.cos_half_spot, -2.0), np.float64),
+                      c(np.where(spot, table.spot_smooth, 1.0), np.float64),
+                      c(np.asarray(table.radius, np.float64) ** 2))
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _soft_term(th, dx, dy, dz, ox, oy, oz, gx, gy, gz, sg, dn, S, j):
+    """One disc turn y = c + o of :func:`soft_light_first_hit`: (its term f,
+    the unit direction y -> p)."""
+    qx = th * dx - ox
+    qy = th * dy - oy
+    qz = th * dz - oz
+    qq = max(qx * qx + qy * qy + qz * qz, 1e-300)
+    qn = np.sqrt(qq)
+    qx, qy, qz = qx / qn, qy / qn, qz / qn
+    cos_l = max(qx * dx + qy * dy + qz * dz, 0.0)
+    cos_y = max(-sg * (gx * qx + gy * qy + gz * qz), 0.0)
+    M = S.lin_inv
+    lx = M[j, 0, 0] * qx + M[j, 0, 1] * qy + M[j, 0, 2] * qz
+    ly = M[j, 1, 0] * qx + M[j, 1, 1] * qy + M[j, 1, 2] * qz
+    lz = M[j, 2, 0] * qx + M[j, 2, 1] * qy + M[j, 2, 2] * qz
+    ln = np.sqrt(lx * lx + ly * ly + lz * lz)
+    x = min(max((-lz / ln - S.cos_h[j]) * S.smooth[j], 0.0), 1.0)
+    f = x * x * (3.0 - 2.0 * x) * cos_l * cos_y * (th * th + S.r2[j]) / (qq * abs(dn))
+    return (f if np.isfinite(f) else 0.0), qx, qy, qz
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def soft_spot_first_hit(K, hits, live, tri_ng, src, light, disc, S):
-    """``lights.emission.soft_spot_first_hit`` at the first hits of the live
+def soft_light_first_hit(K, hits, live, tri_ng, src, light, disc, S):
+    """``lights.emission.soft_light_first_hit`` at the first hits of the live
     rows 0..K-1 (EmbreeHits hits, triangles' geometric normals tri_ng (T, 3)):
     row i is photon src[i] of emitter row light[src[i]] with disc sample
-    disc[src[i]] (n, 3) and its three turns; the factor multiplies
-    live.power (the bounce kernel applies t^2 / (t^2 + r^2) after it).  The
-    distance is Embree's, as the bounce kernel's."""
+    disc[src[i]] (n, 4) and its three turns; the factor multiplies
+    live.power (the bounce kernel applies t^2 / (t^2 + r^2) after it) and
+    the picked turn's direction replaces live.d64 and live.d32 (the point
+    hit stays Embree's).  The distance is Embree's, as the bounce kernel's."""
     for i in range(K):
         t_ = hits.prim[i]
         if t_ < 0:
@@ -380,32 +407,29 @@ def soft_spot_first_hit(K, hits, live, tri_ng, src, light, disc, S):
         sg = -1.0 if dn > 0.0 else (1.0 if dn < 0.0 else 0.0)
         ux, uy, uz = disc[k, 0], disc[k, 1], disc[k, 2]
         vx, vy, vz = dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux   # d x u
-        f = 0.0
-        for s_ in range(4):
-            ox, oy, oz = (ux, uy, uz) if s_ < 2 else (vx, vy, vz)
-            if s_ % 2:
-                ox, oy, oz = -ox, -oy, -oz
-            qx = th * dx - ox
-            qy = th * dy - oy
-            qz = th * dz - oz
-            qq = max(qx * qx + qy * qy + qz * qz, 1e-300)
-            qn = np.sqrt(qq)
-            qx, qy, qz = qx / qn, qy / qn, qz / qn
-            cos_l = max(qx * dx + qy * dy + qz * dz, 0.0)
-            cos_y = max(-sg * (gx * qx + gy * qy + gz * qz), 0.0)
-            M = S.lin_inv
-            lx = M[j, 0, 0] * qx + M[j, 0, 1] * qy + M[j, 0, 2] * qz
-            ly = M[j, 1, 0] * qx + M[j, 1, 1] * qy + M[j, 1, 2] * qz
-            lz = M[j, 2, 0] * qx + M[j, 2, 1] * qy + M[j, 2, 2] * qz
-            ln = np.sqrt(lx * lx + ly * ly + lz * lz)
-            x = min(max((-lz / ln - S.cos_h[j]) * S.smooth[j], 0.0), 1.0)
-            f += 0.25 * (x * x * (3.0 - 2.0 * x) * cos_l * cos_y * (th * th + S.r2[j])
-                         / (qq * abs(dn)))
-        if not np.isfinite(f):
-            f = 0.0
+        f0, ax, ay, az = _soft_term(th, dx, dy, dz, ux, uy, uz, gx, gy, gz, sg, dn, S, j)
+        f1, bx, by, bz = _soft_term(th, dx, dy, dz, -ux, -uy, -uz, gx, gy, gz, sg, dn, S, j)
+        f2, cx, cy, cz = _soft_term(th, dx, dy, dz, vx, vy, vz, gx, gy, gz, sg, dn, S, j)
+        f3, ex, ey, ez = _soft_term(th, dx, dy, dz, -vx, -vy, -vz, gx, gy, gz, sg, dn, S, j)
+        tot = f0 + f1 + f2 + f3
+        f = 0.25 * tot
         live.power[i, 0] *= f
         live.power[i, 1] *= f
         live.power[i, 2] *= f
+        if not tot > 0.0:
+            continue
+        # The turn whose cumulative share first exceeds the uniform.
+        cut = disc[k, 3] * tot
+        if f0 > cut:
+            nx, ny, nz = ax, ay, az
+        elif f0 + f1 > cut:
+            nx, ny, nz = bx, by, bz
+        elif f0 + f1 + f2 > cut:
+            nx, ny, nz = cx, cy, cz
+        else:
+            nx, ny, nz = ex, ey, ez
+        live.d64[i, 0], live.d64[i, 1], live.d64[i, 2] = nx, ny, nz
+        live.d32[i, 0], live.d32[i, 1], live.d32[i, 2] = nx, ny, nz
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -838,7 +862,8 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
 
     L: (nL, _NCOL) packed light table (:func:`light_arrays`).
     Returns (o xyz, d xyz, power rgb, falloff r^2, freq_init a b c, the
-    emitter row, a soft spot's disc sample xyz (``cone_disc``))."""
+    emitter row, a soft-falloff light's disc sample xyz and the uniform
+    that picks its turn (``soft_disc``))."""
     nL = L.shape[0]
     # np.searchsorted(cdf, x, side="right"): first index with cdf > x.
     x = u0 * cdf[nL - 1]
@@ -851,15 +876,19 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
     kd = int(L[j, _KIND])
     if kd == 0 or kd == 1:   # POINT, SPOT: sphere model or soft falloff (disc) from the centre
         wgt = 1.0
-        soft = False
+        sph = L[j, _SPH] != 0.0
+        us = u5
         if kd == 0:
             z = 1.0 - 2.0 * u3
             sz = np.sqrt(max(1.0 - z * z, 0.0))
             sn, cs = sincos_turn(u4)
             wx, wy, wz = sz * cs, sz * sn, z
         else:
-            wx, wy, wz, wgt, soft = _spot_direction(u3, u4, u5, L, j)
-        sph = L[j, _SPH] != 0.0
+            wx, wy, wz, wgt, _ = _spot_direction(u3, u4, u5, L, j)
+            P = L[j, _TAIL]
+            if P > 0.0:          # u5's share left after choosing cone or tail
+                us = u5 / P if u5 < P else (u5 - P) / (1.0 - P)
+        soft = (not sph) and L[j, _RAD] > 0.0
         r = L[j, _RAD] if sph else 0.0
         fall = 0.0 if sph else L[j, _RAD] * L[j, _RAD]
         rr = np.sqrt(u1)
@@ -871,10 +900,12 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
         if soft:
             qx, qy, qz = basis_world(dx, dy, 0.0, wx, wy, wz)
             qx, qy, qz = qx * L[j, _RAD], qy * L[j, _RAD], qz * L[j, _RAD]
+        else:
+            us = 0.0
         w = wgt * inv_p
         return (L[j, _CO] + ox * r, L[j, _CO + 1] + oy * r, L[j, _CO + 2] + oz * r,
                 wx, wy, wz, L[j, _STR] * w, L[j, _STR + 1] * w,
-                L[j, _STR + 2] * w, fall, 0.0, b_diffuse, 0.0, j, qx, qy, qz)
+                L[j, _STR + 2] * w, fall, 0.0, b_diffuse, 0.0, j, qx, qy, qz, us)
     if kd == 3:          # AREA (rectangle or ellipse), one-sided along dir
         su = u1 - 0.5
         sv = u2 - 0.5
@@ -910,7 +941,7 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
     lz = np.sqrt(max(1.0 - lx * lx - ly * ly, 0.0))
     wx, wy, wz = basis_world(lx, ly, lz, nx, ny, nz)
     return (ox, oy, oz, wx, wy, wz, p0, p1, p2, 0.0, L[j, _AREA] / 12.0, b_diffuse, 0.0, j,
-            0.0, 0.0, 0.0)
+            0.0, 0.0, 0.0, 0.0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -920,7 +951,7 @@ def emit_lights(u, cdf, last, L, b_diffuse, o, d, power, falloff, freq, light, d
     the same rng state gives the same photons up to round-off).  cdf, last,
     L, b_diffuse from :func:`light_arrays`.  Writes o, d, power, falloff
     (n,), freq (n, 3) (light inits), light (n,) int64 (the emitter rows)
-    and disc (n, 3) (``cone_disc``).  The caller guarantees every emitter
+    and disc (n, 4) (``soft_disc``).  The caller guarantees every emitter
     with p_select > 0 is of those kinds (:func:`fast_emission_ok`).
     """
     for i in range(u.shape[0]):
@@ -932,7 +963,7 @@ def emit_lights(u, cdf, last, L, b_diffuse, o, d, power, falloff, freq, light, d
         falloff[i] = r[9]
         freq[i, 0], freq[i, 1], freq[i, 2] = r[10], r[11], r[12]
         light[i] = r[13]
-        disc[i, 0], disc[i, 1], disc[i, 2] = r[14], r[15], r[16]
+        disc[i, 0], disc[i, 1], disc[i, 2], disc[i, 3] = r[14], r[15], r[16], r[17]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -941,8 +972,8 @@ def emit_lights_state(u, cdf, last, L, b_diffuse, rel, floor, live, want_freq, f
     """:func:`emit_lights` fused with :func:`emit_kernel`: photons straight
     into the LiveState live (finite positive power only, origin offset along
     d).  freq (n, 3) receives the light inits of the kept photons when
-    want_freq, light (n,) int64 and disc (n, 3) their emitter rows and
-    ``cone_disc`` when want_disc (:func:`soft_spot_first_hit` with src the
+    want_freq, light (n,) int64 and disc (n, 4) their emitter rows and
+    ``soft_disc`` when want_disc (:func:`soft_light_first_hit` with src the
     identity).  Returns the number K of photons kept."""
     o32, d32, d64, pw, fo = live.o32, live.d32, live.d64, live.power, live.falloff
     K = 0
@@ -966,7 +997,7 @@ def emit_lights_state(u, cdf, last, L, b_diffuse, rel, floor, live, want_freq, f
             freq[K, 0], freq[K, 1], freq[K, 2] = r[10], r[11], r[12]
         if want_disc:
             light[K] = r[13]
-            disc[K, 0], disc[K, 1], disc[K, 2] = r[14], r[15], r[16]
+            disc[K, 0], disc[K, 1], disc[K, 2], disc[K, 3] = r[14], r[15], r[16], r[17]
         K += 1
     return K
 
@@ -1012,7 +1043,7 @@ def fast_emission_ok(table) -> bool:
 
 def sample_photons_fast(table, n: int, rng) -> dict:
     """Drop-in for ``lights.sample_photons`` when :func:`fast_emission_ok`
-    (keys o, d, power, falloff_r2, freq_init, cone_disc float64; light
+    (keys o, d, power, falloff_r2, freq_init, soft_disc float64; light
     int64, kind: the emitter row and its kind)."""
     u = rng.random((n, 6))
     o = np.empty((n, 3))
@@ -1021,7 +1052,7 @@ def sample_photons_fast(table, n: int, rng) -> dict:
     falloff = np.empty(n)
     freq = np.empty((n, 3))
     light = np.empty(n, np.int64)
-    disc = np.empty((n, 3))
+    disc = np.empty((n, 4))
     emit_lights(u, *light_arrays(table), o, d, power, falloff, freq, light, disc)
     return {"o": o, "d": d, "power": power, "falloff_r2": falloff, "freq_init": freq,
-            "light": light, "kind": np.asarray(table.kind)[light], "cone_disc": disc}
+            "light": light, "kind": np.asarray(table.kind)[light], "soft_disc": disc}

@@ -303,10 +303,11 @@ class PhotonTracer:
         self._tri_uv = None
         self.fast_emission = PK.fast_emission_ok(light_table)
         self._light_arrays = PK.light_arrays(light_table) if self.fast_emission else None
-        # Soft spots read their cone at the photons' first hits
-        # (lights.emission.soft_spot_first_hit), None without any.
-        self.soft_spots = (PK.soft_spots(light_table)
-                           if np.any(light_table.soft_spot & (light_table.p_select > 0)) else None)
+        # Soft-falloff point and spot lights: their photons' power and
+        # direction set at the first hit (lights.emission.soft_light_first_hit),
+        # None without any.
+        self.soft_lights = (PK.soft_lights(light_table)
+                            if np.any(light_table.soft_disc & (light_table.p_select > 0)) else None)
         # Deposits per photon (max seen, x1.25 margin on use): buffer sizing.
         self._dpp = 2.0
         # Deposit rows, live photons and uniforms reused across batches (ArrayPool).
@@ -507,15 +508,15 @@ class PhotonTracer:
         live = self.pool.take("live", n, _live_arrays, lambda a: PK.LiveState(*a))
         rel = REL_OFFSET
         floor = self.accel.abs_floor / REL_OFFSET
-        cone = None                              # soft spots' first hits
+        cone = None                              # soft lights' first hits
         spec = None
         Kf = 0                                   # live rows 0..Kf-1: frequency photons
         if u_emit is not None:
             spec = np.empty((max(nf, 1), 3))
-            # Soft spots: each kept photon's emitter row and disc sample.
-            soft = self.soft_spots is not None
+            # Soft lights: each kept photon's emitter row and disc sample.
+            soft = self.soft_lights is not None
             rows = np.empty(n if soft else 1, np.int64)
-            disc = np.empty((n if soft else 1, 3))
+            disc = np.empty((n if soft else 1, 4))
             if nf:
                 Kf = PK.emit_lights_state(u_emit[a:a + nf], *self._light_arrays, rel, floor,
                                           live, True, spec, soft, rows, disc)
@@ -534,9 +535,9 @@ class PhotonTracer:
                                np.ascontiguousarray(ph["d"][a:b], np.float64),
                                np.ascontiguousarray(ph["power"][a:b], np.float64),
                                fal, rel, floor, live, src)
-            if self.soft_spots is not None and "cone_disc" in ph:
+            if self.soft_lights is not None and "soft_disc" in ph:
                 cone = (src, np.ascontiguousarray(ph["light"][a:b], np.int64),
-                        np.ascontiguousarray(ph["cone_disc"][a:b], np.float64))
+                        np.ascontiguousarray(ph["soft_disc"][a:b], np.float64))
             if nf:
                 Kf = int(np.searchsorted(src[:K], nf))      # kept in order
                 spec = np.asarray(ph["freq_init"], np.float64)[a:b][src[:Kf]]
@@ -578,8 +579,6 @@ class PhotonTracer:
             hits = PK.EmbreeHits(*intersect_f32(self.accel, live.o32[:K], live.d32[:K]))
             with _COUNT_LOCK:                    # the halves run in two threads
                 self.rays_cast += K
-            if bounce == 0 and cone is not None:
-                PK.soft_spot_first_hit(K, hits, live, self.tris.ng, *cone, self.soft_spots)
             step = PK.BounceStep(K=K, first=bounce == 0,
                                  store=bool(st.photons_for_direct or bounce > 0),
                                  sample=bounce < st.max_bounces,
@@ -601,6 +600,10 @@ class PhotonTracer:
             if Kf:
                 # the segments just travelled: the kernel overwrites the live state
                 seg = FK.Segments(live.o32[:Kf].astype(np.float64), live.d64[:Kf].copy(), ng0)
+            if bounce == 0 and cone is not None:
+                # After the frequency photons' segments (from the light's
+                # centre, as travelled), before a transparent crossing's test.
+                PK.soft_light_first_hit(K, hits, live, self.tris.ng, *cone, self.soft_lights)
             through = straight is not None or (caustic and self.clear_through)
             if through:
                 d_in, prim_in = live.d64[:K].copy(), hits.prim[:K].astype(np.int64)
