@@ -100,7 +100,7 @@ SUPPORT = (
     ("split normals, the render UV map", SUPPORTED, ""),
     ("perspective and orthographic cameras, depth of field, border, resolution %",
      SUPPORTED, ""),
-    ("point, spot, sun and area lights (every shape), colour, temperature, "
+    ("point, spot, sun and area lights (every shape, spread), colour, temperature, "
      "power, exposure, radius, soft falloff, cast shadow", SUPPORTED, ""),
     ("light ray visibility: camera, glossy, transmission", SUPPORTED, ""),
     ("world Background colour x strength; mist pass settings", SUPPORTED, ""),
@@ -139,7 +139,6 @@ SUPPORT = (
      "closures cut to the {MAX_LOBES} heaviest"),
     ("Principled subsurface", APPROXIMATED, "rendered as diffuse"),
     ("'Normalize' off on point and spot lights", APPROXIMATED, "'Normalize' off treated as on"),
-    ("an area light's spread below 180 deg", APPROXIMATED, "rendered as 180 deg"),
     ("per-ray visibility of objects", APPROXIMATED, "treated as fully visible"),
     ("pixel filters other than Blackman-Harris", APPROXIMATED,
      "rendered as Blackman-Harris "),
@@ -1134,10 +1133,6 @@ class _Exporter:
         elif kind == 'AREA':
             kw.update(shape=ld.shape, size=float(ld.size), size_y=float(ld.size_y),
                       spread=float(getattr(ld, "spread", math.pi)))
-            if kw["spread"] < math.pi - 1e-4:
-                # core.lights.table renders it as 180 deg (and says so too).
-                self.notes.append(f"light '{ob.name}': spread {math.degrees(kw['spread']):.0f} "
-                                  f"deg rendered as 180 deg")
             if not getattr(ld, "normalize", True):
                 # Cycles divides by the area only when normalised: undo core's division.
                 sx = np.linalg.norm(M[:3, 0])

@@ -1,6 +1,4 @@
 """Render-properties panels for FPPM, and FPPM's place in Blender's standard panels."""
-import math
-
 import bpy
 from bpy.types import Panel
 
@@ -268,9 +266,6 @@ class FPPM_LIGHT_PT_beam_shape(FPPMDataPanel, Panel):
             col.prop(light, "show_cone")
         else:
             col.prop(light, "spread", text="Spread")
-            if light.spread < math.pi - 1e-4:
-                # addon/export.py SUPPORT: an area light's spread is rendered as 180 deg.
-                col.label(text="FPPM renders Spread as 180\u00b0", icon='INFO')
 
 
 class FPPM_PT_context_material(FPPMDataPanel, Panel):

@@ -26,6 +26,8 @@ What is asserted, and where each tolerance comes from:
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -51,7 +53,8 @@ def _rot_x(deg, at):
 
 def every_light_kind(*extra):
     """One light of every kind with a shape (rectangle, disc, sphere, soft
-    disc, spot, sun) above the test scenes' z = 0 floor, then ``extra``."""
+    disc, spot, sun) above the test scenes' z = 0 floor, then ``extra``, then
+    a square with a spread of 60 deg (a soft box)."""
     return [
         Light("rect", "AREA", (40, 40, 40), _rot_x(160, (0, 0, 2)), shape="RECTANGLE",
               size=1.0, size_y=0.6),
@@ -62,6 +65,8 @@ def every_light_kind(*extra):
         Light("spot", "SPOT", (60, 60, 60), translate(0, 2, 2.5), radius=0.2, spot_size=1.5),
         Light("sun", "SUN", (2, 2, 2), _rot_x(20, (0, 0, 9)), angle=0.2),
         *extra,
+        Light("softbox", "AREA", (30, 30, 30), _rot_x(170, (1.5, -1.0, 1.8)), shape="SQUARE",
+              size=0.7, spread=math.radians(60)),
     ]
 
 

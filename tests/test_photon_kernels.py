@@ -165,6 +165,8 @@ def _emission_scene(world=None):
                     size=0.3),
               Light("disc", "AREA", (10.0, 10.0, 10.0), translate(0.2, 0, 0.9), shape="DISK",
                     size=0.2),
+              Light("softbox", "AREA", (20.0, 20.0, 20.0), translate(-0.2, -0.2, 0.9),
+                    shape="SQUARE", size=0.2, spread=np.radians(40.0)),
               Light("soft", "POINT", (20.0, 20.0, 20.0), translate(-0.2, 0.2, 0.5), radius=0.05),
               Light("sphere", "POINT", (5.0, 5.0, 5.0), translate(0.1, 0.1, 0.5), radius=0.05,
                     use_soft_falloff=False),

@@ -31,8 +31,10 @@ sun           irradiance S = strength on a plane perpendicular to local -Z; with
               S / (pi sin^2 h) (its projected solid angle is pi sin^2 h cos).
 area          one-sided Lambertian towards local -Z, L = strength / (pi A),
               A = |scale_x| size * |scale_y| size_y (* pi/4 for disc/ellipse),
-              flux = strength.  ``spread`` < 180 deg is not supported (treated
-              as 180 deg, noted in ``LightTable.warnings``).  Never occludes.
+              flux = strength.  ``spread`` < 180 deg: the radiance leaving at
+              theta to the normal times Cycles' max((tan a - tan theta) /
+              (tan a - a), 0), a = spread / 2 (:func:`spread_atten`; the
+              flux unchanged).  Never occludes.
 mesh          Cycles' Emission closure: L = Material.emission (times its
               texture), two-sided, per-triangle flux 2 * pi * A * L.
 world         constant radiance L_w from every direction, or an equirectangular
@@ -55,11 +57,11 @@ from .pdf import bsdf_hittable, bsdf_sees, emitter_rows, pdf_direct
 from .sampling import sample_direct
 from .seen import emitted_along_rays, world_radiance
 from .table import (AREA, KIND_NAMES, MESH, POINT, SPOT, SUN, WORLD, LightTable,
-                    build_light_table)
+                    build_light_table, spread_atten)
 
 __all__ = [
     "POINT", "SPOT", "SUN", "AREA", "MESH", "WORLD", "KIND_NAMES", "LightTable",
     "build_light_table", "B_DIFFUSE", "sample_photons", "sample_direct", "pdf_direct",
     "bsdf_hittable", "bsdf_sees", "emitter_rows",
-    "emitted_along_rays", "world_radiance",
+    "emitted_along_rays", "world_radiance", "spread_atten",
 ]

@@ -43,6 +43,7 @@ from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 # direction, density and radiance from the drawn texture direction (round 29).
 from .environment_kernels import EnvironmentKernel, map_sample, no_map
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, _lum
+from .warp_kernels import spread_atten
 
 _PI = np.pi
 _INV_PI = 1.0 / np.pi
@@ -55,7 +56,8 @@ class DirectLights(NamedTuple):
     triangles): kind (Nl,) int8; lum_strength, lum_flux (Nl,) luminance of
     strength / flux (``table._lum``); strength, radiance, co, axis_u, axis_v,
     dir (Nl, 3); len_u, len_v, area, radius, cos_half_spot, spot_smooth,
-    half_angle, cos_half_angle (Nl,); ellipse, is_sphere, cast_shadow (Nl,)
+    half_angle, cos_half_angle, spread_tan, spread_norm (Nl,); ellipse,
+    is_sphere, cast_shadow (Nl,)
     bool; lin_inv (Nl, 3, 3); entry (E,) int64 entry -> emitter (-1 group);
     group_tri (G,) int64; group_cdf (G,); group (4,) centre x, y, z and ext^2;
     sel the :class:`EntryLights` of the same emitters; env the world's
@@ -77,6 +79,8 @@ class DirectLights(NamedTuple):
     spot_smooth: np.ndarray
     half_angle: np.ndarray
     cos_half_angle: np.ndarray
+    spread_tan: np.ndarray
+    spread_norm: np.ndarray
     ellipse: np.ndarray
     is_sphere: np.ndarray
     cast_shadow: np.ndarray
@@ -170,6 +174,7 @@ def build_direct_lights(table) -> DirectLights:
         spot_smooth=c(table.spot_smooth, np.float64),
         half_angle=c(table.half_angle, np.float64),
         cos_half_angle=c(table.cos_half_angle, np.float64),
+        spread_tan=c(table.spread_tan, np.float64), spread_norm=c(table.spread_norm, np.float64),
         ellipse=c(table.ellipse, bool), is_sphere=c(table.is_sphere, bool),
         cast_shadow=c(table.cast_shadow, bool),
         lin_inv=c(np.asarray(table.lin_inv, np.float64).reshape(n, 3, 3)),
@@ -582,6 +587,11 @@ def direct_kernel(k0, k1, L, R, out):
                     g = S if front else 0.0
                     l0, l1, l2 = (L.radiance[j, 0] * g, L.radiance[j, 1] * g,
                                   L.radiance[j, 2] * g)
+            if L.spread_tan[j] != np.inf:
+                # A spread below 180 deg: its factor along the sampled direction.
+                fsp = spread_atten(L.spread_tan[j], L.spread_norm[j],
+                                   -(wx * L.dir[j, 0] + wy * L.dir[j, 1] + wz * L.dir[j, 2]))
+                l0, l1, l2 = l0 * fsp, l1 * fsp, l2 * fsp
         elif kind == MESH:
             s_ = np.sqrt(u1)
             b1, b2 = s_ * (1.0 - u2), s_ * u2

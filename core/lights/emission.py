@@ -47,7 +47,7 @@ import numpy as np
 from ..mathutil import frame
 
 from .table import (AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _mesh_emission,
-                    _smoothstep, _spot_atten)
+                    _smoothstep, _spot_atten, spread_atten)
 from .warps import (_cone_local, _cosine_local, _to_world, _triangle_bary, _uniform_sphere,
                     _unit_disk)
 
@@ -366,8 +366,11 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
             sv = np.where(ell, 0.5 * y, sv)
         o[m] = (table.co[jj] + (su * table.len_u[jj])[:, None] * table.axis_u[jj]
                 + (sv * table.len_v[jj])[:, None] * table.axis_v[jj])
-        d[m] = _to_world(_cosine_local(u[m, 3], u[m, 4]), table.dir[jj])
-        power[m] = table.flux[jj] * inv_p[m, None]
+        loc = _cosine_local(u[m, 3], u[m, 4])
+        d[m] = _to_world(loc, table.dir[jj])
+        # A spread below 180 deg: the radiance's factor along the photon's
+        # direction (its mean over the cosine lobe is 1: the flux stays).
+        power[m] = table.flux[jj] * (inv_p[m] * spread_atten(table, jj, loc[:, 2]))[:, None]
         freq[m, 0] = table.area[jj] / 12.0       # width w = sqrt(area): w^2/12
         freq[m, 1] = B_DIFFUSE
 

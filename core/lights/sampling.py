@@ -12,6 +12,7 @@ import numpy as np
 
 from ..mathutil import dot as _dot, frame
 from .table import (AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _lum, _mesh_emission,
+                    spread_atten,
                     _spot_atten)
 from .warps import (_cone_local, _cosine_local, _normalize, _to_world, _triangle_bary,
                     _uniform_sphere, _unit_disk)
@@ -378,6 +379,10 @@ def sample_direct(table: LightTable, p: np.ndarray, u: np.ndarray, n=None) -> di
                 wd[k] = vr / np.maximum(tr, 1e-300)[:, None]
                 tt[k] = tr
                 Lw[k] = table.radiance[jr[use]] * np.where(front[use], S[use], 0.0)[:, None]
+        # A spread below 180 deg: its factor along the sampled direction.
+        sp = np.nonzero(np.isfinite(table.spread_tan[jj]))[0]
+        if sp.size:
+            Lw[sp] *= spread_atten(table, jj[sp], -_dot(wd[sp], table.dir[jj[sp]]))[:, None]
         fill(m, wd, tt, Lw)
 
     m = np.nonzero(kind == MESH)[0]

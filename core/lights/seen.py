@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..mathutil import dot as _dot
-from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _spot_atten
+from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _spot_atten, spread_atten
 from .warps import _normalize
 
 
@@ -79,6 +79,8 @@ def emitted_along_rays(table: LightTable, o: np.ndarray, d: np.ndarray, t_max: n
             else:
                 hit &= (np.abs(a) <= 1.0) & (np.abs(b) <= 1.0)
             L = np.broadcast_to(table.radiance[j], (K, 3))
+            if np.isfinite(table.spread_tan[j]):
+                L = L * spread_atten(table, np.full(K, j), -den)[:, None]
         elif k in (POINT, SPOT):
             r = table.radius[j]
             if r <= 0:

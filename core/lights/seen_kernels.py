@@ -10,6 +10,7 @@ from numba import njit
 
 from .direct_kernels import _nrm3, _spot_atten as _spot_atten_one
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD
+from .warp_kernels import spread_atten
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -58,7 +59,7 @@ def seen_kernel(L, flags, vis, o, d, t_max, idx, Le, row, t_hit):
                         continue
                 elif not (abs(a) <= 1.0 and abs(b) <= 1.0):
                     continue
-                att = 1.0
+                att = spread_atten(L.spread_tan[j], L.spread_norm[j], -den)   # 1 at 180 deg
             elif k == POINT or k == SPOT:
                 r = L.radius[j]
                 if r <= 0.0:

@@ -58,6 +58,9 @@ class LightTable:
     lin, lin_inv: (Nl, 3, 3) object linear part and its inverse (spot cone).
     cos_half_spot, spot_smooth: (Nl,) Cycles' spot parameters.
     half_angle, cos_half_angle: (Nl,) sun cone.
+    spread_tan, spread_norm: (Nl,) an area light's spread (Cycles'
+      ``tan_half_spread``, ``normalize_spread``: :func:`spread_atten`); inf
+      and 0 for a spread of 180 deg and every other light.
     tri_uv: (Nl, 3, 2) corner UVs, tex: (Nl,) int32 emission texture or -1.
     visible_camera / visible_glossy / visible_transmission / cast_shadow:
       (Nl,) bool.
@@ -88,6 +91,8 @@ class LightTable:
     spot_smooth: np.ndarray
     half_angle: np.ndarray
     cos_half_angle: np.ndarray
+    spread_tan: np.ndarray
+    spread_norm: np.ndarray
     tri_uv: np.ndarray
     tex: np.ndarray
     visible_camera: np.ndarray
@@ -192,6 +197,34 @@ def _spot_atten(table: LightTable, j: np.ndarray, w: np.ndarray) -> np.ndarray:
     return _smoothstep((-loc[:, 2] - table.cos_half_spot[j]) * table.spot_smooth[j])
 
 
+def _spread_params(spread: float):
+    """(tan_half_spread, normalize_spread) of an area light's spread [rad],
+    as Cycles' scene/light.cpp computes them: tan(a) and 1 / (tan a - a) with
+    a = spread / 2 (3 / a^3, its Taylor form, for a <= 0.05; a spread of 0
+    taken as 0.01 deg, which Cycles lights only along the normal); (inf, 0)
+    for 180 deg, where :func:`spread_atten` is 1."""
+    if not spread < np.pi - 1e-6:
+        return np.inf, 0.0
+    a = 0.5 * max(spread, np.radians(0.01))
+    ta = float(np.tan(a))
+    return ta, (1.0 / (ta - a) if a > 0.05 else 3.0 / a ** 3)
+
+
+def spread_atten(table: LightTable, j, cos_l) -> np.ndarray:
+    """(K,) Cycles' ``area_light_spread_attenuation``: the factor on an area
+    light's radiance leaving at cos_l (K,) to its normal, lights j (K,),
+    max((tan a - tan theta) normalize_spread, 0): a grid of slats in front
+    of the light (a soft box), normalised so that the flux stays the light's
+    (the integral of cos theta (tan a - tan theta) sin theta over [0, a] is
+    (tan a - a) / 2); 1 for a spread of 180 deg, 0 behind the light."""
+    tan_s = table.spread_tan[j]
+    c = np.asarray(cos_l, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tan_a = np.sqrt(np.maximum(1.0 - c * c, 0.0)) / c
+        a = np.maximum((tan_s - tan_a) * table.spread_norm[j], 0.0)
+    return np.where(np.isinf(tan_s), 1.0, np.where(c > 0, a, 0.0))
+
+
 # ----------------------------------------------------------------------------
 # Mesh emission.
 
@@ -231,6 +264,7 @@ def build_light_table(scene: Scene) -> LightTable:
                     len_u=0.0, len_v=0.0, area=0.0, ellipse=False, radius=0.0,
                     is_sphere=False, lin=eye, lin_inv=eye, cos_half_spot=-1.0,
                     spot_smooth=_SMOOTH_MAX, half_angle=0.0, cos_half_angle=1.0,
+                    spread_tan=np.inf, spread_norm=0.0,
                     tri_uv=np.zeros((3, 2)), tex=-1, visible_camera=True,
                     visible_glossy=True, visible_transmission=True, cast_shadow=True)
         base.update(kw)
@@ -289,10 +323,7 @@ def build_light_table(scene: Scene) -> LightTable:
             ellipse = shape in ("DISK", "ELLIPSE")
             area = len_u * len_v * (np.pi / 4.0 if ellipse else 1.0)
             radiance = strength / (np.pi * area) if area > 0 else np.zeros(3)
-            if float(lt.spread) < np.pi - 1e-4:
-                warnings.append(
-                    f"area light '{lt.name}': spread {np.degrees(lt.spread):.1f} deg is not "
-                    f"supported; rendered as 180 deg")
+            spread_tan, spread_norm = _spread_params(float(lt.spread))
             if area <= 0:
                 strength_eff = np.zeros(3)
                 warnings.append(f"area light '{lt.name}' has zero area and emits nothing")
@@ -302,7 +333,8 @@ def build_light_table(scene: Scene) -> LightTable:
                 flux=strength_eff.copy(), co=co,
                 axis_u=cu / nu if nu > 0 else np.array([1.0, 0, 0]),
                 axis_v=cv / nv if nv > 0 else np.array([0, 1.0, 0]),
-                dir=dirv, len_u=len_u, len_v=len_v, area=area, ellipse=ellipse, **vis)
+                dir=dirv, len_u=len_u, len_v=len_v, area=area, ellipse=ellipse,
+                spread_tan=spread_tan, spread_norm=spread_norm, **vis)
         else:
             warnings.append(f"light '{lt.name}': unknown kind {lt.kind!r}, ignored")
 
@@ -365,7 +397,8 @@ def build_light_table(scene: Scene) -> LightTable:
 def _assemble(rows, tri_rows, center, R, D, world, warnings, textures) -> LightTable:
     names = ["kind", "source", "strength", "radiance", "flux", "co", "axis_u", "axis_v", "dir",
              "len_u", "len_v", "area", "ellipse", "radius", "is_sphere", "lin", "lin_inv",
-             "cos_half_spot", "spot_smooth", "half_angle", "cos_half_angle", "tri_uv", "tex",
+             "cos_half_spot", "spot_smooth", "half_angle", "cos_half_angle", "spread_tan",
+             "spread_norm", "tri_uv", "tex",
              "visible_camera", "visible_glossy", "visible_transmission", "cast_shadow"]
     dtypes = dict(kind=np.int8, source=np.int32, tex=np.int32, ellipse=bool, is_sphere=bool,
                   visible_camera=bool, visible_glossy=bool, visible_transmission=bool,
@@ -373,6 +406,7 @@ def _assemble(rows, tri_rows, center, R, D, world, warnings, textures) -> LightT
     shapes = dict(strength=(3,), radiance=(3,), flux=(3,), co=(3,), axis_u=(3,), axis_v=(3,),
                   dir=(3,), lin=(3, 3), lin_inv=(3, 3), tri_uv=(3, 2))
     defaults = dict(cos_half_spot=-1.0, spot_smooth=_SMOOTH_MAX, cos_half_angle=1.0,
+                    spread_tan=np.inf,
                     visible_camera=True, visible_glossy=True, visible_transmission=True,
                     cast_shadow=True, tex=-1)
     n_tri = 0 if tri_rows is None else tri_rows["kind"].shape[0]

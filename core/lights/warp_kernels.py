@@ -1,7 +1,8 @@
 """Compiled warps that the compiled emissions share (photon_kernels'
 analytic lights, environment_kernels' map): the bisection of a cdf, the
-Duff et al. 2017 basis and a spot's emission density (photon_kernels'
-spots, path_kernels' MIS).  A module of its own, so that importing
+Duff et al. 2017 basis, a spot's emission density (photon_kernels'
+spots, path_kernels' MIS) and an area light's spread factor (the photons,
+next-event estimation and the rays that hit the light).  A module of its own, so that importing
 core.lights (the add-on's register() does) loads no numba.
 """
 from __future__ import annotations
@@ -53,3 +54,15 @@ def basis_world(lx, ly, lz, nx, ny, nz):
     bx, by, bz = b, s + ny * ny * a, -ny
     return (lx * tx + ly * bx + lz * nx, lx * ty + ly * by + lz * ny,
             lx * tz + ly * bz + lz * nz)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def spread_atten(tan_s, norm, cos_l):
+    """lights.table.spread_atten of one direction: an area light's spread
+    factor at cosine cos_l to its normal (tan_s = inf: 180 deg, 1)."""
+    if tan_s == np.inf:
+        return 1.0
+    if not cos_l > 0.0:
+        return 0.0
+    tan_a = np.sqrt(max(1.0 - cos_l * cos_l, 0.0)) / cos_l
+    return max((tan_s - tan_a) * norm, 0.0)

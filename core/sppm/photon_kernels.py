@@ -52,7 +52,7 @@ from numba.extending import intrinsic
 # the BSDF evaluation's lobe helpers and reference counts of round 32.
 from ..materials.compiled import sample_pair, sincos_turn
 from ..materials.fast import ABSORBER, GENERIC, sample_fast
-from ..lights.warp_kernels import basis_world, spot_pdf_local, upper_bound
+from ..lights.warp_kernels import basis_world, spot_pdf_local, spread_atten, upper_bound
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 
 
@@ -817,8 +817,9 @@ def generic_survivors(j0, g, gen, u, roulette, lum, rel, floor, live, record, nx
 _KIND, _PSEL, _STR, _FLUX, _CO, _AU, _AV, _DIR = 0, 1, 2, 5, 8, 11, 14, 17
 _LU, _LV, _AREA, _ELL, _RAD, _SPH = 20, 21, 22, 23, 24, 25
 # Spots: the object matrix (row-major), |det|, cos_half_spot, spot_smooth and
-# the soft spot's tail (share, x0, X, half-angle: LightTable.spot_tail).
-_LIN, _DET, _CHS, _SSM, _TAIL, _NCOL = 26, 35, 36, 37, 38, 42
+# the soft spot's tail (share, x0, X, half-angle: LightTable.spot_tail); area
+# lights: the spread's tan_half_spread and normalize_spread.
+_LIN, _DET, _CHS, _SSM, _TAIL, _SPT, _SPN, _NCOL = 26, 35, 36, 37, 38, 42, 43, 44
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -940,6 +941,10 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
     lx, ly = rr * cs, rr * sn
     lz = np.sqrt(max(1.0 - lx * lx - ly * ly, 0.0))
     wx, wy, wz = basis_world(lx, ly, lz, nx, ny, nz)
+    if kd == 3 and L[j, _SPT] != np.inf:
+        # A spread below 180 deg: the radiance's factor along the direction.
+        f = spread_atten(L[j, _SPT], L[j, _SPN], lz)
+        p0, p1, p2 = p0 * f, p1 * f, p2 * f
     return (ox, oy, oz, wx, wy, wz, p0, p1, p2, 0.0, L[j, _AREA] / 12.0, b_diffuse, 0.0, j,
             0.0, 0.0, 0.0, 0.0)
 
@@ -1025,6 +1030,10 @@ def light_arrays(table) -> tuple:
         L[:nL, _CHS] = table.cos_half_spot
         L[:nL, _SSM] = table.spot_smooth
         L[:nL, _TAIL:_TAIL + 4] = spot_tail(table)
+        L[:nL, _SPT] = table.spread_tan
+        L[:nL, _SPN] = table.spread_norm
+    if nL == 0:
+        L[:, _SPT] = np.inf
     p = np.asarray(table.p_select, np.float64)
     last = int(np.nonzero(p > 0)[0][-1]) if np.any(p > 0) else 0
     return np.cumsum(p), last, L, float(B_DIFFUSE)
