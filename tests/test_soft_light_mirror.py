@@ -22,6 +22,7 @@ photons' own noise and 1 % (the grid's resolution).
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -79,8 +80,10 @@ def _cycles_reflected(I, X, Y, n=700):
     return float(np.sum(np.where(hit, L * u[:, 2] ** 2 / dist ** 2, 0.0)) * dA)
 
 
+@functools.lru_cache(maxsize=None)
 def _reference(I):
-    """(bins,) the bins' mean of _cycles_reflected (3 x 2 points each)."""
+    """(bins,) the bins' mean of _cycles_reflected (3 x 2 points each);
+    computed once for the tests that share it."""
     out = []
     for a in EDGES[:-1]:
         xs = a + BIN * (np.arange(3) + 0.5) / 3
