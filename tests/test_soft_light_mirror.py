@@ -172,9 +172,10 @@ def test_reference_is_cycles_own_reading():
     penumbra), within 4 sigma of Cycles' pixel noise and 1.5 % of the
     largest bin.  Further out Cycles' own render falls below the integral
     of its own disc (by 13 % at x = 0.225 m to 57 % at 0.525 m, at 4096 and
-    8192 spp, two seeds), which a brute-force Monte Carlo of the same
-    integral confirms: docs/integrators.md "A soft light's photons arrive
-    from its disc, round 36"."""
+    8192 spp, two seeds; not with the light hidden from diffuse rays),
+    while a brute-force Monte Carlo of the same integral confirms it:
+    docs/integrators.md "A soft light's photons arrive from its disc,
+    round 36"."""
     pytest.importorskip("bpy")
     E = _cycles_ceiling()
     Hh, W = E.shape
