@@ -636,7 +636,12 @@ class CombinedLightTracer(LightTracer):
             # No emitter at all, or photons of zero power (the compiled
             # emission's are dropped by the emission kernel; the traced table
             # draws no NO_LT emitter).
-            live = np.nonzero((light >= 0) & (ph["power"].max(axis=1) > 0))[0]
+            # An area light's spread zeroes the power of some directions;
+            # those photons' points are still its emitter samples
+            # (_emission_vertices).
+            lj = np.where(light >= 0, light, 0)
+            live = np.nonzero((light >= 0) & ((ph["power"].max(axis=1) > 0)
+                                              | np.isfinite(et.spread_tan[lj])))[0]
             if live.size == 0:
                 return
             if live.size < n:

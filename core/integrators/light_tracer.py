@@ -353,7 +353,25 @@ class LightTracer:
         kn, pA, full = mis if mis is not None else (0.0, np.ones(1), np.ones(1, bool))
         if mis is not None:
             pA, full = np.ascontiguousarray(pA[idx]), np.ascontiguousarray(full[idx])
-        LK.splat_emitters(con, nc, tr, n, np.ascontiguousarray(ph["power"][idx]),
+        power = np.ascontiguousarray(ph["power"][idx])
+        lj = light[idx]
+        spread = np.isfinite(t.spread_tan[lj])
+        if np.any(spread):
+            # An area light's spread: a photon's power carries the factor of
+            # its own direction (emission.sample_photons); the emitter seen
+            # from the camera carries the factor towards the camera instead,
+            # on the light's power a sample (flux / p_select of the table
+            # the photons were drawn from).
+            sampled = getattr(self, "emit_table", None) or t
+            power = power.copy()
+            s = np.nonzero(spread)[0]
+            power[s] = t.flux[lj[s]] / sampled.p_select[lj[s], None]
+            k = np.asarray(con.row[:nc])
+            ks = k[spread[k]]
+            cs = np.nonzero(spread[k])[0]
+            cos_o = np.einsum("ij,ij->i", n[ks], con.wc[cs])
+            power[ks] *= Lt.spread_atten(t, lj[ks], cos_o)[:, None]
+        LK.splat_emitters(con, nc, tr, n, power,
                           mis is not None, float(kn), pA, full, self.cam_params,
                           self.filter_width, film)
 
