@@ -126,6 +126,9 @@ class LightTracer:
                  offset, size, filter_width):
         self.scene, self.accel, self.mtab = scene, accel, mtab
         self.light_table, self.camera = light_table, camera
+        # The table the light paths are drawn from (COMBINED: the traced
+        # emitters only, mis.traced_table); its p_select is their density.
+        self.emit_table = light_table
         # Deposits from the first hit on: every non-delta vertex is connected.
         self.tracer = PhotonTracer(scene, accel, mtab, light_table,
                                    settings.replace(photons_for_direct=True), plan, None, None,
@@ -229,9 +232,9 @@ class LightTracer:
 
     def _chunk(self, n: int, rng, film: np.ndarray) -> None:
         if self.fast_emission:
-            ph = PK.sample_photons_fast(self.light_table, n, rng)
+            ph = PK.sample_photons_fast(self.emit_table, n, rng)
         else:
-            ph = Lt.sample_photons(self.light_table, n, rng)
+            ph = Lt.sample_photons(self.emit_table, n, rng)
         if self.emitters_seen:
             self._emission_vertices(ph, rng, film)
         dep = self.tracer.trace_emitted(ph, rng)
@@ -362,10 +365,9 @@ class LightTracer:
             # from the camera carries the factor towards the camera instead,
             # on the light's power a sample (flux / p_select of the table
             # the photons were drawn from).
-            sampled = getattr(self, "emit_table", None) or t
             power = power.copy()
             s = np.nonzero(spread)[0]
-            power[s] = t.flux[lj[s]] / sampled.p_select[lj[s], None]
+            power[s] = t.flux[lj[s]] / self.emit_table.p_select[lj[s], None]
             k = np.asarray(con.row[:nc])
             ks = k[spread[k]]
             cs = np.nonzero(spread[k])[0]
