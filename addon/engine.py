@@ -181,13 +181,18 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
 
     def view_draw(self, context, depsgraph):
         """Draw the session's latest image; a moved view restarts the session."""
+        from . import world_bake
+        if world_bake.collect():
+            # The world's background bake has ended: export again (it is
+            # cached now, or its failure is said).
+            self.view_update(context, depsgraph)
         ctl = self._viewport()
         frame = ctl.draw(self._view_state(context))
         self.update_stats("", ctl.session.status)
         if frame is not None:
             self._draw_frame(frame, depsgraph.scene)
-        if ctl.session.busy:
-            self.tag_redraw()       # keep drawing while passes arrive
+        if ctl.session.busy or world_bake.baking():
+            self.tag_redraw()       # keep drawing while passes arrive or the world bakes
 
     def _draw_frame(self, frame, scene) -> None:
         import gpu

@@ -44,6 +44,8 @@ GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
 GREY = (0.8, 0.8, 0.8)
 DEFAULT_MATERIAL = Material(name="(no material)", lobes=(Lobe(DIFFUSE, GREY),))
 NO_LIGHTS = "The scene has no lights: add a light, an emissive material or a world colour."
+WORLD_BAKING = ("The world is being baked by Cycles; the scene has no other light: the "
+                "render starts when the bake is done.")
 NO_CAMERA = "The scene has no camera: add a camera and set it as the scene camera."
 NOTHING_VISIBLE = ("Nothing is visible to render: the scene has no mesh objects enabled "
                    "for rendering (check 'Disable in Renders' and ray visibility).")
@@ -106,6 +108,9 @@ SUPPORT = (
     ("world Background colour x strength; mist pass settings", SUPPORTED, ""),
     ("world Environment Texture (equirectangular) with Mapping and Texture Coordinate "
      "(Generated, Object): HDRI lighting, importance-sampled", SUPPORTED, ""),
+    ("any other world shader (Sky Texture, procedural textures, Mix Shader, a linked "
+     "Strength, mirror-ball projection): baked by Cycles into a 2048 x 1024 map when the "
+     "render starts, a Sky Texture's sun disc into a sun light", SUPPORTED, ""),
     ("Diffuse, Glossy, Glass, Refraction, Transparent, Translucent, Emission, Mix Shader, "
      "Add Shader, Principled BSDF; RGB, Value and Image Texture inputs", SUPPORTED, ""),
     ("Normal Map (tangent space, MikkTSpace tangents of the render UV map, OpenGL and "
@@ -142,16 +147,16 @@ SUPPORT = (
     ("per-ray visibility of objects", APPROXIMATED, "treated as fully visible"),
     ("pixel filters other than Blackman-Harris", APPROXIMATED,
      "rendered as Blackman-Harris "),
-    ("Sky Texture", APPROXIMATED, "is not supported: the Background colour is used"),
     ("stereo 3D / multi-view", APPROXIMATED, "every view is rendered from the scene camera"),
-    ("world shaders other than Background", APPROXIMATED, "replaced by black"),
+    ("Light Path in a world shader", APPROXIMATED,
+     "Light Path baked as the camera sees the world"),
+    ("a world shader whose bake fails", APPROXIMATED, "could not be baked by Cycles"),
     ("Principled sheen", IGNORED, "ignored: no sheen lobe"),
     ("anisotropy", IGNORED, "anisotropy ignored"),
     ("thin-film iridescence", IGNORED, "thin-film iridescence ignored"),
     ("volumes", IGNORED, "volume ignored"),
     ("displacement", IGNORED, "displacement ignored"),
     ("light nodes", IGNORED, "light nodes ignored"),
-    ("a linked world strength", IGNORED, "linked strength ignored"),
     ("hair curves", IGNORED, "not rendered"),
     ("motion blur", IGNORED, "motion blur ignored"),
     ("light linking", IGNORED, "ignored: every light reaches every surface"),
@@ -719,6 +724,9 @@ class _Exporter:
         self.should_stop = should_stop or _never
         self.scene = depsgraph.scene
         self.log = log
+        self.world_sun = None        # a baked Sky Texture's sun disc (baked_world)
+        self.bake_wait = True        # False: bake the world in the background (viewport)
+        self.world_pending = False   # the world is being baked in the background
         self.materials: list[Material] = []
         self.mat_pass_index: list[int] = []    # material.pass_index per entry of materials
         self.mat_vector: list = []     # texture vector spec per material (_MaterialBuilder.vector)
@@ -1153,8 +1161,9 @@ class _Exporter:
         The Background node's Color: unlinked or an RGB node -> a constant;
         an Environment Texture (equirectangular) -> a map, with the Mapping
         and Texture Coordinate (Generated/Object) nodes on its Vector input
-        as Cycles evaluates them (:meth:`world_vector`).  Anything else falls
-        back to the Background colour with a note."""
+        as Cycles evaluates them (:meth:`world_vector`).  Anything else (a
+        Sky Texture, other textures, a linked Strength, a shader other than
+        one Background) is baked by Cycles (:meth:`baked_world`)."""
         w = self.scene.world
         if w is None:
             return np.zeros(3), None
@@ -1172,34 +1181,68 @@ class _Exporter:
         if node is None:
             return np.zeros(3), None
         if node.type != 'BACKGROUND':
-            self.notes.append(f"world: '{node.name}' replaced by black")
-            return np.zeros(3), None
+            return self.baked_world(w, f"'{node.name}'", np.zeros(3))
         col = node.inputs["Color"]
         st = node.inputs["Strength"]
-        if st.is_linked:
-            self.notes.append("world: linked strength ignored")
         strength = float(st.default_value)
         c = np.array(col.default_value, np.float64)[:3]
+        if st.is_linked:
+            return self.baked_world(w, "a linked Strength", c * strength)
         src, _ = _follow(col)
         if src is None:
             return c * strength, None
         if src.type == 'RGB':
             return np.array(src.outputs[0].default_value, np.float64)[:3] * strength, None
-        if src.type == 'TEX_ENVIRONMENT':
+        if src.type == 'TEX_ENVIRONMENT' and getattr(src, "projection",
+                                                     'EQUIRECTANGULAR') == 'EQUIRECTANGULAR':
             env = self.environment(src, strength)
             if env is not None:
                 # Scene.world_color: the map's mean radiance.
                 return mean_radiance(env), env
-        elif src.type == 'TEX_SKY':
-            # Cycles evaluates the sky model in its kernel; bpy offers no
-            # way to evaluate it by direction short of a second render.
-            self.notes.append(f"world: Sky Texture '{src.name}' is not supported: the "
-                              f"Background colour is used (bake the sky to an "
-                              f"equirectangular image for an Environment Texture)")
             return c * strength, None
-        else:
-            self.notes.append(f"world: '{src.name}' replaced by the Background colour")
-        return c * strength, None
+        return self.baked_world(w, f"'{src.name}'", c * strength)
+
+    def baked_world(self, w, what: str, fallback: np.ndarray):
+        """(mean colour (3,), map) of the world rendered by Cycles
+        (addon/world_bake.py); a Sky Texture's sun disc becomes
+        ``self.world_sun``, a sun light.  When the bake fails: ``fallback``
+        (the Background colour, or black) with a note."""
+        from .world_bake import WIDTH, BakeError, bake_world, node_trees
+        instead = 'black' if not np.any(fallback) else 'the Background colour'
+        try:
+            baked = bake_world(w, self.scene.frame_current, WIDTH, poll=self.poll,
+                               wait=self.bake_wait)
+        except (BakeError, OSError, KeyError, ValueError) as ex:
+            self.notes.append(f"world: {what} could not be baked by Cycles ({ex}): "
+                              f"{instead} is used")
+            return fallback, None
+        if baked is None:
+            self.world_pending = True
+            self.log(f"world '{w.name}': {what} is being baked by Cycles; {instead} until "
+                     f"it is done.")
+            return fallback, None
+        h, wd = baked.image.shape[:2]
+        said = f"world '{w.name}': {what} baked by Cycles into a {wd}x{h} map"
+        if baked.sun is not None:
+            E, angle, d = baked.sun
+            z = np.asarray(d, np.float64)
+            x = np.cross([0.0, 0.0, 1.0] if abs(z[2]) < 0.9 else [1.0, 0.0, 0.0], z)
+            x /= np.linalg.norm(x)
+            M = np.eye(4)
+            M[:3, 0], M[:3, 1], M[:3, 2] = x, np.cross(z, x), z
+            self.world_sun = Light(name=f"{w.name} sun disc", kind='SUN',
+                                   strength=tuple(float(v) for v in E), matrix_world=M,
+                                   angle=float(angle))
+            said += (f" and its sun disc into a sun light ({float(np.mean(E)):.4g} W/m^2, "
+                     f"{math.degrees(angle):.3g} deg, elevation "
+                     f"{math.degrees(math.asin(max(-1.0, min(1.0, z[2])))):.3g} deg)")
+        self.log(f"{said} in {baked.seconds:.1f} s.")
+        if any(nd.type == 'LIGHT_PATH' for t in node_trees(w.node_tree) for nd in t.nodes):
+            self.notes.append("world: Light Path baked as the camera sees the world "
+                              "(lighting uses the same map)")
+        env = EnvironmentMap(image=baked.image, strength=np.ones(3), to_texture=np.eye(3),
+                             name=f"{w.name} (baked)")
+        return mean_radiance(env), env
 
 
     def environment(self, node, strength: float) -> EnvironmentMap | None:
@@ -1208,10 +1251,6 @@ class _Exporter:
         fallback = "the Background colour is used"
         if img is None:
             self.notes.append(f"world: '{node.name}' has no image: {fallback}")
-            return None
-        if getattr(node, "projection", 'EQUIRECTANGULAR') != 'EQUIRECTANGULAR':
-            self.notes.append(f"world: '{node.name}' projection '{node.projection}' is not "
-                              f"supported: {fallback}")
             return None
         notes: list[str] = []
         px = self.pixels(img, notes)
@@ -1380,6 +1419,8 @@ class _Exporter:
             tri_mat = np.zeros(0, np.int32)
             tri_tangent = None
         world, world_map = self.world()
+        if self.world_sun is not None:
+            lights.append(self.world_sun)
         cy = getattr(scene, "cycles", None)
         if cy is not None and getattr(cy, "pixel_filter_type", 'BLACKMAN_HARRIS') != 'BLACKMAN_HARRIS':
             self.notes.append(f"pixel filter '{cy.pixel_filter_type}' rendered as Blackman-Harris "
@@ -1405,7 +1446,7 @@ class _Exporter:
         used = np.unique(fscene.tri_mat)
         emissive = any(max(self.materials[i].emission) > 0 for i in used)
         if not lights and not emissive and not np.any(world > 0):
-            raise SceneError(NO_LIGHTS)
+            raise SceneError(WORLD_BAKING if self.world_pending else NO_LIGHTS)
         dt = time.perf_counter() - t0
         wc = ", ".join(f"{x:.3g}" for x in world)
         if world_map is not None:

@@ -99,6 +99,13 @@ def export_view(depsgraph, camera: Camera, log=lambda _m: None) -> Scene:
     from . import export as X
 
     class _ViewExporter(X._Exporter):
+        # On Blender's main thread: a world to bake is baked in the
+        # background (addon/world_bake.py), the engine's view_draw exports
+        # again when it is done.
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            self.bake_wait = False
+
         def camera(self, cam_ob):
             return camera
 
@@ -396,4 +403,6 @@ class ViewportController:
             self.session.status = f"FPPM: {ex}"
 
     def free(self) -> None:
+        from .world_bake import cancel_background
         self.session.cancel()
+        cancel_background()
