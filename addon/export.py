@@ -103,7 +103,7 @@ SUPPORT = (
     ("perspective and orthographic cameras, depth of field, border, resolution %",
      SUPPORTED, ""),
     ("point, spot, sun and area lights (every shape, spread), colour, temperature, "
-     "power, exposure, radius, soft falloff, cast shadow", SUPPORTED, ""),
+     "power, exposure, radius, soft falloff, Normalize, cast shadow", SUPPORTED, ""),
     ("light ray visibility: camera, glossy, transmission", SUPPORTED, ""),
     ("world Background colour x strength; mist pass settings", SUPPORTED, ""),
     ("world Environment Texture (equirectangular) with Mapping and Texture Coordinate "
@@ -143,7 +143,6 @@ SUPPORT = (
     ("more closures than a material holds", APPROXIMATED,
      "closures cut to the {MAX_LOBES} heaviest"),
     ("Principled subsurface", APPROXIMATED, "rendered as diffuse"),
-    ("'Normalize' off on point and spot lights", APPROXIMATED, "'Normalize' off treated as on"),
     ("per-ray visibility of objects", APPROXIMATED, "treated as fully visible"),
     ("pixel filters other than Blackman-Harris", APPROXIMATED,
      "rendered as Blackman-Harris "),
@@ -1131,13 +1130,22 @@ class _Exporter:
         if kind in ('POINT', 'SPOT'):
             kw["radius"] = float(ld.shadow_soft_size)
             kw["use_soft_falloff"] = bool(getattr(ld, "use_soft_falloff", True))
-            if not getattr(ld, "normalize", True) and ld.shadow_soft_size > 0:
-                self.notes.append(f"light '{ob.name}': 'Normalize' off treated as on")
+            if not getattr(ld, "normalize", True):
+                # Cycles' unnormalised point light: radiance strength / pi on
+                # its disc instead of strength / (pi 4 pi r^2), i.e. the power
+                # times 4 pi r^2; with radius 0 an intensity strength / pi
+                # instead of strength / (4 pi) (measured: docs/cycles_units.md).
+                r = float(ld.shadow_soft_size)
+                strength = strength * (4.0 * math.pi * r * r if r > 0 else 4.0)
             if kind == 'SPOT':
                 kw["spot_size"] = float(ld.spot_size)
                 kw["spot_blend"] = float(ld.spot_blend)
         elif kind == 'SUN':
             kw["angle"] = float(ld.angle)
+            if not getattr(ld, "normalize", True) and ld.angle > 0:
+                # Unnormalised: radiance = strength, not strength divided by
+                # the disc's projected solid angle pi sin^2(angle / 2).
+                strength = strength * (math.pi * math.sin(0.5 * float(ld.angle)) ** 2)
         elif kind == 'AREA':
             kw.update(shape=ld.shape, size=float(ld.size), size_y=float(ld.size_y),
                       spread=float(getattr(ld, "spread", math.pi)))
