@@ -30,17 +30,24 @@ import warnings
 
 import numpy as np
 
+from ..core.scene import color_ops as CO
 from ..core.scene import nodes as shading
 from ..core.errors import MemoryBudgetError, RenderCancelled, SceneError
 from ..core.lights.environment import mean_radiance
 from ..core.scene.normals import BUMP, NORMAL_MAP, NormalInput
-from ..core.scene.textures import EnvironmentMap, UnassociatedImage, scalar_weights
+from ..core.scene.textures import EnvironmentMap, UnassociatedImage, scalar_weights, upsample
 from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
                           TRANSPARENT, Camera, Light, Lobe, Material, Scene,
                           drop_invalid_triangles)
 from .export_read import CHUNK, _never, image_pixels, mesh_arrays
 
 GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
+# An image under a nonlinear colour node is enlarged UPSAMPLE_FACTOR times
+# (textures.upsample), while its larger side stays within UPSAMPLE_MAX.
+UPSAMPLE_FACTOR, UPSAMPLE_MAX = 8, 2048
+# Colour nodes folded into an image's texels or a constant (_MaterialBuilder.color_chain).
+_COLOR_NODES = {'RGB', 'MIX', 'MIX_RGB', 'HUE_SAT', 'BRIGHTCONTRAST', 'GAMMA', 'INVERT',
+                'VALTORGB'}
 GREY = (0.8, 0.8, 0.8)
 DEFAULT_MATERIAL = Material(name="(no material)", lobes=(Lobe(DIFFUSE, GREY),))
 NO_LIGHTS = "The scene has no lights: add a light, an emissive material or a world colour."
@@ -121,6 +128,10 @@ SUPPORT = (
      "pass-through of camera and photon paths; shadow rays pass cut-outs and Transparent "
      "BSDFs with Cycles' weights in every integrator, docs/shading.md); "
      "the colour associated with alpha as Cycles reads it", SUPPORTED, ""),
+    ("colour nodes between an Image Texture (or constants) and a colour input: Mix "
+     "(Color) and MixRGB with one side constant (13 blend types), Hue/Saturation/Value, "
+     "Brightness/Contrast, Gamma, Invert, Color Ramp (applied to the image's texels; a "
+     "small image is enlarged first for the nonlinear ones)", SUPPORTED, ""),
     ("node groups (flattened, nested)", SUPPORTED, ""),
     ("film transparency, pixel filter width, object and material pass index (every "
      "integrator but Light Tracing, whose film is opaque)", SUPPORTED, ""),
@@ -354,45 +365,150 @@ class _MaterialBuilder:
 
     # -- inputs --------------------------------------------------------------
     def color(self, node, name):
-        """(rgb tuple, texture index) of a colour input."""
+        """(rgb tuple, texture index) of a colour input: a constant, an
+        Image Texture, or either through colour nodes (:meth:`color_chain`)."""
         sock = node.inputs.get(name)
         if sock is None:
             return GREY, -1
-        src, out, sock = self.follow(sock)
-        if src is None:
-            v = tuple(sock.default_value)
+        src, out, vsock = self.follow(sock)
+        chain = self.color_chain(sock)
+        if chain is not None and chain[0] == 'const':
+            v = chain[1]
             return (float(v[0]), float(v[1]), float(v[2])), -1
-        if src.type == 'TEX_IMAGE' and out.name == 'Color':
-            t = self.image(src)
+        if chain is not None:
+            t = self.image(chain[1], chain[2])
             if t >= 0:
                 return (1.0, 1.0, 1.0), t
-        elif src.type == 'RGB':
-            v = tuple(src.outputs[0].default_value)
-            return (float(v[0]), float(v[1]), float(v[2])), -1
         self.notes.append(f"'{src.name}' into {node.name}.{name} ignored")
-        v = tuple(sock.default_value)
+        v = tuple(vsock.default_value)
         return (float(v[0]), float(v[1]), float(v[2])), -1
+
+    @staticmethod
+    def _constant(src, vsock):
+        """The float a socket receives from nothing (its value socket's
+        default) or a Value node; None from anything else."""
+        if src is None:
+            return float(vsock.default_value)
+        if src.type == 'VALUE':
+            return float(src.outputs[0].default_value)
+        return None
+
+    def _float_in(self, node, ident):
+        """A float input's constant value (None when a node computes it)."""
+        sock = next((i for i in node.inputs if i.identifier == ident), None)
+        return None if sock is None else self._constant(*self.follow(sock)[::2])
+
+    def color_chain(self, sock, depth: int = 0):
+        """What a colour socket receives, when FPPM can say it per texel:
+        ('const', rgb (3,) float64), ('tex', Image Texture node, ops) - the
+        image's Color through ``core.scene.color_ops`` ops - or None.
+
+        Colour nodes with constant float inputs fold: Mix (Color) and
+        MixRGB with one side constant, Hue/Saturation/Value,
+        Brightness/Contrast, Gamma, Invert, and a Color Ramp read from a
+        colour (as Cycles reads a colour into a float: its luminance)."""
+        if depth > 64:
+            return None
+        src, out, vsock = self.follow(sock)
+        if src is None:
+            v = getattr(vsock, "default_value", None)
+            try:
+                return 'const', np.array(tuple(v)[:3], np.float64)
+            except TypeError:
+                return ('const', np.full(3, float(v))) if v is not None else None
+        if src.type == 'RGB':
+            return 'const', np.array(tuple(src.outputs[0].default_value)[:3], np.float64)
+        if src.type == 'VALUE':
+            return 'const', np.full(3, float(src.outputs[0].default_value))
+        if src.type == 'TEX_IMAGE':
+            return ('tex', src, ()) if out.name == 'Color' and src.image is not None else None
+        f = self._float_in
+
+        def inp(ident):
+            s2 = next((i for i in src.inputs if i.identifier == ident), None)
+            return None if s2 is None else self.color_chain(s2, depth + 1)
+
+        def then(ch, op):
+            if ch is None:
+                return None
+            if ch[0] == 'const':
+                return 'const', CO.apply((op,), ch[1][None])[0]
+            return 'tex', ch[1], ch[2] + (op,)
+        if src.type in ('MIX', 'MIX_RGB'):
+            if src.type == 'MIX':
+                if getattr(src, "data_type", 'FLOAT') != 'RGBA' or out.identifier != 'Result_Color':
+                    return None
+                t, ia, ib = f(src, "Factor_Float"), "A_Color", "B_Color"
+                if t is not None and src.clamp_factor:
+                    t = min(max(t, 0.0), 1.0)
+                clamp = bool(src.clamp_result)
+            else:
+                t, ia, ib = f(src, "Fac"), "Color1", "Color2"
+                t = None if t is None else min(max(t, 0.0), 1.0)
+                clamp = bool(src.use_clamp)
+            blend = src.blend_type
+            if t is None or blend not in CO.MIX_BLENDS:
+                return None
+            a, b = inp(ia), inp(ib)
+            if a is None or b is None:
+                return None
+            if a[0] == 'const' and b[0] == 'const':
+                return 'const', CO.apply((("mix", blend, t, tuple(b[1]), "A", clamp),), a[1][None])[0]
+            if a[0] == 'tex' and b[0] == 'const':
+                return then(a, ("mix", blend, t, tuple(b[1]), "A", clamp))
+            if b[0] == 'tex' and a[0] == 'const':
+                return then(b, ("mix", blend, t, tuple(a[1]), "B", clamp))
+            return None                       # two images
+        if src.type == 'HUE_SAT':
+            p = [f(src, k) for k in ("Hue", "Saturation", "Value", "Fac")]
+            return None if None in p else then(inp("Color"), ("hsv", *p))
+        if src.type == 'BRIGHTCONTRAST':
+            p = [f(src, k) for k in ("Bright", "Contrast")]
+            return None if None in p else then(inp("Color"), ("bright", *p))
+        if src.type == 'GAMMA':
+            g = f(src, "Gamma")
+            return None if g is None else then(inp("Color"), ("gamma", g))
+        if src.type == 'INVERT':
+            k = f(src, "Fac")
+            return None if k is None else then(inp("Color"), ("invert", k))
+        if src.type == 'VALTORGB' and out.name == 'Color':
+            cr = src.color_ramp
+            n = CO.RAMP_TABLE_SIZE
+            table = tuple(tuple(float(x) for x in cr.evaluate(i / (n - 1))[:3]) for i in range(n))
+            fin = src.inputs["Fac"]
+            fsrc, _, fval = self.follow(fin)
+            op = ("ramp", table, cr.interpolation != 'CONSTANT')
+            if fsrc is None:
+                return 'const', CO.ramp(np.array(float(fval.default_value)), np.asarray(table),
+                                        op[2])
+            return then(self.color_chain(fin, depth + 1), op)
+        return None
 
     def value(self, node, name, default=0.0) -> float:
         sock = node.inputs.get(name)
         if sock is None:
             return default
-        src, out, sock = self.follow(sock)
-        if src is None:
-            return float(sock.default_value)
-        if src.type == 'VALUE':
-            return float(src.outputs[0].default_value)
+        src, out, vsock = self.follow(sock)
+        k = self._constant(src, vsock)
+        if k is not None:
+            return k
+        chain = self.color_chain(sock) if src.type in _COLOR_NODES else None
+        if chain is not None and chain[0] == 'const':
+            return float(CO.gray(chain[1]))       # a colour into a float: its luminance
+        if chain is not None:
+            src, out = chain[1], chain[1].outputs['Color']
         if src.type == 'TEX_IMAGE' and out is not None and out.name in ('Color', 'Alpha'):
             # A roughness or metallic map: no per-hit scalar inputs (only
             # colours are textured per hit), so its mean over the image
-            # rather than the socket's unrelated default.
-            m = self.ex.image_mean(src, out.name, self.notes)
+            # (through the colour nodes between) rather than the socket's
+            # unrelated default.
+            m = self.ex.image_mean(src, out.name, self.notes, chain[2] if chain else ())
             if m is not None:
                 self.notes.append(f"'{src.name}' into {node.name}.{name}: "
                                   f"the image's mean ({m:.3g}) used")
                 return m
         self.notes.append(f"'{src.name}' into {node.name}.{name} ignored")
-        return float(sock.default_value)
+        return float(vsock.default_value)
 
     def alpha_texture(self, node, name) -> int:
         """Texture index when an Image Texture's Alpha output feeds the input, else -1."""
@@ -404,9 +520,10 @@ class _MaterialBuilder:
             return self.image(src)
         return -1
 
-    def image(self, tex_node) -> int:
-        """An Image Texture node's texture index; its Vector input is recorded."""
-        t = self.ex.texture(tex_node, self)
+    def image(self, tex_node, ops=()) -> int:
+        """An Image Texture node's texture index (its Color through ``ops``,
+        :meth:`color_chain`); its Vector input is recorded."""
+        t = self.ex.texture(tex_node, self, ops)
         if t >= 0:
             self.vectors.append(self.vector(tex_node))
         return t
@@ -790,7 +907,11 @@ class _Exporter:
             f"resolution file, or scale it down in the Image Editor: Image > Resize), or "
             f"close other programs.")
 
-    def texture(self, node, mb: _MaterialBuilder) -> int:
+    def texture(self, node, mb: _MaterialBuilder, ops=()) -> int:
+        """The index in ``textures`` of an Image Texture node's image, its
+        colour through ``ops`` (``core.scene.color_ops``: one more entry per
+        image and ops, the ops applied to the colour Cycles' Color output
+        gives at each texel); -1 (and a note) without pixels."""
         img = node.image
         if img is None:
             mb.notes.append(f"{node.name}: no image")
@@ -813,6 +934,27 @@ class _Exporter:
         if (getattr(img, "alpha_mode", 'STRAIGHT') != 'STRAIGHT' or px.shape[2] < 4
                 or not np.any(px[..., 3] < 1.0)):
             mode = 'STRAIGHT'     # read as stored
+        if ops:
+            ik = (key, mode, ops)
+            if ik not in self.tex_index:
+                # Cycles' Color output at a texel: the colour associated with
+                # alpha unless the Alpha output is linked (then straight).
+                if mode == 'ASSOCIATED':
+                    px = np.concatenate([px[..., :3] * px[..., 3:4], px[..., 3:]], -1)
+                k = 1 if CO.is_affine(ops) else min(
+                    UPSAMPLE_MAX // max(px.shape[:2]), UPSAMPLE_FACTOR)
+                if k > 1:
+                    # A nonlinear node: Cycles applies it after the bilinear
+                    # lookup, so a small image is first enlarged k times.
+                    px = upsample(px, k)
+                out = np.empty(px.shape[:2] + (max(px.shape[2], 3),), np.float32)
+                out[..., :3] = CO.apply(ops, px[..., :3].astype(np.float64))
+                if px.shape[2] > 3:
+                    out[..., 3:] = px[..., 3:]
+                self.poll()
+                self.tex_index[ik] = len(self.textures)
+                self.textures.append(out)
+            return self.tex_index[ik]
         if (key, mode) not in self.tex_index:
             if mode != 'STRAIGHT':
                 px = px.copy()
@@ -823,10 +965,11 @@ class _Exporter:
             self.textures.append(px)
         return self.tex_index[(key, mode)]
 
-    def image_mean(self, node, output, notes) -> float | None:
+    def image_mean(self, node, output, notes, ops=()) -> float | None:
         """The mean over an Image Texture node's image of the float Cycles
         reads from its output 'Color' (Rec.709 luminance of the linear
-        colour, ``textures.scalar_weights``) or 'Alpha' (1 without an alpha
+        colour, ``textures.scalar_weights``; through the colour nodes
+        ``ops``, ``core.scene.color_ops``) or 'Alpha' (1 without an alpha
         channel); None (and a note) when the image has no pixels."""
         img = node.image
         if img is None:
@@ -840,6 +983,8 @@ class _Exporter:
             return None
         if output == 'Alpha' and px.shape[2] < 4:
             return 1.0
+        if ops and output == 'Color':
+            return float(np.mean(CO.gray(CO.apply(ops, px[..., :3].astype(np.float64)))))
         w = scalar_weights(px, 'ALPHA' if output == 'Alpha' else 'COLOR')
         return float(np.mean(px.reshape(-1, px.shape[2]).astype(np.float64) @ w))
 

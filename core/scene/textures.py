@@ -81,6 +81,21 @@ def sample_texture(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return out
 
 
+def upsample(img: np.ndarray, k: int) -> np.ndarray:
+    """(k H, k W, C) float32: the bilinear, repeat-wrapped interpolant of img
+    (H, W, C) read at the centres of k x k sub-texels - an image whose own
+    bilinear lookup follows the original's within a sub-texel, so that a
+    nonlinear colour node applied to its texels approaches the node applied
+    after the lookup (core.scene.color_ops)."""
+    img = _as_image(img)
+    H, W, C = img.shape
+    v, u = np.mgrid[0:k * H, 0:k * W]
+    uv = np.stack([(u.ravel() + 0.5) / (k * W), (v.ravel() + 0.5) / (k * H)], -1)
+    a, b, c, d, tx, ty, _, _, _ = _bilinear_corners(img, uv, list(range(C)))
+    out = (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d)
+    return out.reshape(k * H, k * W, C).astype(np.float32)
+
+
 def sample_alpha(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """(K,) float64 alpha of an Image Texture at uv (K, 2), bilinear like
     :func:`sample_texture`; 1 for images without an alpha channel (Cycles)."""

@@ -1,0 +1,193 @@
+"""Cycles' colour nodes as functions of an image's texels (numpy).
+
+A material whose colour input is an Image Texture passed through colour
+nodes - Mix (Color), MixRGB, Hue/Saturation/Value, Brightness/Contrast,
+Gamma, Invert, Color Ramp - is exported as one image: the nodes applied to
+its texels once (``addon/export.py`` ``_MaterialBuilder.color_chain``), so
+that every integrator reads it like any texture.  Each function here is
+the Cycles kernel's (``intern/cycles/kernel/svm``: ``mix.h``, ``hsv.h``,
+``brightness.h``, ``gamma.h``, ``invert.h``, ``ramp.h``; ``util/color.h``
+for the HSV conversions), on (..., 3) float arrays.  Cycles applies them
+after the texture lookup; here they come before its bilinear
+interpolation, which is the same for the affine ones (:func:`is_affine`)
+and differs within a texel for the others, so for those the exporter first
+enlarges a small image by bilinear interpolation (``textures.upsample``)
+(docs/shading.md "Colour nodes on an image").
+
+An op is a hashable tuple (name, parameters...); :func:`apply` runs a
+sequence of them.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..mathutil import LUMINANCE
+
+#: Cycles' ramp table size (``RAMP_TABLE_SIZE``): Blender evaluates the
+#: Color Ramp at this many evenly spaced positions and Cycles interpolates.
+RAMP_TABLE_SIZE = 256
+
+#: Mix blend types evaluated here (Blender's ``blend_type`` identifiers).
+MIX_BLENDS = ("MIX", "ADD", "MULTIPLY", "SCREEN", "OVERLAY", "SUBTRACT", "DIVIDE",
+              "DIFFERENCE", "EXCLUSION", "DARKEN", "LIGHTEN", "SOFT_LIGHT", "LINEAR_LIGHT")
+
+
+def _lerp(a, b, t):
+    return (1.0 - t) * a + t * b
+
+
+def mix(blend: str, t: float, c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
+    """svm_mix of colours c1 (A), c2 (B) with factor t (already clamped
+    when the node clamps it)."""
+    tm = 1.0 - t
+    if blend == "MIX":
+        return _lerp(c1, c2, t)
+    if blend == "ADD":
+        return _lerp(c1, c1 + c2, t)
+    if blend == "MULTIPLY":
+        return _lerp(c1, c1 * c2, t)
+    if blend == "SCREEN":
+        return 1.0 - (tm + t * (1.0 - c2)) * (1.0 - c1)
+    if blend == "OVERLAY":
+        return np.where(c1 < 0.5, c1 * (tm + 2.0 * t * c2),
+                        1.0 - (tm + 2.0 * t * (1.0 - c2)) * (1.0 - c1))
+    if blend == "SUBTRACT":
+        return _lerp(c1, c1 - c2, t)
+    if blend == "DIVIDE":
+        c1, c2 = np.broadcast_arrays(c1, c2)
+        safe = np.where(c2 != 0.0, c2, 1.0)
+        return np.where(c2 != 0.0, tm * c1 + t * c1 / safe, c1)
+    if blend == "DIFFERENCE":
+        return _lerp(c1, np.abs(c1 - c2), t)
+    if blend == "EXCLUSION":
+        return np.maximum(_lerp(c1, c1 + c2 - 2.0 * c1 * c2, t), 0.0)
+    if blend == "DARKEN":
+        return _lerp(c1, np.minimum(c1, c2), t)
+    if blend == "LIGHTEN":
+        return _lerp(c1, np.maximum(c1, c2), t)
+    if blend == "SOFT_LIGHT":
+        scr = 1.0 - (1.0 - c2) * (1.0 - c1)
+        return tm * c1 + t * ((1.0 - c1) * c2 * c1 + c1 * scr)
+    if blend == "LINEAR_LIGHT":
+        return c1 + t * (2.0 * c2 - 1.0)
+    raise ValueError(f"blend type {blend!r} is not evaluated")
+
+
+def rgb_to_hsv(c: np.ndarray) -> np.ndarray:
+    """util/color.h rgb_to_hsv: h in [0, 1)."""
+    r, g, b = c[..., 0], c[..., 1], c[..., 2]
+    cmax = np.maximum(np.maximum(r, g), b)
+    cmin = np.minimum(np.minimum(r, g), b)
+    cdelta = cmax - cmin
+    v = cmax
+    s = np.where(cmax != 0.0, cdelta / np.where(cmax != 0.0, cmax, 1.0), 0.0)
+    d = np.where(cdelta != 0.0, cdelta, 1.0)
+    cr, cg, cb = (cmax - r) / d, (cmax - g) / d, (cmax - b) / d
+    h = np.where(r == cmax, cb - cg, np.where(g == cmax, 2.0 + cr - cb, 4.0 + cg - cr)) / 6.0
+    h = np.where(h < 0.0, h + 1.0, h)
+    h = np.where(s != 0.0, h, 0.0)
+    return np.stack([h, s, v], -1)
+
+
+def hsv_to_rgb(hsv: np.ndarray) -> np.ndarray:
+    """util/color.h hsv_to_rgb."""
+    h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
+    h = np.where(h == 1.0, 0.0, h) * 6.0
+    i = np.floor(h)
+    f = h - i
+    p = v * (1.0 - s)
+    q = v * (1.0 - s * f)
+    t = v * (1.0 - s * (1.0 - f))
+    sel = [i == k for k in range(5)]
+    r = np.select(sel, [v, q, p, p, t], v)
+    g = np.select(sel, [t, v, v, q, p], p)
+    b = np.select(sel, [p, p, t, v, v], q)
+    grey = s == 0.0
+    return np.stack([np.where(grey, v, r), np.where(grey, v, g), np.where(grey, v, b)], -1)
+
+
+def hue_sat_val(c: np.ndarray, hue: float, sat: float, val: float, fac: float) -> np.ndarray:
+    """svm_node_hsv: hue shifted (0.5 = none), saturation scaled and
+    clamped, value scaled, mixed with the input by fac, negatives cut."""
+    hsv = rgb_to_hsv(c)
+    h = np.fmod(hsv[..., 0] + hue + 0.5, 1.0)
+    s = np.clip(hsv[..., 1] * sat, 0.0, 1.0)
+    out = hsv_to_rgb(np.stack([h, s, hsv[..., 2] * val], -1))
+    return np.maximum(fac * out + (1.0 - fac) * c, 0.0)
+
+
+def bright_contrast(c: np.ndarray, bright: float, contrast: float) -> np.ndarray:
+    """svm_node_brightness: max((1 + contrast) c + bright - contrast / 2, 0)."""
+    return np.maximum((1.0 + contrast) * c + (bright - 0.5 * contrast), 0.0)
+
+
+def gamma(c: np.ndarray, g: float) -> np.ndarray:
+    """svm_node_gamma: c^g where c > 0, else c."""
+    pos = c > 0.0
+    return np.where(pos, np.power(np.where(pos, c, 1.0), g), c)
+
+
+def invert(c: np.ndarray, fac: float) -> np.ndarray:
+    """svm_node_invert: lerp(c, 1 - c, fac)."""
+    return _lerp(c, 1.0 - c, fac)
+
+
+def gray(c: np.ndarray) -> np.ndarray:
+    """A colour read by a float input (Cycles' linear_rgb_to_gray, Rec. 709)."""
+    return c @ np.asarray(LUMINANCE, np.float64)
+
+
+def ramp(f: np.ndarray, table: np.ndarray, interpolate: bool) -> np.ndarray:
+    """rgb_ramp_lookup without extrapolation: f (...,) -> (..., 3) from
+    table (RAMP_TABLE_SIZE, 3), linear between entries unless constant."""
+    n = table.shape[0]
+    x = np.clip(np.nan_to_num(f, nan=0.0), 0.0, 1.0) * (n - 1)
+    i = np.clip(x.astype(np.int64), 0, n - 1)
+    t = x - i
+    out = table[i]
+    if interpolate:
+        nxt = table[np.minimum(i + 1, n - 1)]
+        out = np.where((t > 0.0)[..., None], (1.0 - t)[..., None] * out + t[..., None] * nxt, out)
+    return out
+
+
+#: Mix blends that are affine in the image's colour for a constant other side.
+_AFFINE_BLENDS = ("MIX", "ADD", "MULTIPLY", "SCREEN", "SUBTRACT", "LINEAR_LIGHT")
+
+
+def is_affine(ops) -> bool:
+    """Whether ops commute with bilinear interpolation (up to their clamps
+    at 0): then applying them to the texels is what Cycles computes."""
+    for op in ops:
+        if op[0] == "mix":
+            _, blend, _, _, side, clamp = op
+            if clamp or not (blend in _AFFINE_BLENDS or (blend == "DIVIDE" and side == "A")):
+                return False
+        elif op[0] not in ("bright", "invert"):
+            return False
+    return True
+
+
+def apply(ops, c: np.ndarray) -> np.ndarray:
+    """Run ops (a sequence of op tuples) on colours c (..., 3) float64."""
+    for op in ops:
+        name = op[0]
+        if name == "mix":                     # ("mix", blend, t, const rgb, image side 'A'/'B', clamp)
+            _, blend, t, k, side, clamp = op
+            k = np.asarray(k, np.float64)
+            c = mix(blend, t, c, k) if side == "A" else mix(blend, t, k, c)
+            if clamp:
+                c = np.clip(c, 0.0, 1.0)
+        elif name == "hsv":
+            c = hue_sat_val(c, *op[1:])
+        elif name == "bright":
+            c = bright_contrast(c, *op[1:])
+        elif name == "gamma":
+            c = gamma(c, op[1])
+        elif name == "invert":
+            c = invert(c, op[1])
+        elif name == "ramp":                  # ("ramp", table as a tuple of rgb, interpolate)
+            c = ramp(gray(c), np.asarray(op[1], np.float64), op[2])
+        else:
+            raise ValueError(f"unknown colour op {name!r}")
+    return c
