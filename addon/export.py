@@ -47,7 +47,7 @@ GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
 UPSAMPLE_FACTOR, UPSAMPLE_MAX = 8, 2048
 # Colour nodes folded into an image's texels or a constant (_MaterialBuilder.color_chain).
 _COLOR_NODES = {'RGB', 'MIX', 'MIX_RGB', 'HUE_SAT', 'BRIGHTCONTRAST', 'GAMMA', 'INVERT',
-                'VALTORGB'}
+                'CURVE_RGB', 'VALTORGB'}
 GREY = (0.8, 0.8, 0.8)
 DEFAULT_MATERIAL = Material(name="(no material)", lobes=(Lobe(DIFFUSE, GREY),))
 NO_LIGHTS = "The scene has no lights: add a light, an emissive material or a world colour."
@@ -130,7 +130,7 @@ SUPPORT = (
      "the colour associated with alpha as Cycles reads it", SUPPORTED, ""),
     ("colour nodes between an Image Texture (or constants) and a colour input: Mix "
      "(Color) and MixRGB with one side constant (13 blend types), Hue/Saturation/Value, "
-     "Brightness/Contrast, Gamma, Invert, Color Ramp (applied to the image's texels; a "
+     "Brightness/Contrast, Gamma, Invert, RGB Curves, Color Ramp (applied to the image's texels; a "
      "small image is enlarged first for the nonlinear ones)", SUPPORTED, ""),
     ("node groups (flattened, nested)", SUPPORTED, ""),
     ("film transparency, pixel filter width, object and material pass index (every "
@@ -405,8 +405,9 @@ class _MaterialBuilder:
 
         Colour nodes with constant float inputs fold: Mix (Color) and
         MixRGB with one side constant, Hue/Saturation/Value,
-        Brightness/Contrast, Gamma, Invert, and a Color Ramp read from a
-        colour (as Cycles reads a colour into a float: its luminance)."""
+        Brightness/Contrast, Gamma, Invert, RGB Curves, and a Color Ramp
+        read from a colour (as Cycles reads a colour into a float: its
+        luminance)."""
         if depth > 64:
             return None
         src, out, vsock = self.follow(sock)
@@ -471,6 +472,23 @@ class _MaterialBuilder:
         if src.type == 'INVERT':
             k = f(src, "Fac")
             return None if k is None else then(inp("Color"), ("invert", k))
+        if src.type == 'CURVE_RGB':
+            k = f(src, "Fac")
+            if k is None:
+                return None
+            cm = src.mapping
+            cm.update()
+            # Cycles' table (curvemapping_color_to_array): over the curves'
+            # span of x, each channel's curve after the combined one.
+            lo = min(cv.points[0].location[0] for cv in cm.curves)
+            hi = max(cv.points[-1].location[0] for cv in cm.curves)
+            n = CO.RAMP_TABLE_SIZE
+            table = []
+            for i in range(n):
+                x = cm.evaluate(cm.curves[3], lo + i / (n - 1) * (hi - lo))
+                table.append(tuple(float(cm.evaluate(cm.curves[j], x)) for j in range(3)))
+            return then(inp("Color"), ("curves", tuple(table), lo, (hi - lo) or 1.0,
+                                       cm.extend == 'EXTRAPOLATED', k))
         if src.type == 'VALTORGB' and out.name == 'Color':
             cr = src.color_ramp
             n = CO.RAMP_TABLE_SIZE

@@ -2,11 +2,11 @@
 
 A material whose colour input is an Image Texture passed through colour
 nodes - Mix (Color), MixRGB, Hue/Saturation/Value, Brightness/Contrast,
-Gamma, Invert, Color Ramp - is exported as one image: the nodes applied to
+Gamma, Invert, RGB Curves, Color Ramp - is exported as one image: the nodes applied to
 its texels once (``addon/export.py`` ``_MaterialBuilder.color_chain``), so
 that every integrator reads it like any texture.  Each function here is
 the Cycles kernel's (``intern/cycles/kernel/svm``: ``mix.h``, ``hsv.h``,
-``brightness.h``, ``gamma.h``, ``invert.h``, ``ramp.h``; ``util/color.h``
+``brightness.h``, ``gamma.h``, ``invert.h``, ``ramp.h``, ``curves.h``; ``util/color.h``
 for the HSV conversions), on (..., 3) float arrays.  Cycles applies them
 after the texture lookup; here they come before its bilinear
 interpolation, which is the same for the affine ones (:func:`is_affine`)
@@ -168,6 +168,27 @@ def is_affine(ops) -> bool:
     return True
 
 
+def curves(c: np.ndarray, table: np.ndarray, min_x: float, range_x: float,
+           extrapolate: bool, fac: float) -> np.ndarray:
+    """svm_node_curves: each channel through its column of table
+    (RAMP_TABLE_SIZE, 3) over [min_x, min_x + range_x], continued by the
+    end slopes when the curves extrapolate (rgb_ramp_lookup), mixed with c
+    by fac."""
+    n = table.shape[0]
+    rel = (c - min_x) / range_x
+    out = np.empty_like(c, dtype=np.float64)
+    for k in range(3):
+        col = np.repeat(table[:, k:k + 1], 3, axis=1)
+        out[..., k] = ramp(rel[..., k], col, True)[..., 0]
+        if extrapolate:
+            lo, hi = rel[..., k] < 0.0, rel[..., k] > 1.0
+            d0, d1 = table[0, k] - table[1, k], table[-1, k] - table[-2, k]
+            out[..., k] = np.where(lo, table[0, k] + d0 * (-rel[..., k]) * (n - 1), out[..., k])
+            out[..., k] = np.where(hi, table[-1, k] + d1 * (rel[..., k] - 1.0) * (n - 1),
+                                   out[..., k])
+    return (1.0 - fac) * c + fac * out
+
+
 def apply(ops, c: np.ndarray) -> np.ndarray:
     """Run ops (a sequence of op tuples) on colours c (..., 3) float64."""
     for op in ops:
@@ -188,6 +209,8 @@ def apply(ops, c: np.ndarray) -> np.ndarray:
             c = invert(c, op[1])
         elif name == "ramp":                  # ("ramp", table as a tuple of rgb, interpolate)
             c = ramp(gray(c), np.asarray(op[1], np.float64), op[2])
+        elif name == "curves":                # ("curves", table, min_x, range_x, extrapolate, fac)
+            c = curves(c, np.asarray(op[1], np.float64), *op[2:])
         else:
             raise ValueError(f"unknown colour op {name!r}")
     return c
