@@ -133,7 +133,8 @@ SUPPORT = (
      "Brightness/Contrast, Gamma, Invert, RGB Curves, Color Ramp (applied to the image's texels; a "
      "small image is enlarged first for the nonlinear ones)", SUPPORTED, ""),
     ("node groups (flattened, nested)", SUPPORTED, ""),
-    ("film transparency, pixel filter width, object and material pass index (every "
+    ("film transparency, pixel filter (Blackman-Harris, Box, Gaussian) and its width, "
+     "object and material pass index (every "
      "integrator but Light Tracing, whose film is opaque)", SUPPORTED, ""),
     ("other shader nodes", APPROXIMATED, "unsupported node(s) "),
     ("other nodes linked into an input (the input's value is used)", APPROXIMATED,
@@ -155,8 +156,6 @@ SUPPORT = (
      "closures cut to the {MAX_LOBES} heaviest"),
     ("Principled subsurface", APPROXIMATED, "rendered as diffuse"),
     ("per-ray visibility of objects", APPROXIMATED, "treated as fully visible"),
-    ("pixel filters other than Blackman-Harris", APPROXIMATED,
-     "rendered as Blackman-Harris "),
     ("stereo 3D / multi-view", APPROXIMATED, "every view is rendered from the scene camera"),
     ("Light Path in a world shader", APPROXIMATED,
      "Light Path baked as the camera sees the world"),
@@ -791,6 +790,20 @@ def _has_hair(ob) -> bool:
     return ob.type == 'CURVES' or any(
         ps.settings.type == 'HAIR' and ps.settings.render_type == 'PATH'
         for ps in getattr(ob, "particle_systems", ()))
+
+
+def _filter_type(cy) -> str:
+    """Cycles' Film > Pixel Filter type ('BLACKMAN_HARRIS', 'BOX', 'GAUSSIAN')."""
+    return str(getattr(cy, "pixel_filter_type", 'BLACKMAN_HARRIS')) if cy else 'BLACKMAN_HARRIS'
+
+
+def _filter_width(cy) -> float:
+    """The filter width Cycles renders with: the Box filter is one pixel
+    wide whatever the width (measured: Box at 1 and 2 px give the same
+    image, tests/test_pixel_filters.py), the others take the setting."""
+    if _filter_type(cy) == 'BOX':
+        return 1.0
+    return float(getattr(cy, "filter_width", 1.5)) if cy else 1.5
 
 
 def _partly_visible(ob) -> bool:
@@ -1593,13 +1606,10 @@ class _Exporter:
         if self.world_sun is not None:
             lights.append(self.world_sun)
         cy = getattr(scene, "cycles", None)
-        if cy is not None and getattr(cy, "pixel_filter_type", 'BLACKMAN_HARRIS') != 'BLACKMAN_HARRIS':
-            self.notes.append(f"pixel filter '{cy.pixel_filter_type}' rendered as Blackman-Harris "
-                              f"of the same width")
         fscene = Scene(tri_p=tri_p, tri_n=tri_n, tri_uv=tri_uv, tri_mat=tri_mat,
                        materials=self.materials, lights=lights, camera=cam,
                        world_color=world, textures=self.textures, world_map=world_map,
-                       filter_width=float(getattr(cy, "filter_width", 1.5)) if cy else 1.5,
+                       filter_width=_filter_width(cy), filter_type=_filter_type(cy),
                        tri_object_index=(np.concatenate(self.obj_index_parts) if parts
                                          else np.zeros(0, np.int32)),
                        material_pass_index=np.asarray(self.mat_pass_index, np.int32),

@@ -186,7 +186,8 @@ class Renderer:
             from .integrators.light_tracer import LightTracer
             self.light_tracer = LightTracer(self.scene, self.accel, self.mtab, self.light_table,
                                             self.camera, st, self.plan, self.D, self.offset,
-                                            (self.width, self.height), self.scene.filter_width)
+                                            (self.width, self.height), self.scene.filter_width,
+                                            self.scene.filter_type)
             self.light_splat = np.zeros((P, 3))      # splat sums of every pass
         # integrator 'COMBINED': camera paths + light tracing, MIS-weighted
         # (core.integrators.combined); the splats go to their own buffer.
@@ -228,7 +229,8 @@ class Renderer:
                 self.combined_lt = CombinedLightTracer(
                     self.scene, self.accel, self.mtab, self.light_table, self.camera, st,
                     self.plan, self.D, self.offset, (self.width, self.height),
-                    self.scene.filter_width, camera_samples=st.camera_samples)
+                    self.scene.filter_width, self.scene.filter_type,
+                    camera_samples=st.camera_samples)
             # Camera paths that light tracing takes over (combined.CameraStop).
             stop = self.path_tracer.vc.stop = getattr(self.combined_lt, "stop", None)
             if stop is not None:
@@ -304,7 +306,7 @@ class Renderer:
         self.accel = Accel(scene.tri_p, self.D)
         self._check_stop()
         self.camera = CameraModel(cam)
-        self.fsamp = FilterSampler(scene.filter_width)
+        self.fsamp = FilterSampler(scene.filter_width, scene.filter_type)
         # force_stages: stage names the plan must keep even when the scene does
         # not need them (tests and benchmarks of the leave-out plan).
         # Light tracing uses no frequency photons (no occlusion grid either).

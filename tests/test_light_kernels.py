@@ -201,29 +201,32 @@ def test_emission_splat_equals_numpy():
                * emission_splat_weight(lt.kn, c1, pA[k], full[k])[:, None])
     ref = np.zeros_like(film)
     LK.splat_kernel(np.ascontiguousarray(pr.raster[k]), contrib, lt.x0, lt.y0, lt.W, lt.H,
-                    lt.filter_width, ref)
+                    lt.filter_width, lt.cam_params.fk, ref)
     assert k.size > 300 and ref.sum() > 0
     np.testing.assert_allclose(film, ref, rtol=1e-10, atol=1e-12 * ref.max())
 
 
-@pytest.mark.parametrize("width", [1.5, 0.7, 2.3, 0.0])
-def test_splat_filter_equals_filter_weight(width):
-    """splat_kernel's taps (Chebyshev recurrence, the phase rotated pixel by
-    pixel: light_kernels._taps) against the separable
+@pytest.mark.parametrize("width, kind", [(1.5, "BLACKMAN_HARRIS"), (0.7, "BLACKMAN_HARRIS"),
+                                         (2.3, "BLACKMAN_HARRIS"), (0.0, "BLACKMAN_HARRIS"),
+                                         (1.0, "BOX"), (2.5, "BOX"), (1.5, "GAUSSIAN"),
+                                         (0.6, "GAUSSIAN")])
+def test_splat_filter_equals_filter_weight(width, kind):
+    """splat_kernel's taps (Blackman-Harris: the Chebyshev recurrence, the
+    phase rotated pixel by pixel: light_kernels._taps) against the separable
     camera.filter_weight film, region cut at the edges; width 0: the
     one-pixel box.  Measured max error 5.4e-16 of the film's peak (1.5 px)."""
-    from core.scene.camera import filter_weight
+    from core.scene.camera import FILTER_TYPES, filter_weight
     rng = np.random.default_rng(3)
     W, H, x0, y0 = 9, 7, 2, 1
     raster = rng.uniform([x0 - 3, y0 - 3], [x0 + W + 3, y0 + H + 3], (300, 2))
     contrib = rng.random((300, 3))
     film = np.zeros((H * W, 3))
-    LK.splat_kernel(raster, contrib, x0, y0, W, H, width, film)
+    LK.splat_kernel(raster, contrib, x0, y0, W, H, width, FILTER_TYPES[kind], film)
     px = np.arange(x0, x0 + W) + 0.5
     py = np.arange(y0, y0 + H) + 0.5
     if width > 0:
-        fx = filter_weight(raster[:, :1] - px, width)              # (K, W)
-        fy = filter_weight(raster[:, 1:] - py, width)              # (K, H)
+        fx = filter_weight(raster[:, :1] - px, width, kind)        # (K, W)
+        fy = filter_weight(raster[:, 1:] - py, width, kind)        # (K, H)
     else:
         fx = (np.abs(raster[:, :1] - px) < 0.5).astype(float)
         fy = (np.abs(raster[:, 1:] - py) < 0.5).astype(float)

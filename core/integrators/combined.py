@@ -184,7 +184,7 @@ def camera_sees_covered_only(lt, covered) -> bool:
     px = (xs.ravel() + lt.x0).astype(np.float64)
     py = ((lt.H - 1 - ys).ravel() + lt.y0).astype(np.float64)
     u = np.full((px.size, 2), 0.5)       # FilterSampler.sample(0.5) = 0: the centre
-    rays, _ = lt.camera.generate(px, py, u, u, FilterSampler(lt.filter_width))
+    rays, _ = lt.camera.generate(px, py, u, u, FilterSampler(lt.filter_width, lt.filter_type))
     prim = lt.accel.intersect(rays.o, rays.d, rays.t_max).prim
     mat = np.asarray(lt.scene.tri_mat, np.int64)[prim[prim >= 0]]
     return bool(covered[mat].all())

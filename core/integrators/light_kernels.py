@@ -38,7 +38,7 @@ from ..lights.direct_kernels import _spherical_rect_solid_angle
 # reference counts of round 32.
 from ..materials.compiled import eval_pair, pdf_oriented
 from ..lights.table import AREA, POINT
-from ..scene.camera import BH_A0, BH_A1, BH_A2, BH_A3
+from ..scene.camera import BH_A0, BH_A1, BH_A2, BH_A3, FILTER_TYPES, filter_support
 from ..sppm.photon_kernels import _offset_scale, lambert_pdf, shading_normal
 from .merge_kernels import pixel_row
 
@@ -49,18 +49,48 @@ _INV_4PI = 1.0 / (4.0 * np.pi)
 SHADING_CAP = 4.0
 
 
+#: The splat's filter codes: core.scene.camera.FILTER_TYPES, and a box of
+#: one pixel (weight 1) for a width <= 0.
+BH, BOX, GAUSS, PIXEL = 0, 1, 2, -1
+
+
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _taps(x, a, b, w, norm, box, out, o):
+def _support(width, kind):
+    """(code, half support R, normalisation) of the splat's filter
+    (core.scene.camera.filter_support and filter_integral)."""
+    if width <= 0.0:
+        return PIXEL, 0.5, 1.0
+    if kind == BOX:
+        return BOX, 0.5 * width, 1.0 / width
+    if kind == GAUSS:
+        # 1 / (w sqrt(pi / 8) erf(1.5 sqrt 8)), camera.filter_integral
+        return GAUSS, 1.5 * width, 1.0 / (width * 0.6266570674212458)
+    return BH, width, 1.0 / (2.0 * width * BH_A0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _taps(x, a, b, w, r, norm, code, out, o):
     """out[o + k] = the normalised 1D pixel filter at offset x - (a + k + 0.5)
     [px] for the pixels a..b (core.scene.camera.filter_weight, compiled):
-    Blackman-Harris over +-w, or a one-pixel box.  cos 2v and cos 3v by the
-    Chebyshev recurrence from cos v, and cos v of the next pixel by the
-    rotation by the pixel step pi / w: one cos and one sin per splat axis
-    instead of three cosines per tap (the splat's main cost); equal to
-    filter_weight up to float rounding (~5e-16 of the filter's peak)."""
-    if box:
+    of width w and half support r (:func:`_support`).  Blackman-Harris:
+    cos 2v and cos 3v by the Chebyshev recurrence from cos v, and cos v of
+    the next pixel by the rotation by the pixel step pi / w: one cos and
+    one sin per splat axis instead of three cosines per tap (the splat's
+    main cost); equal to filter_weight up to float rounding (~5e-16 of the
+    filter's peak)."""
+    if code == PIXEL:
         for k in range(b - a + 1):
             out[o + k] = 1.0 if abs(x - (a + k + 0.5)) < 0.5 else 0.0
+        return
+    if code == BOX or code == GAUSS:
+        for k in range(b - a + 1):
+            d = x - (a + k + 0.5)
+            if abs(d) >= r:
+                out[o + k] = 0.0
+            elif code == BOX:
+                out[o + k] = norm
+            else:
+                out[o + k] = np.exp(-8.0 * (d / w) * (d / w)) * norm
         return
     v = 2.0 * np.pi * ((x - (a + 0.5)) / (2.0 * w) + 0.5)
     c = np.cos(v)
@@ -79,20 +109,25 @@ def _taps(x, a, b, w, norm, box, out, o):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _splat_one(x, y, c0, c1, c2, x0, y0, W, H, width, film, fx):
+def _scratch(width, kind):
+    """_splat_one's scratch for the column and row weights."""
+    r = _support(width, kind)[1]
+    return np.empty(2 * (int(2.0 * r) + 3))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _splat_one(x, y, c0, c1, c2, x0, y0, W, H, width, kind, film, fx):
     """Add (c0, c1, c2) at film position (x, y) (full-frame pixels, y up) to
     film (H*W, 3) (row 0 at the TOP of the region x0..x0+W-1, y0..y0+H-1),
-    weighted by the normalised separable pixel filter: Cycles'
-    Blackman-Harris over +-width px (core.scene.camera.filter_weight); a box
-    of one pixel when width <= 0.  fx: scratch (2 (2 width + 3),) for
+    weighted by the normalised separable pixel filter of width ``width``
+    and code ``kind`` (BH, BOX, GAUSS: core.scene.camera.filter_weight); a
+    box of one pixel when width <= 0.  fx: scratch (:func:`_scratch`) for
     the column and row weights (each evaluated once, :func:`_taps`)."""
-    box = width <= 0.0
-    w = 0.5 if box else width
-    norm = 1.0 / (2.0 * w * BH_A0)
-    ia = int(np.ceil(x - w - 0.5))
-    ib = int(np.floor(x + w - 0.5))
-    ja = int(np.ceil(y - w - 0.5))
-    jb = int(np.floor(y + w - 0.5))
+    code, r, norm = _support(width, kind)
+    ia = int(np.ceil(x - r - 0.5))
+    ib = int(np.floor(x + r - 0.5))
+    ja = int(np.ceil(y - r - 0.5))
+    jb = int(np.floor(y + r - 0.5))
     if ib < x0 or ia >= x0 + W or jb < y0 or ja >= y0 + H:
         return
     i0 = max(ia, x0)
@@ -100,8 +135,8 @@ def _splat_one(x, y, c0, c1, c2, x0, y0, W, H, width, film, fx):
     j0 = max(ja, y0)
     j1 = min(jb, y0 + H - 1)
     oy = fx.shape[0] // 2
-    _taps(x, i0, i1, w, norm, box, fx, 0)
-    _taps(y, j0, j1, w, norm, box, fx, oy)
+    _taps(x, i0, i1, width, r, norm, code, fx, 0)
+    _taps(y, j0, j1, width, r, norm, code, fx, oy)
     for j in range(j0, j1 + 1):
         fy = fx[oy + j - j0]
         if fy == 0.0:
@@ -118,13 +153,13 @@ def _splat_one(x, y, c0, c1, c2, x0, y0, W, H, width, film, fx):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def splat_kernel(raster, contrib, x0, y0, W, H, width, film):
+def splat_kernel(raster, contrib, x0, y0, W, H, width, kind, film):
     """Add contrib (K, 3) at film positions raster (K, 2) to film (H*W, 3)
     (:func:`_splat_one`)."""
-    fx = np.empty(2 * (int(2.0 * max(width, 0.5)) + 3))     # _splat_one's scratch
+    fx = _scratch(width, kind)
     for k in range(raster.shape[0]):
         _splat_one(raster[k, 0], raster[k, 1], contrib[k, 0], contrib[k, 1], contrib[k, 2],
-                   x0, y0, W, H, width, film, fx)
+                   x0, y0, W, H, width, kind, film, fx)
 
 
 class CameraParams(NamedTuple):
@@ -133,7 +168,9 @@ class CameraParams(NamedTuple):
     R (3, 3) camera-to-world rotation (columns: camera axes), origin (3,);
     xmin, ymin, pix, ycor: the film mapping; clip_start, clip_end; aperture
     (lens radius, 0 = pinhole), focus (focus distance); ortho; A_pix, A_lens;
-    the region x0, y0, W, H [px] and its margin w = max(filter width, 0.5)."""
+    the region x0, y0, W, H [px] and its margin w = max(the pixel filter's
+    half support, 0.5) (camera.filter_support);
+    fk the pixel filter's code (core.scene.camera.FILTER_TYPES)."""
     R: np.ndarray
     origin: np.ndarray
     xmin: float
@@ -152,9 +189,11 @@ class CameraParams(NamedTuple):
     W: int
     H: int
     w: float
+    fk: int
 
 
-def camera_params(model, x0, y0, W, H, filter_width) -> CameraParams:
+def camera_params(model, x0, y0, W, H, filter_width, filter_type="BLACKMAN_HARRIS"
+                  ) -> CameraParams:
     c = model.cam
     ortho = c.kind == "ORTHO"
     return CameraParams(np.ascontiguousarray(model.R, np.float64),
@@ -163,7 +202,9 @@ def camera_params(model, x0, y0, W, H, filter_width) -> CameraParams:
                         float(model.ycor), float(c.clip_start), float(c.clip_end),
                         0.0 if ortho else float(c.aperture_radius), float(c.focus_distance),
                         bool(ortho), float(model.pixel_area), float(model.lens_area),
-                        int(x0), int(y0), int(W), int(H), max(float(filter_width), 0.5))
+                        int(x0), int(y0), int(W), int(H),
+                        max(filter_support(filter_width, filter_type), 0.5),
+                        FILTER_TYPES[filter_type])
 
 
 def _bent(scene, mtab, M) -> np.ndarray:
@@ -359,7 +400,7 @@ def splat_fast(con, n, tr, vin, tri_n, tri_ng, tri_mat, sm, crow, mis, cam, widt
     dropped (LightTracer._splat).  The indices of the other unoccluded
     connections go to slow; returns their number."""
     ns_ = 0
-    fx = np.empty(2 * (int(2.0 * max(width, 0.5)) + 3))     # _splat_one's scratch
+    fx = _scratch(width, cam.fk)
     kinds, col, lobes, T, cols, sp = sm.kind, sm.col, sm.lobes, sm.tables, sm.colors, sm.p
     for c in range(n):
         if tr[c, 0] == 0.0 and tr[c, 1] == 0.0 and tr[c, 2] == 0.0:
@@ -420,7 +461,7 @@ def splat_fast(con, n, tr, vin, tri_n, tri_ng, tri_mat, sm, crow, mis, cam, widt
         if not (np.isfinite(c0) and np.isfinite(c1_) and np.isfinite(c2)):
             continue
         _splat_one(con.raster[c, 0], con.raster[c, 1], c0, c1_, c2, cam.x0, cam.y0, cam.W,
-                   cam.H, width, film, fx)
+                   cam.H, width, cam.fk, film, fx)
     return ns_
 
 
@@ -432,7 +473,7 @@ def splat_emitters(con, n, tr, nrm, power, mis, kn, pA, full, cam, width, film):
     f_s = 1 / pi on the emitting side, beta |n.wc| weight / pi, times the
     weight against path tracing when mis (combined.emission_splat_weight:
     1 / (1 + (kn c_1 / pA)^2), c_1 = |n.wc| weight; 0 unless full (K,))."""
-    fx = np.empty(2 * (int(2.0 * max(width, 0.5)) + 3))     # _splat_one's scratch
+    fx = _scratch(width, cam.fk)
     for c in range(n):
         if tr[c, 0] == 0.0 and tr[c, 1] == 0.0 and tr[c, 2] == 0.0:
             continue
@@ -453,7 +494,7 @@ def splat_emitters(con, n, tr, nrm, power, mis, kn, pA, full, cam, width, film):
         if not (np.isfinite(c0) and np.isfinite(c1_) and np.isfinite(c2)):
             continue
         _splat_one(con.raster[c, 0], con.raster[c, 1], c0, c1_, c2, cam.x0, cam.y0, cam.W,
-                   cam.H, width, film, fx)
+                   cam.H, width, cam.fk, film, fx)
 
 class FirstHitLights(NamedTuple):
     """The emitters' arrays of :func:`first_hits` (Nl rows, float64 unless

@@ -123,7 +123,7 @@ class LightTracer:
     region in Blender's pixel coordinates (y from the bottom)."""
 
     def __init__(self, scene, accel, mtab, light_table, camera, settings, plan, D,
-                 offset, size, filter_width):
+                 offset, size, filter_width, filter_type="BLACKMAN_HARRIS"):
         self.scene, self.accel, self.mtab = scene, accel, mtab
         self.light_table, self.camera = light_table, camera
         # The table the light paths are drawn from (COMBINED: the traced
@@ -136,6 +136,7 @@ class LightTracer:
         self.x0, self.y0 = (int(v) for v in offset)
         self.W, self.H = (int(v) for v in size)
         self.filter_width = float(filter_width)
+        self.filter_type = filter_type
         t = light_table
         # Emission vertices are splatted only for AREA lights the camera sees
         # and MESH emitters.  The compiled emission (same uniforms, same
@@ -144,7 +145,7 @@ class LightTracer:
             ((t.kind == Lt.AREA) & t.visible_camera) | (t.kind == Lt.MESH))))
         self.fast_emission = PK.fast_emission_ok(t)
         self.cam_params = LK.camera_params(camera, self.x0, self.y0, self.W, self.H,
-                                           self.filter_width)
+                                           self.filter_width, filter_type)
         # What the splat kernel evaluates, and of it the LAMBERT materials
         # without Normal Map / Bump (combined.covered_materials).
         # Colour-textured materials (no alpha texture): each connection on
@@ -410,4 +411,5 @@ class LightTracer:
         if not np.all(good):
             raster, contrib = raster[good], contrib[good]
         splat_kernel(np.ascontiguousarray(raster), np.ascontiguousarray(contrib),
-                     self.x0, self.y0, self.W, self.H, self.filter_width, film)
+                     self.x0, self.y0, self.W, self.H, self.filter_width,
+                     self.cam_params.fk, film)

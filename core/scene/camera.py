@@ -3,10 +3,11 @@
 Projection follows Blender's view plane (BKE_camera_params_compute_viewplane):
 sensor fit picks the dimension the sensor size applies to; shift is in units
 of that fitted dimension; pixel aspect stretches y.  The pixel filter is
-Cycles' default Blackman-Harris of ``filter_width`` px, importance-sampled
-separably in x and y over a support of +-filter_width (Cycles doubles the
-width it passes to the window, film.cpp), so each pixel estimates exactly the
-filtered value Cycles computes.
+Cycles' (film.cpp ``filter_table``) of ``filter_width`` w px, importance-sampled
+separably in x and y, so each pixel estimates exactly the filtered value
+Cycles computes: Blackman-Harris (the default) over +-w (Cycles doubles the
+width it passes to the window), Box over +-w/2, Gaussian exp(-8 x^2 / w^2)
+(sigma w/4) over +-1.5 w (Cycles triples the width and scales x by 6 / width).
 
 :meth:`CameraModel.project` is the exact inverse of :meth:`CameraModel.generate`
 (a world point and a lens sample -> raster position) with the camera's
@@ -50,16 +51,50 @@ def blackman_harris(x: np.ndarray, width: float) -> np.ndarray:
     return BH_A0 - BH_A1 * np.cos(v) + BH_A2 * np.cos(2 * v) - BH_A3 * np.cos(3 * v)
 
 
-class FilterSampler:
-    """Inverse-CDF table of the 1D Blackman-Harris filter (offsets in pixels)."""
+#: Blender's ``cycles.pixel_filter_type`` values, and their codes in the
+#: compiled splat (core.integrators.light_kernels).
+FILTER_TYPES = {"BLACKMAN_HARRIS": 0, "BOX": 1, "GAUSSIAN": 2}
 
-    def __init__(self, width: float, size: int = 4096):
+
+def filter_support(width: float, kind: str = "BLACKMAN_HARRIS") -> float:
+    """The filter's half support [px]: w, w / 2 (box), 1.5 w (Gaussian)."""
+    return {"BLACKMAN_HARRIS": 1.0, "BOX": 0.5, "GAUSSIAN": 1.5}[kind] * float(width)
+
+
+def filter_profile(x: np.ndarray, width: float, kind: str = "BLACKMAN_HARRIS") -> np.ndarray:
+    """The unnormalised filter inside its support (module doc)."""
+    x = np.asarray(x, np.float64)
+    if kind == "BOX":
+        return np.ones_like(x)
+    if kind == "GAUSSIAN":
+        return np.exp(-8.0 * (x / width) ** 2)
+    return np.maximum(blackman_harris(x, width), 0.0)
+
+
+def filter_integral(width: float, kind: str = "BLACKMAN_HARRIS") -> float:
+    """The profile's integral over the support: Blackman-Harris 2 w a0 (the
+    cosine terms integrate to zero over whole periods), box w, Gaussian
+    w sqrt(pi / 8) erf(1.5 sqrt 8)."""
+    import math
+    if kind == "BOX":
+        return float(width)
+    if kind == "GAUSSIAN":
+        return float(width) * math.sqrt(math.pi / 8.0) * math.erf(1.5 * math.sqrt(8.0))
+    return 2.0 * float(width) * BH_A0
+
+
+class FilterSampler:
+    """Inverse-CDF table of the 1D pixel filter (offsets in pixels)."""
+
+    def __init__(self, width: float, kind: str = "BLACKMAN_HARRIS", size: int = 4096):
         self.width = float(width)
+        self.kind = kind
         if width <= 0:
             self.table = np.zeros(size)
             return
-        x = np.linspace(-self.width, self.width, 8 * size + 1)
-        pdf = np.maximum(blackman_harris(x, self.width), 0.0)
+        r = filter_support(self.width, kind)
+        x = np.linspace(-r, r, 8 * size + 1)
+        pdf = filter_profile(x, self.width, kind)
         cdf = np.concatenate([[0.0], np.cumsum(0.5 * (pdf[1:] + pdf[:-1]) * np.diff(x))])
         cdf /= cdf[-1]
         self.table = np.interp(np.linspace(0.0, 1.0, size), cdf, x)
@@ -72,15 +107,13 @@ class FilterSampler:
         return (1.0 - f) * self.table[i0] + f * self.table[i0 + 1]
 
 
-def filter_weight(x: np.ndarray, width: float) -> np.ndarray:
+def filter_weight(x: np.ndarray, width: float, kind: str = "BLACKMAN_HARRIS") -> np.ndarray:
     """Normalised 1D pixel filter f(x) (x in pixels, integral 1): the density
-    that :class:`FilterSampler` samples, max(blackman_harris, 0) / integral.
-    The integral of the Blackman-Harris window over its support 2*width is
-    2*width*BH_A0 (the cosine terms integrate to zero over whole periods).
-    """
+    that :class:`FilterSampler` samples, :func:`filter_profile` over
+    :func:`filter_integral` inside :func:`filter_support`."""
     x = np.asarray(x, np.float64)
-    w = np.maximum(blackman_harris(x, width), 0.0) / (2.0 * width * BH_A0)
-    return np.where(np.abs(x) < width, w, 0.0)
+    w = filter_profile(x, width, kind) / filter_integral(width, kind)
+    return np.where(np.abs(x) < filter_support(width, kind), w, 0.0)
 
 
 @dataclass

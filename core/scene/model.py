@@ -190,7 +190,9 @@ class Scene:
       (:class:`core.scene.textures.EnvironmentMap`) or None.
     approximations: what the exporter approximated or ignored, one sentence each.
     textures: list of (H, W, 3|4) float32 linear images, row 0 at the bottom.
-    filter_width: Cycles' pixel filter width in pixels (Blackman-Harris).
+    filter_width: Cycles' pixel filter width in pixels.
+    filter_type: Cycles' pixel filter, 'BLACKMAN_HARRIS' (default), 'BOX' or
+      'GAUSSIAN' (core.scene.camera).
     tri_object_index: (T,) int32 the object's pass index (IndexOB pass) or None (0).
     material_pass_index: (M,) int32 each material's pass index (IndexMA) or None (0).
     film_transparent: Film > Transparent (camera rays that escape give alpha 0).
@@ -209,6 +211,7 @@ class Scene:
     world_color: np.ndarray = field(default_factory=lambda: np.zeros(3))
     textures: list = field(default_factory=list)
     filter_width: float = 1.5
+    filter_type: str = "BLACKMAN_HARRIS"
     tri_object_index: Optional[np.ndarray] = None
     material_pass_index: Optional[np.ndarray] = None
     film_transparent: bool = False
@@ -321,6 +324,7 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       tri_mat=scene.tri_mat[ok], materials=scene.materials,
                       lights=scene.lights, camera=scene.camera, world_color=scene.world_color,
                       textures=scene.textures, filter_width=scene.filter_width,
+                      filter_type=scene.filter_type,
                       tri_object_index=None if scene.tri_object_index is None
                       else scene.tri_object_index[ok],
                       material_pass_index=scene.material_pass_index,
@@ -357,6 +361,8 @@ def scene_digest(scene: Scene) -> str:
     for t in scene.textures:
         h.update(np.ascontiguousarray(t).tobytes())
     h.update(repr(scene.filter_width).encode())
+    if scene.filter_type != "BLACKMAN_HARRIS":   # (older checkpoints keep their digest)
+        h.update(scene.filter_type.encode())
     if scene.film_transparent:      # (only when set: older checkpoints keep their digest)
         h.update(b"film_transparent")
     if scene.world_map is not None:
