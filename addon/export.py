@@ -124,6 +124,8 @@ SUPPORT = (
      "DirectX) and Bump (Strength, Distance, Invert) from an Image Texture", SUPPORTED, ""),
     ("Mapping (Point, Texture, Vector) and Texture Coordinate (UV, Generated, Object) "
      "into Image Texture vectors", SUPPORTED, ""),
+    ("an image's colour (also through colour nodes: its luminance) into a Mix Shader's "
+     "Fac or the Principled Alpha, per hit", SUPPORTED, ""),
     ("image alpha into the Principled Alpha or a Mix Shader's Fac (stochastic "
      "pass-through of camera and photon paths; shadow rays pass cut-outs and Transparent "
      "BSDFs with Cycles' weights in every integrator, docs/shading.md); "
@@ -139,9 +141,9 @@ SUPPORT = (
     ("other shader nodes", APPROXIMATED, "unsupported node(s) "),
     ("other nodes linked into an input (the input's value is used)", APPROXIMATED,
      "'{src.name}' into {node.name}.{name} ignored"),
-    ("an Image Texture into a scalar input (Roughness, Metallic, IOR, a Mix Shader's Fac, "
-     "...): the image's mean over its pixels, not per hit", APPROXIMATED,
-     "the image's mean"),
+    ("an Image Texture into a scalar input other than a Mix Shader's Fac and the "
+     "Principled Alpha (Roughness, Metallic, IOR, ...): the image's mean over its pixels, "
+     "not per hit", APPROXIMATED, "the image's mean"),
     ("photon bounces on normal-mapped or bumped surfaces", APPROXIMATED,
      "photons scatter off the interpolated normal"),
     ("Normal Map in object or world space", APPROXIMATED, "space ignored (tangent space only)"),
@@ -528,19 +530,29 @@ class _MaterialBuilder:
         return float(vsock.default_value)
 
     def alpha_texture(self, node, name) -> int:
-        """Texture index when an Image Texture's Alpha output feeds the input, else -1."""
+        """A texture whose alpha channel is what a float input (a Mix
+        Shader's Fac, the Principled Alpha) reads per hit, else -1: an Image
+        Texture's Alpha output (the image itself), or its Color, also
+        through colour nodes (:meth:`color_chain`), read as Cycles reads a
+        colour into a float (its luminance) and clamped to [0, 1] as those
+        inputs are (a texture made for it, ``_Exporter.texture`` scalar=True)."""
         sock = node.inputs.get(name)
         if sock is None:
             return -1
         src, out, _ = self.follow(sock)
         if src is not None and src.type == 'TEX_IMAGE' and out.name == 'Alpha':
             return self.image(src)
+        if src is not None and src.type in _COLOR_NODES | {'TEX_IMAGE'}:
+            chain = self.color_chain(sock)
+            if chain is not None and chain[0] == 'tex':
+                return self.image(chain[1], chain[2], scalar=True)
         return -1
 
-    def image(self, tex_node, ops=()) -> int:
+    def image(self, tex_node, ops=(), scalar=False) -> int:
         """An Image Texture node's texture index (its Color through ``ops``,
-        :meth:`color_chain`); its Vector input is recorded."""
-        t = self.ex.texture(tex_node, self, ops)
+        :meth:`color_chain`; scalar: as a float input's alpha texture,
+        :meth:`alpha_texture`); its Vector input is recorded."""
+        t = self.ex.texture(tex_node, self, ops, scalar)
         if t >= 0:
             self.vectors.append(self.vector(tex_node))
         return t
@@ -938,11 +950,13 @@ class _Exporter:
             f"resolution file, or scale it down in the Image Editor: Image > Resize), or "
             f"close other programs.")
 
-    def texture(self, node, mb: _MaterialBuilder, ops=()) -> int:
+    def texture(self, node, mb: _MaterialBuilder, ops=(), scalar=False) -> int:
         """The index in ``textures`` of an Image Texture node's image, its
         colour through ``ops`` (``core.scene.color_ops``: one more entry per
         image and ops, the ops applied to the colour Cycles' Color output
-        gives at each texel); -1 (and a note) without pixels."""
+        gives at each texel); scalar: an entry of white texels whose alpha
+        is that colour read as a float input reads it (its luminance,
+        clamped to [0, 1]); -1 (and a note) without pixels."""
         img = node.image
         if img is None:
             mb.notes.append(f"{node.name}: no image")
@@ -965,8 +979,8 @@ class _Exporter:
         if (getattr(img, "alpha_mode", 'STRAIGHT') != 'STRAIGHT' or px.shape[2] < 4
                 or not np.any(px[..., 3] < 1.0)):
             mode = 'STRAIGHT'     # read as stored
-        if ops:
-            ik = (key, mode, ops)
+        if ops or scalar:
+            ik = (key, mode, ops, scalar)
             if ik not in self.tex_index:
                 # Cycles' Color output at a texel: the colour associated with
                 # alpha unless the Alpha output is linked (then straight).
@@ -978,10 +992,15 @@ class _Exporter:
                     # A nonlinear node: Cycles applies it after the bilinear
                     # lookup, so a small image is first enlarged k times.
                     px = upsample(px, k)
-                out = np.empty(px.shape[:2] + (max(px.shape[2], 3),), np.float32)
-                out[..., :3] = CO.apply(ops, px[..., :3].astype(np.float64))
-                if px.shape[2] > 3:
-                    out[..., 3:] = px[..., 3:]
+                rgb = CO.apply(ops, px[..., :3].astype(np.float64))
+                if scalar:
+                    out = np.ones(px.shape[:2] + (4,), np.float32)
+                    out[..., 3] = np.clip(CO.gray(rgb), 0.0, 1.0)
+                else:
+                    out = np.empty(px.shape[:2] + (max(px.shape[2], 3),), np.float32)
+                    out[..., :3] = rgb
+                    if px.shape[2] > 3:
+                        out[..., 3:] = px[..., 3:]
                 self.poll()
                 self.tex_index[ik] = len(self.textures)
                 self.textures.append(out)
