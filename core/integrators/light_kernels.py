@@ -500,7 +500,8 @@ class FirstHitLights(NamedTuple):
     """The emitters' arrays of :func:`first_hits` (Nl rows, float64 unless
     stated): kind (Nl,) int8; co, dir, axis_u, axis_v (Nl, 3); len_u, len_v,
     area (Nl,); rect (Nl,) bool an AREA rectangle (not an ellipse); p_emit
-    (Nl,) the emission selection probability (mis.emit_select)."""
+    (Nl,) the emission selection probability (mis.emit_select); spread_sin2
+    (Nl,) ``LightTable.spread_sin2``."""
     kind: np.ndarray
     co: np.ndarray
     dir: np.ndarray
@@ -511,6 +512,7 @@ class FirstHitLights(NamedTuple):
     area: np.ndarray
     rect: np.ndarray
     p_emit: np.ndarray
+    spread_sin2: np.ndarray
 
 
 def first_hit_lights(table, p_emit) -> FirstHitLights:
@@ -520,7 +522,7 @@ def first_hit_lights(table, p_emit) -> FirstHitLights:
                           c(table.axis_v, np.float64), c(table.len_u, np.float64),
                           c(table.len_v, np.float64), c(table.area, np.float64),
                           c((table.kind == AREA) & ~np.asarray(table.ellipse, bool)),
-                          c(p_emit, np.float64))
+                          c(p_emit, np.float64), c(table.spread_sin2, np.float64))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -559,7 +561,10 @@ def first_hits(fl, kn, p, ng, d, z0, light, sel, b0, b1):
             cos_l = abs(nx * d[i, 0] + ny * d[i, 1] + nz * d[i, 2])
             pA = p_emit[j] / area[j]
             cw = nx * wx + ny * wy + nz * wz
-            pW = max(cw, 0.0) * _INV_PI
+            s2 = fl.spread_sin2[j]
+            # mis.emit_pdf_dir: cosine inside a spread's cone.
+            pW = (max(cw, 0.0) * _INV_PI if s2 == 1.0 else
+                  (cw / (np.pi * s2) if cw >= np.sqrt(1.0 - s2) else 0.0))
             front = ((px - co[j, 0]) * nx + (py - co[j, 1]) * ny + (pz - co[j, 2]) * nz) > 0
             res = dz * dz / max(area[j] * max(cw, 0.0), 1e-300) if cw > 0 else 0.0
             hu, hv = 0.5 * len_u[j], 0.5 * len_v[j]

@@ -121,7 +121,7 @@ def emit_pdf_pos(table, light) -> np.ndarray:
 def emit_pdf_dir(table, light, w) -> np.ndarray:
     """(K,) solid-angle density with which the emitter rows light (K,) send a
     photon along unit w (K, 3) (sample_photons): cosine about the front
-    normal (AREA), cosine about either side with 1/2 per side (MESH),
+    normal (AREA; inside the cone of a spread below 180 deg), cosine about either side with 1/2 per side (MESH),
     uniform on the sphere (POINT) or in the spot's local cone mapped by its
     object matrix (SPOT: |M v|^3 / |det M| x lights.emission.spot_pdf_local,
     1 / (2 pi (1 - cos_h)) inside a hard spot's cone)."""
@@ -130,7 +130,10 @@ def emit_pdf_dir(table, light, w) -> np.ndarray:
     kind = table.kind[light]
     n = table.dir[light]
     c = _dot(n, w)
-    out = np.where(kind == AREA, np.maximum(c, 0.0) / np.pi, out)
+    # An area light's spread of half angle a: cosine inside its cone only,
+    # cos / (pi sin^2 a) (lights.emission); sin^2 a = 1 without a spread.
+    s2 = table.spread_sin2[light]
+    out = np.where(kind == AREA, np.where(c >= np.sqrt(1.0 - s2), c / (np.pi * s2), 0.0), out)
     out = np.where(kind == MESH, 0.5 * np.abs(c) / np.pi, out)
     out = np.where(kind == POINT, 1.0 / (4.0 * np.pi), out)
     m = np.nonzero(kind == SPOT)[0]

@@ -438,7 +438,8 @@ class MisLights(NamedTuple):
     float64 ``mis.emit_select``; kind (Nl,) int8; co, dir (Nl, 3); area,
     cos_half_spot (Nl,); tail (Nl, 4) a soft spot's photons beyond its cone
     (``LightTable.spot_tail``); lin, lin_inv
-    (Nl, 3, 3) the spot's object matrix and its inverse, det (Nl,) |det lin|."""
+    (Nl, 3, 3) the spot's object matrix and its inverse, det (Nl,) |det lin|;
+    spread_sin2 (Nl,) ``LightTable.spread_sin2``."""
     cls: np.ndarray
     sel: np.ndarray
     kind: np.ndarray
@@ -450,6 +451,7 @@ class MisLights(NamedTuple):
     lin: np.ndarray
     lin_inv: np.ndarray
     det: np.ndarray
+    spread_sin2: np.ndarray
 
 
 def build_mis_lights(table, cls) -> MisLights:
@@ -462,7 +464,8 @@ def build_mis_lights(table, cls) -> MisLights:
                      cos_half_spot=c(table.cos_half_spot, np.float64),
                      tail=c(spot_tail(table), np.float64), lin=lin,
                      lin_inv=c(np.asarray(table.lin_inv, np.float64).reshape(-1, 3, 3)),
-                     det=np.abs(np.linalg.det(lin)) if lin.shape[0] else np.zeros(0))
+                     det=np.abs(np.linalg.det(lin)) if lin.shape[0] else np.zeros(0),
+                     spread_sin2=c(table.spread_sin2, np.float64))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -476,7 +479,8 @@ def _emit_pdf_dir(X, j, wx, wy, wz):
     k = X.kind[j]
     c = X.dir[j, 0] * wx + X.dir[j, 1] * wy + X.dir[j, 2] * wz
     if k == AREA:
-        return max(c, 0.0) / _PI
+        s2 = X.spread_sin2[j]
+        return c / (_PI * s2) if c >= np.sqrt(1.0 - s2) else 0.0
     if k == MESH:
         return 0.5 * abs(c) / _PI
     if k == POINT:

@@ -366,11 +366,17 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
             sv = np.where(ell, 0.5 * y, sv)
         o[m] = (table.co[jj] + (su * table.len_u[jj])[:, None] * table.axis_u[jj]
                 + (sv * table.len_v[jj])[:, None] * table.axis_v[jj])
+        # A spread below 180 deg (half angle a): cosine-weighted inside the
+        # cone only (Malley's disc of radius sin a, density cos / (pi sin^2 a)),
+        # times the radiance's factor along the direction; the factor's mean
+        # over the cone's cosine lobe is 1 / sin^2 a, so power flux f sin^2 a.
+        s2 = table.spread_sin2[jj]
         loc = _cosine_local(u[m, 3], u[m, 4])
+        if np.any(s2 < 1.0):
+            loc[:, :2] *= np.sqrt(s2)[:, None]
+            loc[:, 2] = np.sqrt(np.maximum(1.0 - loc[:, 0] ** 2 - loc[:, 1] ** 2, 0.0))
         d[m] = _to_world(loc, table.dir[jj])
-        # A spread below 180 deg: the radiance's factor along the photon's
-        # direction (its mean over the cosine lobe is 1: the flux stays).
-        power[m] = table.flux[jj] * (inv_p[m] * spread_atten(table, jj, loc[:, 2]))[:, None]
+        power[m] = table.flux[jj] * (inv_p[m] * spread_atten(table, jj, loc[:, 2]) * s2)[:, None]
         freq[m, 0] = table.area[jj] / 12.0       # width w = sqrt(area): w^2/12
         freq[m, 1] = B_DIFFUSE
 

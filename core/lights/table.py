@@ -142,6 +142,17 @@ class LightTable:
                 & ~np.asarray(self.is_sphere, bool) & (self.radius > 0))
 
     @property
+    def spread_sin2(self) -> np.ndarray:
+        """(Nl,) sin^2 a of an area light's half spread a (1 for 180 deg and
+        every other light): the share of a cosine lobe inside the spread's
+        cone, which photons are drawn from (lights.emission; their direction
+        density cos / (pi sin^2 a) there, mis.emit_pdf_dir)."""
+        t = np.asarray(self.spread_tan, np.float64)
+        with np.errstate(invalid="ignore", over="ignore"):
+            s2 = t * t / (1.0 + t * t)
+        return np.where(np.isfinite(t), s2, 1.0)
+
+    @property
     def total_flux(self) -> np.ndarray:
         """(3,) sum of ``flux`` over all emitters."""
         return self.flux.sum(axis=0) if self.n else np.zeros(3)

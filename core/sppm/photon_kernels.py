@@ -819,7 +819,7 @@ _LU, _LV, _AREA, _ELL, _RAD, _SPH = 20, 21, 22, 23, 24, 25
 # Spots: the object matrix (row-major), |det|, cos_half_spot, spot_smooth and
 # the soft spot's tail (share, x0, X, half-angle: LightTable.spot_tail); area
 # lights: the spread's tan_half_spread and normalize_spread.
-_LIN, _DET, _CHS, _SSM, _TAIL, _SPT, _SPN, _NCOL = 26, 35, 36, 37, 38, 42, 43, 44
+_LIN, _DET, _CHS, _SSM, _TAIL, _SPT, _SPN, _SPS, _NCOL = 26, 35, 36, 37, 38, 42, 43, 44, 45
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -939,11 +939,16 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
     rr = np.sqrt(u3)
     sn, cs = sincos_turn(u4)
     lx, ly = rr * cs, rr * sn
+    spread = kd == 3 and L[j, _SPT] != np.inf
+    if spread:
+        # Inside the spread's cone only (lights.emission): radius sin a.
+        sa = np.sqrt(L[j, _SPS])
+        lx, ly = lx * sa, ly * sa
     lz = np.sqrt(max(1.0 - lx * lx - ly * ly, 0.0))
     wx, wy, wz = basis_world(lx, ly, lz, nx, ny, nz)
-    if kd == 3 and L[j, _SPT] != np.inf:
-        # A spread below 180 deg: the radiance's factor along the direction.
-        f = spread_atten(L[j, _SPT], L[j, _SPN], lz)
+    if spread:
+        # The radiance's factor along the direction, times sin^2 a.
+        f = spread_atten(L[j, _SPT], L[j, _SPN], lz) * L[j, _SPS]
         p0, p1, p2 = p0 * f, p1 * f, p2 * f
     return (ox, oy, oz, wx, wy, wz, p0, p1, p2, 0.0, L[j, _AREA] / 12.0, b_diffuse, 0.0, j,
             0.0, 0.0, 0.0, 0.0)
@@ -1032,6 +1037,7 @@ def light_arrays(table) -> tuple:
         L[:nL, _TAIL:_TAIL + 4] = spot_tail(table)
         L[:nL, _SPT] = table.spread_tan
         L[:nL, _SPN] = table.spread_norm
+        L[:nL, _SPS] = table.spread_sin2
     if nL == 0:
         L[:, _SPT] = np.inf
     p = np.asarray(table.p_select, np.float64)
