@@ -159,8 +159,10 @@ SUPPORT = (
     ("Principled subsurface", APPROXIMATED, "rendered as diffuse"),
     ("per-ray visibility of objects", APPROXIMATED, "treated as fully visible"),
     ("stereo 3D / multi-view", APPROXIMATED, "every view is rendered from the scene camera"),
-    ("Light Path in a world shader", APPROXIMATED,
-     "Light Path baked as the camera sees the world"),
+    ("Light Path's Is Camera Ray in a world shader (two maps: what camera rays see, what "
+     "lights the scene)", SUPPORTED, ""),
+    ("Light Path's other outputs in a world shader", APPROXIMATED,
+     "read as a diffuse ray's by every ray but the camera's"),
     ("a world shader whose bake fails", APPROXIMATED, "could not be baked by Cycles"),
     ("Principled sheen", IGNORED, "ignored: no sheen lobe"),
     ("anisotropy", IGNORED, "anisotropy ignored"),
@@ -884,6 +886,7 @@ class _Exporter:
         self.scene = depsgraph.scene
         self.log = log
         self.world_sun = None        # a baked Sky Texture's sun disc (baked_world)
+        self.world_camera_map = None  # the world camera rays see, when it differs (baked_world)
         self.bake_wait = True        # False: bake the world in the background (viewport)
         self.world_pending = False   # the world is being baked in the background
         self.materials: list[Material] = []
@@ -1410,7 +1413,7 @@ class _Exporter:
         (addon/world_bake.py); a Sky Texture's sun disc becomes
         ``self.world_sun``, a sun light.  When the bake fails: ``fallback``
         (the Background colour, or black) with a note."""
-        from .world_bake import WIDTH, BakeError, bake_world, node_trees
+        from .world_bake import WIDTH, BakeError, bake_world
         instead = 'black' if not np.any(fallback) else 'the Background colour'
         try:
             baked = bake_world(w, self.scene.frame_current, WIDTH, poll=self.poll,
@@ -1439,10 +1442,20 @@ class _Exporter:
             said += (f" and its sun disc into a sun light ({float(np.mean(E)):.4g} W/m^2, "
                      f"{math.degrees(angle):.3g} deg, elevation "
                      f"{math.degrees(math.asin(max(-1.0, min(1.0, z[2])))):.3g} deg)")
+        if baked.camera_image is not None:
+            # A Light Path node: camera rays see one map, the rest another.
+            said += " (lighting), and as camera rays see it (Light Path) into another"
+            from .world_bake import node_trees
+            other = sorted({o.name for t in node_trees(w.node_tree) for nd in t.nodes
+                            if nd.type == 'LIGHT_PATH' for o in nd.outputs
+                            if o.is_linked and o.name != "Is Camera Ray"})
+            if other:
+                self.notes.append(f"world: Light Path {', '.join(other)} read as a diffuse "
+                                  f"ray's by every ray but the camera's")
+            self.world_camera_map = EnvironmentMap(
+                image=baked.camera_image, strength=np.ones(3), to_texture=np.eye(3),
+                name=f"{w.name} (baked for the camera)")
         self.log(f"{said} in {baked.seconds:.1f} s.")
-        if any(nd.type == 'LIGHT_PATH' for t in node_trees(w.node_tree) for nd in t.nodes):
-            self.notes.append("world: Light Path baked as the camera sees the world "
-                              "(lighting uses the same map)")
         env = EnvironmentMap(image=baked.image, strength=np.ones(3), to_texture=np.eye(3),
                              name=f"{w.name} (baked)")
         return mean_radiance(env), env
@@ -1628,6 +1641,7 @@ class _Exporter:
         fscene = Scene(tri_p=tri_p, tri_n=tri_n, tri_uv=tri_uv, tri_mat=tri_mat,
                        materials=self.materials, lights=lights, camera=cam,
                        world_color=world, textures=self.textures, world_map=world_map,
+                       world_camera_map=self.world_camera_map,
                        filter_width=_filter_width(cy), filter_type=_filter_type(cy),
                        tri_object_index=(np.concatenate(self.obj_index_parts) if parts
                                          else np.zeros(0, np.int32)),

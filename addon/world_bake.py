@@ -42,7 +42,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..core.io.exr import read_exr
-from .world_bake_job import node_trees, sun_nodes
+from .world_bake_job import has_light_path, node_trees, sun_nodes
 
 # The map's width in pixels (height: half): 0.18 deg a pixel.
 WIDTH = 2048
@@ -69,10 +69,13 @@ class Baked(NamedTuple):
     (Blender's order, as ``_Exporter.pixels``), H = W / 2, equirectangular in
     world directions (an Environment Texture's lookup, no mapping);
     sun None or (strength (3,) irradiance [W/m^2], angle [rad], direction
-    (3,) unit, towards the sun); seconds the bake took."""
+    (3,) unit, towards the sun); seconds the bake took; camera_image: with a
+    Light Path node in the world, what camera rays see (image is then what
+    lights the scene), else None."""
     image: np.ndarray
     sun: tuple | None
     seconds: float
+    camera_image: np.ndarray | None = None
 
 
 class BakeError(RuntimeError):
@@ -215,7 +218,9 @@ class _Child:
         self.spec = {"blend": blend, "world": world.name, "frame": int(frame), "width": width,
                      "samples": SAMPLES, "out": os.path.join(d, "sky.exr"),
                      "sun": has_sun_disc(world), "sun_out": os.path.join(d, "sun.exr"),
-                     "sun_res": SUN_RES, "result": os.path.join(d, "result.json")}
+                     "sun_res": SUN_RES, "result": os.path.join(d, "result.json"),
+                     "camera_out": (os.path.join(d, "camera.exr") if has_light_path(world)
+                                    else "")}
         spec_path = os.path.join(d, "spec.json")
         with open(spec_path, "w") as f:
             json.dump(self.spec, f)
@@ -251,8 +256,12 @@ class _Child:
                                         res["matrix"])
                 if found is not None:
                     light = (found[0], float(res["size"]), found[1])
+            cam = None
+            if spec["camera_out"]:
+                cam = np.ascontiguousarray(
+                    read_exr(spec["camera_out"])["Combined"][::-1, :, :3], np.float32)
             out = Baked(np.ascontiguousarray(sky, np.float32), light,
-                        time.monotonic() - self.t0)
+                        time.monotonic() - self.t0, cam)
         finally:
             self.tmp.cleanup()
         while len(_cache) >= CACHE_SIZE:

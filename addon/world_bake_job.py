@@ -8,7 +8,9 @@ FPPM (and addon/world_bake.py imports it for :func:`node_trees` and
 (``bpy.data.libraries.write``), renders it alone and writes OpenEXR files.
 
 SPEC (JSON): blend, world (name), frame, width (the map is width x width/2),
-samples, out (the map's path), and, when ``sun`` is true, sun_out and
+samples, out (the map's path), camera_out (with a Light Path node in the
+world: the map camera rays see; ``out`` then holds the one that lights the
+scene, :func:`as_lighting_ray`), and, when ``sun`` is true, sun_out and
 sun_res: the sky is rendered with every Sky Texture's sun disc (of at most
 MAX_DISC) off, and the brightest disc is rendered again through a narrow perspective camera
 aimed at it, for the parent to turn into a sun light (world_bake.py says
@@ -63,6 +65,37 @@ def sun_nodes(world):
             if nd.type == 'TEX_SKY' and getattr(nd, "sun_disc", False)
             and nd.sky_type in ('SINGLE_SCATTERING', 'MULTIPLE_SCATTERING')
             and nd.sun_size <= MAX_DISC]
+
+
+#: What a Light Path node says to a ray that lights a surface: Cycles'
+#: values for the first diffuse bounce (the ray from a diffuse surface to
+#: the world; glossy reflections of the world see it too, where Cycles would
+#: say Is Glossy Ray).
+LIGHTING_RAY = {"Is Camera Ray": 0.0, "Is Shadow Ray": 0.0, "Is Diffuse Ray": 1.0,
+                "Is Glossy Ray": 0.0, "Is Singular Ray": 0.0, "Is Reflection Ray": 1.0,
+                "Is Transmission Ray": 0.0, "Is Volume Scatter Ray": 0.0,
+                "Ray Length": 1.0e10, "Ray Depth": 1.0, "Diffuse Depth": 1.0,
+                "Glossy Depth": 0.0, "Transparent Depth": 0.0, "Transmission Depth": 0.0,
+                "Portal Depth": 0.0}
+
+
+def has_light_path(world) -> bool:
+    return any(nd.type == 'LIGHT_PATH' for t in node_trees(world.node_tree) for nd in t.nodes)
+
+
+def as_lighting_ray(world) -> None:
+    """Every Light Path output in the world's trees replaced by a Value node
+    holding LIGHTING_RAY's value (unknown outputs: 0)."""
+    for t in node_trees(world.node_tree):
+        for nd in [n for n in t.nodes if n.type == 'LIGHT_PATH']:
+            for out in nd.outputs:
+                targets = [ln.to_socket for ln in t.links if ln.from_socket == out]
+                if not targets:
+                    continue
+                v = t.nodes.new('ShaderNodeValue')
+                v.outputs[0].default_value = LIGHTING_RAY.get(out.name, 0.0)
+                for sock in targets:
+                    t.links.new(v.outputs[0], sock)
 
 
 def _scene(spec):
@@ -122,6 +155,12 @@ def main():
     co.rotation_euler = (math.pi / 2, 0.0, -math.pi / 2)
     W = int(spec["width"])
     sc.render.resolution_x, sc.render.resolution_y = W, max(1, W // 2)
+    if spec.get("camera_out"):
+        # A Light Path node: this render is what camera rays see; the map
+        # that lights the scene is rendered with every Light Path output
+        # fixed to a diffuse ray's values (LIGHTING_RAY).
+        _render(sc, spec["camera_out"])
+        as_lighting_ray(world)
     _render(sc, spec["out"])
     result = {"suns": len(suns)}
     if suns:

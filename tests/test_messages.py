@@ -86,7 +86,7 @@ def _light_path(sc):
     from fppm.addon import world_bake
     world_bake.WIDTH = 16
     w, nt, bg, lp = _world_node(sc, 'ShaderNodeLightPath')
-    nt.links.new(lp.outputs["Is Camera Ray"], bg.inputs["Strength"])
+    nt.links.new(lp.outputs["Is Glossy Ray"], bg.inputs["Strength"])
 
 
 def _hdri_no_image(sc):
@@ -120,8 +120,8 @@ CASES = [
     (_volume_object, "volume object(s) not rendered: 1 object(s) (Smoke)"),
     (_world_volume, "world: volume ignored"),
     (_world_visibility, "world: ray visibility treated as fully visible"),
-    (_light_path, "world: Light Path baked as the camera sees the world (lighting uses the "
-                  "same map)"),
+    (_light_path, "world: Light Path Is Glossy Ray read as a diffuse ray's by every ray but "
+                  "the camera's"),
     (_hdri_no_image, "world: 'Environment Texture' has no image: the Background colour is used"),
     (_mapping_location, "world: location of 'Mapping' ignored"),
 ]

@@ -433,6 +433,18 @@ class PathTracer:
             if self.transparent:
                 # ``first``: only transparent crossings since the lens.
                 miss = miss[~first[miss]]
+            cam_env = lt.camera_environment
+            if cam_env is not None and miss.size:
+                # Rays still on the camera ray's line see the camera's map
+                # (Scene.world_camera_map); no light sample competes there.
+                on_line = miss[first[miss]]
+                if on_line.size:
+                    Le = np.empty((on_line.size, 3))
+                    rays_radiance(cam_env.kernel_data(), np.ascontiguousarray(d, np.float64),
+                                  on_line, Le)
+                    w = np.ones(on_line.size) if part is None else part.weight(on_line)
+                    PK.add_emission(out, path, on_line, beta, Le, w)
+                miss = miss[~first[miss]]
             if miss.size and np.any(self.world > 0):
                 row = np.full(miss.size, self.world_row, np.int64)
                 w = self._mis_bsdf(pdf_prev, p_prev, n_prev, d, row,

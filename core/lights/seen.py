@@ -125,15 +125,19 @@ def emitted_along_rays(table: LightTable, o: np.ndarray, d: np.ndarray, t_max: n
     return result()
 
 
-def world_radiance(table: LightTable, d: np.ndarray | None = None) -> np.ndarray:
+def world_radiance(table: LightTable, d: np.ndarray | None = None,
+                   camera: bool = False) -> np.ndarray:
     """The world's radiance seen by rays that escape.
 
     d None: (3,) the constant world colour (with an environment map: its mean).
     d (K, 3) unit directions: (K, 3) the radiance along each (the map's
-    lookup, or the constant broadcast)."""
+    lookup, or the constant broadcast).  camera: the rays are on the camera
+    ray's line, and see ``table.camera_environment`` when there is one."""
     if d is None:
         return table.world.copy()
     d = np.asarray(d, np.float64).reshape(-1, 3)
+    if camera and table.camera_environment is not None:
+        return table.camera_environment.radiance(d)
     if table.environment is not None and table.environment.total > 0:
         return table.environment.radiance(d)
     return np.broadcast_to(table.world, d.shape).copy()

@@ -113,6 +113,8 @@ class LightTable:
     group_center: np.ndarray = None
     group_ext2: float = 0.0
     environment: EnvironmentLight = None
+    # The world as camera rays see it, when it differs (Scene.world_camera_map).
+    camera_environment: EnvironmentLight = None
     # (centre (3,), half extents (3,)) float64 of the triangles' box, with the
     # bounding sphere's margin, or None without triangles: where world
     # photons start (emission.distant_footprint).
@@ -396,6 +398,8 @@ def build_light_table(scene: Scene) -> LightTable:
 
     table = _assemble(rows, tri_rows, center, R, D, world, warnings, scene.textures)
     table.environment = env
+    if getattr(scene, "world_camera_map", None) is not None:
+        table.camera_environment = EnvironmentLight.build(scene.world_camera_map)
     if scene.n_triangles:
         # min and max of the corners as stored (exact): no float64 copy of them
         P = np.asarray(scene.tri_p).reshape(-1, 3)

@@ -188,6 +188,10 @@ class Scene:
       the map's mean radiance, for plans and summaries).
     world_map: the world's Environment Texture
       (:class:`core.scene.textures.EnvironmentMap`) or None.
+    world_camera_map: the world as camera rays see it when that differs
+      from what lights the scene (a Light Path node in the world: Cycles'
+      Is Camera Ray), or None; rays still on the camera ray's line (through
+      transparent surfaces) that escape see it.
     approximations: what the exporter approximated or ignored, one sentence each.
     textures: list of (H, W, 3|4) float32 linear images, row 0 at the bottom.
     filter_width: Cycles' pixel filter width in pixels.
@@ -217,6 +221,7 @@ class Scene:
     film_transparent: bool = False
     mist: tuple = (5.0, 25.0, 2.0)
     world_map: Optional[EnvironmentMap] = None
+    world_camera_map: Optional[EnvironmentMap] = None
     approximations: tuple = ()
     tri_tangent: Optional[np.ndarray] = None
 
@@ -329,7 +334,8 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       else scene.tri_object_index[ok],
                       material_pass_index=scene.material_pass_index,
                       film_transparent=scene.film_transparent, mist=scene.mist,
-                      world_map=scene.world_map, approximations=scene.approximations,
+                      world_map=scene.world_map, world_camera_map=scene.world_camera_map,
+                      approximations=scene.approximations,
                       tri_tangent=None if scene.tri_tangent is None else scene.tri_tangent[ok])
     return scene, dropped
 
@@ -367,4 +373,7 @@ def scene_digest(scene: Scene) -> str:
         h.update(b"film_transparent")
     if scene.world_map is not None:
         h.update(scene.world_map.digest_bytes())
+    if scene.world_camera_map is not None:
+        h.update(b"camera")
+        h.update(scene.world_camera_map.digest_bytes())
     return h.hexdigest()[:16]

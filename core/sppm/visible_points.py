@@ -315,10 +315,18 @@ class CameraPass:
             if self.transparent:
                 miss = miss & ~esc      # Film > Transparent: alpha 0, no world
         lt = self.light_table
-        if fast and lt.environment is None and not np.any(lt.world):
+        if fast and lt.environment is None and lt.camera_environment is None \
+                and not np.any(lt.world):
             return
         if np.any(miss):
-            L[idx[miss]] += beta[miss] * Lt.world_radiance(self.light_table, d[miss])
+            if lt.camera_environment is not None:
+                # The rays still on the camera ray's line see the camera's map.
+                cam = miss & see_through
+                if np.any(cam):
+                    L[idx[cam]] += beta[cam] * Lt.world_radiance(lt, d[cam], camera=True)
+                miss = miss & ~see_through
+            if np.any(miss):
+                L[idx[miss]] += beta[miss] * Lt.world_radiance(lt, d[miss])
 
     def _seen_by_camera(self, L, emit, o, d, tmax, t, beta, split_min=SEEN_SPLIT_MIN) -> None:
         """L += beta * Le and emit += Le, Le the analytic emitters the camera
