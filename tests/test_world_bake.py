@@ -106,6 +106,18 @@ def _sky_scene(engine):
     return sc, sky
 
 
+def _cycles_render(sc, samples):
+    """Cycles' image of ``sc`` (mean of RGB): ``samples`` spp, no denoising,
+    adaptive sampling, Filter Glossy or clamping, 8 bounces."""
+    c = sc.cycles
+    c.samples, c.seed = samples, 1
+    c.use_denoising = c.use_adaptive_sampling = False
+    c.blur_glossy = c.sample_clamp_direct = c.sample_clamp_indirect = 0.0
+    c.max_bounces = c.diffuse_bounces = 8
+    sc.view_settings.view_transform = 'Standard'
+    return H.render_mean_rgb(sc)
+
+
 REGIONS = {"sky": np.s_[:10], "floor": np.s_[-16:], "cube": np.s_[20:32]}
 
 
@@ -113,13 +125,7 @@ def test_the_default_sky_renders_as_in_cycles(world_bake, monkeypatch):
     # A 1024-wide map: 0.35 deg a texel against the camera's 0.9 deg pixels.
     monkeypatch.setattr(world_bake, "WIDTH", 1024)
     sc, _ = _sky_scene("CYCLES")
-    c = sc.cycles
-    c.samples, c.seed = 1024, 1
-    c.use_denoising = c.use_adaptive_sampling = False
-    c.blur_glossy = c.sample_clamp_direct = c.sample_clamp_indirect = 0.0
-    c.max_bounces = c.diffuse_bounces = 8
-    sc.view_settings.view_transform = 'Standard'
-    ref = H.render_mean_rgb(sc)
+    ref = _cycles_render(sc, 1024)
 
     sc, sky = _sky_scene("FPPM")
     from fppm.addon.export import export_scene
@@ -276,13 +282,7 @@ def test_is_camera_ray_gives_the_camera_its_own_world(world_bake, monkeypatch):
     # it, with a warning) the floor read +28.5 %.
     monkeypatch.setattr(world_bake, "WIDTH", 256)
     sc = _light_path_scene("CYCLES")
-    c = sc.cycles
-    c.samples, c.seed = 512, 1
-    c.use_denoising = c.use_adaptive_sampling = False
-    c.blur_glossy = c.sample_clamp_direct = c.sample_clamp_indirect = 0.0
-    c.max_bounces = c.diffuse_bounces = 8
-    sc.view_settings.view_transform = 'Standard'
-    ref = H.render_mean_rgb(sc)
+    ref = _cycles_render(sc, 512)
     sc = _light_path_scene("FPPM")
     from fppm.addon.export import export_scene
     scene = export_scene(H.evaluated_depsgraph(), log=lambda s: None)
