@@ -375,6 +375,8 @@ class _MaterialBuilder:
             return GREY, -1
         src, out, vsock = self.follow(sock)
         chain = self.color_chain(sock)
+        if chain is None and src is None:
+            return GREY, -1                   # a socket without a colour value
         if chain is not None and chain[0] == 'const':
             v = chain[1]
             return (float(v[0]), float(v[1]), float(v[2])), -1

@@ -89,27 +89,22 @@ def _chain(kind):
         links.new(col, m.inputs["Color1"])
         return m.outputs["Color"]
 
+    def node(nodes, links, col, idname, **inputs):
+        """A colour node of idname with its float inputs set, col into its Color."""
+        n = nodes.new(idname)
+        for k, v in inputs.items():
+            n.inputs[k].default_value = v
+        links.new(col, n.inputs["Color"])
+        return n.outputs["Color"]
+
     def hsv(nodes, links, col):
-        h = nodes.new('ShaderNodeHueSaturation')
-        h.inputs["Hue"].default_value = 0.8
-        h.inputs["Saturation"].default_value = 1.6
-        h.inputs["Value"].default_value = 0.9
-        h.inputs["Fac"].default_value = 0.9
-        links.new(col, h.inputs["Color"])
-        return h.outputs["Color"]
+        return node(nodes, links, col, 'ShaderNodeHueSaturation', Hue=0.8, Saturation=1.6,
+                    Value=0.9, Fac=0.9)
 
     def bright(nodes, links, col):
-        n = nodes.new('ShaderNodeBrightContrast')
-        n.inputs["Bright"].default_value = 0.1
-        n.inputs["Contrast"].default_value = 0.6
-        links.new(col, n.inputs["Color"])
-        g = nodes.new('ShaderNodeGamma')
-        g.inputs["Gamma"].default_value = 2.2
-        links.new(n.outputs["Color"], g.inputs["Color"])
-        v = nodes.new('ShaderNodeInvert')
-        v.inputs["Fac"].default_value = 0.7
-        links.new(g.outputs["Color"], v.inputs["Color"])
-        return v.outputs["Color"]
+        c = node(nodes, links, col, 'ShaderNodeBrightContrast', Bright=0.1, Contrast=0.6)
+        c = node(nodes, links, c, 'ShaderNodeGamma', Gamma=2.2)
+        return node(nodes, links, c, 'ShaderNodeInvert', Fac=0.7)
 
     def ramp(nodes, links, col):
         r = nodes.new('ShaderNodeValToRGB')
@@ -121,6 +116,7 @@ def _chain(kind):
         r.color_ramp.interpolation = 'EASE'
         links.new(col, r.inputs["Fac"])
         return r.outputs["Color"]
+
     def rgb_curves(nodes, links, col):
         n = nodes.new('ShaderNodeRGBCurve')
         cm = n.mapping
