@@ -147,6 +147,8 @@ SUPPORT = (
     ("photon bounces on normal-mapped or bumped surfaces", APPROXIMATED,
      "photons scatter off the interpolated normal"),
     ("Normal Map in object or world space", APPROXIMATED, "space ignored (tangent space only)"),
+    ("Normal Map or Bump fed by an Image Texture through colour nodes (a Color Ramp into "
+     "a Bump's Height)", SUPPORTED, ""),
     ("Normal Map or Bump fed by other nodes", APPROXIMATED, "is not an Image Texture: ignored"),
     ("different Normal inputs on the shaders of one material", APPROXIMATED,
      "applied to all"),
@@ -605,11 +607,11 @@ class _MaterialBuilder:
             if getattr(src, "uv_map", ""):
                 self.notes.append(f"'{src.name}': tangents of UV map '{src.uv_map}' taken "
                                   f"from the render UV map")
-            img, iout, _ = self.follow(src.inputs["Color"])
-            if img is None or img.type != 'TEX_IMAGE' or iout.name != 'Color':
+            chain = self.color_chain(src.inputs["Color"])
+            if chain is None or chain[0] != 'tex':
                 self.notes.append(f"'{src.name}': colour input is not an Image Texture: ignored")
                 return None
-            t = self.image(img)
+            t = self.image(chain[1], chain[2])      # also through colour nodes
             if t < 0:
                 return None
             return NormalInput(NORMAL_MAP, t, strength=self.value(src, "Strength", 1.0),
@@ -622,10 +624,17 @@ class _MaterialBuilder:
                     and src.inputs["Normal"].is_linked:
                 self.notes.append(f"'{src.name}': its Normal input ignored")
             img, iout, _ = self.follow(src.inputs["Height"])
+            chain = None
+            if img is not None and img.type in _COLOR_NODES:
+                # A height through colour nodes (a Color Ramp's contrast):
+                # the folded image, read as a float reads a colour.
+                chain = self.color_chain(src.inputs["Height"])
+                if chain is not None and chain[0] == 'tex':
+                    img, iout = chain[1], chain[1].outputs["Color"]
             if img is None or img.type != 'TEX_IMAGE':
                 self.notes.append(f"'{src.name}': height is not an Image Texture: ignored")
                 return None
-            t = self.image(img)
+            t = self.image(img, chain[2] if chain is not None else ())
             if t < 0:
                 return None
             return NormalInput(BUMP, t, strength=self.value(src, "Strength", 1.0),

@@ -242,3 +242,32 @@ def test_an_image_colour_as_a_factor_agrees_with_cycles(how, tmp_path):
     effect = np.abs(flat_img - img).mean() / ref.mean()
     print(f"{how}: at the mean factor {f:.3f} the image moves by {effect:.3f} of the mean")
     TS._check(err, noise, effect)
+
+
+def test_a_bump_height_through_a_color_ramp_agrees_with_cycles(tmp_path):
+    """Image -> Color Ramp (a contrast curve) -> Bump Height: the folded
+    image is the height (``_MaterialBuilder.normal_input``).  Before, the
+    height was ignored with a note.  Measured: mean |diff| 0.36 % of the
+    mean, 0.8x the noise; without the bump the image differs by 7.6 %."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+
+    def bump(nodes, links):
+        tex = nodes.new('ShaderNodeTexImage')
+        tex.image = TS._image("H", TS.height_pixels())
+        r = nodes.new('ShaderNodeValToRGB')
+        r.color_ramp.elements[0].position = 0.2
+        r.color_ramp.elements[1].position = 0.8
+        b = nodes.new('ShaderNodeBump')
+        b.inputs["Distance"].default_value = 0.1
+        links.new(tex.outputs["Color"], r.inputs["Fac"])
+        links.new(r.outputs["Color"], b.inputs["Height"])
+        return b.outputs["Normal"]
+
+    sc, _ = TS.plane_scene(lambda n, lk, s: TS.diffuse_with_normal(n, lk, s, bump))
+    err, noise, img, ref, scene, lines = TS.compare(sc, tmp_path, "bump_ramp")
+    assert scene.materials[0].normal is not None and lines[1] == TS.PHOTON_NOTE, lines
+    flat = TS._fppm(TS._without_normals(scene), 1)
+    effect = np.abs(flat - ref).mean() / ref.mean()
+    print(f"bump through a ramp: without the perturbation mean |diff| {effect:.4f}")
+    TS._check(err, noise, effect)
