@@ -8,6 +8,9 @@ flux x f(theta) x sin^2 a, f Cycles' spread factor.  Checked here:
   (mis.emit_pdf_dir, compiled path_kernels._emit_pdf_dir), a chi-square
   test over 20 bins of cos(theta) (numpy and compiled emission);
 - both densities integrate to 1 over the sphere and agree;
+- next-event estimation samples only the part of the rectangle the slats
+  let through to the receiver (unbiased, and far less variance in the
+  penumbra);
 - the flux is the light's, and at equal photons the irradiance under a
   30-deg soft box is estimated with a fraction of the variance of the
   whole cosine lobe's photons (measured, 8 batches of 200,000: variance
@@ -104,3 +107,35 @@ def test_the_cone_lowers_the_variance():
     assert abs(cone.mean() - lobe.mean()) < 4 * math.sqrt((cone.var(ddof=1)
                                                            + lobe.var(ddof=1)) / 8)
     assert ratio > 3.0
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_next_event_estimation_samples_what_the_slats_let_through(compiled):
+    """Next-event estimation of a spread rectangle samples only the part
+    that can light the receiver (table.spread_rect, Cycles'
+    area_light_spread_clamp_light), its density 1 / that part's solid angle
+    (lights.pdf).  Under a 30-deg soft box 0.5 m off its axis (the
+    penumbra), the estimate equals the direct integral within 4 sigma, and
+    its variance is a fraction of the whole rectangle's (measured, 400,000
+    samples: 10.9x lower there, 3.6x at 0.3 m, 1.5x under the centre; 2.4x
+    at 0.5 m under a 60-deg box)."""
+    import test_area_spread as A
+    from core.lights import sampling as S
+    from test_combined import _nee_irradiance
+    t = _table(30.0)
+    p = np.array([0.5, 0.0, 0.0])
+    ref = A._integral(t, 0.5)
+    e = _nee_irradiance(t, p, 400_000, compiled, 3)
+    sig = e.std() / math.sqrt(e.size)
+    assert abs(e.mean() - ref) < 4 * sig + 1e-3 * ref, (e.mean(), sig, ref)
+    # The whole rectangle, for the variance: the numpy estimator without the cut.
+    saved = S.spread_rect
+    try:
+        S.spread_rect = lambda table, j, q, c, lu, lv: (c, lu, lv)
+        w = _nee_irradiance(t, p, 400_000, False, 3)
+    finally:
+        S.spread_rect = saved
+    ratio = w.var() / e.var()
+    print(f"30 deg, x 0.5 ({'compiled' if compiled else 'numpy'}): E {e.mean():.4f} +- {sig:.4f}, "
+          f"integral {ref:.4f}; variance of the whole rectangle / the cut {ratio:.1f}")
+    assert ratio > 4.0

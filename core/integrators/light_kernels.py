@@ -30,7 +30,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..lights.direct_kernels import _spherical_rect_solid_angle
+from ..lights.direct_kernels import _spherical_rect_solid_angle, spread_rect
 # compiled.eval_pair and pdf_oriented are compiled into these kernels and
 # numba's cache is stamped by this file: edited with the microfacet lobes'
 # geometric side test and the Normal Map / Bump density of round 27, and
@@ -500,8 +500,8 @@ class FirstHitLights(NamedTuple):
     """The emitters' arrays of :func:`first_hits` (Nl rows, float64 unless
     stated): kind (Nl,) int8; co, dir, axis_u, axis_v (Nl, 3); len_u, len_v,
     area (Nl,); rect (Nl,) bool an AREA rectangle (not an ellipse); p_emit
-    (Nl,) the emission selection probability (mis.emit_select); spread_sin2
-    (Nl,) ``LightTable.spread_sin2``."""
+    (Nl,) the emission selection probability (mis.emit_select); spread_sin2,
+    spread_tan (Nl,) ``LightTable.spread_sin2``, ``spread_tan``."""
     kind: np.ndarray
     co: np.ndarray
     dir: np.ndarray
@@ -513,6 +513,7 @@ class FirstHitLights(NamedTuple):
     rect: np.ndarray
     p_emit: np.ndarray
     spread_sin2: np.ndarray
+    spread_tan: np.ndarray
 
 
 def first_hit_lights(table, p_emit) -> FirstHitLights:
@@ -522,7 +523,8 @@ def first_hit_lights(table, p_emit) -> FirstHitLights:
                           c(table.axis_v, np.float64), c(table.len_u, np.float64),
                           c(table.len_v, np.float64), c(table.area, np.float64),
                           c((table.kind == AREA) & ~np.asarray(table.ellipse, bool)),
-                          c(p_emit, np.float64), c(table.spread_sin2, np.float64))
+                          c(p_emit, np.float64), c(table.spread_sin2, np.float64),
+                          c(table.spread_tan, np.float64))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -567,11 +569,12 @@ def first_hits(fl, kn, p, ng, d, z0, light, sel, b0, b1):
                   (cw / (np.pi * s2) if cw >= np.sqrt(1.0 - s2) else 0.0))
             front = ((px - co[j, 0]) * nx + (py - co[j, 1]) * ny + (pz - co[j, 2]) * nz) > 0
             res = dz * dz / max(area[j] * max(cw, 0.0), 1e-300) if cw > 0 else 0.0
-            hu, hv = 0.5 * len_u[j], 0.5 * len_v[j]
-            S = _spherical_rect_solid_angle(
-                px, py, pz, co[j, 0] - hu * au[j, 0] - hv * av[j, 0],
-                co[j, 1] - hu * au[j, 1] - hv * av[j, 1], co[j, 2] - hu * au[j, 2] - hv * av[j, 2],
-                au[j, 0], au[j, 1], au[j, 2], len_u[j], av[j, 0], av[j, 1], av[j, 2], len_v[j])
+            # pdf_direct's rectangle (a spread: the part it lets through to p).
+            sx, sy, sz, lu, lv = spread_rect(
+                fl.spread_tan[j], co[j, 0], co[j, 1], co[j, 2], nx, ny, nz, au[j, 0], au[j, 1],
+                au[j, 2], len_u[j], av[j, 0], av[j, 1], av[j, 2], len_v[j], px, py, pz)
+            S = _spherical_rect_solid_angle(px, py, pz, sx, sy, sz, au[j, 0], au[j, 1], au[j, 2],
+                                            lu, av[j, 0], av[j, 1], av[j, 2], lv)
             if S > 1e-6:
                 res = 1.0 / max(S, 1e-300)
             nee = (res if front else 0.0) * sel[i]

@@ -318,6 +318,34 @@ def _spherical_rect(px, py, pz, sx, sy, sz, exx, exy, exz, lx, eyx, eyy, eyz, ly
             pz + xu * exz + yv * eyz + z0 * zz, S)
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def spread_rect(tan, cx, cy, cz, nx, ny, nz, ux, uy, uz, lu, vx, vy, vz, lv, px, py, pz):
+    """table.spread_rect for one rectangle (centre c, unit normal n, unit
+    axes u, v of lengths lu, lv; tan = tan a of its half spread, inf: none)
+    and receiver p: (corner x, y, z, len_u, len_v) of the part that can
+    light p."""
+    hu, hv = 0.5 * lu, 0.5 * lv
+    if tan == np.inf:
+        return (cx - hu * ux - hv * vx, cy - hu * uy - hv * vy, cz - hu * uz - hv * vz, lu, lv)
+    dx, dy, dz = px - cx, py - cy, pz - cz
+    r = max(dx * nx + dy * ny + dz * nz, 0.0) * tan
+    x = dx * ux + dy * uy + dz * uz
+    y = dx * vx + dy * vy + dz * vz
+    u0, u1 = max(-hu, x - r), min(hu, x + r)
+    v0, v1 = max(-hv, y - r), min(hv, y + r)
+    return (cx + u0 * ux + v0 * vx, cy + u0 * uy + v0 * vy, cz + u0 * uz + v0 * vz,
+            max(u1 - u0, 0.0), max(v1 - v0, 0.0))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def rect_of(L, j, px, py, pz):
+    """:func:`spread_rect` of DirectLights L's row j for receiver p."""
+    return spread_rect(L.spread_tan[j], L.co[j, 0], L.co[j, 1], L.co[j, 2], L.dir[j, 0],
+                       L.dir[j, 1], L.dir[j, 2], L.axis_u[j, 0], L.axis_u[j, 1],
+                       L.axis_u[j, 2], L.len_u[j], L.axis_v[j, 0], L.axis_v[j, 1],
+                       L.axis_v[j, 2], L.len_v[j], px, py, pz)
+
+
 @njit(cache=True, error_model="numpy")
 def _spherical_rect_solid_angle(px, py, pz, sx, sy, sz, exx, exy, exz, lx, eyx, eyy, eyz, ly):
     """The solid angle S of _spherical_rect (same arguments but u1, u2) alone,
@@ -569,14 +597,11 @@ def direct_kernel(k0, k1, L, R, out):
             g = L.area[j] * max(cosl, 0.0) / max(t * t, 1e-300)
             l0, l1, l2 = L.radiance[j, 0] * g, L.radiance[j, 1] * g, L.radiance[j, 2] * g
             if not ell:
-                hu, hv = 0.5 * L.len_u[j], 0.5 * L.len_v[j]
-                sx = L.co[j, 0] - hu * L.axis_u[j, 0] - hv * L.axis_v[j, 0]
-                sy = L.co[j, 1] - hu * L.axis_u[j, 1] - hv * L.axis_v[j, 1]
-                sz = L.co[j, 2] - hu * L.axis_u[j, 2] - hv * L.axis_v[j, 2]
+                # The rectangle (a spread: the part its slats let through to p).
+                sx, sy, sz, lu, lv = rect_of(L, j, px, py, pz)
                 qx, qy, qz, S = _spherical_rect(
                     px, py, pz, sx, sy, sz, L.axis_u[j, 0], L.axis_u[j, 1], L.axis_u[j, 2],
-                    L.len_u[j], L.axis_v[j, 0], L.axis_v[j, 1], L.axis_v[j, 2], L.len_v[j],
-                    u1, u2)
+                    lu, L.axis_v[j, 0], L.axis_v[j, 1], L.axis_v[j, 2], lv, u1, u2)
                 if S > 1e-6:
                     front = ((px - L.co[j, 0]) * L.dir[j, 0] + (py - L.co[j, 1]) * L.dir[j, 1]
                              + (pz - L.co[j, 2]) * L.dir[j, 2]) > 0

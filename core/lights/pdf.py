@@ -13,7 +13,7 @@ import numpy as np
 
 from ..mathutil import dot as _dot
 from .sampling import _SPH_TRI_MIN, _entry_weights, _sample_spherical_rect, _sample_spherical_tri
-from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable
+from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, spread_rect
 
 
 def _selection_probability(table: LightTable, p: np.ndarray, light: np.ndarray) -> np.ndarray:
@@ -111,8 +111,10 @@ def pdf_direct(table: LightTable, p: np.ndarray, wi: np.ndarray, light: np.ndarr
             jr = j[rect]
             corner = (table.co[jr] - 0.5 * table.len_u[jr, None] * table.axis_u[jr]
                       - 0.5 * table.len_v[jr, None] * table.axis_v[jr])
-            _, S = _sample_spherical_rect(p[m[rect]], corner, table.axis_u[jr], table.len_u[jr],
-                                          table.axis_v[jr], table.len_v[jr], half[rect], half[rect])
+            corner, lu, lv = spread_rect(table, jr, p[m[rect]], corner, table.len_u[jr],
+                                         table.len_v[jr])
+            _, S = _sample_spherical_rect(p[m[rect]], corner, table.axis_u[jr], lu,
+                                          table.axis_v[jr], lv, half[rect], half[rect])
             res[rect] = np.where(S > 1e-6, 1.0 / np.maximum(S, 1e-300), res[rect])
         pdf[m] = np.where(front, res, 0.0)
 

@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .direct_kernels import SPH_TRI_MIN, _entry_weight, _spherical_rect, _spherical_tri
+from .direct_kernels import SPH_TRI_MIN, _entry_weight, _spherical_rect, _spherical_tri, rect_of
 # map_pdf is compiled into pdf_kernel (numba's cache is stamped by this file).
 from .environment_kernels import map_pdf, texture_vector
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD
@@ -143,13 +143,10 @@ def pdf_kernel(L, Q, p, wi, light, dist, n, sel, out):
                 if cosl > 0:
                     pdf = d2 / max(L.area[j] * max(cosl, 0.0), 1e-300)
                 if not L.ellipse[j]:
-                    hu, hv = 0.5 * L.len_u[j], 0.5 * L.len_v[j]
-                    sx = L.co[j, 0] - hu * L.axis_u[j, 0] - hv * L.axis_v[j, 0]
-                    sy = L.co[j, 1] - hu * L.axis_u[j, 1] - hv * L.axis_v[j, 1]
-                    sz = L.co[j, 2] - hu * L.axis_u[j, 2] - hv * L.axis_v[j, 2]
+                    sx, sy, sz, lu, lv = rect_of(L, j, px, py, pz)
                     S = _spherical_rect(px, py, pz, sx, sy, sz, L.axis_u[j, 0], L.axis_u[j, 1],
-                                        L.axis_u[j, 2], L.len_u[j], L.axis_v[j, 0],
-                                        L.axis_v[j, 1], L.axis_v[j, 2], L.len_v[j], 0.5, 0.5)[3]
+                                        L.axis_u[j, 2], lu, L.axis_v[j, 0],
+                                        L.axis_v[j, 1], L.axis_v[j, 2], lv, 0.5, 0.5)[3]
                     if S > 1e-6:
                         pdf = 1.0 / max(S, 1e-300)
         elif kind == MESH:

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..mathutil import dot as _dot, frame
 from .table import (AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _lum, _mesh_emission,
-                    spread_atten,
+                    spread_atten, spread_rect,
                     _spot_atten)
 from .warps import (_cone_local, _cosine_local, _normalize, _to_world, _triangle_bary,
                     _uniform_sphere, _unit_disk)
@@ -367,9 +367,11 @@ def sample_direct(table: LightTable, p: np.ndarray, u: np.ndarray, n=None) -> di
             corner = (table.co[jr] - 0.5 * table.len_u[jr, None] * table.axis_u[jr]
                       - 0.5 * table.len_v[jr, None] * table.axis_v[jr])
             pr = p[m[rect]]
-            qs, S = _sample_spherical_rect(pr, corner, table.axis_u[jr], table.len_u[jr],
-                                           table.axis_v[jr], table.len_v[jr],
-                                           u1[m[rect]], u2[m[rect]])
+            # A spread: only the part its slats let through to pr.
+            corner, lu, lv = spread_rect(table, jr, pr, corner, table.len_u[jr],
+                                         table.len_v[jr])
+            qs, S = _sample_spherical_rect(pr, corner, table.axis_u[jr], lu,
+                                           table.axis_v[jr], lv, u1[m[rect]], u2[m[rect]])
             front = _dot(pr - table.co[jr], table.dir[jr]) > 0
             use = np.nonzero(S > 1e-6)[0]          # else: area sampling (float cancellation)
             if use.size:

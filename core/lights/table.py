@@ -238,6 +238,37 @@ def spread_atten(table: LightTable, j, cos_l) -> np.ndarray:
     return np.where(np.isinf(tan_s), 1.0, np.where(c > 0, a, 0.0))
 
 
+def spread_rect(table: LightTable, j, p, corner, len_u, len_v):
+    """(corner (K, 3), len_u, len_v (K,)) of rectangular area lights j (K,)
+    cut to the part that can light p (K, 3) through a spread's slats
+    (Cycles' ``area_light_spread_clamp_light``): a light point q reaches p
+    when the angle of p - q to the normal is at most a, i.e. q lies within
+    h tan a of p's foot on the light's plane (h its height above it), so
+    the rectangle is cut to the square of that half side around the foot
+    (empty: lengths 0).  Lights without a spread keep corner, len_u, len_v
+    (the same arrays).  Next-event estimation samples the cut rectangle in
+    solid angle, and its density is 1 / the cut rectangle's solid angle
+    (lights.pdf): outside the cut the spread factor is 0."""
+    tan = table.spread_tan[j]
+    k = np.nonzero(np.isfinite(tan))[0]
+    if k.size == 0:
+        return corner, len_u, len_v
+    corner, len_u, len_v = corner.copy(), np.array(len_u, np.float64), np.array(len_v, np.float64)
+    jj = j[k]
+    au, av = table.axis_u[jj], table.axis_v[jj]
+    d = p[k] - table.co[jj]
+    r = np.maximum(np.einsum("ij,ij->i", d, table.dir[jj]), 0.0) * tan[k]
+    x = np.einsum("ij,ij->i", d, au)
+    y = np.einsum("ij,ij->i", d, av)
+    hu, hv = 0.5 * table.len_u[jj], 0.5 * table.len_v[jj]
+    u0, u1 = np.maximum(-hu, x - r), np.minimum(hu, x + r)
+    v0, v1 = np.maximum(-hv, y - r), np.minimum(hv, y + r)
+    corner[k] = table.co[jj] + u0[:, None] * au + v0[:, None] * av
+    len_u[k] = np.maximum(u1 - u0, 0.0)
+    len_v[k] = np.maximum(v1 - v0, 0.0)
+    return corner, len_u, len_v
+
+
 # ----------------------------------------------------------------------------
 # Mesh emission.
 
