@@ -125,7 +125,7 @@ SUPPORT = (
     ("Mapping (Point, Texture, Vector) and Texture Coordinate (UV, Generated, Object) "
      "into Image Texture vectors", SUPPORTED, ""),
     ("an image's colour (also through colour nodes: its luminance) into a Mix Shader's "
-     "Fac or the Principled Alpha, per hit", SUPPORTED, ""),
+     "Fac, the Principled Alpha or an emission's Strength, per hit", SUPPORTED, ""),
     ("image alpha into the Principled Alpha or a Mix Shader's Fac (stochastic "
      "pass-through of camera and photon paths; shadow rays pass cut-outs and Transparent "
      "BSDFs with Cycles' weights in every integrator, docs/shading.md); "
@@ -141,9 +141,9 @@ SUPPORT = (
     ("other shader nodes", APPROXIMATED, "unsupported node(s) "),
     ("other nodes linked into an input (the input's value is used)", APPROXIMATED,
      "'{src.name}' into {node.name}.{name} ignored"),
-    ("an Image Texture into a scalar input other than a Mix Shader's Fac and the "
-     "Principled Alpha (Roughness, Metallic, IOR, ...): the image's mean over its pixels, "
-     "not per hit", APPROXIMATED, "the image's mean"),
+    ("an Image Texture into a scalar input other than a Mix Shader's Fac, the "
+     "Principled Alpha and an emission's Strength (Roughness, Metallic, IOR, ...): the "
+     "image's mean over its pixels, not per hit", APPROXIMATED, "the image's mean"),
     ("photon bounces on normal-mapped or bumped surfaces", APPROXIMATED,
      "photons scatter off the interpolated normal"),
     ("Normal Map in object or world space", APPROXIMATED, "space ignored (tangent space only)"),
@@ -389,6 +389,25 @@ class _MaterialBuilder:
         self.notes.append(f"'{src.name}' into {node.name}.{name} ignored")
         v = tuple(vsock.default_value)
         return (float(v[0]), float(v[1]), float(v[2])), -1
+
+    def emission(self, node, color_name, strength_name, default):
+        """(colour rgb, strength, texture index) of an emission: a Strength
+        fed by an image's colour (a mask, also through colour nodes; read
+        as a float reads a colour, its luminance) becomes a texture of that
+        grey times the constant colour (white colour, strength 1 then);
+        with a textured colour too, the Strength is the image's mean."""
+        c, tex = self.color(node, color_name)
+        sock = node.inputs.get(strength_name)
+        if tex < 0 and sock is not None and sock.is_linked:
+            src = self.follow(sock)[0]
+            chain = (self.color_chain(sock) if src is not None
+                     and src.type in _COLOR_NODES | {'TEX_IMAGE'} else None)
+            if chain is not None and chain[0] == 'tex':
+                ops = chain[2] + (("gray",), ("mix", "MULTIPLY", 1.0, tuple(c), "A", False))
+                t = self.image(chain[1], ops)
+                if t >= 0:
+                    return (1.0, 1.0, 1.0), 1.0, t
+        return c, self.value(node, strength_name, default), tex
 
     @staticmethod
     def _constant(src, vsock):
@@ -677,8 +696,7 @@ class _MaterialBuilder:
             c, tex = self.color(node, "Color")
             return Material(n, lobes=(Lobe(TRANSLUCENT, c, 1.0, color_texture=tex),))
         if t == 'EMISSION':
-            c, tex = self.color(node, "Color")
-            s = self.value(node, "Strength", 1.0)
+            c, s, tex = self.emission(node, "Color", "Strength", 1.0)
             return Material(n, lobes=(), emission=(c[0] * s, c[1] * s, c[2] * s),
                             emission_texture=tex)
         if t == 'MIX_SHADER':
@@ -724,7 +742,8 @@ class _MaterialBuilder:
     def principled(self, node) -> Material:
         """Principled BSDF through ``core.scene.nodes.principled_to_lobes``."""
         base, base_tex = self.color(node, "Base Color")
-        emis, emis_tex = self.color(node, "Emission Color")
+        emis, emis_strength, emis_tex = self.emission(node, "Emission Color",
+                                                      "Emission Strength", 0.0)
         v = self.value
         alpha_tex = self.alpha_texture(node, "Alpha")
         lobes, emission, notes = shading.principled_to_lobes(
@@ -742,7 +761,7 @@ class _MaterialBuilder:
             anisotropic=v(node, "Anisotropic", 0.0),
             diffuse_roughness=v(node, "Diffuse Roughness", 0.0),
             thin_film_thickness=v(node, "Thin Film Thickness", 0.0),
-            emission_color=emis, emission_strength=v(node, "Emission Strength", 0.0),
+            emission_color=emis, emission_strength=emis_strength,
             emission_color_texture=emis_tex,
             multiscatter=getattr(node, "distribution", 'MULTI_GGX') == 'MULTI_GGX')
         return Material(self.name, tuple(lobes), tuple(float(x) for x in emission),

@@ -163,7 +163,7 @@ def is_affine(ops) -> bool:
             _, blend, _, _, side, clamp = op
             if clamp or not (blend in _AFFINE_BLENDS or (blend == "DIVIDE" and side == "A")):
                 return False
-        elif op[0] not in ("bright", "invert"):
+        elif op[0] not in ("bright", "invert", "gray"):
             return False
     return True
 
@@ -209,6 +209,8 @@ def apply(ops, c: np.ndarray) -> np.ndarray:
             c = invert(c, op[1])
         elif name == "ramp":                  # ("ramp", table as a tuple of rgb, interpolate)
             c = ramp(gray(c), np.asarray(op[1], np.float64), op[2])
+        elif name == "gray":                  # ("gray",): a colour read as a float, as grey
+            c = np.repeat(gray(c)[..., None], 3, axis=-1)
         elif name == "curves":                # ("curves", table, min_x, range_x, extrapolate, fac)
             c = curves(c, np.asarray(op[1], np.float64), *op[2:])
         else:
