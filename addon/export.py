@@ -390,6 +390,15 @@ class _MaterialBuilder:
         v = tuple(vsock.default_value)
         return (float(v[0]), float(v[1]), float(v[2])), -1
 
+    def image_chain(self, sock):
+        """(Image Texture node, ops) when ``sock`` receives an image's Color,
+        also through colour nodes (:meth:`color_chain`), else None."""
+        src = self.follow(sock)[0]
+        if src is None or src.type not in _COLOR_NODES | {'TEX_IMAGE'}:
+            return None
+        chain = self.color_chain(sock)
+        return chain[1:] if chain is not None and chain[0] == 'tex' else None
+
     def emission(self, node, color_name, strength_name, default):
         """(colour rgb, strength, texture index) of an emission: a Strength
         fed by an image's colour (a mask, also through colour nodes; read
@@ -398,15 +407,12 @@ class _MaterialBuilder:
         with a textured colour too, the Strength is the image's mean."""
         c, tex = self.color(node, color_name)
         sock = node.inputs.get(strength_name)
-        if tex < 0 and sock is not None and sock.is_linked:
-            src = self.follow(sock)[0]
-            chain = (self.color_chain(sock) if src is not None
-                     and src.type in _COLOR_NODES | {'TEX_IMAGE'} else None)
-            if chain is not None and chain[0] == 'tex':
-                ops = chain[2] + (("gray",), ("mix", "MULTIPLY", 1.0, tuple(c), "A", False))
-                t = self.image(chain[1], ops)
-                if t >= 0:
-                    return (1.0, 1.0, 1.0), 1.0, t
+        chain = self.image_chain(sock) if tex < 0 and sock is not None else None
+        if chain is not None:
+            img, ops = chain
+            t = self.image(img, ops + (("gray",), ("mix", "MULTIPLY", 1.0, tuple(c), "A", False)))
+            if t >= 0:
+                return (1.0, 1.0, 1.0), 1.0, t
         return c, self.value(node, strength_name, default), tex
 
     @staticmethod
@@ -479,11 +485,9 @@ class _MaterialBuilder:
             a, b = inp(ia), inp(ib)
             if a is None or b is None:
                 return None
-            if a[0] == 'const' and b[0] == 'const':
-                return 'const', CO.apply((("mix", blend, t, tuple(b[1]), "A", clamp),), a[1][None])[0]
-            if a[0] == 'tex' and b[0] == 'const':
+            if b[0] == 'const':
                 return then(a, ("mix", blend, t, tuple(b[1]), "A", clamp))
-            if b[0] == 'tex' and a[0] == 'const':
+            if a[0] == 'const':
                 return then(b, ("mix", blend, t, tuple(a[1]), "B", clamp))
             return None                       # two images
         if src.type == 'HUE_SAT':
@@ -567,11 +571,8 @@ class _MaterialBuilder:
         src, out, _ = self.follow(sock)
         if src is not None and src.type == 'TEX_IMAGE' and out.name == 'Alpha':
             return self.image(src)
-        if src is not None and src.type in _COLOR_NODES | {'TEX_IMAGE'}:
-            chain = self.color_chain(sock)
-            if chain is not None and chain[0] == 'tex':
-                return self.image(chain[1], chain[2], scalar=True)
-        return -1
+        chain = self.image_chain(sock)
+        return -1 if chain is None else self.image(*chain, scalar=True)
 
     def image(self, tex_node, ops=(), scalar=False) -> int:
         """An Image Texture node's texture index (its Color through ``ops``,
@@ -643,17 +644,17 @@ class _MaterialBuilder:
                     and src.inputs["Normal"].is_linked:
                 self.notes.append(f"'{src.name}': its Normal input ignored")
             img, iout, _ = self.follow(src.inputs["Height"])
-            chain = None
-            if img is not None and img.type in _COLOR_NODES:
-                # A height through colour nodes (a Color Ramp's contrast):
-                # the folded image, read as a float reads a colour.
-                chain = self.color_chain(src.inputs["Height"])
-                if chain is not None and chain[0] == 'tex':
-                    img, iout = chain[1], chain[1].outputs["Color"]
+            ops = ()
+            chain = self.image_chain(src.inputs["Height"])
+            if chain is not None:
+                # Also through colour nodes (a Color Ramp's contrast): the
+                # folded image, read as a float reads a colour.
+                img, ops = chain
+                iout = img.outputs["Color"]
             if img is None or img.type != 'TEX_IMAGE':
                 self.notes.append(f"'{src.name}': height is not an Image Texture: ignored")
                 return None
-            t = self.image(img, chain[2] if chain is not None else ())
+            t = self.image(img, ops)
             if t < 0:
                 return None
             return NormalInput(BUMP, t, strength=self.value(src, "Strength", 1.0),

@@ -180,41 +180,45 @@ def main():
         lum = [0.2126 * px[i] + 0.7152 * px[i + 1] + 0.0722 * px[i + 2]
                for i in range(0, len(px), 4)]
         k = max(range(len(lum)), key=lum.__getitem__)
-        if lum[k] <= DISC_CONTRAST * sorted(lum)[len(lum) // 2]:
+        if lum[k] > DISC_CONTRAST * sorted(lum)[len(lum) // 2]:
+            result.update(_disc(sc, spec, suns, k, pw))
+        else:
             # No disc stands out: the sun is below the horizon (the ground
             # hides it).  The sky keeps no disc and there is no sun light.
             result["suns"] = 0
-            with open(spec["result"], "w") as f:
-                json.dump(result, f)
-            return
-        row, col = divmod(k, pw)              # row 0 at the bottom
-        u, v = (col + 0.5) / pw, (row + 0.5) / (pw // 2)
-        lat, phi = (v - 0.5) * math.pi, (0.5 - u) * 2.0 * math.pi
-        aim = (math.cos(lat) * math.cos(phi), math.cos(lat) * math.sin(phi), math.sin(lat))
-        # The disc again through a narrow perspective camera: twice the disc
-        # plus the probe's pixel error (+-0.7 deg), sun_res pixels square,
-        # so that the disc covers under a fifth of it and the median pixel
-        # is sky.
-        size = max(float(nd.sun_size) for nd in suns)
-        fov = 2.0 * size + math.radians(3.0)
-        cam2 = bpy.data.cameras.new("fppm_sun")
-        cam2.type = 'PERSP'
-        cam2.sensor_fit = 'HORIZONTAL'
-        cam2.angle = fov
-        co2 = bpy.data.objects.new("fppm_sun", cam2)
-        sc.collection.objects.link(co2)
-        from mathutils import Vector
-        co2.rotation_mode = 'QUATERNION'
-        co2.rotation_quaternion = Vector(aim).to_track_quat('-Z', 'Y')
-        sc.camera = co2
-        n = int(spec["sun_res"])
-        sc.render.resolution_x = sc.render.resolution_y = n
-        _render(sc, spec["sun_out"])
-        bpy.context.view_layer.update()
-        result.update(aim=list(aim), fov=fov, size=size,
-                      matrix=[list(r) for r in co2.matrix_world])
     with open(spec["result"], "w") as f:
         json.dump(result, f)
+
+
+def _disc(sc, spec, suns, k, pw) -> dict:
+    """Render the disc seen in the probe's pixel k (pw pixels wide, row 0
+    at the bottom) through a narrow perspective camera into sun_out; the
+    camera's field of view, matrix and the disc's size for the parent."""
+    row, col = divmod(k, pw)              # row 0 at the bottom
+    u, v = (col + 0.5) / pw, (row + 0.5) / (pw // 2)
+    lat, phi = (v - 0.5) * math.pi, (0.5 - u) * 2.0 * math.pi
+    aim = (math.cos(lat) * math.cos(phi), math.cos(lat) * math.sin(phi), math.sin(lat))
+    # The disc again through a narrow perspective camera: twice the disc
+    # plus the probe's pixel error (+-0.7 deg), sun_res pixels square,
+    # so that the disc covers under a fifth of it and the median pixel
+    # is sky.
+    size = max(float(nd.sun_size) for nd in suns)
+    fov = 2.0 * size + math.radians(3.0)
+    cam2 = bpy.data.cameras.new("fppm_sun")
+    cam2.type = 'PERSP'
+    cam2.sensor_fit = 'HORIZONTAL'
+    cam2.angle = fov
+    co2 = bpy.data.objects.new("fppm_sun", cam2)
+    sc.collection.objects.link(co2)
+    from mathutils import Vector
+    co2.rotation_mode = 'QUATERNION'
+    co2.rotation_quaternion = Vector(aim).to_track_quat('-Z', 'Y')
+    sc.camera = co2
+    n = int(spec["sun_res"])
+    sc.render.resolution_x = sc.render.resolution_y = n
+    _render(sc, spec["sun_out"])
+    bpy.context.view_layer.update()
+    return {"fov": fov, "size": size, "matrix": [list(r) for r in co2.matrix_world]}
 
 
 if __name__ == "__main__":

@@ -38,7 +38,8 @@ from ..lights.direct_kernels import _spherical_rect_solid_angle, spread_rect
 # reference counts of round 32.
 from ..materials.compiled import eval_pair, pdf_oriented
 from ..lights.table import AREA, POINT
-from ..scene.camera import BH_A0, BH_A1, BH_A2, BH_A3, FILTER_TYPES, filter_support
+from ..scene.camera import (BH_A0, BH_A1, BH_A2, BH_A3, FILTER_TYPES, GAUSS_INTEGRAL,
+                            filter_support)
 from ..sppm.photon_kernels import _offset_scale, lambert_pdf, shading_normal
 from .merge_kernels import pixel_row
 
@@ -63,8 +64,7 @@ def _support(width, kind):
     if kind == BOX:
         return BOX, 0.5 * width, 1.0 / width
     if kind == GAUSS:
-        # 1 / (w sqrt(pi / 8) erf(1.5 sqrt 8)), camera.filter_integral
-        return GAUSS, 1.5 * width, 1.0 / (width * 0.6266570674212458)
+        return GAUSS, 1.5 * width, 1.0 / (width * GAUSS_INTEGRAL)   # camera.filter_integral
     return BH, width, 1.0 / (2.0 * width * BH_A0)
 
 

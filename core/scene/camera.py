@@ -30,6 +30,7 @@ keeps the numpy path.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,6 +51,10 @@ def blackman_harris(x: np.ndarray, width: float) -> np.ndarray:
     v = 2.0 * np.pi * (x / (2.0 * width) + 0.5)
     return BH_A0 - BH_A1 * np.cos(v) + BH_A2 * np.cos(2 * v) - BH_A3 * np.cos(3 * v)
 
+
+#: The Gaussian profile exp(-8 x^2) over its support +-1.5: sqrt(pi / 8)
+#: erf(1.5 sqrt 8) (a filter of width w integrates to w times this).
+GAUSS_INTEGRAL = math.sqrt(math.pi / 8.0) * math.erf(1.5 * math.sqrt(8.0))
 
 #: Blender's ``cycles.pixel_filter_type`` values, and their codes in the
 #: compiled splat (core.integrators.light_kernels).
@@ -74,12 +79,11 @@ def filter_profile(x: np.ndarray, width: float, kind: str = "BLACKMAN_HARRIS") -
 def filter_integral(width: float, kind: str = "BLACKMAN_HARRIS") -> float:
     """The profile's integral over the support: Blackman-Harris 2 w a0 (the
     cosine terms integrate to zero over whole periods), box w, Gaussian
-    w sqrt(pi / 8) erf(1.5 sqrt 8)."""
-    import math
+    w GAUSS_INTEGRAL."""
     if kind == "BOX":
         return float(width)
     if kind == "GAUSSIAN":
-        return float(width) * math.sqrt(math.pi / 8.0) * math.erf(1.5 * math.sqrt(8.0))
+        return float(width) * GAUSS_INTEGRAL
     return 2.0 * float(width) * BH_A0
 
 
