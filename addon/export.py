@@ -124,8 +124,9 @@ SUPPORT = (
      "DirectX) and Bump (Strength, Distance, Invert) from an Image Texture", SUPPORTED, ""),
     ("Mapping (Point, Texture, Vector) and Texture Coordinate (UV, Generated, Object) "
      "into Image Texture vectors", SUPPORTED, ""),
-    ("an image's colour (also through colour nodes: its luminance) into a Mix Shader's "
-     "Fac, the Principled Alpha or an emission's Strength, per hit", SUPPORTED, ""),
+    ("an image's colour (also through colour nodes: its luminance) or alpha into a Mix "
+     "Shader's Fac, the Principled Alpha or Metallic, or an emission's Strength, per hit",
+     SUPPORTED, ""),
     ("image alpha into the Principled Alpha or a Mix Shader's Fac (stochastic "
      "pass-through of camera and photon paths; shadow rays pass cut-outs and Transparent "
      "BSDFs with Cycles' weights in every integrator, docs/shading.md); "
@@ -142,8 +143,9 @@ SUPPORT = (
     ("other nodes linked into an input (the input's value is used)", APPROXIMATED,
      "'{src.name}' into {node.name}.{name} ignored"),
     ("an Image Texture into a scalar input other than a Mix Shader's Fac, the "
-     "Principled Alpha and an emission's Strength (Roughness, Metallic, IOR, ...): the "
-     "image's mean over its pixels, not per hit", APPROXIMATED, "the image's mean"),
+     "Principled Alpha and Metallic, and an emission's Strength (Roughness, IOR, ..., "
+     "and a Metallic beside a textured Alpha): the image's mean over its pixels, not per "
+     "hit", APPROXIMATED, "the image's mean"),
     ("photon bounces on normal-mapped or bumped surfaces", APPROXIMATED,
      "photons scatter off the interpolated normal"),
     ("Normal Map in object or world space", APPROXIMATED, "space ignored (tangent space only)"),
@@ -546,8 +548,8 @@ class _MaterialBuilder:
         if chain is not None:
             src, out = chain[1], chain[1].outputs['Color']
         if src.type == 'TEX_IMAGE' and out is not None and out.name in ('Color', 'Alpha'):
-            # A roughness or metallic map: no per-hit scalar inputs (only
-            # colours are textured per hit), so its mean over the image
+            # A roughness or IOR map: no per-hit BSDF parameters (colours
+            # and lobe weights are what varies per hit), so its mean over the image
             # (through the colour nodes between) rather than the socket's
             # unrelated default.
             m = self.ex.image_mean(src, out.name, self.notes, chain[2] if chain else ())
@@ -747,9 +749,14 @@ class _MaterialBuilder:
                                                       "Emission Strength", 0.0)
         v = self.value
         alpha_tex = self.alpha_texture(node, "Alpha")
+        # A Metallic map per hit; beside a textured Alpha, its mean (a lobe
+        # follows one image: principled_to_lobes).
+        metal_tex = self.alpha_texture(node, "Metallic") if alpha_tex < 0 else -1
         lobes, emission, notes = shading.principled_to_lobes(
             base_color=base, base_color_texture=base_tex, alpha_texture=alpha_tex,
-            metallic=v(node, "Metallic", 0.0), roughness=v(node, "Roughness", 0.5),
+            metallic_texture=metal_tex,
+            metallic=0.0 if metal_tex >= 0 else v(node, "Metallic", 0.0),
+            roughness=v(node, "Roughness", 0.5),
             ior=v(node, "IOR", 1.5), alpha=1.0 if alpha_tex >= 0 else v(node, "Alpha", 1.0),
             transmission=v(node, "Transmission Weight", 0.0),
             coat_weight=v(node, "Coat Weight", 0.0),

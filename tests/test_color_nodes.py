@@ -313,3 +313,45 @@ def test_an_emission_strength_mask_agrees_with_cycles(how, tmp_path):
     effect = np.abs((TS._fppm(flat, 1) + TS._fppm(flat, 2)) / 2 - img).mean() / ref.mean()
     print(f"{how}: at the mask's mean the image moves by {effect:.3f} of the mean")
     TS._check(err, noise, effect)
+
+
+@pytest.mark.parametrize("how", ["color", "alpha"])
+def test_a_metallic_map_agrees_with_cycles(how, tmp_path):
+    """A grey mask into the Principled Metallic (its Color, or its Alpha
+    output) over an orange rough base: per hit, the metal lobe scaled by
+    m(uv) and the specular and diffuse by 1 - m(uv) (``principled_to_lobes``
+    ``metallic_texture``; Cycles' Principled BSDF is linear in Metallic).
+    Before, the mask's mean was used (noted)."""
+    pytest.importorskip("bpy")
+    import dataclasses
+    import test_shading_nodes as TS
+
+    def mat(nodes, links, surface):
+        tex = nodes.new('ShaderNodeTexImage')
+        m = _mask_pixels()
+        if how == "alpha":      # the mask in the alpha channel, the colour constant
+            m = np.concatenate([np.full(m.shape, 0.3, np.float32), m[..., :1]], -1)
+        tex.image = TS._image("M", m, non_color=True)
+        p = nodes.new('ShaderNodeBsdfPrincipled')
+        p.inputs["Base Color"].default_value = (0.9, 0.45, 0.1, 1.0)
+        p.inputs["Roughness"].default_value = 0.35
+        links.new(tex.outputs["Color" if how == "color" else "Alpha"], p.inputs["Metallic"])
+        links.new(p.outputs[0], surface)
+
+    sc, _ = TS.plane_scene(mat)
+    err, noise, img, ref, scene, lines = TS.compare(sc, tmp_path, f"metallic_{how}")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    m = scene.materials[0]
+    scaled = [lb for lb in m.lobes if lb.alpha_texture >= 0]
+    assert len(scaled) == len(m.lobes) == 3 and sum(not lb.alpha_invert for lb in scaled) == 1
+    TS._check(err, noise)
+    # The map matters: every lobe at the mask's mean instead.
+    f = float(scene.textures[scaled[0].alpha_texture][..., 3].mean())
+    flat = dataclasses.replace(scene, materials=[dataclasses.replace(m, lobes=tuple(
+        dataclasses.replace(lb, alpha_texture=-1, alpha_invert=False,
+                            weight=lb.weight * ((1.0 - f) if lb.alpha_invert else f))
+        for lb in m.lobes))])
+    effect = np.abs((TS._fppm(flat, 1) + TS._fppm(flat, 2)) / 2 - img).mean() / ref.mean()
+    print(f"metallic {how}: at the mask's mean {f:.3f} the image moves by {effect:.3f} "
+          "of the mean")
+    TS._check(err, noise, effect)

@@ -91,6 +91,25 @@ def test_principled_alpha_and_emission():
     np.testing.assert_allclose(w_cut, 0.25 * w_full, rtol=1e-12)
 
 
+def test_principled_metallic_map_is_the_metal_and_dielectric_builds_mixed():
+    """A Metallic map m(uv): the metal lobe of Metallic 1 scaled by m, the
+    specular and diffuse of Metallic 0 by 1 - m (Cycles' Principled is
+    linear in Metallic), in the slots Metallic 0.5 gives; the coat above
+    is not scaled."""
+    import dataclasses
+    kw = dict(base_color=(0.9, 0.45, 0.1), roughness=0.3, coat_weight=0.5)
+    lobes, _, notes = principled_to_lobes(metallic_texture=3, **kw)
+    half, _, _ = principled_to_lobes(metallic=0.5, **kw)
+    one, _, _ = principled_to_lobes(metallic=1.0, **kw)
+    zero, _, _ = principled_to_lobes(metallic=0.0, **kw)
+    assert [lb.kind for lb in lobes] == [lb.kind for lb in half]
+    plain = [dataclasses.replace(lb, alpha_texture=-1, alpha_invert=False) for lb in lobes]
+    assert [lb.alpha_texture for lb in lobes] == [-1, 3, 3, 3]
+    assert [lb.alpha_invert for lb in lobes[1:]] == [False, True, True]
+    assert plain[0] == one[0] == zero[0]
+    assert plain[1] == one[1] and plain[2:] == list(zero[1:])
+
+
 def test_principled_notes_unsupported_features():
     lobes, _, notes = principled_to_lobes(sheen_weight=0.5, coat_weight=1.0, subsurface_weight=0.3,
                                           anisotropic=0.5, diffuse_roughness=0.5)

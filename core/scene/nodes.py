@@ -88,7 +88,8 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
                         specular_tint=(1.0, 1.0, 1.0), anisotropic=0.0, diffuse_roughness=0.0,
                         thin_film_thickness=0.0, emission_color=(1.0, 1.0, 1.0),
                         emission_strength=0.0, base_color_texture=-1,
-                        emission_color_texture=-1, multiscatter=True, alpha_texture=-1):
+                        emission_color_texture=-1, multiscatter=True, alpha_texture=-1,
+                        metallic_texture=-1):
     """Map Principled BSDF inputs onto FPPM lobes.
 
     Colours are linear RGB triples; ``*_texture`` are indices into
@@ -100,6 +101,14 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
     alpha_texture >= 0: the Alpha input is that image's alpha a(uv): the
     lobes are built for alpha = 1, then scaled by a, under a Transparent
     lobe scaled by 1 - a (:func:`alpha_scaled`).
+    metallic_texture >= 0: Metallic is that image's alpha m(uv) per hit
+    (``metallic`` is not read).  Cycles' Principled BSDF is linear in
+    Metallic: the metal closure has weight m, every dielectric one below it
+    (transmission, specular, diffuse) 1 - m, and the coat above is not
+    touched.  So the metal is built for m = 1 and the rest for m = 0, then
+    scaled by m and 1 - m through ``Lobe.alpha_texture``.  A lobe follows
+    one image: with a textured Alpha as well, the exporter passes the
+    Metallic image's mean instead (noted).
     Returns (lobes: tuple[Lobe], emission: (3,) float64 radiance,
     approximations: tuple[str]).
     """
@@ -148,13 +157,18 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
 
     # --- Metallic: GGX with Cycles' F82-tint conductor Fresnel, F0 = base colour.
     metal = None
+    metal_tex = int(metallic_texture)
+    if metal_tex >= 0:
+        metallic = 1.0
     if metallic > WEIGHT_CUTOFF:
         metal = make_lobe(GLOSSY, _tup(cbase * w_rgb), weight=metallic * w, roughness=roughness,
                           color_texture=tex, multiscatter=multiscatter, fresnel="F82",
                           f82_tint=_tup(np.minimum(spec_tint, 1.0)))
         if not np.allclose(w_rgb, 1.0):
             notes.append("metallic under a tinted coat: the tint scales F0")
-        w *= 1.0 - metallic
+        if metal_tex < 0:
+            w *= 1.0 - metallic
+    n_above = len(lobes)    # the Transparent of a constant Alpha: above the metal
 
     # --- Transmission: GGX glass.
     if transmission > WEIGHT_CUTOFF:
@@ -172,6 +186,7 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
         lobes.append(make_lobe(GLASS, _tup(gcol), weight=transmission * w, roughness=roughness,
                                ior=ior, color_texture=tex, multiscatter=multiscatter))
         w *= 1.0 - transmission
+    i_metal = len(lobes)    # the metal's slot: after the transmission, before the specular
 
     # --- Dielectric specular layer: generalised Schlick with the real Fresnel
     # curve, F0 = F0(ior) * 2 * specular_ior_level, tinted by specular_tint.
@@ -193,8 +208,6 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
         layer = dict(layer_ior=eta, layer_roughness=roughness,
                      layer_f0=float(min(f0_from_ior(eta) * float(np.max(spec_tint)), 1.0)),
                      layer_multiscatter=bool(multiscatter))
-    if metal is not None:
-        lobes.append(metal)
     if spec is not None:
         lobes.append(spec)
 
@@ -208,6 +221,11 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
                                roughness=min(max(float(diffuse_roughness), 0.0), 1.0),
                                color_texture=tex, **layer))
 
+    if metal_tex >= 0 and metal is not None:    # the dielectric lobes 1 - m, the metal m
+        lobes[n_above:], _ = alpha_scaled(lobes[n_above:], metal_tex, invert=True)
+        (metal,), _ = alpha_scaled([metal], metal_tex)
+    if metal is not None:
+        lobes.insert(i_metal, metal)
     if coat_lobe is not None:
         lobes.insert(0, coat_lobe)
     if anisotropic > WEIGHT_CUTOFF:
