@@ -132,7 +132,7 @@ SUPPORT = (
      "BSDFs with Cycles' weights in every integrator, docs/shading.md); "
      "the colour associated with alpha as Cycles reads it", SUPPORTED, ""),
     ("colour nodes between an Image Texture (or constants) and a colour input: Mix "
-     "(Color) and MixRGB with one side constant (13 blend types), Hue/Saturation/Value, "
+     "(Color) and MixRGB with one side constant (every blend type), Hue/Saturation/Value, "
      "Brightness/Contrast, Gamma, Invert, RGB Curves, Color Ramp (applied to the image's texels; a "
      "small image is enlarged first for the nonlinear ones)", SUPPORTED, ""),
     ("node groups (flattened, nested)", SUPPORTED, ""),

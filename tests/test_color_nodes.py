@@ -1,7 +1,8 @@
 """Colour nodes on an image (core/scene/color_ops.py, addon/export.py
 ``_MaterialBuilder.color_chain``) against Cycles.
 
-An Image Texture passed through Mix (Color), MixRGB, Hue/Saturation/Value,
+An Image Texture passed through Mix (Color) and MixRGB (a sample of the blend
+types: Multiply, Screen, Overlay, Dodge, Burn, Color, Value), Hue/Saturation/Value,
 Brightness/Contrast, Gamma, Invert, RGB Curves or a Color Ramp into a Diffuse colour is
 exported as one image with the nodes applied to its texels.  Each case
 renders tests/test_shading_nodes.py's plane (32 x 32, orthographic, a sun,
@@ -45,14 +46,28 @@ def test_mix_blends_at_factor_zero_and_one():
     a, b = rng.random((50, 3)) + 0.05, rng.random((50, 3)) + 0.05
     for blend in CO.MIX_BLENDS:
         out0 = CO.mix(blend, 0.0, a, b)
-        if blend not in ("EXCLUSION",):
+        if blend not in ("EXCLUSION", "DODGE", "BURN"):     # these two clamp to [0, 1]
             np.testing.assert_allclose(out0, a, atol=1e-12, err_msg=blend)
     want = {"MIX": b, "ADD": a + b, "MULTIPLY": a * b, "SUBTRACT": a - b, "DIVIDE": a / b,
             "DIFFERENCE": np.abs(a - b), "DARKEN": np.minimum(a, b),
             "LIGHTEN": np.maximum(a, b), "SCREEN": 1 - (1 - a) * (1 - b),
             "LINEAR_LIGHT": a + 2 * b - 1}
+    want["DODGE"] = np.where(b >= 1.0, 1.0, np.minimum(a / np.where(b < 1.0, 1.0 - b, 1.0), 1.0))
+    want["BURN"] = np.clip(1.0 - (1.0 - a) / b, 0.0, 1.0)
     for blend, w in want.items():
         np.testing.assert_allclose(CO.mix(blend, 1.0, a, b), w, atol=1e-12, err_msg=blend)
+    # The HSV blends at factor 1 take B's value, saturation, hue (and
+    # saturation) and keep A's other components.
+    ha, hb = CO.rgb_to_hsv(a), CO.rgb_to_hsv(b)
+    for blend, took in (("VALUE", [2]), ("SATURATION", [1]), ("HUE", [0]), ("COLOR", [0, 1])):
+        h = CO.rgb_to_hsv(CO.mix(blend, 1.0, a, b))
+        kept = [k for k in range(3) if k not in took]
+        np.testing.assert_allclose(h[:, took], hb[:, took], atol=1e-9, err_msg=blend)
+        np.testing.assert_allclose(h[:, kept], ha[:, kept], atol=1e-9, err_msg=blend)
+    # A grey B has no hue: HUE and COLOR leave A as it is.
+    grey = np.full_like(b, 0.4)
+    for blend in ("HUE", "COLOR"):
+        np.testing.assert_allclose(CO.mix(blend, 0.7, a, grey), a, atol=1e-12)
 
 
 def test_ramp_lookup_is_linear_between_entries():
@@ -132,13 +147,18 @@ def _chain(kind):
         "mix_multiply": lambda n, l, c: mix_new(n, l, c, 'MULTIPLY', 0.7, (0.9, 0.4, 0.2, 1.0), "A"),
         "mix_screen_b": lambda n, l, c: mix_new(n, l, c, 'SCREEN', 0.6, (0.1, 0.5, 0.3, 1.0), "B"),
         "mixrgb_overlay": mixrgb,
+        "mix_dodge": lambda n, l, c: mix_new(n, l, c, 'DODGE', 0.8, (0.7, 0.4, 0.9, 1.0), "A"),
+        "mix_burn_b": lambda n, l, c: mix_new(n, l, c, 'BURN', 0.7, (0.8, 0.6, 0.3, 1.0), "B"),
+        "mix_color": lambda n, l, c: mix_new(n, l, c, 'COLOR', 0.9, (0.1, 0.6, 0.8, 1.0), "A"),
+        "mix_value_b": lambda n, l, c: mix_new(n, l, c, 'VALUE', 0.6, (0.9, 0.2, 0.1, 1.0), "B"),
         "hue_saturation": hsv,
         "bright_gamma_invert": bright,
         "color_ramp": ramp,
     }[kind]
 
 
-CASES = ["mix_multiply", "mix_screen_b", "mixrgb_overlay", "hue_saturation",
+CASES = ["mix_multiply", "mix_screen_b", "mixrgb_overlay", "mix_dodge", "mix_burn_b",
+         "mix_color", "mix_value_b", "hue_saturation",
          "bright_gamma_invert", "rgb_curves", "color_ramp"]
 
 

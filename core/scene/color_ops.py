@@ -27,9 +27,10 @@ from ..mathutil import LUMINANCE
 #: Color Ramp at this many evenly spaced positions and Cycles interpolates.
 RAMP_TABLE_SIZE = 256
 
-#: Mix blend types evaluated here (Blender's ``blend_type`` identifiers).
+#: Mix blend types evaluated here: all of Blender's ``blend_type`` identifiers.
 MIX_BLENDS = ("MIX", "ADD", "MULTIPLY", "SCREEN", "OVERLAY", "SUBTRACT", "DIVIDE",
-              "DIFFERENCE", "EXCLUSION", "DARKEN", "LIGHTEN", "SOFT_LIGHT", "LINEAR_LIGHT")
+              "DIFFERENCE", "EXCLUSION", "DARKEN", "LIGHTEN", "SOFT_LIGHT", "LINEAR_LIGHT",
+              "DODGE", "BURN", "HUE", "SATURATION", "VALUE", "COLOR")
 
 
 def _lerp(a, b, t):
@@ -70,6 +71,32 @@ def mix(blend: str, t: float, c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
         return tm * c1 + t * ((1.0 - c1) * c2 * c1 + c1 * scr)
     if blend == "LINEAR_LIGHT":
         return c1 + t * (2.0 * c2 - 1.0)
+    c1, c2 = np.broadcast_arrays(np.asarray(c1, np.float64), np.asarray(c2, np.float64))
+    if blend == "DODGE":
+        # c1 / (1 - t c2) capped at 1 (1 where the divisor is not positive); 0 stays 0.
+        d = 1.0 - t * c2
+        q = np.minimum(c1 / np.where(d > 0.0, d, 1.0), 1.0)
+        return np.where(c1 == 0.0, c1, np.where(d > 0.0, q, 1.0))
+    if blend == "BURN":
+        # 1 - (1 - c1) / (1 - t + t c2) in [0, 1] (0 where the divisor is not positive).
+        d = tm + t * c2
+        q = np.clip(1.0 - (1.0 - c1) / np.where(d > 0.0, d, 1.0), 0.0, 1.0)
+        return np.where(d > 0.0, q, 0.0)
+    hsv1, hsv2 = rgb_to_hsv(c1), rgb_to_hsv(c2)
+    if blend == "VALUE":
+        hsv1[..., 2] = _lerp(hsv1[..., 2], hsv2[..., 2], t)
+        return hsv_to_rgb(hsv1)
+    if blend == "SATURATION":
+        # Only a coloured c1 takes the saturation (a grey one has no hue).
+        grey = (hsv1[..., 1] == 0.0)[..., None]
+        hsv1[..., 1] = _lerp(hsv1[..., 1], hsv2[..., 1], t)
+        return np.where(grey, c1, hsv_to_rgb(hsv1))
+    if blend in ("HUE", "COLOR"):
+        # c2's hue (and for COLOR its saturation) where c2 has one, mixed by t.
+        hsv1[..., 0] = hsv2[..., 0]
+        if blend == "COLOR":
+            hsv1[..., 1] = hsv2[..., 1]
+        return np.where((hsv2[..., 1] == 0.0)[..., None], c1, _lerp(c1, hsv_to_rgb(hsv1), t))
     raise ValueError(f"blend type {blend!r} is not evaluated")
 
 
