@@ -35,7 +35,7 @@ from ..core.scene import nodes as shading
 from ..core.errors import MemoryBudgetError, RenderCancelled, SceneError
 from ..core.lights.environment import mean_radiance
 from ..core.scene.normals import BUMP, NORMAL_MAP, NormalInput
-from ..core.scene.textures import EnvironmentMap, UnassociatedImage, scalar_weights, upsample
+from ..core.scene.textures import EnvironmentMap, UnassociatedImage, resample, scalar_weights
 from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
                           TRANSPARENT, Camera, Light, Lobe, Material, Scene,
                           drop_invalid_triangles)
@@ -45,6 +45,8 @@ GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
 # An image under a nonlinear colour node is enlarged UPSAMPLE_FACTOR times
 # (textures.upsample), while its larger side stays within UPSAMPLE_MAX.
 UPSAMPLE_FACTOR, UPSAMPLE_MAX = 8, 2048
+# What Cycles' Image Texture reads without pixels (TEX_IMAGE_MISSING_R, _G, _B).
+MISSING_IMAGE = (1.0, 0.0, 1.0)
 # Colour nodes folded into an image's texels or a constant (_MaterialBuilder.color_chain).
 _COLOR_NODES = {'RGB', 'MIX', 'MIX_RGB', 'HUE_SAT', 'BRIGHTCONTRAST', 'GAMMA', 'INVERT',
                 'CURVE_RGB', 'VALTORGB'}
@@ -132,9 +134,10 @@ SUPPORT = (
      "BSDFs with Cycles' weights in every integrator, docs/shading.md); "
      "the colour associated with alpha as Cycles reads it", SUPPORTED, ""),
     ("colour nodes between an Image Texture (or constants) and a colour input: Mix "
-     "(Color) and MixRGB with one side constant (every blend type), Hue/Saturation/Value, "
-     "Brightness/Contrast, Gamma, Invert, RGB Curves, Color Ramp (applied to the image's texels; a "
-     "small image is enlarged first for the nonlinear ones)", SUPPORTED, ""),
+     "(Color) and MixRGB (every blend type) with one side constant or two images read at "
+     "the same point, Hue/Saturation/Value, Brightness/Contrast, Gamma, Invert, RGB "
+     "Curves, Color Ramp (applied to the image's texels; a small image is enlarged first "
+     "for the nonlinear ones)", SUPPORTED, ""),
     ("node groups (flattened, nested)", SUPPORTED, ""),
     ("film transparency, pixel filter (Blackman-Harris, Box, Gaussian) and its width, "
      "object and material pass index (every "
@@ -491,7 +494,11 @@ class _MaterialBuilder:
                 return then(a, ("mix", blend, t, tuple(b[1]), "A", clamp))
             if a[0] == 'const':
                 return then(b, ("mix", blend, t, tuple(a[1]), "B", clamp))
-            return None                       # two images
+            if self._same_lookup(a[1], b[1]):
+                # Two images read at the same uv: B's image and ops ride along
+                # as one op, folded onto one grid (_Exporter.folded).
+                return 'tex', a[1], a[2] + (("mix_image", blend, t, b[1], b[2], clamp),)
+            return None                       # two images of different lookups
         if src.type == 'HUE_SAT':
             p = [f(src, k) for k in ("Hue", "Saturation", "Value", "Fac")]
             return None if None in p else then(inp("Color"), ("hsv", *p))
@@ -533,6 +540,19 @@ class _MaterialBuilder:
                                         op[2])
             return then(self.color_chain(fin, depth + 1), op)
         return None
+
+    def _same_lookup(self, na, nb) -> bool:
+        """Whether two Image Texture nodes are read at the same point of their
+        images: the same texture vector (:meth:`vector`), interpolation,
+        extension and projection."""
+        kept, self.notes = self.notes, []
+        try:
+            va, vb = self.vector(na), self.vector(nb)
+        finally:
+            self.notes = kept
+        return (va[:2] == vb[:2] and np.allclose(va[2], vb[2])
+                and all(getattr(na, k, None) == getattr(nb, k, None)
+                        for k in ("interpolation", "extension", "projection")))
 
     def value(self, node, name, default=0.0) -> float:
         sock = node.inputs.get(name)
@@ -1027,13 +1047,7 @@ class _Exporter:
                 # alpha unless the Alpha output is linked (then straight).
                 if mode == 'ASSOCIATED':
                     px = np.concatenate([px[..., :3] * px[..., 3:4], px[..., 3:]], -1)
-                k = 1 if CO.is_affine(ops) else min(
-                    UPSAMPLE_MAX // max(px.shape[:2]), UPSAMPLE_FACTOR)
-                if k > 1:
-                    # A nonlinear node: Cycles applies it after the bilinear
-                    # lookup, so a small image is first enlarged k times.
-                    px = upsample(px, k)
-                rgb = CO.apply(ops, px[..., :3].astype(np.float64))
+                px, rgb = self.folded(px, ops, mb.notes)
                 if scalar:
                     out = np.ones(px.shape[:2] + (4,), np.float32)
                     out[..., 3] = np.clip(CO.gray(rgb), 0.0, 1.0)
@@ -1056,6 +1070,61 @@ class _Exporter:
             self.textures.append(px)
         return self.tex_index[(key, mode)]
 
+    def color_texels(self, node, notes) -> np.ndarray | None:
+        """(H, W, C) float32 texels of an Image Texture node as its Color
+        output reads them (the colour associated with a straight alpha, as
+        :meth:`texture` reads it without a linked Alpha output), None (and a
+        note) without pixels."""
+        img = node.image
+        if img is None:
+            notes.append(f"{node.name}: no image")
+            return None
+        key = img.name_full
+        if key not in self.tex_pixels:
+            self.tex_pixels[key] = self.pixels(img, notes)
+        px = self.tex_pixels[key]
+        if px is None or getattr(img, "alpha_mode", 'STRAIGHT') != 'STRAIGHT' \
+                or px.shape[2] < 4:
+            return px
+        return np.concatenate([px[..., :3] * px[..., 3:4], px[..., 3:]], -1)
+
+    def folded(self, px, ops, notes, shape=None):
+        """(px, rgb): texels px (H, W, C) resampled to ``shape`` and their
+        colour (H', W', 3) float64 through ``ops`` (``core.scene.color_ops``).
+        shape None: the largest grid of the chain's images, enlarged for a
+        nonlinear chain (Cycles applies the nodes after the bilinear lookup,
+        so a small image is first enlarged up to UPSAMPLE_FACTOR times,
+        ``textures.upsample``).  A "mix_image" op's second image is folded
+        through its own ops on the same grid and mixed as an array (a
+        missing image reads Cycles' magenta)."""
+        others = [op for op in ops if op[0] == "mix_image"]
+        if shape is None:
+            sizes = [px.shape[:2]] + [self._chain_size(op, notes) for op in others]
+            H, W = max(h for h, _ in sizes), max(w for _, w in sizes)
+            k = 1 if CO.is_affine(ops) else min(UPSAMPLE_MAX // max(H, W), UPSAMPLE_FACTOR)
+            shape = (H * k, W * k) if k > 1 else (H, W)
+        if tuple(px.shape[:2]) != tuple(shape):
+            px = resample(px, *shape)
+        done = []
+        for op in ops:
+            if op[0] == "mix_image":
+                _, blend, t, node, oops, clamp = op
+                opx = self.color_texels(node, notes)
+                if opx is None:
+                    orgb = np.broadcast_to(MISSING_IMAGE, tuple(shape) + (3,))
+                else:
+                    orgb = self.folded(opx, oops, notes, shape)[1]
+                op = ("mix", blend, t, orgb, "A", clamp)
+            done.append(op)
+        return px, CO.apply(tuple(done), px[..., :3].astype(np.float64))
+
+    def _chain_size(self, op, notes):
+        """(H, W) the largest grid of a "mix_image" op's images."""
+        opx = self.color_texels(op[3], notes)
+        sizes = [(1, 1) if opx is None else opx.shape[:2]]
+        sizes += [self._chain_size(o, notes) for o in op[4] if o[0] == "mix_image"]
+        return max(h for h, _ in sizes), max(w for _, w in sizes)
+
     def image_mean(self, node, output, notes, ops=()) -> float | None:
         """The mean over an Image Texture node's image of the float Cycles
         reads from its output 'Color' (Rec.709 luminance of the linear
@@ -1075,7 +1144,7 @@ class _Exporter:
         if output == 'Alpha' and px.shape[2] < 4:
             return 1.0
         if ops and output == 'Color':
-            return float(np.mean(CO.gray(CO.apply(ops, px[..., :3].astype(np.float64)))))
+            return float(np.mean(CO.gray(self.folded(px, ops, notes)[1])))
         w = scalar_weights(px, 'ALPHA' if output == 'Alpha' else 'COLOR')
         return float(np.mean(px.reshape(-1, px.shape[2]).astype(np.float64) @ w))
 

@@ -375,3 +375,59 @@ def test_a_metallic_map_agrees_with_cycles(how, tmp_path):
     print(f"metallic {how}: at the mask's mean {f:.3f} the image moves by {effect:.3f} "
           "of the mean")
     TS._check(err, noise, effect)
+
+
+def _stripes(h=5, w=12):
+    """A second image of another size: colour stripes across u, a ramp in v."""
+    y, x = np.mgrid[0:h, 0:w] + 0.5
+    y, x = y / h, x / w
+    return np.stack([0.3 + 0.6 * (np.sin(6 * np.pi * x) > 0), 0.9 - 0.7 * y,
+                     0.4 + 0.5 * x], -1).astype(np.float32)
+
+
+@pytest.mark.parametrize("blend, fac, b_node", [("MULTIPLY", 0.8, None),
+                                                ("MIX", 0.6, "hue_saturation"),
+                                                ("OVERLAY", 0.7, None)])
+def test_two_images_mixed_agree_with_cycles(blend, fac, b_node, tmp_path):
+    """A Mix (Color) of two Image Textures of one lookup (an albedo times an
+    ambient-occlusion map, a detail layer), images of different sizes (8 x 8
+    and 12 x 5), the second also through its own colour node: both folded
+    onto one grid, the larger one's, enlarged for a nonlinear blend
+    (``_Exporter.folded``).  Before, such a Mix was not folded and the
+    Diffuse kept its own colour (noted).  The effect is the image against
+    the first image alone."""
+    pytest.importorskip("bpy")
+    import dataclasses
+    import test_shading_nodes as TS
+
+    def mat(nodes, links, surface):
+        d = TS.diffuse_with_normal(nodes, links, surface)
+        ta, tb = nodes.new('ShaderNodeTexImage'), nodes.new('ShaderNodeTexImage')
+        ta.image = TS._image("A", TS._color_pixels(), non_color=False)
+        tb.image = TS._image("B", _stripes(), non_color=False)
+        col_b = tb.outputs["Color"]
+        if b_node is not None:
+            col_b = _chain(b_node)(nodes, links, col_b)
+        m = nodes.new('ShaderNodeMix')
+        m.data_type = 'RGBA'
+        m.blend_type = blend
+        m.inputs["Factor"].default_value = fac
+        links.new(ta.outputs["Color"], next(i for i in m.inputs if i.identifier == "A_Color"))
+        links.new(col_b, next(i for i in m.inputs if i.identifier == "B_Color"))
+        links.new(next(o for o in m.outputs if o.identifier == "Result_Color"), d.inputs["Color"])
+
+    sc, _ = TS.plane_scene(mat)
+    label = f"two images {blend.lower()}"
+    err, noise, img, ref, scene, lines = TS.compare(sc, tmp_path, label)
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    assert len(scene.textures) == 1
+    # Enlarged 8 times from the larger grid (12 x 8) for the nonlinear chains.
+    want = (8, 12) if blend == "MIX" and b_node is None else (64, 96)
+    assert scene.textures[0].shape[:2] == want
+    TS._check(err, noise)
+    raw = TS._color_pixels()
+    alone = dataclasses.replace(scene, textures=[np.concatenate(
+        [raw, np.ones(raw.shape[:2] + (1,), np.float32)], -1)])
+    effect = np.abs((TS._fppm(alone, 1) + TS._fppm(alone, 2)) / 2 - img).mean() / ref.mean()
+    print(f"{label}: the first image alone moves the image by {effect:.3f} of the mean")
+    TS._check(err, noise, effect)

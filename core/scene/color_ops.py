@@ -182,11 +182,22 @@ def ramp(f: np.ndarray, table: np.ndarray, interpolate: bool) -> np.ndarray:
 _AFFINE_BLENDS = ("MIX", "ADD", "MULTIPLY", "SCREEN", "SUBTRACT", "LINEAR_LIGHT")
 
 
+#: Mix blends that are affine in both sides together (two images mixed).
+_AFFINE_PAIR_BLENDS = ("MIX", "ADD", "SUBTRACT", "LINEAR_LIGHT")
+
+
 def is_affine(ops) -> bool:
     """Whether ops commute with bilinear interpolation (up to their clamps
-    at 0): then applying them to the texels is what Cycles computes."""
+    at 0): then applying them to the texels is what Cycles computes.  A
+    ("mix_image", blend, t, image, its ops, clamp) op mixes a second image
+    of the same lookup (the exporter turns it into a "mix" with that
+    image's folded texels before :func:`apply`)."""
     for op in ops:
-        if op[0] == "mix":
+        if op[0] == "mix_image":
+            _, blend, _, _, other, clamp = op
+            if clamp or blend not in _AFFINE_PAIR_BLENDS or not is_affine(other):
+                return False
+        elif op[0] == "mix":
             _, blend, _, _, side, clamp = op
             if clamp or not (blend in _AFFINE_BLENDS or (blend == "DIVIDE" and side == "A")):
                 return False
@@ -220,7 +231,7 @@ def apply(ops, c: np.ndarray) -> np.ndarray:
     """Run ops (a sequence of op tuples) on colours c (..., 3) float64."""
     for op in ops:
         name = op[0]
-        if name == "mix":                     # ("mix", blend, t, const rgb, image side 'A'/'B', clamp)
+        if name == "mix":                     # ("mix", blend, t, other rgb, image side 'A'/'B', clamp)
             _, blend, t, k, side, clamp = op
             k = np.asarray(k, np.float64)
             c = mix(blend, t, c, k) if side == "A" else mix(blend, t, k, c)

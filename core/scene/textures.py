@@ -87,13 +87,22 @@ def upsample(img: np.ndarray, k: int) -> np.ndarray:
     bilinear lookup follows the original's within a sub-texel, so that a
     nonlinear colour node applied to its texels approaches the node applied
     after the lookup (core.scene.color_ops)."""
+    H, W = _as_image(img).shape[:2]
+    return resample(img, k * H, k * W)
+
+
+def resample(img: np.ndarray, H2: int, W2: int) -> np.ndarray:
+    """(H2, W2, C) float32: img (H, W, C)'s bilinear, repeat-wrapped
+    interpolant read at the texel centres of an H2 x W2 grid over the same
+    uv square (two images of one lookup brought to one grid, and
+    :func:`upsample`)."""
     img = _as_image(img)
-    H, W, C = img.shape
-    v, u = np.mgrid[0:k * H, 0:k * W]
-    uv = np.stack([(u.ravel() + 0.5) / (k * W), (v.ravel() + 0.5) / (k * H)], -1)
+    C = img.shape[2]
+    v, u = np.mgrid[0:H2, 0:W2]
+    uv = np.stack([(u.ravel() + 0.5) / W2, (v.ravel() + 0.5) / H2], -1)
     a, b, c, d, tx, ty, _, _, _ = _bilinear_corners(img, uv, list(range(C)))
     out = (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d)
-    return out.reshape(k * H, k * W, C).astype(np.float32)
+    return out.reshape(H2, W2, C).astype(np.float32)
 
 
 def sample_alpha(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
