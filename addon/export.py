@@ -146,9 +146,14 @@ SUPPORT = (
     ("other nodes linked into an input (the input's value is used)", APPROXIMATED,
      "'{src.name}' into {node.name}.{name} ignored"),
     ("an Image Texture into a scalar input other than a Mix Shader's Fac, the "
-     "Principled Alpha and Metallic, and an emission's Strength (Roughness, IOR, ..., "
-     "and a Metallic beside a textured Alpha): the image's mean over its pixels, not per "
-     "hit", APPROXIMATED, "the image's mean"),
+     "Principled Alpha, Metallic and Roughness, a Glossy, Glass or Refraction Roughness "
+     "and an emission's Strength (IOR, Coat Roughness, ..., and a Metallic beside a "
+     "textured Alpha): the image's mean over its pixels, not per hit", APPROXIMATED,
+     "the image's mean"),
+    ("a roughness map (Principled, Glossy, Glass, Refraction): per hit on the camera "
+     "side (visible points, camera paths; 256 levels in log alpha, roughness 0.01 at "
+     "least), its mean where photons and light paths bounce", APPROXIMATED,
+     "photons and light paths bounce with its mean"),
     ("photon bounces on normal-mapped or bumped surfaces", APPROXIMATED,
      "photons scatter off the interpolated normal"),
     ("Normal Map in object or world space", APPROXIMATED, "space ignored (tangent space only)"),
@@ -541,6 +546,21 @@ class _MaterialBuilder:
             return then(self.color_chain(fin, depth + 1), op)
         return None
 
+    def roughness(self, node, name="Roughness"):
+        """(roughness, texture) of a Roughness input: a map (an image's Color
+        or Alpha, also through colour nodes, :meth:`alpha_texture`) is read
+        per hit by the camera side, its mean over the image everywhere else
+        (core.materials.rough_maps; noted); else (its value, -1)."""
+        t = self.alpha_texture(node, name)
+        if t < 0:
+            return self.value(node, name, 0.5), -1
+        img = self.ex.textures[t]
+        mean = float(img[..., 3].mean()) if img.shape[2] > 3 else 1.0
+        self.notes.append(f"{node.name}.{name}: the roughness map is read per hit by "
+                          f"camera paths; photons and light paths bounce with its mean "
+                          f"({mean:.3g})")
+        return mean, t
+
     def _same_lookup(self, na, nb) -> bool:
         """Whether two Image Texture nodes are read at the same point of their
         images: the same texture vector (:meth:`vector`), interpolation,
@@ -749,7 +769,7 @@ class _MaterialBuilder:
         same roughness, and noted (they coincide at roughness 0)."""
         kind = {'BSDF_GLASS': GLASS, 'BSDF_REFRACTION': REFRACTION}.get(node.type, GLOSSY)
         c, tex = self.color(node, "Color")
-        rough = self.value(node, "Roughness")
+        rough, rtex = self.roughness(node)
         dist = getattr(node, "distribution", 'GGX')
         if dist not in ('GGX', 'MULTI_GGX') and rough > 0.0:
             self.notes.append(f"{node.name}: {dist} distribution rendered as GGX")
@@ -760,7 +780,7 @@ class _MaterialBuilder:
         # make_lobe drops multiscatter on REFRACTION (Cycles has no
         # multiscatter refraction-only closure).
         return shading.make_lobe(kind, c, 1.0, rough, ior, tex,
-                                 multiscatter=dist == 'MULTI_GGX')
+                                 multiscatter=dist == 'MULTI_GGX', roughness_texture=rtex)
 
     def principled(self, node) -> Material:
         """Principled BSDF through ``core.scene.nodes.principled_to_lobes``."""
@@ -772,11 +792,12 @@ class _MaterialBuilder:
         # A Metallic map per hit; beside a textured Alpha, its mean (a lobe
         # follows one image: principled_to_lobes).
         metal_tex = self.alpha_texture(node, "Metallic") if alpha_tex < 0 else -1
+        rough, rough_tex = self.roughness(node)
         lobes, emission, notes = shading.principled_to_lobes(
             base_color=base, base_color_texture=base_tex, alpha_texture=alpha_tex,
             metallic_texture=metal_tex,
             metallic=0.0 if metal_tex >= 0 else v(node, "Metallic", 0.0),
-            roughness=v(node, "Roughness", 0.5),
+            roughness=rough, roughness_texture=rough_tex,
             ior=v(node, "IOR", 1.5), alpha=1.0 if alpha_tex >= 0 else v(node, "Alpha", 1.0),
             transmission=v(node, "Transmission Weight", 0.0),
             coat_weight=v(node, "Coat Weight", 0.0),

@@ -360,12 +360,15 @@ def test_image_texture_is_linearised():
     assert lobe.color_texture == 0 and lobe.color == (1.0, 1.0, 1.0)
 
 
-def test_image_texture_into_roughness_uses_its_mean():
+def test_image_texture_into_roughness_is_a_roughness_map():
     """A roughness map (Non-Color, half 0.2 and half 0.8) into the
-    Principled Roughness and an image's alpha into a Glossy's: no per-hit
-    scalars, so the image's mean (0.5; the Rec.709 luminance of a colour,
-    the alpha channel's mean), said in the Approximated line, where the
-    socket's default was used before."""
+    Principled Roughness and an image's alpha into a Glossy's: a scalar
+    texture on the lobe (``Lobe.roughness_texture``, read per hit by the
+    camera side, core.materials.rough_maps) and the map's mean as its
+    roughness (0.2: the Rec.709 luminance of the colour, associated with
+    alpha as Cycles' Color output gives it; 0.4: the alpha channel's mean),
+    what photons and light paths read, said in the
+    Approximated line."""
     sc = base_scene()
     m = H.node_material("PBR", "BSDF_PRINCIPLED")
     nt = m.node_tree
@@ -389,14 +392,18 @@ def test_image_texture_into_roughness_uses_its_mean():
     H.add_cube(sc, "B", location=(3, 0, 0), material=g)
     s, lines = export()
     M = {mm.name: mm for mm in s.materials}
+    # The Color output of an image with alpha whose Alpha output is not
+    # linked: the colour associated with alpha (Cycles), 0.2 a and 0.8 a.
     (metal,) = M["PBR"].lobes
-    assert metal.roughness == pytest.approx(0.5, abs=1e-6)
+    assert metal.roughness == pytest.approx(0.2, abs=1e-6)
+    np.testing.assert_allclose(s.textures[metal.roughness_texture][..., 3],
+                               px[..., 0] * px[..., 3], atol=1e-6)
     (gloss,) = M["Gloss"].lobes
     assert gloss.roughness == pytest.approx(0.4, abs=1e-6)
-    assert s.textures == [] or len(s.textures) == 0       # not a per-hit texture
+    np.testing.assert_allclose(s.textures[gloss.roughness_texture][..., 3], px[..., 3])
     said = " ".join(lines)
-    assert "Roughness: the image's mean (0.5) used" in said
-    assert "Roughness: the image's mean (0.4) used" in said
+    assert "photons and light paths bounce with its mean (0.2)" in said
+    assert "photons and light paths bounce with its mean (0.4)" in said
 
 
 # ---------------------------------------------------------------- errors

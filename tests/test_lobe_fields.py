@@ -18,7 +18,8 @@ from core.scene import nodes as shading
 from core.scene.model import DIFFUSE, GLASS, GLOSSY, REFRACTION, Lobe, Material
 
 EXTRA = ("multiscatter", "fresnel", "fresnel_ior", "f82_tint", "layer_ior", "layer_f0",
-         "layer_roughness", "layer_multiscatter", "alpha_texture", "alpha_invert")
+         "layer_roughness", "layer_multiscatter", "alpha_texture", "alpha_invert",
+         "roughness_texture")
 
 
 def _tables_equal(a, b):

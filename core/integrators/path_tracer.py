@@ -57,10 +57,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..accel import surface_point
+from ..accel import hit_uv, surface_point
 from .. import lights as Lt
 from .. import materials as B
-from ..materials import compiled as C
+from ..materials import compiled as C, rough_maps
 from ..materials.fast import GENERIC, build_fast_materials
 from ..lights import seen as Seen, shadow as Sh
 from ..lights.environment_kernels import rays_radiance
@@ -466,6 +466,9 @@ class PathTracer:
                 break
             prim = h.prim[ih]
             mat = s.tri_mat[prim]
+            if mtab.rough_first is not None:     # a roughness map's level row per hit
+                mat = rough_maps.pick(mtab, mat, prim, h.u[ih], h.v[ih],
+                                      hit_uv(s.tri_uv, prim, h.u[ih], h.v[ih]))
             if kern:
                 p, ng, ns = (np.empty((ih.size, 3)) for _ in range(3))
                 PK.hit_kernel(kern[3], prim, h.u[ih], h.v[ih], p, ng, ns)
@@ -640,7 +643,6 @@ class PathTracer:
         ``accel.surface_point`` perturbs them, on those rows only: a
         tangent-space Normal Map by ``normal_kernels.normal_map``, a Bump by
         ``normals.perturb`` with the hits' interpolated uvs."""
-        from ..accel import hit_uv
         from ..scene import normals
         from ..scene.normal_kernels import normal_map
         mat = self.scene.tri_mat[prim]

@@ -14,6 +14,7 @@ import numpy as np
 from ..mathutil import LUMINANCE
 from ..scene.model import DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT, TRANSPARENT
 from ..scene.textures import sample_alpha, sample_texture
+from . import rough_maps
 from .microfacet import FRESNEL_DIELECTRIC, FRESNEL_F82, _fss_dielectric, f0_from_ior
 
 # Cycles ``roughness_is_almost_specular``: alpha_x * alpha_y <= 2e-10.
@@ -80,6 +81,8 @@ class MaterialTable:
     alpha_inv: np.ndarray = None        # (M, L) bool, scaled by 1 - alpha instead
     bump_correction: np.ndarray = None  # (M,) bool, Normal Map / Bump: Cycles' normal tilt
     lambert_lobes: np.ndarray = None    # (M,) bool, lambert_only before the Normal Map / Bump test
+    rough_first: np.ndarray = None      # (M,) int64 first row of a roughness map's levels, -1 = none
+    rough_tex: np.ndarray = None        # (M,) int32 that map (core.materials.rough_maps)
 
     @property
     def n_materials(self) -> int:
@@ -119,7 +122,11 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
       layer and is scaled by 1 - its albedo estimate
       (``closure_layering_weight``), which depends on the view direction.
     textures: list of (H, W, C) float32 images.
+    A material with a roughness map (``Lobe.roughness_texture``) is followed
+    by its ROUGH_LEVELS level rows (``rough_maps.expand``; ``rough_first``,
+    ``rough_tex``): rows beyond len(materials) are those levels.
     """
+    materials, rough_first, rough_tex = rough_maps.expand(materials)
     M, L = max(len(materials), 1), MAX_LOBES
     kind = np.full((M, L), -1, np.int32)
     color = np.zeros((M, L, 3))
@@ -198,7 +205,9 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
         lambert_only=lambert_lobes & ~bump, lambert_lobes=lambert_lobes,
         textures=textures, multiscatter=ms, fresnel=fres, fresnel_ior=fior,
         f82_tint=f82t, layer_ior=lior, layer_f0=lf0, layer_roughness=lrough, layer_ms=lms,
-        sel_scale=sel, alpha_tex=atex, alpha_inv=ainv, bump_correction=bump)
+        sel_scale=sel, alpha_tex=atex, alpha_inv=ainv, bump_correction=bump,
+        rough_first=rough_first if (rough_first >= 0).any() else None,
+        rough_tex=rough_tex if (rough_first >= 0).any() else None)
 
 
 # --------------------------------------------------------------------------

@@ -66,6 +66,10 @@ class Lobe:
       into the Principled Alpha or a Mix Shader's Fac: the Transparent lobe
       gets 1 - a, the others a).  Left out of the repr when unset (the
       ``scene_digest`` of scenes without them is unchanged).
+    roughness_texture >= 0: the lobe's roughness (a layered DIFFUSE's
+      ``layer_roughness``) is that texture's alpha r(uv) where the camera
+      side reads a hit (core.materials.rough_maps), ``roughness`` its mean
+      elsewhere.  Left out of the repr like alpha_texture.
     """
     kind: int
     color: tuple = (0.8, 0.8, 0.8)
@@ -83,6 +87,7 @@ class Lobe:
     layer_multiscatter: bool = False
     alpha_texture: int = field(default=-1, repr=False)
     alpha_invert: bool = field(default=False, repr=False)
+    roughness_texture: int = field(default=-1, repr=False)
 
 
 @dataclass(frozen=True)
@@ -354,6 +359,8 @@ def scene_digest(scene: Scene) -> str:
              if getattr(m, "normal", None) is not None]
     extra += [(i, j, lb.alpha_texture, lb.alpha_invert) for i, m in enumerate(scene.materials)
               for j, lb in enumerate(m.lobes) if getattr(lb, "alpha_texture", -1) >= 0]
+    extra += [(i, j, "roughness", lb.roughness_texture) for i, m in enumerate(scene.materials)
+              for j, lb in enumerate(m.lobes) if getattr(lb, "roughness_texture", -1) >= 0]
     if extra:
         h.update(repr(extra).encode())
     if scene.tri_tangent is not None:

@@ -89,7 +89,7 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
                         thin_film_thickness=0.0, emission_color=(1.0, 1.0, 1.0),
                         emission_strength=0.0, base_color_texture=-1,
                         emission_color_texture=-1, multiscatter=True, alpha_texture=-1,
-                        metallic_texture=-1):
+                        metallic_texture=-1, roughness_texture=-1):
     """Map Principled BSDF inputs onto FPPM lobes.
 
     Colours are linear RGB triples; ``*_texture`` are indices into
@@ -109,6 +109,10 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
     scaled by m and 1 - m through ``Lobe.alpha_texture``.  A lobe follows
     one image: with a textured Alpha as well, the exporter passes the
     Metallic image's mean instead (noted).
+    roughness_texture >= 0: Roughness is that image's alpha per hit on the
+    camera side (``Lobe.roughness_texture`` on the metal, transmission and
+    specular lobes and on the diffuse's specular layer; ``roughness`` is the
+    map's mean, what light paths read: core.materials.rough_maps).
     Returns (lobes: tuple[Lobe], emission: (3,) float64 radiance,
     approximations: tuple[str]).
     """
@@ -157,13 +161,14 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
 
     # --- Metallic: GGX with Cycles' F82-tint conductor Fresnel, F0 = base colour.
     metal = None
+    rtex = int(roughness_texture)
     metal_tex = int(metallic_texture)
     if metal_tex >= 0:
         metallic = 1.0
     if metallic > WEIGHT_CUTOFF:
         metal = make_lobe(GLOSSY, _tup(cbase * w_rgb), weight=metallic * w, roughness=roughness,
                           color_texture=tex, multiscatter=multiscatter, fresnel="F82",
-                          f82_tint=_tup(np.minimum(spec_tint, 1.0)))
+                          f82_tint=_tup(np.minimum(spec_tint, 1.0)), roughness_texture=rtex)
         if not np.allclose(w_rgb, 1.0):
             notes.append("metallic under a tinted coat: the tint scales F0")
         if metal_tex < 0:
@@ -184,7 +189,8 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
         if not np.allclose(spec_tint, 1.0):
             notes.append("specular tint not applied to the transmission lobe's reflection")
         lobes.append(make_lobe(GLASS, _tup(gcol), weight=transmission * w, roughness=roughness,
-                               ior=ior, color_texture=tex, multiscatter=multiscatter))
+                               ior=ior, color_texture=tex, multiscatter=multiscatter,
+                               roughness_texture=rtex))
         w *= 1.0 - transmission
     i_metal = len(lobes)    # the metal's slot: after the transmission, before the specular
 
@@ -203,11 +209,11 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
     if eta != 1.0 and w > WEIGHT_CUTOFF:
         spec = make_lobe(GLOSSY, _tup(np.minimum(spec_tint, 1e6) * w_rgb), weight=w,
                          roughness=roughness, multiscatter=multiscatter, fresnel="DIELECTRIC",
-                         fresnel_ior=eta)
+                         fresnel_ior=eta, roughness_texture=rtex)
         # The diffuse below gets 1 - max_c mix(F0 tint_c, 1, s(view)) (view dependent).
         layer = dict(layer_ior=eta, layer_roughness=roughness,
                      layer_f0=float(min(f0_from_ior(eta) * float(np.max(spec_tint)), 1.0)),
-                     layer_multiscatter=bool(multiscatter))
+                     layer_multiscatter=bool(multiscatter), roughness_texture=rtex)
     if spec is not None:
         lobes.append(spec)
 

@@ -101,7 +101,9 @@ class Wavefront(NamedTuple):
     colors_pre (n, L, 3), em_pre (n, 3); ew (K,) float64 the weight of the
     emission each ray finds at its hit: 1, or on a ray leaving a glossy
     point the MIS weight of that emissive triangle against the point's
-    light sample (``visible_points.CameraPass._glossy_emission``)."""
+    light sample (``visible_points.CameraPass._glossy_emission``); mat_pre
+    (n,) int32 those hits' material rows (a roughness map's level,
+    core.materials.rough_maps)."""
     prim: np.ndarray
     bu: np.ndarray
     bv: np.ndarray
@@ -116,6 +118,7 @@ class Wavefront(NamedTuple):
     colors_pre: np.ndarray
     em_pre: np.ndarray
     ew: np.ndarray
+    mat_pre: np.ndarray
 
 
 class Chains(NamedTuple):
@@ -215,8 +218,8 @@ def hit_kernel(i0, i1, u0, out0, first_vertex, last_vertex, wf, mats, vp, fb, ch
         else:
             sx, sy, sz = gx, gy, gz
         wox, woy, woz = -wf.d[i, 0], -wf.d[i, 1], -wf.d[i, 2]
-        m = tri_mat[t]
         r = wf.pre[i]
+        m = tri_mat[t] if r < 0 else wf.mat_pre[r]
         b0, b1, b2 = wf.beta[i, 0], wf.beta[i, 1], wf.beta[i, 2]
         if r >= 0:
             e0, e1, e2 = wf.em_pre[r, 0], wf.em_pre[r, 1], wf.em_pre[r, 2]

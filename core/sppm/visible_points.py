@@ -36,6 +36,7 @@ from ..kept import KeptArrays
 from ..scene import normals as shading_normals
 from .. import lights as Lt
 from .. import materials as B
+from ..materials import rough_maps
 from ..mathutil import dot as _dot
 from .glossy_mis import GlossyMIS, glossy_rows, light_uniforms
 
@@ -385,7 +386,7 @@ class CameraPass:
             s = self.scene
             p, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, h.prim[ih], h.u[ih], h.v[ih])
             wo = -d[ih]
-            mat = s.tri_mat[h.prim[ih]]
+            mat = rough_maps.pick(mtab, s.tri_mat[h.prim[ih]], h.prim[ih], h.u[ih], h.v[ih], uv)
             colors = B.lobe_colors(mtab, mat, uv)
             em = mtab.emission[mat]
             if np.any(em > 0):
@@ -677,6 +678,8 @@ class CameraPass:
             tex = np.any(mtab.tex >= 0, axis=1)
             if mtab.emission_tex is not None:
                 tex |= mtab.emission_tex >= 0
+            if mtab.rough_first is not None:
+                tex |= mtab.rough_first >= 0      # their hits pick a level row
             self._textured = tex
         first = vp.first
         return (self._cmats, self._textured, CK.vp_buffers(vp),
@@ -737,14 +740,17 @@ class CameraPass:
         pre = np.full(K, -1, np.int64)
         Lb = mtab.kind.shape[1]
         colors_pre, em_pre = np.zeros((0, Lb, 3)), np.zeros((0, 3))
+        mat_pre = np.zeros(0, np.int32)
         mat_h = s.tri_mat[prim[hit]]
         if textured.any() and textured[mat_h].any():
-            # Textured materials: their colours and emission in numpy (rows only).
+            # Textured materials: their colours and emission in numpy (rows
+            # only), and a roughness map's level row.
             it = np.nonzero(hit)[0][textured[mat_h]]
             pr = prim[it]
             _, _, _, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, pr,
                                         bu[it].astype(np.float64), bv[it].astype(np.float64))
-            mt = s.tri_mat[pr]
+            mt = rough_maps.pick(mtab, s.tri_mat[pr], pr, bu[it], bv[it], uv)
+            mat_pre = mt.astype(np.int32)
             colors_pre = B.lobe_colors(mtab, mt, uv)
             em_pre = mtab.emission[mt]
             if mtab.emission_tex is not None and np.any(mtab.emission_tex[mt] >= 0):
@@ -752,7 +758,7 @@ class CameraPass:
             pre[it] = np.arange(it.size)
         ur = rng.random((nh, 4))
         wf = CK.Wavefront(prim, bu, bv, tfar, idx, np.ascontiguousarray(d, np.float64), beta,
-                          path_len, dz, ur, pre, colors_pre, em_pre, ew)
+                          path_len, dz, ur, pre, colors_pre, em_pre, ew, mat_pre)
         ch = CK.alloc_chains(K, Lb)
         lastv = depth == self.max_depth - 1
         if split and K >= CK.SPLIT_MIN and _threads() > 1:
