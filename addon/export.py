@@ -150,10 +150,9 @@ SUPPORT = (
      "and an emission's Strength (IOR, Coat Roughness, ..., and a Metallic beside a "
      "textured Alpha): the image's mean over its pixels, not per hit", APPROXIMATED,
      "the image's mean"),
-    ("a roughness map (Principled, Glossy, Glass, Refraction): per hit on the camera "
-     "side (visible points, camera paths; 256 levels in log alpha, roughness 0.01 at "
-     "least), its mean where photons and light paths bounce", APPROXIMATED,
-     "photons and light paths bounce with its mean"),
+    ("a roughness map into a Principled, Glossy, Glass or Refraction Roughness (an "
+     "image's Color or Alpha, also through colour nodes): per hit, in 256 levels uniform in "
+     "log alpha, roughness 0.01 at least", SUPPORTED, ""),
     ("photon bounces on normal-mapped or bumped surfaces", APPROXIMATED,
      "photons scatter off the interpolated normal"),
     ("Normal Map in object or world space", APPROXIMATED, "space ignored (tangent space only)"),
@@ -549,17 +548,13 @@ class _MaterialBuilder:
     def roughness(self, node, name="Roughness"):
         """(roughness, texture) of a Roughness input: a map (an image's Color
         or Alpha, also through colour nodes, :meth:`alpha_texture`) is read
-        per hit by the camera side, its mean over the image everywhere else
-        (core.materials.rough_maps; noted); else (its value, -1)."""
+        per hit (core.materials.rough_maps), its mean over the image the
+        lobe's own roughness (the frequency model's); else (its value, -1)."""
         t = self.alpha_texture(node, name)
         if t < 0:
             return self.value(node, name, 0.5), -1
         img = self.ex.textures[t]
-        mean = float(img[..., 3].mean()) if img.shape[2] > 3 else 1.0
-        self.notes.append(f"{node.name}.{name}: the roughness map is read per hit by "
-                          f"camera paths; photons and light paths bounce with its mean "
-                          f"({mean:.3g})")
-        return mean, t
+        return (float(img[..., 3].mean()) if img.shape[2] > 3 else 1.0), t
 
     def _same_lookup(self, na, nb) -> bool:
         """Whether two Image Texture nodes are read at the same point of their

@@ -19,6 +19,7 @@ import numpy as np
 
 from .. import lights as Lt
 from .. import materials as B
+from ..materials import rough_maps
 from ..accel import REL_OFFSET, intersect_f32, surface_point
 from ..lights import direct_kernels as DK
 from ..lights import pdf_kernels as PdfK
@@ -838,7 +839,8 @@ class CombinedLightTracer(LightTracer):
                                          hits.prim[i].astype(np.int64),
                                          hits.bu[i].astype(np.float64),
                                          hits.bv[i].astype(np.float64))
-        mat = np.asarray(s.tri_mat, np.int64)[hits.prim[i]]
+        mat = rough_maps.pick(mtab, np.asarray(s.tri_mat, np.int64)[hits.prim[i]],
+                              hits.prim[i], hits.bu[i], hits.bv[i], uvg)
         wo, wg = -d_old[i], live.d64[a:b]
         pl = np.ones(j.size)
         pr = np.ones(j.size)

@@ -252,7 +252,7 @@ def splat_materials(scene, mtab, fmat, textured, sel=None) -> SplatMaterials:
     bool: no alpha texture), the Lambert-only ones LAMBERT_SPLAT and the
     others GENERIC_SPLAT (their colour rows come per connection); sel the
     table's ``compiled.selection_table`` (made here when None and needed)."""
-    from ..materials import fast
+    from ..materials import fast, rough_maps
     from ..materials.compiled import compile_materials, selection_table
     from ..materials.hit_colors import textured_lambert
     M = fmat.cls.shape[0]
@@ -261,6 +261,7 @@ def splat_materials(scene, mtab, fmat, textured, sel=None) -> SplatMaterials:
     if fmat.compiled is not None:
         kind = np.where(np.asarray(fmat.compiled, bool) & ~bent, GENERIC_SPLAT, kind)
     tex = np.asarray(textured, bool) & ~bent & (fmat.cls == fast.GENERIC) & fast.COMPILED_SAMPLING
+    tex &= ~rough_maps.mapped(mtab)     # SLOW: numpy picks their roughness level
     lam = tex & textured_lambert(mtab)
     kind = np.where(lam, LAMBERT_SPLAT, np.where(tex, GENERIC_SPLAT, kind))
     cm = compile_materials(mtab) if np.any(tex & ~lam) else fmat.cm

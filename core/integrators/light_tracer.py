@@ -71,7 +71,7 @@ from typing import NamedTuple, Optional
 import numpy as np
 from .. import lights as Lt
 from .. import materials as B
-from ..materials import compiled as C
+from ..materials import compiled as C, rough_maps
 from ..materials.fast import GENERIC
 from ..accel import REL_OFFSET, surface_point
 from ..lights.shadow import attached as shadow_materials, transmittance
@@ -311,7 +311,8 @@ class LightTracer:
         # wo and wi on opposite sides: +94% on principled_interior.blend).
         _, ng, ns, uv = surface_point(self.scene.tri_p, self.scene.tri_n, self.scene.tri_uv,
                                       prim, bary[:, 1], bary[:, 2])
-        m = np.asarray(self.scene.tri_mat, np.int64)[prim]
+        m = rough_maps.pick(self.mtab, np.asarray(self.scene.tri_mat, np.int64)[prim], prim,
+                            bary[:, 1].astype(np.float32), bary[:, 2].astype(np.float32), uv)
         wc, wi, weight = con.wc[c], vin.wi[rows], con.weight[c]
         colors = B.lobe_colors(self.mtab, m, uv)
         f = C.eval_radiance(self.mtab, self.generic, m, colors, ns, ng, wc, wi)

@@ -82,6 +82,7 @@ from ..lights.table import AREA, MESH, POINT, SPOT, WORLD
 from ..materials.compiled import SelectionTable, eval_pair, pdf_oriented, sample_pair
 from ..materials.hit_colors import hit_rows, textured_lambert, textured_materials
 from ..materials.fast import ABSORBER, GENERIC, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
+from ..materials import rough_maps
 from ..sppm.photon_kernels import shading_normal
 from .mis import FULL, SOFT, emit_select
 from .light_kernels import lambert_pdf as _lambert_pdf
@@ -182,7 +183,9 @@ def compiled_scene_ok(mtab, fmat, table, tri_n) -> bool:
         return False
     cls_ok = np.isin(cls, (LAMBERT, MIRROR, SMOOTH_GLASS, ABSORBER))
     if GENERIC_SCOPE:
-        cls_ok |= (cls == GENERIC) & (np.asarray(fmat.sampled, bool) | textured_materials(mtab))
+        # A roughness map's own rows: the camera paths pick a level row first.
+        cls_ok |= (cls == GENERIC) & (np.asarray(fmat.sampled, bool) | textured_materials(mtab)
+                                      | rough_maps.mapped(mtab))
     # Lambert here is the radiance-mode Lambert (lambert_only), not the photons' lambert_lobes.
     lam_ok = (cls != LAMBERT) | np.asarray(mtab.lambert_only, bool)
     return bool(np.all(cls_ok & lam_ok))

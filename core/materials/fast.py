@@ -37,6 +37,7 @@ from numba import njit
 
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 from ..scene.model import GLASS, GLOSSY
+from . import rough_maps
 from .compiled import (N_FIELDS, N_TABLES, CompiledMaterials, SelectionTable, _disk,
                        compile_materials, selection_table)
 
@@ -61,7 +62,8 @@ class FastMaterials(NamedTuple):
     ior: (M,) float64 GLASS index of refraction.
     deposit: (M,) bool material has a non-delta lobe (photons are stored).
     compiled: (M,) bool GENERIC material sampled (both modes), evaluated and
-      weighed by core.materials.compiled: untextured, no Normal Map / Bump.
+      weighed by core.materials.compiled: untextured, no Normal Map / Bump,
+      no roughness map (its level rows are: core.materials.rough_maps).
     sampled: (M,) bool GENERIC material the bounce kernel samples by
       compiled.sample_pair (importance mode): the compiled ones and the
       untextured ones with a Normal Map / Bump, which importance sampling
@@ -129,7 +131,7 @@ def build_fast_materials(mtab) -> FastMaterials:
             col[m] = mtab.color[m, j] * mtab.weight[m, j]
     bump = getattr(mtab, "bump_correction", None)
     sampled = (cls == GENERIC) & ~np.any((mtab.tex >= 0) & (mtab.kind >= 0), axis=1)
-    sampled &= COMPILED_SAMPLING
+    sampled &= COMPILED_SAMPLING & ~rough_maps.mapped(mtab)     # their hits pick a level
     comp = sampled.copy()
     if bump is not None:
         comp &= ~np.asarray(bump, bool)

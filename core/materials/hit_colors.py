@@ -167,8 +167,9 @@ def hit_colors_kernel(X, prim, bu, bv, mat, R, colors, p, cdf, last, col):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def sample_rows(X, lobes, T, tri_mat, rows, bary, ns, ng, wo, ray, u, out, wgt, flags):
-    """``compiled.sample_pair`` in importance mode of the hits rows (n,) of
+def sample_rows(X, lobes, T, mat, rows, bary, ns, ng, wo, ray, u, out, wgt, flags):
+    """``compiled.sample_pair`` in importance mode of the hits rows (n,) on
+    materials mat (n,) (their rows: a roughness map's level) of
     arrays by hit (bary (., 3) (prim, b1, b2), ns, ng, wo (., 3), ray (.,)
     the row of u (., >= 3) with the hit's uniforms), each with its own
     colour row (:func:`_colour_row`, in a one-row scratch: no (n, L, 3)
@@ -183,7 +184,7 @@ def sample_rows(X, lobes, T, tri_mat, rows, bary, ns, ng, wo, ray, u, out, wgt, 
     for q in range(rows.shape[0]):
         g = rows[q]
         t = int(bary[g, 0])
-        m = tri_mat[t]
+        m = mat[q]
         _, _, _, cur, img = _colour_row(X, m, t, bary[g, 1], bary[g, 2], 0, colors, p, cdf,
                                         last, cur, img)
         i = ray[g]

@@ -6,9 +6,15 @@ kernel (numpy and compiled) reads a lobe's roughness from its material's
 row, so instead of a per-hit roughness in each of them, such a material is
 expanded into ROUGH_LEVELS rows of the ``MaterialTable`` (:func:`expand`),
 identical but for the mapped lobes' roughness, and a hit picks its row from
-the map at its uv (:func:`pick`) where the camera side reads the hit's
-material.  Everything downstream (lobe choice, f, pdf, sampling, the
-receivers' kernels) then sees a material of that roughness.
+the map at its uv (:func:`pick`) where a stage reads the hit's material to
+shade it: the camera pass, the camera paths, the photon tracer's generic
+hits (light paths too), light tracing's connections and Combined's light
+vertex densities.  The compiled samplers never see a mapped material's own
+row (:func:`mapped`): the pick comes first, in numpy, and hands them the
+level's row; everything downstream (lobe choice, f, pdf, sampling, the
+receivers' kernels) sees a material of that roughness.  The
+material's own row keeps the map's mean: what the frequency model reads
+of a photon's bounce.
 
 Levels are uniform in log GGX alpha = r^2 between ALPHA_MIN and 1 (a step
 of 3.7 % in alpha at 256 levels), and a hit between two levels takes the
@@ -92,6 +98,13 @@ def _at(mat, r):
             lb = dataclasses.replace(lb, roughness_texture=-1, **kw)
         lobes.append(lb)
     return dataclasses.replace(mat, lobes=tuple(lobes))
+
+
+def mapped(table) -> np.ndarray:
+    """(M,) bool: the table's rows whose hits pick a level (the compiled
+    samplers and splats leave them to numpy, where :func:`pick` runs)."""
+    first = getattr(table, "rough_first", None)
+    return np.zeros(table.kind.shape[0], bool) if first is None else first >= 0
 
 
 def dither(prim, bu, bv) -> np.ndarray:

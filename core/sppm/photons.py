@@ -38,10 +38,10 @@ from .. import lights as Lt
 from ..frequency import spectrum as F
 from ..frequency import kernels as FK
 from ..frequency.occlusion_march import march_grid, no_march_grid
-from ..materials import compiled as C, fast, hit_colors
+from ..materials import compiled as C, fast, hit_colors, rough_maps
 from ..materials.fast import GENERIC, build_fast_materials
 from . import photon_kernels as PK
-from ..accel import _COUNT_LOCK, REL_OFFSET, intersect_f32
+from ..accel import _COUNT_LOCK, REL_OFFSET, hit_uv, intersect_f32
 from ..kept import _ALONE, _refcounts
 from ..scene.model import Scene
 from .update import R_FLOOR_REL
@@ -291,11 +291,15 @@ class PhotonTracer:
         # texture (light tracing reads it too): their generic hits are
         # sampled compiled, each with a colour row of its own
         # (materials.hit_colors; _sample_textured), else by numpy.
+        # Roughness-mapped ones too (their rows are a level's, picked first).
         self.textured = hit_colors.textured_materials(mtab)
+        self._mapped = rough_maps.mapped(mtab)
         if mtab.alpha_tex is not None:
-            self.textured &= ~np.any(np.asarray(mtab.alpha_tex) >= 0, axis=1)
+            alpha = np.any(np.asarray(mtab.alpha_tex) >= 0, axis=1)
+            self.textured &= ~alpha
+            self._mapped &= ~alpha
         self._colors = (hit_colors.build_color_inputs(mtab, scene.tri_uv)
-                        if self.textured.any() else None)
+                        if (self.textured | self._mapped).any() else None)
         self._tri_mat = np.ascontiguousarray(self.tris.mat, np.int64)
         # Photon rays cast by this tracer (accel.rays_cast also counts the
         # camera's, which may be cast meanwhile: PhotonPass.trace_ahead).
@@ -761,13 +765,15 @@ class PhotonTracer:
 
     def _textured_rows(self) -> np.ndarray:
         """(M,) bool: the materials whose generic hits :meth:`_sample_textured`
-        samples (textured GENERIC ones, under ``fast.COMPILED_SAMPLING``)."""
-        return self.textured & (self.fmat.cls == GENERIC) & fast.COMPILED_SAMPLING
+        samples (textured or roughness-mapped GENERIC ones, under
+        ``fast.COMPILED_SAMPLING``)."""
+        return ((self.textured | self._mapped) & (self.fmat.cls == GENERIC)
+                & fast.COMPILED_SAMPLING)
 
     def _sample_textured(self, rows, gen, u) -> np.ndarray:
         """The generic hits rows (of GenericHits gen) on :meth:`_textured_rows`
-        materials sampled by ``compiled.sample_pair`` (importance mode) with
-        their own colour rows (``hit_colors.sample_rows``: numpy's
+        materials sampled by ``compiled.sample_pair`` (importance mode), a
+        roughness map's at the hit's level row, with their own colour rows (``hit_colors.sample_rows``: numpy's
         ``lobe_colors`` at the hit's uv and its lobe selection, one row at a
         time) into the kernel's columns (out, wgt, state), as numpy's
         :meth:`_sample_numpy` samples them to rounding (a Lambert-only one by
@@ -778,9 +784,17 @@ class PhotonTracer:
         if not t.any():
             return rows
         r = rows[t]
+        mr = mat[t].astype(np.int64)
+        mapped = self._mapped[mr]
+        if mapped.any():        # a roughness map: the hit's level row
+            b = gen.bary[r[mapped]]
+            prim = b[:, 0].astype(np.int64)
+            bu, bv = b[:, 1].astype(np.float32), b[:, 2].astype(np.float32)
+            mr[mapped] = rough_maps.pick(self.mtab, mr[mapped], prim, bu, bv,
+                                         hit_uv(self.scene.tri_uv, prim, b[:, 1], b[:, 2]))
         cm = C.compile_materials(self.mtab)
         fl = np.empty(r.size, np.int8)
-        hit_colors.sample_rows(self._colors, cm.lobes, cm.tables, self._tri_mat, r, gen.bary,
+        hit_colors.sample_rows(self._colors, cm.lobes, cm.tables, mr, r, gen.bary,
                                gen.ns, gen.ng, gen.wi, gen.i, u, gen.out, gen.wgt, fl)
         gen.state[r] = np.where((fl & 1) > 0, np.where((fl & 2) > 0, PK.SAMPLE_DELTA,
                                                        PK.SAMPLE_OK), PK.SAMPLE_INVALID)
@@ -791,10 +805,14 @@ class PhotonTracer:
         prim = gbary[:, 0].astype(np.int64)
         mat = self.tris.mat[prim]
         uv = np.zeros((g, 2))
-        if self.mtab.textures and np.any(self.mtab.tex[mat] >= 0):
+        mapped = rough_maps.mapped(self.mtab)[mat]
+        if self.mtab.textures and (np.any(self.mtab.tex[mat] >= 0) or mapped.any()):
             if self._tri_uv is None:
                 self._tri_uv = np.ascontiguousarray(self.scene.tri_uv, np.float64)
             PK.gen_attributes(np.ascontiguousarray(gbary), g, self._tri_uv, uv)
+        if mapped.any():        # a roughness map: the hit's level row
+            mat = rough_maps.pick(self.mtab, mat, prim, gbary[:, 1].astype(np.float32),
+                                  gbary[:, 2].astype(np.float32), uv)
         colors = B.lobe_colors(self.mtab, mat, uv)
         wo, wgt, _, is_delta, valid = B.sample_bsdf(
             self.mtab, mat, colors, gns, gng, gwi, ug[:, :3], subset="all", mode="importance")
