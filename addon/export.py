@@ -1086,11 +1086,9 @@ class _Exporter:
             self.textures.append(px)
         return self.tex_index[(key, mode)]
 
-    def color_texels(self, node, notes) -> np.ndarray | None:
-        """(H, W, C) float32 texels of an Image Texture node as its Color
-        output reads them (the colour associated with a straight alpha, as
-        :meth:`texture` reads it without a linked Alpha output), None (and a
-        note) without pixels."""
+    def node_pixels(self, node, notes) -> np.ndarray | None:
+        """The pixels of an Image Texture node's image (:meth:`pixels`, read
+        once per image), None (and a note) without any."""
         img = node.image
         if img is None:
             notes.append(f"{node.name}: no image")
@@ -1098,8 +1096,15 @@ class _Exporter:
         key = img.name_full
         if key not in self.tex_pixels:
             self.tex_pixels[key] = self.pixels(img, notes)
-        px = self.tex_pixels[key]
-        if px is None or getattr(img, "alpha_mode", 'STRAIGHT') != 'STRAIGHT' \
+        return self.tex_pixels[key]
+
+    def color_texels(self, node, notes) -> np.ndarray | None:
+        """(H, W, C) float32 texels of an Image Texture node as its Color
+        output reads them (the colour associated with a straight alpha, as
+        :meth:`texture` reads it without a linked Alpha output), None (and a
+        note) without pixels."""
+        px = self.node_pixels(node, notes)
+        if px is None or getattr(node.image, "alpha_mode", 'STRAIGHT') != 'STRAIGHT' \
                 or px.shape[2] < 4:
             return px
         return np.concatenate([px[..., :3] * px[..., 3:4], px[..., 3:]], -1)
@@ -1147,14 +1152,7 @@ class _Exporter:
         colour, ``textures.scalar_weights``; through the colour nodes
         ``ops``, ``core.scene.color_ops``) or 'Alpha' (1 without an alpha
         channel); None (and a note) when the image has no pixels."""
-        img = node.image
-        if img is None:
-            notes.append(f"{node.name}: no image")
-            return None
-        key = img.name_full
-        if key not in self.tex_pixels:
-            self.tex_pixels[key] = self.pixels(img, notes)
-        px = self.tex_pixels[key]
+        px = self.node_pixels(node, notes)
         if px is None:
             return None
         if output == 'Alpha' and px.shape[2] < 4:
