@@ -35,7 +35,9 @@ from ..core.scene import nodes as shading
 from ..core.errors import MemoryBudgetError, RenderCancelled, SceneError
 from ..core.lights.environment import mean_radiance
 from ..core.scene.normals import BUMP, NORMAL_MAP, NormalInput
-from ..core.scene.textures import EnvironmentMap, UnassociatedImage, resample, scalar_weights
+from ..core.scene.textures import (EXTENSIONS, INTERPOLATIONS, LINEAR, REPEAT,
+                                   EnvironmentMap, UnassociatedImage, resample,
+                                   sampler_code, scalar_weights, with_sampler)
 from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
                           TRANSPARENT, Camera, Light, Lobe, Material, Scene,
                           drop_invalid_triangles)
@@ -126,6 +128,10 @@ SUPPORT = (
      "DirectX) and Bump (Strength, Distance, Invert) from an Image Texture", SUPPORTED, ""),
     ("Mapping (Point, Texture, Vector) and Texture Coordinate (UV, Generated, Object) "
      "into Image Texture vectors", SUPPORTED, ""),
+    ("Image Texture interpolation Linear and Closest, extension Repeat, Extend, Clip and "
+     "Mirror", SUPPORTED, ""),
+    ("Image Texture interpolation Cubic and Smart", APPROXIMATED,
+     "interpolation read as Linear"),
     ("an image's colour (also through colour nodes: its luminance) or alpha into a Mix "
      "Shader's Fac, the Principled Alpha or Metallic, or an emission's Strength, per hit",
      SUPPORTED, ""),
@@ -1056,14 +1062,15 @@ class _Exporter:
         if (getattr(img, "alpha_mode", 'STRAIGHT') != 'STRAIGHT' or px.shape[2] < 4
                 or not np.any(px[..., 3] < 1.0)):
             mode = 'STRAIGHT'     # read as stored
+        sampler = self.texture_sampler(node, mb.notes)
         if ops or scalar:
-            ik = (key, mode, ops, scalar)
+            ik = (key, mode, ops, scalar, sampler)
             if ik not in self.tex_index:
                 # Cycles' Color output at a texel: the colour associated with
                 # alpha unless the Alpha output is linked (then straight).
                 if mode == 'ASSOCIATED':
                     px = np.concatenate([px[..., :3] * px[..., 3:4], px[..., 3:]], -1)
-                px, rgb = self.folded(px, ops, mb.notes)
+                px, rgb = self.folded(with_sampler(px, sampler), ops, mb.notes)
                 if scalar:
                     out = np.ones(px.shape[:2] + (4,), np.float32)
                     out[..., 3] = np.clip(CO.gray(rgb), 0.0, 1.0)
@@ -1074,17 +1081,28 @@ class _Exporter:
                         out[..., 3:] = px[..., 3:]
                 self.poll()
                 self.tex_index[ik] = len(self.textures)
-                self.textures.append(out)
+                self.textures.append(with_sampler(out, sampler))
             return self.tex_index[ik]
-        if (key, mode) not in self.tex_index:
+        ik = (key, mode, sampler)
+        if ik not in self.tex_index:
             if mode != 'STRAIGHT':
                 px = px.copy()
                 px[..., :3] *= px[..., 3:4]
                 if mode == 'UNASSOCIATED':
                     px = px.view(UnassociatedImage)
-            self.tex_index[(key, mode)] = len(self.textures)
-            self.textures.append(px)
-        return self.tex_index[(key, mode)]
+            self.tex_index[ik] = len(self.textures)
+            self.textures.append(with_sampler(px, sampler))
+        return self.tex_index[ik]
+
+    @staticmethod
+    def texture_sampler(node, notes) -> int:
+        """An Image Texture node's interpolation and extension
+        (``textures.sampler_code``); Cubic and Smart read as Linear (noted)."""
+        interp = getattr(node, "interpolation", 'Linear')
+        if interp not in INTERPOLATIONS:
+            notes.append(f"{node.name}: {interp} interpolation read as Linear")
+        return sampler_code(INTERPOLATIONS.get(interp, LINEAR),
+                            EXTENSIONS.get(getattr(node, "extension", 'REPEAT'), REPEAT))
 
     def node_pixels(self, node, notes) -> np.ndarray | None:
         """The pixels of an Image Texture node's image (:meth:`pixels`, read
@@ -1104,10 +1122,11 @@ class _Exporter:
         :meth:`texture` reads it without a linked Alpha output), None (and a
         note) without pixels."""
         px = self.node_pixels(node, notes)
-        if px is None or getattr(node.image, "alpha_mode", 'STRAIGHT') != 'STRAIGHT' \
-                or px.shape[2] < 4:
-            return px
-        return np.concatenate([px[..., :3] * px[..., 3:4], px[..., 3:]], -1)
+        if px is None:
+            return None
+        if getattr(node.image, "alpha_mode", 'STRAIGHT') == 'STRAIGHT' and px.shape[2] >= 4:
+            px = np.concatenate([px[..., :3] * px[..., 3:4], px[..., 3:]], -1)
+        return with_sampler(px, self.texture_sampler(node, []))
 
     def folded(self, px, ops, notes, shape=None):
         """(px, rgb): texels px (H, W, C) resampled to ``shape`` and their

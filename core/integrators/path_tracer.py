@@ -211,13 +211,14 @@ class PathTracer:
         # Normal Map / Bump: the spec attached to the mesh normals and the
         # materials it perturbs (the kernels' hits, _perturb).
         from ..scene import normals
-        from ..scene.textures import UnassociatedImage, _as_image
+        from ..scene.textures import UnassociatedImage, _as_image, sampler_of
         self._spec = spec = normals.attached(scene.tri_n)
         self._bumped = (None if spec is None
                         else normals.perturbed_materials(spec, mtab.kind.shape[0]))
         # Per tangent-space Normal Map material, normal_kernels.normal_map's
         # arguments after the hits (image, unassociated, strength, DirectX);
-        # the other perturbed materials (Bump) take normals.perturb.
+        # the other perturbed materials (Bump, a Normal Map read Closest or
+        # with another extension than Repeat) take normals.perturb.
         self._normal_maps = {}
         if spec is not None:
             self._tri_args = (spec.tri_p, spec.tri_n, spec.tri_uv,
@@ -225,7 +226,8 @@ class PathTracer:
                               else np.zeros((0, 3, 4), np.float32))
             for m, inp in enumerate(spec.inputs):
                 if (inp is not None and inp.kind == normals.NORMAL_MAP
-                        and 0 <= inp.texture < len(spec.textures)):
+                        and 0 <= inp.texture < len(spec.textures)
+                        and sampler_of(spec.textures[inp.texture]) == 0):
                     img = spec.textures[inp.texture]
                     self._normal_maps[m] = (np.ascontiguousarray(_as_image(img)),
                                             isinstance(img, UnassociatedImage),

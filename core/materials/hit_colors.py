@@ -123,7 +123,8 @@ def _colour_row(X, m, t, b1, b2, r, colors, p, cdf, last, cur, img):
             if tj != cur:
                 img = X.textures.images[tj]
                 cur = tj
-            a0, a1, a2 = bilinear_rgb(img, uu, vv, X.textures.unassociate[tj])
+            a0, a1, a2 = bilinear_rgb(img, uu, vv, X.textures.unassociate[tj],
+                                      X.textures.sampler[tj])
             c0, c1, c2 = c0 * a0, c1 * a1, c2 * a2
         colors[r, j, 0], colors[r, j, 1], colors[r, j, 2] = c0, c1, c2
         s0, s1, s2 = s0 + c0, s1 + c1, s2 + c2

@@ -18,21 +18,24 @@ class TextureList(NamedTuple):
     images a ``numba.typed.List`` of the (H, W, C) images
     (``textures._as_image``'s views; float32 as Blender's, or every one
     float64 when any is not float32: no texel rounded), unassociate (T,)
-    bool (an ``UnassociatedImage``)."""
+    bool (an ``UnassociatedImage``), sampler (T,) int64 each one's
+    ``textures.sampler_code``."""
     images: object
     unassociate: np.ndarray
+    sampler: np.ndarray
 
 
 def texture_list(textures) -> TextureList:
     """The :class:`TextureList` of a list of images (``Scene.textures``)."""
     from numba.typed import List
 
-    from .textures import UnassociatedImage, _as_image
+    from .textures import UnassociatedImage, _as_image, sampler_of
     imgs = [_as_image(t) for t in textures]
     dt = np.float32 if all(i.dtype == np.float32 for i in imgs) else np.float64
     imgs = [np.ascontiguousarray(i, dt) for i in imgs] or [np.zeros((1, 1, 3), dt)]
     return TextureList(List(imgs), np.array([isinstance(t, UnassociatedImage)
-                                             for t in textures] or [False]))
+                                             for t in textures] or [False]),
+                       np.array([sampler_of(t) for t in textures] or [0], np.int64))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -48,25 +51,31 @@ def corner_uv(tri_uv, t, w0, u, v):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def bilinear_rgb(img, u, v, unassociate):
+def bilinear_rgb(img, u, v, unassociate, sampler=0):
     """:func:`sample_texture` of one uv: (r, g, b) float64 of img (H, W, C)
     (C = 1: grey; unassociate with C >= 4: rgb / alpha where alpha > 0, else
     0), bilinear with repeat wrapping around texel centres (Cycles'
-    interp_linear), 0 for a non-finite uv; the numpy expressions' operations
-    in their order."""
+    interp_linear), or as ``sampler`` says (``textures.sampler_code``:
+    Closest, Extend, Clip, Mirror), 0 for a non-finite uv; the numpy
+    expressions' operations in their order."""
     H, W, C = img.shape
-    x = u * W - 0.5
-    y = v * H - 0.5
+    closest = (sampler & 1) == 1
+    ext = sampler >> 1
+    half = 0.0 if closest else 0.5
+    x = u * W - half
+    y = v * H - half
     fx = np.floor(x)
     fy = np.floor(y)
     tx = x - fx
     ty = y - fy
     if not (np.isfinite(tx) and np.isfinite(ty)):
         return 0.0, 0.0, 0.0
-    ix = int(fx) % W
-    iy = int(fy) % H
-    nix = (ix + 1) % W
-    niy = (iy + 1) % H
+    if closest:
+        tx = ty = 0.0
+    ix = _wrap(int(fx), W, ext)
+    iy = _wrap(int(fy), H, ext)
+    nix = _wrap(int(fx) + 1, W, ext)
+    niy = _wrap(int(fy) + 1, H, ext)
     grey = C < 3
     r = _blend(img, iy, ix, niy, nix, 0, tx, ty)
     g = r if grey else _blend(img, iy, ix, niy, nix, 1, tx, ty)
@@ -80,10 +89,33 @@ def bilinear_rgb(img, u, v, unassociate):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _wrap(i, n, ext):
+    """textures._wrap of one index: repeat (0), extend (1), mirror (3); clip
+    (2) unchanged (-1 .. n: read as 0 by :func:`_texel`)."""
+    if ext == 0:
+        return i % n
+    if ext == 1:
+        return min(max(i, 0), n - 1)
+    if ext == 3:
+        m = abs(i + (1 if i < 0 else 0)) % (2 * n)
+        return 2 * n - m - 1 if m >= n else m
+    return i
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _texel(img, iy, ix, ch):
+    """A texel's channel in float64, 0 outside the image (CLIP's indices)."""
+    H, W = img.shape[0], img.shape[1]
+    if iy < 0 or iy >= H or ix < 0 or ix >= W:
+        return 0.0
+    return np.float64(img[iy, ix, ch])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _blend(img, iy, ix, niy, nix, ch, tx, ty):
     """Channel ch of the bilinear blend of the four texels (sample_texture's order)."""
-    a = np.float64(img[iy, ix, ch])
-    b = np.float64(img[iy, nix, ch])
-    c = np.float64(img[niy, ix, ch])
-    d = np.float64(img[niy, nix, ch])
+    a = _texel(img, iy, ix, ch)
+    b = _texel(img, iy, nix, ch)
+    c = _texel(img, niy, ix, ch)
+    d = _texel(img, niy, nix, ch)
     return (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d)

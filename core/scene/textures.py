@@ -1,11 +1,16 @@
-"""Image textures as Cycles samples them by default.
+"""Image textures as Cycles samples them.
 
 Cycles' Image Texture node defaults are *Linear* interpolation and *Repeat*
 extension.  Its CPU kernel (``kernel/device/cpu/image.h``, ``interp_linear``)
 maps uv to continuous pixel coordinates ``x = u * W``, ``y = v * H``, shifts by
 half a pixel so that texel centres sit at integer + 0.5, and blends the four
-neighbouring texels with periodic wrapping.  Images here are stored as Blender
-stores them: row 0 at the BOTTOM, so ``v = 0`` is row 0 with no flip.
+neighbouring texels with periodic wrapping.  *Closest* reads the texel holding
+(x, y) without the shift.  The other extensions read texel indices outside the
+image clamped to the edge (*Extend*), reflected (*Mirror*) or as transparent
+black (*Clip*).  An image read another way than Linear / Repeat carries its
+:func:`sampler_code` (a :class:`SampledImage`), so that every lookup here reads
+it as its node does.  Images are stored as Blender stores them: row 0 at the
+BOTTOM, so ``v = 0`` is row 0 with no flip.
 """
 from __future__ import annotations
 
@@ -14,38 +19,107 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-def _bilinear_corners(img: np.ndarray, uv: np.ndarray, ch):
-    """The four texels around each uv and the blend weights (Cycles' interp_linear).
+# Interpolation and extension of an Image Texture node (Cycles' order).
+LINEAR, CLOSEST = 0, 1
+REPEAT, EXTEND, CLIP, MIRROR = 0, 1, 2, 3
+INTERPOLATIONS = {'Linear': LINEAR, 'Closest': CLOSEST}
+EXTENSIONS = {'REPEAT': REPEAT, 'EXTEND': EXTEND, 'CLIP': CLIP, 'MIRROR': MIRROR}
+
+
+def sampler_code(interpolation: int = LINEAR, extension: int = REPEAT) -> int:
+    """One int for an interpolation and an extension (0: Linear, Repeat)."""
+    return int(interpolation) | (int(extension) << 1)
+
+
+def _wrap(i, n, ext):
+    """Texel indices i (int64 array) of an axis of n texels under extension
+    ext (Cycles' wrap_periodic, wrap_clamp, wrap_mirror; CLIP: unchanged)."""
+    if ext == REPEAT:
+        return np.mod(i, n)
+    if ext == EXTEND:
+        return np.clip(i, 0, n - 1)
+    if ext == MIRROR:
+        m = np.mod(np.abs(i + (i < 0)), 2 * n)
+        return np.where(m >= n, 2 * n - m - 1, m)
+    return i
+
+
+def _bilinear_corners(img: np.ndarray, uv: np.ndarray, ch, sampler: int = 0):
+    """The four texels around each uv and the blend weights (Cycles'
+    interp_linear; interp_closest when the sampler says Closest: the texel
+    holding uv four times, weights 0).
 
     Returns (a, b, c, d, tx, ty, W, H, bad): texels (K, len(ch)) float64 at
-    (row iy, col ix), (iy, ix+1), (iy+1, ix), (iy+1, ix+1) with repeat
-    wrapping, tx, ty (K, 1) the fractions, and bad (K,) non-finite uv."""
+    (row iy, col ix), (iy, ix+1), (iy+1, ix), (iy+1, ix+1) with the
+    sampler's extension (repeat wrapping by default; CLIP: 0 outside), tx,
+    ty (K, 1) the fractions, and bad (K,) non-finite uv."""
     H, W, _ = img.shape
+    closest, ext = sampler & 1, sampler >> 1
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
     # Half-texel shift: texel i covers [i, i+1) and its centre is i + 0.5.
-    x = uv[:, 0] * W - 0.5
-    y = uv[:, 1] * H - 0.5
+    half = 0.0 if closest else 0.5
+    x = uv[:, 0] * W - half
+    y = uv[:, 1] * H - half
     fx = np.floor(x)
     fy = np.floor(y)
     tx = (x - fx)[:, None]
     ty = (y - fy)[:, None]
+    bad = ~np.isfinite(tx[:, 0]) | ~np.isfinite(ty[:, 0])
     # Non-finite uv (degenerate meshes) would make the integer cast undefined.
-    fx = np.where(np.isfinite(fx), fx, 0.0)
-    fy = np.where(np.isfinite(fy), fy, 0.0)
-    ix = np.mod(fx.astype(np.int64), W)
-    iy = np.mod(fy.astype(np.int64), H)
-    nix = np.mod(ix + 1, W)
-    niy = np.mod(iy + 1, H)
+    fx = np.where(np.isfinite(fx), fx, 0.0).astype(np.int64)
+    fy = np.where(np.isfinite(fy), fy, 0.0).astype(np.int64)
     im = img[:, :, ch]
 
     def rd(r, c):
-        return im[r, c].astype(np.float64)
+        if ext != CLIP:
+            return im[r, c].astype(np.float64)
+        inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+        out = im[np.clip(r, 0, H - 1), np.clip(c, 0, W - 1)].astype(np.float64)
+        return np.where(inside[:, None], out, 0.0)
 
-    bad = ~np.isfinite(tx[:, 0]) | ~np.isfinite(ty[:, 0])
+    if closest:
+        t = rd(_wrap(fy, H, ext), _wrap(fx, W, ext))
+        return t, t, t, t, 0.0 * tx, 0.0 * ty, W, H, bad
+    ix, iy = _wrap(fx, W, ext), _wrap(fy, H, ext)
+    nix, niy = _wrap(fx + 1, W, ext), _wrap(fy + 1, H, ext)
     return rd(iy, ix), rd(iy, nix), rd(niy, ix), rd(niy, nix), tx, ty, W, H, bad
 
 
-class UnassociatedImage(np.ndarray):
+class SampledImage(np.ndarray):
+    """An image whose Image Texture node reads it with another interpolation
+    or extension than Linear / Repeat: ``sampler`` (:func:`sampler_code`),
+    kept through views and pickling.  Make one with :func:`with_sampler`."""
+    sampler = 0
+
+    def __array_finalize__(self, obj):
+        self.sampler = int(getattr(obj, "sampler", 0))
+
+    def __reduce__(self):
+        r = super().__reduce__()
+        return r[0], r[1], r[2] + (self.sampler,)
+
+    def __setstate__(self, state):
+        self.sampler = int(state[-1])
+        super().__setstate__(state[:-1])
+
+
+def sampler_of(img) -> int:
+    """An image's :func:`sampler_code` (0 for a plain array)."""
+    return int(getattr(img, "sampler", 0))
+
+
+def with_sampler(img: np.ndarray, sampler: int) -> np.ndarray:
+    """img read with ``sampler``: itself when 0 (Linear / Repeat) and plain,
+    else a view (a :class:`SampledImage`, or its own class when it is one,
+    ``UnassociatedImage``) carrying it."""
+    if sampler == sampler_of(img):
+        return img
+    out = img.view(type(img) if isinstance(img, SampledImage) else SampledImage)
+    out.sampler = int(sampler)
+    return out
+
+
+class UnassociatedImage(SampledImage):
     """An image stored with associated alpha (rgb x a, a) whose colour reads
     unassociated: the interpolated rgb divided by the interpolated alpha
     (Cycles' Image Texture with its Alpha output linked,
@@ -67,11 +141,12 @@ def sample_texture(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     Returns (K, 3) float64 linear RGB.
     """
     unassociate = isinstance(img, UnassociatedImage)
+    sampler = sampler_of(img)
     img = _as_image(img)
     ch = [0, 1, 2] if img.shape[2] >= 3 else [0, 0, 0]
     if unassociate and img.shape[2] >= 4:
         ch = [0, 1, 2, 3]
-    a, b, c, d, tx, ty, _, _, bad = _bilinear_corners(img, uv, ch)
+    a, b, c, d, tx, ty, _, _, bad = _bilinear_corners(img, uv, ch, sampler)
     out = (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d)
     if out.shape[1] == 4:
         al = out[:, 3:4]
@@ -92,27 +167,29 @@ def upsample(img: np.ndarray, k: int) -> np.ndarray:
 
 
 def resample(img: np.ndarray, H2: int, W2: int) -> np.ndarray:
-    """(H2, W2, C) float32: img (H, W, C)'s bilinear, repeat-wrapped
-    interpolant read at the texel centres of an H2 x W2 grid over the same
-    uv square (two images of one lookup brought to one grid, and
-    :func:`upsample`)."""
+    """(H2, W2, C) float32: img (H, W, C)'s interpolant (bilinear and
+    repeat-wrapped, or as its sampler reads it, which the result keeps)
+    read at the texel centres of an H2 x W2 grid over the same uv square
+    (two images of one lookup brought to one grid, and :func:`upsample`)."""
+    sampler = sampler_of(img)
     img = _as_image(img)
     C = img.shape[2]
     v, u = np.mgrid[0:H2, 0:W2]
     uv = np.stack([(u.ravel() + 0.5) / W2, (v.ravel() + 0.5) / H2], -1)
-    a, b, c, d, tx, ty, _, _, _ = _bilinear_corners(img, uv, list(range(C)))
+    a, b, c, d, tx, ty, _, _, _ = _bilinear_corners(img, uv, list(range(C)), sampler)
     out = (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d)
-    return out.reshape(H2, W2, C).astype(np.float32)
+    return with_sampler(out.reshape(H2, W2, C).astype(np.float32), sampler)
 
 
 def sample_alpha(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """(K,) float64 alpha of an Image Texture at uv (K, 2), bilinear like
     :func:`sample_texture`; 1 for images without an alpha channel (Cycles)."""
+    sampler = sampler_of(img)
     img = _as_image(img)
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
     if img.shape[2] < 4:
         return np.ones(uv.shape[0])
-    a, b, c, d, tx, ty, _, _, bad = _bilinear_corners(img, uv, [3])
+    a, b, c, d, tx, ty, _, _, bad = _bilinear_corners(img, uv, [3], sampler)
     out = ((1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d))[:, 0]
     out[bad] = 1.0
     return out
@@ -144,7 +221,8 @@ def scalar_gradient(img: np.ndarray, uv: np.ndarray, channel: str = "COLOR"):
     Returns h (K,), dh_du (K,), dh_dv (K,) float64.  The bilinear
     interpolant is piecewise bilinear, so its derivative is what a finite
     difference much smaller than a texel measures (Cycles' Bump node with a
-    pixel footprint below the texel size)."""
+    pixel footprint below the texel size); 0 under Closest (a step)."""
+    sampler = sampler_of(img)
     img = _as_image(img)
     w = scalar_weights(img, channel)
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
@@ -152,7 +230,7 @@ def scalar_gradient(img: np.ndarray, uv: np.ndarray, channel: str = "COLOR"):
         one = np.ones(uv.shape[0])
         return one, 0.0 * one, 0.0 * one
     ch = list(range(img.shape[2]))
-    a, b, c, d, tx, ty, W, H, bad = _bilinear_corners(img, uv, ch)
+    a, b, c, d, tx, ty, W, H, bad = _bilinear_corners(img, uv, ch, sampler)
     a, b, c, d = a @ w, b @ w, c @ w, d @ w
     tx, ty = tx[:, 0], ty[:, 0]
     h = (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d)
