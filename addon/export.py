@@ -419,10 +419,20 @@ class _MaterialBuilder:
         fed by an image's colour (a mask, also through colour nodes; read
         as a float reads a colour, its luminance) becomes a texture of that
         grey times the constant colour (white colour, strength 1 then);
-        with a textured colour too, the Strength is the image's mean."""
-        c, tex = self.color(node, color_name)
+        with a textured colour too, the two images' product when both are
+        read at the same point (folded like a Multiply of two images), else
+        the Strength is the image's mean."""
         sock = node.inputs.get(strength_name)
-        chain = self.image_chain(sock) if tex < 0 and sock is not None else None
+        chain = self.image_chain(sock) if sock is not None else None
+        cchain = self.image_chain(node.inputs[color_name]) if chain is not None else None
+        if cchain is not None and self._same_lookup(cchain[0], chain[0]):
+            t = self.image(cchain[0], cchain[1] + (
+                ("mix_image", "MULTIPLY", 1.0, chain[0], chain[1] + (("gray",),), False),))
+            if t >= 0:
+                return (1.0, 1.0, 1.0), 1.0, t
+        c, tex = self.color(node, color_name)
+        if tex >= 0:
+            chain = None
         if chain is not None:
             img, ops = chain
             t = self.image(img, ops + (("gray",), ("mix", "MULTIPLY", 1.0, tuple(c), "A", False)))

@@ -293,14 +293,17 @@ def test_a_bump_height_through_a_color_ramp_agrees_with_cycles(tmp_path):
     TS._check(err, noise, effect)
 
 
-@pytest.mark.parametrize("how", ["emission", "principled"])
+@pytest.mark.parametrize("how", ["emission", "principled", "both"])
 def test_an_emission_strength_mask_agrees_with_cycles(how, tmp_path):
     """A grey mask into the Emission's Strength (or the Principled Emission
     Strength), seen directly: the emission is the constant colour times the
     mask's luminance per hit (``_MaterialBuilder.emission``).  Before, the
     mask's mean was used (noted).  Measured: image means equal to 4 digits,
     mean |diff| 0.95 % of the mean, 0.85x the seed-to-seed noise (the pixel
-    filter's jitter over the mask's edges); the mean strength instead 44 %."""
+    filter's jitter over the mask's edges); the mean strength instead 44 %.
+    "both": the Emission's Color an image too (read at the same point):
+    the two images' product, where before the colour image was scaled by
+    the mask's mean."""
     pytest.importorskip("bpy")
     import dataclasses
     import test_shading_nodes as TS
@@ -308,10 +311,14 @@ def test_an_emission_strength_mask_agrees_with_cycles(how, tmp_path):
     def mat(nodes, links, surface):
         tex = nodes.new('ShaderNodeTexImage')
         tex.image = TS._image("M", _mask_pixels(), non_color=True)
-        if how == "emission":
+        if how in ("emission", "both"):
             e = nodes.new('ShaderNodeEmission')
             e.inputs["Color"].default_value = (1.0, 0.5, 0.2, 1.0)
             links.new(tex.outputs["Color"], e.inputs["Strength"])
+            if how == "both":
+                col = nodes.new('ShaderNodeTexImage')
+                col.image = TS._image("C", TS._color_pixels(), non_color=False)
+                links.new(col.outputs["Color"], e.inputs["Color"])
         else:
             e = nodes.new('ShaderNodeBsdfPrincipled')
             e.inputs["Base Color"].default_value = (0.0, 0.0, 0.0, 1.0)
@@ -325,11 +332,18 @@ def test_an_emission_strength_mask_agrees_with_cycles(how, tmp_path):
     err, noise, img, ref, scene, lines = TS.compare(sc, tmp_path, how)
     assert lines[1] == "Approximated: nothing.", lines[1]
     m = scene.materials[0]
-    assert m.emission_texture >= 0
+    assert m.emission_texture >= 0 and len(scene.textures) == 1
     g = scene.textures[m.emission_texture]
-    flat = dataclasses.replace(scene, materials=[dataclasses.replace(
-        m, emission=tuple(float(x) for x in g[..., :3].reshape(-1, 3).mean(0)),
-        emission_texture=-1)])
+    if how == "both":
+        # The colour image times the mask's mean luminance (what FPPM did).
+        mean = float(CO.gray(_mask_pixels().astype(np.float64)).mean())
+        raw = TS._color_pixels() * mean
+        flat = dataclasses.replace(scene, textures=[np.concatenate(
+            [raw, np.ones(raw.shape[:2] + (1,), np.float32)], -1)])
+    else:
+        flat = dataclasses.replace(scene, materials=[dataclasses.replace(
+            m, emission=tuple(float(x) for x in g[..., :3].reshape(-1, 3).mean(0)),
+            emission_texture=-1)])
     effect = np.abs((TS._fppm(flat, 1) + TS._fppm(flat, 2)) / 2 - img).mean() / ref.mean()
     print(f"{how}: at the mask's mean the image moves by {effect:.3f} of the mean")
     TS._check(err, noise, effect)
