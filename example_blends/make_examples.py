@@ -30,9 +30,10 @@ tests/scenes/bpy_kit.py.
                        lit through a window by an area light outside the view
   real_scene.blend     a user's set-up: Principled materials, an HDRI world
                        (a small procedural equirectangular sky with a sun,
-                       packed) and a tiled floor with an Image Texture into
-                       its Base Color and a tangent-space normal map (both
-                       generated and packed, Mapping + Texture Coordinate UV)
+                       packed) and a tiled floor with Image Textures into
+                       its Base Color and Roughness and a tangent-space
+                       normal map (all generated and packed, Mapping +
+                       Texture Coordinate UV)
 """
 from __future__ import annotations
 
@@ -314,6 +315,23 @@ def tile_color_pixels(n=64, tiles=4, grout=0.04):
     return out
 
 
+def tile_roughness_pixels(n=64, tiles=4, grout=0.04):
+    """The tiles' roughness (Non-Color grey) on the same grid: each tile a
+    little worn (0.15 to 0.4 by its index, rougher towards one corner), the
+    grout matte (0.9)."""
+    import numpy as np
+    x = (np.arange(n) + 0.5) / n * tiles
+    X, Y = np.meshgrid(x, x)
+    ix, iy = np.floor(X), np.floor(Y)
+    fx, fy = X % 1.0, Y % 1.0
+    r = 0.15 + 0.12 * (0.5 + 0.5 * np.sin(2.3 * ix + 4.1 * iy)) + 0.13 * fx * fy
+    edge = (np.minimum(fx, 1 - fx) < grout) | (np.minimum(fy, 1 - fy) < grout)
+    r = np.where(edge, 0.9, r)
+    out = np.ones((n, n, 4), np.float32)
+    out[..., :3] = r[..., None]
+    return out
+
+
 def _principled(name, base, roughness=0.5, metallic=0.0, coat=0.0):
     m, nt, out = K._new_material(name)
     p = nt.nodes.new('ShaderNodeBsdfPrincipled')
@@ -329,7 +347,8 @@ def real_scene():
     # A tiled floor under an HDRI sky with three Principled objects: what a
     # user's first scene looks like.  The floor's normal map comes through
     # Texture Coordinate (UV) -> Mapping (scale 2) -> Image Texture -> Normal
-    # Map, its colour through the same Mapping -> Image Texture -> Base Color.
+    # Map, its colour and roughness through the same Mapping -> Image Texture
+    # -> Base Color, Roughness.
     import bpy
     sc = K.reset_scene(RES, samples=1024)
     floor, nt, p = _principled("Tiles", (0.55, 0.5, 0.45), roughness=0.35)
@@ -347,6 +366,10 @@ def real_scene():
     ctex.image = _packed_image("TileColor", tile_color_pixels(), non_color=False)
     nt.links.new(mp.outputs["Vector"], ctex.inputs["Vector"])
     nt.links.new(ctex.outputs["Color"], p.inputs["Base Color"])
+    rtex = nt.nodes.new('ShaderNodeTexImage')
+    rtex.image = _packed_image("TileRoughness", tile_roughness_pixels(), non_color=True)
+    nt.links.new(mp.outputs["Vector"], rtex.inputs["Vector"])
+    nt.links.new(rtex.outputs["Color"], p.inputs["Roughness"])
     ob = K.plane("Floor", 8.0, floor)
     uvl = ob.data.uv_layers.new(name="UVMap")
     for loop in ob.data.loops:
@@ -370,7 +393,7 @@ def real_scene():
     sc.world = w
     K.camera((0.0, -4.2, 1.8), (0.0, 0.2, 0.35), lens=35)
     _note(sc, "Real-scene set-up: Principled materials, an HDRI world and a "
-              "tiled floor with a colour texture and a normal map.")
+              "tiled floor with colour and roughness textures and a normal map.")
     return sc
 
 

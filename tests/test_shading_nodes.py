@@ -650,8 +650,9 @@ def test_unsupported_nodes_give_one_warning_per_material():
 
 def test_real_scene_example_exports_its_shading():
     """example_blends/real_scene.blend: saved with FPPM, an HDRI world, a
-    normal-mapped floor with MikkTSpace tangents through Mapping (scale 2),
-    Principled materials; only the photon-bounce approximation is said."""
+    normal-mapped floor with MikkTSpace tangents through Mapping (scale 2)
+    and a roughness map, Principled materials; only the photon-bounce
+    approximation is said."""
     import os
 
     import bpy
@@ -665,6 +666,8 @@ def test_real_scene_example_exports_its_shading():
     assert scene.world_map is not None
     tiles = [i for i, m in enumerate(scene.materials) if m.name == "Tiles"][0]
     assert scene.materials[tiles].normal.kind == SN.NORMAL_MAP
+    rough = {lb.roughness_texture for lb in scene.materials[tiles].lobes}
+    assert len(rough) == 1 and rough.pop() >= 0
     floor = scene.tri_mat == tiles
     tt = scene.tri_tangent[floor]
     # The floor's tangent is +x with sign +1 (uv = x / 8 + 1/2); its uvs are
