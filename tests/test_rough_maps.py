@@ -35,7 +35,7 @@ def _mapped(tex=0):
     return Material("mapped", lobes)
 
 
-def test_expand_appends_the_levels_of_a_mapped_material():
+def test_append_levels_adds_the_rows_of_a_mapped_material():
     plain = Material("plain", (Lobe(DIFFUSE, (0.5, 0.5, 0.5)),))
     mats = [plain, _mapped(), plain]
     t = build_material_table(mats, [np.full((2, 2, 4), 0.5, np.float32)])

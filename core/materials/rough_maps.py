@@ -4,7 +4,7 @@ An Image Texture into a Roughness input (a Principled BSDF's, a Glossy's or
 a Glass's) makes a lobe's roughness vary across the surface.  Every BSDF
 kernel (numpy and compiled) reads a lobe's roughness from its material's
 row, so instead of a per-hit roughness in each of them, such a material is
-expanded into ROUGH_LEVELS rows of the ``MaterialTable`` (:func:`expand`),
+given ROUGH_LEVELS more rows of the ``MaterialTable`` (:func:`append_levels`),
 identical but for the mapped lobes' roughness, and a hit picks its row from
 the map at its uv (:func:`pick`) where a stage reads the hit's material to
 shade it: the camera pass, the camera paths, the photon tracer's generic
@@ -33,7 +33,7 @@ import numpy as np
 
 from ..scene.textures import sample_alpha
 
-#: Rows a mapped material expands into.
+#: Level rows of a mapped material.
 ROUGH_LEVELS = 256
 #: The smallest GGX alpha of a level (roughness 0.01).
 ALPHA_MIN = 1e-4
@@ -53,51 +53,60 @@ def level_position(r) -> np.ndarray:
     return (np.log(a) / np.log(ALPHA_MIN) * -1.0 + 1.0) * (ROUGH_LEVELS - 1)
 
 
-def expand(materials):
-    """(materials + levels, first (M,) int64, tex (M,) int32): the list
-    with ROUGH_LEVELS rows appended for each material with a mapped lobe
-    (``Lobe.roughness_texture`` >= 0: its roughness, or a layered DIFFUSE's
-    ``layer_roughness``, follows that scalar texture's alpha), level k with
-    :func:`level_roughness` (k) on those lobes; first[m] its first row (-1:
-    none; the appended rows have -1 too), tex[m] the map.  The material's
-    own row keeps its lobes' roughness (the map's mean, what light paths
-    read), raised to ROUGH_MIN."""
-    first, tex, out, levels = [], [], [], []
-    n = len(materials)
-    for mat in materials:
-        maps = {int(getattr(lb, "roughness_texture", -1)) for lb in mat.lobes} - {-1}
-        if not maps:
-            first.append(-1)
-            tex.append(-1)
+def mapped_lobes(materials):
+    """(materials, maps): the list with every mapped lobe's roughness (a
+    layered DIFFUSE's ``layer_roughness``) raised to ROUGH_MIN and its map
+    left out (the material's own row: the map's mean, what the frequency
+    model reads), and maps a list of (material index, texture, ((lobe slot,
+    "roughness" | "layer_roughness"), ...)) for :func:`append_levels`."""
+    out, maps = [], []
+    for m, mat in enumerate(materials):
+        tex = {int(getattr(lb, "roughness_texture", -1)) for lb in mat.lobes} - {-1}
+        if not tex:
             out.append(mat)
             continue
-        if len(maps) > 1:
+        if len(tex) > 1:
             raise ValueError(f"material '{mat.name}': more than one roughness map")
-        first.append(n + ROUGH_LEVELS * len(levels))
-        tex.append(maps.pop())
-        out.append(_at(mat, None))
-        levels.append(mat)
-    for mat in levels:
-        out.extend(_at(mat, float(r)) for r in level_roughness(np.arange(ROUGH_LEVELS)))
-    pad = len(out) - n
-    return (out, np.array(first + [-1] * pad, np.int64),
-            np.array(tex + [-1] * pad, np.int32))
+        lobes, slots = [], []
+        for j, lb in enumerate(mat.lobes):
+            if getattr(lb, "roughness_texture", -1) >= 0:
+                field = "layer_roughness" if getattr(lb, "layer_ior", 0.0) > 0.0 else "roughness"
+                lb = dataclasses.replace(lb, roughness_texture=-1,
+                                         **{field: max(getattr(lb, field), ROUGH_MIN)})
+                slots.append((j, field))
+            lobes.append(lb)
+        out.append(dataclasses.replace(mat, lobes=tuple(lobes)))
+        maps.append((m, tex.pop(), tuple(slots)))
+    return out, maps
 
 
-def _at(mat, r):
-    """mat with its mapped lobes at roughness r (None: their own, raised to
-    ROUGH_MIN), the map left out."""
-    lobes = []
-    for lb in mat.lobes:
-        if getattr(lb, "roughness_texture", -1) >= 0:
-            field = "layer_roughness" if getattr(lb, "layer_ior", 0.0) > 0.0 else "roughness"
-            v = max(getattr(lb, field), ROUGH_MIN) if r is None else r
-            kw = {field: v}
-            if field == "layer_roughness":
-                kw["roughness"] = lb.roughness
-            lb = dataclasses.replace(lb, roughness_texture=-1, **kw)
-        lobes.append(lb)
-    return dataclasses.replace(mat, lobes=tuple(lobes))
+def append_levels(table, maps):
+    """The MaterialTable ``table`` (of :func:`mapped_lobes`' materials) with
+    ROUGH_LEVELS rows appended for each of ``maps``: copies of its row
+    whose mapped lobes take :func:`level_roughness` (k) at level k (their
+    delta and Lambert flags are the row's: no level is a delta, and a
+    mapped lobe is never a Lambert one), with ``rough_first`` (M,) the first
+    level row of each mapped material (-1: none, the level rows too) and
+    ``rough_tex`` its map."""
+    if not maps:
+        return table
+    M, K = table.kind.shape[0], ROUGH_LEVELS
+    src = np.repeat(np.array([m for m, _, _ in maps], np.int64), K)
+    out = {}
+    for f in dataclasses.fields(table):
+        a = getattr(table, f.name)
+        if isinstance(a, np.ndarray) and a.ndim >= 1 and a.shape[0] == M:
+            out[f.name] = np.concatenate([a, a[src]])
+    levels = level_roughness(np.arange(K))
+    first = np.full(M + K * len(maps), -1, np.int64)
+    tex = np.full(M + K * len(maps), -1, np.int32)
+    for i, (m, t, slots) in enumerate(maps):
+        rows = slice(M + K * i, M + K * (i + 1))
+        for j, field in slots:
+            out[field][rows, j] = levels
+        first[m], tex[m] = M + K * i, t
+    out.update(rough_first=first, rough_tex=tex)
+    return dataclasses.replace(table, **out)
 
 
 def mapped(table) -> np.ndarray:

@@ -122,11 +122,11 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
       layer and is scaled by 1 - its albedo estimate
       (``closure_layering_weight``), which depends on the view direction.
     textures: list of (H, W, C) float32 images.
-    A material with a roughness map (``Lobe.roughness_texture``) is followed
-    by its ROUGH_LEVELS level rows (``rough_maps.expand``; ``rough_first``,
+    A material with a roughness map (``Lobe.roughness_texture``) has
+    ROUGH_LEVELS level rows (``rough_maps.append_levels``; ``rough_first``,
     ``rough_tex``): rows beyond len(materials) are those levels.
     """
-    materials, rough_first, rough_tex = rough_maps.expand(materials)
+    materials, maps = rough_maps.mapped_lobes(materials)
     M, L = max(len(materials), 1), MAX_LOBES
     kind = np.full((M, L), -1, np.int32)
     color = np.zeros((M, L, 3))
@@ -198,16 +198,14 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
     bump = np.array([getattr(mat, "normal", None) is not None for mat in materials] or [False],
                     bool)
     lambert_lobes = has_nd & ~(nondelta & ~lambert).any(axis=1)
-    return MaterialTable(
+    return rough_maps.append_levels(MaterialTable(
         kind=kind, color=color, weight=weight, roughness=rough, ior=ior, tex=tex,
         emission=emis, emission_tex=emis_tex, lobe_delta=delta,
         has_delta=(used & delta).any(axis=1), has_nondelta=has_nd,
         lambert_only=lambert_lobes & ~bump, lambert_lobes=lambert_lobes,
         textures=textures, multiscatter=ms, fresnel=fres, fresnel_ior=fior,
         f82_tint=f82t, layer_ior=lior, layer_f0=lf0, layer_roughness=lrough, layer_ms=lms,
-        sel_scale=sel, alpha_tex=atex, alpha_inv=ainv, bump_correction=bump,
-        rough_first=rough_first if (rough_first >= 0).any() else None,
-        rough_tex=rough_tex if (rough_first >= 0).any() else None)
+        sel_scale=sel, alpha_tex=atex, alpha_inv=ainv, bump_correction=bump), maps)
 
 
 # --------------------------------------------------------------------------
