@@ -128,10 +128,8 @@ SUPPORT = (
      "DirectX) and Bump (Strength, Distance, Invert) from an Image Texture", SUPPORTED, ""),
     ("Mapping (Point, Texture, Vector) and Texture Coordinate (UV, Generated, Object) "
      "into Image Texture vectors", SUPPORTED, ""),
-    ("Image Texture interpolation Linear and Closest, extension Repeat, Extend, Clip and "
-     "Mirror", SUPPORTED, ""),
-    ("Image Texture interpolation Cubic and Smart", APPROXIMATED,
-     "interpolation read as Linear"),
+    ("Image Texture interpolation (Linear, Closest, Cubic, Smart as Cubic) and extension "
+     "(Repeat, Extend, Clip, Mirror)", SUPPORTED, ""),
     ("an image's colour (also through colour nodes: its luminance) or alpha into a Mix "
      "Shader's Fac, the Principled Alpha or Metallic, or an emission's Strength, per hit",
      SUPPORTED, ""),
@@ -1107,7 +1105,7 @@ class _Exporter:
     @staticmethod
     def texture_sampler(node, notes) -> int:
         """An Image Texture node's interpolation and extension
-        (``textures.sampler_code``); Cubic and Smart read as Linear (noted)."""
+        (``textures.sampler_code``; Smart is Cubic, as on Cycles' CPU)."""
         interp = getattr(node, "interpolation", 'Linear')
         if interp not in INTERPOLATIONS:
             notes.append(f"{node.name}: {interp} interpolation read as Linear")

@@ -1,7 +1,7 @@
-"""An Image Texture node's interpolation (Linear, Closest) and extension
+"""An Image Texture node's interpolation (Linear, Closest, Cubic) and extension
 (Repeat, Extend, Clip, Mirror) (core/scene/textures.py ``sampler_code``):
-numpy against a per-sample transcription of Cycles' interp_closest and
-interp_linear, the compiled lookup against numpy, and rendered against
+numpy against a per-sample transcription of Cycles' interp_closest,
+interp_linear and interp_cubic, the compiled lookup against numpy, and rendered against
 Cycles."""
 from __future__ import annotations
 
@@ -14,14 +14,15 @@ import pytest
 from core.scene import textures as TX
 from core.scene.texture_kernels import bilinear_rgb
 
-MODES = [TX.sampler_code(i, e) for i in (TX.LINEAR, TX.CLOSEST)
+MODES = [TX.sampler_code(i, e) for i in (TX.LINEAR, TX.CLOSEST, TX.CUBIC)
          for e in (TX.REPEAT, TX.EXTEND, TX.CLIP, TX.MIRROR)]
 
 
 def _reference(img, u, v, sampler):
-    """Cycles' interp_closest / interp_linear of one uv, one texel at a time."""
+    """Cycles' interp_closest / interp_linear / interp_cubic of one uv, one
+    texel at a time."""
     H, W, _ = img.shape
-    closest, ext = sampler & 1, sampler >> 1
+    closest, ext = sampler & 3, sampler >> 2
 
     def wrap(i, n):
         if ext == TX.REPEAT:
@@ -39,11 +40,17 @@ def _reference(img, u, v, sampler):
             return np.zeros(3)
         return img[iy, ix, :3].astype(np.float64)
 
-    if closest:
+    if closest == TX.CLOSEST:
         return texel(math.floor(v * H), math.floor(u * W))
     x, y = u * W - 0.5, v * H - 0.5
     ix, iy = math.floor(x), math.floor(y)
     tx, ty = x - ix, y - iy
+    if closest == TX.CUBIC:
+        def spline(t):          # the uniform cubic B-spline's weights
+            return [(1 - t) ** 3 / 6, (3 * t ** 3 - 6 * t ** 2 + 4) / 6,
+                    (-3 * t ** 3 + 3 * t ** 2 + 3 * t + 1) / 6, t ** 3 / 6]
+        return sum(wy * wx * texel(iy - 1 + a, ix - 1 + b)
+                   for a, wy in enumerate(spline(ty)) for b, wx in enumerate(spline(tx)))
     return ((1 - ty) * ((1 - tx) * texel(iy, ix) + tx * texel(iy, ix + 1))
             + ty * ((1 - tx) * texel(iy + 1, ix) + tx * texel(iy + 1, ix + 1)))
 
@@ -63,16 +70,18 @@ def test_numpy_and_compiled_lookups_follow_cycles(sampler):
 
 
 def test_a_sampled_image_keeps_its_sampler():
-    img = TX.with_sampler(np.ones((2, 2, 4), np.float32), TX.sampler_code(TX.CLOSEST, TX.CLIP))
-    assert TX.sampler_of(img[:, :1]) == TX.sampler_of(img) == 5
+    code = TX.sampler_code(TX.CLOSEST, TX.CLIP)
+    img = TX.with_sampler(np.ones((2, 2, 4), np.float32), code)
+    assert TX.sampler_of(img[:, :1]) == TX.sampler_of(img) == code
     back = pickle.loads(pickle.dumps(img))
-    assert TX.sampler_of(back) == 5 and np.array_equal(back, img)
-    un = TX.with_sampler(np.ones((2, 2, 4), np.float32).view(TX.UnassociatedImage), 3)
-    assert isinstance(un, TX.UnassociatedImage) and TX.sampler_of(un) == 3
+    assert TX.sampler_of(back) == code and np.array_equal(back, img)
+    un = TX.with_sampler(np.ones((2, 2, 4), np.float32).view(TX.UnassociatedImage), code)
+    assert isinstance(un, TX.UnassociatedImage) and TX.sampler_of(un) == code
     assert TX.with_sampler(np.ones((1, 1, 3)), 0).__class__ is np.ndarray
     # Closest upsampled stays exact: the same texels, repeated.
-    big = TX.upsample(TX.with_sampler(np.arange(6, dtype=np.float32).reshape(2, 3, 1), 1), 4)
-    assert TX.sampler_of(big) == 1
+    big = TX.upsample(TX.with_sampler(np.arange(6, dtype=np.float32).reshape(2, 3, 1),
+                                      TX.CLOSEST), 4)
+    assert TX.sampler_of(big) == TX.CLOSEST
     np.testing.assert_array_equal(big[::4, ::4, 0], np.arange(6).reshape(2, 3))
 
 
@@ -84,11 +93,12 @@ def _random_pixels(n=4):
 
 
 @pytest.mark.parametrize("interp, ext", [("Closest", "REPEAT"), ("Linear", "CLIP"),
-                                         ("Linear", "MIRROR"), ("Closest", "EXTEND")])
+                                         ("Linear", "MIRROR"), ("Closest", "EXTEND"),
+                                         ("Cubic", "REPEAT"), ("Smart", "CLIP")])
 def test_interpolation_and_extension_agree_with_cycles(interp, ext, tmp_path):
     """tests/test_shading_nodes.py's plane, whose uvs run from 0 to 1.5
     (half the plane outside the image), a 4 x 4 image of random colours into a
-    Diffuse colour read Closest or Linear with each extension.  The image
+    Diffuse colour read Closest, Linear, Cubic or Smart with each extension.  The image
     read Linear / Repeat, what FPPM did before (silently), is the effect."""
     pytest.importorskip("bpy")
     import dataclasses

@@ -56,12 +56,12 @@ def bilinear_rgb(img, u, v, unassociate, sampler=0):
     (C = 1: grey; unassociate with C >= 4: rgb / alpha where alpha > 0, else
     0), bilinear with repeat wrapping around texel centres (Cycles'
     interp_linear), or as ``sampler`` says (``textures.sampler_code``:
-    Closest, Extend, Clip, Mirror), 0 for a non-finite uv; the numpy
-    expressions' operations in their order."""
+    Closest, Cubic; Extend, Clip, Mirror), 0 for a non-finite uv; the numpy
+    expressions' operations in their order (``textures._taps``)."""
     H, W, C = img.shape
-    closest = (sampler & 1) == 1
-    ext = sampler >> 1
-    half = 0.0 if closest else 0.5
+    interp = sampler & 3
+    ext = sampler >> 2
+    half = 0.0 if interp == 1 else 0.5
     x = u * W - half
     y = v * H - half
     fx = np.floor(x)
@@ -70,18 +70,17 @@ def bilinear_rgb(img, u, v, unassociate, sampler=0):
     ty = y - fy
     if not (np.isfinite(tx) and np.isfinite(ty)):
         return 0.0, 0.0, 0.0
-    if closest:
-        tx = ty = 0.0
-    ix = _wrap(int(fx), W, ext)
-    iy = _wrap(int(fy), H, ext)
-    nix = _wrap(int(fx) + 1, W, ext)
-    niy = _wrap(int(fy) + 1, H, ext)
+    n = 4 if interp == 2 else 2
+    ix = int(fx) - (1 if interp == 2 else 0)
+    iy = int(fy) - (1 if interp == 2 else 0)
+    wx = _weights(tx, interp)
+    wy = _weights(ty, interp)
     grey = C < 3
-    r = _blend(img, iy, ix, niy, nix, 0, tx, ty)
-    g = r if grey else _blend(img, iy, ix, niy, nix, 1, tx, ty)
-    b = r if grey else _blend(img, iy, ix, niy, nix, 2, tx, ty)
+    r = _blend(img, iy, ix, n, ext, 0, wx, wy)
+    g = r if grey else _blend(img, iy, ix, n, ext, 1, wx, wy)
+    b = r if grey else _blend(img, iy, ix, n, ext, 2, wx, wy)
     if unassociate and C >= 4:
-        al = _blend(img, iy, ix, niy, nix, 3, tx, ty)
+        al = _blend(img, iy, ix, n, ext, 3, wx, wy)
         if al > 0:
             return r / al, g / al, b / al
         return 0.0, 0.0, 0.0
@@ -89,9 +88,22 @@ def bilinear_rgb(img, u, v, unassociate, sampler=0):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _weights(t, interp):
+    """textures._axis's weights of one fraction (unused taps 0)."""
+    if interp == 1:
+        return 1.0, 0.0 * t, 0.0, 0.0
+    if interp == 2:
+        return (((((-1.0 / 6.0) * t + 0.5) * t - 0.5) * t + (1.0 / 6.0)),
+                ((0.5 * t - 1.0) * t) * t + (2.0 / 3.0),
+                ((-0.5 * t + 0.5) * t + 0.5) * t + (1.0 / 6.0),
+                (1.0 / 6.0) * t * t * t)
+    return 1.0 - t, t, 0.0, 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _wrap(i, n, ext):
     """textures._wrap of one index: repeat (0), extend (1), mirror (3); clip
-    (2) unchanged (-1 .. n: read as 0 by :func:`_texel`)."""
+    (2) unchanged (read as 0 outside by :func:`_texel`)."""
     if ext == 0:
         return i % n
     if ext == 1:
@@ -112,10 +124,16 @@ def _texel(img, iy, ix, ch):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _blend(img, iy, ix, niy, nix, ch, tx, ty):
-    """Channel ch of the bilinear blend of the four texels (sample_texture's order)."""
-    a = _texel(img, iy, ix, ch)
-    b = _texel(img, iy, nix, ch)
-    c = _texel(img, niy, ix, ch)
-    d = _texel(img, niy, nix, ch)
-    return (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d)
+def _blend(img, iy, ix, n, ext, ch, wx, wy):
+    """Channel ch of the n x n taps from texel (iy, ix) on, weights wx, wy:
+    sum_a wy[a] (sum_b wx[b] t[a, b]) in tap order (``textures._taps``)."""
+    H, W = img.shape[0], img.shape[1]
+    out = 0.0
+    for a in range(n):
+        yy = _wrap(iy + a, H, ext)
+        inner = 0.0
+        for b in range(n):
+            term = wx[b] * _texel(img, yy, _wrap(ix + b, W, ext), ch)
+            inner = term if b == 0 else inner + term
+        out = wy[a] * inner if a == 0 else out + wy[a] * inner
+    return out

@@ -19,16 +19,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-# Interpolation and extension of an Image Texture node (Cycles' order).
-LINEAR, CLOSEST = 0, 1
+# Interpolation and extension of an Image Texture node (Cycles' order;
+# Smart is Cubic in Cycles' CPU kernel, interp's default branch).
+LINEAR, CLOSEST, CUBIC = 0, 1, 2
 REPEAT, EXTEND, CLIP, MIRROR = 0, 1, 2, 3
-INTERPOLATIONS = {'Linear': LINEAR, 'Closest': CLOSEST}
+INTERPOLATIONS = {'Linear': LINEAR, 'Closest': CLOSEST, 'Cubic': CUBIC, 'Smart': CUBIC}
 EXTENSIONS = {'REPEAT': REPEAT, 'EXTEND': EXTEND, 'CLIP': CLIP, 'MIRROR': MIRROR}
 
 
 def sampler_code(interpolation: int = LINEAR, extension: int = REPEAT) -> int:
     """One int for an interpolation and an extension (0: Linear, Repeat)."""
-    return int(interpolation) | (int(extension) << 1)
+    return int(interpolation) | (int(extension) << 2)
 
 
 def _wrap(i, n, ext):
@@ -44,31 +45,51 @@ def _wrap(i, n, ext):
     return i
 
 
-def _bilinear_corners(img: np.ndarray, uv: np.ndarray, ch, sampler: int = 0):
-    """The four texels around each uv and the blend weights (Cycles'
-    interp_linear; interp_closest when the sampler says Closest: the texel
-    holding uv four times, weights 0).
+def _axis(t, interp):
+    """(weights, their derivatives in t, first offset) of one axis's taps at
+    fractions t (K,): Linear (1 - t, t) from the texel below, Closest (1, 0)
+    from the texel holding the point, Cubic the uniform B-spline's four
+    (Cycles' SET_CUBIC_SPLINE_WEIGHTS) from the texel before."""
+    if interp == CLOSEST:
+        one = np.ones_like(t)
+        return (one, 0.0 * t), (0.0 * t, 0.0 * t), 0
+    if interp == CUBIC:
+        w = ((((-1.0 / 6.0) * t + 0.5) * t - 0.5) * t + (1.0 / 6.0),
+             ((0.5 * t - 1.0) * t) * t + (2.0 / 3.0),
+             ((-0.5 * t + 0.5) * t + 0.5) * t + (1.0 / 6.0),
+             (1.0 / 6.0) * t * t * t)
+        dw = ((-0.5 * t + 1.0) * t - 0.5, (1.5 * t - 2.0) * t, (-1.5 * t + 1.0) * t + 0.5,
+              0.5 * t * t)
+        return w, dw, -1
+    return (1.0 - t, t), (-1.0 + 0.0 * t, 1.0 + 0.0 * t), 0
 
-    Returns (a, b, c, d, tx, ty, W, H, bad): texels (K, len(ch)) float64 at
-    (row iy, col ix), (iy, ix+1), (iy+1, ix), (iy+1, ix+1) with the
-    sampler's extension (repeat wrapping by default; CLIP: 0 outside), tx,
-    ty (K, 1) the fractions, and bad (K,) non-finite uv."""
+
+def _taps(img: np.ndarray, uv: np.ndarray, ch, sampler: int = 0, gradient=False):
+    """The interpolant of channels ch of img at each uv (K, 2) as Cycles'
+    interp_linear, interp_closest or interp_cubic reads it under the
+    sampler's extension (repeat wrapping by default; CLIP: texels outside
+    read as 0).  Returns (value (K, len(ch)) float64, bad (K,) non-finite
+    uv) and with gradient (d/du, d/dv) of the value too (0 under Closest)."""
     H, W, _ = img.shape
-    closest, ext = sampler & 1, sampler >> 1
+    interp, ext = sampler & 3, sampler >> 2
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
-    # Half-texel shift: texel i covers [i, i+1) and its centre is i + 0.5.
-    half = 0.0 if closest else 0.5
+    # Half-texel shift: texel i covers [i, i+1) and its centre is i + 0.5;
+    # Closest reads the texel holding the point.
+    half = 0.0 if interp == CLOSEST else 0.5
     x = uv[:, 0] * W - half
     y = uv[:, 1] * H - half
     fx = np.floor(x)
     fy = np.floor(y)
-    tx = (x - fx)[:, None]
-    ty = (y - fy)[:, None]
-    bad = ~np.isfinite(tx[:, 0]) | ~np.isfinite(ty[:, 0])
+    tx = x - fx
+    ty = y - fy
+    bad = ~np.isfinite(tx) | ~np.isfinite(ty)
     # Non-finite uv (degenerate meshes) would make the integer cast undefined.
     fx = np.where(np.isfinite(fx), fx, 0.0).astype(np.int64)
     fy = np.where(np.isfinite(fy), fy, 0.0).astype(np.int64)
     im = img[:, :, ch]
+    (wx, dwx, o), (wy, dwy, _) = _axis(tx, interp), _axis(ty, interp)
+    cols = [_wrap(fx + o + b, W, ext) for b in range(len(wx))]
+    rows = [_wrap(fy + o + a, H, ext) for a in range(len(wy))]
 
     def rd(r, c):
         if ext != CLIP:
@@ -77,12 +98,22 @@ def _bilinear_corners(img: np.ndarray, uv: np.ndarray, ch, sampler: int = 0):
         out = im[np.clip(r, 0, H - 1), np.clip(c, 0, W - 1)].astype(np.float64)
         return np.where(inside[:, None], out, 0.0)
 
-    if closest:
-        t = rd(_wrap(fy, H, ext), _wrap(fx, W, ext))
-        return t, t, t, t, 0.0 * tx, 0.0 * ty, W, H, bad
-    ix, iy = _wrap(fx, W, ext), _wrap(fy, H, ext)
-    nix, niy = _wrap(fx + 1, W, ext), _wrap(fy + 1, H, ext)
-    return rd(iy, ix), rd(iy, nix), rd(niy, ix), rd(niy, nix), tx, ty, W, H, bad
+    def blend(ax, ay):
+        # sum_a ay[a] (sum_b ax[b] t[a, b]), each sum in tap order.
+        out = None
+        for a in range(len(ay)):
+            inner = None
+            for b in range(len(ax)):
+                term = ax[b][:, None] * texels[a][b]
+                inner = term if inner is None else inner + term
+            out = ay[a][:, None] * inner if out is None else out + ay[a][:, None] * inner
+        return out
+
+    texels = [[rd(r, c) for c in cols] for r in rows]
+    value = blend(wx, wy)
+    if not gradient:
+        return value, bad
+    return value, bad, W * blend(dwx, wy), H * blend(wx, dwy)
 
 
 class SampledImage(np.ndarray):
@@ -146,8 +177,7 @@ def sample_texture(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     ch = [0, 1, 2] if img.shape[2] >= 3 else [0, 0, 0]
     if unassociate and img.shape[2] >= 4:
         ch = [0, 1, 2, 3]
-    a, b, c, d, tx, ty, _, _, bad = _bilinear_corners(img, uv, ch, sampler)
-    out = (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d)
+    out, bad = _taps(img, uv, ch, sampler)
     if out.shape[1] == 4:
         al = out[:, 3:4]
         out = np.where(al > 0, out[:, :3] / np.where(al > 0, al, 1.0), 0.0)
@@ -176,8 +206,7 @@ def resample(img: np.ndarray, H2: int, W2: int) -> np.ndarray:
     C = img.shape[2]
     v, u = np.mgrid[0:H2, 0:W2]
     uv = np.stack([(u.ravel() + 0.5) / W2, (v.ravel() + 0.5) / H2], -1)
-    a, b, c, d, tx, ty, _, _, _ = _bilinear_corners(img, uv, list(range(C)), sampler)
-    out = (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d)
+    out, _ = _taps(img, uv, list(range(C)), sampler)
     return with_sampler(out.reshape(H2, W2, C).astype(np.float32), sampler)
 
 
@@ -189,8 +218,8 @@ def sample_alpha(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
     if img.shape[2] < 4:
         return np.ones(uv.shape[0])
-    a, b, c, d, tx, ty, _, _, bad = _bilinear_corners(img, uv, [3], sampler)
-    out = ((1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d))[:, 0]
+    out, bad = _taps(img, uv, [3], sampler)
+    out = out[:, 0]
     out[bad] = 1.0
     return out
 
@@ -215,13 +244,14 @@ def scalar_weights(img: np.ndarray, channel: str = "COLOR") -> np.ndarray:
 
 
 def scalar_gradient(img: np.ndarray, uv: np.ndarray, channel: str = "COLOR"):
-    """Value and exact uv-gradient of the bilinear interpolant of a scalar
-    read of the image (see :func:`scalar_weights`).
+    """Value and exact uv-gradient of the interpolant of a scalar read of
+    the image (see :func:`scalar_weights`).
 
     Returns h (K,), dh_du (K,), dh_dv (K,) float64.  The bilinear
-    interpolant is piecewise bilinear, so its derivative is what a finite
-    difference much smaller than a texel measures (Cycles' Bump node with a
-    pixel footprint below the texel size); 0 under Closest (a step)."""
+    interpolant is piecewise bilinear (the cubic one a piecewise bicubic),
+    so its derivative is what a finite difference much smaller than a texel
+    measures (Cycles' Bump node with a pixel footprint below the texel
+    size); 0 under Closest (a step)."""
     sampler = sampler_of(img)
     img = _as_image(img)
     w = scalar_weights(img, channel)
@@ -230,12 +260,8 @@ def scalar_gradient(img: np.ndarray, uv: np.ndarray, channel: str = "COLOR"):
         one = np.ones(uv.shape[0])
         return one, 0.0 * one, 0.0 * one
     ch = list(range(img.shape[2]))
-    a, b, c, d, tx, ty, W, H, bad = _bilinear_corners(img, uv, ch, sampler)
-    a, b, c, d = a @ w, b @ w, c @ w, d @ w
-    tx, ty = tx[:, 0], ty[:, 0]
-    h = (1.0 - ty) * ((1.0 - tx) * a + tx * b) + ty * ((1.0 - tx) * c + tx * d)
-    du = W * ((1.0 - ty) * (b - a) + ty * (d - c))
-    dv = H * ((1.0 - tx) * (c - a) + tx * (d - b))
+    h, bad, du, dv = _taps(img, uv, ch, sampler, gradient=True)
+    h, du, dv = h @ w, du @ w, dv @ w
     for arr in (h, du, dv):
         arr[bad] = 0.0
     return h, du, dv
