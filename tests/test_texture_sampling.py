@@ -122,3 +122,17 @@ def test_interpolation_and_extension_agree_with_cycles(interp, ext, tmp_path):
     effect = np.abs((TS._fppm(plain, 1) + TS._fppm(plain, 2)) / 2 - img).mean() / ref.mean()
     print(f"{label}: read Linear / Repeat the image moves by {effect:.3f} of the mean")
     TS._check(err, noise, effect)
+
+
+def test_the_scene_digest_follows_the_sampler():
+    """A checkpoint of a scene whose texture is read Closest does not resume
+    the same scene read Linear (core.scene.model.scene_digest)."""
+    from core.scene.model import Camera, Material, make_scene, scene_digest
+    img = np.random.default_rng(1).random((4, 4, 3)).astype(np.float32)
+    tri = [[[0, 0, 0], [1, 0, 0], [0, 1, 0]]]
+
+    def digest(t):
+        return scene_digest(make_scene(tri, [Material("m")], [], Camera(), textures=[t]))
+    plain = digest(img)
+    assert digest(img.copy()) == plain
+    assert digest(TX.with_sampler(img, TX.sampler_code(TX.CLOSEST))) != plain

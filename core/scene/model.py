@@ -373,6 +373,8 @@ def scene_digest(scene: Scene) -> str:
                    for k, v in cam.__dict__.items()}).encode())
     for t in scene.textures:
         h.update(np.ascontiguousarray(t).tobytes())
+        if getattr(t, "sampler", 0):     # (only when set: older checkpoints keep their digest)
+            h.update(b"sampler %d" % t.sampler)
     h.update(repr(scene.filter_width).encode())
     if scene.filter_type != "BLACKMAN_HARRIS":   # (older checkpoints keep their digest)
         h.update(scene.filter_type.encode())
