@@ -157,6 +157,8 @@ SUPPORT = (
     ("a roughness map into a Principled, Glossy, Glass or Refraction Roughness (an "
      "image's Color or Alpha, also through colour nodes): per hit, in 256 levels uniform in "
      "log alpha, roughness 0.01 at least", SUPPORTED, ""),
+    ("more than one roughness map in a material (a Mix Shader of two mapped BSDFs)",
+     APPROXIMATED, "the others at their mean"),
     ("photon bounces on normal-mapped or bumped surfaces", APPROXIMATED,
      "photons scatter off the interpolated normal"),
     ("Normal Map in object or world space", APPROXIMATED, "space ignored (tangent space only)"),
@@ -849,6 +851,16 @@ class _MaterialBuilder:
             self.notes.append(f"{len(m.lobes)} closures cut to the {MAX_LOBES} heaviest")
             lobes = sorted(m.lobes, key=lambda lb: -lb.weight * max(lb.color))[:MAX_LOBES]
             m = Material(m.name, tuple(lobes), m.emission, m.emission_texture, m.approximations)
+        maps = list(dict.fromkeys(lb.roughness_texture for lb in m.lobes
+                                  if lb.roughness_texture >= 0))
+        if len(maps) > 1:
+            # One roughness map a material (core.materials.rough_maps): the
+            # lobes of the others keep their map's mean.
+            self.notes.append(f"{len(maps)} roughness maps: the first read per hit, the "
+                              f"others at their mean")
+            lobes = tuple(dataclasses.replace(lb, roughness_texture=-1)
+                          if lb.roughness_texture not in (-1, maps[0]) else lb for lb in m.lobes)
+            m = Material(m.name, lobes, m.emission, m.emission_texture, m.approximations)
         if not m.lobes and not any(m.emission):
             # Pure black: keep one black diffuse lobe so core's tables stay regular.
             m = Material(m.name, (Lobe(DIFFUSE, (0.0, 0.0, 0.0)),), m.emission,

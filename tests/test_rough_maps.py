@@ -239,3 +239,30 @@ def test_light_reflected_by_a_roughness_map_agrees_with_cycles(tmp_path):
     print(f"reflected rough map: the floor at its mean roughness moves the rows by "
           f"{effect:.3f} of the mean")
     TS._check(err, noise, effect)
+
+
+def test_two_roughness_maps_in_one_material_keep_the_first():
+    """A Mix Shader of two Glossy BSDFs, each with its own roughness map:
+    the first map is read per hit, the second lobe keeps its map's mean,
+    said in the Approximated line (one map a material: rough_maps)."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+
+    def mat(nodes, links, surface):
+        mix = nodes.new('ShaderNodeMixShader')
+        for k, px in ((1, _rough_pixels()), (2, _bands())):
+            g = nodes.new('ShaderNodeBsdfGlossy')
+            g.inputs["Color"].default_value = (0.8, 0.6 if k == 1 else 0.2, 0.3, 1.0)
+            tex = nodes.new('ShaderNodeTexImage')
+            tex.image = TS._image(f"R{k}", px, non_color=True)
+            links.new(tex.outputs["Color"], g.inputs["Roughness"])
+            links.new(g.outputs[0], mix.inputs[k])
+        links.new(mix.outputs[0], surface)
+
+    TS.plane_scene(mat)
+    scene, lines = TS._export()
+    assert "2 roughness maps: the first read per hit, the others at their mean" in lines[1]
+    maps = [lb.roughness_texture for lb in scene.materials[0].lobes]
+    assert sorted(maps)[0] == -1 and sum(t >= 0 for t in maps) == 1
+    t = build_material_table(scene.materials, scene.textures)
+    assert t.rough_first is not None and t.kind.shape[0] == 1 + RM.ROUGH_LEVELS
