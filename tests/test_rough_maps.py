@@ -165,23 +165,17 @@ def _bands(n=16):
     return np.repeat(np.tile(g[None, :], (n, 1))[..., None], 3, -1).astype(np.float32)
 
 
-def test_light_reflected_by_a_roughness_map_agrees_with_cycles(tmp_path):
-    """The camera sees only a white diffuse wall, lit by a sun directly and
-    by its reflection off a metal floor whose roughness map has bands of
-    0.15 and 0.5: the reflected light on the wall is sharp bands and broad
-    glows, so it is what photons bouncing off the floor (and Cycles' paths
-    through it) make of the map.  Photon Mapping against Cycles, two seeds
-    each; the floor at its mean roughness is the
-    effect.  The sun is 5.7 degrees wide and Cycles takes 4096 samples: a
-    delta sun seen through the floor left Cycles' rows 11 % noisy at 512.
-    Compared by rows (the bands run across the wall)."""
-    pytest.importorskip("bpy")
+def wall_scene(res=None):
+    """The bpy scene of :func:`test_light_reflected_by_a_roughness_map_agrees_with_cycles`
+    (res: its square resolution, tests/test_shading_nodes.py's RES by
+    default; bench/bench_rough_maps.py times renders of it)."""
     import math
 
     import bpy
     import test_shading_nodes as TS
     from scenes import bpy_kit as K
-    sc = K.reset_scene((TS.RES, TS.RES))
+    res = TS.RES if res is None else res
+    sc = K.reset_scene((res, res))
     sc.render.engine = 'CYCLES'
     m = bpy.data.materials.new("Floor")
     nt = m.node_tree
@@ -215,6 +209,22 @@ def test_light_reflected_by_a_roughness_map_agrees_with_cycles(tmp_path):
     sun = bpy.data.objects.new("Sun", ld)
     sun.rotation_euler = (0.0, -math.pi / 4, 0.0)    # light along (+x, -z) / sqrt 2
     K.link(sun)
+    return sc
+
+
+def test_light_reflected_by_a_roughness_map_agrees_with_cycles(tmp_path):
+    """The camera sees only a white diffuse wall, lit by a sun directly and
+    by its reflection off a metal floor whose roughness map has bands of
+    0.15 and 0.5: the reflected light on the wall is sharp bands and broad
+    glows, so it is what photons bouncing off the floor (and Cycles' paths
+    through it) make of the map.  Photon Mapping against Cycles, two seeds
+    each; the floor at its mean roughness is the
+    effect.  The sun is 5.7 degrees wide and Cycles takes 4096 samples: a
+    delta sun seen through the floor left Cycles' rows 11 % noisy at 512.
+    Compared by rows (the bands run across the wall)."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+    sc = wall_scene()
     scene, lines = TS._export()
     assert lines[1] == "Approximated: nothing.", lines[1]
     # The bands run across the wall (the map varies along the floor's x, the
