@@ -126,8 +126,8 @@ SUPPORT = (
      "Add Shader, Principled BSDF; RGB, Value and Image Texture inputs", SUPPORTED, ""),
     ("Normal Map (tangent space, MikkTSpace tangents of the render UV map, OpenGL and "
      "DirectX) and Bump (Strength, Distance, Invert) from an Image Texture", SUPPORTED, ""),
-    ("Mapping (Point, Texture, Vector) and Texture Coordinate (UV, Generated, Object) "
-     "into Image Texture vectors", SUPPORTED, ""),
+    ("Mapping (Point, Texture, Vector), Texture Coordinate (UV, Generated, Object) and "
+     "UV Map (any UV map of a mesh) into Image Texture vectors", SUPPORTED, ""),
     ("Image Texture interpolation (Linear, Closest, Cubic, Smart as Cubic) and extension "
      "(Repeat, Extend, Clip, Mirror)", SUPPORTED, ""),
     ("an image's colour (also through colour nodes: its luminance) or alpha into a Mix "
@@ -639,8 +639,9 @@ class _MaterialBuilder:
     def vector(self, tex_node):
         """(source, object, A) of an Image Texture's Vector input: the texture
         coordinates 'UV', 'Generated' or 'Object' (of ``object``, None = the
-        shaded object), then A (4, 4) the composed Mapping nodes (Cycles'
-        flat projection reads x, y of the result)."""
+        shaded object; for 'UV' the UV Map node's map, None = the render
+        one), then A (4, 4) the composed Mapping nodes (Cycles' flat
+        projection reads x, y of the result)."""
         A = np.eye(4)
         node, out, _ = self.follow(tex_node.inputs.get("Vector"))
         while node is not None and node.type == 'MAPPING':
@@ -653,10 +654,8 @@ class _MaterialBuilder:
         if node is None:
             return ('UV', None, A)
         if node.type == 'UVMAP':
-            if node.uv_map:
-                self.notes.append(f"'{node.name}': UV map '{node.uv_map}' read as the "
-                                  f"render UV map")
-            return ('UV', None, A)
+            # A named UV map: read per mesh (_Exporter.named_uv), '' the render one.
+            return ('UV', node.uv_map or None, A)
         if node.type == 'TEX_COORD' and out.name in ('UV', 'Generated', 'Object'):
             ob = node.object if out.name == 'Object' else None
             return (out.name, ob.name if ob is not None else None, A)
@@ -994,6 +993,7 @@ class _Exporter:
         self.mat_vector: list = []     # texture vector spec per material (_MaterialBuilder.vector)
         self.tangent_parts: list = []  # (T, 3, 4) float32 per entry of parts, or None
         self.tangent_cache: dict = {}
+        self.uv_cache: dict = {}           # (mesh, UV map name) -> named_uv's local uvs
         self.obj_index_parts: list[np.ndarray] = []   # object.pass_index per triangle of parts
         self.mat_index: dict = {}
         self.textures: list[np.ndarray] = []
@@ -1376,10 +1376,17 @@ class _Exporter:
                 if spec is None:
                     continue
                 src, obname, A = spec
-                if src == 'UV' and np.allclose(A, np.eye(4)):
+                if src == 'UV' and obname is None and np.allclose(A, np.eye(4)):
                     continue
                 rows = np.nonzero(mat == m)[0]
-                v3 = self.texture_vectors(inst, ob, src, obname, pw[rows], uv[rows])
+                uvs = uv
+                if src == 'UV' and obname is not None:
+                    uvs = self.named_uv(inst, ob, obname)
+                    if uvs is None or len(uvs) != len(uv):
+                        self.notes.append(f"'{ob.name}': no UV map '{obname}': the render "
+                                          f"UV map used")
+                        uvs = uv
+                v3 = self.texture_vectors(inst, ob, src, obname, pw[rows], uvs[rows])
                 if v3 is None:
                     continue
                 if new_uv is None:
@@ -1421,6 +1428,32 @@ class _Exporter:
         loc, size = np.array(loc, np.float64), np.array(size, np.float64)
         size = np.where(np.abs(size) > 1e-12, size, 1.0)
         return (local - (loc - size)) / (2.0 * size)
+
+    def named_uv(self, inst, ob, name):
+        """(T, 3, 2) float32 uvs of ``ob``'s UV map ``name`` at the corners of
+        its loop triangles, in the corner order of ``geometry`` (two corners
+        swapped under a mirroring transform); None when the mesh has no such
+        map (or ``ob`` is no mesh)."""
+        if ob.type != 'MESH':
+            return None
+        me = ob.data
+        key = (me.as_pointer(), name)
+        local = self.uv_cache.get(key, False)
+        if local is False:
+            local = None
+            layer = me.uv_layers.get(name)
+            if layer is not None and len(me.loop_triangles):
+                L = len(me.loops)
+                uvl = np.empty(L * 2, np.float32)
+                layer.uv.foreach_get("vector", uvl)
+                corners = np.empty(len(me.loop_triangles) * 3, np.int32)
+                me.loop_triangles.foreach_get("loops", corners)
+                local = uvl.reshape(L, 2)[corners].reshape(-1, 3, 2)
+            self.uv_cache[key] = local
+            self.poll()
+        if local is None or np.linalg.det(_mat4(inst.matrix_world)[:3, :3]) >= 0:
+            return local
+        return local[:, [0, 2, 1]]
 
     def tangents(self, inst, ob):
         """(T, 3, 4) float32 world-space MikkTSpace tangents (xyz) and

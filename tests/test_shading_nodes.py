@@ -498,6 +498,53 @@ def test_mapping_and_texture_coordinates_agree_with_cycles(coord, tmp_path):
     _check(err, noise)
 
 
+@pytest.mark.parametrize("mirror", [False, True])
+def test_a_uv_map_node_reads_its_own_uv_map(mirror, tmp_path):
+    """Image Texture <- Mapping <- UV Map node naming the plane's second UV
+    map (rotated and scaled against the render one): the exporter reads
+    that map per corner (``_Exporter.named_uv``), also under a mirroring
+    transform (its corners swapped as the triangles').  Before, the render
+    UV map was read (noted); that is the effect."""
+    import dataclasses
+    pytest.importorskip("bpy")
+
+    def mat(nodes, links, surface):
+        d = diffuse_with_normal(nodes, links, surface)
+        tex = nodes.new('ShaderNodeTexImage')
+        tex.image = _image("C", _color_pixels(), non_color=False)
+        mp = nodes.new('ShaderNodeMapping')
+        mp.inputs["Scale"].default_value = (1.2, 0.9, 1.0)
+        uvn = nodes.new('ShaderNodeUVMap')
+        uvn.uv_map = "Second"
+        links.new(uvn.outputs["UV"], mp.inputs["Vector"])
+        links.new(mp.outputs["Vector"], tex.inputs["Vector"])
+        links.new(tex.outputs["Color"], d.inputs["Color"])
+
+    sc, ob = plane_scene(mat)
+    if mirror:
+        ob.scale = (-1.0, 1.0, 1.0)
+    second = ob.data.uv_layers.new(name="Second")
+    for loop in ob.data.loops:
+        co = ob.data.vertices[loop.vertex_index].co
+        second.data[loop.index].uv = (0.6 * co.y + 0.3 * co.x, 0.45 * co.x - 0.2 * co.y + 0.5)
+    ob.data.uv_layers.active = ob.data.uv_layers["UVMap"]
+    err, noise, img, ref, scene, lines = compare(sc, tmp_path, f"UV map node mirror={mirror}")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    _check(err, noise)
+    # The render UV map through the same Mapping, what FPPM read before.
+    loops = np.array([[l.uv[0], l.uv[1]] for l in ob.data.uv_layers["UVMap"].data])
+    assert not np.allclose(loops, [[l.uv[0], l.uv[1]] for l in second.data])
+    import bpy
+    ob.data.uv_layers.remove(second)
+    ob.data.update()
+    bpy.context.view_layer.update()
+    before, lines = _export()
+    assert "no UV map 'Second': the render UV map used" in lines[1], lines[1]
+    effect = np.abs((_fppm(before, 1) + _fppm(before, 2)) / 2 - img).mean() / ref.mean()
+    print(f"UV map node: the render UV map moves the image by {effect:.3f} of the mean")
+    _check(err, noise, effect)
+
+
 def _alpha_pixels(n=8):
     y, x = (np.mgrid[0:n, 0:n] + 0.5) / n
     a = np.clip(1.2 * np.abs(np.sin(np.pi * x)) * (0.3 + 0.7 * y), 0, 1)
