@@ -58,9 +58,18 @@ def bilinear_rgb(img, u, v, unassociate, sampler=0):
     interp_linear), or as ``sampler`` says (``textures.sampler_code``:
     Closest, Cubic; Extend, Clip, Mirror), 0 for a non-finite uv; the numpy
     expressions' operations in their order (``textures._taps``)."""
-    H, W, C = img.shape
     if sampler == 0:
         return _linear_repeat(img, u, v, unassociate)
+    return _sampled_rgb(img, u, v, unassociate, sampler)
+
+
+# Not inlined: the other samplers' taps are compiled once, not into every
+# kernel that reads a texture (inlined, they made the suite's kernels take
+# 23 % longer to compile: docs/shading.md "Interpolation and extension").
+@njit(cache=True, nogil=True, error_model="numpy")
+def _sampled_rgb(img, u, v, unassociate, sampler):
+    """:func:`bilinear_rgb` of a sampler other than Linear / Repeat."""
+    H, W, C = img.shape
     interp = sampler & 3
     ext = sampler >> 2
     half = 0.0 if interp == 1 else 0.5
