@@ -81,7 +81,7 @@ class MaterialTable:
     alpha_inv: np.ndarray = None        # (M, L) bool, scaled by 1 - alpha instead
     bump_correction: np.ndarray = None  # (M,) bool, Normal Map / Bump: Cycles' normal tilt
     lambert_lobes: np.ndarray = None    # (M,) bool, lambert_only before the Normal Map / Bump test
-    rough_first: np.ndarray = None      # (M,) int64 first row of a roughness map's levels, -1 = none
+    rough_first: np.ndarray = None      # (M,) int64 a roughness map's first level row, -1 = none
     rough_tex: np.ndarray = None        # (M,) int32 that map (core.materials.rough_maps)
 
     @property

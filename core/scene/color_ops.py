@@ -231,7 +231,7 @@ def apply(ops, c: np.ndarray) -> np.ndarray:
     """Run ops (a sequence of op tuples) on colours c (..., 3) float64."""
     for op in ops:
         name = op[0]
-        if name == "mix":                     # ("mix", blend, t, other rgb, image side 'A'/'B', clamp)
+        if name == "mix":           # ("mix", blend, t, other rgb, image side 'A'/'B', clamp)
             _, blend, t, k, side, clamp = op
             k = np.asarray(k, np.float64)
             c = mix(blend, t, c, k) if side == "A" else mix(blend, t, k, c)

@@ -773,9 +773,9 @@ class PhotonTracer:
     def _sample_textured(self, rows, gen, u) -> np.ndarray:
         """The generic hits rows (of GenericHits gen) on :meth:`_textured_rows`
         materials sampled by ``compiled.sample_pair`` (importance mode), a
-        roughness map's at the hit's level row, with their own colour rows (``hit_colors.sample_rows``: numpy's
-        ``lobe_colors`` at the hit's uv and its lobe selection, one row at a
-        time) into the kernel's columns (out, wgt, state), as numpy's
+        roughness map's at the hit's level row, with their own colour rows
+        (``hit_colors.sample_rows``: numpy's ``lobe_colors`` at the hit's uv
+        and its lobe selection, one row at a time) into the kernel's columns (out, wgt, state), as numpy's
         :meth:`_sample_numpy` samples them to rounding (a Lambert-only one by
         its lobes, where numpy takes the fast path: the same direction and
         weight).  Returns the rows left to numpy."""
