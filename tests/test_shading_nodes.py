@@ -465,6 +465,20 @@ def _color_pixels(n=8):
     return np.stack([0.2 + 0.7 * x, 0.2 + 0.7 * y, 0.9 - 0.6 * x * y], -1).astype(np.float32)
 
 
+def _mapped_image(nodes, links, surface, **mapping):
+    """A Diffuse whose colour is _color_pixels through a Mapping node of the
+    given inputs; returns the Mapping node (link its Vector input)."""
+    d = diffuse_with_normal(nodes, links, surface)
+    tex = nodes.new('ShaderNodeTexImage')
+    tex.image = _image("C", _color_pixels(), non_color=False)
+    mp = nodes.new('ShaderNodeMapping')
+    for k, val in mapping.items():
+        mp.inputs[k].default_value = val
+    links.new(mp.outputs["Vector"], tex.inputs["Vector"])
+    links.new(tex.outputs["Color"], d.inputs["Color"])
+    return mp
+
+
 @pytest.mark.parametrize("coord", ["UV", "Generated", "Object"])
 def test_mapping_and_texture_coordinates_agree_with_cycles(coord, tmp_path):
     """Image Texture <- Mapping (Point: location, rotation, scale) <- Texture
@@ -474,13 +488,8 @@ def test_mapping_and_texture_coordinates_agree_with_cycles(coord, tmp_path):
     pytest.importorskip("bpy")
 
     def mat(nodes, links, surface):
-        d = diffuse_with_normal(nodes, links, surface)
-        tex = nodes.new('ShaderNodeTexImage')
-        tex.image = _image("C", _color_pixels(), non_color=False)
-        mp = nodes.new('ShaderNodeMapping')
-        mp.inputs["Location"].default_value = (0.2, -0.1, 0.3)
-        mp.inputs["Rotation"].default_value = (0.3, 0.2, 0.6)
-        mp.inputs["Scale"].default_value = (1.3, 0.7, 1.1)
+        mp = _mapped_image(nodes, links, surface, Location=(0.2, -0.1, 0.3),
+                           Rotation=(0.3, 0.2, 0.6), Scale=(1.3, 0.7, 1.1))
         tc = nodes.new('ShaderNodeTexCoord')
         if coord == "Object":
             e = bpy.data.objects.new("Ref", None)
@@ -489,8 +498,6 @@ def test_mapping_and_texture_coordinates_agree_with_cycles(coord, tmp_path):
             bpy.context.scene.collection.objects.link(e)
             tc.object = e
         links.new(tc.outputs[coord], mp.inputs["Vector"])
-        links.new(mp.outputs["Vector"], tex.inputs["Vector"])
-        links.new(tex.outputs["Color"], d.inputs["Color"])
 
     sc, _ = plane_scene(mat)
     err, noise, img, ref, scene, lines = compare(sc, tmp_path, coord)
@@ -509,16 +516,10 @@ def test_a_uv_map_node_reads_its_own_uv_map(mirror, tmp_path):
     pytest.importorskip("bpy")
 
     def mat(nodes, links, surface):
-        d = diffuse_with_normal(nodes, links, surface)
-        tex = nodes.new('ShaderNodeTexImage')
-        tex.image = _image("C", _color_pixels(), non_color=False)
-        mp = nodes.new('ShaderNodeMapping')
-        mp.inputs["Scale"].default_value = (1.2, 0.9, 1.0)
+        mp = _mapped_image(nodes, links, surface, Scale=(1.2, 0.9, 1.0))
         uvn = nodes.new('ShaderNodeUVMap')
         uvn.uv_map = "Second"
         links.new(uvn.outputs["UV"], mp.inputs["Vector"])
-        links.new(mp.outputs["Vector"], tex.inputs["Vector"])
-        links.new(tex.outputs["Color"], d.inputs["Color"])
 
     sc, ob = plane_scene(mat)
     if mirror:

@@ -72,13 +72,7 @@ def _sampled_rgb(img, u, v, unassociate, sampler):
     H, W, C = img.shape
     interp = sampler & 3
     ext = sampler >> 2
-    half = 0.0 if interp == 1 else 0.5
-    x = u * W - half
-    y = v * H - half
-    fx = np.floor(x)
-    fy = np.floor(y)
-    tx = x - fx
-    ty = y - fy
+    fx, fy, tx, ty = _cell(img, u, v, 0.0 if interp == 1 else 0.5)
     if not (np.isfinite(tx) and np.isfinite(ty)):
         return 0.0, 0.0, 0.0
     n = 4 if interp == 2 else 2
@@ -86,16 +80,13 @@ def _sampled_rgb(img, u, v, unassociate, sampler):
     iy = int(fy) - (1 if interp == 2 else 0)
     wx = _weights(tx, interp)
     wy = _weights(ty, interp)
-    grey = C < 3
     r = _blend(img, iy, ix, n, ext, 0, wx, wy)
-    g = r if grey else _blend(img, iy, ix, n, ext, 1, wx, wy)
-    b = r if grey else _blend(img, iy, ix, n, ext, 2, wx, wy)
+    if C < 3:
+        return r, r, r
+    rgb = (r, _blend(img, iy, ix, n, ext, 1, wx, wy), _blend(img, iy, ix, n, ext, 2, wx, wy))
     if unassociate and C >= 4:
-        al = _blend(img, iy, ix, n, ext, 3, wx, wy)
-        if al > 0:
-            return r / al, g / al, b / al
-        return 0.0, 0.0, 0.0
-    return r, g, b
+        return _unassociated(rgb, _blend(img, iy, ix, n, ext, 3, wx, wy))
+    return rgb
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -104,28 +95,40 @@ def _linear_repeat(img, u, v, unassociate):
     wrapped texels, no bounds tests (the general taps cost 2.8x as much on
     a 1024^2 image: docs/shading.md "Interpolation and extension")."""
     H, W, C = img.shape
-    x = u * W - 0.5
-    y = v * H - 0.5
-    fx = np.floor(x)
-    fy = np.floor(y)
-    tx = x - fx
-    ty = y - fy
+    fx, fy, tx, ty = _cell(img, u, v, 0.5)
     if not (np.isfinite(tx) and np.isfinite(ty)):
         return 0.0, 0.0, 0.0
     ix = int(fx) % W
     iy = int(fy) % H
     nix = (ix + 1) % W
     niy = (iy + 1) % H
-    grey = C < 3
     r = _corners(img, iy, ix, niy, nix, 0, tx, ty)
-    g = r if grey else _corners(img, iy, ix, niy, nix, 1, tx, ty)
-    b = r if grey else _corners(img, iy, ix, niy, nix, 2, tx, ty)
+    if C < 3:
+        return r, r, r
+    rgb = (r, _corners(img, iy, ix, niy, nix, 1, tx, ty),
+           _corners(img, iy, ix, niy, nix, 2, tx, ty))
     if unassociate and C >= 4:
-        al = _corners(img, iy, ix, niy, nix, 3, tx, ty)
-        if al > 0:
-            return r / al, g / al, b / al
-        return 0.0, 0.0, 0.0
-    return r, g, b
+        return _unassociated(rgb, _corners(img, iy, ix, niy, nix, 3, tx, ty))
+    return rgb
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _cell(img, u, v, half):
+    """The texel cell of uv in img: floor and fraction of u W - half, v H -
+    half (half 0.5: texel centres at integer + 0.5; 0 for Closest)."""
+    x = u * img.shape[1] - half
+    y = v * img.shape[0] - half
+    fx = np.floor(x)
+    fy = np.floor(y)
+    return fx, fy, x - fx, y - fy
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _unassociated(rgb, al):
+    """An associated colour divided by its interpolated alpha, 0 where that is 0."""
+    if al > 0:
+        return rgb[0] / al, rgb[1] / al, rgb[2] / al
+    return 0.0, 0.0, 0.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
