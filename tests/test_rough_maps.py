@@ -177,10 +177,7 @@ def wall_scene(res=None):
     res = TS.RES if res is None else res
     sc = K.reset_scene((res, res))
     sc.render.engine = 'CYCLES'
-    m = bpy.data.materials.new("Floor")
-    nt = m.node_tree
-    nt.nodes.clear()
-    out = nt.nodes.new('ShaderNodeOutputMaterial')
+    m, nt, out = K._new_material("Floor")
     tex = nt.nodes.new('ShaderNodeTexImage')
     tex.image = TS._image("R", _bands(), non_color=True)
     b = nt.nodes.new('ShaderNodeBsdfPrincipled')

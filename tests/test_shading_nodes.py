@@ -194,10 +194,7 @@ def plane_scene(build_material, rot_z=0.5, sun_rotation=(0.5, 0.3, 0.0)):
     from scenes import bpy_kit as K
     sc = K.reset_scene((RES, RES))
     sc.render.engine = 'CYCLES'
-    m = bpy.data.materials.new("Surf")
-    nt = m.node_tree
-    nt.nodes.clear()
-    out = nt.nodes.new('ShaderNodeOutputMaterial')
+    m, nt, out = K._new_material("Surf")
     build_material(nt.nodes, nt.links, out.inputs["Surface"])
     ob = K.plane("Plane", 2.0, m, rotation=(0, 0, rot_z))
     uvl = ob.data.uv_layers.new(name="UVMap")
@@ -512,7 +509,6 @@ def test_a_uv_map_node_reads_its_own_uv_map(mirror, tmp_path):
     that map per corner (``_Exporter.named_uv``), also under a mirroring
     transform (its corners swapped as the triangles').  Before, the render
     UV map was read (noted); that is the effect."""
-    import dataclasses
     pytest.importorskip("bpy")
 
     def mat(nodes, links, surface):

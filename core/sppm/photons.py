@@ -293,7 +293,8 @@ class PhotonTracer:
         # (materials.hit_colors; _sample_textured), else by numpy.
         # Roughness-mapped ones too (their rows are a level's, picked first).
         self.textured = hit_colors.textured_materials(mtab)
-        self._mapped = rough_maps.mapped(mtab)
+        self._mapped_all = rough_maps.mapped(mtab)    # _sample_numpy's picks
+        self._mapped = self._mapped_all.copy()
         if mtab.alpha_tex is not None:
             alpha = np.any(np.asarray(mtab.alpha_tex) >= 0, axis=1)
             self.textured &= ~alpha
@@ -805,7 +806,7 @@ class PhotonTracer:
         prim = gbary[:, 0].astype(np.int64)
         mat = self.tris.mat[prim]
         uv = np.zeros((g, 2))
-        mapped = rough_maps.mapped(self.mtab)[mat]
+        mapped = self._mapped_all[mat]
         if self.mtab.textures and (np.any(self.mtab.tex[mat] >= 0) or mapped.any()):
             if self._tri_uv is None:
                 self._tri_uv = np.ascontiguousarray(self.scene.tri_uv, np.float64)
