@@ -32,6 +32,7 @@ import numpy as np
 
 from ..core.scene import color_ops as CO
 from ..core.scene import nodes as shading
+from ..core.scene import procedural as PR
 from ..core.errors import MemoryBudgetError, RenderCancelled, SceneError
 from ..core.lights.environment import mean_radiance
 from ..core.scene.normals import BUMP, NORMAL_MAP, NormalInput
@@ -41,6 +42,8 @@ from ..core.scene.textures import (EXTENSIONS, INTERPOLATIONS, LINEAR, REPEAT,
 from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
                           TRANSPARENT, Camera, Light, Lobe, Material, Scene,
                           drop_invalid_triangles)
+from .export_atlas import (MISSING_IMAGE, AtlasBaker, Procedural, has_procedural,
+                           procedural_params, spec_key)
 from .export_read import CHUNK, _never, image_pixels, mesh_arrays
 
 GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
@@ -48,7 +51,6 @@ GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
 # (textures.upsample), while its larger side stays within UPSAMPLE_MAX.
 UPSAMPLE_FACTOR, UPSAMPLE_MAX = 8, 2048
 # What Cycles' Image Texture reads without pixels (TEX_IMAGE_MISSING_R, _G, _B).
-MISSING_IMAGE = (1.0, 0.0, 1.0)
 # Colour nodes folded into an image's texels or a constant (_MaterialBuilder.color_chain).
 _COLOR_NODES = {'RGB', 'MIX', 'MIX_RGB', 'HUE_SAT', 'BRIGHTCONTRAST', 'GAMMA', 'INVERT',
                 'CURVE_RGB', 'VALTORGB'}
@@ -127,7 +129,8 @@ SUPPORT = (
     ("Normal Map (tangent space, MikkTSpace tangents of the render UV map, OpenGL and "
      "DirectX) and Bump (Strength, Distance, Invert) from an Image Texture", SUPPORTED, ""),
     ("Mapping (Point, Texture, Vector), Texture Coordinate (UV, Generated, Object) and "
-     "UV Map (any UV map of a mesh) into Image Texture vectors", SUPPORTED, ""),
+     "UV Map (any UV map of a mesh) into Image Texture and procedural texture vectors",
+     SUPPORTED, ""),
     ("Image Texture interpolation (Linear, Closest, Cubic, Smart as Cubic) and extension "
      "(Repeat, Extend, Clip, Mirror)", SUPPORTED, ""),
     ("an image's colour (also through colour nodes: its luminance) or alpha into a Mix "
@@ -142,6 +145,18 @@ SUPPORT = (
      "the same point, Hue/Saturation/Value, Brightness/Contrast, Gamma, Invert, RGB "
      "Curves, Color Ramp (applied to the image's texels; a small image is enlarged first "
      "for the nonlinear ones)", SUPPORTED, ""),
+    ("procedural textures (Noise, Voronoi, Wave, Magic, Brick, Checker, Gradient, White "
+     "Noise; every dimension, type and feature) at Generated, Object or UV coordinates "
+     "through Mapping, into any input an image feeds (colour, roughness, metallic, alpha, "
+     "emission, bump), also through colour nodes and mixed with images: the material's "
+     "textures baked into a texture atlas over its triangles when the render starts",
+     SUPPORTED, ""),
+    ("images read at different vectors in one material (each at its own: baked into the "
+     "material's atlas)", SUPPORTED, ""),
+    ("a procedural texture's input fed by another node (a Scale from a Math node)",
+     APPROXIMATED, "its value used"),
+    ("a material atlas over the budget of 4 M texels (very many triangles, or very fine "
+     "detail over a large surface)", APPROXIMATED, "of their detail (atlas budget)"),
     ("node groups (flattened, nested)", SUPPORTED, ""),
     ("film transparency, pixel filter (Blackman-Harris, Box, Gaussian) and its width, "
      "object and material pass index (every "
@@ -162,13 +177,13 @@ SUPPORT = (
     ("photon bounces on normal-mapped or bumped surfaces", APPROXIMATED,
      "photons scatter off the interpolated normal"),
     ("Normal Map in object or world space", APPROXIMATED, "space ignored (tangent space only)"),
-    ("Normal Map or Bump fed by an Image Texture through colour nodes (a Color Ramp into "
-     "a Bump's Height)", SUPPORTED, ""),
+    ("Normal Map or Bump fed by an Image Texture or a procedural texture through colour "
+     "nodes (a Color Ramp into a Bump's Height)", SUPPORTED, ""),
     ("Normal Map or Bump fed by other nodes", APPROXIMATED, "is not an Image Texture: ignored"),
     ("different Normal inputs on the shaders of one material", APPROXIMATED,
      "applied to all"),
-    ("different vector inputs on the image textures of one material", APPROXIMATED,
-     "used for all"),
+    ("different vector inputs on the image textures of one material that reach them "
+     "through a node group's input", APPROXIMATED, "used for all"),
     ("Beckmann / Ashikhmin-Shirley distributions", APPROXIMATED,
      "{node.name}: {dist} distribution rendered as GGX"),
     ("more closures than a material holds", APPROXIMATED,
@@ -230,6 +245,14 @@ def _use_nodes(idblock) -> bool:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         return bool(getattr(idblock, "use_nodes", True)) and idblock.node_tree is not None
+
+
+def _all_nodes(tree, depth: int = 0):
+    """Every node of a node tree and of the groups it uses, depth first."""
+    for nd in tree.nodes:
+        yield nd
+        if nd.type == 'GROUP' and nd.node_tree is not None and depth < 32:
+            yield from _all_nodes(nd.node_tree, depth + 1)
 
 
 def _follow(socket):
@@ -344,6 +367,17 @@ class _MaterialBuilder:
         self.normals: list = []            # (shader node name, NormalInput or None)
         self.vectors: list = []            # texture vector specs (see vector())
         self.vector_spec = None            # the one applied to the material (build())
+        self.bakes: list = []              # export_atlas.Bake per texture read
+        self.bake_specs: dict = {}         # spec key -> vector spec of the bakes' sources
+        # A procedural texture, or images read at different vectors, make the
+        # material an atlas one: every texture it reads is baked over its
+        # triangles, each source at its own vector (addon/export_atlas.py).
+        self.atlas = False
+        if _use_nodes(mat):
+            nodes = list(_all_nodes(mat.node_tree))
+            self.atlas = has_procedural(nodes) or len({
+                spec_key(self._quiet_vector(nd)) for nd in nodes
+                if nd.type == 'TEX_IMAGE' and any(o.is_linked for o in nd.outputs)}) > 1
 
     # -- links, through reroutes and node groups ----------------------------
     def follow(self, socket):
@@ -409,7 +443,7 @@ class _MaterialBuilder:
         """(Image Texture node, ops) when ``sock`` receives an image's Color,
         also through colour nodes (:meth:`color_chain`), else None."""
         src = self.follow(sock)[0]
-        if src is None or src.type not in _COLOR_NODES | {'TEX_IMAGE'}:
+        if src is None or src.type not in _COLOR_NODES | {'TEX_IMAGE'} | set(PR.KINDS):
             return None
         chain = self.color_chain(sock)
         return chain[1:] if chain is not None and chain[0] == 'tex' else None
@@ -480,6 +514,11 @@ class _MaterialBuilder:
             return 'const', np.full(3, float(src.outputs[0].default_value))
         if src.type == 'TEX_IMAGE':
             return ('tex', src, ()) if out.name == 'Color' and src.image is not None else None
+        if src.type in PR.KINDS:
+            if not self.atlas or not PR.supported(src.type, out.name):
+                return None
+            return 'tex', Procedural(src, out.name,
+                                     procedural_params(src, self.follow, self.notes)), ()
         f = self._float_in
 
         def inp(ident):
@@ -515,8 +554,9 @@ class _MaterialBuilder:
             if a[0] == 'const':
                 return then(b, ("mix", blend, t, tuple(a[1]), "B", clamp))
             if self._same_lookup(a[1], b[1]):
-                # Two images read at the same uv: B's image and ops ride along
-                # as one op, folded onto one grid (_Exporter.folded).
+                # Two images read at the same uv (or both baked into an atlas,
+                # each at its own vector): B's source and ops ride along as
+                # one op, folded onto one grid (_Exporter.folded).
                 return 'tex', a[1], a[2] + (("mix_image", blend, t, b[1], b[2], clamp),)
             return None                       # two images of different lookups
         if src.type == 'HUE_SAT':
@@ -572,15 +612,21 @@ class _MaterialBuilder:
         img = self.ex.textures[t]
         return (float(img[..., 3].mean()) if img.shape[2] > 3 else 1.0), t
 
+    def _quiet_vector(self, node):
+        """:meth:`vector` without its notes (read again when the node is)."""
+        kept, self.notes = self.notes, []
+        try:
+            return self.vector(node)
+        finally:
+            self.notes = kept
+
     def _same_lookup(self, na, nb) -> bool:
         """Whether two Image Texture nodes are read at the same point of their
         images: the same texture vector (:meth:`vector`), interpolation,
         extension and projection."""
-        kept, self.notes = self.notes, []
-        try:
-            va, vb = self.vector(na), self.vector(nb)
-        finally:
-            self.notes = kept
+        if self.atlas:
+            return True        # every source baked at its own vector (export_atlas)
+        va, vb = self._quiet_vector(na), self._quiet_vector(nb)
         return (va[:2] == vb[:2] and np.allclose(va[2], vb[2])
                 and all(getattr(na, k, None) == getattr(nb, k, None)
                         for k in ("interpolation", "extension", "projection")))
@@ -630,18 +676,22 @@ class _MaterialBuilder:
     def image(self, tex_node, ops=(), scalar=False) -> int:
         """An Image Texture node's texture index (its Color through ``ops``,
         :meth:`color_chain`; scalar: as a float input's alpha texture,
-        :meth:`alpha_texture`); its Vector input is recorded."""
+        :meth:`alpha_texture`); its Vector input is recorded.  In an atlas
+        material, a texture baked over its triangles (addon/export_atlas.py)."""
+        if self.atlas:
+            return self.ex.atlas.texture(self, tex_node, ops, scalar)
         t = self.ex.texture(tex_node, self, ops, scalar)
         if t >= 0:
             self.vectors.append(self.vector(tex_node))
         return t
 
-    def vector(self, tex_node):
-        """(source, object, A) of an Image Texture's Vector input: the texture
+    def vector(self, tex_node, default='UV'):
+        """(source, object, A) of a texture node's Vector input: the texture
         coordinates 'UV', 'Generated' or 'Object' (of ``object``, None = the
         shaded object; for 'UV' the UV Map node's map, None = the render
         one), then A (4, 4) the composed Mapping nodes (Cycles' flat
-        projection reads x, y of the result)."""
+        projection reads x, y of the result).  Unlinked: ``default`` (an
+        Image Texture's UV, a procedural's Generated, as in Cycles)."""
         A = np.eye(4)
         node, out, _ = self.follow(tex_node.inputs.get("Vector"))
         while node is not None and node.type == 'MAPPING':
@@ -652,7 +702,7 @@ class _MaterialBuilder:
             vec = node.inputs["Vector"]
             node, out, _ = self.follow(vec)
         if node is None:
-            return ('UV', None, A)
+            return (default, None, A)
         if node.type == 'UVMAP':
             # A named UV map: read per mesh (_Exporter.named_uv), '' the render one.
             return ('UV', node.uv_map or None, A)
@@ -700,11 +750,13 @@ class _MaterialBuilder:
             chain = self.image_chain(src.inputs["Height"])
             if chain is not None:
                 # Also through colour nodes (a Color Ramp's contrast): the
-                # folded image, read as a float reads a colour.
+                # folded image (or a procedural's bake), read as a float
+                # reads a colour.
                 img, ops = chain
                 iout = img.outputs["Color"]
-            if img is None or img.type != 'TEX_IMAGE':
-                self.notes.append(f"'{src.name}': height is not an Image Texture: ignored")
+            if img is None or img.type != 'TEX_IMAGE' and not isinstance(img, Procedural):
+                self.notes.append(f"'{src.name}': height is not an Image Texture "
+                                  f"or a procedural texture: ignored")
                 return None
             t = self.image(img, ops)
             if t < 0:
@@ -871,9 +923,9 @@ class _MaterialBuilder:
             if len({inp for _, inp in self.normals}) > 1:
                 self.notes.append(f"the shaders' Normal inputs differ: '{found[0][0]}''s "
                                   f"applied to all")
-        vecs = {(src, ob, tuple(np.round(A, 9).ravel())) for src, ob, A in self.vectors}
+        vecs = {spec_key(v) for v in self.vectors}
         self.vector_spec = self.vectors[0] if self.vectors else None
-        if len(vecs) > 1:
+        if len(vecs) > 1 and not self.bakes:
             self.notes.append("image textures with different vector inputs: the first one's "
                               "used for all")
         notes = list(m.approximations) + self.notes
@@ -1000,6 +1052,7 @@ class _Exporter:
         self.tex_index: dict = {}      # (image name, reading) -> index into textures
         self.tex_pixels: dict = {}     # image name -> its pixels (or None)
         self.mesh_cache: dict = {}
+        self.atlas = AtlasBaker(self)  # materials baked into texture atlases
         self.notes: list[str] = []
         self.n_objects = 0
         self.n_instances = 0
@@ -1257,7 +1310,8 @@ class _Exporter:
             idx = len(self.materials)
             self.materials.append(m)
             self.mat_pass_index.append(int(getattr(mat, "pass_index", 0)))
-            self.mat_vector.append(mb.vector_spec)
+            self.mat_vector.append(None if mb.bakes else mb.vector_spec)
+            self.atlas.add_material(idx, mb)
             self.mat_index[key] = idx
         return idx
 
@@ -1372,6 +1426,11 @@ class _Exporter:
             used = np.unique(mat)
             new_uv = None
             for m in used:
+                if m in self.atlas.specs:
+                    if new_uv is None:
+                        new_uv = uv.copy()
+                    self.record_atlas(inst, ob, i, np.nonzero(mat == m)[0], m, pw, uv)
+                    continue
                 spec = self.mat_vector[m]
                 if spec is None:
                     continue
@@ -1398,6 +1457,30 @@ class _Exporter:
                 parts[i] = (pw, nw, new_uv, mat)
             needs = any(_uses_normal_map(self.materials[m].normal) for m in used)
             self.tangent_parts.append(self.tangents(inst, ob) if needs else None)
+
+    def record_atlas(self, inst, ob, i, rows, m, pw, uv) -> None:
+        """Hands the triangles ``rows`` of parts[i] (of atlas material m) to
+        the baker with their texture vectors, one array per vector spec of
+        its sources; instances of one mesh share their blocks when every
+        vector is the mesh's own (UV, Generated, its own Object space)."""
+        vectors, own = {}, True
+        for key, (src, obname, A) in self.atlas.specs[m].items():
+            uvs = uv
+            if src == 'UV' and obname is not None:
+                uvs = self.named_uv(inst, ob, obname)
+                if uvs is None or len(uvs) != len(uv):
+                    uvs = uv
+            v3 = self.texture_vectors(inst, ob, src, obname, pw[rows], uvs[rows])
+            if v3 is None:
+                v3 = self.texture_vectors(inst, ob, 'UV', None, pw[rows], uv[rows])
+            vectors[key] = v3 @ A[:3, :3].T + A[:3, 3]
+            own = own and (src in ('UV', 'Generated') or obname is None)
+        key = None
+        if own and ob.type == 'MESH':
+            key = (ob.data.as_pointer(), m,
+                   bool(np.linalg.det(_mat4(inst.matrix_world)[:3, :3]) < 0))
+        self.atlas.record(m, i, rows, vectors, key)
+        self.poll()
 
     def texture_vectors(self, inst, ob, src, obname, pw, uv):
         """(k, 3, 3) float64 texture vectors at the corners: UV (u, v, 0),
@@ -1807,6 +1890,7 @@ class _Exporter:
             if len(parts) > n0:
                 self.n_objects += 1
                 self.n_instances += bool(inst.is_instance)
+        self.atlas.bake(parts)
         self.notes += feature_notes(scene, list(seen.values()))
         if any(getattr(m, "normal", None) is not None for m in self.materials):
             self.notes.append("normal maps and bump: photons scatter off the interpolated "

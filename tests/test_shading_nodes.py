@@ -660,8 +660,8 @@ def test_node_groups_are_flattened_like_cycles(tmp_path):
 
 
 def test_unsupported_nodes_give_one_warning_per_material():
-    """A group holding an unsupported shader, instanced twice, and a
-    procedural texture on the Mix Fac: one Warning line for the material,
+    """A group holding an unsupported shader, instanced twice, and an
+    unsupported texture (Gabor) on the Mix Fac: one Warning line for the material,
     whatever the number of nodes, and one sentence of its notes (one warning
     in Blender's Info log, addon/engine.py)."""
     pytest.importorskip("bpy")
@@ -673,8 +673,8 @@ def test_unsupported_nodes_give_one_warning_per_material():
     def mat(nodes, links, surface):
         g = _group("Odd", inner)
         mix = nodes.new('ShaderNodeMixShader')
-        noise = nodes.new('ShaderNodeTexNoise')
-        links.new(noise.outputs["Fac"], mix.inputs["Fac"])
+        gabor = nodes.new('ShaderNodeTexGabor')
+        links.new(gabor.outputs["Value"], mix.inputs["Fac"])
         a, b = nodes.new('ShaderNodeGroup'), nodes.new('ShaderNodeGroup')
         a.node_tree = b.node_tree = g
         links.new(a.outputs[0], mix.inputs[1])
@@ -688,7 +688,7 @@ def test_unsupported_nodes_give_one_warning_per_material():
                     "diffuse grey."], lines
     mine = [a for a in scene.approximations if a.startswith("material 'Surf'")]
     assert len(mine) == 1, scene.approximations
-    assert "'Noise Texture' into Mix Shader.Fac ignored" in mine[0]
+    assert "'Gabor Texture' into Mix Shader.Fac ignored" in mine[0]
     assert "'Toon BSDF'" in mine[0] and "-> diffuse grey" in mine[0]
 
 

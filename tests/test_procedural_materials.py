@@ -1,0 +1,258 @@
+"""Procedural textures in materials, baked into atlases at export
+(addon/export_atlas.py, core/scene/atlas.py), rendered against Cycles.
+
+The ports themselves are checked pixel by pixel against Cycles in
+tests/test_procedural_noise.py, test_procedural_voronoi.py and
+test_procedural_patterns.py; here, what the bake feeds: a colour, a
+roughness map, a bump, a mix of an image read at its UVs with a procedural
+read at its Generated coordinates, a float chain into a Mix Shader.  The
+scenes and the bound are tests/test_shading_nodes.py's (a plane under a
+sun, 2x the seed-to-seed noise plus 1 % of the mean), each with the
+effect check: the texture moves the image by more than 3x that bound.
+Then the atlas's own maths: an affine function is baked and read back to
+float32 rounding; blocks never overlap; instances share their blocks.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.scene import atlas as AT
+from core.scene.textures import sample_texture
+
+
+def test_an_affine_function_baked_reads_back_exactly():
+    """Every bilinear lookup inside a triangle reads its own block only, and
+    the texels hold the triangle's plane extended: an affine function of
+    the point comes back to float32 rounding (measured 2.5e-6), and no
+    texel belongs to two blocks."""
+    rng = np.random.default_rng(1)
+    T = 400
+    P = rng.normal(size=(T, 3, 3))
+    L = AT.pack(AT.block_sizes(AT.extent(P), 10.0))
+    tx = AT.texels(L)
+    owners = np.zeros((L.height, L.width), np.int64)
+    np.add.at(owners, (tx.iy, tx.ix), 1)
+    assert owners.max() == 1
+    a = np.array([[0.3, -0.2, 0.5], [1.0, 0.1, -0.4], [0.2, 0.2, 0.2]])
+    img = AT.image(L, tx, AT.at_texels(P, tx) @ a.T + 0.1)
+    b = rng.dirichlet([1, 1, 1], size=T)
+    uv = np.einsum('tk,tkd->td', b, AT.corner_uvs(L).astype(np.float64))
+    got = sample_texture(img, uv)
+    want = np.einsum('tk,tkd->td', b, P) @ a.T + 0.1
+    assert np.abs(got - want).max() < 2e-5
+
+
+def test_the_budget_caps_the_blocks():
+    """Sizes follow extent x density, rounded up to atlas.SIZES, and the
+    density drops until the texels fit the budget."""
+    n = AT.block_sizes(np.array([0.1, 1.0, 10.0]), 10.0)
+    assert list(n) == [1, 12, 128]
+    ext = np.full(1000, 1.0)
+    n = AT.block_sizes(ext, 1000.0, budget=100_000)
+    assert np.sum((n + 2) ** 2) <= 100_000 and n[0] >= 6
+
+
+# ------------------------------------------------------------------ against Cycles
+
+def _scene(build):
+    import test_shading_nodes as TS
+    return TS.plane_scene(build)
+
+
+def _compare(sc, tmp_path, label):
+    import test_shading_nodes as TS
+    return TS.compare(sc, tmp_path, label)
+
+
+def _check(err, noise, effect=None):
+    import test_shading_nodes as TS
+    TS._check(err, noise, effect)
+
+
+def _effect(img, scene, replace):
+    """Mean |img - the image with the baked textures replaced by ``replace``
+    (C,) texels| over the mean: what the texture changes."""
+    import dataclasses
+    import test_shading_nodes as TS
+    flat = [np.broadcast_to(np.asarray(replace, np.float32), (1, 1, 4)).copy()
+            for _ in scene.textures]
+    plain = TS._fppm(dataclasses.replace(scene, textures=flat), 1)
+    return float(np.abs(plain - img).mean() / img.mean())
+
+
+def _diffuse(nodes, links, surface):
+    import test_shading_nodes as TS
+    return TS.diffuse_with_normal(nodes, links, surface)
+
+
+@pytest.mark.parametrize("output", ["Color", "Factor"])
+def test_a_checker_colour_agrees_with_cycles(output, tmp_path):
+    """Checker (Generated coordinates, the unlinked default) into a Diffuse
+    Color.  Measured: 0.98x the seed-to-seed noise; the flat grey moves the
+    image by several times the bound."""
+    pytest.importorskip("bpy")
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        ck = nodes.new('ShaderNodeTexChecker')
+        ck.inputs['Scale'].default_value = 4.0
+        ck.inputs['Color1'].default_value = (0.9, 0.6, 0.2, 1.0)
+        ck.inputs['Color2'].default_value = (0.1, 0.2, 0.5, 1.0)
+        links.new(ck.outputs[output], d.inputs['Color'])
+
+    sc, _ = _scene(mat)
+    err, noise, img, ref, scene, lines = _compare(sc, tmp_path, f"checker {output}")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    assert len(scene.textures) == 1 and scene.textures[0].shape[0] > 100
+    _check(err, noise, _effect(img, scene, (0.5, 0.5, 0.5, 1.0)))
+
+
+def test_images_read_at_different_vectors_agree_with_cycles(tmp_path):
+    """A Multiply of two images, one at the UV map, one at Object
+    coordinates through a rotating Mapping: FPPM read both at the first's
+    vector before atlases.  Measured: 0.7x the seed-to-seed noise; one image
+    at the other's vector moves the image by 6 % of the mean."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        a = nodes.new('ShaderNodeTexImage')
+        a.image = TS._image("A", TS._color_pixels(), non_color=False)
+        b = nodes.new('ShaderNodeTexImage')
+        b.image = TS._image("B", TS._color_pixels(4)[:, ::-1].copy(), non_color=False)
+        tc = nodes.new('ShaderNodeTexCoord')
+        mp = nodes.new('ShaderNodeMapping')
+        mp.inputs['Rotation'].default_value = (0.0, 0.0, 0.7)
+        mp.inputs['Scale'].default_value = (1.7, 1.7, 1.0)
+        links.new(tc.outputs['Object'], mp.inputs['Vector'])
+        links.new(mp.outputs['Vector'], b.inputs['Vector'])
+        mix = nodes.new('ShaderNodeMix')
+        mix.data_type = 'RGBA'
+        mix.blend_type = 'MULTIPLY'
+        mix.inputs['Factor'].default_value = 1.0
+        links.new(a.outputs['Color'], mix.inputs['A'])
+        links.new(b.outputs['Color'], mix.inputs['B'])
+        links.new(mix.outputs['Result'], d.inputs['Color'])
+
+    sc, ob = _scene(mat)
+    err, noise, img, ref, scene, lines = _compare(sc, tmp_path, "two vectors")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    # What FPPM rendered before: the second image at the first's vector.
+    nt = ob.data.materials[0].node_tree
+    b = next(nd for nd in nt.nodes if nd.type == 'TEX_IMAGE' and nd.image.name == "B")
+    nt.links.remove(b.inputs['Vector'].links[0])
+    old = TS._cycles(sc, 0, tmp_path / "old.exr")
+    _check(err, noise, float(np.abs(old - ref).mean() / ref.mean()))
+
+
+def _noise(nodes, links, scale=4.0, detail=2.0, vector=None):
+    nz = nodes.new('ShaderNodeTexNoise')
+    nz.inputs['Scale'].default_value = scale
+    nz.inputs['Detail'].default_value = detail
+    if vector is not None:
+        links.new(vector, nz.inputs['Vector'])
+    return nz
+
+
+def _ramp(nodes, links, src, a, b):
+    """A Color Ramp from ``a`` to ``b`` (rgba) fed by ``src``."""
+    cr = nodes.new('ShaderNodeValToRGB')
+    cr.color_ramp.elements[0].position = 0.3
+    cr.color_ramp.elements[0].color = a
+    cr.color_ramp.elements[1].position = 0.7
+    cr.color_ramp.elements[1].color = b
+    links.new(src, cr.inputs['Fac'])
+    return cr
+
+
+def test_a_noise_roughness_map_agrees_with_cycles(tmp_path):
+    """Noise (Object coordinates of a turned Empty, through a Mapping) ->
+    Color Ramp -> a metal's Roughness, read per hit from the bake
+    (core/materials/rough_maps.py).  Measured: 0.8x the seed-to-seed noise;
+    the bake's mean roughness everywhere moves the image by 30 % of the
+    mean."""
+    import bpy
+    pytest.importorskip("bpy")
+
+    def mat(nodes, links, surface):
+        p = nodes.new('ShaderNodeBsdfPrincipled')
+        p.inputs['Metallic'].default_value = 1.0
+        p.inputs['Base Color'].default_value = (0.9, 0.8, 0.6, 1.0)
+        links.new(p.outputs[0], surface)
+        e = bpy.data.objects.new("Ref", None)
+        e.location = (0.3, 0.1, 0.2)
+        e.rotation_euler = (0.0, 0.0, 0.4)
+        bpy.context.scene.collection.objects.link(e)
+        tc = nodes.new('ShaderNodeTexCoord')
+        tc.object = e
+        mp = nodes.new('ShaderNodeMapping')
+        mp.inputs['Rotation'].default_value = (0.2, 0.0, 0.5)
+        links.new(tc.outputs['Object'], mp.inputs['Vector'])
+        nz = _noise(nodes, links, 2.5, 1.0, mp.outputs['Vector'])
+        cr = _ramp(nodes, links, nz.outputs['Factor'], (0.05, 0.05, 0.05, 1.0),
+                   (0.8, 0.8, 0.8, 1.0))
+        links.new(cr.outputs['Color'], p.inputs['Roughness'])
+
+    import test_shading_nodes as TS
+    sc, _ = TS.plane_scene(mat, sun_rotation=(0.35, 0.0, 0.0))
+    err, noise, img, ref, scene, lines = _compare(sc, tmp_path, "noise roughness")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    lobe = next(lb for m in scene.materials for lb in m.lobes if lb.roughness_texture >= 0)
+    mean = scene.materials[0]
+    import dataclasses
+    flat = dataclasses.replace(scene, materials=[dataclasses.replace(
+        mean, lobes=tuple(dataclasses.replace(lb, roughness_texture=-1) for lb in mean.lobes))])
+    plain = TS._fppm(flat, 1)
+    assert 0.1 < lobe.roughness < 0.7
+    _check(err, noise, float(np.abs(plain - img).mean() / img.mean()))
+
+
+def test_a_noise_bump_agrees_with_cycles(tmp_path):
+    """Noise Factor (Generated coordinates) into a Bump's Height (distance
+    0.1).  Measured: 0.9x the seed-to-seed noise; without the bump the image
+    moves by 4x the bound."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        nz = _noise(nodes, links, 6.0, 1.0)
+        bump = nodes.new('ShaderNodeBump')
+        bump.inputs['Distance'].default_value = 0.3
+        links.new(nz.outputs['Factor'], bump.inputs['Height'])
+        links.new(bump.outputs['Normal'], d.inputs['Normal'])
+
+    sc, _ = _scene(mat)
+    err, noise, img, ref, scene, lines = _compare(sc, tmp_path, "noise bump")
+    assert lines[1] == TS.PHOTON_NOTE, lines[1]
+    plain = TS._fppm(TS._without_normals(scene), 1)
+    _check(err, noise, float(np.abs(plain - img).mean() / img.mean()))
+
+
+def test_a_noise_mixed_with_an_image_agrees_with_cycles(tmp_path):
+    """An image at its UVs times a Noise Color at Generated coordinates
+    (Overlay blend), into a Principled Base Color.  Measured: 0.9x the
+    seed-to-seed noise."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+
+    def mat(nodes, links, surface):
+        p = nodes.new('ShaderNodeBsdfPrincipled')
+        links.new(p.outputs[0], surface)
+        im = nodes.new('ShaderNodeTexImage')
+        im.image = TS._image("A", TS._color_pixels(), non_color=False)
+        nz = _noise(nodes, links, 5.0, 2.0)
+        mix = nodes.new('ShaderNodeMix')
+        mix.data_type = 'RGBA'
+        mix.blend_type = 'OVERLAY'
+        mix.inputs['Factor'].default_value = 0.8
+        links.new(im.outputs['Color'], mix.inputs['A'])
+        links.new(nz.outputs['Color'], mix.inputs['B'])
+        links.new(mix.outputs['Result'], p.inputs['Base Color'])
+
+    sc, _ = _scene(mat)
+    err, noise, img, ref, scene, lines = _compare(sc, tmp_path, "noise x image")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    _check(err, noise, _effect(img, scene, (0.5, 0.5, 0.5, 1.0)))
