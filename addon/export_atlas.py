@@ -11,8 +11,8 @@ light tracing; colours, alpha, roughness and metallic maps, emission, bump,
 normal maps) reads the bake as it reads an image, per hit, compiled or not.
 
 Its cost is resolution: a block's texels follow the finest detail of the
-sources (``TEXELS_PER_FEATURE`` a feature of a procedural, an image's own
-texel density) within a budget of texels a material (``atlas.BUDGET``);
+sources (``atlas.procedural_density``, ``atlas.image_density``) within a
+budget of texels a material (``atlas.BUDGET``);
 docs/shading.md "Procedural textures" gives the measured error against
 Cycles.
 """
@@ -31,12 +31,6 @@ from ..core.scene.textures import sample_alpha, sample_texture
 #: Cycles' colour of a missing image (magenta).
 MISSING_IMAGE = (1.0, 0.0, 1.0)
 
-#: Texels a feature (a noise lattice cell, a checker square, a Voronoi cell)
-#: of the finest detail of a procedural source; twice that for a pattern
-#: with sharp edges (``procedural.SHARP``), whose blur is a texel wide.
-TEXELS_PER_FEATURE = 16.0
-#: Texels per image texel when an image is baked with procedurals.
-TEXELS_PER_TEXEL = 4.0
 #: Texels evaluated at once (memory of a procedural's temporaries).
 CHUNK = 1 << 18
 
@@ -185,12 +179,11 @@ class AtlasBaker:
         for b in self.bakes[m]:
             for s, key in zip(sources(b.source, b.ops), b.keys):
                 if isinstance(s, Procedural):
-                    d = TEXELS_PER_FEATURE * PR.frequency(s.type, s.params) \
-                        * (2.0 if s.type in PR.SHARP else 1.0)
+                    d = AT.procedural_density(s.type, s.params)
                 else:
                     img = ex.textures[b.prepared] if b.prepared >= 0 else \
                         ex.color_texels(s, [])
-                    d = TEXELS_PER_TEXEL * (max(img.shape[:2]) if img is not None else 1)
+                    d = AT.image_density(img.shape if img is not None else (1, 1))
                 dens[key] = max(dens.get(key, 0.0), d)
         return dens
 

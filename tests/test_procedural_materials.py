@@ -53,6 +53,43 @@ def test_the_budget_caps_the_blocks():
     assert np.sum((n + 2) ** 2) <= 100_000 and n[0] >= 6
 
 
+#: (kind, output, params, bound on the bake's mean |error| over the mean
+#: value): measured at the densities of atlas.procedural_density.
+BAKES = [
+    ("TEX_NOISE", "Color", {}, 0.002),          # measured 0.04 %
+    ("TEX_NOISE", "Factor", {"Detail": 5.0}, 0.002),   # 0.02 %
+    ("TEX_VORONOI", "Distance", {}, 0.002),     # 0.04 %
+    ("TEX_VORONOI", "Color", {}, 0.015),        # 0.46 % (cell borders)
+    ("TEX_CHECKER", "Color", {}, 0.04),         # 1.4 % (square borders)
+    ("TEX_WAVE", "Color", {}, 0.03),            # 1.1 % (8 texels a period)
+    ("TEX_MAGIC", "Color", {}, 0.008),          # 0.23 %
+    ("TEX_BRICK", "Color", {}, 0.04),           # 1.3 % (mortar lines)
+    ("TEX_GRADIENT", "Color", {"gradient_type": "SPHERICAL"}, 0.025),   # 0.8 %
+]
+
+
+@pytest.mark.parametrize("kind,output,params,bound", BAKES, ids=[f"{b[0]}-{b[1]}" for b in BAKES])
+def test_a_bake_reads_back_its_procedural(kind, output, params, bound):
+    """The bake at atlas.procedural_density (8 texels a feature of the finest
+    detail, 32 for sharp patterns) read back by the bilinear lookup at
+    random points of 30 small triangles against the procedural evaluated
+    there: the mean |error| over the mean value.  A smooth pattern's error
+    is the bilinear's h^2 / 8 of its curvature; a sharp one's, the texel
+    its edges blur over."""
+    from core.scene import procedural as PR
+    rng = np.random.default_rng(3)
+    T = 30
+    P = rng.uniform(0, 1, size=(T, 1, 3)) + rng.normal(scale=0.06, size=(T, 3, 3))
+    L = AT.pack(AT.block_sizes(AT.extent(P) * AT.procedural_density(kind, params), 1.0))
+    tx = AT.texels(L)
+    img = AT.image(L, tx, PR.evaluate(kind, output, params, AT.at_texels(P, tx)))
+    b = rng.dirichlet([1, 1, 1], size=20 * T)
+    tri = np.tile(np.arange(T), 20)
+    got = sample_texture(img, np.einsum('nk,nkd->nd', b, AT.corner_uvs(L)[tri].astype(float)))
+    want = PR.evaluate(kind, output, params, np.einsum('nk,nkd->nd', b, P[tri]))
+    assert np.abs(got - want).mean() / np.abs(want).mean() < bound
+
+
 # ------------------------------------------------------------------ against Cycles
 
 def _scene(build):

@@ -27,6 +27,15 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import procedural as PR
+
+#: Texels a feature (a noise lattice cell, a wave's period) of the finest
+#: detail of a smooth procedural source; ``SHARP_FACTOR`` times that for a
+#: pattern with sharp edges (``procedural.is_sharp``), blurred a texel wide.
+TEXELS_PER_FEATURE = 8.0
+SHARP_FACTOR = 4.0
+#: Texels per image texel when an image is baked with other sources.
+TEXELS_PER_TEXEL = 4.0
 #: Texels a block side may take inside its guard ring (n), in steps of about
 #: sqrt(2) so that a handful of shelf heights pack every block.
 SIZES = np.array([1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256, 384, 512,
@@ -66,6 +75,18 @@ def extent(corners: np.ndarray) -> np.ndarray:
     c = np.asarray(corners, np.float64)
     e = np.stack([c[:, 1] - c[:, 0], c[:, 2] - c[:, 0], c[:, 2] - c[:, 1]], 1)
     return np.sqrt(np.max(np.sum(e * e, axis=-1), axis=1))
+
+
+def procedural_density(kind: str, params: dict) -> float:
+    """Texels a texture-space unit for a procedural source
+    (``procedural.frequency`` features a unit)."""
+    return TEXELS_PER_FEATURE * PR.frequency(kind, params) \
+        * (SHARP_FACTOR if PR.is_sharp(kind, params) else 1.0)
+
+
+def image_density(shape) -> float:
+    """Texels a uv unit for an image of ``shape`` (H, W, ...)."""
+    return TEXELS_PER_TEXEL * max(shape[:2])
 
 
 def _rounded(n: np.ndarray) -> np.ndarray:

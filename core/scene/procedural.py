@@ -66,13 +66,20 @@ def evaluate(kind: str, output: str, params: dict, p: np.ndarray) -> np.ndarray:
 SHARP = frozenset({"TEX_CHECKER", "TEX_BRICK", "TEX_VORONOI"})
 
 
+def is_sharp(kind: str, params: dict) -> bool:
+    """Whether the node's output jumps along lines (:data:`SHARP`, and a
+    Wave's Saw profile)."""
+    return kind in SHARP or kind == "TEX_WAVE" and params.get("wave_profile") == "SAW"
+
+
 def frequency(kind: str, params: dict) -> float:
     """Features a texture-space unit of the finest detail that shows in a
     node's output: what a bake's resolution must follow (addon/export_atlas.py
     gives each feature a fixed number of texels).  A fractal's octaves count
     while their amplitude (Roughness^k) is 1/16 of the first or more; the
-    constants are each pattern's period in Cycles' kernel (a wave's 2 pi /
-    10, a brick's width and row height)."""
+    constants are each pattern's period in Cycles' kernel (a wave's phase
+    10 Scale (x + y + z): 10 sqrt(3) / (2 pi) = 2.8 periods a unit along
+    the diagonal; a brick's width and row height)."""
     g = params.get
     scale = abs(float(g("Scale", 5.0)))
     if kind in ("TEX_NOISE", "TEX_VORONOI"):
@@ -83,7 +90,7 @@ def frequency(kind: str, params: dict) -> float:
             0.0 if rough <= 0.0 else min(detail, np.log(1 / 16) / np.log(rough)))
         f = scale * lac ** max(k, 0.0) * (1.0 + abs(float(g("Distortion", 0.0))))
     elif kind == "TEX_WAVE":
-        f = 2.0 * scale
+        f = 2.8 * scale
         if float(g("Distortion", 0.0)) != 0.0:
             f *= max(1.0, abs(float(g("Detail Scale", 1.0)))
                      * 2.0 ** min(float(g("Detail", 2.0)), 4.0))
