@@ -32,7 +32,6 @@ import numpy as np
 
 from ..core.scene import color_ops as CO
 from ..core.scene import nodes as shading
-from ..core.scene import procedural as PR
 from ..core.errors import MemoryBudgetError, RenderCancelled, SceneError
 from ..core.lights.environment import mean_radiance
 from ..core.scene.normals import BUMP, NORMAL_MAP, NormalInput
@@ -42,8 +41,8 @@ from ..core.scene.textures import (EXTENSIONS, INTERPOLATIONS, LINEAR, REPEAT,
 from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
                           TRANSPARENT, Camera, Light, Lobe, Material, Scene,
                           drop_invalid_triangles)
-from .export_atlas import (MISSING_IMAGE, AtlasBaker, Procedural, has_procedural,
-                           procedural_params, spec_key)
+from .export_atlas import AtlasBaker, needs_atlas
+from .export_graph import GRAPH_NODES, GraphReader, constant_value
 from .export_read import CHUNK, _never, image_pixels, mesh_arrays
 
 GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
@@ -52,6 +51,7 @@ GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
 UPSAMPLE_FACTOR, UPSAMPLE_MAX = 8, 2048
 # What Cycles' Image Texture reads without pixels (TEX_IMAGE_MISSING_R, _G, _B).
 # Colour nodes folded into an image's texels or a constant (_MaterialBuilder.color_chain).
+MISSING_IMAGE = (1.0, 0.0, 1.0)   # Cycles' colour of a missing image
 _COLOR_NODES = {'RGB', 'MIX', 'MIX_RGB', 'HUE_SAT', 'BRIGHTCONTRAST', 'GAMMA', 'INVERT',
                 'CURVE_RGB', 'VALTORGB'}
 GREY = (0.8, 0.8, 0.8)
@@ -247,6 +247,50 @@ def _use_nodes(idblock) -> bool:
         return bool(getattr(idblock, "use_nodes", True)) and idblock.node_tree is not None
 
 
+def _attribute_corners(me, name):
+    """(T, 3, 3) float64 mesh attribute ``name`` (None: the render colour
+    attribute) at the loop triangles' corners, or None."""
+    if name is None:
+        ca = me.color_attributes
+        idx = getattr(ca, "render_color_index", -1)
+        at = ca[idx] if 0 <= idx < len(ca) else None
+    else:
+        at = me.attributes.get(name)
+    if at is None or not len(me.loop_triangles):
+        return None
+    fields = {'FLOAT_COLOR': ("color", 4), 'BYTE_COLOR': ("color", 4),
+              'FLOAT_VECTOR': ("vector", 3), 'FLOAT2': ("vector", 2), 'FLOAT': ("value", 1),
+              'INT': ("value", 1), 'BOOLEAN': ("value", 1)}
+    if at.data_type not in fields or at.domain not in ('POINT', 'CORNER', 'FACE'):
+        return None
+    field, c = fields[at.data_type]
+    n = len(at.data)
+    raw = np.empty(n * c, np.float64 if at.data_type != 'BOOLEAN' else bool)
+    at.data.foreach_get(field, raw)
+    vals = raw.astype(np.float64).reshape(n, c)
+    vals = np.repeat(vals, 3, axis=1) if c == 1 else vals[:, :3]
+    if vals.shape[1] == 2:
+        vals = np.concatenate([vals, np.zeros((n, 1))], axis=1)
+    T = len(me.loop_triangles)
+    if at.domain == 'FACE':
+        poly = np.empty(T, np.int32)
+        me.loop_triangles.foreach_get("polygon_index", poly)
+        return np.repeat(vals[poly][:, None, :], 3, axis=1)
+    corners = np.empty(T * 3, np.int32)
+    me.loop_triangles.foreach_get("loops", corners)
+    if at.domain == 'POINT':
+        vidx = np.empty(len(me.loops), np.int32)
+        me.loops.foreach_get("vertex_index", vidx)
+        corners = vidx[corners]
+    return vals[corners].reshape(T, 3, 3)
+
+
+def _spec_key(spec) -> tuple:
+    """A hashable key of a vector spec (source, object, A (4, 4))."""
+    src, ob, A = spec
+    return (src, ob, tuple(np.round(np.asarray(A, np.float64), 9).ravel()))
+
+
 def _all_nodes(tree, depth: int = 0):
     """Every node of a node tree and of the groups it uses, depth first."""
     for nd in tree.nodes:
@@ -303,6 +347,31 @@ def _mapping_matrix(node, notes) -> np.ndarray:
 
 # ---------------------------------------------------------------------------
 # materials
+
+def curves_op(node, fac: float) -> tuple:
+    """An RGB Curves node as a ``color_ops`` "curves" op: Cycles' table
+    (curvemapping_color_to_array) over the curves' span of x, each
+    channel's curve after the combined one."""
+    cm = node.mapping
+    cm.update()
+    lo = min(cv.points[0].location[0] for cv in cm.curves)
+    hi = max(cv.points[-1].location[0] for cv in cm.curves)
+    n = CO.RAMP_TABLE_SIZE
+    table = []
+    for i in range(n):
+        x = cm.evaluate(cm.curves[3], lo + i / (n - 1) * (hi - lo))
+        table.append(tuple(float(cm.evaluate(cm.curves[j], x)) for j in range(3)))
+    return ("curves", tuple(table), lo, (hi - lo) or 1.0, cm.extend == 'EXTRAPOLATED', fac)
+
+
+def ramp_op(node) -> tuple:
+    """A Color Ramp node as a ``color_ops`` "ramp" op (Blender's ramp at
+    RAMP_TABLE_SIZE positions, which Cycles interpolates)."""
+    cr = node.color_ramp
+    n = CO.RAMP_TABLE_SIZE
+    table = tuple(tuple(float(x) for x in cr.evaluate(i / (n - 1))[:3]) for i in range(n))
+    return ("ramp", table, cr.interpolation != 'CONSTANT')
+
 
 def _emission_sum(parts, notes):
     """Sum of weighted emissions [(weight, Material)] -> (rgb, texture index)."""
@@ -368,16 +437,18 @@ class _MaterialBuilder:
         self.vectors: list = []            # texture vector specs (see vector())
         self.vector_spec = None            # the one applied to the material (build())
         self.bakes: list = []              # export_atlas.Bake per texture read
-        self.bake_specs: dict = {}         # spec key -> vector spec of the bakes' sources
-        # A procedural texture, or images read at different vectors, make the
-        # material an atlas one: every texture it reads is baked over its
-        # triangles, each source at its own vector (addon/export_atlas.py).
+        # A procedural texture, a node only the graph evaluates (Math, a colour
+        # attribute, ...) or images read at different vectors make the
+        # material an atlas one: every texture it reads is an expression of
+        # the surface point (addon/export_graph.py), baked over its triangles
+        # (addon/export_atlas.py).
         self.atlas = False
         if _use_nodes(mat):
             nodes = list(_all_nodes(mat.node_tree))
-            self.atlas = has_procedural(nodes) or len({
-                spec_key(self._quiet_vector(nd)) for nd in nodes
+            self.atlas = needs_atlas(nodes, GRAPH_NODES) or len({
+                _spec_key(self._quiet_vector(nd)) for nd in nodes
                 if nd.type == 'TEX_IMAGE' and any(o.is_linked for o in nd.outputs)}) > 1
+        self.graph = GraphReader(self) if self.atlas else None
 
     # -- links, through reroutes and node groups ----------------------------
     def follow(self, socket):
@@ -443,7 +514,7 @@ class _MaterialBuilder:
         """(Image Texture node, ops) when ``sock`` receives an image's Color,
         also through colour nodes (:meth:`color_chain`), else None."""
         src = self.follow(sock)[0]
-        if src is None or src.type not in _COLOR_NODES | {'TEX_IMAGE'} | set(PR.KINDS):
+        if src is None or not self.atlas and src.type not in _COLOR_NODES | {'TEX_IMAGE'}:
             return None
         chain = self.color_chain(sock)
         return chain[1:] if chain is not None and chain[0] == 'tex' else None
@@ -501,6 +572,11 @@ class _MaterialBuilder:
         luminance)."""
         if depth > 64:
             return None
+        if self.atlas:
+            # ('tex', an expression of the point, ()) or its constant value.
+            e = self.graph.expression(sock)
+            c = constant_value(e, 'color')
+            return None if e is None else ('const', c) if c is not None else ('tex', e, ())
         src, out, vsock = self.follow(sock)
         if src is None:
             v = getattr(vsock, "default_value", None)
@@ -514,11 +590,6 @@ class _MaterialBuilder:
             return 'const', np.full(3, float(src.outputs[0].default_value))
         if src.type == 'TEX_IMAGE':
             return ('tex', src, ()) if out.name == 'Color' and src.image is not None else None
-        if src.type in PR.KINDS:
-            if not self.atlas or not PR.supported(src.type, out.name):
-                return None
-            return 'tex', Procedural(src, out.name,
-                                     procedural_params(src, self.follow, self.notes)), ()
         f = self._float_in
 
         def inp(ident):
@@ -573,28 +644,12 @@ class _MaterialBuilder:
             return None if k is None else then(inp("Color"), ("invert", k))
         if src.type == 'CURVE_RGB':
             k = f(src, "Fac")
-            if k is None:
-                return None
-            cm = src.mapping
-            cm.update()
-            # Cycles' table (curvemapping_color_to_array): over the curves'
-            # span of x, each channel's curve after the combined one.
-            lo = min(cv.points[0].location[0] for cv in cm.curves)
-            hi = max(cv.points[-1].location[0] for cv in cm.curves)
-            n = CO.RAMP_TABLE_SIZE
-            table = []
-            for i in range(n):
-                x = cm.evaluate(cm.curves[3], lo + i / (n - 1) * (hi - lo))
-                table.append(tuple(float(cm.evaluate(cm.curves[j], x)) for j in range(3)))
-            return then(inp("Color"), ("curves", tuple(table), lo, (hi - lo) or 1.0,
-                                       cm.extend == 'EXTRAPOLATED', k))
+            return None if k is None else then(inp("Color"), curves_op(src, k))
         if src.type == 'VALTORGB' and out.name == 'Color':
-            cr = src.color_ramp
-            n = CO.RAMP_TABLE_SIZE
-            table = tuple(tuple(float(x) for x in cr.evaluate(i / (n - 1))[:3]) for i in range(n))
             fin = src.inputs["Fac"]
             fsrc, _, fval = self.follow(fin)
-            op = ("ramp", table, cr.interpolation != 'CONSTANT')
+            op = ramp_op(src)
+            table = op[1]
             if fsrc is None:
                 return 'const', CO.ramp(np.array(float(fval.default_value)), np.asarray(table),
                                         op[2])
@@ -639,6 +694,14 @@ class _MaterialBuilder:
         k = self._constant(src, vsock)
         if k is not None:
             return k
+        if self.atlas:
+            # No per-hit BSDF parameter but the mapped ones: a constant graph
+            # (Math of Values) is its value; else the socket's.
+            k = constant_value(self.graph.expression(sock))
+            if k is not None:
+                return k
+            self.notes.append(f"'{src.name}' into {node.name}.{name} ignored")
+            return float(vsock.default_value)
         chain = self.color_chain(sock) if src.type in _COLOR_NODES else None
         if chain is not None and chain[0] == 'const':
             return float(CO.gray(chain[1]))       # a colour into a float: its luminance
@@ -668,6 +731,11 @@ class _MaterialBuilder:
         if sock is None:
             return -1
         src, out, _ = self.follow(sock)
+        if self.atlas:
+            e = self.graph.expression(sock) if src is not None else None
+            if e is None or constant_value(e) is not None:
+                return -1
+            return self.image(e, scalar=True)
         if src is not None and src.type == 'TEX_IMAGE' and out.name == 'Alpha':
             return self.image(src)
         chain = self.image_chain(sock)
@@ -677,7 +745,8 @@ class _MaterialBuilder:
         """An Image Texture node's texture index (its Color through ``ops``,
         :meth:`color_chain`; scalar: as a float input's alpha texture,
         :meth:`alpha_texture`); its Vector input is recorded.  In an atlas
-        material, a texture baked over its triangles (addon/export_atlas.py)."""
+        material, tex_node is an expression (addon/export_graph.py) and the
+        texture is baked over its triangles (addon/export_atlas.py)."""
         if self.atlas:
             return self.ex.atlas.texture(self, tex_node, ops, scalar)
         t = self.ex.texture(tex_node, self, ops, scalar)
@@ -748,13 +817,21 @@ class _MaterialBuilder:
             img, iout, _ = self.follow(src.inputs["Height"])
             ops = ()
             chain = self.image_chain(src.inputs["Height"])
-            if chain is not None:
+            if chain is not None and self.atlas:
+                # The height's expression baked as a grey colour (any range).
+                img, iout = chain[0], None
+            elif chain is not None:
                 # Also through colour nodes (a Color Ramp's contrast): the
-                # folded image (or a procedural's bake), read as a float
-                # reads a colour.
+                # folded image, read as a float reads a colour.
                 img, ops = chain
                 iout = img.outputs["Color"]
-            if img is None or img.type != 'TEX_IMAGE' and not isinstance(img, Procedural):
+            if self.atlas and chain is not None:
+                t = self.image(img)
+                return None if t < 0 else NormalInput(
+                    BUMP, t, strength=self.value(src, "Strength", 1.0),
+                    distance=self.value(src, "Distance", 1.0),
+                    invert=bool(getattr(src, "invert", False)), channel='COLOR', base=base)
+            if img is None or img.type != 'TEX_IMAGE':
                 self.notes.append(f"'{src.name}': height is not an Image Texture "
                                   f"or a procedural texture: ignored")
                 return None
@@ -923,7 +1000,7 @@ class _MaterialBuilder:
             if len({inp for _, inp in self.normals}) > 1:
                 self.notes.append(f"the shaders' Normal inputs differ: '{found[0][0]}''s "
                                   f"applied to all")
-        vecs = {spec_key(v) for v in self.vectors}
+        vecs = {_spec_key(v) for v in self.vectors}
         self.vector_spec = self.vectors[0] if self.vectors else None
         if len(vecs) > 1 and not self.bakes:
             self.notes.append("image textures with different vector inputs: the first one's "
@@ -1426,10 +1503,10 @@ class _Exporter:
             used = np.unique(mat)
             new_uv = None
             for m in used:
-                if m in self.atlas.specs:
+                if m in self.atlas.keys:
                     if new_uv is None:
                         new_uv = uv.copy()
-                    self.record_atlas(inst, ob, i, np.nonzero(mat == m)[0], m, pw, uv)
+                    self.record_atlas(inst, ob, i, np.nonzero(mat == m)[0], m, pw, nw, uv)
                     continue
                 spec = self.mat_vector[m]
                 if spec is None:
@@ -1458,29 +1535,71 @@ class _Exporter:
             needs = any(_uses_normal_map(self.materials[m].normal) for m in used)
             self.tangent_parts.append(self.tangents(inst, ob) if needs else None)
 
-    def record_atlas(self, inst, ob, i, rows, m, pw, uv) -> None:
+    def record_atlas(self, inst, ob, i, rows, m, pw, nw, uv) -> None:
         """Hands the triangles ``rows`` of parts[i] (of atlas material m) to
-        the baker with their texture vectors, one array per vector spec of
-        its sources; instances of one mesh share their blocks when every
-        vector is the mesh's own (UV, Generated, its own Object space)."""
-        vectors, own = {}, True
-        for key, (src, obname, A) in self.atlas.specs[m].items():
-            uvs = uv
-            if src == 'UV' and obname is not None:
-                uvs = self.named_uv(inst, ob, obname)
+        the baker with the attributes its graph reads at their corners
+        (core/scene/shader_graph.py ``Attr`` keys); instances of one mesh
+        share their blocks when every attribute is the mesh's own (UV maps,
+        Generated, its own Object space and normals, colour attributes)."""
+        attrs, own = {}, True
+        k = len(rows)
+        for key in self.atlas.keys[m]:
+            kind, name = key[0], (key[1] if len(key) > 1 else None)
+            if kind == 'UV':
+                uvs = uv if name is None else self.named_uv(inst, ob, name)
                 if uvs is None or len(uvs) != len(uv):
+                    self.notes.append(f"'{ob.name}': no UV map '{name}': the render UV "
+                                      f"map used")
                     uvs = uv
-            v3 = self.texture_vectors(inst, ob, src, obname, pw[rows], uvs[rows])
-            if v3 is None:
-                v3 = self.texture_vectors(inst, ob, 'UV', None, pw[rows], uv[rows])
-            vectors[key] = v3 @ A[:3, :3].T + A[:3, 3]
-            own = own and (src in ('UV', 'Generated') or obname is None)
+                a = self.texture_vectors(inst, ob, 'UV', None, pw[rows], uvs[rows])
+            elif kind in ('Generated', 'Object'):
+                a = self.texture_vectors(inst, ob, kind, name, pw[rows], uv[rows])
+                own = own and name is None
+            elif kind == 'Position':
+                a, own = pw[rows].astype(np.float64), False
+            elif kind == 'Normal':
+                a, own = nw[rows].astype(np.float64), False
+            elif kind == 'ObjectNormal':
+                # World normals back to object space: n_obj ~ A^T n_world.
+                A = _mat4(inst.matrix_world)[:3, :3]
+                a = nw[rows].astype(np.float64) @ A
+            else:                                   # 'Attribute'
+                a = self.attribute_corners(inst, ob, name)
+                a = None if a is None or len(a) != len(uv) else a[rows]
+                if a is None:
+                    self.notes.append(f"'{ob.name}': no attribute "
+                                      f"'{name or '(render colour)'}': black")
+            attrs[key] = np.zeros((k, 3, 3)) if a is None else a
         key = None
         if own and ob.type == 'MESH':
             key = (ob.data.as_pointer(), m,
                    bool(np.linalg.det(_mat4(inst.matrix_world)[:3, :3]) < 0))
-        self.atlas.record(m, i, rows, vectors, key)
+        self.atlas.record(m, i, rows, attrs, pw[rows].astype(np.float64), key)
         self.poll()
+
+    def attribute_corners(self, inst, ob, name):
+        """(T, 3, 3) float64 a mesh attribute at the corners of ``ob``'s loop
+        triangles (a colour attribute's rgb, a vector, a float as (f, f, f),
+        a 2D vector with z 0; ``name`` None: the render colour attribute; a
+        UV map of that name as (u, v, 0), as Cycles' Attribute node reads
+        it), in ``geometry``'s corner order; None when there is none."""
+        if ob.type != 'MESH':
+            return None
+        me = ob.data
+        ckey = (me.as_pointer(), "attribute", name)
+        local = self.uv_cache.get(ckey, False)
+        if local is False:
+            local = _attribute_corners(me, name)
+            if local is None and name is not None and me.uv_layers.get(name) is not None:
+                uvs = self.named_uv(inst, ob, name)
+                if np.linalg.det(_mat4(inst.matrix_world)[:3, :3]) < 0:
+                    uvs = uvs[:, [0, 2, 1]]          # named_uv's swap, undone
+                local = np.concatenate([uvs, np.zeros(uvs.shape[:2] + (1,))], axis=2)
+            self.uv_cache[ckey] = local
+            self.poll()
+        if local is None or np.linalg.det(_mat4(inst.matrix_world)[:3, :3]) >= 0:
+            return local
+        return local[:, [0, 2, 1]]
 
     def texture_vectors(self, inst, ob, src, obname, pw, uv):
         """(k, 3, 3) float64 texture vectors at the corners: UV (u, v, 0),

@@ -1,20 +1,21 @@
 """Materials baked into texture atlases at export (core/scene/atlas.py).
 
-A material that reads a procedural texture (Noise, Voronoi, Checker, ...:
-core/scene/procedural.py) has every texture it reads baked over its
-triangles: each texel of a triangle's block holds what the material's chain
-gives at that point of the triangle's plane, each source read at its own
-vector (a procedural at its Generated or Object coordinates, an image at its
-UV map), the colour nodes between applied per texel.  The triangles' texture
-coordinates become the atlas's, so every stage (camera pass, paths, photons,
-light tracing; colours, alpha, roughness and metallic maps, emission, bump,
-normal maps) reads the bake as it reads an image, per hit, compiled or not.
+A material whose textures need more than an image read at its UVs - a
+procedural texture (Noise, Voronoi, Checker, ...: core/scene/procedural.py),
+converter nodes (Math, Map Range, Vector Math, ...), colour attributes,
+Geometry position or normal, images read at different vectors - has every
+texture it reads baked over its triangles: each texel of a triangle's block
+holds what the material's node graph gives at that point of the triangle's
+plane (core/scene/shader_graph.py, read from the nodes by
+addon/export_graph.py).  The triangles' texture coordinates become the
+atlas's, so every stage (camera pass, paths, photons, light tracing;
+colours, alpha, roughness and metallic maps, emission, bump, normal maps)
+reads the bake as it reads an image, per hit, compiled or not.
 
 Its cost is resolution: a block's texels follow the finest detail of the
 sources (``atlas.procedural_density``, ``atlas.image_density``) within a
-budget of texels a material (``atlas.BUDGET``);
-docs/shading.md "Procedural textures" gives the measured error against
-Cycles.
+budget of texels a material (``atlas.BUDGET``); docs/shading.md
+"Procedural textures and material atlases" gives the measured error.
 """
 from __future__ import annotations
 
@@ -26,39 +27,20 @@ import numpy as np
 from ..core.scene import atlas as AT
 from ..core.scene import color_ops as CO
 from ..core.scene import procedural as PR
-from ..core.scene.textures import sample_alpha, sample_texture
-
-#: Cycles' colour of a missing image (magenta).
-MISSING_IMAGE = (1.0, 0.0, 1.0)
+from ..core.scene import shader_graph as SG
 
 #: Texels evaluated at once (memory of a procedural's temporaries).
-CHUNK = 1 << 18
+CHUNK = 1 << 16
 
 
-class Procedural:
-    """One output of a procedural texture node, as a colour chain's source:
-    the node's ``type``, ``name`` and ``inputs`` (its Vector) like an Image
-    Texture node's, its ``output`` name and ``params``
-    (:func:`procedural_params`)."""
-
-    def __init__(self, node, output: str, params: dict):
-        self.node = node
-        self.type = node.type
-        self.name = node.name
-        self.inputs = node.inputs
-        self.outputs = node.outputs
-        self.output = output
-        self.params = params
-        self.image = None
-
-
-def procedural_params(node, follow, notes) -> dict:
+def procedural_params(node, follow, notes, skip=()) -> dict:
     """A procedural node's params (core/scene/procedural.py): its input
     sockets' values by name (a linked one at its own value, noted; a Value
-    node's value) and its enum and boolean properties by identifier."""
+    node's value) but the Vector and ``skip``, and its enum and boolean
+    properties by identifier."""
     params = {}
     for sock in node.inputs:
-        if sock.name == "Vector" or not sock.enabled and not hasattr(sock, "default_value"):
+        if sock.name == "Vector" or sock.name in skip:
             continue
         src, _, vsock = follow(sock)
         v = getattr(vsock, "default_value", None)
@@ -83,35 +65,31 @@ _BASE_PROPERTIES = {"select", "show_options", "show_preview", "hide", "mute",
                     "show_texture", "use_custom_color", "warning_propagation"}
 
 
-def has_procedural(follow_nodes) -> bool:
-    """Whether any of the nodes (a material's, its groups' included) is a
-    procedural texture with a linked output."""
-    return any(nd.type in PR.KINDS and any(o.is_linked for o in nd.outputs)
-               for nd in follow_nodes)
+def needs_atlas(nodes, graph_nodes) -> bool:
+    """Whether any of the nodes (a material's, its groups' included) with a
+    linked output is a procedural texture or one of ``graph_nodes``."""
+    return any((nd.type in PR.KINDS or nd.type in graph_nodes)
+               and any(o.is_linked for o in nd.outputs) for nd in nodes)
 
 
-def sources(node, ops) -> list:
-    """The chain's sources: ``node`` and, depth first, every "mix_image"
-    op's image or procedural."""
-    out = [node]
+def chain_exprs(e, ops) -> list:
+    """The expressions of a chain (e, ops): e and, depth first, every
+    "mix_image" op's own."""
+    out = [e]
     for op in ops:
         if op[0] == "mix_image":
-            out += sources(op[3], op[4])
+            out += chain_exprs(op[3], op[4])
     return out
 
 
 class Bake(NamedTuple):
     """One texture of an atlas material: its index in the exporter's
-    ``textures``, the chain (source, ops), read as a float (scalar),
-    ``prepared``: the index of the chain folded as an image (one image, no
-    other source), else -1; ``keys``: the vector spec key of each of
-    :func:`sources` (source, ops), in that order."""
+    ``textures``, the chain (expression, colour ops after it), and whether
+    a float input reads it (scalar: its value in the alpha channel)."""
     index: int
-    source: object
+    expr: object
     ops: tuple
     scalar: bool
-    prepared: int
-    keys: tuple
 
 
 class AtlasBaker:
@@ -121,47 +99,33 @@ class AtlasBaker:
     def __init__(self, ex):
         self.ex = ex
         self.bakes: dict[int, list[Bake]] = {}      # material -> its bakes
-        self.specs: dict[int, dict] = {}            # material -> {spec key: vector spec}
-        self.parts: dict[int, list] = {}            # material -> [(part, rows, vectors, key)]
+        self.keys: dict[int, list] = {}             # material -> attribute keys read
+        self.parts: dict[int, list] = {}            # material -> [(part, rows, attrs, key)]
 
     # -- materials -----------------------------------------------------------
-    def texture(self, mb, node, ops, scalar) -> int:
-        """A placeholder texture for the chain (node, ops) in ``mb``'s
+    def texture(self, mb, expr, ops, scalar) -> int:
+        """A placeholder texture for the chain (expr, ops) in ``mb``'s
         material, baked by :meth:`bake`."""
-        ex = self.ex
-        srcs = sources(node, ops)
-        prepared = -1
-        if len(srcs) == 1 and not isinstance(node, Procedural):
-            # One image: its chain folded into its texels, read at the texels'
-            # vector (the exporter's own texture, alpha and all).
-            prepared = ex.texture(node, mb, ops, scalar)
-            if prepared < 0:
-                return -1
-        else:
-            for s in srcs:
-                if not isinstance(s, Procedural):
-                    ex.color_texels(s, mb.notes)
-        keys = []
-        for s in srcs:
-            spec = mb.vector(s, 'Generated' if isinstance(s, Procedural) else 'UV')
-            keys.append(spec_key(spec))
-            mb.bake_specs[keys[-1]] = spec
-        idx = len(ex.textures)
-        ex.textures.append(np.ones((1, 1, 4), np.float32))
-        mb.bakes.append(Bake(idx, node, tuple(ops), bool(scalar), prepared, tuple(keys)))
+        idx = len(self.ex.textures)
+        self.ex.textures.append(np.ones((1, 1, 4), np.float32))
+        mb.bakes.append(Bake(idx, expr, tuple(ops), bool(scalar)))
         return idx
 
     def add_material(self, m: int, mb) -> None:
         if mb.bakes:
             self.bakes[m] = list(mb.bakes)
-            self.specs[m] = dict(mb.bake_specs)
+            keys = set()
+            for b in mb.bakes:
+                for e in chain_exprs(b.expr, b.ops):
+                    keys |= SG.attributes(e)
+            self.keys[m] = sorted(keys, key=repr)
 
     # -- geometry ----------------------------------------------------------
-    def record(self, m: int, part: int, rows, vectors: dict, key) -> None:
-        """Triangles rows of parts[part] with material m, their texture
-        vectors {spec key: (k, 3, 3) float64}; key: instances with the same
-        key share their blocks (None: never)."""
-        self.parts.setdefault(m, []).append((part, rows, vectors, key))
+    def record(self, m: int, part: int, rows, attrs: dict, world, key) -> None:
+        """Triangles rows of parts[part] with material m, their attributes
+        {key: (k, 3, 3) float64 at the corners} and world corners (k, 3, 3);
+        key: instances with the same key share their blocks (None: never)."""
+        self.parts.setdefault(m, []).append((part, rows, attrs, key, world))
 
     # -- baking ------------------------------------------------------------
     def bake(self, parts) -> None:
@@ -171,21 +135,28 @@ class AtlasBaker:
             self._bake_material(m, entries, parts)
             self.ex.poll()
 
-    def _density(self, m: int) -> dict:
-        """{spec key: texels a unit of that vector} over the material's
-        sources."""
+    def _sizes(self, m: int, corners: dict) -> np.ndarray:
+        """(T,) float64 texels a block side each triangle asks for: the
+        largest over the material's textures and images of the extent of
+        their vector at the corners times their density."""
         ex = self.ex
-        dens: dict = {}
+        T = len(next(iter(corners.values()))) if corners else 0
+        flat = SG.EvalContext({k: v.reshape(-1, 3) for k, v in corners.items()}, ex.textures)
+        memo: dict = {}
+        ext = np.ones(T)
         for b in self.bakes[m]:
-            for s, key in zip(sources(b.source, b.ops), b.keys):
-                if isinstance(s, Procedural):
-                    d = AT.procedural_density(s.type, s.params)
-                else:
-                    img = ex.textures[b.prepared] if b.prepared >= 0 else \
-                        ex.color_texels(s, [])
-                    d = AT.image_density(img.shape if img is not None else (1, 1))
-                dens[key] = max(dens.get(key, 0.0), d)
-        return dens
+            for e in chain_exprs(b.expr, b.ops):
+                for x in SG.walk(e):
+                    if isinstance(x, SG.Proc):
+                        d = AT.procedural_density(x.node_kind, dict(x.params))
+                    elif isinstance(x, SG.Image):
+                        d = AT.image_density(ex.textures[x.texture].shape)
+                    else:
+                        continue
+                    v = SG.evaluate(x.vector, flat, memo)
+                    v = np.asarray(v, np.float64).reshape(T, 3, -1)
+                    ext = np.maximum(ext, AT.extent(v) * d)
+        return ext
 
     def _bake_material(self, m: int, entries, parts) -> None:
         ex = self.ex
@@ -196,14 +167,19 @@ class AtlasBaker:
                 if e[3] is not None:
                     firsts[e[3]] = len(unique)
                 unique.append(e)
-        keys = list(self.specs[m])
-        vec = {k: np.concatenate([e[2][k] for e in unique]) for k in keys}
-        dens = self._density(m)
-        ext = np.max([AT.extent(vec[k]) * dens.get(k, 1.0) for k in keys], axis=0)
-        n = AT.block_sizes(ext, 1.0)
+        keys = self.keys[m]
+        corners = {k: np.concatenate([e[2][k] for e in unique]) for k in keys}
+        world = np.concatenate([e[4] for e in unique])
+        # At least a sixteenth of the budget spread evenly over the surface:
+        # a graph may bend its attributes anywhere (a sine of the position).
+        area = 0.5 * np.linalg.norm(np.cross(world[:, 1] - world[:, 0],
+                                             world[:, 2] - world[:, 0]), axis=1)
+        floor = np.sqrt(AT.BUDGET / 16 / max(float(area.sum()), 1e-12))
+        asked = self._sizes(m, corners) if keys else np.ones(len(world))
+        n = AT.block_sizes(np.maximum(asked, AT.extent(world) * floor), 1.0)
         # Within the budget, the finest blocks the sources ask for; if not,
         # say how much detail the bake keeps (texels a side, as a median).
-        wanted = np.minimum(np.ceil(ext), AT.SIZES[-1])
+        wanted = np.minimum(np.ceil(asked), AT.SIZES[-1])
         kept = float(np.median(np.minimum(n / np.maximum(wanted, 1.0), 1.0)))
         if kept < 0.95:
             mat = ex.materials[m]
@@ -211,25 +187,26 @@ class AtlasBaker:
                 f"textures baked at {100 * kept:.0f} % of their detail (atlas budget)",))
         L = AT.pack(n)
         uv = AT.corner_uvs(L)
-        at = 0
-        starts = []
-        for part, rows, _, _ in unique:
+        at, starts = 0, []
+        for part, rows, *_ in unique:
             starts.append(at)
             parts[part][2][rows] = uv[at:at + len(rows)]
             at += len(rows)
-        for part, rows, _, key in entries:
+        for part, rows, _, key, _ in entries:
             if key is not None and unique[firsts[key]][0] != part:
                 j = firsts[key]
                 parts[part][2][rows] = uv[starts[j]:starts[j] + len(rows)]
         tx = AT.texels(L)
         images = {b.index: np.zeros((L.height, L.width, 4), np.float32) for b in self.bakes[m]}
-        inside = (tx.s >= 0) & (tx.t >= 0) & (tx.s + tx.t <= 1)
         for a in range(0, len(tx.tri), CHUNK):
             part = AT.Texels(*(x[a:a + CHUNK] for x in tx))
-            at_vec = {k: AT.at_texels(vec[k], part) for k in keys}
+            ctx = SG.EvalContext({k: AT.at_texels(corners[k], part) for k in keys},
+                                 ex.textures)
+            memo: dict = {}
             for b in self.bakes[m]:
-                images[b.index][part.iy, part.ix] = self._values(m, b, at_vec)
+                images[b.index][part.iy, part.ix] = self._values(b, ctx, memo, len(part.tri))
             ex.poll()
+        inside = (tx.s >= 0) & (tx.t >= 0) & (tx.s + tx.t <= 1)
         means = {}
         for b in self.bakes[m]:
             img = images[b.index]
@@ -238,27 +215,12 @@ class AtlasBaker:
                 if inside.any() else 1.0
         self._roughness_means(m, means)
 
-    def _values(self, m: int, b: Bake, at_vec: dict) -> np.ndarray:
+    @staticmethod
+    def _values(b: Bake, ctx, memo, K: int) -> np.ndarray:
         """(K, 4) float32 the bake's texels at the chunk's points."""
-        ex = self.ex
-        if b.prepared >= 0:
-            img = ex.textures[b.prepared]
-            uv = at_vec[b.keys[0]][:, :2]
-            out = np.empty((len(uv), 4), np.float32)
-            out[:, :3] = sample_texture(img, uv)
-            out[:, 3] = sample_alpha(img, uv)
-            return out
-
-        keys = iter(b.keys)     # sources() order: a source, then its ops' depth first
-
-        def rgb(s, ops):
-            p = at_vec[next(keys)]
-            if isinstance(s, Procedural):
-                c = PR.evaluate(s.type, s.output, s.params, p)
-            else:
-                img = ex.color_texels(s, [])
-                c = sample_texture(img, p[:, :2]) if img is not None else \
-                    np.broadcast_to(np.asarray(MISSING_IMAGE, np.float64), (len(p), 3))
+        def rgb(e, ops):
+            c = SG.evaluate(SG.as_vector(e, SG.COLOR), ctx, memo)
+            c = np.broadcast_to(c, (K, 3))
             done = []
             for op in ops:
                 if op[0] == "mix_image":
@@ -266,12 +228,14 @@ class AtlasBaker:
                     op = ("mix", blend, t, rgb(other, oops), "A", clamp)
                 done.append(op)
             return CO.apply(tuple(done), c)
-        c = rgb(b.source, b.ops)
-        out = np.ones((len(c), 4), np.float32)
-        if b.scalar:
-            out[:, 3] = np.clip(CO.gray(c), 0.0, 1.0)
+        out = np.ones((K, 4), np.float32)
+        if b.scalar and not b.ops:
+            out[:, 3] = np.clip(np.broadcast_to(
+                SG.evaluate(SG.as_float(b.expr), ctx, memo), (K,)), 0.0, 1.0)
+        elif b.scalar:
+            out[:, 3] = np.clip(CO.gray(rgb(b.expr, b.ops)), 0.0, 1.0)
         else:
-            out[:, :3] = c
+            out[:, :3] = rgb(b.expr, b.ops)
         return out
 
     def _roughness_means(self, m: int, means: dict) -> None:
@@ -284,10 +248,3 @@ class AtlasBaker:
                       if lb.roughness_texture in means else lb for lb in mat.lobes)
         if lobes != mat.lobes:
             ex.materials[m] = dataclasses.replace(mat, lobes=lobes)
-
-
-
-def spec_key(spec) -> tuple:
-    """A hashable key of a vector spec (source, object, A (4, 4))."""
-    src, ob, A = spec
-    return (src, ob, tuple(np.round(np.asarray(A, np.float64), 9).ravel()))

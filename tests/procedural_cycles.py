@@ -142,3 +142,65 @@ def agreement(ours: np.ndarray, theirs: np.ndarray) -> tuple[float, float]:
     d = np.abs(np.asarray(ours, np.float64) - np.asarray(theirs, np.float64))
     return float(np.median(d)), float(np.percentile(d, 99))
 
+
+
+def tiled_values(builds, tmp_path, res: int = 128, tiles: int = 8):
+    """[(values (s*s, 3) float64, u (s*s,), v (s*s,))] per build: what Cycles
+    shows of each ``build(nodes, links, u, v) -> output socket`` over its
+    s x s tile (s = res / tiles) of one render, tiles row by row from the
+    top left, with u, v (float64, as Cycles has them exactly in float32)
+    the pixel's position within its tile, (k + 0.5) / s for k = 0 .. s - 1,
+    u rightwards and v upwards: ``u``, ``v`` are Math node sockets giving
+    them, from the exact pixel centres (:func:`exact_centres`), for the
+    build's inputs.  Each tile is picked by a Mix node of type VECTOR whose
+    factor is exactly 0 or 1 (a (1 - t) + b t passes either side unchanged,
+    as long as every build's output is finite at every pixel), so a float
+    output shows as grey, a vector or colour as it is: any value, negative
+    and large ones too (the EXR keeps float32)."""
+    assert len(builds) <= tiles * tiles and res % tiles == 0
+    half = tiles / 2
+
+    def build(nodes, links, vector):
+        exact_centres(nodes, links, vector, res)
+        centres = vector.node.inputs["Vector"].links[0].from_socket
+
+        def math(op, *args):
+            nd = nodes.new("ShaderNodeMath")
+            nd.operation = op
+            for sock, a in zip(nd.inputs, args):
+                if isinstance(a, (int, float)):
+                    sock.default_value = a
+                else:
+                    links.new(a, sock)
+            return nd.outputs[0]
+
+        sep = nodes.new("ShaderNodeSeparateXYZ")
+        links.new(centres, sep.inputs[0])
+        x, y = sep.outputs["X"], sep.outputs["Y"]
+        u = math("FRACT", math("MULTIPLY", x, half))
+        v = math("FRACT", math("MULTIPLY", y, half))
+        col = math("FLOOR", math("MULTIPLY_ADD", x, half, half))
+        row = math("FLOOR", math("MULTIPLY_ADD", y, -half, half))
+        tile = math("MULTIPLY_ADD", row, float(tiles), col)
+        out = centres
+        for i, b in enumerate(builds):
+            mix = nodes.new("ShaderNodeMix")
+            mix.data_type = "VECTOR"
+            mix.clamp_factor = False
+            ins = {s.identifier: s for s in mix.inputs}
+            links.new(math("COMPARE", tile, float(i), 0.25), ins["Factor_Float"])
+            links.new(out, ins["A_Vector"])
+            links.new(b(nodes, links, u, v), ins["B_Vector"])
+            out = next(s for s in mix.outputs if s.identifier == "Result_Vector")
+        return out
+
+    img, pts = cycles_values(build, tmp_path, res=res)
+    s = res // tiles
+    result = []
+    for i in range(len(builds)):
+        r, c = divmod(i, tiles)
+        sl = (slice(r * s, (r + 1) * s), slice(c * s, (c + 1) * s))
+        p = pts[sl].reshape(-1, 3)
+        u, v = p[:, 0] * half % 1.0, p[:, 1] * half % 1.0
+        result.append((img[sl].reshape(-1, 3), u, v))
+    return result

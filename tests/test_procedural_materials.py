@@ -293,3 +293,118 @@ def test_a_noise_mixed_with_an_image_agrees_with_cycles(tmp_path):
     err, noise, img, ref, scene, lines = _compare(sc, tmp_path, "noise x image")
     assert lines[1] == "Approximated: nothing.", lines[1]
     _check(err, noise, _effect(img, scene, (0.5, 0.5, 0.5, 1.0)))
+
+
+# ------------------------------------------------------------ node graphs per texel
+
+def test_a_noise_through_map_range_and_math_agrees_with_cycles(tmp_path):
+    """Noise Factor -> Map Range (smoothstep) -> Math (multiply, clamped)
+    into a Principled Roughness, and the Noise's vector distorted by a
+    Vector Math Add of a second noise's colour: the graph evaluated per
+    texel (core/scene/shader_graph.py).  Measured: within the noise bound;
+    the graph's mean roughness everywhere moves the image by more than 3x it."""
+    pytest.importorskip("bpy")
+    import dataclasses
+
+    import test_shading_nodes as TS
+
+    def mat(nodes, links, surface):
+        p = nodes.new('ShaderNodeBsdfPrincipled')
+        p.inputs['Metallic'].default_value = 1.0
+        links.new(p.outputs[0], surface)
+        warp = _noise(nodes, links, 3.0, 0.0)
+        tc = nodes.new('ShaderNodeTexCoord')
+        add = nodes.new('ShaderNodeVectorMath')
+        add.operation = 'MULTIPLY_ADD'
+        add.inputs[1].default_value = (0.3, 0.3, 0.3)
+        links.new(warp.outputs['Color'], add.inputs[0])
+        links.new(tc.outputs['Generated'], add.inputs[2])
+        nz = _noise(nodes, links, 2.5, 1.0, add.outputs['Vector'])
+        mr = nodes.new('ShaderNodeMapRange')
+        mr.interpolation_type = 'SMOOTHSTEP'
+        mr.inputs['From Min'].default_value = 0.35
+        mr.inputs['From Max'].default_value = 0.65
+        mr.inputs['To Min'].default_value = 0.05
+        mr.inputs['To Max'].default_value = 0.9
+        links.new(nz.outputs['Factor'], mr.inputs['Value'])
+        mul = nodes.new('ShaderNodeMath')
+        mul.operation = 'MULTIPLY'
+        mul.use_clamp = True
+        mul.inputs[1].default_value = 1.1
+        links.new(mr.outputs['Result'], mul.inputs[0])
+        links.new(mul.outputs['Value'], p.inputs['Roughness'])
+
+    sc, _ = TS.plane_scene(mat, sun_rotation=(0.35, 0.0, 0.0))
+    err, noise, img, ref, scene, lines = _compare(sc, tmp_path, "noise map range")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    m = scene.materials[0]
+    flat = dataclasses.replace(scene, materials=[dataclasses.replace(
+        m, lobes=tuple(dataclasses.replace(lb, roughness_texture=-1) for lb in m.lobes))])
+    plain = TS._fppm(flat, 1)
+    _check(err, noise, float(np.abs(plain - img).mean() / img.mean()))
+
+
+@pytest.mark.parametrize("domain", ["POINT", "CORNER"])
+def test_colour_attributes_agree_with_cycles(domain, tmp_path):
+    """A Color Attribute node (random colours on the vertices or the face
+    corners of a subdivided plane) into a Diffuse Color: the corners' values
+    interpolated over each triangle, as Cycles does."""
+    pytest.importorskip("bpy")
+    import bpy
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        ca = nodes.new('ShaderNodeVertexColor')
+        ca.layer_name = "Paint"
+        links.new(ca.outputs['Color'], d.inputs['Color'])
+
+    sc, ob = _scene(mat)
+    me = ob.data
+    bpy.context.view_layer.objects.active = ob
+    import bmesh
+    bm = bmesh.new()
+    bm.from_mesh(me)
+    bmesh.ops.subdivide_edges(bm, edges=bm.edges[:], cuts=3, use_grid_fill=True)
+    bm.to_mesh(me)
+    bm.free()
+    at = me.color_attributes.new("Paint", 'FLOAT_COLOR', domain)
+    rng = np.random.default_rng(4)
+    cols = rng.uniform(0.05, 0.95, size=(len(at.data), 4))
+    cols[:, 3] = 1.0
+    at.data.foreach_set("color", cols.ravel())
+    me.update()
+    err, noise, img, ref, scene, lines = _compare(sc, tmp_path, f"colour attribute {domain}")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    _check(err, noise, _effect(img, scene, (0.5, 0.5, 0.5, 1.0)))
+
+
+def test_position_through_math_agrees_with_cycles(tmp_path):
+    """Geometry Position -> Separate XYZ -> Math (sine of 7 x + 3 y) -> Color
+    Ramp into a Diffuse Color: world-space attributes per instance."""
+    pytest.importorskip("bpy")
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        geo = nodes.new('ShaderNodeNewGeometry')
+        sep = nodes.new('ShaderNodeSeparateXYZ')
+        links.new(geo.outputs['Position'], sep.inputs[0])
+        ma = nodes.new('ShaderNodeMath')
+        ma.operation = 'MULTIPLY_ADD'
+        ma.inputs[1].default_value = 7.0
+        links.new(sep.outputs['X'], ma.inputs[0])
+        m2 = nodes.new('ShaderNodeMath')
+        m2.operation = 'MULTIPLY'
+        m2.inputs[1].default_value = 3.0
+        links.new(sep.outputs['Y'], m2.inputs[0])
+        links.new(m2.outputs[0], ma.inputs[2])
+        sn = nodes.new('ShaderNodeMath')
+        sn.operation = 'SINE'
+        links.new(ma.outputs[0], sn.inputs[0])
+        cr = _ramp(nodes, links, sn.outputs[0], (0.1, 0.3, 0.8, 1.0), (0.9, 0.7, 0.2, 1.0))
+        cr.color_ramp.elements[0].position = 0.0
+        links.new(cr.outputs['Color'], d.inputs['Color'])
+
+    sc, _ = _scene(mat)
+    err, noise, img, ref, scene, lines = _compare(sc, tmp_path, "position math")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    _check(err, noise, _effect(img, scene, (0.5, 0.5, 0.5, 1.0)))

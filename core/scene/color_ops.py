@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..mathutil import LUMINANCE
 
 #: Cycles' ramp table size (``RAMP_TABLE_SIZE``): Blender evaluates the
 #: Color Ramp at this many evenly spaced positions and Cycles interpolates.
@@ -159,9 +158,20 @@ def invert(c: np.ndarray, fac: float) -> np.ndarray:
     return _lerp(c, 1.0 - c, fac)
 
 
+#: Cycles' ``rgb_to_y`` under Blender 5.2's default colour management, in
+#: float32 (read back from renders of the three primaries): the Y row of the
+#: inverse of OCIO's CIE XYZ -> Linear Rec.709 (``ShaderManager::
+#: init_xyz_transforms``; the config's matrix gives 0.2126390, 0.7151687,
+#: 0.0721923, and OCIO's processor adds its float rounding: a grey of 1 reads
+#: 1.000001).  Not the config's rounded ``luma`` (0.2126, 0.7152, 0.0722) of
+#: mathutil.LUMINANCE (the renderer's own weights, for sampling): 4e-5 off.
+RGB_TO_Y = np.array([0.2126391, 0.71516913, 0.07219274], np.float32)
+
+
 def gray(c: np.ndarray) -> np.ndarray:
-    """A colour read by a float input (Cycles' linear_rgb_to_gray, Rec. 709)."""
-    return c @ np.asarray(LUMINANCE, np.float64)
+    """A colour read by a float input (Cycles' linear_rgb_to_gray: the
+    luminance of :data:`RGB_TO_Y`)."""
+    return c @ RGB_TO_Y.astype(np.float64)
 
 
 def ramp(f: np.ndarray, table: np.ndarray, interpolate: bool) -> np.ndarray:

@@ -1,0 +1,274 @@
+"""A material's texture graph as an expression, evaluated at many surface
+points at once (numpy): what an atlas material's bake computes at each
+texel (addon/export_atlas.py, core/scene/atlas.py).
+
+An expression is a tree of small frozen nodes, each of one of three kinds,
+as Cycles' sockets: 'float' (K,), 'vec' (K, 3) and 'color' (K, 3):
+
+- :class:`Const`: a socket's value;
+- :class:`Attr`: a surface attribute interpolated over the triangle (UV
+  maps, Generated and Object coordinates, position, normals, colour
+  attributes), the corner values given by the exporter;
+- :class:`Image`: an Image Texture's Color or Alpha at a vector;
+- :class:`Proc`: a procedural texture's output at a vector
+  (core/scene/procedural.py);
+- :class:`Op`: a converter or colour node on its inputs (Math, Vector Math,
+  Map Range, Clamp, Mix, Separate / Combine, Mapping, the colour nodes of
+  core/scene/color_ops.py), or a socket-type conversion.
+
+Conversions follow Cycles' ``svm_node_convert`` (core/scene/node_math.py
+``to_float``, ``to_vec``): a colour read as a float is its luminance, a
+vector read as a float the mean of its components, a float read as a colour
+or vector (f, f, f).
+
+:func:`evaluate` takes an :class:`EvalContext`: the attribute arrays at the
+points and the exporter's textures.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from . import color_ops as CO
+from . import node_math as NM
+from . import procedural as PR
+from .textures import sample_alpha, sample_texture
+
+FLOAT, VEC, COLOR = "float", "vec", "color"
+
+
+@dataclass(frozen=True, eq=False)
+class Const:
+    """A constant: a float, or an (x, y, z) tuple for 'vec' and 'color'."""
+    value: object
+    kind: str
+
+
+@dataclass(frozen=True, eq=False)
+class Attr:
+    """A surface attribute, 'vec' or 'color': key ('UV', map name or None),
+    ('Generated',), ('Object', object name or None), ('Position',),
+    ('Normal',), ('ObjectNormal',), ('Color', attribute name)."""
+    key: tuple
+    kind: str = VEC
+
+
+@dataclass(frozen=True, eq=False)
+class Image:
+    """An Image Texture: ``texture`` indexes the exporter's textures (the
+    image as its Color output reads it, core/scene/textures.py), read at
+    ``vector`` (its x, y); output 'Color' or 'Alpha'."""
+    texture: int
+    output: str
+    vector: object
+
+    @property
+    def kind(self) -> str:
+        return COLOR if self.output == "Color" else FLOAT
+
+
+@dataclass(frozen=True, eq=False)
+class Proc:
+    """A procedural texture's ``output`` at ``vector`` (params as
+    core/scene/procedural.py reads them; ``w`` an expression for a linked W
+    input, or None)."""
+    node_kind: str
+    output: str
+    params: tuple
+    vector: object
+    w: object = None
+
+    @property
+    def kind(self) -> str:
+        return COLOR if self.output in ("Color",) else (
+            VEC if self.output == "Position" else FLOAT)
+
+
+@dataclass(frozen=True, eq=False)
+class Op:
+    """An operation ``name`` on ``args`` (expressions) with constant
+    ``params``, giving ``kind``."""
+    name: str
+    args: tuple
+    params: tuple
+    kind: str
+
+
+class EvalContext(NamedTuple):
+    """attrs: {Attr key: (K, 3) float64 at the points}; textures: the
+    exporter's list of images."""
+    attrs: dict
+    textures: list
+
+
+# -- conversions ---------------------------------------------------------------
+
+def as_float(e):
+    """e read by a float socket."""
+    if e.kind == FLOAT:
+        return e
+    if isinstance(e, Const):
+        return Const(float(NM.to_float(np.asarray(e.value, np.float64), _SOCKET[e.kind])),
+                     FLOAT)
+    return Op("to_float", (e,), (e.kind,), FLOAT)
+
+
+def as_vector(e, kind: str = VEC):
+    """e read by a vector (or colour, kind=COLOR) socket."""
+    if e.kind == kind or e.kind != FLOAT and kind != FLOAT:
+        return e if e.kind == kind else Op("retype", (e,), (), kind)
+    if isinstance(e, Const):
+        return Const((float(e.value),) * 3, kind)
+    return Op("splat", (e,), (), kind)
+
+
+def constant(e):
+    """The value of a constant expression, else None."""
+    return e.value if isinstance(e, Const) else None
+
+
+def walk(e):
+    """Every expression in e's tree, e first."""
+    yield e
+    for a in _children(e):
+        yield from walk(a)
+
+
+def _children(e):
+    if isinstance(e, (Image, Proc)):
+        return tuple(x for x in (e.vector, getattr(e, "w", None)) if x is not None)
+    if isinstance(e, Op):
+        return e.args
+    return ()
+
+
+def attributes(e) -> set:
+    """The attribute keys e reads."""
+    return {x.key for x in walk(e) if isinstance(x, Attr)}
+
+
+# -- evaluation ------------------------------------------------------------------
+
+def evaluate(e, ctx: EvalContext, memo: dict | None = None) -> np.ndarray:
+    """(K,) or (K, 3) float64: e at the context's points."""
+    memo = {} if memo is None else memo
+    got = memo.get(id(e))
+    if got is not None:
+        return got
+    out = _evaluate(e, ctx, memo)
+    memo[id(e)] = out
+    return out
+
+
+def _points(ctx: EvalContext) -> int:
+    return len(next(iter(ctx.attrs.values()))) if ctx.attrs else 1
+
+
+def _evaluate(e, ctx, memo):
+    K = _points(ctx)
+    if isinstance(e, Const):
+        v = np.asarray(e.value, np.float64)
+        return np.broadcast_to(v, (K,) + v.shape).copy()
+    if isinstance(e, Attr):
+        a = ctx.attrs[e.key]
+        if e.key[0] in ("Normal", "ObjectNormal"):
+            a = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-30)
+        return a
+    if isinstance(e, Image):
+        img = ctx.textures[e.texture]
+        uv = evaluate(e.vector, ctx, memo)[:, :2]
+        return sample_texture(img, uv) if e.output == "Color" else sample_alpha(img, uv)
+    if isinstance(e, Proc):
+        params = dict(e.params)
+        if e.w is not None:
+            params["W"] = evaluate(e.w, ctx, memo)
+        out = PR.evaluate(e.node_kind, e.output, params, evaluate(e.vector, ctx, memo))
+        return out[:, 0] if e.kind == FLOAT else out
+    args = [evaluate(a, ctx, memo) for a in e.args]
+    return OPS[e.name](args, e.params)
+
+
+#: Expression kinds as node_math's socket kinds.
+_SOCKET = {FLOAT: "VALUE", VEC: "VECTOR", COLOR: "RGBA"}
+
+
+def _to_float(args, params):
+    (x,), (kind,) = args, params
+    return NM.to_float(x, _SOCKET[kind])
+
+
+def _mapping(args, params):
+    """Mapping: v A^T + t; NORMAL type renormalised (Cycles' svm_mapping)."""
+    (v,), (A, normal) = args, params
+    A = np.asarray(A, np.float64).reshape(4, 4)
+    out = v @ A[:3, :3].T + A[:3, 3]
+    if normal:
+        out = out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-30)
+    return out
+
+
+def _color_op(args, params):
+    """A colour node of core/scene/color_ops.py (its op tuple)."""
+    return CO.apply((params,), args[0])
+
+
+def _mix_color(args, params):
+    """Mix (RGBA) / MixRGB with a per-point factor: svm_mix per point."""
+    t, a, b = args
+    blend, clamp_factor, clamp_result = params
+    if clamp_factor:
+        t = np.clip(t, 0.0, 1.0)
+    out = CO.mix(blend, t[:, None], a, b)
+    return np.clip(out, 0.0, 1.0) if clamp_result else out
+
+
+def _math(args, params):
+    op, clamp = params
+    out = NM.math(op, *args)
+    return np.clip(out, 0.0, 1.0) if clamp else out
+
+
+def _vector_math(args, params):
+    op, output = params
+    vec, val = NM.vector_math(op, *args)
+    return val if output == "Value" else vec
+
+
+def _map_range(args, params):
+    data_type, interpolation, clamp = params
+    f = NM.map_range_vector if data_type == "FLOAT_VECTOR" else NM.map_range
+    return f(interpolation, *args, clamp)
+
+
+def _separate(args, params):
+    mode, i = params
+    c = args[0] if mode in (None, "XYZ") else NM.separate_color(mode, args[0])
+    return c[:, i]
+
+
+def _combine(args, params):
+    (mode,) = params
+    x, y, z = args
+    v = np.stack([x, y, z], axis=1)
+    return v if mode in (None, "XYZ") else NM.combine_color(mode, x, y, z)
+
+
+#: Op name -> f(evaluated args, params).
+OPS = {
+    "to_float": _to_float,
+    "retype": lambda args, params: args[0],
+    "splat": lambda args, params: NM.to_vec(args[0]),
+    "mapping": _mapping,
+    "color_op": _color_op,
+    "mix_color": _mix_color,
+    "mix_float": lambda args, params: NM.mix_float(*args, *params),
+    "mix_vector": lambda args, params: NM.mix_vector(*args, *params),
+    "math": _math,
+    "vector_math": _vector_math,
+    "map_range": _map_range,
+    "clamp": lambda args, params: NM.clamp(params[0], *args),
+    "separate": _separate,
+    "combine": _combine,
+}
