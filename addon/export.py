@@ -146,10 +146,17 @@ SUPPORT = (
      "Curves, Color Ramp (applied to the image's texels; a small image is enlarged first "
      "for the nonlinear ones)", SUPPORTED, ""),
     ("procedural textures (Noise, Voronoi, Wave, Magic, Brick, Checker, Gradient, White "
-     "Noise; every dimension, type and feature) at Generated, Object or UV coordinates "
-     "through Mapping, into any input an image feeds (colour, roughness, metallic, alpha, "
-     "emission, bump), also through colour nodes and mixed with images: the material's "
-     "textures baked into a texture atlas over its triangles when the render starts",
+     "Noise; every dimension, type and feature) at any vector (Generated, Object, UV, "
+     "Mapping, a vector another texture distorts), into any input an image feeds (colour, "
+     "roughness, metallic, alpha, emission, bump, normal map), also through colour and "
+     "converter nodes and mixed with images: the material's textures baked into a texture "
+     "atlas over its triangles when the render starts", SUPPORTED, ""),
+    ("converter nodes between textures and inputs: Math, Vector Math, Map Range, Clamp, "
+     "Mix (float, vector, colour), Separate / Combine XYZ and Color (RGB, HSV, HSL), with "
+     "Cycles' kernels; an image through them alone is baked over its own uvs", SUPPORTED,
+     ""),
+    ("colour attributes (Color Attribute and Attribute nodes: point, corner or face "
+     "domain), Geometry Position and Normal, Texture Coordinate Normal, in texture graphs",
      SUPPORTED, ""),
     ("images read at different vectors in one material (each at its own: baked into the "
      "material's atlas)", SUPPORTED, ""),

@@ -28,6 +28,7 @@ from ..core.scene import atlas as AT
 from ..core.scene import color_ops as CO
 from ..core.scene import procedural as PR
 from ..core.scene import shader_graph as SG
+from ..core.scene.textures import REPEAT, sampler_of
 
 #: Texels evaluated at once (memory of a procedural's temporaries).
 CHUNK = 1 << 16
@@ -82,6 +83,22 @@ def chain_exprs(e, ops) -> list:
     return out
 
 
+def uv_periodic(b, textures) -> bool:
+    """Whether a bake's chain (its images in ``textures``) reads the surface only through images at the
+    render UV, each read with Repeat: a function of the uv, periodic with
+    period 1 in u and v, so that one bake over the unit square serves every
+    triangle at its own uvs."""
+    def ok(e):
+        if isinstance(e, SG.Image):
+            v = e.vector
+            return (isinstance(v, SG.Attr) and v.key == ("UV", None)
+                    and sampler_of(textures[e.texture]) >> 2 == REPEAT)
+        if isinstance(e, (SG.Attr, SG.Proc)):
+            return False
+        return all(ok(a) for a in getattr(e, "args", ()))
+    return all(ok(e) for e in chain_exprs(b.expr, b.ops))
+
+
 class Bake(NamedTuple):
     """One texture of an atlas material: its index in the exporter's
     ``textures``, the chain (expression, colour ops after it), and whether
@@ -112,6 +129,16 @@ class AtlasBaker:
         return idx
 
     def add_material(self, m: int, mb) -> None:
+        """Registers material m's bakes: baked now over its images' own grid
+        when every one is a function of the render UV through images read
+        with Repeat (:func:`uv_periodic`: then it repeats with them and needs
+        no atlas), else laid out over its triangles by :meth:`bake`."""
+        if mb.bakes and all(uv_periodic(b, self.ex.textures) for b in mb.bakes):
+            for b in mb.bakes:
+                self._bake_uv_space(b)
+            self._roughness_means(m, {b.index: float(self.ex.textures[b.index][..., 3].mean())
+                                      for b in mb.bakes if self.ex.textures[b.index].shape[2] > 3})
+            return
         if mb.bakes:
             self.bakes[m] = list(mb.bakes)
             keys = set()
@@ -119,6 +146,31 @@ class AtlasBaker:
                 for e in chain_exprs(b.expr, b.ops):
                     keys |= SG.attributes(e)
             self.keys[m] = sorted(keys, key=repr)
+
+    def _bake_uv_space(self, b: Bake) -> None:
+        """The bake of a :func:`uv_periodic` chain over the unit uv square, on
+        the grid of its largest image, enlarged as ``_Exporter.folded``
+        enlarges one under nonlinear nodes; a lone image is its own texture."""
+        from .export import UPSAMPLE_FACTOR, UPSAMPLE_MAX
+        ex = self.ex
+        e = b.expr
+        if isinstance(e, SG.Image) and not b.ops and b.scalar == (e.output == "Alpha"):
+            ex.textures[b.index] = ex.textures[e.texture]
+            return
+        shapes = [ex.textures[x.texture].shape[:2] for x in SG.walk(e)
+                  if isinstance(x, SG.Image)] or [(1, 1)]
+        H, W = max(h for h, _ in shapes), max(w for _, w in shapes)
+        k = max(1, min(UPSAMPLE_MAX // max(H, W), UPSAMPLE_FACTOR))
+        H, W = H * k, W * k
+        v, u = np.divmod(np.arange(H * W), W)
+        out = np.empty((H * W, 4), np.float32)
+        for a in range(0, H * W, CHUNK):
+            uv = np.stack([(u[a:a + CHUNK] + 0.5) / W, (v[a:a + CHUNK] + 0.5) / H,
+                           np.zeros(len(u[a:a + CHUNK]))], 1)
+            ctx = SG.EvalContext({("UV", None): uv}, ex.textures)
+            out[a:a + CHUNK] = self._values(b, ctx, {}, len(uv))
+            ex.poll()
+        ex.textures[b.index] = out.reshape(H, W, 4)
 
     # -- geometry ----------------------------------------------------------
     def record(self, m: int, part: int, rows, attrs: dict, world, key) -> None:
@@ -170,11 +222,14 @@ class AtlasBaker:
         keys = self.keys[m]
         corners = {k: np.concatenate([e[2][k] for e in unique]) for k in keys}
         world = np.concatenate([e[4] for e in unique])
-        # At least a sixteenth of the budget spread evenly over the surface:
-        # a graph may bend its attributes anywhere (a sine of the position).
+        # About a sixteenth of the budget spread evenly over the surface at
+        # least: a graph may bend its attributes anywhere (a sine of the
+        # position).  A block holds about 4 A d^2 texels for a triangle of
+        # area A at d texels a unit (its square is twice the triangle, whose
+        # longest edge is about 2 sqrt(A)).
         area = 0.5 * np.linalg.norm(np.cross(world[:, 1] - world[:, 0],
                                              world[:, 2] - world[:, 0]), axis=1)
-        floor = np.sqrt(AT.BUDGET / 16 / max(float(area.sum()), 1e-12))
+        floor = np.sqrt(AT.BUDGET / 64 / max(float(area.sum()), 1e-12))
         asked = self._sizes(m, corners) if keys else np.ones(len(world))
         n = AT.block_sizes(np.maximum(asked, AT.extent(world) * floor), 1.0)
         # Within the budget, the finest blocks the sources ask for; if not,

@@ -408,3 +408,42 @@ def test_position_through_math_agrees_with_cycles(tmp_path):
     err, noise, img, ref, scene, lines = _compare(sc, tmp_path, "position math")
     assert lines[1] == "Approximated: nothing.", lines[1]
     _check(err, noise, _effect(img, scene, (0.5, 0.5, 0.5, 1.0)))
+
+
+def test_an_image_through_math_is_baked_over_its_own_uvs(tmp_path):
+    """An image at the render UV through Separate Color, Math (power) and
+    Combine Color into a Diffuse Color: a function of the uv that repeats
+    with the image, baked once over the image's grid (enlarged 8x for the
+    nonlinear nodes), the triangles' uvs kept: no atlas, no resolution
+    lost.  Against Cycles within the noise bound; the image without the
+    nodes moves the image by more than 3x it."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        im = nodes.new('ShaderNodeTexImage')
+        im.image = TS._image("A", TS._color_pixels(), non_color=False)
+        sep = nodes.new('ShaderNodeSeparateColor')
+        links.new(im.outputs['Color'], sep.inputs[0])
+        pw = nodes.new('ShaderNodeMath')
+        pw.operation = 'POWER'
+        pw.inputs[1].default_value = 3.0
+        links.new(sep.outputs['Red'], pw.inputs[0])
+        comb = nodes.new('ShaderNodeCombineColor')
+        links.new(pw.outputs[0], comb.inputs['Red'])
+        links.new(sep.outputs['Green'], comb.inputs['Green'])
+        links.new(sep.outputs['Blue'], comb.inputs['Blue'])
+        links.new(comb.outputs['Color'], d.inputs['Color'])
+
+    sc, ob = _scene(mat)
+    err, noise, img, ref, scene, lines = _compare(sc, tmp_path, "image math")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    assert scene.textures[-1].shape[:2] == (64, 64)
+    assert np.allclose(scene.tri_uv.min(), 0.0) and np.allclose(scene.tri_uv.max(), 1.5)
+    nt = ob.data.materials[0].node_tree
+    im = next(nd for nd in nt.nodes if nd.type == 'TEX_IMAGE')
+    d = next(nd for nd in nt.nodes if nd.type == 'BSDF_DIFFUSE')
+    nt.links.new(im.outputs['Color'], d.inputs['Color'])
+    plain = TS._cycles(sc, 0, tmp_path / "plain.exr")
+    _check(err, noise, float(np.abs(plain - ref).mean() / ref.mean()))
