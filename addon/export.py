@@ -162,6 +162,8 @@ SUPPORT = (
      "material's atlas)", SUPPORTED, ""),
     ("a procedural texture's input fed by another node (a Scale from a Math node)",
      APPROXIMATED, "its value used"),
+    ("a texture graph whose evaluation fails (an error in a port): that texture grey",
+     APPROXIMATED, "could not be evaluated"),
     ("a material atlas over the budget of 4 M texels (very many triangles, or very fine "
      "detail over a large surface)", APPROXIMATED, "of their detail (atlas budget)"),
     ("node groups (flattened, nested)", SUPPORTED, ""),

@@ -32,6 +32,12 @@ from ..core.scene.textures import REPEAT, sampler_of
 
 #: Texels evaluated at once (memory of a procedural's temporaries).
 CHUNK = 1 << 16
+#: A bake's values are finite: NaN reads 0, larger magnitudes this.
+LIMIT = 1e6
+#: What a bake whose graph raises holds instead (the exporter's diffuse
+#: grey, alpha 1), and the errors that make it so.
+FAILED = (0.8, 0.8, 0.8, 1.0)
+EVAL_ERRORS = (ArithmeticError, ValueError, KeyError, TypeError, IndexError)
 
 
 def procedural_params(node, follow, notes, skip=()) -> dict:
@@ -135,7 +141,11 @@ class AtlasBaker:
         no atlas), else laid out over its triangles by :meth:`bake`."""
         if mb.bakes and all(uv_periodic(b, self.ex.textures) for b in mb.bakes):
             for b in mb.bakes:
-                self._bake_uv_space(b)
+                try:
+                    self._bake_uv_space(b)
+                except EVAL_ERRORS as err:
+                    self.ex.textures[b.index] = np.array([[FAILED]], np.float32)
+                    self._failed(m, err)
             self._roughness_means(m, {b.index: float(self.ex.textures[b.index][..., 3].mean())
                                       for b in mb.bakes if self.ex.textures[b.index].shape[2] > 3})
             return
@@ -253,13 +263,22 @@ class AtlasBaker:
                 parts[part][2][rows] = uv[starts[j]:starts[j] + len(rows)]
         tx = AT.texels(L)
         images = {b.index: np.zeros((L.height, L.width, 4), np.float32) for b in self.bakes[m]}
+        failed = set()
         for a in range(0, len(tx.tri), CHUNK):
             part = AT.Texels(*(x[a:a + CHUNK] for x in tx))
             ctx = SG.EvalContext({k: AT.at_texels(corners[k], part) for k in keys},
                                  ex.textures)
             memo: dict = {}
             for b in self.bakes[m]:
-                images[b.index][part.iy, part.ix] = self._values(b, ctx, memo, len(part.tri))
+                if b.index in failed:
+                    continue
+                try:
+                    images[b.index][part.iy, part.ix] = self._values(b, ctx, memo,
+                                                                     len(part.tri))
+                except EVAL_ERRORS as err:
+                    failed.add(b.index)
+                    images[b.index][:] = FAILED
+                    self._failed(m, err)
             ex.poll()
         inside = (tx.s >= 0) & (tx.t >= 0) & (tx.s + tx.t <= 1)
         means = {}
@@ -270,9 +289,24 @@ class AtlasBaker:
                 if inside.any() else 1.0
         self._roughness_means(m, means)
 
+    def _failed(self, m: int, err) -> None:
+        """Material m's note for a bake whose graph raised ``err``."""
+        mat = self.ex.materials[m]
+        note = f"its texture graph could not be evaluated ({type(err).__name__}: {err}): grey"
+        if note not in mat.approximations:
+            self.ex.materials[m] = dataclasses.replace(
+                mat, approximations=mat.approximations + (note,))
+
     @staticmethod
     def _values(b: Bake, ctx, memo, K: int) -> np.ndarray:
-        """(K, 4) float32 the bake's texels at the chunk's points."""
+        """(K, 4) float32 the bake's texels at the chunk's points (finite:
+        NaN as 0, magnitudes beyond LIMIT clipped)."""
+        with np.errstate(all='ignore'):
+            out = AtlasBaker._raw_values(b, ctx, memo, K)
+        return np.clip(np.nan_to_num(out, nan=0.0), -LIMIT, LIMIT)
+
+    @staticmethod
+    def _raw_values(b: Bake, ctx, memo, K: int) -> np.ndarray:
         def rgb(e, ops):
             c = SG.evaluate(SG.as_vector(e, SG.COLOR), ctx, memo)
             c = np.broadcast_to(c, (K, 3))

@@ -447,3 +447,33 @@ def test_an_image_through_math_is_baked_over_its_own_uvs(tmp_path):
     nt.links.new(im.outputs['Color'], d.inputs['Color'])
     plain = TS._cycles(sc, 0, tmp_path / "plain.exr")
     _check(err, noise, float(np.abs(plain - ref).mean() / ref.mean()))
+
+
+def test_a_graph_that_raises_is_grey_with_a_note(monkeypatch):
+    """A port raising while a bake evaluates (here Math, made to raise) costs
+    that material its texture, not the render: the texture is the
+    exporter's diffuse grey and the render log says why."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+
+    from core.scene import node_math
+
+    def boom(*args, **kwargs):
+        raise ValueError("made to fail")
+    monkeypatch.setattr(node_math, "math", boom)
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        geo = nodes.new('ShaderNodeNewGeometry')
+        sep = nodes.new('ShaderNodeSeparateXYZ')
+        links.new(geo.outputs['Position'], sep.inputs[0])
+        sn = nodes.new('ShaderNodeMath')
+        sn.operation = 'SINE'
+        links.new(sep.outputs['X'], sn.inputs[0])
+        links.new(sn.outputs[0], d.inputs['Color'])
+
+    _scene(mat)
+    scene, lines = TS._export()
+    assert "its texture graph could not be evaluated (ValueError: made to fail): grey" \
+        in lines[1], lines[1]
+    assert np.all(scene.textures[-1][..., :3] == np.float32(0.8))
