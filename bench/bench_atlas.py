@@ -54,23 +54,8 @@ def _voronoi(nodes, links, p):
 
 
 def _graph(nodes, links, p):
-    p.inputs['Metallic'].default_value = 1.0
-    warp = nodes.new('ShaderNodeTexNoise')
-    tc = nodes.new('ShaderNodeTexCoord')
-    add = nodes.new('ShaderNodeVectorMath')
-    add.operation = 'MULTIPLY_ADD'
-    add.inputs[1].default_value = (0.3, 0.3, 0.3)
-    links.new(warp.outputs['Color'], add.inputs[0])
-    links.new(tc.outputs['Generated'], add.inputs[2])
-    nz = nodes.new('ShaderNodeTexNoise')
-    links.new(add.outputs['Vector'], nz.inputs['Vector'])
-    mr = nodes.new('ShaderNodeMapRange')
-    mr.interpolation_type = 'SMOOTHSTEP'
-    links.new(nz.outputs['Factor'], mr.inputs['Value'])
-    mul = nodes.new('ShaderNodeMath')
-    mul.operation = 'MULTIPLY'
-    links.new(mr.outputs['Result'], mul.inputs[0])
-    links.new(mul.outputs['Value'], p.inputs['Roughness'])
+    from test_procedural_materials import distorted_noise_roughness
+    distorted_noise_roughness(nodes, links, p)
 
 
 def _scenes():

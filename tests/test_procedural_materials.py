@@ -118,6 +118,35 @@ def _effect(img, scene, replace):
     return float(np.abs(plain - img).mean() / img.mean())
 
 
+def _image_node(nodes, name="A", pixels=None):
+    """An Image Texture node of tests/test_shading_nodes.py's colour pixels
+    (or ``pixels``), an sRGB image ``name``."""
+    import test_shading_nodes as TS
+    im = nodes.new('ShaderNodeTexImage')
+    im.image = TS._image(name, TS._color_pixels() if pixels is None else pixels,
+                         non_color=False)
+    return im
+
+
+def _position_xyz(nodes, links):
+    """A Separate XYZ of the Geometry node's Position."""
+    geo = nodes.new('ShaderNodeNewGeometry')
+    sep = nodes.new('ShaderNodeSeparateXYZ')
+    links.new(geo.outputs['Position'], sep.inputs[0])
+    return sep
+
+
+def _mix(nodes, links, blend, factor, a, b):
+    """A Mix (Color) node of sockets a and b; its Result socket."""
+    mix = nodes.new('ShaderNodeMix')
+    mix.data_type = 'RGBA'
+    mix.blend_type = blend
+    mix.inputs['Factor'].default_value = factor
+    links.new(a, mix.inputs['A'])
+    links.new(b, mix.inputs['B'])
+    return mix.outputs['Result']
+
+
 def _diffuse(nodes, links, surface):
     import test_shading_nodes as TS
     return TS.diffuse_with_normal(nodes, links, surface)
@@ -156,23 +185,16 @@ def test_images_read_at_different_vectors_agree_with_cycles(tmp_path):
 
     def mat(nodes, links, surface):
         d = _diffuse(nodes, links, surface)
-        a = nodes.new('ShaderNodeTexImage')
-        a.image = TS._image("A", TS._color_pixels(), non_color=False)
-        b = nodes.new('ShaderNodeTexImage')
-        b.image = TS._image("B", TS._color_pixels(4)[:, ::-1].copy(), non_color=False)
+        a = _image_node(nodes)
+        b = _image_node(nodes, "B", TS._color_pixels(4)[:, ::-1].copy())
         tc = nodes.new('ShaderNodeTexCoord')
         mp = nodes.new('ShaderNodeMapping')
         mp.inputs['Rotation'].default_value = (0.0, 0.0, 0.7)
         mp.inputs['Scale'].default_value = (1.7, 1.7, 1.0)
         links.new(tc.outputs['Object'], mp.inputs['Vector'])
         links.new(mp.outputs['Vector'], b.inputs['Vector'])
-        mix = nodes.new('ShaderNodeMix')
-        mix.data_type = 'RGBA'
-        mix.blend_type = 'MULTIPLY'
-        mix.inputs['Factor'].default_value = 1.0
-        links.new(a.outputs['Color'], mix.inputs['A'])
-        links.new(b.outputs['Color'], mix.inputs['B'])
-        links.new(mix.outputs['Result'], d.inputs['Color'])
+        links.new(_mix(nodes, links, 'MULTIPLY', 1.0, a.outputs['Color'], b.outputs['Color']),
+                  d.inputs['Color'])
 
     sc, ob = _scene(mat)
     err, noise, img, ref, scene, lines = _compare(sc, tmp_path, "two vectors")
@@ -274,21 +296,14 @@ def test_a_noise_mixed_with_an_image_agrees_with_cycles(tmp_path):
     (Overlay blend), into a Principled Base Color.  Measured: 0.84x the
     seed-to-seed noise; flat grey textures move the image by 12x the bound."""
     pytest.importorskip("bpy")
-    import test_shading_nodes as TS
 
     def mat(nodes, links, surface):
         p = nodes.new('ShaderNodeBsdfPrincipled')
         links.new(p.outputs[0], surface)
-        im = nodes.new('ShaderNodeTexImage')
-        im.image = TS._image("A", TS._color_pixels(), non_color=False)
+        im = _image_node(nodes)
         nz = _noise(nodes, links, 5.0, 2.0)
-        mix = nodes.new('ShaderNodeMix')
-        mix.data_type = 'RGBA'
-        mix.blend_type = 'OVERLAY'
-        mix.inputs['Factor'].default_value = 0.8
-        links.new(im.outputs['Color'], mix.inputs['A'])
-        links.new(nz.outputs['Color'], mix.inputs['B'])
-        links.new(mix.outputs['Result'], p.inputs['Base Color'])
+        links.new(_mix(nodes, links, 'OVERLAY', 0.8, im.outputs['Color'], nz.outputs['Color']),
+                  p.inputs['Base Color'])
 
     sc, _ = _scene(mat)
     err, noise, img, ref, scene, lines = _compare(sc, tmp_path, "noise x image")
@@ -297,6 +312,35 @@ def test_a_noise_mixed_with_an_image_agrees_with_cycles(tmp_path):
 
 
 # ------------------------------------------------------------ node graphs per texel
+
+def distorted_noise_roughness(nodes, links, p):
+    """A metal Principled ``p`` whose Roughness is a Noise Factor through Map
+    Range (smoothstep) and Math (multiply, clamped), the Noise's vector the
+    Generated coordinates distorted by a second Noise's Color (also
+    bench/bench_atlas.py's graph)."""
+    p.inputs['Metallic'].default_value = 1.0
+    warp = _noise(nodes, links, 3.0, 0.0)
+    tc = nodes.new('ShaderNodeTexCoord')
+    add = nodes.new('ShaderNodeVectorMath')
+    add.operation = 'MULTIPLY_ADD'
+    add.inputs[1].default_value = (0.3, 0.3, 0.3)
+    links.new(warp.outputs['Color'], add.inputs[0])
+    links.new(tc.outputs['Generated'], add.inputs[2])
+    nz = _noise(nodes, links, 2.5, 1.0, add.outputs['Vector'])
+    mr = nodes.new('ShaderNodeMapRange')
+    mr.interpolation_type = 'SMOOTHSTEP'
+    mr.inputs['From Min'].default_value = 0.35
+    mr.inputs['From Max'].default_value = 0.65
+    mr.inputs['To Min'].default_value = 0.05
+    mr.inputs['To Max'].default_value = 0.9
+    links.new(nz.outputs['Factor'], mr.inputs['Value'])
+    mul = nodes.new('ShaderNodeMath')
+    mul.operation = 'MULTIPLY'
+    mul.use_clamp = True
+    mul.inputs[1].default_value = 1.1
+    links.new(mr.outputs['Result'], mul.inputs[0])
+    links.new(mul.outputs['Value'], p.inputs['Roughness'])
+
 
 def test_a_noise_through_map_range_and_math_agrees_with_cycles(tmp_path):
     """Noise Factor -> Map Range (smoothstep) -> Math (multiply, clamped)
@@ -312,29 +356,8 @@ def test_a_noise_through_map_range_and_math_agrees_with_cycles(tmp_path):
 
     def mat(nodes, links, surface):
         p = nodes.new('ShaderNodeBsdfPrincipled')
-        p.inputs['Metallic'].default_value = 1.0
         links.new(p.outputs[0], surface)
-        warp = _noise(nodes, links, 3.0, 0.0)
-        tc = nodes.new('ShaderNodeTexCoord')
-        add = nodes.new('ShaderNodeVectorMath')
-        add.operation = 'MULTIPLY_ADD'
-        add.inputs[1].default_value = (0.3, 0.3, 0.3)
-        links.new(warp.outputs['Color'], add.inputs[0])
-        links.new(tc.outputs['Generated'], add.inputs[2])
-        nz = _noise(nodes, links, 2.5, 1.0, add.outputs['Vector'])
-        mr = nodes.new('ShaderNodeMapRange')
-        mr.interpolation_type = 'SMOOTHSTEP'
-        mr.inputs['From Min'].default_value = 0.35
-        mr.inputs['From Max'].default_value = 0.65
-        mr.inputs['To Min'].default_value = 0.05
-        mr.inputs['To Max'].default_value = 0.9
-        links.new(nz.outputs['Factor'], mr.inputs['Value'])
-        mul = nodes.new('ShaderNodeMath')
-        mul.operation = 'MULTIPLY'
-        mul.use_clamp = True
-        mul.inputs[1].default_value = 1.1
-        links.new(mr.outputs['Result'], mul.inputs[0])
-        links.new(mul.outputs['Value'], p.inputs['Roughness'])
+        distorted_noise_roughness(nodes, links, p)
 
     sc, _ = TS.plane_scene(mat, sun_rotation=(0.35, 0.0, 0.0))
     err, noise, img, ref, scene, lines = _compare(sc, tmp_path, "noise map range")
@@ -391,9 +414,7 @@ def test_position_through_math_agrees_with_cycles(tmp_path):
 
     def mat(nodes, links, surface):
         d = _diffuse(nodes, links, surface)
-        geo = nodes.new('ShaderNodeNewGeometry')
-        sep = nodes.new('ShaderNodeSeparateXYZ')
-        links.new(geo.outputs['Position'], sep.inputs[0])
+        sep = _position_xyz(nodes, links)
         ma = nodes.new('ShaderNodeMath')
         ma.operation = 'MULTIPLY_ADD'
         ma.inputs[1].default_value = 7.0
@@ -428,8 +449,7 @@ def test_an_image_through_math_is_baked_over_its_own_uvs(tmp_path):
 
     def mat(nodes, links, surface):
         d = _diffuse(nodes, links, surface)
-        im = nodes.new('ShaderNodeTexImage')
-        im.image = TS._image("A", TS._color_pixels(), non_color=False)
+        im = _image_node(nodes)
         sep = nodes.new('ShaderNodeSeparateColor')
         links.new(im.outputs['Color'], sep.inputs[0])
         pw = nodes.new('ShaderNodeMath')
@@ -470,9 +490,7 @@ def test_a_graph_that_raises_is_grey_with_a_note(monkeypatch):
 
     def mat(nodes, links, surface):
         d = _diffuse(nodes, links, surface)
-        geo = nodes.new('ShaderNodeNewGeometry')
-        sep = nodes.new('ShaderNodeSeparateXYZ')
-        links.new(geo.outputs['Position'], sep.inputs[0])
+        sep = _position_xyz(nodes, links)
         sn = nodes.new('ShaderNodeMath')
         sn.operation = 'SINE'
         links.new(sep.outputs['X'], sn.inputs[0])
