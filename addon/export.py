@@ -156,14 +156,17 @@ SUPPORT = (
      "Cycles' kernels; an image through them alone is baked over its own uvs", SUPPORTED,
      ""),
     ("colour attributes (Color Attribute and Attribute nodes: point, corner or face "
-     "domain), Geometry Position and Normal, Texture Coordinate Normal, in texture graphs",
-     SUPPORTED, ""),
+     "domain), Geometry Position and Normal, Texture Coordinate Normal, Object Info "
+     "(Location, Color, Alpha, Object Index, Material Index, Random as Cycles syncs it), in "
+     "texture graphs", SUPPORTED, ""),
     ("images read at different vectors in one material (each at its own: baked into the "
      "material's atlas)", SUPPORTED, ""),
     ("a procedural texture's input fed by another node (a Scale from a Math node)",
      APPROXIMATED, "its value used"),
     ("a texture graph whose evaluation fails (an error in a port): that texture grey",
      APPROXIMATED, "could not be evaluated"),
+    ("an atlas material on more than 1.8 M triangles (not shared by instances): one value "
+     "a triangle", APPROXIMATED, "one value a triangle (atlas budget)"),
     ("a material atlas over the budget of 4 M texels (very many triangles, or very fine "
      "detail over a large surface)", APPROXIMATED, "of their detail (atlas budget)"),
     ("node groups (flattened, nested)", SUPPORTED, ""),
@@ -254,6 +257,26 @@ def _use_nodes(idblock) -> bool:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         return bool(getattr(idblock, "use_nodes", True)) and idblock.node_tree is not None
+
+
+def _object_info(inst, ob, output) -> np.ndarray:
+    """(3,) float64 an Object Info node's output for this instance, as Cycles
+    syncs it: Location the world translation, Color / Alpha the object's
+    colour, Object Index its pass index, Random ``random_id / (2^32 - 1)``
+    in float32 with the instance's random_id, or for an object of its own
+    ``hash_uint2(hash_string(name), 0)``."""
+    if output == 'Location':
+        return _mat4(inst.matrix_world)[:3, 3].copy()
+    if output == 'Color':
+        return np.array(tuple(ob.color)[:3], np.float64)
+    if output == 'Alpha':
+        return np.full(3, float(ob.color[3]))
+    if output == 'Object Index':
+        return np.full(3, float(getattr(ob, "pass_index", 0)))
+    from ..core.scene.cycles_hash import hash_string, hash_uint2
+    rid = (int(inst.random_id) & 0xFFFFFFFF if inst.is_instance
+           else int(hash_uint2(hash_string(ob.name), 0)))
+    return np.full(3, float(np.float32(rid) * np.float32(1.0 / 4294967295.0)))
 
 
 def _attribute_corners(me, name):
@@ -1572,6 +1595,8 @@ class _Exporter:
                 # World normals back to object space: n_obj ~ A^T n_world.
                 A = _mat4(inst.matrix_world)[:3, :3]
                 a = nw[rows].astype(np.float64) @ A
+            elif kind == 'ObjectInfo':
+                a, own = np.broadcast_to(_object_info(inst, ob, name), (k, 3, 3)), False
             else:                                   # 'Attribute'
                 a = self.attribute_corners(inst, ob, name)
                 a = None if a is None or len(a) != len(uv) else a[rows]

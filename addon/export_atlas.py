@@ -240,18 +240,23 @@ class AtlasBaker:
         area = 0.5 * np.linalg.norm(np.cross(world[:, 1] - world[:, 0],
                                              world[:, 2] - world[:, 0]), axis=1)
         floor = np.sqrt(AT.BUDGET / 64 / max(float(area.sum()), 1e-12))
-        asked = self._sizes(m, corners) if keys else np.ones(len(world))
-        n = AT.block_sizes(np.maximum(asked, AT.extent(world) * floor), 1.0)
-        # Within the budget, the finest blocks the sources ask for; if not,
-        # say how much detail the bake keeps (texels a side, as a median).
-        wanted = np.minimum(np.ceil(asked), AT.SIZES[-1])
-        kept = float(np.median(np.minimum(n / np.maximum(wanted, 1.0), 1.0)))
-        if kept < 0.95:
-            mat = ex.materials[m]
-            ex.materials[m] = dataclasses.replace(mat, approximations=mat.approximations + (
-                f"textures baked at {100 * kept:.0f} % of their detail (atlas budget)",))
-        L = AT.pack(n)
-        uv = AT.corner_uvs(L)
+        if 9 * len(world) > AT.HARD_CAP:
+            L, tx, uv = AT.flat(len(world))
+            self._note(m, f"{len(world):,} triangles: its textures one value a triangle "
+                          f"(atlas budget)")
+        else:
+            asked = self._sizes(m, corners) if keys else np.ones(len(world))
+            n = AT.block_sizes(np.maximum(asked, AT.extent(world) * floor), 1.0)
+            # Within the budget, the finest blocks the sources ask for; if
+            # not, say how much detail the bake keeps (texels a side, median).
+            wanted = np.minimum(np.ceil(asked), AT.SIZES[-1])
+            kept = float(np.median(np.minimum(n / np.maximum(wanted, 1.0), 1.0)))
+            if kept < 0.95:
+                self._note(m, f"textures baked at {100 * kept:.0f} % of their detail "
+                              f"(atlas budget)")
+            L = AT.pack(n)
+            uv = AT.corner_uvs(L)
+            tx = AT.texels(L)
         at, starts = 0, []
         for part, rows, *_ in unique:
             starts.append(at)
@@ -261,7 +266,6 @@ class AtlasBaker:
             if key is not None and unique[firsts[key]][0] != part:
                 j = firsts[key]
                 parts[part][2][rows] = uv[starts[j]:starts[j] + len(rows)]
-        tx = AT.texels(L)
         images = {b.index: np.zeros((L.height, L.width, 4), np.float32) for b in self.bakes[m]}
         failed = set()
         for a in range(0, len(tx.tri), CHUNK):
@@ -291,8 +295,12 @@ class AtlasBaker:
 
     def _failed(self, m: int, err) -> None:
         """Material m's note for a bake whose graph raised ``err``."""
+        self._note(m, f"its texture graph could not be evaluated ({type(err).__name__}: "
+                      f"{err}): grey")
+
+    def _note(self, m: int, note: str) -> None:
+        """One more approximation of material m (once)."""
         mat = self.ex.materials[m]
-        note = f"its texture graph could not be evaluated ({type(err).__name__}: {err}): grey"
         if note not in mat.approximations:
             self.ex.materials[m] = dataclasses.replace(
                 mat, approximations=mat.approximations + (note,))

@@ -22,7 +22,7 @@ from ..core.scene.shader_graph import COLOR, FLOAT, VEC, Attr, Const, Image, Op,
 #: material (every texture baked).
 GRAPH_NODES = frozenset({'MATH', 'VECT_MATH', 'MAP_RANGE', 'CLAMP', 'SEPXYZ', 'COMBXYZ',
                          'SEPARATE_COLOR', 'COMBINE_COLOR', 'ATTRIBUTE', 'VERTEX_COLOR',
-                         'NEW_GEOMETRY'})
+                         'NEW_GEOMETRY', 'OBJECT_INFO'})
 
 _KINDS = {'VALUE': FLOAT, 'INT': FLOAT, 'BOOLEAN': FLOAT, 'VECTOR': VEC, 'RGBA': COLOR}
 
@@ -99,6 +99,12 @@ class GraphReader:
             return None if key is None else Attr(key)
         if t == 'UVMAP':
             return Attr(('UV', node.uv_map or None))
+        if t == 'OBJECT_INFO':
+            if name == 'Material Index':
+                return Const(float(getattr(mb.mat, "pass_index", 0)), FLOAT)
+            kind = {'Location': VEC, 'Color': COLOR, 'Alpha': FLOAT, 'Object Index': FLOAT,
+                    'Random': FLOAT}.get(name)
+            return None if kind is None else Attr(('ObjectInfo', name), kind)
         if t == 'NEW_GEOMETRY':
             key = {'Position': ('Position',), 'Normal': ('Normal',)}.get(name)
             return None if key is None else Attr(key)

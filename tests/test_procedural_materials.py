@@ -501,3 +501,67 @@ def test_a_graph_that_raises_is_grey_with_a_note(monkeypatch):
     assert "its texture graph could not be evaluated (ValueError: made to fail): grey" \
         in lines[1], lines[1]
     assert np.all(scene.textures[-1][..., :3] == np.float32(0.8))
+
+
+def test_object_info_agrees_with_cycles(tmp_path):
+    """Object Info Random (through a Color Ramp) and Color into a Diffuse, on
+    the plane, a copy of it sharing its mesh, and an instance of a
+    collection holding it: one value an object, Random as Cycles syncs it
+    (the instance's random_id, else a hash of the object's name).  Measured:
+    0.8x the seed-to-seed noise."""
+    pytest.importorskip("bpy")
+    import bpy
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        oi = nodes.new('ShaderNodeObjectInfo')
+        cr = _ramp(nodes, links, oi.outputs['Random'], (0.05, 0.2, 0.9, 1.0),
+                   (0.95, 0.6, 0.1, 1.0))
+        cr.color_ramp.elements[0].position = 0.0
+        cr.color_ramp.elements[1].position = 1.0
+        links.new(_mix(nodes, links, 'MULTIPLY', 1.0, cr.outputs['Color'],
+                       oi.outputs['Color']), d.inputs['Color'])
+
+    sc, ob = _scene(mat)
+    ob.scale = (0.3, 0.3, 1.0)
+    ob.location = (-0.4, 0.3, 0.0)
+    ob.color = (0.9, 1.0, 0.8, 1.0)
+    copy = ob.copy()
+    copy.name = "Plane copy"
+    copy.location = (0.35, 0.3, 0.0)
+    copy.color = (1.0, 0.7, 1.0, 1.0)
+    sc.collection.objects.link(copy)
+    coll = bpy.data.collections.new("Tiles")
+    coll.objects.link(ob.copy())
+    inst = bpy.data.objects.new("Tiles instance", None)
+    inst.instance_type = 'COLLECTION'
+    inst.instance_collection = coll
+    inst.location = (0.8, -0.7, 0.0)
+    sc.collection.objects.link(inst)
+    err, noise, img, ref, scene, lines = _compare(sc, tmp_path, "object info")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    _check(err, noise, _effect(img, scene, (0.5, 0.5, 0.5, 1.0)))
+
+
+def test_too_many_triangles_for_blocks_give_one_texel_a_triangle(monkeypatch):
+    """Past atlas.HARD_CAP (here lowered to 1) each triangle of an atlas
+    material gets one texel, its centroid's value, every corner reading it,
+    and the render log says so."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+
+    from core.scene import atlas
+    monkeypatch.setattr(atlas, "HARD_CAP", 1)
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        links.new(_position_xyz(nodes, links).outputs['X'], d.inputs['Color'])
+
+    _scene(mat)
+    scene, lines = TS._export()
+    assert "2 triangles: its textures one value a triangle (atlas budget)" in lines[1], lines[1]
+    tex = scene.textures[-1]
+    assert tex.shape[:2] == (1, 2)
+    assert np.all(scene.tri_uv == scene.tri_uv[:, :1])
+    centroid_x = scene.tri_p.astype(np.float64).mean(axis=1)[:, 0]
+    assert np.allclose(np.sort(tex[0, :, 0]), np.sort(centroid_x), atol=1e-6)

@@ -44,6 +44,9 @@ SIZES = np.array([1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256, 3
 BUDGET = 1 << 22
 #: Widest atlas row, in texels.
 MAX_WIDTH = 8192
+#: Texels of the smallest atlas (a 3 x 3 block a triangle) beyond which
+#: each triangle gets a single texel instead (:func:`flat`).
+HARD_CAP = 4 * BUDGET
 
 
 class Layout(NamedTuple):
@@ -160,6 +163,22 @@ def at_texels(corners: np.ndarray, tx: Texels) -> np.ndarray:
     c = np.asarray(corners, np.float64)[tx.tri]
     return (c[:, 0] + tx.s[:, None] * (c[:, 1] - c[:, 0])
             + tx.t[:, None] * (c[:, 2] - c[:, 0]))
+
+
+def flat(T: int) -> tuple:
+    """(Layout, Texels, corner uvs (T, 3, 2) float32) of an atlas of one
+    texel a triangle, row by row: every corner reads its texel's centre,
+    which holds the value at the triangle's centroid (s = t = 1/3); for
+    more triangles than :data:`HARD_CAP` allows blocks (a texture constant
+    over each triangle)."""
+    W = int(min(MAX_WIDTH, max(T, 1)))
+    H = int(-(-max(T, 1) // W))
+    k = np.arange(T)
+    iy, ix = k // W, k % W
+    third = np.full(T, 1.0 / 3.0)
+    uv = np.stack([(ix + 0.5) / W, (iy + 0.5) / H], -1)
+    uv = np.repeat(uv[:, None, :], 3, axis=1).astype(np.float32)
+    return (Layout(W, H, ix, iy, np.zeros(T, np.int64)), Texels(k, third, third, iy, ix), uv)
 
 
 def image(L: Layout, tx: Texels, values: np.ndarray) -> np.ndarray:

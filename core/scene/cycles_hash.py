@@ -97,6 +97,15 @@ def hash_uint4(kx, ky, kz, kw) -> np.ndarray:
         return _final(a, b, c)[2]
 
 
+def hash_string(s: str) -> int:
+    """Cycles' ``hash_string``: i = 37 i + c over the bytes of s (UTF-8),
+    each a C ``char`` (signed: bytes from 0x80 sign-extended), mod 2^32."""
+    i = 0
+    for b in s.encode("utf-8"):
+        i = (i * 37 + (b if b < 128 else b - 256)) & 0xFFFFFFFF
+    return i
+
+
 def to_float(h: np.ndarray) -> np.ndarray:
     """A hash in [0, 1] as Cycles' ``uint_to_float_incl`` (float32 product)."""
     return (h.astype(np.float32) * np.float32(1.0 / 4294967295.0)).astype(np.float64)

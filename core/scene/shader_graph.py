@@ -48,9 +48,12 @@ class Const:
 
 @dataclass(frozen=True, eq=False)
 class Attr:
-    """A surface attribute, 'vec' or 'color': key ('UV', map name or None),
-    ('Generated',), ('Object', object name or None), ('Position',),
-    ('Normal',), ('ObjectNormal',), ('Color', attribute name)."""
+    """A surface attribute, 'vec', 'color' or 'float' (its first component):
+    key ('UV', map name or None), ('Generated',), ('Object', object name or
+    None), ('Position',), ('Normal',), ('ObjectNormal',), ('Attribute',
+    name or None: the render colour attribute), ('ObjectInfo', output) (an
+    Object Info node's Location, Color, Alpha, Object Index or Random: one
+    value an object)."""
     key: tuple
     kind: str = VEC
 
@@ -175,7 +178,7 @@ def _evaluate(e, ctx, memo):
         a = ctx.attrs[e.key]
         if e.key[0] in ("Normal", "ObjectNormal"):
             a = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-30)
-        return a
+        return a[:, 0] if e.kind == FLOAT else a
     if isinstance(e, Image):
         img = ctx.textures[e.texture]
         uv = evaluate(e.vector, ctx, memo)[:, :2]
