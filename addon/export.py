@@ -2023,7 +2023,9 @@ class _Exporter:
             # sources still render through their instances, as in Cycles.
             if not inst.is_instance and not render_mode and ob.original.hide_render:
                 continue
-            seen.setdefault(ob.name, ob)
+            # The original: an instance's evaluated object may not outlive the
+            # iteration (reading it later, as feature_notes does, crashed).
+            seen.setdefault(ob.name, ob.original)
             if ob.type == 'LIGHT':
                 lt = self.light(inst, ob)
                 if lt is not None:
