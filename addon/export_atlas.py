@@ -20,6 +20,7 @@ budget of texels a material (``atlas.BUDGET``); docs/shading.md
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 from typing import NamedTuple
 
 import numpy as np
@@ -38,6 +39,16 @@ LIMIT = 1e6
 #: grey, alpha 1), and the errors that make it so.
 FAILED = (0.8, 0.8, 0.8, 1.0)
 EVAL_ERRORS = (ArithmeticError, ValueError, KeyError, TypeError, IndexError)
+#: Atlases kept between exports, by what they depend on
+#: (:meth:`AtlasBaker._digest`): the viewport exports again after every
+#: edit, and a scene whose atlas materials did not change bakes nothing.
+_CACHE: dict = {}
+CACHE_SIZE = 8
+
+
+def _failure(err) -> str:
+    """The note of a bake whose graph raised ``err``."""
+    return f"its texture graph could not be evaluated ({type(err).__name__}: {err}): grey"
 
 
 def procedural_params(node, follow, notes, skip=()) -> dict:
@@ -145,7 +156,7 @@ class AtlasBaker:
                     self._bake_uv_space(b)
                 except EVAL_ERRORS as err:
                     self.ex.textures[b.index] = np.array([[FAILED]], np.float32)
-                    self._failed(m, err)
+                    self._note(m, _failure(err))
             self._roughness_means(m, {b.index: float(self.ex.textures[b.index][..., 3].mean())
                                       for b in mb.bakes if self.ex.textures[b.index].shape[2] > 3})
             return
@@ -221,6 +232,10 @@ class AtlasBaker:
         return ext
 
     def _bake_material(self, m: int, entries, parts) -> None:
+        """Material m's atlas: its layout and bakes (or the cached ones of the
+        same graph on the same triangles, :data:`_CACHE`), its triangles' uvs
+        in ``parts`` (instances sharing blocks share uvs), its textures,
+        notes and roughness means."""
         ex = self.ex
         firsts: dict = {}
         unique = []
@@ -232,6 +247,53 @@ class AtlasBaker:
         keys = self.keys[m]
         corners = {k: np.concatenate([e[2][k] for e in unique]) for k in keys}
         world = np.concatenate([e[4] for e in unique])
+        digest = self._digest(m, corners, world)
+        done = _CACHE.get(digest)
+        if done is None:
+            done = self._layout_and_bake(m, keys, corners, world)
+            _CACHE[digest] = done
+            while len(_CACHE) > CACHE_SIZE:
+                _CACHE.pop(next(iter(_CACHE)))
+        uv, images, means, notes = done
+        at, starts = 0, []
+        for part, rows, *_ in unique:
+            starts.append(at)
+            parts[part][2][rows] = uv[at:at + len(rows)]
+            at += len(rows)
+        for part, rows, _, key, _ in entries:
+            if key is not None and unique[firsts[key]][0] != part:
+                j = firsts[key]
+                parts[part][2][rows] = uv[starts[j]:starts[j] + len(rows)]
+        for b, img in zip(self.bakes[m], images):
+            ex.textures[b.index] = img
+        for note in notes:
+            self._note(m, note)
+        self._roughness_means(m, {b.index: v for b, v in zip(self.bakes[m], means)})
+
+    def _digest(self, m: int, corners: dict, world) -> bytes:
+        """What material m's atlas depends on: its bakes' graphs (their
+        images' pixels included), the corners' attributes and positions."""
+        h = hashlib.blake2b(digest_size=20)
+        h.update(repr([(b.expr, b.ops, b.scalar) for b in self.bakes[m]]).encode())
+        for b in self.bakes[m]:
+            for e in chain_exprs(b.expr, b.ops):
+                for x in SG.walk(e):
+                    if isinstance(x, SG.Image):
+                        img = self.ex.textures[x.texture]
+                        h.update(repr((img.shape, sampler_of(img), type(img).__name__)).encode())
+                        h.update(np.ascontiguousarray(img).data)
+        for k in sorted(corners, key=repr):
+            h.update(repr(k).encode())
+            h.update(np.ascontiguousarray(corners[k]).data)
+        h.update(np.ascontiguousarray(world).data)
+        h.update(repr((AT.BUDGET, AT.HARD_CAP)).encode())
+        return h.digest()
+
+    def _layout_and_bake(self, m: int, keys, corners: dict, world) -> tuple:
+        """(corner uvs (T, 3, 2), the bakes' images, their alpha means over
+        the triangles, notes) of material m's atlas."""
+        ex = self.ex
+        notes = []
         # About a sixteenth of the budget spread evenly over the surface at
         # least: a graph may bend its attributes anywhere (a sine of the
         # position).  A block holds about 4 A d^2 texels for a triangle of
@@ -242,8 +304,8 @@ class AtlasBaker:
         floor = np.sqrt(AT.BUDGET / 64 / max(float(area.sum()), 1e-12))
         if 9 * len(world) > AT.HARD_CAP:
             L, tx, uv = AT.flat(len(world))
-            self._note(m, f"{len(world):,} triangles: its textures one value a triangle "
-                          f"(atlas budget)")
+            notes.append(f"{len(world):,} triangles: its textures one value a triangle "
+                         f"(atlas budget)")
         else:
             asked = self._sizes(m, corners) if keys else np.ones(len(world))
             n = AT.block_sizes(np.maximum(asked, AT.extent(world) * floor), 1.0)
@@ -252,51 +314,34 @@ class AtlasBaker:
             wanted = np.minimum(np.ceil(asked), AT.SIZES[-1])
             kept = float(np.median(np.minimum(n / np.maximum(wanted, 1.0), 1.0)))
             if kept < 0.95:
-                self._note(m, f"textures baked at {100 * kept:.0f} % of their detail "
-                              f"(atlas budget)")
+                notes.append(f"textures baked at {100 * kept:.0f} % of their detail "
+                             f"(atlas budget)")
             L = AT.pack(n)
             uv = AT.corner_uvs(L)
             tx = AT.texels(L)
-        at, starts = 0, []
-        for part, rows, *_ in unique:
-            starts.append(at)
-            parts[part][2][rows] = uv[at:at + len(rows)]
-            at += len(rows)
-        for part, rows, _, key, _ in entries:
-            if key is not None and unique[firsts[key]][0] != part:
-                j = firsts[key]
-                parts[part][2][rows] = uv[starts[j]:starts[j] + len(rows)]
-        images = {b.index: np.zeros((L.height, L.width, 4), np.float32) for b in self.bakes[m]}
+        bakes = self.bakes[m]
+        images = [np.zeros((L.height, L.width, 4), np.float32) for _ in bakes]
         failed = set()
         for a in range(0, len(tx.tri), CHUNK):
             part = AT.Texels(*(x[a:a + CHUNK] for x in tx))
             ctx = SG.EvalContext({k: AT.at_texels(corners[k], part) for k in keys},
                                  ex.textures)
             memo: dict = {}
-            for b in self.bakes[m]:
-                if b.index in failed:
+            for i, b in enumerate(bakes):
+                if i in failed:
                     continue
                 try:
-                    images[b.index][part.iy, part.ix] = self._values(b, ctx, memo,
-                                                                     len(part.tri))
+                    images[i][part.iy, part.ix] = self._values(b, ctx, memo, len(part.tri))
                 except EVAL_ERRORS as err:
-                    failed.add(b.index)
-                    images[b.index][:] = FAILED
-                    self._failed(m, err)
+                    failed.add(i)
+                    images[i][:] = FAILED
+                    notes.append(_failure(err))
             ex.poll()
         inside = (tx.s >= 0) & (tx.t >= 0) & (tx.s + tx.t <= 1)
-        means = {}
-        for b in self.bakes[m]:
-            img = images[b.index]
-            ex.textures[b.index] = img
-            means[b.index] = float(img[tx.iy[inside], tx.ix[inside], 3].mean()) \
-                if inside.any() else 1.0
-        self._roughness_means(m, means)
+        means = [float(img[tx.iy[inside], tx.ix[inside], 3].mean()) if inside.any() else 1.0
+                 for img in images]
+        return uv, images, means, notes
 
-    def _failed(self, m: int, err) -> None:
-        """Material m's note for a bake whose graph raised ``err``."""
-        self._note(m, f"its texture graph could not be evaluated ({type(err).__name__}: "
-                      f"{err}): grey")
 
     def _note(self, m: int, note: str) -> None:
         """One more approximation of material m (once)."""
