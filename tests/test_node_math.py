@@ -29,6 +29,7 @@ from __future__ import annotations
 from typing import Callable, NamedTuple
 
 import numpy as np
+import pytest
 
 from core.scene import node_math
 from procedural_cycles import tiled_values
@@ -162,19 +163,21 @@ def _tile_build(tile):
 
 
 def run(cases, tmp_path):
-    """[(case, ours, Cycles')] each (n,) for a float case, (n, 3) else, all in
-    one render."""
+    """[(case, ours, Cycles')] each (n,) for a float case, (n, 3) else, in as
+    few renders as the tiles need (TILES * TILES a render), by tile."""
     tiles = _tiles(cases)
-    assert len(tiles) <= TILES * TILES
     out = []
-    for tile, (img, u, v) in zip(tiles, tiled_values([_tile_build(t) for t in tiles],
-                                                     tmp_path, RES, TILES)):
-        def val(spec):
-            return _values(spec, u, v)
-        for j, case in enumerate(tile):
-            ours = np.asarray(case.ours(val), np.float64)
-            assert np.isfinite(ours).all(), f"{case.label}: the case's values are not finite"
-            out.append((case, ours, img[:, j] if case.scalar else img))
+    per = TILES * TILES
+    for k in range(0, len(tiles), per):
+        chunk = tiles[k:k + per]
+        for tile, (img, u, v) in zip(chunk, tiled_values([_tile_build(t) for t in chunk],
+                                                         tmp_path, RES, TILES)):
+            def val(spec):
+                return _values(spec, u, v)
+            for j, case in enumerate(tile):
+                ours = np.asarray(case.ours(val), np.float64)
+                assert np.isfinite(ours).all(), f"{case.label}: the case's values are not finite"
+                out.append((case, ours, img[:, j] if case.scalar else img))
     return out
 
 
@@ -493,31 +496,44 @@ def test_every_operation_has_a_case():
     assert {f"{k} {m}" for k in ("separate", "combine") for m in ("RGB", "HSV", "HSL")} <= ops
 
 
-def test_math_matches_cycles(tmp_path):
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    """``results(cases)``: :func:`run`'s results of ``cases``, every case of
+    the module rendered on the first call (146 cases in 89 tiles: two
+    renders)."""
+    done = {}
+
+    def results(cases):
+        if not done:
+            every = MATH_CASES + VECTOR_CASES + MAP_RANGE_CASES + COLOUR_CASES
+            done.update((id(r[0]), r) for r in run(every, tmp_path_factory.mktemp("node_math")))
+        return [done[id(c)] for c in cases]
+    return results
+
+
+def test_math_matches_cycles(rendered):
     """Every Math operation (and its Clamp), on inputs that cross its special
-    places, 56 cases in one render.  Measured: median 0, p99 1.2e-7, largest
-    1.2e-7 (Sinh, Cosh, Arctan2, Arccosine, Tangent: an ulp); the rest
-    exact."""
-    check(run(MATH_CASES, tmp_path), "math")
+    places, 56 cases.  Measured: median 0, p99 1.2e-7, largest 1.2e-7
+    (Sinh, Cosh, Arctan2, Arccosine, Tangent: an ulp); the rest exact."""
+    check(rendered(MATH_CASES), "math")
 
 
-def test_vector_math_matches_cycles(tmp_path):
-    """Every Vector Math operation, 40 cases in one render.  Measured: median
-    0, p99 6.6e-8, largest 1.1e-7 (Sine, Cosine, Tangent: an ulp); the rest
-    exact."""
-    check(run(VECTOR_CASES, tmp_path), "vector math")
+def test_vector_math_matches_cycles(rendered):
+    """Every Vector Math operation, 40 cases.  Measured: median 0, p99
+    6.6e-8, largest 1.1e-7 (Sine, Cosine, Tangent: an ulp); the rest exact."""
+    check(rendered(VECTOR_CASES), "vector math")
 
 
-def test_map_range_and_clamp_match_cycles(tmp_path):
+def test_map_range_and_clamp_match_cycles(rendered):
     """Map Range FLOAT and FLOAT_VECTOR, every interpolation with and without
     Clamp, equal and reversed ranges, Steps <= 0; Clamp MINMAX and RANGE with
-    crossed bounds: 30 cases in one render.  Measured: all exact."""
-    check(run(MAP_RANGE_CASES, tmp_path), "map range, clamp")
+    crossed bounds: 30 cases.  Measured: all exact."""
+    check(rendered(MAP_RANGE_CASES), "map range, clamp")
 
 
-def test_colour_mix_and_conversions_match_cycles(tmp_path):
+def test_colour_mix_and_conversions_match_cycles(rendered):
     """Separate and Combine Color in every mode, Mix FLOAT and VECTOR
     (uniform and non-uniform factor, clamped or not) and the colour- and
-    vector-to-float conversions, 20 cases in one render.  Measured: median
-    0, p99 6e-8, largest 6e-8 (separating HSV: an ulp); the rest exact."""
-    check(run(COLOUR_CASES, tmp_path), "colour, mix, conversions")
+    vector-to-float conversions, 20 cases.  Measured: median 0, p99 6e-8,
+    largest 6e-8 (separating HSV: an ulp); the rest exact."""
+    check(rendered(COLOUR_CASES), "colour, mix, conversions")
