@@ -565,3 +565,36 @@ def test_too_many_triangles_for_blocks_give_one_texel_a_triangle(monkeypatch):
     assert np.all(scene.tri_uv == scene.tri_uv[:, :1])
     centroid_x = scene.tri_p.astype(np.float64).mean(axis=1)[:, 0]
     assert np.allclose(np.sort(tex[0, :, 0]), np.sort(centroid_x), atol=1e-6)
+
+
+def test_an_unchanged_atlas_is_not_baked_again(monkeypatch):
+    """Exporting the same scene again (the viewport does after every edit)
+    reuses the atlas: the same uvs and textures, no bake; a changed node
+    value bakes anew."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+
+    from fppm.addon import export_atlas
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        nz = _noise(nodes, links, 4.0, 1.0)
+        links.new(nz.outputs['Color'], d.inputs['Color'])
+
+    _, ob = _scene(mat)
+    first, _ = TS._export()
+    calls = []
+    real = export_atlas.AtlasBaker._layout_and_bake
+
+    def counted(self, *args):
+        calls.append(1)
+        return real(self, *args)
+    monkeypatch.setattr(export_atlas.AtlasBaker, "_layout_and_bake", counted)
+    again, _ = TS._export()
+    assert not calls
+    assert np.array_equal(first.tri_uv, again.tri_uv)
+    assert np.array_equal(first.textures[-1], again.textures[-1])
+    nz = next(nd for nd in ob.data.materials[0].node_tree.nodes if nd.type == 'TEX_NOISE')
+    nz.inputs['Scale'].default_value = 5.0
+    TS._export()
+    assert len(calls) == 1
