@@ -73,14 +73,18 @@ def procedural_params(node, follow, notes, skip=()) -> dict:
         except TypeError:
             params[sock.name] = float(v)
     for prop in node.bl_rna.properties:
-        if prop.type in ('ENUM', 'BOOLEAN') and not prop.is_readonly \
-                and prop.identifier not in _BASE_PROPERTIES:
+        if prop.type in ('ENUM', 'BOOLEAN', 'INT', 'FLOAT') and not prop.is_readonly \
+                and getattr(prop, "array_length", 0) == 0 \
+                and prop.identifier not in _base_properties():
             params[prop.identifier] = getattr(node, prop.identifier)
     return params
 
 
-_BASE_PROPERTIES = {"select", "show_options", "show_preview", "hide", "mute",
-                    "show_texture", "use_custom_color", "warning_propagation"}
+def _base_properties() -> frozenset:
+    """The properties every shader node has (location, width, mute, ...):
+    not a texture's parameters."""
+    import bpy
+    return frozenset(p.identifier for p in bpy.types.ShaderNode.bl_rna.properties)
 
 
 def needs_atlas(nodes, graph_nodes) -> bool:

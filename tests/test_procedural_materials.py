@@ -598,3 +598,23 @@ def test_an_unchanged_atlas_is_not_baked_again(monkeypatch):
     nz.inputs['Scale'].default_value = 5.0
     TS._export()
     assert len(calls) == 1
+
+
+def test_a_procedurals_properties_are_its_params():
+    """Every enum, boolean, int and float property of a procedural node is a
+    param of its port (a Brick's offset, squash and their frequencies), and
+    none of the properties every node has."""
+    pytest.importorskip("bpy")
+    import bpy
+
+    from fppm.addon.export_atlas import procedural_params
+    m = bpy.data.materials.new("Params")
+    nd = m.node_tree.nodes.new('ShaderNodeTexBrick')
+    nd.offset, nd.offset_frequency, nd.squash, nd.squash_frequency = 0.3, 3, 1.5, 4
+    params = procedural_params(nd, lambda sock: (None, None, sock), [])
+    assert {k: params[k] for k in ("offset", "offset_frequency", "squash",
+                                   "squash_frequency")} == pytest.approx(
+        {"offset": 0.3, "offset_frequency": 3, "squash": 1.5, "squash_frequency": 4})
+    assert not {"width", "location", "mute", "select"} & set(params)
+    assert params["Scale"] == 5.0 and "Vector" not in params
+    bpy.data.materials.remove(m)
