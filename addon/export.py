@@ -133,6 +133,8 @@ SUPPORT = (
      SUPPORTED, ""),
     ("Image Texture interpolation (Linear, Closest, Cubic, Smart as Cubic) and extension "
      "(Repeat, Extend, Clip, Mirror)", SUPPORTED, ""),
+    ("Image Texture projection: Box (with its blend, over the object-space normal), Sphere, "
+     "Tube (the material baked into an atlas)", SUPPORTED, ""),
     ("an image's colour (also through colour nodes: its luminance) or alpha into a Mix "
      "Shader's Fac, the Principled Alpha or Metallic, or an emission's Strength, per hit",
      SUPPORTED, ""),
@@ -1236,8 +1238,6 @@ class _Exporter:
         if key not in self.tex_pixels:
             px = self.pixels(img, mb.notes)
             self.tex_pixels[key] = px
-            if getattr(node, "projection", 'FLAT') != 'FLAT':
-                mb.notes.append(f"{node.name}: projection '{node.projection}' treated as flat")
         px = self.tex_pixels[key]
         if px is None:
             return -1

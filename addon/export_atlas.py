@@ -89,8 +89,10 @@ def _base_properties() -> frozenset:
 
 def needs_atlas(nodes, graph_nodes) -> bool:
     """Whether any of the nodes (a material's, its groups' included) with a
-    linked output is a procedural texture or one of ``graph_nodes``."""
-    return any((nd.type in PR.KINDS or nd.type in graph_nodes)
+    linked output is a procedural texture, one of ``graph_nodes`` or an
+    Image Texture projected otherwise than flat."""
+    return any((nd.type in PR.KINDS or nd.type in graph_nodes
+                or nd.type == 'TEX_IMAGE' and getattr(nd, "projection", 'FLAT') != 'FLAT')
                and any(o.is_linked for o in nd.outputs) for nd in nodes)
 
 
@@ -113,6 +115,7 @@ def uv_periodic(b, textures) -> bool:
         if isinstance(e, SG.Image):
             v = e.vector
             return (isinstance(v, SG.Attr) and v.key == ("UV", None)
+                    and e.projection == "FLAT"
                     and sampler_of(textures[e.texture]) >> 2 == REPEAT)
         if isinstance(e, (SG.Attr, SG.Proc)):
             return False

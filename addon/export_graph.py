@@ -130,7 +130,10 @@ class GraphReader:
             tex = mb.ex.texture(node, mb)
             if tex < 0:
                 return None
-            return Image(tex, name, self._vector(node, depth, ('UV', None)))
+            proj = getattr(node, "projection", 'FLAT')
+            return Image(tex, name, self._vector(node, depth, ('UV', None)), proj,
+                         float(getattr(node, "projection_blend", 0.0)),
+                         Attr(('ObjectNormal',)) if proj == 'BOX' else None)
         if t in PR.KINDS:
             return self._procedural(node, name, depth)
         if t == 'MATH':

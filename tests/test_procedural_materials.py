@@ -618,3 +618,32 @@ def test_a_procedurals_properties_are_its_params():
     assert not {"width", "location", "mute", "select"} & set(params)
     assert params["Scale"] == 5.0 and "Vector" not in params
     bpy.data.materials.remove(m)
+
+
+@pytest.mark.parametrize("projection", ["BOX", "SPHERE", "TUBE"])
+def test_image_projections_agree_with_cycles(projection, tmp_path):
+    """An Image Texture projected Box (blend 0.3, the plane tilted so that
+    its normal mixes the three faces), Sphere or Tube, at Object coordinates
+    through a Mapping: Cycles' svm_node_tex_image_box weights and
+    map_to_sphere / map_to_tube (FPPM read the image flat before, noted)."""
+    pytest.importorskip("bpy")
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        im = _image_node(nodes)
+        im.projection = projection
+        im.projection_blend = 0.3
+        tc = nodes.new('ShaderNodeTexCoord')
+        mp = nodes.new('ShaderNodeMapping')
+        mp.inputs['Scale'].default_value = (0.6, 0.6, 0.6)
+        mp.inputs['Location'].default_value = (0.5, 0.5, 0.5)
+        mp.inputs['Rotation'].default_value = (0.7, 0.5, 0.0)   # z varies over the plane
+        links.new(tc.outputs['Object'], mp.inputs['Vector'])
+        links.new(mp.outputs['Vector'], im.inputs['Vector'])
+        links.new(im.outputs['Color'], d.inputs['Color'])
+
+    sc, ob = _scene(mat)
+    ob.rotation_euler = (0.55, 0.4, 0.5)
+    err, noise, img, ref, scene, lines = _compare(sc, tmp_path, f"{projection} projection")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    _check(err, noise, _effect(img, scene, (0.5, 0.5, 0.5, 1.0)))

@@ -62,10 +62,15 @@ class Attr:
 class Image:
     """An Image Texture: ``texture`` indexes the exporter's textures (the
     image as its Color output reads it, core/scene/textures.py), read at
-    ``vector`` (its x, y); output 'Color' or 'Alpha'."""
+    ``vector`` through its ``projection`` ('FLAT': x, y; 'SPHERE', 'TUBE',
+    or 'BOX' blended by ``blend`` over the object-space ``normal``
+    expression, :func:`image_projection`); output 'Color' or 'Alpha'."""
     texture: int
     output: str
     vector: object
+    projection: str = "FLAT"
+    blend: float = 0.0
+    normal: object = None
 
     @property
     def kind(self) -> str:
@@ -141,7 +146,8 @@ def walk(e):
 
 def _children(e):
     if isinstance(e, (Image, Proc)):
-        return tuple(x for x in (e.vector, getattr(e, "w", None)) if x is not None)
+        return tuple(x for x in (e.vector, getattr(e, "w", None), getattr(e, "normal", None))
+                     if x is not None)
     if isinstance(e, Op):
         return e.args
     return ()
@@ -181,8 +187,14 @@ def _evaluate(e, ctx, memo):
         return a[:, 0] if e.kind == FLOAT else a
     if isinstance(e, Image):
         img = ctx.textures[e.texture]
-        uv = evaluate(e.vector, ctx, memo)[:, :2]
-        return sample_texture(img, uv) if e.output == "Color" else sample_alpha(img, uv)
+        co = evaluate(e.vector, ctx, memo)
+        n = evaluate(e.normal, ctx, memo) if e.normal is not None else None
+        looks = image_projection(e.projection, co, n, e.blend)
+        out = 0.0
+        for w, uv in looks:
+            c = sample_texture(img, uv) if e.output == "Color" else sample_alpha(img, uv)
+            out = out + (np.asarray(w)[..., None] * c if c.ndim == 2 else w * c)
+        return out
     if isinstance(e, Proc):
         params = dict(e.params)
         if e.w is not None:
@@ -195,6 +207,85 @@ def _evaluate(e, ctx, memo):
 
 #: Expression kinds as node_math's socket kinds.
 _SOCKET = {FLOAT: "VALUE", VEC: "VECTOR", COLOR: "RGBA"}
+
+
+def _remap_square(co):
+    """Cycles' texco_remap_square: 0..1 to -1..1."""
+    return (co - 0.5) * 2.0
+
+
+def _map_to_tube(co):
+    """Cycles' map_to_tube (util/math): u the angle about z, v the height."""
+    x, y, z = co[:, 0], co[:, 1], co[:, 2]
+    ln = np.sqrt(x * x + y * y)
+    safe = np.where(ln > 0.0, ln, 1.0)
+    u = np.where(ln > 0.0, (1.0 - np.arctan2(x / safe, y / safe) / np.pi) * 0.5, 0.0)
+    v = np.where(ln > 0.0, (z + 1.0) * 0.5, 0.0)
+    return np.stack([u, v], 1)
+
+
+def _map_to_sphere(co):
+    """Cycles' map_to_sphere: u the angle about z, v the polar angle."""
+    x, y, z = co[:, 0], co[:, 1], co[:, 2]
+    ll = x * x + y * y + z * z
+    on = ll > 0.0
+    u = np.where(on & ~((x == 0.0) & (y == 0.0)), 0.5 - np.arctan2(x, y) / (2.0 * np.pi), 0.0)
+    cz = np.clip(z / np.sqrt(np.where(on, ll, 1.0)), -1.0, 1.0)
+    v = np.where(on, 1.0 - np.arccos(cz) / np.pi, 0.0)
+    return np.stack([u, v], 1)
+
+
+def _box_weights(n, blend: float):
+    """(K, 3) Cycles' svm_node_tex_image_box weights of the three axis
+    projections for object-space normals n (K, 3): one texture near each
+    axis, two or three blended between, by ``blend``."""
+    a = np.abs(n)
+    a = a / np.maximum(a.sum(axis=1, keepdims=True), 1e-30)
+    x, y, z = a[:, 0], a[:, 1], a[:, 2]
+    limit = 0.5 * (1.0 + blend)
+    w = np.zeros_like(a)
+    cx = (x > limit * (x + y)) & (x > limit * (x + z))
+    cy = ~cx & (y > limit * (x + y)) & (y > limit * (y + z))
+    cz = ~cx & ~cy & (z > limit * (x + z)) & (z > limit * (y + z))
+    rest = ~(cx | cy | cz)
+    w[cx, 0], w[cy, 1], w[cz, 2] = 1.0, 1.0, 1.0
+    if blend > 0.0:
+        with np.errstate(all='ignore'):
+            xy = rest & (z < (1.0 - limit) * (y + x))
+            yz = rest & ~xy & (x < (1.0 - limit) * (y + z))
+            xz = rest & ~xy & ~yz & (y < (1.0 - limit) * (x + z))
+            three = rest & ~xy & ~yz & ~xz
+
+            def two(m, i, j):
+                t = np.clip((a[m, i] / (a[m, i] + a[m, j]) - 0.5 * (1.0 - blend)) / blend,
+                            0.0, 1.0)
+                w[m, i], w[m, j] = t, 1.0 - t
+            two(xy, 0, 1)
+            two(yz, 1, 2)
+            two(xz, 0, 2)
+            w[three] = ((2.0 - limit) * a[three] + (limit - 1.0)) / (2.0 * limit - 1.0)
+    else:
+        w[rest, 0] = 1.0             # Cycles' "desperate mode": one side
+    return w
+
+
+def image_projection(projection: str, co, n=None, blend: float = 0.0) -> list:
+    """[(weight (K,) or 1.0, uv (K, 2))]: where an Image Texture of
+    ``projection`` reads at texture vectors co (K, 3) (Cycles'
+    svm_node_tex_image_mapping and svm_node_tex_image_box: each box face
+    mapped so that none is mirrored)."""
+    if projection == "SPHERE":
+        return [(1.0, _map_to_sphere(_remap_square(co)))]
+    if projection == "TUBE":
+        return [(1.0, _map_to_tube(_remap_square(co)))]
+    if projection != "BOX":
+        return [(1.0, co[:, :2])]
+    w = _box_weights(n, blend)
+    x, y, z = co[:, 0], co[:, 1], co[:, 2]
+    faces = [np.stack([np.where(n[:, 0] < 0.0, 1.0 - y, y), z], 1),
+             np.stack([np.where(n[:, 1] > 0.0, 1.0 - x, x), z], 1),
+             np.stack([np.where(n[:, 2] > 0.0, 1.0 - y, y), x], 1)]
+    return [(w[:, i], faces[i]) for i in range(3)]
 
 
 def _to_float(args, params):
