@@ -214,7 +214,14 @@ SUPPORT = (
     ("anisotropy", IGNORED, "anisotropy ignored"),
     ("thin-film iridescence", IGNORED, "thin-film iridescence ignored"),
     ("volumes", IGNORED, "volume ignored"),
-    ("displacement", IGNORED, "displacement ignored"),
+    ("material displacement: a Displacement node's Height (an image or a texture graph) as "
+     "the bump Cycles renders by default (Displacement method Bump Only)", SUPPORTED, ""),
+    ("true displacement (Displacement method Displacement or Both: moved vertices)",
+     APPROXIMATED, "true displacement rendered as bump"),
+    ("a Displacement beside a Bump node on the shaders' Normal", APPROXIMATED,
+     "displacement ignored beside a Bump node"),
+    ("Vector Displacement, or other nodes into the Displacement", APPROXIMATED,
+     "into the Displacement ignored"),
     ("light nodes", IGNORED, "light nodes ignored"),
     ("hair curves", IGNORED, "not rendered"),
     ("motion blur", IGNORED, "motion blur ignored"),
@@ -879,6 +886,36 @@ class _MaterialBuilder:
         self.notes.append(f"'{src.name}' into {node.name}.Normal ignored")
         return None
 
+    def displacement(self, output) -> NormalInput | None:
+        """The Material Output's Displacement as Cycles renders it by default
+        (the material's Displacement method 'Bump Only':
+        ShaderGraph::bump_from_displacement, a bump of distance 1 whose height
+        is the displacement along the normal, (Height - Midlevel) Scale): a
+        BUMP NormalInput of the Height's image or graph, distance Scale; or
+        None (a note when something is linked that is not read)."""
+        sock = output.inputs.get("Displacement")
+        if sock is None or not sock.is_linked:
+            return None
+        src, _, _ = self.follow(sock)
+        if src is None:
+            return None
+        if src.type != 'DISPLACEMENT':
+            self.notes.append(f"'{src.name}' into the Displacement ignored")
+            return None
+        if getattr(self.mat, "displacement_method", 'BUMP') != 'BUMP':
+            self.notes.append("true displacement rendered as bump (no subdivision)")
+        if src.inputs.get("Normal") is not None and src.inputs["Normal"].is_linked:
+            self.notes.append(f"'{src.name}': its Normal input ignored")
+        chain = self.image_chain(src.inputs["Height"])
+        if chain is None:
+            self.notes.append(f"'{src.name}': height is not an Image Texture or a procedural "
+                              f"texture: displacement ignored")
+            return None
+        t = self.image(chain[0]) if self.atlas else self.image(*chain)
+        if t < 0:
+            return None
+        return NormalInput(BUMP, t, strength=1.0, distance=self.value(src, "Scale", 1.0))
+
     # -- shaders --------------------------------------------------------------
     def shader(self, socket, depth=0) -> Material:
         node, out, _ = self.follow(socket)
@@ -1006,9 +1043,7 @@ class _MaterialBuilder:
         m = self.shader(active[0].inputs["Surface"])
         if active[0].inputs.get("Volume") is not None and active[0].inputs["Volume"].is_linked:
             self.notes.append("volume ignored")
-        if active[0].inputs.get("Displacement") is not None and \
-                active[0].inputs["Displacement"].is_linked:
-            self.notes.append("displacement ignored")
+        displaced = self.displacement(active[0])
         if len(m.lobes) > MAX_LOBES:
             self.notes.append(f"{len(m.lobes)} closures cut to the {MAX_LOBES} heaviest")
             lobes = sorted(m.lobes, key=lambda lb: -lb.weight * max(lb.color))[:MAX_LOBES]
@@ -1034,6 +1069,17 @@ class _MaterialBuilder:
             if len({inp for _, inp in self.normals}) > 1:
                 self.notes.append(f"the shaders' Normal inputs differ: '{found[0][0]}''s "
                                   f"applied to all")
+        if displaced is not None:
+            if normal is None:
+                normal = displaced
+            elif normal.kind == NORMAL_MAP:
+                # Cycles applies the displacement's bump first and the normal
+                # map over it; one bump over a normal map here (NormalInput.base).
+                normal = dataclasses.replace(displaced, base=normal)
+                self.notes.append("the displacement's bump applied over the normal map "
+                                  "(Cycles: the normal map over the bump)")
+            else:
+                self.notes.append("displacement ignored beside a Bump node")
         vecs = {_spec_key(v) for v in self.vectors}
         self.vector_spec = self.vectors[0] if self.vectors else None
         if len(vecs) > 1 and not self.bakes:

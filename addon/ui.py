@@ -331,6 +331,18 @@ class FPPM_MATERIAL_PT_surface(FPPMDataPanel, Panel):
             layout.prop(mat, "diffuse_color")
 
 
+class FPPM_MATERIAL_PT_displacement(FPPMDataPanel, Panel):
+    """The Material Output's Displacement, which FPPM renders as the bump
+    Cycles makes of it by default (docs/shading.md)."""
+    bl_label = "Displacement"
+    bl_context = "material"
+    bl_options = {'DEFAULT_CLOSED'}
+    poll_data = FPPM_MATERIAL_PT_surface.poll_data
+
+    def draw(self, context):
+        node_output_draw(split(self.layout), context.material, "Displacement")
+
+
 class FPPM_MATERIAL_PT_settings(FPPMDataPanel, Panel):
     bl_label = "Settings"
     bl_context = "material"
@@ -338,8 +350,11 @@ class FPPM_MATERIAL_PT_settings(FPPMDataPanel, Panel):
     poll_data = FPPM_MATERIAL_PT_surface.poll_data
 
     def draw(self, context):
-        # Only the pass index: the Material Index pass writes it.
-        split(self.layout).prop(context.material, "pass_index")
+        # The pass index (the Material Index pass writes it) and the
+        # displacement method (anything but Bump Only is noted: rendered as bump).
+        layout = split(self.layout)
+        layout.prop(context.material, "pass_index")
+        layout.prop(context.material, "displacement_method", text="Displacement")
 
 
 class FPPMPreviewPanel(FPPMDataPanel):
@@ -465,6 +480,7 @@ classes = (
     FPPM_PT_context_material,
     FPPM_MATERIAL_PT_preview,
     FPPM_MATERIAL_PT_surface,
+    FPPM_MATERIAL_PT_displacement,
     FPPM_MATERIAL_PT_settings,
     FPPM_WORLD_PT_preview,
     FPPM_WORLD_PT_surface,
@@ -547,7 +563,9 @@ EQUIVALENTS = {
     "CYCLES_PT_context_material": ("FPPM_PT_context_material", "slots, active material"),
     "CYCLES_MATERIAL_PT_surface": ("FPPM_MATERIAL_PT_surface", "the Surface node tree"),
     "CYCLES_MATERIAL_PT_settings": ("FPPM_MATERIAL_PT_settings",
-                                    "pass index (Material Index pass)"),
+                                    "pass index (Material Index pass), displacement method"),
+    "CYCLES_MATERIAL_PT_displacement": ("FPPM_MATERIAL_PT_displacement",
+                                        "the Displacement input (rendered as bump)"),
     "CYCLES_WORLD_PT_surface": ("FPPM_WORLD_PT_surface", "Background colour and strength"),
     "CYCLES_WORLD_PT_mist": ("FPPM_WORLD_PT_mist", "mist start, depth, falloff"),
     "CYCLES_CAMERA_PT_dof": ("DATA_PT_camera_dof", "focus distance/object, F-stop"),
@@ -616,7 +634,6 @@ HIDDEN = {
     "DATA_PT_lightprobe_display": "light probes: ignored",
     "DATA_PT_lightprobe_parallax": "light probes: ignored",
     "DATA_PT_lightprobe_visibility": "light probes: ignored",
-    "CYCLES_MATERIAL_PT_displacement": "displacement: ignored",
     "EEVEE_MATERIAL_PT_viewport_settings": "EEVEE material settings: ignored",
     "CYCLES_WORLD_PT_volume": "volumes: ignored",
     "CYCLES_WORLD_PT_ray_visibility": "world ray visibility: ignored",

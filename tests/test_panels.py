@@ -220,7 +220,10 @@ def test_material_and_world_surface_draw_the_node_tree(scene):
     assert [v[1:] for v in lay.node_views] == [('OUTPUT_MATERIAL', "Surface")]
     lay = draw(ui.FPPM_WORLD_PT_surface, ctx)
     assert [v[1:] for v in lay.node_views] == [('OUTPUT_WORLD', "Surface")]
-    assert draw(ui.FPPM_MATERIAL_PT_settings, ctx).props == ["pass_index"]
+    assert draw(ui.FPPM_MATERIAL_PT_settings, ctx).props == ["pass_index",
+                                                            "displacement_method"]
+    lay = draw(ui.FPPM_MATERIAL_PT_displacement, ctx)
+    assert [v[1:] for v in lay.node_views] == [('OUTPUT_MATERIAL', "Displacement")]
     draw(ui.FPPM_PT_context_material, ctx)   # slots: runs against the real object
 
 
