@@ -92,6 +92,7 @@ def main():
     import numpy as np
 
     from fppm.addon.export import export_scene
+    from fppm.addon.export_atlas import _CACHE
     from fppm.core.render import Renderer
     from fppm.core.settings import RenderSettings
     from scenes import bpy_kit as K
@@ -104,6 +105,7 @@ def main():
         geometry(m)
 
         def export():
+            _CACHE.clear()        # each export bakes (the viewport's cache left out)
             dg = bpy.context.evaluated_depsgraph_get()
             t = time.perf_counter()
             s = export_scene(dg, log=lambda line: None)
