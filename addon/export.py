@@ -478,6 +478,7 @@ class _MaterialBuilder:
         self.vectors: list = []            # texture vector specs (see vector())
         self.vector_spec = None            # the one applied to the material (build())
         self.bakes: list = []              # export_atlas.Bake per texture read
+        self.displaced_in_object_space = False   # displacement() in object space
         # A procedural texture, a node only the graph evaluates (Math, a colour
         # attribute, ...) or images read at different vectors make the
         # material an atlas one: every texture it reads is an expression of
@@ -914,6 +915,9 @@ class _MaterialBuilder:
         t = self.image(chain[0]) if self.atlas else self.image(*chain)
         if t < 0:
             return None
+        # Object space (the node's default): the displacement scales with the
+        # object, applied per object by _Exporter.scale_displacements.
+        self.displaced_in_object_space = getattr(src, "space", 'OBJECT') == 'OBJECT'
         return NormalInput(BUMP, t, strength=1.0, distance=self.value(src, "Scale", 1.0))
 
     # -- shaders --------------------------------------------------------------
@@ -1080,6 +1084,7 @@ class _MaterialBuilder:
                                   "(Cycles: the normal map over the bump)")
             else:
                 self.notes.append("displacement ignored beside a Bump node")
+                self.displaced_in_object_space = False
         vecs = {_spec_key(v) for v in self.vectors}
         self.vector_spec = self.vectors[0] if self.vectors else None
         if len(vecs) > 1 and not self.bakes:
@@ -1210,6 +1215,7 @@ class _Exporter:
         self.tex_pixels: dict = {}     # image name -> its pixels (or None)
         self.mesh_cache: dict = {}
         self.atlas = AtlasBaker(self)  # materials baked into texture atlases
+        self.disp_scales: dict = {}    # material displaced in object space -> object scales
         self.notes: list[str] = []
         self.n_objects = 0
         self.n_instances = 0
@@ -1466,6 +1472,8 @@ class _Exporter:
             self.materials.append(m)
             self.mat_pass_index.append(int(getattr(mat, "pass_index", 0)))
             self.mat_vector.append(None if mb.bakes else mb.vector_spec)
+            if mb.displaced_in_object_space and self.materials[idx].normal is not None:
+                self.disp_scales[idx] = []
             self.atlas.add_material(idx, mb)
             self.mat_index[key] = idx
         return idx
@@ -1581,6 +1589,9 @@ class _Exporter:
             used = np.unique(mat)
             new_uv = None
             for m in used:
+                if m in self.disp_scales:
+                    self.disp_scales[m].append(
+                        abs(np.linalg.det(_mat4(inst.matrix_world)[:3, :3])) ** (1.0 / 3.0))
                 if m in self.atlas.keys:
                     if new_uv is None:
                         new_uv = uv.copy()
@@ -1612,6 +1623,24 @@ class _Exporter:
                 parts[i] = (pw, nw, new_uv, mat)
             needs = any(_uses_normal_map(self.materials[m].normal) for m in used)
             self.tangent_parts.append(self.tangents(inst, ob) if needs else None)
+
+    def scale_displacements(self) -> None:
+        """A displacement in object space grows with its object (Cycles'
+        object_dir_transform of the displacement vector): the bump distance
+        of each such material times its objects' scale (the cube root of the
+        transform's determinant; the median, noted, when they differ)."""
+        for m, scales in self.disp_scales.items():
+            if not scales:
+                continue
+            s = float(np.median(scales))
+            mat = self.materials[m]
+            notes = mat.approximations
+            if max(scales) - min(scales) > 1e-6 * s:
+                notes += (f"displacement on objects of scales {min(scales):.3g}-"
+                          f"{max(scales):.3g}: the bump of scale {s:.3g} on all",)
+            self.materials[m] = dataclasses.replace(
+                mat, approximations=notes,
+                normal=dataclasses.replace(mat.normal, distance=mat.normal.distance * s))
 
     def record_atlas(self, inst, ob, i, rows, m, pw, nw, uv) -> None:
         """Hands the triangles ``rows`` of parts[i] (of atlas material m) to
@@ -2092,6 +2121,7 @@ class _Exporter:
                 self.n_objects += 1
                 self.n_instances += bool(inst.is_instance)
         self.atlas.bake(parts)
+        self.scale_displacements()
         self.notes += feature_notes(scene, list(seen.values()))
         if any(getattr(m, "normal", None) is not None for m in self.materials):
             self.notes.append("normal maps and bump: photons scatter off the interpolated "

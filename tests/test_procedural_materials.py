@@ -649,13 +649,16 @@ def test_image_projections_agree_with_cycles(projection, tmp_path):
     _check(err, noise, _effect(img, scene, (0.5, 0.5, 0.5, 1.0)))
 
 
-@pytest.mark.parametrize("height", ["image", "noise"])
+@pytest.mark.parametrize("height", ["image", "noise", "scaled"])
 def test_displacement_renders_as_cycles_bump(height, tmp_path):
     """A Displacement node (Scale 0.15, Midlevel 0.5) into the Material
     Output's Displacement, its Height an image or a Noise: Cycles renders it
     as a bump by default (Displacement method 'Bump Only'); FPPM ignored it
     before.  Measured: 0.82x / 0.89x the seed-to-seed noise; without the
-    bump the image is 4.9x / 3.5x the bound away."""
+    bump the image is 4.9x / 3.5x the bound away.  'scaled': the image on
+    the plane scaled 3x (object-space displacement grows with the object:
+    0.94x the noise; at the unscaled distance 2.7 % of the mean away, 90x
+    the noise)."""
     pytest.importorskip("bpy")
     import test_shading_nodes as TS
 
@@ -664,7 +667,7 @@ def test_displacement_renders_as_cycles_bump(height, tmp_path):
         out = next(nd for nd in nodes if nd.type == 'OUTPUT_MATERIAL')
         disp = nodes.new('ShaderNodeDisplacement')
         disp.inputs['Scale'].default_value = 0.15
-        if height == "image":
+        if height != "noise":
             src = _image_node(nodes, "H", TS.height_pixels()).outputs['Color']
         else:
             src = _noise(nodes, links, 6.0, 1.0).outputs['Factor']
@@ -672,7 +675,11 @@ def test_displacement_renders_as_cycles_bump(height, tmp_path):
         links.new(src, disp.inputs['Height'])
         links.new(disp.outputs['Displacement'], out.inputs['Displacement'])
 
-    sc, _ = _scene(mat)
+    sc, ob = _scene(mat)
+    if height == "scaled":
+        ob.scale = (3.0, 3.0, 3.0)
+        next(nd for nd in ob.data.materials[0].node_tree.nodes
+             if nd.type == 'DISPLACEMENT').inputs['Scale'].default_value = 0.05
     err, noise, img, ref, scene, lines = _compare(sc, tmp_path, f"displacement {height}")
     assert lines[1] == TS.PHOTON_NOTE, lines[1]
     plain = TS._fppm(TS._without_normals(scene), 1)
