@@ -15,7 +15,8 @@ reads the bake as it reads an image, per hit, compiled or not.
 Its cost is resolution: a block's texels follow the finest detail of the
 sources (``atlas.procedural_density``, ``atlas.image_density``) within a
 budget of texels a material (``atlas.BUDGET``); docs/shading.md
-"Procedural textures and material atlases" gives the measured error.
+"Procedural textures, node graphs and material atlases" gives the measured
+error.
 """
 from __future__ import annotations
 
@@ -54,8 +55,8 @@ def _failure(err) -> str:
 def procedural_params(node, follow, notes, skip=()) -> dict:
     """A procedural node's params (core/scene/procedural.py): its input
     sockets' values by name (a linked one at its own value, noted; a Value
-    node's value) but the Vector and ``skip``, and its enum and boolean
-    properties by identifier."""
+    node's value) but the Vector and ``skip``, and its enum, boolean, int
+    and float properties by identifier."""
     params = {}
     for sock in node.inputs:
         if sock.name == "Vector" or sock.name in skip:
@@ -107,10 +108,10 @@ def chain_exprs(e, ops) -> list:
 
 
 def uv_periodic(b, textures) -> bool:
-    """Whether a bake's chain (its images in ``textures``) reads the surface only through images at the
-    render UV, each read with Repeat: a function of the uv, periodic with
-    period 1 in u and v, so that one bake over the unit square serves every
-    triangle at its own uvs."""
+    """Whether a bake's chain (its images in ``textures``) reads the surface
+    only through images at the render UV, each read flat with Repeat: a
+    function of the uv, periodic with period 1 in u and v, so that one bake
+    over the unit square serves every triangle at its own uvs."""
     def ok(e):
         if isinstance(e, SG.Image):
             v = e.vector
@@ -141,7 +142,7 @@ class AtlasBaker:
         self.ex = ex
         self.bakes: dict[int, list[Bake]] = {}      # material -> its bakes
         self.keys: dict[int, list] = {}             # material -> attribute keys read
-        self.parts: dict[int, list] = {}            # material -> [(part, rows, attrs, key)]
+        self.parts: dict[int, list] = {}    # material -> [(part, rows, attrs, key, world)]
 
     # -- materials -----------------------------------------------------------
     def texture(self, mb, expr, ops, scalar) -> int:

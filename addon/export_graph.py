@@ -199,7 +199,8 @@ class GraphReader:
         dt = node.data_type
         if dt == 'RGBA':
             args = (self._in(node, "Factor_Float", depth, FLOAT),
-                    self._in(node, "A_Color", depth, COLOR), self._in(node, "B_Color", depth, COLOR))
+                    self._in(node, "A_Color", depth, COLOR),
+                    self._in(node, "B_Color", depth, COLOR))
             params = (node.blend_type, bool(node.clamp_factor), bool(node.clamp_result))
             return None if None in args else Op("mix_color", args, params, COLOR)
         if dt == 'FLOAT':
