@@ -88,6 +88,16 @@ class GraphReader:
     def _node(self, node, out, depth):
         t, name = node.type, out.name
         mb = self.mb
+        if node.mute:
+            # A muted node passes its internal link's input on (Cycles' bypass),
+            # else gives zero.
+            links = [lk for lk in node.internal_links if lk.to_socket == out]
+            if not links:
+                return Const(0.0, FLOAT)
+            e = self.expression(links[0].from_socket, depth)
+            kind = _KINDS.get(out.type, FLOAT)
+            return None if e is None else (SG.as_float(e) if kind == FLOAT
+                                           else SG.as_vector(e, kind))
         if t == 'VALUE':
             return Const(float(out.default_value), FLOAT)
         if t == 'RGB':

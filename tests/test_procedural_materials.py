@@ -684,3 +684,30 @@ def test_displacement_renders_as_cycles_bump(height, tmp_path):
     assert lines[1] == TS.PHOTON_NOTE, lines[1]
     plain = TS._fppm(TS._without_normals(scene), 1)
     _check(err, noise, float(np.abs(plain - img).mean() / img.mean()))
+
+
+def test_a_muted_node_passes_its_input_on():
+    """A muted Math node in a texture graph passes its first input on (its
+    internal link), as Cycles bypasses it: the bake equals the graph without
+    it."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        sep = _position_xyz(nodes, links)
+        ma = nodes.new('ShaderNodeMath')
+        ma.operation = 'SINE'
+        ma.mute = True
+        links.new(sep.outputs['X'], ma.inputs[0])
+        links.new(ma.outputs[0], d.inputs['Color'])
+
+    _, ob = _scene(mat)
+    muted, _ = TS._export()
+    nt = ob.data.materials[0].node_tree
+    ma = next(nd for nd in nt.nodes if nd.type == 'MATH')
+    d = next(nd for nd in nt.nodes if nd.type == 'BSDF_DIFFUSE')
+    nt.links.new(ma.inputs[0].links[0].from_socket, d.inputs['Color'])
+    nt.nodes.remove(ma)
+    direct, _ = TS._export()
+    assert np.array_equal(muted.textures[-1], direct.textures[-1])
