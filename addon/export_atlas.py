@@ -43,8 +43,10 @@ EVAL_ERRORS = (ArithmeticError, ValueError, KeyError, TypeError, IndexError)
 #: Atlases kept between exports, by what they depend on
 #: (:meth:`AtlasBaker._digest`): the viewport exports again after every
 #: edit, and a scene whose atlas materials did not change bakes nothing.
+#: The oldest go first beyond CACHE_SIZE atlases or CACHE_BYTES of images.
 _CACHE: dict = {}
 CACHE_SIZE = 8
+CACHE_BYTES = 512 << 20
 
 
 def _failure(err) -> str:
@@ -260,7 +262,10 @@ class AtlasBaker:
         if done is None:
             done = self._layout_and_bake(m, keys, corners, world)
             _CACHE[digest] = done
-            while len(_CACHE) > CACHE_SIZE:
+
+            def held():
+                return sum(img.nbytes for entry in _CACHE.values() for img in entry[1])
+            while len(_CACHE) > 1 and (len(_CACHE) > CACHE_SIZE or held() > CACHE_BYTES):
                 _CACHE.pop(next(iter(_CACHE)))
         uv, images, means, notes = done
         at, starts = 0, []
