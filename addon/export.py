@@ -856,36 +856,39 @@ class _MaterialBuilder:
             if base is None and src.inputs.get("Normal") is not None \
                     and src.inputs["Normal"].is_linked:
                 self.notes.append(f"'{src.name}': its Normal input ignored")
-            img, iout, _ = self.follow(src.inputs["Height"])
-            ops = ()
-            chain = self.image_chain(src.inputs["Height"])
-            if chain is not None and self.atlas:
-                # The height's expression baked as a grey colour (any range).
-                img, iout = chain[0], None
-            elif chain is not None:
-                # Also through colour nodes (a Color Ramp's contrast): the
-                # folded image, read as a float reads a colour.
-                img, ops = chain
-                iout = img.outputs["Color"]
-            if self.atlas and chain is not None:
-                t = self.image(img)
-                return None if t < 0 else NormalInput(
-                    BUMP, t, strength=self.value(src, "Strength", 1.0),
-                    distance=self.value(src, "Distance", 1.0),
-                    invert=bool(getattr(src, "invert", False)), channel='COLOR', base=base)
-            if img is None or img.type != 'TEX_IMAGE':
+            h = self.height_texture(src.inputs["Height"])
+            if h is None:
                 self.notes.append(f"'{src.name}': height is not an Image Texture "
                                   f"or a procedural texture: ignored")
                 return None
-            t = self.image(img, ops)
+            t, channel = h
             if t < 0:
                 return None
             return NormalInput(BUMP, t, strength=self.value(src, "Strength", 1.0),
                                distance=self.value(src, "Distance", 1.0),
                                invert=bool(getattr(src, "invert", False)),
-                               channel='ALPHA' if iout.name == 'Alpha' else 'COLOR', base=base)
+                               channel=channel, base=base)
         self.notes.append(f"'{src.name}' into {node.name}.Normal ignored")
         return None
+
+    def height_texture(self, sock):
+        """(texture index, channel) of what a height input (a Bump's, a
+        Displacement's) reads, or None when it is no image or texture graph:
+        in an atlas material its expression baked as a grey colour (any
+        range); else an image's Color, also through colour nodes (the folded
+        image, read as a float reads a colour), or its Alpha.  The index is
+        -1 when the image has no pixels (noted by :meth:`image`)."""
+        chain = self.image_chain(sock)
+        if chain is not None and self.atlas:
+            return self.image(chain[0]), 'COLOR'
+        img, iout, _ = self.follow(sock)
+        ops = ()
+        if chain is not None:
+            img, ops = chain
+            iout = img.outputs["Color"]
+        if img is None or img.type != 'TEX_IMAGE':
+            return None
+        return self.image(img, ops), 'ALPHA' if iout.name == 'Alpha' else 'COLOR'
 
     def displacement(self, output) -> NormalInput | None:
         """The Material Output's Displacement as Cycles renders it by default
@@ -907,18 +910,19 @@ class _MaterialBuilder:
             self.notes.append("true displacement rendered as bump (no subdivision)")
         if src.inputs.get("Normal") is not None and src.inputs["Normal"].is_linked:
             self.notes.append(f"'{src.name}': its Normal input ignored")
-        chain = self.image_chain(src.inputs["Height"])
-        if chain is None:
+        h = self.height_texture(src.inputs["Height"])
+        if h is None:
             self.notes.append(f"'{src.name}': height is not an Image Texture or a procedural "
                               f"texture: displacement ignored")
             return None
-        t = self.image(chain[0]) if self.atlas else self.image(*chain)
+        t, channel = h
         if t < 0:
             return None
         # Object space (the node's default): the displacement scales with the
         # object, applied per object by _Exporter.scale_displacements.
         self.displaced_in_object_space = getattr(src, "space", 'OBJECT') == 'OBJECT'
-        return NormalInput(BUMP, t, strength=1.0, distance=self.value(src, "Scale", 1.0))
+        return NormalInput(BUMP, t, strength=1.0, distance=self.value(src, "Scale", 1.0),
+                           channel=channel)
 
     # -- shaders --------------------------------------------------------------
     def shader(self, socket, depth=0) -> Material:

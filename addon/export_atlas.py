@@ -21,6 +21,7 @@ error.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 from typing import NamedTuple
 
@@ -83,6 +84,7 @@ def procedural_params(node, follow, notes, skip=()) -> dict:
     return params
 
 
+@functools.cache
 def _base_properties() -> frozenset:
     """The properties every shader node has (location, width, mute, ...):
     not a texture's parameters."""
