@@ -30,6 +30,7 @@ import warnings
 
 import numpy as np
 
+from ..core.accel import RAY_ALL, RAY_CAMERA, RAY_FLAGS, RAY_SHADOW
 from ..core.scene import color_ops as CO
 from ..core.scene import nodes as shading
 from ..core.errors import MemoryBudgetError, RenderCancelled, SceneError
@@ -203,7 +204,9 @@ SUPPORT = (
     ("more closures than a material holds", APPROXIMATED,
      "closures cut to the {MAX_LOBES} heaviest"),
     ("Principled subsurface", APPROXIMATED, "rendered as diffuse"),
-    ("per-ray visibility of objects", APPROXIMATED, "treated as fully visible"),
+    ("object ray visibility: camera (camera rays, also through transparent surfaces, and light tracing's joins to the lens pass the object) and shadow (shadow rays pass it)", SUPPORTED, ""),
+    ("object shadow visibility off, in photon mapping and light tracing: photons and light paths still meet the object (the direct light it lets through is not bounced on)", APPROXIMATED, "is not bounced on"),
+    ("object ray visibility: diffuse, glossy, transmission", APPROXIMATED, "treated as visible"),
     ("stereo 3D / multi-view", APPROXIMATED, "every view is rendered from the scene camera"),
     ("Light Path's Is Camera Ray in a world shader (two maps: what camera rays see, what "
      "lights the scene)", SUPPORTED, ""),
@@ -1137,10 +1140,28 @@ def _filter_width(cy) -> float:
     return float(getattr(cy, "filter_width", 1.5)) if cy else 1.5
 
 
+def ray_visibility(ob, parent=None) -> int:
+    """The RAY_* flags (core.accel) of an object's Ray Visibility; an
+    instance's are its instancer's too (Cycles: "for instancers, visibility
+    is inherited": the flags of both, and-ed)."""
+    flags = 0
+    for name, bit in RAY_FLAGS.items():
+        if getattr(ob, "visible_" + name, True) and (
+                parent is None or getattr(parent, "visible_" + name, True)):
+            flags |= bit
+    return flags
+
+
+# The flags every integrator honours (core.accel.for_rays at each ray kind);
+# diffuse, glossy and transmission visibility would need photons and camera
+# paths traced per ray kind of the path they would join.
+HONOURED_RAYS = RAY_CAMERA | RAY_SHADOW
+
+
 def _partly_visible(ob) -> bool:
-    vis = [getattr(ob, "visible_" + k, True)
-           for k in ("camera", "diffuse", "glossy", "transmission", "shadow")]
-    return ob.type in GEOMETRY_TYPES and any(vis) and not all(vis)
+    vis = ray_visibility(ob)
+    return (ob.type in GEOMETRY_TYPES and vis != 0
+            and (vis | HONOURED_RAYS) != RAY_ALL)
 
 
 def _world_partly_visible(world) -> bool:
@@ -1161,7 +1182,14 @@ FEATURE_CHECKS = (
      "stereo 3D / multi-view: every view is rendered from the scene camera "
      "(the right eye repeats the left)"),
     ("ray visibility", lambda sc, obs: [ob for ob in obs if _partly_visible(ob)],
-     "ray visibility of {} treated as fully visible"),
+     "diffuse, glossy or transmission ray visibility of {} treated as visible "
+     "(camera and shadow visibility are honoured)"),
+    ("shadow visibility", lambda sc, obs: [ob for ob in obs if ob.type in GEOMETRY_TYPES
+                                           and ray_visibility(ob) & ~RAY_SHADOW
+                                           and not ray_visibility(ob) & RAY_SHADOW],
+     "shadow visibility of {} off: shadow rays pass it, but photons and light paths "
+     "still meet it, so the direct light it lets through is not bounced on "
+     "(Path Tracing bounces it, as Cycles)"),
     ("world ray visibility", lambda sc, obs: _world_partly_visible(sc.world),
      "world: ray visibility treated as fully visible"),
     ("light linking", lambda sc, obs: [ob for ob in obs if _light_linked(ob)],
@@ -1213,6 +1241,7 @@ class _Exporter:
         self.tangent_cache: dict = {}
         self.uv_cache: dict = {}           # (mesh, UV map name) -> named_uv's local uvs
         self.obj_index_parts: list[np.ndarray] = []   # object.pass_index per triangle of parts
+        self.vis_parts: list[np.ndarray] = []         # ray_visibility per triangle of parts
         self.mat_index: dict = {}
         self.textures: list[np.ndarray] = []
         self.tex_index: dict = {}      # (image name, reading) -> index into textures
@@ -1555,6 +1584,13 @@ class _Exporter:
                 self.poll()
         return out
 
+    def tri_visibility(self):
+        """(T,) uint8 RAY_* flags of the triangles' objects, or None when
+        every object is seen by every ray (the renderer's plain path)."""
+        if not self.vis_parts or all(np.all(v == RAY_ALL) for v in self.vis_parts):
+            return None
+        return self.concatenate(self.vis_parts, np.uint8)
+
     def drop_invalid(self, fscene: Scene) -> tuple[Scene, int]:
         """``drop_invalid_triangles`` band by band, polled between bands.
 
@@ -1564,7 +1600,8 @@ class _Exporter:
         T = fscene.n_triangles
         if T <= CHUNK:
             return drop_invalid_triangles(fscene)
-        per_tri = ("tri_p", "tri_n", "tri_uv", "tri_mat", "tri_object_index", "tri_tangent")
+        per_tri = ("tri_p", "tri_n", "tri_uv", "tri_mat", "tri_object_index", "tri_tangent",
+                   "tri_visibility")
         bands, dropped = [], 0
         for a in range(0, T, CHUNK):
             band = dataclasses.replace(fscene, **{
@@ -2112,15 +2149,15 @@ class _Exporter:
                 continue
             if ob.type not in GEOMETRY_TYPES:
                 continue
-            vis = [getattr(ob, "visible_" + k, True)
-                   for k in ("camera", "diffuse", "glossy", "transmission", "shadow")]
-            if not any(vis):
+            vis = ray_visibility(ob, inst.parent if inst.is_instance else None)
+            if not vis:
                 continue
             n0 = len(parts)
             self.geometry(inst, ob, parts)
             self.shading_attributes(inst, ob, parts, n0)
             self.obj_index_parts += [np.full(len(q[0]), int(getattr(ob, "pass_index", 0)), np.int32)
                                      for q in parts[n0:]]
+            self.vis_parts += [np.full(len(q[0]), vis, np.uint8) for q in parts[n0:]]
             if len(parts) > n0:
                 self.n_objects += 1
                 self.n_instances += bool(inst.is_instance)
@@ -2159,7 +2196,8 @@ class _Exporter:
                                          else np.zeros(0, np.int32)),
                        material_pass_index=np.asarray(self.mat_pass_index, np.int32),
                        film_transparent=bool(getattr(scene.render, "film_transparent", False)),
-                       mist=self.mist(), tri_tangent=tri_tangent)
+                       mist=self.mist(), tri_tangent=tri_tangent,
+                       tri_visibility=self.tri_visibility())
         n_all = fscene.n_triangles
         if n_all == 0:
             raise SceneError(NOTHING_VISIBLE)

@@ -1,6 +1,7 @@
 """Render-properties panels for FPPM, and FPPM's place in Blender's standard panels."""
 import bpy
 from bpy.types import Panel
+from .export import GEOMETRY_TYPES
 
 ENGINE = "FPPM"
 
@@ -445,9 +446,10 @@ class FPPM_OBJECT_PT_visibility(FPPMDataPanel, Panel):
 
 
 class FPPM_OBJECT_PT_visibility_ray_visibility(FPPMDataPanel, Panel):
-    """The rays a light is seen by (export.py reads camera, glossy and
-    transmission visibility of lights; a mesh's per-ray flags are treated as
-    all on, so they are not offered)."""
+    """The rays an object is seen by, as far as FPPM reads them: a light's
+    camera, glossy and transmission visibility; a geometry object's camera
+    and shadow visibility (export.py ``HONOURED_RAYS``; its other flags are
+    treated as on, so they are not offered)."""
     bl_label = "Ray Visibility"
     bl_context = "object"
     bl_parent_id = "FPPM_OBJECT_PT_visibility"
@@ -455,15 +457,18 @@ class FPPM_OBJECT_PT_visibility_ray_visibility(FPPMDataPanel, Panel):
     @classmethod
     def poll_data(cls, context):
         ob = getattr(context, "object", None)
-        return ob is not None and ob.type == 'LIGHT'
+        return ob is not None and (ob.type == 'LIGHT' or ob.type in GEOMETRY_TYPES)
 
     def draw(self, context):
         layout = split(self.layout)
         ob = context.object
         col = layout.column()
         col.prop(ob, "visible_camera", text="Camera")
-        col.prop(ob, "visible_glossy", text="Glossy")
-        col.prop(ob, "visible_transmission", text="Transmission")
+        if ob.type == 'LIGHT':
+            col.prop(ob, "visible_glossy", text="Glossy")
+            col.prop(ob, "visible_transmission", text="Transmission")
+        else:
+            col.prop(ob, "visible_shadow", text="Shadow")
 
 
 classes = (

@@ -13,6 +13,15 @@ import numpy as np
 
 from .scene import normals as shading_normals
 
+# Cycles' object ray visibility (Object > Visibility > Ray Visibility), one
+# bit a flag of ``Scene.tri_visibility``.  As in Cycles' BVH traversal an
+# object is hit by a ray when its flags share a bit with the ray's: a camera
+# ray (also after Transparent crossings) carries CAMERA, a shadow ray SHADOW.
+RAY_CAMERA, RAY_DIFFUSE, RAY_GLOSSY, RAY_TRANSMISSION, RAY_SHADOW = 1, 2, 4, 8, 16
+RAY_ALL = 31
+RAY_FLAGS = {"camera": RAY_CAMERA, "diffuse": RAY_DIFFUSE, "glossy": RAY_GLOSSY,
+             "transmission": RAY_TRANSMISSION, "shadow": RAY_SHADOW}
+
 # Relative offset: 2**-18 ~ 3.8e-6 of |p|, i.e. 64 float32 ulps of the
 # coordinate, which covers Embree's watertight-intersection error while staying
 # far below any feature we render (1 mm at 260 m).
@@ -38,26 +47,78 @@ class Hits:
 
 
 class Accel:
-    """Embree scene over world-space triangles ``tri_p`` (T, 3, 3) float32."""
+    """Embree scene over world-space triangles ``tri_p`` (T, 3, 3) float32.
 
-    def __init__(self, tri_p: np.ndarray, scene_diameter: float):
+    visibility: (T,) uint8 RAY_* flags of each triangle's object, or None
+    (every object seen by every ray).  The Accel itself holds every triangle
+    (photons, and the rays of the kinds no object hides from); the rays of a
+    kind some objects hide from are cast in :meth:`for_rays`' scene, whose
+    hits are still the triangles' indices here.
+    """
+
+    def __init__(self, tri_p: np.ndarray, scene_diameter: float, visibility=None,
+                 _subset=None, _base=None):
         self.tri_p = np.ascontiguousarray(tri_p, dtype=np.float32)
         self.diameter = float(scene_diameter)
         # Floor for the offset at the origin, relative to the scene size.
         self.abs_floor = 1e-9 * self.diameter
         self.rays_cast = 0
+        self.base = self if _base is None else _base
+        # (n,) int32 the triangles of a for_rays scene (its Embree primID ->
+        # tri_p's index), None: every triangle.
+        self.subset = _subset
+        vis = None if visibility is None else np.asarray(visibility, np.uint8)
+        self.visibility = None if vis is None or np.all(vis & RAY_ALL == RAY_ALL) else vis
+        self._kinds: dict = {}
         self._scene = None
-        if self.tri_p.shape[0]:
+        tri = self.tri_p if _subset is None else self.tri_p[_subset]
+        if tri.shape[0]:
             from embreex import rtcore_scene as rtcs
             from embreex.mesh_construction import TriangleMesh
             self._scene = rtcs.EmbreeScene()
-            TriangleMesh(self._scene, self.tri_p)
+            TriangleMesh(self._scene, np.ascontiguousarray(tri))
+
+    def for_rays(self, flags: int) -> "Accel":
+        """The scene as rays carrying the RAY_* ``flags`` see it: without the
+        triangles whose objects share no flag with them (Cycles' visibility
+        test), built once per set of hidden objects; self when nothing hides."""
+        base = self.base
+        if base.visibility is None:
+            return base
+        seen = (base.visibility & int(flags)) != 0
+        if seen.all():
+            return base
+        key = tuple(int(v) for v in np.unique(base.visibility) if v & int(flags))
+        sub = base._kinds.get(key)
+        if sub is None:
+            sub = Accel(base.tri_p, base.diameter, _subset=np.nonzero(seen)[0].astype(np.int32),
+                        _base=base)
+            base._kinds[key] = sub
+        return sub
+
+    def hidden_from(self, flags: int) -> np.ndarray | None:
+        """(T,) bool: the triangles rays carrying ``flags`` do not see, or None
+        when they see every one."""
+        vis = self.base.visibility
+        if vis is None:
+            return None
+        hid = (vis & int(flags)) == 0
+        return hid if hid.any() else None
+
+    def global_prim(self, prim: np.ndarray) -> np.ndarray:
+        """prim (K,) int32 Embree primIDs of this scene (-1 = miss), as
+        indices of ``tri_p`` (in place, and returned)."""
+        if self.subset is not None:
+            h = prim >= 0
+            prim[h] = self.subset[prim[h]]
+        return prim
 
     def count_rays(self, K: int) -> None:
         """rays_cast += K, thread-safe: photons may be traced (two threads)
-        while the camera and shadow rays are cast (PhotonPass.trace_ahead)."""
+        while the camera and shadow rays are cast (PhotonPass.trace_ahead).
+        A for_rays scene counts into its base's."""
         with _COUNT_LOCK:
-            self.rays_cast += K
+            self.base.rays_cast += K
 
     @staticmethod
     def _f32(a):
@@ -74,7 +135,7 @@ class Accel:
         if t_max is not None:
             dists = self._f32(np.minimum(np.broadcast_to(t_max, (K,)), 3e37))
         r = self._scene.run(self._f32(o), self._f32(d), dists=dists, output=1)
-        prim = r["primID"].astype(np.int32)
+        prim = self.global_prim(r["primID"].astype(np.int32))
         t = np.where(prim >= 0, r["tfar"].astype(np.float64), np.inf)
         return Hits(t, prim, r["u"].astype(np.float64), r["v"].astype(np.float64))
 
@@ -157,4 +218,35 @@ def intersect_f32(accel: Accel, o32: np.ndarray, d32: np.ndarray):
         return (np.full(K, -1, np.int32), np.zeros(K, np.float32), np.zeros(K, np.float32),
                 np.full(K, np.inf, np.float32))
     r = accel._scene.run(o32, d32, output=1)
-    return r["primID"], r["u"], r["v"], r["tfar"]
+    return accel.global_prim(r["primID"]), r["u"], r["v"], r["tfar"]
+
+
+def cast_by_kind(cast, accel: Accel, flags: int, rows: np.ndarray, o: np.ndarray,
+                 d: np.ndarray, tmax: np.ndarray) -> tuple:
+    """``cast(a, o, d, tmax)`` (a tuple of (K, ...) arrays a ray) with the
+    rays rows (K,) bool carrying the RAY_* ``flags`` cast in
+    ``accel.for_rays(flags)`` and the others in ``accel``: one call when one
+    scene serves every ray (the rays of every scene without hidden objects)."""
+    kind = accel.for_rays(flags)
+    if kind is accel or not rows.any():
+        return cast(accel, o, d, tmax)
+    if rows.all():
+        return cast(kind, o, d, tmax)
+    a, b = np.nonzero(rows)[0], np.nonzero(~rows)[0]
+    ra, rb = cast(kind, o[a], d[a], tmax[a]), cast(accel, o[b], d[b], tmax[b])
+    out = []
+    for xa, xb in zip(ra, rb):
+        x = np.empty((rows.size,) + xa.shape[1:], xa.dtype)
+        x[a], x[b] = xa, xb
+        out.append(x)
+    return tuple(out)
+
+
+def intersect_by_kind(accel: Accel, flags: int, rows: np.ndarray, o, d, tmax) -> Hits:
+    """:meth:`Accel.intersect` with the rays rows (K,) bool carrying the RAY_*
+    ``flags`` (:func:`cast_by_kind`)."""
+    def cast(a, o_, d_, t_):
+        h = a.intersect(o_, d_, t_)
+        return h.t, h.prim, h.u, h.v
+    tmax = np.broadcast_to(np.inf if tmax is None else tmax, rows.shape)
+    return Hits(*cast_by_kind(cast, accel, flags, rows, o, d, tmax))

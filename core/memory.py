@@ -87,6 +87,8 @@ import functools
 import os
 import threading
 
+import numpy as np
+
 from .errors import MemoryBudgetError
 
 BYTES_PER_PIXEL = 960
@@ -103,6 +105,10 @@ CLIP_GRID_BYTES = 64 * 2**10
 BYTES_PER_PHOTON = 1356
 BYTES_PER_QUEUED_PHOTON = 432
 BYTES_PER_TRIANGLE = 400
+# An Embree view of the scene for one kind of ray with objects hidden from it
+# (core.accel.Accel.for_rays: camera, shadow): its own BVH over the triangles
+# it keeps (measured 136 B a triangle of 1M, as the full scene's BVH: 135 B).
+BYTES_PER_VIEW_TRIANGLE = 140
 BYTES_PER_VOXEL = 192
 KERNEL_BYTES = 96 * 2**20
 BASE_BYTES = 300 * 2**20          # resident size when the OS cannot say (Python, numpy, numba, Embree)
@@ -142,11 +148,26 @@ def keeps_first_hits(data_passes: bool, integrator: str, merging: bool | None = 
     return integrator == "COMBINED" and (merging is None or bool(merging))
 
 
+def view_triangles(visibility) -> int:
+    """The triangles of the Embree views a render builds besides the full
+    scene (core.accel.Accel.for_rays at camera and shadow rays), from a
+    Scene's tri_visibility (T,) uint8 or None."""
+    if visibility is None:
+        return 0
+    from .accel import RAY_CAMERA, RAY_SHADOW
+    n = 0
+    for flag in (RAY_CAMERA, RAY_SHADOW):
+        seen = int(np.count_nonzero(np.asarray(visibility) & flag))
+        n += seen if seen < len(visibility) else 0
+    return n
+
+
 def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
              use_grid: bool, aov_channels: int = 0, hist_bins: int = 0,
              texture_bytes: int = 0, resident: int | None = None,
              sector_cells: int = 0, first_hits: bool = True,
-             clip_kernel: bool = False, chunks_ahead: int = 1) -> dict:
+             clip_kernel: bool = False, chunks_ahead: int = 1,
+             view_triangles: int = 0) -> dict:
     """Bytes per component and 'total' (ints): an upper bound on the peak.
 
     aov_channels: channels of the enabled AOVs (all layers together);
@@ -156,6 +177,8 @@ def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
     first_hits: the camera pass keeps its first hits' data
     (:func:`keeps_first_hits`); clip_kernel: the gather's discs are clipped;
     chunks_ahead: photon chunks traced ahead of the gather (AHEAD_CHUNKS);
+    view_triangles: the triangles of the Embree views of the ray kinds
+    some objects hide from (:func:`view_triangles`);
     resident: bytes already held (None: :func:`resident_bytes`).  'runtime' is
     that resident size; 'total' is at least the peak so far.
     """
@@ -168,7 +191,8 @@ def estimate(n_pixels: int, photon_chunk: int, n_triangles: int, grid_res: int,
         "photons": photon_chunk * (BYTES_PER_PHOTON
                                    + max(chunks_ahead - 1, 0) * BYTES_PER_QUEUED_PHOTON),
         "geometry": n_triangles * BYTES_PER_TRIANGLE + bool(clip_kernel) * (
-            n_triangles * BYTES_PER_CLIP_TRIANGLE + CLIP_GRID_BYTES),
+            n_triangles * BYTES_PER_CLIP_TRIANGLE + CLIP_GRID_BYTES)
+        + int(view_triangles) * BYTES_PER_VIEW_TRIANGLE,
         "occlusion_grid": (grid_res ** 3) * BYTES_PER_VOXEL if use_grid else 0,
         "textures": int(texture_bytes),
         "kernels": KERNEL_BYTES,

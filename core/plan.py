@@ -220,8 +220,8 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
         # Light tracing ends on a non-delta surface the camera sees (or on an
         # area / mesh emitter it sees); without any it has nothing to splat.
         seen = (bool(np.any(mtab.has_nondelta)) if mtab.has_nondelta.size else False) or bool(
-            np.any((light_table.kind == MESH)
-                   | ((light_table.kind == AREA) & light_table.visible_camera)))
+            np.any(((light_table.kind == MESH) | (light_table.kind == AREA))
+                   & light_table.visible_camera))
         # And it follows the emitters it draws (integrators.mis.light_classes:
         # not the sun's, the world's or lights hidden from glossy or
         # transmission rays, whose light the camera paths take alone).

@@ -57,7 +57,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from . import memory
-from .accel import Accel
+from .accel import RAY_SHADOW, Accel
 from .integrators import PathTracer
 from .errors import CheckpointMismatch, FPPMError, RenderCancelled, SceneError
 from .lights import build_light_table
@@ -154,8 +154,9 @@ class Renderer:
                                       frame=self.full_size,
                                       transparent=self.scene.film_transparent,
                                       glossy_chains=self.plan.glossy_chains)
-        self.direct_light = NextEventEstimation(self.light_table, self.mtab, self.accel,
-                                                self.scene.tri_p)
+        # Shadow rays pass the objects whose Shadow visibility is off.
+        self.direct_light = NextEventEstimation(self.light_table, self.mtab,
+                                                self.accel.for_rays(RAY_SHADOW), self.scene.tri_p)
         self.camera_pass.nee = self.direct_light    # the glossy points' shadow rays
         freq = self.plan.frequency_photons
         self.radii = Radii(st, self.camera, self.D, freq, self.camera_pass, self.height, self.width)
@@ -291,6 +292,7 @@ class Renderer:
                                       sector_cells=SECTOR_CELLS if needs_sectors(st0, st0.use_frequency) else 0,
                                       clip_kernel=st0.clip_kernel,
                                       chunks_ahead=AHEAD_CHUNKS,
+                                      view_triangles=memory.view_triangles(scene.tri_visibility),
                                       # CameraPass.first_data (set in __init__), before the plan
                                       first_hits=memory.keeps_first_hits(bool(data_passes(passes)),
                                                                          st0.integrator))
@@ -303,7 +305,7 @@ class Renderer:
                              "an emissive material or a world colour.")
         self.mtab = build_material_table(scene.materials, scene.textures)
         self._check_stop()
-        self.accel = Accel(scene.tri_p, self.D)
+        self.accel = Accel(scene.tri_p, self.D, scene.tri_visibility)
         self._check_stop()
         self.camera = CameraModel(cam)
         self.fsamp = FilterSampler(scene.filter_width, scene.filter_type)

@@ -123,7 +123,14 @@ def test_hidden_and_invisible_objects_are_skipped():
     part.visible_camera = False
     s, lines = export()
     assert s.n_triangles == 2 + 12
-    assert "ray visibility of 1 object(s) (Partly)" in lines[1]
+    # Camera visibility is honoured (tests/test_ray_visibility.py): no note;
+    # the triangles carry the flags.
+    assert lines[1] == "Approximated: nothing.", lines
+    from core.accel import RAY_ALL, RAY_CAMERA
+    assert sorted(np.unique(s.tri_visibility)) == [RAY_ALL & ~RAY_CAMERA, RAY_ALL]
+    part.visible_glossy = False
+    s, lines = export()
+    assert "diffuse, glossy or transmission ray visibility of 1 object(s) (Partly)" in lines[1]
 
 
 def test_nan_vertices_are_dropped_and_counted():

@@ -20,7 +20,7 @@ import numpy as np
 from .. import lights as Lt
 from .. import materials as B
 from ..materials import rough_maps
-from ..accel import REL_OFFSET, intersect_f32, surface_point
+from ..accel import RAY_CAMERA, REL_OFFSET, intersect_f32, surface_point
 from ..lights import direct_kernels as DK
 from ..lights import pdf_kernels as PdfK
 from ..lights import shadow
@@ -33,7 +33,7 @@ from . import light_kernels as LK
 from . import mis as M
 from . import path_kernels as PathK
 from ..sppm import photon_kernels as PK
-from .light_tracer import LightTracer
+from .light_tracer import LightTracer, _triangles
 
 
 def _finite(w):
@@ -186,7 +186,7 @@ def camera_sees_covered_only(lt, covered) -> bool:
     py = ((lt.H - 1 - ys).ravel() + lt.y0).astype(np.float64)
     u = np.full((px.size, 2), 0.5)       # FilterSampler.sample(0.5) = 0: the centre
     rays, _ = lt.camera.generate(px, py, u, u, FilterSampler(lt.filter_width, lt.filter_type))
-    prim = lt.accel.intersect(rays.o, rays.d, rays.t_max).prim
+    prim = lt.accel.for_rays(RAY_CAMERA).intersect(rays.o, rays.d, rays.t_max).prim
     mat = np.asarray(lt.scene.tri_mat, np.int64)[prim[prim >= 0]]
     return bool(covered[mat].all())
 
@@ -203,7 +203,7 @@ def visible_splats(lt, seed: int) -> float:
     dep = lt.tracer.trace_emitted(ph, rng)
     if dep is None or dep["p"].shape[0] == 0:
         return 0.0
-    _, n, tr = lt._connections(dep["p"], dep["ng"], rng)
+    _, n, tr = lt._connections(dep["p"], dep["ng"], rng, _triangles(dep))
     return float(np.count_nonzero(tr.max(axis=1) > 0)) / PILOT_PATHS if n else 0.0
 
 

@@ -73,7 +73,7 @@ from .. import lights as Lt
 from .. import materials as B
 from ..materials import compiled as C, rough_maps
 from ..materials.fast import GENERIC
-from ..accel import REL_OFFSET, surface_point
+from ..accel import RAY_CAMERA, REL_OFFSET, surface_point
 from ..lights.shadow import attached as shadow_materials, transmittance
 from ..sppm import photon_kernels as PK
 from ..sppm.photon_pass import chunk_rng
@@ -85,6 +85,12 @@ from .light_kernels import SHADING_CAP, splat_kernel
 CHUNK = 65_536
 #: Chunks of at least this many paths are traced as two halves.
 SPLIT_MIN = 16_384
+
+
+def _triangles(dep) -> np.ndarray:
+    """(K,) int64 the triangles of a PhotonTracer deposit dict's points
+    (its bary (K, 3) holds (prim, u, v))."""
+    return dep["bary"][:, 0].astype(np.int64)
 
 
 class SplatSums(NamedTuple):
@@ -138,11 +144,11 @@ class LightTracer:
         self.filter_width = float(filter_width)
         self.filter_type = filter_type
         t = light_table
-        # Emission vertices are splatted only for AREA lights the camera sees
-        # and MESH emitters.  The compiled emission (same uniforms, same
+        # Emission vertices are splatted only for AREA lights and MESH
+        # emitters the camera sees.  The compiled emission (same uniforms, same
         # photons up to round-off) where it covers every emitter kind.
         self.emitters_seen = bool(np.any((t.p_select > 0) & (
-            ((t.kind == Lt.AREA) & t.visible_camera) | (t.kind == Lt.MESH))))
+            ((t.kind == Lt.AREA) | (t.kind == Lt.MESH)) & t.visible_camera)))
         self.fast_emission = PK.fast_emission_ok(t)
         self.cam_params = LK.camera_params(camera, self.x0, self.y0, self.W, self.H,
                                            self.filter_width, filter_type)
@@ -258,7 +264,7 @@ class LightTracer:
         K = p.shape[0]
         if K == 0:
             return
-        con, nc, tr = self._connections(p, dep["ng"], rng)
+        con, nc, tr = self._connections(p, dep["ng"], rng, _triangles(dep))
         if nc == 0:
             return
         one = np.zeros(1)
@@ -342,7 +348,7 @@ class LightTracer:
         ok = light >= 0
         kind = ph["kind"]
         lj = np.where(ok, light, 0)
-        sel = ok & (((kind == Lt.AREA) & t.visible_camera[lj]) | (kind == Lt.MESH))
+        sel = ok & ((kind == Lt.AREA) | (kind == Lt.MESH)) & t.visible_camera[lj]
         idx = np.nonzero(sel)[0]
         if idx.size == 0:
             return
@@ -379,11 +385,13 @@ class LightTracer:
                           mis is not None, float(kn), pA, full, self.cam_params,
                           self.filter_width, film)
 
-    def _connections(self, p, ng, rng):
+    def _connections(self, p, ng, rng, tri=None):
         """Join the points p (K, 3) (geometric normals ng, any side) to a
         fresh lens sample each: (Connections of the points in front and near
         the region (rows 0..n-1; light_kernels.project_kernel), n, their
-        (n, 3) transmittance to the lens: :meth:`_transmittance`)."""
+        (n, 3) transmittance to the lens: :meth:`_transmittance`).  tri (K,)
+        int64 or None: the points' triangles; the camera does not see a point
+        on an object hidden from it (transmittance 0)."""
         K = p.shape[0]
         # Reused arrays (PhotonTracer.pool: no page faults per batch); the
         # same lens samples as rng.random((K, 2)).
@@ -397,15 +405,20 @@ class LightTracer:
         # The leaving surfaces' normals matter to transparent shadows alone
         # (their self-hit test); opaque scenes skip the (n, 3) gather.
         n0 = ng[con.row[:n]] if shadow_materials(self.accel) is not None else None
-        return con, n, self._transmittance(con.o[:n], con.wc[:n], con.t_max[:n], n0)
+        tr = self._transmittance(con.o[:n], con.wc[:n], con.t_max[:n], n0)
+        hid = self.accel.hidden_from(RAY_CAMERA)
+        if hid is not None and tri is not None:
+            tr[hid[tri[con.row[:n]]]] = 0.0
+        return con, n, tr
 
     def _transmittance(self, o, d, t_max, n0) -> np.ndarray:
         """(K, 3): the light the shadow rays from o (K, 3) along unit d let
         through to the lens before t_max (K,), leaving surfaces of unit
         normals n0 (K, 3) or None (core.lights.shadow: a single batched
         Embree call without transparent materials, which do not read n0;
-        0 = blocked).  Every connection of the light tracers is tested here."""
-        return transmittance(self.accel, o, d, t_max, n0=n0)
+        0 = blocked).  Every connection of the light tracers is tested here:
+        a camera ray's, which passes the objects hidden from the camera."""
+        return transmittance(self.accel.for_rays(RAY_CAMERA), o, d, t_max, n0=n0)
 
     def _splat(self, raster, contrib, film) -> None:
         good = np.all(np.isfinite(contrib), axis=1)

@@ -57,7 +57,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..accel import hit_uv, surface_point
+from ..accel import RAY_CAMERA, hit_uv, intersect_by_kind, surface_point
 from .. import lights as Lt
 from .. import materials as B
 from ..materials import compiled as C, rough_maps
@@ -414,7 +414,8 @@ class PathTracer:
             if path.size == 0:
                 break
             check_stop()
-            h = accel.intersect(o, d, tmax)
+            # ``first``: camera rays, which pass the objects hidden from the camera.
+            h = intersect_by_kind(accel, RAY_CAMERA, first, o, d, tmax)
             t_end = np.minimum(np.where(h.hit, h.t, np.inf), tmax)
             # Analytic emitters before the hit, per ray type's visibility flag.
             for sel, Le, row, t in self._seen(kern, vis, o, d, t_end):

@@ -69,8 +69,9 @@ def attach(accel, scene, mtab) -> bool:
 
 
 def attached(accel):
-    """The :class:`ShadowMaterials` attached to ``accel``, or None."""
-    return getattr(accel, _ATTR, None)
+    """The :class:`ShadowMaterials` attached to ``accel`` (or to the scene
+    whose ``Accel.for_rays`` view it is), or None."""
+    return getattr(getattr(accel, "base", accel), _ATTR, None)
 
 
 def unit_normals(tri_p: np.ndarray, prim: np.ndarray) -> np.ndarray:

@@ -414,6 +414,11 @@ def build_light_table(scene: Scene) -> LightTable:
                         strength=L, radiance=L, flux=flux, co=P[:, 0], axis_u=e1, axis_v=e2,
                         dir=cr / (2.0 * A[:, None]), area=A, tri_uv=scene.tri_uv[sel].astype(np.float64),
                         tex=tex)
+        if getattr(scene, "tri_visibility", None) is not None:
+            # An emitting object hidden from the camera still lights the
+            # scene; light tracing does not splat its emission to the lens.
+            from ..accel import RAY_CAMERA
+            tri_rows["visible_camera"] = (scene.tri_visibility[sel] & RAY_CAMERA) != 0
 
     world = np.asarray(scene.world_color, np.float64).reshape(3)
     env = None

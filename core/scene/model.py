@@ -209,6 +209,9 @@ class Scene:
     tri_tangent: (T, 3, 4) float32 per-corner MikkTSpace tangent (xyz, unit)
       and bitangent sign (w, +-1; 0 = none: the triangle's dP/du is used), for
       Normal Map materials; or None.
+    tri_visibility: (T,) uint8 the ray visibility of each triangle's object
+      (``core.accel``'s RAY_* flags: Cycles' Object > Visibility > Ray
+      Visibility), or None (every object seen by every ray).
     """
     tri_p: np.ndarray
     tri_n: np.ndarray
@@ -229,6 +232,7 @@ class Scene:
     world_camera_map: Optional[EnvironmentMap] = None
     approximations: tuple = ()
     tri_tangent: Optional[np.ndarray] = None
+    tri_visibility: Optional[np.ndarray] = None
 
     def __post_init__(self):
         self.attach_shading_normals()
@@ -341,7 +345,9 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       film_transparent=scene.film_transparent, mist=scene.mist,
                       world_map=scene.world_map, world_camera_map=scene.world_camera_map,
                       approximations=scene.approximations,
-                      tri_tangent=None if scene.tri_tangent is None else scene.tri_tangent[ok])
+                      tri_tangent=None if scene.tri_tangent is None else scene.tri_tangent[ok],
+                      tri_visibility=None if scene.tri_visibility is None
+                      else scene.tri_visibility[ok])
     return scene, dropped
 
 
@@ -365,6 +371,8 @@ def scene_digest(scene: Scene) -> str:
         h.update(repr(extra).encode())
     if scene.tri_tangent is not None:
         h.update(np.ascontiguousarray(scene.tri_tangent).tobytes())
+    if scene.tri_visibility is not None:
+        h.update(b"visibility" + np.ascontiguousarray(scene.tri_visibility).tobytes())
     for lt in scene.lights:
         h.update(repr({k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
                        for k, v in lt.__dict__.items()}).encode())

@@ -30,7 +30,7 @@ from typing import Optional
 
 import numpy as np
 
-from ..accel import surface_point
+from ..accel import RAY_CAMERA, cast_by_kind, intersect_by_kind, surface_point
 from ..lights.shadow import attached as shadow_attached
 from ..kept import KeptArrays
 from ..scene import normals as shading_normals
@@ -158,7 +158,8 @@ def _crossings_only(accel, rays, vp) -> None:
     i = np.nonzero(vp.through_delta & (np.einsum("ij,ij->i", w, rays.d) > 0)
                    & (np.linalg.norm(np.cross(w, rays.d), axis=1) <= tol))[0]
     if i.size:
-        T = shadow.transmittance(accel, rays.o[i], w[i] / lw[i, None], lw[i] - tol[i])
+        T = shadow.transmittance(accel.for_rays(RAY_CAMERA), rays.o[i], w[i] / lw[i, None],
+                                 lw[i] - tol[i])
         vp.through_delta[i[T.max(axis=1) > 0]] = False
 
 
@@ -374,7 +375,10 @@ class CameraPass:
             if idx.size == 0:
                 break
             check_stop()
-            h = accel.intersect(o, d, tmax)
+            # Rays still on the camera ray's line are camera rays (Cycles keeps
+            # the flag through transparent crossings): they pass the objects
+            # hidden from the camera.
+            h = intersect_by_kind(accel, RAY_CAMERA, see_through, o, d, tmax)
             hit = h.hit
             # Analytic emitters (area lights, light spheres) seen before the hit.
             self._seen_along(depth, L, first, o, d, tmax, h.t, hit, idx,
@@ -713,7 +717,9 @@ class CameraPass:
         them (``_seen_along``).  split=False: in the calling thread."""
         o, d, tmax, idx, beta, path_len, last, see_through, dz, *mis = live
         mats, textured, vb, fb, first, L = ctx
-        hit4 = _intersect(self.accel, o, d, tmax, INTERSECT_SPLIT_MIN if split else np.inf)
+        hit4 = cast_by_kind(lambda a, o_, d_, t_: _intersect(
+            a, o_, d_, t_, INTERSECT_SPLIT_MIN if split else np.inf),
+            self.accel, RAY_CAMERA, see_through, o, d, tmax)
         prim, tfar = hit4[0], hit4[3]
         hit = prim >= 0
         t = np.where(hit, tfar, np.inf).astype(np.float64)
@@ -932,7 +938,8 @@ def _intersect(accel, o, d, tmax, split_min=INTERSECT_SPLIT_MIN):
         for a in range(a0, a1, INTERSECT_BLOCK):
             b = min(a + INTERSECT_BLOCK, a1)
             r = run(f32(o[a:b]), f32(d[a:b]), dists=f32(np.minimum(tmax[a:b], 3e37)), output=1)
-            prim[a:b], bu[a:b], bv[a:b], tfar[a:b] = r["primID"], r["u"], r["v"], r["tfar"]
+            prim[a:b], bu[a:b], bv[a:b], tfar[a:b] = (accel.global_prim(r["primID"]), r["u"],
+                                                      r["v"], r["tfar"])
     from .photons import in_two_halves
     in_two_halves(blocks, K, split_min)
     return prim, bu, bv, tfar

@@ -1,0 +1,166 @@
+"""Object ray visibility (Object > Visibility > Ray Visibility): camera and
+shadow, against Cycles.
+
+An object hidden from the camera is passed by camera rays (also after
+transparent crossings) and by light tracing's joins to the lens, and still
+casts shadows and reflects light; an object with Shadow off is passed by
+shadow rays (next-event estimation) and is still seen and still bounces
+light (``core.accel.Accel.for_rays``).  Each case renders a floor under a
+floating box (or a hidden emitting square) in FPPM's integrators and in
+Cycles, two seeds a side, under tests/test_shading_nodes.py's bound (2x
+the seed-to-seed noise plus 1 % of the mean), and checks that the flag
+moves the image by more than 3x that bound (the same export rendered with
+every object fully visible).  Then the Accel's own rule on two triangles.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from core.accel import (RAY_ALL, RAY_CAMERA, RAY_SHADOW, Accel, cast_by_kind,
+                        intersect_by_kind)
+
+RES = 40
+
+
+def test_rays_see_the_objects_that_share_a_flag_with_them():
+    """Two stacked triangles, the nearer hidden from the camera: camera rays
+    hit the farther one, shadow rays and the rest the nearer; hits are the
+    base scene's triangle indices, rays mixed in one call are split, every
+    ray counts in the base's rays_cast, and the view is built once."""
+    tri = np.array([[[0, 0, 1], [1, 0, 1], [0, 1, 1]],
+                    [[0, 0, 2], [1, 0, 2], [0, 1, 2]]], np.float32)
+    a = Accel(tri, 3.0, np.array([RAY_ALL & ~RAY_CAMERA, RAY_ALL], np.uint8))
+    o, d = np.tile([0.2, 0.2, 0.0], (3, 1)), np.tile([0.0, 0.0, 1.0], (3, 1))
+    assert list(a.intersect(o, d).prim) == [0, 0, 0]
+    cam = a.for_rays(RAY_CAMERA)
+    assert cam is a.for_rays(RAY_CAMERA) and list(cam.intersect(o, d).prim) == [1, 1, 1]
+    assert a.for_rays(RAY_SHADOW) is a and a.for_rays(RAY_CAMERA | RAY_SHADOW) is a
+    h = intersect_by_kind(a, RAY_CAMERA, np.array([True, False, True]), o, d, None)
+    assert list(h.prim) == [1, 0, 1] and np.allclose(h.t, [2, 1, 2])
+    assert a.rays_cast == 9
+    assert not cam.occluded(o, d, np.full(3, 1.5)).any() and a.occluded(o, d, 1.5).all()
+    assert list(a.hidden_from(RAY_CAMERA)) == [True, False] and a.hidden_from(RAY_SHADOW) is None
+    # Without hidden objects one scene serves every kind (the renderer's plain path).
+    b = Accel(tri, 3.0, np.full(2, RAY_ALL, np.uint8))
+    assert b.visibility is None and b.for_rays(RAY_CAMERA) is b
+    calls = []
+    cast_by_kind(lambda acc, *x: calls.append(acc) or (np.zeros(3),), b, RAY_CAMERA,
+                 np.array([True, False, True]), o, d, np.full(3, np.inf))
+    assert calls == [b]
+
+
+def _scene(case):
+    """A 2.4 m grey floor seen from above (orthographic), a red box floating
+    over it; "camera": the box hidden from the camera, under a tilted sun
+    ("camera_veil": seen through a Transparent BSDF);
+    "shadow": the box's Shadow off, same sun; "emitter": no sun, an emitting
+    square over the box hidden from the camera lights the scene."""
+    import bpy
+    from scenes import bpy_kit as K
+    sc = K.reset_scene((RES, RES), samples=16)
+    grey, nt, out = K._new_material("Floor")
+    d = nt.nodes.new('ShaderNodeBsdfDiffuse')
+    d.inputs["Color"].default_value = (0.8, 0.8, 0.8, 1.0)
+    nt.links.new(d.outputs[0], out.inputs["Surface"])
+    K.plane("Floor", 2.4, grey)
+    red, nt, out = K._new_material("Red")
+    d = nt.nodes.new('ShaderNodeBsdfDiffuse')
+    d.inputs["Color"].default_value = (0.8, 0.15, 0.1, 1.0)
+    nt.links.new(d.outputs[0], out.inputs["Surface"])
+    box = K.box("Box", (1.3, 1.0, 0.4), red, location=(0.1, -0.05, 0.3), rot_z_deg=20.0)
+    cam_d = bpy.data.cameras.new("Cam")
+    cam_d.type = 'ORTHO'
+    cam_d.ortho_scale = 2.2
+    cam = bpy.data.objects.new("Cam", cam_d)
+    cam.location = (0, 0, 3)
+    K.link(cam)
+    sc.camera = cam
+    if case == "emitter":
+        em, nt, out = K._new_material("Emit")
+        e = nt.nodes.new('ShaderNodeEmission')
+        e.inputs["Strength"].default_value = 4.0
+        nt.links.new(e.outputs[0], out.inputs["Surface"])
+        lamp = K.plane("Lamp", 0.8, em, location=(-0.3, 0.2, 1.2), rotation=(np.pi, 0, 0))
+        lamp.visible_camera = False
+    else:
+        ld = bpy.data.lights.new("Sun", 'SUN')
+        ld.energy = 3.0
+        ld.angle = 0.0
+        sun = bpy.data.objects.new("Sun", ld)
+        sun.rotation_euler = (0.5, 0.3, 0.0)
+        K.link(sun)
+        if case.startswith("camera"):
+            box.visible_camera = False
+        if case == "camera_veil":
+            # A Transparent BSDF veil over the scene: camera rays crossing it
+            # are still camera rays (Cycles keeps the flag) and pass the box.
+            veil, nt, out = K._new_material("Veil")
+            t = nt.nodes.new('ShaderNodeBsdfTransparent')
+            t.inputs["Color"].default_value = (0.9, 0.7, 0.5, 1.0)
+            nt.links.new(t.outputs[0], out.inputs["Surface"])
+            K.plane("Veil", 2.6, veil, location=(0, 0, 1.8))
+        else:
+            box.visible_shadow = False
+    return sc
+
+
+def _render(scene, integrator, seed):
+    from fppm.core.render import Renderer
+    from fppm.core.settings import RenderSettings
+    st = RenderSettings(integrator=integrator, max_passes=12, camera_samples=8, seed=seed,
+                        photons_per_pass=200_000 if integrator == "LIGHT" else 50_000,
+                        use_frequency=False, max_bounces=16)
+    return Renderer(scene, st, log=lambda s: None).run().image[..., :3].astype(np.float64)
+
+
+#: (case, integrator).  Shadow off in photon mapping: the test below.
+CASES = [("camera", "PHOTON"), ("camera", "PATH"), ("camera", "LIGHT"),
+         ("camera_veil", "PHOTON"), ("camera_veil", "PATH"),
+         ("shadow", "PATH"), ("emitter", "PHOTON"), ("emitter", "COMBINED")]
+
+
+@pytest.mark.parametrize("case,integrator", CASES, ids=[f"{c}-{i}" for c, i in CASES])
+def test_camera_and_shadow_visibility_agree_with_cycles(case, integrator, tmp_path):
+    """Measured: see docs/shading.md "Object ray visibility"."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+    sc = _scene(case)
+    scene, lines = TS._export()
+    assert scene.tri_visibility is not None
+    assert not any("ray visibility" in ln for ln in lines), lines
+    assert any("shadow visibility of" in ln for ln in lines) == (case == "shadow"), lines
+    c1 = TS._cycles(sc, 0, tmp_path / "c0.exr", 256)
+    c2 = TS._cycles(sc, 1, tmp_path / "c1.exr", 256)
+    a1, a2 = _render(scene, integrator, 1), _render(scene, integrator, 2)
+    ref, img = (c1 + c2) / 2, (a1 + a2) / 2
+    mean = ref.mean()
+    err = np.abs(img - ref).mean() / mean
+    noise = (np.abs(a1 - a2).mean() + np.abs(c1 - c2).mean()) / 2 / mean
+    seen = _render(dataclasses.replace(scene, tri_visibility=None), integrator, 1)
+    effect = np.abs(seen - ref).mean() / mean
+    print(f"{case} {integrator}: mean {img.mean():.4f} vs Cycles {mean:.4f}; |diff| "
+          f"{err:.4f}, noise {noise:.4f} ({err / noise:.2f}x); fully visible {effect:.4f}")
+    TS._check(err, noise, effect)
+
+
+def test_photons_do_not_bounce_the_light_a_shadowless_object_lets_through(tmp_path):
+    """Photon mapping's documented limit (the export's note): photons still
+    meet an object whose Shadow is off, so the sunlight its shadow rays let
+    through to the floor is not bounced on.  Cycles bounces it: on this
+    scene FPPM's mean is 2 % below Cycles' (measured 0.5553 against 0.5664,
+    seed noise 0.9 %); Path Tracing agrees (the test above).  Bound: below
+    Cycles' mean by less than 4 %, and by more than the seed noise."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+    sc = _scene("shadow")
+    scene, _ = TS._export()
+    ref = TS._cycles(sc, 0, tmp_path / "c0.exr", 256)
+    a1, a2 = _render(scene, "PHOTON", 1), _render(scene, "PHOTON", 2)
+    ratio = (a1 + a2).mean() / 2 / ref.mean()
+    noise = np.abs(a1 - a2).mean() / ref.mean()
+    print(f"shadow off, photon mapping at 16 bounces: mean / Cycles' {ratio:.4f}, "
+          f"seed noise {noise:.4f}")
+    assert 0.96 < ratio < 1.0 - noise / 4
