@@ -205,7 +205,7 @@ SUPPORT = (
      "closures cut to the {MAX_LOBES} heaviest"),
     ("Principled subsurface", APPROXIMATED, "rendered as diffuse"),
     ("object ray visibility: camera (camera rays, also through transparent surfaces, and light tracing's joins to the lens pass the object) and shadow (shadow rays pass it)", SUPPORTED, ""),
-    ("object shadow visibility off, in photon mapping and light tracing: photons and light paths still meet the object (the direct light it lets through is not bounced on)", APPROXIMATED, "is not bounced on"),
+    ("object shadow visibility off, in Photon Mapping and Light Tracing: photons and light paths still meet the object (the light its shadow rays let through is not bounced on; light tracing shows its shadow); Combined takes every light by its camera paths then", APPROXIMATED, "does not bounce on the light it lets through"),
     ("object ray visibility: diffuse, glossy, transmission", APPROXIMATED, "treated as visible"),
     ("stereo 3D / multi-view", APPROXIMATED, "every view is rendered from the scene camera"),
     ("Light Path's Is Camera Ray in a world shader (two maps: what camera rays see, what "
@@ -1187,9 +1187,9 @@ FEATURE_CHECKS = (
     ("shadow visibility", lambda sc, obs: [ob for ob in obs if ob.type in GEOMETRY_TYPES
                                            and ray_visibility(ob) & ~RAY_SHADOW
                                            and not ray_visibility(ob) & RAY_SHADOW],
-     "shadow visibility of {} off: shadow rays pass it, but photons and light paths "
-     "still meet it, so the direct light it lets through is not bounced on "
-     "(Path Tracing bounces it, as Cycles)"),
+     "shadow visibility of {} off: shadow rays pass it (Path Tracing and Combined "
+     "render it as Cycles), but photons and light paths still meet it: Photon Mapping "
+     "does not bounce on the light it lets through, Light Tracing shows its shadow"),
     ("world ray visibility", lambda sc, obs: _world_partly_visible(sc.world),
      "world: ray visibility treated as fully visible"),
     ("light linking", lambda sc, obs: [ob for ob in obs if _light_linked(ob)],

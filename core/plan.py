@@ -232,10 +232,13 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
         if seen and traced:
             plan.strategies += ("light tracing",)
         else:
-            plan.left_out.append(("light tracing", "no emitter it traces: the sun and the "
-                                                   "world are the camera paths'"
-                                  if seen else "no diffuse or glossy surface for the "
-                                               "camera to see"))
+            plan.left_out.append(("light tracing", "no diffuse or glossy surface for the "
+                                                   "camera to see" if not seen else
+                                  "shadow rays pass an object (its Shadow visibility off), "
+                                  "light paths would not: the camera paths take every light"
+                                  if getattr(light_table, "shadow_passes", False) else
+                                  "no emitter it traces: the sun and the world are the "
+                                  "camera paths'"))
         seen = seen and traced
         plan.strategies += ("power-heuristic MIS",)
         merging = merges_photons(settings, has_delta, has_nondelta, scene.tri_p, seen)

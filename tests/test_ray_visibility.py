@@ -57,7 +57,8 @@ def _scene(case):
     over it; "camera": the box hidden from the camera, under a tilted sun
     ("camera_veil": seen through a Transparent BSDF);
     "shadow": the box's Shadow off, same sun; "emitter": no sun, an emitting
-    square over the box hidden from the camera lights the scene."""
+    square over the box hidden from the camera lights the scene
+    ("emitter_shadowless": and the box's Shadow is off)."""
     import bpy
     from scenes import bpy_kit as K
     sc = K.reset_scene((RES, RES), samples=16)
@@ -78,7 +79,8 @@ def _scene(case):
     cam.location = (0, 0, 3)
     K.link(cam)
     sc.camera = cam
-    if case == "emitter":
+    if case.startswith("emitter"):
+        box.visible_shadow = case != "emitter_shadowless"
         em, nt, out = K._new_material("Emit")
         e = nt.nodes.new('ShaderNodeEmission')
         e.inputs["Strength"].default_value = 4.0
@@ -92,8 +94,8 @@ def _scene(case):
         sun = bpy.data.objects.new("Sun", ld)
         sun.rotation_euler = (0.5, 0.3, 0.0)
         K.link(sun)
-        if case.startswith("camera"):
-            box.visible_camera = False
+        box.visible_camera = not case.startswith("camera")
+        box.visible_shadow = case != "shadow"
         if case == "camera_veil":
             # A Transparent BSDF veil over the scene: camera rays crossing it
             # are still camera rays (Cycles keeps the flag) and pass the box.
@@ -102,8 +104,6 @@ def _scene(case):
             t.inputs["Color"].default_value = (0.9, 0.7, 0.5, 1.0)
             nt.links.new(t.outputs[0], out.inputs["Surface"])
             K.plane("Veil", 2.6, veil, location=(0, 0, 1.8))
-        else:
-            box.visible_shadow = False
     return sc
 
 
@@ -119,7 +119,8 @@ def _render(scene, integrator, seed):
 #: (case, integrator).  Shadow off in photon mapping: the test below.
 CASES = [("camera", "PHOTON"), ("camera", "PATH"), ("camera", "LIGHT"),
          ("camera_veil", "PHOTON"), ("camera_veil", "PATH"),
-         ("shadow", "PATH"), ("emitter", "PHOTON"), ("emitter", "COMBINED")]
+         ("shadow", "PATH"), ("emitter", "PHOTON"), ("emitter", "COMBINED"),
+         ("emitter_shadowless", "COMBINED")]
 
 
 @pytest.mark.parametrize("case,integrator", CASES, ids=[f"{c}-{i}" for c, i in CASES])
@@ -131,7 +132,7 @@ def test_camera_and_shadow_visibility_agree_with_cycles(case, integrator, tmp_pa
     scene, lines = TS._export()
     assert scene.tri_visibility is not None
     assert not any("ray visibility" in ln for ln in lines), lines
-    assert any("shadow visibility of" in ln for ln in lines) == (case == "shadow"), lines
+    assert any("shadow visibility of" in ln for ln in lines) == ("shadow" in case), lines
     c1 = TS._cycles(sc, 0, tmp_path / "c0.exr", 256)
     c2 = TS._cycles(sc, 1, tmp_path / "c1.exr", 256)
     a1, a2 = _render(scene, integrator, 1), _render(scene, integrator, 2)

@@ -74,7 +74,11 @@ def light_classes(table) -> np.ndarray:
     """(Nl,) int8: FULL (area, mesh, radius-0 point/spot: three-way weights),
     SOFT (point/spot of radius > 0: LT weighted against the camera strategies
     on the path prefix) or NO_LT (sun, world, lights hidden from glossy or
-    transmission rays: camera strategies only)."""
+    transmission rays: camera strategies only).  Every row is NO_LT in a
+    scene where shadow rays pass some object (Shadow visibility off:
+    ``LightTable.shadow_passes``): light paths still meet it, so their
+    direct light would not be the camera paths' (Cycles' is the shadow
+    rays')."""
     kind = table.kind
     pt = (kind == POINT) | (kind == SPOT)
     vis = (table.visible_glossy & table.visible_transmission) | (kind == MESH)
@@ -82,6 +86,8 @@ def light_classes(table) -> np.ndarray:
     cls[((kind == AREA) | (kind == MESH) | (pt & (table.radius <= 0))) & vis] = FULL
     cls[pt & (table.radius > 0) & vis] = SOFT
     cls[table.p_select <= 0] = NO_LT
+    if getattr(table, "shadow_passes", False):
+        cls[:] = NO_LT
     return cls
 
 

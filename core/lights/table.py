@@ -113,6 +113,10 @@ class LightTable:
     group_center: np.ndarray = None
     group_ext2: float = 0.0
     environment: EnvironmentLight = None
+    # Shadow rays pass some object (its Shadow visibility off,
+    # Scene.tri_visibility): light tracing cannot follow them
+    # (integrators.mis.light_classes).
+    shadow_passes: bool = False
     # The world as camera rays see it, when it differs (Scene.world_camera_map).
     camera_environment: EnvironmentLight = None
     # (centre (3,), half extents (3,)) float64 of the triangles' box, with the
@@ -434,6 +438,10 @@ def build_light_table(scene: Scene) -> LightTable:
 
     table = _assemble(rows, tri_rows, center, R, D, world, warnings, scene.textures)
     table.environment = env
+    vis = getattr(scene, "tri_visibility", None)
+    if vis is not None:
+        from ..accel import RAY_SHADOW
+        table.shadow_passes = bool(np.any((vis & RAY_SHADOW) == 0))
     if getattr(scene, "world_camera_map", None) is not None:
         table.camera_environment = EnvironmentLight.build(scene.world_camera_map)
     if scene.n_triangles:
