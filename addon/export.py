@@ -240,7 +240,8 @@ SUPPORT = (
     ("material and sample override", IGNORED, ""),
     ("camera and distance culling", IGNORED, ""),
     ("shadow terminator, caustics flags", IGNORED, ""),
-    ("world ray visibility", IGNORED, "world: ray visibility treated as fully visible"),
+    ("world ray visibility: camera (camera rays that escape see black, or film transparency; the world still lights the scene)", SUPPORTED, ""),
+    ("world ray visibility: diffuse, glossy, transmission, volume scatter", IGNORED, "world: diffuse, glossy, transmission or volume ray visibility treated as on"),
     ("EEVEE material settings", IGNORED, ""),
 )
 
@@ -1164,10 +1165,17 @@ def _partly_visible(ob) -> bool:
             and (vis | HONOURED_RAYS) != RAY_ALL)
 
 
-def _world_partly_visible(world) -> bool:
+def _world_visible(world, kind: str) -> bool:
+    """The world's Ray Visibility flag ``kind`` (World > Settings > Ray
+    Visibility: camera, diffuse, glossy, transmission, scatter)."""
     vis = getattr(world, "cycles_visibility", None) if world is not None else None
-    return vis is not None and not all(getattr(vis, k, True) for k in (
-        "camera", "diffuse", "glossy", "transmission", "scatter"))
+    return vis is None or bool(getattr(vis, kind, True))
+
+
+def _world_partly_visible(world) -> bool:
+    """Flags FPPM does not read are off (the camera's is honoured)."""
+    return not all(_world_visible(world, k)
+                   for k in ("diffuse", "glossy", "transmission", "scatter"))
 
 
 # The one table of scene features that FPPM ignores or approximates: (feature,
@@ -1191,7 +1199,7 @@ FEATURE_CHECKS = (
      "render it as Cycles), but photons and light paths still meet it: Photon Mapping "
      "does not bounce on the light it lets through, Light Tracing shows its shadow"),
     ("world ray visibility", lambda sc, obs: _world_partly_visible(sc.world),
-     "world: ray visibility treated as fully visible"),
+     "world: diffuse, glossy, transmission or volume ray visibility treated as on"),
     ("light linking", lambda sc, obs: [ob for ob in obs if _light_linked(ob)],
      "light linking of {} ignored: every light reaches every surface"),
     ("hair", lambda sc, obs: [ob for ob in obs if _has_hair(ob)],
@@ -2184,6 +2192,11 @@ class _Exporter:
             tri_mat = np.zeros(0, np.int32)
             tri_tangent = None
         world, world_map = self.world()
+        if not _world_visible(scene.world, "camera"):
+            # Hidden from the camera: camera rays that escape see black (or
+            # the film's transparency); the world still lights the scene.
+            self.world_camera_map = EnvironmentMap(
+                image=np.zeros((1, 2, 3), np.float32), name="(hidden from the camera)")
         if self.world_sun is not None:
             lights.append(self.world_sun)
         cy = getattr(scene, "cycles", None)

@@ -404,6 +404,23 @@ class FPPM_WORLD_PT_surface(FPPMDataPanel, Panel):
             layout.prop(world, "color")
 
 
+class FPPM_WORLD_PT_ray_visibility(FPPMDataPanel, Panel):
+    """The world's camera visibility (export.py: camera rays that escape see
+    black; the world still lights the scene).  Its other flags are not read."""
+    bl_label = "Ray Visibility"
+    bl_context = "world"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    @classmethod
+    def poll_data(cls, context):
+        world = getattr(context, "world", None)
+        return world is not None and getattr(world, "cycles_visibility", None) is not None
+
+    def draw(self, context):
+        layout = split(self.layout)
+        layout.column().prop(context.world.cycles_visibility, "camera")
+
+
 class FPPM_WORLD_PT_mist(FPPMDataPanel, Panel):
     bl_label = "Mist Pass"
     bl_context = "world"
@@ -489,6 +506,7 @@ classes = (
     FPPM_MATERIAL_PT_settings,
     FPPM_WORLD_PT_preview,
     FPPM_WORLD_PT_surface,
+    FPPM_WORLD_PT_ray_visibility,
     FPPM_WORLD_PT_mist,
     FPPM_OBJECT_PT_visibility,
     FPPM_OBJECT_PT_visibility_ray_visibility,
@@ -573,13 +591,14 @@ EQUIVALENTS = {
                                         "the Displacement input (rendered as bump)"),
     "CYCLES_WORLD_PT_surface": ("FPPM_WORLD_PT_surface", "Background colour and strength"),
     "CYCLES_WORLD_PT_mist": ("FPPM_WORLD_PT_mist", "mist start, depth, falloff"),
+    "CYCLES_WORLD_PT_ray_visibility": ("FPPM_WORLD_PT_ray_visibility", "camera visibility"),
     "CYCLES_CAMERA_PT_dof": ("DATA_PT_camera_dof", "focus distance/object, F-stop"),
     "CYCLES_CAMERA_PT_dof_aperture": ("DATA_PT_camera_dof_aperture", "F-stop, blades, rotation"),
     "CYCLES_OBJECT_PT_visibility": ("FPPM_OBJECT_PT_visibility",
                                     "selectable, show in viewports/renders"),
     "CYCLES_OBJECT_PT_visibility_ray_visibility": (
         "FPPM_OBJECT_PT_visibility_ray_visibility",
-        "lights: camera/glossy/transmission; mesh flags are treated as all on"),
+        "lights: camera/glossy/transmission; geometry: camera/shadow"),
 }
 
 # Blender's engine-independent panels that FPPM's own replace (as Cycles'
@@ -641,7 +660,6 @@ HIDDEN = {
     "DATA_PT_lightprobe_visibility": "light probes: ignored",
     "EEVEE_MATERIAL_PT_viewport_settings": "EEVEE material settings: ignored",
     "CYCLES_WORLD_PT_volume": "volumes: ignored",
-    "CYCLES_WORLD_PT_ray_visibility": "world ray visibility: ignored",
     "CYCLES_WORLD_PT_settings": "Cycles' world sampling (the world is a constant colour)",
 }
 

@@ -58,7 +58,8 @@ def _scene(case):
     ("camera_veil": seen through a Transparent BSDF);
     "shadow": the box's Shadow off, same sun; "emitter": no sun, an emitting
     square over the box hidden from the camera lights the scene
-    ("emitter_shadowless": and the box's Shadow is off)."""
+    ("emitter_shadowless": and the box's Shadow is off); "world": a blue
+    world hidden from the camera lights the scene, seen past the floor."""
     import bpy
     from scenes import bpy_kit as K
     sc = K.reset_scene((RES, RES), samples=16)
@@ -74,12 +75,15 @@ def _scene(case):
     box = K.box("Box", (1.3, 1.0, 0.4), red, location=(0.1, -0.05, 0.3), rot_z_deg=20.0)
     cam_d = bpy.data.cameras.new("Cam")
     cam_d.type = 'ORTHO'
-    cam_d.ortho_scale = 2.2
+    cam_d.ortho_scale = 3.2 if case == "world" else 2.2
     cam = bpy.data.objects.new("Cam", cam_d)
     cam.location = (0, 0, 3)
     K.link(cam)
     sc.camera = cam
-    if case.startswith("emitter"):
+    if case == "world":
+        w = K.set_world(sc, (0.4, 0.5, 0.6))
+        w.cycles_visibility.camera = False
+    elif case.startswith("emitter"):
         box.visible_shadow = case != "emitter_shadowless"
         em, nt, out = K._new_material("Emit")
         e = nt.nodes.new('ShaderNodeEmission')
@@ -120,7 +124,7 @@ def _render(scene, integrator, seed):
 CASES = [("camera", "PHOTON"), ("camera", "PATH"), ("camera", "LIGHT"),
          ("camera_veil", "PHOTON"), ("camera_veil", "PATH"),
          ("shadow", "PATH"), ("emitter", "PHOTON"), ("emitter", "COMBINED"),
-         ("emitter_shadowless", "COMBINED")]
+         ("emitter_shadowless", "COMBINED"), ("world", "PHOTON"), ("world", "PATH")]
 
 
 @pytest.mark.parametrize("case,integrator", CASES, ids=[f"{c}-{i}" for c, i in CASES])
@@ -130,7 +134,7 @@ def test_camera_and_shadow_visibility_agree_with_cycles(case, integrator, tmp_pa
     import test_shading_nodes as TS
     sc = _scene(case)
     scene, lines = TS._export()
-    assert scene.tri_visibility is not None
+    assert (scene.tri_visibility is not None) == (case != "world")
     assert not any("ray visibility" in ln for ln in lines), lines
     assert any("shadow visibility of" in ln for ln in lines) == ("shadow" in case), lines
     c1 = TS._cycles(sc, 0, tmp_path / "c0.exr", 256)
@@ -140,7 +144,8 @@ def test_camera_and_shadow_visibility_agree_with_cycles(case, integrator, tmp_pa
     mean = ref.mean()
     err = np.abs(img - ref).mean() / mean
     noise = (np.abs(a1 - a2).mean() + np.abs(c1 - c2).mean()) / 2 / mean
-    seen = _render(dataclasses.replace(scene, tri_visibility=None), integrator, 1)
+    seen = _render(dataclasses.replace(scene, tri_visibility=None, world_camera_map=None),
+                   integrator, 1)
     effect = np.abs(seen - ref).mean() / mean
     print(f"{case} {integrator}: mean {img.mean():.4f} vs Cycles {mean:.4f}; |diff| "
           f"{err:.4f}, noise {noise:.4f} ({err / noise:.2f}x); fully visible {effect:.4f}")
