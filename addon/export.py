@@ -206,8 +206,7 @@ SUPPORT = (
     ("more closures than a material holds", APPROXIMATED,
      "closures cut to the {MAX_LOBES} heaviest"),
     ("Principled subsurface", APPROXIMATED, "rendered as diffuse"),
-    ("object ray visibility: camera (camera rays, also through transparent surfaces, and light tracing's joins to the lens pass the object) and shadow (shadow rays pass it)", SUPPORTED, ""),
-    ("object shadow visibility off, in Photon Mapping and Light Tracing: photons and light paths still meet the object (the light its shadow rays let through is not bounced on; light tracing shows its shadow); Combined takes every light by its camera paths then", APPROXIMATED, "does not bounce on the light it lets through"),
+    ("object ray visibility: camera (camera rays, also through transparent surfaces, and light tracing's joins to the lens pass the object) and shadow (shadow rays pass it, and the first segment of photons and light paths lands both on it and behind it; Combined then takes every light by its camera paths)", SUPPORTED, ""),
     ("object ray visibility: diffuse, glossy, transmission", APPROXIMATED, "treated as visible"),
     ("stereo 3D / multi-view", APPROXIMATED, "every view is rendered from the scene camera"),
     ("Light Path's Is Camera Ray in a world shader (two maps: what camera rays see, what "
@@ -1227,12 +1226,6 @@ FEATURE_CHECKS = (
     ("ray visibility", lambda sc, obs: [ob for ob in obs if _partly_visible(ob)],
      "diffuse, glossy or transmission ray visibility of {} treated as visible "
      "(camera and shadow visibility are honoured)"),
-    ("shadow visibility", lambda sc, obs: [ob for ob in obs if ob.type in GEOMETRY_TYPES
-                                           and ray_visibility(ob) & ~RAY_SHADOW
-                                           and not ray_visibility(ob) & RAY_SHADOW],
-     "shadow visibility of {} off: shadow rays pass it (Path Tracing and Combined "
-     "render it as Cycles), but photons and light paths still meet it: Photon Mapping "
-     "does not bounce on the light it lets through, Light Tracing shows its shadow"),
     ("world ray visibility", lambda sc, obs: _world_partly_visible(sc.world),
      "world: diffuse, glossy, transmission or volume ray visibility treated as on"),
     ("light linking", lambda sc, obs: [ob for ob in obs if _light_linked(ob)],

@@ -41,7 +41,7 @@ from ..frequency.occlusion_march import march_grid, no_march_grid
 from ..materials import compiled as C, fast, hit_colors, rough_maps
 from ..materials.fast import GENERIC, build_fast_materials
 from . import photon_kernels as PK
-from ..accel import _COUNT_LOCK, REL_OFFSET, hit_uv, intersect_f32
+from ..accel import _COUNT_LOCK, RAY_SHADOW, REL_OFFSET, hit_uv, intersect_f32
 from ..kept import _ALONE, _refcounts
 from ..scene.model import Scene
 from .update import R_FLOOR_REL
@@ -302,6 +302,14 @@ class PhotonTracer:
         self._colors = (hit_colors.build_color_inputs(mtab, scene.tri_uv)
                         if (self.textured | self._mapped).any() else None)
         self._tri_mat = np.ascontiguousarray(self.tris.mat, np.int64)
+        # Objects whose Shadow visibility is off (Scene.tri_visibility): a
+        # light's direct light reaches every surface its shadow rays do, the
+        # surfaces behind such an object and the object itself (Cycles).  So
+        # the photons' first segment is traced twice: in the scene as shadow
+        # rays see it (first hits behind the objects), and in the whole scene
+        # keeping only the photons whose first hit is on such an object
+        # (_trace_hidden_first).  None: no such object.
+        self._shadow_hidden = accel.hidden_from(RAY_SHADOW)
         # Photon rays cast by this tracer (accel.rays_cast also counts the
         # camera's, which may be cast meanwhile: PhotonPass.trace_ahead).
         self.rays_cast = 0
@@ -400,6 +408,7 @@ class PhotonTracer:
         n = ph["o"].shape[0]
         dep = self.deposit_buffers(n)
         self._trace_batch(None, ph, 0, n, rng, dep)
+        self._trace_hidden_first(None, ph, n, rng, dep)
         self.note_deposits(n, dep.n)
         return dep.result()
 
@@ -442,8 +451,20 @@ class PhotonTracer:
         else:                          # the rule before (benchmarks): a batch each
             self._trace_batch(u, ph, 0, n_freq, rng, dep, n_freq)
             self._trace_batch(u, ph, n_freq, n, rng, dep)
+        self._trace_hidden_first(u, ph, n, rng, dep)
         self.note_deposits(n, dep.n - n_before)
         return dep
+
+    def _trace_hidden_first(self, u_emit, ph, n: int, rng, dep: "_Deposits") -> None:
+        """With objects whose Shadow is off: the n photons just emitted (the
+        same u_emit or ph) traced again without spectra, their first segment
+        in the whole scene, keeping those whose first hit lies on such an
+        object (the main batch's passed it: :attr:`_shadow_hidden`); their
+        deposits are appended to dep.  Each keeps its emitted power: the two
+        sets split the light's direct light by where it lands, as shadow
+        rays do, and together carry it to every surface they light."""
+        if self._shadow_hidden is not None and n:
+            self._trace_rows(u_emit, ph, 0, n, rng, dep, first="hidden")
 
     def _trace_batch(self, u_emit, ph, a: int, b: int, rng, dep: _Deposits, n_freq: int = 0):
         """Trace photons a..b-1: from the uniforms u_emit (n, 6) of the fused
@@ -495,11 +516,15 @@ class PhotonTracer:
         dep.freq_rows.append(rows)
 
     def _trace_rows(self, u_emit, ph, a: int, b: int, rng, dep: _Deposits, nf: int = 0,
-                    follow: "_Follow" = None, given: list = None):
+                    follow: "_Follow" = None, given: list = None, first: str = "shadow"):
         """:meth:`_trace_batch`'s work: photons a..b-1, the first nf with a
         spectrum, or, with follow, followed (:class:`_Follow`) and traced
         without one; given: the uniforms (K, 4) of each bounce (the rows of
-        a batch follow recorded), else drawn from rng.
+        a batch follow recorded), else drawn from rng.  first: the first
+        segment as shadow rays see the scene ("shadow": it passes the
+        objects whose Shadow is off), or in the whole scene keeping only the
+        photons that land on such an object ("hidden",
+        :meth:`_trace_hidden_first`); the same scene without such objects.
 
         Frequency and classic photons share the batch: every bounce's Embree
         call, bounce kernel and numpy bounce of the generic materials, whose
@@ -578,10 +603,18 @@ class PhotonTracer:
             order_bufs = self.pool.take("order", K, lambda r: [np.empty(r, np.int64)
                                                                for _ in range(3)])
             ubuf2 = self.uniform_buffer(4 * K)
+        hidden = self._shadow_hidden
         for bounce in range(st.max_bounces + 1):
             if K == 0:
                 break
-            hits = PK.EmbreeHits(*intersect_f32(self.accel, live.o32[:K], live.d32[:K]))
+            acc = (self.accel.for_rays(RAY_SHADOW) if bounce == 0 and first == "shadow"
+                   else self.accel)
+            hits = PK.EmbreeHits(*intersect_f32(acc, live.o32[:K], live.d32[:K]))
+            if bounce == 0 and first == "hidden":
+                # Only the first hits on objects whose Shadow is off go on.
+                h = hits.prim[:K] >= 0
+                h[h] = ~hidden[hits.prim[:K][h]]
+                hits.prim[:K][h] = -1
             with _COUNT_LOCK:                    # the halves run in two threads
                 self.rays_cast += K
             step = PK.BounceStep(K=K, first=bounce == 0,
