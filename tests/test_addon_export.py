@@ -133,6 +133,30 @@ def test_hidden_and_invisible_objects_are_skipped():
     assert "diffuse, glossy or transmission ray visibility of 1 object(s) (Partly)" in lines[1]
 
 
+def test_an_instance_takes_its_instancers_ray_visibility():
+    """Cycles: "for instancers, visibility is inherited": a collection
+    instance's triangles carry its object's flags and-ed with the instancing
+    empty's, the collection's own object outside the scene unaffected."""
+    from core.accel import RAY_ALL, RAY_CAMERA, RAY_SHADOW
+    sc = base_scene()
+    H.add_plane(sc)
+    coll = bpy.data.collections.new("Props")
+    src = H.add_cube(bpy.context.scene, "PropCube")
+    sc.collection.objects.unlink(src)
+    coll.objects.link(src)
+    src.visible_shadow = False
+    e = bpy.data.objects.new("Inst", None)
+    e.instance_type = 'COLLECTION'
+    e.instance_collection = coll
+    e.location = (0, 3, 0)
+    sc.collection.objects.link(e)
+    e.visible_camera = False
+    s, _ = export()
+    assert s.n_triangles == 2 + 12
+    assert list(s.tri_visibility[:2]) == [RAY_ALL] * 2
+    assert set(s.tri_visibility[2:]) == {RAY_ALL & ~RAY_CAMERA & ~RAY_SHADOW}
+
+
 def test_nan_vertices_are_dropped_and_counted():
     sc = base_scene()
     H.add_plane(sc)
