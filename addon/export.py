@@ -40,8 +40,9 @@ from ..core.scene.textures import (EXTENSIONS, INTERPOLATIONS, LINEAR, REPEAT,
                                    EnvironmentMap, UnassociatedImage, resample,
                                    sampler_code, scalar_weights, with_sampler)
 from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT,
-                          TRANSPARENT, Camera, Light, Lobe, Material, Scene,
+                          TRANSPARENT, VIEW_SAMPLES, Camera, Light, Lobe, Material, Scene,
                           drop_invalid_triangles)
+from ..core.scene import shader_graph as SG
 from .export_atlas import AtlasBaker, needs_atlas
 from .export_graph import GRAPH_NODES, GraphReader, constant_value
 from .export_read import CHUNK, _never, image_pixels, mesh_arrays
@@ -172,8 +173,8 @@ SUPPORT = (
      "a triangle", APPROXIMATED, "one value a triangle (atlas budget)"),
     ("a material atlas over the budget of 4 M texels (very many triangles, or very fine "
      "detail over a large surface)", APPROXIMATED, "of their detail (atlas budget)"),
-    ("a Mix Shader of a Diffuse (or Oren-Nayar) and a white or grey Glossy BSDF whose Fac is a Fresnel node or a Layer Weight's Fresnel output (constant IOR / Blend): the Principled BSDF's dielectric layer of that IOR", SUPPORTED, ""),
-    ("the same over a Glossy rougher than 0.3: its Fresnel at the microfacet normal rather than Cycles' at the shading normal (the image mean 1.7 % low at roughness 0.8)", APPROXIMATED, "rendered as a dielectric layer"),
+    ("a Mix Shader whose Fac depends on the view: a Fresnel node, a Layer Weight's Fresnel or Facing output, also through converter and colour nodes with constant inputs (Math, Map Range, Color Ramp, ...): each lobe weighed per hit as Cycles weighs it on the camera side (photons and light paths at their arrival)", SUPPORTED, ""),
+    ("a Mix Shader Fac of the view and the surface point (a texture times a Fresnel)", APPROXIMATED, "a Fac of the view and the surface point read as its value"),
     ("node groups (flattened, nested)", SUPPORTED, ""),
     ("film transparency, pixel filter (Blackman-Harris, Box, Gaussian) and its width, "
      "object and material pass index (every "
@@ -439,6 +440,19 @@ def _mix(a: Material, b: Material, fac: float, name: str) -> Material:
     lobes, notes = shading.mix_materials(a.lobes, b.lobes, fac)
     notes = list(a.approximations) + list(b.approximations) + list(notes)
     em, tex = _emission_sum([(1.0 - fac, a), (fac, b)], notes)
+    return Material(name, tuple(lobes), em, tex, tuple(notes))
+
+
+def _mix_by_view(a: Material, b: Material, view, name: str) -> Material:
+    """Mix Shader whose Fac is a function of the view (view (VIEW_SAMPLES,),
+    ``_MaterialBuilder.view_fac``): (1 - f) A + f B per lobe
+    (``Lobe.view``); an emission mixed by the factor at normal incidence."""
+    lobes, notes = shading.mix_by_view(a.lobes, b.lobes, view)
+    notes = list(a.approximations) + list(b.approximations) + list(notes)
+    f1 = float(np.clip(view[-1], 0.0, 1.0))
+    em, tex = _emission_sum([(1.0 - f1, a), (f1, b)], notes)
+    if any(em):
+        notes.append("emission mixed by a Fresnel or Layer Weight at normal incidence")
     return Material(name, tuple(lobes), em, tex, tuple(notes))
 
 
@@ -966,23 +980,17 @@ class _MaterialBuilder:
             return Material(n, lobes=(), emission=(c[0] * s, c[1] * s, c[2] * s),
                             emission_texture=tex)
         if t == 'MIX_SHADER':
-            ior = self.fresnel_fac(node)
-            if ior is not None:
-                # (A Fresnel node reads no texture: the Fac's and the
-                # shaders' textures keep their order either way.)
+            view = self.view_fac(node)
+            if view is not None:
+                # (A view factor reads no texture: the shaders' textures
+                # keep their order.)
                 a = self.shader(node.inputs[1], depth + 1)
                 b = self.shader(node.inputs[2], depth + 1)
-                r = shading.fresnel_mix(a.lobes, b.lobes, ior)
-                if r is not None and not any(a.emission) and not any(b.emission):
-                    lobes, note = r
-                    notes = list(a.approximations) + list(b.approximations)
-                    return Material(n, tuple(lobes), (0.0, 0.0, 0.0), -1,
-                                    tuple(notes + ([f"{node.name}: {note}"] if note else [])))
+                return _mix_by_view(a, b, view, n)
             at = self.alpha_texture(node, "Fac")
             fac = 0.5 if at >= 0 else min(max(self.value(node, "Fac", 0.5), 0.0), 1.0)
-            if ior is None:
-                a = self.shader(node.inputs[1], depth + 1)
-                b = self.shader(node.inputs[2], depth + 1)
+            a = self.shader(node.inputs[1], depth + 1)
+            b = self.shader(node.inputs[2], depth + 1)
             if at >= 0:
                 return _mix_by_alpha(a, b, at, n)
             return _mix(a, b, fac, n)
@@ -996,25 +1004,35 @@ class _MaterialBuilder:
             self.unsupported.append(node.name)
         return Material(n, lobes=(Lobe(DIFFUSE, GREY),))
 
-    def fresnel_fac(self, node):
-        """The IOR of the dielectric Fresnel factor a Mix Shader's Fac reads
-        (``shading.fresnel_mix``): a Fresnel node's constant IOR, or a Layer
-        Weight's Fresnel output, 1 / (1 - Blend) (Cycles'
-        ``svm_node_layer_weight``), each on the shading normal (Normal
-        unlinked); else None."""
-        src, out, _ = self.follow(node.inputs["Fac"])
-        if src is None or src.mute:
+    def view_fac(self, node):
+        """A Mix Shader's Fac as a function of the view alone, sampled at
+        mu = |w_o . n_s| = i / (VIEW_SAMPLES - 1) ((VIEW_SAMPLES,) float64), or
+        None: a graph (addon/export_graph.py, read with ``view``) that
+        reaches a Fresnel or Layer Weight node on the shading normal, through
+        converter and colour nodes with constant inputs.  A factor that
+        also reads the surface point (a texture times a Fresnel) is None,
+        with a note, and the Fac is read as before."""
+        sock = node.inputs["Fac"]
+        if self.follow(sock)[0] is None:
             return None
-        normal = src.inputs.get("Normal")
-        if normal is not None and normal.is_linked:
+        e = GraphReader(self, view=True).expression(sock)
+        if e is None:
             return None
-        if src.type == 'FRESNEL':
-            ior = self._float_in(src, "IOR")
-            return None if ior is None else max(ior, 1e-5)
-        if src.type == 'LAYER_WEIGHT' and out is not None and out.name == 'Fresnel':
-            blend = self._float_in(src, "Blend")
-            return None if blend is None else 1.0 / max(1.0 - blend, 1e-5)
-        return None
+        keys = SG.attributes(e)
+        if SG.VIEW_COS not in keys:
+            return None
+        if keys != {SG.VIEW_COS} or any(isinstance(x, (SG.Image, SG.Proc)) for x in SG.walk(e)):
+            self.notes.append(f"{node.name}: a Fac of the view and the surface point "
+                              f"read as its value")
+            return None
+        mu = np.linspace(0.0, 1.0, VIEW_SAMPLES)
+        ctx = SG.EvalContext(attrs={SG.VIEW_COS: np.repeat(mu[:, None], 3, axis=1)},
+                             textures=[])
+        try:
+            f = np.asarray(SG.evaluate(SG.as_float(e), ctx), np.float64)
+        except (ArithmeticError, ValueError, KeyError):
+            return None
+        return np.where(np.isfinite(f), f, 0.0)
 
     def microfacet(self, node) -> Lobe:
         """Glossy / Glass / Refraction node -> one GGX lobe.

@@ -42,9 +42,12 @@ class GraphReader:
     """Builds expressions for one material (``mb``, its _MaterialBuilder),
     sharing the expression of a node output read twice."""
 
-    def __init__(self, mb):
+    def __init__(self, mb, view: bool = False):
         self.mb = mb
         self.memo: dict = {}
+        # view: Fresnel and Layer Weight read the view (SG.VIEW_COS), for a
+        # Mix Shader's Fac; elsewhere they are no expression (as before).
+        self.view = view
 
     def expression(self, sock, depth: int = 0):
         """The expression of what ``sock`` receives, or None."""
@@ -115,6 +118,18 @@ class GraphReader:
             kind = {'Location': VEC, 'Color': COLOR, 'Alpha': FLOAT, 'Object Index': FLOAT,
                     'Random': FLOAT}.get(name)
             return None if kind is None else Attr(('ObjectInfo', name), kind)
+        if t in ('FRESNEL', 'LAYER_WEIGHT') and self.view:
+            # On the shading normal only (a linked Normal: no expression).
+            if mb.follow(node.inputs["Normal"])[0] is not None:
+                return None
+            mu = Attr(SG.VIEW_COS, FLOAT)
+            if t == 'FRESNEL':
+                ior = self._in(node, "IOR", depth, FLOAT)
+                return None if ior is None else Op("fresnel", (mu, ior), (), FLOAT)
+            blend = self._in(node, "Blend", depth, FLOAT)
+            if blend is None or name not in ("Fresnel", "Facing"):
+                return None
+            return Op("layer_weight", (mu, blend), (name,), FLOAT)
         if t == 'NEW_GEOMETRY':
             key = {'Position': ('Position',), 'Normal': ('Normal',)}.get(name)
             return None if key is None else Attr(key)

@@ -166,6 +166,8 @@ class LightTracer:
             self._colors = build_color_inputs(
                 mtab, scene.tri_uv, lambert=tex & (self.splat_mat.kind == LK.LAMBERT_SPLAT))
         self.fast_mat = self.splat_mat.kind == LK.LAMBERT_SPLAT
+        # View-dependent lobes (Lobe.view): the colour rows read the view.
+        self._view = bool(B.view_dependent(mtab).any())
         # The GENERIC materials, whose connections _slow evaluates compiled.
         self.generic = self.tracer.fmat.cls == GENERIC
         self.rays = 0
@@ -297,8 +299,14 @@ class LightTracer:
         if t.size == 0:
             return sm, self._NO_ROWS
         from ..materials.hit_colors import hit_rows
+        mu = None
+        if self._view:
+            # A view-dependent lobe seen from the lens (Cycles' camera side).
+            _, _, ns, _ = surface_point(self.scene.tri_p, self.scene.tri_n, self.scene.tri_uv,
+                                        prim[t], bary[t, 1], bary[t, 2])
+            mu = np.abs(np.einsum("ij,ij->i", ns, con.wc[t]))
         S, col, rows = hit_rows(self._colors, self._sel, prim[t], bary[t, 1], bary[t, 2],
-                                crow[t])
+                                crow[t], mu)
         crow[t] = rows
         return sm._replace(col=np.concatenate([sm.col, col]), colors=S.colors, p=S.p), crow
 
@@ -320,7 +328,7 @@ class LightTracer:
         m = rough_maps.pick(self.mtab, np.asarray(self.scene.tri_mat, np.int64)[prim], prim,
                             bary[:, 1].astype(np.float32), bary[:, 2].astype(np.float32), uv)
         wc, wi, weight = con.wc[c], vin.wi[rows], con.weight[c]
-        colors = B.lobe_colors(self.mtab, m, uv)
+        colors = B.lobe_colors(self.mtab, m, uv, np.abs(np.einsum("ij,ij->i", ns, wc)))
         f = C.eval_radiance(self.mtab, self.generic, m, colors, ns, ng, wc, wi)
         corr = np.minimum(B.shading_correction(ns, ng, wi), SHADING_CAP)
         c1 = np.abs(np.einsum("ij,ij->i", ng, wc)) * weight

@@ -77,8 +77,8 @@ from ..lights.table import AREA, MESH, POINT, SPOT, WORLD
 # radiance mode, with the GENERIC materials in these kernels, with the
 # Normal Map / Bump corrections of the radiance-mode sample and density, with
 # the microfacet lobes' geometric side test, with the colour row of
-# sample_pair and pdf_oriented, and with the BSDF evaluation's lobe helpers
-# and reference counts of round 32).
+# sample_pair and pdf_oriented, with the BSDF evaluation's lobe helpers
+# and reference counts of round 32, and with the view factor of round 40).
 from ..materials.compiled import SelectionTable, eval_pair, pdf_oriented, sample_pair
 from ..materials.hit_colors import hit_rows, textured_lambert, textured_materials
 from ..materials.fast import ABSORBER, GENERIC, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast
@@ -231,14 +231,15 @@ def build_path_materials(mtab, fmat) -> PathMaterials:
                          sel_last=c(sel.last, np.int64))
 
 
-def with_hit_colors(M: PathMaterials, X, prim, bu, bv, mat):
+def with_hit_colors(M: PathMaterials, X, prim, bu, bv, mat, mu=None):
     """(PathMaterials, rows (K,) int64): M with one colour row appended per
-    hit (prim, bu, bv) (K,) on textured materials mat (K,) int64
-    (``materials.hit_colors.hit_rows``, X its ColorInputs), and the rows
-    R .. R + K - 1 they take (R = M's rows); their sample weight (Lambert:
-    the sum of the colours) is also the fast path's gating colour."""
+    hit (prim, bu, bv) (K,) on textured materials mat (K,) int64, mu (K,)
+    |w_o . n_s| there (``materials.hit_colors.hit_rows``, X its
+    ColorInputs), and the rows R .. R + K - 1 they take (R = M's rows);
+    their sample weight (Lambert: the sum of the colours) is also the fast
+    path's gating colour."""
     S, col, rows = hit_rows(X, SelectionTable(M.sel_colors, M.sel_p, M.sel_cdf, M.sel_last),
-                            prim, bu, bv, mat)
+                            prim, bu, bv, mat, mu)
     cat = np.concatenate
     return (M._replace(col=cat([M.col, col]), lum_col=cat([M.lum_col, col]),
                        sel_colors=S.colors, sel_p=S.p, sel_cdf=S.cdf, sel_last=S.last), rows)

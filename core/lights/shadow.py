@@ -93,10 +93,12 @@ def self_hit(tri_p: np.ndarray, prim: np.ndarray, o: np.ndarray):
     return np.abs(_dot(o - P0[:, 0], n)) < eps, eps
 
 
-def pass_through(sm: ShadowMaterials, prim: np.ndarray, u: np.ndarray, v: np.ndarray):
+def pass_through(sm: ShadowMaterials, prim: np.ndarray, u: np.ndarray, v: np.ndarray,
+                 mu: np.ndarray = None):
     """(K, 3) float64 Cycles' ``closure_transparent_extinction`` at the hits
     (prim, u, v) (K,): the sum of the TRANSPARENT lobes' colours, with their
-    mix weights, textures and image alpha (0 on opaque materials)."""
+    mix weights, textures and image alpha (0 on opaque materials), and view
+    factors at mu (K,) = |d . n| of the shadow ray (None: 1)."""
     from ..materials import lobe_colors
     out = np.zeros((prim.shape[0], 3))
     mat = sm.tri_mat[prim]
@@ -105,7 +107,7 @@ def pass_through(sm: ShadowMaterials, prim: np.ndarray, u: np.ndarray, v: np.nda
         UV = sm.tri_uv[prim[k]].astype(np.float64)
         uu, vv = u[k][:, None], v[k][:, None]
         uv = (1.0 - uu - vv) * UV[:, 0] + uu * UV[:, 1] + vv * UV[:, 2]
-        cols = lobe_colors(sm.mtab, mat[k], uv)                    # (k, L, 3)
+        cols = lobe_colors(sm.mtab, mat[k], uv, None if mu is None else mu[k])   # (k, L, 3)
         out[k] = (cols * (sm.mtab.kind[mat[k]] == TRANSPARENT)[:, :, None]).sum(axis=1)
     return out
 
@@ -171,7 +173,9 @@ def transmittance(accel, o: np.ndarray, d: np.ndarray, t_max, emitter=None,
         # Crossed surfaces (not self-hits) weigh in; opaque ones give 0.
         c = np.nonzero(~sh)[0]
         if c.size:
-            w = (pass_through(sm, prim[c], u[c], v[c]) if sm is not None
+            dl = d[live[c]]
+            mu = np.abs(_dot(n[c], dl)) / np.linalg.norm(dl, axis=1)
+            w = (pass_through(sm, prim[c], u[c], v[c], mu) if sm is not None
                  else np.zeros((c.size, 3)))
             crossings[live[c]] += 1
             w[crossings[live[c]] > MAX_CROSSINGS] = 0.0      # Cycles: too many -> opaque

@@ -16,7 +16,7 @@ from .microfacet import (FRESNEL_DIELECTRIC, FRESNEL_F82, INV_PI, _disk, _microf
                          _microfacet_pdf, _normalize, _principled_fresnel, fresnel_dielectric,
                          ggx_sample_vndf, oren_nayar_f)
 from .multiscatter import layer_transmission, multiscatter_factor
-from .table import DIFFUSE_ROUGHNESS_EPS, MaterialTable, _selection_probs
+from .table import DIFFUSE_ROUGHNESS_EPS, MaterialTable, _selection_probs, seen_weight
 
 
 # --------------------------------------------------------------------------
@@ -218,9 +218,11 @@ def _eval_nd(table, mat, colors, N, front_v, v, l, Ng, Ng_bump=None):
         col = colors[idx, j]
         rough = table.roughness[mj, j]
         ms = None if table.multiscatter is None else table.multiscatter[mj, j]
-        # Colour without mix weight: only Oren-Nayar and Multiscatter GGX need it.
+        # Colour without mix weight (nor a view mix's factor): only
+        # Oren-Nayar, Multiscatter GGX and the Principled layers need it.
+        wseen = seen_weight(table, mj, j, np.abs(_dot(N[idx], v[idx])))
         if (k == DIFFUSE and (rough >= DIFFUSE_ROUGHNESS_EPS).any()) or (ms is not None and ms.any()):
-            w = table.weight[mj, j][:, None]
+            w = wseen[:, None]
             ucol = np.where(w != 0.0, col / np.where(w != 0.0, w, 1.0), 0.0)
         else:
             ucol = col
@@ -229,13 +231,13 @@ def _eval_nd(table, mat, colors, N, front_v, v, l, Ng, Ng_bump=None):
         ext = None
         if table.fresnel is not None and ((table.fresnel[mj, j] > 0).any()
                                           or (table.layer_ior[mj, j] > 0).any()):
-            ext = {"weight": table.weight[mj, j], "fresnel": table.fresnel[mj, j],
+            ext = {"weight": wseen, "fresnel": table.fresnel[mj, j],
                    "fresnel_ior": table.fresnel_ior[mj, j], "f82_tint": table.f82_tint[mj, j],
                    "layer_ior": table.layer_ior[mj, j], "layer_f0": table.layer_f0[mj, j],
                    "layer_roughness": table.layer_roughness[mj, j],
                    "layer_ms": table.layer_ms[mj, j]}
             if not (ms is not None and ms.any()):
-                w = table.weight[mj, j][:, None]
+                w = wseen[:, None]
                 ucol = np.where(w != 0.0, col / np.where(w != 0.0, w, 1.0), 0.0)
         fk = _lobe_f(k, col, ucol, rough, eta, N[idx], v[idx], l[idx], Ng[idx], ms, ext)
         if Ng_bump is not None and k in (DIFFUSE, TRANSLUCENT):
@@ -451,7 +453,7 @@ def _sample_general(table, mat, colors, n_s, n_g, wo, u, subset, mode):
                     for mode_f in (FRESNEL_DIELECTRIC, FRESNEL_F82):
                         q = fm == mode_f
                         if q.any():
-                            wq = table.weight[mj[q], jj[q]]
+                            wq = seen_weight(table, mj[q], jj[q], np.abs(hwo[q]))
                             C = dw[q] / np.where(wq != 0, wq, 1.0)[:, None]
                             F, _ = _principled_fresnel(mode_f, C, table.fresnel_ior[mj[q], jj[q]],
                                                        table.f82_tint[mj[q], jj[q]], hwo[q])

@@ -30,7 +30,8 @@ import numpy as np
 from numba import njit
 
 from .._numba_options import NO_REFCOUNTS
-from ..scene.model import DIFFUSE, GLASS, GLOSSY, REFRACTION, TRANSLUCENT, TRANSPARENT
+from ..scene.model import (DIFFUSE, GLASS, GLOSSY, REFRACTION, TRANSLUCENT, TRANSPARENT,
+                           VIEW_SAMPLES)
 from .microfacet import FRESNEL_DIELECTRIC, FRESNEL_F82, INV_PI
 from .multiscatter import _lerp_index, _ms_glass_slice, _ms_tables, _schlick_s_slice
 from .table import DIFFUSE_ROUGHNESS_EPS
@@ -46,7 +47,8 @@ _N_GGX, _N_GLASS, _N_S = 32, 16, 16
 F_KIND, F_ND, F_W, F_ROUGH, F_A2, F_IOR, F_MS, F_FRES, F_FIOR = range(9)
 F_TINT = 9                     # 9, 10, 11: f82_tint RGB
 F_LIOR, F_LF0, F_LROUGH, F_LMS, F_BUMP = 12, 13, 14, 15, 16
-N_FIELDS = 17
+F_VIEW = 17                    # 1 + the offset in tables of the lobe's view factor (Lobe.view), 0 none
+N_FIELDS = 18
 # Offsets of the albedo tables in CompiledMaterials.tables (flat, C order).
 T_GGX_E = 0                                    # (32, 32) [rough, mu]
 T_GGX_EAVG = T_GGX_E + _N_GGX * _N_GGX         # (32,) [rough]
@@ -54,6 +56,7 @@ T_GLASS_E = T_GGX_EAVG + _N_GGX                # (2, 16, 16, 16) [1/ior?, ior no
 T_GLASS_EAVG = T_GLASS_E + 2 * _N_GLASS ** 3   # (2, 16, 16) [1/ior?, ior node, rough]
 T_S = T_GLASS_EAVG + 2 * _N_GLASS ** 2         # (16, 16, 16) [ior node, rough, mu]
 N_TABLES = T_S + _N_S ** 3
+# After them: the view factors' rows (VIEW_SAMPLES each, MaterialTable.view_tab).
 
 
 class CompiledMaterials(NamedTuple):
@@ -107,13 +110,19 @@ def compile_materials(table) -> CompiledMaterials:
                    (F_BUMP, opt("bump_correction", 0.0, (M,))[:, None])):
         lo[:, :, col] = a
     lo[:, :, F_TINT:F_TINT + 3] = opt("f82_tint", 1.0, (M, L, 3))
-    tabs = np.zeros(N_TABLES)
+    vl = getattr(table, "view_lut", None)
+    nv = 0 if vl is None else len(table.view_tab)
+    if nv:
+        lo[:, :, F_VIEW] = np.where(vl >= 0, 1 + N_TABLES + VIEW_SAMPLES * vl, 0.0)
+    tabs = np.zeros(N_TABLES + VIEW_SAMPLES * nv)
+    if nv:
+        tabs[N_TABLES:] = np.concatenate([np.asarray(r, np.float64) for r in table.view_tab])
     E, Eavg = _ms_tables()
     tabs[T_GGX_E:T_GGX_EAVG] = E.ravel()
     tabs[T_GGX_EAVG:T_GLASS_E] = Eavg
     gE = tabs[T_GLASS_E:T_GLASS_EAVG].reshape(2, _N_GLASS, _N_GLASS, _N_GLASS)
     gA = tabs[T_GLASS_EAVG:T_S].reshape(2, _N_GLASS, _N_GLASS)
-    sT = tabs[T_S:].reshape(_N_S, _N_S, _N_S)
+    sT = tabs[T_S:N_TABLES].reshape(_N_S, _N_S, _N_S)
     # Glass: multiscatter_factor reads (1/ior?, node) for eta = ior entering
     # and 1/ior leaving; it folds eta < 1 to 1/eta, as here.
     g = (lo[:, :, F_MS] > 0) & nd & (kind == GLASS)
@@ -496,6 +505,22 @@ def _microfacet_lobe(k, a2, eta, fm, fi, t0, t1, t2, w, c0, c1, c2, u0, u1, u2,
     return g0, g1, g2, fss0, fss1, fss2
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _seen_w(lobes, T, m, j, mu):
+    """table.seen_weight of slot j of material m at mu = |w_o . n_s|: the
+    mix weight times the view factor (F_VIEW), what a colour row's entry
+    divides by to give the closure's own colour."""
+    w = lobes[m, j, F_W]
+    o = lobes[m, j, F_VIEW]
+    if o > 0.0:
+        x = min(abs(mu), 1.0) * (VIEW_SAMPLES - 1)
+        i = min(int(x), VIEW_SAMPLES - 2)
+        f = x - i
+        b = int(o) - 1 + i
+        w *= T[b] * (1.0 - f) + T[b + 1] * f
+    return w
+
+
 @njit(cache=True, error_model="numpy", **NO_REFCOUNTS)
 def eval_pair_as(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz,
                  want_smooth, bump):
@@ -521,7 +546,7 @@ def eval_pair_as(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy,
             continue
         k = int(lobes[m, j, F_KIND])
         c0, c1, c2 = float(colors[row, j, 0]), float(colors[row, j, 1]), float(colors[row, j, 2])
-        w = lobes[m, j, F_W]
+        w = _seen_w(lobes, T, m, j, nv)
         if w != 0.0:
             u0, u1, u2 = c0 / w, c1 / w, c2 / w
         else:
@@ -952,7 +977,7 @@ def sample_pair(lobes, T, colors, p, cdf, last, m, r, nsx, nsy, nsz, ngx, ngy, n
             if fm == FRESNEL_DIELECTRIC or fm == FRESNEL_F82:
                 # Principled layer at roughness 0: colour is tint / F0, the
                 # Fresnel at h = n scales the mix weight (closures._sample_general).
-                w = lobes[m, j, F_W]
+                w = _seen_w(lobes, T, m, j, hwo)
                 dv = w if w != 0 else 1.0
                 if fm == FRESNEL_DIELECTRIC:
                     fi = lobes[m, j, F_FIOR]

@@ -38,6 +38,7 @@ from numba import njit
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 from ..scene.model import GLASS, GLOSSY
 from . import rough_maps
+from .table import view_dependent
 from .compiled import (N_FIELDS, N_TABLES, CompiledMaterials, SelectionTable, _disk,
                        compile_materials, selection_table)
 
@@ -102,6 +103,10 @@ def build_fast_materials(mtab) -> FastMaterials:
     cls = np.zeros(M, np.int8)
     col = np.zeros((M, 3))
     ior = np.ones(M)
+    # Colour-textured and view-dependent materials: a colour row per hit
+    # (materials.hit_colors), never a fast class's constant colour.
+    per_hit = (np.any((mtab.tex >= 0) & (mtab.kind >= 0), axis=1)
+               | view_dependent(mtab))
     for m in range(M):
         kinds = mtab.kind[m]
         slots = [j for j in range(kinds.shape[0]) if kinds[j] >= 0]
@@ -109,7 +114,7 @@ def build_fast_materials(mtab) -> FastMaterials:
         if not used:
             cls[m] = ABSORBER           # bsdf.sample_bsdf: no lobe, invalid
             continue
-        if any(mtab.tex[m, j] >= 0 for j in slots):
+        if per_hit[m]:
             continue
         cw = [mtab.color[m, j] * mtab.weight[m, j] for j in slots]
         # Photons bounce off the interpolated normal (docs/shading.md): a
@@ -130,7 +135,7 @@ def build_fast_materials(mtab) -> FastMaterials:
                 continue
             col[m] = mtab.color[m, j] * mtab.weight[m, j]
     bump = getattr(mtab, "bump_correction", None)
-    sampled = (cls == GENERIC) & ~np.any((mtab.tex >= 0) & (mtab.kind >= 0), axis=1)
+    sampled = (cls == GENERIC) & ~per_hit
     sampled &= COMPILED_SAMPLING & ~rough_maps.mapped(mtab)     # their hits pick a level
     comp = sampled.copy()
     if bump is not None:

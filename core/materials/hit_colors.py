@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 
 from ..mathutil import LUM_B, LUM_G, LUM_R
+from ..scene.model import VIEW_SAMPLES
 from ..scene.texture_kernels import TextureList, bilinear_rgb, corner_uv, texture_list
 # compiled.sample_pair is compiled into this module's kernel and numba's cache
 # is stamped by this file: edited with the BSDF evaluation's lobe helpers and
@@ -41,12 +42,17 @@ class ColorInputs(NamedTuple):
     lambert: np.ndarray
     tri_uv: np.ndarray
     textures: TextureList
+    view_lut: np.ndarray
+    view_tab: np.ndarray
 
 
 def textured_materials(mtab) -> np.ndarray:
-    """(M,) bool: the materials with a colour texture on a lobe (their lobe
-    colours vary per hit: ``materials.lobe_colors`` at the hit's uv)."""
-    return np.any((np.asarray(mtab.tex) >= 0) & (np.asarray(mtab.kind) >= 0), axis=1)
+    """(M,) bool: the materials with a colour texture on a lobe, or a lobe
+    whose weight depends on the view (their lobe colours vary per hit:
+    ``materials.lobe_colors`` at the hit's uv and view)."""
+    from .table import view_dependent
+    return (np.any((np.asarray(mtab.tex) >= 0) & (np.asarray(mtab.kind) >= 0), axis=1)
+            | view_dependent(mtab))
 
 
 def table_textures(mtab) -> TextureList:
@@ -79,35 +85,51 @@ def build_color_inputs(mtab, tri_uv, lambert=None) -> ColorInputs:
     M, L = mtab.kind.shape
     sel = mtab.sel_scale if mtab.sel_scale is not None else np.ones((M, L))
     lam = np.zeros(M, bool) if lambert is None else np.asarray(lambert, bool)
+    vl = getattr(mtab, "view_lut", None)
     return ColorInputs(color=c(mtab.color, np.float64), weight=c(mtab.weight, np.float64),
                        sel_scale=c(sel, np.float64), kind=c(mtab.kind, np.int64),
                        tex=c(mtab.tex, np.int64), lambert=c(lam), tri_uv=c(tri_uv),
-                       textures=table_textures(mtab))
+                       textures=table_textures(mtab),
+                       view_lut=c(np.full((M, L), -1) if vl is None else vl, np.int64),
+                       view_tab=c(np.ones((1, VIEW_SAMPLES)) if vl is None
+                                  else np.asarray(mtab.view_tab), np.float64))
 
 
-def hit_rows(X: ColorInputs, base: SelectionTable, prim, bu, bv, mat):
+def hit_rows(X: ColorInputs, base: SelectionTable, prim, bu, bv, mat, mu=None):
     """(SelectionTable, col (K, 3), rows (K,) int64): base's R rows, then one
     row per hit (prim, bu, bv) (K,) on materials mat (K,) int64, which takes
-    row R + k (:func:`hit_colors_kernel`); col the hits' sample weights."""
+    row R + k (:func:`hit_colors_kernel`); col the hits' sample weights.
+    mu (K,) |w_o . n_s| at the hits (view-dependent lobes), None: 1."""
     R, L = base.p.shape
     K = mat.shape[0]
     colors, p = np.empty((R + K, L, 3)), np.empty((R + K, L))
     cdf, last = np.empty((R + K, L)), np.empty(R + K, np.int64)
     colors[:R], p[:R], cdf[:R], last[:R] = base.colors, base.p, base.cdf, base.last
     col = np.empty((K, 3))
+    mu = np.ones(K) if mu is None else np.ascontiguousarray(mu, np.float64)
     hit_colors_kernel(X, np.ascontiguousarray(prim, np.int64), np.ascontiguousarray(bu),
-                      np.ascontiguousarray(bv), np.ascontiguousarray(mat, np.int64), R,
+                      np.ascontiguousarray(bv), mu, np.ascontiguousarray(mat, np.int64), R,
                       colors, p, cdf, last, col)
     return SelectionTable(colors, p, cdf, last), col, np.arange(R, R + K, dtype=np.int64)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _colour_row(X, m, t, b1, b2, r, colors, p, cdf, last, cur, img):
+def _view_at(tab, row, mu):
+    """``table.view_factor`` of one view-factor row at mu."""
+    S = tab.shape[1]
+    x = min(max(mu, 0.0), 1.0) * (S - 1)
+    i = min(int(x), S - 2)
+    f = x - i
+    return tab[row, i] * (1.0 - f) + tab[row, i + 1] * f
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _colour_row(X, m, t, b1, b2, mu, r, colors, p, cdf, last, cur, img):
     """Row r of colors, p, cdf, last for a hit at barycentrics (b1, b2) of
-    triangle t on material m (:func:`hit_colors_kernel`'s rule); returns the
-    sum of its colours and (cur, img) the texture last read and its image
-    (a typed list's item costs a reference count; a hit's lobes and the
-    next hits mostly share one)."""
+    triangle t on material m, mu = |w_o . n_s| there (:func:`hit_colors_kernel`'s
+    rule); returns the sum of its colours and (cur, img) the texture last
+    read and its image (a typed list's item costs a reference count; a
+    hit's lobes and the next hits mostly share one)."""
     L = colors.shape[1]
     uu, vv = corner_uv(X.tri_uv, t, 1.0 - b1 - b2, b1, b2)
     tot = 0.0
@@ -126,6 +148,9 @@ def _colour_row(X, m, t, b1, b2, r, colors, p, cdf, last, cur, img):
             a0, a1, a2 = bilinear_rgb(img, uu, vv, X.textures.unassociate[tj],
                                       X.textures.sampler[tj])
             c0, c1, c2 = c0 * a0, c1 * a1, c2 * a2
+        if X.view_lut[m, j] >= 0 and X.kind[m, j] >= 0:
+            v = _view_at(X.view_tab, X.view_lut[m, j], mu)
+            c0, c1, c2 = c0 * v, c1 * v, c2 * v
         colors[r, j, 0], colors[r, j, 1], colors[r, j, 2] = c0, c1, c2
         s0, s1, s2 = s0 + c0, s1 + c1, s2 + c2
         w = max(c0 * LUM_R + c1 * LUM_G + c2 * LUM_B, 0.0) * X.sel_scale[m, j]
@@ -147,7 +172,7 @@ def _colour_row(X, m, t, b1, b2, r, colors, p, cdf, last, cur, img):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def hit_colors_kernel(X, prim, bu, bv, mat, R, colors, p, cdf, last, col):
+def hit_colors_kernel(X, prim, bu, bv, mu, mat, R, colors, p, cdf, last, col):
     """Rows R + k of colors (., L, 3), p, cdf (., L), last (.,) and col[k]
     (K, 3) for the hits k (prim, bu, bv, mat (K,)) as numpy makes them: the
     lobe colours ``table.lobe_colors`` (colour x weight x the bilinear
@@ -159,8 +184,8 @@ def hit_colors_kernel(X, prim, bu, bv, mat, R, colors, p, cdf, last, col):
     img = X.textures.images[0]
     for k in range(mat.shape[0]):
         m = mat[k]
-        s0, s1, s2, cur, img = _colour_row(X, m, prim[k], bu[k], bv[k], R + k, colors, p, cdf,
-                                           last, cur, img)
+        s0, s1, s2, cur, img = _colour_row(X, m, prim[k], bu[k], bv[k], mu[k], R + k, colors, p,
+                                           cdf, last, cur, img)
         if X.lambert[m]:
             col[k, 0], col[k, 1], col[k, 2] = s0, s1, s2
         else:
@@ -186,7 +211,8 @@ def sample_rows(X, lobes, T, mat, rows, bary, ns, ng, wo, ray, u, out, wgt, flag
         g = rows[q]
         t = int(bary[g, 0])
         m = mat[q]
-        _, _, _, cur, img = _colour_row(X, m, t, bary[g, 1], bary[g, 2], 0, colors, p, cdf,
+        mu = abs(wo[g, 0] * ns[g, 0] + wo[g, 1] * ns[g, 1] + wo[g, 2] * ns[g, 2])
+        _, _, _, cur, img = _colour_row(X, m, t, bary[g, 1], bary[g, 2], mu, 0, colors, p, cdf,
                                         last, cur, img)
         i = ray[g]
         r = sample_pair(lobes, T, colors, p, cdf, last, m, 0, ns[g, 0], ns[g, 1], ns[g, 2],

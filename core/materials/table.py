@@ -78,6 +78,8 @@ class MaterialTable:
     layer_ms: np.ndarray = None         # (M, L) bool, that layer is Multiscatter GGX
     sel_scale: np.ndarray = None        # (M, L) lobe-selection scale (Fresnel-weighted lobes)
     alpha_tex: np.ndarray = None        # (M, L) int32 texture whose alpha scales the lobe, -1 = none
+    view_lut: np.ndarray = None         # (M, L) int32 row of view_tab scaling the lobe, -1 = none
+    view_tab: list = None               # (VIEW_SAMPLES,) float64 rows: Lobe.view, see view_factor
     alpha_inv: np.ndarray = None        # (M, L) bool, scaled by 1 - alpha instead
     bump_correction: np.ndarray = None  # (M,) bool, Normal Map / Bump: Cycles' normal tilt
     lambert_lobes: np.ndarray = None    # (M,) bool, lambert_only before the Normal Map / Bump test
@@ -148,6 +150,8 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
     sel = np.ones((M, L))
     atex = np.full((M, L), -1, np.int32)
     ainv = np.zeros((M, L), bool)
+    vlut = np.full((M, L), -1, np.int32)
+    vtab: list = []
     textures = list(textures)
     white = None
     for m, mat in enumerate(materials):
@@ -163,6 +167,9 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
             tex[m, j] = int(lobe.color_texture)
             atex[m, j] = int(getattr(lobe, "alpha_texture", -1))
             ainv[m, j] = bool(getattr(lobe, "alpha_invert", False))
+            if getattr(lobe, "view", ()):
+                vlut[m, j] = len(vtab)
+                vtab.append(np.asarray(lobe.view, np.float64))
             if atex[m, j] >= 0 and tex[m, j] < 0:
                 # A white 1x1 colour texture: the photon tracer computes uvs
                 # (and leaves its fast paths) only for lobes with a texture.
@@ -205,20 +212,68 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
         lambert_only=lambert_lobes & ~bump, lambert_lobes=lambert_lobes,
         textures=textures, multiscatter=ms, fresnel=fres, fresnel_ior=fior,
         f82_tint=f82t, layer_ior=lior, layer_f0=lf0, layer_roughness=lrough, layer_ms=lms,
-        sel_scale=sel, alpha_tex=atex, alpha_inv=ainv, bump_correction=bump), maps)
+        sel_scale=sel, alpha_tex=atex, alpha_inv=ainv, bump_correction=bump,
+        view_lut=vlut if vtab else None, view_tab=vtab if vtab else None), maps)
 
 
 # --------------------------------------------------------------------------
 # Per-point values
 # --------------------------------------------------------------------------
-def lobe_colors(table: MaterialTable, mat: np.ndarray, uv: np.ndarray) -> np.ndarray:
+def view_dependent(table) -> np.ndarray:
+    """(M,) bool: the materials with a lobe whose weight depends on the view
+    (``Lobe.view``): like textured ones, their colours are a hit's own."""
+    vl = getattr(table, "view_lut", None)
+    return np.zeros(table.kind.shape[0], bool) if vl is None else np.any(vl >= 0, axis=1)
+
+
+def view_factor(tab: np.ndarray, mu: np.ndarray) -> np.ndarray:
+    """Linear interpolation of view-factor rows tab (K, VIEW_SAMPLES) at mu
+    (K,) = |w_o . n_s|, clamped to [0, 1] (:func:`lobe_colors`)."""
+    S = tab.shape[1]
+    x = np.clip(np.asarray(mu, np.float64), 0.0, 1.0) * (S - 1)
+    i = np.minimum(x.astype(np.int64), S - 2)
+    f = x - i
+    k = np.arange(tab.shape[0])
+    return tab[k, i] * (1.0 - f) + tab[k, i + 1] * f
+
+
+def seen_weight(table, mat: np.ndarray, j, mu: np.ndarray) -> np.ndarray:
+    """(K,) float64: the mix weight of slot j (an int or (K,)) of materials
+    mat (K,) times its view factor at mu (K,) = |w_o . n_s|: what a lobe
+    colour of :func:`lobe_colors` divides by to give the closure's own
+    colour (Oren-Nayar's and Multiscatter GGX's albedo, a Principled
+    layer's tint, which Cycles reads without the mix's factor)."""
+    w = np.asarray(table.weight[mat, j], np.float64)
+    vl = getattr(table, "view_lut", None)
+    if vl is None:
+        return w
+    r = vl[mat, j]
+    k = np.nonzero(r >= 0)[0]
+    if k.size == 0:
+        return w
+    w = w.copy()
+    w[k] *= view_factor(np.asarray(table.view_tab)[r[k]], np.asarray(mu, np.float64)[k])
+    return w
+
+
+def lobe_colors(table: MaterialTable, mat: np.ndarray, uv: np.ndarray,
+                mu: np.ndarray = None) -> np.ndarray:
     """Per-lobe colour x weight x texture (x alpha or 1 - alpha of an image,
     ``alpha_tex``: a stochastic pass-through like Cycles', since lobes are
-    chosen by these colours' luminance).  mat (K,) int, uv (K, 2) -> (K, L, 3)
-    float64."""
+    chosen by these colours' luminance) x the view factor at mu (K,) =
+    |w_o . n_s| (``view_lut``; mu None: at normal incidence).  mat (K,) int,
+    uv (K, 2) -> (K, L, 3) float64."""
     mat = np.asarray(mat, np.int64)
     cols = table.color[mat] * table.weight[mat][:, :, None]
     cols[table.kind[mat] < 0] = 0.0
+    vl = getattr(table, "view_lut", None)
+    if vl is not None and (vl[mat] >= 0).any():
+        tab = np.asarray(table.view_tab)
+        mu = np.ones(mat.size) if mu is None else np.asarray(mu, np.float64)
+        for j in range(vl.shape[1]):
+            k = np.nonzero(vl[mat, j] >= 0)[0]
+            if k.size:
+                cols[k, j] *= view_factor(tab[vl[mat[k], j]], mu[k])[:, None]
     tex = table.tex[mat]
     if (tex >= 0).any():
         uv = np.asarray(uv, np.float64)

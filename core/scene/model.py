@@ -70,6 +70,11 @@ class Lobe:
       ``layer_roughness``) is that texture's alpha r(uv) where the camera
       side reads a hit (core.materials.rough_maps), ``roughness`` its mean
       elsewhere.  Left out of the repr like alpha_texture.
+    view: () or VIEW_SAMPLES floats: the lobe's weight is also scaled by a
+      function of the view, sampled at mu = |w_o . n_s| = i / (VIEW_SAMPLES
+      - 1) (a Mix Shader whose Fac a Fresnel or Layer Weight node computes;
+      core.materials.table.view_factor interpolates it).  Left out of the
+      repr like alpha_texture.
     """
     kind: int
     color: tuple = (0.8, 0.8, 0.8)
@@ -88,6 +93,11 @@ class Lobe:
     alpha_texture: int = field(default=-1, repr=False)
     alpha_invert: bool = field(default=False, repr=False)
     roughness_texture: int = field(default=-1, repr=False)
+    view: tuple = field(default=(), repr=False)
+
+
+#: Samples of a lobe's view factor over mu = |w_o . n_s| in [0, 1] (Lobe.view).
+VIEW_SAMPLES = 257
 
 
 @dataclass(frozen=True)
@@ -367,6 +377,8 @@ def scene_digest(scene: Scene) -> str:
               for j, lb in enumerate(m.lobes) if getattr(lb, "alpha_texture", -1) >= 0]
     extra += [(i, j, "roughness", lb.roughness_texture) for i, m in enumerate(scene.materials)
               for j, lb in enumerate(m.lobes) if getattr(lb, "roughness_texture", -1) >= 0]
+    extra += [(i, j, "view", lb.view) for i, m in enumerate(scene.materials)
+              for j, lb in enumerate(m.lobes) if getattr(lb, "view", ())]
     if extra:
         h.update(repr(extra).encode())
     if scene.tri_tangent is not None:

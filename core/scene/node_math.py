@@ -595,3 +595,41 @@ def to_vec(x) -> np.ndarray:
     (NODE_CONVERT_FV): (f, f, f)."""
     x = np.asarray(x, np.float64)
     return np.repeat(x[..., None], 3, axis=-1)
+
+
+# -- view-dependent inputs: Fresnel, Layer Weight ------------------------------
+
+def fresnel_dielectric_cos(cosi, eta) -> np.ndarray:
+    """Cycles' ``fresnel_dielectric_cos``: the unpolarised reflectance of a
+    dielectric interface of relative IOR eta at |cos| of incidence cosi,
+    without the refracted direction; 1 under total internal reflection."""
+    c = np.abs(np.asarray(cosi, np.float64))
+    eta = np.broadcast_to(np.asarray(eta, np.float64), c.shape)
+    g = eta * eta - 1.0 + c * c
+    out = np.ones(c.shape)
+    m = g > 0
+    gs, cm = np.sqrt(g[m]), c[m]
+    A = (gs - cm) / (gs + cm)
+    B = (cm * (gs + cm) - 1.0) / (cm * (gs - cm) + 1.0)
+    out[m] = 0.5 * A * A * (1.0 + B * B)
+    return out
+
+
+def fresnel(cosi, ior) -> np.ndarray:
+    """The Fresnel node's Fac (Cycles' ``svm_node_fresnel``) on a front face:
+    eta = max(IOR, 1e-5)."""
+    return fresnel_dielectric_cos(cosi, np.maximum(np.asarray(ior, np.float64), 1e-5))
+
+
+def layer_weight(cosi, blend, output: str) -> np.ndarray:
+    """The Layer Weight node's output (Cycles' ``svm_node_layer_weight``) on a
+    front face: 'Fresnel', the dielectric Fresnel of IOR 1 / max(1 - Blend,
+    1e-5); 'Facing', 1 - |cos|^b with b = 2 Blend below 0.5 and
+    0.5 / (1 - Blend) above (Blend clamped to [0, 1 - 1e-5]; b = 1 at 0.5)."""
+    c = np.abs(np.asarray(cosi, np.float64))
+    blend = np.broadcast_to(np.asarray(blend, np.float64), c.shape)
+    if output == "Fresnel":
+        return fresnel_dielectric_cos(c, 1.0 / np.maximum(1.0 - blend, 1e-5))
+    b = np.clip(blend, 0.0, 1.0 - 1e-5)
+    b = np.where(b < 0.5, 2.0 * b, 0.5 / (1.0 - b))
+    return 1.0 - np.where(blend != 0.5, c ** b, c)

@@ -26,7 +26,8 @@ import numpy as np
 
 from ..materials.microfacet import f0_from_ior
 from ..mathutil import LUM_B, LUM_G, LUM_R
-from .model import DIFFUSE, GLASS, GLOSSY, LOBE_NAMES, MAX_LOBES, TRANSPARENT, Lobe
+from .model import (DIFFUSE, GLASS, GLOSSY, LOBE_NAMES, MAX_LOBES, TRANSPARENT,
+                    VIEW_SAMPLES, Lobe)
 
 _LUMA = (LUM_R, LUM_G, LUM_B)
 # Cycles' CLOSURE_WEIGHT_CUTOFF: closures lighter than this are not created.
@@ -340,61 +341,32 @@ def _scaled(lobes, s):
     return [dataclasses.replace(lb, weight=lb.weight * s) for lb in lobes]
 
 
-#: Roughness above which a Fresnel mix's layer is noted as approximated
-#: (measured against Cycles: within the seed noise up to 0.3, 2.9x it at
-#: 0.5, the mean 1.7 % low at 0.8; docs/shading.md "Fresnel and Layer
-#: Weight mixes").
-FRESNEL_MIX_ROUGH = 0.3
-
-
-def fresnel_mix(a_lobes, b_lobes, ior: float):
-    """Cycles' Mix Shader (1 - F) A + F B whose Fac is a dielectric Fresnel
-    factor F = fresnel_dielectric_cos(|I . N|, ior) of the view direction:
-    a Fresnel node of that IOR, or a Layer Weight's Fresnel output (Cycles'
-    ``svm_node_layer_weight``: ior = 1 / (1 - Blend)).  A is diffuse (the
-    Diffuse BSDF lobes), B one Glossy BSDF lobe (no Fresnel of its own) of
-    grey colour g: the pre-Principled "varnished" material.  Rendered as the
-    Principled BSDF's dielectric layer, which FPPM's lobes already hold:
-    B's GGX times the dielectric Fresnel of ior at the microfacet normal
-    (weight g) over A scaled by 1 - the layer's directional albedo E(mu_o).
-    For a smooth Glossy both are F(mu_o) exactly (E = F, the half vector is
-    n); a rough one reflects F at the half vector rather than at the normal
-    and leaves the diffuse E rather than F (docs/shading.md "Fresnel and
-    Layer Weight mixes" measures the difference).  Returns (lobes, note) or
-    None when A and B are not of that form (the caller reads the Fac as
-    before)."""
-    b = tuple(b_lobes)
-    if not (ior > 1.0 and math.isfinite(ior)) or len(b) != 1 or not a_lobes:
-        return None
-    g = b[0]
-    c = np.asarray(g.color, np.float64)
-    if (g.kind != GLOSSY or g.fresnel or g.layer_ior > 0 or g.color_texture >= 0
-            or getattr(g, "alpha_texture", -1) >= 0 or np.ptp(c) > 1e-6):
-        return None
-    if any(lb.kind != DIFFUSE or lb.layer_ior > 0 or getattr(lb, "alpha_texture", -1) >= 0
-           for lb in a_lobes):
-        return None
-    rtex = getattr(g, "roughness_texture", -1)
-    spec = make_lobe(GLOSSY, (1.0, 1.0, 1.0), weight=g.weight * float(c[0]),
-                     roughness=g.roughness, multiscatter=g.multiscatter, fresnel="DIELECTRIC",
-                     fresnel_ior=float(ior), roughness_texture=rtex)
-    layer = dict(layer_ior=float(ior), layer_roughness=g.roughness,
-                 layer_f0=float(min(f0_from_ior(ior), 1.0)), layer_multiscatter=g.multiscatter)
-    under = [dataclasses.replace(lb, **layer) for lb in a_lobes]
-    if rtex >= 0:
-        under = [dataclasses.replace(lb, roughness_texture=rtex) for lb in under]
-    note = "" if g.roughness <= FRESNEL_MIX_ROUGH + 1e-6 else (
-        f"a Fresnel mix over a rough Glossy (roughness {g.roughness:g}) rendered as a "
-        f"dielectric layer (its Fresnel at the microfacet normal)")
-    return [spec] + under, note
-
-
 def mix_materials(mat_a_lobes, mat_b_lobes, fac: float):
     """Mix Shader: (1 - fac) A + fac B, fac clamped to [0, 1] like Cycles.
 
     Returns (tuple[Lobe], tuple[str] notes)."""
     fac = min(max(float(fac), 0.0), 1.0)
     return merge_lobes(_scaled(mat_a_lobes, 1.0 - fac) + _scaled(mat_b_lobes, fac))
+
+
+def view_values(lobe) -> np.ndarray:
+    """(VIEW_SAMPLES,) float64: a lobe's view factor (ones when it has none)."""
+    v = getattr(lobe, "view", ())
+    return np.asarray(v, np.float64) if v else np.ones(VIEW_SAMPLES)
+
+
+def mix_by_view(mat_a_lobes, mat_b_lobes, fac):
+    """Mix Shader whose Fac is a function of the view, fac (VIEW_SAMPLES,)
+    its values at mu = |w_o . n_s| = i / (VIEW_SAMPLES - 1) (clamped to
+    [0, 1] like Cycles'): (1 - fac) A + fac B, each lobe's ``view`` the
+    product of the factors of the mixes it sits under.  Returns
+    (tuple[Lobe], tuple[str] notes)."""
+    f = np.clip(np.asarray(fac, np.float64), 0.0, 1.0)
+
+    def scaled(lobes, w):
+        return [dataclasses.replace(lb, view=tuple(float(x) for x in view_values(lb) * w))
+                for lb in lobes]
+    return merge_lobes(scaled(mat_a_lobes, 1.0 - f) + scaled(mat_b_lobes, f))
 
 
 def add_materials(mat_a_lobes, mat_b_lobes):

@@ -38,6 +38,11 @@ from .textures import sample_alpha, sample_texture
 
 FLOAT, VEC, COLOR = "float", "vec", "color"
 
+#: The Attr key of |w_o . n_s| at a shading point, which only a Mix Shader's
+#: Fac reads (addon/export.py ``_MaterialBuilder.view_fac``: sampled into
+#: ``Lobe.view``; an atlas bake never sees it).
+VIEW_COS = ("ViewCos",)
+
 
 @dataclass(frozen=True, eq=False)
 class Const:
@@ -365,4 +370,7 @@ OPS = {
     "clamp": lambda args, params: NM.clamp(params[0], *args),
     "separate": _separate,
     "combine": _combine,
+    # the view-dependent inputs, of Attr VIEW_COS (the Mix Shader Fac's LUT)
+    "fresnel": lambda args, params: NM.fresnel(*args),
+    "layer_weight": lambda args, params: NM.layer_weight(*args, *params),
 }

@@ -49,7 +49,8 @@ from numba.extending import intrinsic
 # compiled.sample_pair (and eval_pair in it) is compiled into these kernels and
 # numba's cache is stamped by this file: edited with the microfacet lobes'
 # geometric side test of round 27, sample_pair's colour row of round 28 and
-# the BSDF evaluation's lobe helpers and reference counts of round 32.
+# the BSDF evaluation's lobe helpers and reference counts of round 32, and the
+# view factor of round 40 (compiled._seen_w).
 from ..materials.compiled import sample_pair, sincos_turn
 from ..materials.fast import ABSORBER, GENERIC, sample_fast
 from ..lights.warp_kernels import basis_world, spot_pdf_local, spread_atten, upper_bound

@@ -841,13 +841,17 @@ class PhotonTracer:
         uv = np.zeros((g, 2))
         mapped = self._mapped_all[mat]
         if self.mtab.textures and (np.any(self.mtab.tex[mat] >= 0) or mapped.any()):
+            # (view factors read no uv)
             if self._tri_uv is None:
                 self._tri_uv = np.ascontiguousarray(self.scene.tri_uv, np.float64)
             PK.gen_attributes(np.ascontiguousarray(gbary), g, self._tri_uv, uv)
         if mapped.any():        # a roughness map: the hit's level row
             mat = rough_maps.pick(self.mtab, mat, prim, gbary[:, 1].astype(np.float32),
                                   gbary[:, 2].astype(np.float32), uv)
-        colors = B.lobe_colors(self.mtab, mat, uv)
+        # A view-dependent lobe (Lobe.view) weighed at the photon's arrival:
+        # the outgoing direction that Cycles' camera-side weight reads is
+        # the one being sampled (docs/shading.md "View-dependent mixes").
+        colors = B.lobe_colors(self.mtab, mat, uv, np.abs(np.einsum("ij,ij->i", gwi, gns)))
         wo, wgt, _, is_delta, valid = B.sample_bsdf(
             self.mtab, mat, colors, gns, gng, gwi, ug[:, :3], subset="all", mode="importance")
         return wo, wgt, valid, is_delta
