@@ -62,7 +62,7 @@ def _scene(case):
     square over the box hidden from the camera lights the scene
     ("emitter_shadowless": and the box's Shadow is off); "world": a blue
     world hidden from the camera lights the scene, seen past the floor."""
-    import bpy
+    import test_shading_nodes as TS
     from scenes import bpy_kit as K
     sc = K.reset_scene((RES, RES), samples=16)
     grey, nt, out = K._new_material("Floor")
@@ -75,13 +75,8 @@ def _scene(case):
     d.inputs["Color"].default_value = (0.8, 0.15, 0.1, 1.0)
     nt.links.new(d.outputs[0], out.inputs["Surface"])
     box = K.box("Box", (1.3, 1.0, 0.4), red, location=(0.1, -0.05, 0.3), rot_z_deg=20.0)
-    cam_d = bpy.data.cameras.new("Cam")
-    cam_d.type = 'ORTHO'
-    cam_d.ortho_scale = 3.2 if case == "world" else 2.2
-    cam = bpy.data.objects.new("Cam", cam_d)
-    cam.location = (0, 0, 3)
-    K.link(cam)
-    sc.camera = cam
+    TS.ortho_view(sc, 3.2 if case == "world" else 2.2,
+                  sun_energy=0.0 if case.startswith("emitter") or case == "world" else 3.0)
     if case == "world":
         w = K.set_world(sc, (0.4, 0.5, 0.6))
         w.cycles_visibility.camera = False
@@ -94,12 +89,6 @@ def _scene(case):
         lamp = K.plane("Lamp", 0.8, em, location=(-0.3, 0.2, 1.2), rotation=(np.pi, 0, 0))
         lamp.visible_camera = False
     else:
-        ld = bpy.data.lights.new("Sun", 'SUN')
-        ld.energy = 3.0
-        ld.angle = 0.0
-        sun = bpy.data.objects.new("Sun", ld)
-        sun.rotation_euler = (0.5, 0.3, 0.0)
-        K.link(sun)
         box.visible_camera = not case.startswith("camera")
         box.visible_shadow = case != "shadow"
         if case == "camera_veil":
@@ -140,13 +129,9 @@ def test_camera_and_shadow_visibility_agree_with_cycles(case, integrator, tmp_pa
     scene, lines = TS._export()
     assert (scene.tri_visibility is not None) == (case != "world")
     assert not any("ray visibility" in ln for ln in lines), lines
-    c1 = TS._cycles(sc, 0, tmp_path / "c0.exr", 256)
-    c2 = TS._cycles(sc, 1, tmp_path / "c1.exr", 256)
-    a1, a2 = _render(scene, integrator, 1), _render(scene, integrator, 2)
-    ref, img = (c1 + c2) / 2, (a1 + a2) / 2
+    err, noise, img, ref = TS.two_seeds(sc, scene, lambda s, seed: _render(s, integrator, seed),
+                                        tmp_path, 256)
     mean = ref.mean()
-    err = np.abs(img - ref).mean() / mean
-    noise = (np.abs(a1 - a2).mean() + np.abs(c1 - c2).mean()) / 2 / mean
     seen = _render(dataclasses.replace(scene, tri_visibility=None, world_camera_map=None),
                    integrator, 1)
     effect = np.abs(seen - ref).mean() / mean

@@ -190,7 +190,6 @@ def height_pixels(n=16):
 def plane_scene(build_material, rot_z=0.5, sun_rotation=(0.5, 0.3, 0.0)):
     """A 2 m plane (turned by rot_z about z, so tangents are not the axes)
     seen from above, a tilted sun; build_material(nodes, links, out_socket)."""
-    import bpy
     from scenes import bpy_kit as K
     sc = K.reset_scene((RES, RES))
     sc.render.engine = 'CYCLES'
@@ -201,20 +200,29 @@ def plane_scene(build_material, rot_z=0.5, sun_rotation=(0.5, 0.3, 0.0)):
     for loop in ob.data.loops:      # uv = 0.75 (x + 1): 1.5 repeats across the plane
         co = ob.data.vertices[loop.vertex_index].co
         uvl.data[loop.index].uv = (0.75 * (co.x + 1.0), 0.75 * (co.y + 1.0))
+    ortho_view(sc, sun_rotation=sun_rotation)
+    return sc, ob
+
+
+def ortho_view(sc, scale=1.4, sun_energy=3.0, sun_angle=0.0, sun_rotation=(0.5, 0.3, 0.0)):
+    """An orthographic camera of ``scale`` 3 m above the origin looking
+    down (the scene's camera) and, with sun_energy > 0, a sun."""
+    import bpy
+    from scenes import bpy_kit as K
     cam_d = bpy.data.cameras.new("Cam")
     cam_d.type = 'ORTHO'
-    cam_d.ortho_scale = 1.4
+    cam_d.ortho_scale = scale
     cam = bpy.data.objects.new("Cam", cam_d)
     cam.location = (0, 0, 3)
     K.link(cam)
     sc.camera = cam
-    ld = bpy.data.lights.new("Sun", 'SUN')
-    ld.energy = 3.0
-    ld.angle = 0.0
-    sun = bpy.data.objects.new("Sun", ld)
-    sun.rotation_euler = sun_rotation
-    K.link(sun)
-    return sc, ob
+    if sun_energy > 0:
+        ld = bpy.data.lights.new("Sun", 'SUN')
+        ld.energy = sun_energy
+        ld.angle = sun_angle
+        sun = bpy.data.objects.new("Sun", ld)
+        sun.rotation_euler = sun_rotation
+        K.link(sun)
 
 
 def uv_sphere_object(name, mat, radius=0.6, mirror=False):
@@ -301,16 +309,25 @@ def _cycles(sc, seed, path, samples=CYCLES_SAMPLES):
 def compare(sc, tmp_path, label, photons=2000, samples=CYCLES_SAMPLES):
     """(per-pixel mean |FPPM - Cycles| / mean, its noise bound) from two seeds each."""
     scene, lines = _export()
+    err, noise, img, ref = two_seeds(sc, scene, lambda s, seed: _fppm(s, seed, photons),
+                                     tmp_path, samples)
+    mean = ref.mean()
+    print(f"{label}: mean {img.mean():.4f} vs Cycles {mean:.4f}; mean |diff| {err:.4f} "
+          f"of the mean, seed-to-seed noise {noise:.4f}")
+    return err, noise, img, ref, scene, lines
+
+
+def two_seeds(sc, scene, render, tmp_path, samples=CYCLES_SAMPLES):
+    """(mean |FPPM - Cycles| / mean, the seed-to-seed noise, FPPM's image,
+    Cycles') of render(scene, seed) at seeds 1, 2 and Cycles at 0, 1."""
     c1 = _cycles(sc, 0, tmp_path / "c0.exr", samples)
     c2 = _cycles(sc, 1, tmp_path / "c1.exr", samples)
-    a1, a2 = _fppm(scene, 1, photons), _fppm(scene, 2, photons)
+    a1, a2 = render(scene, 1), render(scene, 2)
     ref, img = (c1 + c2) / 2, (a1 + a2) / 2
     mean = ref.mean()
     err = np.abs(img - ref).mean() / mean
     noise = (np.abs(a1 - a2).mean() + np.abs(c1 - c2).mean()) / 2 / mean
-    print(f"{label}: mean {img.mean():.4f} vs Cycles {mean:.4f}; mean |diff| {err:.4f} "
-          f"of the mean, seed-to-seed noise {noise:.4f}")
-    return err, noise, img, ref, scene, lines
+    return err, noise, img, ref
 
 
 def _without_normals(scene):
