@@ -78,7 +78,8 @@ def _world_volume(sc):
 
 
 def _world_visibility(sc):
-    H.set_world(sc, (0.1, 0.1, 0.1)).cycles_visibility.camera = False
+    # (Its camera visibility is honoured: tests/test_ray_visibility.py.)
+    H.set_world(sc, (0.1, 0.1, 0.1)).cycles_visibility.glossy = False
 
 
 def _light_path(sc):
@@ -109,7 +110,8 @@ CASES = [
     (_motion_blur, "motion blur ignored: the scene is rendered at the current frame"),
     (_stereo, "stereo 3D / multi-view: every view is rendered from the scene camera "
               "(the right eye repeats the left)"),
-    (_ray_visibility, "ray visibility of 1 object(s) (Cube) treated as fully visible"),
+    (_ray_visibility, "diffuse, glossy or transmission ray visibility of 1 object(s) (Cube) "
+                      "treated as visible (camera and shadow visibility are honoured)"),
     (_light_linking, "light linking of 1 object(s) (Point) ignored: every light reaches "
                      "every surface"),
     (_particle_hair, "hair of 1 object(s) (Plane) not rendered"),
@@ -119,7 +121,8 @@ CASES = [
                       "surfaces"),
     (_volume_object, "volume object(s) not rendered: 1 object(s) (Smoke)"),
     (_world_volume, "world: volume ignored"),
-    (_world_visibility, "world: ray visibility treated as fully visible"),
+    (_world_visibility, "world: diffuse, glossy, transmission or volume ray visibility "
+                        "treated as on"),
     (_light_path, "world: Light Path Is Glossy Ray read as a diffuse ray's by every ray but "
                   "the camera's"),
     (_hdri_no_image, "world: 'Environment Texture' has no image: the Background colour is used"),
