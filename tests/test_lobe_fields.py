@@ -19,7 +19,7 @@ from core.scene.model import DIFFUSE, GLASS, GLOSSY, REFRACTION, Lobe, Material
 
 EXTRA = ("multiscatter", "fresnel", "fresnel_ior", "f82_tint", "layer_ior", "layer_f0",
          "layer_roughness", "layer_multiscatter", "alpha_texture", "alpha_invert",
-         "roughness_texture")
+         "roughness_texture", "view")
 
 
 def _tables_equal(a, b):
