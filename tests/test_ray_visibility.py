@@ -114,7 +114,7 @@ def _render(scene, integrator, seed):
 #: (case, integrator).
 CASES = [("camera", "PHOTON"), ("camera", "PATH"), ("camera", "LIGHT"),
          ("camera_veil", "PHOTON"), ("camera_veil", "PATH"),
-         ("shadow", "PHOTON"), ("shadow", "PATH"), ("shadow", "LIGHT"),
+         ("shadow", "PHOTON"), ("shadow", "PATH"),
          ("emitter", "PHOTON"), ("emitter", "COMBINED"),
          ("emitter_shadowless", "PHOTON"), ("emitter_shadowless", "COMBINED"),
          ("emitter_shadowless", "LIGHT"), ("world", "PHOTON"), ("world", "PATH")]
