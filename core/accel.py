@@ -69,7 +69,9 @@ class Accel:
         self.subset = _subset
         vis = None if visibility is None else np.asarray(visibility, np.uint8)
         self.visibility = None if vis is None or np.all(vis & RAY_ALL == RAY_ALL) else vis
-        self._kinds: dict = {}
+        self._kinds: dict = {}               # flags -> the Accel those rays see
+        self._hidden: dict = {}              # flags -> hidden_from's array or None
+        self._hidden_key = b""
         self._scene = None
         tri = self.tri_p if _subset is None else self.tri_p[_subset]
         if tri.shape[0]:
@@ -85,25 +87,36 @@ class Accel:
         base = self.base
         if base.visibility is None:
             return base
-        seen = (base.visibility & int(flags)) != 0
-        if seen.all():
-            return base
-        key = tuple(int(v) for v in np.unique(base.visibility) if v & int(flags))
-        sub = base._kinds.get(key)
-        if sub is None:
-            sub = Accel(base.tri_p, base.diameter, _subset=np.nonzero(seen)[0].astype(np.int32),
-                        _base=base)
-            base._kinds[key] = sub
+        flags = int(flags)
+        got = base._kinds.get(flags)          # per call in the passes: looked up once
+        if got is not None:
+            return got
+        hid = base.hidden_from(flags)
+        if hid is None:
+            sub = base
+        else:
+            # One scene per set of hidden triangles (two kinds may share it).
+            key = hid.tobytes()
+            sub = next((a for a in base._kinds.values()
+                        if a is not base and a._hidden_key == key), None)
+            if sub is None:
+                sub = Accel(base.tri_p, base.diameter,
+                            _subset=np.nonzero(~hid)[0].astype(np.int32), _base=base)
+                sub._hidden_key = key
+        base._kinds[flags] = sub
         return sub
 
     def hidden_from(self, flags: int) -> np.ndarray | None:
         """(T,) bool: the triangles rays carrying ``flags`` do not see, or None
-        when they see every one."""
-        vis = self.base.visibility
-        if vis is None:
+        when they see every one (computed once per flags)."""
+        base = self.base
+        if base.visibility is None:
             return None
-        hid = (vis & int(flags)) == 0
-        return hid if hid.any() else None
+        flags = int(flags)
+        if flags not in base._hidden:
+            hid = (base.visibility & flags) == 0
+            base._hidden[flags] = hid if hid.any() else None
+        return base._hidden[flags]
 
     def global_prim(self, prim: np.ndarray) -> np.ndarray:
         """prim (K,) int32 Embree primIDs of this scene (-1 = miss), as

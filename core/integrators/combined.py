@@ -857,8 +857,7 @@ class CombinedLightTracer(LightTracer):
         if nd.size:
             # A view-dependent lobe weighed at the light path's own arrival
             # (the photons' rule: core.sppm.photons).
-            col = B.lobe_colors(mtab, mat[nd], uvg[nd],
-                                np.abs(np.einsum("ij,ij->i", wo[nd], nsg[nd])))
+            col = B.lobe_colors(mtab, mat[nd], uvg[nd], B.view_mu(mtab, wo[nd], nsg[nd]))
             pl[nd] = B.pdf_bsdf(mtab, mat[nd], col, nsg[nd], ngg[nd], wo[nd], wg[nd],
                                 subset="all")
             pr[nd] = B.pdf_bsdf(mtab, mat[nd], col, nsg[nd], ngg[nd], wg[nd], wo[nd],

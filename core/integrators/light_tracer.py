@@ -328,7 +328,7 @@ class LightTracer:
         m = rough_maps.pick(self.mtab, np.asarray(self.scene.tri_mat, np.int64)[prim], prim,
                             bary[:, 1].astype(np.float32), bary[:, 2].astype(np.float32), uv)
         wc, wi, weight = con.wc[c], vin.wi[rows], con.weight[c]
-        colors = B.lobe_colors(self.mtab, m, uv, np.abs(np.einsum("ij,ij->i", ns, wc)))
+        colors = B.lobe_colors(self.mtab, m, uv, B.view_mu(self.mtab, wc, ns))
         f = C.eval_radiance(self.mtab, self.generic, m, colors, ns, ng, wc, wi)
         corr = np.minimum(B.shading_correction(ns, ng, wi), SHADING_CAP)
         c1 = np.abs(np.einsum("ij,ij->i", ng, wc)) * weight

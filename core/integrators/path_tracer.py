@@ -479,8 +479,7 @@ class PathTracer:
                     self._perturb(prim, h.u[ih], h.v[ih], ns)
                 # The hits' colour rows; uv only where the emission reads it
                 # (no emission texture in the kernels' scope: never).
-                Mk, row = self._hit_colors(kern[2], prim, h.u[ih], h.v[ih], mat,
-                                           np.abs(_dot(d[ih], ns)))
+                Mk, row = self._hit_colors(kern[2], prim, h.u[ih], h.v[ih], mat, d, ih, ns)
                 uv = np.zeros((ih.size, 2))
             else:
                 p, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, h.u[ih],
@@ -516,7 +515,7 @@ class PathTracer:
                 break       # the last BSDF ray only collects emission
             # The kernels' colours are their rows' (read by the numpy
             # CameraMIS terms only).
-            colors = (B.lobe_colors(mtab, mat, uv, np.abs(_dot(d[ih], ns))) if not kern
+            colors = (B.lobe_colors(mtab, mat, uv, B.view_mu(mtab, d[ih], ns)) if not kern
                       else Mk.sel_colors[row] if vc is not None else None)
             v = PathVertices(path=path[ih], p=p, ng=ng, ns=ns, wo=-d[ih], mat=mat,
                              colors=colors, beta=beta[ih], row=row)
@@ -624,20 +623,21 @@ class PathTracer:
             path = v.path[c]
         return out
 
-    def _hit_colors(self, M, prim, bu, bv, mat, mu):
+    def _hit_colors(self, M, prim, bu, bv, mat, d, ih, ns):
         """(PathMaterials, row (K,) int64) of the kernels' hits (prim, bu, bv,
-        materials mat, mu = |w_o . n_s| (K,)): M and the materials themselves
-        where no hit is on a textured material; else M with a colour row
-        appended per textured hit (``path_kernels.with_hit_colors``: its lobe
-        colours at the hit's uv and view, their selection)."""
+        materials mat (K,), shading normals ns (K, 3) of the rays d[ih]): M and
+        the materials themselves where no hit is on a textured material; else
+        M with a colour row appended per textured hit
+        (``path_kernels.with_hit_colors``: its lobe colours at the hit's uv
+        and view, their selection)."""
         row = np.asarray(mat, np.int64)
         if not self._textured.any():
             return M, row
         t = np.nonzero(self._textured[row])[0]
         if t.size == 0:
             return M, row
-        Mk, rows = PK.with_hit_colors(M, self._color_inputs, prim[t], bu[t], bv[t], row[t],
-                                      mu[t])
+        mu = np.abs(_dot(d[ih[t]], ns[t])) if self.mtab.view_lut is not None else None
+        Mk, rows = PK.with_hit_colors(M, self._color_inputs, prim[t], bu[t], bv[t], row[t], mu)
         row = row.copy()
         row[t] = rows
         return Mk, row

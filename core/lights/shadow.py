@@ -173,8 +173,10 @@ def transmittance(accel, o: np.ndarray, d: np.ndarray, t_max, emitter=None,
         # Crossed surfaces (not self-hits) weigh in; opaque ones give 0.
         c = np.nonzero(~sh)[0]
         if c.size:
-            dl = d[live[c]]
-            mu = np.abs(_dot(n[c], dl)) / np.linalg.norm(dl, axis=1)
+            mu = None
+            if sm is not None and getattr(sm.mtab, "view_lut", None) is not None:
+                dl = d[live[c]]
+                mu = np.abs(_dot(n[c], dl)) / np.linalg.norm(dl, axis=1)
             w = (pass_through(sm, prim[c], u[c], v[c], mu) if sm is not None
                  else np.zeros((c.size, 3)))
             crossings[live[c]] += 1

@@ -100,12 +100,14 @@ from .microfacet import (FRESNEL_DIELECTRIC, FRESNEL_F82, FRESNEL_NONE, f0_from_
 from .multiscatter import layer_transmission, multiscatter_factor
 from .table import (DEFAULT_MULTISCATTER, DIFFUSE_ROUGHNESS_EPS, IOR_ONE_EPS, SPECULAR_ALPHA2,
                     MaterialTable, build_material_table, delta_probability, emission_radiance,
-                    glossy_only, lambert_albedo, lobe_colors, used_lobes, view_dependent)
+                    glossy_only, lambert_albedo, lobe_colors, used_lobes, view_dependent,
+                    view_mu)
 
 __all__ = [
     # the table
     "MaterialTable", "build_material_table", "lobe_colors", "emission_radiance",
     "delta_probability", "glossy_only", "lambert_albedo", "used_lobes", "view_dependent",
+    "view_mu",
     "SPECULAR_ALPHA2", "DIFFUSE_ROUGHNESS_EPS", "IOR_ONE_EPS", "DEFAULT_MULTISCATTER",
     # the BSDF of a material
     "eval_bsdf", "pdf_bsdf", "sample_bsdf", "shading_correction",

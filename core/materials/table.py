@@ -226,6 +226,15 @@ def view_dependent(table) -> np.ndarray:
     return np.zeros(table.kind.shape[0], bool) if vl is None else np.any(vl >= 0, axis=1)
 
 
+def view_mu(table, w: np.ndarray, ns: np.ndarray):
+    """(K,) |w . ns| of directions w and shading normals ns (K, 3): the mu
+    :func:`lobe_colors` reads, or None for a table without view factors
+    (no work for the others)."""
+    if getattr(table, "view_lut", None) is None:
+        return None
+    return np.abs(np.einsum("ij,ij->i", w, ns))
+
+
 def view_factor(tab: np.ndarray, mu: np.ndarray) -> np.ndarray:
     """Linear interpolation of view-factor rows tab (K, VIEW_SAMPLES) at mu
     (K,) = |w_o . n_s|, clamped to [0, 1] (:func:`lobe_colors`)."""

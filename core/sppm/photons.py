@@ -851,7 +851,7 @@ class PhotonTracer:
         # A view-dependent lobe (Lobe.view) weighed at the photon's arrival:
         # the outgoing direction that Cycles' camera-side weight reads is
         # the one being sampled (docs/shading.md "View-dependent mixes").
-        colors = B.lobe_colors(self.mtab, mat, uv, np.abs(np.einsum("ij,ij->i", gwi, gns)))
+        colors = B.lobe_colors(self.mtab, mat, uv, B.view_mu(self.mtab, gwi, gns))
         wo, wgt, _, is_delta, valid = B.sample_bsdf(
             self.mtab, mat, colors, gns, gng, gwi, ug[:, :3], subset="all", mode="importance")
         return wo, wgt, valid, is_delta

@@ -391,7 +391,7 @@ class CameraPass:
             p, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, h.prim[ih], h.u[ih], h.v[ih])
             wo = -d[ih]
             mat = rough_maps.pick(mtab, s.tri_mat[h.prim[ih]], h.prim[ih], h.u[ih], h.v[ih], uv)
-            colors = B.lobe_colors(mtab, mat, uv, np.abs(_dot(wo, ns)))
+            colors = B.lobe_colors(mtab, mat, uv, B.view_mu(mtab, wo, ns))
             em = mtab.emission[mat]
             if np.any(em > 0):
                 if mtab.emission_tex is not None and np.any(mtab.emission_tex[mat] >= 0):
@@ -757,7 +757,7 @@ class CameraPass:
                                          bu[it].astype(np.float64), bv[it].astype(np.float64))
             mt = rough_maps.pick(mtab, s.tri_mat[pr], pr, bu[it], bv[it], uv)
             mat_pre = mt.astype(np.int32)
-            colors_pre = B.lobe_colors(mtab, mt, uv, np.abs(_dot(d[it], ns)))
+            colors_pre = B.lobe_colors(mtab, mt, uv, B.view_mu(mtab, d[it], ns))
             em_pre = mtab.emission[mt]
             if mtab.emission_tex is not None and np.any(mtab.emission_tex[mt] >= 0):
                 em_pre = em_pre * _emission_texture(mtab, s, mt, uv)
