@@ -119,9 +119,11 @@ class GraphReader:
                     'Random': FLOAT}.get(name)
             return None if kind is None else Attr(('ObjectInfo', name), kind)
         if t in ('FRESNEL', 'LAYER_WEIGHT') and self.view:
-            # On the shading normal only (a linked Normal: no expression).
+            # On the material's shading normal: a linked Normal (a Normal Map
+            # or Bump) joins the shaders' (the material takes one; another
+            # is noted as for the shaders).
             if mb.follow(node.inputs["Normal"])[0] is not None:
-                return None
+                mb.normals.append((node.name, mb.normal_input(node)))
             mu = Attr(SG.VIEW_COS, FLOAT)
             if t == 'FRESNEL':
                 ior = self._in(node, "IOR", depth, FLOAT)

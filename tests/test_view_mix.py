@@ -57,7 +57,7 @@ def test_each_lobe_carries_its_side_of_the_mix():
     assert np.allclose(cols[:, 0, 0] / 0.8, want, atol=1e-4)
 
 
-def _scene(fac, roughness, glossy=(1.0, 1.0, 1.0)):
+def _scene(fac, roughness, glossy=(1.0, 1.0, 1.0), bump=False):
     """A smooth sphere (radius 0.6) seen from above, orthographic, under a
     tilted sun and a grey world; its material Mix(Diffuse red, Glossy, fac):
     "fresnel" (IOR 1.45), "layer_weight" (its Fresnel output, Blend 0.3),
@@ -91,6 +91,12 @@ def _scene(fac, roughness, glossy=(1.0, 1.0, 1.0)):
         src = f.outputs["Fresnel" if fac == "layer_weight" else "Facing"]
     nt.links.new(src, mix.inputs["Fac"])
     nt.links.new(mix.outputs[0], out.inputs["Surface"])
+    if bump:
+        # One Bump on both shaders and the factor's node (Cycles: each reads
+        # its own Normal input).
+        b = TS._bump_node(nt.nodes, nt.links, distance=0.1)
+        for nd in (d, g, f):
+            nt.links.new(b, nd.inputs["Normal"])
     ob = TS.uv_sphere_object("Ball", m)
     ob.location = (0.0, 0.0, 0.0)
     TS.ortho_view(sc, sun_energy=2.0, sun_angle=0.1, sun_rotation=(0.6, 0.3, 0.0))
@@ -107,15 +113,16 @@ def _render(scene, integrator, seed):
     return Renderer(scene, st, log=lambda s: None).run().image[..., :3].astype(np.float64)
 
 
-#: (fac, glossy roughness, integrator[, glossy colour])
+#: (fac, glossy roughness, integrator[, glossy colour[, one Bump on every node]])
 CASES = [("fresnel", 0.0, "PATH"), ("fresnel", 0.0, "PHOTON"), ("fresnel", 0.5, "PATH"),
          ("fresnel", 0.8, "PATH"), ("fresnel", 0.3, "COMBINED"), ("layer_weight", 0.15, "PATH"),
-         ("facing", 0.3, "PATH"), ("ramp", 0.2, "PATH"), ("fresnel", 0.2, "PATH", (0.9, 0.6, 0.2))]
+         ("facing", 0.3, "PATH"), ("ramp", 0.2, "PATH"), ("fresnel", 0.2, "PATH", (0.9, 0.6, 0.2)),
+         ("fresnel", 0.2, "PATH", (1.0, 1.0, 1.0), True)]
 
 
-@pytest.mark.parametrize("case", CASES, ids=["-".join(map(str, c[:3])) + ("-tint" if len(c) > 3
-                                                                         else "")
-                                             for c in CASES])
+@pytest.mark.parametrize("case", CASES, ids=["-".join(map(str, c[:3]))
+                                             + ("-bump" if len(c) > 4 else "-tint" if len(c) > 3
+                                                else "") for c in CASES])
 def test_a_view_mix_agrees_with_cycles(case, tmp_path):
     """Measured: docs/shading.md "View-dependent mixes: Fresnel and Layer
     Weight"."""
