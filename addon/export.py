@@ -1004,6 +1004,21 @@ class _MaterialBuilder:
             self.unsupported.append(node.name)
         return Material(n, lobes=(Lobe(DIFFUSE, GREY),))
 
+    def _reaches(self, sock, types, limit: int = 256) -> bool:
+        """Whether a node of one of ``types`` feeds ``sock``, through any
+        nodes, reroutes and groups (:meth:`follow`); looks at ``limit``
+        nodes at most."""
+        todo, seen = [sock], set()
+        while todo and len(seen) < limit:
+            node = self.follow(todo.pop())[0]
+            if node is None or node.as_pointer() in seen:
+                continue
+            if node.type in types:
+                return True
+            seen.add(node.as_pointer())
+            todo += [i for i in node.inputs if i.is_linked]
+        return False
+
     def view_fac(self, node):
         """A Mix Shader's Fac as a function of the view alone, sampled at
         mu = |w_o . n_s| = i / (VIEW_SAMPLES - 1) ((VIEW_SAMPLES,) float64), or
@@ -1013,7 +1028,9 @@ class _MaterialBuilder:
         also reads the surface point (a texture times a Fresnel) is None,
         with a note, and the Fac is read as before."""
         sock = node.inputs["Fac"]
-        if self.follow(sock)[0] is None:
+        if not self._reaches(sock, ('FRESNEL', 'LAYER_WEIGHT')):
+            # (Reading any other Fac as an expression would register its
+            # images as textures the material never uses.)
             return None
         e = GraphReader(self, view=True).expression(sock)
         if e is None:

@@ -46,6 +46,16 @@ class Hits:
         return self.prim >= 0
 
 
+def hidden_triangles(visibility, flags: int) -> np.ndarray | None:
+    """(T,) bool: the triangles whose RAY_* visibility (T,) shares no flag
+    with rays carrying ``flags`` (Cycles' test), or None when there is none
+    (visibility None: every object seen)."""
+    if visibility is None:
+        return None
+    hid = (np.asarray(visibility) & int(flags)) == 0
+    return hid if hid.any() else None
+
+
 class Accel:
     """Embree scene over world-space triangles ``tri_p`` (T, 3, 3) float32.
 
@@ -114,8 +124,7 @@ class Accel:
             return None
         flags = int(flags)
         if flags not in base._hidden:
-            hid = (base.visibility & flags) == 0
-            base._hidden[flags] = hid if hid.any() else None
+            base._hidden[flags] = hidden_triangles(base.visibility, flags)
         return base._hidden[flags]
 
     def global_prim(self, prim: np.ndarray) -> np.ndarray:

@@ -152,13 +152,11 @@ def view_triangles(visibility) -> int:
     """The triangles of the Embree views a render builds besides the full
     scene (core.accel.Accel.for_rays at camera and shadow rays), from a
     Scene's tri_visibility (T,) uint8 or None."""
-    if visibility is None:
-        return 0
-    from .accel import RAY_CAMERA, RAY_SHADOW
+    from .accel import RAY_CAMERA, RAY_SHADOW, hidden_triangles
     n = 0
     for flag in (RAY_CAMERA, RAY_SHADOW):
-        seen = int(np.count_nonzero(np.asarray(visibility) & flag))
-        n += seen if seen < len(visibility) else 0
+        hid = hidden_triangles(visibility, flag)
+        n += 0 if hid is None else int(np.count_nonzero(~hid))
     return n
 
 
