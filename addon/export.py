@@ -209,6 +209,16 @@ SUPPORT = (
     ("Principled subsurface", APPROXIMATED, "rendered as diffuse"),
     ("object ray visibility: camera (camera rays, also through transparent surfaces, and light tracing's joins to the lens pass the object) and shadow (shadow rays pass it, and the first segment of photons and light paths lands both on it and behind it; Combined then takes every light by its camera paths)", SUPPORTED, ""),
     ("object ray visibility: diffuse, glossy, transmission", APPROXIMATED, "treated as visible"),
+    ("holdout: objects (Object > Visibility > Holdout, a collection's Holdout in the view "
+     "layer; an instance takes its instancer's) and the Holdout shader, also mixed or added "
+     "with constant Facs: camera rays, also through transparent surfaces, end there and "
+     "leave the film transparent (alpha, with either film, as Cycles writes it); every other "
+     "ray sees the object's material; light tracing splats nothing there", SUPPORTED, ""),
+    ("a holdout object whose material is transparent (a Transparent BSDF, an alpha "
+     "texture): held out where it is transparent too", APPROXIMATED,
+     "ignored (held out where it is transparent too)"),
+    ("a Holdout shader mixed by an image's alpha (half and half) or a view factor (its "
+     "value at normal incidence)", APPROXIMATED, "a Holdout mixed by"),
     ("stereo 3D / multi-view", APPROXIMATED, "every view is rendered from the scene camera"),
     ("Light Path's Is Camera Ray in a world shader (two maps: what camera rays see, what "
      "lights the scene)", SUPPORTED, ""),
@@ -231,7 +241,7 @@ SUPPORT = (
     ("hair curves", IGNORED, "not rendered"),
     ("motion blur", IGNORED, "motion blur ignored"),
     ("light linking", IGNORED, "ignored: every light reaches every surface"),
-    ("holdout, shadow catcher", IGNORED, "ignored: rendered as ordinary surfaces"),
+    ("shadow catcher", IGNORED, "ignored: rendered as ordinary surfaces"),
     ("volume objects", IGNORED, "volume object(s) not rendered"),
     ("adaptive subdivision", IGNORED, ""),
     ("clamping", IGNORED, ""),
@@ -434,13 +444,20 @@ def _emission_sum(parts, notes):
     return tuple(float(x) for x in em), tex
 
 
+def _holdout_sum(parts) -> float:
+    """Sum of weighted Holdout closures [(weight, Material)] (Cycles sums
+    the holdout closures' weights, core.scene.holdout)."""
+    return float(sum(w * m.holdout for w, m in parts))
+
+
 def _mix(a: Material, b: Material, fac: float, name: str) -> Material:
     """(1 - fac) A + fac B, like Cycles' Mix Shader (fac clamped to [0, 1])."""
     fac = min(max(float(fac), 0.0), 1.0)
     lobes, notes = shading.mix_materials(a.lobes, b.lobes, fac)
     notes = list(a.approximations) + list(b.approximations) + list(notes)
     em, tex = _emission_sum([(1.0 - fac, a), (fac, b)], notes)
-    return Material(name, tuple(lobes), em, tex, tuple(notes))
+    return Material(name, tuple(lobes), em, tex, tuple(notes),
+                    holdout=_holdout_sum([(1.0 - fac, a), (fac, b)]))
 
 
 def _mix_by_view(a: Material, b: Material, view, name: str) -> Material:
@@ -453,7 +470,10 @@ def _mix_by_view(a: Material, b: Material, view, name: str) -> Material:
     em, tex = _emission_sum([(1.0 - f1, a), (f1, b)], notes)
     if any(em):
         notes.append("emission mixed by a Fresnel or Layer Weight at normal incidence")
-    return Material(name, tuple(lobes), em, tex, tuple(notes))
+    held = _holdout_sum([(1.0 - f1, a), (f1, b)])
+    if a.holdout or b.holdout:
+        notes.append("a Holdout mixed by a Fresnel or Layer Weight at normal incidence")
+    return Material(name, tuple(lobes), em, tex, tuple(notes), holdout=held)
 
 
 def _uses_normal_map(inp) -> bool:
@@ -472,7 +492,10 @@ def _mix_by_alpha(a: Material, b: Material, texture: int, name: str) -> Material
     em, tex = _emission_sum([(0.5, a), (0.5, b)], notes)
     if any(em):
         notes.append("emission mixed by an image alpha: mixed half and half")
-    return Material(name, tuple(lobes), em, tex, tuple(notes))
+    if a.holdout or b.holdout:
+        notes.append("a Holdout mixed by an image alpha: mixed half and half")
+    return Material(name, tuple(lobes), em, tex, tuple(notes),
+                    holdout=_holdout_sum([(0.5, a), (0.5, b)]))
 
 
 def _add(a: Material, b: Material, name: str) -> Material:
@@ -480,7 +503,8 @@ def _add(a: Material, b: Material, name: str) -> Material:
     lobes, notes = shading.add_materials(a.lobes, b.lobes)
     notes = list(a.approximations) + list(b.approximations) + list(notes)
     em, tex = _emission_sum([(1.0, a), (1.0, b)], notes)
-    return Material(name, tuple(lobes), em, tex, tuple(notes))
+    return Material(name, tuple(lobes), em, tex, tuple(notes),
+                    holdout=_holdout_sum([(1.0, a), (1.0, b)]))
 
 
 class _MaterialBuilder:
@@ -975,6 +999,10 @@ class _MaterialBuilder:
         if t == 'BSDF_TRANSLUCENT':
             c, tex = self.color(node, "Color")
             return Material(n, lobes=(Lobe(TRANSLUCENT, c, 1.0, color_texture=tex),))
+        if t == 'HOLDOUT':
+            # No closure to scatter with: camera rays take its weight as
+            # transparency (core.scene.holdout).
+            return Material(n, lobes=(), emission=(0.0, 0.0, 0.0), holdout=1.0)
         if t == 'EMISSION':
             c, s, tex = self.emission(node, "Color", "Strength", 1.0)
             return Material(n, lobes=(), emission=(c[0] * s, c[1] * s, c[2] * s),
@@ -1128,7 +1156,7 @@ class _MaterialBuilder:
         if len(m.lobes) > MAX_LOBES:
             self.notes.append(f"{len(m.lobes)} closures cut to the {MAX_LOBES} heaviest")
             lobes = sorted(m.lobes, key=lambda lb: -lb.weight * max(lb.color))[:MAX_LOBES]
-            m = Material(m.name, tuple(lobes), m.emission, m.emission_texture, m.approximations)
+            m = dataclasses.replace(m, lobes=tuple(lobes))
         maps = list(dict.fromkeys(lb.roughness_texture for lb in m.lobes
                                   if lb.roughness_texture >= 0))
         if len(maps) > 1:
@@ -1138,11 +1166,10 @@ class _MaterialBuilder:
                               f"others at their mean")
             lobes = tuple(dataclasses.replace(lb, roughness_texture=-1)
                           if lb.roughness_texture not in (-1, maps[0]) else lb for lb in m.lobes)
-            m = Material(m.name, lobes, m.emission, m.emission_texture, m.approximations)
+            m = dataclasses.replace(m, lobes=lobes)
         if not m.lobes and not any(m.emission):
             # Pure black: keep one black diffuse lobe so core's tables stay regular.
-            m = Material(m.name, (Lobe(DIFFUSE, (0.0, 0.0, 0.0)),), m.emission,
-                         m.emission_texture, m.approximations)
+            m = dataclasses.replace(m, lobes=(Lobe(DIFFUSE, (0.0, 0.0, 0.0)),))
         normal = None
         found = [(nm, inp) for nm, inp in self.normals if inp is not None]
         if found:
@@ -1172,7 +1199,7 @@ class _MaterialBuilder:
             notes.append("unsupported " + ", ".join(f"'{u}'" for u in self.unsupported)
                          + " -> diffuse grey")
         return Material(self.name, m.lobes, m.emission, m.emission_texture, tuple(notes),
-                        normal=normal)
+                        normal=normal, holdout=m.holdout)
 
 
 # ---------------------------------------------------------------------------
@@ -1222,6 +1249,18 @@ def ray_visibility(ob, parent=None) -> int:
     return flags
 
 
+def is_holdout(ob, parent=None, view_layer=None) -> bool:
+    """Cycles' object holdout: the instancer's for an instance, else the
+    object's own (Object > Visibility > Holdout, or its collection's Holdout
+    in the view layer: Object.holdout_get)."""
+    src = parent if parent is not None else ob
+    src = getattr(src, "original", src)
+    try:
+        return bool(src.holdout_get(view_layer=view_layer))
+    except (AttributeError, RuntimeError, TypeError):
+        return bool(getattr(src, "is_holdout", False))
+
+
 # The flags every integrator honours (core.accel.for_rays at each ray kind);
 # diffuse, glossy and transmission visibility would need photons and camera
 # paths traced per ray kind of the path they would join.
@@ -1267,9 +1306,6 @@ FEATURE_CHECKS = (
      "light linking of {} ignored: every light reaches every surface"),
     ("hair", lambda sc, obs: [ob for ob in obs if _has_hair(ob)],
      "hair of {} not rendered"),
-    ("holdout", lambda sc, obs: [ob for ob in obs if ob.type in GEOMETRY_TYPES
-                                 and getattr(ob, "is_holdout", False)],
-     "holdout of {} ignored: rendered as ordinary surfaces"),
     ("shadow catcher", lambda sc, obs: [ob for ob in obs if ob.type in GEOMETRY_TYPES
                                         and getattr(ob, "is_shadow_catcher", False)],
      "shadow catcher of {} ignored: rendered as ordinary surfaces"),
@@ -1313,6 +1349,7 @@ class _Exporter:
         self.uv_cache: dict = {}           # (mesh, UV map name) -> named_uv's local uvs
         self.obj_index_parts: list[np.ndarray] = []   # object.pass_index per triangle of parts
         self.vis_parts: list[np.ndarray] = []         # ray_visibility per triangle of parts
+        self.holdout_parts: list[np.ndarray] = []     # is_holdout per triangle of parts
         self.mat_index: dict = {}
         self.textures: list[np.ndarray] = []
         self.tex_index: dict = {}      # (image name, reading) -> index into textures
@@ -1662,6 +1699,27 @@ class _Exporter:
             return None
         return self.concatenate(self.vis_parts, np.uint8)
 
+    def tri_holdout(self):
+        """(T,) bool the triangles of holdout objects, or None when none is
+        (core.scene.holdout)."""
+        if not any(h.any() for h in self.holdout_parts):
+            return None
+        return self.concatenate(self.holdout_parts, bool)
+
+    def holdout_notes(self, tri_mat, held) -> list[str]:
+        """A note when a holdout object's material lets light through
+        (Cycles keeps the transparency of a holdout object's material; here
+        the holdout covers the whole surface)."""
+        if held is None:
+            return []
+        see = [self.materials[i].name for i in np.unique(tri_mat[held])
+               if any(lb.kind == TRANSPARENT or lb.alpha_texture >= 0
+                      for lb in self.materials[i].lobes)]
+        if not see:
+            return []
+        return [f"holdout objects: the transparency of {', '.join(sorted(see)[:3])} "
+                f"ignored (held out where it is transparent too)"]
+
     def drop_invalid(self, fscene: Scene) -> tuple[Scene, int]:
         """``drop_invalid_triangles`` band by band, polled between bands.
 
@@ -1672,7 +1730,7 @@ class _Exporter:
         if T <= CHUNK:
             return drop_invalid_triangles(fscene)
         per_tri = ("tri_p", "tri_n", "tri_uv", "tri_mat", "tri_object_index", "tri_tangent",
-                   "tri_visibility")
+                   "tri_visibility", "tri_holdout")
         bands, dropped = [], 0
         for a in range(0, T, CHUNK):
             band = dataclasses.replace(fscene, **{
@@ -2229,6 +2287,9 @@ class _Exporter:
             self.obj_index_parts += [np.full(len(q[0]), int(getattr(ob, "pass_index", 0)), np.int32)
                                      for q in parts[n0:]]
             self.vis_parts += [np.full(len(q[0]), vis, np.uint8) for q in parts[n0:]]
+            held = is_holdout(ob, inst.parent if inst.is_instance else None,
+                              getattr(self.dg, "view_layer", None))
+            self.holdout_parts += [np.full(len(q[0]), held, bool) for q in parts[n0:]]
             if len(parts) > n0:
                 self.n_objects += 1
                 self.n_instances += bool(inst.is_instance)
@@ -2273,7 +2334,8 @@ class _Exporter:
                        material_pass_index=np.asarray(self.mat_pass_index, np.int32),
                        film_transparent=bool(getattr(scene.render, "film_transparent", False)),
                        mist=self.mist(), tri_tangent=tri_tangent,
-                       tri_visibility=self.tri_visibility())
+                       tri_visibility=self.tri_visibility(), tri_holdout=self.tri_holdout())
+        self.notes += self.holdout_notes(tri_mat, fscene.tri_holdout)
         n_all = fscene.n_triangles
         if n_all == 0:
             raise SceneError(NOTHING_VISIBLE)

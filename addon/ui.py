@@ -460,6 +460,10 @@ class FPPM_OBJECT_PT_visibility(FPPMDataPanel, Panel):
         col = layout.column(heading="Show In")
         col.prop(ob, "hide_viewport", text="Viewports", invert_checkbox=True, toggle=False)
         col.prop(ob, "hide_render", text="Renders", invert_checkbox=True, toggle=False)
+        if ob.type in GEOMETRY_TYPES:
+            # Cycles' Mask: the holdout FPPM renders (core.scene.holdout); the
+            # shadow catcher it does not, so it is not offered.
+            layout.column(heading="Mask").prop(ob, "is_holdout")
 
 
 class FPPM_OBJECT_PT_visibility_ray_visibility(FPPMDataPanel, Panel):

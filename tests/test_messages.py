@@ -59,8 +59,15 @@ def _curves_hair(sc):
     H.link(bpy.data.objects.new("Strands", bpy.data.hair_curves.new("Strands")), sc)
 
 
-def _holdout(sc):
-    bpy.data.objects["Cube"].is_holdout = True
+def _holdout_transparent(sc):
+    # (A holdout itself is rendered: tests/test_holdout.py.)
+    cube = bpy.data.objects["Cube"]
+    cube.is_holdout = True
+    from scenes import bpy_kit as K
+    mat, nt, out = K._new_material("Veil")
+    nt.links.new(nt.nodes.new('ShaderNodeBsdfTransparent').outputs[0], out.inputs["Surface"])
+    cube.data.materials.clear()
+    cube.data.materials.append(mat)
 
 
 def _shadow_catcher(sc):
@@ -116,7 +123,8 @@ CASES = [
                      "every surface"),
     (_particle_hair, "hair of 1 object(s) (Plane) not rendered"),
     (_curves_hair, "hair of 1 object(s) (Strands) not rendered"),
-    (_holdout, "holdout of 1 object(s) (Cube) ignored: rendered as ordinary surfaces"),
+    (_holdout_transparent, "holdout objects: the transparency of Veil ignored (held out "
+                           "where it is transparent too)"),
     (_shadow_catcher, "shadow catcher of 1 object(s) (Cube) ignored: rendered as ordinary "
                       "surfaces"),
     (_volume_object, "volume object(s) not rendered: 1 object(s) (Smoke)"),

@@ -75,6 +75,7 @@ from ..materials import compiled as C, rough_maps
 from ..materials.fast import GENERIC
 from ..accel import RAY_CAMERA, REL_OFFSET, surface_point
 from ..lights.shadow import attached as shadow_materials, transmittance
+from ..scene import holdout as Holdout
 from ..sppm import photon_kernels as PK
 from ..sppm.photon_pass import chunk_rng
 from ..sppm.photons import PhotonTracer, _children, _pool, _threads
@@ -143,6 +144,12 @@ class LightTracer:
         self.W, self.H = (int(v) for v in size)
         self.filter_width = float(filter_width)
         self.filter_type = filter_type
+        # (T,) bool the triangles the camera sees nothing of, or None: those
+        # of objects hidden from it and those where its rays end on a
+        # holdout (core.scene.holdout); their light vertices are not splatted.
+        hid = accel.hidden_from(RAY_CAMERA)
+        held = Holdout.ends_camera(Holdout.triangle_weights(scene))
+        self._unseen = held if hid is None else hid if held is None else hid | held
         t = light_table
         # Emission vertices are splatted only for AREA lights and MESH
         # emitters the camera sees.  The compiled emission (same uniforms, same
@@ -399,7 +406,7 @@ class LightTracer:
         the region (rows 0..n-1; light_kernels.project_kernel), n, their
         (n, 3) transmittance to the lens: :meth:`_transmittance`).  tri (K,)
         int64 or None: the points' triangles; the camera does not see a point
-        on an object hidden from it (transmittance 0)."""
+        on an object hidden from it or held out (transmittance 0)."""
         K = p.shape[0]
         # Reused arrays (PhotonTracer.pool: no page faults per batch); the
         # same lens samples as rng.random((K, 2)).
@@ -414,9 +421,8 @@ class LightTracer:
         # (their self-hit test); opaque scenes skip the (n, 3) gather.
         n0 = ng[con.row[:n]] if shadow_materials(self.accel) is not None else None
         tr = self._transmittance(con.o[:n], con.wc[:n], con.t_max[:n], n0)
-        hid = self.accel.hidden_from(RAY_CAMERA)
-        if hid is not None and tri is not None:
-            tr[hid[tri[con.row[:n]]]] = 0.0
+        if self._unseen is not None and tri is not None:
+            tr[self._unseen[tri[con.row[:n]]]] = 0.0
         return con, n, tr
 
     def _transmittance(self, o, d, t_max, n0) -> np.ndarray:

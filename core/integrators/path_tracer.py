@@ -58,6 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..accel import RAY_CAMERA, hit_uv, intersect_by_kind, surface_point
+from ..scene import holdout as Holdout
 from .. import lights as Lt
 from .. import materials as B
 from ..materials import compiled as C, rough_maps
@@ -177,6 +178,9 @@ class PathTracer:
                  compiled: bool = True, transparent: bool = False):
         self.scene, self.accel, self.mtab, self.lights = scene, accel, mtab, light_table
         self.transparent = bool(transparent)
+        # (T,) holdout weights or None: camera rays end on holdout objects
+        # (core.scene.holdout; the film's alpha is the camera pass's).
+        self._holdout = Holdout.triangle_weights(scene)
         self.camera, self.fsamp, self.px, self.py = camera, fsamp, px, py
         self.max_bounces = int(settings.max_bounces)
         self.rr_start = int(settings.rr_start)
@@ -416,6 +420,7 @@ class PathTracer:
             check_stop()
             # ``first``: camera rays, which pass the objects hidden from the camera.
             h = intersect_by_kind(accel, RAY_CAMERA, first, o, d, tmax)
+            ends = Holdout.camera_hits(self._holdout, h.prim, first, beta, None, path)
             t_end = np.minimum(np.where(h.hit, h.t, np.inf), tmax)
             # Analytic emitters before the hit, per ray type's visibility flag.
             for sel, Le, row, t in self._seen(kern, vis, o, d, t_end):
@@ -464,7 +469,7 @@ class PathTracer:
                 else:
                     Le = np.ascontiguousarray(Lt.world_radiance(lt, d[miss]), np.float64)
                 PK.add_emission(out, path, miss, beta, Le, w)
-            ih = np.nonzero(h.hit)[0]
+            ih = np.nonzero(h.hit if ends is None else h.hit & ~ends)[0]
             if ih.size == 0:
                 break
             prim = h.prim[ih]

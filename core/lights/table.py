@@ -423,6 +423,12 @@ def build_light_table(scene: Scene) -> LightTable:
             # scene; light tracing does not splat its emission to the lens.
             from ..accel import RAY_CAMERA
             tri_rows["visible_camera"] = (scene.tri_visibility[sel] & RAY_CAMERA) != 0
+        from ..scene import holdout as Holdout
+        held = Holdout.ends_camera(Holdout.triangle_weights(scene))
+        if held is not None:
+            # Nor that of a held-out one (core.scene.holdout).
+            tri_rows["visible_camera"] = tri_rows.get(
+                "visible_camera", np.ones(sel.shape[0], bool)) & ~held[sel]
 
     world = np.asarray(scene.world_color, np.float64).reshape(3)
     env = None

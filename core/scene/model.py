@@ -111,6 +111,9 @@ class Material:
     approximations: human-readable notes of what the exporter approximated.
     normal: a :class:`core.scene.normals.NormalInput` (Normal Map or Bump
       node feeding the shaders' Normal inputs) or None.
+    holdout: the summed mix weight of the shader's Holdout closures (Cycles'
+      ``surface_shader_apply_holdout``): the transparency camera rays take
+      from the surface; they end there at 1 (core.scene.holdout).
     """
     name: str
     lobes: tuple = (Lobe(DIFFUSE),)
@@ -118,6 +121,7 @@ class Material:
     emission_texture: int = -1
     approximations: tuple = ()
     normal: object = field(default=None, repr=False)
+    holdout: float = field(default=0.0, repr=False)
 
 
 @dataclass(frozen=True)
@@ -222,6 +226,9 @@ class Scene:
     tri_visibility: (T,) uint8 the ray visibility of each triangle's object
       (``core.accel``'s RAY_* flags: Cycles' Object > Visibility > Ray
       Visibility), or None (every object seen by every ray).
+    tri_holdout: (T,) bool the triangles of holdout objects (Object >
+      Visibility > Holdout, or the collection's in the view layer), or None
+      (core.scene.holdout).
     """
     tri_p: np.ndarray
     tri_n: np.ndarray
@@ -243,6 +250,7 @@ class Scene:
     approximations: tuple = ()
     tri_tangent: Optional[np.ndarray] = None
     tri_visibility: Optional[np.ndarray] = None
+    tri_holdout: Optional[np.ndarray] = None
 
     def __post_init__(self):
         self.attach_shading_normals()
@@ -357,7 +365,8 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       approximations=scene.approximations,
                       tri_tangent=None if scene.tri_tangent is None else scene.tri_tangent[ok],
                       tri_visibility=None if scene.tri_visibility is None
-                      else scene.tri_visibility[ok])
+                      else scene.tri_visibility[ok],
+                      tri_holdout=None if scene.tri_holdout is None else scene.tri_holdout[ok])
     return scene, dropped
 
 
@@ -379,12 +388,16 @@ def scene_digest(scene: Scene) -> str:
               for j, lb in enumerate(m.lobes) if getattr(lb, "roughness_texture", -1) >= 0]
     extra += [(i, j, "view", lb.view) for i, m in enumerate(scene.materials)
               for j, lb in enumerate(m.lobes) if getattr(lb, "view", ())]
+    extra += [(i, "holdout", m.holdout) for i, m in enumerate(scene.materials)
+              if getattr(m, "holdout", 0.0)]
     if extra:
         h.update(repr(extra).encode())
     if scene.tri_tangent is not None:
         h.update(np.ascontiguousarray(scene.tri_tangent).tobytes())
     if scene.tri_visibility is not None:
         h.update(b"visibility" + np.ascontiguousarray(scene.tri_visibility).tobytes())
+    if getattr(scene, "tri_holdout", None) is not None:
+        h.update(b"holdout" + np.ascontiguousarray(scene.tri_holdout).tobytes())
     for lt in scene.lights:
         h.update(repr({k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
                        for k, v in lt.__dict__.items()}).encode())

@@ -30,6 +30,7 @@ from typing import Callable, NamedTuple, Optional
 import numpy as np
 
 from ..kept import KeptArrays
+from ..scene.holdout import triangle_weights
 
 _F32_MAX = np.finfo(np.float32).max
 #: Pixels from which the film kernel splits over the numba threads.
@@ -219,6 +220,11 @@ class Film:
         self.compiled = compiled
         self.scene = scene
         self.transparent = bool(getattr(scene, "film_transparent", False))
+        # The film has an alpha: Film > Transparent, or holdout surfaces
+        # (core.scene.holdout: Cycles writes their transparency with either
+        # film).
+        self.alpha = self.transparent or (
+            scene is not None and triangle_weights(scene) is not None)
         self.data_passes = data_passes(passes)
         P = H * W
         self.coverage = np.zeros(P)                   # sum over passes of "camera ray hit"
@@ -238,7 +244,7 @@ class Film:
         """Whether :meth:`accumulate` uses a pass's camera data (alpha or a
         data pass is on): integrators without visible points of their own
         (PATH, COMBINED) run the camera pass for it only then."""
-        return self.scene is not None and (self.transparent or bool(self.data_passes))
+        return self.scene is not None and (self.alpha or bool(self.data_passes))
 
     def accumulate(self, vp) -> None:
         """Add one pass's camera data (VisiblePoints with .first) to alpha and the data passes."""
@@ -278,7 +284,7 @@ class Film:
         """The PassResult of the state after pass_index passes."""
         H, W = self.H, self.W
         img, = self._image.get(lambda: [np.ones((H, W, 4), np.float32)], (H, W))
-        alpha = self.transparent and self.samples
+        alpha = self.alpha and self.samples
         if self.compiled:
             R, r_px = self._image_compiled(state, pass_index, photons_emitted, img, alpha)
         else:

@@ -33,7 +33,7 @@ import numpy as np
 from ..accel import RAY_CAMERA, cast_by_kind, intersect_by_kind, surface_point
 from ..lights.shadow import attached as shadow_attached
 from ..kept import KeptArrays
-from ..scene import normals as shading_normals
+from ..scene import holdout as Holdout, normals as shading_normals
 from .. import lights as Lt
 from .. import materials as B
 from ..materials import rough_maps
@@ -128,8 +128,9 @@ class FirstHit:
     float64 emission the camera ray sees directly (analytic emitters before
     the hit and the surface's own; not the world); escape (P,) float64 the
     throughput with which the camera ray escaped to the world straight
-    through transparent surfaces (1 on a miss, 0 on an opaque hit): Cycles'
-    alpha is 1 - escape.
+    through transparent surfaces (1 on a miss, 0 on an opaque hit), plus
+    the holdout weight x throughput of the holdout surfaces it met there
+    (core.scene.holdout): Cycles' alpha is 1 - escape.
     """
     hit: np.ndarray
     p: np.ndarray
@@ -185,6 +186,9 @@ class CameraPass:
                  frame: Optional[tuple] = None, transparent: bool = False,
                  compiled: bool = True, first_data: bool = True, glossy_chains: bool = False):
         self.scene, self.accel, self.mtab, self.light_table = scene, accel, mtab, light_table
+        # (T,) holdout weights or None (core.scene.holdout: camera rays end on
+        # holdout objects and add the weight to the film's transparency).
+        self._holdout = Holdout.triangle_weights(scene)
         # Glossy chains (pbrt-v4 SPPM): a vertex on a material without a
         # diffuse lobe (B.glossy_only) is a glossy point, not a visible point,
         # below max_depth; the chain goes on by a sample of its non-delta lobes.
@@ -380,11 +384,13 @@ class CameraPass:
             # hidden from the camera.
             h = intersect_by_kind(accel, RAY_CAMERA, see_through, o, d, tmax)
             hit = h.hit
+            ends = Holdout.camera_hits(self._holdout, h.prim, see_through, beta, first.escape,
+                                       idx)
             # Analytic emitters (area lights, light spheres) seen before the hit.
             self._seen_along(depth, L, first, o, d, tmax, h.t, hit, idx,
                              self._emitting(beta, mis[0]), last, see_through)
             ew = self._glossy_emission(L, idx, o, d, h.t, h.prim, beta, last, mis)
-            ih = np.nonzero(hit)[0]
+            ih = np.nonzero(hit if ends is None else hit & ~ends)[0]
             if ih.size == 0:
                 break
             s = self.scene
@@ -723,9 +729,13 @@ class CameraPass:
         prim, tfar = hit4[0], hit4[3]
         hit = prim >= 0
         t = np.where(hit, tfar, np.inf).astype(np.float64)
+        ends = Holdout.camera_hits(self._holdout, prim, see_through, beta, first.escape, idx)
         self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, self._emitting(beta, mis[0]),
                          last, see_through, fast=True, split=split)
-        return hit4 + (self._glossy_emission(L, idx, o, d, t, prim, beta, last, mis),)
+        ew = self._glossy_emission(L, idx, o, d, t, prim, beta, last, mis)
+        if ends is not None:
+            prim[ends] = -1          # the rays that end on a holdout are no hits to shade
+        return hit4 + (ew,)
 
     def _wavefront_hits(self, depth, live, hit4, rng, ctx, split=True):
         """``hit_kernel`` on the hits hit4 of :meth:`_wavefront_rays` (their
