@@ -503,7 +503,7 @@ def _hdri_scene(kind):
     return sc
 
 
-def _cycles(sc, seed, path):
+def _cycles(sc, seed, path, rgba=False):
     sc.render.engine = 'CYCLES'
     sc.cycles.samples = CYCLES_SAMPLES
     sc.cycles.seed = seed
@@ -516,7 +516,8 @@ def _cycles(sc, seed, path):
 
     from scenes.refs import read_exr
     bpy.ops.render.render(write_still=True)
-    return read_exr(str(path))[..., :3].astype(np.float64)
+    img = read_exr(str(path)).astype(np.float64)
+    return img if rgba else img[..., :3]
 
 
 def _render_camera_paths(scene, integrator, seed, passes):

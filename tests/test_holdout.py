@@ -61,57 +61,21 @@ def _scene(case):
     import test_shading_nodes as TS
     from scenes import bpy_kit as K
     sc = K.reset_scene((RES, RES), samples=16)
-    grey, nt, out = K._new_material("Floor")
-    d = nt.nodes.new('ShaderNodeBsdfDiffuse')
-    d.inputs["Color"].default_value = (0.8, 0.8, 0.8, 1.0)
-    nt.links.new(d.outputs[0], out.inputs["Surface"])
-    K.plane("Floor", 2.4, grey)
-    red, nt, out = K._new_material("Red")
-    d = nt.nodes.new('ShaderNodeBsdfDiffuse')
-    d.inputs["Color"].default_value = (0.8, 0.15, 0.1, 1.0)
+    box, nt, d, out = TS.floor_and_box()
     if case == "shader":
         mix = nt.nodes.new('ShaderNodeMixShader')
         mix.inputs["Fac"].default_value = 0.5
         nt.links.new(nt.nodes.new('ShaderNodeHoldout').outputs[0], mix.inputs[1])
         nt.links.new(d.outputs[0], mix.inputs[2])
         nt.links.new(mix.outputs[0], out.inputs["Surface"])
-    else:
-        nt.links.new(d.outputs[0], out.inputs["Surface"])
-    box = K.box("Box", (1.3, 1.0, 0.4), red, location=(0.1, -0.05, 0.3), rot_z_deg=20.0)
     box.is_holdout = case in ("object", "opaque", "veil")
     if case == "veil":
-        veil, nt, out = K._new_material("Veil")
-        t = nt.nodes.new('ShaderNodeBsdfTransparent')
-        t.inputs["Color"].default_value = (0.9, 0.7, 0.5, 1.0)
-        nt.links.new(t.outputs[0], out.inputs["Surface"])
-        K.plane("Veil", 2.6, veil, location=(0, 0, 1.8))
+        TS.veil_over_box()
     if case == "emitter":
-        em, nt, out = K._new_material("Emit")
-        e = nt.nodes.new('ShaderNodeEmission')
-        e.inputs["Strength"].default_value = 4.0
-        nt.links.new(e.outputs[0], out.inputs["Surface"])
-        lamp = K.plane("Lamp", 0.8, em, location=(-0.3, 0.2, 1.2), rotation=(np.pi, 0, 0))
-        lamp.is_holdout = True
+        TS.lamp_over_box().is_holdout = True
     TS.ortho_view(sc, 2.2, sun_energy=0.0 if case == "emitter" else 3.0)
     sc.render.film_transparent = case != "opaque"
     return sc
-
-
-def _cycles_rgba(sc, seed, path):
-    """Cycles' RGBA (its alpha: 1 - the holdouts' and the escapes' transparency)."""
-    import bpy
-
-    from scenes.refs import read_exr
-    sc.render.engine = 'CYCLES'
-    sc.cycles.samples = 256
-    sc.cycles.seed = seed
-    sc.cycles.use_animated_seed = False
-    im = sc.render.image_settings
-    im.file_format, im.color_depth, im.color_mode = 'OPEN_EXR', '32', 'RGBA'
-    sc.render.filepath = str(path)
-    sc.render.use_file_extension = False
-    bpy.ops.render.render(write_still=True)
-    return read_exr(str(path)).astype(np.float64)
 
 
 def _render(scene, integrator, seed):
@@ -132,8 +96,9 @@ def _reference(case, tmp_path):
         import test_shading_nodes as TS
         sc = _scene(case)
         scene, lines = TS._export()
-        _REFS[case] = (scene, lines, _cycles_rgba(sc, 0, tmp_path / "c0.exr"),
-                       _cycles_rgba(sc, 1, tmp_path / "c1.exr"))
+        # Cycles' RGBA (its alpha: 1 - the holdouts' and escapes' transparency).
+        _REFS[case] = (scene, lines, TS._cycles(sc, 0, tmp_path / "c0.exr", 256, rgba=True),
+                       TS._cycles(sc, 1, tmp_path / "c1.exr", 256, rgba=True))
     return _REFS[case]
 
 

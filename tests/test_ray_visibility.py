@@ -65,16 +65,7 @@ def _scene(case):
     import test_shading_nodes as TS
     from scenes import bpy_kit as K
     sc = K.reset_scene((RES, RES), samples=16)
-    grey, nt, out = K._new_material("Floor")
-    d = nt.nodes.new('ShaderNodeBsdfDiffuse')
-    d.inputs["Color"].default_value = (0.8, 0.8, 0.8, 1.0)
-    nt.links.new(d.outputs[0], out.inputs["Surface"])
-    K.plane("Floor", 2.4, grey)
-    red, nt, out = K._new_material("Red")
-    d = nt.nodes.new('ShaderNodeBsdfDiffuse')
-    d.inputs["Color"].default_value = (0.8, 0.15, 0.1, 1.0)
-    nt.links.new(d.outputs[0], out.inputs["Surface"])
-    box = K.box("Box", (1.3, 1.0, 0.4), red, location=(0.1, -0.05, 0.3), rot_z_deg=20.0)
+    box = TS.floor_and_box()[0]
     TS.ortho_view(sc, 3.2 if case == "world" else 2.2,
                   sun_energy=0.0 if case.startswith("emitter") or case == "world" else 3.0)
     if case == "world":
@@ -82,23 +73,14 @@ def _scene(case):
         w.cycles_visibility.camera = False
     elif case.startswith("emitter"):
         box.visible_shadow = case != "emitter_shadowless"
-        em, nt, out = K._new_material("Emit")
-        e = nt.nodes.new('ShaderNodeEmission')
-        e.inputs["Strength"].default_value = 4.0
-        nt.links.new(e.outputs[0], out.inputs["Surface"])
-        lamp = K.plane("Lamp", 0.8, em, location=(-0.3, 0.2, 1.2), rotation=(np.pi, 0, 0))
-        lamp.visible_camera = False
+        TS.lamp_over_box().visible_camera = False
     else:
         box.visible_camera = not case.startswith("camera")
         box.visible_shadow = case != "shadow"
         if case == "camera_veil":
             # A Transparent BSDF veil over the scene: camera rays crossing it
             # are still camera rays (Cycles keeps the flag) and pass the box.
-            veil, nt, out = K._new_material("Veil")
-            t = nt.nodes.new('ShaderNodeBsdfTransparent')
-            t.inputs["Color"].default_value = (0.9, 0.7, 0.5, 1.0)
-            nt.links.new(t.outputs[0], out.inputs["Surface"])
-            K.plane("Veil", 2.6, veil, location=(0, 0, 1.8))
+            TS.veil_over_box()
     return sc
 
 

@@ -225,6 +225,44 @@ def ortho_view(sc, scale=1.4, sun_energy=3.0, sun_angle=0.0, sun_rotation=(0.5, 
         K.link(sun)
 
 
+def floor_and_box():
+    """A 2.4 m grey Diffuse floor and a red Diffuse box floating over it
+    (tests/test_ray_visibility.py, tests/test_holdout.py): (the box, its
+    material's node tree, its Diffuse node, its Material Output)."""
+    from scenes import bpy_kit as K
+    grey, nt, out = K._new_material("Floor")
+    d = nt.nodes.new('ShaderNodeBsdfDiffuse')
+    d.inputs["Color"].default_value = (0.8, 0.8, 0.8, 1.0)
+    nt.links.new(d.outputs[0], out.inputs["Surface"])
+    K.plane("Floor", 2.4, grey)
+    red, nt, out = K._new_material("Red")
+    d = nt.nodes.new('ShaderNodeBsdfDiffuse')
+    d.inputs["Color"].default_value = (0.8, 0.15, 0.1, 1.0)
+    nt.links.new(d.outputs[0], out.inputs["Surface"])
+    box = K.box("Box", (1.3, 1.0, 0.4), red, location=(0.1, -0.05, 0.3), rot_z_deg=20.0)
+    return box, nt, d, out
+
+
+def veil_over_box():
+    """A tinted Transparent BSDF veil over :func:`floor_and_box`'s scene."""
+    from scenes import bpy_kit as K
+    veil, nt, out = K._new_material("Veil")
+    t = nt.nodes.new('ShaderNodeBsdfTransparent')
+    t.inputs["Color"].default_value = (0.9, 0.7, 0.5, 1.0)
+    nt.links.new(t.outputs[0], out.inputs["Surface"])
+    return K.plane("Veil", 2.6, veil, location=(0, 0, 1.8))
+
+
+def lamp_over_box():
+    """An emitting 0.8 m square facing down over :func:`floor_and_box`'s box."""
+    from scenes import bpy_kit as K
+    em, nt, out = K._new_material("Emit")
+    e = nt.nodes.new('ShaderNodeEmission')
+    e.inputs["Strength"].default_value = 4.0
+    nt.links.new(e.outputs[0], out.inputs["Surface"])
+    return K.plane("Lamp", 0.8, em, location=(-0.3, 0.2, 1.2), rotation=(np.pi, 0, 0))
+
+
 def uv_sphere_object(name, mat, radius=0.6, mirror=False):
     """A smooth UV sphere with Blender's own UV map (bmesh), so MikkTSpace
     tangents turn across it; mirror: scaled by -1 in x (flips the bitangent)."""
@@ -294,14 +332,14 @@ def _fppm(scene, seed, photons=2000):
     return Renderer(scene, st, log=lambda s: None).run().image[..., :3].astype(np.float64)
 
 
-def _cycles(sc, seed, path, samples=CYCLES_SAMPLES):
+def _cycles(sc, seed, path, samples=CYCLES_SAMPLES, rgba=False):
     """tests/test_environment.py's Cycles render, at ``samples`` (the
-    direct-light-only scenes need few)."""
+    direct-light-only scenes need few); rgba: with its alpha."""
     import test_environment as TE
     kept = TE.CYCLES_SAMPLES
     TE.CYCLES_SAMPLES = samples
     try:
-        return TE._cycles(sc, seed, path)
+        return TE._cycles(sc, seed, path, rgba)
     finally:
         TE.CYCLES_SAMPLES = kept
 
