@@ -45,6 +45,8 @@ from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, T
 from ..core.scene import shader_graph as SG
 from .export_atlas import AtlasBaker, needs_atlas
 from .export_graph import GRAPH_NODES, GraphReader, constant_value
+from .export_links import light_link_sets
+from ..core.scene.linking import LINK_ALL, split_materials
 from .export_read import CHUNK, _never, image_pixels, mesh_arrays
 
 GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
@@ -240,7 +242,13 @@ SUPPORT = (
     ("light nodes", IGNORED, "light nodes ignored"),
     ("hair curves", IGNORED, "not rendered"),
     ("motion blur", IGNORED, "motion blur ignored"),
-    ("light linking", IGNORED, "ignored: every light reaches every surface"),
+    ("light linking (an emitter's Receiver Collection, Include and Exclude, nested "
+     "collections, lights and emissive objects): its light samples, the emission its camera "
+     "paths' BSDF rays find and its photons' and light paths' first hits reach only the "
+     "objects it lights, as Cycles' receiver sets; seen directly it is always seen",
+     SUPPORTED, ""),
+    ("shadow linking (an emitter's Blocker Collection)", IGNORED,
+     "ignored: every object blocks every light"),
     ("shadow catcher", IGNORED, "ignored: rendered as ordinary surfaces"),
     ("volume objects", IGNORED, "volume object(s) not rendered"),
     ("adaptive subdivision", IGNORED, ""),
@@ -1211,10 +1219,9 @@ def _objects(obs) -> str:
     return f"{len(names)} object(s) ({', '.join(names[:3])}{', ...' if len(names) > 3 else ''})"
 
 
-def _light_linked(ob) -> bool:
+def _shadow_linked(ob) -> bool:
     ll = getattr(ob, "light_linking", None)
-    return ll is not None and (ll.receiver_collection is not None
-                               or ll.blocker_collection is not None)
+    return ll is not None and ll.blocker_collection is not None
 
 
 def _has_hair(ob) -> bool:
@@ -1302,8 +1309,8 @@ FEATURE_CHECKS = (
      "(camera and shadow visibility are honoured)"),
     ("world ray visibility", lambda sc, obs: _world_partly_visible(sc.world),
      "world: diffuse, glossy, transmission or volume ray visibility treated as on"),
-    ("light linking", lambda sc, obs: [ob for ob in obs if _light_linked(ob)],
-     "light linking of {} ignored: every light reaches every surface"),
+    ("shadow linking", lambda sc, obs: [ob for ob in obs if _shadow_linked(ob)],
+     "shadow linking of {} ignored: every object blocks every light"),
     ("hair", lambda sc, obs: [ob for ob in obs if _has_hair(ob)],
      "hair of {} not rendered"),
     ("shadow catcher", lambda sc, obs: [ob for ob in obs if ob.type in GEOMETRY_TYPES
@@ -1350,6 +1357,8 @@ class _Exporter:
         self.obj_index_parts: list[np.ndarray] = []   # object.pass_index per triangle of parts
         self.vis_parts: list[np.ndarray] = []         # ray_visibility per triangle of parts
         self.holdout_parts: list[np.ndarray] = []     # is_holdout per triangle of parts
+        self.receiver_parts: list[np.ndarray] = []    # light-linking receiver set per triangle
+        self.emitter_parts: list[np.ndarray] = []     # light-linking membership per triangle
         self.mat_index: dict = {}
         self.textures: list[np.ndarray] = []
         self.tex_index: dict = {}      # (image name, reading) -> index into textures
@@ -2258,6 +2267,10 @@ class _Exporter:
         parts, lights = [], []
         seen = {}
         render_mode = getattr(self.dg, "mode", 'RENDER') == 'RENDER'
+        # Light linking (addon/export_links.py): receiver sets, memberships.
+        receiver, membership, notes = light_link_sets(
+            [getattr(o, "original", o) for o in self.dg.objects])
+        self.notes += notes
         for inst in self.dg.object_instances:
             self.poll()
             ob = inst.object
@@ -2274,6 +2287,8 @@ class _Exporter:
             if ob.type == 'LIGHT':
                 lt = self.light(inst, ob)
                 if lt is not None:
+                    if ob.name in membership:
+                        lt = dataclasses.replace(lt, link_sets=membership[ob.name])
                     lights.append(lt)
                 continue
             if ob.type not in GEOMETRY_TYPES:
@@ -2290,6 +2305,11 @@ class _Exporter:
             held = is_holdout(ob, inst.parent if inst.is_instance else None,
                               getattr(self.dg, "view_layer", None))
             self.holdout_parts += [np.full(len(q[0]), held, bool) for q in parts[n0:]]
+            if receiver or membership:
+                self.receiver_parts += [np.full(len(q[0]), receiver.get(ob.name, 0), np.uint8)
+                                        for q in parts[n0:]]
+                self.emitter_parts += [np.full(len(q[0]), membership.get(ob.name, LINK_ALL),
+                                               np.uint64) for q in parts[n0:]]
             if len(parts) > n0:
                 self.n_objects += 1
                 self.n_instances += bool(inst.is_instance)
@@ -2336,6 +2356,11 @@ class _Exporter:
                        mist=self.mist(), tri_tangent=tri_tangent,
                        tri_visibility=self.tri_visibility(), tri_holdout=self.tri_holdout())
         self.notes += self.holdout_notes(tri_mat, fscene.tri_holdout)
+        if self.receiver_parts:
+            # One material per (material, receiver set, membership): every
+            # stage then knows a vertex's receiver set by its material.
+            fscene = split_materials(fscene, np.concatenate(self.receiver_parts),
+                                     np.concatenate(self.emitter_parts))
         n_all = fscene.n_triangles
         if n_all == 0:
             raise SceneError(NOTHING_VISIBLE)
@@ -2346,7 +2371,7 @@ class _Exporter:
         if fscene.n_triangles == 0:
             raise SceneError(NOTHING_VISIBLE)
         used = np.unique(fscene.tri_mat)
-        emissive = any(max(self.materials[i].emission) > 0 for i in used)
+        emissive = any(max(fscene.materials[i].emission) > 0 for i in used)
         if not lights and not emissive and not np.any(world > 0):
             raise SceneError(WORLD_BAKING if self.world_pending else NO_LIGHTS)
         dt = time.perf_counter() - t0

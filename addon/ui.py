@@ -492,6 +492,34 @@ class FPPM_OBJECT_PT_visibility_ray_visibility(FPPMDataPanel, Panel):
             col.prop(ob, "visible_shadow", text="Shadow")
 
 
+class FPPM_OBJECT_PT_light_linking(FPPMDataPanel, Panel):
+    """An emitter's Receiver Collection (core.scene.linking): the objects it
+    lights, each Include or Exclude.  Cycles draws it inside Object >
+    Shading, whose other settings FPPM does not read (HIDDEN)."""
+    bl_label = "Light Linking"
+    bl_context = "object"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    @classmethod
+    def poll_data(cls, context):
+        ob = getattr(context, "object", None)
+        return ob is not None and getattr(ob, "light_linking", None) is not None
+
+    def draw(self, context):
+        layout = split(self.layout)
+        ll = context.object.light_linking
+        layout.column().template_ID(ll, "receiver_collection",
+                                    new="object.light_linking_receiver_collection_new")
+        if ll.receiver_collection is None:
+            return
+        row = layout.row()
+        row.column().template_light_linking_collection(row, ll, "receiver_collection")
+        col = row.column(align=True)
+        add = col.operator("object.light_linking_receivers_link", icon='ADD', text="")
+        add.link_state = 'INCLUDE'
+        col.operator("object.light_linking_unlink_from_collection", icon='REMOVE', text="")
+
+
 classes = (
     FPPM_RENDER_PT_sampling,
     FPPM_RENDER_PT_viewport,
@@ -514,6 +542,7 @@ classes = (
     FPPM_WORLD_PT_mist,
     FPPM_OBJECT_PT_visibility,
     FPPM_OBJECT_PT_visibility_ray_visibility,
+    FPPM_OBJECT_PT_light_linking,
 )
 
 # Standard panels FPPM uses, by role.  For each role the candidates are tried

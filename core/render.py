@@ -64,6 +64,7 @@ from .lights import build_light_table
 from .lights import shadow
 from .lights.nee import NextEventEstimation
 from .materials import build_material_table
+from .scene.linking import table_receivers
 from .plan import RenderPlan, make_plan, merges, with_camera_stop
 from .sanity import check_resolution, check_scene, recentre
 from .scene.camera import CameraModel, FilterSampler
@@ -304,6 +305,8 @@ class Renderer:
             raise SceneError("The scene has no light: add a light with non-zero power, "
                              "an emissive material or a world colour.")
         self.mtab = build_material_table(scene.materials, scene.textures)
+        # Light linking: each material row's receiver set (core.scene.linking).
+        self.mtab.receiver = table_receivers(scene, self.mtab)
         self._check_stop()
         self.accel = Accel(scene.tri_p, self.D, scene.tri_visibility)
         self._check_stop()

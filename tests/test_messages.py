@@ -42,10 +42,11 @@ def _ray_visibility(sc):
     bpy.data.objects["Cube"].visible_glossy = False
 
 
-def _light_linking(sc):
-    coll = bpy.data.collections.new("Lit")
+def _shadow_linking(sc):
+    # (Light linking itself is rendered: tests/test_light_linking.py.)
+    coll = bpy.data.collections.new("Blockers")
     coll.objects.link(bpy.data.objects["Cube"])
-    bpy.data.objects["Point"].light_linking.receiver_collection = coll
+    bpy.data.objects["Point"].light_linking.blocker_collection = coll
 
 
 def _particle_hair(sc):
@@ -119,8 +120,8 @@ CASES = [
               "(the right eye repeats the left)"),
     (_ray_visibility, "diffuse, glossy or transmission ray visibility of 1 object(s) (Cube) "
                       "treated as visible (camera and shadow visibility are honoured)"),
-    (_light_linking, "light linking of 1 object(s) (Point) ignored: every light reaches "
-                     "every surface"),
+    (_shadow_linking, "shadow linking of 1 object(s) (Point) ignored: every object blocks "
+                      "every light"),
     (_particle_hair, "hair of 1 object(s) (Plane) not rendered"),
     (_curves_hair, "hair of 1 object(s) (Strands) not rendered"),
     (_holdout_transparent, "holdout objects: the transparency of Veil ignored (held out "

@@ -34,6 +34,7 @@ from . import mis as M
 from . import path_kernels as PathK
 from ..sppm import photon_kernels as PK
 from .light_tracer import LightTracer, _triangles
+from ..scene.linking import unlit_first_hits
 
 
 def _finite(w):
@@ -740,6 +741,10 @@ class CombinedLightTracer(LightTracer):
             if K == 0:
                 break
             hits = PK.EmbreeHits(*intersect_f32(self.accel, live.o32[:K], live.d32[:K]))
+            if bounce == 0 and tr.link is not None:
+                # Light linking: no light arrives on an unlit first hit.
+                unlit_first_hits(hits.prim[:K], np.asarray(ph["light"], np.int64)[src[:K]],
+                                 *tr.link)
             step = PK.BounceStep(K=K, first=bounce == 0, store=True,
                                  sample=bounce < self.max_bounces,
                                  roulette=bounce + 1 >= self.rr_start, bounce=bounce,

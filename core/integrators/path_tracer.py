@@ -59,6 +59,7 @@ import numpy as np
 
 from ..accel import RAY_CAMERA, hit_uv, intersect_by_kind, surface_point
 from ..scene import holdout as Holdout
+from ..scene.linking import lit
 from .. import lights as Lt
 from .. import materials as B
 from ..materials import compiled as C, rough_maps
@@ -390,6 +391,10 @@ class PathTracer:
         p_prev = np.zeros((K, 3))
         n_prev = np.zeros((K, 3))
         vis = np.zeros(K, np.int8)
+        # The material row of the vertex each ray left (-1: the lens), light
+        # linking's receiver of the emission the ray finds (kept through
+        # transparent crossings, as Cycles keeps mis_ray_object).
+        m_prev = np.full(K, -1, np.int64)
         # Distance from the ray's origin back to p_prev along d: > 0 after
         # transparent crossings (below), which are no MIS vertex.  A camera
         # ray starts at the near clip plane (CameraModel.generate: depth
@@ -431,6 +436,9 @@ class PathTracer:
                     continue
                 sel, Le, row, t = sel[f], Le[f], row[f], t[f] + t_acc[sel[f]]
                 w = self._mis_bsdf(pdf_prev, p_prev, n_prev, d, row, t, rows=sel)
+                ok = lit(lt, mtab, row, m_prev[sel])
+                if ok is not None:
+                    w = w * ok
                 if vc is not None:
                     w = vc.emission(w, sel, row, d, t, None, first, Qs, pf, pdf_prev, vprev,
                                     None if mg is None else np.where(mg.em, mg.Qs, 0.0))
@@ -496,6 +504,9 @@ class PathTracer:
                 e = ih[em]
                 w = self._mis_bsdf(pdf_prev, p_prev, n_prev, d, self.tri_light[prim[em]],
                                    h.t[e] + t_acc[e], rows=e)
+                ok = lit(lt, mtab, self.tri_light[prim[em]], m_prev[e])
+                if ok is not None:
+                    w = w * ok
                 if vc is not None:
                     w = vc.emission(w, e, self.tri_light[prim[em]], d, h.t[e] + t_acc[e],
                                     ng[em], first, Qs, pf, pdf_prev, vprev,
@@ -567,6 +578,7 @@ class PathTracer:
                 tmax = np.full(c.size, np.inf)
                 pdf_prev = np.where(nx.delta, 0.0, nx.pdf)
                 p_prev, n_prev, vis = v.p[c], nx.n_prev, nx.vis
+                m_prev = np.asarray(v.mat, np.int64)[c]
                 t_acc = np.zeros(c.size)    # no transparent material in the kernels' scope
                 first = np.zeros(c.size, bool)
                 path = v.path[c]
@@ -618,12 +630,13 @@ class PathTracer:
             tmax = np.full(c.size, np.inf)
             beta = bt[c]
             prev = (pdf_prev[ih[c]], p_prev[ih[c]], n_prev[ih[c]], vis[ih[c]],
-                    t_acc[ih[c]] + _dot(o - o_prev[ih[c]], d))
+                    t_acc[ih[c]] + _dot(o - o_prev[ih[c]], d), m_prev[ih[c]])
             pdf_prev = np.where(is_delta[c], 0.0, pdf[c])
             p_prev, n_prev = v.p[c], v.ns_wo()[c]
             vis = np.where(refl, 1, 2).astype(np.int8)
             t_acc = np.zeros(c.size)
-            for a, b in zip((pdf_prev, p_prev, n_prev, vis, t_acc), prev):
+            m_prev = np.asarray(v.mat, np.int64)[c]
+            for a, b in zip((pdf_prev, p_prev, n_prev, vis, t_acc, m_prev), prev):
                 a[x] = b[x]
             path = v.path[c]
         return out
@@ -788,6 +801,9 @@ class PathTracer:
             w = self.vc.nee(w, v, wi, dist, light, depth if v.first is None else v.first)
         if v.m is not None:
             w = w * v.m
+        ok = lit(self.lights, self.mtab, light, v.mat)
+        if ok is not None:
+            w = w * ok          # light linking: the light does not light v (core.scene.linking)
         tr = self.transmittance(v.p, v.ng, wi, dist, light, shadow)
         keep = tr.max(axis=1) > 0
         out[v.path[keep]] += contrib[keep] * tr[keep] * w[keep, None]     # one vertex per path

@@ -34,6 +34,7 @@ from . import shadow
 from .pdf import environment_pdf
 from .sampling import sample_direct
 from .table import MESH, WORLD
+from ..scene.linking import lit
 
 if TYPE_CHECKING:
     from ..sppm.visible_points import SharedBlocks, VisiblePoints
@@ -120,6 +121,9 @@ class NextEventEstimation:
                 pb = B.pdf_bsdf(self.mtab, vp.mat[qk], vp.colors[qk], ns_m[wk], ng_m[wk],
                                 vp.wo[qk], wi[wk], subset="nondelta")
                 contrib[wk] *= (pl / np.maximum(pl + pb, 1e-300))[:, None]
+        ok = lit(self.light_table, self.mtab, smp["light"][live], vp.mat[q])
+        if ok is not None:
+            contrib[~ok] = 0.0          # light linking: an emitter that does not light it
         nz = contrib.max(axis=1) > 0
         q, wi, dist, contrib, casts = q[nz], wi[nz], dist[nz], contrib[nz], casts[nz]
         mesh = smp["kind"][live][nz] == MESH
@@ -232,6 +236,12 @@ class NextEventEstimation:
         transparent surfaces let through); returns L."""
         from . import direct_kernels as DK
         accel = self.accel
+        ok = lit(self.light_table, self.mtab, S.light, vp.mat[q])
+        if ok is not None:
+            # Light linking: the samples of emitters that do not light the
+            # point add nothing (core.scene.linking).
+            S.contrib[~ok] = 0.0
+            S.weight[~ok] = 0.0
         sh = DK.alloc_shadow(q.size)
         n, nm = DK.shadow_kernel(q, vp.p, vp.ng, S, REL_OFFSET, accel.abs_floor / REL_OFFSET,
                                  sh, L)

@@ -127,6 +127,9 @@ class LightTable:
     # half-angle; share 0 for every other light): :func:`_spot_tails`,
     # lights.emission.spot_pdf_local.
     spot_tail: np.ndarray = None
+    # (Nl,) uint64 the receiver sets each emitter lights (light linking,
+    # core.scene.linking), or None: every emitter lights every object.
+    link_sets: np.ndarray = None
 
     @property
     def n(self) -> int:
@@ -456,6 +459,8 @@ def build_light_table(scene: Scene) -> LightTable:
         t_lo, t_hi = P.min(axis=0).astype(np.float64), P.max(axis=0).astype(np.float64)
         table.triangle_box = (0.5 * (t_lo + t_hi), 0.5 * (t_hi - t_lo) + 0.5e-4 * D)
     table.spot_tail = _spot_tails(table, scene.tri_p)
+    from ..scene.linking import emitter_sets
+    table.link_sets = emitter_sets(scene, table)
     return table
 
 

@@ -85,6 +85,7 @@ class MaterialTable:
     lambert_lobes: np.ndarray = None    # (M,) bool, lambert_only before the Normal Map / Bump test
     rough_first: np.ndarray = None      # (M,) int64 a roughness map's first level row, -1 = none
     rough_tex: np.ndarray = None        # (M,) int32 that map (core.materials.rough_maps)
+    receiver: np.ndarray = None         # (rows,) int64 light-linking receiver set (core.scene.linking)
 
     @property
     def n_materials(self) -> int:

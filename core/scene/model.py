@@ -141,6 +141,8 @@ class Light:
       (what the camera sees directly, and through mirror / glass chains).
     use_soft_falloff: point/spot with radius > 0 act as a disc facing the
       shading point (Cycles' default), giving I cos / (d^2 + r^2).
+    link_sets: the receiver sets the light lights (light linking, a 64-bit
+      mask: core.scene.linking; LINK_ALL without linking).
     """
     name: str
     kind: str
@@ -159,6 +161,7 @@ class Light:
     visible_transmission: bool = True
     cast_shadow: bool = True
     use_soft_falloff: bool = True   # Cycles >= 4.0 point/spot default
+    link_sets: int = field(default=(1 << 64) - 1, repr=False)
 
 
 @dataclass(frozen=True)
@@ -229,6 +232,10 @@ class Scene:
     tri_holdout: (T,) bool the triangles of holdout objects (Object >
       Visibility > Holdout, or the collection's in the view layer), or None
       (core.scene.holdout).
+    material_receiver: (M,) uint8 the light-linking receiver set of each
+      material's objects, and material_emitter (M,) uint64 the sets an
+      emissive material's objects light (core.scene.linking: the exporter
+      gives each combination a material of its own), or None (no linking).
     """
     tri_p: np.ndarray
     tri_n: np.ndarray
@@ -251,6 +258,8 @@ class Scene:
     tri_tangent: Optional[np.ndarray] = None
     tri_visibility: Optional[np.ndarray] = None
     tri_holdout: Optional[np.ndarray] = None
+    material_receiver: Optional[np.ndarray] = None
+    material_emitter: Optional[np.ndarray] = None
 
     def __post_init__(self):
         self.attach_shading_normals()
@@ -366,7 +375,9 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       tri_tangent=None if scene.tri_tangent is None else scene.tri_tangent[ok],
                       tri_visibility=None if scene.tri_visibility is None
                       else scene.tri_visibility[ok],
-                      tri_holdout=None if scene.tri_holdout is None else scene.tri_holdout[ok])
+                      tri_holdout=None if scene.tri_holdout is None else scene.tri_holdout[ok],
+                      material_receiver=scene.material_receiver,
+                      material_emitter=scene.material_emitter)
     return scene, dropped
 
 
@@ -398,9 +409,14 @@ def scene_digest(scene: Scene) -> str:
         h.update(b"visibility" + np.ascontiguousarray(scene.tri_visibility).tobytes())
     if getattr(scene, "tri_holdout", None) is not None:
         h.update(b"holdout" + np.ascontiguousarray(scene.tri_holdout).tobytes())
+    if getattr(scene, "material_receiver", None) is not None:
+        h.update(b"linking" + np.ascontiguousarray(scene.material_receiver).tobytes()
+                 + np.ascontiguousarray(scene.material_emitter).tobytes())
     for lt in scene.lights:
+        # (link_sets only when set: older checkpoints keep their digest)
         h.update(repr({k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
-                       for k, v in lt.__dict__.items()}).encode())
+                       for k, v in lt.__dict__.items()
+                       if k != "link_sets" or v != (1 << 64) - 1}).encode())
     cam = scene.camera
     h.update(repr({k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
                    for k, v in cam.__dict__.items()}).encode())

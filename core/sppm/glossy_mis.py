@@ -37,6 +37,7 @@ from .. import materials as B
 from ..materials import compiled as C
 from ..materials.fast import GENERIC, build_fast_materials
 from ..lights.table import MESH
+from ..scene.linking import lit
 from ..mathutil import dot as _dot, power_heuristic
 
 
@@ -213,6 +214,9 @@ class GlossyMIS:
             PK.nee_mis_kernel(L, Q, M, g.mat, g.mat, g.beta, g.p, g.ng, g.ns, g.n, g.wo, S, w,
                               live, pl, sel)
         out = np.zeros((K, 3))
+        ok = lit(self.lights, self.mtab, S.light, g.mat)
+        if ok is not None:
+            live = live & ok            # light linking (core.scene.linking)
         r = np.nonzero(live & np.isfinite(w))[0]
         if r.size:
             tr = nee.transmittance(g.p[r], g.ng[r], S.wi[r], S.dist[r],
@@ -242,6 +246,9 @@ class GlossyMIS:
             pl = self._pdf_light(h.p[m], wi[m], light[m], dist[m], h.n[m])
             pb = self.pdf(h.mat[m], h.colors[m], h.ns[m], h.ng[m], h.wo[m], wi[m])
             w[m] = power_heuristic(pl, pb)
+        ok = lit(lt, self.mtab, light, h.mat)
+        if ok is not None:
+            w = w * ok                  # light linking (core.scene.linking)
         tr = nee.transmittance(h.p, h.ng, wi, dist, lt.kind[light] == MESH, shadow)
         out[r] = contrib * tr * w[:, None]
         return out

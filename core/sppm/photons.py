@@ -42,6 +42,7 @@ from ..materials import compiled as C, fast, hit_colors, rough_maps
 from ..materials.fast import GENERIC, build_fast_materials
 from . import photon_kernels as PK
 from ..accel import _COUNT_LOCK, RAY_SHADOW, REL_OFFSET, hit_uv, intersect_f32
+from ..scene.linking import light_links, unlit_first_hits
 from ..kept import _ALONE, _refcounts
 from ..scene.model import Scene
 from .update import R_FLOOR_REL
@@ -310,6 +311,11 @@ class PhotonTracer:
         # keeping only the photons whose first hit is on such an object
         # (_trace_hidden_first).  None: no such object.
         self._shadow_hidden = accel.hidden_from(RAY_SHADOW)
+        # Light linking (core.scene.linking): (the emitter rows' memberships
+        # (Nl,) uint64, each triangle's receiver set (T,) int64), or None.
+        # A photon whose first hit is on an object its emitter does not
+        # light ends there (unlit_first_hits).
+        self.link = light_links(light_table, mtab, scene)
         # Photon rays cast by this tracer (accel.rays_cast also counts the
         # camera's, which may be cast meanwhile: PhotonPass.trace_ahead).
         self.rays_cast = 0
@@ -543,20 +549,24 @@ class PhotonTracer:
         Kf = 0                                   # live rows 0..Kf-1: frequency photons
         if u_emit is not None:
             spec = np.empty((max(nf, 1), 3))
-            # Soft lights: each kept photon's emitter row and disc sample.
+            # Soft lights: each kept photon's emitter row and disc sample
+            # (the rows also for light linking's first hits).
             soft = self.soft_lights is not None
-            rows = np.empty(n if soft else 1, np.int64)
-            disc = np.empty((n if soft else 1, 4))
+            want_rows = soft or self.link is not None
+            rows = np.empty(n if want_rows else 1, np.int64)
+            disc = np.empty((n if want_rows else 1, 4))
             if nf:
                 Kf = PK.emit_lights_state(u_emit[a:a + nf], *self._light_arrays, rel, floor,
-                                          live, True, spec, soft, rows, disc)
+                                          live, True, spec, want_rows, rows, disc)
             rest = PK.LiveState(*(x[Kf:] for x in live)) if Kf else live
             K = Kf + PK.emit_lights_state(u_emit[a + nf:b], *self._light_arrays, rel, floor,
-                                          rest, False, spec, soft, rows[Kf:] if soft else rows,
-                                          disc[Kf:] if soft else disc)
+                                          rest, False, spec, want_rows,
+                                          rows[Kf:] if want_rows else rows,
+                                          disc[Kf:] if want_rows else disc)
             spec = spec[:Kf]
             if soft:
                 cone = (np.arange(K, dtype=np.int64), rows, disc)
+            emitter = rows[:K] if want_rows else None
         else:
             fal = ph.get("falloff_r2")
             fal = np.zeros(n) if fal is None else np.ascontiguousarray(fal[a:b], np.float64)
@@ -568,6 +578,8 @@ class PhotonTracer:
             if self.soft_lights is not None and "soft_disc" in ph:
                 cone = (src, np.ascontiguousarray(ph["light"][a:b], np.int64),
                         np.ascontiguousarray(ph["soft_disc"][a:b], np.float64))
+            emitter = (np.asarray(ph["light"][a:b], np.int64)[src[:K]]
+                       if self.link is not None else None)
             if nf:
                 Kf = int(np.searchsorted(src[:K], nf))      # kept in order
                 spec = np.asarray(ph["freq_init"], np.float64)[a:b][src[:Kf]]
@@ -615,6 +627,8 @@ class PhotonTracer:
                 h = hits.prim[:K] >= 0
                 h[h] = ~hidden[hits.prim[:K][h]]
                 hits.prim[:K][h] = -1
+            if bounce == 0 and self.link is not None:
+                unlit_first_hits(hits.prim[:K], emitter, *self.link)
             with _COUNT_LOCK:                    # the halves run in two threads
                 self.rays_cast += K
             step = PK.BounceStep(K=K, first=bounce == 0,

@@ -34,6 +34,7 @@ from ..accel import RAY_CAMERA, cast_by_kind, intersect_by_kind, surface_point
 from ..lights.shadow import attached as shadow_attached
 from ..kept import KeptArrays
 from ..scene import holdout as Holdout, normals as shading_normals
+from ..scene.linking import lit
 from .. import lights as Lt
 from .. import materials as B
 from ..materials import rough_maps
@@ -189,6 +190,13 @@ class CameraPass:
         # (T,) holdout weights or None (core.scene.holdout: camera rays end on
         # holdout objects and add the weight to the film's transparency).
         self._holdout = Holdout.triangle_weights(scene)
+        # Light linking (core.scene.linking): each triangle's emitter row,
+        # for the emission a chain's ray finds on a triangle (None: no
+        # linking).  The chains carry the material row of the vertex each
+        # ray left (the receiver; -1 from the lens), the mis tuple's last.
+        self._tri_light = (Lt.emitter_rows(light_table, scene.tri_p.shape[0])[0]
+                           if getattr(light_table, "link_sets", None) is not None
+                           and getattr(mtab, "receiver", None) is not None else None)
         # Glossy chains (pbrt-v4 SPPM): a vertex on a material without a
         # diffuse lobe (B.glossy_only) is a glossy point, not a visible point,
         # below max_depth; the chain goes on by a sample of its non-delta lobes.
@@ -290,13 +298,15 @@ class CameraPass:
         return vp, a[-1]
 
     def _seen_along(self, depth, L, first, o, d, tmax, t, hit, idx, beta, last, see_through,
-                    fast=False, split=True):
+                    fast=False, split=True, left=None):
         """The emission rays (K,) of one vertex see before their hit t (K,)
         float64 (inf on a miss): analytic emitters, and on a miss the world
         (or, for camera rays seen through, alpha under Film > Transparent).
         fast: skip the masks and scatters that change nothing (the camera
         rays of depth 0 are consecutive pixels in order; a black constant
-        world adds 0); the same sums.  split=False: in the calling thread."""
+        world adds 0); the same sums.  split=False: in the calling thread.
+        left (K,): the material row of the vertex each ray left (-1: the
+        lens), the receiver of light linking."""
         whole = fast and depth == 0             # idx consecutive pixels, last = 0 (camera)
         for code, name in ((0, "camera"), (1, "glossy"), (2, "transmission")):
             if whole:
@@ -309,8 +319,15 @@ class CameraPass:
                 continue
             sel = last == code
             if np.any(sel) and (not fast or self._any_seen(name)):
-                Le = Lt.emitted_along_rays(self.light_table, o[sel], d[sel],
-                                           np.minimum(t[sel], tmax[sel]), name)
+                if self._tri_light is not None and left is not None:
+                    Le, row, _ = Lt.emitted_along_rays(self.light_table, o[sel], d[sel],
+                                                       np.minimum(t[sel], tmax[sel]), name,
+                                                       return_hit=True)
+                    ok = lit(self.light_table, self.mtab, row, left[sel])
+                    Le[~ok] = 0.0
+                else:
+                    Le = Lt.emitted_along_rays(self.light_table, o[sel], d[sel],
+                                               np.minimum(t[sel], tmax[sel]), name)
                 L[idx[sel]] += beta[sel] * Le
                 if depth == 0 and first.emit.shape[0]:
                     first.emit[idx[sel]] += Le
@@ -388,7 +405,7 @@ class CameraPass:
                                        idx)
             # Analytic emitters (area lights, light spheres) seen before the hit.
             self._seen_along(depth, L, first, o, d, tmax, h.t, hit, idx,
-                             self._emitting(beta, mis[0]), last, see_through)
+                             self._emitting(beta, mis[0]), last, see_through, left=mis[3])
             ew = self._glossy_emission(L, idx, o, d, h.t, h.prim, beta, last, mis)
             ih = np.nonzero(hit if ends is None else hit & ~ends)[0]
             if ih.size == 0:
@@ -467,12 +484,16 @@ class CameraPass:
                   mis):
         """Sample the delta lobes of the K chains that continue (mesh normals
         ng, ns; throughput bt before the lobe; u (K, 3) uniforms; mis the
-        (pdf, p, n) of the glossy point each ray left, pdf 0: none).  Returns
-        (kept rows (n,), o, d, beta (n, 3), path length (n,), last (n,) int8
-        1 reflection / 2 transmission, see_through (n,), pdf, p, n), None
-        when none is kept.  A straight crossing of a transparent surface is
-        no vertex where shadow rays pass them (core.lights.shadow): the ray
-        keeps its glossy point's state; any other delta vertex clears it."""
+        (pdf, p, n) of the glossy point each ray left, pdf 0: none, and the
+        material row of the vertex it left).  Returns (kept rows (n,), o, d,
+        beta (n, 3), path length (n,), last (n,) int8 1 reflection / 2
+        transmission, see_through (n,), pdf, p, n, left), None when none is
+        kept.  A straight crossing of a transparent surface is no vertex
+        where shadow rays pass them (core.lights.shadow): the ray keeps its
+        glossy point's state; any other delta vertex clears it.  Its
+        receiver for light linking is the vertex's material, but after a
+        straight crossing (Cycles: a transparent bounce keeps the path's
+        mis_ray_object)."""
         mtab = self.mtab
         wi, wgt, pdf, is_delta, valid = B.sample_bsdf(mtab, mat, colors, ns, ng, wo, u,
                                                       subset="delta", mode="radiance")
@@ -485,11 +506,12 @@ class CameraPass:
         straight = _dot(wi, d_in[keep]) > 1.0 - 1e-9
         st = see_through[keep] & straight
         o, last = self._leaving(p[keep], ng[keep], wo[keep], wi)
-        out = _no_mis(keep.size)
+        out = _no_mis(keep.size)[:3]
         if shadow_attached(self.accel) is not None and np.any(mis[0][keep] > 0):
             out = tuple(np.where(straight.reshape((-1,) + (1,) * (a.ndim - 1)), a[keep], 0.0)
-                        for a in mis)
-        return (keep, o, wi, bt[keep] * wgt[keep], plen[keep], last, st) + out
+                        for a in mis[:3])
+        left = np.where(straight, mis[3][keep], mat[keep])
+        return (keep, o, wi, bt[keep] * wgt[keep], plen[keep], last, st) + out + (left,)
 
     def _emitting(self, beta, pdf):
         """The throughput (K, 3) with which rays add the emission ``_seen_along``
@@ -509,21 +531,23 @@ class CameraPass:
         weight of an emissive triangle at each ray's hit (``Wavefront.ew``):
         1 for the rays that leave no glossy point (without glossy chains a
         view of ones kept from call to call, which no one writes: no
-        per-pass array)."""
+        per-pass array).  With light linking, 0 also where the triangle's
+        emitter does not light the vertex the ray left (``mis``' last)."""
         K = idx.size
         if self.mis is None:
             if self._ones.size < K:
                 self._ones = np.ones(K)     # only read (a writeable array: one kernel type)
-            return self._ones[:K]
-        pdf, pp, nn = mis
-        ew = np.ones(K)
+            return self._unlit_hits(self._ones[:K], prim, mis[3])
+        pdf, pp, nn, left = mis
+        ew = self._unlit_hits(np.ones(K), prim, left)
         g = np.nonzero(pdf > 0)[0]
         if g.size == 0:
             return ew
         M, lt = self.mis, self.light_table
+        seen = ew[g] > 0                 # (light linking)
         ew[g] = 0.0
         row = np.where(prim[g] >= 0, M.tri_light[np.maximum(prim[g], 0)], -1)
-        e = np.nonzero(row >= 0)[0]
+        e = np.nonzero((row >= 0) & seen)[0]
         if e.size:
             r = g[e]
             dist = np.linalg.norm(o[r] + t[r, None] * d[r] - pp[r], axis=1)
@@ -541,12 +565,33 @@ class CameraPass:
                 f = np.isfinite(th[m])
                 dist[f] = np.linalg.norm(o[r[f]] + th[m[f], None] * d[r[f]] - pp[r[f]], axis=1)
                 w = M.bsdf_weight(pdf[r], pp[r], nn[r], d[r], rw[m], dist)
+                ok = lit(lt, self.mtab, rw[m], left[r])
+                if ok is not None:
+                    w = w * ok
                 L[idx[r]] += beta[r] * Le[m] * w[:, None]
         esc = g[prim[g] < 0]
         if esc.size and M.world_row >= 0:
             w = M.bsdf_weight(pdf[esc], pp[esc], nn[esc], d[esc], np.full(esc.size, M.world_row),
                               np.full(esc.size, np.inf))
             L[idx[esc]] += beta[esc] * Lt.world_radiance(lt, d[esc]) * w[:, None]
+        return ew
+
+    def _unlit_hits(self, ew, prim, left):
+        """ew (K,) with 0 where a ray's hit triangle (prim (K,), -1 none)
+        emits for an emitter that does not light the vertex the ray left
+        (left (K,) material rows, -1 the lens): light linking
+        (core.scene.linking); ew itself without linking or such a ray."""
+        if self._tri_light is None:
+            return ew
+        k = np.nonzero((left >= 0) & (prim >= 0))[0]
+        if k.size == 0:
+            return ew
+        row = self._tri_light[prim[k]]
+        ok = lit(self.light_table, self.mtab, row, left[k])
+        if ok.all():
+            return ew
+        ew = ew.copy()
+        ew[k[~ok]] = 0.0
         return ew
 
     def _leaving(self, p, ng, wo, wi):
@@ -586,7 +631,8 @@ class CameraPass:
         wi = wi[keep]
         o, last = self._leaving(g.p[keep], g.ng[keep], g.wo[keep], wi)
         return (keep, o, wi, g.beta[keep] * wgt[keep], plen[keep], last,
-                np.zeros(keep.size, bool), dz[keep], pdf[keep], g.p[keep], g.n[keep])
+                np.zeros(keep.size, bool), dz[keep], pdf[keep], g.p[keep], g.n[keep],
+                np.asarray(g.mat, np.int64)[keep])
 
     def _trace_compiled(self, rng, rays, dz, vp, L, check_stop):
         """The camera pass with the per-hit work in ``camera_kernels.hit_kernel``
@@ -731,7 +777,7 @@ class CameraPass:
         t = np.where(hit, tfar, np.inf).astype(np.float64)
         ends = Holdout.camera_hits(self._holdout, prim, see_through, beta, first.escape, idx)
         self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, self._emitting(beta, mis[0]),
-                         last, see_through, fast=True, split=split)
+                         last, see_through, fast=True, split=split, left=mis[3])
         ew = self._glossy_emission(L, idx, o, d, t, prim, beta, last, mis)
         if ends is not None:
             prim[ends] = -1          # the rays that end on a holdout are no hits to shade
@@ -818,13 +864,15 @@ class CameraPass:
         return _in_row_order(parts)
 
 
-_Z1, _Z3 = np.zeros(1), np.zeros((1, 3))
+_Z1, _Z3, _LENS = np.zeros(1), np.zeros((1, 3)), np.full(1, -1, np.int64)
 
 
 def _no_mis(n: int) -> tuple:
-    """The (pdf, p, n) of n rays that leave no glossy point: zeros, as
-    read-only views (no memory a ray)."""
-    return np.broadcast_to(_Z1, (n,)), np.broadcast_to(_Z3, (n, 3)), np.broadcast_to(_Z3, (n, 3))
+    """The (pdf, p, n) of n rays that leave no glossy point: zeros, and the
+    material row of the vertex they left (light linking's receiver): -1,
+    the lens; as read-only views (no memory a ray)."""
+    return (np.broadcast_to(_Z1, (n,)), np.broadcast_to(_Z3, (n, 3)),
+            np.broadcast_to(_Z3, (n, 3)), np.broadcast_to(_LENS, (n,)))
 
 
 

@@ -1,0 +1,221 @@
+"""Light linking (an emitter's Receiver Collection), against Cycles.
+
+An emitter lights only the objects its receiver collection lets it
+(``core.scene.linking``: Blender's receiver sets and memberships, Cycles'
+test): its light samples, the emission a BSDF ray from an unlit object
+finds, and the first hits of its photons and light paths; camera rays see
+it always.  Each case renders tests/test_shading_nodes.py's floor and box
+in FPPM's integrators and in Cycles, two seeds a side, under that file's
+bound (2x the seed-to-seed noise plus 1 % of the mean), and checks that
+the linking moves the image by more than 3x the bound (the same export
+rendered without it).  Then the rules themselves: the exporter's sets on
+nested collections, the material split, and the compiled camera pass
+against its numpy reference with linked lights.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from core.scene import linking as LL
+
+RES = 40
+
+
+def test_linked_and_the_material_split():
+    """Bit r of a membership lights receiver set r, a camera ray (-1) sees
+    every emitter; the split gives each (material, set, membership) its own
+    material, the first copy keeping the index."""
+    sets = np.array([LL.LINK_ALL, 0b10, LL.LINK_ALL & ~np.uint64(0b10)], np.uint64)
+    assert list(LL.linked(sets, [1, 1, 1])) == [True, True, False]
+    assert list(LL.linked(sets, [0, 0, 0])) == [True, False, True]
+    assert list(LL.linked(sets, [-1, -1, -1])) == [True, True, True]
+    from test_compiled_stages import SCENES
+    scene = SCENES["room"](8)
+    T, M = scene.tri_mat.shape[0], len(scene.materials)
+    rcv = (np.arange(T) % 2).astype(np.uint8)
+    out = LL.split_materials(scene, rcv, None)
+    assert len(out.materials) > M and out.material_receiver is not None
+    assert all(out.materials[m] is scene.materials[m] for m in range(M))
+    np.testing.assert_array_equal(out.material_receiver[out.tri_mat], rcv)
+    for t in range(T):
+        assert out.materials[out.tri_mat[t]] is scene.materials[scene.tri_mat[t]]
+    assert LL.split_materials(scene, np.zeros(T, np.uint8), None) is scene
+
+
+def _scene(case):
+    """tests/test_shading_nodes.py's floor and box under its sun; "sets":
+    the sun lights the box alone (its receiver collection includes it) and
+    a point light lights everything but the floor (excluded); "mirror": no
+    sun, the box a tilted mirror, an emitting card that excludes it lights
+    the floor (Cycles: it is not seen in the mirror)."""
+    import bpy
+    import test_shading_nodes as TS
+    from scenes import bpy_kit as K
+    sc = K.reset_scene((RES, RES), samples=16)
+    box, _, _, _ = TS.floor_and_box()
+    TS.ortho_view(sc, 2.2, sun_energy=0.0 if case == "mirror" else 3.0)
+    K.set_world(sc, (0.05, 0.05, 0.05))
+    if case == "sets":
+        only_box = bpy.data.collections.new("OnlyBox")
+        only_box.objects.link(box)
+        bpy.data.objects["Sun"].light_linking.receiver_collection = only_box
+        ld = bpy.data.lights.new("Point", 'POINT')
+        ld.energy, ld.shadow_soft_size = 60.0, 0.1
+        pt = K.link(bpy.data.objects.new("Point", ld))
+        pt.location = (0.6, 0.5, 1.4)
+        no_floor = bpy.data.collections.new("NoFloor")
+        no_floor.objects.link(bpy.data.objects["Floor"])
+        no_floor.collection_objects[0].light_linking.link_state = 'EXCLUDE'
+        pt.light_linking.receiver_collection = no_floor
+    else:
+        mirror, nt, out = K._new_material("Mirror")
+        g = nt.nodes.new('ShaderNodeBsdfGlossy')
+        g.inputs["Roughness"].default_value = 0.0
+        nt.links.new(g.outputs[0], out.inputs["Surface"])
+        box.data.materials[0] = mirror
+        box.rotation_euler = (np.radians(25.0), 0.0, np.radians(20.0))
+        lamp = TS.lamp_over_box()
+        lamp.location = (0.1, -1.2, 1.6)
+        lamp.rotation_euler = (np.radians(-130.0), 0.0, 0.0)
+        no_box = bpy.data.collections.new("NoBox")
+        no_box.objects.link(box)
+        no_box.collection_objects[0].light_linking.link_state = 'EXCLUDE'
+        lamp.light_linking.receiver_collection = no_box
+    return sc
+
+
+def _render(scene, integrator, seed):
+    from fppm.core.render import Renderer
+    from fppm.core.settings import RenderSettings
+    st = RenderSettings(integrator=integrator, max_passes=12, camera_samples=8, seed=seed,
+                        photons_per_pass=200_000 if integrator == "LIGHT" else 50_000,
+                        use_frequency=False, max_bounces=16)
+    return Renderer(scene, st, log=lambda s: None).run().image[..., :3].astype(np.float64)
+
+
+def _unlinked(scene):
+    return dataclasses.replace(
+        scene, material_receiver=None, material_emitter=None,
+        lights=[dataclasses.replace(lt, link_sets=LL.LINK_ALL) for lt in scene.lights])
+
+
+#: (case, integrator).  Light tracing renders no mirror seen by the camera.
+CASES = [("sets", "PHOTON"), ("sets", "PATH"), ("sets", "COMBINED"), ("sets", "LIGHT"),
+         ("mirror", "PHOTON"), ("mirror", "PATH"), ("mirror", "COMBINED")]
+
+
+@pytest.mark.parametrize("case,integrator", CASES, ids=[f"{c}-{i}" for c, i in CASES])
+def test_light_linking_agrees_with_cycles(case, integrator, tmp_path):
+    """Measured: see docs/shading.md "Light linking"."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+    sc = _scene(case)
+    scene, lines = TS._export()
+    assert scene.material_receiver is not None
+    assert not any("linking" in ln for ln in lines), lines
+    err, noise, img, ref = TS.two_seeds(sc, scene, lambda s, seed: _render(s, integrator, seed),
+                                        tmp_path, 256)
+    effect = np.abs(_render(_unlinked(scene), integrator, 1) - ref).mean() / ref.mean()
+    print(f"{case} {integrator}: mean {img.mean():.4f} vs Cycles {ref.mean():.4f}; |diff| "
+          f"{err:.4f}, noise {noise:.4f} ({err / noise:.2f}x); unlinked {effect:.4f}")
+    TS._check(err, noise, effect)
+
+
+def test_exporter_resolves_nested_collections_as_blender():
+    """A child collection's Exclude holds for its nested objects; an object
+    named twice takes its last state (Blender visits child collections,
+    then the objects); emitters sharing a collection share its sets; an
+    Exclude-only collection lights everything else, an Include one only
+    what it includes."""
+    bpy = pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+    from fppm.addon.export_links import light_link_sets
+    from scenes import bpy_kit as K
+    sc = K.reset_scene((8, 8), samples=1)
+    TS.ortho_view(sc, 2.0)
+    grey, nt, out = K._new_material("Grey")
+    nt.links.new(nt.nodes.new('ShaderNodeBsdfDiffuse').outputs[0], out.inputs["Surface"])
+    a, b, c, d = (K.plane(n, 0.3, grey, location=(x, 0, 0))
+                  for n, x in (("A", -0.6), ("B", -0.2), ("C", 0.2), ("D", 0.6)))
+    inc = bpy.data.collections.new("Inc")
+    inner = bpy.data.collections.new("Inner")
+    deep = bpy.data.collections.new("Deep")
+    inc.children.link(inner)
+    inner.children.link(deep)
+    deep.objects.link(b)                      # Inner's state: Exclude
+    inc.collection_children[0].light_linking.link_state = 'EXCLUDE'
+    inc.objects.link(a)                       # Include
+    inc.objects.link(b)                       # named again: Include wins (last)
+    exc = bpy.data.collections.new("Exc")
+    exc.objects.link(c)
+    exc.collection_objects[0].light_linking.link_state = 'EXCLUDE'
+    lights = []
+    for name, coll in (("L1", inc), ("L2", inc), ("L3", exc)):
+        lo = K.link(bpy.data.objects.new(name, bpy.data.lights.new(name, 'POINT')))
+        lo.light_linking.receiver_collection = coll
+        lights.append(lo)
+    receiver, membership, notes = light_link_sets(list(bpy.data.objects))
+    assert notes == [] and membership["L1"] == membership["L2"]
+
+    def lit(light, ob):
+        return bool(LL.linked(np.array([membership.get(light, LL.LINK_ALL)], np.uint64),
+                              [receiver.get(ob, 0)])[0])
+    assert [lit("L1", o) for o in "ABCD"] == [True, True, False, False]
+    assert [lit("L3", o) for o in "ABCD"] == [True, True, False, True]
+    # The exported scene: the split materials carry the same answers.
+    scene, _ = TS._export()
+    from core.lights import build_light_table
+    t = build_light_table(scene)
+    ctr = scene.tri_p.mean(axis=1)
+    for ob, x in zip("ABCD", (-0.6, -0.2, 0.2, 0.6)):
+        tri = np.nonzero(np.abs(ctr[:, 0] - x) < 0.15)[0]
+        rcv = scene.material_receiver[scene.tri_mat[tri]]
+        for name in ("L1", "L2", "L3"):
+            li = [lt.name for lt in scene.lights].index(name)
+            row = np.nonzero((t.kind != 4) & (t.source == li))[0]
+            assert LL.linked(t.link_sets[row].repeat(tri.size), rcv).all() == lit(name, ob)
+
+
+@pytest.mark.parametrize("blocked", [False, True])
+def test_compiled_camera_pass_equals_numpy_with_linking(blocked, monkeypatch):
+    """The glossy and delta chains of the metal scene with linked lights:
+    the compiled camera pass (one call, or blocks of 700 pixels) adds the
+    same emission and glossy points' light samples as the numpy reference,
+    bit for bit, and the linking removes some of it."""
+    from core.render import Renderer
+    from core.settings import RenderSettings
+    from core.sppm import visible_points as VP
+    from test_compiled_stages import SCENES
+    if blocked:
+        monkeypatch.setattr(VP, "CAMERA_BLOCK", 700)
+    base = SCENES["metal"](40)
+    T = base.tri_mat.shape[0]
+    # The mirror and metal strips in set 1, which the emissive triangles and
+    # every other light do not light.
+    rcv = np.where(np.isin(base.tri_mat, (0, 3)), 1, 0).astype(np.uint8)
+    emt = np.where(base.tri_mat == 4, LL.LINK_ALL & ~np.uint64(2), LL.LINK_ALL).astype(np.uint64)
+    scene = LL.split_materials(base, rcv, emt)
+    scene = dataclasses.replace(scene, lights=[
+        dataclasses.replace(lt, link_sets=LL.LINK_ALL & ~2 if i % 2 else LL.LINK_ALL)
+        for i, lt in enumerate(scene.lights)])
+    out = {}
+    for name, sc in (("linked", scene), ("plain", base)):
+        r = Renderer(sc, RenderSettings(integrator="PHOTON", max_passes=1, photons_per_pass=100,
+                                        seed=1), log=lambda _m: None,
+                     force_stages=("glossy chains",))
+        cam = r.camera_pass
+        for compiled in (False, True):
+            rng = np.random.default_rng(11)
+            cam.compiled = compiled
+            vp, L = cam(rng)
+            out[name, compiled] = (vp, L.copy(), cam.glossy_count)
+    (vp_n, L_n, g_n), (vp_c, L_c, g_c) = out["linked", False], out["linked", True]
+    assert g_n == g_c > 50
+    assert np.array_equal(L_n, L_c)
+    for f in ("valid", "p", "mat", "colors"):
+        assert np.array_equal(getattr(vp_n, f), getattr(vp_c, f)), f
+    L_plain = out["plain", True][1]
+    assert L_n.sum() < 0.98 * L_plain.sum()
