@@ -85,12 +85,8 @@ def _scene(case):
 
 
 def _render(scene, integrator, seed):
-    from fppm.core.render import Renderer
-    from fppm.core.settings import RenderSettings
-    st = RenderSettings(integrator=integrator, max_passes=12, camera_samples=8, seed=seed,
-                        photons_per_pass=200_000 if integrator == "LIGHT" else 50_000,
-                        use_frequency=False, max_bounces=16)
-    return Renderer(scene, st, log=lambda s: None).run().image[..., :3].astype(np.float64)
+    import test_shading_nodes as TS
+    return TS.render_integrator(scene, integrator, seed)
 
 
 #: (case, integrator).

@@ -225,6 +225,20 @@ def ortho_view(sc, scale=1.4, sun_energy=3.0, sun_angle=0.0, sun_rotation=(0.5, 
         K.link(sun)
 
 
+def render_integrator(scene, integrator, seed, rgba=False):
+    """FPPM's image of ``scene``: 12 passes of ``integrator`` (50,000 photons,
+    200,000 light paths or 8 camera paths a pixel a pass), RGB (rgba: with
+    the alpha) float64 (tests/test_ray_visibility.py, test_holdout.py,
+    test_light_linking.py)."""
+    from fppm.core.render import Renderer
+    from fppm.core.settings import RenderSettings
+    st = RenderSettings(integrator=integrator, max_passes=12, camera_samples=8, seed=seed,
+                        photons_per_pass=200_000 if integrator == "LIGHT" else 50_000,
+                        use_frequency=False, max_bounces=16)
+    img = Renderer(scene, st, log=lambda s: None).run().image.astype(np.float64)
+    return img if rgba else img[..., :3]
+
+
 def floor_and_box():
     """A 2.4 m grey Diffuse floor and a red Diffuse box floating over it
     (tests/test_ray_visibility.py, tests/test_holdout.py): (the box, its
