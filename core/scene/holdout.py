@@ -27,10 +27,11 @@ def triangle_weights(scene) -> Optional[np.ndarray]:
     """(T,) float32 the holdout weight of each triangle (1 on a holdout
     object, else its material's ``holdout``), or None when every one is 0
     (the renderer's plain path)."""
-    h = np.array([float(getattr(m, "holdout", 0.0)) for m in scene.materials], np.float32)
+    h = np.array([float(getattr(m, "holdout", 0.0)) for m in getattr(scene, "materials", ())],
+                 np.float32)
     obj = getattr(scene, "tri_holdout", None)
     if not h.any() and (obj is None or not np.any(obj)):
-        return None
+        return None     # (also a film's stand-in scene without triangles)
     w = h[np.asarray(scene.tri_mat, np.int64)] if h.size else np.zeros(
         scene.tri_mat.shape[0], np.float32)
     if obj is not None:
