@@ -46,7 +46,9 @@ from ..core.scene import shader_graph as SG
 from .export_atlas import AtlasBaker, needs_atlas
 from .export_graph import GRAPH_NODES, GraphReader, constant_value
 from .export_links import light_link_sets
+from .world_bake_job import CAMERA_RAY, LIGHTING_RAY, SHADOW_RAY
 from ..core.scene.linking import LINK_ALL, split_materials
+from ..core.scene.ray_variants import clear_shadows
 from .export_read import CHUNK, _never, image_pixels, mesh_arrays
 
 GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
@@ -224,6 +226,16 @@ SUPPORT = (
     ("stereo 3D / multi-view", APPROXIMATED, "every view is rendered from the scene camera"),
     ("Light Path's Is Camera Ray in a world shader (two maps: what camera rays see, what "
      "lights the scene)", SUPPORTED, ""),
+    ("Light Path's Is Camera Ray and Is Shadow Ray as a Mix Shader's Fac in a material: "
+     "camera rays (also through transparent surfaces) and shadow rays each see their own "
+     "mix, in every integrator (Combined then takes every light by its camera paths); a "
+     "white Transparent BSDF for shadow rays (the glass-shadow trick) makes the object "
+     "shadowless, whose rule photons and light paths follow too", SUPPORTED, ""),
+    ("Light Path's other outputs as a Mix Shader's Fac in a material", APPROXIMATED,
+     "read as a diffuse ray's by every ray but camera and shadow rays"),
+    ("a material shadow rays see as a tinted or textured Transparent BSDF (Is Shadow Ray): "
+     "photons and light paths see the material itself", APPROXIMATED,
+     "photons and light paths see the material itself"),
     ("Light Path's other outputs in a world shader", APPROXIMATED,
      "read as a diffuse ray's by every ray but the camera's"),
     ("a world shader whose bake fails", APPROXIMATED, "could not be baked by Cycles"),
@@ -513,6 +525,44 @@ def _add(a: Material, b: Material, name: str) -> Material:
     em, tex = _emission_sum([(1.0, a), (1.0, b)], notes)
     return Material(name, tuple(lobes), em, tex, tuple(notes),
                     holdout=_holdout_sum([(1.0, a), (1.0, b)]))
+
+
+def _seen_by(m: Material, kind: str) -> Material:
+    """The material rays of ``kind`` ('camera', 'shadow') see for m."""
+    return getattr(m, kind) or m
+
+
+def _with_variants(op, a: Material, b: Material, *args) -> Material:
+    """op(a, b, *args), and the same op of what camera rays and shadow
+    rays see of a and b where either differs (a Light Path inside them)."""
+    out = op(a, b, *args)
+    kw = {k: op(_seen_by(a, k), _seen_by(b, k), *args) for k in ("camera", "shadow")
+          if getattr(a, k) is not None or getattr(b, k) is not None}
+    return dataclasses.replace(out, **kw) if kw else out
+
+
+#: The Light Path outputs FPPM reads per ray kind (world_bake_job's
+#: LIGHTING_RAY: every other ray, read as a diffuse ray).
+EXACT_LIGHT_PATH = ("Is Camera Ray", "Is Shadow Ray")
+
+
+def _mix_by_ray(a: Material, b: Material, output: str, name: str, notes: list,
+                node_name: str) -> Material:
+    """A Mix Shader whose Fac is the Light Path output ``output``: camera
+    rays (also through transparent surfaces) see it mixed at CAMERA_RAY's
+    value, shadow rays at SHADOW_RAY's, every other ray at LIGHTING_RAY's
+    (core.scene.ray_variants)."""
+    def fac(values):
+        return min(max(float(values.get(output, 0.0)), 0.0), 1.0)
+    if output not in EXACT_LIGHT_PATH:
+        notes.append(f"{node_name}: Light Path {output} read as a diffuse ray's by every ray "
+                     f"but camera and shadow rays")
+    out = _with_variants(_mix, a, b, fac(LIGHTING_RAY), name)
+    kw = {}
+    for kind, values in (("camera", CAMERA_RAY), ("shadow", SHADOW_RAY)):
+        v = _mix(_seen_by(a, kind), _seen_by(b, kind), fac(values), name)
+        kw[kind] = None if v == dataclasses.replace(out, camera=None, shadow=None) else v
+    return dataclasses.replace(out, **kw)
 
 
 class _MaterialBuilder:
@@ -1016,29 +1066,40 @@ class _MaterialBuilder:
             return Material(n, lobes=(), emission=(c[0] * s, c[1] * s, c[2] * s),
                             emission_texture=tex)
         if t == 'MIX_SHADER':
+            lp = self.light_path_fac(node)
+            if lp is not None:
+                a = self.shader(node.inputs[1], depth + 1)
+                b = self.shader(node.inputs[2], depth + 1)
+                return _mix_by_ray(a, b, lp, n, self.notes, node.name)
             view = self.view_fac(node)
             if view is not None:
                 # (A view factor reads no texture: the shaders' textures
                 # keep their order.)
                 a = self.shader(node.inputs[1], depth + 1)
                 b = self.shader(node.inputs[2], depth + 1)
-                return _mix_by_view(a, b, view, n)
+                return _with_variants(_mix_by_view, a, b, view, n)
             at = self.alpha_texture(node, "Fac")
             fac = 0.5 if at >= 0 else min(max(self.value(node, "Fac", 0.5), 0.0), 1.0)
             a = self.shader(node.inputs[1], depth + 1)
             b = self.shader(node.inputs[2], depth + 1)
             if at >= 0:
-                return _mix_by_alpha(a, b, at, n)
-            return _mix(a, b, fac, n)
+                return _with_variants(_mix_by_alpha, a, b, at, n)
+            return _with_variants(_mix, a, b, fac, n)
         if t == 'ADD_SHADER':
             a = self.shader(node.inputs[0], depth + 1)
             b = self.shader(node.inputs[1], depth + 1)
-            return _add(a, b, n)
+            return _with_variants(_add, a, b, n)
         if t == 'BSDF_PRINCIPLED':
             return self.principled(node)
         if node.name not in self.unsupported:    # (a group instanced twice: once)
             self.unsupported.append(node.name)
         return Material(n, lobes=(Lobe(DIFFUSE, GREY),))
+
+    def light_path_fac(self, node):
+        """The Light Path output a Mix Shader's Fac is linked to (its name),
+        or None."""
+        src, out, _ = self.follow(node.inputs["Fac"])
+        return out.name if src is not None and src.type == 'LIGHT_PATH' else None
 
     def _reaches(self, sock, types, limit: int = 256) -> bool:
         """Whether a node of one of ``types`` feeds ``sock``, through any
@@ -1161,23 +1222,7 @@ class _MaterialBuilder:
         if active[0].inputs.get("Volume") is not None and active[0].inputs["Volume"].is_linked:
             self.notes.append("volume ignored")
         displaced = self.displacement(active[0])
-        if len(m.lobes) > MAX_LOBES:
-            self.notes.append(f"{len(m.lobes)} closures cut to the {MAX_LOBES} heaviest")
-            lobes = sorted(m.lobes, key=lambda lb: -lb.weight * max(lb.color))[:MAX_LOBES]
-            m = dataclasses.replace(m, lobes=tuple(lobes))
-        maps = list(dict.fromkeys(lb.roughness_texture for lb in m.lobes
-                                  if lb.roughness_texture >= 0))
-        if len(maps) > 1:
-            # One roughness map a material (core.materials.rough_maps): the
-            # lobes of the others keep their map's mean.
-            self.notes.append(f"{len(maps)} roughness maps: the first read per hit, the "
-                              f"others at their mean")
-            lobes = tuple(dataclasses.replace(lb, roughness_texture=-1)
-                          if lb.roughness_texture not in (-1, maps[0]) else lb for lb in m.lobes)
-            m = dataclasses.replace(m, lobes=lobes)
-        if not m.lobes and not any(m.emission):
-            # Pure black: keep one black diffuse lobe so core's tables stay regular.
-            m = dataclasses.replace(m, lobes=(Lobe(DIFFUSE, (0.0, 0.0, 0.0)),))
+        m = self._regular(m)
         normal = None
         found = [(nm, inp) for nm, inp in self.normals if inp is not None]
         if found:
@@ -1206,8 +1251,36 @@ class _MaterialBuilder:
         if self.unsupported:
             notes.append("unsupported " + ", ".join(f"'{u}'" for u in self.unsupported)
                          + " -> diffuse grey")
+        # The materials camera rays and shadow rays see (a Light Path node),
+        # with the same normal input.
+        seen = {k: None if getattr(m, k) is None
+                else dataclasses.replace(self._regular(getattr(m, k)), name=f"{self.name} ({k})",
+                                         normal=normal, camera=None, shadow=None)
+                for k in ("camera", "shadow")}
         return Material(self.name, m.lobes, m.emission, m.emission_texture, tuple(notes),
-                        normal=normal, holdout=m.holdout)
+                        normal=normal, holdout=m.holdout, **seen)
+
+    def _regular(self, m: Material) -> Material:
+        """m within what core's tables hold: MAX_LOBES lobes (the heaviest),
+        one roughness map, at least one lobe."""
+        if len(m.lobes) > MAX_LOBES:
+            self.notes.append(f"{len(m.lobes)} closures cut to the {MAX_LOBES} heaviest")
+            lobes = sorted(m.lobes, key=lambda lb: -lb.weight * max(lb.color))[:MAX_LOBES]
+            m = dataclasses.replace(m, lobes=tuple(lobes))
+        maps = list(dict.fromkeys(lb.roughness_texture for lb in m.lobes
+                                  if lb.roughness_texture >= 0))
+        if len(maps) > 1:
+            # One roughness map a material (core.materials.rough_maps): the
+            # lobes of the others keep their map's mean.
+            self.notes.append(f"{len(maps)} roughness maps: the first read per hit, the "
+                              f"others at their mean")
+            lobes = tuple(dataclasses.replace(lb, roughness_texture=-1)
+                          if lb.roughness_texture not in (-1, maps[0]) else lb for lb in m.lobes)
+            m = dataclasses.replace(m, lobes=lobes)
+        if not m.lobes and not any(m.emission):
+            # Pure black: keep one black diffuse lobe so core's tables stay regular.
+            m = dataclasses.replace(m, lobes=(Lobe(DIFFUSE, (0.0, 0.0, 0.0)),))
+        return m
 
 
 # ---------------------------------------------------------------------------
@@ -1707,6 +1780,28 @@ class _Exporter:
         if not self.vis_parts or all(np.all(v == RAY_ALL) for v in self.vis_parts):
             return None
         return self.concatenate(self.vis_parts, np.uint8)
+
+    def ray_variants(self) -> tuple:
+        """(the scene's materials, their pass indices, {'material_camera',
+        'material_shadow': (M',) int32 or nothing}): the materials, then the
+        ones camera rays or shadow rays see in place of some of them
+        (``Material.camera`` / ``shadow``: a Light Path node;
+        core.scene.ray_variants)."""
+        mats = [dataclasses.replace(m, camera=None, shadow=None)
+                if m.camera is not None or m.shadow is not None else m for m in self.materials]
+        pass_index = list(self.mat_pass_index)
+        rows = {}
+        for i, m in enumerate(self.materials):
+            for kind in ("camera", "shadow"):
+                v = getattr(m, kind)
+                if v is not None:
+                    r = rows.setdefault(kind, list(range(len(self.materials))))
+                    r[i] = len(mats)
+                    mats.append(v)
+                    pass_index.append(pass_index[i])
+        return mats, pass_index, {"material_" + k: np.asarray(r + list(range(len(r), len(mats))),
+                                                               np.int32)
+                                  for k, r in rows.items()}
 
     def tri_holdout(self):
         """(T,) bool the triangles of holdout objects, or None when none is
@@ -2344,18 +2439,29 @@ class _Exporter:
         if self.world_sun is not None:
             lights.append(self.world_sun)
         cy = getattr(scene, "cycles", None)
+        materials, pass_index, seen_rows = self.ray_variants()
         fscene = Scene(tri_p=tri_p, tri_n=tri_n, tri_uv=tri_uv, tri_mat=tri_mat,
-                       materials=self.materials, lights=lights, camera=cam,
+                       materials=materials, lights=lights, camera=cam,
                        world_color=world, textures=self.textures, world_map=world_map,
                        world_camera_map=self.world_camera_map,
                        filter_width=_filter_width(cy), filter_type=_filter_type(cy),
                        tri_object_index=(np.concatenate(self.obj_index_parts) if parts
                                          else np.zeros(0, np.int32)),
-                       material_pass_index=np.asarray(self.mat_pass_index, np.int32),
+                       material_pass_index=np.asarray(pass_index, np.int32),
                        film_transparent=bool(getattr(scene.render, "film_transparent", False)),
                        mist=self.mist(), tri_tangent=tri_tangent,
-                       tri_visibility=self.tri_visibility(), tri_holdout=self.tri_holdout())
+                       tri_visibility=self.tri_visibility(), tri_holdout=self.tri_holdout(),
+                       **seen_rows)
         self.notes += self.holdout_notes(tri_mat, fscene.tri_holdout)
+        # Objects that shadow rays see through untouched (Light Path Is
+        # Shadow Ray into a white Transparent BSDF): shadowless.
+        fscene = clear_shadows(fscene)
+        if fscene.material_shadow is not None:
+            names = sorted({self.materials[m].name for m in range(len(self.materials))
+                            if fscene.material_shadow[m] != m})
+            self.notes.append(f"Light Path Is Shadow Ray: shadow rays see {', '.join(names[:3])} "
+                              f"as another material; photons and light paths see the "
+                              f"material itself")
         if self.receiver_parts:
             # One material per (material, receiver set, membership): every
             # stage then knows a vertex's receiver set by its material.

@@ -78,6 +78,15 @@ LIGHTING_RAY = {"Is Camera Ray": 0.0, "Is Shadow Ray": 0.0, "Is Diffuse Ray": 1.
                 "Glossy Depth": 0.0, "Transparent Depth": 0.0, "Transmission Depth": 0.0,
                 "Portal Depth": 0.0}
 
+#: What it says to a camera ray (also through Transparent BSDFs) and to a
+#: shadow ray, as far as a constant can (Ray Length is a distance; FPPM's
+#: materials read Is Camera Ray and Is Shadow Ray per ray kind,
+#: addon/export.py ``_mix_by_ray``).
+CAMERA_RAY = dict(LIGHTING_RAY, **{"Is Camera Ray": 1.0, "Is Diffuse Ray": 0.0,
+                                   "Is Reflection Ray": 0.0, "Ray Depth": 0.0,
+                                   "Diffuse Depth": 0.0})
+SHADOW_RAY = dict(LIGHTING_RAY, **{"Is Shadow Ray": 1.0})
+
 
 def has_light_path(world) -> bool:
     return any(nd.type == 'LIGHT_PATH' for t in node_trees(world.node_tree) for nd in t.nodes)

@@ -234,9 +234,14 @@ def make_plan(scene, settings: RenderSettings, mtab, light_table, force=()) -> R
         else:
             plan.left_out.append(("light tracing", "no diffuse or glossy surface for the "
                                                    "camera to see" if not seen else
-                                  "shadow rays pass an object (its Shadow visibility off), "
-                                  "light paths would not: the camera paths take every light"
+                                  "shadow rays pass an object (its Shadow visibility off, or "
+                                  "a Light Path node's Is Shadow Ray), light paths would not: "
+                                  "the camera paths take every light"
                                   if getattr(light_table, "shadow_passes", False) else
+                                  "camera rays see a material as another (a Light Path node's "
+                                  "Is Camera Ray), light paths would not: the camera paths "
+                                  "take every light"
+                                  if getattr(light_table, "camera_variants", False) else
                                   "no emitter it traces: the sun and the world are the "
                                   "camera paths'"))
         seen = seen and traced

@@ -419,7 +419,7 @@ class LightTracer:
             return con, 0, np.zeros((0, 3))
         # The leaving surfaces' normals matter to transparent shadows alone
         # (their self-hit test); opaque scenes skip the (n, 3) gather.
-        n0 = ng[con.row[:n]] if shadow_materials(self.accel) is not None else None
+        n0 = ng[con.row[:n]] if shadow_materials(self.accel, camera=True) is not None else None
         tr = self._transmittance(con.o[:n], con.wc[:n], con.t_max[:n], n0)
         if self._unseen is not None and tri is not None:
             tr[self._unseen[tri[con.row[:n]]]] = 0.0
@@ -432,7 +432,7 @@ class LightTracer:
         Embree call without transparent materials, which do not read n0;
         0 = blocked).  Every connection of the light tracers is tested here:
         a camera ray's, which passes the objects hidden from the camera."""
-        return transmittance(self.accel.for_rays(RAY_CAMERA), o, d, t_max, n0=n0)
+        return transmittance(self.accel.for_rays(RAY_CAMERA), o, d, t_max, n0=n0, camera=True)
 
     def _splat(self, raster, contrib, film) -> None:
         good = np.all(np.isfinite(contrib), axis=1)

@@ -76,9 +76,12 @@ def light_classes(table) -> np.ndarray:
     on the path prefix) or NO_LT (sun, world, lights hidden from glossy or
     transmission rays: camera strategies only).  Every row is NO_LT in a
     scene where shadow rays pass some object (Shadow visibility off:
-    ``LightTable.shadow_passes``): light paths still meet it, so their
+    ``LightTable.shadow_passes``; or shadow rays see a material as another,
+    a Light Path node's Is Shadow Ray): light paths still meet it, so their
     direct light would not be the camera paths' (Cycles' is the shadow
-    rays')."""
+    rays').  So is every row where camera rays see a material as another
+    (``LightTable.camera_variants``: Is Camera Ray), which light paths would
+    join to the lens with what other rays see."""
     kind = table.kind
     pt = (kind == POINT) | (kind == SPOT)
     vis = (table.visible_glossy & table.visible_transmission) | (kind == MESH)
@@ -86,7 +89,7 @@ def light_classes(table) -> np.ndarray:
     cls[((kind == AREA) | (kind == MESH) | (pt & (table.radius <= 0))) & vis] = FULL
     cls[pt & (table.radius > 0) & vis] = SOFT
     cls[table.p_select <= 0] = NO_LT
-    if getattr(table, "shadow_passes", False):
+    if getattr(table, "shadow_passes", False) or getattr(table, "camera_variants", False):
         cls[:] = NO_LT
     return cls
 

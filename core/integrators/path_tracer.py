@@ -58,7 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..accel import RAY_CAMERA, hit_uv, intersect_by_kind, surface_point
-from ..scene import holdout as Holdout
+from ..scene import holdout as Holdout, ray_variants as RV
 from ..scene.linking import lit
 from .. import lights as Lt
 from .. import materials as B
@@ -182,6 +182,10 @@ class PathTracer:
         # (T,) holdout weights or None: camera rays end on holdout objects
         # (core.scene.holdout; the film's alpha is the camera pass's).
         self._holdout = Holdout.triangle_weights(scene)
+        # (M,) the materials camera rays see in place of others (a Light
+        # Path node, core.scene.ray_variants), or None: the hits of rays
+        # still on the camera ray's line are shaded with them.
+        self._camera_mat = RV.rows(scene, "camera")
         self.camera, self.fsamp, self.px, self.py = camera, fsamp, px, py
         self.max_bounces = int(settings.max_bounces)
         self.rr_start = int(settings.rr_start)
@@ -481,7 +485,7 @@ class PathTracer:
             if ih.size == 0:
                 break
             prim = h.prim[ih]
-            mat = s.tri_mat[prim]
+            mat = RV.seen(self._camera_mat, s.tri_mat[prim], first[ih])
             if mtab.rough_first is not None:     # a roughness map's level row per hit
                 mat = rough_maps.pick(mtab, mat, prim, h.u[ih], h.v[ih],
                                       hit_uv(s.tri_uv, prim, h.u[ih], h.v[ih]))

@@ -35,8 +35,12 @@ from ..scene.model import TRANSPARENT
 TRANSPARENT_MAX_BOUNCES = 8
 MAX_CROSSINGS = TRANSPARENT_MAX_BOUNCES - 1
 
-# Where the attached materials live on an Accel (core.accel is not told).
+# Where the attached materials live on an Accel (core.accel is not told):
+# as shadow rays see them, and as camera rays do (light tracing's joins to
+# the lens), which differ where a Light Path node gives either a material
+# of its own (core.scene.ray_variants).
 _ATTR = "_transparent_shadows"
+_ATTR_CAMERA = "_transparent_for_camera"
 
 
 @dataclass(frozen=True)
@@ -58,20 +62,31 @@ def transparent_materials(mtab) -> np.ndarray:
 
 def attach(accel, scene, mtab) -> bool:
     """Make ``transmittance`` on ``accel`` see the scene's transparent
-    materials; nothing (and False) when it has none."""
+    materials (shadow rays each triangle's ``Scene.material_shadow``, camera
+    rays its ``material_camera``); nothing (and False) when it has none."""
+    from ..scene import ray_variants as RV
     tr = transparent_materials(mtab)
     if not tr.any():
         setattr(accel, _ATTR, None)
+        setattr(accel, _ATTR_CAMERA, None)
         return False
-    setattr(accel, _ATTR, ShadowMaterials(mtab, np.asarray(scene.tri_mat, np.int64),
-                                          np.asarray(scene.tri_uv), tr))
+    tri = np.asarray(scene.tri_mat, np.int64)
+    uv = np.asarray(scene.tri_uv)
+    seen = {k: RV.rows(scene, k) for k in ("shadow", "camera")}
+    sv = ShadowMaterials(mtab, RV.seen(seen["shadow"], tri), uv, tr)
+    cv = (sv if seen["shadow"] is None and seen["camera"] is None
+          else ShadowMaterials(mtab, RV.seen(seen["camera"], tri), uv, tr))
+    setattr(accel, _ATTR, sv)
+    setattr(accel, _ATTR_CAMERA, cv)
     return True
 
 
-def attached(accel):
+def attached(accel, camera: bool = False):
     """The :class:`ShadowMaterials` attached to ``accel`` (or to the scene
-    whose ``Accel.for_rays`` view it is), or None."""
-    return getattr(getattr(accel, "base", accel), _ATTR, None)
+    whose ``Accel.for_rays`` view it is) as shadow rays see them (camera:
+    as camera rays do), or None."""
+    base = getattr(accel, "base", accel)
+    return getattr(base, _ATTR_CAMERA if camera else _ATTR, None)
 
 
 def unit_normals(tri_p: np.ndarray, prim: np.ndarray) -> np.ndarray:
@@ -113,7 +128,7 @@ def pass_through(sm: ShadowMaterials, prim: np.ndarray, u: np.ndarray, v: np.nda
 
 
 def transmittance(accel, o: np.ndarray, d: np.ndarray, t_max, emitter=None,
-                  n0=None) -> np.ndarray:
+                  n0=None, camera: bool = False) -> np.ndarray:
     """(K, 3) float64: the light let through along the segments o + t d,
     t in (0, t_max) (o, d (K, 3); t_max (K,) or a scalar, np.inf allowed):
     0 where an opaque surface lies on the segment, else the product of the
@@ -129,11 +144,13 @@ def transmittance(accel, o: np.ndarray, d: np.ndarray, t_max, emitter=None,
     passing through the current origin is a float32 self-hit (see
     :func:`self_hit`) and is stepped over; an occluder standing on the
     surface (a wall on a floor) is not parallel to it and still blocks.
+    camera: the materials as camera rays see them (light tracing's joins to
+    the lens), not as shadow rays do (core.scene.ray_variants).
     """
     o = np.asarray(o, np.float64)
     K = o.shape[0]
     t_max = np.broadcast_to(np.asarray(t_max, np.float64), (K,))
-    sm = attached(accel)
+    sm = attached(accel, camera)
     if sm is None and (emitter is None or not np.any(emitter)):
         return np.repeat((~accel.occluded(o, d, t_max))[:, None].astype(np.float64), 3, axis=1)
     d = np.asarray(d, np.float64)

@@ -117,6 +117,10 @@ class LightTable:
     # Scene.tri_visibility): light tracing cannot follow them
     # (integrators.mis.light_classes).
     shadow_passes: bool = False
+    # Camera rays see some material differently (a Light Path node's Is
+    # Camera Ray, core.scene.ray_variants): light tracing would join its
+    # vertices to the lens with what other rays see (integrators.mis).
+    camera_variants: bool = False
     # The world as camera rays see it, when it differs (Scene.world_camera_map).
     camera_environment: EnvironmentLight = None
     # (centre (3,), half extents (3,)) float64 of the triangles' box, with the
@@ -426,12 +430,20 @@ def build_light_table(scene: Scene) -> LightTable:
             # scene; light tracing does not splat its emission to the lens.
             from ..accel import RAY_CAMERA
             tri_rows["visible_camera"] = (scene.tri_visibility[sel] & RAY_CAMERA) != 0
-        from ..scene import holdout as Holdout
+        from ..scene import holdout as Holdout, ray_variants as RV
         held = Holdout.ends_camera(Holdout.triangle_weights(scene))
         if held is not None:
             # Nor that of a held-out one (core.scene.holdout).
             tri_rows["visible_camera"] = tri_rows.get(
                 "visible_camera", np.ones(sel.shape[0], bool)) & ~held[sel]
+        cam = RV.rows(scene, "camera")
+        if cam is not None:
+            # Nor that of a surface whose material camera rays see without
+            # emission (Light Path Is Camera Ray: an unseen light card).
+            dark = np.array([not np.any(np.asarray(scene.materials[m].emission) != 0)
+                             for m in cam[scene.tri_mat[sel]]], bool).reshape(-1)
+            tri_rows["visible_camera"] = tri_rows.get(
+                "visible_camera", np.ones(sel.shape[0], bool)) & ~dark
 
     world = np.asarray(scene.world_color, np.float64).reshape(3)
     env = None
@@ -451,6 +463,12 @@ def build_light_table(scene: Scene) -> LightTable:
     if vis is not None:
         from ..accel import RAY_SHADOW
         table.shadow_passes = bool(np.any((vis & RAY_SHADOW) == 0))
+    from ..scene import ray_variants as RV
+    if RV.rows(scene, "shadow") is not None:
+        # Shadow rays see some material as another (Is Shadow Ray): they
+        # pass what light paths meet, as with Shadow visibility off.
+        table.shadow_passes = True
+    table.camera_variants = RV.rows(scene, "camera") is not None
     if getattr(scene, "world_camera_map", None) is not None:
         table.camera_environment = EnvironmentLight.build(scene.world_camera_map)
     if scene.n_triangles:

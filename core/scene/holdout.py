@@ -32,8 +32,10 @@ def triangle_weights(scene) -> Optional[np.ndarray]:
     obj = getattr(scene, "tri_holdout", None)
     if not h.any() and (obj is None or not np.any(obj)):
         return None     # (also a film's stand-in scene without triangles)
-    w = h[np.asarray(scene.tri_mat, np.int64)] if h.size else np.zeros(
-        scene.tri_mat.shape[0], np.float32)
+    from .ray_variants import rows, seen
+    # Camera rays' holdout: the material they see (a Light Path node).
+    w = h[seen(rows(scene, "camera"), np.asarray(scene.tri_mat, np.int64))] if h.size \
+        else np.zeros(scene.tri_mat.shape[0], np.float32)
     if obj is not None:
         w = np.where(np.asarray(obj, bool), np.float32(1.0), w)
     return w if w.any() else None

@@ -39,7 +39,8 @@ def split_materials(scene, tri_receiver: Optional[np.ndarray],
     and LINK_ALL).  Sets ``material_receiver`` (M',) uint8 and
     ``material_emitter`` (M',) uint64; the scene itself when no object is
     linked (both None).  Material copies keep their index order (the first
-    copy of material m keeps index m)."""
+    copy of material m keeps index m); a copy's ray variants
+    (core.scene.ray_variants) are copied with it, with its sets."""
     T = scene.tri_mat.shape[0]
     rcv = (np.zeros(T, np.uint64) if tri_receiver is None
            else np.asarray(tri_receiver, np.uint64))
@@ -51,8 +52,18 @@ def split_materials(scene, tri_receiver: Optional[np.ndarray],
     mats = list(scene.materials)
     receiver = [0] * M
     emitter = [LINK_ALL] * M
+    base = list(range(M))
     pass_index = (None if scene.material_pass_index is None
                   else list(np.asarray(scene.material_pass_index)))
+
+    def copy(m):
+        base.append(base[m])
+        mats.append(mats[m])
+        receiver.append(0)
+        emitter.append(LINK_ALL)
+        if pass_index is not None:
+            pass_index.append(pass_index[m])
+        return len(mats) - 1
     key = np.stack([np.asarray(scene.tri_mat, np.uint64), rcv, emt], axis=1)
     uniq, inv = np.unique(key, axis=0, return_inverse=True)
     new_index = np.empty(uniq.shape[0], np.int64)
@@ -62,36 +73,35 @@ def split_materials(scene, tri_receiver: Optional[np.ndarray],
             taken.add(m)
             new_index[i] = m
         else:
-            new_index[i] = len(mats)
-            mats.append(mats[m])
-            receiver.append(0)
-            emitter.append(LINK_ALL)
-            if pass_index is not None:
-                pass_index.append(pass_index[m])
+            new_index[i] = copy(m)
         receiver[new_index[i]] = int(r)
         emitter[new_index[i]] = int(e)
+    # A material's ray variants are materials of no triangle: each copy of
+    # the material gets a copy of them, with its sets.
+    variants = {}
+    for kind in ("camera", "shadow"):
+        v0 = getattr(scene, "material_" + kind, None)
+        if v0 is None:
+            continue
+        v0 = np.asarray(v0, np.int64)
+        v = list(range(len(mats)))
+        for j in range(len(mats)):
+            b = base[j]
+            if v0[b] != b:
+                w = int(v0[b]) if j == b else copy(int(v0[b]))
+                v[j] = w
+                receiver[w], emitter[w] = receiver[j], emitter[j]
+        variants[kind] = v
+    for kind, v in variants.items():
+        v += list(range(len(v), len(mats)))     # the copies made: themselves
+        variants[kind] = np.asarray(v, np.int32)
     tri_mat = new_index[inv.reshape(-1)].astype(np.int32)
     return dataclasses.replace(
         scene, materials=mats, tri_mat=tri_mat,
         material_pass_index=None if pass_index is None else np.asarray(pass_index, np.int32),
         material_receiver=np.asarray(receiver, np.uint8),
-        material_emitter=np.asarray(emitter, np.uint64))
-
-
-def receivers(scene, n_rows: int, row_base: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
-    """(n_rows,) int64 the receiver set of each material-table row (a
-    roughness map's level rows take their material's: row_base (n_rows,)
-    the material of each row, None: row i is material i), or None without
-    light linking."""
-    rec = getattr(scene, "material_receiver", None)
-    if rec is None:
-        return None
-    rec = np.asarray(rec, np.int64)
-    if row_base is None:
-        out = np.zeros(n_rows, np.int64)
-        out[:rec.size] = rec[:n_rows]
-        return out
-    return rec[np.asarray(row_base, np.int64)]
+        material_emitter=np.asarray(emitter, np.uint64),
+        **{"material_" + k: v for k, v in variants.items()})
 
 
 def linked(sets: np.ndarray, receiver: np.ndarray) -> np.ndarray:

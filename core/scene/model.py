@@ -114,6 +114,10 @@ class Material:
     holdout: the summed mix weight of the shader's Holdout closures (Cycles'
       ``surface_shader_apply_holdout``): the transparency camera rays take
       from the surface; they end there at 1 (core.scene.holdout).
+    camera, shadow: the Material camera rays / shadow rays see instead, or
+      None (a Light Path node's Is Camera Ray / Is Shadow Ray in the shader:
+      core.scene.ray_variants; the exporter appends them to the scene's
+      materials, ``Scene.material_camera`` / ``material_shadow``).
     """
     name: str
     lobes: tuple = (Lobe(DIFFUSE),)
@@ -122,6 +126,8 @@ class Material:
     approximations: tuple = ()
     normal: object = field(default=None, repr=False)
     holdout: float = field(default=0.0, repr=False)
+    camera: object = field(default=None, repr=False)
+    shadow: object = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -232,6 +238,9 @@ class Scene:
     tri_holdout: (T,) bool the triangles of holdout objects (Object >
       Visibility > Holdout, or the collection's in the view layer), or None
       (core.scene.holdout).
+    material_camera, material_shadow: (M,) int32 the material camera rays
+      (on the camera ray's line) / shadow rays see in place of each one (its
+      own index where they see it), or None (core.scene.ray_variants).
     material_receiver: (M,) uint8 the light-linking receiver set of each
       material's objects, and material_emitter (M,) uint64 the sets an
       emissive material's objects light (core.scene.linking: the exporter
@@ -260,6 +269,8 @@ class Scene:
     tri_holdout: Optional[np.ndarray] = None
     material_receiver: Optional[np.ndarray] = None
     material_emitter: Optional[np.ndarray] = None
+    material_camera: Optional[np.ndarray] = None
+    material_shadow: Optional[np.ndarray] = None
 
     def __post_init__(self):
         self.attach_shading_normals()
@@ -377,7 +388,9 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       else scene.tri_visibility[ok],
                       tri_holdout=None if scene.tri_holdout is None else scene.tri_holdout[ok],
                       material_receiver=scene.material_receiver,
-                      material_emitter=scene.material_emitter)
+                      material_emitter=scene.material_emitter,
+                      material_camera=scene.material_camera,
+                      material_shadow=scene.material_shadow)
     return scene, dropped
 
 
@@ -409,6 +422,9 @@ def scene_digest(scene: Scene) -> str:
         h.update(b"visibility" + np.ascontiguousarray(scene.tri_visibility).tobytes())
     if getattr(scene, "tri_holdout", None) is not None:
         h.update(b"holdout" + np.ascontiguousarray(scene.tri_holdout).tobytes())
+    for name in ("material_camera", "material_shadow"):
+        if getattr(scene, name, None) is not None:
+            h.update(name.encode() + np.ascontiguousarray(getattr(scene, name)).tobytes())
     if getattr(scene, "material_receiver", None) is not None:
         h.update(b"linking" + np.ascontiguousarray(scene.material_receiver).tobytes()
                  + np.ascontiguousarray(scene.material_emitter).tobytes())

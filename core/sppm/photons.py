@@ -278,6 +278,21 @@ class _Follow:
         return np.concatenate(self._dep) if self._dep else np.zeros(0, np.int64)
 
 
+def _delta_landing(light_table, mtab, scene, hidden):
+    """(delta emitter rows (Nl,) bool: points and spots of radius 0, suns
+    of angle 0; the shadowless triangles (``hidden`` (T,) bool, or None)
+    whose material has delta lobes only (T,) bool), or None when either
+    is empty."""
+    if hidden is None:
+        return None
+    from ..lights import POINT, SPOT, SUN
+    t = light_table
+    dl = ((((t.kind == POINT) | (t.kind == SPOT)) & (t.radius <= 0))
+          | ((t.kind == SUN) & (t.half_angle <= 0)))
+    tri = hidden & ~np.asarray(mtab.has_nondelta)[np.asarray(scene.tri_mat, np.int64)]
+    return (dl, tri) if dl.any() and tri.any() else None
+
+
 class PhotonTracer:
     """Traces batches of photons through one scene (state shared across passes)."""
 
@@ -311,6 +326,13 @@ class PhotonTracer:
         # keeping only the photons whose first hit is on such an object
         # (_trace_hidden_first).  None: no such object.
         self._shadow_hidden = accel.hidden_from(RAY_SHADOW)
+        # (delta emitter rows (Nl,) bool, the shadowless triangles of
+        # delta-only materials (T,) bool) or None: light a point or sun light
+        # lands on a shadowless glass or mirror with is the light its shadow
+        # rays pass (Cycles cannot hit such a light by a BSDF ray, so it
+        # shows no caustic of it there), and is not bounced on
+        # (_trace_hidden_first).
+        self._delta_landing = _delta_landing(light_table, mtab, scene, self._shadow_hidden)
         # Light linking (core.scene.linking): (the emitter rows' memberships
         # (Nl,) uint64, each triangle's receiver set (T,) int64), or None.
         # A photon whose first hit is on an object its emitter does not
@@ -552,7 +574,8 @@ class PhotonTracer:
             # Soft lights: each kept photon's emitter row and disc sample
             # (the rows also for light linking's first hits).
             soft = self.soft_lights is not None
-            want_rows = soft or self.link is not None
+            want_rows = (soft or self.link is not None
+                         or (first == "hidden" and self._delta_landing is not None))
             rows = np.empty(n if want_rows else 1, np.int64)
             disc = np.empty((n if want_rows else 1, 4))
             if nf:
@@ -579,7 +602,7 @@ class PhotonTracer:
                 cone = (src, np.ascontiguousarray(ph["light"][a:b], np.int64),
                         np.ascontiguousarray(ph["soft_disc"][a:b], np.float64))
             emitter = (np.asarray(ph["light"][a:b], np.int64)[src[:K]]
-                       if self.link is not None else None)
+                       if self.link is not None or first == "hidden" else None)
             if nf:
                 Kf = int(np.searchsorted(src[:K], nf))      # kept in order
                 spec = np.asarray(ph["freq_init"], np.float64)[a:b][src[:Kf]]
@@ -627,6 +650,11 @@ class PhotonTracer:
                 h = hits.prim[:K] >= 0
                 h[h] = ~hidden[hits.prim[:K][h]]
                 hits.prim[:K][h] = -1
+                if self._delta_landing is not None:
+                    dl, tri = self._delta_landing
+                    k = np.nonzero(hits.prim[:K] >= 0)[0]
+                    off = k[dl[emitter[k]] & tri[hits.prim[:K][k]]]
+                    hits.prim[:K][off] = -1
             if bounce == 0 and self.link is not None:
                 unlit_first_hits(hits.prim[:K], emitter, *self.link)
             with _COUNT_LOCK:                    # the halves run in two threads

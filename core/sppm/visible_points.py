@@ -33,7 +33,7 @@ import numpy as np
 from ..accel import RAY_CAMERA, cast_by_kind, intersect_by_kind, surface_point
 from ..lights.shadow import attached as shadow_attached
 from ..kept import KeptArrays
-from ..scene import holdout as Holdout, normals as shading_normals
+from ..scene import holdout as Holdout, normals as shading_normals, ray_variants as RV
 from ..scene.linking import lit
 from .. import lights as Lt
 from .. import materials as B
@@ -152,7 +152,7 @@ def _crossings_only(accel, rays, vp) -> None:
     crossings' spawn offsets) with nothing but transparent surfaces between
     the lens and them (glass at normal incidence keeps the line too)."""
     from ..lights import shadow
-    if shadow.attached(accel) is None:
+    if shadow.attached(accel, camera=True) is None:
         return
     w = vp.p - rays.o
     lw = np.linalg.norm(w, axis=1)
@@ -161,7 +161,7 @@ def _crossings_only(accel, rays, vp) -> None:
                    & (np.linalg.norm(np.cross(w, rays.d), axis=1) <= tol))[0]
     if i.size:
         T = shadow.transmittance(accel.for_rays(RAY_CAMERA), rays.o[i], w[i] / lw[i, None],
-                                 lw[i] - tol[i])
+                                 lw[i] - tol[i], camera=True)
         vp.through_delta[i[T.max(axis=1) > 0]] = False
 
 
@@ -190,6 +190,10 @@ class CameraPass:
         # (T,) holdout weights or None (core.scene.holdout: camera rays end on
         # holdout objects and add the weight to the film's transparency).
         self._holdout = Holdout.triangle_weights(scene)
+        # (M,) the materials camera rays see in place of others (a Light
+        # Path node, core.scene.ray_variants), or None: hits still on the
+        # camera ray's line are shaded with them.
+        self._camera_mat = RV.rows(scene, "camera")
         # Light linking (core.scene.linking): each triangle's emitter row,
         # for the emission a chain's ray finds on a triangle (None: no
         # linking).  The chains carry the material row of the vertex each
@@ -413,7 +417,9 @@ class CameraPass:
             s = self.scene
             p, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, h.prim[ih], h.u[ih], h.v[ih])
             wo = -d[ih]
-            mat = rough_maps.pick(mtab, s.tri_mat[h.prim[ih]], h.prim[ih], h.u[ih], h.v[ih], uv)
+            mat = rough_maps.pick(mtab, RV.seen(self._camera_mat, s.tri_mat[h.prim[ih]],
+                                                see_through[ih]),
+                                  h.prim[ih], h.u[ih], h.v[ih], uv)
             colors = B.lobe_colors(mtab, mat, uv, B.view_mu(mtab, wo, ns))
             em = mtab.emission[mat]
             if np.any(em > 0):
@@ -732,6 +738,9 @@ class CameraPass:
         if self._cmats is None:
             self._cmats = CK.build_camera_materials(mtab, s)
             tex = np.any(mtab.tex >= 0, axis=1) | B.view_dependent(mtab)
+            if self._camera_mat is not None:
+                # Their camera-line hits pick the camera rays' material.
+                tex[:self._camera_mat.size] |= self._camera_mat != np.arange(self._camera_mat.size)
             if mtab.emission_tex is not None:
                 tex |= mtab.emission_tex >= 0
             if mtab.rough_first is not None:
@@ -811,7 +820,8 @@ class CameraPass:
             pr = prim[it]
             _, _, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, pr,
                                          bu[it].astype(np.float64), bv[it].astype(np.float64))
-            mt = rough_maps.pick(mtab, s.tri_mat[pr], pr, bu[it], bv[it], uv)
+            mt = rough_maps.pick(mtab, RV.seen(self._camera_mat, s.tri_mat[pr], see_through[it]),
+                                 pr, bu[it], bv[it], uv)
             mat_pre = mt.astype(np.int32)
             colors_pre = B.lobe_colors(mtab, mt, uv, B.view_mu(mtab, d[it], ns))
             em_pre = mtab.emission[mt]
