@@ -67,10 +67,12 @@ def _as_itself(scene):
                                tri_visibility=None)
 
 
-#: (case, integrator).  A tinted shadow material is honoured by shadow rays
-#: alone (photons see the Glass): Path Tracing is Cycles' there.
-CASES = [("camera", "PHOTON"), ("camera", "PATH"), ("camera", "COMBINED"),
-         ("card", "PHOTON"), ("card", "PATH"),
+#: (case, integrator).  Combined without light tracing is Path Tracing in
+#: the camera cases (a sun or a card alone); a tinted shadow material is
+#: honoured by shadow rays alone (photons see the Glass): Path Tracing is
+#: Cycles' there; light tracing sees no glass.
+CASES = [("camera", "PHOTON"), ("camera", "PATH"), ("camera", "LIGHT"),
+         ("card", "PHOTON"), ("card", "LIGHT"),
          ("glass", "PHOTON"), ("glass", "PATH"), ("glass", "COMBINED"), ("tinted", "PATH")]
 
 

@@ -75,7 +75,7 @@ from ..materials import compiled as C, rough_maps
 from ..materials.fast import GENERIC
 from ..accel import RAY_CAMERA, REL_OFFSET, surface_point
 from ..lights.shadow import attached as shadow_materials, transmittance
-from ..scene import holdout as Holdout
+from ..scene import holdout as Holdout, ray_variants as RV
 from ..sppm import photon_kernels as PK
 from ..sppm.photon_pass import chunk_rng
 from ..sppm.photons import PhotonTracer, _children, _pool, _threads
@@ -150,6 +150,11 @@ class LightTracer:
         hid = accel.hidden_from(RAY_CAMERA)
         held = Holdout.ends_camera(Holdout.triangle_weights(scene))
         self._unseen = held if hid is None else hid if held is None else hid | held
+        # Each triangle's material as the lens sees it (a Light Path node's
+        # Is Camera Ray, core.scene.ray_variants): the splat's BSDF.
+        tm = self.tracer.tris.mat
+        cam = RV.rows(scene, "camera")
+        self._seen_mat = tm if cam is None else RV.seen(cam, tm).astype(tm.dtype)
         t = light_table
         # Emission vertices are splatted only for AREA lights and MESH
         # emitters the camera sees.  The compiled emission (same uniforms, same
@@ -283,7 +288,7 @@ class LightTracer:
         tris = self.tracer.tris
         slow = np.empty(nc, np.int64)
         sm, crow = self._rows(con, nc, vin)
-        ns = LK.splat_fast(con, nc, tr, vin, tris.n, tris.ng, tris.mat, sm, crow,
+        ns = LK.splat_fast(con, nc, tr, vin, tris.n, tris.ng, self._seen_mat, sm, crow,
                            mis is not None, self.cam_params, self.filter_width, film, slow)
         if ns:
             self._slow(con, slow[:ns], tr, vin, mis is not None, film)
@@ -301,7 +306,7 @@ class LightTracer:
             return sm, self._NO_ROWS
         bary = vin.bary[con.row[:nc]]
         prim = bary[:, 0].astype(np.int64)
-        crow = np.asarray(self.tracer.tris.mat, np.int64)[prim]
+        crow = np.asarray(self._seen_mat, np.int64)[prim]
         t = np.nonzero(self.tracer.textured[crow] & (sm.kind[crow] != LK.SLOW))[0]
         if t.size == 0:
             return sm, self._NO_ROWS
@@ -332,7 +337,7 @@ class LightTracer:
         # wo and wi on opposite sides: +94% on principled_interior.blend).
         _, ng, ns, uv = surface_point(self.scene.tri_p, self.scene.tri_n, self.scene.tri_uv,
                                       prim, bary[:, 1], bary[:, 2])
-        m = rough_maps.pick(self.mtab, np.asarray(self.scene.tri_mat, np.int64)[prim], prim,
+        m = rough_maps.pick(self.mtab, np.asarray(self._seen_mat, np.int64)[prim], prim,
                             bary[:, 1].astype(np.float32), bary[:, 2].astype(np.float32), uv)
         wc, wi, weight = con.wc[c], vin.wi[rows], con.weight[c]
         colors = B.lobe_colors(self.mtab, m, uv, B.view_mu(self.mtab, wc, ns))
