@@ -181,28 +181,36 @@ def test_sigkill_then_resume_matches_uninterrupted(blends, reference, tmp_path):
     # A killed process cannot remove Blender's session folder
     # (<TMPDIR>/blender_<random>): it goes into this test's folder, not /tmp.
     env["TMPDIR"] = str(tmp_path)
-    p = subprocess.Popen(H.fppm_command() + ["render", blends["simple"], "-o", str(out),
-                                             *RENDER_FLAGS, "--checkpoint", str(ck),
-                                             "--checkpoint-every", "0"],
-                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
-                         cwd=str(tmp_path))
+    # The 24 small passes take about 0.2 s: a loaded machine may deschedule
+    # this poll for all of them, and the render ends unkilled.  Then again
+    # (at most three runs), on a fresh checkpoint.
     killed_at = None
-    try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and p.poll() is None:
-            try:
-                n = checkpoint.load(str(ck))["pass_index"]
-            except (FileNotFoundError, CheckpointMismatch):
-                n = 0
-            if n >= 3:
-                p.send_signal(signal.SIGKILL)
-                killed_at = n
-                break
-            time.sleep(0.005)
-        p.wait(timeout=60)
-    finally:
-        if p.poll() is None:
-            p.kill()
+    for _attempt in range(3):
+        shutil.rmtree(ck, ignore_errors=True)      # a directory
+        out.unlink(missing_ok=True)
+        p = subprocess.Popen(H.fppm_command() + ["render", blends["simple"], "-o", str(out),
+                                                 *RENDER_FLAGS, "--checkpoint", str(ck),
+                                                 "--checkpoint-every", "0"],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
+                             cwd=str(tmp_path))
+        try:
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline and p.poll() is None:
+                try:
+                    n = checkpoint.load(str(ck))["pass_index"]
+                except (FileNotFoundError, CheckpointMismatch):
+                    n = 0
+                if n >= 3:
+                    p.send_signal(signal.SIGKILL)
+                    killed_at = n
+                    break
+                time.sleep(0.005)
+            p.wait(timeout=60)
+        finally:
+            if p.poll() is None:
+                p.kill()
+        if killed_at is not None:
+            break
     assert killed_at is not None and p.returncode == -signal.SIGKILL, "not killed mid-run"
     assert not out.exists()
     saved = checkpoint.load(str(ck))["pass_index"]     # still a complete, loadable file
