@@ -110,8 +110,9 @@ def test_camera_and_shadow_visibility_agree_with_cycles(case, integrator, tmp_pa
     err, noise, img, ref = TS.two_seeds(sc, scene, lambda s, seed: _render(s, integrator, seed),
                                         tmp_path, 256)
     mean = ref.mean()
-    seen = _render(dataclasses.replace(scene, tri_visibility=None, world_camera_map=None),
-                   integrator, 1)
+    seen = TS.render_integrator(dataclasses.replace(scene, tri_visibility=None,
+                                                    world_camera_map=None),
+                                integrator, 1, passes=TS.EFFECT_PASSES)
     effect = np.abs(seen - ref).mean() / mean
     print(f"{case} {integrator}: mean {img.mean():.4f} vs Cycles {mean:.4f}; |diff| "
           f"{err:.4f}, noise {noise:.4f} ({err / noise:.2f}x); fully visible {effect:.4f}")

@@ -225,15 +225,15 @@ def ortho_view(sc, scale=1.4, sun_energy=3.0, sun_angle=0.0, sun_rotation=(0.5, 
         K.link(sun)
 
 
-def render_integrator(scene, integrator, seed, rgba=False):
-    """FPPM's image of ``scene``: 12 passes of ``integrator`` (50,000 photons,
-    200,000 light paths or 8 camera paths a pixel a pass), RGB (rgba: with
+def render_integrator(scene, integrator, seed, rgba=False, passes=12):
+    """FPPM's image of ``scene``: ``passes`` passes of ``integrator`` (25,000 photons,
+    100,000 light paths or 8 camera paths a pixel a pass), RGB (rgba: with
     the alpha) float64 (tests/test_ray_visibility.py, test_holdout.py,
-    test_light_linking.py)."""
+    test_light_linking.py, test_light_path.py)."""
     from fppm.core.render import Renderer
     from fppm.core.settings import RenderSettings
-    st = RenderSettings(integrator=integrator, max_passes=12, camera_samples=8, seed=seed,
-                        photons_per_pass=200_000 if integrator == "LIGHT" else 50_000,
+    st = RenderSettings(integrator=integrator, max_passes=passes, camera_samples=8, seed=seed,
+                        photons_per_pass=100_000 if integrator == "LIGHT" else 25_000,
                         use_frequency=False, max_bounces=16)
     img = Renderer(scene, st, log=lambda s: None).run().image.astype(np.float64)
     return img if rgba else img[..., :3]
@@ -388,6 +388,11 @@ def _without_normals(scene):
     import dataclasses
     mats = [dataclasses.replace(m, normal=None) for m in scene.materials]
     return dataclasses.replace(scene, materials=mats, tri_n=scene.tri_n.copy())
+
+
+#: Passes of the image without the feature (its effect: far above the bound,
+#: so half the passes of the compared images measure it).
+EFFECT_PASSES = 6
 
 
 def _check(err, noise, effect=None):
