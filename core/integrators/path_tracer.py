@@ -59,6 +59,7 @@ import numpy as np
 
 from ..accel import RAY_CAMERA, hit_uv, intersect_by_kind, surface_point
 from ..scene import holdout as Holdout, ray_variants as RV
+from ..scene import linking
 from ..scene.linking import lit
 from .. import lights as Lt
 from .. import materials as B
@@ -399,6 +400,7 @@ class PathTracer:
         # linking's receiver of the emission the ray finds (kept through
         # transparent crossings, as Cycles keeps mis_ray_object).
         m_prev = np.full(K, -1, np.int64)
+        track = linking.active(lt, mtab)     # (else no light is unlinked: not kept)
         # Distance from the ray's origin back to p_prev along d: > 0 after
         # transparent crossings (below), which are no MIS vertex.  A camera
         # ray starts at the near clip plane (CameraModel.generate: depth
@@ -582,7 +584,8 @@ class PathTracer:
                 tmax = np.full(c.size, np.inf)
                 pdf_prev = np.where(nx.delta, 0.0, nx.pdf)
                 p_prev, n_prev, vis = v.p[c], nx.n_prev, nx.vis
-                m_prev = np.asarray(v.mat, np.int64)[c]
+                if track:
+                    m_prev = np.asarray(v.mat, np.int64)[c]
                 t_acc = np.zeros(c.size)    # no transparent material in the kernels' scope
                 first = np.zeros(c.size, bool)
                 path = v.path[c]
@@ -634,12 +637,14 @@ class PathTracer:
             tmax = np.full(c.size, np.inf)
             beta = bt[c]
             prev = (pdf_prev[ih[c]], p_prev[ih[c]], n_prev[ih[c]], vis[ih[c]],
-                    t_acc[ih[c]] + _dot(o - o_prev[ih[c]], d), m_prev[ih[c]])
+                    t_acc[ih[c]] + _dot(o - o_prev[ih[c]], d))
             pdf_prev = np.where(is_delta[c], 0.0, pdf[c])
             p_prev, n_prev = v.p[c], v.ns_wo()[c]
             vis = np.where(refl, 1, 2).astype(np.int8)
             t_acc = np.zeros(c.size)
-            m_prev = np.asarray(v.mat, np.int64)[c]
+            if track:
+                prev += (m_prev[ih[c]],)
+                m_prev = np.asarray(v.mat, np.int64)[c]
             for a, b in zip((pdf_prev, p_prev, n_prev, vis, t_acc, m_prev), prev):
                 a[x] = b[x]
             path = v.path[c]

@@ -150,15 +150,21 @@ def table_receivers(scene, mtab) -> Optional[np.ndarray]:
     return out
 
 
+def active(light_table, mtab) -> bool:
+    """Whether :func:`lit` tests anything (the renderer's tables have light
+    linking): the stages keep a ray's receiver only then."""
+    return (getattr(light_table, "link_sets", None) is not None
+            and getattr(mtab, "receiver", None) is not None)
+
+
 def lit(light_table, mtab, rows, mats) -> Optional[np.ndarray]:
     """(K,) bool whether the emitter rows (K,) (-1: none) light the
     material-table rows mats (K,) (-1: a camera ray, which every emitter
     lights), or None when every emitter lights everything (no linking).
     ``light_table.link_sets`` and ``mtab.receiver`` (Renderer setup)."""
-    sets = getattr(light_table, "link_sets", None)
-    rec = getattr(mtab, "receiver", None)
-    if sets is None or rec is None:
+    if not active(light_table, mtab):
         return None
+    sets, rec = light_table.link_sets, mtab.receiver
     rows = np.asarray(rows, np.int64)
     mats = np.asarray(mats, np.int64)
     out = np.ones(rows.shape[0], bool)

@@ -516,7 +516,8 @@ class CameraPass:
         if shadow_attached(self.accel) is not None and np.any(mis[0][keep] > 0):
             out = tuple(np.where(straight.reshape((-1,) + (1,) * (a.ndim - 1)), a[keep], 0.0)
                         for a in mis[:3])
-        left = np.where(straight, mis[3][keep], mat[keep])
+        left = (np.where(straight, mis[3][keep], mat[keep]) if self._tri_light is not None
+                else _no_mis(keep.size)[3])     # (without light linking: not read)
         return (keep, o, wi, bt[keep] * wgt[keep], plen[keep], last, st) + out + (left,)
 
     def _emitting(self, beta, pdf):
@@ -638,7 +639,8 @@ class CameraPass:
         o, last = self._leaving(g.p[keep], g.ng[keep], g.wo[keep], wi)
         return (keep, o, wi, g.beta[keep] * wgt[keep], plen[keep], last,
                 np.zeros(keep.size, bool), dz[keep], pdf[keep], g.p[keep], g.n[keep],
-                np.asarray(g.mat, np.int64)[keep])
+                np.asarray(g.mat, np.int64)[keep] if self._tri_light is not None
+                else _no_mis(keep.size)[3])
 
     def _trace_compiled(self, rng, rays, dz, vp, L, check_stop):
         """The camera pass with the per-hit work in ``camera_kernels.hit_kernel``
