@@ -26,7 +26,21 @@ import numpy as np
 def triangle_weights(scene) -> Optional[np.ndarray]:
     """(T,) float32 the holdout weight of each triangle (1 on a holdout
     object, else its material's ``holdout``), or None when every one is 0
-    (the renderer's plain path)."""
+    (the renderer's plain path).  Computed once per scene: the camera pass,
+    the camera paths, light tracing, the light table and the film all ask
+    (kept on the scene with the arrays it was computed from)."""
+    key = (getattr(scene, "tri_mat", None), getattr(scene, "materials", None),
+           getattr(scene, "tri_holdout", None), getattr(scene, "material_camera", None))
+    memo = getattr(scene, "__dict__", {}).get("_holdout_weights")
+    if memo is not None and all(a is b for a, b in zip(memo[0], key)):
+        return memo[1]
+    w = _weights(scene)
+    if hasattr(scene, "__dict__"):
+        scene.__dict__["_holdout_weights"] = (key, w)
+    return w
+
+
+def _weights(scene) -> Optional[np.ndarray]:
     h = np.array([float(getattr(m, "holdout", 0.0)) for m in getattr(scene, "materials", ())],
                  np.float32)
     obj = getattr(scene, "tri_holdout", None)
