@@ -48,6 +48,7 @@ from .export_graph import GRAPH_NODES, GraphReader, constant_value
 from .export_links import light_link_sets
 from .world_bake_job import CAMERA_RAY, LIGHTING_RAY, SHADOW_RAY
 from ..core.scene.linking import LINK_ALL, split_materials
+from ..core.materials.table import is_delta_lobe
 from ..core.scene.ray_variants import clear_shadows
 from .export_read import CHUNK, _never, image_pixels, mesh_arrays
 
@@ -259,8 +260,12 @@ SUPPORT = (
      "paths' BSDF rays find and its photons' and light paths' first hits reach only the "
      "objects it lights, as Cycles' receiver sets; seen directly it is always seen",
      SUPPORTED, ""),
-    ("shadow linking (an emitter's Blocker Collection)", IGNORED,
-     "ignored: every object blocks every light"),
+    ("shadow linking (an emitter's Blocker Collection, Include and Exclude, lights and "
+     "emissive objects): its light samples, photons and light paths pass the objects that do "
+     "not block it, which it still lights, as Cycles' blocker sets; its light at a rough "
+     "surface comes from light samples alone (Cycles: both strategies, the same expectation)",
+     APPROXIMATED, "a mirror or glass in front of the emitter shows it only where no object "
+                   "stands between them"),
     ("shadow catcher", IGNORED, "ignored: rendered as ordinary surfaces"),
     ("volume objects", IGNORED, "volume object(s) not rendered"),
     ("adaptive subdivision", IGNORED, ""),
@@ -1292,11 +1297,6 @@ def _objects(obs) -> str:
     return f"{len(names)} object(s) ({', '.join(names[:3])}{', ...' if len(names) > 3 else ''})"
 
 
-def _shadow_linked(ob) -> bool:
-    ll = getattr(ob, "light_linking", None)
-    return ll is not None and ll.blocker_collection is not None
-
-
 def _has_hair(ob) -> bool:
     return ob.type == 'CURVES' or any(
         ps.settings.type == 'HAIR' and ps.settings.render_type == 'PATH'
@@ -1382,8 +1382,6 @@ FEATURE_CHECKS = (
      "(camera and shadow visibility are honoured)"),
     ("world ray visibility", lambda sc, obs: _world_partly_visible(sc.world),
      "world: diffuse, glossy, transmission or volume ray visibility treated as on"),
-    ("shadow linking", lambda sc, obs: [ob for ob in obs if _shadow_linked(ob)],
-     "shadow linking of {} ignored: every object blocks every light"),
     ("hair", lambda sc, obs: [ob for ob in obs if _has_hair(ob)],
      "hair of {} not rendered"),
     ("shadow catcher", lambda sc, obs: [ob for ob in obs if ob.type in GEOMETRY_TYPES
@@ -1432,6 +1430,8 @@ class _Exporter:
         self.holdout_parts: list[np.ndarray] = []     # is_holdout per triangle of parts
         self.receiver_parts: list[np.ndarray] = []    # light-linking receiver set per triangle
         self.emitter_parts: list[np.ndarray] = []     # light-linking membership per triangle
+        self.blocker_parts: list[np.ndarray] = []     # shadow-linking blocker set per triangle
+        self.shadowed_parts: list[np.ndarray] = []    # shadow-linking membership per triangle
         self.mat_index: dict = {}
         self.textures: list[np.ndarray] = []
         self.tex_index: dict = {}      # (image name, reading) -> index into textures
@@ -1834,7 +1834,7 @@ class _Exporter:
         if T <= CHUNK:
             return drop_invalid_triangles(fscene)
         per_tri = ("tri_p", "tri_n", "tri_uv", "tri_mat", "tri_object_index", "tri_tangent",
-                   "tri_visibility", "tri_holdout")
+                   "tri_visibility", "tri_holdout", "tri_blocker", "tri_shadow_sets")
         bands, dropped = [], 0
         for a in range(0, T, CHUNK):
             band = dataclasses.replace(fscene, **{
@@ -2363,8 +2363,11 @@ class _Exporter:
         seen = {}
         render_mode = getattr(self.dg, "mode", 'RENDER') == 'RENDER'
         # Light linking (addon/export_links.py): receiver sets, memberships.
-        receiver, membership, notes = light_link_sets(
-            [getattr(o, "original", o) for o in self.dg.objects])
+        originals = [getattr(o, "original", o) for o in self.dg.objects]
+        receiver, membership, notes = light_link_sets(originals)
+        self.notes += notes
+        # Shadow linking: blocker sets, shadow memberships (the same rules).
+        blocker, shadowed, notes = light_link_sets(originals, "shadow")
         self.notes += notes
         for inst in self.dg.object_instances:
             self.poll()
@@ -2384,6 +2387,8 @@ class _Exporter:
                 if lt is not None:
                     if ob.name in membership:
                         lt = dataclasses.replace(lt, link_sets=membership[ob.name])
+                    if ob.name in shadowed:
+                        lt = dataclasses.replace(lt, shadow_sets=shadowed[ob.name])
                     lights.append(lt)
                 continue
             if ob.type not in GEOMETRY_TYPES:
@@ -2405,6 +2410,11 @@ class _Exporter:
                                         for q in parts[n0:]]
                 self.emitter_parts += [np.full(len(q[0]), membership.get(ob.name, LINK_ALL),
                                                np.uint64) for q in parts[n0:]]
+            if blocker or shadowed:
+                self.blocker_parts += [np.full(len(q[0]), blocker.get(ob.name, 0), np.uint8)
+                                       for q in parts[n0:]]
+                self.shadowed_parts += [np.full(len(q[0]), shadowed.get(ob.name, LINK_ALL),
+                                                np.uint64) for q in parts[n0:]]
             if len(parts) > n0:
                 self.n_objects += 1
                 self.n_instances += bool(inst.is_instance)
@@ -2451,6 +2461,10 @@ class _Exporter:
                        film_transparent=bool(getattr(scene.render, "film_transparent", False)),
                        mist=self.mist(), tri_tangent=tri_tangent,
                        tri_visibility=self.tri_visibility(), tri_holdout=self.tri_holdout(),
+                       tri_blocker=(self.concatenate(self.blocker_parts, np.uint8)
+                                    if self.blocker_parts else None),
+                       tri_shadow_sets=(self.concatenate(self.shadowed_parts, np.uint64)
+                                        if self.shadowed_parts else None),
                        **seen_rows)
         self.notes += self.holdout_notes(tri_mat, fscene.tri_holdout)
         # Objects that shadow rays see through untouched (Light Path Is
@@ -2462,6 +2476,12 @@ class _Exporter:
             self.notes.append(f"Light Path Is Shadow Ray: shadow rays see {', '.join(names[:3])} "
                               f"as another material; photons and light paths see the "
                               f"material itself")
+        if fscene.tri_blocker is not None and any(
+                is_delta_lobe(lb.kind, lb.roughness, lb.ior) for m in fscene.materials
+                for lb in m.lobes):
+            self.notes.append(
+                "shadow linking: "
+                "a mirror or glass in front of the emitter shows it only where no object stands between them")
         if self.receiver_parts:
             # One material per (material, receiver set, membership): every
             # stage then knows a vertex's receiver set by its material.

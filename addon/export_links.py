@@ -1,4 +1,4 @@
-"""Light linking as Blender's depsgraph resolves it: receiver sets and memberships.
+"""Light and shadow linking as Blender's depsgraph resolves them: sets and memberships.
 
 An emitter (a light, or an object whose material emits) with a Receiver
 Collection (Object > Light Linking) lights only part of the scene.  Blender
@@ -10,7 +10,9 @@ overrides an earlier one); each distinct light set is a *receiver set* id
 1..63, 0 being the objects no collection names.  An emitter's membership is
 the sets whose include mask has its collection's bit (all sets when none
 has), less those whose exclude mask has it.  core.scene.linking applies
-Cycles' test to those numbers.
+Cycles' test to those numbers.  Shadow linking (a Blocker Collection) is
+built by the same rules from the blocker collections: *blocker sets* and
+*shadow memberships* (core.scene.shadow_linking).
 """
 from __future__ import annotations
 
@@ -20,9 +22,13 @@ from ..core.scene.linking import LINK_ALL
 MAX_SETS = 64
 
 
-def _receivers(ob):
+#: The collection each kind of linking reads (Object > Light Linking).
+LINK_COLLECTION = {"light": "receiver_collection", "shadow": "blocker_collection"}
+
+
+def _linked_collection(ob, kind: str):
     ll = getattr(ob, "light_linking", None)
-    return None if ll is None else ll.receiver_collection
+    return None if ll is None else getattr(ll, LINK_COLLECTION[kind], None)
 
 
 def _each_object(collection, visit) -> None:
@@ -40,19 +46,22 @@ def _each_object(collection, visit) -> None:
         visit(entry.light_linking.link_state, ob)
 
 
-def light_link_sets(objects) -> tuple[dict, dict, list]:
+def light_link_sets(objects, kind: str = "light") -> tuple[dict, dict, list]:
     """(receiver set by object name (absent: 0), membership by emitter object
-    name (absent: LINK_ALL), notes) of the (original) objects."""
+    name (absent: LINK_ALL), notes) of the (original) objects; kind
+    'shadow': (blocker set, shadow membership, notes) instead."""
     bits, notes = {}, []
     emitters = {}
+    what = f"{kind} linking"
     for ob in objects:
-        coll = _receivers(ob)
+        coll = _linked_collection(ob, kind)
         if coll is None:
             continue
         key = coll.as_pointer()
         if key not in bits:
             if len(bits) == MAX_SETS:
-                notes.append(f"light linking: more than {MAX_SETS} receiver collections, "
+                notes.append(f"{what}: more than {MAX_SETS} "
+                             f"{'receiver' if kind == 'light' else 'blocker'} collections, "
                              f"'{coll.name}' ignored")
                 continue
             bits[key] = (1 << len(bits), coll)
@@ -78,8 +87,8 @@ def light_link_sets(objects) -> tuple[dict, dict, list]:
             continue
         if key not in ids:
             if len(ids) == MAX_SETS - 1:
-                notes.append(f"light linking: more than {MAX_SETS - 1} light sets, "
-                             f"'{name}' lit as an unlinked object")
+                notes.append(f"{what}: more than {MAX_SETS - 1} sets, "
+                             f"'{name}' taken as an unlinked object")
                 continue
             ids[key] = len(ids) + 1
         receiver[name] = ids[key]

@@ -82,6 +82,7 @@ class Accel:
         self._kinds: dict = {}               # flags -> the Accel those rays see
         self._hidden: dict = {}              # flags -> hidden_from's array or None
         self._hidden_key = b""
+        self._views: list = []               # the scenes of ``without``
         self._scene = None
         tri = self.tri_p if _subset is None else self.tri_p[_subset]
         if tri.shape[0]:
@@ -114,6 +115,25 @@ class Accel:
                             _subset=np.nonzero(~hid)[0].astype(np.int32), _base=base)
                 sub._hidden_key = key
         base._kinds[flags] = sub
+        return sub
+
+    def without(self, hidden: np.ndarray) -> "Accel":
+        """The scene without the triangles hidden (T,) bool (a shadow
+        linking view, core.scene.shadow_linking): built once per set of
+        hidden triangles, shared with :meth:`for_rays`' scenes; self's base
+        when nothing is hidden."""
+        base = self.base
+        if not np.any(hidden):
+            return base
+        key = np.asarray(hidden, bool).tobytes()
+        sub = next((a for a in list(base._kinds.values()) + list(base._views)
+                    if a is not base and a._hidden_key == key), None)
+        if sub is None:
+            sub = Accel(base.tri_p, base.diameter,
+                        _subset=np.nonzero(~np.asarray(hidden, bool))[0].astype(np.int32),
+                        _base=base)
+            sub._hidden_key = key
+            base._views.append(sub)
         return sub
 
     def hidden_from(self, flags: int) -> np.ndarray | None:

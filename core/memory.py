@@ -148,15 +148,23 @@ def keeps_first_hits(data_passes: bool, integrator: str, merging: bool | None = 
     return integrator == "COMBINED" and (merging is None or bool(merging))
 
 
-def view_triangles(visibility) -> int:
+def view_triangles(visibility, scene=None) -> int:
     """The triangles of the Embree views a render builds besides the full
     scene (core.accel.Accel.for_rays at camera and shadow rays), from a
-    Scene's tri_visibility (T,) uint8 or None."""
+    Scene's tri_visibility (T,) uint8 or None; with the scene, also shadow
+    linking's (core.scene.shadow_linking: at most every triangle a view, a
+    view a distinct shadow membership)."""
     from .accel import RAY_CAMERA, RAY_SHADOW, hidden_triangles
     n = 0
     for flag in (RAY_CAMERA, RAY_SHADOW):
         hid = hidden_triangles(visibility, flag)
         n += 0 if hid is None else int(np.count_nonzero(~hid))
+    if scene is not None and getattr(scene, "tri_blocker", None) is not None:
+        from .scene.linking import LINK_ALL
+        sets = {int(lt.shadow_sets) for lt in scene.lights}
+        if scene.tri_shadow_sets is not None:
+            sets |= {int(s) for s in np.unique(scene.tri_shadow_sets)}
+        n += len(sets - {LINK_ALL}) * int(scene.tri_blocker.shape[0])
     return n
 
 

@@ -65,6 +65,7 @@ from .lights import shadow
 from .lights.nee import NextEventEstimation
 from .materials import build_material_table
 from .scene.linking import table_receivers
+from .scene.shadow_linking import views as shadow_views
 from .plan import RenderPlan, make_plan, merges, with_camera_stop
 from .sanity import check_resolution, check_scene, recentre
 from .scene.camera import CameraModel, FilterSampler
@@ -155,9 +156,11 @@ class Renderer:
                                       frame=self.full_size,
                                       transparent=self.scene.film_transparent,
                                       glossy_chains=self.plan.glossy_chains)
-        # Shadow rays pass the objects whose Shadow visibility is off.
-        self.direct_light = NextEventEstimation(self.light_table, self.mtab,
-                                                self.accel.for_rays(RAY_SHADOW), self.scene.tri_p)
+        # Shadow rays pass the objects whose Shadow visibility is off, and
+        # those that do not block their emitter (shadow linking).
+        self.direct_light = NextEventEstimation(
+            self.light_table, self.mtab, self.accel.for_rays(RAY_SHADOW), self.scene.tri_p,
+            views=shadow_views(self.accel, self.scene, self.light_table))
         self.camera_pass.nee = self.direct_light    # the glossy points' shadow rays
         freq = self.plan.frequency_photons
         self.radii = Radii(st, self.camera, self.D, freq, self.camera_pass, self.height, self.width)
@@ -293,7 +296,7 @@ class Renderer:
                                       sector_cells=SECTOR_CELLS if needs_sectors(st0, st0.use_frequency) else 0,
                                       clip_kernel=st0.clip_kernel,
                                       chunks_ahead=AHEAD_CHUNKS,
-                                      view_triangles=memory.view_triangles(scene.tri_visibility),
+                                      view_triangles=memory.view_triangles(scene.tri_visibility, scene),
                                       # CameraPass.first_data (set in __init__), before the plan
                                       first_hits=memory.keeps_first_hits(bool(data_passes(passes)),
                                                                          st0.integrator))

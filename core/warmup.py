@@ -397,14 +397,14 @@ def traces_photons(job) -> bool:
     of triangles: a wrong guess only starts a compiling process for
     nothing); light tracing sees a surface whenever one is diffuse or
     glossy, and without one no rule merges, so ``seen`` is that."""
-    from .materials.table import _is_delta_lobe
+    from .materials.table import is_delta_lobe
     from .plan import merges_photons
     scene, st = tuple(job)[:2]
     if st.photons_per_pass <= 0 or st.integrator not in ("PHOTON", "COMBINED"):
         return False
     if st.integrator == "PHOTON":
         return True
-    delta = [_is_delta_lobe(lb.kind, lb.roughness, lb.ior)
+    delta = [is_delta_lobe(lb.kind, lb.roughness, lb.ior)
              for m in scene.materials for lb in m.lobes]
     has_nondelta = not all(delta)
     return merges_photons(st, any(delta), has_nondelta, scene.tri_p, seen=has_nondelta)

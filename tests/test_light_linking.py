@@ -121,6 +121,81 @@ def test_light_linking_agrees_with_cycles(case, integrator, tmp_path):
     TS._check(err, noise, effect)
 
 
+def _shadow_scene(case):
+    """tests/test_shading_nodes.py's floor and box; "sun": the sun is not
+    blocked by the box (its blocker collection excludes it) and a point
+    light without linking keeps the box's shadow; "area": an area light
+    along the sun's direction and an emitting card out of the camera's
+    view (emitters BSDF rays find too) are not blocked by the box."""
+    import bpy
+    import test_shading_nodes as TS
+    from scenes import bpy_kit as K
+    sc = K.reset_scene((RES, RES), samples=16)
+    box, _, _, _ = TS.floor_and_box()
+    TS.ortho_view(sc, 2.2, sun_energy=3.0 if case == "sun" else 0.0, sun_rotation=(0.8, 0.4, 0))
+    K.set_world(sc, (0.05, 0.05, 0.05))
+    no_box = bpy.data.collections.new("NoBox")
+    no_box.objects.link(box)
+    no_box.collection_objects[0].light_linking.link_state = 'EXCLUDE'
+    if case == "sun":
+        bpy.data.objects["Sun"].light_linking.blocker_collection = no_box
+        ld = bpy.data.lights.new("Point", 'POINT')
+        ld.energy, ld.shadow_soft_size = 25.0, 0.0
+        K.link(bpy.data.objects.new("Point", ld)).location = (-0.7, 0.6, 1.4)
+    else:
+        from mathutils import Euler, Vector
+        # A 1 m area light 4 m away along the sun's direction, and a small
+        # emitting card out of the camera's view; neither is blocked by the box.
+        ld = bpy.data.lights.new("Area", 'AREA')
+        ld.energy, ld.size = 150.0, 1.0
+        area = K.link(bpy.data.objects.new("Area", ld))
+        area.rotation_euler = (0.8, 0.4, 0.0)
+        area.location = 4.0 * (Euler((0.8, 0.4, 0.0)).to_matrix() @ Vector((0, 0, 1)))
+        area.light_linking.blocker_collection = no_box
+        lamp = TS.lamp_over_box()
+        lamp.scale = (0.4, 0.4, 1.0)
+        lamp.location = (-1.5, 0.8, 1.3)
+        lamp.rotation_euler = Vector((1.6, -0.85, -1.0)).to_track_quat('-Z', 'Y').to_euler()
+        lamp.light_linking.blocker_collection = no_box
+    return sc
+
+
+def _unshadowed(scene):
+    return dataclasses.replace(
+        scene, tri_blocker=None, tri_shadow_sets=None,
+        lights=[dataclasses.replace(lt, shadow_sets=LL.LINK_ALL) for lt in scene.lights])
+
+
+#: (case, integrator).  The area light's and card's light at the floor is
+#: their light samples' alone in FPPM (core.scene.shadow_linking), Cycles'
+#: both strategies.
+SHADOW_CASES = [("sun", "PHOTON"), ("sun", "PATH"), ("sun", "LIGHT"),
+                ("area", "PHOTON"), ("area", "PATH")]
+
+
+@pytest.mark.parametrize("case,integrator", SHADOW_CASES,
+                         ids=[f"{c}-{i}" for c, i in SHADOW_CASES])
+def test_shadow_linking_agrees_with_cycles(case, integrator, tmp_path):
+    """Measured: see docs/shading.md "Shadow linking"."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+    sc = _shadow_scene(case)
+    scene, lines = TS._export()
+    assert scene.tri_blocker is not None
+    assert not any("linking" in ln for ln in lines), lines
+    from core.lights import build_light_table
+    from core.scene.shadow_linking import nee_only
+    # The linked rows: the sun; the area light and the card's two triangles.
+    assert nee_only(build_light_table(scene)).sum() == (1 if case == "sun" else 3)
+    err, noise, img, ref = TS.two_seeds(sc, scene, lambda s, seed: _render(s, integrator, seed),
+                                        tmp_path, 256)
+    effect = np.abs(TS.render_integrator(_unshadowed(scene), integrator, 1,
+                                         passes=TS.EFFECT_PASSES) - ref).mean() / ref.mean()
+    print(f"shadow {case} {integrator}: mean {img.mean():.4f} vs Cycles {ref.mean():.4f}; "
+          f"|diff| {err:.4f}, noise {noise:.4f} ({err / noise:.2f}x); blocked {effect:.4f}")
+    TS._check(err, noise, effect)
+
+
 def test_exporter_resolves_nested_collections_as_blender():
     """A child collection's Exclude holds for its nested objects; an object
     named twice takes its last state (Blender visits child collections,

@@ -42,13 +42,6 @@ def _ray_visibility(sc):
     bpy.data.objects["Cube"].visible_glossy = False
 
 
-def _shadow_linking(sc):
-    # (Light linking itself is rendered: tests/test_light_linking.py.)
-    coll = bpy.data.collections.new("Blockers")
-    coll.objects.link(bpy.data.objects["Cube"])
-    bpy.data.objects["Point"].light_linking.blocker_collection = coll
-
-
 def _particle_hair(sc):
     plane = bpy.data.objects["Plane"]
     mod = plane.modifiers.new("Fur", 'PARTICLE_SYSTEM')
@@ -120,8 +113,6 @@ CASES = [
               "(the right eye repeats the left)"),
     (_ray_visibility, "diffuse, glossy or transmission ray visibility of 1 object(s) (Cube) "
                       "treated as visible (camera and shadow visibility are honoured)"),
-    (_shadow_linking, "shadow linking of 1 object(s) (Point) ignored: every object blocks "
-                      "every light"),
     (_particle_hair, "hair of 1 object(s) (Plane) not rendered"),
     (_curves_hair, "hair of 1 object(s) (Strands) not rendered"),
     (_holdout_transparent, "holdout objects: the transparency of Veil ignored (held out "

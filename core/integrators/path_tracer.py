@@ -61,6 +61,7 @@ from ..accel import RAY_CAMERA, hit_uv, intersect_by_kind, surface_point
 from ..scene import holdout as Holdout, ray_variants as RV
 from ..scene import linking
 from ..scene.linking import lit
+from ..scene.shadow_linking import nee_only
 from .. import lights as Lt
 from .. import materials as B
 from ..materials import compiled as C, rough_maps
@@ -202,8 +203,11 @@ class PathTracer:
         self.world = Lt.world_radiance(light_table)
         env = light_table.environment
         self.env = env if env is not None and env.total > 0 else None
-        # Emitters a BSDF-sampled ray can hit (not delta): MIS applies to them.
-        self.hittable = Lt.bsdf_hittable(light_table)
+        # Emitters a BSDF-sampled ray can hit (not delta): MIS applies to
+        # them; a shadow-linked one's light at a non-delta vertex is its light
+        # samples' alone (nee_only; core.scene.shadow_linking).
+        self.hittable = Lt.mis_hittable(light_table)
+        self.nee_only = nee_only(light_table)
         self.compiled = compiled
         # (DirectLights, LightPdf, PathMaterials, TriangleData) or False
         self._kernels = None
@@ -729,6 +733,7 @@ class PathTracer:
             r = m if rows is None else rows[m]
             pl = self.pdf_light(p_prev[r], wi[r], light[m], dist[m], n_prev[r])
             w[m] = power_heuristic(pb[m], pl)
+            w[m[self.nee_only[light[m]]]] = 0.0      # shadow linking: light samples' alone
         return w
 
     def pdf_light(self, p, wi, light, dist, n) -> np.ndarray:
@@ -824,7 +829,8 @@ class PathTracer:
         compiled).  Transparent shadows for every light: a BSDF ray crossing
         a transparent surface is weighed against the light sample of the
         vertex before it (``_trace``: the crossing is no MIS vertex)."""
-        return self.nee.transmittance(p, ng, wi, dist, self.lights.kind[light] == MESH, shadow)
+        return self.nee.transmittance(p, ng, wi, dist, self.lights.kind[light] == MESH, shadow,
+                                      light=light)
 
     def _continue_compiled(self, v: PathVertices, ur, roulette: bool, M) -> "PK.NextRays":
         """The continuation of the vertices v (path_kernels.continue_kernel;

@@ -19,7 +19,9 @@ one BSDF sample of the non-delta lobes towards it, weighed by the balance
 heuristic.  The light samples, the BSDF values, the map's weights and the
 shadow rays' set-up are compiled (core.lights.direct_kernels,
 core.lights.map_mis_kernels, in blocks that two threads share); the numpy
-code (``compiled=False``) stays as their reference.
+code (``compiled=False``) stays as their reference.  With shadow linking
+each shadow ray is cast in its emitter's view of the scene
+(core.scene.shadow_linking: ``views``).
 """
 from __future__ import annotations
 
@@ -61,11 +63,15 @@ class _MapState(NamedTuple):
 
 class NextEventEstimation:
     """Direct light at visible points.  tri_p (T, 3, 3): the triangles of
-    ``accel`` (their planes decide which hits are the emitter or a self-hit)."""
+    ``accel`` (their planes decide which hits are the emitter or a self-hit).
+    views: the emitters' ``shadow_linking.ShadowViews``, or None (every
+    shadow ray in ``accel``)."""
 
-    def __init__(self, light_table, mtab, accel, tri_p: np.ndarray, compiled: bool = True):
+    def __init__(self, light_table, mtab, accel, tri_p: np.ndarray, compiled: bool = True,
+                 views=None):
         self.light_table, self.mtab, self.accel, self.tri_p = light_table, mtab, accel, tri_p
         self.compiled = bool(compiled)
+        self.views = views
         self._lights = None
         self._map_state = None
 
@@ -127,7 +133,8 @@ class NextEventEstimation:
         nz = contrib.max(axis=1) > 0
         q, wi, dist, contrib, casts = q[nz], wi[nz], dist[nz], contrib[nz], casts[nz]
         mesh = smp["kind"][live][nz] == MESH
-        _add_lit(L, q, contrib, self.transmittance(vp.p[q], vp.ng[q], wi, dist, mesh, casts))
+        _add_lit(L, q, contrib, self.transmittance(vp.p[q], vp.ng[q], wi, dist, mesh, casts,
+                                                   light=smp["light"][live][nz]))
         return L
 
     def _direct_blocks(self, vp, q, rng, L) -> None:
@@ -235,7 +242,6 @@ class NextEventEstimation:
         the visible points q) whose shadow rays are not blocked (or what
         transparent surfaces let through); returns L."""
         from . import direct_kernels as DK
-        accel = self.accel
         ok = lit(self.light_table, self.mtab, S.light, vp.mat[q])
         if ok is not None:
             # Light linking: the samples of emitters that do not light the
@@ -243,27 +249,38 @@ class NextEventEstimation:
             S.contrib[~ok] = 0.0
             S.weight[~ok] = 0.0
         sh = DK.alloc_shadow(q.size)
-        n, nm = DK.shadow_kernel(q, vp.p, vp.ng, S, REL_OFFSET, accel.abs_floor / REL_OFFSET,
+        n, nm = DK.shadow_kernel(q, vp.p, vp.ng, S, REL_OFFSET, self.accel.abs_floor / REL_OFFSET,
                                  sh, L)
         if n:
             rows = sh.rows[:n]
-            blocked = _occluded_f32(accel, sh.o32[:n], sh.d32[:n], sh.t32[:n])
-            b = np.nonzero(blocked)[0]
-            if b.size:
-                kb = rows[b]
-                pb, gb, wb = vp.p[q[kb]], vp.ng[q[kb]], S.wi[kb]
-                blocked[b] = self._grazing_self_hit_retry(pb, gb, accel.spawn(pb, gb, wb), wb,
-                                                          S.dist[kb])
+            blocked = np.empty(n, bool)
+            for accel, g in self._split(S.light[rows]):
+                blocked[g] = _occluded_f32(accel, sh.o32[:n][g], sh.d32[:n][g], sh.t32[:n][g])
+                b = g[blocked[g]]
+                if b.size:
+                    kb = rows[b]
+                    pb, gb, wb = vp.p[q[kb]], vp.ng[q[kb]], S.wi[kb]
+                    blocked[b] = self._grazing_self_hit_retry(pb, gb, accel.spawn(pb, gb, wb),
+                                                              wb, S.dist[kb], accel)
             DK.accumulate(q, rows, blocked, S.contrib, L)
             self._through_transparent(vp, q, rows, blocked, S, L)
         if nm:
             km = sh.mesh[:nm]
             qm = q[km]
             blocked = self._blocked(vp.p[qm], vp.ng[qm], S.wi[km], S.dist[km],
-                                    np.ones(nm, bool))
+                                    np.ones(nm, bool), S.light[km])
             DK.accumulate(q, km, blocked, S.contrib, L)
             self._through_transparent(vp, q, km, blocked, S, L, mesh=True)
         return L
+
+    def _split(self, light) -> list:
+        """[(Accel, rows)]: the shadow rays of emitter rows light (K,) by
+        the scene each is cast in (one entry, every row, without shadow
+        linking)."""
+        if self.views is None or light is None:
+            return [(self.accel, np.arange(np.asarray(light).shape[0]) if light is not None
+                     else slice(None))]
+        return self.views.split(light)
 
     def _through_transparent(self, vp, q, rows, blocked, S, L, mesh=False) -> None:
         """Adds to L (P, 3) the light of the blocked shadow rays rows[blocked]
@@ -276,7 +293,7 @@ class NextEventEstimation:
             qk = q[k]
             _add_lit(L, qk, S.contrib[k],
                      self._followed(vp.p[qk], vp.ng[qk], S.wi[k], S.dist[k],
-                                    np.full(k.size, mesh)))
+                                    np.full(k.size, mesh), S.light[k]))
 
     def _compiled_lights(self):
         """The light table for ``direct_kernels`` (None: it needs the numpy sampler)."""
@@ -354,7 +371,8 @@ class NextEventEstimation:
                                                    np.zeros(q.size, bool)))
         return L
 
-    def transmittance(self, p, ng, wi, dist, mesh, cast_shadow=None, through=None) -> np.ndarray:
+    def transmittance(self, p, ng, wi, dist, mesh, cast_shadow=None, through=None,
+                      light=None) -> np.ndarray:
         """(K, 3) float64 light let through by the shadow rays of ``_blocked``
         (same arguments; cast_shadow (K,) bool, False: the light casts no
         shadow, 1): 0 or 1 in scenes without transparent materials (one
@@ -362,26 +380,41 @@ class NextEventEstimation:
         transparent surfaces crossed (core.lights.shadow, Cycles'
         transparent shadows).  through (K,) bool or None (all): the rows
         whose light is not also found by another strategy through the
-        transparent surfaces; on the others any surface blocks."""
-        blocked = self._blocked(p, ng, wi, dist, mesh)
+        transparent surfaces; on the others any surface blocks.  light (K,)
+        the emitter rows (None: every ray in ``accel``): with shadow linking
+        each ray is cast in its emitter's view."""
+        blocked = self._blocked(p, ng, wi, dist, mesh, light)
         if cast_shadow is not None:
             blocked &= cast_shadow
         T = np.repeat((~blocked)[:, None].astype(np.float64), 3, axis=1)
         b = np.nonzero(blocked if through is None else blocked & through)[0]
         if b.size and shadow.attached(self.accel) is not None:
-            T[b] = self._followed(p[b], ng[b], wi[b], dist[b], mesh[b])
+            T[b] = self._followed(p[b], ng[b], wi[b], dist[b], mesh[b],
+                                  None if light is None else np.asarray(light)[b])
         return T
 
-    def _followed(self, p, ng, wi, dist, mesh) -> np.ndarray:
+    def _followed(self, p, ng, wi, dist, mesh, light=None) -> np.ndarray:
         """(K, 3) ``shadow.transmittance`` of shadow rays that the opaque test
         found blocked: their first hit may be a transparent surface."""
-        return shadow.transmittance(self.accel, self.accel.spawn(p, ng, wi), wi, dist,
-                                    emitter=mesh, n0=ng)
+        T = np.empty((p.shape[0], 3))
+        for accel, g in self._split(light):
+            T[g] = shadow.transmittance(accel, accel.spawn(p[g], ng[g], wi[g]), wi[g], dist[g],
+                                        emitter=mesh[g], n0=ng[g])
+        return T
 
-    def _blocked(self, p, ng, wi, dist, mesh) -> np.ndarray:
+    def _blocked(self, p, ng, wi, dist, mesh, light=None) -> np.ndarray:
         """(K,) bool: the shadow ray from p (K, 3) towards wi over dist is
-        occluded; mesh (K,) bool: the sample lies on an emissive triangle."""
-        accel = self.accel
+        occluded; mesh (K,) bool: the sample lies on an emissive triangle;
+        light (K,) its emitter rows (shadow linking's views) or None."""
+        if self.views is not None and light is not None:
+            blocked = np.empty(p.shape[0], bool)
+            for accel, g in self.views.split(light):
+                blocked[g] = self._blocked_in(accel, p[g], ng[g], wi[g], dist[g], mesh[g])
+            return blocked
+        return self._blocked_in(self.accel, p, ng, wi, dist, mesh)
+
+    def _blocked_in(self, accel, p, ng, wi, dist, mesh) -> np.ndarray:
+        """:meth:`_blocked` with every shadow ray cast in ``accel``."""
         o = accel.spawn(p, ng, wi)
         blocked = np.zeros(p.shape[0], bool)
         # Analytic lights are not geometry: any hit before them occludes.
@@ -390,7 +423,8 @@ class NextEventEstimation:
             blocked[a] = accel.occluded(o[a], wi[a], dist[a])
             b = a[blocked[a]]
             if b.size:
-                blocked[b] = self._grazing_self_hit_retry(p[b], ng[b], o[b], wi[b], dist[b])
+                blocked[b] = self._grazing_self_hit_retry(p[b], ng[b], o[b], wi[b], dist[b],
+                                                          accel)
         # Emissive triangles are geometry: the shadow ray must not be stopped by
         # the emitter itself.  Embree's float32 hit distance errs by about
         # offset/|cos| at grazing angles, so a closest hit counts as the emitter
@@ -411,7 +445,7 @@ class NextEventEstimation:
         """(K, 3) float64 unit geometric normals of triangles prim (K,)."""
         return shadow.unit_normals(self.tri_p, prim)
 
-    def _grazing_self_hit_retry(self, p, ng, o, wi, dist) -> np.ndarray:
+    def _grazing_self_hit_retry(self, p, ng, o, wi, dist, accel=None) -> np.ndarray:
         """(K,) bool: still blocked after discarding float32 self-hits.
 
         Embree subtracts the ray origin from the vertices in float32, so a
@@ -422,9 +456,10 @@ class NextEventEstimation:
         of the origin is such a self-hit: the ray is cast again from an
         offset relative to that triangle's vertices.  A real occluder is
         never that close to the origin's plane at a magnitude that large, so
-        shadows are kept.
+        shadows are kept.  accel: the scene the ray is cast in (None: ``accel``).
         """
-        h = self.accel.intersect(o, wi, dist)
+        accel = self.accel if accel is None else accel
+        h = accel.intersect(o, wi, dist)
         still = h.hit.copy()
         i = np.nonzero(h.hit)[0]
         if i.size == 0:
@@ -433,9 +468,9 @@ class NextEventEstimation:
         j = i[self_hit]
         if j.size:
             side = np.where(_dot(ng[j], wi[j]) >= 0, 1.0, -1.0)
-            off = np.maximum(eps[self_hit], self.accel.offset_scale(p[j]))
+            off = np.maximum(eps[self_hit], accel.offset_scale(p[j]))
             o2 = p[j] + ng[j] * (side * off)[:, None]
-            still[j] = self.accel.occluded(o2, wi[j], dist[j])
+            still[j] = accel.occluded(o2, wi[j], dist[j])
         return still
 
 

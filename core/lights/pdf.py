@@ -158,6 +158,15 @@ def bsdf_hittable(table: LightTable) -> np.ndarray:
             | (((k == POINT) | (k == SPOT)) & (table.radius > 0)))
 
 
+def mis_hittable(table: LightTable) -> np.ndarray:
+    """(Nl,) bool: the emitters whose light a BSDF-sampled ray from a
+    non-delta vertex finds and weighs against light samples:
+    :func:`bsdf_hittable`'s, less those with shadow linking, which light
+    samples alone find there (core.scene.shadow_linking.nee_only)."""
+    from ..scene.shadow_linking import nee_only
+    return bsdf_hittable(table) & ~nee_only(table)
+
+
 def bsdf_sees(table: LightTable, hittable: np.ndarray, light: np.ndarray, ng: np.ndarray,
               wo: np.ndarray, wi: np.ndarray) -> np.ndarray:
     """(K,) bool: a BSDF ray leaving a vertex (mesh normal ng, wo (K, 3)) along

@@ -134,6 +134,10 @@ class LightTable:
     # (Nl,) uint64 the receiver sets each emitter lights (light linking,
     # core.scene.linking), or None: every emitter lights every object.
     link_sets: np.ndarray = None
+    # (Nl,) uint64 the blocker sets whose objects shadow each emitter (shadow
+    # linking, core.scene.shadow_linking), or None: every object shadows
+    # every emitter.
+    shadow_sets: np.ndarray = None
 
     @property
     def n(self) -> int:
@@ -479,6 +483,14 @@ def build_light_table(scene: Scene) -> LightTable:
     table.spot_tail = _spot_tails(table, scene.tri_p)
     from ..scene.linking import emitter_sets
     table.link_sets = emitter_sets(scene, table)
+    from ..scene.shadow_linking import emitter_shadow_sets
+    table.shadow_sets = emitter_shadow_sets(scene, table)
+    if table.shadow_sets is not None and getattr(scene, "tri_blocker", None) is not None:
+        # Shadow rays of some emitter pass objects that light paths meet,
+        # as with Shadow visibility off.
+        table.shadow_passes = True
+    else:
+        table.shadow_sets = None
     return table
 
 

@@ -92,7 +92,7 @@ class MaterialTable:
         return int(self.kind.shape[0])
 
 
-def _is_delta_lobe(kind: int, roughness: float, ior: float) -> bool:
+def is_delta_lobe(kind: int, roughness: float, ior: float) -> bool:
     if kind == TRANSPARENT:
         return True
     if kind in (GLOSSY, GLASS, REFRACTION):
@@ -178,7 +178,7 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
                     white = len(textures)
                     textures.append(np.ones((1, 1, 3), np.float32))
                 tex[m, j] = white
-            delta[m, j] = _is_delta_lobe(kind[m, j], rough[m, j], ior[m, j])
+            delta[m, j] = is_delta_lobe(kind[m, j], rough[m, j], ior[m, j])
             # Optional Lobe attribute (the exporter sets it from the node's
             # distribution); plain GGX when absent.
             ms[m, j] = (bool(getattr(lobe, "multiscatter", DEFAULT_MULTISCATTER))

@@ -149,6 +149,8 @@ class Light:
       shading point (Cycles' default), giving I cos / (d^2 + r^2).
     link_sets: the receiver sets the light lights (light linking, a 64-bit
       mask: core.scene.linking; LINK_ALL without linking).
+    shadow_sets: the blocker sets whose objects shadow the light (shadow
+      linking, core.scene.shadow_linking; LINK_ALL without).
     """
     name: str
     kind: str
@@ -168,6 +170,7 @@ class Light:
     cast_shadow: bool = True
     use_soft_falloff: bool = True   # Cycles >= 4.0 point/spot default
     link_sets: int = field(default=(1 << 64) - 1, repr=False)
+    shadow_sets: int = field(default=(1 << 64) - 1, repr=False)
 
 
 @dataclass(frozen=True)
@@ -245,6 +248,10 @@ class Scene:
       material's objects, and material_emitter (M,) uint64 the sets an
       emissive material's objects light (core.scene.linking: the exporter
       gives each combination a material of its own), or None (no linking).
+    tri_blocker: (T,) uint8 the shadow-linking blocker set of each
+      triangle's object, and tri_shadow_sets (T,) uint64 the blocker sets
+      that shadow it as an emitter (core.scene.shadow_linking), or None (no
+      shadow linking).
     """
     tri_p: np.ndarray
     tri_n: np.ndarray
@@ -271,6 +278,8 @@ class Scene:
     material_emitter: Optional[np.ndarray] = None
     material_camera: Optional[np.ndarray] = None
     material_shadow: Optional[np.ndarray] = None
+    tri_blocker: Optional[np.ndarray] = None
+    tri_shadow_sets: Optional[np.ndarray] = None
 
     def __post_init__(self):
         self.attach_shading_normals()
@@ -390,7 +399,10 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       material_receiver=scene.material_receiver,
                       material_emitter=scene.material_emitter,
                       material_camera=scene.material_camera,
-                      material_shadow=scene.material_shadow)
+                      material_shadow=scene.material_shadow,
+                      tri_blocker=None if scene.tri_blocker is None else scene.tri_blocker[ok],
+                      tri_shadow_sets=None if scene.tri_shadow_sets is None
+                      else scene.tri_shadow_sets[ok])
     return scene, dropped
 
 
@@ -428,11 +440,14 @@ def scene_digest(scene: Scene) -> str:
     if getattr(scene, "material_receiver", None) is not None:
         h.update(b"linking" + np.ascontiguousarray(scene.material_receiver).tobytes()
                  + np.ascontiguousarray(scene.material_emitter).tobytes())
+    for name in ("tri_blocker", "tri_shadow_sets"):
+        if getattr(scene, name, None) is not None:
+            h.update(name.encode() + np.ascontiguousarray(getattr(scene, name)).tobytes())
     for lt in scene.lights:
-        # (link_sets only when set: older checkpoints keep their digest)
+        # (link_sets, shadow_sets only when set: older checkpoints keep their digest)
         h.update(repr({k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
                        for k, v in lt.__dict__.items()
-                       if k != "link_sets" or v != (1 << 64) - 1}).encode())
+                       if k not in ("link_sets", "shadow_sets") or v != (1 << 64) - 1}).encode())
     cam = scene.camera
     h.update(repr({k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
                    for k, v in cam.__dict__.items()}).encode())

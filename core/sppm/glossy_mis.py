@@ -38,6 +38,7 @@ from ..materials import compiled as C
 from ..materials.fast import GENERIC, build_fast_materials
 from ..lights.table import MESH
 from ..scene.linking import lit
+from ..scene.shadow_linking import nee_only
 from ..mathutil import dot as _dot, power_heuristic
 
 
@@ -79,7 +80,8 @@ class GlossyMIS:
 
     def __init__(self, light_table, mtab, T: int):
         self.lights, self.mtab = light_table, mtab
-        self.hittable = Lt.bsdf_hittable(light_table)
+        self.hittable = Lt.mis_hittable(light_table)
+        self.nee_only = nee_only(light_table)       # (core.scene.shadow_linking)
         self.tri_light, self.world_row = Lt.emitter_rows(light_table, T)
         self._compiled = None
         self._lights_k = None
@@ -121,6 +123,7 @@ class GlossyMIS:
         m = np.nonzero((light >= 0) & (pdf_b > 0))[0]
         if m.size:
             w[m] = power_heuristic(pdf_b[m], self._pdf_light(p[m], wi[m], light[m], dist[m], n[m]))
+            w[m[self.nee_only[light[m]]]] = 0.0      # shadow linking: light samples' alone
         return w
 
     def _pdf_light(self, p, wi, light, dist, n) -> np.ndarray:
@@ -220,7 +223,8 @@ class GlossyMIS:
         r = np.nonzero(live & np.isfinite(w))[0]
         if r.size:
             tr = nee.transmittance(g.p[r], g.ng[r], S.wi[r], S.dist[r],
-                                   self.lights.kind[S.light[r]] == MESH, S.shadow[r])
+                                   self.lights.kind[S.light[r]] == MESH, S.shadow[r],
+                                   light=S.light[r])
             out[r] = S.contrib[r] * tr * w[r, None]
         return out
 
@@ -249,7 +253,7 @@ class GlossyMIS:
         ok = lit(lt, self.mtab, light, h.mat)
         if ok is not None:
             w = w * ok                  # light linking (core.scene.linking)
-        tr = nee.transmittance(h.p, h.ng, wi, dist, lt.kind[light] == MESH, shadow)
+        tr = nee.transmittance(h.p, h.ng, wi, dist, lt.kind[light] == MESH, shadow, light=light)
         out[r] = contrib * tr * w[:, None]
         return out
 

@@ -43,6 +43,7 @@ from ..materials.fast import GENERIC, build_fast_materials
 from . import photon_kernels as PK
 from ..accel import _COUNT_LOCK, RAY_SHADOW, REL_OFFSET, hit_uv, intersect_f32
 from ..scene.linking import light_links, unlit_first_hits
+from ..scene.shadow_linking import views as shadow_views
 from ..kept import _ALONE, _refcounts
 from ..scene.model import Scene
 from .update import R_FLOOR_REL
@@ -280,9 +281,9 @@ class _Follow:
 
 def _delta_landing(light_table, mtab, scene, hidden):
     """(delta emitter rows (Nl,) bool: points and spots of radius 0, suns
-    of angle 0; the shadowless triangles (``hidden`` (T,) bool, or None)
-    whose material has delta lobes only (T,) bool), or None when either
-    is empty."""
+    of angle 0; the triangles some emitter's shadow rays pass (``hidden``
+    (T,) bool, or None) whose material has delta lobes only (T,) bool), or
+    None when either is empty."""
     if hidden is None:
         return None
     from ..lights import POINT, SPOT, SUN
@@ -332,7 +333,17 @@ class PhotonTracer:
         # rays pass (Cycles cannot hit such a light by a BSDF ray, so it
         # shows no caustic of it there), and is not bounced on
         # (_trace_hidden_first).
-        self._delta_landing = _delta_landing(light_table, mtab, scene, self._shadow_hidden)
+        # Shadow linking (core.scene.shadow_linking): each emitter's first
+        # segment in its own view, and the second set lands on the objects
+        # that view leaves out.  None: no shadow linking.
+        self.views = shadow_views(accel, scene, light_table)
+        hidden = self._shadow_hidden
+        if self.views is not None:
+            hid = [h for h in self.views.hidden if h is not None]
+            hidden = np.logical_or.reduce(hid) if hid else None
+        # Whether a second set of photons lands on what shadow rays pass.
+        self._second_set = hidden is not None
+        self._delta_landing = _delta_landing(light_table, mtab, scene, hidden)
         # Light linking (core.scene.linking): (the emitter rows' memberships
         # (Nl,) uint64, each triangle's receiver set (T,) int64), or None.
         # A photon whose first hit is on an object its emitter does not
@@ -491,7 +502,7 @@ class PhotonTracer:
         deposits are appended to dep.  Each keeps its emitted power: the two
         sets split the light's direct light by where it lands, as shadow
         rays do, and together carry it to every surface they light."""
-        if self._shadow_hidden is not None and n:
+        if self._second_set and n:
             self._trace_rows(u_emit, ph, 0, n, rng, dep, first="hidden")
 
     def _trace_batch(self, u_emit, ph, a: int, b: int, rng, dep: _Deposits, n_freq: int = 0):
@@ -574,7 +585,7 @@ class PhotonTracer:
             # Soft lights: each kept photon's emitter row and disc sample
             # (the rows also for light linking's first hits).
             soft = self.soft_lights is not None
-            want_rows = (soft or self.link is not None
+            want_rows = (soft or self.link is not None or self.views is not None
                          or (first == "hidden" and self._delta_landing is not None))
             rows = np.empty(n if want_rows else 1, np.int64)
             disc = np.empty((n if want_rows else 1, 4))
@@ -602,7 +613,8 @@ class PhotonTracer:
                 cone = (src, np.ascontiguousarray(ph["light"][a:b], np.int64),
                         np.ascontiguousarray(ph["soft_disc"][a:b], np.float64))
             emitter = (np.asarray(ph["light"][a:b], np.int64)[src[:K]]
-                       if self.link is not None or first == "hidden" else None)
+                       if self.link is not None or first == "hidden" or self.views is not None
+                       else None)
             if nf:
                 Kf = int(np.searchsorted(src[:K], nf))      # kept in order
                 spec = np.asarray(ph["freq_init"], np.float64)[a:b][src[:Kf]]
@@ -645,12 +657,15 @@ class PhotonTracer:
             acc = (self.accel.for_rays(RAY_SHADOW) if bounce == 0 and first == "shadow"
                    else self.accel)
             hits = PK.EmbreeHits(*intersect_f32(acc, live.o32[:K], live.d32[:K]))
-            if bounce == 0 and first == "hidden":
+            if bounce == 0 and self.views is not None:
+                self._first_in_views(hits, live, K, emitter, first)
+            elif bounce == 0 and first == "hidden":
                 # Only the first hits on objects whose Shadow is off go on.
                 h = hits.prim[:K] >= 0
                 h[h] = ~hidden[hits.prim[:K][h]]
                 hits.prim[:K][h] = -1
-                if self._delta_landing is not None:
+            if bounce == 0 and first == "hidden":
+                if self._delta_landing is not None:     # (hits kept: shadow rays pass them)
                     dl, tri = self._delta_landing
                     k = np.nonzero(hits.prim[:K] >= 0)[0]
                     off = k[dl[emitter[k]] & tri[hits.prim[:K][k]]]
@@ -745,6 +760,28 @@ class PhotonTracer:
                 if nfd:
                     dep.freq_rows.append(np.arange(step.dep0, step.dep0 + nfd))
             K = n_next
+
+    def _first_in_views(self, hits, live, K: int, emitter, first: str) -> None:
+        """Shadow linking: the first hits (K photons, their emitter rows
+        emitter (K,)) as each emitter's shadow rays see the scene, in place:
+        "shadow", cast again in the view of each linked emitter's photons;
+        "hidden" (cast in the whole scene), kept only on the triangles that
+        view leaves out."""
+        V = self.views
+        g = V.group[emitter[:K]]
+        prim = hits.prim[:K]
+        for i, acc in enumerate(V.accels):
+            k = np.nonzero(g == i)[0]
+            if k.size == 0:
+                continue
+            if first == "hidden":
+                hid = V.hidden[i]
+                h = k[prim[k] >= 0]
+                off = h if hid is None else h[~hid[prim[h]]]
+                prim[off] = -1
+            elif i > 0:
+                p, u, v, t = intersect_f32(acc, live.o32[k], live.d32[k])
+                prim[k], hits.bu[k], hits.bv[k], hits.tfar[k] = p, u, v, t
 
     @staticmethod
     def _frequency_split(Kf: int, n_fast: int, n_next: int, src) -> tuple:
