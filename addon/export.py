@@ -243,7 +243,14 @@ SUPPORT = (
     ("Principled sheen", IGNORED, "ignored: no sheen lobe"),
     ("anisotropy", IGNORED, "anisotropy ignored"),
     ("thin-film iridescence", IGNORED, "thin-film iridescence ignored"),
-    ("volumes", IGNORED, "volume ignored"),
+    ("a Volume Absorption of constant Color and Density in a material's Volume (coloured "
+     "glass, liquids): Beer-Lambert attenuation of every ray inside the closed surface, "
+     "shadow rays through transparent surfaces included, as Cycles' volume stack for volumes "
+     "that neither nest nor overlap", SUPPORTED, ""),
+    ("a material with a Volume and no Surface: its boundary lets every ray through, as in "
+     "Cycles", SUPPORTED, ""),
+    ("volumes that scatter, emit or vary (Volume Scatter, Principled Volume, a textured or "
+     "mixed volume shader)", IGNORED, "volume ignored"),
     ("material displacement: a Displacement node's Height (an image or a texture graph) as "
      "the bump Cycles renders by default (Displacement method Bump Only)", SUPPORTED, ""),
     ("true displacement (Displacement method Displacement or Both: moved vertices)",
@@ -1224,8 +1231,14 @@ class _MaterialBuilder:
             self.notes.append("no Material Output: black")
             return Material(self.name, lobes=(), emission=(0.0, 0.0, 0.0))
         m = self.shader(active[0].inputs["Surface"])
-        if active[0].inputs.get("Volume") is not None and active[0].inputs["Volume"].is_linked:
-            self.notes.append("volume ignored")
+        absorption = ()
+        vol = active[0].inputs.get("Volume")
+        if vol is not None and vol.is_linked:
+            absorption = self.absorption(vol)
+            if not active[0].inputs["Surface"].is_linked:
+                # Cycles: a volume's object without a surface shader has no
+                # surface, every ray passes its boundary (SD_HAS_ONLY_VOLUME).
+                m = Material(self.name, lobes=(Lobe(TRANSPARENT, (1.0, 1.0, 1.0)),))
         displaced = self.displacement(active[0])
         m = self._regular(m)
         normal = None
@@ -1263,7 +1276,22 @@ class _MaterialBuilder:
                                          normal=normal, camera=None, shadow=None)
                 for k in ("camera", "shadow")}
         return Material(self.name, m.lobes, m.emission, m.emission_texture, tuple(notes),
-                        normal=normal, holdout=m.holdout, **seen)
+                        normal=normal, holdout=m.holdout, absorption=absorption, **seen)
+
+    def absorption(self, socket) -> tuple:
+        """sigma_a (3,) [1/m] of a Volume Absorption of constant Color c and
+        Density rho linked into the Volume output: rho (1 - c), Cycles'
+        extinction of an absorption closure (core.scene.absorption); () and
+        a note for any other volume."""
+        node, _, _ = self.follow(socket)
+        if (node is not None and node.type == 'VOLUME_ABSORPTION' and not node.mute
+                and not any(node.inputs[k].is_linked for k in ("Color", "Density"))):
+            c = np.asarray(node.inputs["Color"].default_value[:3], np.float64)
+            rho = max(float(node.inputs["Density"].default_value), 0.0)
+            sigma = rho * np.clip(1.0 - c, 0.0, None)
+            return tuple(float(x) for x in sigma) if sigma.max() > 0 else ()
+        self.notes.append("volume ignored")
+        return ()
 
     def _regular(self, m: Material) -> Material:
         """m within what core's tables hold: MAX_LOBES lobes (the heaviest),

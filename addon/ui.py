@@ -644,6 +644,11 @@ REPLACED = {
     "VIEWLAYER_PT_layer_passes": "FPPM_VIEWLAYER_PT_passes",
 }
 
+#: The panels of the volumes FPPM ignores (a constant Volume Absorption is
+#: rendered: docs/shading.md "Absorbing volumes").
+VOLUMES_IGNORED = ("volumes that scatter, emit or vary (Volume Scatter, Principled Volume, "
+                   "a textured or mixed volume shader): ignored")
+
 # Panels a Cycles user sees that FPPM hides, because FPPM ignores what they
 # set ("<feature>: ignored" names a row of addon/export.py SUPPORT), or why
 # they have no meaning for FPPM.  A panel whose parent is hidden is hidden with it.
@@ -657,7 +662,7 @@ HIDDEN = {
     "CYCLES_RENDER_PT_light_paths_clamping": "clamping: ignored",
     "CYCLES_RENDER_PT_light_paths_caustics": "caustics are what photons render: no filter",
     "CYCLES_RENDER_PT_light_paths_fast_gi": "Cycles' fast GI approximation",
-    "CYCLES_RENDER_PT_volumes": "volumes: ignored",
+    "CYCLES_RENDER_PT_volumes": VOLUMES_IGNORED,
     "CYCLES_RENDER_PT_subdivision": "adaptive subdivision: ignored",
     "CYCLES_RENDER_PT_curves": "hair curves: ignored",
     "CYCLES_RENDER_PT_simplify": "Cycles' copy of Simplify (FPPM gets Blender's, ANY_ENGINE)",
@@ -680,10 +685,10 @@ HIDDEN = {
     "OBJECT_PT_shadow_terminator": "shadow terminator, caustics flags: ignored",
     # data / material / world tabs
     "CYCLES_LIGHT_PT_nodes": "light nodes: ignored",
-    "CYCLES_MATERIAL_PT_volume": "volumes: ignored",
+    "CYCLES_MATERIAL_PT_volume": VOLUMES_IGNORED,
     "CYCLES_MATERIAL_PT_settings_surface": "Cycles' displacement method, emission "
                                            "sampling, transparent shadows, thin walls",
-    "CYCLES_MATERIAL_PT_settings_volume": "volumes: ignored",
+    "CYCLES_MATERIAL_PT_settings_volume": VOLUMES_IGNORED,
     "CYCLES_CAMERA_PT_lens_custom_parameters": "custom (OSL) cameras: FPPM renders "
                                                "perspective and orthographic cameras",
     "DATA_PT_context_lightprobe": "light probes: ignored",
@@ -692,7 +697,7 @@ HIDDEN = {
     "DATA_PT_lightprobe_parallax": "light probes: ignored",
     "DATA_PT_lightprobe_visibility": "light probes: ignored",
     "EEVEE_MATERIAL_PT_viewport_settings": "EEVEE material settings: ignored",
-    "CYCLES_WORLD_PT_volume": "volumes: ignored",
+    "CYCLES_WORLD_PT_volume": VOLUMES_IGNORED,
     "CYCLES_WORLD_PT_settings": "Cycles' world sampling (the world is a constant colour)",
 }
 

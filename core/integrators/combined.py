@@ -34,6 +34,7 @@ from . import mis as M
 from . import path_kernels as PathK
 from ..sppm import photon_kernels as PK
 from .light_tracer import LightTracer, _triangles
+from ..scene import absorption as Absorb
 from ..scene.linking import unlit_first_hits
 
 
@@ -745,6 +746,8 @@ class CombinedLightTracer(LightTracer):
                 # Light linking: no light arrives on an unlit first hit.
                 unlit_first_hits(hits.prim[:K], np.asarray(ph["light"], np.int64)[src[:K]],
                                  *tr.link)
+            Absorb.attenuate(tr.absorb, hits.prim[:K], hits.tfar[:K], live.d64[:K],
+                             live.power[:K])        # absorbing volumes
             step = PK.BounceStep(K=K, first=bounce == 0, store=True,
                                  sample=bounce < self.max_bounces,
                                  roulette=bounce + 1 >= self.rr_start, bounce=bounce,

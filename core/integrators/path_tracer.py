@@ -58,7 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..accel import RAY_CAMERA, hit_uv, intersect_by_kind, surface_point
-from ..scene import holdout as Holdout, ray_variants as RV
+from ..scene import absorption as Absorb, holdout as Holdout, ray_variants as RV
 from ..scene import linking
 from ..scene.linking import lit
 from ..scene.shadow_linking import nee_only
@@ -184,6 +184,7 @@ class PathTracer:
         # (T,) holdout weights or None: camera rays end on holdout objects
         # (core.scene.holdout; the film's alpha is the camera pass's).
         self._holdout = Holdout.triangle_weights(scene)
+        self._absorb = Absorb.of_scene(scene)        # absorbing volumes, or None
         # (M,) the materials camera rays see in place of others (a Light
         # Path node, core.scene.ray_variants), or None: the hits of rays
         # still on the camera ray's line are shaded with them.
@@ -435,6 +436,7 @@ class PathTracer:
             check_stop()
             # ``first``: camera rays, which pass the objects hidden from the camera.
             h = intersect_by_kind(accel, RAY_CAMERA, first, o, d, tmax)
+            Absorb.attenuate(self._absorb, h.prim, h.t, d, beta)
             ends = Holdout.camera_hits(self._holdout, h.prim, first, beta, None, path)
             t_end = np.minimum(np.where(h.hit, h.t, np.inf), tmax)
             # Analytic emitters before the hit, per ray type's visibility flag.

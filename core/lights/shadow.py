@@ -14,6 +14,9 @@ follows the same rule with batched Embree calls: closest hit, its weight
 a new ray from just past the surface, until every segment ends or is
 blocked.
 
+A crossing out of an absorbing volume (core.scene.absorption) also takes
+the volume's Beer-Lambert factor of the segment that reached it.
+
 Scenes without a transparent material attach nothing (``attach`` returns
 False; the render plan then says no "transparent shadows") and
 ``transmittance`` is one ``Accel.occluded`` call, as before.
@@ -47,11 +50,13 @@ _ATTR_CAMERA = "_transparent_for_camera"
 class ShadowMaterials:
     """What a shadow ray needs at a hit: the material table, tri_mat (T,)
     int64, tri_uv (T, 3, 2) float32, and transparent (M,) bool: the
-    material has a used TRANSPARENT lobe (the others are opaque)."""
+    material has a used TRANSPARENT lobe (the others are opaque); absorb
+    the scene's absorbing volumes (core.scene.absorption) or None."""
     mtab: object
     tri_mat: np.ndarray
     tri_uv: np.ndarray
     transparent: np.ndarray
+    absorb: object = None
 
 
 def transparent_materials(mtab) -> np.ndarray:
@@ -73,9 +78,11 @@ def attach(accel, scene, mtab) -> bool:
     tri = np.asarray(scene.tri_mat, np.int64)
     uv = np.asarray(scene.tri_uv)
     seen = {k: RV.rows(scene, k) for k in ("shadow", "camera")}
-    sv = ShadowMaterials(mtab, RV.seen(seen["shadow"], tri), uv, tr)
+    from ..scene.absorption import of_scene
+    ab = of_scene(scene)
+    sv = ShadowMaterials(mtab, RV.seen(seen["shadow"], tri), uv, tr, ab)
     cv = (sv if seen["shadow"] is None and seen["camera"] is None
-          else ShadowMaterials(mtab, RV.seen(seen["camera"], tri), uv, tr))
+          else ShadowMaterials(mtab, RV.seen(seen["camera"], tri), uv, tr, ab))
     setattr(accel, _ATTR, sv)
     setattr(accel, _ATTR_CAMERA, cv)
     return True
@@ -199,6 +206,10 @@ def transmittance(accel, o: np.ndarray, d: np.ndarray, t_max, emitter=None,
             crossings[live[c]] += 1
             w[crossings[live[c]] > MAX_CROSSINGS] = 0.0      # Cycles: too many -> opaque
             T[live[c]] *= w
+            if sm is not None and sm.absorb is not None:
+                # The segment to a crossing out of an absorbing volume.
+                from ..scene.absorption import attenuate
+                attenuate(sm.absorb, prim[c], h.t[hi[c]], d[live[c]], T, rows=live[c])
         # Continue from just past the surface (a self-hit: from farther off it).
         side = np.where(_dot(n, d[live]) >= 0, 1.0, -1.0)
         off = np.where(sh, np.maximum(eps, accel.offset_scale(p)), accel.offset_scale(p))

@@ -118,6 +118,9 @@ class Material:
       None (a Light Path node's Is Camera Ray / Is Shadow Ray in the shader:
       core.scene.ray_variants; the exporter appends them to the scene's
       materials, ``Scene.material_camera`` / ``material_shadow``).
+    absorption: (3,) the absorption coefficient sigma_a [1/m] of the
+      homogeneous volume inside the surface (Cycles' Volume Absorption:
+      density x (1 - color)), or () without one (core.scene.absorption).
     """
     name: str
     lobes: tuple = (Lobe(DIFFUSE),)
@@ -128,6 +131,7 @@ class Material:
     holdout: float = field(default=0.0, repr=False)
     camera: object = field(default=None, repr=False)
     shadow: object = field(default=None, repr=False)
+    absorption: tuple = field(default=(), repr=False)
 
 
 @dataclass(frozen=True)
@@ -426,6 +430,8 @@ def scene_digest(scene: Scene) -> str:
               for j, lb in enumerate(m.lobes) if getattr(lb, "view", ())]
     extra += [(i, "holdout", m.holdout) for i, m in enumerate(scene.materials)
               if getattr(m, "holdout", 0.0)]
+    extra += [(i, "absorption", m.absorption) for i, m in enumerate(scene.materials)
+              if getattr(m, "absorption", ())]
     if extra:
         h.update(repr(extra).encode())
     if scene.tri_tangent is not None:

@@ -44,6 +44,7 @@ from . import photon_kernels as PK
 from ..accel import _COUNT_LOCK, RAY_SHADOW, REL_OFFSET, hit_uv, intersect_f32
 from ..scene.linking import light_links, unlit_first_hits
 from ..scene.shadow_linking import views as shadow_views
+from ..scene import absorption as Absorb
 from ..kept import _ALONE, _refcounts
 from ..scene.model import Scene
 from .update import R_FLOOR_REL
@@ -349,6 +350,8 @@ class PhotonTracer:
         # A photon whose first hit is on an object its emitter does not
         # light ends there (unlit_first_hits).
         self.link = light_links(light_table, mtab, scene)
+        # Absorbing volumes (core.scene.absorption), or None.
+        self.absorb = Absorb.of_scene(scene)
         # Photon rays cast by this tracer (accel.rays_cast also counts the
         # camera's, which may be cast meanwhile: PhotonPass.trace_ahead).
         self.rays_cast = 0
@@ -672,6 +675,9 @@ class PhotonTracer:
                     hits.prim[:K][off] = -1
             if bounce == 0 and self.link is not None:
                 unlit_first_hits(hits.prim[:K], emitter, *self.link)
+            # Absorbing volumes: the power left after a segment inside one.
+            Absorb.attenuate(self.absorb, hits.prim[:K], hits.tfar[:K], live.d64[:K],
+                             live.power[:K])
             with _COUNT_LOCK:                    # the halves run in two threads
                 self.rays_cast += K
             step = PK.BounceStep(K=K, first=bounce == 0,

@@ -33,7 +33,7 @@ import numpy as np
 from ..accel import RAY_CAMERA, cast_by_kind, intersect_by_kind, surface_point
 from ..lights.shadow import attached as shadow_attached
 from ..kept import KeptArrays
-from ..scene import holdout as Holdout, normals as shading_normals, ray_variants as RV
+from ..scene import absorption as Absorb, holdout as Holdout, normals as shading_normals, ray_variants as RV
 from ..scene.linking import lit
 from .. import lights as Lt
 from .. import materials as B
@@ -190,6 +190,7 @@ class CameraPass:
         # (T,) holdout weights or None (core.scene.holdout: camera rays end on
         # holdout objects and add the weight to the film's transparency).
         self._holdout = Holdout.triangle_weights(scene)
+        self._absorb = Absorb.of_scene(scene)        # absorbing volumes, or None
         # (M,) the materials camera rays see in place of others (a Light
         # Path node, core.scene.ray_variants), or None: hits still on the
         # camera ray's line are shaded with them.
@@ -405,6 +406,7 @@ class CameraPass:
             # hidden from the camera.
             h = intersect_by_kind(accel, RAY_CAMERA, see_through, o, d, tmax)
             hit = h.hit
+            Absorb.attenuate(self._absorb, h.prim, h.t, d, beta)
             ends = Holdout.camera_hits(self._holdout, h.prim, see_through, beta, first.escape,
                                        idx)
             # Analytic emitters (area lights, light spheres) seen before the hit.
@@ -786,6 +788,7 @@ class CameraPass:
         prim, tfar = hit4[0], hit4[3]
         hit = prim >= 0
         t = np.where(hit, tfar, np.inf).astype(np.float64)
+        Absorb.attenuate(self._absorb, prim, t, d, beta)
         ends = Holdout.camera_hits(self._holdout, prim, see_through, beta, first.escape, idx)
         self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, self._emitting(beta, mis[0]),
                          last, see_through, fast=True, split=split, left=mis[3])
