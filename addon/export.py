@@ -47,6 +47,7 @@ from .export_atlas import AtlasBaker, needs_atlas
 from .export_graph import GRAPH_NODES, GraphReader, constant_value
 from .export_links import light_link_sets
 from .world_bake_job import CAMERA_RAY, LIGHTING_RAY, SHADOW_RAY
+from ..core.scene.holdout import see_through
 from ..core.scene.linking import LINK_ALL, split_materials
 from ..core.materials.table import is_delta_lobe
 from ..core.scene.ray_variants import clear_shadows
@@ -219,9 +220,9 @@ SUPPORT = (
      "with constant Facs: camera rays, also through transparent surfaces, end there and "
      "leave the film transparent (alpha, with either film, as Cycles writes it); every other "
      "ray sees the object's material; light tracing splats nothing there", SUPPORTED, ""),
-    ("a holdout object whose material is transparent (a Transparent BSDF, an alpha "
-     "texture): held out where it is transparent too", APPROXIMATED,
-     "ignored (held out where it is transparent too)"),
+    ("a holdout object whose material lets light through (a Transparent BSDF, an image's "
+     "alpha): held out by 1 - its transparency at each hit, camera rays passing on through "
+     "its Transparent closures alone, as Cycles", SUPPORTED, ""),
     ("a Holdout shader mixed by an image's alpha (half and half) or a view factor (its "
      "value at normal incidence)", APPROXIMATED, "a Holdout mixed by"),
     ("stereo 3D / multi-view", APPROXIMATED, "every view is rendered from the scene camera"),
@@ -1838,20 +1839,6 @@ class _Exporter:
             return None
         return self.concatenate(self.holdout_parts, bool)
 
-    def holdout_notes(self, tri_mat, held) -> list[str]:
-        """A note when a holdout object's material lets light through
-        (Cycles keeps the transparency of a holdout object's material; here
-        the holdout covers the whole surface)."""
-        if held is None:
-            return []
-        see = [self.materials[i].name for i in np.unique(tri_mat[held])
-               if any(lb.kind == TRANSPARENT or lb.alpha_texture >= 0
-                      for lb in self.materials[i].lobes)]
-        if not see:
-            return []
-        return [f"holdout objects: the transparency of {', '.join(sorted(see)[:3])} "
-                f"ignored (held out where it is transparent too)"]
-
     def drop_invalid(self, fscene: Scene) -> tuple[Scene, int]:
         """``drop_invalid_triangles`` band by band, polled between bands.
 
@@ -2494,7 +2481,8 @@ class _Exporter:
                        tri_shadow_sets=(self.concatenate(self.shadowed_parts, np.uint64)
                                         if self.shadowed_parts else None),
                        **seen_rows)
-        self.notes += self.holdout_notes(tri_mat, fscene.tri_holdout)
+        # A holdout object keeps its material's transparency (core.scene.holdout).
+        fscene = see_through(fscene)
         # Objects that shadow rays see through untouched (Light Path Is
         # Shadow Ray into a white Transparent BSDF): shadowless.
         fscene = clear_shadows(fscene)

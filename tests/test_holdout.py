@@ -51,13 +51,44 @@ def test_weights_and_the_rays_that_end():
     np.testing.assert_allclose(escape, [0.0, 0.2, 1.0, 0.5])
 
 
+def test_a_transparent_holdout_object_keeps_its_transparency():
+    """see_through: a holdout object's material with a Transparent lobe is
+    copied, camera rays seeing that lobe alone; its weight is then taken
+    per hit, 1 - the transparency there, and the film's transparency gets
+    average((1 - T) x throughput)."""
+    from core.scene.model import DIFFUSE, TRANSPARENT, Lobe, Material
+    mats = [Material("leaf", (Lobe(DIFFUSE, weight=0.6), Lobe(TRANSPARENT, (1, .5, 0), 0.4))),
+            Material("wall")]
+    from analytic_scenes import look_down_ortho, quad
+    from core.scene.model import make_scene
+    tris = np.concatenate([quad((x, 0, 0), (0, 0.4, 0), (0.4, 0, 0)) for x in (-1, 1)])
+    sc = dataclasses.replace(make_scene(tris, mats, [], look_down_ortho(3.0, 2.0, 4),
+                                        tri_mat=[0, 0, 1, 0]),
+                             tri_holdout=np.array([True, True, True, False]))
+    out = H.see_through(sc)
+    assert list(out.tri_mat) == [2, 2, 1, 0] and len(out.materials) == 4
+    assert out.materials[2] is mats[0] and list(out.material_camera) == [0, 1, 3, 3]
+    assert [lb.kind for lb in out.materials[3].lobes] == [TRANSPARENT]
+    w = H.triangle_weights(out)
+    assert np.isnan(w[0]) and np.isnan(w[1]) and w[2] == 1.0 and w[3] == 0.0
+    T = np.array([[0.4, 0.2, 0.0]])
+    escape = np.zeros(1)
+    ends = H.camera_hits(w, np.array([0]), np.array([True]), np.array([[1.0, 0.5, 1.0]]),
+                         escape, np.array([0]), (np.zeros(1), np.zeros(1)),
+                         lambda p, u, v: T)
+    assert not ends[0]
+    np.testing.assert_allclose(escape, [((1 - T) * [1.0, 0.5, 1.0]).mean()])
+
+
 def _scene(case):
     """A 2.4 m grey floor seen from above (orthographic) under a tilted sun,
     a red box floating over it; "object": the box is a holdout, Film >
     Transparent; "opaque": the same, the film opaque; "shader": the box's
     material a Mix Shader of a Holdout and its Diffuse at 0.5; "veil": the
     holdout box seen through a tinted Transparent BSDF; "emitter": no sun,
-    an emitting square over the box that is a holdout lights the scene."""
+    an emitting square over the box that is a holdout lights the scene;
+    "see": the holdout box's material lets light through (a Mix Shader of
+    its Diffuse and a tinted Transparent BSDF at 0.4)."""
     import test_shading_nodes as TS
     from scenes import bpy_kit as K
     sc = K.reset_scene((RES, RES), samples=16)
@@ -68,7 +99,15 @@ def _scene(case):
         nt.links.new(nt.nodes.new('ShaderNodeHoldout').outputs[0], mix.inputs[1])
         nt.links.new(d.outputs[0], mix.inputs[2])
         nt.links.new(mix.outputs[0], out.inputs["Surface"])
-    box.is_holdout = case in ("object", "opaque", "veil")
+    if case == "see":
+        mix = nt.nodes.new('ShaderNodeMixShader')
+        mix.inputs["Fac"].default_value = 0.4
+        t = nt.nodes.new('ShaderNodeBsdfTransparent')
+        t.inputs["Color"].default_value = (0.9, 0.7, 0.5, 1.0)
+        nt.links.new(d.outputs[0], mix.inputs[1])
+        nt.links.new(t.outputs[0], mix.inputs[2])
+        nt.links.new(mix.outputs[0], out.inputs["Surface"])
+    box.is_holdout = case in ("object", "opaque", "veil", "see")
     if case == "veil":
         TS.veil_over_box()
     if case == "emitter":
@@ -111,7 +150,7 @@ def _compare(a1, a2, c1, c2, ch):
 #: alone: it is the emitter case's.
 CASES = [("object", "PHOTON"), ("object", "PATH"), ("object", "LIGHT"),
          ("opaque", "PHOTON"), ("shader", "PATH"), ("veil", "PHOTON"),
-         ("emitter", "COMBINED")]
+         ("emitter", "COMBINED"), ("see", "PHOTON"), ("see", "PATH")]
 RGB, ALPHA = slice(0, 3), slice(3, 4)
 
 
@@ -127,9 +166,12 @@ def test_holdout_agrees_with_cycles(case, integrator, tmp_path):
     else:
         assert scene.tri_holdout is not None and scene.tri_holdout.sum() == (
             2 if case == "emitter" else 12)
+        assert (scene.material_camera is not None) == (case == "see")
     a1, a2 = _render(scene, integrator, 1), _render(scene, integrator, 2)
+    # (Without the holdout: "see"'s camera rays see the whole material again.)
     plain = dataclasses.replace(scene, tri_holdout=None, materials=[
-        dataclasses.replace(m, holdout=0.0) for m in scene.materials])
+        dataclasses.replace(m, holdout=0.0) for m in scene.materials],
+        **({"material_camera": None} if case == "see" else {}))
     without = TS.render_integrator(plain, integrator, 1, rgba=True, passes=TS.EFFECT_PASSES)
     for name, ch in (("colour", RGB), ("alpha", ALPHA)):
         if name == "alpha" and integrator == "LIGHT":

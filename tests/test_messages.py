@@ -53,17 +53,6 @@ def _curves_hair(sc):
     H.link(bpy.data.objects.new("Strands", bpy.data.hair_curves.new("Strands")), sc)
 
 
-def _holdout_transparent(sc):
-    # (A holdout itself is rendered: tests/test_holdout.py.)
-    cube = bpy.data.objects["Cube"]
-    cube.is_holdout = True
-    from scenes import bpy_kit as K
-    mat, nt, out = K._new_material("Veil")
-    nt.links.new(nt.nodes.new('ShaderNodeBsdfTransparent').outputs[0], out.inputs["Surface"])
-    cube.data.materials.clear()
-    cube.data.materials.append(mat)
-
-
 def _shadow_catcher(sc):
     bpy.data.objects["Cube"].is_shadow_catcher = True
 
@@ -115,8 +104,6 @@ CASES = [
                       "treated as visible (camera and shadow visibility are honoured)"),
     (_particle_hair, "hair of 1 object(s) (Plane) not rendered"),
     (_curves_hair, "hair of 1 object(s) (Strands) not rendered"),
-    (_holdout_transparent, "holdout objects: the transparency of Veil ignored (held out "
-                           "where it is transparent too)"),
     (_shadow_catcher, "shadow catcher of 1 object(s) (Cube) ignored: rendered as ordinary "
                       "surfaces"),
     (_volume_object, "volume object(s) not rendered: 1 object(s) (Smoke)"),

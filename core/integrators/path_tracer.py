@@ -184,6 +184,7 @@ class PathTracer:
         # (T,) holdout weights or None: camera rays end on holdout objects
         # (core.scene.holdout; the film's alpha is the camera pass's).
         self._holdout = Holdout.triangle_weights(scene)
+        self._held_through = Holdout.transparency(accel)    # (PER_HIT weights)
         self._absorb = Absorb.of_scene(scene)        # absorbing volumes, or None
         # (M,) the materials camera rays see in place of others (a Light
         # Path node, core.scene.ray_variants), or None: the hits of rays
@@ -437,7 +438,8 @@ class PathTracer:
             # ``first``: camera rays, which pass the objects hidden from the camera.
             h = intersect_by_kind(accel, RAY_CAMERA, first, o, d, tmax)
             Absorb.attenuate(self._absorb, h.prim, h.t, d, beta)
-            ends = Holdout.camera_hits(self._holdout, h.prim, first, beta, None, path)
+            ends = Holdout.camera_hits(self._holdout, h.prim, first, beta, None, path,
+                                       (h.u, h.v), self._held_through)
             t_end = np.minimum(np.where(h.hit, h.t, np.inf), tmax)
             # Analytic emitters before the hit, per ray type's visibility flag.
             for sel, Le, row, t in self._seen(kern, vis, o, d, t_end):

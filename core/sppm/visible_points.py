@@ -190,6 +190,7 @@ class CameraPass:
         # (T,) holdout weights or None (core.scene.holdout: camera rays end on
         # holdout objects and add the weight to the film's transparency).
         self._holdout = Holdout.triangle_weights(scene)
+        self._held_through = Holdout.transparency(accel)    # (PER_HIT weights)
         self._absorb = Absorb.of_scene(scene)        # absorbing volumes, or None
         # (M,) the materials camera rays see in place of others (a Light
         # Path node, core.scene.ray_variants), or None: hits still on the
@@ -408,7 +409,7 @@ class CameraPass:
             hit = h.hit
             Absorb.attenuate(self._absorb, h.prim, h.t, d, beta)
             ends = Holdout.camera_hits(self._holdout, h.prim, see_through, beta, first.escape,
-                                       idx)
+                                       idx, (h.u, h.v), self._held_through)
             # Analytic emitters (area lights, light spheres) seen before the hit.
             self._seen_along(depth, L, first, o, d, tmax, h.t, hit, idx,
                              self._emitting(beta, mis[0]), last, see_through, left=mis[3])
@@ -789,7 +790,8 @@ class CameraPass:
         hit = prim >= 0
         t = np.where(hit, tfar, np.inf).astype(np.float64)
         Absorb.attenuate(self._absorb, prim, t, d, beta)
-        ends = Holdout.camera_hits(self._holdout, prim, see_through, beta, first.escape, idx)
+        ends = Holdout.camera_hits(self._holdout, prim, see_through, beta, first.escape, idx,
+                                   hit4[1:3], self._held_through)
         self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, self._emitting(beta, mis[0]),
                          last, see_through, fast=True, split=split, left=mis[3])
         ew = self._glossy_emission(L, idx, o, d, t, prim, beta, last, mis)
