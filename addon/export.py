@@ -125,7 +125,14 @@ SUPPORT = (
      SUPPORTED, ""),
     ("point, spot, sun and area lights (every shape, spread), colour, temperature, "
      "power, exposure, radius, soft falloff, Normalize, cast shadow", SUPPORTED, ""),
-    ("light ray visibility: camera, glossy, transmission", SUPPORTED, ""),
+    ("light ray visibility: camera, diffuse, glossy, transmission (its light samples leave "
+     "the lobes of the hidden kinds out, as Cycles; BSDF rays and mirror or glass chains of "
+     "those kinds do not see it), and an emissive object's diffuse, glossy and transmission "
+     "visibility in its light samples", SUPPORTED, ""),
+    ("photons and light paths of a light hidden from diffuse, glossy or transmission rays: a "
+     "first hit with only such lobes stops them; a first bounce off a material with lobes "
+     "of both kinds keeps every lobe", APPROXIMATED,
+     "a first bounce off a material with lobes of both kinds keeps every lobe"),
     ("world Background colour x strength; mist pass settings", SUPPORTED, ""),
     ("world Environment Texture (equirectangular) with Mapping and Texture Coordinate "
      "(Generated, Object): HDRI lighting, importance-sampled", SUPPORTED, ""),
@@ -1409,6 +1416,10 @@ FEATURE_CHECKS = (
     ("ray visibility", lambda sc, obs: [ob for ob in obs if _partly_visible(ob)],
      "diffuse, glossy or transmission ray visibility of {} treated as visible "
      "(camera and shadow visibility are honoured)"),
+    ("light visibility", lambda sc, obs: [ob for ob in obs if ob.type == 'LIGHT' and not all(
+        getattr(ob, "visible_" + k, True) for k in ("diffuse", "glossy", "transmission"))],
+     "photons and light paths of {} (hidden from some kind of ray): "
+     "a first bounce off a material with lobes of both kinds keeps every lobe"),
     ("world ray visibility", lambda sc, obs: _world_partly_visible(sc.world),
      "world: diffuse, glossy, transmission or volume ray visibility treated as on"),
     ("hair", lambda sc, obs: [ob for ob in obs if _has_hair(ob)],
@@ -2114,6 +2125,7 @@ class _Exporter:
                   visible_camera=bool(getattr(ob, "visible_camera", True)),
                   visible_glossy=bool(getattr(ob, "visible_glossy", True)),
                   visible_transmission=bool(getattr(ob, "visible_transmission", True)),
+                  visible_diffuse=bool(getattr(ob, "visible_diffuse", True)),
                   cast_shadow=bool(getattr(ld, "use_shadow", True)))
         if getattr(ld, "node_tree", None) is not None and _use_nodes(ld) and any(
                 nd.type not in ('EMISSION', 'OUTPUT_LIGHT') for nd in ld.node_tree.nodes):

@@ -42,6 +42,10 @@ def _ray_visibility(sc):
     bpy.data.objects["Cube"].visible_glossy = False
 
 
+def _light_visibility(sc):
+    bpy.data.objects["Point"].visible_diffuse = False
+
+
 def _particle_hair(sc):
     plane = bpy.data.objects["Plane"]
     mod = plane.modifiers.new("Fur", 'PARTICLE_SYSTEM')
@@ -102,6 +106,9 @@ CASES = [
               "(the right eye repeats the left)"),
     (_ray_visibility, "diffuse, glossy or transmission ray visibility of 1 object(s) (Cube) "
                       "treated as visible (camera and shadow visibility are honoured)"),
+    (_light_visibility, "photons and light paths of 1 object(s) (Point) (hidden from some "
+                        "kind of ray): a first bounce off a material with lobes of both kinds "
+                        "keeps every lobe"),
     (_particle_hair, "hair of 1 object(s) (Plane) not rendered"),
     (_curves_hair, "hair of 1 object(s) (Strands) not rendered"),
     (_shadow_catcher, "shadow catcher of 1 object(s) (Cube) ignored: rendered as ordinary "

@@ -73,8 +73,8 @@ NEE_OWNS_DELTA_DIRECT = True
 def light_classes(table) -> np.ndarray:
     """(Nl,) int8: FULL (area, mesh, radius-0 point/spot: three-way weights),
     SOFT (point/spot of radius > 0: LT weighted against the camera strategies
-    on the path prefix) or NO_LT (sun, world, lights hidden from glossy or
-    transmission rays: camera strategies only).  Every row is NO_LT in a
+    on the path prefix) or NO_LT (sun, world, emitters hidden from diffuse,
+    glossy or transmission rays: camera strategies only).  Every row is NO_LT in a
     scene where shadow rays pass some object (Shadow visibility off:
     ``LightTable.shadow_passes``; or shadow rays see a material as another,
     a Light Path node's Is Shadow Ray): light paths still meet it, so their
@@ -85,6 +85,9 @@ def light_classes(table) -> np.ndarray:
     kind = table.kind
     pt = (kind == POINT) | (kind == SPOT)
     vis = (table.visible_glossy & table.visible_transmission) | (kind == MESH)
+    hidden = getattr(table, "hidden", None)
+    if hidden is not None:
+        vis &= np.asarray(hidden) == 0        # (core.lights.lobe_visibility)
     cls = np.full(table.n, NO_LT, np.int8)
     cls[((kind == AREA) | (kind == MESH) | (pt & (table.radius <= 0))) & vis] = FULL
     cls[pt & (table.radius > 0) & vis] = SOFT

@@ -61,7 +61,7 @@ from ..accel import RAY_CAMERA, hit_uv, intersect_by_kind, surface_point
 from ..scene import absorption as Absorb, holdout as Holdout, ray_variants as RV
 from ..scene import linking
 from ..scene.linking import lit
-from ..scene.shadow_linking import nee_only
+from ..lights.lobe_visibility import masked_colors
 from .. import lights as Lt
 from .. import materials as B
 from ..materials import compiled as C, rough_maps
@@ -206,10 +206,10 @@ class PathTracer:
         env = light_table.environment
         self.env = env if env is not None and env.total > 0 else None
         # Emitters a BSDF-sampled ray can hit (not delta): MIS applies to
-        # them; a shadow-linked one's light at a non-delta vertex is its light
-        # samples' alone (nee_only; core.scene.shadow_linking).
+        # them; a shadow-linked one's or one hidden from some kind of ray's
+        # light at a non-delta vertex is its light samples' alone.
         self.hittable = Lt.mis_hittable(light_table)
-        self.nee_only = nee_only(light_table)
+        self.nee_only = Lt.samples_only(light_table)
         self.compiled = compiled
         # (DirectLights, LightPdf, PathMaterials, TriangleData) or False
         self._kernels = None
@@ -768,6 +768,9 @@ class PathTracer:
         v, wi, dist, wgt, light = v.take(live), wi[live], dist[live], wgt[live], light[live]
         shadow = smp["cast_shadow"][live]
         f = self.eval_bsdf(v.mat, v.colors, v.ns, v.ng, v.wo, wi)
+        x, cols = masked_colors(self.mtab, lt.hidden, light, v.mat, v.colors)
+        if x.size:      # emitters hidden from some kind of ray: those lobes left out
+            f[x] = self.eval_bsdf(v.mat[x], cols, v.ns[x], v.ng[x], v.wo[x], wi[x])
         cos = np.abs(_dot(v.ns, wi))
         contrib = v.beta * f * (cos[:, None] * wgt)
         nz = np.nonzero(contrib.max(axis=1) > 0)[0]
@@ -798,6 +801,14 @@ class PathTracer:
         live = np.empty(K, bool)
         PK.nee_mis_kernel(L, Q, M, mat, row, R.beta, R.p, c(v.ng), c(v.ns), n_l, c(v.wo), S, w,
                           live, pl, sel)
+        if self.lights.hidden is not None:
+            # Emitters hidden from some kind of ray: those lobes left out.
+            x, cols = masked_colors(self.mtab, self.lights.hidden, S.light, mat, M.sel_colors[row])
+            if x.size:
+                f = self.eval_bsdf(mat[x], cols, v.ns[x], v.ng[x], v.wo[x], S.wi[x])
+                S.contrib[x] = (R.beta[x] * f
+                                * (np.abs(_dot(v.ns[x], S.wi[x]))[:, None] * S.weight[x]))
+                live[x] &= S.contrib[x].max(axis=1) > 0
         r = np.nonzero(live)[0]
         if r.size == 0:
             return

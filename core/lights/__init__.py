@@ -53,7 +53,8 @@ its density for a given direction: MIS), :mod:`.seen`
 from __future__ import annotations
 
 from .emission import B_DIFFUSE, sample_photons
-from .pdf import bsdf_hittable, bsdf_sees, emitter_rows, mis_hittable, pdf_direct
+from .pdf import (bsdf_hittable, bsdf_sees, emitter_rows, mis_hittable, pdf_direct,
+                  samples_only)
 from .sampling import sample_direct
 from .seen import emitted_along_rays, world_radiance
 from .table import (AREA, KIND_NAMES, MESH, POINT, SPOT, SUN, WORLD, LightTable,
@@ -62,6 +63,6 @@ from .table import (AREA, KIND_NAMES, MESH, POINT, SPOT, SUN, WORLD, LightTable,
 __all__ = [
     "POINT", "SPOT", "SUN", "AREA", "MESH", "WORLD", "KIND_NAMES", "LightTable",
     "build_light_table", "B_DIFFUSE", "sample_photons", "sample_direct", "pdf_direct",
-    "bsdf_hittable", "bsdf_sees", "emitter_rows", "mis_hittable",
+    "bsdf_hittable", "bsdf_sees", "emitter_rows", "mis_hittable", "samples_only",
     "emitted_along_rays", "world_radiance", "spread_atten",
 ]

@@ -37,6 +37,7 @@ from .pdf import environment_pdf
 from .sampling import sample_direct
 from .table import MESH, WORLD
 from ..scene.linking import lit
+from .lobe_visibility import masked_colors
 
 if TYPE_CHECKING:
     from ..sppm.visible_points import SharedBlocks, VisiblePoints
@@ -115,6 +116,13 @@ class NextEventEstimation:
         # inside glass (wo behind ng) by them, for the relative IOR.
         ns_m, ng_m = vp.mesh_normals(q)
         f = B.eval_bsdf(self.mtab, vp.mat[q], vp.colors[q], ns_m, ng_m, vp.wo[q], wi)
+        if self.light_table.hidden is not None:
+            # Emitters hidden from some kind of ray: those lobes left out.
+            h, cols = masked_colors(self.mtab, self.light_table.hidden, smp["light"][live],
+                                    vp.mat[q], vp.colors[q])
+            if h.size:
+                f[h] = B.eval_bsdf(self.mtab, vp.mat[q[h]], cols, ns_m[h], ng_m[h],
+                                   vp.wo[q[h]], wi[h])
         cos = np.abs(_dot(vp.ns[q], wi))
         contrib = vp.beta[q] * f * cos[:, None] * wgt
         if env is not None and env.total > 0:
@@ -226,6 +234,8 @@ class NextEventEstimation:
                 f = B.eval_bsdf(self.mtab, vp.mat[qr], vp.colors[qr], ns_m, ng_m, vp.wo[qr],
                                 S.wi[r])
             S.contrib[r] = vp.beta[qr] * f * S.cos[r, None] * S.weight[r]
+        if self.light_table.hidden is not None:
+            self._leave_out_hidden(vp, q, S)
         mp = self._map()
         if mp is not None:
             from . import map_mis_kernels as MM
@@ -236,6 +246,18 @@ class NextEventEstimation:
             MM.bsdf_mis_kernel(mp.env, mp.materials, V, ub, Sb)
             return self._add_unshadowed(vp, q, Sb, L)
         return self._add_unshadowed(vp, q, S, L)
+
+    def _leave_out_hidden(self, vp, q, S) -> None:
+        """The DirectSamples S (rows of the visible points q) of emitters
+        hidden from some kind of ray, their contributions evaluated again
+        without those lobes (core.lights.lobe_visibility; numpy's BSDF)."""
+        h, cols = masked_colors(self.mtab, self.light_table.hidden, S.light, vp.mat[q],
+                                vp.colors[q])
+        if h.size:
+            qh = q[h]
+            ns_m, ng_m = vp.mesh_normals(qh)
+            f = B.eval_bsdf(self.mtab, vp.mat[qh], cols, ns_m, ng_m, vp.wo[qh], S.wi[h])
+            S.contrib[h] = vp.beta[qh] * f * S.cos[h, None] * S.weight[h]
 
     def _add_unshadowed(self, vp, q, S, L) -> np.ndarray:
         """Adds to L (P, 3) the contributions of the DirectSamples S (rows of

@@ -158,13 +158,22 @@ def bsdf_hittable(table: LightTable) -> np.ndarray:
             | (((k == POINT) | (k == SPOT)) & (table.radius > 0)))
 
 
+def samples_only(table: LightTable) -> np.ndarray:
+    """(Nl,) bool: the emitters whose light at a non-delta vertex light
+    samples alone find (weight 1; a BSDF ray's hit on them weighs 0): those
+    with shadow linking (core.scene.shadow_linking) and those hidden from
+    some kind of ray (core.lights.lobe_visibility)."""
+    from ..scene.shadow_linking import nee_only
+    out = nee_only(table)
+    hidden = getattr(table, "hidden", None)
+    return out if hidden is None else out | (np.asarray(hidden) != 0)
+
+
 def mis_hittable(table: LightTable) -> np.ndarray:
     """(Nl,) bool: the emitters whose light a BSDF-sampled ray from a
     non-delta vertex finds and weighs against light samples:
-    :func:`bsdf_hittable`'s, less those with shadow linking, which light
-    samples alone find there (core.scene.shadow_linking.nee_only)."""
-    from ..scene.shadow_linking import nee_only
-    return bsdf_hittable(table) & ~nee_only(table)
+    :func:`bsdf_hittable`'s, less :func:`samples_only`'s."""
+    return bsdf_hittable(table) & ~samples_only(table)
 
 
 def bsdf_sees(table: LightTable, hittable: np.ndarray, light: np.ndarray, ng: np.ndarray,

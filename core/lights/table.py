@@ -134,6 +134,9 @@ class LightTable:
     # (Nl,) uint64 the receiver sets each emitter lights (light linking,
     # core.scene.linking), or None: every emitter lights every object.
     link_sets: np.ndarray = None
+    # (Nl,) uint8 the kinds of ray each emitter is hidden from
+    # (core.lights.lobe_visibility), or None: every emitter is seen by all.
+    hidden: np.ndarray = None
     # (Nl,) uint64 the blocker sets whose objects shadow each emitter (shadow
     # linking, core.scene.shadow_linking), or None: every object shadows
     # every emitter.
@@ -483,6 +486,8 @@ def build_light_table(scene: Scene) -> LightTable:
     table.spot_tail = _spot_tails(table, scene.tri_p)
     from ..scene.linking import emitter_sets
     table.link_sets = emitter_sets(scene, table)
+    from .lobe_visibility import hidden_bits
+    table.hidden = hidden_bits(scene, table)
     from ..scene.shadow_linking import emitter_shadow_sets
     table.shadow_sets = emitter_shadow_sets(scene, table)
     if table.shadow_sets is not None and getattr(scene, "tri_blocker", None) is not None:

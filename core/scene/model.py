@@ -148,7 +148,9 @@ class Light:
     angle: sun angular diameter [rad].
     shape: 'SQUARE', 'RECTANGLE', 'DISK' or 'ELLIPSE'; size, size_y [m].
     visible_camera / visible_glossy / visible_transmission: ray visibility
-      (what the camera sees directly, and through mirror / glass chains).
+      (what the camera sees directly, and through mirror / glass chains);
+      with visible_diffuse, the kinds of lobe its light samples light
+      (core.lights.lobe_visibility).
     use_soft_falloff: point/spot with radius > 0 act as a disc facing the
       shading point (Cycles' default), giving I cos / (d^2 + r^2).
     link_sets: the receiver sets the light lights (light linking, a 64-bit
@@ -171,6 +173,7 @@ class Light:
     visible_camera: bool = True
     visible_glossy: bool = True
     visible_transmission: bool = True
+    visible_diffuse: bool = True
     cast_shadow: bool = True
     use_soft_falloff: bool = True   # Cycles >= 4.0 point/spot default
     link_sets: int = field(default=(1 << 64) - 1, repr=False)
@@ -449,11 +452,12 @@ def scene_digest(scene: Scene) -> str:
     for name in ("tri_blocker", "tri_shadow_sets"):
         if getattr(scene, name, None) is not None:
             h.update(name.encode() + np.ascontiguousarray(getattr(scene, name)).tobytes())
+    unset = {"link_sets": (1 << 64) - 1, "shadow_sets": (1 << 64) - 1, "visible_diffuse": True}
     for lt in scene.lights:
-        # (link_sets, shadow_sets only when set: older checkpoints keep their digest)
+        # (the fields of ``unset`` only when set: older checkpoints keep their digest)
         h.update(repr({k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
                        for k, v in lt.__dict__.items()
-                       if k not in ("link_sets", "shadow_sets") or v != (1 << 64) - 1}).encode())
+                       if k not in unset or v != unset[k]}).encode())
     cam = scene.camera
     h.update(repr({k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
                    for k, v in cam.__dict__.items()}).encode())

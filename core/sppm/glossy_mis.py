@@ -38,7 +38,7 @@ from ..materials import compiled as C
 from ..materials.fast import GENERIC, build_fast_materials
 from ..lights.table import MESH
 from ..scene.linking import lit
-from ..scene.shadow_linking import nee_only
+from ..lights.lobe_visibility import masked_colors
 from ..mathutil import dot as _dot, power_heuristic
 
 
@@ -81,7 +81,7 @@ class GlossyMIS:
     def __init__(self, light_table, mtab, T: int):
         self.lights, self.mtab = light_table, mtab
         self.hittable = Lt.mis_hittable(light_table)
-        self.nee_only = nee_only(light_table)       # (core.scene.shadow_linking)
+        self.nee_only = Lt.samples_only(light_table)   # (shadow linking, hidden kinds)
         self.tri_light, self.world_row = Lt.emitter_rows(light_table, T)
         self._compiled = None
         self._lights_k = None
@@ -217,6 +217,11 @@ class GlossyMIS:
             PK.nee_mis_kernel(L, Q, M, g.mat, g.mat, g.beta, g.p, g.ng, g.ns, g.n, g.wo, S, w,
                               live, pl, sel)
         out = np.zeros((K, 3))
+        x, cols = masked_colors(self.mtab, self.lights.hidden, S.light, g.mat, g.colors)
+        if x.size:      # emitters hidden from some kind of ray: those lobes left out
+            f = C.eval_radiance(self.mtab, self._radiance()[2], g.mat[x], cols, g.ns[x], g.ng[x],
+                                g.wo[x], S.wi[x])
+            S.contrib[x] = g.beta[x] * f * (np.abs(_dot(g.n[x], S.wi[x]))[:, None] * S.weight[x])
         ok = lit(self.lights, self.mtab, S.light, g.mat)
         if ok is not None:
             live = live & ok            # light linking (core.scene.linking)
@@ -241,6 +246,10 @@ class GlossyMIS:
         wi, dist, wgt, light, shadow = wi[r], dist[r], wgt[r], light[r], smp["cast_shadow"][r]
         h = g.take(r)
         f = C.eval_radiance(self.mtab, self._radiance()[2], h.mat, h.colors, h.ns, h.ng, h.wo, wi)
+        x, cols = masked_colors(self.mtab, lt.hidden, light, h.mat, h.colors)
+        if x.size:      # emitters hidden from some kind of ray: those lobes left out
+            f[x] = C.eval_radiance(self.mtab, self._radiance()[2], h.mat[x], cols, h.ns[x],
+                                   h.ng[x], h.wo[x], wi[x])
         contrib = h.beta * f * (np.abs(_dot(h.n, wi))[:, None] * wgt)
         # Weighed where the chain's BSDF ray could find the light too.
         seen = Lt.bsdf_sees(lt, self.hittable, light, h.ng, h.wo, wi)

@@ -45,6 +45,7 @@ from ..accel import _COUNT_LOCK, RAY_SHADOW, REL_OFFSET, hit_uv, intersect_f32
 from ..scene.linking import light_links, unlit_first_hits
 from ..scene.shadow_linking import views as shadow_views
 from ..scene import absorption as Absorb
+from ..lights.lobe_visibility import unseen_first_hits
 from ..kept import _ALONE, _refcounts
 from ..scene.model import Scene
 from .update import R_FLOOR_REL
@@ -352,6 +353,10 @@ class PhotonTracer:
         self.link = light_links(light_table, mtab, scene)
         # Absorbing volumes (core.scene.absorption), or None.
         self.absorb = Absorb.of_scene(scene)
+        # (Nl,) uint8 the kinds of ray each emitter is hidden from, or None: a
+        # photon whose first hit has only lobes hidden from its emitter ends
+        # there (core.lights.lobe_visibility).
+        self.hidden = getattr(light_table, "hidden", None)
         # Photon rays cast by this tracer (accel.rays_cast also counts the
         # camera's, which may be cast meanwhile: PhotonPass.trace_ahead).
         self.rays_cast = 0
@@ -589,6 +594,7 @@ class PhotonTracer:
             # (the rows also for light linking's first hits).
             soft = self.soft_lights is not None
             want_rows = (soft or self.link is not None or self.views is not None
+                         or self.hidden is not None
                          or (first == "hidden" and self._delta_landing is not None))
             rows = np.empty(n if want_rows else 1, np.int64)
             disc = np.empty((n if want_rows else 1, 4))
@@ -617,7 +623,7 @@ class PhotonTracer:
                         np.ascontiguousarray(ph["soft_disc"][a:b], np.float64))
             emitter = (np.asarray(ph["light"][a:b], np.int64)[src[:K]]
                        if self.link is not None or first == "hidden" or self.views is not None
-                       else None)
+                       or self.hidden is not None else None)
             if nf:
                 Kf = int(np.searchsorted(src[:K], nf))      # kept in order
                 spec = np.asarray(ph["freq_init"], np.float64)[a:b][src[:Kf]]
@@ -675,6 +681,8 @@ class PhotonTracer:
                     hits.prim[:K][off] = -1
             if bounce == 0 and self.link is not None:
                 unlit_first_hits(hits.prim[:K], emitter, *self.link)
+            if bounce == 0 and self.hidden is not None:
+                unseen_first_hits(hits.prim[:K], emitter, self.hidden, self._tri_mat, self.mtab)
             # Absorbing volumes: the power left after a segment inside one.
             Absorb.attenuate(self.absorb, hits.prim[:K], hits.tfar[:K], live.d64[:K],
                              live.power[:K])
