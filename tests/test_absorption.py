@@ -96,13 +96,7 @@ def test_absorption_agrees_with_cycles(case, integrator, tmp_path):
     scene, lines = TS._export()
     assert any(m.absorption for m in scene.materials)
     assert not any("volume" in ln for ln in lines), lines
-    err, noise, img, ref = TS.two_seeds(
-        sc, scene, lambda s, seed: TS.render_integrator(s, integrator, seed), tmp_path, 256)
-    effect = np.abs(TS.render_integrator(_clear(scene), integrator, 1,
-                                         passes=TS.EFFECT_PASSES) - ref).mean() / ref.mean()
-    print(f"{case} {integrator}: mean {img.mean():.4f} vs Cycles {ref.mean():.4f}; |diff| "
-          f"{err:.4f}, noise {noise:.4f} ({err / noise:.2f}x); without {effect:.4f}")
-    TS._check(err, noise, effect)
+    TS.agrees_with_cycles(sc, scene, integrator, tmp_path, _clear(scene), case)
 
 
 def test_a_volume_without_a_surface_lets_every_ray_through():

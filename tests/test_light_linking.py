@@ -87,11 +87,6 @@ def _scene(case):
     return sc
 
 
-def _render(scene, integrator, seed):
-    import test_shading_nodes as TS
-    return TS.render_integrator(scene, integrator, seed)
-
-
 def _unlinked(scene):
     return dataclasses.replace(
         scene, material_receiver=None, material_emitter=None,
@@ -112,13 +107,7 @@ def test_light_linking_agrees_with_cycles(case, integrator, tmp_path):
     scene, lines = TS._export()
     assert scene.material_receiver is not None
     assert not any("linking" in ln for ln in lines), lines
-    err, noise, img, ref = TS.two_seeds(sc, scene, lambda s, seed: _render(s, integrator, seed),
-                                        tmp_path, 256)
-    effect = np.abs(TS.render_integrator(_unlinked(scene), integrator, 1,
-                                         passes=TS.EFFECT_PASSES) - ref).mean() / ref.mean()
-    print(f"{case} {integrator}: mean {img.mean():.4f} vs Cycles {ref.mean():.4f}; |diff| "
-          f"{err:.4f}, noise {noise:.4f} ({err / noise:.2f}x); unlinked {effect:.4f}")
-    TS._check(err, noise, effect)
+    TS.agrees_with_cycles(sc, scene, integrator, tmp_path, _unlinked(scene), case)
 
 
 def _shadow_scene(case):
@@ -187,13 +176,7 @@ def test_shadow_linking_agrees_with_cycles(case, integrator, tmp_path):
     from core.scene.shadow_linking import nee_only
     # The linked rows: the sun; the area light and the card's two triangles.
     assert nee_only(build_light_table(scene)).sum() == (1 if case == "sun" else 3)
-    err, noise, img, ref = TS.two_seeds(sc, scene, lambda s, seed: _render(s, integrator, seed),
-                                        tmp_path, 256)
-    effect = np.abs(TS.render_integrator(_unshadowed(scene), integrator, 1,
-                                         passes=TS.EFFECT_PASSES) - ref).mean() / ref.mean()
-    print(f"shadow {case} {integrator}: mean {img.mean():.4f} vs Cycles {ref.mean():.4f}; "
-          f"|diff| {err:.4f}, noise {noise:.4f} ({err / noise:.2f}x); blocked {effect:.4f}")
-    TS._check(err, noise, effect)
+    TS.agrees_with_cycles(sc, scene, integrator, tmp_path, _unshadowed(scene), f"shadow {case}")
 
 
 def test_exporter_resolves_nested_collections_as_blender():

@@ -101,10 +101,4 @@ def test_hidden_lobes_agree_with_cycles(case, integrator, tmp_path):
     sc = _scene(case)
     scene, lines = TS._export()
     assert build_light_table(scene).hidden is not None
-    err, noise, img, ref = TS.two_seeds(
-        sc, scene, lambda s, seed: TS.render_integrator(s, integrator, seed), tmp_path, 256)
-    effect = np.abs(TS.render_integrator(_seen(scene), integrator, 1,
-                                         passes=TS.EFFECT_PASSES) - ref).mean() / ref.mean()
-    print(f"{case} {integrator}: mean {img.mean():.4f} vs Cycles {ref.mean():.4f}; |diff| "
-          f"{err:.4f}, noise {noise:.4f} ({err / noise:.2f}x); seen {effect:.4f}")
-    TS._check(err, noise, effect)
+    TS.agrees_with_cycles(sc, scene, integrator, tmp_path, _seen(scene), case)

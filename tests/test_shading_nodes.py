@@ -382,6 +382,22 @@ def two_seeds(sc, scene, render, tmp_path, samples=CYCLES_SAMPLES):
     return err, noise, img, ref
 
 
+def agrees_with_cycles(sc, scene, integrator, tmp_path, without, label):
+    """FPPM's ``integrator`` on ``scene`` (the export of ``sc``) against
+    Cycles (256 samples), two seeds a side, under :func:`_check`'s bound,
+    and the image of ``without`` (the same export without the feature; one
+    seed of EFFECT_PASSES passes) moved by more than 3x that bound
+    (tests/test_absorption.py, test_lobe_visibility.py,
+    test_light_linking.py)."""
+    err, noise, img, ref = two_seeds(
+        sc, scene, lambda s, seed: render_integrator(s, integrator, seed), tmp_path, 256)
+    effect = np.abs(render_integrator(without, integrator, 1, passes=EFFECT_PASSES)
+                    - ref).mean() / ref.mean()
+    print(f"{label} {integrator}: mean {img.mean():.4f} vs Cycles {ref.mean():.4f}; |diff| "
+          f"{err:.4f}, noise {noise:.4f} ({err / noise:.2f}x); without it {effect:.4f}")
+    _check(err, noise, effect)
+
+
 def _without_normals(scene):
     """The scene with no Normal Map / Bump (its own tri_n array: the shading
     normals are attached to that array, core.scene.normals)."""

@@ -118,15 +118,25 @@ def emitter_sets(scene, table) -> Optional[np.ndarray]:
     built from ``scene`` (its Blender lights' ``link_sets``, its emissive
     triangles' materials' ``material_emitter``, the world's every set), or
     None when every emitter lights every set."""
+    emt = getattr(scene, "material_emitter", None)
+    tri = (None if emt is None
+           else np.asarray(emt, np.uint64)[np.asarray(scene.tri_mat, np.int64)])
+    return row_masks(scene, table, "link_sets", tri)
+
+
+def row_masks(scene, table, attr: str, tri_masks) -> Optional[np.ndarray]:
+    """(Nl,) uint64 a 64-bit mask per row of the LightTable ``table`` built
+    from ``scene``: each Blender light's ``attr``, each emissive triangle's
+    tri_masks (T,) uint64 entry (None: LINK_ALL), the world's LINK_ALL; None
+    when every row is LINK_ALL (light and shadow linking's memberships)."""
     from ..lights import MESH, WORLD
     sets = np.full(table.kind.shape[0], LINK_ALL, np.uint64)
     src = np.asarray(table.source, np.int64)
     for r in np.nonzero((table.kind != MESH) & (table.kind != WORLD) & (src >= 0))[0]:
-        sets[r] = getattr(scene.lights[src[r]], "link_sets", LINK_ALL)
-    emt = getattr(scene, "material_emitter", None)
-    if emt is not None:
+        sets[r] = getattr(scene.lights[src[r]], attr, LINK_ALL)
+    if tri_masks is not None:
         m = np.nonzero(table.kind == MESH)[0]
-        sets[m] = np.asarray(emt, np.uint64)[np.asarray(scene.tri_mat, np.int64)[src[m]]]
+        sets[m] = np.asarray(tri_masks, np.uint64)[src[m]]
     return None if bool(np.all(sets == np.uint64(LINK_ALL))) else sets
 
 

@@ -35,7 +35,7 @@ from typing import Optional
 
 import numpy as np
 
-from .linking import LINK_ALL
+from .linking import LINK_ALL, row_masks
 
 
 def emitter_shadow_sets(scene, table) -> Optional[np.ndarray]:
@@ -43,16 +43,7 @@ def emitter_shadow_sets(scene, table) -> Optional[np.ndarray]:
     ``table`` built from ``scene`` (its Blender lights' ``shadow_sets``, its
     emissive triangles' objects' ``Scene.tri_shadow_sets``; the world's all
     ones), or None when no emitter has shadow linking."""
-    from ..lights import MESH, WORLD
-    sets = np.full(table.kind.shape[0], LINK_ALL, np.uint64)
-    src = np.asarray(table.source, np.int64)
-    for r in np.nonzero((table.kind != MESH) & (table.kind != WORLD) & (src >= 0))[0]:
-        sets[r] = getattr(scene.lights[src[r]], "shadow_sets", LINK_ALL)
-    tri = getattr(scene, "tri_shadow_sets", None)
-    if tri is not None:
-        m = np.nonzero(table.kind == MESH)[0]
-        sets[m] = np.asarray(tri, np.uint64)[src[m]]
-    return None if bool(np.all(sets == np.uint64(LINK_ALL))) else sets
+    return row_masks(scene, table, "shadow_sets", getattr(scene, "tri_shadow_sets", None))
 
 
 def nee_only(table) -> np.ndarray:
