@@ -107,7 +107,8 @@ def test_light_linking_agrees_with_cycles(case, integrator, tmp_path):
     scene, lines = TS._export()
     assert scene.material_receiver is not None
     assert not any("linking" in ln for ln in lines), lines
-    TS.agrees_with_cycles(sc, scene, integrator, tmp_path, _unlinked(scene), case)
+    TS.agrees_with_cycles(sc, scene, integrator, tmp_path, _unlinked(scene), case,
+                          key=(__name__, case))
 
 
 def _shadow_scene(case):
@@ -176,7 +177,8 @@ def test_shadow_linking_agrees_with_cycles(case, integrator, tmp_path):
     from core.scene.shadow_linking import nee_only
     # The linked rows: the sun; the area light and the card's two triangles.
     assert nee_only(build_light_table(scene)).sum() == (1 if case == "sun" else 3)
-    TS.agrees_with_cycles(sc, scene, integrator, tmp_path, _unshadowed(scene), f"shadow {case}")
+    TS.agrees_with_cycles(sc, scene, integrator, tmp_path, _unshadowed(scene), f"shadow {case}",
+                          key=(__name__, "shadow", case))
 
 
 def test_exporter_resolves_nested_collections_as_blender():

@@ -93,7 +93,8 @@ def test_light_path_agrees_with_cycles(case, integrator, tmp_path):
         assert scene.material_shadow is not None
         assert any("Is Shadow Ray" in ln for ln in lines)
     err, noise, img, ref = TS.two_seeds(
-        sc, scene, lambda s, seed: TS.render_integrator(s, integrator, seed), tmp_path, 256)
+        sc, scene, lambda s, seed: TS.render_integrator(s, integrator, seed), tmp_path, 256,
+        key=(__name__, case))
     effect = (np.abs(TS.render_integrator(_as_itself(scene), integrator, 1,
                                           passes=TS.EFFECT_PASSES) - ref).mean() / ref.mean())
     print(f"{case} {integrator}: mean {img.mean():.4f} vs Cycles {ref.mean():.4f}; |diff| "

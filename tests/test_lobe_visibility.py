@@ -88,8 +88,10 @@ def _seen(scene):
                             visible_transmission=True) for lt in scene.lights])
 
 
+#: (case, integrator).  Combined takes such an emitter's light by its camera
+#: paths alone: Path Tracing's image.
 CASES = [("glossy", "PHOTON"), ("glossy", "PATH"), ("diffuse", "PHOTON"), ("diffuse", "PATH"),
-         ("diffuse", "COMBINED"), ("emitter", "PATH")]
+         ("emitter", "PATH")]
 
 
 @pytest.mark.parametrize("case,integrator", CASES, ids=[f"{c}-{i}" for c, i in CASES])
@@ -101,4 +103,5 @@ def test_hidden_lobes_agree_with_cycles(case, integrator, tmp_path):
     sc = _scene(case)
     scene, lines = TS._export()
     assert build_light_table(scene).hidden is not None
-    TS.agrees_with_cycles(sc, scene, integrator, tmp_path, _seen(scene), case)
+    TS.agrees_with_cycles(sc, scene, integrator, tmp_path, _seen(scene), case,
+                          key=(__name__, case))

@@ -110,7 +110,7 @@ def test_camera_and_shadow_visibility_agree_with_cycles(case, integrator, tmp_pa
     assert (scene.tri_visibility is not None) == (case != "world")
     assert not any("ray visibility" in ln for ln in lines), lines
     err, noise, img, ref = TS.two_seeds(sc, scene, lambda s, seed: _render(s, integrator, seed),
-                                        tmp_path, 256)
+                                        tmp_path, 256, key=(__name__, case))
     mean = ref.mean()
     seen = TS.render_integrator(dataclasses.replace(scene, tri_visibility=None,
                                                     world_camera_map=None),

@@ -369,11 +369,23 @@ def compare(sc, tmp_path, label, photons=2000, samples=CYCLES_SAMPLES):
     return err, noise, img, ref, scene, lines
 
 
-def two_seeds(sc, scene, render, tmp_path, samples=CYCLES_SAMPLES):
+#: Cycles' two seeds of a scene, by the key its tests give (the test file and
+#: the case): the integrators compared on one scene share them.
+_CYCLES_PAIRS: dict = {}
+
+
+def two_seeds(sc, scene, render, tmp_path, samples=CYCLES_SAMPLES, key=None):
     """(mean |FPPM - Cycles| / mean, the seed-to-seed noise, FPPM's image,
-    Cycles') of render(scene, seed) at seeds 1, 2 and Cycles at 0, 1."""
-    c1 = _cycles(sc, 0, tmp_path / "c0.exr", samples)
-    c2 = _cycles(sc, 1, tmp_path / "c1.exr", samples)
+    Cycles') of render(scene, seed) at seeds 1, 2 and Cycles at 0, 1.
+    key: Cycles' pair is rendered once per key (a scene several tests
+    compare; None: every call)."""
+    if key is not None and (key, samples) in _CYCLES_PAIRS:
+        c1, c2 = _CYCLES_PAIRS[key, samples]
+    else:
+        c1 = _cycles(sc, 0, tmp_path / "c0.exr", samples)
+        c2 = _cycles(sc, 1, tmp_path / "c1.exr", samples)
+        if key is not None:
+            _CYCLES_PAIRS[key, samples] = (c1, c2)
     a1, a2 = render(scene, 1), render(scene, 2)
     ref, img = (c1 + c2) / 2, (a1 + a2) / 2
     mean = ref.mean()
@@ -382,15 +394,15 @@ def two_seeds(sc, scene, render, tmp_path, samples=CYCLES_SAMPLES):
     return err, noise, img, ref
 
 
-def agrees_with_cycles(sc, scene, integrator, tmp_path, without, label):
+def agrees_with_cycles(sc, scene, integrator, tmp_path, without, label, key=None):
     """FPPM's ``integrator`` on ``scene`` (the export of ``sc``) against
     Cycles (256 samples), two seeds a side, under :func:`_check`'s bound,
     and the image of ``without`` (the same export without the feature; one
     seed of EFFECT_PASSES passes) moved by more than 3x that bound
     (tests/test_absorption.py, test_lobe_visibility.py,
-    test_light_linking.py)."""
+    test_light_linking.py).  key: :func:`two_seeds`'."""
     err, noise, img, ref = two_seeds(
-        sc, scene, lambda s, seed: render_integrator(s, integrator, seed), tmp_path, 256)
+        sc, scene, lambda s, seed: render_integrator(s, integrator, seed), tmp_path, 256, key)
     effect = np.abs(render_integrator(without, integrator, 1, passes=EFFECT_PASSES)
                     - ref).mean() / ref.mean()
     print(f"{label} {integrator}: mean {img.mean():.4f} vs Cycles {ref.mean():.4f}; |diff| "

@@ -134,7 +134,8 @@ def test_a_view_mix_agrees_with_cycles(case, tmp_path):
     assert not any("ignored" in ln or "read as its value" in ln for ln in lines), lines
     assert any(lb.view for lb in scene.materials[0].lobes)
     err, noise, img, ref = TS.two_seeds(sc, scene, lambda s, seed: _render(s, integrator, seed),
-                                        tmp_path, 256)
+                                        tmp_path, 256,
+                                        key=(__name__,) + tuple(case[:2]) + tuple(case[3:]))
     mean = ref.mean()
     # The old reading: the Fac's own value (0.5), a plain mix.
     for ln in mix.inputs["Fac"].links:

@@ -275,15 +275,15 @@ class NextEventEstimation:
                                  sh, L)
         if n:
             rows = sh.rows[:n]
-            blocked = np.empty(n, bool)
-            for accel, g in self._split(S.light[rows]):
-                blocked[g] = _occluded_f32(accel, sh.o32[:n][g], sh.d32[:n][g], sh.t32[:n][g])
-                b = g[blocked[g]]
-                if b.size:
-                    kb = rows[b]
-                    pb, gb, wb = vp.p[q[kb]], vp.ng[q[kb]], S.wi[kb]
-                    blocked[b] = self._grazing_self_hit_retry(pb, gb, accel.spawn(pb, gb, wb),
-                                                              wb, S.dist[kb], accel)
+            o32, d32, t32 = sh.o32[:n], sh.d32[:n], sh.t32[:n]
+            if self.views is None:
+                blocked = self._occluded_rows(self.accel, vp, q, S, rows, o32, d32, t32)
+            else:
+                # Shadow linking: each group of rays in its emitters' view.
+                blocked = np.empty(n, bool)
+                for accel, g in self.views.split(S.light[rows]):
+                    blocked[g] = self._occluded_rows(accel, vp, q, S, rows[g], o32[g], d32[g],
+                                                     t32[g])
             DK.accumulate(q, rows, blocked, S.contrib, L)
             self._through_transparent(vp, q, rows, blocked, S, L)
         if nm:
@@ -295,13 +295,25 @@ class NextEventEstimation:
             self._through_transparent(vp, q, km, blocked, S, L, mesh=True)
         return L
 
+    def _occluded_rows(self, accel, vp, q, S, rows, o32, d32, t32) -> np.ndarray:
+        """(n,) bool the shadow rays (o32, d32, t32) of the DirectSamples
+        rows (n,) blocked in ``accel``, float32 self-hits at grazing
+        incidence retried (``_grazing_self_hit_retry``)."""
+        blocked = _occluded_f32(accel, o32, d32, t32)
+        b = np.nonzero(blocked)[0]
+        if b.size:
+            kb = rows[b]
+            pb, gb, wb = vp.p[q[kb]], vp.ng[q[kb]], S.wi[kb]
+            blocked[b] = self._grazing_self_hit_retry(pb, gb, accel.spawn(pb, gb, wb), wb,
+                                                      S.dist[kb], accel)
+        return blocked
+
     def _split(self, light) -> list:
         """[(Accel, rows)]: the shadow rays of emitter rows light (K,) by
-        the scene each is cast in (one entry, every row, without shadow
-        linking)."""
+        the scene each is cast in (without shadow linking, or light None:
+        ``accel`` and every row, as a slice: no copies)."""
         if self.views is None or light is None:
-            return [(self.accel, np.arange(np.asarray(light).shape[0]) if light is not None
-                     else slice(None))]
+            return [(self.accel, slice(None))]
         return self.views.split(light)
 
     def _through_transparent(self, vp, q, rows, blocked, S, L, mesh=False) -> None:
