@@ -82,7 +82,7 @@ class Accel:
         self._kinds: dict = {}               # flags -> the Accel those rays see
         self._hidden: dict = {}              # flags -> hidden_from's array or None
         self._hidden_key = b""
-        self._views: list = []               # the scenes of ``without``
+        self._views: list = []               # the scenes of ``without``, one a hidden set
         self._scene = None
         tri = self.tri_p if _subset is None else self.tri_p[_subset]
         if tri.shape[0]:
@@ -103,31 +103,21 @@ class Accel:
         if got is not None:
             return got
         hid = base.hidden_from(flags)
-        if hid is None:
-            sub = base
-        else:
-            # One scene per set of hidden triangles (two kinds may share it).
-            key = hid.tobytes()
-            sub = next((a for a in base._kinds.values()
-                        if a is not base and a._hidden_key == key), None)
-            if sub is None:
-                sub = Accel(base.tri_p, base.diameter,
-                            _subset=np.nonzero(~hid)[0].astype(np.int32), _base=base)
-                sub._hidden_key = key
+        sub = base if hid is None else base.without(hid)
         base._kinds[flags] = sub
         return sub
 
     def without(self, hidden: np.ndarray) -> "Accel":
-        """The scene without the triangles hidden (T,) bool (a shadow
-        linking view, core.scene.shadow_linking): built once per set of
-        hidden triangles, shared with :meth:`for_rays`' scenes; self's base
-        when nothing is hidden."""
+        """The scene without the triangles hidden (T,) bool (a kind of ray's
+        view, :meth:`for_rays`, or a shadow linking view,
+        core.scene.shadow_linking): built once per set of hidden triangles
+        (two kinds of ray or memberships may share it); self's base when
+        nothing is hidden."""
         base = self.base
         if not np.any(hidden):
             return base
         key = np.asarray(hidden, bool).tobytes()
-        sub = next((a for a in list(base._kinds.values()) + list(base._views)
-                    if a is not base and a._hidden_key == key), None)
+        sub = next((a for a in base._views if a._hidden_key == key), None)
         if sub is None:
             sub = Accel(base.tri_p, base.diameter,
                         _subset=np.nonzero(~np.asarray(hidden, bool))[0].astype(np.int32),

@@ -73,6 +73,14 @@ def slot_kinds(mtab) -> np.ndarray:
     return out
 
 
+def _kinds(mtab) -> np.ndarray:
+    """:func:`slot_kinds` of the table, computed once (kept on it)."""
+    kinds = getattr(mtab, "_slot_kinds", None)
+    if kinds is None:
+        kinds = mtab._slot_kinds = slot_kinds(mtab)
+    return kinds
+
+
 def left_out(kinds: np.ndarray, hidden: np.ndarray) -> np.ndarray:
     """(K, L) bool the lobe slots (kinds (K, L) of :func:`slot_kinds`) a
     light sample leaves out for emitters hidden from ``hidden`` (K,) rays:
@@ -95,11 +103,8 @@ def masked_colors(mtab, hidden_rows: Optional[np.ndarray], light: np.ndarray, ma
     r = np.nonzero(h)[0]
     if r.size == 0:
         return r, None
-    kinds = getattr(mtab, "_slot_kinds", None)
-    if kinds is None:
-        kinds = mtab._slot_kinds = slot_kinds(mtab)
     out = np.array(colors[r], np.float64, copy=True)
-    out[left_out(kinds[np.asarray(mat, np.int64)[r]], h[r])] = 0.0
+    out[left_out(_kinds(mtab)[np.asarray(mat, np.int64)[r]], h[r])] = 0.0
     return r, out
 
 
@@ -116,11 +121,7 @@ def unseen_first_hits(prim: np.ndarray, emitter: np.ndarray, hidden_rows: np.nda
     k = np.nonzero(bits)[0]
     if k.size == 0:
         return
-    kinds = getattr(mtab, "_slot_kinds", None)
-    if kinds is None:
-        kinds = mtab._slot_kinds = slot_kinds(mtab)
-    m = np.asarray(tri_mat, np.int64)[prim[h[k]]]
-    sk = kinds[m]
+    sk = _kinds(mtab)[np.asarray(tri_mat, np.int64)[prim[h[k]]]]
     used = sk != 0
     gone = left_out(sk, bits[k]) | ~used
     off = gone.all(axis=1) & used.any(axis=1)

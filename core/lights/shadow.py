@@ -29,6 +29,7 @@ import numpy as np
 
 from ..accel import REL_OFFSET
 from ..mathutil import dot as _dot
+from ..scene.absorption import attenuate, of_scene as absorption_of
 from ..scene.model import TRANSPARENT
 
 # Cycles' default Light Paths > Max Bounces > Transparent.  A shadow ray from
@@ -78,8 +79,7 @@ def attach(accel, scene, mtab) -> bool:
     tri = np.asarray(scene.tri_mat, np.int64)
     uv = np.asarray(scene.tri_uv)
     seen = {k: RV.rows(scene, k) for k in ("shadow", "camera")}
-    from ..scene.absorption import of_scene
-    ab = of_scene(scene)
+    ab = absorption_of(scene)
     sv = ShadowMaterials(mtab, RV.seen(seen["shadow"], tri), uv, tr, ab)
     cv = (sv if seen["shadow"] is None and seen["camera"] is None
           else ShadowMaterials(mtab, RV.seen(seen["camera"], tri), uv, tr, ab))
@@ -208,7 +208,6 @@ def transmittance(accel, o: np.ndarray, d: np.ndarray, t_max, emitter=None,
             T[live[c]] *= w
             if sm is not None and sm.absorb is not None:
                 # The segment to a crossing out of an absorbing volume.
-                from ..scene.absorption import attenuate
                 attenuate(sm.absorb, prim[c], h.t[hi[c]], d[live[c]], T, rows=live[c])
         # Continue from just past the surface (a self-hit: from farther off it).
         side = np.where(_dot(n, d[live]) >= 0, 1.0, -1.0)

@@ -63,11 +63,10 @@ def _weights(scene) -> Optional[np.ndarray]:
         return None     # (also a film's stand-in scene without triangles)
     from .ray_variants import rows, seen
     # Camera rays' holdout: the material they see (a Light Path node).
-    w = h[seen(rows(scene, "camera"), np.asarray(scene.tri_mat, np.int64))] if h.size \
-        else np.zeros(scene.tri_mat.shape[0], np.float32)
+    cam = seen(rows(scene, "camera"), np.asarray(scene.tri_mat, np.int64))
+    w = h[cam] if h.size else np.zeros(scene.tri_mat.shape[0], np.float32)
     if obj is not None:
         obj = np.asarray(obj, bool)
-        cam = seen(rows(scene, "camera"), np.asarray(scene.tri_mat, np.int64))
         clear = np.array([_transparent(m) for m in scene.materials], bool)
         w = np.where(obj, np.where(clear[cam], PER_HIT, np.float32(1.0)), w)
     return w if np.any(w != 0) else None
@@ -100,7 +99,6 @@ def see_through(scene):
     pidx = (None if scene.material_pass_index is None
             else list(np.asarray(scene.material_pass_index)))
     new_tri = tri.copy()
-    made = {}
     for b in np.unique(tri[obj]).tolist():
         c = mats[cam[b]]
         lobes = tuple(lb for lb in c.lobes if lb.kind == TRANSPARENT and lb.weight != 0)
@@ -113,8 +111,7 @@ def see_through(scene):
         if pidx is not None:
             pidx += [pidx[b], pidx[b]]
         new_tri[obj & (tri == b)] = copy
-        made[b] = copy
-    if not made:
+    if len(mats) == M:
         return scene
     return dataclasses.replace(
         scene, materials=mats, tri_mat=new_tri.astype(np.int32),
