@@ -482,6 +482,9 @@ def _write_outputs(a, bpy, scene, sess, out_path, elapsed_wall) -> list[str]:
     if getattr(sess, "renderer", None) is not None:
         # The render plan: which stages ran, and what was left out and why.
         meta.update(sess.renderer.plan.metadata())
+        # The Cryptomatte manifests (their layers here: "CryptoObject00", ...).
+        from ..core.sppm.cryptomatte import scene_metadata
+        meta.update(scene_metadata(sess.renderer.scene, list(pr.aovs), ""))
     h, w = img.shape[:2]
     try:
         # Room for both files before writing either (upper bounds).

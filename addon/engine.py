@@ -21,6 +21,7 @@ import numpy as np
 
 from ..core.errors import FPPMError, RenderCancelled
 from ..core.settings import SettingsError
+from ..core.sppm import cryptomatte
 from ..core.sppm.film import PASSES, pass_enabled
 from ..core.warmup import expected_seconds, is_compiled, render_job, warmup
 from .export import export_scene
@@ -36,9 +37,10 @@ UPDATE_INTERVAL = 0.25  # s between image-editor updates (at most ~4 per second)
 
 def enabled_aovs(settings, view_layer=None) -> list[tuple[str, int, str, str]]:
     """(name, channels, chan_id, type) of the passes the settings and the
-    view layer (Passes panel: Z, Mist, Normal, ...) ask for."""
+    view layer (Passes panel: Z, Mist, Normal, ..., Cryptomatte) ask for."""
     return [(p.name, p.channels, p.chan_id, p.kind) for p in PASSES
-            if pass_enabled(p, settings, view_layer)]
+            if pass_enabled(p, settings, view_layer)] + [
+        (name, 4, "RGBA", 'COLOR') for name in cryptomatte.pass_names(view_layer)]
 
 
 def film_gain(scene) -> float:
@@ -363,6 +365,13 @@ class FPPMRenderEngine(bpy.types.RenderEngine):
         # The region Blender expects: the border crop when a border is set.
         w, h = int(renderer.width), int(renderer.height)
         rresult = self.begin_result(0, 0, w, h, layer=depsgraph.view_layer.name)
+        # The Cryptomatte manifests, on the render's whole result as Cycles
+        # stores them (a tile's stamp data is not merged into it).  Blender
+        # writes them into a multilayer EXR's header, whose passes are named
+        # "<view layer>.CryptoObject00".
+        for k, v in cryptomatte.scene_metadata(fscene, [a[0] for a in aovs],
+                                               depsgraph.view_layer.name + ".").items():
+            self.get_result().stamp_data_add_field(k, v)
         last_update = [0.0]
         shown = [None]
 

@@ -51,6 +51,7 @@ from ..core.scene.holdout import see_through
 from ..core.scene.linking import LINK_ALL, split_materials
 from ..core.materials.table import is_delta_lobe
 from ..core.scene.ray_variants import clear_shadows
+from ..core.sppm import cryptomatte as crypto
 from .export_read import CHUNK, _never, image_pixels, mesh_arrays
 
 GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
@@ -192,6 +193,9 @@ SUPPORT = (
     ("film transparency, pixel filter (Blackman-Harris, Box, Gaussian) and its width, "
      "object and material pass index (every "
      "integrator but Light Tracing, whose film is opaque)", SUPPORTED, ""),
+    ("Cryptomatte (Object, Material, Asset, Levels): Cycles' IDs, coverage through "
+     "Transparent BSDFs and manifests, in the render result and the CLI's EXR (every "
+     "integrator but Light Tracing)", SUPPORTED, ""),
     ("other shader nodes", APPROXIMATED, "unsupported node(s) "),
     ("other nodes linked into an input (the input's value is used)", APPROXIMATED,
      "'{src.name}' into {node.name}.{name} ignored"),
@@ -285,7 +289,6 @@ SUPPORT = (
     ("volume objects", IGNORED, "volume object(s) not rendered"),
     ("adaptive subdivision", IGNORED, ""),
     ("clamping", IGNORED, ""),
-    ("Cryptomatte", IGNORED, ""),
     ("shader AOVs", IGNORED, ""),
     ("light groups", IGNORED, ""),
     ("light probes", IGNORED, ""),
@@ -1472,6 +1475,13 @@ class _Exporter:
         self.emitter_parts: list[np.ndarray] = []     # light-linking membership per triangle
         self.blocker_parts: list[np.ndarray] = []     # shadow-linking blocker set per triangle
         self.shadowed_parts: list[np.ndarray] = []    # shadow-linking membership per triangle
+        # Cryptomatte (core.sppm.cryptomatte): on when the view layer asks
+        # for a kind; the IDs per triangle of parts, each material's, and
+        # the names of each kind (the manifests).
+        self.crypto = bool(crypto.pass_names(getattr(depsgraph, "view_layer", None)))
+        self.crypto_parts: list[np.ndarray] = []
+        self.mat_crypto: list = []
+        self.crypto_names = {k: set() for k in crypto.KINDS}
         self.mat_index: dict = {}
         self.textures: list[np.ndarray] = []
         self.tex_index: dict = {}      # (image name, reading) -> index into textures
@@ -1723,6 +1733,7 @@ class _Exporter:
             idx = self.mat_index[key] = len(self.materials)
             self.materials.append(DEFAULT_MATERIAL)
             self.mat_pass_index.append(0)
+            self.mat_crypto.append(crypto.DEFAULT_MATERIAL)
             self.mat_vector.append(None)
         if idx is None:
             mb = _MaterialBuilder(self, mat)
@@ -1734,6 +1745,7 @@ class _Exporter:
             idx = len(self.materials)
             self.materials.append(m)
             self.mat_pass_index.append(int(getattr(mat, "pass_index", 0)))
+            self.mat_crypto.append(mat.name)
             self.mat_vector.append(None if mb.bakes else mb.vector_spec)
             if mb.displaced_in_object_space and self.materials[idx].normal is not None:
                 self.disp_scales[idx] = []
@@ -1843,6 +1855,25 @@ class _Exporter:
                                                                np.int32)
                                   for k, r in rows.items()}
 
+    def crypto_ids(self, ob, parts) -> None:
+        """The Cryptomatte IDs (object, material, asset) of the triangles of
+        ``ob``'s parts, just made by :meth:`geometry` (their materials still
+        the rows of :meth:`material`)."""
+        obj, asset = ob.name, crypto.asset_name(ob)
+        for k, n in (("Object", obj), ("Asset", asset)):
+            self.crypto_names[k].add(n)
+        # self.mat_crypto holds names until first hashed, then IDs.
+        for i, v in enumerate(self.mat_crypto):
+            if isinstance(v, str):
+                self.crypto_names["Material"].add(v)
+                self.mat_crypto[i] = crypto.name_id(v)
+        mat_ids = np.asarray(self.mat_crypto, np.float32)
+        for q in parts:
+            ids = np.empty((len(q[0]), 3), np.float32)
+            ids[:, 0], ids[:, 2] = crypto.name_id(obj), crypto.name_id(asset)
+            ids[:, 1] = mat_ids[q[3]]
+            self.crypto_parts.append(ids)
+
     def tri_holdout(self):
         """(T,) bool the triangles of holdout objects, or None when none is
         (core.scene.holdout)."""
@@ -1860,7 +1891,7 @@ class _Exporter:
         if T <= CHUNK:
             return drop_invalid_triangles(fscene)
         per_tri = ("tri_p", "tri_n", "tri_uv", "tri_mat", "tri_object_index", "tri_tangent",
-                   "tri_visibility", "tri_holdout", "tri_blocker", "tri_shadow_sets")
+                   "tri_visibility", "tri_holdout", "tri_blocker", "tri_shadow_sets", "tri_crypto")
         bands, dropped = [], 0
         for a in range(0, T, CHUNK):
             band = dataclasses.replace(fscene, **{
@@ -2412,6 +2443,9 @@ class _Exporter:
             if ob.type == 'LIGHT':
                 lt = self.light(inst, ob)
                 if lt is not None:
+                    if self.crypto:
+                        self.crypto_names["Object"].add(ob.name)
+                        self.crypto_names["Asset"].add(crypto.asset_name(ob))
                     if ob.name in membership:
                         lt = dataclasses.replace(lt, link_sets=membership[ob.name])
                     if ob.name in shadowed:
@@ -2425,6 +2459,8 @@ class _Exporter:
                 continue
             n0 = len(parts)
             self.geometry(inst, ob, parts)
+            if self.crypto:
+                self.crypto_ids(ob, parts[n0:])
             self.shading_attributes(inst, ob, parts, n0)
             self.obj_index_parts += [np.full(len(q[0]), int(getattr(ob, "pass_index", 0)), np.int32)
                                      for q in parts[n0:]]
@@ -2492,6 +2528,10 @@ class _Exporter:
                                     if self.blocker_parts else None),
                        tri_shadow_sets=(self.concatenate(self.shadowed_parts, np.uint64)
                                         if self.shadowed_parts else None),
+                       tri_crypto=(self.concatenate(self.crypto_parts, np.float32)
+                                   if self.crypto and parts else None),
+                       crypto_names=({k: tuple(sorted(v)) for k, v in self.crypto_names.items()}
+                                     if self.crypto else None),
                        **seen_rows)
         # A holdout object keeps its material's transparency (core.scene.holdout).
         fscene = see_through(fscene)

@@ -166,6 +166,25 @@ class FPPM_VIEWLAYER_PT_passes(FPPMPanel, Panel):
     draw = FPPM_RENDER_PT_output.draw
 
 
+class FPPM_VIEWLAYER_PT_passes_crypto(FPPMPanel, Panel):
+    """Cryptomatte (core.sppm.cryptomatte): the kinds and their levels, as
+    Blender's own panel draws them."""
+    bl_label = "Cryptomatte"
+    bl_context = "view_layer"
+    bl_parent_id = "FPPM_VIEWLAYER_PT_passes"
+
+    def draw(self, context):
+        vl = getattr(context, "view_layer", None)
+        if vl is None:
+            return
+        layout = split(self.layout)
+        col = layout.column(heading="Include", align=True)
+        col.prop(vl, "use_pass_cryptomatte_object", text="Object")
+        col.prop(vl, "use_pass_cryptomatte_material", text="Material")
+        col.prop(vl, "use_pass_cryptomatte_asset", text="Asset")
+        layout.column().prop(vl, "pass_cryptomatte_depth", text="Levels")
+
+
 # -- the other tabs ------------------------------------------------------------
 # Cycles' own panels call ``CyclesButtonsPanel.poll``, whose COMPAT_ENGINES is
 # Cycles' alone, so adding FPPM to them shows nothing; these are FPPM's copies
@@ -528,6 +547,7 @@ classes = (
     FPPM_RENDER_PT_frequency,
     FPPM_RENDER_PT_output,
     FPPM_VIEWLAYER_PT_passes,
+    FPPM_VIEWLAYER_PT_passes_crypto,
     FPPM_LIGHT_PT_preview,
     FPPM_LIGHT_PT_light,
     FPPM_LIGHT_PT_beam_shape,
@@ -609,6 +629,8 @@ EQUIVALENTS = {
                                 "the passes FPPM writes (core.sppm.film.PASSES) and its AOVs"),
     "CYCLES_RENDER_PT_passes_data": ("FPPM_VIEWLAYER_PT_passes",
                                      "depth, mist, normal, UV, indices written by the film"),
+    "CYCLES_RENDER_PT_passes_crypto": ("FPPM_VIEWLAYER_PT_passes_crypto",
+                                       "object, material and asset mattes, levels"),
     "CYCLES_PT_post_processing": ("RENDER_PT_post_processing",
                                   "Blender's own compositing/sequencer switches"),
     "CYCLES_LIGHT_PT_light": ("FPPM_LIGHT_PT_light",
@@ -642,6 +664,7 @@ REPLACED = {
     "DATA_PT_spot": "FPPM_LIGHT_PT_beam_shape",
     "MATERIAL_PT_context_material": "FPPM_PT_context_material",
     "VIEWLAYER_PT_layer_passes": "FPPM_VIEWLAYER_PT_passes",
+    "VIEWLAYER_PT_layer_passes_cryptomatte": "FPPM_VIEWLAYER_PT_passes_crypto",
 }
 
 #: The panels of the volumes FPPM ignores (a constant Volume Absorption is
@@ -673,7 +696,6 @@ HIDDEN = {
     # view layer tab
     "CYCLES_RENDER_PT_filter": "Cycles' per-layer filter of surfaces/curves/volumes",
     "CYCLES_RENDER_PT_passes_light": "light passes: only the Combined pass is split by light",
-    "CYCLES_RENDER_PT_passes_crypto": "Cryptomatte: ignored",
     "CYCLES_RENDER_PT_passes_aov": "shader AOVs: ignored",
     "CYCLES_RENDER_PT_passes_lightgroups": "light groups: ignored",
     "VIEWLAYER_PT_layer_passes_lightgroups": "light groups: ignored",

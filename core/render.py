@@ -73,6 +73,7 @@ from .scene.model import Scene, drop_invalid_triangles, scene_digest
 from .settings import RenderSettings
 from .sppm import hashgrid
 from .sppm.film import AOVS, PASSES, Film, PassResult, data_passes, pass_enabled
+from .sppm import cryptomatte
 from .sppm.photon_pass import AHEAD_CHUNKS, PHOTON_CHUNK, PhotonPass, frequency_photons
 from .frequency.curvature import scene_curvature
 from .sppm.photons import PhotonTracer
@@ -206,6 +207,7 @@ class Renderer:
         # the film's data passes and photon merging read them (not alpha).
         self.camera_pass.first_data = memory.keeps_first_hits(bool(self.film.data_passes),
                                                               st.integrator, self.merging)
+        self.camera_pass.matte = self.film.matte is not None
         if st.integrator == "COMBINED":
             from .integrators.combined import CameraMIS, CombinedLightTracer
             self.path_tracer.vc = CameraMIS(self.light_table, self.mtab, self.camera,
@@ -290,7 +292,8 @@ class Renderer:
                                       min(st0.photons_per_pass, PHOTON_CHUNK), scene.n_triangles,
                                       st0.occlusion_grid_res, st0.use_frequency,
                                       aov_channels=sum(p.channels for p in PASSES
-                                                       if p.name in passes or pass_enabled(p, st0)),
+                                                       if p.name in passes or pass_enabled(p, st0))
+                                      + 4 * sum(map(cryptomatte.is_pass, passes)),
                                       hist_bins=HIST_BINS if st0.frequency_estimator == "QUANTILE" else 0,
                                       texture_bytes=sum(np.asarray(t).nbytes for t in scene.textures),
                                       sector_cells=SECTOR_CELLS if needs_sectors(st0, st0.use_frequency) else 0,

@@ -7,7 +7,8 @@ Layout of a file written by :func:`write_exr`:
   EXR viewer shows it as the beauty image);
 - every other layer ``name`` with C channels is stored as ``name.<c>`` with the
   channel letters of :data:`CHANNEL_LETTERS` (``"FPPM Radius px.X"``,
-  ``"Spectrum.R"`` ...), the usual ``layer.channel`` convention;
+  ``"Spectrum.R"`` ...), the usual ``layer.channel`` convention (a
+  Cryptomatte layer's ``r, g, b, a``, the Cryptomatte convention);
 - pixels are float32, ZIP-compressed, row 0 at the TOP (EXR's increasing-y
   order, the same as ``core``'s images);
 - ``metadata`` becomes string attributes of the header.
@@ -60,7 +61,10 @@ def _channels_of(layers: dict) -> dict[str, np.ndarray]:
             letters = _COMBINED_CHANNELS
             prefix = ""
         else:
-            letters = CHANNEL_LETTERS[a.shape[2]]
+            from ..sppm.cryptomatte import is_pass
+            # Cryptomatte layers: r, g, b, a (the Cryptomatte convention, as
+            # Blender writes them).
+            letters = "rgba" if is_pass(name) else CHANNEL_LETTERS[a.shape[2]]
             prefix = name + "."
         for i, c in enumerate(letters):
             chans[prefix + c] = np.ascontiguousarray(a[:, :, i])
@@ -170,8 +174,8 @@ def read_exr(path: str) -> dict[str, np.ndarray]:
 
     Returns ``{layer: (H, W, C) float32}`` (row 0 at the top).  Plain
     ``R, G, B[, A]`` channels come back as ``"Combined"``; ``name.c`` channels
-    are grouped by ``name`` and ordered by :data:`CHANNEL_LETTERS` (then
-    alphabetically for unknown letters).  Every part is read: Blender 5 writes
+    are grouped by ``name`` and ordered by :data:`CHANNEL_LETTERS` (in
+    either case; then alphabetically for unknown letters).  Every part is read: Blender 5 writes
     a multilayer render as one part per pass ("ViewLayer.Combined",
     "ViewLayer.Diffuse Direct", ...).
     """
@@ -188,7 +192,8 @@ def read_exr(path: str) -> dict[str, np.ndarray]:
                 layer, _, c = name.rpartition(".")
                 groups.setdefault(layer or COMBINED, {})[c] = np.asarray(ch.pixels, np.float32)
             for layer, chs in groups.items():
-                keys = sorted(chs, key=lambda c: (order.find(c) if c in order else len(order), c))
+                keys = sorted(chs, key=lambda c: (order.find(c.upper()) if c.upper() in order
+                                                  else len(order), c))
                 out[layer] = np.stack([chs[k] for k in keys], axis=2)
     return out
 

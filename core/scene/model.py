@@ -259,6 +259,9 @@ class Scene:
       triangle's object, and tri_shadow_sets (T,) uint64 the blocker sets
       that shadow it as an emitter (core.scene.shadow_linking), or None (no
       shadow linking).
+    tri_crypto: (T, 3) float32 each triangle's Cryptomatte IDs (object,
+      material, asset: core.sppm.cryptomatte), and crypto_names {kind:
+      names} the manifests, or None (no Cryptomatte pass asked for).
     """
     tri_p: np.ndarray
     tri_n: np.ndarray
@@ -287,6 +290,8 @@ class Scene:
     material_shadow: Optional[np.ndarray] = None
     tri_blocker: Optional[np.ndarray] = None
     tri_shadow_sets: Optional[np.ndarray] = None
+    tri_crypto: Optional[np.ndarray] = None
+    crypto_names: Optional[dict] = None
 
     def __post_init__(self):
         self.attach_shading_normals()
@@ -409,7 +414,9 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       material_shadow=scene.material_shadow,
                       tri_blocker=None if scene.tri_blocker is None else scene.tri_blocker[ok],
                       tri_shadow_sets=None if scene.tri_shadow_sets is None
-                      else scene.tri_shadow_sets[ok])
+                      else scene.tri_shadow_sets[ok],
+                      tri_crypto=None if scene.tri_crypto is None else scene.tri_crypto[ok],
+                      crypto_names=scene.crypto_names)
     return scene, dropped
 
 
@@ -449,7 +456,7 @@ def scene_digest(scene: Scene) -> str:
     if getattr(scene, "material_receiver", None) is not None:
         h.update(b"linking" + np.ascontiguousarray(scene.material_receiver).tobytes()
                  + np.ascontiguousarray(scene.material_emitter).tobytes())
-    for name in ("tri_blocker", "tri_shadow_sets"):
+    for name in ("tri_blocker", "tri_shadow_sets", "tri_crypto"):
         if getattr(scene, name, None) is not None:
             h.update(name.encode() + np.ascontiguousarray(getattr(scene, name)).tobytes())
     unset = {"link_sets": (1 << 64) - 1, "shadow_sets": (1 << 64) - 1, "visible_diffuse": True}

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..kept import KeptArrays
 from ..scene.holdout import triangle_weights
+from .cryptomatte import Mattes
 
 _F32_MAX = np.finfo(np.float32).max
 #: Pixels from which the film kernel splits over the numba threads.
@@ -233,6 +234,8 @@ class Film:
         self._image = KeptArrays()
         self.samples = 0                              # passes accumulated
         self.sums = {p.name: np.zeros((P, p.channels)) for p in self.data_passes}
+        # The Cryptomatte passes' slots (core.sppm.cryptomatte), or None.
+        self.matte = Mattes.of_passes(passes, P, scene)
         if scene is not None:
             M = np.asarray(scene.camera.matrix_world, np.float64)
             axes = M[:3, :3] / np.maximum(np.linalg.norm(M[:3, :3], axis=0), 1e-300)
@@ -244,7 +247,8 @@ class Film:
         """Whether :meth:`accumulate` uses a pass's camera data (alpha or a
         data pass is on): integrators without visible points of their own
         (PATH, COMBINED) run the camera pass for it only then."""
-        return self.scene is not None and (self.alpha or bool(self.data_passes))
+        return self.scene is not None and (self.alpha or bool(self.data_passes)
+                                           or self.matte is not None)
 
     def accumulate(self, vp) -> None:
         """Add one pass's camera data (VisiblePoints with .first) to alpha and the data passes."""
@@ -252,6 +256,8 @@ class Film:
         if first is None or self.scene is None:
             return
         self.coverage += 1.0 - first.escape
+        if self.matte is not None and first.matte:
+            self.matte.add(first.matte)
         if self.data_passes:
             x = PassSample(first, vp, self.scene, self.eye, self.view, self.R_wc)
             for p in self.data_passes:
@@ -267,6 +273,8 @@ class Film:
         """The film's sums for a checkpoint (keys 'film_*')."""
         d = {"film_coverage": self.coverage.copy(), "film_samples": np.asarray(self.samples)}
         d.update({f"film_{k}": v.copy() for k, v in self.sums.items()})
+        if self.matte is not None:
+            d.update({f"film_{k}": v for k, v in self.matte.state_dict().items()})
         return d
 
     def load_state(self, d: dict) -> None:
@@ -279,6 +287,9 @@ class Film:
         for k, v in self.sums.items():
             if f"film_{k}" in d:
                 v[...] = d[f"film_{k}"]
+        if self.matte is not None:
+            self.matte.load_state({k[len("film_"):]: v for k, v in d.items()
+                                   if k.startswith("film_crypto_")})
 
     def __call__(self, state, pass_index: int, photons_emitted: int, elapsed: float) -> PassResult:
         """The PassResult of the state after pass_index passes."""
@@ -306,6 +317,8 @@ class Film:
             if p.finish is not None:
                 v = p.finish(v)
             aovs[p.name] = v.reshape(H, W, p.channels).astype(np.float32)
+        if self.matte is not None:
+            aovs.update({k: v.reshape(H, W, 4) for k, v in self.matte.passes(n).items()})
         # r_px[R2 > 0] moved to r_px's front in place (its own array, the AOVs
         # are copies): the mean of the same values in the same order as
         # r_px[R2 > 0].mean(), without a pixel-sized copy and mask
