@@ -466,7 +466,9 @@ def _write_outputs(a, bpy, scene, sess, out_path, elapsed_wall) -> list[str]:
         img[..., :3] *= np.float32(sess.gain)
     layers = {"Combined": img}
     for name, arr in pr.aovs.items():
-        layers[name] = arr
+        # A shader AOV's name may hold a dot, which would split the layer
+        # when the EXR is read back (core.io.exr): an underscore instead.
+        layers[name.replace(".", "_")] = arr
     st = sess.settings
     meta = {
         "fppm:version": "0.1.0",

@@ -37,9 +37,14 @@ UPDATE_INTERVAL = 0.25  # s between image-editor updates (at most ~4 per second)
 
 def enabled_aovs(settings, view_layer=None) -> list[tuple[str, int, str, str]]:
     """(name, channels, chan_id, type) of the passes the settings and the
-    view layer (Passes panel: Z, Mist, Normal, ..., Cryptomatte) ask for."""
+    view layer (Passes panel: Z, Mist, Normal, ..., Shader AOV, Cryptomatte)
+    ask for; a shader AOV as Cycles registers it (a Color AOV RGBA, a
+    Value AOV one channel; one whose name conflicts with another pass is
+    not ``is_valid``, and left out as Cycles leaves it out)."""
     return [(p.name, p.channels, p.chan_id, p.kind) for p in PASSES
             if pass_enabled(p, settings, view_layer)] + [
+        (a.name, 4, "RGBA", 'COLOR') if a.type == 'COLOR' else (a.name, 1, "X", 'VALUE')
+        for a in getattr(view_layer, "aovs", ()) if a.is_valid] + [
         (name, 4, "RGBA", 'COLOR') for name in cryptomatte.pass_names(view_layer)]
 
 

@@ -193,6 +193,8 @@ SUPPORT = (
     ("film transparency, pixel filter (Blackman-Harris, Box, Gaussian) and its width, "
      "object and material pass index (every "
      "integrator but Light Tracing, whose film is opaque)", SUPPORTED, ""),
+    ("shader AOVs (AOV Output nodes: a constant or an Image Texture, also through colour "
+     "nodes, at the camera ray's first hit; every integrator but Light Tracing)", SUPPORTED, ""),
     ("Cryptomatte (Object, Material, Asset, Levels): Cycles' IDs, coverage through "
      "Transparent BSDFs and manifests, in the render result and the CLI's EXR (every "
      "integrator but Light Tracing)", SUPPORTED, ""),
@@ -289,7 +291,6 @@ SUPPORT = (
     ("volume objects", IGNORED, "volume object(s) not rendered"),
     ("adaptive subdivision", IGNORED, ""),
     ("clamping", IGNORED, ""),
-    ("shader AOVs", IGNORED, ""),
     ("light groups", IGNORED, ""),
     ("light probes", IGNORED, ""),
     ("material and sample override", IGNORED, ""),
@@ -1287,7 +1288,28 @@ class _MaterialBuilder:
                                          normal=normal, camera=None, shadow=None)
                 for k in ("camera", "shadow")}
         return Material(self.name, m.lobes, m.emission, m.emission_texture, tuple(notes),
-                        normal=normal, holdout=m.holdout, absorption=absorption, **seen)
+                        normal=normal, holdout=m.holdout, absorption=absorption,
+                        aovs=self.shader_aovs(nodes), **seen)
+
+    def shader_aovs(self, nodes) -> tuple:
+        """((name, rgb, texture index, scalar), ...) of the AOV Output nodes
+        whose name is one of the view layer's shader AOVs (the first node of
+        a name): a Color AOV their Color input, a Value AOV their Value input
+        (a constant, or an image's value per hit)."""
+        out, seen = [], set()
+        for nd in nodes:
+            kind = self.ex.aov_kinds.get(getattr(nd, "aov_name", None))
+            if nd.type != 'OUTPUT_AOV' or nd.mute or kind is None or nd.aov_name in seen:
+                continue
+            seen.add(nd.aov_name)
+            if kind == 'COLOR':
+                rgb, tex = self.color(nd, "Color")
+                out.append((nd.aov_name, rgb, tex, False))
+            else:
+                tex = self.alpha_texture(nd, "Value")
+                v = 1.0 if tex >= 0 else self.value(nd, "Value")
+                out.append((nd.aov_name, (v, v, v), tex, True))
+        return tuple(out)
 
     def absorption(self, socket) -> tuple:
         """sigma_a (3,) [1/m] of a Volume Absorption of constant Color c and
@@ -1482,6 +1504,9 @@ class _Exporter:
         self.crypto_parts: list[np.ndarray] = []
         self.mat_crypto: list = []
         self.crypto_names = {k: set() for k in crypto.KINDS}
+        # The view layer's shader AOVs (core.sppm.shader_aovs): name -> type.
+        self.aov_kinds = {a.name: a.type for a in getattr(getattr(depsgraph, "view_layer", None),
+                                                          "aovs", ()) if a.is_valid}
         self.mat_index: dict = {}
         self.textures: list[np.ndarray] = []
         self.tex_index: dict = {}      # (image name, reading) -> index into textures
@@ -2532,6 +2557,7 @@ class _Exporter:
                                    if self.crypto and parts else None),
                        crypto_names=({k: tuple(sorted(v)) for k, v in self.crypto_names.items()}
                                      if self.crypto else None),
+                       shader_aovs=tuple(self.aov_kinds.items()),
                        **seen_rows)
         # A holdout object keeps its material's transparency (core.scene.holdout).
         fscene = see_through(fscene)

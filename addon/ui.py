@@ -1,6 +1,7 @@
 """Render-properties panels for FPPM, and FPPM's place in Blender's standard panels."""
 import bpy
 from bpy.types import Panel
+from bl_ui.properties_view_layer import ViewLayerAOVPanelHelper, ViewLayerCryptomattePanelHelper
 from .export import GEOMETRY_TYPES
 
 ENGINE = "FPPM"
@@ -166,23 +167,25 @@ class FPPM_VIEWLAYER_PT_passes(FPPMPanel, Panel):
     draw = FPPM_RENDER_PT_output.draw
 
 
-class FPPM_VIEWLAYER_PT_passes_crypto(FPPMPanel, Panel):
-    """Cryptomatte (core.sppm.cryptomatte): the kinds and their levels, as
-    Blender's own panel draws them."""
-    bl_label = "Cryptomatte"
+class FPPM_VIEWLAYER_PT_passes_aov(FPPMPanel, ViewLayerAOVPanelHelper, Panel):
+    """Shader AOVs (core.sppm.shader_aovs): Blender's list, as Cycles shows it."""
     bl_context = "view_layer"
     bl_parent_id = "FPPM_VIEWLAYER_PT_passes"
 
     def draw(self, context):
-        vl = getattr(context, "view_layer", None)
-        if vl is None:
-            return
-        layout = split(self.layout)
-        col = layout.column(heading="Include", align=True)
-        col.prop(vl, "use_pass_cryptomatte_object", text="Object")
-        col.prop(vl, "use_pass_cryptomatte_material", text="Material")
-        col.prop(vl, "use_pass_cryptomatte_asset", text="Asset")
-        layout.column().prop(vl, "pass_cryptomatte_depth", text="Levels")
+        if getattr(context, "view_layer", None) is not None:
+            ViewLayerAOVPanelHelper.draw(self, context)
+
+
+class FPPM_VIEWLAYER_PT_passes_crypto(FPPMPanel, ViewLayerCryptomattePanelHelper, Panel):
+    """Cryptomatte (core.sppm.cryptomatte): the kinds and their levels, as
+    Cycles shows them."""
+    bl_context = "view_layer"
+    bl_parent_id = "FPPM_VIEWLAYER_PT_passes"
+
+    def draw(self, context):
+        if getattr(context, "view_layer", None) is not None:
+            ViewLayerCryptomattePanelHelper.draw(self, context)
 
 
 # -- the other tabs ------------------------------------------------------------
@@ -547,6 +550,7 @@ classes = (
     FPPM_RENDER_PT_frequency,
     FPPM_RENDER_PT_output,
     FPPM_VIEWLAYER_PT_passes,
+    FPPM_VIEWLAYER_PT_passes_aov,
     FPPM_VIEWLAYER_PT_passes_crypto,
     FPPM_LIGHT_PT_preview,
     FPPM_LIGHT_PT_light,
@@ -631,6 +635,8 @@ EQUIVALENTS = {
                                      "depth, mist, normal, UV, indices written by the film"),
     "CYCLES_RENDER_PT_passes_crypto": ("FPPM_VIEWLAYER_PT_passes_crypto",
                                        "object, material and asset mattes, levels"),
+    "CYCLES_RENDER_PT_passes_aov": ("FPPM_VIEWLAYER_PT_passes_aov",
+                                    "the view layer's shader AOVs"),
     "CYCLES_PT_post_processing": ("RENDER_PT_post_processing",
                                   "Blender's own compositing/sequencer switches"),
     "CYCLES_LIGHT_PT_light": ("FPPM_LIGHT_PT_light",
@@ -665,6 +671,7 @@ REPLACED = {
     "MATERIAL_PT_context_material": "FPPM_PT_context_material",
     "VIEWLAYER_PT_layer_passes": "FPPM_VIEWLAYER_PT_passes",
     "VIEWLAYER_PT_layer_passes_cryptomatte": "FPPM_VIEWLAYER_PT_passes_crypto",
+    "VIEWLAYER_PT_layer_passes_aov": "FPPM_VIEWLAYER_PT_passes_aov",
 }
 
 #: The panels of the volumes FPPM ignores (a constant Volume Absorption is
@@ -696,7 +703,6 @@ HIDDEN = {
     # view layer tab
     "CYCLES_RENDER_PT_filter": "Cycles' per-layer filter of surfaces/curves/volumes",
     "CYCLES_RENDER_PT_passes_light": "light passes: only the Combined pass is split by light",
-    "CYCLES_RENDER_PT_passes_aov": "shader AOVs: ignored",
     "CYCLES_RENDER_PT_passes_lightgroups": "light groups: ignored",
     "VIEWLAYER_PT_layer_passes_lightgroups": "light groups: ignored",
     "VIEWLAYER_PT_override": "material and sample override: ignored",

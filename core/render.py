@@ -293,6 +293,8 @@ class Renderer:
                                       st0.occlusion_grid_res, st0.use_frequency,
                                       aov_channels=sum(p.channels for p in PASSES
                                                        if p.name in passes or pass_enabled(p, st0))
+                                      + sum(p.channels for p in data_passes(passes, scene)
+                                            if p not in PASSES)
                                       + 4 * sum(map(cryptomatte.is_pass, passes)),
                                       hist_bins=HIST_BINS if st0.frequency_estimator == "QUANTILE" else 0,
                                       texture_bytes=sum(np.asarray(t).nbytes for t in scene.textures),
@@ -301,7 +303,7 @@ class Renderer:
                                       chunks_ahead=AHEAD_CHUNKS,
                                       view_triangles=memory.view_triangles(scene.tri_visibility, scene),
                                       # CameraPass.first_data (set in __init__), before the plan
-                                      first_hits=memory.keeps_first_hits(bool(data_passes(passes)),
+                                      first_hits=memory.keeps_first_hits(bool(data_passes(passes, scene)),
                                                                          st0.integrator))
         memory.check_fits(self.memory)
         self.light_table = build_light_table(scene)

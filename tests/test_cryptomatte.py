@@ -1,5 +1,6 @@
-"""Cryptomatte (core/sppm/cryptomatte.py) against Cycles: the IDs, the slots,
-the mattes' weights and the manifests.
+"""The compositing passes against Cycles: Cryptomatte (core/sppm/
+cryptomatte.py: the IDs, the slots, the mattes' weights and the manifests)
+and shader AOVs (core/sppm/shader_aovs.py).
 
 The pure tests check the hash and the slot rules against values Cycles
 wrote: the manifest of a Cycles render of a cube "Parent.Cube" with a child
@@ -14,6 +15,9 @@ kinds on at Levels 6, 40 x 32 px, the same 1.5 px Blackman-Harris filter:
 a grey floor, a red cube parented to an empty "Rig" (its asset), a cube
 without material (default_surface), and a card of a Mix Shader of a
 Diffuse and a white Transparent BSDF at 0.5 over part of the red cube.
+Two shader AOVs: "tint" (Color), the floor's image texture (an 8 x 8
+colour gradient over its UVs), and "mask" (Value), the luminance of that
+image on the floor and 0.75 on the red cube; the other objects write none.
 
 Noise model: a pixel's weight of an ID is a mean over n samples (FPPM's
 passes, Cycles' samples) of values in [0, 1], whose variance is at most
@@ -91,13 +95,37 @@ def test_exr_layers_use_cryptomatte_channels(tmp_path):
 
 # -- against Cycles ----------------------------------------------------------
 
+def _aov(mat, name, **inputs):
+    """An AOV Output node ``name`` in ``mat`` with ``inputs`` (a value, or a
+    node output to link)."""
+    nt = mat.node_tree
+    nd = nt.nodes.new('ShaderNodeOutputAOV')
+    nd.aov_name = name
+    for k, v in inputs.items():
+        if isinstance(v, (int, float, tuple)):
+            nd.inputs[k].default_value = v
+        else:
+            nt.links.new(v, nd.inputs[k])
+
+
 def _scene(engine):
     import bpy_helpers as H
     bpy = H.bpy()
     sc = H.empty_scene((40, 32), engine=engine)
     grey = H.node_material("Grey", "BSDF_DIFFUSE", Color=(0.8, 0.8, 0.8, 1.0))
     red = H.node_material("Red", "BSDF_DIFFUSE", Color=(0.8, 0.1, 0.1, 1.0))
-    H.add_plane(sc, material=grey, size=6.0)
+    floor = H.add_plane(sc, material=grey, size=6.0)
+    floor.data.uv_layers.new()
+    img = bpy.data.images.new("Gradient", 8, 8, float_buffer=True)
+    y, x = np.mgrid[0:8, 0:8] / 7.0
+    img.pixels.foreach_set(np.stack([x, y, 1 - x, np.ones_like(x)], -1).ravel()
+                           .astype(np.float32))
+    img.pack()
+    tex = grey.node_tree.nodes.new('ShaderNodeTexImage')
+    tex.image, tex.interpolation = img, 'Linear'
+    _aov(grey, "tint", Color=tex.outputs["Color"])
+    _aov(grey, "mask", Value=tex.outputs["Color"])
+    _aov(red, "mask", Value=0.75)
     rig = H.link(bpy.data.objects.new("Rig", None), sc)
     cube = H.add_cube(sc, material=red, location=(0.3, 0.0, 0.5))
     cube.parent = rig
@@ -118,6 +146,9 @@ def _scene(engine):
     vl = sc.view_layers[0]
     for k in KINDS:
         setattr(vl, C.FLAGS[k], True)
+    for name, kind in (("tint", 'COLOR'), ("mask", 'VALUE')):
+        a = vl.aovs.add()
+        a.name, a.type = name, kind
     return sc
 
 
@@ -161,19 +192,23 @@ def cycles(tmp_path_factory):
     return _save(sc, tmp_path_factory.mktemp("cycles") / "c.exr")
 
 
-@pytest.mark.parametrize("integrator", ["COMBINED", "PHOTON"])
-def test_mattes_agree_with_cycles(cycles, integrator, tmp_path):
+@pytest.fixture(scope="module", params=["COMBINED", "PHOTON"])
+def fppm(request, tmp_path_factory):
     bpy = pytest.importorskip("bpy")
     import bpy_helpers as H
     import fppm.addon.engine as E
     sc = _scene("FPPM")
-    H.small_settings(sc, passes=N_FPPM, photons=2000, seed=3, integrator=integrator,
+    H.small_settings(sc, passes=N_FPPM, photons=2000, seed=3, integrator=request.param,
                      camera_samples=1)
     sess = E.RenderSession(log=lambda m: None)
     with E.session(sess):
         bpy.ops.render.render()
     assert sess.error is None
-    layers, meta = _save(sc, tmp_path / "f.exr")
+    return request.param, _save(sc, tmp_path_factory.mktemp("fppm") / "f.exr")
+
+
+def test_mattes_agree_with_cycles(cycles, fppm):
+    integrator, (layers, meta) = fppm
     c_layers, c_meta = cycles
     # The manifests: every object and asset Cycles lists (lights too), the
     # materials among its shaders (it lists its default shaders as well).
@@ -251,3 +286,36 @@ def test_compiled_camera_pass_records_numpy_mattes(blocked, monkeypatch):
     # mean(beta) (1 - 0.4), beta 1 (0.4 over the choice's probability 0.4).
     assert np.sum(np.bincount(px) >= 2) > 30
     np.testing.assert_allclose(w[on], 0.6, rtol=1e-12)
+
+
+def test_shader_aovs_agree_with_cycles(cycles, fppm):
+    """Each shader AOV: inside surfaces (no other object within the filter
+    support) within 3 x the change to the neighbouring pixels + 0.002 (the
+    samples' spread over the +-1.5 px filter); at silhouettes within 5
+    sigma of the coverage noise of a value in [0, 1]; over the image, the
+    means within 0.01 (module docstring)."""
+    _, (layers, _) = fppm
+    c_layers, _ = cycles
+    from test_passes import _neighbour_span
+    cov = c_layers["ViewLayer.CryptoObject00"][..., 1]       # the top object's coverage
+    inside = (cov > 0.999) & (_neighbour_span(cov[..., None], 2) < 1e-3)
+    assert inside.sum() > 300
+    for name, ch in (("tint", 4), ("mask", 1)):
+        f, c = layers[f"ViewLayer.{name}"], c_layers[f"ViewLayer.{name}"]
+        assert f.shape == c.shape == (32, 40, ch), name
+        d = np.abs(f - c).max(axis=2)
+        tol = 3 * _neighbour_span(c) + 0.002
+        r_in = float((d / tol)[inside].max())
+        w = np.clip(c.max(axis=2), 0.0, 1.0)
+        sigma = np.sqrt(np.maximum(w * (1 - w), 1 / N_FPPM) * (1 / N_FPPM + 1 / N_CYCLES))
+        r_edge = float((d / (5 * sigma + tol))[~inside].max())
+        dm = float(np.abs(f.mean(axis=(0, 1)) - c.mean(axis=(0, 1))).max())
+        print(f"\n{name}: inside {r_in:.2f}, silhouettes {r_edge:.2f} of their bounds, "
+              f"mean {dm:.4f}")
+        assert r_in <= 1 and r_edge <= 1 and dm < 0.01, name
+    # The passes show what they should: the gradient on the floor, the
+    # cube's 0.75, no tint (alpha 0) where no material writes it.
+    c_mask, c_tint = c_layers["ViewLayer.mask"][..., 0], c_layers["ViewLayer.tint"]
+    assert np.sum(np.abs(c_mask - 0.75) < 1e-6) > 10
+    assert np.ptp(c_tint[inside & (c_tint[..., 3] > 0.999), 0]) > 0.3
+    assert np.all(layers["ViewLayer.tint"][c_tint[..., 3] == 0, 3] == 0)

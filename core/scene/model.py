@@ -121,6 +121,10 @@ class Material:
     absorption: (3,) the absorption coefficient sigma_a [1/m] of the
       homogeneous volume inside the surface (Cycles' Volume Absorption:
       density x (1 - color)), or () without one (core.scene.absorption).
+    aovs: the values its AOV Output nodes write into the view layer's
+      shader AOVs, ((name, rgb (3,), texture index or -1, scalar), ...):
+      rgb times the texture's colour (scalar: its alpha channel, a Value
+      AOV's image) (core.sppm.shader_aovs).
     """
     name: str
     lobes: tuple = (Lobe(DIFFUSE),)
@@ -132,6 +136,7 @@ class Material:
     camera: object = field(default=None, repr=False)
     shadow: object = field(default=None, repr=False)
     absorption: tuple = field(default=(), repr=False)
+    aovs: tuple = field(default=(), repr=False)
 
 
 @dataclass(frozen=True)
@@ -262,6 +267,8 @@ class Scene:
     tri_crypto: (T, 3) float32 each triangle's Cryptomatte IDs (object,
       material, asset: core.sppm.cryptomatte), and crypto_names {kind:
       names} the manifests, or None (no Cryptomatte pass asked for).
+    shader_aovs: ((name, 'COLOR' | 'VALUE'), ...) the view layer's shader
+      AOVs (core.sppm.shader_aovs).
     """
     tri_p: np.ndarray
     tri_n: np.ndarray
@@ -292,6 +299,7 @@ class Scene:
     tri_shadow_sets: Optional[np.ndarray] = None
     tri_crypto: Optional[np.ndarray] = None
     crypto_names: Optional[dict] = None
+    shader_aovs: tuple = ()
 
     def __post_init__(self):
         self.attach_shading_normals()
@@ -416,7 +424,7 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       tri_shadow_sets=None if scene.tri_shadow_sets is None
                       else scene.tri_shadow_sets[ok],
                       tri_crypto=None if scene.tri_crypto is None else scene.tri_crypto[ok],
-                      crypto_names=scene.crypto_names)
+                      crypto_names=scene.crypto_names, shader_aovs=scene.shader_aovs)
     return scene, dropped
 
 
@@ -442,6 +450,10 @@ def scene_digest(scene: Scene) -> str:
               if getattr(m, "holdout", 0.0)]
     extra += [(i, "absorption", m.absorption) for i, m in enumerate(scene.materials)
               if getattr(m, "absorption", ())]
+    extra += [(i, "aovs", m.aovs) for i, m in enumerate(scene.materials)
+              if getattr(m, "aovs", ())]
+    if getattr(scene, "shader_aovs", ()):
+        extra.append(("shader_aovs", scene.shader_aovs))
     if extra:
         h.update(repr(extra).encode())
     if scene.tri_tangent is not None:

@@ -191,11 +191,14 @@ PASSES = (
 AOVS = tuple(p for p in PASSES if p.source == "state")
 
 
-def data_passes(passes) -> tuple:
+def data_passes(passes, scene=None) -> tuple:
     """The PASSES named in ``passes`` that are made from the camera pass's
-    first hits ('mean' and 'first' sources, not the state's AOVs)."""
+    first hits ('mean' and 'first' sources, not the state's AOVs), then the
+    scene's shader AOVs among them (``core.sppm.shader_aovs``)."""
+    from .shader_aovs import film_passes
     names = set(passes)
-    return tuple(p for p in PASSES if p.source != "state" and p.name in names)
+    return (tuple(p for p in PASSES if p.source != "state" and p.name in names)
+            + film_passes(scene, passes))
 
 
 def pass_enabled(p: FilmPass, settings, view_layer=None) -> bool:
@@ -226,7 +229,7 @@ class Film:
         # film).
         self.alpha = self.transparent or (
             scene is not None and triangle_weights(scene) is not None)
-        self.data_passes = data_passes(passes)
+        self.data_passes = data_passes(passes, scene)
         P = H * W
         self.coverage = np.zeros(P)                   # sum over passes of "camera ray hit"
         # The image, reused from pass to pass once no caller holds the last
