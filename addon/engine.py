@@ -22,6 +22,7 @@ import numpy as np
 from ..core.errors import FPPMError, RenderCancelled
 from ..core.settings import SettingsError
 from ..core.sppm import cryptomatte
+from ..core.sppm.shadow_catcher import PASS as CATCHER_PASS
 from ..core.sppm.film import PASSES, pass_enabled
 from ..core.warmup import expected_seconds, is_compiled, render_job, warmup
 from .export import export_scene
@@ -45,7 +46,9 @@ def enabled_aovs(settings, view_layer=None) -> list[tuple[str, int, str, str]]:
             if pass_enabled(p, settings, view_layer)] + [
         (a.name, 4, "RGBA", 'COLOR') if a.type == 'COLOR' else (a.name, 1, "X", 'VALUE')
         for a in getattr(view_layer, "aovs", ()) if a.is_valid] + [
-        (name, 4, "RGBA", 'COLOR') for name in cryptomatte.pass_names(view_layer)]
+        (name, 4, "RGBA", 'COLOR') for name in cryptomatte.pass_names(view_layer)] + (
+        [(CATCHER_PASS, 3, "RGB", 'COLOR')]
+        if getattr(getattr(view_layer, "cycles", None), "use_pass_shadow_catcher", False) else [])
 
 
 def film_gain(scene) -> float:

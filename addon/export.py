@@ -287,7 +287,12 @@ SUPPORT = (
      "surface comes from light samples alone (Cycles: both strategies, the same expectation)",
      APPROXIMATED, "a mirror or glass in front of the emitter shows it only where no object "
                    "stands between them"),
-    ("shadow catcher", IGNORED, "ignored: rendered as ordinary surfaces"),
+    ("shadow catcher (Object > Visibility > Mask): the Combined pass the matte with the "
+     "catcher's shadow composed as Cycles composes it (its alpha with Film > Transparent, over "
+     "the world otherwise; the matte and its alpha with the Shadow Catcher pass on), the "
+     "shadow the catcher's light over its light in a scene without the other objects, for "
+     "camera rays whose first hit is a catcher (every integrator but Light Tracing)",
+     APPROXIMATED, "no light between catchers); the matte at its silhouettes approximated"),
     ("volume objects", IGNORED, "volume object(s) not rendered"),
     ("adaptive subdivision", IGNORED, ""),
     ("clamping", IGNORED, ""),
@@ -1402,6 +1407,13 @@ def is_holdout(ob, parent=None, view_layer=None) -> bool:
         return bool(getattr(src, "is_holdout", False))
 
 
+def is_shadow_catcher(ob, parent=None) -> bool:
+    """Object > Visibility > Mask > Shadow Catcher: the object's own, or its
+    instancer's for an instance (Cycles takes either)."""
+    return any(bool(getattr(getattr(o, "original", o), "is_shadow_catcher", False))
+               for o in (ob, parent) if o is not None)
+
+
 # The flags every integrator honours (core.accel.for_rays at each ray kind);
 # diffuse, glossy and transmission visibility would need photons and camera
 # paths traced per ray kind of the path they would join.
@@ -1451,7 +1463,7 @@ FEATURE_CHECKS = (
      "hair of {} not rendered"),
     ("shadow catcher", lambda sc, obs: [ob for ob in obs if ob.type in GEOMETRY_TYPES
                                         and getattr(ob, "is_shadow_catcher", False)],
-     "shadow catcher of {} ignored: rendered as ordinary surfaces"),
+     "shadow catcher on {}: lit without the other objects by light samples alone (no light between catchers); the matte at its silhouettes approximated"),
     ("volume objects", lambda sc, obs: [ob for ob in obs if ob.type == 'VOLUME'],
      "volume object(s) not rendered: {}"),
 )
@@ -1493,6 +1505,7 @@ class _Exporter:
         self.obj_index_parts: list[np.ndarray] = []   # object.pass_index per triangle of parts
         self.vis_parts: list[np.ndarray] = []         # ray_visibility per triangle of parts
         self.holdout_parts: list[np.ndarray] = []     # is_holdout per triangle of parts
+        self.catcher_parts: list[np.ndarray] = []     # is_shadow_catcher per triangle of parts
         self.receiver_parts: list[np.ndarray] = []    # light-linking receiver set per triangle
         self.emitter_parts: list[np.ndarray] = []     # light-linking membership per triangle
         self.blocker_parts: list[np.ndarray] = []     # shadow-linking blocker set per triangle
@@ -1916,7 +1929,8 @@ class _Exporter:
         if T <= CHUNK:
             return drop_invalid_triangles(fscene)
         per_tri = ("tri_p", "tri_n", "tri_uv", "tri_mat", "tri_object_index", "tri_tangent",
-                   "tri_visibility", "tri_holdout", "tri_blocker", "tri_shadow_sets", "tri_crypto")
+                   "tri_visibility", "tri_holdout", "tri_blocker", "tri_shadow_sets", "tri_crypto",
+                   "tri_catcher")
         bands, dropped = [], 0
         for a in range(0, T, CHUNK):
             band = dataclasses.replace(fscene, **{
@@ -2493,6 +2507,8 @@ class _Exporter:
             held = is_holdout(ob, inst.parent if inst.is_instance else None,
                               getattr(self.dg, "view_layer", None))
             self.holdout_parts += [np.full(len(q[0]), held, bool) for q in parts[n0:]]
+            catcher = is_shadow_catcher(ob, inst.parent if inst.is_instance else None)
+            self.catcher_parts += [np.full(len(q[0]), catcher, bool) for q in parts[n0:]]
             if receiver or membership:
                 self.receiver_parts += [np.full(len(q[0]), receiver.get(ob.name, 0), np.uint8)
                                         for q in parts[n0:]]
@@ -2549,6 +2565,8 @@ class _Exporter:
                        film_transparent=bool(getattr(scene.render, "film_transparent", False)),
                        mist=self.mist(), tri_tangent=tri_tangent,
                        tri_visibility=self.tri_visibility(), tri_holdout=self.tri_holdout(),
+                       tri_catcher=(self.concatenate(self.catcher_parts, bool)
+                                    if any(c.any() for c in self.catcher_parts) else None),
                        tri_blocker=(self.concatenate(self.blocker_parts, np.uint8)
                                     if self.blocker_parts else None),
                        tri_shadow_sets=(self.concatenate(self.shadowed_parts, np.uint64)

@@ -158,6 +158,10 @@ def draw_view_layer_passes(layout, view_layer):
         if owner is not None and hasattr(owner, prop):
             col.prop(owner, prop, text="Denoising Data" if prop == "denoising_store_passes"
                      else p.name)
+    # Shadow catchers' pass (core.sppm.shadow_catcher), Cycles' flag.
+    cy = getattr(view_layer, "cycles", None)
+    if cy is not None and hasattr(cy, "use_pass_shadow_catcher"):
+        col.prop(cy, "use_pass_shadow_catcher", text="Shadow Catcher")
 
 
 class FPPM_VIEWLAYER_PT_passes(FPPMPanel, Panel):
@@ -483,9 +487,11 @@ class FPPM_OBJECT_PT_visibility(FPPMDataPanel, Panel):
         col.prop(ob, "hide_viewport", text="Viewports", invert_checkbox=True, toggle=False)
         col.prop(ob, "hide_render", text="Renders", invert_checkbox=True, toggle=False)
         if ob.type in GEOMETRY_TYPES:
-            # Cycles' Mask: the holdout FPPM renders (core.scene.holdout); the
-            # shadow catcher it does not, so it is not offered.
-            layout.column(heading="Mask").prop(ob, "is_holdout")
+            # Cycles' Mask: the shadow catcher (core.sppm.shadow_catcher) and
+            # the holdout (core.scene.holdout).
+            col = layout.column(heading="Mask")
+            col.prop(ob, "is_shadow_catcher")
+            col.prop(ob, "is_holdout")
 
 
 class FPPM_OBJECT_PT_visibility_ray_visibility(FPPMDataPanel, Panel):

@@ -153,7 +153,8 @@ def view_triangles(visibility, scene=None) -> int:
     scene (core.accel.Accel.for_rays at camera and shadow rays), from a
     Scene's tri_visibility (T,) uint8 or None; with the scene, also shadow
     linking's (core.scene.shadow_linking: at most every triangle a view, a
-    view a distinct shadow membership)."""
+    view a distinct shadow membership) and the shadow catchers' view
+    (core.sppm.shadow_catcher: the catchers alone)."""
     from .accel import RAY_CAMERA, RAY_SHADOW, hidden_triangles
     n = 0
     for flag in (RAY_CAMERA, RAY_SHADOW):
@@ -165,6 +166,8 @@ def view_triangles(visibility, scene=None) -> int:
         if scene.tri_shadow_sets is not None:
             sets |= {int(s) for s in np.unique(scene.tri_shadow_sets)}
         n += len(sets - {LINK_ALL}) * int(scene.tri_blocker.shape[0])
+    if scene is not None and getattr(scene, "tri_catcher", None) is not None:
+        n += int(np.count_nonzero(scene.tri_catcher))
     return n
 
 

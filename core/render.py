@@ -74,6 +74,7 @@ from .settings import RenderSettings
 from .sppm import hashgrid
 from .sppm.film import AOVS, PASSES, Film, PassResult, data_passes, pass_enabled
 from .sppm import cryptomatte
+from .sppm.shadow_catcher import ShadowCatcher
 from .sppm.photon_pass import AHEAD_CHUNKS, PHOTON_CHUNK, PhotonPass, frequency_photons
 from .frequency.curvature import scene_curvature
 from .sppm.photons import PhotonTracer
@@ -208,6 +209,13 @@ class Renderer:
         self.camera_pass.first_data = memory.keeps_first_hits(bool(self.film.data_passes),
                                                               st.integrator, self.merging)
         self.camera_pass.matte = self.film.matte is not None
+        # Shadow catchers (core.sppm.shadow_catcher): their sums read the first hits.
+        self.film.catcher = ShadowCatcher.of_scene(self.scene, self.accel, self.light_table,
+                                                   self.mtab, P, getattr(self.film, "eye", None),
+                                                   getattr(self.film, "view", None), st.seed,
+                                                   passes, self.direct_light)
+        if self.film.catcher is not None:
+            self.camera_pass.first_data = True
         if st.integrator == "COMBINED":
             from .integrators.combined import CameraMIS, CombinedLightTracer
             self.path_tracer.vc = CameraMIS(self.light_table, self.mtab, self.camera,
@@ -295,7 +303,9 @@ class Renderer:
                                                        if p.name in passes or pass_enabled(p, st0))
                                       + sum(p.channels for p in data_passes(passes, scene)
                                             if p not in PASSES)
-                                      + 4 * sum(map(cryptomatte.is_pass, passes)),
+                                      + 4 * sum(map(cryptomatte.is_pass, passes))
+                                      # the shadow catchers' sums (7 float64 a pixel)
+                                      + 2 * (scene.tri_catcher is not None),
                                       hist_bins=HIST_BINS if st0.frequency_estimator == "QUANTILE" else 0,
                                       texture_bytes=sum(np.asarray(t).nbytes for t in scene.textures),
                                       sector_cells=SECTOR_CELLS if needs_sectors(st0, st0.use_frequency) else 0,
@@ -303,7 +313,8 @@ class Renderer:
                                       chunks_ahead=AHEAD_CHUNKS,
                                       view_triangles=memory.view_triangles(scene.tri_visibility, scene),
                                       # CameraPass.first_data (set in __init__), before the plan
-                                      first_hits=memory.keeps_first_hits(bool(data_passes(passes, scene)),
+                                      first_hits=memory.keeps_first_hits(bool(data_passes(passes, scene))
+                                                                         or scene.tri_catcher is not None,
                                                                          st0.integrator))
         memory.check_fits(self.memory)
         self.light_table = build_light_table(scene)

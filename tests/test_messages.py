@@ -111,8 +111,9 @@ CASES = [
                         "keeps every lobe"),
     (_particle_hair, "hair of 1 object(s) (Plane) not rendered"),
     (_curves_hair, "hair of 1 object(s) (Strands) not rendered"),
-    (_shadow_catcher, "shadow catcher of 1 object(s) (Cube) ignored: rendered as ordinary "
-                      "surfaces"),
+    (_shadow_catcher, "shadow catcher on 1 object(s) (Cube): lit without the other objects "
+                      "by light samples alone (no light between catchers); the matte at its "
+                      "silhouettes approximated"),
     (_volume_object, "volume object(s) not rendered: 1 object(s) (Smoke)"),
     (_world_volume, "world: volume ignored"),
     (_world_visibility, "world: diffuse, glossy, transmission or volume ray visibility "

@@ -269,6 +269,8 @@ class Scene:
       names} the manifests, or None (no Cryptomatte pass asked for).
     shader_aovs: ((name, 'COLOR' | 'VALUE'), ...) the view layer's shader
       AOVs (core.sppm.shader_aovs).
+    tri_catcher: (T,) bool the triangles of shadow catchers, or None (none
+      is: core.sppm.shadow_catcher).
     """
     tri_p: np.ndarray
     tri_n: np.ndarray
@@ -300,6 +302,7 @@ class Scene:
     tri_crypto: Optional[np.ndarray] = None
     crypto_names: Optional[dict] = None
     shader_aovs: tuple = ()
+    tri_catcher: Optional[np.ndarray] = None
 
     def __post_init__(self):
         self.attach_shading_normals()
@@ -424,7 +427,8 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       tri_shadow_sets=None if scene.tri_shadow_sets is None
                       else scene.tri_shadow_sets[ok],
                       tri_crypto=None if scene.tri_crypto is None else scene.tri_crypto[ok],
-                      crypto_names=scene.crypto_names, shader_aovs=scene.shader_aovs)
+                      crypto_names=scene.crypto_names, shader_aovs=scene.shader_aovs,
+                      tri_catcher=None if scene.tri_catcher is None else scene.tri_catcher[ok])
     return scene, dropped
 
 
@@ -468,7 +472,7 @@ def scene_digest(scene: Scene) -> str:
     if getattr(scene, "material_receiver", None) is not None:
         h.update(b"linking" + np.ascontiguousarray(scene.material_receiver).tobytes()
                  + np.ascontiguousarray(scene.material_emitter).tobytes())
-    for name in ("tri_blocker", "tri_shadow_sets", "tri_crypto"):
+    for name in ("tri_blocker", "tri_shadow_sets", "tri_crypto", "tri_catcher"):
         if getattr(scene, name, None) is not None:
             h.update(name.encode() + np.ascontiguousarray(getattr(scene, name)).tobytes())
     unset = {"link_sets": (1 << 64) - 1, "shadow_sets": (1 << 64) - 1, "visible_diffuse": True}

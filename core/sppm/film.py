@@ -32,6 +32,7 @@ import numpy as np
 from ..kept import KeptArrays
 from ..scene.holdout import triangle_weights
 from .cryptomatte import Mattes
+from .shadow_catcher import PASS as CATCHER_PASS
 
 _F32_MAX = np.finfo(np.float32).max
 #: Pixels from which the film kernel splits over the numba threads.
@@ -239,6 +240,10 @@ class Film:
         self.sums = {p.name: np.zeros((P, p.channels)) for p in self.data_passes}
         # The Cryptomatte passes' slots (core.sppm.cryptomatte), or None.
         self.matte = Mattes.of_passes(passes, P, scene)
+        # Shadow catchers' sums (core.sppm.shadow_catcher: the Renderer sets
+        # it, with its Embree scene and lights), or None.
+        self.catcher = None
+        self.catcher_pass = CATCHER_PASS in passes
         if scene is not None:
             M = np.asarray(scene.camera.matrix_world, np.float64)
             axes = M[:3, :3] / np.maximum(np.linalg.norm(M[:3, :3], axis=0), 1e-300)
@@ -251,7 +256,7 @@ class Film:
         data pass is on): integrators without visible points of their own
         (PATH, COMBINED) run the camera pass for it only then."""
         return self.scene is not None and (self.alpha or bool(self.data_passes)
-                                           or self.matte is not None)
+                                           or self.matte is not None or self.catcher is not None)
 
     def accumulate(self, vp) -> None:
         """Add one pass's camera data (VisiblePoints with .first) to alpha and the data passes."""
@@ -261,6 +266,8 @@ class Film:
         self.coverage += 1.0 - first.escape
         if self.matte is not None and first.matte:
             self.matte.add(first.matte)
+        if self.catcher is not None:
+            self.catcher.accumulate(vp, self.samples)
         if self.data_passes:
             x = PassSample(first, vp, self.scene, self.eye, self.view, self.R_wc)
             for p in self.data_passes:
@@ -278,6 +285,8 @@ class Film:
         d.update({f"film_{k}": v.copy() for k, v in self.sums.items()})
         if self.matte is not None:
             d.update({f"film_{k}": v for k, v in self.matte.state_dict().items()})
+        if self.catcher is not None:
+            d.update({f"film_{k}": v for k, v in self.catcher.state_dict().items()})
         return d
 
     def load_state(self, d: dict) -> None:
@@ -293,6 +302,9 @@ class Film:
         if self.matte is not None:
             self.matte.load_state({k[len("film_"):]: v for k, v in d.items()
                                    if k.startswith("film_crypto_")})
+        if self.catcher is not None:
+            self.catcher.load_state({k[len("film_"):]: v for k, v in d.items()
+                                     if k.startswith("film_catcher_")})
 
     def __call__(self, state, pass_index: int, photons_emitted: int, elapsed: float) -> PassResult:
         """The PassResult of the state after pass_index passes."""
@@ -322,6 +334,12 @@ class Film:
             aovs[p.name] = v.reshape(H, W, p.channels).astype(np.float32)
         if self.matte is not None:
             aovs.update({k: v.reshape(H, W, 4) for k, v in self.matte.passes(n).items()})
+        if self.catcher is not None:
+            S = self.catcher.compose(img, self.samples)
+            if self.catcher_pass:
+                aovs[CATCHER_PASS] = S
+        elif self.catcher_pass:
+            aovs[CATCHER_PASS] = np.ones((H, W, 3), np.float32)   # Cycles: no catcher, 1
         # r_px[R2 > 0] moved to r_px's front in place (its own array, the AOVs
         # are copies): the mean of the same values in the same order as
         # r_px[R2 > 0].mean(), without a pixel-sized copy and mask
