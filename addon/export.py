@@ -130,7 +130,8 @@ SUPPORT = (
      "the lobes of the hidden kinds out, as Cycles; BSDF rays and mirror or glass chains of "
      "those kinds do not see it), and an emissive object's diffuse, glossy and transmission "
      "visibility in its light samples", SUPPORTED, ""),
-    ("photons and light paths of a light hidden from diffuse, glossy or transmission rays: a "
+    ("photons and light paths of a light or the world hidden from diffuse, glossy or "
+     "transmission rays: a "
      "first hit with only such lobes stops them; a first bounce off a material with lobes "
      "of both kinds keeps every lobe", APPROXIMATED,
      "a first bounce off a material with lobes of both kinds keeps every lobe"),
@@ -302,7 +303,11 @@ SUPPORT = (
     ("camera and distance culling", IGNORED, ""),
     ("shadow terminator, caustics flags", IGNORED, ""),
     ("world ray visibility: camera (camera rays that escape see black, or film transparency; the world still lights the scene)", SUPPORTED, ""),
-    ("world ray visibility: diffuse, glossy, transmission, volume scatter", IGNORED, "world: diffuse, glossy, transmission or volume ray visibility treated as on"),
+    ("world ray visibility: diffuse, glossy, transmission (the world's light samples leave "
+     "those lobes out, Cycles' closure exclusion; a mirror's or glass's ray sees it by its "
+     "Glossy and Transmission flags)", SUPPORTED, ""),
+    ("world ray visibility: volume scatter (FPPM renders no scattering volume)", IGNORED,
+     "world: volume scatter ray visibility has no effect"),
     ("EEVEE material settings", IGNORED, ""),
 )
 
@@ -1433,10 +1438,13 @@ def _world_visible(world, kind: str) -> bool:
     return vis is None or bool(getattr(vis, kind, True))
 
 
-def _world_partly_visible(world) -> bool:
-    """Flags FPPM does not read are off (the camera's is honoured)."""
-    return not all(_world_visible(world, k)
-                   for k in ("diffuse", "glossy", "transmission", "scatter"))
+def world_hidden_bits(world) -> int:
+    """The kinds of ray the world is hidden from (``Scene.world_hidden``:
+    core.lights.lobe_visibility's bits)."""
+    from ..core.lights.lobe_visibility import DIFFUSE_RAYS, GLOSSY_RAYS, TRANSMISSION_RAYS
+    return sum(bit for k, bit in (("diffuse", DIFFUSE_RAYS), ("glossy", GLOSSY_RAYS),
+                                  ("transmission", TRANSMISSION_RAYS))
+               if not _world_visible(world, k))
 
 
 # The one table of scene features that FPPM ignores or approximates: (feature,
@@ -1457,8 +1465,11 @@ FEATURE_CHECKS = (
         getattr(ob, "visible_" + k, True) for k in ("diffuse", "glossy", "transmission"))],
      "photons and light paths of {} (hidden from some kind of ray): "
      "a first bounce off a material with lobes of both kinds keeps every lobe"),
-    ("world ray visibility", lambda sc, obs: _world_partly_visible(sc.world),
-     "world: diffuse, glossy, transmission or volume ray visibility treated as on"),
+    ("world ray visibility", lambda sc, obs: world_hidden_bits(sc.world) != 0,
+     "world (hidden from some kind of ray): its photons and light paths: "
+     "a first bounce off a material with lobes of both kinds keeps every lobe"),
+    ("world scatter visibility", lambda sc, obs: not _world_visible(sc.world, "scatter"),
+     "world: volume scatter ray visibility has no effect"),
     ("hair", lambda sc, obs: [ob for ob in obs if _has_hair(ob)],
      "hair of {} not rendered"),
     ("shadow catcher", lambda sc, obs: [ob for ob in obs if ob.type in GEOMETRY_TYPES
@@ -2551,7 +2562,10 @@ class _Exporter:
             self.world_camera_map = EnvironmentMap(
                 image=np.zeros((1, 2, 3), np.float32), name="(hidden from the camera)")
         if self.world_sun is not None:
-            lights.append(self.world_sun)
+            # The sky's sun disc is the world's: its ray visibility.
+            lights.append(dataclasses.replace(self.world_sun, **{
+                "visible_" + k: _world_visible(scene.world, k)
+                for k in ("diffuse", "glossy", "transmission")}))
         cy = getattr(scene, "cycles", None)
         materials, pass_index, seen_rows = self.ray_variants()
         fscene = Scene(tri_p=tri_p, tri_n=tri_n, tri_uv=tri_uv, tri_mat=tri_mat,
@@ -2576,6 +2590,7 @@ class _Exporter:
                        crypto_names=({k: tuple(sorted(v)) for k, v in self.crypto_names.items()}
                                      if self.crypto else None),
                        shader_aovs=tuple(self.aov_kinds.items()),
+                       world_hidden=world_hidden_bits(scene.world),
                        **seen_rows)
         # A holdout object keeps its material's transparency (core.scene.holdout).
         fscene = see_through(fscene)

@@ -431,8 +431,10 @@ class FPPM_WORLD_PT_surface(FPPMDataPanel, Panel):
 
 
 class FPPM_WORLD_PT_ray_visibility(FPPMDataPanel, Panel):
-    """The world's camera visibility (export.py: camera rays that escape see
-    black; the world still lights the scene).  Its other flags are not read."""
+    """The world's ray visibility: camera (export.py: camera rays that escape
+    see black; the world still lights the scene), diffuse, glossy and
+    transmission (``Scene.world_hidden``: core.lights.lobe_visibility).
+    Volume scatter is not drawn: FPPM renders no scattering volume."""
     bl_label = "Ray Visibility"
     bl_context = "world"
     bl_options = {'DEFAULT_CLOSED'}
@@ -444,7 +446,10 @@ class FPPM_WORLD_PT_ray_visibility(FPPMDataPanel, Panel):
 
     def draw(self, context):
         layout = split(self.layout)
-        layout.column().prop(context.world.cycles_visibility, "camera")
+        vis = context.world.cycles_visibility
+        col = layout.column()
+        for k in ("camera", "diffuse", "glossy", "transmission"):
+            col.prop(vis, k)
 
 
 class FPPM_WORLD_PT_mist(FPPMDataPanel, Panel):
@@ -658,7 +663,8 @@ EQUIVALENTS = {
                                         "the Displacement input (rendered as bump)"),
     "CYCLES_WORLD_PT_surface": ("FPPM_WORLD_PT_surface", "Background colour and strength"),
     "CYCLES_WORLD_PT_mist": ("FPPM_WORLD_PT_mist", "mist start, depth, falloff"),
-    "CYCLES_WORLD_PT_ray_visibility": ("FPPM_WORLD_PT_ray_visibility", "camera visibility"),
+    "CYCLES_WORLD_PT_ray_visibility": ("FPPM_WORLD_PT_ray_visibility",
+                                       "camera, diffuse, glossy and transmission visibility"),
     "CYCLES_CAMERA_PT_dof": ("DATA_PT_camera_dof", "focus distance/object, F-stop"),
     "CYCLES_CAMERA_PT_dof_aperture": ("DATA_PT_camera_dof_aperture", "F-stop, blades, rotation"),
     "CYCLES_OBJECT_PT_visibility": ("FPPM_OBJECT_PT_visibility",

@@ -116,8 +116,8 @@ CASES = [
                       "silhouettes approximated"),
     (_volume_object, "volume object(s) not rendered: 1 object(s) (Smoke)"),
     (_world_volume, "world: volume ignored"),
-    (_world_visibility, "world: diffuse, glossy, transmission or volume ray visibility "
-                        "treated as on"),
+    (_world_visibility, "world (hidden from some kind of ray): its photons and light paths: "
+                        "a first bounce off a material with lobes of both kinds keeps every lobe"),
     (_light_path, "world: Light Path Is Glossy Ray read as a diffuse ray's by every ray but "
                   "the camera's"),
     (_hdri_no_image, "world: 'Environment Texture' has no image: the Background colour is used"),

@@ -210,6 +210,7 @@ class PathTracer:
         # light at a non-delta vertex is its light samples' alone.
         self.hittable = Lt.mis_hittable(light_table)
         self.nee_only = Lt.samples_only(light_table)
+        self._world_seen = Lt.world_seen_by(light_table)
         self.compiled = compiled
         # (DirectLights, LightPdf, PathMaterials, TriangleData) or False
         self._kernels = None
@@ -479,6 +480,10 @@ class PathTracer:
                 row = np.full(miss.size, self.world_row, np.int64)
                 w = self._mis_bsdf(pdf_prev, p_prev, n_prev, d, row,
                                    np.full(miss.size, np.inf), rows=miss)
+                # After a mirror or glass: the world's Glossy and Transmission
+                # visibility (Scene.world_hidden; the rough vertices' weight
+                # is the light samples' alone there, _mis_bsdf).
+                w = w * self._world_seen[vis[miss]]
                 if part is not None:
                     w = w * part.weight(miss)
                 # An environment map: its radiance along each escaped ray

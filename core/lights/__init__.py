@@ -56,7 +56,7 @@ from .emission import B_DIFFUSE, sample_photons
 from .pdf import (bsdf_hittable, bsdf_sees, emitter_rows, mis_hittable, pdf_direct,
                   samples_only)
 from .sampling import sample_direct
-from .seen import emitted_along_rays, world_radiance
+from .seen import emitted_along_rays, world_radiance, world_seen_by
 from .table import (AREA, KIND_NAMES, MESH, POINT, SPOT, SUN, WORLD, LightTable,
                     build_light_table, spread_atten)
 
@@ -64,5 +64,5 @@ __all__ = [
     "POINT", "SPOT", "SUN", "AREA", "MESH", "WORLD", "KIND_NAMES", "LightTable",
     "build_light_table", "B_DIFFUSE", "sample_photons", "sample_direct", "pdf_direct",
     "bsdf_hittable", "bsdf_sees", "emitter_rows", "mis_hittable", "samples_only",
-    "emitted_along_rays", "world_radiance", "spread_atten",
+    "emitted_along_rays", "world_radiance", "world_seen_by", "spread_atten",
 ]

@@ -37,8 +37,9 @@ def hidden_bits(scene, table) -> Optional[np.ndarray]:
     """(Nl,) uint8 the kinds of ray each emitter row of ``table`` (built
     from ``scene``) is hidden from: a Blender light's ``visible_diffuse``,
     ``visible_glossy``, ``visible_transmission``; an emissive triangle's
-    object's ray visibility (``Scene.tri_visibility``); none for the world.
-    None when no emitter is hidden from any."""
+    object's ray visibility (``Scene.tri_visibility``); the world's
+    (``Scene.world_hidden``: Cycles gives its background light the same
+    closure exclusion).  None when no emitter is hidden from any."""
     from ..accel import RAY_DIFFUSE, RAY_GLOSSY, RAY_TRANSMISSION
     from .table import MESH, WORLD
     bits = np.zeros(table.kind.shape[0], np.uint8)
@@ -55,6 +56,7 @@ def hidden_bits(scene, table) -> Optional[np.ndarray]:
         bits[m] = (np.where(v & RAY_DIFFUSE, 0, DIFFUSE_RAYS)
                    | np.where(v & RAY_GLOSSY, 0, GLOSSY_RAYS)
                    | np.where(v & RAY_TRANSMISSION, 0, TRANSMISSION_RAYS)).astype(np.uint8)
+    bits[table.kind == WORLD] = int(getattr(scene, "world_hidden", 0))
     return bits if bits.any() else None
 
 

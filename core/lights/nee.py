@@ -104,8 +104,8 @@ class NextEventEstimation:
             return L
         u = rng.random((q.size, 3))
         smp = sample_direct(self.light_table, vp.p[q], u, n=vp.ns[q])
-        env = self.light_table.environment
-        if env is not None and env.total > 0:
+        env = self._mis_environment()
+        if env is not None:
             L += self._environment_bsdf(vp, rng)
         wi, dist, wgt, casts = smp["wi"], smp["dist"], smp["weight"], smp["cast_shadow"]
         live = (wgt.max(axis=1) > 0) & np.all(np.isfinite(wgt), axis=1)
@@ -125,7 +125,7 @@ class NextEventEstimation:
                                    vp.wo[q[h]], wi[h])
         cos = np.abs(_dot(vp.ns[q], wi))
         contrib = vp.beta[q] * f * cos[:, None] * wgt
-        if env is not None and env.total > 0:
+        if env is not None:
             # An environment map: its light samples share the directions with
             # BSDF samples (_environment_bsdf), balance heuristic (Veach 1997).
             wk = np.nonzero(smp["kind"][live] == WORLD)[0]
@@ -338,11 +338,25 @@ class NextEventEstimation:
                             else False)
         return self._lights or None
 
+    def _mis_environment(self):
+        """The environment map whose light samples are weighed against BSDF
+        samples, or None: no map, or a world hidden from some kind of ray
+        (core.lights.lobe_visibility: its light is the light samples'
+        alone, ``pdf.samples_only``)."""
+        t = self.light_table
+        env = t.environment
+        if env is None or not env.total > 0:
+            return None
+        hidden = getattr(t, "hidden", None)
+        if hidden is not None and np.any(np.asarray(hidden)[t.kind == WORLD]):
+            return None
+        return env
+
     def _map(self) -> Optional[_MapState]:
         """The compiled path's environment map (``map_mis_kernels``), or
-        None: no map (a constant world is sampled as any light)."""
-        env = self.light_table.environment
-        if env is None or not env.total > 0:
+        None: no map (a constant world is sampled as any light), or one
+        whose light is its light samples' alone (:meth:`_mis_environment`)."""
+        if self._mis_environment() is None:
             return None
         if self._map_state is None:
             from ..materials.compiled import compile_materials

@@ -143,6 +143,19 @@ def world_radiance(table: LightTable, d: np.ndarray | None = None,
     return np.broadcast_to(table.world, d.shape).copy()
 
 
+def world_seen_by(table: LightTable) -> np.ndarray:
+    """(3,) float64 whether the world is seen by rays of each visibility
+    code (:data:`VISIBILITY`: camera 1, a mirror's or a glass's reflection
+    and transmission by its Glossy and Transmission visibility), for the
+    rays a delta vertex or the lens leaves (after a rough vertex the
+    world's light is weighed by ``pdf.samples_only``)."""
+    w = np.nonzero(table.kind == WORLD)[0]
+    if w.size == 0:
+        return np.ones(3)
+    return np.array([1.0, float(table.visible_glossy[w[0]]),
+                     float(table.visible_transmission[w[0]])])
+
+
 #: The visibility flag arrays of :func:`emitted_along_rays`, by name.
 VISIBILITY = ("camera", "glossy", "transmission")
 

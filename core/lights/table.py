@@ -461,8 +461,13 @@ def build_light_table(scene: Scene) -> LightTable:
         world = env.mean_radiance if env.total > 0 else np.zeros(3)
     if np.any(world != 0):
         # Every direction carries L_w through a disc of area pi R^2.
+        # Its Glossy and Transmission visibility: whether a mirror or glass
+        # chain's ray that escapes sees it (core.lights.seen.world_seen_by).
+        from .lobe_visibility import GLOSSY_RAYS, TRANSMISSION_RAYS
+        wh = int(getattr(scene, "world_hidden", 0))
         row(kind=WORLD, source=-1, strength=world, radiance=world,
-            flux=world * 4.0 * np.pi * np.pi * R * R, co=center)
+            flux=world * 4.0 * np.pi * np.pi * R * R, co=center,
+            visible_glossy=not wh & GLOSSY_RAYS, visible_transmission=not wh & TRANSMISSION_RAYS)
 
     table = _assemble(rows, tri_rows, center, R, D, world, warnings, scene.textures)
     table.environment = env

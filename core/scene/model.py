@@ -271,6 +271,9 @@ class Scene:
       AOVs (core.sppm.shader_aovs).
     tri_catcher: (T,) bool the triangles of shadow catchers, or None (none
       is: core.sppm.shadow_catcher).
+    world_hidden: the kinds of ray the world is hidden from (World > Ray
+      Visibility: core.lights.lobe_visibility's DIFFUSE_RAYS | GLOSSY_RAYS |
+      TRANSMISSION_RAYS bits; 0: seen by all).
     """
     tri_p: np.ndarray
     tri_n: np.ndarray
@@ -303,6 +306,7 @@ class Scene:
     crypto_names: Optional[dict] = None
     shader_aovs: tuple = ()
     tri_catcher: Optional[np.ndarray] = None
+    world_hidden: int = 0
 
     def __post_init__(self):
         self.attach_shading_normals()
@@ -428,7 +432,8 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       else scene.tri_shadow_sets[ok],
                       tri_crypto=None if scene.tri_crypto is None else scene.tri_crypto[ok],
                       crypto_names=scene.crypto_names, shader_aovs=scene.shader_aovs,
-                      tri_catcher=None if scene.tri_catcher is None else scene.tri_catcher[ok])
+                      tri_catcher=None if scene.tri_catcher is None else scene.tri_catcher[ok],
+                      world_hidden=scene.world_hidden)
     return scene, dropped
 
 
@@ -458,6 +463,8 @@ def scene_digest(scene: Scene) -> str:
               if getattr(m, "aovs", ())]
     if getattr(scene, "shader_aovs", ()):
         extra.append(("shader_aovs", scene.shader_aovs))
+    if getattr(scene, "world_hidden", 0):
+        extra.append(("world_hidden", scene.world_hidden))
     if extra:
         h.update(repr(extra).encode())
     if scene.tri_tangent is not None:

@@ -362,7 +362,10 @@ class CameraPass:
                     L[idx[cam]] += beta[cam] * Lt.world_radiance(lt, d[cam], camera=True)
                 miss = miss & ~see_through
             if np.any(miss):
-                L[idx[miss]] += beta[miss] * Lt.world_radiance(lt, d[miss])
+                # A mirror's or glass's ray sees the world by its Glossy and
+                # Transmission visibility (Scene.world_hidden).
+                seen = Lt.world_seen_by(lt)[last[miss]]
+                L[idx[miss]] += beta[miss] * Lt.world_radiance(lt, d[miss]) * seen[:, None]
 
     def _seen_by_camera(self, L, emit, o, d, tmax, t, beta, split_min=SEEN_SPLIT_MIN) -> None:
         """L += beta * Le and emit += Le, Le the analytic emitters the camera

@@ -1,0 +1,113 @@
+"""The world hidden from some kinds of ray (World > Settings > Ray
+Visibility: Diffuse, Glossy, Transmission) against Cycles.
+
+Cycles gives its background light the closure exclusion of lights hidden
+from those rays (scene/light.cpp ``BackgroundLight::copy_to_kernel``): its
+light samples leave the hidden lobes out, a BSDF ray of a hidden kind does
+not see it.  FPPM reads the flags into ``Scene.world_hidden`` and treats
+the world's emitter row as any hidden emitter (core/lights/
+lobe_visibility.py); a mirror's or glass's ray that escapes sees it by its
+Glossy and Transmission flags (``lights.world_seen_by``).
+
+The scene is tests/test_holdout.py's (a red box over a grey floor, from
+above) under a sun and a bright world: a constant sky, or a two-colour
+HDRI (its map's light samples are then the world's light alone, the map
+MIS left out).  The floor is a Mix Shader of its Diffuse and a sharp
+Glossy at 0.7 (a mirror: the world seen through a delta chain), the box a
+Principled BSDF of roughness 0.3 (a rough glossy layer).  Two seeds a side
+under tests/test_shading_nodes.py's bound, and the flag moves the image by
+more than 3x that bound (the same export with the world seen by all).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+RES = 40
+
+
+def _scene(case):
+    import bpy
+
+    import test_environment as TE
+    import test_shading_nodes as TS
+    from scenes import bpy_kit as K
+    sc = K.reset_scene((RES, RES), samples=16, world_color=(0.5, 0.6, 0.8))
+    box, nt, d, out = TS.floor_and_box()
+    # The box: a Principled BSDF (a rough glossy layer over its colour).
+    p = nt.nodes.new('ShaderNodeBsdfPrincipled')
+    p.inputs["Base Color"].default_value = (0.8, 0.15, 0.1, 1.0)
+    p.inputs["Roughness"].default_value = 0.3
+    nt.links.new(p.outputs[0], out.inputs["Surface"])
+    # The floor: its Diffuse mixed with a mirror at 0.7.
+    fl = bpy.data.materials["Floor"].node_tree
+    fo = next(n for n in fl.nodes if n.type == 'OUTPUT_MATERIAL')
+    fd = next(n for n in fl.nodes if n.type == 'BSDF_DIFFUSE')
+    g = fl.nodes.new('ShaderNodeBsdfGlossy')
+    g.inputs["Roughness"].default_value = 0.0
+    mix = fl.nodes.new('ShaderNodeMixShader')
+    mix.inputs["Fac"].default_value = 0.7
+    fl.links.new(fd.outputs[0], mix.inputs[1])
+    fl.links.new(g.outputs[0], mix.inputs[2])
+    fl.links.new(mix.outputs[0], fo.inputs["Surface"])
+    if case.startswith("hdri"):
+        img = np.zeros((16, 32, 4), np.float32)
+        img[..., :3] = (0.3, 0.35, 0.4)          # the lower half
+        img[8:, :, :3] = (0.9, 1.0, 1.3)         # the sky
+        img[..., 3] = 1.0
+        TE.hdri_world(sc, img)
+    TS.ortho_view(sc, 2.2, sun_energy=2.0, sun_rotation=(0.5, 0.3, 0.0))
+    flag = {"diffuse": "diffuse", "glossy": "glossy", "hdri_glossy": "glossy",
+            "hdri_diffuse": "diffuse"}[case]
+    setattr(sc.world.cycles_visibility, flag, False)
+    return sc
+
+
+def _render(scene, integrator, seed, passes):
+    """tests/test_shading_nodes.py's render_integrator, Photon Mapping with
+    4x the passes: its one camera ray a pixel and pass picks the floor's
+    mirror or its Diffuse at random, which left a noise of 18 % of the
+    mean in 12 passes (the camera paths take 8 a pass)."""
+    import test_shading_nodes as TS
+    return TS.render_integrator(scene, integrator, seed,
+                                passes=4 * passes if integrator == "PHOTON" else passes)
+
+
+_REFS: dict = {}
+
+
+def _reference(case, tmp_path):
+    """(exported scene, its log, Cycles' mean of two seeds, its noise) of a case."""
+    if case not in _REFS:
+        import test_shading_nodes as TS
+        sc = _scene(case)
+        scene, lines = TS._export()
+        _REFS[case] = (scene, lines, TS._cycles(sc, 0, tmp_path / "c0.exr", 256),
+                       TS._cycles(sc, 1, tmp_path / "c1.exr", 256))
+    return _REFS[case]
+
+
+CASES = [("diffuse", "PHOTON"), ("diffuse", "PATH"), ("glossy", "PHOTON"), ("glossy", "PATH"),
+         ("hdri_glossy", "PHOTON"), ("hdri_diffuse", "PATH")]
+
+
+@pytest.mark.parametrize("case,integrator", CASES, ids=[f"{c}-{i}" for c, i in CASES])
+def test_world_visibility_agrees_with_cycles(case, integrator, tmp_path):
+    """Measured: see docs/shading.md "Emitters hidden from some kinds of ray"."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+    scene, lines, c1, c2 = _reference(case, tmp_path)
+    assert scene.world_hidden != 0
+    render = lambda s, seed, passes=12: _render(s, integrator, seed, passes)  # noqa: E731
+    a1, a2 = render(scene, 1), render(scene, 2)
+    ref, img = (c1 + c2) / 2, (a1 + a2) / 2
+    mean = ref.mean()
+    err = np.abs(img - ref).mean() / mean
+    noise = (np.abs(a1 - a2).mean() + np.abs(c1 - c2).mean()) / 2 / mean
+    without = render(dataclasses.replace(scene, world_hidden=0), 1, passes=TS.EFFECT_PASSES)
+    effect = np.abs(without - ref).mean() / mean
+    print(f"{case} {integrator}: mean {img.mean():.4f} vs Cycles {mean:.4f}; |diff| {err:.4f}, "
+          f"noise {noise:.4f} ({err / noise:.2f}x); seen by all {effect:.4f}")
+    TS._check(err, noise, effect)
