@@ -228,7 +228,11 @@ SUPPORT = (
      "closures cut to the {MAX_LOBES} heaviest"),
     ("Principled subsurface", APPROXIMATED, "rendered as diffuse"),
     ("object ray visibility: camera (camera rays, also through transparent surfaces, and light tracing's joins to the lens pass the object) and shadow (shadow rays pass it, and the first segment of photons and light paths lands both on it and behind it; Combined then takes every light by its camera paths)", SUPPORTED, ""),
-    ("object ray visibility: diffuse, glossy, transmission", APPROXIMATED, "treated as visible"),
+    ("object ray visibility: glossy and transmission for the rays a mirror or glass (or a "
+     "glossy-only material's chain) casts on the camera side (Photon Mapping, Path Tracing, "
+     "Combined)", SUPPORTED, ""),
+    ("object ray visibility: diffuse, and glossy and transmission for photons, light paths and "
+     "the camera paths' rough bounces", APPROXIMATED, "treated as visible"),
     ("holdout: objects (Object > Visibility > Holdout, a collection's Holdout in the view "
      "layer; an instance takes its instancer's) and the Holdout shader, also mixed or added "
      "with constant Facs: camera rays, also through transparent surfaces, end there and "
@@ -1420,8 +1424,9 @@ def is_shadow_catcher(ob, parent=None) -> bool:
 
 
 # The flags every integrator honours (core.accel.for_rays at each ray kind);
-# diffuse, glossy and transmission visibility would need photons and camera
-# paths traced per ray kind of the path they would join.
+# glossy and transmission are honoured for the rays of mirror and glass
+# chains only (core.accel.chain_kinds), diffuse not at all: photons and
+# camera paths would be traced per ray kind of the path they would join.
 HONOURED_RAYS = RAY_CAMERA | RAY_SHADOW
 
 
@@ -1459,8 +1464,9 @@ FEATURE_CHECKS = (
      "stereo 3D / multi-view: every view is rendered from the scene camera "
      "(the right eye repeats the left)"),
     ("ray visibility", lambda sc, obs: [ob for ob in obs if _partly_visible(ob)],
-     "diffuse, glossy or transmission ray visibility of {} treated as visible "
-     "(camera and shadow visibility are honoured)"),
+     "ray visibility of {}: diffuse, and glossy and transmission for photons, light paths "
+     "and rough bounces, treated as visible (camera, shadow, and a mirror's or glass's rays "
+     "are honoured)"),
     ("light visibility", lambda sc, obs: [ob for ob in obs if ob.type == 'LIGHT' and not all(
         getattr(ob, "visible_" + k, True) for k in ("diffuse", "glossy", "transmission"))],
      "photons and light paths of {} (hidden from some kind of ray): "

@@ -500,10 +500,12 @@ class FPPM_OBJECT_PT_visibility(FPPMDataPanel, Panel):
 
 
 class FPPM_OBJECT_PT_visibility_ray_visibility(FPPMDataPanel, Panel):
-    """The rays an object is seen by, as far as FPPM reads them: a light's
-    camera, glossy and transmission visibility; a geometry object's camera
-    and shadow visibility (export.py ``HONOURED_RAYS``; its other flags are
-    treated as on, so they are not offered)."""
+    """The rays an object is seen by: a light's camera, diffuse, glossy and
+    transmission visibility; a geometry object's camera, diffuse, glossy,
+    transmission and shadow visibility (an emitting object's diffuse,
+    glossy and transmission in its light samples, its glossy and
+    transmission for mirrors' and glass's rays; photons and light paths see
+    it, the log says so: export.py ``HONOURED_RAYS``)."""
     bl_label = "Ray Visibility"
     bl_context = "object"
     bl_parent_id = "FPPM_OBJECT_PT_visibility"
@@ -518,10 +520,10 @@ class FPPM_OBJECT_PT_visibility_ray_visibility(FPPMDataPanel, Panel):
         ob = context.object
         col = layout.column()
         col.prop(ob, "visible_camera", text="Camera")
-        if ob.type == 'LIGHT':
-            col.prop(ob, "visible_glossy", text="Glossy")
-            col.prop(ob, "visible_transmission", text="Transmission")
-        else:
+        col.prop(ob, "visible_diffuse", text="Diffuse")
+        col.prop(ob, "visible_glossy", text="Glossy")
+        col.prop(ob, "visible_transmission", text="Transmission")
+        if ob.type != 'LIGHT':
             col.prop(ob, "visible_shadow", text="Shadow")
 
 

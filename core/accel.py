@@ -264,21 +264,80 @@ def cast_by_kind(cast, accel: Accel, flags: int, rows: np.ndarray, o: np.ndarray
         return cast(accel, o, d, tmax)
     if rows.all():
         return cast(kind, o, d, tmax)
-    a, b = np.nonzero(rows)[0], np.nonzero(~rows)[0]
-    ra, rb = cast(kind, o[a], d[a], tmax[a]), cast(accel, o[b], d[b], tmax[b])
-    out = []
-    for xa, xb in zip(ra, rb):
-        x = np.empty((rows.size,) + xa.shape[1:], xa.dtype)
-        x[a], x[b] = xa, xb
-        out.append(x)
+    return _cast_groups(cast, [(kind, rows), (accel, ~rows)], o, d, tmax)
+
+
+#: The kinds of :func:`cast_by_kinds` (0: the whole scene).
+_KINDS = (0, RAY_CAMERA, RAY_GLOSSY, RAY_TRANSMISSION)
+
+
+def cast_by_kinds(cast, accel: Accel, kinds: np.ndarray, o: np.ndarray, d: np.ndarray,
+                  tmax: np.ndarray) -> tuple:
+    """``cast(a, o, d, tmax)`` (a tuple of (K, ...) arrays a ray) with each
+    ray cast in ``accel.for_rays(kinds[i])`` (kinds (K,) int: 0 (in
+    ``accel``) or one of :data:`_KINDS`' RAY_* flags): one call a scene, one
+    call in all when one scene serves every ray (the rays of every scene
+    without hidden objects)."""
+    if accel.base.visibility is None:
+        return cast(accel, o, d, tmax)
+    # The scenes of the kinds (few: the camera side's), grouped by scene;
+    # a scene's rays by comparisons, not a sort of the K kinds.
+    views: dict = {}
+    for k in _KINDS:
+        a = accel if k == 0 else accel.for_rays(k)
+        views.setdefault(id(a), (a, []))[1].append(k)
+    if len(views) == 1:
+        return cast(accel, o, d, tmax)
+    groups = []
+    for a, ks in views.values():
+        m = kinds == ks[0]
+        for k in ks[1:]:
+            m |= kinds == k
+        if m.any():
+            groups.append((a, m))
+    if len(groups) == 1:
+        return cast(groups[0][0], o, d, tmax)
+    return _cast_groups(cast, groups, o, d, tmax)
+
+
+def _cast_groups(cast, groups, o, d, tmax) -> tuple:
+    """``cast`` of each group's rays ((scene, rows (K,) bool), ... covering
+    every ray once) in its scene, the results put back in ray order."""
+    out = None
+    for a, m in groups:
+        r = np.nonzero(m)[0]
+        got = cast(a, o[r], d[r], tmax[r])
+        if out is None:
+            out = [np.empty((m.size,) + x.shape[1:], x.dtype) for x in got]
+        for x, y in zip(out, got):
+            x[r] = y
     return tuple(out)
+
+
+def _intersect_cast(a, o_, d_, t_):
+    h = a.intersect(o_, d_, t_)
+    return h.t, h.prim, h.u, h.v
 
 
 def intersect_by_kind(accel: Accel, flags: int, rows: np.ndarray, o, d, tmax) -> Hits:
     """:meth:`Accel.intersect` with the rays rows (K,) bool carrying the RAY_*
     ``flags`` (:func:`cast_by_kind`)."""
-    def cast(a, o_, d_, t_):
-        h = a.intersect(o_, d_, t_)
-        return h.t, h.prim, h.u, h.v
     tmax = np.broadcast_to(np.inf if tmax is None else tmax, rows.shape)
-    return Hits(*cast_by_kind(cast, accel, flags, rows, o, d, tmax))
+    return Hits(*cast_by_kind(_intersect_cast, accel, flags, rows, o, d, tmax))
+
+
+def intersect_by_kinds(accel: Accel, kinds: np.ndarray, o, d, tmax) -> Hits:
+    """:meth:`Accel.intersect` with each ray in the scene its RAY_* kinds
+    (K,) see (:func:`cast_by_kinds`)."""
+    tmax = np.broadcast_to(np.inf if tmax is None else tmax, kinds.shape)
+    return Hits(*cast_by_kinds(_intersect_cast, accel, kinds, o, d, tmax))
+
+
+def chain_kinds(on_line: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """(K,) the RAY_* kind of the camera side's rays that leave the lens or
+    a mirror or glass (Cycles' ray types): a camera ray while on its line
+    (on_line (K,) bool: no vertex yet, or straight Transparent crossings),
+    else glossy after a reflection and transmission after a refraction
+    (last (K,) int8: 1 reflection, 2 transmission)."""
+    return np.where(on_line, RAY_CAMERA,
+                    np.where(last == 2, RAY_TRANSMISSION, RAY_GLOSSY)).astype(np.int64)

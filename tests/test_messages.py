@@ -104,8 +104,9 @@ CASES = [
     (_motion_blur, "motion blur ignored: the scene is rendered at the current frame"),
     (_stereo, "stereo 3D / multi-view: every view is rendered from the scene camera "
               "(the right eye repeats the left)"),
-    (_ray_visibility, "diffuse, glossy or transmission ray visibility of 1 object(s) (Cube) "
-                      "treated as visible (camera and shadow visibility are honoured)"),
+    (_ray_visibility, "ray visibility of 1 object(s) (Cube): diffuse, and glossy and "
+                      "transmission for photons, light paths and rough bounces, treated as "
+                      "visible (camera, shadow, and a mirror's or glass's rays are honoured)"),
     (_light_visibility, "photons and light paths of 1 object(s) (Point) (hidden from some "
                         "kind of ray): a first bounce off a material with lobes of both kinds "
                         "keeps every lobe"),

@@ -1,5 +1,5 @@
-"""Object ray visibility (Object > Visibility > Ray Visibility): camera and
-shadow, against Cycles.
+"""Object ray visibility (Object > Visibility > Ray Visibility): camera,
+shadow, and glossy for a mirror's rays, against Cycles.
 
 An object hidden from the camera is passed by camera rays (also after
 transparent crossings) and by light tracing's joins to the lens, and still
@@ -61,11 +61,25 @@ def _scene(case):
     "shadow": the box's Shadow off, same sun; "emitter": no sun, an emitting
     square over the box hidden from the camera lights the scene
     ("emitter_shadowless": and the box's Shadow is off); "world": a blue
-    world hidden from the camera lights the scene, seen past the floor."""
+    world hidden from the camera lights the scene, seen past the floor;
+    "glossy": the floor a mirror at 0.7 over its Diffuse under a bright
+    world hidden from the camera, seen from the side, the box hidden from
+    glossy rays (absent from the mirror, still seen and still shadowing)."""
     import test_shading_nodes as TS
     from scenes import bpy_kit as K
-    sc = K.reset_scene((RES, RES), samples=16)
+    sc = K.reset_scene((RES, RES), samples=16,
+                       world_color=(0.5, 0.6, 0.8) if case == "glossy" else (0.0, 0.0, 0.0))
     box = TS.floor_and_box()[0]
+    if case == "glossy":
+        import math
+
+        import bpy_helpers as H
+        import test_world_visibility as WV
+        WV.mirror_floor()
+        box.visible_glossy = False
+        H.add_camera(sc, location=(0.0, -2.0, 0.9), rotation=(math.radians(70), 0.0, 0.0))
+        sc.world.cycles_visibility.camera = False      # (the sky: black behind the floor)
+        return sc
     TS.ortho_view(sc, 3.2 if case == "world" else 2.2,
                   sun_energy=0.0 if case.startswith("emitter") or case == "world" else 3.0)
     if case == "world":
@@ -97,7 +111,8 @@ CASES = [("camera", "PHOTON"), ("camera", "LIGHT"),
          ("shadow", "PHOTON"),
          ("emitter", "PHOTON"), ("emitter", "COMBINED"),
          ("emitter_shadowless", "PHOTON"), ("emitter_shadowless", "COMBINED"),
-         ("emitter_shadowless", "LIGHT"), ("world", "PHOTON")]
+         ("emitter_shadowless", "LIGHT"), ("world", "PHOTON"),
+         ("glossy", "PHOTON"), ("glossy", "PATH")]
 
 
 @pytest.mark.parametrize("case,integrator", CASES, ids=[f"{c}-{i}" for c, i in CASES])
@@ -108,7 +123,8 @@ def test_camera_and_shadow_visibility_agree_with_cycles(case, integrator, tmp_pa
     sc = _scene(case)
     scene, lines = TS._export()
     assert (scene.tri_visibility is not None) == (case != "world")
-    assert not any("ray visibility" in ln for ln in lines), lines
+    # (Glossy off: photons still see the box, which the log says.)
+    assert any("ray visibility" in ln for ln in lines) == (case == "glossy"), lines
     err, noise, img, ref = TS.two_seeds(sc, scene, lambda s, seed: _render(s, integrator, seed),
                                         tmp_path, 256, key=(__name__, case))
     mean = ref.mean()

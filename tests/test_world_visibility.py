@@ -28,8 +28,24 @@ import pytest
 RES = 40
 
 
-def _scene(case):
+def mirror_floor():
+    """tests/test_shading_nodes.py's floor_and_box floor made its Diffuse
+    mixed with a mirror (a Glossy BSDF of roughness 0) at 0.7
+    (tests/test_ray_visibility.py too)."""
     import bpy
+    fl = bpy.data.materials["Floor"].node_tree
+    fo = next(n for n in fl.nodes if n.type == 'OUTPUT_MATERIAL')
+    fd = next(n for n in fl.nodes if n.type == 'BSDF_DIFFUSE')
+    g = fl.nodes.new('ShaderNodeBsdfGlossy')
+    g.inputs["Roughness"].default_value = 0.0
+    mix = fl.nodes.new('ShaderNodeMixShader')
+    mix.inputs["Fac"].default_value = 0.7
+    fl.links.new(fd.outputs[0], mix.inputs[1])
+    fl.links.new(g.outputs[0], mix.inputs[2])
+    fl.links.new(mix.outputs[0], fo.inputs["Surface"])
+
+
+def _scene(case):
 
     import test_environment as TE
     import test_shading_nodes as TS
@@ -41,17 +57,7 @@ def _scene(case):
     p.inputs["Base Color"].default_value = (0.8, 0.15, 0.1, 1.0)
     p.inputs["Roughness"].default_value = 0.3
     nt.links.new(p.outputs[0], out.inputs["Surface"])
-    # The floor: its Diffuse mixed with a mirror at 0.7.
-    fl = bpy.data.materials["Floor"].node_tree
-    fo = next(n for n in fl.nodes if n.type == 'OUTPUT_MATERIAL')
-    fd = next(n for n in fl.nodes if n.type == 'BSDF_DIFFUSE')
-    g = fl.nodes.new('ShaderNodeBsdfGlossy')
-    g.inputs["Roughness"].default_value = 0.0
-    mix = fl.nodes.new('ShaderNodeMixShader')
-    mix.inputs["Fac"].default_value = 0.7
-    fl.links.new(fd.outputs[0], mix.inputs[1])
-    fl.links.new(g.outputs[0], mix.inputs[2])
-    fl.links.new(mix.outputs[0], fo.inputs["Surface"])
+    mirror_floor()
     if case.startswith("hdri"):
         img = np.zeros((16, 32, 4), np.float32)
         img[..., :3] = (0.3, 0.35, 0.4)          # the lower half

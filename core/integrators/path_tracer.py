@@ -57,7 +57,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..accel import RAY_CAMERA, hit_uv, intersect_by_kind, surface_point
+from ..accel import chain_kinds, hit_uv, intersect_by_kinds, surface_point
 from ..scene import absorption as Absorb, holdout as Holdout, ray_variants as RV
 from ..scene import linking
 from ..scene.linking import lit
@@ -436,8 +436,13 @@ class PathTracer:
             if path.size == 0:
                 break
             check_stop()
-            # ``first``: camera rays, which pass the objects hidden from the camera.
-            h = intersect_by_kind(accel, RAY_CAMERA, first, o, d, tmax)
+            # ``first``: camera rays, which pass the objects hidden from the
+            # camera; after a mirror or glass, glossy or transmission rays
+            # (those after a rough bounce see every object: their lobe's
+            # kind is not known here).
+            kinds = chain_kinds(first, vis)
+            kinds[~first & (pdf_prev > 0)] = 0
+            h = intersect_by_kinds(accel, kinds, o, d, tmax)
             Absorb.attenuate(self._absorb, h.prim, h.t, d, beta)
             ends = Holdout.camera_hits(self._holdout, h.prim, first, beta, None, path,
                                        (h.u, h.v), self._held_through)

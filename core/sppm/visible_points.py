@@ -30,7 +30,7 @@ from typing import Optional
 
 import numpy as np
 
-from ..accel import RAY_CAMERA, cast_by_kind, intersect_by_kind, surface_point
+from ..accel import RAY_CAMERA, cast_by_kinds, chain_kinds, intersect_by_kinds, surface_point
 from ..lights.shadow import attached as shadow_attached
 from ..kept import KeptArrays
 from ..scene import absorption as Absorb, holdout as Holdout, normals as shading_normals, ray_variants as RV
@@ -414,8 +414,9 @@ class CameraPass:
             check_stop()
             # Rays still on the camera ray's line are camera rays (Cycles keeps
             # the flag through transparent crossings): they pass the objects
-            # hidden from the camera.
-            h = intersect_by_kind(accel, RAY_CAMERA, see_through, o, d, tmax)
+            # hidden from the camera; a mirror's or a glass's rays those
+            # hidden from glossy or transmission rays.
+            h = intersect_by_kinds(accel, chain_kinds(see_through, last), o, d, tmax)
             hit = h.hit
             Absorb.attenuate(self._absorb, h.prim, h.t, d, beta)
             ends = Holdout.camera_hits(self._holdout, h.prim, see_through, beta, first.escape,
@@ -795,9 +796,9 @@ class CameraPass:
         them (``_seen_along``).  split=False: in the calling thread."""
         o, d, tmax, idx, beta, path_len, last, see_through, dz, *mis = live
         mats, textured, vb, fb, first, L = ctx
-        hit4 = cast_by_kind(lambda a, o_, d_, t_: _intersect(
+        hit4 = cast_by_kinds(lambda a, o_, d_, t_: _intersect(
             a, o_, d_, t_, INTERSECT_SPLIT_MIN if split else np.inf),
-            self.accel, RAY_CAMERA, see_through, o, d, tmax)
+            self.accel, chain_kinds(see_through, last), o, d, tmax)
         prim, tfar = hit4[0], hit4[3]
         hit = prim >= 0
         t = np.where(hit, tfar, np.inf).astype(np.float64)
