@@ -252,3 +252,17 @@ def render_mean_rgb(sc):
         ch = OpenEXR.File(path).channels()
         key = next(k for k in ch if k.endswith("RGBA") or k.endswith("RGB"))
         return np.asarray(ch[key].pixels, np.float64)[..., :3].mean(-1)
+
+
+def save_multilayer(sc, path) -> dict:
+    """The last render's result saved as a 32-bit multilayer EXR at path:
+    {"<view layer>.<pass>": (H, W, C) float32} (tests/test_passes.py,
+    test_cryptomatte.py, test_shadow_catcher.py)."""
+    from fppm.core.io.exr import read_exr
+    im = sc.render.image_settings
+    if hasattr(im, "media_type"):
+        im.media_type = 'MULTI_LAYER_IMAGE'
+    im.file_format = 'OPEN_EXR_MULTILAYER'
+    im.color_depth = '32'
+    bpy().data.images["Render Result"].save_render(filepath=str(path), scene=sc)
+    return read_exr(str(path))

@@ -130,7 +130,7 @@ def test_hidden_and_invisible_objects_are_skipped():
     assert sorted(np.unique(s.tri_visibility)) == [RAY_ALL & ~RAY_CAMERA, RAY_ALL]
     part.visible_glossy = False
     s, lines = export()
-    assert "diffuse, glossy or transmission ray visibility of 1 object(s) (Partly)" in lines[1]
+    assert "ray visibility of 1 object(s) (Partly): diffuse, and glossy" in lines[1]
 
 
 def test_an_instance_takes_its_instancers_ray_visibility():

@@ -153,15 +153,9 @@ def _scene(engine):
 
 
 def _save(sc, path):
-    from fppm.core.io.exr import read_exr, read_exr_metadata
-    bpy = pytest.importorskip("bpy")
-    im = sc.render.image_settings
-    if hasattr(im, "media_type"):
-        im.media_type = 'MULTI_LAYER_IMAGE'
-    im.file_format = 'OPEN_EXR_MULTILAYER'
-    im.color_depth = '32'
-    bpy.data.images["Render Result"].save_render(filepath=str(path), scene=sc)
-    return read_exr(str(path)), read_exr_metadata(str(path))
+    import bpy_helpers as H
+    from fppm.core.io.exr import read_exr_metadata
+    return H.save_multilayer(sc, path), read_exr_metadata(str(path))
 
 
 def _mattes(layers, kind):

@@ -39,13 +39,7 @@ INTEGRATORS = ("PHOTON", "COMBINED")
 
 
 def _render_result(sc, path):
-    im = sc.render.image_settings
-    if hasattr(im, "media_type"):
-        im.media_type = 'MULTI_LAYER_IMAGE'
-    im.file_format = 'OPEN_EXR_MULTILAYER'
-    im.color_depth = '32'
-    bpy.data.images["Render Result"].save_render(filepath=str(path), scene=sc)
-    return {k.split(".", 1)[1]: v for k, v in read_exr(str(path)).items()}
+    return {k.split(".", 1)[1]: v for k, v in H.save_multilayer(sc, path).items()}
 
 
 def _scene(transparent=True, passes=True, integrator="PHOTON"):

@@ -39,14 +39,11 @@ def _cycles(sc, seed, path):
     """Cycles' Combined RGBA and Shadow Catcher pass (ones without it)."""
     import bpy
 
-    from fppm.core.io.exr import read_exr
+    import bpy_helpers as H
     sc.render.engine = 'CYCLES'
     sc.cycles.samples, sc.cycles.seed, sc.cycles.use_animated_seed = 256, seed, False
     bpy.ops.render.render()
-    im = sc.render.image_settings
-    im.media_type, im.file_format, im.color_depth = 'MULTI_LAYER_IMAGE', 'OPEN_EXR_MULTILAYER', '32'
-    bpy.data.images["Render Result"].save_render(filepath=str(path), scene=sc)
-    d = read_exr(str(path))
+    d = H.save_multilayer(sc, path)
     rgba = d["ViewLayer.Combined"].astype(np.float64)
     s = d.get(f"ViewLayer.{PASS}")
     return rgba, (np.ones(rgba.shape[:2] + (3,)) if s is None else s.astype(np.float64))
