@@ -95,8 +95,13 @@ def _reference(case, tmp_path):
     return _REFS[case]
 
 
-CASES = [("diffuse", "PHOTON"), ("diffuse", "PATH"), ("glossy", "PHOTON"), ("glossy", "PATH"),
-         ("hdri_glossy", "PHOTON"), ("hdri_diffuse", "PATH")]
+#: (case, integrator).  Photon Mapping's world photons, the map's light
+#: samples alone and its camera chains' escapes; Path Tracing's light
+#: samples and delta escapes.  (Photon Mapping's Diffuse case with the sky,
+#: the HDRI's Glossy case, and Path Tracing's HDRI Diffuse case were
+#: measured once and left out for time: docs/shading.md "The world".)
+CASES = [("diffuse", "PATH"), ("glossy", "PHOTON"), ("glossy", "PATH"),
+         ("hdri_diffuse", "PHOTON")]
 
 
 @pytest.mark.parametrize("case,integrator", CASES, ids=[f"{c}-{i}" for c, i in CASES])
