@@ -81,20 +81,6 @@ def _render(scene, integrator, seed, passes):
                                 passes=4 * passes if integrator == "PHOTON" else passes)
 
 
-_REFS: dict = {}
-
-
-def _reference(case, tmp_path):
-    """(exported scene, its log, Cycles' mean of two seeds, its noise) of a case."""
-    if case not in _REFS:
-        import test_shading_nodes as TS
-        sc = _scene(case)
-        scene, lines = TS._export()
-        _REFS[case] = (scene, lines, TS._cycles(sc, 0, tmp_path / "c0.exr", 256),
-                       TS._cycles(sc, 1, tmp_path / "c1.exr", 256))
-    return _REFS[case]
-
-
 #: (case, integrator).  Photon Mapping's world photons, the map's light
 #: samples alone and its camera chains' escapes; Path Tracing's light
 #: samples and delta escapes.  (Photon Mapping's Diffuse case with the sky,
@@ -109,15 +95,13 @@ def test_world_visibility_agrees_with_cycles(case, integrator, tmp_path):
     """Measured: see docs/shading.md "Emitters hidden from some kinds of ray"."""
     pytest.importorskip("bpy")
     import test_shading_nodes as TS
-    scene, lines, c1, c2 = _reference(case, tmp_path)
+    sc = _scene(case)
+    scene, _ = TS._export()
     assert scene.world_hidden != 0
-    render = lambda s, seed, passes=12: _render(s, integrator, seed, passes)  # noqa: E731
-    a1, a2 = render(scene, 1), render(scene, 2)
-    ref, img = (c1 + c2) / 2, (a1 + a2) / 2
+    err, noise, img, ref = TS.two_seeds(sc, scene, lambda s, seed: _render(s, integrator, seed, 12),
+                                        tmp_path, 256, key=(__name__, case))
     mean = ref.mean()
-    err = np.abs(img - ref).mean() / mean
-    noise = (np.abs(a1 - a2).mean() + np.abs(c1 - c2).mean()) / 2 / mean
-    without = render(dataclasses.replace(scene, world_hidden=0), 1, passes=TS.EFFECT_PASSES)
+    without = _render(dataclasses.replace(scene, world_hidden=0), integrator, 1, TS.EFFECT_PASSES)
     effect = np.abs(without - ref).mean() / mean
     print(f"{case} {integrator}: mean {img.mean():.4f} vs Cycles {mean:.4f}; |diff| {err:.4f}, "
           f"noise {noise:.4f} ({err / noise:.2f}x); seen by all {effect:.4f}")
