@@ -31,7 +31,7 @@ import fppm.addon.engine as E  # noqa: E402
 from fppm.core.io.exr import read_exr  # noqa: E402
 
 PASSES = ("use_pass_z", "use_pass_mist", "use_pass_normal", "use_pass_object_index",
-          "use_pass_material_index", "use_pass_emit")
+          "use_pass_material_index", "use_pass_emit", "use_pass_position")
 N_FPPM, N_CYCLES = 16, 256
 EMISSION = np.array([1.0, 0.5, 0.2]) * 3.0
 #: The integrators whose passes and alpha are checked.
@@ -124,7 +124,7 @@ def _neighbour_span(img, r=1):
 def test_passes_registered_with_blenders_names(both):
     _, f, c = both
     for name in ("Depth", "Mist", "Normal", "Object Index", "Material Index", "Emission",
-                 "Denoising Normal", "Denoising Albedo"):
+                 "Denoising Normal", "Denoising Albedo", "Position"):
         assert name in c, name          # Cycles' name for the same pass
         assert name in f, name
         assert f[name].shape == c[name].shape, name
@@ -160,7 +160,7 @@ def test_transparent_film_adds_no_world(both):
     assert np.all(f["Combined"][empty][:, :3] == 0.0)
 
 
-@pytest.mark.parametrize("name", ["Depth", "Normal", "Mist", "Denoising Normal"])
+@pytest.mark.parametrize("name", ["Depth", "Normal", "Mist", "Denoising Normal", "Position"])
 def test_geometric_pass_inside_surfaces(both, name):
     _, f, c = both
     m = _interior(c)
@@ -181,7 +181,8 @@ def test_mean_pass_whole_image(both, name):
 def test_background_values_as_cycles(both):
     _, f, c = both
     empty = (f["Combined"][..., 3] == 0) & (c["Combined"][..., 3] == 0)
-    for name, value in (("Depth", 1e10), ("Mist", 1.0), ("Normal", 0.0), ("Object Index", 0.0),
+    for name, value in (("Depth", 1e10), ("Mist", 1.0), ("Normal", 0.0), ("Position", 0.0),
+                        ("Object Index", 0.0),
                         ("Material Index", 0.0), ("Denoising Albedo", 0.0), ("Emission", 0.0)):
         assert np.all(c[name][empty] == np.float32(value)), name
         assert np.all(f[name][empty] == np.float32(value)), name

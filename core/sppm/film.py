@@ -7,8 +7,8 @@ estimate of Hachisuka 2008).  PASSES is the one table of the passes beyond
 Combined: Blender's pass name, channels, channel id and type, the flag that
 turns it on (a RenderSettings field or a view-layer property) and how it is
 computed.  The standard passes follow Cycles' conventions (kernel/film/
-data_passes.h, denoising_passes.h): Depth, Object Index and Material Index come from the
-first pass only (Cycles: sample 0), Normal, Mist, Emission and the denoising
+data_passes.h, denoising_passes.h): Depth, Position, Object Index and Material Index come
+from the first pass only (Cycles: sample 0), Normal, Mist, Emission and the denoising
 passes are means over the passes (over filter samples, so edges average);
 README.md "Passes" lists them.  Alpha (Film > Transparent) is the
 mean over passes of 1 - the throughput with which the camera ray escaped
@@ -132,6 +132,11 @@ def _mist_transmittance(x: PassSample):
     return np.where(x.first.hit, 1.0 - m, 0.0)
 
 
+def _position(x: PassSample):
+    """World-space position of the first hit (Cycles' Position pass), 0 on a miss."""
+    return np.where(x.first.hit[:, None], x.first.p, 0.0)
+
+
 def _object_index(x: PassSample):
     idx = x.scene.tri_object_index
     if idx is None:
@@ -179,6 +184,7 @@ PASSES = (
              lambda mean: 1.0 - mean),
     FilmPass("Normal", 3, "XYZ", "VECTOR", "view_layer.use_pass_normal", "mean",
              lambda x: x.first.n),
+    FilmPass("Position", 3, "XYZ", "VECTOR", "view_layer.use_pass_position", "first", _position),
     FilmPass("Object Index", 1, "X", "VALUE", "view_layer.use_pass_object_index", "first", _object_index),
     FilmPass("Material Index", 1, "X", "VALUE", "view_layer.use_pass_material_index", "first",
              _material_index),
