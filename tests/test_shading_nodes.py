@@ -394,16 +394,19 @@ def two_seeds(sc, scene, render, tmp_path, samples=CYCLES_SAMPLES, key=None):
     return err, noise, img, ref
 
 
-def agrees_with_cycles(sc, scene, integrator, tmp_path, without, label, key=None):
-    """FPPM's ``integrator`` on ``scene`` (the export of ``sc``) against
-    Cycles (256 samples), two seeds a side, under :func:`_check`'s bound,
-    and the image of ``without`` (the same export without the feature; one
-    seed of EFFECT_PASSES passes) moved by more than 3x that bound
-    (tests/test_absorption.py, test_lobe_visibility.py,
-    test_light_linking.py).  key: :func:`two_seeds`'."""
+def agrees_with_cycles(sc, scene, integrator, tmp_path, without, label, key=None, passes=12):
+    """FPPM's ``integrator`` on ``scene`` (the export of ``sc``; ``passes``
+    passes) against Cycles (256 samples), two seeds a side, under
+    :func:`_check`'s bound, and the image of ``without`` (the same export
+    without the feature; one seed of EFFECT_PASSES passes for 12) moved by
+    more than 3x that bound (tests/test_absorption.py,
+    test_lobe_visibility.py, test_light_linking.py, test_world_visibility.py).
+    key: :func:`two_seeds`'."""
     err, noise, img, ref = two_seeds(
-        sc, scene, lambda s, seed: render_integrator(s, integrator, seed), tmp_path, 256, key)
-    effect = np.abs(render_integrator(without, integrator, 1, passes=EFFECT_PASSES)
+        sc, scene, lambda s, seed: render_integrator(s, integrator, seed, passes=passes),
+        tmp_path, 256, key)
+    effect = np.abs(render_integrator(without, integrator, 1,
+                                      passes=EFFECT_PASSES * passes // 12)
                     - ref).mean() / ref.mean()
     print(f"{label} {integrator}: mean {img.mean():.4f} vs Cycles {ref.mean():.4f}; |diff| "
           f"{err:.4f}, noise {noise:.4f} ({err / noise:.2f}x); without it {effect:.4f}")

@@ -71,16 +71,6 @@ def _scene(case):
     return sc
 
 
-def _render(scene, integrator, seed, passes):
-    """tests/test_shading_nodes.py's render_integrator, Photon Mapping with
-    4x the passes: its one camera ray a pixel and pass picks the floor's
-    mirror or its Diffuse at random, which left a noise of 18 % of the
-    mean in 12 passes (the camera paths take 8 a pass)."""
-    import test_shading_nodes as TS
-    return TS.render_integrator(scene, integrator, seed,
-                                passes=4 * passes if integrator == "PHOTON" else passes)
-
-
 #: (case, integrator).  Photon Mapping's world photons, the map's light
 #: samples alone and its camera chains' escapes; Path Tracing's light
 #: samples and delta escapes.  (Photon Mapping's Diffuse case with the sky,
@@ -98,11 +88,9 @@ def test_world_visibility_agrees_with_cycles(case, integrator, tmp_path):
     sc = _scene(case)
     scene, _ = TS._export()
     assert scene.world_hidden != 0
-    err, noise, img, ref = TS.two_seeds(sc, scene, lambda s, seed: _render(s, integrator, seed, 12),
-                                        tmp_path, 256, key=(__name__, case))
-    mean = ref.mean()
-    without = _render(dataclasses.replace(scene, world_hidden=0), integrator, 1, TS.EFFECT_PASSES)
-    effect = np.abs(without - ref).mean() / mean
-    print(f"{case} {integrator}: mean {img.mean():.4f} vs Cycles {mean:.4f}; |diff| {err:.4f}, "
-          f"noise {noise:.4f} ({err / noise:.2f}x); seen by all {effect:.4f}")
-    TS._check(err, noise, effect)
+    # Photon Mapping 4x the passes: its one camera ray a pixel and pass picks
+    # the floor's mirror or its Diffuse at random, which left a noise of 18 %
+    # of the mean in 12 passes (the camera paths take 8 a pass).
+    TS.agrees_with_cycles(sc, scene, integrator, tmp_path,
+                          dataclasses.replace(scene, world_hidden=0), case, key=(__name__, case),
+                          passes=48 if integrator == "PHOTON" else 12)
