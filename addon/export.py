@@ -1532,7 +1532,8 @@ class _Exporter:
         # the names of each kind (the manifests).
         self.crypto = bool(crypto.pass_names(getattr(depsgraph, "view_layer", None)))
         self.crypto_parts: list[np.ndarray] = []
-        self.mat_crypto: list = []
+        self.mat_crypto: list = []         # each material's name (material() order)
+        self.mat_ids = np.zeros(0, np.float32)   # the IDs of mat_crypto's first names
         self.crypto_names = {k: set() for k in crypto.KINDS}
         # The view layer's shader AOVs (core.sppm.shader_aovs): name -> type.
         self.aov_kinds = {a.name: a.type for a in getattr(getattr(depsgraph, "view_layer", None),
@@ -1917,16 +1918,17 @@ class _Exporter:
         obj, asset = ob.name, crypto.asset_name(ob)
         for k, n in (("Object", obj), ("Asset", asset)):
             self.crypto_names[k].add(n)
-        # self.mat_crypto holds names until first hashed, then IDs.
-        for i, v in enumerate(self.mat_crypto):
-            if isinstance(v, str):
-                self.crypto_names["Material"].add(v)
-                self.mat_crypto[i] = crypto.name_id(v)
-        mat_ids = np.asarray(self.mat_crypto, np.float32)
+        # The IDs of the materials made since the last object (mat_crypto:
+        # their names, in material() order), hashed once each.
+        new = self.mat_crypto[self.mat_ids.size:]
+        if new:
+            self.crypto_names["Material"].update(new)
+            self.mat_ids = np.concatenate(
+                [self.mat_ids, np.array([crypto.name_id(n) for n in new], np.float32)])
+        row = np.array([crypto.name_id(obj), 0.0, crypto.name_id(asset)], np.float32)
         for q in parts:
-            ids = np.empty((len(q[0]), 3), np.float32)
-            ids[:, 0], ids[:, 2] = crypto.name_id(obj), crypto.name_id(asset)
-            ids[:, 1] = mat_ids[q[3]]
+            ids = np.repeat(row[None, :], len(q[0]), axis=0)
+            ids[:, 1] = self.mat_ids[q[3]]
             self.crypto_parts.append(ids)
 
     def tri_holdout(self):

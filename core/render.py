@@ -75,6 +75,7 @@ from .sppm import hashgrid
 from .sppm.film import AOVS, PASSES, Film, PassResult, data_passes, pass_enabled
 from .sppm import cryptomatte
 from .sppm.shadow_catcher import ShadowCatcher
+from .sppm.shader_aovs import film_passes
 from .sppm.photon_pass import AHEAD_CHUNKS, PHOTON_CHUNK, PhotonPass, frequency_photons
 from .frequency.curvature import scene_curvature
 from .sppm.photons import PhotonTracer
@@ -301,8 +302,7 @@ class Renderer:
                                       st0.occlusion_grid_res, st0.use_frequency,
                                       aov_channels=sum(p.channels for p in PASSES
                                                        if p.name in passes or pass_enabled(p, st0))
-                                      + sum(p.channels for p in data_passes(passes, scene)
-                                            if p not in PASSES)
+                                      + sum(p.channels for p in film_passes(scene, passes))
                                       + 4 * sum(map(cryptomatte.is_pass, passes))
                                       # the shadow catchers' sums (7 float64 a pixel)
                                       + 2 * (scene.tri_catcher is not None),

@@ -200,6 +200,9 @@ class CameraPass:
         # Path node, core.scene.ray_variants), or None: hits still on the
         # camera ray's line are shaded with them.
         self._camera_mat = RV.rows(scene, "camera")
+        # (3,) whether the world is seen by camera, glossy and transmission
+        # rays (a mirror's or glass's escaping ray: lights.world_seen_by).
+        self._world_seen = Lt.world_seen_by(light_table)
         # Light linking (core.scene.linking): each triangle's emitter row,
         # for the emission a chain's ray finds on a triangle (None: no
         # linking).  The chains carry the material row of the vertex each
@@ -364,7 +367,7 @@ class CameraPass:
             if np.any(miss):
                 # A mirror's or glass's ray sees the world by its Glossy and
                 # Transmission visibility (Scene.world_hidden).
-                seen = Lt.world_seen_by(lt)[last[miss]]
+                seen = self._world_seen[last[miss]]
                 L[idx[miss]] += beta[miss] * Lt.world_radiance(lt, d[miss]) * seen[:, None]
 
     def _seen_by_camera(self, L, emit, o, d, tmax, t, beta, split_min=SEEN_SPLIT_MIN) -> None:
