@@ -199,6 +199,10 @@ SUPPORT = (
     ("Cryptomatte (Object, Material, Asset, Levels): Cycles' IDs, coverage through "
      "Transparent BSDFs and manifests, in the render result and the CLI's EXR (every "
      "integrator but Light Tracing)", SUPPORTED, ""),
+    ("the Diffuse, Glossy and Transmission Color passes (each kind of closure's albedo as "
+     "Cycles estimates it, summed along the camera ray's line through Transparent BSDFs), "
+     "the Environment pass and the UV pass (every integrator but Light Tracing)",
+     SUPPORTED, ""),
     ("other shader nodes", APPROXIMATED, "unsupported node(s) "),
     ("other nodes linked into an input (the input's value is used)", APPROXIMATED,
      "'{src.name}' into {node.name}.{name} ignored"),
@@ -302,6 +306,7 @@ SUPPORT = (
     ("adaptive subdivision", IGNORED, ""),
     ("clamping", IGNORED, ""),
     ("light groups", IGNORED, ""),
+    ("the Direct and Indirect light passes, Ambient Occlusion and Shadow", IGNORED, ""),
     ("light probes", IGNORED, ""),
     ("material and sample override", IGNORED, ""),
     ("camera and distance culling", IGNORED, ""),
@@ -1532,6 +1537,9 @@ class _Exporter:
         # the names of each kind (the manifests).
         self.crypto = bool(crypto.pass_names(getattr(depsgraph, "view_layer", None)))
         self.crypto_parts: list[np.ndarray] = []
+        # The UV pass (core.sppm.color_passes): (u, v, has-uv) per corner.
+        self.uv_pass = bool(getattr(getattr(depsgraph, "view_layer", None), "use_pass_uv", False))
+        self.render_uv_parts: list[np.ndarray] = []
         self.mat_crypto: list = []         # each material's name (material() order)
         self.mat_ids = np.zeros(0, np.float32)   # the IDs of mat_crypto's first names
         self.crypto_names = {k: set() for k in crypto.KINDS}
@@ -1825,6 +1833,7 @@ class _Exporter:
                 arrs = self.mesh_arrays(me, self.poll)
                 self.mesh_cache[key] = arrs
             mats = [s.material for s in ob.material_slots] or list(me.materials)
+            has_uv = len(me.uv_layers) > 0
         else:
             try:
                 me = ob.to_mesh()
@@ -1835,6 +1844,7 @@ class _Exporter:
             try:
                 arrs = self.mesh_arrays(me, self.poll)
                 mats = [s.material for s in ob.material_slots] or list(me.materials)
+                has_uv = len(me.uv_layers) > 0
             finally:
                 ob.to_mesh_clear()
         p, n, uv, slot = arrs
@@ -1866,6 +1876,11 @@ class _Exporter:
         lut = np.array([self.material(m) for m in mats] or [self.material(None)], np.int32)
         mat = lut[np.clip(slot, 0, len(lut) - 1)]
         parts.append((pw, nw, uv, mat))
+        if self.uv_pass:
+            # The render UV map and whether the mesh has one (the UV pass:
+            # core.sppm.color_passes), before tri_uv is rewritten.
+            self.render_uv_parts.append(np.concatenate(
+                [uv, np.full(uv.shape[:2] + (1,), float(has_uv), np.float32)], axis=2))
 
     def concatenate(self, arrays: list, dtype) -> np.ndarray:
         """``np.concatenate(arrays).astype(dtype)``, copied in bands of CHUNK rows
@@ -1949,7 +1964,7 @@ class _Exporter:
             return drop_invalid_triangles(fscene)
         per_tri = ("tri_p", "tri_n", "tri_uv", "tri_mat", "tri_object_index", "tri_tangent",
                    "tri_visibility", "tri_holdout", "tri_blocker", "tri_shadow_sets", "tri_crypto",
-                   "tri_catcher")
+                   "tri_catcher", "tri_render_uv")
         bands, dropped = [], 0
         for a in range(0, T, CHUNK):
             band = dataclasses.replace(fscene, **{
@@ -2598,6 +2613,8 @@ class _Exporter:
                        crypto_names=({k: tuple(sorted(v)) for k, v in self.crypto_names.items()}
                                      if self.crypto else None),
                        shader_aovs=tuple(self.aov_kinds.items()),
+                       tri_render_uv=(self.concatenate(self.render_uv_parts, np.float32)
+                                      if self.uv_pass and parts else None),
                        world_hidden=world_hidden_bits(scene.world),
                        **seen_rows)
         # A holdout object keeps its material's transparency (core.scene.holdout).

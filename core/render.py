@@ -209,7 +209,8 @@ class Renderer:
         # the film's data passes and photon merging read them (not alpha).
         self.camera_pass.first_data = memory.keeps_first_hits(bool(self.film.data_passes),
                                                               st.integrator, self.merging)
-        self.camera_pass.matte = self.film.matte is not None
+        self.camera_pass.line_hits = self.film.reads_line_hits
+        self.film.mtab, self.film.light_table = self.mtab, self.light_table
         # Shadow catchers (core.sppm.shadow_catcher): their sums read the first hits.
         self.film.catcher = ShadowCatcher.of_scene(self.scene, self.accel, self.light_table,
                                                    self.mtab, P, getattr(self.film, "eye", None),

@@ -72,7 +72,10 @@ def test_mattes_state_round_trip():
     m = C.Mattes(["CryptoObject00", "CryptoAsset00", "CryptoAsset01"], 3,
                  np.array([[1.0, 2.0, 3.0]], np.float32))
     assert m.slots == {"Object": 2, "Asset": 4}
-    m.add([(np.array([0, 2]), np.array([0, 0]), np.array([1.0, 0.5]))])
+    from fppm.core.sppm.line_hits import LineHits
+    # Two hits of triangle 0 (beta 1 and 0.5), one miss (no matte).
+    m.add([LineHits(np.array([0, 2, 1]), np.array([0, 0, -1]), np.zeros(3), np.zeros(3),
+                    np.array([[1.0] * 3, [0.5] * 3, [1.0] * 3]), np.zeros((3, 3)), np.zeros(3))])
     m2 = C.Mattes(["CryptoObject00", "CryptoAsset00", "CryptoAsset01"], 3, m.tri_ids)
     m2.load_state(m.state_dict())
     p = m2.passes(2)
@@ -263,17 +266,23 @@ def test_compiled_camera_pass_records_numpy_mattes(blocked, monkeypatch):
                                        seed=1), log=lambda _m: None,
                  passes=("CryptoObject00", "CryptoMaterial00"))
     cam = r.camera_pass
-    assert cam.matte and r.film.matte.kinds == ("Object", "Material")
+    assert cam.line_hits and r.film.matte.kinds == ("Object", "Material")
     out = []
     for compiled in (False, True):
         cam.compiled = compiled
         vp, _ = cam(np.random.default_rng(11))
-        px, prim, w = (np.concatenate(a) for a in zip(*vp.first.matte))
+        # The camera rays' line records (core.sppm.line_hits), hits and
+        # misses; a hit's Cryptomatte weight mean(beta) (1 - mean(T)).
+        rec = [np.concatenate(a) for a in zip(*vp.first.line)]
+        px, prim = rec[0], rec[1]
         o = np.lexsort((prim, px))
-        out.append((px[o], prim[o], w[o]))
+        out.append(tuple(a[o] for a in rec))
     for a, b in zip(*out):
         assert np.array_equal(a, b)
-    px, prim, w = out[0]
+    px, prim, u, v, beta, d, through = out[0]
+    hit = prim >= 0
+    assert (~hit).any()              # the rays through the window see the world
+    px, prim, w = px[hit], prim[hit], beta[hit].mean(axis=1) * (1.0 - through[hit])
     on = scene.tri_mat[prim] == m
     # Rays that crossed the box's Transparent lobe hit its back or the
     # room behind: pixels of two hits or more.  The box's own hits weigh

@@ -112,22 +112,30 @@ def _ms_glass_slice(inv: int, k: int):
     return _MS_CACHE[key]
 
 
-def _schlick_s_weight(alpha, mu, eta, n):
-    """Cycles' ggx_gen_schlick_ior_s: mean over VNDF samples (invalid = 0) of
-    s = sat((F_real(h.wo) - F0)/(1 - F0)), by the quadrature of :func:`_ms_weight`."""
+def _gen_s_weight(alpha, mu, s_of, n):
+    """Mean (shape of alpha) over VNDF samples (invalid = 0) of s_of(h.wo)
+    (Cycles' ``precompute_ggx_gen_schlick_s``), by the quadrature of
+    :func:`_ms_weight`."""
     S = alpha.shape
     a2, m, jac, ph, ch, sh, so = _vndf_grid(alpha, mu, n)
-    e = eta.reshape(-1, 1, 1)
     hwo = so * sh * np.cos(ph) + m * ch          # as _ms_weight, grouped as before (same bits)
     G1 = 1.0 / (1.0 + ggx_lambda(a2, m))
     vndf = G1 * np.maximum(hwo, 0.0) / (m * ch) * jac          # VNDF in (t, phi) measure
     valid = (2.0 * hwo * ch - m) > 0
-    shp = np.broadcast_shapes(hwo.shape, e.shape)
-    Fr = fresnel_dielectric(np.broadcast_to(hwo, shp).reshape(-1),
-                            np.broadcast_to(e, shp).reshape(-1))[0].reshape(shp)
-    F0 = f0_from_ior(e)
-    s = np.clip((Fr - F0) / np.maximum(1.0 - F0, 1e-12), 0.0, 1.0)
-    return (vndf * s * valid).mean(axis=(1, 2)).reshape(S)
+    return (vndf * s_of(hwo) * valid).mean(axis=(1, 2)).reshape(S)
+
+
+def _schlick_s_weight(alpha, mu, eta, n):
+    """Cycles' ggx_gen_schlick_ior_s: s = sat((F_real(h.wo) - F0)/(1 - F0))."""
+    e = eta.reshape(-1, 1, 1)
+
+    def s_of(hwo):
+        shp = np.broadcast_shapes(hwo.shape, e.shape)
+        Fr = fresnel_dielectric(np.broadcast_to(hwo, shp).reshape(-1),
+                                np.broadcast_to(e, shp).reshape(-1))[0].reshape(shp)
+        F0 = f0_from_ior(e)
+        return np.clip((Fr - F0) / np.maximum(1.0 - F0, 1e-12), 0.0, 1.0)
+    return _gen_s_weight(alpha, mu, s_of, n)
 
 
 def _schlick_s_slice(k: int):
@@ -140,6 +148,26 @@ def _schlick_s_slice(k: int):
         R, Mu = np.meshgrid(grid, grid, indexing="ij")
         eta = np.full_like(R, (1 + z * z) / (1 - z * z))
         _MS_CACHE[key] = np.clip(_schlick_s_weight(R * R, Mu, eta, 48), 0.0, 1.0)
+    return _MS_CACHE[key]
+
+
+def _schlick5_s_table():
+    """Cycles' ggx_gen_schlick_s read at z = 0.5 (what the F82-tint metal's
+    albedo reads), (16 rough, 16 mu), cached.  The table's z axis holds
+    exponent e = 5 (1 - z)/z with s = (1 - h.wo)^e on the nodes z = k/15;
+    z = 0.5 falls halfway between nodes 7 and 8 (e = 40/7 and 35/8), which
+    Cycles' lookup mixes half and half."""
+    key = ("schlick5_s",)
+    if key not in _MS_CACHE:
+        n = 16
+        grid = np.clip(np.arange(n) / (n - 1), 1e-4, 1.0)
+        R, Mu = np.meshgrid(grid, grid, indexing="ij")
+        T = 0.0
+        for k in (7, 8):
+            e = 5.0 * (1.0 - k / (n - 1)) / (k / (n - 1))
+            T = T + 0.5 * np.clip(_gen_s_weight(
+                R * R, Mu, lambda hwo: np.clip(1.0 - hwo, 0.0, 1.0) ** e, 48), 0.0, 1.0)
+        _MS_CACHE[key] = T
     return _MS_CACHE[key]
 
 
@@ -164,14 +192,10 @@ def _ggx_albedo(rough, mu):
     return _bilerp(E_t, i, ti, j, tj), (1 - ti) * Eavg_t[i] + ti * Eavg_t[i + 1]
 
 
-def layer_transmission(f0, rough, ior, mu, ms=None):
-    """1 - albedo (k,) of a Principled dielectric specular layer seen at cosine mu.
-
-    Cycles' closure_layering_weight: the diffuse below gets 1 - A with the
-    layer's bsdf_albedo A = d mix(f0, 1, s), s from the ggx_gen_schlick_ior_s
-    table at (roughness, mu, z(ior)), and d = E + F_ms (1 - E) the weight
-    change of microfacet_ggx_preserve_energy for Multiscatter GGX (d = 1 for
-    plain GGX).  f0: (k,) max-channel F0 x tint; rough, ior, mu: (k,); ms: (k,) bool."""
+def schlick_s(rough, mu, ior):
+    """Cycles' ggx_gen_schlick_ior_s (k,) at (roughness, mu, z(ior)) (k,)
+    each: F = mix(F0, 1, s) is the Fresnel-weighted albedo estimate of a
+    dielectric GGX lobe (``bsdf_microfacet_estimate_albedo``)."""
     z = np.sqrt(np.abs((ior - 1.0) / (ior + 1.0)))
     k, tk = _lerp_index(z, 16)
     i, ti = _lerp_index(rough, 16)
@@ -184,7 +208,26 @@ def layer_transmission(f0, rough, ior, mu, ms=None):
             T = _schlick_s_slice(int(kk))
             ii, ti_, jj, tj_ = i[sel], ti[sel], j[sel], tj[sel]
             s[sel] += wk[sel] * _bilerp(T, ii, ti_, jj, tj_)
-    A = f0 + (1.0 - f0) * s
+    return s
+
+
+def schlick5_s(rough, mu):
+    """Cycles' ggx_gen_schlick_s (k,) at exponent 5 (z = 0.5): F = mix(F0, 1,
+    s) is the albedo estimate of an F82-tint metal lobe."""
+    i, ti = _lerp_index(rough, 16)
+    j, tj = _lerp_index(mu, 16)
+    return _bilerp(_schlick5_s_table(), i, ti, j, tj)
+
+
+def layer_transmission(f0, rough, ior, mu, ms=None):
+    """1 - albedo (k,) of a Principled dielectric specular layer seen at cosine mu.
+
+    Cycles' closure_layering_weight: the diffuse below gets 1 - A with the
+    layer's bsdf_albedo A = d mix(f0, 1, s), s from the ggx_gen_schlick_ior_s
+    table at (roughness, mu, z(ior)), and d = E + F_ms (1 - E) the weight
+    change of microfacet_ggx_preserve_energy for Multiscatter GGX (d = 1 for
+    plain GGX).  f0: (k,) max-channel F0 x tint; rough, ior, mu: (k,); ms: (k,) bool."""
+    A = f0 + (1.0 - f0) * schlick_s(rough, mu, ior)
     if ms is not None and np.any(ms):
         F0 = f0_from_ior(ior[ms])
         s_ss = np.clip((_fss_dielectric(ior[ms]) - F0) / np.maximum(1.0 - F0, 1e-12), 0.0, 1.0)
@@ -201,6 +244,21 @@ def multiscatter_factor(kind, color, rough, eta, mu):
     color: (k, 3) closure colour without mix weight; rough: (k,) roughness;
     eta: (k,) relative ior (glass); mu: (k,) cosine of the view direction.
     """
+    E, Fms = _ms_terms(kind, color, rough, eta, mu)
+    return 1.0 + Fms * (1.0 - E) / E
+
+
+def multiscatter_darkening(kind, color, rough, eta, mu):
+    """(k, 3) the part of :func:`multiscatter_factor` Cycles puts into the
+    closure's weight, E + F_ms (1 - E) (``microfacet_ggx_preserve_energy``'s
+    darkening; the rest, 1/E, is its energy_scale): what the closure's
+    albedo (``bsdf_albedo``) carries.  Arguments as multiscatter_factor's."""
+    E, Fms = _ms_terms(kind, color, rough, eta, mu)
+    return E + Fms * (1.0 - E)
+
+
+def _ms_terms(kind, color, rough, eta, mu):
+    """(E (k, 1), F_ms (k, 3)) of :func:`multiscatter_factor`."""
     if kind != GLASS:
         E, Eavg = _ggx_albedo(rough, mu)
     else:
@@ -224,5 +282,4 @@ def multiscatter_factor(kind, color, rough, eta, mu):
     E = np.maximum(E, 1e-6)[:, None]
     Eavg = Eavg[:, None]
     C = np.maximum(color, 0.0)
-    Fms = C * Eavg / np.maximum(1.0 - C * (1.0 - Eavg), 1e-12)
-    return 1.0 + Fms * (1.0 - E) / E
+    return E, C * Eavg / np.maximum(1.0 - C * (1.0 - Eavg), 1e-12)

@@ -274,6 +274,10 @@ class Scene:
     world_hidden: the kinds of ray the world is hidden from (World > Ray
       Visibility: core.lights.lobe_visibility's DIFFUSE_RAYS | GLOSSY_RAYS |
       TRANSMISSION_RAYS bits; 0: seen by all).
+    tri_render_uv: (T, 3, 3) float32 the render UV map at each corner and
+      1 where the mesh has one (u, v, 1; else 0, 0, 0), for the UV pass
+      (core.sppm.color_passes), or None (the pass is off).  tri_uv may hold
+      other coordinates (a material's mapped vector, an atlas).
     """
     tri_p: np.ndarray
     tri_n: np.ndarray
@@ -307,6 +311,7 @@ class Scene:
     shader_aovs: tuple = ()
     tri_catcher: Optional[np.ndarray] = None
     world_hidden: int = 0
+    tri_render_uv: Optional[np.ndarray] = None
 
     def __post_init__(self):
         self.attach_shading_normals()
@@ -433,7 +438,9 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       tri_crypto=None if scene.tri_crypto is None else scene.tri_crypto[ok],
                       crypto_names=scene.crypto_names, shader_aovs=scene.shader_aovs,
                       tri_catcher=None if scene.tri_catcher is None else scene.tri_catcher[ok],
-                      world_hidden=scene.world_hidden)
+                      world_hidden=scene.world_hidden,
+                      tri_render_uv=None if scene.tri_render_uv is None
+                      else scene.tri_render_uv[ok])
     return scene, dropped
 
 
@@ -479,7 +486,7 @@ def scene_digest(scene: Scene) -> str:
     if getattr(scene, "material_receiver", None) is not None:
         h.update(b"linking" + np.ascontiguousarray(scene.material_receiver).tobytes()
                  + np.ascontiguousarray(scene.material_emitter).tobytes())
-    for name in ("tri_blocker", "tri_shadow_sets", "tri_crypto", "tri_catcher"):
+    for name in ("tri_blocker", "tri_shadow_sets", "tri_crypto", "tri_catcher", "tri_render_uv"):
         if getattr(scene, name, None) is not None:
             h.update(name.encode() + np.ascontiguousarray(getattr(scene, name)).tobytes())
     unset = {"link_sets": (1 << 64) - 1, "shadow_sets": (1 << 64) - 1, "visible_diffuse": True}

@@ -16,7 +16,8 @@ path), adds at every surface it hits
     w = mean(beta) (1 - mean(T))            (kernel/film/data_passes.h)
 
 to the slot of that surface's ID in its pixel, beta its throughput and T
-the surface's Transparent lobes there (``core.lights.shadow.pass_through``).
+the surface's Transparent lobes there (``core.lights.shadow.pass_through``;
+the hits are ``core.sppm.line_hits`` records).
 A holdout surface where the ray ends adds nothing.  A pixel keeps 2 x
 ceil(Levels / 2) (id, weight) slots a kind (kernel/film/
 cryptomatte_passes.h ``film_write_cryptomatte_slots``): an ID takes the
@@ -143,33 +144,6 @@ def scene_metadata(scene, passes, prefix: str) -> dict[str, str]:
     return metadata(prefix, {k: v for k, v in names.items() if k in kinds})
 
 
-def camera_hits(records: Optional[list], prim: np.ndarray, on_line: np.ndarray,
-                beta: np.ndarray, idx: np.ndarray, uv, shadow_materials,
-                ends: Optional[np.ndarray]) -> None:
-    """Append (pixels (n,), triangles (n,), w (n,)) of the K rays' hits
-    still on their camera ray's line to ``records`` (None: no Cryptomatte
-    pass is on).  prim (K,) the triangle hit (-1: none), beta (K, 3) the
-    rays' throughput, idx (K,) their pixels, uv = (u, v) (K,) the hits'
-    barycentrics, shadow_materials the camera rays' transparent materials
-    (``core.lights.shadow.attached(accel, camera=True)``; None: none is),
-    ends (K,) bool the rays that end on a holdout there (or None)."""
-    if records is None:
-        return
-    k = on_line & (prim >= 0)
-    if ends is not None:
-        k &= ~ends
-    k = np.nonzero(k)[0]
-    if k.size == 0:
-        return
-    w = beta[k].mean(axis=1)
-    if shadow_materials is not None:
-        from ..lights.shadow import pass_through
-        T = pass_through(shadow_materials, np.asarray(prim[k], np.int64),
-                         np.asarray(uv[0][k], np.float64), np.asarray(uv[1][k], np.float64))
-        w = w * (1.0 - T.mean(axis=1))
-    records.append((np.asarray(idx[k], np.int64), np.asarray(prim[k], np.int64), w))
-
-
 def add_to_slots(ids: np.ndarray, weights: np.ndarray, px: np.ndarray, id_: np.ndarray,
                  w: np.ndarray) -> None:
     """Cycles' ``film_write_cryptomatte_slots`` for hits in distinct pixels
@@ -225,12 +199,15 @@ class Mattes:
         return cls(passes, P, tri)
 
     def add(self, records: list) -> None:
-        """Add one pass's ``camera_hits`` records, each pixel's in the order
-        its ray met them (the records of one call are in distinct pixels)."""
-        for px, prim, w in records:
+        """Add one pass's ``core.sppm.line_hits`` records, each pixel's in the
+        order its ray met them (the records of one wavefront are in distinct
+        pixels): each surface's w = mean(beta) (1 - mean(T))."""
+        for r in records:
+            h = np.nonzero(r.hit)[0]
+            prim, w = r.prim[h], r.beta[h].mean(axis=1) * (1.0 - r.through[h])
             for c, k in enumerate(KINDS):
                 if k in self.ids:
-                    add_to_slots(self.ids[k], self.weights[k], px, self.tri_ids[prim, c], w)
+                    add_to_slots(self.ids[k], self.weights[k], r.px[h], self.tri_ids[prim, c], w)
 
     def passes(self, samples: int) -> dict[str, np.ndarray]:
         """{"Crypto<Kind>NN": (P, 4) float32 (id, weight, id, weight)}: the

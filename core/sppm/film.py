@@ -31,6 +31,7 @@ import numpy as np
 
 from ..kept import KeptArrays
 from ..scene.holdout import triangle_weights
+from . import color_passes as CP
 from .cryptomatte import Mattes
 from .shadow_catcher import PASS as CATCHER_PASS
 
@@ -94,7 +95,10 @@ class PassSample(NamedTuple):
     specular bounces to the first rough surface); scene: core Scene; eye (3,)
     camera position, view (3,) unit viewing direction, R_wc (3, 3) world ->
     camera rotation (rows: camera x, y, -z axes in world space, so camera-space
-    z is the distance in front of the camera, Cycles' convention).
+    z is the distance in front of the camera, Cycles' convention);
+    mtab, light_table: the render's materials and lights (the colour and
+    Environment passes; None: those passes are 0); memo: values the passes
+    of one PassSample share (``core.sppm.color_passes.line_albedos``).
     """
     first: object
     vp: object
@@ -102,6 +106,9 @@ class PassSample(NamedTuple):
     eye: np.ndarray
     view: np.ndarray
     R_wc: np.ndarray
+    mtab: object = None
+    light_table: object = None
+    memo: Optional[dict] = None
 
 
 #: Cycles' Depth of a pixel whose first sample escaped (its pass accessor
@@ -193,6 +200,15 @@ PASSES = (
              "mean", _denoising_normal),
     FilmPass("Denoising Albedo", 3, "RGB", "COLOR", "view_layer.cycles.denoising_store_passes",
              "mean", _denoising_albedo),
+    FilmPass("Diffuse Color", 3, "RGB", "COLOR", "view_layer.use_pass_diffuse_color", "mean",
+             CP.color_pass(CP.COLOR_PASSES["Diffuse Color"])),
+    FilmPass("Glossy Color", 3, "RGB", "COLOR", "view_layer.use_pass_glossy_color", "mean",
+             CP.color_pass(CP.COLOR_PASSES["Glossy Color"])),
+    FilmPass("Transmission Color", 3, "RGB", "COLOR", "view_layer.use_pass_transmission_color",
+             "mean", CP.color_pass(CP.COLOR_PASSES["Transmission Color"])),
+    FilmPass(CP.ENVIRONMENT, 3, "RGB", "COLOR", "view_layer.use_pass_environment", "mean",
+             CP.environment),
+    FilmPass("UV", 3, "UVA", "VECTOR", "view_layer.use_pass_uv", "mean", CP.uv_pass),
 )
 #: The AOVs computed from the progressive state (FPPM's own).
 AOVS = tuple(p for p in PASSES if p.source == "state")
@@ -250,6 +266,9 @@ class Film:
         # it, with its Embree scene and lights), or None.
         self.catcher = None
         self.catcher_pass = CATCHER_PASS in passes
+        # The render's MaterialTable and LightTable (the Renderer sets them:
+        # the colour and Environment passes read them).
+        self.mtab = self.light_table = None
         if scene is not None:
             M = np.asarray(scene.camera.matrix_world, np.float64)
             axes = M[:3, :3] / np.maximum(np.linalg.norm(M[:3, :3], axis=0), 1e-300)
@@ -264,18 +283,25 @@ class Film:
         return self.scene is not None and (self.alpha or bool(self.data_passes)
                                            or self.matte is not None or self.catcher is not None)
 
+    @property
+    def reads_line_hits(self) -> bool:
+        """Whether a pass reads what the camera rays meet on their lines
+        (``core.sppm.line_hits``: Cryptomatte, the colour and Environment passes)."""
+        return self.matte is not None or any(p.name in CP.LINE_PASSES for p in self.data_passes)
+
     def accumulate(self, vp) -> None:
         """Add one pass's camera data (VisiblePoints with .first) to alpha and the data passes."""
         first = getattr(vp, "first", None)
         if first is None or self.scene is None:
             return
         self.coverage += 1.0 - first.escape
-        if self.matte is not None and first.matte:
-            self.matte.add(first.matte)
+        if self.matte is not None and first.line:
+            self.matte.add(first.line)
         if self.catcher is not None:
             self.catcher.accumulate(vp, self.samples)
         if self.data_passes:
-            x = PassSample(first, vp, self.scene, self.eye, self.view, self.R_wc)
+            x = PassSample(first, vp, self.scene, self.eye, self.view, self.R_wc, self.mtab,
+                           self.light_table, {})
             for p in self.data_passes:
                 if p.source == "mean" or self.samples == 0:
                     v = np.asarray(p.compute(x), np.float64).reshape(-1, p.channels)

@@ -40,7 +40,7 @@ from .. import materials as B
 from ..materials import rough_maps
 from ..mathutil import dot as _dot
 from .glossy_mis import GlossyMIS, glossy_rows, light_uniforms
-from . import cryptomatte as Crypto
+from . import line_hits as Line
 
 #: Camera rays from which a wavefront's Embree call is split in two threads.
 INTERSECT_SPLIT_MIN = 1 << 15
@@ -133,8 +133,9 @@ class FirstHit:
     through transparent surfaces (1 on a miss, 0 on an opaque hit), plus
     the holdout weight x throughput of the holdout surfaces it met there
     (core.scene.holdout): Cycles' alpha is 1 - escape.
-    matte: the pass's Cryptomatte records (``cryptomatte.camera_hits``), or
-    None (no Cryptomatte pass).
+    line: the pass's ``core.sppm.line_hits`` records (what the camera rays
+    meet on their lines: Cryptomatte, the colour and Environment passes),
+    or None (no pass reads them).
     """
     hit: np.ndarray
     p: np.ndarray
@@ -142,10 +143,10 @@ class FirstHit:
     prim: np.ndarray
     emit: np.ndarray
     escape: np.ndarray
-    matte: Optional[list] = None
+    line: Optional[list] = None
 
 
-_FIRST = tuple(f.name for f in fields(FirstHit) if f.name != "matte")
+_FIRST = tuple(f.name for f in fields(FirstHit) if f.name != "line")
 
 
 def _crossings_only(accel, rays, vp) -> None:
@@ -233,8 +234,9 @@ class CameraPass:
         self.max_depth = int(max_depth)
         self.transparent = bool(transparent)
         self.first_data = bool(first_data)
-        # Record the hits of the Cryptomatte passes (the Renderer sets it).
-        self.matte = False
+        # Record what the camera rays meet on their lines (core.sppm.line_hits;
+        # the Renderer sets it when a film pass reads them).
+        self.line_hits = False
         self.pixel_id = None
         self._kept = KeptArrays()
         if frame is not None:
@@ -309,7 +311,7 @@ class CameraPass:
         n = len(_VP_ARRAYS)
         vp = VisiblePoints(**dict(zip(_VP_ARRAYS, a[:n])))
         vp.first = FirstHit(**dict(zip(_FIRST, a[n:n + len(_FIRST)])),
-                            matte=[] if self.matte else None)
+                            line=[] if self.line_hits else None)
         vp.through_delta = a[-2]
         return vp, a[-1]
 
@@ -424,8 +426,8 @@ class CameraPass:
             Absorb.attenuate(self._absorb, h.prim, h.t, d, beta)
             ends = Holdout.camera_hits(self._holdout, h.prim, see_through, beta, first.escape,
                                        idx, (h.u, h.v), self._held_through)
-            Crypto.camera_hits(first.matte, h.prim, see_through, beta, idx, (h.u, h.v),
-                               shadow_attached(accel, camera=True), ends)
+            Line.record(first.line, h.prim, see_through, beta, idx, (h.u, h.v), d,
+                        shadow_attached(accel, camera=True), ends)
             # Analytic emitters (area lights, light spheres) seen before the hit.
             self._seen_along(depth, L, first, o, d, tmax, h.t, hit, idx,
                              self._emitting(beta, mis[0]), last, see_through, left=mis[3])
@@ -808,8 +810,8 @@ class CameraPass:
         Absorb.attenuate(self._absorb, prim, t, d, beta)
         ends = Holdout.camera_hits(self._holdout, prim, see_through, beta, first.escape, idx,
                                    hit4[1:3], self._held_through)
-        Crypto.camera_hits(first.matte, prim, see_through, beta, idx, hit4[1:3],
-                           shadow_attached(self.accel, camera=True), ends)
+        Line.record(first.line, prim, see_through, beta, idx, hit4[1:3], d,
+                    shadow_attached(self.accel, camera=True), ends)
         self._seen_along(depth, L, first, o, d, tmax, t, hit, idx, self._emitting(beta, mis[0]),
                          last, see_through, fast=True, split=split, left=mis[3])
         ew = self._glossy_emission(L, idx, o, d, t, prim, beta, last, mis)
