@@ -201,7 +201,8 @@ SUPPORT = (
      "integrator but Light Tracing)", SUPPORTED, ""),
     ("the Diffuse, Glossy and Transmission Color passes (each kind of closure's albedo as "
      "Cycles estimates it, summed along the camera ray's line through Transparent BSDFs), "
-     "the Environment pass and the UV pass (every integrator but Light Tracing)",
+     "the Environment, Ambient Occlusion (the world's AO distance) and UV passes (every "
+     "integrator but Light Tracing)",
      SUPPORTED, ""),
     ("other shader nodes", APPROXIMATED, "unsupported node(s) "),
     ("other nodes linked into an input (the input's value is used)", APPROXIMATED,
@@ -306,7 +307,7 @@ SUPPORT = (
     ("adaptive subdivision", IGNORED, ""),
     ("clamping", IGNORED, ""),
     ("light groups", IGNORED, ""),
-    ("the Direct and Indirect light passes, Ambient Occlusion and Shadow", IGNORED, ""),
+    ("the Direct and Indirect light passes and the Shadow pass", IGNORED, ""),
     ("light probes", IGNORED, ""),
     ("material and sample override", IGNORED, ""),
     ("camera and distance culling", IGNORED, ""),
@@ -2601,6 +2602,8 @@ class _Exporter:
                        material_pass_index=np.asarray(pass_index, np.int32),
                        film_transparent=bool(getattr(scene.render, "film_transparent", False)),
                        mist=self.mist(), tri_tangent=tri_tangent,
+                       ao_distance=float(getattr(getattr(scene.world, "light_settings", None),
+                                                 "distance", 10.0)),
                        tri_visibility=self.tri_visibility(), tri_holdout=self.tri_holdout(),
                        tri_catcher=(self.concatenate(self.catcher_parts, bool)
                                     if any(c.any() for c in self.catcher_parts) else None),

@@ -716,9 +716,9 @@ HIDDEN = {
     "CYCLES_RENDER_PT_debug": "Cycles' developer options",
     # view layer tab
     "CYCLES_RENDER_PT_filter": "Cycles' per-layer filter of surfaces/curves/volumes",
-    # (its Color and Environment flags are in FPPM's own Passes panel)
-    "CYCLES_RENDER_PT_passes_light": "the Direct and Indirect light passes, Ambient Occlusion "
-                                     "and Shadow: ignored",
+    # (its Color, Environment and AO flags are in FPPM's own Passes panel)
+    "CYCLES_RENDER_PT_passes_light": "the Direct and Indirect light passes and the Shadow "
+                                     "pass: ignored",
     "CYCLES_RENDER_PT_passes_lightgroups": "light groups: ignored",
     "VIEWLAYER_PT_layer_passes_lightgroups": "light groups: ignored",
     "VIEWLAYER_PT_override": "material and sample override: ignored",

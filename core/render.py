@@ -86,6 +86,8 @@ from .sppm.visible_points import CameraPass, InTurn, VisiblePoints
 __all__ = ["Renderer", "PassResult", "VisiblePoints", "PHOTON_CHUNK"]
 
 _STATE_FIELDS = frozenset(f.name for f in fields(PixelState))
+#: The random stream of the Ambient Occlusion pass's rays (the film's).
+AO_STREAM = 0xA0
 
 
 #: malloc_trim before each pass's camera stage (memory.release_free_heap).
@@ -211,6 +213,8 @@ class Renderer:
                                                               st.integrator, self.merging)
         self.camera_pass.line_hits = self.film.reads_line_hits
         self.film.mtab, self.film.light_table = self.mtab, self.light_table
+        self.film.shadow_accel = self.accel.for_rays(RAY_SHADOW)
+        self.film.rng = np.random.default_rng([st.seed, AO_STREAM])
         # Shadow catchers (core.sppm.shadow_catcher): their sums read the first hits.
         self.film.catcher = ShadowCatcher.of_scene(self.scene, self.accel, self.light_table,
                                                    self.mtab, P, getattr(self.film, "eye", None),

@@ -1,12 +1,12 @@
-"""The Diffuse, Glossy and Transmission Color passes, the Environment pass
-and the UV pass against Cycles (core/sppm/color_passes.py,
+"""The Diffuse, Glossy and Transmission Color passes, the Environment,
+Ambient Occlusion and UV passes against Cycles (core/sppm/color_passes.py,
 core/materials/albedo.py).
 
 One scene, 48x36: a Principled floor (Blender's default material: a
 dielectric specular layer over the diffuse, Multiscatter GGX), a
 Principled metal cube (F82 tint), a smooth glass sphere, a Glossy BSDF
 cube, a card half Transparent in front of it, under an HDRI the camera
-sees above the horizon.  The floor is a mesh without a UV map (its UV
+sees above the horizon, the world's AO distance 1 m.  The floor is a mesh without a UV map (its UV
 pass is 0); the cube and sphere have Blender's primitive UVs.  FPPM
 renders 8 passes, Cycles 128 samples, two seeds a side; each pass is
 compared inside every object (Cycles' Object Index) under the project's
@@ -19,9 +19,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-NAMES = ("Diffuse Color", "Glossy Color", "Transmission Color", "Environment", "UV")
+NAMES = ("Diffuse Color", "Glossy Color", "Transmission Color", "Environment",
+         "Ambient Occlusion", "UV")
 FLAGS = ("use_pass_diffuse_color", "use_pass_glossy_color", "use_pass_transmission_color",
-         "use_pass_environment", "use_pass_uv", "use_pass_object_index")
+         "use_pass_environment", "use_pass_ambient_occlusion", "use_pass_uv",
+         "use_pass_object_index")
 N_FPPM, N_CYCLES = 8, 128
 
 
@@ -60,6 +62,7 @@ def _scene():
                                (-0.3, 0.9, 0.8)], [(0, 1, 2, 3)], card).pass_index = 5
     H.add_light(sc, "POINT", 200.0, (1.0, -1.0, 3.0))
     TE.hdri_world(sc, TE.spiky_image())
+    sc.world.light_settings.distance = 1.0     # the AO rays' reach (Blender's default: 10 m)
     H.add_camera(sc)
     vl = sc.view_layers[0]
     for k in FLAGS:

@@ -244,6 +244,9 @@ class Scene:
     material_pass_index: (M,) int32 each material's pass index (IndexMA) or None (0).
     film_transparent: Film > Transparent (camera rays that escape give alpha 0).
     mist: (start, depth, falloff exponent) of the world's mist pass [m, m, 1].
+    ao_distance: the world's ambient occlusion distance [m] (World >
+      Settings > Ambient Occlusion > Distance: the Ambient Occlusion pass's
+      rays, core.sppm.color_passes).
     tri_tangent: (T, 3, 4) float32 per-corner MikkTSpace tangent (xyz, unit)
       and bitangent sign (w, +-1; 0 = none: the triangle's dP/du is used), for
       Normal Map materials; or None.
@@ -294,6 +297,7 @@ class Scene:
     material_pass_index: Optional[np.ndarray] = None
     film_transparent: bool = False
     mist: tuple = (5.0, 25.0, 2.0)
+    ao_distance: float = 10.0
     world_map: Optional[EnvironmentMap] = None
     world_camera_map: Optional[EnvironmentMap] = None
     approximations: tuple = ()
@@ -438,7 +442,7 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       tri_crypto=None if scene.tri_crypto is None else scene.tri_crypto[ok],
                       crypto_names=scene.crypto_names, shader_aovs=scene.shader_aovs,
                       tri_catcher=None if scene.tri_catcher is None else scene.tri_catcher[ok],
-                      world_hidden=scene.world_hidden,
+                      world_hidden=scene.world_hidden, ao_distance=scene.ao_distance,
                       tri_render_uv=None if scene.tri_render_uv is None
                       else scene.tri_render_uv[ok])
     return scene, dropped

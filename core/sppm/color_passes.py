@@ -17,6 +17,13 @@ crossings and absorbing volumes lower it).  The Environment pass is the
 world as camera rays see it (World > Ray Visibility > Camera off: black)
 also under Film > Transparent, as in Cycles.
 
+The Ambient Occlusion pass is, summed over the same surfaces, beta x the
+surface's opacity (1 - its Transparent lobes) x the light a ray let
+through: one ray a surface, cosine-distributed about the shading normal
+facing the camera ray, up to the world's AO distance, through transparent
+surfaces as shadow rays pass them (``integrate_surface_ao`` and
+``film_write_direct_light``'s PATH_RAY_SHADOW_FOR_AO: an open surface is 1).
+
 The UV pass is (u, v, 1) of the render UV map at the first hit, (0, 0, 0)
 where the mesh has none or the ray escapes (``primitive_uv``), averaged
 over the passes like the Normal pass; the exporter writes those
@@ -34,18 +41,18 @@ from ..scene import ray_variants as RV
 #: of their closure kind in ``core.materials.albedo.ALBEDO_KINDS``.
 COLOR_PASSES = {"Diffuse Color": 0, "Glossy Color": 1, "Transmission Color": 2}
 ENVIRONMENT = "Environment"
-LINE_PASSES = tuple(COLOR_PASSES) + (ENVIRONMENT,)
+AMBIENT_OCCLUSION = "Ambient Occlusion"
+LINE_PASSES = tuple(COLOR_PASSES) + (ENVIRONMENT, AMBIENT_OCCLUSION)
 
 
 def _records(x):
     """The pass's line records with a hit, concatenated: (px, prim, u, v,
-    beta, d) arrays, or None."""
+    beta, d, through) arrays, or None."""
     recs = [r for r in (x.first.line or ()) if r.hit.any()]
     if not recs:
         return None
-    cat = [np.concatenate([getattr(r, f)[r.hit] for r in recs]) for f in
-           ("px", "prim", "u", "v", "beta", "d")]
-    return cat
+    return [np.concatenate([getattr(r, f)[r.hit] for r in recs]) for f in
+            ("px", "prim", "u", "v", "beta", "d", "through")]
 
 
 def line_albedos(x) -> np.ndarray:
@@ -61,7 +68,7 @@ def line_albedos(x) -> np.ndarray:
     out = np.zeros((3, P, 3))
     rec = _records(x)
     if rec is not None and x.mtab is not None:
-        px, prim, u, v, beta, d = rec
+        px, prim, u, v, beta, d, _ = rec
         s, mtab = x.scene, x.mtab
         _, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, u, v)
         # On the camera ray's line: the material camera rays see (a Light
@@ -95,6 +102,30 @@ def environment(x) -> np.ndarray:
     px, beta, d = (np.concatenate([getattr(r, f)[~r.hit] for r in recs])
                    for f in ("px", "beta", "d"))
     np.add.at(out, px, beta * Lt.world_radiance(lt, d, camera=True))
+    return out
+
+
+def ambient_occlusion(x) -> np.ndarray:
+    """(P, 3) the Ambient Occlusion pass's sums of one pass (module doc)."""
+    from ..lights.shadow import transmittance
+    from ..materials.closures import _cos_hemisphere
+    from ..mathutil import frame
+    P = x.first.escape.shape[0]
+    out = np.zeros((P, 3))
+    rec = _records(x)
+    if rec is None or x.accel is None:
+        return out
+    px, prim, u, v, beta, d, through = rec
+    s = x.scene
+    p, ng, ns, _ = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, u, v)
+    # The normal facing the camera ray (Cycles flips N on a back face).
+    N = np.where((_dot(ns, d) > 0)[:, None], -ns, ns)
+    t, b = frame(N)
+    w = _cos_hemisphere(*x.rng.random((2, prim.size)))
+    w = w[:, :1] * t + w[:, 1:2] * b + w[:, 2:] * N
+    o = x.accel.spawn(p, ng, w)
+    T = transmittance(x.accel, o, w, float(s.ao_distance), n0=ng)
+    np.add.at(out, px, beta * (1.0 - through)[:, None] * T)
     return out
 
 

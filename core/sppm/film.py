@@ -98,7 +98,9 @@ class PassSample(NamedTuple):
     z is the distance in front of the camera, Cycles' convention);
     mtab, light_table: the render's materials and lights (the colour and
     Environment passes; None: those passes are 0); memo: values the passes
-    of one PassSample share (``core.sppm.color_passes.line_albedos``).
+    of one PassSample share (``core.sppm.color_passes.line_albedos``);
+    accel: the shadow rays' view of the scene and rng a Generator (the
+    Ambient Occlusion pass's rays; None: that pass is 0).
     """
     first: object
     vp: object
@@ -109,6 +111,8 @@ class PassSample(NamedTuple):
     mtab: object = None
     light_table: object = None
     memo: Optional[dict] = None
+    accel: object = None
+    rng: object = None
 
 
 #: Cycles' Depth of a pixel whose first sample escaped (its pass accessor
@@ -208,6 +212,8 @@ PASSES = (
              "mean", CP.color_pass(CP.COLOR_PASSES["Transmission Color"])),
     FilmPass(CP.ENVIRONMENT, 3, "RGB", "COLOR", "view_layer.use_pass_environment", "mean",
              CP.environment),
+    FilmPass(CP.AMBIENT_OCCLUSION, 3, "RGB", "COLOR", "view_layer.use_pass_ambient_occlusion",
+             "mean", CP.ambient_occlusion),
     FilmPass("UV", 3, "UVA", "VECTOR", "view_layer.use_pass_uv", "mean", CP.uv_pass),
 )
 #: The AOVs computed from the progressive state (FPPM's own).
@@ -266,9 +272,10 @@ class Film:
         # it, with its Embree scene and lights), or None.
         self.catcher = None
         self.catcher_pass = CATCHER_PASS in passes
-        # The render's MaterialTable and LightTable (the Renderer sets them:
-        # the colour and Environment passes read them).
-        self.mtab = self.light_table = None
+        # The render's MaterialTable and LightTable, the shadow rays' Accel
+        # and a Generator (the Renderer sets them: the colour, Environment
+        # and Ambient Occlusion passes read them).
+        self.mtab = self.light_table = self.shadow_accel = self.rng = None
         if scene is not None:
             M = np.asarray(scene.camera.matrix_world, np.float64)
             axes = M[:3, :3] / np.maximum(np.linalg.norm(M[:3, :3], axis=0), 1e-300)
@@ -286,7 +293,8 @@ class Film:
     @property
     def reads_line_hits(self) -> bool:
         """Whether a pass reads what the camera rays meet on their lines
-        (``core.sppm.line_hits``: Cryptomatte, the colour and Environment passes)."""
+        (``core.sppm.line_hits``: Cryptomatte, the colour, Environment and
+        Ambient Occlusion passes)."""
         return self.matte is not None or any(p.name in CP.LINE_PASSES for p in self.data_passes)
 
     def accumulate(self, vp) -> None:
@@ -301,7 +309,7 @@ class Film:
             self.catcher.accumulate(vp, self.samples)
         if self.data_passes:
             x = PassSample(first, vp, self.scene, self.eye, self.view, self.R_wc, self.mtab,
-                           self.light_table, {})
+                           self.light_table, {}, self.shadow_accel, self.rng)
             for p in self.data_passes:
                 if p.source == "mean" or self.samples == 0:
                     v = np.asarray(p.compute(x), np.float64).reshape(-1, p.channels)
