@@ -52,7 +52,8 @@ from ..core.scene.linking import LINK_ALL, split_materials
 from ..core.materials.table import is_delta_lobe
 from ..core.scene.ray_variants import clear_shadows
 from ..core.sppm import cryptomatte as crypto
-from .export_read import CHUNK, _never, image_pixels, mesh_arrays
+from .export_displace import TrueDisplacement, displace
+from .export_read import CHUNK, _never, corner_topology, image_pixels, mesh_arrays
 
 GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
 # An image under a nonlinear colour node is enlarged UPSAMPLE_FACTOR times
@@ -277,8 +278,16 @@ SUPPORT = (
      "mixed volume shader)", IGNORED, "volume ignored"),
     ("material displacement: a Displacement node's Height (an image or a texture graph) as "
      "the bump Cycles renders by default (Displacement method Bump Only)", SUPPORTED, ""),
-    ("true displacement (Displacement method Displacement or Both: moved vertices)",
-     APPROXIMATED, "true displacement rendered as bump"),
+    ("true displacement (Displacement method Displacement Only, and Displacement and Bump "
+     "with the bump over it): the mesh's vertices moved by the Displacement node's Height "
+     "(an image or a texture graph) along their normals, in object or world space, each by "
+     "its first triangle, the displaced mesh's normals recomputed (corner normals moved by "
+     "their vertex's change), as Cycles; at the mesh's own resolution (a Subdivision "
+     "Surface modifier's)", SUPPORTED, ""),
+    ("true displacement on curves, surfaces, text and metaballs", APPROXIMATED,
+     "true displacement applies to meshes"),
+    ("a true displacement whose Height is no texture graph FPPM evaluates", APPROXIMATED,
+     "true displacement ignored"),
     ("a Displacement beside a Bump node on the shaders' Normal", APPROXIMATED,
      "displacement ignored beside a Bump node"),
     ("Vector Displacement, or other nodes into the Displacement", APPROXIMATED,
@@ -624,6 +633,7 @@ class _MaterialBuilder:
         self.vector_spec = None            # the one applied to the material (build())
         self.bakes: list = []              # export_atlas.Bake per texture read
         self.displaced_in_object_space = False   # displacement() in object space
+        self.true_displacement = None      # export_displace.TrueDisplacement, or None
         # A procedural texture, a node only the graph evaluates (Math, a colour
         # attribute, ...) or images read at different vectors make the
         # material an atlas one: every texture it reads is an expression of
@@ -1051,10 +1061,22 @@ class _MaterialBuilder:
         if src.type != 'DISPLACEMENT':
             self.notes.append(f"'{src.name}' into the Displacement ignored")
             return None
-        if getattr(self.mat, "displacement_method", 'BUMP') != 'BUMP':
-            self.notes.append("true displacement rendered as bump (no subdivision)")
         if src.inputs.get("Normal") is not None and src.inputs["Normal"].is_linked:
             self.notes.append(f"'{src.name}': its Normal input ignored")
+        method = getattr(self.mat, "displacement_method", 'BUMP')
+        if method != 'BUMP':
+            # True displacement (addon/export_displace.py): the vertices move.
+            e = GraphReader(self).expression(src.inputs["Height"])
+            if e is None:
+                self.notes.append(f"'{src.name}': height is not a texture graph FPPM "
+                                  f"evaluates: true displacement ignored")
+            else:
+                self.true_displacement = TrueDisplacement(
+                    SG.as_float(e), self.value(src, "Midlevel", 0.5),
+                    self.value(src, "Scale", 1.0), getattr(src, "space", 'OBJECT') == 'OBJECT',
+                    method == 'DISPLACEMENT')
+            if method == 'DISPLACEMENT':
+                return None        # no bump: the moved vertices' own normals
         h = self.height_texture(src.inputs["Height"])
         if h is None:
             self.notes.append(f"'{src.name}': height is not an Image Texture or a procedural "
@@ -1522,9 +1544,13 @@ class _Exporter:
         self.materials: list[Material] = []
         self.mat_pass_index: list[int] = []    # material.pass_index per entry of materials
         self.mat_vector: list = []     # texture vector spec per material (_MaterialBuilder.vector)
+        self.mat_displace: list = []   # TrueDisplacement or None per material
         self.tangent_parts: list = []  # (T, 3, 4) float32 per entry of parts, or None
         self.tangent_cache: dict = {}
         self.uv_cache: dict = {}           # (mesh, UV map name) -> named_uv's local uvs
+        # parts index -> its world corners before a true displacement (the
+        # Generated coordinates read them: export_displace).
+        self.undisplaced: dict = {}
         self.obj_index_parts: list[np.ndarray] = []   # object.pass_index per triangle of parts
         self.vis_parts: list[np.ndarray] = []         # ray_visibility per triangle of parts
         self.holdout_parts: list[np.ndarray] = []     # is_holdout per triangle of parts
@@ -1800,6 +1826,7 @@ class _Exporter:
             self.mat_pass_index.append(0)
             self.mat_crypto.append(crypto.DEFAULT_MATERIAL)
             self.mat_vector.append(None)
+            self.mat_displace.append(None)
         if idx is None:
             mb = _MaterialBuilder(self, mat)
             m = mb.build()
@@ -1812,6 +1839,7 @@ class _Exporter:
             self.mat_pass_index.append(int(getattr(mat, "pass_index", 0)))
             self.mat_crypto.append(mat.name)
             self.mat_vector.append(None if mb.bakes else mb.vector_spec)
+            self.mat_displace.append(mb.true_displacement)
             if mb.displaced_in_object_space and self.materials[idx].normal is not None:
                 self.disp_scales[idx] = []
             self.atlas.add_material(idx, mb)
@@ -1876,6 +1904,8 @@ class _Exporter:
             uv = uv[:, [0, 2, 1]]
         lut = np.array([self.material(m) for m in mats] or [self.material(None)], np.int32)
         mat = lut[np.clip(slot, 0, len(lut) - 1)]
+        if any(self.mat_displace[m] is not None for m in np.unique(lut)):
+            pw, nw = self.displaced(inst, ob, pw, nw, uv, mat, len(parts), A)
         parts.append((pw, nw, uv, mat))
         if self.uv_pass:
             # The render UV map and whether the mesh has one (the UV pass:
@@ -2016,7 +2046,8 @@ class _Exporter:
                         self.notes.append(f"'{ob.name}': no UV map '{obname}': the render "
                                           f"UV map used")
                         uvs = uv
-                v3 = self.texture_vectors(inst, ob, src, obname, pw[rows], uvs[rows])
+                gen = self.undisplaced.get(i, pw) if src == 'Generated' else pw
+                v3 = self.texture_vectors(inst, ob, src, obname, gen[rows], uvs[rows])
                 if v3 is None:
                     continue
                 if new_uv is None:
@@ -2053,9 +2084,26 @@ class _Exporter:
         (core/scene/shader_graph.py ``Attr`` keys); instances of one mesh
         share their blocks when every attribute is the mesh's own (UV maps,
         Generated, its own Object space and normals, colour attributes)."""
+        attrs, own = self.corner_attributes(inst, ob, self.atlas.keys[m], rows, pw, nw, uv,
+                                            self.undisplaced.get(i))
+        key = None
+        if own and ob.type == 'MESH':
+            key = (ob.data.as_pointer(), m,
+                   bool(np.linalg.det(_mat4(inst.matrix_world)[:3, :3]) < 0))
+        self.atlas.record(m, i, rows, attrs, pw[rows].astype(np.float64), key)
+        self.poll()
+
+    def corner_attributes(self, inst, ob, keys, rows, pw, nw, uv, pw_orco=None):
+        """({key: (k, 3, 3) float64 at the corners of triangles ``rows``}, own)
+        of the shader-graph attribute keys ``keys`` on ``ob``'s triangles
+        (world corners pw, normals nw, render uvs uv; pw_orco: the corners
+        before a true displacement, which Generated reads as Cycles reads
+        its undisplaced coordinates); own: every attribute is the mesh's
+        own (instances may share what is computed from them)."""
         attrs, own = {}, True
         k = len(rows)
-        for key in self.atlas.keys[m]:
+        gen = pw if pw_orco is None else pw_orco
+        for key in keys:
             kind, name = key[0], (key[1] if len(key) > 1 else None)
             if kind == 'UV':
                 uvs = uv if name is None else self.named_uv(inst, ob, name)
@@ -2065,7 +2113,8 @@ class _Exporter:
                     uvs = uv
                 a = self.texture_vectors(inst, ob, 'UV', None, pw[rows], uvs[rows])
             elif kind in ('Generated', 'Object'):
-                a = self.texture_vectors(inst, ob, kind, name, pw[rows], uv[rows])
+                a = self.texture_vectors(inst, ob, kind, name,
+                                         (gen if kind == 'Generated' else pw)[rows], uv[rows])
                 own = own and name is None
             elif kind == 'Position':
                 a, own = pw[rows].astype(np.float64), False
@@ -2084,12 +2133,34 @@ class _Exporter:
                     self.notes.append(f"'{ob.name}': no attribute "
                                       f"'{name or '(render colour)'}': black")
             attrs[key] = np.zeros((k, 3, 3)) if a is None else a
-        key = None
-        if own and ob.type == 'MESH':
-            key = (ob.data.as_pointer(), m,
-                   bool(np.linalg.det(_mat4(inst.matrix_world)[:3, :3]) < 0))
-        self.atlas.record(m, i, rows, attrs, pw[rows].astype(np.float64), key)
+        return attrs, own
+
+    def displaced(self, inst, ob, pw, nw, uv, mat, i, A):
+        """(pw, nw) of ``ob``'s triangles (parts[i] to be) after the true
+        displacement of their materials (addon/export_displace.py); the
+        corners before it kept for the Generated coordinates."""
+        if ob.type != 'MESH':
+            self.notes.append(f"'{ob.name}': true displacement applies to meshes: not "
+                              f"applied to this {ob.type.lower()}")
+            return pw, nw
+        vid, smooth, corner_normals = corner_topology(ob.data, self.poll)
+        if np.linalg.det(A) < 0:
+            vid = vid[:, [0, 2, 1]]           # geometry's winding swap
+        if len(vid) != len(pw):
+            return pw, nw
+
+        def height_at(m, tris, corners):
+            spec = self.mat_displace[m]
+            keys = sorted(SG.attributes(spec.height), key=repr)
+            attrs, _ = self.corner_attributes(inst, ob, keys, tris, pw, nw, uv)
+            pts = {k: v[np.arange(len(tris)), corners] for k, v in attrs.items()}
+            return SG.evaluate(spec.height, SG.EvalContext(pts, self.textures))
+
+        out = displace(pw, nw, vid, smooth, corner_normals, mat, self.mat_displace, A,
+                       height_at)
+        self.undisplaced[i] = pw
         self.poll()
+        return out
 
     def attribute_corners(self, inst, ob, name):
         """(T, 3, 3) float64 a mesh attribute at the corners of ``ob``'s loop

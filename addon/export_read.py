@@ -279,6 +279,30 @@ def mesh_arrays(me, poll=_never):
     return p, n, uv, slot
 
 
+def corner_topology(me, poll=_never):
+    """What true displacement needs of a mesh (addon/export_displace.py), in
+    ``mesh_arrays``' triangle order: (T, 3) int32 the vertex of each corner,
+    (T,) bool the triangle's face is smooth, and whether the mesh's normals
+    are per corner (sharp edges, custom normals: Blender's normals_domain
+    'CORNER', Cycles' corner normals)."""
+    poll = poll or _never
+    F, L, V = len(me.polygons), len(me.loops), len(me.vertices)
+    face = np.empty(len(me.loop_triangle_polygons), np.int32)
+    me.loop_triangle_polygons.foreach_get("value", face)
+    co = np.empty(V * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    cv = _int_attribute(me, ".corner_vert", 'CORNER', L)
+    if cv is None:
+        cv = np.empty(L, np.int32)
+        me.loops.foreach_get("vertex_index", cv)
+    poll()
+    corners = corner_triangles(me, face, co.reshape(V, 3), cv, poll)
+    smooth = np.empty(F, bool)
+    me.polygons.foreach_get("use_smooth", smooth)
+    return (cv[corners].astype(np.int32), smooth[face],
+            getattr(me, "normals_domain", 'POINT') == 'CORNER')
+
+
 # ---------------------------------------------------------------------------
 # images
 
