@@ -36,6 +36,7 @@ import numpy as np
 
 from ..core.scene.model import Camera, Scene, scene_digest
 from ..core.settings import RenderSettings, ViewportSettings
+from ..core.setup_cache import SetupCache
 
 NO_CAP_PASSES = 1_000_000    # viewport_max_passes = 0: passes until the next change
 # A session nobody has asked for an image for this long stops: the viewport
@@ -171,6 +172,11 @@ class ViewportSession:
         self.status = ""
         self.error: Optional[str] = None
         self._seen = time.monotonic()     # last frame() call (see IDLE_STOP_SECONDS)
+        # The set-up the session's last Renderer built (core.setup_cache):
+        # the next one of the same scene (a moved view, the full passes after
+        # the quick look) takes what does not depend on what changed.  Only
+        # the worker thread uses it.
+        self.setup_cache = SetupCache()
         _sessions.add(self)
 
     # -- control (never blocks) ------------------------------------------------
@@ -292,7 +298,8 @@ class ViewportSession:
                 if not kernels(quick):
                     return
                 from ..core.render import Renderer
-                r = Renderer(small, pst, log=lambda _m: None, should_stop=stop)
+                r = Renderer(small, pst, log=lambda _m: None, should_stop=stop,
+                             setup_cache=self.setup_cache)
                 res = r.run(should_stop=stop)
                 if stop():
                     return
@@ -301,7 +308,8 @@ class ViewportSession:
             if not kernels(full):
                 return
             from ..core.render import Renderer
-            r = Renderer(scene, st, log=lambda _m: None, should_stop=stop)
+            r = Renderer(scene, st, log=lambda _m: None, should_stop=stop,
+                         setup_cache=self.setup_cache)
 
             def on_pass(pr):
                 cap = f" (of {st.max_passes} passes)" if job.viewport.viewport_max_passes else ""

@@ -60,14 +60,15 @@ class Accel:
     """Embree scene over world-space triangles ``tri_p`` (T, 3, 3) float32.
 
     visibility: (T,) uint8 RAY_* flags of each triangle's object, or None
-    (every object seen by every ray).  The Accel itself holds every triangle
+    (every object seen by every ray).  embree: the Embree scene of another
+    Accel of the same tri_p (``core.setup_cache``), or None: built here.  The Accel itself holds every triangle
     (photons, and the rays of the kinds no object hides from); the rays of a
     kind some objects hide from are cast in :meth:`for_rays`' scene, whose
     hits are still the triangles' indices here.
     """
 
     def __init__(self, tri_p: np.ndarray, scene_diameter: float, visibility=None,
-                 _subset=None, _base=None):
+                 _subset=None, _base=None, embree=None):
         self.tri_p = np.ascontiguousarray(tri_p, dtype=np.float32)
         self.diameter = float(scene_diameter)
         # Floor for the offset at the origin, relative to the scene size.
@@ -85,7 +86,11 @@ class Accel:
         self._views: list = []               # the scenes of ``without``, one a hidden set
         self._scene = None
         tri = self.tri_p if _subset is None else self.tri_p[_subset]
-        if tri.shape[0]:
+        if embree is not None:
+            # Another Accel's Embree scene of these very triangles (its BVH
+            # does not depend on the diameter: core.setup_cache).
+            self._scene = embree
+        elif tri.shape[0]:
             from embreex import rtcore_scene as rtcs
             from embreex.mesh_construction import TriangleMesh
             self._scene = rtcs.EmbreeScene()

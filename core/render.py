@@ -70,6 +70,8 @@ from .plan import RenderPlan, make_plan, merges, with_camera_stop
 from .sanity import check_resolution, check_scene, recentre
 from .scene.camera import CameraModel, FilterSampler
 from .scene.model import Scene, drop_invalid_triangles, scene_digest
+from . import setup_cache as SC
+from .setup_cache import SetupCache
 from .settings import RenderSettings
 from .sppm import hashgrid
 from .sppm.film import AOVS, PASSES, Film, PassResult, data_passes, pass_enabled
@@ -143,9 +145,13 @@ class Renderer:
     @memory.small_pages
     def __init__(self, scene: Scene, settings: RenderSettings,
                  log: Callable[[str], None] = print, should_stop=None,
-                 force_stages: tuple = (), passes: tuple = ()):
+                 force_stages: tuple = (), passes: tuple = (),
+                 setup_cache: Optional[SetupCache] = None):
         self.settings = settings.validate()
         self.log = log
+        # The set-up products the last Renderer of this scene built
+        # (core.setup_cache: the viewport's restarts), or None.
+        self._setup_cache = setup_cache
         # Polled between the set-up stages too (cancel within 1 s).
         self._should_stop = should_stop or (lambda: False)
         self._setup_scene(scene, force_stages, passes)
@@ -280,7 +286,10 @@ class Renderer:
         """Region, lights, materials, BVH, plan, occlusion grid and photon tracer."""
         log = self.log
         check_scene(scene)          # refusals: non-finite lights or camera, float32 range
-        scene, dropped = drop_invalid_triangles(scene)
+        given, cache = scene, self._setup_cache
+        valid, dropped = SC.get(cache, given, ("valid",), lambda: drop_invalid_triangles(given))
+        # (a kept Scene carries an earlier camera: this one's)
+        scene = valid if valid.camera is scene.camera else replace(valid, camera=scene.camera)
         self.dropped_triangles = dropped
         if dropped:
             log(f"FPPM: dropped {dropped} NaN, infinite or zero-area triangle(s).")
@@ -288,6 +297,10 @@ class Renderer:
         # copy (core.sanity.recentre); self.origin [m] is where it was.
         scene, self.origin = recentre(scene)
         check_resolution(scene)
+        # What the products below depend on beyond the scene's fields: the
+        # recentring and the bounds and diameter, which hold the camera.
+        lo, hi = scene.bounds()
+        placed = (self.origin.tobytes(), lo.tobytes(), hi.tobytes())
         self.scene = scene
         cam = scene.camera
         W, H = (int(v) for v in cam.resolution)
@@ -322,7 +335,8 @@ class Renderer:
                                                                          or scene.tri_catcher is not None,
                                                                          st0.integrator))
         memory.check_fits(self.memory)
-        self.light_table = build_light_table(scene)
+        self.light_table = SC.get(cache, given, ("lights",) + placed,
+                                  lambda: build_light_table(scene))
         for w in getattr(self.light_table, "warnings", []):
             log(f"FPPM: {w}")
         if not np.any(self.light_table.flux.sum(axis=1) > 0):
@@ -332,7 +346,12 @@ class Renderer:
         # Light linking: each material row's receiver set (core.scene.linking).
         self.mtab.receiver = table_receivers(scene, self.mtab)
         self._check_stop()
-        self.accel = Accel(scene.tri_p, self.D, scene.tri_visibility)
+        accel = SC.get(cache, given, ("accel", self.origin.tobytes()),
+                       lambda: Accel(scene.tri_p, self.D, scene.tri_visibility))
+        # Its offset floor is relative to the diameter: another diameter's
+        # Accel shares the BVH only.
+        self.accel = (accel if accel.diameter == self.D else
+                      Accel(scene.tri_p, self.D, scene.tri_visibility, embree=accel._scene))
         self._check_stop()
         self.camera = CameraModel(cam)
         self.fsamp = FilterSampler(scene.filter_width, scene.filter_type)
@@ -351,7 +370,10 @@ class Renderer:
         if self.plan.transparent_shadows:
             shadow.attach(self.accel, scene, self.mtab)     # core.lights.shadow
         self._check_stop()
-        self.kappa = scene_curvature(scene) if self.plan.frequency_photons else None
+        self.kappa = (SC.get(cache, given, ("kappa", self.origin.tobytes()),
+                             lambda: scene_curvature(scene))
+                      if self.plan.frequency_photons else None)
+        self._placed = (given, placed)
         self._check_stop()
         self.occ_grid = None
         self.occ_locality = 0.0
@@ -375,6 +397,16 @@ class Renderer:
     def _build_occlusion(self, scene: Scene):
         """(occlusion grid, its locality [m]) of scene (core.frequency.occlusion_grid);
         its wall seconds in ``occ_build_seconds``."""
+        from .frequency.occlusion_grid import (build_occlusion_grid, default_locality,
+                                               geometry_bounds)
+        given, placed = self._placed
+        key = ("occlusion", self.settings.occlusion_grid_res) + placed
+        if self._setup_cache is not None:
+            return SC.get(self._setup_cache, given, key, lambda: self._build_occlusion_now(scene))
+        return self._build_occlusion_now(scene)
+
+    def _build_occlusion_now(self, scene: Scene):
+        """:meth:`_build_occlusion` without the cache."""
         from .frequency.occlusion_grid import (build_occlusion_grid, default_locality,
                                                geometry_bounds)
         t0 = time.perf_counter()

@@ -16,6 +16,7 @@ Conventions (shared by every ``core`` module)
 """
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -352,7 +353,7 @@ class Scene:
         """Axis-aligned bounds of the geometry and the camera, float64 (3,) each."""
         pts = [self.camera.matrix_world[:3, 3][None, :]]
         if self.n_triangles:
-            pts.append(self.tri_p.reshape(-1, 3).astype(np.float64))
+            pts.extend(triangle_bounds(self.tri_p))
         for lt in self.lights:
             if lt.kind != "SUN":
                 pts.append(np.asarray(lt.matrix_world, np.float64)[:3, 3][None, :])
@@ -363,6 +364,34 @@ class Scene:
         """Scene diameter D used for every relative epsilon (docs/frequency.md)."""
         lo, hi = self.bounds()
         return float(max(np.linalg.norm(hi - lo), 1e-30))
+
+
+#: id(tri_p) -> (a weak reference to tri_p, its lo (1, 3), hi (1, 3)).
+_TRI_BOUNDS: dict = {}
+
+
+def triangle_bounds(tri_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (1, 3) float64 the corners' bounds of triangles tri_p (T, 3, 3),
+    computed once an array: a renderer's set-up reads the scene's bounds
+    several times (the diameter, the recentring, the light table, the
+    float32 check; 0.25 s each at a million triangles), and the viewport's
+    renderers share the arrays of one export (addon/viewport.py).  The
+    float32 extremes converted are the float64 extremes of the converted
+    corners: the same bounds as before.  Arrays are not changed in place
+    once exported (a new export makes new ones)."""
+    key = id(tri_p)
+    got = _TRI_BOUNDS.get(key)
+    if got is not None and got[0]() is tri_p:
+        return got[1], got[2]
+    flat = tri_p.reshape(-1, 3)
+    lo = flat.min(axis=0).astype(np.float64)[None, :]
+    hi = flat.max(axis=0).astype(np.float64)[None, :]
+    try:
+        ref = weakref.ref(tri_p, lambda _r, k=key: _TRI_BOUNDS.pop(k, None))
+    except TypeError:           # not weak-referenceable: not kept
+        return lo, hi
+    _TRI_BOUNDS[key] = (ref, lo, hi)
+    return lo, hi
 
 
 def make_scene(tri_p, materials, lights, camera, tri_mat=None, tri_n=None,
