@@ -413,4 +413,6 @@ class ViewportController:
     def free(self) -> None:
         from .world_bake import cancel_background
         self.session.cancel()
+        # (a Renderer still building holds its own reference)
+        self.session.setup_cache.clear()
         cancel_background()

@@ -24,7 +24,8 @@ would build without it (bit for bit: ``tests/test_setup_cache.py``):
 A view that moves inside the scene's bounds (an interior, a camera over a
 large floor) keeps them all; one that moves the bounds keeps the
 triangles, the BVH and the curvature.  One cache holds one scene's products (a new scene
-replaces them); its owner drops it with the viewport.
+replaces them), and one of each kind (the last); the viewport clears it
+when it closes.
 """
 from __future__ import annotations
 
@@ -48,15 +49,25 @@ class SetupCache:
         return self._items
 
     def get(self, scene, key: tuple, make: Callable):
-        """The product ``key`` of ``scene`` (the scene the Renderer was given,
-        before it drops triangles or recentres): kept, or make()'s, kept."""
+        """The product ``key`` = (kind, what it depends on, ...) of ``scene``
+        (the scene the Renderer was given, before it drops triangles or
+        recentres): the one kept, or make()'s, which replaces the kind's
+        last (one a kind: a view that keeps moving the bounds does not pile
+        up grids)."""
         items = self._entry(scene)
-        if key in items:
+        kind, deps = key[0], key[1:]
+        got = items.get(kind)
+        if got is not None and got[0] == deps:
             self.hits += 1
-            return items[key]
+            return got[1]
+        items.pop(kind, None)        # the last one freed before the new one is made
         value = make()
-        items[key] = value
+        items[kind] = (deps, value)
         return value
+
+    def clear(self) -> None:
+        """Drop everything (the viewport closed)."""
+        self._scene, self._key, self._items = None, None, {}
 
 
 def get(cache, scene, key: tuple, make: Callable):

@@ -89,3 +89,15 @@ def test_another_scene_replaces_the_products(room):
     other = dataclasses.replace(room, tri_p=room.tri_p.copy())     # a new export
     b, _ = _render(other, cache)
     assert b.accel is not a.accel and b.kappa is not a.kappa and cache.hits == 0
+
+
+def test_one_product_a_kind_is_kept(room):
+    # A view that keeps widening the bounds replaces the light table and the
+    # grid; the cache keeps the last of each kind, not one a view.
+    cache = SetupCache()
+    _render(room, cache)
+    for k in range(1, 3):
+        _render(_moved(room, (0.0, -4.0 * k, 0.0)), cache)
+    assert sorted(cache._items) == ["accel", "kappa", "lights", "occlusion", "valid"]
+    cache.clear()
+    assert cache._items == {} and cache._scene is None
