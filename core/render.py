@@ -141,6 +141,10 @@ class Renderer:
     #: Arrays every checkpoint holds (the optional r_hist / spectrum come with
     #: the settings that need them); derived from the state's fields.
     STATE_KEYS = PixelState.required_keys()
+    #: The set-up kept from the last Renderer of the scene (core.setup_cache),
+    #: or None; a class default for the subclasses that build only the
+    #: scene half (tools/distributed.py's workers).
+    _setup_cache: Optional[SetupCache] = None
 
     @memory.small_pages
     def __init__(self, scene: Scene, settings: RenderSettings,
