@@ -104,10 +104,14 @@ def test_chunk_sums_do_not_depend_on_the_order_chunks_are_traced(glossy):
     assert compared == [PHOTONS // CHUNK] * 2
 
 
-def _render_on_2_workers(exported, chunk, out, *flags):
+def _render_on_2_workers(exported, chunk, out, *flags, client=None):
     """`fppm render --workers 2 --chunk chunk [flags]` of the saved file: (its
-    log, the EXR's layers)."""
-    two = H.run_fppm("render", exported[0], "-o", out, "--workers", 2, "--chunk", chunk,
+    log, the EXR's layers).  client: the module's cluster of 2 workers, which
+    the render joins (`--cluster ADDRESS`) instead of starting its own (the
+    same workers, one start-up for the module)."""
+    where = (("--cluster", client.scheduler.address) if client is not None
+             else ("--workers", 2))
+    two = H.run_fppm("render", exported[0], "-o", out, *where, "--chunk", chunk,
                      "-q", "--no-preview", *flags)
     assert two.returncode == 0, two.stderr[-2000:]
     return two.stdout + two.stderr, read_exr(str(out))
@@ -269,12 +273,13 @@ def test_partition_fallback_is_said_only_when_it_replaces_mis():
 
 
 @needs_dask
-def test_combined_workers_2_same_image_as_one_process(caustic, combined_reference, tmp_path):
+def test_combined_workers_2_same_image_as_one_process(caustic, combined_reference, tmp_path,
+                                                      client):
     # --merge-weights mis: the workers return no deposits to merge, so the
     # render falls back to the partition, says so, and is the one-process
     # partition render bit for bit.
     log, got = _render_on_2_workers(caustic, C_CHUNK, tmp_path / "two.exr",
-                                    "--merge-weights", "mis")
+                                    "--merge-weights", "mis", client=client)
     assert D.PARTITION_FALLBACK in log
     assert ("Light paths in chunks of 5000 and merging photons in chunks of 5000, one random "
             "stream each, on 2 Dask workers") in log
@@ -285,7 +290,7 @@ RING = os.path.join(H.ROOT, "example_blends", "ring_lambert.blend")
 
 
 @needs_dask
-def test_workers_2_when_the_holds_are_left_out(tmp_path_factory, tmp_path):
+def test_workers_2_when_the_holds_are_left_out(tmp_path_factory, tmp_path, client):
     # The ring holds few of its pixels after pass 1, so FPPM renders on as
     # plain PPM (Renderer._drop_holds): the driver's photon pass and then
     # every worker's drop the frequency photons and sector counts.  Before,
@@ -295,7 +300,7 @@ def test_workers_2_when_the_holds_are_left_out(tmp_path_factory, tmp_path):
     r = _renderer(ring)
     one = r.run()
     assert r.radii.holds_left_out is not None and not r.photon_pass.frequency
-    log, got = _render_on_2_workers(ring, CHUNK, tmp_path / "two.exr")
+    log, got = _render_on_2_workers(ring, CHUNK, tmp_path / "two.exr", client=client)
     assert "on 2 Dask workers" in log
     assert one.image.max() > 0 and np.abs(got["Combined"] - one.image).max() == 0.0
 
@@ -304,7 +309,7 @@ REAL = os.path.join(H.ROOT, "example_blends", "real_scene.blend")
 
 
 @needs_dask
-def test_workers_keep_the_normal_maps(tmp_path_factory, tmp_path):
+def test_workers_keep_the_normal_maps(tmp_path_factory, tmp_path, client):
     # A scene with Normal Map inputs: its shading normals are attached to
     # the tri_n array (core.scene.normals), which pickling a Scene did not
     # carry, so the workers' light paths splatted with the unperturbed
@@ -321,7 +326,7 @@ def test_workers_keep_the_normal_maps(tmp_path_factory, tmp_path):
     assert spec.inputs == normals.attached(scene.tri_n).inputs
     r = _renderer(real, C_CHUNK)
     one = r.run()
-    log, got = _render_on_2_workers(real, C_CHUNK, tmp_path / "two.exr")
+    log, got = _render_on_2_workers(real, C_CHUNK, tmp_path / "two.exr", client=client)
     assert "on 2 Dask workers" in log
     assert one.image.max() > 0 and np.abs(got["Combined"] - one.image).max() == 0.0
 
@@ -330,7 +335,7 @@ CORNELL = os.path.join(H.ROOT, "tests", "scenes", "t_cornell.blend")
 
 
 @needs_dask
-def test_workers_2_march_the_occlusion_grid_built_late(tmp_path_factory, tmp_path):
+def test_workers_2_march_the_occlusion_grid_built_late(tmp_path_factory, tmp_path, client):
     # FPPM's defaults on a box that occludes: the first frequency photons in
     # pass 2 (frequency_start), the occlusion grid built in pass 1's step
     # (Renderer._occlusion_before).  Each worker builds it when it builds
@@ -342,13 +347,14 @@ def test_workers_2_march_the_occlusion_grid_built_late(tmp_path_factory, tmp_pat
     assert r.occ_grid is None and r.scene_plan.occlusion_grid     # left for later
     one = r.run()
     assert r.occ_grid is not None and r.tracer.occlusion == 1
-    log, got = _render_on_2_workers(box, CHUNK, tmp_path / "two.exr")
+    log, got = _render_on_2_workers(box, CHUNK, tmp_path / "two.exr", client=client)
     assert "on 2 Dask workers" in log
     assert one.image.max() > 0 and np.abs(got["Combined"] - one.image).max() == 0.0
 
 
 @needs_dask
-def test_combined_workers_2_when_the_camera_paths_are_restated(tmp_path_factory, tmp_path):
+def test_combined_workers_2_when_the_camera_paths_are_restated(tmp_path_factory, tmp_path,
+                                                                 client):
     # A diffuse box: COMBINED's light tracer takes every camera path over
     # (camera depth Auto) and the renderer restates the plan's camera-path
     # line after make_plan.  The workers check the plan as made, not the
@@ -359,7 +365,7 @@ def test_combined_workers_2_when_the_camera_paths_are_restated(tmp_path_factory,
     assert r.plan.strategies != r.scene_plan.strategies
     assert r.plan.strategies[0].startswith("camera paths: none")
     one = r.run()
-    log, got = _render_on_2_workers(box, C_CHUNK, tmp_path / "two.exr")
+    log, got = _render_on_2_workers(box, C_CHUNK, tmp_path / "two.exr", client=client)
     assert "on 2 Dask workers" in log
     assert one.image.max() > 0 and np.abs(got["Combined"] - one.image).max() == 0.0
 
