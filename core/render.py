@@ -401,13 +401,10 @@ class Renderer:
     def _build_occlusion(self, scene: Scene):
         """(occlusion grid, its locality [m]) of scene (core.frequency.occlusion_grid);
         its wall seconds in ``occ_build_seconds``."""
-        from .frequency.occlusion_grid import (build_occlusion_grid, default_locality,
-                                               geometry_bounds)
         given, placed = self._placed
-        key = ("occlusion", self.settings.occlusion_grid_res) + placed
-        if self._setup_cache is not None:
-            return SC.get(self._setup_cache, given, key, lambda: self._build_occlusion_now(scene))
-        return self._build_occlusion_now(scene)
+        return SC.get(self._setup_cache, given,
+                      ("occlusion", self.settings.occlusion_grid_res) + placed,
+                      lambda: self._build_occlusion_now(scene))
 
     def _build_occlusion_now(self, scene: Scene):
         """:meth:`_build_occlusion` without the cache."""

@@ -138,14 +138,20 @@ def _schlick_s_weight(alpha, mu, eta, n):
     return _gen_s_weight(alpha, mu, s_of, n)
 
 
+def _rough_mu_nodes(n: int = 16):
+    """(R, Mu) (n, n): the roughness and mu nodes of Cycles' 16-node tables
+    (x/(n-1), clamped to >= 1e-4)."""
+    grid = np.clip(np.arange(n) / (n - 1), 1e-4, 1.0)
+    return np.meshgrid(grid, grid, indexing="ij")
+
+
 def _schlick_s_slice(k: int):
     """s table (16 rough, 16 mu) at ior node k (Cycles' z = k/15 grid), cached."""
     key = ("schlick_s", k)
     if key not in _MS_CACHE:
         n = 16
-        grid = np.clip(np.arange(n) / (n - 1), 1e-4, 1.0)
         z = min(max(k / (n - 1), 1e-4), 0.99)
-        R, Mu = np.meshgrid(grid, grid, indexing="ij")
+        R, Mu = _rough_mu_nodes(n)
         eta = np.full_like(R, (1 + z * z) / (1 - z * z))
         _MS_CACHE[key] = np.clip(_schlick_s_weight(R * R, Mu, eta, 48), 0.0, 1.0)
     return _MS_CACHE[key]
@@ -160,8 +166,7 @@ def _schlick5_s_table():
     key = ("schlick5_s",)
     if key not in _MS_CACHE:
         n = 16
-        grid = np.clip(np.arange(n) / (n - 1), 1e-4, 1.0)
-        R, Mu = np.meshgrid(grid, grid, indexing="ij")
+        R, Mu = _rough_mu_nodes(n)
         T = 0.0
         for k in (7, 8):
             e = 5.0 * (1.0 - k / (n - 1)) / (k / (n - 1))

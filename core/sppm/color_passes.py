@@ -31,6 +31,8 @@ coordinates (``Scene.tri_render_uv``) only when the pass is on.
 """
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
 
 from ..accel import surface_point
@@ -45,14 +47,31 @@ AMBIENT_OCCLUSION = "Ambient Occlusion"
 LINE_PASSES = tuple(COLOR_PASSES) + (ENVIRONMENT, AMBIENT_OCCLUSION)
 
 
-def _records(x):
-    """The pass's line records with a hit, concatenated: (px, prim, u, v,
-    beta, d, through) arrays, or None."""
-    recs = [r for r in (x.first.line or ()) if r.hit.any()]
+def _line(x, hits: bool, names: tuple) -> Optional[list]:
+    """The pass's line records' fields ``names``, concatenated over the
+    records, of their hits (hits=True) or of the rays that escaped; None
+    when there is none."""
+    recs = [r for r in (x.first.line or ()) if (r.hit if hits else ~r.hit).any()]
     if not recs:
         return None
-    return [np.concatenate([getattr(r, f)[r.hit] for r in recs]) for f in
-            ("px", "prim", "u", "v", "beta", "d", "through")]
+    return [np.concatenate([getattr(r, f)[r.hit if hits else ~r.hit] for r in recs])
+            for f in names]
+
+
+def _surfaces(x) -> Optional[dict]:
+    """The line records' hits with their surface points, once a pass (x.memo:
+    the colour and Ambient Occlusion passes read them): {px, prim, u, v,
+    beta, d, through, p, ng, ns, uv}, or None."""
+    if "surfaces" not in x.memo:
+        names = ("px", "prim", "u", "v", "beta", "d", "through")
+        rec = _line(x, True, names)
+        if rec is not None:
+            rec = dict(zip(names, rec))
+            s = x.scene
+            rec.update(zip(("p", "ng", "ns", "uv"), surface_point(
+                s.tri_p, s.tri_n, s.tri_uv, rec["prim"], rec["u"], rec["v"])))
+        x.memo["surfaces"] = rec
+    return x.memo["surfaces"]
 
 
 def line_albedos(x) -> np.ndarray:
@@ -66,11 +85,11 @@ def line_albedos(x) -> np.ndarray:
     from ..materials.albedo import closure_albedos
     P = x.first.escape.shape[0]
     out = np.zeros((3, P, 3))
-    rec = _records(x)
-    if rec is not None and x.mtab is not None:
-        px, prim, u, v, beta, d, _ = rec
+    h = _surfaces(x)
+    if h is not None and x.mtab is not None:
+        px, prim, u, v, beta, d = (h[k] for k in ("px", "prim", "u", "v", "beta", "d"))
+        ng, ns, uv = h["ng"], h["ns"], h["uv"]
         s, mtab = x.scene, x.mtab
-        _, ng, ns, uv = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, u, v)
         # On the camera ray's line: the material camera rays see (a Light
         # Path node, core.scene.ray_variants), a roughness map's level row.
         mat = RV.seen(RV.rows(s, "camera"), s.tri_mat[prim])
@@ -96,11 +115,10 @@ def environment(x) -> np.ndarray:
     P = x.first.escape.shape[0]
     out = np.zeros((P, 3))
     lt = x.light_table
-    recs = [r for r in (x.first.line or ()) if (~r.hit).any()]
-    if lt is None or not recs:
+    rec = _line(x, False, ("px", "beta", "d"))
+    if lt is None or rec is None:
         return out
-    px, beta, d = (np.concatenate([getattr(r, f)[~r.hit] for r in recs])
-                   for f in ("px", "beta", "d"))
+    px, beta, d = rec
     np.add.at(out, px, beta * Lt.world_radiance(lt, d, camera=True))
     return out
 
@@ -112,12 +130,12 @@ def ambient_occlusion(x) -> np.ndarray:
     from ..mathutil import frame
     P = x.first.escape.shape[0]
     out = np.zeros((P, 3))
-    rec = _records(x)
-    if rec is None or x.accel is None:
+    h = _surfaces(x)
+    if h is None or x.accel is None:
         return out
-    px, prim, u, v, beta, d, through = rec
+    px, prim, beta, d, through = (h[k] for k in ("px", "prim", "beta", "d", "through"))
+    p, ng, ns = h["p"], h["ng"], h["ns"]
     s = x.scene
-    p, ng, ns, _ = surface_point(s.tri_p, s.tri_n, s.tri_uv, prim, u, v)
     # The normal facing the camera ray (Cycles flips N on a back face).
     N = np.where((_dot(ns, d) > 0)[:, None], -ns, ns)
     t, b = frame(N)
