@@ -45,6 +45,7 @@ from ..core.scene.model import (DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, T
 from ..core.scene import shader_graph as SG
 from .export_atlas import AtlasBaker, needs_atlas
 from .export_graph import GRAPH_NODES, GraphReader, constant_value
+from .export_light_nodes import light_nodes
 from .export_links import light_link_sets
 from .world_bake_job import CAMERA_RAY, LIGHTING_RAY, SHADOW_RAY
 from ..core.scene.holdout import see_through
@@ -292,7 +293,15 @@ SUPPORT = (
      "displacement ignored beside a Bump node"),
     ("Vector Displacement, or other nodes into the Displacement", APPROXIMATED,
      "into the Displacement ignored"),
-    ("light nodes", IGNORED, "light nodes ignored"),
+    ("a light's nodes: an Emission node's Color and Strength, and an IES Texture (a Text "
+     "datablock or an .ies file; photometric types A, B and C) into its Strength on point and "
+     "spot lights: the profile read, oriented and interpolated as Cycles, in light samples, "
+     "rays that meet the light and photons", SUPPORTED, ""),
+    ("other light nodes, a linked Emission Color, an IES Texture's linked Vector or Strength",
+     IGNORED, "light nodes ignored"),
+    ("an IES profile on a sun or area light", IGNORED, "an IES profile on a"),
+    ("an IES file that cannot be read (Cycles then multiplies the light by 100)", APPROXIMATED,
+     "IES profile not read"),
     ("hair curves", IGNORED, "not rendered"),
     ("motion blur", IGNORED, "motion blur ignored"),
     ("light linking (an emitter's Receiver Collection, Include and Exclude, nested "
@@ -2303,9 +2312,10 @@ class _Exporter:
                   visible_transmission=bool(getattr(ob, "visible_transmission", True)),
                   visible_diffuse=bool(getattr(ob, "visible_diffuse", True)),
                   cast_shadow=bool(getattr(ld, "use_shadow", True)))
-        if getattr(ld, "node_tree", None) is not None and _use_nodes(ld) and any(
-                nd.type not in ('EMISSION', 'OUTPUT_LIGHT') for nd in ld.node_tree.nodes):
-            self.notes.append(f"light '{ob.name}': light nodes ignored")
+        factor, ies = light_nodes(ld, ob.name, kind, self.notes)
+        strength = strength * factor
+        if ies is not None:
+            kw["ies"] = ies
         if kind in ('POINT', 'SPOT'):
             kw["radius"] = float(ld.shadow_soft_size)
             kw["use_soft_falloff"] = bool(getattr(ld, "use_soft_falloff", True))

@@ -273,6 +273,21 @@ class FPPM_LIGHT_PT_light(FPPMDataPanel, Panel):
         col.prop(light, "use_shadow", text="Cast Shadow")
 
 
+class FPPM_LIGHT_PT_nodes(FPPMDataPanel, Panel):
+    """The light's node tree: its Emission and an IES Texture into the
+    Emission's Strength (addon/export_light_nodes.py)."""
+    bl_label = "Nodes"
+    bl_context = "data"
+
+    @classmethod
+    def poll_data(cls, context):
+        return getattr(context, "light", None) is not None
+
+    def draw(self, context):
+        self.layout.use_property_split = True
+        node_output_draw(self.layout, context.light, 'Surface')
+
+
 class FPPM_LIGHT_PT_beam_shape(FPPMDataPanel, Panel):
     bl_label = "Beam Shape"
     bl_context = "data"
@@ -567,6 +582,7 @@ classes = (
     FPPM_VIEWLAYER_PT_passes_crypto,
     FPPM_LIGHT_PT_preview,
     FPPM_LIGHT_PT_light,
+    FPPM_LIGHT_PT_nodes,
     FPPM_LIGHT_PT_beam_shape,
     FPPM_PT_context_material,
     FPPM_MATERIAL_PT_preview,
@@ -655,6 +671,7 @@ EQUIVALENTS = {
     "CYCLES_LIGHT_PT_light": ("FPPM_LIGHT_PT_light",
                               "type, colour, temperature, power, exposure, radius/angle/size"),
     "CYCLES_LIGHT_PT_beam_shape": ("FPPM_LIGHT_PT_beam_shape", "spot size/blend, area spread"),
+    "CYCLES_LIGHT_PT_nodes": ("FPPM_LIGHT_PT_nodes", "the light's Emission and IES Texture"),
     "CYCLES_LIGHT_PT_settings": ("FPPM_LIGHT_PT_light",
                                  "Cast Shadow is the one setting read: drawn in Light"),
     "CYCLES_PT_context_material": ("FPPM_PT_context_material", "slots, active material"),
@@ -728,7 +745,6 @@ HIDDEN = {
     "OBJECT_PT_shading": "shadow terminator, caustics flags: ignored",
     "OBJECT_PT_shadow_terminator": "shadow terminator, caustics flags: ignored",
     # data / material / world tabs
-    "CYCLES_LIGHT_PT_nodes": "light nodes: ignored",
     "CYCLES_MATERIAL_PT_volume": VOLUMES_IGNORED,
     "CYCLES_MATERIAL_PT_settings_surface": "Cycles' displacement method, emission "
                                            "sampling, transparent shadows, thin walls",

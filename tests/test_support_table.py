@@ -9,7 +9,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from fppm.addon import export, export_atlas, ui  # noqa: E402
+from fppm.addon import export, export_atlas, export_light_nodes, ui  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SECTION = "## What FPPM supports"
@@ -39,6 +39,7 @@ def test_readme_table_is_the_exporters():
 def test_statuses_and_messages():
     src = inspect.getsource(export)      # the exporter's classes and its FEATURE_CHECKS
     src += inspect.getsource(export_atlas)
+    src += inspect.getsource(export_light_nodes)
     src += (ROOT / "core" / "scene" / "nodes.py").read_text()
     for feature, status, message in export.SUPPORT:
         assert status in (export.SUPPORTED, export.APPROXIMATED, export.IGNORED), feature

@@ -42,6 +42,7 @@ from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 # this file: edited with its guide table of round 28 and with map_sample's
 # direction, density and radiance from the drawn texture direction (round 29).
 from .environment_kernels import EnvironmentKernel, map_sample, no_map
+from .ies_kernels import ies_factor
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, _lum
 from .warp_kernels import spread_atten
 
@@ -61,7 +62,8 @@ class DirectLights(NamedTuple):
     bool; lin_inv (Nl, 3, 3); entry (E,) int64 entry -> emitter (-1 group);
     group_tri (G,) int64; group_cdf (G,); group (4,) centre x, y, z and ext^2;
     sel the :class:`EntryLights` of the same emitters; env the world's
-    ``environment_kernels.EnvironmentKernel`` (``no_map()``: none)."""
+    ``environment_kernels.EnvironmentKernel`` (``no_map()``: none); ies the
+    packed IES profiles (``LightTable.ies``, empty: none)."""
     kind: np.ndarray
     lum_strength: np.ndarray
     lum_flux: np.ndarray
@@ -91,6 +93,7 @@ class DirectLights(NamedTuple):
     group: np.ndarray
     sel: EntryLights
     env: EnvironmentKernel
+    ies: np.ndarray
 
 
 # Columns of EntryLights.row: kind, luminance of flux / strength, radius,
@@ -181,7 +184,7 @@ def build_direct_lights(table) -> DirectLights:
         entry=c(table.entry_emitter, np.int64), group_tri=c(gt, np.int64),
         group_cdf=c(gc, np.float64),
         group=np.array([gcen[0], gcen[1], gcen[2], float(table.group_ext2)], np.float64),
-        sel=None, env=_map_of(table))
+        sel=None, env=_map_of(table), ies=c(table.ies, np.float64))
     return L._replace(sel=entry_lights(L))
 
 
@@ -547,6 +550,10 @@ def direct_kernel(k0, k1, L, R, out):
                 if sphere and r != 0 and d <= r:
                     att = 1.0
                 l0, l1, l2 = l0 * att, l1 * att, l2 * att
+            if L.ies.shape[0]:
+                # An IES profile along the direction leaving the light's sample.
+                f = ies_factor(L.ies, j, -wx, -wy, -wz)
+                l0, l1, l2 = l0 * f, l1 * f, l2 * f
         elif kind == SUN:
             ax, ay, az = -L.dir[j, 0], -L.dir[j, 1], -L.dir[j, 2]
             t = np.inf

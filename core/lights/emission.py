@@ -45,6 +45,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..mathutil import frame
+from . import ies as IES
 
 from .table import (AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _mesh_emission,
                     _smoothstep, _spot_atten, spread_atten)
@@ -140,6 +141,8 @@ def soft_light_first_hit(table: LightTable, light, disc, d, t, ng):
             cos_l = np.maximum(np.einsum("ki,ki->k", qh, ds), 0.0)
             cos_y = np.maximum(-np.einsum("ki,ki->k", nf, qh), 0.0)
             att = np.where(spot, _spot_atten(table, light[s], qh), 1.0)
+            if table.ies.shape[0]:
+                att = att * IES.factors(table.ies, light[s], qh)
             with np.errstate(divide="ignore", invalid="ignore"):
                 f = att * cos_l * cos_y * (ts * ts + r2) / (np.maximum(qq, 1e-300) * np.abs(dn))
             terms.append(np.where(np.isfinite(f), f, 0.0))
@@ -326,6 +329,11 @@ def sample_photons(table: LightTable, n: int, rng: np.random.Generator) -> dict:
                 f = np.where(soft, jac / spot_pdf_local(tail, cos_h, -v[:, 2]),
                              att * jac * 2.0 * np.pi * (1.0 - cos_h))
             weight = table.strength[jj] / (4.0 * np.pi) * f[:, None]
+        if table.ies.shape[0]:
+            # An IES profile along the photon's direction; a soft light's is
+            # read along y -> p at the first hit (soft_light_first_hit).
+            ies = IES.factors(table.ies, jj, w)
+            weight = weight * np.where(table.soft_disc[jj], 1.0, ies)[:, None]
         # Sphere model (no soft falloff): origin on the sphere, Lambertian about
         # its normal.  For a given direction w such origins are uniform over
         # the disc perpendicular to w, lifted onto the hemisphere facing w.

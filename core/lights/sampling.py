@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..mathutil import dot as _dot, frame
+from . import ies as IES
 from .table import (AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _lum, _mesh_emission,
                     spread_atten, spread_rect,
                     _spot_atten)
@@ -303,6 +304,9 @@ def sample_direct(table: LightTable, p: np.ndarray, u: np.ndarray, n=None) -> di
                 inside = sk & (d <= r)
                 att = np.where(inside, 1.0, att)  # Cycles: no attenuation inside
             Lw *= att[:, None]
+        if table.ies.shape[0]:
+            # An IES profile along the direction leaving the light's sample.
+            Lw *= IES.factors(table.ies, jj, -w_dir)[:, None]
         fill(m, w_dir, t, Lw)
 
     m = np.nonzero(kind == SUN)[0]

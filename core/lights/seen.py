@@ -14,6 +14,7 @@ import numpy as np
 
 from ..mathutil import dot as _dot
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD, LightTable, _spot_atten, spread_atten
+from . import ies as IES
 from .warps import _normalize
 
 
@@ -105,6 +106,9 @@ def emitted_along_rays(table: LightTable, o: np.ndarray, d: np.ndarray, t_max: n
                 # The cone along the ray, as Cycles reads it.
                 att = _spot_atten(table, np.full(K, j), -d)
                 L = L * att[:, None]
+            if table.ies.shape[0]:
+                # An IES profile along the direction leaving the light.
+                L = L * IES.factors(table.ies, j, -d)[:, None]
         elif k == SUN:
             if table.half_angle[j] <= 0:
                 continue

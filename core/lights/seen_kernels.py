@@ -9,6 +9,7 @@ import numpy as np
 from numba import njit
 
 from .direct_kernels import _nrm3, _spot_atten as _spot_atten_one
+from .ies_kernels import ies_factor
 from .table import AREA, MESH, POINT, SPOT, SUN, WORLD
 from .warp_kernels import spread_atten
 
@@ -89,6 +90,9 @@ def seen_kernel(L, flags, vis, o, d, t_max, idx, Le, row, t_hit):
                     if not dx * px + dy * py + dz * pz < 0.0:
                         continue
                     att = _spot_atten_one(er, j, -dx, -dy, -dz)
+                if L.ies.shape[0]:
+                    # An IES profile along the direction leaving the light.
+                    att *= ies_factor(L.ies, j, -dx, -dy, -dz)
             elif k == SUN:
                 if not (L.half_angle[j] > 0.0 and np.isinf(best)
                         and -(dx * L.dir[j, 0] + dy * L.dir[j, 1] + dz * L.dir[j, 2])

@@ -14,6 +14,7 @@ import numpy as np
 from ..mathutil import LUMINANCE as _LUM
 from ..scene.model import Scene
 from ..scene.textures import sample_texture
+from . import ies as IES
 from .environment import EnvironmentLight
 from .warps import _normalize
 
@@ -141,6 +142,10 @@ class LightTable:
     # linking, core.scene.shadow_linking), or None: every object shadows
     # every emitter.
     shadow_sets: np.ndarray = None
+    # (n,) float64 the point and spot lights' IES profiles packed
+    # (core.lights.ies.pack: row offsets, then each profile with its light's
+    # frame), empty when no light has one; ies.ies_factor reads it.
+    ies: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def n(self) -> int:
@@ -317,6 +322,7 @@ def build_light_table(scene: Scene) -> LightTable:
     R = 0.5 * D * (1.0 + 1e-4)
     warnings: list[str] = []
     rows: list[dict] = []
+    ies_rows: dict = {}     # row -> (IES profile, object matrix)
     eye = np.eye(3)
 
     def row(**kw):
@@ -357,8 +363,13 @@ def build_light_table(scene: Scene) -> LightTable:
                 warnings.append(f"light '{lt.name}': singular object matrix, scale ignored")
             common = dict(source=li, strength=strength, radiance=radiance, co=co, dir=dirv,
                           radius=r, is_sphere=is_sphere, **vis)
+            prof = getattr(lt, "ies", None)
+            if prof is not None:
+                # Its frame: the object matrix (the IES node's object space).
+                ies_rows[len(rows)] = (prof, M)
             if kind == "POINT":
-                row(kind=POINT, flux=strength.copy(), **common)
+                share = IES.mean_factor(prof) if prof is not None else 1.0
+                row(kind=POINT, flux=strength * share, **common)
             else:
                 h = 0.5 * float(lt.spot_size)
                 cos_h = float(np.cos(h))
@@ -367,6 +378,8 @@ def build_light_table(scene: Scene) -> LightTable:
                 smooth = min(1.0 / w, _SMOOTH_MAX) if w > 0 else _SMOOTH_MAX
                 lin = M if abs(np.linalg.det(M)) > 0 else eye
                 omega = _spot_solid_angle(lin, cos_h, blend)
+                if prof is not None:
+                    omega = omega * IES.mean_factor(prof, cos_h, smooth)
                 row(kind=SPOT, flux=strength / (4.0 * np.pi) * omega, lin=lin,
                     lin_inv=lin_inv, cos_half_spot=cos_h, spot_smooth=smooth, **common)
         elif kind == "SUN":
@@ -471,6 +484,9 @@ def build_light_table(scene: Scene) -> LightTable:
 
     table = _assemble(rows, tri_rows, center, R, D, world, warnings, scene.textures)
     table.environment = env
+    if ies_rows:
+        table.ies = IES.pack([ies_rows.get(j, (None,))[0] for j in range(table.n)],
+                             [ies_rows.get(j, (None, np.eye(3)))[1] for j in range(table.n)])
     vis = getattr(scene, "tri_visibility", None)
     if vis is not None:
         from ..accel import RAY_SHADOW

@@ -163,6 +163,9 @@ class Light:
       mask: core.scene.linking; LINK_ALL without linking).
     shadow_sets: the blocker sets whose objects shadow the light (shadow
       linking, core.scene.shadow_linking; LINK_ALL without).
+    ies: a point or spot light's IES profile (core.lights.ies.IesProfile,
+      its values the factor on strength along each direction leaving the
+      light, in the light's object frame), or None.
     """
     name: str
     kind: str
@@ -184,6 +187,7 @@ class Light:
     use_soft_falloff: bool = True   # Cycles >= 4.0 point/spot default
     link_sets: int = field(default=(1 << 64) - 1, repr=False)
     shadow_sets: int = field(default=(1 << 64) - 1, repr=False)
+    ies: object = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -527,7 +531,10 @@ def scene_digest(scene: Scene) -> str:
         # (the fields of ``unset`` only when set: older checkpoints keep their digest)
         h.update(repr({k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
                        for k, v in lt.__dict__.items()
-                       if k not in unset or v != unset[k]}).encode())
+                       if k != "ies" and (k not in unset or v != unset[k])}).encode())
+        if getattr(lt, "ies", None) is not None:
+            for a in lt.ies:
+                h.update(b"ies" + np.ascontiguousarray(a, np.float64).tobytes())
     cam = scene.camera
     h.update(repr({k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
                    for k, v in cam.__dict__.items()}).encode())

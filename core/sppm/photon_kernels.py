@@ -53,6 +53,7 @@ from numba.extending import intrinsic
 # view factor of round 40 (compiled._seen_w).
 from ..materials.compiled import sample_pair, sincos_turn
 from ..materials.fast import ABSORBER, GENERIC, sample_fast
+from ..lights.ies_kernels import ies_factor
 from ..lights.warp_kernels import basis_world, spot_pdf_local, spread_atten, upper_bound
 from ..mathutil import LUM_B as _LUM2, LUM_G as _LUM1, LUM_R as _LUM0
 
@@ -342,12 +343,13 @@ class SoftLights(NamedTuple):
     (Nl rows): soft (Nl,) bool ``LightTable.soft_disc``; lin_inv (Nl, 3, 3);
     cos_h, smooth, r2 (Nl,) float64 the cone's cosine and smoothstep scale
     (-2 and 1 for a point light: attenuation 1 in every direction), the
-    radius squared."""
+    radius squared; ies the packed IES profiles (``LightTable.ies``)."""
     soft: np.ndarray
     lin_inv: np.ndarray
     cos_h: np.ndarray
     smooth: np.ndarray
     r2: np.ndarray
+    ies: np.ndarray
 
 
 def soft_lights(table) -> SoftLights:
@@ -359,7 +361,8 @@ def soft_lights(table) -> SoftLights:
                       c(np.asarray(table.lin_inv, np.float64).reshape(-1, 3, 3)),
                       c(np.where(spot, table.cos_half_spot, -2.0), np.float64),
                       c(np.where(spot, table.spot_smooth, 1.0), np.float64),
-                      c(np.asarray(table.radius, np.float64) ** 2))
+                      c(np.asarray(table.radius, np.float64) ** 2),
+                      c(table.ies, np.float64))
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -381,6 +384,8 @@ def _soft_term(th, dx, dy, dz, ox, oy, oz, gx, gy, gz, sg, dn, S, j):
     ln = np.sqrt(lx * lx + ly * ly + lz * lz)
     x = min(max((-lz / ln - S.cos_h[j]) * S.smooth[j], 0.0), 1.0)
     f = x * x * (3.0 - 2.0 * x) * cos_l * cos_y * (th * th + S.r2[j]) / (qq * abs(dn))
+    if S.ies.shape[0]:
+        f *= ies_factor(S.ies, j, qx, qy, qz)
     return (f if np.isfinite(f) else 0.0), qx, qy, qz
 
 
@@ -859,10 +864,10 @@ def _spot_direction(u3, u4, u5, L, j):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
+def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse, ies):
     """One photon of ``lights.sample_photons`` (POINT, SPOT, AREA, untextured MESH).
 
-    L: (nL, _NCOL) packed light table (:func:`light_arrays`).
+    L: (nL, _NCOL) packed light table, ies its IES profiles (:func:`light_arrays`).
     Returns (o xyz, d xyz, power rgb, falloff r^2, freq_init a b c, the
     emitter row, a soft-falloff light's disc sample xyz and the uniform
     that picks its turn (``soft_disc``))."""
@@ -904,6 +909,10 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
             qx, qy, qz = qx * L[j, _RAD], qy * L[j, _RAD], qz * L[j, _RAD]
         else:
             us = 0.0
+            if ies.shape[0]:
+                # An IES profile along the photon's direction (a soft light's
+                # along y -> p at its first hit: soft_light_first_hit).
+                wgt *= ies_factor(ies, j, wx, wy, wz)
         w = wgt * inv_p
         return (L[j, _CO] + ox * r, L[j, _CO + 1] + oy * r, L[j, _CO + 2] + oz * r,
                 wx, wy, wz, L[j, _STR] * w, L[j, _STR + 1] * w,
@@ -956,18 +965,18 @@ def _emit_one(u0, u1, u2, u3, u4, u5, cdf, last, L, b_diffuse):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def emit_lights(u, cdf, last, L, b_diffuse, o, d, power, falloff, freq, light, disc):
+def emit_lights(u, cdf, last, L, b_diffuse, ies, o, d, power, falloff, freq, light, disc):
     """``lights.sample_photons`` for POINT, SPOT, AREA and untextured MESH
     emitters, same formulas and the same use of the uniforms u (n, 6) (so
     the same rng state gives the same photons up to round-off).  cdf, last,
-    L, b_diffuse from :func:`light_arrays`.  Writes o, d, power, falloff
+    L, b_diffuse, ies from :func:`light_arrays`.  Writes o, d, power, falloff
     (n,), freq (n, 3) (light inits), light (n,) int64 (the emitter rows)
     and disc (n, 4) (``soft_disc``).  The caller guarantees every emitter
     with p_select > 0 is of those kinds (:func:`fast_emission_ok`).
     """
     for i in range(u.shape[0]):
         r = _emit_one(u[i, 0], u[i, 1], u[i, 2], u[i, 3], u[i, 4], u[i, 5], cdf, last, L,
-                      b_diffuse)
+                      b_diffuse, ies)
         o[i, 0], o[i, 1], o[i, 2] = r[0], r[1], r[2]
         d[i, 0], d[i, 1], d[i, 2] = r[3], r[4], r[5]
         power[i, 0], power[i, 1], power[i, 2] = r[6], r[7], r[8]
@@ -978,7 +987,7 @@ def emit_lights(u, cdf, last, L, b_diffuse, o, d, power, falloff, freq, light, d
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def emit_lights_state(u, cdf, last, L, b_diffuse, rel, floor, live, want_freq, freq,
+def emit_lights_state(u, cdf, last, L, b_diffuse, ies, rel, floor, live, want_freq, freq,
                       want_disc, light, disc):
     """:func:`emit_lights` fused with :func:`emit_kernel`: photons straight
     into the LiveState live (finite positive power only, origin offset along
@@ -990,7 +999,7 @@ def emit_lights_state(u, cdf, last, L, b_diffuse, rel, floor, live, want_freq, f
     K = 0
     for i in range(u.shape[0]):
         r = _emit_one(u[i, 0], u[i, 1], u[i, 2], u[i, 3], u[i, 4], u[i, 5], cdf, last, L,
-                      b_diffuse)
+                      b_diffuse, ies)
         p0, p1, p2 = r[6], r[7], r[8]
         if not (np.isfinite(p0) and np.isfinite(p1) and np.isfinite(p2)):
             continue
@@ -1014,9 +1023,10 @@ def emit_lights_state(u, cdf, last, L, b_diffuse, rel, floor, live, want_freq, f
 
 
 def light_arrays(table) -> tuple:
-    """(cdf, last, L, b_diffuse) for :func:`emit_lights`: cumsum of p_select,
-    last emitter with p_select > 0, the LightTable packed into one (nL, _NCOL)
-    float64 array, and the diffuse angular variance of the light inits."""
+    """(cdf, last, L, b_diffuse, ies) for :func:`emit_lights`: cumsum of
+    p_select, last emitter with p_select > 0, the LightTable packed into one
+    (nL, _NCOL) float64 array, the diffuse angular variance of the light
+    inits and the packed IES profiles (``LightTable.ies``)."""
     from ..lights import B_DIFFUSE
     from ..lights.emission import spot_tail
     nL = table.n
@@ -1043,7 +1053,8 @@ def light_arrays(table) -> tuple:
         L[:, _SPT] = np.inf
     p = np.asarray(table.p_select, np.float64)
     last = int(np.nonzero(p > 0)[0][-1]) if np.any(p > 0) else 0
-    return np.cumsum(p), last, L, float(B_DIFFUSE)
+    return (np.cumsum(p), last, L, float(B_DIFFUSE),
+            np.ascontiguousarray(table.ies, np.float64))
 
 
 def fast_emission_ok(table) -> bool:
