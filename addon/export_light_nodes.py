@@ -61,13 +61,11 @@ def light_nodes(ld, name: str, kind: str, notes: list):
     # use_nodes says (measured: the same image with it off).
     if bpy.app.version < (5, 0, 0) and not _use_nodes(ld):
         return one, None
-    outs = [nd for nd in tree.nodes if nd.type == 'OUTPUT_LIGHT'
-            and getattr(nd, "target", 'ALL') in ('ALL', 'CYCLES')]
-    active = [nd for nd in outs if nd.is_active_output] or outs
-    if not active:
+    out = tree.get_output_node('CYCLES')       # the output Cycles reads
+    if out is None:
         return one, None
-    used = {active[0].name}
-    em, _ = _follow(active[0].inputs["Surface"])
+    used = {out.name}
+    em, _ = _follow(out.inputs["Surface"])
     if em is None:
         return one, None
     if em.type != 'EMISSION':
