@@ -641,7 +641,9 @@ class _MaterialBuilder:
         self.vectors: list = []            # texture vector specs (see vector())
         self.vector_spec = None            # the one applied to the material (build())
         self.bakes: list = []              # export_atlas.Bake per texture read
-        self.displaced_in_object_space = False   # displacement() in object space
+        # displacement()'s bump: (height in object space, bump in object
+        # space), or None (_Exporter.displacement_scales).
+        self.displacement_spaces = None
         self.true_displacement = None      # export_displace.TrueDisplacement, or None
         # A procedural texture, a node only the graph evaluates (Math, a colour
         # attribute, ...) or images read at different vectors make the
@@ -1095,10 +1097,12 @@ class _MaterialBuilder:
         if t < 0:
             return None
         # Object space (the node's default): the displacement scales with the
-        # object, applied per object by _Exporter.scale_displacements.
-        self.displaced_in_object_space = getattr(src, "space", 'OBJECT') == 'OBJECT'
+        # object; Displacement and Bump bumps in object space (Cycles'
+        # finalize(bump_in_object_space)): _Exporter.displacement_scales.
+        self.displacement_spaces = (getattr(src, "space", 'OBJECT') == 'OBJECT',
+                                    method == 'BOTH')
         return NormalInput(BUMP, t, strength=1.0, distance=self.value(src, "Scale", 1.0),
-                           channel=channel)
+                           channel=channel, shadowing=False)
 
     # -- shaders --------------------------------------------------------------
     def shader(self, socket, depth=0) -> Material:
@@ -1317,12 +1321,12 @@ class _MaterialBuilder:
             elif normal.kind == NORMAL_MAP:
                 # Cycles applies the displacement's bump first and the normal
                 # map over it; one bump over a normal map here (NormalInput.base).
-                normal = dataclasses.replace(displaced, base=normal)
+                normal = dataclasses.replace(displaced, base=normal, shadowing=True)
                 self.notes.append("the displacement's bump applied over the normal map "
                                   "(Cycles: the normal map over the bump)")
             else:
                 self.notes.append("displacement ignored beside a Bump node")
-                self.displaced_in_object_space = False
+                self.displacement_spaces = None
         vecs = {_spec_key(v) for v in self.vectors}
         self.vector_spec = self.vectors[0] if self.vectors else None
         if len(vecs) > 1 and not self.bakes:
@@ -1588,7 +1592,10 @@ class _Exporter:
         self.tex_pixels: dict = {}     # image name -> its pixels (or None)
         self.mesh_cache: dict = {}
         self.atlas = AtlasBaker(self)  # materials baked into texture atlases
-        self.disp_scales: dict = {}    # material displaced in object space -> object scales
+        # material whose displacement's bump the object stretches -> (height,
+        # bump) in object space; the triangles' factors (displacement_scales)
+        self.disp_spaces: dict = {}
+        self.bump_scale_parts: list = []
         self.notes: list[str] = []
         self.n_objects = 0
         self.n_instances = 0
@@ -1849,8 +1856,9 @@ class _Exporter:
             self.mat_crypto.append(mat.name)
             self.mat_vector.append(None if mb.bakes else mb.vector_spec)
             self.mat_displace.append(mb.true_displacement)
-            if mb.displaced_in_object_space and self.materials[idx].normal is not None:
-                self.disp_scales[idx] = []
+            if mb.displacement_spaces is not None and self.materials[idx].normal is not None \
+                    and any(mb.displacement_spaces):
+                self.disp_spaces[idx] = mb.displacement_spaces
             self.atlas.add_material(idx, mb)
             self.mat_index[key] = idx
         return idx
@@ -2004,7 +2012,7 @@ class _Exporter:
             return drop_invalid_triangles(fscene)
         per_tri = ("tri_p", "tri_n", "tri_uv", "tri_mat", "tri_object_index", "tri_tangent",
                    "tri_visibility", "tri_holdout", "tri_blocker", "tri_shadow_sets", "tri_crypto",
-                   "tri_catcher", "tri_render_uv")
+                   "tri_catcher", "tri_render_uv", "tri_bump_scale")
         bands, dropped = [], 0
         for a in range(0, T, CHUNK):
             band = dataclasses.replace(fscene, **{
@@ -2032,10 +2040,10 @@ class _Exporter:
             pw, nw, uv, mat = parts[i]
             used = np.unique(mat)
             new_uv = None
+            if self.disp_spaces:
+                self.pad_bump_scales(parts, i)
+                self.bump_scale_parts.append(self.displacement_scales(inst, pw, mat))
             for m in used:
-                if m in self.disp_scales:
-                    self.disp_scales[m].append(
-                        abs(np.linalg.det(_mat4(inst.matrix_world)[:3, :3])) ** (1.0 / 3.0))
                 if m in self.atlas.keys:
                     if new_uv is None:
                         new_uv = uv.copy()
@@ -2069,23 +2077,33 @@ class _Exporter:
             needs = any(_uses_normal_map(self.materials[m].normal) for m in used)
             self.tangent_parts.append(self.tangents(inst, ob) if needs else None)
 
-    def scale_displacements(self) -> None:
-        """A displacement in object space grows with its object (Cycles'
-        object_dir_transform of the displacement vector): the bump distance
-        of each such material times its objects' scale (the cube root of the
-        transform's determinant; the median, noted, when they differ)."""
-        for m, scales in self.disp_scales.items():
-            if not scales:
-                continue
-            s = float(np.median(scales))
-            mat = self.materials[m]
-            notes = mat.approximations
-            if max(scales) - min(scales) > 1e-6 * s:
-                notes += (f"displacement on objects of scales {min(scales):.3g}-"
-                          f"{max(scales):.3g}: the bump of scale {s:.3g} on all",)
-            self.materials[m] = dataclasses.replace(
-                mat, approximations=notes,
-                normal=dataclasses.replace(mat.normal, distance=mat.normal.distance * s))
+    def pad_bump_scales(self, parts, n: int) -> None:
+        """Factors of 1 for the parts before parts[n] that have none (exported
+        before the first material with a displacement's bump)."""
+        while len(self.bump_scale_parts) < n:
+            self.bump_scale_parts.append(
+                np.ones(len(parts[len(self.bump_scale_parts)][0]), np.float32))
+
+    def displacement_scales(self, inst, pw, mat) -> np.ndarray:
+        """(T,) float32 the factor on the bump distance of a part's triangles
+        (``Scene.tri_bump_scale``): for a displacement's bump, the object's
+        stretch a = |M^T n| along the world normal n (the face's), once when
+        the height is in object space (Cycles' object_dir_transform of the
+        displacement vector, whose component along n is the height) and once
+        more when the bump is in object space (Displacement and Bump: the
+        object-space bump's normal taken back by M^-T); 1 elsewhere.
+        docs/shading.md "Displacement"."""
+        k = np.ones(len(mat), np.float32)
+        sel = np.nonzero(np.isin(mat, list(self.disp_spaces)))[0]
+        if sel.size:
+            A = _mat4(inst.matrix_world)[:3, :3]
+            p = np.asarray(pw[sel], np.float64)
+            n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+            a = np.linalg.norm(n @ A, axis=1)          # |A^T n|
+            spaces = np.array([self.disp_spaces[int(m)] for m in mat[sel]], bool)
+            k[sel] = np.where(spaces[:, 0], a, 1.0) * np.where(spaces[:, 1], a, 1.0)
+        return k
 
     def record_atlas(self, inst, ob, i, rows, m, pw, nw, uv) -> None:
         """Hands the triangles ``rows`` of parts[i] (of atlas material m) to
@@ -2639,7 +2657,6 @@ class _Exporter:
                 self.n_objects += 1
                 self.n_instances += bool(inst.is_instance)
         self.atlas.bake(parts)
-        self.scale_displacements()
         self.notes += feature_notes(scene, list(seen.values()))
         if any(getattr(m, "normal", None) is not None for m in self.materials):
             self.notes.append("normal maps and bump: photons scatter off the interpolated "
@@ -2673,6 +2690,8 @@ class _Exporter:
                 for k in ("diffuse", "glossy", "transmission")}))
         cy = getattr(scene, "cycles", None)
         materials, pass_index, seen_rows = self.ray_variants()
+        if self.disp_spaces:
+            self.pad_bump_scales(parts, len(parts))
         fscene = Scene(tri_p=tri_p, tri_n=tri_n, tri_uv=tri_uv, tri_mat=tri_mat,
                        materials=materials, lights=lights, camera=cam,
                        world_color=world, textures=self.textures, world_map=world_map,
@@ -2699,6 +2718,8 @@ class _Exporter:
                        shader_aovs=tuple(self.aov_kinds.items()),
                        tri_render_uv=(self.concatenate(self.render_uv_parts, np.float32)
                                       if self.uv_pass and parts else None),
+                       tri_bump_scale=(self.concatenate(self.bump_scale_parts, np.float32)
+                                       if self.disp_spaces and parts else None),
                        world_hidden=world_hidden_bits(scene.world),
                        **seen_rows)
         # A holdout object keeps its material's transparency (core.scene.holdout).

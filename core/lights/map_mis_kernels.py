@@ -36,7 +36,8 @@ from numba import njit
 
 # compiled.sample_pair is compiled into this module's kernels and numba's
 # cache is stamped by this file: edited with the BSDF evaluation's lobe
-# helpers and reference counts of round 32 and the view factor of round 40.
+# helpers and reference counts of round 32, the view factor of round 40 and
+# the displacement bump's code of round 45 (F_BUMP 2: no bump shadowing).
 from ..materials.compiled import SelectionTable, pdf_oriented, sample_pair, selection_rows
 from ..materials.fast import LAMBERT, sample_fast
 from ..sppm.photon_kernels import lambert_pdf

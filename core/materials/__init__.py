@@ -45,7 +45,8 @@ with a Normal Map / Bump input (``MaterialTable.bump_correction``; Cycles
 also tilts plain smooth normals) and only where the view direction is known
 (radiance mode), and there the diffuse lobes get Cycles'
 ``bump_shadowing_term`` with the geometric normal standing for the smooth
-one (docs/shading.md).
+one, except under a displacement's bump alone, whose normal Cycles makes
+the surface's own (``MaterialTable.bump_unshadowed``; docs/shading.md).
 
 Conventions
 -----------

@@ -208,6 +208,9 @@ def _eval_nd(table, mat, colors, N, front_v, v, l, Ng, Ng_bump=None):
     Map / Bump materials (camera side); None: not applied."""
     K = len(mat)
     flag = getattr(table, "bump_correction", None)
+    off = getattr(table, "bump_unshadowed", None)
+    if flag is not None and off is not None:
+        flag = np.asarray(flag, bool) & ~np.asarray(off, bool)
     if Ng_bump is not None and (flag is None or not flag[mat].any()):
         Ng_bump = None
     f = np.zeros((K, 3))

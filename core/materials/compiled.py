@@ -86,6 +86,19 @@ def _z_nodes(ior):
     return sorted(set(k.tolist()) | set((k + 1).tolist()))
 
 
+def _bump_codes(table) -> np.ndarray:
+    """(M,) float64 F_BUMP: 0 no Normal Map / Bump, 1 its two corrections
+    (the valid specular normal, the diffuse lobes' bump shadowing), 2 the
+    normal's alone (a displacement's bump: ``MaterialTable.bump_unshadowed``)."""
+    M = table.kind.shape[0]
+    b = getattr(table, "bump_correction", None)
+    if b is None:
+        return np.zeros(M)
+    off = getattr(table, "bump_unshadowed", None)
+    off = np.zeros(M, bool) if off is None else np.asarray(off, bool)
+    return np.where(np.asarray(b, bool), np.where(off, 2.0, 1.0), 0.0)
+
+
 def compile_materials(table) -> CompiledMaterials:
     """The :class:`CompiledMaterials` of a ``MaterialTable`` (cached on the table:
     tables are not modified once built)."""
@@ -107,7 +120,7 @@ def compile_materials(table) -> CompiledMaterials:
                    (F_FRES, opt("fresnel", 0.0)), (F_FIOR, opt("fresnel_ior", 1.0)),
                    (F_LIOR, opt("layer_ior", 0.0)), (F_LF0, opt("layer_f0", 0.0)),
                    (F_LROUGH, opt("layer_roughness", 0.0)), (F_LMS, opt("layer_ms", 0.0)),
-                   (F_BUMP, opt("bump_correction", 0.0, (M,))[:, None])):
+                   (F_BUMP, _bump_codes(table)[:, None])):
         lo[:, :, col] = a
     lo[:, :, F_TINT:F_TINT + 3] = opt("f82_tint", 1.0, (M, L, 3))
     vl = getattr(table, "view_lut", None)
@@ -559,7 +572,7 @@ def eval_pair_as(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy,
                 q = _layer_transmission(T, lobes[m, j, F_LF0], lobes[m, j, F_LROUGH], lobes[m, j, F_LIOR], nv,
                                         lobes[m, j, F_LMS] > 0.0)
                 g0, g1, g2 = g0 * q, g1 * q, g2 * q
-            if bump:
+            if bump and lobes[m, 0, F_BUMP] < 1.5:
                 q = _bump_shadowing(Gx, Gy, Gz, Nx, Ny, Nz, lx, ly, lz)
                 g0, g1, g2 = g0 * q, g1 * q, g2 * q
             if want_smooth:

@@ -23,7 +23,8 @@ from ..scene.model import VIEW_SAMPLES
 from ..scene.texture_kernels import TextureList, bilinear_rgb, corner_uv, texture_list
 # compiled.sample_pair is compiled into this module's kernel and numba's cache
 # is stamped by this file: edited with the BSDF evaluation's lobe helpers and
-# reference counts of round 32.
+# reference counts of round 32, and the displacement bump's code of round 45
+# (F_BUMP 2: no bump shadowing).
 from .compiled import SelectionTable, sample_pair
 
 

@@ -82,6 +82,7 @@ class MaterialTable:
     view_tab: list = None               # (VIEW_SAMPLES,) float64 rows: Lobe.view, see view_factor
     alpha_inv: np.ndarray = None        # (M, L) bool, scaled by 1 - alpha instead
     bump_correction: np.ndarray = None  # (M,) bool, Normal Map / Bump: Cycles' normal tilt
+    bump_unshadowed: np.ndarray = None  # (M,) bool, a displacement's bump: no bump shadowing
     lambert_lobes: np.ndarray = None    # (M,) bool, lambert_only before the Normal Map / Bump test
     rough_first: np.ndarray = None      # (M,) int64 a roughness map's first level row, -1 = none
     rough_tex: np.ndarray = None        # (M,) int32 that map (core.materials.rough_maps)
@@ -205,6 +206,9 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
     has_nd = nondelta.any(axis=1)
     bump = np.array([getattr(mat, "normal", None) is not None for mat in materials] or [False],
                     bool)
+    # (NormalInput.shadowing False: a displacement's bump alone)
+    unshadowed = np.array([not getattr(getattr(mat, "normal", None), "shadowing", True)
+                           for mat in materials] or [False], bool)
     lambert_lobes = has_nd & ~(nondelta & ~lambert).any(axis=1)
     return rough_maps.append_levels(MaterialTable(
         kind=kind, color=color, weight=weight, roughness=rough, ior=ior, tex=tex,
@@ -214,6 +218,7 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
         textures=textures, multiscatter=ms, fresnel=fres, fresnel_ior=fior,
         f82_tint=f82t, layer_ior=lior, layer_f0=lf0, layer_roughness=lrough, layer_ms=lms,
         sel_scale=sel, alpha_tex=atex, alpha_inv=ainv, bump_correction=bump,
+        bump_unshadowed=unshadowed,
         view_lut=vlut if vtab else None, view_tab=vtab if vtab else None), maps)
 
 

@@ -286,6 +286,10 @@ class Scene:
       1 where the mesh has one (u, v, 1; else 0, 0, 0), for the UV pass
       (core.sppm.color_passes), or None (the pass is off).  tri_uv may hold
       other coordinates (a material's mapped vector, an atlas).
+    tri_bump_scale: (T,) float32 the factor on each triangle's bump distance
+      (a displacement's bump: its object's stretch along the normal, as
+      Cycles transforms the displacement; ``addon/export.py``
+      ``_Exporter.displacement_scales``), or None (1 everywhere).
     """
     tri_p: np.ndarray
     tri_n: np.ndarray
@@ -321,6 +325,7 @@ class Scene:
     tri_catcher: Optional[np.ndarray] = None
     world_hidden: int = 0
     tri_render_uv: Optional[np.ndarray] = None
+    tri_bump_scale: Optional[np.ndarray] = None
 
     def __post_init__(self):
         self.attach_shading_normals()
@@ -347,7 +352,8 @@ class Scene:
             return
         normals.attach(self.tri_n, normals.ShadingSpec(
             tri_p=self.tri_p, tri_n=self.tri_n, tri_uv=self.tri_uv, tri_mat=self.tri_mat,
-            tri_tangent=self.tri_tangent, inputs=inputs, textures=self.textures))
+            tri_tangent=self.tri_tangent, inputs=inputs, textures=self.textures,
+            tri_bump_scale=self.tri_bump_scale))
 
     @property
     def n_triangles(self) -> int:
@@ -477,7 +483,9 @@ def drop_invalid_triangles(scene: Scene) -> tuple[Scene, int]:
                       tri_catcher=None if scene.tri_catcher is None else scene.tri_catcher[ok],
                       world_hidden=scene.world_hidden, ao_distance=scene.ao_distance,
                       tri_render_uv=None if scene.tri_render_uv is None
-                      else scene.tri_render_uv[ok])
+                      else scene.tri_render_uv[ok],
+                      tri_bump_scale=None if scene.tri_bump_scale is None
+                      else scene.tri_bump_scale[ok])
     return scene, dropped
 
 
@@ -523,7 +531,8 @@ def scene_digest(scene: Scene) -> str:
     if getattr(scene, "material_receiver", None) is not None:
         h.update(b"linking" + np.ascontiguousarray(scene.material_receiver).tobytes()
                  + np.ascontiguousarray(scene.material_emitter).tobytes())
-    for name in ("tri_blocker", "tri_shadow_sets", "tri_crypto", "tri_catcher", "tri_render_uv"):
+    for name in ("tri_blocker", "tri_shadow_sets", "tri_crypto", "tri_catcher", "tri_render_uv",
+                 "tri_bump_scale"):
         if getattr(scene, name, None) is not None:
             h.update(name.encode() + np.ascontiguousarray(getattr(scene, name)).tobytes())
     unset = {"link_sets": (1 << 64) - 1, "shadow_sets": (1 << 64) - 1, "visible_diffuse": True}

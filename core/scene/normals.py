@@ -62,6 +62,10 @@ class NormalInput:
     directx: Normal Map with the DirectX convention (green points down).
     base: Bump only, the NormalInput feeding the Bump's own Normal input (a
       Normal Map under the bump), or None (the interpolated normal).
+    shadowing: the diffuse lobes take Cycles' bump shadowing term.  False
+      for a displacement's bump alone: Cycles sets the shading normal itself
+      to the bumped one (``bump_from_displacement``'s SetNormal node), so its
+      closures' normal is the surface's and ``bump_shadowing_term`` is 1.
     """
     kind: str
     texture: int
@@ -71,14 +75,16 @@ class NormalInput:
     channel: str = "COLOR"
     directx: bool = False
     base: object = None
+    shadowing: bool = True
 
 
 @dataclass(frozen=True)
 class ShadingSpec:
     """Everything :func:`perturb` reads: the scene's triangle arrays (tri_p
     (T, 3, 3), tri_n (T, 3, 3), tri_uv (T, 3, 2), tri_mat (T,), tri_tangent
-    (T, 3, 4) or None), the per-material :class:`NormalInput` or None, and the
-    textures."""
+    (T, 3, 4) or None), the per-material :class:`NormalInput` or None, the
+    textures and the bump distance's factor per triangle (T,) or None
+    (``Scene.tri_bump_scale``)."""
     tri_p: np.ndarray
     tri_n: np.ndarray
     tri_uv: np.ndarray
@@ -86,6 +92,7 @@ class ShadingSpec:
     tri_tangent: object
     inputs: tuple
     textures: list
+    tri_bump_scale: object = None
 
 
 _ATTACHED: dict = {}
@@ -169,17 +176,18 @@ def tangent_space_normal(c: np.ndarray, N: np.ndarray, T: np.ndarray, sign: np.n
 
 
 def bump_normal(n: np.ndarray, dpdx: np.ndarray, dpdy: np.ndarray, dhdx: np.ndarray,
-                dhdy: np.ndarray, strength: float = 1.0, distance: float = 1.0,
+                dhdy: np.ndarray, strength: float = 1.0, distance=1.0,
                 invert: bool = False) -> np.ndarray:
     """Cycles' Bump node: n (K, 3) unit normal, dpdx, dpdy (K, 3) surface
-    tangents, dhdx, dhdy (K,) the height's derivatives along them.
-    Returns (K, 3) unit normals (see the module docstring)."""
+    tangents, dhdx, dhdy (K,) the height's derivatives along them, distance
+    a float or (K,) per point.  Returns (K, 3) unit normals (see the module
+    docstring)."""
     Rx = np.cross(dpdy, n)
     Ry = np.cross(n, dpdx)
     det = np.einsum("ij,ij->i", dpdx, Rx)
     surfgrad = dhdx[:, None] * Rx + dhdy[:, None] * Ry
-    d = -float(distance) if invert else float(distance)
-    out = _safe_unit(np.abs(det)[:, None] * n - d * np.sign(det)[:, None] * surfgrad, n)
+    d = np.asarray(distance, np.float64) * (-1.0 if invert else 1.0)
+    out = _safe_unit(np.abs(det)[:, None] * n - (d * np.sign(det))[..., None] * surfgrad, n)
     k = min(max(float(strength), 0.0), 1.0)
     return _safe_unit(k * out + (1.0 - k) * n, n)
 
@@ -255,7 +263,10 @@ def _apply(spec: ShadingSpec, inp: NormalInput, t, u, v, n, uv):
         n = np.where(okb[:, None], nb, n)
     dpdu, dpdv, ok = triangle_uv_frame(P, UV)
     _, dhdu, dhdv = scalar_gradient(img, uv, inp.channel)
-    return bump_normal(n, dpdu, dpdv, dhdu, dhdv, inp.strength, inp.distance, inp.invert), ok
+    dist = inp.distance
+    if spec.tri_bump_scale is not None:
+        dist = inp.distance * np.asarray(spec.tri_bump_scale, np.float64)[t]
+    return bump_normal(n, dpdu, dpdv, dhdu, dhdv, inp.strength, dist, inp.invert), ok
 
 
 def perturb(spec: ShadingSpec, prim: np.ndarray, u: np.ndarray, v: np.ndarray,

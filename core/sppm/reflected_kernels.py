@@ -16,7 +16,8 @@ from numba import njit
 # compiled.eval_pair is compiled into this kernel and numba's cache is
 # stamped by this file: edited with the microfacet lobes' geometric side
 # test of round 27, with the BSDF evaluation's lobe helpers and reference
-# counts of round 32 and with the view factor of round 40.
+# counts of round 32, with the view factor of round 40 and with the
+# displacement bump's code of round 45 (F_BUMP 2: no bump shadowing).
 from ..materials.compiled import _dot3, eval_pair
 
 #: Cap of the gathered photon's shading-normal factor (photon_pass._reflected).
