@@ -26,7 +26,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-import warnings
 
 import numpy as np
 
@@ -54,7 +53,8 @@ from ..core.materials.table import is_delta_lobe
 from ..core.scene.ray_variants import clear_shadows
 from ..core.sppm import cryptomatte as crypto
 from .export_displace import TrueDisplacement, displace
-from .export_read import CHUNK, _never, corner_topology, image_pixels, mesh_arrays
+from .export_read import (CHUNK, _follow, _never, _use_nodes, corner_topology, image_pixels,
+                          mesh_arrays)
 
 GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
 # An image under a nonlinear colour node is enlarged UPSAMPLE_FACTOR times
@@ -359,13 +359,6 @@ def srgb_to_linear(c: np.ndarray) -> np.ndarray:
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
-def _use_nodes(idblock) -> bool:
-    # ``use_nodes`` is deprecated in Blender 5 (node trees are always used).
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        return bool(getattr(idblock, "use_nodes", True)) and idblock.node_tree is not None
-
-
 def _object_info(inst, ob, output) -> np.ndarray:
     """(3,) float64 an Object Info node's output for this instance, as Cycles
     syncs it: Location the world translation, Color / Alpha the object's
@@ -436,22 +429,6 @@ def _all_nodes(tree, depth: int = 0):
         yield nd
         if nd.type == 'GROUP' and nd.node_tree is not None and depth < 32:
             yield from _all_nodes(nd.node_tree, depth + 1)
-
-
-def _follow(socket):
-    """The (node, output socket) feeding ``socket`` through reroutes, or (None, None)."""
-    seen = 0
-    while socket is not None and socket.is_linked and seen < 64:
-        seen += 1
-        link = socket.links[0]
-        if not getattr(link, "is_valid", True) or getattr(link, "is_muted", False):
-            return None, None
-        node = link.from_node
-        if node.type == 'REROUTE':
-            socket = node.inputs[0]
-            continue
-        return node, link.from_socket
-    return None, None
 
 
 def _mapping_matrix(node, notes) -> np.ndarray:

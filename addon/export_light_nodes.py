@@ -20,11 +20,7 @@ import os
 import numpy as np
 
 from ..core.lights.ies import IesError, parse_ies, scaled
-
-
-def _follow(socket):
-    from .export import _follow as follow
-    return follow(socket)
+from .export_read import _follow, _use_nodes
 
 
 def _ies_text(node) -> tuple[str | None, str]:
@@ -56,7 +52,6 @@ def light_nodes(ld, name: str, kind: str, notes: list):
     if tree is None:
         return one, None
     import bpy
-    from .export import _use_nodes
     # Blender 5's Cycles reads a light's tree whatever its (deprecated)
     # use_nodes says (measured: the same image with it off).
     if bpy.app.version < (5, 0, 0) and not _use_nodes(ld):

@@ -412,3 +412,26 @@ def image_pixels(img, capacity: int, poll=_never):
         if r is not None:
             return r
     return _read_in_process(img)
+
+
+def _use_nodes(idblock) -> bool:
+    # ``use_nodes`` is deprecated in Blender 5 (node trees are always used).
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        return bool(getattr(idblock, "use_nodes", True)) and idblock.node_tree is not None
+
+
+def _follow(socket):
+    """The (node, output socket) feeding ``socket`` through reroutes, or (None, None)."""
+    seen = 0
+    while socket is not None and socket.is_linked and seen < 64:
+        seen += 1
+        link = socket.links[0]
+        if not getattr(link, "is_valid", True) or getattr(link, "is_muted", False):
+            return None, None
+        node = link.from_node
+        if node.type == 'REROUTE':
+            socket = node.inputs[0]
+            continue
+        return node, link.from_socket
+    return None, None

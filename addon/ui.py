@@ -278,10 +278,7 @@ class FPPM_LIGHT_PT_nodes(FPPMDataPanel, Panel):
     Emission's Strength (addon/export_light_nodes.py)."""
     bl_label = "Nodes"
     bl_context = "data"
-
-    @classmethod
-    def poll_data(cls, context):
-        return getattr(context, "light", None) is not None
+    poll_data = FPPM_LIGHT_PT_light.poll_data
 
     def draw(self, context):
         self.layout.use_property_split = True

@@ -33,6 +33,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .warps import cone_grid, smoothstep
+
 # Cycles' candela -> strength conversion: 4 pi / (D65's 177.83 lm/W).
 CANDELA_TO_STRENGTH = 4.0 * np.pi / 177.83
 _TYPE_C, _TYPE_B, _TYPE_A = 1, 2, 3
@@ -231,15 +233,8 @@ def mean_factor(profile: IesProfile, cos_h: float = -1.0, smooth: float = 1.0) -
     (cos_h, smooth: ``LightTable.cos_half_spot``, ``spot_smooth``); in the
     light's own frame.  Photons are drawn from the lights by this share of
     their flux (``LightTable.p_select``)."""
-    n_mu, n_phi = 128, 128
-    lo = max(cos_h, -1.0)
-    mu = lo + (1.0 - lo) * (np.arange(n_mu) + 0.5) / n_mu      # -z_local
-    phi = 2.0 * np.pi * (np.arange(n_phi) + 0.5) / n_phi
-    MU, PH = np.meshgrid(mu, phi, indexing="ij")
-    st = np.sqrt(np.maximum(1.0 - MU ** 2, 0.0))
-    w = np.stack([st * np.cos(PH), st * np.sin(PH), -MU], axis=-1).reshape(-1, 3)
-    x = np.clip((MU.ravel() - cos_h) * smooth, 0.0, 1.0)
-    att = x * x * (3.0 - 2.0 * x) if cos_h > -1.0 else np.ones(w.shape[0])
+    mu, w, _ = cone_grid(max(cos_h, -1.0), 128, 128)
+    att = smoothstep((mu - cos_h) * smooth) if cos_h > -1.0 else np.ones(w.shape[0])
     one = pack([profile], np.eye(3)[None])
     f = factors(one, np.zeros(w.shape[0], np.int64), w)
     s = att.sum()

@@ -16,7 +16,7 @@ from ..scene.model import Scene
 from ..scene.textures import sample_texture
 from . import ies as IES
 from .environment import EnvironmentLight
-from .warps import _normalize
+from .warps import _normalize, cone_grid, smoothstep as _smoothstep
 
 # Emitter kinds (LightTable.kind, photon "kind").
 POINT = 0
@@ -190,11 +190,6 @@ def _lum(rgb):
 # ----------------------------------------------------------------------------
 # Spot cone.
 
-def _smoothstep(x):
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
-
-
 def _spot_solid_angle(lin: np.ndarray, cos_h: float, blend: float) -> float:
     """int smoothstep(...) d omega over world directions [sr].
 
@@ -209,16 +204,10 @@ def _spot_solid_angle(lin: np.ndarray, cos_h: float, blend: float) -> float:
     w = (1.0 - cos_h) * blend
     if s2 > 0 and np.allclose(g, s2 * np.eye(3), rtol=1e-9, atol=1e-12 * s2):
         return 2.0 * np.pi * ((1.0 - cos_h) - 0.5 * w)
-    n_mu, n_phi = 512, 256
-    mu = cos_h + (1.0 - cos_h) * (np.arange(n_mu) + 0.5) / n_mu
-    phi = 2.0 * np.pi * (np.arange(n_phi) + 0.5) / n_phi
-    MU, PH = np.meshgrid(mu, phi, indexing="ij")
-    st = np.sqrt(np.maximum(1.0 - MU ** 2, 0.0))
-    v = np.stack([st * np.cos(PH), st * np.sin(PH), -MU], axis=-1).reshape(-1, 3)
+    mu, v, dA = cone_grid(cos_h, 512, 256)
     smooth = 1.0 / w if w > 0 else _SMOOTH_MAX
-    att = _smoothstep((MU.ravel() - cos_h) * smooth)
+    att = _smoothstep((mu - cos_h) * smooth)
     jac = abs(np.linalg.det(lin)) / np.linalg.norm(v @ lin.T, axis=1) ** 3
-    dA = (1.0 - cos_h) / n_mu * 2.0 * np.pi / n_phi
     return float(np.sum(att * jac) * dA)
 
 

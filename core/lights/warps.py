@@ -43,6 +43,24 @@ def _cone_local(cos_max, u1, u2):
     return np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=1)
 
 
+def smoothstep(x):
+    """Cycles' smoothstep of x clamped to [0, 1] (a spot's cone)."""
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def cone_grid(cos_max, n_mu: int, n_phi: int):
+    """A midpoint grid of the cone cos(theta) >= cos_max around -z (a
+    light's local axis), uniform in mu = -z and phi: (mu (n,), v (n, 3) unit
+    local directions, the solid angle of each cell), n = n_mu n_phi."""
+    mu = cos_max + (1.0 - cos_max) * (np.arange(n_mu) + 0.5) / n_mu
+    phi = 2.0 * np.pi * (np.arange(n_phi) + 0.5) / n_phi
+    MU, PH = np.meshgrid(mu, phi, indexing="ij")
+    st = np.sqrt(np.maximum(1.0 - MU ** 2, 0.0))
+    v = np.stack([st * np.cos(PH), st * np.sin(PH), -MU], axis=-1).reshape(-1, 3)
+    return MU.ravel(), v, (1.0 - cos_max) / n_mu * 2.0 * np.pi / n_phi
+
+
 def _cosine_local(u1, u2):
     """Cosine-weighted directions about +z, pdf cos/pi (Malley)."""
     x, y = _unit_disk(u1, u2)
