@@ -145,6 +145,11 @@ SUPPORT = (
      "render starts, a Sky Texture's sun disc into a sun light", SUPPORTED, ""),
     ("Diffuse, Glossy, Glass, Refraction, Transparent, Translucent, Emission, Mix Shader, "
      "Add Shader, Principled BSDF; RGB, Value and Image Texture inputs", SUPPORTED, ""),
+    ("Metallic BSDF: F82 Tint (Base Color, Edge Tint) and Physical Conductor (the exact "
+     "Fresnel of IOR + i Extinction per channel), GGX and Multiscatter GGX", SUPPORTED, ""),
+    ("thin-film iridescence (Thin Film Thickness and IOR) on the Principled BSDF's specular "
+     "layer and metal and on the Metallic BSDF: Cycles' Airy sum over the CIE 1931 "
+     "matching functions in linear Rec.709", SUPPORTED, ""),
     ("Normal Map (tangent space, MikkTSpace tangents of the render UV map, OpenGL and "
      "DirectX) and Bump (Strength, Distance, Invert) from an Image Texture", SUPPORTED, ""),
     ("Mapping (Point, Texture, Vector), Texture Coordinate (UV, Generated, Object) and "
@@ -268,7 +273,9 @@ SUPPORT = (
     ("a world shader whose bake fails", APPROXIMATED, "could not be baked by Cycles"),
     ("Principled sheen", IGNORED, "ignored: no sheen lobe"),
     ("anisotropy", IGNORED, "anisotropy ignored"),
-    ("thin-film iridescence", IGNORED, "thin-film iridescence ignored"),
+    ("thin-film iridescence on a Principled BSDF's transmission (its specular layer and "
+     "metal, and the Metallic BSDF, have it)", IGNORED,
+     "thin-film iridescence on the transmission ignored"),
     ("a Volume Absorption of constant Color and Density in a material's Volume (coloured "
      "glass, liquids): Beer-Lambert attenuation of every ray inside the closed surface, "
      "shadow rays through transparent surfaces included, as Cycles' volume stack for volumes "
@@ -1147,6 +1154,8 @@ class _MaterialBuilder:
             return _with_variants(_add, a, b, n)
         if t == 'BSDF_PRINCIPLED':
             return self.principled(node)
+        if t == 'BSDF_METALLIC':
+            return Material(n, lobes=(self.metallic(node),))
         if node.name not in self.unsupported:    # (a group instanced twice: once)
             self.unsupported.append(node.name)
         return Material(n, lobes=(Lobe(DIFFUSE, GREY),))
@@ -1226,6 +1235,51 @@ class _MaterialBuilder:
         return shading.make_lobe(kind, c, 1.0, rough, ior, tex,
                                  multiscatter=dist == 'MULTI_GGX', roughness_texture=rtex)
 
+    def metallic(self, node) -> Lobe:
+        """Metallic BSDF (Blender 4.3 and later) -> one GGX lobe with Cycles'
+        conductor Fresnel (``svm_node_closure_bsdf``'s
+        CLOSURE_BSDF_F82_CONDUCTOR / PHYSICAL_CONDUCTOR): 'F82' the F82-tint
+        model of F0 = Base Color and tint Edge Tint (the Principled BSDF's
+        metal); 'PHYSICAL_CONDUCTOR' the exact Fresnel of IOR + i Extinction."""
+        rough, rtex = self.roughness(node)
+        dist = getattr(node, "distribution", 'MULTI_GGX')
+        if dist not in ('GGX', 'MULTI_GGX') and rough > 0.0:
+            self.notes.append(f"{node.name}: {dist} distribution rendered as GGX")
+        if self.value(node, "Anisotropy") != 0:
+            self.notes.append(f"{node.name}: anisotropy ignored")
+        film = {}
+        d = self.value(node, "Thin Film Thickness")
+        if d > 0.1:         # (Cycles: THINFILM_THICKNESS_CUTOFF)
+            film = dict(thin_film_thickness=d,
+                        thin_film_ior=max(self.value(node, "Thin Film IOR", 1.33), 1e-5))
+        if getattr(node, "fresnel_type", 'F82') == 'PHYSICAL_CONDUCTOR':
+            return shading.make_lobe(GLOSSY, (1.0, 1.0, 1.0), 1.0, rough,
+                                     multiscatter=dist == 'MULTI_GGX', roughness_texture=rtex,
+                                     fresnel="CONDUCTOR", **film,
+                                     conductor_n=self.vector_value(node, "IOR"),
+                                     conductor_k=self.vector_value(node, "Extinction"))
+        c, tex = self.color(node, "Base Color")
+        tint, _ = self.color(node, "Edge Tint")
+        # Cycles: F0 = saturate(Base Color), tint = saturate(Edge Tint).
+        return shading.make_lobe(GLOSSY, np.minimum(c, 1.0), 1.0, rough, color_texture=tex,
+                                 multiscatter=dist == 'MULTI_GGX', roughness_texture=rtex,
+                                 fresnel="F82", f82_tint=tuple(np.clip(tint, 0.0, 1.0)), **film)
+
+    def vector_value(self, node, name) -> tuple:
+        """A vector input's value (3 floats): its own, or with a link the
+        linked socket's constant, else its own with a note."""
+        src, out, vsock = self.follow(node.inputs[name])
+        if src is None:
+            return tuple(float(x) for x in vsock.default_value[:3])
+        if src.type == 'COMBXYZ':
+            return tuple(self.value(src, a) for a in ("X", "Y", "Z"))
+        if src.type == 'VALUE':
+            return (float(out.default_value),) * 3
+        if src.type == 'RGB':
+            return tuple(float(x) for x in out.default_value[:3])
+        self.notes.append(f"'{src.name}' into {node.name}.{name} ignored")
+        return tuple(float(x) for x in node.inputs[name].default_value[:3])
+
     def principled(self, node) -> Material:
         """Principled BSDF through ``core.scene.nodes.principled_to_lobes``."""
         base, base_tex = self.color(node, "Base Color")
@@ -1254,6 +1308,7 @@ class _MaterialBuilder:
             anisotropic=v(node, "Anisotropic", 0.0),
             diffuse_roughness=v(node, "Diffuse Roughness", 0.0),
             thin_film_thickness=v(node, "Thin Film Thickness", 0.0),
+            thin_film_ior=v(node, "Thin Film IOR", 1.33),
             emission_color=emis, emission_strength=emis_strength,
             emission_color_texture=emis_tex,
             multiscatter=getattr(node, "distribution", 'MULTI_GGX') == 'MULTI_GGX')

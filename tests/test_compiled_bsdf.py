@@ -4,7 +4,8 @@ core.materials.eval_bsdf, radiance mode) pair for pair, to float rounding.
 Random pairs over every lobe kind and option of the material table (Lambert,
 Oren-Nayar, translucent, GGX glossy / glass / refraction with and without
 Multiscatter GGX, iors above and below 1, the Principled BSDF's dielectric and
-F82 layers and the diffuse under its specular layer, delta lobes that must be
+F82 layers and the diffuse under its specular layer, the Metallic BSDF's
+physical conductor, thin films over them, delta lobes that must be
 skipped), views on both sides of the geometric normal, grazing views and
 lights, and the same materials with a Normal Map / Bump (normal tilt and
 bump shadowing).  Inputs in float32 as the visible points keep them.
@@ -49,7 +50,20 @@ def _materials():
               layer_f0=0.05, layer_roughness=0.45, layer_multiscatter=True)),
         (Lobe(GLOSSY, (1.0, 1.0, 1.0), roughness=0.2, fresnel="DIELECTRIC", fresnel_ior=1.45),
          Lobe(DIFFUSE, (0.6, 0.6, 0.6), layer_ior=1.45, layer_f0=0.034, layer_roughness=0.2)),
+        # the Metallic BSDF's Physical Conductor (gold's n, k), with a diffuse
+        (Lobe(GLOSSY, (1.0, 1.0, 1.0), weight=0.8, roughness=0.35, fresnel="CONDUCTOR",
+              conductor_n=(0.18, 0.42, 1.37), conductor_k=(3.42, 2.35, 1.77), **ms),
+         Lobe(DIFFUSE, (0.4, 0.4, 0.4), weight=0.2)),
+        (Lobe(GLOSSY, (1.0, 1.0, 1.0), roughness=0.2, fresnel="CONDUCTOR",
+              conductor_n=(2.76, 2.51, 2.23), conductor_k=(3.87, 3.40, 3.01)),),
         P(base_color=(0.7, 0.4, 0.2), metallic=0.3, roughness=0.4),
+        # thin films: over a Principled metal, specular layer and its diffuse;
+        # over a conductor
+        P(base_color=(0.7, 0.4, 0.2), metallic=0.4, roughness=0.35, thin_film_thickness=380.0,
+          thin_film_ior=1.45, specular_tint=(1.0, 0.8, 0.9)),
+        (Lobe(GLOSSY, (1.0, 1.0, 1.0), roughness=0.25, fresnel="CONDUCTOR",
+              conductor_n=(0.18, 0.42, 1.37), conductor_k=(3.42, 2.35, 1.77),
+              thin_film_thickness=0.6, thin_film_ior=1.6, **ms),),
         P(base_color=(0.8, 0.8, 0.8), roughness=0.5, ior=1.5, coat_weight=0.5,
           diffuse_roughness=0.4),
         P(base_color=(0.9, 0.9, 0.9), roughness=0.2, transmission=0.7, ior=1.45),

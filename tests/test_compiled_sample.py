@@ -42,6 +42,10 @@ def _table():
         P(),                                              # Blender's default Principled
         P(base_color=(0.8, 0.5, 0.3), metallic=0.6, roughness=0.0),     # delta F82 + dielectric
         (Lobe(GLASS, (1.0, 0.9, 0.8), ior=1.45),),        # smooth glass
+        P(base_color=(0.8, 0.5, 0.3), metallic=0.5, roughness=0.0,
+          thin_film_thickness=500.0),                     # delta F82 + dielectric under a film
+        (Lobe(GLOSSY, (1.0, 1.0, 1.0), fresnel="CONDUCTOR", conductor_n=(0.14, 0.37, 1.44),
+              conductor_k=(3.98, 2.38, 1.60)), Lobe(DIFFUSE, (0.5, 0.5, 0.5))),  # delta conductor
         (Lobe(REFRACTION, (0.9, 0.9, 1.0), ior=1.33), Lobe(TRANSPARENT, (0.3, 0.3, 0.3)),
          Lobe(GLOSSY, (0.5, 0.6, 0.7), roughness=0.35)),
     ]

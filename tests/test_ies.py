@@ -111,11 +111,7 @@ def _scene():
     import test_shading_nodes as TS
     from scenes import bpy_kit as K
     sc = K.reset_scene((RES, RES), samples=16)
-    grey, nt, out = K._new_material("Floor")
-    d = nt.nodes.new('ShaderNodeBsdfDiffuse')
-    d.inputs["Color"].default_value = (0.8, 0.8, 0.8, 1.0)
-    nt.links.new(d.outputs[0], out.inputs["Surface"])
-    K.plane("Floor", 2.4, grey)
+    TS.grey_floor()
     TS.ortho_view(sc, 2.4, sun_energy=0.0)
     K.set_world(sc, (0.0, 0.0, 0.0))
     text = bpy.data.texts.new("profile.ies")

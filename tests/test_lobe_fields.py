@@ -1,7 +1,8 @@
 """core.scene.model.Lobe's Multiscatter GGX / Principled fields and the material table.
 
 ``core.materials.build_material_table`` reads ``multiscatter``, ``fresnel``,
-``fresnel_ior``, ``f82_tint``, ``layer_*`` with getattr.  These tests pin that
+``fresnel_ior``, ``f82_tint``, ``layer_*``, ``conductor_*``, ``thin_film_*``
+with getattr.  These tests pin that
 a Lobe with default fields builds the table a lobe without those attributes
 built before they existed, that a lobe object carrying them as plain
 attributes builds the very same table as the Lobe (exact equality: the same
@@ -19,7 +20,8 @@ from core.scene.model import DIFFUSE, GLASS, GLOSSY, REFRACTION, Lobe, Material
 
 EXTRA = ("multiscatter", "fresnel", "fresnel_ior", "f82_tint", "layer_ior", "layer_f0",
          "layer_roughness", "layer_multiscatter", "alpha_texture", "alpha_invert",
-         "roughness_texture", "view")
+         "roughness_texture", "view", "conductor_n", "conductor_k", "thin_film_thickness",
+         "thin_film_ior")
 
 
 def _tables_equal(a, b):
@@ -71,6 +73,11 @@ FULL = [
     dict(kind=DIFFUSE, color=(0.6, 0.3, 0.2), weight=0.7, roughness=0.25, layer_ior=1.6,
          layer_f0=0.05, layer_roughness=0.45, layer_multiscatter=True),
     dict(kind=GLASS, color=(0.9, 0.95, 1.0), roughness=0.6, ior=1.33, multiscatter=True),
+    dict(kind=GLOSSY, color=(1.0, 1.0, 1.0), roughness=0.2, multiscatter=True,
+         fresnel="CONDUCTOR", conductor_n=(0.18, 0.42, 1.37), conductor_k=(3.42, 2.35, 1.77),
+         thin_film_thickness=420.0, thin_film_ior=1.5),
+    dict(kind=DIFFUSE, color=(0.5, 0.5, 0.5), layer_ior=1.5, layer_f0=0.04,
+         layer_roughness=0.3, thin_film_thickness=250.0, thin_film_ior=1.8),
 ]
 
 
@@ -83,7 +90,9 @@ def test_lobe_fields_build_the_same_table_as_attributes():
     for kw in FULL:
         _tables_equal(_table([Lobe(**kw)]), _table([_duck(Lobe(**kw))]))
         _tables_equal(_table([Lobe(**kw)]), _table([shading.make_lobe(**kw)]))
-    _tables_equal(_table([Lobe(**kw) for kw in FULL]), _table([_duck(Lobe(**kw)) for kw in FULL]))
+    for part in (FULL[:4], FULL[4:]):       # (at most MAX_LOBES lobes a material)
+        _tables_equal(_table([Lobe(**kw) for kw in part]),
+                      _table([_duck(Lobe(**kw)) for kw in part]))
     # The Principled mapping's own lobes are Lobes, and rebuild identically.
     lobes, _, _ = shading.principled_to_lobes(base_color=(0.7, 0.4, 0.2), metallic=0.4,
                                               roughness=0.35, specular_tint=(1.0, 0.9, 0.8),

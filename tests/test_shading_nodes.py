@@ -239,16 +239,22 @@ def render_integrator(scene, integrator, seed, rgba=False, passes=12):
     return img if rgba else img[..., :3]
 
 
-def floor_and_box():
-    """A 2.4 m grey Diffuse floor and a red Diffuse box floating over it
-    (tests/test_ray_visibility.py, tests/test_holdout.py): (the box, its
-    material's node tree, its Diffuse node, its Material Output)."""
+def grey_floor():
+    """A 2.4 m plane "Floor" of a 0.8 grey Diffuse BSDF at z = 0."""
     from scenes import bpy_kit as K
     grey, nt, out = K._new_material("Floor")
     d = nt.nodes.new('ShaderNodeBsdfDiffuse')
     d.inputs["Color"].default_value = (0.8, 0.8, 0.8, 1.0)
     nt.links.new(d.outputs[0], out.inputs["Surface"])
-    K.plane("Floor", 2.4, grey)
+    return K.plane("Floor", 2.4, grey)
+
+
+def floor_and_box():
+    """:func:`grey_floor` and a red Diffuse box floating over it
+    (tests/test_ray_visibility.py, tests/test_holdout.py): (the box, its
+    material's node tree, its Diffuse node, its Material Output)."""
+    from scenes import bpy_kit as K
+    grey_floor()
     red, nt, out = K._new_material("Red")
     d = nt.nodes.new('ShaderNodeBsdfDiffuse')
     d.inputs["Color"].default_value = (0.8, 0.15, 0.1, 1.0)
@@ -374,11 +380,12 @@ def compare(sc, tmp_path, label, photons=2000, samples=CYCLES_SAMPLES):
 _CYCLES_PAIRS: dict = {}
 
 
-def two_seeds(sc, scene, render, tmp_path, samples=CYCLES_SAMPLES, key=None):
+def two_seeds(sc, scene, render, tmp_path, samples=CYCLES_SAMPLES, key=None, mask=None):
     """(mean |FPPM - Cycles| / mean, the seed-to-seed noise, FPPM's image,
     Cycles') of render(scene, seed) at seeds 1, 2 and Cycles at 0, 1.
     key: Cycles' pair is rendered once per key (a scene several tests
-    compare; None: every call)."""
+    compare; None: every call).  mask: (H, W) bool, the pixels the means
+    are taken over (None: all)."""
     if key is not None and (key, samples) in _CYCLES_PAIRS:
         c1, c2 = _CYCLES_PAIRS[key, samples]
     else:
@@ -388,26 +395,29 @@ def two_seeds(sc, scene, render, tmp_path, samples=CYCLES_SAMPLES, key=None):
             _CYCLES_PAIRS[key, samples] = (c1, c2)
     a1, a2 = render(scene, 1), render(scene, 2)
     ref, img = (c1 + c2) / 2, (a1 + a2) / 2
-    mean = ref.mean()
-    err = np.abs(img - ref).mean() / mean
-    noise = (np.abs(a1 - a2).mean() + np.abs(c1 - c2).mean()) / 2 / mean
+    m = (lambda a: a) if mask is None else (lambda a: a[mask])  # noqa: E731
+    mean = m(ref).mean()
+    err = np.abs(m(img - ref)).mean() / mean
+    noise = (np.abs(m(a1 - a2)).mean() + np.abs(m(c1 - c2)).mean()) / 2 / mean
     return err, noise, img, ref
 
 
-def agrees_with_cycles(sc, scene, integrator, tmp_path, without, label, key=None, passes=12):
+def agrees_with_cycles(sc, scene, integrator, tmp_path, without, label, key=None, passes=12,
+                       mask=None):
     """FPPM's ``integrator`` on ``scene`` (the export of ``sc``; ``passes``
     passes) against Cycles (256 samples), two seeds a side, under
     :func:`_check`'s bound, and the image of ``without`` (the same export
     without the feature; one seed of EFFECT_PASSES passes for 12) moved by
     more than 3x that bound (tests/test_absorption.py,
     test_lobe_visibility.py, test_light_linking.py, test_world_visibility.py).
-    key: :func:`two_seeds`'."""
+    key, mask: :func:`two_seeds`' (mask: the effect's mean too)."""
     err, noise, img, ref = two_seeds(
         sc, scene, lambda s, seed: render_integrator(s, integrator, seed, passes=passes),
-        tmp_path, 256, key)
-    effect = np.abs(render_integrator(without, integrator, 1,
-                                      passes=EFFECT_PASSES * passes // 12)
-                    - ref).mean() / ref.mean()
+        tmp_path, 256, key, mask)
+    m = (lambda a: a) if mask is None else (lambda a: a[mask])  # noqa: E731
+    effect = np.abs(m(render_integrator(without, integrator, 1,
+                                        passes=EFFECT_PASSES * passes // 12)
+                      - ref)).mean() / m(ref).mean()
     print(f"{label} {integrator}: mean {img.mean():.4f} vs Cycles {ref.mean():.4f}; |diff| "
           f"{err:.4f}, noise {noise:.4f} ({err / noise:.2f}x); without it {effect:.4f}")
     _check(err, noise, effect)

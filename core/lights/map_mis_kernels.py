@@ -37,7 +37,9 @@ from numba import njit
 # compiled.sample_pair is compiled into this module's kernels and numba's
 # cache is stamped by this file: edited with the BSDF evaluation's lobe
 # helpers and reference counts of round 32, the view factor of round 40 and
-# the displacement bump's code of round 45 (F_BUMP 2: no bump shadowing).
+# the displacement bump's code of round 45 (F_BUMP 2: no bump shadowing)
+# and the conductor Fresnel of round 46 (F_K, compiled._fresnel_rgb) and
+# thin film (F_FILM_D, F_FILM_N).
 from ..materials.compiled import SelectionTable, pdf_oriented, sample_pair, selection_rows
 from ..materials.fast import LAMBERT, sample_fast
 from ..sppm.photon_kernels import lambert_pdf

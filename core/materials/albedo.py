@@ -30,9 +30,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..scene.model import DIFFUSE, GLASS, GLOSSY, REFRACTION, TRANSLUCENT
-from .microfacet import FRESNEL_DIELECTRIC, FRESNEL_F82, _principled_fresnel, f0_from_ior
+from .microfacet import (FRESNEL_CONDUCTOR, FRESNEL_DIELECTRIC, FRESNEL_F82, _principled_fresnel,
+                         f0_from_ior)
 from .multiscatter import layer_transmission, multiscatter_darkening, schlick5_s, schlick_s
-from .table import MaterialTable, seen_weight
+from .table import MaterialTable, fresnel_params, seen_weight
 
 #: The kinds of closure albedo, in the order :func:`closure_albedos` returns them.
 ALBEDO_KINDS = ("diffuse", "glossy", "transmission")
@@ -70,7 +71,8 @@ def closure_albedos(table: MaterialTable, mat: np.ndarray, colors: np.ndarray, m
                         ml = mj[lay]
                         a[lay] *= layer_transmission(
                             table.layer_f0[ml, j], table.layer_roughness[ml, j],
-                            table.layer_ior[ml, j], m[lay], table.layer_ms[ml, j])[:, None]
+                            table.layer_ior[ml, j], m[lay], table.layer_ms[ml, j],
+                            None if table.thin_film is None else table.thin_film[ml, j])[:, None]
                 out[0, idx] += a
                 continue
             rough = table.roughness[mj, j]
@@ -85,18 +87,32 @@ def closure_albedos(table: MaterialTable, mat: np.ndarray, colors: np.ndarray, m
                 a_r, a_t = col * F, col * (1.0 - F)
             else:
                 a_r, a_t = col.copy(), None
-                mode = (np.zeros(idx.size, np.int8) if table.fresnel is None
-                        else table.fresnel[mj, j])
-                for fm in (FRESNEL_DIELECTRIC, FRESNEL_F82):
+                if table.fresnel is None:
+                    mode = np.zeros(idx.size, np.int8)
+                else:
+                    mode, fiors, tints, exts, films = fresnel_params(table, mj, j)
+                for fm in (FRESNEL_DIELECTRIC, FRESNEL_F82, FRESNEL_CONDUCTOR):
                     q = np.nonzero(mode == fm)[0]
                     if q.size == 0:
                         continue
-                    fior, tint = table.fresnel_ior[mj[q], j], table.f82_tint[mj[q], j]
+                    fior, tint = fiors[q], tints[q]
                     # The Principled layer's colour is its F0 tint: the
                     # Fresnel estimate replaces it; the mix weight stays.
-                    _, fss_q = _principled_fresnel(fm, ucol[q], fior, tint, m[q])
+                    F_q, fss_q = _principled_fresnel(fm, ucol[q], fior, tint, m[q], exts[q],
+                                                     films[q])
                     fss = fss.copy() if fss is ucol else fss
                     fss[q] = fss_q
+                    if fm == FRESNEL_CONDUCTOR or np.any(films[q, 0] > 0.0):
+                        # No table in Cycles for a conductor or a film: the
+                        # Fresnel at the view (bsdf_microfacet_estimate_albedo's
+                        # last case); the others of these rows as below.
+                        film_q = films[q, 0] > 0.0 if fm != FRESNEL_CONDUCTOR \
+                            else np.ones(q.size, bool)
+                        a_r[q[film_q]] = w[q[film_q]] * F_q[film_q]
+                        q = q[~film_q]
+                        if q.size == 0:
+                            continue
+                        fior, tint = fiors[q], tints[q]
                     if fm == FRESNEL_DIELECTRIC:
                         f0 = np.clip(f0_from_ior(fior)[:, None] * ucol[q], 0.0, 1.0)
                         s = schlick_s(rough[q], m[q], fior)[:, None]

@@ -12,11 +12,12 @@ import numpy as np
 
 from ..mathutil import LUMINANCE, dot as _dot, frame
 from ..scene.model import DIFFUSE, GLASS, GLOSSY, REFRACTION, TRANSLUCENT, TRANSPARENT
-from .microfacet import (FRESNEL_DIELECTRIC, FRESNEL_F82, INV_PI, _disk, _microfacet_f,
-                         _microfacet_pdf, _normalize, _principled_fresnel, fresnel_dielectric,
-                         ggx_sample_vndf, oren_nayar_f)
+from .microfacet import (FRESNEL_CONDUCTOR, FRESNEL_DIELECTRIC, FRESNEL_F82, INV_PI, _disk,
+                         _microfacet_f, _microfacet_pdf, _normalize, _principled_fresnel,
+                         fresnel_dielectric, ggx_sample_vndf, oren_nayar_f)
 from .multiscatter import layer_transmission, multiscatter_factor
-from .table import DIFFUSE_ROUGHNESS_EPS, MaterialTable, _selection_probs, seen_weight
+from .table import (DIFFUSE_ROUGHNESS_EPS, MaterialTable, _selection_probs, fresnel_params,
+                    seen_weight)
 
 
 # --------------------------------------------------------------------------
@@ -88,7 +89,8 @@ def _lobe_f(kind, col, ucol, rough, eta, N, v, l, Ng, ms=None, ext=None):
     Ng: (k, 3) the geometric normal oriented like N (the microfacet lobes'
     side test, :func:`microfacet._microfacet_f`).
     ext: dict of Principled-layer arrays for these points (or None):
-      'weight' (k,), 'fresnel' (k,), 'fresnel_ior' (k,), 'f82_tint' (k, 3),
+      'weight' (k,), 'fresnel' (k,), 'fresnel_ior' (k,), 'f82_tint' (k, 3)
+      'conductor_k' (k, 3) and 'thin_film' (k, 2) (``table.fresnel_params``),
       'layer_ior', 'layer_f0', 'layer_roughness' (k,)."""
     if kind == DIFFUSE:
         lam = rough < DIFFUSE_ROUGHNESS_EPS
@@ -100,7 +102,7 @@ def _lobe_f(kind, col, ucol, rough, eta, N, v, l, Ng, ms=None, ext=None):
             lay = ext["layer_ior"] > 0
             f[lay] *= layer_transmission(ext["layer_f0"][lay], ext["layer_roughness"][lay],
                                          ext["layer_ior"][lay], _dot(N[lay], v[lay]),
-                                         ext["layer_ms"][lay])[:, None]
+                                         ext["layer_ms"][lay], ext["thin_film"][lay])[:, None]
         return f
     if kind == TRANSLUCENT:
         return col * (INV_PI * (_dot(N, l) < 0.0))[:, None]
@@ -111,13 +113,14 @@ def _lobe_f(kind, col, ucol, rough, eta, N, v, l, Ng, ms=None, ext=None):
         fss = ucol
         if kind == GLOSSY and ext is not None and (ext["fresnel"] > 0).any():
             fss = ucol.copy()
-            for mode in (FRESNEL_DIELECTRIC, FRESNEL_F82):
+            for mode in (FRESNEL_DIELECTRIC, FRESNEL_F82, FRESNEL_CONDUCTOR):
                 q = ext["fresnel"] == mode
                 if not q.any():
                     continue
                 H = _normalize(v[q] + l[q])
                 F, fss[q] = _principled_fresnel(mode, ucol[q], ext["fresnel_ior"][q],
-                                                ext["f82_tint"][q], _dot(H, v[q]))
+                                                ext["f82_tint"][q], _dot(H, v[q]),
+                                                ext["conductor_k"][q], ext["thin_film"][q])
                 # The colour is F0 / tint: Fresnel replaces it, the mix weight stays.
                 f[q] = ext["weight"][q, None] * F * fs[q, None]
         if ms is not None and ms.any() and kind != REFRACTION:
@@ -234,8 +237,9 @@ def _eval_nd(table, mat, colors, N, front_v, v, l, Ng, Ng_bump=None):
         ext = None
         if table.fresnel is not None and ((table.fresnel[mj, j] > 0).any()
                                           or (table.layer_ior[mj, j] > 0).any()):
-            ext = {"weight": wseen, "fresnel": table.fresnel[mj, j],
-                   "fresnel_ior": table.fresnel_ior[mj, j], "f82_tint": table.f82_tint[mj, j],
+            fm_, fior_, tint_, k_, film_ = fresnel_params(table, mj, j)
+            ext = {"weight": wseen, "fresnel": fm_, "fresnel_ior": fior_, "f82_tint": tint_,
+                   "conductor_k": k_, "thin_film": film_,
                    "layer_ior": table.layer_ior[mj, j], "layer_f0": table.layer_f0[mj, j],
                    "layer_roughness": table.layer_roughness[mj, j],
                    "layer_ms": table.layer_ms[mj, j]}
@@ -452,14 +456,14 @@ def _sample_general(table, mat, colors, n_s, n_g, wo, u, subset, mode):
                     # Principled layers at roughness 0: colour is tint / F0, the
                     # Fresnel at h = n scales the mix weight (E = 1: no multiscatter).
                     mj, jj = mat[idx], j_sel[idx]
-                    fm = table.fresnel[mj, jj]
-                    for mode_f in (FRESNEL_DIELECTRIC, FRESNEL_F82):
+                    fm, fior_, tint_, k_, film_ = fresnel_params(table, mj, jj)
+                    for mode_f in (FRESNEL_DIELECTRIC, FRESNEL_F82, FRESNEL_CONDUCTOR):
                         q = fm == mode_f
                         if q.any():
                             wq = seen_weight(table, mj[q], jj[q], np.abs(hwo[q]))
                             C = dw[q] / np.where(wq != 0, wq, 1.0)[:, None]
-                            F, _ = _principled_fresnel(mode_f, C, table.fresnel_ior[mj[q], jj[q]],
-                                                       table.f82_tint[mj[q], jj[q]], hwo[q])
+                            F, _ = _principled_fresnel(mode_f, C, fior_[q], tint_[q], hwo[q],
+                                                       k_[q], film_[q])
                             dw[q] = wq[:, None] * F
                 if mode == "importance":
                     # Adjoint of Cycles' unscaled BTDF: (n_wo / n_wi)^2 = 1/eta^2.

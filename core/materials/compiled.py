@@ -32,30 +32,33 @@ from numba import njit
 from .._numba_options import NO_REFCOUNTS
 from ..scene.model import (DIFFUSE, GLASS, GLOSSY, REFRACTION, TRANSLUCENT, TRANSPARENT,
                            VIEW_SAMPLES)
-from .microfacet import FRESNEL_DIELECTRIC, FRESNEL_F82, INV_PI
+from .microfacet import (F82_COS, F82_F as _F82_F, F82_F5 as _F82_F5, FRESNEL_CONDUCTOR,
+                         FRESNEL_DIELECTRIC, FRESNEL_F82, INV_PI)
 from .multiscatter import _lerp_index, _ms_glass_slice, _ms_tables, _schlick_s_slice
 from .table import DIFFUSE_ROUGHNESS_EPS
+from .thin_film import TABLE_SIZE as _N_FILM, THICKNESS_CUTOFF, sensitivity_table
+from .thin_film_kernels import iridescence
 
-# microfacet._principled_fresnel's f = 6/7 and f^5 (Python's pow, as there).
-_F82_F = 6.0 / 7.0
-_F82_F5 = _F82_F ** 5
 # Sizes of Cycles' albedo tables (multiscatter.py).
 _N_GGX, _N_GLASS, _N_S = 32, 16, 16
 
 
 # Columns of CompiledMaterials.lobes (per material and slot, float64).
 F_KIND, F_ND, F_W, F_ROUGH, F_A2, F_IOR, F_MS, F_FRES, F_FIOR = range(9)
-F_TINT = 9                     # 9, 10, 11: f82_tint RGB
+F_TINT = 9                     # 9, 10, 11: f82_tint RGB, or a conductor's IOR n
 F_LIOR, F_LF0, F_LROUGH, F_LMS, F_BUMP = 12, 13, 14, 15, 16
 F_VIEW = 17                    # 1 + the offset in tables of the lobe's view factor (Lobe.view), 0 none
-N_FIELDS = 18
+F_K = 18                       # 18, 19, 20: a conductor's extinction k
+F_FILM_D, F_FILM_N = 21, 22    # a thin film's thickness (nm; 0 none) and IOR (a layer's, on a DIFFUSE)
+N_FIELDS = 23
 # Offsets of the albedo tables in CompiledMaterials.tables (flat, C order).
 T_GGX_E = 0                                    # (32, 32) [rough, mu]
 T_GGX_EAVG = T_GGX_E + _N_GGX * _N_GGX         # (32,) [rough]
 T_GLASS_E = T_GGX_EAVG + _N_GGX                # (2, 16, 16, 16) [1/ior?, ior node, rough, mu]
 T_GLASS_EAVG = T_GLASS_E + 2 * _N_GLASS ** 3   # (2, 16, 16) [1/ior?, ior node, rough]
 T_S = T_GLASS_EAVG + 2 * _N_GLASS ** 2         # (16, 16, 16) [ior node, rough, mu]
-N_TABLES = T_S + _N_S ** 3
+T_FILM = T_S + _N_S ** 3                       # (6, 512) thin_film.sensitivity_table
+N_TABLES = T_FILM + 6 * _N_FILM
 # After them: the view factors' rows (VIEW_SAMPLES each, MaterialTable.view_tab).
 
 
@@ -69,10 +72,12 @@ class CompiledMaterials(NamedTuple):
     kind (-1 unused), nd (1: used and not delta), mix weight, roughness,
     GGX alpha^2 = roughness^4 (computed by numpy: its pow differs from
     libm's in the last bit for ~5 % of values, and numpy's is the oracle's),
-    ior, Multiscatter GGX (0 / 1), FRESNEL_*, fresnel_ior, f82_tint RGB,
-    layer_ior, layer_f0, layer_roughness, layer_ms, and the material's
-    Normal Map / Bump flag (normal tilt, diffuse bump shadowing) in every
-    slot.  Absent optional table fields take what the numpy code assumes.
+    ior, Multiscatter GGX (0 / 1), FRESNEL_*, fresnel_ior, f82_tint RGB
+    (FRESNEL_CONDUCTOR: its IOR n), layer_ior, layer_f0, layer_roughness,
+    layer_ms, the material's Normal Map / Bump flag (normal tilt, diffuse
+    bump shadowing) in every slot, the view factor's offset and a
+    FRESNEL_CONDUCTOR's extinction k RGB, a thin film's thickness and IOR
+    (a DIFFUSE lobe's: its specular layer's).  Absent optional table fields take what the numpy code assumes.
     tables (N_TABLES,) float64: the albedo tables at the T_* offsets; only
     the ior nodes some lobe reads are filled (the rest are zero)."""
     lobes: np.ndarray
@@ -123,6 +128,12 @@ def compile_materials(table) -> CompiledMaterials:
                    (F_BUMP, _bump_codes(table)[:, None])):
         lo[:, :, col] = a
     lo[:, :, F_TINT:F_TINT + 3] = opt("f82_tint", 1.0, (M, L, 3))
+    if getattr(table, "thin_film", None) is not None:
+        lo[:, :, F_FILM_D:F_FILM_N + 1] = table.thin_film
+    cond = opt("fresnel", 0.0) == FRESNEL_CONDUCTOR
+    if cond.any():
+        lo[cond, F_TINT:F_TINT + 3] = np.asarray(table.conductor_n, np.float64)[cond]
+        lo[cond, F_K:F_K + 3] = np.asarray(table.conductor_k, np.float64)[cond]
     vl = getattr(table, "view_lut", None)
     nv = 0 if vl is None else len(table.view_tab)
     if nv:
@@ -132,10 +143,11 @@ def compile_materials(table) -> CompiledMaterials:
         tabs[N_TABLES:] = np.concatenate([np.asarray(r, np.float64) for r in table.view_tab])
     E, Eavg = _ms_tables()
     tabs[T_GGX_E:T_GGX_EAVG] = E.ravel()
+    tabs[T_FILM:N_TABLES] = sensitivity_table()
     tabs[T_GGX_EAVG:T_GLASS_E] = Eavg
     gE = tabs[T_GLASS_E:T_GLASS_EAVG].reshape(2, _N_GLASS, _N_GLASS, _N_GLASS)
     gA = tabs[T_GLASS_EAVG:T_S].reshape(2, _N_GLASS, _N_GLASS)
-    sT = tabs[T_S:N_TABLES].reshape(_N_S, _N_S, _N_S)
+    sT = tabs[T_S:T_FILM].reshape(_N_S, _N_S, _N_S)
     # Glass: multiscatter_factor reads (1/ior?, node) for eta = ior entering
     # and 1/ior leaving; it folds eta < 1 to 1/eta, as here.
     g = (lo[:, :, F_MS] > 0) & nd & (kind == GLASS)
@@ -309,16 +321,22 @@ def _ggx_albedo(T, rough, mu):
 
 
 @njit(cache=True, error_model="numpy", **NO_REFCOUNTS)
-def _layer_transmission(T, f0, rough, ior, mu, ms):
-    """multiscatter.layer_transmission for one point."""
-    z = math.sqrt(abs((ior - 1.0) / (ior + 1.0)))
-    k, tk = _lerp(z, _N_S)
-    i, ti = _lerp(rough, _N_S)
-    j, tj = _lerp(mu, _N_S)
-    s = 0.0
-    s += (1 - tk) * _bilerp(T, T_S + k * _N_S * _N_S, _N_S, i, ti, j, tj)
-    s += tk * _bilerp(T, T_S + (k + 1) * _N_S * _N_S, _N_S, i, ti, j, tj)
-    A = f0 + (1.0 - f0) * s
+def _layer_transmission(T, f0, rough, ior, mu, ms, fd, fn):
+    """multiscatter.layer_transmission for one point (a film of thickness
+    fd and IOR fn on the layer: its Fresnel at mu, the largest channel)."""
+    if fd > THICKNESS_CUTOFF:
+        A = 0.0
+        for ch in range(3):
+            A = max(A, _film_dielectric(T, ch, mu, fd, fn, ior, f0))
+    else:
+        z = math.sqrt(abs((ior - 1.0) / (ior + 1.0)))
+        k, tk = _lerp(z, _N_S)
+        i, ti = _lerp(rough, _N_S)
+        j, tj = _lerp(mu, _N_S)
+        s = 0.0
+        s += (1 - tk) * _bilerp(T, T_S + k * _N_S * _N_S, _N_S, i, ti, j, tj)
+        s += tk * _bilerp(T, T_S + (k + 1) * _N_S * _N_S, _N_S, i, ti, j, tj)
+        A = f0 + (1.0 - f0) * s
     if ms:
         F0 = _f0(ior)
         s_ss = _clip01((_fss(ior) - F0) / max(1.0 - F0, 1e-12))
@@ -374,6 +392,31 @@ def _f82_channel(C, tint, c):
     sm = _clip01(1.0 - c)
     F = _clip01(F0 + (1.0 - F0) * sm ** 5.0 - B * c * sm ** 6.0)
     return F, F0 + (1.0 - F0) / 21.0 - B / 126.0
+
+
+@njit(cache=True, error_model="numpy")
+def _conductor(c, n, k):
+    """microfacet.conductor_fresnel of one channel (Cycles' fresnel_conductor)."""
+    n2, k2 = n * n, k * k
+    t1 = n2 - k2 - (1.0 - c * c)
+    t2 = math.sqrt(t1 * t1 + (2.0 * n * k) * (2.0 * n * k))
+    u2 = max(0.5 * (t2 + t1), 0.0)
+    v2 = max(0.5 * (t2 - t1), 0.0)
+    u, v = math.sqrt(u2), math.sqrt(v2)
+    a, b = (c - u) ** 2 + v2, (c + u) ** 2 + v2
+    Rs = a / b if b != 0.0 else 0.0
+    t3, t4 = (n2 - k2) * c, 2.0 * n * k * c
+    a, b = (t3 - u) ** 2 + (t4 - v) ** 2, (t3 + u) ** 2 + (t4 + v) ** 2
+    Rp = a / b if b != 0.0 else 0.0
+    return 0.5 * (Rs + Rp)
+
+
+@njit(cache=True, error_model="numpy")
+def _conductor_channel(C, n, k, c):
+    """FRESNEL_CONDUCTOR of microfacet._principled_fresnel, one channel: (F, F_ss)."""
+    F0 = _conductor(1.0, n, k)
+    B = (7.0 / (_F82_F5 * _F82_F)) * (F0 + (1.0 - F0) * _F82_F5 - _conductor(F82_COS, n, k))
+    return C * _conductor(c, n, k), C * _clip01(F0 + (1.0 - F0) / 21.0 - B / 126.0)
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -491,31 +534,129 @@ def _diffuse_lobe(k, rough, c0, c1, c2, u0, u1, u2, nl, nv, lv):
 
 
 @njit(cache=True, error_model="numpy")
-def _microfacet_lobe(k, a2, eta, fm, fi, t0, t1, t2, w, c0, c1, c2, u0, u1, u2,
-                     Nx, Ny, Nz, vx, vy, vz, lx, ly, lz, gl):
+def _microfacet_lobe(T, k, a2, eta, fm, fi, t0, t1, t2, e0, e1, e2, fd, fn, w, c0, c1, c2,
+                     u0, u1, u2, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz, gl):
     """f of one GLOSSY, GLASS or REFRACTION lobe (:func:`_microfacet` times
-    the colour, or the Principled Fresnel fm of a GLOSSY lobe: FRESNEL_DIELECTRIC
-    with Fresnel IOR fi, FRESNEL_F82 with tint t) and the single-scattering
-    Fresnel the multiple-scattering factor reads: (g0, g1, g2, fss0, fss1, fss2)."""
+    the colour, or the Fresnel fm of a GLOSSY lobe: FRESNEL_DIELECTRIC with
+    Fresnel IOR fi, FRESNEL_F82 with tint t, FRESNEL_CONDUCTOR with IOR t
+    and extinction e; under a thin film of thickness fd and IOR fn) and the
+    single-scattering Fresnel the multiple-scattering factor reads: (g0,
+    g1, g2, fss0, fss1, fss2)."""
     fs = _microfacet(k, a2, eta, Nx, Ny, Nz, vx, vy, vz, lx, ly, lz, gl)
     g0, g1, g2 = c0 * fs, c1 * fs, c2 * fs
     fss0, fss1, fss2 = u0, u1, u2
-    if fm == FRESNEL_DIELECTRIC or fm == FRESNEL_F82:
+    if fm != 0:
         hx, hy, hz = _unit(vx + lx, vy + ly, vz + lz)
-        c = _dot3(hx, hy, hz, vx, vy, vz)
-        if fm == FRESNEL_DIELECTRIC:
-            F0 = _f0(fi)
-            s = _clip01((_fresnel(c, fi) - F0) / max(1.0 - F0, 1e-12))
-            s_ss = _clip01((_fss(fi) - F0) / max(1.0 - F0, 1e-12))
-            F_0, fss0 = _schlick_channel(u0, F0, s, s_ss)
-            F_1, fss1 = _schlick_channel(u1, F0, s, s_ss)
-            F_2, fss2 = _schlick_channel(u2, F0, s, s_ss)
-        else:
-            F_0, fss0 = _f82_channel(u0, t0, c)
-            F_1, fss1 = _f82_channel(u1, t1, c)
-            F_2, fss2 = _f82_channel(u2, t2, c)
+        F_0, F_1, F_2, fss0, fss1, fss2 = _fresnel_rgb(
+            T, fm, _dot3(hx, hy, hz, vx, vy, vz), fi, t0, t1, t2, e0, e1, e2, fd, fn,
+            u0, u1, u2)
         g0, g1, g2 = w * F_0 * fs, w * F_1 * fs, w * F_2 * fs
     return g0, g1, g2, fss0, fss1, fss2
+
+
+@njit(cache=True, error_model="numpy")
+def _film_dielectric(T, ch, c, fd, fn, fi, f0):
+    """A Principled specular layer's Fresnel under a thin film, channel ch
+    (Cycles' generalized_schlick_fresnel): the film over a dielectric of
+    IOR fi, scaled towards f0 / F0(fi) (f0 its tinted normal reflectance)
+    as it nears F0(fi)."""
+    F = iridescence(T, T_FILM, ch, c, fd, fn, fi, 0.0, -1.0, False)
+    F0r = _f0(fi)
+    if F0r > 1e-5 and F != 1.0:
+        s = _clip01((F - 1.0) / (F0r - 1.0))
+        F *= 1.0 + (f0 / F0r - 1.0) * s
+    return F
+
+
+@njit(cache=True, error_model="numpy")
+def _film_f82(T, ch, c, fd, fn, C, tint):
+    """An F82-tint metal's Fresnel under a thin film, channel ch (Cycles'
+    microfacet_fresnel: n and k from F0 and F82 read as Gulbrandsen's r
+    and g)."""
+    F0 = _clip01(C)
+    B = (F0 + (1.0 - F0) * _F82_F5) * (7.0 / (_F82_F5 * _F82_F)) * (1.0 - tint)
+    r = min(F0, 0.999)
+    sm = 1.0 - F82_COS
+    g = _clip01(F0 + (1.0 - F0) * sm ** 5 - B * F82_COS * sm ** 6)
+    q = math.sqrt(r)
+    n = (1.0 + q) / (1.0 - q) + g * ((1.0 - r) / (1.0 + r) - (1.0 + q) / (1.0 - q))
+    k = math.sqrt(max((r * (n + 1.0) * (n + 1.0) - (n - 1.0) * (n - 1.0)) / (1.0 - r), 0.0))
+    return iridescence(T, T_FILM, ch, c, fd, fn, n, k, g, True)
+
+
+@njit(cache=True, error_model="numpy")
+def _fresnel_rgb(T, fm, c, fi, t0, t1, t2, e0, e1, e2, fd, fn, u0, u1, u2):
+    """microfacet._principled_fresnel of one point, mode fm (FRESNEL_*, not
+    NONE) at c = h.v, albedo colour u, under a thin film of thickness fd
+    (nm; none below THICKNESS_CUTOFF) and IOR fn: (F0, F1, F2, Fss0, Fss1,
+    Fss2).  The film changes F, not F_ss (Cycles' energy compensation
+    reads the bare Fresnel)."""
+    if fm == FRESNEL_DIELECTRIC:
+        F0 = _f0(fi)
+        s = _clip01((_fresnel(c, fi) - F0) / max(1.0 - F0, 1e-12))
+        s_ss = _clip01((_fss(fi) - F0) / max(1.0 - F0, 1e-12))
+        a0, b0 = _schlick_channel(u0, F0, s, s_ss)
+        a1, b1 = _schlick_channel(u1, F0, s, s_ss)
+        a2, b2 = _schlick_channel(u2, F0, s, s_ss)
+    elif fm == FRESNEL_F82:
+        a0, b0 = _f82_channel(u0, t0, c)
+        a1, b1 = _f82_channel(u1, t1, c)
+        a2, b2 = _f82_channel(u2, t2, c)
+    else:
+        a0, b0 = _conductor_channel(u0, t0, e0, c)
+        a1, b1 = _conductor_channel(u1, t1, e1, c)
+        a2, b2 = _conductor_channel(u2, t2, e2, c)
+    if fd > THICKNESS_CUTOFF:
+        if fm == FRESNEL_DIELECTRIC:
+            F0r = _f0(fi)
+            a0 = _film_dielectric(T, 0, c, fd, fn, fi, _clip01(F0r * u0))
+            a1 = _film_dielectric(T, 1, c, fd, fn, fi, _clip01(F0r * u1))
+            a2 = _film_dielectric(T, 2, c, fd, fn, fi, _clip01(F0r * u2))
+        elif fm == FRESNEL_F82:
+            a0 = _film_f82(T, 0, c, fd, fn, u0, t0)
+            a1 = _film_f82(T, 1, c, fd, fn, u1, t1)
+            a2 = _film_f82(T, 2, c, fd, fn, u2, t2)
+        else:
+            a0 = u0 * iridescence(T, T_FILM, 0, c, fd, fn, t0, e0, -1.0, True)
+            a1 = u1 * iridescence(T, T_FILM, 1, c, fd, fn, t1, e1, -1.0, True)
+            a2 = u2 * iridescence(T, T_FILM, 2, c, fd, fn, t2, e2, -1.0, True)
+    return a0, a1, a2, b0, b1, b2
+
+
+@njit(cache=True, error_model="numpy")
+def _film_rows(T, fm, c, fi, tint, ext, film, u, layer, out):
+    """:func:`_fresnel_rgb`'s F of K points (layer False) or the largest
+    channel of a specular layer's film Fresnel (layer True: u[:, 0] its
+    tinted F0) into out (K, 3)."""
+    for i in range(c.shape[0]):
+        if layer:
+            A = 0.0
+            for ch in range(3):
+                A = max(A, _film_dielectric(T, ch, c[i], film[i, 0], film[i, 1], fi[i], u[i, 0]))
+            out[i, 0] = out[i, 1] = out[i, 2] = A
+            continue
+        r = _fresnel_rgb(T, fm[i], c[i], fi[i], tint[i, 0], tint[i, 1], tint[i, 2], ext[i, 0],
+                         ext[i, 1], ext[i, 2], film[i, 0], film[i, 1], u[i, 0], u[i, 1], u[i, 2])
+        out[i, 0], out[i, 1], out[i, 2] = r[0], r[1], r[2]
+
+
+def film_fresnel(fm, c, fi, tint, ext, film, u, layer=False) -> np.ndarray:
+    """(K, 3) float64: the Fresnel of K points under their thin films
+    (``microfacet._principled_fresnel`` and ``multiscatter.layer_transmission``
+    call it for the rows with a film, so that the film's formulas are
+    written once): fm (K,) FRESNEL_*, c, fi (K,), tint, ext (K, 3) as
+    ``table.fresnel_params``, film (K, 2) thickness and IOR, u (K, 3) the
+    albedo colour; layer: a specular layer's largest channel (u[:, 0] its
+    tinted F0), repeated in the three columns."""
+    K = np.shape(c)[0]
+    f = lambda a, n: np.ascontiguousarray(np.broadcast_to(a, (K, n) if n else (K,)),  # noqa: E731
+                                          np.float64)
+    out = np.empty((K, 3))
+    tabs = np.zeros(N_TABLES)
+    tabs[T_FILM:] = sensitivity_table()
+    _film_rows(tabs, np.ascontiguousarray(np.broadcast_to(fm, (K,)), np.int64), f(c, 0),
+               f(fi, 0), f(tint, 3), f(ext, 3), f(film, 2), f(u, 3), bool(layer), out)
+    return out
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -569,8 +710,9 @@ def eval_pair_as(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy,
             g0, g1, g2 = _diffuse_lobe(k, rough, c0, c1, c2, u0, u1, u2, nl, nv,
                                        _dot3(lx, ly, lz, vx, vy, vz))
             if k == DIFFUSE and lobes[m, j, F_LIOR] > 0.0:
-                q = _layer_transmission(T, lobes[m, j, F_LF0], lobes[m, j, F_LROUGH], lobes[m, j, F_LIOR], nv,
-                                        lobes[m, j, F_LMS] > 0.0)
+                q = _layer_transmission(T, lobes[m, j, F_LF0], lobes[m, j, F_LROUGH],
+                                        lobes[m, j, F_LIOR], nv, lobes[m, j, F_LMS] > 0.0,
+                                        lobes[m, j, F_FILM_D], lobes[m, j, F_FILM_N])
                 g0, g1, g2 = g0 * q, g1 * q, g2 * q
             if bump and lobes[m, 0, F_BUMP] < 1.5:
                 q = _bump_shadowing(Gx, Gy, Gz, Nx, Ny, Nz, lx, ly, lz)
@@ -584,8 +726,10 @@ def eval_pair_as(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy,
             eta = ior if front else 1.0 / ior
             fm = int(lobes[m, j, F_FRES]) if k == GLOSSY else 0
             g0, g1, g2, fss0, fss1, fss2 = _microfacet_lobe(
-                k, lobes[m, j, F_A2], eta, fm, lobes[m, j, F_FIOR], lobes[m, j, F_TINT],
-                lobes[m, j, F_TINT + 1], lobes[m, j, F_TINT + 2], w, c0, c1, c2, u0, u1, u2,
+                T, k, lobes[m, j, F_A2], eta, fm, lobes[m, j, F_FIOR], lobes[m, j, F_TINT],
+                lobes[m, j, F_TINT + 1], lobes[m, j, F_TINT + 2], lobes[m, j, F_K],
+                lobes[m, j, F_K + 1], lobes[m, j, F_K + 2], lobes[m, j, F_FILM_D],
+                lobes[m, j, F_FILM_N], w, c0, c1, c2, u0, u1, u2,
                 Nx, Ny, Nz, vx, vy, vz, lx, ly, lz, gl)
             if lobes[m, j, F_MS] > 0.0 and k != REFRACTION:
                 E, Eavg = _ms_albedo(T, k, rough, eta, nv)
@@ -987,23 +1131,18 @@ def sample_pair(lobes, T, colors, p, cdf, last, m, r, nsx, nsy, nsz, ngx, ngy, n
         if delta:
             d0, d1, d2 = c0, c1, c2
             fm = int(lobes[m, j, F_FRES]) if k == GLOSSY else 0
-            if fm == FRESNEL_DIELECTRIC or fm == FRESNEL_F82:
-                # Principled layer at roughness 0: colour is tint / F0, the
-                # Fresnel at h = n scales the mix weight (closures._sample_general).
+            if fm != 0:
+                # Principled layer or Metallic BSDF at roughness 0: colour is
+                # tint / F0, the Fresnel at h = n scales the mix weight
+                # (closures._sample_general).
                 w = _seen_w(lobes, T, m, j, hwo)
                 dv = w if w != 0 else 1.0
-                if fm == FRESNEL_DIELECTRIC:
-                    fi = lobes[m, j, F_FIOR]
-                    F0 = _f0(fi)
-                    sf = _clip01((_fresnel(hwo, fi) - F0) / max(1.0 - F0, 1e-12))
-                    s_ss = _clip01((_fss(fi) - F0) / max(1.0 - F0, 1e-12))
-                    d0 = w * _schlick_channel(d0 / dv, F0, sf, s_ss)[0]
-                    d1 = w * _schlick_channel(d1 / dv, F0, sf, s_ss)[0]
-                    d2 = w * _schlick_channel(d2 / dv, F0, sf, s_ss)[0]
-                else:
-                    d0 = w * _f82_channel(d0 / dv, lobes[m, j, F_TINT], hwo)[0]
-                    d1 = w * _f82_channel(d1 / dv, lobes[m, j, F_TINT + 1], hwo)[0]
-                    d2 = w * _f82_channel(d2 / dv, lobes[m, j, F_TINT + 2], hwo)[0]
+                F_ = _fresnel_rgb(T, fm, hwo, lobes[m, j, F_FIOR], lobes[m, j, F_TINT],
+                                  lobes[m, j, F_TINT + 1], lobes[m, j, F_TINT + 2],
+                                  lobes[m, j, F_K], lobes[m, j, F_K + 1], lobes[m, j, F_K + 2],
+                                  lobes[m, j, F_FILM_D], lobes[m, j, F_FILM_N],
+                                  d0 / dv, d1 / dv, d2 / dv)
+                d0, d1, d2 = w * F_[0], w * F_[1], w * F_[2]
             if refr and not radiance:
                 # Adjoint of Cycles' unscaled BTDF: (n_wo / n_wi)^2 = 1/eta^2.
                 e2 = eta * eta

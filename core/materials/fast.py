@@ -8,7 +8,8 @@ and handed back to ``core.materials.sample_bsdf`` by the caller):
 - LAMBERT: every used lobe is DIFFUSE with roughness 0, no texture, no delta
   lobe.  Cosine sampling; weight = sum of lobe colours x Veach's
   shading-normal factor (``bsdf.sample_bsdf`` fast path).
-- MIRROR: a single used lobe, GLOSSY and delta (alpha^2 <= 2e-10), no texture.
+- MIRROR: a single used lobe, GLOSSY and delta (alpha^2 <= 2e-10), no texture,
+  no Fresnel (a Principled metal or Metallic BSDF at roughness 0 is GENERIC).
 - GLASS: a single used lobe, GLASS and delta (smooth, or |ior - 1| < 1e-4),
   no texture.  Reflect with probability F (exact dielectric Fresnel), weight
   C (/eta^2 on refraction, the importance-mode adjoint), x shading factor.
@@ -127,6 +128,8 @@ def build_fast_materials(mtab) -> FastMaterials:
         elif len(used) == 1 and mtab.lobe_delta[m, used[0]]:
             j = used[0]
             if kinds[j] == GLOSSY:
+                if mtab.fresnel is not None and mtab.fresnel[m, j] != 0:
+                    continue            # a Fresnel of the angle (Principled, Metallic BSDF)
                 cls[m] = MIRROR
             elif kinds[j] == GLASS:
                 cls[m] = SMOOTH_GLASS

@@ -17,8 +17,13 @@ from ..scene.model import GLASS, GLOSSY, REFRACTION
 
 INV_PI = 1.0 / np.pi
 
-# GLOSSY Fresnel modes (Principled BSDF layers).
-FRESNEL_NONE, FRESNEL_DIELECTRIC, FRESNEL_F82 = 0, 1, 2
+# GLOSSY Fresnel modes (Principled BSDF layers; the Metallic BSDF's two).
+FRESNEL_NONE, FRESNEL_DIELECTRIC, FRESNEL_F82, FRESNEL_CONDUCTOR = 0, 1, 2, 3
+
+# F82's angle: cos = 1/7 (~82 degrees), f = 1 - 1/7 and f^5 (Python's pow).
+F82_COS = 1.0 / 7.0
+F82_F = 6.0 / 7.0
+F82_F5 = F82_F ** 5
 
 
 def f0_from_ior(ior):
@@ -56,7 +61,46 @@ def fresnel_dielectric(cos_i: np.ndarray, eta: np.ndarray):
     return F, np.where(tir, 0.0, cos_t)
 
 
-def _principled_fresnel(mode, C, fior, tint, cos_hv):
+def conductor_fresnel(cos_i, n, k):
+    """Cycles' ``fresnel_conductor``: the unpolarised reflectance (..., 3) of a
+    conductor of complex IOR n + ik (..., 3) from air, the mean of the s and
+    p reflectances (Born & Wolf 14.4.1), at cos_i (...,) or (..., 1)."""
+    c = np.asarray(cos_i, np.float64)
+    c = c[..., None] if c.ndim == np.ndim(n) - 1 else c
+    n2, k2 = n * n, k * k
+    t1 = n2 - k2 - (1.0 - c * c)
+    t2 = np.sqrt(t1 * t1 + (2.0 * n * k) ** 2)
+    u2 = np.maximum(0.5 * (t2 + t1), 0.0)
+    v2 = np.maximum(0.5 * (t2 - t1), 0.0)
+    u, v = np.sqrt(u2), np.sqrt(v2)
+
+    def ratio(a, b):                       # Cycles' safe_divide
+        return np.where(b != 0.0, a / np.where(b != 0.0, b, 1.0), 0.0)
+    Rs = ratio((c - u) ** 2 + v2, (c + u) ** 2 + v2)
+    t3, t4 = (n2 - k2) * c, 2.0 * n * k * c
+    Rp = ratio((t3 - u) ** 2 + (t4 - v) ** 2, (t3 + u) ** 2 + (t4 + v) ** 2)
+    return 0.5 * (Rs + Rp)
+
+
+def f82_b(F0, F82):
+    """Cycles' ``fresnel_f82_B``: the F82 model's B from its values at 0 and ~82 degrees."""
+    return (7.0 / (F82_F5 * F82_F)) * (F0 + (1.0 - F0) * F82_F5 - F82)
+
+
+def f82_fss(F0, B):
+    """Cycles' ``fresnel_f82_Fss``: the F82 model's hemispherical average 2 ∫ F mu dmu."""
+    return F0 + (1.0 - F0) / 21.0 - B / 126.0
+
+
+def conductor_fss(n, k):
+    """Cycles' ``fresnel_conductor_Fss`` (..., 3): the F82 model fitted to the
+    conductor at 0 and ~82 degrees, its average, clamped to [0, 1]."""
+    F0 = conductor_fresnel(np.ones(np.shape(n)[:-1]), n, k)
+    return np.clip(f82_fss(F0, f82_b(F0, conductor_fresnel(np.full(np.shape(n)[:-1], F82_COS),
+                                                            n, k))), 0.0, 1.0)
+
+
+def _principled_fresnel(mode, C, fior, tint, cos_hv, k=None, film=None):
     """Per-channel Fresnel (k, 3) of a Principled layer and its F_ss (k, 3).
 
     FRESNEL_DIELECTRIC: generalised Schlick with exponent -ior, f0 = F0 C,
@@ -64,7 +108,32 @@ def _principled_fresnel(mode, C, fior, tint, cos_hv):
     Cycles' Fss fit for s.  FRESNEL_F82: F82-tint conductor, F0 = sat(C),
     F = sat(mix(F0, 1, (1-c)^5) - B c (1-c)^6),
     B = mix(F0, 1, f^5) 7/f^6 (1 - tint), f = 6/7; F_ss = mix(F0, 1, 1/21) - B/126.
+    FRESNEL_CONDUCTOR (the Metallic BSDF's Physical Conductor): ``tint`` is
+    the IOR n and ``k`` the extinction (k, 3); F = :func:`conductor_fresnel`
+    times C, F_ss = :func:`conductor_fss` times C (C = 1: the lobe's
+    colour is its mix weight).
+    film (k, 2): a thin film's thickness (nm) and IOR over the surface
+    (core.materials.thin_film): where it is thicker than THICKNESS_CUTOFF,
+    F is the film's (``compiled.film_fresnel``); F_ss stays the bare one
+    (Cycles' energy compensation reads it).
     """
+    F, Fss = _bare_fresnel(mode, C, fior, tint, cos_hv, k)
+    if film is not None:
+        from .thin_film import THICKNESS_CUTOFF
+        q = np.asarray(film)[:, 0] > THICKNESS_CUTOFF
+        if q.any():
+            from .compiled import film_fresnel
+            ext = np.zeros(np.shape(C)) if k is None else k
+            F = F.copy()
+            F[q] = film_fresnel(mode, cos_hv[q], np.broadcast_to(fior, q.shape)[q],
+                                np.broadcast_to(tint, np.shape(C))[q], ext[q], film[q], C[q])
+    return F, Fss
+
+
+def _bare_fresnel(mode, C, fior, tint, cos_hv, k):
+    """:func:`_principled_fresnel` without a film."""
+    if mode == FRESNEL_CONDUCTOR:
+        return (C * conductor_fresnel(cos_hv, tint, k), C * conductor_fss(tint, k))
     if mode == FRESNEL_DIELECTRIC:
         F0 = f0_from_ior(fior)[:, None]
         f0 = np.clip(F0 * C, 0.0, 1.0)
@@ -73,13 +142,11 @@ def _principled_fresnel(mode, C, fior, tint, cos_hv):
         s_ss = np.clip((_fss_dielectric(fior)[:, None] - F0) / np.maximum(1.0 - F0, 1e-12), 0.0, 1.0)
         return f0 + (1.0 - f0) * s, f0 + (1.0 - f0) * s_ss
     F0 = np.clip(C, 0.0, 1.0)
-    f = 6.0 / 7.0
-    f5 = f ** 5
-    B = (F0 + (1.0 - F0) * f5) * (7.0 / (f5 * f)) * (1.0 - tint)
+    B = (F0 + (1.0 - F0) * F82_F5) * (7.0 / (F82_F5 * F82_F)) * (1.0 - tint)
     c = cos_hv[:, None]
     sm = np.clip(1.0 - c, 0.0, 1.0)
     F = np.clip(F0 + (1.0 - F0) * sm ** 5 - B * c * sm ** 6, 0.0, 1.0)
-    return F, F0 + (1.0 - F0) / 21.0 - B / 126.0
+    return F, f82_fss(F0, B)
 
 
 # --------------------------------------------------------------------------

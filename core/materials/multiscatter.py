@@ -224,15 +224,26 @@ def schlick5_s(rough, mu):
     return _bilerp(_schlick5_s_table(), i, ti, j, tj)
 
 
-def layer_transmission(f0, rough, ior, mu, ms=None):
+def layer_transmission(f0, rough, ior, mu, ms=None, film=None):
     """1 - albedo (k,) of a Principled dielectric specular layer seen at cosine mu.
 
     Cycles' closure_layering_weight: the diffuse below gets 1 - A with the
     layer's bsdf_albedo A = d mix(f0, 1, s), s from the ggx_gen_schlick_ior_s
     table at (roughness, mu, z(ior)), and d = E + F_ms (1 - E) the weight
     change of microfacet_ggx_preserve_energy for Multiscatter GGX (d = 1 for
-    plain GGX).  f0: (k,) max-channel F0 x tint; rough, ior, mu: (k,); ms: (k,) bool."""
+    plain GGX).  f0: (k,) max-channel F0 x tint; rough, ior, mu: (k,); ms: (k,) bool.
+    film (k, 2): a thin film's thickness and IOR on the layer; where there
+    is one, mix(f0, 1, s) is the film's Fresnel at mu, its largest channel
+    (Cycles' bsdf_microfacet_estimate_albedo has no table for films)."""
     A = f0 + (1.0 - f0) * schlick_s(rough, mu, ior)
+    if film is not None:
+        from .thin_film import THICKNESS_CUTOFF
+        q = np.asarray(film)[:, 0] > THICKNESS_CUTOFF
+        if q.any():
+            from .compiled import film_fresnel
+            A = A.copy()
+            A[q] = film_fresnel(0, mu[q], ior[q], 1.0, 0.0, film[q], f0[q, None],
+                                layer=True)[:, 0]
     if ms is not None and np.any(ms):
         F0 = f0_from_ior(ior[ms])
         s_ss = np.clip((_fss_dielectric(ior[ms]) - F0) / np.maximum(1.0 - F0, 1e-12), 0.0, 1.0)

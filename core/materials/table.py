@@ -15,7 +15,9 @@ from ..mathutil import LUMINANCE
 from ..scene.model import DIFFUSE, GLASS, GLOSSY, MAX_LOBES, REFRACTION, TRANSLUCENT, TRANSPARENT
 from ..scene.textures import sample_alpha, sample_texture
 from . import rough_maps
-from .microfacet import FRESNEL_DIELECTRIC, FRESNEL_F82, _fss_dielectric, f0_from_ior
+from .microfacet import (FRESNEL_CONDUCTOR, FRESNEL_DIELECTRIC, FRESNEL_F82, _fss_dielectric,
+                         conductor_fss, f0_from_ior)
+from .thin_film import THICKNESS_CUTOFF
 
 # Cycles ``roughness_is_almost_specular``: alpha_x * alpha_y <= 2e-10.
 SPECULAR_ALPHA2 = 2e-10
@@ -72,6 +74,9 @@ class MaterialTable:
     fresnel: np.ndarray = None          # (M, L) int8 FRESNEL_* (GLOSSY only)
     fresnel_ior: np.ndarray = None      # (M, L) ior of FRESNEL_DIELECTRIC
     f82_tint: np.ndarray = None         # (M, L, 3) tint of FRESNEL_F82
+    conductor_n: np.ndarray = None      # (M, L, 3) IOR n of FRESNEL_CONDUCTOR (None: no such lobe)
+    conductor_k: np.ndarray = None      # (M, L, 3) its extinction k
+    thin_film: np.ndarray = None        # (M, L, 2) a film's thickness (nm) and IOR (None: no film)
     layer_ior: np.ndarray = None        # (M, L) DIFFUSE under a specular layer: its ior (0 = none)
     layer_f0: np.ndarray = None         # (M, L) that layer's max-channel F0
     layer_roughness: np.ndarray = None  # (M, L) that layer's roughness
@@ -121,7 +126,10 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
       ``fresnel_ior``: the colour is the specular tint and f is scaled by
       Cycles' generalised-Schlick Fresnel mix(F0 tint, 1, (F(h.v) - F0)/(1 - F0));
       ``fresnel='F82'`` + ``f82_tint``: the colour is F0 of Cycles' F82-tint
-      conductor; DIFFUSE ``layer_ior``, ``layer_f0``, ``layer_roughness``,
+      conductor; ``fresnel='CONDUCTOR'`` + ``conductor_n``, ``conductor_k``:
+      the colour is the mix weight and f is scaled by the exact Fresnel of a
+      conductor of IOR n + ik (the Metallic BSDF's Physical Conductor);
+      DIFFUSE ``layer_ior``, ``layer_f0``, ``layer_roughness``,
       ``layer_multiscatter``: the diffuse lies under a dielectric specular
       layer and is scaled by 1 - its albedo estimate
       (``closure_layering_weight``), which depends on the view direction.
@@ -145,6 +153,9 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
     fres = np.zeros((M, L), np.int8)
     fior = np.ones((M, L))
     f82t = np.ones((M, L, 3))
+    cn = np.ones((M, L, 3))
+    film = np.zeros((M, L, 2))
+    ck = np.zeros((M, L, 3))
     lior = np.zeros((M, L))
     lf0 = np.zeros((M, L))
     lrough = np.zeros((M, L))
@@ -185,14 +196,25 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
             ms[m, j] = (bool(getattr(lobe, "multiscatter", DEFAULT_MULTISCATTER))
                         and kind[m, j] in (GLOSSY, GLASS) and not delta[m, j])
             fr = str(getattr(lobe, "fresnel", "") or "").upper()
-            if kind[m, j] == GLOSSY and fr in ("DIELECTRIC", "F82"):
-                fres[m, j] = FRESNEL_DIELECTRIC if fr == "DIELECTRIC" else FRESNEL_F82
+            if kind[m, j] == GLOSSY and fr in ("DIELECTRIC", "F82", "CONDUCTOR"):
+                fres[m, j] = {"DIELECTRIC": FRESNEL_DIELECTRIC, "F82": FRESNEL_F82,
+                              "CONDUCTOR": FRESNEL_CONDUCTOR}[fr]
                 fior[m, j] = max(float(getattr(lobe, "fresnel_ior", 1.5)), 1e-5)
                 f82t[m, j] = np.clip(np.asarray(getattr(lobe, "f82_tint", (1.0, 1.0, 1.0)),
                                                 np.float64)[:3], 0.0, 1.0)
                 if fr == "DIELECTRIC":
                     # Selection by the hemispherical Fresnel average (sampling only).
                     sel[m, j] = _fss_dielectric(fior[m, j])
+                if fr == "CONDUCTOR":
+                    # Cycles: max(n, 0), max(k, 0); selection by the mean F_ss.
+                    cn[m, j] = np.maximum(np.asarray(lobe.conductor_n, np.float64)[:3], 0.0)
+                    ck[m, j] = np.maximum(np.asarray(lobe.conductor_k, np.float64)[:3], 0.0)
+                    sel[m, j] = float(np.mean(conductor_fss(cn[m, j], ck[m, j])))
+            if (fres[m, j] or float(getattr(lobe, "layer_ior", 0.0)) > 0.0) \
+                    and float(getattr(lobe, "thin_film_thickness", 0.0)) > THICKNESS_CUTOFF:
+                # Cycles: the film's IOR fmaxf(ior, 1e-5).
+                film[m, j] = (float(lobe.thin_film_thickness),
+                              max(float(getattr(lobe, "thin_film_ior", 1.33)), 1e-5))
             if kind[m, j] == DIFFUSE and float(getattr(lobe, "layer_ior", 0.0)) > 0.0:
                 lior[m, j] = float(lobe.layer_ior)
                 lf0[m, j] = float(getattr(lobe, "layer_f0", f0_from_ior(lior[m, j])))
@@ -216,7 +238,9 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
         has_delta=(used & delta).any(axis=1), has_nondelta=has_nd,
         lambert_only=lambert_lobes & ~bump, lambert_lobes=lambert_lobes,
         textures=textures, multiscatter=ms, fresnel=fres, fresnel_ior=fior,
-        f82_tint=f82t, layer_ior=lior, layer_f0=lf0, layer_roughness=lrough, layer_ms=lms,
+        f82_tint=f82t, conductor_n=cn if (fres == FRESNEL_CONDUCTOR).any() else None,
+        conductor_k=ck if (fres == FRESNEL_CONDUCTOR).any() else None,
+        thin_film=film if (film[..., 0] > 0.0).any() else None, layer_ior=lior, layer_f0=lf0, layer_roughness=lrough, layer_ms=lms,
         sel_scale=sel, alpha_tex=atex, alpha_inv=ainv, bump_correction=bump,
         bump_unshadowed=unshadowed,
         view_lut=vlut if vtab else None, view_tab=vtab if vtab else None), maps)
@@ -345,6 +369,23 @@ def _selection_probs(table, mat, colors, subset):
     w = _selection_weights(table, mat, colors, subset)
     tot = w.sum(axis=1, keepdims=True)
     return np.where(tot > 0, w / np.where(tot > 0, tot, 1.0), 0.0)
+
+
+def fresnel_params(table: MaterialTable, mat: np.ndarray, j) -> tuple:
+    """The Fresnel of lobes (mat, j) (k,) as ``microfacet._principled_fresnel``
+    reads it: (mode (k,) FRESNEL_*, fresnel_ior (k,), tint (k, 3): the
+    F82 tint or a conductor's IOR n, k (k, 3): a conductor's extinction,
+    film (k, 2): a thin film's thickness and IOR, zero thickness none)."""
+    mode = table.fresnel[mat, j]
+    tint = table.f82_tint[mat, j]
+    ext = np.zeros(tint.shape)
+    if table.conductor_n is not None:
+        c = (mode == FRESNEL_CONDUCTOR)[:, None]
+        tint = np.where(c, table.conductor_n[mat, j], tint)
+        ext = np.where(c, table.conductor_k[mat, j], 0.0)
+    film = (np.zeros(mode.shape + (2,)) if getattr(table, "thin_film", None) is None
+            else table.thin_film[mat, j])
+    return mode, table.fresnel_ior[mat, j], tint, ext, film
 
 
 def delta_probability(table: MaterialTable, mat: np.ndarray, colors: np.ndarray) -> np.ndarray:

@@ -53,10 +53,17 @@ class Lobe:
     the defaults are plain single-scattering GGX / Lambert):
     multiscatter: Multiscatter GGX energy compensation (GLOSSY / GLASS; the
       'MULTI_GGX' distribution of the Glossy, Glass and Principled nodes).
-    fresnel: '' | 'DIELECTRIC' | 'F82' (GLOSSY only; the Principled BSDF's
-      layers).  'DIELECTRIC': colour = specular tint, f scaled by the
-      generalised-Schlick Fresnel of ``fresnel_ior``.  'F82': colour = F0 of
-      Cycles' F82-tint conductor with tint ``f82_tint`` (RGB in [0, 1]).
+    fresnel: '' | 'DIELECTRIC' | 'F82' | 'CONDUCTOR' (GLOSSY only; the
+      Principled BSDF's layers, the Metallic BSDF).  'DIELECTRIC': colour =
+      specular tint, f scaled by the generalised-Schlick Fresnel of
+      ``fresnel_ior``.  'F82': colour = F0 of Cycles' F82-tint conductor
+      with tint ``f82_tint`` (RGB in [0, 1]).  'CONDUCTOR': f scaled by the
+      exact Fresnel of a conductor of IOR ``conductor_n`` + i
+      ``conductor_k`` (RGB each; left out of the repr like alpha_texture).
+    thin_film_thickness > 0.1 (nm), thin_film_ior: a thin film over a GLOSSY
+      lobe with a ``fresnel`` (or over a DIFFUSE's specular layer): its
+      Fresnel is the film's (core.materials.thin_film).  Left out of the
+      repr like alpha_texture.
     layer_ior > 0: a DIFFUSE lying under a dielectric specular layer of that
       IOR, normal reflectance ``layer_f0``, roughness ``layer_roughness`` and
       ``layer_multiscatter``, scaled by 1 - the layer's albedo (Cycles'
@@ -95,6 +102,10 @@ class Lobe:
     alpha_invert: bool = field(default=False, repr=False)
     roughness_texture: int = field(default=-1, repr=False)
     view: tuple = field(default=(), repr=False)
+    conductor_n: tuple = field(default=(), repr=False)
+    conductor_k: tuple = field(default=(), repr=False)
+    thin_film_thickness: float = field(default=0.0, repr=False)
+    thin_film_ior: float = field(default=1.33, repr=False)
 
 
 #: Samples of a lobe's view factor over mu = |w_o . n_s| in [0, 1] (Lobe.view).
@@ -507,6 +518,12 @@ def scene_digest(scene: Scene) -> str:
               for j, lb in enumerate(m.lobes) if getattr(lb, "roughness_texture", -1) >= 0]
     extra += [(i, j, "view", lb.view) for i, m in enumerate(scene.materials)
               for j, lb in enumerate(m.lobes) if getattr(lb, "view", ())]
+    extra += [(i, j, "conductor", lb.conductor_n, lb.conductor_k)
+              for i, m in enumerate(scene.materials) for j, lb in enumerate(m.lobes)
+              if getattr(lb, "conductor_n", ())]
+    extra += [(i, j, "film", lb.thin_film_thickness, lb.thin_film_ior)
+              for i, m in enumerate(scene.materials) for j, lb in enumerate(m.lobes)
+              if getattr(lb, "thin_film_thickness", 0.0) > 0.0]
     extra += [(i, "holdout", m.holdout) for i, m in enumerate(scene.materials)
               if getattr(m, "holdout", 0.0)]
     extra += [(i, "absorption", m.absorption) for i, m in enumerate(scene.materials)

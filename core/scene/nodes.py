@@ -87,7 +87,8 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
                         coat_ior=1.5, coat_tint=(1.0, 1.0, 1.0), sheen_weight=0.0,
                         subsurface_weight=0.0, specular_ior_level=0.5,
                         specular_tint=(1.0, 1.0, 1.0), anisotropic=0.0, diffuse_roughness=0.0,
-                        thin_film_thickness=0.0, emission_color=(1.0, 1.0, 1.0),
+                        thin_film_thickness=0.0, thin_film_ior=1.33,
+                        emission_color=(1.0, 1.0, 1.0),
                         emission_strength=0.0, base_color_texture=-1,
                         emission_color_texture=-1, multiscatter=True, alpha_texture=-1,
                         metallic_texture=-1, roughness_texture=-1):
@@ -161,6 +162,12 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
                      "albedo coat*F0 (Cycles: its view-dependent albedo)")
 
     # --- Metallic: GGX with Cycles' F82-tint conductor Fresnel, F0 = base colour.
+    # --- Thin film (Cycles: over the metal and the specular layer, whose
+    # Fresnel becomes the film's; thickness in nm, none below 0.1).
+    film = {}
+    if thin_film_thickness > 0.1:
+        film = dict(thin_film_thickness=float(thin_film_thickness),
+                    thin_film_ior=max(float(thin_film_ior), 1e-5))
     metal = None
     rtex = int(roughness_texture)
     metal_tex = int(metallic_texture)
@@ -169,7 +176,8 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
     if metallic > WEIGHT_CUTOFF:
         metal = make_lobe(GLOSSY, _tup(cbase * w_rgb), weight=metallic * w, roughness=roughness,
                           color_texture=tex, multiscatter=multiscatter, fresnel="F82",
-                          f82_tint=_tup(np.minimum(spec_tint, 1.0)), roughness_texture=rtex)
+                          f82_tint=_tup(np.minimum(spec_tint, 1.0)), roughness_texture=rtex,
+                          **film)
         if not np.allclose(w_rgb, 1.0):
             notes.append("metallic under a tinted coat: the tint scales F0")
         if metal_tex < 0:
@@ -189,6 +197,8 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
                          "transmission (Cycles: reflection untinted)")
         if not np.allclose(spec_tint, 1.0):
             notes.append("specular tint not applied to the transmission lobe's reflection")
+        if film:
+            notes.append("thin-film iridescence on the transmission ignored")
         lobes.append(make_lobe(GLASS, _tup(gcol), weight=transmission * w, roughness=roughness,
                                ior=ior, color_texture=tex, multiscatter=multiscatter,
                                roughness_texture=rtex))
@@ -207,14 +217,15 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
             eta = 1.0 / eta
     spec = None
     layer = {}
-    if eta != 1.0 and w > WEIGHT_CUTOFF:
+    if (eta != 1.0 or film) and w > WEIGHT_CUTOFF:
         spec = make_lobe(GLOSSY, _tup(np.minimum(spec_tint, 1e6) * w_rgb), weight=w,
                          roughness=roughness, multiscatter=multiscatter, fresnel="DIELECTRIC",
-                         fresnel_ior=eta, roughness_texture=rtex)
-        # The diffuse below gets 1 - max_c mix(F0 tint_c, 1, s(view)) (view dependent).
+                         fresnel_ior=eta, roughness_texture=rtex, **film)
+        # The diffuse below gets 1 - max_c mix(F0 tint_c, 1, s(view)) (view
+        # dependent; with a film, the film's Fresnel at the view).
         layer = dict(layer_ior=eta, layer_roughness=roughness,
                      layer_f0=float(min(f0_from_ior(eta) * float(np.max(spec_tint)), 1.0)),
-                     layer_multiscatter=bool(multiscatter), roughness_texture=rtex)
+                     layer_multiscatter=bool(multiscatter), roughness_texture=rtex, **film)
     if spec is not None:
         lobes.append(spec)
 
@@ -237,8 +248,6 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
         lobes.insert(0, coat_lobe)
     if anisotropic > WEIGHT_CUTOFF:
         notes.append(f"anisotropy {anisotropic:g} ignored (isotropic GGX)")
-    if thin_film_thickness > 0.1:
-        notes.append("thin-film iridescence ignored")
 
     if int(alpha_texture) >= 0:
         clear, _ = alpha_scaled([Lobe(TRANSPARENT, (1.0, 1.0, 1.0))], alpha_texture, invert=True)

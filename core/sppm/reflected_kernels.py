@@ -17,7 +17,9 @@ from numba import njit
 # stamped by this file: edited with the microfacet lobes' geometric side
 # test of round 27, with the BSDF evaluation's lobe helpers and reference
 # counts of round 32, with the view factor of round 40 and with the
-# displacement bump's code of round 45 (F_BUMP 2: no bump shadowing).
+# displacement bump's code of round 45 (F_BUMP 2: no bump shadowing) and
+# with the conductor Fresnel of round 46 (F_K, compiled._fresnel_rgb) and
+# thin film (F_FILM_D, F_FILM_N).
 from ..materials.compiled import _dot3, eval_pair
 
 #: Cap of the gathered photon's shading-normal factor (photon_pass._reflected).
