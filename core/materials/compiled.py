@@ -37,7 +37,7 @@ from .microfacet import (F82_COS, F82_F as _F82_F, F82_F5 as _F82_F5, FRESNEL_CO
 from .multiscatter import _lerp_index, _ms_glass_slice, _ms_tables, _schlick_s_slice
 from .table import DIFFUSE_ROUGHNESS_EPS
 from .thin_film import TABLE_SIZE as _N_FILM, THICKNESS_CUTOFF, sensitivity_table
-from .thin_film_kernels import iridescence
+from .thin_film_kernels import _conductor_polarized, iridescence
 
 # Sizes of Cycles' albedo tables (multiscatter.py).
 _N_GGX, _N_GLASS, _N_S = 32, 16, 16
@@ -49,7 +49,7 @@ F_TINT = 9                     # 9, 10, 11: f82_tint RGB, or a conductor's IOR n
 F_LIOR, F_LF0, F_LROUGH, F_LMS, F_BUMP = 12, 13, 14, 15, 16
 F_VIEW = 17                    # 1 + the offset in tables of the lobe's view factor (Lobe.view), 0 none
 F_K = 18                       # 18, 19, 20: a conductor's extinction k
-F_FILM_D, F_FILM_N = 21, 22    # a thin film's thickness (nm; 0 none) and IOR (a layer's, on a DIFFUSE)
+F_FILM_D, F_FILM_N = 21, 22    # a thin film's thickness (nm; 0: none) and IOR (a DIFFUSE's: its layer's)
 N_FIELDS = 23
 # Offsets of the albedo tables in CompiledMaterials.tables (flat, C order).
 T_GGX_E = 0                                    # (32, 32) [rough, mu]
@@ -77,7 +77,8 @@ class CompiledMaterials(NamedTuple):
     layer_ms, the material's Normal Map / Bump flag (normal tilt, diffuse
     bump shadowing) in every slot, the view factor's offset and a
     FRESNEL_CONDUCTOR's extinction k RGB, a thin film's thickness and IOR
-    (a DIFFUSE lobe's: its specular layer's).  Absent optional table fields take what the numpy code assumes.
+    (a DIFFUSE lobe's: its specular layer's).  Absent optional table
+    fields take what the numpy code assumes.
     tables (N_TABLES,) float64: the albedo tables at the T_* offsets; only
     the ior nodes some lobe reads are filled (the rest are zero)."""
     lobes: np.ndarray
@@ -396,19 +397,10 @@ def _f82_channel(C, tint, c):
 
 @njit(cache=True, error_model="numpy")
 def _conductor(c, n, k):
-    """microfacet.conductor_fresnel of one channel (Cycles' fresnel_conductor)."""
-    n2, k2 = n * n, k * k
-    t1 = n2 - k2 - (1.0 - c * c)
-    t2 = math.sqrt(t1 * t1 + (2.0 * n * k) * (2.0 * n * k))
-    u2 = max(0.5 * (t2 + t1), 0.0)
-    v2 = max(0.5 * (t2 - t1), 0.0)
-    u, v = math.sqrt(u2), math.sqrt(v2)
-    a, b = (c - u) ** 2 + v2, (c + u) ** 2 + v2
-    Rs = a / b if b != 0.0 else 0.0
-    t3, t4 = (n2 - k2) * c, 2.0 * n * k * c
-    a, b = (t3 - u) ** 2 + (t4 - v) ** 2, (t3 + u) ** 2 + (t4 + v) ** 2
-    Rp = a / b if b != 0.0 else 0.0
-    return 0.5 * (Rs + Rp)
+    """microfacet.conductor_fresnel of one channel (Cycles' fresnel_conductor):
+    the mean of the s and p reflectances from air."""
+    r = _conductor_polarized(c, 1.0, n, k, -1.0)
+    return 0.5 * (r[0] + r[1])
 
 
 @njit(cache=True, error_model="numpy")
@@ -573,11 +565,8 @@ def _film_f82(T, ch, c, fd, fn, C, tint):
     """An F82-tint metal's Fresnel under a thin film, channel ch (Cycles'
     microfacet_fresnel: n and k from F0 and F82 read as Gulbrandsen's r
     and g)."""
-    F0 = _clip01(C)
-    B = (F0 + (1.0 - F0) * _F82_F5) * (7.0 / (_F82_F5 * _F82_F)) * (1.0 - tint)
-    r = min(F0, 0.999)
-    sm = 1.0 - F82_COS
-    g = _clip01(F0 + (1.0 - F0) * sm ** 5 - B * F82_COS * sm ** 6)
+    r = min(_clip01(C), 0.999)
+    g = _f82_channel(C, tint, F82_COS)[0]
     q = math.sqrt(r)
     n = (1.0 + q) / (1.0 - q) + g * ((1.0 - r) / (1.0 + r) - (1.0 + q) / (1.0 - q))
     k = math.sqrt(max((r * (n + 1.0) * (n + 1.0) - (n - 1.0) * (n - 1.0)) / (1.0 - r), 0.0))

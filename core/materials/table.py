@@ -129,10 +129,13 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
       conductor; ``fresnel='CONDUCTOR'`` + ``conductor_n``, ``conductor_k``:
       the colour is the mix weight and f is scaled by the exact Fresnel of a
       conductor of IOR n + ik (the Metallic BSDF's Physical Conductor);
-      DIFFUSE ``layer_ior``, ``layer_f0``, ``layer_roughness``,
-      ``layer_multiscatter``: the diffuse lies under a dielectric specular
-      layer and is scaled by 1 - its albedo estimate
-      (``closure_layering_weight``), which depends on the view direction.
+      ``thin_film_thickness`` > THICKNESS_CUTOFF and ``thin_film_ior`` on
+      such a lobe or a layered DIFFUSE: its Fresnel (its layer's) is a thin
+      film's over it (core.materials.thin_film); DIFFUSE ``layer_ior``,
+      ``layer_f0``, ``layer_roughness``, ``layer_multiscatter``: the diffuse
+      lies under a dielectric specular layer and is scaled by 1 - its albedo
+      estimate (``closure_layering_weight``), which depends on the view
+      direction.
     textures: list of (H, W, C) float32 images.
     A material with a roughness map (``Lobe.roughness_texture``) has
     ROUGH_LEVELS level rows (``rough_maps.append_levels``; ``rough_first``,
@@ -240,7 +243,8 @@ def build_material_table(materials: list, textures: list) -> MaterialTable:
         textures=textures, multiscatter=ms, fresnel=fres, fresnel_ior=fior,
         f82_tint=f82t, conductor_n=cn if (fres == FRESNEL_CONDUCTOR).any() else None,
         conductor_k=ck if (fres == FRESNEL_CONDUCTOR).any() else None,
-        thin_film=film if (film[..., 0] > 0.0).any() else None, layer_ior=lior, layer_f0=lf0, layer_roughness=lrough, layer_ms=lms,
+        thin_film=film if (film[..., 0] > 0.0).any() else None, layer_ior=lior, layer_f0=lf0,
+        layer_roughness=lrough, layer_ms=lms,
         sel_scale=sel, alpha_tex=atex, alpha_inv=ainv, bump_correction=bump,
         bump_unshadowed=unshadowed,
         view_lut=vlut if vtab else None, view_tab=vtab if vtab else None), maps)

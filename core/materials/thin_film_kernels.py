@@ -7,6 +7,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .microfacet import F82_F, F82_F5
 from .thin_film import TABLE_SIZE, sensitivity_table
 
 
@@ -78,9 +79,7 @@ def _conductor_polarized(c, e1, n, k, F82):
     if F82 >= 0.0:
         nn, kk = n / e1, (k / e1) * (k / e1)
         F0 = ((nn - 1.0) * (nn - 1.0) + kk) / ((nn + 1.0) * (nn + 1.0) + kk)
-        f = 6.0 / 7.0
-        f5 = f * f * f * f * f
-        B = (7.0 / (f5 * f)) * (F0 + (1.0 - F0) * f5 - F82)
+        B = (7.0 / (F82_F5 * F82_F)) * (F0 + (1.0 - F0) * F82_F5 - F82)   # fresnel_f82_B
         Rs = _f82(c, F0, B)
         Rp = Rs
     else:
