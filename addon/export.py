@@ -1223,12 +1223,7 @@ class _MaterialBuilder:
         kind = {'BSDF_GLASS': GLASS, 'BSDF_REFRACTION': REFRACTION}.get(node.type, GLOSSY)
         c, tex = self.color(node, "Color")
         rough, rtex = self.roughness(node)
-        dist = getattr(node, "distribution", 'GGX')
-        if dist not in ('GGX', 'MULTI_GGX') and rough > 0.0:
-            self.notes.append(f"{node.name}: {dist} distribution rendered as GGX")
-        if kind == GLOSSY and node.inputs.get("Anisotropy") is not None \
-                and self.value(node, "Anisotropy") != 0:
-            self.notes.append(f"{node.name}: anisotropy ignored")
+        dist = self.ggx_distribution(node, rough, 'GGX')
         ior = self.value(node, "IOR", 1.45) if kind != GLOSSY else 1.45
         # make_lobe drops multiscatter on REFRACTION (Cycles has no
         # multiscatter refraction-only closure).
@@ -1242,16 +1237,9 @@ class _MaterialBuilder:
         model of F0 = Base Color and tint Edge Tint (the Principled BSDF's
         metal); 'PHYSICAL_CONDUCTOR' the exact Fresnel of IOR + i Extinction."""
         rough, rtex = self.roughness(node)
-        dist = getattr(node, "distribution", 'MULTI_GGX')
-        if dist not in ('GGX', 'MULTI_GGX') and rough > 0.0:
-            self.notes.append(f"{node.name}: {dist} distribution rendered as GGX")
-        if self.value(node, "Anisotropy") != 0:
-            self.notes.append(f"{node.name}: anisotropy ignored")
-        film = {}
-        d = self.value(node, "Thin Film Thickness")
-        if d > 0.1:         # (Cycles: THINFILM_THICKNESS_CUTOFF)
-            film = dict(thin_film_thickness=d,
-                        thin_film_ior=max(self.value(node, "Thin Film IOR", 1.33), 1e-5))
+        dist = self.ggx_distribution(node, rough, 'MULTI_GGX')
+        film = shading.thin_film(self.value(node, "Thin Film Thickness"),
+                                 self.value(node, "Thin Film IOR", 1.33))
         if getattr(node, "fresnel_type", 'F82') == 'PHYSICAL_CONDUCTOR':
             return shading.make_lobe(GLOSSY, (1.0, 1.0, 1.0), 1.0, rough,
                                      multiscatter=dist == 'MULTI_GGX', roughness_texture=rtex,
@@ -1264,6 +1252,17 @@ class _MaterialBuilder:
         return shading.make_lobe(GLOSSY, np.minimum(c, 1.0), 1.0, rough, color_texture=tex,
                                  multiscatter=dist == 'MULTI_GGX', roughness_texture=rtex,
                                  fresnel="F82", f82_tint=tuple(np.clip(tint, 0.0, 1.0)), **film)
+
+    def ggx_distribution(self, node, rough, default) -> str:
+        """A microfacet node's distribution, with the notes of what FPPM
+        renders otherwise: Beckmann and Ashikhmin-Shirley as GGX of the same
+        roughness (they coincide at roughness 0), an Anisotropy as isotropic."""
+        dist = getattr(node, "distribution", default)
+        if dist not in ('GGX', 'MULTI_GGX') and rough > 0.0:
+            self.notes.append(f"{node.name}: {dist} distribution rendered as GGX")
+        if node.inputs.get("Anisotropy") is not None and self.value(node, "Anisotropy") != 0:
+            self.notes.append(f"{node.name}: anisotropy ignored")
+        return dist
 
     def vector_value(self, node, name) -> tuple:
         """A vector input's value (3 floats): its own, or with a link the

@@ -395,11 +395,17 @@ def two_seeds(sc, scene, render, tmp_path, samples=CYCLES_SAMPLES, key=None, mas
             _CYCLES_PAIRS[key, samples] = (c1, c2)
     a1, a2 = render(scene, 1), render(scene, 2)
     ref, img = (c1 + c2) / 2, (a1 + a2) / 2
-    m = (lambda a: a) if mask is None else (lambda a: a[mask])  # noqa: E731
+    m = _masked(mask)
     mean = m(ref).mean()
     err = np.abs(m(img - ref)).mean() / mean
     noise = (np.abs(m(a1 - a2)).mean() + np.abs(m(c1 - c2)).mean()) / 2 / mean
     return err, noise, img, ref
+
+
+def _masked(mask):
+    """The pixels of an (H, W, ...) image the means are taken over: all
+    (mask None) or the (H, W) bool mask's."""
+    return (lambda a: a) if mask is None else (lambda a: a[mask])
 
 
 def agrees_with_cycles(sc, scene, integrator, tmp_path, without, label, key=None, passes=12,
@@ -414,7 +420,7 @@ def agrees_with_cycles(sc, scene, integrator, tmp_path, without, label, key=None
     err, noise, img, ref = two_seeds(
         sc, scene, lambda s, seed: render_integrator(s, integrator, seed, passes=passes),
         tmp_path, 256, key, mask)
-    m = (lambda a: a) if mask is None else (lambda a: a[mask])  # noqa: E731
+    m = _masked(mask)
     effect = np.abs(m(render_integrator(without, integrator, 1,
                                         passes=EFFECT_PASSES * passes // 12)
                       - ref)).mean() / m(ref).mean()

@@ -102,17 +102,15 @@ def closure_albedos(table: MaterialTable, mat: np.ndarray, colors: np.ndarray, m
                                                      films[q])
                     fss = fss.copy() if fss is ucol else fss
                     fss[q] = fss_q
-                    if fm == FRESNEL_CONDUCTOR or np.any(films[q, 0] > 0.0):
-                        # No table in Cycles for a conductor or a film: the
-                        # Fresnel at the view (bsdf_microfacet_estimate_albedo's
-                        # last case); the others of these rows as below.
-                        film_q = films[q, 0] > 0.0 if fm != FRESNEL_CONDUCTOR \
-                            else np.ones(q.size, bool)
-                        a_r[q[film_q]] = w[q[film_q]] * F_q[film_q]
-                        q = q[~film_q]
-                        if q.size == 0:
-                            continue
-                        fior, tint = fiors[q], tints[q]
+                    # No table in Cycles for a conductor or a film: the
+                    # Fresnel at the view (bsdf_microfacet_estimate_albedo's
+                    # last case); the others from the tables below.
+                    at_view = (films[q, 0] > 0.0) | (fm == FRESNEL_CONDUCTOR)
+                    a_r[q[at_view]] = w[q[at_view]] * F_q[at_view]
+                    q = q[~at_view]
+                    if q.size == 0:
+                        continue
+                    fior, tint = fiors[q], tints[q]
                     if fm == FRESNEL_DIELECTRIC:
                         f0 = np.clip(f0_from_ior(fior)[:, None] * ucol[q], 0.0, 1.0)
                         s = schlick_s(rough[q], m[q], fior)[:, None]

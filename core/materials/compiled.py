@@ -629,6 +629,9 @@ def _film_rows(T, fm, c, fi, tint, ext, film, u, layer, out):
         out[i, 0], out[i, 1], out[i, 2] = r[0], r[1], r[2]
 
 
+_FILM_TABLES = None
+
+
 def film_fresnel(fm, c, fi, tint, ext, film, u, layer=False) -> np.ndarray:
     """(K, 3) float64: the Fresnel of K points under their thin films
     (``microfacet._principled_fresnel`` and ``multiscatter.layer_transmission``
@@ -641,9 +644,11 @@ def film_fresnel(fm, c, fi, tint, ext, film, u, layer=False) -> np.ndarray:
     f = lambda a, n: np.ascontiguousarray(np.broadcast_to(a, (K, n) if n else (K,)),  # noqa: E731
                                           np.float64)
     out = np.empty((K, 3))
-    tabs = np.zeros(N_TABLES)
-    tabs[T_FILM:] = sensitivity_table()
-    _film_rows(tabs, np.ascontiguousarray(np.broadcast_to(fm, (K,)), np.int64), f(c, 0),
+    global _FILM_TABLES
+    if _FILM_TABLES is None:          # the tables' layout with the film's alone filled
+        _FILM_TABLES = np.zeros(N_TABLES)
+        _FILM_TABLES[T_FILM:] = sensitivity_table()
+    _film_rows(_FILM_TABLES, np.ascontiguousarray(np.broadcast_to(fm, (K,)), np.int64), f(c, 0),
                f(fi, 0), f(tint, 3), f(ext, 3), f(film, 2), f(u, 3), bool(layer), out)
     return out
 

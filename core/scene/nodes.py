@@ -82,6 +82,14 @@ def _tup(a):
     return tuple(float(x) for x in a)
 
 
+def thin_film(thickness, ior) -> dict:
+    """The Lobe fields of a Thin Film Thickness (nm) and IOR: none below
+    Cycles' THINFILM_THICKNESS_CUTOFF (0.1 nm), the IOR at least 1e-5."""
+    if thickness <= 0.1:
+        return {}
+    return dict(thin_film_thickness=float(thickness), thin_film_ior=max(float(ior), 1e-5))
+
+
 def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5, ior=1.5,
                         transmission=0.0, alpha=1.0, coat_weight=0.0, coat_roughness=0.03,
                         coat_ior=1.5, coat_tint=(1.0, 1.0, 1.0), sheen_weight=0.0,
@@ -163,11 +171,8 @@ def principled_to_lobes(base_color=(0.8, 0.8, 0.8), metallic=0.0, roughness=0.5,
 
     # --- Metallic: GGX with Cycles' F82-tint conductor Fresnel, F0 = base colour.
     # --- Thin film (Cycles: over the metal and the specular layer, whose
-    # Fresnel becomes the film's; thickness in nm, none below 0.1).
-    film = {}
-    if thin_film_thickness > 0.1:
-        film = dict(thin_film_thickness=float(thin_film_thickness),
-                    thin_film_ior=max(float(thin_film_ior), 1e-5))
+    # Fresnel becomes the film's).
+    film = thin_film(thin_film_thickness, thin_film_ior)
     metal = None
     rtex = int(roughness_texture)
     metal_tex = int(metallic_texture)
