@@ -64,7 +64,7 @@ UPSAMPLE_FACTOR, UPSAMPLE_MAX = 8, 2048
 # Colour nodes folded into an image's texels or a constant (_MaterialBuilder.color_chain).
 MISSING_IMAGE = (1.0, 0.0, 1.0)   # Cycles' colour of a missing image
 _COLOR_NODES = {'RGB', 'MIX', 'MIX_RGB', 'HUE_SAT', 'BRIGHTCONTRAST', 'GAMMA', 'INVERT',
-                'CURVE_RGB', 'VALTORGB'}
+                'CURVE_RGB', 'VALTORGB', 'RGBTOBW'}
 GREY = (0.8, 0.8, 0.8)
 DEFAULT_MATERIAL = Material(name="(no material)", lobes=(Lobe(DIFFUSE, GREY),))
 NO_LIGHTS = "The scene has no lights: add a light, an emissive material or a world colour."
@@ -169,8 +169,10 @@ SUPPORT = (
     ("colour nodes between an Image Texture (or constants) and a colour input: Mix "
      "(Color) and MixRGB (every blend type) with one side constant or two images read at "
      "the same point, Hue/Saturation/Value, Brightness/Contrast, Gamma, Invert, RGB "
-     "Curves, Color Ramp (applied to the image's texels; a small image is enlarged first "
-     "for the nonlinear ones)", SUPPORTED, ""),
+     "Curves, RGB to BW, Color Ramp (applied to the image's texels; a small image is enlarged first "
+     "for the nonlinear ones); their factors (Fac, Hue, Value, Gamma, ..., a Mix's Factor) "
+     "fed by other nodes, a mask image or a texture: per point, the material baked into "
+     "an atlas", SUPPORTED, ""),
     ("procedural textures (Noise, Voronoi, Wave, Magic, Brick, Checker, Gradient, White "
      "Noise; every dimension, type and feature) at any vector (Generated, Object, UV, "
      "Mapping, a vector another texture distorts), into any input an image feeds (colour, "
@@ -178,11 +180,13 @@ SUPPORT = (
      "converter nodes and mixed with images: the material's textures baked into a texture "
      "atlas over its triangles when the render starts", SUPPORTED, ""),
     ("converter nodes between textures and inputs: Math, Vector Math, Map Range, Clamp, "
-     "Mix (float, vector, colour), Separate / Combine XYZ and Color (RGB, HSV, HSL), with "
-     "Cycles' kernels; an image through them alone is baked over its own uvs", SUPPORTED,
-     ""),
+     "Mix (float, vector, colour), Separate / Combine XYZ and Color (RGB, HSV, HSL), "
+     "Vector Rotate, Float Curve, RGB to BW, a Color Ramp's Alpha, Blackbody, Wavelength, "
+     "with Cycles' kernels; an image through them alone is baked over its own uvs",
+     SUPPORTED, ""),
     ("colour attributes (Color Attribute and Attribute nodes: point, corner or face "
-     "domain), Geometry Position and Normal, Texture Coordinate Normal, Object Info "
+     "domain), Geometry Position, Normal, True Normal, Pointiness and Random Per Island "
+     "(computed from the mesh as Cycles' sync does), Texture Coordinate Normal, Object Info "
      "(Location, Color, Alpha, Object Index, Material Index, Random as Cycles syncs it), in "
      "texture graphs", SUPPORTED, ""),
     ("images read at different vectors in one material (each at its own: baked into the "
@@ -386,6 +390,30 @@ def _object_info(inst, ob, output) -> np.ndarray:
     return np.full(3, float(np.float32(rid) * np.float32(1.0 / 4294967295.0)))
 
 
+def _geometry_corners(me, kind):
+    """(T, 3, 3) float64 Pointiness or Random Per Island (``kind``
+    'Pointiness', 'RandomPerIsland') of mesh ``me`` at its loop triangles'
+    corners, as (f, f, f)."""
+    from ..core.scene import mesh_attributes as MA
+    V, E, T = len(me.vertices), len(me.edges), len(me.loop_triangles)
+    edges = np.empty(E * 2, np.int64)
+    me.edges.foreach_get("vertices", edges)
+    corners = np.empty(T * 3, np.int32)
+    me.loop_triangles.foreach_get("loops", corners)
+    vidx = np.empty(len(me.loops), np.int32)
+    me.loops.foreach_get("vertex_index", vidx)
+    tri_v = vidx[corners].reshape(T, 3)
+    if kind == 'RandomPerIsland':
+        f = MA.random_per_island(V, edges, tri_v[:, 0])
+        return np.broadcast_to(f[:, None, None], (T, 3, 3)).copy()
+    co = np.empty(V * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    nv = np.empty(V * 3, np.float32)
+    me.vertices.foreach_get("normal", nv)
+    f = MA.pointiness(co.reshape(V, 3), nv.reshape(V, 3), edges)
+    return np.repeat(f[tri_v][:, :, None], 3, axis=2)
+
+
 def _attribute_corners(me, name):
     """(T, 3, 3) float64 mesh attribute ``name`` (None: the render colour
     attribute) at the loop triangles' corners, or None."""
@@ -471,6 +499,13 @@ def _mapping_matrix(node, notes) -> np.ndarray:
 # ---------------------------------------------------------------------------
 # materials
 
+def _curve_xs(lo: float, hi: float) -> list:
+    """Where the sync evaluates a curve spanning [lo, hi]: lo + (i / size)
+    (hi - lo) in float32 (``curvemapping_*_to_array``)."""
+    f = np.float32
+    return [float(f(lo) + f(t) * (f(hi) - f(lo))) for t in CO.table_positions()]
+
+
 def curves_op(node, fac: float) -> tuple:
     """An RGB Curves node as a ``color_ops`` "curves" op: Cycles' table
     (curvemapping_color_to_array) over the curves' span of x, each
@@ -479,21 +514,42 @@ def curves_op(node, fac: float) -> tuple:
     cm.update()
     lo = min(cv.points[0].location[0] for cv in cm.curves)
     hi = max(cv.points[-1].location[0] for cv in cm.curves)
-    n = CO.RAMP_TABLE_SIZE
     table = []
-    for i in range(n):
-        x = cm.evaluate(cm.curves[3], lo + i / (n - 1) * (hi - lo))
+    for t in _curve_xs(lo, hi):
+        x = cm.evaluate(cm.curves[3], t)
         table.append(tuple(float(cm.evaluate(cm.curves[j], x)) for j in range(3)))
     return ("curves", tuple(table), lo, (hi - lo) or 1.0, cm.extend == 'EXTRAPOLATED', fac)
 
 
+def float_curve_params(node) -> tuple:
+    """A Float Curve's (table, min_x, range_x, extrapolate), as Cycles syncs
+    it (curvemapping_float_to_array): its curve at the table's positions
+    over the span of its points' x."""
+    cm = node.mapping
+    cm.update()
+    cv = cm.curves[0]
+    lo, hi = cv.points[0].location[0], cv.points[-1].location[0]
+    table = tuple(float(cm.evaluate(cv, t)) for t in _curve_xs(lo, hi))
+    return table, float(lo), float(hi - lo) or 1.0, cm.extend == 'EXTRAPOLATED'
+
+
+def _ramp_table(node) -> list:
+    """A Color Ramp's rgba at the table's positions (colorramp_to_array)."""
+    cr = node.color_ramp
+    return [tuple(float(x) for x in cr.evaluate(t)) for t in CO.table_positions()]
+
+
+def ramp_alpha_params(node) -> tuple:
+    """A Color Ramp's (alpha table, interpolate), beside :func:`ramp_op`."""
+    return (tuple(c[3] for c in _ramp_table(node)),
+            node.color_ramp.interpolation != 'CONSTANT')
+
+
 def ramp_op(node) -> tuple:
     """A Color Ramp node as a ``color_ops`` "ramp" op (Blender's ramp at
-    RAMP_TABLE_SIZE positions, which Cycles interpolates)."""
-    cr = node.color_ramp
-    n = CO.RAMP_TABLE_SIZE
-    table = tuple(tuple(float(x) for x in cr.evaluate(i / (n - 1))[:3]) for i in range(n))
-    return ("ramp", table, cr.interpolation != 'CONSTANT')
+    the table's positions, which Cycles interpolates)."""
+    return ("ramp", tuple(c[:3] for c in _ramp_table(node)),
+            node.color_ramp.interpolation != 'CONSTANT')
 
 
 def _emission_sum(parts, notes):
@@ -759,7 +815,7 @@ class _MaterialBuilder:
 
         Colour nodes with constant float inputs fold: Mix (Color) and
         MixRGB with one side constant, Hue/Saturation/Value,
-        Brightness/Contrast, Gamma, Invert, RGB Curves, and a Color Ramp
+        Brightness/Contrast, Gamma, Invert, RGB Curves, RGB to BW, and a Color Ramp
         read from a colour (as Cycles reads a colour into a float: its
         luminance)."""
         if depth > 64:
@@ -837,6 +893,9 @@ class _MaterialBuilder:
         if src.type == 'CURVE_RGB':
             k = f(src, "Fac")
             return None if k is None else then(inp("Color"), curves_op(src, k))
+        if src.type == 'RGBTOBW':
+            # Cycles' linear_rgb_to_gray: a colour's luminance, as grey.
+            return then(inp("Color"), ("gray",))
         if src.type == 'VALTORGB' and out.name == 'Color':
             fin = src.inputs["Fac"]
             fsrc, _, fval = self.follow(fin)
@@ -2184,6 +2243,15 @@ class _Exporter:
                 a = nw[rows].astype(np.float64) @ A
             elif kind == 'ObjectInfo':
                 a, own = np.broadcast_to(_object_info(inst, ob, name), (k, 3, 3)), False
+            elif kind == 'TrueNormal':
+                p = pw[rows].astype(np.float64)
+                f = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+                a, own = np.repeat(f[:, None, :], 3, axis=1), False
+            elif kind in ('Pointiness', 'RandomPerIsland'):
+                a = self.geometry_corners(inst, ob, kind)
+                a = None if a is None or len(a) != len(uv) else a[rows]
+                if a is None:
+                    self.notes.append(f"'{ob.name}': Geometry {kind} is for meshes: black")
             else:                                   # 'Attribute'
                 a = self.attribute_corners(inst, ob, name)
                 a = None if a is None or len(a) != len(uv) else a[rows]
@@ -2219,6 +2287,24 @@ class _Exporter:
         self.undisplaced[i] = pw
         self.poll()
         return out
+
+    def geometry_corners(self, inst, ob, kind):
+        """(T, 3, 3) float64 the Geometry node's Pointiness (a value a
+        vertex) or Random Per Island (a value a triangle) at the corners of
+        ``ob``'s loop triangles, as Cycles computes them from the evaluated
+        mesh (core/scene/mesh_attributes.py); None for other objects."""
+        if ob.type != 'MESH' or not len(ob.data.loop_triangles):
+            return None
+        me = ob.data
+        ckey = (me.as_pointer(), "geometry", kind)
+        local = self.uv_cache.get(ckey)
+        if local is None:
+            local = _geometry_corners(me, kind)
+            self.uv_cache[ckey] = local
+            self.poll()
+        if np.linalg.det(_mat4(inst.matrix_world)[:3, :3]) >= 0:
+            return local
+        return local[:, [0, 2, 1]]
 
     def attribute_corners(self, inst, ob, name):
         """(T, 3, 3) float64 a mesh attribute at the corners of ``ob``'s loop

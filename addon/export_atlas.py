@@ -32,6 +32,7 @@ from ..core.scene import color_ops as CO
 from ..core.scene import procedural as PR
 from ..core.scene import shader_graph as SG
 from ..core.scene.textures import REPEAT, sampler_of
+from .export_graph import linked_parameter
 
 #: Texels evaluated at once (memory of a procedural's temporaries).
 CHUNK = 1 << 16
@@ -95,10 +96,16 @@ def _base_properties() -> frozenset:
 def needs_atlas(nodes, graph_nodes) -> bool:
     """Whether any of the nodes (a material's, its groups' included) with a
     linked output is a procedural texture, one of ``graph_nodes`` or an
-    Image Texture projected otherwise than flat."""
+    Image Texture projected otherwise than flat, a Color Ramp whose
+    Alpha is linked (the colour chains read a ramp's Color only), or a
+    colour or Mix node whose factor a node feeds (the colour chains fold
+    constant ones only)."""
     return any((nd.type in PR.KINDS or nd.type in graph_nodes
                 or nd.type == 'TEX_IMAGE' and getattr(nd, "projection", 'FLAT') != 'FLAT')
-               and any(o.is_linked for o in nd.outputs) for nd in nodes)
+               and any(o.is_linked for o in nd.outputs)
+               or nd.type == 'VALTORGB' and nd.outputs['Alpha'].is_linked
+               or linked_parameter(nd) and any(o.is_linked for o in nd.outputs)
+               for nd in nodes)
 
 
 def chain_exprs(e, ops) -> list:

@@ -22,7 +22,26 @@ from ..core.scene.shader_graph import COLOR, FLOAT, VEC, Attr, Const, Image, Op,
 #: material (every texture baked).
 GRAPH_NODES = frozenset({'MATH', 'VECT_MATH', 'MAP_RANGE', 'CLAMP', 'SEPXYZ', 'COMBXYZ',
                          'SEPARATE_COLOR', 'COMBINE_COLOR', 'ATTRIBUTE', 'VERTEX_COLOR',
-                         'NEW_GEOMETRY', 'OBJECT_INFO'})
+                         'NEW_GEOMETRY', 'OBJECT_INFO', 'VECTOR_ROTATE',
+                         'CURVE_FLOAT', 'BLACKBODY', 'WAVELENGTH'})
+
+#: The colour nodes' float inputs, by node type, in color_ops' order: a
+#: node feeding one makes the op vary per point (an atlas material's).
+PARAM_INPUTS = {'HUE_SAT': ("Hue", "Saturation", "Value", "Fac"),
+                'BRIGHTCONTRAST': ("Bright", "Contrast"), 'GAMMA': ("Gamma",),
+                'INVERT': ("Fac",), 'CURVE_RGB': ("Fac",)}
+
+
+def linked_parameter(node) -> bool:
+    """Whether a node feeds a colour node's float input (its Fac, Hue, ...)
+    or a Mix node's factor: colour chains fold constant ones only."""
+    names = PARAM_INPUTS.get(node.type, ())
+    if node.type == 'MIX_RGB':
+        names = ("Fac",)
+    elif node.type == 'MIX':
+        names = ("Factor",)
+    return any(s.is_linked for s in node.inputs if s.name in names and s.enabled)
+
 
 _KINDS = {'VALUE': FLOAT, 'INT': FLOAT, 'BOOLEAN': FLOAT, 'VECTOR': VEC, 'RGBA': COLOR}
 
@@ -133,8 +152,32 @@ class GraphReader:
                 return None
             return Op("layer_weight", (mu, blend), (name,), FLOAT)
         if t == 'NEW_GEOMETRY':
-            key = {'Position': ('Position',), 'Normal': ('Normal',)}.get(name)
-            return None if key is None else Attr(key)
+            key = {'Position': ('Position',), 'Normal': ('Normal',),
+                   'True Normal': ('TrueNormal',), 'Pointiness': ('Pointiness',),
+                   'Random Per Island': ('RandomPerIsland',)}.get(name)
+            return None if key is None else Attr(key, VEC if key[0] in (
+                'Position', 'Normal', 'TrueNormal') else FLOAT)
+        if t == 'RGBTOBW':
+            c = self._in(node, "Color", depth, COLOR)
+            return None if c is None else SG.as_float(c)
+        if t == 'VECTOR_ROTATE':
+            args = (self._in(node, "Vector", depth, VEC), self._in(node, "Center", depth, VEC),
+                    self._in(node, "Axis", depth, VEC), self._in(node, "Angle", depth, FLOAT),
+                    self._in(node, "Rotation", depth, VEC))
+            return None if None in args else Op(
+                "vector_rotate", args, (node.rotation_type, bool(node.invert)), VEC)
+        if t == 'CURVE_FLOAT':
+            from .export import float_curve_params
+            args = (self._in(node, "Factor", depth, FLOAT), self._in(node, "Value", depth, FLOAT))
+            return None if None in args else Op("float_curve", args, float_curve_params(node),
+                                                FLOAT)
+        if t == 'VALTORGB' and name == 'Alpha':
+            from .export import ramp_alpha_params
+            f = self._in(node, "Fac", depth, FLOAT)
+            return None if f is None else Op("ramp_alpha", (f,), ramp_alpha_params(node), FLOAT)
+        if t in ('BLACKBODY', 'WAVELENGTH'):
+            x = self._in(node, "Temperature" if t == 'BLACKBODY' else "Wavelength", depth, FLOAT)
+            return None if x is None else Op(t.lower(), (x,), (), COLOR)
         if t in ('ATTRIBUTE', 'VERTEX_COLOR'):
             if t == 'ATTRIBUTE' and node.attribute_type != 'GEOMETRY':
                 return None
@@ -246,9 +289,16 @@ class GraphReader:
         return None
 
     def _color_node(self, node, out, depth):
-        """The colour nodes of core/scene/color_ops.py with constant factors."""
+        """The colour nodes of core/scene/color_ops.py: an op with constant
+        factors, else (a factor a node feeds) the op per point."""
         from .export import curves_op, ramp_op
         t = node.type
+        if t in PARAM_INPUTS and not all(self._const_in(node, i) is not None
+                                         for i in PARAM_INPUTS[t]):
+            args = tuple(self._in(node, i, depth, COLOR if i == "Color" else FLOAT)
+                         for i in ("Color",) + PARAM_INPUTS[t])
+            params = (t,) + (curves_op(node, 1.0)[1:5] if t == 'CURVE_RGB' else ())
+            return None if None in args else Op("color_at", args, params, COLOR)
         k = self._const_in
         op, src = None, "Color"
         if t == 'HUE_SAT':

@@ -445,3 +445,50 @@ def test_two_images_mixed_agree_with_cycles(blend, fac, b_node, tmp_path):
     effect = np.abs((TS._fppm(alone, 1) + TS._fppm(alone, 2)) / 2 - img).mean() / ref.mean()
     print(f"{label}: the first image alone moves the image by {effect:.3f} of the mean")
     TS._check(err, noise, effect)
+
+
+@pytest.mark.parametrize("how", ["invert_hsv", "mix_factor"])
+def test_colour_nodes_with_a_mask_as_factor_agree_with_cycles(how, tmp_path):
+    """An image's colour through colour nodes whose factors a second image
+    (a grey mask at the same uvs) feeds: Invert's Fac and Hue/Saturation's
+    Value (through a Math), or a Mix (Multiply) node's Factor.  The material
+    is baked into an atlas, each node applied per point (the graph's
+    ``color_at`` and ``mix_color`` ops); before, a fed factor cut the chain
+    (the image alone, with a note).  Measured: mean |diff| 0.58 % and
+    0.60 % of the mean, 0.84x and 0.85x the seed-to-seed noise."""
+    pytest.importorskip("bpy")
+    import test_shading_nodes as TS
+
+    def mat(nodes, links, surface):
+        d = TS.diffuse_with_normal(nodes, links, surface)
+        tex = nodes.new('ShaderNodeTexImage')
+        tex.image = TS._image("C", TS._color_pixels(), non_color=False)
+        mask = nodes.new('ShaderNodeTexImage')
+        mask.image = TS._image("M", _mask_pixels(), non_color=True)
+        if how == "mix_factor":
+            m = nodes.new('ShaderNodeMix')
+            m.data_type, m.blend_type = 'RGBA', 'MULTIPLY'
+            links.new(mask.outputs["Color"], m.inputs["Factor"])
+            links.new(tex.outputs["Color"], next(i for i in m.inputs if i.identifier == "A_Color"))
+            next(i for i in m.inputs if i.identifier == "B_Color").default_value = \
+                (0.2, 0.5, 0.9, 1.0)
+            out = next(o for o in m.outputs if o.identifier == "Result_Color")
+        else:
+            inv = nodes.new('ShaderNodeInvert')
+            links.new(mask.outputs["Color"], inv.inputs["Fac"])
+            links.new(tex.outputs["Color"], inv.inputs["Color"])
+            value = nodes.new('ShaderNodeMath')
+            value.operation = 'MULTIPLY_ADD'
+            value.inputs[1].default_value, value.inputs[2].default_value = 0.8, 0.5
+            links.new(mask.outputs["Color"], value.inputs[0])
+            hsv = nodes.new('ShaderNodeHueSaturation')
+            hsv.inputs["Hue"].default_value = 0.7
+            links.new(value.outputs[0], hsv.inputs["Value"])
+            links.new(inv.outputs["Color"], hsv.inputs["Color"])
+            out = hsv.outputs["Color"]
+        links.new(out, d.inputs["Color"])
+
+    sc, _ = TS.plane_scene(mat)
+    err, noise, img, ref, scene, lines = TS.compare(sc, tmp_path, how)
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    TS._check(err, noise)

@@ -22,9 +22,18 @@ from __future__ import annotations
 import numpy as np
 
 
-#: Cycles' ramp table size (``RAMP_TABLE_SIZE``): Blender evaluates the
-#: Color Ramp at this many evenly spaced positions and Cycles interpolates.
+#: Cycles' ``RAMP_TABLE_SIZE``: Blender's sync evaluates a Color Ramp, RGB
+#: Curves or Float Curve at RAMP_TABLE_SIZE + 1 positions i / RAMP_TABLE_SIZE
+#: of its span, i = 0 .. RAMP_TABLE_SIZE (``colorramp_to_array``,
+#: ``curvemapping_*_to_array``), and Cycles interpolates between them.
 RAMP_TABLE_SIZE = 256
+
+
+def table_positions() -> np.ndarray:
+    """(RAMP_TABLE_SIZE + 1,) float64 where the sync evaluates a ramp or a
+    curve, as fractions of its span: i / RAMP_TABLE_SIZE in float32."""
+    return (np.arange(RAMP_TABLE_SIZE + 1, dtype=np.float32)
+            / np.float32(RAMP_TABLE_SIZE)).astype(np.float64)
 
 #: Mix blend types evaluated here: all of Blender's ``blend_type`` identifiers.
 MIX_BLENDS = ("MIX", "ADD", "MULTIPLY", "SCREEN", "OVERLAY", "SUBTRACT", "DIVIDE",
@@ -176,7 +185,8 @@ def gray(c: np.ndarray) -> np.ndarray:
 
 def ramp(f: np.ndarray, table: np.ndarray, interpolate: bool) -> np.ndarray:
     """rgb_ramp_lookup without extrapolation: f (...,) -> (..., 3) from
-    table (RAMP_TABLE_SIZE, 3), linear between entries unless constant."""
+    table (N, 3) (:func:`table_positions`), linear between entries unless
+    constant."""
     n = table.shape[0]
     x = np.clip(np.nan_to_num(f, nan=0.0), 0.0, 1.0) * (n - 1)
     i = np.clip(x.astype(np.int64), 0, n - 1)
@@ -219,7 +229,7 @@ def is_affine(ops) -> bool:
 def curves(c: np.ndarray, table: np.ndarray, min_x: float, range_x: float,
            extrapolate: bool, fac: float) -> np.ndarray:
     """svm_node_curves: each channel through its column of table
-    (RAMP_TABLE_SIZE, 3) over [min_x, min_x + range_x], continued by the
+    (N, 3) over [min_x, min_x + range_x], continued by the
     end slopes when the curves extrapolate (rgb_ramp_lookup), mixed with c
     by fac."""
     n = table.shape[0]

@@ -568,6 +568,91 @@ def mix_vector(t, a, b, clamp_factor=True, factor_mode=None) -> np.ndarray:
     return np.asarray(a * (_ONE - t) + b * t, F32).astype(np.float64)
 
 
+# ----------------------------------------------------------- Vector Rotate
+
+VECTOR_ROTATE_TYPES = ("AXIS_ANGLE", "X_AXIS", "Y_AXIS", "Z_AXIS", "EULER_XYZ")
+
+
+def _euler_rows(e):
+    """(K, 3, 3) float32 Cycles' ``euler_to_transform`` (util/transform.h)
+    of XYZ Euler angles e (K, 3): its rows."""
+    c, s = np.cos(e), np.sin(e)
+    c, s = np.asarray(c, F32), np.asarray(s, F32)
+    cx, cy, cz, sx, sy, sz = c[..., 0], c[..., 1], c[..., 2], s[..., 0], s[..., 1], s[..., 2]
+    rows = np.stack([
+        np.stack([cy * cz, sy * sx * cz - cx * sz, sy * cx * cz + sx * sz], -1),
+        np.stack([cy * sz, sy * sx * sz + cx * cz, sy * cx * sz - sx * cz], -1),
+        np.stack([-sy, cy * sx, cy * cx], -1)], -2)
+    return rows.astype(F32)
+
+
+def _rotate_around_axis(p, axis, angle):
+    """Cycles' ``rotate_around_axis`` (util/math_float3.h): p (K, 3) turned
+    by angle (K,) about the unit axis (K, 3), Rodrigues' matrix term by term."""
+    c = np.asarray(np.cos(angle), F32)[..., None]
+    s = np.asarray(np.sin(angle), F32)[..., None]
+    x, y, z = axis[..., 0:1], axis[..., 1:2], axis[..., 2:3]
+    px, py, pz = p[..., 0:1], p[..., 1:2], p[..., 2:3]
+    k = _ONE - c
+    r = np.concatenate([
+        ((c + k * x * x) * px) + ((k * x * y - z * s) * py) + ((k * x * z + y * s) * pz),
+        ((k * x * y + z * s) * px) + ((c + k * y * y) * py) + ((k * y * z - x * s) * pz),
+        ((k * x * z - y * s) * px) + ((k * y * z + x * s) * py) + ((c + k * z * z) * pz)], -1)
+    return r.astype(F32)
+
+
+def vector_rotate(rotate_type: str, invert: bool, vector, center=0.0, axis=(0.0, 0.0, 1.0),
+                  angle=0.0, rotation=0.0) -> np.ndarray:
+    """(K, 3) float64 the Vector Rotate node (``svm_node_vector_rotate``):
+    vector - center turned about center, by the XYZ Euler ``rotation`` (its
+    transpose with ``invert``), or by ``angle`` (negated with ``invert``)
+    about the X, Y or Z axis or the normalised ``axis`` (the vector itself
+    when that axis is zero)."""
+    v, c = _vec3(vector), _vec3(center)
+    v, c = np.broadcast_arrays(v, c)
+    if rotate_type == "EULER_XYZ":
+        R = _euler_rows(np.broadcast_to(_vec3(rotation), v.shape))
+        d = v - c
+        out = (np.einsum("kji,kj->ki", R, d) if invert else np.einsum("kij,kj->ki", R, d))
+        return (np.asarray(out, F32) + c).astype(np.float64)
+    if rotate_type not in VECTOR_ROTATE_TYPES:
+        raise ValueError(f"unknown Vector Rotate type {rotate_type!r}")
+    if rotate_type == "AXIS_ANGLE":
+        a = np.broadcast_to(_vec3(axis), v.shape)
+    else:
+        a = np.zeros(v.shape, F32)
+        a[..., "XYZ".index(rotate_type[0])] = _ONE
+    length = np.sqrt(_dot(a, a)).astype(F32)
+    ang = np.broadcast_to(_f(angle), v.shape[:-1])
+    ang = -ang if invert else ang
+    safe = np.where(length != _ZERO, length, _ONE)[..., None]
+    out = _rotate_around_axis(v - c, (a / safe).astype(F32), ang) + c
+    return np.where((length != _ZERO)[..., None], out, v).astype(np.float64)
+
+
+# ------------------------------------------------- Float Curve, Color Ramp alpha
+
+def float_curve(fac, value, table, min_x: float, range_x: float,
+                extrapolate: bool) -> np.ndarray:
+    """(K,) float64 the Float Curve node (``svm_node_curve``): value through
+    the curve tabulated at table (N,) over [min_x, min_x + range_x]
+    (``float_ramp_lookup``, linear, continued by the end slopes when the
+    curve extrapolates), mixed with value by fac."""
+    value = np.asarray(value, np.float64)
+    col = np.repeat(np.asarray(table, np.float64)[:, None], 3, axis=1)
+    out = color_ops.curves(np.repeat(value[..., None], 3, axis=-1), col, min_x, range_x,
+                           extrapolate, 1.0)[..., 0]
+    fac = np.asarray(fac, np.float64)
+    return (1.0 - fac) * value + fac * out
+
+
+def ramp_alpha(fac, table, interpolate: bool) -> np.ndarray:
+    """(K,) float64 a Color Ramp's Alpha (``svm_node_rgb_ramp``): the ramp's
+    alpha, tabulated at table (N,), at fac (``rgb_ramp_lookup``)."""
+    col = np.repeat(np.asarray(table, np.float64)[:, None], 3, axis=1)
+    return color_ops.ramp(np.asarray(fac, np.float64), col, interpolate)[..., 0]
+
+
 # ------------------------------------------------------------ conversions
 
 SOCKET_KINDS = ("VALUE", "VECTOR", "RGBA")

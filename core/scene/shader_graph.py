@@ -13,7 +13,8 @@ as Cycles' sockets: 'float' (K,), 'vec' (K, 3) and 'color' (K, 3):
 - :class:`Proc`: a procedural texture's output at a vector
   (core/scene/procedural.py);
 - :class:`Op`: a converter or colour node on its inputs (Math, Vector Math,
-  Map Range, Clamp, Mix, Separate / Combine, Mapping, the colour nodes of
+  Map Range, Clamp, Mix, Separate / Combine, Mapping, Vector Rotate, Float
+  Curve, a Color Ramp's Alpha, Blackbody, Wavelength, the colour nodes of
   core/scene/color_ops.py), or a socket-type conversion.
 
 Conversions follow Cycles' ``svm_node_convert`` (core/scene/node_math.py
@@ -34,6 +35,7 @@ import numpy as np
 from . import color_ops as CO
 from . import node_math as NM
 from . import procedural as PR
+from .. import spectrum as SP
 from .textures import sample_alpha, sample_texture
 
 FLOAT, VEC, COLOR = "float", "vec", "color"
@@ -58,7 +60,9 @@ class Attr:
     None), ('Position',), ('Normal',), ('ObjectNormal',), ('Attribute',
     name or None: the render colour attribute), ('ObjectInfo', output) (an
     Object Info node's Location, Color, Alpha, Object Index or Random: one
-    value an object)."""
+    value an object), ('TrueNormal',) (the Geometry node's: the face's
+    normal), ('Pointiness',) and ('RandomPerIsland',) (the Geometry node's,
+    computed from the mesh as Cycles does: core/scene/mesh_attributes.py)."""
     key: tuple
     kind: str = VEC
 
@@ -187,7 +191,7 @@ def _evaluate(e, ctx, memo):
         return np.broadcast_to(v, (K,) + v.shape).copy()
     if isinstance(e, Attr):
         a = ctx.attrs[e.key]
-        if e.key[0] in ("Normal", "ObjectNormal"):
+        if e.key[0] in ("Normal", "ObjectNormal", "TrueNormal"):
             a = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-30)
         return a[:, 0] if e.kind == FLOAT else a
     if isinstance(e, Image):
@@ -313,6 +317,28 @@ def _color_op(args, params):
     return CO.apply((params,), args[0])
 
 
+def _color_at(args, params):
+    """A colour node with per-point factors (K,): Hue/Saturation/Value, Bright
+    Contrast, Gamma, Invert, RGB Curves (params: its type, and a curves'
+    table, min_x, range_x, extrapolate), as the constant ops compute."""
+    c, *p = args
+    kind = params[0]
+    if kind == "HUE_SAT":
+        hue, sat, val, fac = p
+        return CO.hue_sat_val(c, hue, sat, val, fac[:, None])
+    if kind == "BRIGHTCONTRAST":
+        return CO.bright_contrast(c, p[0][:, None], p[1][:, None])
+    if kind == "GAMMA":
+        return CO.gamma(c, p[0][:, None])
+    if kind == "INVERT":
+        return CO.invert(c, p[0][:, None])
+    if kind == "CURVE_RGB":
+        table, lo, span, extrapolate = params[1:]
+        return CO.curves(c, np.asarray(table, np.float64), lo, span, extrapolate,
+                         p[0][:, None])
+    raise ValueError(f"unknown colour node {kind!r}")
+
+
 def _mix_color(args, params):
     """Mix (RGBA) / MixRGB with a per-point factor: svm_mix per point."""
     t, a, b = args
@@ -361,6 +387,7 @@ OPS = {
     "splat": lambda args, params: NM.to_vec(args[0]),
     "mapping": _mapping,
     "color_op": _color_op,
+    "color_at": _color_at,
     "mix_color": _mix_color,
     "mix_float": lambda args, params: NM.mix_float(*args, *params),
     "mix_vector": lambda args, params: NM.mix_vector(*args, *params),
@@ -370,6 +397,11 @@ OPS = {
     "clamp": lambda args, params: NM.clamp(params[0], *args),
     "separate": _separate,
     "combine": _combine,
+    "vector_rotate": lambda args, params: NM.vector_rotate(*params, *args),
+    "float_curve": lambda args, params: NM.float_curve(*args, *params),
+    "ramp_alpha": lambda args, params: NM.ramp_alpha(*args, *params),
+    "blackbody": lambda args, params: np.maximum(SP.blackbody_rec709(args[0]), 0.0),
+    "wavelength": lambda args, params: SP.wavelength_rec709(args[0]),
     # the view-dependent inputs, of Attr VIEW_COS (the Mix Shader Fac's LUT)
     "fresnel": lambda args, params: NM.fresnel(*args),
     "layer_weight": lambda args, params: NM.layer_weight(*args, *params),
