@@ -54,7 +54,8 @@ from ..core.scene.ray_variants import clear_shadows
 from ..core.sppm import cryptomatte as crypto
 from .export_displace import TrueDisplacement, displace
 from .export_read import (CHUNK, _follow, _never, _use_nodes, corner_topology, image_pixels,
-                          mesh_arrays)
+                          mesh_arrays, remove_image, sequence_frame, sequence_image,
+                          tile_image)
 
 GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META'}
 # An image under a nonlinear colour node is enlarged UPSAMPLE_FACTOR times
@@ -159,6 +160,13 @@ SUPPORT = (
      "(Repeat, Extend, Clip, Mirror)", SUPPORTED, ""),
     ("Image Texture projection: Box (with its blend, over the object-space normal), Sphere, "
      "Tube (the material baked into an atlas)", SUPPORTED, ""),
+    ("UDIM images (tiles from files named with <UDIM> or <UVTILE>): each tile over its own "
+     "unit square of uv, Cycles' missing-image magenta where there is no tile (the material "
+     "baked into an atlas)", SUPPORTED, ""),
+    ("a UDIM image whose tiles are packed or have no file", APPROXIMATED,
+     "could not be read (packed, or no file)"),
+    ("image sequences: the file of the render's frame (the node's Frames, Start Frame, "
+     "Offset and Cyclic, as Blender counts them)", SUPPORTED, ""),
     ("an image's colour (also through colour nodes: its luminance) or alpha into a Mix "
      "Shader's Fac, the Principled Alpha or Metallic, or an emission's Strength, per hit",
      SUPPORTED, ""),
@@ -1679,6 +1687,8 @@ class _Exporter:
         self.mat_index: dict = {}
         self.textures: list[np.ndarray] = []
         self.tex_index: dict = {}      # (image name, reading) -> index into textures
+        self.udim_index: dict = {}     # (UDIM image name, tile number) -> index, or -1
+        self.seq_index: dict = {}      # (sequence name, frame, reading) -> index
         self.tex_pixels: dict = {}     # image name -> its pixels (or None)
         self.mesh_cache: dict = {}
         self.atlas = AtlasBaker(self)  # materials baked into texture atlases
@@ -1739,17 +1749,70 @@ class _Exporter:
             f"resolution file, or scale it down in the Image Editor: Image > Resize), or "
             f"close other programs.")
 
-    def texture(self, node, mb: _MaterialBuilder, ops=(), scalar=False) -> int:
-        """The index in ``textures`` of an Image Texture node's image, its
+    def udim_tiles(self, node, mb: _MaterialBuilder) -> tuple:
+        """((tile number, index in ``textures``), ...) of an Image Texture
+        node's UDIM image, each tile's file read as the image's own would be
+        (its colour space, alpha and the node's sampler); () for other
+        images.  A tile whose file cannot be read is left out, with a note:
+        Cycles shows its missing-image magenta there, and so does the
+        graph (core/scene/shader_graph.py ``udim_sample``)."""
+        img = node.image
+        if img is None or img.source != 'TILED':
+            return ()
+        out = []
+        for tile in img.tiles:
+            key = (img.name_full, int(tile.number))
+            if key not in self.udim_index:
+                timg = tile_image(img, int(tile.number))
+                if timg is None:
+                    mb.notes.append(f"image '{img.name}': UDIM tile {tile.number} could not "
+                                    f"be read (packed, or no file): magenta")
+                    self.udim_index[key] = -1
+                else:
+                    self.udim_index[key] = self.stand_in_texture(node, mb, timg)
+            if self.udim_index[key] >= 0:
+                out.append((int(tile.number), self.udim_index[key]))
+        return tuple(out)
+
+    def stand_in_texture(self, node, mb, timg, ops=(), scalar=False) -> int:
+        """:meth:`texture` of a stand-in image (a UDIM tile's file, an image
+        sequence's frame), then the stand-in removed from bpy.data."""
+        try:
+            return self.texture(node, mb, ops, scalar, image=timg)
+        finally:
+            # A later stand-in may take the same name.
+            name = timg.name_full
+            self.tex_pixels.pop(name, None)
+            for k in [k for k in self.tex_index if k[0] == name]:
+                del self.tex_index[k]
+            remove_image(timg)
+
+    def texture(self, node, mb: _MaterialBuilder, ops=(), scalar=False, image=None) -> int:
+        """The index in ``textures`` of an Image Texture node's image (or
+        ``image``: a UDIM tile's, :meth:`udim_tiles`), its
         colour through ``ops`` (``core.scene.color_ops``: one more entry per
         image and ops, the ops applied to the colour Cycles' Color output
         gives at each texel); scalar: an entry of white texels whose alpha
         is that colour read as a float input reads it (its luminance,
         clamped to [0, 1]); -1 (and a note) without pixels."""
-        img = node.image
+        img = node.image if image is None else image
         if img is None:
             mb.notes.append(f"{node.name}: no image")
             return -1
+        if image is None and img.source == 'SEQUENCE':
+            # Image.pixels of a sequence is empty: the frame of this render
+            # is read from its own file.
+            frame = sequence_frame(node.image_user, self.scene.frame_current)
+            key = (img.name_full, frame, ops, scalar, self.texture_sampler(node, []))
+            if key not in self.seq_index:
+                timg = sequence_image(img, node.image_user, self.scene.frame_current)
+                if timg is None:
+                    mb.notes.append(f"image '{img.name}': frame {frame} of the sequence could "
+                                    f"not be read")
+                    self.seq_index[key] = self.texture(node, mb, ops, scalar, image=img)
+                else:
+                    self.seq_index[key] = self.stand_in_texture(node, mb, timg, ops, scalar)
+            return self.seq_index[key]
         # Cycles interpolates the colour associated with (multiplied by)
         # alpha, and divides by the interpolated alpha only when the node's
         # Alpha output is linked (NODE_IMAGE_ALPHA_UNASSOCIATE).  One entry

@@ -97,13 +97,16 @@ def needs_atlas(nodes, graph_nodes) -> bool:
     """Whether any of the nodes (a material's, its groups' included) with a
     linked output is a procedural texture, one of ``graph_nodes`` or an
     Image Texture projected otherwise than flat, a Color Ramp whose
-    Alpha is linked (the colour chains read a ramp's Color only), or a
+    Alpha is linked (the colour chains read a ramp's Color only), a UDIM
+    image (its tiles chosen per point), or a
     colour or Mix node whose factor a node feeds (the colour chains fold
     constant ones only)."""
     return any((nd.type in PR.KINDS or nd.type in graph_nodes
                 or nd.type == 'TEX_IMAGE' and getattr(nd, "projection", 'FLAT') != 'FLAT')
                and any(o.is_linked for o in nd.outputs)
                or nd.type == 'VALTORGB' and nd.outputs['Alpha'].is_linked
+               or nd.type == 'TEX_IMAGE' and nd.image is not None
+               and nd.image.source == 'TILED' and any(o.is_linked for o in nd.outputs)
                or linked_parameter(nd) and any(o.is_linked for o in nd.outputs)
                for nd in nodes)
 
@@ -127,7 +130,7 @@ def uv_periodic(b, textures) -> bool:
         if isinstance(e, SG.Image):
             v = e.vector
             return (isinstance(v, SG.Attr) and v.key == ("UV", None)
-                    and e.projection == "FLAT"
+                    and e.projection == "FLAT" and not e.tiles
                     and sampler_of(textures[e.texture]) >> 2 == REPEAT)
         if isinstance(e, (SG.Attr, SG.Proc)):
             return False
@@ -301,9 +304,11 @@ class AtlasBaker:
             for e in chain_exprs(b.expr, b.ops):
                 for x in SG.walk(e):
                     if isinstance(x, SG.Image):
-                        img = self.ex.textures[x.texture]
-                        h.update(repr((img.shape, sampler_of(img), type(img).__name__)).encode())
-                        h.update(np.ascontiguousarray(img).data)
+                        for t in [x.texture] + [i for _, i in x.tiles]:
+                            img = self.ex.textures[t]
+                            h.update(repr((img.shape, sampler_of(img),
+                                           type(img).__name__)).encode())
+                            h.update(np.ascontiguousarray(img).data)
         for k in sorted(corners, key=repr):
             h.update(repr(k).encode())
             h.update(np.ascontiguousarray(corners[k]).data)

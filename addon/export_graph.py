@@ -203,7 +203,8 @@ class GraphReader:
             proj = getattr(node, "projection", 'FLAT')
             return Image(tex, name, self._vector(node, depth, ('UV', None)), proj,
                          float(getattr(node, "projection_blend", 0.0)),
-                         Attr(('ObjectNormal',)) if proj == 'BOX' else None)
+                         Attr(('ObjectNormal',)) if proj == 'BOX' else None,
+                         mb.ex.udim_tiles(node, mb))
         if t in PR.KINDS:
             return self._procedural(node, name, depth)
         if t == 'MATH':

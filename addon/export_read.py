@@ -414,6 +414,93 @@ def image_pixels(img, capacity: int, poll=_never):
     return _read_in_process(img)
 
 
+def tile_path(img, number: int) -> str | None:
+    """The file of a UDIM image's tile ``number``: its path with the
+    ``<UDIM>`` token as the number (1001, 1002, ...) or ``<UVTILE>`` as
+    u<column>_v<row> (from 1); None without a token."""
+    import bpy
+    path = bpy.path.abspath(img.filepath_raw, library=img.library)
+    if "<UDIM>" in path:
+        return path.replace("<UDIM>", str(number))
+    if "<UVTILE>" in path:
+        k = number - 1001
+        return path.replace("<UVTILE>", f"u{k % 10 + 1}_v{k // 10 + 1}")
+    return None
+
+
+def tile_image(img, number: int):
+    """A stand-in image of a UDIM image's tile, loaded from its file with the
+    image's colour space and alpha mode (Image.pixels reads the first tile
+    only), or None (packed tiles, no token, no readable file).  The caller
+    removes it (:func:`remove_image`)."""
+    path = tile_path(img, number)
+    return None if path is None else _stand_in(img, path)
+
+
+def sequence_frame(iu, frame: int) -> int:
+    """The file frame an image sequence shows at scene frame ``frame``,
+    Blender's ``BKE_image_user_frame_get`` of the node's image user ``iu``
+    (Frames, Start Frame, Offset, Cyclic)."""
+    n = int(iu.frame_duration)
+    if n == 0:
+        return 0
+    f = frame - int(iu.frame_start) + 1
+    if iu.use_cyclic:
+        f %= n
+        if f == 0:
+            f = n
+    f = min(max(f, 0), n)
+    return f + int(iu.frame_offset)
+
+
+def frame_path(path: str, number: int) -> str:
+    """``path`` with the last run of digits in its file name replaced by
+    ``number``, zero-padded to the run's length (Blender's sequence names:
+    shot_0001.png -> shot_0012.png); unchanged without digits."""
+    import re
+    head, name = os.path.split(path)
+    runs = list(re.finditer(r"\d+", name))
+    if not runs:
+        return path
+    r = runs[-1]
+    return os.path.join(head, name[:r.start()] + str(number).zfill(len(r.group()))
+                        + name[r.end():])
+
+
+def sequence_image(img, iu, frame: int):
+    """A stand-in image of an image sequence's file at scene frame
+    ``frame`` (:func:`sequence_frame`), loaded with the image's colour space
+    and alpha mode, or None (no such file).  The caller removes it."""
+    import bpy
+    path = frame_path(bpy.path.abspath(img.filepath_raw, library=img.library),
+                      sequence_frame(iu, frame))
+    return _stand_in(img, path)
+
+
+def _stand_in(img, path):
+    """``path`` loaded as a new image with img's colour space and alpha
+    mode, or None (no readable file, or img is packed)."""
+    import bpy
+    if img.packed_file is not None or not os.path.isfile(path):
+        return None
+    try:
+        t = bpy.data.images.load(path, check_existing=False)
+    except RuntimeError:
+        return None
+    try:
+        t.colorspace_settings.name = img.colorspace_settings.name
+        t.alpha_mode = img.alpha_mode
+    except (TypeError, AttributeError):
+        pass
+    return t
+
+
+def remove_image(img) -> None:
+    """Remove a stand-in image from bpy.data."""
+    import bpy
+    bpy.data.images.remove(img)
+
+
 def _use_nodes(idblock) -> bool:
     # ``use_nodes`` is deprecated in Blender 5 (node trees are always used).
     with warnings.catch_warnings():

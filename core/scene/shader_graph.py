@@ -73,13 +73,17 @@ class Image:
     image as its Color output reads it, core/scene/textures.py), read at
     ``vector`` through its ``projection`` ('FLAT': x, y; 'SPHERE', 'TUBE',
     or 'BOX' blended by ``blend`` over the object-space ``normal``
-    expression, :func:`image_projection`); output 'Color' or 'Alpha'."""
+    expression, :func:`image_projection`); output 'Color' or 'Alpha'.
+    ``tiles``: a UDIM image's ((tile number, texture index), ...), each
+    tile read over its own unit square of uv (:func:`udim_sample`);
+    ``texture`` is then its first tile's."""
     texture: int
     output: str
     vector: object
     projection: str = "FLAT"
     blend: float = 0.0
     normal: object = None
+    tiles: tuple = ()
 
     @property
     def kind(self) -> str:
@@ -201,7 +205,10 @@ def _evaluate(e, ctx, memo):
         looks = image_projection(e.projection, co, n, e.blend)
         out = 0.0
         for w, uv in looks:
-            c = sample_texture(img, uv) if e.output == "Color" else sample_alpha(img, uv)
+            if e.tiles:
+                c = udim_sample(ctx.textures, e.tiles, uv, e.output)
+            else:
+                c = sample_texture(img, uv) if e.output == "Color" else sample_alpha(img, uv)
             out = out + (np.asarray(w)[..., None] * c if c.ndim == 2 else w * c)
         return out
     if isinstance(e, Proc):
@@ -212,6 +219,31 @@ def _evaluate(e, ctx, memo):
         return out[:, 0] if e.kind == FLOAT else out
     args = [evaluate(a, ctx, memo) for a in e.args]
     return OPS[e.name](args, e.params)
+
+
+#: What Cycles reads where a UDIM image has no tile: IMAGE_MISSING_RGBA.
+UDIM_MISSING = (1.0, 0.0, 1.0, 1.0)
+
+
+def udim_sample(textures, tiles, uv, output: str) -> np.ndarray:
+    """(K, 3) colour or (K,) alpha of a UDIM image at uv (K, 2): Cycles'
+    ``kernel_image_udim_map``: the tile 1001 + 10 ty + tx of tx, ty the uv's
+    integer parts (truncated; u from 0 to 10, v from 0), read at uv - (tx,
+    ty); :data:`UDIM_MISSING` where the image has no such tile."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    t = np.trunc(uv).astype(np.int64)
+    number = np.where((t[:, 0] >= 0) & (t[:, 1] >= 0) & (t[:, 0] < 10),
+                      1001 + 10 * t[:, 1] + t[:, 0], -1)
+    colour = output == "Color"
+    out = (np.tile(UDIM_MISSING[:3], (len(uv), 1)) if colour
+           else np.full(len(uv), UDIM_MISSING[3]))
+    for n, index in tiles:
+        m = number == n
+        if m.any():
+            local = uv[m] - t[m]
+            out[m] = (sample_texture(textures[index], local) if colour
+                      else sample_alpha(textures[index], local))
+    return out
 
 
 #: Expression kinds as node_math's socket kinds.
