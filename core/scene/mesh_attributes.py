@@ -23,8 +23,8 @@ functions, for the materials whose graph reads them
   the edges in their order (Cycles' ``DisjointSet``), read at the first
   corner of each loop triangle: ``hash_uint(root) / (2^32 - 1)``.
 
-numpy, with the union-find a Python loop over the edges (about a second
-a million edges; only for materials that read Random Per Island).
+numpy, with the weld's scan and the union-find compiled
+(core/scene/mesh_attributes_kernels.py).
 """
 from __future__ import annotations
 
@@ -48,20 +48,8 @@ def welded(positions) -> np.ndarray:
     V = len(p)
     s = (p[:, 0] + p[:, 1]) + p[:, 2]
     order = np.lexsort((-np.arange(V), s))         # by sum, equal ones by index down
-    orig = np.arange(V)
-    ss = s[order]
-    # i: places in the sorted order still looking, compared with place i + k
-    i = np.arange(V - 1)
-    k = 1
-    while i.size:
-        i = i[i + k < V]
-        i = i[ss[i + k] - ss[i] <= 3.0 * _FLT_EPSILON]
-        a, b = order[i], order[i + k]
-        d = p[b] - p[a]
-        hit = np.einsum("ij,ij->i", d, d) < _FLT_EPSILON
-        orig[a[hit]] = b[hit]
-        i = i[~hit]
-        k += 1
+    from .mesh_attributes_kernels import weld_scan
+    orig = weld_scan(p, s, order.astype(np.int64), np.float32(_FLT_EPSILON))
     while True:
         nxt = orig[orig]
         if np.array_equal(nxt, orig):
@@ -108,27 +96,9 @@ def island_roots(vertex_count: int, edges) -> np.ndarray:
     """(V,) int64 each vertex's island representative: Cycles' DisjointSet
     (union by rank, the first argument's root kept on equal ranks, paths
     compressed) joined over edges (E, 2) in their order."""
-    parent = list(range(vertex_count))
-    rank = [0] * vertex_count
-
-    def find(x):
-        root = x
-        while parent[root] != root:
-            root = parent[root]
-        while parent[x] != root:
-            parent[x], x = root, parent[x]
-        return root
-
-    for a, b in np.asarray(edges, np.int64).reshape(-1, 2).tolist():
-        ra, rb = find(a), find(b)
-        if ra == rb:
-            continue
-        if rank[ra] < rank[rb]:
-            ra, rb = rb, ra
-        parent[rb] = ra
-        if rank[ra] == rank[rb]:
-            rank[ra] += 1
-    return np.array([find(x) for x in range(vertex_count)], np.int64)
+    from .mesh_attributes_kernels import union_by_rank
+    e = np.ascontiguousarray(np.asarray(edges, np.int64).reshape(-1, 2))
+    return union_by_rank(int(vertex_count), e)
 
 
 def random_per_island(vertex_count: int, edges, first_vertex) -> np.ndarray:
