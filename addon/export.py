@@ -31,6 +31,7 @@ import numpy as np
 
 from ..core.accel import RAY_ALL, RAY_CAMERA, RAY_FLAGS, RAY_SHADOW
 from ..core.scene import color_ops as CO
+from ..core.scene.camera import CameraModel
 from ..core.scene import nodes as shading
 from ..core.errors import MemoryBudgetError, RenderCancelled, SceneError
 from ..core.lights.environment import mean_radiance
@@ -153,9 +154,10 @@ SUPPORT = (
      "matching functions in linear Rec.709", SUPPORTED, ""),
     ("Normal Map (tangent space, MikkTSpace tangents of the render UV map, OpenGL and "
      "DirectX) and Bump (Strength, Distance, Invert) from an Image Texture", SUPPORTED, ""),
-    ("Mapping (Point, Texture, Vector), Texture Coordinate (UV, Generated, Object) and "
-     "UV Map (any UV map of a mesh) into Image Texture and procedural texture vectors",
-     SUPPORTED, ""),
+    ("Mapping (Point, Texture, Vector), Texture Coordinate (UV, Generated, Object, and "
+     "Camera and Window in the material's atlas) and UV Map (any UV map of a mesh) into "
+     "Image Texture and procedural texture vectors; the Camera Data node (View Vector, "
+     "View Z Depth, View Distance)", SUPPORTED, ""),
     ("Image Texture interpolation (Linear, Closest, Cubic, Smart as Cubic) and extension "
      "(Repeat, Extend, Clip, Mirror)", SUPPORTED, ""),
     ("Image Texture projection: Box (with its blend, over the object-space normal), Sphere, "
@@ -1689,6 +1691,7 @@ class _Exporter:
         self.tex_index: dict = {}      # (image name, reading) -> index into textures
         self.udim_index: dict = {}     # (UDIM image name, tile number) -> index, or -1
         self.seq_index: dict = {}      # (sequence name, frame, reading) -> index
+        self.camera_model = None       # the render camera's CameraModel, set by run()
         self.tex_pixels: dict = {}     # image name -> its pixels (or None)
         self.mesh_cache: dict = {}
         self.atlas = AtlasBaker(self)  # materials baked into texture atlases
@@ -2306,6 +2309,10 @@ class _Exporter:
                 a = nw[rows].astype(np.float64) @ A
             elif kind == 'ObjectInfo':
                 a, own = np.broadcast_to(_object_info(inst, ob, name), (k, 3, 3)), False
+            elif kind == 'Camera':
+                p = pw[rows].astype(np.float64).reshape(-1, 3)
+                a, own = (None if self.camera_model is None else
+                          self.camera_model.camera_space(p).reshape(k, 3, 3)), False
             elif kind == 'TrueNormal':
                 p = pw[rows].astype(np.float64)
                 f = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
@@ -2770,6 +2777,7 @@ class _Exporter:
         t0 = time.perf_counter()
         scene = self.scene
         cam = self.camera(camera_object if camera_object is not None else scene.camera)
+        self.camera_model = CameraModel(cam)
         parts, lights = [], []
         seen = {}
         render_mode = getattr(self.dg, "mode", 'RENDER') == 'RENDER'

@@ -98,13 +98,16 @@ def needs_atlas(nodes, graph_nodes) -> bool:
     linked output is a procedural texture, one of ``graph_nodes`` or an
     Image Texture projected otherwise than flat, a Color Ramp whose
     Alpha is linked (the colour chains read a ramp's Color only), a UDIM
-    image (its tiles chosen per point), or a
+    image (its tiles chosen per point), the camera's texture coordinates,
+    or a
     colour or Mix node whose factor a node feeds (the colour chains fold
     constant ones only)."""
     return any((nd.type in PR.KINDS or nd.type in graph_nodes
                 or nd.type == 'TEX_IMAGE' and getattr(nd, "projection", 'FLAT') != 'FLAT')
                and any(o.is_linked for o in nd.outputs)
                or nd.type == 'VALTORGB' and nd.outputs['Alpha'].is_linked
+               or nd.type == 'TEX_COORD' and any(nd.outputs[k].is_linked
+                                                 for k in ('Camera', 'Window'))
                or nd.type == 'TEX_IMAGE' and nd.image is not None
                and nd.image.source == 'TILED' and any(o.is_linked for o in nd.outputs)
                or linked_parameter(nd) and any(o.is_linked for o in nd.outputs)

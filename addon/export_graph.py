@@ -23,7 +23,7 @@ from ..core.scene.shader_graph import COLOR, FLOAT, VEC, Attr, Const, Image, Op,
 GRAPH_NODES = frozenset({'MATH', 'VECT_MATH', 'MAP_RANGE', 'CLAMP', 'SEPXYZ', 'COMBXYZ',
                          'SEPARATE_COLOR', 'COMBINE_COLOR', 'ATTRIBUTE', 'VERTEX_COLOR',
                          'NEW_GEOMETRY', 'OBJECT_INFO', 'VECTOR_ROTATE',
-                         'CURVE_FLOAT', 'BLACKBODY', 'WAVELENGTH'})
+                         'CURVE_FLOAT', 'BLACKBODY', 'WAVELENGTH', 'CAMERA'})
 
 #: The colour nodes' float inputs, by node type, in color_ops' order: a
 #: node feeding one makes the op vary per point (an atlas material's).
@@ -127,8 +127,25 @@ class GraphReader:
         if t == 'TEX_COORD':
             ob = node.object.name if node.object is not None else None
             key = {'Generated': ('Generated',), 'Object': ('Object', ob), 'UV': ('UV', None),
-                   'Normal': ('ObjectNormal',)}.get(name)
+                   'Normal': ('ObjectNormal',), 'Camera': ('Camera',)}.get(name)
+            if name == 'Window':
+                # A projection of the camera-space point, per point: the
+                # point interpolates over a triangle, its projection does not.
+                cam = mb.ex.camera_model
+                return None if cam is None else Op("window", (Attr(('Camera',)),),
+                                                   cam.window_params, VEC)
             return None if key is None else Attr(key)
+        if t == 'CAMERA':
+            # Cycles' svm_node_camera: the camera-space point's direction,
+            # its z (depth along the view) and its length.
+            p = Attr(('Camera',))
+            zero, one = Const((0.0, 0.0, 0.0), VEC), Const(1.0, FLOAT)
+            if name == 'View Z Depth':
+                return Op("separate", (p,), ("XYZ", 2), FLOAT)
+            op = {'View Vector': ('NORMALIZE', 'Vector'),
+                  'View Distance': ('LENGTH', 'Value')}.get(name)
+            return None if op is None else Op("vector_math", (p, zero, zero, one), op,
+                                              VEC if op[1] == 'Vector' else FLOAT)
         if t == 'UVMAP':
             return Attr(('UV', node.uv_map or None))
         if t == 'OBJECT_INFO':

@@ -1055,3 +1055,66 @@ def test_sequence_frames_and_file_names():
     assert frame_path("/a/b7/shot_0001.png", 12) == "/a/b7/shot_0012.png"
     assert frame_path("/a/v2.fire.001.exr", 1234) == "/a/v2.fire.1234.exr"
     assert frame_path("/a/plain.png", 3) == "/a/plain.png"
+
+
+@pytest.mark.parametrize("kind", ["PERSP", "ORTHO"])
+def test_camera_coordinates_agree_with_cycles(kind, tmp_path):
+    """Texture Coordinate Window (its x, y as red and green) and Camera
+    (through a Checker), and the Camera Data node's View Z Depth (blue,
+    through Map Range), View Distance (through Ping-Pong, a Mix factor) and
+    View Vector (added, scaled), into a Diffuse Color; a camera
+    tilted, shifted and lens-changed (or orthographic) over a 4:3 frame.
+    Before, each cut the graph with a note.  Measured: mean |diff| 3.1 %
+    and 1.6 % of the mean, 0.74x and 0.86x the seed-to-seed noise."""
+    pytest.importorskip("bpy")
+    import math
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        tc = nodes.new('ShaderNodeTexCoord')
+        cd = nodes.new('ShaderNodeCameraData')
+        win = nodes.new('ShaderNodeSeparateXYZ')
+        links.new(tc.outputs['Window'], win.inputs[0])
+        depth = nodes.new('ShaderNodeMapRange')
+        depth.inputs['From Min'].default_value = 2.5
+        depth.inputs['From Max'].default_value = 4.0
+        links.new(cd.outputs['View Z Depth'], depth.inputs['Value'])
+        rgb = nodes.new('ShaderNodeCombineXYZ')
+        links.new(win.outputs['X'], rgb.inputs['X'])
+        links.new(win.outputs['Y'], rgb.inputs['Y'])
+        links.new(depth.outputs['Result'], rgb.inputs['Z'])
+        ring = nodes.new('ShaderNodeMath')
+        ring.operation = 'PINGPONG'
+        ring.inputs[1].default_value = 0.25
+        links.new(cd.outputs['View Distance'], ring.inputs[0])
+        ch = nodes.new('ShaderNodeTexChecker')
+        ch.inputs['Scale'].default_value = 3.0
+        links.new(tc.outputs['Camera'], ch.inputs['Vector'])
+        mix = nodes.new('ShaderNodeMix')
+        mix.data_type, mix.blend_type = 'RGBA', 'MULTIPLY'
+        links.new(ring.outputs[0], mix.inputs['Factor'])
+        links.new(rgb.outputs[0], mix.inputs['A'])
+        links.new(ch.outputs['Color'], mix.inputs['B'])
+        tint = nodes.new('ShaderNodeVectorMath')
+        tint.operation = 'MULTIPLY_ADD'
+        tint.inputs[1].default_value = (0.2, 0.2, 0.2)
+        links.new(cd.outputs['View Vector'], tint.inputs[0])
+        links.new(mix.outputs['Result'], tint.inputs[2])
+        absolute = nodes.new('ShaderNodeVectorMath')
+        absolute.operation = 'ABSOLUTE'
+        links.new(tint.outputs[0], absolute.inputs[0])
+        links.new(absolute.outputs[0], d.inputs['Color'])
+
+    sc, _ = _scene(mat)
+    sc.render.resolution_x = 40
+    sc.render.resolution_y = 30
+    cam = sc.camera
+    cam.data.type = kind
+    cam.data.lens = 30.0
+    cam.data.ortho_scale = 2.2
+    cam.data.shift_x, cam.data.shift_y = 0.05, -0.08
+    cam.location = (0.3, -1.6, 2.6)
+    cam.rotation_euler = (math.radians(30.0), 0.0, math.radians(8.0))
+    err, noise, img, ref, scene, lines = _compare(sc, tmp_path, f"camera coordinates {kind}")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    _check(err, noise, _effect(img, scene, (0.5, 0.5, 0.5, 1.0)))

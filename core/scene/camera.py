@@ -162,6 +162,22 @@ class CameraProjection:
     weight: np.ndarray
 
 
+def window(pc: np.ndarray, orthographic: bool, x0: float, y0: float, sx: float,
+           sy: float) -> np.ndarray:
+    """(K, 3) float64 the Texture Coordinate node's Window output of
+    camera-space points pc (K, 3) (:meth:`CameraModel.camera_space`): their
+    place on the whole frame through the pinhole, (0, 0) at the bottom left
+    and (1, 1) at the top right, z 0 (Cycles' worldtondc; the view plane of
+    :attr:`CameraModel.window_params`, shift and sensor fit included)."""
+    pc = np.asarray(pc, np.float64).reshape(-1, 3)
+    if orthographic:
+        xs, ys = pc[:, 0], pc[:, 1]
+    else:
+        z = np.where(pc[:, 2] != 0.0, pc[:, 2], 1e-300)
+        xs, ys = pc[:, 0] / z, pc[:, 1] / z
+    return np.stack([(xs - x0) / sx, (ys - y0) / sy, np.zeros(len(pc))], axis=1)
+
+
 @dataclass
 class CameraRays:
     """Primary rays: o (K,3), d (K,3) unit, t_max (K,) (clip end), float64."""
@@ -280,6 +296,21 @@ class CameraModel:
             weight = 1.0 / (A_pix * cos_s ** 3 * dist_s * dist_s)
         return CameraProjection(raster, ok, lens_w, wi, dist, cos_cam, We, pdf_pos, pdf_dir,
                                 pdf_wi, weight)
+
+    def camera_space(self, p: np.ndarray) -> np.ndarray:
+        """(K, 3) float64 world points p (K, 3) in Cycles' camera space, what
+        the Texture Coordinate node's Camera output gives: x right, y up, z
+        along the view (the camera's matrix without its scale, z flipped).
+        Affine in p: a triangle's corners interpolate to its points."""
+        pc = (np.asarray(p, np.float64).reshape(-1, 3) - self.origin) @ self.R
+        return pc * np.array([1.0, 1.0, -1.0])
+
+    @property
+    def window_params(self) -> tuple:
+        """(orthographic, x0, y0, sx, sy) of :func:`window`: the view plane's
+        bottom left corner and size (at unit depth for a perspective camera)."""
+        return (self.cam.kind == "ORTHO", float(self.xmin), float(self.ymin),
+                float(self.pix * self.W), float(self.ycor * self.pix * self.H))
 
     def footprint(self, depth: np.ndarray) -> np.ndarray:
         """World size of one pixel at camera depth ``depth`` (K,) (z distance)."""

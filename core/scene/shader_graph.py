@@ -36,6 +36,7 @@ from . import color_ops as CO
 from . import node_math as NM
 from . import procedural as PR
 from .. import spectrum as SP
+from .camera import window
 from .textures import sample_alpha, sample_texture
 
 FLOAT, VEC, COLOR = "float", "vec", "color"
@@ -62,7 +63,9 @@ class Attr:
     Object Info node's Location, Color, Alpha, Object Index or Random: one
     value an object), ('TrueNormal',) (the Geometry node's: the face's
     normal), ('Pointiness',) and ('RandomPerIsland',) (the Geometry node's,
-    computed from the mesh as Cycles does: core/scene/mesh_attributes.py)."""
+    computed from the mesh as Cycles does: core/scene/mesh_attributes.py),
+    ('Camera',) (the point in Cycles' camera space: x right, y up, z along
+    the view; the "window" op projects it onto the frame)."""
     key: tuple
     kind: str = VEC
 
@@ -434,6 +437,7 @@ OPS = {
     "ramp_alpha": lambda args, params: NM.ramp_alpha(*args, *params),
     "blackbody": lambda args, params: np.maximum(SP.blackbody_rec709(args[0]), 0.0),
     "wavelength": lambda args, params: SP.wavelength_rec709(args[0]),
+    "window": lambda args, params: window(args[0], *params),
     # the view-dependent inputs, of Attr VIEW_COS (the Mix Shader Fac's LUT)
     "fresnel": lambda args, params: NM.fresnel(*args),
     "layer_weight": lambda args, params: NM.layer_weight(*args, *params),
