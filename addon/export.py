@@ -191,7 +191,8 @@ SUPPORT = (
      "atlas over its triangles when the render starts", SUPPORTED, ""),
     ("converter nodes between textures and inputs: Math, Vector Math, Map Range, Clamp, "
      "Mix (float, vector, colour), Separate / Combine XYZ and Color (RGB, HSV, HSL), "
-     "Vector Rotate, Float Curve, RGB to BW, a Color Ramp's Alpha, Blackbody, Wavelength, "
+     "Vector Rotate, Vector Transform, Float Curve, RGB to BW, a Color Ramp's Alpha, "
+     "Blackbody, Wavelength, "
      "with Cycles' kernels; an image through them alone is baked over its own uvs",
      SUPPORTED, ""),
     ("colour attributes (Color Attribute and Attribute nodes: point, corner or face "
@@ -2313,6 +2314,9 @@ class _Exporter:
                 p = pw[rows].astype(np.float64).reshape(-1, 3)
                 a, own = (None if self.camera_model is None else
                           self.camera_model.camera_space(p).reshape(k, 3, 3)), False
+            elif kind == 'ObjectAxis':
+                col = _mat4(inst.matrix_world)[:3, name]
+                a, own = np.broadcast_to(col, (k, 3, 3)), False
             elif kind == 'TrueNormal':
                 p = pw[rows].astype(np.float64)
                 f = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])

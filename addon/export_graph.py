@@ -23,7 +23,8 @@ from ..core.scene.shader_graph import COLOR, FLOAT, VEC, Attr, Const, Image, Op,
 GRAPH_NODES = frozenset({'MATH', 'VECT_MATH', 'MAP_RANGE', 'CLAMP', 'SEPXYZ', 'COMBXYZ',
                          'SEPARATE_COLOR', 'COMBINE_COLOR', 'ATTRIBUTE', 'VERTEX_COLOR',
                          'NEW_GEOMETRY', 'OBJECT_INFO', 'VECTOR_ROTATE',
-                         'CURVE_FLOAT', 'BLACKBODY', 'WAVELENGTH', 'CAMERA'})
+                         'CURVE_FLOAT', 'BLACKBODY', 'WAVELENGTH', 'CAMERA',
+                         'VECT_TRANSFORM'})
 
 #: The colour nodes' float inputs, by node type, in color_ops' order: a
 #: node feeding one makes the op vary per point (an atlas material's).
@@ -135,6 +136,17 @@ class GraphReader:
                 return None if cam is None else Op("window", (Attr(('Camera',)),),
                                                    cam.window_params, VEC)
             return None if key is None else Attr(key)
+        if t == 'VECT_TRANSFORM':
+            cam = mb.ex.camera_model
+            v = self._in(node, "Vector", depth, VEC)
+            if v is None or cam is None:
+                return None
+            axes = tuple(Attr(('ObjectAxis', i)) for i in range(3))
+            C = cam.R * np.array([1.0, 1.0, -1.0])      # camera z along the view
+            return Op("vector_transform", (v,) + axes + (Attr(('ObjectInfo', 'Location')),),
+                      (node.vector_type, node.convert_from, node.convert_to,
+                       tuple(float(x) for x in C.ravel()),
+                       tuple(float(x) for x in cam.origin)), VEC)
         if t == 'CAMERA':
             # Cycles' svm_node_camera: the camera-space point's direction,
             # its z (depth along the view) and its length.

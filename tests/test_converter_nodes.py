@@ -235,3 +235,31 @@ def test_colour_nodes_with_linked_factors_match_cycles(rendered):
     Curves with every float input fed per point.  Measured: median 7e-9,
     p99 2.7e-7, largest 3.7e-7 (HSV: an ulp or two)."""
     check(rendered(FACTOR_CASES), "colour nodes, linked factors", 1e-7, 5e-7, 1e-6)
+
+
+def test_vector_transform_closed_forms():
+    """node_math.vector_transform: object <-> world <-> camera round trips
+    return the input; a transformed normal stays perpendicular to a
+    transformed tangent; the camera's own position is camera-space 0, a
+    point ahead of it has z > 0 (Cycles' camera z along the view)."""
+    rng = np.random.default_rng(7)
+    K = 50
+    A = rng.normal(size=(K, 3, 3)) + 2.0 * np.eye(3)
+    t = rng.normal(size=(K, 3))
+    th = 0.7
+    R = np.array([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0], [0, 0, 1]])
+    C, o = R * np.array([1.0, 1.0, -1.0]), np.array([0.5, -1.0, 3.0])
+    v = rng.normal(size=(K, 3))
+    f = node_math.vector_transform
+    for kind in ("POINT", "VECTOR", "NORMAL"):
+        for a, b in (("OBJECT", "WORLD"), ("WORLD", "CAMERA"), ("OBJECT", "CAMERA")):
+            x = v if kind != "NORMAL" else v / np.linalg.norm(v, axis=1, keepdims=True)
+            back = f(kind, b, a, f(kind, a, b, x, A, t, (C, o)), A, t, (C, o))
+            np.testing.assert_allclose(back, x, atol=1e-9, err_msg=f"{kind} {a} {b}")
+    n, tan = np.cross(v, rng.normal(size=(K, 3))), v
+    nw = f("NORMAL", "OBJECT", "WORLD", n, A, t, (C, o))
+    tw = f("VECTOR", "OBJECT", "WORLD", tan, A, t, (C, o))
+    assert np.abs(np.einsum("ki,ki->k", nw, tw)).max() < 1e-9
+    cam = f("POINT", "WORLD", "CAMERA", np.stack([o, o - 2.0 * R[:, 2]]), A[:2], t[:2], (C, o))
+    np.testing.assert_allclose(cam[0], 0.0, atol=1e-12)
+    assert cam[1, 2] == pytest.approx(2.0)

@@ -1118,3 +1118,76 @@ def test_camera_coordinates_agree_with_cycles(kind, tmp_path):
     err, noise, img, ref, scene, lines = _compare(sc, tmp_path, f"camera coordinates {kind}")
     assert lines[1] == "Approximated: nothing.", lines[1]
     _check(err, noise, _effect(img, scene, (0.5, 0.5, 0.5, 1.0)))
+
+
+def test_vector_transform_agrees_with_cycles(tmp_path):
+    """Vector Transform in five of its forms on a rotated, unevenly scaled
+    plane under a tilted perspective camera: the world position to object
+    space (its absolute value a colour), to camera space (its z through Map Range as
+    a Mix factor), the object-space point as a vector to camera space, the
+    world normal to object space and a constant normal from camera to
+    world (added, absolute, into a Diffuse Color).  Before, the node cut
+    the graph with a note.  Measured: mean |diff| 5.5 % of the mean, 0.84x
+    the seed-to-seed noise (tests/test_converter_nodes.py checks the
+    transforms' closed forms)."""
+    pytest.importorskip("bpy")
+    import math
+
+    def vt(nodes, links, src, kind, a, b):
+        n = nodes.new('ShaderNodeVectorTransform')
+        n.vector_type, n.convert_from, n.convert_to = kind, a, b
+        if isinstance(src, tuple):
+            n.inputs[0].default_value = src
+        else:
+            links.new(src, n.inputs[0])
+        return n.outputs[0]
+
+    def vmath(nodes, links, op, a, b=None, scale=None):
+        n = nodes.new('ShaderNodeVectorMath')
+        n.operation = op
+        links.new(a, n.inputs[0])
+        if b is not None:
+            links.new(b, n.inputs[1])
+        if scale is not None:
+            n.inputs['Scale'].default_value = scale
+        return n.outputs[0]
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        geo = nodes.new('ShaderNodeNewGeometry')
+        tc = nodes.new('ShaderNodeTexCoord')
+        base = vmath(nodes, links, 'ABSOLUTE',
+                     vt(nodes, links, geo.outputs['Position'], 'POINT', 'WORLD', 'OBJECT'))
+        sep = nodes.new('ShaderNodeSeparateXYZ')
+        links.new(vt(nodes, links, geo.outputs['Position'], 'POINT', 'WORLD', 'CAMERA'),
+                  sep.inputs[0])
+        mr = nodes.new('ShaderNodeMapRange')
+        mr.inputs['From Min'].default_value, mr.inputs['From Max'].default_value = 2.5, 4.0
+        links.new(sep.outputs['Z'], mr.inputs['Value'])
+        mix = nodes.new('ShaderNodeMix')
+        mix.data_type, mix.blend_type = 'RGBA', 'MIX'
+        next(i for i in mix.inputs if i.identifier == 'B_Color').default_value = \
+            (0.9, 0.5, 0.1, 1.0)
+        links.new(mr.outputs['Result'], mix.inputs['Factor'])
+        links.new(base, mix.inputs['A'])
+        extra = vmath(nodes, links, 'ADD',
+                      vt(nodes, links, tc.outputs['Object'], 'VECTOR', 'OBJECT', 'CAMERA'),
+                      vt(nodes, links, geo.outputs['Normal'], 'NORMAL', 'WORLD', 'OBJECT'))
+        extra = vmath(nodes, links, 'ADD', extra,
+                      vt(nodes, links, (0.3, -0.5, 0.8), 'NORMAL', 'CAMERA', 'WORLD'))
+        extra = vmath(nodes, links, 'SCALE', vmath(nodes, links, 'ABSOLUTE', extra),
+                      scale=0.15)
+        links.new(vmath(nodes, links, 'ADD', mix.outputs['Result'], extra), d.inputs['Color'])
+
+    sc, ob = _scene(mat)
+    ob.scale = (1.3, 0.7, 1.0)
+    ob.rotation_euler = (0.1, -0.15, 0.6)
+    cam = sc.camera
+    cam.data.type = 'PERSP'
+    cam.data.lens = 30.0
+    cam.location = (0.3, -1.6, 2.6)
+    cam.rotation_euler = (math.radians(30.0), 0.0, math.radians(8.0))
+    import test_shading_nodes as TS
+    err, noise, img, ref, scene, lines = TS.compare(sc, tmp_path, "vector transform")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    _check(err, noise, _effect(img, scene, (0.5, 0.5, 0.5, 1.0)))

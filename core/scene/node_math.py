@@ -630,6 +630,60 @@ def vector_rotate(rotate_type: str, invert: bool, vector, center=0.0, axis=(0.0,
     return np.where((length != _ZERO)[..., None], out, v).astype(np.float64)
 
 
+# ---------------------------------------------------------- Vector Transform
+
+def _unit_rows(v):
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-30)
+
+
+def vector_transform(kind: str, src: str, dst: str, v, axes, location, camera) -> np.ndarray:
+    """(K, 3) float64 the Vector Transform node (``svm_node_vector_transform``)
+    of v (K, 3), ``kind`` 'POINT', 'VECTOR' or 'NORMAL', from space ``src``
+    to ``dst`` ('WORLD', 'OBJECT', 'CAMERA'): axes (K, 3, 3) the object's
+    matrix (columns: its axes in the world), location (K, 3) its origin;
+    camera (C (3, 3), o (3,)) Cycles' camera-to-world rotation (camera z
+    along the view) and position.  Points move, vectors turn, normals go
+    by the inverse transpose and are normalised; the object step is a
+    world step taken through the object's matrix, as Cycles chains them."""
+    v = np.asarray(v, np.float64)
+    A = np.asarray(axes, np.float64)
+    t = np.asarray(location, np.float64)
+    C, o = (np.asarray(x, np.float64) for x in camera)
+    point, normal = kind == "POINT", kind == "NORMAL"
+
+    def to_world_from_object(x):
+        if normal:
+            return _unit_rows(np.einsum("kji,kj->ki", np.linalg.inv(A), x))
+        y = np.einsum("kij,kj->ki", A, x)
+        return y + t if point else y
+
+    def to_object_from_world(x):
+        if normal:
+            return _unit_rows(np.einsum("kji,kj->ki", A, x))
+        y = np.einsum("kij,kj->ki", np.linalg.inv(A), x - t if point else x)
+        return y
+
+    def to_camera_from_world(x):
+        y = (x - o if point else x) @ C
+        return _unit_rows(y) if normal else y
+
+    def to_world_from_camera(x):
+        y = x @ C.T + (o if point else 0.0)
+        return _unit_rows(y) if normal else y
+
+    if src == dst:
+        return v
+    if src == "OBJECT":
+        v = to_world_from_object(v)
+    elif src == "CAMERA":
+        v = to_world_from_camera(v)
+    if dst == "OBJECT":
+        return to_object_from_world(v)
+    if dst == "CAMERA":
+        return to_camera_from_world(v)
+    return v
+
+
 # ------------------------------------------------- Float Curve, Color Ramp alpha
 
 def float_curve(fac, value, table, min_x: float, range_x: float,

@@ -65,7 +65,8 @@ class Attr:
     normal), ('Pointiness',) and ('RandomPerIsland',) (the Geometry node's,
     computed from the mesh as Cycles does: core/scene/mesh_attributes.py),
     ('Camera',) (the point in Cycles' camera space: x right, y up, z along
-    the view; the "window" op projects it onto the frame)."""
+    the view; the "window" op projects it onto the frame), ('ObjectAxis',
+    i) (the object's i-th axis in the world: its matrix's column i)."""
     key: tuple
     kind: str = VEC
 
@@ -438,6 +439,9 @@ OPS = {
     "blackbody": lambda args, params: np.maximum(SP.blackbody_rec709(args[0]), 0.0),
     "wavelength": lambda args, params: SP.wavelength_rec709(args[0]),
     "window": lambda args, params: window(args[0], *params),
+    "vector_transform": lambda args, params: NM.vector_transform(
+        *params[:3], args[0], np.stack(args[1:4], -1), args[4],
+        (np.asarray(params[3]).reshape(3, 3), params[4])),
     # the view-dependent inputs, of Attr VIEW_COS (the Mix Shader Fac's LUT)
     "fresnel": lambda args, params: NM.fresnel(*args),
     "layer_weight": lambda args, params: NM.layer_weight(*args, *params),
