@@ -165,6 +165,8 @@ SUPPORT = (
     ("UDIM images (tiles from files named with <UDIM> or <UVTILE>): each tile over its own "
      "unit square of uv, Cycles' missing-image magenta where there is no tile (the material "
      "baked into an atlas)", SUPPORTED, ""),
+    ("an Attribute node of type Instancer (geometry nodes' instance attributes, which "
+     "Python cannot read)", APPROXIMATED, "ignored"),
     ("a UDIM image whose tiles are packed or have no file", APPROXIMATED,
      "could not be read (packed, or no file)"),
     ("image sequences: the file of the render's frame (the node's Frames, Start Frame, "
@@ -196,7 +198,9 @@ SUPPORT = (
      "with Cycles' kernels; an image through them alone is baked over its own uvs",
      SUPPORTED, ""),
     ("colour attributes (Color Attribute and Attribute nodes: point, corner or face "
-     "domain), Geometry Position, Normal, True Normal, Pointiness and Random Per Island "
+     "domain), Attribute nodes of type Object (a custom property or RNA path of the object, "
+     "then of its data) and View Layer (of the view layer, the scene, the world), "
+     "Geometry Position, Normal, True Normal, Pointiness and Random Per Island "
      "(computed from the mesh as Cycles' sync does), Texture Coordinate Normal, Object Info "
      "(Location, Color, Alpha, Object Index, Material Index, Random as Cycles syncs it), in "
      "texture graphs", SUPPORTED, ""),
@@ -399,6 +403,43 @@ def _object_info(inst, ob, output) -> np.ndarray:
     rid = (int(inst.random_id) & 0xFFFFFFFF if inst.is_instance
            else int(hash_uint2(hash_string(ob.name), 0)))
     return np.full(3, float(np.float32(rid) * np.float32(1.0 / 4294967295.0)))
+
+
+def _property_value(idb, path):
+    """(4,) float64 a property of ID ``idb`` at RNA ``path`` as Cycles reads
+    it (blender/object.cc ``lookup_property``): a number or boolean as (v,
+    v, v, 1), a vector of 1 to 4 numbers into (0, 0, 0, 1); None for
+    another type or no such property."""
+    try:
+        v = idb.path_resolve(path)
+    except (ValueError, TypeError, AttributeError):
+        return None
+    if isinstance(v, (bool, int, float)):
+        return np.array([float(v)] * 3 + [1.0])
+    try:
+        vals = [float(x) for x in v]
+    except (TypeError, ValueError):
+        return None
+    if not 1 <= len(vals) <= 4:
+        return None
+    out = np.array([0.0, 0.0, 0.0, 1.0])
+    out[:len(vals)] = vals
+    return out
+
+
+def id_attribute(ids, name) -> np.ndarray:
+    """(4,) float64 an Attribute node's Object or View Layer value: the
+    first of ``ids`` (an object, then its data; or the view layer, scene,
+    world) holding ``name`` as a custom property, else as an RNA path
+    (custom properties first, as in Cycles); zeros when none does."""
+    for idb in ids:
+        if idb is None:
+            continue
+        for path in (f'["{name}"]', name):
+            v = _property_value(idb, path)
+            if v is not None:
+                return v
+    return np.zeros(4)
 
 
 def _geometry_corners(me, kind):
@@ -2314,6 +2355,10 @@ class _Exporter:
                 p = pw[rows].astype(np.float64).reshape(-1, 3)
                 a, own = (None if self.camera_model is None else
                           self.camera_model.camera_space(p).reshape(k, 3, 3)), False
+            elif kind in ('ObjectAttr', 'ObjectAttrAlpha'):
+                v = id_attribute((ob, getattr(ob, "data", None)), name)
+                v = v[:3] if kind == 'ObjectAttr' else np.full(3, v[3])
+                a, own = np.broadcast_to(v, (k, 3, 3)), False
             elif kind == 'ObjectAxis':
                 col = _mat4(inst.matrix_world)[:3, name]
                 a, own = np.broadcast_to(col, (k, 3, 3)), False

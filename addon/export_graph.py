@@ -207,6 +207,23 @@ class GraphReader:
         if t in ('BLACKBODY', 'WAVELENGTH'):
             x = self._in(node, "Temperature" if t == 'BLACKBODY' else "Wavelength", depth, FLOAT)
             return None if x is None else Op(t.lower(), (x,), (), COLOR)
+        if t == 'ATTRIBUTE' and node.attribute_type in ('OBJECT', 'VIEW_LAYER'):
+            # One value an object (its custom property or RNA path, then its
+            # data's), or one for the whole render (the view layer's, the
+            # scene's, the world's): (r, g, b, a), zero when none is found.
+            from .export import id_attribute
+            n = node.attribute_name
+            if node.attribute_type == 'VIEW_LAYER':
+                sc = mb.ex.scene
+                v = id_attribute((mb.ex.dg.view_layer, sc, sc.world), n)
+                rgb = Const(tuple(float(x) for x in v[:3]), COLOR)
+                return {'Color': rgb, 'Vector': SG.as_vector(rgb, VEC),
+                        'Fac': SG.as_float(SG.as_vector(rgb, VEC)),
+                        'Alpha': Const(float(v[3]), FLOAT)}.get(out.identifier)
+            key = ('ObjectAttr', n)
+            return {'Color': Attr(key, COLOR), 'Vector': Attr(key, VEC),
+                    'Fac': SG.as_float(Attr(key, VEC)),
+                    'Alpha': Attr(('ObjectAttrAlpha', n), FLOAT)}.get(out.identifier)
         if t in ('ATTRIBUTE', 'VERTEX_COLOR'):
             if t == 'ATTRIBUTE' and node.attribute_type != 'GEOMETRY':
                 return None
@@ -214,8 +231,9 @@ class GraphReader:
                                  else node.layer_name) or None)
             if name in ('Color', 'Vector'):
                 return Attr(key, COLOR if name == 'Color' else VEC)
-            # Cycles' svm_node_attr: a Fac of a vector attribute is its mean.
-            return SG.as_float(Attr(key, VEC)) if name == 'Fac' else None
+            # Cycles' svm_node_attr: a Fac of a vector attribute is its mean
+            # (the output Blender 5 names Factor, identifier Fac).
+            return SG.as_float(Attr(key, VEC)) if out.identifier == 'Fac' else None
         if t == 'MAPPING':
             from .export import _mapping_matrix
             v = self._in(node, "Vector", depth, VEC)

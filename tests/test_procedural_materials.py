@@ -1191,3 +1191,96 @@ def test_vector_transform_agrees_with_cycles(tmp_path):
     err, noise, img, ref, scene, lines = TS.compare(sc, tmp_path, "vector transform")
     assert lines[1] == "Approximated: nothing.", lines[1]
     _check(err, noise, _effect(img, scene, (0.5, 0.5, 0.5, 1.0)))
+
+
+def test_object_and_view_layer_attributes_agree_with_cycles(tmp_path):
+    """Attribute nodes of type Object and View Layer: a custom property on
+    the object (a colour), one on its mesh only (an integer, found on the
+    data), the RNA path ``color`` (the viewport display colour) and a
+    missing name (zero), and a scene custom property through View Layer;
+    the plane, a copy with other values, into a Diffuse Color.  Before,
+    they cut the graph with a note.  Measured: mean |diff| 1.3 % of the
+    mean, 0.71x the seed-to-seed noise; each attribute alone, on one plane,
+    agrees to the digit."""
+    pytest.importorskip("bpy")
+
+    def attr(nodes, kind, name):
+        a = nodes.new('ShaderNodeAttribute')
+        a.attribute_type, a.attribute_name = kind, name
+        return a
+
+    def vmath(nodes, links, op, a, b):
+        n = nodes.new('ShaderNodeVectorMath')
+        n.operation = op
+        links.new(a, n.inputs[0])
+        links.new(b, n.inputs[1])
+        return n.outputs[0]
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        tint = attr(nodes, 'OBJECT', 'tint').outputs['Color']
+        level = attr(nodes, 'OBJECT', 'level').outputs['Fac']
+        shown = attr(nodes, 'OBJECT', 'color').outputs['Vector']
+        none = attr(nodes, 'OBJECT', 'no such property').outputs['Alpha']
+        mood = attr(nodes, 'VIEW_LAYER', 'mood').outputs['Fac']
+        scale = nodes.new('ShaderNodeMath')
+        scale.operation = 'MULTIPLY_ADD'
+        scale.inputs[1].default_value = 0.2
+        links.new(level, scale.inputs[0])
+        links.new(none, scale.inputs[2])
+        c = vmath(nodes, links, 'SCALE', tint, tint)
+        links.new(scale.outputs[0], c.node.inputs['Scale'])
+        m = vmath(nodes, links, 'SCALE', shown, shown)
+        links.new(mood, m.node.inputs['Scale'])
+        links.new(vmath(nodes, links, 'ADD', c, m), d.inputs['Color'])
+
+    sc, ob = _scene(mat)
+    sc["mood"] = 0.4
+    ob.scale = (0.35, 0.9, 1.0)
+    ob.location = (-0.5, 0.0, 0.0)
+    ob["tint"] = (0.2, 0.6, 0.9)
+    ob.color = (0.9, 0.3, 0.2, 1.0)
+    ob.data["level"] = 3
+    copy = ob.copy()
+    copy.data = ob.data.copy()
+    copy.location = (0.5, 0.0, 0.0)
+    copy["tint"] = (0.8, 0.7, 0.1)
+    copy.color = (0.1, 0.9, 0.5, 1.0)
+    copy.data["level"] = 1
+    sc.collection.objects.link(copy)
+    err, noise, img, ref, scene, lines = _compare(sc, tmp_path, "object attributes")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    _check(err, noise, _effect(img, scene, (0.5, 0.5, 0.5, 1.0)))
+
+
+def test_a_geometry_attributes_factor_agrees_with_cycles(tmp_path):
+    """An Attribute node (type Geometry) reading a float attribute of the
+    vertices through its Fac output (named Factor in Blender 5), through a
+    Color Ramp into a Diffuse Color.  Before, the output's new name cut the
+    graph.  Measured: mean |diff| 0.60 % of the mean, 0.87x the
+    seed-to-seed noise."""
+    pytest.importorskip("bpy")
+    import bmesh
+    import bpy
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        a = nodes.new('ShaderNodeAttribute')
+        a.attribute_name = "weight"
+        cr = _ramp(nodes, links, a.outputs['Fac'], (0.1, 0.2, 0.8, 1.0), (0.9, 0.6, 0.1, 1.0),
+                   (0.0, 1.0))
+        links.new(cr.outputs['Color'], d.inputs['Color'])
+
+    sc, ob = _scene(mat)
+    bpy.context.view_layer.objects.active = ob
+    bm = bmesh.new()
+    bm.from_mesh(ob.data)
+    bmesh.ops.subdivide_edges(bm, edges=bm.edges[:], cuts=3, use_grid_fill=True)
+    bm.to_mesh(ob.data)
+    bm.free()
+    at = ob.data.attributes.new("weight", 'FLOAT', 'POINT')
+    at.data.foreach_set("value", np.random.default_rng(5).uniform(0, 1, len(at.data)))
+    ob.data.update()
+    err, noise, img, ref, scene, lines = _compare(sc, tmp_path, "attribute factor")
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    _check(err, noise, _effect(img, scene, (0.5, 0.5, 0.5, 1.0)))
