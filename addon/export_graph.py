@@ -142,10 +142,9 @@ class GraphReader:
             if v is None or cam is None:
                 return None
             axes = tuple(Attr(('ObjectAxis', i)) for i in range(3))
-            C = cam.R * np.array([1.0, 1.0, -1.0])      # camera z along the view
             return Op("vector_transform", (v,) + axes + (Attr(('ObjectInfo', 'Location')),),
                       (node.vector_type, node.convert_from, node.convert_to,
-                       tuple(float(x) for x in C.ravel()),
+                       tuple(float(x) for x in cam.cycles_axes.ravel()),
                        tuple(float(x) for x in cam.origin)), VEC)
         if t == 'CAMERA':
             # Cycles' svm_node_camera: the camera-space point's direction,

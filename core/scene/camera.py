@@ -297,13 +297,19 @@ class CameraModel:
         return CameraProjection(raster, ok, lens_w, wi, dist, cos_cam, We, pdf_pos, pdf_dir,
                                 pdf_wi, weight)
 
+    @property
+    def cycles_axes(self) -> np.ndarray:
+        """(3, 3) float64 the axes of Cycles' camera space in the world (its
+        camera-to-world rotation): x right, y up, z along the view (the
+        camera's matrix without its scale, z flipped)."""
+        return self.R * np.array([1.0, 1.0, -1.0])
+
     def camera_space(self, p: np.ndarray) -> np.ndarray:
-        """(K, 3) float64 world points p (K, 3) in Cycles' camera space, what
-        the Texture Coordinate node's Camera output gives: x right, y up, z
-        along the view (the camera's matrix without its scale, z flipped).
-        Affine in p: a triangle's corners interpolate to its points."""
-        pc = (np.asarray(p, np.float64).reshape(-1, 3) - self.origin) @ self.R
-        return pc * np.array([1.0, 1.0, -1.0])
+        """(K, 3) float64 world points p (K, 3) in Cycles' camera space
+        (:attr:`cycles_axes`), what the Texture Coordinate node's Camera
+        output gives.  Affine in p: a triangle's corners interpolate to its
+        points."""
+        return (np.asarray(p, np.float64).reshape(-1, 3) - self.origin) @ self.cycles_axes
 
     @property
     def window_params(self) -> tuple:
