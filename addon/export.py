@@ -450,11 +450,7 @@ def _geometry_corners(me, kind):
     V, E, T = len(me.vertices), len(me.edges), len(me.loop_triangles)
     edges = np.empty(E * 2, np.int64)
     me.edges.foreach_get("vertices", edges)
-    corners = np.empty(T * 3, np.int32)
-    me.loop_triangles.foreach_get("loops", corners)
-    vidx = np.empty(len(me.loops), np.int32)
-    me.loops.foreach_get("vertex_index", vidx)
-    tri_v = vidx[corners].reshape(T, 3)
+    tri_v = _triangle_corners(me, vertices=True).reshape(T, 3)
     if kind == 'RandomPerIsland':
         f = MA.random_per_island(V, edges, tri_v[:, 0])
         return np.broadcast_to(f[:, None, None], (T, 3, 3)).copy()
@@ -464,6 +460,18 @@ def _geometry_corners(me, kind):
     me.vertices.foreach_get("normal", nv)
     f = MA.pointiness(co.reshape(V, 3), nv.reshape(V, 3), edges)
     return np.repeat(f[tri_v][:, :, None], 3, axis=2)
+
+
+def _triangle_corners(me, vertices=False) -> np.ndarray:
+    """(3 T,) int32 the loop triangles' corners (loops), or with
+    ``vertices`` their vertices."""
+    corners = np.empty(len(me.loop_triangles) * 3, np.int32)
+    me.loop_triangles.foreach_get("loops", corners)
+    if not vertices:
+        return corners
+    vidx = np.empty(len(me.loops), np.int32)
+    me.loops.foreach_get("vertex_index", vidx)
+    return vidx[corners]
 
 
 def _attribute_corners(me, name):
@@ -495,13 +503,7 @@ def _attribute_corners(me, name):
         poly = np.empty(T, np.int32)
         me.loop_triangles.foreach_get("polygon_index", poly)
         return np.repeat(vals[poly][:, None, :], 3, axis=1)
-    corners = np.empty(T * 3, np.int32)
-    me.loop_triangles.foreach_get("loops", corners)
-    if at.domain == 'POINT':
-        vidx = np.empty(len(me.loops), np.int32)
-        me.loops.foreach_get("vertex_index", vidx)
-        corners = vidx[corners]
-    return vals[corners].reshape(T, 3, 3)
+    return vals[_triangle_corners(me, at.domain == 'POINT')].reshape(T, 3, 3)
 
 
 def _spec_key(spec) -> tuple:

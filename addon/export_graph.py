@@ -243,14 +243,16 @@ class GraphReader:
         if t == 'TEX_IMAGE':
             if name not in ('Color', 'Alpha'):
                 return None
-            tex = mb.ex.texture(node, mb)
+            # A UDIM image's first tile stands for it (its density, its
+            # pixels' digest); Image.pixels would read that tile again.
+            tiles = mb.ex.udim_tiles(node, mb)
+            tex = tiles[0][1] if tiles else mb.ex.texture(node, mb)
             if tex < 0:
                 return None
             proj = getattr(node, "projection", 'FLAT')
             return Image(tex, name, self._vector(node, depth, ('UV', None)), proj,
                          float(getattr(node, "projection_blend", 0.0)),
-                         Attr(('ObjectNormal',)) if proj == 'BOX' else None,
-                         mb.ex.udim_tiles(node, mb))
+                         Attr(('ObjectNormal',)) if proj == 'BOX' else None, tiles)
         if t in PR.KINDS:
             return self._procedural(node, name, depth)
         if t == 'MATH':

@@ -16,6 +16,11 @@ def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", a, b)
 
 
+def unit_rows(v: np.ndarray) -> np.ndarray:
+    """v (..., 3) with each row scaled to length 1 (a zero row stays zero)."""
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-30)
+
+
 def frame(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Orthonormal tangents (t, b), each (K, 3), of unit normals n (K, 3).
 

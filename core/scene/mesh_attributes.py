@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..mathutil import unit_rows
 from .cycles_hash import hash_uint
 
 #: FLT_EPSILON: vertices closer than sqrt(it) are one (Cycles' weld test
@@ -68,7 +69,7 @@ def pointiness(positions, vertex_normals, edges) -> np.ndarray:
     orig = welded(positions)
     n = np.zeros((V, 3))
     np.add.at(n, orig, np.asarray(vertex_normals, np.float64))
-    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    n = unit_rows(n)
     e = orig[np.asarray(edges, np.int64).reshape(-1, 2)]
     # each welded edge once, either way round (Cycles' EdgeMap)
     key = np.minimum(e[:, 0], e[:, 1]) * V + np.maximum(e[:, 0], e[:, 1])

@@ -41,6 +41,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import color_ops
+from ..mathutil import unit_rows
 from .color_ops import RGB_TO_Y
 
 F32 = np.float32
@@ -632,10 +633,6 @@ def vector_rotate(rotate_type: str, invert: bool, vector, center=0.0, axis=(0.0,
 
 # ---------------------------------------------------------- Vector Transform
 
-def _unit_rows(v):
-    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-30)
-
-
 def vector_transform(kind: str, src: str, dst: str, v, axes, location, camera) -> np.ndarray:
     """(K, 3) float64 the Vector Transform node (``svm_node_vector_transform``)
     of v (K, 3), ``kind`` 'POINT', 'VECTOR' or 'NORMAL', from space ``src``
@@ -653,23 +650,22 @@ def vector_transform(kind: str, src: str, dst: str, v, axes, location, camera) -
 
     def to_world_from_object(x):
         if normal:
-            return _unit_rows(np.einsum("kji,kj->ki", np.linalg.inv(A), x))
+            return unit_rows(np.einsum("kji,kj->ki", np.linalg.inv(A), x))
         y = np.einsum("kij,kj->ki", A, x)
         return y + t if point else y
 
     def to_object_from_world(x):
         if normal:
-            return _unit_rows(np.einsum("kji,kj->ki", A, x))
-        y = np.einsum("kij,kj->ki", np.linalg.inv(A), x - t if point else x)
-        return y
+            return unit_rows(np.einsum("kji,kj->ki", A, x))
+        return np.einsum("kij,kj->ki", np.linalg.inv(A), x - t if point else x)
 
     def to_camera_from_world(x):
         y = (x - o if point else x) @ C
-        return _unit_rows(y) if normal else y
+        return unit_rows(y) if normal else y
 
     def to_world_from_camera(x):
         y = x @ C.T + (o if point else 0.0)
-        return _unit_rows(y) if normal else y
+        return unit_rows(y) if normal else y
 
     if src == dst:
         return v

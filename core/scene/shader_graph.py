@@ -32,6 +32,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..mathutil import unit_rows
 from . import color_ops as CO
 from . import node_math as NM
 from . import procedural as PR
@@ -200,7 +201,7 @@ def _evaluate(e, ctx, memo):
     if isinstance(e, Attr):
         a = ctx.attrs[e.key]
         if e.key[0] in ("Normal", "ObjectNormal", "TrueNormal"):
-            a = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-30)
+            a = unit_rows(a)
         return a[:, 0] if e.kind == FLOAT else a
     if isinstance(e, Image):
         img = ctx.textures[e.texture]
@@ -344,7 +345,7 @@ def _mapping(args, params):
     A = np.asarray(A, np.float64).reshape(4, 4)
     out = v @ A[:3, :3].T + A[:3, 3]
     if normal:
-        out = out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-30)
+        out = unit_rows(out)
     return out
 
 
@@ -353,26 +354,24 @@ def _color_op(args, params):
     return CO.apply((params,), args[0])
 
 
+#: A colour node's color_ops op, by node type.
+_COLOR_OPS = {"HUE_SAT": "hsv", "BRIGHTCONTRAST": "bright", "GAMMA": "gamma",
+              "INVERT": "invert", "CURVE_RGB": "curves"}
+
+
 def _color_at(args, params):
     """A colour node with per-point factors (K,): Hue/Saturation/Value, Bright
     Contrast, Gamma, Invert, RGB Curves (params: its type, and a curves'
-    table, min_x, range_x, extrapolate), as the constant ops compute."""
+    table, min_x, range_x, extrapolate), the constant ops' color_ops.apply
+    with a factor a point: hue, saturation and value as rows (K,), the
+    factors that scale a colour as columns (K, 1)."""
     c, *p = args
     kind = params[0]
-    if kind == "HUE_SAT":
-        hue, sat, val, fac = p
-        return CO.hue_sat_val(c, hue, sat, val, fac[:, None])
-    if kind == "BRIGHTCONTRAST":
-        return CO.bright_contrast(c, p[0][:, None], p[1][:, None])
-    if kind == "GAMMA":
-        return CO.gamma(c, p[0][:, None])
-    if kind == "INVERT":
-        return CO.invert(c, p[0][:, None])
+    rows = 3 if kind == "HUE_SAT" else 0         # hsv's hue, saturation, value
+    p = [x if i < rows else x[:, None] for i, x in enumerate(p)]
     if kind == "CURVE_RGB":
-        table, lo, span, extrapolate = params[1:]
-        return CO.curves(c, np.asarray(table, np.float64), lo, span, extrapolate,
-                         p[0][:, None])
-    raise ValueError(f"unknown colour node {kind!r}")
+        p = list(params[1:]) + p
+    return CO.apply(((_COLOR_OPS[kind], *p),), c)
 
 
 def _mix_color(args, params):
