@@ -3,7 +3,7 @@
 # 3.13) and install the pinned dependencies plus this package (editable).
 #
 #   make demo       render example_blends/cornell.blend to out/ with a summary (DEMO_FLAGS="--time-limit 30")
-#   make test       run the test suite (pytest -q tests/)
+#   make test       run the test suite (two pytest-xdist workers, then the tests that time themselves alone)
 #   make extension  download the wheels and build + validate the Blender extension zips in dist/
 #   make bench      run the benchmark scripts in bench/
 #   make bench-deps install the benchmark-only peers (pyluxcore: bench/peer_luxcore.py)
@@ -21,6 +21,8 @@ STAMP   := $(VENV)/.fppm-installed
 # plots and PNG images; the HDR-FLIP metric of tools/metrics.py); the render
 # path and the extension never import them.  dask[distributed]: `fppm render
 # --workers/--cluster` only (tools/distributed.py), never in the extension.
+# pytest-xdist: `make test` only (the suite in two workers on the CI machine's
+# two cores; docs/architecture.md "The test suite's time, round 48").
 # Pinned so that the wheels bundled in the extension (blender_manifest.toml)
 # are the very versions the tests ran with.
 BPY_VERSION      := 5.2.3
@@ -30,8 +32,9 @@ NUMBA_VERSION    := 0.68.1
 LLVMLITE_VERSION := 0.50.0
 FLIP_VERSION     := 1.7
 DASK_VERSION     := 2026.8.0
+XDIST_VERSION    := 3.8.0
 DEPS := bpy==$(BPY_VERSION) numpy embreex==$(EMBREEX_VERSION) OpenEXR==$(OPENEXR_VERSION) \
-        numba==$(NUMBA_VERSION) llvmlite==$(LLVMLITE_VERSION) pytest hypothesis matplotlib \
+        numba==$(NUMBA_VERSION) llvmlite==$(LLVMLITE_VERSION) pytest pytest-xdist==$(XDIST_VERSION) hypothesis matplotlib \
         flip-evaluator==$(FLIP_VERSION) "dask[distributed]==$(DASK_VERSION)"
 
 BLENDER_EXT = $(shell ls -d $(VENV)/lib/python3.13/site-packages/bpy/*/scripts/addons_core/bl_pkg/cli/blender_ext.py 2>/dev/null | head -n1)
@@ -86,8 +89,15 @@ demo: $(STAMP) $(DEMO_SCENE)
 	$(VENV)/bin/fppm render $(DEMO_SCENE) -o $(DEMO_OUT) $(DEMO_FLAGS)
 
 # --- tests ------------------------------------------------------------------
+# Two phases: every test that does not time itself in two pytest-xdist workers
+# (whole files to a worker, so a module's fixtures are made once), then the
+# "serial" ones (tests/conftest.py SERIAL_FILES) alone.  Both phases run; the
+# target fails if either did.
 test: $(STAMP)
-	$(PY) -m pytest -q --durations=15 tests/
+	@rc=0; \
+	$(PY) -m pytest -q -n 2 --dist loadfile -m "not serial" --durations=15 tests/ || rc=$$?; \
+	$(PY) -m pytest -q -m serial --durations=10 tests/ || rc=$$?; \
+	exit $$rc
 
 # --- extension --------------------------------------------------------------
 wheels: $(STAMP)

@@ -89,6 +89,7 @@ def test_aov_passes_reach_the_render_result(monkeypatch):
     assert np.all(n >= 0) and n.max() > 0
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_updates_are_throttled(monkeypatch):
     # Many tiny passes: the image editor is updated at most every 0.25 s
     # (plus the final write), not once per pass.
@@ -107,6 +108,7 @@ def test_updates_are_throttled(monkeypatch):
     assert np.all(gaps >= E.UPDATE_INTERVAL * 0.95)
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_cancel_mid_pass_returns_within_a_second(monkeypatch, tmp_path):
     # ~1 s passes (400k photons); Esc is simulated 0.3 s into pass 2 by making
     # break_requested (the engine's test_break poll) return True from then on.
@@ -205,6 +207,7 @@ def _fake_warmup(monkeypatch, compile, first=True):
     return w
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_compile_runs_before_the_render_clock(monkeypatch):
     # The warm-up (here 1 s) happens before the Renderer exists: it is shown
     # as "compiling" (the same text goes to the status line), and the render's elapsed time (which the time limit
@@ -224,6 +227,7 @@ def test_compile_runs_before_the_render_clock(monkeypatch):
     assert wall >= 1.0 and sess.result.elapsed < wall - 0.9
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_esc_while_compiling_cancels_at_once(monkeypatch):
     def compile(should_stop):
         t = time.monotonic()

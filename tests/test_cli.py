@@ -158,6 +158,7 @@ def test_exit_codes(blends, tmp_path, args, code, message):
     assert not (tmp_path / "x.exr").exists()
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_ctrl_c_writes_the_last_complete_pass(blends, tmp_path):
     out = tmp_path / "i.exr"
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}

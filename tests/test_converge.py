@@ -262,6 +262,7 @@ def test_cycles_reference_is_made_then_cached(tmp_path):
     assert [int(x["samples"]) for x in rows] == [1, 2, 4]
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_ctrl_c_writes_what_is_done(tmp_path):
     out = tmp_path / "i"
     p = subprocess.Popen(H.fppm_command() + [

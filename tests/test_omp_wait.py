@@ -16,6 +16,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 _SCRIPT = r"""
@@ -51,6 +53,7 @@ def _round_cpu(policy):
     return out[-2], float(out[-1])
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_workers_sleep_between_regions():
     policy, passive = _round_cpu(None)
     assert policy == "PASSIVE"

@@ -55,6 +55,7 @@ def preview_pixels(idb):
     return np.array(p.image_pixels_float[:], np.float32).reshape(h, w, 4)
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_material_preview_is_fppm_red_sphere_within_budget(warm, outcomes):
     H.empty_scene((64, 64))
     m = red_material()
@@ -141,6 +142,7 @@ class _Sink:
         pass
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_compiling_kernels_draws_nothing_and_returns_at_once(monkeypatch):
     from fppm.addon import preview as P
 

@@ -413,6 +413,7 @@ class Stopper:
         return time.perf_counter() - self.t_cancel
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_cancel_latency_per_core_stage(monkeypatch):
     # Big enough that every stage is long uncancelled (asserted below: > 0.5 s,
     # and a cancel must return in under half of it and under 1 s):
@@ -466,6 +467,7 @@ def test_cancel_latency_per_core_stage(monkeypatch):
         assert v < min(1.0, full[k] / 2), (k, v, full[k])
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_cancel_latency_export(monkeypatch):
     bpy = pytest.importorskip("bpy")
     import fppm.addon.engine as E

@@ -106,6 +106,7 @@ def _assert_cancel_within_promise(monkeypatch, what):
     assert max(lats) < PROMISED, lats
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_cancel_latency_one_big_mesh(monkeypatch):
     # One object of 2 x 387^2 = 299,538 triangles (the finding: 1.65 s for
     # one 1M-triangle object).  Measured worst poll gap at 300k: 0.06 s on
@@ -117,6 +118,7 @@ def test_cancel_latency_one_big_mesh(monkeypatch):
     _assert_cancel_within_promise(monkeypatch, "one 300k-triangle object")
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_cancel_latency_big_texture(monkeypatch):
     # A 2048^2 byte texture (sRGB): its pixel read is one call (~0.03 s),
     # the decoding runs in bands polled between them.  Blender makes a
@@ -197,6 +199,7 @@ def _plain(path, tmp_path):
     return out
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_sound_files_pass_the_check_without_a_child(monkeypatch, tmp_path):
     from fppm.addon import cli
     plain = _plain(SCENES[0], tmp_path)

@@ -17,6 +17,9 @@ import oracle_export_read as O
 
 from core.errors import RenderCancelled
 
+# Every test here measures a cancel's latency: run alone (tests/conftest.py).
+pytestmark = pytest.mark.serial
+
 # The promise of docs/reliability.md: a cancel returns within 0.1 s (idle).
 PROMISED = 0.1
 

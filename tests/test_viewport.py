@@ -149,6 +149,7 @@ def test_edits_restart_the_session_and_change_the_image():
     assert not np.array_equal(img3, img4)
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_cancel_and_restart_never_block_and_stop_within_100_ms():
     # restart()/cancel() return at once (they set flags and hand the job to
     # the session's worker); the cancelled job ends within 0.1 s.  Judged on the median of

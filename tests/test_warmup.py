@@ -5,6 +5,8 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PY = sys.executable
@@ -224,6 +226,7 @@ def test_a_renders_job_covers_its_later_frequency_passes():
     assert out["new"] == {}, out["new"]
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_wait_returns_within_a_poll_of_should_stop():
     from fppm.core.warmup import Warmup
 
@@ -316,6 +319,7 @@ print(json.dumps({"ok": ok, "job": warmup.jobs_status()[0], "max_gap": max(gaps)
 """
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_first_use_compiles_in_a_subprocess_and_keeps_this_process_responsive(tmp_path):
     # Empty cache: a render's own kernels compile in a child process (under
     # this process's module names, into the same cache), this process only

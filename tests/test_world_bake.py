@@ -175,6 +175,7 @@ def test_a_failed_bake_falls_back_with_a_note(world_bake, monkeypatch):
     assert scene.approximations[0].endswith("the Background colour is used")
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_a_cancel_kills_the_bake(world_bake, monkeypatch):
     from fppm.core.errors import RenderCancelled
     started = []
@@ -205,6 +206,7 @@ def test_a_cancel_kills_the_bake(world_bake, monkeypatch):
     assert not os.path.exists(os.path.dirname(started[0]))     # its files are gone
 
 
+@pytest.mark.serial          # times itself (tests/conftest.py)
 def test_the_viewport_bakes_in_the_background(world_bake):
     # The viewport exports on Blender's main thread: the first export starts
     # the bake and goes on with the Background colour; when collect() says
