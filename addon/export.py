@@ -162,13 +162,13 @@ SUPPORT = (
      "(Repeat, Extend, Clip, Mirror)", SUPPORTED, ""),
     ("Image Texture projection: Box (with its blend, over the object-space normal), Sphere, "
      "Tube (the material baked into an atlas)", SUPPORTED, ""),
-    ("UDIM images (tiles from files named with <UDIM> or <UVTILE>): each tile over its own "
-     "unit square of uv, Cycles' missing-image magenta where there is no tile (the material "
-     "baked into an atlas)", SUPPORTED, ""),
+    ("UDIM images (tiles from files named with <UDIM> or <UVTILE>, or packed): each tile "
+     "over its own unit square of uv, Cycles' missing-image magenta where there is no tile "
+     "(the material baked into an atlas)", SUPPORTED, ""),
     ("an Attribute node of type Instancer (geometry nodes' instance attributes, which "
      "Python cannot read)", APPROXIMATED, "ignored"),
-    ("a UDIM image whose tiles are packed or have no file", APPROXIMATED,
-     "could not be read (packed, or no file)"),
+    ("a UDIM tile with no file (or, packed, no data)", APPROXIMATED,
+     "could not be read (no file, or not packed): magenta"),
     ("image sequences: the file of the render's frame (the node's Frames, Start Frame, "
      "Offset and Cyclic, as Blender counts them)", SUPPORTED, ""),
     ("an image's colour (also through colour nodes: its luminance) or alpha into a Mix "
@@ -1800,9 +1800,10 @@ class _Exporter:
         """((tile number, index in ``textures``), ...) of an Image Texture
         node's UDIM image, each tile's file read as the image's own would be
         (its colour space, alpha and the node's sampler); () for other
-        images.  A tile whose file cannot be read is left out, with a note:
-        Cycles shows its missing-image magenta there, and so does the
-        graph (core/scene/shader_graph.py ``udim_sample``)."""
+        images (a packed image's tiles from their packed data).  A tile
+        that cannot be read is left out, with a note: Cycles shows its
+        missing-image magenta there, and so does the graph
+        (core/scene/shader_graph.py ``udim_sample``)."""
         img = node.image
         if img is None or img.source != 'TILED':
             return ()
@@ -1813,7 +1814,7 @@ class _Exporter:
                 timg = tile_image(img, int(tile.number))
                 if timg is None:
                     mb.notes.append(f"image '{img.name}': UDIM tile {tile.number} could not "
-                                    f"be read (packed, or no file): magenta")
+                                    f"be read (no file, or not packed): magenta")
                     self.udim_index[key] = -1
                 else:
                     self.udim_index[key] = self.stand_in_texture(node, mb, timg)

@@ -429,12 +429,37 @@ def tile_path(img, number: int) -> str | None:
 
 
 def tile_image(img, number: int):
-    """A stand-in image of a UDIM image's tile, loaded from its file with the
-    image's colour space and alpha mode (Image.pixels reads the first tile
-    only), or None (packed tiles, no token, no readable file).  The caller
-    removes it (:func:`remove_image`)."""
+    """A stand-in image of a UDIM image's tile, with the image's colour space
+    and alpha mode (Image.pixels reads the first tile only): decoded from
+    the tile's packed data when the image is packed, else loaded from its
+    file; None (no such packed tile, no token, no readable file).  The
+    caller removes it (:func:`remove_image`)."""
+    if img.packed_file is not None:
+        return _packed_tile(img, number)
     path = tile_path(img, number)
     return None if path is None else _stand_in(img, path)
+
+
+def _packed_tile(img, number: int):
+    """A packed UDIM image's tile ``number`` as a new image packed from the
+    same bytes (``Image.packed_files``: one per tile, ``tile_number``), or
+    None when the image packs no such tile."""
+    import bpy
+    pf = next((p for p in img.packed_files
+               if int(p.tile_number) == number and p.packed_file is not None), None)
+    if pf is None:
+        return None
+    t = bpy.data.images.new(f"{img.name}.{number}", 1, 1)
+    try:
+        t.source = 'FILE'
+        t.filepath_raw = pf.filepath         # names the format; the bytes are decoded
+        t.pack(data=pf.packed_file.data, data_len=pf.packed_file.size)
+        t.reload()
+    except (RuntimeError, TypeError):
+        bpy.data.images.remove(t)
+        return None
+    _match(t, img)
+    return t
 
 
 def sequence_frame(iu, frame: int) -> int:
@@ -487,12 +512,17 @@ def _stand_in(img, path):
         t = bpy.data.images.load(path, check_existing=False)
     except RuntimeError:
         return None
+    _match(t, img)
+    return t
+
+
+def _match(t, img) -> None:
+    """Give the stand-in ``t`` the colour space and alpha mode of ``img``."""
     try:
         t.colorspace_settings.name = img.colorspace_settings.name
         t.alpha_mode = img.alpha_mode
     except (TypeError, AttributeError):
         pass
-    return t
 
 
 def remove_image(img) -> None:

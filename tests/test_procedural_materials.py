@@ -994,6 +994,46 @@ def test_a_udim_image_agrees_with_cycles(token, tmp_path):
     _check(err, noise, effect)
 
 
+def test_a_packed_udim_image_reads_as_its_files(tmp_path):
+    """The UDIM image of the test above (tiles 1001, 1002, 1011; 1012
+    missing) packed into the file and its tile files deleted: the export's
+    textures equal, bit for bit, those read from the files (which agree
+    with Cycles above), with no note.  Before, every tile of a packed image
+    read magenta, with a note per tile."""
+    pytest.importorskip("bpy")
+    import os
+
+    import test_shading_nodes as TS
+
+    def mat(nodes, links, surface):
+        d = _diffuse(nodes, links, surface)
+        tex = nodes.new('ShaderNodeTexImage')
+        tex.interpolation = 'Closest'
+        tex.image = udim_image(tmp_path)
+        links.new(tex.outputs['Color'], d.inputs['Color'])
+
+    _scene(mat)
+    files, lines = TS._export()
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    import bpy
+    img = next(n for n in bpy.data.materials["Surf"].node_tree.nodes
+               if n.type == 'TEX_IMAGE').image
+    img.pack()
+    assert sorted(int(p.tile_number) for p in img.packed_files) == sorted(UDIM_TILES)
+    for n in UDIM_TILES:
+        os.remove(tmp_path / f"tiles.{n}.png")
+    packed, lines = TS._export()
+    assert lines[1] == "Approximated: nothing.", lines[1]
+    assert len(packed.textures) == len(files.textures) >= len(UDIM_TILES)
+    for a, b in zip(files.textures, packed.textures):
+        np.testing.assert_array_equal(a, b)
+    # Unpacked again (REMOVE) with its files gone: no data left, each tile
+    # reads magenta with a note.
+    img.unpack(method='REMOVE')
+    _, lines = TS._export()
+    assert "UDIM tile 1001 could not be read" in "\n".join(lines)
+
+
 #: An image sequence's frames: file number -> colour.
 SEQUENCE = {1: (0.8, 0.25, 0.1), 2: (0.1, 0.7, 0.25), 3: (0.2, 0.35, 0.9)}
 
