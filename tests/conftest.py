@@ -14,7 +14,8 @@ import fppm_alias  # noqa: E402,F401  (core.x is fppm.core.x: one numba cache)
 # machine instead of one, and the tests load the kernels from the cache.
 # FPPM_PRECOMPILE=0 never does it, =1 does it for any selection of tests;
 # by default only a run of at least PRECOMPILE_MIN_TESTS tests does (a single
-# file compiles only what it needs, as before).
+# file compiles only what it needs, as before).  A run in pytest-xdist
+# workers (`-n 2`) is a whole-suite run: its controller always does it.
 PRECOMPILE_MIN_TESTS = 300
 
 # Tests that time themselves (a cancel's latency, a responsive viewport or
