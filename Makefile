@@ -91,7 +91,7 @@ demo: $(STAMP) $(DEMO_SCENE)
 # --- tests ------------------------------------------------------------------
 # Two phases: every test that does not time itself in two pytest-xdist workers
 # (whole files to a worker, so a module's fixtures are made once), then the
-# "serial" ones (tests/conftest.py SERIAL_FILES) alone.  Both phases run; the
+# tests marked "serial" (they time themselves; tests/conftest.py) alone.  Both phases run; the
 # target fails if either did.
 test: $(STAMP)
 	@rc=0; \

@@ -167,8 +167,8 @@ SUPPORT = (
      "(the material baked into an atlas)", SUPPORTED, ""),
     ("an Attribute node of type Instancer (geometry nodes' instance attributes, which "
      "Python cannot read)", APPROXIMATED, "ignored"),
-    ("a UDIM tile with no file (or, packed, no data)", APPROXIMATED,
-     "could not be read (no file, or not packed): magenta"),
+    ("a UDIM tile with no file (or, in a packed image, no packed data)", APPROXIMATED,
+     "could not be read (no file or packed data): magenta"),
     ("image sequences: the file of the render's frame (the node's Frames, Start Frame, "
      "Offset and Cyclic, as Blender counts them)", SUPPORTED, ""),
     ("an image's colour (also through colour nodes: its luminance) or alpha into a Mix "
@@ -1814,7 +1814,7 @@ class _Exporter:
                 timg = tile_image(img, int(tile.number))
                 if timg is None:
                     mb.notes.append(f"image '{img.name}': UDIM tile {tile.number} could not "
-                                    f"be read (no file, or not packed): magenta")
+                                    f"be read (no file or packed data): magenta")
                     self.udim_index[key] = -1
                 else:
                     self.udim_index[key] = self.stand_in_texture(node, mb, timg)

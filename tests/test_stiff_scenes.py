@@ -766,8 +766,7 @@ def test_2500_passes_radius_floor_and_exact_counters():
     # A pass at the floor costs what a pass costs early on: nothing grows with
     # the pass count or N.  Medians of the per-pass CPU over passes 101-600 and
     # the last 500, measured in this run: a ratio, so a slower or loaded
-    # machine moves both (an absolute bound of 15 CPU s failed at 16.1 s on
-    # a slower CI machine; 9.5-11.5 s here).
+    # machine moves both (docs/architecture.md "The test suite's time, round 48").
     per_pass = np.diff(cpu)
     early, late = np.median(per_pass[100:600]), np.median(per_pass[-500:])
     print(f"per pass: {1e3 * early:.2f} ms early, {1e3 * late:.2f} ms late, {dt:.1f} CPU s")
