@@ -4,11 +4,11 @@ children, on an empty kernel cache (docs/interactive.md "Two compiling
 processes, round 20").
 
     .venv/bin/python bench/bench_first_use.py [--integrator PHOTON] [--scene cornell]
-        [--percent 100]
+        [--percent 100] [--no-frequency]
 
 Exports ``example_blends/<scene>.blend`` (its own settings; --integrator
-overrides), sets ``FPPM_CACHE_DIR`` to a new empty folder, then asks the
-process's warm-up for the render's own job as a one-shot render does
+overrides, --no-frequency turns frequency photons off), sets
+``FPPM_CACHE_DIR`` to a new empty folder, then asks the process's warm-up for the render's own job as a one-shot render does
 (``core.warmup.warmup.wait_for(render_job(...), rest=False)``), then ends the
 compiling child and reads the children's CPU.  Prints one JSON line: wall,
 cpu (this process after the export + every child), the job child's own
@@ -35,6 +35,7 @@ def main():
     ap.add_argument("--integrator", default="")
     ap.add_argument("--scene", default="cornell")
     ap.add_argument("--percent", type=int, default=100)
+    ap.add_argument("--no-frequency", action="store_true")
     a = ap.parse_args()
     cache = tempfile.mkdtemp(prefix="fppm-first-use-")
     os.environ["FPPM_CACHE_DIR"] = cache
@@ -52,6 +53,8 @@ def main():
     sc.render.resolution_percentage = a.percent
     scene = export_scene(bpy.context.evaluated_depsgraph_get(), log=lambda s: None)
     st = settings_from_scene(sc).replace(time_limit=0.0)
+    if a.no_frequency:
+        st = st.replace(use_frequency=False)
     if a.integrator:
         st = st.replace(integrator=a.integrator)
     recs = []

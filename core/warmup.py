@@ -78,9 +78,12 @@ from .settings import RenderSettings
 
 # Assumed length of a first compile when this machine never finished one
 # (used only for the message and the progress bar): every variant, and one
-# render's own job (docs/interactive.md: 16-60 s for the example scenes).
-DEFAULT_COMPILE_SECONDS = 60.0
-DEFAULT_JOB_SECONDS = 30.0
+# render's own job by what it compiles (job_kind): wall seconds on an empty
+# cache of the project's 2-core machine (docs/interactive.md "The first-use
+# compile by kind of render, round 49").
+DEFAULT_COMPILE_SECONDS = 520.0
+JOB_SECONDS = {"light": 75.0, "path": 75.0, "combined": 80.0, "combined+photons": 260.0,
+               "photons": 110.0, "photons+frequency": 180.0}
 _CORE = os.path.dirname(os.path.abspath(__file__))
 
 
@@ -408,6 +411,20 @@ def traces_photons(job) -> bool:
              for m in scene.materials for lb in m.lobes]
     has_nondelta = not all(delta)
     return merges_photons(st, any(delta), has_nondelta, scene.tri_p, seen=has_nondelta)
+
+
+def job_kind(job) -> str:
+    """Which of :data:`JOB_SECONDS`'s kinds a render's job (:func:`render_job`)
+    is: its integrator, whether it traces photons (:func:`traces_photons`)
+    and, for photon mapping, frequency photons; the kernels a job compiles,
+    and so its first-use compile, follow these."""
+    st = tuple(job)[1]
+    if st.integrator in ("LIGHT", "PATH"):
+        return st.integrator.lower()
+    photons = traces_photons(job)
+    if st.integrator == "COMBINED":
+        return "combined+photons" if photons else "combined"
+    return "photons+frequency" if st.use_frequency and photons else "photons"
 
 
 # --- the warm-up of one render ----------------------------------------------
@@ -834,7 +851,9 @@ def _markers() -> list:
         try:
             with open(os.path.join(folder, n)) as f:
                 d = json.load(f)
-            out.append((d.get("job", ALL), bool(d.get("cold")), float(d["seconds"])))
+            kind = d.get("kind")
+            out.append((d.get("job", ALL), bool(d.get("cold")), float(d["seconds"]),
+                        kind if kind in JOB_SECONDS else None))
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
             continue
     return out
@@ -843,14 +862,22 @@ def _markers() -> list:
 def last_compile_seconds(job=None) -> Optional[float]:
     """Seconds of the last complete first-use compile on this machine (any
     version) of ``job`` (:func:`render_job`; None: every variant), or None
-    when there was none.  For a job never compiled here: the median of the
-    other renders' jobs (they range from seconds to minutes: docs/interactive.md)."""
+    when there was none.  For a job never compiled here: its kind's
+    :data:`JOB_SECONDS` times this machine's median ratio of measured to
+    assumed seconds over the other renders' jobs (they range from seconds
+    to minutes by kind: docs/interactive.md); the median of their seconds
+    when none recorded its kind (a marker of before round 49)."""
     key = ALL if job is None else job_key(job)
-    cold = [(k, s) for k, c, s in _markers() if c]
-    same = [s for k, s in cold if k == key]
+    cold = [(k, s, kind) for k, c, s, kind in _markers() if c]
+    same = [s for k, s, _ in cold if k == key]
     if same:
         return max(same)
-    other = sorted(s for k, s in cold if key != ALL and k != ALL)
+    if key == ALL:
+        return None
+    ratios = sorted(s / JOB_SECONDS[kind] for k, s, kind in cold if k != ALL and kind)
+    if ratios:
+        return ratios[len(ratios) // 2] * JOB_SECONDS[job_kind(job)]
+    other = sorted(s for k, s, _ in cold if k != ALL)
     return other[len(other) // 2] if other else None
 
 
@@ -869,12 +896,12 @@ def expected_seconds(job=None) -> float:
     """About how long a first-use compile of ``job`` (None: every variant)
     will take here (for the message)."""
     return last_compile_seconds(job) or (DEFAULT_COMPILE_SECONDS if job is None
-                                         else DEFAULT_JOB_SECONDS)
+                                         else JOB_SECONDS[job_kind(job)])
 
 
 def _write_marker(key: str, seconds: float, cold: bool, kernels: Optional[dict] = None,
-                  cpu: Optional[float] = None) -> None:
-    d = {"seconds": seconds, "cold": cold, "job": key, "cpu": cpu}
+                  cpu: Optional[float] = None, kind: Optional[str] = None) -> None:
+    d = {"seconds": seconds, "cold": cold, "job": key, "cpu": cpu, "kind": kind}
     if kernels:
         d["kernels"] = _pack(kernels)
     _write_json(_marker_path(key), d)   # unwritable: only the message's estimate is lost
@@ -886,6 +913,7 @@ class _Group:
 
     def __init__(self, key: str, jobs):
         self.key, self.jobs = key, jobs
+        self.kind = None if jobs is None else job_kind(jobs[0])   # the marker's
         self.event = threading.Event()
         self.error: Optional[str] = None
         self.seconds: Optional[float] = None
@@ -1004,7 +1032,7 @@ class Warmup:
     def _finish(self, g: _Group, seconds: float, cold: bool, kernels: Optional[dict],
                 cpu: Optional[float] = None) -> None:
         g.seconds, g.was_cold = seconds, cold
-        _write_marker(g.key, seconds, cold, kernels, cpu)
+        _write_marker(g.key, seconds, cold, kernels, cpu, g.kind)
         g.event.set()
 
     def _interrupted(self) -> bool:
