@@ -8,7 +8,8 @@ processes, round 20").
 
 Exports ``example_blends/<scene>.blend`` (its own settings; --integrator
 overrides, --no-frequency turns frequency photons off), sets
-``FPPM_CACHE_DIR`` to a new empty folder, then asks the process's warm-up for the render's own job as a one-shot render does
+``FPPM_CACHE_DIR`` to a new empty folder, then asks the process's warm-up
+for the render's own job as a one-shot render does
 (``core.warmup.warmup.wait_for(render_job(...), rest=False)``), then ends the
 compiling child and reads the children's CPU.  Prints one JSON line: wall,
 cpu (this process after the export + every child), the job child's own
