@@ -91,8 +91,8 @@ demo: $(STAMP) $(DEMO_SCENE)
 # --- tests ------------------------------------------------------------------
 # Two phases: every test that does not time itself in two pytest-xdist workers
 # (whole files to a worker, so a module's fixtures are made once), then the
-# tests marked "serial" (they time themselves; tests/conftest.py) alone.  Both phases run; the
-# target fails if either did.
+# tests marked "serial" (they time themselves; tests/conftest.py) alone.
+# Both phases run; the target fails if either did.
 test: $(STAMP)
 	@rc=0; \
 	$(PY) -m pytest -q -n 2 --dist loadfile -m "not serial" --durations=15 tests/ || rc=$$?; \

@@ -913,7 +913,6 @@ class _Group:
 
     def __init__(self, key: str, jobs):
         self.key, self.jobs = key, jobs
-        self.kind = None if jobs is None else job_kind(jobs[0])   # the marker's
         self.event = threading.Event()
         self.error: Optional[str] = None
         self.seconds: Optional[float] = None
@@ -1032,7 +1031,8 @@ class Warmup:
     def _finish(self, g: _Group, seconds: float, cold: bool, kernels: Optional[dict],
                 cpu: Optional[float] = None) -> None:
         g.seconds, g.was_cold = seconds, cold
-        _write_marker(g.key, seconds, cold, kernels, cpu, g.kind)
+        _write_marker(g.key, seconds, cold, kernels, cpu,
+                      None if g.jobs is None else job_kind(g.jobs[0]))
         g.event.set()
 
     def _interrupted(self) -> bool:
