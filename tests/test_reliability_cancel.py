@@ -188,8 +188,11 @@ def _children():
     R.reap()
     out = []
     for task in glob.glob(f"/proc/{os.getpid()}/task/*/children"):
-        with open(task) as fh:
-            out += [int(x) for x in fh.read().split()]
+        try:
+            with open(task) as fh:
+                out += [int(x) for x in fh.read().split()]
+        except OSError:         # the thread ended between the glob and the open
+            pass
     return [p for p in out if b"child_main(" not in _cmdline(p)]
 
 
