@@ -156,6 +156,15 @@ def run_units(names) -> list:
     return out
 
 
+def kernel_signatures() -> dict:
+    """{``module:name``: [argument types as text, ...]} of every package
+    kernel this process compiled or loaded (``core.warmup.used_kernels``):
+    the marker keeps both processes' union, which
+    tests/test_kernel_signatures.py reads."""
+    from fppm.core.warmup import used_kernels
+    return {k: sorted(str(s) for s in v) for k, v in used_kernels().items()}
+
+
 def marker_path() -> str | None:
     """The cache's record that this source version was precompiled (core's
     sources, numba's version and this file), or None (no writable cache)."""
@@ -178,7 +187,8 @@ def is_precompiled() -> bool:
 def precompile(procs: int = 2, log=print) -> dict:
     """Run every unit in ``procs`` child processes at once and wait for them;
     writes the marker when all succeeded.  Returns {"wall", "cpu" (children's
-    user + sys), "groups": [[unit records]], "ok"}."""
+    user + sys), "groups": [[unit records]], "kernels" (every kernel's
+    signatures: :func:`kernel_signatures` of both), "ok"}."""
     _setup()
     from fppm.core import _numba_cache
     env = dict(os.environ)
@@ -201,7 +211,7 @@ def precompile(procs: int = 2, log=print) -> dict:
     r1 = os.times()
     res = {"wall": time.perf_counter() - t0,
            "cpu": (r1.children_user - r0.children_user) + (r1.children_system - r0.children_system),
-           "groups": [], "ok": True}
+           "groups": [], "kernels": {}, "ok": True}
     for k, (out, err) in zip(kids, outs):
         if k.returncode != 0:
             res["ok"] = False
@@ -209,7 +219,10 @@ def precompile(procs: int = 2, log=print) -> dict:
                 f"{err.strip().splitlines()[-1] if err.strip() else 'no message'}")
             res["groups"].append([])
         else:
-            res["groups"].append(json.loads(out.strip().splitlines()[-1]))
+            got = json.loads(out.strip().splitlines()[-1])
+            res["groups"].append(got["units"])
+            for name, sigs in got["kernels"].items():
+                res["kernels"][name] = sorted(set(res["kernels"].get(name, [])) | set(sigs))
     p = marker_path()
     if res["ok"] and p is not None:
         os.makedirs(os.path.dirname(p), exist_ok=True)
@@ -220,7 +233,8 @@ def precompile(procs: int = 2, log=print) -> dict:
 
 def main(argv) -> None:
     if argv[:1] == ["--run"]:
-        print(json.dumps(run_units(argv[1].split(","))))
+        units = run_units(argv[1].split(","))
+        print(json.dumps({"units": units, "kernels": kernel_signatures()}))
         return
     procs = int(argv[argv.index("--procs") + 1]) if "--procs" in argv else 2
     res = precompile(procs)

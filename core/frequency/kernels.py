@@ -410,7 +410,7 @@ def radius_cut(a, b, c, t, r_cut, A_MAX, D):
     changes.  An occluder that could bring it below r_cut is still found,
     and the nearest such one is returned."""
     a, b, c = sanitize(a, b, c, A_MAX)
-    ae = travel(a, b, c, _fmin(t, D), False, A_MAX)[0]
+    ae = travel(a, b, c, _fmin(t, D), bool(False), A_MAX)[0]   # bool(): not a literal
     den = 2.0 * BETA * ae - r_cut * r_cut
     if not (den > 0.0) or not (r_cut < np.inf):
         return np.inf, np.inf, np.inf

@@ -1293,7 +1293,7 @@ def _member_codes(kind, ubits, abits, dist, vmin, R, L, code, mu):
         for y in range(R):
             for z in range(R):
                 kd = kind[x, y, z]
-                cut = _in_cut(dist, x, y, z, False, L)
+                cut = _in_cut(dist, x, y, z, bool(False), L)   # bool(): no literal
                 if kd == 0 or (not cut and vmin[x, y, z] * (1.0 - BLOCK_REL) >= L):
                     code[x, y, z] = -1
                     continue
@@ -1429,7 +1429,7 @@ def _voxel_level(code, mu, un, asn, R, vmin, vcone, L):
                         out[k] = 0.0
                     out[7] = -2.0
                     out[3] = 2.0 if wide else -2.0
-                    _store_cones(out, vcone, x, y, z, True)
+                    _store_cones(out, vcone, x, y, z, bool(True))
                     continue
                 h ^= h >> np.uint64(29)
                 j = np.int64(h & np.uint64(size - 1))
@@ -1464,7 +1464,7 @@ def _voxel_level(code, mu, un, asn, R, vmin, vcone, L):
                     out[k] = 0.0
                 out[7] = -2.0
                 _two_cones(ax_, ay_, az_, as_, n, ia, ib, out, seen)
-                _store_cones(out, vcone, x, y, z, True)
+                _store_cones(out, vcone, x, y, z, bool(True))
                 if ne < VOXEL_MEMO and npool + n <= pool.shape[0]:
                     table[j] = ne
                     seq_at[ne] = npool
@@ -1576,8 +1576,10 @@ def _build_blocks(dist, kind, un, asn, R, B, NB, bmin, bcone, L, quant, pre):
 @nb.njit(cache=True, nogil=True)
 def _store_cones(out, bcone, x, y, z, quant):
     if quant:
-        _quantize_cone(out, 0, bcone, x, y, z)
-        _quantize_cone(out, 4, bcone, x, y, z)
+        # int64 offsets, not literals: one compile for both (a literal is a
+        # signature of its own: core.materials.compiled.eval_pair_as)
+        _quantize_cone(out, np.int64(0), bcone, x, y, z)
+        _quantize_cone(out, np.int64(4), bcone, x, y, z)
     else:
         for k in range(8):
             bcone[x, y, z, k] = out[k]

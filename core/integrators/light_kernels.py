@@ -38,7 +38,8 @@ from ..lights.direct_kernels import _spherical_rect_solid_angle, spread_rect
 # reference counts of round 32, and the view factor of round 40, and the
 # displacement bump's code of round 45 (F_BUMP 2: no bump shadowing), and
 # the conductor Fresnel of round 46 (F_K, compiled._fresnel_rgb) and
-# thin film (F_FILM_D, F_FILM_N).
+# thin film (F_FILM_D, F_FILM_N), and the one-signature entry points of
+# round 50 (compiled._eval_pair_as).
 from ..materials.compiled import eval_pair, pdf_oriented
 from ..lights.table import AREA, POINT
 from ..scene.camera import (BH_A0, BH_A1, BH_A2, BH_A3, FILTER_TYPES, GAUSS_INTEGRAL,

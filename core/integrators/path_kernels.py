@@ -81,7 +81,8 @@ from ..lights.table import AREA, MESH, POINT, SPOT, WORLD
 # and reference counts of round 32, with the view factor of round 40, and
 # with the displacement bump's code of round 45: F_BUMP 2, no bump shadowing,
 # and with the conductor Fresnel and the thin film of round 46: F_K, F_FILM_D,
-# F_FILM_N, compiled._fresnel_rgb).
+# F_FILM_N, compiled._fresnel_rgb, and with the one-signature entry points
+# of round 50: compiled._eval_pair_as, _sample_pair).
 from ..materials.compiled import SelectionTable, eval_pair, pdf_oriented, sample_pair
 from ..materials.hit_colors import hit_rows, textured_lambert, textured_materials
 from ..materials.fast import ABSORBER, GENERIC, LAMBERT, MIRROR, SMOOTH_GLASS, sample_fast

@@ -85,7 +85,8 @@ def ies_factor(ies, j, wx, wy, wz):
     if hi + 2 < H:
         d = _along_v(ies, vals, V, wrap_lo, wrap_hi, vi, vf, hi + 2)
     elif wrap_h:
-        d = _along_v(ies, vals, V, wrap_lo, wrap_hi, vi, vf, 1)
+        # column 1 as int64, not a literal: _along_v's one signature
+        d = _along_v(ies, vals, V, wrap_lo, wrap_hi, vi, vf, np.int64(1))
     return max(_catmull(a, b, c, d, hf), 0.0)
 
 

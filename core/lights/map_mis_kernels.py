@@ -39,7 +39,8 @@ from numba import njit
 # helpers and reference counts of round 32, the view factor of round 40 and
 # the displacement bump's code of round 45 (F_BUMP 2: no bump shadowing)
 # and the conductor Fresnel of round 46 (F_K, compiled._fresnel_rgb) and
-# thin film (F_FILM_D, F_FILM_N).
+# thin film (F_FILM_D, F_FILM_N), and the one-signature entry points of
+# round 50 (compiled._sample_pair).
 from ..materials.compiled import SelectionTable, pdf_oriented, sample_pair, selection_rows
 from ..materials.fast import LAMBERT, sample_fast
 from ..sppm.photon_kernels import lambert_pdf

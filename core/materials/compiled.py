@@ -58,6 +58,7 @@ T_GLASS_E = T_GGX_EAVG + _N_GGX                # (2, 16, 16, 16) [1/ior?, ior no
 T_GLASS_EAVG = T_GLASS_E + 2 * _N_GLASS ** 3   # (2, 16, 16) [1/ior?, ior node, rough]
 T_S = T_GLASS_EAVG + 2 * _N_GLASS ** 2         # (16, 16, 16) [ior node, rough, mu]
 T_FILM = T_S + _N_S ** 3                       # (6, 512) thin_film.sensitivity_table
+_T_FILM = np.int64(T_FILM)    # an int64 in the kernels, not a literal: one signature (eval_pair_as)
 N_TABLES = T_FILM + 6 * _N_FILM
 # After them: the view factors' rows (VIEW_SAMPLES each, MaterialTable.view_tab).
 
@@ -552,7 +553,7 @@ def _film_dielectric(T, ch, c, fd, fn, fi, f0):
     (Cycles' generalized_schlick_fresnel): the film over a dielectric of
     IOR fi, scaled towards f0 / F0(fi) (f0 its tinted normal reflectance)
     as it nears F0(fi)."""
-    F = iridescence(T, T_FILM, ch, c, fd, fn, fi, 0.0, -1.0, False)
+    F = iridescence(T, _T_FILM, ch, c, fd, fn, fi, 0.0, -1.0, bool(False))
     F0r = _f0(fi)
     if F0r > 1e-5 and F != 1.0:
         s = _clip01((F - 1.0) / (F0r - 1.0))
@@ -570,7 +571,7 @@ def _film_f82(T, ch, c, fd, fn, C, tint):
     q = math.sqrt(r)
     n = (1.0 + q) / (1.0 - q) + g * ((1.0 - r) / (1.0 + r) - (1.0 + q) / (1.0 - q))
     k = math.sqrt(max((r * (n + 1.0) * (n + 1.0) - (n - 1.0) * (n - 1.0)) / (1.0 - r), 0.0))
-    return iridescence(T, T_FILM, ch, c, fd, fn, n, k, g, True)
+    return iridescence(T, _T_FILM, ch, c, fd, fn, n, k, g, bool(True))
 
 
 @njit(cache=True, error_model="numpy")
@@ -596,19 +597,22 @@ def _fresnel_rgb(T, fm, c, fi, t0, t1, t2, e0, e1, e2, fd, fn, u0, u1, u2):
         a1, b1 = _conductor_channel(u1, t1, e1, c)
         a2, b2 = _conductor_channel(u2, t2, e2, c)
     if fd > THICKNESS_CUTOFF:
+        # The channels and flags as int64 and plain bool, not literals: one
+        # compile of each film kernel, not one a channel (see eval_pair_as).
+        r, g, b = np.int64(0), np.int64(1), np.int64(2)
         if fm == FRESNEL_DIELECTRIC:
             F0r = _f0(fi)
-            a0 = _film_dielectric(T, 0, c, fd, fn, fi, _clip01(F0r * u0))
-            a1 = _film_dielectric(T, 1, c, fd, fn, fi, _clip01(F0r * u1))
-            a2 = _film_dielectric(T, 2, c, fd, fn, fi, _clip01(F0r * u2))
+            a0 = _film_dielectric(T, r, c, fd, fn, fi, _clip01(F0r * u0))
+            a1 = _film_dielectric(T, g, c, fd, fn, fi, _clip01(F0r * u1))
+            a2 = _film_dielectric(T, b, c, fd, fn, fi, _clip01(F0r * u2))
         elif fm == FRESNEL_F82:
-            a0 = _film_f82(T, 0, c, fd, fn, u0, t0)
-            a1 = _film_f82(T, 1, c, fd, fn, u1, t1)
-            a2 = _film_f82(T, 2, c, fd, fn, u2, t2)
+            a0 = _film_f82(T, r, c, fd, fn, u0, t0)
+            a1 = _film_f82(T, g, c, fd, fn, u1, t1)
+            a2 = _film_f82(T, b, c, fd, fn, u2, t2)
         else:
-            a0 = u0 * iridescence(T, T_FILM, 0, c, fd, fn, t0, e0, -1.0, True)
-            a1 = u1 * iridescence(T, T_FILM, 1, c, fd, fn, t1, e1, -1.0, True)
-            a2 = u2 * iridescence(T, T_FILM, 2, c, fd, fn, t2, e2, -1.0, True)
+            a0 = u0 * iridescence(T, _T_FILM, r, c, fd, fn, t0, e0, -1.0, bool(True))
+            a1 = u1 * iridescence(T, _T_FILM, g, c, fd, fn, t1, e1, -1.0, bool(True))
+            a2 = u2 * iridescence(T, _T_FILM, b, c, fd, fn, t2, e2, -1.0, bool(True))
     return a0, a1, a2, b0, b1, b2
 
 
@@ -669,13 +673,33 @@ def _seen_w(lobes, T, m, j, mu):
     return w
 
 
-@njit(cache=True, error_model="numpy", **NO_REFCOUNTS)
+# One signature a body.  numba compiles a called kernel once for each
+# distinct tuple of argument types it meets, and a constant argument is a
+# type of its own (Literal[bool](False), Literal[int](0)): the callers of
+# the two largest BSDF bodies below passed int16, int32 or int64 material
+# ids, float32 or float64 directions and literal flags, 13 and 5 signatures
+# of the same code, every one compiled in full (docs/interactive.md "One
+# signature a kernel, round 50").  Their entry points are inlined wrappers
+# that cast every scalar to int64, float64 or a plain bool (np.float64:
+# numba's float() keeps a float32 a float32), so the bodies
+# compile once for each dtype of the colour array.
+@njit(cache=True, inline="always", error_model="numpy")
 def eval_pair_as(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz,
                  want_smooth, bump):
     """:func:`eval_pair` with the Normal Map / Bump corrections (the valid
     specular normal, the diffuse lobes' bump shadowing) applied when bump:
     off, it is closures._eval_nd without them, as the importance mode of
     closures.sample_bsdf evaluates every material."""
+    f = np.float64
+    return _eval_pair_as(lobes, T, np.int64(m), colors, np.int64(row), f(nsx), f(nsy), f(nsz),
+                         f(ngx), f(ngy), f(ngz), f(vx), f(vy), f(vz), f(lx), f(ly), f(lz),
+                         bool(want_smooth), bool(bump))
+
+
+@njit(cache=True, error_model="numpy", **NO_REFCOUNTS)
+def _eval_pair_as(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy, vz, lx, ly, lz,
+                  want_smooth, bump):
+    """:func:`eval_pair_as`'s body: m, row int64, the directions float64."""
     front = _dot3(ngx, ngy, ngz, vx, vy, vz) >= 0.0
     sg = 1.0 if front else -1.0
     if bump:
@@ -693,7 +717,10 @@ def eval_pair_as(lobes, T, m, colors, row, nsx, nsy, nsz, ngx, ngy, ngz, vx, vy,
         if not lobes[m, j, F_ND] > 0.0:
             continue
         k = int(lobes[m, j, F_KIND])
-        c0, c1, c2 = float(colors[row, j, 0]), float(colors[row, j, 1]), float(colors[row, j, 2])
+        # np.float64, not float(): numba's float() keeps a float32 colour a
+        # float32, and the lobe helpers would compile for it a second time
+        f = np.float64
+        c0, c1, c2 = f(colors[row, j, 0]), f(colors[row, j, 1]), f(colors[row, j, 2])
         w = _seen_w(lobes, T, m, j, nv)
         if w != 0.0:
             u0, u1, u2 = c0 / w, c1 / w, c2 / w
@@ -979,6 +1006,9 @@ def pdf_oriented(lobes, p, m, r, sx, sy, sz, gx, gy, gz, ox, oy, oz, wx, wy, wz)
     s made Cycles' valid specular normal for o first), then
     :func:`_pdf_nd_one` with the selection probabilities p[r] (p (R, L): a
     SelectionTable's rows, r = m, or a textured hit's own row)."""
+    # the directions in float64: one signature of the helpers (eval_pair_as)
+    ox, oy, oz = np.float64(ox), np.float64(oy), np.float64(oz)
+    wx, wy, wz = np.float64(wx), np.float64(wy), np.float64(wz)
     front = gx * ox + gy * oy + gz * oz >= 0.0
     sg = 1.0 if front else -1.0
     if lobes[m, 0, F_BUMP] > 0.0:
@@ -1012,9 +1042,20 @@ def scatter_pdfs(lobes, p, mat, ns, ng, wo, wi, delta, pl, pr):
         pr[i] = pdf_oriented(lobes, p, m, m, sx, sy, sz, gx, gy, gz, wx, wy, wz, ox, oy, oz)
 
 
-@njit(cache=True, error_model="numpy", **NO_REFCOUNTS)
+@njit(cache=True, inline="always", error_model="numpy")
 def sample_pair(lobes, T, colors, p, cdf, last, m, r, nsx, nsy, nsz, ngx, ngy, ngz,
                 ox, oy, oz, u0, u1, u2, radiance):
+    """:func:`_sample_pair` with its scalars cast to one type each (int64,
+    float64, a plain bool: one compile of the body, as :func:`eval_pair_as`)."""
+    f = np.float64
+    return _sample_pair(lobes, T, colors, p, cdf, last, np.int64(m), np.int64(r), f(nsx), f(nsy),
+                        f(nsz), f(ngx), f(ngy), f(ngz), f(ox), f(oy), f(oz), f(u0), f(u1), f(u2),
+                        bool(radiance))
+
+
+@njit(cache=True, error_model="numpy", **NO_REFCOUNTS)
+def _sample_pair(lobes, T, colors, p, cdf, last, m, r, nsx, nsy, nsz, ngx, ngy, ngz,
+                 ox, oy, oz, u0, u1, u2, radiance):
     """closures.sample_bsdf(subset='all', mode='importance', or 'radiance'
     with ``radiance``) of material m (a Normal Map / Bump material gets
     Cycles' valid specular normal in radiance mode only, as there) for one

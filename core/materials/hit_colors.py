@@ -25,7 +25,8 @@ from ..scene.texture_kernels import TextureList, bilinear_rgb, corner_uv, textur
 # is stamped by this file: edited with the BSDF evaluation's lobe helpers and
 # reference counts of round 32, and the displacement bump's code of round 45
 # (F_BUMP 2: no bump shadowing), and the conductor Fresnel of round 46 (F_K,
-# compiled._fresnel_rgb) and thin film (F_FILM_D, F_FILM_N).
+# compiled._fresnel_rgb) and thin film (F_FILM_D, F_FILM_N), and the
+# one-signature entry points of round 50 (compiled._sample_pair).
 from .compiled import SelectionTable, sample_pair
 
 

@@ -129,7 +129,9 @@ def iridescence(T, off, ch, c, d, nf, n3, k3, F82, conductive):
 def _rgb_kernel(T, c, d, nf, n3, k3, F82, conductive, out):
     for i in range(c.shape[0]):
         for ch in range(3):
-            out[i, ch] = iridescence(T, 0, ch, c[i], d[i], nf[i], n3[i, ch], k3[i, ch],
+            # offset 0 as int64, not a literal: the signature compiled.py's
+            # calls compile (one a kernel)
+            out[i, ch] = iridescence(T, np.int64(0), ch, c[i], d[i], nf[i], n3[i, ch], k3[i, ch],
                                      F82[i, ch], conductive)
 
 

@@ -500,7 +500,10 @@ def _insert_one_pass(pos, R_ins, active, origin, h, inv_h, dense, nx, ny, nz, sh
                 cell_start[s + 1] += 1
                 e += 1
         off[v + 1] = e
-    _slot_cursors(0, n_slots, 0, cell_start)
+    # int64 zeros, not literals: a literal argument is a signature of its
+    # own, and the threaded path's calls pass int64 (one compile a kernel,
+    # core.materials.compiled.eval_pair_as)
+    _slot_cursors(np.int64(0), n_slots, np.int64(0), cell_start)
     for v in range(K):
         for j in range(off[v], off[v + 1]):
             s = ent_slot[j]
@@ -1186,7 +1189,7 @@ def _run_min(slot):
 def _count_serial(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec, vp_clip, cos_ng,
                   cell_start, vp_ids, M, Phi, rmin, hitmask, n_pair, n_freq, S,
                   touched, n_touched):
-    _count_range(0, slot.shape[0], slot, ph_pos, ph_ng, ph_wi, ph_power,
+    _count_range(np.int64(0), slot.shape[0], slot, ph_pos, ph_ng, ph_wi, ph_power,
                  ph_rpred, vp_rec, vp_clip, cos_ng, cell_start, vp_ids, M[0], Phi[0], rmin[0],
                  hitmask, n_pair, n_freq, S[0], touched[0], n_touched[0:1], _run_min(slot))
 
@@ -1210,7 +1213,7 @@ def _count_parallel(slot, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred, vp_rec,
 def _pairs_serial(order, slot, ph_pos, ph_ng, ph_wi, ph_rpred, vp_rec, vp_clip, cos_ng,
                   cell_start, vp_ids, hitmask, n_pair, pair_off, pair_vp, pair_ph,
                   n_freq, freq_off, fpair_vp, fpair_ph, want_freq):
-    _pairs_range(0, order.shape[0], order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
+    _pairs_range(np.int64(0), order.shape[0], order, slot, ph_pos, ph_ng, ph_wi, ph_rpred,
                  vp_rec, vp_clip, cos_ng, cell_start, vp_ids, hitmask, n_pair, pair_off,
                  pair_vp, pair_ph, n_freq, freq_off, fpair_vp, fpair_ph, want_freq)
 
@@ -1391,8 +1394,8 @@ def _median_parallel(n_chunks, x):
     bits = x.view(np.uint64)
     cnt = np.zeros((n_chunks, 1 << 16), np.int64)
     for c in prange(n_chunks):
-        _digit_range(c * n // n_chunks, (c + 1) * n // n_chunks, bits, 48, np.uint64(0), True,
-                     cnt[c])
+        _digit_range(c * n // n_chunks, (c + 1) * n // n_chunks, bits, np.int64(48),
+                     np.uint64(0), bool(True), cnt[c])
     d, k = _digit_of_rank(cnt, n // 2)
     # the values of digit d, each thread's after the threads' before it
     o = np.zeros(n_chunks + 1, np.int64)
@@ -1406,7 +1409,7 @@ def _median_parallel(n_chunks, x):
     for level in range(1, 4):
         shift = 48 - 16 * level
         one[:] = 0
-        _digit_range(0, cand.shape[0], cand, shift, prefix, False, one[0])
+        _digit_range(np.int64(0), cand.shape[0], cand, shift, prefix, bool(False), one[0])
         d, k = _digit_of_rank(one, k)
         prefix = (prefix << np.uint64(16)) | np.uint64(d)
     hi = np.array([prefix]).view(np.float64)[0]
@@ -1826,13 +1829,13 @@ def _fold(bM, bPhi, brmin, bS, touched, n_touched, n_used, M, Phi, scale, div, r
     sweep True: every VP with a count, in order (sequential memory).  One
     kernel for both, so that the warm-up compiles the one the renders use."""
     if sweep:
-        _fold_run(-1, 0, bM.shape[1], touched, bM, bPhi, brmin, bS, n_used, M, Phi, scale,
-                  div, rmin, rmin_mask, S, clip)
+        _fold_run(np.int64(-1), np.int64(0), bM.shape[1], touched, bM, bPhi, brmin, bS, n_used,
+                  M, Phi, scale, div, rmin, rmin_mask, S, clip)
         n_touched[:] = 0
         return
     for c in range(n_used):
-        _fold_run(c, 0, n_touched[c], touched, bM, bPhi, brmin, bS, n_used, M, Phi, scale,
-                  div, rmin, rmin_mask, S, clip)
+        _fold_run(c, np.int64(0), n_touched[c], touched, bM, bPhi, brmin, bS, n_used, M, Phi,
+                  scale, div, rmin, rmin_mask, S, clip)
         n_touched[c] = 0
 
 
@@ -1843,8 +1846,8 @@ def _fold_sweep_parallel(n_chunks, bM, bPhi, brmin, bS, touched, n_touched, n_us
     a VP's fold does not depend on the others')."""
     K = bM.shape[1]
     for c in prange(n_chunks):
-        _fold_run(-1, c * K // n_chunks, (c + 1) * K // n_chunks, touched, bM, bPhi, brmin,
-                  bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S, clip)
+        _fold_run(np.int64(-1), c * K // n_chunks, (c + 1) * K // n_chunks, touched, bM, bPhi,
+                  brmin, bS, n_used, M, Phi, scale, div, rmin, rmin_mask, S, clip)
     n_touched[:] = 0
 
 
@@ -1911,10 +1914,12 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
 
     if buffers is None:
         vp_rec = _vp_records(*vp)
-        M = np.zeros((n_chunks, K), np.int64)
+        # int32 rows as GatherBuffers' (a chunk's counts fit): the count
+        # kernels compile once for both (core.materials.compiled.eval_pair_as)
+        M = np.zeros((n_chunks, K), np.int32)
         Phi = np.zeros((n_chunks, K, 3))
         rmin = np.full((n_chunks, K), np.inf)
-        S = np.zeros((n_chunks, K, SECTOR_CELLS if sectors else 0), np.int64)
+        S = np.zeros((n_chunks, K, SECTOR_CELLS if sectors else 0), np.int32)
         touched, n_touched = np.empty((n_chunks, 0), np.int32), np.zeros(n_chunks, np.int64)
     else:
         b = buffers
@@ -1934,12 +1939,12 @@ def gather(grid: Grid, ph_pos, ph_ng, ph_wi, ph_power, ph_rpred,
     if buffers is not None:
         M = Phi = rmin = S = None
     elif parallel:
-        M = M.sum(axis=0)
+        M = M.sum(axis=0, dtype=np.int64)
         Phi = Phi.sum(axis=0)
         rmin = rmin.min(axis=0)
-        S = S.sum(axis=0)
+        S = S.sum(axis=0, dtype=np.int64)
     else:
-        M, Phi, rmin, S = M[0], Phi[0], rmin[0], S[0]
+        M, Phi, rmin, S = M[0].astype(np.int64), Phi[0], rmin[0], S[0].astype(np.int64)
 
     pair_off = np.zeros(n + 1, np.int64)
     np.cumsum(n_pair, out=pair_off[1:])

@@ -52,7 +52,8 @@ from numba.extending import intrinsic
 # the BSDF evaluation's lobe helpers and reference counts of round 32, and the
 # view factor of round 40 (compiled._seen_w), and the displacement bump's code
 # of round 45 (F_BUMP 2: no bump shadowing), and the conductor Fresnel of
-# round 46 (F_K, compiled._fresnel_rgb) and thin film (F_FILM_D, F_FILM_N).
+# round 46 (F_K, compiled._fresnel_rgb) and thin film (F_FILM_D, F_FILM_N),
+# and the one-signature entry points of round 50 (compiled._sample_pair).
 from ..materials.compiled import sample_pair, sincos_turn
 from ..materials.fast import ABSORBER, GENERIC, sample_fast
 from ..lights.ies_kernels import ies_factor

@@ -19,7 +19,8 @@ from numba import njit
 # counts of round 32, with the view factor of round 40 and with the
 # displacement bump's code of round 45 (F_BUMP 2: no bump shadowing) and
 # with the conductor Fresnel of round 46 (F_K, compiled._fresnel_rgb) and
-# thin film (F_FILM_D, F_FILM_N).
+# thin film (F_FILM_D, F_FILM_N), and with the one-signature entry points
+# of round 50 (compiled._eval_pair_as).
 from ..materials.compiled import _dot3, eval_pair
 
 #: Cap of the gathered photon's shading-normal factor (photon_pass._reflected).
