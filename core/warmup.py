@@ -56,6 +56,7 @@ it will take (the last measured compile of that job, :func:`expected_seconds`).
 from __future__ import annotations
 
 import base64
+import dataclasses
 import hashlib
 import json
 import os
@@ -84,7 +85,7 @@ from .settings import RenderSettings
 # 50" for every kind but "photons", not measured again).
 DEFAULT_COMPILE_SECONDS = 410.0
 JOB_SECONDS = {"light": 60.0, "path": 60.0, "combined": 60.0, "combined+photons": 205.0,
-               "photons": 110.0, "photons+frequency": 160.0}
+               "photons": 85.0, "photons+frequency": 115.0}
 _CORE = os.path.dirname(os.path.abspath(__file__))
 
 
@@ -279,15 +280,20 @@ class _split_paths:
     """With on=True, the per-pixel stages take their threaded paths at any
     size (their thresholds set to 1 for the block), so that the first job
     compiles the kernels a large render uses (camera rays, grid build,
-    update, film)."""
+    update, film).  pixels: only the thresholds a render of that many
+    pixels reaches (each stage splits from ``count >= threshold``), so that
+    a smaller crop of the render takes the render's own paths
+    (:func:`compile_late`)."""
     _LIMITS = (("scene.camera", "PARALLEL_MIN"), ("sppm.update", "PARALLEL_MIN"),
                ("sppm.film", "PARALLEL_MIN"), ("sppm.hashgrid", "PARALLEL_MIN_VPS"),
                ("sppm.visible_points", "INTERSECT_SPLIT_MIN"))
 
-    def __init__(self, on: bool):
+    def __init__(self, on: bool, pixels: Optional[int] = None):
         import importlib
         self.on = on
         self.mods = [(importlib.import_module("." + m, __package__), a) for m, a in self._LIMITS]
+        if pixels is not None:
+            self.mods = [(m, a) for m, a in self.mods if getattr(m, a) <= pixels]
 
     def __enter__(self):
         if self.on:
@@ -391,6 +397,67 @@ def compile_gather(first: Optional[tuple] = None, only: bool = False, merge: boo
                           want_freq_pairs=pairs)
     finally:
         hg.PARALLEL_MIN_PHOTONS, hg.PARALLEL_MIN_VPS = saved
+
+
+#: The side of the crop :func:`compile_late` renders (pixels).
+LATE_CROP = 64
+
+
+def late_job(job) -> tuple:
+    """The render job's stages that do not trace photons, for
+    :func:`compile_late`: its scene cropped to at most a LATE_CROP-pixel
+    square at the centre of its region (the render's border, if any), its
+    settings without frequency photons (no occlusion grid, no spectrum: the
+    job's own process compiles those first)."""
+    from .render import border_rect
+    scene, st, passes = (tuple(job) + ((),))[:3]
+    cam = scene.camera
+    W, H = (int(v) for v in cam.resolution)
+    x0, y0, x1, y1 = (0, 0, W, H) if cam.border is None else border_rect(cam.border, W, H)
+    w, h = min(x1 - x0, LATE_CROP), min(y1 - y0, LATE_CROP)
+    a, b = x0 + (x1 - x0 - w) // 2, y0 + (y1 - y0 - h) // 2
+    # pixel edges + 0.5: border_rect's truncation gives back these pixels
+    crop = dataclasses.replace(cam, border=((a + 0.5) / W, (b + 0.5) / H,
+                                            (a + w + 0.5) / W, (b + h + 0.5) / H))
+    return (dataclasses.replace(scene, camera=crop), st.replace(use_frequency=False), passes)
+
+
+def _no_photons(n, n_freq, rng):
+    """A tracer's ``trace`` that traces nothing (the pass gathers no chunk)."""
+    return None
+
+
+def compile_late(jobs, should_stop: Optional[Callable[[], bool]] = None) -> None:
+    """Compile what a photon-mapping job with frequency photons
+    (:func:`render_job`, kind "photons+frequency") calls after its photon
+    trace, the way it calls it: its camera
+    pass, direct light, kernel clip, grid build, radius update and film,
+    rendered on a crop of its scene (:func:`late_job`) with the stages'
+    threaded paths where the whole render takes them, and no photon
+    traced.  The job's own process compiles its occlusion grid, emission,
+    photon bounces and spectra first and reaches these stages last
+    (measured: docs/interactive.md "The second compiling process takes the
+    late stages, round 51"), so a second process that compiles them
+    meanwhile leaves it to load them from the cache.  Other kinds are
+    skipped: without frequency photons the job reaches these stages early
+    itself, and a Combined job compiles its camera and light paths first.
+    Raises RenderCancelled when ``should_stop()``."""
+    from .errors import RenderCancelled
+    from .render import Renderer, border_rect
+    for job in jobs:
+        if job_kind(job) != "photons+frequency":
+            continue
+        scene, st, passes = late_job(job)
+        cam = job[0].camera
+        W, H = (int(v) for v in cam.resolution)
+        x0, y0, x1, y1 = (0, 0, W, H) if cam.border is None else border_rect(cam.border, W, H)
+        with _split_paths(True, pixels=(x1 - x0) * (y1 - y0)):
+            r = Renderer(scene, st, log=lambda _m: None, should_stop=should_stop,
+                         passes=passes, force_stages=("glossy chains",))
+            r.tracer.trace = _no_photons
+            r.run(should_stop=should_stop)
+        if should_stop is not None and should_stop():
+            raise RenderCancelled("cancelled")
 
 
 def traces_photons(job) -> bool:
@@ -612,8 +679,8 @@ def _dump(path: str, obj) -> None:
 def child_main(folder: str, idle: float = CHILD_IDLE_SECONDS) -> None:
     """The compiling process: for each group the parent writes
     (``<folder>/spec-<i>.pkl``: ``{"jobs": [...] or None for warmup_jobs(),
-    "nice": bool}``, or ``{"gather": variant, "only": bool, "merge": bool}``
-    for :func:`compile_gather`)
+    "nice": bool}``, ``{"gather": variant, "only": bool, "merge": bool}``
+    for :func:`compile_gather`, or ``{"late": [...]}`` for :func:`compile_late`)
     render its jobs, then write ``<folder>/<i>.pkl``:
     seconds, CPU seconds, kernels compiled (not loaded) and
     :func:`used_kernels`, for the parent to load.  Importing numba and the
@@ -637,6 +704,8 @@ def child_main(folder: str, idle: float = CHILD_IDLE_SECONDS) -> None:
         if g.get("gather") is not None:
             compile_gather(tuple(g["gather"]), only=g.get("only", False),
                            merge=g.get("merge", True))
+        elif g.get("late") is not None:
+            compile_late(g["late"])
         elif g["jobs"] is None:
             compile_kernels()
         else:
@@ -947,7 +1016,7 @@ class Warmup:
         self._kick = threading.Event()    # a new job: it goes first
         self._child: Optional[_Child] = None
         self._gather: Optional[_Child] = None    # compile_gather beside a job (_start_gather)
-        self._gather_i = 0
+        self._gather_i: Optional[int] = None
         self._gather_marks: Optional[str] = None   # its marker (_gather_marker), when it ends
         self.started_at: Optional[float] = None
 
@@ -1117,10 +1186,14 @@ class Warmup:
         other core compiles the gather's kernels, ~40 % of a photon render's
         compile, into the same cache while the job's process renders the
         scene's other stages, and finds them there (docs/interactive.md
-        "Two compiling processes, round 20").  It runs at the job's priority
-        only while the job runs (:meth:`_close_gather` when the job's record
-        comes; what it compiled stays on disk).  Skipped when no child can
-        run (the job's child then fails too, and this process compiles)."""
+        "Two compiling processes, round 20"); then, beside a photon-mapping
+        job with frequency photons, the stages that job reaches after its
+        photon trace (:func:`compile_late`; without frequency photons the
+        job reaches them early, and both processes compiled them: 95 s
+        against 83 s).  It runs at the job's priority only while the
+        job runs (:meth:`_close_gather` when the job's record comes; what it
+        compiled stays on disk).  Skipped when no child can run (the job's
+        child then fails too, and this process compiles)."""
         self._close_gather()
         if not any(traces_photons(j) for j in jobs):
             return
@@ -1139,10 +1212,15 @@ class Warmup:
         self._gather_marks = _gather_marker(variant + (merge,))
         self._gather_i = self._gather.submit({"jobs": None, "nice": False, "gather": variant,
                                               "only": True, "merge": merge})
+        late = [j for j in jobs if job_kind(j) == "photons+frequency"]
+        if late:
+            self._gather.submit({"jobs": None, "nice": False, "late": late})
 
     def _poll_gather(self) -> None:
-        """Write the gather's marker once its process finished its variants."""
-        if self._gather is None:
+        """Write the gather's marker once its process finished its variants
+        (the process goes on with the late stages, if given, until the job
+        ends)."""
+        if self._gather is None or self._gather_i is None:
             return
         try:
             rec = self._gather.result(self._gather_i)
@@ -1153,12 +1231,15 @@ class Warmup:
         if isinstance(rec, dict):
             _write_json(self._gather_marks, {"seconds": rec["seconds"], "cpu": rec["cpu"],
                                              "compiled": rec["compiled"]})
-        self._close_gather()
+            self._gather_i = None
+        else:
+            self._close_gather()
 
     def _close_gather(self) -> None:
         if self._gather is not None:
             self._gather.close()
             self._gather = None
+        self._gather_i = None
 
     def _close_child(self) -> None:
         if self._child is not None:

@@ -575,9 +575,16 @@ def test_a_photon_job_compiles_the_gather_in_a_second_process(tmp_path, monkeypa
     assert len(children) == 2, [c.specs for c in children]
     job, gather = children
     assert job.specs[0]["jobs"] == [photon] and "gather" not in job.specs[0]
+    # then the stages the job reaches after its photon trace (compile_late)
     assert gather.specs == [{"jobs": None, "nice": False, "only": True, "merge": False,
-                             "gather": W.gather_variant(photon)}]
+                             "gather": W.gather_variant(photon)},
+                            {"jobs": None, "nice": False, "late": [photon]}]
     assert gather.closed and not job.closed     # the job's child stays for the next job
+    # without frequency photons the job reaches those stages early: the gather alone
+    children.clear()
+    ppm = W.render_job(scene, photon[1].replace(use_frequency=False))
+    assert W.Warmup().wait_for(ppm, rest=False)
+    assert [list(s) for s in children[1].specs] == [["jobs", "nice", "gather", "only", "merge"]]
     # a chunk of 3000 photons gathers on one thread, of 200 000 split
     assert W.gather_variant(photon)[0] is False and W.gather_variant(
         (scene, RenderSettings(integrator="PHOTON")))[0] is True
@@ -614,3 +621,73 @@ def test_a_photon_job_compiles_the_gather_in_a_second_process(tmp_path, monkeypa
         assert W.Warmup().wait_for(job, rest=False)
         assert len(children) == started, marker
         os.remove(marker)
+
+
+LATE = r"""
+import json, sys
+sys.path.insert(0, sys.argv[1])
+import fppm_alias  # noqa
+import fppm.core.settings as S
+import fppm.core.warmup as W
+job = W.render_job(W.warmup_scene(res=8, glossy=False),
+                   S.RenderSettings(integrator="PHOTON", photons_per_pass=3000, seed=1))
+if sys.argv[2] == "late":
+    W.compile_late([job])
+else:
+    W.run_jobs([job])
+print(json.dumps({k: [str(t) for t in v] for k, v in W.used_kernels().items()}))
+"""
+
+
+def test_the_late_stages_call_only_kernels_the_photon_job_calls():
+    # core.warmup.compile_late (the second compiling process, after the
+    # gather): every kernel signature it calls is one the photon-mapping
+    # job itself calls, so none of its compile is wasted; and it calls the
+    # stages the job reaches after its photon trace (direct light, camera,
+    # radius update, film).  Each side in a process of its own on the
+    # suite's kernel cache (what a process calls, compiled or loaded).
+    used = {}
+    for mode in ("late", "job"):
+        p = subprocess.run([PY, "-c", LATE, os.path.join(ROOT, "tests"), mode],
+                           capture_output=True, text=True, timeout=600)
+        assert p.returncode == 0, p.stderr[-3000:]
+        out = __import__("json").loads(p.stdout.strip().splitlines()[-1])
+        used[mode] = {(k, t) for k, v in out.items() for t in v}
+    assert used["late"] <= used["job"], sorted(used["late"] - used["job"])
+    late = {k.rsplit(":", 1)[1] for k, _t in used["late"]}
+    assert {"direct_kernel", "hit_kernel", "_ppm_update_range"} <= late, sorted(late)
+    # no photon is traced nor gathered, no frequency kernel
+    assert not late & {"bounce_kernel", "emit_lights_state", "_count_serial", "_count_parallel"}
+    assert not [k for k, _t in used["late"] if ".frequency." in k.rsplit(":", 1)[0]
+                and not k.endswith(":cut_locality")]
+
+
+def test_the_late_stages_render_a_crop_on_the_renders_own_paths():
+    # late_job: at most a LATE_CROP-pixel square inside the render's region
+    # (its border), without frequency photons; _split_paths(True, pixels):
+    # the threaded path of each stage a render of that many pixels takes.
+    import dataclasses
+
+    from fppm.core import warmup as W
+    from fppm.core.render import border_rect
+    from fppm.core.settings import RenderSettings
+    from fppm.core.sppm import film, hashgrid, update, visible_points
+    scene = W.warmup_scene(res=8, glossy=False)
+    for res, border in (((640, 480), None), ((640, 480), (0.5, 0.25, 0.9, 0.5)),
+                        ((30, 20), None), ((640, 480), (0.1, 0.1, 0.13, 0.2))):
+        cam = dataclasses.replace(scene.camera, resolution=res, border=border)
+        job = W.render_job(dataclasses.replace(scene, camera=cam),
+                           RenderSettings(integrator="PHOTON"))
+        sc, st, _ = W.late_job(job)
+        assert not st.use_frequency and st.replace(use_frequency=True) == job[1]
+        x0, y0, x1, y1 = border_rect(sc.camera.border, *res)
+        X0, Y0, X1, Y1 = border_rect(border or (0, 0, 1, 1), *res)
+        assert X0 <= x0 < x1 <= X1 and Y0 <= y0 < y1 <= Y1, (res, border)
+        assert x1 - x0 == min(W.LATE_CROP, X1 - X0) and y1 - y0 == min(W.LATE_CROP, Y1 - Y0)
+    limits = [(visible_points, "INTERSECT_SPLIT_MIN"), (update, "PARALLEL_MIN"),
+              (film, "PARALLEL_MIN"), (hashgrid, "PARALLEL_MIN_VPS")]
+    saved = [getattr(m, a) for m, a in limits]
+    pixels = 1 << 16
+    with W._split_paths(True, pixels=pixels):
+        assert [getattr(m, a) for m, a in limits] == [1 if v <= pixels else v for v in saved]
+    assert [getattr(m, a) for m, a in limits] == saved
