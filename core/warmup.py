@@ -41,8 +41,11 @@ subprocess do the compiling (:class:`_Child`, :func:`child_main`):
 - beside a render's job that traces photons, on a cold cache, a second
   subprocess compiles the photon gather's kernels (:func:`compile_gather`,
   about 40 % of such a job's compile) into the same cache on the other
-  core, while the job's process renders the other stages and then finds
-  them there; it ends when the job does (:meth:`Warmup._start_gather`);
+  core, then, beside photon mapping with frequency photons or Combined
+  merging photons, the stages that job reaches last
+  (:func:`compile_late`), while the job's process renders the
+  other stages and then finds them there; it ends when the job does
+  (:meth:`Warmup._start_gather`);
 - :meth:`Warmup.wait_for` and :meth:`Warmup.wait` poll ``should_stop`` every
   50 ms, so a render waiting for the compile can be cancelled at once; the
   compile itself goes on in the background (the next render needs it).
@@ -84,7 +87,7 @@ from .settings import RenderSettings
 # compile by kind of render, round 49", and "One signature a kernel, round
 # 50" for every kind but "photons", not measured again).
 DEFAULT_COMPILE_SECONDS = 410.0
-JOB_SECONDS = {"light": 60.0, "path": 60.0, "combined": 60.0, "combined+photons": 205.0,
+JOB_SECONDS = {"light": 60.0, "path": 60.0, "combined": 60.0, "combined+photons": 150.0,
                "photons": 85.0, "photons+frequency": 115.0}
 _CORE = os.path.dirname(os.path.abspath(__file__))
 
@@ -401,14 +404,22 @@ def compile_gather(first: Optional[tuple] = None, only: bool = False, merge: boo
 
 #: The side of the crop :func:`compile_late` renders (pixels).
 LATE_CROP = 64
+#: The kinds of job (:func:`job_kind`) whose late stages a second process
+#: compiles (:func:`compile_late`); measured in docs/interactive.md "The
+#: second compiling process takes the late stages, round 51".
+LATE_KINDS = ("photons+frequency", "combined+photons")
 
 
 def late_job(job) -> tuple:
-    """The render job's stages that do not trace photons, for
+    """The part of a render job that its own process compiles last, for
     :func:`compile_late`: its scene cropped to at most a LATE_CROP-pixel
-    square at the centre of its region (the render's border, if any), its
-    settings without frequency photons (no occlusion grid, no spectrum: the
-    job's own process compiles those first)."""
+    square at the centre of its region (the render's border, if any), and
+    settings by kind.  Photon mapping with frequency photons: no frequency
+    photons (the occlusion grid and spectra are what its own process
+    compiles first; the photons are not traced either).  Combined merging
+    photons: the same scene as photon mapping (its photon emission, bounces,
+    spectra, kernel clip, update and film, which its own process reaches
+    after its camera and light paths)."""
     from .render import border_rect
     scene, st, passes = (tuple(job) + ((),))[:3]
     cam = scene.camera
@@ -419,7 +430,9 @@ def late_job(job) -> tuple:
     # pixel edges + 0.5: border_rect's truncation gives back these pixels
     crop = dataclasses.replace(cam, border=((a + 0.5) / W, (b + 0.5) / H,
                                             (a + w + 0.5) / W, (b + h + 0.5) / H))
-    return (dataclasses.replace(scene, camera=crop), st.replace(use_frequency=False), passes)
+    late = (st.replace(integrator="PHOTON") if st.integrator == "COMBINED"
+            else st.replace(use_frequency=False))
+    return (dataclasses.replace(scene, camera=crop), late, passes)
 
 
 def _no_photons(n, n_freq, rng):
@@ -428,24 +441,25 @@ def _no_photons(n, n_freq, rng):
 
 
 def compile_late(jobs, should_stop: Optional[Callable[[], bool]] = None) -> None:
-    """Compile what a photon-mapping job with frequency photons
-    (:func:`render_job`, kind "photons+frequency") calls after its photon
-    trace, the way it calls it: its camera
-    pass, direct light, kernel clip, grid build, radius update and film,
-    rendered on a crop of its scene (:func:`late_job`) with the stages'
-    threaded paths where the whole render takes them, and no photon
-    traced.  The job's own process compiles its occlusion grid, emission,
-    photon bounces and spectra first and reaches these stages last
-    (measured: docs/interactive.md "The second compiling process takes the
-    late stages, round 51"), so a second process that compiles them
-    meanwhile leaves it to load them from the cache.  Other kinds are
-    skipped: without frequency photons the job reaches these stages early
-    itself, and a Combined job compiles its camera and light paths first.
-    Raises RenderCancelled when ``should_stop()``."""
+    """Compile what a render job (:func:`render_job`) of one of
+    :data:`LATE_KINDS` calls last, the way it calls it (:func:`late_job`):
+    rendered on a crop of its scene, with the stages' threaded paths where
+    the whole render takes them.  A photon-mapping job with frequency
+    photons compiles its occlusion grid, emission, bounces and spectra
+    first, then its camera pass, direct light, kernel clip, grid build,
+    update and film: those are rendered here, no photon traced.  A
+    Combined job that merges photons compiles its camera and light paths
+    first, then its photon pass: that is rendered here, as photon mapping.
+    The second compiling process runs this after the gather, so the job's
+    process loads these kernels from the cache when it reaches them
+    (docs/interactive.md "The second compiling process takes the late
+    stages, round 51").  Other kinds are skipped: without frequency photons
+    a photon-mapping job reaches these stages early itself.  Raises
+    RenderCancelled when ``should_stop()``."""
     from .errors import RenderCancelled
     from .render import Renderer, border_rect
     for job in jobs:
-        if job_kind(job) != "photons+frequency":
+        if job_kind(job) not in LATE_KINDS:
             continue
         scene, st, passes = late_job(job)
         cam = job[0].camera
@@ -454,7 +468,8 @@ def compile_late(jobs, should_stop: Optional[Callable[[], bool]] = None) -> None
         with _split_paths(True, pixels=(x1 - x0) * (y1 - y0)):
             r = Renderer(scene, st, log=lambda _m: None, should_stop=should_stop,
                          passes=passes, force_stages=("glossy chains",))
-            r.tracer.trace = _no_photons
+            if not st.use_frequency:
+                r.tracer.trace = _no_photons
             r.run(should_stop=should_stop)
         if should_stop is not None and should_stop():
             raise RenderCancelled("cancelled")
@@ -1186,11 +1201,9 @@ class Warmup:
         other core compiles the gather's kernels, ~40 % of a photon render's
         compile, into the same cache while the job's process renders the
         scene's other stages, and finds them there (docs/interactive.md
-        "Two compiling processes, round 20"); then, beside a photon-mapping
-        job with frequency photons, the stages that job reaches after its
-        photon trace (:func:`compile_late`; without frequency photons the
-        job reaches them early, and both processes compiled them: 95 s
-        against 83 s).  It runs at the job's priority only while the
+        "Two compiling processes, round 20"); then, beside a job of
+        :data:`LATE_KINDS`, the stages that job reaches last
+        (:func:`compile_late`).  It runs at the job's priority only while the
         job runs (:meth:`_close_gather` when the job's record comes; what it
         compiled stays on disk).  Skipped when no child can run (the job's
         child then fails too, and this process compiles)."""
@@ -1212,7 +1225,7 @@ class Warmup:
         self._gather_marks = _gather_marker(variant + (merge,))
         self._gather_i = self._gather.submit({"jobs": None, "nice": False, "gather": variant,
                                               "only": True, "merge": merge})
-        late = [j for j in jobs if job_kind(j) == "photons+frequency"]
+        late = [j for j in jobs if job_kind(j) in LATE_KINDS]
         if late:
             self._gather.submit({"jobs": None, "nice": False, "late": late})
 

@@ -600,8 +600,15 @@ def test_a_photon_job_compiles_the_gather_in_a_second_process(tmp_path, monkeypa
         children.clear()
         assert W.Warmup().wait_for(job, rest=False)
         assert len(children) == 1, job[1].integrator
-    # COMBINED with a mirror and glass merges photons: a second child.
-    assert W.traces_photons(W.render_job(scene, RenderSettings()))
+    # COMBINED with a mirror and glass merges photons: a second child, the
+    # gather (and the merge's), then its photon pass as photon mapping.
+    combined = W.render_job(scene, RenderSettings())
+    assert W.traces_photons(combined)
+    children.clear()
+    assert W.Warmup().wait_for(combined, rest=False)
+    assert children[1].specs == [{"jobs": None, "nice": False, "only": True, "merge": True,
+                                  "gather": W.gather_variant(combined)},
+                                 {"jobs": None, "nice": False, "late": [combined]}]
 
     # A cache that holds the job's variant (its marker: the gather's process
     # finished it) or every variant starts none either; another variant does.
@@ -630,7 +637,8 @@ import fppm_alias  # noqa
 import fppm.core.settings as S
 import fppm.core.warmup as W
 job = W.render_job(W.warmup_scene(res=8, glossy=False),
-                   S.RenderSettings(integrator="PHOTON", photons_per_pass=3000, seed=1))
+                   S.RenderSettings(integrator=sys.argv[3], photons_per_pass=3000, seed=1))
+assert W.job_kind(job) in W.LATE_KINDS
 if sys.argv[2] == "late":
     W.compile_late([job])
 else:
@@ -639,27 +647,54 @@ print(json.dumps({k: [str(t) for t in v] for k, v in W.used_kernels().items()}))
 """
 
 
-def test_the_late_stages_call_only_kernels_the_photon_job_calls():
-    # core.warmup.compile_late (the second compiling process, after the
-    # gather): every kernel signature it calls is one the photon-mapping
-    # job itself calls, so none of its compile is wasted; and it calls the
-    # stages the job reaches after its photon trace (direct light, camera,
-    # radius update, film).  Each side in a process of its own on the
-    # suite's kernel cache (what a process calls, compiled or loaded).
+def _late_and_job(integrator):
+    """(kernel signatures compiled_late calls, those the job calls) for a
+    small job of that integrator, each side in a process of its own on the
+    suite's kernel cache (what a process calls, compiled or loaded)."""
     used = {}
     for mode in ("late", "job"):
-        p = subprocess.run([PY, "-c", LATE, os.path.join(ROOT, "tests"), mode],
+        p = subprocess.run([PY, "-c", LATE, os.path.join(ROOT, "tests"), mode, integrator],
                            capture_output=True, text=True, timeout=600)
         assert p.returncode == 0, p.stderr[-3000:]
         out = __import__("json").loads(p.stdout.strip().splitlines()[-1])
         used[mode] = {(k, t) for k, v in out.items() for t in v}
-    assert used["late"] <= used["job"], sorted(used["late"] - used["job"])
-    late = {k.rsplit(":", 1)[1] for k, _t in used["late"]}
-    assert {"direct_kernel", "hit_kernel", "_ppm_update_range"} <= late, sorted(late)
-    # no photon is traced nor gathered, no frequency kernel
-    assert not late & {"bounce_kernel", "emit_lights_state", "_count_serial", "_count_parallel"}
-    assert not [k for k, _t in used["late"] if ".frequency." in k.rsplit(":", 1)[0]
+    return used["late"], used["job"]
+
+
+def _names(used):
+    return {k.rsplit(":", 1)[1] for k, _t in used}
+
+
+def test_the_late_stages_call_only_kernels_the_photon_job_calls():
+    # core.warmup.compile_late (the second compiling process, after the
+    # gather) beside photon mapping with frequency photons: every kernel
+    # signature it calls is one the job itself calls, so none of its
+    # compile is wasted; it calls the stages the job reaches after its
+    # photon trace (direct light, camera, radius update, film), and no
+    # photon kernel, gather or frequency kernel (what the job compiles first).
+    late, job = _late_and_job("PHOTON")
+    assert late <= job, sorted(late - job)
+    names = _names(late)
+    assert {"direct_kernel", "hit_kernel", "_ppm_update_range"} <= names, sorted(names)
+    assert not names & {"bounce_kernel", "emit_lights_state", "_count_serial", "_count_parallel"}
+    assert not [k for k, _t in late if ".frequency." in k.rsplit(":", 1)[0]
                 and not k.endswith(":cut_locality")]
+
+
+def test_the_late_stages_of_a_combined_job_are_its_photon_pass():
+    # Beside Combined merging photons: its photon pass rendered as photon
+    # mapping (emission, bounces, spectra, update).  Every signature it
+    # calls is the job's but the direct light at the visible points
+    # (float32 receivers; the job's direct light reads float64 ones) and
+    # the reach map Combined's frequency photons do without.
+    late, job = _late_and_job("COMBINED")
+    extra = {k for k, _t in late - job}
+    assert all(k.rsplit(":", 1)[0].endswith(".direct_kernels") or k.endswith(":mark_reach")
+               for k in extra), sorted(extra)
+    names = _names(late & job)
+    assert {"bounce_kernel", "spectrum_at_hits", "_ppm_update_range"} <= names, sorted(names)
+    # the camera and light paths are not rendered
+    assert not [k for k, _t in late if ".integrators." in k.rsplit(":", 1)[0]]
 
 
 def test_the_late_stages_render_a_crop_on_the_renders_own_paths():
@@ -680,6 +715,8 @@ def test_the_late_stages_render_a_crop_on_the_renders_own_paths():
                            RenderSettings(integrator="PHOTON"))
         sc, st, _ = W.late_job(job)
         assert not st.use_frequency and st.replace(use_frequency=True) == job[1]
+        combined = W.late_job((job[0], job[1].replace(integrator="COMBINED")))[1]
+        assert combined == job[1]         # photon mapping, frequency photons kept
         x0, y0, x1, y1 = border_rect(sc.camera.border, *res)
         X0, Y0, X1, Y1 = border_rect(border or (0, 0, 1, 1), *res)
         assert X0 <= x0 < x1 <= X1 and Y0 <= y0 < y1 <= Y1, (res, border)
