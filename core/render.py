@@ -137,6 +137,13 @@ def border_rect(border, W: int, H: int) -> tuple[int, int, int, int]:
     return x0, y0, min(max(x1, x0 + 1), W), min(max(y1, y0 + 1), H)
 
 
+def camera_region(cam) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) pixel rectangle a render of camera ``cam`` renders:
+    its border's (:func:`border_rect`), or the whole image."""
+    W, H = (int(v) for v in cam.resolution)
+    return (0, 0, W, H) if cam.border is None else border_rect(cam.border, W, H)
+
+
 class Renderer:
     #: Arrays every checkpoint holds (the optional r_hist / spectrum come with
     #: the settings that need them); derived from the state's fields.
@@ -311,10 +318,7 @@ class Renderer:
         if W < 1 or H < 1:
             raise SceneError(f"The render resolution {W}x{H} is empty: set a resolution of at least 1x1.")
         self.full_size = (W, H)
-        if cam.border is not None:
-            x0, y0, x1, y1 = border_rect(cam.border, W, H)
-        else:
-            x0, y0, x1, y1 = 0, 0, W, H
+        x0, y0, x1, y1 = camera_region(cam)
         self.offset = (x0, y0)
         self.width, self.height = x1 - x0, y1 - y0
         self.D = scene.diameter()

@@ -411,14 +411,6 @@ LATE_CROP = 64
 LATE_KINDS = ("photons+frequency", "combined+photons")
 
 
-def _region(cam) -> tuple:
-    """(x0, y0, x1, y1): the pixels a render of camera ``cam`` renders (its
-    border's, core.render.border_rect, or the whole image)."""
-    from .render import border_rect
-    W, H = (int(v) for v in cam.resolution)
-    return (0, 0, W, H) if cam.border is None else border_rect(cam.border, W, H)
-
-
 def late_job(job) -> tuple:
     """The part of a render job that its own process compiles last, for
     :func:`compile_late`: its scene cropped to at most a LATE_CROP-pixel
@@ -429,10 +421,11 @@ def late_job(job) -> tuple:
     photons: the same scene as photon mapping (its photon emission, bounces,
     spectra, kernel clip, update and film, which its own process reaches
     after its camera and light paths)."""
+    from .render import camera_region
     scene, st, passes = (tuple(job) + ((),))[:3]
     cam = scene.camera
     W, H = (int(v) for v in cam.resolution)
-    x0, y0, x1, y1 = _region(cam)
+    x0, y0, x1, y1 = camera_region(cam)
     w, h = min(x1 - x0, LATE_CROP), min(y1 - y0, LATE_CROP)
     a, b = x0 + (x1 - x0 - w) // 2, y0 + (y1 - y0 - h) // 2
     # pixel edges + 0.5: border_rect's truncation gives back these pixels
@@ -465,12 +458,12 @@ def compile_late(jobs, should_stop: Optional[Callable[[], bool]] = None) -> None
     a photon-mapping job reaches these stages early itself.  Raises
     RenderCancelled when ``should_stop()``."""
     from .errors import RenderCancelled
-    from .render import Renderer
+    from .render import Renderer, camera_region
     for job in jobs:
         if job_kind(job) not in LATE_KINDS:
             continue
         scene, st, passes = late_job(job)
-        x0, y0, x1, y1 = _region(job[0].camera)
+        x0, y0, x1, y1 = camera_region(job[0].camera)
         with _split_paths(True, pixels=(x1 - x0) * (y1 - y0)):
             r = Renderer(scene, st, log=lambda _m: None, should_stop=should_stop,
                          passes=passes, force_stages=("glossy chains",))

@@ -648,7 +648,7 @@ print(json.dumps({k: [str(t) for t in v] for k, v in W.used_kernels().items()}))
 
 
 def _late_and_job(integrator):
-    """(kernel signatures compiled_late calls, those the job calls) for a
+    """(kernel signatures compile_late calls, those the job calls) for a
     small job of that integrator, each side in a process of its own on the
     suite's kernel cache (what a process calls, compiled or loaded)."""
     used = {}
