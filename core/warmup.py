@@ -44,8 +44,10 @@ subprocess do the compiling (:class:`_Child`, :func:`child_main`):
   core, then, beside photon mapping with frequency photons or Combined
   merging photons, the stages that job reaches last
   (:func:`compile_late`), while the job's process renders the
-  other stages and then finds them there; it ends when the job does
-  (:meth:`Warmup._start_gather`);
+  other stages and then finds them there; beside camera or light paths
+  without photons (path tracing, light tracing, and Combined's default on
+  a scene without mirror or glass) the subprocess compiles their late
+  stages alone; it ends when the job does (:meth:`Warmup._start_gather`);
 - :meth:`Warmup.wait_for` and :meth:`Warmup.wait` poll ``should_stop`` every
   50 ms, so a render waiting for the compile can be cancelled at once; the
   compile itself goes on in the background (the next render needs it).
@@ -62,6 +64,7 @@ import base64
 import dataclasses
 import hashlib
 import json
+import math
 import os
 import pickle
 import shutil
@@ -85,10 +88,11 @@ from .settings import RenderSettings
 # render's own job by what it compiles (job_kind): wall seconds on an empty
 # cache of the project's 2-core machine (docs/interactive.md "The first-use
 # compile by kind of render, round 49", "One signature a kernel, round 50",
-# and for the kinds with photons "The second compiling process takes the
-# late stages, round 51").
+# for the kinds with photons "The second compiling process takes the late
+# stages, round 51", and for the others "The paths' late stages in the
+# second process, round 52").
 DEFAULT_COMPILE_SECONDS = 410.0
-JOB_SECONDS = {"light": 60.0, "path": 60.0, "combined": 60.0, "combined+photons": 150.0,
+JOB_SECONDS = {"light": 35.0, "path": 50.0, "combined": 40.0, "combined+photons": 150.0,
                "photons": 85.0, "photons+frequency": 115.0}
 _CORE = os.path.dirname(os.path.abspath(__file__))
 
@@ -407,8 +411,15 @@ def compile_gather(first: Optional[tuple] = None, only: bool = False, merge: boo
 LATE_CROP = 64
 #: The kinds of job (:func:`job_kind`) whose late stages a second process
 #: compiles (:func:`compile_late`); measured in docs/interactive.md "The
-#: second compiling process takes the late stages, round 51".
-LATE_KINDS = ("photons+frequency", "combined+photons")
+#: second compiling process takes the late stages, round 51" (the photon
+#: kinds) and "The paths' late stages in the second process, round 52"
+#: (light tracing, path tracing, and Combined without photons: the Cornell
+#: box's default and most rooms').
+LATE_KINDS = ("photons+frequency", "combined+photons", "light", "path", "combined")
+#: Of those, the kinds without photons, whose late stages are light
+#: tracing's splat and the camera paths' light sample and continuation
+#: (:func:`_render_paths`; the others' are a photon pass: :func:`late_job`).
+PATH_KINDS = ("light", "path", "combined")
 
 
 def late_job(job) -> tuple:
@@ -431,14 +442,120 @@ def late_job(job) -> tuple:
     # pixel edges + 0.5: border_rect's truncation gives back these pixels
     crop = dataclasses.replace(cam, border=((a + 0.5) / W, (b + 0.5) / H,
                                             (a + w + 0.5) / W, (b + h + 0.5) / H))
-    late = (st.replace(integrator="PHOTON") if st.integrator == "COMBINED"
-            else st.replace(use_frequency=False))
+    if job_kind(job) in PATH_KINDS:
+        late = st
+    else:
+        late = (st.replace(integrator="PHOTON") if st.integrator == "COMBINED"
+                else st.replace(use_frequency=False))
     return (dataclasses.replace(scene, camera=crop), late, passes)
 
 
 def _no_photons(n, n_freq, rng):
     """A tracer's ``trace`` that traces nothing (the pass gathers no chunk)."""
     return None
+
+
+def _deposits_on_surfaces(tracer):
+    """A tracer's ``trace_emitted`` that traces nothing: each photon leaves
+    one deposit at a random point of the scene's surfaces (a triangle drawn
+    by area, lit from the side of its normal), in the tracer's own deposit
+    buffers, so that light tracing's splat is called with the types a
+    traced pass gives it (some points are in the crop's view), without the
+    bounce kernel, which the job's own process compiles first."""
+    P = tracer.tris.p
+    area = np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1)
+    # photons leave no deposit on a mirror or glass (delta lobes alone)
+    area = area * tracer.mtab.has_nondelta[np.asarray(tracer.tris.mat, np.int64)]
+    cdf = np.cumsum(area)
+
+    def trace_emitted(ph, rng):
+        n = ph["o"].shape[0]
+        dep = tracer.deposit_buffers(n)
+        dep.reserve(n)
+        b = dep.buf
+        tri = np.minimum(np.searchsorted(cdf, rng.random(n) * cdf[-1], side="right"),
+                         len(cdf) - 1)
+        u, v = rng.random(n), rng.random(n)
+        flip = u + v > 1.0
+        u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
+        b.p[:n] = (P[tri, 0] + u[:, None] * (P[tri, 1] - P[tri, 0])
+                   + v[:, None] * (P[tri, 2] - P[tri, 0]))
+        b.ng[:n] = tracer.tris.ng[tri]
+        b.wi[:n] = tracer.tris.ng[tri]
+        b.power[:n] = ph["power"]
+        b.r[:n] = 0.0
+        b.bounce[:n] = 1
+        b.bary[:n, 0], b.bary[:n, 1], b.bary[:n, 2] = tri, u, v
+        dep.n = n if cdf[-1] > 0 else 0
+        return dep.result()
+    return trace_emitted
+
+
+def _mis_deposits_on_surfaces(tracer):
+    """Combined's light-path trace (``CombinedLightTracer._trace``) that
+    traces nothing: :func:`_deposits_on_surfaces`'s deposits, one a photon, with MIS ratios 0 and none a first hit (a delta light's first
+    hits are next-event estimation's and would not be splatted)."""
+    at_emission = _deposits_on_surfaces(tracer)
+
+    def trace(ph, z0, rng):
+        dep = at_emission(ph, rng)
+        n = ph["o"].shape[0]
+        dep["src_photon"] = np.arange(n, dtype=np.int64)
+        return dep, np.zeros(n), np.zeros(n), np.zeros(n, np.bool_)
+    return trace
+
+
+def _light_only(r) -> bool:
+    """Whether a Renderer's passes are light tracing's alone (integrator
+    LIGHT, or a Combined plan without camera paths: ``Renderer.light_pass``)."""
+    return r.light_tracer is not None or r.light_pass
+
+
+def _no_direct_light(start, end, L, R, S):
+    """``direct_kernels.direct_kernel`` that samples no light (S as
+    ``alloc_samples`` left it: no light on any row)."""
+
+
+def _render_paths(scene, st, passes, should_stop) -> None:
+    """Render the late stages of a job of :data:`PATH_KINDS` (its own
+    process compiles them last, after the emission and bounces of its light
+    paths, or its camera paths' emitters, textures, normal maps and direct
+    light): light tracing's splat, without the fused emission (numpy's:
+    ``emission.COMPILED_EMISSION`` off) or a traced photon
+    (:func:`_deposits_on_surfaces`); the camera paths' next-event
+    estimation with its MIS weights (``path_kernels.nee_mis_kernel``) and
+    their continuation (``continue_kernel``), with no emitter seen, no map
+    looked up, no normal perturbed, no colour row of a texture and no light
+    sampled (:func:`_no_direct_light`).  Combined's pilot
+    (``combined.visible_splats``) traces light paths: taken as passed here
+    (a job whose own pilot fails keeps its camera paths, rendered here
+    too, and still splats its light paths)."""
+    from .integrators import combined, path_tracer
+    from .lights import direct_kernels, emission
+    from .render import Renderer
+    saved = (combined.visible_splats, emission.COMPILED_EMISSION, path_tracer.rays_radiance,
+             direct_kernels.direct_kernel)
+    combined.visible_splats = lambda lt, seed: math.inf
+    emission.COMPILED_EMISSION = False
+    path_tracer.rays_radiance = lambda env, d, rows, Le: Le.fill(0.0)
+    direct_kernels.direct_kernel = _no_direct_light
+    try:
+        r = Renderer(scene, st, log=lambda _m: None, should_stop=should_stop, passes=passes)
+        lt = r.light_tracer or r.combined_lt
+        if lt is not None:
+            lt.fast_emission = False
+            lt.tracer.trace_emitted = _deposits_on_surfaces(lt.tracer)
+            if lt is r.combined_lt:
+                lt._trace = _mis_deposits_on_surfaces(lt.tracer)
+        pt = None if _light_only(r) else r.path_tracer
+        if pt is not None:
+            pt._seen = lambda kern, vis, o, d, t_end: ()
+            pt._perturb = lambda prim, bu, bv, ns: None
+            pt._hit_colors = lambda M, prim, bu, bv, mat, d, ih, ns: (M, np.asarray(mat, np.int64))
+        r.run(should_stop=should_stop)
+    finally:
+        (combined.visible_splats, emission.COMPILED_EMISSION, path_tracer.rays_radiance,
+         direct_kernels.direct_kernel) = saved
 
 
 def compile_late(jobs, should_stop: Optional[Callable[[], bool]] = None) -> None:
@@ -451,25 +568,32 @@ def compile_late(jobs, should_stop: Optional[Callable[[], bool]] = None) -> None
     update and film: those are rendered here, no photon traced.  A
     Combined job that merges photons compiles its camera and light paths
     first, then its photon pass: that is rendered here, as photon mapping.
-    The second compiling process runs this after the gather, so the job's
-    process loads these kernels from the cache when it reaches them
-    (docs/interactive.md "The second compiling process takes the late
-    stages, round 51").  Other kinds are skipped: without frequency photons
-    a photon-mapping job reaches these stages early itself.  Raises
-    RenderCancelled when ``should_stop()``."""
+    Camera or light paths without photons (:data:`PATH_KINDS`): their
+    splat, light sample weights and continuation (:func:`_render_paths`).
+    The second compiling process runs this after the gather (alone for
+    :data:`PATH_KINDS`), so the job's process loads these kernels from the
+    cache when it reaches them (docs/interactive.md "The second compiling
+    process takes the late stages, round 51", "The paths' late stages in
+    the second process, round 52").  Other kinds are skipped: without
+    frequency photons a photon-mapping job reaches these stages early
+    itself.  Raises RenderCancelled when ``should_stop()``."""
     from .errors import RenderCancelled
     from .render import Renderer, camera_region
     for job in jobs:
-        if job_kind(job) not in LATE_KINDS:
+        kind = job_kind(job)
+        if kind not in LATE_KINDS:
             continue
         scene, st, passes = late_job(job)
         x0, y0, x1, y1 = camera_region(job[0].camera)
         with _split_paths(True, pixels=(x1 - x0) * (y1 - y0)):
-            r = Renderer(scene, st, log=lambda _m: None, should_stop=should_stop,
-                         passes=passes, force_stages=("glossy chains",))
-            if not st.use_frequency:
-                r.tracer.trace = _no_photons
-            r.run(should_stop=should_stop)
+            if kind in PATH_KINDS:
+                _render_paths(scene, st, passes, should_stop)
+            else:
+                r = Renderer(scene, st, log=lambda _m: None, should_stop=should_stop,
+                             passes=passes, force_stages=("glossy chains",))
+                if not st.use_frequency:
+                    r.tracer.trace = _no_photons
+                r.run(should_stop=should_stop)
         if should_stop is not None and should_stop():
             raise RenderCancelled("cancelled")
 
@@ -911,6 +1035,13 @@ def _gather_marker(variant: Optional[tuple] = None) -> Optional[str]:
                          else "-" + "".join("1" if x else "0" for x in variant))
 
 
+def _paths_marker(kind: str) -> Optional[str]:
+    """The record that :func:`compile_late` rendered the late stages of a
+    job of ``kind`` (one of :data:`PATH_KINDS`) in this cache for this
+    source version."""
+    return _cache_marker("paths", "-" + kind)
+
+
 def _read_marker(key: str = ALL) -> Optional[dict]:
     p = _marker_path(key)
     try:
@@ -1202,20 +1333,34 @@ class Warmup:
         scene's other stages, and finds them there (docs/interactive.md
         "Two compiling processes, round 20"); then, beside a job of
         :data:`LATE_KINDS`, the stages that job reaches last
-        (:func:`compile_late`).  It runs at the job's priority only while the
-        job runs (:meth:`_close_gather` when the job's record comes; what it
-        compiled stays on disk).  Skipped when no child can run (the job's
+        (:func:`compile_late`).  Beside camera or light paths without
+        photons (:data:`PATH_KINDS`), until its marker is written, the
+        process renders their late stages alone (docs/interactive.md "The
+        paths' late stages in the second process, round 52").  It runs at
+        the job's priority only while the job runs (:meth:`_close_gather`
+        when the job's record comes; what it compiled stays on disk).  Skipped when no child can run (the job's
         child then fails too, and this process compiles)."""
         self._close_gather()
+        marker = _gather_marker()
+        if marker is None or is_compiled():
+            return
+        late = [j for j in jobs if job_kind(j) in LATE_KINDS]
         if not any(traces_photons(j) for j in jobs):
+            # Camera and light paths alone (PATH_KINDS), until their marker is written.
+            if not late or os.path.exists(_paths_marker(job_kind(late[0]))):
+                return
+            try:
+                self._gather = _Child()
+            except (OSError, RuntimeError):
+                return
+            self._gather_marks = _paths_marker(job_kind(late[0]))
+            self._gather_i = self._gather.submit({"jobs": None, "nice": False, "late": late})
             return
         # The job's passes gather in one variant; COMBINED's merging also
         # gathers without buffers (core/integrators/merge_kernels.py).
         variant = gather_variant(jobs[0])
         merge = any(j[1].integrator != "PHOTON" for j in jobs)
-        marker = _gather_marker()
-        if (marker is None or os.path.exists(marker)
-                or os.path.exists(_gather_marker(variant + (merge,))) or is_compiled()):
+        if os.path.exists(marker) or os.path.exists(_gather_marker(variant + (merge,))):
             return
         try:
             self._gather = _Child()
@@ -1224,14 +1369,13 @@ class Warmup:
         self._gather_marks = _gather_marker(variant + (merge,))
         self._gather_i = self._gather.submit({"jobs": None, "nice": False, "gather": variant,
                                               "only": True, "merge": merge})
-        late = [j for j in jobs if job_kind(j) in LATE_KINDS]
         if late:
             self._gather.submit({"jobs": None, "nice": False, "late": late})
 
     def _poll_gather(self) -> None:
         """Write the gather's marker once its process finished its variants
         (the process goes on with the late stages, if given, until the job
-        ends)."""
+        ends), or the paths' marker once their late stages are done."""
         if self._gather is None or self._gather_i is None:
             return
         try:

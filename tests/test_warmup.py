@@ -589,17 +589,29 @@ def test_a_photon_job_compiles_the_gather_in_a_second_process(tmp_path, monkeypa
     assert W.gather_variant(photon)[0] is False and W.gather_variant(
         (scene, RenderSettings(integrator="PHOTON")))[0] is True
 
-    # Light tracing alone (the demo's COMBINED on a scene without mirror or
-    # glass, LIGHT, PATH) gathers no photon: no second child.
+    # Camera or light paths without photons (the demo's COMBINED on a scene
+    # without mirror or glass, LIGHT, PATH) gather no photon: the second
+    # child renders their late stages alone, until the kind's marker says
+    # they are on disk.
     diffuse = Material("d", (Lobe(DIFFUSE, (0.5, 0.5, 0.5)),))
     matte = dataclasses.replace(scene, materials=[diffuse] * len(scene.materials))
-    for job in (W.render_job(matte, RenderSettings()),
-                W.render_job(scene, RenderSettings(integrator="LIGHT")),
-                W.render_job(scene, RenderSettings(integrator="PATH"))):
-        assert not W.traces_photons(job)
+    for job, kind in ((W.render_job(matte, RenderSettings()), "combined"),
+                      (W.render_job(scene, RenderSettings(integrator="LIGHT")), "light"),
+                      (W.render_job(scene, RenderSettings(integrator="PATH")), "path")):
+        assert not W.traces_photons(job) and W.job_kind(job) == kind
         children.clear()
         assert W.Warmup().wait_for(job, rest=False)
-        assert len(children) == 1, job[1].integrator
+        assert len(children) == 2, kind
+        assert children[1].specs == [{"jobs": None, "nice": False, "late": [job]}]
+        marker = W._paths_marker(kind)
+        os.makedirs(os.path.dirname(marker), exist_ok=True)
+        with open(marker, "w") as f:
+            f.write("{}")
+        children.clear()
+        job = W.render_job(job[0], job[1].replace(seed=7))      # a new key
+        assert W.Warmup().wait_for(job, rest=False)
+        assert len(children) == 1, kind
+        os.remove(marker)
     # COMBINED with a mirror and glass merges photons: a second child, the
     # gather (and the merge's), then its photon pass as photon mapping.
     combined = W.render_job(scene, RenderSettings())
@@ -695,6 +707,25 @@ def test_the_late_stages_of_a_combined_job_are_its_photon_pass():
     assert {"bounce_kernel", "spectrum_at_hits", "_ppm_update_range"} <= names, sorted(names)
     # the camera and light paths are not rendered
     assert not [k for k, _t in late if ".integrators." in k.rsplit(":", 1)[0]]
+
+
+@pytest.mark.parametrize("integrator,late_names,first_names", [
+    # Light tracing (and Combined without photons whose plan is light
+    # tracing alone: the Cornell box's default): the splat of its light
+    # vertices, without the fused emission or the bounce kernel.
+    ("LIGHT", {"project_kernel", "splat_fast"}, {"emit_lights", "bounce_kernel"}),
+    # Path tracing: next-event estimation's MIS weights and the
+    # continuation, without the emitters seen or the light sample.
+    ("PATH", {"nee_mis_kernel", "continue_kernel"}, {"direct_kernel", "seen_kernel"})])
+def test_the_late_stages_of_paths_leave_out_what_the_job_compiles_first(
+        integrator, late_names, first_names):
+    # Every signature the late stages call is one the job calls; they call
+    # the job's last stages and none of those its own process compiles first.
+    late, job = _late_and_job(integrator)
+    assert late <= job, sorted(late - job)
+    names = _names(late)
+    assert late_names <= names, sorted(names)
+    assert first_names <= _names(job) and not names & first_names, sorted(names)
 
 
 def test_the_late_stages_render_a_crop_on_the_renders_own_paths():
