@@ -470,6 +470,8 @@ def _deposits_on_surfaces(tracer):
 
     def trace_emitted(ph, rng):
         n = ph["o"].shape[0]
+        if cdf.size == 0 or cdf[-1] <= 0:
+            return None             # no surface a photon could leave a deposit on
         dep = tracer.deposit_buffers(n)
         dep.reserve(n)
         b = dep.buf
@@ -486,19 +488,22 @@ def _deposits_on_surfaces(tracer):
         b.r[:n] = 0.0
         b.bounce[:n] = 1
         b.bary[:n, 0], b.bary[:n, 1], b.bary[:n, 2] = tri, u, v
-        dep.n = n if cdf[-1] > 0 else 0
+        dep.n = n
         return dep.result()
     return trace_emitted
 
 
 def _mis_deposits_on_surfaces(tracer):
     """Combined's light-path trace (``CombinedLightTracer._trace``) that
-    traces nothing: :func:`_deposits_on_surfaces`'s deposits, one a photon, with MIS ratios 0 and none a first hit (a delta light's first
+    traces nothing: :func:`_deposits_on_surfaces`'s deposits, one a
+    photon, with MIS ratios 0 and none a first hit (a delta light's first
     hits are next-event estimation's and would not be splatted)."""
-    at_emission = _deposits_on_surfaces(tracer)
+    on_surfaces = _deposits_on_surfaces(tracer)
 
     def trace(ph, z0, rng):
-        dep = at_emission(ph, rng)
+        dep = on_surfaces(ph, rng)
+        if dep is None:
+            return None, None, None, None
         n = ph["o"].shape[0]
         dep["src_photon"] = np.arange(n, dtype=np.int64)
         return dep, np.zeros(n), np.zeros(n), np.zeros(n, np.bool_)

@@ -728,6 +728,37 @@ def test_the_late_stages_of_paths_leave_out_what_the_job_compiles_first(
     assert first_names <= _names(job) and not names & first_names, sorted(names)
 
 
+def test_the_late_stages_deposits_lie_on_the_surfaces_photons_reach():
+    # _deposits_on_surfaces: one deposit a photon, at the point its
+    # (triangle, u, v) names, never on a mirror or glass (no photon leaves a
+    # deposit there); none at all in a scene of delta surfaces alone.
+    import dataclasses
+
+    import numpy as np
+
+    from fppm.core import warmup as W
+    from fppm.core.render import Renderer
+    from fppm.core.settings import RenderSettings
+    scene = W.warmup_scene(res=8, glossy=False)
+    st = RenderSettings(integrator="LIGHT", photons_per_pass=1000)
+    tracer = Renderer(scene, st, log=lambda _m: None).light_tracer.tracer
+    n = 4000
+    ph = {"o": np.zeros((n, 3)), "d": np.zeros((n, 3)), "power": np.ones((n, 3))}
+    dep = W._deposits_on_surfaces(tracer)(ph, np.random.default_rng(1))
+    tri, u, v = dep["bary"][:, 0].astype(np.int64), dep["bary"][:, 1], dep["bary"][:, 2]
+    assert dep["p"].shape == (n, 3) and np.all((u >= 0) & (v >= 0) & (u + v <= 1))
+    P = tracer.tris.p[tri]
+    np.testing.assert_allclose(dep["p"], P[:, 0] + u[:, None] * (P[:, 1] - P[:, 0])
+                               + v[:, None] * (P[:, 2] - P[:, 0]), atol=1e-12)
+    mat = np.asarray(tracer.tris.mat, np.int64)
+    assert tracer.mtab.has_nondelta[mat[tri]].all()
+    assert not tracer.mtab.has_nondelta[mat].all()      # the scene has a mirror and glass
+    mirror = next(m for m in scene.materials if m.name == "mirror")
+    delta = dataclasses.replace(scene, materials=[mirror] * len(scene.materials))
+    tracer = Renderer(delta, st, log=lambda _m: None).light_tracer.tracer
+    assert W._deposits_on_surfaces(tracer)(ph, np.random.default_rng(1)) is None
+
+
 def test_the_late_stages_render_a_crop_on_the_renders_own_paths():
     # late_job: at most a LATE_CROP-pixel square inside the render's region
     # (its border), without frequency photons; _split_paths(True, pixels):
