@@ -455,6 +455,12 @@ class Renderer:
         return self.radii.floor
 
     @property
+    def light_only(self) -> bool:
+        """A pass is light tracing's alone: integrator LIGHT, or a Combined
+        plan without camera paths (``light_pass``)."""
+        return self.light_tracer is not None or self.light_pass
+
+    @property
     def photons_per_step(self) -> int:
         """Photons (light paths) one pass emits: none for camera paths alone
         (PATH, or COMBINED with neither light tracing nor merging)."""
@@ -520,7 +526,7 @@ class Renderer:
     def step(self) -> PassResult:
         """One pass; the state changes only once the pass is complete (a cancel
         keeps the last one), except the footprint depths of its visible points."""
-        if self.light_tracer is not None or self.light_pass:
+        if self.light_only:
             return self._step_light()
         if self.path_tracer is not None:
             return self._step_path()
@@ -776,7 +782,7 @@ class Renderer:
         # Dropped first (its caller assigns the new one): the film reuses the
         # last image in place when nothing else holds it (Film._image, core.kept).
         self.last_result = None
-        if self.light_tracer is not None or self.light_pass:
+        if self.light_only:
             L = self.light_splat / max(self.photons_emitted, 1)
             img = np.ones((self.height, self.width, 4), np.float32)
             img[..., :3] = L.reshape(self.height, self.width, 3)

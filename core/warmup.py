@@ -462,6 +462,7 @@ def _deposits_on_surfaces(tracer):
     buffers, so that light tracing's splat is called with the types a
     traced pass gives it (some points are in the crop's view), without the
     bounce kernel, which the job's own process compiles first."""
+    from .lights.warps import _triangle_bary
     P = tracer.tris.p
     area = np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1)
     # photons leave no deposit on a mirror or glass (delta lobes alone)
@@ -477,9 +478,7 @@ def _deposits_on_surfaces(tracer):
         b = dep.buf
         tri = np.minimum(np.searchsorted(cdf, rng.random(n) * cdf[-1], side="right"),
                          len(cdf) - 1)
-        u, v = rng.random(n), rng.random(n)
-        flip = u + v > 1.0
-        u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
+        u, v = _triangle_bary(rng.random(n), rng.random(n))
         b.p[:n] = (P[tri, 0] + u[:, None] * (P[tri, 1] - P[tri, 0])
                    + v[:, None] * (P[tri, 2] - P[tri, 0]))
         b.ng[:n] = tracer.tris.ng[tri]
@@ -508,12 +507,6 @@ def _mis_deposits_on_surfaces(tracer):
         dep["src_photon"] = np.arange(n, dtype=np.int64)
         return dep, np.zeros(n), np.zeros(n), np.zeros(n, np.bool_)
     return trace
-
-
-def _light_only(r) -> bool:
-    """Whether a Renderer's passes are light tracing's alone (integrator
-    LIGHT, or a Combined plan without camera paths: ``Renderer.light_pass``)."""
-    return r.light_tracer is not None or r.light_pass
 
 
 def _no_direct_light(start, end, L, R, S):
@@ -552,7 +545,7 @@ def _render_paths(scene, st, passes, should_stop) -> None:
             lt.tracer.trace_emitted = _deposits_on_surfaces(lt.tracer)
             if lt is r.combined_lt:
                 lt._trace = _mis_deposits_on_surfaces(lt.tracer)
-        pt = None if _light_only(r) else r.path_tracer
+        pt = None if r.light_only else r.path_tracer
         if pt is not None:
             pt._seen = lambda kern, vis, o, d, t_end: ()
             pt._perturb = lambda prim, bu, bv, ns: None
@@ -1352,13 +1345,14 @@ class Warmup:
         late = [j for j in jobs if job_kind(j) in LATE_KINDS]
         if not any(traces_photons(j) for j in jobs):
             # Camera and light paths alone (PATH_KINDS), until their marker is written.
-            if not late or os.path.exists(_paths_marker(job_kind(late[0]))):
+            paths = _paths_marker(job_kind(late[0])) if late else None
+            if paths is None or os.path.exists(paths):
                 return
             try:
                 self._gather = _Child()
             except (OSError, RuntimeError):
                 return
-            self._gather_marks = _paths_marker(job_kind(late[0]))
+            self._gather_marks = paths
             self._gather_i = self._gather.submit({"jobs": None, "nice": False, "late": late})
             return
         # The job's passes gather in one variant; COMBINED's merging also
